@@ -1,0 +1,92 @@
+"""The ``warpbw-precompute`` command: turn raw assets into the tables the renderer reads.
+
+Public: ``main(argv=None) -> int``.
+
+Subcommands:
+    npf-to-merl    write a MERL ``.binary`` file from one material of an NPF table
+    brdf-sampling  build importance-sampling tables of a tabulated BRDF (002 Sec. 3.3)
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from warpbw.errors import WarpbwError
+
+EXIT_USER_ERROR = 2
+
+
+def cmd_npf_to_merl(args) -> int:
+    from precompute.npf_to_merl import npf_to_merl
+
+    t0 = time.perf_counter()
+    out = npf_to_merl(args.table, args.material, args.output, force=args.force)
+    print(f"{out}  (MERL .binary from {args.table}:{args.material}, {time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def cmd_brdf_sampling(args) -> int:
+    from precompute.brdf_sampling import brdf_source, build_brdf_sampling, write_sampling
+
+    out = Path(args.output)
+    if out.exists() and not args.force:
+        raise WarpbwError(f"{out}: already exists (pass --force to overwrite it)")
+    t0 = time.perf_counter()
+    source = brdf_source(args.file, args.material)
+    table = build_brdf_sampling(source, progress=not args.quiet)
+    write_sampling(out, table, source, force=args.force)
+    nt, nu, nphi = table.shape
+    print(f"{out}  (sampling tables for {source.name}: {nt} view elevations x {nu} x {nphi} half-vector cells, "
+          f"{time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="warpbw-precompute",
+                                description="Offline asset tool of warpbw: MERL files from NPF fits, importance-"
+                                "sampling tables for tabulated BRDFs.  Outputs carry a format name, a version, "
+                                "the source's name and its content hash.")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    a = sub.add_parser("npf-to-merl", help="write a MERL .binary file from an NPF fit",
+                       description="Tabulate one material of an NPF table (e.g. ../shared/data/brdf/npf.bin) at "
+                       "the 90x90x180 MERL bin centres and write it as a MERL .binary file.")
+    a.add_argument("--table", required=True, help="NPF table (npf.bin)")
+    a.add_argument("--material", required=True, help="material name, e.g. gold-metallic-paint")
+    a.add_argument("-o", "--output", required=True, help="output .binary file")
+    a.add_argument("--force", action="store_true", help="overwrite an existing output")
+    a.set_defaults(func=cmd_npf_to_merl)
+
+    b = sub.add_parser("brdf-sampling", help="importance-sampling tables for a tabulated BRDF",
+                       description="Build per-view-elevation tables over half vectors and invert their CDF "
+                       "(002 Sec. 3.3).  FILE is a MERL .binary, or an NPF table with --material.  The renderer "
+                       "builds and caches these itself when a scene names none (key 'sampling').")
+    b.add_argument("file", help="MERL .binary file, or NPF table with --material")
+    b.add_argument("--material", default=None, help="NPF material name when FILE is an NPF table")
+    b.add_argument("-o", "--output", required=True, help="output table file (.npz)")
+    b.add_argument("--force", action="store_true", help="overwrite an existing output")
+    b.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    b.set_defaults(func=cmd_brdf_sampling)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except WarpbwError as exc:
+        print(f"warpbw-precompute: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("warpbw-precompute: interrupted", file=sys.stderr)
+        return 130
+    except OSError as exc:
+        print(f"warpbw-precompute: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+
+
+if __name__ == "__main__":
+    sys.exit(main())

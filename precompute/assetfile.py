@@ -1,0 +1,67 @@
+"""Versioned asset files written by ``warpbw-precompute`` and read by the renderer.
+
+Public: ``write_asset(path, fmt, version, source, source_hash, arrays, params, force)``,
+``read_asset(path, fmt, version, rebuild) -> Asset``, ``Asset``.
+
+An asset is a NumPy ``.npz`` archive (no pickles) holding named arrays and a JSON ``header`` with the
+format name, its version, the source asset's name, the source's content hash (blake2b of its bytes),
+the parameters it was built with and the warpbw version that wrote it.  The renderer refuses a file of
+another format or version with a message that says how to rebuild it.
+"""
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from warpbw.errors import WarpbwError
+
+HEADER_KEY = "__header__"
+
+
+@dataclass
+class Asset:
+    header: dict
+    arrays: dict
+
+
+def write_asset(path, fmt: str, version: int, source: str, source_hash: str, arrays: dict,
+                params: dict | None = None, force: bool = False) -> Path:
+    """Write arrays and a header; refuses to overwrite an existing file unless ``force``."""
+    from warpbw import __version__
+
+    p = Path(path)
+    if p.exists() and not force:
+        raise WarpbwError(f"{p}: already exists (pass --force to overwrite it)")
+    header = {"format": fmt, "version": int(version), "source": source, "source_hash": source_hash,
+              "params": params or {}, "writer": f"warpbw {__version__}"}
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_name(p.name + ".tmp")
+    with open(tmp, "wb") as f:
+        np.savez_compressed(f, **{HEADER_KEY: np.array(json.dumps(header))}, **arrays)
+    tmp.replace(p)
+    return p
+
+
+def read_asset(path, fmt: str, version: int, rebuild: str) -> Asset:
+    """Read an asset of format ``fmt`` and version ``version``; ``rebuild`` is the command to suggest."""
+    p = Path(path)
+    if not p.is_file():
+        raise WarpbwError(f"{p}: file not found")
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            header = json.loads(str(z[HEADER_KEY]))
+            arrays = {k: z[k] for k in z.files if k != HEADER_KEY}
+    except (zipfile.BadZipFile, ValueError, KeyError, OSError, json.JSONDecodeError):
+        raise WarpbwError(f"{p}: not a warpbw asset file (expected a {fmt} file written by "
+                          f"warpbw-precompute; rebuild it with: {rebuild})") from None
+    if header.get("format") != fmt:
+        raise WarpbwError(f"{p}: is a {header.get('format')!r} file, expected {fmt!r} "
+                          f"(rebuild it with: {rebuild})")
+    if header.get("version") != version:
+        raise WarpbwError(f"{p}: {fmt} version {header.get('version')}, this warpbw reads version {version} "
+                          f"(rebuild it with: {rebuild})")
+    return Asset(header, arrays)

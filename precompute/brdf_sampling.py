@@ -1,0 +1,129 @@
+"""Importance-sampling tables for tabulated BRDFs (002 Sec. 3.3): build, write, read, cache.
+
+Public:
+    ``brdf_source(file, material=None) -> BrdfSource``  a MERL ``.binary`` or an NPF table + material name
+    ``build_brdf_sampling(source, progress=True) -> SamplerTable``
+    ``write_sampling(path, table, source, force=False)`` / ``read_sampling(path, source=None)``
+    ``load_or_build_sampling(source, explicit=None, cache_dir=None) -> SamplerTable``
+    ``cache_dir()``
+
+The tables are those of :mod:`warpbw.sampling` (per view elevation, over sqrt-warped half vectors),
+stored in the versioned asset format of :mod:`precompute.assetfile`.  The renderer builds them itself,
+once, when the scene does not name a precomputed file, and caches them under ``cache_dir()``
+(``$WARPBW_CACHE`` or ``~/.cache/warpbw``) keyed by the source file's content hash.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from precompute.assetfile import read_asset, write_asset
+from warpbw.errors import WarpbwError
+from warpbw.sampling import N_PHI, N_THETA_O, N_U, TABLE_FORMAT, TABLE_VERSION, SamplerTable, build_sampler_table
+
+
+@dataclass
+class BrdfSource:
+    name: str                   # "file.binary" or "npf.bin:material"
+    path: Path
+    digest: str                 # content hash of the source bytes (+ material name)
+    evaluate: Callable          # numpy (wi, wo) -> (N, 3)
+
+
+def brdf_source(file, material: str | None = None) -> BrdfSource:
+    """Open a tabulated BRDF: a MERL ``.binary`` file, or an NPF table with ``material``."""
+    from warpbw.io.merl import merl_eval, read_merl
+    from warpbw.io.npf import npf_eval, read_npf
+    from warpbw.scene import file_digest
+
+    p = Path(file)
+    if not p.is_file():
+        raise WarpbwError(f"{p}: file not found")
+    if material is None:
+        brdf = read_merl(p)
+        return BrdfSource(p.name, p, file_digest(p), lambda wi, wo: merl_eval(brdf, wi, wo, interpolate=False))
+    mat = read_npf(p, material)
+    return BrdfSource(f"{p.name}:{mat.name}", p, f"{file_digest(p)}:{mat.name}",
+                      lambda wi, wo: npf_eval(mat, wi, wo, interpolate=True))
+
+
+def build_brdf_sampling(source: BrdfSource, progress: bool = True) -> SamplerTable:
+    """Tabulate and invert the source's CDF (a few seconds per material)."""
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=N_THETA_O, desc=f"sampling tables {source.name}", unit="view", leave=False)
+    last = [0]
+
+    def step(k):
+        if bar is not None:
+            bar.update(k - last[0])
+            last[0] = k
+
+    try:
+        return build_sampler_table(source.evaluate, progress=step)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _rebuild_hint(source_name: str) -> str:
+    return f"warpbw-precompute brdf-sampling {source_name} -o OUT --force"
+
+
+def write_sampling(path, table: SamplerTable, source: BrdfSource, force: bool = False) -> Path:
+    return write_asset(path, TABLE_FORMAT, TABLE_VERSION, source.name, source.digest,
+                       {"marginal": table.marginal, "conditional": table.conditional, "density": table.density},
+                       params={"n_theta_o": N_THETA_O, "n_u": N_U, "n_phi": N_PHI}, force=force)
+
+
+def read_sampling(path, source: BrdfSource | None = None) -> SamplerTable:
+    """Read a sampling-table file; with ``source``, refuse one built from different data."""
+    hint = _rebuild_hint(source.path if source is not None else "SOURCE")
+    a = read_asset(path, TABLE_FORMAT, TABLE_VERSION, hint)
+    if source is not None and a.header.get("source_hash") != source.digest:
+        raise WarpbwError(f"{path}: built from {a.header.get('source')!r} with different content than "
+                          f"{source.name!r} (rebuild it with: {hint})")
+    try:
+        t = SamplerTable(*(np.asarray(a.arrays[k], np.float32) for k in ("marginal", "conditional", "density")))
+    except KeyError as exc:
+        raise WarpbwError(f"{path}: sampling-table file lacks array {exc} (rebuild it with: {hint})") from None
+    nt, nu, nphi = t.density.shape
+    if t.marginal.shape != (nt, nu + 1) or t.conditional.shape != (nt, nu, nphi + 1):
+        raise WarpbwError(f"{path}: inconsistent table shapes (rebuild it with: {hint})")
+    if (nt, nu, nphi) != (N_THETA_O, N_U, N_PHI):
+        raise WarpbwError(f"{path}: tables of shape {(nt, nu, nphi)}, this warpbw uses "
+                          f"{(N_THETA_O, N_U, N_PHI)} (rebuild it with: {hint})")
+    return t
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("WARPBW_CACHE", Path.home() / ".cache" / "warpbw"))
+
+
+def load_or_build_sampling(source: BrdfSource, explicit=None, cache: Path | None = None,
+                           progress: bool = True) -> tuple[SamplerTable, str]:
+    """The source's sampling tables: from ``explicit`` if given, else the cache, else built and cached.
+
+    Returns the tables and where they came from ("file", "cache" or "built").
+    """
+    if explicit is not None:
+        return read_sampling(explicit, source), "file"
+    d = Path(cache) if cache is not None else cache_dir()
+    key = source.digest.replace(":", "-").replace("/", "_")
+    path = d / f"sampling-{key}-v{TABLE_VERSION}.npz"
+    if path.is_file():
+        try:
+            return read_sampling(path, source), "cache"
+        except WarpbwError:
+            pass  # a stale or damaged cache entry is rebuilt below
+    table = build_brdf_sampling(source, progress=progress)
+    try:
+        write_sampling(path, table, source, force=True)
+    except OSError:
+        pass  # a read-only cache only costs the rebuild next time
+    return table, "built"

@@ -1,0 +1,27 @@
+"""Tabulate an NPF fit (``npf.bin``) as a MERL ``.binary`` file.
+
+Public function:
+
+- ``npf_to_merl(table, material, out, force=False) -> Path``: read one material with
+  :func:`warpbw.io.npf.read_npf`, evaluate :func:`warpbw.io.npf.npf_eval` (interpolated) at every MERL
+  bin centre with :func:`warpbw.io.merl.tabulate_merl`, and write it with :func:`warpbw.io.merl.write_merl`.
+
+The CLI ``warpbw-precompute npf-to-merl --table T --material NAME -o OUT [--force]`` calls it.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from warpbw.errors import WarpbwError
+from warpbw.io.merl import tabulate_merl, write_merl
+from warpbw.io.npf import npf_eval, read_npf
+
+
+def npf_to_merl(table, material: str, out, force: bool = False) -> Path:
+    """Write NPF material ``material`` of ``table`` to the MERL file ``out``; returns ``out`` as a Path."""
+    out = Path(out)
+    if out.exists() and not force:  # checked before the tabulation, which takes seconds
+        raise WarpbwError(f"{out}: already exists (pass force=True, or --force, to overwrite)")
+    mat = read_npf(table, material)
+    data = tabulate_merl(lambda wi, wo: npf_eval(mat, wi, wo, interpolate=True), name=f"{table}:{mat.name}")
+    return write_merl(out, data, force=force)

@@ -1,0 +1,134 @@
+"""G-buffer pass: analytic spheres against the closed form, meshes against the BVH, camera conventions."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from warpbw.gbuffer import MeshSpec, SphereSpec, build_geometry, camera_rays, make_camera, render_gbuffer
+
+
+def _sphere_closed_form(cam, center, radius):
+    """Independent ray-sphere intersection in float64: (hit mask, normals, depth) per pixel."""
+    o, d = camera_rays(cam)
+    c = np.asarray(center, np.float64)
+    oc = o - c
+    b = np.einsum("ij,ij->i", oc, d)
+    cc = np.einsum("ij,ij->i", oc, oc) - radius * radius
+    disc = b * b - cc
+    hit = disc >= 0
+    t = -b - np.sqrt(np.where(hit, disc, 0.0))
+    p = o + t[:, None] * d
+    n = (p - c) / radius
+    fwd = np.array(list(cam.forward), np.float64)
+    depth = np.einsum("ij,j->i", p - o, fwd)
+    return hit, n, depth
+
+
+def test_sphere_matches_closed_form():
+    cam = make_camera((0.3, 0.4, 3.5), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 96, 64)
+    center, radius = (0.1, -0.05, 0.2), 0.8
+    geo = build_geometry([SphereSpec(center, radius, 0)], [])
+    gb = render_gbuffer(cam, geo)
+    hit, n_ref, depth_ref = _sphere_closed_form(cam, center, radius)
+    cov = gb.coverage.reshape(-1)
+    # away from the silhouette the hit test is unambiguous
+    _, _, _ = hit, n_ref, depth_ref
+    assert hit.sum() > 1000
+    interior = hit & (np.abs(np.einsum("ij,ij->i", n_ref, camera_rays(cam)[1])) > 0.05)
+    assert np.array_equal(cov[interior], hit[interior])
+    assert not cov[~hit].any()
+    n = gb.numpy("normal").reshape(-1, 3)
+    depth = gb.numpy("depth").reshape(-1)
+    assert np.abs(n[interior] - n_ref[interior]).max() < 1e-4
+    assert np.abs(depth[interior] - depth_ref[interior]).max() < 1e-4
+    assert np.allclose(gb.numpy("curvature").reshape(-1)[interior], 1.0 / radius, rtol=1e-6)
+    view = gb.numpy("view").reshape(-1, 3)[interior]
+    assert (np.einsum("ij,ij->i", view, n[interior]) > 0).all()
+    # tangent frames are orthonormal
+    t = gb.numpy("tangent").reshape(-1, 3)[interior]
+    assert np.allclose(np.linalg.norm(t, axis=1), 1.0, atol=1e-5)
+    assert np.abs(np.einsum("ij,ij->i", t, n[interior])).max() < 1e-5
+    assert (gb.numpy("material").reshape(-1)[~cov] == -1).all()
+
+
+def test_camera_orientation_row_zero_is_top_and_x_right():
+    # A camera on +Z looking at the origin: world +X appears on the right, +Y at the top.
+    cam = make_camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 50.0, 64, 48)
+    geo = build_geometry([SphereSpec((1.2, 0.0, 0.0), 0.3, 0), SphereSpec((0.0, 1.0, 0.0), 0.3, 1)], [])
+    gb = render_gbuffer(cam, geo)
+    mat = gb.numpy("material")
+    tan_x = np.tan(np.radians(25.0))
+    tan_y = tan_x * 48 / 64
+    ys, xs = np.nonzero(mat == 0)   # centre projects to x = (1 + 1.2 / (5 tan_x)) * 64 / 2 - 0.5
+    assert abs(xs.mean() - ((1 + 1.2 / (5 * tan_x)) * 32 - 0.5)) < 0.5 and abs(ys.mean() - 23.5) < 0.5
+    ys, xs = np.nonzero(mat == 1)   # and this one to y = (1 - 1 / (5 tan_y)) * 48 / 2 - 0.5, near the top
+    assert abs(ys.mean() - ((1 - 1 / (5 * tan_y)) * 24 - 0.5)) < 0.5 and abs(xs.mean() - 31.5) < 0.5
+
+
+def test_fov_is_along_width():
+    # A sphere seen under exactly the half-angle of the horizontal fov touches the image's side edges.
+    w, h, fov = 101, 41, 60.0
+    dist = 10.0
+    half = np.radians(fov / 2)
+    cam = make_camera((0.0, 0.0, dist), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), fov, w, h)
+    r = dist * np.sin(half)   # the tangent cone of this sphere has the fov's half-angle
+    gb = render_gbuffer(cam, build_geometry([SphereSpec((0, 0, 0), r, 0)], []))
+    row = gb.coverage[h // 2]
+    assert row[1] and row[-2]
+    gb2 = render_gbuffer(cam, build_geometry([SphereSpec((0, 0, 0), 0.97 * r, 0)], []))
+    assert not gb2.coverage[h // 2, 0] and not gb2.coverage[h // 2, -1]
+
+
+def _icosphere_spec(radius, material=0, subdiv=5):
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=subdiv, radius=radius)
+    v = np.asarray(m.vertices)
+    return MeshSpec(v, np.asarray(m.faces), v / np.linalg.norm(v, axis=1, keepdims=True),
+                    np.full(len(v), 1.0 / radius), None, material)
+
+
+def test_mesh_sphere_agrees_with_analytic_sphere():
+    cam = make_camera((0.0, 0.0, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, 64, 64)
+    gb_a = render_gbuffer(cam, build_geometry([SphereSpec((0, 0, 0), 1.0, 0)], []))
+    gb_m = render_gbuffer(cam, build_geometry([], [_icosphere_spec(1.0)]))
+    assert (gb_a.coverage != gb_m.coverage).sum() < 0.02 * gb_a.coverage.sum()   # silhouette only
+    # away from the silhouette (a facet's sagitta grows as 1 / cos there)
+    facing = np.einsum("hwc,hwc->hw", gb_a.numpy("normal"), gb_a.numpy("view")) > 0.3
+    both = gb_a.coverage & gb_m.coverage & facing
+    d_a, d_m = gb_a.numpy("depth")[both], gb_m.numpy("depth")[both]
+    assert np.abs(d_a - d_m).max() < 5e-3          # a 20k-face tessellation of the unit sphere
+    cosang = np.einsum("ij,ij->i", gb_a.numpy("normal")[both], gb_m.numpy("normal")[both])
+    assert cosang.min() > 0.999
+    assert np.allclose(gb_m.numpy("curvature")[both], 1.0)
+
+
+def test_nearest_object_wins_and_material_ids():
+    cam = make_camera((0.0, 0.0, 6.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 30.0, 32, 32)
+    # mesh sphere in front (z = +1) of an analytic sphere of the same radius at z = -1
+    mesh = _icosphere_spec(0.8, material=1, subdiv=3)
+    mesh.vertices = mesh.vertices + np.array([0.0, 0.0, 1.0])
+    gb = render_gbuffer(cam, build_geometry([SphereSpec((0, 0, -1.0), 0.8, 0)], [mesh]))
+    assert gb.numpy("material")[16, 16] == 1
+    mesh.vertices = mesh.vertices - np.array([0.0, 0.0, 2.5])
+    gb = render_gbuffer(cam, build_geometry([SphereSpec((0, 0, -1.0), 0.8, 0)], [mesh]))
+    assert gb.numpy("material")[16, 16] == 0
+
+
+def test_real_bunny_ray_cast(shared):
+    from warpbw.io.mesh import load_mesh
+
+    md = load_mesh(shared("meshes/bunny.obj"))
+    cam = make_camera((0.0, 0.3, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, 128, 128)
+    gb = render_gbuffer(cam, build_geometry([], [MeshSpec(md.vertices, md.faces, md.normals, md.mean_curvature,
+                                                             md.uv, 0)]))
+    cov = gb.coverage
+    assert 0.1 < cov.mean() < 0.9
+    for name in ("position", "normal", "depth", "curvature"):
+        assert np.isfinite(gb.numpy(name)[cov]).all()
+    n = gb.numpy("normal")[cov]
+    assert np.allclose(np.linalg.norm(n, axis=-1), 1.0, atol=1e-4)
+    # every hit position lies within the mesh's bounding box
+    p = gb.numpy("position")[cov]
+    lo, hi = md.vertices.min(0) - 1e-4, md.vertices.max(0) + 1e-4
+    assert ((p >= lo) & (p <= hi)).all()

@@ -1,0 +1,175 @@
+"""EXR in and out, PNG previews (warpbw.io.exr).
+
+Truth: the arrays written (bit-exact round trips), the sRGB formula of IEC 61966-2-1 written out
+here, the published ends of matplotlib's viridis map (#440154, #fde725), and the real light probes.
+"""
+from __future__ import annotations
+
+import math
+import shutil
+
+import numpy as np
+import pytest
+from conftest import shared_file
+from PIL import Image
+
+from warpbw.errors import WarpbwError
+from warpbw.io.exr import (
+    linear_to_srgb,
+    read_exr,
+    read_rgb,
+    write_exr,
+    write_false_colour_png,
+    write_png,
+)
+
+
+def srgb_reference(x: float) -> float:
+    """IEC 61966-2-1 encoding, scalar, written independently."""
+    return 12.92 * x if x <= 0.0031308 else 1.055 * x ** (1 / 2.4) - 0.055
+
+
+def awkward_floats(rng, shape):
+    v = rng.standard_normal(shape).astype(np.float32) * 10
+    flat = v.reshape(-1)
+    flat[:6] = [0.0, -0.0, 3.0e38, 1.0e-40, -1.0e-30, 65504.0 * 2]  # huge, subnormal, beyond half range
+    return v
+
+
+def test_round_trip_rgba_exact(tmp_path):
+    rng = np.random.default_rng(0)
+    px = awkward_floats(rng, (37, 53, 4))
+    path = write_exr(tmp_path / "rgba.exr", px)
+    img = read_exr(path)
+    assert img.channels == ["R", "G", "B", "A"]
+    assert img.pixels.dtype == np.float32 and img.pixels.shape == (37, 53, 4)
+    assert np.array_equal(img.pixels.view(np.uint32), px.view(np.uint32))  # bit-exact, signed zero too
+    assert img.path == str(path)
+    assert np.array_equal(read_rgb(path), px[..., :3])
+
+
+def test_round_trip_single_channel_y(tmp_path):
+    rng = np.random.default_rng(1)
+    px = awkward_floats(rng, (16, 9))
+    write_exr(tmp_path / "y.exr", px)
+    img = read_exr(tmp_path / "y.exr")
+    assert img.channels == ["Y"] and img.pixels.shape == (16, 9, 1)
+    assert np.array_equal(img.pixels[..., 0], px)
+    rgb = read_rgb(tmp_path / "y.exr")
+    assert rgb.shape == (16, 9, 3) and all(np.array_equal(rgb[..., c], px) for c in range(3))
+
+
+def test_custom_channel_names_and_order_kept(tmp_path):
+    rng = np.random.default_rng(2)
+    px = rng.random((8, 8, 3), dtype=np.float32)
+    write_exr(tmp_path / "aov.exr", px, channels=["depth", "Z", "alpha.mask"])
+    img = read_exr(tmp_path / "aov.exr")
+    assert img.channels == ["depth", "Z", "alpha.mask"]
+    assert np.array_equal(img.pixels, px)
+    with pytest.raises(WarpbwError, match="aov.exr.*no colour"):
+        read_rgb(tmp_path / "aov.exr")
+
+
+def test_rgb_order_of_foreign_file(tmp_path):
+    """A file written without warpbw's order attribute (EXR sorts channels B, G, R) still reads as R, G, B."""
+    import OpenEXR
+
+    r, g, b = (np.full((4, 4), v, np.float32) for v in (1.0, 2.0, 3.0))
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION}, {"R": r, "G": g, "B": b}).write(str(tmp_path / "f.exr"))
+    img = read_exr(tmp_path / "f.exr")
+    assert img.channels == ["R", "G", "B"]
+    assert img.pixels[0, 0].tolist() == [1.0, 2.0, 3.0]
+
+
+def test_half_channels_read_as_float32(tmp_path):
+    import OpenEXR
+
+    y = np.array([[0.5, 1.0], [2.0, 65504.0]], dtype=np.float16)
+    OpenEXR.File({}, {"Y": y}).write(str(tmp_path / "half.exr"))
+    img = read_exr(tmp_path / "half.exr")
+    assert img.pixels.dtype == np.float32 and img.pixels[..., 0].tolist() == [[0.5, 1.0], [2.0, 65504.0]]
+
+
+def test_png_renamed_exr_is_refused(tmp_path):
+    png = tmp_path / "pic.png"
+    Image.fromarray(np.zeros((4, 4, 3), np.uint8)).save(png)
+    fake = tmp_path / "pic.exr"
+    shutil.copy(png, fake)
+    with pytest.raises(WarpbwError) as ei:
+        read_exr(fake)
+    msg = str(ei.value)
+    assert str(fake) in msg and "0x762f3101" in msg and "PNG" in msg and "\n" not in msg
+
+
+def test_missing_and_truncated_files(tmp_path):
+    with pytest.raises(WarpbwError, match="nothere.exr.*not found"):
+        read_exr(tmp_path / "nothere.exr")
+    write_exr(tmp_path / "ok.exr", np.ones((64, 64, 3), np.float32))
+    (tmp_path / "cut.exr").write_bytes((tmp_path / "ok.exr").read_bytes()[:300])
+    with pytest.raises(WarpbwError, match="cut.exr"):
+        read_exr(tmp_path / "cut.exr")
+    (tmp_path / "tiny.exr").write_bytes(b"\x76\x2f")
+    with pytest.raises(WarpbwError, match="tiny.exr"):
+        read_exr(tmp_path / "tiny.exr")
+
+
+def test_write_exr_bad_channel_count(tmp_path):
+    with pytest.raises(WarpbwError, match="x.exr"):
+        write_exr(tmp_path / "x.exr", np.zeros((4, 4, 2), np.float32))  # no default names for 2 channels
+    with pytest.raises(WarpbwError, match="x.exr"):
+        write_exr(tmp_path / "x.exr", np.zeros((4, 4, 3), np.float32), channels=["R", "R", "B"])
+
+
+def test_linear_to_srgb_formula():
+    xs = [0.0, 0.001, 0.0031308, 0.004, 0.05, 0.18, 0.2140411, 0.5, 1.0, 4.0]
+    np.testing.assert_allclose(linear_to_srgb(np.array(xs)), [srgb_reference(x) for x in xs], rtol=1e-12, atol=1e-15)
+    assert linear_to_srgb(0.2140411) == pytest.approx(0.5, abs=1e-6)  # inverse of 0.5 under sRGB
+    assert linear_to_srgb(1.0) == pytest.approx(1.0, abs=1e-12)
+
+
+def test_write_png_exposure_and_srgb(tmp_path):
+    lin = np.array([0.0, 0.0005, 0.002, 0.01, 0.1, 0.25, 0.45, 0.6, np.nan, -1.0, np.inf], dtype=np.float32)
+    rgb = np.stack([lin, lin * 0.5, lin * 0.25], -1)[None]  # (1, N, 3)
+    for exposure in (0.0, 1.0, -2.0):
+        path = write_png(tmp_path / f"e{exposure}.png", rgb, exposure=exposure)
+        got = np.asarray(Image.open(path))
+        assert got.shape == (1, len(lin), 3) and got.dtype == np.uint8
+        scale = 2.0**exposure
+        for c, f in enumerate((1.0, 0.5, 0.25)):
+            for n, x in enumerate(lin):
+                v = float(x) * f * scale
+                v = 0.0 if math.isnan(v) else min(max(v, 0.0), 1.0)
+                assert got[0, n, c] == round(255 * srgb_reference(v)), (exposure, c, n)
+    # one stop brighter = twice the radiance
+    a = np.asarray(Image.open(write_png(tmp_path / "a.png", np.full((2, 2, 3), 0.2), exposure=1.0)))
+    b = np.asarray(Image.open(write_png(tmp_path / "b.png", np.full((2, 2, 3), 0.4))))
+    assert np.array_equal(a, b)
+
+
+def test_false_colour_png(tmp_path):
+    vals = np.tile(np.linspace(0.0, 10.0, 11), (3, 1))
+    mask = np.ones_like(vals, bool)
+    mask[1, 5] = False
+    vals[2, 7] = np.nan
+    lo, hi = write_false_colour_png(tmp_path / "fc.png", vals, mask=mask, vmin=2.0, vmax=8.0)
+    assert (lo, hi) == (2.0, 8.0)
+    img = np.asarray(Image.open(tmp_path / "fc.png"))
+    assert img.shape == (3, 11, 3)
+    viridis_lo, viridis_hi = (0x44, 0x01, 0x54), (0xFD, 0xE7, 0x25)
+    assert np.all(np.abs(img[0, 0].astype(int) - viridis_lo) <= 1)  # below vmin -> first colour
+    assert np.all(np.abs(img[0, 10].astype(int) - viridis_hi) <= 1)  # above vmax -> last colour
+    assert img[1, 5].tolist() == [0, 0, 0] and img[2, 7].tolist() == [0, 0, 0]
+    # log scale: the default range comes from the positive values
+    lo, hi = write_false_colour_png(tmp_path / "log.png", np.array([[0.01, 0.1, 1.0, 0.0]]), log=True)
+    assert (lo, hi) == (0.01, 1.0)
+    img = np.asarray(Image.open(tmp_path / "log.png")).astype(int)
+    assert np.all(np.abs(img[0, 0] - viridis_lo) <= 1) and np.all(np.abs(img[0, 2] - viridis_hi) <= 1)
+
+
+def test_real_probe_reads():
+    path = shared_file("envmaps/studio.exr")
+    img = read_exr(path)
+    assert img.channels == ["R", "G", "B"] and img.pixels.shape == (512, 1024, 3)
+    rgb = read_rgb(path)
+    assert rgb.dtype == np.float32 and np.all(np.isfinite(rgb))
+    assert rgb.max() > 10.0 * np.median(rgb)  # high dynamic range survives (not clipped to 1)

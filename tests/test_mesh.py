@@ -1,0 +1,202 @@
+"""Mesh loading, normals and mean curvature (warpbw.io.mesh).
+
+Truth: closed forms (sphere: radial normals, H = 1/r; open cylinder: H = 1/(2r); plane: H = 0),
+the transform written out here as matrices, and the bunny's published vertex/face counts.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+from conftest import shared_file
+
+from warpbw.errors import WarpbwError
+from warpbw.io.mesh import load_mesh, mesh_mean_curvature, vertex_normals
+
+RADIUS = 2.0
+
+
+@pytest.fixture(scope="module")
+def sphere_files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("spheres")
+    out = {}
+    for sub in (4, 5):
+        mesh = trimesh.creation.icosphere(subdivisions=sub, radius=RADIUS)
+        for ext in ("obj", "ply", "stl"):
+            p = d / f"ico{sub}.{ext}"
+            mesh.export(p)
+            out[(sub, ext)] = p
+    return out
+
+
+@pytest.mark.parametrize("sub,ext", [(4, "obj"), (4, "ply"), (4, "stl"), (5, "obj")])
+def test_icosphere_normals_and_curvature(sphere_files, sub, ext):
+    m = load_mesh(sphere_files[(sub, ext)])
+    n_vert = 10 * 4**sub + 2  # icosphere vertex count (STL's unshared corners must be merged)
+    assert m.vertices.shape == (n_vert, 3) and m.vertices.dtype == np.float32
+    assert m.faces.shape == (20 * 4**sub, 3) and m.faces.dtype == np.int32
+    assert m.normals.dtype == np.float32 and m.mean_curvature.shape == (n_vert,)
+    np.testing.assert_allclose(np.linalg.norm(m.vertices, axis=1), RADIUS, rtol=1e-5)
+    radial = m.vertices / np.linalg.norm(m.vertices, axis=1, keepdims=True)
+    np.testing.assert_allclose(np.linalg.norm(m.normals, axis=1), 1.0, atol=1e-6)
+    assert np.min(np.sum(radial * m.normals, axis=1)) > 0.999
+    h = m.mean_curvature
+    assert abs(np.median(h) * RADIUS - 1.0) < 0.01
+    assert np.all(np.abs(h * RADIUS - 1.0) < 0.05)
+    assert m.uv is None
+
+
+def test_glb_scene_is_concatenated(tmp_path):
+    """Two spheres (radius 1 and 0.5) placed by scene-graph transforms in one GLB."""
+    scene = trimesh.Scene()
+    a = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
+    b = trimesh.creation.icosphere(subdivisions=4, radius=0.5)
+    scene.add_geometry(a, node_name="a", transform=trimesh.transformations.translation_matrix([3, 0, 0]))
+    scene.add_geometry(b, node_name="b", transform=trimesh.transformations.translation_matrix([-3, 0, 0]))
+    scene.export(tmp_path / "two.glb")
+    m = load_mesh(tmp_path / "two.glb")
+    assert len(m.vertices) == len(a.vertices) + len(b.vertices)
+    right = m.vertices[:, 0] > 0
+    np.testing.assert_allclose(np.linalg.norm(m.vertices[right] - [3, 0, 0], axis=1), 1.0, rtol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(m.vertices[~right] - [-3, 0, 0], axis=1), 0.5, rtol=1e-5)
+    np.testing.assert_allclose(np.median(m.mean_curvature[right]), 1.0, rtol=0.01)
+    np.testing.assert_allclose(np.median(m.mean_curvature[~right]), 2.0, rtol=0.01)
+
+
+def test_obj_texture_coordinates(tmp_path):
+    p = tmp_path / "quad.obj"
+    p.write_text(
+        "v 0 0 0\nv 1 0 0\nv 1 0 1\nv 0 0 1\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+        "f 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
+    )
+    m = load_mesh(p, translate=(0, 5, 0))
+    assert m.uv is not None and m.uv.dtype == np.float32 and m.uv.shape == (4, 2)
+    # each vertex keeps its own (u, v): here u = x and v = z
+    np.testing.assert_allclose(m.uv, m.vertices[:, [0, 2]], atol=1e-7)
+    np.testing.assert_allclose(np.abs(m.normals[:, 1]), 1.0)
+
+
+def test_transform_order(sphere_files):
+    p = sphere_files[(4, "ply")]
+    base = load_mesh(p)
+    s, a_deg, t = 0.5, 30.0, np.array([1.0, -2.0, 3.0])
+    m = load_mesh(p, translate=t, scale=s, rotate_y_deg=a_deg)
+    a = math.radians(a_deg)
+    ry = np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
+    expected = (s * base.vertices.astype(np.float64)) @ ry.T + t  # scale, then rotate, then translate
+    np.testing.assert_allclose(m.vertices, expected, atol=1e-5)
+    # the other orders give something else (so the check above can fail)
+    assert np.abs(((base.vertices + t) * s) @ ry.T - m.vertices).max() > 0.1
+    assert np.abs(s * (base.vertices @ ry.T + t) - m.vertices).max() > 0.1
+    np.testing.assert_allclose(m.normals, base.normals @ ry.T, atol=1e-5)
+    assert abs(np.median(m.mean_curvature) * RADIUS * s - 1.0) < 0.01  # H scales as 1/scale
+
+
+def test_rotate_y_is_right_handed(tmp_path):
+    tri = trimesh.Trimesh(vertices=[[1, 0, 0], [0, 1, 0], [0, 0, 0]], faces=[[0, 1, 2]], process=False)
+    tri.export(tmp_path / "tri.obj")
+    m = load_mesh(tmp_path / "tri.obj", rotate_y_deg=90.0)
+    on_floor = (np.abs(m.vertices[:, 1]) < 0.5) & (np.linalg.norm(m.vertices, axis=1) > 0.5)
+    (x_image,) = m.vertices[on_floor]  # the image of (1, 0, 0)
+    np.testing.assert_allclose(x_image, [0, 0, -1], atol=1e-6)  # +X about +Y by 90 degrees -> -Z
+
+
+def _grid(n_u, n_v, fn):
+    """Triangulated (n_u x n_v) vertex grid; fn(u, v) -> (N, 3) points; faces wound (dv x du)."""
+    uu, vv = np.meshgrid(np.arange(n_u), np.arange(n_v), indexing="ij")
+    verts = fn(uu.ravel(), vv.ravel())
+    idx = np.arange(n_u * n_v).reshape(n_u, n_v)
+    a, b = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()
+    c, d = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)])
+    return verts, faces
+
+
+def test_open_cylinder_curvature_and_boundary():
+    """Cylinder radius r: H = 1/(2r) everywhere, including the open rims (copied from inside)."""
+    r, n_theta, n_y = 1.5, 200, 60
+    theta = lambda u: 2 * math.pi * u / n_theta  # noqa: E731
+
+    def pts(u, v):
+        return np.stack([r * np.cos(theta(u)), v * 0.05, r * np.sin(theta(u))], -1)
+
+    verts, faces = _grid(n_theta + 1, n_y, pts)
+    verts = verts[: n_theta * n_y]  # the last column duplicates the first: close the seam
+    faces = faces % (n_theta * n_y)
+    normals = vertex_normals(verts, faces)
+    radial = verts * np.array([1, 0, 1]) / r
+    assert np.min(np.sum(normals * radial, 1)) > 0.999  # outward (closed-form winding above)
+    h = mesh_mean_curvature(verts, faces, normals)
+    np.testing.assert_allclose(h, 1 / (2 * r), rtol=0.01)
+
+
+def test_open_spherical_band_rims():
+    """Band of a sphere (polar angle 20..70 degrees): H = 1/r on the open rims too."""
+    r, n_phi, n_th = 1.5, 200, 40
+
+    def pts(u, v):
+        ph = 2 * math.pi * u / n_phi
+        th = math.radians(20) + v * math.radians(50) / (n_th - 1)
+        return np.stack([r * np.sin(th) * np.cos(ph), r * np.cos(th), r * np.sin(th) * np.sin(ph)], -1)
+
+    verts, faces = _grid(n_phi + 1, n_th, pts)
+    verts = verts[: n_phi * n_th]
+    faces = faces[:, ::-1] % (n_phi * n_th)  # u runs against v here: reverse to wind outward
+    normals = vertex_normals(verts, faces)
+    assert np.min(np.sum(normals * verts / r, 1)) > 0.999
+    h = mesh_mean_curvature(verts, faces, normals)
+    np.testing.assert_allclose(h, 1 / r, rtol=0.01)
+
+
+def test_plane_has_zero_curvature():
+    verts, faces = _grid(20, 30, lambda u, v: np.stack([u * 0.1, np.zeros(len(u)), v * 0.07], -1))
+    normals = vertex_normals(verts, faces)
+    assert np.allclose(np.abs(normals[:, 1]), 1.0)
+    assert np.all(np.abs(mesh_mean_curvature(verts, faces, normals)) < 1e-9)
+
+
+def test_real_bunny():
+    m = load_mesh(shared_file("meshes/bunny.obj"))
+    assert m.vertices.shape == (34_835, 3) and m.faces.shape == (69_666, 3)
+    assert np.all(np.isfinite(m.mean_curvature)) and np.all(np.isfinite(m.normals))
+    np.testing.assert_allclose(np.linalg.norm(m.normals, axis=1), 1.0, atol=1e-5)
+    assert np.abs(m.vertices).max() <= 1.0 + 1e-6  # README: fits in [-1, 1]
+    outward = np.sum(m.normals * (m.vertices - m.vertices.mean(0)), axis=1) > 0
+    assert outward.mean() > 0.8
+    assert np.median(m.mean_curvature) > 0  # mostly convex with outward normals
+
+
+# ----------------------------------------------------------------- bad input
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(WarpbwError, match="ghost.obj.*not found"):
+        load_mesh(tmp_path / "ghost.obj")
+
+
+@pytest.mark.parametrize(
+    "name,text,match",
+    [
+        ("garbage.obj", "hello world\nthis is not a mesh\n", "no triangles"),
+        ("novertex.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", "does not exist"),
+        ("nan.obj", "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n", "non-finite"),
+        ("points.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n", "no triangles"),
+        ("empty.obj", "", "no triangles"),
+        ("weird.xyzq", "v 0 0 0\n", "weird.xyzq"),
+    ],
+)
+def test_malformed_files(tmp_path, name, text, match):
+    p = tmp_path / name
+    p.write_text(text)
+    with pytest.raises(WarpbwError, match=match) as ei:
+        load_mesh(p)
+    assert str(p) in str(ei.value) and "\n" not in str(ei.value)
+
+
+def test_bad_transform(sphere_files):
+    with pytest.raises(WarpbwError, match="scale"):
+        load_mesh(sphere_files[(4, "obj")], scale=-1.0)
+    with pytest.raises(WarpbwError, match="translate"):
+        load_mesh(sphere_files[(4, "obj")], translate=(0, 1))

@@ -1,0 +1,275 @@
+"""NPF table reader, model evaluation and the npf-to-merl conversion (warpbw.io.npf,
+precompute.npf_to_merl), on the real table ../shared/data/brdf/npf.bin.
+
+Truth: the raw float32 table sliced by the README's column layout in this file, the README's model
+formula written out here (nearest bins, or np.interp between bin centres), and MERL bin centres
+recomputed here from the README's binning rules.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from conftest import shared_file
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from precompute.npf_to_merl import npf_to_merl
+from warpbw.errors import WarpbwError
+from warpbw.io.merl import merl_eval, read_merl
+from warpbw.io.npf import NPF_COLS, NPF_MATERIAL_NAMES, NPF_ROWS, npf_eval, read_npf
+
+HALF_PI = math.pi / 2
+README_FIRST = ("alum-bronze", "alumina-oxide", "aluminium", "aventurnine", "beige-fabric")
+README_LAST = ("white-paint", "yellow-matte-plastic", "yellow-paint", "yellow-phenolic", "yellow-plastic")
+
+
+@pytest.fixture(scope="module")
+def table_path():
+    return shared_file("brdf/npf.bin")
+
+
+@pytest.fixture(scope="module")
+def raw(table_path):
+    return np.fromfile(table_path, dtype="<f4").reshape(256, 512, 3).astype(np.float64)
+
+
+@pytest.fixture(scope="module")
+def materials(table_path):
+    return [read_npf(table_path, n) for n in NPF_MATERIAL_NAMES]
+
+
+def hemisphere(rng, n, max_theta=HALF_PI):
+    cos_t = rng.uniform(math.cos(max_theta), 1.0, n)
+    phi = rng.uniform(-math.pi, math.pi, n)
+    s = np.sqrt(1 - cos_t**2)
+    return np.stack([s * np.cos(phi), s * np.sin(phi), cos_t], -1)
+
+
+def angles(wi, wo):
+    h = wi + wo
+    h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    return (
+        np.arccos(np.clip(h[:, 2], -1, 1)),
+        np.arccos(np.clip(np.sum(wi * h, -1), -1, 1)),
+        np.arccos(np.clip(wi[:, 2], -1, 1)),
+        np.arccos(np.clip(wo[:, 2], -1, 1)),
+    )
+
+
+# ----------------------------------------------------------------- table
+
+
+def test_names_and_layout(raw):
+    assert len(NPF_MATERIAL_NAMES) == 100 and len(set(NPF_MATERIAL_NAMES)) == 100
+    assert NPF_MATERIAL_NAMES[:5] == README_FIRST and NPF_MATERIAL_NAMES[-5:] == README_LAST
+    assert NPF_MATERIAL_NAMES[17] == "chrome" and NPF_MATERIAL_NAMES[83] == "steel"
+    assert (NPF_ROWS, NPF_COLS) == (256, 512)
+    assert np.all(raw[100:] == 0.0)  # README: rows 100..255 are zero
+    assert np.all(raw[:100, 92] == 0.0)  # README: G1 bin 0 unused, stored as 0
+
+
+def test_read_matches_raw_rows(materials, raw):
+    for k, m in enumerate(materials):
+        row = raw[k]
+        assert m.name == NPF_MATERIAL_NAMES[k]
+        np.testing.assert_array_equal(m.rho_d, row[0])
+        np.testing.assert_array_equal(m.rho_s, row[1])
+        np.testing.assert_array_equal(m.D, row[2:92])
+        np.testing.assert_array_equal(m.G1, row[92:182])
+        np.testing.assert_array_equal(m.F, row[182:272])
+        assert m.D.shape == m.G1.shape == m.F.shape == (90, 3) and m.rho_d.dtype == np.float64
+
+
+def test_nonnegative_and_finite_all_materials(materials):
+    rng = np.random.default_rng(0)
+    wi, wo = hemisphere(rng, 3000), hemisphere(rng, 3000)
+    wi[:50, 2] = 1e-9  # grazing
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    for m in materials:
+        for interp in (True, False):
+            f = npf_eval(m, wi, wo, interpolate=interp)
+            assert f.shape == (3000, 3)
+            assert np.all(np.isfinite(f)) and np.all(f >= 0.0), m.name
+
+
+def test_below_horizon_is_zero(materials):
+    wi = np.array([[0.0, 0.6, -0.8], [0.6, 0.0, 0.8], [1.0, 0.0, 0.0]])
+    wo = np.array([[0.0, 0.0, 1.0], [0.0, 0.6, -0.8], [0.0, 0.0, 1.0]])
+    for m in materials[:10]:
+        assert np.all(npf_eval(m, wi, wo) == 0.0)
+
+
+def _sph(t, p):
+    return np.array([[math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)]])
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    k=st.integers(0, 99),
+    ti=st.floats(0.0, HALF_PI - 1e-6),
+    pi_=st.floats(-math.pi, math.pi),
+    to=st.floats(0.0, HALF_PI - 1e-6),
+    po=st.floats(-math.pi, math.pi),
+)
+def test_reciprocity(materials, k, ti, pi_, to, po):
+    wi, wo = _sph(ti, pi_), _sph(to, po)
+    for interp in (True, False):
+        a = npf_eval(materials[k], wi, wo, interpolate=interp)
+        b = npf_eval(materials[k], wo, wi, interpolate=interp)
+        assert np.array_equal(a, b)
+        assert np.all(a >= 0.0)
+
+
+def test_nearest_matches_readme_formula(materials, raw):
+    """README formula with nearest bins, away from bin 0 of G1 / F and from bin boundaries."""
+    rng = np.random.default_rng(1)
+    wi, wo = hemisphere(rng, 20000, math.radians(85)), hemisphere(rng, 20000, math.radians(85))
+    th, td, ti, to = angles(wi, wo)
+    u = [np.sqrt(th / HALF_PI) * 90, td / HALF_PI * 90, ti / HALF_PI * 90, to / HALF_PI * 90]
+    keep = np.all([(x - np.floor(x) > 1e-6) & (x - np.floor(x) < 1 - 1e-6) for x in u], axis=0)
+    keep &= np.all([x >= 1.0 for x in u[1:]], axis=0)
+    wi, wo = wi[keep], wo[keep]
+    iD, iF, iGi, iGo = (np.floor(x[keep]).astype(int) for x in u)
+    ci, co = wi[:, 2:3], wo[:, 2:3]
+    for k in (0, 17, 40, 71, 93):
+        row = raw[k]
+        D, G1, F = row[2:92], row[92:182], row[182:272]
+        truth = row[0] + row[1] * D[iD] * F[iF] * G1[iGi] * G1[iGo] / (ci * co) / 16
+        np.testing.assert_allclose(npf_eval(materials[k], wi, wo, interpolate=False), truth, rtol=1e-12)
+
+
+def test_interpolated_matches_np_interp_on_retro_line(materials, raw):
+    """wi == wo at angle t: theta_h = theta_i = theta_o = t, theta_d = 0 (F read from bin 1, its first fitted bin)."""
+    t = np.linspace(0.0, math.radians(85), 400)
+    w = np.stack([np.sin(t), np.zeros_like(t), np.cos(t)], -1)
+    for k in (3, 17, 55, 91):
+        row = raw[k]
+        D = np.stack([np.interp(np.sqrt(t / HALF_PI) * 90 - 0.5, np.arange(90), row[2:92, c]) for c in range(3)], -1)
+        G = np.stack([np.interp(t / HALF_PI * 90 - 0.5, np.arange(1, 90), row[93:182, c]) for c in range(3)], -1)
+        truth = row[0] + row[1] * D * row[183] * G * G / np.cos(t)[:, None] ** 2 / 16
+        np.testing.assert_allclose(npf_eval(materials[k], w, w, interpolate=True), truth, rtol=1e-10)
+
+
+def test_normal_incidence_keeps_specular(materials, raw):
+    """G1 bin 0 is stored as 0: at normal incidence the model uses bin 1 instead of losing the highlight."""
+    z = np.array([[0.0, 0.0, 1.0]])
+    k = NPF_MATERIAL_NAMES.index("chrome")
+    row = raw[k]
+    truth = row[0] + row[1] * row[2] * row[183] * row[93] ** 2 / 16
+    for interp in (True, False):
+        np.testing.assert_allclose(npf_eval(materials[k], z, z, interpolate=interp)[0], truth, rtol=1e-12)
+    assert np.all(truth > 10.0)  # far above rho_d (0 for chrome): the highlight survives
+
+
+# ----------------------------------------------------------------- npf -> merl
+
+
+def ref_bins_and_centres(wi, wo):
+    """README MERL bins of each pair (via the frame at h) and (wi, wo) at that bin's centre, phi_h = 0."""
+    h = wi + wo
+    h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    th = np.arccos(np.clip(h[:, 2], -1, 1))
+    ph = np.arctan2(h[:, 1], h[:, 0])
+    u = np.stack([np.cos(th) * np.cos(ph), np.cos(th) * np.sin(ph), -np.sin(th)], -1)
+    v = np.stack([-np.sin(ph), np.cos(ph), np.zeros_like(ph)], -1)
+    td = np.arccos(np.clip(np.sum(wi * h, -1), -1, 1))
+    pd = np.arctan2(np.sum(wi * v, -1), np.sum(wi * u, -1))
+    pd = np.where(pd < 0, pd + math.pi, pd)
+    cs = [np.sqrt(th / HALF_PI) * 90, td / HALF_PI * 90, pd / math.pi * 180]
+    safe = np.all([(c - np.floor(c) > 1e-6) & (c - np.floor(c) < 1 - 1e-6) for c in cs], axis=0)
+    i, j, k = (np.clip(np.floor(c), 0, n - 1).astype(int) for c, n in zip(cs, (90, 90, 180)))
+    cth = ((i + 0.5) / 90) ** 2 * HALF_PI
+    ctd = (j + 0.5) / 90 * HALF_PI
+    cpd = (k + 0.5) / 180 * math.pi
+    ch = np.stack([np.sin(cth), np.zeros_like(cth), np.cos(cth)], -1)
+    cu = np.stack([np.cos(cth), np.zeros_like(cth), -np.sin(cth)], -1)
+    cwi = np.cos(ctd)[:, None] * ch + np.sin(ctd)[:, None] * (
+        np.cos(cpd)[:, None] * cu + np.sin(cpd)[:, None] * np.array([0.0, 1.0, 0.0])
+    )
+    cwo = 2 * np.sum(cwi * ch, -1, keepdims=True) * ch - cwi
+    return cwi, cwo, safe
+
+
+@pytest.fixture(scope="module")
+def converted(table_path, tmp_path_factory):
+    d = tmp_path_factory.mktemp("npf2merl")
+    out = {}
+    for name in ("chrome", "yellow-paint"):
+        path = npf_to_merl(table_path, name, d / f"{name}.binary")
+        assert path.stat().st_size == 34_992_012
+        out[name] = read_merl(path)
+    return out
+
+
+def test_npf_to_merl_matches_formula_at_bin_centres(converted, materials):
+    """Tight: the MERL file holds npf_eval (interpolated) at each bin centre; float32 storage only."""
+    brdf = converted["chrome"]
+    assert brdf.n_unmeasured == 0
+    mat = materials[NPF_MATERIAL_NAMES.index("chrome")]
+    rng = np.random.default_rng(2)
+    wi, wo = hemisphere(rng, 20000), hemisphere(rng, 20000)
+    # include the narrow mirror peak: wo close to the mirror direction of wi
+    mirror = wi * np.array([-1.0, -1.0, 1.0]) + rng.normal(0, 0.01, wi.shape)
+    mirror[:, 2] = np.abs(mirror[:, 2])
+    wi = np.concatenate([wi, wi])
+    wo = np.concatenate([wo, mirror / np.linalg.norm(mirror, axis=1, keepdims=True)])
+    cwi, cwo, safe = ref_bins_and_centres(wi, wo)
+    assert safe.mean() > 0.99
+    truth = npf_eval(mat, cwi[safe], cwo[safe], interpolate=True)
+    got = merl_eval(brdf, wi[safe], wo[safe])
+    np.testing.assert_allclose(got, truth, rtol=2e-6, atol=1e-30)
+    assert truth.max() > 1000.0  # the peak was sampled
+
+
+def test_npf_to_merl_close_to_npf_at_actual_directions(converted, materials):
+    """Loose: a material smooth within 60 degrees (yellow-paint, 12x range there) loses little to binning."""
+    brdf = converted["yellow-paint"]
+    mat = materials[NPF_MATERIAL_NAMES.index("yellow-paint")]
+    rng = np.random.default_rng(3)
+    wi, wo = hemisphere(rng, 20000, math.radians(60)), hemisphere(rng, 20000, math.radians(60))
+    truth = npf_eval(mat, wi, wo)
+    assert truth.max() / truth.min() > 5.0
+    near = np.abs(merl_eval(brdf, wi, wo) / truth - 1)
+    assert np.median(near) < 1e-3 and near.max() < 0.03
+    interp = np.abs(merl_eval(brdf, wi, wo, interpolate=True) / truth - 1)
+    assert np.median(interp) < 1e-4 and interp.max() < 2e-3
+
+
+def test_npf_to_merl_refuses_existing_output(table_path, tmp_path):
+    out = tmp_path / "exists.binary"
+    out.write_bytes(b"keep me")
+    with pytest.raises(WarpbwError, match="exists.binary.*already exists"):
+        npf_to_merl(table_path, "chrome", out)
+    assert out.read_bytes() == b"keep me"
+
+
+# ----------------------------------------------------------------- bad input
+
+
+def test_unknown_material_lists_close_matches(table_path):
+    with pytest.raises(WarpbwError) as ei:
+        read_npf(table_path, "gold-metalic-paint")
+    msg = str(ei.value)
+    assert "gold-metallic-paint" in msg and str(table_path) in msg and "\n" not in msg
+    with pytest.raises(WarpbwError, match="chrome"):
+        read_npf(table_path, "chrom")
+
+
+def test_name_case_and_suffix_tolerated(table_path, materials):
+    m = read_npf(table_path, "Chrome.binary")
+    np.testing.assert_array_equal(m.rho_s, materials[17].rho_s)
+
+
+def test_wrong_size_table(table_path, tmp_path):
+    bad = tmp_path / "npf_short.bin"
+    bad.write_bytes(table_path.read_bytes()[:100_000])
+    with pytest.raises(WarpbwError) as ei:
+        read_npf(bad, "chrome")
+    assert str(bad) in str(ei.value) and "1572864" in str(ei.value) and "100000" in str(ei.value)
+
+
+def test_missing_table(tmp_path):
+    with pytest.raises(WarpbwError, match="absent.bin"):
+        read_npf(tmp_path / "absent.bin", "chrome")

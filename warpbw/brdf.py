@@ -1,0 +1,553 @@
+"""BRDF evaluation and importance sampling as Warp functions, for the material kinds a scene uses.
+
+Public:
+    ``MaterialTable``               Warp struct: every material's parameters and tabulated data
+    ``BrdfFuncs`` / ``make_brdf_funcs(kinds)``  the eval / sample / pdf ``wp.func`` s for a set of kinds
+    ``build_material_table(specs, device)``     host: pack material specs into a ``MaterialTable``
+    ``eval_brdf(...)``, ``sample_brdf(...)``, ``pdf_brdf(...)``  host wrappers (numpy in, numpy out) for tests
+    ``LAMBERT``, ``GGX``, ``MERL``, ``NPF``     material kind ids
+
+All directions are in the local shading frame (+Z is the normal) and point away from the surface:
+``wi`` towards the light, ``wo`` towards the viewer.  BRDF values are in 1/sr.
+
+Models
+------
+* ``lambert``: f = albedo / pi, cosine-weighted sampling.
+* ``ggx``: f = F D(h) G1(wi) G1(wo) / (4 cos_i cos_o), GGX (Trowbridge-Reitz) D with the given alpha,
+  separable Smith G1, Fresnel constant (= specular) or conductor (eta, k) times specular.
+  Sampled by visible normals (Heitz 2018), so f cos_i / pdf = F G1(wi) <= 1 for specular <= 1.
+* ``merl``: the 90x90x180 tabulated isotropic BRDF in Rusinkiewicz half/difference angles, nearest-bin
+  (MERL's own lookup) or trilinear between bin centres.
+* ``npf``: rho_d + rho_s D(theta_h) F(theta_d) G1(theta_i) G1(theta_o) / (16 cos_i cos_o), 1D curves.
+* ``merl`` and ``npf`` are sampled with tabulated half-vector distributions built by numerical inversion
+  of the CDF (002 Sec. 3.3, see :mod:`warpbw.sampling`), mixed with a small share of cosine sampling so
+  that every direction the BRDF reaches keeps a positive pdf.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+import warp as wp
+
+from warpbw import sampling as tabsamp
+
+# Material kind ids (stable: stored in MaterialTable.kind).
+LAMBERT = 0
+GGX = 1
+MERL = 2
+NPF = 3
+KIND_NAMES = {"lambert": LAMBERT, "ggx": GGX, "merl": MERL, "npf": NPF}
+
+# MERL table shape and binning (data README, "MERL .binary format").
+MERL_N_TH = 90
+MERL_N_TD = 90
+MERL_N_PD = 180
+MERL_CELLS = MERL_N_TH * MERL_N_TD * MERL_N_PD  # 1,458,000 RGB cells per material
+
+# NPF row layout (data README, "npf.bin layout"): rho_d, rho_s, then D, G1, F curves of 90 bins each.
+NPF_BINS = 90
+NPF_STRIDE = 2 + 3 * NPF_BINS  # vec3 entries per NPF material in MaterialTable.npf
+NPF_D_OFF = 2
+NPF_G1_OFF = 2 + NPF_BINS
+NPF_F_OFF = 2 + 2 * NPF_BINS
+# G1 and F bin 0 hold no fitted value (G1's is stored as 0, F's is a placeholder): both curves start at
+# bin 1, as warpbw.io.npf.NPF_FIRST_VALID_BIN does on the host.
+NPF_FIRST_VALID_BIN = 1
+NPF_COS_MIN = 1.0e-5   # clamp of cos_i, cos_o in the model's 1 / (cos_i cos_o), as warpbw.io.npf
+
+# Share of cosine-weighted samples mixed into tabulated sampling (defensive mixture; keeps pdf > 0
+# wherever cos_i > 0, so the estimator of 002 Eq. 2 stays unbiased even where a table cell is empty).
+TAB_COSINE_MIX = 0.1
+
+# Below this cosine a direction counts as grazing: the BRDF is evaluated there, but divisions by the
+# cosine are guarded so that silhouettes stay finite.
+COS_EPS = 1.0e-6
+
+HALF_PI = 0.5 * math.pi
+
+
+@wp.struct
+class MaterialTable:
+    kind: wp.array(dtype=wp.int32)
+    albedo: wp.array(dtype=wp.vec3)       # lambert albedo
+    alpha: wp.array(dtype=wp.float32)     # ggx roughness
+    specular: wp.array(dtype=wp.vec3)     # ggx constant Fresnel / tint
+    eta: wp.array(dtype=wp.vec3)          # ggx conductor Fresnel (used when conductor != 0)
+    k: wp.array(dtype=wp.vec3)
+    conductor: wp.array(dtype=wp.int32)
+    linear: wp.array(dtype=wp.int32)      # merl / npf: 1 = interpolate between bin centres
+    data: wp.array(dtype=wp.int32)        # merl / npf: index of this material's table
+    sampler: wp.array(dtype=wp.int32)     # merl / npf: index of its tabulated sampler
+    merl: wp.array(dtype=wp.vec3)         # n_merl * MERL_CELLS
+    npf: wp.array(dtype=wp.vec3)          # n_npf * NPF_STRIDE
+    samplers: tabsamp.TabulatedSamplers
+
+
+# ---------------------------------------------------------------------------------------------
+# Shared Warp helpers
+# ---------------------------------------------------------------------------------------------
+
+@wp.func
+def cos_theta(w: wp.vec3):
+    return w[2]
+
+
+@wp.func
+def sample_cosine_hemisphere(u: wp.vec2):
+    # Malley's method: concentric disk lifted to the hemisphere; pdf = cos / pi.
+    r = wp.sqrt(u[0])
+    phi = 2.0 * wp.pi * u[1]
+    return wp.vec3(r * wp.cos(phi), r * wp.sin(phi), wp.sqrt(wp.max(0.0, 1.0 - u[0])))
+
+
+@wp.func
+def rusinkiewicz(wi: wp.vec3, wo: wp.vec3):
+    """(theta_h, theta_d, phi_d) of a direction pair, phi_d folded into [0, pi) by reciprocity."""
+    h = wp.normalize(wi + wo)
+    theta_h = wp.acos(wp.clamp(h[2], -1.0, 1.0))
+    phi_h = wp.atan2(h[1], h[0])
+    # d = R_y(-theta_h) R_z(-phi_h) wi
+    cp = wp.cos(phi_h)
+    sp = wp.sin(phi_h)
+    x1 = cp * wi[0] + sp * wi[1]
+    y1 = -sp * wi[0] + cp * wi[1]
+    z1 = wi[2]
+    ct = wp.cos(theta_h)
+    st = wp.sin(theta_h)
+    dx = ct * x1 - st * z1
+    dy = y1
+    dz = st * x1 + ct * z1
+    theta_d = wp.acos(wp.clamp(dz, -1.0, 1.0))
+    phi_d = wp.atan2(dy, dx)
+    if phi_d < 0.0:
+        phi_d = phi_d + wp.pi
+    return theta_h, theta_d, phi_d
+
+
+# ---------------------------------------------------------------------------------------------
+# Lambert
+# ---------------------------------------------------------------------------------------------
+
+@wp.func
+def lambert_eval(albedo: wp.vec3):
+    return albedo / wp.pi
+
+
+# ---------------------------------------------------------------------------------------------
+# GGX with separable Smith G1
+# ---------------------------------------------------------------------------------------------
+
+@wp.func
+def ggx_d(cos_h: float, alpha: float):
+    # GGX / Trowbridge-Reitz normal distribution, normalised so that int D(h) cos_h dh = 1.
+    a2 = alpha * alpha
+    c2 = cos_h * cos_h
+    t = c2 * (a2 - 1.0) + 1.0
+    return a2 / (wp.pi * t * t)
+
+
+@wp.func
+def ggx_g1(cos_w: float, alpha: float):
+    # Smith G1 for GGX: 2 cos / (cos + sqrt(a^2 + (1 - a^2) cos^2)).
+    c = wp.max(cos_w, 0.0)
+    a2 = alpha * alpha
+    return 2.0 * c / (c + wp.sqrt(a2 + (1.0 - a2) * c * c) + 1.0e-20)
+
+
+@wp.func
+def fresnel_conductor(cos_d: float, eta: float, k: float):
+    # Unpolarised Fresnel reflectance of a conductor with complex IOR eta + i k.
+    c = wp.clamp(cos_d, 0.0, 1.0)
+    c2 = c * c
+    s2 = 1.0 - c2
+    e2 = eta * eta
+    k2 = k * k
+    t0 = e2 - k2 - s2
+    a2b2 = wp.sqrt(wp.max(t0 * t0 + 4.0 * e2 * k2, 0.0))
+    t1 = a2b2 + c2
+    a = wp.sqrt(wp.max(0.5 * (a2b2 + t0), 0.0))
+    t2 = 2.0 * c * a
+    rs = (t1 - t2) / wp.max(t1 + t2, 1.0e-20)
+    t3 = c2 * a2b2 + s2 * s2
+    t4 = t2 * s2
+    rp = rs * (t3 - t4) / wp.max(t3 + t4, 1.0e-20)
+    return 0.5 * (rp + rs)
+
+
+@wp.func
+def ggx_fresnel(mats: MaterialTable, m: int, cos_d: float):
+    spec = mats.specular[m]
+    if mats.conductor[m] == 0:
+        return spec
+    e = mats.eta[m]
+    kk = mats.k[m]
+    return wp.vec3(
+        spec[0] * fresnel_conductor(cos_d, e[0], kk[0]),
+        spec[1] * fresnel_conductor(cos_d, e[1], kk[1]),
+        spec[2] * fresnel_conductor(cos_d, e[2], kk[2]),
+    )
+
+
+@wp.func
+def ggx_eval(mats: MaterialTable, m: int, wi: wp.vec3, wo: wp.vec3):
+    ci = wi[2]
+    co = wo[2]
+    if ci <= 0.0 or co <= 0.0:
+        return wp.vec3(0.0)
+    alpha = mats.alpha[m]
+    h = wp.normalize(wi + wo)
+    d = ggx_d(h[2], alpha)
+    g = ggx_g1(ci, alpha) * ggx_g1(co, alpha)
+    f = ggx_fresnel(mats, m, wp.dot(wi, h))
+    return f * (d * g / (4.0 * wp.max(ci, COS_EPS) * wp.max(co, COS_EPS)))
+
+
+@wp.func
+def ggx_sample_vndf(wo: wp.vec3, alpha: float, u: wp.vec2):
+    # Visible-normal sampling (Heitz 2018, "Sampling the GGX distribution of visible normals").
+    vh = wp.normalize(wp.vec3(alpha * wo[0], alpha * wo[1], wp.max(wo[2], COS_EPS)))
+    lensq = vh[0] * vh[0] + vh[1] * vh[1]
+    t1 = wp.vec3(1.0, 0.0, 0.0)
+    if lensq > 1.0e-12:
+        t1 = wp.vec3(-vh[1], vh[0], 0.0) / wp.sqrt(lensq)
+    t2 = wp.cross(vh, t1)
+    r = wp.sqrt(u[0])
+    phi = 2.0 * wp.pi * u[1]
+    p1 = r * wp.cos(phi)
+    p2 = r * wp.sin(phi)
+    s = 0.5 * (1.0 + vh[2])
+    p2 = (1.0 - s) * wp.sqrt(wp.max(0.0, 1.0 - p1 * p1)) + s * p2
+    nh = p1 * t1 + p2 * t2 + wp.sqrt(wp.max(0.0, 1.0 - p1 * p1 - p2 * p2)) * vh
+    h = wp.normalize(wp.vec3(alpha * nh[0], alpha * nh[1], wp.max(nh[2], 0.0)))
+    return 2.0 * wp.dot(wo, h) * h - wo
+
+
+@wp.func
+def ggx_pdf(wi: wp.vec3, wo: wp.vec3, alpha: float):
+    # pdf of VNDF sampling in solid angle: G1(wo) D(h) / (4 cos_o).  Defined over the whole sphere
+    # (samples reflected below the horizon carry their share), so it integrates to exactly 1.
+    if wo[2] <= 0.0:
+        return 0.0
+    h = wp.normalize(wi + wo)
+    if h[2] <= 0.0 or wp.dot(wo, h) <= 0.0:
+        return 0.0
+    return ggx_g1(wo[2], alpha) * ggx_d(h[2], alpha) / (4.0 * wp.max(wo[2], COS_EPS))
+
+
+# ---------------------------------------------------------------------------------------------
+# MERL (tabulated, Rusinkiewicz coordinates)
+# ---------------------------------------------------------------------------------------------
+
+@wp.func
+def merl_cell(base: int, i_th: int, i_td: int, i_pd: int):
+    return base + (i_th * MERL_N_TD + i_td) * MERL_N_PD + i_pd
+
+
+@wp.func
+def merl_eval(mats: MaterialTable, m: int, wi: wp.vec3, wo: wp.vec3):
+    if wi[2] <= 0.0 or wo[2] <= 0.0:
+        return wp.vec3(0.0)
+    theta_h, theta_d, phi_d = rusinkiewicz(wi, wo)
+    base = mats.data[m] * MERL_CELLS
+    # continuous bin coordinates (data README binning)
+    x_th = wp.sqrt(wp.max(theta_h, 0.0) / HALF_PI) * float(MERL_N_TH)
+    x_td = theta_d / HALF_PI * float(MERL_N_TD)
+    x_pd = phi_d / wp.pi * float(MERL_N_PD)
+    if mats.linear[m] == 0:
+        i_th = wp.clamp(int(x_th), 0, MERL_N_TH - 1)
+        i_td = wp.clamp(int(x_td), 0, MERL_N_TD - 1)
+        i_pd = wp.clamp(int(x_pd), 0, MERL_N_PD - 1)
+        return mats.merl[merl_cell(base, i_th, i_td, i_pd)]
+    # trilinear between bin centres: clamped in theta_h / theta_d, periodic (period pi) in phi_d
+    c_th = wp.clamp(x_th - 0.5, 0.0, float(MERL_N_TH - 1))
+    c_td = wp.clamp(x_td - 0.5, 0.0, float(MERL_N_TD - 1))
+    c_pd = x_pd - 0.5
+    a0 = wp.min(int(c_th), MERL_N_TH - 2)
+    b0 = wp.min(int(c_td), MERL_N_TD - 2)
+    fa = c_th - float(a0)
+    fb = c_td - float(b0)
+    p0f = wp.floor(c_pd)
+    fc = c_pd - p0f
+    p0 = int(p0f)
+    p0 = (p0 + MERL_N_PD) % MERL_N_PD
+    p1 = (p0 + 1) % MERL_N_PD
+    r = wp.vec3(0.0)
+    for da in range(2):
+        wa = wp.where(da == 0, 1.0 - fa, fa)
+        for db in range(2):
+            wb = wp.where(db == 0, 1.0 - fb, fb)
+            c0 = mats.merl[merl_cell(base, a0 + da, b0 + db, p0)]
+            c1 = mats.merl[merl_cell(base, a0 + da, b0 + db, p1)]
+            r = r + (wa * wb) * ((1.0 - fc) * c0 + fc * c1)
+    return r
+
+
+# ---------------------------------------------------------------------------------------------
+# NPF (non-parametric factored microfacet fit)
+# ---------------------------------------------------------------------------------------------
+
+@wp.func
+def npf_curve(mats: MaterialTable, base: int, x: float, first: int, linear: int):
+    # x: continuous bin coordinate in [0, 90]; bins below ``first`` are skipped;
+    # nearest bin or linear between bin centres (constant beyond the end centres).
+    if linear == 0:
+        return mats.npf[base + wp.clamp(int(x), first, NPF_BINS - 1)]
+    c = wp.clamp(x - 0.5, float(first), float(NPF_BINS - 1))
+    i0 = wp.min(int(c), NPF_BINS - 2)
+    t = c - float(i0)
+    return (1.0 - t) * mats.npf[base + i0] + t * mats.npf[base + i0 + 1]
+
+
+@wp.func
+def npf_eval(mats: MaterialTable, m: int, wi: wp.vec3, wo: wp.vec3):
+    ci = wi[2]
+    co = wo[2]
+    if ci <= 0.0 or co <= 0.0:
+        return wp.vec3(0.0)
+    base = mats.data[m] * NPF_STRIDE
+    lin = mats.linear[m]
+    h = wp.normalize(wi + wo)
+    theta_h = wp.acos(wp.clamp(h[2], -1.0, 1.0))
+    theta_d = wp.acos(wp.clamp(wp.dot(wi, h), -1.0, 1.0))
+    theta_i = wp.acos(wp.clamp(ci, -1.0, 1.0))
+    theta_o = wp.acos(wp.clamp(co, -1.0, 1.0))
+    d = npf_curve(mats, base + NPF_D_OFF, wp.sqrt(theta_h / HALF_PI) * float(NPF_BINS), 0, lin)
+    f = npf_curve(mats, base + NPF_F_OFF, theta_d / HALF_PI * float(NPF_BINS), NPF_FIRST_VALID_BIN, lin)
+    gi = npf_curve(mats, base + NPF_G1_OFF, theta_i / HALF_PI * float(NPF_BINS), NPF_FIRST_VALID_BIN, lin)
+    go = npf_curve(mats, base + NPF_G1_OFF, theta_o / HALF_PI * float(NPF_BINS), NPF_FIRST_VALID_BIN, lin)
+    rho_d = mats.npf[base]
+    rho_s = mats.npf[base + 1]
+    spec = wp.cw_mul(wp.cw_mul(rho_s, d), wp.cw_mul(f, wp.cw_mul(gi, go)))
+    # 1/(16 cos_i cos_o), data README
+    return rho_d + spec / (16.0 * wp.max(ci, NPF_COS_MIN) * wp.max(co, NPF_COS_MIN))
+
+
+# ---------------------------------------------------------------------------------------------
+# Dispatch: one eval / sample / pdf per set of kinds (only the kinds a scene uses are compiled)
+# ---------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class BrdfFuncs:
+    """The Warp functions for one set of material kinds.
+
+    ``eval(mats, m, wi, wo) -> vec3``; ``sample(mats, m, wo, u: vec3) -> vec3`` (wi, may lie below the
+    horizon: the caller's estimate is then 0); ``pdf(mats, m, wi, wo) -> float`` (solid angle).
+    """
+
+    kinds: frozenset
+    eval: Callable
+    sample: Callable
+    pdf: Callable
+
+
+_FUNCS_CACHE: dict = {}
+
+
+def make_brdf_funcs(kinds: Sequence[int]) -> BrdfFuncs:
+    """Build (once per set of kinds) the dispatching Warp functions for the given material kinds."""
+    key = frozenset(int(k) for k in kinds)
+    if key in _FUNCS_CACHE:
+        return _FUNCS_CACHE[key]
+    has_l = LAMBERT in key
+    has_g = GGX in key
+    has_m = MERL in key
+    has_n = NPF in key
+    has_tab = has_m or has_n
+
+    @wp.func
+    def brdf_eval(mats: MaterialTable, m: int, wi: wp.vec3, wo: wp.vec3):
+        kind = mats.kind[m]
+        r = wp.vec3(0.0)
+        if wp.static(has_l):
+            if kind == LAMBERT:
+                if wi[2] > 0.0 and wo[2] > 0.0:
+                    r = lambert_eval(mats.albedo[m])
+        if wp.static(has_g):
+            if kind == GGX:
+                r = ggx_eval(mats, m, wi, wo)
+        if wp.static(has_m):
+            if kind == MERL:
+                r = merl_eval(mats, m, wi, wo)
+        if wp.static(has_n):
+            if kind == NPF:
+                r = npf_eval(mats, m, wi, wo)
+        return r
+
+    @wp.func
+    def brdf_sample(mats: MaterialTable, m: int, wo: wp.vec3, u: wp.vec3):
+        kind = mats.kind[m]
+        wi = sample_cosine_hemisphere(wp.vec2(u[1], u[2]))
+        if wp.static(has_g):
+            if kind == GGX:
+                wi = ggx_sample_vndf(wo, mats.alpha[m], wp.vec2(u[1], u[2]))
+        if wp.static(has_tab):
+            if kind == MERL or kind == NPF:
+                if u[0] >= TAB_COSINE_MIX:
+                    wi = tabsamp.tab_sample(mats.samplers, mats.sampler[m], wo, wp.vec2(u[1], u[2]))
+        return wi
+
+    @wp.func
+    def brdf_pdf(mats: MaterialTable, m: int, wi: wp.vec3, wo: wp.vec3):
+        kind = mats.kind[m]
+        p = wp.max(wi[2], 0.0) / wp.pi
+        if wp.static(has_g):
+            if kind == GGX:
+                p = ggx_pdf(wi, wo, mats.alpha[m])
+        if wp.static(has_tab):
+            if kind == MERL or kind == NPF:
+                p = TAB_COSINE_MIX * p + (1.0 - TAB_COSINE_MIX) * tabsamp.tab_pdf(
+                    mats.samplers, mats.sampler[m], wi, wo)
+        return p
+
+    funcs = BrdfFuncs(key, brdf_eval, brdf_sample, brdf_pdf)
+    _FUNCS_CACHE[key] = funcs
+    return funcs
+
+
+# ---------------------------------------------------------------------------------------------
+# Host side: packing materials
+# ---------------------------------------------------------------------------------------------
+
+@dataclass
+class MaterialSpec:
+    """One material as the renderer needs it (built by the pipeline from the scene)."""
+
+    name: str
+    kind: int
+    albedo: tuple = (0.0, 0.0, 0.0)
+    alpha: float = 0.0
+    specular: tuple = (0.0, 0.0, 0.0)
+    eta: tuple | None = None
+    k: tuple | None = None
+    linear: bool = False
+    merl: np.ndarray | None = None       # (90, 90, 180, 3) float32 scaled BRDF values
+    npf: np.ndarray | None = None        # (NPF_STRIDE, 3): rho_d, rho_s, D[90], G1[90], F[90]
+    sampler: "tabsamp.SamplerTable | None" = None
+
+
+@dataclass
+class MaterialBuffers:
+    table: MaterialTable
+    kinds: frozenset
+    names: list
+
+
+def pack_npf_curves(rho_d, rho_s, d, g1, f) -> np.ndarray:
+    """NPF curves in MaterialTable.npf order, (NPF_STRIDE, 3) float32."""
+    rows = [np.asarray(rho_d, np.float64).reshape(1, 3), np.asarray(rho_s, np.float64).reshape(1, 3),
+            np.asarray(d).reshape(NPF_BINS, 3), np.asarray(g1).reshape(NPF_BINS, 3),
+            np.asarray(f).reshape(NPF_BINS, 3)]
+    return np.concatenate(rows).astype(np.float32)
+
+
+def build_material_table(specs: Sequence[MaterialSpec], device: str = "cpu") -> MaterialBuffers:
+    """Pack material specs (in material-id order) into device arrays."""
+    n = len(specs)
+    kind = np.array([s.kind for s in specs], np.int32)
+    data_idx = np.full(n, -1, np.int32)
+    samp_idx = np.full(n, -1, np.int32)
+    merls, npfs, samplers = [], [], []
+    for i, s in enumerate(specs):
+        if s.kind == MERL:
+            data_idx[i] = len(merls)
+            merls.append(np.ascontiguousarray(s.merl, np.float32).reshape(-1, 3))
+        elif s.kind == NPF:
+            data_idx[i] = len(npfs)
+            npfs.append(np.ascontiguousarray(s.npf, np.float32).reshape(NPF_STRIDE, 3))
+        if s.kind in (MERL, NPF):
+            if s.sampler is None:
+                raise ValueError(f"material {s.name!r}: a tabulated BRDF needs its sampling table")
+            samp_idx[i] = len(samplers)
+            samplers.append(s.sampler)
+
+    def vec3s(rows):
+        return wp.array(np.asarray(rows, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
+
+    t = MaterialTable()
+    t.kind = wp.array(kind, dtype=wp.int32, device=device)
+    t.albedo = vec3s([s.albedo for s in specs])
+    t.alpha = wp.array(np.array([max(s.alpha, 1e-4) for s in specs], np.float32), dtype=wp.float32,
+                       device=device)
+    t.specular = vec3s([s.specular for s in specs])
+    t.eta = vec3s([s.eta if s.eta is not None else (0.0, 0.0, 0.0) for s in specs])
+    t.k = vec3s([s.k if s.k is not None else (0.0, 0.0, 0.0) for s in specs])
+    t.conductor = wp.array(np.array([0 if s.eta is None else 1 for s in specs], np.int32),
+                           dtype=wp.int32, device=device)
+    t.linear = wp.array(np.array([1 if s.linear else 0 for s in specs], np.int32), dtype=wp.int32,
+                        device=device)
+    t.data = wp.array(data_idx, dtype=wp.int32, device=device)
+    t.sampler = wp.array(samp_idx, dtype=wp.int32, device=device)
+    t.merl = vec3s(np.concatenate(merls) if merls else np.zeros((0, 3)))
+    t.npf = vec3s(np.concatenate(npfs) if npfs else np.zeros((0, 3)))
+    t.samplers = tabsamp.pack_samplers(samplers, device=device)
+    return MaterialBuffers(t, frozenset(int(k) for k in kind), [s.name for s in specs])
+
+
+# ---------------------------------------------------------------------------------------------
+# Host wrappers for tests and examples
+# ---------------------------------------------------------------------------------------------
+
+_HOST_KERNELS: dict = {}
+
+
+def _host_kernels(kinds: frozenset):
+    if kinds in _HOST_KERNELS:
+        return _HOST_KERNELS[kinds]
+    f = make_brdf_funcs(kinds)
+
+    @wp.kernel(module="unique")
+    def eval_kernel(mats: MaterialTable, m: int, wi: wp.array(dtype=wp.vec3),
+                    wo: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
+        t = wp.tid()
+        out[t] = f.eval(mats, m, wi[t], wo[t])
+
+    @wp.kernel(module="unique")
+    def pdf_kernel(mats: MaterialTable, m: int, wi: wp.array(dtype=wp.vec3),
+                   wo: wp.array(dtype=wp.vec3), out: wp.array(dtype=float)):
+        t = wp.tid()
+        out[t] = f.pdf(mats, m, wi[t], wo[t])
+
+    @wp.kernel(module="unique")
+    def sample_kernel(mats: MaterialTable, m: int, wo: wp.array(dtype=wp.vec3), seed: int,
+                      out: wp.array(dtype=wp.vec3)):
+        t = wp.tid()
+        st = wp.rand_init(seed, t)
+        u = wp.vec3(wp.randf(st), wp.randf(st), wp.randf(st))
+        out[t] = f.sample(mats, m, wo[t], u)
+
+    _HOST_KERNELS[kinds] = (eval_kernel, pdf_kernel, sample_kernel)
+    return _HOST_KERNELS[kinds]
+
+
+def _vec3_in(x, n, device):
+    a = np.broadcast_to(np.asarray(x, np.float32).reshape(-1, 3), (n, 3))
+    return wp.array(np.ascontiguousarray(a), dtype=wp.vec3, device=device)
+
+
+def eval_brdf(mb: MaterialBuffers, m: int, wi, wo, device: str = "cpu") -> np.ndarray:
+    """f(wi, wo) for material m at N direction pairs (local frame) -> (N, 3)."""
+    n = max(len(np.asarray(wi).reshape(-1, 3)), len(np.asarray(wo).reshape(-1, 3)))
+    out = wp.zeros(n, dtype=wp.vec3, device=device)
+    wp.launch(_host_kernels(mb.kinds)[0], dim=n,
+              inputs=[mb.table, m, _vec3_in(wi, n, device), _vec3_in(wo, n, device), out], device=device)
+    return out.numpy()
+
+
+def pdf_brdf(mb: MaterialBuffers, m: int, wi, wo, device: str = "cpu") -> np.ndarray:
+    """Solid-angle pdf of the material's sampler at N direction pairs -> (N,)."""
+    n = max(len(np.asarray(wi).reshape(-1, 3)), len(np.asarray(wo).reshape(-1, 3)))
+    out = wp.zeros(n, dtype=float, device=device)
+    wp.launch(_host_kernels(mb.kinds)[1], dim=n,
+              inputs=[mb.table, m, _vec3_in(wi, n, device), _vec3_in(wo, n, device), out], device=device)
+    return out.numpy()
+
+
+def sample_brdf(mb: MaterialBuffers, m: int, wo, n: int, seed: int = 0, device: str = "cpu") -> np.ndarray:
+    """n directions wi drawn from the material's sampler for view wo (broadcast) -> (n, 3)."""
+    out = wp.zeros(n, dtype=wp.vec3, device=device)
+    wp.launch(_host_kernels(mb.kinds)[2], dim=n,
+              inputs=[mb.table, m, _vec3_in(wo, n, device), int(seed), out], device=device)
+    return out.numpy()

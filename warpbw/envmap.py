@@ -1,0 +1,616 @@
+"""Lat-long (equirectangular) HDR environment light: lookup, importance sampling, MIP pyramid.
+
+Orientation -- identical to Mitsuba 3's ``envmap`` emitter (src/emitters/envmap.cpp,
+``direction_to_uv`` / ``uv_to_direction`` / ``eval_spectrum``; checked against the source and
+against mitsuba 3.9.1 ``scalar_rgb`` in tests/test_envmap.py):
+
+* A direction ``d = (x, y, z)`` in the map's local frame has texture coordinates
+  ``u = atan2(x, -z) / (2 pi)`` (wrapped into [0, 1)) and ``v = acos(y) / pi``.
+  The inverse is ``d = (sin(phi) sin(theta), cos(theta), -cos(phi) sin(theta))`` with
+  ``phi = 2 pi u``, ``theta = pi v``.
+* So ``u = 0`` looks down **-Z**, ``u`` increases towards **+X** (u = 0.25 is +X, 0.5 is +Z,
+  0.75 is -X), and ``v = 0`` is **+Y** (row 0, the top of the image), ``v = 1`` is -Y.
+* Texel placement for the bilinear lookup (Mitsuba's half-texel shift plus an extra wrapped
+  column): column ``i`` of a ``W``-wide map is centred at ``u = (i + 0.5) / W`` and the lookup
+  is periodic in ``u`` (column ``W`` is column 0). Rows are *not* cell-centred: row ``j`` of an
+  ``H``-high map sits at ``v = j / (H - 1)``, so row 0 is exactly the +Y pole and row ``H - 1``
+  the -Y pole; ``v`` is clamped, never wrapped.
+* ``rotation_deg`` is Mitsuba's ``to_world = rotate([0, 1, 0], angle)`` (right-handed, about
+  +Y): a local direction ``d`` appears in the world at ``R d`` with
+  ``R = [[c, 0, s], [0, 1, 0], [-s, 0, c]]``, e.g. +90 degrees takes local -Z (u = 0) to world -X.
+  ``scale`` multiplies the radiance (applied to the pixels at load time).
+
+Sampling (``env_sample`` / ``env_pdf``): a piecewise-constant 2D distribution over texel
+*cells* -- the region of the sphere closest to each texel, i.e. ``u`` in ``[i/W, (i+1)/W]`` and
+``v`` in ``[(j - 1/2)/(H - 1), (j + 1/2)/(H - 1)]`` clipped to [0, 1] (the two pole rows get
+half-height cells). A marginal CDF over rows and one conditional CDF over columns per row are
+searched by bisection. A cell's weight is ``luminance x solid angle of the cell`` (the exact
+integral of ``sin(theta)``, so the pole rows keep a nonzero weight), where the luminance is the
+cell average of the bilinear interpolant (a separable 1/8, 3/4, 1/8 filter): every direction
+whose bilinear radiance is nonzero lies in a cell with nonzero probability. Inside a cell the
+direction is uniform in solid angle (uniform in ``phi`` and in ``cos(theta)``), so the
+solid-angle pdf is constant per cell (``P(cell) / solid_angle(cell)``), finite at the poles, and
+exactly ``1 / (4 pi)`` for a constant map. An all-black map falls back to uniform sphere
+sampling (pdf ``1 / (4 pi)``). The per-cell pdf is computed from the float32 CDFs actually
+searched, so ``env_pdf`` matches ``env_sample`` even where float32 rounding changes a cell's
+probability.
+
+MIP pyramid (``env_radiance_lod``): level 0 is the map; each next level is a 2x2 box reduction
+(``n -> max(1, n // 2)`` per axis; an odd axis is box-resampled with fractional coverage so the
+mean is preserved exactly) down to 1x1. Each level is itself a lat-long map with the convention
+above; ``lod`` interpolates linearly between the two nearest levels (trilinear).
+
+Warp functions (take an ``EnvMapData`` and a world direction; directions need not be unit):
+    env_radiance(env, w) -> wp.vec3        bilinear radiance (scaled) towards w
+    env_radiance_lod(env, w, lod) -> wp.vec3
+    env_sample(env, u: wp.vec2) -> wp.vec3 unit world direction, u in [0, 1)^2
+    env_pdf(env, w) -> float               solid-angle pdf of env_sample
+
+Host functions:
+    envmap_from_array(rgb, rotation_deg=0.0, scale=1.0, name="array", device="cpu") -> EnvMap
+    load_envmap(path, rotation_deg=0.0, scale=1.0, device="cpu") -> EnvMap
+    constant_envmap(radiance, device="cpu") -> EnvMap
+    procedural_sky(width=256, height=128, ...) -> np.ndarray (H, W, 3) float32
+    build_mip_levels(pixels) -> list[np.ndarray]
+    texel_directions(width, height) -> np.ndarray (H, W, 3) local directions of texel centres
+    eval_radiance(env, dirs) -> (N, 3)           debug / test wrappers: launch a kernel
+    eval_radiance_lod(env, dirs, lod) -> (N, 3)
+    eval_pdf(env, dirs) -> (N,)
+    sample_directions(env, n, seed=0) -> (dirs (n, 3), pdf (n,))
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from warpbw.errors import WarpbwError
+
+# Rec. 709 / sRGB luminance weights, the ones Mitsuba 3's luminance() uses for linear RGB
+# (include/mitsuba/core/spectrum.h).
+LUMINANCE_RGB = (0.212671, 0.715160, 0.072169)
+
+# Fraction of a cell's width kept clear at its edges when sampling inside the cell, so that
+# float32 rounding in direction -> (u, v) (about 1e-4 of a cell for a 1024-wide map) never
+# moves a sampled direction into a neighbouring cell. The squeeze is linear, so it changes the
+# in-cell density by 0.2 % at most and only for integrands that vary inside one texel.
+CELL_EDGE_MARGIN = 1.0e-3
+
+_PI = wp.constant(math.pi)
+_INV_PI = wp.constant(1.0 / math.pi)
+_TWO_PI = wp.constant(2.0 * math.pi)
+_INV_TWO_PI = wp.constant(0.5 / math.pi)
+_MARGIN = wp.constant(CELL_EDGE_MARGIN)
+# largest float32 below 1: keeps a uniform variate strictly inside the last CDF interval
+_ONE_MINUS_EPS = wp.constant(1.0 - 2.0**-24)
+
+
+@wp.struct
+class EnvMapData:
+    base: wp.array2d(dtype=wp.vec3)  # (H, W) radiance, clamped and scaled
+    width: wp.int32
+    height: wp.int32
+    rot_cos: wp.float32  # to_world = rotate([0, 1, 0], rotation_deg)
+    rot_sin: wp.float32
+    marginal_cdf: wp.array2d(dtype=wp.float32)  # (1, H + 1), 0 ... 1 over rows
+    conditional_cdf: wp.array2d(dtype=wp.float32)  # (H, W + 1), 0 ... 1 over columns of a row
+    row_omc: wp.array(dtype=wp.float32)  # (H + 1,) 1 - cos(theta) at the row-cell boundaries
+    row_opc: wp.array(dtype=wp.float32)  # (H + 1,) 1 + cos(theta) at the row-cell boundaries
+    cell_pdf: wp.array2d(dtype=wp.float32)  # (H, W) solid-angle pdf inside each texel cell
+    mip_data: wp.array(dtype=wp.vec3)  # all MIP levels, row-major, packed one after another
+    mip_offset: wp.array(dtype=wp.int32)  # (n_levels,) start of each level in mip_data
+    mip_width: wp.array(dtype=wp.int32)
+    mip_height: wp.array(dtype=wp.int32)
+    n_levels: wp.int32
+
+
+# ----------------------------------------------------------------------------- Warp functions
+
+
+@wp.func
+def _to_local(env: EnvMapData, w: wp.vec3) -> wp.vec3:
+    # inverse of to_world (R^T): rotate by -angle about +Y
+    return wp.vec3(env.rot_cos * w[0] - env.rot_sin * w[2], w[1], env.rot_sin * w[0] + env.rot_cos * w[2])
+
+
+@wp.func
+def _to_world(env: EnvMapData, d: wp.vec3) -> wp.vec3:
+    return wp.vec3(env.rot_cos * d[0] + env.rot_sin * d[2], d[1], -env.rot_sin * d[0] + env.rot_cos * d[2])
+
+
+@wp.func
+def _dir_to_uv(d: wp.vec3) -> wp.vec2:
+    # Mitsuba's direction_to_uv; theta via atan2 (accurate near the poles, no need to normalise)
+    u = wp.atan2(d[0], -d[2]) * _INV_TWO_PI
+    u = u - wp.floor(u)
+    v = wp.atan2(wp.sqrt(d[0] * d[0] + d[2] * d[2]), d[1]) * _INV_PI
+    return wp.vec2(u, wp.clamp(v, 0.0, 1.0))
+
+
+@wp.func
+def _lerp3(a: wp.vec3, b: wp.vec3, t: float) -> wp.vec3:
+    # a + t (b - a): exactly a when a == b (a constant map stays exactly constant)
+    return a + (b - a) * t
+
+
+@wp.func
+def _grid_coords(uv: wp.vec2, w: wp.int32, h: wp.int32) -> wp.vec4:
+    """(x0, y0, fx, fy): top-left texel of the bilinear footprint and the fractions."""
+    fw = float(w)
+    x = uv[0] * fw - 0.5  # column i centred at u = (i + 0.5) / W
+    x = x - wp.floor(x / fw) * fw  # periodic in u
+    x0 = wp.min(wp.floor(x), fw - 1.0)
+    fx = wp.clamp(x - x0, 0.0, 1.0)
+    y = uv[1] * float(wp.max(h - 1, 0))  # row j at v = j / (H - 1)
+    y0 = wp.min(wp.floor(y), float(wp.max(h - 2, 0)))
+    fy = wp.clamp(y - y0, 0.0, 1.0)
+    return wp.vec4(x0, y0, fx, fy)
+
+
+@wp.func
+def _bilinear_base(env: EnvMapData, uv: wp.vec2) -> wp.vec3:
+    w = env.width
+    h = env.height
+    g = _grid_coords(uv, w, h)
+    i0 = int(g[0])
+    j0 = int(g[1])
+    i1 = i0 + 1
+    if i1 >= w:
+        i1 = 0
+    j1 = wp.min(j0 + 1, h - 1)
+    top = _lerp3(env.base[j0, i0], env.base[j0, i1], g[2])
+    bot = _lerp3(env.base[j1, i0], env.base[j1, i1], g[2])
+    return _lerp3(top, bot, g[3])
+
+
+@wp.func
+def _bilinear_level(env: EnvMapData, level: wp.int32, uv: wp.vec2) -> wp.vec3:
+    w = env.mip_width[level]
+    h = env.mip_height[level]
+    off = env.mip_offset[level]
+    g = _grid_coords(uv, w, h)
+    i0 = int(g[0])
+    j0 = int(g[1])
+    i1 = i0 + 1
+    if i1 >= w:
+        i1 = 0
+    j1 = wp.min(j0 + 1, h - 1)
+    top = _lerp3(env.mip_data[off + j0 * w + i0], env.mip_data[off + j0 * w + i1], g[2])
+    bot = _lerp3(env.mip_data[off + j1 * w + i0], env.mip_data[off + j1 * w + i1], g[2])
+    return _lerp3(top, bot, g[3])
+
+
+@wp.func
+def _cdf_search(cdf: wp.array2d(dtype=wp.float32), row: wp.int32, n: wp.int32, x: float) -> wp.int32:
+    """Largest k in [0, n) with cdf[row, k] <= x, for cdf[row, 0] = 0 <= x < cdf[row, n] = 1.
+
+    The interval found always has positive width, so zero-probability bins are never chosen.
+    """
+    lo = wp.int32(0)
+    hi = wp.int32(n)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if cdf[row, mid] <= x:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+@wp.func
+def env_radiance(env: EnvMapData, w: wp.vec3) -> wp.vec3:
+    """Bilinear radiance arriving from world direction w (Mitsuba envmap convention)."""
+    return _bilinear_base(env, _dir_to_uv(_to_local(env, w)))
+
+
+@wp.func
+def env_radiance_lod(env: EnvMapData, w: wp.vec3, lod: float) -> wp.vec3:
+    """Trilinear lookup in the MIP pyramid: lod 0 is the map, lod k is 2^k times coarser."""
+    uv = _dir_to_uv(_to_local(env, w))
+    top = float(env.n_levels - 1)
+    l = wp.clamp(lod, 0.0, top)
+    l0 = wp.min(int(wp.floor(l)), env.n_levels - 1)
+    l1 = wp.min(l0 + 1, env.n_levels - 1)
+    a = _bilinear_level(env, l0, uv)
+    b = _bilinear_level(env, l1, uv)
+    return _lerp3(a, b, l - float(l0))
+
+
+@wp.func
+def env_sample(env: EnvMapData, u: wp.vec2) -> wp.vec3:
+    """Unit world direction drawn with density env_pdf from a uniform u in [0, 1)^2."""
+    h = env.height
+    w = env.width
+    xv = wp.clamp(u[1], 0.0, _ONE_MINUS_EPS)
+    j = _cdf_search(env.marginal_cdf, 0, h, xv)
+    c0 = env.marginal_cdf[0, j]
+    c1 = env.marginal_cdf[0, j + 1]
+    tv = wp.clamp((xv - c0) / (c1 - c0), _MARGIN, 1.0 - _MARGIN)
+    xu = wp.clamp(u[0], 0.0, _ONE_MINUS_EPS)
+    i = _cdf_search(env.conditional_cdf, j, w, xu)
+    d0 = env.conditional_cdf[j, i]
+    d1 = env.conditional_cdf[j, i + 1]
+    tu = wp.clamp((xu - d0) / (d1 - d0), _MARGIN, 1.0 - _MARGIN)
+    # uniform in cos(theta) inside the row cell; 1 -/+ cos kept separately for precision at the poles
+    omc = env.row_omc[j] + tv * (env.row_omc[j + 1] - env.row_omc[j])
+    opc = env.row_opc[j] + tv * (env.row_opc[j + 1] - env.row_opc[j])
+    sin_t = wp.sqrt(wp.max(omc * opc, 0.0))
+    cos_t = 0.5 * (opc - omc)
+    phi = _TWO_PI * (float(i) + tu) / float(w)
+    d = wp.vec3(wp.sin(phi) * sin_t, cos_t, -wp.cos(phi) * sin_t)
+    return wp.normalize(_to_world(env, d))
+
+
+@wp.func
+def env_pdf(env: EnvMapData, w: wp.vec3) -> float:
+    """Solid-angle pdf of env_sample at world direction w (constant inside each texel cell)."""
+    uv = _dir_to_uv(_to_local(env, w))
+    i = wp.clamp(int(wp.floor(uv[0] * float(env.width))), 0, env.width - 1)
+    j = wp.clamp(int(wp.floor(uv[1] * float(wp.max(env.height - 1, 0)) + 0.5)), 0, env.height - 1)
+    return env.cell_pdf[j, i]
+
+
+# ----------------------------------------------------------------------------- debug kernels
+
+
+@wp.kernel
+def _eval_radiance_kernel(env: EnvMapData, dirs: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
+    tid = wp.tid()
+    out[tid] = env_radiance(env, dirs[tid])
+
+
+@wp.kernel
+def _eval_radiance_lod_kernel(
+    env: EnvMapData, dirs: wp.array(dtype=wp.vec3), lod: wp.array(dtype=wp.float32), out: wp.array(dtype=wp.vec3)
+):
+    tid = wp.tid()
+    out[tid] = env_radiance_lod(env, dirs[tid], lod[tid])
+
+
+@wp.kernel
+def _eval_pdf_kernel(env: EnvMapData, dirs: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.float32)):
+    tid = wp.tid()
+    out[tid] = env_pdf(env, dirs[tid])
+
+
+@wp.kernel
+def _sample_kernel(
+    env: EnvMapData, seed: wp.int32, dirs: wp.array(dtype=wp.vec3), pdf: wp.array(dtype=wp.float32)
+):
+    tid = wp.tid()
+    state = wp.rand_init(seed, tid)
+    u = wp.vec2(wp.randf(state), wp.randf(state))
+    d = env_sample(env, u)
+    dirs[tid] = d
+    pdf[tid] = env_pdf(env, d)
+
+
+# ----------------------------------------------------------------------------- host side
+
+
+@dataclass
+class EnvMap:
+    """An environment light ready for kernels (``data``) plus its host-side copies."""
+
+    data: EnvMapData
+    width: int
+    height: int
+    n_clamped: int  # channel values (not pixels) that were negative or non-finite, set to 0
+    pixels: np.ndarray  # (H, W, 3) float32, clamped and scaled
+    mip_levels: list[np.ndarray]  # level 0 == pixels, then 2x2 box reductions down to 1x1
+    name: str
+    rotation_deg: float = 0.0
+    scale: float = 1.0
+    device: str = "cpu"
+    _keep: list = field(default_factory=list, repr=False)  # wp.arrays referenced by data
+
+
+def _axis_box_matrix(n: int) -> np.ndarray:
+    """(m, n) row-stochastic box filter n -> m = max(1, n // 2), exact 2:1 for even n.
+
+    Output k averages the input over [k n / m, (k + 1) n / m) with fractional end coverage,
+    so every input sample carries total weight m / n and the mean is preserved exactly.
+    """
+    m = max(1, n // 2)
+    edges = np.arange(m + 1) * (n / m)
+    lo = np.maximum(edges[:-1, None], np.arange(n)[None, :])
+    hi = np.minimum(edges[1:, None], np.arange(n)[None, :] + 1.0)
+    cover = np.clip(hi - lo, 0.0, None)
+    return cover / cover.sum(axis=1, keepdims=True)
+
+
+def build_mip_levels(pixels: np.ndarray) -> list[np.ndarray]:
+    """MIP pyramid of an (H, W, 3) map: level 0 is the map, 2x2 box reductions down to 1x1."""
+    cur = np.asarray(pixels, dtype=np.float64)
+    levels = [np.ascontiguousarray(pixels, dtype=np.float32)]
+    while cur.shape[0] > 1 or cur.shape[1] > 1:
+        rh = _axis_box_matrix(cur.shape[0])
+        rw = _axis_box_matrix(cur.shape[1])
+        cur = np.einsum("ij,jkc,lk->ilc", rh, cur, rw)
+        levels.append(cur.astype(np.float32))
+    return levels
+
+
+def _row_boundaries(height: int) -> np.ndarray:
+    """theta at the H + 1 row-cell boundaries: 0, pi (j - 1/2) / (H - 1) for j = 1..H-1, pi."""
+    if height == 1:
+        return np.array([0.0, math.pi])
+    inner = math.pi * (np.arange(1, height) - 0.5) / (height - 1)
+    return np.concatenate([[0.0], inner, [math.pi]])
+
+
+def texel_directions(width: int, height: int) -> np.ndarray:
+    """(H, W, 3) local-frame directions of the texel centres (u = (i + 1/2) / W, v = j / (H - 1))."""
+    u = (np.arange(width) + 0.5) / width
+    v = np.arange(height) / max(height - 1, 1)
+    phi = 2.0 * math.pi * u[None, :]
+    theta = math.pi * v[:, None]
+    return np.stack(
+        np.broadcast_arrays(np.sin(phi) * np.sin(theta), np.cos(theta), -np.cos(phi) * np.sin(theta)), axis=-1
+    )
+
+
+def _cell_average_filter(lum: np.ndarray) -> np.ndarray:
+    """Average of the bilinear interpolant over each texel's cell (separable 1/8, 3/4, 1/8)."""
+    # u: periodic (np.roll handles W == 1 and W == 2 correctly)
+    f = 0.75 * lum + 0.125 * (np.roll(lum, 1, axis=1) + np.roll(lum, -1, axis=1))
+    h = f.shape[0]
+    if h == 1:
+        return f
+    g = 0.75 * f
+    g[1:-1] += 0.125 * (f[:-2] + f[2:])
+    # pole rows own half cells [0, 1/2] (in row units): average = 3/4 own + 1/4 neighbour
+    g[0] += 0.25 * f[1]
+    g[-1] += 0.25 * f[-2]
+    return g
+
+
+def _build_distribution(pixels: np.ndarray) -> dict[str, np.ndarray]:
+    h, w, _ = pixels.shape
+    theta_b = _row_boundaries(h)
+    cos_b = np.cos(theta_b)
+    # 1 - cos and 1 + cos at the boundaries, computed without cancellation
+    omc = 2.0 * np.sin(theta_b / 2.0) ** 2
+    opc = 2.0 * np.cos(theta_b / 2.0) ** 2
+    cell_omega = (cos_b[:-1] - cos_b[1:]) * (2.0 * math.pi / w)  # (H,) solid angle of one cell
+
+    lum = pixels.astype(np.float64) @ np.asarray(LUMINANCE_RGB)
+    weight = _cell_average_filter(lum) * cell_omega[:, None]
+    total = weight.sum()
+    if not (total > 0.0 and np.isfinite(total)):
+        weight = np.broadcast_to(cell_omega[:, None], (h, w)).copy()  # all black: uniform sphere
+        total = weight.sum()
+
+    row_w = weight.sum(axis=1)
+    cdf_m = np.concatenate([[0.0], np.cumsum(row_w)]) / total
+    cdf_m32 = np.maximum.accumulate(cdf_m.astype(np.float32))
+    cdf_m32[-1] = 1.0
+
+    cdf_c = np.concatenate([np.zeros((h, 1)), np.cumsum(weight, axis=1)], axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cdf_c = cdf_c / row_w[:, None]
+    empty = ~(row_w > 0.0)
+    cdf_c[empty] = np.linspace(0.0, 1.0, w + 1)[None, :]  # never chosen, kept well-formed
+    cdf_c32 = np.maximum.accumulate(cdf_c.astype(np.float32), axis=1)
+    cdf_c32[:, -1] = 1.0
+
+    # the probabilities the float32 CDFs actually realise
+    p_row = np.diff(cdf_m32.astype(np.float64))
+    p_col = np.diff(cdf_c32.astype(np.float64), axis=1)
+    cell_pdf = p_row[:, None] * p_col / cell_omega[:, None]
+    return {
+        "marginal_cdf": cdf_m32.reshape(1, h + 1),
+        "conditional_cdf": np.ascontiguousarray(cdf_c32),
+        "row_omc": omc.astype(np.float32),
+        "row_opc": opc.astype(np.float32),
+        "cell_pdf": cell_pdf.astype(np.float32),
+    }
+
+
+def _sanitize(rgb, name: str, scale: float, stacklevel: int) -> tuple[np.ndarray, int]:
+    try:
+        arr = np.asarray(rgb, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise WarpbwError(f"envmap {name!r}: pixels are not numeric ({exc})") from None
+    if arr.ndim != 3 or arr.shape[2] != 3 or arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise WarpbwError(f"envmap {name!r}: expected an (H, W, 3) RGB array, got shape {arr.shape}")
+    with np.errstate(over="ignore", invalid="ignore"):
+        arr = arr * scale
+        out = arr.astype(np.float32)
+    finite = np.isfinite(out)
+    n_nonfinite = int((~finite).sum())
+    n_negative = int((finite & (out < 0.0)).sum())
+    n_bad = n_nonfinite + n_negative
+    if n_bad:
+        bad = ~finite | (out < 0.0)
+        n_pix = int(bad.any(axis=2).sum())
+        out = np.where(bad, np.float32(0.0), out)
+        warnings.warn(
+            f"envmap {name!r}: set {n_bad} channel values to 0 in {n_pix} pixels "
+            f"({n_negative} negative, {n_nonfinite} NaN or infinite)",
+            RuntimeWarning,
+            stacklevel=stacklevel + 1,
+        )
+    return np.ascontiguousarray(out), n_bad
+
+
+def _check_scalar(value, what: str, name: str, nonnegative: bool = False) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise WarpbwError(f"envmap {name!r}: {what} must be a number, got {value!r}") from None
+    if not math.isfinite(x) or (nonnegative and x < 0.0):
+        need = "a finite number >= 0" if nonnegative else "a finite number"
+        raise WarpbwError(f"envmap {name!r}: {what} must be {need}, got {value!r}")
+    return x
+
+
+def _make_envmap(rgb, rotation_deg, scale, name, device, stacklevel) -> EnvMap:
+    rotation_deg = _check_scalar(rotation_deg, "rotation_deg", name)
+    scale = _check_scalar(scale, "scale", name, nonnegative=True)
+    pixels, n_clamped = _sanitize(rgb, name, scale, stacklevel + 1)
+    h, w, _ = pixels.shape
+    dist = _build_distribution(pixels)
+    levels = build_mip_levels(pixels)
+    offsets = np.cumsum([0] + [lv.shape[0] * lv.shape[1] for lv in levels[:-1]]).astype(np.int32)
+    packed = np.concatenate([lv.reshape(-1, 3) for lv in levels]).astype(np.float32)
+
+    keep = []
+
+    def arr(x, dtype):
+        a = wp.array(np.ascontiguousarray(x), dtype=dtype, device=device)
+        keep.append(a)
+        return a
+
+    data = EnvMapData()
+    data.base = arr(pixels, wp.vec3)
+    data.width = w
+    data.height = h
+    rad = math.radians(rotation_deg)
+    data.rot_cos = math.cos(rad)
+    data.rot_sin = math.sin(rad)
+    data.marginal_cdf = arr(dist["marginal_cdf"], wp.float32)
+    data.conditional_cdf = arr(dist["conditional_cdf"], wp.float32)
+    data.row_omc = arr(dist["row_omc"], wp.float32)
+    data.row_opc = arr(dist["row_opc"], wp.float32)
+    data.cell_pdf = arr(dist["cell_pdf"], wp.float32)
+    data.mip_data = arr(packed, wp.vec3)
+    data.mip_offset = arr(offsets, wp.int32)
+    data.mip_width = arr(np.array([lv.shape[1] for lv in levels], np.int32), wp.int32)
+    data.mip_height = arr(np.array([lv.shape[0] for lv in levels], np.int32), wp.int32)
+    data.n_levels = len(levels)
+    return EnvMap(
+        data=data,
+        width=w,
+        height=h,
+        n_clamped=n_clamped,
+        pixels=pixels,
+        mip_levels=levels,
+        name=name,
+        rotation_deg=rotation_deg,
+        scale=scale,
+        device=str(device),
+        _keep=keep,
+    )
+
+
+def envmap_from_array(rgb, rotation_deg: float = 0.0, scale: float = 1.0, name: str = "array", device="cpu") -> EnvMap:
+    """Environment light from an (H, W, 3) lat-long RGB array (row 0 = +Y, see module docstring).
+
+    Negative, NaN and infinite values are set to 0 with one RuntimeWarning that counts them.
+    """
+    return _make_envmap(rgb, rotation_deg, scale, name, device, stacklevel=2)
+
+
+def load_envmap(path, rotation_deg: float = 0.0, scale: float = 1.0, device="cpu") -> EnvMap:
+    """Environment light from a lat-long EXR file (via warpbw.io.exr.read_rgb)."""
+    from warpbw.io.exr import read_rgb  # lazy: keeps this module importable on its own
+
+    rgb = read_rgb(path)
+    return _make_envmap(rgb, rotation_deg, scale, Path(path).name, device, stacklevel=2)
+
+
+def constant_envmap(radiance, device="cpu") -> EnvMap:
+    """A 4x8 map whose radiance is exactly ``radiance`` (RGB triple or scalar) in every direction."""
+    try:
+        rgb = np.broadcast_to(np.asarray(radiance, dtype=np.float64), (3,))
+    except (TypeError, ValueError):
+        raise WarpbwError(f"constant envmap: radiance must be a number or an RGB triple, got {radiance!r}") from None
+    if not (np.all(np.isfinite(rgb)) and np.all(rgb >= 0.0)):
+        raise WarpbwError(f"constant envmap: radiance must be finite and >= 0, got {radiance!r}")
+    return _make_envmap(np.broadcast_to(rgb, (4, 8, 3)), 0.0, 1.0, "constant", device, stacklevel=2)
+
+
+# procedural sky colours (linear RGB), chosen by eye to read as a clear day
+_SKY_ZENITH = np.array([0.18, 0.34, 0.80])
+_SKY_HORIZON = np.array([0.70, 0.80, 0.95])
+_GROUND = np.array([0.16, 0.13, 0.10])
+
+
+def procedural_sky(
+    width: int = 256,
+    height: int = 128,
+    sun_elevation_deg: float = 35.0,
+    sun_azimuth_deg: float = 120.0,
+    sun_radius_deg: float = 2.5,
+    sun_radiance: float = 80.0,
+) -> np.ndarray:
+    """A built-in clear sky as an (H, W, 3) float32 lat-long map (Mitsuba convention).
+
+    Blue gradient above the horizon (luminance about 0.3 to 0.8), a darker ground below, and a
+    sun disk of ``sun_radiance`` (about 100x to 250x the sky) with a soft edge and a faint glow.
+    The azimuth follows u: 0 degrees is -Z, 90 degrees is +X. Deterministic, no file needed.
+    """
+    width = int(width)
+    height = int(height)
+    if width < 1 or height < 2:
+        raise WarpbwError(f"procedural_sky: need width >= 1 and height >= 2, got {width}x{height}")
+    d = texel_directions(width, height)
+    el = math.radians(sun_elevation_deg)
+    az = math.radians(sun_azimuth_deg)
+    sun = np.array([math.sin(az) * math.cos(el), math.sin(el), -math.cos(az) * math.cos(el)])
+    y = d[..., 1:2]
+    up = np.clip(y, 0.0, 1.0)
+    t = np.sqrt(up)
+    sky = _SKY_HORIZON * (1.0 - t) + _SKY_ZENITH * t
+    ground = _GROUND * (0.6 + 0.4 * np.clip(1.0 + y, 0.0, 1.0))
+    # soft horizon over about 1.5 degrees
+    blend = np.clip(0.5 + y / (2.0 * math.sin(math.radians(1.5))), 0.0, 1.0)
+    rgb = ground * (1.0 - blend) + sky * blend
+    cos_a = np.clip(d @ sun, -1.0, 1.0)
+    ang = np.arccos(cos_a)[..., None]
+    r = math.radians(sun_radius_deg)
+    edge = max(r * 0.25, math.pi / max(height - 1, 1) * 0.5)
+    disk = np.clip((r + edge - ang) / (2.0 * edge), 0.0, 1.0)
+    glow = 2.0 * np.exp(-((ang / (6.0 * r)) ** 2)) * blend
+    sun_rgb = sun_radiance * np.array([1.0, 0.93, 0.82])
+    rgb = rgb + glow * np.array([1.0, 0.9, 0.7]) + disk * sun_rgb
+    return rgb.astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- debug wrappers
+
+
+def _dirs_array(env: EnvMap, dirs) -> wp.array:
+    d = np.asarray(dirs, dtype=np.float32).reshape(-1, 3)
+    return wp.array(np.ascontiguousarray(d), dtype=wp.vec3, device=env.device)
+
+
+def eval_radiance(env: EnvMap, dirs) -> np.ndarray:
+    """(N, 3) radiance towards the (N, 3) world directions."""
+    d = _dirs_array(env, dirs)
+    out = wp.empty(d.shape[0], dtype=wp.vec3, device=env.device)
+    wp.launch(_eval_radiance_kernel, dim=d.shape[0], inputs=[env.data, d, out], device=env.device)
+    return out.numpy()
+
+
+def eval_radiance_lod(env: EnvMap, dirs, lod) -> np.ndarray:
+    """(N, 3) trilinear MIP lookup; lod is a scalar or (N,)."""
+    d = _dirs_array(env, dirs)
+    n = d.shape[0]
+    lods = np.broadcast_to(np.asarray(lod, dtype=np.float32), (n,))
+    lw = wp.array(np.ascontiguousarray(lods), dtype=wp.float32, device=env.device)
+    out = wp.empty(n, dtype=wp.vec3, device=env.device)
+    wp.launch(_eval_radiance_lod_kernel, dim=n, inputs=[env.data, d, lw, out], device=env.device)
+    return out.numpy()
+
+
+def eval_pdf(env: EnvMap, dirs) -> np.ndarray:
+    """(N,) solid-angle pdf of env_sample at the (N, 3) world directions."""
+    d = _dirs_array(env, dirs)
+    out = wp.empty(d.shape[0], dtype=wp.float32, device=env.device)
+    wp.launch(_eval_pdf_kernel, dim=d.shape[0], inputs=[env.data, d, out], device=env.device)
+    return out.numpy()
+
+
+def sample_directions(env: EnvMap, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """n directions drawn by env_sample (Warp RNG seeded by seed) and their pdfs."""
+    n = int(n)
+    dirs = wp.empty(n, dtype=wp.vec3, device=env.device)
+    pdf = wp.empty(n, dtype=wp.float32, device=env.device)
+    wp.launch(_sample_kernel, dim=n, inputs=[env.data, int(seed), dirs, pdf], device=env.device)
+    return dirs.numpy(), pdf.numpy()

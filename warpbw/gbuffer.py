@@ -1,0 +1,389 @@
+"""G-buffer pass: one primary ray per pixel against analytic spheres and a Warp mesh BVH.
+
+Public:
+    ``CameraData``                   Warp struct: pinhole camera
+    ``make_camera(position, look_at, up, fov_deg, width, height)`` -> ``CameraData``
+    ``camera_rays(cam) -> (origins, dirs)``  numpy, for tests and examples
+    ``Geometry`` / ``build_geometry(spheres, meshes, device)``  scene geometry on the device
+    ``GBufferData``                  Warp struct: the per-pixel buffers, as kernels read them
+    ``GBuffer`` / ``render_gbuffer(cam, geometry, device)``     run the pass
+
+Conventions (DESIGN.md): right-handed world, +Y up; the camera looks along ``forward`` with
+``right = normalize(forward x up)`` to the right of the image and row 0 at the top; ``fov`` is the full
+angle along the image width.  Pixel (x, y) is sampled at its centre.  Buffers are flat, row-major,
+``index = y * width + x``.  ``depth`` is the distance along ``forward`` (camera-space z), 0 where no
+geometry is hit; ``material`` is -1 there (the coverage mask is ``material >= 0``).  ``view`` is the unit
+direction from the surface point to the camera (``wo`` in world space).  ``curvature`` is the mean
+curvature H = (k1 + k2) / 2, positive on convex surfaces (a sphere of radius r gives 1 / r).
+The tangent is ``d position / d phi`` about +Y on spheres and a branchless orthonormal basis
+(Duff et al. 2017) around the shading normal on meshes: shading here is isotropic.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import warp as wp
+
+RAY_T_MAX = 1.0e30
+
+
+@wp.struct
+class CameraData:
+    origin: wp.vec3
+    forward: wp.vec3
+    right: wp.vec3
+    up: wp.vec3
+    tan_half_x: float   # tan(fov / 2) along the width
+    tan_half_y: float   # the same scaled by height / width (square pixels)
+    width: int
+    height: int
+
+
+@wp.struct
+class GBufferData:
+    position: wp.array(dtype=wp.vec3)
+    normal: wp.array(dtype=wp.vec3)       # shading normal (interpolated on meshes)
+    geo_normal: wp.array(dtype=wp.vec3)   # geometric normal, facing the camera
+    tangent: wp.array(dtype=wp.vec3)
+    view: wp.array(dtype=wp.vec3)         # wo, world space, unit, towards the camera
+    depth: wp.array(dtype=wp.float32)
+    curvature: wp.array(dtype=wp.float32)
+    uv: wp.array(dtype=wp.vec2)
+    material: wp.array(dtype=wp.int32)    # -1: no geometry (background)
+    width: int
+    height: int
+
+
+@wp.struct
+class SphereList:
+    center: wp.array(dtype=wp.vec3)
+    radius: wp.array(dtype=wp.float32)
+    material: wp.array(dtype=wp.int32)
+    count: int
+
+
+@wp.struct
+class MeshAttributes:
+    id: wp.uint64
+    indices: wp.array(dtype=wp.int32)        # 3 per face
+    normal: wp.array(dtype=wp.vec3)          # per vertex, smooth
+    curvature: wp.array(dtype=wp.float32)    # per vertex mean curvature
+    uv: wp.array(dtype=wp.vec2)              # per vertex (zeros when the mesh has none)
+    face_material: wp.array(dtype=wp.int32)
+
+
+# ---------------------------------------------------------------------------------------------
+# Kernel helpers
+# ---------------------------------------------------------------------------------------------
+
+@wp.func
+def primary_ray_dir(cam: CameraData, x: int, y: int):
+    sx = (2.0 * (float(x) + 0.5) / float(cam.width) - 1.0) * cam.tan_half_x
+    sy = (1.0 - 2.0 * (float(y) + 0.5) / float(cam.height)) * cam.tan_half_y
+    return wp.normalize(cam.forward + sx * cam.right + sy * cam.up)
+
+
+@wp.func
+def intersect_sphere(o: wp.vec3, d: wp.vec3, c: wp.vec3, r: float):
+    """Nearest t > 0 of a unit-direction ray with a sphere, or -1 (stable quadratic)."""
+    oc = o - c
+    b = wp.dot(oc, d)
+    # discriminant computed as r^2 - |oc - b d|^2 to avoid cancellation far from the sphere
+    q = oc - b * d
+    disc = r * r - wp.dot(q, q)
+    if disc < 0.0:
+        return -1.0
+    s = wp.sqrt(disc)
+    t0 = -b - s
+    t1 = -b + s
+    if t0 > 1.0e-6:
+        return t0
+    if t1 > 1.0e-6:
+        return t1
+    return -1.0
+
+
+@wp.func
+def orthonormal_tangent(n: wp.vec3):
+    # Duff et al. 2017, "Building an orthonormal basis, revisited".
+    sgn = wp.where(n[2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sgn + n[2])
+    b = n[0] * n[1] * a
+    return wp.vec3(1.0 + sgn * n[0] * n[0] * a, sgn * b, -sgn * n[0])
+
+
+@wp.func
+def sphere_tangent(n: wp.vec3):
+    # d position / d phi for phi about +Y; the basis fallback at the poles.
+    t = wp.vec3(n[2], 0.0, -n[0])
+    l = wp.length(t)
+    if l < 1.0e-6:
+        return orthonormal_tangent(n)
+    return t / l
+
+
+@wp.func
+def write_empty(gb: GBufferData, i: int):
+    gb.position[i] = wp.vec3(0.0)
+    gb.normal[i] = wp.vec3(0.0)
+    gb.geo_normal[i] = wp.vec3(0.0)
+    gb.tangent[i] = wp.vec3(0.0)
+    gb.view[i] = wp.vec3(0.0)
+    gb.depth[i] = 0.0
+    gb.curvature[i] = 0.0
+    gb.uv[i] = wp.vec2(0.0)
+    gb.material[i] = -1
+
+
+_KERNELS: dict = {}
+
+
+def make_gbuffer_kernel(has_spheres: bool, has_mesh: bool):
+    """The G-buffer kernel for a scene with spheres and/or meshes (only those paths are compiled)."""
+    key = (bool(has_spheres), bool(has_mesh))
+    if key in _KERNELS:
+        return _KERNELS[key]
+
+    @wp.kernel(module="unique")
+    def gbuffer_kernel(cam: CameraData, spheres: SphereList, mesh: MeshAttributes, gb: GBufferData):
+        i = wp.tid()
+        x = i % cam.width
+        y = i // cam.width
+        d = primary_ray_dir(cam, x, y)
+        o = cam.origin
+        t_best = float(RAY_T_MAX)
+        hit_kind = int(0)   # 0 none, 1 sphere, 2 mesh
+        hit_index = int(-1)
+        bu = float(0.0)
+        bv = float(0.0)
+        gn = wp.vec3(0.0)
+        if wp.static(has_spheres):
+            for k in range(spheres.count):
+                t = intersect_sphere(o, d, spheres.center[k], spheres.radius[k])
+                if t > 0.0 and t < t_best:
+                    t_best = t
+                    hit_kind = 1
+                    hit_index = k
+        if wp.static(has_mesh):
+            q = wp.mesh_query_ray(mesh.id, o, d, t_best)
+            if q.result:
+                t_best = q.t
+                hit_kind = 2
+                hit_index = q.face
+                bu = q.u
+                bv = q.v
+                gn = q.normal
+        if hit_kind == 0:
+            write_empty(gb, i)
+            return
+        p = o + t_best * d
+        n = wp.vec3(0.0)
+        tan = wp.vec3(0.0)
+        curv = float(0.0)
+        uv = wp.vec2(0.0)
+        mat = int(-1)
+        if wp.static(has_spheres):
+            if hit_kind == 1:
+                c = spheres.center[hit_index]
+                r = spheres.radius[hit_index]
+                n = (p - c) / r
+                n = wp.normalize(n)
+                if wp.dot(n, d) > 0.0:   # camera inside the sphere: see its inner side
+                    n = -n
+                gn = n
+                tan = sphere_tangent(n)
+                curv = 1.0 / r
+                uv = wp.vec2(wp.atan2(n[0], n[2]) / (2.0 * wp.pi) + 0.5,
+                             wp.acos(wp.clamp(n[1], -1.0, 1.0)) / wp.pi)
+                mat = spheres.material[hit_index]
+        if wp.static(has_mesh):
+            if hit_kind == 2:
+                i0 = mesh.indices[hit_index * 3 + 0]
+                i1 = mesh.indices[hit_index * 3 + 1]
+                i2 = mesh.indices[hit_index * 3 + 2]
+                w2 = 1.0 - bu - bv
+                # Warp's barycentrics: p = u p0 + v p1 + (1 - u - v) p2
+                n = wp.normalize(bu * mesh.normal[i0] + bv * mesh.normal[i1] + w2 * mesh.normal[i2])
+                gn = wp.normalize(gn)
+                if wp.dot(gn, d) > 0.0:   # two-sided: face the camera
+                    gn = -gn
+                    n = -n
+                tan = orthonormal_tangent(n)
+                curv = bu * mesh.curvature[i0] + bv * mesh.curvature[i1] + w2 * mesh.curvature[i2]
+                uv = bu * mesh.uv[i0] + bv * mesh.uv[i1] + w2 * mesh.uv[i2]
+                mat = mesh.face_material[hit_index]
+        gb.position[i] = p
+        gb.normal[i] = n
+        gb.geo_normal[i] = gn
+        gb.tangent[i] = tan
+        gb.view[i] = -d
+        gb.depth[i] = t_best * wp.dot(d, cam.forward)
+        gb.curvature[i] = curv
+        gb.uv[i] = uv
+        gb.material[i] = mat
+
+    _KERNELS[key] = gbuffer_kernel
+    return gbuffer_kernel
+
+
+# ---------------------------------------------------------------------------------------------
+# Host side
+# ---------------------------------------------------------------------------------------------
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, np.float64)
+    return v / np.linalg.norm(v)
+
+
+def make_camera(position, look_at, up, fov_deg: float, width: int, height: int) -> CameraData:
+    """A pinhole camera; ``fov_deg`` is the full field of view along the image width."""
+    o = np.asarray(position, np.float64)
+    fwd = _unit(np.asarray(look_at, np.float64) - o)
+    right = _unit(np.cross(fwd, up))
+    cam_up = np.cross(right, fwd)
+    cam = CameraData()
+    cam.origin = wp.vec3(*o)
+    cam.forward = wp.vec3(*fwd)
+    cam.right = wp.vec3(*right)
+    cam.up = wp.vec3(*cam_up)
+    cam.tan_half_x = float(math.tan(math.radians(fov_deg) * 0.5))
+    cam.tan_half_y = float(cam.tan_half_x * height / width)
+    cam.width = int(width)
+    cam.height = int(height)
+    return cam
+
+
+def camera_rays(cam: CameraData):
+    """(origins, dirs) of every pixel's primary ray, each (H*W, 3) float64, row-major, row 0 at the top."""
+    w, h = cam.width, cam.height
+    x, y = np.meshgrid(np.arange(w), np.arange(h))
+    sx = (2.0 * (x.ravel() + 0.5) / w - 1.0) * cam.tan_half_x
+    sy = (1.0 - 2.0 * (y.ravel() + 0.5) / h) * cam.tan_half_y
+    fwd, right, up = (np.array(list(v), np.float64) for v in (cam.forward, cam.right, cam.up))
+    d = fwd[None] + sx[:, None] * right[None] + sy[:, None] * up[None]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    o = np.broadcast_to(np.array(list(cam.origin), np.float64), d.shape)
+    return o, d
+
+
+@dataclass
+class SphereSpec:
+    center: tuple
+    radius: float
+    material: int
+
+
+@dataclass
+class MeshSpec:
+    vertices: np.ndarray       # (V, 3)
+    faces: np.ndarray          # (F, 3)
+    normals: np.ndarray        # (V, 3)
+    curvature: np.ndarray      # (V,)
+    uv: np.ndarray | None      # (V, 2)
+    material: int
+
+
+@dataclass
+class Geometry:
+    """Scene geometry on the device.  ``mesh`` (a ``wp.Mesh`` over every mesh object, or None) can be
+    deformed in place and refitted (``geometry.mesh.points`` then ``geometry.mesh.refit()``)."""
+
+    spheres: SphereList
+    mesh_attr: MeshAttributes
+    mesh: wp.Mesh | None
+    has_spheres: bool
+    has_mesh: bool
+    n_triangles: int = 0
+    _keep: list = field(default_factory=list, repr=False)
+
+
+def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], device: str = "cpu") -> Geometry:
+    """Upload spheres and one BVH over all meshes (concatenated, with a material id per face)."""
+    sl = SphereList()
+    sl.center = wp.array(np.array([s.center for s in spheres], np.float32).reshape(-1, 3), dtype=wp.vec3,
+                         device=device)
+    sl.radius = wp.array(np.array([s.radius for s in spheres], np.float32), dtype=wp.float32, device=device)
+    sl.material = wp.array(np.array([s.material for s in spheres], np.int32), dtype=wp.int32, device=device)
+    sl.count = len(spheres)
+
+    ma = MeshAttributes()
+    mesh = None
+    n_tri = 0
+    if meshes:
+        verts, faces, norms, curv, uvs, fmat = [], [], [], [], [], []
+        base = 0
+        for m in meshes:
+            v = np.asarray(m.vertices, np.float32)
+            verts.append(v)
+            faces.append(np.asarray(m.faces, np.int64) + base)
+            norms.append(np.asarray(m.normals, np.float32))
+            curv.append(np.asarray(m.curvature, np.float32))
+            uvs.append(np.zeros((len(v), 2), np.float32) if m.uv is None else np.asarray(m.uv, np.float32))
+            fmat.append(np.full(len(m.faces), m.material, np.int32))
+            base += len(v)
+        faces_all = np.concatenate(faces).astype(np.int32)
+        n_tri = len(faces_all)
+        points = wp.array(np.concatenate(verts), dtype=wp.vec3, device=device)
+        indices = wp.array(faces_all.reshape(-1), dtype=wp.int32, device=device)
+        mesh = wp.Mesh(points=points, indices=indices)
+        ma.id = mesh.id
+        ma.indices = indices
+        ma.normal = wp.array(np.concatenate(norms), dtype=wp.vec3, device=device)
+        ma.curvature = wp.array(np.concatenate(curv), dtype=wp.float32, device=device)
+        ma.uv = wp.array(np.concatenate(uvs), dtype=wp.vec2, device=device)
+        ma.face_material = wp.array(np.concatenate(fmat), dtype=wp.int32, device=device)
+    else:
+        ma.id = wp.uint64(0)
+        ma.indices = wp.zeros(0, dtype=wp.int32, device=device)
+        ma.normal = wp.zeros(0, dtype=wp.vec3, device=device)
+        ma.curvature = wp.zeros(0, dtype=wp.float32, device=device)
+        ma.uv = wp.zeros(0, dtype=wp.vec2, device=device)
+        ma.face_material = wp.zeros(0, dtype=wp.int32, device=device)
+    return Geometry(sl, ma, mesh, bool(spheres), bool(meshes), n_tri)
+
+
+@dataclass
+class GBuffer:
+    """The G-buffer on the device; ``data`` is what kernels take, the arrays are views of it."""
+
+    data: GBufferData
+    width: int
+    height: int
+
+    def numpy(self, name: str) -> np.ndarray:
+        """A buffer as an (H, W, ...) numpy array, e.g. ``gb.numpy("normal")``."""
+        a = getattr(self.data, name).numpy()
+        return a.reshape((self.height, self.width) + a.shape[1:])
+
+    @property
+    def coverage(self) -> np.ndarray:
+        return self.numpy("material") >= 0
+
+
+def allocate_gbuffer(width: int, height: int, device: str = "cpu") -> GBuffer:
+    n = width * height
+    g = GBufferData()
+    g.position = wp.zeros(n, dtype=wp.vec3, device=device)
+    g.normal = wp.zeros(n, dtype=wp.vec3, device=device)
+    g.geo_normal = wp.zeros(n, dtype=wp.vec3, device=device)
+    g.tangent = wp.zeros(n, dtype=wp.vec3, device=device)
+    g.view = wp.zeros(n, dtype=wp.vec3, device=device)
+    g.depth = wp.zeros(n, dtype=wp.float32, device=device)
+    g.curvature = wp.zeros(n, dtype=wp.float32, device=device)
+    g.uv = wp.zeros(n, dtype=wp.vec2, device=device)
+    g.material = wp.zeros(n, dtype=wp.int32, device=device)
+    g.width = int(width)
+    g.height = int(height)
+    return GBuffer(g, width, height)
+
+
+def render_gbuffer(cam: CameraData, geometry: Geometry, device: str = "cpu", out: GBuffer | None = None) -> GBuffer:
+    """Cast one primary ray per pixel and fill the G-buffer (reusing ``out`` when given)."""
+    gb = out if out is not None else allocate_gbuffer(cam.width, cam.height, device)
+    kernel = make_gbuffer_kernel(geometry.has_spheres, geometry.has_mesh)
+    wp.launch(kernel, dim=cam.width * cam.height, inputs=[cam, geometry.spheres, geometry.mesh_attr, gb.data],
+              device=device)
+    return gb

@@ -1,0 +1,1 @@
+"""Asset readers and writers: EXR/PNG images, meshes, MERL ``.binary`` BRDFs, NPF tables."""

@@ -1,0 +1,244 @@
+"""OpenEXR images in and out, and 8-bit PNG previews.
+
+Public functions:
+
+- ``read_exr(path) -> ExrImage``: every channel of a scan-line or tiled EXR (first part of a
+  multi-part file) as float32 ``(H, W, C)``.
+- ``read_rgb(path) -> np.ndarray``: ``(H, W, 3)`` float32 radiance (a single ``Y`` channel is replicated).
+- ``write_exr(path, pixels, channels=None)``: float32, lossless ZIP compression; channel names and
+  their order survive a round trip through ``read_exr``.
+- ``linear_to_srgb(x)``: the sRGB transfer function (IEC 61966-2-1) on linear values.
+- ``write_png(path, rgb, exposure=0.0)``: linear radiance -> 8-bit sRGB preview, exposure in stops.
+- ``write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=False)``: a scalar
+  AOV through matplotlib's viridis colour map; returns the ``(vmin, vmax)`` it used.
+
+Class: ``ExrImage`` (``pixels``, ``channels``, ``path``).
+
+Every problem with a user's file is raised as :class:`warpbw.errors.WarpbwError` in one line that
+names the file.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from warpbw.errors import WarpbwError
+
+# First four bytes of every OpenEXR file: the magic number 20000630 = 0x762f3101, stored
+# little-endian (OpenEXR file layout, "Magic Number" section of openexr.com/en/latest/OpenEXRFileLayout.html).
+EXR_MAGIC = b"\x76\x2f\x31\x01"
+# Magic numbers of formats users commonly mistake for EXR, only to word the error message
+# (PNG spec section 5.2; JPEG SOI marker; Radiance .hdr "#?" header; TIFF byte-order marks).
+_OTHER_MAGICS = (
+    (b"\x89PNG", "a PNG image"),
+    (b"\xff\xd8\xff", "a JPEG image"),
+    (b"#?", "a Radiance .hdr image"),
+    (b"II*\x00", "a TIFF image"),
+    (b"MM\x00*", "a TIFF image"),
+)
+# Header attribute in which write_exr records the caller's channel order (EXR itself stores
+# channels sorted by name, so "R,G,B,A" would otherwise come back as "A,B,G,R").
+_ORDER_ATTRIBUTE = "warpbw_channels"
+# Order used for files without that attribute: colour first, then alpha, then the rest by name.
+_CANONICAL_ORDER = ("R", "G", "B", "Y", "A")
+# sRGB transfer function constants (IEC 61966-2-1:1999): linear segment below 0.0031308 with slope
+# 12.92, then 1.055 * x^(1/2.4) - 0.055.
+SRGB_LINEAR_THRESHOLD = 0.0031308
+SRGB_LINEAR_SLOPE = 12.92
+SRGB_GAMMA = 2.4
+SRGB_A = 0.055
+
+
+@dataclass
+class ExrImage:
+    """An EXR image: ``pixels`` (H, W, C) float32, ``channels`` names in ``pixels``' last-axis order."""
+
+    pixels: np.ndarray
+    channels: list[str]
+    path: str
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _check_magic(path: Path) -> None:
+    with open(path, "rb") as fh:
+        head = fh.read(4)
+    if head == EXR_MAGIC:
+        return
+    what = next((name for magic, name in _OTHER_MAGICS if head.startswith(magic)), None)
+    if len(head) < 4:
+        what = f"a {len(head)}-byte file"
+    found = f"; it looks like {what}" if what else f"; first bytes are {head.hex()}"
+    raise WarpbwError(f"{path}: not an OpenEXR file (expected magic number 0x762f3101{found})")
+
+
+def _order_channels(names: list[str], recorded: object) -> list[str]:
+    if isinstance(recorded, str | bytes):
+        if isinstance(recorded, bytes):
+            recorded = recorded.decode("utf-8", "replace")
+        order = recorded.split(",")
+        if sorted(order) == sorted(names):
+            return order
+    first = [c for c in _CANONICAL_ORDER if c in names]
+    return first + sorted(c for c in names if c not in first)
+
+
+def read_exr(path) -> ExrImage:
+    """Read every channel of an EXR file as float32 ``(H, W, C)`` (half and uint channels converted)."""
+    import OpenEXR
+
+    path = Path(path)
+    if not path.is_file():
+        raise WarpbwError(f"{path}: file not found (expected an OpenEXR image)")
+    _check_magic(path)
+    try:
+        exr = OpenEXR.File(str(path), separate_channels=True)
+        header = exr.header()
+        chans = exr.channels()
+        planes = {}
+        for name, ch in chans.items():
+            if getattr(ch, "xSampling", 1) != 1 or getattr(ch, "ySampling", 1) != 1:
+                raise WarpbwError(
+                    f"{path}: channel {name!r} is subsampled "
+                    f"({ch.xSampling}x{ch.ySampling}); expected full-resolution channels"
+                )
+            planes[name] = np.asarray(ch.pixels)
+    except WarpbwError:
+        raise
+    except Exception as exc:  # OpenEXR raises RuntimeError for truncated / corrupt files
+        raise WarpbwError(f"{path}: unreadable OpenEXR file ({_one_line(exc)})") from None
+    if not planes:
+        raise WarpbwError(f"{path}: OpenEXR file has no channels (expected R,G,B or Y)")
+    names = _order_channels(list(planes), header.get(_ORDER_ATTRIBUTE))
+    shapes = {planes[n].shape for n in names}
+    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+        raise WarpbwError(f"{path}: channels have shapes {sorted(shapes)}, expected one (H, W) shape")
+    pixels = np.stack([planes[n].astype(np.float32, copy=False) for n in names], axis=-1)
+    return ExrImage(pixels=np.ascontiguousarray(pixels), channels=names, path=str(path))
+
+
+def read_rgb(path) -> np.ndarray:
+    """``(H, W, 3)`` float32 RGB from an EXR: R,G,B channels, or a lone ``Y`` (or single) channel as grey."""
+    img = read_exr(path)
+    ch = img.channels
+    if all(c in ch for c in ("R", "G", "B")):
+        return np.ascontiguousarray(img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]])
+    grey = "Y" if "Y" in ch else (ch[0] if len(ch) == 1 else None)
+    if grey is None:
+        raise WarpbwError(f"{img.path}: channels {ch} hold no colour (expected R,G,B or Y)")
+    return np.ascontiguousarray(np.repeat(img.pixels[..., [ch.index(grey)]], 3, axis=-1))
+
+
+def _default_channels(c: int) -> list[str]:
+    return {1: ["Y"], 3: ["R", "G", "B"], 4: ["R", "G", "B", "A"]}.get(c, [])
+
+
+def write_exr(path, pixels, channels=None) -> Path:
+    """Write ``pixels`` (H, W) or (H, W, C) as float32 EXR (ZIP, lossless); returns the path.
+
+    ``channels`` defaults to Y, RGB or RGBA for C = 1, 3, 4; other C need explicit names.
+    """
+    import OpenEXR
+
+    path = Path(path)
+    arr = np.asarray(pixels)
+    if arr.ndim == 2:
+        arr = arr[..., None]
+    if arr.ndim != 3 or arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise WarpbwError(f"{path}: cannot write pixels of shape {arr.shape} (expected (H, W) or (H, W, C))")
+    names = list(channels) if channels is not None else _default_channels(arr.shape[2])
+    if len(names) != arr.shape[2] or len(set(names)) != len(names) or any(
+        not isinstance(n, str) or not n or "," in n for n in names
+    ):
+        raise WarpbwError(
+            f"{path}: channel names {names} do not match {arr.shape[2]} channels "
+            "(expected that many distinct, non-empty names without commas)"
+        )
+    data = {n: np.ascontiguousarray(arr[..., i], dtype=np.float32) for i, n in enumerate(names)}
+    header = {
+        "compression": OpenEXR.ZIP_COMPRESSION,
+        "type": OpenEXR.scanlineimage,
+        _ORDER_ATTRIBUTE: ",".join(names),
+    }
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        OpenEXR.File(header, data).write(str(path))
+    except Exception as exc:
+        raise WarpbwError(f"{path}: cannot write OpenEXR file ({_one_line(exc)})") from None
+    return path
+
+
+def linear_to_srgb(x):
+    """sRGB-encode linear values (IEC 61966-2-1); no clamping, works elementwise on any array."""
+    x = np.asarray(x, dtype=np.float64)
+    hi = (1.0 + SRGB_A) * np.power(np.maximum(x, SRGB_LINEAR_THRESHOLD), 1.0 / SRGB_GAMMA) - SRGB_A
+    return np.where(x <= SRGB_LINEAR_THRESHOLD, SRGB_LINEAR_SLOPE * x, hi)
+
+
+def _to_png(path: Path, rgb8: np.ndarray) -> Path:
+    from PIL import Image
+
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        Image.fromarray(rgb8).save(str(path), format="PNG")
+    except Exception as exc:
+        raise WarpbwError(f"{path}: cannot write PNG ({_one_line(exc)})") from None
+    return path
+
+
+def write_png(path, rgb, exposure: float = 0.0) -> Path:
+    """Linear ``rgb`` (H, W, 3) (or (H, W) grey) -> 8-bit sRGB PNG after scaling by ``2**exposure``.
+
+    Values are clipped to [0, 1] before encoding; NaN shows as 0 (black), +inf as 1.
+    """
+    path = Path(path)
+    arr = np.asarray(rgb, dtype=np.float64)
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[..., 0]
+    if arr.ndim == 2:
+        arr = np.repeat(arr[..., None], 3, axis=-1)
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        raise WarpbwError(f"{path}: cannot write a preview of shape {arr.shape} (expected (H, W, 3))")
+    v = np.nan_to_num(arr * (2.0 ** float(exposure)), nan=0.0, posinf=1.0, neginf=0.0)
+    enc = linear_to_srgb(np.clip(v, 0.0, 1.0))
+    return _to_png(path, np.round(enc * 255.0).astype(np.uint8))
+
+
+def write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=False):
+    """Scalar ``values`` (H, W) -> viridis PNG; pixels outside ``mask`` (or non-finite) are black.
+
+    ``vmin``/``vmax`` default to the range of the shown values; ``log`` maps log10 of the values
+    (non-positive values shown at ``vmin``). Returns the ``(vmin, vmax)`` used, in value units.
+    """
+    from matplotlib import colormaps
+
+    path = Path(path)
+    v = np.asarray(values, dtype=np.float64)
+    if v.ndim != 2:
+        raise WarpbwError(f"{path}: cannot write a false-colour image of shape {v.shape} (expected (H, W))")
+    shown = np.isfinite(v)
+    if mask is not None:
+        m = np.asarray(mask, dtype=bool)
+        if m.shape != v.shape:
+            raise WarpbwError(f"{path}: mask shape {m.shape} differs from values shape {v.shape}")
+        shown &= m
+    ok = shown & (v > 0) if log else shown
+    lo = float(vmin) if vmin is not None else (float(v[ok].min()) if ok.any() else (1.0 if log else 0.0))
+    hi = float(vmax) if vmax is not None else (float(v[ok].max()) if ok.any() else lo)
+    if log:
+        lo = max(lo, np.finfo(np.float64).tiny)
+        hi = max(hi, lo)
+        t_val = np.log10(np.maximum(np.where(shown, v, lo), lo))
+        t_lo, t_hi = np.log10(lo), np.log10(hi)
+    else:
+        t_val, t_lo, t_hi = np.where(shown, v, lo), lo, hi
+    t = np.clip((t_val - t_lo) / (t_hi - t_lo), 0.0, 1.0) if t_hi > t_lo else np.zeros_like(t_val)
+    rgba = colormaps["viridis"](t)
+    rgb8 = np.round(rgba[..., :3] * 255.0).astype(np.uint8)
+    rgb8[~shown] = 0
+    _to_png(path, rgb8)
+    return lo, hi

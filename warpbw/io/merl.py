@@ -1,0 +1,315 @@
+"""MERL ``.binary`` measured isotropic BRDFs: read, write, look up, tabulate.
+
+Public functions:
+
+- ``read_merl(path) -> MerlBRDF``: scaled linear BRDF values (1/sr), unmeasured entries zeroed and counted.
+- ``write_merl(path, data, force=False) -> Path``: the inverse (MERL channel scales undone, float64).
+- ``half_diff_from_dirs(wi, wo) -> (theta_h, phi_h, theta_d, phi_d)``: Rusinkiewicz (1998) coordinates.
+- ``dirs_from_half_diff(theta_h, phi_h, theta_d, phi_d) -> (wi, wo)``: their inverse.
+- ``merl_indices(theta_h, theta_d, phi_d) -> (i_th, i_td, i_pd)``: the MERL binning rules.
+- ``merl_bin_centres() -> (theta_h (90,), theta_d (90,), phi_d (180,))``: angle at each bin's centre.
+- ``merl_eval(brdf, wi, wo, interpolate=False) -> (N, 3)``: host reference lookup, 0 below the horizon.
+- ``tabulate_merl(func, name) -> (90, 90, 180, 3)``: an analytic / fitted BRDF sampled at the bin centres.
+
+Class: ``MerlBRDF``. Constants: ``MERL_THETA_H_RES``, ``MERL_THETA_D_RES``, ``MERL_PHI_D_RES``,
+``MERL_SCALE``, ``MERL_FILE_SIZE``.
+
+Format and binning follow the MERL database's ``BRDFRead.cpp`` (Matusik et al. 2003) as restated
+in ``../shared/data/README.md``. Directions point away from the surface, +Z is the normal.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from warpbw.errors import WarpbwError
+
+# Table resolution of the MERL database (BRDFRead.cpp: BRDF_SAMPLING_RES_THETA_H = 90,
+# BRDF_SAMPLING_RES_THETA_D = 90, BRDF_SAMPLING_RES_PHI_D = 360 of which 180 are stored).
+MERL_THETA_H_RES = 90
+MERL_THETA_D_RES = 90
+MERL_PHI_D_RES = 180
+# Per-channel scale applied on reading (BRDFRead.cpp: RED_SCALE, GREEN_SCALE, BLUE_SCALE).
+MERL_SCALE = (1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0)
+MERL_N_BINS = MERL_THETA_H_RES * MERL_THETA_D_RES * MERL_PHI_D_RES  # 1,458,000 per channel
+MERL_HEADER_BYTES = 12  # three int32 dims (data README, "MERL .binary format")
+MERL_FILE_SIZE = MERL_HEADER_BYTES + 3 * MERL_N_BINS * 8  # 34,992,012 bytes: float64 values
+MERL_SHAPE = (MERL_THETA_H_RES, MERL_THETA_D_RES, MERL_PHI_D_RES, 3)
+_HALF_PI = 0.5 * np.pi
+# theta_h rows evaluated per call of the user's BRDF in tabulate_merl (bounds memory: ~146k pairs).
+_TABULATE_ROWS_PER_CHUNK = 9
+
+
+@dataclass
+class MerlBRDF:
+    """A MERL table: ``data`` (90, 90, 180, 3) float32, already scaled to BRDF values (1/sr).
+
+    ``n_unmeasured`` counts entries (over all 3 channels) stored as negative (or non-finite) numbers;
+    they are 0 in ``data`` and True in ``unmeasured`` (None when there are none).
+    """
+
+    name: str
+    path: str | None
+    data: np.ndarray
+    n_unmeasured: int = 0
+    unmeasured: np.ndarray | None = None
+
+
+# --------------------------------------------------------------------------- coordinates
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(n > 0.0, n, 1.0)
+
+
+def _half_diff_xyz(wi, wo):
+    """theta_h, phi_h and the difference vector d = (dx, dy, dz), computed symmetrically in (wi, wo).
+
+    d is Rusinkiewicz's: wi rotated by -phi_h about z, then by -theta_h about y. Mathematically
+    rotating wo the same way gives (-dx, -dy, dz); averaging the two makes swapping wi and wo negate
+    (dx, dy) exactly and keep dz and theta_h bit-identical, so lookups are exactly reciprocal.
+    """
+    wi, wo = np.broadcast_arrays(_unit(wi), _unit(wo))
+    s = wi + wo
+    n = np.linalg.norm(s, axis=-1, keepdims=True)
+    h = np.where(n > 0.0, s / np.where(n > 0.0, n, 1.0), np.array([0.0, 0.0, 1.0]))
+    theta_h = np.arccos(np.clip(h[..., 2], -1.0, 1.0))
+    phi_h = np.arctan2(h[..., 1], h[..., 0])
+    cp, sp = np.cos(phi_h), np.sin(phi_h)
+    ct, st = np.cos(theta_h), np.sin(theta_h)
+
+    def rot(w):
+        # rotate by -phi_h about z
+        x = w[..., 0] * cp + w[..., 1] * sp
+        y = -w[..., 0] * sp + w[..., 1] * cp
+        z = w[..., 2]
+        # rotate by -theta_h about y (Rodrigues about (0, 1, 0))
+        return x * ct - z * st, y, z * ct + x * st
+
+    xi, yi, zi = rot(wi)
+    xo, yo, zo = rot(wo)
+    return theta_h, phi_h, 0.5 * (xi - xo), 0.5 * (yi - yo), 0.5 * (zi + zo)
+
+
+def half_diff_from_dirs(wi, wo):
+    """Rusinkiewicz half/difference angles of direction pairs (..., 3) (normalised here).
+
+    Returns ``(theta_h, phi_h, theta_d, phi_d)``, phi in (-pi, pi]: h = normalize(wi + wo);
+    d = wi rotated by -phi_h about z then by -theta_h about y.
+    """
+    theta_h, phi_h, dx, dy, dz = _half_diff_xyz(wi, wo)
+    return theta_h, phi_h, np.arccos(np.clip(dz, -1.0, 1.0)), np.arctan2(dy, dx)
+
+
+def dirs_from_half_diff(theta_h, phi_h, theta_d, phi_d):
+    """Inverse of :func:`half_diff_from_dirs`: unit ``(wi, wo)``, arrays of shape (..., 3)."""
+    theta_h, phi_h, theta_d, phi_d = np.broadcast_arrays(
+        *(np.asarray(a, dtype=np.float64) for a in (theta_h, phi_h, theta_d, phi_d))
+    )
+    d = np.stack([np.sin(theta_d) * np.cos(phi_d), np.sin(theta_d) * np.sin(phi_d), np.cos(theta_d)], -1)
+    ct, st = np.cos(theta_h), np.sin(theta_h)
+    cp, sp = np.cos(phi_h), np.sin(phi_h)
+    # rotate by +theta_h about y, then by +phi_h about z
+    x1 = d[..., 0] * ct + d[..., 2] * st
+    z1 = d[..., 2] * ct - d[..., 0] * st
+    y1 = d[..., 1]
+    wi = np.stack([x1 * cp - y1 * sp, x1 * sp + y1 * cp, z1], -1)
+    h = np.stack([st * cp, st * sp, ct], -1)
+    wo = 2.0 * np.sum(wi * h, axis=-1, keepdims=True) * h - wi
+    return wi, wo
+
+
+def _finite_or_zero(x) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float64)
+    return np.where(np.isfinite(x), x, 0.0)
+
+
+def merl_indices(theta_h, theta_d, phi_d):
+    """MERL bin indices (int64 arrays), exactly the data README's rules.
+
+    i_th = floor(sqrt(theta_h / (pi/2)) * 90) (theta_h <= 0 -> 0); i_td = floor(theta_d / (pi/2) * 90);
+    phi_d folded into [0, pi) by adding pi when negative, i_pd = floor(phi_d / pi * 180); all clamped.
+    """
+    th, td, pd = (_finite_or_zero(a) for a in (theta_h, theta_d, phi_d))
+    i_th = np.where(th <= 0.0, 0.0, np.floor(np.sqrt(np.maximum(th, 0.0) / _HALF_PI) * MERL_THETA_H_RES))
+    i_td = np.floor(td / _HALF_PI * MERL_THETA_D_RES)
+    pd = np.where(pd < 0.0, pd + np.pi, pd)
+    i_pd = np.floor(pd / np.pi * MERL_PHI_D_RES)
+    return (
+        np.clip(i_th, 0, MERL_THETA_H_RES - 1).astype(np.int64),
+        np.clip(i_td, 0, MERL_THETA_D_RES - 1).astype(np.int64),
+        np.clip(i_pd, 0, MERL_PHI_D_RES - 1).astype(np.int64),
+    )
+
+
+def merl_bin_centres():
+    """Angles (radians) at the centre of each bin: theta_h (90,) (square-root spacing), theta_d (90,), phi_d (180,)."""
+    i = np.arange(MERL_THETA_H_RES, dtype=np.float64)
+    j = np.arange(MERL_THETA_D_RES, dtype=np.float64)
+    k = np.arange(MERL_PHI_D_RES, dtype=np.float64)
+    theta_h = ((i + 0.5) / MERL_THETA_H_RES) ** 2 * _HALF_PI
+    theta_d = (j + 0.5) / MERL_THETA_D_RES * _HALF_PI
+    phi_d = (k + 0.5) / MERL_PHI_D_RES * np.pi
+    return theta_h, theta_d, phi_d
+
+
+def _folded_angles(wi, wo):
+    """theta_h, theta_d and phi_d folded into [0, pi], exactly symmetric under swapping wi and wo."""
+    theta_h, _, dx, dy, dz = _half_diff_xyz(wi, wo)
+    # Folding phi_d by pi (README: add pi when negative) == flipping the sign of (dx, dy) when dy < 0;
+    # done on the vector, it maps (dx, dy) and (-dx, -dy) to the same bits.
+    flip = (dy < 0.0) | ((dy == 0.0) & (dx < 0.0))
+    # "+ 0.0" turns -0.0 into +0.0, so atan2 cannot tell the pair (+0, 0) from (-0, 0) (0 against pi)
+    dx = np.where(flip, -dx, dx) + 0.0
+    dy = np.where(flip, -dy, dy) + 0.0
+    return theta_h, np.arccos(np.clip(dz, -1.0, 1.0)), np.arctan2(dy, dx)
+
+
+# --------------------------------------------------------------------------- lookup
+
+
+def merl_eval(brdf: MerlBRDF, wi, wo, interpolate: bool = False) -> np.ndarray:
+    """BRDF values (N, 3) float64 for direction pairs (N, 3); 0 where wi or wo is at/below the horizon.
+
+    Nearest bin by default; ``interpolate=True`` is trilinear in the continuous bin coordinates
+    (u_h = sqrt(theta_h/(pi/2))*90 - 0.5, u_d = theta_d/(pi/2)*90 - 0.5, u_p = phi_d/pi*180 - 0.5),
+    clamped at the theta edges and periodic (period pi) in phi_d.
+    """
+    wi = np.atleast_2d(np.asarray(wi, dtype=np.float64))
+    wo = np.atleast_2d(np.asarray(wo, dtype=np.float64))
+    wi, wo = np.broadcast_arrays(wi, wo)
+    above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
+    theta_h, theta_d, phi_d = _folded_angles(wi, wo)
+    data = brdf.data
+    if not interpolate:
+        i, j, k = merl_indices(theta_h, theta_d, phi_d)
+        out = data[i, j, k].astype(np.float64)
+    else:
+        u_h = np.sqrt(np.maximum(theta_h, 0.0) / _HALF_PI) * MERL_THETA_H_RES - 0.5
+        u_d = theta_d / _HALF_PI * MERL_THETA_D_RES - 0.5
+        u_p = phi_d / np.pi * MERL_PHI_D_RES - 0.5
+
+        def clamped(u, n):
+            u = np.clip(_finite_or_zero(u), 0.0, n - 1)
+            i0 = np.minimum(np.floor(u), n - 2).astype(np.int64)
+            return i0, i0 + 1, (u - i0)[..., None]
+
+        h0, h1, th = clamped(u_h, MERL_THETA_H_RES)
+        d0, d1, td = clamped(u_d, MERL_THETA_D_RES)
+        u_p = _finite_or_zero(u_p)
+        pf = np.floor(u_p)
+        tp = (u_p - pf)[..., None]
+        p0 = np.mod(pf.astype(np.int64), MERL_PHI_D_RES)
+        p1 = np.mod(p0 + 1, MERL_PHI_D_RES)
+
+        def lerp_p(i, j):
+            return data[i, j, p0] * (1.0 - tp) + data[i, j, p1] * tp
+
+        lo = lerp_p(h0, d0) * (1.0 - td) + lerp_p(h0, d1) * td
+        hi = lerp_p(h1, d0) * (1.0 - td) + lerp_p(h1, d1) * td
+        out = lo * (1.0 - th) + hi * th
+    out = np.maximum(out, 0.0)  # never shade with a negative (unmeasured) value
+    return np.where(above[..., None], out, 0.0)
+
+
+# --------------------------------------------------------------------------- files
+
+
+def read_merl(path) -> MerlBRDF:
+    """Read a MERL ``.binary`` file; negative (unmeasured) and non-finite entries become 0, with a warning."""
+    path = Path(path)
+    if not path.is_file():
+        raise WarpbwError(f"{path}: file not found (expected a MERL .binary BRDF of {MERL_FILE_SIZE} bytes)")
+    size = path.stat().st_size
+    if size != MERL_FILE_SIZE:
+        raise WarpbwError(f"{path}: expected {MERL_FILE_SIZE} bytes (MERL .binary), got {size}")
+    try:
+        dims = np.fromfile(path, dtype="<i4", count=3)
+        raw = np.fromfile(path, dtype="<f8", offset=MERL_HEADER_BYTES)
+    except OSError as exc:
+        raise WarpbwError(f"{path}: cannot read MERL file ({exc.strerror or exc})") from None
+    expected = (MERL_THETA_H_RES, MERL_THETA_D_RES, MERL_PHI_D_RES)
+    if tuple(int(d) for d in dims) != expected:
+        raise WarpbwError(f"{path}: header dims {tuple(int(d) for d in dims)}, expected {expected} (MERL .binary)")
+    raw = raw.reshape(3, *expected)
+    bad = ~(np.isfinite(raw) & (raw >= 0.0))
+    n_bad = int(np.count_nonzero(bad))
+    scale = np.asarray(MERL_SCALE, dtype=np.float64).reshape(3, 1, 1, 1)
+    scaled = np.where(bad, 0.0, raw * scale)
+    data = np.ascontiguousarray(np.moveaxis(scaled, 0, -1), dtype=np.float32)
+    mask = np.ascontiguousarray(np.moveaxis(bad, 0, -1)) if n_bad else None
+    if n_bad:
+        warnings.warn(
+            f"{path}: {n_bad} of {3 * MERL_N_BINS} MERL entries are unmeasured (negative or non-finite); set to 0",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    return MerlBRDF(name=path.stem, path=str(path), data=data, n_unmeasured=n_bad, unmeasured=mask)
+
+
+def write_merl(path, data, force: bool = False) -> Path:
+    """Write scaled BRDF values (90, 90, 180, 3) as a MERL ``.binary`` file (float64, channel scales undone).
+
+    Negative values are written as they are (readers treat them as unmeasured). Refuses to
+    overwrite an existing file unless ``force``. The file appears atomically (temporary + rename).
+    """
+    path = Path(path)
+    arr = np.asarray(data)
+    if arr.shape != MERL_SHAPE:
+        raise WarpbwError(f"{path}: cannot write MERL data of shape {arr.shape}, expected {MERL_SHAPE}")
+    arr = arr.astype(np.float64, copy=False)
+    n_nonfinite = int(np.count_nonzero(~np.isfinite(arr)))
+    if n_nonfinite:
+        raise WarpbwError(f"{path}: refusing to write {n_nonfinite} non-finite MERL values (expected finite numbers)")
+    if path.exists() and not force:
+        raise WarpbwError(f"{path}: already exists (pass force=True, or --force, to overwrite)")
+    scale = np.asarray(MERL_SCALE, dtype=np.float64)
+    values = np.ascontiguousarray(np.moveaxis(arr / scale, -1, 0), dtype="<f8")
+    header = np.asarray([MERL_THETA_H_RES, MERL_THETA_D_RES, MERL_PHI_D_RES], dtype="<i4")
+    tmp_name = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(header.tobytes())
+            fh.write(values.tobytes())
+        os.replace(tmp_name, path)
+    except OSError as exc:
+        if tmp_name and os.path.exists(tmp_name):
+            os.unlink(tmp_name)
+        raise WarpbwError(f"{path}: cannot write MERL file ({exc.strerror or exc})") from None
+    return path
+
+
+def tabulate_merl(func, name: str) -> np.ndarray:
+    """Evaluate ``func(wi (N,3), wo (N,3)) -> (N,3)`` (or (N,)) at every MERL bin centre (phi_h = 0).
+
+    Returns float64 (90, 90, 180, 3), ready for :func:`write_merl`. ``func`` also receives the bin
+    centres whose wi or wo lies below the horizon (large theta_h + theta_d) and should return its own
+    value there (0 for a BRDF that is 0 below the horizon). ``name`` labels error messages.
+    """
+    th, td, pd = merl_bin_centres()
+    out = np.empty(MERL_SHAPE, dtype=np.float64)
+    n_dirs = MERL_THETA_D_RES * MERL_PHI_D_RES
+    for r0 in range(0, MERL_THETA_H_RES, _TABULATE_ROWS_PER_CHUNK):
+        r1 = min(r0 + _TABULATE_ROWS_PER_CHUNK, MERL_THETA_H_RES)
+        TH, TD, PD = np.meshgrid(th[r0:r1], td, pd, indexing="ij")
+        wi, wo = dirs_from_half_diff(TH.ravel(), 0.0, TD.ravel(), PD.ravel())
+        n = (r1 - r0) * n_dirs
+        vals = np.asarray(func(wi, wo), dtype=np.float64)
+        if vals.shape == (n,):
+            vals = np.repeat(vals[:, None], 3, axis=1)
+        if vals.shape != (n, 3):
+            raise WarpbwError(f"{name}: BRDF returned shape {vals.shape} for {n} direction pairs, expected ({n}, 3)")
+        n_bad = int(np.count_nonzero(~np.isfinite(vals)))
+        if n_bad:
+            raise WarpbwError(f"{name}: BRDF returned {n_bad} non-finite values at MERL bin centres (expected finite)")
+        out[r0:r1] = vals.reshape(r1 - r0, MERL_THETA_D_RES, MERL_PHI_D_RES, 3)
+    return out

@@ -1,0 +1,209 @@
+"""Triangle meshes for the G-buffer: loading, smooth normals and mean curvature.
+
+Public functions:
+
+- ``load_mesh(path, translate=(0, 0, 0), scale=1.0, rotate_y_deg=0.0) -> MeshData``: OBJ, PLY, STL, GLB
+  (anything trimesh reads; a scene of several geometries is concatenated with its node transforms).
+  The transform is applied in the order scale, then rotation about +Y, then translation.
+- ``mesh_mean_curvature(vertices, faces, normals) -> (V,)``: mean curvature H = (k1 + k2) / 2 from the
+  cotangent Laplace-Beltrami operator with mixed Voronoi areas (Meyer, Desbrun, Schroeder, Barr 2003,
+  "Discrete Differential-Geometry Operators for Triangulated 2-Manifolds"), positive on a convex
+  shape with outward normals (a sphere of radius r gives 1/r).
+- ``vertex_normals(vertices, faces) -> (V, 3)``: unit area-weighted vertex normals.
+
+Class: ``MeshData``.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from warpbw.errors import WarpbwError
+
+# A triangle whose doubled area is below this fraction of its longest squared edge is treated as
+# degenerate (no cotangent weight, no area): sin of its largest angle is < 1e-12, so its
+# cotangents would overflow the float64 sums of well-shaped neighbours.
+_DEGENERATE_REL_AREA = 1e-12
+# Normal given to a vertex with no incident area (unreferenced or only degenerate faces): +Y, "up"
+# in the project's world convention (DESIGN.md).
+_FALLBACK_NORMAL = (0.0, 1.0, 0.0)
+_SUPPORTED = "OBJ, PLY, STL or GLB"
+
+
+@dataclass
+class MeshData:
+    """A loaded, transformed triangle mesh (world units)."""
+
+    path: str
+    vertices: np.ndarray  # (V, 3) float32
+    faces: np.ndarray  # (F, 3) int32
+    normals: np.ndarray  # (V, 3) float32 unit, smooth, area-weighted
+    mean_curvature: np.ndarray  # (V,) float32, 1/(scene units), positive where convex
+    uv: np.ndarray | None = None  # (V, 2) float32
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _face_geometry(vertices: np.ndarray, faces: np.ndarray):
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    p0, p1, p2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    return v, f, p0, p1, p2
+
+
+def vertex_normals(vertices, faces) -> np.ndarray:
+    """Unit vertex normals (V, 3) float64: sum of incident face normals weighted by face area."""
+    v, f, p0, p1, p2 = _face_geometry(vertices, faces)
+    fn = np.cross(p1 - p0, p2 - p0)  # |fn| = 2 * area, so the sum is area weighted
+    n = np.stack([np.bincount(f.ravel(), weights=np.repeat(fn[:, k], 3), minlength=len(v)) for k in range(3)], -1)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    ok = length[:, 0] > 0.0
+    n = np.where(ok[:, None], n / np.where(length > 0.0, length, 1.0), np.asarray(_FALLBACK_NORMAL))
+    return n
+
+
+def mesh_mean_curvature(vertices, faces, normals) -> np.ndarray:
+    """Mean curvature per vertex (V,) float64, H = -(Laplace-Beltrami(x) . n) / 2.
+
+    Cotangent weights and mixed Voronoi areas (Meyer et al. 2003). Vertices on an open boundary get
+    the mean of their interior neighbours' H (0 if they have none); vertices without area get 0.
+    """
+    v, f, p0, p1, p2 = _face_geometry(vertices, faces)
+    nv = len(v)
+    nrm = np.asarray(normals, dtype=np.float64)
+    # edge k is opposite corner k
+    e0, e1, e2 = p2 - p1, p0 - p2, p1 - p0
+    dbl_area = np.linalg.norm(np.cross(e2, -e1), axis=1)
+    sq = np.stack([np.sum(e0 * e0, 1), np.sum(e1 * e1, 1), np.sum(e2 * e2, 1)], 1)
+    good = dbl_area > _DEGENERATE_REL_AREA * sq.max(axis=1)
+    safe = np.where(good, dbl_area, 1.0)
+    cot = np.stack([np.sum(e2 * -e1, 1), np.sum(e0 * -e2, 1), np.sum(e1 * -e0, 1)], 1) / safe[:, None]
+    cot = np.where(good[:, None], cot, 0.0)
+
+    # Laplacian numerator L_i = sum_j (cot a_ij + cot b_ij) (x_j - x_i): edge opposite corner k joins
+    # corners k+1 and k+2.
+    lap = np.zeros((nv, 3))
+    edges_opp = (e0, e1, e2)
+    for k in range(3):  # three corners of every triangle at once
+        a, b = f[:, (k + 1) % 3], f[:, (k + 2) % 3]
+        w = cot[:, k:k + 1] * edges_opp[k]  # edges_opp[k] = x_b - x_a
+        for c in range(3):
+            lap[:, c] += np.bincount(a, weights=w[:, c], minlength=nv)
+            lap[:, c] -= np.bincount(b, weights=w[:, c], minlength=nv)
+
+    # mixed Voronoi area of each corner
+    area = 0.5 * dbl_area
+    obtuse_at = cot < 0.0  # angle at corner > 90 degrees
+    any_obtuse = obtuse_at.any(axis=1)
+    # corner k: incident edges are opposite corners k+1 and k+2
+    vor = np.stack(
+        [(sq[:, (k + 1) % 3] * cot[:, (k + 1) % 3] + sq[:, (k + 2) % 3] * cot[:, (k + 2) % 3]) / 8.0 for k in range(3)],
+        1,
+    )
+    corner_area = np.where(any_obtuse[:, None], np.where(obtuse_at, area[:, None] / 2.0, area[:, None] / 4.0), vor)
+    corner_area = np.where(good[:, None], corner_area, 0.0)
+    a_mixed = np.bincount(f.ravel(), weights=corner_area.ravel(), minlength=nv)
+
+    dot = np.sum(lap * nrm, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = np.where(a_mixed > 0.0, -dot / (4.0 * a_mixed), 0.0)
+    h = np.where(np.isfinite(h), h, 0.0)
+
+    # open boundary: the one-sided Laplacian is mostly tangential, so borrow from interior neighbours
+    all_edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    uniq, counts = np.unique(all_edges, axis=0, return_counts=True)
+    if np.any(counts == 1):
+        on_boundary = np.zeros(nv, dtype=bool)
+        on_boundary[uniq[counts == 1].ravel()] = True
+        a, b = uniq[:, 0], uniq[:, 1]
+        s = np.zeros(nv)
+        c = np.zeros(nv)
+        for x, y in ((a, b), (b, a)):
+            take = on_boundary[x] & ~on_boundary[y]
+            s += np.bincount(x[take], weights=h[y[take]], minlength=nv)
+            c += np.bincount(x[take], minlength=nv)
+        h = np.where(on_boundary, np.where(c > 0, s / np.maximum(c, 1), 0.0), h)
+    return h
+
+
+def _check_transform(path: Path, translate, scale, rotate_y_deg):
+    t = np.asarray(translate, dtype=np.float64)
+    if t.shape != (3,) or not np.all(np.isfinite(t)):
+        raise WarpbwError(f"{path}: translate {translate!r} is not 3 finite numbers")
+    try:
+        s = float(scale)
+        r = float(rotate_y_deg)
+    except (TypeError, ValueError):
+        raise WarpbwError(f"{path}: scale {scale!r} / rotate_y_deg {rotate_y_deg!r} must be numbers") from None
+    if not (math.isfinite(s) and s > 0.0):
+        raise WarpbwError(f"{path}: scale {scale!r} must be a finite number > 0")
+    if not math.isfinite(r):
+        raise WarpbwError(f"{path}: rotate_y_deg {rotate_y_deg!r} must be finite")
+    return t, s, r
+
+
+def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg: float = 0.0) -> MeshData:
+    """Load a triangle mesh, apply x' = R_y(rotate_y_deg) (scale * x) + translate, and derive
+    smooth normals and mean curvature in the transformed (world) frame.
+
+    Coincident vertices are merged (STL stores none shared); vertices split by texture seams stay split.
+    """
+    import trimesh
+
+    path = Path(path)
+    if not path.is_file():
+        raise WarpbwError(f"{path}: file not found (expected a mesh: {_SUPPORTED})")
+    t, s, r = _check_transform(path, translate, scale, rotate_y_deg)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            mesh = trimesh.load_scene(str(path), process=False).to_mesh()
+    except IndexError as exc:  # trimesh indexes its vertex array with the file's face indices
+        raise WarpbwError(
+            f"{path}: a face references a vertex that does not exist ({_one_line(exc)}); malformed mesh"
+        ) from None
+    except Exception as exc:  # trimesh raises ValueError, KeyError... on malformed or unknown files
+        raise WarpbwError(
+            f"{path}: malformed or unsupported mesh file ({_one_line(exc)}); expected {_SUPPORTED}"
+        ) from None
+    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
+    verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)
+    if faces.ndim != 2 or faces.shape[0] == 0 or faces.shape[1] != 3:
+        raise WarpbwError(f"{path}: no triangles found (expected a mesh with faces: {_SUPPORTED})")
+    if faces.min() < 0 or faces.max() >= len(verts):
+        raise WarpbwError(f"{path}: faces reference vertices outside 0..{len(verts) - 1} (malformed mesh)")
+    n_bad = int(np.count_nonzero(~np.all(np.isfinite(verts), axis=1)))
+    if n_bad:
+        raise WarpbwError(f"{path}: {n_bad} vertices have non-finite coordinates (expected finite numbers)")
+    try:
+        mesh.merge_vertices()
+        mesh.remove_unreferenced_vertices()
+    except Exception as exc:
+        raise WarpbwError(f"{path}: malformed mesh ({_one_line(exc)})") from None
+    verts = np.asarray(mesh.vertices, dtype=np.float64) * s
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    a = math.radians(r)
+    ca, sa = math.cos(a), math.sin(a)
+    # right-handed rotation about +Y: x' = x cos a + z sin a, z' = -x sin a + z cos a
+    x, z = verts[:, 0].copy(), verts[:, 2].copy()
+    verts[:, 0] = x * ca + z * sa
+    verts[:, 2] = -x * sa + z * ca
+    verts += t
+    normals = vertex_normals(verts, faces)
+    curv = mesh_mean_curvature(verts, faces, normals)
+    uv = getattr(mesh.visual, "uv", None)
+    uv = np.asarray(uv, dtype=np.float32) if uv is not None and np.shape(uv) == (len(verts), 2) else None
+    return MeshData(
+        path=str(path),
+        vertices=np.ascontiguousarray(verts, dtype=np.float32),
+        faces=np.ascontiguousarray(faces, dtype=np.int32),
+        normals=np.ascontiguousarray(normals, dtype=np.float32),
+        mean_curvature=np.ascontiguousarray(curv, dtype=np.float32),
+        uv=None if uv is None else np.ascontiguousarray(uv),
+    )

@@ -1,0 +1,68 @@
+"""Image error metrics over the pixels covered by geometry (DESIGN.md measurement protocol).
+
+Public: ``psnr(test, ref, mask)``, ``relmse(test, ref, mask)``, ``mse(test, ref, mask)``,
+``compare_images(test, ref, mask) -> dict``, ``coverage_from_alpha(pixels, channels)``.
+
+Both images are linear radiance (H, W, 3).  ``mask`` (H, W) selects the covered pixels; None means all.
+* PSNR = 10 log10(peak^2 / MSE) with ``peak`` the reference's largest value over the mask.
+* relMSE = mean over masked pixels and channels of (test - ref)^2 / (ref^2 + RELMSE_EPS)
+  (Rousselle et al. 2011), insensitive to the overall exposure of bright pixels.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from warpbw.errors import WarpbwError
+
+RELMSE_EPS = 1.0e-2  # Rousselle, Knaus, Zwicker 2011, "Adaptive sampling and reconstruction using greedy error minimization"
+
+
+def _masked(test, ref, mask):
+    a = np.asarray(test, np.float64)
+    b = np.asarray(ref, np.float64)
+    if a.shape != b.shape:
+        raise WarpbwError(f"images differ in size: {a.shape} and {b.shape}")
+    if mask is None:
+        mask = np.ones(a.shape[:2], bool)
+    mask = np.asarray(mask, bool)
+    if mask.shape != a.shape[:2]:
+        raise WarpbwError(f"mask of shape {mask.shape} does not match images of shape {a.shape[:2]}")
+    if not mask.any():
+        raise WarpbwError("no pixel is covered by geometry: the error is undefined")
+    return a[mask], b[mask]
+
+
+def mse(test, ref, mask=None) -> float:
+    a, b = _masked(test, ref, mask)
+    return float(np.mean((a - b) ** 2))
+
+
+def relmse(test, ref, mask=None, eps: float = RELMSE_EPS) -> float:
+    a, b = _masked(test, ref, mask)
+    return float(np.mean((a - b) ** 2 / (b * b + eps)))
+
+
+def psnr(test, ref, mask=None) -> float:
+    a, b = _masked(test, ref, mask)
+    m = float(np.mean((a - b) ** 2))
+    peak = float(np.max(b))
+    if m == 0.0:
+        return math.inf
+    if peak <= 0.0:
+        return -math.inf
+    return 10.0 * math.log10(peak * peak / m)
+
+
+def compare_images(test, ref, mask=None) -> dict:
+    return {"psnr_db": psnr(test, ref, mask), "relmse": relmse(test, ref, mask), "mse": mse(test, ref, mask),
+            "pixels": int(np.asarray(mask).sum()) if mask is not None else int(np.prod(np.shape(ref)[:2]))}
+
+
+def coverage_from_alpha(pixels: np.ndarray, channels) -> np.ndarray | None:
+    """The coverage mask stored in an EXR's A channel (written by ``warpbw render``), else None."""
+    ch = list(channels)
+    if "A" in ch:
+        return pixels[..., ch.index("A")] > 0.0
+    return None

@@ -1,0 +1,221 @@
+"""Importance sampling of tabulated BRDFs by numerical inversion of their CDF (002 Sec. 3.3).
+
+Public:
+    ``TabulatedSamplers``               Warp struct holding the tables of every tabulated material
+    ``tab_sample(samplers, s, wo, u)``  wp.func: draw wi for view wo from sampler s
+    ``tab_pdf(samplers, s, wi, wo)``    wp.func: its solid-angle pdf
+    ``SamplerTable``                    host dataclass: one material's tables (numpy)
+    ``build_sampler_table(brdf, ...)``  host: tabulate f cos_i over half-vectors and invert the CDF
+    ``pack_samplers(tables, device)``   host: concatenate tables into a ``TabulatedSamplers``
+
+Parametrisation (isotropic BRDFs, so the table drops the view azimuth)
+----------------------------------------------------------------------
+For each of ``N_THETA_O`` view elevations (bin centres uniform in theta_o) the table is a 2D
+piecewise-constant density over the half vector h = (theta_h, phi_h), with
+``theta_h = u^2 * pi/2`` (the square-root warp of MERL's theta_h axis, which spends most cells near
+the specular peak, where narrow lobes such as chrome live) and ``phi_h`` measured from the view's
+azimuth.  A cell's weight is the integral over the cell of ``Y(f(wi, wo)) cos_i |d wi / d(u, phi_h)|``,
+with ``wi`` the reflection of ``wo`` about ``h`` and ``|d wi / d(u, phi)| = 4 (wo.h) sin(theta_h) pi u``,
+estimated with ``SUBCELLS^2`` midpoint samples.  The marginal CDF over u and the conditional CDFs over
+phi_h are inverted by binary search at run time; within a cell (u, phi_h) is uniform.  The view
+elevation of a query picks the nearest table, in sampling and in the pdf alike, so both agree exactly.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+import warp as wp
+
+N_THETA_O = 32      # view elevations tabulated (bin centres uniform over [0, pi/2))
+N_U = 64            # half-vector elevation cells, theta_h = u^2 pi/2 (MERL-like warp)
+N_PHI = 64          # half-vector azimuth cells over [0, 2 pi), relative to the view azimuth
+SUBCELLS = 3        # midpoint samples per cell side when integrating the cell weight
+LUMINANCE = (0.2126, 0.7152, 0.0722)  # Rec. 709 weights: the importance function is Y(f) cos_i
+
+TABLE_FORMAT = "warpbw.brdf-sampling"
+TABLE_VERSION = 1
+
+HALF_PI = 0.5 * math.pi
+TWO_PI = 2.0 * math.pi
+
+
+@wp.struct
+class TabulatedSamplers:
+    marginal: wp.array(dtype=wp.float32)      # [s][theta_o][N_U + 1] CDF over u
+    conditional: wp.array(dtype=wp.float32)   # [s][theta_o][u][N_PHI + 1] CDF over phi_h
+    density: wp.array(dtype=wp.float32)       # [s][theta_o][u][phi] density in (u, phi_h)
+    n_theta_o: int
+    n_u: int
+    n_phi: int
+
+
+@wp.func
+def upper_cell(cdf: wp.array(dtype=wp.float32), start: int, n: int, x: float):
+    """Largest i in [0, n) with cdf[start + i] <= x (cdf has n + 1 entries, 0 ... 1)."""
+    lo = int(0)
+    hi = n - 1
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if cdf[start + mid] <= x:
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo
+
+
+@wp.func
+def theta_o_bin(samplers: TabulatedSamplers, wo: wp.vec3):
+    theta_o = wp.acos(wp.clamp(wo[2], 0.0, 1.0))
+    return wp.clamp(int(theta_o / HALF_PI * float(samplers.n_theta_o)), 0, samplers.n_theta_o - 1)
+
+
+@wp.func
+def tab_sample(samplers: TabulatedSamplers, s: int, wo: wp.vec3, u: wp.vec2):
+    nt = samplers.n_theta_o
+    nu = samplers.n_u
+    npf = samplers.n_phi
+    j = theta_o_bin(samplers, wo)
+    m_start = (s * nt + j) * (nu + 1)
+    a = upper_cell(samplers.marginal, m_start, nu, u[0])
+    c0 = samplers.marginal[m_start + a]
+    c1 = samplers.marginal[m_start + a + 1]
+    t0 = wp.clamp((u[0] - c0) / wp.max(c1 - c0, 1.0e-30), 0.0, 1.0)
+    c_start = ((s * nt + j) * nu + a) * (npf + 1)
+    b = upper_cell(samplers.conditional, c_start, npf, u[1])
+    d0 = samplers.conditional[c_start + b]
+    d1 = samplers.conditional[c_start + b + 1]
+    t1 = wp.clamp((u[1] - d0) / wp.max(d1 - d0, 1.0e-30), 0.0, 1.0)
+    uh = (float(a) + t0) / float(nu)
+    theta_h = uh * uh * HALF_PI
+    phi_h = wp.atan2(wo[1], wo[0]) + (float(b) + t1) / float(npf) * TWO_PI
+    st = wp.sin(theta_h)
+    h = wp.vec3(st * wp.cos(phi_h), st * wp.sin(phi_h), wp.cos(theta_h))
+    return 2.0 * wp.dot(wo, h) * h - wo
+
+
+@wp.func
+def tab_pdf(samplers: TabulatedSamplers, s: int, wi: wp.vec3, wo: wp.vec3):
+    # Defined over the whole sphere (a cell straddling the horizon sends part of its samples below),
+    # so that it integrates to exactly 1.
+    if wo[2] <= 0.0:
+        return 0.0
+    nt = samplers.n_theta_o
+    nu = samplers.n_u
+    npf = samplers.n_phi
+    j = theta_o_bin(samplers, wo)
+    h = wp.normalize(wi + wo)
+    if h[2] <= 0.0 or wp.dot(wo, h) <= 0.0:
+        return 0.0
+    theta_h = wp.acos(wp.clamp(h[2], -1.0, 1.0))
+    uh = wp.sqrt(theta_h / HALF_PI)
+    rel = wp.atan2(h[1], h[0]) - wp.atan2(wo[1], wo[0])
+    rel = rel - TWO_PI * wp.floor(rel / TWO_PI)
+    a = wp.clamp(int(uh * float(nu)), 0, nu - 1)
+    b = wp.clamp(int(rel / TWO_PI * float(npf)), 0, npf - 1)
+    p_uphi = samplers.density[((s * nt + j) * nu + a) * npf + b]
+    # (u, phi_h) -> half-vector solid angle -> reflected direction (002 Sec. 3.3 change of variables)
+    jac = wp.sin(theta_h) * wp.pi * uh * 4.0 * wp.max(wp.dot(wo, h), 0.0)
+    return p_uphi / wp.max(jac, 1.0e-12)
+
+
+# ---------------------------------------------------------------------------------------------
+# Host side
+# ---------------------------------------------------------------------------------------------
+
+@dataclass
+class SamplerTable:
+    """One tabulated material's sampling tables (numpy, float32)."""
+
+    marginal: np.ndarray      # (N_THETA_O, N_U + 1)
+    conditional: np.ndarray   # (N_THETA_O, N_U, N_PHI + 1)
+    density: np.ndarray       # (N_THETA_O, N_U, N_PHI)
+
+    @property
+    def shape(self):
+        return self.density.shape
+
+
+def _cell_midpoints(n: int, sub: int) -> np.ndarray:
+    """Midpoints of ``sub`` equal parts of each of ``n`` unit cells on [0, 1), shape (n, sub)."""
+    return (np.arange(n)[:, None] + (np.arange(sub)[None, :] + 0.5) / sub) / n
+
+
+def build_sampler_table(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                        n_theta_o: int = N_THETA_O, n_u: int = N_U, n_phi: int = N_PHI,
+                        sub: int = SUBCELLS, progress: Callable[[int], None] | None = None) -> SamplerTable:
+    """Tabulate and invert the CDF of Y(f) cos_i over half vectors, for each view elevation.
+
+    ``brdf(wi, wo)`` takes (N, 3) local directions and returns (N, 3) BRDF values (numpy, vectorised).
+    ``progress(k)`` is called after each view elevation (for a progress bar).
+    """
+    lum = np.asarray(LUMINANCE)
+    uu = _cell_midpoints(n_u, sub)                       # (n_u, sub)
+    pp = _cell_midpoints(n_phi, sub) * TWO_PI            # (n_phi, sub)
+    U = uu[:, None, :, None]                             # (n_u, 1, sub, 1)
+    P = pp[None, :, None, :]                             # (1, n_phi, 1, sub)
+    theta_h = U * U * HALF_PI
+    sh, ch = np.sin(theta_h), np.cos(theta_h)
+    hx = np.broadcast_to(sh * np.cos(P), (n_u, n_phi, sub, sub))
+    hy = np.broadcast_to(sh * np.sin(P), (n_u, n_phi, sub, sub))
+    hz = np.broadcast_to(ch, (n_u, n_phi, sub, sub))
+    h = np.stack([hx, hy, hz], axis=-1).reshape(-1, 3)
+    jac_h = np.broadcast_to(sh * math.pi * U, (n_u, n_phi, sub, sub)).reshape(-1)  # d omega_h / du dphi
+    du, dphi = 1.0 / n_u, TWO_PI / n_phi
+
+    marginal = np.zeros((n_theta_o, n_u + 1))
+    conditional = np.zeros((n_theta_o, n_u, n_phi + 1))
+    density = np.zeros((n_theta_o, n_u, n_phi))
+    for j in range(n_theta_o):
+        theta_o = (j + 0.5) / n_theta_o * HALF_PI
+        wo = np.array([math.sin(theta_o), 0.0, math.cos(theta_o)])
+        wo_h = h @ wo
+        wi = 2.0 * wo_h[:, None] * h - wo
+        ok = (wi[:, 2] > 0.0) & (wo_h > 0.0)
+        g = np.zeros(len(h))
+        if ok.any():
+            f = np.asarray(brdf(wi[ok], np.broadcast_to(wo, (int(ok.sum()), 3))), np.float64)
+            y = np.clip(np.nan_to_num(f @ lum, nan=0.0, posinf=0.0), 0.0, None)
+            g[ok] = y * wi[ok, 2] * 4.0 * wo_h[ok] * jac_h[ok]
+        w = g.reshape(n_u, n_phi, sub * sub).mean(axis=2) * du * dphi     # cell integrals
+        total = w.sum()
+        if not np.isfinite(total) or total <= 0.0:
+            w = np.ones_like(w)          # a BRDF that is black at this view: uniform cells
+            total = w.sum()
+        row = w.sum(axis=1)
+        marginal[j, 1:] = np.cumsum(row) / total
+        safe_row = np.where(row > 0.0, row, 1.0)
+        cond = np.cumsum(w, axis=1) / safe_row[:, None]
+        cond[row <= 0.0] = (np.arange(1, n_phi + 1) / n_phi)
+        conditional[j, :, 1:] = cond
+        density[j] = w / total / (du * dphi)
+        if progress is not None:
+            progress(j + 1)
+    marginal[:, -1] = 1.0
+    conditional[:, :, -1] = 1.0
+    return SamplerTable(marginal.astype(np.float32), conditional.astype(np.float32),
+                        density.astype(np.float32))
+
+
+def pack_samplers(tables: Sequence[SamplerTable], device: str = "cpu") -> TabulatedSamplers:
+    """Concatenate per-material tables (all of one shape) into a ``TabulatedSamplers`` struct."""
+    s = TabulatedSamplers()
+    if tables:
+        shape = tables[0].shape
+        for t in tables:
+            if t.shape != shape:
+                raise ValueError(f"sampling tables of different shapes {t.shape} and {shape}")
+        nt, nu, nphi = shape
+        cat = lambda name: np.concatenate([getattr(t, name).reshape(-1) for t in tables])  # noqa: E731
+        s.marginal = wp.array(cat("marginal"), dtype=wp.float32, device=device)
+        s.conditional = wp.array(cat("conditional"), dtype=wp.float32, device=device)
+        s.density = wp.array(cat("density"), dtype=wp.float32, device=device)
+    else:
+        nt = nu = nphi = 1
+        s.marginal = wp.zeros(0, dtype=wp.float32, device=device)
+        s.conditional = wp.zeros(0, dtype=wp.float32, device=device)
+        s.density = wp.zeros(0, dtype=wp.float32, device=device)
+    s.n_theta_o, s.n_u, s.n_phi = int(nt), int(nu), int(nphi)
+    return s

@@ -1,0 +1,406 @@
+"""Scene files (TOML): parsing and validation, and the embedded default scene.
+
+Public:
+    ``load_scene(path) -> Scene``               read and validate a scene file
+    ``parse_scene(text, base_dir, source) -> Scene``  the same from a string
+    ``default_scene() -> Scene``                the embedded demo scene (needs no file)
+    ``Scene``, ``Camera``, ``Environment``, ``SphereObject``, ``MeshObject``, ``Material``
+    ``DEFAULT_SCENE_TOML``
+
+Every error is a ``WarpbwError`` naming the scene file and the key, e.g.
+``scene.toml: [camera].resolution: expected two positive integers [width, height], got [-1, 512]``.
+Paths are relative to the scene file.  Unknown keys are errors too (a typo silently ignored would
+render the wrong scene).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import sys
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+from warpbw.errors import WarpbwError
+
+MATERIAL_TYPES = ("lambert", "ggx", "merl", "npf")
+PROCEDURAL_ENVIRONMENTS = ("sky",)
+LOOKUP_MODES = ("nearest", "linear")
+MAX_RESOLUTION = 16384  # per side; larger is almost certainly a typo (and would not fit in memory)
+
+DEFAULT_SCENE_TOML = """\
+# warpbw's embedded default scene: three spheres with analytic materials under the procedural sky.
+[camera]
+position = [0.0, 0.8, 5.2]
+look_at = [0.0, 0.05, 0.0]
+up = [0.0, 1.0, 0.0]
+fov = 40.0
+resolution = [384, 256]
+
+[environment]
+procedural = "sky"
+rotation = 30.0
+scale = 1.0
+
+[[object]]
+shape = "sphere"
+center = [-1.25, 0.0, 0.0]
+radius = 0.6
+material = "clay"
+
+[[object]]
+shape = "sphere"
+center = [0.0, 0.0, 0.0]
+radius = 0.6
+material = "gold"
+
+[[object]]
+shape = "sphere"
+center = [1.25, 0.0, 0.0]
+radius = 0.6
+material = "glossy"
+
+[material.clay]
+type = "lambert"
+albedo = [0.75, 0.45, 0.3]
+
+[material.gold]
+type = "ggx"
+alpha = 0.15
+specular = [1.0, 1.0, 1.0]
+eta = [0.143, 0.374, 1.442]     # gold, complex IOR at R, G, B
+k = [3.983, 2.385, 1.603]
+
+[material.glossy]
+type = "ggx"
+alpha = 0.35
+specular = [0.3, 0.5, 0.9]
+"""
+
+
+@dataclass(frozen=True)
+class Camera:
+    position: tuple
+    look_at: tuple
+    up: tuple
+    fov: float            # degrees, along the image width
+    width: int
+    height: int
+
+
+@dataclass(frozen=True)
+class Environment:
+    file: Path | None = None
+    procedural: str | None = None
+    constant: tuple | None = None
+    rotation: float = 0.0  # degrees about +Y
+    scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class SphereObject:
+    center: tuple
+    radius: float
+    material: str
+
+
+@dataclass(frozen=True)
+class MeshObject:
+    file: Path
+    material: str
+    translate: tuple = (0.0, 0.0, 0.0)
+    scale: float = 1.0
+    rotate_y: float = 0.0  # degrees
+
+
+@dataclass(frozen=True)
+class Material:
+    name: str
+    type: str
+    albedo: tuple = (0.0, 0.0, 0.0)
+    alpha: float = 0.0
+    specular: tuple = (0.0, 0.0, 0.0)
+    eta: tuple | None = None
+    k: tuple | None = None
+    file: Path | None = None          # merl .binary
+    table: Path | None = None         # npf table
+    npf_name: str | None = None
+    lookup: str = "nearest"           # merl / npf: nearest bin or linear between bin centres
+    sampling: Path | None = None      # merl / npf: precomputed sampling tables (built and cached if absent)
+
+
+@dataclass
+class Scene:
+    camera: Camera
+    environment: Environment
+    objects: list
+    materials: dict
+    source: str = "<string>"
+    base_dir: Path = field(default_factory=Path.cwd)
+
+    @property
+    def material_order(self) -> list:
+        """Material names in id order: only materials some object uses (one table each in memory)."""
+        used = []
+        for o in self.objects:
+            if o.material not in used:
+                used.append(o.material)
+        return used
+
+    def content_hash(self) -> str:
+        """A hash of the scene's content and of the files it names (for caching ground truths)."""
+        h = hashlib.blake2b(digest_size=16)
+        h.update(json.dumps(_jsonable(asdict(self.camera)), sort_keys=True).encode())
+        h.update(json.dumps(_jsonable(asdict(self.environment)), sort_keys=True).encode())
+        for o in self.objects:
+            h.update(json.dumps(_jsonable(asdict(o)), sort_keys=True).encode())
+        for name in self.material_order:
+            h.update(json.dumps(_jsonable(asdict(self.materials[name])), sort_keys=True).encode())
+        for p in self.files():
+            h.update(file_digest(p).encode())
+        return h.hexdigest()
+
+    def files(self) -> list:
+        """Every file the scene reads."""
+        out = []
+        if self.environment.file is not None:
+            out.append(self.environment.file)
+        for o in self.objects:
+            if isinstance(o, MeshObject):
+                out.append(o.file)
+        for name in self.material_order:
+            m = self.materials[name]
+            for p in (m.file, m.table, m.sampling):
+                if p is not None:
+                    out.append(p)
+        return out
+
+
+def file_digest(path: Path, chunk: int = 1 << 22) -> str:
+    """blake2b digest of a file's bytes."""
+    h = hashlib.blake2b(digest_size=16)
+    with open(path, "rb") as f:
+        while True:
+            b = f.read(chunk)
+            if not b:
+                break
+            h.update(b)
+    return h.hexdigest()
+
+
+def _jsonable(x: Any):
+    if isinstance(x, dict):
+        return {k: _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, Path):
+        return str(x)
+    return x
+
+
+# ---------------------------------------------------------------------------------------------
+# Validation helpers: each names the key in its error
+# ---------------------------------------------------------------------------------------------
+
+class _Ctx:
+    def __init__(self, source: str, base_dir: Path):
+        self.source = source
+        self.base_dir = base_dir
+
+    def fail(self, key: str, msg: str):
+        raise WarpbwError(f"{self.source}: {key}: {msg}")
+
+    def table(self, d: dict, key: str, allowed: tuple, required: tuple = ()):
+        if not isinstance(d, dict):
+            self.fail(key, f"expected a table, got {d!r}")
+        for k in d:
+            if k not in allowed:
+                self.fail(f"{key}.{k}", f"unknown key (expected one of: {', '.join(allowed)})")
+        for k in required:
+            if k not in d:
+                self.fail(f"{key}.{k}", "missing required key")
+        return d
+
+    def number(self, v, key: str, lo=None, hi=None, lo_open=False) -> float:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            self.fail(key, f"expected a finite number, got {v!r}")
+        v = float(v)
+        if lo is not None and (v < lo or (lo_open and v == lo)):
+            self.fail(key, f"expected a number {'>' if lo_open else '>='} {lo:g}, got {v:g}")
+        if hi is not None and v > hi:
+            self.fail(key, f"expected a number <= {hi:g}, got {v:g}")
+        return v
+
+    def vec3(self, v, key: str, lo=None) -> tuple:
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            v = [v, v, v]
+        if not isinstance(v, list) or len(v) != 3:
+            self.fail(key, f"expected three numbers [x, y, z], got {v!r}")
+        return tuple(self.number(c, key, lo=lo) for c in v)
+
+    def string(self, v, key: str, choices=None) -> str:
+        if not isinstance(v, str) or not v:
+            self.fail(key, f"expected a non-empty string, got {v!r}")
+        if choices is not None and v not in choices:
+            self.fail(key, f"unknown value {v!r} (expected one of: {', '.join(choices)})")
+        return v
+
+    def path(self, v, key: str) -> Path:
+        s = self.string(v, key)
+        p = Path(s).expanduser()
+        if not p.is_absolute():
+            p = self.base_dir / p
+        if not p.exists():
+            self.fail(key, f"file not found: {p}")
+        if not p.is_file():
+            self.fail(key, f"not a file: {p}")
+        return p
+
+
+def _camera(ctx: _Ctx, d: dict) -> Camera:
+    ctx.table(d, "[camera]", ("position", "look_at", "up", "fov", "resolution"),
+              required=("position", "look_at", "fov", "resolution"))
+    pos = ctx.vec3(d["position"], "[camera].position")
+    at = ctx.vec3(d["look_at"], "[camera].look_at")
+    up = ctx.vec3(d.get("up", [0.0, 1.0, 0.0]), "[camera].up")
+    fov = ctx.number(d["fov"], "[camera].fov", lo=0.0, lo_open=True)
+    if fov >= 180.0:
+        ctx.fail("[camera].fov", f"expected degrees in (0, 180), got {fov:g}")
+    res = d["resolution"]
+    if (not isinstance(res, list) or len(res) != 2
+            or not all(isinstance(r, int) and not isinstance(r, bool) and r > 0 for r in res)):
+        ctx.fail("[camera].resolution", f"expected two positive integers [width, height], got {res!r}")
+    if max(res) > MAX_RESOLUTION:
+        ctx.fail("[camera].resolution", f"expected at most {MAX_RESOLUTION} pixels per side, got {res!r}")
+    fwd = [a - b for a, b in zip(at, pos)]
+    if math.sqrt(sum(c * c for c in fwd)) < 1e-9:
+        ctx.fail("[camera].look_at", "must differ from [camera].position")
+    cross = (fwd[1] * up[2] - fwd[2] * up[1], fwd[2] * up[0] - fwd[0] * up[2], fwd[0] * up[1] - fwd[1] * up[0])
+    if math.sqrt(sum(c * c for c in cross)) < 1e-9 * max(1.0, math.sqrt(sum(c * c for c in up))):
+        ctx.fail("[camera].up", "must not be zero or parallel to the viewing direction")
+    return Camera(pos, at, up, fov, int(res[0]), int(res[1]))
+
+
+def _environment(ctx: _Ctx, d: dict) -> Environment:
+    ctx.table(d, "[environment]", ("file", "procedural", "constant", "rotation", "scale"))
+    given = [k for k in ("file", "procedural", "constant") if k in d]
+    if len(given) != 1:
+        ctx.fail("[environment]", "expected exactly one of file = \"probe.exr\", procedural = \"sky\", "
+                 f"constant = [r, g, b]; got {given or 'none'}")
+    rot = ctx.number(d.get("rotation", 0.0), "[environment].rotation")
+    scale = ctx.number(d.get("scale", 1.0), "[environment].scale", lo=0.0)
+    if "file" in d:
+        return Environment(file=ctx.path(d["file"], "[environment].file"), rotation=rot, scale=scale)
+    if "procedural" in d:
+        return Environment(procedural=ctx.string(d["procedural"], "[environment].procedural",
+                                                 PROCEDURAL_ENVIRONMENTS), rotation=rot, scale=scale)
+    return Environment(constant=ctx.vec3(d["constant"], "[environment].constant", lo=0.0), rotation=rot,
+                       scale=scale)
+
+
+def _object(ctx: _Ctx, d: dict, i: int, materials: dict):
+    key = f"[[object]] #{i + 1}"
+    if not isinstance(d, dict):
+        ctx.fail(key, f"expected a table, got {d!r}")
+    if ("shape" in d) == ("mesh" in d):
+        ctx.fail(key, "expected exactly one of shape = \"sphere\" or mesh = \"file.obj\"")
+    mat = ctx.string(d.get("material"), f"{key}.material")
+    if mat not in materials:
+        ctx.fail(f"{key}.material", f"no [material.{mat}] in the scene (defined: "
+                 f"{', '.join(materials) or 'none'})")
+    if "shape" in d:
+        ctx.table(d, key, ("shape", "center", "radius", "material"), required=("radius",))
+        ctx.string(d["shape"], f"{key}.shape", ("sphere",))
+        return SphereObject(ctx.vec3(d.get("center", [0.0, 0.0, 0.0]), f"{key}.center"),
+                            ctx.number(d["radius"], f"{key}.radius", lo=0.0, lo_open=True), mat)
+    ctx.table(d, key, ("mesh", "material", "translate", "scale", "rotate_y"))
+    return MeshObject(ctx.path(d["mesh"], f"{key}.mesh"), mat,
+                      ctx.vec3(d.get("translate", [0.0, 0.0, 0.0]), f"{key}.translate"),
+                      ctx.number(d.get("scale", 1.0), f"{key}.scale", lo=0.0, lo_open=True),
+                      ctx.number(d.get("rotate_y", 0.0), f"{key}.rotate_y"))
+
+
+_MATERIAL_KEYS = {
+    "lambert": (("type", "albedo"), ("albedo",)),
+    "ggx": (("type", "alpha", "specular", "eta", "k"), ("alpha", "specular")),
+    "merl": (("type", "file", "lookup", "sampling"), ("file",)),
+    "npf": (("type", "table", "name", "lookup", "sampling"), ("table", "name")),
+}
+
+
+def _material(ctx: _Ctx, name: str, d: dict) -> Material:
+    key = f"[material.{name}]"
+    if not isinstance(d, dict):
+        ctx.fail(key, f"expected a table, got {d!r}")
+    t = ctx.string(d.get("type"), f"{key}.type", MATERIAL_TYPES)
+    allowed, required = _MATERIAL_KEYS[t]
+    ctx.table(d, key, allowed, required)
+    if t == "lambert":
+        albedo = ctx.vec3(d["albedo"], f"{key}.albedo", lo=0.0)
+        if max(albedo) > 1.0:
+            ctx.fail(f"{key}.albedo", f"expected components in [0, 1] (energy conservation), got {albedo}")
+        return Material(name, t, albedo=albedo)
+    if t == "ggx":
+        alpha = ctx.number(d["alpha"], f"{key}.alpha", lo=0.0, lo_open=True, hi=1.0)
+        spec = ctx.vec3(d["specular"], f"{key}.specular", lo=0.0)
+        if ("eta" in d) != ("k" in d):
+            ctx.fail(key, "conductor Fresnel needs both eta and k")
+        eta = ctx.vec3(d["eta"], f"{key}.eta", lo=0.0) if "eta" in d else None
+        k = ctx.vec3(d["k"], f"{key}.k", lo=0.0) if "k" in d else None
+        return Material(name, t, alpha=alpha, specular=spec, eta=eta, k=k)
+    lookup = ctx.string(d.get("lookup", "nearest"), f"{key}.lookup", LOOKUP_MODES)
+    sampling = ctx.path(d["sampling"], f"{key}.sampling") if "sampling" in d else None
+    if t == "merl":
+        return Material(name, t, file=ctx.path(d["file"], f"{key}.file"), lookup=lookup, sampling=sampling)
+    return Material(name, t, table=ctx.path(d["table"], f"{key}.table"),
+                    npf_name=ctx.string(d["name"], f"{key}.name"), lookup=lookup, sampling=sampling)
+
+
+def parse_scene(text: str, base_dir: Path | str | None = None, source: str = "<string>") -> Scene:
+    """Parse and validate a scene from TOML text; relative paths resolve against ``base_dir``."""
+    base = Path(base_dir) if base_dir is not None else Path.cwd()
+    ctx = _Ctx(source, base)
+    try:
+        d = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise WarpbwError(f"{source}: not valid TOML: {exc}") from None
+    ctx.table(d, "scene", ("camera", "environment", "object", "material"))
+    if "camera" not in d:
+        ctx.fail("[camera]", "missing (every scene needs a camera)")
+    if "environment" not in d:
+        ctx.fail("[environment]", "missing (the scene needs a light: file, procedural = \"sky\" or constant)")
+    mats_in = d.get("material", {})
+    if not isinstance(mats_in, dict):
+        ctx.fail("[material]", "expected tables [material.NAME]")
+    materials = {name: _material(ctx, name, m) for name, m in mats_in.items()}
+    objs_in = d.get("object", [])
+    if not isinstance(objs_in, list) or not objs_in:
+        ctx.fail("[[object]]", "expected at least one [[object]]")
+    objects = [_object(ctx, o, i, materials) for i, o in enumerate(objs_in)]
+    return Scene(_camera(ctx, d["camera"]), _environment(ctx, d["environment"]), objects, materials,
+                 source, base)
+
+
+def load_scene(path: Path | str) -> Scene:
+    """Read and validate a scene file."""
+    p = Path(path)
+    if not p.exists():
+        raise WarpbwError(f"{p}: scene file not found")
+    if not p.is_file():
+        raise WarpbwError(f"{p}: not a file")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise WarpbwError(f"{p}: cannot read the scene file as UTF-8 text ({exc.__class__.__name__})") from None
+    return parse_scene(text, p.resolve().parent, str(p))
+
+
+def default_scene() -> Scene:
+    """The embedded demo scene."""
+    return parse_scene(DEFAULT_SCENE_TOML, Path.cwd(), "<default scene>")

@@ -1,0 +1,181 @@
+"""Forward reference estimator (002 Eq. 2): N BRDF-importance samples per pixel, optional MIS.
+
+Public:
+    ``make_reference_kernel(kinds, mis)``  the shading kernel for a set of material kinds
+    ``ShadeResult`` / ``shade_reference(gb, materials, env, spp, seed, ...)``  run it over covered pixels
+
+Per pixel p with surface point x, normal n and view direction wo (ignoring visibility, as 002 Eq. 1):
+
+    L_p ~= 1/N sum_i L_i(w_i) rho(x, w_i, wo) (w_i . n) / g(w_i)              (002 Eq. 2)
+
+with w_i drawn from the BRDF's sampler (``g`` its pdf; G = 1).  With ``mis=True`` each of the N steps
+also draws one direction from the environment's distribution and the two are combined by the balance
+heuristic (Veach 1997), which tames small bright sources such as the sun of ``city.exr``.
+
+Samples whose contribution is not finite (a pdf that underflows at a grazing angle, say) are dropped
+and counted in ``ShadeResult.non_finite``, never averaged into the image.
+"""
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import warp as wp
+
+from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
+from warpbw.envmap import EnvMapData, env_pdf, env_radiance, env_sample
+from warpbw.gbuffer import GBuffer, GBufferData
+
+# Pixels per kernel launch when tiling the work over threads (small enough for a smooth progress
+# bar, large enough that launch overhead stays under 1%).
+PIXELS_PER_TILE = 4096
+
+
+@wp.func
+def to_local(w: wp.vec3, t: wp.vec3, b: wp.vec3, n: wp.vec3):
+    return wp.vec3(wp.dot(w, t), wp.dot(w, b), wp.dot(w, n))
+
+
+@wp.func
+def to_world(w: wp.vec3, t: wp.vec3, b: wp.vec3, n: wp.vec3):
+    return w[0] * t + w[1] * b + w[2] * n
+
+
+@wp.func
+def finite3(v: wp.vec3):
+    return wp.isfinite(v[0]) and wp.isfinite(v[1]) and wp.isfinite(v[2])
+
+
+_KERNELS: dict = {}
+
+
+def make_reference_kernel(kinds, mis: bool):
+    """The reference shading kernel for the given material kinds, with or without MIS."""
+    key = (frozenset(kinds), bool(mis))
+    if key in _KERNELS:
+        return _KERNELS[key]
+    f = make_brdf_funcs(key[0])
+
+    @wp.kernel(module="unique")
+    def shade_reference_kernel(gb: GBufferData, mats: MaterialTable, env: EnvMapData,
+                               pixels: wp.array(dtype=wp.int32), offset: int, spp: int, seed: int,
+                               out: wp.array(dtype=wp.vec3), non_finite: wp.array(dtype=wp.int32)):
+        i = pixels[wp.tid() + offset]
+        m = gb.material[i]
+        n = gb.normal[i]
+        t = gb.tangent[i]
+        b = wp.cross(n, t)
+        wo = to_local(gb.view[i], t, b, n)
+        state = wp.rand_init(seed, i)
+        acc = wp.vec3(0.0)
+        bad = int(0)
+        if wo[2] > 0.0:
+            for _s in range(spp):
+                # BRDF-sampled direction (002 Eq. 2)
+                u = wp.vec3(wp.randf(state), wp.randf(state), wp.randf(state))
+                wi = f.sample(mats, m, wo, u)
+                if wi[2] > 0.0:
+                    p = f.pdf(mats, m, wi, wo)
+                    if p > 0.0:
+                        w_world = to_world(wi, t, b, n)
+                        p_sum = p
+                        if wp.static(mis):
+                            p_sum = p + env_pdf(env, w_world)
+                        c = wp.cw_mul(f.eval(mats, m, wi, wo), env_radiance(env, w_world)) * (wi[2] / p_sum)
+                        if finite3(c):
+                            acc = acc + c
+                        else:
+                            bad = bad + 1
+                if wp.static(mis):
+                    # environment-sampled direction, balance heuristic
+                    ul = wp.vec2(wp.randf(state), wp.randf(state))
+                    wl = env_sample(env, ul)
+                    wl_local = to_local(wl, t, b, n)
+                    if wl_local[2] > 0.0:
+                        pl = env_pdf(env, wl)
+                        if pl > 0.0:
+                            pb = f.pdf(mats, m, wl_local, wo)
+                            c = wp.cw_mul(f.eval(mats, m, wl_local, wo), env_radiance(env, wl)) * (
+                                wl_local[2] / (pl + pb))
+                            if finite3(c):
+                                acc = acc + c
+                            else:
+                                bad = bad + 1
+        out[i] = acc / float(wp.max(spp, 1))
+        if bad > 0:
+            wp.atomic_add(non_finite, 0, bad)
+
+    _KERNELS[key] = shade_reference_kernel
+    return shade_reference_kernel
+
+
+@dataclass
+class ShadeResult:
+    radiance: wp.array          # (H*W,) vec3, 0 where no geometry
+    pixels_shaded: int
+    samples: int                # BRDF samples (N per pixel); with MIS as many environment samples again
+    non_finite: int             # samples dropped because their contribution was not finite
+
+
+def default_threads(device: str) -> int:
+    """Threads used to tile CPU launches (a CPU launch runs on one core but releases the GIL)."""
+    if not str(device).startswith("cpu"):
+        return 1
+    return max(1, min(os.cpu_count() or 1, 8))
+
+
+def launch_tiled(kernel, n_items: int, make_inputs: Callable[[int, int], list], device: str,
+                 threads: int | None = None, progress: Callable[[int], None] | None = None,
+                 tile: int = PIXELS_PER_TILE) -> None:
+    """Launch ``kernel`` over ``n_items`` in tiles, on a small thread pool on the CPU.
+
+    ``make_inputs(offset, count)`` returns the kernel inputs for one tile; ``progress(count)`` is
+    called as tiles finish.
+    """
+    if n_items <= 0:
+        return
+    threads = default_threads(device) if threads is None else max(1, int(threads))
+    tiles = [(o, min(tile, n_items - o)) for o in range(0, n_items, tile)]
+    lock = threading.Lock()
+
+    def run(t):
+        o, c = t
+        wp.launch(kernel, dim=c, inputs=make_inputs(o, c), device=device)
+        if progress is not None:
+            with lock:
+                progress(c)
+
+    run(tiles[0])  # the first launch loads (compiles) the module, before threads race for it
+    if threads == 1 or len(tiles) == 1:
+        for t in tiles[1:]:
+            run(t)
+    else:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            for _ in pool.map(run, tiles[1:]):
+                pass
+    wp.synchronize_device(device)
+
+
+def covered_pixels(gb: GBuffer, device: str = "cpu") -> wp.array:
+    """Indices of the pixels that see geometry, as an int32 device array."""
+    idx = np.flatnonzero(gb.coverage.reshape(-1)).astype(np.int32)
+    return wp.array(idx, dtype=wp.int32, device=device)
+
+
+def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapData, spp: int, seed: int = 0,
+                    mis: bool = False, device: str = "cpu", threads: int | None = None,
+                    progress: Callable[[int], None] | None = None, pixels: wp.array | None = None) -> ShadeResult:
+    """Shade every covered pixel (or the given ``pixels``) with ``spp`` samples; returns radiance."""
+    kernel = make_reference_kernel(materials.kinds, mis)
+    pix = covered_pixels(gb, device) if pixels is None else pixels
+    out = wp.zeros(gb.width * gb.height, dtype=wp.vec3, device=device)
+    bad = wp.zeros(1, dtype=wp.int32, device=device)
+    launch_tiled(kernel, pix.shape[0],
+                 lambda o, c: [gb.data, materials.table, env_data, pix, o, int(spp), int(seed), out, bad],
+                 device, threads, progress)
+    n = int(pix.shape[0])
+    return ShadeResult(out, n, n * int(spp), int(bad.numpy()[0]))
