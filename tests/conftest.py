@@ -19,7 +19,7 @@ def shared_file(rel: str) -> Path:
     return p
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def shared():
     return shared_file
 

@@ -96,6 +96,18 @@ def cos_theta(w: wp.vec3):
 
 
 @wp.func
+def angle_to_z(v: wp.vec3):
+    """Angle between unit v and +Z, accurate near 0 (float32 acos(z) is 0 below ~3e-4 rad, which
+    would swallow the first bins of MERL's sqrt-warped theta_h axis)."""
+    return wp.atan2(wp.sqrt(v[0] * v[0] + v[1] * v[1]), v[2])
+
+
+@wp.func
+def angle_between(a: wp.vec3, b: wp.vec3):
+    return wp.atan2(wp.length(wp.cross(a, b)), wp.dot(a, b))
+
+
+@wp.func
 def sample_cosine_hemisphere(u: wp.vec2):
     # Malley's method: concentric disk lifted to the hemisphere; pdf = cos / pi.
     r = wp.sqrt(u[0])
@@ -107,7 +119,7 @@ def sample_cosine_hemisphere(u: wp.vec2):
 def rusinkiewicz(wi: wp.vec3, wo: wp.vec3):
     """(theta_h, theta_d, phi_d) of a direction pair, phi_d folded into [0, pi) by reciprocity."""
     h = wp.normalize(wi + wo)
-    theta_h = wp.acos(wp.clamp(h[2], -1.0, 1.0))
+    theta_h = angle_to_z(h)
     phi_h = wp.atan2(h[1], h[0])
     # d = R_y(-theta_h) R_z(-phi_h) wi
     cp = wp.cos(phi_h)
@@ -120,7 +132,7 @@ def rusinkiewicz(wi: wp.vec3, wo: wp.vec3):
     dx = ct * x1 - st * z1
     dy = y1
     dz = st * x1 + ct * z1
-    theta_d = wp.acos(wp.clamp(dz, -1.0, 1.0))
+    theta_d = wp.atan2(wp.sqrt(dx * dx + dy * dy), dz)
     phi_d = wp.atan2(dy, dx)
     if phi_d < 0.0:
         phi_d = phi_d + wp.pi
@@ -310,10 +322,10 @@ def npf_eval(mats: MaterialTable, m: int, wi: wp.vec3, wo: wp.vec3):
     base = mats.data[m] * NPF_STRIDE
     lin = mats.linear[m]
     h = wp.normalize(wi + wo)
-    theta_h = wp.acos(wp.clamp(h[2], -1.0, 1.0))
-    theta_d = wp.acos(wp.clamp(wp.dot(wi, h), -1.0, 1.0))
-    theta_i = wp.acos(wp.clamp(ci, -1.0, 1.0))
-    theta_o = wp.acos(wp.clamp(co, -1.0, 1.0))
+    theta_h = angle_to_z(h)
+    theta_d = angle_between(wi, h)
+    theta_i = angle_to_z(wi)
+    theta_o = angle_to_z(wo)
     d = npf_curve(mats, base + NPF_D_OFF, wp.sqrt(theta_h / HALF_PI) * float(NPF_BINS), 0, lin)
     f = npf_curve(mats, base + NPF_F_OFF, theta_d / HALF_PI * float(NPF_BINS), NPF_FIRST_VALID_BIN, lin)
     gi = npf_curve(mats, base + NPF_G1_OFF, theta_i / HALF_PI * float(NPF_BINS), NPF_FIRST_VALID_BIN, lin)

@@ -323,15 +323,25 @@ def _axis_box_matrix(n: int) -> np.ndarray:
     return cover / cover.sum(axis=1, keepdims=True)
 
 
+def _reduce_axis(x: np.ndarray, axis: int) -> np.ndarray:
+    n = x.shape[axis]
+    if n == 1:
+        return x
+    x = np.moveaxis(x, axis, 0)
+    if n % 2 == 0:
+        y = 0.5 * (x[0::2] + x[1::2])
+    else:
+        y = np.tensordot(_axis_box_matrix(n), x, axes=(1, 0))
+    return np.moveaxis(y, 0, axis)
+
+
 def build_mip_levels(pixels: np.ndarray) -> list[np.ndarray]:
     """MIP pyramid of an (H, W, 3) map: level 0 is the map, 2x2 box reductions down to 1x1."""
     cur = np.asarray(pixels, dtype=np.float64)
     levels = [np.ascontiguousarray(pixels, dtype=np.float32)]
     while cur.shape[0] > 1 or cur.shape[1] > 1:
-        rh = _axis_box_matrix(cur.shape[0])
-        rw = _axis_box_matrix(cur.shape[1])
-        cur = np.einsum("ij,jkc,lk->ilc", rh, cur, rw)
-        levels.append(cur.astype(np.float32))
+        cur = _reduce_axis(_reduce_axis(cur, 0), 1)
+        levels.append(np.ascontiguousarray(cur, dtype=np.float32))
     return levels
 
 

@@ -67,8 +67,14 @@ def upper_cell(cdf: wp.array(dtype=wp.float32), start: int, n: int, x: float):
 
 
 @wp.func
+def angle_to_z(v: wp.vec3):
+    # accurate near 0, unlike float32 acos(z) (which returns 0 below ~3e-4 rad)
+    return wp.atan2(wp.sqrt(v[0] * v[0] + v[1] * v[1]), v[2])
+
+
+@wp.func
 def theta_o_bin(samplers: TabulatedSamplers, wo: wp.vec3):
-    theta_o = wp.acos(wp.clamp(wo[2], 0.0, 1.0))
+    theta_o = angle_to_z(wo)
     return wp.clamp(int(theta_o / HALF_PI * float(samplers.n_theta_o)), 0, samplers.n_theta_o - 1)
 
 
@@ -109,7 +115,7 @@ def tab_pdf(samplers: TabulatedSamplers, s: int, wi: wp.vec3, wo: wp.vec3):
     h = wp.normalize(wi + wo)
     if h[2] <= 0.0 or wp.dot(wo, h) <= 0.0:
         return 0.0
-    theta_h = wp.acos(wp.clamp(h[2], -1.0, 1.0))
+    theta_h = angle_to_z(h)
     uh = wp.sqrt(theta_h / HALF_PI)
     rel = wp.atan2(h[1], h[0]) - wp.atan2(wo[1], wo[0])
     rel = rel - TWO_PI * wp.floor(rel / TWO_PI)
