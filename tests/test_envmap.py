@@ -266,10 +266,10 @@ def _texel_integral(pixels):
 def test_importance_sampled_integral_matches_texel_sum(which, request):
     if which == "studio":
         env = request.getfixturevalue("studio")
-        rel = 1e-2
+        rel = 3e-3
     else:
         env = E.envmap_from_array(synthetic_map(48, 96), rotation_deg=-71.0)
-        rel = 2e-2  # bilinear interpolant vs piecewise-constant texel sum on a coarse noisy map
+        rel = 5e-3  # bilinear interpolant vs piecewise-constant texel sum, plus MC noise
     n = 400_000
     dirs, pdf = E.sample_directions(env, n, seed=2)
     est = (E.eval_radiance(env, dirs).astype(np.float64) / pdf[:, None]).mean(axis=0)
@@ -362,7 +362,9 @@ def test_city_sun_stays_finite():
     ratio = E.eval_radiance(env, dirs) / pdf[:, None]
     assert np.all(np.isfinite(pdf)) and np.all(pdf > 0) and np.all(np.isfinite(ratio))
     est = ratio.astype(np.float64).mean(axis=0)
-    assert np.allclose(est, _texel_integral(env.pixels), rtol=2e-2)
+    assert np.allclose(est, _texel_integral(env.pixels), rtol=5e-3)
+    # bounded estimator: no direction gets radiance far beyond what its pdf expects
+    assert (ratio @ LUM).max() < 50.0 * (est @ LUM)
 
 
 # ----------------------------------------------------------------------------- MIP pyramid
@@ -404,6 +406,10 @@ def test_mip_box_filter_and_trilinear_lookup():
     top = E.eval_radiance_lod(env, d, 99.0)
     assert np.allclose(top, img.astype(np.float64).mean(axis=(0, 1)), rtol=1e-5)
     assert np.allclose(E.eval_radiance_lod(env, d, -3.0), lod0, rtol=1e-6)
+    assert np.allclose(E.eval_radiance_lod(env, d[:3], np.nan), lod0[:3], rtol=1e-6)
+    # a NaN direction gives no crash (indices are clamped), whatever value it returns
+    E.eval_radiance(env, [[np.nan, 0.0, 1.0]])
+    E.eval_pdf(env, [[np.nan, 0.0, 1.0]])
 
 
 def test_one_by_one_map():

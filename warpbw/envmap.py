@@ -1,8 +1,9 @@
 """Lat-long (equirectangular) HDR environment light: lookup, importance sampling, MIP pyramid.
 
-Orientation -- identical to Mitsuba 3's ``envmap`` emitter (src/emitters/envmap.cpp,
-``direction_to_uv`` / ``uv_to_direction`` / ``eval_spectrum``; checked against the source and
-against mitsuba 3.9.1 ``scalar_rgb`` in tests/test_envmap.py):
+Orientation -- identical to Mitsuba 3's ``envmap`` emitter (mitsuba-renderer/mitsuba3,
+src/emitters/envmap.cpp at 0179ad9f: ``direction_to_uv``, ``uv_to_direction``,
+``eval_spectrum``; tests/test_envmap.py also compares with mitsuba 3.9.1 ``scalar_rgb`` when it
+is installed):
 
 * A direction ``d = (x, y, z)`` in the map's local frame has texture coordinates
   ``u = atan2(x, -z) / (2 pi)`` (wrapped into [0, 1)) and ``v = acos(y) / pi``.
@@ -14,13 +15,16 @@ against mitsuba 3.9.1 ``scalar_rgb`` in tests/test_envmap.py):
   column): column ``i`` of a ``W``-wide map is centred at ``u = (i + 0.5) / W`` and the lookup
   is periodic in ``u`` (column ``W`` is column 0). Rows are *not* cell-centred: row ``j`` of an
   ``H``-high map sits at ``v = j / (H - 1)``, so row 0 is exactly the +Y pole and row ``H - 1``
-  the -Y pole; ``v`` is clamped, never wrapped.
+  the -Y pole; ``v`` is clamped (Mitsuba wraps it, which only differs at exactly v = 1).
 * ``rotation_deg`` is Mitsuba's ``to_world = rotate([0, 1, 0], angle)`` (right-handed, about
   +Y): a local direction ``d`` appears in the world at ``R d`` with
   ``R = [[c, 0, s], [0, 1, 0], [-s, 0, c]]``, e.g. +90 degrees takes local -Z (u = 0) to world -X.
   ``scale`` multiplies the radiance (applied to the pixels at load time).
 
-Sampling (``env_sample`` / ``env_pdf``): a piecewise-constant 2D distribution over texel
+Sampling (``env_sample`` / ``env_pdf``) is our own, not Mitsuba's (Mitsuba warps with a
+bilinear ``Hierarchical2D`` over luminance x sin(theta) at the rows, which gives the pole rows
+zero weight); only the radiance lookup follows Mitsuba. It is a
+piecewise-constant 2D distribution over texel
 *cells* -- the region of the sphere closest to each texel, i.e. ``u`` in ``[i/W, (i+1)/W]`` and
 ``v`` in ``[(j - 1/2)/(H - 1), (j + 1/2)/(H - 1)]`` clipped to [0, 1] (the two pole rows get
 half-height cells). A marginal CDF over rows and one conditional CDF over columns per row are
@@ -156,8 +160,8 @@ def _bilinear_base(env: EnvMapData, uv: wp.vec2) -> wp.vec3:
     w = env.width
     h = env.height
     g = _grid_coords(uv, w, h)
-    i0 = int(g[0])
-    j0 = int(g[1])
+    i0 = wp.clamp(int(g[0]), 0, w - 1)  # integer clamps: a NaN direction must not index out of range
+    j0 = wp.clamp(int(g[1]), 0, wp.max(h - 2, 0))
     i1 = i0 + 1
     if i1 >= w:
         i1 = 0
@@ -173,8 +177,8 @@ def _bilinear_level(env: EnvMapData, level: wp.int32, uv: wp.vec2) -> wp.vec3:
     h = env.mip_height[level]
     off = env.mip_offset[level]
     g = _grid_coords(uv, w, h)
-    i0 = int(g[0])
-    j0 = int(g[1])
+    i0 = wp.clamp(int(g[0]), 0, w - 1)  # integer clamps: a NaN direction must not index out of range
+    j0 = wp.clamp(int(g[1]), 0, wp.max(h - 2, 0))
     i1 = i0 + 1
     if i1 >= w:
         i1 = 0
@@ -213,7 +217,9 @@ def env_radiance_lod(env: EnvMapData, w: wp.vec3, lod: float) -> wp.vec3:
     uv = _dir_to_uv(_to_local(env, w))
     top = float(env.n_levels - 1)
     l = wp.clamp(lod, 0.0, top)
-    l0 = wp.min(int(wp.floor(l)), env.n_levels - 1)
+    if l != l:  # NaN lod -> finest level
+        l = 0.0
+    l0 = wp.clamp(int(wp.floor(l)), 0, env.n_levels - 1)
     l1 = wp.min(l0 + 1, env.n_levels - 1)
     a = _bilinear_level(env, l0, uv)
     b = _bilinear_level(env, l1, uv)
