@@ -510,19 +510,19 @@ def _host_kernels(kinds: frozenset):
         return _HOST_KERNELS[kinds]
     f = make_brdf_funcs(kinds)
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", enable_backward=False)
     def eval_kernel(mats: MaterialTable, m: int, wi: wp.array(dtype=wp.vec3),
                     wo: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
         t = wp.tid()
         out[t] = f.eval(mats, m, wi[t], wo[t])
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", enable_backward=False)
     def pdf_kernel(mats: MaterialTable, m: int, wi: wp.array(dtype=wp.vec3),
                    wo: wp.array(dtype=wp.vec3), out: wp.array(dtype=float)):
         t = wp.tid()
         out[t] = f.pdf(mats, m, wi[t], wo[t])
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", enable_backward=False)
     def sample_kernel(mats: MaterialTable, m: int, wo: wp.array(dtype=wp.vec3), seed: int,
                       out: wp.array(dtype=wp.vec3)):
         t = wp.tid()

@@ -12,6 +12,7 @@ import json
 import math
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from warpbw.errors import WarpbwError
@@ -33,15 +34,52 @@ coverage mask as A), with an sRGB PNG preview and a JSON of statistics beside th
 """
 
 
+# The one line Warp's native library prints at init on a machine without an NVIDIA driver
+# (warp/native/cuda_util.cpp, init_cuda_driver(), fprintf to stderr).  Warp has no setting that skips the
+# driver probe, so _init_warp captures file descriptor 2 around wp.init() and passes on every other line.
+_WARP_NO_DRIVER_LINE = "Could not find or load the NVIDIA CUDA driver"
+
+
+def _init_warp_quietly(wp) -> None:
+    """``wp.init()`` without Warp's no-CUDA-driver line on stderr (other native output is kept)."""
+    import os
+    import tempfile
+
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no usable fd 2 (embedded interpreter): just init
+        wp.init()
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            wp.init()
+        finally:
+            try:
+                sys.stderr.flush()
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+            tmp.seek(0)
+            for line in tmp.read().decode("utf-8", "replace").splitlines():
+                if _WARP_NO_DRIVER_LINE not in line:
+                    print(line, file=sys.stderr)
+
+
 def _init_warp(device: str):
     import warp as wp
 
     wp.config.log_level = WARP_LOG_WARNING
-    wp.init()
+    _init_warp_quietly(wp)
+    names = ", ".join(d.alias for d in wp.get_devices())
+    if str(device).startswith("cuda") and not wp.is_cuda_available():
+        # checked before wp.get_device("cuda"), which prints native CUDA errors when there is no driver
+        raise WarpbwError(f"--device {device}: no CUDA device on this machine (no NVIDIA GPU or driver found; "
+                          f"Warp found: {names}); use --device cpu")
     try:
         wp.get_device(device)
     except (RuntimeError, ValueError):
-        names = ", ".join(d.alias for d in wp.get_devices())
         raise WarpbwError(f"--device {device}: not available on this machine (Warp found: {names})") from None
     return wp
 
@@ -194,10 +232,17 @@ def _positive_int(name):
     return parse
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with usage errors in the CLI's one-line form: ``warpbw: error: ...``, status 2."""
+
+    def error(self, message):
+        self.exit(EXIT_USER_ERROR, f"warpbw: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="warpbw", description="Render measured materials under HDR light with "
-                                "NVIDIA Warp kernels (CPU by default; --device cuda runs the same kernels on a GPU).",
-                                epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = _Parser(prog="warpbw", description="Render measured materials under HDR light with "
+                "NVIDIA Warp kernels (CPU by default; --device cuda runs the same kernels on a GPU).",
+                epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
@@ -246,20 +291,27 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    # warnings (an environment with clamped pixels, unmeasured MERL entries...) as one line each
+    print(f"warpbw: warning: {message}", file=sys.stderr if file is None else file)
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        return args.func(args)
-    except WarpbwError as exc:
-        print(f"warpbw: error: {exc}", file=sys.stderr)
-        return EXIT_USER_ERROR
-    except KeyboardInterrupt:
-        print("warpbw: interrupted", file=sys.stderr)
-        return 130
-    except (OSError, MemoryError) as exc:
-        print(f"warpbw: error: {exc}", file=sys.stderr)
-        return EXIT_USER_ERROR
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        try:
+            return args.func(args)
+        except WarpbwError as exc:
+            print(f"warpbw: error: {exc}", file=sys.stderr)
+            return EXIT_USER_ERROR
+        except KeyboardInterrupt:
+            print("warpbw: interrupted", file=sys.stderr)
+            return 130
+        except (OSError, MemoryError) as exc:
+            print(f"warpbw: error: {exc}", file=sys.stderr)
+            return EXIT_USER_ERROR
 
 
 if __name__ == "__main__":

@@ -147,7 +147,7 @@ def make_gbuffer_kernel(has_spheres: bool, has_mesh: bool):
     if key in _KERNELS:
         return _KERNELS[key]
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", enable_backward=False)
     def gbuffer_kernel(cam: CameraData, spheres: SphereList, mesh: MeshAttributes, gb: GBufferData):
         i = wp.tid()
         x = i % cam.width

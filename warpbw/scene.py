@@ -221,7 +221,7 @@ class _Ctx:
             self.fail(key, f"expected a table, got {d!r}")
         for k in d:
             if k not in allowed:
-                self.fail(f"{key}.{k}", f"unknown key (expected one of: {', '.join(allowed)})")
+                self.fail(f"{key}.{k}" if key else k, f"unknown key (expected one of: {', '.join(allowed)})")
         for k in required:
             if k not in d:
                 self.fail(f"{key}.{k}", "missing required key")
@@ -310,16 +310,19 @@ def _object(ctx: _Ctx, d: dict, i: int, materials: dict):
         ctx.fail(key, f"expected a table, got {d!r}")
     if ("shape" in d) == ("mesh" in d):
         ctx.fail(key, "expected exactly one of shape = \"sphere\" or mesh = \"file.obj\"")
-    mat = ctx.string(d.get("material"), f"{key}.material")
+    # keys first: a misspelt key ("materal") is reported as unknown, not as a missing "material"
+    if "shape" in d:
+        ctx.table(d, key, ("shape", "center", "radius", "material"), required=("material", "radius"))
+    else:
+        ctx.table(d, key, ("mesh", "material", "translate", "scale", "rotate_y"), required=("material",))
+    mat = ctx.string(d["material"], f"{key}.material")
     if mat not in materials:
         ctx.fail(f"{key}.material", f"no [material.{mat}] in the scene (defined: "
                  f"{', '.join(materials) or 'none'})")
     if "shape" in d:
-        ctx.table(d, key, ("shape", "center", "radius", "material"), required=("radius",))
         ctx.string(d["shape"], f"{key}.shape", ("sphere",))
         return SphereObject(ctx.vec3(d.get("center", [0.0, 0.0, 0.0]), f"{key}.center"),
                             ctx.number(d["radius"], f"{key}.radius", lo=0.0, lo_open=True), mat)
-    ctx.table(d, key, ("mesh", "material", "translate", "scale", "rotate_y"))
     return MeshObject(ctx.path(d["mesh"], f"{key}.mesh"), mat,
                       ctx.vec3(d.get("translate", [0.0, 0.0, 0.0]), f"{key}.translate"),
                       ctx.number(d.get("scale", 1.0), f"{key}.scale", lo=0.0, lo_open=True),
@@ -370,7 +373,7 @@ def parse_scene(text: str, base_dir: Path | str | None = None, source: str = "<s
         d = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise WarpbwError(f"{source}: not valid TOML: {exc}") from None
-    ctx.table(d, "scene", ("camera", "environment", "object", "material"))
+    ctx.table(d, "", ("camera", "environment", "object", "material"))  # top level: keys named as they are
     if "camera" not in d:
         ctx.fail("[camera]", "missing (every scene needs a camera)")
     if "environment" not in d:

@@ -60,7 +60,7 @@ def make_reference_kernel(kinds, mis: bool):
         return _KERNELS[key]
     f = make_brdf_funcs(key[0])
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", enable_backward=False)
     def shade_reference_kernel(gb: GBufferData, mats: MaterialTable, env: EnvMapData,
                                pixels: wp.array(dtype=wp.int32), offset: int, spp: int, seed: int,
                                out: wp.array(dtype=wp.vec3), non_finite: wp.array(dtype=wp.int32)):

@@ -1,0 +1,411 @@
+"""Scene files: the embedded default scene, path resolution, validation errors (each a one-line
+WarpbwError naming the scene file and the key), exactly-one-of rules, `info` summaries and content hashes.
+
+Pure Python (no Warp kernels, no shared data): runs in a second or two.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+import textwrap
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from warpbw.errors import WarpbwError
+from warpbw.pipeline import scene_summary
+from warpbw.scene import (DEFAULT_SCENE_TOML, MAX_RESOLUTION, MeshObject, SphereObject, default_scene, load_scene,
+                          parse_scene)
+
+CAMERA = """\
+[camera]
+position = [0.0, 0.0, 4.0]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov = 40.0
+resolution = [32, 24]
+"""
+ENVIRONMENT = """\
+[environment]
+constant = [1.0, 1.0, 1.0]
+"""
+SPHERE = """\
+[[object]]
+shape = "sphere"
+center = [0.0, 0.0, 0.0]
+radius = 1.0
+material = "paint"
+"""
+PAINT = """\
+[material.paint]
+type = "lambert"
+albedo = [0.5, 0.5, 0.5]
+"""
+
+
+def scene_text(camera=CAMERA, environment=ENVIRONMENT, objects=SPHERE, materials=PAINT) -> str:
+    return "\n".join(s for s in (camera, environment, objects, materials) if s)
+
+
+def write(path: Path, text: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def expect_error(path: Path, key: str) -> str:
+    """load_scene(path) must fail with one line '<path>: ...<key>...'; returns the message."""
+    with pytest.raises(WarpbwError) as ei:
+        load_scene(path)
+    msg = str(ei.value)
+    assert "\n" not in msg, msg
+    assert msg.startswith(f"{path}: "), msg
+    assert key in msg, f"{key!r} not in {msg!r}"
+    return msg
+
+
+# ------------------------------------------------------------------------------------------ default scene
+
+def test_default_scene_parses_and_matches_its_toml():
+    s = default_scene()
+    assert (s.camera.width, s.camera.height) == (384, 256)
+    assert s.camera.fov == 40.0
+    assert s.environment.procedural == "sky" and s.environment.file is None and s.environment.constant is None
+    assert s.environment.rotation == 30.0
+    assert all(isinstance(o, SphereObject) for o in s.objects) and len(s.objects) == 3
+    assert s.material_order == ["clay", "gold", "glossy"]
+    assert {n: m.type for n, m in s.materials.items()} == {"clay": "lambert", "gold": "ggx", "glossy": "ggx"}
+    gold = s.materials["gold"]
+    assert gold.eta == (0.143, 0.374, 1.442) and gold.k == (3.983, 2.385, 1.603) and gold.alpha == 0.15
+    assert s.files() == []  # needs no file at all
+    again = parse_scene(DEFAULT_SCENE_TOML, Path.cwd(), "x")
+    assert again.content_hash() == s.content_hash()
+
+
+def test_minimal_scene_defaults(tmp_path):
+    s = load_scene(write(tmp_path / "s.toml", scene_text()))
+    assert s.source == str(tmp_path / "s.toml")
+    assert s.environment.constant == (1.0, 1.0, 1.0)
+    assert s.environment.rotation == 0.0 and s.environment.scale == 1.0
+    m = s.materials["paint"]
+    assert m.type == "lambert" and m.albedo == (0.5, 0.5, 0.5)
+
+
+# ------------------------------------------------------------------------------------------ paths
+
+def test_relative_paths_resolve_against_the_scene_directory(tmp_path, monkeypatch):
+    (tmp_path / "assets").mkdir()
+    probe = tmp_path / "assets" / "probe.exr"
+    probe.write_bytes(b"not read by the parser")
+    mesh = tmp_path / "scenes" / "mesh.obj"
+    write(mesh, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    table = tmp_path / "abs_table.bin"
+    table.write_bytes(b"x")
+    scene = write(tmp_path / "scenes" / "s.toml", scene_text(
+        environment='[environment]\nfile = "../assets/probe.exr"\n',
+        objects='[[object]]\nmesh = "mesh.obj"\nmaterial = "paint"\n',
+        materials=PAINT + f'\n[material.unused]\ntype = "npf"\ntable = "{table}"\nname = "chrome"\n'))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    s = load_scene(Path("..") / "scenes" / "s.toml")  # a relative scene path, from another directory
+    assert s.environment.file.resolve() == probe.resolve()
+    assert isinstance(s.objects[0], MeshObject) and s.objects[0].file.resolve() == mesh.resolve()
+    assert s.materials["unused"].table == table  # absolute paths are kept as they are
+    assert s.base_dir == (tmp_path / "scenes").resolve()
+
+
+def test_relative_path_is_not_resolved_against_the_working_directory(tmp_path, monkeypatch):
+    (tmp_path / "cwd").mkdir()
+    (tmp_path / "cwd" / "probe.exr").write_bytes(b"x")  # exists beside the cwd, not beside the scene
+    scene = write(tmp_path / "scenes" / "s.toml",
+                  scene_text(environment='[environment]\nfile = "probe.exr"\n'))
+    monkeypatch.chdir(tmp_path / "cwd")
+    msg = expect_error(scene, "[environment].file")
+    assert str(tmp_path / "scenes" / "probe.exr") in msg
+
+
+# ------------------------------------------------------------------------------------------ validation errors
+
+def _replace(text: str, old: str, new: str) -> str:
+    assert old in text, old
+    return text.replace(old, new)
+
+
+BASE = scene_text()
+CASES = [
+    # (id, scene text, key that the message must name)
+    ("negative resolution", _replace(BASE, "[32, 24]", "[-1, 512]"), "[camera].resolution"),
+    ("zero resolution", _replace(BASE, "[32, 24]", "[0, 24]"), "[camera].resolution"),
+    ("float resolution", _replace(BASE, "[32, 24]", "[32.5, 24]"), "[camera].resolution"),
+    ("bool resolution", _replace(BASE, "[32, 24]", "[true, 24]"), "[camera].resolution"),
+    ("one-number resolution", _replace(BASE, "[32, 24]", "[32]"), "[camera].resolution"),
+    ("string resolution", _replace(BASE, "[32, 24]", '"32x24"'), "[camera].resolution"),
+    ("huge resolution", _replace(BASE, "[32, 24]", f"[{MAX_RESOLUTION + 1}, 24]"), "[camera].resolution"),
+    ("missing resolution", _replace(BASE, "resolution = [32, 24]\n", ""), "[camera].resolution"),
+    ("fov 0", _replace(BASE, "fov = 40.0", "fov = 0"), "[camera].fov"),
+    ("fov 180", _replace(BASE, "fov = 40.0", "fov = 180.0"), "[camera].fov"),
+    ("fov nan", _replace(BASE, "fov = 40.0", "fov = nan"), "[camera].fov"),
+    ("fov string", _replace(BASE, "fov = 40.0", 'fov = "wide"'), "[camera].fov"),
+    ("position of 2", _replace(BASE, "position = [0.0, 0.0, 4.0]", "position = [0.0, 4.0]"), "[camera].position"),
+    ("look_at == position", _replace(BASE, "look_at = [0.0, 0.0, 0.0]", "look_at = [0.0, 0.0, 4.0]"),
+     "[camera].look_at"),
+    ("up parallel", _replace(BASE, "up = [0.0, 1.0, 0.0]", "up = [0.0, 0.0, 2.0]"), "[camera].up"),
+    ("no camera", scene_text(camera=""), "[camera]"),
+    ("camera not a table", "camera = 3\n" + scene_text(camera=""), "[camera]"),
+    ("unknown camera key", _replace(BASE, "fov = 40.0", "fov = 40.0\nfovy = 30.0"), "[camera].fovy"),
+    ("unknown material type", _replace(BASE, 'type = "lambert"', 'type = "phong"'), "[material.paint].type"),
+    ("missing material type", _replace(BASE, 'type = "lambert"\n', ""), "[material.paint].type"),
+    ("albedo > 1", _replace(BASE, "albedo = [0.5, 0.5, 0.5]", "albedo = [0.5, 1.5, 0.5]"),
+     "[material.paint].albedo"),
+    ("albedo negative", _replace(BASE, "albedo = [0.5, 0.5, 0.5]", "albedo = -0.5"), "[material.paint].albedo"),
+    ("unknown material key", _replace(BASE, "albedo = [0.5, 0.5, 0.5]", "albedo = 0.5\nroughness = 0.3"),
+     "[material.paint].roughness"),
+    ("ggx alpha 0", scene_text(materials='[material.paint]\ntype = "ggx"\nalpha = 0.0\nspecular = 1.0\n'),
+     "[material.paint].alpha"),
+    ("ggx alpha > 1", scene_text(materials='[material.paint]\ntype = "ggx"\nalpha = 1.5\nspecular = 1.0\n'),
+     "[material.paint].alpha"),
+    ("ggx missing specular", scene_text(materials='[material.paint]\ntype = "ggx"\nalpha = 0.3\n'),
+     "[material.paint].specular"),
+    ("ggx eta without k",
+     scene_text(materials='[material.paint]\ntype = "ggx"\nalpha = 0.3\nspecular = 1.0\neta = [1.0, 1.0, 1.0]\n'),
+     "[material.paint]"),
+    ("merl missing file", scene_text(materials='[material.paint]\ntype = "merl"\nfile = "nope.binary"\n'),
+     "[material.paint].file"),
+    ("merl bad lookup", scene_text(materials='[material.paint]\ntype = "merl"\nfile = "s.toml"\nlookup = "cubic"\n'),
+     "[material.paint].lookup"),
+    ("npf missing name", scene_text(materials='[material.paint]\ntype = "npf"\ntable = "s.toml"\n'),
+     "[material.paint].name"),
+    ("npf key on merl", scene_text(materials='[material.paint]\ntype = "merl"\nfile = "s.toml"\nname = "chrome"\n'),
+     "[material.paint].name"),
+    ("material array", scene_text(materials='[[material]]\ntype = "lambert"\n'), "[material]"),
+    ("undefined material", scene_text(objects=SPHERE + _replace(SPHERE, '"paint"', '"gloss"')),
+     "[[object]] #2.material"),
+    ("missing mesh file", scene_text(objects=SPHERE + '[[object]]\nmesh = "missing.obj"\nmaterial = "paint"\n'),
+     "[[object]] #2.mesh"),
+    ("mesh is a directory", scene_text(objects=SPHERE + '[[object]]\nmesh = "."\nmaterial = "paint"\n'),
+     "[[object]] #2.mesh"),
+    ("negative radius", _replace(BASE, "radius = 1.0", "radius = -1.0"), "[[object]] #1.radius"),
+    ("missing radius", _replace(BASE, "radius = 1.0\n", ""), "[[object]] #1.radius"),
+    ("unknown shape", _replace(BASE, 'shape = "sphere"', 'shape = "cube"'), "[[object]] #1.shape"),
+    ("unknown object key", _replace(BASE, "radius = 1.0", "radius = 1.0\ncolour = [1, 0, 0]"),
+     "[[object]] #1.colour"),
+    ("missing material", _replace(BASE, 'material = "paint"\n', ""), "[[object]] #1.material"),
+    ("misspelt material key", _replace(BASE, 'material = "paint"', 'materal = "paint"'), "[[object]] #1.materal"),
+    ("mesh scale 0", scene_text(objects='[[object]]\nmesh = "s.toml"\nmaterial = "paint"\nscale = 0.0\n'),
+     "[[object]] #1.scale"),
+    ("no objects", scene_text(objects=""), "[[object]]"),
+    ("no environment", scene_text(environment=""), "[environment]"),
+    ("missing environment file", scene_text(environment='[environment]\nfile = "probe.exr"\n'),
+     "[environment].file"),
+    ("unknown procedural", scene_text(environment='[environment]\nprocedural = "moon"\n'),
+     "[environment].procedural"),
+    ("negative constant", scene_text(environment="[environment]\nconstant = [1.0, -1.0, 1.0]\n"),
+     "[environment].constant"),
+    ("negative scale", scene_text(environment="[environment]\nconstant = 1.0\nscale = -2.0\n"),
+     "[environment].scale"),
+    ("infinite rotation", scene_text(environment="[environment]\nconstant = 1.0\nrotation = inf\n"),
+     "[environment].rotation"),
+    ("unknown environment key", scene_text(environment="[environment]\nconstant = 1.0\nintensity = 2.0\n"),
+     "[environment].intensity"),
+    ("unknown top-level table", BASE + "\n[lights]\nsun = 1.0\n", ": lights: unknown key"),
+]
+
+
+@pytest.mark.parametrize("text,key", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
+def test_validation_error_names_file_and_key(tmp_path, text, key):
+    expect_error(write(tmp_path / "s.toml", text), key)
+
+
+def test_unknown_key_lists_the_allowed_keys(tmp_path):
+    msg = expect_error(write(tmp_path / "s.toml", _replace(BASE, "fov = 40.0", "fov = 40.0\nfovy = 30.0")),
+                       "[camera].fovy")
+    assert "unknown key" in msg and "resolution" in msg
+
+
+def test_not_toml(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text("[camera\nfov = = 3\n")
+    with pytest.raises(WarpbwError, match=re.escape(f"{p}: not valid TOML")):
+        load_scene(p)
+
+
+def test_missing_and_unreadable_scene_files(tmp_path):
+    with pytest.raises(WarpbwError, match=re.escape(f"{tmp_path / 'nope.toml'}: scene file not found")):
+        load_scene(tmp_path / "nope.toml")
+    with pytest.raises(WarpbwError, match=re.escape(f"{tmp_path}: not a file")):
+        load_scene(tmp_path)
+    p = tmp_path / "binary.toml"
+    p.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe\x00")
+    with pytest.raises(WarpbwError, match=re.escape(f"{p}: cannot read the scene file as UTF-8")):
+        load_scene(p)
+
+
+def test_parse_scene_names_its_source():
+    with pytest.raises(WarpbwError, match=r"^my scene: \[camera\]\.fov: "):
+        parse_scene(_replace(BASE, "fov = 40.0", "fov = -1"), source="my scene")
+
+
+# ------------------------------------------------------------------------------------------ exactly one of
+
+@pytest.mark.parametrize("env", [
+    "[environment]\n",
+    '[environment]\nprocedural = "sky"\nconstant = 1.0\n',
+    '[environment]\nfile = "s.toml"\nconstant = 1.0\n',
+    '[environment]\nfile = "s.toml"\nprocedural = "sky"\nconstant = 1.0\n',
+], ids=["none", "procedural+constant", "file+constant", "all three"])
+def test_environment_needs_exactly_one_light(tmp_path, env):
+    msg = expect_error(write(tmp_path / "s.toml", scene_text(environment=env)), "[environment]")
+    assert "exactly one of" in msg
+
+
+@pytest.mark.parametrize("env,attr", [('[environment]\nfile = "s.toml"\n', "file"),
+                                      ('[environment]\nprocedural = "sky"\n', "procedural"),
+                                      ("[environment]\nconstant = 0.25\n", "constant")])
+def test_environment_each_light_alone_is_accepted(tmp_path, env, attr):
+    s = load_scene(write(tmp_path / "s.toml", scene_text(environment=env)))
+    given = [a for a in ("file", "procedural", "constant") if getattr(s.environment, a) is not None]
+    assert given == [attr]
+    if attr == "constant":
+        assert s.environment.constant == (0.25, 0.25, 0.25)
+
+
+@pytest.mark.parametrize("obj", [
+    '[[object]]\nmaterial = "paint"\nradius = 1.0\n',
+    '[[object]]\nshape = "sphere"\nmesh = "s.toml"\nradius = 1.0\nmaterial = "paint"\n',
+], ids=["neither", "both"])
+def test_object_needs_exactly_one_shape(tmp_path, obj):
+    msg = expect_error(write(tmp_path / "s.toml", scene_text(objects=SPHERE + obj)), "[[object]] #2")
+    assert "exactly one of" in msg
+
+
+# ------------------------------------------------------------------------------------------ info summary
+
+def test_summary_lists_only_the_materials_used(tmp_path):
+    (tmp_path / "unused.binary").write_bytes(b"never read")
+    mats = PAINT + """
+[material.shiny]
+type = "ggx"
+alpha = 0.2
+specular = [0.9, 0.9, 0.9]
+
+[material.spare]
+type = "merl"
+file = "unused.binary"
+"""
+    objs = SPHERE + '[[object]]\nshape = "sphere"\ncenter = [2.0, 0.0, 0.0]\nradius = 0.5\nmaterial = "shiny"\n'
+    s = load_scene(write(tmp_path / "s.toml", scene_text(objects=objs, materials=mats)))
+    assert s.material_order == ["paint", "shiny"]
+    summ = scene_summary(s)
+    assert summ["materials"] == {"paint": "lambert", "shiny": "ggx"}
+    assert summ["unused_materials"] == ["spare"]
+    assert summ["files"] == []  # the unused material's file is not read
+    assert summ["resolution"] == [32, 24]
+    assert len(summ["objects"]) == 2 and "material=shiny" in summ["objects"][1]
+    assert any(st.startswith("brdf: ggx, lambert") for st in summ["stages"])
+    assert not any("tabulated" in st for st in summ["stages"])  # merl is unused: no tabulated sampling
+
+
+# ------------------------------------------------------------------------------------------ content hash
+
+def _hash_scene(tmp_path) -> Path:
+    write(tmp_path / "mesh.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (tmp_path / "probe.exr").write_bytes(b"probe bytes v1")
+    (tmp_path / "unused.binary").write_bytes(b"unused v1")
+    return write(tmp_path / "s.toml", scene_text(
+        environment='[environment]\nfile = "probe.exr"\n',
+        objects=SPHERE + '[[object]]\nmesh = "mesh.obj"\nmaterial = "paint"\n',
+        materials=PAINT + '\n[material.spare]\ntype = "merl"\nfile = "unused.binary"\n'))
+
+
+def test_content_hash_follows_the_bytes_of_referenced_files(tmp_path):
+    p = _hash_scene(tmp_path)
+    h0 = load_scene(p).content_hash()
+    assert re.fullmatch(r"[0-9a-f]{32}", h0)
+    assert load_scene(p).content_hash() == h0  # deterministic
+
+    mesh = tmp_path / "mesh.obj"
+    original = mesh.read_bytes()
+    mesh.write_bytes(original.replace(b"v 1 0 0", b"v 2 0 0"))  # same size, different bytes
+    os.utime(mesh, ns=(0, 0))
+    h1 = load_scene(p).content_hash()
+    assert h1 != h0
+    mesh.write_bytes(original)
+    assert load_scene(p).content_hash() == h0
+
+    (tmp_path / "probe.exr").write_bytes(b"probe bytes v2")
+    assert load_scene(p).content_hash() not in (h0, h1)
+    (tmp_path / "probe.exr").write_bytes(b"probe bytes v1")
+    assert load_scene(p).content_hash() == h0
+
+
+def test_content_hash_ignores_unused_materials_but_not_parameters(tmp_path):
+    p = _hash_scene(tmp_path)
+    h0 = load_scene(p).content_hash()
+    (tmp_path / "unused.binary").write_bytes(b"unused v2")  # not part of the render
+    assert load_scene(p).content_hash() == h0
+    p.write_text(p.read_text().replace("fov = 40.0", "fov = 41.0"))
+    assert load_scene(p).content_hash() != h0
+    p.write_text(p.read_text().replace("fov = 41.0", "fov = 40.0").replace("[0.5, 0.5, 0.5]", "[0.5, 0.5, 0.6]"))
+    assert load_scene(p).content_hash() != h0
+
+
+# ------------------------------------------------------------------------------------------ properties
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
+    if isinstance(v, str):
+        return '"' + v + '"'
+    return str(v)
+
+
+_bad_side = st.one_of(
+    st.integers(min_value=-(2**63), max_value=0),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.booleans(),
+    st.text(alphabet="abc0123456789", max_size=4),
+    st.integers(min_value=MAX_RESOLUTION + 1, max_value=10**9),
+)
+_good_side = st.integers(min_value=1, max_value=MAX_RESOLUTION)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.tuples(_bad_side, _good_side) | st.tuples(_good_side, _bad_side) | st.tuples(_bad_side, _bad_side))
+def test_property_bad_resolution_is_rejected(res):
+    text = _replace(BASE, "[32, 24]", f"[{_toml_value(res[0])}, {_toml_value(res[1])}]")
+    with pytest.raises(WarpbwError, match=r"^prop: \[camera\]\.resolution: expected"):
+        parse_scene(text, source="prop")
+
+
+@settings(max_examples=100, deadline=None)
+@given(_good_side, _good_side)
+def test_property_good_resolution_is_accepted(w, h):
+    s = parse_scene(_replace(BASE, "[32, 24]", f"[{w}, {h}]"), source="prop")
+    assert (s.camera.width, s.camera.height) == (w, h)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.floats(min_value=0.0, max_value=180.0, exclude_min=True, exclude_max=True) | st.integers(1, 179))
+def test_property_fov_in_open_interval_is_accepted(fov):
+    s = parse_scene(_replace(BASE, "fov = 40.0", f"fov = {_toml_value(fov)}"), source="prop")
+    assert s.camera.fov == float(fov)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(max_value=0.0) | st.floats(min_value=180.0) | st.just(float("nan")))
+def test_property_fov_outside_is_rejected(fov):
+    with pytest.raises(WarpbwError, match=r"^prop: \[camera\]\.fov: expected"):
+        parse_scene(_replace(BASE, "fov = 40.0", f"fov = {_toml_value(fov)}"), source="prop")
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(min_value=0.0, max_value=1.0), min_size=3, max_size=3))
+def test_property_albedo_in_unit_cube_is_accepted(albedo):
+    text = _replace(BASE, "albedo = [0.5, 0.5, 0.5]", "albedo = [" + ", ".join(map(_toml_value, albedo)) + "]")
+    assert parse_scene(text).materials["paint"].albedo == tuple(albedo)
