@@ -3,6 +3,8 @@
 Usage::
 
     python examples/compare_mitsuba.py                       # lambert, ggx0.1, ggx0.4 at 256x256, 1024 spp
+    python examples/compare_mitsuba.py --noise-floor         # also two Mitsuba seeds against each other
+    python examples/compare_mitsuba.py --no-mis              # warpbw with BRDF sampling only
     python examples/compare_mitsuba.py --cases ggx0.1 --spp 256 --resolution 128 --out /tmp/cmp
     python examples/compare_mitsuba.py --mitsuba-only --out /tmp/mitsuba_out
 
@@ -83,6 +85,22 @@ figure a warpbw exactly as noisy as Mitsuba would reach.  Measured at 256x256 an
 studio.exr: lambert 2.2e-3, ggx0.1 4.7e-3, ggx0.4 2.8e-3 (it falls as 1/spp; ``--mitsuba-spp 4096``
 takes most of the reference's share out).  Mitsuba 3.9.1 llvm_ad_rgb on 2 cores renders these at
 11-13 M samples/s (5-6 s per case at 256x256, 1024 spp).
+
+Results (256x256, 1024 spp each, studio.exr, 2 shared cores; relMSE = warpbw.metrics.relmse)::
+
+    estimator            case     relMSE   rel(sum)  PSNR dB   Mitsuba-vs-Mitsuba floor
+    warpbw --mis         lambert  2.7e-3   2.2e-3    33.4      2.6e-3
+                         ggx0.1   2.1e-3   4.9e-3    46.7      2.0e-3
+                         ggx0.4   2.8e-3   2.9e-3    38.0      2.7e-3
+    warpbw default       lambert  1.9e-1   1.7e-1    14.4      (BRDF sampling only: FAIL on noise)
+                         ggx0.1   1.4e-1   1.7e-2    41.3
+                         ggx0.4   1.9e-1   1.2e-1    21.9
+
+With MIS, warpbw sits on Mitsuba's own noise floor; averaged over 8x8 blocks (noise / 64) the
+relMSE(sum) falls to 3e-5 / 1.4e-4 / 4e-5 and the interior means agree to 0.03 %, 0.2 %, 0.06 %:
+no measurable bias.  The default (BRDF-sampling) estimator is unbiased too (its block-averaged error
+falls by the same factor of about 60) but 50-100x noisier under the probe's small bright lights.
+Coverage masks agree to IoU 0.9999.
 """
 from __future__ import annotations
 
@@ -402,9 +420,9 @@ def parse_args(argv=None):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=None, help="save <case>_mitsuba.exr, <case>_warpbw.exr, <case>.png")
     p.add_argument("--variant", default=None, help=f"Mitsuba variant (default: first usable of {VARIANTS})")
-    p.add_argument("--mis", action="store_true",
-                   help="warpbw with MIS (one BRDF + one environment sample per spp, as Mitsuba's path does); "
-                        "default: warpbw's default estimator (BRDF sampling only)")
+    p.add_argument("--no-mis", dest="mis", action="store_false",
+                   help="warpbw with BRDF sampling only (its CLI default, 002 Eq. 2).  Default: MIS, one BRDF and "
+                        "one environment sample per spp, like for like with Mitsuba's path integrator")
     p.add_argument("--mitsuba-only", action="store_true", help="render Mitsuba only (no warpbw)")
     p.add_argument("--noise-floor", action="store_true",
                    help="also render Mitsuba with seed+1 and report the relMSE between the two Mitsuba images")
@@ -496,6 +514,9 @@ def main(argv=None) -> int:
             print(f"{r['case']:<8} {r['relmse']:>9.2e} {r['relmse_sum']:>9.2e} {r['psnr']:>8.2f} {r['n']:>7d} {r['iou']:>7.4f} "
                   f"{r['t_mi']:>9.2f} {r['t_wb']:>9.2f} {r['t_wb'] / r['t_mi']:>6.2f}"
                   + (f" {r['floor']:>9.2e}" if args.noise_floor else "") + f"  {verdict}")
+        if not args.mis and any(r["relmse"] >= ACCEPT_RELMSE for r in rows):
+            print("note: warpbw ran its default estimator (BRDF sampling only); Mitsuba's path tracer uses MIS. "
+                  "Rerun without --no-mis for the equal-estimator comparison, or --noise-floor to see Mitsuba's own noise.")
     if args.out is not None:
         print(f"images written to {args.out}")
     return 0

@@ -17,8 +17,8 @@ from hypothesis import strategies as st
 
 from warpbw.errors import WarpbwError
 from warpbw.pipeline import scene_summary
-from warpbw.scene import (DEFAULT_SCENE_TOML, MAX_RESOLUTION, MeshObject, SphereObject, default_scene, load_scene,
-                          parse_scene)
+from warpbw.scene import (DEFAULT_SCENE_TOML, GGX_MIN_ALPHA, MAX_RESOLUTION, MeshObject, SphereObject, default_scene,
+                          load_scene, parse_scene)
 
 CAMERA = """\
 [camera]
@@ -166,6 +166,9 @@ CASES = [
      "[material.paint].roughness"),
     ("ggx alpha 0", scene_text(materials='[material.paint]\ntype = "ggx"\nalpha = 0.0\nspecular = 1.0\n'),
      "[material.paint].alpha"),
+    ("ggx alpha below the minimum",
+     scene_text(materials='[material.paint]\ntype = "ggx"\nalpha = 5e-5\nspecular = 1.0\n'),
+     "[material.paint].alpha: expected a number >= 0.0001"),
     ("ggx alpha > 1", scene_text(materials='[material.paint]\ntype = "ggx"\nalpha = 1.5\nspecular = 1.0\n'),
      "[material.paint].alpha"),
     ("ggx missing specular", scene_text(materials='[material.paint]\ntype = "ggx"\nalpha = 0.3\n'),
@@ -402,6 +405,13 @@ def test_property_fov_in_open_interval_is_accepted(fov):
 def test_property_fov_outside_is_rejected(fov):
     with pytest.raises(WarpbwError, match=r"^prop: \[camera\]\.fov: expected"):
         parse_scene(_replace(BASE, "fov = 40.0", f"fov = {_toml_value(fov)}"), source="prop")
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(min_value=GGX_MIN_ALPHA, max_value=1.0))
+def test_property_ggx_alpha_in_range_is_accepted(alpha):
+    text = scene_text(materials=f'[material.paint]\ntype = "ggx"\nalpha = {_toml_value(alpha)}\nspecular = 1.0\n')
+    assert parse_scene(text).materials["paint"].alpha == alpha
 
 
 @settings(max_examples=60, deadline=None)

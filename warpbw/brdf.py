@@ -67,6 +67,7 @@ TAB_COSINE_MIX = 0.1
 COS_EPS = 1.0e-6
 
 HALF_PI = 0.5 * math.pi
+GGX_MIN_ALPHA = 1.0e-4   # alphas below are clamped (D stays finite in float32 far below this; see ggx_d)
 
 
 @wp.struct
@@ -153,11 +154,12 @@ def lambert_eval(albedo: wp.vec3):
 # ---------------------------------------------------------------------------------------------
 
 @wp.func
-def ggx_d(cos_h: float, alpha: float):
-    # GGX / Trowbridge-Reitz normal distribution, normalised so that int D(h) cos_h dh = 1.
+def ggx_d(h: wp.vec3, alpha: float):
+    # GGX / Trowbridge-Reitz normal distribution, normalised so that int D(h) cos_h dh = 1:
+    # D = a^2 / (pi (sin_h^2 + a^2 cos_h^2)^2).  Written with sin_h^2 = h_x^2 + h_y^2 rather than the usual
+    # 1 + cos_h^2 (a^2 - 1), which in float32 is exactly 0 at h = n once a < ~1.7e-4 (a^2 - 1 rounds to -1).
     a2 = alpha * alpha
-    c2 = cos_h * cos_h
-    t = c2 * (a2 - 1.0) + 1.0
+    t = h[0] * h[0] + h[1] * h[1] + a2 * h[2] * h[2]
     return a2 / (wp.pi * t * t)
 
 
@@ -211,7 +213,7 @@ def ggx_eval(mats: MaterialTable, m: int, wi: wp.vec3, wo: wp.vec3):
         return wp.vec3(0.0)
     alpha = mats.alpha[m]
     h = wp.normalize(wi + wo)
-    d = ggx_d(h[2], alpha)
+    d = ggx_d(h, alpha)
     g = ggx_g1(ci, alpha) * ggx_g1(co, alpha)
     f = ggx_fresnel(mats, m, wp.dot(wi, h))
     return f * (d * g / (4.0 * wp.max(ci, COS_EPS) * wp.max(co, COS_EPS)))
@@ -246,7 +248,7 @@ def ggx_pdf(wi: wp.vec3, wo: wp.vec3, alpha: float):
     h = wp.normalize(wi + wo)
     if h[2] <= 0.0 or wp.dot(wo, h) <= 0.0:
         return 0.0
-    return ggx_g1(wo[2], alpha) * ggx_d(h[2], alpha) / (4.0 * wp.max(wo[2], COS_EPS))
+    return ggx_g1(wo[2], alpha) * ggx_d(h, alpha) / (4.0 * wp.max(wo[2], COS_EPS))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -481,7 +483,7 @@ def build_material_table(specs: Sequence[MaterialSpec], device: str = "cpu") -> 
     t = MaterialTable()
     t.kind = wp.array(kind, dtype=wp.int32, device=device)
     t.albedo = vec3s([s.albedo for s in specs])
-    t.alpha = wp.array(np.array([max(s.alpha, 1e-4) for s in specs], np.float32), dtype=wp.float32,
+    t.alpha = wp.array(np.array([max(s.alpha, GGX_MIN_ALPHA) for s in specs], np.float32), dtype=wp.float32,
                        device=device)
     t.specular = vec3s([s.specular for s in specs])
     t.eta = vec3s([s.eta if s.eta is not None else (0.0, 0.0, 0.0) for s in specs])

@@ -114,7 +114,8 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
     cam = make_camera(c.position, c.look_at, c.up, c.fov, c.width, c.height)
     with _timed(timings, "load_environment"):
         env = _load_environment(scene, device)
-    notes["environment"] = {"name": env.name, "size": [env.width, env.height], "clamped_pixels": int(env.n_clamped)}
+    # channel values (not pixels) that were negative or non-finite and set to 0
+    notes["environment"] = {"name": env.name, "size": [env.width, env.height], "clamped_values": int(env.n_clamped)}
     order = scene.material_order
     mat_id = {name: i for i, name in enumerate(order)}
     with _timed(timings, "load_materials"):

@@ -33,6 +33,9 @@ MATERIAL_TYPES = ("lambert", "ggx", "merl", "npf")
 PROCEDURAL_ENVIRONMENTS = ("sky",)
 LOOKUP_MODES = ("nearest", "linear")
 MAX_RESOLUTION = 16384  # per side; larger is almost certainly a typo (and would not fit in memory)
+# Smallest GGX alpha accepted (a mirror at any image resolution); the kernel clamps to the same bound
+# (warpbw.brdf.GGX_MIN_ALPHA).
+GGX_MIN_ALPHA = 1.0e-4
 
 DEFAULT_SCENE_TOML = """\
 # warpbw's embedded default scene: three spheres with analytic materials under the procedural sky.
@@ -350,7 +353,7 @@ def _material(ctx: _Ctx, name: str, d: dict) -> Material:
             ctx.fail(f"{key}.albedo", f"expected components in [0, 1] (energy conservation), got {albedo}")
         return Material(name, t, albedo=albedo)
     if t == "ggx":
-        alpha = ctx.number(d["alpha"], f"{key}.alpha", lo=0.0, lo_open=True, hi=1.0)
+        alpha = ctx.number(d["alpha"], f"{key}.alpha", lo=GGX_MIN_ALPHA, hi=1.0)
         spec = ctx.vec3(d["specular"], f"{key}.specular", lo=0.0)
         if ("eta" in d) != ("k" in d):
             ctx.fail(key, "conductor Fresnel needs both eta and k")

@@ -277,6 +277,10 @@ def write_merl(path, data, force: bool = False) -> Path:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp_name = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+        # mkstemp creates the file 0600; give the result the mode any new file gets (0666 less the umask)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp_name, 0o666 & ~umask)
         with os.fdopen(fd, "wb") as fh:
             fh.write(header.tobytes())
             fh.write(values.tobytes())

@@ -1,0 +1,345 @@
+"""Bad input through the real command lines (``python -m warpbw.cli`` / ``python -m precompute``).
+
+Every case must exit with status 2 and print exactly ONE line on stderr, ``warpbw: error: ...`` (or
+``warpbw-precompute: error: ...``), naming the file or key and what was expected, with no traceback, and
+must leave no output behind.  Runs in a fresh temporary directory with stdin closed; needs no shared data
+(the bad files are made here).  Warp's native "could not find the CUDA driver" line is not filtered out:
+``warpbw.cli._init_warp`` keeps it off stderr, and these tests check that.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from warpbw.io.exr import write_exr
+from warpbw.io.merl import MERL_FILE_SIZE
+from warpbw.io.npf import NPF_FILE_SIZE
+
+EXIT_USER_ERROR = 2
+
+
+def run(args, cwd: Path, module: str = "warpbw.cli", timeout: float = 180.0) -> subprocess.CompletedProcess:
+    env = dict(os.environ)
+    env["WARPBW_CACHE"] = str(cwd / "_cache")  # never ~/.cache
+    env.pop("PYTHONWARNINGS", None)
+    return subprocess.run([sys.executable, "-m", module, *map(str, args)], cwd=cwd, env=env,
+                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=timeout)
+
+
+def assert_one_line_error(r: subprocess.CompletedProcess, *needles: str, prog: str = "warpbw") -> str:
+    """Status 2, one non-empty stderr line '<prog>: error: ...' containing every needle, no traceback."""
+    out = r.stdout + r.stderr
+    assert "Traceback" not in out, out
+    assert r.returncode == EXIT_USER_ERROR, f"status {r.returncode}\n{out}"
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, f"expected one line on stderr, got {len(lines)}:\n{r.stderr}"
+    line = lines[0]
+    assert line.startswith(f"{prog}: error: "), line
+    for n in needles:
+        assert n in line, f"{n!r} not in {line!r}"
+    return line
+
+
+def assert_no_outputs(d: Path, stem: str = "out"):
+    left = [p.name for p in d.iterdir() if p.stem == stem]
+    assert not left, f"outputs written despite the error: {left}"
+
+
+SCENE = """\
+[camera]
+position = [0.0, 0.0, 3.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 40.0
+resolution = {resolution}
+
+[environment]
+{environment}
+
+[[object]]
+{object}
+material = "m"
+
+[material.m]
+{material}
+"""
+
+
+def write_scene(d: Path, name: str = "scene.toml", resolution="[8, 8]", environment="constant = [1.0, 1.0, 1.0]",
+                obj='shape = "sphere"\nradius = 1.0', material='type = "lambert"\nalbedo = 0.5') -> Path:
+    p = d / name
+    p.write_text(SCENE.format(resolution=resolution, environment=environment, object=obj, material=material))
+    return p
+
+
+def png_named_exr(path: Path) -> Path:
+    from PIL import Image
+
+    Image.fromarray(np.full((4, 8, 3), 200, np.uint8)).save(path, format="PNG")
+    assert path.read_bytes()[:4] == b"\x89PNG"
+    return path
+
+
+# ------------------------------------------------------------------------------------------ files
+
+def test_truncated_merl_in_a_scene(tmp_path):
+    (tmp_path / "truncated.binary").write_bytes(np.array([90, 90, 180], "<i4").tobytes() + bytes(4096))
+    write_scene(tmp_path, material='type = "merl"\nfile = "truncated.binary"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "truncated.binary", f"expected {MERL_FILE_SIZE} bytes", "got 4108")
+    assert_no_outputs(tmp_path)
+
+
+def test_merl_of_the_right_size_with_a_foreign_header(tmp_path):
+    p = tmp_path / "foreign.binary"
+    with open(p, "wb") as f:
+        f.write(np.array([1, 2, 3], "<i4").tobytes())
+        f.truncate(MERL_FILE_SIZE)
+    write_scene(tmp_path, material='type = "merl"\nfile = "foreign.binary"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "foreign.binary", "header dims (1, 2, 3)", "expected (90, 90, 180)")
+    assert_no_outputs(tmp_path)
+
+
+def test_precompute_brdf_sampling_of_a_truncated_merl(tmp_path):
+    (tmp_path / "truncated.binary").write_bytes(bytes(1000))
+    r = run(["brdf-sampling", "truncated.binary", "-o", "x.npz"], tmp_path, module="precompute")
+    assert_one_line_error(r, "truncated.binary", f"expected {MERL_FILE_SIZE} bytes", "got 1000",
+                          prog="warpbw-precompute")
+    assert not (tmp_path / "x.npz").exists()
+
+
+def test_png_renamed_exr_as_environment(tmp_path):
+    png_named_exr(tmp_path / "probe.exr")
+    write_scene(tmp_path, environment='file = "probe.exr"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "probe.exr", "not an OpenEXR file", "PNG")
+    assert_no_outputs(tmp_path)
+
+
+@pytest.mark.parametrize("which", ["test", "reference"])
+def test_png_renamed_exr_in_compare(tmp_path, which):
+    png_named_exr(tmp_path / "fake.exr")
+    write_exr(tmp_path / "good.exr", np.ones((4, 8, 3), np.float32))
+    args = ["compare", "fake.exr", "good.exr"] if which == "test" else ["compare", "good.exr", "fake.exr"]
+    r = run(args, tmp_path)
+    assert_one_line_error(r, "fake.exr", "not an OpenEXR file", "PNG")
+    assert r.stdout == ""
+
+
+def test_compare_missing_image(tmp_path):
+    write_exr(tmp_path / "good.exr", np.ones((4, 8, 3), np.float32))
+    r = run(["compare", "good.exr", "nothere.exr"], tmp_path)
+    assert_one_line_error(r, "nothere.exr", "file not found")
+
+
+def test_compare_images_of_different_sizes(tmp_path):
+    write_exr(tmp_path / "a.exr", np.ones((4, 8, 3), np.float32))
+    write_exr(tmp_path / "b.exr", np.ones((5, 8, 3), np.float32))
+    r = run(["compare", "a.exr", "b.exr"], tmp_path)
+    assert_one_line_error(r, "a.exr is 8x4", "b.exr is 8x5", "same size")
+
+
+def test_missing_mesh_file(tmp_path):
+    write_scene(tmp_path, obj='mesh = "meshes/bunny.obj"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "[[object]] #1.mesh", "file not found", str(tmp_path / "meshes"))
+    assert_no_outputs(tmp_path)
+
+
+def test_garbage_obj(tmp_path):
+    (tmp_path / "garbage.obj").write_text("this is not a mesh\n@@@ ### !!!\nf foo bar baz\n")
+    write_scene(tmp_path, obj='mesh = "garbage.obj"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    line = assert_one_line_error(r, "garbage.obj", "expected")
+    assert "no triangles" in line or "malformed" in line, line
+    assert_no_outputs(tmp_path)
+
+
+def test_obj_face_referencing_a_missing_vertex(tmp_path):
+    (tmp_path / "badface.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n")
+    write_scene(tmp_path, obj='mesh = "badface.obj"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    line = assert_one_line_error(r, "badface.obj", "vertex")
+    assert "malformed" in line
+    assert_no_outputs(tmp_path)
+
+
+# ------------------------------------------------------------------------------------------ scene content
+
+def test_unknown_material_type(tmp_path):
+    write_scene(tmp_path, material='type = "phong"\nalbedo = 0.5')
+    r = run(["render", "scene.toml", "-o", "out.exr"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "[material.m].type", "'phong'", "expected one of", "lambert")
+    assert_no_outputs(tmp_path)
+
+
+def test_negative_resolution(tmp_path):
+    write_scene(tmp_path, resolution="[-64, 64]")
+    r = run(["render", "scene.toml", "-o", "out.exr"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "[camera].resolution", "positive integers", "[-64, 64]")
+    assert_no_outputs(tmp_path)
+
+
+def test_scene_that_is_not_toml(tmp_path):
+    (tmp_path / "scene.toml").write_text("[camera\nposition = = [0, 0]\n")
+    r = run(["render", "scene.toml", "-o", "out.exr"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "not valid TOML", "line 1")
+    r = run(["info", "scene.toml"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "not valid TOML")
+
+
+def test_binary_scene_file(tmp_path):
+    (tmp_path / "scene.toml").write_bytes(bytes(range(256)))
+    r = run(["info", "scene.toml"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "UTF-8")
+
+
+def test_missing_scene_file(tmp_path):
+    r = run(["render", "nothere.toml", "-o", "out.exr"], tmp_path)
+    assert_one_line_error(r, "nothere.toml", "scene file not found")
+    r = run(["info", "nothere.toml"], tmp_path)
+    assert_one_line_error(r, "nothere.toml", "scene file not found")
+
+
+def _fake_npf_table(path: Path) -> Path:
+    # the right size; read_npf checks the name before it reads a row
+    with open(path, "wb") as f:
+        f.truncate(NPF_FILE_SIZE)
+    return path
+
+
+def test_unknown_npf_material_name(tmp_path):
+    _fake_npf_table(tmp_path / "npf.bin")
+    write_scene(tmp_path, material='type = "npf"\ntable = "npf.bin"\nname = "chrom"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "npf.bin", "unknown NPF material 'chrom'", "chrome")
+    assert_no_outputs(tmp_path)
+
+
+def test_unknown_npf_material_name_in_precompute(tmp_path):
+    _fake_npf_table(tmp_path / "npf.bin")
+    r = run(["npf-to-merl", "--table", "npf.bin", "--material", "gold-metalic-paint", "-o", "out.binary"],
+            tmp_path, module="precompute")
+    assert_one_line_error(r, "npf.bin", "'gold-metalic-paint'", "gold-metallic-paint", prog="warpbw-precompute")
+    assert not (tmp_path / "out.binary").exists()
+    r = run(["brdf-sampling", "npf.bin", "--material", "nope", "-o", "x.npz"], tmp_path, module="precompute")
+    assert_one_line_error(r, "npf.bin", "'nope'", prog="warpbw-precompute")
+    assert not (tmp_path / "x.npz").exists()
+
+
+def test_sampling_file_that_is_not_an_asset(tmp_path):
+    _fake_npf_table(tmp_path / "npf.bin")
+    (tmp_path / "tables.npz").write_bytes(b"not a zip archive at all")
+    write_scene(tmp_path, material='type = "npf"\ntable = "npf.bin"\nname = "chrome"\nsampling = "tables.npz"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "tables.npz", "not a warpbw asset file", "warpbw-precompute brdf-sampling")
+    assert_no_outputs(tmp_path)
+
+
+# ------------------------------------------------------------------------------------------ command line
+
+def test_spp_zero(tmp_path):
+    write_scene(tmp_path)
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "0"], tmp_path)
+    assert_one_line_error(r, "--spp", "positive integer", "got 0")
+    r = run(["demo", "-o", "d", "--spp", "-3"], tmp_path)
+    assert_one_line_error(r, "--spp", "positive integer")
+    assert_no_outputs(tmp_path)
+    assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.parametrize("args,needles", [
+    (["render", "scene.toml"], ["-o/--output", "required"]),
+    (["render", "scene.toml", "-o", "out.exr", "--threads", "x"], ["--threads", "'x'"]),
+    (["render", "scene.toml", "-o", "out.png"], ["out.png", ".exr"]),
+    (["frobnicate"], ["invalid choice", "frobnicate"]),
+    ([], ["COMMAND"]),
+], ids=["no output", "bad threads", "png output", "unknown command", "no command"])
+def test_usage_errors_are_one_line(tmp_path, args, needles):
+    write_scene(tmp_path)
+    assert_one_line_error(run(args, tmp_path), *needles)
+
+
+def test_precompute_usage_error_is_one_line(tmp_path):
+    r = run(["brdf-sampling"], tmp_path, module="precompute")
+    assert_one_line_error(r, "required", prog="warpbw-precompute")
+
+
+def test_existing_output_is_not_overwritten(tmp_path):
+    write_scene(tmp_path)
+    out = tmp_path / "out.exr"
+    out.write_bytes(b"precious bytes")
+    old = time.time() - 3600
+    os.utime(out, (old, old))
+    before = out.stat().st_mtime_ns
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "out.exr", "already exists", "--force")
+    assert out.read_bytes() == b"precious bytes"
+    assert out.stat().st_mtime_ns == before
+    assert not (tmp_path / "out.png").exists() and not (tmp_path / "out.json").exists()
+
+
+def test_existing_preview_is_not_overwritten(tmp_path):
+    # any of the three outputs (EXR, PNG preview, JSON stats) blocks the render
+    write_scene(tmp_path)
+    (tmp_path / "out.json").write_text("{}")
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "out.json", "already exists", "--force")
+    assert (tmp_path / "out.json").read_text() == "{}"
+    assert not (tmp_path / "out.exr").exists()
+
+
+def test_existing_precompute_output_is_not_overwritten(tmp_path):
+    _fake_npf_table(tmp_path / "npf.bin")
+    (tmp_path / "out.binary").write_bytes(b"keep")
+    r = run(["npf-to-merl", "--table", "npf.bin", "--material", "chrome", "-o", "out.binary"], tmp_path,
+            module="precompute")
+    assert_one_line_error(r, "out.binary", "already exists", "--force", prog="warpbw-precompute")
+    assert (tmp_path / "out.binary").read_bytes() == b"keep"
+
+
+def test_device_cuda_without_a_gpu(tmp_path):
+    import warp as wp
+
+    wp.init()
+    if wp.is_cuda_available():
+        pytest.skip("this machine has a CUDA device: --device cuda is valid here")
+    write_scene(tmp_path)
+    r = run(["render", "scene.toml", "-o", "out.exr", "--device", "cuda", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "--device cuda", "no CUDA device", "--device cpu")
+    assert "Warp CUDA" not in r.stderr
+    assert_no_outputs(tmp_path)
+    r = run(["demo", "-o", "d", "--device", "cuda:1", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "--device cuda:1")
+    r = run(["demo", "-o", "d", "--device", "tpu", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "--device tpu", "not available", "cpu")
+
+
+# ------------------------------------------------------------------------------------------ recoverable input
+
+def test_environment_with_non_finite_pixels_warns_in_one_line(tmp_path):
+    env = np.full((8, 16, 3), 0.5, np.float32)
+    env[1, 2, 0] = np.nan
+    env[2, 3, :] = np.inf        # 3 channel values, one pixel
+    env[4, 5, 1] = -np.inf
+    env[6, 7, 2] = -0.25
+    write_exr(tmp_path / "bad.exr", env)
+    write_scene(tmp_path, environment='file = "bad.exr"', resolution="[6, 6]")
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "2", "-q"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, r.stderr
+    # 6 channel values in 4 pixels: NaN, +inf x 3 and -inf are non-finite (5), -0.25 is negative (1)
+    assert lines[0].startswith("warpbw: warning: envmap 'bad.exr': set 6 channel values to 0 in 4 pixels"), lines
+    assert "(1 negative, 5 NaN or infinite)" in lines[0]
+    from warpbw.io.exr import read_exr
+
+    img = read_exr(tmp_path / "out.exr")
+    assert img.channels == ["R", "G", "B", "A"] and np.all(np.isfinite(img.pixels))

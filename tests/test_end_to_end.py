@@ -1,0 +1,286 @@
+"""The command lines end to end, in a temporary directory: ``warpbw demo``, ``render``, ``info``, ``compare``
+and ``warpbw-precompute npf-to-merl`` / ``brdf-sampling``, run as subprocesses (``python -m ...``) the way a
+user runs them.  The sampling-table cache is a temporary directory (``WARPBW_CACHE``), never ~/.cache.
+
+Checks are against file bytes and independent computations: the EXR's A channel against the JSON's covered
+pixel count, a re-render with the same seed against the first one bit for bit, a MERL tabulation of an NPF fit
+against the fit itself (means over the sphere), a precomputed sampling file against the renderer's own build
+(identical images), and ``compare``'s PSNR against its closed form for a scaled image.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from warpbw.io.exr import read_exr, write_exr
+from warpbw.io.merl import MERL_FILE_SIZE
+
+NPF_MATERIAL = "gold-metallic-paint"
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    d = tmp_path_factory.mktemp("e2e")
+    (d / "cache").mkdir()
+    return d
+
+
+def run(args, cwd: Path, module: str = "warpbw.cli", check: bool = True, timeout: float = 300.0):
+    env = dict(os.environ)
+    env["WARPBW_CACHE"] = str(cwd / "cache")
+    r = subprocess.run([sys.executable, "-m", module, *map(str, args)], cwd=cwd, env=env, stdin=subprocess.DEVNULL,
+                       capture_output=True, text=True, timeout=timeout)
+    assert "Traceback" not in r.stderr, r.stderr
+    if check:
+        assert r.returncode == 0, f"{args}: status {r.returncode}\n{r.stdout}\n{r.stderr}"
+        # -q: no progress bar; no Warp banner; warnings (the probes' clamped negative pixels) in one line each
+        prog = "warpbw-precompute" if module == "precompute" else "warpbw"
+        assert all(ln.startswith(f"{prog}: warning: ") for ln in r.stderr.splitlines()), r.stderr
+    return r
+
+
+def rgba(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    img = read_exr(path)
+    assert img.channels == ["R", "G", "B", "A"]
+    return img.pixels[..., :3], img.pixels[..., 3]
+
+
+SCENE = """\
+[camera]
+position = [0.0, 0.0, 4.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 36.0
+resolution = [32, 32]
+
+[environment]
+file = "{probe}"
+rotation = 90.0
+
+[[object]]
+shape = "sphere"
+center = [0.0, 0.0, 0.0]
+radius = 1.0
+material = "m"
+
+[material.m]
+{material}
+lookup = "linear"
+{extra}
+[material.unused]
+type = "lambert"
+albedo = [0.2, 0.2, 0.2]
+"""
+
+
+def write_scene(d: Path, name: str, probe: Path, material: str, extra: str = "") -> Path:
+    p = d / name
+    p.write_text(SCENE.format(probe=probe, material=material, extra=extra))
+    return p
+
+
+# ------------------------------------------------------------------------------------------ demo
+
+def test_demo_writes_exr_png_json_and_respects_force(tmp_path):
+    from PIL import Image
+
+    out = tmp_path / "demo_out"
+    r = run(["demo", "-o", out, "--spp", "4", "-q"], tmp_path)
+    assert r.stdout == ""  # -q
+    exr, png, js = out / "demo.exr", out / "demo.png", out / "demo.json"
+    for p in (exr, png, js):
+        assert p.is_file() and p.stat().st_size > 0
+
+    rgb, alpha = rgba(exr)
+    assert rgb.shape == (256, 384, 3)
+    assert set(np.unique(alpha)) <= {0.0, 1.0}
+    covered = alpha > 0
+    assert np.isfinite(rgb).all() and (rgb >= 0).all()
+    assert (rgb[~covered] == 0).all() and (rgb[covered].sum(-1) > 0).mean() > 0.99
+
+    stats = json.loads(js.read_text())
+    for key in ("time_s", "samples", "stages"):
+        assert key in stats
+    assert stats["pixels_covered"] == int(covered.sum())
+    assert stats["samples"] == 4 * stats["pixels_covered"]
+    assert stats["environment_samples"] == stats["samples"]  # the demo uses MIS
+    assert stats["resolution"] == [384, 256] and stats["spp"] == 4 and stats["mis"] is True
+    assert stats["stages"] == ["gbuffer:spheres", "brdf:ggx+lambert", "reference_shading+mis"]
+    assert {"gbuffer", "shading", "total"} <= set(stats["time_s"])
+    assert stats["non_finite_samples"] == 0
+    with Image.open(png) as im:
+        assert im.size == (384, 256) and im.mode == "RGB"
+        px = np.asarray(im)
+    assert (px[~covered] == 0).all() and px[covered].max() > 50
+
+    # again without --force: refused, nothing touched
+    before = {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in (exr, png, js)}
+    r = run(["demo", "-o", out, "--spp", "4", "-q"], tmp_path, check=False)
+    assert r.returncode == 2
+    assert r.stderr.startswith("warpbw: error: ") and "--force" in r.stderr and len(r.stderr.splitlines()) == 1
+    assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in (exr, png, js)} == before
+
+    # with --force: rewritten; the same seed gives the same image bit for bit
+    run(["demo", "-o", out, "--spp", "4", "-q", "--force"], tmp_path)
+    assert js.stat().st_mtime_ns != before[js][1] or js.read_bytes() != before[js][0]
+    rgb2, alpha2 = rgba(exr)
+    np.testing.assert_array_equal(rgb2, rgb)
+    np.testing.assert_array_equal(alpha2, alpha)
+
+    # another seed: a different image of the same scene
+    run(["demo", "-o", tmp_path / "seed7", "--spp", "4", "-q", "--seed", "7"], tmp_path)
+    rgb3, alpha3 = rgba(tmp_path / "seed7" / "demo.exr")
+    np.testing.assert_array_equal(alpha3, alpha)
+    assert not np.array_equal(rgb3, rgb)
+
+    # compare: an image against itself, against another seed, against a scaled copy (closed form)
+    r = run(["compare", exr, exr], tmp_path)
+    assert "PSNR   inf" in r.stdout and "relMSE 0\n" in r.stdout
+    assert f"pixels {int(covered.sum())} covered" in r.stdout
+    j = json.loads(run(["compare", exr, exr, "--json"], tmp_path).stdout)
+    assert j["psnr_db"] == math.inf and j["relmse"] == 0.0 and j["mse"] == 0.0
+
+    j = json.loads(run(["compare", tmp_path / "seed7" / "demo.exr", exr, "--json"], tmp_path).stdout)
+    assert math.isfinite(j["psnr_db"]) and 5.0 < j["psnr_db"] < 80.0 and j["relmse"] > 0.0
+
+    scaled = tmp_path / "scaled.exr"
+    img = read_exr(exr)
+    px = img.pixels.copy()
+    px[..., :3] *= 1.1
+    write_exr(scaled, px, channels=img.channels)
+    j = json.loads(run(["compare", scaled, exr, "--json"], tmp_path).stdout)
+    ref = rgb[covered].astype(np.float64)
+    mse = np.mean((0.1 * ref) ** 2)  # float32 rounding of the scaled copy is far below the tolerance
+    assert j["psnr_db"] == pytest.approx(10.0 * math.log10(ref.max() ** 2 / mse), abs=1e-3)
+    assert j["relmse"] == pytest.approx(np.mean((0.1 * ref) ** 2 / (ref ** 2 + 1e-2)), rel=1e-4)
+    assert j["pixels"] == int(covered.sum())
+
+
+# ------------------------------------------------------------------------------------------ NPF, MERL, sampling
+
+@pytest.fixture(scope="module")
+def npf_scene(work, shared):
+    table = shared("brdf/npf.bin")
+    probe = shared("envmaps/studio.exr")
+    return write_scene(work, "npf.toml", probe, f'type = "npf"\ntable = "{table}"\nname = "{NPF_MATERIAL}"')
+
+
+@pytest.fixture(scope="module")
+def npf_render(work, npf_scene):
+    run(["render", npf_scene, "-o", work / "npf.exr", "--spp", "8", "--seed", "3", "--mis", "-q"], work)
+    return work / "npf.exr"
+
+
+def test_render_npf_scene(work, npf_render):
+    rgb, alpha = rgba(npf_render)
+    assert rgb.shape == (32, 32, 3)
+    covered = alpha > 0
+    # a sphere of radius 1 seen from 4 at fov 36: its disc covers pi (tan(asin(1/4)) / tan(18 deg))^2 / 4 of
+    # the image (about 0.40)
+    frac = math.pi * (math.tan(math.asin(0.25)) / math.tan(math.radians(18.0))) ** 2 / 4.0
+    assert abs(covered.mean() - frac) < 0.03
+    assert np.isfinite(rgb).all() and rgb[covered].min() > 0.0
+    stats = json.loads(npf_render.with_suffix(".json").read_text())
+    assert stats["stages"] == ["gbuffer:spheres", "brdf:npf", "tabulated_sampling", "reference_shading+mis"]
+    assert stats["samples"] == 8 * int(covered.sum())
+    assert stats["assets"]["material.m"] == {"type": "npf", "name": NPF_MATERIAL, "sampling": "built"}
+    assert "material.unused" not in stats["assets"]  # an unused material is not loaded
+    cached = list((work / "cache").glob("sampling-*.npz"))
+    assert len(cached) == 1 and NPF_MATERIAL in cached[0].name
+
+
+def test_render_again_uses_the_sampling_cache(work, npf_scene, npf_render):
+    run(["render", npf_scene, "-o", work / "npf2.exr", "--spp", "8", "--seed", "3", "--mis", "-q"], work)
+    stats = json.loads((work / "npf2.json").read_text())
+    assert stats["assets"]["material.m"]["sampling"] == "cache"
+    np.testing.assert_array_equal(rgba(work / "npf2.exr")[0], rgba(npf_render)[0])
+
+
+def test_info(work, npf_scene):
+    r = run(["info", npf_scene], work)
+    assert "materials   m (npf)" in r.stdout
+    assert "unused      unused (not loaded)" in r.stdout
+    assert "tabulated importance sampling" in r.stdout and "resolution  32 x 32" in r.stdout
+    j = json.loads(run(["info", npf_scene, "--json"], work).stdout)
+    assert j["materials"] == {"m": "npf"} and j["unused_materials"] == ["unused"]
+    assert [Path(f).name for f in j["files"]] == ["studio.exr", "npf.bin"]
+    assert j["resolution"] == [32, 32]
+
+
+@pytest.fixture(scope="module")
+def merl_file(work, shared):
+    table = shared("brdf/npf.bin")
+    r = run(["npf-to-merl", "--table", table, "--material", NPF_MATERIAL, "-o", work / "gmp.binary"], work,
+            module="precompute")
+    assert "gmp.binary" in r.stdout
+    return work / "gmp.binary"
+
+
+def test_npf_to_merl_writes_a_merl_file(work, merl_file):
+    assert merl_file.stat().st_size == MERL_FILE_SIZE
+    head = np.fromfile(merl_file, dtype="<i4", count=3)
+    assert head.tolist() == [90, 90, 180]
+    # the file gets the ordinary mode of a new file (not mkstemp's 0600)
+    probe = work / "mode_probe"
+    probe.write_bytes(b"")
+    assert stat.S_IMODE(merl_file.stat().st_mode) == stat.S_IMODE(probe.stat().st_mode)
+    # refuses to overwrite
+    r = run(["npf-to-merl", "--table", "x.bin", "--material", "chrome", "-o", merl_file], work, module="precompute",
+            check=False)
+    assert r.returncode == 2 and "already exists" in r.stderr
+
+
+def test_merl_from_npf_renders_like_the_npf_fit(work, shared, npf_scene, merl_file):
+    probe = shared("envmaps/studio.exr")
+    merl_scene = write_scene(work, "merl.toml", probe, 'type = "merl"\nfile = "gmp.binary"')
+    spp = ["--spp", "48", "--seed", "11", "--mis", "-q"]
+    run(["render", merl_scene, "-o", work / "merl.exr", *spp], work)
+    run(["render", npf_scene, "-o", work / "npf48.exr", *spp], work)
+    m_rgb, m_a = rgba(work / "merl.exr")
+    n_rgb, n_a = rgba(work / "npf48.exr")
+    np.testing.assert_array_equal(m_a, n_a)
+    cov = m_a > 0
+    # different BRDF representations and sampling tables: the images differ pixel by pixel, but the means
+    # over the sphere agree (the MERL table is the fit sampled at its bin centres)
+    assert not np.array_equal(m_rgb, n_rgb)
+    ratio = m_rgb[cov].mean(0) / n_rgb[cov].mean(0)
+    assert np.all(np.abs(ratio - 1.0) < 0.03), ratio
+    stats = json.loads((work / "merl.json").read_text())
+    assert stats["stages"][1] == "brdf:merl"
+    assert stats["assets"]["material.m"]["unmeasured"] == 0
+
+
+def test_precomputed_sampling_file_is_used_and_equals_the_built_one(work, shared, npf_render):
+    table = shared("brdf/npf.bin")
+    probe = shared("envmaps/studio.exr")
+    r = run(["brdf-sampling", table, "--material", NPF_MATERIAL, "-o", work / "gmp_sampling.npz", "-q"], work,
+            module="precompute")
+    assert "gmp_sampling.npz" in r.stdout
+    scene = write_scene(work, "npf_sampling.toml", probe,
+                        f'type = "npf"\ntable = "{table}"\nname = "{NPF_MATERIAL}"', 'sampling = "gmp_sampling.npz"\n')
+    run(["render", scene, "-o", work / "npf_sampling.exr", "--spp", "8", "--seed", "3", "--mis", "-q"], work)
+    stats = json.loads((work / "npf_sampling.json").read_text())
+    assert stats["assets"]["material.m"]["sampling"] == "file"
+    assert str(work / "gmp_sampling.npz") in run(["info", scene], work).stdout
+    # the same tables as the renderer builds itself: the same image, bit for bit
+    np.testing.assert_array_equal(rgba(work / "npf_sampling.exr")[0], rgba(npf_render)[0])
+
+    # tables of another material are refused, with the command that rebuilds them
+    r = run(["brdf-sampling", table, "--material", "chrome", "-o", work / "chrome_sampling.npz", "-q"], work,
+            module="precompute")
+    wrong = write_scene(work, "wrong.toml", probe, f'type = "npf"\ntable = "{table}"\nname = "{NPF_MATERIAL}"',
+                        'sampling = "chrome_sampling.npz"\n')
+    r = run(["render", wrong, "-o", work / "wrong.exr", "--spp", "1", "-q"], work, check=False)
+    assert r.returncode == 2
+    lines = [ln for ln in r.stderr.splitlines() if not ln.startswith("warpbw: warning: ")]  # studio.exr's clamp
+    assert len(lines) == 1 and lines[0].startswith("warpbw: error: "), r.stderr
+    assert "chrome_sampling.npz" in lines[0] and "different content" in lines[0]
+    assert "warpbw-precompute brdf-sampling" in lines[0]
+    assert not (work / "wrong.exr").exists()

@@ -1,0 +1,308 @@
+"""Numerical extremes of the reference renderer: a sun of ~34,000 (city.exr), grazing silhouettes, 1x1 and
+7x5 images, a camera inside a sphere, an environment with NaN / inf / negative pixels, GGX at the smallest
+allowed roughness and at alpha = 1, with and without MIS.
+
+Truth comes from closed forms and independent numpy computations:
+- a Lambert surface under a constant sky L returns albedo * L exactly per BRDF sample (cosine sampling);
+- a GGX surface with F = 1 and alpha = 1 has directional albedo 2 (1 - ln 2) / (1 + cos_o) (D = 1/pi);
+- a Lambert surface under city.exr has radiance albedo / pi * E(n), with the irradiance E summed here over
+  the probe's texels;
+- coverage of a sphere is decided by the distance from its centre to each pixel's centre ray.
+
+Kernels: every scene here uses one of two material-kind sets ({ggx, lambert}; {ggx, lambert, npf}), with
+and without MIS, so the module compiles four shading kernels at most; materials a test does not look at sit
+on spheres hidden behind the camera or outside a surrounding sphere.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import warnings
+
+import numpy as np
+import pytest
+
+from warpbw.io.exr import read_rgb, write_exr
+from warpbw.pipeline import render_reference
+from warpbw.scene import GGX_MIN_ALPHA, parse_scene
+
+GRAZING = 0.05  # n . v below this counts as a grazing pixel
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _sampling_cache(tmp_path_factory):
+    """Sampling tables built for NPF materials go to a temporary cache, never ~/.cache."""
+    old = os.environ.get("WARPBW_CACHE")
+    os.environ["WARPBW_CACHE"] = str(tmp_path_factory.mktemp("warpbw_cache"))
+    yield
+    if old is None:
+        os.environ.pop("WARPBW_CACHE", None)
+    else:
+        os.environ["WARPBW_CACHE"] = old
+
+
+def scene(*, env: str, objects: list, resolution=(32, 32), position=(0.0, 0.0, 4.0), look_at=(0.0, 0.0, 0.0),
+          fov=40.0, alpha=0.05, npf_table=None, base_dir="."):
+    """A scene with materials g (GGX, F = 1), l (Lambert 0.8) and, with npf_table, n (NPF chrome).
+
+    objects: (center, radius, material) triples.
+    """
+    lines = ["[camera]", f"position = {list(position)}", f"look_at = {list(look_at)}", f"fov = {fov}",
+             f"resolution = {list(resolution)}", "", "[environment]", env, ""]
+    for c, r, m in objects:
+        lines += ["[[object]]", 'shape = "sphere"', f"center = {list(c)}", f"radius = {r}", f'material = "{m}"', ""]
+    lines += ["[material.g]", 'type = "ggx"', f"alpha = {alpha!r}", "specular = [1.0, 1.0, 1.0]", "",
+              "[material.l]", 'type = "lambert"', "albedo = 0.8", ""]
+    if npf_table is not None:
+        lines += ["[material.n]", 'type = "npf"', f'table = "{npf_table}"', 'name = "chrome"', 'lookup = "linear"']
+    return parse_scene("\n".join(lines), base_dir, "extremes")
+
+
+# Spheres behind the camera (it looks down -Z from +Z): they make a material "used" (same kernel) unseen.
+def hidden(*materials):
+    return [((3.0 * k, 0.0, 40.0), 0.5, m) for k, m in enumerate(materials)]
+
+
+def n_dot_v(res) -> np.ndarray:
+    return np.einsum("hwc,hwc->hw", res.gbuffer.numpy("normal"), res.gbuffer.numpy("view"))
+
+
+def assert_clean(res):
+    """Finite, non-negative, black outside coverage, and no sample dropped as non-finite."""
+    img = res.image
+    assert np.isfinite(img).all(), f"{(~np.isfinite(img)).sum()} non-finite values"
+    assert (img >= 0.0).all(), img.min()
+    assert (img[~res.coverage] == 0.0).all()
+    assert res.stats["non_finite_samples"] == 0, res.stats["non_finite_samples"]
+
+
+@pytest.fixture(scope="module")
+def city(shared):
+    return shared("envmaps/city.exr")
+
+
+@pytest.fixture(scope="module")
+def npf_table(shared):
+    return shared("brdf/npf.bin")
+
+
+# ------------------------------------------------------------------------------------------ city.exr, sun ~34,000
+
+def test_city_probe_really_has_a_bright_sun(city):
+    rgb = read_rgb(city)
+    assert rgb.max() > 1.0e4 and np.median(rgb) < 10.0  # the extreme this module is about
+
+
+@pytest.mark.parametrize("mis", [False, True], ids=["brdf", "mis"])
+def test_city_three_materials_are_finite(city, npf_table, mis):
+    objs = [((-2.2, 0.0, 0.0), 1.0, "g"), ((0.0, 0.0, 0.0), 1.0, "l"), ((2.2, 0.0, 0.0), 1.0, "n")]
+    s = scene(env=f'file = "{city}"', objects=objs, resolution=(64, 24), position=(0.0, 0.0, 6.0), fov=50.0,
+              npf_table=npf_table)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # city.exr's slightly negative pixels are clamped
+        res = render_reference(s, spp=16, seed=3, mis=mis)
+    assert_clean(res)
+    mat = res.gbuffer.numpy("material")
+    for m in range(3):
+        sel = mat == m
+        assert sel.sum() > 50
+        assert res.image[sel].mean() > 0.0
+    assert res.stats["assets"]["environment"]["clamped_values"] > 0  # the probe's negative pixels
+
+
+def _irradiance(env: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """E(n) = sum over texel cells of L max(0, n . w) dOmega, with the envmap module's documented convention:
+    column i at u = (i + 1/2) / W, row j at v = j / (H - 1) (pole rows own half cells),
+    w = (sin phi sin theta, cos theta, -cos phi sin theta), phi = 2 pi u, theta = pi v."""
+    h, w, _ = env.shape
+    edges = np.clip((np.arange(h + 1) - 0.5) / (h - 1), 0.0, 1.0) * np.pi
+    d_omega = (np.cos(edges[:-1]) - np.cos(edges[1:])) * 2.0 * np.pi / w  # per texel of each row
+    assert abs(d_omega.sum() * w - 4.0 * np.pi) < 1e-9
+    phi = 2.0 * np.pi * (np.arange(w) + 0.5) / w
+    theta = np.pi * np.arange(h) / (h - 1)
+    dirs = np.stack(np.broadcast_arrays(np.sin(phi)[None] * np.sin(theta)[:, None], np.cos(theta)[:, None],
+                                        -np.cos(phi)[None] * np.sin(theta)[:, None]), -1).reshape(-1, 3)
+    weighted = (np.maximum(env, 0.0) * d_omega[:, None, None]).reshape(-1, 3)
+    out = np.zeros((len(normals), 3))
+    for k in range(0, len(dirs), 1 << 15):  # chunks keep the (pixels x texels) cosines small
+        out += np.maximum(normals @ dirs[k:k + (1 << 15)].T, 0.0) @ weighted[k:k + (1 << 15)]
+    return out
+
+
+def test_lambert_under_city_matches_the_irradiance_integral(city, npf_table):
+    objs = [((-2.2, 0.0, 0.0), 1.0, "g"), ((0.0, 0.0, 0.0), 1.0, "l"), ((2.2, 0.0, 0.0), 1.0, "n")]
+    s = scene(env=f'file = "{city}"', objects=objs, resolution=(64, 24), position=(0.0, 0.0, 6.0), fov=50.0,
+              npf_table=npf_table)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        res = render_reference(s, spp=64, seed=5, mis=True)
+    assert_clean(res)
+    sel = res.gbuffer.numpy("material") == 1
+    normals = res.gbuffer.numpy("normal")[sel].astype(np.float64)
+    expect = 0.8 / np.pi * _irradiance(read_rgb(city).astype(np.float64), normals)
+    got = res.image[sel].astype(np.float64)
+    ratio = got.mean(0) / expect.mean(0)
+    assert np.all(np.abs(ratio - 1.0) < 0.03), ratio
+    rel = np.abs(got - expect) / expect
+    assert np.median(rel) < 0.15, np.median(rel)
+
+
+# ------------------------------------------------------------------------------------------ grazing silhouettes
+
+@pytest.mark.parametrize("mis", [False, True], ids=["brdf", "mis"])
+@pytest.mark.parametrize("material", ["g", "l", "n"])
+def test_grazing_pixels_are_finite(city, npf_table, material, mis):
+    # A huge sphere seen from 5 cm above its surface, looking at the horizon: many pixels hit it at n.v -> 0.
+    others = [m for m in "gln" if m != material]
+    objs = [((0.0, -50.0, 0.0), 50.0, material)] + hidden(*others)
+    s = scene(env=f'file = "{city}"', objects=objs, resolution=(32, 32), position=(0.0, 0.05, 0.0),
+              look_at=(0.0, 0.05 - math.tan(math.radians(6.0)), -1.0), fov=16.0, npf_table=npf_table)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        res = render_reference(s, spp=8, seed=7, mis=mis)
+    assert_clean(res)
+    ndv = n_dot_v(res)
+    grazing = res.coverage & (ndv < GRAZING)
+    assert grazing.sum() >= 20, grazing.sum()
+    assert ndv[grazing].min() < 0.02
+    assert np.isfinite(res.image[grazing]).all()
+
+
+# ------------------------------------------------------------------------------------------ tiny images
+
+def _analytic_coverage(width, height, fov, position, center, radius):
+    """Which pixel centres' rays hit the sphere (camera looking at the origin, +Y up), and the margin."""
+    o = np.asarray(position, np.float64)
+    fwd = -o / np.linalg.norm(o)
+    right = np.cross(fwd, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    tx = math.tan(math.radians(fov) / 2.0)
+    ty = tx * height / width
+    x, y = np.meshgrid(np.arange(width), np.arange(height))
+    sx = (2.0 * (x + 0.5) / width - 1.0) * tx
+    sy = (1.0 - 2.0 * (y + 0.5) / height) * ty  # row 0 at the top
+    d = fwd + sx[..., None] * right + sy[..., None] * up
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    oc = np.asarray(center) - o
+    t = d @ oc
+    dist = np.linalg.norm(oc - t[..., None] * d, axis=-1)
+    return (dist < radius) & (t > 0), np.abs(dist - radius)
+
+
+@pytest.mark.parametrize("size", [(1, 1), (7, 5), (5, 7), (2, 1)])
+def test_tiny_images_have_the_right_coverage(size):
+    w, h = size
+    pos = (0.0, 0.0, 4.0)
+    s = scene(env="constant = [1.0, 1.0, 1.0]", objects=[((0.0, 0.0, 0.0), 1.0, "l")] + hidden("g"),
+              resolution=size, position=pos, fov=45.0)
+    res = render_reference(s, spp=4, seed=1)
+    assert res.image.shape == (h, w, 3)
+    assert_clean(res)
+    expect, margin = _analytic_coverage(w, h, 45.0, pos, (0.0, 0.0, 0.0), 1.0)
+    assert margin.min() > 1e-3  # no pixel centre grazes the silhouette: the comparison is well posed
+    np.testing.assert_array_equal(res.coverage, expect)
+    if w % 2 and h % 2:
+        assert res.coverage[h // 2, w // 2]  # the centre pixel looks at the sphere's centre
+    # Lambert under a constant sky: every cosine-sampled BRDF sample returns albedo * L exactly
+    np.testing.assert_allclose(res.image[res.coverage], 0.8, rtol=1e-5)
+
+
+# ------------------------------------------------------------------------------------------ camera inside a sphere
+
+@pytest.mark.parametrize("mis", [False, True], ids=["brdf", "mis"])
+def test_camera_inside_a_sphere(mis):
+    # The camera sits off-centre inside a Lambert sphere of radius 5; the GGX sphere outside it is hidden
+    # behind the wall.  Shading ignores visibility (002 Eq. 1), so the inner wall sees the whole sky.
+    objs = [((0.0, 0.0, 0.0), 5.0, "l"), ((0.0, 0.0, -9.0), 1.0, "g")]
+    s = scene(env="constant = [1.0, 1.0, 1.0]", objects=objs, resolution=(24, 16), position=(1.0, 0.5, 3.0),
+              look_at=(0.0, 0.0, -1.0), fov=90.0)
+    res = render_reference(s, spp=32, seed=2, mis=mis)
+    assert_clean(res)
+    assert res.coverage.all()
+    assert (res.gbuffer.numpy("material") == s.material_order.index("l")).all()  # only the inner wall is seen
+    ndv = n_dot_v(res)
+    assert (ndv > 0.0).all()  # normals face the camera (flipped inwards)
+    if not mis:
+        np.testing.assert_allclose(res.image, 0.8, rtol=1e-5)
+    else:
+        # balance heuristic: unbiased, each pixel a bounded mix; the mean over 384 pixels is tight
+        assert abs(res.image.mean() - 0.8) < 0.01
+        assert res.image.max() < 0.8 * 2.0
+
+
+# ------------------------------------------------------------------------------------------ bad environment pixels
+
+@pytest.mark.parametrize("mis", [False, True], ids=["brdf", "mis"])
+def test_environment_with_nan_inf_and_negative_pixels(tmp_path, mis):
+    env = np.full((16, 32, 3), 0.5, np.float32)
+    env[3, 4, :] = np.nan           # 3 values
+    env[5, 6, 1] = np.inf           # 1
+    env[7, 8, 2] = -np.inf          # 1
+    env[9, 10, 0] = -2.0            # 1 negative
+    env[0, :, :] = 1e30             # a finite but extreme top row (not clamped)
+    write_exr(tmp_path / "bad.exr", env)
+    objs = [((-1.1, 0.0, 0.0), 1.0, "g"), ((1.1, 0.0, 0.0), 1.0, "l")]
+    s = scene(env='file = "bad.exr"', objects=objs, base_dir=tmp_path, position=(0.0, 0.0, 5.0))
+    with pytest.warns(RuntimeWarning, match=r"'bad\.exr': set 6 channel values to 0 in 4 pixels "
+                                            r"\(1 negative, 5 NaN or infinite\)"):
+        res = render_reference(s, spp=8, seed=4, mis=mis)
+    assert res.stats["assets"]["environment"]["clamped_values"] == 6
+    assert np.isfinite(res.image).all()
+    assert res.stats["non_finite_samples"] == 0
+    assert res.coverage.sum() > 100
+
+
+# ------------------------------------------------------------------------------------------ GGX roughness extremes
+
+def _furnace_scene(alpha):
+    return scene(env="constant = [1.0, 1.0, 1.0]", objects=[((0.0, 0.0, 0.0), 1.0, "g")] + hidden("l"),
+                 alpha=alpha)
+
+
+@pytest.mark.parametrize("mis", [False, True], ids=["brdf", "mis"])
+def test_ggx_smallest_alpha_is_a_white_mirror(mis):
+    # F = 1 and VNDF sampling: each BRDF sample weighs G1(wi) = 1 - O(alpha^2 / cos^2), so a near-mirror
+    # under a white sky is white wherever the view is not grazing.
+    res = render_reference(_furnace_scene(GGX_MIN_ALPHA), spp=16, seed=6, mis=mis)
+    assert_clean(res)
+    sel = res.coverage & (n_dot_v(res) > 0.3)
+    assert sel.sum() > 100
+    if not mis:
+        np.testing.assert_allclose(res.image[sel], 1.0, atol=1e-3)
+    else:
+        assert abs(res.image[sel].mean() - 1.0) < 0.01
+    assert res.image.max() < 1.5
+
+
+def test_ggx_alpha_below_the_scene_minimum_stays_a_finite_mirror():
+    # float32 ggx_d once broke below alpha ~1.7e-4 (1 + cos^2 (a^2 - 1) == 0 at h = n); 1e-6 is below the
+    # scene's bound (clamped by the kernel to GGX_MIN_ALPHA) and 1e-4 is the bound itself
+    for alpha in (GGX_MIN_ALPHA, 1e-6):
+        s = _furnace_scene(GGX_MIN_ALPHA)
+        s.materials["g"] = dataclasses.replace(s.materials["g"], alpha=alpha)  # bypass the scene's bound
+        _check_white_mirror(s)
+
+
+def _check_white_mirror(s):
+    res = render_reference(s, spp=16, seed=6)
+    sel = res.coverage & (n_dot_v(res) > 0.3)
+    assert res.stats["non_finite_samples"] == 0
+    np.testing.assert_allclose(res.image[sel], 1.0, atol=1e-3)
+
+
+@pytest.mark.parametrize("mis", [False, True], ids=["brdf", "mis"])
+def test_ggx_alpha_one_matches_its_closed_form_albedo(mis):
+    # alpha = 1: D = 1/pi, G1(c) = 2c / (1 + c), so E(cos_o) = G1(cos_o) / (4 pi cos_o) * 2 pi int_0^1 G1(c) dc
+    #          = 2 (1 - ln 2) / (1 + cos_o)
+    res = render_reference(_furnace_scene(1.0), spp=32, seed=8, mis=mis)
+    assert_clean(res)
+    sel = res.coverage
+    expect = 2.0 * (1.0 - math.log(2.0)) / (1.0 + np.clip(n_dot_v(res)[sel], 0.0, 1.0))
+    got = res.image[sel]
+    assert np.allclose(got[:, 0], got[:, 1]) and np.allclose(got[:, 0], got[:, 2])
+    # per sample the weight lies in [0, 1]: std <= 0.5 / sqrt(32) per pixel, ~0.004 over the ~400 pixels
+    assert abs(got[:, 0].mean() - expect.mean()) < 0.015, (got[:, 0].mean(), expect.mean())
+    assert np.all(np.abs(got[:, 0] - expect) < 0.35)
+    assert got.max() <= 1.0 + 1e-5 or mis
