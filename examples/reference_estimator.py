@@ -10,7 +10,6 @@ import argparse
 import time
 from pathlib import Path
 
-import numpy as np
 import warp as wp
 
 from warpbw import brdf as B

@@ -11,12 +11,11 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-import warnings
 from pathlib import Path
 
+from warpbw.cli_common import OneLineParser, run_command
 from warpbw.errors import WarpbwError
 
-EXIT_USER_ERROR = 2
 
 
 def cmd_npf_to_merl(args) -> int:
@@ -44,15 +43,8 @@ def cmd_brdf_sampling(args) -> int:
     return 0
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse with usage errors in the CLI's one-line form: ``warpbw-precompute: error: ...``, status 2."""
-
-    def error(self, message):
-        self.exit(EXIT_USER_ERROR, f"warpbw-precompute: error: {message} (see '{self.prog} --help')\n")
-
-
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="warpbw-precompute",
+    p = OneLineParser(prog="warpbw-precompute",
                                 description="Offline asset tool of warpbw: MERL files from NPF fits, importance-"
                                 "sampling tables for tabulated BRDFs.  Outputs carry a format name, a version, "
                                 "the source's name and its content hash.")
@@ -81,26 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None):
-    # warnings (unmeasured MERL entries...) as one line each
-    print(f"warpbw-precompute: warning: {message}", file=sys.stderr if file is None else file)
-
-
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    with warnings.catch_warnings():
-        warnings.showwarning = _show_warning
-        try:
-            return args.func(args)
-        except WarpbwError as exc:
-            print(f"warpbw-precompute: error: {exc}", file=sys.stderr)
-            return EXIT_USER_ERROR
-        except KeyboardInterrupt:
-            print("warpbw-precompute: interrupted", file=sys.stderr)
-            return 130
-        except (OSError, MemoryError) as exc:
-            print(f"warpbw-precompute: error: {exc}", file=sys.stderr)
-            return EXIT_USER_ERROR
+    return run_command("warpbw-precompute", args.func, args)
 
 
 if __name__ == "__main__":

@@ -104,7 +104,7 @@ def test_relative_paths_resolve_against_the_scene_directory(tmp_path, monkeypatc
     write(mesh, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     table = tmp_path / "abs_table.bin"
     table.write_bytes(b"x")
-    scene = write(tmp_path / "scenes" / "s.toml", scene_text(
+    write(tmp_path / "scenes" / "s.toml", scene_text(
         environment='[environment]\nfile = "../assets/probe.exr"\n',
         objects='[[object]]\nmesh = "mesh.obj"\nmaterial = "paint"\n',
         materials=PAINT + f'\n[material.unused]\ntype = "npf"\ntable = "{table}"\nname = "chrome"\n'))

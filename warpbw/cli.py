@@ -12,12 +12,11 @@ import json
 import math
 import sys
 import time
-import warnings
 from pathlib import Path
 
+from warpbw.cli_common import OneLineParser, run_command
 from warpbw.errors import WarpbwError
 
-EXIT_USER_ERROR = 2
 DEFAULT_SPP = 64
 DEMO_SPP = 64
 WARP_LOG_WARNING = 30  # warp._src.logger.LOG_WARNING: hide Warp's banner and module-load lines
@@ -232,15 +231,8 @@ def _positive_int(name):
     return parse
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse with usage errors in the CLI's one-line form: ``warpbw: error: ...``, status 2."""
-
-    def error(self, message):
-        self.exit(EXIT_USER_ERROR, f"warpbw: error: {message} (see '{self.prog} --help')\n")
-
-
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="warpbw", description="Render measured materials under HDR light with "
+    p = OneLineParser(prog="warpbw", description="Render measured materials under HDR light with "
                 "NVIDIA Warp kernels (CPU by default; --device cuda runs the same kernels on a GPU).",
                 epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
@@ -291,27 +283,9 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None):
-    # warnings (an environment with clamped pixels, unmeasured MERL entries...) as one line each
-    print(f"warpbw: warning: {message}", file=sys.stderr if file is None else file)
-
-
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    with warnings.catch_warnings():
-        warnings.showwarning = _show_warning
-        try:
-            return args.func(args)
-        except WarpbwError as exc:
-            print(f"warpbw: error: {exc}", file=sys.stderr)
-            return EXIT_USER_ERROR
-        except KeyboardInterrupt:
-            print("warpbw: interrupted", file=sys.stderr)
-            return 130
-        except (OSError, MemoryError) as exc:
-            print(f"warpbw: error: {exc}", file=sys.stderr)
-            return EXIT_USER_ERROR
+    args = build_parser().parse_args(argv)
+    return run_command("warpbw", args.func, args)
 
 
 if __name__ == "__main__":

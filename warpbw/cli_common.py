@@ -1,0 +1,43 @@
+"""What the two command lines (``warpbw``, ``warpbw-precompute``) share: one-line errors and warnings.
+
+Public: ``EXIT_USER_ERROR``, ``OneLineParser``, ``run_command(prog, func, args) -> int``.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+
+from warpbw.errors import WarpbwError
+
+EXIT_USER_ERROR = 2
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse with usage errors in the one-line form ``PROG: error: ...``, status 2."""
+
+    def error(self, message):
+        tool = self.prog.split()[0]
+        self.exit(EXIT_USER_ERROR, f"{tool}: error: {message} (see '{self.prog} --help')\n")
+
+
+def run_command(prog: str, func, args) -> int:
+    """Run a subcommand; user errors and warnings print as one line each (``PROG: error: ...``)."""
+
+    def show_warning(message, category, filename, lineno, file=None, line=None):
+        # warnings (an environment with clamped pixels, unmeasured MERL entries...) as one line each
+        print(f"{prog}: warning: {message}", file=sys.stderr if file is None else file)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show_warning
+        try:
+            return func(args)
+        except WarpbwError as exc:
+            print(f"{prog}: error: {exc}", file=sys.stderr)
+            return EXIT_USER_ERROR
+        except KeyboardInterrupt:
+            print(f"{prog}: interrupted", file=sys.stderr)
+            return 130
+        except (OSError, MemoryError) as exc:
+            print(f"{prog}: error: {exc}", file=sys.stderr)
+            return EXIT_USER_ERROR
