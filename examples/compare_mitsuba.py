@@ -263,6 +263,9 @@ def warpbw_toml(probe: Path, mat: dict, res: int, rotation: float, scale: float)
 
 def import_warpbw():
     """Returns (parse_scene, render_reference) or raises ImportError with the reason."""
+    import warp as wp
+
+    wp.config.log_level = 30  # warp._src.logger.LOG_WARNING: no banner or module-load lines
     from warpbw.pipeline import render_reference
     from warpbw.scene import parse_scene
     return parse_scene, render_reference
