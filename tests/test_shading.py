@@ -117,3 +117,37 @@ def test_same_seed_same_image_different_seed_different_noise():
     assert np.array_equal(a.image, b.image)      # tiling over threads does not change the result
     assert not np.array_equal(a.image, c.image)
     assert a.stats["samples"] == 4 * a.stats["pixels_covered"]
+
+
+def test_per_pixel_sample_counts_for_adaptive_shading():
+    """N_p per pixel (002 Sec. 2.4): a constant map reproduces the fixed-spp image bit for bit, a subset of
+    pixels leaves the others as they were, and N_p = 0 shades to 0."""
+    import warp as wp
+
+    from warpbw.shading import shade_reference
+
+    scene = sphere_scene('type = "ggx"\nalpha = 0.3\nspecular = [0.9, 0.9, 0.9]', env='procedural = "sky"', w=20, h=16)
+    prep = prepare_scene(scene)
+    base = render_reference(prep, spp=6, seed=3, mis=True)
+    gb = base.gbuffer
+    n = gb.width * gb.height
+    const = wp.array(np.full(n, 6, np.int32), dtype=wp.int32)
+    r = shade_reference(gb, prep.materials, prep.env.data, const, seed=3, mis=True)
+    assert np.array_equal(r.radiance.numpy().reshape(base.image.shape), base.image)
+    assert r.samples == base.stats["samples"]
+
+    cov = np.flatnonzero(base.coverage.reshape(-1))
+    subset, zero = cov[::2], cov[1::4]
+    counts = np.full(n, 6, np.int32)
+    counts[zero] = 0
+    sentinel = np.full((n, 3), 7.0, np.float32)
+    out = wp.array(sentinel, dtype=wp.vec3)
+    r = shade_reference(gb, prep.materials, prep.env.data, wp.array(counts, dtype=wp.int32), seed=3, mis=True,
+                        pixels=wp.array(np.union1d(subset, zero).astype(np.int32), dtype=wp.int32), out=out)
+    img = r.radiance.numpy()
+    shaded_nonzero = np.setdiff1d(subset, zero)
+    assert np.array_equal(img[shaded_nonzero], base.image.reshape(-1, 3)[shaded_nonzero])
+    assert (img[zero] == 0).all()
+    untouched = np.setdiff1d(np.arange(n), np.union1d(subset, zero))
+    assert (img[untouched] == 7.0).all()
+    assert r.samples == 6 * len(shaded_nonzero)

@@ -53,18 +53,26 @@ def finite3(v: wp.vec3):
 _KERNELS: dict = {}
 
 
-def make_reference_kernel(kinds, mis: bool):
-    """The reference shading kernel for the given material kinds, with or without MIS."""
-    key = (frozenset(kinds), bool(mis))
+def make_reference_kernel(kinds, mis: bool, per_pixel_spp: bool = False):
+    """The reference shading kernel for the given material kinds, with or without MIS.
+
+    With ``per_pixel_spp`` the sample count of pixel i is ``spp_map[i]`` (N_p of 002 Sec. 2.4, for
+    adaptive shading) instead of the scalar ``spp``; a pixel with N_p = 0 is set to 0.
+    """
+    key = (frozenset(kinds), bool(mis), bool(per_pixel_spp))
     if key in _KERNELS:
         return _KERNELS[key]
     f = make_brdf_funcs(key[0])
 
     @wp.kernel(module="unique", enable_backward=False)
     def shade_reference_kernel(gb: GBufferData, mats: MaterialTable, env: EnvMapData,
-                               pixels: wp.array(dtype=wp.int32), offset: int, spp: int, seed: int,
+                               pixels: wp.array(dtype=wp.int32), offset: int, spp_all: int,
+                               spp_map: wp.array(dtype=wp.int32), seed: int,
                                out: wp.array(dtype=wp.vec3), non_finite: wp.array(dtype=wp.int32)):
         i = pixels[wp.tid() + offset]
+        spp = spp_all
+        if wp.static(per_pixel_spp):
+            spp = spp_map[i]
         m = gb.material[i]
         n = gb.normal[i]
         t = gb.tangent[i]
@@ -166,16 +174,29 @@ def covered_pixels(gb: GBuffer, device: str = "cpu") -> wp.array:
     return wp.array(idx, dtype=wp.int32, device=device)
 
 
-def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapData, spp: int, seed: int = 0,
+def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapData, spp, seed: int = 0,
                     mis: bool = False, device: str = "cpu", threads: int | None = None,
-                    progress: Callable[[int], None] | None = None, pixels: wp.array | None = None) -> ShadeResult:
-    """Shade every covered pixel (or the given ``pixels``) with ``spp`` samples; returns radiance."""
-    kernel = make_reference_kernel(materials.kinds, mis)
+                    progress: Callable[[int], None] | None = None, pixels: wp.array | None = None,
+                    out: wp.array | None = None) -> ShadeResult:
+    """Shade every covered pixel (or the given ``pixels``) and return radiance.
+
+    ``spp`` is one sample count for all pixels, or an int32 array of H*W per-pixel counts N_p.  Pixels
+    not shaded keep the value they have in ``out`` (zeros when ``out`` is not given).
+    """
+    per_pixel = isinstance(spp, wp.array)
+    kernel = make_reference_kernel(materials.kinds, mis, per_pixel)
     pix = covered_pixels(gb, device) if pixels is None else pixels
-    out = wp.zeros(gb.width * gb.height, dtype=wp.vec3, device=device)
+    if out is None:
+        out = wp.zeros(gb.width * gb.height, dtype=wp.vec3, device=device)
     bad = wp.zeros(1, dtype=wp.int32, device=device)
+    spp_map = spp if per_pixel else wp.zeros(0, dtype=wp.int32, device=device)
+    spp_all = 0 if per_pixel else int(spp)
     launch_tiled(kernel, pix.shape[0],
-                 lambda o, c: [gb.data, materials.table, env_data, pix, o, int(spp), int(seed), out, bad],
+                 lambda o, c: [gb.data, materials.table, env_data, pix, o, spp_all, spp_map, int(seed), out, bad],
                  device, threads, progress)
     n = int(pix.shape[0])
-    return ShadeResult(out, n, n * int(spp), int(bad.numpy()[0]))
+    if per_pixel:
+        samples = int(spp.numpy()[pix.numpy()].sum()) if n else 0
+    else:
+        samples = n * spp_all
+    return ShadeResult(out, n, samples, int(bad.numpy()[0]))
