@@ -1,0 +1,206 @@
+"""Anisotropic bilateral up-sampling of one pyramid level from its parents (002 Sec. 3.2, Fig. 8).
+
+Public:
+    ``level_size(width, height, level) -> (w, h)``   size of a pyramid level (ceil-halving)
+    ``UpsampleResult`` / ``upsample_level(...)``    fill the requested pixels of level L from level L+1
+    ``parent_weights(...)``                           host wrapper returning the four weights (tests)
+
+A pixel p of level L takes the weighted mean of its four nearest parents p_i at level L+1 that are
+already computed (``parent_valid``):
+
+    w_i = g_z(z - z_i) g_a(p - p_i) alpha_i                                           (002 Sec. 3.2)
+
+* alpha_i: bilinear weights of the parent centres (9/16, 3/16, 3/16, 1/16 in the interior, Fig. 8).
+* g_z(dz) = exp(-(dz / (DEPTH_SIGMA_REL z))^2): cancels parents at another depth (relative tolerance).
+* g_a(v) = exp(-v^T M v), M = R_phi^T diag(1, 1 / cos^2 theta_x) R_phi, with v in level-L pixels, phi the
+  angle of the screen-projected normal and theta_x the angle between normal and view: the kernel is
+  narrower along the projected normal, where foreshortening raises the screen-space frequency.
+  cos theta_x is clamped to COS_X_MIN so that silhouettes stay finite.
+
+Depth, normal and view are read at the finest level (the G-buffer is not mip-mapped): a level-L pixel
+is represented by the finest pixel at the centre of its footprint.  A pixel whose weights sum to less
+than WEIGHT_MIN (no parent at its depth, e.g. across a depth edge) is not guessed: it is returned in
+``needs_shading`` for the caller to shade at this level.
+
+Level sizes halve with rounding up, ``w_{L+1} = ceil(w_L / 2)``, so any image size works.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from warpbw.gbuffer import CameraData, GBufferData
+
+DEPTH_SIGMA_REL = 0.1   # g_z tolerance, relative to the child's depth (a 10% depth step is an edge)
+COS_X_MIN = 0.05        # clamp of cos theta_x in M (grazing: the kernel width along the normal stays > 0)
+WEIGHT_MIN = 1.0e-4     # below this total weight the pixel is shaded instead of up-sampled
+
+
+@wp.func
+def representative_pixel(gb: GBufferData, x: int, y: int, level: int):
+    """Finest pixel at the centre of level-L pixel (x, y)'s footprint (clamped to the image)."""
+    s = 1 << level
+    fx = wp.min(x * s + s // 2, gb.width - 1)
+    fy = wp.min(y * s + s // 2, gb.height - 1)
+    return fy * gb.width + fx
+
+
+@wp.func
+def screen_frame(cam: CameraData, n: wp.vec3):
+    """Unit screen-space direction of the projected normal (x right, y down), as a vec2."""
+    nx = wp.dot(n, cam.right)
+    ny = -wp.dot(n, cam.up)
+    l = wp.sqrt(nx * nx + ny * ny)
+    if l < 1.0e-6:
+        return wp.vec2(1.0, 0.0)
+    return wp.vec2(nx / l, ny / l)
+
+
+@wp.func
+def anisotropic_gaussian(v: wp.vec2, n_screen: wp.vec2, cos_x: float):
+    # g_a(v) = exp(-v^T M v), M = R_phi^T diag(1, 1/cos^2) R_phi (002 Sec. 3.2)
+    b = v[0] * n_screen[0] + v[1] * n_screen[1]      # along the projected normal
+    a = -v[0] * n_screen[1] + v[1] * n_screen[0]     # across it
+    c = wp.max(cos_x, COS_X_MIN)
+    return wp.exp(-(a * a + b * b / (c * c)))
+
+
+@wp.func
+def depth_gaussian(z: float, zi: float):
+    d = (z - zi) / (DEPTH_SIGMA_REL * wp.max(z, 1.0e-20))
+    return wp.exp(-d * d)
+
+
+@wp.func
+def parent_weight(gb: GBufferData, cam: CameraData, level: int, x: int, y: int, px: int, py: int,
+                  alpha: float, z: float, n_screen: wp.vec2, cos_x: float):
+    """w_i for parent (px, py) at level + 1 of child (x, y) at level (0 when the parent is empty)."""
+    pi = representative_pixel(gb, px, py, level + 1)
+    if gb.material[pi] < 0:
+        return 0.0
+    # parent centre minus child centre, in level-L pixels: (2 px + 1) - (x + 0.5)
+    v = wp.vec2(2.0 * float(px) + 1.0 - (float(x) + 0.5), 2.0 * float(py) + 1.0 - (float(y) + 0.5))
+    return alpha * depth_gaussian(z, gb.depth[pi]) * anisotropic_gaussian(v, n_screen, cos_x)
+
+
+@wp.func
+def parent_axis(x: int, n_parent: int):
+    """Lower parent index and the bilinear weight of the upper one, along one axis."""
+    u = (float(x) + 0.5) * 0.5 - 0.5
+    i0 = int(wp.floor(u))
+    f = u - float(i0)
+    if i0 < 0:
+        i0 = 0
+        f = 0.0
+    if i0 >= n_parent - 1:
+        i0 = n_parent - 1
+        f = 0.0
+    return i0, f
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
+                          width: int, height: int, parent_width: int, parent_height: int,
+                          parent: wp.array(dtype=wp.vec3), parent_valid: wp.array(dtype=wp.int32),
+                          todo: wp.array(dtype=wp.int32),
+                          out: wp.array(dtype=wp.vec3), out_valid: wp.array(dtype=wp.int32),
+                          needs_shading: wp.array(dtype=wp.int32), weights: wp.array(dtype=wp.vec4)):
+    t = wp.tid()
+    if todo[t] == 0:
+        return
+    x = t % width
+    y = t // width
+    rp = representative_pixel(gb, x, y, level)
+    if gb.material[rp] < 0:
+        return   # background: nothing to up-sample
+    z = gb.depth[rp]
+    n = gb.normal[rp]
+    cos_x = wp.abs(wp.dot(n, gb.view[rp]))
+    n_screen = screen_frame(cam, n)
+    i0, fx = parent_axis(x, parent_width)
+    j0, fy = parent_axis(y, parent_height)
+    i1 = wp.min(i0 + 1, parent_width - 1)
+    j1 = wp.min(j0 + 1, parent_height - 1)
+    w = wp.vec4(0.0)
+    acc = wp.vec3(0.0)
+    total = float(0.0)
+    for k in range(4):
+        px = wp.where(k % 2 == 0, i0, i1)
+        py = wp.where(k < 2, j0, j1)
+        ax = wp.where(k % 2 == 0, 1.0 - fx, fx)
+        ay = wp.where(k < 2, 1.0 - fy, fy)
+        q = py * parent_width + px
+        wk = float(0.0)
+        if ax * ay > 0.0 and parent_valid[q] != 0:
+            wk = parent_weight(gb, cam, level, x, y, px, py, ax * ay, z, n_screen, cos_x)
+        w = w + wp.vec4(wp.where(k == 0, wk, 0.0), wp.where(k == 1, wk, 0.0), wp.where(k == 2, wk, 0.0),
+                        wp.where(k == 3, wk, 0.0))
+        if wk > 0.0:   # never read an unused parent: 0 * NaN would poison the sum
+            acc = acc + wk * parent[q]
+            total = total + wk
+    weights[t] = w
+    if total < WEIGHT_MIN:
+        needs_shading[t] = 1
+        return
+    out[t] = acc / total
+    out_valid[t] = 1
+
+
+# ---------------------------------------------------------------------------------------------
+# Host side
+# ---------------------------------------------------------------------------------------------
+
+def level_size(width: int, height: int, level: int) -> tuple[int, int]:
+    """Size of pyramid level ``level`` (0 = finest): ceil-halving per level."""
+    s = 1 << int(level)
+    return max(1, math.ceil(width / s)), max(1, math.ceil(height / s))
+
+
+@dataclass
+class UpsampleResult:
+    values: wp.array          # (w_L * h_L,) vec3: up-sampled values where ``valid``
+    valid: wp.array           # (w_L * h_L,) int32: 1 where a value was written
+    needs_shading: wp.array   # (w_L * h_L,) int32: 1 where no parent could be used
+    weights: wp.array         # (w_L * h_L,) vec4: the four parent weights (unnormalised)
+
+
+def _i32(a, n, device):
+    if isinstance(a, wp.array):
+        return a
+    return wp.array(np.ascontiguousarray(np.asarray(a, np.int32).reshape(n)), dtype=wp.int32, device=device)
+
+
+def upsample_level(gb: GBufferData, cam: CameraData, level: int, parent_values, parent_valid, todo,
+                   out: wp.array | None = None, out_valid: wp.array | None = None,
+                   device: str = "cpu") -> UpsampleResult:
+    """Up-sample the pixels of level ``level`` marked in ``todo`` from level ``level + 1``.
+
+    ``parent_values`` ((w_{L+1} h_{L+1},) vec3) and ``parent_valid`` (int32) describe the parent level;
+    ``out`` / ``out_valid`` (level L) are updated in place when given (pixels not in ``todo`` keep theirs).
+    """
+    w, h = level_size(gb.width, gb.height, level)
+    pw, ph = level_size(gb.width, gb.height, level + 1)
+    n, pn = w * h, pw * ph
+    if not isinstance(parent_values, wp.array):
+        parent_values = wp.array(np.asarray(parent_values, np.float32).reshape(pn, 3), dtype=wp.vec3, device=device)
+    parent_valid = _i32(parent_valid, pn, device)
+    todo = _i32(todo, n, device)
+    out = out if out is not None else wp.zeros(n, dtype=wp.vec3, device=device)
+    out_valid = out_valid if out_valid is not None else wp.zeros(n, dtype=wp.int32, device=device)
+    needs = wp.zeros(n, dtype=wp.int32, device=device)
+    weights = wp.zeros(n, dtype=wp.vec4, device=device)
+    wp.launch(upsample_level_kernel, dim=n,
+              inputs=[gb, cam, int(level), w, h, pw, ph, parent_values, parent_valid, todo, out, out_valid, needs,
+                      weights], device=device)
+    return UpsampleResult(out, out_valid, needs, weights)
+
+
+def parent_weights(gb: GBufferData, cam: CameraData, level: int, device: str = "cpu") -> np.ndarray:
+    """The four parent weights of every pixel of ``level`` with every parent valid, (h_L, w_L, 4)."""
+    w, h = level_size(gb.width, gb.height, level)
+    pw, ph = level_size(gb.width, gb.height, level + 1)
+    r = upsample_level(gb, cam, level, np.zeros((pw * ph, 3)), np.ones(pw * ph), np.ones(w * h), device=device)
+    return r.weights.numpy().reshape(h, w, 4)
