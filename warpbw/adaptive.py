@@ -1,0 +1,159 @@
+"""Hierarchical adaptive shading (002 Sec. 3.2, Fig. 8): shade coarse to fine, up-sample the rest.
+
+Public:
+    ``AdaptiveResult`` / ``shade_hierarchical(gb, cam, materials, env, level_map, spp_map, ...)``
+
+Inputs are the per-pixel shading level (002 Eq. 11, 0 = finest; see :mod:`warpbw.pyramid`) and the
+per-pixel sample count N_p.  The level is mip-mapped with a min filter and N_p with a max filter
+(Sec. 3.1).  From the coarsest level down to 0, a texel of level L whose min-filtered level m is
+
+* m == L: is shaded, at the finest pixel at the centre of its footprint (depth and normal are always
+  read at the finest level), with the max-filtered N_p of its footprint;
+* m > L:  is up-sampled from its already computed parents at level L + 1 (:mod:`warpbw.upsample`); when
+  no parent can be used (a depth edge, an empty parent) it is shaded instead, never guessed;
+* m < L:  is left for finer levels (some pixel under it needs more resolution).
+
+Level 0 then holds every covered pixel.  ``AdaptiveResult.stats`` counts pixels shaded and up-sampled
+per level and the samples spent.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from warpbw.brdf import MaterialBuffers
+from warpbw.envmap import EnvMapData
+from warpbw.gbuffer import CameraData, GBuffer, GBufferData
+from warpbw.pyramid import build_pyramid
+from warpbw.shading import shade_reference
+from warpbw.upsample import level_size, representative_pixel, upsample_level
+
+MODE_SKIP = 0
+MODE_SHADE = 1
+MODE_UPSAMPLE = 2
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def classify_level_kernel(gb: GBufferData, level: int, width: int, min_level: wp.array2d(dtype=wp.int32),
+                          mode: wp.array(dtype=wp.int32), rep: wp.array(dtype=wp.int32)):
+    """Per texel of level L: shade (m == L), up-sample (m > L) or skip (m < L, or no geometry)."""
+    t = wp.tid()
+    x = t % width
+    y = t // width
+    r = representative_pixel(gb, x, y, level)
+    rep[t] = r
+    m = min_level[y, x]
+    if gb.material[r] < 0:
+        mode[t] = MODE_SKIP
+    elif m == level:
+        mode[t] = MODE_SHADE
+    elif m > level:
+        mode[t] = MODE_UPSAMPLE
+    else:
+        mode[t] = MODE_SKIP
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def gather_shaded_kernel(pixels: wp.array(dtype=wp.int32), texels: wp.array(dtype=wp.int32),
+                         shaded: wp.array(dtype=wp.vec3), values: wp.array(dtype=wp.vec3),
+                         valid: wp.array(dtype=wp.int32)):
+    """Copy the radiance shaded at finest pixel ``pixels[t]`` into level texel ``texels[t]``."""
+    t = wp.tid()
+    values[texels[t]] = shaded[pixels[t]]
+    valid[texels[t]] = 1
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def level_spp_kernel(rep: wp.array(dtype=wp.int32), width: int, max_spp: wp.array2d(dtype=wp.int32),
+                     texels: wp.array(dtype=wp.int32), spp_at_pixel: wp.array(dtype=wp.int32)):
+    """N_p of a shaded texel: the max-filtered sample count of its footprint, at its shading pixel."""
+    t = wp.tid()
+    q = texels[t]
+    spp_at_pixel[rep[q]] = max_spp[q // width, q % width]
+
+
+@dataclass
+class AdaptiveResult:
+    image: np.ndarray            # (H, W, 3) radiance, 0 where no geometry
+    shaded: np.ndarray           # (H, W) bool: finest pixels that were shaded (at any level)
+    shaded_level: np.ndarray     # (H, W) int: level at which the pixel was shaded, -1 if up-sampled/empty
+    stats: dict = field(default_factory=dict)
+
+
+def _int_map(a, h, w, name):
+    a = np.asarray(a.numpy() if isinstance(a, wp.array) else a)
+    if a.size != h * w:
+        raise ValueError(f"{name}: expected {h * w} values ({w}x{h}), got {a.size}")
+    return np.ascontiguousarray(a.reshape(h, w).astype(np.int32))
+
+
+def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env_data: EnvMapData,
+                       level_map, spp_map, seed: int = 0, mis: bool = False, device: str = "cpu",
+                       threads: int | None = None) -> AdaptiveResult:
+    """Coarse-to-fine shading of the covered pixels with per-pixel levels and sample counts."""
+    W, H = gb.width, gb.height
+    level = _int_map(level_map, H, W, "level_map")
+    spp = np.maximum(_int_map(spp_map, H, W, "spp_map"), 0)
+    levels = build_pyramid(level, op="min", device=device)
+    spps = build_pyramid(spp, op="max", device=device)
+    cov = gb.coverage
+    top = int(level[cov].max()) if cov.any() else 0
+    top = min(top, levels.num_levels - 1)
+    shaded_full = wp.zeros(W * H, dtype=wp.vec3, device=device)
+    spp_at_pixel = wp.zeros(W * H, dtype=wp.int32, device=device)
+    shaded_level = np.full(W * H, -1, np.int64)
+    per_level = []
+    samples = 0
+    t_shade = t_up = 0.0
+    parent_vals = parent_valid = None
+    for L in range(top, -1, -1):
+        w, h = level_size(W, H, L)
+        mode = wp.zeros(w * h, dtype=wp.int32, device=device)
+        rep = wp.zeros(w * h, dtype=wp.int32, device=device)
+        wp.launch(classify_level_kernel, dim=w * h, inputs=[gb.data, L, w, levels.levels[L], mode, rep],
+                  device=device)
+        mode_np = mode.numpy()
+        vals = wp.zeros(w * h, dtype=wp.vec3, device=device)
+        valid = wp.zeros(w * h, dtype=wp.int32, device=device)
+        n_up = 0
+        to_shade = np.flatnonzero(mode_np == MODE_SHADE)
+        if parent_vals is not None:
+            t0 = time.perf_counter()
+            todo = (mode_np == MODE_UPSAMPLE).astype(np.int32)
+            r = upsample_level(gb.data, cam, L, parent_vals, parent_valid, todo, out=vals, out_valid=valid,
+                               device=device)
+            t_up += time.perf_counter() - t0
+            need = np.flatnonzero(r.needs_shading.numpy())
+            n_up = int(todo.sum()) - len(need)
+            to_shade = np.union1d(to_shade, need)
+        else:
+            # the coarsest level has no parents: anything marked for up-sampling is shaded here
+            to_shade = np.union1d(to_shade, np.flatnonzero(mode_np == MODE_UPSAMPLE))
+        n_shaded = len(to_shade)
+        if n_shaded:
+            t0 = time.perf_counter()
+            texels = wp.array(to_shade.astype(np.int32), dtype=wp.int32, device=device)
+            rep_np = rep.numpy()
+            pix = wp.array(rep_np[to_shade].astype(np.int32), dtype=wp.int32, device=device)
+            wp.launch(level_spp_kernel, dim=n_shaded, inputs=[rep, w, spps.levels[L], texels, spp_at_pixel],
+                      device=device)
+            res = shade_reference(gb, materials, env_data, spp_at_pixel, seed=seed + 7919 * L, mis=mis,
+                                  device=device, threads=threads, pixels=pix, out=shaded_full)
+            samples += res.samples
+            wp.launch(gather_shaded_kernel, dim=n_shaded, inputs=[pix, texels, shaded_full, vals, valid],
+                      device=device)
+            shaded_level[rep_np[to_shade]] = L
+            t_shade += time.perf_counter() - t0
+        per_level.append({"level": L, "size": [w, h], "shaded": n_shaded, "upsampled": n_up})
+        parent_vals, parent_valid = vals, valid
+    image = parent_vals.numpy().reshape(H, W, 3) * cov[..., None]
+    sl = shaded_level.reshape(H, W)
+    n_cov = int(cov.sum())
+    stats = {"levels": per_level, "samples": samples, "pixels_covered": n_cov,
+             "pixels_shaded": int((sl >= 0).sum()),
+             "shaded_fraction": float((sl >= 0).sum() / n_cov) if n_cov else 0.0,
+             "time_s": {"shading": t_shade, "upsampling": t_up}}
+    return AdaptiveResult(image.astype(np.float32), sl >= 0, sl, stats)
