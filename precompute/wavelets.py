@@ -1,0 +1,325 @@
+"""Per-pixel local bandwidth of 2D signals from wavelets (paper 002 Sec. 2.3, Eq. 7; 000 App. A).
+
+Public API
+----------
+- :data:`EPSILON` -- significance threshold of Eq. 7 (0.01, "in all our experiments").
+- :data:`ENERGY_FRACTION` -- the 95% energy rule (000 Fig. 3, 002 Fig. 6).
+- :func:`band_maxima` -- ``lambda_i^max`` per pixel and per wavelet band, shape ``(L, H, W)``.
+- :func:`local_bandwidth` -- per-pixel bandwidth in cycles per pixel (0 .. 0.5).
+- :func:`envmap_angular_bandwidth` -- a lat-long environment map's nu_a(w) in cycles per radian.
+- :func:`texture_spatial_bandwidth` -- a texture's (or area light's) bandwidth in cycles per metre.
+
+Method
+------
+The signal is written as ``s(x) = sum_i beta_i phi_i(x) + sum_i sum_j lambda_ij 2^-i psi((x - 2^i j) / 2^i)``
+(002 Sec. 2.3). We take the orthonormal *stationary* (undecimated) 2D wavelet transform
+(``pywt.swt2(..., norm=True)``), which is the decimated transform of every shift of the image at
+once, so the result does not depend on where the image sits on the dyadic grid (a plain Haar
+pyramid sees a step at an even position only at its coarsest level).  For pixel ``x`` and band
+``i`` (``i = 1`` finest, period 2..4 px), ``lambda_i^max(x)`` is the largest magnitude, over the
+three orientations and over the ``2^i + 1`` coefficients around ``x`` (one wavelet width, the
+wavelets "contributing to" ``x``), of the band-``i`` coefficients: the per-band maximum of Eq. 7,
+localised to the pixel as in 000 App. A.  Band ``i`` holds frequencies ``2^-(i+1) .. 2^-i``
+cycles/pixel.
+
+Two rules turn the ``lambda_i^max`` into one bandwidth:
+
+- ``rule="energy"`` (default): bands whose coefficient is below ``epsilon`` of the pixel's strongest
+  band are dropped (Eq. 7's significance test), and so are pixels whose strongest band is below
+  ``epsilon`` of the image's strongest coefficient (a flat region: bandwidth 0).  The remaining
+  per-band energies ``(lambda_i^max)^2`` form the pixel's histogram of wavelet energy per band
+  (002 Fig. 6); the bandwidth is the frequency below which ``ENERGY_FRACTION`` (95%) of it lies
+  (000 Fig. 3).  Each band's energy is placed at its geometric centre frequency ``2^-(i+1/2)``
+  and the cumulative energy is interpolated linearly in log-frequency between centres, so the
+  estimate is continuous in frequency rather than stuck to powers of two.
+- ``rule="eq7"``: the paper's discrete level, ``I_w`` = the finest band such that the bands finer
+  than it sum to less than ``epsilon * max_k lambda_k^max``; bandwidth ``2^-I_w`` cycles/pixel (the
+  top of band ``I_w``).  We read the sum of Eq. 7 as running over the bands *finer* than ``I_w``
+  (the printed index order is ambiguous); this reading is the one for which "the result is
+  independent of epsilon as long as it is small enough" holds.  It overestimates (the paper says
+  so), by 1.25x to 6x on sines with the default wavelet, which is why it is not the default.
+
+Finite sources are embedded in zeros (002 Sec. 2.3, area lights: "pad ... with zeros, so that
+its size is doubled"): we pad by one coarsest-wavelet width on every side (``pad="zero"``), then
+up to a multiple of ``2^L`` as ``swt2`` needs, so any size works, and crop back.  ``pad`` may
+also be ``"edge"``/``"reflect"``/``"wrap"`` (``np.pad`` modes) per axis, for signals that continue
+past the image (a periodic tile, the longitude of an environment map).
+
+The default wavelet is ``"db4"`` (Daubechies, 4 vanishing moments, 8 taps: "we used 2D Daubechies
+wavelets of order 4", 000 Sec. 4).  Haar is accepted but leaks so much energy into the fine bands
+that it overestimates a low-frequency sine by up to 3x; see ``tests/test_wavelets.py``.
+"""
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+import pywt
+
+__all__ = [
+    "EPSILON",
+    "ENERGY_FRACTION",
+    "DEFAULT_WAVELET",
+    "MAX_LEVELS",
+    "band_maxima",
+    "local_bandwidth",
+    "envmap_angular_bandwidth",
+    "texture_spatial_bandwidth",
+]
+
+# 002 Sec. 2.3 after Eq. 7 / 000 App. A: "We used epsilon = 0.01 in all our experiments."
+EPSILON = 0.01
+# 000 Fig. 3 ("95% of the spectral energy lies in the dotted rectangle") and 002 Fig. 6
+# ("We extract the 95th percentile of this energy").
+ENERGY_FRACTION = 0.95
+# 000 Sec. 4 (distant illumination): "we used 2D Daubechies wavelets of order 4".
+DEFAULT_WAVELET = "db4"
+# Coarsest band analysed: band L holds 2^-(L+1) .. 2^-L cycles/pixel (L = 7: periods up to 256 px).
+# Coarser content reads as bandwidth <= 2^-(L+1/2); it bounds memory and time on large images.
+MAX_LEVELS = 7
+# Relative size of float64 rounding noise in the transform (a constant image's detail
+# coefficients are ~1e-16 of its value, not 0); coefficients under it count as zero.
+_ROUNDING = 1e-9
+
+
+def _max_filter_1d(a: np.ndarray, size: int, axis: int) -> np.ndarray:
+    """Centred running maximum of odd window ``size`` along ``axis`` (edges: window clipped).
+
+    Van Herk / Gil-Werman in spirit but simpler: O(log size) shifted maxima (doubling)."""
+    if size <= 1:
+        return a
+    half = size // 2
+    n = a.shape[axis]
+    # forward max over [x, x + w) built by doubling, then combine to get [x - half, x + half]
+    pad_width = [(0, 0)] * a.ndim
+    pad_width[axis] = (half, half)
+    b = np.pad(a, pad_width, mode="constant", constant_values=-np.inf)
+    w = 1
+    cur = b
+    target = 2 * half + 1
+    while w * 2 <= target:
+        sl = [slice(None)] * a.ndim
+        sl[axis] = slice(w, None)
+        shifted = cur[tuple(sl)]
+        sl2 = [slice(None)] * a.ndim
+        sl2[axis] = slice(0, shifted.shape[axis])
+        cur = np.maximum(cur[tuple(sl2)], shifted)
+        w *= 2
+    # cur[x] = max b[x : x + w]; cover the rest of the window with a second shifted read
+    rest = target - w
+    sl_a = [slice(None)] * a.ndim
+    sl_a[axis] = slice(0, n)
+    sl_b = [slice(None)] * a.ndim
+    sl_b[axis] = slice(rest, rest + n)
+    return np.maximum(cur[tuple(sl_a)], cur[tuple(sl_b)])
+
+
+def _pad_axis(a: np.ndarray, axis: int, before: int, after: int, mode: str) -> np.ndarray:
+    widths = [(0, 0)] * a.ndim
+    widths[axis] = (before, after)
+    if mode == "zero":
+        return np.pad(a, widths, mode="constant")
+    if mode == "latlong_pole":
+        # continue a lat-long map across a pole: the row at theta mirrored, longitude rotated by pi
+        if axis != 0:
+            raise ValueError("latlong_pole padding applies to the row (latitude) axis only")
+        h, w = a.shape[0], a.shape[1]
+        parts = []
+        if before:
+            rows = np.arange(before)[::-1] % h  # row -1 -> row 0 mirrored, etc.
+            parts.append(np.roll(a[rows], w // 2, axis=1))
+        parts.append(a)
+        if after:
+            rows = (h - 1 - np.arange(after)) % h
+            parts.append(np.roll(a[rows], w // 2, axis=1))
+        return np.concatenate(parts, axis=0)
+    return np.pad(a, widths, mode=mode)
+
+
+@functools.lru_cache(maxsize=None)
+def _centre_shift(wavelet: str, level0: int) -> int:
+    """Roll that puts the band's coefficients over the pixels they describe.
+
+    ``swt2`` output at ``p`` depends on pixels around ``p - c`` (causal filters; Daubechies
+    filters are not symmetric), so we measure ``c`` once: the energy centroid of the 1D response
+    of band ``level0 + 1`` to an impulse, and roll by ``-c``."""
+    w = pywt.Wavelet(wavelet)
+    step = 2 ** (level0 + 1)
+    n = step * (2 * w.dec_len + 4)
+    x = np.zeros(n)
+    x[n // 2] = 1.0
+    (_, cd), = pywt.swt(x, w, level=1, start_level=level0, norm=True)
+    e = cd ** 2
+    c = float((e * np.arange(n)).sum() / e.sum()) - n // 2
+    return -int(round(c))
+
+
+def _levels_for(shape: tuple[int, int], levels: int | None) -> int:
+    if levels is None:
+        levels = min(MAX_LEVELS, max(1, int(math.floor(math.log2(max(shape))))))
+    if levels < 1:
+        raise ValueError(f"levels must be >= 1, got {levels}")
+    return int(levels)
+
+
+def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int | None = None,
+                pad: str | tuple[str, str] = "zero") -> np.ndarray:
+    """``lambda_i^max`` of Eq. 7 per pixel: array ``(L, H, W)``, index 0 = band 1 (finest).
+
+    ``image`` is ``(H, W)`` or ``(H, W, C)``; for several channels the per-band maximum is taken
+    over channels too (the bandwidth of a colour signal is that of its fastest channel).
+    ``pad`` is one mode or a ``(rows, columns)`` pair: ``"zero"`` (finite source, 002 Sec. 2.3),
+    any ``np.pad`` mode (``"edge"``, ``"reflect"``, ``"wrap"``), or ``"latlong_pole"`` (rows only)."""
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim == 2:
+        img = img[:, :, None]
+    if img.ndim != 3 or img.shape[0] < 1 or img.shape[1] < 1:
+        raise ValueError(f"image must be (H, W) or (H, W, C), got shape {np.shape(image)}")
+    if not np.all(np.isfinite(img)):
+        raise ValueError("image has NaN or infinite values; bandwidth is undefined there")
+    h, w, c = img.shape
+    nlev = _levels_for((h, w), levels)
+    wav = pywt.Wavelet(wavelet)
+    if not wav.orthogonal:
+        raise ValueError(f"wavelet {wavelet!r} is not orthogonal; swt2(norm=True) needs one")
+    modes = (pad, pad) if isinstance(pad, str) else tuple(pad)
+    step = 2 ** nlev
+    # one coarsest-wavelet width of margin on each side keeps the periodic swt2 from wrapping the
+    # image onto itself; then round up to a multiple of 2^L (swt2's requirement).
+    margin = (wav.dec_len - 1) * 2 ** (nlev - 1) // 2 + 2 ** nlev
+    margin = min(margin, 4 * max(h, w))
+    padded = img
+    offsets = []
+    for axis, (n, mode) in enumerate(zip((h, w), modes)):
+        before = margin
+        total = n + 2 * margin
+        after = margin + (-total) % step
+        padded = _pad_axis(padded, axis, before, after, mode)
+        offsets.append(before)
+    oy, ox = offsets
+
+    out = np.zeros((nlev, h, w), dtype=np.float64)
+    approx = np.moveaxis(padded, 2, 0)  # (C, Hp, Wp): swt2 runs on the last two axes
+    for i in range(nlev):
+        # one level at a time (start_level = i) keeps memory at one band of the padded image
+        (approx, (ch, cv, cd)), = pywt.swt2(approx, wav, level=1, start_level=i,
+                                            axes=(-2, -1), norm=True)
+        mag = np.maximum(np.maximum(np.abs(ch), np.abs(cv)), np.abs(cd)).max(axis=0)
+        # the SWT output is shifted by the filter delay; centre it on the pixel it describes
+        shift = _centre_shift(wav.name, i)
+        mag = np.roll(mag, (shift, shift), axis=(0, 1)) if shift else mag
+        size = 2 ** (i + 1) + 1  # one wavelet width of band i+1 (1-based): the "contributing" set
+        mag = _max_filter_1d(mag, size, 0)
+        mag = _max_filter_1d(mag, size, 1)
+        out[i] = mag[oy:oy + h, ox:ox + w]
+    return out
+
+
+def _bandwidth_from_maxima(lam: np.ndarray, epsilon: float, rule: str, floor: float | None,
+                           energy_fraction: float, scale: float = 0.0) -> np.ndarray:
+    nlev = lam.shape[0]
+    peak = lam.max(axis=0)  # max_k lambda_k^max per pixel
+    if floor is None:
+        floor = epsilon * float(lam.max()) if lam.size else 0.0
+    # coefficients this small are rounding noise of the transform, not signal
+    floor = max(floor, _ROUNDING * float(np.abs(scale)))
+    flat = (peak <= floor) | (peak <= 0.0)
+    safe_peak = np.where(flat, 1.0, peak)
+    if rule == "eq7":
+        # I_w = finest band i with sum_{k finer than i, and i} lambda_k >= epsilon * peak
+        csum = np.cumsum(lam, axis=0)  # index 0 finest
+        significant = csum >= epsilon * safe_peak[None]
+        first = np.argmax(significant, axis=0)  # 0-based band index, finest significant
+        bw = 2.0 ** (-(first + 1.0))
+        return np.where(flat, 0.0, bw)
+    if rule != "energy":
+        raise ValueError(f"rule must be 'energy' or 'eq7', got {rule!r}")
+    kept = np.where(lam >= epsilon * safe_peak[None], lam, 0.0)
+    energy = kept ** 2
+    # cumulative from the coarsest band down to the finest, at band centres 2^-(i + 1/2)
+    e_coarse_first = energy[::-1]  # index 0 = band L (coarsest)
+    cum = np.cumsum(e_coarse_first, axis=0)
+    total = cum[-1]
+    target = energy_fraction * np.where(total > 0, total, 1.0)
+    # first (coarsest-first) index whose cumulative energy reaches the target
+    k = np.argmax(cum >= target[None] * (1 - 1e-12), axis=0)
+    cum_prev = np.where(k > 0, np.take_along_axis(cum, np.maximum(k - 1, 0)[None], 0)[0], 0.0)
+    cum_k = np.take_along_axis(cum, k[None], 0)[0]
+    band = nlev - k  # 1-based band number of the crossing
+    centre = -(band + 0.5)  # log2 frequency of that band's centre
+    # interpolate linearly in log2 f between the previous (coarser) centre and this one; for the
+    # coarsest band the cumulative curve starts from zero one octave below its centre
+    t = (target - cum_prev) / np.maximum(cum_k - cum_prev, 1e-300)
+    log2f = centre - 1.0 + np.clip(t, 0.0, 1.0)
+    bw = np.minimum(2.0 ** log2f, 0.5)
+    return np.where(flat | (total <= 0), 0.0, bw)
+
+
+def local_bandwidth(image: np.ndarray, epsilon: float = EPSILON, wavelet: str = DEFAULT_WAVELET,
+                    levels: int | None = None, pad: str | tuple[str, str] = "zero",
+                    rule: str = "energy", floor: float | None = None,
+                    energy_fraction: float = ENERGY_FRACTION) -> np.ndarray:
+    """Per-pixel local bandwidth of a 2D signal, in cycles per pixel (0 .. 0.5), shape ``(H, W)``.
+
+    002 Sec. 2.3 Eq. 7 / 000 App. A with the 95% energy rule (module docstring).  ``epsilon`` is
+    Eq. 7's threshold; ``floor`` is the absolute coefficient under which a pixel is flat
+    (bandwidth 0), by default ``epsilon`` times the image's largest coefficient.  Vectorised: the
+    only Python loop runs over the ``levels`` wavelet bands."""
+    if not (0.0 < epsilon < 1.0):
+        raise ValueError(f"epsilon must be in (0, 1), got {epsilon}")
+    if not (0.0 < energy_fraction <= 1.0):
+        raise ValueError(f"energy_fraction must be in (0, 1], got {energy_fraction}")
+    lam = band_maxima(image, wavelet=wavelet, levels=levels, pad=pad)
+    scale = float(np.max(np.abs(image))) if np.size(image) else 0.0
+    return _bandwidth_from_maxima(lam, epsilon, rule, floor, energy_fraction, scale)
+
+
+def envmap_angular_bandwidth(pixels: np.ndarray, epsilon: float = EPSILON,
+                             wavelet: str = DEFAULT_WAVELET, levels: int | None = None,
+                             rule: str = "energy") -> np.ndarray:
+    """Angular bandwidth nu_a(w) of a lat-long environment map, in cycles per radian, ``(H, W)``.
+
+    ``pixels`` is ``(H, W, 3)`` (or ``(H, W)``), row 0 at theta = 0 (+Y, DESIGN.md), column ``u``
+    at longitude ``phi = 2 pi (u + 1/2) / W``.  The map is continued periodically in longitude and
+    across each pole (mirrored row, longitude turned by pi) instead of zero-padded, because a
+    sphere has no border.
+
+    Conversion (002 Sec. 2.3: ``nu_a = 2 pi / (2^I_w lambda_max)``).  The Jacobian of the map
+    from image pixels to the sphere (tangent-plane radians) at polar angle theta is
+    ``diag(2 pi sin(theta) / W, pi / H)``: a texel spans ``2 pi / W`` of longitude, i.e. an arc of
+    ``2 pi sin(theta) / W`` radians, by ``pi / H`` radians of latitude.  Its largest eigenvalue
+    ``lambda_max = max(2 pi sin(theta) / W, pi / H)`` is the longest angular side of the texel, and
+    we use ``nu_a = b / lambda_max`` with ``b`` in cycles/pixel, i.e. cycles per pixel times pixels
+    per radian along that side.  The paper's ``2 pi / 2^I_w`` is ``2 pi`` times our ``b``: it is
+    an angular frequency, while warpbw's unit is cycles/radian (DESIGN.md), so we drop the 2 pi.
+    Why the largest eigenvalue: it is exact for variations along the texel's longest side (both
+    axes at the equator of a 2:1 map, latitude everywhere), and it stays finite at the poles,
+    where the smaller eigenvalue ``2 pi sin(theta) / W`` goes to 0 and dividing by it would turn
+    resampling noise into unbounded bandwidth.  The price: longitudinal variation near the poles
+    is underestimated by up to ``sin(theta) * W / (2 H)`` (the lat-long map oversamples there)."""
+    px = np.asarray(pixels, dtype=np.float64)
+    if px.ndim not in (2, 3):
+        raise ValueError(f"envmap pixels must be (H, W) or (H, W, C), got shape {px.shape}")
+    h, w = px.shape[:2]
+    b = local_bandwidth(px, epsilon=epsilon, wavelet=wavelet, levels=levels,
+                        pad=("latlong_pole", "wrap"), rule=rule)
+    theta = (np.arange(h) + 0.5) * math.pi / h
+    lam_max = np.maximum(2.0 * math.pi * np.sin(theta) / w, math.pi / h)  # radians per pixel
+    return b / lam_max[:, None]
+
+
+def texture_spatial_bandwidth(image: np.ndarray, metres_per_pixel: float,
+                              epsilon: float = EPSILON, wavelet: str = DEFAULT_WAVELET,
+                              levels: int | None = None, pad: str | tuple[str, str] = "zero",
+                              rule: str = "energy") -> np.ndarray:
+    """Spatial bandwidth of a texture or area light, in cycles per metre, ``(H, W)``.
+
+    ``metres_per_pixel`` is the texel's side on the surface (the Jacobian of the texture mapping,
+    assumed isotropic and constant; 002 Sec. 2.3 "Texture (spatial)").  A finite area light is
+    zero-padded (``pad="zero"``, 002 Sec. 2.3); pass ``pad="wrap"`` for a tiling texture."""
+    mpp = float(metres_per_pixel)
+    if not (mpp > 0.0 and math.isfinite(mpp)):
+        raise ValueError(f"metres_per_pixel must be a positive finite number, got {metres_per_pixel}")
+    return local_bandwidth(image, epsilon=epsilon, wavelet=wavelet, levels=levels, pad=pad,
+                           rule=rule) / mpp
