@@ -25,6 +25,7 @@ Models
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Callable, Sequence
@@ -357,14 +358,13 @@ class BrdfFuncs:
     pdf: Callable
 
 
-_FUNCS_CACHE: dict = {}
-
-
 def make_brdf_funcs(kinds: Sequence[int]) -> BrdfFuncs:
     """Build (once per set of kinds) the dispatching Warp functions for the given material kinds."""
-    key = frozenset(int(k) for k in kinds)
-    if key in _FUNCS_CACHE:
-        return _FUNCS_CACHE[key]
+    return _brdf_funcs(frozenset(int(k) for k in kinds))
+
+
+@functools.cache  # one set of functions per set of kinds
+def _brdf_funcs(key: frozenset) -> BrdfFuncs:
     has_l = LAMBERT in key
     has_g = GGX in key
     has_m = MERL in key
@@ -416,9 +416,7 @@ def make_brdf_funcs(kinds: Sequence[int]) -> BrdfFuncs:
                     mats.samplers, mats.sampler[m], wi, wo)
         return p
 
-    funcs = BrdfFuncs(key, brdf_eval, brdf_sample, brdf_pdf)
-    _FUNCS_CACHE[key] = funcs
-    return funcs
+    return BrdfFuncs(key, brdf_eval, brdf_sample, brdf_pdf)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -504,12 +502,8 @@ def build_material_table(specs: Sequence[MaterialSpec], device: str = "cpu") -> 
 # Host wrappers for tests and examples
 # ---------------------------------------------------------------------------------------------
 
-_HOST_KERNELS: dict = {}
-
-
+@functools.cache  # one set of host kernels per set of kinds
 def _host_kernels(kinds: frozenset):
-    if kinds in _HOST_KERNELS:
-        return _HOST_KERNELS[kinds]
     f = make_brdf_funcs(kinds)
 
     @wp.kernel(module="unique", enable_backward=False)
@@ -532,8 +526,7 @@ def _host_kernels(kinds: frozenset):
         u = wp.vec3(wp.randf(st), wp.randf(st), wp.randf(st))
         out[t] = f.sample(mats, m, wo[t], u)
 
-    _HOST_KERNELS[kinds] = (eval_kernel, pdf_kernel, sample_kernel)
-    return _HOST_KERNELS[kinds]
+    return eval_kernel, pdf_kernel, sample_kernel
 
 
 def _vec3_in(x, n, device):

@@ -20,6 +20,7 @@ The tangent is ``d position / d phi`` about +Y on spheres and a branchless ortho
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -138,14 +139,13 @@ def write_empty(gb: GBufferData, i: int):
     gb.material[i] = -1
 
 
-_KERNELS: dict = {}
-
-
 def make_gbuffer_kernel(has_spheres: bool, has_mesh: bool):
     """The G-buffer kernel for a scene with spheres and/or meshes (only those paths are compiled)."""
-    key = (bool(has_spheres), bool(has_mesh))
-    if key in _KERNELS:
-        return _KERNELS[key]
+    return _gbuffer_kernel(bool(has_spheres), bool(has_mesh))
+
+
+@functools.cache  # one kernel per combination: Warp compiles each once
+def _gbuffer_kernel(has_spheres: bool, has_mesh: bool):
 
     @wp.kernel(module="unique", enable_backward=False)
     def gbuffer_kernel(cam: CameraData, spheres: SphereList, mesh: MeshAttributes, gb: GBufferData):
@@ -225,7 +225,6 @@ def make_gbuffer_kernel(has_spheres: bool, has_mesh: bool):
         gb.uv[i] = uv
         gb.material[i] = mat
 
-    _KERNELS[key] = gbuffer_kernel
     return gbuffer_kernel
 
 

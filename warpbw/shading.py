@@ -17,6 +17,7 @@ and counted in ``ShadeResult.non_finite``, never averaged into the image.
 """
 from __future__ import annotations
 
+import functools
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -50,19 +51,18 @@ def finite3(v: wp.vec3):
     return wp.isfinite(v[0]) and wp.isfinite(v[1]) and wp.isfinite(v[2])
 
 
-_KERNELS: dict = {}
-
-
 def make_reference_kernel(kinds, mis: bool, per_pixel_spp: bool = False):
     """The reference shading kernel for the given material kinds, with or without MIS.
 
     With ``per_pixel_spp`` the sample count of pixel i is ``spp_map[i]`` (N_p of 002 Sec. 2.4, for
     adaptive shading) instead of the scalar ``spp``; a pixel with N_p = 0 is set to 0.
     """
-    key = (frozenset(kinds), bool(mis), bool(per_pixel_spp))
-    if key in _KERNELS:
-        return _KERNELS[key]
-    f = make_brdf_funcs(key[0])
+    return _reference_kernel(frozenset(int(k) for k in kinds), bool(mis), bool(per_pixel_spp))
+
+
+@functools.cache  # one kernel per combination: Warp compiles each once
+def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool):
+    f = make_brdf_funcs(kinds)
 
     @wp.kernel(module="unique", enable_backward=False)
     def shade_reference_kernel(gb: GBufferData, mats: MaterialTable, env: EnvMapData,
@@ -117,7 +117,6 @@ def make_reference_kernel(kinds, mis: bool, per_pixel_spp: bool = False):
         if bad > 0:
             wp.atomic_add(non_finite, 0, bad)
 
-    _KERNELS[key] = shade_reference_kernel
     return shade_reference_kernel
 
 
