@@ -32,6 +32,7 @@ class BrdfSource:
     path: Path
     digest: str                 # content hash of the source bytes (+ material name)
     evaluate: Callable          # numpy (wi, wo) -> (N, 3)
+    brdf: object = None         # the loaded MerlBRDF or NPFMaterial (so callers need not read it again)
 
 
 def brdf_source(file, material: str | None = None) -> BrdfSource:
@@ -45,10 +46,10 @@ def brdf_source(file, material: str | None = None) -> BrdfSource:
         raise WarpbwError(f"{p}: file not found")
     if material is None:
         brdf = read_merl(p)
-        return BrdfSource(p.name, p, file_digest(p), lambda wi, wo: merl_eval(brdf, wi, wo, interpolate=False))
+        return BrdfSource(p.name, p, file_digest(p), lambda wi, wo: merl_eval(brdf, wi, wo, interpolate=False), brdf)
     mat = read_npf(p, material)
     return BrdfSource(f"{p.name}:{mat.name}", p, f"{file_digest(p)}:{mat.name}",
-                      lambda wi, wo: npf_eval(mat, wi, wo, interpolate=True))
+                      lambda wi, wo: npf_eval(mat, wi, wo, interpolate=True), mat)
 
 
 def build_brdf_sampling(source: BrdfSource, progress: bool = True) -> SamplerTable:

@@ -11,6 +11,7 @@ is in memory.  ``RenderResult.stats`` says which stages ran and how long each to
 """
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass, field
 
@@ -55,14 +56,13 @@ class RenderResult:
     stats: dict
 
 
+@contextlib.contextmanager
 def _timed(timings: dict, key: str):
-    class _T:
-        def __enter__(self):
-            self.t = time.perf_counter()
-
-        def __exit__(self, *a):
-            timings[key] = timings.get(key, 0.0) + time.perf_counter() - self.t
-    return _T()
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        timings[key] = timings.get(key, 0.0) + time.perf_counter() - t0
 
 
 def _load_environment(scene: Scene, device: str):
@@ -87,18 +87,14 @@ def _material_spec(m, progress: bool, notes: dict) -> brdf_mod.MaterialSpec:
     from precompute.brdf_sampling import brdf_source, load_or_build_sampling
 
     if m.type == "merl":
-        from warpbw.io.merl import read_merl
-
-        merl = read_merl(m.file)
         source = brdf_source(m.file)
+        merl = source.brdf
         table, origin = load_or_build_sampling(source, m.sampling, progress=progress)
         notes[f"material.{m.name}"] = {"type": "merl", "file": str(m.file), "unmeasured": int(merl.n_unmeasured),
                                        "sampling": origin}
         return brdf_mod.MaterialSpec(m.name, kind, merl=merl.data, linear=m.lookup == "linear", sampler=table)
-    from warpbw.io.npf import read_npf
-
-    npf = read_npf(m.table, m.npf_name)
     source = brdf_source(m.table, m.npf_name)
+    npf = source.brdf
     table, origin = load_or_build_sampling(source, m.sampling, progress=progress)
     notes[f"material.{m.name}"] = {"type": "npf", "name": npf.name, "sampling": origin}
     curves = brdf_mod.pack_npf_curves(npf.rho_d, npf.rho_s, npf.D, npf.G1, npf.F)
