@@ -5,6 +5,7 @@ Public: ``main(argv=None) -> int``.
 Subcommands:
     npf-to-merl    write a MERL ``.binary`` file from one material of an NPF table
     brdf-sampling  build importance-sampling tables of a tabulated BRDF (002 Sec. 3.3)
+    brdf           angular bandwidth table nu_rho of a tabulated BRDF (002 Sec. 2.3)
 """
 from __future__ import annotations
 
@@ -43,6 +44,23 @@ def cmd_brdf_sampling(args) -> int:
     return 0
 
 
+def cmd_brdf(args) -> int:
+    from precompute.brdf_bandwidth import build_brdf_bandwidth, write_brdf_bandwidth
+    from precompute.brdf_sampling import brdf_source
+
+    out = Path(args.output)
+    if out.exists() and not args.force:
+        raise WarpbwError(f"{out}: already exists (pass --force to overwrite it)")
+    t0 = time.perf_counter()
+    source = brdf_source(args.file, args.material)
+    table = build_brdf_bandwidth(source, progress=not args.quiet)
+    write_brdf_bandwidth(out, table, source, force=args.force)
+    print(f"{out}  (angular bandwidth of {source.name}: {table.shape[0]} incident elevations x "
+          f"{table.shape[1]}x{table.shape[2]} outgoing cells, max {float(table.max()):.2f} cycles/radian, "
+          f"{time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="warpbw-precompute",
                                 description="Offline asset tool of warpbw: MERL files from NPF fits, importance-"
@@ -70,6 +88,17 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--force", action="store_true", help="overwrite an existing output")
     b.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     b.set_defaults(func=cmd_brdf_sampling)
+
+    c = sub.add_parser("brdf", help="angular bandwidth table of a tabulated BRDF",
+                       description="For 16 incident elevations, the local angular bandwidth (cycles/radian) "
+                       "of the outgoing lobe on a 128x128 equal-area map, reduced to 16x16 cells by a maximum "
+                       "(002 Sec. 2.3, 'Reflectance').  FILE is a MERL .binary, or an NPF table with --material.")
+    c.add_argument("file", help="MERL .binary file, or NPF table with --material")
+    c.add_argument("--material", default=None, help="NPF material name when FILE is an NPF table")
+    c.add_argument("-o", "--output", required=True, help="output table file (.npz)")
+    c.add_argument("--force", action="store_true", help="overwrite an existing output")
+    c.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    c.set_defaults(func=cmd_brdf)
     return p
 
 

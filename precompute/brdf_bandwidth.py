@@ -1,0 +1,277 @@
+"""Angular bandwidth tables of BRDF lobes (002 Sec. 2.3, "Reflectance (angular)").
+
+Public:
+    ``N_THETA_I`` (16), ``N_CELLS`` (16), ``DEFAULT_RESOLUTION`` (128), ``FORMAT``, ``VERSION``
+    ``brdf_bandwidth_table(evaluate, resolution=128, progress=None) -> (16, 16, 16) float32``
+    ``analytic_brdf_bandwidth_table(evaluate, resolution=128) -> (16, 16, 16) float32``
+    ``build_brdf_bandwidth(source, progress=True, resolution=128) -> (16, 16, 16) float32``
+    ``write_brdf_bandwidth(path, table, source, force=False)`` / ``read_brdf_bandwidth(path, source=None)``
+    ``theta_i_centres()``, ``wo_map(n)``, ``wo_to_map(wo)``, ``map_radians_per_pixel(n)``
+
+Table: ``nu_rho[t, row, col]`` in cycles/radian, float32, shape ``(N_THETA_I, N_CELLS, N_CELLS)``:
+``t`` = incident-elevation bin (centres ``theta_i = (t + 1/2) (pi/2) / 16``, uniform over
+[0, pi/2)), ``(row, col)`` = 16x16 cell of the outgoing-direction map below.
+
+Isotropy.  The BRDFs warpbw reads (MERL, NPF, Lambert, GGX) are isotropic, so the lobe for an
+incident direction of azimuth phi_i is the phi_i = 0 lobe rotated by phi_i about +Z: we drop the
+incident azimuth and tabulate ``wi = (sin theta_i, 0, cos theta_i)`` only.  A lookup rotates
+``wo`` by ``-phi_i`` about +Z first.  (The paper's 16x16 *input* directions are for general 4D
+data; for isotropic data the second input axis is redundant.)
+
+What is analysed.  The lobe itself, ``rho(wi, .) = f(wi, wo)``, not ``f cos(theta_o)``: the paper
+takes "the angular bandwidth map of the outgoing BRDF lobe", and rho is the factor whose spectrum
+enters the shading integrand ``L_i rho`` (Sec. 2.4).  The slice is divided by its maximum (over
+pixels and channels); the estimator's significance floor is relative to the slice's strongest
+coefficient, so this scale does not change the result and only keeps HDR lobes (chrome peaks at
+~1e3-1e4 /sr) well scaled.  We deliberately do *not* take a log: a log changes the spectrum (a
+Gaussian lobe becomes a parabola, with energy at every scale) and would credit high frequencies to
+tails that carry no energy in the integrand.  Channels: the slice analysed is the sum of the
+colour channels (one wavelet analysis instead of three, 3x faster).  The channels of a lobe share
+its shape and differ by scale (rho_d, rho_s, Fresnel tint); a fast feature present in one channel
+only is kept unless it is under the 1% significance floor, which it would be in a joint
+analysis too, the floor being relative to the strongest coefficient over all channels.
+
+Outgoing map: Lambert azimuthal equal-area projection of the upper hemisphere onto the unit disc,
+``(x, y) = r (cos phi_o, sin phi_o)``, ``r = sqrt(2) sin(theta_o / 2)`` (``r = 1`` at the horizon),
+rasterised on ``n x n`` pixels covering the square [-1, 1]^2: column ``c`` at
+``x = -1 + (c + 1/2) 2/n``, row ``k`` at ``y = -1 + (k + 1/2) 2/n`` (row index increases with
+wo.y; the plane of incidence is the x axis, the mirror direction of wi lies at x < 0).
+
+Grazing limit and the border.  Microfacet forms (NPF, GGX) and measured data carry a
+``1/cos(theta_o)`` that diverges at the horizon (pink-felt's lobe there is ~10x its interior), where
+the integrand ``f cos`` that shading sees is near zero; analysed as is, that divergence (a 1-pixel
+rise at n = 128) sets every slice's bandwidth to the resolution limit.  So f is evaluated only up to
+``GRAZING_LIMIT`` = 85 deg; beyond it, along each azimuth, the lobe is continued by odd
+reflection, ``f(theta) = 2 f(85 deg) - f(170 deg - theta)``, which keeps value and slope
+continuous, through the rim and the square's corners (the map formula extended to ``r <= sqrt 2``),
+and the image is edge-padded for the wavelet transform.  Zero padding or a hard stop would put a
+false step or kink at the rim (a Lambert lobe would read as a sharp disc).  Cells beyond the rim
+carry the bandwidth of that continuation: a by-product, never looked up for real directions.
+
+Jacobian to radians (per unit of map coordinate, at ``r``; ``cos(theta_o/2) = sqrt(1 - r^2/2)``):
+radial ``d theta / d r = sqrt(2) / cos(theta_o/2)`` (sqrt 2 .. 2), tangential
+``sin(theta_o) / r = sqrt(2) cos(theta_o/2)`` (sqrt 2 .. 1); their product is 2 everywhere (equal
+area: 2 pi sr over a disc of area pi).  A pixel is ``2/n`` map units, so the radians per pixel
+are those times ``2/n``.  We convert cycles/pixel to cycles/radian by dividing by the *smaller*
+one, ``lambda_min = sqrt(2 - r^2) * 2/n`` (r clamped to 1): the estimator does not say in which
+direction the signal varies, and the smaller side gives the larger bandwidth (conservative, as the
+block maximum below).  A purely radial variation is overestimated by ``1/cos^2(theta_o/2)``: 1 at
+the zenith, 2 at the horizon; at the zenith the map is isotropic (sqrt(2) * 2/n rad per pixel).
+
+Resolution: at n = 128 a pixel is 0.022 rad (1.3 deg) at the zenith, so the largest expressible
+bandwidth (0.5 cycles/pixel) is ~22 cycles/radian there; narrower lobes (a mirror) saturate.  The
+per-pixel bandwidth (:func:`precompute.wavelets.local_bandwidth`, 95% energy rule, db4, 7 bands:
+periods 2 .. 256 px, so a lobe broader than the map reads as at most ~2^-7.5 cycles/px, ~0.25
+cycles/radian; an exactly constant lobe reads 0) is
+reduced to 16x16 cells by a MAX over each ``n/16`` x ``n/16`` block (conservative), as the paper
+computes "the bandwidth for higher-resolution angular slices and scale[s] down the slices".
+
+Cost: ``16 * n^2`` BRDF evaluations and 16 wavelet analyses; a few seconds per material at n = 128.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import numpy as np
+
+from precompute.assetfile import read_asset, write_asset
+from precompute.wavelets import local_bandwidth
+from warpbw.errors import WarpbwError
+
+__all__ = [
+    "N_THETA_I", "N_CELLS", "DEFAULT_RESOLUTION", "FORMAT", "VERSION",
+    "GRAZING_LIMIT", "theta_i_centres", "wo_map", "wo_to_map", "map_radians_per_pixel",
+    "brdf_bandwidth_table", "analytic_brdf_bandwidth_table", "build_brdf_bandwidth",
+    "write_brdf_bandwidth", "read_brdf_bandwidth",
+]
+
+N_THETA_I = 16          # incident elevations (bin centres uniform over [0, pi/2)); paper: 16 inputs
+N_CELLS = 16            # outgoing map cells per side; paper: "a 16x16 image for each reflectance lobe"
+DEFAULT_RESOLUTION = 128  # analysed slice, n x n pixels (a multiple of N_CELLS)
+FORMAT = "warpbw.brdf-bandwidth"
+VERSION = 1
+SHAPE = (N_THETA_I, N_CELLS, N_CELLS)
+GRAZING_LIMIT = math.radians(85.0)  # outgoing elevations past this are continued, not evaluated
+WAVELET_LEVELS = 7                  # bands analysed: periods 2 .. 256 px (module docstring)
+
+
+def theta_i_centres() -> np.ndarray:
+    """Incident elevations of the table's bins, radians: ``(t + 1/2) (pi/2) / N_THETA_I``."""
+    return (np.arange(N_THETA_I) + 0.5) * (0.5 * math.pi / N_THETA_I)
+
+
+def _pixel_coords(n: int) -> tuple[np.ndarray, np.ndarray]:
+    c = -1.0 + (np.arange(n) + 0.5) * (2.0 / n)
+    x, y = np.meshgrid(c, c)  # x varies along columns, y along rows
+    return x, y
+
+
+def _map_angles(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(theta_o, phi_o)`` of the pixel centres; past the disc (r > 1) the map's formula goes on,
+    ``theta_o = 2 asin(r / sqrt 2)`` up to pi at the corners (used only by the extension)."""
+    x, y = _pixel_coords(n)
+    r = np.minimum(np.hypot(x, y), math.sqrt(2.0))
+    return 2.0 * np.arcsin(r / math.sqrt(2.0)), np.arctan2(y, x)
+
+
+def _dirs(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    s = np.sin(theta)
+    return np.stack([s * np.cos(phi), s * np.sin(phi), np.cos(theta)], axis=-1)
+
+
+def wo_map(n: int) -> np.ndarray:
+    """Outgoing directions at the ``n x n`` pixel centres of the equal-area map, ``(n, n, 3)``.
+
+    Elevations are clamped to ``GRAZING_LIMIT`` (pixels beyond it: module docstring)."""
+    theta, phi = _map_angles(n)
+    return _dirs(np.minimum(theta, GRAZING_LIMIT), phi)
+
+
+def wo_to_map(wo) -> np.ndarray:
+    """Map coordinates ``(x, y)`` in [-1, 1]^2 of directions ``wo`` (..., 3) of the upper hemisphere.
+
+    Cell of a table: ``col = floor((x + 1) / 2 * N_CELLS)``, ``row = floor((y + 1) / 2 * N_CELLS)``."""
+    wo = np.asarray(wo, dtype=np.float64)
+    wo = wo / np.linalg.norm(wo, axis=-1, keepdims=True)
+    theta = np.arccos(np.clip(wo[..., 2], -1.0, 1.0))
+    r = math.sqrt(2.0) * np.sin(np.minimum(theta, 0.5 * math.pi) / 2.0)
+    phi = np.arctan2(wo[..., 1], wo[..., 0])
+    return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1)
+
+
+def map_radians_per_pixel(n: int) -> np.ndarray:
+    """Smaller side of each pixel in radians, ``sqrt(2 - r^2) * 2/n`` with r clamped to 1, ``(n, n)``."""
+    x, y = _pixel_coords(n)
+    r = np.minimum(np.hypot(x, y), 1.0)
+    return np.sqrt(2.0 - r * r) * (2.0 / n)
+
+
+def _check_resolution(resolution: int) -> int:
+    n = int(resolution)
+    if n < N_CELLS or n % N_CELLS:
+        raise ValueError(f"resolution must be a positive multiple of {N_CELLS}, got {resolution}")
+    return n
+
+
+def lobe_slice(evaluate: Callable, theta_i: float, resolution: int = DEFAULT_RESOLUTION) -> np.ndarray:
+    """``f(wi, wo)`` over the outgoing map for ``wi = (sin theta_i, 0, cos theta_i)``, ``(n, n, C)`` float64.
+
+    Past ``GRAZING_LIMIT`` the lobe is continued by odd reflection about the limit along each
+    azimuth, ``f(theta) = 2 f(theta_max) - f(2 theta_max - theta)`` (value and slope continuous)."""
+    n = _check_resolution(resolution)
+    theta, phi = _map_angles(n)
+    past = theta > GRAZING_LIMIT
+    wi = np.broadcast_to(np.array([math.sin(theta_i), 0.0, math.cos(theta_i)]), (n * n, 3))
+    wi = np.ascontiguousarray(wi)
+
+    def ev(th):
+        f = np.asarray(evaluate(wi, _dirs(th, phi).reshape(-1, 3)), dtype=np.float64)
+        if f.ndim == 1:
+            f = f[:, None]
+        if f.shape[0] != n * n:
+            raise ValueError(f"evaluate returned shape {f.shape} for {n * n} directions")
+        return f.reshape(n, n, -1)
+
+    f = ev(np.minimum(theta, GRAZING_LIMIT))
+    if np.any(past):
+        mirrored = ev(np.where(past, np.maximum(2.0 * GRAZING_LIMIT - theta, 0.0), theta))
+        f = np.where(past[..., None], 2.0 * f - mirrored, f)
+    return f
+
+
+def slice_bandwidth(f: np.ndarray) -> np.ndarray:
+    """Per-pixel angular bandwidth (cycles/radian, ``(n, n)``) of one lobe slice ``(n, n[, C])`` (channels summed)."""
+    f = np.asarray(f, dtype=np.float64)
+    if f.ndim == 3:
+        f = f.sum(axis=-1)
+    n = f.shape[0]
+    if not np.all(np.isfinite(f)):
+        raise WarpbwError("BRDF lobe has NaN or infinite values; its bandwidth is undefined")
+    peak = float(np.max(np.abs(f))) if f.size else 0.0
+    if peak <= 0.0:
+        return np.zeros((n, n))
+    b = local_bandwidth(f / peak, pad="edge", levels=WAVELET_LEVELS)  # cycles/pixel
+    return b / map_radians_per_pixel(n)
+
+
+def _block_max(a: np.ndarray) -> np.ndarray:
+    n = a.shape[0]
+    k = n // N_CELLS
+    return a.reshape(N_CELLS, k, N_CELLS, k).max(axis=(1, 3))
+
+
+def brdf_bandwidth_table(evaluate: Callable, resolution: int = DEFAULT_RESOLUTION,
+                         progress: Callable[[int], None] | None = None) -> np.ndarray:
+    """nu_rho table ``(16, 16, 16)`` float32, cycles/radian, of any numpy ``evaluate(wi, wo) -> (N, C)``.
+
+    ``progress(k)`` is called after each of the 16 incident elevations with the count done."""
+    n = _check_resolution(resolution)
+    out = np.zeros(SHAPE, dtype=np.float32)
+    for t, th in enumerate(theta_i_centres()):
+        out[t] = _block_max(slice_bandwidth(lobe_slice(evaluate, float(th), n)))
+        if progress is not None:
+            progress(t + 1)
+    return out
+
+
+def analytic_brdf_bandwidth_table(evaluate: Callable, resolution: int = DEFAULT_RESOLUTION) -> np.ndarray:
+    """Table of an analytic BRDF (Lambert, GGX...): :func:`brdf_bandwidth_table` without a progress bar."""
+    return brdf_bandwidth_table(evaluate, resolution=resolution)
+
+
+def build_brdf_bandwidth(source, progress: bool = True, resolution: int = DEFAULT_RESOLUTION) -> np.ndarray:
+    """Table of a :class:`precompute.brdf_sampling.BrdfSource` (a few seconds per material)."""
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=N_THETA_I, desc=f"bandwidth {source.name}", unit="theta_i", leave=False)
+    last = [0]
+
+    def step(k):
+        if bar is not None:
+            bar.update(k - last[0])
+            last[0] = k
+
+    try:
+        return brdf_bandwidth_table(source.evaluate, resolution=resolution, progress=step)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _rebuild_hint(source) -> str:
+    if source is None:
+        return "warpbw-precompute brdf SOURCE [--material NAME] -o OUT --force"
+    mat = f" --material {source.name.split(':', 1)[1]}" if ":" in source.name else ""
+    return f"warpbw-precompute brdf {source.path}{mat} -o OUT --force"
+
+
+def write_brdf_bandwidth(path, table: np.ndarray, source, force: bool = False,
+                         resolution: int = DEFAULT_RESOLUTION):
+    """Write a table built from ``source`` (anything with ``name`` and ``digest``)."""
+    t = np.asarray(table, dtype=np.float32)
+    if t.shape != SHAPE:
+        raise ValueError(f"table must have shape {SHAPE}, got {t.shape}")
+    return write_asset(path, FORMAT, VERSION, source.name, source.digest, {"nu_rho": t},
+                       params={"n_theta_i": N_THETA_I, "n_cells": N_CELLS, "resolution": int(resolution),
+                               "map": "lambert-equal-area", "units": "cycles/radian"},
+                       force=force)
+
+
+def read_brdf_bandwidth(path, source=None) -> np.ndarray:
+    """Read a table ``(16, 16, 16)`` float32; with ``source``, refuse one built from different data."""
+    hint = _rebuild_hint(source)
+    a = read_asset(path, FORMAT, VERSION, hint)
+    if source is not None and a.header.get("source_hash") != source.digest:
+        raise WarpbwError(f"{path}: built from {a.header.get('source')!r} with different content than "
+                          f"{source.name!r} (rebuild it with: {hint})")
+    if "nu_rho" not in a.arrays:
+        raise WarpbwError(f"{path}: brdf-bandwidth file lacks array 'nu_rho' (rebuild it with: {hint})")
+    t = np.asarray(a.arrays["nu_rho"], dtype=np.float32)
+    if t.shape != SHAPE:
+        raise WarpbwError(f"{path}: table of shape {t.shape}, this warpbw uses {SHAPE} "
+                          f"(rebuild it with: {hint})")
+    if not np.all(np.isfinite(t)) or np.any(t < 0):
+        raise WarpbwError(f"{path}: table has negative or non-finite bandwidths (rebuild it with: {hint})")
+    return t

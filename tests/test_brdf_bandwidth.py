@@ -1,0 +1,133 @@
+"""Angular bandwidth tables of BRDF lobes (precompute/brdf_bandwidth.py; 002 Sec. 2.3 "Reflectance").
+
+References (not from the code under test):
+- Lambert: a constant lobe has no variation, so bandwidth 0 everywhere.
+- GGX near normal incidence: D ~ (1 + (theta_h/alpha)^2)^-2, i.e. ln D ~ -2 theta_h^2/alpha^2 near
+  the peak, a Gaussian of std alpha/2 in theta_h; with theta_o = 2 theta_h at normal incidence, a
+  Gaussian of std s = alpha in the outgoing angle.  A Gaussian of std s has Fourier amplitude
+  exp(-2 pi^2 s^2 f^2), energy spectrum exp(-f^2 / (2 sigma^2)) with sigma = 1/(2 sqrt(2) pi s)
+  (f in cycles/radian); 95% of its energy (1D) lies below 1.96 sigma = 1.96/(2 sqrt(2) pi s)
+  = 0.2206/s cycles/radian.  We accept the table within a factor 2.5 of that.
+"""
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from precompute.brdf_bandwidth import (FORMAT, N_CELLS, N_THETA_I, analytic_brdf_bandwidth_table,
+                                       build_brdf_bandwidth, read_brdf_bandwidth, write_brdf_bandwidth)
+from precompute.assetfile import write_asset
+from precompute.brdf_sampling import brdf_source
+from warpbw.errors import WarpbwError
+
+ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
+
+
+def ggx(alpha: float):
+    """Isotropic GGX (Walter 2007) with Smith G1, no Fresnel, grey, in numpy."""
+    a2 = alpha * alpha
+
+    def g1(w):
+        c = np.clip(w[:, 2], 1e-6, 1.0)
+        return 2.0 / (1.0 + np.sqrt(1.0 + a2 * (1.0 - c * c) / (c * c)))
+
+    def evaluate(wi, wo):
+        h = wi + wo
+        h = h / np.linalg.norm(h, axis=1, keepdims=True)
+        c2 = h[:, 2] ** 2
+        d = a2 / (math.pi * (c2 * (a2 - 1.0) + 1.0) ** 2)
+        f = d * g1(wi) * g1(wo) / (4.0 * np.clip(wi[:, 2], 1e-6, 1) * np.clip(wo[:, 2], 1e-6, 1))
+        return np.repeat(f[:, None], 3, axis=1)
+
+    return evaluate
+
+
+def gaussian_reference(s: float) -> float:
+    return 1.96 / (2.0 * math.sqrt(2.0) * math.pi * s)
+
+
+@pytest.fixture(scope="module")
+def ggx_tables():
+    return {a: analytic_brdf_bandwidth_table(ggx(a)) for a in (0.5, 0.2, 0.05)}
+
+
+def peak_cell(table):
+    # theta_i bin 0 (2.8 deg): the mirror direction is 2.8 deg from the zenith, i.e. at the map's
+    # centre, the corner shared by cells 7 and 8 on both axes
+    c = N_CELLS // 2
+    return float(table[0, c - 1:c + 1, c - 1:c + 1].max())
+
+
+def test_lambert_is_flat():
+    t = analytic_brdf_bandwidth_table(lambda wi, wo: np.full((len(wi), 3), 1.0 / math.pi))
+    assert t.shape == (N_THETA_I, N_CELLS, N_CELLS) and t.dtype == np.float32
+    assert float(t.max()) < 1e-3
+
+
+def test_ggx_narrower_lobe_higher_bandwidth(ggx_tables):
+    assert peak_cell(ggx_tables[0.05]) > 3.0 * peak_cell(ggx_tables[0.2])
+    assert float(ggx_tables[0.05].max()) > float(ggx_tables[0.2].max()) > float(ggx_tables[0.5].max())
+
+
+@pytest.mark.xfail(strict=True, reason="lobes broader than ~0.2 rad read ~0.6-0.9 cycles/rad at their "
+                   "peak: the local 95%-energy estimator cannot order alpha 0.5 below 0.2 there")
+def test_ggx_peak_orders_broad_lobes(ggx_tables):
+    assert peak_cell(ggx_tables[0.5]) < peak_cell(ggx_tables[0.2])
+
+
+@pytest.mark.parametrize("alpha", [0.5, 0.2, 0.05])
+def test_ggx_peak_near_gaussian_reference(ggx_tables, alpha):
+    ref = gaussian_reference(alpha)  # std of the outgoing lobe ~ alpha (module docstring)
+    got = peak_cell(ggx_tables[alpha])
+    assert ref / 2.5 < got < ref * 2.5, (alpha, got, ref)
+
+
+@pytest.fixture(scope="module")
+def npf_tables(shared):
+    npf = shared("brdf/npf.bin")
+    return {m: (brdf_source(npf, m), build_brdf_bandwidth(brdf_source(npf, m), progress=False))
+            for m in ("chrome", "pink-felt")}
+
+
+def test_chrome_much_sharper_than_felt(npf_tables):
+    chrome, felt = npf_tables["chrome"][1], npf_tables["pink-felt"][1]
+    # interior cells (centre within 60 deg of the normal), away from the grazing continuation
+    c = (np.arange(N_CELLS) + 0.5) / N_CELLS * 2 - 1
+    r = np.hypot(*np.meshgrid(c, c))
+    interior = r < math.sqrt(2) * math.sin(math.radians(30))
+    assert float(chrome[:, interior].max()) > 4.0 * float(felt[:, interior].max())
+    assert float(chrome.max()) > 1.5 * float(felt.max())
+
+
+def test_round_trip_and_refusals(npf_tables, tmp_path):
+    source, table = npf_tables["chrome"]
+    p = write_brdf_bandwidth(tmp_path / "chrome.npz", table, source)
+    np.testing.assert_array_equal(read_brdf_bandwidth(p, source), table)
+    with pytest.raises(WarpbwError, match="already exists"):
+        write_brdf_bandwidth(p, table, source)
+    with pytest.raises(WarpbwError, match="different content"):
+        read_brdf_bandwidth(p, npf_tables["pink-felt"][0])
+    old = write_asset(tmp_path / "old.npz", FORMAT, 0, source.name, source.digest, {"nu_rho": table})
+    with pytest.raises(WarpbwError) as e:
+        read_brdf_bandwidth(old)
+    msg = str(e.value)
+    assert "\n" not in msg and "version 0" in msg and "warpbw-precompute brdf" in msg
+    bad = write_asset(tmp_path / "bad.npz", FORMAT, 1, source.name, source.digest, {"nu_rho": table[:8]})
+    with pytest.raises(WarpbwError, match="rebuild"):
+        read_brdf_bandwidth(bad)
+
+
+def test_cli_end_to_end(shared, tmp_path):
+    npf = shared("brdf/npf.bin")
+    out = tmp_path / "felt.npz"
+    cmd = [sys.executable, "-m", "precompute", "brdf", str(npf), "--material", "pink-felt", "-o", str(out), "-q"]
+    r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    t = read_brdf_bandwidth(out, brdf_source(npf, "pink-felt"))
+    assert t.shape == (N_THETA_I, N_CELLS, N_CELLS) and float(t.max()) > 0
+    r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "already exists" in r.stderr and r.stderr.count("\n") == 1
