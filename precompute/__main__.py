@@ -28,24 +28,8 @@ def cmd_npf_to_merl(args) -> int:
     return 0
 
 
-def cmd_brdf_sampling(args) -> int:
-    from precompute.brdf_sampling import brdf_source, build_brdf_sampling, write_sampling
-
-    out = Path(args.output)
-    if out.exists() and not args.force:
-        raise WarpbwError(f"{out}: already exists (pass --force to overwrite it)")
-    t0 = time.perf_counter()
-    source = brdf_source(args.file, args.material)
-    table = build_brdf_sampling(source, progress=not args.quiet)
-    write_sampling(out, table, source, force=args.force)
-    nt, nu, nphi = table.shape
-    print(f"{out}  (sampling tables for {source.name}: {nt} view elevations x {nu} x {nphi} half-vector cells, "
-          f"{time.perf_counter() - t0:.1f} s)")
-    return 0
-
-
-def cmd_brdf(args) -> int:
-    from precompute.brdf_bandwidth import build_brdf_bandwidth, write_brdf_bandwidth
+def _table_command(args, build, write, describe) -> int:
+    """The table subcommands: refuse an existing output, open the source, build, write, report."""
     from precompute.brdf_sampling import brdf_source
 
     out = Path(args.output)
@@ -53,12 +37,26 @@ def cmd_brdf(args) -> int:
         raise WarpbwError(f"{out}: already exists (pass --force to overwrite it)")
     t0 = time.perf_counter()
     source = brdf_source(args.file, args.material)
-    table = build_brdf_bandwidth(source, progress=not args.quiet)
-    write_brdf_bandwidth(out, table, source, force=args.force)
-    print(f"{out}  (angular bandwidth of {source.name}: {table.shape[0]} incident elevations x "
-          f"{table.shape[1]}x{table.shape[2]} outgoing cells, max {float(table.max()):.2f} cycles/radian, "
-          f"{time.perf_counter() - t0:.1f} s)")
+    table = build(source, progress=not args.quiet)
+    write(out, table, source, force=args.force)
+    print(f"{out}  ({describe(source, table)}, {time.perf_counter() - t0:.1f} s)")
     return 0
+
+
+def cmd_brdf_sampling(args) -> int:
+    from precompute.brdf_sampling import build_brdf_sampling, write_sampling
+
+    return _table_command(args, build_brdf_sampling, write_sampling, lambda source, t: (
+        f"sampling tables for {source.name}: {t.shape[0]} view elevations x {t.shape[1]} x {t.shape[2]} "
+        "half-vector cells"))
+
+
+def cmd_brdf(args) -> int:
+    from precompute.brdf_bandwidth import build_brdf_bandwidth, write_brdf_bandwidth
+
+    return _table_command(args, build_brdf_bandwidth, write_brdf_bandwidth, lambda source, t: (
+        f"angular bandwidth of {source.name}: {t.shape[0]} incident elevations x {t.shape[1]}x{t.shape[2]} "
+        f"outgoing cells, max {float(t.max()):.2f} cycles/radian"))
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -76,6 +76,7 @@ from typing import Callable
 import numpy as np
 
 from precompute.assetfile import read_asset, write_asset
+from precompute.progress import progress_callback
 from precompute.wavelets import local_bandwidth
 from warpbw.errors import WarpbwError
 
@@ -222,22 +223,8 @@ def analytic_brdf_bandwidth_table(evaluate: Callable, resolution: int = DEFAULT_
 
 def build_brdf_bandwidth(source, progress: bool = True, resolution: int = DEFAULT_RESOLUTION) -> np.ndarray:
     """Table of a :class:`precompute.brdf_sampling.BrdfSource` (a few seconds per material)."""
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=N_THETA_I, desc=f"bandwidth {source.name}", unit="theta_i", leave=False)
-    last = [0]
-
-    def step(k):
-        if bar is not None:
-            bar.update(k - last[0])
-            last[0] = k
-
-    try:
+    with progress_callback(N_THETA_I, f"bandwidth {source.name}", "theta_i", progress) as step:
         return brdf_bandwidth_table(source.evaluate, resolution=resolution, progress=step)
-    finally:
-        if bar is not None:
-            bar.close()
 
 
 def _rebuild_hint(source) -> str:

@@ -22,6 +22,7 @@ from typing import Callable
 import numpy as np
 
 from precompute.assetfile import read_asset, write_asset
+from precompute.progress import progress_callback
 from warpbw.errors import WarpbwError
 from warpbw.sampling import N_PHI, N_THETA_O, N_U, TABLE_FORMAT, TABLE_VERSION, SamplerTable, build_sampler_table
 
@@ -54,22 +55,8 @@ def brdf_source(file, material: str | None = None) -> BrdfSource:
 
 def build_brdf_sampling(source: BrdfSource, progress: bool = True) -> SamplerTable:
     """Tabulate and invert the source's CDF (a few seconds per material)."""
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=N_THETA_O, desc=f"sampling tables {source.name}", unit="view", leave=False)
-    last = [0]
-
-    def step(k):
-        if bar is not None:
-            bar.update(k - last[0])
-            last[0] = k
-
-    try:
+    with progress_callback(N_THETA_O, f"sampling tables {source.name}", "view", progress) as step:
         return build_sampler_table(source.evaluate, progress=step)
-    finally:
-        if bar is not None:
-            bar.close()
 
 
 def _rebuild_hint(source_name: str) -> str:
