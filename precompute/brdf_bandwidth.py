@@ -6,6 +6,7 @@ Public:
     ``analytic_brdf_bandwidth_table(evaluate, resolution=128) -> (16, 16, 16) float32``
     ``build_brdf_bandwidth(source, progress=True, resolution=128) -> (16, 16, 16) float32``
     ``write_brdf_bandwidth(path, table, source, force=False)`` / ``read_brdf_bandwidth(path, source=None)``
+    ``load_or_build_bandwidth(source, explicit=None, cache=None, progress=True) -> (table, origin)``
     ``theta_i_centres()``, ``wo_map(n)``, ``wo_to_map(wo)``, ``map_radians_per_pixel(n)``
 
 Table: ``nu_rho[t, row, col]`` in cycles/radian, float32, shape ``(N_THETA_I, N_CELLS, N_CELLS)``:
@@ -84,7 +85,7 @@ __all__ = [
     "N_THETA_I", "N_CELLS", "DEFAULT_RESOLUTION", "FORMAT", "VERSION",
     "GRAZING_LIMIT", "theta_i_centres", "wo_map", "wo_to_map", "map_radians_per_pixel",
     "brdf_bandwidth_table", "analytic_brdf_bandwidth_table", "build_brdf_bandwidth",
-    "write_brdf_bandwidth", "read_brdf_bandwidth",
+    "write_brdf_bandwidth", "read_brdf_bandwidth", "load_or_build_bandwidth",
 ]
 
 N_THETA_I = 16          # incident elevations (bin centres uniform over [0, pi/2)); paper: 16 inputs
@@ -262,3 +263,31 @@ def read_brdf_bandwidth(path, source=None) -> np.ndarray:
     if not np.all(np.isfinite(t)) or np.any(t < 0):
         raise WarpbwError(f"{path}: table has negative or non-finite bandwidths (rebuild it with: {hint})")
     return t
+
+
+def load_or_build_bandwidth(source, explicit=None, cache=None, progress: bool = True) -> tuple[np.ndarray, str]:
+    """The source's nu_rho table: from ``explicit`` if given, else the cache, else built and cached.
+
+    Returns the table and where it came from ("file", "cache" or "built"); the cache is the sampling
+    tables' (``$WARPBW_CACHE``), keyed by the source's content hash."""
+    from pathlib import Path
+
+    from precompute.brdf_sampling import cache_dir
+
+    if explicit is not None:
+        return read_brdf_bandwidth(explicit, source), "file"
+    d = Path(cache) if cache is not None else cache_dir()
+    key = source.digest.replace(":", "-").replace("/", "_")
+    path = d / f"bandwidth-{key}-v{VERSION}.npz"
+    if path.is_file():
+        try:
+            return read_brdf_bandwidth(path, source), "cache"
+        except WarpbwError:
+            pass  # a stale or damaged cache entry is rebuilt below
+    table = build_brdf_bandwidth(source, progress=progress)
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+        write_brdf_bandwidth(path, table, source, force=True)
+    except OSError:
+        pass  # a read-only cache only costs the rebuild next time
+    return table, "built"

@@ -277,7 +277,7 @@ def local_bandwidth(image: np.ndarray, epsilon: float = EPSILON, wavelet: str = 
 
 def envmap_angular_bandwidth(pixels: np.ndarray, epsilon: float = EPSILON,
                              wavelet: str = DEFAULT_WAVELET, levels: int | None = None,
-                             rule: str = "energy") -> np.ndarray:
+                             rule: str = "energy", floor: float | None = None) -> np.ndarray:
     """Angular bandwidth nu_a(w) of a lat-long environment map, in cycles per radian, ``(H, W)``.
 
     ``pixels`` is ``(H, W, 3)`` (or ``(H, W)``), row 0 at theta = 0 (+Y, DESIGN.md), column ``u``
@@ -297,13 +297,18 @@ def envmap_angular_bandwidth(pixels: np.ndarray, epsilon: float = EPSILON,
     axes at the equator of a 2:1 map, latitude everywhere), and it stays finite at the poles,
     where the smaller eigenvalue ``2 pi sin(theta) / W`` goes to 0 and dividing by it would turn
     resampling noise into unbounded bandwidth.  The price: longitudinal variation near the poles
-    is underestimated by up to ``sin(theta) * W / (2 H)`` (the lat-long map oversamples there)."""
+    is underestimated by up to ``sin(theta) * W / (2 H)`` (the lat-long map oversamples there).
+
+    ``floor`` is :func:`local_bandwidth`'s flatness threshold.  Its default (``epsilon`` times the
+    strongest coefficient) suits LDR images but not HDR probes: a sun 10^4 times brighter than the
+    sky makes every sky and ground texel "flat" (bandwidth 0).  The renderer therefore passes
+    ``epsilon`` times the map's mean radiance (:mod:`warpbw.bandwidth`)."""
     px = np.asarray(pixels, dtype=np.float64)
     if px.ndim not in (2, 3):
         raise ValueError(f"envmap pixels must be (H, W) or (H, W, C), got shape {px.shape}")
     h, w = px.shape[:2]
     b = local_bandwidth(px, epsilon=epsilon, wavelet=wavelet, levels=levels,
-                        pad=("latlong_pole", "wrap"), rule=rule)
+                        pad=("latlong_pole", "wrap"), rule=rule, floor=floor)
     theta = (np.arange(h) + 0.5) * math.pi / h
     lam_max = np.maximum(2.0 * math.pi * np.sin(theta) / w, math.pi / h)  # radians per pixel
     return b / lam_max[:, None]

@@ -2,6 +2,7 @@
 
 Public:
     ``AdaptiveResult`` / ``shade_hierarchical(gb, cam, materials, env, level_map, spp_map, ...)``
+    ``load_kernels(device)``   compile (or load from Warp's cache) the hierarchy's own kernels
 
 Inputs are the per-pixel shading level (002 Eq. 11, 0 = finest; see :mod:`warpbw.pyramid`) and the
 per-pixel sample count N_p.  The level is mip-mapped with a min filter and N_p with a max filter
@@ -73,6 +74,16 @@ def level_spp_kernel(rep: wp.array(dtype=wp.int32), width: int, max_spp: wp.arra
     t = wp.tid()
     q = texels[t]
     spp_at_pixel[rep[q]] = max_spp[q // width, q % width]
+
+
+def load_kernels(device: str = "cpu") -> None:
+    """Load the classification, gather, up-sampling and pyramid kernels (the shading kernel is the
+    reference estimator's, see :func:`warpbw.shading.make_reference_kernel`)."""
+    from warpbw import pyramid, upsample
+
+    for k in (classify_level_kernel, gather_shaded_kernel, level_spp_kernel, upsample.upsample_level_kernel,
+              pyramid.image_level_kernel):
+        wp.load_module(k.module, device=device)
 
 
 @dataclass

@@ -47,6 +47,7 @@ above; ``lod`` interpolates linearly between the two nearest levels (trilinear).
 Warp functions (take an ``EnvMapData`` and a world direction; directions need not be unit):
     env_radiance(env, w) -> wp.vec3        bilinear radiance (scaled) towards w
     env_radiance_lod(env, w, lod) -> wp.vec3
+    env_uv(env, w) -> wp.vec2               lat-long (u, v) of w (for per-texel maps such as nu_a)
     env_sample(env, u: wp.vec2) -> wp.vec3 unit world direction, u in [0, 1)^2
     env_pdf(env, w) -> float               solid-angle pdf of env_sample
 
@@ -205,6 +206,12 @@ def _cdf_search(cdf: wp.array2d(dtype=wp.float32), row: wp.int32, n: wp.int32, x
         else:
             hi = mid
     return lo
+
+
+@wp.func
+def env_uv(env: EnvMapData, w: wp.vec3) -> wp.vec2:
+    """Lat-long coordinates (u, v) in [0, 1]^2 of world direction w (column u * W, row v * H)."""
+    return _dir_to_uv(_to_local(env, w))
 
 
 @wp.func

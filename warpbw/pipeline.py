@@ -3,6 +3,8 @@
 Public:
     ``prepare_scene(scene, device, progress) -> PreparedScene``   load assets, build device data
     ``render_reference(scene_or_prepared, spp, seed, mis, device, progress) -> RenderResult``
+    ``render_adaptive(scene_or_prepared, budget, seed, mis, n_b, n_min, n_max, ...) -> RenderResult``
+    ``prepare_bandwidth(prepared, progress)``   the bandwidth pass's tables (adaptive only, built once)
     ``scene_summary(scene) -> dict``   what the scene needs (for ``warpbw info``), without loading it
 
 A material kind the scene does not use is not compiled (its branch is removed from the kernels with
@@ -38,6 +40,9 @@ class PreparedScene:
     materials: brdf_mod.MaterialBuffers
     timings: dict = field(default_factory=dict)
     notes: dict = field(default_factory=dict)
+    sources: dict = field(default_factory=dict)      # material name -> BrdfSource (merl / npf only)
+    bandwidth: object = None                          # BandwidthTables, built on first adaptive frame
+    _keep: list = field(default_factory=list, repr=False)
 
     @property
     def width(self) -> int:
@@ -54,6 +59,7 @@ class RenderResult:
     coverage: np.ndarray       # (H, W) bool
     gbuffer: GBuffer
     stats: dict
+    aovs: dict = field(default_factory=dict)   # name -> (H, W) array (adaptive: level, n_p, variance, ...)
 
 
 @contextlib.contextmanager
@@ -78,7 +84,7 @@ def _load_environment(scene: Scene, device: str):
     return envmap.constant_envmap(tuple(c * e.scale for c in e.constant), device=device)
 
 
-def _material_spec(m, progress: bool, notes: dict) -> brdf_mod.MaterialSpec:
+def _material_spec(m, progress: bool, notes: dict, sources: dict) -> brdf_mod.MaterialSpec:
     kind = brdf_mod.KIND_NAMES[m.type]
     if m.type == "lambert":
         return brdf_mod.MaterialSpec(m.name, kind, albedo=m.albedo)
@@ -88,12 +94,14 @@ def _material_spec(m, progress: bool, notes: dict) -> brdf_mod.MaterialSpec:
 
     if m.type == "merl":
         source = brdf_source(m.file)
+        sources[m.name] = source
         merl = source.brdf
         table, origin = load_or_build_sampling(source, m.sampling, progress=progress)
         notes[f"material.{m.name}"] = {"type": "merl", "file": str(m.file), "unmeasured": int(merl.n_unmeasured),
                                        "sampling": origin}
         return brdf_mod.MaterialSpec(m.name, kind, merl=merl.data, linear=m.lookup == "linear", sampler=table)
     source = brdf_source(m.table, m.npf_name)
+    sources[m.name] = source
     npf = source.brdf
     table, origin = load_or_build_sampling(source, m.sampling, progress=progress)
     notes[f"material.{m.name}"] = {"type": "npf", "name": npf.name, "sampling": origin}
@@ -105,6 +113,7 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
     """Load the scene's assets (environment, meshes, materials) onto ``device``."""
     timings: dict = {}
     notes: dict = {}
+    sources: dict = {}
     c = scene.camera
     cam = make_camera(c.position, c.look_at, c.up, c.fov, c.width, c.height)
     with _timed(timings, "load_environment"):
@@ -114,7 +123,7 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
     order = scene.material_order
     mat_id = {name: i for i, name in enumerate(order)}
     with _timed(timings, "load_materials"):
-        specs = [_material_spec(scene.materials[name], progress, notes) for name in order]
+        specs = [_material_spec(scene.materials[name], progress, notes, sources) for name in order]
         materials = brdf_mod.build_material_table(specs, device=device)
     spheres, meshes = [], []
     with _timed(timings, "load_meshes"):
@@ -128,45 +137,65 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
                 meshes.append(MeshSpec(md.vertices, md.faces, md.normals, md.mean_curvature, md.uv,
                                        mat_id[o.material]))
         geometry = build_geometry(spheres, meshes, device=device)
-    return PreparedScene(scene, device, cam, geometry, env, materials, timings, notes)
+    return PreparedScene(scene, device, cam, geometry, env, materials, timings, notes, sources)
 
 
-def stages_used(prep: PreparedScene, mis: bool) -> list:
+def stages_used(prep: PreparedScene, mis: bool, adaptive: bool = False) -> list:
     kinds = sorted(k for k, v in brdf_mod.KIND_NAMES.items() if v in prep.materials.kinds)
     s = ["gbuffer:" + "+".join(n for n, on in (("spheres", prep.geometry.has_spheres),
                                                 ("mesh_bvh", prep.geometry.has_mesh)) if on),
          "brdf:" + "+".join(kinds)]
     if any(k in prep.materials.kinds for k in (brdf_mod.MERL, brdf_mod.NPF)):
         s.append("tabulated_sampling")
-    s.append("reference_shading" + ("+mis" if mis else ""))
+    if adaptive:
+        s += ["bandwidth_pass", "pyramid", "hierarchical_shading" + ("+mis" if mis else ""), "upsampling"]
+    else:
+        s.append("reference_shading" + ("+mis" if mis else ""))
     return s
+
+
+def _load_kernels(prep: PreparedScene, kernels, timings: dict) -> None:
+    """Compile (or load from Warp's kernel cache) ``kernels``, timed on their own ("compile") so that
+    stage times and throughputs measure rendering only."""
+    import warp as wp
+
+    t0 = time.perf_counter()
+    for kernel in kernels:
+        wp.load_module(kernel.module, device=prep.device)
+    timings["compile"] = timings.get("compile", 0.0) + time.perf_counter() - t0
+
+
+def _prepared(scene, device: str, progress: bool) -> tuple[PreparedScene, dict]:
+    prep = scene if isinstance(scene, PreparedScene) else prepare_scene(scene, device, progress)
+    return prep, (dict(prep.timings) if prep is not scene else {})
+
+
+def _gbuffer(prep: PreparedScene, timings: dict) -> GBuffer:
+    import warp as wp
+
+    t0 = time.perf_counter()
+    gb = render_gbuffer(prep.camera, prep.geometry, device=prep.device)
+    wp.synchronize_device(prep.device)
+    timings["gbuffer"] = time.perf_counter() - t0
+    return gb
+
+
+def _check_spp(spp) -> None:
+    if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
+        raise WarpbwError(f"spp: expected a positive integer, got {spp!r}")
 
 
 def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: str = "cpu",
                      progress: bool = False, threads: int | None = None) -> RenderResult:
     """Render a frame with the forward reference estimator (002 Eq. 2) at ``spp`` samples per pixel."""
-    from warpbw.shading import shade_reference
-
-    if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
-        raise WarpbwError(f"spp: expected a positive integer, got {spp!r}")
-    import warp as wp
-
     from warpbw.gbuffer import make_gbuffer_kernel
-    from warpbw.shading import make_reference_kernel
+    from warpbw.shading import make_reference_kernel, shade_reference
 
-    prep = scene if isinstance(scene, PreparedScene) else prepare_scene(scene, device, progress)
-    timings = dict(prep.timings) if prep is not scene else {}
-    # compile (or load from Warp's kernel cache) the kernels this scene needs, timed on their own so that
-    # stage times and throughputs measure rendering only
-    t0 = time.perf_counter()
-    for kernel in (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
-                   make_reference_kernel(prep.materials.kinds, mis)):
-        wp.load_module(kernel.module, device=prep.device)
-    timings["compile"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    gb = render_gbuffer(prep.camera, prep.geometry, device=prep.device)
-    wp.synchronize_device(prep.device)
-    timings["gbuffer"] = time.perf_counter() - t0
+    _check_spp(spp)
+    prep, timings = _prepared(scene, device, progress)
+    _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
+                         make_reference_kernel(prep.materials.kinds, mis)), timings)
+    gb = _gbuffer(prep, timings)
     n_cov = int(gb.coverage.sum())
     bar = None
     if progress and n_cov:
@@ -179,27 +208,152 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     if bar is not None:
         bar.close()
     image = res.radiance.numpy().reshape(prep.height, prep.width, 3)
-    cov = gb.coverage
-    stats = {
-        "scene": prep.scene.source,
-        "method": "reference",
-        "device": prep.device,
-        "resolution": [prep.width, prep.height],
+    stats = _base_stats(prep, "reference", seed, mis, timings, n_cov)
+    stats.update({
         "spp": int(spp),
-        "seed": int(seed),
-        "mis": bool(mis),
-        "stages": stages_used(prep, mis),
-        "time_s": {k: round(v, 6) for k, v in timings.items()},
-        "pixels": prep.width * prep.height,
-        "pixels_covered": n_cov,
         "pixels_shaded": res.pixels_shaded,
         "samples": res.samples,
         "environment_samples": res.samples if mis else 0,
         "samples_per_second": res.samples / timings["shading"] if timings["shading"] > 0 else None,
         "non_finite_samples": res.non_finite,
+    })
+    stats["time_s"] = {k: round(v, 6) for k, v in timings.items()}
+    return RenderResult(image, gb.coverage, gb, stats)
+
+
+def _base_stats(prep: PreparedScene, method: str, seed: int, mis: bool, timings: dict, n_cov: int,
+                adaptive: bool = False) -> dict:
+    return {
+        "scene": prep.scene.source,
+        "method": method,
+        "device": prep.device,
+        "resolution": [prep.width, prep.height],
+        "seed": int(seed),
+        "mis": bool(mis),
+        "stages": stages_used(prep, mis, adaptive),
+        "time_s": {},
+        "pixels": prep.width * prep.height,
+        "pixels_covered": n_cov,
         "assets": prep.notes,
     }
-    return RenderResult(image, cov, gb, stats)
+
+
+class _AnalyticSource:
+    """An analytic material as a bandwidth-table source: evaluated by the renderer's own kernel,
+    cached by its parameters (a Lambert lobe is constant: its table is 0 and is not built)."""
+
+    path = None
+
+    def __init__(self, prep: PreparedScene, index: int, m):
+        import hashlib
+
+        self._prep, self._index = prep, index
+        params = (m.type, m.alpha, m.specular, m.eta, m.k)
+        self.name = f"{m.type}:{m.name}"
+        self.digest = "params:" + hashlib.blake2b(repr(params).encode(), digest_size=16).hexdigest()
+
+    def evaluate(self, wi, wo):
+        return brdf_mod.eval_brdf(self._prep.materials, self._index, wi, wo, device=self._prep.device)
+
+
+def prepare_bandwidth(prep: PreparedScene, progress: bool = False):
+    """The bandwidth pass's inputs (adaptive method only; built once per prepared scene): the
+    environment's nu_a map and one nu_rho table per material, from the scene's ``bandwidth`` file,
+    the cache, or built (analytic materials: from the renderer's own BRDF evaluation)."""
+    if prep.bandwidth is not None:
+        return prep.bandwidth
+    from precompute.brdf_bandwidth import SHAPE as BW_TABLE_SHAPE, load_or_build_bandwidth
+    from warpbw.bandwidth import env_bandwidth_map, light_table, make_bandwidth_tables
+
+    with _timed(prep.timings, "load_env_bandwidth"):
+        nu_env, origin = env_bandwidth_map(prep.env.pixels, prep.env.name)
+    prep.notes["environment"]["bandwidth"] = origin
+    tables = []
+    with _timed(prep.timings, "load_brdf_bandwidth"):
+        for i, name in enumerate(prep.scene.material_order):
+            m = prep.scene.materials[name]
+            if name in prep.sources:
+                table, origin = load_or_build_bandwidth(prep.sources[name], m.bandwidth, progress=progress)
+            elif m.type == "lambert":
+                table, origin = np.zeros(BW_TABLE_SHAPE, np.float32), "constant lobe"
+            else:
+                table, origin = load_or_build_bandwidth(_AnalyticSource(prep, i, m), progress=progress)
+            prep.notes.setdefault(f"material.{name}", {"type": m.type})["bandwidth"] = origin
+            tables.append(table)
+        struct, keep = make_bandwidth_tables(light_table(prep.env.pixels, nu_env), np.stack(tables),
+                                             device=prep.device)
+    prep.bandwidth = struct
+    prep._keep.extend(keep)
+    return struct
+
+
+def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b: int | None = None,
+                    n_min: int | None = None, n_max: int | None = None, preconvolved: bool = False,
+                    device: str = "cpu", progress: bool = False, threads: int | None = None) -> RenderResult:
+    """Render a frame with bandwidth prediction and hierarchical adaptive shading (002 Sec. 2-3).
+
+    ``budget`` is the mean number of samples per covered pixel (the total is budget x covered pixels),
+    spread over the pixels the hierarchy shades in proportion to the variance bound.  ``aovs`` holds
+    the level map, N_p, the predicted variance, the shaded mask, b_p and sigma2."""
+    from warpbw import adaptive, bandwidth
+    from warpbw.gbuffer import make_gbuffer_kernel
+    from warpbw.shading import make_reference_kernel
+
+    n_b = bandwidth.N_B_DEFAULT if n_b is None else n_b
+    n_min = bandwidth.N_P_MIN_DEFAULT if n_min is None else n_min
+    bandwidth.direction_set(n_b)  # validates n_b before any work
+    prep, timings = _prepared(scene, device, progress)
+    tables = prepare_bandwidth(prep, progress)
+    for k in ("load_env_bandwidth", "load_brdf_bandwidth"):
+        if k in prep.timings and prep is not scene:
+            timings[k] = prep.timings[k]
+    _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
+                         bandwidth.make_bandwidth_kernel(prep.materials.kinds, preconvolved),
+                         make_reference_kernel(prep.materials.kinds, mis, per_pixel_spp=True)), timings)
+    t0 = time.perf_counter()
+    adaptive.load_kernels(prep.device)
+    timings["compile"] += time.perf_counter() - t0
+    gb = _gbuffer(prep, timings)
+    t0 = time.perf_counter()
+    buf = bandwidth.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=n_b, seed=seed,
+                                   preconvolved=preconvolved, device=prep.device, threads=threads)
+    alloc = bandwidth.allocate_samples(buf, budget, n_min=n_min, n_max=n_max, device=prep.device)
+    timings["bandwidth"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    res = adaptive.shade_hierarchical(gb, prep.camera, prep.materials, prep.env.data, buf.level, alloc.n_p,
+                                      seed=seed, mis=mis, device=prep.device, threads=threads)
+    t_h = time.perf_counter() - t0
+    timings["shading"] = res.stats["time_s"]["shading"]
+    timings["upsampling"] = res.stats["time_s"]["upsampling"]
+    timings["hierarchy"] = max(t_h - timings["shading"] - timings["upsampling"], 0.0)
+    timings["frame"] = timings["gbuffer"] + timings["bandwidth"] + t_h
+    n_cov = int(gb.coverage.sum())
+    H, W = prep.height, prep.width
+    stats = _base_stats(prep, "adaptive", seed, mis, timings, n_cov, adaptive=True)
+    stats.update({
+        "budget_spp": float(budget),
+        "n_b": int(n_b),
+        "preconvolved_bound": bool(preconvolved),
+        "allocation": alloc.stats,
+        "levels": res.stats["levels"],
+        "pixels_shaded": res.stats["pixels_shaded"],
+        "shaded_fraction": res.stats["shaded_fraction"],
+        "samples": res.stats["samples"],
+        "samples_per_covered_pixel": res.stats["samples"] / n_cov if n_cov else 0.0,
+        "environment_samples": res.stats["samples"] if mis else 0,
+        "bandwidth_time_fraction": timings["bandwidth"] / timings["frame"] if timings["frame"] > 0 else 0.0,
+    })
+    stats["time_s"] = {k: round(v, 6) for k, v in timings.items()}
+    aovs = {
+        "level": buf.level.numpy().reshape(H, W),
+        "n_p": alloc.n_p,
+        "variance": alloc.variance,
+        "shaded": res.shaded,
+        "shaded_level": res.shaded_level,
+        "b_p": buf.b_p.numpy().reshape(H, W),
+        "sigma2": buf.sigma2.numpy().reshape(H, W),
+    }
+    return RenderResult(res.image, gb.coverage, gb, stats, aovs)
 
 
 def scene_summary(scene: Scene) -> dict:

@@ -136,6 +136,7 @@ class Material:
     npf_name: str | None = None
     lookup: str = "nearest"           # merl / npf: nearest bin or linear between bin centres
     sampling: Path | None = None      # merl / npf: precomputed sampling tables (built and cached if absent)
+    bandwidth: Path | None = None     # merl / npf: precomputed nu_rho table (adaptive method; built and cached if absent)
 
 
 @dataclass
@@ -179,7 +180,7 @@ class Scene:
                 out.append(o.file)
         for name in self.material_order:
             m = self.materials[name]
-            for p in (m.file, m.table, m.sampling):
+            for p in (m.file, m.table, m.sampling, m.bandwidth):
                 if p is not None:
                     out.append(p)
         return out
@@ -335,8 +336,8 @@ def _object(ctx: _Ctx, d: dict, i: int, materials: dict):
 _MATERIAL_KEYS = {
     "lambert": (("type", "albedo"), ("albedo",)),
     "ggx": (("type", "alpha", "specular", "eta", "k"), ("alpha", "specular")),
-    "merl": (("type", "file", "lookup", "sampling"), ("file",)),
-    "npf": (("type", "table", "name", "lookup", "sampling"), ("table", "name")),
+    "merl": (("type", "file", "lookup", "sampling", "bandwidth"), ("file",)),
+    "npf": (("type", "table", "name", "lookup", "sampling", "bandwidth"), ("table", "name")),
 }
 
 
@@ -362,10 +363,13 @@ def _material(ctx: _Ctx, name: str, d: dict) -> Material:
         return Material(name, t, alpha=alpha, specular=spec, eta=eta, k=k)
     lookup = ctx.string(d.get("lookup", "nearest"), f"{key}.lookup", LOOKUP_MODES)
     sampling = ctx.path(d["sampling"], f"{key}.sampling") if "sampling" in d else None
+    bandwidth = ctx.path(d["bandwidth"], f"{key}.bandwidth") if "bandwidth" in d else None
     if t == "merl":
-        return Material(name, t, file=ctx.path(d["file"], f"{key}.file"), lookup=lookup, sampling=sampling)
+        return Material(name, t, file=ctx.path(d["file"], f"{key}.file"), lookup=lookup, sampling=sampling,
+                        bandwidth=bandwidth)
     return Material(name, t, table=ctx.path(d["table"], f"{key}.table"),
-                    npf_name=ctx.string(d["name"], f"{key}.name"), lookup=lookup, sampling=sampling)
+                    npf_name=ctx.string(d["name"], f"{key}.name"), lookup=lookup, sampling=sampling,
+                    bandwidth=bandwidth)
 
 
 def parse_scene(text: str, base_dir: Path | str | None = None, source: str = "<string>") -> Scene:

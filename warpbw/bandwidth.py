@@ -1,0 +1,432 @@
+"""Bandwidth buffer (002 Sec. 2.2, 2.4-2.6, 3.1): per pixel nu, b_p, shading level, variance bound, N_p.
+
+Public:
+    ``N_B_DEFAULT``, ``NYQUIST_FACTOR``, ``N_P_MIN_DEFAULT``, ``N_P_MAX_PER_BUDGET``, ``LUMINANCE``
+    ``BandwidthTables`` (Warp struct) / ``make_bandwidth_tables(light, nu_rho, device)``
+    ``light_table(env_pixels, nu_env) -> (h, w, 2)``   reduced [luminance, nu_a] of the environment
+    ``env_bandwidth_map(pixels, name, cache=None) -> ((H, W) float32 cycles/rad, origin)``
+    ``direction_set(n_b, seed) -> (n_b, 2) float32``   stratified points for the n_b directions
+    ``BandwidthBuffer`` / ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ...)``
+    ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max)``
+    Warp functions ``brdf_nu_rho(nu_rho, m, wi, wo)`` and ``env_light(light, env, w)`` (table look-ups)
+
+One Warp kernel over the covered pixels of the G-buffer (002 Sec. 2.6).  For pixel p (point x, view
+direction w_o, shading normal n, mean curvature c, distance d' to the camera) and n_b directions w_i
+of the hemisphere:
+
+    chi_i    = L_i(w_i) rho(w_i, w_o) (w_i . n)      the integrand of Eq. 1 (= lambda_i of Eq. 5)
+    nu^i     = |T_{d'} R [0, nu_a^env(w_i)]|          Eq. 4 with a distant light (T_d is then the identity)
+    nu       = sum_i chi_i nu^i / sum_i chi_i         Eq. 5
+    b_p      = nu_a max(f_x / W, f_y / H)             Eq. 6, cycles/pixel
+    sigma2_p = 4 pi^2 mean_i (nu_a^env,i + nu_rho^i) chi_i^2   Eq. 9  (Eq. 10: 2 nu_rho^i instead)
+
+so that ``V(L_p) <= sigma2_p / N_p``.  R (Eq. 3) takes the curvature c from the G-buffer, cos theta_i
+= w_i . n, cos theta_x = w_o . n, the BRDF's angular bandwidth nu_rho(w_i, w_o) from its table
+(:mod:`precompute.brdf_bandwidth`) and t = 0 (no textures).  Choices where the paper is silent:
+
+* Directions: a Hammersley set of n_b points, uniform over the hemisphere of each pixel's shading
+  frame (the bound of Sec. 2.4 assumes uniform sampling), the same set for every pixel (seeded
+  Cranley-Patterson shift), so neighbouring pixels get coherent estimates: per-pixel jitter would add
+  noise that the min filter of the level pyramid turns into needlessly fine levels.
+* chi_i includes the cosine of Eq. 1 (the paper writes chi_i = L_i rho): grazing directions, which
+  carry no energy, then do not inflate the bound.
+* Eq. 9's sum over i is taken as a mean, E(chi^2) estimated from n_b samples, so that sigma2 does
+  not grow with n_b (the n_b sweep of Fig. 13 would otherwise change the sample counts); the
+  angular bandwidth of the light in Eq. 9 is the light's at x (before reflection), nu_a^env(w_i).
+* Luminance (``LUMINANCE``, Rec. 709) reduces the RGB of L and rho to the scalar weights.
+* L_i and nu_a^env come from one reduced lat-long table (:func:`light_table`: mean luminance,
+  max-filtered nu_a, at most ``LIGHT_TABLE_WIDTH`` columns), one nearest fetch per direction.
+* The level (Eq. 11) is computed from the Nyquist sampling rate ``NYQUIST_FACTOR * b_p``: Sec. 2.2
+  says "the required sampling rates at the image plane are twice the local image-space bandwidth".
+
+N_p (Sec. 2.4: "keep N_p proportional to" the bound, so that the variance is constant):
+``N_p = clamp(ceil(sigma2_p / V), n_min, n_max)``, with the constant V found by bisection so that the
+pixels the hierarchy will shade (texels of level L whose min-filtered level is L, with the
+max-filtered sigma2 of their footprint, Sec. 3.1) spend ``budget`` samples per covered pixel in total.
+When even ``n_min`` per shaded pixel exceeds the budget (a budget below the shaded fraction), every
+shaded pixel gets ``n_min`` and ``SampleAllocation.over_budget`` says so; pixels are never left unshaded.
+"""
+from __future__ import annotations
+
+import functools
+import hashlib
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from warpbw.bandwidth_ops import bw_one_bounce
+from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
+from warpbw.envmap import EnvMapData, env_uv
+from warpbw.errors import WarpbwError
+from warpbw.gbuffer import CameraData, GBuffer, GBufferData
+from warpbw.pyramid import build_pyramid, image_level
+from warpbw.shading import covered_pixels, launch_tiled, to_local, to_world
+
+N_B_DEFAULT = 16              # directions per pixel; 002 Sec. 2.6 and Fig. 13 ("n_b = 16 is sufficient")
+NYQUIST_FACTOR = 2.0          # sampling rate = 2 x bandwidth (002 Sec. 2.2, Nyquist)
+N_P_MIN_DEFAULT = 1           # a shaded pixel gets at least one sample
+N_P_MAX_PER_BUDGET = 32       # default n_max = 32 x budget: caps the samples one pixel may take
+LUMINANCE = (0.2126, 0.7152, 0.0722)   # Rec. 709 weights, RGB -> scalar chi
+FOUR_PI_SQ = 4.0 * math.pi * math.pi   # 002 Sec. 2.4: V(L_p) <= 4 pi^2 sigma^2 / N_p
+
+# BRDF bandwidth table geometry (precompute.brdf_bandwidth: 16 incident elevations x 16 x 16 cells)
+N_THETA_I = 16
+N_CELLS = 16
+LIGHT_TABLE_WIDTH = 256      # columns of the reduced environment the pass reads (module docstring)
+ENV_BW_FORMAT = "warpbw.env-bandwidth"
+ENV_BW_VERSION = 1
+
+_LUM = wp.constant(wp.vec3(*LUMINANCE))
+_TWO_OVER_PI = wp.constant(2.0 / math.pi)
+_TWO_PI = wp.constant(2.0 * math.pi)
+_FOUR_PI_SQ = wp.constant(FOUR_PI_SQ)
+
+
+@wp.struct
+class BandwidthTables:
+    light: wp.array2d(dtype=wp.vec2)       # (h, w) lat-long [luminance, nu_a (cycles/radian)] of the environment
+    nu_rho: wp.array(dtype=wp.float32)     # n_materials * 16 * 16 * 16 BRDF bandwidth, cycles/radian
+
+
+# ---------------------------------------------------------------------------------------------
+# Warp functions and the kernel
+# ---------------------------------------------------------------------------------------------
+@wp.func
+def brdf_nu_rho(nu_rho: wp.array(dtype=wp.float32), m: int, wi: wp.vec3, wo: wp.vec3):
+    """nu_rho(w_i, w_o) of material m: nearest cell of its table (precompute.brdf_bandwidth layout)."""
+    sxy = wp.sqrt(wi[0] * wi[0] + wi[1] * wi[1])
+    theta_i = wp.atan2(sxy, wi[2])
+    ti = wp.clamp(int(theta_i * _TWO_OVER_PI * float(N_THETA_I)), 0, N_THETA_I - 1)
+    cp = 1.0
+    sp = 0.0
+    if sxy > 1.0e-8:
+        cp = wi[0] / sxy
+        sp = wi[1] / sxy
+    # isotropy: turn w_o by -phi_i so that w_i lies in the table's x-z plane
+    ox = cp * wo[0] + sp * wo[1]
+    oy = -sp * wo[0] + cp * wo[1]
+    oxy = wp.sqrt(ox * ox + oy * oy)
+    r = wp.sqrt(wp.max(1.0 - wp.clamp(wo[2], 0.0, 1.0), 0.0))  # Lambert equal-area: sqrt(2) sin(theta/2)
+    x = float(0.0)
+    y = float(0.0)
+    if oxy > 1.0e-8:
+        x = r * ox / oxy
+        y = r * oy / oxy
+    col = wp.clamp(int((x + 1.0) * 0.5 * float(N_CELLS)), 0, N_CELLS - 1)
+    row = wp.clamp(int((y + 1.0) * 0.5 * float(N_CELLS)), 0, N_CELLS - 1)
+    return nu_rho[((m * N_THETA_I + ti) * N_CELLS + row) * N_CELLS + col]
+
+
+@wp.func
+def env_light(light: wp.array2d(dtype=wp.vec2), env: EnvMapData, w: wp.vec3):
+    """[luminance, nu_a] of the environment towards world direction w: nearest texel of the reduced
+    map (row centres at (j + 1/2) / h)."""
+    uv = env_uv(env, w)
+    h = light.shape[0]
+    wd = light.shape[1]
+    col = wp.clamp(int(uv[0] * float(wd)), 0, wd - 1)
+    row = wp.clamp(int(uv[1] * float(h)), 0, h - 1)
+    return light[row, col]
+
+
+@wp.func
+def uniform_hemisphere(u: wp.vec2):
+    """Uniform direction over the +Z hemisphere (pdf 1 / 2 pi): cos theta = u0."""
+    z = u[0]
+    s = wp.sqrt(wp.max(1.0 - z * z, 0.0))
+    phi = _TWO_PI * u[1]
+    return wp.vec3(s * wp.cos(phi), s * wp.sin(phi), z)
+
+
+def make_bandwidth_kernel(kinds, preconvolved: bool = False):
+    """The bandwidth-buffer kernel for the given material kinds (Eq. 9, or Eq. 10 when preconvolved)."""
+    return _bandwidth_kernel(frozenset(int(k) for k in kinds), bool(preconvolved))
+
+
+@functools.cache  # one kernel per combination: Warp compiles each once
+def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
+    f = make_brdf_funcs(kinds)
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def bandwidth_buffer_kernel(gb: GBufferData, cam: CameraData, mats: MaterialTable, env: EnvMapData,
+                                tables: BandwidthTables, dirs: wp.array(dtype=wp.vec2),
+                                pixels: wp.array(dtype=wp.int32), offset: int, pixel_angle: float,
+                                nu_out: wp.array(dtype=wp.vec2), b_p: wp.array(dtype=wp.float32),
+                                sigma2: wp.array(dtype=wp.float32)):
+        i = pixels[wp.tid() + offset]
+        m = gb.material[i]
+        n = gb.normal[i]
+        t = gb.tangent[i]
+        b = wp.cross(n, t)
+        wo = to_local(gb.view[i], t, b, n)
+        dp = wp.length(gb.position[i] - cam.origin)  # d': surface to the eye
+        c = gb.curvature[i]
+        lam_sum = float(0.0)
+        nu_sum = wp.vec2(0.0)
+        var_sum = float(0.0)
+        n_b = dirs.shape[0]
+        if wo[2] > 0.0:
+            for k in range(n_b):
+                wi = uniform_hemisphere(dirs[k])
+                light = env_light(tables.light, env, to_world(wi, t, b, n))
+                rho = wp.dot(_LUM, f.eval(mats, m, wi, wo))
+                chi = light[0] * rho * wi[2]                  # lambda_i (Eq. 5), integrand of Eq. 1
+                nu_l = light[1]
+                nu_r = brdf_nu_rho(tables.nu_rho, m, wi, wo)
+                nu_i = bw_one_bounce(wp.vec2(0.0, nu_l), 0.0, dp, wi[2], wo[2], c, 0.0, nu_r)  # Eq. 4
+                if chi > 0.0 and wp.isfinite(chi):
+                    lam_sum += chi
+                    nu_sum += chi * nu_i
+                    if wp.static(preconvolved):
+                        var_sum += 2.0 * nu_r * chi * chi            # Eq. 10
+                    else:
+                        var_sum += (nu_l + nu_r) * chi * chi         # Eq. 9
+        nu = wp.vec2(0.0)
+        if lam_sum > 0.0:
+            nu = nu_sum / lam_sum                                    # Eq. 5
+        nu_out[i] = nu
+        b_p[i] = nu[1] * pixel_angle                                 # Eq. 6
+        sigma2[i] = _FOUR_PI_SQ * var_sum / float(wp.max(n_b, 1))     # Eq. 9, E(chi^2) as a mean
+
+    return bandwidth_buffer_kernel
+
+
+# ---------------------------------------------------------------------------------------------
+# Host side
+# ---------------------------------------------------------------------------------------------
+def _reduce_latlong(a: np.ndarray, fy: int, fx: int, op) -> np.ndarray:
+    h, w = a.shape
+    return op(a.reshape(h // fy, fy, w // fx, fx), axis=(1, 3))
+
+
+def light_table(env_pixels: np.ndarray, nu_env: np.ndarray, width: int = None) -> np.ndarray:
+    """The bandwidth pass's view of the environment, ``(h, w, 2)`` float32: [luminance, nu_a].
+
+    Reduced to at most ``LIGHT_TABLE_WIDTH`` columns by whole factors: luminance by a box (mean)
+    filter, nu_a by a max filter (conservative).  The pass takes one nearest look-up per direction
+    instead of a bilinear radiance fetch plus a bandwidth fetch; each of its n_b directions stands for
+    2 pi / n_b sr, far more than a reduced texel (2 pi^2 / (h w) sr at the equator)."""
+    px = np.asarray(env_pixels, np.float64)
+    nu = np.asarray(nu_env, np.float64)
+    if px.ndim != 3 or px.shape[2] != 3 or px.shape[:2] != nu.shape:
+        raise WarpbwError(f"light table: pixels {px.shape} and bandwidth map {nu.shape} do not match")
+    h, w = nu.shape
+    width = LIGHT_TABLE_WIDTH if width is None else int(width)
+    f = 1
+    while w % (2 * f) == 0 and h % (2 * f) == 0 and w // (2 * f) >= width:
+        f *= 2
+    lum = px @ np.asarray(LUMINANCE)
+    return np.stack([_reduce_latlong(lum, f, f, np.mean), _reduce_latlong(nu, f, f, np.max)],
+                    axis=-1).astype(np.float32)
+
+
+def make_bandwidth_tables(light, nu_rho, device: str = "cpu") -> tuple[BandwidthTables, list]:
+    """Device copies of the light table (h, w, 2) (:func:`light_table`) and the stacked BRDF tables
+    (M, 16, 16, 16).  Returns the struct and the arrays it references (keep them alive with it)."""
+    lt = np.ascontiguousarray(np.asarray(light, np.float32))
+    rho = np.ascontiguousarray(np.asarray(nu_rho, np.float32))
+    if lt.ndim != 3 or lt.shape[2] != 2 or lt.size == 0:
+        raise WarpbwError(f"light table: expected a non-empty (h, w, 2) array, got shape {lt.shape}")
+    if rho.ndim != 4 or rho.shape[1:] != (N_THETA_I, N_CELLS, N_CELLS):
+        raise WarpbwError(f"BRDF bandwidth tables: expected shape (materials, {N_THETA_I}, {N_CELLS}, {N_CELLS}), "
+                          f"got {rho.shape}")
+    for name, a in (("light table", lt), ("BRDF bandwidth tables", rho)):
+        if not np.all(np.isfinite(a)) or np.any(a < 0):
+            raise WarpbwError(f"{name}: values must be finite and >= 0")
+    s = BandwidthTables()
+    s.light = wp.array(lt, dtype=wp.vec2, device=device)
+    s.nu_rho = wp.array(rho.reshape(-1), dtype=wp.float32, device=device)
+    return s, [s.light, s.nu_rho]
+
+
+def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None) -> tuple[np.ndarray, str]:
+    """nu_a(w) of a lat-long probe in cycles/radian (002 Sec. 2.3, "Distant illumination").
+
+    Wavelet analysis of the map (:func:`precompute.wavelets.envmap_angular_bandwidth`, about 5 s at
+    1024x512 on one core), with the flatness floor at ``EPSILON`` times the mean radiance (an HDR sun
+    would otherwise make every other texel flat), cached by the pixels' content hash in ``cache``
+    (default ``$WARPBW_CACHE``).  A constant map has bandwidth 0 everywhere.  Returns the map and where
+    it came from ("constant", "cache" or "built")."""
+    from precompute.assetfile import read_asset, write_asset
+    from precompute.brdf_sampling import cache_dir
+    from precompute.wavelets import EPSILON, envmap_angular_bandwidth
+
+    px = np.ascontiguousarray(np.asarray(pixels, np.float32))
+    if px.ndim != 3 or px.shape[2] != 3:
+        raise WarpbwError(f"{name}: expected (H, W, 3) pixels for the bandwidth map, got shape {px.shape}")
+    h, w = px.shape[:2]
+    lum = px @ np.asarray(LUMINANCE, np.float32)
+    if float(np.ptp(lum)) == 0.0:
+        return np.zeros((h, w), np.float32), "constant"
+    digest = "blake2b:" + hashlib.blake2b(px.tobytes() + str(px.shape).encode(), digest_size=16).hexdigest()
+    path = (cache_dir() if cache is None else cache) / f"env-bandwidth-{digest.split(':')[1]}-v{ENV_BW_VERSION}.npz"
+    if path.is_file():
+        try:
+            a = read_asset(path, ENV_BW_FORMAT, ENV_BW_VERSION, "delete the cache file")
+            nu = np.asarray(a.arrays["nu_a"], np.float32)
+            if a.header.get("source_hash") == digest and nu.shape == (h, w):
+                return nu, "cache"
+        except (WarpbwError, KeyError):
+            pass  # a stale or damaged cache entry is rebuilt below
+    nu = envmap_angular_bandwidth(lum.astype(np.float64), floor=EPSILON * float(lum.mean())).astype(np.float32)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_asset(path, ENV_BW_FORMAT, ENV_BW_VERSION, name, digest, {"nu_a": nu},
+                    params={"units": "cycles/radian", "floor": "epsilon * mean radiance"}, force=True)
+    except OSError:
+        pass  # a read-only cache only costs the rebuild next time
+    return nu, "built"
+
+
+def direction_set(n_b: int, seed: int = 0) -> np.ndarray:
+    """Hammersley points ``((k + 1/2) / n_b, radical_inverse_2(k))`` shifted by a seeded offset mod 1."""
+    if isinstance(n_b, bool) or not isinstance(n_b, (int, np.integer)) or n_b < 1:
+        raise WarpbwError(f"n_b: expected a positive integer number of directions, got {n_b!r}")
+    k = np.arange(int(n_b), dtype=np.uint64)
+    rev = np.zeros(int(n_b), np.float64)
+    bits = k.copy()
+    scale = 0.5
+    while np.any(bits):
+        rev += (bits & np.uint64(1)).astype(np.float64) * scale
+        bits >>= np.uint64(1)
+        scale *= 0.5
+    shift = np.random.default_rng(seed).random(2)
+    u = np.stack([(k.astype(np.float64) + 0.5) / n_b + shift[0], rev + shift[1]], axis=1) % 1.0
+    return u.astype(np.float32)
+
+
+def pixel_angle(cam: CameraData) -> float:
+    """max(f_x / W, f_y / H) of Eq. 6: radians per pixel (full fields of view f_x, f_y)."""
+    fx = 2.0 * math.atan(cam.tan_half_x)
+    fy = 2.0 * math.atan(cam.tan_half_y)
+    return max(fx / cam.width, fy / cam.height)
+
+
+@dataclass
+class BandwidthBuffer:
+    """The bandwidth buffer of one frame; flat row-major arrays of H*W (0 where no geometry)."""
+
+    nu: wp.array               # vec2 [nu_s, nu_a] at the eye (Eq. 5)
+    b_p: wp.array              # float32 image bandwidth, cycles/pixel (Eq. 6)
+    sigma2: wp.array           # float32 variance bound numerator: V(L_p) <= sigma2 / N_p (Eq. 9 / 10)
+    level: wp.array            # int32 (H, W) shading level (Eq. 11 on NYQUIST_FACTOR * b_p)
+    coverage: np.ndarray       # (H, W) bool
+    width: int
+    height: int
+    n_b: int
+    time_s: float = 0.0
+
+
+def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env_data: EnvMapData,
+                   tables: BandwidthTables, n_b: int = N_B_DEFAULT, seed: int = 0, preconvolved: bool = False,
+                   nyquist: float = NYQUIST_FACTOR, device: str = "cpu", threads: int | None = None) -> BandwidthBuffer:
+    """Fill the bandwidth buffer: nu, b_p, sigma2 per covered pixel, and the level map (Eq. 11)."""
+    import time
+
+    dirs_np = direction_set(n_b, seed)
+    if not (nyquist > 0 and math.isfinite(nyquist)):
+        raise WarpbwError(f"nyquist: expected a positive factor, got {nyquist!r}")
+    t0 = time.perf_counter()
+    W, H = gb.width, gb.height
+    dirs = wp.array(dirs_np, dtype=wp.vec2, device=device)
+    nu = wp.zeros(W * H, dtype=wp.vec2, device=device)
+    b_p = wp.zeros(W * H, dtype=wp.float32, device=device)
+    sigma2 = wp.zeros(W * H, dtype=wp.float32, device=device)
+    kernel = make_bandwidth_kernel(materials.kinds, preconvolved)
+    pix = covered_pixels(gb, device)
+    angle = pixel_angle(cam)
+    launch_tiled(kernel, pix.shape[0],
+                 lambda o, c: [gb.data, cam, materials.table, env_data, tables, dirs, pix, o, angle, nu, b_p, sigma2],
+                 device, threads)
+    rate = b_p.numpy() * np.float32(nyquist)
+    level = image_level(rate, gb.coverage, W, H, device=device)
+    wp.synchronize_device(device)
+    return BandwidthBuffer(nu, b_p, sigma2, level, gb.coverage, W, H, int(n_b), time.perf_counter() - t0)
+
+
+@dataclass
+class SampleAllocation:
+    n_p: np.ndarray            # (H, W) int32 samples per pixel (0 where no geometry)
+    variance: np.ndarray       # (H, W) float32 predicted variance bound sigma2 / N_p (0 where no geometry)
+    v_target: float            # the constant V of N_p = ceil(sigma2 / V)
+    planned_pixels: int        # pixels the hierarchy is expected to shade
+    planned_samples: int       # samples those pixels will take
+    budget_samples: int        # budget x covered pixels
+    over_budget: bool          # n_min per planned pixel already exceeds the budget
+    stats: dict = field(default_factory=dict)
+
+
+def _n_of(s: np.ndarray, v: float, n_min: int, n_max: int) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        n = np.ceil(np.where(np.isfinite(s), s, np.inf) / v)
+    return np.clip(np.nan_to_num(n, nan=n_max, posinf=n_max), n_min, n_max).astype(np.int64)
+
+
+def planned_shading(buf: BandwidthBuffer, device: str = "cpu") -> np.ndarray:
+    """sigma2 of the texels the hierarchy will shade (level L texels whose min-filtered level is L)."""
+    W, H = buf.width, buf.height
+    levels = build_pyramid(buf.level, op="min", device=device)
+    var = build_pyramid(buf.sigma2.numpy().reshape(H, W), op="max", device=device)
+    cov = build_pyramid(buf.coverage.astype(np.int32), op="max", device=device)
+    cov_np = buf.coverage
+    top = int(buf.level.numpy()[cov_np].max()) if cov_np.any() else 0
+    top = min(top, levels.num_levels - 1)
+    out = []
+    for L in range(top + 1):
+        mask = (levels.levels[L].numpy() == L) & (cov.levels[L].numpy() > 0)
+        out.append(var.levels[L].numpy()[mask])
+    return np.concatenate(out) if out else np.zeros(0, np.float32)
+
+
+def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_DEFAULT, n_max: int | None = None,
+                     device: str = "cpu") -> SampleAllocation:
+    """N_p per pixel proportional to sigma2 (002 Sec. 2.4), for ``budget`` samples per covered pixel."""
+    if isinstance(budget, bool) or not isinstance(budget, (int, float, np.integer, np.floating)) \
+            or not (budget > 0 and math.isfinite(budget)):
+        raise WarpbwError(f"budget: expected a positive number of samples per pixel, got {budget!r}")
+    if isinstance(n_min, bool) or not isinstance(n_min, (int, np.integer)) or n_min < 1:
+        raise WarpbwError(f"n_min: expected an integer >= 1, got {n_min!r}")
+    if n_max is None:
+        n_max = max(int(n_min), int(math.ceil(N_P_MAX_PER_BUDGET * budget)))
+    if isinstance(n_max, bool) or not isinstance(n_max, (int, np.integer)) or n_max < n_min:
+        raise WarpbwError(f"n_max: expected an integer >= n_min ({n_min}), got {n_max!r}")
+    W, H = buf.width, buf.height
+    cov = buf.coverage
+    n_cov = int(cov.sum())
+    total = int(round(budget * n_cov))
+    s = planned_shading(buf, device).astype(np.float64)
+    n_plan = len(s)
+    over = n_plan * n_min > total
+    if n_plan == 0:
+        v = math.inf
+    elif over:
+        v = math.inf  # every shaded pixel at n_min
+    elif n_plan * n_max <= total or not np.any(s > 0):
+        v = 0.0 if np.any(s > 0) else math.inf  # the budget covers n_max everywhere (or nothing varies)
+    else:
+        # total(V) is non-increasing in V: bisect log V between "all n_max" and "all n_min"
+        pos = s[s > 0]
+        lo = math.log(pos.min() / n_max) - 1.0   # every pixel with s > 0 above n_max
+        hi = math.log(pos.max() / n_min) + 1.0   # every pixel at n_min
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            if _n_of(s, math.exp(mid), n_min, n_max).sum() > total:
+                lo = mid
+            else:
+                hi = mid
+        v = math.exp(hi)
+    sig = buf.sigma2.numpy().reshape(H, W).astype(np.float64)
+    if v == 0.0:
+        n_p = np.full((H, W), n_max, np.int64)
+    else:
+        n_p = _n_of(sig, v, n_min, n_max)
+    n_p = np.where(cov, n_p, 0).astype(np.int32)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        variance = np.where(cov & (n_p > 0), sig / np.maximum(n_p, 1), 0.0).astype(np.float32)
+    planned = int(_n_of(s, v, n_min, n_max).sum()) if v != 0.0 else n_plan * n_max
+    stats = {"budget_spp": float(budget), "n_min": int(n_min), "n_max": int(n_max), "v_target": v,
+             "planned_pixels": n_plan, "planned_samples": planned, "budget_samples": total,
+             "over_budget": bool(over)}
+    return SampleAllocation(n_p, variance, v, n_plan, planned, total, bool(over), stats)
