@@ -6,6 +6,7 @@ Subcommands:
     npf-to-merl    write a MERL ``.binary`` file from one material of an NPF table
     brdf-sampling  build importance-sampling tables of a tabulated BRDF (002 Sec. 3.3)
     brdf           angular bandwidth table nu_rho of a tabulated BRDF (002 Sec. 2.3)
+    gmm            EM-aligned GMM normal mipmap of a height field or normal map (004 Sec. 4.1)
 """
 from __future__ import annotations
 
@@ -59,6 +60,24 @@ def cmd_brdf(args) -> int:
         f"outgoing cells, max {float(t.max()):.2f} cycles/radian"))
 
 
+def cmd_gmm(args) -> int:
+    from precompute.gmm_mipmap import build_gmm_mipmap, load_source, write_gmm_mipmap
+
+    out = Path(args.output)
+    if out.exists() and not args.force:
+        raise WarpbwError(f"{out}: already exists (pass --force to overwrite it)")
+    t0 = time.perf_counter()
+    data, name, digest = load_source(args.map, args.kind)
+    mip = build_gmm_mipmap(data, kind=args.kind, components=args.components, prior=args.prior, scale=args.scale,
+                           seed=args.seed, progress=not args.quiet, unaligned=args.unaligned)
+    write_gmm_mipmap(out, mip, name, digest, force=args.force)
+    h, w = mip.shape
+    how = "unaligned (independent EM per texel)" if args.unaligned else f"aligned, prior c={args.prior:g}"
+    print(f"{out}  (GMM mipmap of {name}: {h}x{w}, {len(mip.levels)} levels, {mip.components} components, "
+          f"{how}, {time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="warpbw-precompute",
                                 description="Offline asset tool of warpbw: MERL files from NPF fits, importance-"
@@ -97,6 +116,30 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--force", action="store_true", help="overwrite an existing output")
     c.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     c.set_defaults(func=cmd_brdf)
+
+    g = sub.add_parser("gmm", help="GMM normal mipmap of a height field or normal map",
+                       description="Build a mipmap whose texels hold an N-component Gaussian mixture of the "
+                       "normals (projected (n_x, n_y), isotropic std per component) of their footprint, fitted "
+                       "coarse to fine by EM with the neighbour-alignment prior of 004 Sec. 4.1, and stored as "
+                       "the linearly filterable (a, a mu_x, a mu_y, a (s^2 + |mu|^2)) per component.  MAP is an "
+                       "OpenEXR or PNG (8/16-bit) image, or a procedural height field surface:NAME[:SIZE] with "
+                       "NAME one of hemispherical_scales, carved_disk, dunes (e.g. surface:dunes:512; SIZE "
+                       "1..1024, default 512).")
+    g.add_argument("map", metavar="MAP", help="height field / normal map image, or surface:NAME[:SIZE]")
+    g.add_argument("-o", "--output", required=True, help="output mipmap file (.npz)")
+    g.add_argument("--components", type=int, default=4, help="Gaussians per texel (default 4)")
+    g.add_argument("--prior", type=float, default=1.0,
+                   help="alignment constant c of the MAP prior (default 1; 0 is plain EM)")
+    g.add_argument("--kind", choices=("height", "normal"), default="height",
+                   help="MAP is a single-channel height field (default) or an RGB tangent-space normal map")
+    g.add_argument("--scale", type=float, default=1.0,
+                   help="height multiplier; heights are in units of the map's width (default 1)")
+    g.add_argument("--unaligned", action="store_true",
+                   help="baseline: independent EM per texel (no prior, no neighbour initialisation)")
+    g.add_argument("--seed", type=int, default=0, help="seed of the clustering and footprint subsampling")
+    g.add_argument("--force", action="store_true", help="overwrite an existing output")
+    g.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    g.set_defaults(func=cmd_gmm)
     return p
 
 

@@ -1,0 +1,632 @@
+"""GMM normal-distribution mipmaps, EM-aligned (004 Sec. 3 and 4.1): the offline builder.
+
+Public functions and classes:
+
+- ``GmmMipmap``: ``levels`` (list, finest first, of float32 ``(h_l, w_l, K, 4)`` moments), ``components``,
+  ``prior``, ``unaligned``, ``kind``, ``scale``, ``seed``, ``max_samples``; ``params()``.
+- ``build_gmm_mipmap(heights_or_normals, kind="height", components=4, prior=1.0, scale=1.0, seed=0,
+  progress=True, unaligned=False, texel_size=None, max_samples=256, refine_sweeps=0) -> GmmMipmap``.
+- ``write_gmm_mipmap(path, mip, source_name, source_hash, force=False)``, ``read_gmm_mipmap(path) -> GmmMipmap``.
+- ``load_map(path, kind) -> ndarray``: an EXR or PNG height field (H, W) or normal map (H, W, 3 unit).
+- ``load_source(spec, kind) -> (array, name, content_hash)``: a file, or ``surface:NAME[:SIZE]``.
+- ``level_shapes(h, w)``, ``normal_space(normals)``, ``footprint_samples(n2, level, max_samples, rng)``.
+- ``em_fit(x, a, mu, s2, c=0.0, prior_sum=None, prior_weight=None, max_iter=..., tol=...)``: the
+  vectorised (MAP-)EM of 004 Sec. 4.1 over many texels at once.
+- ``kmeans_init(x, centres, ...)``, ``kmeans_plus_plus(x, K, rng)``: vectorised clustering initialisation.
+- ``to_moments(a, mu, s2) -> q``, ``from_moments(q) -> (a, mu, s2)``, ``filter_moments(q, weights)``,
+  ``moment_match(a, mu, s2, weights)``: the linearly filterable form of 004 Sec. 4.2.
+
+Representation.  A unit normal n is the 2D point (n_x, n_y) -- its projection on the tangent plane,
+as 004 Sec. 3 does ("a unit normal n can be represented as a 2D vector in x-y space").  Projected
+coordinates stay in the unit disk, so normals at grazing angles (89 degrees, even 90) are finite, where
+slopes (-dh/dx, -dh/dy) would blow up.  Axes: x along +column, y along -row (``precompute.surfaces``).
+Each texel holds an N-component mixture G(n) = sum_i a_i g(n; mu_i, s_i) of isotropic 2D Gaussians
+(s_i^2 the variance per axis).  Mip level 0 is the finest; a texel of level l covers a 2^l x 2^l
+footprint of finest-level normals (clipped at the border; sizes halve rounding up, down to 1x1).
+
+Fitting (004 Sec. 4.1).  Coarse to fine; each texel by EM on its footprint's finest-level normals,
+with the MAP prior that pulls component i's mean toward component i of the already-fitted neighbours
+(eight at the same level, the coarser parent, the four finer children), each weighted by the
+neighbour's mixture weight a_ki and by the constant c.  Vectorisation: every E/M step runs on arrays
+(texels, samples, components); within a level the texels are fitted in four interleaved classes
+(row and column parity), so a texel's already-fitted same-level neighbours are those of the earlier
+classes -- the vectorised stand-in for the paper's scan-line order.  Children are never fitted before
+their parent in the coarse-to-fine pass; ``refine_sweeps`` > 0 repeats the pass with all 13 neighbours.
+Initialisation is clustering: k-means (scikit-learn) on the whole map's normals for the 1x1 top level,
+then at each finer level Lloyd iterations started from the parent's means, so component i keeps its
+meaning from level to level.  Footprints with more than ``max_samples`` normals (default 256) are
+subsampled by stratified jittered sampling (one normal per cell of a 16x16 grid), seeded: at most
+(texels x 256 x K) work per level.  The data term always counts 256 samples (a smaller footprint's
+normals are weighted up, as if 256 stratified samples were drawn from it), so the prior has the same
+strength against the data at every level (see ``build_gmm_mipmap``).  ``unaligned=True`` is the baseline: c = 0 and each texel
+initialised independently (seeded k-means++ then Lloyd), no neighbour information at all.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from warpbw.errors import WarpbwError
+
+GMM_FORMAT = "warpbw-gmm-mipmap"
+GMM_VERSION = 1
+# 004 Sec. 4.2: "Our current implementation utilizes mixtures of four Gaussians".
+DEFAULT_COMPONENTS = 4
+MAX_COMPONENTS = 16            # a sanity bound on --components (each is one texture in the renderer)
+# 004 Sec. 4.1: c "modulates smoothness among corresponding Gaussians, which we set to 1 for all experiments".
+DEFAULT_PRIOR = 1.0
+# d in the M-step for s_i^2 (004 Sec. 4.1): the dimension of the normal space.
+NORMAL_DIM = 2
+# Variance floor (per axis, projected-normal units^2).  A perfectly flat footprint would give s^2 = 0 and
+# a Gaussian of zero width; the stored a*(s^2 + |mu|^2) is float32, whose resolution near |mu|^2 <= 1 is
+# 2^-24 ~ 6e-8, so a floor 16x above it keeps the recovered s^2 positive and within ~6%.  Std 1e-3 is
+# ~0.06 degrees, far below any material roughness the renderer adds.
+VARIANCE_FLOOR = 1e-6
+# Footprint subsampling: one normal per cell of a 16 x 16 grid -> at most 256 normals per texel.
+SAMPLE_GRID_SIDE = 16
+DEFAULT_MAX_SAMPLES = SAMPLE_GRID_SIDE * SAMPLE_GRID_SIDE
+# EM stops when no mean moves and no weight changes by more than this (projected units, ~0.006 degrees)...
+EM_TOLERANCE = 1e-4
+# ...or after this many iterations (EM converges linearly; 004 reports quick convergence).
+EM_MAX_ITERATIONS = 60
+# Lloyd iterations of the vectorised k-means initialisation.
+KMEANS_ITERATIONS = 10
+# k-means restarts of scikit-learn at the 1x1 top level.
+TOP_KMEANS_RESTARTS = 4
+# A component whose responsibilities sum below this (in samples) is empty: weight 0, and it keeps a
+# defined mean (the prior's, or its previous one) and std (its previous one) instead of 0/0.
+EMPTY_RESPONSIBILITY = 1e-9
+# Stored weights below this recover as an empty component (mean 0, s^2 = VARIANCE_FLOOR).
+WEIGHT_EPS = 1e-8
+# Texels x samples x components per vectorised batch (float64: ~16 MB per (T, M, K) array).
+BATCH_ELEMENTS = 1 << 21
+KINDS = ("height", "normal")
+
+
+# --------------------------------------------------------------------------------------------------
+# The filterable form (004 Sec. 4.2)
+
+def to_moments(a, mu, s2) -> np.ndarray:
+    """(..., K), (..., K, 2), (..., K) -> (..., K, 4): (a, a mu_x, a mu_y, a (s^2 + |mu|^2)) (004 Sec. 4.2)."""
+    a = np.asarray(a, np.float64)
+    mu = np.asarray(mu, np.float64)
+    s2 = np.asarray(s2, np.float64)
+    return np.stack([a, a * mu[..., 0], a * mu[..., 1], a * (s2 + np.sum(mu * mu, axis=-1))], axis=-1)
+
+
+def from_moments(q):
+    """Inverse of ``to_moments`` (004 Sec. 4.2: mu = T(a mu)/T(a), s^2 = T(a(s^2+|mu|^2))/T(a) - |mu|^2).
+    Safe for a = 0: such a component comes back with mean 0 and s^2 = VARIANCE_FLOOR."""
+    q = np.asarray(q, np.float64)
+    a = q[..., 0]
+    ok = a > WEIGHT_EPS
+    inv = np.where(ok, 1.0 / np.where(ok, a, 1.0), 0.0)
+    mu = q[..., 1:3] * inv[..., None]
+    s2 = np.where(ok, q[..., 3] * inv - np.sum(mu * mu, axis=-1), VARIANCE_FLOOR)
+    return np.where(ok, a, 0.0), mu, np.maximum(s2, VARIANCE_FLOOR)
+
+
+def filter_moments(q, weights, axis: int = 0) -> np.ndarray:
+    """Linear (bi/trilinear) filtering of stored moments: sum_k w_k q_k along ``axis`` (what the texture
+    unit does at run time, 004 Sec. 4.2)."""
+    q = np.moveaxis(np.asarray(q, np.float64), axis, 0)
+    w = np.asarray(weights, np.float64)
+    return np.tensordot(w, q, axes=(0, 0))
+
+
+def moment_match(a, mu, s2, weights, axis: int = 0):
+    """Closed-form interpolation of corresponding components (004 Sec. 4.2 and Appendix): with filter
+    weights w_k, a = sum w_k a_k, mu = sum w_k a_k mu_k / a, s^2 = sum w_k a_k (s_k^2 + |mu_k|^2) / a - |mu|^2.
+    For two texels this s^2 is exactly the mixture's variance along the line through the two means."""
+    a = np.moveaxis(np.asarray(a, np.float64), axis, 0)
+    mu = np.moveaxis(np.asarray(mu, np.float64), axis, 0)
+    s2 = np.moveaxis(np.asarray(s2, np.float64), axis, 0)
+    w = np.asarray(weights, np.float64).reshape((-1,) + (1,) * (a.ndim - 1))
+    a_f = np.sum(w * a, axis=0)
+    mu_f = np.sum((w * a)[..., None] * mu, axis=0) / a_f[..., None]
+    s2_f = np.sum(w * a * (s2 + np.sum(mu * mu, axis=-1)), axis=0) / a_f - np.sum(mu_f * mu_f, axis=-1)
+    return a_f, mu_f, s2_f
+
+
+# --------------------------------------------------------------------------------------------------
+# Normal space, levels, footprints
+
+def normal_space(normals) -> np.ndarray:
+    """Unit normals (..., 3) -> projected coordinates (n_x, n_y) (..., 2) (004 Sec. 3)."""
+    n = np.asarray(normals, np.float64)
+    return n[..., :2] / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
+def level_shapes(h: int, w: int) -> list:
+    """(h_l, w_l) of every level, finest first: ceil-halving down to 1x1 (a 1x1 map has one level)."""
+    shapes = [(int(h), int(w))]
+    while shapes[-1] != (1, 1):
+        hh, ww = shapes[-1]
+        shapes.append(((hh + 1) // 2, (ww + 1) // 2))
+    return shapes
+
+
+def footprint_samples(n2, level: int, max_samples: int = DEFAULT_MAX_SAMPLES, rng=None) -> np.ndarray:
+    """The finest-level normals of each level-``level`` texel's footprint: (h_l * w_l, M, 2), row-major
+    texels.  M = 4^level when that is at most ``max_samples`` (every normal, once, for full footprints);
+    otherwise one jittered normal per cell of a g x g grid over the footprint (g^2 <= max_samples, seeded).
+    Footprints clipped by the map's border are covered by the same M samples, spread evenly."""
+    n2 = np.asarray(n2)
+    H, W = n2.shape[:2]
+    f = 1 << level
+    h_l, w_l = -(-H // f), -(-W // f)
+    g = min(f, max(1, int(math.isqrt(int(max_samples)))))
+    r0 = np.arange(h_l) * f
+    c0 = np.arange(w_l) * f
+    nr = np.minimum(f, H - r0).astype(np.float64)
+    nc = np.minimum(f, W - c0).astype(np.float64)
+    cell = np.arange(g, dtype=np.float64)
+    if g == f:      # enumerate: stratum centres are the texels themselves
+        ju = jv = 0.5
+    else:
+        rng = np.random.default_rng(rng)
+        ju = rng.random((h_l, w_l, g, g))
+        jv = rng.random((h_l, w_l, g, g))
+    rows = r0[:, None, None, None] + np.floor((cell[None, None, :, None] + jv) * nr[:, None, None, None] / g)
+    cols = c0[None, :, None, None] + np.floor((cell[None, None, None, :] + ju) * nc[None, :, None, None] / g)
+    rows = np.broadcast_to(rows, (h_l, w_l, g, g)).astype(np.int64)
+    cols = np.broadcast_to(cols, (h_l, w_l, g, g)).astype(np.int64)
+    return n2[rows, cols].reshape(h_l * w_l, g * g, n2.shape[-1])
+
+
+# --------------------------------------------------------------------------------------------------
+# Clustering initialisation and EM, vectorised over texels
+
+def _sq_dist(x, mu):
+    """|x_j - mu_k|^2: (T, M, 2), (T, K, 2) -> (T, M, K)."""
+    d2 = (np.sum(x * x, axis=-1)[:, :, None] - 2.0 * np.einsum("tmd,tkd->tmk", x, mu)
+          + np.sum(mu * mu, axis=-1)[:, None, :])
+    return np.maximum(d2, 0.0)
+
+
+def kmeans_plus_plus(x, K: int, rng) -> np.ndarray:
+    """Seeded k-means++ seeding per texel, vectorised: (T, M, 2) -> centres (T, K, 2)."""
+    rng = np.random.default_rng(rng)
+    T, M, _ = x.shape
+    t = np.arange(T)
+    centres = np.empty((T, K, 2))
+    centres[:, 0] = x[t, rng.integers(0, M, size=T)]
+    mind = np.sum((x - centres[:, :1]) ** 2, axis=-1)
+    for k in range(1, K):
+        cdf = np.cumsum(mind, axis=1)
+        u = rng.random(T) * cdf[:, -1]
+        j = np.minimum(np.sum(cdf < u[:, None], axis=1), M - 1)
+        centres[:, k] = x[t, j]
+        mind = np.minimum(mind, np.sum((x - centres[:, k:k + 1]) ** 2, axis=-1))
+    return centres
+
+
+def kmeans_init(x, centres, iterations: int = KMEANS_ITERATIONS, fallback_s2=None):
+    """Lloyd iterations from ``centres`` (T, K, 2), vectorised; returns the initial (a, mu, s2) of EM:
+    cluster fractions, centroids, within-cluster variance per axis.  An empty cluster keeps its centre,
+    weight 0 and ``fallback_s2`` (T, K) (default: the texel's variance per axis), floored."""
+    x = np.asarray(x, np.float64)
+    mu = np.array(centres, np.float64)
+    T, M, _ = x.shape
+    K = mu.shape[1]
+    ks = np.arange(K)
+    for _ in range(max(1, iterations)):
+        lab = np.argmin(_sq_dist(x, mu), axis=-1)
+        onehot = (lab[..., None] == ks).astype(np.float64)
+        cnt = onehot.sum(axis=1)
+        sums = np.einsum("tmk,tmd->tkd", onehot, x)
+        new = np.where(cnt[..., None] > 0, sums / np.maximum(cnt, 1.0)[..., None], mu)
+        done = np.array_equal(new, mu)
+        mu = new
+        if done:
+            break
+    lab = np.argmin(_sq_dist(x, mu), axis=-1)
+    onehot = (lab[..., None] == ks).astype(np.float64)
+    cnt = onehot.sum(axis=1)
+    within = np.einsum("tmk,tmk->tk", onehot, _sq_dist(x, mu))
+    if fallback_s2 is None:
+        fallback_s2 = np.broadcast_to(np.var(x, axis=1).mean(axis=-1)[:, None], (T, K))
+    s2 = np.where(cnt > 0, within / (NORMAL_DIM * np.maximum(cnt, 1.0)), fallback_s2)
+    return cnt / M, mu, np.maximum(s2, VARIANCE_FLOOR)
+
+
+def em_fit(x, a, mu, s2, c: float = 0.0, prior_sum=None, prior_weight=None,
+           max_iter: int = EM_MAX_ITERATIONS, tol: float = EM_TOLERANCE, sample_count: float | None = None):
+    """MAP-EM of 004 Sec. 4.1 on T texels at once: samples x (T, M, 2); initial a (T, K), mu (T, K, 2),
+    s2 (T, K).  The prior enters as prior_sum = sum_k a_ki mu_ki (T, K, 2) and prior_weight = sum_k a_ki
+    (T, K) over the valid neighbours k; c = 0 (or no prior) is plain EM.  ``sample_count`` is the M the
+    data term counts (default: M, the samples given; the builder passes ``max_samples``, as if that many
+    samples were drawn from every footprint, see ``build_gmm_mipmap``); it only sets the data's weight
+    against the prior.  Stops when the largest change of a mean or weight is below ``tol`` (``tol=0``:
+    exactly ``max_iter`` iterations).  Returns float64 (a, mu, s2, iterations)."""
+    x = np.asarray(x, np.float64)
+    a = np.array(a, np.float64)
+    mu = np.array(mu, np.float64)
+    s2 = np.maximum(np.array(s2, np.float64), VARIANCE_FLOOR)
+    T, M, _ = x.shape
+    use_prior = c > 0 and prior_sum is not None and prior_weight is not None
+    if use_prior:
+        p_sum = c * np.asarray(prior_sum, np.float64)
+        p_w = c * np.asarray(prior_weight, np.float64)
+    xx = np.sum(x * x, axis=-1)                                     # (T, M)
+    # data weight of one sample; it cancels without a prior, so c = 0 stays plain EM bit for bit
+    per_sample = float(sample_count) / M if (use_prior and sample_count is not None) else 1.0
+    it = 0
+    for it in range(1, max_iter + 1):
+        # E-step: E[z_ij] = a_i g(n_j; mu_i, s_i) / sum_k a_k g(n_j; mu_k, s_k)   (004 Sec. 4.1)
+        d2 = np.maximum(xx[:, :, None] - 2.0 * np.einsum("tmd,tkd->tmk", x, mu)
+                        + np.sum(mu * mu, axis=-1)[:, None, :], 0.0)
+        with np.errstate(divide="ignore"):
+            log_a = np.log(a)
+        # log of a_i g(n; mu_i, s_i) with g the isotropic 2D Gaussian: (2 pi s^2)^-1 exp(-|n - mu|^2 / (2 s^2))
+        logp = log_a[:, None, :] - d2 / (2.0 * s2[:, None, :]) - np.log(2.0 * np.pi * s2)[:, None, :]
+        logp -= logp.max(axis=-1, keepdims=True)
+        r = np.exp(logp)
+        r /= r.sum(axis=-1, keepdims=True)
+        # M-step (004 Sec. 4.1):
+        #   a_i = (1/M) sum_j E[z_ij]
+        #   mu_i = (sum_j E[z_ij] n_j + c sum_k a_ki mu_ki) / (sum_j E[z_ij] + c sum_k a_ki)
+        #   s_i^2 = sum_j E[z_ij] |n_j - mu_i|^2 / (d sum_j E[z_ij]),  d = 2
+        nk = r.sum(axis=1)                                          # (T, K)
+        s1 = np.einsum("tmk,tmd->tkd", r, x)                        # (T, K, 2)
+        s_xx = np.einsum("tmk,tm->tk", r, xx)                       # (T, K)
+        if per_sample != 1.0:
+            nk, s1, s_xx = nk * per_sample, s1 * per_sample, s_xx * per_sample
+        num, den = s1, nk
+        if use_prior:
+            num, den = s1 + p_sum, nk + p_w
+        has = den > EMPTY_RESPONSIBILITY
+        mu_new = np.where(has[..., None], num / np.where(has, den, 1.0)[..., None], mu)
+        full = nk > EMPTY_RESPONSIBILITY
+        spread = s_xx - 2.0 * np.sum(mu_new * s1, axis=-1) + nk * np.sum(mu_new * mu_new, axis=-1)
+        s2_new = np.where(full, spread / (NORMAL_DIM * np.where(full, nk, 1.0)), s2)
+        s2_new = np.maximum(s2_new, VARIANCE_FLOOR)
+        a_new = np.where(full, nk / (M * per_sample), 0.0)
+        change = max(float(np.abs(mu_new - mu).max(initial=0.0)), float(np.abs(a_new - a).max(initial=0.0)))
+        a, mu, s2 = a_new, mu_new, s2_new
+        if change < tol:
+            break
+    return a, mu, s2, it
+
+
+def _batched(T: int, per_texel: int):
+    step = max(1, BATCH_ELEMENTS // max(1, per_texel))
+    for start in range(0, T, step):
+        yield slice(start, min(T, start + step))
+
+
+# --------------------------------------------------------------------------------------------------
+# The builder
+
+@dataclass
+class GmmMipmap:
+    """A GMM normal mipmap: ``levels[l]`` is float32 (h_l, w_l, K, 4) = (a, a mu_x, a mu_y,
+    a (s^2 + |mu|^2)) per component, level 0 finest."""
+
+    levels: list
+    components: int = DEFAULT_COMPONENTS
+    prior: float = DEFAULT_PRIOR
+    unaligned: bool = False
+    kind: str = "height"
+    scale: float = 1.0
+    seed: int = 0
+    max_samples: int = DEFAULT_MAX_SAMPLES
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def shape(self):
+        return self.levels[0].shape[:2]
+
+    def params(self) -> dict:
+        return {"components": int(self.components), "prior": float(self.prior), "unaligned": bool(self.unaligned),
+                "kind": self.kind, "scale": float(self.scale), "seed": int(self.seed),
+                "max_samples": int(self.max_samples), "levels": len(self.levels),
+                "shape": [int(s) for s in self.shape],
+                "normal_space": "projected (n_x, n_y); x = +column, y = -row", **self.extra}
+
+
+def _neighbour_prior(l, ii, jj, A, MU, fitted, shapes):
+    """sum_k a_ki mu_ki and sum_k a_ki over the valid (already fitted) neighbours of texels (ii, jj) of
+    level l: eight at the same level (wrap-around: the map tiles), the parent, four children (004 Sec. 4.1)."""
+    n = ii.size
+    K = A[l].shape[-1]
+    p_sum = np.zeros((n, K, 2))
+    p_w = np.zeros((n, K))
+
+    def add(level, ni, nj, valid):
+        wa = A[level][ni, nj] * valid[:, None]
+        p_w[...] += wa
+        p_sum[...] += wa[..., None] * MU[level][ni, nj]
+
+    h, w = shapes[l]
+    offs_r = (-1, 0, 1) if h >= 3 else tuple(range(h))
+    offs_c = (-1, 0, 1) if w >= 3 else tuple(range(w))
+    for di in offs_r:
+        for dj in offs_c:
+            if di == 0 and dj == 0:
+                continue
+            ni, nj = (ii + di) % h, (jj + dj) % w
+            add(l, ni, nj, fitted[l][ni, nj] & ~((ni == ii) & (nj == jj)))
+    if l + 1 < len(shapes):
+        add(l + 1, ii // 2, jj // 2, fitted[l + 1][ii // 2, jj // 2])
+    if l >= 1:
+        hc, wc = shapes[l - 1]
+        for di in (0, 1):
+            for dj in (0, 1):
+                ci, cj = 2 * ii + di, 2 * jj + dj
+                inside = (ci < hc) & (cj < wc)
+                ci, cj = np.minimum(ci, hc - 1), np.minimum(cj, wc - 1)
+                add(l - 1, ci, cj, inside & fitted[l - 1][ci, cj])
+    return p_sum, p_w
+
+
+def _top_centres(x, K: int, seed: int) -> np.ndarray:
+    """k-means (scikit-learn) on the whole map's normals -> (K, 2) centres, largest cluster first; with
+    fewer distinct normals than K the extra centres repeat the first (they start empty)."""
+    from sklearn.cluster import KMeans
+
+    distinct = np.unique(x, axis=0)
+    k = min(K, len(distinct))
+    if k == len(distinct):
+        centres = distinct
+        counts = np.array([np.sum(np.all(x == c, axis=-1)) for c in distinct])
+    else:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            km = KMeans(n_clusters=k, n_init=TOP_KMEANS_RESTARTS, random_state=seed).fit(x)
+        centres = km.cluster_centers_
+        counts = np.bincount(km.labels_, minlength=k)
+    centres = centres[np.argsort(-counts, kind="stable")]
+    if k < K:
+        centres = np.concatenate([centres, np.repeat(centres[:1], K - k, axis=0)])
+    return centres
+
+
+def _validate(data, kind, components, prior, scale):
+    if kind not in KINDS:
+        raise WarpbwError(f"kind {kind!r}: expected one of {', '.join(KINDS)}")
+    if isinstance(components, bool) or not isinstance(components, (int, np.integer)) \
+            or not 1 <= components <= MAX_COMPONENTS:
+        raise WarpbwError(f"components {components!r}: expected an integer from 1 to {MAX_COMPONENTS}")
+    if not (np.isfinite(prior) and prior >= 0):
+        raise WarpbwError(f"prior {prior!r}: expected a finite c >= 0")
+    if not (np.isfinite(scale) and scale > 0):
+        raise WarpbwError(f"scale {scale!r}: expected a finite number > 0")
+    data = np.asarray(data, np.float64)
+    want = 2 if kind == "height" else 3
+    if data.ndim != want or (kind == "normal" and data.shape[-1] != 3) or data.size == 0:
+        raise WarpbwError(f"{kind} map of shape {data.shape}: expected "
+                          + ("(H, W) heights" if kind == "height" else "(H, W, 3) normals"))
+    if not np.all(np.isfinite(data)):
+        raise WarpbwError(f"{kind} map has {int(np.sum(~np.isfinite(data)))} NaN or infinite values")
+    return data
+
+
+def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int = DEFAULT_COMPONENTS,
+                     prior: float = DEFAULT_PRIOR, scale: float = 1.0, seed: int = 0, progress: bool = True,
+                     unaligned: bool = False, texel_size: float | None = None,
+                     max_samples: int = DEFAULT_MAX_SAMPLES, refine_sweeps: int = 0) -> GmmMipmap:
+    """Build the GMM mipmap of a height field (H, W) (normals by ``height_to_normals(h, scale, texel_size)``)
+    or of unit normals (H, W, 3) (``scale`` ignored).  See the module docstring for the method.
+
+    The data term of the MAP objective counts ``max_samples`` samples at every level: a footprint of
+    fewer normals (levels 0-3 with the default 256) weighs each of its normals ``max_samples / 4^l``
+    times -- exactly what drawing ``max_samples`` stratified samples from it would give.  So c weighs
+    the prior (at most ~13 neighbour weights) against the same amount of data at every level; counting
+    a level-0 texel's single normal once would let the prior move it most of the way to its neighbours'."""
+    from precompute.progress import progress_callback
+    from precompute.surfaces import height_to_normals
+
+    data = _validate(heights_or_normals, kind, components, prior, scale)
+    K = int(components)
+    c = 0.0 if unaligned else float(prior)
+    normals = height_to_normals(data, scale, texel_size) if kind == "height" else data
+    n2 = normal_space(normals)
+    H, W = n2.shape[:2]
+    shapes = level_shapes(H, W)
+    L = len(shapes)
+    A = [np.zeros(s + (K,)) for s in shapes]
+    MU = [np.zeros(s + (K, 2)) for s in shapes]
+    S2 = [np.full(s + (K,), VARIANCE_FLOOR) for s in shapes]
+    fitted = [np.zeros(s, bool) for s in shapes]
+    ss = np.random.SeedSequence(seed)
+    sweeps = 1 if unaligned else 1 + max(0, int(refine_sweeps))
+    with progress_callback(L * sweeps, "GMM mipmap", "level", progress) as step:
+        for sweep in range(sweeps):
+            for l in range(L - 1, -1, -1):                       # coarse to fine (004 Sec. 4.1)
+                rng = np.random.default_rng(ss.spawn(1)[0])
+                x_all = footprint_samples(n2, l, max_samples, rng)
+                h, w = shapes[l]
+                M = x_all.shape[1]
+                ii_all, jj_all = np.divmod(np.arange(h * w), w)
+                if unaligned:
+                    classes = [np.arange(h * w)]
+                else:
+                    classes = [np.flatnonzero((ii_all % 2 == pi) & (jj_all % 2 == pj)) for pi in (0, 1) for pj in (0, 1)]
+                for idx in classes:
+                    if idx.size == 0:
+                        continue
+                    ii, jj = ii_all[idx], jj_all[idx]
+                    if not unaligned:
+                        p_sum, p_w = _neighbour_prior(l, ii, jj, A, MU, fitted, shapes)
+                    for b in _batched(idx.size, M * K):
+                        x = x_all[idx[b]]
+                        bi, bj = ii[b], jj[b]
+                        if unaligned:
+                            a0, mu0, s20 = kmeans_init(x, kmeans_plus_plus(x, K, rng))
+                        elif sweep > 0:
+                            a0, mu0, s20 = A[l][bi, bj], MU[l][bi, bj], S2[l][bi, bj]
+                        elif l == L - 1:
+                            a0, mu0, s20 = kmeans_init(x, _top_centres(x[0], K, seed)[None])
+                        else:                                  # from the parent: component i keeps its meaning
+                            a0, mu0, s20 = kmeans_init(x, MU[l + 1][bi // 2, bj // 2],
+                                                       fallback_s2=S2[l + 1][bi // 2, bj // 2])
+                        if unaligned:
+                            a1, mu1, s21, _ = em_fit(x, a0, mu0, s20)
+                        else:
+                            a1, mu1, s21, _ = em_fit(x, a0, mu0, s20, c, p_sum[b], p_w[b],
+                                                     sample_count=max(M, max_samples))
+                        A[l][bi, bj], MU[l][bi, bj], S2[l][bi, bj] = a1, mu1, s21
+                    fitted[l][ii, jj] = True
+                step(sweep * L + (L - l))
+    levels = []
+    for l in range(L):
+        a = np.where(A[l] > WEIGHT_EPS, A[l], 0.0)
+        levels.append(to_moments(a, MU[l], S2[l]).astype(np.float32))
+    return GmmMipmap(levels, K, float(prior), bool(unaligned), kind, float(scale), int(seed), int(max_samples),
+                     extra={"refine_sweeps": int(refine_sweeps)} if refine_sweeps else {})
+
+
+# --------------------------------------------------------------------------------------------------
+# Files
+
+def _rebuild_hint(source: str) -> str:
+    return f"warpbw-precompute gmm {source} -o OUT --force"
+
+
+def write_gmm_mipmap(path, mip: GmmMipmap, source_name: str, source_hash: str, force: bool = False) -> Path:
+    """Write ``mip`` in the versioned asset format (arrays ``level_0`` ... finest first)."""
+    from precompute.assetfile import write_asset
+
+    arrays = {f"level_{l}": np.asarray(q, np.float32) for l, q in enumerate(mip.levels)}
+    return write_asset(path, GMM_FORMAT, GMM_VERSION, source_name, source_hash, arrays, mip.params(), force)
+
+
+def read_gmm_mipmap(path) -> GmmMipmap:
+    """Read a file written by ``write_gmm_mipmap``; refuses other formats/versions and malformed levels."""
+    from precompute.assetfile import read_asset
+
+    asset = read_asset(path, GMM_FORMAT, GMM_VERSION, _rebuild_hint("MAP"))
+    hint = _rebuild_hint(asset.header.get("source", "MAP"))
+    params = asset.header.get("params", {})
+    n = len([k for k in asset.arrays if k.startswith("level_")])
+    levels = [asset.arrays.get(f"level_{l}") for l in range(n)]
+    if n == 0 or any(q is None for q in levels):
+        raise WarpbwError(f"{path}: GMM mipmap without its levels (rebuild it with: {hint})")
+    K = levels[0].shape[2] if levels[0].ndim == 4 else -1
+    shapes = level_shapes(*levels[0].shape[:2]) if levels[0].ndim == 4 else []
+    if len(shapes) != n or any(q.shape != s + (K, 4) for q, s in zip(levels, shapes)):
+        raise WarpbwError(f"{path}: GMM mipmap levels have inconsistent shapes (rebuild it with: {hint})")
+    return GmmMipmap([np.asarray(q, np.float32) for q in levels], K, float(params.get("prior", DEFAULT_PRIOR)),
+                     bool(params.get("unaligned", False)), params.get("kind", "height"),
+                     float(params.get("scale", 1.0)), int(params.get("seed", 0)),
+                     int(params.get("max_samples", DEFAULT_MAX_SAMPLES)))
+
+
+# --------------------------------------------------------------------------------------------------
+# Input
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"     # PNG spec section 5.2
+PNG_BIT_DEPTH_OFFSET = 24            # IHDR: 8 signature + 4 length + 4 type + 4 width + 4 height bytes
+
+
+def _read_pixels(p: Path) -> np.ndarray:
+    """(H, W, C) float64 in [0, 1] for PNG/Pillow images, raw floats for EXR."""
+    from warpbw.io.exr import EXR_MAGIC, read_exr
+
+    with open(p, "rb") as fh:
+        head = fh.read(32)
+    if head.startswith(EXR_MAGIC):
+        img = read_exr(p)
+        ch = img.channels
+        if all(k in ch for k in ("R", "G", "B")):
+            return img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]].astype(np.float64)
+        if "Y" in ch:
+            return img.pixels[..., [ch.index("Y")]].astype(np.float64)
+        return img.pixels.astype(np.float64)
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(p) as im:
+            im.load()
+            mode = im.mode
+            if mode in ("I;16", "I;16B", "I;16L", "I;16N"):
+                arr = np.asarray(im, dtype=np.float64) / 65535.0
+            elif mode == "I":
+                sixteen = head.startswith(PNG_MAGIC) and len(head) > PNG_BIT_DEPTH_OFFSET \
+                    and head[PNG_BIT_DEPTH_OFFSET] == 16
+                arr = np.asarray(im, dtype=np.float64) / (65535.0 if sixteen else 1.0)
+            elif mode == "F":
+                arr = np.asarray(im, dtype=np.float64)
+            elif mode in ("1", "L", "LA", "P", "PA") and not (mode in ("P", "PA") and im.palette.mode != "L"):
+                arr = np.asarray(im.convert("L"), dtype=np.float64) / 255.0
+            else:
+                arr = np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
+        raise WarpbwError(f"{p}: not an image file (expected an OpenEXR or PNG image; {type(exc).__name__})") from None
+    return arr[..., None] if arr.ndim == 2 else arr
+
+
+def load_map(path, kind: str = "height") -> np.ndarray:
+    """Read a height field (single channel; an RGB image is accepted only with identical channels) as
+    (H, W) float64, or a tangent-space normal map (RGB) as unit (H, W, 3).  PNG normal maps are
+    [0, 1]-encoded; an EXR normal map with any negative value holds the vectors themselves, otherwise
+    it is [0, 1]-encoded too.  16-bit greyscale PNGs keep their precision (Pillow reads 16-bit RGB PNGs
+    as 8-bit).  Every problem is a one-line WarpbwError naming the file."""
+    from precompute.surfaces import normals_from_map
+
+    if kind not in KINDS:
+        raise WarpbwError(f"kind {kind!r}: expected one of {', '.join(KINDS)}")
+    p = Path(path)
+    if not p.is_file():
+        raise WarpbwError(f"{p}: file not found (expected a {kind} map: OpenEXR or PNG image)")
+    px = _read_pixels(p)
+    if px.shape[0] == 0 or px.shape[1] == 0 or px.shape[2] == 0:
+        raise WarpbwError(f"{p}: empty image ({px.shape[0]}x{px.shape[1]} texels); expected a {kind} map")
+    bad = ~np.isfinite(px).all(axis=-1)
+    if bad.any():
+        r, col = np.argwhere(bad)[0]
+        raise WarpbwError(f"{p}: {int(bad.sum())} texels are NaN or infinite (first at row {r}, column {col}); "
+                          f"expected finite {kind} values")
+    if kind == "height":
+        if px.shape[2] >= 3:
+            rgb = px[..., :3]
+            if not (np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 0], rgb[..., 2])):
+                raise WarpbwError(f"{p}: RGB image with differing channels given as a height field (expected a "
+                                  "single-channel image; for a tangent-space normal map use --kind normal)")
+        return np.ascontiguousarray(px[..., 0])
+    if px.shape[2] < 3:
+        raise WarpbwError(f"{p}: single-channel image given as a normal map (expected an RGB tangent-space "
+                          "normal map; for a height field use --kind height)")
+    rgb = px[..., :3]
+    try:
+        if rgb.min() < 0:
+            length = np.linalg.norm(rgb, axis=-1)
+            if not (length > 1e-6).all():
+                raise WarpbwError("texels hold zero-length normals; expected unit vectors")
+            return rgb / length[..., None]
+        return normals_from_map(rgb)
+    except WarpbwError as exc:
+        raise WarpbwError(f"{p}: {exc}") from None
+
+
+def load_source(spec: str, kind: str = "height"):
+    """A map from a file path, or ``surface:NAME[:SIZE]`` (``precompute.surfaces.SURFACES``, a height
+    field, default size 512).  Returns (array, name, content hash: blake2b of the file or of the heights)."""
+    from precompute.surfaces import SURFACES
+
+    s = str(spec)
+    if s.startswith("surface:"):
+        parts = s.split(":")
+        name = parts[1] if len(parts) > 1 else ""
+        if name not in SURFACES or len(parts) > 3:
+            raise WarpbwError(f"{s}: unknown procedural surface (expected surface:NAME[:SIZE] with NAME one of "
+                              f"{', '.join(SURFACES)})")
+        if kind != "height":
+            raise WarpbwError(f"{s}: procedural surfaces are height fields (use --kind height)")
+        try:
+            size = int(parts[2]) if len(parts) == 3 else 512
+        except ValueError:
+            raise WarpbwError(f"{s}: size {parts[2]!r} is not an integer") from None
+        h = SURFACES[name](size)
+        digest = hashlib.blake2b(np.ascontiguousarray(h).tobytes(), digest_size=16).hexdigest()
+        return h, f"surface:{name}:{size}", digest
+    from warpbw.scene import file_digest
+
+    data = load_map(s, kind)
+    return data, Path(s).name, file_digest(Path(s))

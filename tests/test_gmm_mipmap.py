@@ -1,0 +1,433 @@
+"""GMM normal mipmaps (004 Sec. 4.1, 4.2; issue 4 items 1 and the acceptance list).
+
+Truths used here come from outside the code under test: samples drawn from a known mixture,
+scikit-learn's GaussianMixture, a float64 loop-per-texel reference of 004's MAP-EM written below,
+the law of total variance for a two-Gaussian mixture, and maps made by hand.
+"""
+from __future__ import annotations
+
+import itertools
+import warnings
+
+import numpy as np
+import pytest
+
+from precompute.gmm_mipmap import (GMM_FORMAT, VARIANCE_FLOOR, build_gmm_mipmap, em_fit, filter_moments,
+                                   footprint_samples, from_moments, kmeans_init, kmeans_plus_plus, level_shapes,
+                                   load_map, load_source, moment_match, normal_space, read_gmm_mipmap, to_moments,
+                                   write_gmm_mipmap)
+from precompute.surfaces import dunes, hemispherical_scales
+from warpbw.errors import WarpbwError
+
+K = 4
+
+
+def draw_mixture(rng, a, mu, s, m):
+    """m samples of sum_i a_i N(mu_i, s_i^2 I_2)."""
+    comp = rng.choice(len(a), size=m, p=a)
+    return mu[comp] + rng.normal(size=(m, 2)) * s[comp, None]
+
+
+def best_permutation(mu_true, mu_fit):
+    return min(itertools.permutations(range(len(mu_true))),
+               key=lambda p: np.sum(np.linalg.norm(mu_true - mu_fit[list(p)], axis=-1)))
+
+
+# --------------------------------------------------------------------------------------------------
+# EM
+
+def test_em_recovers_a_known_mixture():
+    rng = np.random.default_rng(11)
+    truths, xs = [], []
+    for t in range(3):                           # three texels fitted together (vectorised)
+        a = rng.permutation(np.array([0.4, 0.3, 0.2, 0.1]))
+        ang = rng.uniform(0, 2 * np.pi) + np.arange(K) * np.pi / 2
+        mu = 0.35 * np.stack([np.cos(ang), np.sin(ang)], -1)
+        s = rng.uniform(0.03, 0.06, size=K)
+        truths.append((a, mu, s))
+        xs.append(draw_mixture(rng, a, mu, s, 4000))
+    x = np.stack(xs)
+    a0, mu0, s20 = kmeans_init(x, kmeans_plus_plus(x, K, 5))
+    a, mu, s2, _ = em_fit(x, a0, mu0, s20, c=0.0, max_iter=200, tol=1e-8)
+    for t, (a_t, mu_t, s_t) in enumerate(truths):
+        p = list(best_permutation(mu_t, mu[t]))
+        assert np.linalg.norm(mu[t][p] - mu_t, axis=-1).max() < 0.02
+        assert np.abs(a[t][p] - a_t).max() < 0.05
+        np.testing.assert_allclose(np.sqrt(s2[t][p]), s_t, rtol=0.15)
+
+
+def test_em_without_prior_equals_sklearn_spherical_gmm():
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.mixture import GaussianMixture
+
+    rng = np.random.default_rng(2)
+    x = np.stack([draw_mixture(rng, np.full(K, 0.25), rng.uniform(-0.5, 0.5, (K, 2)), np.full(K, 0.08), 300)
+                  for _ in range(3)])
+    a0, mu0, s20 = kmeans_init(x, kmeans_plus_plus(x, K, 1), iterations=2)
+    assert np.all(a0 > 0)
+    n_iter = 15
+    a, mu, s2, it = em_fit(x, a0, mu0, s20, c=0.0, max_iter=n_iter, tol=0.0)
+    assert it == n_iter
+    # "c = 0 must reduce exactly to plain EM": a non-zero prior with zero constant changes nothing
+    a_b, mu_b, s2_b, _ = em_fit(x, a0, mu0, s20, c=0.0, prior_sum=np.ones((3, K, 2)), prior_weight=np.ones((3, K)),
+                                max_iter=n_iter, tol=0.0)
+    assert np.array_equal(mu, mu_b) and np.array_equal(s2, s2_b) and np.array_equal(a, a_b)
+    for t in range(3):
+        gm = GaussianMixture(K, covariance_type="spherical", weights_init=a0[t] / a0[t].sum(), means_init=mu0[t],
+                             precisions_init=1.0 / s20[t], reg_covar=0.0, max_iter=n_iter, tol=0.0,
+                             init_params="random_from_data")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            gm.fit(x[t])
+        np.testing.assert_allclose(a[t], gm.weights_, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(mu[t], gm.means_, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(s2[t], gm.covariances_, rtol=1e-9, atol=1e-14)
+
+
+def reference_map_em(x, a, mu, s2, c, p_sum, p_w, n_iter):
+    """004 Sec. 4.1 MAP-EM written plainly, one texel, one sample at a time (float64)."""
+    a, mu, s2 = a.copy(), mu.copy(), s2.copy()
+    M, Kc = len(x), len(a)
+    for _ in range(n_iter):
+        z = np.zeros((M, Kc))
+        for j in range(M):
+            for i in range(Kc):
+                z[j, i] = a[i] * np.exp(-np.sum((x[j] - mu[i]) ** 2) / (2 * s2[i])) / (2 * np.pi * s2[i])
+            z[j] /= z[j].sum()
+        for i in range(Kc):
+            zi = z[:, i].sum()
+            a[i] = zi / M
+            mu[i] = (np.sum(z[:, i, None] * x, axis=0) + c * p_sum[i]) / (zi + c * p_w[i])
+            s2[i] = np.sum(z[:, i] * np.sum((x - mu[i]) ** 2, axis=1)) / (2 * zi)
+    return a, mu, s2
+
+
+def test_map_em_matches_a_reference_of_the_paper_equations():
+    rng = np.random.default_rng(4)
+    T, M = 3, 60
+    x = rng.normal(scale=0.2, size=(T, M, 2))
+    a0 = rng.dirichlet(np.ones(K), size=T)
+    mu0 = rng.normal(scale=0.2, size=(T, K, 2))
+    s20 = rng.uniform(0.01, 0.05, size=(T, K))
+    # neighbours: sum_k a_ki mu_ki and sum_k a_ki over three neighbours
+    na = rng.dirichlet(np.ones(K), size=(T, 3))
+    nmu = rng.normal(scale=0.2, size=(T, 3, K, 2))
+    p_sum = np.einsum("tnk,tnkd->tkd", na, nmu)
+    p_w = na.sum(axis=1)
+    c = 1.7
+    a, mu, s2, _ = em_fit(x, a0, mu0, s20, c, p_sum, p_w, max_iter=7, tol=0.0)
+    for t in range(T):
+        ra, rmu, rs2 = reference_map_em(x[t], a0[t], mu0[t], s20[t], c, p_sum[t], p_w[t], 7)
+        np.testing.assert_allclose(a[t], ra, rtol=1e-10)
+        np.testing.assert_allclose(mu[t], rmu, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(s2[t], rs2, rtol=1e-9)
+
+
+def test_empty_component_stays_defined():
+    rng = np.random.default_rng(0)
+    x = rng.normal(scale=0.01, size=(2, 50, 2))
+    mu0 = np.array([[[0.0, 0.0], [0.9, 0.0], [0.0, 0.01], [-0.9, 0.0]]] * 2)
+    a0 = np.array([[0.7, 0.1, 0.1, 0.1]] * 2)
+    s20 = np.full((2, K), 1e-4)
+    for c, p_sum, p_w in ((0.0, None, None), (1.0, np.full((2, K, 2), 0.3), np.array([[1, 1, 1, 0]] * 2, float))):
+        a, mu, s2, _ = em_fit(x, a0, mu0, s20, c, p_sum, p_w)
+        assert np.all(np.isfinite(a)) and np.all(np.isfinite(mu)) and np.all(np.isfinite(s2))
+        assert np.all(s2 >= VARIANCE_FLOOR) and a[0, 1] == 0.0 and a[0, 3] == 0.0
+        np.testing.assert_allclose(a.sum(axis=1), 1.0)
+        if c > 0:       # an empty component with neighbours takes their mean
+            np.testing.assert_allclose(mu[:, 1], 0.3)
+        else:           # without, it keeps its previous mean
+            np.testing.assert_allclose(mu[:, 1], mu0[:, 1])
+
+
+# --------------------------------------------------------------------------------------------------
+# Alignment on a real test surface
+
+def misalignment(mip, levels):
+    """Mean distance between component k of adjacent texels, weighted by the smaller of their weights."""
+    tot = wt = 0.0
+    for lvl in levels:
+        a, mu, _ = from_moments(mip.levels[lvl])
+        for ax in (0, 1):
+            n = a.shape[ax]
+            d = np.linalg.norm(np.diff(mu, axis=ax), axis=-1)
+            w = np.minimum(a.take(range(1, n), axis=ax), a.take(range(0, n - 1), axis=ax))
+            tot += float((d * w).sum())
+            wt += float(w.sum())
+    return tot / wt
+
+
+@pytest.fixture(scope="module")
+def scales_mips():
+    h = hemispherical_scales(48, scales_across=4)
+    return {name: build_gmm_mipmap(h, progress=False, **kw) for name, kw in
+            (("aligned", {}), ("no_prior", {"prior": 0.0}), ("unaligned", {"unaligned": True}))}
+
+
+def test_prior_aligns_neighbouring_components(scales_mips):
+    levels = range(1, 5)
+    m = {k: misalignment(v, levels) for k, v in scales_mips.items()}
+    assert m["aligned"] < 0.5 * m["unaligned"], m
+    assert m["aligned"] < m["no_prior"], m           # the prior itself, beyond the parent initialisation
+
+
+def test_dunes_aligned_vs_unaligned():
+    h = dunes(32)
+    al = misalignment(build_gmm_mipmap(h, progress=False), range(1, 4))
+    un = misalignment(build_gmm_mipmap(h, progress=False, unaligned=True), range(1, 4))
+    assert al < un
+
+
+def test_mixture_reproduces_footprint_mean(scales_mips):
+    # without prior the mixture's mean is the footprint mean (EM keeps the first moment exactly)
+    h = hemispherical_scales(48, scales_across=4)
+    from precompute.surfaces import height_to_normals
+    n2 = normal_space(height_to_normals(h))
+    for lvl in (0, 2, 4):
+        a, mu, _ = from_moments(scales_mips["no_prior"].levels[lvl])
+        mean = np.sum(a[..., None] * mu, axis=-2)
+        fp = footprint_samples(n2, lvl).mean(axis=1).reshape(mean.shape)
+        np.testing.assert_allclose(mean, fp, atol=2e-5)
+        np.testing.assert_allclose(a.sum(-1), 1.0, atol=1e-5)
+
+
+# --------------------------------------------------------------------------------------------------
+# The filterable form
+
+def test_linear_filtering_is_the_moment_matched_component():
+    rng = np.random.default_rng(7)
+    a = rng.uniform(0.1, 1.0, size=(2, K))
+    mu = rng.uniform(-0.6, 0.6, size=(2, K, 2))
+    s2 = rng.uniform(1e-4, 0.02, size=(2, K))
+    for t in (0.0, 0.25, 0.5, 0.9, 1.0):
+        w = np.array([1 - t, t])
+        af, muf, s2f = from_moments(filter_moments(to_moments(a, mu, s2), w))
+        # independent truth: component k of the mixture (1-t) a_0k g_0k + t a_1k g_1k
+        p = w[:, None] * a / (w[:, None] * a).sum(axis=0)
+        mean = np.sum(p[..., None] * mu, axis=0)
+        np.testing.assert_allclose(af, np.sum(w[:, None] * a, axis=0), rtol=1e-13)
+        np.testing.assert_allclose(muf, mean, rtol=1e-12, atol=1e-14)
+        # second moment E|n|^2 counted as in 004: sum p (s^2 + |mu|^2) = s2f + |muf|^2
+        np.testing.assert_allclose(s2f + np.sum(muf ** 2, -1), np.sum(p * (s2 + np.sum(mu ** 2, -1)), 0),
+                                   rtol=1e-12)
+        # and s2f is the mixture's variance along the line through the two means (law of total variance)
+        var_line = np.sum(p * s2, 0) + np.sum(p * np.sum((mu - mean) ** 2, -1), 0)
+        np.testing.assert_allclose(s2f, var_line, rtol=1e-10)
+        ma, mmu, ms2 = moment_match(a, mu, s2, w)
+        np.testing.assert_allclose((af, s2f), (ma, ms2), rtol=1e-12)
+        np.testing.assert_allclose(muf, mmu, rtol=1e-12, atol=1e-15)
+
+
+def test_trilinear_filtering_of_stored_float32_levels(scales_mips):
+    q = scales_mips["aligned"].levels[1].astype(np.float64)
+    w = np.array([0.1, 0.2, 0.3, 0.4])
+    texels = np.stack([q[0, 0], q[0, 1], q[1, 0], q[1, 1]])
+    af, muf, s2f = from_moments(filter_moments(texels, w))
+    a, mu, s2 = from_moments(texels)
+    ma, mmu, ms2 = moment_match(a, mu, s2, w)
+    ok = ma > 1e-6
+    np.testing.assert_allclose(af, ma, rtol=1e-12)
+    np.testing.assert_allclose(muf[ok], mmu[ok], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(s2f[ok], np.maximum(ms2[ok], VARIANCE_FLOOR), rtol=1e-6, atol=1e-9)
+
+
+def test_moments_round_trip_and_zero_weight():
+    rng = np.random.default_rng(1)
+    a = rng.uniform(0.01, 1, (5, K))
+    mu = rng.uniform(-0.7, 0.7, (5, K, 2))
+    s2 = rng.uniform(1e-5, 0.05, (5, K))
+    a2, mu2, s22 = from_moments(to_moments(a, mu, s2))
+    np.testing.assert_allclose(a2, a)
+    np.testing.assert_allclose(mu2, mu, atol=1e-14)
+    np.testing.assert_allclose(s22, s2, rtol=1e-9)
+    a0, mu0, s20 = from_moments(np.zeros((3, K, 4)))
+    assert np.all(a0 == 0) and np.all(mu0 == 0) and np.all(s20 == VARIANCE_FLOOR)
+
+
+# --------------------------------------------------------------------------------------------------
+# Extremes
+
+def all_finite(mip):
+    for q in mip.levels:
+        assert q.dtype == np.float32 and np.all(np.isfinite(q))
+        a, mu, s2 = from_moments(q)
+        assert np.all(np.isfinite(mu)) and np.all(np.isfinite(s2)) and np.all(s2 >= VARIANCE_FLOOR)
+        np.testing.assert_allclose(a.sum(-1), 1.0, atol=1e-5)
+
+
+def test_flat_map():
+    mip = build_gmm_mipmap(np.zeros((16, 16)), progress=False)
+    all_finite(mip)
+    for q in mip.levels:
+        a, mu, s2 = from_moments(q)
+        assert np.all(s2 <= 2 * VARIANCE_FLOOR) and np.abs(mu).max() < 1e-6
+
+
+def test_single_spike_and_level_shapes():
+    h = np.zeros((16, 16))
+    h[5, 9] = 1.0
+    for kw in ({}, {"unaligned": True}):
+        mip = build_gmm_mipmap(h, scale=0.05, progress=False, **kw)
+        all_finite(mip)
+        a, mu, s2 = from_moments(mip.levels[-1])
+        assert np.sum(a[0, 0] > 0) >= 2      # the top mixture sees flat and tilted normals
+
+
+def test_one_by_one_map():
+    mip = build_gmm_mipmap(np.zeros((1, 1)), progress=False)
+    assert len(mip.levels) == 1 and mip.levels[0].shape == (1, 1, K, 4)
+    all_finite(mip)
+
+
+def test_non_power_of_two_map():
+    h = dunes(64)[:37, :23]
+    assert level_shapes(37, 23) == [(37, 23), (19, 12), (10, 6), (5, 3), (3, 2), (2, 1), (1, 1)]
+    for kw in ({}, {"unaligned": True}):
+        mip = build_gmm_mipmap(h, progress=False, **kw)
+        assert [q.shape[:2] for q in mip.levels] == level_shapes(37, 23)
+        all_finite(mip)
+
+
+def test_normals_at_89_degrees():
+    rng = np.random.default_rng(3)
+    th = np.radians(89.0)
+    phi = rng.uniform(0, 2 * np.pi, (12, 12))
+    n = np.stack([np.sin(th) * np.cos(phi), np.sin(th) * np.sin(phi), np.full_like(phi, np.cos(th))], -1)
+    mip = build_gmm_mipmap(n, kind="normal", progress=False)
+    all_finite(mip)
+    a, mu, _ = from_moments(mip.levels[0])
+    np.testing.assert_allclose(np.sum(a[..., None] * mu, -2), n[..., :2], atol=0.05)
+    assert np.linalg.norm(mu, axis=-1).max() <= 1.0 + 1e-6
+
+
+def test_deterministic():
+    h = dunes(24)
+    m1, m2 = build_gmm_mipmap(h, progress=False, seed=3), build_gmm_mipmap(h, progress=False, seed=3)
+    assert all(np.array_equal(x, y) for x, y in zip(m1.levels, m2.levels))
+
+
+# --------------------------------------------------------------------------------------------------
+# Files, input, command line
+
+def test_write_read_round_trip_and_force(tmp_path):
+    mip = build_gmm_mipmap(dunes(20), progress=False, components=3)
+    out = tmp_path / "d.gmm"
+    write_gmm_mipmap(out, mip, "surface:dunes:20", "abc")
+    back = read_gmm_mipmap(out)
+    assert back.components == 3 and len(back.levels) == len(mip.levels)
+    assert all(np.array_equal(x, y) for x, y in zip(mip.levels, back.levels))
+    with pytest.raises(WarpbwError, match="already exists"):
+        write_gmm_mipmap(out, mip, "surface:dunes:20", "abc")
+    write_gmm_mipmap(out, mip, "surface:dunes:20", "abc", force=True)
+
+
+def test_reading_another_format_is_refused(tmp_path):
+    from precompute.assetfile import write_asset
+
+    p = write_asset(tmp_path / "x.npz", GMM_FORMAT, 999, "s", "h", {"level_0": np.zeros((1, 1, 4, 4))})
+    with pytest.raises(WarpbwError, match="warpbw-precompute gmm"):
+        read_gmm_mipmap(p)
+
+
+def save_png(path, arr, mode=None):
+    from PIL import Image
+
+    Image.fromarray(arr, mode=mode).save(path) if mode else Image.fromarray(arr).save(path)
+
+
+def test_load_16_bit_png_height_and_grey_rgb(tmp_path):
+    v = (np.arange(12 * 10).reshape(12, 10) * 500).astype(np.uint16)
+    save_png(tmp_path / "h16.png", v)
+    np.testing.assert_allclose(load_map(tmp_path / "h16.png", "height"), v / 65535.0)
+    g = np.repeat((np.arange(30).reshape(5, 6) * 8).astype(np.uint8)[..., None], 3, axis=-1)
+    save_png(tmp_path / "grey.png", g)
+    np.testing.assert_allclose(load_map(tmp_path / "grey.png", "height"), g[..., 0] / 255.0)
+
+
+def test_load_normal_map_png_and_exr(tmp_path):
+    from warpbw.io.exr import write_exr
+
+    n = np.zeros((4, 5, 3))
+    n[..., 2] = 1.0
+    save_png(tmp_path / "n.png", np.round((n + 1) / 2 * 255).astype(np.uint8))
+    got = load_map(tmp_path / "n.png", "normal")
+    np.testing.assert_allclose(got[..., 2], 1.0, atol=1e-4)
+    n[0, 0] = [-0.6, 0.0, 0.8]
+    write_exr(tmp_path / "n.exr", n.astype(np.float32))
+    np.testing.assert_allclose(load_map(tmp_path / "n.exr", "normal"), n, atol=1e-6)
+
+
+def test_bad_inputs_name_the_file(tmp_path):
+    from warpbw.io.exr import write_exr
+
+    txt = tmp_path / "notes.png"
+    txt.write_text("not an image")
+    with pytest.raises(WarpbwError, match="notes.png.*not an image"):
+        load_map(txt, "height")
+    rgb = np.zeros((6, 6, 3), np.uint8)
+    rgb[..., 0] = 200
+    save_png(tmp_path / "colour.png", rgb)
+    with pytest.raises(WarpbwError, match="colour.png.*RGB.*height field"):
+        load_map(tmp_path / "colour.png", "height")
+    with pytest.raises(WarpbwError, match="single-channel.*normal map"):
+        save_png(tmp_path / "grey.png", np.zeros((4, 4), np.uint8))
+        load_map(tmp_path / "grey.png", "normal")
+    h = np.zeros((8, 9, 1), np.float32)
+    h[3, 4] = np.nan
+    h[6, 1] = np.inf
+    write_exr(tmp_path / "holes.exr", h, channels=["Y"])
+    with pytest.raises(WarpbwError, match=r"holes.exr: 2 texels are NaN or infinite \(first at row 3, column 4\)"):
+        load_map(tmp_path / "holes.exr", "height")
+    with pytest.raises(WarpbwError, match="missing.exr.*not found"):
+        load_map(tmp_path / "missing.exr", "height")
+    with pytest.raises(WarpbwError, match="unknown procedural surface"):
+        load_source("surface:dune:32")
+
+
+def cli(argv):
+    from precompute.__main__ import main
+
+    return main([str(a) for a in argv])
+
+
+def test_cli_builds_a_surface_and_refuses_to_overwrite(tmp_path, capsys):
+    out = tmp_path / "d.gmm"
+    assert cli(["gmm", "surface:dunes:24", "-o", out, "--components", "2", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "d.gmm" in printed and " s)" in printed
+    mip = read_gmm_mipmap(out)
+    assert mip.components == 2 and mip.shape == (24, 24)
+    assert cli(["gmm", "surface:dunes:24", "-o", out, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "already exists" in err and "--force" in err
+    assert cli(["gmm", "surface:dunes:24", "-o", out, "--quiet", "--force", "--unaligned"]) == 0
+    assert read_gmm_mipmap(out).unaligned
+
+
+@pytest.mark.parametrize("case", ["text", "rgb", "nan"])
+def test_cli_bad_input_is_one_line(tmp_path, capsys, case):
+    from warpbw.io.exr import write_exr
+
+    if case == "text":
+        src = tmp_path / "readme.exr"
+        src.write_text("hello")
+        needle = "readme.exr"
+    elif case == "rgb":
+        src = tmp_path / "rgb.png"
+        rgb = np.zeros((6, 6, 3), np.uint8)
+        rgb[..., 1] = 90
+        save_png(src, rgb)
+        needle = "RGB image with differing channels"
+    else:
+        src = tmp_path / "nan.exr"
+        h = np.zeros((5, 5, 1), np.float32)
+        h[2, 2] = np.nan
+        write_exr(src, h, channels=["Y"])
+        needle = "NaN"
+    out = tmp_path / "out.gmm"
+    assert cli(["gmm", src, "-o", out, "--quiet"]) == 2
+    cap = capsys.readouterr()
+    lines = [ln for ln in cap.err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("warpbw-precompute: error: "), cap.err
+    assert src.name in lines[0] and needle in lines[0] and "Traceback" not in cap.err + cap.out
+    assert not out.exists()

@@ -1,0 +1,98 @@
+"""Procedural test surfaces and the height/normal-map helpers (issue 4 item 4)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from precompute.surfaces import (SURFACES, carved_disk, dunes, height_to_normals, hemispherical_scales,
+                                 normals_from_map)
+from warpbw.errors import WarpbwError
+
+
+@pytest.mark.parametrize("name", sorted(SURFACES))
+@pytest.mark.parametrize("size", [64, 37])
+def test_surface_shape_dtype_finite_and_varied(name, size):
+    h = SURFACES[name](size)
+    assert h.shape == (size, size) and h.dtype == np.float64
+    assert np.all(np.isfinite(h))
+    assert np.ptp(h) > 1e-3 and np.std(h) > 1e-4          # heights in map-width units: visibly bumpy
+    n = height_to_normals(h)
+    tilt = np.degrees(np.arccos(n[..., 2]))
+    assert tilt.max() > 5.0                                 # non-trivial normals
+    assert np.std(n[..., 0]) > 1e-3 and np.std(n[..., 1]) > 1e-3
+
+
+@pytest.mark.parametrize("name", sorted(SURFACES))
+def test_surfaces_are_deterministic(name):
+    assert np.array_equal(SURFACES[name](48), SURFACES[name](48))
+
+
+def test_dunes_seed_changes_the_surface():
+    assert not np.allclose(dunes(32, seed=0), dunes(32, seed=1))
+
+
+def test_surfaces_tile():
+    # the wrap-around step (last column -> first) is no larger than the steps inside the map
+    for f in (dunes, carved_disk, hemispherical_scales):
+        h = f(128)
+        inside = np.abs(np.diff(h, axis=1)).max()
+        assert np.abs(h[:, 0] - h[:, -1]).max() <= inside + 1e-12
+        inside = np.abs(np.diff(h, axis=0)).max()
+        assert np.abs(h[0] - h[-1]).max() <= inside + 1e-12
+
+
+def test_carved_disk_has_grooves_and_a_flat_surround():
+    h = carved_disk(256)
+    assert h[0, 0] == 0.0 and h[128, 5] == 0.0              # outside the disk
+    ring = h[128, 128:128 + 100]                            # centre to the rim along a row
+    assert ring.max() - ring[ring > 0].min() > 0.002        # grooves cut into the plateau
+
+
+@pytest.mark.parametrize("size", [0, 1025, 2.5])
+def test_bad_sizes(size):
+    with pytest.raises(WarpbwError, match="size"):
+        dunes(size)
+
+
+def test_height_to_normals_of_a_tilted_plane():
+    # h = gx * x + gy * y with x = column * t, y = -row * t (tangent y is image up)
+    gx, gy, t = 0.3, -0.7, 0.01
+    r, c = np.mgrid[0:20, 0:30].astype(np.float64)
+    h = gx * c * t + gy * (-r) * t
+    n = height_to_normals(h, scale=2.0, texel_size=t)
+    want = np.array([-2.0 * gx, -2.0 * gy, 1.0]) / np.sqrt(1.0 + 4.0 * gx * gx + 4.0 * gy * gy)
+    np.testing.assert_allclose(n[1:-1, 1:-1], np.broadcast_to(want, n[1:-1, 1:-1].shape), atol=1e-12)
+
+
+def test_height_to_normals_of_a_sine_matches_the_analytic_derivative():
+    W, A, k = 64, 0.01, 2                                  # periodic: wrap-around is exact
+    x = np.arange(W) / W
+    h = np.broadcast_to(A * np.sin(2 * np.pi * k * x), (8, W))
+    n = height_to_normals(h)                               # texel_size 1/W: x in map widths
+    slope = -n[..., 0] / n[..., 2]                         # = dh/dx
+    analytic = A * 2 * np.pi * k * np.cos(2 * np.pi * k * x)
+    # central differences: exactly analytic * sin(d) / d with d = 2 pi k / W (truncation error ~ d^2 / 6)
+    d = 2 * np.pi * k / W
+    np.testing.assert_allclose(slope[3], analytic * np.sin(d) / d, atol=1e-12)
+    np.testing.assert_allclose(slope[3], analytic, atol=d * d / 6 * 1.01 * np.abs(analytic).max())
+    np.testing.assert_allclose(n[..., 1], 0.0, atol=1e-15)
+    np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1.0, atol=1e-12)
+
+
+def test_normals_unit_length_on_every_surface():
+    for f in SURFACES.values():
+        n = height_to_normals(f(40), scale=3.0)
+        np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1.0, atol=1e-12)
+        assert np.all(n[..., 2] > 0)
+
+
+def test_normals_from_map_decodes_the_encoding():
+    rng = np.random.default_rng(3)
+    n = rng.normal(size=(5, 7, 3))
+    n[..., 2] = np.abs(n[..., 2]) + 0.1
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    np.testing.assert_allclose(normals_from_map((n + 1) / 2), n, atol=1e-12)
+    bad = (n + 1) / 2
+    bad[2, 3] = 0.5
+    with pytest.raises(WarpbwError, match="row 2, column 3"):
+        normals_from_map(bad)
