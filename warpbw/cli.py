@@ -1,4 +1,4 @@
-"""The ``warpbw`` command: render, demo, info, compare.
+"""The ``warpbw`` command: render, demo, info, compare, bench.
 
 Public: ``main(argv=None) -> int``.
 
@@ -26,6 +26,9 @@ examples:
   warpbw demo -o demo_out                       render the embedded default scene
   warpbw info scene.toml                        what a scene needs, without rendering
   warpbw render scene.toml -o out.exr --spp 256 --seed 1
+  warpbw render scene.toml -o out.exr --method adaptive --budget 8
+                                                adaptive shading (002): AOVs out.level.exr, out.n_p.exr, ...
+  warpbw bench scene.toml --json b.json --plot b.png   speed against accuracy, adaptive vs reference
   warpbw compare out.exr ground_truth.exr       PSNR and relative MSE over covered pixels
 
 Scene files are TOML; see README.md for the keys.  Images are linear radiance in EXR (R, G, B and the
@@ -110,28 +113,80 @@ def _write_render(res, outs: dict, exposure: float):
     outs["json"].write_text(json.dumps(res.stats, indent=2, default=str) + "\n")
 
 
+# AOVs of the adaptive method (002 Fig. 1d / 18): name -> (what it is, false-colour scale)
+AOVS = {
+    "level": ("shading level per pixel (002 Eq. 11, 0 = full resolution)", "linear"),
+    "n_p": ("samples per pixel N_p (002 Sec. 2.4)", "log"),
+    "variance": ("predicted variance bound sigma2 / N_p (002 Eq. 9)", "log"),
+    "shaded": ("1 where the pixel was shaded, 0 where up-sampled", "linear"),
+    "b_p": ("predicted image bandwidth, cycles/pixel (002 Eq. 6)", "log"),
+}
+
+
+def _aov_paths(out: Path) -> dict:
+    return {name: (out.with_suffix(f".{name}.exr"), out.with_suffix(f".{name}.png")) for name in AOVS}
+
+
+def _write_aovs(res, out: Path) -> None:
+    import numpy as np
+
+    from warpbw.io.exr import write_exr, write_false_colour_png
+
+    cov = res.coverage
+    for name, (exr, png) in _aov_paths(out).items():
+        v = np.asarray(res.aovs[name], dtype=np.float32)
+        write_exr(exr, v, channels=["Y"])
+        log = AOVS[name][1] == "log"
+        shown = cov & (v > 0) if log else cov
+        write_false_colour_png(png, v, mask=shown, log=log)
+
+
 def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, exposure: float, force: bool,
-            threads, quiet: bool) -> dict:
-    from warpbw.pipeline import render_reference
+            threads, quiet: bool, method: str = "reference", budget: float | None = None,
+            n_b: int | None = None) -> dict:
+    from warpbw.pipeline import render_adaptive, render_reference
 
     outs = _outputs(out)
-    _check_overwrite(outs.values(), force)
+    adaptive = method == "adaptive"
+    paths = list(outs.values()) + ([p for pair in _aov_paths(out).values() for p in pair] if adaptive else [])
+    _check_overwrite(paths, force)
     _init_warp(device)
     t0 = time.perf_counter()
-    res = render_reference(scene, spp=spp, seed=seed, mis=mis, device=device, progress=not quiet,
-                           threads=threads)
+    if adaptive:
+        res = render_adaptive(scene, budget=budget, seed=seed, mis=mis, n_b=n_b, device=device, progress=not quiet,
+                              threads=threads)
+    else:
+        res = render_reference(scene, spp=spp, seed=seed, mis=mis, device=device, progress=not quiet,
+                               threads=threads)
     res.stats["time_s"]["total"] = round(time.perf_counter() - t0, 6)
     _write_render(res, outs, exposure)
-    if res.stats["non_finite_samples"]:
+    if adaptive:
+        _write_aovs(res, out)
+    if res.stats.get("non_finite_samples"):
         print(f"warpbw: warning: {res.stats['non_finite_samples']} samples had a non-finite contribution "
               "and were dropped", file=sys.stderr)
+    if adaptive and res.stats["allocation"]["over_budget"]:
+        a = res.stats["allocation"]
+        print(f"warpbw: warning: --budget {budget:g} is below one sample per shaded pixel "
+              f"({a['planned_pixels']} pixels to shade, {a['budget_samples']} samples): every shaded pixel "
+              f"got {a['n_min']} sample(s)", file=sys.stderr)
     if not quiet:
         t = res.stats["time_s"]
-        sps = res.stats["samples_per_second"]
-        print(f"{outs['exr']}  ({res.stats['resolution'][0]}x{res.stats['resolution'][1]}, {spp} spp, "
-              f"{res.stats['pixels_covered']} covered pixels)")
-        print(f"  gbuffer {t['gbuffer'] * 1e3:.1f} ms, shading {t['shading']:.3f} s"
-              + (f" ({sps / 1e6:.2f} M samples/s)" if sps else "") + f", total {t['total']:.2f} s")
+        w, h = res.stats["resolution"]
+        if adaptive:
+            print(f"{outs['exr']}  ({w}x{h}, adaptive, budget {budget:g} spp, n_b {res.stats['n_b']}, "
+                  f"{res.stats['pixels_covered']} covered pixels)")
+            print(f"  shaded {res.stats['pixels_shaded']} pixels ({100 * res.stats['shaded_fraction']:.1f}%), "
+                  f"{res.stats['samples']} samples ({res.stats['samples_per_covered_pixel']:.2f} per covered pixel)")
+            print(f"  gbuffer {t['gbuffer'] * 1e3:.1f} ms, bandwidth {t['bandwidth'] * 1e3:.1f} ms "
+                  f"({100 * res.stats['bandwidth_time_fraction']:.1f}% of the frame), shading {t['shading']:.3f} s, "
+                  f"up-sampling {t['upsampling'] * 1e3:.1f} ms, frame {t['frame']:.3f} s, total {t['total']:.2f} s")
+            print(f"  AOVs {', '.join(str(p[0].name) for p in _aov_paths(out).values())} (+ .png)")
+        else:
+            sps = res.stats["samples_per_second"]
+            print(f"{outs['exr']}  ({w}x{h}, {spp} spp, {res.stats['pixels_covered']} covered pixels)")
+            print(f"  gbuffer {t['gbuffer'] * 1e3:.1f} ms, shading {t['shading']:.3f} s"
+                  + (f" ({sps / 1e6:.2f} M samples/s)" if sps else "") + f", total {t['total']:.2f} s")
         print(f"  preview {outs['png']}, stats {outs['json']}")
     return res.stats
 
@@ -139,9 +194,13 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
 def cmd_render(args) -> int:
     from warpbw.scene import load_scene
 
+    if args.method == "adaptive" and args.budget is None:
+        raise WarpbwError("--method adaptive needs --budget SAMPLES_PER_PIXEL (mean samples per covered pixel)")
+    if args.method == "reference" and (args.budget is not None or args.nb is not None):
+        raise WarpbwError("--budget and --nb apply to --method adaptive only (the reference takes --spp)")
     scene = load_scene(args.scene)
     _render(scene, Path(args.output), args.spp, args.seed, args.mis, args.device, args.exposure, args.force,
-            args.threads, args.quiet)
+            args.threads, args.quiet, args.method, args.budget, args.nb)
     return 0
 
 
@@ -231,6 +290,19 @@ def _positive_int(name):
     return parse
 
 
+def _positive_float(name):
+    def parse(s):
+        try:
+            v = float(s)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a positive number, got {s!r}") from None
+        if not (v > 0 and math.isfinite(v)):
+            raise argparse.ArgumentTypeError(f"expected a positive number, got {s}")
+        return v
+    parse.__name__ = name
+    return parse
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="warpbw", description="Render measured materials under HDR light with "
                 "NVIDIA Warp kernels (CPU by default; --device cuda runs the same kernels on a GPU).",
@@ -257,6 +329,15 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("-o", "--output", required=True, help="output EXR path")
     r.add_argument("--mis", action="store_true",
                    help="also sample the environment and combine by multiple importance sampling")
+    r.add_argument("--method", choices=("reference", "adaptive"), default="reference",
+                   help="reference: every pixel with --spp samples (default); adaptive: bandwidth prediction and "
+                   "hierarchical shading (002), which also writes the AOVs OUT.level/.n_p/.variance/.shaded/.b_p "
+                   "as EXR and false-colour PNG")
+    r.add_argument("--budget", type=_positive_float("budget"), default=None,
+                   help="adaptive: mean samples per covered pixel, spread in proportion to the predicted variance "
+                   "(may be below 1)")
+    r.add_argument("--nb", type=_positive_int("nb"), default=None,
+                   help="adaptive: directions per pixel of the bandwidth estimate, n_b (default 16, 002 Sec. 2.6)")
     common(r, DEFAULT_SPP)
     r.set_defaults(func=cmd_render)
 
