@@ -260,7 +260,14 @@ def test_spp_zero(tmp_path):
     (["render", "scene.toml", "-o", "out.png"], ["out.png", ".exr"]),
     (["frobnicate"], ["invalid choice", "frobnicate"]),
     ([], ["COMMAND"]),
-], ids=["no output", "bad threads", "png output", "unknown command", "no command"])
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive"], ["--method adaptive", "--budget"]),
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "-1"], ["--budget", "positive"]),
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "nan"], ["--budget", "positive"]),
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--nb", "0"], ["--nb"]),
+    (["render", "scene.toml", "-o", "out.exr", "--budget", "2"], ["--budget", "adaptive only"]),
+    (["render", "scene.toml", "-o", "out.exr", "--method", "fast"], ["--method", "invalid choice"]),
+], ids=["no output", "bad threads", "png output", "unknown command", "no command", "adaptive without budget",
+        "negative budget", "nan budget", "zero nb", "budget without adaptive", "unknown method"])
 def test_usage_errors_are_one_line(tmp_path, args, needles):
     write_scene(tmp_path)
     assert_one_line_error(run(args, tmp_path), *needles)

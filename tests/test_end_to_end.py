@@ -284,3 +284,33 @@ def test_precomputed_sampling_file_is_used_and_equals_the_built_one(work, shared
     assert "chrome_sampling.npz" in lines[0] and "different content" in lines[0]
     assert "warpbw-precompute brdf-sampling" in lines[0]
     assert not (work / "wrong.exr").exists()
+
+
+# ------------------------------------------------------------------------------------------ adaptive (issue 3)
+
+def test_render_adaptive_writes_aovs_and_caches_tables(work, npf_scene):
+    out = work / "ada.exr"
+    run(["render", npf_scene, "-o", out, "--method", "adaptive", "--budget", "4", "--mis", "-q"], work)
+    rgb, alpha = rgba(out)
+    covered = alpha > 0
+    assert np.isfinite(rgb).all() and rgb[covered].min() > 0.0
+    for name in ("level", "n_p", "variance", "shaded", "b_p"):
+        aov = read_exr(out.with_suffix(f".{name}.exr")).pixels[..., 0]
+        assert aov.shape == (32, 32) and np.isfinite(aov).all()
+        assert out.with_suffix(f".{name}.png").stat().st_size > 0
+    n_p = read_exr(out.with_suffix(".n_p.exr")).pixels[..., 0]
+    shaded = read_exr(out.with_suffix(".shaded.exr")).pixels[..., 0] > 0
+    assert np.all(n_p[covered] >= 1) and np.all(n_p[~covered] == 0) and shaded[covered].any()
+    stats = json.loads(out.with_suffix(".json").read_text())
+    assert stats["method"] == "adaptive" and "bandwidth_pass" in stats["stages"]
+    assert stats["samples"] >= stats["pixels_shaded"] >= 1
+    assert {"gbuffer", "bandwidth", "shading", "upsampling", "frame"} <= set(stats["time_s"])
+    assert sum(lv["shaded"] for lv in stats["levels"]) == stats["pixels_shaded"]
+    assert stats["assets"]["material.m"]["bandwidth"] == "built"
+    assert len(list((work / "cache").glob("bandwidth-*.npz"))) == 1
+    assert len(list((work / "cache").glob("env-bandwidth-*.npz"))) == 1
+    # a second frame reads both from the cache; the AOVs are not overwritten without --force
+    r = run(["render", npf_scene, "-o", out, "--method", "adaptive", "--budget", "4", "-q"], work, check=False)
+    assert r.returncode == 2 and "--force" in r.stderr
+    run(["render", npf_scene, "-o", out, "--method", "adaptive", "--budget", "4", "-q", "--force"], work)
+    assert json.loads(out.with_suffix(".json").read_text())["assets"]["material.m"]["bandwidth"] == "cache"

@@ -129,3 +129,68 @@ def test_real_bunny_ray_cast(shared):
     p = gb.numpy("position")[cov]
     lo, hi = md.vertices.min(0) - 1e-4, md.vertices.max(0) + 1e-4
     assert ((p >= lo) & (p <= hi)).all()
+
+
+def _gbuffer_arrays(gb):
+    return {name: gb.numpy(name) for name in ("depth", "normal", "material", "curvature", "position")}
+
+
+def test_update_mesh_matches_a_geometry_built_from_scratch():
+    # dynamic geometry (002 Sec. 4.3): deforming the second of two meshes in place and refitting the
+    # BVH gives the G-buffer of a geometry built from the deformed vertices
+    from warpbw.gbuffer import update_mesh
+    from warpbw.io.mesh import normals_and_curvature
+
+    cam = make_camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 64, 48)
+    left = _icosphere_spec(0.6, material=0, subdiv=3)
+    left.vertices = left.vertices + np.array([-0.9, 0.0, 0.0])
+    right = _icosphere_spec(0.7, material=1, subdiv=4)
+    right.vertices = right.vertices + np.array([0.8, 0.0, 0.0])
+    geo = build_geometry([SphereSpec((0.0, 0.0, -3.0), 1.0, 2)], [left, right])
+    render_gbuffer(cam, geo)   # the BVH has been used before it moves
+    # a travelling-wave ripple and a shift: some of the new surface lies outside the old bounds
+    v = right.vertices - np.array([0.8, 0.0, 0.0])
+    v = v * (1.0 + 0.15 * np.sin(6.0 * v[:, 1:2])) + np.array([0.5, 0.3, 0.4])
+    n, h = normals_and_curvature(v, right.faces)
+    update_mesh(geo, 1, v, n, h)
+    got = _gbuffer_arrays(render_gbuffer(cam, geo))
+    moved = MeshSpec(v, right.faces, n, h, None, 1)
+    want = _gbuffer_arrays(render_gbuffer(cam, build_geometry([SphereSpec((0.0, 0.0, -3.0), 1.0, 2)],
+                                                              [left, moved])))
+    assert (want["material"] == 1).sum() > 300
+    assert not np.array_equal(got["material"], _gbuffer_arrays(render_gbuffer(
+        cam, build_geometry([SphereSpec((0.0, 0.0, -3.0), 1.0, 2)], [left, right])))["material"])
+    np.testing.assert_array_equal(got["material"], want["material"])
+    for name in ("depth", "normal", "curvature", "position"):
+        np.testing.assert_allclose(got[name], want[name], rtol=1e-5, atol=1e-6, err_msg=name)
+    # the first mesh is untouched
+    assert geo.mesh_vertex_ranges == [(0, len(left.vertices)), (len(left.vertices), len(v))]
+    np.testing.assert_array_equal(geo.mesh.points.numpy()[:len(left.vertices)],
+                                  left.vertices.astype(np.float32))
+
+
+def test_update_mesh_bad_input():
+    import pytest
+    from warpbw.errors import WarpbwError
+    from warpbw.gbuffer import update_mesh
+
+    m = _icosphere_spec(0.5, subdiv=2)
+    nv = len(m.vertices)
+    geo = build_geometry([], [m])
+    ok = (m.vertices, m.normals, m.curvature)
+    with pytest.raises(WarpbwError, match=rf"mesh 0 vertices: expected shape \({nv}, 3\) \({nv} vertices"):
+        update_mesh(geo, 0, m.vertices[:-1], m.normals, m.curvature)
+    with pytest.raises(WarpbwError, match=rf"curvature: expected shape \({nv},\)"):
+        update_mesh(geo, 0, m.vertices, m.normals, m.curvature[:, None])
+    bad = m.vertices.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(WarpbwError, match="vertices: expected finite values, 1 are NaN"):
+        update_mesh(geo, 0, bad, m.normals, m.curvature)
+    with pytest.raises(WarpbwError, match="normals: expected finite"):
+        update_mesh(geo, 0, m.vertices, np.full_like(m.normals, np.inf), m.curvature)
+    with pytest.raises(WarpbwError, match=r"mesh_index: expected an integer in 0\.\.0, got 1"):
+        update_mesh(geo, 1, *ok)
+    with pytest.raises(WarpbwError, match="no mesh"):
+        update_mesh(build_geometry([SphereSpec((0, 0, 0), 1.0, 0)], []), 0, *ok)
+    # a rejected update leaves the device arrays as they were
+    np.testing.assert_array_equal(geo.mesh.points.numpy(), m.vertices.astype(np.float32))

@@ -200,3 +200,27 @@ def test_bad_transform(sphere_files):
         load_mesh(sphere_files[(4, "obj")], scale=-1.0)
     with pytest.raises(WarpbwError, match="translate"):
         load_mesh(sphere_files[(4, "obj")], translate=(0, 1))
+
+
+def test_normals_and_curvature_closed_form_on_a_moved_sphere():
+    # dynamic geometry: a sphere of radius r, centred away from the origin, from positions alone;
+    # closed form: radial unit normals and H = 1 / r (002 Sec. 4.3 recomputes both every frame)
+    from warpbw.io.mesh import normals_and_curvature
+
+    r, centre = 0.7, np.array([0.3, -1.2, 2.0])
+    ico = trimesh.creation.icosphere(subdivisions=4, radius=r)
+    v = np.asarray(ico.vertices) + centre
+    n, h = normals_and_curvature(v, ico.faces)
+    assert n.shape == v.shape and h.shape == (len(v),)
+    radial = (v - centre) / r
+    assert np.min(np.sum(radial * n, axis=1)) > 0.999
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-9)
+    assert abs(np.median(h) * r - 1.0) < 0.01
+    assert np.all(np.abs(h * r - 1.0) < 0.05)
+    # the same call on a deformed copy follows the new positions: a prolate spheroid (semi-axes a, b, b)
+    # has k1 = k2 = a / b^2 at the tips of its long axis, so H = a / b^2 there
+    a, b = 1.5 * r, r
+    e = (v - centre) * np.array([a / r, b / r, b / r])
+    _, h_e = normals_and_curvature(e, ico.faces)
+    tip = np.argmax(e[:, 0])
+    assert abs(h_e[tip] * b * b / a - 1.0) < 0.05

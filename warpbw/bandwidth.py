@@ -33,6 +33,14 @@ so that ``V(L_p) <= sigma2_p / N_p``.  R (Eq. 3) takes the curvature c from the 
 * Eq. 9's sum over i is taken as a mean, E(chi^2) estimated from n_b samples, so that sigma2 does
   not grow with n_b (the n_b sweep of Fig. 13 would otherwise change the sample counts); the
   angular bandwidth of the light in Eq. 9 is the light's at x (before reflection), nu_a^env(w_i).
+* The light entering Eq. 4 is band-limited by the integrand: ``nu_in = min(nu_a^env, nu_rho + NU_COS)``.
+  Fig. 4's B limits only the angular component *after* the curvature shear C_c has copied the full
+  light bandwidth c nu_a^env into the spatial one, so a Lambertian sphere (nu_rho = 0) would inherit
+  the probe's sharpest detail times its curvature (measured: every pixel at level 0 under forest.exr).
+  But the reflected radiance integrates L rho cos over w_i, which keeps only the light's angular
+  frequencies that the band of rho cos can bring back to 0 (Eq. 8's convolution, read at angular
+  frequency 0): at most nu_rho + NU_COS.  Diffuse irradiance is smooth, as it should be; a sharp lobe
+  (nu_rho large) passes the light unchanged, as before.
 * Luminance (``LUMINANCE``, Rec. 709) reduces the RGB of L and rho to the scalar weights.
 * L_i and nu_a^env come from one reduced lat-long table (:func:`light_table`: mean luminance,
   max-filtered nu_a, at most ``LIGHT_TABLE_WIDTH`` columns), one nearest fetch per direction.
@@ -68,6 +76,8 @@ N_B_DEFAULT = 16              # directions per pixel; 002 Sec. 2.6 and Fig. 13 (
 NYQUIST_FACTOR = 2.0          # sampling rate = 2 x bandwidth (002 Sec. 2.2, Nyquist)
 N_P_MIN_DEFAULT = 1           # a shaded pixel gets at least one sample
 N_P_MAX_PER_BUDGET = 32       # default n_max = 32 x budget: caps the samples one pixel may take
+ALLOCATIONS = ("variance", "sqrt", "relative", "uniform")
+ALLOCATION_DEFAULT = "uniform"  # measured: the bound-proportional ones lose 5-10 dB under MIS (module docstring)
 LUMINANCE = (0.2126, 0.7152, 0.0722)   # Rec. 709 weights, RGB -> scalar chi
 FOUR_PI_SQ = 4.0 * math.pi * math.pi   # 002 Sec. 2.4: V(L_p) <= 4 pi^2 sigma^2 / N_p
 
@@ -82,6 +92,10 @@ _LUM = wp.constant(wp.vec3(*LUMINANCE))
 _TWO_OVER_PI = wp.constant(2.0 / math.pi)
 _TWO_PI = wp.constant(2.0 * math.pi)
 _FOUR_PI_SQ = wp.constant(FOUR_PI_SQ)
+# 95%-energy bandwidth of the clamped cosine max(cos theta, 0) over the incident angle, cycles/radian
+# (its spectrum falls as 1/f^2 past ~1/(2 pi)); the band-limit of a Lambertian lobe's integrand
+NU_COS = wp.constant(0.3)
+REL_EPS = wp.constant(1.0e-4)  # radiance^2 added to mu^2 in sigma2_rel: black pixels do not divide by 0
 
 
 @wp.struct
@@ -154,7 +168,7 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
                                 tables: BandwidthTables, dirs: wp.array(dtype=wp.vec2),
                                 pixels: wp.array(dtype=wp.int32), offset: int, pixel_angle: float,
                                 nu_out: wp.array(dtype=wp.vec2), b_p: wp.array(dtype=wp.float32),
-                                sigma2: wp.array(dtype=wp.float32)):
+                                sigma2: wp.array(dtype=wp.float32), sigma2_rel: wp.array(dtype=wp.float32)):
         i = pixels[wp.tid() + offset]
         m = gb.material[i]
         n = gb.normal[i]
@@ -175,7 +189,10 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
                 chi = light[0] * rho * wi[2]                  # lambda_i (Eq. 5), integrand of Eq. 1
                 nu_l = light[1]
                 nu_r = brdf_nu_rho(tables.nu_rho, m, wi, wo)
-                nu_i = bw_one_bounce(wp.vec2(0.0, nu_l), 0.0, dp, wi[2], wo[2], c, 0.0, nu_r)  # Eq. 4
+                # the shading integral over w_i keeps only the light's angular frequencies within the
+                # band of rho cos (Eq. 8's convolution, read at angular frequency 0): module docstring
+                nu_in = wp.min(nu_l, nu_r + NU_COS)
+                nu_i = bw_one_bounce(wp.vec2(0.0, nu_in), 0.0, dp, wi[2], wo[2], c, 0.0, nu_r)  # Eq. 4
                 if chi > 0.0 and wp.isfinite(chi):
                     lam_sum += chi
                     nu_sum += chi * nu_i
@@ -188,7 +205,10 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
             nu = nu_sum / lam_sum                                    # Eq. 5
         nu_out[i] = nu
         b_p[i] = nu[1] * pixel_angle                                 # Eq. 6
-        sigma2[i] = _FOUR_PI_SQ * var_sum / float(wp.max(n_b, 1))     # Eq. 9, E(chi^2) as a mean
+        s2 = _FOUR_PI_SQ * var_sum / float(wp.max(n_b, 1))            # Eq. 9, E(chi^2) as a mean
+        sigma2[i] = s2
+        mu = _TWO_PI * lam_sum / float(wp.max(n_b, 1))                # uniform-sampling estimate of L_p
+        sigma2_rel[i] = s2 / (mu * mu + REL_EPS)
 
     return bandwidth_buffer_kernel
 
@@ -311,6 +331,7 @@ class BandwidthBuffer:
     nu: wp.array               # vec2 [nu_s, nu_a] at the eye (Eq. 5)
     b_p: wp.array              # float32 image bandwidth, cycles/pixel (Eq. 6)
     sigma2: wp.array           # float32 variance bound numerator: V(L_p) <= sigma2 / N_p (Eq. 9 / 10)
+    sigma2_rel: wp.array       # float32 sigma2 / (mu^2 + REL_EPS), mu the pass's own estimate of L_p
     level: wp.array            # int32 (H, W) shading level (Eq. 11 on NYQUIST_FACTOR * b_p)
     coverage: np.ndarray       # (H, W) bool
     width: int
@@ -334,16 +355,17 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     nu = wp.zeros(W * H, dtype=wp.vec2, device=device)
     b_p = wp.zeros(W * H, dtype=wp.float32, device=device)
     sigma2 = wp.zeros(W * H, dtype=wp.float32, device=device)
+    sigma2_rel = wp.zeros(W * H, dtype=wp.float32, device=device)
     kernel = make_bandwidth_kernel(materials.kinds, preconvolved)
     pix = covered_pixels(gb, device)
     angle = pixel_angle(cam)
     launch_tiled(kernel, pix.shape[0],
-                 lambda o, c: [gb.data, cam, materials.table, env_data, tables, dirs, pix, o, angle, nu, b_p, sigma2],
+                 lambda o, c: [gb.data, cam, materials.table, env_data, tables, dirs, pix, o, angle, nu, b_p, sigma2, sigma2_rel],
                  device, threads)
     rate = b_p.numpy() * np.float32(nyquist)
     level = image_level(rate, gb.coverage, W, H, device=device)
     wp.synchronize_device(device)
-    return BandwidthBuffer(nu, b_p, sigma2, level, gb.coverage, W, H, int(n_b), time.perf_counter() - t0)
+    return BandwidthBuffer(nu, b_p, sigma2, sigma2_rel, level, gb.coverage, W, H, int(n_b), time.perf_counter() - t0)
 
 
 @dataclass
@@ -364,11 +386,12 @@ def _n_of(s: np.ndarray, v: float, n_min: int, n_max: int) -> np.ndarray:
     return np.clip(np.nan_to_num(n, nan=n_max, posinf=n_max), n_min, n_max).astype(np.int64)
 
 
-def planned_shading(buf: BandwidthBuffer, device: str = "cpu") -> np.ndarray:
-    """sigma2 of the texels the hierarchy will shade (level L texels whose min-filtered level is L)."""
+def planned_shading(buf: BandwidthBuffer, device: str = "cpu", key=None) -> np.ndarray:
+    """sigma2 (or ``key``) of the texels the hierarchy will shade (level L texels whose min-filtered
+    level is L), max-filtered over their footprints."""
     W, H = buf.width, buf.height
     levels = build_pyramid(buf.level, op="min", device=device)
-    var = build_pyramid(buf.sigma2.numpy().reshape(H, W), op="max", device=device)
+    var = build_pyramid((buf.sigma2 if key is None else key).numpy().reshape(H, W), op="max", device=device)
     cov = build_pyramid(buf.coverage.astype(np.int32), op="max", device=device)
     cov_np = buf.coverage
     top = int(buf.level.numpy()[cov_np].max()) if cov_np.any() else 0
@@ -381,8 +404,12 @@ def planned_shading(buf: BandwidthBuffer, device: str = "cpu") -> np.ndarray:
 
 
 def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_DEFAULT, n_max: int | None = None,
-                     device: str = "cpu") -> SampleAllocation:
-    """N_p per pixel proportional to sigma2 (002 Sec. 2.4), for ``budget`` samples per covered pixel."""
+                     allocation: str = ALLOCATION_DEFAULT, device: str = "cpu") -> SampleAllocation:
+    """N_p per pixel for ``budget`` samples per covered pixel: proportional to sigma2 ("variance", 002
+    Sec. 2.4: constant variance) or to its square root ("sqrt": the allocation that minimises the total
+    variance sum_p sigma2_p / N_p for a fixed budget, i.e. the MSE)."""
+    if allocation not in ALLOCATIONS:
+        raise WarpbwError(f"allocation: expected one of {', '.join(ALLOCATIONS)}, got {allocation!r}")
     if isinstance(budget, bool) or not isinstance(budget, (int, float, np.integer, np.floating)) \
             or not (budget > 0 and math.isfinite(budget)):
         raise WarpbwError(f"budget: expected a positive number of samples per pixel, got {budget!r}")
@@ -396,7 +423,9 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     cov = buf.coverage
     n_cov = int(cov.sum())
     total = int(round(budget * n_cov))
-    s = planned_shading(buf, device).astype(np.float64)
+    power = {"sqrt": 0.5, "uniform": 0.0}.get(allocation, 1.0)
+    key = buf.sigma2_rel if allocation == "relative" else buf.sigma2
+    s = planned_shading(buf, device, key).astype(np.float64) ** power
     n_plan = len(s)
     over = n_plan * n_min > total
     if n_plan == 0:
@@ -417,16 +446,17 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
             else:
                 hi = mid
         v = math.exp(hi)
-    sig = buf.sigma2.numpy().reshape(H, W).astype(np.float64)
+    sig = key.numpy().reshape(H, W).astype(np.float64)
     if v == 0.0:
         n_p = np.full((H, W), n_max, np.int64)
     else:
-        n_p = _n_of(sig, v, n_min, n_max)
+        n_p = _n_of(sig ** power, v, n_min, n_max)
     n_p = np.where(cov, n_p, 0).astype(np.int32)
     with np.errstate(divide="ignore", invalid="ignore"):
         variance = np.where(cov & (n_p > 0), sig / np.maximum(n_p, 1), 0.0).astype(np.float32)
     planned = int(_n_of(s, v, n_min, n_max).sum()) if v != 0.0 else n_plan * n_max
-    stats = {"budget_spp": float(budget), "n_min": int(n_min), "n_max": int(n_max), "v_target": v,
+    stats = {"budget_spp": float(budget), "n_min": int(n_min), "n_max": int(n_max), "allocation": allocation,
+             "v_target": v,
              "planned_pixels": n_plan, "planned_samples": planned, "budget_samples": total,
              "over_budget": bool(over)}
     return SampleAllocation(n_p, variance, v, n_plan, planned, total, bool(over), stats)

@@ -290,6 +290,49 @@ def _positive_int(name):
     return parse
 
 
+def _number_list(name, kind):
+    def parse(s):
+        try:
+            vals = [kind(x) for x in s.split(",") if x.strip()]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected comma-separated {kind.__name__}s, got {s!r}") from None
+        if not vals or any(not (v > 0 and math.isfinite(v)) for v in vals):
+            raise argparse.ArgumentTypeError(f"expected comma-separated positive numbers, got {s!r}")
+        return vals
+    parse.__name__ = name
+    return parse
+
+
+def cmd_bench(args) -> int:
+    from warpbw import bench
+    from warpbw.scene import load_scene
+
+    outs = [Path(p) for p in (args.json, args.plot) if p]
+    if not outs:
+        raise WarpbwError("give --json OUT.json and/or --plot OUT.png (where to write the results)")
+    if args.plot and Path(args.plot).suffix.lower() != ".png":
+        raise WarpbwError(f"--plot {args.plot}: expected a path ending in .png")
+    _check_overwrite(outs, args.force)
+    scene = load_scene(args.scene)
+    _init_warp(args.device)
+    log = (lambda *a, **k: None) if args.quiet else print
+    record = bench.run_bench(scene, spp_list=args.spp, budgets=args.budgets, nb_list=args.nb or (),
+                             gt_spp=args.gt_spp, runs=args.runs, mis=not args.no_mis,
+                             cache_dir=Path(args.cache) if args.cache else None, nb_budget=args.nb_budget,
+                             seed=args.seed, device=args.device, progress=not args.quiet, log=log)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(record, indent=2) + "\n")
+    if args.plot:
+        Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
+        bench.write_plot(record, args.plot)
+    print(bench.format_table(record))
+    if not record["ground_truth_converged"]:
+        print(f"warpbw: warning: the ground truth is not converged (doubling changes PSNR by "
+              f"{record['ground_truth_doubling_delta_db']:.2f} dB >= 0.5 dB): raise --gt-spp", file=sys.stderr)
+    return 0
+
+
 def _positive_float(name):
     def parse(s):
         try:
@@ -353,6 +396,39 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("scene", help="scene file (TOML)")
     i.add_argument("--json", action="store_true", help="print JSON")
     i.set_defaults(func=cmd_info)
+
+    from warpbw import bench as _bench
+
+    bn = sub.add_parser("bench", help="speed against accuracy: adaptive shading vs the reference",
+                        description="The measurement protocol of DESIGN.md on SCENE: a cached ground truth (MIS, "
+                        "--gt-spp), the reference at each --spp, adaptive shading at each --budget, each timed as the "
+                        "median of --runs frames after a warm-up; PSNR and relative MSE over covered pixels; the "
+                        "equal-quality speed-up (reference time at the adaptive error, log-log interpolation) and the "
+                        "bandwidth pass's share of the frame.  --nb adds the n_b sweep of 002 Fig. 13.",
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    bn.add_argument("scene", help="scene file (TOML)")
+    bn.add_argument("--json", help="write the record here (JSON)")
+    bn.add_argument("--plot", help="write the plot here (PNG): PSNR against time, one curve per method")
+    bn.add_argument("--spp", type=_number_list("spp", int), default=list(_bench.DEFAULT_SPP),
+                    help="reference sample counts (default %s)" % ",".join(map(str, _bench.DEFAULT_SPP)))
+    bn.add_argument("--budgets", type=_number_list("budgets", float), default=list(_bench.DEFAULT_BUDGETS),
+                    help="adaptive budgets, mean samples per covered pixel (default %s)"
+                    % ",".join(f"{b:g}" for b in _bench.DEFAULT_BUDGETS))
+    bn.add_argument("--nb", type=_number_list("nb", int), default=None,
+                    help="n_b sweep, e.g. 16,64,256,1024 (002 Fig. 13), at --nb-budget")
+    bn.add_argument("--nb-budget", type=_positive_float("nb-budget"), default=None,
+                    help=f"budget of the n_b sweep (default {_bench.NB_SWEEP_BUDGET})")
+    bn.add_argument("--gt-spp", type=_positive_int("gt-spp"), default=_bench.DEFAULT_GT_SPP,
+                    help=f"ground-truth samples per pixel (default {_bench.DEFAULT_GT_SPP}; cached in chunks)")
+    bn.add_argument("--runs", type=_positive_int("runs"), default=3, help="timed runs per point (median; default 3)")
+    bn.add_argument("--no-mis", action="store_true",
+                    help="compare with BRDF importance sampling only (default: MIS for both methods)")
+    bn.add_argument("--cache", help="ground-truth cache directory (default $WARPBW_CACHE/ground_truth)")
+    bn.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    bn.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda / cuda:N")
+    bn.add_argument("--force", action="store_true", help="overwrite existing output files")
+    bn.add_argument("-q", "--quiet", action="store_true", help="only the final table")
+    bn.set_defaults(func=cmd_bench)
 
     c = sub.add_parser("compare", help="PSNR and relative MSE of an image against a reference",
                        description="PSNR and relative MSE (linear radiance) over the pixels covered by geometry "

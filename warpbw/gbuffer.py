@@ -5,6 +5,8 @@ Public:
     ``make_camera(position, look_at, up, fov_deg, width, height)`` -> ``CameraData``
     ``camera_rays(cam) -> (origins, dirs)``  numpy, for tests and examples
     ``Geometry`` / ``build_geometry(spheres, meshes, device)``  scene geometry on the device
+    ``update_mesh(geometry, mesh_index, vertices, normals, curvature)``  deform one mesh in place and
+                                     refit the BVH (dynamic geometry, 002 Sec. 4.3, Fig. 18)
     ``GBufferData``                  Warp struct: the per-pixel buffers, as kernels read them
     ``GBuffer`` / ``render_gbuffer(cam, geometry, device)``     run the pass
 
@@ -27,6 +29,8 @@ from typing import Sequence
 
 import numpy as np
 import warp as wp
+
+from warpbw.errors import WarpbwError
 
 RAY_T_MAX = 1.0e30
 
@@ -297,6 +301,8 @@ class Geometry:
     has_mesh: bool
     n_triangles: int = 0
     _keep: list = field(default_factory=list, repr=False)
+    # (first vertex, vertex count) of each MeshSpec in the concatenated vertex arrays, in the order given
+    mesh_vertex_ranges: list = field(default_factory=list)
 
 
 def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], device: str = "cpu") -> Geometry:
@@ -311,11 +317,13 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
     ma = MeshAttributes()
     mesh = None
     n_tri = 0
+    ranges = []
     if meshes:
         verts, faces, norms, curv, uvs, fmat = [], [], [], [], [], []
         base = 0
         for m in meshes:
             v = np.asarray(m.vertices, np.float32)
+            ranges.append((base, len(v)))
             verts.append(v)
             faces.append(np.asarray(m.faces, np.int64) + base)
             norms.append(np.asarray(m.normals, np.float32))
@@ -341,7 +349,52 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
         ma.curvature = wp.zeros(0, dtype=wp.float32, device=device)
         ma.uv = wp.zeros(0, dtype=wp.vec2, device=device)
         ma.face_material = wp.zeros(0, dtype=wp.int32, device=device)
-    return Geometry(sl, ma, mesh, bool(spheres), bool(meshes), n_tri)
+    return Geometry(sl, ma, mesh, bool(spheres), bool(meshes), n_tri, mesh_vertex_ranges=ranges)
+
+
+def _per_vertex(name: str, values, shape: tuple, mesh_index: int) -> np.ndarray:
+    """``values`` as a float32 array of ``shape``, or a WarpbwError naming what was expected."""
+    a = np.asarray(values)
+    if a.shape != shape:
+        raise WarpbwError(f"update_mesh: mesh {mesh_index} {name}: expected shape {shape} "
+                          f"({shape[0]} vertices, as built), got {a.shape}")
+    if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
+        raise WarpbwError(f"update_mesh: mesh {mesh_index} {name}: expected numbers, got dtype {a.dtype}")
+    a = np.ascontiguousarray(a, dtype=np.float32)
+    n_bad = int(np.count_nonzero(~np.isfinite(a)))
+    if n_bad:
+        raise WarpbwError(f"update_mesh: mesh {mesh_index} {name}: expected finite values, "
+                          f"{n_bad} are NaN or infinite (or overflow float32)")
+    return a
+
+
+def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals, curvature) -> None:
+    """Deform mesh ``mesh_index`` (its position in ``build_geometry``'s ``meshes``) in place.
+
+    Copies the new vertex positions (V, 3), smooth normals (V, 3) and mean curvatures (V,) into the
+    device arrays the G-buffer kernel reads, at that mesh's offset in the concatenated arrays, then
+    refits the BVH over the moved points (``wp.Mesh.refit``: same topology, new bounds).  The
+    connectivity, uv and materials stay as built.  Nothing is derived from the old geometry, so a
+    frame rendered after this is what ``build_geometry`` with the new vertices would give: the
+    bandwidth pass needs only the G-buffer (002 Sec. 4.3, "Dynamic geometry").
+    """
+    ranges = geometry.mesh_vertex_ranges
+    if geometry.mesh is None or not ranges:
+        raise WarpbwError("update_mesh: the geometry has no mesh to update (built with meshes=[])")
+    if isinstance(mesh_index, bool) or not isinstance(mesh_index, (int, np.integer)) \
+            or not 0 <= mesh_index < len(ranges):
+        raise WarpbwError(f"update_mesh: mesh_index: expected an integer in 0..{len(ranges) - 1}, "
+                          f"got {mesh_index!r}")
+    start, count = ranges[int(mesh_index)]
+    v = _per_vertex("vertices", vertices, (count, 3), mesh_index)
+    n = _per_vertex("normals", normals, (count, 3), mesh_index)
+    h = _per_vertex("curvature", curvature, (count,), mesh_index)
+    device = geometry.mesh.points.device
+    ma = geometry.mesh_attr
+    for dest, src, dtype in ((geometry.mesh.points, v, wp.vec3), (ma.normal, n, wp.vec3),
+                             (ma.curvature, h, wp.float32)):
+        wp.copy(dest, wp.array(src, dtype=dtype, device=device), dest_offset=start, count=count)
+    geometry.mesh.refit()
 
 
 @dataclass

@@ -289,7 +289,8 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False):
 
 def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b: int | None = None,
                     n_min: int | None = None, n_max: int | None = None, preconvolved: bool = False,
-                    device: str = "cpu", progress: bool = False, threads: int | None = None) -> RenderResult:
+                    allocation: str | None = None, nyquist: float | None = None, device: str = "cpu",
+                    progress: bool = False, threads: int | None = None) -> RenderResult:
     """Render a frame with bandwidth prediction and hierarchical adaptive shading (002 Sec. 2-3).
 
     ``budget`` is the mean number of samples per covered pixel (the total is budget x covered pixels),
@@ -301,6 +302,8 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
 
     n_b = bandwidth.N_B_DEFAULT if n_b is None else n_b
     n_min = bandwidth.N_P_MIN_DEFAULT if n_min is None else n_min
+    allocation = bandwidth.ALLOCATION_DEFAULT if allocation is None else allocation
+    nyquist = bandwidth.NYQUIST_FACTOR if nyquist is None else nyquist
     bandwidth.direction_set(n_b)  # validates n_b before any work
     prep, timings = _prepared(scene, device, progress)
     tables = prepare_bandwidth(prep, progress)
@@ -316,8 +319,9 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     gb = _gbuffer(prep, timings)
     t0 = time.perf_counter()
     buf = bandwidth.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=n_b, seed=seed,
-                                   preconvolved=preconvolved, device=prep.device, threads=threads)
-    alloc = bandwidth.allocate_samples(buf, budget, n_min=n_min, n_max=n_max, device=prep.device)
+                                   preconvolved=preconvolved, nyquist=nyquist, device=prep.device, threads=threads)
+    alloc = bandwidth.allocate_samples(buf, budget, n_min=n_min, n_max=n_max, allocation=allocation,
+                                       device=prep.device)
     timings["bandwidth"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     res = adaptive.shade_hierarchical(gb, prep.camera, prep.materials, prep.env.data, buf.level, alloc.n_p,

@@ -1,0 +1,110 @@
+"""Write the benchmark scenes of issue 3 (and their NPF-derived MERL files), then optionally bench them.
+
+    python examples/bench_scenes.py --out bench_scenes            # write the scenes only
+    python examples/bench_scenes.py --out bench_scenes --run      # and run `warpbw bench` on each
+
+Four scenes, two shapes, four NPF-derived MERL materials (one very specular, chrome) and two light
+probes, from ../shared/data:
+
+=====================  ==========  =========================  ===========  =========
+scene                  object      material (NPF -> MERL)     probe        size
+=====================  ==========  =========================  ===========  =========
+bunny_gold_forest      bunny       gold-metallic-paint        forest.exr   512x512
+sphere_chrome_studio   sphere      chrome                     studio.exr   256x256
+sphere_ccp3_forest     sphere      color-changing-paint3      forest.exr   256x256
+bunny_acrylic_studio   bunny       blue-acrylic               studio.exr   256x256
+=====================  ==========  =========================  ===========  =========
+
+Each bench writes SCENE.json and SCENE.png beside the scene (``warpbw bench --help``); ``--nb`` adds the
+n_b sweep (002 Fig. 13) to the first scene.
+"""
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+DATA = HERE.parent.parent / "shared" / "data"
+
+CAMERAS = {
+    "bunny": 'position = [0.0, 0.35, 4.6]\nlook_at = [0.0, 0.0, 0.0]\nfov = 35.0',
+    "sphere": 'position = [0.0, 0.0, 4.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 30.0',
+}
+OBJECTS = {
+    "bunny": 'mesh = "{mesh}"\nmaterial = "m"',
+    "sphere": 'shape = "sphere"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0\nmaterial = "m"',
+}
+SCENES = {  # name: (object, NPF material, probe, size)
+    "bunny_gold_forest": ("bunny", "gold-metallic-paint", "forest.exr", 512),
+    "sphere_chrome_studio": ("sphere", "chrome", "studio.exr", 256),
+    "sphere_ccp3_forest": ("sphere", "color-changing-paint3", "forest.exr", 256),
+    "bunny_acrylic_studio": ("bunny", "blue-acrylic", "studio.exr", 256),
+}
+TEMPLATE = """# warpbw benchmark scene (examples/bench_scenes.py)
+[camera]
+{camera}
+resolution = [{size}, {size}]
+
+[environment]
+file = "{probe}"
+
+[[object]]
+{obj}
+
+[material.m]
+type = "merl"
+file = "{merl}"
+"""
+
+
+def write_scenes(out: Path) -> list[Path]:
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name, (obj, material, probe, size) in SCENES.items():
+        merl = out / f"{material}.binary"
+        if not merl.exists():
+            subprocess.run([sys.executable, "-m", "precompute", "npf-to-merl", "--table",
+                            str(DATA / "brdf" / "npf.bin"), "--material", material, "-o", str(merl)], check=True)
+        text = TEMPLATE.format(camera=CAMERAS[obj], size=size, probe=DATA / "envmaps" / probe,
+                               obj=OBJECTS[obj].format(mesh=DATA / "meshes" / "bunny.obj"), merl=merl.name)
+        p = out / f"{name}.toml"
+        p.write_text(text)
+        paths.append(p)
+    return paths
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default="bench_scenes", help="directory for scenes, MERL files and results")
+    ap.add_argument("--run", action="store_true", help="run warpbw bench on every scene")
+    ap.add_argument("--only", help="comma-separated scene names to run")
+    ap.add_argument("--nb", default="16,64,256,1024", help="n_b sweep on the first scene ('' for none)")
+    ap.add_argument("--gt-spp", default="8192")
+    ap.add_argument("--force", action="store_true")
+    args = ap.parse_args(argv)
+    if not DATA.is_dir():
+        print(f"bench_scenes: {DATA} not found (the shared data folder is needed)", file=sys.stderr)
+        return 2
+    paths = write_scenes(Path(args.out))
+    print("scenes: " + ", ".join(str(p) for p in paths))
+    if not args.run:
+        return 0
+    only = set(args.only.split(",")) if args.only else None
+    for i, p in enumerate(paths):
+        if only and p.stem not in only:
+            continue
+        cmd = ["warpbw", "bench", str(p), "--json", str(p.with_suffix(".json")), "--plot", str(p.with_suffix(".png")),
+               "--gt-spp", args.gt_spp, "-q"]
+        if i == 0 and args.nb:
+            cmd += ["--nb", args.nb]
+        if args.force:
+            cmd.append("--force")
+        print("$ " + " ".join(cmd), flush=True)
+        subprocess.run(cmd, check=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

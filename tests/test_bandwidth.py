@@ -1,0 +1,229 @@
+"""Bandwidth-buffer pass (002 Eq. 4-6, 9-11) and the N_p allocation, against independent formulas."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import warp as wp
+
+from precompute.brdf_bandwidth import N_CELLS, N_THETA_I, wo_to_map
+from warpbw import bandwidth as bw
+from warpbw.bandwidth_ops import COS_X_MIN
+from warpbw.errors import WarpbwError
+from warpbw.pipeline import _gbuffer, prepare_bandwidth, prepare_scene, render_adaptive, render_reference
+from warpbw.pyramid import max_level
+from warpbw.scene import parse_scene
+
+SCENE = """
+[camera]
+position = [0.0, 0.0, 4.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 30.0
+resolution = [{w}, {h}]
+[environment]
+{env}
+[[object]]
+shape = "sphere"
+center = [0.0, 0.0, 0.0]
+radius = {r}
+material = "m"
+[material.m]
+{mat}
+"""
+LAMBERT = 'type = "lambert"\nalbedo = [0.6, 0.6, 0.6]'
+GGX_SHARP = 'type = "ggx"\nalpha = 0.05\nspecular = [0.9, 0.9, 0.9]'
+
+
+def prepared(mat=LAMBERT, env="constant = [1.0, 1.0, 1.0]", w=48, h=40, r=1.0):
+    return prepare_scene(parse_scene(SCENE.format(w=w, h=h, env=env, mat=mat, r=r)))
+
+
+def run_pass(prep, n_b=16, light=None, **kw):
+    tables = prepare_bandwidth(prep)
+    if light is not None:  # a synthetic light table replaces the environment's
+        nu_rho = prep.bandwidth.nu_rho.numpy().reshape(-1, N_THETA_I, N_CELLS, N_CELLS)
+        tables, keep = bw.make_bandwidth_tables(light, nu_rho)
+        prep._keep.extend(keep)
+    gb = _gbuffer(prep, {})
+    return gb, bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=n_b, **kw)
+
+
+# --- look-ups against numpy --------------------------------------------------------------------------
+
+@wp.kernel(module="unique", enable_backward=False)
+def _nu_rho_kernel(tab: wp.array(dtype=wp.float32), wi: wp.array(dtype=wp.vec3), wo: wp.array(dtype=wp.vec3),
+                   out: wp.array(dtype=wp.float32)):
+    i = wp.tid()
+    out[i] = bw.brdf_nu_rho(tab, 1, wi[i], wo[i])
+
+
+def _hemi(rng, n):
+    v = rng.normal(size=(n, 3))
+    v[:, 2] = np.abs(v[:, 2]) + 1e-3
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def test_brdf_table_lookup_matches_numpy_cells():
+    rng = np.random.default_rng(1)
+    tab = rng.random((2, N_THETA_I, N_CELLS, N_CELLS)).astype(np.float32)
+    wi, wo = _hemi(rng, 4000), _hemi(rng, 4000)
+    out = wp.zeros(len(wi), dtype=wp.float32)
+    wp.launch(_nu_rho_kernel, dim=len(wi), inputs=[wp.array(tab.reshape(-1)), wp.array(wi, dtype=wp.vec3),
+                                                   wp.array(wo, dtype=wp.vec3), out])
+    # independent: theta_i bin, then w_o turned by -phi_i, then the equal-area map of precompute
+    th = np.arccos(np.clip(wi[:, 2], -1, 1))
+    t = np.clip((th / (np.pi / 2) * N_THETA_I).astype(int), 0, N_THETA_I - 1)
+    phi = np.arctan2(wi[:, 1], wi[:, 0])
+    c, s = np.cos(phi), np.sin(phi)
+    wo_r = np.stack([c * wo[:, 0] + s * wo[:, 1], -s * wo[:, 0] + c * wo[:, 1], wo[:, 2]], axis=1)
+    xy = wo_to_map(wo_r)
+    col = np.clip(((xy[:, 0] + 1) / 2 * N_CELLS).astype(int), 0, N_CELLS - 1)
+    row = np.clip(((xy[:, 1] + 1) / 2 * N_CELLS).astype(int), 0, N_CELLS - 1)
+    expect = tab[1, t, row, col]
+    # cell boundaries may round either way in float32: allow a tiny fraction of neighbours
+    assert np.mean(out.numpy() == expect) > 0.995
+
+
+def test_light_table_preserves_mean_luminance_and_max_bandwidth():
+    rng = np.random.default_rng(2)
+    px = rng.random((64, 128, 3)).astype(np.float32)
+    nu = rng.random((64, 128)).astype(np.float32) * 50
+    lt = bw.light_table(px, nu, width=32)
+    assert lt.shape == (16, 32, 2)
+    lum = px @ np.array(bw.LUMINANCE, np.float32)
+    assert np.isclose(lt[..., 0].mean(), lum.mean(), rtol=1e-5)
+    assert np.allclose(lt[..., 1], nu.reshape(16, 4, 32, 4).max(axis=(1, 3)))
+
+
+def test_direction_set_is_stratified():
+    u = bw.direction_set(64, seed=3)
+    assert u.shape == (64, 2) and np.all((u >= 0) & (u < 1))
+    # one point per 1/64 stratum along each axis (Hammersley, shifted mod 1)
+    assert len(np.unique(np.floor(u[:, 0] * 64))) == 64
+    assert len(np.unique(np.floor(u[:, 1] * 64))) == 64
+    with pytest.raises(WarpbwError, match="n_b"):
+        bw.direction_set(0)
+
+
+# --- closed forms --------------------------------------------------------------------------------------
+
+def test_lambert_under_constant_light_has_zero_bandwidth_and_coarsest_level():
+    prep = prepared()
+    gb, buf = run_pass(prep)
+    cov = gb.coverage.reshape(-1)
+    assert np.all(buf.b_p.numpy()[cov] == 0) and np.all(buf.sigma2.numpy()[cov] == 0)
+    assert np.all(buf.level.numpy() == max_level(prep.width, prep.height))
+
+
+def test_lambert_sphere_image_bandwidth_matches_eq4_closed_form():
+    """Uniform nu_a = a over the sphere of directions, Lambert (nu_rho = 0): the integrand keeps
+    a' = min(a, NU_COS) and every path carries nu^i = [c a' / cos_x, d' c a' / cos_x] (Fig. 4 chain by
+    hand), so Eq. 5 is exact and b_p = d' c a' / cos_x * pixel angle (Eq. 6)."""
+    a = 7.5
+    prep = prepared(r=0.8)
+    light = np.stack([np.ones((8, 16)), np.full((8, 16), a)], axis=-1)
+    gb, buf = run_pass(prep, light=light)
+    cov = gb.coverage.reshape(-1)
+    pos = gb.data.position.numpy()[cov]
+    nrm = gb.data.normal.numpy()[cov]
+    view = gb.data.view.numpy()[cov]
+    d_eye = np.linalg.norm(pos - np.array([0.0, 0.0, 4.0]), axis=1)
+    cos_x = np.maximum(np.sum(nrm * view, axis=1), COS_X_MIN)
+    fov = math.radians(30.0)
+    angle = max(fov / prep.width, 2 * math.atan(math.tan(fov / 2) * prep.height / prep.width) / prep.height)
+    expect = d_eye * (1 / 0.8) * min(a, float(bw.NU_COS)) / cos_x * angle
+    got = buf.b_p.numpy()[cov]
+    interior = cos_x > 0.2
+    np.testing.assert_allclose(got[interior], expect[interior], rtol=2e-3)
+
+
+def test_variance_bound_closed_form_for_lambert():
+    """sigma2 = 4 pi^2 E[(nu_a + 0) chi^2], chi = (albedo / pi) cos: E_uniform[cos^2] = 1/3 (Eq. 9)."""
+    a = 3.0
+    prep = prepared()
+    light = np.stack([np.ones((8, 16)), np.full((8, 16), a)], axis=-1)
+    gb, buf = run_pass(prep, n_b=1024, light=light)
+    cov = gb.coverage.reshape(-1)
+    expect = 4 * math.pi ** 2 * a * (0.6 / math.pi) ** 2 / 3.0
+    np.testing.assert_allclose(buf.sigma2.numpy()[cov], expect, rtol=2e-3)
+
+
+def test_adaptive_lambert_furnace_returns_albedo():
+    prep = prepared(w=40, h=40)
+    res = render_adaptive(prep, budget=2.0, seed=1)
+    cov = res.coverage
+    assert np.allclose(res.image[cov], 0.6, rtol=2e-2)  # Lambertian sphere under a constant sky
+    assert res.stats["shaded_fraction"] < 0.1          # nothing varies: a few coarse texels are shaded
+
+
+def test_diffuse_shades_fewer_finest_pixels_than_sharp_specular(shared):
+    env = f'file = "{shared("envmaps/forest.exr")}"'
+    frac = {}
+    for name, mat in (("diffuse", LAMBERT), ("specular", GGX_SHARP)):
+        prep = prepared(mat=mat, env=env, w=64, h=64)
+        res = render_adaptive(prep, budget=2.0, seed=1)
+        cov = res.coverage
+        frac[name] = float(np.mean(res.aovs["level"][cov] == 0))
+    assert frac["diffuse"] < frac["specular"]
+    assert frac["diffuse"] < 0.2
+
+
+# --- allocation ----------------------------------------------------------------------------------------
+
+def _fake_buffer(sig, level, cov):
+    h, w = sig.shape
+    z = wp.zeros(h * w, dtype=wp.vec2)
+    return bw.BandwidthBuffer(z, wp.array(np.zeros(h * w, np.float32)), wp.array(sig.reshape(-1).astype(np.float32)),
+                              wp.array(sig.reshape(-1).astype(np.float32)),
+                              wp.array(level.astype(np.int32)), cov, w, h, 16)
+
+
+@pytest.mark.parametrize("allocation", bw.ALLOCATIONS)
+def test_allocation_spends_the_budget_and_respects_clamps(allocation):
+    rng = np.random.default_rng(4)
+    sig = rng.lognormal(0, 2, size=(20, 24))
+    cov = np.ones((20, 24), bool)
+    level = np.zeros((20, 24))
+    buf = _fake_buffer(sig, level, cov)
+    a = bw.allocate_samples(buf, budget=6.0, n_min=1, n_max=40, allocation=allocation)
+    assert a.n_p.min() >= 1 and a.n_p.max() <= 40
+    assert abs(a.n_p.sum() - 6.0 * cov.sum()) <= cov.sum() * 0.05 + 1
+    if allocation == "variance":  # N_p grows with sigma2 (002 Sec. 2.4)
+        order = np.argsort(sig.reshape(-1))
+        assert np.all(np.diff(a.n_p.reshape(-1)[order]) >= 0)
+
+
+def test_allocation_below_one_sample_per_shaded_pixel_is_flagged():
+    sig = np.ones((16, 16))
+    buf = _fake_buffer(sig, np.zeros((16, 16)), np.ones((16, 16), bool))
+    a = bw.allocate_samples(buf, budget=0.25)
+    assert a.over_budget and np.all(a.n_p == 1)
+
+
+@pytest.mark.parametrize("kw, match", [({"budget": 0}, "budget"), ({"budget": float("nan")}, "budget"),
+                                       ({"budget": 2, "n_min": 0}, "n_min"),
+                                       ({"budget": 2, "n_min": 4, "n_max": 2}, "n_max"),
+                                       ({"budget": 2, "allocation": "magic"}, "allocation")])
+def test_allocation_bad_arguments(kw, match):
+    buf = _fake_buffer(np.ones((4, 4)), np.zeros((4, 4)), np.ones((4, 4), bool))
+    with pytest.raises(WarpbwError, match=match):
+        bw.allocate_samples(buf, **kw)
+
+
+def test_bad_tables_are_refused():
+    with pytest.raises(WarpbwError, match="light table"):
+        bw.make_bandwidth_tables(np.full((4, 8, 2), np.nan), np.zeros((1, 16, 16, 16)))
+    with pytest.raises(WarpbwError, match="BRDF bandwidth tables"):
+        bw.make_bandwidth_tables(np.ones((4, 8, 2)), np.zeros((1, 16, 16)))
+
+
+def test_adaptive_matches_reference_in_the_limit():
+    """With every pixel at level 0 (a huge Nyquist factor) and the uniform allocation, the adaptive
+    frame is the reference estimator at the same spp (same estimator, different seeds)."""
+    prep = prepared(mat=GGX_SHARP, env='procedural = "sky"', w=32, h=32)
+    ref = render_reference(prep, spp=256, seed=3, mis=True)
+    res = render_adaptive(prep, budget=256, seed=4, mis=True, nyquist=1e9, allocation="uniform")
+    cov = ref.coverage
+    assert res.stats["shaded_fraction"] == 1.0
+    assert abs(res.image[cov].mean() - ref.image[cov].mean()) < 0.02 * ref.image[cov].mean()
