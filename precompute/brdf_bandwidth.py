@@ -270,24 +270,7 @@ def load_or_build_bandwidth(source, explicit=None, cache=None, progress: bool = 
 
     Returns the table and where it came from ("file", "cache" or "built"); the cache is the sampling
     tables' (``$WARPBW_CACHE``), keyed by the source's content hash."""
-    from pathlib import Path
+    from precompute.brdf_sampling import load_or_build
 
-    from precompute.brdf_sampling import cache_dir
-
-    if explicit is not None:
-        return read_brdf_bandwidth(explicit, source), "file"
-    d = Path(cache) if cache is not None else cache_dir()
-    key = source.digest.replace(":", "-").replace("/", "_")
-    path = d / f"bandwidth-{key}-v{VERSION}.npz"
-    if path.is_file():
-        try:
-            return read_brdf_bandwidth(path, source), "cache"
-        except WarpbwError:
-            pass  # a stale or damaged cache entry is rebuilt below
-    table = build_brdf_bandwidth(source, progress=progress)
-    try:
-        d.mkdir(parents=True, exist_ok=True)
-        write_brdf_bandwidth(path, table, source, force=True)
-    except OSError:
-        pass  # a read-only cache only costs the rebuild next time
-    return table, "built"
+    return load_or_build(source, explicit, cache, "bandwidth", VERSION, read_brdf_bandwidth, build_brdf_bandwidth,
+                         write_brdf_bandwidth, progress)

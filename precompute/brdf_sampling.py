@@ -5,6 +5,7 @@ Public:
     ``build_brdf_sampling(source, progress=True) -> SamplerTable``
     ``write_sampling(path, table, source, force=False)`` / ``read_sampling(path, source=None)``
     ``load_or_build_sampling(source, explicit=None, cache_dir=None) -> SamplerTable``
+    ``load_or_build(source, explicit, cache, prefix, version, read, build, write)``   the shared cache logic
     ``cache_dir()``
 
 The tables are those of :mod:`warpbw.sampling` (per view elevation, over sqrt-warped half vectors),
@@ -93,25 +94,34 @@ def cache_dir() -> Path:
     return Path(os.environ.get("WARPBW_CACHE", Path.home() / ".cache" / "warpbw"))
 
 
+def load_or_build(source, explicit, cache, prefix: str, version: int, read, build, write,
+                  progress: bool = True) -> tuple:
+    """A source's table: from ``explicit`` if given, else the cache (``PREFIX-HASH-vVERSION.npz``), else
+    built and cached.  Returns the table and where it came from ("file", "cache" or "built")."""
+    if explicit is not None:
+        return read(explicit, source), "file"
+    d = Path(cache) if cache is not None else cache_dir()
+    key = source.digest.replace(":", "-").replace("/", "_")
+    path = d / f"{prefix}-{key}-v{version}.npz"
+    if path.is_file():
+        try:
+            return read(path, source), "cache"
+        except WarpbwError:
+            pass  # a stale or damaged cache entry is rebuilt below
+    table = build(source, progress=progress)
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+        write(path, table, source, force=True)
+    except OSError:
+        pass  # a read-only cache only costs the rebuild next time
+    return table, "built"
+
+
 def load_or_build_sampling(source: BrdfSource, explicit=None, cache: Path | None = None,
                            progress: bool = True) -> tuple[SamplerTable, str]:
     """The source's sampling tables: from ``explicit`` if given, else the cache, else built and cached.
 
     Returns the tables and where they came from ("file", "cache" or "built").
     """
-    if explicit is not None:
-        return read_sampling(explicit, source), "file"
-    d = Path(cache) if cache is not None else cache_dir()
-    key = source.digest.replace(":", "-").replace("/", "_")
-    path = d / f"sampling-{key}-v{TABLE_VERSION}.npz"
-    if path.is_file():
-        try:
-            return read_sampling(path, source), "cache"
-        except WarpbwError:
-            pass  # a stale or damaged cache entry is rebuilt below
-    table = build_brdf_sampling(source, progress=progress)
-    try:
-        write_sampling(path, table, source, force=True)
-    except OSError:
-        pass  # a read-only cache only costs the rebuild next time
-    return table, "built"
+    return load_or_build(source, explicit, cache, "sampling", TABLE_VERSION, read_sampling, build_brdf_sampling,
+                         write_sampling, progress)
