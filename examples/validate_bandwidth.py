@@ -1,0 +1,695 @@
+"""Validation of the bandwidth pass's predictions (002 Sec. 2.2, 2.4 and Fig. 12).
+
+    python examples/validate_bandwidth.py --out DIR [--size 128] [--scenes NAME ...] [--quick] [--force]
+
+For each validation scene (a sphere with the NPF fit of color-changing-paint3 under forest.exr, as in
+002 Fig. 12; the bunny with gold-metallic-paint under studio.exr; a GGX gold sphere under studio.exr):
+
+1. Converged image: the forward reference (002 Eq. 2) with MIS at ``--ref-spp`` samples per pixel,
+   rendered as two independently seeded halves.  Their difference estimates the image's residual
+   noise, reported as the share of each FFT window's energy that is noise ("noise_fraction"): white
+   noise spreads over all frequencies and would push the reference bandwidth up, so it must stay small.
+2. Image bandwidth: the predicted b_p (Eq. 6, cycles/pixel) against a reference from a 32x32 Hann-windowed
+   FFT of the converged image's luminance, centred on every ``--stride``-th pixel and bilinearly
+   interpolated to the others: the radial frequency below which 95% of the window's spectral energy
+   lies, the mean (DC) removed (002 Sec. 2: "the 95th percentile of the power spectra").  Only windows
+   whose Hann-weighted coverage is at least ``MIN_WINDOW_COVER`` and whose residual noise is at most
+   ``MAX_NOISE_FRACTION`` of their AC energy count; uncovered pixels inside them
+   take the covered pixels' mean, so the silhouette does not read as a step.  Reported: Spearman rank
+   correlation over those pixels, against b_p itself and against b_p averaged over the same window.
+3. Variance: the predicted sigma2 (Eq. 9, V(L_p) <= sigma2 / N_p for UNIFORM hemisphere sampling,
+   002 Sec. 2.4) against the brute-force per-pixel variance of the one-sample uniform estimator
+   X = 2 pi lum(L_i rho) cos theta_i, from ``--uniform-samples`` stratified directions per pixel (a Warp
+   kernel below: E[X] and E[X^2] are both integrals over the hemisphere, so a jittered grid estimates
+   them better than independent samples).  Reported: Spearman rank correlation, the fraction of covered
+   pixels where the bound is conservative (sigma2 >= brute-force variance) and the median ratio.  For
+   information the same against the renderer's actual estimator (BRDF importance sampling, no MIS,
+   ``--bis-samples`` independent samples per pixel, same kernel).
+   Diagnostic: the pass run again with ``--nb-diagnostic`` (1024) directions instead of n_b = 16 tells
+   the bound's own shape apart from the sampling error of estimating it from 16 directions.
+4. Writes DIR/validate_<scene>.png (a figure like 002 Fig. 12: predicted and reference variance,
+   predicted and reference bandwidth on shared log colour scales, the converged image, scatter plots),
+   DIR/validate_<scene>_maps.npz (every map), DIR/validate_bandwidth.json (all figures) and prints a
+   table.  Existing outputs are kept unless --force.
+
+``--quick``: tiny sizes and sample counts (for the smoke test; the numbers then mean little).
+The acceptance targets (issue 3) are rank correlations > 0.5 and a bound conservative on > 90% of
+pixels; the script reports them and exits 0 unless ``--strict``.
+"""
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from warpbw.bandwidth import LUMINANCE, uniform_hemisphere
+from warpbw.brdf import MaterialTable, make_brdf_funcs
+from warpbw.envmap import EnvMapData, env_radiance
+from warpbw.gbuffer import GBufferData
+from warpbw.shading import covered_pixels, launch_tiled, to_local, to_world
+
+HERE = Path(__file__).resolve().parent
+DATA = HERE.parent.parent / "shared" / "data"   # ../shared/data beside the repository
+
+# ----------------------------------------------------------------------------------------- settings
+DEFAULT_SIZE = 128            # image side in pixels (a few minutes for all scenes on 2 cores)
+# converged image: MIS samples per pixel (two halves of 2048).  Measured at 128x128: residual noise is
+# 0.1-0.8% of a window's AC energy (median; <= 3.5% at the 90th percentile), so noise does not set the
+# reference bandwidth ("noise_fraction_*" in the JSON reports it for every run)
+REF_SPP = 4096
+UNIFORM_SAMPLES = 4096        # stratified uniform directions per pixel for the brute-force variance (64 x 64)
+BIS_SAMPLES = 4096            # BRDF-importance samples per pixel for the renderer's estimator's variance
+FFT_WINDOW = 32               # 002 Sec. 4.1: "a window size of 32x32 pixels"
+FFT_STRIDE = 4                # window centres every 4 pixels, bilinear in between
+FFT_PAD = 2                   # zero-padding factor: finer frequency sampling (not resolution) of the spectrum
+ENERGY_FRACTION = 0.95        # 002 Sec. 2: bandwidth = the 95th percentile of the power spectrum
+FLAT_ENERGY = 1e-10           # a window whose AC energy is below this share of its energy is flat (rounding)
+MAX_NOISE_FRACTION = 0.05     # windows whose AC energy is more than 5% residual noise are left out (noise is white)
+MIN_WINDOW_COVER = 0.9        # Hann-weighted share of covered pixels a window needs to count
+MIN_INTERP_WEIGHT = 0.5       # a pixel needs this much bilinear weight on valid window centres
+SEED = 1
+N_B_DIAGNOSTIC = 1024         # a second bandwidth pass with many directions: separates the bound from its n_b estimate
+# issue 3's acceptance targets
+TARGET_SPEARMAN = 0.5
+TARGET_CONSERVATIVE = 0.9
+# --quick: tiny everything (a smoke test, < 60 s with warm caches)
+QUICK = {"size": 40, "ref_spp": 32, "uniform_samples": 256, "bis_samples": 256, "window": 16,
+         "nb_diagnostic": 64, "max_noise": 1.0}
+SCATTER_POINTS = 4000         # points per scatter plot (a random subset)
+COLOUR_PERCENTILES = (1.0, 99.0)   # shared log colour range of a pair of maps
+
+_LUM = wp.constant(wp.vec3(*LUMINANCE))
+_TWO_PI = wp.constant(2.0 * math.pi)
+
+
+# ----------------------------------------------------------------------------------------- kernel
+def make_moments_kernel(kinds, importance: bool):
+    """Per-pixel E[X] and E[X^2] of a one-sample shading estimator's luminance X.
+
+    ``importance=False``: X = 2 pi lum(L_i(w) rho(w, wo)) cos theta, w uniform over the hemisphere
+    (pdf 1 / 2 pi), the estimator the bound of 002 Sec. 2.4 assumes; the n = n_side^2 directions are
+    a jittered n_side x n_side grid in (cos theta, phi / 2 pi), the bandwidth pass's parametrisation.
+    ``importance=True``: the renderer's estimator without MIS (warpbw.shading): w from the BRDF's
+    sampler, X = lum(L_i rho) cos theta / pdf, n independent samples; non-finite contributions count
+    as 0 (the renderer drops them from a sum it divides by N)."""
+    return _moments_kernel(frozenset(int(k) for k in kinds), bool(importance))
+
+
+@functools.cache  # one kernel per combination: Warp compiles each once
+def _moments_kernel(kinds: frozenset, importance: bool):
+    f = make_brdf_funcs(kinds)
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def estimator_moments_kernel(gb: GBufferData, mats: MaterialTable, env: EnvMapData,
+                                 pixels: wp.array(dtype=wp.int32), offset: int, n_side: int, seed: int,
+                                 mean: wp.array(dtype=wp.float64), mean_sq: wp.array(dtype=wp.float64)):
+        i = pixels[wp.tid() + offset]
+        m = gb.material[i]
+        n = gb.normal[i]
+        t = gb.tangent[i]
+        b = wp.cross(n, t)
+        wo = to_local(gb.view[i], t, b, n)
+        state = wp.rand_init(seed, i)
+        s1 = wp.float64(0.0)
+        s2 = wp.float64(0.0)
+        n_s = n_side * n_side
+        if wo[2] > 0.0:
+            for k in range(n_s):
+                x = float(0.0)
+                if wp.static(importance):
+                    u = wp.vec3(wp.randf(state), wp.randf(state), wp.randf(state))
+                    wi = f.sample(mats, m, wo, u)
+                    if wi[2] > 0.0:
+                        p = f.pdf(mats, m, wi, wo)
+                        if p > 0.0:
+                            c = wp.cw_mul(f.eval(mats, m, wi, wo), env_radiance(env, to_world(wi, t, b, n)))
+                            x = wp.dot(_LUM, c) * (wi[2] / p)
+                else:
+                    cell = wp.vec2((float(k % n_side) + wp.randf(state)) / float(n_side),
+                                   (float(k // n_side) + wp.randf(state)) / float(n_side))
+                    wi = uniform_hemisphere(cell)
+                    c = wp.cw_mul(f.eval(mats, m, wi, wo), env_radiance(env, to_world(wi, t, b, n)))
+                    x = wp.dot(_LUM, c) * (wi[2] * _TWO_PI)
+                if not wp.isfinite(x):
+                    x = 0.0
+                xd = wp.float64(x)
+                s1 += xd
+                s2 += xd * xd
+        mean[i] = s1 / wp.float64(n_s)
+        mean_sq[i] = s2 / wp.float64(n_s)
+
+    return estimator_moments_kernel
+
+
+def estimator_variance(gb, materials, env_data, n_samples: int, importance: bool, seed: int,
+                       device: str = "cpu") -> tuple[np.ndarray, np.ndarray]:
+    """(mean, variance) of the one-sample estimator per pixel, (H, W) float64 (0 where no geometry).
+    ``n_samples`` is rounded to a square for the stratified (uniform) case."""
+    n_side = max(1, int(round(math.sqrt(n_samples))))
+    H, W = gb.height, gb.width
+    mean = wp.zeros(H * W, dtype=wp.float64, device=device)
+    mean_sq = wp.zeros(H * W, dtype=wp.float64, device=device)
+    pix = covered_pixels(gb, device)
+    kernel = make_moments_kernel(materials.kinds, importance)
+    launch_tiled(kernel, pix.shape[0],
+                 lambda o, c: [gb.data, materials.table, env_data, pix, o, n_side, seed, mean, mean_sq], device)
+    m1 = mean.numpy().reshape(H, W)
+    m2 = mean_sq.numpy().reshape(H, W)
+    return m1, np.maximum(m2 - m1 * m1, 0.0)
+
+
+# ----------------------------------------------------------------------------------------- scenes
+SCENE_HEADER = """
+[camera]
+position = {position}
+look_at = {look_at}
+fov = {fov}
+resolution = [{w}, {h}]
+[environment]
+file = "{data}/envmaps/{probe}"
+rotation = {rotation}
+"""
+SCENES = {
+    # 002 Fig. 12's material on a sphere filling most of the frame
+    "sphere-ccp3-forest": {
+        "camera": ("[0.0, 0.0, 3.0]", "[0.0, 0.0, 0.0]", 45.0), "probe": "forest.exr", "rotation": 0.0,
+        "objects": '[[object]]\nshape = "sphere"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0\nmaterial = "m"\n',
+        "material": 'type = "npf"\ntable = "{data}/brdf/npf.bin"\nname = "color-changing-paint3"\nlookup = "linear"\n',
+    },
+    # a mesh (curvature from the G-buffer) with a glossy NPF material
+    "bunny-gmp-studio": {
+        "camera": ("[0.0, 0.1, 3.4]", "[0.0, 0.0, 0.0]", 38.0), "probe": "studio.exr", "rotation": 0.0,
+        "objects": '[[object]]\nmesh = "{data}/meshes/bunny.obj"\nmaterial = "m"\n',
+        "material": 'type = "npf"\ntable = "{data}/brdf/npf.bin"\nname = "gold-metallic-paint"\nlookup = "linear"\n',
+    },
+    # an analytic material: GGX conductor (gold)
+    "sphere-ggx-studio": {
+        "camera": ("[0.0, 0.0, 3.0]", "[0.0, 0.0, 0.0]", 45.0), "probe": "studio.exr", "rotation": 90.0,
+        "objects": '[[object]]\nshape = "sphere"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0\nmaterial = "m"\n',
+        "material": 'type = "ggx"\nalpha = 0.2\nspecular = [1.0, 1.0, 1.0]\n'
+                    'eta = [0.143, 0.374, 1.442]\nk = [3.983, 2.385, 1.603]\n',
+    },
+}
+
+
+def scene_toml(name: str, size: int, data: Path = DATA) -> str:
+    s = SCENES[name]
+    pos, at, fov = s["camera"]
+    text = SCENE_HEADER.format(position=pos, look_at=at, fov=fov, w=size, h=size, data=data.as_posix(),
+                               probe=s["probe"], rotation=s["rotation"])
+    return text + s["objects"].format(data=data.as_posix()) + "[material.m]\n" + s["material"].format(
+        data=data.as_posix())
+
+
+# ----------------------------------------------------------------------------------------- analysis
+def hann(n: int) -> np.ndarray:
+    """Periodic Hann window of n points."""
+    return 0.5 - 0.5 * np.cos(2.0 * np.pi * np.arange(n) / n)
+
+
+def _window_stack(a: np.ndarray, window: int, stride: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Windows of ``a`` (zero-padded) centred on pixels (ys[j], xs[i]), rows y - window/2 .. y + window/2 - 1.
+    Returns (ys, xs, (ny, nx, window, window) view)."""
+    H, W = a.shape
+    half = window // 2
+    pad = np.pad(a, ((half, half), (half, half)))
+    ys = np.arange(0, H, stride)
+    xs = np.arange(0, W, stride)
+    view = np.lib.stride_tricks.sliding_window_view(pad, (window, window))
+    return ys, xs, view[ys][:, xs]
+
+
+def _interp_to_pixels(grid: np.ndarray, valid: np.ndarray, shape, stride: int) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear interpolation of a coarse grid (centres every ``stride`` pixels) to every pixel, using only
+    valid centres (normalised weights).  Returns (values, weight on valid centres in [0, 1])."""
+    H, W = shape
+    ny, nx = grid.shape
+    gy = np.arange(H) / stride
+    gx = np.arange(W) / stride
+    y0 = np.minimum(np.floor(gy).astype(int), ny - 1)
+    x0 = np.minimum(np.floor(gx).astype(int), nx - 1)
+    y1 = np.minimum(y0 + 1, ny - 1)
+    x1 = np.minimum(x0 + 1, nx - 1)
+    fy = np.clip(gy - y0, 0.0, 1.0)[:, None]
+    fx = np.clip(gx - x0, 0.0, 1.0)[None, :]
+    g = np.where(valid, grid, 0.0)
+    v = valid.astype(np.float64)
+    acc = np.zeros((H, W))
+    wsum = np.zeros((H, W))
+    for yy, wy in ((y0, 1.0 - fy), (y1, fy)):
+        for xx, wx in ((x0, 1.0 - fx), (x1, fx)):
+            w = wy * wx * v[np.ix_(yy, xx)]
+            acc += w * g[np.ix_(yy, xx)]
+            wsum += w
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(wsum > 0, acc / np.maximum(wsum, 1e-300), np.nan)
+    return out, wsum
+
+
+def windowed_bandwidth(image: np.ndarray, mask: np.ndarray | None = None, window: int = FFT_WINDOW,
+                       stride: int = FFT_STRIDE, fraction: float = ENERGY_FRACTION,
+                       min_cover: float = MIN_WINDOW_COVER, noise_var: np.ndarray | None = None,
+                       max_noise: float = MAX_NOISE_FRACTION) -> dict:
+    """Reference image bandwidth (cycles/pixel) of a 2D signal by a Hann-windowed FFT.
+
+    For each window (centres every ``stride`` pixels): uncovered pixels take the covered pixels'
+    weighted mean, the window's weighted mean (DC) is removed, the power spectrum of the windowed
+    signal is taken (zero-padded by ``FFT_PAD``), and the bandwidth is the radial frequency
+    |f| = sqrt(fx^2 + fy^2) at which the cumulative energy (bins sorted by |f|, linear between bins)
+    reaches ``fraction`` of the total.  A flat window has bandwidth 0.  The window's own spectrum
+    widens every line: a 32-point Hann window reads a sine of frequency f as about f + 0.03 cycles/pixel
+    (within 1.4x for f >= 0.08), and anything slower than about 1/32 as 0.06-0.07 (uncertainty
+    principle, 002 footnote 1), though its median over positions still grows with f.
+
+    Returns a dict: "map" (H, W) interpolated to every pixel (NaN where not valid), "valid" (H, W) bool,
+    "grid" / "grid_valid" at the centres, "ys", "xs", "energy" (AC energy per window) and, with
+    ``noise_var`` (per-pixel variance of ``image``), "noise_fraction" (the expected noise share of each
+    window's AC energy, by Parseval); windows above ``max_noise`` are then not valid (white noise would
+    read as a high bandwidth)."""
+    img = np.asarray(image, np.float64)
+    H, W = img.shape
+    cov = np.ones((H, W), bool) if mask is None else np.asarray(mask, bool)
+    w1 = hann(window)
+    w2 = np.outer(w1, w1)
+    ys, xs, v = _window_stack(np.where(cov, img, 0.0), window, stride)
+    _, _, m = _window_stack(cov.astype(np.float64), window, stride)
+    wm = w2 * m
+    cover = wm.sum(axis=(-2, -1)) / w2.sum()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mu = (wm * v).sum(axis=(-2, -1)) / wm.sum(axis=(-2, -1))
+    mu = np.nan_to_num(mu)[..., None, None]
+    filled = np.where(m > 0, v, mu)
+    dc = (w2 * filled).sum(axis=(-2, -1)) / w2.sum()
+    d = (filled - dc[..., None, None]) * w2
+    n_fft = FFT_PAD * window
+    power = np.abs(np.fft.fft2(d, s=(n_fft, n_fft))) ** 2
+    power[..., 0, 0] = 0.0
+    f = np.fft.fftfreq(n_fft)
+    radius = np.sqrt(f[:, None] ** 2 + f[None, :] ** 2).reshape(-1)
+    order = np.argsort(radius, kind="stable")
+    r_sorted = radius[order]
+    ps = power.reshape(power.shape[:2] + (-1,))[..., order]
+    cum = np.cumsum(ps, axis=-1)
+    total = cum[..., -1]
+    target = fraction * total
+    k = np.argmax(cum >= target[..., None], axis=-1)        # first bin reaching the target
+    c1 = np.take_along_axis(cum, k[..., None], -1)[..., 0]
+    c0 = np.take_along_axis(cum, np.maximum(k - 1, 0)[..., None], -1)[..., 0]
+    r1, r0 = r_sorted[k], r_sorted[np.maximum(k - 1, 0)]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = np.clip((target - c0) / (c1 - c0), 0.0, 1.0)
+    ac = (d * d).sum(axis=(-2, -1))
+    flat = ac <= FLAT_ENERGY * ((filled * w2) ** 2).sum(axis=(-2, -1))
+    grid = np.where(flat | ~(total > 0), 0.0, r0 + np.nan_to_num(t) * (r1 - r0))   # linear in the cumulative energy
+    grid_valid = cover >= min_cover
+    out = {"ys": ys, "xs": xs, "grid": grid, "cover": cover, "energy": ac}
+    if noise_var is not None:
+        _, _, nv = _window_stack(np.where(cov, noise_var, 0.0), window, stride)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out["noise_fraction"] = (w2 * w2 * nv * m).sum(axis=(-2, -1)) / ac     # Parseval
+        grid_valid = grid_valid & ~(out["noise_fraction"] > max_noise)   # NaN (0 / 0: flat, noiseless) stays
+    out["grid_valid"] = grid_valid
+    mp, wsum = _interp_to_pixels(grid, grid_valid, (H, W), stride)
+    valid = cov & (wsum >= MIN_INTERP_WEIGHT)
+    out["map"] = np.where(valid, mp, np.nan)
+    out["valid"] = valid
+    return out
+
+
+def windowed_mean(values: np.ndarray, mask: np.ndarray, window: int = FFT_WINDOW, stride: int = FFT_STRIDE,
+                  grid_valid: np.ndarray | None = None) -> np.ndarray:
+    """Hann-weighted mean of ``values`` over the covered pixels of each window, interpolated to pixels:
+    the prediction seen through the reference's footprint."""
+    w1 = hann(window)
+    w2 = np.outer(w1, w1)
+    _, _, v = _window_stack(np.where(mask, values, 0.0), window, stride)
+    _, _, m = _window_stack(mask.astype(np.float64), window, stride)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        g = (w2 * m * v).sum(axis=(-2, -1)) / (w2 * m).sum(axis=(-2, -1))
+    valid = np.isfinite(g) if grid_valid is None else (grid_valid & np.isfinite(g))
+    mp, _ = _interp_to_pixels(np.nan_to_num(g), valid, mask.shape, stride)
+    return mp
+
+
+def ranks(x: np.ndarray) -> np.ndarray:
+    """Ranks 1..n of x, ties given the mean of the ranks they span."""
+    uniq, inverse, counts = np.unique(np.asarray(x, np.float64), return_inverse=True, return_counts=True)
+    last = np.cumsum(counts)                       # rank of the last element of each group of ties
+    mean_rank = last - 0.5 * (counts - 1)          # mean of ranks last - counts + 1 .. last
+    return mean_rank[inverse.reshape(-1)]
+
+
+def spearman(a: np.ndarray, b: np.ndarray) -> float:
+    """Spearman rank correlation (Pearson correlation of the tie-averaged ranks); NaN if undefined."""
+    a = np.asarray(a, np.float64).reshape(-1)
+    b = np.asarray(b, np.float64).reshape(-1)
+    if a.size < 3:
+        return float("nan")
+    ra = ranks(a) - 0.5 * (a.size + 1)
+    rb = ranks(b) - 0.5 * (b.size + 1)
+    den = math.sqrt(float(ra @ ra) * float(rb @ rb))
+    return float(ra @ rb) / den if den > 0 else float("nan")
+
+
+def luminance(rgb: np.ndarray) -> np.ndarray:
+    return np.asarray(rgb, np.float64) @ np.asarray(LUMINANCE)
+
+
+def compare_variance(pred: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> dict:
+    """Rank correlation, conservative fraction (pred >= ref) and median pred/ref over ``mask``."""
+    p, r = pred[mask].astype(np.float64), ref[mask].astype(np.float64)
+    both = (r > 0) & (p > 0)
+    return {"spearman": spearman(p, r), "conservative_fraction": float(np.mean(p >= r)) if p.size else float("nan"),
+            "median_ratio": float(np.median(p[both] / r[both])) if both.any() else float("nan"),
+            "pixels": int(p.size)}
+
+
+# ----------------------------------------------------------------------------------------- figure
+def _log_range(*maps_masks) -> tuple[float, float]:
+    vals = np.concatenate([m[k & np.isfinite(m) & (m > 0)] for m, k in maps_masks])
+    if vals.size == 0:
+        return 1e-3, 1.0
+    lo, hi = np.percentile(vals, COLOUR_PERCENTILES)
+    return float(lo), float(max(hi, lo * 1.0001))
+
+
+def _tonemap(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    lum = luminance(rgb)
+    key = float(np.median(lum[mask])) if mask.any() else 1.0
+    x = rgb / (4.0 * max(key, 1e-8))
+    return np.clip((x / (1.0 + x)) ** (1.0 / 2.2), 0.0, 1.0) * mask[..., None]
+
+
+def write_figure(path: Path, title: str, r: dict) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+    from matplotlib.ticker import NullFormatter
+
+    cov, bw_valid = r["coverage"], r["bw_valid"]
+    fig, ax = plt.subplots(2, 4, figsize=(17, 8.2))
+    vr = _log_range((r["sigma2"], cov), (r["var_uniform"], cov))
+    br = _log_range((r["b_p"], bw_valid), (r["bw_ref"], bw_valid))
+    panels = [
+        (ax[0, 0], r["sigma2"], cov, vr, "(a) predicted variance sigma2 (Eq. 9)", "magma"),
+        (ax[0, 1], r["var_uniform"], cov, vr, "(b) brute-force variance, uniform sampling", "magma"),
+        (ax[0, 2], r["b_p"], cov, br, "(c) predicted bandwidth b_p (cycles/px)", "viridis"),
+        (ax[0, 3], r["bw_ref"], bw_valid, br, f"(d) {r['window']}x{r['window']} windowed FFT bandwidth", "viridis"),
+        (ax[1, 1], r["var_bis"], cov, vr, "variance, BRDF importance sampling (info)", "magma"),
+    ]
+    for a, mp, k, (lo, hi), name, cmap in panels:
+        im = a.imshow(np.where(k & (mp > 0), mp, np.nan), norm=LogNorm(lo, hi), cmap=cmap, interpolation="nearest")
+        a.set_title(name, fontsize=9)
+        a.axis("off")
+        fig.colorbar(im, ax=a, fraction=0.046, pad=0.02)
+    ax[1, 0].imshow(_tonemap(r["image"], cov), interpolation="nearest")
+    ax[1, 0].set_title(f"(e) converged image, {r['ref_spp']} spp MIS", fontsize=9)
+    ax[1, 0].axis("off")
+    rng = np.random.default_rng(0)
+    for a, x, y, k, name, lab in (
+            (ax[1, 2], r["var_uniform"], r["sigma2"], cov & (r["var_uniform"] > 0) & (r["sigma2"] > 0),
+             f"variance: Spearman {r['stats']['variance_spearman']:.2f}, "
+             f"conservative {r['stats']['variance_conservative_fraction']:.0%}", ("brute-force", "predicted")),
+            (ax[1, 3], r["bw_ref"], r["b_p"], bw_valid & (r["bw_ref"] > 0) & (r["b_p"] > 0),
+             f"bandwidth: Spearman {r['stats']['bandwidth_spearman']:.2f}", ("windowed FFT", "predicted"))):
+        xs, ys = x[k], y[k]
+        if xs.size > SCATTER_POINTS:
+            sel = rng.choice(xs.size, SCATTER_POINTS, replace=False)
+            xs, ys = xs[sel], ys[sel]
+        a.scatter(xs, ys, s=2, alpha=0.3, lw=0)
+        if xs.size:
+            lo = min(xs.min(), ys.min())
+            hi = max(xs.max(), ys.max())
+            a.plot([lo, hi], [lo, hi], "k--", lw=0.8, label="y = x")
+            a.legend(fontsize=8, loc="upper left")
+            a.set_xscale("log")
+            a.set_yscale("log")
+            a.xaxis.set_minor_formatter(NullFormatter())   # narrow ranges: minor labels would overlap
+            a.yaxis.set_minor_formatter(NullFormatter())
+        a.set_xlabel(lab[0])
+        a.set_ylabel(lab[1])
+        a.set_title(name, fontsize=9)
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------------------------- driver
+def validate_scene(name: str, cfg: dict, log=print) -> dict:
+    """Run the whole comparison for one scene; returns the maps and the figures ("stats")."""
+    from warpbw.bandwidth import bandwidth_pass
+    from warpbw.pipeline import prepare_bandwidth, prepare_scene, render_reference
+    from warpbw.scene import parse_scene
+
+    times = {}
+    t0 = time.perf_counter()
+    scene = parse_scene(scene_toml(name, cfg["size"], cfg["data"]), cfg["data"], source=name)
+    prep = prepare_scene(scene, device=cfg["device"], progress=False)
+    tables = prepare_bandwidth(prep)
+    times["prepare"] = time.perf_counter() - t0
+    log(f"[{name}] assets ready in {times['prepare']:.1f} s ({', '.join(prep.materials.names)}, {prep.env.name})")
+
+    t0 = time.perf_counter()
+    half = max(1, cfg["ref_spp"] // 2)
+    ra = render_reference(prep, spp=half, seed=cfg["seed"], mis=True, device=cfg["device"])
+    rb = render_reference(prep, spp=half, seed=cfg["seed"] + 1, mis=True, device=cfg["device"])
+    image = 0.5 * (ra.image.astype(np.float64) + rb.image.astype(np.float64))
+    cov = ra.coverage
+    noise_var = (0.5 * (luminance(ra.image) - luminance(rb.image))) ** 2   # unbiased for the mean's variance
+    times["reference_image"] = time.perf_counter() - t0
+    log(f"[{name}] converged image: {2 * half} spp MIS in {times['reference_image']:.1f} s, "
+        f"{int(cov.sum())} covered pixels")
+
+    t0 = time.perf_counter()
+    gb = ra.gbuffer
+    buf = bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=cfg["n_b"], seed=cfg["seed"],
+                         device=cfg["device"])
+    H, W = prep.height, prep.width
+    b_p = buf.b_p.numpy().reshape(H, W).astype(np.float64)
+    sigma2 = buf.sigma2.numpy().reshape(H, W).astype(np.float64)
+    times["bandwidth_pass"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    diag = bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=cfg["n_b_diag"],
+                          seed=cfg["seed"], device=cfg["device"])
+    b_p_diag = diag.b_p.numpy().reshape(H, W).astype(np.float64)
+    sigma2_diag = diag.sigma2.numpy().reshape(H, W).astype(np.float64)
+    times["bandwidth_pass_diagnostic"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    _, var_u = estimator_variance(gb, prep.materials, prep.env.data, cfg["uniform_samples"], False, cfg["seed"],
+                                  cfg["device"])
+    times["uniform_variance"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    _, var_b = estimator_variance(gb, prep.materials, prep.env.data, cfg["bis_samples"], True, cfg["seed"],
+                                  cfg["device"])
+    times["bis_variance"] = time.perf_counter() - t0
+    log(f"[{name}] brute-force variance: {cfg['uniform_samples']} uniform samples/px in "
+        f"{times['uniform_variance']:.1f} s, {cfg['bis_samples']} BRDF samples/px in {times['bis_variance']:.1f} s")
+
+    t0 = time.perf_counter()
+    wb = windowed_bandwidth(luminance(image), cov, window=cfg["window"], stride=cfg["stride"],
+                            noise_var=noise_var, max_noise=cfg["max_noise"])
+    bw_ref, bw_valid = wb["map"], wb["valid"]
+    b_p_win = windowed_mean(b_p, cov, cfg["window"], cfg["stride"], wb["grid_valid"])
+    times["windowed_fft"] = time.perf_counter() - t0
+
+    vmask = cov & np.isfinite(sigma2) & np.isfinite(var_u)
+    vu = compare_variance(sigma2, var_u, vmask)
+    vb = compare_variance(sigma2, var_b, vmask & np.isfinite(var_b))
+    vd = compare_variance(sigma2_diag, var_u, vmask & np.isfinite(sigma2_diag))
+    bp, br = b_p[bw_valid], bw_ref[bw_valid]
+    pos = (bp > 0) & (br > 0)
+    counted = (wb["cover"] >= MIN_WINDOW_COVER) & (wb["energy"] > 0)
+    nf = wb["noise_fraction"][counted]
+    stats = {
+        "material": scene.materials["m"].npf_name or scene.materials["m"].type,
+        "environment": SCENES[name]["probe"],
+        "resolution": [W, H],
+        "covered_pixels": int(cov.sum()),
+        "bandwidth_spearman": spearman(bp, br),
+        "bandwidth_spearman_windowed": spearman(b_p_win[bw_valid], br),
+        "bandwidth_pixels": int(bw_valid.sum()),
+        "bandwidth_median_ratio": float(np.median(bp[pos] / br[pos])) if pos.any() else float("nan"),
+        "bandwidth_predicted_median": float(np.median(bp)) if bp.size else float("nan"),
+        "bandwidth_reference_median": float(np.median(br)) if br.size else float("nan"),
+        "noise_fraction_median": float(np.median(nf)) if nf.size else float("nan"),
+        "noise_fraction_p90": float(np.percentile(nf, 90)) if nf.size else float("nan"),
+        "noisy_windows_left_out": float(np.mean(nf > MAX_NOISE_FRACTION)) if nf.size else float("nan"),
+        "variance_spearman": vu["spearman"],
+        "variance_conservative_fraction": vu["conservative_fraction"],
+        "variance_median_ratio": vu["median_ratio"],
+        "variance_pixels": vu["pixels"],
+        "bis_variance_spearman": vb["spearman"],
+        "bis_conservative_fraction": vb["conservative_fraction"],
+        "bis_median_ratio": vb["median_ratio"],
+        # the same pass with n_b = N_B_DIAGNOSTIC directions (diagnostic: the bound's shape without the
+        # sampling error of n_b directions)
+        "diagnostic_n_b": cfg["n_b_diag"],
+        "diagnostic_bandwidth_spearman": spearman(b_p_diag[bw_valid], br),
+        "diagnostic_bandwidth_median_ratio": float(np.median(b_p_diag[bw_valid][pos] / br[pos])) if pos.any()
+        else float("nan"),
+        "diagnostic_variance_spearman": vd["spearman"],
+        "diagnostic_variance_conservative_fraction": vd["conservative_fraction"],
+        "diagnostic_variance_median_ratio": vd["median_ratio"],
+        "reference_spp": 2 * half,
+        "uniform_samples": int(round(math.sqrt(cfg["uniform_samples"]))) ** 2,
+        "bis_samples": int(round(math.sqrt(cfg["bis_samples"]))) ** 2,
+        "n_b": cfg["n_b"],
+        "time_s": {k: round(v, 3) for k, v in times.items()},
+    }
+    log(f"[{name}] bandwidth Spearman {stats['bandwidth_spearman']:.3f} over {stats['bandwidth_pixels']} px; "
+        f"variance Spearman {stats['variance_spearman']:.3f}, conservative on "
+        f"{stats['variance_conservative_fraction']:.1%}")
+    return {"stats": stats, "image": image, "coverage": cov, "b_p": b_p, "b_p_windowed": b_p_win,
+            "sigma2": sigma2, "b_p_diagnostic": b_p_diag, "sigma2_diagnostic": sigma2_diag, "var_uniform": var_u, "var_bis": var_b, "bw_ref": bw_ref, "bw_valid": bw_valid,
+            "noise_var": noise_var, "window": cfg["window"], "ref_spp": 2 * half}
+
+
+def _finite(x):
+    """JSON-safe: NaN / inf become None."""
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def print_table(results: dict) -> None:
+    rows = [("scene", "{:<22}", None),
+            ("bw rho", "{:>7.3f}", "bandwidth_spearman"), ("bw rho(win)", "{:>11.3f}", "bandwidth_spearman_windowed"),
+            ("bp/ref", "{:>7.2f}", "bandwidth_median_ratio"), ("noise", "{:>6.1%}", "noise_fraction_median"),
+            ("var rho", "{:>7.3f}", "variance_spearman"), ("conserv.", "{:>8.1%}", "variance_conservative_fraction"),
+            ("pred/bf", "{:>8.3g}", "variance_median_ratio"),
+            ("BIS rho", "{:>7.3f}", "bis_variance_spearman"), ("BIS cons.", "{:>9.1%}", "bis_conservative_fraction"),
+            ("| diag: bw rho", "{:>14.3f}", "diagnostic_bandwidth_spearman"),
+            ("var rho", "{:>7.3f}", "diagnostic_variance_spearman"),
+            ("conserv.", "{:>8.1%}", "diagnostic_variance_conservative_fraction")]
+    widths = [len(fmt.format(0.0)) if key else 22 for _, fmt, key in rows]
+    head = " ".join(f"{h:>{w}}" if key else f"{h:<{w}}" for (h, _, key), w in zip(rows, widths))
+    print(head)
+    print("-" * len(head))
+    for name, st in results.items():
+        cells = []
+        for (_, fmt, key), w in zip(rows, widths):
+            v = name if key is None else st[key]
+            cells.append(fmt.format(v) if (key is None or math.isfinite(v)) else f"{'n/a':>{w}}")
+        print(" ".join(cells))
+    n_b = next(iter(results.values()))["diagnostic_n_b"] if results else N_B_DIAGNOSTIC
+    print(f"(diag: the same bandwidth pass with n_b = {n_b} directions)")
+
+
+def outputs(out: Path, scenes) -> list:
+    files = [out / "validate_bandwidth.json"]
+    for s in scenes:
+        files += [out / f"validate_{s}.png", out / f"validate_{s}_maps.npz"]
+    return files
+
+
+def parse_args(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", required=True, help="output directory (created)")
+    ap.add_argument("--size", type=int, default=None, help=f"image side in pixels (default {DEFAULT_SIZE}; "
+                                                            f"{QUICK['size']} with --quick)")
+    ap.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES), metavar="NAME",
+                    help=f"validation scenes (default all: {', '.join(SCENES)})")
+    ap.add_argument("--quick", action="store_true", help="tiny sizes and sample counts (smoke test)")
+    ap.add_argument("--ref-spp", type=int, default=None, help=f"converged image spp, MIS (default {REF_SPP})")
+    ap.add_argument("--uniform-samples", type=int, default=None,
+                    help=f"stratified uniform directions per pixel, rounded to a square (default {UNIFORM_SAMPLES})")
+    ap.add_argument("--bis-samples", type=int, default=None,
+                    help=f"BRDF-importance samples per pixel (default {BIS_SAMPLES})")
+    ap.add_argument("--window", type=int, default=None, help=f"FFT window side (default {FFT_WINDOW})")
+    ap.add_argument("--stride", type=int, default=FFT_STRIDE, help="pixels between FFT window centres")
+    ap.add_argument("--max-noise", type=float, default=None,
+                    help=f"leave out FFT windows whose AC energy is more than this share noise "
+                         f"(default {MAX_NOISE_FRACTION}; {QUICK['max_noise']} with --quick)")
+    ap.add_argument("--nb", type=int, default=16, help="n_b directions of the bandwidth pass (002: 16)")
+    ap.add_argument("--nb-diagnostic", type=int, default=None,
+                    help=f"n_b of a second, diagnostic bandwidth pass (default {N_B_DIAGNOSTIC}; 64 with --quick)")
+    ap.add_argument("--seed", type=int, default=SEED)
+    ap.add_argument("--data", default=str(DATA), help="the shared data directory (envmaps/, meshes/, brdf/)")
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    ap.add_argument("--strict", action="store_true", help="exit 1 when an acceptance target is missed")
+    args = ap.parse_args(argv)
+    q = args.quick
+    pick = (lambda v, full, quick: v if v is not None else (quick if q else full))
+    args.size = pick(args.size, DEFAULT_SIZE, QUICK["size"])
+    args.ref_spp = pick(args.ref_spp, REF_SPP, QUICK["ref_spp"])
+    args.uniform_samples = pick(args.uniform_samples, UNIFORM_SAMPLES, QUICK["uniform_samples"])
+    args.bis_samples = pick(args.bis_samples, BIS_SAMPLES, QUICK["bis_samples"])
+    args.window = pick(args.window, FFT_WINDOW, QUICK["window"])
+    args.nb_diagnostic = pick(args.nb_diagnostic, N_B_DIAGNOSTIC, QUICK["nb_diagnostic"])
+    args.max_noise = pick(args.max_noise, MAX_NOISE_FRACTION, QUICK["max_noise"])
+    if not args.max_noise > 0:
+        ap.error("--max-noise: expected a positive share")
+    for k in ("size", "ref_spp", "uniform_samples", "bis_samples", "window", "stride", "nb", "nb_diagnostic"):
+        if getattr(args, k) < 1:
+            ap.error(f"--{k.replace('_', '-')}: expected a positive integer")
+    if args.window < 4 or args.window % 2:
+        ap.error("--window: expected an even number >= 4")
+    files = [p for p in outputs(Path(args.out), args.scenes) if p.exists()]
+    if files and not args.force:
+        ap.error(f"{files[0]} exists (and {len(files) - 1} more outputs); pass --force to overwrite")
+    return args
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    wp.config.log_level = 30
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = {"size": args.size, "ref_spp": args.ref_spp, "uniform_samples": args.uniform_samples,
+           "bis_samples": args.bis_samples, "window": args.window, "stride": args.stride, "n_b": args.nb,
+           "n_b_diag": args.nb_diagnostic, "max_noise": args.max_noise,
+           "seed": args.seed, "device": args.device, "data": Path(args.data)}
+    print(f"validating {len(args.scenes)} scene(s) at {args.size}x{args.size}: reference {args.ref_spp} spp MIS, "
+          f"{args.uniform_samples} uniform / {args.bis_samples} BRDF samples per pixel, "
+          f"{args.window}x{args.window} FFT windows every {args.stride} px" + (" (quick)" if args.quick else ""),
+          flush=True)
+    results = {}
+    for name in args.scenes:
+        r = validate_scene(name, cfg, log=lambda s: print(s, flush=True))
+        results[name] = r["stats"]
+        write_figure(out / f"validate_{name}.png",
+                     f"{name}: {r['stats']['material']} under {r['stats']['environment']}, {args.size}x{args.size}",
+                     r)
+        np.savez_compressed(out / f"validate_{name}_maps.npz", **{k: r[k] for k in (
+            "image", "coverage", "b_p", "b_p_windowed", "sigma2", "b_p_diagnostic", "sigma2_diagnostic", "var_uniform", "var_bis", "bw_ref", "bw_valid",
+            "noise_var")})
+    misses = [f"{n}: {k}" for n, s in results.items() for k, ok in (
+        ("bandwidth_spearman", s["bandwidth_spearman"] > TARGET_SPEARMAN),
+        ("variance_spearman", s["variance_spearman"] > TARGET_SPEARMAN),
+        ("variance_conservative_fraction", s["variance_conservative_fraction"] > TARGET_CONSERVATIVE)) if not ok]
+    record = {
+        "paper": "002 Fig. 12 (validation of predicted variance and bandwidth)",
+        "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in cfg.items()} | {
+            "quick": args.quick, "energy_fraction": ENERGY_FRACTION, "min_window_cover": MIN_WINDOW_COVER,
+            "reference_mis": True, "bis_mis": False},
+        "targets": {"spearman": TARGET_SPEARMAN, "conservative_fraction": TARGET_CONSERVATIVE},
+        "missed": misses,
+        "scenes": results,
+    }
+    (out / "validate_bandwidth.json").write_text(json.dumps(_finite(record), indent=2) + "\n")
+    print()
+    print_table(results)
+    print(f"\ntargets: Spearman > {TARGET_SPEARMAN}, conservative > {TARGET_CONSERVATIVE:.0%}: "
+          + ("all met" if not misses else "missed " + "; ".join(misses)))
+    print(f"wrote {out}/validate_bandwidth.json and one figure + maps per scene")
+    return 1 if (args.strict and misses) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

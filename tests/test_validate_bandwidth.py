@@ -1,0 +1,107 @@
+"""examples/validate_bandwidth.py (002 Fig. 12): the windowed-FFT bandwidth estimator against sines of
+known frequency, the rank correlation against closed forms, and a --quick run end to end."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def vb():
+    spec = importlib.util.spec_from_file_location("validate_bandwidth", ROOT / "examples" / "validate_bandwidth.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def sine(f, angle_deg, n=96, phase=0.4):
+    y, x = np.mgrid[0:n, 0:n].astype(np.float64)
+    a = math.radians(angle_deg)
+    return np.sin(2.0 * math.pi * f * (math.cos(a) * x + math.sin(a) * y) + phase)
+
+
+@pytest.mark.parametrize("f", [0.08, 0.12, 0.2, 0.3, 0.42])
+@pytest.mark.parametrize("angle", [0.0, 30.0, 90.0])
+def test_windowed_bandwidth_of_a_sine(vb, f, angle):
+    """A sine of f cycles/pixel in any direction reads within a factor 1.5 of f (the truth is the
+    signal's own frequency, not the estimator)."""
+    r = vb.windowed_bandwidth(sine(f, angle))
+    centre = r["map"][32:64, 32:64]
+    assert r["valid"][32:64, 32:64].all()
+    assert f / 1.5 < np.median(centre) < 1.5 * f
+    assert np.ptp(centre) < 0.2 * f   # a stationary signal gives (nearly) the same value everywhere
+
+
+def test_windowed_bandwidth_orders_frequencies_and_scale_free(vb):
+    b = [np.median(vb.windowed_bandwidth(sine(f, 45.0))["map"][32:64, 32:64]) for f in (0.02, 0.04, 0.1, 0.25)]
+    assert all(x < y for x, y in zip(b, b[1:]))   # increasing, even below the 1/32 resolution (median)
+    img = sine(0.15, 10.0)
+    np.testing.assert_allclose(vb.windowed_bandwidth(3.0 * img + 7.0)["map"], vb.windowed_bandwidth(img)["map"],
+                               rtol=1e-6)
+    flat = vb.windowed_bandwidth(np.full((64, 64), 2.5))
+    assert np.all(flat["map"][flat["valid"]] == 0.0)
+
+
+def test_windowed_bandwidth_two_halves_and_coverage(vb):
+    """Left half slow, right half fast: each side reads its own frequency; uncovered pixels and windows
+    that are mostly uncovered are not valid."""
+    img = np.where(np.arange(160)[None, :] < 80, sine(0.06, 0.0, 160), sine(0.3, 0.0, 160))
+    r = vb.windowed_bandwidth(img)
+    assert np.median(r["map"][60:100, 20:50]) < 0.1 < 0.25 < np.median(r["map"][60:100, 110:140])
+    mask = np.zeros((96, 96), bool)
+    mask[:, :48] = True
+    r = vb.windowed_bandwidth(sine(0.2, 0.0), mask)
+    assert not r["valid"][:, 48:].any()
+    assert r["valid"][24:72, 16:28].all() and not r["valid"][:, 44:48].any()   # windows reaching the edge drop
+
+
+def test_spearman_against_closed_forms(vb):
+    x = np.arange(50.0)
+    assert vb.spearman(x, x ** 3 + 1.0) == pytest.approx(1.0)
+    assert vb.spearman(x, -np.exp(x / 10.0)) == pytest.approx(-1.0)
+    # ties: ranks of [1, 2, 2, 3] are [1, 2.5, 2.5, 4]
+    np.testing.assert_allclose(vb.ranks(np.array([5.0, 7.0, 7.0, 9.0])), [1.0, 2.5, 2.5, 4.0])
+    # n = 5, ranks a = 1..5, b = [2, 1, 4, 3, 5]: rho = 1 - 6 sum d^2 / (n (n^2 - 1)) = 1 - 6 * 4 / 120
+    assert vb.spearman(np.array([1, 2, 3, 4, 5.0]), np.array([20, 10, 40, 30, 50.0])) == pytest.approx(0.8)
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=400), rng.normal(size=400)
+    scipy_stats = pytest.importorskip("scipy.stats")
+    assert vb.spearman(a, np.round(a + b, 1)) == pytest.approx(scipy_stats.spearmanr(a, np.round(a + b, 1))[0])
+
+
+@pytest.mark.slow
+def test_quick_run_writes_json_figure_and_refuses_to_overwrite(vb, shared, tmp_path, capsys):
+    shared("envmaps/studio.exr")
+    out = tmp_path / "vb"
+    assert vb.main(["--out", str(out), "--quick", "--scenes", "sphere-ggx-studio"]) == 0
+    rec = json.loads((out / "validate_bandwidth.json").read_text())
+    s = rec["scenes"]["sphere-ggx-studio"]
+    for key in ("bandwidth_spearman", "bandwidth_spearman_windowed", "bandwidth_median_ratio",
+                "variance_spearman", "variance_conservative_fraction", "variance_median_ratio",
+                "bis_variance_spearman", "bis_conservative_fraction", "noise_fraction_median",
+                "diagnostic_variance_spearman", "diagnostic_variance_conservative_fraction"):
+        assert isinstance(s[key], float) and math.isfinite(s[key]), key
+    for key in ("bandwidth_spearman", "variance_spearman", "bis_variance_spearman"):
+        assert -1.0 <= s[key] <= 1.0
+    assert 0.0 <= s["variance_conservative_fraction"] <= 1.0
+    assert s["covered_pixels"] >= s["variance_pixels"] > 0 and s["bandwidth_pixels"] > 0
+    assert rec["settings"]["quick"] is True
+    png = out / "validate_sphere-ggx-studio.png"
+    assert png.stat().st_size > 10_000
+    maps = np.load(out / "validate_sphere-ggx-studio_maps.npz")
+    cov = maps["coverage"]
+    assert np.isfinite(maps["sigma2"][cov]).all() and (maps["var_uniform"][cov] >= 0).all()
+    assert "sphere-ggx-studio" in capsys.readouterr().out
+
+    before = png.stat().st_mtime_ns
+    with pytest.raises(SystemExit) as e:
+        vb.main(["--out", str(out), "--quick", "--scenes", "sphere-ggx-studio"])
+    assert e.value.code == 2 and png.stat().st_mtime_ns == before
+    assert "--force" in capsys.readouterr().err
