@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.bandwidth import LUMINANCE, uniform_hemisphere
+from warpbw.bandwidth import LUMINANCE
 from warpbw.brdf import MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_radiance
 from warpbw.gbuffer import GBufferData
@@ -90,6 +90,15 @@ _TWO_PI = wp.constant(2.0 * math.pi)
 
 
 # ----------------------------------------------------------------------------------------- kernel
+@wp.func
+def uniform_hemisphere(u: wp.vec2):
+    """Uniform direction over the +Z hemisphere (pdf 1 / 2 pi): cos theta = u0."""
+    z = u[0]
+    s = wp.sqrt(wp.max(1.0 - z * z, 0.0))
+    phi = _TWO_PI * u[1]
+    return wp.vec3(s * wp.cos(phi), s * wp.sin(phi), z)
+
+
 def make_moments_kernel(kinds, importance: bool):
     """Per-pixel E[X] and E[X^2] of a one-sample shading estimator's luminance X.
 

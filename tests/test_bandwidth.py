@@ -98,10 +98,14 @@ def test_light_table_preserves_mean_luminance_and_max_bandwidth():
 
 def test_direction_set_is_stratified():
     u = bw.direction_set(64, seed=3)
-    assert u.shape == (64, 2) and np.all((u >= 0) & (u < 1))
-    # one point per 1/64 stratum along each axis (Hammersley, shifted mod 1)
-    assert len(np.unique(np.floor(u[:, 0] * 64))) == 64
-    assert len(np.unique(np.floor(u[:, 1] * 64))) == 64
+    assert u.shape == (64, 3) and np.all((u >= 0) & (u < 1))
+    # one point per 1/64 stratum along the first two axes (Hammersley, shifted mod 1); the base-3 axis
+    # has one point per 1/27 stratum among its first 27 points
+    for axis in range(2):
+        assert len(np.unique(np.floor(u[:, axis] * 64))) == 64
+    assert len(np.unique(np.floor(u[:27, 2] * 27))) == 27
+    # u[0] picks the sampler: exactly half of an even set below 1/2
+    assert np.sum(u[:, 0] < 0.5) == 32
     with pytest.raises(WarpbwError, match="n_b"):
         bw.direction_set(0)
 
@@ -119,11 +123,12 @@ def test_lambert_under_constant_light_has_zero_bandwidth_and_coarsest_level():
 def test_lambert_sphere_image_bandwidth_matches_eq4_closed_form():
     """Uniform nu_a = a over the sphere of directions, Lambert (nu_rho = 0): the integrand keeps
     a' = min(a, NU_COS) and every path carries nu^i = [c a' / cos_x, d' c a' / cos_x] (Fig. 4 chain by
-    hand), so Eq. 5 is exact and b_p = d' c a' / cos_x * pixel angle (Eq. 6)."""
+    hand), so Eq. 5 is exact and b_p = d' c a' / cos_x * pixel angle (Eq. 6).  Exact for the per-pixel
+    pass; the default pass (2 x 2 blocks, pooled over 2 pixels) approximates it on this 36-pixel sphere."""
     a = 7.5
     prep = prepared(r=0.8)
     light = np.stack([np.ones((8, 16)), np.full((8, 16), a)], axis=-1)
-    gb, buf = run_pass(prep, light=light)
+    gb, buf = run_pass(prep, light=light, stride=1, pool_radius=0)
     cov = gb.coverage.reshape(-1)
     pos = gb.data.position.numpy()[cov]
     nrm = gb.data.normal.numpy()[cov]
@@ -136,17 +141,24 @@ def test_lambert_sphere_image_bandwidth_matches_eq4_closed_form():
     got = buf.b_p.numpy()[cov]
     interior = cos_x > 0.2
     np.testing.assert_allclose(got[interior], expect[interior], rtol=2e-3)
+    assert buf.traced_pixels == int(cov.sum())
+    _, pooled = run_pass(prep, light=light)
+    assert pooled.traced_pixels < 0.4 * cov.sum()  # about one pixel in four traced
+    ratio = pooled.b_p.numpy()[cov][interior] / expect[interior]
+    assert abs(np.median(ratio) - 1) < 0.05
+    assert np.all(np.abs(np.percentile(ratio, [10, 90]) - 1) < 0.25)
 
 
 def test_variance_bound_closed_form_for_lambert():
-    """sigma2 = 4 pi^2 E[(nu_a + 0) chi^2], chi = (albedo / pi) cos: E_uniform[cos^2] = 1/3 (Eq. 9)."""
+    """sigma2 = 4 pi^2 E[(nu_a + 0) chi^2], chi = (albedo / pi) cos: E_uniform[cos^2] = 1/3 (Eq. 9).
+    The pass estimates E by MIS over 1024 directions: within 1%."""
     a = 3.0
     prep = prepared()
     light = np.stack([np.ones((8, 16)), np.full((8, 16), a)], axis=-1)
     gb, buf = run_pass(prep, n_b=1024, light=light)
     cov = gb.coverage.reshape(-1)
     expect = 4 * math.pi ** 2 * a * (0.6 / math.pi) ** 2 / 3.0
-    np.testing.assert_allclose(buf.sigma2.numpy()[cov], expect, rtol=2e-3)
+    np.testing.assert_allclose(buf.sigma2.numpy()[cov], expect, rtol=1e-2)
 
 
 def test_adaptive_lambert_furnace_returns_albedo():

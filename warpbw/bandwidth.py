@@ -5,7 +5,7 @@ Public:
     ``BandwidthTables`` (Warp struct) / ``make_bandwidth_tables(light, nu_rho, device)``
     ``light_table(env_pixels, nu_env) -> (h, w, 2)``   reduced [luminance, nu_a] of the environment
     ``env_bandwidth_map(pixels, name, cache=None) -> ((H, W) float32 cycles/rad, origin)``
-    ``direction_set(n_b, seed) -> (n_b, 2) float32``   stratified points for the n_b directions
+    ``direction_set(n_b, seed) -> (n_b, 3) float32``   stratified points for the n_b directions
     ``BandwidthBuffer`` / ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ...)``
     ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max)``
     Warp functions ``brdf_nu_rho(nu_rho, m, wi, wo)`` and ``env_light(light, env, w)`` (table look-ups)
@@ -66,7 +66,7 @@ import warp as wp
 
 from warpbw.bandwidth_ops import bw_one_bounce
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
-from warpbw.envmap import EnvMapData, env_uv
+from warpbw.envmap import EnvMapData, env_pdf, env_sample, env_uv
 from warpbw.errors import WarpbwError
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 from warpbw.pyramid import build_pyramid, image_level
@@ -84,6 +84,8 @@ FOUR_PI_SQ = 4.0 * math.pi * math.pi   # 002 Sec. 2.4: V(L_p) <= 4 pi^2 sigma^2 
 # BRDF bandwidth table geometry (precompute.brdf_bandwidth: 16 incident elevations x 16 x 16 cells)
 N_THETA_I = 16
 N_CELLS = 16
+PASS_STRIDE_DEFAULT = 2      # directions traced once per 2 x 2 block of alike pixels (module docstring)
+POOL_RADIUS_DEFAULT = 2      # pixels pool the alike traced neighbours within 2 pixels (3 x 3 blocks)
 LIGHT_TABLE_WIDTH = 256      # columns of the reduced environment the pass reads (module docstring)
 ENV_BW_FORMAT = "warpbw.env-bandwidth"
 ENV_BW_VERSION = 1
@@ -95,6 +97,9 @@ _FOUR_PI_SQ = wp.constant(FOUR_PI_SQ)
 # 95%-energy bandwidth of the clamped cosine max(cos theta, 0) over the incident angle, cycles/radian
 # (its spectrum falls as 1/f^2 past ~1/(2 pi)); the band-limit of a Lambertian lobe's integrand
 NU_COS = wp.constant(0.3)
+BLOCK_DEPTH_TOL = wp.constant(0.05)   # relative depth step that separates two surfaces (module docstring)
+BLOCK_NORMAL_COS = wp.constant(0.95)  # normals more than ~18 degrees apart do not share estimates
+MIS_HALF = wp.constant(0.5)   # each of the two samplers is picked with probability 1/2 (one-sample MIS)
 REL_EPS = wp.constant(1.0e-4)  # radiance^2 added to mu^2 in sigma2_rel: black pixels do not divide by 0
 
 
@@ -146,12 +151,104 @@ def env_light(light: wp.array2d(dtype=wp.vec2), env: EnvMapData, w: wp.vec3):
 
 
 @wp.func
-def uniform_hemisphere(u: wp.vec2):
-    """Uniform direction over the +Z hemisphere (pdf 1 / 2 pi): cos theta = u0."""
-    z = u[0]
-    s = wp.sqrt(wp.max(1.0 - z * z, 0.0))
-    phi = _TWO_PI * u[1]
-    return wp.vec3(s * wp.cos(phi), s * wp.sin(phi), z)
+def frac3(u: wp.vec3):
+    """u mod 1, componentwise."""
+    return wp.vec3(u[0] - wp.floor(u[0]), u[1] - wp.floor(u[1]), u[2] - wp.floor(u[2]))
+
+
+@wp.func
+def interleave_index(i: int, width: int, stride: int, n_shifts: int):
+    """Which of the n_shifts = s x s direction-set shifts pixel i's block uses (an s x s tile of blocks)."""
+    side = int(wp.sqrt(float(n_shifts)) + 0.5)
+    bx = (i % width) / stride
+    by = (i / width) / stride
+    return (by % side) * side + bx % side
+
+
+@wp.func
+def alike(gb: GBufferData, i: int, j: int):
+    """Pixels i and j see the same surface closely enough to share bandwidth estimates: same material,
+    depths within BLOCK_DEPTH_TOL, normals within acos(BLOCK_NORMAL_COS)."""
+    ok = gb.material[j] == gb.material[i]
+    if ok:
+        di = gb.depth[i]
+        ok = wp.abs(gb.depth[j] - di) <= BLOCK_DEPTH_TOL * di and wp.dot(gb.normal[i], gb.normal[j]) >= BLOCK_NORMAL_COS
+    return ok
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def block_plan_kernel(gb: GBufferData, stride: int, rep: wp.array(dtype=wp.int32)):
+    """rep[i] = the pixel whose directions pixel i shares: the block's first pixel when every pixel of the
+    stride x stride block is covered and alike, else i itself (silhouettes, depth and material edges)."""
+    bx, by = wp.tid()
+    W = gb.width
+    H = gb.height
+    x0 = bx * stride
+    y0 = by * stride
+    first = int(-1)
+    uniform = bool(True)
+    for dy in range(stride):
+        for dx in range(stride):
+            x = x0 + dx
+            y = y0 + dy
+            if x < W and y < H:
+                i = y * W + x
+                if gb.material[i] < 0:
+                    uniform = False
+                elif first < 0:
+                    first = i
+                elif not alike(gb, first, i):
+                    uniform = False
+    for dy in range(stride):
+        for dx in range(stride):
+            x = x0 + dx
+            y = y0 + dy
+            if x < W and y < H:
+                i = y * W + x
+                r = i
+                if uniform:
+                    r = first
+                if gb.material[i] < 0:
+                    r = -1
+                rep[i] = r
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def pool_kernel(gb: GBufferData, rep: wp.array(dtype=wp.int32), radius: int, n_b: int, pixel_angle: float,
+                lam_in: wp.array(dtype=wp.float32), nu_in: wp.array(dtype=wp.vec2), var_in: wp.array(dtype=wp.float32),
+                pixels: wp.array(dtype=wp.int32), offset: int,
+                nu_out: wp.array(dtype=wp.vec2), b_p: wp.array(dtype=wp.float32),
+                sigma2: wp.array(dtype=wp.float32), sigma2_rel: wp.array(dtype=wp.float32)):
+    """Pool the direction sums of the evaluated pixels within ``radius`` pixels that are alike (an
+    interleaved set: neighbours used shifted direction sets), then Eq. 5, 6 and 9 per pixel."""
+    i = pixels[wp.tid() + offset]
+    W = gb.width
+    H = gb.height
+    x = i % W
+    y = i / W
+    r = rep[i]
+    lam = lam_in[r]
+    nu_sum = nu_in[r]
+    var = var_in[r]
+    count = float(1.0)
+    for yy in range(wp.max(y - radius, 0), wp.min(y + radius + 1, H)):
+        for xx in range(wp.max(x - radius, 0), wp.min(x + radius + 1, W)):
+            j = yy * W + xx
+            if j != r and rep[j] == j and alike(gb, i, j):
+                lam += lam_in[j]
+                nu_sum += nu_in[j]
+                var += var_in[j]
+                count += 1.0
+    nu = wp.vec2(0.0)
+    if lam > 0.0:
+        nu = nu_sum / lam                                         # Eq. 5
+    nu_out[i] = nu
+    b_p[i] = nu[1] * pixel_angle                                  # Eq. 6
+    n_dirs = count * float(wp.max(n_b, 1))
+    s2 = _FOUR_PI_SQ * var / (n_dirs * _TWO_PI)                   # Eq. 9: 4 pi^2 E_uniform((nu_l + nu_rho) chi^2)
+    sigma2[i] = s2
+    mu = lam / n_dirs                                             # the pass's estimate of L_p (Eq. 1)
+    sigma2_rel[i] = s2 / (mu * mu + REL_EPS)
 
 
 def make_bandwidth_kernel(kinds, preconvolved: bool = False):
@@ -165,10 +262,11 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
 
     @wp.kernel(module="unique", enable_backward=False)
     def bandwidth_buffer_kernel(gb: GBufferData, cam: CameraData, mats: MaterialTable, env: EnvMapData,
-                                tables: BandwidthTables, dirs: wp.array(dtype=wp.vec2),
-                                pixels: wp.array(dtype=wp.int32), offset: int, pixel_angle: float,
-                                nu_out: wp.array(dtype=wp.vec2), b_p: wp.array(dtype=wp.float32),
-                                sigma2: wp.array(dtype=wp.float32), sigma2_rel: wp.array(dtype=wp.float32)):
+                                tables: BandwidthTables, dirs: wp.array(dtype=wp.vec3),
+                                shifts: wp.array(dtype=wp.vec3), stride: int,
+                                pixels: wp.array(dtype=wp.int32), offset: int,
+                                lam_out: wp.array(dtype=wp.float32), nu_out: wp.array(dtype=wp.vec2),
+                                var_out: wp.array(dtype=wp.float32)):
         i = pixels[wp.tid() + offset]
         m = gb.material[i]
         n = gb.normal[i]
@@ -177,38 +275,42 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
         wo = to_local(gb.view[i], t, b, n)
         dp = wp.length(gb.position[i] - cam.origin)  # d': surface to the eye
         c = gb.curvature[i]
+        shift = shifts[interleave_index(i, gb.width, stride, shifts.shape[0])]
         lam_sum = float(0.0)
         nu_sum = wp.vec2(0.0)
         var_sum = float(0.0)
-        n_b = dirs.shape[0]
         if wo[2] > 0.0:
-            for k in range(n_b):
-                wi = uniform_hemisphere(dirs[k])
-                light = env_light(tables.light, env, to_world(wi, t, b, n))
-                rho = wp.dot(_LUM, f.eval(mats, m, wi, wo))
-                chi = light[0] * rho * wi[2]                  # lambda_i (Eq. 5), integrand of Eq. 1
-                nu_l = light[1]
-                nu_r = brdf_nu_rho(tables.nu_rho, m, wi, wo)
-                # the shading integral over w_i keeps only the light's angular frequencies within the
-                # band of rho cos (Eq. 8's convolution, read at angular frequency 0): module docstring
-                nu_in = wp.min(nu_l, nu_r + NU_COS)
-                nu_i = bw_one_bounce(wp.vec2(0.0, nu_in), 0.0, dp, wi[2], wo[2], c, 0.0, nu_r)  # Eq. 4
-                if chi > 0.0 and wp.isfinite(chi):
-                    lam_sum += chi
-                    nu_sum += chi * nu_i
-                    if wp.static(preconvolved):
-                        var_sum += 2.0 * nu_r * chi * chi            # Eq. 10
-                    else:
-                        var_sum += (nu_l + nu_r) * chi * chi         # Eq. 9
-        nu = wp.vec2(0.0)
-        if lam_sum > 0.0:
-            nu = nu_sum / lam_sum                                    # Eq. 5
-        nu_out[i] = nu
-        b_p[i] = nu[1] * pixel_angle                                 # Eq. 6
-        s2 = _FOUR_PI_SQ * var_sum / float(wp.max(n_b, 1))            # Eq. 9, E(chi^2) as a mean
-        sigma2[i] = s2
-        mu = _TWO_PI * lam_sum / float(wp.max(n_b, 1))                # uniform-sampling estimate of L_p
-        sigma2_rel[i] = s2 / (mu * mu + REL_EPS)
+            for k in range(dirs.shape[0]):
+                u = frac3(dirs[k] + shift)
+                # one-sample MIS of the BRDF and light samplers, each picked with probability 1/2 (u[0])
+                wi = wp.vec3(0.0)
+                if u[0] < 0.5:
+                    wi = f.sample(mats, m, wo, wp.vec3(2.0 * u[0], u[1], u[2]))
+                else:
+                    wi = to_local(env_sample(env, wp.vec2(u[1], u[2])), t, b, n)
+                if wi[2] > 0.0:
+                    wi_world = to_world(wi, t, b, n)
+                    pdf = MIS_HALF * (f.pdf(mats, m, wi, wo) + env_pdf(env, wi_world))
+                    light = env_light(tables.light, env, wi_world)
+                    rho = wp.dot(_LUM, f.eval(mats, m, wi, wo))
+                    chi = light[0] * rho * wi[2]                  # lambda_i (Eq. 5), integrand of Eq. 1
+                    nu_l = light[1]
+                    nu_r = brdf_nu_rho(tables.nu_rho, m, wi, wo)
+                    # the shading integral over w_i keeps only the light's angular frequencies within the
+                    # band of rho cos (Eq. 8's convolution, read at angular frequency 0): module docstring
+                    nu_in = wp.min(nu_l, nu_r + NU_COS)
+                    nu_i = bw_one_bounce(wp.vec2(0.0, nu_in), 0.0, dp, wi[2], wo[2], c, 0.0, nu_r)  # Eq. 4
+                    w = chi / pdf                                 # importance weight of direction i
+                    if chi > 0.0 and pdf > 0.0 and wp.isfinite(w):
+                        lam_sum += w
+                        nu_sum += w * nu_i
+                        if wp.static(preconvolved):
+                            var_sum += 2.0 * nu_r * chi * w             # Eq. 10
+                        else:
+                            var_sum += (nu_l + nu_r) * chi * w          # Eq. 9
+        lam_out[i] = lam_sum
+        nu_out[i] = nu_sum
+        var_out[i] = var_sum
 
     return bandwidth_buffer_kernel
 
@@ -300,20 +402,28 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None)
     return nu, "built"
 
 
+def _radical_inverse(k: np.ndarray, base: int) -> np.ndarray:
+    """Van der Corput radical inverse of the integers k in ``base``."""
+    k = k.astype(np.int64)
+    out = np.zeros(k.shape, np.float64)
+    scale = 1.0 / base
+    while np.any(k):
+        out += (k % base) * scale
+        k //= base
+        scale /= base
+    return out
+
+
 def direction_set(n_b: int, seed: int = 0) -> np.ndarray:
-    """Hammersley points ``((k + 1/2) / n_b, radical_inverse_2(k))`` shifted by a seeded offset mod 1."""
+    """``(n_b, 3)`` float32 Hammersley points ``((k + 1/2) / n_b, phi_2(k), phi_3(k))`` shifted by a seeded
+    offset mod 1 (Cranley-Patterson).  u[0] picks the sampler (BRDF below 1/2, light above: half of the
+    points each, exactly when n_b is even) and (u[1], u[2]) the direction."""
     if isinstance(n_b, bool) or not isinstance(n_b, (int, np.integer)) or n_b < 1:
         raise WarpbwError(f"n_b: expected a positive integer number of directions, got {n_b!r}")
-    k = np.arange(int(n_b), dtype=np.uint64)
-    rev = np.zeros(int(n_b), np.float64)
-    bits = k.copy()
-    scale = 0.5
-    while np.any(bits):
-        rev += (bits & np.uint64(1)).astype(np.float64) * scale
-        bits >>= np.uint64(1)
-        scale *= 0.5
-    shift = np.random.default_rng(seed).random(2)
-    u = np.stack([(k.astype(np.float64) + 0.5) / n_b + shift[0], rev + shift[1]], axis=1) % 1.0
+    k = np.arange(int(n_b))
+    shift = np.random.default_rng(seed).random(3)
+    u = np.stack([(k + 0.5) / n_b + shift[0], _radical_inverse(k, 2) + shift[1],
+                  _radical_inverse(k, 3) + shift[2]], axis=1) % 1.0
     return u.astype(np.float32)
 
 
@@ -338,34 +448,75 @@ class BandwidthBuffer:
     height: int
     n_b: int
     time_s: float = 0.0
+    traced_pixels: int = 0     # pixels whose n_b directions were traced (the rest share a block's)
+
+
+def interleave_shifts(n_b: int, side: int) -> np.ndarray:
+    """``(side^2, 3)`` offsets (mod 1) of the direction set for an interleaved ``side x side`` tile of
+    blocks: shift j = (j / (side^2 n_b), phi_2(j) / n_b, phi_3(j) / n_b), so that the tile's shifted
+    Hammersley sets together stratify side^2 times more finely than one set."""
+    t = max(1, int(side)) ** 2
+    j = np.arange(t)
+    return np.stack([j / (t * n_b), _radical_inverse(j, 2) / n_b, _radical_inverse(j, 3) / n_b],
+                    axis=1).astype(np.float32)
+
+
+def _check_count(value, name: str, lo: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
+        raise WarpbwError(f"{name}: expected an integer >= {lo}, got {value!r}")
+    return int(value)
 
 
 def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env_data: EnvMapData,
                    tables: BandwidthTables, n_b: int = N_B_DEFAULT, seed: int = 0, preconvolved: bool = False,
-                   nyquist: float = NYQUIST_FACTOR, device: str = "cpu", threads: int | None = None) -> BandwidthBuffer:
-    """Fill the bandwidth buffer: nu, b_p, sigma2 per covered pixel, and the level map (Eq. 11)."""
+                   nyquist: float = NYQUIST_FACTOR, stride: int = PASS_STRIDE_DEFAULT,
+                   pool_radius: int = POOL_RADIUS_DEFAULT, device: str = "cpu",
+                   threads: int | None = None) -> BandwidthBuffer:
+    """Fill the bandwidth buffer: nu, b_p, sigma2 per covered pixel, and the level map (Eq. 11).
+
+    ``stride``: the directions are traced once per ``stride x stride`` block of alike pixels (every pixel
+    of a block at a silhouette or an edge is traced); ``pool_radius``: each pixel pools the sums of the
+    alike traced pixels within that many pixels (interleaved direction sets).  ``stride=1, pool_radius=0``
+    is the plain per-pixel pass of 002 Sec. 3.1."""
     import time
 
     dirs_np = direction_set(n_b, seed)
+    stride = _check_count(stride, "stride", 1)
+    pool_radius = _check_count(pool_radius, "pool_radius", 0)
     if not (nyquist > 0 and math.isfinite(nyquist)):
         raise WarpbwError(f"nyquist: expected a positive factor, got {nyquist!r}")
     t0 = time.perf_counter()
     W, H = gb.width, gb.height
-    dirs = wp.array(dirs_np, dtype=wp.vec2, device=device)
+    # the tile of shifts: enough that the pooling window sees each once (its width in blocks)
+    side = 1 if pool_radius == 0 else (2 * pool_radius) // stride + 1
+    dirs = wp.array(dirs_np, dtype=wp.vec3, device=device)
+    shifts = wp.array(interleave_shifts(n_b, side), dtype=wp.vec3, device=device)
+    rep = wp.empty(W * H, dtype=wp.int32, device=device)
+    wp.launch(block_plan_kernel, dim=((W + stride - 1) // stride, (H + stride - 1) // stride),
+              inputs=[gb.data, stride, rep], device=device)
+    rep_np = rep.numpy()
+    traced = wp.array(np.flatnonzero(rep_np == np.arange(W * H)).astype(np.int32), dtype=wp.int32, device=device)
+    lam = wp.zeros(W * H, dtype=wp.float32, device=device)
+    nu_sum = wp.zeros(W * H, dtype=wp.vec2, device=device)
+    var = wp.zeros(W * H, dtype=wp.float32, device=device)
+    kernel = make_bandwidth_kernel(materials.kinds, preconvolved)
+    launch_tiled(kernel, traced.shape[0],
+                 lambda o, c: [gb.data, cam, materials.table, env_data, tables, dirs, shifts, stride, traced, o,
+                               lam, nu_sum, var], device, threads)
     nu = wp.zeros(W * H, dtype=wp.vec2, device=device)
     b_p = wp.zeros(W * H, dtype=wp.float32, device=device)
     sigma2 = wp.zeros(W * H, dtype=wp.float32, device=device)
     sigma2_rel = wp.zeros(W * H, dtype=wp.float32, device=device)
-    kernel = make_bandwidth_kernel(materials.kinds, preconvolved)
     pix = covered_pixels(gb, device)
     angle = pixel_angle(cam)
-    launch_tiled(kernel, pix.shape[0],
-                 lambda o, c: [gb.data, cam, materials.table, env_data, tables, dirs, pix, o, angle, nu, b_p, sigma2, sigma2_rel],
-                 device, threads)
+    launch_tiled(pool_kernel, pix.shape[0],
+                 lambda o, c: [gb.data, rep, pool_radius, int(n_b), angle, lam, nu_sum, var, pix, o,
+                               nu, b_p, sigma2, sigma2_rel], device, threads)
     rate = b_p.numpy() * np.float32(nyquist)
     level = image_level(rate, gb.coverage, W, H, device=device)
     wp.synchronize_device(device)
-    return BandwidthBuffer(nu, b_p, sigma2, sigma2_rel, level, gb.coverage, W, H, int(n_b), time.perf_counter() - t0)
+    return BandwidthBuffer(nu, b_p, sigma2, sigma2_rel, level, gb.coverage, W, H, int(n_b),
+                           time.perf_counter() - t0, int(traced.shape[0]))
 
 
 @dataclass

@@ -289,13 +289,15 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False):
 
 def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b: int | None = None,
                     n_min: int | None = None, n_max: int | None = None, preconvolved: bool = False,
-                    allocation: str | None = None, nyquist: float | None = None, device: str = "cpu",
-                    progress: bool = False, threads: int | None = None) -> RenderResult:
+                    allocation: str | None = None, nyquist: float | None = None, stride: int | None = None,
+                    pool_radius: int | None = None, device: str = "cpu", progress: bool = False,
+                    threads: int | None = None) -> RenderResult:
     """Render a frame with bandwidth prediction and hierarchical adaptive shading (002 Sec. 2-3).
 
     ``budget`` is the mean number of samples per covered pixel (the total is budget x covered pixels),
     spread over the pixels the hierarchy shades in proportion to the variance bound.  ``aovs`` holds
-    the level map, N_p, the predicted variance, the shaded mask, b_p and sigma2."""
+    the level map, N_p, the predicted variance, the shaded mask, b_p and sigma2.  ``stride`` and
+    ``pool_radius`` set how the bandwidth pass shares its directions (:func:`warpbw.bandwidth.bandwidth_pass`)."""
     from warpbw import adaptive, bandwidth
     from warpbw.gbuffer import make_gbuffer_kernel
     from warpbw.shading import make_reference_kernel
@@ -304,6 +306,8 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     n_min = bandwidth.N_P_MIN_DEFAULT if n_min is None else n_min
     allocation = bandwidth.ALLOCATION_DEFAULT if allocation is None else allocation
     nyquist = bandwidth.NYQUIST_FACTOR if nyquist is None else nyquist
+    stride = bandwidth.PASS_STRIDE_DEFAULT if stride is None else stride
+    pool_radius = bandwidth.POOL_RADIUS_DEFAULT if pool_radius is None else pool_radius
     bandwidth.direction_set(n_b)  # validates n_b before any work
     prep, timings = _prepared(scene, device, progress)
     tables = prepare_bandwidth(prep, progress)
@@ -319,7 +323,8 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     gb = _gbuffer(prep, timings)
     t0 = time.perf_counter()
     buf = bandwidth.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=n_b, seed=seed,
-                                   preconvolved=preconvolved, nyquist=nyquist, device=prep.device, threads=threads)
+                                   preconvolved=preconvolved, nyquist=nyquist, stride=stride,
+                                   pool_radius=pool_radius, device=prep.device, threads=threads)
     alloc = bandwidth.allocate_samples(buf, budget, n_min=n_min, n_max=n_max, allocation=allocation,
                                        device=prep.device)
     timings["bandwidth"] = time.perf_counter() - t0
@@ -337,6 +342,9 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     stats.update({
         "budget_spp": float(budget),
         "n_b": int(n_b),
+        "bandwidth_stride": int(stride),
+        "bandwidth_pool_radius": int(pool_radius),
+        "bandwidth_traced_pixels": int(buf.traced_pixels),
         "preconvolved_bound": bool(preconvolved),
         "allocation": alloc.stats,
         "levels": res.stats["levels"],
