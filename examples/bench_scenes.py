@@ -2,6 +2,7 @@
 
     python examples/bench_scenes.py --out bench_scenes            # write the scenes only
     python examples/bench_scenes.py --out bench_scenes --run      # and run `warpbw bench` on each
+    python examples/bench_scenes.py --out bench_scenes --run --no-mis --results nomis   # 002's baseline
 
 Four scenes, two shapes, four NPF-derived MERL materials (one very specular, chrome) and two light
 probes, from ../shared/data:
@@ -82,6 +83,9 @@ def main(argv=None) -> int:
     ap.add_argument("--only", help="comma-separated scene names to run")
     ap.add_argument("--nb", default="16,64,256,1024", help="n_b sweep on the first scene ('' for none)")
     ap.add_argument("--gt-spp", default="8192")
+    ap.add_argument("--cache", help="ground-truth cache directory (warpbw bench --cache)")
+    ap.add_argument("--no-mis", action="store_true", help="BRDF importance sampling only (002's baseline)")
+    ap.add_argument("--results", help="directory for the JSON and PNG records (default: --out)")
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
     if not DATA.is_dir():
@@ -95,8 +99,14 @@ def main(argv=None) -> int:
     for i, p in enumerate(paths):
         if only and p.stem not in only:
             continue
-        cmd = ["warpbw", "bench", str(p), "--json", str(p.with_suffix(".json")), "--plot", str(p.with_suffix(".png")),
+        res = Path(args.results or args.out) / p.stem
+        res.parent.mkdir(parents=True, exist_ok=True)
+        cmd = ["warpbw", "bench", str(p), "--json", f"{res}.json", "--plot", f"{res}.png",
                "--gt-spp", args.gt_spp, "-q"]
+        if args.cache:
+            cmd += ["--cache", args.cache]
+        if args.no_mis:
+            cmd.append("--no-mis")
         if i == 0 and args.nb:
             cmd += ["--nb", args.nb]
         if args.force:

@@ -118,6 +118,7 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
     shaded_level = np.full(W * H, -1, np.int64)
     per_level = []
     samples = 0
+    non_finite = 0
     t_shade = t_up = 0.0
     parent_vals = parent_valid = None
     for L in range(top, -1, -1):
@@ -154,6 +155,7 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
             res = shade_reference(gb, materials, env_data, spp_at_pixel, seed=seed + 7919 * L, mis=mis,
                                   device=device, threads=threads, pixels=pix, out=shaded_full)
             samples += res.samples
+            non_finite += res.non_finite
             wp.launch(gather_shaded_kernel, dim=n_shaded, inputs=[pix, texels, shaded_full, vals, valid],
                       device=device)
             shaded_level[rep_np[to_shade]] = L
@@ -163,7 +165,7 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
     image = parent_vals.numpy().reshape(H, W, 3) * cov[..., None]
     sl = shaded_level.reshape(H, W)
     n_cov = int(cov.sum())
-    stats = {"levels": per_level, "samples": samples, "pixels_covered": n_cov,
+    stats = {"levels": per_level, "samples": samples, "non_finite_samples": non_finite, "pixels_covered": n_cov,
              "pixels_shaded": int((sl >= 0).sum()),
              "shaded_fraction": float((sl >= 0).sum() / n_cov) if n_cov else 0.0,
              "time_s": {"shading": t_shade, "upsampling": t_up}}

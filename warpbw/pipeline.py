@@ -351,6 +351,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
         "pixels_shaded": res.stats["pixels_shaded"],
         "shaded_fraction": res.stats["shaded_fraction"],
         "samples": res.stats["samples"],
+        "non_finite_samples": res.stats["non_finite_samples"],
         "samples_per_covered_pixel": res.stats["samples"] / n_cov if n_cov else 0.0,
         "environment_samples": res.stats["samples"] if mis else 0,
         "bandwidth_time_fraction": timings["bandwidth"] / timings["frame"] if timings["frame"] > 0 else 0.0,
