@@ -161,6 +161,24 @@ def test_variance_bound_closed_form_for_lambert():
     np.testing.assert_allclose(buf.sigma2.numpy()[cov], expect, rtol=1e-2)
 
 
+def test_measured_mis_variance_matches_quadrature_for_lambert():
+    """variance_mis is the variance of X = chi / pdf, one-sample MIS of cosine sampling and the constant
+    environment's uniform sphere sampling (each with probability 1/2): E[X] = albedo and
+    E[X^2] = int_H chi^2 / pdf, pdf = (cos / pi + 1 / 4 pi) / 2, integrated here by quadrature."""
+    prep = prepared()
+    gb, buf = run_pass(prep, n_b=256)
+    rho = 0.6 / math.pi
+    theta = (np.arange(200000) + 0.5) * (math.pi / 2) / 200000
+    c = np.cos(theta)
+    e_x2 = np.sum((rho * c) ** 2 / (0.5 * (c / math.pi + 1 / (4 * math.pi))) * 2 * math.pi * np.sin(theta)) \
+        * (math.pi / 2) / 200000
+    expect = e_x2 - 0.6 ** 2
+    cov = gb.coverage.reshape(-1)
+    got = buf.variance_mis.numpy()[cov]
+    assert abs(np.median(got) / expect - 1) < 0.05
+    assert np.all(np.abs(got / expect - 1) < 0.3)
+
+
 def test_adaptive_lambert_furnace_returns_albedo():
     prep = prepared(w=40, h=40)
     res = render_adaptive(prep, budget=2.0, seed=1)
@@ -188,7 +206,8 @@ def _fake_buffer(sig, level, cov):
     z = wp.zeros(h * w, dtype=wp.vec2)
     return bw.BandwidthBuffer(z, wp.array(np.zeros(h * w, np.float32)), wp.array(sig.reshape(-1).astype(np.float32)),
                               wp.array(sig.reshape(-1).astype(np.float32)),
-                              wp.array(level.astype(np.int32)), cov, w, h, 16)
+                              wp.array(level.astype(np.int32)), cov, w, h, 16,
+                              variance_mis=wp.array(sig.reshape(-1).astype(np.float32)))
 
 
 @pytest.mark.parametrize("allocation", bw.ALLOCATIONS)

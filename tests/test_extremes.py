@@ -339,7 +339,10 @@ def test_adaptive_under_the_city_sun(city, npf_table, n_b, budget):
     if alloc["over_budget"]:
         assert np.all(res.aovs["n_p"][res.aovs["shaded"] > 0] == 1)
     else:
-        assert res.stats["samples"] <= budget * n_cov + 1
+        # the plan spends the budget; pixels the up-sampling cannot reach from valid parents (depth edges)
+        # are shaded on top of it, at their footprint's N_p
+        assert alloc["planned_samples"] <= budget * n_cov + 1
+        assert res.stats["samples"] <= 1.15 * budget * n_cov
     # the diffuse sphere's mean radiance against the reference (MIS, 64 spp): a gross-error check only, the
     # sun makes a 2-sample estimate of a 380-pixel mean scatter by ~15% (measured over seeds)
     lam = res.gbuffer.numpy("material") == 1
