@@ -350,3 +350,60 @@ def test_environment_with_non_finite_pixels_warns_in_one_line(tmp_path):
 
     img = read_exr(tmp_path / "out.exr")
     assert img.channels == ["R", "G", "B", "A"] and np.all(np.isfinite(img.pixels))
+
+
+# ------------------------------------------------------------------------------------------ normal maps (issue 4)
+
+PLANE_SCENE = """\
+[camera]
+position = [0.0, 1.5, 2.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 40.0
+resolution = [8, 8]
+
+[[light]]
+type = "directional"
+direction = [0.3, 0.8, -0.5]
+radiance = [3.0, 3.0, 3.0]
+
+[[object]]
+shape = "plane"
+size = 2.0
+material = "m"
+
+[material.m]
+type = "cook-torrance"
+roughness = 0.1
+f0 = [0.9, 0.75, 0.4]
+normal_map = "map.exr"
+"""
+
+
+def _bad_map(tmp_path: Path, what: str) -> None:
+    p = tmp_path / "map.exr"
+    if what == "not an image":
+        p.write_bytes(b"height field? no, just bytes\n" * 4)
+    elif what == "rgb as height":
+        write_exr(p, np.random.default_rng(0).random((4, 4, 3)).astype(np.float32), channels=["R", "G", "B"])
+    else:
+        h = np.zeros((4, 4, 1), np.float32)
+        h[2, 1] = np.nan
+        write_exr(p, h, channels=["Y"])
+    (tmp_path / "scene.toml").write_text(PLANE_SCENE)
+
+
+@pytest.mark.parametrize("what,needle", [("not an image", "not an image"),
+                                         ("rgb as height", "RGB image with differing channels"),
+                                         ("nan texels", "NaN")])
+def test_bad_normal_map_in_a_plane_scene(tmp_path, what, needle):
+    _bad_map(tmp_path, what)
+    r = run(["render", "scene.toml", "-o", "out.exr", "--filter", "fixed"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "[material.m].normal_map", "map.exr", needle)
+    assert_no_outputs(tmp_path)
+
+
+def test_filter_on_a_scene_without_planes(tmp_path):
+    write_scene(tmp_path)
+    r = run(["render", "scene.toml", "-o", "out.exr", "--filter", "toksvig"], tmp_path)
+    assert_one_line_error(r, "--filter toksvig", "planes")
+    assert_no_outputs(tmp_path)

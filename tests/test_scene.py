@@ -419,3 +419,137 @@ def test_property_ggx_alpha_in_range_is_accepted(alpha):
 def test_property_albedo_in_unit_cube_is_accepted(albedo):
     text = _replace(BASE, "albedo = [0.5, 0.5, 0.5]", "albedo = [" + ", ".join(map(_toml_value, albedo)) + "]")
     assert parse_scene(text).materials["paint"].albedo == tuple(albedo)
+
+
+# ------------------------------------------------------------------------------ planes, lights, cook-torrance
+# (issue 4: directional lights, shape = "plane", material type = "cook-torrance" with a normal map)
+
+LIGHT = """\
+[[light]]
+type = "directional"
+direction = [0.0, 2.0, 0.0]
+radiance = [3.0, 2.0, 1.0]
+"""
+PLANE = """\
+[[object]]
+shape = "plane"
+center = [0.0, -1.0, 0.0]
+size = 2.0
+material = "armour"
+"""
+ARMOUR = """\
+[material.armour]
+type = "cook-torrance"
+roughness = 0.08
+f0 = [0.9, 0.75, 0.4]
+diffuse = [0.05, 0.04, 0.02]
+"""
+
+
+def _plane_scene(tmp_path, material=ARMOUR, environment="", lights=LIGHT, objects=PLANE, name="p.toml"):
+    return write(tmp_path / name, scene_text(environment=environment, objects=lights + "\n" + objects,
+                                             materials=material))
+
+
+def test_plane_scene_with_a_directional_light_needs_no_environment(tmp_path):
+    from warpbw.scene import DirectionalLight, PlaneObject
+
+    s = load_scene(_plane_scene(tmp_path))
+    assert s.environment is None and s.has_planes
+    (li,) = s.lights
+    assert isinstance(li, DirectionalLight)
+    assert li.direction == (0.0, 1.0, 0.0)      # normalised
+    assert li.radiance == (3.0, 2.0, 1.0)
+    (p,) = s.objects
+    assert isinstance(p, PlaneObject) and p.center == (0.0, -1.0, 0.0) and p.size == 2.0
+    m = s.materials["armour"]
+    assert (m.type, m.roughness, m.f0, m.diffuse) == ("cook-torrance", 0.08, (0.9, 0.75, 0.4), (0.05, 0.04, 0.02))
+    assert m.normal_map is None and m.gmm is None and m.tiling == 1.0 and m.normal_map_kind == "height"
+    assert s.files() == []
+
+
+def test_cook_torrance_normal_map_keys_and_files(tmp_path):
+    (tmp_path / "scales.exr").write_bytes(b"height field bytes")
+    (tmp_path / "scales.gmm").write_bytes(b"mipmap bytes")
+    mat = ARMOUR + ('normal_map = "scales.exr"\nnormal_map_kind = "height"\nnormal_map_scale = 0.05\n'
+                    'tiling = 6\ngmm = "scales.gmm"\n')
+    p = _plane_scene(tmp_path, material=mat, environment=ENVIRONMENT)
+    s = load_scene(p)
+    m = s.materials["armour"]
+    assert m.normal_map == tmp_path / "scales.exr" and m.gmm == tmp_path / "scales.gmm"
+    assert m.normal_map_scale == 0.05 and m.tiling == 6.0
+    assert s.environment is not None and s.environment.constant == (1.0, 1.0, 1.0)
+    assert s.files() == [tmp_path / "scales.exr", tmp_path / "scales.gmm"]
+    h0 = s.content_hash()
+    (tmp_path / "scales.exr").write_bytes(b"other height field bytes")
+    assert load_scene(p).content_hash() != h0          # the normal map's bytes are hashed
+    (tmp_path / "scales.exr").write_bytes(b"height field bytes")
+    assert load_scene(p).content_hash() == h0
+    (tmp_path / "scales.gmm").write_bytes(b"other mipmap")
+    assert load_scene(p).content_hash() != h0          # so are the GMM mipmap's
+
+
+def test_content_hash_follows_lights_and_plane_parameters(tmp_path):
+    h0 = load_scene(_plane_scene(tmp_path)).content_hash()
+    h_light = load_scene(_plane_scene(tmp_path, lights=_replace(LIGHT, "[3.0, 2.0, 1.0]", "[3.0, 2.0, 1.5]"),
+                                      name="q.toml")).content_hash()
+    h_size = load_scene(_plane_scene(tmp_path, objects=_replace(PLANE, "size = 2.0", "size = 2.5"),
+                                     name="r.toml")).content_hash()
+    h_rough = load_scene(_plane_scene(tmp_path, material=_replace(ARMOUR, "0.08", "0.09"),
+                                      name="t.toml")).content_hash()
+    assert len({h0, h_light, h_size, h_rough}) == 4
+
+
+def test_default_scene_hash_does_not_depend_on_cook_torrance_fields():
+    # the new material fields are left out of other materials' hashes (cached ground truths stay valid)
+    from dataclasses import replace
+
+    s = default_scene()
+    h = s.content_hash()
+    s.materials["clay"] = replace(s.materials["clay"], roughness=0.5)
+    assert s.content_hash() == h
+
+
+PLANE_CASES = [
+    ("no light at all", dict(lights=""), "[environment]"),
+    ("unknown light type", dict(lights=_replace(LIGHT, '"directional"', '"spot"')), "[[light]] #1.type"),
+    ("zero light direction", dict(lights=_replace(LIGHT, "[0.0, 2.0, 0.0]", "[0.0, 0.0, 0.0]")),
+     "[[light]] #1.direction"),
+    ("negative radiance", dict(lights=_replace(LIGHT, "[3.0, 2.0, 1.0]", "[3.0, -2.0, 1.0]")), "[[light]] #1.radiance"),
+    ("unknown light key", dict(lights=LIGHT + "colour = 1.0\n"), "[[light]] #1.colour"),
+    ("light without radiance", dict(lights=LIGHT.replace("radiance = [3.0, 2.0, 1.0]\n", "")),
+     "[[light]] #1.radiance"),
+    ("plane size zero", dict(objects=_replace(PLANE, "size = 2.0", "size = 0.0")), "[[object]] #1.size"),
+    ("plane without size", dict(objects=PLANE.replace("size = 2.0\n", "")), "[[object]] #1.size"),
+    ("plane with radius", dict(objects=PLANE + "radius = 1.0\n"), "[[object]] #1.radius"),
+    ("unknown shape", dict(objects=_replace(PLANE, '"plane"', '"disk"')), "[[object]] #1.shape"),
+    ("plane with a lambert material", dict(objects=_replace(PLANE, '"armour"', '"paint"'),
+                                           material=ARMOUR + PAINT), "[[object]] #1.material"),
+    ("sphere with a cook-torrance material", dict(objects=_replace(SPHERE, '"paint"', '"armour"')),
+     "[[object]] #1.material"),
+    ("roughness zero", dict(material=_replace(ARMOUR, "0.08", "0.0")), "[material.armour].roughness"),
+    ("roughness NaN", dict(material=_replace(ARMOUR, "0.08", "nan")), "[material.armour].roughness"),
+    ("f0 above one", dict(material=_replace(ARMOUR, "[0.9, 0.75, 0.4]", "[1.9, 0.75, 0.4]")),
+     "[material.armour].f0"),
+    ("f0 missing", dict(material=ARMOUR.replace("f0 = [0.9, 0.75, 0.4]\n", "")), "[material.armour].f0"),
+    ("diffuse negative", dict(material=_replace(ARMOUR, "[0.05, 0.04, 0.02]", "-0.1")), "[material.armour].diffuse"),
+    ("unknown material key", dict(material=ARMOUR + "alpha = 0.1\n"), "[material.armour].alpha"),
+    ("normal map missing", dict(material=ARMOUR + 'normal_map = "absent.exr"\n'), "[material.armour].normal_map"),
+    ("tiling without a map", dict(material=ARMOUR + "tiling = 4\n"), "[material.armour].tiling"),
+]
+
+
+@pytest.mark.parametrize("case", PLANE_CASES, ids=[c[0] for c in PLANE_CASES])
+def test_plane_scene_errors_name_the_key(tmp_path, case):
+    _, kw, key = case
+    expect_error(_plane_scene(tmp_path, **kw), key)
+
+
+def test_normal_map_value_errors_name_the_key(tmp_path):
+    (tmp_path / "n.png").write_bytes(b"x")
+    base = ARMOUR + 'normal_map = "n.png"\n'
+    for extra, key in (('normal_map_kind = "bump"\n', "normal_map_kind"), ("tiling = -2\n", "tiling"),
+                       ("tiling = 1e9\n", "tiling"), ("normal_map_scale = 0\n", "normal_map_scale"),
+                       ('normal_map_kind = "normal"\nnormal_map_scale = 2.0\n', "normal_map_scale"),
+                       ('gmm = "nope.gmm"\n', "gmm")):
+        expect_error(_plane_scene(tmp_path, material=base + extra), f"[material.armour].{key}")

@@ -1,4 +1,4 @@
-"""The ``warpbw`` command: render, demo, info, compare, bench.
+"""The ``warpbw`` command: render, demo, info, compare, bench, bench-filtering.
 
 Public: ``main(argv=None) -> int``.
 
@@ -19,6 +19,8 @@ from warpbw.errors import WarpbwError
 
 DEFAULT_SPP = 64
 DEMO_SPP = 64
+# warpbw.filtering.ALL_METHODS (spelled here so that --help needs no Warp import)
+_FILTER_METHODS = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed", "ground_truth")
 WARP_LOG_WARNING = 30  # warp._src.logger.LOG_WARNING: hide Warp's banner and module-load lines
 
 EPILOG = """\
@@ -30,6 +32,9 @@ examples:
                                                 adaptive shading (002): AOVs out.level.exr, out.n_p.exr, ...
   warpbw bench scene.toml --json b.json --plot b.png   speed against accuracy, adaptive vs reference
   warpbw compare out.exr ground_truth.exr       PSNR and relative MSE over covered pixels
+  warpbw render planes.toml -o out.exr --filter gmm_aligned
+                                                a scene with planes: reflectance filtering (004)
+  warpbw bench-filtering planes.toml --zoom 1,2,4,8,16,32 --json f.json --plot f.png
 
 Scene files are TOML; see README.md for the keys.  Images are linear radiance in EXR (R, G, B and the
 coverage mask as A), with an sRGB PNG preview and a JSON of statistics beside them.
@@ -191,6 +196,47 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
     return res.stats
 
 
+def _no_environment(scene, what: str) -> None:
+    """Spheres and meshes are lit by the environment only (the pipeline of 002); refuse before it breaks."""
+    if scene.environment is None:
+        raise WarpbwError(f"{scene.source}: [environment]: missing; {what} needs one (directional [[light]]s "
+                          "light planes only, through the filtering renderer)")
+
+
+def _render_filtering_cli(scene, args) -> int:
+    """``warpbw render`` of a scene with planes: the reflectance-filtering renderer (004)."""
+    from warpbw.filtering import render_filtering
+
+    if args.method != "reference" or args.budget is not None or args.nb is not None or args.mis:
+        raise WarpbwError(f"{scene.source}: a scene with planes renders with --filter METHOD (reflectance "
+                          "filtering, 004); --method, --budget, --nb and --mis apply to spheres and meshes")
+    method = args.filter or "gmm_aligned"
+    out = Path(args.output)
+    outs = _outputs(out)
+    level_paths = [out.with_suffix(".level.exr"), out.with_suffix(".level.png")]
+    _check_overwrite(list(outs.values()) + level_paths, args.force)
+    _init_warp(args.device)
+    t0 = time.perf_counter()
+    res = render_filtering(scene, method, spp=args.spp, seed=args.seed, device=args.device,
+                           progress=not args.quiet, threads=args.threads)
+    res.stats["time_s"] = {"frame": round(res.time_s, 6), "total": round(time.perf_counter() - t0, 6)}
+    _write_render(res, outs, args.exposure)
+    import numpy as np
+
+    from warpbw.io.exr import write_exr, write_false_colour_png
+
+    write_exr(level_paths[0], res.level.astype(np.float32), channels=["Y"])
+    write_false_colour_png(level_paths[1], res.level, mask=res.coverage)
+    if not args.quiet:
+        w, h = res.stats["resolution"]
+        extra = f", {args.spp} rays/pixel" if method == "ground_truth" else \
+            f", mean mip level {res.stats['mean_level']:.2f}"
+        print(f"{outs['exr']}  ({w}x{h}, filter {method}{extra}, {res.stats['pixels_covered']} covered pixels)")
+        print(f"  frame {res.time_s * 1e3:.1f} ms, total {res.stats['time_s']['total']:.2f} s")
+        print(f"  preview {outs['png']}, stats {outs['json']}, mip level {level_paths[0].name} (+ .png)")
+    return 0
+
+
 def cmd_render(args) -> int:
     from warpbw.scene import load_scene
 
@@ -199,6 +245,11 @@ def cmd_render(args) -> int:
     if args.method == "reference" and (args.budget is not None or args.nb is not None):
         raise WarpbwError("--budget and --nb apply to --method adaptive only (the reference takes --spp)")
     scene = load_scene(args.scene)
+    if scene.has_planes:
+        return _render_filtering_cli(scene, args)
+    if args.filter is not None:
+        raise WarpbwError(f"--filter {args.filter}: applies to scenes with planes (shape = \"plane\") only")
+    _no_environment(scene, "rendering spheres and meshes")
     _render(scene, Path(args.output), args.spp, args.seed, args.mis, args.device, args.exposure, args.force,
             args.threads, args.quiet, args.method, args.budget, args.nb)
     return 0
@@ -217,13 +268,21 @@ def cmd_info(args) -> int:
     from warpbw.pipeline import scene_summary
     from warpbw.scene import load_scene
 
-    s = scene_summary(load_scene(args.scene))
+    scene = load_scene(args.scene)
+    if scene.has_planes or scene.environment is None:
+        from warpbw.filtering import filtering_summary
+
+        s = filtering_summary(scene)
+    else:
+        s = scene_summary(scene)
     if args.json:
         print(json.dumps(s, indent=2))
         return 0
     print(f"scene       {s['scene']}")
     print(f"resolution  {s['resolution'][0]} x {s['resolution'][1]}")
     print(f"environment {s['environment']}")
+    for li in s.get("lights", []):
+        print(f"light       {li}")
     print("objects")
     for o in s["objects"]:
         print(f"  - {o}")
@@ -314,6 +373,9 @@ def cmd_bench(args) -> int:
         raise WarpbwError(f"--plot {args.plot}: expected a path ending in .png")
     _check_overwrite(outs, args.force)
     scene = load_scene(args.scene)
+    if scene.has_planes:
+        raise WarpbwError(f"{scene.source}: a scene with planes is benchmarked by 'warpbw bench-filtering'")
+    _no_environment(scene, "bench (spheres and meshes)")
     _init_warp(args.device)
     log = (lambda *a, **k: None) if args.quiet else print
     record = bench.run_bench(scene, spp_list=args.spp, budgets=args.budgets, nb_list=args.nb or (),
@@ -330,6 +392,37 @@ def cmd_bench(args) -> int:
     if not record["ground_truth_converged"]:
         print(f"warpbw: warning: the ground truth is not converged (doubling changes PSNR by "
               f"{record['ground_truth_doubling_delta_db']:.2f} dB >= 0.5 dB): raise --gt-spp", file=sys.stderr)
+    return 0
+
+
+def cmd_bench_filtering(args) -> int:
+    from warpbw import bench_filtering as bf
+    from warpbw.scene import load_scene
+
+    outs = [Path(p) for p in (args.json, args.plot) if p]
+    if not outs:
+        raise WarpbwError("give --json OUT.json and/or --plot OUT.png (where to write the results)")
+    if args.json and Path(args.json).suffix.lower() != ".json":
+        raise WarpbwError(f"--json {args.json}: expected a path ending in .json")
+    if args.plot and Path(args.plot).suffix.lower() != ".png":
+        raise WarpbwError(f"--plot {args.plot}: expected a path ending in .png")
+    _check_overwrite(outs, args.force)
+    scene = load_scene(args.scene)
+    if not scene.has_planes:
+        raise WarpbwError(f"{scene.source}: bench-filtering needs a scene with planes (shape = \"plane\"); "
+                          "spheres and meshes are benchmarked by 'warpbw bench'")
+    _init_warp(args.device)
+    log = (lambda *a, **k: None) if args.quiet else print
+    record = bf.run_bench_filtering(scene, zooms=args.zoom, gt_spp=args.gt_spp, runs=args.runs, seed=args.seed,
+                                    device=args.device, cache=Path(args.cache) if args.cache else None,
+                                    progress=not args.quiet, log=log)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(record, indent=2) + "\n")
+    if args.plot:
+        Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
+        bf.write_plot(record, args.plot)
+    print(bf.format_table(record))
     return 0
 
 
@@ -381,6 +474,11 @@ def build_parser() -> argparse.ArgumentParser:
                    "(may be below 1)")
     r.add_argument("--nb", type=_positive_int("nb"), default=None,
                    help="adaptive: directions per pixel of the bandwidth estimate, n_b (default 16, 002 Sec. 2.6)")
+    r.add_argument("--filter", choices=_FILTER_METHODS, default=None,
+                   help="scenes with planes (shape = \"plane\", cook-torrance materials) always render with the "
+                   "reflectance-filtering renderer (004): METHOD is gmm_aligned (default), gmm_unaligned, toksvig, "
+                   "lean, fixed, or ground_truth (--spp >= 64 jittered rays per pixel); also writes the mip "
+                   "level map OUT.level.exr/.png")
     common(r, DEFAULT_SPP)
     r.set_defaults(func=cmd_render)
 
@@ -429,6 +527,32 @@ def build_parser() -> argparse.ArgumentParser:
     bn.add_argument("--force", action="store_true", help="overwrite existing output files")
     bn.add_argument("-q", "--quiet", action="store_true", help="only the final table")
     bn.set_defaults(func=cmd_bench)
+
+    from warpbw import bench_filtering as _bf
+
+    bf = sub.add_parser("bench-filtering", help="reflectance filtering along a zoom-out: error, flicker, time",
+                        description="Issue 4 / 004 on a scene with planes: for each zoom (camera distance factor) "
+                        "and each filtered method (gmm_aligned, gmm_unaligned, toksvig, lean, fixed), the per-pixel "
+                        "normalised Euclidean colour error against the ground truth (mean over covered pixels), the "
+                        "flicker (frame-to-frame change beyond the ground truth's own, between zoom z and z * "
+                        "2^(1/8)) and the frame time (median of --runs after a warm-up); and the precompute time of "
+                        "the aligned GMM mipmaps (built afresh unless --cache or the scene's gmm file provides them). "
+                        "See warpbw/bench_filtering.py for the definitions.")
+    bf.add_argument("scene", help="scene file (TOML) with planes")
+    bf.add_argument("--zoom", type=_number_list("zoom", float), default=list(_bf.DEFAULT_ZOOMS),
+                    help="zoom factors (default %s)" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
+    bf.add_argument("--json", help="write the record here (JSON)")
+    bf.add_argument("--plot", help="write the plot here (PNG): error and flicker against zoom")
+    bf.add_argument("--gt-spp", type=_positive_int("gt-spp"), default=_bf.DEFAULT_GT_SPP,
+                    help=f"ground-truth rays per pixel (>= 64; default {_bf.DEFAULT_GT_SPP})")
+    bf.add_argument("--runs", type=_positive_int("runs"), default=3, help="timed runs per point (median; default 3)")
+    bf.add_argument("--cache", help="GMM mipmap cache directory to reuse (default: build afresh, so that the "
+                    "precompute time is measured)")
+    bf.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    bf.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda / cuda:N")
+    bf.add_argument("--force", action="store_true", help="overwrite existing output files")
+    bf.add_argument("-q", "--quiet", action="store_true", help="only the final table")
+    bf.set_defaults(func=cmd_bench_filtering)
 
     c = sub.add_parser("compare", help="PSNR and relative MSE of an image against a reference",
                        description="PSNR and relative MSE (linear radiance) over the pixels covered by geometry "

@@ -4,8 +4,14 @@ Public:
     ``load_scene(path) -> Scene``               read and validate a scene file
     ``parse_scene(text, base_dir, source) -> Scene``  the same from a string
     ``default_scene() -> Scene``                the embedded demo scene (needs no file)
-    ``Scene``, ``Camera``, ``Environment``, ``SphereObject``, ``MeshObject``, ``Material``
-    ``DEFAULT_SCENE_TOML``
+    ``Scene``, ``Camera``, ``Environment``, ``DirectionalLight``, ``SphereObject``, ``MeshObject``,
+    ``PlaneObject``, ``Material``, ``DEFAULT_SCENE_TOML``
+
+Lights: an ``[environment]`` and/or ``[[light]]`` tables (``type = "directional"``, ``direction`` towards the
+light, ``radiance``); a scene needs at least one of them (``Scene.environment`` is None without one).
+Planes (``shape = "plane"``: a square of side ``size`` in the XZ plane facing +Y, centred at ``center``,
+uv in [0, 1]^2 with u along +X and v along +Z) carry ``cook-torrance`` materials with an optional normal
+map (004); they are rendered by ``warpbw.filtering``.
 
 Every error is a ``WarpbwError`` naming the scene file and the key, e.g.
 ``scene.toml: [camera].resolution: expected two positive integers [width, height], got [-1, 512]``.
@@ -29,7 +35,14 @@ else:  # pragma: no cover
 
 from warpbw.errors import WarpbwError
 
-MATERIAL_TYPES = ("lambert", "ggx", "merl", "npf")
+MATERIAL_TYPES = ("lambert", "ggx", "merl", "npf", "cook-torrance")
+LIGHT_TYPES = ("directional",)
+NORMAL_MAP_KINDS = ("height", "normal")
+# Smallest Cook-Torrance roughness m accepted: the Gaussian NDF's per-axis variance m^2 / 2 must stay well
+# above float32 resolution in the kernels (warpbw.filtering).
+CT_MIN_ROUGHNESS = 1.0e-3
+# Largest tiling: more repeats than this across one plane is almost certainly a typo.
+MAX_TILING = 4096
 PROCEDURAL_ENVIRONMENTS = ("sky",)
 LOOKUP_MODES = ("nearest", "linear")
 MAX_RESOLUTION = 16384  # per side; larger is almost certainly a typo (and would not fit in memory)
@@ -123,6 +136,19 @@ class MeshObject:
 
 
 @dataclass(frozen=True)
+class PlaneObject:
+    center: tuple
+    size: float
+    material: str
+
+
+@dataclass(frozen=True)
+class DirectionalLight:
+    direction: tuple      # unit vector towards the light
+    radiance: tuple       # RGB; a surface facing the light receives irradiance radiance * cos(theta)
+
+
+@dataclass(frozen=True)
 class Material:
     name: str
     type: str
@@ -137,6 +163,15 @@ class Material:
     lookup: str = "nearest"           # merl / npf: nearest bin or linear between bin centres
     sampling: Path | None = None      # merl / npf: precomputed sampling tables (built and cached if absent)
     bandwidth: Path | None = None     # merl / npf: precomputed nu_rho table (adaptive method; built and cached if absent)
+    # cook-torrance (004 Sec. 3): Gaussian NDF of roughness m, Schlick Fresnel from f0, Lambert albedo
+    roughness: float = 0.0
+    f0: tuple = (0.0, 0.0, 0.0)
+    diffuse: tuple = (0.0, 0.0, 0.0)
+    normal_map: Path | None = None    # height field or tangent-space normal map (EXR / PNG)
+    normal_map_kind: str = "height"
+    normal_map_scale: float = 1.0     # heights (in units of the map's width) times this
+    tiling: float = 1.0               # repeats of the map across the surface
+    gmm: Path | None = None           # precomputed GMM mipmap (built and cached if absent)
 
 
 @dataclass
@@ -147,6 +182,12 @@ class Scene:
     materials: dict
     source: str = "<string>"
     base_dir: Path = field(default_factory=Path.cwd)
+    lights: list = field(default_factory=list)
+
+    @property
+    def has_planes(self) -> bool:
+        """True when some object is a plane (rendered by ``warpbw.filtering``)."""
+        return any(isinstance(o, PlaneObject) for o in self.objects)
 
     @property
     def material_order(self) -> list:
@@ -161,11 +202,14 @@ class Scene:
         """A hash of the scene's content and of the files it names (for caching ground truths)."""
         h = hashlib.blake2b(digest_size=16)
         h.update(json.dumps(_jsonable(asdict(self.camera)), sort_keys=True).encode())
-        h.update(json.dumps(_jsonable(asdict(self.environment)), sort_keys=True).encode())
+        if self.environment is not None:
+            h.update(json.dumps(_jsonable(asdict(self.environment)), sort_keys=True).encode())
+        for li in self.lights:
+            h.update(json.dumps({"light": _jsonable(asdict(li))}, sort_keys=True).encode())
         for o in self.objects:
             h.update(json.dumps(_jsonable(asdict(o)), sort_keys=True).encode())
         for name in self.material_order:
-            h.update(json.dumps(_jsonable(asdict(self.materials[name])), sort_keys=True).encode())
+            h.update(json.dumps(_jsonable(_material_fields(self.materials[name])), sort_keys=True).encode())
         for p in self.files():
             h.update(file_digest(p).encode())
         return h.hexdigest()
@@ -173,17 +217,30 @@ class Scene:
     def files(self) -> list:
         """Every file the scene reads."""
         out = []
-        if self.environment.file is not None:
+        if self.environment is not None and self.environment.file is not None:
             out.append(self.environment.file)
         for o in self.objects:
             if isinstance(o, MeshObject):
                 out.append(o.file)
         for name in self.material_order:
             m = self.materials[name]
-            for p in (m.file, m.table, m.sampling, m.bandwidth):
+            for p in (m.file, m.table, m.sampling, m.bandwidth, m.normal_map, m.gmm):
                 if p is not None:
                     out.append(p)
         return out
+
+
+# Material fields only cook-torrance materials use: left out of other materials' hashes, so that the hashes
+# (and the ground truths cached under them) of scenes written before these fields existed stay the same.
+_CT_FIELDS = ("roughness", "f0", "diffuse", "normal_map", "normal_map_kind", "normal_map_scale", "tiling", "gmm")
+
+
+def _material_fields(m: Material) -> dict:
+    d = asdict(m)
+    if m.type != "cook-torrance":
+        for k in _CT_FIELDS:
+            d.pop(k)
+    return d
 
 
 def file_digest(path: Path, chunk: int = 1 << 22) -> str:
@@ -308,14 +365,32 @@ def _environment(ctx: _Ctx, d: dict) -> Environment:
                        scale=scale)
 
 
+def _light(ctx: _Ctx, d: dict, i: int) -> DirectionalLight:
+    key = f"[[light]] #{i + 1}"
+    if not isinstance(d, dict):
+        ctx.fail(key, f"expected a table, got {d!r}")
+    ctx.table(d, key, ("type", "direction", "radiance"), required=("type", "direction", "radiance"))
+    ctx.string(d["type"], f"{key}.type", LIGHT_TYPES)
+    direction = ctx.vec3(d["direction"], f"{key}.direction")
+    length = math.sqrt(sum(c * c for c in direction))
+    if length < 1e-9:
+        ctx.fail(f"{key}.direction", f"expected a non-zero vector towards the light, got {list(direction)}")
+    radiance = ctx.vec3(d["radiance"], f"{key}.radiance", lo=0.0)
+    return DirectionalLight(tuple(c / length for c in direction), radiance)
+
+
 def _object(ctx: _Ctx, d: dict, i: int, materials: dict):
     key = f"[[object]] #{i + 1}"
     if not isinstance(d, dict):
         ctx.fail(key, f"expected a table, got {d!r}")
     if ("shape" in d) == ("mesh" in d):
-        ctx.fail(key, "expected exactly one of shape = \"sphere\" or mesh = \"file.obj\"")
+        ctx.fail(key, "expected exactly one of shape = \"sphere\" / \"plane\" or mesh = \"file.obj\"")
     # keys first: a misspelt key ("materal") is reported as unknown, not as a missing "material"
     if "shape" in d:
+        ctx.string(d["shape"], f"{key}.shape", ("sphere", "plane"))
+    if "shape" in d and d["shape"] == "plane":
+        ctx.table(d, key, ("shape", "center", "size", "material"), required=("material", "size"))
+    elif "shape" in d:
         ctx.table(d, key, ("shape", "center", "radius", "material"), required=("material", "radius"))
     else:
         ctx.table(d, key, ("mesh", "material", "translate", "scale", "rotate_y"), required=("material",))
@@ -323,8 +398,19 @@ def _object(ctx: _Ctx, d: dict, i: int, materials: dict):
     if mat not in materials:
         ctx.fail(f"{key}.material", f"no [material.{mat}] in the scene (defined: "
                  f"{', '.join(materials) or 'none'})")
+    if "mesh" in d and materials[mat].type == "cook-torrance":
+        ctx.fail(f"{key}.material", "cook-torrance materials apply to planes only (shape = \"plane\"), not to a mesh")
     if "shape" in d:
-        ctx.string(d["shape"], f"{key}.shape", ("sphere",))
+        shape = ctx.string(d["shape"], f"{key}.shape", ("sphere", "plane"))
+        if shape == "plane":
+            if materials[mat].type != "cook-torrance":
+                ctx.fail(f"{key}.material", f"planes take a cook-torrance material, [material.{mat}] is "
+                         f"{materials[mat].type!r}")
+            return PlaneObject(ctx.vec3(d.get("center", [0.0, 0.0, 0.0]), f"{key}.center"),
+                               ctx.number(d["size"], f"{key}.size", lo=0.0, lo_open=True), mat)
+        if materials[mat].type == "cook-torrance":
+            ctx.fail(f"{key}.material", f"cook-torrance materials apply to planes only (shape = \"plane\"), "
+                     f"not to a {shape}")
         return SphereObject(ctx.vec3(d.get("center", [0.0, 0.0, 0.0]), f"{key}.center"),
                             ctx.number(d["radius"], f"{key}.radius", lo=0.0, lo_open=True), mat)
     return MeshObject(ctx.path(d["mesh"], f"{key}.mesh"), mat,
@@ -338,7 +424,31 @@ _MATERIAL_KEYS = {
     "ggx": (("type", "alpha", "specular", "eta", "k"), ("alpha", "specular")),
     "merl": (("type", "file", "lookup", "sampling", "bandwidth"), ("file",)),
     "npf": (("type", "table", "name", "lookup", "sampling", "bandwidth"), ("table", "name")),
+    "cook-torrance": (("type", "roughness", "f0", "diffuse", "normal_map", "normal_map_kind", "normal_map_scale",
+                       "tiling", "gmm"), ("roughness", "f0")),
 }
+
+
+def _cook_torrance(ctx: _Ctx, name: str, key: str, d: dict) -> Material:
+    rough = ctx.number(d["roughness"], f"{key}.roughness", lo=CT_MIN_ROUGHNESS, hi=1.0)
+    f0 = ctx.vec3(d["f0"], f"{key}.f0", lo=0.0)
+    if max(f0) > 1.0:
+        ctx.fail(f"{key}.f0", f"expected Fresnel reflectance components in [0, 1], got {f0}")
+    diffuse = ctx.vec3(d.get("diffuse", 0.0), f"{key}.diffuse", lo=0.0)
+    if max(diffuse) > 1.0:
+        ctx.fail(f"{key}.diffuse", f"expected components in [0, 1] (energy conservation), got {diffuse}")
+    for k in ("normal_map_kind", "normal_map_scale", "tiling", "gmm"):
+        if k in d and "normal_map" not in d:
+            ctx.fail(f"{key}.{k}", "applies only with a normal_map")
+    nmap = ctx.path(d["normal_map"], f"{key}.normal_map") if "normal_map" in d else None
+    kind = ctx.string(d.get("normal_map_kind", "height"), f"{key}.normal_map_kind", NORMAL_MAP_KINDS)
+    scale = ctx.number(d.get("normal_map_scale", 1.0), f"{key}.normal_map_scale", lo=0.0, lo_open=True)
+    if "normal_map_scale" in d and kind != "height":
+        ctx.fail(f"{key}.normal_map_scale", "applies only to normal_map_kind = \"height\"")
+    tiling = ctx.number(d.get("tiling", 1.0), f"{key}.tiling", lo=0.0, lo_open=True, hi=MAX_TILING)
+    gmm = ctx.path(d["gmm"], f"{key}.gmm") if "gmm" in d else None
+    return Material(name, "cook-torrance", roughness=rough, f0=f0, diffuse=diffuse, normal_map=nmap,
+                    normal_map_kind=kind, normal_map_scale=scale, tiling=tiling, gmm=gmm)
 
 
 def _material(ctx: _Ctx, name: str, d: dict) -> Material:
@@ -348,6 +458,8 @@ def _material(ctx: _Ctx, name: str, d: dict) -> Material:
     t = ctx.string(d.get("type"), f"{key}.type", MATERIAL_TYPES)
     allowed, required = _MATERIAL_KEYS[t]
     ctx.table(d, key, allowed, required)
+    if t == "cook-torrance":
+        return _cook_torrance(ctx, name, key, d)
     if t == "lambert":
         albedo = ctx.vec3(d["albedo"], f"{key}.albedo", lo=0.0)
         if max(albedo) > 1.0:
@@ -380,11 +492,16 @@ def parse_scene(text: str, base_dir: Path | str | None = None, source: str = "<s
         d = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise WarpbwError(f"{source}: not valid TOML: {exc}") from None
-    ctx.table(d, "", ("camera", "environment", "object", "material"))  # top level: keys named as they are
+    ctx.table(d, "", ("camera", "environment", "light", "object", "material"))  # top level: keys named as they are
     if "camera" not in d:
         ctx.fail("[camera]", "missing (every scene needs a camera)")
-    if "environment" not in d:
-        ctx.fail("[environment]", "missing (the scene needs a light: file, procedural = \"sky\" or constant)")
+    if "environment" not in d and "light" not in d:
+        ctx.fail("[environment]", "missing (the scene needs a light: an [environment] with file, procedural = "
+                 "\"sky\" or constant, or a [[light]] with type = \"directional\")")
+    lights_in = d.get("light", [])
+    if not isinstance(lights_in, list) or ("light" in d and not lights_in):
+        ctx.fail("[[light]]", "expected one or more [[light]] tables")
+    lights = [_light(ctx, li, i) for i, li in enumerate(lights_in)]
     mats_in = d.get("material", {})
     if not isinstance(mats_in, dict):
         ctx.fail("[material]", "expected tables [material.NAME]")
@@ -393,8 +510,8 @@ def parse_scene(text: str, base_dir: Path | str | None = None, source: str = "<s
     if not isinstance(objs_in, list) or not objs_in:
         ctx.fail("[[object]]", "expected at least one [[object]]")
     objects = [_object(ctx, o, i, materials) for i, o in enumerate(objs_in)]
-    return Scene(_camera(ctx, d["camera"]), _environment(ctx, d["environment"]), objects, materials,
-                 source, base)
+    env = _environment(ctx, d["environment"]) if "environment" in d else None
+    return Scene(_camera(ctx, d["camera"]), env, objects, materials, source, base, lights)
 
 
 def load_scene(path: Path | str) -> Scene:

@@ -1,0 +1,121 @@
+"""GMM normal mipmaps, aligned against unaligned, like 004 Fig. 5: the mixtures of a 2x2 block of texels,
+the mixture the renderer's trilinear filter makes of them at the corner they share (equal weights), and
+the true distribution of the finest normals of the four texels together (what that mixture stands for).
+
+    python examples/gmm_mipmap.py -o gmm_mipmap.png                      # hemispherical scales, 128x128
+    python examples/gmm_mipmap.py -o dunes.png --surface dunes --size 128 --level 3
+
+Each panel is the density of the normal distribution over the projected-normal disk (n_x right, n_y up;
+the circle is the horizon; each panel scaled to its own peak), the components' means marked with their
+index; the truth shows each finest normal as a small Gaussian (TRUTH_KERNEL_VAR).  Top row: the EM-aligned
+mipmap (004 Sec. 4.1, c = 1); bottom row: independent EM per texel (c = 0, own initialisation).  Filtering
+interpolates component i with component i (004 Sec. 4.2): aligned components interpolate into a
+distribution close to the truth, unaligned ones are averaged into lobes that are not there (004 Fig. 5c).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+GRID = 161          # density image resolution over [-1, 1]^2
+
+
+def density(params, grid=GRID):
+    """Mixture density (grid, grid) of (K, 4) (a, mu_x, mu_y, s^2) over the projected disk (row 0 = n_y = +1)."""
+    t = np.linspace(-1, 1, grid)
+    X, Y = np.meshgrid(t, -t)
+    d = np.zeros_like(X)
+    for a, mx, my, s2 in params:
+        if a > 0:
+            d += a * np.exp(-((X - mx) ** 2 + (Y - my) ** 2) / (2 * s2)) / (2 * np.pi * s2)
+    return d
+
+
+# Per-axis variance of the kernel that turns the footprint's normals into a density for display (the
+# normals themselves are points); about a material roughness of 0.1.
+TRUTH_KERNEL_VAR = 0.005
+
+
+def truth_density(n2, grid=GRID):
+    """The footprint's finest normals as a density: one small Gaussian per normal, equal weights."""
+    p = np.concatenate([np.full((len(n2), 1), 1.0 / len(n2)), n2, np.full((len(n2), 1), TRUTH_KERNEL_VAR)], -1)
+    return density(p, grid)
+
+
+def show(ax, d):
+    ax.imshow(np.sqrt(d), extent=(-1, 1, -1, 1), cmap="magma", vmin=0,
+              vmax=max(float(np.percentile(np.sqrt(d), 99.7)), 1e-12))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("-o", "--output", default="gmm_mipmap.png", help="output PNG (default gmm_mipmap.png)")
+    ap.add_argument("--surface", default="hemispherical_scales", help="procedural surface (precompute.surfaces)")
+    ap.add_argument("--size", type=int, default=128, help="height-field size (default 128)")
+    ap.add_argument("--level", type=int, default=3, help="mip level of the 2x2 texel block (default 3)")
+    ap.add_argument("--texel", type=int, nargs=2, default=(1, 1), metavar=("ROW", "COL"),
+                    help="top-left texel of the block at that level (default 1 1)")
+    ap.add_argument("--components", type=int, default=4)
+    args = ap.parse_args(argv)
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import warp as wp
+
+    wp.config.log_level = 30
+    from precompute.gmm_mipmap import build_gmm_mipmap, from_moments, normal_space
+    from precompute.surfaces import SURFACES, height_to_normals
+    from warpbw.filtering import fetch_gmm
+
+    h = SURFACES[args.surface](args.size)
+    n2 = normal_space(height_to_normals(h))
+    mips = {"aligned (004 Sec. 4.1)": build_gmm_mipmap(h, components=args.components, progress=False),
+            "unaligned (per-texel EM)": build_gmm_mipmap(h, components=args.components, unaligned=True,
+                                                         progress=False)}
+    l = args.level
+    r0, c0 = args.texel
+    f = 1 << l
+    # the pixel: at the corner shared by the four texels, where bilinear filtering weighs them equally; what
+    # the filtered mixture stands for is then the distribution of the four texels' finest normals together
+    s_c, t_c = (c0 + 1) * f, (r0 + 1) * f
+    foot = n2[r0 * f:(r0 + 2) * f, c0 * f:(c0 + 2) * f].reshape(-1, 2)
+    truth = truth_density(foot)
+    fig, axes = plt.subplots(2, 6, figsize=(15, 5.4))
+    for row, (name, mip) in enumerate(mips.items()):
+        q = mip.levels[l]
+        panels = []
+        for dr in (0, 1):
+            for dc in (0, 1):
+                a, mu, s2 = from_moments(q[(r0 + dr) % q.shape[0], (c0 + dc) % q.shape[1]])
+                panels.append((f"texel ({r0 + dr}, {c0 + dc})", np.concatenate([a[:, None], mu, s2[:, None]], -1)))
+        filt = fetch_gmm(mip.levels, s_c, t_c, float(l))[0]
+        panels.append(("filtered (004 Sec. 4.2)", filt))
+        for ax, (title, p) in zip(axes[row], panels):
+            show(ax, density(p))
+            for i, (a, mx, my, _) in enumerate(p):
+                if a > 0.01:
+                    ax.text(mx, my, str(i), color="cyan", ha="center", va="center", fontsize=8)
+            ax.set_title(title, fontsize=9)
+        show(axes[row][5], truth)
+        axes[row][5].set_title(f"truth: the four texels' {len(foot)} finest normals", fontsize=9)
+        axes[row][0].set_ylabel(name, fontsize=10)
+    for ax in axes.ravel():
+        ax.add_patch(plt.Circle((0, 0), 1.0, fill=False, color="w", lw=0.5))
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.suptitle(f"{args.surface} {args.size}x{args.size}, level {l}: GMM of four texels and their filtered "
+                 "mixture (sqrt density over the projected normal disk)", fontsize=10)
+    fig.tight_layout()
+    Path(args.output).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(args.output, dpi=100)
+    print(f"wrote {args.output}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,158 @@
+"""``warpbw bench-filtering`` and ``warpbw render --filter`` (issue 4): the metrics on hand-made images,
+the JSON record's keys, the plot, overwrite protection and the routing of plane scenes.  Tiny scenes (a
+16x12 image, an 8x8 map, zooms 1 and 2, 64 ground-truth rays): a few seconds in all."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from warpbw.bench_filtering import FLICKER_STEP, colour_error, flicker
+from warpbw.cli import main
+from warpbw.io.exr import read_exr, write_exr
+
+SCENE = """\
+[camera]
+position = [0.0, 1.2, 1.2]
+look_at = [0.0, 0.0, 0.0]
+fov = 40.0
+resolution = [16, 12]
+
+[[light]]
+type = "directional"
+direction = [0.0, 0.8, -0.6]
+radiance = [2.0, 2.0, 2.0]
+
+[[object]]
+shape = "plane"
+size = 2.0
+material = "m"
+
+[material.m]
+type = "cook-torrance"
+roughness = 0.1
+f0 = [0.9, 0.75, 0.4]
+diffuse = [0.05, 0.04, 0.02]
+normal_map = "map.exr"
+normal_map_scale = 0.5
+tiling = 2
+"""
+
+
+@pytest.fixture
+def plane_scene(tmp_path, monkeypatch):
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "_cache"))
+    u = (np.arange(8) + 0.5) / 8
+    U, V = np.meshgrid(u, u)
+    h = 0.05 * np.sin(2 * np.pi * U) * np.sin(4 * np.pi * V)
+    write_exr(tmp_path / "map.exr", h.astype(np.float32)[..., None], channels=["Y"])
+    p = tmp_path / "planes.toml"
+    p.write_text(SCENE)
+    return p
+
+
+# ------------------------------------------------------------------------------------------ metrics
+
+def test_colour_error_is_normalised_by_the_mean_reference_norm():
+    ref = np.zeros((1, 2, 3))
+    ref[0, 0] = [3.0, 4.0, 0.0]          # norm 5
+    ref[0, 1] = [0.0, 0.0, 1.0]          # norm 1
+    img = ref.copy()
+    img[0, 0, 0] += 1.2                  # off by 1.2 in one pixel
+    mask = np.ones((1, 2), bool)
+    assert colour_error(img, ref, mask) == pytest.approx((1.2 + 0.0) / 2 / 3.0)
+    assert colour_error(ref, ref, mask) == 0.0
+    assert math.isnan(colour_error(img, ref, np.zeros((1, 2), bool)))
+
+
+def test_flicker_counts_only_change_beyond_the_truths():
+    g0 = np.zeros((1, 3, 3))
+    g1 = g0.copy()
+    g1[0, 0] = [0.0, 2.0, 0.0]           # the truth itself changes by 2 in pixel 0
+    a0 = g0.copy()
+    a1 = g0.copy()
+    a1[0, 0] = [0.0, 1.0, 0.0]           # the method changes less there: no flicker
+    a1[0, 1] = [0.0, 0.0, 3.0]           # and by 3 where the truth is still: flicker 3
+    mask = np.ones((1, 3), bool)
+    assert flicker(a0, a1, g0, g1, mask, norm=2.0) == pytest.approx(3.0 / 3 / 2.0)
+    assert flicker(g0, g1, g0, g1, mask, norm=1.0) == 0.0
+    assert FLICKER_STEP > 1.0
+
+
+# ------------------------------------------------------------------------------------------ command line
+
+def test_bench_filtering_writes_the_record_and_the_plot(plane_scene, capsys):
+    d = plane_scene.parent
+    args = ["bench-filtering", str(plane_scene), "--zoom", "1,2", "--gt-spp", "64", "--runs", "1", "-q",
+            "--json", str(d / "f.json"), "--plot", str(d / "f.png")]
+    assert main(args) == 0
+    rec = json.loads((d / "f.json").read_text())
+    assert set(rec["methods"]) == {"gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed"}
+    for rows in rec["methods"].values():
+        assert [r["zoom"] for r in rows] == [1.0, 2.0]
+        for r in rows:
+            assert {"zoom", "error", "flicker", "time_s"} <= set(r)
+            assert all(math.isfinite(r[k]) and r[k] >= 0 for k in ("error", "flicker", "time_s"))
+    assert rec["precompute_time_s"] > 0
+    assert rec["precompute"]["m"]["gmm_aligned"]["origin"] == "built"     # measured, not read from a cache
+    assert (d / "f.png").read_bytes()[:4] == b"\x89PNG"
+    out = capsys.readouterr().out
+    assert "gmm_aligned" in out and "precompute" in out
+    # outputs are not overwritten without --force
+    before = (d / "f.json").read_text()
+    assert main(args) == 2
+    assert "already exists" in capsys.readouterr().err
+    assert (d / "f.json").read_text() == before
+
+
+def test_bench_filtering_usage_errors(plane_scene, tmp_path, capsys):
+    assert main(["bench-filtering", str(plane_scene)]) == 2
+    assert "--json" in capsys.readouterr().err
+    assert main(["bench-filtering", str(plane_scene), "--json", str(tmp_path / "x.txt")]) == 2
+    assert ".json" in capsys.readouterr().err
+    assert main(["bench-filtering", str(plane_scene), "--json", str(tmp_path / "x.json"), "--gt-spp", "8"]) == 2
+    assert "64" in capsys.readouterr().err
+    sphere = tmp_path / "sphere.toml"
+    sphere.write_text(SCENE.split("[[object]]")[0] + '[[object]]\nshape = "sphere"\nradius = 1.0\nmaterial = "p"\n'
+                      '[material.p]\ntype = "lambert"\nalbedo = 0.5\n')
+    assert main(["bench-filtering", str(sphere), "--json", str(tmp_path / "y.json")]) == 2
+    assert "planes" in capsys.readouterr().err
+    assert not (tmp_path / "x.json").exists() and not (tmp_path / "y.json").exists()
+
+
+def test_render_routes_plane_scenes_to_the_filtering_renderer(plane_scene, capsys):
+    d = plane_scene.parent
+    assert main(["render", str(plane_scene), "-o", str(d / "o.exr"), "--filter", "lean", "-q"]) == 0
+    img = read_exr(d / "o.exr")
+    assert img.channels == ["R", "G", "B", "A"]
+    cov = img.pixels[..., 3] > 0
+    assert cov.any() and np.all(np.isfinite(img.pixels)) and np.all(img.pixels[~cov, :3] == 0)
+    assert json.loads((d / "o.json").read_text())["method"] == "lean"
+    assert (d / "o.level.exr").exists() and (d / "o.level.png").exists()
+    # the default filter is the aligned GMM; the ground truth takes --spp rays per pixel
+    assert main(["render", str(plane_scene), "-o", str(d / "g.exr"), "-q"]) == 0
+    assert json.loads((d / "g.json").read_text())["method"] == "gmm_aligned"
+    assert main(["render", str(plane_scene), "-o", str(d / "t.exr"), "--filter", "ground_truth", "--spp", "16"]) == 2
+    assert ">= 64" in capsys.readouterr().err
+    assert not (d / "t.exr").exists()
+    assert main(["render", str(plane_scene), "-o", str(d / "a.exr"), "--method", "adaptive", "--budget", "2"]) == 2
+    assert "--filter" in capsys.readouterr().err
+
+
+def test_info_on_a_plane_scene(plane_scene, capsys):
+    assert main(["info", str(plane_scene), "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["environment"] == "none" and len(s["lights"]) == 1
+    assert s["objects"][0].startswith("plane size=2")
+    assert any(str(plane_scene.parent / "map.exr") == f for f in s["files"])
+
+
+def test_sphere_scene_without_environment_is_a_clear_error(tmp_path, capsys):
+    p = tmp_path / "s.toml"
+    p.write_text(SCENE.split("[[object]]")[0] + '[[object]]\nshape = "sphere"\nradius = 1.0\nmaterial = "p"\n'
+                 '[material.p]\ntype = "lambert"\nalbedo = 0.5\n')
+    assert main(["render", str(p), "-o", str(tmp_path / "o.exr")]) == 2
+    assert "[environment]" in capsys.readouterr().err
+    assert not (tmp_path / "o.exr").exists()

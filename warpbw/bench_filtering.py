@@ -1,0 +1,177 @@
+"""Reflectance-filtering benchmark (issue 4, 004 Fig. 4 / 8): error, flicker and time of each filtered
+method along a zoom-out, against the ground truth.
+
+Public:
+    ``DEFAULT_ZOOMS``, ``DEFAULT_GT_SPP``, ``FLICKER_STEP``
+    ``colour_error(image, ref, mask) -> float``     per-pixel normalised Euclidean colour error, mean
+    ``flicker(a0, a1, g0, g1, mask, norm) -> float``  frame-to-frame change in excess of the ground truth's
+    ``run_bench_filtering(scene, zooms, gt_spp, runs, seed, device, cache, progress, log) -> dict``
+    ``write_plot(record, path)``                    error and flicker against zoom, one curve per method
+    ``format_table(record) -> str``
+
+Protocol.  Zoom z: the camera moved away from its look-at point to z times its distance, same resolution
+and field of view (``warpbw.filtering.zoomed_camera``), so the surface shrinks on screen and every pixel
+covers z^2 times more texels.
+* Error: per covered pixel, the Euclidean distance of the RGB radiance to the ground truth's, divided by
+  the ground truth's mean colour norm over covered pixels (so 0.1 = off by a tenth of a typical pixel),
+  averaged over the covered pixels (004 Fig. 4 / 8 report a "normalized Euclidean color error per pixel").
+* Flicker: a continuous zoom-out seen in two consecutive frames, z and z * FLICKER_STEP.  Per pixel
+  covered in both, the change |I(z') - I(z)| in excess of the ground truth's own change
+  |G(z') - G(z)| (clamped at 0: a method may change less than the truth without flickering), normalised as
+  the error, mean over the pixels.  A method that follows the truth scores 0; shimmering (a highlight that
+  pops between frames as the footprint moves over the texels) scores high.
+* Time: kernel time of one frame after a warm-up frame (compiled kernels), median of ``runs``.
+* Ground truth: ``gt_spp`` jittered rays per pixel (``warpbw.filtering``), the same seed in both frames of
+  a flicker pair; its own noise is reported per zoom as ``ground_truth[i].noise`` = error of a second,
+  independently seeded ground truth / sqrt(2), the floor under every method's error, and
+  ``flicker_noise`` = the flicker score of that second ground truth (what noise alone scores).
+* Precompute time: the time to obtain the aligned GMM mipmaps (built unless the scene names a file or
+  ``cache`` holds them: the origin is recorded).
+"""
+from __future__ import annotations
+
+import math
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from warpbw.errors import WarpbwError
+
+DEFAULT_ZOOMS = (1, 2, 4, 8, 16, 32)
+# Ground-truth rays per pixel of the benchmark: a pixel of the far zooms covers hundreds of texels.
+DEFAULT_GT_SPP = 1024
+# Zoom ratio of two consecutive frames of the continuous zoom-out the flicker is measured on (8 frames per
+# doubling of the distance).
+FLICKER_STEP = 2.0 ** (1.0 / 8.0)
+# Seeds of the ground truths (plus ``seed``; the second one estimates the ground truth's noise).
+GT_SEED = 1_000_003
+GT_SEED_2 = 2_000_003
+
+
+def _norm(ref, mask) -> float:
+    n = np.linalg.norm(ref, axis=-1)[mask]
+    m = float(n.mean()) if n.size else 0.0
+    return m if m > 0 else 1.0
+
+
+def colour_error(image, ref, mask) -> float:
+    """Mean over ``mask`` of |image - ref| (RGB Euclidean) / mean |ref|."""
+    mask = np.asarray(mask, bool)
+    if not mask.any():
+        return float("nan")
+    d = np.linalg.norm(np.asarray(image, np.float64) - ref, axis=-1)[mask]
+    return float(d.mean() / _norm(ref, mask))
+
+
+def flicker(a0, a1, g0, g1, mask, norm: float) -> float:
+    """Mean over ``mask`` of max(0, |a1 - a0| - |g1 - g0|) / norm (RGB Euclidean norms)."""
+    mask = np.asarray(mask, bool)
+    if not mask.any():
+        return float("nan")
+    da = np.linalg.norm(np.asarray(a1, np.float64) - a0, axis=-1)
+    dg = np.linalg.norm(np.asarray(g1, np.float64) - g0, axis=-1)
+    return float(np.maximum(da - dg, 0.0)[mask].mean() / norm)
+
+
+def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP, runs: int = 3, seed: int = 0,
+                        device: str = "cpu", cache: Path | None = None, progress: bool = False,
+                        log=lambda *a, **k: None, methods=None) -> dict:
+    """The benchmark record (module docstring) for a scene with planes."""
+    from warpbw.filtering import METHODS, MIN_GT_SPP, prepare_filtering, render_filtering, zoomed_camera
+
+    methods = tuple(methods or METHODS)
+    if not scene.has_planes:
+        raise WarpbwError(f"{scene.source}: bench-filtering needs a scene with planes (shape = \"plane\") and "
+                          "cook-torrance materials")
+    if gt_spp < MIN_GT_SPP:
+        raise WarpbwError(f"--gt-spp {gt_spp}: expected at least {MIN_GT_SPP} rays per pixel")
+    zooms = [float(z) for z in zooms]
+    with tempfile.TemporaryDirectory(prefix="warpbw-gmm-") as tmp:
+        t0 = time.perf_counter()
+        prep = prepare_filtering(scene, methods + ("ground_truth",), device, progress,
+                                 cache=Path(cache) if cache is not None else Path(tmp))
+        prep_time = time.perf_counter() - t0
+    gmm_time = sum(n.get("gmm_aligned", {}).get("time_s", 0.0) for n in prep.notes.values())
+    log(f"precompute: {prep_time:.2f} s (aligned GMM mipmaps {gmm_time:.2f} s)")
+    record = {"scene": scene.source, "resolution": [scene.camera.width, scene.camera.height], "zooms": zooms,
+              "gt_spp": int(gt_spp), "runs": int(runs), "seed": int(seed), "flicker_step": FLICKER_STEP,
+              "methods": {m: [] for m in methods}, "ground_truth": [],
+              "precompute_time_s": round(gmm_time, 4), "prepare_time_s": round(prep_time, 4),
+              "precompute": prep.notes}
+    for m in methods:                                     # warm-up: compile every kernel once
+        render_filtering(scene, m, prepared=prep)
+    for z in zooms:
+        cams = (zoomed_camera(scene.camera, z), zoomed_camera(scene.camera, z * FLICKER_STEP))
+        # the same seed in both frames: the same jitter pattern per pixel, so the truth's frame-to-frame change
+        # carries as little of its own noise as possible
+        g = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=GT_SEED + seed, prepared=prep, camera=c)
+             for c in cams]
+        g2 = render_filtering(scene, "ground_truth", spp=gt_spp, seed=GT_SEED_2 + seed, prepared=prep,
+                              camera=cams[0])
+        cov = g[0].coverage
+        both = cov & g[1].coverage
+        norm = _norm(g[0].image, cov)
+        noise = colour_error(g2.image, g[0].image, cov) / math.sqrt(2.0)
+        gt_flicker = flicker(g[0].image, g[1].image, g2.image, g[1].image, both, norm)
+        record["ground_truth"].append({"zoom": z, "time_s": round(g[0].time_s, 6), "noise": noise,
+                                       "pixels_covered": int(cov.sum())})
+        line = [f"zoom {z:g}: gt noise {noise:.3f}"]
+        for m in methods:
+            times = []
+            frames = []
+            for k in range(max(1, runs)):
+                r = render_filtering(scene, m, prepared=prep, camera=cams[0])
+                times.append(r.time_s)
+            frames.append(r)
+            frames.append(render_filtering(scene, m, prepared=prep, camera=cams[1]))
+            err = colour_error(frames[0].image, g[0].image, cov)
+            fl = flicker(frames[0].image, frames[1].image, g[0].image, g[1].image, both, norm)
+            record["methods"][m].append({"zoom": z, "error": err, "flicker": fl,
+                                         "time_s": round(statistics.median(times), 6),
+                                         "mean_level": float(frames[0].level[cov].mean()) if cov.any() else 0.0})
+            line.append(f"{m} {err:.3f}/{fl:.4f}")
+        record["ground_truth"][-1]["flicker_noise"] = gt_flicker
+        log("  ".join(line))
+    return record
+
+
+def format_table(record: dict) -> str:
+    """Error and flicker per method (rows) at each zoom (columns)."""
+    zooms = record["zooms"]
+    head = f"{'method':<14}" + "".join(f"{'x' + format(z, 'g'):>16}" for z in zooms)
+    lines = [f"{record['scene']}  {record['resolution'][0]}x{record['resolution'][1]}, ground truth "
+             f"{record['gt_spp']} rays/pixel; error / flicker per zoom", head]
+    for m, rows in record["methods"].items():
+        lines.append(f"{m:<14}" + "".join(f"{r['error']:>9.3f} /{r['flicker']:.3f}" for r in rows))
+    lines.append(f"{'gt noise':<14}" + "".join(f"{g['noise']:>9.3f}       " for g in record["ground_truth"]))
+    lines.append(f"precompute (aligned GMM mipmaps): {record['precompute_time_s']:.2f} s")
+    return "\n".join(lines)
+
+
+def write_plot(record: dict, path) -> None:
+    """Error and flicker against zoom, one curve per method; the ground truth's noise as a dashed line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    zooms = record["zooms"]
+    for m, rows in record["methods"].items():
+        axes[0].plot(zooms, [r["error"] for r in rows], "o-", label=m)
+        axes[1].plot(zooms, [r["flicker"] for r in rows], "o-", label=m)
+    axes[0].plot(zooms, [g["noise"] for g in record["ground_truth"]], "k--", label="ground-truth noise")
+    for ax, what in zip(axes, ("error against the ground truth", "flicker (change beyond the truth's)")):
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("zoom (camera distance factor)")
+        ax.set_ylabel(what)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"{Path(record['scene']).name}: reflectance filtering (004); precompute "
+                 f"{record['precompute_time_s']:.1f} s", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,837 @@
+"""Multiresolution reflectance filtering (004): planes with normal-mapped Cook-Torrance materials under
+directional lights, shaded from GMM normal mipmaps or from the simpler filters, and a ground truth.
+
+Public:
+    ``METHODS``                          the filtered methods: gmm_aligned, gmm_unaligned, toksvig, lean, fixed
+    ``ALL_METHODS``                      ``METHODS`` + ``ground_truth``
+    ``prepare_filtering(scene, methods, device, progress, cache) -> FilteringScene``   load / build the mipmaps
+    ``render_filtering(scene, method, spp, seed, device, prepared, camera, progress, lod_bias, threads)``
+                                         -> ``FilterResult``
+    ``FilterResult``                     image, coverage, level map, time_s, stats
+    ``filtering_summary(scene) -> dict``  what ``warpbw info`` prints for a scene with planes
+    ``normal_moment_mipmap(normals) -> list``   box-filtered (mean normal, second moments) levels (numpy)
+    ``fetch_gmm(levels, s, t, level, device) -> (N, K, 4)``  the kernel's trilinear fetch, recovered (a, mu, s2)
+    ``gmm_ndf(params, rough_var, h, device) -> (N,)``           the kernel's mixture NDF at directions h
+    ``zoomed_camera(camera, zoom) -> Camera``   the camera moved away from its look-at point (distance x zoom)
+    ``LOD_BIAS``                         added to log2(footprint): the mip filter then blurs as the pixel box
+    ``roughness_variance(m)``            the Gaussian NDF's per-axis variance m^2 / 2 of roughness m
+
+The model (004 Sec. 3).  Normals live in the projected normal space of ``precompute.gmm_mipmap``: a unit
+normal n is the 2D point (n_x, n_y) in the plane's tangent frame (x along +u = +X, y along -v = -Z, z = +Y:
+x along +column and y along -row of the map, as ``precompute.surfaces``).  The microfacet normals of a
+footprint are distributed as the mixture D(h) = sum_i a_i g(h_xy; mu_i, s_i^2 + m^2/2), g the isotropic 2D
+Gaussian density of per-axis variance s^2: each component's own spread plus the material's roughness (a
+Gaussian NDF of roughness m has per-axis slope variance m^2/2, as Beckmann's).  As a density over projected
+coordinates it is projected-area normalised: int D(h) h_z dw_h = int g dp = 1 (dw_h = dp / h_z).  A
+directional light of radiance E from direction wi gives, seen from wo (both in the plane's frame):
+
+    L = E [ F(u) D(h) / (4 wo_z)  +  diffuse / pi (1 - F(u)) sum_i a_i max(n_i . wi, 0) ]
+
+with h = normalize(wi + wo), u = max(wo . h, 0), F Schlick's approximation from f0, and n_i the unit normal
+of mean mu_i (004 Sec. 3: Cook-Torrance summed over the components, Lambert with the component means).
+The specular term is the microfacet BRDF F D G / (4 wi_z wo_z) times wi_z with no shadowing (G = 1), as
+004's sum carries none.  The *fine-scale* BRDF (the ground truth's, per ray) is the same with one component:
+mu = the finest-level normal at the hit point (bilinear fetch), s = 0.
+
+The methods, per pixel: an analytic ray-plane hit, uv, and the pixel's footprint in finest-level texels from
+the ray differentials (the neighbouring pixels' rays against the same plane); the level is log2 of the
+footprint's larger side plus ``LOD_BIAS`` (which matches the mip filter's blur to the pixel's box), fractional,
+and every method filters trilinearly at it (004 Sec. 4.2).  Below level 0 (a pixel smaller than a texel) the
+result blends towards the fine-scale BRDF at the bilinearly interpolated finest normal, fully at level -1:
+level-0 texels are point samples of the normal field, not distributions.  The methods:
+    gmm_aligned / gmm_unaligned   the stored moments (a, a mu, a (s^2 + |mu|^2)) of each component, filtered
+                                  linearly, then a, mu, s^2 recovered (004 Sec. 4.2); EM-aligned mipmap
+                                  (004 Sec. 4.1) or independent per-texel EM;
+    toksvig                       one Gaussian about the renormalised mean normal, widened by Toksvig's
+                                  per-axis variance (1 - |n|) / |n| of the mean normal's length |n|;
+    lean                          one anisotropic Gaussian with the filtered mean and covariance of the
+                                  projected normals (LEAN-style first and second moments);
+    fixed                         the fine-scale BRDF on the renormalised mean normal;
+    ground_truth                  ``spp`` (>= 64) jittered rays per pixel (box filter), each shaded with the
+                                  fine-scale BRDF at its own hit point.
+The box-filtered normal mipmaps (toksvig, lean, fixed) hold per texel the mean unit normal and the second
+moments (E[x^2], E[y^2], E[xy]) of the projected normals over the texel's footprint (clipped at the border,
+like the GMM mipmap).  The GMM mipmaps come from the material's ``gmm`` file (aligned) or are built by
+``precompute.gmm_mipmap`` and cached under ``$WARPBW_CACHE`` (``precompute.brdf_sampling.load_or_build``).
+
+Scope: planes only (an [environment] is ignored with a warning; spheres and meshes are refused); several
+planes composite by the depth of each pixel's centre ray.  The device is an argument (CPU launches are
+tiled over a thread pool); the kernels have been run on the CPU only.
+"""
+from __future__ import annotations
+
+import functools
+import math
+import time
+import warnings
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from warpbw.errors import WarpbwError
+from warpbw.gbuffer import CameraData, make_camera
+from warpbw.scene import Camera, PlaneObject, Scene
+
+METHODS = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed")
+ALL_METHODS = METHODS + ("ground_truth",)
+# Kernel codes of the filtered methods (the two GMM methods share a kernel; only their mipmaps differ).
+_CODE = {"gmm_aligned": 0, "gmm_unaligned": 0, "toksvig": 1, "lean": 2, "fixed": 3}
+# Ground truth: at least this many rays per pixel (issue 4: ">= 64"); 004 Fig. 4 used 16.
+MIN_GT_SPP = 64
+DEFAULT_GT_SPP = 64
+# Mixture weights below this recover as empty components (the GMM builder's bound, 004 Sec. 4.1).
+WEIGHT_EPS = 1e-8
+# Floor of a recovered per-axis variance (the GMM builder's VARIANCE_FLOOR: float32 moments lose s^2 below).
+# The shading subtracts it again (a flat map, stored with s^2 = floor, shades as the plain BRDF).
+VARIANCE_FLOOR = 1e-6
+# Smallest length of a filtered mean normal for Toksvig (a footprint of opposite normals averages to ~0).
+MIN_MEAN_LENGTH = 1e-4
+# Toksvig: a mean normal this close to unit length is unit (float32 rounding of the filter weights, ~8 ulps).
+TOKSVIG_LENGTH_EPS = 1e-6
+# wo_z below this (a grazing view of the macro surface) shades nothing: 1 / (4 wo_z) would blow up.
+MIN_COS = 1e-4
+# LOD bias (levels): trilinear filtering at log2(footprint) blurs over a bilinear tent of level-l texels that
+# are themselves box averages -- a filter of variance 4^l / 12 + 4^l / 6 = 4^l / 4 finest texels^2, where the
+# pixel's box of side rho has rho^2 / 12.  Equal variances at l = log2(rho) - log2(3) / 2: the mipmap then
+# blurs as much as the pixel does (the ground truth's box filter), not three times as much.
+LOD_BIAS = -0.5 * math.log2(3.0)
+# Footprint of a pixel whose neighbouring ray misses the (infinite) plane -- at the horizon: this many
+# finest texels (larger than any map, so the coarsest level).
+HORIZON_FOOTPRINT = 1.0e9
+INV_PI = 1.0 / math.pi
+TWO_PI = 2.0 * math.pi
+# CPU launches are tiled over a thread pool (warpbw.shading.launch_tiled): this many tiles per thread, so
+# that the threads finish together, of at least this many pixels (launch overhead).
+TILES_PER_THREAD = 4
+MIN_TILE_PIXELS = 256
+# GMM mipmap cache: file name prefix and the version of what is cached (precompute.gmm_mipmap.GMM_VERSION).
+GMM_CACHE_PREFIX = "gmm"
+
+
+def roughness_variance(m: float) -> float:
+    """Per-axis variance of the Gaussian NDF of roughness m: m^2 / 2 (Beckmann's slope variance)."""
+    return 0.5 * float(m) * float(m)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Kernels and their functions
+
+@wp.struct
+class PlaneData:
+    center: wp.vec3
+    size: float
+    tiling: float
+    map_w: int          # finest level, texels
+    map_h: int
+    levels: int
+    components: int     # K of the GMM mipmap (0 for the other methods)
+    f0: wp.vec3
+    diffuse: wp.vec3
+    rough_var: float    # m^2 / 2
+    lod_bias: float     # added to log2(footprint)
+
+
+@wp.func
+def ray_dir(cam: CameraData, px: float, py: float):
+    """Unit direction of the ray through the image point (px, py), in pixels from the top-left corner."""
+    sx = (2.0 * px / float(cam.width) - 1.0) * cam.tan_half_x
+    sy = (1.0 - 2.0 * py / float(cam.height)) * cam.tan_half_y
+    return wp.normalize(cam.forward + sx * cam.right + sy * cam.up)
+
+
+@wp.func
+def plane_t(o: wp.vec3, d: wp.vec3, pl: PlaneData):
+    """Distance along d to the plane's (infinite, front-facing) supporting plane; -1 when there is none."""
+    t = float(-1.0)
+    if d[1] < 0.0:
+        t = (pl.center[1] - o[1]) / d[1]
+    return t
+
+
+@wp.func
+def plane_st(p: wp.vec3, pl: PlaneData):
+    """Continuous finest-level texel coordinates (s along columns = +X, t along rows = +Z), not wrapped."""
+    u = (p[0] - pl.center[0]) / pl.size + 0.5
+    v = (p[2] - pl.center[2]) / pl.size + 0.5
+    return wp.vec2(u * pl.tiling * float(pl.map_w), v * pl.tiling * float(pl.map_h))
+
+
+@wp.func
+def inside(p: wp.vec3, pl: PlaneData):
+    h = 0.5 * pl.size
+    return wp.abs(p[0] - pl.center[0]) <= h and wp.abs(p[2] - pl.center[2]) <= h
+
+
+@wp.func
+def to_plane(w: wp.vec3):
+    """World -> the plane's tangent frame (x = +X, y = -Z, z = +Y)."""
+    return wp.vec3(w[0], -w[2], w[1])
+
+
+@wp.func
+def pmod(i: int, n: int):
+    r = i % n
+    if r < 0:
+        r = r + n
+    return r
+
+
+@wp.func
+def texel_index(lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32), loff: wp.array(dtype=wp.int32),
+                l: int, col: int, row: int):
+    w = lw[l]
+    return loff[l] + pmod(row, lh[l]) * w + pmod(col, w)
+
+
+@wp.func
+def fetch4(q: wp.array(dtype=wp.vec4), lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32),
+           loff: wp.array(dtype=wp.int32), l: int, s: float, t: float, K: int, k: int):
+    """Bilinear fetch of component k of a K-component vec4 texture at level l (wrap-around: the map tiles);
+    level-l texel j covers finest texels [j 2^l, (j + 1) 2^l), its centre at (j + 1/2) 2^l."""
+    f = wp.pow(2.0, float(l))
+    x = s / f - 0.5
+    y = t / f - 0.5
+    x0 = wp.floor(x)
+    y0 = wp.floor(y)
+    fx = x - x0
+    fy = y - y0
+    c = int(x0)
+    r = int(y0)
+    return ((1.0 - fx) * (1.0 - fy) * q[texel_index(lw, lh, loff, l, c, r) * K + k]
+            + fx * (1.0 - fy) * q[texel_index(lw, lh, loff, l, c + 1, r) * K + k]
+            + (1.0 - fx) * fy * q[texel_index(lw, lh, loff, l, c, r + 1) * K + k]
+            + fx * fy * q[texel_index(lw, lh, loff, l, c + 1, r + 1) * K + k])
+
+
+@wp.func
+def fetch3(q: wp.array(dtype=wp.vec3), lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32),
+           loff: wp.array(dtype=wp.int32), l: int, s: float, t: float):
+    """``fetch4`` for a one-component vec3 texture."""
+    f = wp.pow(2.0, float(l))
+    x = s / f - 0.5
+    y = t / f - 0.5
+    x0 = wp.floor(x)
+    y0 = wp.floor(y)
+    fx = x - x0
+    fy = y - y0
+    c = int(x0)
+    r = int(y0)
+    return ((1.0 - fx) * (1.0 - fy) * q[texel_index(lw, lh, loff, l, c, r)]
+            + fx * (1.0 - fy) * q[texel_index(lw, lh, loff, l, c + 1, r)]
+            + (1.0 - fx) * fy * q[texel_index(lw, lh, loff, l, c, r + 1)]
+            + fx * fy * q[texel_index(lw, lh, loff, l, c + 1, r + 1)])
+
+
+@wp.func
+def trilinear4(q: wp.array(dtype=wp.vec4), lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32),
+               loff: wp.array(dtype=wp.int32), levels: int, lam: float, s: float, t: float, K: int, k: int):
+    """Trilinear filtering (004 Sec. 4.2: the texture unit's T(p)) at fractional level lam."""
+    l0 = int(wp.floor(lam))
+    l1 = wp.min(l0 + 1, levels - 1)
+    fl = lam - float(l0)
+    return (1.0 - fl) * fetch4(q, lw, lh, loff, l0, s, t, K, k) + fl * fetch4(q, lw, lh, loff, l1, s, t, K, k)
+
+
+@wp.func
+def trilinear3(q: wp.array(dtype=wp.vec3), lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32),
+               loff: wp.array(dtype=wp.int32), levels: int, lam: float, s: float, t: float):
+    l0 = int(wp.floor(lam))
+    l1 = wp.min(l0 + 1, levels - 1)
+    fl = lam - float(l0)
+    return (1.0 - fl) * fetch3(q, lw, lh, loff, l0, s, t) + fl * fetch3(q, lw, lh, loff, l1, s, t)
+
+
+@wp.func
+def recover(q: wp.vec4):
+    """(a, a mu_x, a mu_y, a (s^2 + |mu|^2)) -> (a, mu_x, mu_y, s^2)  (004 Sec. 4.2: mu = T(a mu) / T(a),
+    s^2 = T(a (s^2 + |mu|^2)) / T(a) - |mu|^2); an empty component (a <= WEIGHT_EPS) comes back as zeros."""
+    out = wp.vec4(0.0)
+    a = q[0]
+    if a > WEIGHT_EPS:
+        mx = q[1] / a
+        my = q[2] / a
+        out = wp.vec4(a, mx, my, wp.max(q[3] / a - (mx * mx + my * my), VARIANCE_FLOOR))
+    return out
+
+
+@wp.func
+def gauss2(dx: float, dy: float, var: float):
+    """Isotropic 2D Gaussian density of per-axis variance var at offset (dx, dy)."""
+    return wp.exp(-(dx * dx + dy * dy) / (2.0 * var)) / (TWO_PI * var)
+
+
+@wp.func
+def gauss2_cov(dx: float, dy: float, sxx: float, syy: float, sxy: float):
+    """2D Gaussian density of covariance [[sxx, sxy], [sxy, syy]] at offset (dx, dy)."""
+    det = sxx * syy - sxy * sxy
+    e = (syy * dx * dx - 2.0 * sxy * dx * dy + sxx * dy * dy) / det
+    return wp.exp(-0.5 * e) / (TWO_PI * wp.sqrt(det))
+
+
+@wp.func
+def lift(mx: float, my: float):
+    """The unit normal whose projection is (mx, my) (clamped to the unit disk)."""
+    r2 = mx * mx + my * my
+    n = wp.vec3(mx, my, wp.sqrt(wp.max(1.0 - r2, 0.0)))
+    if r2 > 1.0:
+        n = wp.normalize(wp.vec3(mx, my, 0.0))
+    return n
+
+
+@wp.func
+def schlick(f0: wp.vec3, u: float):
+    """Schlick's Fresnel approximation (004 Sec. 3, [Sch94])."""
+    c = wp.pow(1.0 - u, 5.0)
+    return f0 + (wp.vec3(1.0) - f0) * c
+
+
+@wp.func
+def lobe(E: wp.vec3, wi: wp.vec3, wo: wp.vec3, pl: PlaneData, D: float, a: float, n: wp.vec3):
+    """One lobe of 004 Sec. 3: E [F D / (4 wo_z) + diffuse / pi (1 - F) a max(n . wi, 0)], h = bisector.
+    D already carries the lobe's weight a."""
+    h = wp.normalize(wi + wo)
+    F = schlick(pl.f0, wp.max(wp.dot(wo, h), 0.0))
+    spec = F * (D / (4.0 * wo[2]))
+    diff = wp.cw_mul(pl.diffuse, wp.vec3(1.0) - F) * (INV_PI * a * wp.max(wp.dot(n, wi), 0.0))
+    return wp.cw_mul(E, spec + diff)
+
+
+@wp.func
+def half_xy(wi: wp.vec3, wo: wp.vec3):
+    h = wp.normalize(wi + wo)
+    return wp.vec2(h[0], h[1])
+
+
+@wp.func
+def shade_fine(n: wp.vec3, wo: wp.vec3, pl: PlaneData, ldir: wp.array(dtype=wp.vec3),
+               lrad: wp.array(dtype=wp.vec3)):
+    """The fine-scale BRDF (one component at the finest normal n) under every light."""
+    c = wp.vec3(0.0)
+    for j in range(ldir.shape[0]):
+        wi = ldir[j]
+        if wi[2] > 0.0 and wo[2] > MIN_COS:
+            hx = half_xy(wi, wo)
+            D = gauss2(hx[0] - n[0], hx[1] - n[1], pl.rough_var)
+            c = c + lobe(lrad[j], wi, wo, pl, D, 1.0, n)
+    return c
+
+
+@wp.func
+def footprint_level(cam: CameraData, pl: PlaneData, x: int, y: int, st: wp.vec2):
+    """Mip level: log2 of the pixel footprint's larger side in finest texels, from the ray differentials
+    (the rays through the next pixel right and down, against the same infinite plane), plus the LOD bias;
+    clamped to [-1, levels - 1] (below 0: magnification, see ``filtered_kernel``)."""
+    o = cam.origin
+    rho = float(HORIZON_FOOTPRINT)
+    dx = ray_dir(cam, float(x) + 1.5, float(y) + 0.5)
+    dy = ray_dir(cam, float(x) + 0.5, float(y) + 1.5)
+    tx = plane_t(o, dx, pl)
+    ty = plane_t(o, dy, pl)
+    if tx > 0.0 and ty > 0.0:
+        sx = plane_st(o + tx * dx, pl) - st
+        sy = plane_st(o + ty * dy, pl) - st
+        rho = wp.max(wp.length(sx), wp.length(sy))
+    lam = wp.log2(wp.max(rho, 1.0e-6)) + pl.lod_bias
+    return wp.clamp(lam, -1.0, float(pl.levels - 1))
+
+
+@functools.cache  # one kernel per method kind: Warp compiles each once
+def _filtered_kernel(code: int):
+    @wp.kernel(module="unique", enable_backward=False)
+    def filtered_kernel(cam: CameraData, pl: PlaneData, lw: wp.array(dtype=wp.int32),
+                        lh: wp.array(dtype=wp.int32), loff: wp.array(dtype=wp.int32),
+                        gmm: wp.array(dtype=wp.vec4), nmean: wp.array(dtype=wp.vec3),
+                        nm2: wp.array(dtype=wp.vec3), ldir: wp.array(dtype=wp.vec3),
+                        lrad: wp.array(dtype=wp.vec3), offset: int, depth: wp.array(dtype=wp.float32),
+                        out: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.float32)):
+        i = wp.tid() + offset
+        x = i % cam.width
+        y = i / cam.width
+        d = ray_dir(cam, float(x) + 0.5, float(y) + 0.5)
+        t = plane_t(cam.origin, d, pl)
+        if t > 0.0 and t < depth[i]:
+            p = cam.origin + t * d
+            if inside(p, pl):
+                depth[i] = t
+                st = plane_st(p, pl)
+                lam_px = footprint_level(cam, pl, x, y, st)
+                level[i] = lam_px
+                lam = wp.max(lam_px, 0.0)
+                s = st[0]
+                tt = st[1]
+                wo = to_plane(-d)
+                c = wp.vec3(0.0)
+                if wp.static(code == 0):
+                    # GMM: trilinear filtering of the stored moments, per component (004 Sec. 4.2)
+                    for k in range(pl.components):
+                        g = recover(trilinear4(gmm, lw, lh, loff, pl.levels, lam, s, tt, pl.components, k))
+                        a = g[0]
+                        if a > 0.0:
+                            # the builder's floor is numerical, not surface: a flat footprint adds nothing
+                            var = wp.max(g[3] - VARIANCE_FLOOR, 0.0) + pl.rough_var
+                            n = lift(g[1], g[2])
+                            for j in range(ldir.shape[0]):
+                                wi = ldir[j]
+                                if wi[2] > 0.0 and wo[2] > MIN_COS:
+                                    hx = half_xy(wi, wo)
+                                    D = a * gauss2(hx[0] - g[1], hx[1] - g[2], var)
+                                    c = c + lobe(lrad[j], wi, wo, pl, D, a, n)
+                else:
+                    m = trilinear3(nmean, lw, lh, loff, pl.levels, lam, s, tt)
+                    ln = wp.length(m)
+                    n = wp.vec3(0.0, 0.0, 1.0)
+                    if ln > MIN_MEAN_LENGTH:
+                        n = m / ln
+                    var = pl.rough_var
+                    if wp.static(code == 1):
+                        # Toksvig: per-axis variance (1 - |n|) / |n| of the mean normal's length
+                        lc = wp.max(ln, MIN_MEAN_LENGTH)
+                        var = var + wp.max(1.0 - lc - TOKSVIG_LENGTH_EPS, 0.0) / lc
+                    mx = n[0]
+                    my = n[1]
+                    sxx = var
+                    syy = var
+                    sxy = float(0.0)
+                    if wp.static(code == 2):
+                        # LEAN-style: filtered first and second moments of the projected normals
+                        q2 = trilinear3(nm2, lw, lh, loff, pl.levels, lam, s, tt)
+                        mx = m[0]
+                        my = m[1]
+                        sxx = wp.max(q2[0] - mx * mx, 0.0) + pl.rough_var
+                        syy = wp.max(q2[1] - my * my, 0.0) + pl.rough_var
+                        sxy = q2[2] - mx * my
+                        lim = 0.999 * wp.sqrt(sxx * syy)
+                        sxy = wp.clamp(sxy, -lim, lim)
+                        n = lift(mx, my)
+                    for j in range(ldir.shape[0]):
+                        wi = ldir[j]
+                        if wi[2] > 0.0 and wo[2] > MIN_COS:
+                            hx = half_xy(wi, wo)
+                            D = gauss2_cov(hx[0] - mx, hx[1] - my, sxx, syy, sxy)
+                            c = c + lobe(lrad[j], wi, wo, pl, D, 1.0, n)
+                # magnification (a pixel smaller than a texel): level 0 holds point samples of the normal field,
+                # so blend towards the fine-scale BRDF at the bilinear normal, fully at half a texel (level -1)
+                w_fine = wp.clamp(-lam_px, 0.0, 1.0)
+                if w_fine > 0.0:
+                    nf = wp.normalize(fetch3(nmean, lw, lh, loff, 0, s, tt))
+                    c = (1.0 - w_fine) * c + w_fine * shade_fine(nf, wo, pl, ldir, lrad)
+                out[i] = c
+
+    return filtered_kernel
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def ground_truth_kernel(cam: CameraData, pl: PlaneData, lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32),
+                        loff: wp.array(dtype=wp.int32), nmean: wp.array(dtype=wp.vec3),
+                        ldir: wp.array(dtype=wp.vec3), lrad: wp.array(dtype=wp.vec3), spp: int, seed: int,
+                        offset: int, depth: wp.array(dtype=wp.float32), out: wp.array(dtype=wp.vec3)):
+    """spp jittered rays per pixel (stratified on a g x g grid, g = floor(sqrt(spp)), the rest uniform), each
+    shaded with the fine-scale BRDF at the bilinearly fetched finest normal; box pixel filter.  A pixel
+    belongs to this plane when its centre ray hits it in front of ``depth``."""
+    i = wp.tid() + offset
+    x = i % cam.width
+    y = i / cam.width
+    d0 = ray_dir(cam, float(x) + 0.5, float(y) + 0.5)
+    t0 = plane_t(cam.origin, d0, pl)
+    if t0 > 0.0 and t0 < depth[i] and inside(cam.origin + t0 * d0, pl):
+        depth[i] = t0
+        state = wp.rand_init(seed, i)
+        g = int(wp.sqrt(float(spp)))
+        c = wp.vec3(0.0)
+        for k in range(spp):
+            jx = wp.randf(state)
+            jy = wp.randf(state)
+            if k < g * g:
+                jx = (float(k % g) + jx) / float(g)
+                jy = (float(k / g) + jy) / float(g)
+            d = ray_dir(cam, float(x) + jx, float(y) + jy)
+            t = plane_t(cam.origin, d, pl)
+            if t > 0.0:
+                p = cam.origin + t * d
+                if inside(p, pl):
+                    st = plane_st(p, pl)
+                    n = wp.normalize(fetch3(nmean, lw, lh, loff, 0, st[0], st[1]))
+                    c = c + shade_fine(n, to_plane(-d), pl, ldir, lrad)
+        out[i] = c / float(spp)
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def fetch_gmm_kernel(gmm: wp.array(dtype=wp.vec4), lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32),
+                     loff: wp.array(dtype=wp.int32), levels: int, K: int, st: wp.array(dtype=wp.vec3),
+                     out: wp.array(dtype=wp.vec4)):
+    """Test hook: the renderer's trilinear fetch + recovery at (s, t, level) = st[i], every component."""
+    i, k = wp.tid()
+    q = st[i]
+    out[i * K + k] = recover(trilinear4(gmm, lw, lh, loff, levels, q[2], q[0], q[1], K, k))
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def gmm_ndf_kernel(params: wp.array(dtype=wp.vec4), K: int, rough_var: float, h: wp.array(dtype=wp.vec3),
+                   out: wp.array(dtype=wp.float32)):
+    """Test hook: the renderer's mixture NDF sum_k a_k g(h_xy; mu_k, s_k^2 + rough_var) at directions h."""
+    i = wp.tid()
+    d = float(0.0)
+    for k in range(K):
+        g = params[k]
+        if g[0] > 0.0:
+            d = d + g[0] * gauss2(h[i][0] - g[1], h[i][1] - g[2], g[3] + rough_var)
+    out[i] = d
+
+
+# ---------------------------------------------------------------------------------------------------
+# Mipmaps (precompute-time, numpy)
+
+def normal_moment_mipmap(normals) -> list:
+    """Box-filtered normal mipmap of unit normals (H, W, 3): levels finest first (ceil-halving to 1x1, as
+    ``precompute.gmm_mipmap.level_shapes``), each a pair (mean normal (h, w, 3), second moments of the
+    projected normals (h, w, 3) = (E[x^2], E[y^2], E[xy])), means over the texel's clipped footprint."""
+    n = np.asarray(normals, np.float64)
+    q = np.concatenate([n, n[..., :1] ** 2, n[..., 1:2] ** 2, n[..., :1] * n[..., 1:2]], axis=-1)
+    sums, counts = q, np.ones(q.shape[:2])
+    out = [(q[..., :3].astype(np.float32), q[..., 3:].astype(np.float32))]
+    while sums.shape[:2] != (1, 1):
+        h, w = sums.shape[:2]
+        ph, pw = h + h % 2, w + w % 2
+        S = np.zeros((ph, pw, 6))
+        S[:h, :w] = sums
+        C = np.zeros((ph, pw))
+        C[:h, :w] = counts
+        sums = S.reshape(ph // 2, 2, pw // 2, 2, 6).sum(axis=(1, 3))
+        counts = C.reshape(ph // 2, 2, pw // 2, 2).sum(axis=(1, 3))
+        mean = sums / counts[..., None]
+        out.append((mean[..., :3].astype(np.float32), mean[..., 3:].astype(np.float32)))
+    return out
+
+
+@dataclass
+class _GmmSource:
+    """What ``load_or_build`` needs of a GMM mipmap's source: its data and a digest of data + parameters."""
+    data: np.ndarray
+    kind: str
+    scale: float
+    unaligned: bool
+    name: str
+    content_hash: str
+    components: int
+    prior: float
+
+    @property
+    def digest(self) -> str:
+        return (f"{self.content_hash}-{self.kind}-s{self.scale:.9g}-K{self.components}-c{self.prior:g}-"
+                f"{'unaligned' if self.unaligned else 'aligned'}")
+
+
+def _build_gmm(src: _GmmSource, progress: bool = True):
+    from precompute.gmm_mipmap import build_gmm_mipmap
+
+    return build_gmm_mipmap(src.data, kind=src.kind, components=src.components, prior=src.prior,
+                            scale=src.scale, unaligned=src.unaligned, progress=progress)
+
+
+def _write_gmm(path, mip, src: _GmmSource, force: bool = False):
+    from precompute.gmm_mipmap import write_gmm_mipmap
+
+    return write_gmm_mipmap(path, mip, src.name, src.content_hash, force=force)
+
+
+@dataclass
+class _Mips:
+    """One material's mipmaps on the device."""
+    shape: tuple
+    levels: int
+    lw: wp.array
+    lh: wp.array
+    loff: wp.array
+    nmean: wp.array
+    nm2: wp.array
+    gmm: dict = field(default_factory=dict)        # method -> (wp.array of vec4, K)
+
+
+@dataclass
+class FilteringScene:
+    """A scene's planes and their materials' mipmaps, ready to render any method."""
+    scene: Scene
+    device: str
+    mips: dict                 # material name -> _Mips
+    ldir: wp.array             # light directions in the plane frame
+    lrad: wp.array
+    notes: dict                # per material: map shape, GMM origin ("file", "cache", "built"), times
+    precompute_time_s: float   # time to load the maps and load or build every mipmap
+
+
+def _plane_objects(scene: Scene) -> list:
+    planes = []
+    for i, o in enumerate(scene.objects):
+        if not isinstance(o, PlaneObject):
+            raise WarpbwError(f"{scene.source}: [[object]] #{i + 1}: a scene with planes renders planes only "
+                              "(the filtering renderer, issue 4); put spheres and meshes in another scene")
+        planes.append(o)
+    return planes
+
+
+def _check_lights(scene: Scene) -> None:
+    if not scene.lights:
+        raise WarpbwError(f"{scene.source}: [[light]]: a scene with planes needs at least one directional light "
+                          "(the filtering renderer does not sample the environment)")
+    if scene.environment is not None:
+        warnings.warn(f"{scene.source}: [environment] is ignored by the filtering renderer (planes under "
+                      "directional lights)")
+
+
+def _load_normals(scene: Scene, name: str):
+    """The material's finest normals (H, W, 3), its source array, kind, scale, display name and hash."""
+    from precompute.gmm_mipmap import load_map
+    from precompute.surfaces import height_to_normals
+    from warpbw.scene import file_digest
+
+    m = scene.materials[name]
+    key = f"[material.{name}].normal_map"
+    if m.normal_map is None:       # flat: a 1x1 height field
+        data = np.zeros((1, 1))
+        return height_to_normals(data), data, "height", 1.0, "flat", "flat"
+    try:
+        data = load_map(m.normal_map, m.normal_map_kind)
+        normals = height_to_normals(data, m.normal_map_scale) if m.normal_map_kind == "height" else data
+    except WarpbwError as exc:
+        raise WarpbwError(f"{scene.source}: {key}: {exc}") from None
+    return normals, data, m.normal_map_kind, m.normal_map_scale, m.normal_map.name, file_digest(m.normal_map)
+
+
+def _load_gmm(scene: Scene, name: str, data, kind, scale, src_name, digest, unaligned: bool, cache, progress):
+    from precompute.brdf_sampling import load_or_build
+    from precompute.gmm_mipmap import DEFAULT_COMPONENTS, DEFAULT_PRIOR, GMM_VERSION
+
+    m = scene.materials[name]
+    src = _GmmSource(np.asarray(data), kind, float(scale), unaligned, src_name, digest, DEFAULT_COMPONENTS,
+                     DEFAULT_PRIOR)
+    explicit = None if unaligned else m.gmm
+    try:
+        mip, origin = load_or_build(src, explicit, cache, GMM_CACHE_PREFIX, GMM_VERSION, _read_gmm_checked(scene, name),
+                                    _build_gmm, _write_gmm, progress)
+    except WarpbwError as exc:
+        if explicit is not None and not str(exc).startswith(scene.source):
+            raise WarpbwError(f"{scene.source}: [material.{name}].gmm: {exc}") from None
+        raise
+    return mip, origin
+
+
+def _read_gmm_checked(scene: Scene, name: str):
+    """The reader for ``load_or_build``: an explicit file must match the material's map and parameters."""
+    def read(path, src: _GmmSource):
+        from precompute.gmm_mipmap import read_gmm_mipmap
+
+        mip = read_gmm_mipmap(path)
+        want = tuple(src.data.shape[:2])
+        if tuple(mip.shape) != want:
+            raise WarpbwError(f"{path}: built from a {mip.shape[1]}x{mip.shape[0]} map, but the normal_map is "
+                              f"{want[1]}x{want[0]} (rebuild it with: warpbw-precompute gmm MAP -o {path} --force)")
+        if mip.kind != src.kind or (src.kind == "height" and not math.isclose(mip.scale, src.scale, rel_tol=1e-6)):
+            raise WarpbwError(f"{path}: built with --kind {mip.kind} --scale {mip.scale:g}, but the material has "
+                              f"normal_map_kind = {src.kind!r}, normal_map_scale = {src.scale:g} (rebuild it with: "
+                              f"warpbw-precompute gmm MAP -o {path} --kind {src.kind} --scale {src.scale:g} --force)")
+        if mip.unaligned != src.unaligned:
+            raise WarpbwError(f"{path}: a GMM mipmap of another map")
+        return mip
+    return read
+
+
+def _level_arrays(shapes, device):
+    off = np.concatenate([[0], np.cumsum([h * w for h, w in shapes])[:-1]]).astype(np.int32)
+    return (wp.array(np.array([w for _, w in shapes], np.int32), dtype=wp.int32, device=device),
+            wp.array(np.array([h for h, _ in shapes], np.int32), dtype=wp.int32, device=device),
+            wp.array(off, dtype=wp.int32, device=device))
+
+
+def _gmm_array(levels, device):
+    flat = np.concatenate([np.asarray(q, np.float32).reshape(-1, 4) for q in levels])
+    return wp.array(flat, dtype=wp.vec4, device=device), int(levels[0].shape[2])
+
+
+def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progress: bool = False,
+                      cache: Path | None = None) -> FilteringScene:
+    """Load every plane material's normal map and the mipmaps ``methods`` need: the box-filtered normal
+    mipmap (always: the ground truth reads its finest level) and, for gmm_aligned / gmm_unaligned, the GMM
+    mipmap from the material's ``gmm`` file or the cache, else built (and cached)."""
+    planes = _plane_objects(scene)
+    _check_lights(scene)
+    unknown = [m for m in methods if m not in ALL_METHODS]
+    if unknown:
+        raise WarpbwError(f"filter method {unknown[0]!r}: expected one of {', '.join(ALL_METHODS)}")
+    t0 = time.perf_counter()
+    mips, notes = {}, {}
+    for name in dict.fromkeys(p.material for p in planes):
+        normals, data, kind, scale, src_name, digest = _load_normals(scene, name)
+        levels = normal_moment_mipmap(normals)
+        shapes = [lv[0].shape[:2] for lv in levels]
+        lw, lh, loff = _level_arrays(shapes, device)
+        nmean = wp.array(np.concatenate([lv[0].reshape(-1, 3) for lv in levels]), dtype=wp.vec3, device=device)
+        nm2 = wp.array(np.concatenate([lv[1].reshape(-1, 3) for lv in levels]), dtype=wp.vec3, device=device)
+        mp = _Mips(tuple(shapes[0]), len(shapes), lw, lh, loff, nmean, nm2)
+        note = {"map": list(shapes[0]), "levels": len(shapes), "source": src_name}
+        for method in ("gmm_aligned", "gmm_unaligned"):
+            if method in methods:
+                tb = time.perf_counter()
+                mip, origin = _load_gmm(scene, name, data, kind, scale, src_name, digest,
+                                        method == "gmm_unaligned", cache, progress)
+                mp.gmm[method] = _gmm_array(mip.levels, device)
+                note[method] = {"origin": origin, "time_s": round(time.perf_counter() - tb, 6),
+                                "components": int(mip.components)}
+        mips[name] = mp
+        notes[name] = note
+    ldir = np.array([[d[0], -d[2], d[1]] for d in (li.direction for li in scene.lights)], np.float32)
+    lrad = np.array([li.radiance for li in scene.lights], np.float32)
+    return FilteringScene(scene, device, mips, wp.array(ldir, dtype=wp.vec3, device=device),
+                          wp.array(lrad, dtype=wp.vec3, device=device), notes, time.perf_counter() - t0)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Rendering
+
+@dataclass
+class FilterResult:
+    image: np.ndarray       # (H, W, 3) float32 linear radiance
+    coverage: np.ndarray    # (H, W) bool: the pixel's centre ray hits a plane
+    level: np.ndarray       # (H, W) float32 fractional mip level in [-1, levels - 1] (0 for the ground truth and
+                            # uncovered pixels; below 0: magnified, blended towards the fine-scale BRDF)
+    time_s: float           # kernel time of the frame (launches + synchronise)
+    method: str
+    stats: dict
+
+
+def _plane_data(p: PlaneObject, m, mp: _Mips, K: int, lod_bias: float = LOD_BIAS) -> PlaneData:
+    pl = PlaneData()
+    pl.center = wp.vec3(*p.center)
+    pl.size = float(p.size)
+    pl.tiling = float(m.tiling)
+    pl.map_h, pl.map_w = int(mp.shape[0]), int(mp.shape[1])
+    pl.levels = int(mp.levels)
+    pl.components = int(K)
+    pl.f0 = wp.vec3(*m.f0)
+    pl.diffuse = wp.vec3(*m.diffuse)
+    pl.rough_var = roughness_variance(m.roughness)
+    pl.lod_bias = float(lod_bias)
+    return pl
+
+
+def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed: int = 0, device: str = "cpu",
+                     prepared: FilteringScene | None = None, camera: Camera | None = None,
+                     progress: bool = False, lod_bias: float = LOD_BIAS, threads: int | None = None) -> FilterResult:
+    """Render ``scene`` (planes under directional lights) with ``method`` (``ALL_METHODS``); ``camera``
+    overrides the scene's; ``spp`` is the ground truth's rays per pixel (>= MIN_GT_SPP); ``lod_bias`` is
+    added to every pixel's mip level; CPU launches are tiled over ``threads`` (default: all cores, up to 8)."""
+    from warpbw.shading import default_threads, launch_tiled
+
+    if method not in ALL_METHODS:
+        raise WarpbwError(f"filter method {method!r}: expected one of {', '.join(ALL_METHODS)}")
+    if method == "ground_truth" and (isinstance(spp, bool) or not isinstance(spp, (int, np.integer))
+                                     or spp < MIN_GT_SPP):
+        raise WarpbwError(f"ground truth rays per pixel {spp!r}: expected an integer >= {MIN_GT_SPP}")
+    if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm for mp in prepared.mips.values())):
+        prepared = prepare_filtering(scene, (method,), device, progress)
+    cam_s = camera or scene.camera
+    cam = make_camera(cam_s.position, cam_s.look_at, cam_s.up, cam_s.fov, cam_s.width, cam_s.height)
+    n = cam_s.width * cam_s.height
+    dev = prepared.device
+    depth = wp.full(n, 3.0e38, dtype=wp.float32, device=dev)
+    out = wp.zeros(n, dtype=wp.vec3, device=dev)
+    level = wp.zeros(n, dtype=wp.float32, device=dev)
+    kernel = ground_truth_kernel if method == "ground_truth" else _filtered_kernel(_CODE[method])
+    nthreads = default_threads(dev) if threads is None else max(1, int(threads))
+    tile = max(MIN_TILE_PIXELS, -(-n // (TILES_PER_THREAD * nthreads)))
+    wp.load_module(kernel.module, device=dev)   # compile before the clock starts
+    wp.synchronize_device(dev)
+    t0 = time.perf_counter()
+    for p in _plane_objects(scene):
+        m = scene.materials[p.material]
+        mp = prepared.mips[p.material]
+        if method == "ground_truth":
+            pl = _plane_data(p, m, mp, 0)
+            launch_tiled(kernel, n, lambda o, c, pl=pl, mp=mp: [cam, pl, mp.lw, mp.lh, mp.loff, mp.nmean, prepared.ldir,
+                                                               prepared.lrad, int(spp), int(seed), o, depth, out],
+                         dev, nthreads, tile=tile)
+        else:
+            gmm, K = mp.gmm.get(method, (wp.zeros(1, dtype=wp.vec4, device=dev), 0))
+            pl = _plane_data(p, m, mp, K, lod_bias)
+            launch_tiled(kernel, n, lambda o, c, pl=pl, mp=mp, gmm=gmm: [cam, pl, mp.lw, mp.lh, mp.loff, gmm, mp.nmean,
+                                                                        mp.nm2, prepared.ldir, prepared.lrad, o,
+                                                                        depth, out, level],
+                         dev, nthreads, tile=tile)
+    wp.synchronize_device(dev)
+    dt = time.perf_counter() - t0
+    h, w = cam_s.height, cam_s.width
+    img = out.numpy().reshape(h, w, 3).astype(np.float32)
+    cov = depth.numpy().reshape(h, w) < 3.0e38
+    lev = level.numpy().reshape(h, w)
+    stats = {"method": method, "resolution": [w, h], "pixels_covered": int(cov.sum()), "time_s": round(dt, 6),
+             "materials": prepared.notes, "non_finite_pixels": int((~np.isfinite(img)).any(-1).sum())}
+    if method == "ground_truth":
+        stats["spp"] = int(spp)
+        stats["seed"] = int(seed)
+    else:
+        stats["mean_level"] = float(lev[cov].mean()) if cov.any() else 0.0
+    return FilterResult(img, cov, lev, dt, method, stats)
+
+
+def zoomed_camera(camera: Camera, zoom: float) -> Camera:
+    """The camera moved away from its look-at point: distance times ``zoom``, same resolution and fov."""
+    pos = tuple(a + (p - a) * float(zoom) for p, a in zip(camera.position, camera.look_at))
+    return replace(camera, position=pos)
+
+
+def filtering_summary(scene: Scene) -> dict:
+    """What ``warpbw info`` says about a scene with planes (from the scene file alone)."""
+    objects = []
+    for o in scene.objects:
+        if isinstance(o, PlaneObject):
+            objects.append(f"plane size={o.size:g} at {list(o.center)} material={o.material}")
+        else:
+            objects.append(f"{type(o).__name__} material={o.material} (not rendered by the filtering renderer)")
+    lights = [f"directional towards {[round(c, 4) for c in li.direction]} radiance {list(li.radiance)}"
+              for li in scene.lights]
+    env = "none" if scene.environment is None else "ignored by the filtering renderer"
+    mats = {n: scene.materials[n].type for n in scene.material_order}
+    return {
+        "scene": scene.source,
+        "resolution": [scene.camera.width, scene.camera.height],
+        "environment": env,
+        "lights": lights,
+        "objects": objects,
+        "materials": mats,
+        "unused_materials": sorted(set(scene.materials) - set(scene.material_order)),
+        "files": [str(p) for p in scene.files()],
+        "stages": ["analytic ray-plane hit + ray-differential footprint",
+                   "normal mipmaps (box filter; GMM, 004 Sec. 4.1, from file or cache or built)",
+                   "filtered shading (004 Sec. 3, 4.2): " + ", ".join(ALL_METHODS)],
+    }
+
+
+# ---------------------------------------------------------------------------------------------------
+# Test hooks: the kernels' own functions on given data
+
+def fetch_gmm(levels, s, t, level, device: str = "cpu") -> np.ndarray:
+    """Recovered (a, mu_x, mu_y, s^2) per component, (N, K, 4), of the GMM mipmap ``levels`` (finest first,
+    (h, w, K, 4) moments) at finest-texel coordinates (s, t) and fractional ``level``, by the renderer's
+    trilinear fetch (empty components come back as zeros)."""
+    shapes = [tuple(q.shape[:2]) for q in levels]
+    lw, lh, loff = _level_arrays(shapes, device)
+    gmm, K = _gmm_array(levels, device)
+    s, t, level = np.broadcast_arrays(np.asarray(s, np.float32), np.asarray(t, np.float32),
+                                      np.asarray(level, np.float32))
+    st = wp.array(np.stack([s.ravel(), t.ravel(), level.ravel()], -1), dtype=wp.vec3, device=device)
+    out = wp.zeros(st.shape[0] * K, dtype=wp.vec4, device=device)
+    wp.launch(fetch_gmm_kernel, dim=(st.shape[0], K), inputs=[gmm, lw, lh, loff, len(levels), K, st, out],
+              device=device)
+    return out.numpy().reshape(-1, K, 4)
+
+
+def gmm_ndf(params, rough_var: float, h, device: str = "cpu") -> np.ndarray:
+    """The renderer's mixture NDF at unit directions h (N, 3) for components ``params`` (K, 4) of
+    (a, mu_x, mu_y, s^2)."""
+    p = np.asarray(params, np.float32).reshape(-1, 4)
+    hh = wp.array(np.asarray(h, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
+    out = wp.zeros(hh.shape[0], dtype=wp.float32, device=device)
+    wp.launch(gmm_ndf_kernel, dim=hh.shape[0], inputs=[wp.array(p, dtype=wp.vec4, device=device), p.shape[0],
+                                                       float(rough_var), hh, out], device=device)
+    return out.numpy()
