@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from warpbw.errors import WarpbwError
 from warpbw.io.exr import write_exr
 from warpbw.io.merl import MERL_FILE_SIZE
 from warpbw.io.npf import NPF_FILE_SIZE
@@ -407,3 +408,14 @@ def test_filter_on_a_scene_without_planes(tmp_path):
     r = run(["render", "scene.toml", "-o", "out.exr", "--filter", "toksvig"], tmp_path)
     assert_one_line_error(r, "--filter toksvig", "planes")
     assert_no_outputs(tmp_path)
+
+
+def test_plane_scene_through_the_environment_pipeline_is_refused(tmp_path):
+    """The 002 pipeline (render_reference / render_adaptive) called directly on a plane scene lit by
+    [[light]]s only: a clear error naming the scene, not a failure inside the environment loader."""
+    from warpbw.pipeline import render_reference
+    from warpbw.scene import parse_scene
+
+    scene = parse_scene(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""), tmp_path, "planes.toml")
+    with pytest.raises(WarpbwError, match=r"planes\.toml: .*\[environment\]"):
+        render_reference(scene, spp=1)

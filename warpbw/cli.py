@@ -470,7 +470,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "hierarchical shading (002), which also writes the AOVs OUT.level/.n_p/.variance/.shaded/.b_p "
                    "as EXR and false-colour PNG")
     r.add_argument("--budget", type=_positive_float("budget"), default=None,
-                   help="adaptive: mean samples per covered pixel, spread in proportion to the predicted variance "
+                   help="adaptive: mean samples per covered pixel, spread over the shaded pixels in proportion to the "
+                   "standard deviation the bandwidth pass measures "
                    "(may be below 1)")
     r.add_argument("--nb", type=_positive_int("nb"), default=None,
                    help="adaptive: directions per pixel of the bandwidth estimate, n_b (default 16, 002 Sec. 2.6)")
