@@ -196,41 +196,42 @@ def alike(gb: GBufferData, i: int, j: int):
     return ok
 
 
+@wp.func
+def block_pixel(gb: GBufferData, bx: int, by: int, k: int, stride: int):
+    """Index of the k-th pixel (row-major) of block (bx, by), or -1 outside the image."""
+    x = bx * stride + k % stride
+    y = by * stride + k / stride
+    i = int(-1)
+    if x < gb.width and y < gb.height:
+        i = y * gb.width + x
+    return i
+
+
 @wp.kernel(module="unique", enable_backward=False)
 def block_plan_kernel(gb: GBufferData, stride: int, rep: wp.array(dtype=wp.int32)):
     """rep[i] = the pixel whose directions pixel i shares: the block's first pixel when every pixel of the
     stride x stride block is covered and alike, else i itself (silhouettes, depth and material edges)."""
     bx, by = wp.tid()
-    W = gb.width
-    H = gb.height
-    x0 = bx * stride
-    y0 = by * stride
     first = int(-1)
     uniform = bool(True)
-    for dy in range(stride):
-        for dx in range(stride):
-            x = x0 + dx
-            y = y0 + dy
-            if x < W and y < H:
-                i = y * W + x
-                if gb.material[i] < 0:
-                    uniform = False
-                elif first < 0:
-                    first = i
-                elif not alike(gb, first, i):
-                    uniform = False
-    for dy in range(stride):
-        for dx in range(stride):
-            x = x0 + dx
-            y = y0 + dy
-            if x < W and y < H:
-                i = y * W + x
-                r = i
-                if uniform:
-                    r = first
-                if gb.material[i] < 0:
-                    r = -1
-                rep[i] = r
+    for k in range(stride * stride):
+        i = block_pixel(gb, bx, by, k, stride)
+        if i >= 0:
+            if gb.material[i] < 0:
+                uniform = False
+            elif first < 0:
+                first = i
+            elif not alike(gb, first, i):
+                uniform = False
+    for k in range(stride * stride):
+        i = block_pixel(gb, bx, by, k, stride)
+        if i >= 0:
+            r = i
+            if uniform:
+                r = first
+            if gb.material[i] < 0:
+                r = -1
+            rep[i] = r
 
 
 @wp.kernel(module="unique", enable_backward=False)

@@ -362,16 +362,33 @@ def _number_list(name, kind):
     return parse
 
 
+def _bench_outputs(args) -> None:
+    """Validate --json / --plot of a bench command and refuse to overwrite them without --force."""
+    outs = [Path(p) for p in (args.json, args.plot) if p]
+    if not outs:
+        raise WarpbwError("give --json OUT.json and/or --plot OUT.png (where to write the results)")
+    if args.json and Path(args.json).suffix.lower() != ".json":
+        raise WarpbwError(f"--json {args.json}: expected a path ending in .json")
+    if args.plot and Path(args.plot).suffix.lower() != ".png":
+        raise WarpbwError(f"--plot {args.plot}: expected a path ending in .png")
+    _check_overwrite(outs, args.force)
+
+
+def _write_bench(args, record: dict, write_plot) -> None:
+    """The bench record as JSON and its plot as PNG, where asked."""
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(record, indent=2) + "\n")
+    if args.plot:
+        Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
+        write_plot(record, args.plot)
+
+
 def cmd_bench(args) -> int:
     from warpbw import bench
     from warpbw.scene import load_scene
 
-    outs = [Path(p) for p in (args.json, args.plot) if p]
-    if not outs:
-        raise WarpbwError("give --json OUT.json and/or --plot OUT.png (where to write the results)")
-    if args.plot and Path(args.plot).suffix.lower() != ".png":
-        raise WarpbwError(f"--plot {args.plot}: expected a path ending in .png")
-    _check_overwrite(outs, args.force)
+    _bench_outputs(args)
     scene = load_scene(args.scene)
     if scene.has_planes:
         raise WarpbwError(f"{scene.source}: a scene with planes is benchmarked by 'warpbw bench-filtering'")
@@ -382,12 +399,7 @@ def cmd_bench(args) -> int:
                              gt_spp=args.gt_spp, runs=args.runs, mis=not args.no_mis,
                              cache_dir=Path(args.cache) if args.cache else None, nb_budget=args.nb_budget,
                              seed=args.seed, device=args.device, progress=not args.quiet, log=log)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(record, indent=2) + "\n")
-    if args.plot:
-        Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
-        bench.write_plot(record, args.plot)
+    _write_bench(args, record, bench.write_plot)
     print(bench.format_table(record))
     if not record["ground_truth_converged"]:
         print(f"warpbw: warning: the ground truth is not converged (doubling changes PSNR by "
@@ -399,14 +411,7 @@ def cmd_bench_filtering(args) -> int:
     from warpbw import bench_filtering as bf
     from warpbw.scene import load_scene
 
-    outs = [Path(p) for p in (args.json, args.plot) if p]
-    if not outs:
-        raise WarpbwError("give --json OUT.json and/or --plot OUT.png (where to write the results)")
-    if args.json and Path(args.json).suffix.lower() != ".json":
-        raise WarpbwError(f"--json {args.json}: expected a path ending in .json")
-    if args.plot and Path(args.plot).suffix.lower() != ".png":
-        raise WarpbwError(f"--plot {args.plot}: expected a path ending in .png")
-    _check_overwrite(outs, args.force)
+    _bench_outputs(args)
     scene = load_scene(args.scene)
     if not scene.has_planes:
         raise WarpbwError(f"{scene.source}: bench-filtering needs a scene with planes (shape = \"plane\"); "
@@ -416,12 +421,7 @@ def cmd_bench_filtering(args) -> int:
     record = bf.run_bench_filtering(scene, zooms=args.zoom, gt_spp=args.gt_spp, runs=args.runs, seed=args.seed,
                                     device=args.device, cache=Path(args.cache) if args.cache else None,
                                     progress=not args.quiet, log=log)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(record, indent=2) + "\n")
-    if args.plot:
-        Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
-        bf.write_plot(record, args.plot)
+    _write_bench(args, record, bf.write_plot)
     print(bf.format_table(record))
     return 0
 
