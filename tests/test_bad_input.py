@@ -267,8 +267,14 @@ def test_spp_zero(tmp_path):
     (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--nb", "0"], ["--nb"]),
     (["render", "scene.toml", "-o", "out.exr", "--budget", "2"], ["--budget", "adaptive only"]),
     (["render", "scene.toml", "-o", "out.exr", "--method", "fast"], ["--method", "invalid choice"]),
+    (["render", "scene.toml", "-o", "out.exr", "--allocation", "variance"], ["--allocation", "adaptive only"]),
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--allocation", "magic"],
+     ["--allocation", "invalid choice"]),
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--nyquist", "0"],
+     ["--nyquist", "positive"]),
 ], ids=["no output", "bad threads", "png output", "unknown command", "no command", "adaptive without budget",
-        "negative budget", "nan budget", "zero nb", "budget without adaptive", "unknown method"])
+        "negative budget", "nan budget", "zero nb", "budget without adaptive", "unknown method",
+        "allocation without adaptive", "unknown allocation", "zero nyquist"])
 def test_usage_errors_are_one_line(tmp_path, args, needles):
     write_scene(tmp_path)
     assert_one_line_error(run(args, tmp_path), *needles)

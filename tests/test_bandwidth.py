@@ -279,6 +279,12 @@ def test_allocation_bad_arguments(kw, match):
         bw.allocate_samples(buf, **kw)
 
 
+def test_cli_spells_the_allocations_and_the_default():
+    from warpbw import cli
+
+    assert set(cli._ALLOCATIONS) == set(bw.ALLOCATIONS) and cli._ALLOCATIONS[0] == bw.ALLOCATION_DEFAULT
+
+
 def test_bad_tables_are_refused():
     with pytest.raises(WarpbwError, match="light table"):
         bw.make_bandwidth_tables(np.full((4, 8, 2), np.nan), np.zeros((1, 16, 16, 16)))

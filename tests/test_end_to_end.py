@@ -314,3 +314,9 @@ def test_render_adaptive_writes_aovs_and_caches_tables(work, npf_scene):
     assert r.returncode == 2 and "--force" in r.stderr
     run(["render", npf_scene, "-o", out, "--method", "adaptive", "--budget", "4", "-q", "--force"], work)
     assert json.loads(out.with_suffix(".json").read_text())["assets"]["material.m"]["bandwidth"] == "cache"
+    # the paper's allocation (N_p proportional to the Eq. 9 bound) and a finer Nyquist rate, on request
+    run(["render", npf_scene, "-o", out, "--method", "adaptive", "--budget", "4", "-q", "--force",
+         "--allocation", "variance", "--nyquist", "4"], work)
+    stats2 = json.loads(out.with_suffix(".json").read_text())
+    assert stats2["allocation"]["allocation"] == "variance"
+    assert stats2["pixels_shaded"] >= stats["pixels_shaded"]  # twice the rate: levels no coarser

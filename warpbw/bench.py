@@ -120,8 +120,10 @@ def _errors(img, gt: GroundTruth, cov) -> dict:
 
 def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), gt_spp: int = DEFAULT_GT_SPP,
               runs: int = 3, mis: bool = True, cache_dir: Path | None = None, nb_budget: float | None = None,
-              seed: int = 0, device: str = "cpu", progress: bool = True, log=print) -> dict:
-    """Run the protocol on one scene and return the JSON record (see the module docstring)."""
+              seed: int = 0, device: str = "cpu", progress: bool = True, log=print,
+              adaptive_options: dict | None = None) -> dict:
+    """Run the protocol on one scene and return the JSON record (see the module docstring).
+    ``adaptive_options`` go to every ``render_adaptive`` call (e.g. ``allocation``, ``nyquist``)."""
     from precompute.brdf_sampling import cache_dir as default_cache
     from warpbw.pipeline import prepare_scene, render_adaptive, render_reference
 
@@ -132,7 +134,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     prep = prepare_scene(scene, device=device, progress=progress)
     # warm-up frames: compile every kernel variant and build the bandwidth tables
     render_reference(prep, spp=1, seed=seed, mis=mis)
-    render_adaptive(prep, budget=1.0, seed=seed, mis=mis, progress=progress)
+    opts = dict(adaptive_options or {})
+    render_adaptive(prep, budget=1.0, seed=seed, mis=mis, progress=progress, **opts)
     t_prep = time.perf_counter() - t0
     log(f"assets and warm-up: {t_prep:.1f} s")
     gt = ground_truth(prep, gt_spp, cache_dir, progress=progress)
@@ -157,7 +160,7 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     log(f"ground-truth check: {d_db:.3f} dB ({'converged' if converged else 'NOT converged: raise --gt-spp'})")
     ada_recs = []
     for b in budgets:
-        res, t = _timed(lambda r: render_adaptive(prep, budget=b, seed=seed + 7 * r, mis=mis), runs)
+        res, t = _timed(lambda r: render_adaptive(prep, budget=b, seed=seed + 7 * r, mis=mis, **opts), runs)
         ts = res.stats["time_s"]
         spp_eq, t_eq, ext = equal_quality_time(ref_recs, _errors(res.image, gt, cov)["mse"])
         rec = {"budget": float(b), "time_s": t, **_errors(res.image, gt, cov),
@@ -177,7 +180,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     nb_recs = []
     nbb = NB_SWEEP_BUDGET if nb_budget is None else nb_budget
     for n_b in nb_list:
-        res, t = _timed(lambda r: render_adaptive(prep, budget=nbb, seed=seed + 7 * r, mis=mis, n_b=int(n_b)), runs)
+        res, t = _timed(lambda r: render_adaptive(prep, budget=nbb, seed=seed + 7 * r, mis=mis, n_b=int(n_b),
+                                                  **opts), runs)
         rec = {"n_b": int(n_b), "budget": float(nbb), "time_s": t, **_errors(res.image, gt, cov),
                "bandwidth_time_s": res.stats["time_s"]["bandwidth"], "shaded_fraction": res.stats["shaded_fraction"]}
         nb_recs.append(rec)
@@ -193,6 +197,7 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
         "materials": {n: prep.scene.materials[n].type for n in prep.scene.material_order},
         "environment": prep.env.name,
         "estimator": est,
+        "adaptive_options": opts,
         "runs": int(runs),
         "ground_truth_spp": gt.spp,
         "ground_truth_doubling_delta_db": d_db,

@@ -21,6 +21,8 @@ DEFAULT_SPP = 64
 DEMO_SPP = 64
 # warpbw.filtering.ALL_METHODS (spelled here so that --help needs no Warp import)
 _FILTER_METHODS = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed", "ground_truth")
+# warpbw.bandwidth.ALLOCATIONS, default first (spelled here for the same reason)
+_ALLOCATIONS = ("measured", "variance", "sqrt", "relative", "uniform")
 WARP_LOG_WARNING = 30  # warp._src.logger.LOG_WARNING: hide Warp's banner and module-load lines
 
 EPILOG = """\
@@ -148,7 +150,7 @@ def _write_aovs(res, out: Path) -> None:
 
 def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, exposure: float, force: bool,
             threads, quiet: bool, method: str = "reference", budget: float | None = None,
-            n_b: int | None = None) -> dict:
+            n_b: int | None = None, adaptive_options: dict | None = None) -> dict:
     from warpbw.pipeline import render_adaptive, render_reference
 
     outs = _outputs(out)
@@ -159,7 +161,7 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
     t0 = time.perf_counter()
     if adaptive:
         res = render_adaptive(scene, budget=budget, seed=seed, mis=mis, n_b=n_b, device=device, progress=not quiet,
-                              threads=threads)
+                              threads=threads, **(adaptive_options or {}))
     else:
         res = render_reference(scene, spp=spp, seed=seed, mis=mis, device=device, progress=not quiet,
                                threads=threads)
@@ -207,7 +209,8 @@ def _render_filtering_cli(scene, args) -> int:
     """``warpbw render`` of a scene with planes: the reflectance-filtering renderer (004)."""
     from warpbw.filtering import render_filtering
 
-    if args.method != "reference" or args.budget is not None or args.nb is not None or args.mis:
+    if args.method != "reference" or args.budget is not None or args.nb is not None or args.mis \
+            or _adaptive_options(args):
         raise WarpbwError(f"{scene.source}: a scene with planes renders with --filter METHOD (reflectance "
                           "filtering, 004); --method, --budget, --nb and --mis apply to spheres and meshes")
     method = args.filter or "gmm_aligned"
@@ -237,13 +240,31 @@ def _render_filtering_cli(scene, args) -> int:
     return 0
 
 
+def _adaptive_options(args) -> dict:
+    """--allocation / --nyquist as render_adaptive keywords (only those given)."""
+    return {k: getattr(args, k) for k in ("allocation", "nyquist") if getattr(args, k, None) is not None}
+
+
+def add_adaptive_options(p) -> None:
+    """--allocation and --nyquist, shared by render and bench."""
+    p.add_argument("--allocation", choices=_ALLOCATIONS, default=None,
+                   help="adaptive: how N_p follows the pass's estimates: measured (default; the pass's own MIS "
+                   "standard deviation), variance (002 Sec. 2.4: the Eq. 9 bound), sqrt (its square root), "
+                   "relative (bound / radiance^2), uniform")
+    p.add_argument("--nyquist", type=_positive_float("nyquist"), default=None,
+                   help="adaptive: sampling rate in multiples of the image bandwidth b_p for the level of Eq. 11 "
+                   "(default 2, Nyquist; larger shades more pixels at finer levels)")
+
+
 def cmd_render(args) -> int:
     from warpbw.scene import load_scene
 
     if args.method == "adaptive" and args.budget is None:
         raise WarpbwError("--method adaptive needs --budget SAMPLES_PER_PIXEL (mean samples per covered pixel)")
-    if args.method == "reference" and (args.budget is not None or args.nb is not None):
-        raise WarpbwError("--budget and --nb apply to --method adaptive only (the reference takes --spp)")
+    if args.method == "reference" and (args.budget is not None or args.nb is not None
+                                       or _adaptive_options(args)):
+        raise WarpbwError("--budget, --nb, --allocation and --nyquist apply to --method adaptive only "
+                          "(the reference takes --spp)")
     scene = load_scene(args.scene)
     if scene.has_planes:
         return _render_filtering_cli(scene, args)
@@ -251,7 +272,7 @@ def cmd_render(args) -> int:
         raise WarpbwError(f"--filter {args.filter}: applies to scenes with planes (shape = \"plane\") only")
     _no_environment(scene, "rendering spheres and meshes")
     _render(scene, Path(args.output), args.spp, args.seed, args.mis, args.device, args.exposure, args.force,
-            args.threads, args.quiet, args.method, args.budget, args.nb)
+            args.threads, args.quiet, args.method, args.budget, args.nb, _adaptive_options(args))
     return 0
 
 
@@ -398,7 +419,8 @@ def cmd_bench(args) -> int:
     record = bench.run_bench(scene, spp_list=args.spp, budgets=args.budgets, nb_list=args.nb or (),
                              gt_spp=args.gt_spp, runs=args.runs, mis=not args.no_mis,
                              cache_dir=Path(args.cache) if args.cache else None, nb_budget=args.nb_budget,
-                             seed=args.seed, device=args.device, progress=not args.quiet, log=log)
+                             seed=args.seed, device=args.device, progress=not args.quiet, log=log,
+                             adaptive_options=_adaptive_options(args))
     _write_bench(args, record, bench.write_plot)
     print(bench.format_table(record))
     if not record["ground_truth_converged"]:
@@ -475,6 +497,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "(may be below 1)")
     r.add_argument("--nb", type=_positive_int("nb"), default=None,
                    help="adaptive: directions per pixel of the bandwidth estimate, n_b (default 16, 002 Sec. 2.6)")
+    add_adaptive_options(r)
     r.add_argument("--filter", choices=_FILTER_METHODS, default=None,
                    help="scenes with planes (shape = \"plane\", cook-torrance materials) always render with the "
                    "reflectance-filtering renderer (004): METHOD is gmm_aligned (default), gmm_unaligned, toksvig, "
@@ -515,6 +538,7 @@ def build_parser() -> argparse.ArgumentParser:
                     % ",".join(f"{b:g}" for b in _bench.DEFAULT_BUDGETS))
     bn.add_argument("--nb", type=_number_list("nb", int), default=None,
                     help="n_b sweep, e.g. 16,64,256,1024 (002 Fig. 13), at --nb-budget")
+    add_adaptive_options(bn)
     bn.add_argument("--nb-budget", type=_positive_float("nb-budget"), default=None,
                     help=f"budget of the n_b sweep (default {_bench.NB_SWEEP_BUDGET})")
     bn.add_argument("--gt-spp", type=_positive_int("gt-spp"), default=_bench.DEFAULT_GT_SPP,
