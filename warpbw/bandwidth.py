@@ -39,7 +39,11 @@ silent:
   of a ``side x side`` tile shifts the direction set differently (:func:`interleave_shifts`,
   interleaved sampling), and each pixel pools the sums of the alike traced pixels within ``pool_radius``
   pixels: about side^2 x n_b directions per estimate for the price of n_b per block.  Defaults (2, 2)
-  trace about a quarter of the pixels; ``stride=1, pool_radius=0`` is the per-pixel pass.
+  trace about a quarter of the pixels; ``stride=1, pool_radius=0`` is the per-pixel pass.  The variance
+  bound sigma2 takes the largest of the neighbours' own n_b-direction estimates instead of their pooled
+  mean (Sec. 3.1 max-filters the variance): E(chi^2) is heavy-tailed under small bright lights, and the
+  max is conservative on more pixels (bunny under studio.exr, examples/validate_bandwidth.py: 89% of
+  pixels instead of 85%, rank correlation unchanged).
 * The same directions measure the variance of their own one-sample MIS estimate of L_p,
   ``variance_mis`` = E[(chi / pdf)^2] - E[chi / pdf]^2: the spread of the renderer's (MIS) estimator,
   which the Eq. 9 bound, written for uniform sampling, does not follow (below).
@@ -257,6 +261,7 @@ def pool_kernel(gb: GBufferData, rep: wp.array(dtype=wp.int32), radius: int, n_b
     lam = lam_in[r]
     nu_sum = nu_in[r]
     var = var_in[r]
+    var_max = var_in[r]
     w2 = w2_in[r]
     count = float(1.0)
     for yy in range(wp.max(y - radius, 0), wp.min(y + radius + 1, H)):
@@ -266,6 +271,7 @@ def pool_kernel(gb: GBufferData, rep: wp.array(dtype=wp.int32), radius: int, n_b
                 lam += lam_in[j]
                 nu_sum += nu_in[j]
                 var += var_in[j]
+                var_max = wp.max(var_max, var_in[j])
                 w2 += w2_in[j]
                 count += 1.0
     nu = wp.vec2(0.0)
@@ -274,7 +280,8 @@ def pool_kernel(gb: GBufferData, rep: wp.array(dtype=wp.int32), radius: int, n_b
     nu_out[i] = nu
     b_p[i] = nu[1] * pixel_angle                                  # Eq. 6
     n_dirs = count * float(wp.max(n_b, 1))
-    s2 = _FOUR_PI_SQ * var / (n_dirs * _TWO_PI)                   # Eq. 9: 4 pi^2 E_uniform(nu chi^2)
+    # Eq. 9: 4 pi^2 E_uniform(nu chi^2), the largest of the neighbours' estimates (Sec. 3.1's max filter)
+    s2 = _FOUR_PI_SQ * var_max / (float(wp.max(n_b, 1)) * _TWO_PI)
     sigma2[i] = s2
     mu = lam / n_dirs                                             # the pass's estimate of L_p (Eq. 1)
     sigma2_rel[i] = s2 / (mu * mu + REL_EPS)
