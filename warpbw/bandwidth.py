@@ -6,8 +6,10 @@ Public:
     ``light_table(env_pixels, nu_env) -> (h, w, 2)``   reduced [luminance, nu_a] of the environment
     ``env_bandwidth_map(pixels, name, cache=None) -> ((H, W) float32 cycles/rad, origin)``
     ``direction_set(n_b, seed) -> (n_b, 3) float32``   stratified points for the n_b directions
-    ``BandwidthBuffer`` / ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ...)``
-    ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max)``
+    ``interleave_shifts(n_b, side) -> (side^2, 3)``     per-block offsets of the direction set
+    ``BandwidthBuffer`` / ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ..., stride, pool_radius)``
+    ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max, allocation)``; ``ALLOCATIONS``
+    ``PASS_STRIDE_DEFAULT``, ``POOL_RADIUS_DEFAULT``
     Warp functions ``brdf_nu_rho(nu_rho, m, wi, wo)`` and ``env_light(light, env, w)`` (table look-ups)
 
 Two Warp kernels over the G-buffer (002 Sec. 2.6).  For pixel p (point x, view direction w_o, shading
