@@ -12,8 +12,9 @@ Public:
     ``PASS_STRIDE_DEFAULT``, ``POOL_RADIUS_DEFAULT``
     Warp functions ``brdf_nu_rho(nu_rho, m, wi, wo)`` and ``env_light(light, env, w)`` (table look-ups)
 
-Two Warp kernels over the G-buffer (002 Sec. 2.6).  For pixel p (point x, view direction w_o, shading
-normal n, mean curvature c, distance d' to the camera) and n_b directions w_i with density pdf_i:
+Three Warp kernels over the G-buffer (002 Sec. 2.6: a block plan, the directions, the pooling).  For
+pixel p (point x, view direction w_o, shading normal n, mean curvature c, distance d' to the camera)
+and n_b directions w_i with density pdf_i:
 
     chi_i    = L_i(w_i) rho(w_i, w_o) (w_i . n)      the integrand of Eq. 1 (lambda_i of Eq. 5)
     nu^i     = |T_{d'} R [0, nu_a^env(w_i)]|          Eq. 4 with a distant light (T_d is then the identity)
