@@ -40,7 +40,7 @@ silent:
   and alike (:func:`alike`: same material, depths within ``BLOCK_DEPTH_TOL``, normals within
   acos(``BLOCK_NORMAL_COS``)); every pixel of a block at a silhouette or an edge is traced.  Each block
   of a ``side x side`` tile shifts the direction set differently (:func:`interleave_shifts`,
-  interleaved sampling), and each pixel pools the sums of the alike traced pixels within ``pool_radius``
+  interleaved sampling; each tile adds its own random offset, :func:`block_shift`), and each pixel pools the sums of the alike traced pixels within ``pool_radius``
   pixels: about side^2 x n_b directions per estimate for the price of n_b per block.  Defaults (2, 2)
   trace about a quarter of the pixels; ``stride=1, pool_radius=0`` is the per-pixel pass.  The variance
   bound sigma2 takes the largest of the neighbours' own n_b-direction estimates instead of their pooled
@@ -189,12 +189,19 @@ def frac3(u: wp.vec3):
 
 
 @wp.func
-def interleave_index(i: int, width: int, stride: int, n_shifts: int):
-    """Which of the n_shifts = s x s direction-set shifts pixel i's block uses (an s x s tile of blocks)."""
+def block_shift(shifts: wp.array(dtype=wp.vec3), i: int, width: int, stride: int, seed: int):
+    """The direction-set offset of pixel i's block: shift j of the side x side tile of blocks it lies in
+    (stratified within the tile, :func:`interleave_shifts`), plus one random offset per tile, so that
+    different tiles look along different directions (one offset for the whole image would let a small
+    bright light be missed, or hit, by every pixel at once)."""
+    n_shifts = shifts.shape[0]
     side = int(wp.sqrt(float(n_shifts)) + 0.5)
     bx = (i % width) / stride
     by = (i / width) / stride
-    return (by % side) * side + bx % side
+    tiles_x = (width + stride * side - 1) / (stride * side)
+    state = wp.rand_init(seed, (by / side) * tiles_x + bx / side)
+    offset = wp.vec3(wp.randf(state), wp.randf(state), wp.randf(state))
+    return shifts[(by % side) * side + bx % side] + offset
 
 
 @wp.func
@@ -303,7 +310,7 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
     @wp.kernel(module="unique", enable_backward=False)
     def bandwidth_buffer_kernel(gb: GBufferData, cam: CameraData, mats: MaterialTable, env: EnvMapData,
                                 tables: BandwidthTables, dirs: wp.array(dtype=wp.vec3),
-                                shifts: wp.array(dtype=wp.vec3), stride: int,
+                                shifts: wp.array(dtype=wp.vec3), stride: int, seed: int,
                                 pixels: wp.array(dtype=wp.int32), offset: int,
                                 lam_out: wp.array(dtype=wp.float32), nu_out: wp.array(dtype=wp.vec2),
                                 var_out: wp.array(dtype=wp.float32), w2_out: wp.array(dtype=wp.float32)):
@@ -315,7 +322,7 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
         wo = to_local(gb.view[i], t, b, n)
         dp = wp.length(gb.position[i] - cam.origin)  # d': surface to the eye
         c = gb.curvature[i]
-        shift = shifts[interleave_index(i, gb.width, stride, shifts.shape[0])]
+        shift = block_shift(shifts, i, gb.width, stride, seed)
         lam_sum = float(0.0)
         nu_sum = wp.vec2(0.0)
         var_sum = float(0.0)
@@ -546,8 +553,8 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     w2 = wp.zeros(W * H, dtype=wp.float32, device=device)
     kernel = make_bandwidth_kernel(materials.kinds, preconvolved)
     launch_tiled(kernel, traced.shape[0],
-                 lambda o, c: [gb.data, cam, materials.table, env_data, tables, dirs, shifts, stride, traced, o,
-                               lam, nu_sum, var, w2], device, threads)
+                 lambda o, c: [gb.data, cam, materials.table, env_data, tables, dirs, shifts, stride, int(seed),
+                               traced, o, lam, nu_sum, var, w2], device, threads)
     nu = wp.zeros(W * H, dtype=wp.vec2, device=device)
     b_p = wp.zeros(W * H, dtype=wp.float32, device=device)
     sigma2 = wp.zeros(W * H, dtype=wp.float32, device=device)
