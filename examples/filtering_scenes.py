@@ -1,5 +1,5 @@
 """Write the reflectance-filtering benchmark scenes of issue 4 (the three procedural test surfaces of
-``precompute.surfaces`` on a plane under a directional light), then optionally bench them.
+``precompute.surfaces`` on a plane under directional lights), then optionally bench them.
 
     python examples/filtering_scenes.py --out /work/bench/filtering             # write scenes + height maps
     python examples/filtering_scenes.py --out /work/bench/filtering --run       # and run bench-filtering on each
@@ -15,8 +15,19 @@ dunes                  dunes                 2       004 Fig. 1 (sand dunes)
 Each height field is written as a one-channel EXR (``--size`` texels square, default 256).  The camera
 sits at ``DISTANCE`` from the plane's centre, 60 degrees above it, so that at zoom 1 a pixel covers
 about one texel of a tiling-4 map at the default resolution; ``warpbw bench-filtering`` moves it away by
-each zoom factor.  The light mirrors the view about the normal, so the highlight sits mid-image.
-``--run`` writes NAME.json and NAME.png beside each scene and prints the tables.
+each zoom factor.  ``--run`` writes NAME.json and NAME.png beside each scene and prints the tables.
+
+Lights (``--lights``).  On a plane seen from afar, every pixel sees the same view and light directions, so
+a directional light reads the filtered NDF at a single half-vector h: one light measures D(h) at one point
+of normal space, and the ranking of the methods then depends on where that point falls in each footprint's
+distribution (on the scales at zoom 32, the first benchmark's light near the centre and the issue's example
+light [0.3, 0.8, -0.5] put the methods in different orders).  004's armour (Fig. 8) is a curved object, so
+its error averages over a range of half-vectors.  ``ring`` (the default) lights the plane with ``len(HALF_VECTORS)`` lights of
+equal radiance whose mirror half-vectors (for the zoom-1 camera's central ray) spread over normal space: the
+centre, a ring at radius 0.22 and one at 0.42 (sines of 13 and 25 degrees; a larger radius puts the
++y light below the horizon at this camera elevation), so the error weighs the whole distribution, not one
+density value.  ``mirror`` is the single light that mirrors the view (slightly off-centre: x = 0.15),
+the setup of the first benchmark, kept for comparison.
 """
 from __future__ import annotations
 
@@ -38,6 +49,14 @@ DISTANCE = 0.35           # camera distance at zoom 1 (plane units; the plane is
 ELEVATION_DEG = 60.0      # camera elevation above the plane
 FOV_DEG = 40.0
 RESOLUTION = (128, 96)
+LIGHT_RADIANCE = 3.0      # total over the lights (each gets an equal share)
+# ``--lights ring``: the lights' mirror half-vectors in the plane's projected normal space (x = +X, y = -Z),
+# as (radius, azimuth in degrees): the centre, three at 0.22 and four at 0.42, staggered.
+HALF_VECTORS = ((0.0, 0.0), (0.22, 90.0), (0.22, 210.0), (0.22, 330.0),
+                (0.42, 45.0), (0.42, 135.0), (0.42, 225.0), (0.42, 315.0))
+# ``--lights mirror``: the one light of the first benchmark (x tilt of its direction; y, z mirror the view).
+MIRROR_LIGHT_X = 0.15
+LIGHT_SETUPS = ("ring", "mirror")
 
 SCENE = """\
 # issue 4 benchmark scene: {surface} ({size}x{size}) on a plane, tiled {tiling}x (examples/filtering_scenes.py)
@@ -47,11 +66,7 @@ look_at = [0.0, 0.0, 0.0]
 fov = {fov}
 resolution = [{w}, {h}]
 
-[[light]]
-type = "directional"
-direction = [0.15, {ly:.6f}, {lz:.6f}]
-radiance = [3.0, 3.0, 3.0]
-
+{lights}
 [[object]]
 shape = "plane"
 center = [0.0, 0.0, 0.0]
@@ -70,19 +85,47 @@ tiling = {tiling}
 """
 
 
-def write_scenes(out: Path, size: int, resolution=RESOLUTION) -> list:
+LIGHT = """[[light]]
+type = "directional"
+direction = [{x:.6f}, {y:.6f}, {z:.6f}]
+radiance = [{e:.6f}, {e:.6f}, {e:.6f}]
+"""
+
+
+def light_directions(setup: str = "ring", elevation_deg: float = ELEVATION_DEG) -> list:
+    """World directions towards the lights of ``setup`` (module docstring).  For a mirror half-vector h
+    (projected coordinates in the plane's frame) and the view wo of the camera at ``elevation_deg``:
+    wi = 2 (wo . h) h - wo (the reflection of wo about h)."""
+    el = math.radians(elevation_deg)
+    if setup == "mirror":
+        return [(MIRROR_LIGHT_X, math.sin(el), -math.cos(el))]
+    if setup != "ring":
+        raise ValueError(f"lights {setup!r}: expected one of {', '.join(LIGHT_SETUPS)}")
+    wo = np.array([0.0, -math.cos(el), math.sin(el)])          # plane frame: x = X, y = -Z, z = Y
+    dirs = []
+    for r, az in HALF_VECTORS:
+        hx, hy = r * math.cos(math.radians(az)), r * math.sin(math.radians(az))
+        h = np.array([hx, hy, math.sqrt(1.0 - r * r)])
+        wi = 2.0 * wo.dot(h) * h - wo
+        dirs.append((float(wi[0]), float(wi[2]), float(-wi[1])))   # back to world (X, Y, Z)
+    return dirs
+
+
+def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "ring") -> list:
     from precompute.surfaces import SURFACES
     from warpbw.io.exr import write_exr
 
     out.mkdir(parents=True, exist_ok=True)
     el = math.radians(ELEVATION_DEG)
+    dirs = light_directions(lights)
+    light_text = "\n".join(LIGHT.format(x=d[0], y=d[1], z=d[2], e=LIGHT_RADIANCE / len(dirs)) for d in dirs)
     paths = []
     for name, (surface, tiling, mat) in SCENES.items():
         h = SURFACES[surface](size)
         write_exr(out / f"{name}.exr", h.astype(np.float32)[..., None], channels=["Y"])
         text = SCENE.format(surface=surface, size=size, tiling=tiling, cy=DISTANCE * math.sin(el),
                             cz=DISTANCE * math.cos(el), fov=FOV_DEG, w=resolution[0], h=resolution[1],
-                            ly=math.sin(el), lz=-math.cos(el), name=name, **mat)
+                            lights=light_text, name=name, **mat)
         p = out / f"{name}.toml"
         p.write_text(text)
         paths.append(p)
@@ -97,10 +140,13 @@ def main(argv=None) -> int:
     ap.add_argument("--run", action="store_true", help="run warpbw bench-filtering on each scene")
     ap.add_argument("--zoom", default="1,2,4,8,16,32", help="zoom factors for --run")
     ap.add_argument("--gt-spp", default="1024", help="ground-truth rays per pixel for --run")
+    ap.add_argument("--lights", choices=LIGHT_SETUPS, default="ring",
+                    help="ring: 8 lights spreading the half-vector over normal space (default); mirror: the one "
+                         "light mirroring the view (module docstring)")
     ap.add_argument("--force", action="store_true", help="overwrite existing results")
     args = ap.parse_args(argv)
     out = Path(args.out)
-    paths = write_scenes(out, args.size)
+    paths = write_scenes(out, args.size, lights=args.lights)
     if args.run:
         for p in paths:
             cmd = [sys.executable, "-m", "warpbw.cli", "bench-filtering", str(p), "--zoom", args.zoom,

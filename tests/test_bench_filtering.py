@@ -156,3 +156,40 @@ def test_sphere_scene_without_environment_is_a_clear_error(tmp_path, capsys):
     assert main(["render", str(p), "-o", str(tmp_path / "o.exr")]) == 2
     assert "[environment]" in capsys.readouterr().err
     assert not (tmp_path / "o.exr").exists()
+
+
+# ------------------------------------------------------------------------------------------ benchmark scenes
+
+def _filtering_scenes():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "filtering_scenes.py"
+    spec = importlib.util.spec_from_file_location("filtering_scenes", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_benchmark_light_ring_spreads_the_half_vector(tmp_path):
+    # each ring light must reflect the zoom-1 central view about its declared half-vector, from above the plane;
+    # truth: h = normalize(wi + wo) computed here, in world space, then read in the plane's frame (x = X, y = -Z)
+    fs = _filtering_scenes()
+    from warpbw.scene import parse_scene
+
+    paths = fs.write_scenes(tmp_path, 8, resolution=(8, 6), lights="ring")
+    sc = parse_scene(paths[0].read_text(), tmp_path, str(paths[0]))
+    cam = np.array(sc.camera.position, float)
+    wo = cam / np.linalg.norm(cam)                       # the central ray hits the plane's centre (look_at)
+    assert len(sc.lights) == len(fs.HALF_VECTORS)
+    np.testing.assert_allclose(sum(np.array(li.radiance) for li in sc.lights), fs.LIGHT_RADIANCE, rtol=1e-5)
+    for li, (r, az) in zip(sc.lights, fs.HALF_VECTORS):
+        wi = np.array(li.direction, float)
+        assert wi[1] > 0.25                              # above the horizon, not grazing
+        h = (wi + wo) / np.linalg.norm(wi + wo)
+        want = (r * math.cos(math.radians(az)), r * math.sin(math.radians(az)))
+        np.testing.assert_allclose((h[0], -h[2]), want, atol=2e-5)
+    (mirror,) = parse_scene(fs.write_scenes(tmp_path / "m", 8, lights="mirror")[0].read_text(), tmp_path).lights
+    np.testing.assert_allclose(np.array(mirror.direction) / np.linalg.norm(mirror.direction),
+                               np.array([fs.MIRROR_LIGHT_X, wo[1], -wo[2]]) / np.linalg.norm(
+                                   [fs.MIRROR_LIGHT_X, wo[1], -wo[2]]), atol=1e-5)

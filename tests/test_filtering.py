@@ -215,6 +215,41 @@ def test_fetch_wraps_around_and_empty_components_are_zero():
     assert np.all(got[1] == 0) and np.all(np.isfinite(got))
 
 
+def test_trilinear_fetch_of_a_tiled_mipmap_is_the_brute_force_filter():
+    # a 4x4 map of random mixtures, its 2x2 and 1x1 levels box averages; at random (s, t, level) the renderer's
+    # fetch must equal the moment-matched mixture under the filter written out here independently: texel j of
+    # level l centred at (j + 1/2) 2^l finest texels, a tent of half-width 2^l per axis (bilinear), the map
+    # tiling (distances taken modulo the level's width), and a linear blend of levels floor(lam) and +1.
+    rng = np.random.default_rng(5)
+    K, n = 3, 4
+    q0 = np.stack([np.stack([_moments(*_random_gmm(rng, K)) for _ in range(n)]) for _ in range(n)])
+    levels = [q0, q0.reshape(2, 2, 2, 2, K, 4).mean(axis=(1, 3)), q0.mean(axis=(0, 1))[None, None]]
+    pts = np.column_stack([rng.uniform(-3.0, 9.0, 40), rng.uniform(-3.0, 9.0, 40), rng.uniform(0.0, 1.999, 40)])
+    got = fetch_gmm([q.astype(np.float32) for q in levels], pts[:, 0], pts[:, 1], pts[:, 2])
+
+    def tent(x, size, period):
+        # the tent around every periodic image of each texel centre (a 1x1 level is its own neighbour)
+        c = (np.arange(period) + 0.5) * size
+        images = np.arange(-8, 9)[:, None] * period * size
+        return np.maximum(1.0 - np.abs(x - c[None, :] - images) / size, 0.0).sum(axis=0)
+
+    for (s, t, lam), g in zip(pts, got):
+        l0 = int(np.floor(lam))
+        acc = np.zeros((K, 4))
+        for l, wl in ((l0, 1.0 - (lam - l0)), (l0 + 1, lam - l0)):
+            q = levels[l]
+            w = tent(t, 2.0 ** l, q.shape[0])[:, None] * tent(s, 2.0 ** l, q.shape[1])[None, :]
+            acc += wl * np.einsum("rc,rckm->km", w, q)
+        for k in range(K):
+            if acc[k, 0] < 1e-6:
+                assert g[k, 0] < 1e-6
+                continue
+            mu = acc[k, 1:3] / acc[k, 0]
+            assert g[k, 0] == pytest.approx(acc[k, 0], rel=1e-5, abs=1e-7)
+            assert np.allclose(g[k, 1:3], mu, atol=2e-5)
+            assert g[k, 3] == pytest.approx(max(acc[k, 3] / acc[k, 0] - mu @ mu, 1e-6), rel=2e-3, abs=2e-6)
+
+
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2 ** 31 - 1), m=st.floats(0.05, 0.3))
 def test_mixture_ndf_is_projected_area_normalised(seed, m):

@@ -171,6 +171,32 @@ def test_prior_aligns_neighbouring_components(scales_mips):
     assert m["aligned"] < m["no_prior"], m           # the prior itself, beyond the parent initialisation
 
 
+def parent_mismatch(mip, lvl, perm=None):
+    """Per texel of level lvl: sum_i a_i a'_i / (a_i + a'_i) |mu_i - mu'_i|^2 against its parent (a', mu') --
+    the spread that moment-matching component i of the two adds (law of total variance, 50/50 blend),
+    i.e. what trilinear filtering between the levels loses to misaligned components."""
+    a, mu, _ = from_moments(mip.levels[lvl].astype(np.float64))
+    ap, mup, _ = from_moments(mip.levels[lvl + 1].astype(np.float64))
+    h, w = a.shape[:2]
+    ii, jj = np.meshgrid(np.arange(h) // 2, np.arange(w) // 2, indexing="ij")
+    ap, mup = ap[ii, jj], mup[ii, jj]
+    if perm is not None:
+        a, mu = a[..., list(perm)], mu[..., list(perm), :]
+    hm = a * ap / np.maximum(a + ap, 1e-12)
+    return np.sum(hm * np.sum((mu - mup) ** 2, -1), -1)
+
+
+def test_components_correspond_across_levels(scales_mips):
+    # trilinear filtering blends component i of level l with component i of level l + 1, so the labels must
+    # agree between a texel and its parent.  Truth: the best of all K! relabellings of each child, by brute force.
+    for lvl in range(1, 4):
+        got = {k: parent_mismatch(v, lvl).mean() for k, v in scales_mips.items()}
+        best = np.min([parent_mismatch(scales_mips["aligned"], lvl, p)
+                       for p in itertools.permutations(range(K))], axis=0).mean()
+        assert got["aligned"] < 0.5 * got["unaligned"], (lvl, got)
+        assert got["aligned"] <= 1.5 * best + 1e-4, (lvl, got["aligned"], best)
+
+
 def test_dunes_aligned_vs_unaligned():
     h = dunes(32)
     al = misalignment(build_gmm_mipmap(h, progress=False), range(1, 4))
