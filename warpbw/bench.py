@@ -13,7 +13,8 @@ Protocol:
   ``GT_CHUNK_SPP`` each, every chunk cached as EXR keyed by the scene's content hash (so raising
   ``gt_spp`` renders only the missing chunks).  Accepted when the PSNR of a render at the largest
   reference spp against half the ground truth and against all of it differ by < 0.5 dB (recorded).
-* Error: PSNR and relative MSE of linear radiance over covered pixels (:mod:`warpbw.metrics`).
+* Error: PSNR and relative MSE of linear radiance over covered pixels (:mod:`warpbw.metrics`), averaged
+  over the ``runs`` frames (MSE and relative MSE as means, PSNR of the mean MSE).
 * Time: wall time of a whole frame (G-buffer included; for adaptive also the bandwidth pass) after a
   warm-up frame, median of ``runs`` runs; stage times from the frames' stats.
 * Equal-quality speed-up of an adaptive point: the reference's time at the sample count that reaches
@@ -103,19 +104,24 @@ def equal_quality_time(ref: list, mse: float) -> tuple[float, float, bool]:
     return math.exp(l_spp), math.exp(l_t), ext or ext_t
 
 
-def _timed(render, runs: int):
-    times, res = [], None
+def _timed(render, runs: int, gt: GroundTruth):
+    """Render ``runs`` frames (run r seeded by the caller); the last frame, the median time, and the
+    errors averaged over the frames: MSE and relative MSE are means over the runs' independent noise,
+    PSNR is that of the mean MSE (one frame's error is one draw: at a few samples per pixel a single
+    firefly moves it by dB)."""
+    from warpbw.metrics import mse, relmse
+
+    times, res, mses, rels = [], None, [], []
     for r in range(runs):
         t0 = time.perf_counter()
         res = render(r)
         times.append(time.perf_counter() - t0)
-    return res, statistics.median(times)
-
-
-def _errors(img, gt: GroundTruth, cov) -> dict:
-    from warpbw.metrics import mse, psnr, relmse
-
-    return {"psnr_db": psnr(img, gt.image, cov), "relmse": relmse(img, gt.image, cov), "mse": mse(img, gt.image, cov)}
+        mses.append(mse(res.image, gt.image, res.coverage))
+        rels.append(relmse(res.image, gt.image, res.coverage))
+    m = statistics.fmean(mses)
+    peak = float(np.max(gt.image[res.coverage])) if res.coverage.any() else 0.0
+    psnr = math.inf if m == 0.0 else (-math.inf if peak <= 0.0 else 10.0 * math.log10(peak * peak / m))
+    return res, statistics.median(times), {"psnr_db": psnr, "relmse": statistics.fmean(rels), "mse": m}
 
 
 def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), gt_spp: int = DEFAULT_GT_SPP,
@@ -145,10 +151,10 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     cov = None
     last = None
     for spp in spp_list:
-        res, t = _timed(lambda r: render_reference(prep, spp=spp, seed=seed + 101 * spp + r, mis=mis), runs)
+        res, t, err = _timed(lambda r: render_reference(prep, spp=spp, seed=seed + 101 * spp + r, mis=mis), runs, gt)
         cov = res.coverage
         last = res.image
-        rec = {"spp": int(spp), "time_s": t, **_errors(res.image, gt, cov),
+        rec = {"spp": int(spp), "time_s": t, **err,
                "shading_time_s": res.stats["time_s"]["shading"], "gbuffer_time_s": res.stats["time_s"]["gbuffer"]}
         ref_recs.append(rec)
         log(f"reference {spp:6d} spp   {t:8.3f} s   PSNR {rec['psnr_db']:6.2f} dB   relMSE {rec['relmse']:.3e}")
@@ -160,10 +166,10 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     log(f"ground-truth check: {d_db:.3f} dB ({'converged' if converged else 'NOT converged: raise --gt-spp'})")
     ada_recs = []
     for b in budgets:
-        res, t = _timed(lambda r: render_adaptive(prep, budget=b, seed=seed + 7 * r, mis=mis, **opts), runs)
+        res, t, err = _timed(lambda r: render_adaptive(prep, budget=b, seed=seed + 7 * r, mis=mis, **opts), runs, gt)
         ts = res.stats["time_s"]
-        spp_eq, t_eq, ext = equal_quality_time(ref_recs, _errors(res.image, gt, cov)["mse"])
-        rec = {"budget": float(b), "time_s": t, **_errors(res.image, gt, cov),
+        spp_eq, t_eq, ext = equal_quality_time(ref_recs, err["mse"])
+        rec = {"budget": float(b), "time_s": t, **err,
                "bandwidth_time_s": ts["bandwidth"], "shading_time_s": ts["shading"],
                "upsampling_time_s": ts["upsampling"], "hierarchy_time_s": ts["hierarchy"],
                "gbuffer_time_s": ts["gbuffer"], "frame_time_s": ts["frame"],
@@ -180,9 +186,9 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     nb_recs = []
     nbb = NB_SWEEP_BUDGET if nb_budget is None else nb_budget
     for n_b in nb_list:
-        res, t = _timed(lambda r: render_adaptive(prep, budget=nbb, seed=seed + 7 * r, mis=mis, n_b=int(n_b),
-                                                  **opts), runs)
-        rec = {"n_b": int(n_b), "budget": float(nbb), "time_s": t, **_errors(res.image, gt, cov),
+        res, t, err = _timed(lambda r: render_adaptive(prep, budget=nbb, seed=seed + 7 * r, mis=mis, n_b=int(n_b),
+                                                       **opts), runs, gt)
+        rec = {"n_b": int(n_b), "budget": float(nbb), "time_s": t, **err,
                "bandwidth_time_s": res.stats["time_s"]["bandwidth"], "shaded_fraction": res.stats["shaded_fraction"]}
         nb_recs.append(rec)
         log(f"n_b {n_b:5d} (budget {nbb:g})   {t:8.3f} s   PSNR {rec['psnr_db']:6.2f} dB   "
