@@ -111,9 +111,9 @@ def _material_spec(m, progress: bool, notes: dict, sources: dict) -> brdf_mod.Ma
 
 def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> PreparedScene:
     """Load the scene's assets (environment, meshes, materials) onto ``device``."""
-    if scene.environment is None or getattr(scene, "has_planes", False):
-        raise WarpbwError(f"{scene.source}: this renderer (spheres and meshes under an [environment], 002) needs an "
-                          "[environment] and no planes; scenes with planes and [[light]]s render with "
+    if scene.environment is None or scene.has_planes:
+        raise WarpbwError(f"{scene.source}: this renderer (spheres and meshes under an [environment], 002) "
+                          "needs an [environment] and no planes; scenes with planes and [[light]]s render with "
                           "warpbw.filtering.render_filtering (warpbw render --filter)")
     timings: dict = {}
     notes: dict = {}
@@ -299,7 +299,8 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     """Render a frame with bandwidth prediction and hierarchical adaptive shading (002 Sec. 2-3).
 
     ``budget`` is the mean number of samples per covered pixel (the total is budget x covered pixels),
-    spread over the pixels the hierarchy shades in proportion to the variance bound.  ``aovs`` holds
+    spread over the pixels the hierarchy shades by ``allocation`` (default: in proportion to the standard
+    deviation the bandwidth pass measures, :func:`warpbw.bandwidth.allocate_samples`).  ``aovs`` holds
     the level map, N_p, the predicted variance, the shaded mask, b_p and sigma2.  ``stride`` and
     ``pool_radius`` set how the bandwidth pass shares its directions (:func:`warpbw.bandwidth.bandwidth_pass`)."""
     from warpbw import adaptive, bandwidth
