@@ -293,7 +293,12 @@ def test_render_adaptive_writes_aovs_and_caches_tables(work, npf_scene):
     run(["render", npf_scene, "-o", out, "--method", "adaptive", "--budget", "4", "--mis", "-q"], work)
     rgb, alpha = rgba(out)
     covered = alpha > 0
-    assert np.isfinite(rgb).all() and rgb[covered].min() > 0.0
+    assert np.isfinite(rgb).all()
+    shaded_mask = read_exr(out.with_suffix(".shaded.exr")).pixels[..., 0] > 0
+    # no hole in the hierarchy: every up-sampled pixel has a value; a shaded pixel given N_p = 1 (low
+    # measured variance) may draw a zero estimate (both MIS samples miss), but rarely
+    assert rgb[covered & ~shaded_mask].max(-1).min() > 0.0
+    assert (rgb[covered].max(-1) > 0).mean() > 0.98
     for name in ("level", "n_p", "variance", "shaded", "b_p"):
         aov = read_exr(out.with_suffix(f".{name}.exr")).pixels[..., 0]
         assert aov.shape == (32, 32) and np.isfinite(aov).all()
