@@ -186,19 +186,27 @@ def texel_index(lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32), loff
 
 
 @wp.func
-def fetch4(q: wp.array(dtype=wp.vec4), lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32),
-           loff: wp.array(dtype=wp.int32), l: int, s: float, t: float, K: int, k: int):
-    """Bilinear fetch of component k of a K-component vec4 texture at level l (wrap-around: the map tiles);
-    level-l texel j covers finest texels [j 2^l, (j + 1) 2^l), its centre at (j + 1/2) 2^l."""
+def bilinear_base(l: int, s: float, t: float):
+    """(column, row) of the lower-left of the 2 x 2 level-l texels around finest coordinates (s, t), and the
+    fractions (fx, fy) towards the next ones: level-l texel j covers finest texels [j 2^l, (j + 1) 2^l),
+    its centre at (j + 1/2) 2^l."""
     f = wp.pow(2.0, float(l))
     x = s / f - 0.5
     y = t / f - 0.5
     x0 = wp.floor(x)
     y0 = wp.floor(y)
-    fx = x - x0
-    fy = y - y0
-    c = int(x0)
-    r = int(y0)
+    return wp.vec4(x0, y0, x - x0, y - y0)
+
+
+@wp.func
+def fetch4(q: wp.array(dtype=wp.vec4), lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32),
+           loff: wp.array(dtype=wp.int32), l: int, s: float, t: float, K: int, k: int):
+    """Bilinear fetch of component k of a K-component vec4 texture at level l (wrap-around: the map tiles)."""
+    b = bilinear_base(l, s, t)
+    c = int(b[0])
+    r = int(b[1])
+    fx = b[2]
+    fy = b[3]
     return ((1.0 - fx) * (1.0 - fy) * q[texel_index(lw, lh, loff, l, c, r) * K + k]
             + fx * (1.0 - fy) * q[texel_index(lw, lh, loff, l, c + 1, r) * K + k]
             + (1.0 - fx) * fy * q[texel_index(lw, lh, loff, l, c, r + 1) * K + k]
@@ -209,15 +217,11 @@ def fetch4(q: wp.array(dtype=wp.vec4), lw: wp.array(dtype=wp.int32), lh: wp.arra
 def fetch3(q: wp.array(dtype=wp.vec3), lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32),
            loff: wp.array(dtype=wp.int32), l: int, s: float, t: float):
     """``fetch4`` for a one-component vec3 texture."""
-    f = wp.pow(2.0, float(l))
-    x = s / f - 0.5
-    y = t / f - 0.5
-    x0 = wp.floor(x)
-    y0 = wp.floor(y)
-    fx = x - x0
-    fy = y - y0
-    c = int(x0)
-    r = int(y0)
+    b = bilinear_base(l, s, t)
+    c = int(b[0])
+    r = int(b[1])
+    fx = b[2]
+    fy = b[3]
     return ((1.0 - fx) * (1.0 - fy) * q[texel_index(lw, lh, loff, l, c, r)]
             + fx * (1.0 - fy) * q[texel_index(lw, lh, loff, l, c + 1, r)]
             + (1.0 - fx) * fy * q[texel_index(lw, lh, loff, l, c, r + 1)]
