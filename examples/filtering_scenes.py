@@ -82,6 +82,7 @@ normal_map = "{name}.exr"
 normal_map_kind = "height"
 normal_map_scale = 1.0
 tiling = {tiling}
+gmm_components = {components}
 """
 
 
@@ -111,7 +112,7 @@ def light_directions(setup: str = "ring", elevation_deg: float = ELEVATION_DEG) 
     return dirs
 
 
-def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "ring") -> list:
+def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "ring", components: int = 4) -> list:
     from precompute.surfaces import SURFACES
     from warpbw.io.exr import write_exr
 
@@ -125,7 +126,7 @@ def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "rin
         write_exr(out / f"{name}.exr", h.astype(np.float32)[..., None], channels=["Y"])
         text = SCENE.format(surface=surface, size=size, tiling=tiling, cy=DISTANCE * math.sin(el),
                             cz=DISTANCE * math.cos(el), fov=FOV_DEG, w=resolution[0], h=resolution[1],
-                            lights=light_text, name=name, **mat)
+                            lights=light_text, name=name, components=components, **mat)
         p = out / f"{name}.toml"
         p.write_text(text)
         paths.append(p)
@@ -143,10 +144,12 @@ def main(argv=None) -> int:
     ap.add_argument("--lights", choices=LIGHT_SETUPS, default="ring",
                     help="ring: 8 lights spreading the half-vector over normal space (default); mirror: the one "
                          "light mirroring the view (module docstring)")
+    ap.add_argument("--components", type=int, default=4,
+                    help="Gaussians per texel of both GMM mipmaps, aligned and unaligned (default 4, 004 Sec. 4.2)")
     ap.add_argument("--force", action="store_true", help="overwrite existing results")
     args = ap.parse_args(argv)
     out = Path(args.out)
-    paths = write_scenes(out, args.size, lights=args.lights)
+    paths = write_scenes(out, args.size, lights=args.lights, components=args.components)
     if args.run:
         for p in paths:
             cmd = [sys.executable, "-m", "warpbw.cli", "bench-filtering", str(p), "--zoom", args.zoom,

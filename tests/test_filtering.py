@@ -442,6 +442,14 @@ def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path):
     prep = prepare_filtering(parse_scene(text.replace("other.gmm", "good.gmm"), tmp_path, "s.toml"),
                              ("gmm_aligned",))
     assert prep.notes["m"]["gmm_aligned"]["origin"] == "file"
+    # a file with another number of components than the material's gmm_components (default 4)
+    write_gmm_mipmap(tmp_path / "k2.gmm", build_gmm_mipmap(h, scale=0.5, components=2, progress=False), "x", "y")
+    k2 = text.replace("other.gmm", "k2.gmm")
+    with pytest.raises(WarpbwError, match=r"\[material\.m\]\.gmm: .*--components 2.*gmm_components = 4"):
+        prepare_filtering(parse_scene(k2, tmp_path, "s.toml"), ("gmm_aligned",))
+    prep = prepare_filtering(parse_scene(k2 + "gmm_components = 2\n", tmp_path, "s.toml"),
+                             ("gmm_aligned", "gmm_unaligned"))
+    assert prep.notes["m"]["gmm_aligned"]["components"] == prep.notes["m"]["gmm_unaligned"]["components"] == 2
     # without a file: built once, then read from the cache
     p1 = prepare_filtering(s, ("gmm_aligned",))
     p2 = prepare_filtering(s, ("gmm_aligned",))

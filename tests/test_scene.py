@@ -551,5 +551,17 @@ def test_normal_map_value_errors_name_the_key(tmp_path):
     for extra, key in (('normal_map_kind = "bump"\n', "normal_map_kind"), ("tiling = -2\n", "tiling"),
                        ("tiling = 1e9\n", "tiling"), ("normal_map_scale = 0\n", "normal_map_scale"),
                        ('normal_map_kind = "normal"\nnormal_map_scale = 2.0\n', "normal_map_scale"),
-                       ('gmm = "nope.gmm"\n', "gmm")):
+                       ('gmm = "nope.gmm"\n', "gmm"), ("gmm_components = 0\n", "gmm_components"),
+                       ("gmm_components = 17\n", "gmm_components"), ("gmm_components = 2.5\n", "gmm_components")):
         expect_error(_plane_scene(tmp_path, material=base + extra), f"[material.armour].{key}")
+
+
+def test_gmm_components_default_and_bound_match_the_builder(tmp_path):
+    from precompute.gmm_mipmap import DEFAULT_COMPONENTS, MAX_COMPONENTS
+
+    from warpbw.scene import GMM_DEFAULT_COMPONENTS, GMM_MAX_COMPONENTS
+
+    assert (GMM_DEFAULT_COMPONENTS, GMM_MAX_COMPONENTS) == (DEFAULT_COMPONENTS, MAX_COMPONENTS)
+    (tmp_path / "n.png").write_bytes(b"x")
+    s = load_scene(_plane_scene(tmp_path, material=ARMOUR + 'normal_map = "n.png"\ngmm_components = 8\n'))
+    assert s.materials["armour"].gmm_components == 8

@@ -605,10 +605,10 @@ def _load_normals(scene: Scene, name: str):
 
 def _load_gmm(scene: Scene, name: str, data, kind, scale, src_name, digest, unaligned: bool, cache, progress):
     from precompute.brdf_sampling import load_or_build
-    from precompute.gmm_mipmap import DEFAULT_COMPONENTS, DEFAULT_PRIOR, GMM_VERSION
+    from precompute.gmm_mipmap import DEFAULT_PRIOR, GMM_VERSION
 
     m = scene.materials[name]
-    src = _GmmSource(np.asarray(data), kind, float(scale), unaligned, src_name, digest, DEFAULT_COMPONENTS,
+    src = _GmmSource(np.asarray(data), kind, float(scale), unaligned, src_name, digest, int(m.gmm_components),
                      DEFAULT_PRIOR)
     explicit = None if unaligned else m.gmm
     try:
@@ -637,6 +637,10 @@ def _read_gmm_checked(scene: Scene, name: str):
                               f"warpbw-precompute gmm MAP -o {path} --kind {src.kind} --scale {src.scale:g} --force)")
         if mip.unaligned != src.unaligned:
             raise WarpbwError(f"{path}: a GMM mipmap of another map")
+        if mip.components != src.components:
+            raise WarpbwError(f"{path}: built with --components {mip.components}, but the material has "
+                              f"gmm_components = {src.components} (the unaligned baseline is built with as many; "
+                              f"set gmm_components = {mip.components} or rebuild the file)")
         return mip
     return read
 

@@ -43,6 +43,10 @@ NORMAL_MAP_KINDS = ("height", "normal")
 CT_MIN_ROUGHNESS = 1.0e-3
 # Largest tiling: more repeats than this across one plane is almost certainly a typo.
 MAX_TILING = 4096
+# Gaussians per texel of a GMM mipmap: 004 Sec. 4.2 uses four; the bound is precompute.gmm_mipmap's
+# MAX_COMPONENTS (spelled here so that parsing a scene needs no precompute import)
+GMM_DEFAULT_COMPONENTS = 4
+GMM_MAX_COMPONENTS = 16
 PROCEDURAL_ENVIRONMENTS = ("sky",)
 LOOKUP_MODES = ("nearest", "linear")
 MAX_RESOLUTION = 16384  # per side; larger is almost certainly a typo (and would not fit in memory)
@@ -172,6 +176,7 @@ class Material:
     normal_map_scale: float = 1.0     # heights (in units of the map's width) times this
     tiling: float = 1.0               # repeats of the map across the surface
     gmm: Path | None = None           # precomputed GMM mipmap (built and cached if absent)
+    gmm_components: int = GMM_DEFAULT_COMPONENTS   # Gaussians per texel of the built (or given) GMM mipmaps
 
 
 @dataclass
@@ -232,7 +237,8 @@ class Scene:
 
 # Material fields only cook-torrance materials use: left out of other materials' hashes, so that the hashes
 # (and the ground truths cached under them) of scenes written before these fields existed stay the same.
-_CT_FIELDS = ("roughness", "f0", "diffuse", "normal_map", "normal_map_kind", "normal_map_scale", "tiling", "gmm")
+_CT_FIELDS = ("roughness", "f0", "diffuse", "normal_map", "normal_map_kind", "normal_map_scale", "tiling", "gmm",
+              "gmm_components")
 
 
 def _material_fields(m: Material) -> dict:
@@ -425,7 +431,7 @@ _MATERIAL_KEYS = {
     "merl": (("type", "file", "lookup", "sampling", "bandwidth"), ("file",)),
     "npf": (("type", "table", "name", "lookup", "sampling", "bandwidth"), ("table", "name")),
     "cook-torrance": (("type", "roughness", "f0", "diffuse", "normal_map", "normal_map_kind", "normal_map_scale",
-                       "tiling", "gmm"), ("roughness", "f0")),
+                       "tiling", "gmm", "gmm_components"), ("roughness", "f0")),
 }
 
 
@@ -437,7 +443,7 @@ def _cook_torrance(ctx: _Ctx, name: str, key: str, d: dict) -> Material:
     diffuse = ctx.vec3(d.get("diffuse", 0.0), f"{key}.diffuse", lo=0.0)
     if max(diffuse) > 1.0:
         ctx.fail(f"{key}.diffuse", f"expected components in [0, 1] (energy conservation), got {diffuse}")
-    for k in ("normal_map_kind", "normal_map_scale", "tiling", "gmm"):
+    for k in ("normal_map_kind", "normal_map_scale", "tiling", "gmm", "gmm_components"):
         if k in d and "normal_map" not in d:
             ctx.fail(f"{key}.{k}", "applies only with a normal_map")
     nmap = ctx.path(d["normal_map"], f"{key}.normal_map") if "normal_map" in d else None
@@ -447,8 +453,11 @@ def _cook_torrance(ctx: _Ctx, name: str, key: str, d: dict) -> Material:
         ctx.fail(f"{key}.normal_map_scale", "applies only to normal_map_kind = \"height\"")
     tiling = ctx.number(d.get("tiling", 1.0), f"{key}.tiling", lo=0.0, lo_open=True, hi=MAX_TILING)
     gmm = ctx.path(d["gmm"], f"{key}.gmm") if "gmm" in d else None
+    k_gmm = d.get("gmm_components", GMM_DEFAULT_COMPONENTS)
+    if isinstance(k_gmm, bool) or not isinstance(k_gmm, int) or not 1 <= k_gmm <= GMM_MAX_COMPONENTS:
+        ctx.fail(f"{key}.gmm_components", f"expected an integer from 1 to {GMM_MAX_COMPONENTS}, got {k_gmm!r}")
     return Material(name, "cook-torrance", roughness=rough, f0=f0, diffuse=diffuse, normal_map=nmap,
-                    normal_map_kind=kind, normal_map_scale=scale, tiling=tiling, gmm=gmm)
+                    normal_map_kind=kind, normal_map_scale=scale, tiling=tiling, gmm=gmm, gmm_components=k_gmm)
 
 
 def _material(ctx: _Ctx, name: str, d: dict) -> Material:
