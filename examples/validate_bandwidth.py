@@ -16,7 +16,9 @@ For each validation scene (a sphere with the NPF fit of color-changing-paint3 un
    whose Hann-weighted coverage is at least ``MIN_WINDOW_COVER`` and whose residual noise is at most
    ``MAX_NOISE_FRACTION`` of their AC energy count; uncovered pixels inside them
    take the covered pixels' mean, so the silhouette does not read as a step.  Reported: Spearman rank
-   correlation over those pixels, against b_p itself and against b_p averaged over the same window.
+   correlation over those pixels, against b_p itself and against b_p averaged over the same window;
+   and, as a yardstick, the same for the converged image's own relative gradient |grad L| / L (an oracle
+   that knows the true image: how far any per-pixel statistic can get against this reference).
 3. Variance: the predicted sigma2 (Eq. 9, V(L_p) <= sigma2 / N_p for UNIFORM hemisphere sampling,
    002 Sec. 2.4) against the brute-force per-pixel variance of the one-sample uniform estimator
    X = 2 pi lum(L_i rho) cos theta_i, from ``--uniform-samples`` stratified directions per pixel (a Warp
@@ -75,6 +77,7 @@ MAX_NOISE_FRACTION = 0.05     # windows whose AC energy is more than 5% residual
 MIN_WINDOW_COVER = 0.9        # Hann-weighted share of covered pixels a window needs to count
 MIN_INTERP_WEIGHT = 0.5       # a pixel needs this much bilinear weight on valid window centres
 SEED = 1
+GRADIENT_EPS = 1e-3           # added to L in |grad L| / L (the oracle statistic): black pixels do not divide by 0
 N_B_DIAGNOSTIC = 1024         # a second bandwidth pass with many directions: separates the bound from its n_b estimate
 # issue 3's acceptance targets
 TARGET_SPEARMAN = 0.5
@@ -371,6 +374,14 @@ def luminance(rgb: np.ndarray) -> np.ndarray:
     return np.asarray(rgb, np.float64) @ np.asarray(LUMINANCE)
 
 
+def relative_gradient(lum: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """|grad L| / L of the converged image (central differences, 0 where no geometry): a per-pixel
+    statistic of the true image, the yardstick for what any per-pixel predictor can reach against the
+    windowed FFT reference."""
+    gy, gx = np.gradient(np.where(cov, lum, 0.0))
+    return np.where(cov, np.hypot(gx, gy) / (np.abs(lum) + GRADIENT_EPS), 0.0)
+
+
 def compare_variance(pred: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> dict:
     """Rank correlation, conservative fraction (pred >= ref) and median pred/ref over ``mask``."""
     p, r = pred[mask].astype(np.float64), ref[mask].astype(np.float64)
@@ -510,6 +521,8 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
                             noise_var=noise_var, max_noise=cfg["max_noise"])
     bw_ref, bw_valid = wb["map"], wb["valid"]
     b_p_win = windowed_mean(b_p, cov, cfg["window"], cfg["stride"], wb["grid_valid"])
+    grad = relative_gradient(luminance(image), cov)
+    grad_win = windowed_mean(grad, cov, cfg["window"], cfg["stride"], wb["grid_valid"])
     times["windowed_fft"] = time.perf_counter() - t0
 
     vmask = cov & np.isfinite(sigma2) & np.isfinite(var_u)
@@ -527,6 +540,9 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
         "covered_pixels": int(cov.sum()),
         "bandwidth_spearman": spearman(bp, br),
         "bandwidth_spearman_windowed": spearman(b_p_win[bw_valid], br),
+        # the same two correlations for a statistic of the converged image itself (relative_gradient)
+        "oracle_gradient_spearman": spearman(grad[bw_valid], br),
+        "oracle_gradient_spearman_windowed": spearman(grad_win[bw_valid], br),
         "bandwidth_pixels": int(bw_valid.sum()),
         "bandwidth_median_ratio": float(np.median(bp[pos] / br[pos])) if pos.any() else float("nan"),
         "bandwidth_predicted_median": float(np.median(bp)) if bp.size else float("nan"),

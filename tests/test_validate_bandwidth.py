@@ -77,6 +77,15 @@ def test_spearman_against_closed_forms(vb):
 
 
 @pytest.mark.slow
+def test_relative_gradient_of_an_exponential_ramp(vb):
+    """L = exp(a x): central differences give |grad L| / L = sinh(a) exactly inside the image."""
+    a = 0.3
+    lum = np.exp(a * np.arange(12.0))[None, :].repeat(5, axis=0)
+    g = vb.relative_gradient(lum, np.ones_like(lum, bool))
+    np.testing.assert_allclose(g[:, 1:-1], math.sinh(a) * lum[:, 1:-1] / (lum[:, 1:-1] + vb.GRADIENT_EPS), rtol=1e-12)
+    assert np.all(vb.relative_gradient(lum, np.zeros_like(lum, bool)) == 0)
+
+
 def test_quick_run_writes_json_figure_and_refuses_to_overwrite(vb, shared, tmp_path, capsys):
     shared("envmaps/studio.exr")
     out = tmp_path / "vb"
@@ -86,7 +95,8 @@ def test_quick_run_writes_json_figure_and_refuses_to_overwrite(vb, shared, tmp_p
     for key in ("bandwidth_spearman", "bandwidth_spearman_windowed", "bandwidth_median_ratio",
                 "variance_spearman", "variance_conservative_fraction", "variance_median_ratio",
                 "bis_variance_spearman", "bis_conservative_fraction", "noise_fraction_median",
-                "diagnostic_variance_spearman", "diagnostic_variance_conservative_fraction"):
+                "diagnostic_variance_spearman", "diagnostic_variance_conservative_fraction",
+                "oracle_gradient_spearman", "oracle_gradient_spearman_windowed"):
         assert isinstance(s[key], float) and math.isfinite(s[key]), key
     for key in ("bandwidth_spearman", "variance_spearman", "bis_variance_spearman"):
         assert -1.0 <= s[key] <= 1.0
