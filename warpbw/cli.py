@@ -521,6 +521,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     from warpbw import bench as _bench
 
+    def bench_common(p):
+        """--runs, --seed, --device, --force and -q of both bench commands."""
+        p.add_argument("--runs", type=_positive_int("runs"), default=3, help="timed runs per point (median; default 3)")
+        p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+        p.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda / cuda:N")
+        p.add_argument("--force", action="store_true", help="overwrite existing output files")
+        p.add_argument("-q", "--quiet", action="store_true", help="only the final table")
+
     bn = sub.add_parser("bench", help="speed against accuracy: adaptive shading vs the reference",
                         description="The measurement protocol of DESIGN.md on SCENE: a cached ground truth (MIS, "
                         "--gt-spp), the reference at each --spp, adaptive shading at each --budget, each timed as the "
@@ -543,14 +551,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help=f"budget of the n_b sweep (default {_bench.NB_SWEEP_BUDGET})")
     bn.add_argument("--gt-spp", type=_positive_int("gt-spp"), default=_bench.DEFAULT_GT_SPP,
                     help=f"ground-truth samples per pixel (default {_bench.DEFAULT_GT_SPP}; cached in chunks)")
-    bn.add_argument("--runs", type=_positive_int("runs"), default=3, help="timed runs per point (median; default 3)")
     bn.add_argument("--no-mis", action="store_true",
                     help="compare with BRDF importance sampling only (default: MIS for both methods)")
     bn.add_argument("--cache", help="ground-truth cache directory (default $WARPBW_CACHE/ground_truth)")
-    bn.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    bn.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda / cuda:N")
-    bn.add_argument("--force", action="store_true", help="overwrite existing output files")
-    bn.add_argument("-q", "--quiet", action="store_true", help="only the final table")
+    bench_common(bn)
     bn.set_defaults(func=cmd_bench)
 
     from warpbw import bench_filtering as _bf
@@ -570,13 +574,9 @@ def build_parser() -> argparse.ArgumentParser:
     bf.add_argument("--plot", help="write the plot here (PNG): error and flicker against zoom")
     bf.add_argument("--gt-spp", type=_positive_int("gt-spp"), default=_bf.DEFAULT_GT_SPP,
                     help=f"ground-truth rays per pixel (>= 64; default {_bf.DEFAULT_GT_SPP})")
-    bf.add_argument("--runs", type=_positive_int("runs"), default=3, help="timed runs per point (median; default 3)")
     bf.add_argument("--cache", help="GMM mipmap cache directory to reuse (default: build afresh, so that the "
                     "precompute time is measured)")
-    bf.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    bf.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda / cuda:N")
-    bf.add_argument("--force", action="store_true", help="overwrite existing output files")
-    bf.add_argument("-q", "--quiet", action="store_true", help="only the final table")
+    bench_common(bf)
     bf.set_defaults(func=cmd_bench_filtering)
 
     c = sub.add_parser("compare", help="PSNR and relative MSE of an image against a reference",
