@@ -192,13 +192,11 @@ def frac3(u: wp.vec3):
 
 
 @wp.func
-def block_shift(shifts: wp.array(dtype=wp.vec3), i: int, width: int, stride: int, seed: int):
+def block_shift(shifts: wp.array(dtype=wp.vec3), side: int, i: int, width: int, stride: int, seed: int):
     """The direction-set offset of pixel i's block: shift j of the side x side tile of blocks it lies in
     (stratified within the tile, :func:`interleave_shifts`), plus one random offset per tile, so that
     different tiles look along different directions (one offset for the whole image would let a small
     bright light be missed, or hit, by every pixel at once)."""
-    n_shifts = shifts.shape[0]
-    side = int(wp.sqrt(float(n_shifts)) + 0.5)
     bx = (i % width) / stride
     by = (i / width) / stride
     tiles_x = (width + stride * side - 1) / (stride * side)
@@ -313,7 +311,7 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
     @wp.kernel(module="unique", enable_backward=False)
     def bandwidth_buffer_kernel(gb: GBufferData, cam: CameraData, mats: MaterialTable, env: EnvMapData,
                                 tables: BandwidthTables, dirs: wp.array(dtype=wp.vec3),
-                                shifts: wp.array(dtype=wp.vec3), stride: int, seed: int,
+                                shifts: wp.array(dtype=wp.vec3), side: int, stride: int, seed: int,
                                 pixels: wp.array(dtype=wp.int32), offset: int,
                                 lam_out: wp.array(dtype=wp.float32), nu_out: wp.array(dtype=wp.vec2),
                                 var_out: wp.array(dtype=wp.float32), w2_out: wp.array(dtype=wp.float32)):
@@ -325,7 +323,7 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
         wo = to_local(gb.view[i], t, b, n)
         dp = wp.length(gb.position[i] - cam.origin)  # d': surface to the eye
         c = gb.curvature[i]
-        shift = block_shift(shifts, i, gb.width, stride, seed)
+        shift = block_shift(shifts, side, i, gb.width, stride, seed)
         lam_sum = float(0.0)
         nu_sum = wp.vec2(0.0)
         var_sum = float(0.0)
@@ -556,7 +554,7 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     w2 = wp.zeros(W * H, dtype=wp.float32, device=device)
     kernel = make_bandwidth_kernel(materials.kinds, preconvolved)
     launch_tiled(kernel, traced.shape[0],
-                 lambda o, c: [gb.data, cam, materials.table, env_data, tables, dirs, shifts, stride, int(seed),
+                 lambda o, c: [gb.data, cam, materials.table, env_data, tables, dirs, shifts, side, stride, int(seed),
                                traced, o, lam, nu_sum, var, w2], device, threads)
     nu = wp.zeros(W * H, dtype=wp.vec2, device=device)
     b_p = wp.zeros(W * H, dtype=wp.float32, device=device)
