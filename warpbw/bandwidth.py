@@ -619,8 +619,7 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     if isinstance(budget, bool) or not isinstance(budget, (int, float, np.integer, np.floating)) \
             or not (budget > 0 and math.isfinite(budget)):
         raise WarpbwError(f"budget: expected a positive number of samples per pixel, got {budget!r}")
-    if isinstance(n_min, bool) or not isinstance(n_min, (int, np.integer)) or n_min < 1:
-        raise WarpbwError(f"n_min: expected an integer >= 1, got {n_min!r}")
+    _check_count(n_min, "n_min", 1)
     if n_max is None:
         n_max = max(int(n_min), int(math.ceil(N_P_MAX_PER_BUDGET * budget)))
     if isinstance(n_max, bool) or not isinstance(n_max, (int, np.integer)) or n_max < n_min:
