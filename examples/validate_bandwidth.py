@@ -1,6 +1,6 @@
 """Validation of the bandwidth pass's predictions (002 Sec. 2.2, 2.4 and Fig. 12).
 
-    python examples/validate_bandwidth.py --out DIR [--size 128] [--scenes NAME ...] [--quick] [--force]
+    python examples/validate_bandwidth.py --out DIR [--size 256] [--scenes NAME ...] [--quick] [--force]
 
 For each validation scene (a sphere with the NPF fit of color-changing-paint3 under forest.exr, as in
 002 Fig. 12; the bunny with gold-metallic-paint under studio.exr; a GGX gold sphere under studio.exr):
@@ -8,13 +8,16 @@ For each validation scene (a sphere with the NPF fit of color-changing-paint3 un
 1. Converged image: the forward reference (002 Eq. 2) with MIS at ``--ref-spp`` samples per pixel,
    rendered as two independently seeded halves.  Their difference estimates the image's residual
    noise, reported as the share of each FFT window's energy that is noise ("noise_fraction"): white
-   noise spreads over all frequencies and would push the reference bandwidth up, so it must stay small.
+   noise spreads over all frequencies and would push the reference bandwidth up, so its expected power
+   (flat over frequency, known from the per-pixel noise variance) is subtracted from every window's
+   spectrum, and windows where it is more than ``MAX_NOISE_FRACTION`` of the energy are left out.
 2. Image bandwidth: the predicted b_p (Eq. 6, cycles/pixel) against a reference from a 32x32 Hann-windowed
    FFT of the converged image's luminance, centred on every ``--stride``-th pixel and bilinearly
    interpolated to the others: the radial frequency below which 95% of the window's spectral energy
    lies, the mean (DC) removed (002 Sec. 2: "the 95th percentile of the power spectra").  Only windows
    whose Hann-weighted coverage is at least ``MIN_WINDOW_COVER`` and whose residual noise is at most
-   ``MAX_NOISE_FRACTION`` of their AC energy count; uncovered pixels inside them
+   ``MAX_NOISE_FRACTION`` of their AC energy count (the noise's expected power is subtracted first);
+   uncovered pixels inside them
    take the covered pixels' mean, so the silhouette does not read as a step.  Reported: Spearman rank
    correlation over those pixels, against b_p itself and against b_p averaged over the same window;
    and, as a yardstick, the same for the converged image's own relative gradient |grad L| / L (an oracle
@@ -55,16 +58,17 @@ from warpbw.bandwidth import LUMINANCE
 from warpbw.brdf import MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_radiance
 from warpbw.gbuffer import GBufferData
-from warpbw.shading import covered_pixels, launch_tiled, to_local, to_world
+from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_world
 
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent.parent / "shared" / "data"   # ../shared/data beside the repository
 
 # ----------------------------------------------------------------------------------------- settings
-DEFAULT_SIZE = 128            # image side in pixels (a few minutes for all scenes on 2 cores)
-# converged image: MIS samples per pixel (two halves of 2048).  Measured at 128x128: residual noise is
-# 0.1-0.8% of a window's AC energy (median; <= 3.5% at the 90th percentile), so noise does not set the
-# reference bandwidth ("noise_fraction_*" in the JSON reports it for every run)
+# image side in pixels: half 002's 512, so that a 32x32 window spans about a sixth of the sphere's
+# diameter rather than a third at 128 (about 5 minutes for all scenes on 2 cores)
+DEFAULT_SIZE = 256
+# converged image: MIS samples per pixel (two halves of 2048).  Residual noise ("noise_fraction_*" in the
+# JSON, every run) is subtracted from the spectra; at 256x256 it is a few % of a window's AC energy (median)
 REF_SPP = 4096
 UNIFORM_SAMPLES = 4096        # stratified uniform directions per pixel for the brute-force variance (64 x 64)
 BIS_SAMPLES = 4096            # BRDF-importance samples per pixel for the renderer's estimator's variance
@@ -73,7 +77,9 @@ FFT_STRIDE = 4                # window centres every 4 pixels, bilinear in betwe
 FFT_PAD = 2                   # zero-padding factor: finer frequency sampling (not resolution) of the spectrum
 ENERGY_FRACTION = 0.95        # 002 Sec. 2: bandwidth = the 95th percentile of the power spectrum
 FLAT_ENERGY = 1e-10           # a window whose AC energy is below this share of its energy is flat (rounding)
-MAX_NOISE_FRACTION = 0.05     # windows whose AC energy is more than 5% residual noise are left out (noise is white)
+# windows whose AC energy is more than half residual noise are left out: the noise's expected power is
+# subtracted from the spectrum, but where it dominates, the difference is mostly the noise's own scatter
+MAX_NOISE_FRACTION = 0.5
 MIN_WINDOW_COVER = 0.9        # Hann-weighted share of covered pixels a window needs to count
 MIN_INTERP_WEIGHT = 0.5       # a pixel needs this much bilinear weight on valid window centres
 SEED = 1
@@ -124,10 +130,8 @@ def _moments_kernel(kinds: frozenset, importance: bool):
                                  mean: wp.array(dtype=wp.float64), mean_sq: wp.array(dtype=wp.float64)):
         i = pixels[wp.tid() + offset]
         m = gb.material[i]
-        n = gb.normal[i]
-        t = gb.tangent[i]
-        b = wp.cross(n, t)
-        wo = to_local(gb.view[i], t, b, n)
+        fr = pixel_frame(gb, i)
+        wo = fr.wo
         state = wp.rand_init(seed, i)
         s1 = wp.float64(0.0)
         s2 = wp.float64(0.0)
@@ -141,13 +145,13 @@ def _moments_kernel(kinds: frozenset, importance: bool):
                     if wi[2] > 0.0:
                         p = f.pdf(mats, m, wi, wo)
                         if p > 0.0:
-                            c = wp.cw_mul(f.eval(mats, m, wi, wo), env_radiance(env, to_world(wi, t, b, n)))
+                            c = wp.cw_mul(f.eval(mats, m, wi, wo), env_radiance(env, to_world(fr, wi)))
                             x = wp.dot(_LUM, c) * (wi[2] / p)
                 else:
                     cell = wp.vec2((float(k % n_side) + wp.randf(state)) / float(n_side),
                                    (float(k // n_side) + wp.randf(state)) / float(n_side))
                     wi = uniform_hemisphere(cell)
-                    c = wp.cw_mul(f.eval(mats, m, wi, wo), env_radiance(env, to_world(wi, t, b, n)))
+                    c = wp.cw_mul(f.eval(mats, m, wi, wo), env_radiance(env, to_world(fr, wi)))
                     x = wp.dot(_LUM, c) * (wi[2] * _TWO_PI)
                 if not wp.isfinite(x):
                     x = 0.0
@@ -283,8 +287,9 @@ def windowed_bandwidth(image: np.ndarray, mask: np.ndarray | None = None, window
     Returns a dict: "map" (H, W) interpolated to every pixel (NaN where not valid), "valid" (H, W) bool,
     "grid" / "grid_valid" at the centres, "ys", "xs", "energy" (AC energy per window) and, with
     ``noise_var`` (per-pixel variance of ``image``), "noise_fraction" (the expected noise share of each
-    window's AC energy, by Parseval); windows above ``max_noise`` are then not valid (white noise would
-    read as a high bandwidth)."""
+    window's AC energy, by Parseval).  White noise would read as a high bandwidth, so with ``noise_var``
+    its expected power sum(w^2 var), the same in every frequency bin, is subtracted from the spectrum
+    before the energy fraction is taken, and windows above ``max_noise`` are not valid."""
     img = np.asarray(image, np.float64)
     H, W = img.shape
     cov = np.ones((H, W), bool) if mask is None else np.asarray(mask, bool)
@@ -302,6 +307,12 @@ def windowed_bandwidth(image: np.ndarray, mask: np.ndarray | None = None, window
     d = (filled - dc[..., None, None]) * w2
     n_fft = FFT_PAD * window
     power = np.abs(np.fft.fft2(d, s=(n_fft, n_fft))) ** 2
+    if noise_var is not None:
+        # white noise of per-pixel variance v adds E|DFT|^2 = sum(w^2 v) to every bin: subtract it, so the
+        # residual noise of the converged image does not read as high frequencies
+        _, _, nv = _window_stack(np.where(cov, noise_var, 0.0), window, stride)
+        noise_power = (w2 * w2 * nv * m).sum(axis=(-2, -1))
+        power = power - noise_power[..., None, None]
     power[..., 0, 0] = 0.0
     f = np.fft.fftfreq(n_fft)
     radius = np.sqrt(f[:, None] ** 2 + f[None, :] ** 2).reshape(-1)
@@ -323,9 +334,8 @@ def windowed_bandwidth(image: np.ndarray, mask: np.ndarray | None = None, window
     grid_valid = cover >= min_cover
     out = {"ys": ys, "xs": xs, "grid": grid, "cover": cover, "energy": ac}
     if noise_var is not None:
-        _, _, nv = _window_stack(np.where(cov, noise_var, 0.0), window, stride)
         with np.errstate(invalid="ignore", divide="ignore"):
-            out["noise_fraction"] = (w2 * w2 * nv * m).sum(axis=(-2, -1)) / ac     # Parseval
+            out["noise_fraction"] = noise_power / ac     # Parseval
         grid_valid = grid_valid & ~(out["noise_fraction"] > max_noise)   # NaN (0 / 0: flat, noiseless) stays
     out["grid_valid"] = grid_valid
     mp, wsum = _interp_to_pixels(grid, grid_valid, (H, W), stride)

@@ -105,7 +105,7 @@ from warpbw.envmap import EnvMapData, env_pdf, env_sample, env_uv
 from warpbw.errors import WarpbwError
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 from warpbw.pyramid import build_pyramid, image_level
-from warpbw.shading import covered_pixels, launch_tiled, to_local, to_world
+from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_local, to_world
 
 N_B_DEFAULT = 16              # directions per pixel; 002 Sec. 2.6 and Fig. 13 ("n_b = 16 is sufficient")
 NYQUIST_FACTOR = 2.0          # sampling rate = 2 x bandwidth (002 Sec. 2.2, Nyquist)
@@ -317,10 +317,8 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
                                 var_out: wp.array(dtype=wp.float32), w2_out: wp.array(dtype=wp.float32)):
         i = pixels[wp.tid() + offset]
         m = gb.material[i]
-        n = gb.normal[i]
-        t = gb.tangent[i]
-        b = wp.cross(n, t)
-        wo = to_local(gb.view[i], t, b, n)
+        fr = pixel_frame(gb, i)
+        wo = fr.wo
         dp = wp.length(gb.position[i] - cam.origin)  # d': surface to the eye
         c = gb.curvature[i]
         shift = block_shift(shifts, side, i, gb.width, stride, seed)
@@ -336,9 +334,9 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
                 if u[0] < 0.5:
                     wi = f.sample(mats, m, wo, wp.vec3(2.0 * u[0], u[1], u[2]))
                 else:
-                    wi = to_local(env_sample(env, wp.vec2(u[1], u[2])), t, b, n)
+                    wi = to_local(fr, env_sample(env, wp.vec2(u[1], u[2])))
                 if wi[2] > 0.0:
-                    wi_world = to_world(wi, t, b, n)
+                    wi_world = to_world(fr, wi)
                     pdf = MIS_HALF * (f.pdf(mats, m, wi, wo) + env_pdf(env, wi_world))
                     light = env_light(tables.light, env, wi_world)
                     rho = wp.dot(_LUM, f.eval(mats, m, wi, wo))

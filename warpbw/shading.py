@@ -3,6 +3,8 @@
 Public:
     ``make_reference_kernel(kinds, mis)``  the shading kernel for a set of material kinds
     ``ShadeResult`` / ``shade_reference(gb, materials, env, spp, seed, ...)``  run it over covered pixels
+    ``ShadingFrame`` / ``pixel_frame(gb, i)``  a pixel's (t, b, n) frame and local view direction (Warp)
+    ``to_local(frame, w)`` / ``to_world(frame, w)``  directions between world and the frame (Warp)
 
 Per pixel p with surface point x, normal n and view direction wo (ignoring visibility, as 002 Eq. 1):
 
@@ -36,14 +38,36 @@ from warpbw.gbuffer import GBuffer, GBufferData
 PIXELS_PER_TILE = 4096
 
 
-@wp.func
-def to_local(w: wp.vec3, t: wp.vec3, b: wp.vec3, n: wp.vec3):
-    return wp.vec3(wp.dot(w, t), wp.dot(w, b), wp.dot(w, n))
+@wp.struct
+class ShadingFrame:
+    """A covered pixel's orthonormal shading frame and the direction to the eye in it."""
+    t: wp.vec3    # tangent (G-buffer)
+    b: wp.vec3    # bitangent n x t
+    n: wp.vec3    # shading normal (G-buffer)
+    wo: wp.vec3   # direction to the eye, local: wo[2] = cos theta_o
 
 
 @wp.func
-def to_world(w: wp.vec3, t: wp.vec3, b: wp.vec3, n: wp.vec3):
-    return w[0] * t + w[1] * b + w[2] * n
+def to_local(fr: ShadingFrame, w: wp.vec3):
+    """World direction w in the frame's (t, b, n) coordinates."""
+    return wp.vec3(wp.dot(w, fr.t), wp.dot(w, fr.b), wp.dot(w, fr.n))
+
+
+@wp.func
+def to_world(fr: ShadingFrame, w: wp.vec3):
+    """Local direction w back to world coordinates."""
+    return w[0] * fr.t + w[1] * fr.b + w[2] * fr.n
+
+
+@wp.func
+def pixel_frame(gb: GBufferData, i: int):
+    """Pixel i's shading frame from the G-buffer, with its view direction in local coordinates."""
+    fr = ShadingFrame()
+    fr.n = gb.normal[i]
+    fr.t = gb.tangent[i]
+    fr.b = wp.cross(fr.n, fr.t)
+    fr.wo = to_local(fr, gb.view[i])
+    return fr
 
 
 @wp.func
@@ -74,10 +98,8 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool):
         if wp.static(per_pixel_spp):
             spp = spp_map[i]
         m = gb.material[i]
-        n = gb.normal[i]
-        t = gb.tangent[i]
-        b = wp.cross(n, t)
-        wo = to_local(gb.view[i], t, b, n)
+        fr = pixel_frame(gb, i)
+        wo = fr.wo
         state = wp.rand_init(seed, i)
         acc = wp.vec3(0.0)
         bad = int(0)
@@ -89,7 +111,7 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool):
                 if wi[2] > 0.0:
                     p = f.pdf(mats, m, wi, wo)
                     if p > 0.0:
-                        w_world = to_world(wi, t, b, n)
+                        w_world = to_world(fr, wi)
                         p_sum = p
                         if wp.static(mis):
                             p_sum = p + env_pdf(env, w_world)
@@ -102,7 +124,7 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool):
                     # environment-sampled direction, balance heuristic
                     ul = wp.vec2(wp.randf(state), wp.randf(state))
                     wl = env_sample(env, ul)
-                    wl_local = to_local(wl, t, b, n)
+                    wl_local = to_local(fr, wl)
                     if wl_local[2] > 0.0:
                         pl = env_pdf(env, wl)
                         if pl > 0.0:
