@@ -337,6 +337,7 @@ def windowed_bandwidth(image: np.ndarray, mask: np.ndarray | None = None, window
         with np.errstate(invalid="ignore", divide="ignore"):
             out["noise_fraction"] = noise_power / ac     # Parseval
         grid_valid = grid_valid & ~(out["noise_fraction"] > max_noise)   # NaN (0 / 0: flat, noiseless) stays
+        grid_valid = grid_valid & ~((noise_power > 0) & ~(total > 0))   # nothing left above the noise: unknown, not 0
     out["grid_valid"] = grid_valid
     mp, wsum = _interp_to_pixels(grid, grid_valid, (H, W), stride)
     valid = cov & (wsum >= MIN_INTERP_WEIGHT)
