@@ -78,6 +78,15 @@ def cmd_gmm(args) -> int:
     return 0
 
 
+def _table_args(p: argparse.ArgumentParser) -> None:
+    """The arguments every tabulated-BRDF table command takes: the BRDF, the output, --force, --quiet."""
+    p.add_argument("file", help="MERL .binary file, or NPF table with --material")
+    p.add_argument("--material", default=None, help="NPF material name when FILE is an NPF table")
+    p.add_argument("-o", "--output", required=True, help="output table file (.npz)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="warpbw-precompute",
                                 description="Offline asset tool of warpbw: MERL files from NPF fits, importance-"
@@ -99,22 +108,14 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Build per-view-elevation tables over half vectors and invert their CDF "
                        "(002 Sec. 3.3).  FILE is a MERL .binary, or an NPF table with --material.  The renderer "
                        "builds and caches these itself when a scene names none (key 'sampling').")
-    b.add_argument("file", help="MERL .binary file, or NPF table with --material")
-    b.add_argument("--material", default=None, help="NPF material name when FILE is an NPF table")
-    b.add_argument("-o", "--output", required=True, help="output table file (.npz)")
-    b.add_argument("--force", action="store_true", help="overwrite an existing output")
-    b.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    _table_args(b)
     b.set_defaults(func=cmd_brdf_sampling)
 
     c = sub.add_parser("brdf", help="angular bandwidth table of a tabulated BRDF",
                        description="For 16 incident elevations, the local angular bandwidth (cycles/radian) "
                        "of the outgoing lobe on a 128x128 equal-area map, reduced to 16x16 cells by a maximum "
                        "(002 Sec. 2.3, 'Reflectance').  FILE is a MERL .binary, or an NPF table with --material.")
-    c.add_argument("file", help="MERL .binary file, or NPF table with --material")
-    c.add_argument("--material", default=None, help="NPF material name when FILE is an NPF table")
-    c.add_argument("-o", "--output", required=True, help="output table file (.npz)")
-    c.add_argument("--force", action="store_true", help="overwrite an existing output")
-    c.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    _table_args(c)
     c.set_defaults(func=cmd_brdf)
 
     g = sub.add_parser("gmm", help="GMM normal mipmap of a height field or normal map",
