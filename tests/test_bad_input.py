@@ -416,6 +416,16 @@ def test_filter_on_a_scene_without_planes(tmp_path):
     assert_no_outputs(tmp_path)
 
 
+def test_plane_scene_with_an_environment_that_is_not_an_exr(tmp_path):
+    (tmp_path / "map.exr").unlink(missing_ok=True)
+    (tmp_path / "sky.exr").write_bytes(b"not an image at all\n")
+    (tmp_path / "scene.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', "")
+                                         .replace("[[light]]", '[environment]\nfile = "sky.exr"\n\n[[light]]'))
+    r = run(["render", "scene.toml", "-o", "out.exr", "--filter", "gmm_aligned"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "[environment]", "sky.exr")
+    assert_no_outputs(tmp_path)
+
+
 def test_plane_scene_through_the_environment_pipeline_is_refused(tmp_path):
     """The 002 pipeline (render_reference / render_adaptive) called directly on a plane scene lit by
     [[light]]s only: a clear error naming the scene, not a failure inside the environment loader."""

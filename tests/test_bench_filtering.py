@@ -149,6 +149,23 @@ def test_info_on_a_plane_scene(plane_scene, capsys):
     assert any(str(plane_scene.parent / "map.exr") == f for f in s["files"])
 
 
+def test_render_and_info_of_a_plane_scene_under_an_environment(plane_scene, capsys):
+    d = plane_scene.parent
+    env = d / "env.toml"
+    env.write_text(plane_scene.read_text().replace("[[light]]", '[environment]\nprocedural = "sky"\n\n[[light]]'))
+    assert main(["info", str(env), "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert "procedural sky" in s["environment"] and "multiple importance sampling" in s["environment"]
+    assert any("environment" in st for st in s["stages"])
+    assert main(["render", str(env), "-o", str(d / "e.exr"), "--filter", "toksvig", "--spp", "4", "-q"]) == 0
+    assert main(["render", str(plane_scene), "-o", str(d / "l.exr"), "--filter", "toksvig", "-q"]) == 0
+    with_sky, lights_only = read_exr(d / "e.exr").pixels, read_exr(d / "l.exr").pixels
+    cov = with_sky[..., 3] > 0
+    assert np.all(np.isfinite(with_sky)) and np.all(with_sky[cov, :3] > lights_only[cov, :3])   # the sky adds light
+    st = json.loads((d / "e.json").read_text())["environment"]
+    assert st["samples_per_pixel"] == 8 and st["name"] == "procedural sky"
+
+
 def test_sphere_scene_without_environment_is_a_clear_error(tmp_path, capsys):
     p = tmp_path / "s.toml"
     p.write_text(SCENE.split("[[object]]")[0] + '[[object]]\nshape = "sphere"\nradius = 1.0\nmaterial = "p"\n'

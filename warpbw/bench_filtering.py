@@ -21,6 +21,9 @@ covers z^2 times more texels.
   the error, mean over the pixels.  A method that follows the truth scores 0; shimmering (a highlight that
   pops between frames as the footprint moves over the texels) scores high.
 * Time: kernel time of one frame after a warm-up frame (compiled kernels), median of ``runs``.
+* Under an [environment] every method also samples it (``warpbw.filtering``: ``DEFAULT_ENV_SPP`` BRDF +
+  environment pairs per pixel, the same seed in both frames of a flicker pair), so errors and flicker then
+  include that noise.
 * Ground truth: ``gt_spp`` jittered rays per pixel (``warpbw.filtering``), the same seed in both frames of
   a flicker pair; its own noise is reported per zoom as ``ground_truth[i].noise`` = error of a second,
   independently seeded ground truth / sqrt(2), the floor under every method's error, and
@@ -123,10 +126,10 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
             times = []
             frames = []
             for k in range(max(1, runs)):
-                r = render_filtering(scene, m, prepared=prep, camera=cams[0])
+                r = render_filtering(scene, m, seed=seed, prepared=prep, camera=cams[0])
                 times.append(r.time_s)
             frames.append(r)
-            frames.append(render_filtering(scene, m, prepared=prep, camera=cams[1]))
+            frames.append(render_filtering(scene, m, seed=seed, prepared=prep, camera=cams[1]))
             err = colour_error(frames[0].image, g[0].image, cov)
             fl = flicker(frames[0].image, frames[1].image, g[0].image, g[1].image, both, norm)
             record["methods"][m].append({"zoom": z, "error": err, "flicker": fl,

@@ -221,7 +221,7 @@ def _render_filtering_cli(scene, args) -> int:
     _init_warp(args.device)
     t0 = time.perf_counter()
     res = render_filtering(scene, method, spp=args.spp, seed=args.seed, device=args.device,
-                           progress=not args.quiet, threads=args.threads)
+                           progress=not args.quiet, threads=args.threads, env_spp=args.spp)
     res.stats["time_s"] = {"frame": round(res.time_s, 6), "total": round(time.perf_counter() - t0, 6)}
     _write_render(res, outs, args.exposure)
     import numpy as np
@@ -234,6 +234,8 @@ def _render_filtering_cli(scene, args) -> int:
         w, h = res.stats["resolution"]
         extra = f", {args.spp} rays/pixel" if method == "ground_truth" else \
             f", mean mip level {res.stats['mean_level']:.2f}"
+        if "environment" in res.stats:
+            extra += f", environment: {res.stats['environment']['samples_per_pixel']} samples/pixel (BRDF + environment)"
         print(f"{outs['exr']}  ({w}x{h}, filter {method}{extra}, {res.stats['pixels_covered']} covered pixels)")
         print(f"  frame {res.time_s * 1e3:.1f} ms, total {res.stats['time_s']['total']:.2f} s")
         print(f"  preview {outs['png']}, stats {outs['json']}, mip level {level_paths[0].name} (+ .png)")
@@ -502,7 +504,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scenes with planes (shape = \"plane\", cook-torrance materials) always render with the "
                    "reflectance-filtering renderer (004): METHOD is gmm_aligned (default), gmm_unaligned, toksvig, "
                    "lean, fixed, or ground_truth (--spp >= 64 jittered rays per pixel); also writes the mip "
-                   "level map OUT.level.exr/.png")
+                   "level map OUT.level.exr/.png. Under an [environment], each filtered pixel takes --spp pairs of "
+                   "one BRDF and one environment sample (MIS), each ground-truth ray one pair")
     common(r, DEFAULT_SPP)
     r.set_defaults(func=cmd_render)
 

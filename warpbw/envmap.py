@@ -55,6 +55,7 @@ Host functions:
     envmap_from_array(rgb, rotation_deg=0.0, scale=1.0, name="array", device="cpu") -> EnvMap
     load_envmap(path, rotation_deg=0.0, scale=1.0, device="cpu") -> EnvMap
     constant_envmap(radiance, device="cpu") -> EnvMap
+    load_environment(spec, device="cpu") -> EnvMap   a scene's [environment] (``warpbw.scene.Environment``)
     procedural_sky(width=256, height=128, ...) -> np.ndarray (H, W, 3) float32
     build_mip_levels(pixels) -> list[np.ndarray]
     texel_directions(width, height) -> np.ndarray (H, W, 3) local directions of texel centres
@@ -76,6 +77,9 @@ import warp as wp
 from warpbw.errors import WarpbwError
 
 wp.set_module_options({"enable_backward": False})  # no gradients are taken: halves compile time
+
+# Resolution of the built-in procedural sky (lat-long, 2:1).
+PROCEDURAL_SKY_SIZE = (512, 256)
 
 # Rec. 709 / sRGB luminance weights, the ones Mitsuba 3's luminance() uses for linear RGB
 # (include/mitsuba/core/spectrum.h).
@@ -548,6 +552,18 @@ def constant_envmap(radiance, device="cpu") -> EnvMap:
     if not (np.all(np.isfinite(rgb)) and np.all(rgb >= 0.0)):
         raise WarpbwError(f"constant envmap: radiance must be finite and >= 0, got {radiance!r}")
     return _make_envmap(np.broadcast_to(rgb, (4, 8, 3)), 0.0, 1.0, "constant", device, stacklevel=2)
+
+
+def load_environment(spec, device="cpu") -> EnvMap:
+    """The light of a scene's ``[environment]`` table (a ``warpbw.scene.Environment``: exactly one of
+    ``file``, ``procedural = "sky"`` or ``constant``, with ``rotation`` and ``scale``)."""
+    if spec.file is not None:
+        return load_envmap(spec.file, rotation_deg=spec.rotation, scale=spec.scale, device=device)
+    if spec.procedural == "sky":
+        w, h = PROCEDURAL_SKY_SIZE
+        return envmap_from_array(procedural_sky(w, h), rotation_deg=spec.rotation, scale=spec.scale,
+                                 name="procedural sky", device=device)
+    return constant_envmap(tuple(c * spec.scale for c in spec.constant), device=device)
 
 
 # procedural sky colours (linear RGB), chosen by eye to read as a clear day

@@ -1,12 +1,13 @@
 """Multiresolution reflectance filtering (004): planes with normal-mapped Cook-Torrance materials under
-directional lights, shaded from GMM normal mipmaps or from the simpler filters, and a ground truth.
+directional lights and / or an environment, shaded from GMM normal mipmaps or from the simpler filters, and a
+ground truth.
 
 Public:
     ``METHODS``                          the filtered methods: gmm_aligned, gmm_unaligned, toksvig, lean, fixed
     ``ALL_METHODS``                      ``METHODS`` + ``ground_truth``
     ``prepare_filtering(scene, methods, device, progress, cache) -> FilteringScene``   load / build the mipmaps
-    ``render_filtering(scene, method, spp, seed, device, prepared, camera, progress, lod_bias, threads)``
-                                         -> ``FilterResult``
+    ``render_filtering(scene, method, spp, seed, device, prepared, camera, progress, lod_bias, threads,
+                       env_spp)``        -> ``FilterResult``
     ``FilterResult``                     image, coverage, level map, time_s, stats
     ``filtering_summary(scene) -> dict``  what ``warpbw info`` prints for a scene with planes
     ``normal_moment_mipmap(normals) -> list``   box-filtered (mean normal, second moments) levels (numpy)
@@ -15,6 +16,7 @@ Public:
     ``zoomed_camera(camera, zoom) -> Camera``   the camera moved away from its look-at point (distance x zoom)
     ``LOD_BIAS``                         added to log2(footprint): the mip filter then blurs as the pixel box
     ``roughness_variance(m)``            the Gaussian NDF's per-axis variance m^2 / 2 of roughness m
+    ``diffuse_pick(diffuse, f0)``        the BRDF sampler's probability of a cosine-weighted draw
 
 The model (004 Sec. 3).  Normals live in the projected normal space of ``precompute.gmm_mipmap``: a unit
 normal n is the 2D point (n_x, n_y) in the plane's tangent frame (x along +u = +X, y along -v = -Z, z = +Y:
@@ -30,7 +32,8 @@ directional light of radiance E from direction wi gives, seen from wo (both in t
 with h = normalize(wi + wo), u = max(wo . h, 0), F Schlick's approximation from f0, and n_i the unit normal
 of mean mu_i (004 Sec. 3: Cook-Torrance summed over the components, Lambert with the component means).
 The specular term is the microfacet BRDF F D G / (4 wi_z wo_z) times wi_z with no shadowing (G = 1), as
-004's sum carries none.  The *fine-scale* BRDF (the ground truth's, per ray) is the same with one component:
+004's sum carries none.  An environment of radiance L_env gives the integral of L_env(wi) times the bracket
+over the plane's upper hemisphere.  The *fine-scale* BRDF (the ground truth's, per ray) is the same with one component:
 mu = the finest-level normal at the hit point (bilinear fetch), s = 0.
 
 The methods, per pixel: an analytic ray-plane hit, uv, and the pixel's footprint in finest-level texels from
@@ -38,7 +41,12 @@ the ray differentials (the neighbouring pixels' rays against the same plane); th
 footprint's larger side plus ``LOD_BIAS`` (which matches the mip filter's blur to the pixel's box), fractional,
 and every method filters trilinearly at it (004 Sec. 4.2).  Below level 0 (a pixel smaller than a texel) the
 result blends towards the fine-scale BRDF at the bilinearly interpolated finest normal, fully at level -1:
-level-0 texels are point samples of the normal field, not distributions.  The methods:
+level-0 texels are point samples of the normal field, not distributions.  Every method's NDF is a few lobes
+(``Lobes``: weight, mean, 2x2 covariance; the magnification blend is one more lobe, the shading being linear in
+the weights), shaded in closed form under each directional light and, under an environment, estimated with
+``env_spp`` pairs of one BRDF sample (a lobe picked by weight, its Gaussian sampled and reflected; or, with
+probability ``diffuse_pick``, a cosine-weighted direction) and one environment sample (``warpbw.envmap``),
+combined by the balance heuristic.  The methods:
     gmm_aligned / gmm_unaligned   the stored moments (a, a mu, a (s^2 + |mu|^2)) of each component, filtered
                                   linearly, then a, mu, s^2 recovered (004 Sec. 4.2); EM-aligned mipmap
                                   (004 Sec. 4.1) or independent per-texel EM;
@@ -48,14 +56,16 @@ level-0 texels are point samples of the normal field, not distributions.  The me
                                   projected normals (LEAN-style first and second moments);
     fixed                         the fine-scale BRDF on the renormalised mean normal;
     ground_truth                  ``spp`` (>= 64) jittered rays per pixel (box filter), each shaded with the
-                                  fine-scale BRDF at its own hit point.
+                                  fine-scale BRDF at its own hit point (under an environment: one BRDF and
+                                  one environment sample per ray).
 The box-filtered normal mipmaps (toksvig, lean, fixed) hold per texel the mean unit normal and the second
 moments (E[x^2], E[y^2], E[xy]) of the projected normals over the texel's footprint (clipped at the border,
 like the GMM mipmap).  The GMM mipmaps come from the material's ``gmm`` file (aligned) or are built by
 ``precompute.gmm_mipmap`` and cached under ``$WARPBW_CACHE`` (``precompute.brdf_sampling.load_or_build``).
 
-Scope: planes only (an [environment] is ignored with a warning; spheres and meshes are refused); several
-planes composite by the depth of each pixel's centre ray.  The device is an argument (CPU launches are
+Scope: planes only (spheres and meshes are refused); several planes composite by the depth of each pixel's
+centre ray; no light is occluded (a plane does not shadow another).  A kernel is
+compiled per method kind with or without the environment term: a scene without one compiles no sampling.  The device is an argument (CPU launches are
 tiled over a thread pool); the kernels have been run on the CPU only.
 """
 from __future__ import annotations
@@ -63,16 +73,16 @@ from __future__ import annotations
 import functools
 import math
 import time
-import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import warp as wp
 
+from warpbw.envmap import LUMINANCE_RGB, EnvMapData, env_pdf, env_radiance, env_sample, load_environment
 from warpbw.errors import WarpbwError
 from warpbw.gbuffer import CameraData, make_camera
-from warpbw.scene import Camera, PlaneObject, Scene
+from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene
 
 METHODS = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed")
 ALL_METHODS = METHODS + ("ground_truth",)
@@ -102,6 +112,17 @@ LOD_BIAS = -0.5 * math.log2(3.0)
 HORIZON_FOOTPRINT = 1.0e9
 INV_PI = 1.0 / math.pi
 TWO_PI = 2.0 * math.pi
+# A pixel's NDF as lobes, one row each (a, mu_x, mu_y, s_xx, s_yy, s_xy): up to GMM_MAX_COMPONENTS filtered
+# components, plus the fine-scale lobe a magnified pixel blends towards.
+MAX_LOBES = GMM_MAX_COMPONENTS + 1
+Lobes = wp.types.matrix(shape=(MAX_LOBES, 6), dtype=wp.float32)
+# Under an [environment]: pairs of one BRDF and one environment sample per pixel of the filtered methods
+# (multiple importance sampling, balance heuristic); the ground truth takes one pair per ray.
+DEFAULT_ENV_SPP = 64
+# The BRDF strategy draws cosine-weighted directions (the Lambert term) with probability q = the diffuse
+# albedo's share of diffuse + f0 luminance, kept in [DIFFUSE_PICK_MIN, 1 - DIFFUSE_PICK_MIN] so that neither
+# term goes unsampled (Schlick's Fresnel is bright at grazing angles even for f0 = 0).
+DIFFUSE_PICK_MIN = 0.1
 # CPU launches are tiled over a thread pool (warpbw.shading.launch_tiled): this many tiles per thread, so
 # that the threads finish together, of at least this many pixels (launch overhead).
 TILES_PER_THREAD = 4
@@ -131,6 +152,7 @@ class PlaneData:
     diffuse: wp.vec3
     rough_var: float    # m^2 / 2
     lod_bias: float     # added to log2(footprint)
+    diffuse_pick: float  # probability of a cosine-weighted draw in the BRDF strategy (``DIFFUSE_PICK_MIN``)
 
 
 @wp.func
@@ -292,14 +314,12 @@ def schlick(f0: wp.vec3, u: float):
 
 
 @wp.func
-def lobe(E: wp.vec3, wi: wp.vec3, wo: wp.vec3, pl: PlaneData, D: float, a: float, n: wp.vec3):
-    """One lobe of 004 Sec. 3: E [F D / (4 wo_z) + diffuse / pi (1 - F) a max(n . wi, 0)], h = bisector.
-    D already carries the lobe's weight a."""
+def cook_torrance_cos(wi: wp.vec3, wo: wp.vec3, pl: PlaneData, D: float, lamb: float):
+    """004 Sec. 3's BRDF times wi_z: F D / (4 wo_z) + diffuse / pi (1 - F) lamb, h the bisector, D the
+    (mixture) NDF at h and lamb = sum_i a_i max(n_i . wi, 0) of the Lambert term's normals."""
     h = wp.normalize(wi + wo)
     F = schlick(pl.f0, wp.max(wp.dot(wo, h), 0.0))
-    spec = F * (D / (4.0 * wo[2]))
-    diff = wp.cw_mul(pl.diffuse, wp.vec3(1.0) - F) * (INV_PI * a * wp.max(wp.dot(n, wi), 0.0))
-    return wp.cw_mul(E, spec + diff)
+    return F * (D / (4.0 * wo[2])) + wp.cw_mul(pl.diffuse, wp.vec3(1.0) - F) * (INV_PI * lamb)
 
 
 @wp.func
@@ -311,15 +331,143 @@ def half_xy(wi: wp.vec3, wo: wp.vec3):
 @wp.func
 def shade_fine(n: wp.vec3, wo: wp.vec3, pl: PlaneData, ldir: wp.array(dtype=wp.vec3),
                lrad: wp.array(dtype=wp.vec3)):
-    """The fine-scale BRDF (one component at the finest normal n) under every light."""
+    """The fine-scale BRDF (one component at the finest normal n) under every directional light."""
     c = wp.vec3(0.0)
     for j in range(ldir.shape[0]):
         wi = ldir[j]
         if wi[2] > 0.0 and wo[2] > MIN_COS:
             hx = half_xy(wi, wo)
             D = gauss2(hx[0] - n[0], hx[1] - n[1], pl.rough_var)
-            c = c + lobe(lrad[j], wi, wo, pl, D, 1.0, n)
+            c = c + wp.cw_mul(lrad[j], cook_torrance_cos(wi, wo, pl, D, wp.max(wp.dot(n, wi), 0.0)))
     return c
+
+
+@wp.func
+def lobes_cos(L: Lobes, nl: int, wi: wp.vec3, wo: wp.vec3, pl: PlaneData):
+    """The pixel's BRDF times wi_z for its nl lobes (rows of L: a, mu_x, mu_y, s_xx, s_yy, s_xy): the NDF
+    sum_k a_k g(h_xy; mu_k, S_k) and Lambert on the lobes' mean normals (004 Sec. 3)."""
+    hx = half_xy(wi, wo)
+    D = float(0.0)
+    lamb = float(0.0)
+    for k in range(nl):
+        a = L[k, 0]
+        D = D + a * gauss2_cov(hx[0] - L[k, 1], hx[1] - L[k, 2], L[k, 3], L[k, 4], L[k, 5])
+        lamb = lamb + a * wp.max(wp.dot(lift(L[k, 1], L[k, 2]), wi), 0.0)
+    return cook_torrance_cos(wi, wo, pl, D, lamb)
+
+
+@wp.func
+def lobes_direct(L: Lobes, nl: int, wo: wp.vec3, pl: PlaneData, ldir: wp.array(dtype=wp.vec3),
+                 lrad: wp.array(dtype=wp.vec3)):
+    """Radiance towards wo under every directional light (E times the BRDF times wi_z)."""
+    c = wp.vec3(0.0)
+    for j in range(ldir.shape[0]):
+        wi = ldir[j]
+        if wi[2] > 0.0 and wo[2] > MIN_COS:
+            c = c + wp.cw_mul(lrad[j], lobes_cos(L, nl, wi, wo, pl))
+    return c
+
+
+@wp.func
+def lobes_pdf(L: Lobes, nl: int, wi: wp.vec3, wo: wp.vec3, pl: PlaneData):
+    """Solid-angle pdf of ``lobes_sample`` at wi: with probability 1 - q the NDF's half-vector reflected
+    (density sum a g / sum a over projected h, times h_z = dp / dw_h, over 4 wo.h = dw_i / dw_h), with
+    probability q = pl.diffuse_pick a cosine-weighted direction about the plane's normal (wi_z / pi)."""
+    h = wp.normalize(wi + wo)
+    q = float(0.0)
+    at = float(0.0)
+    for k in range(nl):
+        a = L[k, 0]
+        at = at + a
+        q = q + a * gauss2_cov(h[0] - L[k, 1], h[1] - L[k, 2], L[k, 3], L[k, 4], L[k, 5])
+    spec = float(0.0)
+    if at > 0.0:
+        spec = q / at * h[2] / (4.0 * wp.max(wp.dot(wo, h), MIN_COS))
+    return (1.0 - pl.diffuse_pick) * spec + pl.diffuse_pick * wp.max(wi[2], 0.0) * INV_PI
+
+
+@wp.func
+def lobes_sample(L: Lobes, nl: int, wo: wp.vec3, pl: PlaneData, u: wp.vec4):
+    """A direction wi drawn with density ``lobes_pdf`` from uniforms u in [0, 1)^4 (wi_z <= 0 when the draw
+    leaves the hemisphere or its half-vector leaves the unit disk: a lost sample, which the pdf counts)."""
+    wi = wp.vec3(0.0, 0.0, -1.0)
+    if u[0] < pl.diffuse_pick:
+        # cosine-weighted about +z (Malley)
+        r = wp.sqrt(u[1])
+        phi = TWO_PI * u[2]
+        wi = wp.vec3(r * wp.cos(phi), r * wp.sin(phi), wp.sqrt(wp.max(1.0 - r * r, 0.0)))
+    else:
+        at = float(0.0)
+        for k in range(nl):
+            at = at + L[k, 0]
+        x = u[1] * at
+        j = int(0)
+        acc = L[0, 0]
+        while acc < x and j < nl - 1:
+            j = j + 1
+            acc = acc + L[j, 0]
+        # a 2D Gaussian of covariance S_j (Box-Muller, Cholesky factor of S_j)
+        r = wp.sqrt(-2.0 * wp.log(wp.max(1.0 - u[2], 1.0e-30)))
+        phi = TWO_PI * u[3]
+        z0 = r * wp.cos(phi)
+        z1 = r * wp.sin(phi)
+        l00 = wp.sqrt(L[j, 3])
+        l10 = L[j, 5] / l00
+        l11 = wp.sqrt(wp.max(L[j, 4] - l10 * l10, 0.0))
+        px = L[j, 1] + l00 * z0
+        py = L[j, 2] + l10 * z0 + l11 * z1
+        r2 = px * px + py * py
+        if r2 < 1.0:
+            h = wp.vec3(px, py, wp.sqrt(1.0 - r2))
+            wi = 2.0 * wp.dot(wo, h) * h - wo
+    return wi
+
+
+@wp.func
+def plane_to_world(w: wp.vec3):
+    """The plane's tangent frame -> world (inverse of ``to_plane``)."""
+    return wp.vec3(w[0], w[2], -w[1])
+
+
+@wp.func
+def env_mis_term(L: Lobes, nl: int, wi: wp.vec3, wo: wp.vec3, pl: PlaneData, env: EnvMapData):
+    """L_env(wi) f(wi) / (p_brdf(wi) + p_env(wi)): one sample's share of the balance heuristic (either
+    strategy's draw); 0 below the plane."""
+    c = wp.vec3(0.0)
+    if wi[2] > 0.0:
+        ww = plane_to_world(wi)
+        p = lobes_pdf(L, nl, wi, wo, pl) + env_pdf(env, ww)
+        if p > 0.0:
+            c = wp.cw_mul(env_radiance(env, ww), lobes_cos(L, nl, wi, wo, pl)) / p
+    return c
+
+
+@wp.func
+def lobes_env(L: Lobes, nl: int, wo: wp.vec3, pl: PlaneData, env: EnvMapData, n: int, state: wp.uint32):
+    """Radiance towards wo under the environment: n pairs of one BRDF and one environment sample, combined
+    by the balance heuristic (multiple importance sampling); returns it and the advanced RNG state (Warp
+    passes the state by value)."""
+    c = wp.vec3(0.0)
+    if wo[2] > MIN_COS:
+        for s in range(n):
+            ub = wp.vec4(wp.randf(state), wp.randf(state), wp.randf(state), wp.randf(state))
+            c = c + env_mis_term(L, nl, lobes_sample(L, nl, wo, pl, ub), wo, pl, env)
+            ue = wp.vec2(wp.randf(state), wp.randf(state))
+            c = c + env_mis_term(L, nl, to_plane(env_sample(env, ue)), wo, pl, env)
+        c = c / float(n)
+    return c, state
+
+
+@wp.func
+def set_lobe(L: Lobes, k: int, a: float, mx: float, my: float, sxx: float, syy: float, sxy: float):
+    """Row k of L = (a, mu_x, mu_y, s_xx, s_yy, s_xy); returns L."""
+    L[k, 0] = a
+    L[k, 1] = mx
+    L[k, 2] = my
+    L[k, 3] = sxx
+    L[k, 4] = syy
+    L[k, 5] = sxy
+    return L
 
 
 @wp.func
@@ -341,15 +489,16 @@ def footprint_level(cam: CameraData, pl: PlaneData, x: int, y: int, st: wp.vec2)
     return wp.clamp(lam, -1.0, float(pl.levels - 1))
 
 
-@functools.cache  # one kernel per method kind: Warp compiles each once
-def _filtered_kernel(code: int):
+@functools.cache  # one kernel per method kind and light set: Warp compiles each once
+def _filtered_kernel(code: int, with_env: bool):
     @wp.kernel(module="unique", enable_backward=False)
     def filtered_kernel(cam: CameraData, pl: PlaneData, lw: wp.array(dtype=wp.int32),
                         lh: wp.array(dtype=wp.int32), loff: wp.array(dtype=wp.int32),
                         gmm: wp.array(dtype=wp.vec4), nmean: wp.array(dtype=wp.vec3),
                         nm2: wp.array(dtype=wp.vec3), ldir: wp.array(dtype=wp.vec3),
-                        lrad: wp.array(dtype=wp.vec3), offset: int, depth: wp.array(dtype=wp.float32),
-                        out: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.float32)):
+                        lrad: wp.array(dtype=wp.vec3), env: EnvMapData, env_spp: int, seed: int, offset: int,
+                        depth: wp.array(dtype=wp.float32), out: wp.array(dtype=wp.vec3),
+                        level: wp.array(dtype=wp.float32)):
         i = wp.tid() + offset
         x = i % cam.width
         y = i / cam.width
@@ -366,22 +515,17 @@ def _filtered_kernel(code: int):
                 s = st[0]
                 tt = st[1]
                 wo = to_plane(-d)
-                c = wp.vec3(0.0)
+                L = Lobes()
+                nl = int(0)
                 if wp.static(code == 0):
                     # GMM: trilinear filtering of the stored moments, per component (004 Sec. 4.2)
                     for k in range(pl.components):
                         g = recover(trilinear4(gmm, lw, lh, loff, pl.levels, lam, s, tt, pl.components, k))
-                        a = g[0]
-                        if a > 0.0:
+                        if g[0] > 0.0:
                             # the builder's floor is numerical, not surface: a flat footprint adds nothing
                             var = wp.max(g[3] - VARIANCE_FLOOR, 0.0) + pl.rough_var
-                            n = lift(g[1], g[2])
-                            for j in range(ldir.shape[0]):
-                                wi = ldir[j]
-                                if wi[2] > 0.0 and wo[2] > MIN_COS:
-                                    hx = half_xy(wi, wo)
-                                    D = a * gauss2(hx[0] - g[1], hx[1] - g[2], var)
-                                    c = c + lobe(lrad[j], wi, wo, pl, D, a, n)
+                            L = set_lobe(L, nl, g[0], g[1], g[2], var, var, 0.0)
+                            nl = nl + 1
                 else:
                     m = trilinear3(nmean, lw, lh, loff, pl.levels, lam, s, tt)
                     ln = wp.length(m)
@@ -408,57 +552,71 @@ def _filtered_kernel(code: int):
                         sxy = q2[2] - mx * my
                         lim = 0.999 * wp.sqrt(sxx * syy)
                         sxy = wp.clamp(sxy, -lim, lim)
-                        n = lift(mx, my)
-                    for j in range(ldir.shape[0]):
-                        wi = ldir[j]
-                        if wi[2] > 0.0 and wo[2] > MIN_COS:
-                            hx = half_xy(wi, wo)
-                            D = gauss2_cov(hx[0] - mx, hx[1] - my, sxx, syy, sxy)
-                            c = c + lobe(lrad[j], wi, wo, pl, D, 1.0, n)
+                    L = set_lobe(L, 0, 1.0, mx, my, sxx, syy, sxy)
+                    nl = 1
                 # magnification (a pixel smaller than a texel): level 0 holds point samples of the normal field,
-                # so blend towards the fine-scale BRDF at the bilinear normal, fully at half a texel (level -1)
+                # so blend towards the fine-scale BRDF at the bilinear normal, fully at half a texel (level -1);
+                # the shading is linear in the lobe weights, so the blend is one more lobe
                 w_fine = wp.clamp(-lam_px, 0.0, 1.0)
                 if w_fine > 0.0:
+                    for k in range(nl):
+                        L[k, 0] = (1.0 - w_fine) * L[k, 0]
                     nf = wp.normalize(fetch3(nmean, lw, lh, loff, 0, s, tt))
-                    c = (1.0 - w_fine) * c + w_fine * shade_fine(nf, wo, pl, ldir, lrad)
+                    L = set_lobe(L, nl, w_fine, nf[0], nf[1], pl.rough_var, pl.rough_var, 0.0)
+                    nl = nl + 1
+                c = lobes_direct(L, nl, wo, pl, ldir, lrad)
+                if wp.static(with_env):
+                    ce, state = lobes_env(L, nl, wo, pl, env, env_spp, wp.rand_init(seed, i))
+                    c = c + ce
                 out[i] = c
 
     return filtered_kernel
 
 
-@wp.kernel(module="unique", enable_backward=False)
-def ground_truth_kernel(cam: CameraData, pl: PlaneData, lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32),
-                        loff: wp.array(dtype=wp.int32), nmean: wp.array(dtype=wp.vec3),
-                        ldir: wp.array(dtype=wp.vec3), lrad: wp.array(dtype=wp.vec3), spp: int, seed: int,
-                        offset: int, depth: wp.array(dtype=wp.float32), out: wp.array(dtype=wp.vec3)):
-    """spp jittered rays per pixel (stratified on a g x g grid, g = floor(sqrt(spp)), the rest uniform), each
-    shaded with the fine-scale BRDF at the bilinearly fetched finest normal; box pixel filter.  A pixel
-    belongs to this plane when its centre ray hits it in front of ``depth``."""
-    i = wp.tid() + offset
-    x = i % cam.width
-    y = i / cam.width
-    d0 = ray_dir(cam, float(x) + 0.5, float(y) + 0.5)
-    t0 = plane_t(cam.origin, d0, pl)
-    if t0 > 0.0 and t0 < depth[i] and inside(cam.origin + t0 * d0, pl):
-        depth[i] = t0
-        state = wp.rand_init(seed, i)
-        g = int(wp.sqrt(float(spp)))
-        c = wp.vec3(0.0)
-        for k in range(spp):
-            jx = wp.randf(state)
-            jy = wp.randf(state)
-            if k < g * g:
-                jx = (float(k % g) + jx) / float(g)
-                jy = (float(k / g) + jy) / float(g)
-            d = ray_dir(cam, float(x) + jx, float(y) + jy)
-            t = plane_t(cam.origin, d, pl)
-            if t > 0.0:
-                p = cam.origin + t * d
-                if inside(p, pl):
-                    st = plane_st(p, pl)
-                    n = wp.normalize(fetch3(nmean, lw, lh, loff, 0, st[0], st[1]))
-                    c = c + shade_fine(n, to_plane(-d), pl, ldir, lrad)
-        out[i] = c / float(spp)
+@functools.cache
+def _ground_truth_kernel(with_env: bool):
+    @wp.kernel(module="unique", enable_backward=False)
+    def ground_truth_kernel(cam: CameraData, pl: PlaneData, lw: wp.array(dtype=wp.int32),
+                            lh: wp.array(dtype=wp.int32), loff: wp.array(dtype=wp.int32),
+                            nmean: wp.array(dtype=wp.vec3), ldir: wp.array(dtype=wp.vec3),
+                            lrad: wp.array(dtype=wp.vec3), env: EnvMapData, spp: int, seed: int, offset: int,
+                            depth: wp.array(dtype=wp.float32), out: wp.array(dtype=wp.vec3)):
+        """spp jittered rays per pixel (stratified on a g x g grid, g = floor(sqrt(spp)), the rest uniform),
+        each shaded with the fine-scale BRDF at the bilinearly fetched finest normal (under the environment:
+        one BRDF and one environment sample per ray, balance heuristic); box pixel filter.  A pixel belongs to
+        this plane when its centre ray hits it in front of ``depth``."""
+        i = wp.tid() + offset
+        x = i % cam.width
+        y = i / cam.width
+        d0 = ray_dir(cam, float(x) + 0.5, float(y) + 0.5)
+        t0 = plane_t(cam.origin, d0, pl)
+        if t0 > 0.0 and t0 < depth[i] and inside(cam.origin + t0 * d0, pl):
+            depth[i] = t0
+            state = wp.rand_init(seed, i)
+            g = int(wp.sqrt(float(spp)))
+            c = wp.vec3(0.0)
+            for k in range(spp):
+                jx = wp.randf(state)
+                jy = wp.randf(state)
+                if k < g * g:
+                    jx = (float(k % g) + jx) / float(g)
+                    jy = (float(k / g) + jy) / float(g)
+                d = ray_dir(cam, float(x) + jx, float(y) + jy)
+                t = plane_t(cam.origin, d, pl)
+                if t > 0.0:
+                    p = cam.origin + t * d
+                    if inside(p, pl):
+                        st = plane_st(p, pl)
+                        n = wp.normalize(fetch3(nmean, lw, lh, loff, 0, st[0], st[1]))
+                        wo = to_plane(-d)
+                        c = c + shade_fine(n, wo, pl, ldir, lrad)
+                        if wp.static(with_env):
+                            L = set_lobe(Lobes(), 0, 1.0, n[0], n[1], pl.rough_var, pl.rough_var, 0.0)
+                            ce, state = lobes_env(L, 1, wo, pl, env, 1, state)
+                            c = c + ce
+            out[i] = c / float(spp)
+
+    return ground_truth_kernel
 
 
 @wp.kernel(module="unique", enable_backward=False)
@@ -561,6 +719,7 @@ class FilteringScene:
     mips: dict                 # material name -> _Mips
     ldir: wp.array             # light directions in the plane frame
     lrad: wp.array
+    env: object                # warpbw.envmap.EnvMap of the scene's [environment], or None
     notes: dict                # per material: map shape, GMM origin ("file", "cache", "built"), times
     precompute_time_s: float   # time to load the maps and load or build every mipmap
 
@@ -573,15 +732,6 @@ def _plane_objects(scene: Scene) -> list:
                               "(the filtering renderer, issue 4); put spheres and meshes in another scene")
         planes.append(o)
     return planes
-
-
-def _check_lights(scene: Scene) -> None:
-    if not scene.lights:
-        raise WarpbwError(f"{scene.source}: [[light]]: a scene with planes needs at least one directional light "
-                          "(the filtering renderer does not sample the environment)")
-    if scene.environment is not None:
-        warnings.warn(f"{scene.source}: [environment] is ignored by the filtering renderer (planes under "
-                      "directional lights)")
 
 
 def _load_normals(scene: Scene, name: str):
@@ -663,11 +813,16 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
     mipmap (always: the ground truth reads its finest level) and, for gmm_aligned / gmm_unaligned, the GMM
     mipmap from the material's ``gmm`` file or the cache, else built (and cached)."""
     planes = _plane_objects(scene)
-    _check_lights(scene)
     unknown = [m for m in methods if m not in ALL_METHODS]
     if unknown:
         raise WarpbwError(f"filter method {unknown[0]!r}: expected one of {', '.join(ALL_METHODS)}")
     t0 = time.perf_counter()
+    env = None
+    if scene.environment is not None:   # first: a bad file fails before any mipmap is built
+        try:
+            env = load_environment(scene.environment, device)
+        except WarpbwError as exc:
+            raise WarpbwError(f"{scene.source}: [environment]: {exc}") from None
     mips, notes = {}, {}
     for name in dict.fromkeys(p.material for p in planes):
         normals, data, kind, scale, src_name, digest = _load_normals(scene, name)
@@ -688,10 +843,10 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
                                 "components": int(mip.components)}
         mips[name] = mp
         notes[name] = note
-    ldir = np.array([[d[0], -d[2], d[1]] for d in (li.direction for li in scene.lights)], np.float32)
-    lrad = np.array([li.radiance for li in scene.lights], np.float32)
+    ldir = np.array([[d[0], -d[2], d[1]] for d in (li.direction for li in scene.lights)], np.float32).reshape(-1, 3)
+    lrad = np.array([li.radiance for li in scene.lights], np.float32).reshape(-1, 3)
     return FilteringScene(scene, device, mips, wp.array(ldir, dtype=wp.vec3, device=device),
-                          wp.array(lrad, dtype=wp.vec3, device=device), notes, time.perf_counter() - t0)
+                          wp.array(lrad, dtype=wp.vec3, device=device), env, notes, time.perf_counter() - t0)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -720,22 +875,40 @@ def _plane_data(p: PlaneObject, m, mp: _Mips, K: int, lod_bias: float = LOD_BIAS
     pl.diffuse = wp.vec3(*m.diffuse)
     pl.rough_var = roughness_variance(m.roughness)
     pl.lod_bias = float(lod_bias)
+    pl.diffuse_pick = diffuse_pick(m.diffuse, m.f0)
     return pl
+
+
+def diffuse_pick(diffuse, f0) -> float:
+    """Probability that the BRDF strategy draws a cosine-weighted direction (``DIFFUSE_PICK_MIN``)."""
+    ld = float(np.dot(LUMINANCE_RGB, diffuse))
+    ls = float(np.dot(LUMINANCE_RGB, f0))
+    q = ld / (ld + ls) if ld + ls > 0.0 else 0.5
+    return min(max(q, DIFFUSE_PICK_MIN), 1.0 - DIFFUSE_PICK_MIN)
+
+
+def _is_count(n, lo: int) -> bool:
+    return not isinstance(n, bool) and isinstance(n, (int, np.integer)) and n >= lo
 
 
 def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed: int = 0, device: str = "cpu",
                      prepared: FilteringScene | None = None, camera: Camera | None = None,
-                     progress: bool = False, lod_bias: float = LOD_BIAS, threads: int | None = None) -> FilterResult:
-    """Render ``scene`` (planes under directional lights) with ``method`` (``ALL_METHODS``); ``camera``
-    overrides the scene's; ``spp`` is the ground truth's rays per pixel (>= MIN_GT_SPP); ``lod_bias`` is
-    added to every pixel's mip level; CPU launches are tiled over ``threads`` (default: all cores, up to 8)."""
+                     progress: bool = False, lod_bias: float = LOD_BIAS, threads: int | None = None,
+                     env_spp: int = DEFAULT_ENV_SPP) -> FilterResult:
+    """Render ``scene`` (planes under directional lights and / or an environment) with ``method``
+    (``ALL_METHODS``); ``camera`` overrides the scene's; ``spp`` is the ground truth's rays per pixel
+    (>= MIN_GT_SPP); ``env_spp`` the filtered methods' BRDF + environment sample pairs per pixel when the
+    scene has an [environment] (the ground truth takes one pair per ray); ``seed`` seeds both; ``lod_bias``
+    is added to every pixel's mip level; CPU launches are tiled over ``threads`` (default: all cores, up
+    to 8)."""
     from warpbw.shading import default_threads, launch_tiled
 
     if method not in ALL_METHODS:
         raise WarpbwError(f"filter method {method!r}: expected one of {', '.join(ALL_METHODS)}")
-    if method == "ground_truth" and (isinstance(spp, bool) or not isinstance(spp, (int, np.integer))
-                                     or spp < MIN_GT_SPP):
+    if method == "ground_truth" and not _is_count(spp, MIN_GT_SPP):
         raise WarpbwError(f"ground truth rays per pixel {spp!r}: expected an integer >= {MIN_GT_SPP}")
+    if method != "ground_truth" and scene.environment is not None and not _is_count(env_spp, 1):
+        raise WarpbwError(f"environment samples per pixel (env_spp) {env_spp!r}: expected an integer >= 1")
     if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm for mp in prepared.mips.values())):
         prepared = prepare_filtering(scene, (method,), device, progress)
     cam_s = camera or scene.camera
@@ -745,7 +918,9 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     depth = wp.full(n, 3.0e38, dtype=wp.float32, device=dev)
     out = wp.zeros(n, dtype=wp.vec3, device=dev)
     level = wp.zeros(n, dtype=wp.float32, device=dev)
-    kernel = ground_truth_kernel if method == "ground_truth" else _filtered_kernel(_CODE[method])
+    env = prepared.env.data if prepared.env is not None else EnvMapData()
+    with_env = prepared.env is not None
+    kernel = _ground_truth_kernel(with_env) if method == "ground_truth" else _filtered_kernel(_CODE[method], with_env)
     nthreads = default_threads(dev) if threads is None else max(1, int(threads))
     tile = max(MIN_TILE_PIXELS, -(-n // (TILES_PER_THREAD * nthreads)))
     wp.load_module(kernel.module, device=dev)   # compile before the clock starts
@@ -757,14 +932,16 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
         if method == "ground_truth":
             pl = _plane_data(p, m, mp, 0)
             launch_tiled(kernel, n, lambda o, c, pl=pl, mp=mp: [cam, pl, mp.lw, mp.lh, mp.loff, mp.nmean, prepared.ldir,
-                                                               prepared.lrad, int(spp), int(seed), o, depth, out],
+                                                               prepared.lrad, env, int(spp), int(seed), o, depth,
+                                                               out],
                          dev, nthreads, tile=tile)
         else:
             gmm, K = mp.gmm.get(method, (wp.zeros(1, dtype=wp.vec4, device=dev), 0))
             pl = _plane_data(p, m, mp, K, lod_bias)
             launch_tiled(kernel, n, lambda o, c, pl=pl, mp=mp, gmm=gmm: [cam, pl, mp.lw, mp.lh, mp.loff, gmm, mp.nmean,
-                                                                        mp.nm2, prepared.ldir, prepared.lrad, o,
-                                                                        depth, out, level],
+                                                                        mp.nm2, prepared.ldir, prepared.lrad, env,
+                                                                        int(env_spp), int(seed), o, depth, out,
+                                                                        level],
                          dev, nthreads, tile=tile)
     wp.synchronize_device(dev)
     dt = time.perf_counter() - t0
@@ -779,6 +956,10 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
         stats["seed"] = int(seed)
     else:
         stats["mean_level"] = float(lev[cov].mean()) if cov.any() else 0.0
+    if with_env:
+        stats["environment"] = {"name": prepared.env.name, "size": [prepared.env.width, prepared.env.height],
+                                "samples_per_pixel": 2 * (int(spp) if method == "ground_truth" else int(env_spp)),
+                                "seed": int(seed)}
     return FilterResult(img, cov, lev, dt, method, stats)
 
 
@@ -798,7 +979,10 @@ def filtering_summary(scene: Scene) -> dict:
             objects.append(f"{type(o).__name__} material={o.material} (not rendered by the filtering renderer)")
     lights = [f"directional towards {[round(c, 4) for c in li.direction]} radiance {list(li.radiance)}"
               for li in scene.lights]
-    env = "none" if scene.environment is None else "ignored by the filtering renderer"
+    e = scene.environment
+    env = "none" if e is None else (
+        f"{e.file or (e.procedural and 'procedural ' + e.procedural) or f'constant {list(e.constant)}'}, sampled "
+        "per pixel: BRDF and environment samples, multiple importance sampling")
     mats = {n: scene.materials[n].type for n in scene.material_order}
     return {
         "scene": scene.source,
@@ -811,7 +995,8 @@ def filtering_summary(scene: Scene) -> dict:
         "files": [str(p) for p in scene.files()],
         "stages": ["analytic ray-plane hit + ray-differential footprint",
                    "normal mipmaps (box filter; GMM, 004 Sec. 4.1, from file or cache or built)",
-                   "filtered shading (004 Sec. 3, 4.2): " + ", ".join(ALL_METHODS)],
+                   "filtered shading (004 Sec. 3, 4.2): " + ", ".join(ALL_METHODS)]
+                  + ([] if e is None else ["environment: per pixel BRDF + environment samples (MIS)"]),
     }
 
 

@@ -20,13 +20,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from warpbw import brdf as brdf_mod
+from warpbw import envmap
 from warpbw.errors import WarpbwError
 from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer)
 from warpbw.scene import MeshObject, Scene, SphereObject
-
-# Resolution of the built-in procedural sky (lat-long, 2:1).
-PROCEDURAL_SKY_SIZE = (512, 256)
-
 
 @dataclass
 class PreparedScene:
@@ -71,19 +68,6 @@ def _timed(timings: dict, key: str):
         timings[key] = timings.get(key, 0.0) + time.perf_counter() - t0
 
 
-def _load_environment(scene: Scene, device: str):
-    from warpbw import envmap
-
-    e = scene.environment
-    if e.file is not None:
-        return envmap.load_envmap(e.file, rotation_deg=e.rotation, scale=e.scale, device=device)
-    if e.procedural == "sky":
-        w, h = PROCEDURAL_SKY_SIZE
-        return envmap.envmap_from_array(envmap.procedural_sky(w, h), rotation_deg=e.rotation, scale=e.scale,
-                                        name="procedural sky", device=device)
-    return envmap.constant_envmap(tuple(c * e.scale for c in e.constant), device=device)
-
-
 def _material_spec(m, progress: bool, notes: dict, sources: dict) -> brdf_mod.MaterialSpec:
     kind = brdf_mod.KIND_NAMES[m.type]
     if m.type == "lambert":
@@ -121,7 +105,7 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
     c = scene.camera
     cam = make_camera(c.position, c.look_at, c.up, c.fov, c.width, c.height)
     with _timed(timings, "load_environment"):
-        env = _load_environment(scene, device)
+        env = envmap.load_environment(scene.environment, device)
     # channel values (not pixels) that were negative or non-finite and set to 0
     notes["environment"] = {"name": env.name, "size": [env.width, env.height], "clamped_values": int(env.n_clamped)}
     order = scene.material_order
