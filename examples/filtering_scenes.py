@@ -27,7 +27,9 @@ equal radiance whose mirror half-vectors (for the zoom-1 camera's central ray) s
 centre, a ring at radius 0.22 and one at 0.42 (sines of 13 and 25 degrees; a larger radius puts the
 +y light below the horizon at this camera elevation), so the error weighs the whole distribution, not one
 density value.  ``mirror`` is the single light that mirrors the view (slightly off-centre: x = 0.15),
-the setup of the first benchmark, kept for comparison.
+the setup of the first benchmark, kept for comparison.  ``--environment FILE`` lights the planes with a
+lat-long probe instead (every method then integrates its lobes against it by multiple importance sampling,
+``warpbw.filtering``): a whole sky of half-vectors, as a curved object would see.
 """
 from __future__ import annotations
 
@@ -112,7 +114,8 @@ def light_directions(setup: str = "ring", elevation_deg: float = ELEVATION_DEG) 
     return dirs
 
 
-def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "ring", components: int = 4) -> list:
+def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "ring", components: int = 4,
+                 environment: Path | None = None) -> list:
     from precompute.surfaces import SURFACES
     from warpbw.io.exr import write_exr
 
@@ -120,6 +123,8 @@ def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "rin
     el = math.radians(ELEVATION_DEG)
     dirs = light_directions(lights)
     light_text = "\n".join(LIGHT.format(x=d[0], y=d[1], z=d[2], e=LIGHT_RADIANCE / len(dirs)) for d in dirs)
+    if environment is not None:
+        light_text = f'[environment]\nfile = "{Path(environment).resolve().as_posix()}"\n'
     paths = []
     for name, (surface, tiling, mat) in SCENES.items():
         h = SURFACES[surface](size)
@@ -144,12 +149,17 @@ def main(argv=None) -> int:
     ap.add_argument("--lights", choices=LIGHT_SETUPS, default="ring",
                     help="ring: 8 lights spreading the half-vector over normal space (default); mirror: the one "
                          "light mirroring the view (module docstring)")
+    ap.add_argument("--environment", type=Path, default=None, metavar="FILE",
+                    help="light the planes with this lat-long EXR probe instead of --lights")
     ap.add_argument("--components", type=int, default=4,
                     help="Gaussians per texel of both GMM mipmaps, aligned and unaligned (default 4, 004 Sec. 4.2)")
     ap.add_argument("--force", action="store_true", help="overwrite existing results")
     args = ap.parse_args(argv)
     out = Path(args.out)
-    paths = write_scenes(out, args.size, lights=args.lights, components=args.components)
+    if args.environment is not None and not args.environment.is_file():
+        ap.error(f"--environment {args.environment}: no such file (expected a lat-long EXR probe)")
+    paths = write_scenes(out, args.size, lights=args.lights, components=args.components,
+                         environment=args.environment)
     if args.run:
         for p in paths:
             cmd = [sys.executable, "-m", "warpbw.cli", "bench-filtering", str(p), "--zoom", args.zoom,

@@ -425,8 +425,8 @@ def test_planes_under_the_city_sun_every_method_is_finite(city, tmp_path):
     methods (all one model there) and the ground truth, independent estimators, agree on the mean."""
     from warpbw.filtering import ALL_METHODS, METHODS, prepare_filtering, render_filtering
 
-    write_exr(tmp_path / "map.exr", (np.random.default_rng(2).normal(size=(32, 32)) * 0.01).astype(np.float32)[..., None],
-              channels=["Y"])
+    heights = np.random.default_rng(2).normal(size=(32, 32)) * 0.01
+    write_exr(tmp_path / "map.exr", heights.astype(np.float32)[..., None], channels=["Y"])
     means = {}
     for extra in ('normal_map = "map.exr"\ntiling = 40.0\n', ""):
         s = parse_scene(PLANE_UNDER_CITY.format(city=city, extra=extra), tmp_path, "plane.toml")

@@ -3,10 +3,10 @@ materials under directional lights and environments.
 
 Truths are independent of the code under test: a numpy pinhole camera, ray-plane hit and Cook-Torrance
 BRDF (flat map); the closed-form moment-matched component (filtering between texels); brute-force
-quadrature over the hemisphere (NDF normalisation, a flat plane under a constant environment); a small sun in
-the environment against the directional light of the same irradiance; the ground truth renderer (many rays per pixel against
-the finest normals) at the finest level; and finiteness at the extremes.  Tiny resolutions and maps: the
-whole module runs in well under a minute on two cores.
+quadrature over the hemisphere (NDF normalisation, a flat plane under a constant environment); a small sun
+in the environment against the directional light of the same irradiance; the ground truth renderer (many
+rays per pixel against the finest normals) at the finest level; and finiteness at the extremes.  Tiny
+resolutions and maps: the whole module runs in well under a minute on two cores.
 """
 from __future__ import annotations
 
@@ -567,7 +567,8 @@ def test_a_small_sun_in_the_environment_shades_as_the_directional_light_of_its_i
     extra = 'normal_map = "map.exr"\ntiling = 4.0\n'
     env_scene = parse_scene(scene_toml(extra, roughness=0.4, lights=0, environment='[environment]\nfile = "sky.exr"\n'),
                             tmp_path, "s.toml")
-    lit = parse_scene(scene_toml(extra, roughness=0.4).replace(f"direction = {list(LIGHT_DIR)}", f"direction = {list(d)}")
+    lit = parse_scene(scene_toml(extra, roughness=0.4)
+                      .replace(f"direction = {list(LIGHT_DIR)}", f"direction = {list(d)}")
                       .replace(f"radiance = {list(RADIANCE)}", f"radiance = {[E] * 3}"), tmp_path, "t.toml")
     pe, pl = prepare_filtering(env_scene, ALL_METHODS), prepare_filtering(lit, ALL_METHODS)
     for m in METHODS:

@@ -235,7 +235,8 @@ def _render_filtering_cli(scene, args) -> int:
         extra = f", {args.spp} rays/pixel" if method == "ground_truth" else \
             f", mean mip level {res.stats['mean_level']:.2f}"
         if "environment" in res.stats:
-            extra += f", environment: {res.stats['environment']['samples_per_pixel']} samples/pixel (BRDF + environment)"
+            n_env = res.stats["environment"]["samples_per_pixel"]
+            extra += f", environment: {n_env} samples/pixel (BRDF + environment)"
         print(f"{outs['exr']}  ({w}x{h}, filter {method}{extra}, {res.stats['pixels_covered']} covered pixels)")
         print(f"  frame {res.time_s * 1e3:.1f} ms, total {res.stats['time_s']['total']:.2f} s")
         print(f"  preview {outs['png']}, stats {outs['json']}, mip level {level_paths[0].name} (+ .png)")

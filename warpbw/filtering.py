@@ -33,8 +33,8 @@ with h = normalize(wi + wo), u = max(wo . h, 0), F Schlick's approximation from 
 of mean mu_i (004 Sec. 3: Cook-Torrance summed over the components, Lambert with the component means).
 The specular term is the microfacet BRDF F D G / (4 wi_z wo_z) times wi_z with no shadowing (G = 1), as
 004's sum carries none.  An environment of radiance L_env gives the integral of L_env(wi) times the bracket
-over the plane's upper hemisphere.  The *fine-scale* BRDF (the ground truth's, per ray) is the same with one component:
-mu = the finest-level normal at the hit point (bilinear fetch), s = 0.
+over the plane's upper hemisphere.  The *fine-scale* BRDF (the ground truth's, per ray) is the same with one
+component: mu = the finest-level normal at the hit point (bilinear fetch), s = 0.
 
 The methods, per pixel: an analytic ray-plane hit, uv, and the pixel's footprint in finest-level texels from
 the ray differentials (the neighbouring pixels' rays against the same plane); the level is log2 of the
@@ -64,9 +64,9 @@ like the GMM mipmap).  The GMM mipmaps come from the material's ``gmm`` file (al
 ``precompute.gmm_mipmap`` and cached under ``$WARPBW_CACHE`` (``precompute.brdf_sampling.load_or_build``).
 
 Scope: planes only (spheres and meshes are refused); several planes composite by the depth of each pixel's
-centre ray; no light is occluded (a plane does not shadow another).  A kernel is
-compiled per method kind with or without the environment term: a scene without one compiles no sampling.  The device is an argument (CPU launches are
-tiled over a thread pool); the kernels have been run on the CPU only.
+centre ray; no light is occluded (a plane does not shadow another).  A kernel is compiled per method kind with
+or without the environment term: a scene without one compiles no sampling.  The device is an argument (CPU
+launches are tiled over a thread pool); the kernels have been run on the CPU only.
 """
 from __future__ import annotations
 
