@@ -594,6 +594,12 @@ def test_environment_and_lights_add_up_and_the_seed_is_the_only_noise(tmp_path):
     assert np.abs(b).max() > 0 and np.allclose(a, b + c, rtol=1e-5, atol=1e-6)
     assert np.array_equal(render_filtering(sky, "toksvig", env_spp=4, seed=7).image, b)
     assert not np.array_equal(render_filtering(sky, "toksvig", env_spp=4, seed=8).image, b)
+    # the random streams are per pixel: how the launch is tiled over threads (tiles of 1024 or 256 pixels here)
+    # does not change the image
+    big = parse_scene(scene_toml(environment=env, lights=0, resolution=(64, 64)), Path.cwd(), "s.toml")
+    for m, kw in (("toksvig", {"env_spp": 4}), ("ground_truth", {"spp": 64})):
+        assert np.array_equal(render_filtering(big, m, seed=7, threads=1, **kw).image,
+                              render_filtering(big, m, seed=7, threads=4, **kw).image), m
 
 
 @pytest.mark.parametrize("env_spp", [0, -1, 2.5, True])
