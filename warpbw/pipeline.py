@@ -25,6 +25,7 @@ from warpbw.errors import WarpbwError
 from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer)
 from warpbw.scene import MeshObject, Scene, SphereObject
 
+
 @dataclass
 class PreparedScene:
     """A scene with its assets loaded onto a device, ready to render frames."""
