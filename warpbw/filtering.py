@@ -343,17 +343,32 @@ def shade_fine(n: wp.vec3, wo: wp.vec3, pl: PlaneData, ldir: wp.array(dtype=wp.v
 
 
 @wp.func
-def lobes_cos(L: Lobes, nl: int, wi: wp.vec3, wo: wp.vec3, pl: PlaneData):
-    """The pixel's BRDF times wi_z for its nl lobes (rows of L: a, mu_x, mu_y, s_xx, s_yy, s_xy): the NDF
-    sum_k a_k g(h_xy; mu_k, S_k) and Lambert on the lobes' mean normals (004 Sec. 3)."""
-    hx = half_xy(wi, wo)
+def lobes_ndf(L: Lobes, nl: int, h: wp.vec3):
+    """The pixel's NDF at half-vector h for its nl lobes (rows of L: a, mu_x, mu_y, s_xx, s_yy, s_xy),
+    sum_k a_k g(h_xy; mu_k, S_k), and the lobes' total weight sum_k a_k."""
     D = float(0.0)
-    lamb = float(0.0)
+    at = float(0.0)
     for k in range(nl):
         a = L[k, 0]
-        D = D + a * gauss2_cov(hx[0] - L[k, 1], hx[1] - L[k, 2], L[k, 3], L[k, 4], L[k, 5])
-        lamb = lamb + a * wp.max(wp.dot(lift(L[k, 1], L[k, 2]), wi), 0.0)
-    return cook_torrance_cos(wi, wo, pl, D, lamb)
+        at = at + a
+        D = D + a * gauss2_cov(h[0] - L[k, 1], h[1] - L[k, 2], L[k, 3], L[k, 4], L[k, 5])
+    return D, at
+
+
+@wp.func
+def lobes_lambert(L: Lobes, nl: int, wi: wp.vec3):
+    """sum_k a_k max(n_k . wi, 0) over the lobes' mean normals n_k (004 Sec. 3: Lambert with the means)."""
+    lamb = float(0.0)
+    for k in range(nl):
+        lamb = lamb + L[k, 0] * wp.max(wp.dot(lift(L[k, 1], L[k, 2]), wi), 0.0)
+    return lamb
+
+
+@wp.func
+def lobes_cos(L: Lobes, nl: int, wi: wp.vec3, wo: wp.vec3, pl: PlaneData):
+    """The pixel's BRDF times wi_z for its nl lobes: the mixture NDF and Lambert on the lobes' mean normals."""
+    D, at = lobes_ndf(L, nl, wp.normalize(wi + wo))
+    return cook_torrance_cos(wi, wo, pl, D, lobes_lambert(L, nl, wi))
 
 
 @wp.func
@@ -369,26 +384,20 @@ def lobes_direct(L: Lobes, nl: int, wo: wp.vec3, pl: PlaneData, ldir: wp.array(d
 
 
 @wp.func
-def lobes_pdf(L: Lobes, nl: int, wi: wp.vec3, wo: wp.vec3, pl: PlaneData):
-    """Solid-angle pdf of ``lobes_sample`` at wi: with probability 1 - q the NDF's half-vector reflected
-    (density sum a g / sum a over projected h, times h_z = dp / dw_h, over 4 wo.h = dw_i / dw_h), with
-    probability q = pl.diffuse_pick a cosine-weighted direction about the plane's normal (wi_z / pi)."""
-    h = wp.normalize(wi + wo)
-    q = float(0.0)
-    at = float(0.0)
-    for k in range(nl):
-        a = L[k, 0]
-        at = at + a
-        q = q + a * gauss2_cov(h[0] - L[k, 1], h[1] - L[k, 2], L[k, 3], L[k, 4], L[k, 5])
+def sample_pdf(D: float, at: float, h: wp.vec3, wi: wp.vec3, wo: wp.vec3, pl: PlaneData):
+    """Solid-angle pdf of ``lobes_sample`` at wi, given the lobes' NDF D at the bisector h and their total
+    weight at (``lobes_ndf``): with probability 1 - q the NDF's half-vector reflected (density D / at over
+    projected h, times h_z = dp / dw_h, over 4 wo.h = dw_i / dw_h), with probability q = pl.diffuse_pick a
+    cosine-weighted direction about the plane's normal (wi_z / pi)."""
     spec = float(0.0)
     if at > 0.0:
-        spec = q / at * h[2] / (4.0 * wp.max(wp.dot(wo, h), MIN_COS))
+        spec = D / at * h[2] / (4.0 * wp.max(wp.dot(wo, h), MIN_COS))
     return (1.0 - pl.diffuse_pick) * spec + pl.diffuse_pick * wp.max(wi[2], 0.0) * INV_PI
 
 
 @wp.func
 def lobes_sample(L: Lobes, nl: int, wo: wp.vec3, pl: PlaneData, u: wp.vec4):
-    """A direction wi drawn with density ``lobes_pdf`` from uniforms u in [0, 1)^4 (wi_z <= 0 when the draw
+    """A direction wi drawn with density ``sample_pdf`` from uniforms u in [0, 1)^4 (wi_z <= 0 when the draw
     leaves the hemisphere or its half-vector leaves the unit disk: a lost sample, which the pdf counts)."""
     wi = wp.vec3(0.0, 0.0, -1.0)
     if u[0] < pl.diffuse_pick:
@@ -436,9 +445,12 @@ def env_mis_term(L: Lobes, nl: int, wi: wp.vec3, wo: wp.vec3, pl: PlaneData, env
     c = wp.vec3(0.0)
     if wi[2] > 0.0:
         ww = plane_to_world(wi)
-        p = lobes_pdf(L, nl, wi, wo, pl) + env_pdf(env, ww)
+        h = wp.normalize(wi + wo)
+        D, at = lobes_ndf(L, nl, h)          # once: both the BRDF and the BRDF strategy's pdf need it
+        p = sample_pdf(D, at, h, wi, wo, pl) + env_pdf(env, ww)
         if p > 0.0:
-            c = wp.cw_mul(env_radiance(env, ww), lobes_cos(L, nl, wi, wo, pl)) / p
+            f = cook_torrance_cos(wi, wo, pl, D, lobes_lambert(L, nl, wi))
+            c = wp.cw_mul(env_radiance(env, ww), f) / p
     return c
 
 
