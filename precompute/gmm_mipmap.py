@@ -57,7 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, is_int
 
 GMM_FORMAT = "warpbw-gmm-mipmap"
 GMM_VERSION = 1
@@ -396,8 +396,7 @@ def _top_centres(x, K: int, seed: int) -> np.ndarray:
 def _validate(data, kind, components, prior, scale):
     if kind not in KINDS:
         raise WarpbwError(f"kind {kind!r}: expected one of {', '.join(KINDS)}")
-    if isinstance(components, bool) or not isinstance(components, (int, np.integer)) \
-            or not 1 <= components <= MAX_COMPONENTS:
+    if not is_int(components) or not 1 <= components <= MAX_COMPONENTS:
         raise WarpbwError(f"components {components!r}: expected an integer from 1 to {MAX_COMPONENTS}")
     if not (np.isfinite(prior) and prior >= 0):
         raise WarpbwError(f"prior {prior!r}: expected a finite c >= 0")

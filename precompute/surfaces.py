@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, is_int
 
 # Largest generated surface (issue 4 item 4: "each as a height field of configurable size, up to 1024x1024").
 MAX_SURFACE_SIZE = 1024
@@ -34,7 +34,7 @@ TWO_PI = 2.0 * np.pi
 
 
 def _check_size(size) -> int:
-    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or not 1 <= int(size) <= MAX_SURFACE_SIZE:
+    if not is_int(size) or not 1 <= int(size) <= MAX_SURFACE_SIZE:
         raise WarpbwError(f"surface size {size!r}: expected an integer from 1 to {MAX_SURFACE_SIZE}")
     return int(size)
 

@@ -102,7 +102,7 @@ import warp as wp
 from warpbw.bandwidth_ops import bw_one_bounce
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf, env_sample, env_uv
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_count, is_int
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 from warpbw.pyramid import build_pyramid, image_level
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_local, to_world
@@ -467,7 +467,7 @@ def direction_set(n_b: int, seed: int = 0) -> np.ndarray:
     """``(n_b, 3)`` float32 Hammersley points ``((k + 1/2) / n_b, phi_2(k), phi_3(k))`` shifted by a seeded
     offset mod 1 (Cranley-Patterson).  u[0] picks the sampler (BRDF below 1/2, light above: half of the
     points each, exactly when n_b is even) and (u[1], u[2]) the direction."""
-    if isinstance(n_b, bool) or not isinstance(n_b, (int, np.integer)) or n_b < 1:
+    if not is_int(n_b) or n_b < 1:
         raise WarpbwError(f"n_b: expected a positive integer number of directions, got {n_b!r}")
     k = np.arange(int(n_b))
     shift = np.random.default_rng(seed).random(3)
@@ -511,12 +511,6 @@ def interleave_shifts(n_b: int, side: int) -> np.ndarray:
                     axis=1).astype(np.float32)
 
 
-def _check_count(value, name: str, lo: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
-        raise WarpbwError(f"{name}: expected an integer >= {lo}, got {value!r}")
-    return int(value)
-
-
 def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env_data: EnvMapData,
                    tables: BandwidthTables, n_b: int = N_B_DEFAULT, seed: int = 0, preconvolved: bool = False,
                    nyquist: float = NYQUIST_FACTOR, stride: int = PASS_STRIDE_DEFAULT,
@@ -531,8 +525,8 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     import time
 
     dirs_np = direction_set(n_b, seed)
-    stride = _check_count(stride, "stride", 1)
-    pool_radius = _check_count(pool_radius, "pool_radius", 0)
+    stride = check_count(stride, "stride", 1)
+    pool_radius = check_count(pool_radius, "pool_radius", 0)
     if not (nyquist > 0 and math.isfinite(nyquist)):
         raise WarpbwError(f"nyquist: expected a positive factor, got {nyquist!r}")
     t0 = time.perf_counter()
@@ -617,10 +611,10 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     if isinstance(budget, bool) or not isinstance(budget, (int, float, np.integer, np.floating)) \
             or not (budget > 0 and math.isfinite(budget)):
         raise WarpbwError(f"budget: expected a positive number of samples per pixel, got {budget!r}")
-    _check_count(n_min, "n_min", 1)
+    check_count(n_min, "n_min", 1)
     if n_max is None:
         n_max = max(int(n_min), int(math.ceil(N_P_MAX_PER_BUDGET * budget)))
-    if isinstance(n_max, bool) or not isinstance(n_max, (int, np.integer)) or n_max < n_min:
+    if not is_int(n_max) or n_max < n_min:
         raise WarpbwError(f"n_max: expected an integer >= n_min ({n_min}), got {n_max!r}")
     W, H = buf.width, buf.height
     cov = buf.coverage

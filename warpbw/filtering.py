@@ -80,7 +80,7 @@ import numpy as np
 import warp as wp
 
 from warpbw.envmap import LUMINANCE_RGB, EnvMapData, env_pdf, env_radiance, env_sample, load_environment
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_count
 from warpbw.gbuffer import CameraData, make_camera
 from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene
 
@@ -899,10 +899,6 @@ def diffuse_pick(diffuse, f0) -> float:
     return min(max(q, DIFFUSE_PICK_MIN), 1.0 - DIFFUSE_PICK_MIN)
 
 
-def _is_count(n, lo: int) -> bool:
-    return not isinstance(n, bool) and isinstance(n, (int, np.integer)) and n >= lo
-
-
 def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed: int = 0, device: str = "cpu",
                      prepared: FilteringScene | None = None, camera: Camera | None = None,
                      progress: bool = False, lod_bias: float = LOD_BIAS, threads: int | None = None,
@@ -917,10 +913,10 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
 
     if method not in ALL_METHODS:
         raise WarpbwError(f"filter method {method!r}: expected one of {', '.join(ALL_METHODS)}")
-    if method == "ground_truth" and not _is_count(spp, MIN_GT_SPP):
-        raise WarpbwError(f"ground truth rays per pixel {spp!r}: expected an integer >= {MIN_GT_SPP}")
-    if method != "ground_truth" and scene.environment is not None and not _is_count(env_spp, 1):
-        raise WarpbwError(f"environment samples per pixel (env_spp) {env_spp!r}: expected an integer >= 1")
+    if method == "ground_truth":
+        check_count(spp, "spp (ground-truth rays per pixel)", MIN_GT_SPP)
+    elif scene.environment is not None:
+        check_count(env_spp, "env_spp (environment samples per pixel)", 1)
     if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm for mp in prepared.mips.values())):
         prepared = prepare_filtering(scene, (method,), device, progress)
     cam_s = camera or scene.camera

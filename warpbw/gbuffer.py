@@ -30,7 +30,7 @@ from typing import Sequence
 import numpy as np
 import warp as wp
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, is_int
 
 RAY_T_MAX = 1.0e30
 
@@ -381,8 +381,7 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals, curvatur
     ranges = geometry.mesh_vertex_ranges
     if geometry.mesh is None or not ranges:
         raise WarpbwError("update_mesh: the geometry has no mesh to update (built with meshes=[])")
-    if isinstance(mesh_index, bool) or not isinstance(mesh_index, (int, np.integer)) \
-            or not 0 <= mesh_index < len(ranges):
+    if not is_int(mesh_index) or not 0 <= mesh_index < len(ranges):
         raise WarpbwError(f"update_mesh: mesh_index: expected an integer in 0..{len(ranges) - 1}, "
                           f"got {mesh_index!r}")
     start, count = ranges[int(mesh_index)]

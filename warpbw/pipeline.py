@@ -21,7 +21,7 @@ import numpy as np
 
 from warpbw import brdf as brdf_mod
 from warpbw import envmap
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, is_int
 from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer)
 from warpbw.scene import MeshObject, Scene, SphereObject
 
@@ -170,7 +170,7 @@ def _gbuffer(prep: PreparedScene, timings: dict) -> GBuffer:
 
 
 def _check_spp(spp) -> None:
-    if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
+    if not is_int(spp) or spp < 1:
         raise WarpbwError(f"spp: expected a positive integer, got {spp!r}")
 
 
