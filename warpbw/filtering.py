@@ -989,8 +989,7 @@ def filtering_summary(scene: Scene) -> dict:
               for li in scene.lights]
     e = scene.environment
     env = "none" if e is None else (
-        f"{e.file or (e.procedural and 'procedural ' + e.procedural) or f'constant {list(e.constant)}'}, sampled "
-        "per pixel: BRDF and environment samples, multiple importance sampling")
+        f"{e.describe()}; sampled per pixel: BRDF and environment samples, multiple importance sampling")
     mats = {n: scene.materials[n].type for n in scene.material_order}
     return {
         "scene": scene.source,

@@ -363,8 +363,6 @@ def scene_summary(scene: Scene) -> dict:
     """What the scene needs, from the scene file alone (no asset is loaded)."""
     kinds = sorted({scene.materials[n].type for n in scene.material_order})
     env = scene.environment
-    light = (f"file {env.file}" if env.file else f"procedural {env.procedural}" if env.procedural
-             else f"constant {list(env.constant)}")
     objects = []
     for o in scene.objects:
         if isinstance(o, SphereObject):
@@ -383,7 +381,7 @@ def scene_summary(scene: Scene) -> dict:
     return {
         "scene": scene.source,
         "resolution": [scene.camera.width, scene.camera.height],
-        "environment": light + f", rotation {env.rotation:g} deg, scale {env.scale:g}",
+        "environment": env.describe(),
         "objects": objects,
         "materials": {n: scene.materials[n].type for n in scene.material_order},
         "unused_materials": unused,

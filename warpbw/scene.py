@@ -122,6 +122,12 @@ class Environment:
     rotation: float = 0.0  # degrees about +Y
     scale: float = 1.0
 
+    def describe(self) -> str:
+        """One line for ``warpbw info``: the source, rotation and scale."""
+        src = (f"file {self.file}" if self.file else f"procedural {self.procedural}" if self.procedural
+               else f"constant {list(self.constant)}")
+        return f"{src}, rotation {self.rotation:g} deg, scale {self.scale:g}"
+
 
 @dataclass(frozen=True)
 class SphereObject:
