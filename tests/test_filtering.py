@@ -32,12 +32,13 @@ RADIANCE = (3.0, 2.5, 2.0)
 
 
 def scene_toml(material_extra: str = "", roughness: float = 0.2, position=(0.0, 1.5, 2.0), resolution=(24, 16),
-               size: float = 2.0, fov: float = 40.0, lights: int = 1, environment: str = "") -> str:
+               size: float = 2.0, fov: float = 40.0, lights: int = 1, environment: str = "",
+               light_dir=LIGHT_DIR, radiance=RADIANCE) -> str:
     light = f"""
 [[light]]
 type = "directional"
-direction = {list(LIGHT_DIR)}
-radiance = {list(RADIANCE)}
+direction = {list(light_dir)}
+radiance = {list(radiance)}
 """
     second = """
 [[light]]
@@ -82,7 +83,8 @@ def _cache(tmp_path, monkeypatch):
 
 # ------------------------------------------------------------------------------------------ independent numpy truth
 
-def numpy_camera_rays(position, look_at, fov_deg, w, h):
+def numpy_camera_rays(position, look_at, fov_deg, w, h, jitter=(0.5, 0.5)):
+    """The origin and the unit rays (h, w, 3) through the point ``jitter`` (in [0, 1)^2) of every pixel."""
     o = np.asarray(position, float)
     fwd = np.asarray(look_at, float) - o
     fwd /= np.linalg.norm(fwd)
@@ -91,7 +93,7 @@ def numpy_camera_rays(position, look_at, fov_deg, w, h):
     up = np.cross(right, fwd)
     tx = math.tan(math.radians(fov_deg) / 2)
     ty = tx * h / w
-    x, y = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    x, y = np.meshgrid(np.arange(w) + jitter[0], np.arange(h) + jitter[1])
     d = fwd + ((2 * x / w - 1) * tx)[..., None] * right + ((1 - 2 * y / h) * ty)[..., None] * up
     return o, d / np.linalg.norm(d, axis=-1, keepdims=True)
 
@@ -525,16 +527,8 @@ def test_flat_plane_under_a_constant_environment_is_the_hemisphere_integral():
     g = render_filtering(s, "ground_truth", spp=1024, prepared=prep)
     sub = np.stack(np.meshgrid((np.arange(4) + 0.5) / 4, (np.arange(4) + 0.5) / 4), -1).reshape(-1, 2)
     ref = np.zeros((6, 8, 3))
-    for jx, jy in sub:                               # the box filter, as 16 sub-pixel ray directions
-        _, dd = numpy_camera_rays((0.0, 1.5, 2.0), (0, 0, 0), 40.0, 8, 6)
-        x, y = np.meshgrid(np.arange(8) + jx, np.arange(6) + jy)
-        tx = math.tan(math.radians(20.0))
-        dirs = np.stack([(2 * x / 8 - 1) * tx, (1 - 2 * y / 6) * tx * 6 / 8, np.ones_like(x, float)], -1)
-        fwd = -np.array([0.0, 1.5, 2.0]) / math.hypot(1.5, 2.0)
-        right = np.cross(fwd, [0.0, 1.0, 0.0]); right /= np.linalg.norm(right)
-        up = np.cross(right, fwd)
-        w = dirs[..., :1] * right + dirs[..., 1:2] * up + dirs[..., 2:] * fwd
-        w /= np.linalg.norm(w, axis=-1, keepdims=True)
+    for jitter in sub:                               # the box filter, as 16 sub-pixel ray directions
+        _, w = numpy_camera_rays((0.0, 1.5, 2.0), (0, 0, 0), 40.0, 8, 6, jitter)
         ref += np.array([numpy_flat_under_constant_sky(-v[1], 0.3, nt=300, nphi=360)
                          for v in w.reshape(-1, 3)]).reshape(6, 8, 3) / len(sub)
     cov = g.coverage                                 # pixels wholly on the plane (an edge pixel's box is not)
@@ -563,13 +557,9 @@ def test_a_small_sun_in_the_environment_shades_as_the_directional_light_of_its_i
     # the estimators' noise (the environment sampler is piecewise constant per texel, the sun's radiance not)
     d, E = _small_sun_env(tmp_path)
     heights = np.random.default_rng(2).normal(size=(16, 16)) * 0.02
-    write_exr(tmp_path / "map.exr", heights.astype(np.float32)[..., None], channels=["Y"])
-    extra = 'normal_map = "map.exr"\ntiling = 4.0\n'
-    env_scene = parse_scene(scene_toml(extra, roughness=0.4, lights=0, environment='[environment]\nfile = "sky.exr"\n'),
-                            tmp_path, "s.toml")
-    lit = parse_scene(scene_toml(extra, roughness=0.4)
-                      .replace(f"direction = {list(LIGHT_DIR)}", f"direction = {list(d)}")
-                      .replace(f"radiance = {list(RADIANCE)}", f"radiance = {[E] * 3}"), tmp_path, "t.toml")
+    env_scene = scene_with_map(tmp_path, heights=heights, tiling=4.0, roughness=0.4, lights=0,
+                               environment='[environment]\nfile = "sky.exr"\n')
+    lit = scene_with_map(tmp_path, heights=heights, tiling=4.0, roughness=0.4, light_dir=d, radiance=(E, E, E))
     pe, pl = prepare_filtering(env_scene, ALL_METHODS), prepare_filtering(lit, ALL_METHODS)
     for m in METHODS:
         a = render_filtering(env_scene, m, prepared=pe, env_spp=512)
