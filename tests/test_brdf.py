@@ -120,11 +120,14 @@ def test_merl_and_ggx_reciprocity(random_merl, analytic, ti, pi_, to, po):
     wo = np.array([[np.sin(to) * np.cos(po), np.sin(to) * np.sin(po), np.cos(to)]])
     _, mb = random_merl
     # The interpolated lookup is continuous, so swapping wi and wo may only move it by float32 rounding
-    # of phi_d, which is ill-conditioned near the mirror direction: d(phi_d) ~ 1e-7 / theta_h rad.
+    # of phi_d, which is ill-conditioned near the mirror direction, d(phi_d) ~ 1e-7 / theta_h rad, and where
+    # wi and wo nearly coincide, d(phi_d) ~ 1e-7 / theta_d rad (the half-vector frame's components of wi are
+    # then differences of nearly equal numbers; hypothesis found theta_d = 0.0033 moving it by 0.0032).
     # Random data change by O(1) per bin (180 bins over pi), so allow that times a safety factor.
     h = (wi + wo) / np.linalg.norm(wi + wo)
     theta_h = float(np.arccos(np.clip(h[0, 2], -1, 1)))
-    tol = 2e-3 + 50 * 2.0 * (180 / np.pi) * 1e-7 / max(theta_h, 1e-6)
+    theta_d = 0.5 * float(np.arccos(np.clip(np.sum(wi * wo), -1, 1)))
+    tol = 2e-3 + 50 * 2.0 * (180 / np.pi) * 1e-7 * (1 / max(theta_h, 1e-6) + 1 / max(theta_d, 1e-6))
     a = B.eval_brdf(mb, 1, wi, wo)
     b = B.eval_brdf(mb, 1, wo, wi)
     assert np.allclose(a, b, rtol=0.0, atol=tol)
