@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 
 from warpbw.errors import WarpbwError
 from warpbw.filtering import (ALL_METHODS, METHODS, MIN_GT_SPP, fetch_gmm, gmm_ndf, normal_moment_mipmap,
-                              prepare_filtering, render_filtering, zoomed_camera)
+                              pair_uniforms, prepare_filtering, render_filtering, zoomed_camera)
 from warpbw.io.exr import write_exr
 from warpbw.scene import parse_scene
 
@@ -598,3 +598,40 @@ def test_environment_sample_count_must_be_a_positive_integer(env_spp):
                     Path.cwd(), "s.toml")
     with pytest.raises(WarpbwError, match=r"env_spp"):
         render_filtering(s, "toksvig", env_spp=env_spp)
+
+
+def _rd_steps(d):
+    """Roberts' R_d sequence steps phi^-1 .. phi^-d, phi the real root > 1 of x^(d+1) = x + 1 (numpy's roots)."""
+    r = np.roots([1.0] + [0.0] * (d - 1) + [-1.0, -1.0])
+    return r[np.abs(r.imag) < 1e-12].real.max() ** -np.arange(1, d + 1)
+
+
+def test_environment_pairs_step_through_the_r3_and_r2_sequences():
+    n = 4096
+    u = pair_uniforms(seed=5, pixel=17, n=n).astype(np.float64)
+    assert u.shape == (n, 5) and (u >= 0).all() and (u < 1).all()
+    # pair k = frac(u_0 + k alpha): R_3 (the BRDF draw), then R_2 (the environment draw); the tolerance is the
+    # 32-bit fixed point's (alpha truncated to 2^-32, times k) and float32's 2^-24
+    alpha = np.concatenate([_rd_steps(3), _rd_steps(2)])
+    dev = (u - u[0] - np.arange(n)[:, None] * alpha) % 1.0
+    assert np.minimum(dev, 1.0 - dev).max() < 2e-6
+    # the offset is drawn per pixel and per seed
+    assert not np.allclose(pair_uniforms(5, 18, 1)[0], u[0]) and not np.allclose(pair_uniforms(6, 17, 1)[0], u[0])
+
+
+def _box_discrepancy(p):
+    """max over the boxes [0, a) x [0, b), a and b multiples of 1/8, of |fraction of the points inside - a b|."""
+    g = np.arange(1, 9) / 8
+    inside = (p[:, 0, None, None] < g[:, None]) & (p[:, 1, None, None] < g[None, :])
+    return np.abs(inside.mean(0) - g[:, None] * g[None, :]).max()
+
+
+def test_environment_pairs_cover_the_square_more_evenly_than_independent_uniforms():
+    # 64 pairs per pixel, over 64 pixels: the 2D points that place the BRDF draw (columns 1, 2) and the
+    # environment draw (3, 4) have a box discrepancy near 0.05; independent uniforms average about 0.11
+    pts = [pair_uniforms(seed=0, pixel=i, n=64) for i in range(64)]
+    rng = np.random.default_rng(0)
+    assert np.mean([_box_discrepancy(rng.random((64, 2))) for _ in range(64)]) > 0.09   # the yardstick
+    for cols in ((1, 2), (3, 4)):
+        assert np.mean([_box_discrepancy(p[:, cols]) for p in pts]) < 0.07, cols
+
