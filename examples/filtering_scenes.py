@@ -146,6 +146,8 @@ def main(argv=None) -> int:
     ap.add_argument("--run", action="store_true", help="run warpbw bench-filtering on each scene")
     ap.add_argument("--zoom", default="1,2,4,8,16,32", help="zoom factors for --run")
     ap.add_argument("--gt-spp", default="1024", help="ground-truth rays per pixel for --run")
+    ap.add_argument("--spp", default="64", help="with --environment, the filtered methods' pairs of one BRDF and "
+                    "one environment sample per pixel for --run")
     ap.add_argument("--lights", choices=LIGHT_SETUPS, default="ring",
                     help="ring: 8 lights spreading the half-vector over normal space (default); mirror: the one "
                          "light mirroring the view (module docstring)")
@@ -163,7 +165,7 @@ def main(argv=None) -> int:
     if args.run:
         for p in paths:
             cmd = [sys.executable, "-m", "warpbw.cli", "bench-filtering", str(p), "--zoom", args.zoom,
-                   "--gt-spp", args.gt_spp, "--json", str(p.with_suffix(".json")), "--plot",
+                   "--gt-spp", args.gt_spp, "--spp", args.spp, "--json", str(p.with_suffix(".json")), "--plot",
                    str(p.with_suffix(".png"))] + (["--force"] if args.force else [])
             print("$", " ".join(cmd), flush=True)
             r = subprocess.run(cmd)

@@ -122,6 +122,31 @@ def test_bench_filtering_usage_errors(plane_scene, tmp_path, capsys):
     assert not (tmp_path / "x.json").exists() and not (tmp_path / "y.json").exists()
 
 
+def test_bench_filtering_spp_sets_the_environment_pairs(plane_scene, capsys):
+    from warpbw.bench_filtering import run_bench_filtering
+    from warpbw.scene import load_scene
+
+    d = plane_scene.parent
+    env = d / "env.toml"
+    light = 'type = "directional"\ndirection = [0.0, 0.8, -0.6]\nradiance = [2.0, 2.0, 2.0]\n'
+    text = plane_scene.read_text()
+    assert light in text
+    env.write_text(text.replace("[[light]]\n" + light, '[environment]\nprocedural = "sky"\n'))
+    sky = load_scene(env)
+    assert not sky.lights
+    # the filtered method's own sampling noise is part of its error: 128 pairs per pixel come closer to the
+    # ground truth than 1 (the ground truth's noise, 256 rays, is common to both)
+    errs = [run_bench_filtering(sky, zooms=(1,), gt_spp=256, runs=1, methods=("toksvig",), env_spp=n)
+            for n in (1, 128)]
+    assert [r["env_spp"] for r in errs] == [1, 128]
+    assert errs[1]["methods"]["toksvig"][0]["error"] < 0.7 * errs[0]["methods"]["toksvig"][0]["error"]
+    lit = run_bench_filtering(load_scene(plane_scene), zooms=(1,), gt_spp=64, runs=1, methods=("toksvig",))
+    assert lit["env_spp"] is None
+    with pytest.raises(SystemExit) as e:
+        main(["bench-filtering", str(env), "--json", str(d / "s.json"), "--spp", "0"])
+    assert e.value.code == 2 and "--spp" in capsys.readouterr().err and not (d / "s.json").exists()
+
+
 def test_render_routes_plane_scenes_to_the_filtering_renderer(plane_scene, capsys):
     d = plane_scene.parent
     assert main(["render", str(plane_scene), "-o", str(d / "o.exr"), "--filter", "lean", "-q"]) == 0

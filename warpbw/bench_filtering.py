@@ -5,7 +5,8 @@ Public:
     ``DEFAULT_ZOOMS``, ``DEFAULT_GT_SPP``, ``FLICKER_STEP``
     ``colour_error(image, ref, mask) -> float``     per-pixel normalised Euclidean colour error, mean
     ``flicker(a0, a1, g0, g1, mask, norm) -> float``  frame-to-frame change in excess of the ground truth's
-    ``run_bench_filtering(scene, zooms, gt_spp, runs, seed, device, cache, progress, log) -> dict``
+    ``run_bench_filtering(scene, zooms, gt_spp, runs, seed, device, cache, progress, log, methods,
+                          env_spp) -> dict``
     ``write_plot(record, path)``                    error and flicker against zoom, one curve per method
     ``format_table(record) -> str``
 
@@ -21,9 +22,10 @@ covers z^2 times more texels.
   the error, mean over the pixels.  A method that follows the truth scores 0; shimmering (a highlight that
   pops between frames as the footprint moves over the texels) scores high.
 * Time: kernel time of one frame after a warm-up frame (compiled kernels), median of ``runs``.
-* Under an [environment] every method also samples it (``warpbw.filtering``: ``DEFAULT_ENV_SPP`` BRDF +
-  environment pairs per pixel, the same seed in both frames of a flicker pair), so errors and flicker then
-  include that noise.
+* Under an [environment] every method also samples it (``warpbw.filtering``: ``env_spp`` BRDF + environment
+  pairs per pixel, by default ``warpbw.filtering.DEFAULT_ENV_SPP``; the same seed in both frames of a flicker
+  pair), so errors and flicker then include that noise; the record holds ``env_spp`` (null without an
+  environment).
 * Ground truth: ``gt_spp`` jittered rays per pixel (``warpbw.filtering``), the same seed in both frames of
   a flicker pair; its own noise is reported per zoom as ``ground_truth[i].noise`` = error of a second,
   independently seeded ground truth / sqrt(2), the floor under every method's error, and
@@ -41,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_count
 
 DEFAULT_ZOOMS = (1, 2, 4, 8, 16, 32)
 # Ground-truth rays per pixel of the benchmark: a pixel of the far zooms covers hundreds of texels.
@@ -81,9 +83,10 @@ def flicker(a0, a1, g0, g1, mask, norm: float) -> float:
 
 def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP, runs: int = 3, seed: int = 0,
                         device: str = "cpu", cache: Path | None = None, progress: bool = False,
-                        log=lambda *a, **k: None, methods=None) -> dict:
+                        log=lambda *a, **k: None, methods=None, env_spp: int | None = None) -> dict:
     """The benchmark record (module docstring) for a scene with planes."""
-    from warpbw.filtering import METHODS, MIN_GT_SPP, prepare_filtering, render_filtering, zoomed_camera
+    from warpbw.filtering import (DEFAULT_ENV_SPP, METHODS, MIN_GT_SPP, prepare_filtering, render_filtering,
+                                  zoomed_camera)
 
     methods = tuple(methods or METHODS)
     if not scene.has_planes:
@@ -91,6 +94,8 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
                           "cook-torrance materials")
     if gt_spp < MIN_GT_SPP:
         raise WarpbwError(f"--gt-spp {gt_spp}: expected at least {MIN_GT_SPP} rays per pixel")
+    env_spp = DEFAULT_ENV_SPP if env_spp is None else env_spp
+    check_count(env_spp, "--spp (environment pairs per pixel)", 1)
     zooms = [float(z) for z in zooms]
     with tempfile.TemporaryDirectory(prefix="warpbw-gmm-") as tmp:
         t0 = time.perf_counter()
@@ -100,7 +105,8 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     gmm_time = sum(n.get("gmm_aligned", {}).get("time_s", 0.0) for n in prep.notes.values())
     log(f"precompute: {prep_time:.2f} s (aligned GMM mipmaps {gmm_time:.2f} s)")
     record = {"scene": scene.source, "resolution": [scene.camera.width, scene.camera.height], "zooms": zooms,
-              "gt_spp": int(gt_spp), "runs": int(runs), "seed": int(seed), "flicker_step": FLICKER_STEP,
+              "gt_spp": int(gt_spp), "env_spp": int(env_spp) if scene.environment is not None else None,
+              "runs": int(runs), "seed": int(seed), "flicker_step": FLICKER_STEP,
               "methods": {m: [] for m in methods}, "ground_truth": [],
               "precompute_time_s": round(gmm_time, 4), "prepare_time_s": round(prep_time, 4),
               "precompute": prep.notes}
@@ -126,10 +132,10 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
             times = []
             frames = []
             for k in range(max(1, runs)):
-                r = render_filtering(scene, m, seed=seed, prepared=prep, camera=cams[0])
+                r = render_filtering(scene, m, seed=seed, prepared=prep, camera=cams[0], env_spp=env_spp)
                 times.append(r.time_s)
             frames.append(r)
-            frames.append(render_filtering(scene, m, seed=seed, prepared=prep, camera=cams[1]))
+            frames.append(render_filtering(scene, m, seed=seed, prepared=prep, camera=cams[1], env_spp=env_spp))
             err = colour_error(frames[0].image, g[0].image, cov)
             fl = flicker(frames[0].image, frames[1].image, g[0].image, g[1].image, both, norm)
             record["methods"][m].append({"zoom": z, "error": err, "flicker": fl,

@@ -444,7 +444,7 @@ def cmd_bench_filtering(args) -> int:
     _init_warp(args.device)
     log = (lambda *a, **k: None) if args.quiet else print
     record = bf.run_bench_filtering(scene, zooms=args.zoom, gt_spp=args.gt_spp, runs=args.runs, seed=args.seed,
-                                    device=args.device, cache=Path(args.cache) if args.cache else None,
+                                    env_spp=args.spp, device=args.device, cache=Path(args.cache) if args.cache else None,
                                     progress=not args.quiet, log=log)
     _write_bench(args, record, bf.write_plot)
     print(bf.format_table(record))
@@ -578,6 +578,9 @@ def build_parser() -> argparse.ArgumentParser:
     bf.add_argument("--plot", help="write the plot here (PNG): error and flicker against zoom")
     bf.add_argument("--gt-spp", type=_positive_int("gt-spp"), default=_bf.DEFAULT_GT_SPP,
                     help=f"ground-truth rays per pixel (>= 64; default {_bf.DEFAULT_GT_SPP})")
+    bf.add_argument("--spp", type=_positive_int("spp"), default=DEFAULT_SPP,
+                    help="under an [environment]: pairs of one BRDF and one environment sample per pixel of the "
+                    f"filtered methods (default {DEFAULT_SPP}, as warpbw render; their noise is part of the error)")
     bf.add_argument("--cache", help="GMM mipmap cache directory to reuse (default: build afresh, so that the "
                     "precompute time is measured)")
     bench_common(bf)
