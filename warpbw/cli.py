@@ -444,8 +444,8 @@ def cmd_bench_filtering(args) -> int:
     _init_warp(args.device)
     log = (lambda *a, **k: None) if args.quiet else print
     record = bf.run_bench_filtering(scene, zooms=args.zoom, gt_spp=args.gt_spp, runs=args.runs, seed=args.seed,
-                                    env_spp=args.spp, device=args.device, cache=Path(args.cache) if args.cache else None,
-                                    progress=not args.quiet, log=log)
+                                    env_spp=args.spp, device=args.device,
+                                    cache=Path(args.cache) if args.cache else None, progress=not args.quiet, log=log)
     _write_bench(args, record, bf.write_plot)
     print(bf.format_table(record))
     return 0
