@@ -634,4 +634,3 @@ def test_environment_pairs_cover_the_square_more_evenly_than_independent_uniform
     assert np.mean([_box_discrepancy(rng.random((64, 2))) for _ in range(64)]) > 0.09   # the yardstick
     for cols in ((1, 2), (3, 4)):
         assert np.mean([_box_discrepancy(p[:, cols]) for p in pts]) < 0.07, cols
-
