@@ -181,6 +181,7 @@ def test_render_and_info_of_a_plane_scene_under_an_environment(plane_scene, caps
     assert main(["info", str(env), "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
     assert "procedural sky" in s["environment"] and "multiple importance sampling" in s["environment"]
+    assert "quasi-random" in s["environment"]
     assert any("environment" in st for st in s["stages"])
     assert main(["render", str(env), "-o", str(d / "e.exr"), "--filter", "toksvig", "--spp", "4", "-q"]) == 0
     assert main(["render", str(plane_scene), "-o", str(d / "l.exr"), "--filter", "toksvig", "-q"]) == 0
@@ -188,7 +189,7 @@ def test_render_and_info_of_a_plane_scene_under_an_environment(plane_scene, caps
     cov = with_sky[..., 3] > 0
     assert np.all(np.isfinite(with_sky)) and np.all(with_sky[cov, :3] > lights_only[cov, :3])   # the sky adds light
     st = json.loads((d / "e.json").read_text())["environment"]
-    assert st["samples_per_pixel"] == 8 and st["name"] == "procedural sky"
+    assert st["samples_per_pixel"] == 8 and st["name"] == "procedural sky" and "Kronecker" in st["sampler"]
 
 
 def test_sphere_scene_without_environment_is_a_clear_error(tmp_path, capsys):

@@ -1019,7 +1019,7 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     if with_env:
         stats["environment"] = {"name": prepared.env.name, "size": [prepared.env.width, prepared.env.height],
                                 "samples_per_pixel": 2 * (int(spp) if method == "ground_truth" else int(env_spp)),
-                                "seed": int(seed)}
+                                "seed": int(seed), "sampler": "R_3 + R_2 Kronecker, random offset per pixel"}
     return FilterResult(img, cov, lev, dt, method, stats)
 
 
@@ -1041,7 +1041,8 @@ def filtering_summary(scene: Scene) -> dict:
               for li in scene.lights]
     e = scene.environment
     env = "none" if e is None else (
-        f"{e.describe()}; sampled per pixel: BRDF and environment samples, multiple importance sampling")
+        f"{e.describe()}; sampled per pixel: BRDF and environment samples, multiple importance sampling, "
+        "quasi-random (R_3 and R_2 sequences, a random offset per pixel)")
     mats = {n: scene.materials[n].type for n in scene.material_order}
     return {
         "scene": scene.source,
