@@ -33,7 +33,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, is_int
 
 MATERIAL_TYPES = ("lambert", "ggx", "merl", "npf", "cook-torrance")
 LIGHT_TYPES = ("directional",)
@@ -347,7 +347,7 @@ def _camera(ctx: _Ctx, d: dict) -> Camera:
         ctx.fail("[camera].fov", f"expected degrees in (0, 180), got {fov:g}")
     res = d["resolution"]
     if (not isinstance(res, list) or len(res) != 2
-            or not all(isinstance(r, int) and not isinstance(r, bool) and r > 0 for r in res)):
+            or not all(is_int(r) and r > 0 for r in res)):
         ctx.fail("[camera].resolution", f"expected two positive integers [width, height], got {res!r}")
     if max(res) > MAX_RESOLUTION:
         ctx.fail("[camera].resolution", f"expected at most {MAX_RESOLUTION} pixels per side, got {res!r}")
@@ -460,7 +460,7 @@ def _cook_torrance(ctx: _Ctx, name: str, key: str, d: dict) -> Material:
     tiling = ctx.number(d.get("tiling", 1.0), f"{key}.tiling", lo=0.0, lo_open=True, hi=MAX_TILING)
     gmm = ctx.path(d["gmm"], f"{key}.gmm") if "gmm" in d else None
     k_gmm = d.get("gmm_components", GMM_DEFAULT_COMPONENTS)
-    if isinstance(k_gmm, bool) or not isinstance(k_gmm, int) or not 1 <= k_gmm <= GMM_MAX_COMPONENTS:
+    if not is_int(k_gmm) or not 1 <= k_gmm <= GMM_MAX_COMPONENTS:
         ctx.fail(f"{key}.gmm_components", f"expected an integer from 1 to {GMM_MAX_COMPONENTS}, got {k_gmm!r}")
     return Material(name, "cook-torrance", roughness=rough, f0=f0, diffuse=diffuse, normal_map=nmap,
                     normal_map_kind=kind, normal_map_scale=scale, tiling=tiling, gmm=gmm, gmm_components=k_gmm)
