@@ -132,7 +132,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--prior", type=float, default=1.0,
                    help="alignment constant c of the MAP prior (default 1; 0 is plain EM)")
     g.add_argument("--kind", choices=("height", "normal"), default="height",
-                   help="MAP is a single-channel height field (default) or an RGB tangent-space normal map")
+                   help="MAP is a single-channel height field (default; 16-bit PNG or EXR: 8 bits "
+                        "give terraced normals) or an RGB tangent-space normal map (PNG: [0, 1]-encoded; "
+                        "EXR: raw unit vectors or [0, 1]-encoded)")
     g.add_argument("--scale", type=float, default=1.0,
                    help="height multiplier; heights are in units of the map's width (default 1)")
     g.add_argument("--unaligned", action="store_true",

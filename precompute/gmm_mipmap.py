@@ -92,6 +92,14 @@ WEIGHT_EPS = 1e-8
 # Texels x samples x components per vectorised batch (float64: ~16 MB per (T, M, K) array).
 BATCH_ELEMENTS = 1 << 21
 KINDS = ("height", "normal")
+# A [0, 1]-encoded 8-bit normal map stores z in steps of 2/255, so a texel at the horizon can decode to a
+# z just below 0: normals up to one step below the tangent plane are taken as lying in it (z set to 0),
+# normals further below are an error (an object-space map, or garbage, given as a tangent-space map).
+NORMAL_Z_TOL = 2.0 / 255.0
+# |v| = 1 within this: the texels of a float normal map hold the vectors themselves (a [0, 1]-encoded
+# texel (n + 1) / 2 has |v|^2 = 1 + (n_x + n_y + n_z) / 2, about 1.5 on a flat map), and the normals
+# given to build_gmm_mipmap are unit (half-float EXRs round each component by up to 2^-11)
+UNIT_TOL = 1e-2
 
 
 # --------------------------------------------------------------------------------------------------
@@ -409,7 +417,29 @@ def _validate(data, kind, components, prior, scale):
                           + ("(H, W) heights" if kind == "height" else "(H, W, 3) normals"))
     if not np.all(np.isfinite(data)):
         raise WarpbwError(f"{kind} map has {int(np.sum(~np.isfinite(data)))} NaN or infinite values")
+    if kind == "normal":
+        length = np.linalg.norm(data, axis=-1)
+        off = np.abs(length - 1.0) > UNIT_TOL
+        if off.any():
+            r, c = np.argwhere(off)[0]
+            raise WarpbwError(f"normal map: {int(off.sum())} normals are not unit vectors (first at row {r}, "
+                              f"column {c}: length {length[r, c]:.4g}); expected unit tangent-space normals")
+        problem = _below_surface(data)
+        if problem:
+            raise WarpbwError(f"normal map: {problem}")
+        data = data / length[..., None]
     return data
+
+
+def _below_surface(normals) -> str | None:
+    """The one-line problem when some unit normals (H, W, 3) point below the tangent plane by more than
+    ``NORMAL_Z_TOL``, else None."""
+    below = normals[..., 2] < -NORMAL_Z_TOL
+    if not below.any():
+        return None
+    r, c = np.argwhere(below)[0]
+    return (f"{int(below.sum())} texels hold normals pointing below the surface (first at row {r}, column {c}: "
+            f"z = {normals[r, c, 2]:.3f}); expected a tangent-space normal map (z up, mostly blue)")
 
 
 def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int = DEFAULT_COMPONENTS,
@@ -530,8 +560,9 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"     # PNG spec section 5.2
 PNG_BIT_DEPTH_OFFSET = 24            # IHDR: 8 signature + 4 length + 4 type + 4 width + 4 height bytes
 
 
-def _read_pixels(p: Path) -> np.ndarray:
-    """(H, W, C) float64 in [0, 1] for PNG/Pillow images, raw floats for EXR."""
+def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
+    """(H, W, C) float64 in [0, 1] for PNG/Pillow images, raw floats for EXR; and the bits per channel the
+    values were read with (None for floating point)."""
     from warpbw.io.exr import EXR_MAGIC, read_exr
 
     with open(p, "rb") as fh:
@@ -540,39 +571,47 @@ def _read_pixels(p: Path) -> np.ndarray:
         img = read_exr(p)
         ch = img.channels
         if all(k in ch for k in ("R", "G", "B")):
-            return img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]].astype(np.float64)
+            return img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]].astype(np.float64), None
         if "Y" in ch:
-            return img.pixels[..., [ch.index("Y")]].astype(np.float64)
-        return img.pixels.astype(np.float64)
+            return img.pixels[..., [ch.index("Y")]].astype(np.float64), None
+        return img.pixels.astype(np.float64), None
     from PIL import Image, UnidentifiedImageError
 
+    bits = None
     try:
         with Image.open(p) as im:
             im.load()
             mode = im.mode
             if mode in ("I;16", "I;16B", "I;16L", "I;16N"):
                 arr = np.asarray(im, dtype=np.float64) / 65535.0
+                bits = 16
             elif mode == "I":
                 sixteen = head.startswith(PNG_MAGIC) and len(head) > PNG_BIT_DEPTH_OFFSET \
                     and head[PNG_BIT_DEPTH_OFFSET] == 16
                 arr = np.asarray(im, dtype=np.float64) / (65535.0 if sixteen else 1.0)
+                bits = 16 if sixteen else 32
             elif mode == "F":
                 arr = np.asarray(im, dtype=np.float64)
             elif mode in ("1", "L", "LA", "P", "PA") and not (mode in ("P", "PA") and im.palette.mode != "L"):
                 arr = np.asarray(im.convert("L"), dtype=np.float64) / 255.0
+                bits = 1 if mode == "1" else 8
             else:
                 arr = np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0
+                bits = 8
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
         raise WarpbwError(f"{p}: not an image file (expected an OpenEXR or PNG image; {type(exc).__name__})") from None
-    return arr[..., None] if arr.ndim == 2 else arr
+    return (arr[..., None] if arr.ndim == 2 else arr), bits
 
 
 def load_map(path, kind: str = "height") -> np.ndarray:
     """Read a height field (single channel; an RGB image is accepted only with identical channels) as
     (H, W) float64, or a tangent-space normal map (RGB) as unit (H, W, 3).  PNG normal maps are
-    [0, 1]-encoded; an EXR normal map with any negative value holds the vectors themselves, otherwise
-    it is [0, 1]-encoded too.  16-bit greyscale PNGs keep their precision (Pillow reads 16-bit RGB PNGs
-    as 8-bit).  Every problem is a one-line WarpbwError naming the file."""
+    [0, 1]-encoded; an EXR normal map holds the vectors themselves when it has a negative value or when
+    every texel is a unit vector (a [0, 1]-encoded map's texels are not: the flat normal is (0.5, 0.5, 1)),
+    otherwise it is [0, 1]-encoded too.  16-bit greyscale PNGs keep their precision (Pillow reads 16-bit RGB PNGs
+    as 8-bit).  Normals more than ``NORMAL_Z_TOL`` below the tangent plane are an error; those closer
+    are put in it.  A varying height field read with 8 bits warns (terraced normals).  Every problem is
+    a one-line WarpbwError naming the file."""
     from precompute.surfaces import normals_from_map
 
     if kind not in KINDS:
@@ -580,7 +619,7 @@ def load_map(path, kind: str = "height") -> np.ndarray:
     p = Path(path)
     if not p.is_file():
         raise WarpbwError(f"{p}: file not found (expected a {kind} map: OpenEXR or PNG image)")
-    px = _read_pixels(p)
+    px, bits = _read_pixels(p)
     if px.shape[0] == 0 or px.shape[1] == 0 or px.shape[2] == 0:
         raise WarpbwError(f"{p}: empty image ({px.shape[0]}x{px.shape[1]} texels); expected a {kind} map")
     bad = ~np.isfinite(px).all(axis=-1)
@@ -594,20 +633,30 @@ def load_map(path, kind: str = "height") -> np.ndarray:
             if not (np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 0], rgb[..., 2])):
                 raise WarpbwError(f"{p}: RGB image with differing channels given as a height field (expected a "
                                   "single-channel image; for a tangent-space normal map use --kind normal)")
-        return np.ascontiguousarray(px[..., 0])
+        heights = np.ascontiguousarray(px[..., 0])
+        if bits == 8 and np.ptp(heights) > 0:
+            warnings.warn(f"{p}: heights read with 8 bits: 256 levels give terraced normals (a 16-bit "
+                          "greyscale PNG or an EXR keeps the detail)", stacklevel=2)
+        return heights
     if px.shape[2] < 3:
         raise WarpbwError(f"{p}: single-channel image given as a normal map (expected an RGB tangent-space "
                           "normal map; for a height field use --kind height)")
     rgb = px[..., :3]
     try:
-        if rgb.min() < 0:
-            length = np.linalg.norm(rgb, axis=-1)
+        length = np.linalg.norm(rgb, axis=-1)
+        if rgb.min() < 0 or (bits is None and np.all(np.abs(length - 1.0) <= UNIT_TOL)):
             if not (length > 1e-6).all():
                 raise WarpbwError("texels hold zero-length normals; expected unit vectors")
-            return rgb / length[..., None]
-        return normals_from_map(rgb)
+            n = rgb / length[..., None]
+        else:
+            n = normals_from_map(rgb)
+        problem = _below_surface(n)
+        if problem:
+            raise WarpbwError(problem)
     except WarpbwError as exc:
         raise WarpbwError(f"{p}: {exc}") from None
+    n[..., 2] = np.maximum(n[..., 2], 0.0)   # within NORMAL_Z_TOL below: in the tangent plane
+    return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
 
 def load_source(spec: str, kind: str = "height"):

@@ -392,15 +392,22 @@ def _bad_map(tmp_path: Path, what: str) -> None:
         p.write_bytes(b"height field? no, just bytes\n" * 4)
     elif what == "rgb as height":
         write_exr(p, np.random.default_rng(0).random((4, 4, 3)).astype(np.float32), channels=["R", "G", "B"])
+    elif what == "normals into the surface":
+        n = np.zeros((4, 4, 3), np.float32)
+        n[..., 2] = 1.0
+        n[1, 3] = [0.0, 0.6, -0.8]
+        write_exr(p, n, channels=["R", "G", "B"])
     else:
         h = np.zeros((4, 4, 1), np.float32)
         h[2, 1] = np.nan
         write_exr(p, h, channels=["Y"])
-    (tmp_path / "scene.toml").write_text(PLANE_SCENE)
+    kind = 'normal_map_kind = "normal"\n' if what == "normals into the surface" else ""
+    (tmp_path / "scene.toml").write_text(PLANE_SCENE + kind)
 
 
 @pytest.mark.parametrize("what,needle", [("not an image", "not an image"),
                                          ("rgb as height", "RGB image with differing channels"),
+                                         ("normals into the surface", "pointing below the surface"),
                                          ("nan texels", "NaN")])
 def test_bad_normal_map_in_a_plane_scene(tmp_path, what, needle):
     _bad_map(tmp_path, what)

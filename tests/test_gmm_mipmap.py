@@ -367,7 +367,8 @@ def test_load_16_bit_png_height_and_grey_rgb(tmp_path):
     np.testing.assert_allclose(load_map(tmp_path / "h16.png", "height"), v / 65535.0)
     g = np.repeat((np.arange(30).reshape(5, 6) * 8).astype(np.uint8)[..., None], 3, axis=-1)
     save_png(tmp_path / "grey.png", g)
-    np.testing.assert_allclose(load_map(tmp_path / "grey.png", "height"), g[..., 0] / 255.0)
+    with pytest.warns(UserWarning, match="8 bits"):
+        np.testing.assert_allclose(load_map(tmp_path / "grey.png", "height"), g[..., 0] / 255.0)
 
 
 def test_load_normal_map_png_and_exr(tmp_path):
@@ -381,6 +382,61 @@ def test_load_normal_map_png_and_exr(tmp_path):
     n[0, 0] = [-0.6, 0.0, 0.8]
     write_exr(tmp_path / "n.exr", n.astype(np.float32))
     np.testing.assert_allclose(load_map(tmp_path / "n.exr", "normal"), n, atol=1e-6)
+    # unit vectors without a negative component are vectors too, not [0, 1]-encoded (which would put
+    # this 89-degree normal at (1, -1, -0.97), below the surface)
+    n[0, 0] = [np.sin(np.radians(89.0)), 0.0, np.cos(np.radians(89.0))]
+    write_exr(tmp_path / "n89.exr", n.astype(np.float32))
+    np.testing.assert_allclose(load_map(tmp_path / "n89.exr", "normal"), n, atol=1e-6)
+    # and a [0, 1]-encoded EXR (flat texels (0.5, 0.5, 1)) still decodes
+    write_exr(tmp_path / "enc.exr", ((n + 1.0) / 2.0).astype(np.float32))
+    np.testing.assert_allclose(load_map(tmp_path / "enc.exr", "normal"), n, atol=1e-6)
+
+
+def test_normal_map_below_the_surface(tmp_path):
+    """An 8-bit texel one step below the horizon (z = -1/255) lies in the tangent plane; a normal pointing
+    into the surface (an object-space map, an all-black image) is an error naming the file and the texel."""
+    enc = np.full((3, 4, 3), 128, np.uint8)
+    enc[..., 2] = 255
+    enc[1, 2] = [255, 128, 127]          # n = (1, 1/255, -1/255) before normalising: the horizon
+    save_png(tmp_path / "horizon.png", enc)
+    n = load_map(tmp_path / "horizon.png", "normal")
+    assert n[1, 2, 2] == 0.0 and n[1, 2, 0] > 0.99
+    np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1.0, atol=1e-12)
+    enc[2, 3] = [128, 128, 0]            # straight into the surface
+    save_png(tmp_path / "into.png", enc)
+    with pytest.raises(WarpbwError, match=r"into.png: 1 texels hold normals pointing below the surface "
+                                          r"\(first at row 2, column 3: z = -1.000\)"):
+        load_map(tmp_path / "into.png", "normal")
+    save_png(tmp_path / "black.png", np.zeros((2, 2, 3), np.uint8))
+    with pytest.raises(WarpbwError, match="black.png: 4 texels.*below the surface"):
+        load_map(tmp_path / "black.png", "normal")
+
+
+def test_builder_refuses_normals_that_are_not_unit_or_point_down():
+    n = np.zeros((4, 4, 3))
+    n[..., 2] = 1.0
+    build_gmm_mipmap(n, kind="normal", progress=False)
+    with pytest.raises(WarpbwError, match=r"not unit vectors \(first at row 1, column 0: length 1.1"):
+        m = n.copy()
+        m[1, 0] = [0.0, 0.0, 1.1]
+        build_gmm_mipmap(m, kind="normal", progress=False)
+    with pytest.raises(WarpbwError, match="below the surface"):
+        m = n.copy()
+        m[3, 3] = [0.6, 0.0, -0.8]
+        build_gmm_mipmap(m, kind="normal", progress=False)
+
+
+def test_8_bit_height_field_warns_of_terraces(tmp_path):
+    ramp = (np.arange(8 * 6).reshape(8, 6) * 5).astype(np.uint8)
+    save_png(tmp_path / "h8.png", ramp)
+    with pytest.warns(UserWarning, match="h8.png: heights read with 8 bits"):
+        np.testing.assert_allclose(load_map(tmp_path / "h8.png", "height"), ramp / 255.0)
+    save_png(tmp_path / "h16.png", ramp.astype(np.uint16) * 257)
+    save_png(tmp_path / "flat8.png", np.full((4, 4), 7, np.uint8))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")   # a 16-bit map, and a flat 8-bit one (no terraces), are quiet
+        load_map(tmp_path / "h16.png", "height")
+        load_map(tmp_path / "flat8.png", "height")
 
 
 def test_bad_inputs_name_the_file(tmp_path):
