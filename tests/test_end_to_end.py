@@ -5,7 +5,8 @@ user runs them.  The sampling-table cache is a temporary directory (``WARPBW_CAC
 Checks are against file bytes and independent computations: the EXR's A channel against the JSON's covered
 pixel count, a re-render with the same seed against the first one bit for bit, a MERL tabulation of an NPF fit
 against the fit itself (means over the sphere), a precomputed sampling file against the renderer's own build
-(identical images), and ``compare``'s PSNR against its closed form for a scaled image.
+(identical images), and ``compare``'s PSNR against its closed form for a scaled image.  Every script in ``examples/`` answers
+``--help`` without running anything.
 """
 from __future__ import annotations
 
@@ -325,3 +326,22 @@ def test_render_adaptive_writes_aovs_and_caches_tables(work, npf_scene):
     stats2 = json.loads(out.with_suffix(".json").read_text())
     assert stats2["allocation"]["allocation"] == "variance"
     assert stats2["pixels_shaded"] >= stats["pixels_shaded"]  # twice the rate: levels no coarser
+
+
+EXAMPLES = sorted((Path(__file__).resolve().parents[1] / "examples").glob("*.py"))
+
+
+@pytest.mark.parametrize("script", EXAMPLES, ids=lambda p: p.name)
+def test_every_example_explains_itself(script, tmp_path):
+    """``python examples/X.py --help`` prints a usage line and exits 0 (no traceback, nothing run)."""
+    r = subprocess.run([sys.executable, str(script), "--help"], cwd=tmp_path, stdin=subprocess.DEVNULL,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert r.stdout.startswith("usage:"), r.stdout[:200]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_gmm_precompute_time_refuses_a_bad_size(tmp_path):
+    r = subprocess.run([sys.executable, str(EXAMPLES[0].parent / "gmm_precompute_time.py"), "--size", "0"],
+                       cwd=tmp_path, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "--size 0: expected an integer from 1 to 1024" in r.stderr, r.stderr
