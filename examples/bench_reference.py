@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from warpbw.cli_common import run_command
+
 HERE = Path(__file__).resolve().parent
 GT_CHUNK_SPP = 4096   # spp per cached ground-truth chunk
 DATA = HERE.parent.parent / "shared" / "data"
@@ -85,8 +87,10 @@ def main():
     out.mkdir(parents=True, exist_ok=True)
     merl = out / f"{args.material}.binary"
     if not merl.exists():
-        subprocess.run([sys.executable, "-m", "precompute", "npf-to-merl", "--table", str(DATA / "brdf" / "npf.bin"),
-                        "--material", args.material, "-o", str(merl)], check=True)
+        status = subprocess.run([sys.executable, "-m", "precompute", "npf-to-merl", "--table",
+                                 str(DATA / "brdf" / "npf.bin"), "--material", args.material, "-o", str(merl)]).returncode
+        if status:
+            return status   # warpbw-precompute has said why
     w, h = args.resolution
     scene = parse_scene(SCENE.format(w=w, h=h, probe=DATA / "envmaps" / args.probe, rotation=args.rotation,
                                      mesh=DATA / "meshes" / "bunny.obj", merl=merl.resolve()),
@@ -196,4 +200,4 @@ def main():
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command("bench_reference", lambda _: main(), None))

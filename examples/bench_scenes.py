@@ -26,6 +26,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from warpbw.cli_common import run_command
+
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent.parent / "shared" / "data"
 
@@ -88,6 +90,9 @@ def main(argv=None) -> int:
     ap.add_argument("--results", help="directory for the JSON and PNG records (default: --out)")
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
+    unknown = sorted(set(args.only.split(",") if args.only else ()) - set(SCENES))
+    if unknown:
+        ap.error(f"--only {','.join(unknown)}: expected scene names among {', '.join(SCENES)}")
     if not DATA.is_dir():
         print(f"bench_scenes: {DATA} not found (the shared data folder is needed)", file=sys.stderr)
         return 2
@@ -112,9 +117,11 @@ def main(argv=None) -> int:
         if args.force:
             cmd.append("--force")
         print("$ " + " ".join(cmd), flush=True)
-        subprocess.run(cmd, check=True)
+        status = subprocess.run(cmd).returncode
+        if status:
+            return status   # warpbw bench has said why
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command("bench_scenes", lambda _: main(), None))

@@ -9,12 +9,14 @@ view should match in shape: f cos_i (what we want to follow), the pdf (what the 
 histogram of samples (what the sampler draws).  Plotted over the projected hemisphere (x, y of wi).
 """
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
 import warp as wp
 
 from warpbw import brdf as B
+from warpbw.cli_common import run_command
 from warpbw.io.npf import npf_eval, read_npf
 from warpbw.sampling import build_sampler_table
 
@@ -81,4 +83,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_command("brdf_sampling", lambda _: main(), None))

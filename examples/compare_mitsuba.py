@@ -113,6 +113,8 @@ from pathlib import Path
 
 import numpy as np
 
+from warpbw.cli_common import run_command
+
 # The repository root, so that `python examples/compare_mitsuba.py` finds warpbw without installing.
 REPO_ROOT = Path(__file__).resolve().parents[1]
 if str(REPO_ROOT) not in sys.path:
@@ -526,4 +528,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command("compare_mitsuba", lambda _: main(), None))

@@ -36,6 +36,8 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from warpbw.cli_common import run_command
+
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent.parent / "shared" / "data"
 DEFAULT_MESH = DATA / "meshes" / "bunny.obj"
@@ -167,7 +169,7 @@ def _print_table(records: list, summary: dict) -> None:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--mesh", default=str(DEFAULT_MESH), help="mesh file (default: the shared bunny)")
+    ap.add_argument("--mesh", help="mesh file (default: the shared bunny; skipped when it is absent)")
     ap.add_argument("--out", default="dynamic_out", help="output folder")
     ap.add_argument("--frames", type=int, default=10, help="frames to render after the warm-up")
     ap.add_argument("--budget", type=float, default=8.0, help="mean samples per covered pixel")
@@ -182,7 +184,9 @@ def main(argv=None):
     wp.config.log_level = 30
     if args.frames < 1 or args.size < 8 or not (args.budget > 0 and math.isfinite(args.budget)):
         ap.error("expected --frames >= 1, --size >= 8 and a positive --budget")
-    mesh_path = Path(args.mesh)
+    if args.mesh is not None and not Path(args.mesh).is_file():
+        ap.error(f"--mesh {args.mesh}: no such file (expected a mesh trimesh loads: OBJ, PLY, STL, GLB)")
+    mesh_path = Path(args.mesh or DEFAULT_MESH)
     if not mesh_path.is_file():
         print(f"dynamic_geometry: mesh {mesh_path} not found; skipping (pass --mesh FILE)")
         return None
@@ -292,4 +296,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_command("dynamic_geometry", lambda _: main(), None))

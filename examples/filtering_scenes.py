@@ -41,6 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
+from precompute.surfaces import MAX_SURFACE_SIZE
+from warpbw.cli_common import run_command
+
 # scene name -> (surface generator name, tiling, material)
 SCENES = {
     "scales": ("hemispherical_scales", 4, {"roughness": 0.08, "f0": [0.9, 0.75, 0.4], "diffuse": [0.05, 0.04, 0.02]}),
@@ -158,6 +161,8 @@ def main(argv=None) -> int:
     ap.add_argument("--force", action="store_true", help="overwrite existing results")
     args = ap.parse_args(argv)
     out = Path(args.out)
+    if not 1 <= args.size <= MAX_SURFACE_SIZE:
+        ap.error(f"--size {args.size}: expected an integer from 1 to {MAX_SURFACE_SIZE}")
     if args.environment is not None and not args.environment.is_file():
         ap.error(f"--environment {args.environment}: no such file (expected a lat-long EXR probe)")
     paths = write_scenes(out, args.size, lights=args.lights, components=args.components,
@@ -175,4 +180,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command("filtering_scenes", lambda _: main(), None))

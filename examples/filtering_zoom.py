@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from warpbw.cli_common import run_command
+
 TILE = 160          # height of a frame in the strip, pixels
 
 
@@ -82,4 +84,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command("filtering_zoom", lambda _: main(), None))

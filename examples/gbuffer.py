@@ -6,12 +6,14 @@ Writes normal.png, depth.png, curvature.png, material.png and gbuffer.exr (all b
 and prints the ray-cast time (after a warm-up launch that compiles the kernel).
 """
 import argparse
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import warp as wp
 
+from warpbw.cli_common import run_command
 from warpbw.gbuffer import MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.io.exr import write_exr, write_false_colour_png, write_png
 from warpbw.io.mesh import load_mesh
@@ -20,7 +22,7 @@ from warpbw.io.mesh import load_mesh
 def main():
     here = Path(__file__).resolve().parent
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--mesh", default=str(here.parent.parent / "shared" / "data" / "meshes" / "bunny.obj"))
+    ap.add_argument("--mesh", help="mesh file (default: the shared bunny; the sphere alone when it is absent)")
     ap.add_argument("--out", default="gbuffer_out")
     ap.add_argument("--resolution", type=int, nargs=2, default=[512, 512])
     ap.add_argument("--device", default="cpu")
@@ -30,6 +32,10 @@ def main():
     cam = make_camera((0.0, 0.3, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, w, h)
     spheres = [SphereSpec((1.1, -0.55, -0.6), 0.45, 1)]
     meshes = []
+    if args.mesh is None:
+        args.mesh = str(here.parent.parent / "shared" / "data" / "meshes" / "bunny.obj")
+    elif not Path(args.mesh).is_file():
+        ap.error(f"--mesh {args.mesh}: no such file (expected a mesh trimesh loads: OBJ, PLY, STL, GLB)")
     if Path(args.mesh).exists():
         md = load_mesh(args.mesh, translate=(-0.2, 0.0, 0.0))
         meshes.append(MeshSpec(md.vertices, md.faces, md.normals, md.mean_curvature, md.uv, 0))
@@ -69,4 +75,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_command("gbuffer", lambda _: main(), None))

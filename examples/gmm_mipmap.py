@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from warpbw.cli_common import run_command
+
 GRID = 161          # density image resolution over [-1, 1]^2
 
 
@@ -60,6 +62,23 @@ def main(argv=None) -> int:
                     help="top-left texel of the block at that level (default 1 1)")
     ap.add_argument("--components", type=int, default=4)
     args = ap.parse_args(argv)
+    from precompute.gmm_mipmap import MAX_COMPONENTS, level_shapes
+    from precompute.surfaces import MAX_SURFACE_SIZE, SURFACES
+
+    if args.surface not in SURFACES:
+        ap.error(f"--surface {args.surface}: expected one of {', '.join(SURFACES)}")
+    if not 2 <= args.size <= MAX_SURFACE_SIZE:
+        ap.error(f"--size {args.size}: expected an integer from 2 to {MAX_SURFACE_SIZE}")
+    if not 1 <= args.components <= MAX_COMPONENTS:
+        ap.error(f"--components {args.components}: expected an integer from 1 to {MAX_COMPONENTS}")
+    sides = [hw[0] for hw in level_shapes(args.size, args.size) if hw[0] >= 2]   # levels with a 2x2 block
+    if not 0 <= args.level < len(sides):
+        ap.error(f"--level {args.level}: expected 0 to {len(sides) - 1} (levels of at least 2x2 texels at "
+                 f"--size {args.size})")
+    side = sides[args.level]
+    if not all(0 <= t <= side - 2 for t in args.texel):
+        ap.error(f"--texel {args.texel[0]} {args.texel[1]}: expected ROW and COL from 0 to {side - 2} "
+                 f"(level {args.level} has {side}x{side} texels)")
 
     import matplotlib
 
@@ -69,7 +88,7 @@ def main(argv=None) -> int:
 
     wp.config.log_level = 30
     from precompute.gmm_mipmap import build_gmm_mipmap, from_moments, normal_space
-    from precompute.surfaces import SURFACES, height_to_normals
+    from precompute.surfaces import height_to_normals
     from warpbw.filtering import fetch_gmm
 
     h = SURFACES[args.surface](args.size)
@@ -118,4 +137,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command("gmm_mipmap", lambda _: main(), None))

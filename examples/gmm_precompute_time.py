@@ -14,6 +14,7 @@ from pathlib import Path
 
 from precompute.gmm_mipmap import MAX_COMPONENTS, build_gmm_mipmap
 from precompute.surfaces import MAX_SURFACE_SIZE, SURFACES
+from warpbw.cli_common import run_command
 from warpbw.errors import WarpbwError
 
 SIZE = 512           # issue 4 acceptance: "a 512x512 height field with 4 components"
@@ -52,4 +53,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command("gmm_precompute_time", lambda _: main(), None))

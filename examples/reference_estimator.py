@@ -7,12 +7,14 @@ Two analytic spheres (Lambert and GGX) and one NPF sphere under a light probe (t
 the probe is missing).  Prints time per stage and throughput; writes ref_bis.exr / ref_mis.exr and PNGs.
 """
 import argparse
+import sys
 import time
 from pathlib import Path
 
 import warp as wp
 
 from warpbw import brdf as B
+from warpbw.cli_common import run_command
 from warpbw.envmap import envmap_from_array, load_envmap, procedural_sky
 from warpbw.gbuffer import SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.io.exr import write_exr, write_png
@@ -74,4 +76,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_command("reference_estimator", lambda _: main(), None))

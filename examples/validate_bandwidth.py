@@ -56,6 +56,7 @@ import warp as wp
 
 from warpbw.bandwidth import LUMINANCE
 from warpbw.brdf import MaterialTable, make_brdf_funcs
+from warpbw.cli_common import run_command
 from warpbw.envmap import EnvMapData, env_radiance
 from warpbw.gbuffer import GBufferData
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_world
@@ -728,4 +729,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command("validate_bandwidth", lambda _: main(), None))

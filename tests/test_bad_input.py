@@ -442,3 +442,29 @@ def test_plane_scene_through_the_environment_pipeline_is_refused(tmp_path):
     scene = parse_scene(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""), tmp_path, "planes.toml")
     with pytest.raises(WarpbwError, match=r"planes\.toml: .*\[environment\]"):
         render_reference(scene, spp=1)
+
+
+# ------------------------------------------------------------------------------------------ examples/
+
+EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["gmm_mipmap.py", "--size", "16", "--level", "99"], "--level 99: expected 0 to 3"),
+    (["gmm_mipmap.py", "--size", "16", "--texel", "5", "0"], "--texel 5 0: expected ROW and COL from 0 to 0"),
+    (["bench_scenes.py", "--only", "nonsense", "--run"], "--only nonsense: expected scene names"),
+    (["filtering_scenes.py", "--size", "0"], "--size 0: expected an integer from 1 to 1024"),
+    (["filtering_zoom.py", "missing.toml"], "missing.toml: scene file not found"),
+    (["gbuffer.py", "--mesh", "missing.obj"], "--mesh missing.obj: no such file"),
+    (["dynamic_geometry.py", "--mesh", "missing.obj"], "--mesh missing.obj: no such file"),
+])
+def test_examples_refuse_bad_arguments_in_one_line(tmp_path, argv, needle):
+    """The example scripts answer bad arguments the way the commands do: status 2, the last stderr line
+    '<script>: error: ...' naming the argument, no traceback, and nothing written."""
+    r = subprocess.run([sys.executable, str(EXAMPLES_DIR / argv[0]), *argv[1:]], cwd=tmp_path,
+                       stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=180)
+    assert "Traceback" not in r.stderr, r.stderr
+    assert r.returncode == EXIT_USER_ERROR, (r.returncode, r.stderr)
+    last = r.stderr.strip().splitlines()[-1]
+    assert last.startswith(Path(argv[0]).stem) and ": error: " in last and needle in last, last
+    assert list(tmp_path.iterdir()) == []

@@ -74,8 +74,14 @@ def test_deformation_moves_the_mesh_and_frame_zero_only_ripples():
     assert np.abs(v3 - v0).max() > 0.01                        # frames differ
 
 
-def test_missing_mesh_is_skipped_with_a_message(tmp_path, capsys):
+def test_absent_default_mesh_is_skipped_and_a_missing_mesh_is_an_error(tmp_path, capsys, monkeypatch):
     ex = _example()
-    assert ex.main(["--mesh", str(tmp_path / "ghost.obj"), "--out", str(tmp_path / "o")]) is None
+    # the default (the shared bunny) absent: the example skips, saying why
+    monkeypatch.setattr(ex, "DEFAULT_MESH", tmp_path / "ghost.obj")
+    assert ex.main(["--out", str(tmp_path / "o")]) is None
     assert "ghost.obj not found; skipping" in capsys.readouterr().out
+    # a --mesh the user named that does not exist: a usage error naming it
+    with pytest.raises(SystemExit) as e:
+        ex.main(["--mesh", str(tmp_path / "typo.obj"), "--out", str(tmp_path / "o")])
+    assert e.value.code == 2 and "--mesh" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
