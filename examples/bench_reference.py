@@ -87,8 +87,9 @@ def main():
     out.mkdir(parents=True, exist_ok=True)
     merl = out / f"{args.material}.binary"
     if not merl.exists():
-        status = subprocess.run([sys.executable, "-m", "precompute", "npf-to-merl", "--table",
-                                 str(DATA / "brdf" / "npf.bin"), "--material", args.material, "-o", str(merl)]).returncode
+        status = subprocess.run([sys.executable, "-m", "precompute", "npf-to-merl",
+                                 "--table", str(DATA / "brdf" / "npf.bin"), "--material", args.material,
+                                 "-o", str(merl)]).returncode
         if status:
             return status   # warpbw-precompute has said why
     w, h = args.resolution

@@ -608,10 +608,10 @@ def load_map(path, kind: str = "height") -> np.ndarray:
     (H, W) float64, or a tangent-space normal map (RGB) as unit (H, W, 3).  PNG normal maps are
     [0, 1]-encoded; an EXR normal map holds the vectors themselves when it has a negative value or when
     every texel is a unit vector (a [0, 1]-encoded map's texels are not: the flat normal is (0.5, 0.5, 1)),
-    otherwise it is [0, 1]-encoded too.  16-bit greyscale PNGs keep their precision (Pillow reads 16-bit RGB PNGs
-    as 8-bit).  Normals more than ``NORMAL_Z_TOL`` below the tangent plane are an error; those closer
-    are put in it.  A varying height field read with 8 bits warns (terraced normals).  Every problem is
-    a one-line WarpbwError naming the file."""
+    otherwise it is [0, 1]-encoded too.  16-bit greyscale PNGs keep their precision (Pillow reads 16-bit
+    RGB PNGs as 8-bit).  Normals more than ``NORMAL_Z_TOL`` below the tangent plane are an error; those
+    closer are put in it.  A varying height field read with 8 bits warns (terraced normals).  Every
+    problem is a one-line WarpbwError naming the file."""
     from precompute.surfaces import normals_from_map
 
     if kind not in KINDS:

@@ -5,8 +5,8 @@ user runs them.  The sampling-table cache is a temporary directory (``WARPBW_CAC
 Checks are against file bytes and independent computations: the EXR's A channel against the JSON's covered
 pixel count, a re-render with the same seed against the first one bit for bit, a MERL tabulation of an NPF fit
 against the fit itself (means over the sphere), a precomputed sampling file against the renderer's own build
-(identical images), and ``compare``'s PSNR against its closed form for a scaled image.  Every script in ``examples/`` answers
-``--help`` without running anything.
+(identical images), and ``compare``'s PSNR against its closed form for a scaled image.  Every script in ``examples/``
+answers ``--help`` without running anything.
 """
 from __future__ import annotations
 
