@@ -11,6 +11,8 @@ import warnings
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from precompute.gmm_mipmap import (GMM_FORMAT, VARIANCE_FLOOR, build_gmm_mipmap, em_fit, filter_moments,
                                    footprint_samples, from_moments, kmeans_init, kmeans_plus_plus, level_shapes,
@@ -410,6 +412,30 @@ def test_normal_map_below_the_surface(tmp_path):
     save_png(tmp_path / "black.png", np.zeros((2, 2, 3), np.uint8))
     with pytest.raises(WarpbwError, match="black.png: 4 texels.*below the surface"):
         load_map(tmp_path / "black.png", "normal")
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(theta=st.floats(0.0, np.pi / 2), phi=st.floats(0.0, 2 * np.pi), exr=st.booleans())
+def test_encoded_normal_round_trip(tmp_path, theta, phi, exr):
+    """Any normal of the upper hemisphere, horizon included, [0, 1]-encoded in an 8-bit PNG or a float
+    EXR beside a flat texel, reads back as a unit normal with z >= 0 within the encoding's quantisation.
+    (Without the flat texel an EXR of one normal with n_x + n_y + n_z = 0 is ambiguous: its encoded
+    texels are unit vectors too, and ``load_map`` then reads them as vectors.)"""
+    from warpbw.io.exr import write_exr
+
+    n = np.array([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+    normals = np.broadcast_to(n, (2, 3, 3)).copy()
+    normals[0, 0] = [0.0, 0.0, 1.0]
+    enc = (normals + 1.0) / 2.0
+    if exr:
+        write_exr(tmp_path / "n.exr", enc.astype(np.float32), channels=["R", "G", "B"])
+        got, tol = load_map(tmp_path / "n.exr", "normal"), 1e-6
+    else:
+        save_png(tmp_path / "n.png", np.round(enc * 255).astype(np.uint8))
+        got, tol = load_map(tmp_path / "n.png", "normal"), 2.0 / 255.0
+    np.testing.assert_allclose(np.linalg.norm(got, axis=-1), 1.0, atol=1e-12)
+    assert np.all(got[..., 2] >= 0.0)
+    assert np.abs(got - normals).max() <= 2.0 * tol
 
 
 def test_builder_refuses_normals_that_are_not_unit_or_point_down():
