@@ -565,3 +565,36 @@ def test_gmm_components_default_and_bound_match_the_builder(tmp_path):
     (tmp_path / "n.png").write_bytes(b"x")
     s = load_scene(_plane_scene(tmp_path, material=ARMOUR + 'normal_map = "n.png"\ngmm_components = 8\n'))
     assert s.materials["armour"].gmm_components == 8
+
+
+# ------------------------------------------------------------------------------------------ README
+
+def _walk_strings(d):
+    if isinstance(d, dict):
+        for v in d.values():
+            yield from _walk_strings(v)
+    elif isinstance(d, list):
+        for v in d:
+            yield from _walk_strings(v)
+    elif isinstance(d, str):
+        yield d
+
+
+def test_readme_scene_snippets_parse(tmp_path):
+    """The README's TOML blocks are valid scenes (unknown keys are errors, so the README cannot drift
+    from the schema unnoticed).  The files they name are created empty: parsing checks that they exist,
+    loading them is not what this tests.  The plane-scene block is a fragment: it borrows the first
+    block's camera."""
+    import tomllib
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    blocks = re.findall(r"```toml\n(.*?)```", readme, re.S)
+    assert len(blocks) >= 2, "README: expected the scene-file and plane-scene TOML blocks"
+    camera = re.search(r"\[camera\].*?(?=\n\[[^\[])", blocks[0], re.S).group(0)
+    for b in blocks:
+        text = b if "[camera]" in b else camera + "\n" + b
+        for s in _walk_strings(tomllib.loads(text)):
+            if re.fullmatch(r"[\w.-]+\.(exr|obj|binary|npz|gmm|bin|png)", s):
+                (tmp_path / s).touch()
+        scene = parse_scene(text, tmp_path, "README.md")
+        assert scene.objects, text
