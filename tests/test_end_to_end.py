@@ -345,3 +345,43 @@ def test_gmm_precompute_time_refuses_a_bad_size(tmp_path):
     r = subprocess.run([sys.executable, str(EXAMPLES[0].parent / "gmm_precompute_time.py"), "--size", "0"],
                        cwd=tmp_path, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "--size 0: expected an integer from 1 to 1024" in r.stderr, r.stderr
+
+
+def _readme_commands():
+    """(program, argv) of every ``warpbw`` / ``warpbw-precompute`` line in the README's code blocks:
+    continuation lines joined, comments dropped, optional ``[...]`` groups kept with their first
+    alternative (``a|b`` -> a; a group of ``...`` dropped)."""
+    import re
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    lines = []
+    for block in re.findall(r"```[a-z]*\n(.*?)```", readme, re.S):
+        for ln in block.splitlines():
+            code = ln.split(" #")[0].rstrip()
+            if re.match(r"(warpbw|warpbw-precompute) ", code):
+                lines.append(code)
+            elif lines and code.strip().startswith("[") and ln.startswith(" "):
+                lines[-1] += " " + code.strip()
+    out = []
+    for ln in lines:
+        ln = re.sub(r"\[[^\]]*\.\.\.\]", "", ln)
+        ln = re.sub(r"\[([^\]]*)\]", r"\1", ln)
+        argv = [a.split("|")[0] for a in ln.split()]
+        out.append((argv[0], argv[1:]))
+    return out
+
+
+def test_readme_commands_parse():
+    """Every command line the README shows is accepted by the command's own parser (flags, choices and
+    argument types): the README cannot advertise an option that does not exist."""
+    from precompute.__main__ import build_parser as precompute_parser
+    from warpbw.cli import build_parser as warpbw_parser
+
+    cmds = _readme_commands()
+    assert len(cmds) >= 10, cmds
+    parsers = {"warpbw": warpbw_parser(), "warpbw-precompute": precompute_parser()}
+    for prog, argv in cmds:
+        try:
+            parsers[prog].parse_args(argv)
+        except SystemExit as exc:
+            pytest.fail(f"README: '{prog} {' '.join(argv)}' is refused by its parser (status {exc.code})")
