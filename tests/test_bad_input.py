@@ -468,3 +468,25 @@ def test_examples_refuse_bad_arguments_in_one_line(tmp_path, argv, needle):
     last = r.stderr.strip().splitlines()[-1]
     assert last.startswith(Path(argv[0]).stem) and ": error: " in last and needle in last, last
     assert list(tmp_path.iterdir()) == []
+
+
+
+# ------------------------------------------------------------------------------------------ empty images
+
+@pytest.mark.parametrize("planes", [False, True], ids=["sphere", "plane"])
+def test_camera_that_sees_nothing_warns_in_one_line(tmp_path, planes):
+    """A camera looking away from every object renders (empty pixels are legal) but says so: status 0,
+    one warning line, the image written with a zero A channel."""
+    from warpbw.io.exr import read_exr
+
+    if planes:
+        text = PLANE_SCENE.replace('normal_map = "map.exr"\n', "").replace(
+            "look_at = [0.0, 0.0, 0.0]", "look_at = [0.0, 3.0, 4.0]")
+        (tmp_path / "scene.toml").write_text(text)
+    else:
+        write_scene(tmp_path, obj='shape = "sphere"\nradius = 1.0\ncenter = [0.0, 0.0, 50.0]')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "64"], tmp_path)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    warnings_ = [ln for ln in r.stderr.splitlines() if ln.startswith("warpbw: warning: ")]
+    assert len(warnings_) == 1 and "no pixel is covered by geometry" in warnings_[0], r.stderr
+    assert not read_exr(tmp_path / "out.exr").pixels[..., 3].any()

@@ -184,6 +184,7 @@ def test_missing_file(tmp_path):
         ("nan.obj", "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n", "non-finite"),
         ("points.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n", "no triangles"),
         ("empty.obj", "", "no triangles"),
+        ("flat.obj", "v 0 0 0\nv 1 1 1\nv 2 2 2\nv 3 3 3\nf 1 2 3\nf 2 3 4\n", "every triangle has zero area"),
         ("weird.xyzq", "v 0 0 0\n", "weird.xyzq"),
     ],
 )
@@ -224,3 +225,12 @@ def test_normals_and_curvature_closed_form_on_a_moved_sphere():
     _, h_e = normals_and_curvature(e, ico.faces)
     tip = np.argmax(e[:, 0])
     assert abs(h_e[tip] * b * b / a - 1.0) < 0.05
+
+
+def test_a_degenerate_triangle_beside_a_good_one_is_kept_out_of_the_shading(tmp_path):
+    """Only a mesh with no area at all is refused; a sliver beside a real triangle loads, with unit normals."""
+    p = tmp_path / "sliver.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nf 1 2 3\nf 1 2 4\n")
+    m = load_mesh(p)
+    assert len(m.faces) >= 1
+    np.testing.assert_allclose(np.linalg.norm(m.normals, axis=1), 1.0, atol=1e-6)

@@ -167,6 +167,7 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
                                threads=threads)
     res.stats["time_s"]["total"] = round(time.perf_counter() - t0, 6)
     _write_render(res, outs, exposure)
+    _warn_if_empty(res.stats)
     if adaptive:
         _write_aovs(res, out)
     if res.stats.get("non_finite_samples"):
@@ -198,6 +199,13 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
     return res.stats
 
 
+def _warn_if_empty(stats: dict) -> None:
+    """An image in which no pixel sees geometry is almost always a camera or a scene mistake: say so."""
+    if stats.get("pixels_covered") == 0:
+        print("warpbw: warning: no pixel is covered by geometry, so the image is empty (check [camera] "
+              "position, look_at and fov against the objects)", file=sys.stderr)
+
+
 def _no_environment(scene, what: str) -> None:
     """Spheres and meshes are lit by the environment only (the pipeline of 002); refuse before it breaks."""
     if scene.environment is None:
@@ -224,6 +232,7 @@ def _render_filtering_cli(scene, args) -> int:
                            progress=not args.quiet, threads=args.threads, env_spp=args.spp)
     res.stats["time_s"] = {"frame": round(res.time_s, 6), "total": round(time.perf_counter() - t0, 6)}
     _write_render(res, outs, args.exposure)
+    _warn_if_empty(res.stats)
     import numpy as np
 
     from warpbw.io.exr import write_exr, write_false_colour_png

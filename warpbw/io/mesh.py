@@ -207,6 +207,9 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
         raise WarpbwError(f"{path}: malformed mesh ({_one_line(exc)})") from None
     verts = np.asarray(mesh.vertices, dtype=np.float64) * s
     faces = np.asarray(mesh.faces, dtype=np.int64)
+    _, _, p0, p1, p2 = _face_geometry(verts, faces)
+    if not np.any(np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1) > 0.0):
+        raise WarpbwError(f"{path}: every triangle has zero area (expected a mesh with a surface to render)")
     a = math.radians(r)
     ca, sa = math.cos(a), math.sin(a)
     # right-handed rotation about +Y: x' = x cos a + z sin a, z' = -x sin a + z cos a
