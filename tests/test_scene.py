@@ -585,7 +585,10 @@ def test_readme_scene_snippets_parse(tmp_path):
     from the schema unnoticed).  The files they name are created empty: parsing checks that they exist,
     loading them is not what this tests.  The plane-scene block is a fragment: it borrows the first
     block's camera."""
-    import tomllib
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10: the backport the package itself uses
+        import tomli as tomllib
 
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
     blocks = re.findall(r"```toml\n(.*?)```", readme, re.S)
