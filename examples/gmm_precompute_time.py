@@ -12,12 +12,11 @@ import sys
 import time
 from pathlib import Path
 
-from precompute.gmm_mipmap import MAX_COMPONENTS, build_gmm_mipmap
+from precompute.gmm_mipmap import DEFAULT_COMPONENTS, MAX_COMPONENTS, build_gmm_mipmap
 from precompute.surfaces import MAX_SURFACE_SIZE, SURFACES
 from warpbw.cli_common import run_command
 
 SIZE = 512           # issue 4 acceptance: "a 512x512 height field with 4 components"
-COMPONENTS = 4       # 004 Sec. 4.2
 
 
 def main(argv=None) -> int:
@@ -25,8 +24,8 @@ def main(argv=None) -> int:
                                  "of each procedural test surface (issue 4's aim: 512x512, 4 components, "
                                  "under 60 s on 2 cores).")
     ap.add_argument("--size", type=int, default=SIZE, help=f"height-field side in texels (default {SIZE})")
-    ap.add_argument("--components", type=int, default=COMPONENTS,
-                    help=f"Gaussians per texel (default {COMPONENTS})")
+    ap.add_argument("--components", type=int, default=DEFAULT_COMPONENTS,
+                    help=f"Gaussians per texel (default {DEFAULT_COMPONENTS})")
     ap.add_argument("--json", type=Path, help="also write the times to this JSON file")
     args = ap.parse_args(argv)
     if not 1 <= args.size <= MAX_SURFACE_SIZE:

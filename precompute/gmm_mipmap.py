@@ -424,22 +424,20 @@ def _validate(data, kind, components, prior, scale):
             r, c = np.argwhere(off)[0]
             raise WarpbwError(f"normal map: {int(off.sum())} normals are not unit vectors (first at row {r}, "
                               f"column {c}: length {length[r, c]:.4g}); expected unit tangent-space normals")
-        problem = _below_surface(data)
-        if problem:
-            raise WarpbwError(f"normal map: {problem}")
+        _check_upward(data, "normal map")
         data = data / length[..., None]
     return data
 
 
-def _below_surface(normals) -> str | None:
-    """The one-line problem when some unit normals (H, W, 3) point below the tangent plane by more than
-    ``NORMAL_Z_TOL``, else None."""
+def _check_upward(normals, where: str) -> None:
+    """A one-line WarpbwError starting with ``where`` when some unit normals (H, W, 3) point below the
+    tangent plane by more than ``NORMAL_Z_TOL``."""
     below = normals[..., 2] < -NORMAL_Z_TOL
-    if not below.any():
-        return None
-    r, c = np.argwhere(below)[0]
-    return (f"{int(below.sum())} texels hold normals pointing below the surface (first at row {r}, column {c}: "
-            f"z = {normals[r, c, 2]:.3f}); expected a tangent-space normal map (z up, mostly blue)")
+    if below.any():
+        r, c = np.argwhere(below)[0]
+        raise WarpbwError(f"{where}: {int(below.sum())} texels hold normals pointing below the surface (first at "
+                          f"row {r}, column {c}: z = {normals[r, c, 2]:.3f}); expected a tangent-space normal map "
+                          "(z up, mostly blue)")
 
 
 def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int = DEFAULT_COMPONENTS,
@@ -650,11 +648,9 @@ def load_map(path, kind: str = "height") -> np.ndarray:
             n = rgb / length[..., None]
         else:
             n = normals_from_map(rgb)
-        problem = _below_surface(n)
-        if problem:
-            raise WarpbwError(problem)
     except WarpbwError as exc:
         raise WarpbwError(f"{p}: {exc}") from None
+    _check_upward(n, str(p))
     n[..., 2] = np.maximum(n[..., 2], 0.0)   # within NORMAL_Z_TOL below: in the tangent plane
     return n / np.linalg.norm(n, axis=-1, keepdims=True)
 

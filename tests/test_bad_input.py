@@ -454,6 +454,7 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["gmm_mipmap.py", "--size", "16", "--texel", "5", "0"], "--texel 5 0: expected ROW and COL from 0 to 0"),
     (["bench_scenes.py", "--only", "nonsense", "--run"], "--only nonsense: expected scene names"),
     (["filtering_scenes.py", "--size", "0"], "--size 0: expected an integer from 1 to 1024"),
+    (["gmm_precompute_time.py", "--size", "0"], "--size 0: expected an integer from 1 to 1024"),
     (["filtering_zoom.py", "missing.toml"], "missing.toml: scene file not found"),
     (["gbuffer.py", "--mesh", "missing.obj"], "--mesh missing.obj: no such file"),
     (["dynamic_geometry.py", "--mesh", "missing.obj"], "--mesh missing.obj: no such file"),

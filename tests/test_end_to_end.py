@@ -341,12 +341,6 @@ def test_every_example_explains_itself(script, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_gmm_precompute_time_refuses_a_bad_size(tmp_path):
-    r = subprocess.run([sys.executable, str(EXAMPLES[0].parent / "gmm_precompute_time.py"), "--size", "0"],
-                       cwd=tmp_path, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120)
-    assert r.returncode == 2 and "--size 0: expected an integer from 1 to 1024" in r.stderr, r.stderr
-
-
 def _readme_commands():
     """(program, argv) of every ``warpbw`` / ``warpbw-precompute`` line in the README's code blocks:
     continuation lines joined, comments dropped, optional ``[...]`` groups kept with their first
