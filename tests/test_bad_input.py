@@ -456,6 +456,8 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["filtering_scenes.py", "--size", "0"], "--size 0: expected an integer from 1 to 1024"),
     (["gmm_precompute_time.py", "--size", "0"], "--size 0: expected an integer from 1 to 1024"),
     (["filtering_zoom.py", "missing.toml"], "missing.toml: scene file not found"),
+    (["filtering_floor.py", "missing.toml"], "missing.toml: no such scene file"),
+    (["filtering_floor.py", "--zoom", "0", "s.toml"], "--zoom '0': expected comma-separated positive numbers"),
     (["gbuffer.py", "--mesh", "missing.obj"], "--mesh missing.obj: no such file"),
     (["dynamic_geometry.py", "--mesh", "missing.obj"], "--mesh missing.obj: no such file"),
 ])

@@ -203,12 +203,12 @@ def test_sphere_scene_without_environment_is_a_clear_error(tmp_path, capsys):
 
 # ------------------------------------------------------------------------------------------ benchmark scenes
 
-def _filtering_scenes():
+def _example(name: str = "filtering_scenes"):
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "examples" / "filtering_scenes.py"
-    spec = importlib.util.spec_from_file_location("filtering_scenes", path)
+    path = Path(__file__).resolve().parents[1] / "examples" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -217,7 +217,7 @@ def _filtering_scenes():
 def test_benchmark_light_ring_spreads_the_half_vector(tmp_path):
     # each ring light must reflect the zoom-1 central view about its declared half-vector, from above the plane;
     # truth: h = normalize(wi + wo) computed here, in world space, then read in the plane's frame (x = X, y = -Z)
-    fs = _filtering_scenes()
+    fs = _example()
     from warpbw.scene import parse_scene
 
     paths = fs.write_scenes(tmp_path, 8, resolution=(8, 6), lights="ring")
@@ -236,3 +236,19 @@ def test_benchmark_light_ring_spreads_the_half_vector(tmp_path):
     np.testing.assert_allclose(np.array(mirror.direction) / np.linalg.norm(mirror.direction),
                                np.array([fs.MIRROR_LIGHT_X, wo[1], -wo[2]]) / np.linalg.norm(
                                    [fs.MIRROR_LIGHT_X, wo[1], -wo[2]]), atol=1e-5)
+
+
+def test_error_floor_example_rederives_the_renderer_and_a_flat_map_has_no_floor(plane_scene, tmp_path):
+    # examples/filtering_floor.py shades its references in numpy: its re-derivation of the aligned GMM must be
+    # the renderer's image, and on a flat map (every footprint one normal) the floor and the per-tap mixture
+    # are the plain BRDF, which every method also renders: all errors then equal the fixed BRDF's
+    ff = _example("filtering_floor")
+    rec = ff.analyse(plane_scene, [4.0, 8.0], 64, log=lambda *a: None)
+    assert [r["zoom"] for r in rec["zooms"]] == [4.0, 8.0] and rec["zooms"][1]["mean_level"] > 1.0
+    for r in rec["zooms"]:
+        assert r["gmm_merged_check"] < 1e-3 and r["pixels"] > 0, r
+        assert all(np.isfinite(r[k]) and r[k] >= 0 for k in ("floor", "gmm_per_tap")), r
+    write_exr(plane_scene.parent / "map.exr", np.zeros((8, 8, 1), np.float32), channels=["Y"])
+    for r in ff.analyse(plane_scene, [4.0], 64, log=lambda *a: None)["zooms"]:
+        for k in ("floor", "gmm_per_tap", "gmm_aligned", "toksvig", "lean"):
+            assert r[k] == pytest.approx(r["fixed"], rel=1e-3, abs=1e-6), (k, r)
