@@ -53,8 +53,8 @@ def _plane_frame(v):
 
 
 def _pixels(scene, camera, shape):
-    """Covered pixels' (row, col), finest-texel coordinates (s, t), footprint level lam (clamped at 0 for the
-    filter, as the renderer) and wo in the plane frame."""
+    """Flat indices of the pixels whose centre ray hits the plane (and whose neighbours' rays hit its supporting
+    plane), their finest-texel coordinates (s, t), footprint level lam (unclamped) and wo in the plane frame."""
     from warpbw.gbuffer import camera_rays, make_camera
 
     (pl,) = scene.objects
@@ -131,8 +131,9 @@ def floor_image(mat, lights, normals, shapes, st, lam, wo):
             b = 2 ** int(l)
             oy, ox = (g.ravel() for g in np.meshgrid(np.arange(b), np.arange(b), indexing="ij"))
             sel_all = np.flatnonzero(lv == l)
-            for start in range(0, sel_all.size, max(1, BATCH_NORMALS // (b * b))):
-                sel = sel_all[start:start + max(1, BATCH_NORMALS // (b * b))]
+            batch = max(1, BATCH_NORMALS // (b * b))
+            for start in range(0, sel_all.size, batch):
+                sel = sel_all[start:start + batch]
                 r = row[sel, None] * b + oy[None]
                 c = col[sel, None] * b + ox[None]
                 ok = (r < H) & (c < W)
@@ -176,10 +177,11 @@ def analyse(path: Path, zooms, gt_spp: int, log=print) -> dict:
     from warpbw.bench_filtering import colour_error
     from warpbw.errors import WarpbwError
     from warpbw.filtering import METHODS, normal_moment_mipmap, prepare_filtering, render_filtering, zoomed_camera
-    from warpbw.scene import load_scene
+    from warpbw.scene import PlaneObject, load_scene
 
     scene = load_scene(path)
-    if len(scene.objects) != 1 or scene.environment is not None or not scene.lights:
+    if (len(scene.objects) != 1 or not isinstance(scene.objects[0], PlaneObject) or scene.environment is not None
+            or not scene.lights):
         raise WarpbwError(f"{path}: expected one plane under directional lights and no [environment] "
                           "(the numpy references shade directional lights only)")
     (pl,) = scene.objects
