@@ -238,7 +238,7 @@ def test_benchmark_light_ring_spreads_the_half_vector(tmp_path):
                                    [fs.MIRROR_LIGHT_X, wo[1], -wo[2]]), atol=1e-5)
 
 
-def test_error_floor_example_rederives_the_renderer_and_a_flat_map_has_no_floor(plane_scene, tmp_path):
+def test_error_floor_example_rederives_the_renderer_and_a_flat_map_has_no_floor(plane_scene):
     # examples/filtering_floor.py shades its references in numpy: its re-derivation of the aligned GMM must be
     # the renderer's image, and on a flat map (every footprint one normal) the floor and the per-tap mixture
     # are the plain BRDF, which every method also renders: all errors then equal the fixed BRDF's
