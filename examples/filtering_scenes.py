@@ -88,6 +88,7 @@ normal_map_kind = "height"
 normal_map_scale = 1.0
 tiling = {tiling}
 gmm_components = {components}
+gmm_prior = {prior:g}
 """
 
 
@@ -118,7 +119,7 @@ def light_directions(setup: str = "ring", elevation_deg: float = ELEVATION_DEG) 
 
 
 def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "ring", components: int = 4,
-                 environment: Path | None = None) -> list:
+                 environment: Path | None = None, prior: float = 1.0) -> list:
     from precompute.surfaces import SURFACES
     from warpbw.io.exr import write_exr
 
@@ -134,7 +135,7 @@ def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "rin
         write_exr(out / f"{name}.exr", h.astype(np.float32)[..., None], channels=["Y"])
         text = SCENE.format(surface=surface, size=size, tiling=tiling, cy=DISTANCE * math.sin(el),
                             cz=DISTANCE * math.cos(el), fov=FOV_DEG, w=resolution[0], h=resolution[1],
-                            lights=light_text, name=name, components=components, **mat)
+                            lights=light_text, name=name, components=components, prior=prior, **mat)
         p = out / f"{name}.toml"
         p.write_text(text)
         paths.append(p)
@@ -158,15 +159,20 @@ def main(argv=None) -> int:
                     help="light the planes with this lat-long EXR probe instead of --lights")
     ap.add_argument("--components", type=int, default=4,
                     help="Gaussians per texel of both GMM mipmaps, aligned and unaligned (default 4, 004 Sec. 4.2)")
+    ap.add_argument("--prior", type=float, default=1.0,
+                    help="alignment constant c of the aligned GMM mipmap's MAP prior (default 1, 004 Sec. 4.1; "
+                         "README: a stronger prior filters the far zooms better)")
     ap.add_argument("--force", action="store_true", help="overwrite existing results")
     args = ap.parse_args(argv)
     out = Path(args.out)
     if not 1 <= args.size <= MAX_SURFACE_SIZE:
         ap.error(f"--size {args.size}: expected an integer from 1 to {MAX_SURFACE_SIZE}")
+    if not (math.isfinite(args.prior) and args.prior >= 0):
+        ap.error(f"--prior {args.prior:g}: expected a finite c >= 0")
     if args.environment is not None and not args.environment.is_file():
         ap.error(f"--environment {args.environment}: no such file (expected a lat-long EXR probe)")
     paths = write_scenes(out, args.size, lights=args.lights, components=args.components,
-                         environment=args.environment)
+                         environment=args.environment, prior=args.prior)
     if args.run:
         for p in paths:
             cmd = [sys.executable, "-m", "warpbw.cli", "bench-filtering", str(p), "--zoom", args.zoom,

@@ -454,6 +454,7 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["gmm_mipmap.py", "--size", "16", "--texel", "5", "0"], "--texel 5 0: expected ROW and COL from 0 to 0"),
     (["bench_scenes.py", "--only", "nonsense", "--run"], "--only nonsense: expected scene names"),
     (["filtering_scenes.py", "--size", "0"], "--size 0: expected an integer from 1 to 1024"),
+    (["filtering_scenes.py", "--prior", "-1"], "--prior -1: expected a finite c >= 0"),
     (["gmm_precompute_time.py", "--size", "0"], "--size 0: expected an integer from 1 to 1024"),
     (["filtering_zoom.py", "missing.toml"], "missing.toml: scene file not found"),
     (["filtering_floor.py", "missing.toml"], "missing.toml: no such scene file"),

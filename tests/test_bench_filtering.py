@@ -232,6 +232,9 @@ def test_benchmark_light_ring_spreads_the_half_vector(tmp_path):
         h = (wi + wo) / np.linalg.norm(wi + wo)
         want = (r * math.cos(math.radians(az)), r * math.sin(math.radians(az)))
         np.testing.assert_allclose((h[0], -h[2]), want, atol=2e-5)
+    assert sc.materials["m"].gmm_prior == 1.0
+    p16 = fs.write_scenes(tmp_path / "c16", 8, resolution=(8, 6), prior=16.0)[0]
+    assert parse_scene(p16.read_text(), p16.parent, str(p16)).materials["m"].gmm_prior == 16.0
     (mirror,) = parse_scene(fs.write_scenes(tmp_path / "m", 8, lights="mirror")[0].read_text(), tmp_path).lights
     np.testing.assert_allclose(np.array(mirror.direction) / np.linalg.norm(mirror.direction),
                                np.array([fs.MIRROR_LIGHT_X, wo[1], -wo[2]]) / np.linalg.norm(

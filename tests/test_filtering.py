@@ -575,7 +575,7 @@ def test_scene_problems_are_clear_errors(tmp_path):
 
 
 def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path):
-    from precompute.gmm_mipmap import build_gmm_mipmap, write_gmm_mipmap
+    from precompute.gmm_mipmap import build_gmm_mipmap, load_map, write_gmm_mipmap
 
     h = _bumps(8)
     write_gmm_mipmap(tmp_path / "other.gmm", build_gmm_mipmap(np.zeros((4, 4)), progress=False), "x", "y")
@@ -599,6 +599,13 @@ def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path):
     prep = prepare_filtering(parse_scene(k2 + "gmm_components = 2\n", tmp_path, "s.toml"),
                              ("gmm_aligned", "gmm_unaligned"))
     assert prep.notes["m"]["gmm_aligned"]["components"] == prep.notes["m"]["gmm_unaligned"]["components"] == 2
+    # a file built with another prior than the material's gmm_prior (default 1)
+    write_gmm_mipmap(tmp_path / "c4.gmm", build_gmm_mipmap(h, scale=0.5, prior=4.0, progress=False), "x", "y")
+    c4 = text.replace("other.gmm", "c4.gmm")
+    with pytest.raises(WarpbwError, match=r"\[material\.m\]\.gmm: .*--prior 4.*gmm_prior = 1"):
+        prepare_filtering(parse_scene(c4, tmp_path, "s.toml"), ("gmm_aligned",))
+    prep = prepare_filtering(parse_scene(c4 + "gmm_prior = 4\n", tmp_path, "s.toml"), ("gmm_aligned",))
+    assert prep.notes["m"]["gmm_aligned"]["prior"] == 4.0
     # without a file: built once, then read from the cache
     p1 = prepare_filtering(s, ("gmm_aligned",))
     p2 = prepare_filtering(s, ("gmm_aligned",))
@@ -606,6 +613,18 @@ def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path):
     a = render_filtering(s, "gmm_aligned", prepared=p1).image
     b = render_filtering(s, "gmm_aligned", prepared=p2).image
     assert np.array_equal(a, b)
+    # the material's gmm_prior builds (and caches) the aligned mipmap it names, exactly the builder's; the
+    # unaligned baseline (c = 0 whatever the prior) comes from the cache it already has
+    s16 = parse_scene(scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ngmm_prior = 16\n'), tmp_path,
+                      "s.toml")
+    p0 = prepare_filtering(s, ("gmm_unaligned",))
+    p3 = prepare_filtering(s16, ("gmm_aligned", "gmm_unaligned"))
+    assert (p3.notes["m"]["gmm_aligned"]["origin"], p3.notes["m"]["gmm_aligned"]["prior"]) == ("built", 16.0)
+    assert p3.notes["m"]["gmm_unaligned"]["origin"] == "cache" and p0.notes["m"]["gmm_unaligned"]["prior"] == 0.0
+    want = build_gmm_mipmap(load_map(tmp_path / "map.exr"), scale=0.5, prior=16.0, progress=False).levels
+    got = p3.mips["m"].gmm["gmm_aligned"][0].numpy()
+    assert np.array_equal(got, np.concatenate([q.reshape(-1, 4) for q in want]))
+    assert not np.array_equal(got, p1.mips["m"].gmm["gmm_aligned"][0].numpy())
 
 
 def test_nearer_plane_wins_and_threads_do_not_change_the_image(tmp_path):

@@ -552,7 +552,9 @@ def test_normal_map_value_errors_name_the_key(tmp_path):
                        ("tiling = 1e9\n", "tiling"), ("normal_map_scale = 0\n", "normal_map_scale"),
                        ('normal_map_kind = "normal"\nnormal_map_scale = 2.0\n', "normal_map_scale"),
                        ('gmm = "nope.gmm"\n', "gmm"), ("gmm_components = 0\n", "gmm_components"),
-                       ("gmm_components = 17\n", "gmm_components"), ("gmm_components = 2.5\n", "gmm_components")):
+                       ("gmm_components = 17\n", "gmm_components"), ("gmm_components = 2.5\n", "gmm_components"),
+                       ("gmm_prior = -1\n", "gmm_prior"), ("gmm_prior = nan\n", "gmm_prior"),
+                       ('gmm_prior = "strong"\n', "gmm_prior"), ("gmm_prior = 1e9\n", "gmm_prior")):
         expect_error(_plane_scene(tmp_path, material=base + extra), f"[material.armour].{key}")
 
 
@@ -565,6 +567,20 @@ def test_gmm_components_default_and_bound_match_the_builder(tmp_path):
     (tmp_path / "n.png").write_bytes(b"x")
     s = load_scene(_plane_scene(tmp_path, material=ARMOUR + 'normal_map = "n.png"\ngmm_components = 8\n'))
     assert s.materials["armour"].gmm_components == 8
+
+
+def test_gmm_prior_defaults_to_the_builders_and_is_read(tmp_path):
+    from precompute.gmm_mipmap import DEFAULT_PRIOR
+
+    from warpbw.scene import GMM_DEFAULT_PRIOR
+
+    assert GMM_DEFAULT_PRIOR == DEFAULT_PRIOR == 1.0          # 004 Sec. 4.1
+    (tmp_path / "n.png").write_bytes(b"x")
+    base = ARMOUR + 'normal_map = "n.png"\n'
+    assert load_scene(_plane_scene(tmp_path, material=base)).materials["armour"].gmm_prior == 1.0
+    for text, c in (("gmm_prior = 16\n", 16.0), ("gmm_prior = 0\n", 0.0), ("gmm_prior = 2.5\n", 2.5)):
+        assert load_scene(_plane_scene(tmp_path, material=base + text)).materials["armour"].gmm_prior == c
+    expect_error(_plane_scene(tmp_path, material=ARMOUR + "gmm_prior = 4\n"), "[material.armour].gmm_prior")
 
 
 # ------------------------------------------------------------------------------------------ README

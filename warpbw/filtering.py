@@ -822,8 +822,9 @@ def _load_gmm(scene: Scene, name: str, data, kind, scale, src_name, digest, unal
     from precompute.gmm_mipmap import DEFAULT_PRIOR, GMM_VERSION
 
     m = scene.materials[name]
+    # the unaligned baseline fits with c = 0 whatever the material's prior: its cache entry does not depend on it
     src = _GmmSource(np.asarray(data), kind, float(scale), unaligned, src_name, digest, int(m.gmm_components),
-                     DEFAULT_PRIOR)
+                     DEFAULT_PRIOR if unaligned else float(m.gmm_prior))
     explicit = None if unaligned else m.gmm
     try:
         mip, origin = load_or_build(src, explicit, cache, GMM_CACHE_PREFIX, GMM_VERSION, _read_gmm_checked(scene, name),
@@ -855,6 +856,10 @@ def _read_gmm_checked(scene: Scene, name: str):
             raise WarpbwError(f"{path}: built with --components {mip.components}, but the material has "
                               f"gmm_components = {src.components} (the unaligned baseline is built with as many; "
                               f"set gmm_components = {mip.components} or rebuild the file)")
+        if not mip.unaligned and not math.isclose(mip.prior, src.prior, rel_tol=1e-9):
+            raise WarpbwError(f"{path}: built with --prior {mip.prior:g}, but the material has gmm_prior = "
+                              f"{src.prior:g} (set gmm_prior = {mip.prior:g} or rebuild the file with --prior "
+                              f"{src.prior:g})")
         return mip
     return read
 
@@ -904,7 +909,7 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
                                         method == "gmm_unaligned", cache, progress)
                 mp.gmm[method] = _gmm_array(mip.levels, device)
                 note[method] = {"origin": origin, "time_s": round(time.perf_counter() - tb, 6),
-                                "components": int(mip.components)}
+                                "components": int(mip.components), "prior": 0.0 if mip.unaligned else float(mip.prior)}
         mips[name] = mp
         notes[name] = note
     ldir = np.array([[d[0], -d[2], d[1]] for d in (li.direction for li in scene.lights)], np.float32).reshape(-1, 3)

@@ -47,6 +47,10 @@ MAX_TILING = 4096
 # MAX_COMPONENTS (spelled here so that parsing a scene needs no precompute import)
 GMM_DEFAULT_COMPONENTS = 4
 GMM_MAX_COMPONENTS = 16
+# The alignment constant c of the GMM builder's MAP prior: 004 Sec. 4.1 sets it to 1 (precompute.gmm_mipmap's
+# DEFAULT_PRIOR); the bound only catches typos (the prior then outweighs the data many times over)
+GMM_DEFAULT_PRIOR = 1.0
+GMM_MAX_PRIOR = 1.0e6
 PROCEDURAL_ENVIRONMENTS = ("sky",)
 LOOKUP_MODES = ("nearest", "linear")
 MAX_RESOLUTION = 16384  # per side; larger is almost certainly a typo (and would not fit in memory)
@@ -183,6 +187,7 @@ class Material:
     tiling: float = 1.0               # repeats of the map across the surface
     gmm: Path | None = None           # precomputed GMM mipmap (built and cached if absent)
     gmm_components: int = GMM_DEFAULT_COMPONENTS   # Gaussians per texel of the built (or given) GMM mipmaps
+    gmm_prior: float = GMM_DEFAULT_PRIOR           # alignment constant c of the built (or given) aligned one
 
 
 @dataclass
@@ -244,7 +249,7 @@ class Scene:
 # Material fields only cook-torrance materials use: left out of other materials' hashes, so that the hashes
 # (and the ground truths cached under them) of scenes written before these fields existed stay the same.
 _CT_FIELDS = ("roughness", "f0", "diffuse", "normal_map", "normal_map_kind", "normal_map_scale", "tiling", "gmm",
-              "gmm_components")
+              "gmm_components", "gmm_prior")
 
 
 def _material_fields(m: Material) -> dict:
@@ -437,7 +442,7 @@ _MATERIAL_KEYS = {
     "merl": (("type", "file", "lookup", "sampling", "bandwidth"), ("file",)),
     "npf": (("type", "table", "name", "lookup", "sampling", "bandwidth"), ("table", "name")),
     "cook-torrance": (("type", "roughness", "f0", "diffuse", "normal_map", "normal_map_kind", "normal_map_scale",
-                       "tiling", "gmm", "gmm_components"), ("roughness", "f0")),
+                       "tiling", "gmm", "gmm_components", "gmm_prior"), ("roughness", "f0")),
 }
 
 
@@ -449,7 +454,7 @@ def _cook_torrance(ctx: _Ctx, name: str, key: str, d: dict) -> Material:
     diffuse = ctx.vec3(d.get("diffuse", 0.0), f"{key}.diffuse", lo=0.0)
     if max(diffuse) > 1.0:
         ctx.fail(f"{key}.diffuse", f"expected components in [0, 1] (energy conservation), got {diffuse}")
-    for k in ("normal_map_kind", "normal_map_scale", "tiling", "gmm", "gmm_components"):
+    for k in ("normal_map_kind", "normal_map_scale", "tiling", "gmm", "gmm_components", "gmm_prior"):
         if k in d and "normal_map" not in d:
             ctx.fail(f"{key}.{k}", "applies only with a normal_map")
     nmap = ctx.path(d["normal_map"], f"{key}.normal_map") if "normal_map" in d else None
@@ -462,8 +467,10 @@ def _cook_torrance(ctx: _Ctx, name: str, key: str, d: dict) -> Material:
     k_gmm = d.get("gmm_components", GMM_DEFAULT_COMPONENTS)
     if not is_int(k_gmm) or not 1 <= k_gmm <= GMM_MAX_COMPONENTS:
         ctx.fail(f"{key}.gmm_components", f"expected an integer from 1 to {GMM_MAX_COMPONENTS}, got {k_gmm!r}")
+    c_gmm = ctx.number(d.get("gmm_prior", GMM_DEFAULT_PRIOR), f"{key}.gmm_prior", lo=0.0, hi=GMM_MAX_PRIOR)
     return Material(name, "cook-torrance", roughness=rough, f0=f0, diffuse=diffuse, normal_map=nmap,
-                    normal_map_kind=kind, normal_map_scale=scale, tiling=tiling, gmm=gmm, gmm_components=k_gmm)
+                    normal_map_kind=kind, normal_map_scale=scale, tiling=tiling, gmm=gmm, gmm_components=k_gmm,
+                    gmm_prior=c_gmm)
 
 
 def _material(ctx: _Ctx, name: str, d: dict) -> Material:
