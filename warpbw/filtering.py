@@ -64,7 +64,8 @@ uniforms: each estimate stays unbiased, and its error is lower.  The methods:
 The box-filtered normal mipmaps (toksvig, lean, fixed) hold per texel the mean unit normal and the second
 moments (E[x^2], E[y^2], E[xy]) of the projected normals over the texel's footprint (clipped at the border,
 like the GMM mipmap).  The GMM mipmaps come from the material's ``gmm`` file (aligned) or are built by
-``precompute.gmm_mipmap`` and cached under ``$WARPBW_CACHE`` (``precompute.brdf_sampling.load_or_build``).
+``precompute.gmm_mipmap`` and cached under ``$WARPBW_CACHE`` (``precompute.brdf_sampling.load_or_build``), with
+the material's ``gmm_components`` (both) and ``gmm_prior`` (the aligned one's c; the unaligned one has none).
 
 Scope: planes only (spheres and meshes are refused); several planes composite by the depth of each pixel's
 centre ray; no light is occluded (a plane does not shadow another).  A kernel is compiled per method kind with
