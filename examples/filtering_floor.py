@@ -35,16 +35,14 @@ from pathlib import Path
 import numpy as np
 
 from warpbw.cli_common import run_command
+# the renderer's own constants: the references filter and shade at its footprint, with its floors
+from warpbw.filtering import LOD_BIAS, MIN_COS, VARIANCE_FLOOR, WEIGHT_EPS, roughness_variance
 
 DEFAULT_ZOOMS = "8,16,32"
 DEFAULT_GT_SPP = 1024
 GT_SEED = 1_000_003              # warpbw.bench_filtering's ground-truth seed (seed 0)
 # Finest normals gathered per batch of pixels (bounds the memory of the floor: a level-l texel holds 4^l).
 BATCH_NORMALS = 1 << 21
-LOD_BIAS = -0.5 * math.log2(3.0)   # warpbw.filtering.LOD_BIAS
-WEIGHT_EPS = 1e-8                  # warpbw.filtering: lighter components are empty
-VARIANCE_FLOOR = 1e-6              # the builder's floor, taken off again at shading (warpbw.filtering)
-MIN_COS = 1e-4
 
 
 def _plane_frame(v):
@@ -115,7 +113,7 @@ def _taps(st, lam, shapes):
         x, y = st[:, 0] / f - 0.5, st[:, 1] / f - 0.5
         x0, y0 = np.floor(x), np.floor(y)
         fx, fy = x - x0, y - y0
-        hw = np.array([shapes[l] for l in range(top + 1)])[lv]
+        hw = np.array(shapes)[lv]
         for dc, dr, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
             yield lv, (x0.astype(int) + dc) % hw[:, 1], (y0.astype(int) + dr) % hw[:, 0], w * wl
 
@@ -124,7 +122,7 @@ def floor_image(mat, lights, normals, shapes, st, lam, wo):
     """Every finest normal of each tap's footprint (a level-l texel covers 2^l x 2^l of them, clipped at the
     border), weighted by the tap's weight, shaded with the fine-scale BRDF."""
     H, W = normals.shape[:2]
-    rv = 0.5 * mat.roughness ** 2
+    rv = roughness_variance(mat.roughness)
     out = np.zeros((st.shape[0], 3))
     for lv, col, row, w in _taps(st, lam, shapes):
         for l in np.unique(lv):
@@ -154,7 +152,7 @@ def _recover(q, rv):
 
 def gmm_images(mat, lights, levels, st, lam, wo):
     """(per tap, merged): the aligned GMM's taps as separate mixtures, and merged by moments (the renderer)."""
-    rv = 0.5 * mat.roughness ** 2
+    rv = roughness_variance(mat.roughness)
     shapes = [q.shape[:2] for q in levels]
     K = levels[0].shape[2]
     merged = np.zeros((st.shape[0], K, 4))
@@ -173,10 +171,10 @@ def gmm_images(mat, lights, levels, st, lam, wo):
 
 def analyse(path: Path, zooms, gt_spp: int, log=print) -> dict:
     from precompute.surfaces import height_to_normals
-    from precompute.gmm_mipmap import load_map
+    from precompute.gmm_mipmap import level_shapes, load_map
     from warpbw.bench_filtering import colour_error
     from warpbw.errors import WarpbwError
-    from warpbw.filtering import METHODS, normal_moment_mipmap, prepare_filtering, render_filtering, zoomed_camera
+    from warpbw.filtering import METHODS, prepare_filtering, render_filtering, zoomed_camera
     from warpbw.scene import PlaneObject, load_scene
 
     scene = load_scene(path)
@@ -190,13 +188,13 @@ def analyse(path: Path, zooms, gt_spp: int, log=print) -> dict:
         raise WarpbwError(f"{path}: [material.{pl.material}] has no normal_map: there is nothing to filter")
     data = load_map(mat.normal_map, mat.normal_map_kind)
     normals = height_to_normals(data, mat.normal_map_scale) if mat.normal_map_kind == "height" else data
-    shapes = [lv[0].shape[:2] for lv in normal_moment_mipmap(normals)]
+    shapes = level_shapes(*normals.shape[:2])
     prep = prepare_filtering(scene, METHODS + ("ground_truth",))
     mp = prep.mips[pl.material]
     flat, K = mp.gmm["gmm_aligned"]
     flat = flat.numpy()
-    off = np.concatenate([[0], np.cumsum([h * w for h, w in shapes])])
-    levels = [flat[off[i] * K:off[i + 1] * K].reshape(h, w, K, 4) for i, (h, w) in enumerate(shapes)]
+    off = mp.loff.numpy()                                  # each level's first texel in the flat array
+    levels = [flat[o * K:(o + h * w) * K].reshape(h, w, K, 4) for o, (h, w) in zip(off, shapes)]
     rows = []
     for z in zooms:
         cam = zoomed_camera(scene.camera, z)

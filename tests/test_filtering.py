@@ -419,11 +419,10 @@ def numpy_filtered_render(scene, method, normals, gmm_levels, zoom):
 
     st0 = st_of(d)
     rho = np.maximum(np.linalg.norm(st_of(dx) - st0, axis=-1), np.linalg.norm(st_of(dy) - st0, axis=-1))
-    n_levels = len(normal_moment_mipmap(normals))
-    lam_px = np.clip(np.log2(rho) + LOD_BIAS_DOC, -1.0, n_levels - 1)
+    box = normal_moment_mipmap(normals)
+    lam_px = np.clip(np.log2(rho) + LOD_BIAS_DOC, -1.0, len(box) - 1)
     s, t, lam = st0[..., 0].ravel(), st0[..., 1].ravel(), np.maximum(lam_px, 0.0).ravel()
     rv = mat.roughness ** 2 / 2
-    box = normal_moment_mipmap(normals)
     mean = _numpy_trilinear([b[0].astype(np.float64) for b in box], s, t, lam)        # (P, 3)
     lobes = []                                       # (a, mx, my, sxx, syy, sxy), each (P,)
     if method.startswith("gmm"):
