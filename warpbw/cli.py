@@ -475,7 +475,7 @@ def _positive_float(name):
 
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="warpbw", description="Render measured materials under HDR light with "
-                "NVIDIA Warp kernels (CPU by default; --device cuda runs the same kernels on a GPU).",
+                "NVIDIA Warp kernels (CPU by default; --device cuda selects a GPU, untested so far).",
                 epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
