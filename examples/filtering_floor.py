@@ -36,7 +36,7 @@ import numpy as np
 
 from warpbw.cli_common import run_command
 # the renderer's own constants: the references filter and shade at its footprint, with its floors
-from warpbw.filtering import LOD_BIAS, MIN_COS, VARIANCE_FLOOR, WEIGHT_EPS, roughness_variance
+from warpbw.filtering import LOD_BIAS, MIN_COS, VARIANCE_FLOOR, roughness_variance
 
 DEFAULT_ZOOMS = "8,16,32"
 DEFAULT_GT_SPP = 1024
@@ -142,12 +142,12 @@ def floor_image(mat, lights, normals, shapes, st, lam, wo):
 
 
 def _recover(q, rv):
-    a = q[..., 0]
-    ok = a > WEIGHT_EPS
-    safe = np.where(ok, a, 1.0)
-    mx, my = np.where(ok, q[..., 1] / safe, 0.0), np.where(ok, q[..., 2] / safe, 0.0)
-    s2 = np.maximum(np.where(ok, q[..., 3] / safe, 0.0) - mx * mx - my * my, VARIANCE_FLOOR)
-    return np.where(ok, a, 0.0), mx, my, s2 - VARIANCE_FLOOR + rv
+    """Stored moments -> (a, mu_x, mu_y, per-axis variance of the lobe): the builder's recovery, the renderer's
+    floor taken off and the roughness added (``warpbw.filtering``)."""
+    from precompute.gmm_mipmap import from_moments
+
+    a, mu, s2 = from_moments(q)
+    return a, mu[..., 0], mu[..., 1], s2 - VARIANCE_FLOOR + rv
 
 
 def gmm_images(mat, lights, levels, st, lam, wo):

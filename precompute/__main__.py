@@ -122,10 +122,10 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Build a mipmap whose texels hold an N-component Gaussian mixture of the "
                        "normals (projected (n_x, n_y), isotropic std per component) of their footprint, fitted "
                        "coarse to fine by EM with the neighbour-alignment prior of 004 Sec. 4.1, and stored as "
-                       "the linearly filterable (a, a mu_x, a mu_y, a (s^2 + |mu|^2)) per component.  MAP is an "
-                       "OpenEXR or PNG (8/16-bit) image, or a procedural height field surface:NAME[:SIZE] with "
-                       "NAME one of hemispherical_scales, carved_disk, dunes (e.g. surface:dunes:512; SIZE "
-                       "1..1024, default 512).")
+                       "the linearly filterable (a, a mu_x, a mu_y, a E|n|^2) per component (E|n|^2 = "
+                       "2 s^2 + |mu|^2, s the std per axis).  MAP is an OpenEXR or PNG (8/16-bit) image, or a "
+                       "procedural height field surface:NAME[:SIZE] with NAME one of hemispherical_scales, "
+                       "carved_disk, dunes (e.g. surface:dunes:512; SIZE 1..1024, default 512).")
     g.add_argument("map", metavar="MAP", help="height field / normal map image, or surface:NAME[:SIZE]")
     g.add_argument("-o", "--output", required=True, help="output mipmap file (.npz)")
     g.add_argument("--components", type=int, default=4, help="Gaussians per texel (default 4)")

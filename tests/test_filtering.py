@@ -176,7 +176,9 @@ def _random_gmm(rng, K):
 
 
 def _moments(a, mu, s2):
-    return np.concatenate([a[:, None], a[:, None] * mu, (a * (s2 + (mu ** 2).sum(-1)))[:, None]], -1)
+    """The stored form: (a, a mu, a E|n|^2), E|n|^2 = 2 s^2 + |mu|^2 for an isotropic 2D Gaussian of per-axis
+    variance s^2 (precompute.gmm_mipmap's module docstring)."""
+    return np.concatenate([a[:, None], a[:, None] * mu, (a * (2 * s2 + (mu ** 2).sum(-1)))[:, None]], -1)
 
 
 @settings(max_examples=25, deadline=None)
@@ -193,15 +195,16 @@ def test_filtering_two_texels_is_the_moment_matched_component(seed, f, lam):
     w0 = (1 - lam) * (1 - f) + lam * 0.5
     w1 = (1 - lam) * f + lam * 0.5
     for k in range(K):
-        # closed form (004 Sec. 4.2 / Appendix): the moment-matched Gaussian of the two weighted components
+        # closed form (004 Sec. 4.2 / Appendix): the isotropic Gaussian with the mean and second moment E|n|^2 of
+        # the two weighted components, each of which has E|n|^2 = 2 s^2 + |mu|^2
         a = w0 * t0[0][k] + w1 * t1[0][k]
         if a < 1e-6:
             assert got[k, 0] < 1e-6
             continue
         mu = (w0 * t0[0][k] * t0[1][k] + w1 * t1[0][k] * t1[1][k]) / a
-        second = (w0 * t0[0][k] * (t0[2][k] + t0[1][k] @ t0[1][k])
-                  + w1 * t1[0][k] * (t1[2][k] + t1[1][k] @ t1[1][k])) / a
-        s2 = second - mu @ mu
+        second = (w0 * t0[0][k] * (2 * t0[2][k] + t0[1][k] @ t0[1][k])
+                  + w1 * t1[0][k] * (2 * t1[2][k] + t1[1][k] @ t1[1][k])) / a
+        s2 = (second - mu @ mu) / 2
         assert got[k, 0] == pytest.approx(a, rel=1e-5, abs=1e-7)
         assert np.allclose(got[k, 1:3], mu, atol=2e-5)
         assert got[k, 3] == pytest.approx(max(s2, 1e-6), rel=2e-3, abs=2e-6)
@@ -215,7 +218,8 @@ def test_fetch_wraps_around_and_empty_components_are_zero():
     # s = 0 is half way between texel 1 (wrapped, centre -0.5) and texel 0 (centre 0.5): the two means cancel
     got = fetch_gmm(levels, 0.0, 0.5, 0.0)[0]
     assert got[0, 0] == pytest.approx(1.0) and abs(got[0, 1]) < 1e-6
-    assert got[0, 3] == pytest.approx(0.01 + 0.04, rel=1e-4)          # spread of the two means is variance
+    # the spread of the two means is variance: total 2 (0.01) + 0.2^2, per axis half of it
+    assert got[0, 3] == pytest.approx(0.01 + 0.04 / 2, rel=1e-4)
     assert np.all(got[1] == 0) and np.all(np.isfinite(got))
 
 
@@ -251,7 +255,7 @@ def test_trilinear_fetch_of_a_tiled_mipmap_is_the_brute_force_filter():
             mu = acc[k, 1:3] / acc[k, 0]
             assert g[k, 0] == pytest.approx(acc[k, 0], rel=1e-5, abs=1e-7)
             assert np.allclose(g[k, 1:3], mu, atol=2e-5)
-            assert g[k, 3] == pytest.approx(max(acc[k, 3] / acc[k, 0] - mu @ mu, 1e-6), rel=2e-3, abs=2e-6)
+            assert g[k, 3] == pytest.approx(max((acc[k, 3] / acc[k, 0] - mu @ mu) / 2, 1e-6), rel=2e-3, abs=2e-6)
 
 
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -431,7 +435,8 @@ def numpy_filtered_render(scene, method, normals, gmm_levels, zoom):
             a = q[:, k, 0]
             ok = a > 1e-8
             mx, my = np.where(ok, q[:, k, 1] / np.where(ok, a, 1), 0), np.where(ok, q[:, k, 2] / np.where(ok, a, 1), 0)
-            s2 = np.maximum(np.where(ok, q[:, k, 3] / np.where(ok, a, 1), 0) - mx * mx - my * my, 1e-6)
+            # per-axis s^2 of the stored second moment a E|n|^2 = a (2 s^2 + |mu|^2)
+            s2 = np.maximum((np.where(ok, q[:, k, 3] / np.where(ok, a, 1), 0) - mx * mx - my * my) / 2, 1e-6)
             var = s2 - 1e-6 + rv                     # the builder's floor is numerical: taken off again
             lobes.append((np.where(ok, a, 0), mx, my, var, var, 0 * var))
     else:

@@ -235,15 +235,22 @@ def test_linear_filtering_is_the_moment_matched_component():
         mean = np.sum(p[..., None] * mu, axis=0)
         np.testing.assert_allclose(af, np.sum(w[:, None] * a, axis=0), rtol=1e-13)
         np.testing.assert_allclose(muf, mean, rtol=1e-12, atol=1e-14)
-        # second moment E|n|^2 counted as in 004: sum p (s^2 + |mu|^2) = s2f + |muf|^2
-        np.testing.assert_allclose(s2f + np.sum(muf ** 2, -1), np.sum(p * (s2 + np.sum(mu ** 2, -1)), 0),
-                                   rtol=1e-12)
-        # and s2f is the mixture's variance along the line through the two means (law of total variance)
-        var_line = np.sum(p * s2, 0) + np.sum(p * np.sum((mu - mean) ** 2, -1), 0)
-        np.testing.assert_allclose(s2f, var_line, rtol=1e-10)
+        # its total variance E|n - mean|^2 by the law of total variance (an isotropic 2D Gaussian of per-axis
+        # variance s^2 spreads 2 s^2 about its mean): the filtered isotropic component has the same, 2 s2f
+        total = np.sum(p * 2 * s2, 0) + np.sum(p * np.sum((mu - mean) ** 2, -1), 0)
+        np.testing.assert_allclose(2 * s2f, total, rtol=1e-10)
         ma, mmu, ms2 = moment_match(a, mu, s2, w)
         np.testing.assert_allclose((af, s2f), (ma, ms2), rtol=1e-12)
         np.testing.assert_allclose(muf, mmu, rtol=1e-12, atol=1e-15)
+    # and by sampling: normals drawn from the half-and-half mixture of the two texels' component k spread about
+    # their mean by s2f per axis
+    af, muf, s2f = from_moments(filter_moments(to_moments(a, mu, s2), np.array([0.5, 0.5])))
+    n = 400_000
+    for k in range(K):
+        texel = rng.random(n) < a[1, k] / (a[0, k] + a[1, k])
+        x = mu[texel.astype(int), k] + rng.normal(size=(n, 2)) * np.sqrt(s2[texel.astype(int), k])[:, None]
+        assert np.allclose(x.mean(0), muf[k], atol=3e-3)
+        assert np.var(x, axis=0).mean() == pytest.approx(s2f[k], rel=0.02)
 
 
 def test_trilinear_filtering_of_stored_float32_levels(scales_mips):

@@ -50,9 +50,11 @@ probability ``diffuse_pick``, a cosine-weighted direction) and one environment s
 combined by the balance heuristic.  A pixel's pairs draw their uniforms from a quasi-random set, the R_3 and
 R_2 Kronecker sequences shifted by one random offset per pixel (``PAIR_ALPHA``), not from independent
 uniforms: each estimate stays unbiased, and its error is lower.  The methods:
-    gmm_aligned / gmm_unaligned   the stored moments (a, a mu, a (s^2 + |mu|^2)) of each component, filtered
-                                  linearly, then a, mu, s^2 recovered (004 Sec. 4.2); EM-aligned mipmap
-                                  (004 Sec. 4.1) or independent per-texel EM;
+    gmm_aligned / gmm_unaligned   the stored moments (a, a mu, a E|n|^2 = a (2 s^2 + |mu|^2)) of each
+                                  component, filtered linearly, then a, mu, s^2 recovered: the isotropic
+                                  Gaussian of the filtered mean and second moment (004 Sec. 4.2, in the form
+                                  ``precompute.gmm_mipmap`` stores); EM-aligned mipmap (004 Sec. 4.1) or
+                                  independent per-texel EM;
     toksvig                       one Gaussian about the renormalised mean normal, widened by Toksvig's
                                   per-axis variance (1 - |n|) / |n| of the mean normal's length |n|;
     lean                          one anisotropic Gaussian with the filtered mean and covariance of the
@@ -83,6 +85,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from precompute.gmm_mipmap import NORMAL_DIM
 from warpbw.envmap import LUMINANCE_RGB, EnvMapData, env_pdf, env_radiance, env_sample, load_environment
 from warpbw.errors import WarpbwError, check_count
 from warpbw.gbuffer import CameraData, make_camera
@@ -297,14 +300,16 @@ def trilinear3(q: wp.array(dtype=wp.vec3), lw: wp.array(dtype=wp.int32), lh: wp.
 
 @wp.func
 def recover(q: wp.vec4):
-    """(a, a mu_x, a mu_y, a (s^2 + |mu|^2)) -> (a, mu_x, mu_y, s^2)  (004 Sec. 4.2: mu = T(a mu) / T(a),
-    s^2 = T(a (s^2 + |mu|^2)) / T(a) - |mu|^2); an empty component (a <= WEIGHT_EPS) comes back as zeros."""
+    """(a, a mu_x, a mu_y, a E|n|^2) -> (a, mu_x, mu_y, s^2)  (004 Sec. 4.2: mu = T(a mu) / T(a); the per-axis
+    s^2 = (T(a E|n|^2) / T(a) - |mu|^2) / d, ``precompute.gmm_mipmap``); an empty component (a <= WEIGHT_EPS)
+    comes back as zeros."""
     out = wp.vec4(0.0)
     a = q[0]
     if a > WEIGHT_EPS:
         mx = q[1] / a
         my = q[2] / a
-        out = wp.vec4(a, mx, my, wp.max(q[3] / a - (mx * mx + my * my), VARIANCE_FLOOR))
+        s2 = (q[3] / a - (mx * mx + my * my)) / float(NORMAL_DIM)
+        out = wp.vec4(a, mx, my, wp.max(s2, VARIANCE_FLOOR))
     return out
 
 
