@@ -18,7 +18,9 @@ metric) of the five filtered methods and of two references that no method can be
   the lowest ratio issue 4's "at most half of Toksvig's" check can show on that surface.
 * ``gmm_per_tap``: the aligned GMM's eight texels of the trilinear footprint (4 per level, 2 levels) shaded
   as separate mixtures (8 K lobes), instead of first merging corresponding components by moments
-  (004 Sec. 4.2).  The difference to ``gmm_aligned`` is what interpolating the components costs.
+  (004 Sec. 4.2).  The difference to ``gmm_aligned`` is what interpolating the components costs -- or gains:
+  the merged lobe is wider than each tap's, and on the hemispherical scales at zoom 32 the merged mixture is
+  the closer of the two (README, "Reflectance filtering").
 
 Both are numpy, written from ``warpbw.filtering``'s documentation; ``gmm_merged_check`` re-derives the
 renderer's own ``gmm_aligned`` image the same way and reports its largest deviation (float32 rounding).
