@@ -15,7 +15,7 @@ import sys
 import time
 from pathlib import Path
 
-from warpbw.cli_common import OneLineParser, run_command
+from warpbw.cli_common import OneLineParser, parse_seed, run_command
 from warpbw.errors import WarpbwError
 
 
@@ -139,7 +139,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="height multiplier; heights are in units of the map's width (default 1)")
     g.add_argument("--unaligned", action="store_true",
                    help="baseline: independent EM per texel (no prior, no neighbour initialisation)")
-    g.add_argument("--seed", type=int, default=0, help="seed of the clustering and footprint subsampling")
+    g.add_argument("--seed", type=parse_seed, default=0,
+                   help="seed of the clustering and footprint subsampling, 0 to 2^32-1 (default 0)")
     g.add_argument("--force", action="store_true", help="overwrite an existing output")
     g.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     g.set_defaults(func=cmd_gmm)

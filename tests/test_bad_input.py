@@ -171,6 +171,15 @@ def test_obj_face_referencing_a_missing_vertex(tmp_path):
     assert_no_outputs(tmp_path)
 
 
+@pytest.mark.parametrize("vertex,scale", [("1e39", "1.0"), ("1e10", "1e30")], ids=["in the file", "scaled"])
+def test_obj_vertex_beyond_float32(tmp_path, vertex, scale):
+    (tmp_path / "big.obj").write_text(f"v 0 0 0\nv 1 0 0\nv 0 1 0\nv {vertex} 1 0\nf 1 2 3\nf 1 2 4\n")
+    write_scene(tmp_path, obj=f'mesh = "big.obj"\nscale = {scale}')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "big.obj", "1 vertices lie outside the float32 range")
+    assert_no_outputs(tmp_path)
+
+
 # ------------------------------------------------------------------------------------------ scene content
 
 def test_unknown_material_type(tmp_path):
@@ -272,17 +281,66 @@ def test_spp_zero(tmp_path):
      ["--allocation", "invalid choice"]),
     (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--nyquist", "0"],
      ["--nyquist", "positive"]),
+    # counts the kernels hold in int32: 2^31 would wrap to a negative count (a black image), 2^32 + 1 to one
+    (["render", "scene.toml", "-o", "out.exr", "--spp", "2147483648"], ["--spp", "<= 2147483647", "int32"]),
+    (["render", "scene.toml", "-o", "out.exr", "--spp", "4294967297"], ["--spp", "<= 2147483647"]),
+    (["demo", "-o", "out", "--spp", "2147483648"], ["--spp", "<= 2147483647"]),
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "3e9"],
+     ["--budget", "<= 6.71089e+07", "int32"]),
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--nb", "2147483648"],
+     ["--nb", "<= 2147483647"]),
+    (["bench", "scene.toml", "--json", "b.json", "--spp", "1,2147483648"], ["--spp", "<= 2.14748e+09"]),
+    (["bench", "scene.toml", "--json", "b.json", "--budgets", "1,1e9"], ["--budgets", "<= 6.71089e+07"]),
+    (["bench", "scene.toml", "--json", "b.json", "--gt-spp", "2147483648"], ["--gt-spp", "<= 2147483647"]),
+    (["bench-filtering", "scene.toml", "--json", "b.json", "--spp", "2147483648"], ["--spp", "<= 2147483647"]),
+    # seeds are uint32: -1 and 2^32 wrapped onto 2^32 - 1 and 0
+    (["render", "scene.toml", "-o", "out.exr", "--seed", "-1"], ["--seed", "0 to 4294967295", "got -1"]),
+    (["render", "scene.toml", "-o", "out.exr", "--seed", "4294967296"], ["--seed", "0 to 4294967295"]),
+    (["bench", "scene.toml", "--json", "b.json", "--seed", "-1"], ["--seed", "0 to 4294967295"]),
+    (["bench-filtering", "scene.toml", "--json", "b.json", "--seed", "4294967296"], ["--seed", "0 to 4294967295"]),
+    # the preview's exposure: 1e10 overflowed 2^exposure after the EXR was written, nan gave a black PNG
+    (["render", "scene.toml", "-o", "out.exr", "--exposure", "1e10"], ["--exposure", "-150 to 150", "'1e10'"]),
+    (["render", "scene.toml", "-o", "out.exr", "--exposure", "nan"], ["--exposure", "finite", "'nan'"]),
+    (["render", "scene.toml", "-o", "out.exr", "--exposure", "inf"], ["--exposure", "finite", "'inf'"]),
+    (["demo", "-o", "out", "--exposure=-1e3"], ["--exposure", "-150 to 150"]),
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--spp", "7"],
+     ["--spp", "--method reference only", "--budget"]),
 ], ids=["no output", "bad threads", "png output", "unknown command", "no command", "adaptive without budget",
         "negative budget", "nan budget", "zero nb", "budget without adaptive", "unknown method",
-        "allocation without adaptive", "unknown allocation", "zero nyquist"])
+        "allocation without adaptive", "unknown allocation", "zero nyquist",
+        "spp 2^31", "spp 2^32+1", "demo spp 2^31", "budget 3e9", "nb 2^31", "bench spp 2^31", "bench budgets 1e9",
+        "bench gt-spp 2^31", "bench-filtering spp 2^31", "seed -1", "seed 2^32", "bench seed -1",
+        "bench-filtering seed 2^32", "exposure 1e10", "exposure nan", "exposure inf", "demo exposure -1e3",
+        "spp with adaptive"])
 def test_usage_errors_are_one_line(tmp_path, args, needles):
     write_scene(tmp_path)
     assert_one_line_error(run(args, tmp_path), *needles)
+    assert_no_outputs(tmp_path)
+    assert_no_outputs(tmp_path, "b")
 
 
-def test_precompute_usage_error_is_one_line(tmp_path):
-    r = run(["brdf-sampling"], tmp_path, module="precompute")
-    assert_one_line_error(r, "required", prog="warpbw-precompute")
+@pytest.mark.parametrize("args,needles", [
+    (["brdf-sampling"], ["required"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--seed", "-1"], ["--seed", "0 to 4294967295", "got -1"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--seed", "4294967296"], ["--seed", "0 to 4294967295"]),
+], ids=["no file", "gmm seed -1", "gmm seed 2^32"])
+def test_precompute_usage_errors_are_one_line(tmp_path, args, needles):
+    assert_one_line_error(run(args, tmp_path, module="precompute"), *needles, prog="warpbw-precompute")
+    assert_no_outputs(tmp_path)
+
+
+def test_counts_beyond_int32_are_refused_by_the_library_too():
+    """The bounds the CLI checks at parse time hold for the Python API as well (before any work)."""
+    from warpbw import bandwidth, cli
+    from warpbw.pipeline import render_reference
+    from warpbw.scene import default_scene
+    from precompute.gmm_mipmap import build_gmm_mipmap
+
+    assert cli.BUDGET_MAX == bandwidth.BUDGET_MAX  # spelled in the CLI so that --help needs no Warp import
+    with pytest.raises(WarpbwError, match="spp: expected a positive integer <= 2147483647"):
+        render_reference(default_scene(), spp=2**31)
+    with pytest.raises(WarpbwError, match="seed: expected an integer from 0 to 4294967295"):
+        build_gmm_mipmap(np.zeros((4, 4)), seed=2**32, progress=False)
 
 
 def test_existing_output_is_not_overwritten(tmp_path):

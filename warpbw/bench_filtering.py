@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError, check_count
+from warpbw.errors import INT32_MAX, WarpbwError, check_count
 
 DEFAULT_ZOOMS = (1, 2, 4, 8, 16, 32)
 # Ground-truth rays per pixel of the benchmark: a pixel of the far zooms covers hundreds of texels.
@@ -95,7 +95,7 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     if gt_spp < MIN_GT_SPP:
         raise WarpbwError(f"--gt-spp {gt_spp}: expected at least {MIN_GT_SPP} rays per pixel")
     env_spp = DEFAULT_ENV_SPP if env_spp is None else env_spp
-    check_count(env_spp, "--spp (environment pairs per pixel)", 1)
+    check_count(env_spp, "--spp (environment pairs per pixel)", 1, INT32_MAX)  # int32 in the kernels
     zooms = [float(z) for z in zooms]
     with tempfile.TemporaryDirectory(prefix="warpbw-gmm-") as tmp:
         t0 = time.perf_counter()

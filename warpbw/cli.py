@@ -14,8 +14,8 @@ import sys
 import time
 from pathlib import Path
 
-from warpbw.cli_common import OneLineParser, run_command
-from warpbw.errors import WarpbwError
+from warpbw.cli_common import OneLineParser, parse_seed, run_command
+from warpbw.errors import INT32_MAX, WarpbwError
 
 DEFAULT_SPP = 64
 DEMO_SPP = 64
@@ -24,6 +24,11 @@ _FILTER_METHODS = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed", "
 # warpbw.bandwidth.ALLOCATIONS, default first (spelled here for the same reason)
 _ALLOCATIONS = ("measured", "variance", "sqrt", "relative", "uniform")
 WARP_LOG_WARNING = 30  # warp._src.logger.LOG_WARNING: hide Warp's banner and module-load lines
+# warpbw.bandwidth.BUDGET_MAX (spelled here for the same reason): the adaptive N_p goes up to
+# N_P_MAX_PER_BUDGET = 32 x --budget and is an int32 in the kernels
+BUDGET_MAX = INT32_MAX / 32
+# --exposure in stops: beyond +-150 every non-zero float32 radiance (2^-149 .. 2^128) previews white, or black
+EXPOSURE_MAX_STOPS = 150.0
 
 EPILOG = """\
 examples:
@@ -273,6 +278,10 @@ def cmd_render(args) -> int:
 
     if args.method == "adaptive" and args.budget is None:
         raise WarpbwError("--method adaptive needs --budget SAMPLES_PER_PIXEL (mean samples per covered pixel)")
+    if args.method == "adaptive" and args.spp is not None:
+        raise WarpbwError("--spp applies to --method reference only (--method adaptive takes --budget)")
+    if args.spp is None:
+        args.spp = DEFAULT_SPP
     if args.method == "reference" and (args.budget is not None or args.nb is not None
                                        or _adaptive_options(args)):
         raise WarpbwError("--budget, --nb, --allocation and --nyquist apply to --method adaptive only "
@@ -292,7 +301,8 @@ def cmd_demo(args) -> int:
     from warpbw.scene import default_scene
 
     out = Path(args.output) / "demo.exr"
-    _render(default_scene(), out, args.spp, args.seed, True, args.device, args.exposure, args.force,
+    spp = DEMO_SPP if args.spp is None else args.spp
+    _render(default_scene(), out, spp, args.seed, True, args.device, args.exposure, args.force,
             args.threads, args.quiet)
     return 0
 
@@ -369,7 +379,7 @@ def cmd_compare(args) -> int:
     return 0
 
 
-def _positive_int(name):
+def _positive_int(name, hi=None):
     def parse(s):
         try:
             v = int(s)
@@ -377,12 +387,20 @@ def _positive_int(name):
             raise argparse.ArgumentTypeError(f"expected a positive integer, got {s!r}") from None
         if v < 1:
             raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
+        if hi is not None and v > hi:
+            raise argparse.ArgumentTypeError(f"expected a positive integer <= {hi}{_why(hi)}, got {v}")
         return v
     parse.__name__ = name
     return parse
 
 
-def _number_list(name, kind):
+def _why(hi) -> str:
+    """Why a count or budget has an upper bound, for the parsers' messages."""
+    return {INT32_MAX: " (an int32 in the kernels)",
+            BUDGET_MAX: " (N_p, up to 32 x budget, is an int32 in the kernels)"}.get(hi, "")
+
+
+def _number_list(name, kind, hi=None):
     def parse(s):
         try:
             vals = [kind(x) for x in s.split(",") if x.strip()]
@@ -390,6 +408,9 @@ def _number_list(name, kind):
             raise argparse.ArgumentTypeError(f"expected comma-separated {kind.__name__}s, got {s!r}") from None
         if not vals or any(not (v > 0 and math.isfinite(v)) for v in vals):
             raise argparse.ArgumentTypeError(f"expected comma-separated positive numbers, got {s!r}")
+        if hi is not None and max(vals) > hi:
+            raise argparse.ArgumentTypeError(f"expected comma-separated positive numbers <= {hi:g}{_why(hi)}, "
+                                             f"got {max(vals):g}")
         return vals
     parse.__name__ = name
     return parse
@@ -460,7 +481,7 @@ def cmd_bench_filtering(args) -> int:
     return 0
 
 
-def _positive_float(name):
+def _positive_float(name, hi=None):
     def parse(s):
         try:
             v = float(s)
@@ -468,9 +489,23 @@ def _positive_float(name):
             raise argparse.ArgumentTypeError(f"expected a positive number, got {s!r}") from None
         if not (v > 0 and math.isfinite(v)):
             raise argparse.ArgumentTypeError(f"expected a positive number, got {s}")
+        if hi is not None and v > hi:
+            raise argparse.ArgumentTypeError(f"expected a positive number <= {hi:g}{_why(hi)}, got {s}")
         return v
     parse.__name__ = name
     return parse
+
+
+def _exposure(s):
+    """--exposure: a finite number of stops within +-EXPOSURE_MAX_STOPS."""
+    try:
+        v = float(s)
+    except ValueError:
+        v = math.nan
+    if not (math.isfinite(v) and abs(v) <= EXPOSURE_MAX_STOPS):
+        raise argparse.ArgumentTypeError(f"expected a finite number of stops from {-EXPOSURE_MAX_STOPS:g} to "
+                                         f"{EXPOSURE_MAX_STOPS:g}, got {s!r}")
+    return v
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -481,11 +516,14 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
 
     def common(sp, spp_default):
-        sp.add_argument("--spp", type=_positive_int("spp"), default=spp_default,
+        # default None: render refuses --spp with --method adaptive, so it must know whether --spp was given
+        sp.add_argument("--spp", type=_positive_int("spp", INT32_MAX), default=None,
                         help=f"BRDF samples per pixel, N in 002 Eq. 2 (default {spp_default})")
-        sp.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+        sp.add_argument("--seed", type=parse_seed, default=0, help="random seed, 0 to 2^32-1 (default 0)")
         sp.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda / cuda:N")
-        sp.add_argument("--exposure", type=float, default=0.0, help="PNG preview exposure in stops (default 0)")
+        sp.add_argument("--exposure", type=_exposure, default=0.0,
+                        help=f"PNG preview exposure in stops, -{EXPOSURE_MAX_STOPS:g} to {EXPOSURE_MAX_STOPS:g} "
+                        "(default 0)")
         sp.add_argument("--threads", type=_positive_int("threads"), default=None,
                         help="CPU threads tiling the shading launches (default: all cores)")
         sp.add_argument("--force", action="store_true", help="overwrite existing output files")
@@ -503,11 +541,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="reference: every pixel with --spp samples (default); adaptive: bandwidth prediction and "
                    "hierarchical shading (002), which also writes the AOVs OUT.level/.n_p/.variance/.shaded/.b_p "
                    "as EXR and false-colour PNG")
-    r.add_argument("--budget", type=_positive_float("budget"), default=None,
+    r.add_argument("--budget", type=_positive_float("budget", BUDGET_MAX), default=None,
                    help="adaptive: mean samples per covered pixel, spread over the shaded pixels in proportion to the "
                    "standard deviation the bandwidth pass measures "
                    "(may be below 1)")
-    r.add_argument("--nb", type=_positive_int("nb"), default=None,
+    r.add_argument("--nb", type=_positive_int("nb", INT32_MAX), default=None,
                    help="adaptive: directions per pixel of the bandwidth estimate, n_b (default 16, 002 Sec. 2.6)")
     add_adaptive_options(r)
     r.add_argument("--filter", choices=_FILTER_METHODS, default=None,
@@ -537,7 +575,7 @@ def build_parser() -> argparse.ArgumentParser:
     def bench_common(p):
         """--runs, --seed, --device, --force and -q of both bench commands."""
         p.add_argument("--runs", type=_positive_int("runs"), default=3, help="timed runs per point (median; default 3)")
-        p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+        p.add_argument("--seed", type=parse_seed, default=0, help="random seed, 0 to 2^32-1 (default 0)")
         p.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda / cuda:N")
         p.add_argument("--force", action="store_true", help="overwrite existing output files")
         p.add_argument("-q", "--quiet", action="store_true", help="only the final table")
@@ -552,17 +590,17 @@ def build_parser() -> argparse.ArgumentParser:
     bn.add_argument("scene", help="scene file (TOML)")
     bn.add_argument("--json", help="write the record here (JSON)")
     bn.add_argument("--plot", help="write the plot here (PNG): PSNR against time, one curve per method")
-    bn.add_argument("--spp", type=_number_list("spp", int), default=list(_bench.DEFAULT_SPP),
+    bn.add_argument("--spp", type=_number_list("spp", int, INT32_MAX), default=list(_bench.DEFAULT_SPP),
                     help="reference sample counts (default %s)" % ",".join(map(str, _bench.DEFAULT_SPP)))
-    bn.add_argument("--budgets", type=_number_list("budgets", float), default=list(_bench.DEFAULT_BUDGETS),
+    bn.add_argument("--budgets", type=_number_list("budgets", float, BUDGET_MAX), default=list(_bench.DEFAULT_BUDGETS),
                     help="adaptive budgets, mean samples per covered pixel (default %s)"
                     % ",".join(f"{b:g}" for b in _bench.DEFAULT_BUDGETS))
-    bn.add_argument("--nb", type=_number_list("nb", int), default=None,
+    bn.add_argument("--nb", type=_number_list("nb", int, INT32_MAX), default=None,
                     help="n_b sweep, e.g. 16,64,256,1024 (002 Fig. 13), at --nb-budget")
     add_adaptive_options(bn)
-    bn.add_argument("--nb-budget", type=_positive_float("nb-budget"), default=None,
+    bn.add_argument("--nb-budget", type=_positive_float("nb-budget", BUDGET_MAX), default=None,
                     help=f"budget of the n_b sweep (default {_bench.NB_SWEEP_BUDGET})")
-    bn.add_argument("--gt-spp", type=_positive_int("gt-spp"), default=_bench.DEFAULT_GT_SPP,
+    bn.add_argument("--gt-spp", type=_positive_int("gt-spp", INT32_MAX), default=_bench.DEFAULT_GT_SPP,
                     help=f"ground-truth samples per pixel (default {_bench.DEFAULT_GT_SPP}; cached in chunks)")
     bn.add_argument("--no-mis", action="store_true",
                     help="compare with BRDF importance sampling only (default: MIS for both methods)")
@@ -585,9 +623,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="zoom factors (default %s)" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
     bf.add_argument("--json", help="write the record here (JSON)")
     bf.add_argument("--plot", help="write the plot here (PNG): error and flicker against zoom")
-    bf.add_argument("--gt-spp", type=_positive_int("gt-spp"), default=_bf.DEFAULT_GT_SPP,
+    bf.add_argument("--gt-spp", type=_positive_int("gt-spp", INT32_MAX), default=_bf.DEFAULT_GT_SPP,
                     help=f"ground-truth rays per pixel (>= 64; default {_bf.DEFAULT_GT_SPP})")
-    bf.add_argument("--spp", type=_positive_int("spp"), default=DEFAULT_SPP,
+    bf.add_argument("--spp", type=_positive_int("spp", INT32_MAX), default=DEFAULT_SPP,
                     help="under an [environment]: pairs of one BRDF and one environment sample per pixel of the "
                     f"filtered methods (default {DEFAULT_SPP}, as warpbw render; their noise is part of the error)")
     bf.add_argument("--cache", help="GMM mipmap cache directory to reuse (default: build afresh, so that the "

@@ -1,6 +1,7 @@
 """What the two command lines (``warpbw``, ``warpbw-precompute``) share: one-line errors and warnings.
 
-Public: ``EXIT_USER_ERROR``, ``OneLineParser``, ``run_command(prog, func, args) -> int``.
+Public: ``EXIT_USER_ERROR``, ``OneLineParser``, ``run_command(prog, func, args) -> int``, ``parse_seed`` (the
+argparse type of every ``--seed``).
 """
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import argparse
 import sys
 import warnings
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import SEED_MAX, WarpbwError
 
 EXIT_USER_ERROR = 2
 
@@ -19,6 +20,17 @@ class OneLineParser(argparse.ArgumentParser):
     def error(self, message):
         tool = self.prog.split()[0]
         self.exit(EXIT_USER_ERROR, f"{tool}: error: {message} (see '{self.prog} --help')\n")
+
+
+def parse_seed(s: str) -> int:
+    """argparse type of ``--seed``: an integer from 0 to SEED_MAX (uint32 seeds wrap or fail outside it)."""
+    try:
+        v = int(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer from 0 to {SEED_MAX}, got {s!r}") from None
+    if not 0 <= v <= SEED_MAX:
+        raise argparse.ArgumentTypeError(f"expected an integer from 0 to {SEED_MAX} (a uint32 seed), got {v}")
+    return v
 
 
 def run_command(prog: str, func, args) -> int:

@@ -87,7 +87,7 @@ import warp as wp
 
 from precompute.gmm_mipmap import NORMAL_DIM
 from warpbw.envmap import LUMINANCE_RGB, EnvMapData, env_pdf, env_radiance, env_sample, load_environment
-from warpbw.errors import WarpbwError, check_count
+from warpbw.errors import INT32_MAX, WarpbwError, check_count
 from warpbw.gbuffer import CameraData, make_camera
 from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene
 
@@ -977,9 +977,9 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     if method not in ALL_METHODS:
         raise WarpbwError(f"filter method {method!r}: expected one of {', '.join(ALL_METHODS)}")
     if method == "ground_truth":
-        check_count(spp, "spp (ground-truth rays per pixel)", MIN_GT_SPP)
+        check_count(spp, "spp (ground-truth rays per pixel)", MIN_GT_SPP, INT32_MAX)  # int32 in the kernels
     elif scene.environment is not None:
-        check_count(env_spp, "env_spp (environment samples per pixel)", 1)
+        check_count(env_spp, "env_spp (environment samples per pixel)", 1, INT32_MAX)
     if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm for mp in prepared.mips.values())):
         prepared = prepare_filtering(scene, (method,), device, progress)
     cam_s = camera or scene.camera
