@@ -491,6 +491,31 @@ def test_plane_scene_with_an_environment_that_is_not_an_exr(tmp_path):
     assert_no_outputs(tmp_path)
 
 
+_SPHERE_OBJECT = '\n[[object]]\nshape = "sphere"\nradius = 0.5\nmaterial = "s"\n\n[material.s]\ntype = "lambert"\nalbedo = 0.5\n'
+
+
+@pytest.mark.parametrize("what,needles", [
+    ("plane and sphere", ["[[object]] #2", "renders planes only"]),
+    ("sphere lit by a light only", ["[environment]: missing", "spheres and meshes"]),
+])
+def test_info_refuses_what_render_refuses(tmp_path, what, needles):
+    """``warpbw info`` approved scenes that ``render`` (and the benches) refuse: the same one-line error."""
+    plane = PLANE_SCENE.replace('normal_map = "map.exr"\n', "")
+    if what == "plane and sphere":
+        text = plane + _SPHERE_OBJECT
+    else:  # the plane scene's camera and [[light]], a sphere instead of the plane
+        text = plane.split("[[object]]")[0] + _SPHERE_OBJECT
+    (tmp_path / "scene.toml").write_text(text)
+    lines = set()
+    for args in (["info", "scene.toml"], ["info", "scene.toml", "--json"],
+                 ["render", "scene.toml", "-o", "out.exr", "--spp", "1"]):
+        r = run(args, tmp_path)
+        lines.add(assert_one_line_error(r, "scene.toml", *needles))
+        assert r.stdout == "" or args[0] == "render"
+    assert len(lines) == 1, lines
+    assert_no_outputs(tmp_path)
+
+
 def test_plane_scene_through_the_environment_pipeline_is_refused(tmp_path):
     """The 002 pipeline (render_reference / render_adaptive) called directly on a plane scene lit by
     [[light]]s only: a clear error naming the scene, not a failure inside the environment loader."""

@@ -218,6 +218,16 @@ def _no_environment(scene, what: str) -> None:
                           "light planes only, through the filtering renderer)")
 
 
+def _check_renderable(scene) -> None:
+    """What ``render`` refuses in the scene itself, whatever the options (``info`` refuses the same)."""
+    if scene.has_planes:
+        from warpbw.filtering import plane_objects
+
+        plane_objects(scene)  # planes only: spheres and meshes beside them are refused
+    else:
+        _no_environment(scene, "rendering spheres and meshes")
+
+
 def _render_filtering_cli(scene, args) -> int:
     """``warpbw render`` of a scene with planes: the reflectance-filtering renderer (004)."""
     from warpbw.filtering import render_filtering
@@ -287,11 +297,11 @@ def cmd_render(args) -> int:
         raise WarpbwError("--budget, --nb, --allocation and --nyquist apply to --method adaptive only "
                           "(the reference takes --spp)")
     scene = load_scene(args.scene)
+    _check_renderable(scene)
     if scene.has_planes:
         return _render_filtering_cli(scene, args)
     if args.filter is not None:
         raise WarpbwError(f"--filter {args.filter}: applies to scenes with planes (shape = \"plane\") only")
-    _no_environment(scene, "rendering spheres and meshes")
     _render(scene, Path(args.output), args.spp, args.seed, args.mis, args.device, args.exposure, args.force,
             args.threads, args.quiet, args.method, args.budget, args.nb, _adaptive_options(args))
     return 0
@@ -312,7 +322,8 @@ def cmd_info(args) -> int:
     from warpbw.scene import load_scene
 
     scene = load_scene(args.scene)
-    if scene.has_planes or scene.environment is None:
+    _check_renderable(scene)  # what render would refuse, info refuses too
+    if scene.has_planes:
         from warpbw.filtering import filtering_summary
 
         s = filtering_summary(scene)
@@ -471,6 +482,7 @@ def cmd_bench_filtering(args) -> int:
     if not scene.has_planes:
         raise WarpbwError(f"{scene.source}: bench-filtering needs a scene with planes (shape = \"plane\"); "
                           "spheres and meshes are benchmarked by 'warpbw bench'")
+    _check_renderable(scene)
     _init_warp(args.device)
     log = (lambda *a, **k: None) if args.quiet else print
     record = bf.run_bench_filtering(scene, zooms=args.zoom, gt_spp=args.gt_spp, runs=args.runs, seed=args.seed,

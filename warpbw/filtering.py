@@ -10,6 +10,7 @@ Public:
                        env_spp)``        -> ``FilterResult``
     ``FilterResult``                     image, coverage, level map, time_s, stats
     ``filtering_summary(scene) -> dict``  what ``warpbw info`` prints for a scene with planes
+    ``plane_objects(scene) -> list``     the scene's planes; a one-line error when it has other objects too
     ``normal_moment_mipmap(normals) -> list``   box-filtered (mean normal, second moments) levels (numpy)
     ``fetch_gmm(levels, s, t, level, device) -> (N, K, 4)``  the kernel's trilinear fetch, recovered (a, mu, s2)
     ``gmm_ndf(params, rough_var, h, device) -> (N,)``           the kernel's mixture NDF at directions h
@@ -794,7 +795,8 @@ class FilteringScene:
     precompute_time_s: float   # time to load the maps and load or build every mipmap
 
 
-def _plane_objects(scene: Scene) -> list:
+def plane_objects(scene: Scene) -> list:
+    """The scene's planes; spheres and meshes beside them are refused (the filtering renderer draws planes only)."""
     planes = []
     for i, o in enumerate(scene.objects):
         if not isinstance(o, PlaneObject):
@@ -887,7 +889,7 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
     """Load every plane material's normal map and the mipmaps ``methods`` need: the box-filtered normal
     mipmap (always: the ground truth reads its finest level) and, for gmm_aligned / gmm_unaligned, the GMM
     mipmap from the material's ``gmm`` file or the cache, else built (and cached)."""
-    planes = _plane_objects(scene)
+    planes = plane_objects(scene)
     unknown = [m for m in methods if m not in ALL_METHODS]
     if unknown:
         raise WarpbwError(f"filter method {unknown[0]!r}: expected one of {', '.join(ALL_METHODS)}")
@@ -997,7 +999,7 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     wp.load_module(kernel.module, device=dev)   # compile before the clock starts
     wp.synchronize_device(dev)
     t0 = time.perf_counter()
-    for p in _plane_objects(scene):
+    for p in plane_objects(scene):
         m = scene.materials[p.material]
         mp = prepared.mips[p.material]
         if method == "ground_truth":
