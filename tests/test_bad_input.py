@@ -239,7 +239,9 @@ def test_unknown_npf_material_name_in_precompute(tmp_path):
     assert_one_line_error(r, "npf.bin", "'gold-metalic-paint'", "gold-metallic-paint", prog="warpbw-precompute")
     assert not (tmp_path / "out.binary").exists()
     r = run(["brdf-sampling", "npf.bin", "--material", "nope", "-o", "x.npz"], tmp_path, module="precompute")
-    assert_one_line_error(r, "npf.bin", "'nope'", prog="warpbw-precompute")
+    # no close match: every valid name is listed
+    assert_one_line_error(r, "npf.bin", "'nope'", "expected one of the 100 MERL material names: alum-bronze, ",
+                          ", chrome, ", prog="warpbw-precompute")
     assert not (tmp_path / "x.npz").exists()
 
 
@@ -248,7 +250,9 @@ def test_sampling_file_that_is_not_an_asset(tmp_path):
     (tmp_path / "tables.npz").write_bytes(b"not a zip archive at all")
     write_scene(tmp_path, material='type = "npf"\ntable = "npf.bin"\nname = "chrome"\nsampling = "tables.npz"')
     r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
-    assert_one_line_error(r, "tables.npz", "not a warpbw asset file", "warpbw-precompute brdf-sampling")
+    # the rebuild command names the NPF material (without --material it fails on an NPF table)
+    assert_one_line_error(r, "tables.npz", "not a warpbw asset file", "warpbw-precompute brdf-sampling",
+                          "npf.bin --material chrome -o OUT")
     assert_no_outputs(tmp_path)
 
 
@@ -372,7 +376,8 @@ def test_existing_precompute_output_is_not_overwritten(tmp_path):
     (tmp_path / "out.binary").write_bytes(b"keep")
     r = run(["npf-to-merl", "--table", "npf.bin", "--material", "chrome", "-o", "out.binary"], tmp_path,
             module="precompute")
-    assert_one_line_error(r, "out.binary", "already exists", "--force", prog="warpbw-precompute")
+    line = assert_one_line_error(r, "out.binary", "already exists", "--force", prog="warpbw-precompute")
+    assert "force=True" not in line  # the Python API's keyword is no advice on the command line
     assert (tmp_path / "out.binary").read_bytes() == b"keep"
 
 
@@ -471,6 +476,19 @@ def test_bad_normal_map_in_a_plane_scene(tmp_path, what, needle):
     _bad_map(tmp_path, what)
     r = run(["render", "scene.toml", "-o", "out.exr", "--filter", "fixed"], tmp_path)
     assert_one_line_error(r, "scene.toml", "[material.m].normal_map", "map.exr", needle)
+    assert_no_outputs(tmp_path)
+
+
+def test_gmm_file_built_unaligned_is_refused_as_such(tmp_path):
+    """A material's gmm file built with --unaligned: said so, not 'a GMM mipmap of another map'."""
+    h = np.random.default_rng(1).random((8, 8, 1)).astype(np.float32) * 0.05
+    write_exr(tmp_path / "map.exr", h, channels=["Y"])
+    r = run(["gmm", "map.exr", "-o", "g.npz", "--unaligned", "-q"], tmp_path, module="precompute")
+    assert r.returncode == 0, r.stderr
+    (tmp_path / "scene.toml").write_text(PLANE_SCENE + 'gmm = "g.npz"\n')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--filter", "gmm_aligned"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "[material.m].gmm", "g.npz", "built with --unaligned",
+                          "aligned GMM mipmap", "without --unaligned")
     assert_no_outputs(tmp_path)
 
 

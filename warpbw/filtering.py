@@ -858,8 +858,12 @@ def _read_gmm_checked(scene: Scene, name: str):
             raise WarpbwError(f"{path}: built with --kind {mip.kind} --scale {mip.scale:g}, but the material has "
                               f"normal_map_kind = {src.kind!r}, normal_map_scale = {src.scale:g} (rebuild it with: "
                               f"warpbw-precompute gmm MAP -o {path} --kind {src.kind} --scale {src.scale:g} --force)")
+        if mip.unaligned and not src.unaligned:  # the material's gmm file is the aligned mipmap (004 Sec. 4.1)
+            raise WarpbwError(f"{path}: built with --unaligned (the independent-EM baseline), but a material's gmm "
+                              f"file must be the aligned GMM mipmap (rebuild it without --unaligned: "
+                              f"warpbw-precompute gmm MAP -o {path} --force)")
         if mip.unaligned != src.unaligned:
-            raise WarpbwError(f"{path}: a GMM mipmap of another map")
+            raise WarpbwError(f"{path}: an aligned GMM mipmap, but the unaligned baseline was asked for")
         if mip.components != src.components:
             raise WarpbwError(f"{path}: built with --components {mip.components}, but the material has "
                               f"gmm_components = {src.components} (the unaligned baseline is built with as many; "
