@@ -15,14 +15,14 @@ import sys
 import time
 from pathlib import Path
 
-from warpbw.cli_common import OneLineParser, parse_seed, run_command
-from warpbw.errors import WarpbwError
+from warpbw.cli_common import OneLineParser, check_output_file, parse_seed, run_command
 
 
 
 def cmd_npf_to_merl(args) -> int:
     from precompute.npf_to_merl import npf_to_merl
 
+    check_output_file(args.output, "-o", args.force)
     t0 = time.perf_counter()
     out = npf_to_merl(args.table, args.material, args.output, force=args.force)
     print(f"{out}  (MERL .binary from {args.table}:{args.material}, {time.perf_counter() - t0:.1f} s)")
@@ -34,8 +34,7 @@ def _table_command(args, build, write, describe) -> int:
     from precompute.brdf_sampling import brdf_source
 
     out = Path(args.output)
-    if out.exists() and not args.force:
-        raise WarpbwError(f"{out}: already exists (pass --force to overwrite it)")
+    check_output_file(out, "-o", args.force)
     t0 = time.perf_counter()
     source = brdf_source(args.file, args.material)
     table = build(source, progress=not args.quiet)
@@ -64,8 +63,7 @@ def cmd_gmm(args) -> int:
     from precompute.gmm_mipmap import build_gmm_mipmap, load_source, write_gmm_mipmap
 
     out = Path(args.output)
-    if out.exists() and not args.force:
-        raise WarpbwError(f"{out}: already exists (pass --force to overwrite it)")
+    check_output_file(out, "-o", args.force)
     t0 = time.perf_counter()
     data, name, digest = load_source(args.map, args.kind)
     mip = build_gmm_mipmap(data, kind=args.kind, components=args.components, prior=args.prior, scale=args.scale,

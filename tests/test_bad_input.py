@@ -595,3 +595,48 @@ def test_camera_that_sees_nothing_warns_in_one_line(tmp_path, planes):
     warnings_ = [ln for ln in r.stderr.splitlines() if ln.startswith("warpbw: warning: ")]
     assert len(warnings_) == 1 and "no pixel is covered by geometry" in warnings_[0], r.stderr
     assert not read_exr(tmp_path / "out.exr").pixels[..., 3].any()
+
+
+# ------------------------------------------------------------------------------------------ output paths
+
+@pytest.mark.parametrize("module,args,needles", [
+    ("precompute", ["gmm", "surface:dunes:8", "-o", "outdir", "--force"], ["-o outdir", "is a directory"]),
+    ("precompute", ["brdf-sampling", "npf.bin", "--material", "chrome", "-o", "outdir", "--force"],
+     ["-o outdir", "is a directory"]),
+    ("precompute", ["brdf", "npf.bin", "--material", "chrome", "-o", "afile/x.npz"], ["afile is not a directory"]),
+    ("precompute", ["npf-to-merl", "--table", "npf.bin", "--material", "chrome", "-o", "outdir", "--force"],
+     ["-o outdir", "is a directory"]),
+    ("warpbw.cli", ["demo", "-o", "afile", "--spp", "1"], ["-o afile", "not a directory"]),
+    ("warpbw.cli", ["render", "scene.toml", "-o", "afile/x.exr", "--spp", "1"], ["-o afile/x.exr", "afile is not a directory"]),
+    ("warpbw.cli", ["render", "scene.toml", "-o", "dir.exr", "--spp", "1", "--force"], ["-o dir.exr", "is a directory"]),
+    ("warpbw.cli", ["bench", "scene.toml", "--json", "b.json", "--cache", "afile"], ["--cache afile", "not a directory"]),
+    ("warpbw.cli", ["bench-filtering", "planes.toml", "--json", "b.json", "--cache", "afile"],
+     ["--cache afile", "not a directory"]),
+    ("warpbw.cli", ["bench", "scene.toml", "--json", "dir.json", "--force"], ["--json dir.json", "is a directory"]),
+], ids=["gmm -o dir", "brdf-sampling -o dir", "brdf -o under a file", "npf-to-merl -o dir", "demo -o file",
+        "render -o under a file", "render -o dir", "bench --cache file", "bench-filtering --cache file",
+        "bench --json dir"])
+def test_unwritable_output_paths_are_refused_up_front(tmp_path, module, args, needles):
+    """An -o that is a directory (even with --force), a path under a file, a --cache that is a file: one line
+    naming the option before any work (these failed after the build with a raw errno, leaving OUT.tmp behind,
+    or ignored the --cache), and nothing written."""
+    write_scene(tmp_path)
+    (tmp_path / "planes.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
+    _fake_npf_table(tmp_path / "npf.bin")
+    for d in ("outdir", "dir.exr", "dir.json"):
+        (tmp_path / d).mkdir()
+    (tmp_path / "afile").write_text("keep")
+    before = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
+    r = run(args, tmp_path, module=module)
+    assert_one_line_error(r, *needles, prog="warpbw-precompute" if module == "precompute" else "warpbw")
+    assert sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*")) == before
+    assert (tmp_path / "afile").read_text() == "keep"
+
+
+def test_write_asset_refuses_a_directory_and_leaves_no_tmp(tmp_path):
+    from precompute.assetfile import write_asset
+
+    (tmp_path / "out.npz").mkdir()
+    with pytest.raises(WarpbwError, match="out.npz: is a directory"):
+        write_asset(tmp_path / "out.npz", "fmt", 1, "src", "hash", {"a": np.zeros(2)}, force=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.npz"]

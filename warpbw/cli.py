@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from warpbw.cli_common import OneLineParser, parse_seed, run_command
+from warpbw.cli_common import OneLineParser, check_output_dir, check_output_file, parse_seed, run_command
 from warpbw.errors import INT32_MAX, WarpbwError
 
 DEFAULT_SPP = 64
@@ -104,7 +104,9 @@ def _outputs(out: Path) -> dict:
     return {"exr": out, "png": out.with_suffix(".png"), "json": out.with_suffix(".json")}
 
 
-def _check_overwrite(paths, force: bool):
+def _check_overwrite(paths, force: bool, option: str = "-o"):
+    for p in paths:  # a directory, or a path under a file, fails whatever --force says
+        check_output_file(p, option, force=True)
     if force:
         return
     existing = [str(p) for p in paths if p.exists()]
@@ -310,6 +312,7 @@ def cmd_render(args) -> int:
 def cmd_demo(args) -> int:
     from warpbw.scene import default_scene
 
+    check_output_dir(args.output, "-o")
     out = Path(args.output) / "demo.exr"
     spp = DEMO_SPP if args.spp is None else args.spp
     _render(default_scene(), out, spp, args.seed, True, args.device, args.exposure, args.force,
@@ -436,6 +439,11 @@ def _bench_outputs(args) -> None:
         raise WarpbwError(f"--json {args.json}: expected a path ending in .json")
     if args.plot and Path(args.plot).suffix.lower() != ".png":
         raise WarpbwError(f"--plot {args.plot}: expected a path ending in .png")
+    for option, path in (("--json", args.json), ("--plot", args.plot)):
+        if path:
+            check_output_file(path, option, force=True)
+    if args.cache:
+        check_output_dir(args.cache, "--cache")
     _check_overwrite(outs, args.force)
 
 
