@@ -640,3 +640,28 @@ def test_write_asset_refuses_a_directory_and_leaves_no_tmp(tmp_path):
     with pytest.raises(WarpbwError, match="out.npz: is a directory"):
         write_asset(tmp_path / "out.npz", "fmt", 1, "src", "hash", {"a": np.zeros(2)}, force=True)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.npz"]
+
+
+# ------------------------------------------------------------------------------------------ bench-filtering
+
+def test_bench_filtering_zoom_that_sees_no_plane_is_refused_up_front(tmp_path):
+    """At zoom 1000 the plane is smaller than a pixel: every score was NaN (and bare NaN went into the JSON)."""
+    (tmp_path / "planes.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
+    r = run(["bench-filtering", "planes.toml", "--json", "b.json", "--zoom", "1,1000", "--gt-spp", "64",
+             "--runs", "1", "-q"], tmp_path)
+    assert_one_line_error(r, "--zoom 1000", "no pixel sees a plane", "smaller zooms")
+    assert r.stdout == ""
+    assert_no_outputs(tmp_path, "b")
+
+
+def test_json_records_never_hold_nan():
+    import json
+
+    from warpbw.cli import _json_text
+
+    text = _json_text({"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": -float("inf"), "e": 2}})
+
+    def refuse(name):
+        raise AssertionError(f"{name} in strict JSON")
+
+    assert json.loads(text, parse_constant=refuse) == {"a": None, "b": [1.0, None], "c": {"d": None, "e": 2}}

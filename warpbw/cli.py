@@ -115,6 +115,19 @@ def _check_overwrite(paths, force: bool, option: str = "-o"):
                           f"{' it' if len(existing) == 1 else f' it and {len(existing) - 1} more'})")
 
 
+def _json_text(record: dict, **kw) -> str:
+    """``record`` as strict JSON: a non-finite float (no value) becomes null, never a bare NaN or Infinity."""
+    def clean(x):
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        return x
+    return json.dumps(clean(record), indent=2, allow_nan=False, **kw) + "\n"
+
+
 def _write_render(res, outs: dict, exposure: float):
     import numpy as np
 
@@ -124,7 +137,7 @@ def _write_render(res, outs: dict, exposure: float):
     rgba = np.concatenate([res.image, res.coverage[..., None].astype(np.float32)], axis=-1)
     write_exr(outs["exr"], rgba, channels=["R", "G", "B", "A"])
     write_png(outs["png"], res.image, exposure=exposure)
-    outs["json"].write_text(json.dumps(res.stats, indent=2, default=str) + "\n")
+    outs["json"].write_text(_json_text(res.stats, default=str))
 
 
 # AOVs of the adaptive method (002 Fig. 1d / 18): name -> (what it is, false-colour scale)
@@ -451,7 +464,7 @@ def _write_bench(args, record: dict, write_plot) -> None:
     """The bench record as JSON and its plot as PNG, where asked."""
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(record, indent=2) + "\n")
+        Path(args.json).write_text(_json_text(record))
     if args.plot:
         Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
         write_plot(record, args.plot)
@@ -640,7 +653,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "See warpbw/bench_filtering.py for the definitions.")
     bf.add_argument("scene", help="scene file (TOML) with planes")
     bf.add_argument("--zoom", type=_number_list("zoom", float), default=list(_bf.DEFAULT_ZOOMS),
-                    help="zoom factors (default %s)" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
+                    help="zoom factors (default %s); a zoom at which no pixel sees a plane is refused before any "
+                    "work" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
     bf.add_argument("--json", help="write the record here (JSON)")
     bf.add_argument("--plot", help="write the plot here (PNG): error and flicker against zoom")
     bf.add_argument("--gt-spp", type=_positive_int("gt-spp", INT32_MAX), default=_bf.DEFAULT_GT_SPP,
