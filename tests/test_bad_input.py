@@ -665,3 +665,15 @@ def test_json_records_never_hold_nan():
         raise AssertionError(f"{name} in strict JSON")
 
     assert json.loads(text, parse_constant=refuse) == {"a": None, "b": [1.0, None], "c": {"d": None, "e": 2}}
+
+
+def test_truncated_exr_is_called_truncated_or_corrupt(tmp_path):
+    """OpenEXR's own message for a cut-off file ("file has 0 parts") is misleading; OpenEXR's native lines
+    (its C library writes them itself) may precede ours, so only the last stderr line is checked."""
+    write_exr(tmp_path / "good.exr", np.random.default_rng(0).random((64, 64, 3)).astype(np.float32))
+    data = (tmp_path / "good.exr").read_bytes()
+    (tmp_path / "cut.exr").write_bytes(data[: len(data) // 2])
+    r = run(["compare", "good.exr", "cut.exr"], tmp_path)
+    assert r.returncode == EXIT_USER_ERROR and "Traceback" not in r.stderr, r.stderr
+    last = r.stderr.strip().splitlines()[-1]
+    assert last.startswith("warpbw: error: cut.exr: unreadable OpenEXR file, truncated or corrupt"), last
