@@ -15,14 +15,14 @@ import sys
 import time
 from pathlib import Path
 
-from warpbw.cli_common import OneLineParser, run_command
-from warpbw.errors import WarpbwError
+from warpbw.cli_common import OneLineParser, check_output_file, parse_seed, run_command
 
 
 
 def cmd_npf_to_merl(args) -> int:
     from precompute.npf_to_merl import npf_to_merl
 
+    check_output_file(args.output, "-o", args.force)
     t0 = time.perf_counter()
     out = npf_to_merl(args.table, args.material, args.output, force=args.force)
     print(f"{out}  (MERL .binary from {args.table}:{args.material}, {time.perf_counter() - t0:.1f} s)")
@@ -34,8 +34,7 @@ def _table_command(args, build, write, describe) -> int:
     from precompute.brdf_sampling import brdf_source
 
     out = Path(args.output)
-    if out.exists() and not args.force:
-        raise WarpbwError(f"{out}: already exists (pass --force to overwrite it)")
+    check_output_file(out, "-o", args.force)
     t0 = time.perf_counter()
     source = brdf_source(args.file, args.material)
     table = build(source, progress=not args.quiet)
@@ -64,8 +63,7 @@ def cmd_gmm(args) -> int:
     from precompute.gmm_mipmap import build_gmm_mipmap, load_source, write_gmm_mipmap
 
     out = Path(args.output)
-    if out.exists() and not args.force:
-        raise WarpbwError(f"{out}: already exists (pass --force to overwrite it)")
+    check_output_file(out, "-o", args.force)
     t0 = time.perf_counter()
     data, name, digest = load_source(args.map, args.kind)
     mip = build_gmm_mipmap(data, kind=args.kind, components=args.components, prior=args.prior, scale=args.scale,
@@ -139,7 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="height multiplier; heights are in units of the map's width (default 1)")
     g.add_argument("--unaligned", action="store_true",
                    help="baseline: independent EM per texel (no prior, no neighbour initialisation)")
-    g.add_argument("--seed", type=int, default=0, help="seed of the clustering and footprint subsampling")
+    g.add_argument("--seed", type=parse_seed, default=0,
+                   help="seed of the clustering and footprint subsampling, 0 to 2^32-1 (default 0)")
     g.add_argument("--force", action="store_true", help="overwrite an existing output")
     g.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     g.set_defaults(func=cmd_gmm)

@@ -34,15 +34,21 @@ def write_asset(path, fmt: str, version: int, source: str, source_hash: str, arr
     from warpbw import __version__
 
     p = Path(path)
+    if p.is_dir():  # checked before the temporary file is written: it would not replace a directory
+        raise WarpbwError(f"{p}: is a directory (expected a file name)")
     if p.exists() and not force:
         raise WarpbwError(f"{p}: already exists (pass --force to overwrite it)")
     header = {"format": fmt, "version": int(version), "source": source, "source_hash": source_hash,
               "params": params or {}, "writer": f"warpbw {__version__}"}
     p.parent.mkdir(parents=True, exist_ok=True)
     tmp = p.with_name(p.name + ".tmp")
-    with open(tmp, "wb") as f:
-        np.savez_compressed(f, **{HEADER_KEY: np.array(json.dumps(header))}, **arrays)
-    tmp.replace(p)
+    try:
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **{HEADER_KEY: np.array(json.dumps(header))}, **arrays)
+        tmp.replace(p)
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # no stray OUT.tmp
+        raise
     return p
 
 

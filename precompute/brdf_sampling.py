@@ -60,8 +60,12 @@ def build_brdf_sampling(source: BrdfSource, progress: bool = True) -> SamplerTab
         return build_sampler_table(source.evaluate, progress=step)
 
 
-def _rebuild_hint(source_name: str) -> str:
-    return f"warpbw-precompute brdf-sampling {source_name} -o OUT --force"
+def _rebuild_hint(source) -> str:
+    """The command that rebuilds the tables of ``source`` (with --material for an NPF table's material)."""
+    if source is None:
+        return "warpbw-precompute brdf-sampling SOURCE [--material NAME] -o OUT --force"
+    mat = f" --material {source.name.split(':', 1)[1]}" if ":" in source.name else ""
+    return f"warpbw-precompute brdf-sampling {source.path}{mat} -o OUT --force"
 
 
 def write_sampling(path, table: SamplerTable, source: BrdfSource, force: bool = False) -> Path:
@@ -72,7 +76,7 @@ def write_sampling(path, table: SamplerTable, source: BrdfSource, force: bool = 
 
 def read_sampling(path, source: BrdfSource | None = None) -> SamplerTable:
     """Read a sampling-table file; with ``source``, refuse one built from different data."""
-    hint = _rebuild_hint(source.path if source is not None else "SOURCE")
+    hint = _rebuild_hint(source)
     a = read_asset(path, TABLE_FORMAT, TABLE_VERSION, hint)
     if source is not None and a.header.get("source_hash") != source.digest:
         raise WarpbwError(f"{path}: built from {a.header.get('source')!r} with different content than "

@@ -69,7 +69,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError, is_int
+from warpbw.errors import SEED_MAX, WarpbwError, check_count, is_int
 
 GMM_FORMAT = "warpbw-gmm-mipmap"
 # 2: the fourth stored quantity is a (d s^2 + |mu|^2) (module docstring); 1 held 004's a (s^2 + |mu|^2).
@@ -473,6 +473,7 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
     from precompute.surfaces import height_to_normals
 
     data = _validate(heights_or_normals, kind, components, prior, scale)
+    seed = check_count(seed, "seed", 0, SEED_MAX)  # numpy's SeedSequence and scikit-learn take uint32 seeds
     K = int(components)
     c = 0.0 if unaligned else float(prior)
     normals = height_to_normals(data, scale, texel_size) if kind == "height" else data

@@ -21,7 +21,7 @@ def npf_to_merl(table, material: str, out, force: bool = False) -> Path:
     """Write NPF material ``material`` of ``table`` to the MERL file ``out``; returns ``out`` as a Path."""
     out = Path(out)
     if out.exists() and not force:  # checked before the tabulation, which takes seconds
-        raise WarpbwError(f"{out}: already exists (pass force=True, or --force, to overwrite)")
+        raise WarpbwError(f"{out}: already exists (pass --force to overwrite it)")
     mat = read_npf(table, material)
     data = tabulate_merl(lambda wi, wo: npf_eval(mat, wi, wo, interpolate=True), name=f"{table}:{mat.name}")
     return write_merl(out, data, force=force)

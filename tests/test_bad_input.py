@@ -171,6 +171,15 @@ def test_obj_face_referencing_a_missing_vertex(tmp_path):
     assert_no_outputs(tmp_path)
 
 
+@pytest.mark.parametrize("vertex,scale", [("1e39", "1.0"), ("1e10", "1e30")], ids=["in the file", "scaled"])
+def test_obj_vertex_beyond_float32(tmp_path, vertex, scale):
+    (tmp_path / "big.obj").write_text(f"v 0 0 0\nv 1 0 0\nv 0 1 0\nv {vertex} 1 0\nf 1 2 3\nf 1 2 4\n")
+    write_scene(tmp_path, obj=f'mesh = "big.obj"\nscale = {scale}')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "big.obj", "1 vertices lie outside the float32 range")
+    assert_no_outputs(tmp_path)
+
+
 # ------------------------------------------------------------------------------------------ scene content
 
 def test_unknown_material_type(tmp_path):
@@ -230,7 +239,9 @@ def test_unknown_npf_material_name_in_precompute(tmp_path):
     assert_one_line_error(r, "npf.bin", "'gold-metalic-paint'", "gold-metallic-paint", prog="warpbw-precompute")
     assert not (tmp_path / "out.binary").exists()
     r = run(["brdf-sampling", "npf.bin", "--material", "nope", "-o", "x.npz"], tmp_path, module="precompute")
-    assert_one_line_error(r, "npf.bin", "'nope'", prog="warpbw-precompute")
+    # no close match: every valid name is listed
+    assert_one_line_error(r, "npf.bin", "'nope'", "expected one of the 100 MERL material names: alum-bronze, ",
+                          ", chrome, ", prog="warpbw-precompute")
     assert not (tmp_path / "x.npz").exists()
 
 
@@ -239,7 +250,9 @@ def test_sampling_file_that_is_not_an_asset(tmp_path):
     (tmp_path / "tables.npz").write_bytes(b"not a zip archive at all")
     write_scene(tmp_path, material='type = "npf"\ntable = "npf.bin"\nname = "chrome"\nsampling = "tables.npz"')
     r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
-    assert_one_line_error(r, "tables.npz", "not a warpbw asset file", "warpbw-precompute brdf-sampling")
+    # the rebuild command names the NPF material (without --material it fails on an NPF table)
+    assert_one_line_error(r, "tables.npz", "not a warpbw asset file", "warpbw-precompute brdf-sampling",
+                          "npf.bin --material chrome -o OUT")
     assert_no_outputs(tmp_path)
 
 
@@ -272,17 +285,66 @@ def test_spp_zero(tmp_path):
      ["--allocation", "invalid choice"]),
     (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--nyquist", "0"],
      ["--nyquist", "positive"]),
+    # counts the kernels hold in int32: 2^31 would wrap to a negative count (a black image), 2^32 + 1 to one
+    (["render", "scene.toml", "-o", "out.exr", "--spp", "2147483648"], ["--spp", "<= 2147483647", "int32"]),
+    (["render", "scene.toml", "-o", "out.exr", "--spp", "4294967297"], ["--spp", "<= 2147483647"]),
+    (["demo", "-o", "out", "--spp", "2147483648"], ["--spp", "<= 2147483647"]),
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "3e9"],
+     ["--budget", "<= 6.71089e+07", "int32"]),
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--nb", "2147483648"],
+     ["--nb", "<= 2147483647"]),
+    (["bench", "scene.toml", "--json", "b.json", "--spp", "1,2147483648"], ["--spp", "<= 2.14748e+09"]),
+    (["bench", "scene.toml", "--json", "b.json", "--budgets", "1,1e9"], ["--budgets", "<= 6.71089e+07"]),
+    (["bench", "scene.toml", "--json", "b.json", "--gt-spp", "2147483648"], ["--gt-spp", "<= 2147483647"]),
+    (["bench-filtering", "scene.toml", "--json", "b.json", "--spp", "2147483648"], ["--spp", "<= 2147483647"]),
+    # seeds are uint32: -1 and 2^32 wrapped onto 2^32 - 1 and 0
+    (["render", "scene.toml", "-o", "out.exr", "--seed", "-1"], ["--seed", "0 to 4294967295", "got -1"]),
+    (["render", "scene.toml", "-o", "out.exr", "--seed", "4294967296"], ["--seed", "0 to 4294967295"]),
+    (["bench", "scene.toml", "--json", "b.json", "--seed", "-1"], ["--seed", "0 to 4294967295"]),
+    (["bench-filtering", "scene.toml", "--json", "b.json", "--seed", "4294967296"], ["--seed", "0 to 4294967295"]),
+    # the preview's exposure: 1e10 overflowed 2^exposure after the EXR was written, nan gave a black PNG
+    (["render", "scene.toml", "-o", "out.exr", "--exposure", "1e10"], ["--exposure", "-150 to 150", "'1e10'"]),
+    (["render", "scene.toml", "-o", "out.exr", "--exposure", "nan"], ["--exposure", "finite", "'nan'"]),
+    (["render", "scene.toml", "-o", "out.exr", "--exposure", "inf"], ["--exposure", "finite", "'inf'"]),
+    (["demo", "-o", "out", "--exposure=-1e3"], ["--exposure", "-150 to 150"]),
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--spp", "7"],
+     ["--spp", "--method reference only", "--budget"]),
 ], ids=["no output", "bad threads", "png output", "unknown command", "no command", "adaptive without budget",
         "negative budget", "nan budget", "zero nb", "budget without adaptive", "unknown method",
-        "allocation without adaptive", "unknown allocation", "zero nyquist"])
+        "allocation without adaptive", "unknown allocation", "zero nyquist",
+        "spp 2^31", "spp 2^32+1", "demo spp 2^31", "budget 3e9", "nb 2^31", "bench spp 2^31", "bench budgets 1e9",
+        "bench gt-spp 2^31", "bench-filtering spp 2^31", "seed -1", "seed 2^32", "bench seed -1",
+        "bench-filtering seed 2^32", "exposure 1e10", "exposure nan", "exposure inf", "demo exposure -1e3",
+        "spp with adaptive"])
 def test_usage_errors_are_one_line(tmp_path, args, needles):
     write_scene(tmp_path)
     assert_one_line_error(run(args, tmp_path), *needles)
+    assert_no_outputs(tmp_path)
+    assert_no_outputs(tmp_path, "b")
 
 
-def test_precompute_usage_error_is_one_line(tmp_path):
-    r = run(["brdf-sampling"], tmp_path, module="precompute")
-    assert_one_line_error(r, "required", prog="warpbw-precompute")
+@pytest.mark.parametrize("args,needles", [
+    (["brdf-sampling"], ["required"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--seed", "-1"], ["--seed", "0 to 4294967295", "got -1"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--seed", "4294967296"], ["--seed", "0 to 4294967295"]),
+], ids=["no file", "gmm seed -1", "gmm seed 2^32"])
+def test_precompute_usage_errors_are_one_line(tmp_path, args, needles):
+    assert_one_line_error(run(args, tmp_path, module="precompute"), *needles, prog="warpbw-precompute")
+    assert_no_outputs(tmp_path)
+
+
+def test_counts_beyond_int32_are_refused_by_the_library_too():
+    """The bounds the CLI checks at parse time hold for the Python API as well (before any work)."""
+    from warpbw import bandwidth, cli
+    from warpbw.pipeline import render_reference
+    from warpbw.scene import default_scene
+    from precompute.gmm_mipmap import build_gmm_mipmap
+
+    assert cli.BUDGET_MAX == bandwidth.BUDGET_MAX  # spelled in the CLI so that --help needs no Warp import
+    with pytest.raises(WarpbwError, match="spp: expected a positive integer <= 2147483647"):
+        render_reference(default_scene(), spp=2**31)
+    with pytest.raises(WarpbwError, match="seed: expected an integer from 0 to 4294967295"):
+        build_gmm_mipmap(np.zeros((4, 4)), seed=2**32, progress=False)
 
 
 def test_existing_output_is_not_overwritten(tmp_path):
@@ -314,7 +376,8 @@ def test_existing_precompute_output_is_not_overwritten(tmp_path):
     (tmp_path / "out.binary").write_bytes(b"keep")
     r = run(["npf-to-merl", "--table", "npf.bin", "--material", "chrome", "-o", "out.binary"], tmp_path,
             module="precompute")
-    assert_one_line_error(r, "out.binary", "already exists", "--force", prog="warpbw-precompute")
+    line = assert_one_line_error(r, "out.binary", "already exists", "--force", prog="warpbw-precompute")
+    assert "force=True" not in line  # the Python API's keyword is no advice on the command line
     assert (tmp_path / "out.binary").read_bytes() == b"keep"
 
 
@@ -416,6 +479,19 @@ def test_bad_normal_map_in_a_plane_scene(tmp_path, what, needle):
     assert_no_outputs(tmp_path)
 
 
+def test_gmm_file_built_unaligned_is_refused_as_such(tmp_path):
+    """A material's gmm file built with --unaligned: said so, not 'a GMM mipmap of another map'."""
+    h = np.random.default_rng(1).random((8, 8, 1)).astype(np.float32) * 0.05
+    write_exr(tmp_path / "map.exr", h, channels=["Y"])
+    r = run(["gmm", "map.exr", "-o", "g.npz", "--unaligned", "-q"], tmp_path, module="precompute")
+    assert r.returncode == 0, r.stderr
+    (tmp_path / "scene.toml").write_text(PLANE_SCENE + 'gmm = "g.npz"\n')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--filter", "gmm_aligned"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "[material.m].gmm", "g.npz", "built with --unaligned",
+                          "aligned GMM mipmap", "without --unaligned")
+    assert_no_outputs(tmp_path)
+
+
 def test_filter_on_a_scene_without_planes(tmp_path):
     write_scene(tmp_path)
     r = run(["render", "scene.toml", "-o", "out.exr", "--filter", "toksvig"], tmp_path)
@@ -430,6 +506,31 @@ def test_plane_scene_with_an_environment_that_is_not_an_exr(tmp_path):
                                          .replace("[[light]]", '[environment]\nfile = "sky.exr"\n\n[[light]]'))
     r = run(["render", "scene.toml", "-o", "out.exr", "--filter", "gmm_aligned"], tmp_path)
     assert_one_line_error(r, "scene.toml", "[environment]", "sky.exr")
+    assert_no_outputs(tmp_path)
+
+
+_SPHERE_OBJECT = '\n[[object]]\nshape = "sphere"\nradius = 0.5\nmaterial = "s"\n\n[material.s]\ntype = "lambert"\nalbedo = 0.5\n'
+
+
+@pytest.mark.parametrize("what,needles", [
+    ("plane and sphere", ["[[object]] #2", "renders planes only"]),
+    ("sphere lit by a light only", ["[environment]: missing", "spheres and meshes"]),
+])
+def test_info_refuses_what_render_refuses(tmp_path, what, needles):
+    """``warpbw info`` approved scenes that ``render`` (and the benches) refuse: the same one-line error."""
+    plane = PLANE_SCENE.replace('normal_map = "map.exr"\n', "")
+    if what == "plane and sphere":
+        text = plane + _SPHERE_OBJECT
+    else:  # the plane scene's camera and [[light]], a sphere instead of the plane
+        text = plane.split("[[object]]")[0] + _SPHERE_OBJECT
+    (tmp_path / "scene.toml").write_text(text)
+    lines = set()
+    for args in (["info", "scene.toml"], ["info", "scene.toml", "--json"],
+                 ["render", "scene.toml", "-o", "out.exr", "--spp", "1"]):
+        r = run(args, tmp_path)
+        lines.add(assert_one_line_error(r, "scene.toml", *needles))
+        assert r.stdout == "" or args[0] == "render"
+    assert len(lines) == 1, lines
     assert_no_outputs(tmp_path)
 
 
@@ -494,3 +595,85 @@ def test_camera_that_sees_nothing_warns_in_one_line(tmp_path, planes):
     warnings_ = [ln for ln in r.stderr.splitlines() if ln.startswith("warpbw: warning: ")]
     assert len(warnings_) == 1 and "no pixel is covered by geometry" in warnings_[0], r.stderr
     assert not read_exr(tmp_path / "out.exr").pixels[..., 3].any()
+
+
+# ------------------------------------------------------------------------------------------ output paths
+
+@pytest.mark.parametrize("module,args,needles", [
+    ("precompute", ["gmm", "surface:dunes:8", "-o", "outdir", "--force"], ["-o outdir", "is a directory"]),
+    ("precompute", ["brdf-sampling", "npf.bin", "--material", "chrome", "-o", "outdir", "--force"],
+     ["-o outdir", "is a directory"]),
+    ("precompute", ["brdf", "npf.bin", "--material", "chrome", "-o", "afile/x.npz"], ["afile is not a directory"]),
+    ("precompute", ["npf-to-merl", "--table", "npf.bin", "--material", "chrome", "-o", "outdir", "--force"],
+     ["-o outdir", "is a directory"]),
+    ("warpbw.cli", ["demo", "-o", "afile", "--spp", "1"], ["-o afile", "not a directory"]),
+    ("warpbw.cli", ["render", "scene.toml", "-o", "afile/x.exr", "--spp", "1"], ["-o afile/x.exr", "afile is not a directory"]),
+    ("warpbw.cli", ["render", "scene.toml", "-o", "dir.exr", "--spp", "1", "--force"], ["-o dir.exr", "is a directory"]),
+    ("warpbw.cli", ["bench", "scene.toml", "--json", "b.json", "--cache", "afile"], ["--cache afile", "not a directory"]),
+    ("warpbw.cli", ["bench-filtering", "planes.toml", "--json", "b.json", "--cache", "afile"],
+     ["--cache afile", "not a directory"]),
+    ("warpbw.cli", ["bench", "scene.toml", "--json", "dir.json", "--force"], ["--json dir.json", "is a directory"]),
+], ids=["gmm -o dir", "brdf-sampling -o dir", "brdf -o under a file", "npf-to-merl -o dir", "demo -o file",
+        "render -o under a file", "render -o dir", "bench --cache file", "bench-filtering --cache file",
+        "bench --json dir"])
+def test_unwritable_output_paths_are_refused_up_front(tmp_path, module, args, needles):
+    """An -o that is a directory (even with --force), a path under a file, a --cache that is a file: one line
+    naming the option before any work (these failed after the build with a raw errno, leaving OUT.tmp behind,
+    or ignored the --cache), and nothing written."""
+    write_scene(tmp_path)
+    (tmp_path / "planes.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
+    _fake_npf_table(tmp_path / "npf.bin")
+    for d in ("outdir", "dir.exr", "dir.json"):
+        (tmp_path / d).mkdir()
+    (tmp_path / "afile").write_text("keep")
+    before = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
+    r = run(args, tmp_path, module=module)
+    assert_one_line_error(r, *needles, prog="warpbw-precompute" if module == "precompute" else "warpbw")
+    assert sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*")) == before
+    assert (tmp_path / "afile").read_text() == "keep"
+
+
+def test_write_asset_refuses_a_directory_and_leaves_no_tmp(tmp_path):
+    from precompute.assetfile import write_asset
+
+    (tmp_path / "out.npz").mkdir()
+    with pytest.raises(WarpbwError, match="out.npz: is a directory"):
+        write_asset(tmp_path / "out.npz", "fmt", 1, "src", "hash", {"a": np.zeros(2)}, force=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.npz"]
+
+
+# ------------------------------------------------------------------------------------------ bench-filtering
+
+def test_bench_filtering_zoom_that_sees_no_plane_is_refused_up_front(tmp_path):
+    """At zoom 1000 the plane is smaller than a pixel: every score was NaN (and bare NaN went into the JSON)."""
+    (tmp_path / "planes.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
+    r = run(["bench-filtering", "planes.toml", "--json", "b.json", "--zoom", "1,1000", "--gt-spp", "64",
+             "--runs", "1", "-q"], tmp_path)
+    assert_one_line_error(r, "--zoom 1000", "no pixel sees a plane", "smaller zooms")
+    assert r.stdout == ""
+    assert_no_outputs(tmp_path, "b")
+
+
+def test_json_records_never_hold_nan():
+    import json
+
+    from warpbw.cli import _json_text
+
+    text = _json_text({"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": -float("inf"), "e": 2}})
+
+    def refuse(name):
+        raise AssertionError(f"{name} in strict JSON")
+
+    assert json.loads(text, parse_constant=refuse) == {"a": None, "b": [1.0, None], "c": {"d": None, "e": 2}}
+
+
+def test_truncated_exr_is_called_truncated_or_corrupt(tmp_path):
+    """OpenEXR's own message for a cut-off file ("file has 0 parts") is misleading; OpenEXR's native lines
+    (its C library writes them itself) may precede ours, so only the last stderr line is checked."""
+    write_exr(tmp_path / "good.exr", np.random.default_rng(0).random((64, 64, 3)).astype(np.float32))
+    data = (tmp_path / "good.exr").read_bytes()
+    (tmp_path / "cut.exr").write_bytes(data[: len(data) // 2])
+    r = run(["compare", "good.exr", "cut.exr"], tmp_path)
+    assert r.returncode == EXIT_USER_ERROR and "Traceback" not in r.stderr, r.stderr
+    last = r.stderr.strip().splitlines()[-1]
+    assert last.startswith("warpbw: error: cut.exr: unreadable OpenEXR file, truncated or corrupt"), last

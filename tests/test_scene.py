@@ -215,6 +215,19 @@ CASES = [
     ("unknown environment key", scene_text(environment="[environment]\nconstant = 1.0\nintensity = 2.0\n"),
      "[environment].intensity"),
     ("unknown top-level table", BASE + "\n[lights]\nsun = 1.0\n", ": lights: unknown key"),
+    # numbers the kernels cannot hold: an integer too large for a float, values beyond float32
+    ("400-digit radius", _replace(BASE, "radius = 1.0", "radius = 1" + "0" * 400),
+     "[[object]] #1.radius: expected a finite number"),
+    ("radius beyond float32", _replace(BASE, "radius = 1.0", "radius = 1e300"),
+     "[[object]] #1.radius: expected a number within the float32 range"),
+    ("camera position beyond float32", _replace(BASE, "[0.0, 0.0, 4.0]", "[0.0, 0.0, 1e300]"),
+     "[camera].position: expected a number within the float32 range"),
+    ("constant beyond float32", scene_text(environment="[environment]\nconstant = [1e39, 1.0, 1.0]\n"),
+     "[environment].constant: expected a number within the float32 range"),
+    ("environment scale beyond float32", scene_text(environment="[environment]\nconstant = 1.0\nscale = 1e300\n"),
+     "[environment].scale: expected a number within the float32 range"),
+    ("constant * scale beyond float32", scene_text(environment="[environment]\nconstant = 1e30\nscale = 1e10\n"),
+     "[environment].scale: constant * scale must stay within the float32 range"),
 ]
 
 
@@ -516,6 +529,8 @@ PLANE_CASES = [
     ("zero light direction", dict(lights=_replace(LIGHT, "[0.0, 2.0, 0.0]", "[0.0, 0.0, 0.0]")),
      "[[light]] #1.direction"),
     ("negative radiance", dict(lights=_replace(LIGHT, "[3.0, 2.0, 1.0]", "[3.0, -2.0, 1.0]")), "[[light]] #1.radiance"),
+    ("radiance beyond float32", dict(lights=_replace(LIGHT, "[3.0, 2.0, 1.0]", "[1e300, 2.0, 1.0]")),
+     "[[light]] #1.radiance: expected a number within the float32 range"),
     ("unknown light key", dict(lights=LIGHT + "colour = 1.0\n"), "[[light]] #1.colour"),
     ("light without radiance", dict(lights=LIGHT.replace("radiance = [3.0, 2.0, 1.0]\n", "")),
      "[[light]] #1.radiance"),

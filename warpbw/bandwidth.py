@@ -102,7 +102,7 @@ import warp as wp
 from warpbw.bandwidth_ops import bw_one_bounce
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf, env_sample, env_uv
-from warpbw.errors import WarpbwError, check_count, is_int
+from warpbw.errors import INT32_MAX, WarpbwError, check_count, is_int
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 from warpbw.pyramid import build_pyramid, image_level
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_local, to_world
@@ -111,6 +111,7 @@ N_B_DEFAULT = 16              # directions per pixel; 002 Sec. 2.6 and Fig. 13 (
 NYQUIST_FACTOR = 2.0          # sampling rate = 2 x bandwidth (002 Sec. 2.2, Nyquist)
 N_P_MIN_DEFAULT = 1           # a shaded pixel gets at least one sample
 N_P_MAX_PER_BUDGET = 32       # default n_max = 32 x budget: caps the samples one pixel may take
+BUDGET_MAX = INT32_MAX / N_P_MAX_PER_BUDGET  # largest budget whose default n_max fits the kernels' int32 N_p
 ALLOCATIONS = ("variance", "sqrt", "relative", "uniform", "measured")
 ALLOCATION_DEFAULT = "measured"  # N_p ~ the pass's own MIS standard deviation: +1-6 dB (module docstring)
 LUMINANCE = (0.2126, 0.7152, 0.0722)   # Rec. 709 weights, RGB -> scalar chi
@@ -611,11 +612,15 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     if isinstance(budget, bool) or not isinstance(budget, (int, float, np.integer, np.floating)) \
             or not (budget > 0 and math.isfinite(budget)):
         raise WarpbwError(f"budget: expected a positive number of samples per pixel, got {budget!r}")
-    check_count(n_min, "n_min", 1)
+    check_count(n_min, "n_min", 1, INT32_MAX)
     if n_max is None:
+        if budget > BUDGET_MAX:
+            raise WarpbwError(f"budget: expected at most {BUDGET_MAX:g} samples per pixel (N_p, up to "
+                              f"{N_P_MAX_PER_BUDGET} x budget, is an int32 in the kernels), got {budget:g}")
         n_max = max(int(n_min), int(math.ceil(N_P_MAX_PER_BUDGET * budget)))
     if not is_int(n_max) or n_max < n_min:
         raise WarpbwError(f"n_max: expected an integer >= n_min ({n_min}), got {n_max!r}")
+    check_count(n_max, "n_max", n_min, INT32_MAX)  # N_p is an int32 in the kernels
     W, H = buf.width, buf.height
     cov = buf.coverage
     n_cov = int(cov.sum())

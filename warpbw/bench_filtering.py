@@ -30,6 +30,7 @@ covers z^2 times more texels.
   a flicker pair; its own noise is reported per zoom as ``ground_truth[i].noise`` = error of a second,
   independently seeded ground truth / sqrt(2), the floor under every method's error, and
   ``flicker_noise`` = the flicker score of that second ground truth (what noise alone scores).
+* A zoom at which no pixel sees a plane (in either frame) is refused before any work.
 * Precompute time: the time to obtain the aligned GMM mipmaps (built unless the scene names a file or
   ``cache`` holds them: the origin is recorded).
 """
@@ -43,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError, check_count
+from warpbw.errors import INT32_MAX, WarpbwError, check_count
 
 DEFAULT_ZOOMS = (1, 2, 4, 8, 16, 32)
 # Ground-truth rays per pixel of the benchmark: a pixel of the far zooms covers hundreds of texels.
@@ -81,6 +82,20 @@ def flicker(a0, a1, g0, g1, mask, norm: float) -> float:
     return float(np.maximum(da - dg, 0.0)[mask].mean() / norm)
 
 
+def _check_coverage(scene, zooms, device: str) -> None:
+    """Refuse, before the mipmaps are built, a zoom at which no pixel sees a plane in one of its two frames
+    (z and z * FLICKER_STEP): its error, flicker and noise would all be undefined (a mean over no pixel)."""
+    from warpbw.filtering import prepare_filtering, render_filtering, zoomed_camera
+
+    prep = prepare_filtering(scene, ("fixed",), device)  # the cheapest method: the coverage is the same for all
+    for z in zooms:
+        for zz in (z, z * FLICKER_STEP):
+            r = render_filtering(scene, "fixed", prepared=prep, camera=zoomed_camera(scene.camera, zz), env_spp=1)
+            if not r.coverage.any():
+                raise WarpbwError(f"--zoom {z:g}: no pixel sees a plane at this zoom (camera distance x {zz:g}), so "
+                                  "error and flicker are undefined there: choose smaller zooms")
+
+
 def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP, runs: int = 3, seed: int = 0,
                         device: str = "cpu", cache: Path | None = None, progress: bool = False,
                         log=lambda *a, **k: None, methods=None, env_spp: int | None = None) -> dict:
@@ -95,8 +110,9 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     if gt_spp < MIN_GT_SPP:
         raise WarpbwError(f"--gt-spp {gt_spp}: expected at least {MIN_GT_SPP} rays per pixel")
     env_spp = DEFAULT_ENV_SPP if env_spp is None else env_spp
-    check_count(env_spp, "--spp (environment pairs per pixel)", 1)
+    check_count(env_spp, "--spp (environment pairs per pixel)", 1, INT32_MAX)  # int32 in the kernels
     zooms = [float(z) for z in zooms]
+    _check_coverage(scene, zooms, device)
     with tempfile.TemporaryDirectory(prefix="warpbw-gmm-") as tmp:
         t0 = time.perf_counter()
         prep = prepare_filtering(scene, methods + ("ground_truth",), device, progress,

@@ -14,8 +14,8 @@ import sys
 import time
 from pathlib import Path
 
-from warpbw.cli_common import OneLineParser, run_command
-from warpbw.errors import WarpbwError
+from warpbw.cli_common import OneLineParser, check_output_dir, check_output_file, parse_seed, run_command
+from warpbw.errors import INT32_MAX, WarpbwError
 
 DEFAULT_SPP = 64
 DEMO_SPP = 64
@@ -24,6 +24,11 @@ _FILTER_METHODS = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed", "
 # warpbw.bandwidth.ALLOCATIONS, default first (spelled here for the same reason)
 _ALLOCATIONS = ("measured", "variance", "sqrt", "relative", "uniform")
 WARP_LOG_WARNING = 30  # warp._src.logger.LOG_WARNING: hide Warp's banner and module-load lines
+# warpbw.bandwidth.BUDGET_MAX (spelled here for the same reason): the adaptive N_p goes up to
+# N_P_MAX_PER_BUDGET = 32 x --budget and is an int32 in the kernels
+BUDGET_MAX = INT32_MAX / 32
+# --exposure in stops: beyond +-150 every non-zero float32 radiance (2^-149 .. 2^128) previews white, or black
+EXPOSURE_MAX_STOPS = 150.0
 
 EPILOG = """\
 examples:
@@ -99,13 +104,28 @@ def _outputs(out: Path) -> dict:
     return {"exr": out, "png": out.with_suffix(".png"), "json": out.with_suffix(".json")}
 
 
-def _check_overwrite(paths, force: bool):
+def _check_overwrite(paths, force: bool, option: str = "-o"):
+    for p in paths:  # a directory, or a path under a file, fails whatever --force says
+        check_output_file(p, option, force=True)
     if force:
         return
     existing = [str(p) for p in paths if p.exists()]
     if existing:
         raise WarpbwError(f"{existing[0]}: already exists (pass --force to overwrite"
                           f"{' it' if len(existing) == 1 else f' it and {len(existing) - 1} more'})")
+
+
+def _json_text(record: dict, **kw) -> str:
+    """``record`` as strict JSON: a non-finite float (no value) becomes null, never a bare NaN or Infinity."""
+    def clean(x):
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        return x
+    return json.dumps(clean(record), indent=2, allow_nan=False, **kw) + "\n"
 
 
 def _write_render(res, outs: dict, exposure: float):
@@ -117,7 +137,7 @@ def _write_render(res, outs: dict, exposure: float):
     rgba = np.concatenate([res.image, res.coverage[..., None].astype(np.float32)], axis=-1)
     write_exr(outs["exr"], rgba, channels=["R", "G", "B", "A"])
     write_png(outs["png"], res.image, exposure=exposure)
-    outs["json"].write_text(json.dumps(res.stats, indent=2, default=str) + "\n")
+    outs["json"].write_text(_json_text(res.stats, default=str))
 
 
 # AOVs of the adaptive method (002 Fig. 1d / 18): name -> (what it is, false-colour scale)
@@ -213,6 +233,16 @@ def _no_environment(scene, what: str) -> None:
                           "light planes only, through the filtering renderer)")
 
 
+def _check_renderable(scene) -> None:
+    """What ``render`` refuses in the scene itself, whatever the options (``info`` refuses the same)."""
+    if scene.has_planes:
+        from warpbw.filtering import plane_objects
+
+        plane_objects(scene)  # planes only: spheres and meshes beside them are refused
+    else:
+        _no_environment(scene, "rendering spheres and meshes")
+
+
 def _render_filtering_cli(scene, args) -> int:
     """``warpbw render`` of a scene with planes: the reflectance-filtering renderer (004)."""
     from warpbw.filtering import render_filtering
@@ -273,16 +303,20 @@ def cmd_render(args) -> int:
 
     if args.method == "adaptive" and args.budget is None:
         raise WarpbwError("--method adaptive needs --budget SAMPLES_PER_PIXEL (mean samples per covered pixel)")
+    if args.method == "adaptive" and args.spp is not None:
+        raise WarpbwError("--spp applies to --method reference only (--method adaptive takes --budget)")
+    if args.spp is None:
+        args.spp = DEFAULT_SPP
     if args.method == "reference" and (args.budget is not None or args.nb is not None
                                        or _adaptive_options(args)):
         raise WarpbwError("--budget, --nb, --allocation and --nyquist apply to --method adaptive only "
                           "(the reference takes --spp)")
     scene = load_scene(args.scene)
+    _check_renderable(scene)
     if scene.has_planes:
         return _render_filtering_cli(scene, args)
     if args.filter is not None:
         raise WarpbwError(f"--filter {args.filter}: applies to scenes with planes (shape = \"plane\") only")
-    _no_environment(scene, "rendering spheres and meshes")
     _render(scene, Path(args.output), args.spp, args.seed, args.mis, args.device, args.exposure, args.force,
             args.threads, args.quiet, args.method, args.budget, args.nb, _adaptive_options(args))
     return 0
@@ -291,8 +325,10 @@ def cmd_render(args) -> int:
 def cmd_demo(args) -> int:
     from warpbw.scene import default_scene
 
+    check_output_dir(args.output, "-o")
     out = Path(args.output) / "demo.exr"
-    _render(default_scene(), out, args.spp, args.seed, True, args.device, args.exposure, args.force,
+    spp = DEMO_SPP if args.spp is None else args.spp
+    _render(default_scene(), out, spp, args.seed, True, args.device, args.exposure, args.force,
             args.threads, args.quiet)
     return 0
 
@@ -302,7 +338,8 @@ def cmd_info(args) -> int:
     from warpbw.scene import load_scene
 
     scene = load_scene(args.scene)
-    if scene.has_planes or scene.environment is None:
+    _check_renderable(scene)  # what render would refuse, info refuses too
+    if scene.has_planes:
         from warpbw.filtering import filtering_summary
 
         s = filtering_summary(scene)
@@ -369,7 +406,7 @@ def cmd_compare(args) -> int:
     return 0
 
 
-def _positive_int(name):
+def _positive_int(name, hi=None):
     def parse(s):
         try:
             v = int(s)
@@ -377,12 +414,20 @@ def _positive_int(name):
             raise argparse.ArgumentTypeError(f"expected a positive integer, got {s!r}") from None
         if v < 1:
             raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
+        if hi is not None and v > hi:
+            raise argparse.ArgumentTypeError(f"expected a positive integer <= {hi}{_why(hi)}, got {v}")
         return v
     parse.__name__ = name
     return parse
 
 
-def _number_list(name, kind):
+def _why(hi) -> str:
+    """Why a count or budget has an upper bound, for the parsers' messages."""
+    return {INT32_MAX: " (an int32 in the kernels)",
+            BUDGET_MAX: " (N_p, up to 32 x budget, is an int32 in the kernels)"}.get(hi, "")
+
+
+def _number_list(name, kind, hi=None):
     def parse(s):
         try:
             vals = [kind(x) for x in s.split(",") if x.strip()]
@@ -390,6 +435,9 @@ def _number_list(name, kind):
             raise argparse.ArgumentTypeError(f"expected comma-separated {kind.__name__}s, got {s!r}") from None
         if not vals or any(not (v > 0 and math.isfinite(v)) for v in vals):
             raise argparse.ArgumentTypeError(f"expected comma-separated positive numbers, got {s!r}")
+        if hi is not None and max(vals) > hi:
+            raise argparse.ArgumentTypeError(f"expected comma-separated positive numbers <= {hi:g}{_why(hi)}, "
+                                             f"got {max(vals):g}")
         return vals
     parse.__name__ = name
     return parse
@@ -404,6 +452,11 @@ def _bench_outputs(args) -> None:
         raise WarpbwError(f"--json {args.json}: expected a path ending in .json")
     if args.plot and Path(args.plot).suffix.lower() != ".png":
         raise WarpbwError(f"--plot {args.plot}: expected a path ending in .png")
+    for option, path in (("--json", args.json), ("--plot", args.plot)):
+        if path:
+            check_output_file(path, option, force=True)
+    if args.cache:
+        check_output_dir(args.cache, "--cache")
     _check_overwrite(outs, args.force)
 
 
@@ -411,7 +464,7 @@ def _write_bench(args, record: dict, write_plot) -> None:
     """The bench record as JSON and its plot as PNG, where asked."""
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(record, indent=2) + "\n")
+        Path(args.json).write_text(_json_text(record))
     if args.plot:
         Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
         write_plot(record, args.plot)
@@ -450,6 +503,7 @@ def cmd_bench_filtering(args) -> int:
     if not scene.has_planes:
         raise WarpbwError(f"{scene.source}: bench-filtering needs a scene with planes (shape = \"plane\"); "
                           "spheres and meshes are benchmarked by 'warpbw bench'")
+    _check_renderable(scene)
     _init_warp(args.device)
     log = (lambda *a, **k: None) if args.quiet else print
     record = bf.run_bench_filtering(scene, zooms=args.zoom, gt_spp=args.gt_spp, runs=args.runs, seed=args.seed,
@@ -460,7 +514,7 @@ def cmd_bench_filtering(args) -> int:
     return 0
 
 
-def _positive_float(name):
+def _positive_float(name, hi=None):
     def parse(s):
         try:
             v = float(s)
@@ -468,9 +522,23 @@ def _positive_float(name):
             raise argparse.ArgumentTypeError(f"expected a positive number, got {s!r}") from None
         if not (v > 0 and math.isfinite(v)):
             raise argparse.ArgumentTypeError(f"expected a positive number, got {s}")
+        if hi is not None and v > hi:
+            raise argparse.ArgumentTypeError(f"expected a positive number <= {hi:g}{_why(hi)}, got {s}")
         return v
     parse.__name__ = name
     return parse
+
+
+def _exposure(s):
+    """--exposure: a finite number of stops within +-EXPOSURE_MAX_STOPS."""
+    try:
+        v = float(s)
+    except ValueError:
+        v = math.nan
+    if not (math.isfinite(v) and abs(v) <= EXPOSURE_MAX_STOPS):
+        raise argparse.ArgumentTypeError(f"expected a finite number of stops from {-EXPOSURE_MAX_STOPS:g} to "
+                                         f"{EXPOSURE_MAX_STOPS:g}, got {s!r}")
+    return v
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -481,11 +549,14 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
 
     def common(sp, spp_default):
-        sp.add_argument("--spp", type=_positive_int("spp"), default=spp_default,
+        # default None: render refuses --spp with --method adaptive, so it must know whether --spp was given
+        sp.add_argument("--spp", type=_positive_int("spp", INT32_MAX), default=None,
                         help=f"BRDF samples per pixel, N in 002 Eq. 2 (default {spp_default})")
-        sp.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+        sp.add_argument("--seed", type=parse_seed, default=0, help="random seed, 0 to 2^32-1 (default 0)")
         sp.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda / cuda:N")
-        sp.add_argument("--exposure", type=float, default=0.0, help="PNG preview exposure in stops (default 0)")
+        sp.add_argument("--exposure", type=_exposure, default=0.0,
+                        help=f"PNG preview exposure in stops, -{EXPOSURE_MAX_STOPS:g} to {EXPOSURE_MAX_STOPS:g} "
+                        "(default 0)")
         sp.add_argument("--threads", type=_positive_int("threads"), default=None,
                         help="CPU threads tiling the shading launches (default: all cores)")
         sp.add_argument("--force", action="store_true", help="overwrite existing output files")
@@ -503,11 +574,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="reference: every pixel with --spp samples (default); adaptive: bandwidth prediction and "
                    "hierarchical shading (002), which also writes the AOVs OUT.level/.n_p/.variance/.shaded/.b_p "
                    "as EXR and false-colour PNG")
-    r.add_argument("--budget", type=_positive_float("budget"), default=None,
+    r.add_argument("--budget", type=_positive_float("budget", BUDGET_MAX), default=None,
                    help="adaptive: mean samples per covered pixel, spread over the shaded pixels in proportion to the "
                    "standard deviation the bandwidth pass measures "
                    "(may be below 1)")
-    r.add_argument("--nb", type=_positive_int("nb"), default=None,
+    r.add_argument("--nb", type=_positive_int("nb", INT32_MAX), default=None,
                    help="adaptive: directions per pixel of the bandwidth estimate, n_b (default 16, 002 Sec. 2.6)")
     add_adaptive_options(r)
     r.add_argument("--filter", choices=_FILTER_METHODS, default=None,
@@ -537,7 +608,7 @@ def build_parser() -> argparse.ArgumentParser:
     def bench_common(p):
         """--runs, --seed, --device, --force and -q of both bench commands."""
         p.add_argument("--runs", type=_positive_int("runs"), default=3, help="timed runs per point (median; default 3)")
-        p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+        p.add_argument("--seed", type=parse_seed, default=0, help="random seed, 0 to 2^32-1 (default 0)")
         p.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda / cuda:N")
         p.add_argument("--force", action="store_true", help="overwrite existing output files")
         p.add_argument("-q", "--quiet", action="store_true", help="only the final table")
@@ -552,17 +623,17 @@ def build_parser() -> argparse.ArgumentParser:
     bn.add_argument("scene", help="scene file (TOML)")
     bn.add_argument("--json", help="write the record here (JSON)")
     bn.add_argument("--plot", help="write the plot here (PNG): PSNR against time, one curve per method")
-    bn.add_argument("--spp", type=_number_list("spp", int), default=list(_bench.DEFAULT_SPP),
+    bn.add_argument("--spp", type=_number_list("spp", int, INT32_MAX), default=list(_bench.DEFAULT_SPP),
                     help="reference sample counts (default %s)" % ",".join(map(str, _bench.DEFAULT_SPP)))
-    bn.add_argument("--budgets", type=_number_list("budgets", float), default=list(_bench.DEFAULT_BUDGETS),
+    bn.add_argument("--budgets", type=_number_list("budgets", float, BUDGET_MAX), default=list(_bench.DEFAULT_BUDGETS),
                     help="adaptive budgets, mean samples per covered pixel (default %s)"
                     % ",".join(f"{b:g}" for b in _bench.DEFAULT_BUDGETS))
-    bn.add_argument("--nb", type=_number_list("nb", int), default=None,
+    bn.add_argument("--nb", type=_number_list("nb", int, INT32_MAX), default=None,
                     help="n_b sweep, e.g. 16,64,256,1024 (002 Fig. 13), at --nb-budget")
     add_adaptive_options(bn)
-    bn.add_argument("--nb-budget", type=_positive_float("nb-budget"), default=None,
+    bn.add_argument("--nb-budget", type=_positive_float("nb-budget", BUDGET_MAX), default=None,
                     help=f"budget of the n_b sweep (default {_bench.NB_SWEEP_BUDGET})")
-    bn.add_argument("--gt-spp", type=_positive_int("gt-spp"), default=_bench.DEFAULT_GT_SPP,
+    bn.add_argument("--gt-spp", type=_positive_int("gt-spp", INT32_MAX), default=_bench.DEFAULT_GT_SPP,
                     help=f"ground-truth samples per pixel (default {_bench.DEFAULT_GT_SPP}; cached in chunks)")
     bn.add_argument("--no-mis", action="store_true",
                     help="compare with BRDF importance sampling only (default: MIS for both methods)")
@@ -582,12 +653,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "See warpbw/bench_filtering.py for the definitions.")
     bf.add_argument("scene", help="scene file (TOML) with planes")
     bf.add_argument("--zoom", type=_number_list("zoom", float), default=list(_bf.DEFAULT_ZOOMS),
-                    help="zoom factors (default %s)" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
+                    help="zoom factors (default %s); a zoom at which no pixel sees a plane is refused before any "
+                    "work" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
     bf.add_argument("--json", help="write the record here (JSON)")
     bf.add_argument("--plot", help="write the plot here (PNG): error and flicker against zoom")
-    bf.add_argument("--gt-spp", type=_positive_int("gt-spp"), default=_bf.DEFAULT_GT_SPP,
+    bf.add_argument("--gt-spp", type=_positive_int("gt-spp", INT32_MAX), default=_bf.DEFAULT_GT_SPP,
                     help=f"ground-truth rays per pixel (>= 64; default {_bf.DEFAULT_GT_SPP})")
-    bf.add_argument("--spp", type=_positive_int("spp"), default=DEFAULT_SPP,
+    bf.add_argument("--spp", type=_positive_int("spp", INT32_MAX), default=DEFAULT_SPP,
                     help="under an [environment]: pairs of one BRDF and one environment sample per pixel of the "
                     f"filtered methods (default {DEFAULT_SPP}, as warpbw render; their noise is part of the error)")
     bf.add_argument("--cache", help="GMM mipmap cache directory to reuse (default: build afresh, so that the "

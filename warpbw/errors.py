@@ -1,7 +1,9 @@
 """User-facing errors.
 
 Public: ``WarpbwError``; ``is_int(value)`` (an int or numpy integer, not a bool) and
-``check_count(value, name, lo) -> int`` (such an integer >= lo, else a ``WarpbwError`` naming ``name``).
+``check_count(value, name, lo, hi=None) -> int`` (such an integer in lo..hi, else a ``WarpbwError`` naming
+``name``);
+the bounds ``INT32_MAX``, ``FLOAT32_MAX`` and ``SEED_MAX`` that user values are checked against.
 
 Anything the user can cause (a bad file, a bad key in a scene, a bad CLI value) is raised as
 ``WarpbwError`` with a one-line message that names the file or key and says what was expected.
@@ -10,6 +12,13 @@ The CLIs print it as ``warpbw: error: <message>`` and exit with status 2, never 
 from __future__ import annotations
 
 import numbers
+
+# The kernels index pixels and count samples (spp, N_p) in Warp int32: a larger count wraps around.
+INT32_MAX = 2**31 - 1
+# Scene values (positions, radii, radiances, scales) become float32 in the kernels: beyond this they are inf.
+FLOAT32_MAX = 3.4028234663852886e38
+# Seeds are uint32 in Warp's RNG and numpy's / scikit-learn's seeding: larger or negative ones wrap or fail.
+SEED_MAX = 2**32 - 1
 
 
 class WarpbwError(Exception):
@@ -21,8 +30,10 @@ def is_int(value) -> bool:
     return isinstance(value, numbers.Integral) and not isinstance(value, bool)
 
 
-def check_count(value, name: str, lo: int) -> int:
-    """``value`` as an int when it is an integer >= lo; otherwise a one-line error naming ``name``."""
+def check_count(value, name: str, lo: int, hi: int | None = None) -> int:
+    """``value`` as an int when it is an integer >= lo (and <= hi); otherwise a one-line error naming ``name``."""
     if not is_int(value) or value < lo:
         raise WarpbwError(f"{name}: expected an integer >= {lo}, got {value!r}")
+    if hi is not None and value > hi:
+        raise WarpbwError(f"{name}: expected an integer from {lo} to {hi}, got {value!r}")
     return int(value)

@@ -10,6 +10,7 @@ Public:
                        env_spp)``        -> ``FilterResult``
     ``FilterResult``                     image, coverage, level map, time_s, stats
     ``filtering_summary(scene) -> dict``  what ``warpbw info`` prints for a scene with planes
+    ``plane_objects(scene) -> list``     the scene's planes; a one-line error when it has other objects too
     ``normal_moment_mipmap(normals) -> list``   box-filtered (mean normal, second moments) levels (numpy)
     ``fetch_gmm(levels, s, t, level, device) -> (N, K, 4)``  the kernel's trilinear fetch, recovered (a, mu, s2)
     ``gmm_ndf(params, rough_var, h, device) -> (N,)``           the kernel's mixture NDF at directions h
@@ -87,7 +88,7 @@ import warp as wp
 
 from precompute.gmm_mipmap import NORMAL_DIM
 from warpbw.envmap import LUMINANCE_RGB, EnvMapData, env_pdf, env_radiance, env_sample, load_environment
-from warpbw.errors import WarpbwError, check_count
+from warpbw.errors import INT32_MAX, WarpbwError, check_count
 from warpbw.gbuffer import CameraData, make_camera
 from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene
 
@@ -794,7 +795,8 @@ class FilteringScene:
     precompute_time_s: float   # time to load the maps and load or build every mipmap
 
 
-def _plane_objects(scene: Scene) -> list:
+def plane_objects(scene: Scene) -> list:
+    """The scene's planes; spheres and meshes beside them are refused (the filtering renderer draws planes only)."""
     planes = []
     for i, o in enumerate(scene.objects):
         if not isinstance(o, PlaneObject):
@@ -856,8 +858,12 @@ def _read_gmm_checked(scene: Scene, name: str):
             raise WarpbwError(f"{path}: built with --kind {mip.kind} --scale {mip.scale:g}, but the material has "
                               f"normal_map_kind = {src.kind!r}, normal_map_scale = {src.scale:g} (rebuild it with: "
                               f"warpbw-precompute gmm MAP -o {path} --kind {src.kind} --scale {src.scale:g} --force)")
+        if mip.unaligned and not src.unaligned:  # the material's gmm file is the aligned mipmap (004 Sec. 4.1)
+            raise WarpbwError(f"{path}: built with --unaligned (the independent-EM baseline), but a material's gmm "
+                              f"file must be the aligned GMM mipmap (rebuild it without --unaligned: "
+                              f"warpbw-precompute gmm MAP -o {path} --force)")
         if mip.unaligned != src.unaligned:
-            raise WarpbwError(f"{path}: a GMM mipmap of another map")
+            raise WarpbwError(f"{path}: an aligned GMM mipmap, but the unaligned baseline was asked for")
         if mip.components != src.components:
             raise WarpbwError(f"{path}: built with --components {mip.components}, but the material has "
                               f"gmm_components = {src.components} (the unaligned baseline is built with as many; "
@@ -887,7 +893,7 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
     """Load every plane material's normal map and the mipmaps ``methods`` need: the box-filtered normal
     mipmap (always: the ground truth reads its finest level) and, for gmm_aligned / gmm_unaligned, the GMM
     mipmap from the material's ``gmm`` file or the cache, else built (and cached)."""
-    planes = _plane_objects(scene)
+    planes = plane_objects(scene)
     unknown = [m for m in methods if m not in ALL_METHODS]
     if unknown:
         raise WarpbwError(f"filter method {unknown[0]!r}: expected one of {', '.join(ALL_METHODS)}")
@@ -977,9 +983,9 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     if method not in ALL_METHODS:
         raise WarpbwError(f"filter method {method!r}: expected one of {', '.join(ALL_METHODS)}")
     if method == "ground_truth":
-        check_count(spp, "spp (ground-truth rays per pixel)", MIN_GT_SPP)
+        check_count(spp, "spp (ground-truth rays per pixel)", MIN_GT_SPP, INT32_MAX)  # int32 in the kernels
     elif scene.environment is not None:
-        check_count(env_spp, "env_spp (environment samples per pixel)", 1)
+        check_count(env_spp, "env_spp (environment samples per pixel)", 1, INT32_MAX)
     if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm for mp in prepared.mips.values())):
         prepared = prepare_filtering(scene, (method,), device, progress)
     cam_s = camera or scene.camera
@@ -997,7 +1003,7 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     wp.load_module(kernel.module, device=dev)   # compile before the clock starts
     wp.synchronize_device(dev)
     t0 = time.perf_counter()
-    for p in _plane_objects(scene):
+    for p in plane_objects(scene):
         m = scene.materials[p.material]
         mp = prepared.mips[p.material]
         if method == "ground_truth":

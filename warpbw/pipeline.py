@@ -21,7 +21,7 @@ import numpy as np
 
 from warpbw import brdf as brdf_mod
 from warpbw import envmap
-from warpbw.errors import WarpbwError, is_int
+from warpbw.errors import INT32_MAX, WarpbwError, is_int
 from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer)
 from warpbw.scene import MeshObject, Scene, SphereObject
 
@@ -172,6 +172,8 @@ def _gbuffer(prep: PreparedScene, timings: dict) -> GBuffer:
 def _check_spp(spp) -> None:
     if not is_int(spp) or spp < 1:
         raise WarpbwError(f"spp: expected a positive integer, got {spp!r}")
+    if spp > INT32_MAX:  # the shading kernel's sample loop counts in int32
+        raise WarpbwError(f"spp: expected a positive integer <= {INT32_MAX}, got {spp!r}")
 
 
 def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: str = "cpu",

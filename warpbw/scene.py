@@ -33,7 +33,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-from warpbw.errors import WarpbwError, is_int
+from warpbw.errors import FLOAT32_MAX, WarpbwError, is_int
 
 MATERIAL_TYPES = ("lambert", "ggx", "merl", "npf", "cook-torrance")
 LIGHT_TYPES = ("directional",)
@@ -306,9 +306,16 @@ class _Ctx:
         return d
 
     def number(self, v, key: str, lo=None, hi=None, lo_open=False) -> float:
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
             self.fail(key, f"expected a finite number, got {v!r}")
+        if is_int(v) and abs(v) > FLOAT32_MAX:  # float(v) may overflow; hundreds of digits are too long to repeat
+            self.fail(key, f"expected a finite number within the float32 range (|x| <= {FLOAT32_MAX:.4g}), "
+                      f"got an integer of {len(str(abs(v)))} digits")
         v = float(v)
+        if not math.isfinite(v):
+            self.fail(key, f"expected a finite number, got {v!r}")
+        if abs(v) > FLOAT32_MAX:  # the kernels compute in float32
+            self.fail(key, f"expected a number within the float32 range (|x| <= {FLOAT32_MAX:.4g}), got {v:g}")
         if lo is not None and (v < lo or (lo_open and v == lo)):
             self.fail(key, f"expected a number {'>' if lo_open else '>='} {lo:g}, got {v:g}")
         if hi is not None and v > hi:
@@ -378,8 +385,11 @@ def _environment(ctx: _Ctx, d: dict) -> Environment:
     if "procedural" in d:
         return Environment(procedural=ctx.string(d["procedural"], "[environment].procedural",
                                                  PROCEDURAL_ENVIRONMENTS), rotation=rot, scale=scale)
-    return Environment(constant=ctx.vec3(d["constant"], "[environment].constant", lo=0.0), rotation=rot,
-                       scale=scale)
+    constant = ctx.vec3(d["constant"], "[environment].constant", lo=0.0)
+    if max(constant) * scale > FLOAT32_MAX:  # the radiance the kernels see is constant * scale, in float32
+        ctx.fail("[environment].scale", f"constant * scale must stay within the float32 range "
+                 f"(<= {FLOAT32_MAX:.4g}), got {max(constant):g} * {scale:g}")
+    return Environment(constant=constant, rotation=rot, scale=scale)
 
 
 def _light(ctx: _Ctx, d: dict, i: int) -> DirectionalLight:

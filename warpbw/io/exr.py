@@ -110,7 +110,8 @@ def read_exr(path) -> ExrImage:
     except WarpbwError:
         raise
     except Exception as exc:  # OpenEXR raises RuntimeError for truncated / corrupt files
-        raise WarpbwError(f"{path}: unreadable OpenEXR file ({_one_line(exc)})") from None
+        # OpenEXR's own words for a cut-off file ("file has 0 parts") do not say what is wrong
+        raise WarpbwError(f"{path}: unreadable OpenEXR file, truncated or corrupt ({_one_line(exc)})") from None
     if not planes:
         raise WarpbwError(f"{path}: OpenEXR file has no channels (expected R,G,B or Y)")
     names = _order_channels(list(planes), header.get(_ORDER_ATTRIBUTE))

@@ -269,7 +269,7 @@ def write_merl(path, data, force: bool = False) -> Path:
     if n_nonfinite:
         raise WarpbwError(f"{path}: refusing to write {n_nonfinite} non-finite MERL values (expected finite numbers)")
     if path.exists() and not force:
-        raise WarpbwError(f"{path}: already exists (pass force=True, or --force, to overwrite)")
+        raise WarpbwError(f"{path}: already exists (pass --force to overwrite it)")
     scale = np.asarray(MERL_SCALE, dtype=np.float64)
     values = np.ascontiguousarray(np.moveaxis(arr / scale, -1, 0), dtype="<f8")
     header = np.asarray([MERL_THETA_H_RES, MERL_THETA_D_RES, MERL_PHI_D_RES], dtype="<i4")

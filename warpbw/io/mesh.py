@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import FLOAT32_MAX, WarpbwError
 
 # A triangle whose doubled area is below this fraction of its longest squared edge is treated as
 # degenerate (no cotangent weight, no area): sin of its largest angle is < 1e-12, so its
@@ -200,6 +200,10 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     n_bad = int(np.count_nonzero(~np.all(np.isfinite(verts), axis=1)))
     if n_bad:
         raise WarpbwError(f"{path}: {n_bad} vertices have non-finite coordinates (expected finite numbers)")
+    n_big = int(np.count_nonzero(np.any(np.abs(verts) > FLOAT32_MAX, axis=1)))
+    if n_big:  # the kernels read the vertices as float32 (and trimesh's vertex merge fails on them)
+        raise WarpbwError(f"{path}: {n_big} vertices lie outside the float32 range (expected coordinates "
+                          f"within +-{FLOAT32_MAX:.4g})")
     try:
         mesh.merge_vertices()
         mesh.remove_unreferenced_vertices()
@@ -217,6 +221,10 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     verts[:, 0] = x * ca + z * sa
     verts[:, 2] = -x * sa + z * ca
     verts += t
+    n_big = int(np.count_nonzero(np.any(np.abs(verts) > FLOAT32_MAX, axis=1)))
+    if n_big:  # the kernels read the vertices as float32
+        raise WarpbwError(f"{path}: {n_big} vertices lie outside the float32 range after scale, rotate_y and "
+                          f"translate (expected coordinates within +-{FLOAT32_MAX:.4g})")
     normals, curv = normals_and_curvature(verts, faces)
     uv = getattr(mesh.visual, "uv", None)
     uv = np.asarray(uv, dtype=np.float32) if uv is not None and np.shape(uv) == (len(verts), 2) else None

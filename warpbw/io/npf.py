@@ -97,7 +97,8 @@ def read_npf(path, name: str) -> NPFMaterial:
     key = _canonical(name)
     if key not in NPF_MATERIAL_NAMES:
         close = difflib.get_close_matches(key, NPF_MATERIAL_NAMES, n=5, cutoff=0.5)
-        hint = f"close matches: {', '.join(close)}" if close else "expected one of the 100 MERL material names"
+        hint = (f"close matches: {', '.join(close)}" if close else
+                f"expected one of the {len(NPF_MATERIAL_NAMES)} MERL material names: {', '.join(NPF_MATERIAL_NAMES)}")
         raise WarpbwError(f"{path}: unknown NPF material {name!r}; {hint}")
     row = NPF_MATERIAL_NAMES.index(key)
     row_floats = NPF_COLS * NPF_CHANNELS
