@@ -19,14 +19,15 @@ import argparse
 import json
 import math
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from warpbw.cli import _init_warp
 from warpbw.cli_common import run_command
+from warpbw.errors import WarpbwError
 
 HERE = Path(__file__).resolve().parent
 GT_CHUNK_SPP = 4096   # spp per cached ground-truth chunk
@@ -77,21 +78,26 @@ def main():
 
     import warp as wp
 
-    wp.config.log_level = 30
+    _init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
+    from precompute.npf_to_merl import npf_to_merl
     from warpbw.io.exr import read_exr, write_exr, write_png
+    from warpbw.io.npf import read_npf
     from warpbw.metrics import mse, psnr, relmse
     from warpbw.pipeline import prepare_scene, render_reference
     from warpbw.scene import parse_scene
 
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     merl = out / f"{args.material}.binary"
-    if not merl.exists():
-        status = subprocess.run([sys.executable, "-m", "precompute", "npf-to-merl",
-                                 "--table", str(DATA / "brdf" / "npf.bin"), "--material", args.material,
-                                 "-o", str(merl)]).returncode
-        if status:
-            return status   # warpbw-precompute has said why
+    if not merl.exists():   # the MERL file from the NPF fit (warpbw-precompute npf-to-merl), --material checked first
+        try:
+            read_npf(DATA / "brdf" / "npf.bin", args.material)
+        except WarpbwError as exc:
+            raise WarpbwError(f"--material {args.material}: {exc}") from None
+        out.mkdir(parents=True, exist_ok=True)
+        t0 = time.perf_counter()
+        npf_to_merl(DATA / "brdf" / "npf.bin", args.material, merl)
+        print(f"wrote {merl} (MERL .binary from the NPF fit, {time.perf_counter() - t0:.1f} s)")
+    out.mkdir(parents=True, exist_ok=True)
     w, h = args.resolution
     scene = parse_scene(SCENE.format(w=w, h=h, probe=DATA / "envmaps" / args.probe, rotation=args.rotation,
                                      mesh=DATA / "meshes" / "bunny.obj", merl=merl.resolve()),

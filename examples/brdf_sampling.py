@@ -13,10 +13,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import warp as wp
 
 from warpbw import brdf as B
+from warpbw.cli import _init_warp
 from warpbw.cli_common import run_command
+from warpbw.errors import check_count
 from warpbw.io.npf import npf_eval, read_npf
 from warpbw.sampling import build_sampler_table
 
@@ -31,7 +32,8 @@ def main():
     ap.add_argument("--samples", type=int, default=400_000)
     ap.add_argument("--out", default="brdf_out")
     args = ap.parse_args()
-    wp.config.log_level = 30
+    check_count(args.samples, "--samples", 1)
+    _init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
     import matplotlib
 
     matplotlib.use("Agg")
@@ -57,7 +59,7 @@ def main():
         # counts per projected-area cell -> density per solid angle (d omega = dA / cos)
         cell = (2.0 / GRID) ** 2
         dens = np.zeros((GRID, GRID))
-        dens[inside] = (hist[inside] / len(s) / cell) * wi[:, 2]
+        dens[inside] = (hist[inside] / max(len(s), 1) / cell) * wi[:, 2]   # none above: zero
         # pdf and sample density share one colour scale (they are the same quantity, per steradian)
         lo, hi = np.log10(max(np.percentile(p, 1), 1e-6)), np.log10(p.max())
         for col, (img_vals, title) in enumerate(((f, "f cos_i"), (p, "pdf"), (None, "samples"))):

@@ -265,9 +265,9 @@ def warpbw_toml(probe: Path, mat: dict, res: int, rotation: float, scale: float)
 
 def import_warpbw():
     """Returns (parse_scene, render_reference) or raises ImportError with the reason."""
-    import warp as wp
+    from warpbw.cli import _init_warp
 
-    wp.config.log_level = 30  # warp._src.logger.LOG_WARNING: no banner or module-load lines
+    _init_warp("cpu")         # no banner or module-load lines, nor Warp's no-CUDA-driver line on stderr
     from warpbw.pipeline import render_reference
     from warpbw.scene import parse_scene
     return parse_scene, render_reference

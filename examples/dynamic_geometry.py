@@ -36,7 +36,9 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from warpbw.cli import _check_overwrite, _init_warp
 from warpbw.cli_common import run_command
+from warpbw.errors import WarpbwError
 
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent.parent / "shared" / "data"
@@ -111,8 +113,8 @@ def _material_toml(name: str) -> tuple[str, str]:
     from warpbw.io.npf import NPF_MATERIAL_NAMES
 
     if name not in NPF_MATERIAL_NAMES:
-        raise SystemExit(f"dynamic_geometry: --material {name!r}: expected 'ggx' or an NPF material name "
-                         f"(e.g. {DEFAULT_MATERIAL})")
+        raise WarpbwError(f"--material {name!r}: expected 'ggx' or an NPF material name "
+                          f"(e.g. {DEFAULT_MATERIAL})")
     if not NPF_TABLE.is_file():
         print(f"{NPF_TABLE} not found: using the GGX stand-in instead of {name}")
         return GGX_MATERIAL, "ggx (alpha 0.15, red specular)"
@@ -175,25 +177,27 @@ def main(argv=None):
     ap.add_argument("--budget", type=float, default=8.0, help="mean samples per covered pixel")
     ap.add_argument("--size", type=int, default=256, help="image width and height in pixels")
     ap.add_argument("--material", default=DEFAULT_MATERIAL, help="an NPF material name, or 'ggx'")
-    ap.add_argument("--env", default=str(DEFAULT_ENV), help="light probe (procedural sky when absent)")
+    ap.add_argument("--env", help="lat-long EXR light probe (default: the shared city.exr; the procedural sky "
+                                  "when it is absent)")
     ap.add_argument("--seed", type=int, default=0, help="frame f uses seed + f")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads for shading (default: cores)")
-    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--device", default="cpu", help="Warp device (default cpu)")
     ap.add_argument("--force", action="store_true", help="overwrite existing outputs")
     args = ap.parse_args(argv)
-    wp.config.log_level = 30
     if args.frames < 1 or args.size < 8 or not (args.budget > 0 and math.isfinite(args.budget)):
         ap.error("expected --frames >= 1, --size >= 8 and a positive --budget")
     if args.mesh is not None and not Path(args.mesh).is_file():
         ap.error(f"--mesh {args.mesh}: no such file (expected a mesh trimesh loads: OBJ, PLY, STL, GLB)")
+    if args.env is not None and not Path(args.env).is_file():
+        ap.error(f"--env {args.env}: no such file (expected a lat-long EXR light probe)")
+    material, material_desc = _material_toml(args.material)
+    _init_warp(args.device)     # --device checked; Warp's no-CUDA-driver line kept off stderr
     mesh_path = Path(args.mesh or DEFAULT_MESH)
     if not mesh_path.is_file():
         print(f"dynamic_geometry: mesh {mesh_path} not found; skipping (pass --mesh FILE)")
         return None
     out = Path(args.out)
-    existing = [out / n for n in OUTPUTS if (out / n).exists()]
-    if existing and not args.force:
-        sys.exit(f"dynamic_geometry: {existing[0]} exists; pass --force to overwrite")
+    _check_overwrite([out / n for n in OUTPUTS], args.force)
 
     from warpbw.gbuffer import update_mesh
     from warpbw.io.exr import write_png
@@ -201,8 +205,8 @@ def main(argv=None):
     from warpbw.pipeline import prepare_scene, render_adaptive
     from warpbw.scene import parse_scene
 
-    material, material_desc = _material_toml(args.material)
-    env = f'file = "{args.env}"' if Path(args.env).is_file() else 'procedural = "sky"'
+    env_path = Path(args.env) if args.env is not None else DEFAULT_ENV
+    env = f'file = "{env_path}"' if env_path.is_file() else 'procedural = "sky"'
     scene = parse_scene(SCENE.format(fov=FOV_DEG, w=args.size, h=args.size, env=env, mesh=mesh_path.resolve(),
                                      material=material), source="<dynamic_geometry>")
     t0 = time.perf_counter()
@@ -296,4 +300,5 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("dynamic_geometry", lambda _: main(), None))
+    # main returns the run's record (None when the default mesh is absent): a successful run exits 0
+    sys.exit(run_command("dynamic_geometry", lambda _: main() and 0, None))

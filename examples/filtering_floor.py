@@ -271,6 +271,9 @@ def main(argv=None) -> int:
             ap.error(f"{p}: no such scene file")
     if args.json is not None and args.json.exists() and not args.force:
         ap.error(f"{args.json} exists (--force to overwrite)")
+    from warpbw.cli import _init_warp
+
+    _init_warp("cpu")           # Warp's no-CUDA-driver line, banner and module-load lines kept off the output
     records = []
     for p in args.scenes:
         rec = analyse(p, zooms, args.gt_spp)

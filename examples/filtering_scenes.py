@@ -162,15 +162,21 @@ def main(argv=None) -> int:
     ap.add_argument("--prior", type=float, default=1.0,
                     help="alignment constant c of the aligned GMM mipmap's MAP prior (default 1, 004 Sec. 4.1; "
                          "README: a stronger prior filters the far zooms better)")
-    ap.add_argument("--force", action="store_true", help="overwrite existing results")
+    ap.add_argument("--force", action="store_true", help="overwrite existing scenes, height fields and results")
     args = ap.parse_args(argv)
+    from warpbw.cli import _check_overwrite
+    from warpbw.scene import GMM_MAX_COMPONENTS, GMM_MAX_PRIOR
+
     out = Path(args.out)
     if not 1 <= args.size <= MAX_SURFACE_SIZE:
         ap.error(f"--size {args.size}: expected an integer from 1 to {MAX_SURFACE_SIZE}")
-    if not (math.isfinite(args.prior) and args.prior >= 0):
-        ap.error(f"--prior {args.prior:g}: expected a finite c >= 0")
+    if not (math.isfinite(args.prior) and 0 <= args.prior <= GMM_MAX_PRIOR):
+        ap.error(f"--prior {args.prior:g}: expected a finite c >= 0 (at most {GMM_MAX_PRIOR:g})")
+    if not 1 <= args.components <= GMM_MAX_COMPONENTS:
+        ap.error(f"--components {args.components}: expected an integer from 1 to {GMM_MAX_COMPONENTS}")
     if args.environment is not None and not args.environment.is_file():
         ap.error(f"--environment {args.environment}: no such file (expected a lat-long EXR probe)")
+    _check_overwrite([out / f"{name}{ext}" for name in SCENES for ext in (".toml", ".exr")], args.force)
     paths = write_scenes(out, args.size, lights=args.lights, components=args.components,
                          environment=args.environment, prior=args.prior)
     if args.run:

@@ -12,6 +12,7 @@ benchmark come from ``examples/filtering_scenes.py``.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -35,19 +36,31 @@ def main(argv=None) -> int:
     ap.add_argument("scene", help="scene file with planes")
     ap.add_argument("-o", "--output", default="zoom_out", help="output directory (default ./zoom_out)")
     ap.add_argument("--zoom", default="1,2,4,8,16,32", help="zoom factors (default 1,2,4,8,16,32)")
-    ap.add_argument("--gt-spp", type=int, default=256, help="ground-truth rays per pixel (default 256)")
+    ap.add_argument("--gt-spp", type=int, default=256, help="ground-truth rays per pixel (default 256, at least 64)")
     args = ap.parse_args(argv)
+    try:
+        zooms = [float(z) for z in args.zoom.split(",")]
+    except ValueError:
+        zooms = []
+    if not zooms or not all(z > 0 and math.isfinite(z) for z in zooms):
+        ap.error(f"--zoom {args.zoom!r}: expected comma-separated positive numbers, e.g. 1,2,4,8")
 
-    import warp as wp
     from PIL import Image
 
-    wp.config.log_level = 30
-    from warpbw.filtering import ALL_METHODS, prepare_filtering, render_filtering, zoomed_camera
-    from warpbw.io.exr import linear_to_srgb
-    from warpbw.scene import load_scene
+    from warpbw.cli import _init_warp
 
+    _init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
+    from warpbw.errors import WarpbwError
+    from warpbw.filtering import ALL_METHODS, MIN_GT_SPP, prepare_filtering, render_filtering, zoomed_camera
+    from warpbw.io.exr import linear_to_srgb
+    from warpbw.scene import PlaneObject, load_scene
+
+    if args.gt_spp < MIN_GT_SPP:
+        ap.error(f"--gt-spp {args.gt_spp}: expected at least {MIN_GT_SPP} rays per pixel")
     scene = load_scene(args.scene)
-    zooms = [float(z) for z in args.zoom.split(",")]
+    if not any(isinstance(o, PlaneObject) for o in scene.objects):
+        raise WarpbwError(f"{args.scene}: no [[object]] is a plane (expected a scene with planes, "
+                          "e.g. from examples/filtering_scenes.py)")
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     prep = prepare_filtering(scene, ALL_METHODS, progress=True)

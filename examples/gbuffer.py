@@ -1,6 +1,7 @@
 """G-buffer example: cast one ray per pixel at a sphere and the Stanford bunny, save the buffers.
 
     python examples/gbuffer.py [--mesh ../shared/data/meshes/bunny.obj] [--out gbuffer_out] [--device cpu]
+        [--force]
 
 Writes normal.png, depth.png, curvature.png, material.png and gbuffer.exr (all buffers as channels),
 and prints the ray-cast time (after a warm-up launch that compiles the kernel).
@@ -13,22 +14,28 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from warpbw.cli import _check_overwrite, _init_warp
 from warpbw.cli_common import run_command
 from warpbw.gbuffer import MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.io.exr import write_exr, write_false_colour_png, write_png
 from warpbw.io.mesh import load_mesh
+
+OUTPUTS = ("normal.png", "depth.png", "curvature.png", "material.png", "gbuffer.exr")
 
 
 def main():
     here = Path(__file__).resolve().parent
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--mesh", help="mesh file (default: the shared bunny; the sphere alone when it is absent)")
-    ap.add_argument("--out", default="gbuffer_out")
-    ap.add_argument("--resolution", type=int, nargs=2, default=[512, 512])
-    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--out", default="gbuffer_out", help="output folder (default gbuffer_out)")
+    ap.add_argument("--resolution", type=int, nargs=2, default=[512, 512], metavar=("W", "H"),
+                    help="image width and height in pixels (default 512 512)")
+    ap.add_argument("--device", default="cpu", help="Warp device (default cpu)")
+    ap.add_argument("--force", action="store_true", help="overwrite existing outputs in --out")
     args = ap.parse_args()
-    wp.config.log_level = 30
     w, h = args.resolution
+    if w < 1 or h < 1:
+        ap.error(f"--resolution {w} {h}: expected a width and a height of at least 1 pixel")
     cam = make_camera((0.0, 0.3, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, w, h)
     spheres = [SphereSpec((1.1, -0.55, -0.6), 0.45, 1)]
     meshes = []
@@ -36,6 +43,9 @@ def main():
         args.mesh = str(here.parent.parent / "shared" / "data" / "meshes" / "bunny.obj")
     elif not Path(args.mesh).is_file():
         ap.error(f"--mesh {args.mesh}: no such file (expected a mesh trimesh loads: OBJ, PLY, STL, GLB)")
+    out = Path(args.out)
+    _check_overwrite([out / n for n in OUTPUTS], args.force)
+    _init_warp(args.device)     # --device checked; Warp's no-CUDA-driver line kept off stderr
     if Path(args.mesh).exists():
         md = load_mesh(args.mesh, translate=(-0.2, 0.0, 0.0))
         meshes.append(MeshSpec(md.vertices, md.faces, md.normals, md.mean_curvature, md.uv, 0))
@@ -52,7 +62,6 @@ def main():
         wp.synchronize_device(args.device)
         times.append(time.perf_counter() - t0)
     print(f"G-buffer {w}x{h}: {np.median(times) * 1e3:.1f} ms (median of 5), coverage {gb.coverage.mean():.1%}")
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     cov = gb.coverage
     write_png(out / "normal.png", np.where(cov[..., None], 0.5 * gb.numpy("normal") + 0.5, 0.0) ** 2.2)

@@ -65,6 +65,8 @@ def main(argv=None) -> int:
     from precompute.gmm_mipmap import MAX_COMPONENTS, level_shapes
     from precompute.surfaces import MAX_SURFACE_SIZE, SURFACES
 
+    if Path(args.output).suffix.lower() != ".png":
+        ap.error(f"-o {args.output}: expected a path ending in .png")
     if args.surface not in SURFACES:
         ap.error(f"--surface {args.surface}: expected one of {', '.join(SURFACES)}")
     if not 2 <= args.size <= MAX_SURFACE_SIZE:
@@ -84,9 +86,9 @@ def main(argv=None) -> int:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import warp as wp
+    from warpbw.cli import _init_warp
 
-    wp.config.log_level = 30
+    _init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
     from precompute.gmm_mipmap import build_gmm_mipmap, from_moments, normal_space
     from precompute.surfaces import height_to_normals
     from warpbw.filtering import fetch_gmm

@@ -2,52 +2,69 @@
 environment, then N BRDF-importance samples per pixel, with and without MIS.
 
     python examples/reference_estimator.py [--probe ../shared/data/envmaps/studio.exr] [--spp 64] [--out ref_out]
+        [--force]
 
 Two analytic spheres (Lambert and GGX) and one NPF sphere under a light probe (the procedural sky when
-the probe is missing).  Prints time per stage and throughput; writes ref_bis.exr / ref_mis.exr and PNGs.
+the default probe is absent; the NPF sphere is left out when the default NPF table is).  Prints time
+per stage and throughput; writes ref_bis.exr / ref_mis.exr and PNGs.
 """
 import argparse
 import sys
 import time
 from pathlib import Path
 
-import warp as wp
-
 from warpbw import brdf as B
+from warpbw.cli import _check_overwrite, _init_warp
 from warpbw.cli_common import run_command
 from warpbw.envmap import envmap_from_array, load_envmap, procedural_sky
+from warpbw.errors import check_count
 from warpbw.gbuffer import SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.io.exr import write_exr, write_png
 from warpbw.shading import shade_reference
+
+OUTPUTS = ("ref_bis.exr", "ref_bis.png", "ref_mis.exr", "ref_mis.png")
 
 
 def main():
     here = Path(__file__).resolve().parent
     data = here.parent.parent / "shared" / "data"
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--probe", default=str(data / "envmaps" / "studio.exr"))
-    ap.add_argument("--npf", default=str(data / "brdf" / "npf.bin"))
+    default_probe, default_npf = data / "envmaps" / "studio.exr", data / "brdf" / "npf.bin"
+    ap.add_argument("--probe", help=f"lat-long EXR light probe (default {default_probe}; the procedural sky "
+                                    "when it is absent)")
+    ap.add_argument("--npf", help=f"NPF table (default {default_npf}; no NPF sphere when it is absent)")
     ap.add_argument("--material", default="gold-metallic-paint")
     ap.add_argument("--spp", type=int, default=64)
-    ap.add_argument("--resolution", type=int, nargs=2, default=[384, 160])
+    ap.add_argument("--resolution", type=int, nargs=2, default=[384, 160], metavar=("W", "H"))
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--out", default="ref_out")
+    ap.add_argument("--force", action="store_true", help="overwrite existing outputs in --out")
     args = ap.parse_args()
-    wp.config.log_level = 30
     dev = args.device
     w, h = args.resolution
+    if w < 1 or h < 1:
+        ap.error(f"--resolution {w} {h}: expected a width and a height of at least 1 pixel")
+    check_count(args.spp, "--spp", 1)
+    for flag, given in (("--probe", args.probe), ("--npf", args.npf)):
+        if given is not None and not Path(given).is_file():
+            ap.error(f"{flag} {given}: no such file")
+    probe = Path(args.probe) if args.probe is not None else default_probe
+    npf = Path(args.npf) if args.npf is not None else default_npf
+    out = Path(args.out)
+    _check_overwrite([out / n for n in OUTPUTS], args.force)
+    _init_warp(dev)             # --device checked; Warp's no-CUDA-driver line kept off stderr
 
     t0 = time.perf_counter()
-    env = load_envmap(args.probe, device=dev) if Path(args.probe).exists() else \
+    env = load_envmap(probe, device=dev) if probe.is_file() else \
         envmap_from_array(procedural_sky(512, 256), name="procedural sky", device=dev)
     specs = [B.MaterialSpec("lambert", B.LAMBERT, albedo=(0.7, 0.7, 0.7)),
              B.MaterialSpec("ggx", B.GGX, alpha=0.15, specular=(0.95, 0.95, 0.95))]
     spheres = [SphereSpec((-1.3, 0, 0), 0.6, 0), SphereSpec((0, 0, 0), 0.6, 1)]
-    if Path(args.npf).exists():
+    if npf.is_file():
         from warpbw.io.npf import npf_eval, read_npf
         from warpbw.sampling import build_sampler_table
 
-        m = read_npf(args.npf, args.material)
+        m = read_npf(npf, args.material)
         specs.append(B.MaterialSpec(m.name, B.NPF, npf=B.pack_npf_curves(m.rho_d, m.rho_s, m.D, m.G1, m.F),
                                     linear=True, sampler=build_sampler_table(lambda a, b: npf_eval(m, a, b))))
         spheres.append(SphereSpec((1.3, 0, 0), 0.6, 2))
@@ -57,7 +74,6 @@ def main():
     print(f"assets: {time.perf_counter() - t0:.2f} s ({env.name}, materials {', '.join(mats.names)})")
 
     gb = render_gbuffer(cam, geo, device=dev)
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for mis in (False, True):
         shade_reference(gb, mats, env.data, 1, mis=mis, device=dev)      # warm-up (compiles)

@@ -562,17 +562,66 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["filtering_floor.py", "--zoom", "0", "s.toml"], "--zoom '0': expected comma-separated positive numbers"),
     (["gbuffer.py", "--mesh", "missing.obj"], "--mesh missing.obj: no such file"),
     (["dynamic_geometry.py", "--mesh", "missing.obj"], "--mesh missing.obj: no such file"),
+    (["gbuffer.py", "--resolution", "0", "0"], "--resolution 0 0: expected a width and a height of at least 1"),
+    (["gbuffer.py", "--device", "nope"], "--device nope: not available"),
+    (["reference_estimator.py", "--resolution", "0", "12"], "--resolution 0 12: expected a width and a height"),
+    (["reference_estimator.py", "--device", "nope"], "--device nope: not available"),
+    (["reference_estimator.py", "--spp", "0"], "--spp: expected an integer >= 1, got 0"),
+    (["reference_estimator.py", "--probe", "missing.exr"], "--probe missing.exr: no such file"),
+    (["dynamic_geometry.py", "--env", "missing.exr"], "--env missing.exr: no such file"),
+    (["dynamic_geometry.py", "--material", "nope"], "--material 'nope': expected 'ggx' or an NPF material"),
+    (["dynamic_geometry.py", "--device", "nope", "--material", "ggx"], "--device nope: not available"),
+    (["brdf_sampling.py", "--samples", "-5"], "--samples: expected an integer >= 1, got -5"),
+    (["brdf_sampling.py", "--samples", "0"], "--samples: expected an integer >= 1, got 0"),
+    (["gmm_mipmap.py", "-o", "gm.txt", "--size", "16"], "-o gm.txt: expected a path ending in .png"),
+    (["filtering_zoom.py", "s.toml", "--zoom", "0"], "--zoom '0': expected comma-separated positive numbers"),
+    (["filtering_zoom.py", "s.toml", "--zoom", "nan"], "--zoom 'nan': expected comma-separated positive numbers"),
+    (["filtering_scenes.py", "--components", "0"], "--components 0: expected an integer from 1 to 16"),
+    (["bench_reference.py", "--material", "nope"], "--material nope: "),
 ])
 def test_examples_refuse_bad_arguments_in_one_line(tmp_path, argv, needle):
     """The example scripts answer bad arguments the way the commands do: status 2, the last stderr line
-    '<script>: error: ...' naming the argument, no traceback, and nothing written."""
-    r = subprocess.run([sys.executable, str(EXAMPLES_DIR / argv[0]), *argv[1:]], cwd=tmp_path,
-                       stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=180)
-    assert "Traceback" not in r.stderr, r.stderr
+    '<script>: error: ...' naming the argument, no traceback (nor Warp's no-CUDA-driver line), and nothing
+    written."""
+    example_error(run_example(argv, tmp_path), argv[0], needle)
+    assert list(tmp_path.iterdir()) == []
+
+
+def run_example(argv, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(EXAMPLES_DIR / argv[0]), *argv[1:]], cwd=cwd,
+                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=180)
+
+
+def example_error(r: subprocess.CompletedProcess, script: str, *needles: str) -> str:
+    assert "Traceback" not in r.stderr and "CUDA driver" not in r.stderr, r.stderr
     assert r.returncode == EXIT_USER_ERROR, (r.returncode, r.stderr)
     last = r.stderr.strip().splitlines()[-1]
-    assert last.startswith(Path(argv[0]).stem) and ": error: " in last and needle in last, last
-    assert list(tmp_path.iterdir()) == []
+    assert last.startswith(Path(script).stem) and ": error: " in last, last
+    for n in needles:
+        assert n in last, last
+    return last
+
+
+@pytest.mark.parametrize("argv,existing", [
+    (["gbuffer.py", "--resolution", "8", "8"], "gbuffer_out/gbuffer.exr"),
+    (["reference_estimator.py", "--resolution", "8", "8", "--spp", "1"], "ref_out/ref_mis.png"),
+    (["filtering_scenes.py", "--size", "8"], "bench_filtering/dunes.exr"),
+])
+def test_examples_do_not_overwrite_without_force(tmp_path, argv, existing):
+    """An output the user already has is refused up front, naming it and --force, and left as it was."""
+    p = tmp_path / existing
+    p.parent.mkdir()
+    p.write_text("mine\n")
+    example_error(run_example(argv, tmp_path), argv[0], existing, "--force")
+    assert p.read_text() == "mine\n" and list(p.parent.iterdir()) == [p]
+
+
+def test_filtering_zoom_on_a_scene_without_planes(tmp_path):
+    """Not the filtering renderer's 'renders planes only' (there is no plane to keep): says there is none."""
+    write_scene(tmp_path)
+    r = run_example(["filtering_zoom.py", "scene.toml", "-o", "zoom"], tmp_path)
+    example_error(r, "filtering_zoom.py", "scene.toml: no [[object]] is a plane")
+    assert not (tmp_path / "zoom").exists()
 
 
 

@@ -8,11 +8,16 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
+
+from warpbw.errors import WarpbwError
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "dynamic_geometry.py"
 
@@ -34,9 +39,10 @@ def sphere_obj(tmp_path):
 def test_two_frames_on_a_sphere(tmp_path, sphere_obj, monkeypatch):
     monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
     ex = _example()
+    monkeypatch.setattr(ex, "DEFAULT_ENV", tmp_path / "no-probe.exr")    # the default absent: the procedural sky
     out = tmp_path / "out"
     argv = ["--mesh", str(sphere_obj), "--out", str(out), "--frames", "2", "--size", "48", "--budget", "4",
-            "--material", "ggx", "--env", str(tmp_path / "no-probe.exr")]   # absent: the procedural sky
+            "--material", "ggx"]
     result = ex.main(argv)
     rec = json.loads((out / "dynamic_geometry.json").read_text())
     assert rec["frames"] == json.loads(json.dumps(result["frames"]))
@@ -56,8 +62,18 @@ def test_two_frames_on_a_sphere(tmp_path, sphere_obj, monkeypatch):
     png = np.asarray(Image.open(out / "dynamic_geometry.png"))
     assert png.shape[:2] == (2 * 48 + ex.STRIP_GAP, 2 * 48 + ex.STRIP_GAP)
     # nothing is overwritten without --force
-    with pytest.raises(SystemExit, match="--force"):
+    with pytest.raises(WarpbwError, match="--force"):
         ex.main(argv)
+
+
+def test_a_successful_run_exits_0(tmp_path, sphere_obj):
+    """Run as a script: status 0 (not the result dict handed to sys.exit), nothing on stderr."""
+    env = dict(os.environ, WARPBW_CACHE=str(tmp_path / "cache"))
+    r = subprocess.run([sys.executable, str(EXAMPLE), "--mesh", str(sphere_obj), "--out", str(tmp_path / "out"),
+                        "--frames", "1", "--size", "8", "--budget", "1", "--material", "ggx"],
+                       cwd=tmp_path, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and r.stderr == "", (r.returncode, r.stderr)
+    assert (tmp_path / "out" / "dynamic_geometry.json").is_file()
 
 
 def test_deformation_moves_the_mesh_and_frame_zero_only_ripples():
@@ -84,4 +100,8 @@ def test_absent_default_mesh_is_skipped_and_a_missing_mesh_is_an_error(tmp_path,
     with pytest.raises(SystemExit) as e:
         ex.main(["--mesh", str(tmp_path / "typo.obj"), "--out", str(tmp_path / "o")])
     assert e.value.code == 2 and "--mesh" in capsys.readouterr().err
+    # so is a --env the user named that does not exist (not a silent fall-back to the procedural sky)
+    with pytest.raises(SystemExit) as e:
+        ex.main(["--env", str(tmp_path / "typo.exr"), "--out", str(tmp_path / "o")])
+    assert e.value.code == 2 and "--env" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
