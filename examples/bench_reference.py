@@ -25,8 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli import _init_warp
-from warpbw.cli_common import run_command
+from warpbw.cli_common import init_warp, run_command
 from warpbw.errors import WarpbwError
 
 HERE = Path(__file__).resolve().parent
@@ -78,7 +77,7 @@ def main():
 
     import warp as wp
 
-    _init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
+    init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
     from precompute.npf_to_merl import npf_to_merl
     from warpbw.io.exr import read_exr, write_exr, write_png
     from warpbw.io.npf import read_npf

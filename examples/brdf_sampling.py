@@ -15,8 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from warpbw import brdf as B
-from warpbw.cli import _init_warp
-from warpbw.cli_common import run_command
+from warpbw.cli_common import init_warp, run_command
 from warpbw.errors import check_count
 from warpbw.io.npf import npf_eval, read_npf
 from warpbw.sampling import build_sampler_table
@@ -33,7 +32,7 @@ def main():
     ap.add_argument("--out", default="brdf_out")
     args = ap.parse_args()
     check_count(args.samples, "--samples", 1)
-    _init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
+    init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
     import matplotlib
 
     matplotlib.use("Agg")

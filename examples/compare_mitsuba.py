@@ -113,7 +113,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import run_command
+from warpbw.cli_common import init_warp, run_command
 
 # The repository root, so that `python examples/compare_mitsuba.py` finds warpbw without installing.
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -265,9 +265,7 @@ def warpbw_toml(probe: Path, mat: dict, res: int, rotation: float, scale: float)
 
 def import_warpbw():
     """Returns (parse_scene, render_reference) or raises ImportError with the reason."""
-    from warpbw.cli import _init_warp
-
-    _init_warp("cpu")         # no banner or module-load lines, nor Warp's no-CUDA-driver line on stderr
+    init_warp("cpu")         # no banner or module-load lines, nor Warp's no-CUDA-driver line on stderr
     from warpbw.pipeline import render_reference
     from warpbw.scene import parse_scene
     return parse_scene, render_reference

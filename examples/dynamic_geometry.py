@@ -36,8 +36,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.cli import _check_overwrite, _init_warp
-from warpbw.cli_common import run_command
+from warpbw.cli_common import check_overwrite, init_warp, run_command
 from warpbw.errors import WarpbwError
 
 HERE = Path(__file__).resolve().parent
@@ -191,13 +190,13 @@ def main(argv=None):
     if args.env is not None and not Path(args.env).is_file():
         ap.error(f"--env {args.env}: no such file (expected a lat-long EXR light probe)")
     material, material_desc = _material_toml(args.material)
-    _init_warp(args.device)     # --device checked; Warp's no-CUDA-driver line kept off stderr
+    init_warp(args.device)     # --device checked; Warp's no-CUDA-driver line kept off stderr
     mesh_path = Path(args.mesh or DEFAULT_MESH)
     if not mesh_path.is_file():
         print(f"dynamic_geometry: mesh {mesh_path} not found; skipping (pass --mesh FILE)")
         return None
     out = Path(args.out)
-    _check_overwrite([out / n for n in OUTPUTS], args.force)
+    check_overwrite([out / n for n in OUTPUTS], args.force)
 
     from warpbw.gbuffer import update_mesh
     from warpbw.io.exr import write_png

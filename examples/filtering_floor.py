@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import run_command
+from warpbw.cli_common import init_warp, run_command
 # the renderer's own constants: the references filter and shade at its footprint, with its floors
 from warpbw.filtering import LOD_BIAS, MIN_COS, VARIANCE_FLOOR, roughness_variance
 
@@ -271,9 +271,8 @@ def main(argv=None) -> int:
             ap.error(f"{p}: no such scene file")
     if args.json is not None and args.json.exists() and not args.force:
         ap.error(f"{args.json} exists (--force to overwrite)")
-    from warpbw.cli import _init_warp
 
-    _init_warp("cpu")           # Warp's no-CUDA-driver line, banner and module-load lines kept off the output
+    init_warp("cpu")           # Warp's no-CUDA-driver line, banner and module-load lines kept off the output
     records = []
     for p in args.scenes:
         rec = analyse(p, zooms, args.gt_spp)

@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from precompute.surfaces import MAX_SURFACE_SIZE
-from warpbw.cli_common import run_command
+from warpbw.cli_common import check_overwrite, run_command
 
 # scene name -> (surface generator name, tiling, material)
 SCENES = {
@@ -164,7 +164,6 @@ def main(argv=None) -> int:
                          "README: a stronger prior filters the far zooms better)")
     ap.add_argument("--force", action="store_true", help="overwrite existing scenes, height fields and results")
     args = ap.parse_args(argv)
-    from warpbw.cli import _check_overwrite
     from warpbw.scene import GMM_MAX_COMPONENTS, GMM_MAX_PRIOR
 
     out = Path(args.out)
@@ -176,7 +175,7 @@ def main(argv=None) -> int:
         ap.error(f"--components {args.components}: expected an integer from 1 to {GMM_MAX_COMPONENTS}")
     if args.environment is not None and not args.environment.is_file():
         ap.error(f"--environment {args.environment}: no such file (expected a lat-long EXR probe)")
-    _check_overwrite([out / f"{name}{ext}" for name in SCENES for ext in (".toml", ".exr")], args.force)
+    check_overwrite([out / f"{name}{ext}" for name in SCENES for ext in (".toml", ".exr")], args.force)
     paths = write_scenes(out, args.size, lights=args.lights, components=args.components,
                          environment=args.environment, prior=args.prior)
     if args.run:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import run_command
+from warpbw.cli_common import init_warp, run_command
 
 TILE = 160          # height of a frame in the strip, pixels
 
@@ -47,9 +47,8 @@ def main(argv=None) -> int:
 
     from PIL import Image
 
-    from warpbw.cli import _init_warp
 
-    _init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
+    init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
     from warpbw.errors import WarpbwError
     from warpbw.filtering import ALL_METHODS, MIN_GT_SPP, prepare_filtering, render_filtering, zoomed_camera
     from warpbw.io.exr import linear_to_srgb

@@ -14,8 +14,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.cli import _check_overwrite, _init_warp
-from warpbw.cli_common import run_command
+from warpbw.cli_common import check_overwrite, init_warp, run_command
 from warpbw.gbuffer import MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.io.exr import write_exr, write_false_colour_png, write_png
 from warpbw.io.mesh import load_mesh
@@ -44,8 +43,8 @@ def main():
     elif not Path(args.mesh).is_file():
         ap.error(f"--mesh {args.mesh}: no such file (expected a mesh trimesh loads: OBJ, PLY, STL, GLB)")
     out = Path(args.out)
-    _check_overwrite([out / n for n in OUTPUTS], args.force)
-    _init_warp(args.device)     # --device checked; Warp's no-CUDA-driver line kept off stderr
+    check_overwrite([out / n for n in OUTPUTS], args.force)
+    init_warp(args.device)     # --device checked; Warp's no-CUDA-driver line kept off stderr
     if Path(args.mesh).exists():
         md = load_mesh(args.mesh, translate=(-0.2, 0.0, 0.0))
         meshes.append(MeshSpec(md.vertices, md.faces, md.normals, md.mean_curvature, md.uv, 0))

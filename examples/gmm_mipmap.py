@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import run_command
+from warpbw.cli_common import init_warp, run_command
 
 GRID = 161          # density image resolution over [-1, 1]^2
 
@@ -86,9 +86,8 @@ def main(argv=None) -> int:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from warpbw.cli import _init_warp
 
-    _init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
+    init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
     from precompute.gmm_mipmap import build_gmm_mipmap, from_moments, normal_space
     from precompute.surfaces import height_to_normals
     from warpbw.filtering import fetch_gmm

@@ -14,8 +14,7 @@ import time
 from pathlib import Path
 
 from warpbw import brdf as B
-from warpbw.cli import _check_overwrite, _init_warp
-from warpbw.cli_common import run_command
+from warpbw.cli_common import check_overwrite, init_warp, run_command
 from warpbw.envmap import envmap_from_array, load_envmap, procedural_sky
 from warpbw.errors import check_count
 from warpbw.gbuffer import SphereSpec, build_geometry, make_camera, render_gbuffer
@@ -51,8 +50,8 @@ def main():
     probe = Path(args.probe) if args.probe is not None else default_probe
     npf = Path(args.npf) if args.npf is not None else default_npf
     out = Path(args.out)
-    _check_overwrite([out / n for n in OUTPUTS], args.force)
-    _init_warp(dev)             # --device checked; Warp's no-CUDA-driver line kept off stderr
+    check_overwrite([out / n for n in OUTPUTS], args.force)
+    init_warp(dev)             # --device checked; Warp's no-CUDA-driver line kept off stderr
 
     t0 = time.perf_counter()
     env = load_envmap(probe, device=dev) if probe.is_file() else \

@@ -56,8 +56,7 @@ import warp as wp
 
 from warpbw.bandwidth import LUMINANCE
 from warpbw.brdf import MaterialTable, make_brdf_funcs
-from warpbw.cli import _init_warp
-from warpbw.cli_common import run_command
+from warpbw.cli_common import init_warp, run_command
 from warpbw.envmap import EnvMapData, env_radiance
 from warpbw.gbuffer import GBufferData
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_world
@@ -686,7 +685,7 @@ def parse_args(argv=None):
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    _init_warp(args.device)     # --device checked; Warp's no-CUDA-driver line kept off stderr
+    init_warp(args.device)     # --device checked; Warp's no-CUDA-driver line kept off stderr
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     cfg = {"size": args.size, "ref_spp": args.ref_spp, "uniform_samples": args.uniform_samples,

@@ -14,7 +14,8 @@ import sys
 import time
 from pathlib import Path
 
-from warpbw.cli_common import OneLineParser, check_output_dir, check_output_file, parse_seed, run_command
+from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
+                               parse_seed, run_command)
 from warpbw.errors import INT32_MAX, WarpbwError
 
 DEFAULT_SPP = 64
@@ -23,7 +24,6 @@ DEMO_SPP = 64
 _FILTER_METHODS = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed", "ground_truth")
 # warpbw.bandwidth.ALLOCATIONS, default first (spelled here for the same reason)
 _ALLOCATIONS = ("measured", "variance", "sqrt", "relative", "uniform")
-WARP_LOG_WARNING = 30  # warp._src.logger.LOG_WARNING: hide Warp's banner and module-load lines
 # warpbw.bandwidth.BUDGET_MAX (spelled here for the same reason): the adaptive N_p goes up to
 # N_P_MAX_PER_BUDGET = 32 x --budget and is an int32 in the kernels
 BUDGET_MAX = INT32_MAX / 32
@@ -48,71 +48,10 @@ coverage mask as A), with an sRGB PNG preview and a JSON of statistics beside th
 """
 
 
-# The one line Warp's native library prints at init on a machine without an NVIDIA driver
-# (warp/native/cuda_util.cpp, init_cuda_driver(), fprintf to stderr).  Warp has no setting that skips the
-# driver probe, so _init_warp captures file descriptor 2 around wp.init() and passes on every other line.
-_WARP_NO_DRIVER_LINE = "Could not find or load the NVIDIA CUDA driver"
-
-
-def _init_warp_quietly(wp) -> None:
-    """``wp.init()`` without Warp's no-CUDA-driver line on stderr (other native output is kept)."""
-    import os
-    import tempfile
-
-    try:
-        sys.stderr.flush()
-        saved = os.dup(2)
-    except (OSError, ValueError):  # no usable fd 2 (embedded interpreter): just init
-        wp.init()
-        return
-    with tempfile.TemporaryFile() as tmp:
-        os.dup2(tmp.fileno(), 2)
-        try:
-            wp.init()
-        finally:
-            try:
-                sys.stderr.flush()
-            finally:
-                os.dup2(saved, 2)
-                os.close(saved)
-            tmp.seek(0)
-            for line in tmp.read().decode("utf-8", "replace").splitlines():
-                if _WARP_NO_DRIVER_LINE not in line:
-                    print(line, file=sys.stderr)
-
-
-def _init_warp(device: str):
-    import warp as wp
-
-    wp.config.log_level = WARP_LOG_WARNING
-    _init_warp_quietly(wp)
-    names = ", ".join(d.alias for d in wp.get_devices())
-    if str(device).startswith("cuda") and not wp.is_cuda_available():
-        # checked before wp.get_device("cuda"), which prints native CUDA errors when there is no driver
-        raise WarpbwError(f"--device {device}: no CUDA device on this machine (no NVIDIA GPU or driver found; "
-                          f"Warp found: {names}); use --device cpu")
-    try:
-        wp.get_device(device)
-    except (RuntimeError, ValueError):
-        raise WarpbwError(f"--device {device}: not available on this machine (Warp found: {names})") from None
-    return wp
-
-
 def _outputs(out: Path) -> dict:
     if out.suffix.lower() != ".exr":
         raise WarpbwError(f"-o {out}: expected a path ending in .exr")
     return {"exr": out, "png": out.with_suffix(".png"), "json": out.with_suffix(".json")}
-
-
-def _check_overwrite(paths, force: bool, option: str = "-o"):
-    for p in paths:  # a directory, or a path under a file, fails whatever --force says
-        check_output_file(p, option, force=True)
-    if force:
-        return
-    existing = [str(p) for p in paths if p.exists()]
-    if existing:
-        raise WarpbwError(f"{existing[0]}: already exists (pass --force to overwrite"
-                          f"{' it' if len(existing) == 1 else f' it and {len(existing) - 1} more'})")
 
 
 def _json_text(record: dict, **kw) -> str:
@@ -176,8 +115,8 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
     outs = _outputs(out)
     adaptive = method == "adaptive"
     paths = list(outs.values()) + ([p for pair in _aov_paths(out).values() for p in pair] if adaptive else [])
-    _check_overwrite(paths, force)
-    _init_warp(device)
+    check_overwrite(paths, force)
+    init_warp(device)
     t0 = time.perf_counter()
     if adaptive:
         res = render_adaptive(scene, budget=budget, seed=seed, mis=mis, n_b=n_b, device=device, progress=not quiet,
@@ -255,8 +194,8 @@ def _render_filtering_cli(scene, args) -> int:
     out = Path(args.output)
     outs = _outputs(out)
     level_paths = [out.with_suffix(".level.exr"), out.with_suffix(".level.png")]
-    _check_overwrite(list(outs.values()) + level_paths, args.force)
-    _init_warp(args.device)
+    check_overwrite(list(outs.values()) + level_paths, args.force)
+    init_warp(args.device)
     t0 = time.perf_counter()
     res = render_filtering(scene, method, spp=args.spp, seed=args.seed, device=args.device,
                            progress=not args.quiet, threads=args.threads, env_spp=args.spp)
@@ -457,7 +396,7 @@ def _bench_outputs(args) -> None:
             check_output_file(path, option, force=True)
     if args.cache:
         check_output_dir(args.cache, "--cache")
-    _check_overwrite(outs, args.force)
+    check_overwrite(outs, args.force)
 
 
 def _write_bench(args, record: dict, write_plot) -> None:
@@ -479,7 +418,7 @@ def cmd_bench(args) -> int:
     if scene.has_planes:
         raise WarpbwError(f"{scene.source}: a scene with planes is benchmarked by 'warpbw bench-filtering'")
     _no_environment(scene, "bench (spheres and meshes)")
-    _init_warp(args.device)
+    init_warp(args.device)
     log = (lambda *a, **k: None) if args.quiet else print
     record = bench.run_bench(scene, spp_list=args.spp, budgets=args.budgets, nb_list=args.nb or (),
                              gt_spp=args.gt_spp, runs=args.runs, mis=not args.no_mis,
@@ -504,7 +443,7 @@ def cmd_bench_filtering(args) -> int:
         raise WarpbwError(f"{scene.source}: bench-filtering needs a scene with planes (shape = \"plane\"); "
                           "spheres and meshes are benchmarked by 'warpbw bench'")
     _check_renderable(scene)
-    _init_warp(args.device)
+    init_warp(args.device)
     log = (lambda *a, **k: None) if args.quiet else print
     record = bf.run_bench_filtering(scene, zooms=args.zoom, gt_spp=args.gt_spp, runs=args.runs, seed=args.seed,
                                     env_spp=args.spp, device=args.device,

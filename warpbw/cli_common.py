@@ -2,7 +2,9 @@
 
 Public: ``EXIT_USER_ERROR``, ``OneLineParser``, ``run_command(prog, func, args) -> int``, ``parse_seed`` (the
 argparse type of every ``--seed``), ``check_output_file(path, option, force)`` and ``check_output_dir(path,
-option)`` (an output path that cannot be written, refused before any work).
+option)`` (an output path that cannot be written, refused before any work), ``check_overwrite(paths, force)``
+(several outputs at once, and --force), ``init_warp(device) -> warp`` (Warp initialised without its banner
+or its no-CUDA-driver line, the device checked).
 """
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ from pathlib import Path
 from warpbw.errors import SEED_MAX, WarpbwError
 
 EXIT_USER_ERROR = 2
+WARP_LOG_WARNING = 30  # warp._src.logger.LOG_WARNING: hide Warp's banner and module-load lines
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -82,3 +85,66 @@ def run_command(prog: str, func, args) -> int:
         except (OSError, MemoryError) as exc:
             print(f"{prog}: error: {exc}", file=sys.stderr)
             return EXIT_USER_ERROR
+
+
+# The one line Warp's native library prints at init on a machine without an NVIDIA driver
+# (warp/native/cuda_util.cpp, init_cuda_driver(), fprintf to stderr).  Warp has no setting that skips the
+# driver probe, so init_warp captures file descriptor 2 around wp.init() and passes on every other line.
+_WARP_NO_DRIVER_LINE = "Could not find or load the NVIDIA CUDA driver"
+
+
+def _init_warp_quietly(wp) -> None:
+    """``wp.init()`` without Warp's no-CUDA-driver line on stderr (other native output is kept)."""
+    import os
+    import tempfile
+
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no usable fd 2 (embedded interpreter): just init
+        wp.init()
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            wp.init()
+        finally:
+            try:
+                sys.stderr.flush()
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+            tmp.seek(0)
+            for line in tmp.read().decode("utf-8", "replace").splitlines():
+                if _WARP_NO_DRIVER_LINE not in line:
+                    print(line, file=sys.stderr)
+
+
+def init_warp(device: str):
+    """Initialise Warp quietly (no banner, no no-CUDA-driver line) and check ``--device``; returns ``warp``."""
+    import warp as wp
+
+    wp.config.log_level = WARP_LOG_WARNING
+    _init_warp_quietly(wp)
+    names = ", ".join(d.alias for d in wp.get_devices())
+    if str(device).startswith("cuda") and not wp.is_cuda_available():
+        # checked before wp.get_device("cuda"), which prints native CUDA errors when there is no driver
+        raise WarpbwError(f"--device {device}: no CUDA device on this machine (no NVIDIA GPU or driver found; "
+                          f"Warp found: {names}); use --device cpu")
+    try:
+        wp.get_device(device)
+    except (RuntimeError, ValueError):
+        raise WarpbwError(f"--device {device}: not available on this machine (Warp found: {names})") from None
+    return wp
+
+
+def check_overwrite(paths, force: bool, option: str = "-o"):
+    """Refuse, before any work, output files that cannot be written or exist without --force."""
+    for p in paths:  # a directory, or a path under a file, fails whatever --force says
+        check_output_file(p, option, force=True)
+    if force:
+        return
+    existing = [str(p) for p in paths if p.exists()]
+    if existing:
+        raise WarpbwError(f"{existing[0]}: already exists (pass --force to overwrite"
+                          f"{' it' if len(existing) == 1 else f' it and {len(existing) - 1} more'})")
