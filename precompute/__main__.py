@@ -18,7 +18,6 @@ from pathlib import Path
 from warpbw.cli_common import OneLineParser, check_output_file, parse_seed, run_command
 
 
-
 def cmd_npf_to_merl(args) -> int:
     from precompute.npf_to_merl import npf_to_merl
 
