@@ -31,7 +31,8 @@ weight, mean and second moment of the filtered mixture exactly, and s^2 = (E|n|^
 isotropic Gaussian of that mean and second moment -- the one the M-step, which divides by d, would fit to the
 union of the filtered components' normals.  004 prints the same form with a (s^2 + |mu|^2): with its own
 per-axis s^2 that counts the spread between the filtered components' means d times over (it is the variance
-along the line through two means, not per axis), and every filtered lobe comes out wider than its normals.
+along the line through two means, not per axis), and every filtered lobe comes out wider than an isotropic
+fit of its normals.
 Measured (README, "Reflectance filtering"): under the benchmark's ring of lights the isotropic match lowers
 the aligned GMM's error at zooms 8-32 on all three surfaces (zoom 32: 0.168 to 0.129, 0.219 to 0.207, 0.0119
 to 0.0106).  Files of ``GMM_VERSION`` 1 held 004's form and are refused.
