@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from warpbw import brdf as B
-from warpbw.cli_common import init_warp, run_command
+from warpbw.cli_common import check_overwrite, init_warp, run_command
 from warpbw.errors import check_count
 from warpbw.io.npf import npf_eval, read_npf
 from warpbw.sampling import build_sampler_table
@@ -30,6 +30,7 @@ def main():
     ap.add_argument("--table", default=str(here.parent.parent / "shared" / "data" / "brdf" / "npf.bin"))
     ap.add_argument("--samples", type=int, default=400_000)
     ap.add_argument("--out", default="brdf_out")
+    ap.add_argument("--force", action="store_true", help="overwrite an existing brdf_sampling_MATERIAL.png")
     args = ap.parse_args()
     check_count(args.samples, "--samples", 1)
     init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
@@ -39,6 +40,8 @@ def main():
     import matplotlib.pyplot as plt
 
     mat = read_npf(args.table, args.material)
+    out_png = Path(args.out) / f"brdf_sampling_{mat.name}.png"
+    check_overwrite([out_png], args.force, option="--out")   # before the table is built
     table = build_sampler_table(lambda wi, wo: npf_eval(mat, wi, wo))
     mb = B.build_material_table([B.MaterialSpec(mat.name, B.NPF, linear=True, sampler=table,
                                                 npf=B.pack_npf_curves(mat.rho_d, mat.rho_s, mat.D, mat.G1, mat.F))])
@@ -77,10 +80,9 @@ def main():
               f"peak pdf {p.max():.3g} /sr, peak f cos_i {f.max():.3g}")
     fig.suptitle(f"{mat.name} (NPF), log10 scale, projected hemisphere")
     fig.tight_layout()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out / f"brdf_sampling_{mat.name}.png", dpi=100)
-    print(f"wrote {out / f'brdf_sampling_{mat.name}.png'}")
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_png, dpi=100)
+    print(f"wrote {out_png}")
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import init_warp, run_command
+from warpbw.cli_common import check_output_dir, check_overwrite, init_warp, run_command
 
 TILE = 160          # height of a frame in the strip, pixels
 
@@ -37,6 +37,7 @@ def main(argv=None) -> int:
     ap.add_argument("-o", "--output", default="zoom_out", help="output directory (default ./zoom_out)")
     ap.add_argument("--zoom", default="1,2,4,8,16,32", help="zoom factors (default 1,2,4,8,16,32)")
     ap.add_argument("--gt-spp", type=int, default=256, help="ground-truth rays per pixel (default 256, at least 64)")
+    ap.add_argument("--force", action="store_true", help="overwrite existing strips in the output directory")
     args = ap.parse_args(argv)
     try:
         zooms = [float(z) for z in args.zoom.split(",")]
@@ -46,7 +47,6 @@ def main(argv=None) -> int:
         ap.error(f"--zoom {args.zoom!r}: expected comma-separated positive numbers, e.g. 1,2,4,8")
 
     from PIL import Image
-
 
     init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
     from warpbw.errors import WarpbwError
@@ -61,6 +61,8 @@ def main(argv=None) -> int:
         raise WarpbwError(f"{args.scene}: no [[object]] is a plane (expected a scene with planes, "
                           "e.g. from examples/filtering_scenes.py)")
     out = Path(args.output)
+    check_output_dir(out, "-o")
+    check_overwrite([out / f"{m}.png" for m in ALL_METHODS] + [out / "all.png"], args.force)
     out.mkdir(parents=True, exist_ok=True)
     prep = prepare_filtering(scene, ALL_METHODS, progress=True)
     frames = {m: [] for m in ALL_METHODS}

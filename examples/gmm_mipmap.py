@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import init_warp, run_command
+from warpbw.cli_common import check_overwrite, init_warp, run_command
 
 GRID = 161          # density image resolution over [-1, 1]^2
 
@@ -61,12 +61,14 @@ def main(argv=None) -> int:
     ap.add_argument("--texel", type=int, nargs=2, default=(1, 1), metavar=("ROW", "COL"),
                     help="top-left texel of the block at that level (default 1 1)")
     ap.add_argument("--components", type=int, default=4)
+    ap.add_argument("--force", action="store_true", help="overwrite an existing output")
     args = ap.parse_args(argv)
     from precompute.gmm_mipmap import MAX_COMPONENTS, level_shapes
     from precompute.surfaces import MAX_SURFACE_SIZE, SURFACES
 
     if Path(args.output).suffix.lower() != ".png":
         ap.error(f"-o {args.output}: expected a path ending in .png")
+    check_overwrite([Path(args.output)], args.force)
     if args.surface not in SURFACES:
         ap.error(f"--surface {args.surface}: expected one of {', '.join(SURFACES)}")
     if not 2 <= args.size <= MAX_SURFACE_SIZE:

@@ -606,6 +606,7 @@ def example_error(r: subprocess.CompletedProcess, script: str, *needles: str) ->
     (["gbuffer.py", "--resolution", "8", "8"], "gbuffer_out/gbuffer.exr"),
     (["reference_estimator.py", "--resolution", "8", "8", "--spp", "1"], "ref_out/ref_mis.png"),
     (["filtering_scenes.py", "--size", "8"], "bench_filtering/dunes.exr"),
+    (["gmm_mipmap.py", "--size", "16", "-o", "figs/g.png"], "figs/g.png"),
 ])
 def test_examples_do_not_overwrite_without_force(tmp_path, argv, existing):
     """An output the user already has is refused up front, naming it and --force, and left as it was."""
@@ -614,6 +615,25 @@ def test_examples_do_not_overwrite_without_force(tmp_path, argv, existing):
     p.write_text("mine\n")
     example_error(run_example(argv, tmp_path), argv[0], existing, "--force")
     assert p.read_text() == "mine\n" and list(p.parent.iterdir()) == [p]
+
+
+def test_filtering_zoom_and_brdf_sampling_do_not_overwrite_without_force(tmp_path, shared):
+    """The two examples that need a scene or the NPF table refuse an existing output before any rendering."""
+    (tmp_path / "planes.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
+    mine = tmp_path / "zoom" / "lean.png"
+    mine.parent.mkdir()
+    mine.write_text("mine\n")
+    r = run_example(["filtering_zoom.py", "planes.toml", "-o", "zoom", "--zoom", "1"], tmp_path)
+    example_error(r, "filtering_zoom.py", "zoom/lean.png", "--force")
+    assert mine.read_text() == "mine\n" and list(mine.parent.iterdir()) == [mine]
+    table = shared("brdf/npf.bin")
+    mine = tmp_path / "brdf" / "brdf_sampling_chrome.png"
+    mine.parent.mkdir()
+    mine.write_text("mine\n")
+    r = run_example(["brdf_sampling.py", "--table", str(table), "--material", "chrome", "--out", "brdf",
+                     "--samples", "1000"], tmp_path)
+    example_error(r, "brdf_sampling.py", "brdf_sampling_chrome.png", "--force")
+    assert mine.read_text() == "mine\n" and list(mine.parent.iterdir()) == [mine]
 
 
 def test_filtering_zoom_on_a_scene_without_planes(tmp_path):
