@@ -54,11 +54,12 @@ normals are weighted up, as if 256 stratified samples were drawn from it), so th
 strength against the data at every level (see ``build_gmm_mipmap``).  ``unaligned=True`` is the baseline: c = 0 and each texel
 initialised independently (seeded k-means++ then Lloyd), no neighbour information at all.
 
-Measured (README, "Reflectance filtering"; with 004's printed merge): with this order the labels of a texel and its parent are the
-best of all K! relabellings at levels >= 3 (within 0.0023 of it below), so cross-level correspondence is not
-what limits the filtered result; a stronger prior, 004's literal sample count, refinement sweeps and
-per-texel restarts (better local fits, relabelled to the neighbours) each left the filtered NDF no closer
-to the truth, the restarts further from it (texels refitted alone stop sharing their neighbours' split).
+Measured (README, "Reflectance filtering"; with 004's printed merge): with this order the labels of a texel
+and its parent are the best of all K! relabellings at levels >= 3 (within 0.0023 of it below), so cross-level
+correspondence is not what limits the filtered result; a stronger prior, 004's literal sample count,
+refinement sweeps and per-texel restarts (better local fits, relabelled to the neighbours) each left the
+filtered NDF no closer to the truth, the restarts further from it (texels refitted alone stop sharing their
+neighbours' split).
 """
 from __future__ import annotations
 

@@ -509,7 +509,8 @@ def test_plane_scene_with_an_environment_that_is_not_an_exr(tmp_path):
     assert_no_outputs(tmp_path)
 
 
-_SPHERE_OBJECT = '\n[[object]]\nshape = "sphere"\nradius = 0.5\nmaterial = "s"\n\n[material.s]\ntype = "lambert"\nalbedo = 0.5\n'
+_SPHERE_OBJECT = ('\n[[object]]\nshape = "sphere"\nradius = 0.5\nmaterial = "s"\n\n'
+                  '[material.s]\ntype = "lambert"\nalbedo = 0.5\n')
 
 
 @pytest.mark.parametrize("what,needles", [
@@ -676,9 +677,12 @@ def test_camera_that_sees_nothing_warns_in_one_line(tmp_path, planes):
     ("precompute", ["npf-to-merl", "--table", "npf.bin", "--material", "chrome", "-o", "outdir", "--force"],
      ["-o outdir", "is a directory"]),
     ("warpbw.cli", ["demo", "-o", "afile", "--spp", "1"], ["-o afile", "not a directory"]),
-    ("warpbw.cli", ["render", "scene.toml", "-o", "afile/x.exr", "--spp", "1"], ["-o afile/x.exr", "afile is not a directory"]),
-    ("warpbw.cli", ["render", "scene.toml", "-o", "dir.exr", "--spp", "1", "--force"], ["-o dir.exr", "is a directory"]),
-    ("warpbw.cli", ["bench", "scene.toml", "--json", "b.json", "--cache", "afile"], ["--cache afile", "not a directory"]),
+    ("warpbw.cli", ["render", "scene.toml", "-o", "afile/x.exr", "--spp", "1"],
+     ["-o afile/x.exr", "afile is not a directory"]),
+    ("warpbw.cli", ["render", "scene.toml", "-o", "dir.exr", "--spp", "1", "--force"],
+     ["-o dir.exr", "is a directory"]),
+    ("warpbw.cli", ["bench", "scene.toml", "--json", "b.json", "--cache", "afile"],
+     ["--cache afile", "not a directory"]),
     ("warpbw.cli", ["bench-filtering", "planes.toml", "--json", "b.json", "--cache", "afile"],
      ["--cache afile", "not a directory"]),
     ("warpbw.cli", ["bench", "scene.toml", "--json", "dir.json", "--force"], ["--json dir.json", "is a directory"]),

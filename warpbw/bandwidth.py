@@ -618,9 +618,8 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
             raise WarpbwError(f"budget: expected at most {BUDGET_MAX:g} samples per pixel (N_p, up to "
                               f"{N_P_MAX_PER_BUDGET} x budget, is an int32 in the kernels), got {budget:g}")
         n_max = max(int(n_min), int(math.ceil(N_P_MAX_PER_BUDGET * budget)))
-    if not is_int(n_max) or n_max < n_min:
-        raise WarpbwError(f"n_max: expected an integer >= n_min ({n_min}), got {n_max!r}")
-    check_count(n_max, "n_max", n_min, INT32_MAX)  # N_p is an int32 in the kernels
+    if not is_int(n_max) or not n_min <= n_max <= INT32_MAX:  # N_p is an int32 in the kernels
+        raise WarpbwError(f"n_max: expected an integer from n_min ({n_min}) to {INT32_MAX}, got {n_max!r}")
     W, H = buf.width, buf.height
     cov = buf.coverage
     n_cov = int(cov.sum())

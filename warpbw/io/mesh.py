@@ -167,6 +167,15 @@ def _check_transform(path: Path, translate, scale, rotate_y_deg):
     return t, s, r
 
 
+def _check_float32(verts, path, when: str) -> None:
+    """Refuse vertices (V, 3) beyond the float32 range, in which the kernels read them; ``when`` ends the
+    phrase 'outside the float32 range' (e.g. ' after scale')."""
+    n_big = int(np.count_nonzero(np.any(np.abs(verts) > FLOAT32_MAX, axis=1)))
+    if n_big:
+        raise WarpbwError(f"{path}: {n_big} vertices lie outside the float32 range{when} (expected coordinates "
+                          f"within +-{FLOAT32_MAX:.4g})")
+
+
 def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg: float = 0.0) -> MeshData:
     """Load a triangle mesh, apply x' = R_y(rotate_y_deg) (scale * x) + translate, and derive
     smooth normals and mean curvature in the transformed (world) frame.
@@ -200,10 +209,7 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     n_bad = int(np.count_nonzero(~np.all(np.isfinite(verts), axis=1)))
     if n_bad:
         raise WarpbwError(f"{path}: {n_bad} vertices have non-finite coordinates (expected finite numbers)")
-    n_big = int(np.count_nonzero(np.any(np.abs(verts) > FLOAT32_MAX, axis=1)))
-    if n_big:  # the kernels read the vertices as float32 (and trimesh's vertex merge fails on them)
-        raise WarpbwError(f"{path}: {n_big} vertices lie outside the float32 range (expected coordinates "
-                          f"within +-{FLOAT32_MAX:.4g})")
+    _check_float32(verts, path, "")  # before trimesh's vertex merge, which fails on them
     try:
         mesh.merge_vertices()
         mesh.remove_unreferenced_vertices()
@@ -221,10 +227,7 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     verts[:, 0] = x * ca + z * sa
     verts[:, 2] = -x * sa + z * ca
     verts += t
-    n_big = int(np.count_nonzero(np.any(np.abs(verts) > FLOAT32_MAX, axis=1)))
-    if n_big:  # the kernels read the vertices as float32
-        raise WarpbwError(f"{path}: {n_big} vertices lie outside the float32 range after scale, rotate_y and "
-                          f"translate (expected coordinates within +-{FLOAT32_MAX:.4g})")
+    _check_float32(verts, path, " after scale, rotate_y and translate")
     normals, curv = normals_and_curvature(verts, faces)
     uv = getattr(mesh.visual, "uv", None)
     uv = np.asarray(uv, dtype=np.float32) if uv is not None and np.shape(uv) == (len(verts), 2) else None
