@@ -515,7 +515,7 @@ _SPHERE_OBJECT = ('\n[[object]]\nshape = "sphere"\nradius = 0.5\nmaterial = "s"\
 
 @pytest.mark.parametrize("what,needles", [
     ("plane and sphere", ["[[object]] #2", "renders planes only"]),
-    ("sphere lit by a light only", ["[environment]: missing", "spheres and meshes"]),
+    ("sphere lit by a light only", ["[[light]]", "planes only", "spheres and meshes"]),
 ])
 def test_info_refuses_what_render_refuses(tmp_path, what, needles):
     """``warpbw info`` approved scenes that ``render`` (and the benches) refuse: the same one-line error."""
@@ -543,6 +543,19 @@ def test_plane_scene_through_the_environment_pipeline_is_refused(tmp_path):
 
     scene = parse_scene(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""), tmp_path, "planes.toml")
     with pytest.raises(WarpbwError, match=r"planes\.toml: .*\[environment\]"):
+        render_reference(scene, spp=1)
+
+
+def test_lights_on_a_scene_built_in_code_are_refused_by_the_environment_pipeline():
+    """A Scene built in Python (no parser) with a [[light]] beside the default scene's spheres: the 002 pipeline
+    integrates the environment only, so it refuses rather than render without the light."""
+    from dataclasses import replace
+
+    from warpbw.pipeline import render_reference
+    from warpbw.scene import DirectionalLight, default_scene
+
+    scene = replace(default_scene(), lights=[DirectionalLight((0.0, 1.0, 0.0), (3.0, 3.0, 3.0))])
+    with pytest.raises(WarpbwError, match=r"no planes or \[\[light\]\]s"):
         render_reference(scene, spp=1)
 
 

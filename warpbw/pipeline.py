@@ -96,10 +96,10 @@ def _material_spec(m, progress: bool, notes: dict, sources: dict) -> brdf_mod.Ma
 
 def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> PreparedScene:
     """Load the scene's assets (environment, meshes, materials) onto ``device``."""
-    if scene.environment is None or scene.has_planes:
+    if scene.environment is None or scene.has_planes or scene.lights:
         raise WarpbwError(f"{scene.source}: this renderer (spheres and meshes under an [environment], 002) "
-                          "needs an [environment] and no planes; scenes with planes and [[light]]s render with "
-                          "warpbw.filtering.render_filtering (warpbw render --filter)")
+                          "needs an [environment] and no planes or [[light]]s; scenes with planes and [[light]]s "
+                          "render with warpbw.filtering.render_filtering (warpbw render --filter)")
     timings: dict = {}
     notes: dict = {}
     sources: dict = {}

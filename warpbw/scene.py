@@ -9,6 +9,7 @@ Public:
 
 Lights: an ``[environment]`` and/or ``[[light]]`` tables (``type = "directional"``, ``direction`` towards the
 light, ``radiance``); a scene needs at least one of them (``Scene.environment`` is None without one).
+Directional lights light planes only: a scene with lights and no plane is refused.
 Planes (``shape = "plane"``: a square of side ``size`` in the XZ plane facing +Y, centred at ``center``,
 uv in [0, 1]^2 with u along +X and v along +Z) carry ``cook-torrance`` materials with an optional normal
 map (004); they are rendered by ``warpbw.filtering``.
@@ -542,6 +543,12 @@ def parse_scene(text: str, base_dir: Path | str | None = None, source: str = "<s
     if not isinstance(objs_in, list) or not objs_in:
         ctx.fail("[[object]]", "expected at least one [[object]]")
     objects = [_object(ctx, o, i, materials) for i, o in enumerate(objs_in)]
+    if lights and not any(isinstance(o, PlaneObject) for o in objects):
+        # the renderer of spheres and meshes (002) integrates the environment only: a light it ignored would
+        # render a silently wrong image
+        ctx.fail("[[light]]", "directional lights light planes only (shape = \"plane\", the reflectance-"
+                 "filtering renderer of 004); spheres and meshes are lit by the [environment] alone, so remove "
+                 "the [[light]] tables or fold the light into the environment map")
     env = _environment(ctx, d["environment"]) if "environment" in d else None
     return Scene(_camera(ctx, d["camera"]), env, objects, materials, source, base, lights)
 
