@@ -245,9 +245,22 @@ def test_unknown_npf_material_name_in_precompute(tmp_path):
     assert not (tmp_path / "x.npz").exists()
 
 
-def test_sampling_file_that_is_not_an_asset(tmp_path):
+def _npz_with_header(header: str) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    np.savez(buf, __header__=np.array(header), marginal=np.zeros(3, np.float32))
+    return buf.getvalue()
+
+
+@pytest.mark.parametrize("content", [b"not a zip archive at all", b"", _npz_with_header("[1, 2]"),
+                                     _npz_with_header('"a string"')],
+                         ids=["garbage", "zero bytes", "header a JSON list", "header a JSON string"])
+def test_sampling_file_that_is_not_an_asset(tmp_path, content):
+    """Zero bytes (numpy's EOFError) and an .npz whose header is JSON but not an object (AttributeError on
+    .get) were tracebacks."""
     _fake_npf_table(tmp_path / "npf.bin")
-    (tmp_path / "tables.npz").write_bytes(b"not a zip archive at all")
+    (tmp_path / "tables.npz").write_bytes(content)
     write_scene(tmp_path, material='type = "npf"\ntable = "npf.bin"\nname = "chrome"\nsampling = "tables.npz"')
     r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
     # the rebuild command names the NPF material (without --material it fails on an NPF table)
