@@ -435,6 +435,24 @@ def test_environment_with_non_finite_pixels_warns_in_one_line(tmp_path):
     assert img.channels == ["R", "G", "B", "A"] and np.all(np.isfinite(img.pixels))
 
 
+_BRIGHT_LIGHT = ('[[light]]\ntype = "directional"\ndirection = [0.3, 0.8, 0.5]\nradiance = [3e38, 3e38, 3e38]\n'
+                 '\n[[light]]')
+
+
+@pytest.mark.parametrize("what", ["sphere", "plane"])
+def test_radiance_that_overflows_float32_is_refused_not_written(tmp_path, what):
+    """Radiance within the float32 range that overflows when a pixel's samples are summed: the image was
+    written with inf pixels (a white preview) and status 0.  Now one line naming the scene, nothing written."""
+    if what == "sphere":
+        write_scene(tmp_path, environment="constant = [3e38, 3e38, 3e38]")
+    else:
+        text = PLANE_SCENE.replace('normal_map = "map.exr"\n', "").replace("[[light]]", _BRIGHT_LIGHT, 1)
+        (tmp_path / "scene.toml").write_text(text.replace("[3.0, 3.0, 3.0]", "[3e38, 3e38, 3e38]"))
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "4", "-q"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "pixels came out infinite or NaN", "float32", "nothing written")
+    assert_no_outputs(tmp_path)
+
+
 # ------------------------------------------------------------------------------------------ normal maps (issue 4)
 
 PLANE_SCENE = """\
