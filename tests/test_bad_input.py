@@ -269,6 +269,38 @@ def test_sampling_file_that_is_not_an_asset(tmp_path, content):
     assert_no_outputs(tmp_path)
 
 
+def _sampling_arrays(what: str) -> dict:
+    from warpbw.sampling import N_PHI, N_THETA_O, N_U
+
+    a = {"marginal": np.linspace(0, 1, N_U + 1, dtype=np.float32)[None].repeat(N_THETA_O, 0),
+         "conditional": np.linspace(0, 1, N_PHI + 1, dtype=np.float32)[None, None].repeat(N_U, 1).repeat(N_THETA_O, 0),
+         "density": np.ones((N_THETA_O, N_U, N_PHI), np.float32)}
+    if what == "nan cdf":
+        a["marginal"][3, 5] = np.nan
+    elif what == "strings":
+        a["marginal"] = np.array(["a", "b"])
+    else:  # "scalar density"
+        a["density"] = np.float32(1.0)
+    return a
+
+
+@pytest.mark.parametrize("what,needle", [("nan cdf", "negative or non-finite"), ("strings", "not numeric"),
+                                         ("scalar density", "inconsistent table shapes")])
+def test_sampling_file_with_bad_arrays(tmp_path, what, needle):
+    """A sampling-table asset of the right format, version and source whose arrays are unusable: NaN CDFs
+    rendered a near-black image silently, string arrays and a 0-d density were tracebacks."""
+    from precompute.assetfile import write_asset
+    from precompute.brdf_sampling import brdf_source
+    from warpbw.sampling import TABLE_FORMAT, TABLE_VERSION
+
+    src = brdf_source(_fake_npf_table(tmp_path / "npf.bin"), "chrome")
+    write_asset(tmp_path / "tables.npz", TABLE_FORMAT, TABLE_VERSION, src.name, src.digest, _sampling_arrays(what))
+    write_scene(tmp_path, material='type = "npf"\ntable = "npf.bin"\nname = "chrome"\nsampling = "tables.npz"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "tables.npz", needle, "npf.bin --material chrome -o OUT")
+    assert_no_outputs(tmp_path)
+
+
 # ------------------------------------------------------------------------------------------ command line
 
 def test_spp_zero(tmp_path):
