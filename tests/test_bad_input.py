@@ -555,6 +555,30 @@ def test_gmm_file_built_unaligned_is_refused_as_such(tmp_path):
     assert_no_outputs(tmp_path)
 
 
+@pytest.mark.parametrize("what,needle", [("nan level", "NaN or infinite moments"),
+                                         ("prior a string", "non-numeric levels or parameters")])
+def test_gmm_file_with_bad_contents(tmp_path, what, needle):
+    """A GMM mipmap of the right format and version whose moments are NaN (rendered without a word) or whose
+    header's prior is not a number (a ValueError traceback)."""
+    import json
+
+    from precompute.gmm_mipmap import build_gmm_mipmap, read_gmm_mipmap, write_gmm_mipmap
+
+    path = tmp_path / "g.npz"
+    write_gmm_mipmap(path, build_gmm_mipmap(np.zeros((4, 4)), components=1, progress=False), "map.exr", "hash")
+    z = dict(np.load(path))
+    if what == "nan level":
+        z["level_1"][0, 0, 0, 3] = np.nan
+    else:
+        header = json.loads(str(z["__header__"]))
+        header["params"]["prior"] = "one"
+        z["__header__"] = np.array(json.dumps(header))
+    np.savez_compressed(path, **z)
+    with pytest.raises(WarpbwError, match=needle) as ei:
+        read_gmm_mipmap(path)
+    assert str(path) in str(ei.value) and "rebuild it with" in str(ei.value)
+
+
 def test_filter_on_a_scene_without_planes(tmp_path):
     write_scene(tmp_path)
     r = run(["render", "scene.toml", "-o", "out.exr", "--filter", "toksvig"], tmp_path)
