@@ -61,13 +61,15 @@ def read_asset(path, fmt: str, version: int, rebuild: str) -> Asset:
         with np.load(p, allow_pickle=False) as z:
             header = json.loads(str(z[HEADER_KEY]))
             arrays = {k: z[k] for k in z.files if k != HEADER_KEY}
-    except (zipfile.BadZipFile, ValueError, KeyError, OSError, json.JSONDecodeError):
+    except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError):
+        header = None  # EOFError: numpy's answer to a zero-byte file
+    if not isinstance(header, dict):  # also a JSON header that is not an object (a list, a string)
         raise WarpbwError(f"{p}: not a warpbw asset file (expected a {fmt} file written by "
-                          f"warpbw-precompute; rebuild it with: {rebuild})") from None
+                          f"warpbw-precompute; rebuild it with: {rebuild})")
     if header.get("format") != fmt:
         raise WarpbwError(f"{p}: is a {header.get('format')!r} file, expected {fmt!r} "
                           f"(rebuild it with: {rebuild})")
     if header.get("version") != version:
-        raise WarpbwError(f"{p}: {fmt} version {header.get('version')}, this warpbw reads version {version} "
+        raise WarpbwError(f"{p}: {fmt} version {header.get('version')!r}, this warpbw reads version {version} "
                           f"(rebuild it with: {rebuild})")
     return Asset(header, arrays)

@@ -85,9 +85,16 @@ def read_sampling(path, source: BrdfSource | None = None) -> SamplerTable:
         t = SamplerTable(*(np.asarray(a.arrays[k], np.float32) for k in ("marginal", "conditional", "density")))
     except KeyError as exc:
         raise WarpbwError(f"{path}: sampling-table file lacks array {exc} (rebuild it with: {hint})") from None
+    except (TypeError, ValueError):  # an array of strings or objects
+        raise WarpbwError(f"{path}: sampling-table arrays are not numeric (rebuild it with: {hint})") from None
+    if t.density.ndim != 3:
+        raise WarpbwError(f"{path}: inconsistent table shapes (rebuild it with: {hint})")
     nt, nu, nphi = t.density.shape
     if t.marginal.shape != (nt, nu + 1) or t.conditional.shape != (nt, nu, nphi + 1):
         raise WarpbwError(f"{path}: inconsistent table shapes (rebuild it with: {hint})")
+    if not all(np.all(np.isfinite(x)) and np.all(x >= 0.0) for x in (t.marginal, t.conditional, t.density)):
+        # NaN CDFs sampled nothing: a near-black image, silently
+        raise WarpbwError(f"{path}: tables hold negative or non-finite values (rebuild it with: {hint})")
     if (nt, nu, nphi) != (N_THETA_O, N_U, N_PHI):
         raise WarpbwError(f"{path}: tables of shape {(nt, nu, nphi)}, this warpbw uses "
                           f"{(N_THETA_O, N_U, N_PHI)} (rebuild it with: {hint})")

@@ -565,10 +565,17 @@ def read_gmm_mipmap(path) -> GmmMipmap:
     shapes = level_shapes(*levels[0].shape[:2]) if levels[0].ndim == 4 else []
     if len(shapes) != n or any(q.shape != s + (K, 4) for q, s in zip(levels, shapes)):
         raise WarpbwError(f"{path}: GMM mipmap levels have inconsistent shapes (rebuild it with: {hint})")
-    return GmmMipmap([np.asarray(q, np.float32) for q in levels], K, float(params.get("prior", DEFAULT_PRIOR)),
-                     bool(params.get("unaligned", False)), params.get("kind", "height"),
-                     float(params.get("scale", 1.0)), int(params.get("seed", 0)),
-                     int(params.get("max_samples", DEFAULT_MAX_SAMPLES)))
+    try:
+        levels = [np.asarray(q, np.float32) for q in levels]
+        mip = GmmMipmap(levels, K, float(params.get("prior", DEFAULT_PRIOR)), bool(params.get("unaligned", False)),
+                        params.get("kind", "height"), float(params.get("scale", 1.0)), int(params.get("seed", 0)),
+                        int(params.get("max_samples", DEFAULT_MAX_SAMPLES)))
+    except (TypeError, ValueError, AttributeError):  # arrays of strings, a hand-edited header
+        raise WarpbwError(f"{path}: GMM mipmap with non-numeric levels or parameters (rebuild it with: {hint})") \
+            from None
+    if not all(np.all(np.isfinite(q)) for q in levels):  # NaN moments filtered into the image silently
+        raise WarpbwError(f"{path}: GMM mipmap levels hold NaN or infinite moments (rebuild it with: {hint})")
+    return mip
 
 
 # --------------------------------------------------------------------------------------------------

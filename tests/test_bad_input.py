@@ -245,14 +245,59 @@ def test_unknown_npf_material_name_in_precompute(tmp_path):
     assert not (tmp_path / "x.npz").exists()
 
 
-def test_sampling_file_that_is_not_an_asset(tmp_path):
+def _npz_with_header(header: str) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    np.savez(buf, __header__=np.array(header), marginal=np.zeros(3, np.float32))
+    return buf.getvalue()
+
+
+@pytest.mark.parametrize("content", [b"not a zip archive at all", b"", _npz_with_header("[1, 2]"),
+                                     _npz_with_header('"a string"')],
+                         ids=["garbage", "zero bytes", "header a JSON list", "header a JSON string"])
+def test_sampling_file_that_is_not_an_asset(tmp_path, content):
+    """Zero bytes (numpy's EOFError) and an .npz whose header is JSON but not an object (AttributeError on
+    .get) were tracebacks."""
     _fake_npf_table(tmp_path / "npf.bin")
-    (tmp_path / "tables.npz").write_bytes(b"not a zip archive at all")
+    (tmp_path / "tables.npz").write_bytes(content)
     write_scene(tmp_path, material='type = "npf"\ntable = "npf.bin"\nname = "chrome"\nsampling = "tables.npz"')
     r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
     # the rebuild command names the NPF material (without --material it fails on an NPF table)
     assert_one_line_error(r, "tables.npz", "not a warpbw asset file", "warpbw-precompute brdf-sampling",
                           "npf.bin --material chrome -o OUT")
+    assert_no_outputs(tmp_path)
+
+
+def _sampling_arrays(what: str) -> dict:
+    from warpbw.sampling import N_PHI, N_THETA_O, N_U
+
+    a = {"marginal": np.linspace(0, 1, N_U + 1, dtype=np.float32)[None].repeat(N_THETA_O, 0),
+         "conditional": np.linspace(0, 1, N_PHI + 1, dtype=np.float32)[None, None].repeat(N_U, 1).repeat(N_THETA_O, 0),
+         "density": np.ones((N_THETA_O, N_U, N_PHI), np.float32)}
+    if what == "nan cdf":
+        a["marginal"][3, 5] = np.nan
+    elif what == "strings":
+        a["marginal"] = np.array(["a", "b"])
+    else:  # "scalar density"
+        a["density"] = np.float32(1.0)
+    return a
+
+
+@pytest.mark.parametrize("what,needle", [("nan cdf", "negative or non-finite"), ("strings", "not numeric"),
+                                         ("scalar density", "inconsistent table shapes")])
+def test_sampling_file_with_bad_arrays(tmp_path, what, needle):
+    """A sampling-table asset of the right format, version and source whose arrays are unusable: NaN CDFs
+    rendered a near-black image silently, string arrays and a 0-d density were tracebacks."""
+    from precompute.assetfile import write_asset
+    from precompute.brdf_sampling import brdf_source
+    from warpbw.sampling import TABLE_FORMAT, TABLE_VERSION
+
+    src = brdf_source(_fake_npf_table(tmp_path / "npf.bin"), "chrome")
+    write_asset(tmp_path / "tables.npz", TABLE_FORMAT, TABLE_VERSION, src.name, src.digest, _sampling_arrays(what))
+    write_scene(tmp_path, material='type = "npf"\ntable = "npf.bin"\nname = "chrome"\nsampling = "tables.npz"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "tables.npz", needle, "npf.bin --material chrome -o OUT")
     assert_no_outputs(tmp_path)
 
 
@@ -422,6 +467,24 @@ def test_environment_with_non_finite_pixels_warns_in_one_line(tmp_path):
     assert img.channels == ["R", "G", "B", "A"] and np.all(np.isfinite(img.pixels))
 
 
+_BRIGHT_LIGHT = ('[[light]]\ntype = "directional"\ndirection = [0.3, 0.8, 0.5]\nradiance = [3e38, 3e38, 3e38]\n'
+                 '\n[[light]]')
+
+
+@pytest.mark.parametrize("what", ["sphere", "plane"])
+def test_radiance_that_overflows_float32_is_refused_not_written(tmp_path, what):
+    """Radiance within the float32 range that overflows when a pixel's samples are summed: the image was
+    written with inf pixels (a white preview) and status 0.  Now one line naming the scene, nothing written."""
+    if what == "sphere":
+        write_scene(tmp_path, environment="constant = [3e38, 3e38, 3e38]")
+    else:
+        text = PLANE_SCENE.replace('normal_map = "map.exr"\n', "").replace("[[light]]", _BRIGHT_LIGHT, 1)
+        (tmp_path / "scene.toml").write_text(text.replace("[3.0, 3.0, 3.0]", "[3e38, 3e38, 3e38]"))
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "4", "-q"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "pixels came out infinite or NaN", "float32", "nothing written")
+    assert_no_outputs(tmp_path)
+
+
 # ------------------------------------------------------------------------------------------ normal maps (issue 4)
 
 PLANE_SCENE = """\
@@ -490,6 +553,30 @@ def test_gmm_file_built_unaligned_is_refused_as_such(tmp_path):
     assert_one_line_error(r, "scene.toml", "[material.m].gmm", "g.npz", "built with --unaligned",
                           "aligned GMM mipmap", "without --unaligned")
     assert_no_outputs(tmp_path)
+
+
+@pytest.mark.parametrize("what,needle", [("nan level", "NaN or infinite moments"),
+                                         ("prior a string", "non-numeric levels or parameters")])
+def test_gmm_file_with_bad_contents(tmp_path, what, needle):
+    """A GMM mipmap of the right format and version whose moments are NaN (rendered without a word) or whose
+    header's prior is not a number (a ValueError traceback)."""
+    import json
+
+    from precompute.gmm_mipmap import build_gmm_mipmap, read_gmm_mipmap, write_gmm_mipmap
+
+    path = tmp_path / "g.npz"
+    write_gmm_mipmap(path, build_gmm_mipmap(np.zeros((4, 4)), components=1, progress=False), "map.exr", "hash")
+    z = dict(np.load(path))
+    if what == "nan level":
+        z["level_1"][0, 0, 0, 3] = np.nan
+    else:
+        header = json.loads(str(z["__header__"]))
+        header["params"]["prior"] = "one"
+        z["__header__"] = np.array(json.dumps(header))
+    np.savez_compressed(path, **z)
+    with pytest.raises(WarpbwError, match=needle) as ei:
+        read_gmm_mipmap(path)
+    assert str(path) in str(ei.value) and "rebuild it with" in str(ei.value)
 
 
 def test_filter_on_a_scene_without_planes(tmp_path):

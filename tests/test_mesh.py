@@ -184,6 +184,10 @@ def test_missing_file(tmp_path):
         ("nan.obj", "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n", "non-finite"),
         ("points.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n", "no triangles"),
         ("empty.obj", "", "no triangles"),
+        # zero bytes: GLB said "a face references a vertex that does not exist", PLY "Not a ply file!"
+        ("empty.glb", "", "empty file \\(0 bytes\\)"),
+        ("empty.ply", "", "empty file \\(0 bytes\\)"),
+        ("empty.stl", "", "empty file \\(0 bytes\\)"),
         ("flat.obj", "v 0 0 0\nv 1 1 1\nv 2 2 2\nv 3 3 3\nf 1 2 3\nf 2 3 4\n", "every triangle has zero area"),
         ("weird.xyzq", "v 0 0 0\n", "weird.xyzq"),
     ],

@@ -67,11 +67,25 @@ def _json_text(record: dict, **kw) -> str:
     return json.dumps(clean(record), indent=2, allow_nan=False, **kw) + "\n"
 
 
-def _write_render(res, outs: dict, exposure: float):
+def _check_finite_image(image, source: str) -> None:
+    """Refuse, before anything is written, an image with inf or NaN pixels: radiance near the top of the float32
+    range (an environment map's or a light's) overflows when the kernels sum the samples of a pixel."""
+    import numpy as np
+
+    bad = int((~np.isfinite(image)).any(axis=-1).sum())
+    if bad:
+        raise WarpbwError(f"{source}: {bad} of {image.shape[0] * image.shape[1]} pixels came out infinite or NaN "
+                          "(the radiance overflowed float32 while the samples were summed; expected environment "
+                          "and light radiance well below 3.4e38: lower [environment] scale, the map's values or "
+                          "[[light]] radiance); nothing written")
+
+
+def _write_render(res, outs: dict, exposure: float, source: str):
     import numpy as np
 
     from warpbw.io.exr import write_exr, write_png
 
+    _check_finite_image(res.image, source)
     outs["exr"].parent.mkdir(parents=True, exist_ok=True)
     rgba = np.concatenate([res.image, res.coverage[..., None].astype(np.float32)], axis=-1)
     write_exr(outs["exr"], rgba, channels=["R", "G", "B", "A"])
@@ -125,7 +139,7 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
         res = render_reference(scene, spp=spp, seed=seed, mis=mis, device=device, progress=not quiet,
                                threads=threads)
     res.stats["time_s"]["total"] = round(time.perf_counter() - t0, 6)
-    _write_render(res, outs, exposure)
+    _write_render(res, outs, exposure, scene.source)
     _warn_if_empty(res.stats)
     if adaptive:
         _write_aovs(res, out)
@@ -200,7 +214,7 @@ def _render_filtering_cli(scene, args) -> int:
     res = render_filtering(scene, method, spp=args.spp, seed=args.seed, device=args.device,
                            progress=not args.quiet, threads=args.threads, env_spp=args.spp)
     res.stats["time_s"] = {"frame": round(res.time_s, 6), "total": round(time.perf_counter() - t0, 6)}
-    _write_render(res, outs, args.exposure)
+    _write_render(res, outs, args.exposure, scene.source)
     _warn_if_empty(res.stats)
     import numpy as np
 

@@ -187,6 +187,9 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     path = Path(path)
     if not path.is_file():
         raise WarpbwError(f"{path}: file not found (expected a mesh: {_SUPPORTED})")
+    if path.stat().st_size == 0:  # trimesh's answer depends on the suffix (for GLB: a face index out of bounds)
+        raise WarpbwError(f"{path}: empty file (0 bytes): no triangles found (expected a mesh with faces: "
+                          f"{_SUPPORTED})")
     t, s, r = _check_transform(path, translate, scale, rotate_y_deg)
     try:
         with warnings.catch_warnings():
