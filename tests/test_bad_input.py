@@ -485,6 +485,18 @@ def test_radiance_that_overflows_float32_is_refused_not_written(tmp_path, what):
     assert_no_outputs(tmp_path)
 
 
+def test_environment_scale_that_overflows_float32_names_the_scale(tmp_path):
+    """Finite texels that [environment] scale sends past float32: they were set to 0 with a warning about
+    'NaN or infinite' texels (a damaged map, it said) and the render went on.  Now one line naming scale."""
+    from warpbw.io.exr import write_exr
+
+    write_exr(tmp_path / "big.exr", np.full((4, 8, 3), 1e30, np.float32))  # finite float32 texels
+    write_scene(tmp_path, environment='file = "big.exr"\nscale = 1e10')  # (a constant's product is checked on parse)
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "4", "-q"], tmp_path)
+    assert_one_line_error(r, "scale = 1e+10", "float32", "smaller [environment] scale")
+    assert_no_outputs(tmp_path)
+
+
 # ------------------------------------------------------------------------------------------ normal maps (issue 4)
 
 PLANE_SCENE = """\

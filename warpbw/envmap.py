@@ -448,8 +448,12 @@ def _sanitize(rgb, name: str, scale: float, stacklevel: int) -> tuple[np.ndarray
     if arr.ndim != 3 or arr.shape[2] != 3 or arr.shape[0] < 1 or arr.shape[1] < 1:
         raise WarpbwError(f"envmap {name!r}: expected an (H, W, 3) RGB array, got shape {arr.shape}")
     with np.errstate(over="ignore", invalid="ignore"):
-        arr = arr * scale
-        out = arr.astype(np.float32)
+        out = (arr * scale).astype(np.float32)
+    overflow = np.isfinite(arr) & ~np.isfinite(out)
+    if overflow.any():  # finite texels that the scale (or the float32 cast) sends to inf: not a damaged map
+        raise WarpbwError(f"envmap {name!r}: {int(overflow.sum())} channel values (up to "
+                          f"{float(np.abs(arr[overflow]).max()):g}) times scale = {scale:g} exceed the float32 "
+                          "range; expected a smaller [environment] scale or smaller map values")
     finite = np.isfinite(out)
     n_nonfinite = int((~finite).sum())
     n_negative = int((finite & (out < 0.0)).sum())
