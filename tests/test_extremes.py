@@ -443,3 +443,24 @@ def test_planes_under_the_city_sun_every_method_is_finite(city, tmp_path):
             means[m] = float(r.image[r.coverage].mean())
     for m in METHODS:                                  # the flat plane (the last one rendered)
         assert means[m] == pytest.approx(means["ground_truth"], rel=0.03), (m, means)
+
+
+@pytest.mark.parametrize("allocation", ["measured", "variance"])
+def test_adaptive_refuses_radiance_whose_square_overflows_the_bandwidth_pass(allocation):
+    """The bandwidth pass sums squared radiance (Eq. 9's chi * w, the MIS second moment) in float32: a sky of
+    1e20, within float32 (the reference renders it), squares to 1e40 > 3.4e38.  It once returned inf sigma2 (and,
+    with allocation="variance", an inf variance AOV and N_p = n_max everywhere: 24x the budget); now a one-line
+    error.  Below the limit (1e15: 1e30 squared) every AOV stays finite."""
+    from warpbw.errors import WarpbwError
+    from warpbw.pipeline import render_adaptive
+
+    objs = [((0.0, 0.0, 0.0), 1.0, "l")] + hidden("g")
+    s = scene(env="constant = [1e20, 1e20, 1e20]", objects=objs, resolution=(24, 16))
+    assert np.isfinite(render_reference(s, spp=4, seed=1).image).all()  # the radiance itself is within float32
+    with pytest.raises(WarpbwError, match=r"extremes: the bandwidth pass's variance .*overflowed float32"):
+        render_adaptive(s, budget=2.0, seed=1, allocation=allocation)
+    s = scene(env="constant = [1e15, 1e15, 1e15]", objects=objs, resolution=(24, 16))
+    res = render_adaptive(s, budget=2.0, seed=1, allocation=allocation)
+    assert_adaptive_clean(res)
+    assert res.stats["samples"] <= 1.15 * 2.0 * res.coverage.sum()
+    np.testing.assert_allclose(res.image[res.coverage], 0.8e15, rtol=1e-5)  # Lambert 0.8 under a constant sky

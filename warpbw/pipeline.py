@@ -14,6 +14,7 @@ is in memory.  ``RenderResult.stats`` says which stages ran and how long each to
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -21,7 +22,7 @@ import numpy as np
 
 from warpbw import brdf as brdf_mod
 from warpbw import envmap
-from warpbw.errors import INT32_MAX, WarpbwError, is_int
+from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError, is_int
 from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer)
 from warpbw.scene import MeshObject, Scene, SphereObject
 
@@ -278,6 +279,23 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False):
     return struct
 
 
+def _check_pass_finite(buf, source: str) -> None:
+    """Refuse a frame whose bandwidth pass overflowed.  The pass sums squared radiance in float32 (Eq. 9's
+    chi * w and the MIS second moment w^2), so radiance past ~sqrt(FLOAT32_MAX) = 1.8e19 (less where a BRDF
+    peaks) gives inf sigma2: an inf variance AOV, and N_p = n_max on every pixel whatever the budget."""
+    cov = buf.coverage.reshape(-1)
+    bad = np.zeros(cov.shape, bool)
+    for a in (buf.sigma2, buf.sigma2_rel, buf.variance_mis):
+        if a is not None:
+            bad |= ~np.isfinite(a.numpy())
+    n_bad = int((bad & cov).sum())
+    if n_bad:
+        raise WarpbwError(f"{source}: the bandwidth pass's variance (squared radiance) overflowed float32 at {n_bad} "
+                          f"of {int(cov.sum())} covered pixels; --method adaptive expects radiance well below "
+                          f"sqrt({FLOAT32_MAX:.3g}) = {math.sqrt(FLOAT32_MAX):.2g}: lower [environment] scale or the "
+                          "map's values, or render with --method reference")
+
+
 def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b: int | None = None,
                     n_min: int | None = None, n_max: int | None = None, preconvolved: bool = False,
                     allocation: str | None = None, nyquist: float | None = None, stride: int | None = None,
@@ -317,6 +335,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     buf = bandwidth.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=n_b, seed=seed,
                                    preconvolved=preconvolved, nyquist=nyquist, stride=stride,
                                    pool_radius=pool_radius, device=prep.device, threads=threads)
+    _check_pass_finite(buf, prep.scene.source)
     alloc = bandwidth.allocate_samples(buf, budget, n_min=n_min, n_max=n_max, allocation=allocation,
                                        device=prep.device)
     timings["bandwidth"] = time.perf_counter() - t0
