@@ -171,6 +171,9 @@ CASES = [
      "[material.paint].alpha: expected a number >= 0.0001"),
     ("ggx alpha > 1", scene_text(materials='[material.paint]\ntype = "ggx"\nalpha = 1.5\nspecular = 1.0\n'),
      "[material.paint].alpha"),
+    ("ggx specular above one", scene_text(materials='[material.paint]\ntype = "ggx"\nalpha = 0.3\n'
+                                                   'specular = [1.0, 1.2, 0.5]\n'),
+     "[material.paint].specular: expected components in [0, 1]"),
     ("ggx missing specular", scene_text(materials='[material.paint]\ntype = "ggx"\nalpha = 0.3\n'),
      "[material.paint].specular"),
     ("ggx eta without k",

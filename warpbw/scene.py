@@ -501,6 +501,8 @@ def _material(ctx: _Ctx, name: str, d: dict) -> Material:
     if t == "ggx":
         alpha = ctx.number(d["alpha"], f"{key}.alpha", lo=GGX_MIN_ALPHA, hi=1.0)
         spec = ctx.vec3(d["specular"], f"{key}.specular", lo=0.0)
+        if max(spec) > 1.0:  # f cos / pdf = specular F G1 (warpbw.brdf): above 1 the lobe reflects more than it gets
+            ctx.fail(f"{key}.specular", f"expected components in [0, 1] (energy conservation), got {spec}")
         if ("eta" in d) != ("k" in d):
             ctx.fail(key, "conductor Fresnel needs both eta and k")
         eta = ctx.vec3(d["eta"], f"{key}.eta", lo=0.0) if "eta" in d else None
