@@ -16,7 +16,7 @@ from pathlib import Path
 
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
                                parse_seed, run_command)
-from warpbw.errors import INT32_MAX, WarpbwError
+from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError
 
 DEFAULT_SPP = 64
 DEMO_SPP = 64
@@ -76,8 +76,8 @@ def _check_finite_image(image, source: str) -> None:
     if bad:
         raise WarpbwError(f"{source}: {bad} of {image.shape[0] * image.shape[1]} pixels came out infinite or NaN "
                           "(the radiance overflowed float32 while the samples were summed; expected environment "
-                          "and light radiance well below 3.4e38: lower [environment] scale, the map's values or "
-                          "[[light]] radiance); nothing written")
+                          f"and light radiance well below {FLOAT32_MAX:.3g}: lower [environment] scale, the map's "
+                          "values or [[light]] radiance); nothing written")
 
 
 def _write_render(res, outs: dict, exposure: float, source: str):

@@ -545,14 +545,15 @@ def parse_scene(text: str, base_dir: Path | str | None = None, source: str = "<s
     if not isinstance(objs_in, list) or not objs_in:
         ctx.fail("[[object]]", "expected at least one [[object]]")
     objects = [_object(ctx, o, i, materials) for i, o in enumerate(objs_in)]
-    if lights and not any(isinstance(o, PlaneObject) for o in objects):
+    env = _environment(ctx, d["environment"]) if "environment" in d else None
+    scene = Scene(_camera(ctx, d["camera"]), env, objects, materials, source, base, lights)
+    if lights and not scene.has_planes:
         # the renderer of spheres and meshes (002) integrates the environment only: a light it ignored would
         # render a silently wrong image
         ctx.fail("[[light]]", "directional lights light planes only (shape = \"plane\", the reflectance-"
                  "filtering renderer of 004); spheres and meshes are lit by the [environment] alone, so remove "
                  "the [[light]] tables or fold the light into the environment map")
-    env = _environment(ctx, d["environment"]) if "environment" in d else None
-    return Scene(_camera(ctx, d["camera"]), env, objects, materials, source, base, lights)
+    return scene
 
 
 def load_scene(path: Path | str) -> Scene:
