@@ -195,7 +195,8 @@ def main(argv=None) -> int:
     if args.run:
         for p in paths:
             cmd = [sys.executable, "-m", "warpbw.cli", "bench-filtering", str(p), "--zoom", args.zoom,
-                   "--gt-spp", args.gt_spp, "--spp", args.spp, "--max-anisotropy", args.max_anisotropy, "--json", str(p.with_suffix(".json")), "--plot",
+                   "--gt-spp", args.gt_spp, "--spp", args.spp, "--max-anisotropy", args.max_anisotropy,
+                   "--json", str(p.with_suffix(".json")), "--plot",
                    str(p.with_suffix(".png"))] + (["--force"] if args.force else [])
             print("$", " ".join(cmd), flush=True)
             r = subprocess.run(cmd)

@@ -46,9 +46,9 @@ and every method filters trilinearly at it (004 Sec. 4.2).  With ``max_anisotrop
 default off) an elongated footprint is filtered as GPUs filter anisotropically: n <= max_anisotropy
 trilinear probes spaced along its major axis, at the level of its minor one (no finer than level 0), their
 stored quantities averaged before a method recovers its lobes -- the same linear filtering with a footprint
-whose variance along both axes is the pixel box's (``pixel_footprint``).  Below level 0 (a pixel smaller than a texel) the
-result blends towards the fine-scale BRDF at the bilinearly interpolated finest normal, fully at level -1:
-level-0 texels are point samples of the normal field, not distributions.  Every method's NDF is a few lobes
+whose variance along both axes is the pixel box's (``pixel_footprint``).  Below level 0 (a pixel smaller than
+a texel) the result blends towards the fine-scale BRDF at the bilinearly interpolated finest normal, fully at
+level -1: level-0 texels are point samples of the normal field, not distributions.  Every method's NDF is a few lobes
 (``Lobes``: weight, mean, 2x2 covariance; the magnification blend is one more lobe, the shading being linear in
 the weights), shaded in closed form under each directional light and, under an environment, estimated with
 ``env_spp`` pairs of one BRDF sample (a lobe picked by weight, its Gaussian sampled and reflected; or, with
