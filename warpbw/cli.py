@@ -406,6 +406,10 @@ def _number_list(name, kind, hi=None):
         if hi is not None and max(vals) > hi:
             raise argparse.ArgumentTypeError(f"expected comma-separated positive numbers <= {hi:g}{_why(hi)}, "
                                              f"got {max(vals):g}")
+        twice = sorted({v for v in vals if vals.count(v) > 1})
+        if twice:  # each value is one measurement: a repeat would only run it again
+            raise argparse.ArgumentTypeError(f"expected distinct values, got {', '.join(f'{v:g}' for v in twice)} "
+                                             f"more than once in {s!r}")
         return vals
     parse.__name__ = name
     return parse
