@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from precompute.surfaces import MAX_SURFACE_SIZE
+from warpbw.cli import MAX_ANISOTROPY
 from warpbw.cli_common import check_overwrite, run_command
 
 # scene name -> (surface generator name, tiling, material)
@@ -184,6 +185,8 @@ def main(argv=None) -> int:
         ap.error(f"--prior {args.prior:g}: expected a finite c >= 0 (at most {GMM_MAX_PRIOR:g})")
     if not 1 <= args.components <= GMM_MAX_COMPONENTS:
         ap.error(f"--components {args.components}: expected an integer from 1 to {GMM_MAX_COMPONENTS}")
+    if args.max_anisotropy not in [str(n) for n in range(1, MAX_ANISOTROPY + 1)]:
+        ap.error(f"--max-anisotropy {args.max_anisotropy}: expected an integer from 1 to {MAX_ANISOTROPY}")
     if not (math.isfinite(args.elevation) and 0 < args.elevation < 90):
         ap.error(f"--elevation {args.elevation:g}: expected degrees strictly between 0 and 90 (the camera's up "
                  "is +Y, so it cannot look straight down)")

@@ -340,6 +340,9 @@ def test_spp_zero(tmp_path):
      ["--nb", "<= 2147483647"]),
     (["bench", "scene.toml", "--json", "b.json", "--spp", "1,2147483648"], ["--spp", "<= 2.14748e+09"]),
     (["bench", "scene.toml", "--json", "b.json", "--budgets", "1,1e9"], ["--budgets", "<= 6.71089e+07"]),
+    # a value twice in a list would only repeat its measurement
+    (["bench", "scene.toml", "--json", "b.json", "--spp", "1,4,1"], ["--spp", "distinct", "got 1 more than once"]),
+    (["bench-filtering", "scene.toml", "--json", "b.json", "--zoom", "2,2.0"], ["--zoom", "got 2 more than once"]),
     (["bench", "scene.toml", "--json", "b.json", "--gt-spp", "2147483648"], ["--gt-spp", "<= 2147483647"]),
     (["bench-filtering", "scene.toml", "--json", "b.json", "--spp", "2147483648"], ["--spp", "<= 2147483647"]),
     # seeds are uint32: -1 and 2^32 wrapped onto 2^32 - 1 and 0
@@ -372,7 +375,7 @@ def test_spp_zero(tmp_path):
         "negative budget", "nan budget", "zero nb", "budget without adaptive", "unknown method",
         "allocation without adaptive", "unknown allocation", "zero nyquist",
         "spp 2^31", "spp 2^32+1", "demo spp 2^31", "budget 3e9", "nb 2^31", "bench spp 2^31", "bench budgets 1e9",
-        "bench gt-spp 2^31", "bench-filtering spp 2^31", "seed -1", "seed 2^32", "bench seed -1",
+        "bench spp twice", "bench-filtering zoom twice", "bench gt-spp 2^31", "bench-filtering spp 2^31", "seed -1", "seed 2^32", "bench seed -1",
         "bench-filtering seed 2^32", "exposure 1e10", "exposure nan", "exposure inf", "demo exposure -1e3",
         "spp with adaptive", "max-anisotropy 0", "max-anisotropy 17", "max-anisotropy 2.5", "max-anisotropy abc",
         "bench-filtering max-anisotropy 0", "bench-filtering max-anisotropy 17",
@@ -416,8 +419,9 @@ def test_max_anisotropy_out_of_range_is_refused_by_the_library(tmp_path, max_ani
     from warpbw.scene import parse_scene
 
     scene = parse_scene(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""), tmp_path, "planes.toml")
-    with pytest.raises(WarpbwError, match=r"^max_anisotropy .*: expected an integer"):
-        render_filtering(scene, "toksvig", max_anisotropy=max_anisotropy)
+    for method in ("toksvig", "ground_truth"):   # the ground truth ignores it, but a bad value is still refused
+        with pytest.raises(WarpbwError, match=r"^max_anisotropy .*: expected an integer"):
+            render_filtering(scene, method, max_anisotropy=max_anisotropy)
 
 
 def test_existing_output_is_not_overwritten(tmp_path):
@@ -721,6 +725,11 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["filtering_scenes.py", "--elevation", "0"], "--elevation 0: expected degrees strictly between 0 and 90"),
     (["filtering_scenes.py", "--elevation", "90"], "--elevation 90: expected degrees strictly between 0 and 90"),
     (["filtering_scenes.py", "--elevation", "nan"], "--elevation nan: expected degrees strictly between 0 and 90"),
+    (["filtering_scenes.py", "--max-anisotropy", "0"], "--max-anisotropy 0: expected an integer from 1 to 16"),
+    (["filtering_scenes.py", "--max-anisotropy", "2.5"], "--max-anisotropy 2.5: expected an integer from 1 to 16"),
+    (["filtering_zoom.py", "s.toml", "--max-anisotropy", "17"], "--max-anisotropy 17: expected an integer from 1"),
+    (["anisotropy_cost.py", "s.toml", "--size", "0x4"], "expected a positive --size"),
+    (["anisotropy_cost.py", "s.toml", "--zoom", "a"], "--zoom 'a': expected WxH and comma-separated numbers"),
     (["bench_reference.py", "--material", "nope"], "--material nope: "),
 ])
 def test_examples_refuse_bad_arguments_in_one_line(tmp_path, argv, needle):

@@ -557,8 +557,10 @@ def pixel_footprint(cam: CameraData, pl: PlaneData, x: int, y: int, st: wp.vec2)
     against the same infinite plane): J = [ds/dx ds/dy] in finest texels per pixel.  Isotropic
     (``max_aniso`` = 1): one probe at log2 of J's larger column + the LOD bias.  Anisotropic: J's singular
     values s1 >= s2 (the pixel box maps to a parallelogram of covariance J J^T / 12, axes s1^2 / 12 and
-    s2^2 / 12 along J's left singular vectors), n probes along the major axis, each an isotropic trilinear
-    filter of radius r = max(s2, s1 / max_aniso, the level-0 radius): see ``ANISO_PROBE_SLACK``."""
+    s2^2 / 12 along J's left singular vectors), n = ceil(s1 / r) probes along the major axis
+    (``ANISO_PROBE_SLACK``), each an isotropic trilinear filter of radius r = max(s2, s1 / max_aniso,
+    2^-lod_bias), the last the radius whose level is 0.  With n = 1 the isotropic level stands: for a sheared
+    footprint, whose longer column is shorter than s1, the two differ by up to half a level."""
     o = cam.origin
     fp = Footprint()
     fp.n = 1
@@ -1054,12 +1056,11 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
 
     if method not in ALL_METHODS:
         raise WarpbwError(f"filter method {method!r}: expected one of {', '.join(ALL_METHODS)}")
+    check_count(max_anisotropy, "max_anisotropy (probes along a footprint's major axis)", 1, MAX_ANISOTROPY)
     if method == "ground_truth":
         check_count(spp, "spp (ground-truth rays per pixel)", MIN_GT_SPP, INT32_MAX)  # int32 in the kernels
-    else:
-        check_count(max_anisotropy, "max_anisotropy (probes along a footprint's major axis)", 1, MAX_ANISOTROPY)
-        if scene.environment is not None:
-            check_count(env_spp, "env_spp (environment samples per pixel)", 1, INT32_MAX)
+    elif scene.environment is not None:
+        check_count(env_spp, "env_spp (environment samples per pixel)", 1, INT32_MAX)
     if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm for mp in prepared.mips.values())):
         prepared = prepare_filtering(scene, (method,), device, progress)
     cam_s = camera or scene.camera
