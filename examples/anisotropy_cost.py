@@ -13,7 +13,6 @@ import argparse
 import statistics
 import sys
 from dataclasses import replace
-from pathlib import Path
 
 from warpbw.cli_common import init_warp, run_command
 
@@ -42,11 +41,12 @@ def main(argv=None) -> int:
 
     if not 2 <= args.aniso <= MAX_ANISOTROPY:
         ap.error(f"--aniso {args.aniso}: expected an integer from 2 to {MAX_ANISOTROPY}")
-    print(f"{'scene':<28}{'zoom':>6}" + "".join(f"{m + ' ms':>26}" for m in METHODS))
     for path in args.scenes:
         scene = load_scene(path)
         scene = replace(scene, camera=replace(scene.camera, width=w, height=h))
         prep = prepare_filtering(scene, METHODS, progress=True)
+        print(f"{path}: {w}x{h}, isotropic / up to {args.aniso} probes, ms (ratio)", flush=True)
+        print(f"{'zoom':>6}" + "".join(f"{m:>26}" for m in METHODS))
         for z in zooms:
             cam = zoomed_camera(scene.camera, z)
             cells = []
@@ -59,8 +59,7 @@ def main(argv=None) -> int:
                         times[a].append(render_filtering(scene, m, prepared=prep, camera=cam, max_anisotropy=a).time_s)
                 t1, ta = (statistics.median(times[a]) * 1e3 for a in times)
                 cells.append(f"{t1:7.1f} / {ta:7.1f} ({ta / t1:4.2f}x)")
-            name = str(Path(path).parent.name + "/" + Path(path).name)[-27:]
-            print(f"{name:<28}{z:>6g}" + "".join(f"{c:>26}" for c in cells), flush=True)
+            print(f"{z:>6g}" + "".join(f"{c:>26}" for c in cells), flush=True)
     return 0
 
 
