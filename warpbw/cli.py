@@ -259,8 +259,9 @@ def add_anisotropy_option(p, default) -> None:
     p.add_argument("--max-anisotropy", type=_positive_int("max-anisotropy", MAX_ANISOTROPY), default=default,
                    metavar="N", help="scenes with planes: filter each pixel's footprint with up to N trilinear probes "
                    f"along its major axis, as GPUs' anisotropic filtering (1 to {MAX_ANISOTROPY}; default 1: one "
-                   "isotropic probe at the footprint's larger side, 004 Sec. 4.2). Sharper and closer to the ground "
-                   "truth where the plane is seen at a grazing angle; up to N times the texture fetches")
+                   "isotropic probe at the footprint's larger side, 004 Sec. 4.2). Where the plane is seen at a "
+                   "grazing angle, sharper and mostly closer to the ground truth, but it flickers more (README); up "
+                   "to N times the texture fetches")
 
 
 def cmd_render(args) -> int:

@@ -48,11 +48,11 @@ trilinear probes spaced along its major axis, at the level of its minor one (no 
 stored quantities averaged before a method recovers its lobes -- the same linear filtering with a footprint
 whose variance along both axes is the pixel box's (``pixel_footprint``).  Below level 0 (a pixel smaller than
 a texel) the result blends towards the fine-scale BRDF at the bilinearly interpolated finest normal, fully at
-level -1: level-0 texels are point samples of the normal field, not distributions.  Every method's NDF is a few lobes
-(``Lobes``: weight, mean, 2x2 covariance; the magnification blend is one more lobe, the shading being linear in
-the weights), shaded in closed form under each directional light and, under an environment, estimated with
-``env_spp`` pairs of one BRDF sample (a lobe picked by weight, its Gaussian sampled and reflected; or, with
-probability ``diffuse_pick``, a cosine-weighted direction) and one environment sample (``warpbw.envmap``),
+level -1: level-0 texels are point samples of the normal field, not distributions.  Every method's NDF is a
+few lobes (``Lobes``: weight, mean, 2x2 covariance; the magnification blend is one more lobe, the shading
+being linear in the weights), shaded in closed form under each directional light and, under an environment,
+estimated with ``env_spp`` pairs of one BRDF sample (a lobe picked by weight, its Gaussian sampled and
+reflected; or, with probability ``diffuse_pick``, a cosine-weighted direction) and one environment sample (``warpbw.envmap``),
 combined by the balance heuristic.  A pixel's pairs draw their uniforms from a quasi-random set, the R_3 and
 R_2 Kronecker sequences shifted by one random offset per pixel (``PAIR_ALPHA``), not from independent
 uniforms: each estimate stays unbiased, and its error is lower.  The methods:
@@ -638,7 +638,8 @@ def _filtered_kernel(code: int, with_env: bool):
                 L = Lobes()
                 nl = int(0)
                 if wp.static(code == 0):
-                    # GMM: trilinear filtering of the stored moments, per component (004 Sec. 4.2)
+                    # GMM: trilinear filtering of the stored moments, per component (004 Sec. 4.2), averaged over
+                    # the footprint's probes
                     for k in range(pl.components):
                         acc = wp.vec4(0.0)
                         for j in range(fp.n):
