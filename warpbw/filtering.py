@@ -52,10 +52,10 @@ level -1: level-0 texels are point samples of the normal field, not distribution
 few lobes (``Lobes``: weight, mean, 2x2 covariance; the magnification blend is one more lobe, the shading
 being linear in the weights), shaded in closed form under each directional light and, under an environment,
 estimated with ``env_spp`` pairs of one BRDF sample (a lobe picked by weight, its Gaussian sampled and
-reflected; or, with probability ``diffuse_pick``, a cosine-weighted direction) and one environment sample (``warpbw.envmap``),
-combined by the balance heuristic.  A pixel's pairs draw their uniforms from a quasi-random set, the R_3 and
-R_2 Kronecker sequences shifted by one random offset per pixel (``PAIR_ALPHA``), not from independent
-uniforms: each estimate stays unbiased, and its error is lower.  The methods:
+reflected; or, with probability ``diffuse_pick``, a cosine-weighted direction) and one environment sample
+(``warpbw.envmap``), combined by the balance heuristic.  A pixel's pairs draw their uniforms from a
+quasi-random set, the R_3 and R_2 Kronecker sequences shifted by one random offset per pixel (``PAIR_ALPHA``),
+not from independent uniforms: each estimate stays unbiased, and its error is lower.  The methods:
     gmm_aligned / gmm_unaligned   the stored moments (a, a mu, a E|n|^2 = a (2 s^2 + |mu|^2)) of each
                                   component, filtered linearly, then a, mu, s^2 recovered: the isotropic
                                   Gaussian of the filtered mean and second moment (004 Sec. 4.2, in the form
