@@ -30,6 +30,11 @@ density value.  ``mirror`` is the single light that mirrors the view (slightly o
 the setup of the first benchmark, kept for comparison.  ``--environment FILE`` lights the planes with a
 lat-long probe instead (every method then integrates its lobes against it by multiple importance sampling,
 ``warpbw.filtering``): a whole sky of half-vectors, as a curved object would see.
+
+Grazing views (``--elevation``, ``--max-anisotropy``).  ``--elevation`` lowers the camera (the lights stay
+those of the 60-degree camera, so that they stay above the horizon): a pixel's footprint on the plane is then
+1 / sin(elevation) times longer than wide, and ``--max-anisotropy N`` runs the benchmark with anisotropic
+footprints (``warpbw.filtering``: up to N probes along the major axis) instead of 004's isotropic ones.
 """
 from __future__ import annotations
 
@@ -42,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from precompute.surfaces import MAX_SURFACE_SIZE
+from warpbw.cli import MAX_ANISOTROPY
 from warpbw.cli_common import check_overwrite, run_command
 
 # scene name -> (surface generator name, tiling, material)
@@ -119,13 +125,14 @@ def light_directions(setup: str = "ring", elevation_deg: float = ELEVATION_DEG) 
 
 
 def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "ring", components: int = 4,
-                 environment: Path | None = None, prior: float = 1.0) -> list:
+                 environment: Path | None = None, prior: float = 1.0,
+                 elevation_deg: float = ELEVATION_DEG) -> list:
     from precompute.surfaces import SURFACES
     from warpbw.io.exr import write_exr
 
     out.mkdir(parents=True, exist_ok=True)
-    el = math.radians(ELEVATION_DEG)
-    dirs = light_directions(lights)
+    el = math.radians(elevation_deg)
+    dirs = light_directions(lights)   # for the 60-degree camera, whatever elevation_deg
     light_text = "\n".join(LIGHT.format(x=d[0], y=d[1], z=d[2], e=LIGHT_RADIANCE / len(dirs)) for d in dirs)
     if environment is not None:
         light_text = f'[environment]\nfile = "{Path(environment).resolve().as_posix()}"\n'
@@ -162,6 +169,11 @@ def main(argv=None) -> int:
     ap.add_argument("--prior", type=float, default=1.0,
                     help="alignment constant c of the aligned GMM mipmap's MAP prior (default 1, 004 Sec. 4.1; "
                          "README: a stronger prior filters the far zooms better)")
+    ap.add_argument("--elevation", type=float, default=ELEVATION_DEG,
+                    help=f"camera elevation above the plane in degrees, in (0, 90) (default {ELEVATION_DEG:g}); "
+                         "the lights stay those of the default camera")
+    ap.add_argument("--max-anisotropy", default="1", metavar="N",
+                    help="for --run: up to N probes along each footprint's major axis (default 1: isotropic, 004)")
     ap.add_argument("--force", action="store_true", help="overwrite existing scenes, height fields and results")
     args = ap.parse_args(argv)
     from warpbw.scene import GMM_MAX_COMPONENTS, GMM_MAX_PRIOR
@@ -173,15 +185,21 @@ def main(argv=None) -> int:
         ap.error(f"--prior {args.prior:g}: expected a finite c >= 0 (at most {GMM_MAX_PRIOR:g})")
     if not 1 <= args.components <= GMM_MAX_COMPONENTS:
         ap.error(f"--components {args.components}: expected an integer from 1 to {GMM_MAX_COMPONENTS}")
+    if args.max_anisotropy not in [str(n) for n in range(1, MAX_ANISOTROPY + 1)]:
+        ap.error(f"--max-anisotropy {args.max_anisotropy}: expected an integer from 1 to {MAX_ANISOTROPY}")
+    if not (math.isfinite(args.elevation) and 0 < args.elevation < 90):
+        ap.error(f"--elevation {args.elevation:g}: expected degrees strictly between 0 and 90 (the camera's up "
+                 "is +Y, so it cannot look straight down)")
     if args.environment is not None and not args.environment.is_file():
         ap.error(f"--environment {args.environment}: no such file (expected a lat-long EXR probe)")
     check_overwrite([out / f"{name}{ext}" for name in SCENES for ext in (".toml", ".exr")], args.force)
     paths = write_scenes(out, args.size, lights=args.lights, components=args.components,
-                         environment=args.environment, prior=args.prior)
+                         environment=args.environment, prior=args.prior, elevation_deg=args.elevation)
     if args.run:
         for p in paths:
             cmd = [sys.executable, "-m", "warpbw.cli", "bench-filtering", str(p), "--zoom", args.zoom,
-                   "--gt-spp", args.gt_spp, "--spp", args.spp, "--json", str(p.with_suffix(".json")), "--plot",
+                   "--gt-spp", args.gt_spp, "--spp", args.spp, "--max-anisotropy", args.max_anisotropy,
+                   "--json", str(p.with_suffix(".json")), "--plot",
                    str(p.with_suffix(".png"))] + (["--force"] if args.force else [])
             print("$", " ".join(cmd), flush=True)
             r = subprocess.run(cmd)

@@ -2,6 +2,7 @@
 
     python examples/filtering_zoom.py SCENE.toml -o zoom_out                # zooms 1,2,4,8,16,32
     python examples/filtering_zoom.py /work/bench/filtering/scales.toml -o zoom_out --zoom 1,4,16 --gt-spp 256
+    python examples/filtering_zoom.py grazing/dunes.toml -o zoom_aniso --max-anisotropy 16   # anisotropic footprints
 
 Writes OUT/METHOD.png for every method (gmm_aligned, gmm_unaligned, toksvig, lean, fixed, ground_truth):
 the frames at each zoom side by side, each cropped to the plane's bounding box and scaled to the same
@@ -37,6 +38,9 @@ def main(argv=None) -> int:
     ap.add_argument("-o", "--output", default="zoom_out", help="output directory (default ./zoom_out)")
     ap.add_argument("--zoom", default="1,2,4,8,16,32", help="zoom factors (default 1,2,4,8,16,32)")
     ap.add_argument("--gt-spp", type=int, default=256, help="ground-truth rays per pixel (default 256, at least 64)")
+    ap.add_argument("--max-anisotropy", type=int, default=1, metavar="N",
+                    help="filter with up to N probes along each footprint's major axis (default 1: isotropic, 004; "
+                    "see warpbw render --help)")
     ap.add_argument("--force", action="store_true", help="overwrite existing strips in the output directory")
     args = ap.parse_args(argv)
     try:
@@ -50,12 +54,15 @@ def main(argv=None) -> int:
 
     init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
     from warpbw.errors import WarpbwError
-    from warpbw.filtering import ALL_METHODS, MIN_GT_SPP, prepare_filtering, render_filtering, zoomed_camera
+    from warpbw.filtering import (ALL_METHODS, MAX_ANISOTROPY, MIN_GT_SPP, prepare_filtering, render_filtering,
+                                  zoomed_camera)
     from warpbw.io.exr import linear_to_srgb
     from warpbw.scene import PlaneObject, load_scene
 
     if args.gt_spp < MIN_GT_SPP:
         ap.error(f"--gt-spp {args.gt_spp}: expected at least {MIN_GT_SPP} rays per pixel")
+    if not 1 <= args.max_anisotropy <= MAX_ANISOTROPY:
+        ap.error(f"--max-anisotropy {args.max_anisotropy}: expected an integer from 1 to {MAX_ANISOTROPY}")
     scene = load_scene(args.scene)
     if not any(isinstance(o, PlaneObject) for o in scene.objects):
         raise WarpbwError(f"{args.scene}: no [[object]] is a plane (expected a scene with planes, "
@@ -69,7 +76,8 @@ def main(argv=None) -> int:
     for z in zooms:
         cam = zoomed_camera(scene.camera, z)
         for m in ALL_METHODS:
-            r = render_filtering(scene, m, spp=args.gt_spp, prepared=prep, camera=cam)
+            r = render_filtering(scene, m, spp=args.gt_spp, prepared=prep, camera=cam,
+                                 max_anisotropy=args.max_anisotropy)
             frames[m].append(crop(r.image, r.coverage))
     # one exposure for everything: the ground truth's 99th percentile maps to white
     white = float(np.percentile(np.concatenate([f.reshape(-1, 3) for f in frames["ground_truth"]]), 99)) or 1.0

@@ -340,6 +340,9 @@ def test_spp_zero(tmp_path):
      ["--nb", "<= 2147483647"]),
     (["bench", "scene.toml", "--json", "b.json", "--spp", "1,2147483648"], ["--spp", "<= 2.14748e+09"]),
     (["bench", "scene.toml", "--json", "b.json", "--budgets", "1,1e9"], ["--budgets", "<= 6.71089e+07"]),
+    # a value twice in a list would only repeat its measurement
+    (["bench", "scene.toml", "--json", "b.json", "--spp", "1,4,1"], ["--spp", "distinct", "got 1 more than once"]),
+    (["bench-filtering", "scene.toml", "--json", "b.json", "--zoom", "2,2.0"], ["--zoom", "got 2 more than once"]),
     (["bench", "scene.toml", "--json", "b.json", "--gt-spp", "2147483648"], ["--gt-spp", "<= 2147483647"]),
     (["bench-filtering", "scene.toml", "--json", "b.json", "--spp", "2147483648"], ["--spp", "<= 2147483647"]),
     # seeds are uint32: -1 and 2^32 wrapped onto 2^32 - 1 and 0
@@ -354,13 +357,29 @@ def test_spp_zero(tmp_path):
     (["demo", "-o", "out", "--exposure=-1e3"], ["--exposure", "-150 to 150"]),
     (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--spp", "7"],
      ["--spp", "--method reference only", "--budget"]),
+    # probes along a footprint's major axis: 1 to MAX_ANISOTROPY (16), an integer; planes only
+    (["render", "scene.toml", "-o", "out.exr", "--max-anisotropy", "0"], ["--max-anisotropy", "got 0"]),
+    (["render", "scene.toml", "-o", "out.exr", "--max-anisotropy", "17"], ["--max-anisotropy", "<= 16", "got 17"]),
+    (["render", "scene.toml", "-o", "out.exr", "--max-anisotropy", "2.5"], ["--max-anisotropy", "got '2.5'"]),
+    (["render", "scene.toml", "-o", "out.exr", "--max-anisotropy", "abc"], ["--max-anisotropy", "got 'abc'"]),
+    (["bench-filtering", "scene.toml", "--json", "b.json", "--max-anisotropy", "0"], ["--max-anisotropy", "got 0"]),
+    (["bench-filtering", "scene.toml", "--json", "b.json", "--max-anisotropy", "17"],
+     ["--max-anisotropy", "<= 16", "got 17"]),
+    (["bench-filtering", "scene.toml", "--json", "b.json", "--max-anisotropy", "2.5"],
+     ["--max-anisotropy", "got '2.5'"]),
+    (["bench-filtering", "scene.toml", "--json", "b.json", "--max-anisotropy", "abc"],
+     ["--max-anisotropy", "got 'abc'"]),
+    (["render", "scene.toml", "-o", "out.exr", "--max-anisotropy", "4"],
+     ["--max-anisotropy 4", "scenes with planes", "only"]),
 ], ids=["no output", "bad threads", "png output", "unknown command", "no command", "adaptive without budget",
         "negative budget", "nan budget", "zero nb", "budget without adaptive", "unknown method",
         "allocation without adaptive", "unknown allocation", "zero nyquist",
         "spp 2^31", "spp 2^32+1", "demo spp 2^31", "budget 3e9", "nb 2^31", "bench spp 2^31", "bench budgets 1e9",
-        "bench gt-spp 2^31", "bench-filtering spp 2^31", "seed -1", "seed 2^32", "bench seed -1",
+        "bench spp twice", "bench-filtering zoom twice", "bench gt-spp 2^31", "bench-filtering spp 2^31", "seed -1", "seed 2^32", "bench seed -1",
         "bench-filtering seed 2^32", "exposure 1e10", "exposure nan", "exposure inf", "demo exposure -1e3",
-        "spp with adaptive"])
+        "spp with adaptive", "max-anisotropy 0", "max-anisotropy 17", "max-anisotropy 2.5", "max-anisotropy abc",
+        "bench-filtering max-anisotropy 0", "bench-filtering max-anisotropy 17",
+        "bench-filtering max-anisotropy 2.5", "bench-filtering max-anisotropy abc", "max-anisotropy on a sphere"])
 def test_usage_errors_are_one_line(tmp_path, args, needles):
     write_scene(tmp_path)
     assert_one_line_error(run(args, tmp_path), *needles)
@@ -380,16 +399,29 @@ def test_precompute_usage_errors_are_one_line(tmp_path, args, needles):
 
 def test_counts_beyond_int32_are_refused_by_the_library_too():
     """The bounds the CLI checks at parse time hold for the Python API as well (before any work)."""
-    from warpbw import bandwidth, cli
+    from warpbw import bandwidth, cli, filtering
     from warpbw.pipeline import render_reference
     from warpbw.scene import default_scene
     from precompute.gmm_mipmap import build_gmm_mipmap
 
     assert cli.BUDGET_MAX == bandwidth.BUDGET_MAX  # spelled in the CLI so that --help needs no Warp import
+    assert cli.MAX_ANISOTROPY == filtering.MAX_ANISOTROPY  # likewise
     with pytest.raises(WarpbwError, match="spp: expected a positive integer <= 2147483647"):
         render_reference(default_scene(), spp=2**31)
     with pytest.raises(WarpbwError, match="seed: expected an integer from 0 to 4294967295"):
         build_gmm_mipmap(np.zeros((4, 4)), seed=2**32, progress=False)
+
+
+@pytest.mark.parametrize("max_anisotropy", [0, 17, 2.5, True])
+def test_max_anisotropy_out_of_range_is_refused_by_the_library(tmp_path, max_anisotropy):
+    """``render_filtering``'s max_anisotropy, 1 to MAX_ANISOTROPY (16) probes, as the CLI's --max-anisotropy."""
+    from warpbw.filtering import render_filtering
+    from warpbw.scene import parse_scene
+
+    scene = parse_scene(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""), tmp_path, "planes.toml")
+    for method in ("toksvig", "ground_truth"):   # the ground truth ignores it, but a bad value is still refused
+        with pytest.raises(WarpbwError, match=r"^max_anisotropy .*: expected an integer"):
+            render_filtering(scene, method, max_anisotropy=max_anisotropy)
 
 
 def test_existing_output_is_not_overwritten(tmp_path):
@@ -690,6 +722,14 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["filtering_zoom.py", "s.toml", "--zoom", "0"], "--zoom '0': expected comma-separated positive numbers"),
     (["filtering_zoom.py", "s.toml", "--zoom", "nan"], "--zoom 'nan': expected comma-separated positive numbers"),
     (["filtering_scenes.py", "--components", "0"], "--components 0: expected an integer from 1 to 16"),
+    (["filtering_scenes.py", "--elevation", "0"], "--elevation 0: expected degrees strictly between 0 and 90"),
+    (["filtering_scenes.py", "--elevation", "90"], "--elevation 90: expected degrees strictly between 0 and 90"),
+    (["filtering_scenes.py", "--elevation", "nan"], "--elevation nan: expected degrees strictly between 0 and 90"),
+    (["filtering_scenes.py", "--max-anisotropy", "0"], "--max-anisotropy 0: expected an integer from 1 to 16"),
+    (["filtering_scenes.py", "--max-anisotropy", "2.5"], "--max-anisotropy 2.5: expected an integer from 1 to 16"),
+    (["filtering_zoom.py", "s.toml", "--max-anisotropy", "17"], "--max-anisotropy 17: expected an integer from 1"),
+    (["anisotropy_cost.py", "s.toml", "--size", "0x4"], "expected a positive --size"),
+    (["anisotropy_cost.py", "s.toml", "--zoom", "a"], "--zoom 'a': expected WxH and comma-separated numbers"),
     (["bench_reference.py", "--material", "nope"], "--material nope: "),
 ])
 def test_examples_refuse_bad_arguments_in_one_line(tmp_path, argv, needle):

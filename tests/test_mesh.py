@@ -190,6 +190,9 @@ def test_missing_file(tmp_path):
         ("empty.stl", "", "empty file \\(0 bytes\\)"),
         ("flat.obj", "v 0 0 0\nv 1 1 1\nv 2 2 2\nv 3 3 3\nf 1 2 3\nf 2 3 4\n", "every triangle has zero area"),
         ("weird.xyzq", "v 0 0 0\n", "weird.xyzq"),
+        # OBJ indices count from 1: trimesh read "f 0 3 4" as the triangle (1, 3, 4), a different surface
+        ("zero.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 0 3 4\n", "zero.obj:6: a face has vertex index 0"),
+        ("zeroslash.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/1 0/1\n", "zeroslash.obj:5: .*index 0"),
     ],
 )
 def test_malformed_files(tmp_path, name, text, match):

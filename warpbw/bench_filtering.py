@@ -6,7 +6,7 @@ Public:
     ``colour_error(image, ref, mask) -> float``     per-pixel normalised Euclidean colour error, mean
     ``flicker(a0, a1, g0, g1, mask, norm) -> float``  frame-to-frame change in excess of the ground truth's
     ``run_bench_filtering(scene, zooms, gt_spp, runs, seed, device, cache, progress, log, methods,
-                          env_spp) -> dict``
+                          env_spp, max_anisotropy) -> dict``
     ``write_plot(record, path)``                    error and flicker against zoom, one curve per method
     ``format_table(record) -> str``
 
@@ -30,6 +30,9 @@ covers z^2 times more texels.
   a flicker pair; its own noise is reported per zoom as ``ground_truth[i].noise`` = error of a second,
   independently seeded ground truth / sqrt(2), the floor under every method's error, and
   ``flicker_noise`` = the flicker score of that second ground truth (what noise alone scores).
+* Footprints: isotropic by default (004 Sec. 4.2's trilinear filtering); ``max_anisotropy`` > 1 filters every
+  method with up to that many probes along each footprint's major axis (``warpbw.filtering``), recorded as
+  ``max_anisotropy``.  The ground truth does not depend on it.
 * A zoom at which no pixel sees a plane (in either frame) is refused before any work.
 * Precompute time: the time to obtain the aligned GMM mipmaps (built unless the scene names a file or
   ``cache`` holds them: the origin is recorded).
@@ -98,10 +101,11 @@ def _check_coverage(scene, zooms, device: str) -> None:
 
 def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP, runs: int = 3, seed: int = 0,
                         device: str = "cpu", cache: Path | None = None, progress: bool = False,
-                        log=lambda *a, **k: None, methods=None, env_spp: int | None = None) -> dict:
+                        log=lambda *a, **k: None, methods=None, env_spp: int | None = None,
+                        max_anisotropy: int | None = None) -> dict:
     """The benchmark record (module docstring) for a scene with planes."""
-    from warpbw.filtering import (DEFAULT_ENV_SPP, METHODS, MIN_GT_SPP, prepare_filtering, render_filtering,
-                                  zoomed_camera)
+    from warpbw.filtering import (DEFAULT_ANISOTROPY, DEFAULT_ENV_SPP, MAX_ANISOTROPY, METHODS, MIN_GT_SPP,
+                                  prepare_filtering, render_filtering, zoomed_camera)
 
     methods = tuple(methods or METHODS)
     if not scene.has_planes:
@@ -111,6 +115,8 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
         raise WarpbwError(f"--gt-spp {gt_spp}: expected at least {MIN_GT_SPP} rays per pixel")
     env_spp = DEFAULT_ENV_SPP if env_spp is None else env_spp
     check_count(env_spp, "--spp (environment pairs per pixel)", 1, INT32_MAX)  # int32 in the kernels
+    aniso = DEFAULT_ANISOTROPY if max_anisotropy is None else max_anisotropy
+    check_count(aniso, "--max-anisotropy (probes along a footprint's major axis)", 1, MAX_ANISOTROPY)
     zooms = [float(z) for z in zooms]
     _check_coverage(scene, zooms, device)
     with tempfile.TemporaryDirectory(prefix="warpbw-gmm-") as tmp:
@@ -122,12 +128,12 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     log(f"precompute: {prep_time:.2f} s (aligned GMM mipmaps {gmm_time:.2f} s)")
     record = {"scene": scene.source, "resolution": [scene.camera.width, scene.camera.height], "zooms": zooms,
               "gt_spp": int(gt_spp), "env_spp": int(env_spp) if scene.environment is not None else None,
-              "runs": int(runs), "seed": int(seed), "flicker_step": FLICKER_STEP,
+              "runs": int(runs), "seed": int(seed), "flicker_step": FLICKER_STEP, "max_anisotropy": int(aniso),
               "methods": {m: [] for m in methods}, "ground_truth": [],
               "precompute_time_s": round(gmm_time, 4), "prepare_time_s": round(prep_time, 4),
               "precompute": prep.notes}
     for m in methods:                                     # warm-up: compile every kernel once
-        render_filtering(scene, m, prepared=prep)
+        render_filtering(scene, m, prepared=prep, max_anisotropy=aniso)
     for z in zooms:
         cams = (zoomed_camera(scene.camera, z), zoomed_camera(scene.camera, z * FLICKER_STEP))
         # the same seed in both frames: the same jitter pattern per pixel, so the truth's frame-to-frame change
@@ -148,10 +154,12 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
             times = []
             frames = []
             for k in range(max(1, runs)):
-                r = render_filtering(scene, m, seed=seed, prepared=prep, camera=cams[0], env_spp=env_spp)
+                r = render_filtering(scene, m, seed=seed, prepared=prep, camera=cams[0], env_spp=env_spp,
+                                     max_anisotropy=aniso)
                 times.append(r.time_s)
             frames.append(r)
-            frames.append(render_filtering(scene, m, seed=seed, prepared=prep, camera=cams[1], env_spp=env_spp))
+            frames.append(render_filtering(scene, m, seed=seed, prepared=prep, camera=cams[1], env_spp=env_spp,
+                                           max_anisotropy=aniso))
             err = colour_error(frames[0].image, g[0].image, cov)
             fl = flicker(frames[0].image, frames[1].image, g[0].image, g[1].image, both, norm)
             record["methods"][m].append({"zoom": z, "error": err, "flicker": fl,
@@ -163,12 +171,17 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     return record
 
 
+def _aniso_note(record: dict) -> str:
+    a = record.get("max_anisotropy", 1)
+    return f"; anisotropic footprints (up to {a} probes)" if a > 1 else ""
+
+
 def format_table(record: dict) -> str:
     """Error and flicker per method (rows) at each zoom (columns)."""
     zooms = record["zooms"]
     head = f"{'method':<14}" + "".join(f"{'x' + format(z, 'g'):>16}" for z in zooms)
     lines = [f"{record['scene']}  {record['resolution'][0]}x{record['resolution'][1]}, ground truth "
-             f"{record['gt_spp']} rays/pixel; error / flicker per zoom", head]
+             f"{record['gt_spp']} rays/pixel; error / flicker per zoom{_aniso_note(record)}", head]
     for m, rows in record["methods"].items():
         lines.append(f"{m:<14}" + "".join(f"{r['error']:>9.3f} /{r['flicker']:.3f}" for r in rows))
     lines.append(f"{'gt noise':<14}" + "".join(f"{g['noise']:>9.3f}       " for g in record["ground_truth"]))
@@ -195,7 +208,7 @@ def write_plot(record: dict, path) -> None:
         ax.set_ylabel(what)
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.suptitle(f"{Path(record['scene']).name}: reflectance filtering (004); precompute "
+    fig.suptitle(f"{Path(record['scene']).name}: reflectance filtering (004){_aniso_note(record)}; precompute "
                  f"{record['precompute_time_s']:.1f} s", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

@@ -27,6 +27,8 @@ _ALLOCATIONS = ("measured", "variance", "sqrt", "relative", "uniform")
 # warpbw.bandwidth.BUDGET_MAX (spelled here for the same reason): the adaptive N_p goes up to
 # N_P_MAX_PER_BUDGET = 32 x --budget and is an int32 in the kernels
 BUDGET_MAX = INT32_MAX / 32
+# warpbw.filtering.MAX_ANISOTROPY (spelled here for the same reason): the most probes along a footprint's axis
+MAX_ANISOTROPY = 16
 # --exposure in stops: beyond +-150 every non-zero float32 radiance (2^-149 .. 2^128) previews white, or black
 EXPOSURE_MAX_STOPS = 150.0
 
@@ -211,8 +213,9 @@ def _render_filtering_cli(scene, args) -> int:
     check_overwrite(list(outs.values()) + level_paths, args.force)
     init_warp(args.device)
     t0 = time.perf_counter()
+    aniso = {} if args.max_anisotropy is None else {"max_anisotropy": args.max_anisotropy}
     res = render_filtering(scene, method, spp=args.spp, seed=args.seed, device=args.device,
-                           progress=not args.quiet, threads=args.threads, env_spp=args.spp)
+                           progress=not args.quiet, threads=args.threads, env_spp=args.spp, **aniso)
     res.stats["time_s"] = {"frame": round(res.time_s, 6), "total": round(time.perf_counter() - t0, 6)}
     _write_render(res, outs, args.exposure, scene.source)
     _warn_if_empty(res.stats)
@@ -251,6 +254,16 @@ def add_adaptive_options(p) -> None:
                    "(default 2, Nyquist; larger shades more pixels at finer levels)")
 
 
+def add_anisotropy_option(p, default) -> None:
+    """--max-anisotropy, shared by render and bench-filtering (scenes with planes)."""
+    p.add_argument("--max-anisotropy", type=_positive_int("max-anisotropy", MAX_ANISOTROPY), default=default,
+                   metavar="N", help="scenes with planes: filter each pixel's footprint with up to N trilinear probes "
+                   f"along its major axis, as GPUs' anisotropic filtering (1 to {MAX_ANISOTROPY}; default 1: one "
+                   "isotropic probe at the footprint's larger side, 004 Sec. 4.2). Where the plane is seen at a "
+                   "grazing angle, sharper and mostly closer to the ground truth, but it flickers more (README); up "
+                   "to N times the texture fetches")
+
+
 def cmd_render(args) -> int:
     from warpbw.scene import load_scene
 
@@ -270,6 +283,9 @@ def cmd_render(args) -> int:
         return _render_filtering_cli(scene, args)
     if args.filter is not None:
         raise WarpbwError(f"--filter {args.filter}: applies to scenes with planes (shape = \"plane\") only")
+    if args.max_anisotropy is not None:
+        raise WarpbwError(f"--max-anisotropy {args.max_anisotropy}: applies to scenes with planes "
+                          "(shape = \"plane\") only")
     _render(scene, Path(args.output), args.spp, args.seed, args.mis, args.device, args.exposure, args.force,
             args.threads, args.quiet, args.method, args.budget, args.nb, _adaptive_options(args))
     return 0
@@ -391,6 +407,10 @@ def _number_list(name, kind, hi=None):
         if hi is not None and max(vals) > hi:
             raise argparse.ArgumentTypeError(f"expected comma-separated positive numbers <= {hi:g}{_why(hi)}, "
                                              f"got {max(vals):g}")
+        twice = sorted({v for v in vals if vals.count(v) > 1})
+        if twice:  # each value is one measurement: a repeat would only run it again
+            raise argparse.ArgumentTypeError(f"expected distinct values, got {', '.join(f'{v:g}' for v in twice)} "
+                                             f"more than once in {s!r}")
         return vals
     parse.__name__ = name
     return parse
@@ -460,7 +480,7 @@ def cmd_bench_filtering(args) -> int:
     init_warp(args.device)
     log = (lambda *a, **k: None) if args.quiet else print
     record = bf.run_bench_filtering(scene, zooms=args.zoom, gt_spp=args.gt_spp, runs=args.runs, seed=args.seed,
-                                    env_spp=args.spp, device=args.device,
+                                    env_spp=args.spp, device=args.device, max_anisotropy=args.max_anisotropy,
                                     cache=Path(args.cache) if args.cache else None, progress=not args.quiet, log=log)
     _write_bench(args, record, bf.write_plot)
     print(bf.format_table(record))
@@ -540,6 +560,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "lean, fixed, or ground_truth (--spp >= 64 jittered rays per pixel); also writes the mip "
                    "level map OUT.level.exr/.png. Under an [environment], each filtered pixel takes --spp pairs of "
                    "one BRDF and one environment sample (MIS), each ground-truth ray one pair")
+    add_anisotropy_option(r, None)
     common(r, DEFAULT_SPP)
     r.set_defaults(func=cmd_render)
 
@@ -617,6 +638,7 @@ def build_parser() -> argparse.ArgumentParser:
                     f"filtered methods (default {DEFAULT_SPP}, as warpbw render; their noise is part of the error)")
     bf.add_argument("--cache", help="GMM mipmap cache directory to reuse (default: build afresh, so that the "
                     "precompute time is measured)")
+    add_anisotropy_option(bf, 1)
     bench_common(bf)
     bf.set_defaults(func=cmd_bench_filtering)
 

@@ -17,6 +17,7 @@ Public:
     ``pair_uniforms(seed, pixel, n, device) -> (n, 5)``        the environment term's uniforms at a pixel
     ``zoomed_camera(camera, zoom) -> Camera``   the camera moved away from its look-at point (distance x zoom)
     ``LOD_BIAS``                         added to log2(footprint): the mip filter then blurs as the pixel box
+    ``MAX_ANISOTROPY``, ``DEFAULT_ANISOTROPY``   the most probes along a footprint's major axis; the default (1)
     ``roughness_variance(m)``            the Gaussian NDF's per-axis variance m^2 / 2 of roughness m
     ``diffuse_pick(diffuse, f0)``        the BRDF sampler's probability of a cosine-weighted draw
 
@@ -41,16 +42,20 @@ component: mu = the finest-level normal at the hit point (bilinear fetch), s = 0
 The methods, per pixel: an analytic ray-plane hit, uv, and the pixel's footprint in finest-level texels from
 the ray differentials (the neighbouring pixels' rays against the same plane); the level is log2 of the
 footprint's larger side plus ``LOD_BIAS`` (which matches the mip filter's blur to the pixel's box), fractional,
-and every method filters trilinearly at it (004 Sec. 4.2).  Below level 0 (a pixel smaller than a texel) the
-result blends towards the fine-scale BRDF at the bilinearly interpolated finest normal, fully at level -1:
-level-0 texels are point samples of the normal field, not distributions.  Every method's NDF is a few lobes
-(``Lobes``: weight, mean, 2x2 covariance; the magnification blend is one more lobe, the shading being linear in
-the weights), shaded in closed form under each directional light and, under an environment, estimated with
-``env_spp`` pairs of one BRDF sample (a lobe picked by weight, its Gaussian sampled and reflected; or, with
-probability ``diffuse_pick``, a cosine-weighted direction) and one environment sample (``warpbw.envmap``),
-combined by the balance heuristic.  A pixel's pairs draw their uniforms from a quasi-random set, the R_3 and
-R_2 Kronecker sequences shifted by one random offset per pixel (``PAIR_ALPHA``), not from independent
-uniforms: each estimate stays unbiased, and its error is lower.  The methods:
+and every method filters trilinearly at it (004 Sec. 4.2).  With ``max_anisotropy`` > 1 (not in 004; by
+default off) an elongated footprint is filtered as GPUs filter anisotropically: n <= max_anisotropy
+trilinear probes spaced along its major axis, at the level of its minor one (no finer than level 0), their
+stored quantities averaged before a method recovers its lobes -- the same linear filtering with a footprint
+whose variance along both axes is the pixel box's (``pixel_footprint``).  Below level 0 (a pixel smaller than
+a texel) the result blends towards the fine-scale BRDF at the bilinearly interpolated finest normal, fully at
+level -1: level-0 texels are point samples of the normal field, not distributions.  Every method's NDF is a
+few lobes (``Lobes``: weight, mean, 2x2 covariance; the magnification blend is one more lobe, the shading
+being linear in the weights), shaded in closed form under each directional light and, under an environment,
+estimated with ``env_spp`` pairs of one BRDF sample (a lobe picked by weight, its Gaussian sampled and
+reflected; or, with probability ``diffuse_pick``, a cosine-weighted direction) and one environment sample
+(``warpbw.envmap``), combined by the balance heuristic.  A pixel's pairs draw their uniforms from a
+quasi-random set, the R_3 and R_2 Kronecker sequences shifted by one random offset per pixel (``PAIR_ALPHA``),
+not from independent uniforms: each estimate stays unbiased, and its error is lower.  The methods:
     gmm_aligned / gmm_unaligned   the stored moments (a, a mu, a E|n|^2 = a (2 s^2 + |mu|^2)) of each
                                   component, filtered linearly, then a, mu, s^2 recovered: the isotropic
                                   Gaussian of the filtered mean and second moment (004 Sec. 4.2, in the form
@@ -115,6 +120,13 @@ MIN_COS = 1e-4
 # pixel's box of side rho has rho^2 / 12.  Equal variances at l = log2(rho) - log2(3) / 2: the mipmap then
 # blurs as much as the pixel does (the ground truth's box filter), not three times as much.
 LOD_BIAS = -0.5 * math.log2(3.0)
+# Anisotropic footprints (not in 004, whose Sec. 4.2 filters trilinearly): at most this many probes along the
+# footprint's major axis, as GPUs' anisotropic texture filtering (EXT_texture_filter_anisotropic's usual 16x).
+MAX_ANISOTROPY = 16
+# The default: 1, one isotropic trilinear probe (004 Sec. 4.2, and every benchmark of record).
+DEFAULT_ANISOTROPY = 1
+# Probes: ceil(s1 / r - slack), so that float rounding of an exact ratio (s1 = 2 r) does not add one.
+ANISO_PROBE_SLACK = 1e-4
 # Footprint of a pixel whose neighbouring ray misses the (infinite) plane -- at the horizon: this many
 # finest texels (larger than any map, so the coarsest level).
 HORIZON_FOOTPRINT = 1.0e9
@@ -182,6 +194,7 @@ class PlaneData:
     diffuse: wp.vec3
     rough_var: float    # m^2 / 2
     lod_bias: float     # added to log2(footprint)
+    max_aniso: int      # most probes along the footprint's major axis (1: isotropic, ``MAX_ANISOTROPY``)
     diffuse_pick: float  # probability of a cosine-weighted draw in the BRDF strategy (``DIFFUSE_PICK_MIN``)
 
 
@@ -531,23 +544,68 @@ def set_lobe(L: Lobes, k: int, a: float, mx: float, my: float, sxx: float, syy: 
     return L
 
 
+@wp.struct
+class Footprint:
+    lam: float          # fractional mip level, clamped to [-1, levels - 1] (below 0: magnification)
+    n: int              # probes along the footprint's major axis (1: one trilinear fetch at the pixel's centre)
+    step: wp.vec2       # finest texels between neighbouring probes, along the major axis
+
+
 @wp.func
-def footprint_level(cam: CameraData, pl: PlaneData, x: int, y: int, st: wp.vec2):
-    """Mip level: log2 of the pixel footprint's larger side in finest texels, from the ray differentials
-    (the rays through the next pixel right and down, against the same infinite plane), plus the LOD bias;
-    clamped to [-1, levels - 1] (below 0: magnification, see ``filtered_kernel``)."""
+def pixel_footprint(cam: CameraData, pl: PlaneData, x: int, y: int, st: wp.vec2):
+    """The pixel's footprint from the ray differentials (the rays through the next pixel right and down,
+    against the same infinite plane): J = [ds/dx ds/dy] in finest texels per pixel.  Isotropic
+    (``max_aniso`` = 1): one probe at log2 of J's larger column + the LOD bias.  Anisotropic: J's singular
+    values s1 >= s2 (the pixel box maps to a parallelogram of covariance J J^T / 12, axes s1^2 / 12 and
+    s2^2 / 12 along J's left singular vectors), n = ceil(s1 / r) probes along the major axis
+    (``ANISO_PROBE_SLACK``), each an isotropic trilinear filter of radius r = max(s2, s1 / max_aniso,
+    2^-lod_bias), the last the radius whose level is 0.  With n = 1 the isotropic level stands: for a sheared
+    footprint, whose longer column is shorter than s1, the two differ by up to half a level."""
     o = cam.origin
+    fp = Footprint()
+    fp.n = 1
+    fp.step = wp.vec2(0.0, 0.0)
     rho = float(HORIZON_FOOTPRINT)
     dx = ray_dir(cam, float(x) + 1.5, float(y) + 0.5)
     dy = ray_dir(cam, float(x) + 0.5, float(y) + 1.5)
     tx = plane_t(o, dx, pl)
     ty = plane_t(o, dy, pl)
     if tx > 0.0 and ty > 0.0:
-        sx = plane_st(o + tx * dx, pl) - st
-        sy = plane_st(o + ty * dy, pl) - st
-        rho = wp.max(wp.length(sx), wp.length(sy))
-    lam = wp.log2(wp.max(rho, 1.0e-6)) + pl.lod_bias
-    return wp.clamp(lam, -1.0, float(pl.levels - 1))
+        jx = plane_st(o + tx * dx, pl) - st
+        jy = plane_st(o + ty * dy, pl) - st
+        rho = wp.max(wp.length(jx), wp.length(jy))
+        if pl.max_aniso > 1:
+            # J J^T = [[p, r], [r, q]]: eigenvalues e +- f, the larger one's eigenvector u
+            p = jx[0] * jx[0] + jy[0] * jy[0]
+            q = jx[1] * jx[1] + jy[1] * jy[1]
+            r = jx[0] * jx[1] + jy[0] * jy[1]
+            e = 0.5 * (p + q)
+            f = wp.sqrt(0.25 * (p - q) * (p - q) + r * r)
+            s1 = wp.sqrt(e + f)
+            s2 = wp.sqrt(wp.max(e - f, 0.0))
+            u = wp.vec2(1.0, 0.0)
+            if p >= q:
+                if f > 0.0:
+                    u = wp.normalize(wp.vec2(e + f - q, r))
+            else:
+                u = wp.normalize(wp.vec2(r, e + f - p))
+            # a probe no finer than level 0 (level-0 texels are point samples: finer probes add nothing)
+            radius = wp.max(wp.max(s2, s1 / float(pl.max_aniso)), wp.pow(2.0, -pl.lod_bias))
+            n = wp.clamp(int(wp.ceil(s1 / radius - ANISO_PROBE_SLACK)), 1, pl.max_aniso)
+            if n > 1:
+                rho = radius
+                fp.n = n
+                # n probes spaced d apart have variance (n^2 - 1) d^2 / 12 along u; with each probe's own
+                # r^2 / 12 that is the box's s1^2 / 12
+                fp.step = u * wp.sqrt(wp.max(s1 * s1 - radius * radius, 0.0) / float(n * n - 1))
+    fp.lam = wp.clamp(wp.log2(wp.max(rho, 1.0e-6)) + pl.lod_bias, -1.0, float(pl.levels - 1))
+    return fp
+
+
+@wp.func
+def probe_offset(fp: Footprint, j: int):
+    """Finest-texel offset of probe j of the footprint from the pixel's centre (probes centred on it)."""
+    return (float(j) - 0.5 * float(fp.n - 1)) * fp.step
 
 
 @functools.cache  # one kernel per method kind and light set: Warp compiles each once
@@ -570,7 +628,8 @@ def _filtered_kernel(code: int, with_env: bool):
             if inside(p, pl):
                 depth[i] = t
                 st = plane_st(p, pl)
-                lam_px = footprint_level(cam, pl, x, y, st)
+                fp = pixel_footprint(cam, pl, x, y, st)
+                lam_px = fp.lam
                 level[i] = lam_px
                 lam = wp.max(lam_px, 0.0)
                 s = st[0]
@@ -579,16 +638,30 @@ def _filtered_kernel(code: int, with_env: bool):
                 L = Lobes()
                 nl = int(0)
                 if wp.static(code == 0):
-                    # GMM: trilinear filtering of the stored moments, per component (004 Sec. 4.2)
+                    # GMM: trilinear filtering of the stored moments, per component (004 Sec. 4.2), averaged over
+                    # the footprint's probes
                     for k in range(pl.components):
-                        g = recover(trilinear4(gmm, lw, lh, loff, pl.levels, lam, s, tt, pl.components, k))
+                        acc = wp.vec4(0.0)
+                        for j in range(fp.n):
+                            dj = probe_offset(fp, j)
+                            acc += trilinear4(gmm, lw, lh, loff, pl.levels, lam, s + dj[0], tt + dj[1],
+                                              pl.components, k)
+                        g = recover(acc / float(fp.n))
                         if g[0] > 0.0:
                             # the builder's floor is numerical, not surface: a flat footprint adds nothing
                             var = wp.max(g[3] - VARIANCE_FLOOR, 0.0) + pl.rough_var
                             L = set_lobe(L, nl, g[0], g[1], g[2], var, var, 0.0)
                             nl = nl + 1
                 else:
-                    m = trilinear3(nmean, lw, lh, loff, pl.levels, lam, s, tt)
+                    m = wp.vec3(0.0)
+                    q2 = wp.vec3(0.0)
+                    for j in range(fp.n):
+                        dj = probe_offset(fp, j)
+                        m += trilinear3(nmean, lw, lh, loff, pl.levels, lam, s + dj[0], tt + dj[1])
+                        if wp.static(code == 2):
+                            q2 += trilinear3(nm2, lw, lh, loff, pl.levels, lam, s + dj[0], tt + dj[1])
+                    m = m / float(fp.n)
+                    q2 = q2 / float(fp.n)
                     ln = wp.length(m)
                     n = wp.vec3(0.0, 0.0, 1.0)
                     if ln > MIN_MEAN_LENGTH:
@@ -605,7 +678,6 @@ def _filtered_kernel(code: int, with_env: bool):
                     sxy = float(0.0)
                     if wp.static(code == 2):
                         # LEAN-style: filtered first and second moments of the projected normals
-                        q2 = trilinear3(nm2, lw, lh, loff, pl.levels, lam, s, tt)
                         mx = m[0]
                         my = m[1]
                         sxx = wp.max(q2[0] - mx * mx, 0.0) + pl.rough_var
@@ -944,7 +1016,8 @@ class FilterResult:
     stats: dict
 
 
-def _plane_data(p: PlaneObject, m, mp: _Mips, K: int, lod_bias: float = LOD_BIAS) -> PlaneData:
+def _plane_data(p: PlaneObject, m, mp: _Mips, K: int, lod_bias: float = LOD_BIAS,
+                max_aniso: int = DEFAULT_ANISOTROPY) -> PlaneData:
     pl = PlaneData()
     pl.center = wp.vec3(*p.center)
     pl.size = float(p.size)
@@ -956,6 +1029,7 @@ def _plane_data(p: PlaneObject, m, mp: _Mips, K: int, lod_bias: float = LOD_BIAS
     pl.diffuse = wp.vec3(*m.diffuse)
     pl.rough_var = roughness_variance(m.roughness)
     pl.lod_bias = float(lod_bias)
+    pl.max_aniso = int(max_aniso)
     pl.diffuse_pick = diffuse_pick(m.diffuse, m.f0)
     return pl
 
@@ -971,17 +1045,19 @@ def diffuse_pick(diffuse, f0) -> float:
 def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed: int = 0, device: str = "cpu",
                      prepared: FilteringScene | None = None, camera: Camera | None = None,
                      progress: bool = False, lod_bias: float = LOD_BIAS, threads: int | None = None,
-                     env_spp: int = DEFAULT_ENV_SPP) -> FilterResult:
+                     env_spp: int = DEFAULT_ENV_SPP, max_anisotropy: int = DEFAULT_ANISOTROPY) -> FilterResult:
     """Render ``scene`` (planes under directional lights and / or an environment) with ``method``
     (``ALL_METHODS``); ``camera`` overrides the scene's; ``spp`` is the ground truth's rays per pixel
     (>= MIN_GT_SPP); ``env_spp`` the filtered methods' BRDF + environment sample pairs per pixel when the
     scene has an [environment] (the ground truth takes one pair per ray); ``seed`` seeds both; ``lod_bias``
-    is added to every pixel's mip level; CPU launches are tiled over ``threads`` (default: all cores, up
+    is added to every pixel's mip level; ``max_anisotropy`` (1 to ``MAX_ANISOTROPY``) the most probes along a
+    footprint's major axis (1: isotropic); CPU launches are tiled over ``threads`` (default: all cores, up
     to 8)."""
     from warpbw.shading import default_threads, launch_tiled
 
     if method not in ALL_METHODS:
         raise WarpbwError(f"filter method {method!r}: expected one of {', '.join(ALL_METHODS)}")
+    check_count(max_anisotropy, "max_anisotropy (probes along a footprint's major axis)", 1, MAX_ANISOTROPY)
     if method == "ground_truth":
         check_count(spp, "spp (ground-truth rays per pixel)", MIN_GT_SPP, INT32_MAX)  # int32 in the kernels
     elif scene.environment is not None:
@@ -1014,7 +1090,7 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
                          dev, nthreads, tile=tile)
         else:
             gmm, K = mp.gmm.get(method, (wp.zeros(1, dtype=wp.vec4, device=dev), 0))
-            pl = _plane_data(p, m, mp, K, lod_bias)
+            pl = _plane_data(p, m, mp, K, lod_bias, max_anisotropy)
             launch_tiled(kernel, n, lambda o, c, pl=pl, mp=mp, gmm=gmm: [cam, pl, mp.lw, mp.lh, mp.loff, gmm, mp.nmean,
                                                                         mp.nm2, prepared.ldir, prepared.lrad, env,
                                                                         int(env_spp), int(seed), o, depth, out,
@@ -1033,6 +1109,7 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
         stats["seed"] = int(seed)
     else:
         stats["mean_level"] = float(lev[cov].mean()) if cov.any() else 0.0
+        stats["max_anisotropy"] = int(max_anisotropy)
     if with_env:
         stats["environment"] = {"name": prepared.env.name, "size": [prepared.env.width, prepared.env.height],
                                 "samples_per_pixel": 2 * (int(spp) if method == "ground_truth" else int(env_spp)),

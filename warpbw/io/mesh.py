@@ -19,6 +19,7 @@ Class: ``MeshData``.
 from __future__ import annotations
 
 import math
+import re
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +36,9 @@ _DEGENERATE_REL_AREA = 1e-12
 # in the project's world convention (DESIGN.md).
 _FALLBACK_NORMAL = (0.0, 1.0, 0.0)
 _SUPPORTED = "OBJ, PLY, STL or GLB"
+# An OBJ face whose vertex index is 0 (OBJ counts from 1, and from -1 backwards): trimesh reads it as vertex 0,
+# a different triangle from the one the file's author meant, so it is refused.
+_OBJ_ZERO_INDEX = re.compile(rb"^[ \t]*f[ \t][^\n]*?(?<=[ \t])0(?:/\S*)?(?=\s|$)", re.M)
 
 
 @dataclass
@@ -176,6 +180,16 @@ def _check_float32(verts, path, when: str) -> None:
                           f"within +-{FLOAT32_MAX:.4g})")
 
 
+def _check_obj_indices(path: Path) -> None:
+    """Refuse an OBJ face with vertex index 0, naming its line (``_OBJ_ZERO_INDEX``)."""
+    data = path.read_bytes()
+    m = _OBJ_ZERO_INDEX.search(data)
+    if m is not None:
+        line = data.count(b"\n", 0, m.start()) + 1
+        raise WarpbwError(f"{path}:{line}: a face has vertex index 0 (OBJ indices count from 1, or back from -1); "
+                          "malformed mesh")
+
+
 def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg: float = 0.0) -> MeshData:
     """Load a triangle mesh, apply x' = R_y(rotate_y_deg) (scale * x) + translate, and derive
     smooth normals and mean curvature in the transformed (world) frame.
@@ -191,6 +205,8 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
         raise WarpbwError(f"{path}: empty file (0 bytes): no triangles found (expected a mesh with faces: "
                           f"{_SUPPORTED})")
     t, s, r = _check_transform(path, translate, scale, rotate_y_deg)
+    if path.suffix.lower() == ".obj":
+        _check_obj_indices(path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
