@@ -661,7 +661,6 @@ def _filtered_kernel(code: int, with_env: bool):
                         if wp.static(code == 2):
                             q2 += trilinear3(nm2, lw, lh, loff, pl.levels, lam, s + dj[0], tt + dj[1])
                     m = m / float(fp.n)
-                    q2 = q2 / float(fp.n)
                     ln = wp.length(m)
                     n = wp.vec3(0.0, 0.0, 1.0)
                     if ln > MIN_MEAN_LENGTH:
@@ -678,6 +677,7 @@ def _filtered_kernel(code: int, with_env: bool):
                     sxy = float(0.0)
                     if wp.static(code == 2):
                         # LEAN-style: filtered first and second moments of the projected normals
+                        q2 = q2 / float(fp.n)
                         mx = m[0]
                         my = m[1]
                         sxx = wp.max(q2[0] - mx * mx, 0.0) + pl.rough_var
