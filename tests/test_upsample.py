@@ -6,7 +6,8 @@ import numpy as np
 import warp as wp
 
 from warpbw.gbuffer import SphereSpec, build_geometry, make_camera, render_gbuffer
-from warpbw.upsample import (COS_X_MIN, anisotropic_gaussian, level_size, parent_weights, upsample_level)
+from warpbw.upsample import (COS_X_MIN, G_A_UNIT, anisotropic_gaussian, level_size, parent_weights,
+                             upsample_level)
 
 
 def gbuffer(spheres, w=48, h=40, pos=(0.0, 0.0, 5.0)):
@@ -95,7 +96,7 @@ def test_weights_follow_the_closed_form_on_a_frontal_surface():
             py = i0[1] + (k // 2)
             ax = (1 - f[0]) if k % 2 == 0 else f[0]
             ay = (1 - f[1]) if k < 2 else f[1]
-            v = np.array([2 * px + 1 - (x + 0.5), 2 * py + 1 - (y + 0.5)])
+            v = np.array([2 * px + 1 - (x + 0.5), 2 * py + 1 - (y + 0.5)]) / G_A_UNIT
             expect.append(ax * ay * np.exp(-(v @ v)))
         # a sphere is not a plane: cos theta_x and depth vary slightly over 1.5 pixels (1% on the far parent)
         assert np.allclose(wts[y, x], expect, rtol=1e-2, atol=1e-6)
