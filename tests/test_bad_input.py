@@ -645,18 +645,10 @@ _SPHERE_OBJECT = ('\n[[object]]\nshape = "sphere"\nradius = 0.5\nmaterial = "s"\
                   '[material.s]\ntype = "lambert"\nalbedo = 0.5\n')
 
 
-@pytest.mark.parametrize("what,needles", [
-    ("plane and sphere", ["[[object]] #2", "renders planes only"]),
-    ("sphere lit by a light only", ["[[light]]", "planes only", "spheres and meshes"]),
-])
-def test_info_refuses_what_render_refuses(tmp_path, what, needles):
+def test_info_refuses_what_render_refuses(tmp_path):
     """``warpbw info`` approved scenes that ``render`` (and the benches) refuse: the same one-line error."""
-    plane = PLANE_SCENE.replace('normal_map = "map.exr"\n', "")
-    if what == "plane and sphere":
-        text = plane + _SPHERE_OBJECT
-    else:  # the plane scene's camera and [[light]], a sphere instead of the plane
-        text = plane.split("[[object]]")[0] + _SPHERE_OBJECT
-    (tmp_path / "scene.toml").write_text(text)
+    needles = ["[[object]] #2", "renders planes only"]
+    (tmp_path / "scene.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', "") + _SPHERE_OBJECT)
     lines = set()
     for args in (["info", "scene.toml"], ["info", "scene.toml", "--json"],
                  ["render", "scene.toml", "-o", "out.exr", "--spp", "1"]):
@@ -674,21 +666,30 @@ def test_plane_scene_through_the_environment_pipeline_is_refused(tmp_path):
     from warpbw.scene import parse_scene
 
     scene = parse_scene(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""), tmp_path, "planes.toml")
-    with pytest.raises(WarpbwError, match=r"planes\.toml: .*\[environment\]"):
+    with pytest.raises(WarpbwError, match=r"planes\.toml: .*does not render planes"):
         render_reference(scene, spp=1)
 
 
-def test_lights_on_a_scene_built_in_code_are_refused_by_the_environment_pipeline():
-    """A Scene built in Python (no parser) with a [[light]] beside the default scene's spheres: the 002 pipeline
-    integrates the environment only, so it refuses rather than render without the light."""
+def test_a_scene_built_in_code_without_any_light_is_refused_by_the_environment_pipeline():
+    """A Scene built in Python (no parser) with neither an [environment] nor a [[light]]: a one-line error,
+    not a black image."""
     from dataclasses import replace
 
     from warpbw.pipeline import render_reference
-    from warpbw.scene import DirectionalLight, default_scene
+    from warpbw.scene import default_scene
 
-    scene = replace(default_scene(), lights=[DirectionalLight((0.0, 1.0, 0.0), (3.0, 3.0, 3.0))])
-    with pytest.raises(WarpbwError, match=r"no planes or \[\[light\]\]s"):
+    scene = replace(default_scene(), environment=None, lights=[])
+    with pytest.raises(WarpbwError, match=r"no light"):
         render_reference(scene, spp=1)
+
+
+def test_bench_refuses_a_sphere_scene_lit_by_lights_alone(tmp_path):
+    """Lights alone render exactly at any spp: ``warpbw bench`` has nothing to measure and says so."""
+    (tmp_path / "scene.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', "").split("[[object]]")[0]
+                                         + _SPHERE_OBJECT)
+    r = run(["bench", "scene.toml", "--json", "b.json", "--spp", "1", "--budgets", "1"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "[environment]", "exactly")
+    assert_no_outputs(tmp_path, "b")
 
 
 # ------------------------------------------------------------------------------------------ examples/

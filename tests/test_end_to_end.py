@@ -113,7 +113,8 @@ def test_demo_writes_exr_png_json_and_respects_force(tmp_path):
     assert stats["samples"] == 4 * stats["pixels_covered"]
     assert stats["environment_samples"] == stats["samples"]  # the demo uses MIS
     assert stats["resolution"] == [384, 256] and stats["spp"] == 4 and stats["mis"] is True
-    assert stats["stages"] == ["gbuffer:spheres", "brdf:ggx+lambert", "reference_shading+mis"]
+    assert stats["stages"] == ["gbuffer:spheres", "brdf:ggx+lambert", "light:environment",
+                              "reference_shading+mis"]
     assert {"gbuffer", "shading", "total"} <= set(stats["time_s"])
     assert stats["non_finite_samples"] == 0
     with Image.open(png) as im:
@@ -189,7 +190,8 @@ def test_render_npf_scene(work, npf_render):
     assert abs(covered.mean() - frac) < 0.03
     assert np.isfinite(rgb).all() and rgb[covered].min() > 0.0
     stats = json.loads(npf_render.with_suffix(".json").read_text())
-    assert stats["stages"] == ["gbuffer:spheres", "brdf:npf", "tabulated_sampling", "reference_shading+mis"]
+    assert stats["stages"] == ["gbuffer:spheres", "brdf:npf", "tabulated_sampling", "light:environment",
+                              "reference_shading+mis"]
     assert stats["samples"] == 8 * int(covered.sum())
     assert stats["assets"]["material.m"] == {"type": "npf", "name": NPF_MATERIAL, "sampling": "built"}
     assert "material.unused" not in stats["assets"]  # an unused material is not loaded

@@ -537,11 +537,6 @@ PLANE_CASES = [
     ("unknown light key", dict(lights=LIGHT + "colour = 1.0\n"), "[[light]] #1.colour"),
     ("light without radiance", dict(lights=LIGHT.replace("radiance = [3.0, 2.0, 1.0]\n", "")),
      "[[light]] #1.radiance"),
-    # the sphere-and-mesh renderer integrates the environment only: a light there would be silently dropped
-    ("light beside a sphere and an environment", dict(environment=ENVIRONMENT, objects=SPHERE, material=PAINT),
-     "[[light]]: directional lights light planes only"),
-    ("light on a sphere without an environment", dict(objects=SPHERE, material=PAINT),
-     "[[light]]: directional lights light planes only"),
     ("plane size zero", dict(objects=_replace(PLANE, "size = 2.0", "size = 0.0")), "[[object]] #1.size"),
     ("plane without size", dict(objects=PLANE.replace("size = 2.0\n", "")), "[[object]] #1.size"),
     ("plane with radius", dict(objects=PLANE + "radius = 1.0\n"), "[[object]] #1.radius"),

@@ -28,6 +28,7 @@ import warp as wp
 from warpbw.brdf import MaterialBuffers
 from warpbw.envmap import EnvMapData
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
+from warpbw.lights import Lights
 from warpbw.pyramid import build_pyramid
 from warpbw.shading import shade_reference
 from warpbw.upsample import level_size, representative_pixel, upsample_level
@@ -101,10 +102,11 @@ def _int_map(a, h, w, name):
     return np.ascontiguousarray(a.reshape(h, w).astype(np.int32))
 
 
-def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env_data: EnvMapData,
+def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env_data: EnvMapData | None,
                        level_map, spp_map, seed: int = 0, mis: bool = False, device: str = "cpu",
-                       threads: int | None = None) -> AdaptiveResult:
-    """Coarse-to-fine shading of the covered pixels with per-pixel levels and sample counts."""
+                       threads: int | None = None, lights: Lights | None = None) -> AdaptiveResult:
+    """Coarse-to-fine shading of the covered pixels with per-pixel levels and sample counts (``env_data``
+    None: no environment; ``lights``: directional lights, as :func:`warpbw.shading.shade_reference`)."""
     W, H = gb.width, gb.height
     level = _int_map(level_map, H, W, "level_map")
     spp = np.maximum(_int_map(spp_map, H, W, "spp_map"), 0)
@@ -153,7 +155,7 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
             wp.launch(level_spp_kernel, dim=n_shaded, inputs=[rep, w, spps.levels[L], texels, spp_at_pixel],
                       device=device)
             res = shade_reference(gb, materials, env_data, spp_at_pixel, seed=seed + 7919 * L, mis=mis,
-                                  device=device, threads=threads, pixels=pix, out=shaded_full)
+                                  device=device, threads=threads, pixels=pix, out=shaded_full, lights=lights)
             samples += res.samples
             non_finite += res.non_finite
             wp.launch(gather_shaded_kernel, dim=n_shaded, inputs=[pix, texels, shaded_full, vals, valid],

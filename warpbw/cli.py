@@ -181,21 +181,12 @@ def _warn_if_empty(stats: dict) -> None:
               "position, look_at and fov against the objects)", file=sys.stderr)
 
 
-def _no_environment(scene, what: str) -> None:
-    """Spheres and meshes are lit by the environment only (the pipeline of 002); refuse before it breaks."""
-    if scene.environment is None:
-        raise WarpbwError(f"{scene.source}: [environment]: missing; {what} needs one (directional [[light]]s "
-                          "light planes only, through the filtering renderer)")
-
-
 def _check_renderable(scene) -> None:
     """What ``render`` refuses in the scene itself, whatever the options (``info`` refuses the same)."""
     if scene.has_planes:
         from warpbw.filtering import plane_objects
 
         plane_objects(scene)  # planes only: spheres and meshes beside them are refused
-    else:
-        _no_environment(scene, "rendering spheres and meshes")
 
 
 def _render_filtering_cli(scene, args) -> int:
@@ -451,7 +442,10 @@ def cmd_bench(args) -> int:
     scene = load_scene(args.scene)
     if scene.has_planes:
         raise WarpbwError(f"{scene.source}: a scene with planes is benchmarked by 'warpbw bench-filtering'")
-    _no_environment(scene, "bench (spheres and meshes)")
+    if scene.environment is None:
+        # lights alone are exact (no sampling): every method would match the ground truth at 1 spp
+        raise WarpbwError(f"{scene.source}: [environment]: missing; bench measures how the methods sample an "
+                          "environment, and [[light]]s alone render exactly at any spp (add an [environment])")
     init_warp(args.device)
     log = (lambda *a, **k: None) if args.quiet else print
     record = bench.run_bench(scene, spp_list=args.spp, budgets=args.budgets, nb_list=args.nb or (),

@@ -1131,8 +1131,7 @@ def filtering_summary(scene: Scene) -> dict:
             objects.append(f"plane size={o.size:g} at {list(o.center)} material={o.material}")
         else:
             objects.append(f"{type(o).__name__} material={o.material} (not rendered by the filtering renderer)")
-    lights = [f"directional towards {[round(c, 4) for c in li.direction]} radiance {list(li.radiance)}"
-              for li in scene.lights]
+    lights = [li.describe() for li in scene.lights]
     e = scene.environment
     env = "none" if e is None else (
         f"{e.describe()}; sampled per pixel: BRDF and environment samples, multiple importance sampling, "

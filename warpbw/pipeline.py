@@ -9,7 +9,8 @@ Public:
 
 A material kind the scene does not use is not compiled (its branch is removed from the kernels with
 ``wp.static``); spheres and meshes each have their own G-buffer path; one table per tabulated material
-is in memory.  ``RenderResult.stats`` says which stages ran and how long each took.
+is in memory.  The environment and the directional ``[[light]]``s are each optional (a scene has at least
+one): a scene without an environment compiles no sampling loop, one without lights no light loop.  ``RenderResult.stats`` says which stages ran and how long each took.
 """
 from __future__ import annotations
 
@@ -35,13 +36,19 @@ class PreparedScene:
     device: str
     camera: object
     geometry: object
-    env: object
+    env: object                                       # EnvMap, or None: the scene has [[light]]s only
     materials: brdf_mod.MaterialBuffers
     timings: dict = field(default_factory=dict)
     notes: dict = field(default_factory=dict)
     sources: dict = field(default_factory=dict)      # material name -> BrdfSource (merl / npf only)
     bandwidth: object = None                          # BandwidthTables, built on first adaptive frame
+    lights: object = None                             # warpbw.lights.Lights, or None without [[light]]s
     _keep: list = field(default_factory=list, repr=False)
+
+    @property
+    def env_data(self):
+        """The environment's device struct, or None (lights only)."""
+        return None if self.env is None else self.env.data
 
     @property
     def width(self) -> int:
@@ -97,19 +104,29 @@ def _material_spec(m, progress: bool, notes: dict, sources: dict) -> brdf_mod.Ma
 
 def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> PreparedScene:
     """Load the scene's assets (environment, meshes, materials) onto ``device``."""
-    if scene.environment is None or scene.has_planes or scene.lights:
-        raise WarpbwError(f"{scene.source}: this renderer (spheres and meshes under an [environment], 002) "
-                          "needs an [environment] and no planes or [[light]]s; scenes with planes and [[light]]s "
-                          "render with warpbw.filtering.render_filtering (warpbw render --filter)")
+    from warpbw.lights import make_lights
+
+    if scene.has_planes:
+        raise WarpbwError(f"{scene.source}: this renderer (spheres and meshes, 002) does not render planes; scenes "
+                          "with planes render with warpbw.filtering.render_filtering (warpbw render)")
+    if scene.environment is None and not scene.lights:
+        raise WarpbwError(f"{scene.source}: the scene has no light (expected an [environment] and / or "
+                          "[[light]] tables)")
     timings: dict = {}
     notes: dict = {}
     sources: dict = {}
     c = scene.camera
     cam = make_camera(c.position, c.look_at, c.up, c.fov, c.width, c.height)
-    with _timed(timings, "load_environment"):
-        env = envmap.load_environment(scene.environment, device)
-    # channel values (not pixels) that were negative or non-finite and set to 0
-    notes["environment"] = {"name": env.name, "size": [env.width, env.height], "clamped_values": int(env.n_clamped)}
+    env = None
+    if scene.environment is not None:
+        with _timed(timings, "load_environment"):
+            env = envmap.load_environment(scene.environment, device)
+        # channel values (not pixels) that were negative or non-finite and set to 0
+        notes["environment"] = {"name": env.name, "size": [env.width, env.height],
+                                "clamped_values": int(env.n_clamped)}
+    lights = make_lights(scene.lights, device)
+    if lights is not None:
+        notes["lights"] = {"directional": lights.count}
     order = scene.material_order
     mat_id = {name: i for i, name in enumerate(order)}
     with _timed(timings, "load_materials"):
@@ -127,7 +144,7 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
                 meshes.append(MeshSpec(md.vertices, md.faces, md.normals, md.mean_curvature, md.uv,
                                        mat_id[o.material]))
         geometry = build_geometry(spheres, meshes, device=device)
-    return PreparedScene(scene, device, cam, geometry, env, materials, timings, notes, sources)
+    return PreparedScene(scene, device, cam, geometry, env, materials, timings, notes, sources, lights=lights)
 
 
 def stages_used(prep: PreparedScene, mis: bool, adaptive: bool = False) -> list:
@@ -137,6 +154,8 @@ def stages_used(prep: PreparedScene, mis: bool, adaptive: bool = False) -> list:
          "brdf:" + "+".join(kinds)]
     if any(k in prep.materials.kinds for k in (brdf_mod.MERL, brdf_mod.NPF)):
         s.append("tabulated_sampling")
+    s.append("light:" + "+".join(n for n, on in (("environment", prep.env is not None),
+                                                   ("directional", prep.lights is not None)) if on))
     if adaptive:
         s += ["bandwidth_pass", "pyramid", "hierarchical_shading" + ("+mis" if mis else ""), "upsampling"]
     else:
@@ -186,7 +205,8 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     _check_spp(spp)
     prep, timings = _prepared(scene, device, progress)
     _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
-                         make_reference_kernel(prep.materials.kinds, mis)), timings)
+                         make_reference_kernel(prep.materials.kinds, mis, has_env=prep.env is not None,
+                                               has_lights=prep.lights is not None)), timings)
     gb = _gbuffer(prep, timings)
     n_cov = int(gb.coverage.sum())
     bar = None
@@ -194,8 +214,8 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
         from tqdm import tqdm
         bar = tqdm(total=n_cov, desc=f"shading {spp} spp", unit="px", leave=False)
     t0 = time.perf_counter()
-    res = shade_reference(gb, prep.materials, prep.env.data, spp, seed=seed, mis=mis, device=prep.device,
-                          threads=threads, progress=bar.update if bar is not None else None)
+    res = shade_reference(gb, prep.materials, prep.env_data, spp, seed=seed, mis=mis, device=prep.device,
+                          threads=threads, progress=bar.update if bar is not None else None, lights=prep.lights)
     timings["shading"] = time.perf_counter() - t0
     if bar is not None:
         bar.close()
@@ -257,9 +277,13 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False):
     from precompute.brdf_bandwidth import SHAPE as BW_TABLE_SHAPE, load_or_build_bandwidth
     from warpbw.bandwidth import env_bandwidth_map, light_table, make_bandwidth_tables
 
-    with _timed(prep.timings, "load_env_bandwidth"):
-        nu_env, origin = env_bandwidth_map(prep.env.pixels, prep.env.name)
-    prep.notes["environment"]["bandwidth"] = origin
+    if prep.env is not None:
+        with _timed(prep.timings, "load_env_bandwidth"):
+            nu_env, origin = env_bandwidth_map(prep.env.pixels, prep.env.name)
+        prep.notes["environment"]["bandwidth"] = origin
+        light = light_table(prep.env.pixels, nu_env)
+    else:
+        light = np.zeros((1, 1, 2), np.float32)  # no environment: the pass compiles no code that reads it
     tables = []
     with _timed(prep.timings, "load_brdf_bandwidth"):
         for i, name in enumerate(prep.scene.material_order):
@@ -272,8 +296,7 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False):
                 table, origin = load_or_build_bandwidth(_AnalyticSource(prep, i, m), progress=progress)
             prep.notes.setdefault(f"material.{name}", {"type": m.type})["bandwidth"] = origin
             tables.append(table)
-        struct, keep = make_bandwidth_tables(light_table(prep.env.pixels, nu_env), np.stack(tables),
-                                             device=prep.device)
+        struct, keep = make_bandwidth_tables(light, np.stack(tables), device=prep.device)
     prep.bandwidth = struct
     prep._keep.extend(keep)
     return struct
@@ -325,23 +348,26 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
         if k in prep.timings and prep is not scene:
             timings[k] = prep.timings[k]
     _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
-                         bandwidth.make_bandwidth_kernel(prep.materials.kinds, preconvolved),
-                         make_reference_kernel(prep.materials.kinds, mis, per_pixel_spp=True)), timings)
+                         bandwidth.make_bandwidth_kernel(prep.materials.kinds, preconvolved, prep.env is not None,
+                                                         prep.lights is not None),
+                         make_reference_kernel(prep.materials.kinds, mis, per_pixel_spp=True,
+                                               has_env=prep.env is not None, has_lights=prep.lights is not None)),
+                  timings)
     t0 = time.perf_counter()
     adaptive.load_kernels(prep.device)
     timings["compile"] += time.perf_counter() - t0
     gb = _gbuffer(prep, timings)
     t0 = time.perf_counter()
-    buf = bandwidth.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=n_b, seed=seed,
+    buf = bandwidth.bandwidth_pass(gb, prep.camera, prep.materials, prep.env_data, tables, n_b=n_b, seed=seed,
                                    preconvolved=preconvolved, nyquist=nyquist, stride=stride,
-                                   pool_radius=pool_radius, device=prep.device, threads=threads)
+                                   pool_radius=pool_radius, device=prep.device, threads=threads, lights=prep.lights)
     _check_pass_finite(buf, prep.scene.source)
     alloc = bandwidth.allocate_samples(buf, budget, n_min=n_min, n_max=n_max, allocation=allocation,
                                        device=prep.device)
     timings["bandwidth"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    res = adaptive.shade_hierarchical(gb, prep.camera, prep.materials, prep.env.data, buf.level, alloc.n_p,
-                                      seed=seed, mis=mis, device=prep.device, threads=threads)
+    res = adaptive.shade_hierarchical(gb, prep.camera, prep.materials, prep.env_data, buf.level, alloc.n_p,
+                                      seed=seed, mis=mis, device=prep.device, threads=threads, lights=prep.lights)
     t_h = time.perf_counter() - t0
     timings["shading"] = res.stats["time_s"]["shading"]
     timings["upsampling"] = res.stats["time_s"]["upsampling"]
@@ -398,11 +424,14 @@ def scene_summary(scene: Scene) -> dict:
               "brdf: " + ", ".join(kinds)]
     if any(k in ("merl", "npf") for k in kinds):
         stages.append("tabulated importance sampling (002 Sec. 3.3)")
-    stages.append("reference shading (002 Eq. 2)")
+    stages.append("reference shading (002 Eq. 2)" + (", environment sampled" if env is not None else "")
+                  + (", directional lights exact" if scene.lights else ""))
+    lights = [li.describe() for li in scene.lights]
     return {
         "scene": scene.source,
         "resolution": [scene.camera.width, scene.camera.height],
-        "environment": env.describe(),
+        "environment": env.describe() if env is not None else "none (lit by the [[light]]s)",
+        "lights": lights,
         "objects": objects,
         "materials": {n: scene.materials[n].type for n in scene.material_order},
         "unused_materials": unused,

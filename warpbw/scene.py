@@ -9,7 +9,7 @@ Public:
 
 Lights: an ``[environment]`` and/or ``[[light]]`` tables (``type = "directional"``, ``direction`` towards the
 light, ``radiance``); a scene needs at least one of them (``Scene.environment`` is None without one).
-Directional lights light planes only: a scene with lights and no plane is refused.
+Directional lights light planes (``warpbw.filtering``) and spheres and meshes (``warpbw.lights``) alike.
 Planes (``shape = "plane"``: a square of side ``size`` in the XZ plane facing +Y, centred at ``center``,
 uv in [0, 1]^2 with u along +X and v along +Z) carry ``cook-torrance`` materials with an optional normal
 map (004); they are rendered by ``warpbw.filtering``.
@@ -161,6 +161,10 @@ class PlaneObject:
 class DirectionalLight:
     direction: tuple      # unit vector towards the light
     radiance: tuple       # RGB; a surface facing the light receives irradiance radiance * cos(theta)
+
+    def describe(self) -> str:
+        """One line for ``warpbw info``."""
+        return f"directional towards {[round(c, 4) for c in self.direction]} radiance {list(self.radiance)}"
 
 
 @dataclass(frozen=True)
@@ -547,12 +551,6 @@ def parse_scene(text: str, base_dir: Path | str | None = None, source: str = "<s
     objects = [_object(ctx, o, i, materials) for i, o in enumerate(objs_in)]
     env = _environment(ctx, d["environment"]) if "environment" in d else None
     scene = Scene(_camera(ctx, d["camera"]), env, objects, materials, source, base, lights)
-    if lights and not scene.has_planes:
-        # the renderer of spheres and meshes (002) integrates the environment only: a light it ignored would
-        # render a silently wrong image
-        ctx.fail("[[light]]", "directional lights light planes only (shape = \"plane\", the reflectance-"
-                 "filtering renderer of 004); spheres and meshes are lit by the [environment] alone, so remove "
-                 "the [[light]] tables or fold the light into the environment map")
     return scene
 
 

@@ -2,7 +2,7 @@
 
 Public:
     ``make_reference_kernel(kinds, mis)``  the shading kernel for a set of material kinds
-    ``ShadeResult`` / ``shade_reference(gb, materials, env, spp, seed, ...)``  run it over covered pixels
+    ``ShadeResult`` / ``shade_reference(gb, materials, env, spp, seed, ..., lights)``  run it over covered pixels
     ``ShadingFrame`` / ``pixel_frame(gb, i)``  a pixel's (t, b, n) frame and local view direction (Warp)
     ``to_local(frame, w)`` / ``to_world(frame, w)``  directions between world and the frame (Warp)
 
@@ -13,6 +13,10 @@ Per pixel p with surface point x, normal n and view direction wo (ignoring visib
 with w_i drawn from the BRDF's sampler (``g`` its pdf; G = 1).  With ``mis=True`` each of the N steps
 also draws one direction from the environment's distribution and the two are combined by the balance
 heuristic (Veach 1997), which tames small bright sources such as the sun of ``city.exr``.
+
+Directional ``[[light]]``s (:mod:`warpbw.lights`) add their exact term E rho(l, wo) (l . n) to every pixel
+besides the estimate: they cost no samples and add no variance.  A scene without an environment (lights
+only) compiles no sampling loop: its image is the lights' term whatever ``spp`` is, and it takes 0 samples.
 
 Samples whose contribution is not finite (a pdf that underflows at a grazing angle, say) are dropped
 and counted in ``ShadeResult.non_finite``, never averaged into the image.
@@ -31,7 +35,9 @@ import warp as wp
 
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf, env_radiance, env_sample
+from warpbw.errors import WarpbwError
 from warpbw.gbuffer import GBuffer, GBufferData
+from warpbw.lights import DirectionalLights, Lights
 
 # Pixels per kernel launch when tiling the work over threads (small enough for a smooth progress
 # bar, large enough that launch overhead stays under 1%).
@@ -75,21 +81,24 @@ def finite3(v: wp.vec3):
     return wp.isfinite(v[0]) and wp.isfinite(v[1]) and wp.isfinite(v[2])
 
 
-def make_reference_kernel(kinds, mis: bool, per_pixel_spp: bool = False):
+def make_reference_kernel(kinds, mis: bool, per_pixel_spp: bool = False, has_env: bool = True,
+                          has_lights: bool = False):
     """The reference shading kernel for the given material kinds, with or without MIS.
 
     With ``per_pixel_spp`` the sample count of pixel i is ``spp_map[i]`` (N_p of 002 Sec. 2.4, for
-    adaptive shading) instead of the scalar ``spp``; a pixel with N_p = 0 is set to 0.
+    adaptive shading) instead of the scalar ``spp``; a pixel with N_p = 0 gets the lights' term only.
+    ``has_env`` compiles the environment's sampling loop, ``has_lights`` the directional lights' term.
     """
-    return _reference_kernel(frozenset(int(k) for k in kinds), bool(mis), bool(per_pixel_spp))
+    return _reference_kernel(frozenset(int(k) for k in kinds), bool(mis), bool(per_pixel_spp), bool(has_env),
+                             bool(has_lights))
 
 
 @functools.cache  # one kernel per combination: Warp compiles each once
-def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool):
+def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env: bool, has_lights: bool):
     f = make_brdf_funcs(kinds)
 
     @wp.kernel(module="unique", enable_backward=False)
-    def shade_reference_kernel(gb: GBufferData, mats: MaterialTable, env: EnvMapData,
+    def shade_reference_kernel(gb: GBufferData, mats: MaterialTable, env: EnvMapData, lights: DirectionalLights,
                                pixels: wp.array(dtype=wp.int32), offset: int, spp_all: int,
                                spp_map: wp.array(dtype=wp.int32), seed: int,
                                out: wp.array(dtype=wp.vec3), non_finite: wp.array(dtype=wp.int32)):
@@ -102,40 +111,52 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool):
         wo = fr.wo
         state = wp.rand_init(seed, i)
         acc = wp.vec3(0.0)
+        direct = wp.vec3(0.0)
         bad = int(0)
-        if wo[2] > 0.0:
-            for _s in range(spp):
-                # BRDF-sampled direction (002 Eq. 2)
-                u = wp.vec3(wp.randf(state), wp.randf(state), wp.randf(state))
-                wi = f.sample(mats, m, wo, u)
-                if wi[2] > 0.0:
-                    p = f.pdf(mats, m, wi, wo)
-                    if p > 0.0:
-                        w_world = to_world(fr, wi)
-                        p_sum = p
-                        if wp.static(mis):
-                            p_sum = p + env_pdf(env, w_world)
-                        c = wp.cw_mul(f.eval(mats, m, wi, wo), env_radiance(env, w_world)) * (wi[2] / p_sum)
+        if wp.static(has_lights):
+            if wo[2] > 0.0:
+                for k in range(lights.direction.shape[0]):
+                    ld = to_local(fr, lights.direction[k])
+                    if ld[2] > 0.0:
+                        c = wp.cw_mul(f.eval(mats, m, ld, wo), lights.radiance[k]) * ld[2]  # E rho cos, Eq. 1
                         if finite3(c):
-                            acc = acc + c
+                            direct = direct + c
                         else:
                             bad = bad + 1
-                if wp.static(mis):
-                    # environment-sampled direction, balance heuristic
-                    ul = wp.vec2(wp.randf(state), wp.randf(state))
-                    wl = env_sample(env, ul)
-                    wl_local = to_local(fr, wl)
-                    if wl_local[2] > 0.0:
-                        pl = env_pdf(env, wl)
-                        if pl > 0.0:
-                            pb = f.pdf(mats, m, wl_local, wo)
-                            c = wp.cw_mul(f.eval(mats, m, wl_local, wo), env_radiance(env, wl)) * (
-                                wl_local[2] / (pl + pb))
+        if wp.static(has_env):
+            if wo[2] > 0.0:
+                for _s in range(spp):
+                    # BRDF-sampled direction (002 Eq. 2)
+                    u = wp.vec3(wp.randf(state), wp.randf(state), wp.randf(state))
+                    wi = f.sample(mats, m, wo, u)
+                    if wi[2] > 0.0:
+                        p = f.pdf(mats, m, wi, wo)
+                        if p > 0.0:
+                            w_world = to_world(fr, wi)
+                            p_sum = p
+                            if wp.static(mis):
+                                p_sum = p + env_pdf(env, w_world)
+                            c = wp.cw_mul(f.eval(mats, m, wi, wo), env_radiance(env, w_world)) * (wi[2] / p_sum)
                             if finite3(c):
                                 acc = acc + c
                             else:
                                 bad = bad + 1
-        out[i] = acc / float(wp.max(spp, 1))
+                    if wp.static(mis):
+                        # environment-sampled direction, balance heuristic
+                        ul = wp.vec2(wp.randf(state), wp.randf(state))
+                        wl = env_sample(env, ul)
+                        wl_local = to_local(fr, wl)
+                        if wl_local[2] > 0.0:
+                            pl = env_pdf(env, wl)
+                            if pl > 0.0:
+                                pb = f.pdf(mats, m, wl_local, wo)
+                                c = wp.cw_mul(f.eval(mats, m, wl_local, wo), env_radiance(env, wl)) * (
+                                    wl_local[2] / (pl + pb))
+                                if finite3(c):
+                                    acc = acc + c
+                                else:
+                                    bad = bad + 1
+        out[i] = acc / float(wp.max(spp, 1)) + direct
         if bad > 0:
             wp.atomic_add(non_finite, 0, bad)
 
@@ -146,7 +167,8 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool):
 class ShadeResult:
     radiance: wp.array          # (H*W,) vec3, 0 where no geometry
     pixels_shaded: int
-    samples: int                # BRDF samples (N per pixel); with MIS as many environment samples again
+    samples: int                # BRDF samples (N per pixel; 0 without an environment); with MIS as many
+                                # environment samples again
     non_finite: int             # samples dropped because their contribution was not finite
 
 
@@ -189,23 +211,59 @@ def launch_tiled(kernel, n_items: int, make_inputs: Callable[[int, int], list], 
     wp.synchronize_device(device)
 
 
+def lighting_inputs(env_data: EnvMapData | None, lights: Lights | None, device: str):
+    """The environment and light structs a kernel takes: placeholders for what the scene lacks (the kernel
+    compiles no code that reads them), and a one-line error when it lacks both."""
+    if env_data is None and lights is None:
+        raise WarpbwError("shading: the scene has no light (expected an environment or directional lights)")
+    if env_data is None:
+        from warpbw.envmap import constant_envmap
+
+        env_data = _placeholder(device, "env", lambda: constant_envmap(0.0, device=device).data)
+    if lights is None:
+        lights = _placeholder(device, "lights", lambda: _empty_lights(device))
+    else:
+        lights = lights.data
+    return env_data, lights
+
+
+def _empty_lights(device: str) -> DirectionalLights:
+    s = DirectionalLights()
+    s.direction = wp.zeros(0, dtype=wp.vec3, device=device)
+    s.radiance = wp.zeros(0, dtype=wp.vec3, device=device)
+    return s
+
+
+_PLACEHOLDERS: dict = {}
+
+
+def _placeholder(device: str, what: str, make):
+    key = (str(device), what)
+    if key not in _PLACEHOLDERS:
+        _PLACEHOLDERS[key] = make()
+    return _PLACEHOLDERS[key]
+
+
 def covered_pixels(gb: GBuffer, device: str = "cpu") -> wp.array:
     """Indices of the pixels that see geometry, as an int32 device array."""
     idx = np.flatnonzero(gb.coverage.reshape(-1)).astype(np.int32)
     return wp.array(idx, dtype=wp.int32, device=device)
 
 
-def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapData, spp, seed: int = 0,
+def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapData | None, spp, seed: int = 0,
                     mis: bool = False, device: str = "cpu", threads: int | None = None,
                     progress: Callable[[int], None] | None = None, pixels: wp.array | None = None,
-                    out: wp.array | None = None) -> ShadeResult:
+                    out: wp.array | None = None, lights: Lights | None = None) -> ShadeResult:
     """Shade every covered pixel (or the given ``pixels``) and return radiance.
 
     ``spp`` is one sample count for all pixels, or an int32 array of H*W per-pixel counts N_p.  Pixels
-    not shaded keep the value they have in ``out`` (zeros when ``out`` is not given).
+    not shaded keep the value they have in ``out`` (zeros when ``out`` is not given).  ``env_data`` None:
+    no environment (``lights`` must then be given); ``lights``: directional lights, or None.
     """
     per_pixel = isinstance(spp, wp.array)
-    kernel = make_reference_kernel(materials.kinds, mis, per_pixel)
+    has_env = env_data is not None
+    env_data, lights_data = lighting_inputs(env_data, lights, device)
+    kernel = make_reference_kernel(materials.kinds, mis, per_pixel, has_env, lights is not None)
     pix = covered_pixels(gb, device) if pixels is None else pixels
     if out is None:
         out = wp.zeros(gb.width * gb.height, dtype=wp.vec3, device=device)
@@ -213,10 +271,12 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
     spp_map = spp if per_pixel else wp.zeros(0, dtype=wp.int32, device=device)
     spp_all = 0 if per_pixel else int(spp)
     launch_tiled(kernel, pix.shape[0],
-                 lambda o, c: [gb.data, materials.table, env_data, pix, o, spp_all, spp_map, int(seed), out, bad],
-                 device, threads, progress)
+                 lambda o, c: [gb.data, materials.table, env_data, lights_data, pix, o, spp_all, spp_map, int(seed),
+                               out, bad], device, threads, progress)
     n = int(pix.shape[0])
-    if per_pixel:
+    if not has_env:
+        samples = 0
+    elif per_pixel:
         samples = int(spp.numpy()[pix.numpy()].sum()) if n else 0
     else:
         samples = n * spp_all
