@@ -692,6 +692,15 @@ def test_bench_refuses_a_sphere_scene_lit_by_lights_alone(tmp_path):
     assert_no_outputs(tmp_path, "b")
 
 
+def test_adaptive_render_refuses_a_sphere_scene_lit_by_lights_alone(tmp_path):
+    """``--method adaptive`` adapts the environment's sampling; lights alone are exact: a one-line error."""
+    (tmp_path / "scene.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', "").split("[[object]]")[0]
+                                         + _SPHERE_OBJECT)
+    r = run(["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "[environment]", "exact", "reference")
+    assert_no_outputs(tmp_path)
+
+
 # ------------------------------------------------------------------------------------------ examples/
 
 EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"

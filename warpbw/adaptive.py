@@ -16,6 +16,14 @@ per-pixel sample count N_p.  The level is mip-mapped with a min filter and N_p w
 
 Level 0 then holds every covered pixel.  ``AdaptiveResult.stats`` counts pixels shaded and up-sampled
 per level and the samples spent.
+
+The hierarchy shades and up-samples the environment's part of the image only.  Directional lights
+(:mod:`warpbw.lights`) are exact and cost one BRDF evaluation per light, less than one sample: their term
+E rho cos is added at every covered pixel of level 0 after the up-sampling, never interpolated.  Measured
+with ``warpbw bench`` on the ccp3 sphere under forest.exr with a sun (radiance 3, MIS, budgets 1-16, against
+a 4096-spp ground truth): up-sampling the sun's highlight with the rest held PSNR at 46.0-49.2 dB (speed-up
+2.9x); adding it after the up-sampling gives 47.7-57.1 dB (7.3x).  A scene without an environment has
+nothing to adapt and is refused.
 """
 from __future__ import annotations
 
@@ -27,6 +35,7 @@ import warp as wp
 
 from warpbw.brdf import MaterialBuffers
 from warpbw.envmap import EnvMapData
+from warpbw.errors import WarpbwError
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 from warpbw.lights import Lights
 from warpbw.pyramid import build_pyramid
@@ -102,11 +111,14 @@ def _int_map(a, h, w, name):
     return np.ascontiguousarray(a.reshape(h, w).astype(np.int32))
 
 
-def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env_data: EnvMapData | None,
+def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env_data: EnvMapData,
                        level_map, spp_map, seed: int = 0, mis: bool = False, device: str = "cpu",
                        threads: int | None = None, lights: Lights | None = None) -> AdaptiveResult:
-    """Coarse-to-fine shading of the covered pixels with per-pixel levels and sample counts (``env_data``
-    None: no environment; ``lights``: directional lights, as :func:`warpbw.shading.shade_reference`)."""
+    """Coarse-to-fine shading of the covered pixels with per-pixel levels and sample counts; ``lights``
+    (directional, or None) are then added exactly at every covered pixel (module docstring)."""
+    if env_data is None:
+        raise WarpbwError("adaptive shading: the scene has no environment to adapt to (directional lights alone "
+                          "are exact at any spp: use the reference renderer)")
     W, H = gb.width, gb.height
     level = _int_map(level_map, H, W, "level_map")
     spp = np.maximum(_int_map(spp_map, H, W, "spp_map"), 0)
@@ -155,7 +167,7 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
             wp.launch(level_spp_kernel, dim=n_shaded, inputs=[rep, w, spps.levels[L], texels, spp_at_pixel],
                       device=device)
             res = shade_reference(gb, materials, env_data, spp_at_pixel, seed=seed + 7919 * L, mis=mis,
-                                  device=device, threads=threads, pixels=pix, out=shaded_full, lights=lights)
+                                  device=device, threads=threads, pixels=pix, out=shaded_full)
             samples += res.samples
             non_finite += res.non_finite
             wp.launch(gather_shaded_kernel, dim=n_shaded, inputs=[pix, texels, shaded_full, vals, valid],
@@ -165,10 +177,17 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
         per_level.append({"level": L, "size": [w, h], "shaded": n_shaded, "upsampled": n_up})
         parent_vals, parent_valid = vals, valid
     image = parent_vals.numpy().reshape(H, W, 3) * cov[..., None]
+    t_lights = 0.0
+    if lights is not None:
+        t0 = time.perf_counter()
+        direct = shade_reference(gb, materials, None, 0, device=device, threads=threads, lights=lights)
+        image = image + direct.radiance.numpy().reshape(H, W, 3)
+        non_finite += direct.non_finite
+        t_lights = time.perf_counter() - t0
     sl = shaded_level.reshape(H, W)
     n_cov = int(cov.sum())
     stats = {"levels": per_level, "samples": samples, "non_finite_samples": non_finite, "pixels_covered": n_cov,
              "pixels_shaded": int((sl >= 0).sum()),
              "shaded_fraction": float((sl >= 0).sum() / n_cov) if n_cov else 0.0,
-             "time_s": {"shading": t_shade, "upsampling": t_up}}
+             "time_s": {"shading": t_shade, "upsampling": t_up, "lights": t_lights}}
     return AdaptiveResult(image.astype(np.float32), sl >= 0, sl, stats)

@@ -104,9 +104,8 @@ from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf, env_sample, env_uv
 from warpbw.errors import INT32_MAX, WarpbwError, check_count, is_int
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
-from warpbw.lights import DirectionalLights, Lights
 from warpbw.pyramid import build_pyramid, image_level
-from warpbw.shading import covered_pixels, launch_tiled, lighting_inputs, pixel_frame, to_local, to_world
+from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_local, to_world
 
 N_B_DEFAULT = 16              # directions per pixel; 002 Sec. 2.6 and Fig. 13 ("n_b = 16 is sufficient")
 NYQUIST_FACTOR = 2.0          # sampling rate = 2 x bandwidth (002 Sec. 2.2, Nyquist)
@@ -301,19 +300,18 @@ def pool_kernel(gb: GBufferData, rep: wp.array(dtype=wp.int32), radius: int, n_b
     var_mis[i] = wp.max(w2 / n_dirs - mu * mu, 0.0)               # the directions' own one-sample MIS variance
 
 
-def make_bandwidth_kernel(kinds, preconvolved: bool = False, has_env: bool = True, has_lights: bool = False):
-    """The bandwidth-buffer kernel for the given material kinds (Eq. 9, or Eq. 10 when preconvolved), with the
-    environment's directions (``has_env``) and / or the directional lights' terms (``has_lights``)."""
-    return _bandwidth_kernel(frozenset(int(k) for k in kinds), bool(preconvolved), bool(has_env), bool(has_lights))
+def make_bandwidth_kernel(kinds, preconvolved: bool = False):
+    """The bandwidth-buffer kernel for the given material kinds (Eq. 9, or Eq. 10 when preconvolved)."""
+    return _bandwidth_kernel(frozenset(int(k) for k in kinds), bool(preconvolved))
 
 
 @functools.cache  # one kernel per combination: Warp compiles each once
-def _bandwidth_kernel(kinds: frozenset, preconvolved: bool, has_env: bool, has_lights: bool):
+def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
     f = make_brdf_funcs(kinds)
 
     @wp.kernel(module="unique", enable_backward=False)
     def bandwidth_buffer_kernel(gb: GBufferData, cam: CameraData, mats: MaterialTable, env: EnvMapData,
-                                lights: DirectionalLights, tables: BandwidthTables, dirs: wp.array(dtype=wp.vec3),
+                                tables: BandwidthTables, dirs: wp.array(dtype=wp.vec3),
                                 shifts: wp.array(dtype=wp.vec3), side: int, stride: int, seed: int,
                                 pixels: wp.array(dtype=wp.int32), offset: int,
                                 lam_out: wp.array(dtype=wp.float32), nu_out: wp.array(dtype=wp.vec2),
@@ -329,55 +327,36 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool, has_env: bool, has_l
         nu_sum = wp.vec2(0.0)
         var_sum = float(0.0)
         w2_sum = float(0.0)
-        if wp.static(has_env):
-            if wo[2] > 0.0:
-                for k in range(dirs.shape[0]):
-                    u = frac3(dirs[k] + shift)
-                    # one-sample MIS of the BRDF and light samplers, each picked with probability 1/2 (u[0])
-                    wi = wp.vec3(0.0)
-                    if u[0] < 0.5:
-                        wi = f.sample(mats, m, wo, wp.vec3(2.0 * u[0], u[1], u[2]))
-                    else:
-                        wi = to_local(fr, env_sample(env, wp.vec2(u[1], u[2])))
-                    if wi[2] > 0.0:
-                        wi_world = to_world(fr, wi)
-                        pdf = MIS_HALF * (f.pdf(mats, m, wi, wo) + env_pdf(env, wi_world))
-                        light = env_light(tables.light, env, wi_world)
-                        rho = wp.dot(_LUM, f.eval(mats, m, wi, wo))
-                        chi = light[0] * rho * wi[2]                  # lambda_i (Eq. 5), integrand of Eq. 1
-                        nu_l = light[1]
-                        nu_r = brdf_nu_rho(tables.nu_rho, m, wi, wo)
-                        # the shading integral over w_i keeps only the light's angular frequencies within the
-                        # band of rho cos (Eq. 8's convolution, read at angular frequency 0): module docstring
-                        nu_in = wp.min(nu_l, nu_r + NU_COS)
-                        nu_i = bw_one_bounce(wp.vec2(0.0, nu_in), 0.0, dp, wi[2], wo[2], c, 0.0, nu_r)  # Eq. 4
-                        w = chi / pdf                                 # importance weight of direction i
-                        if chi > 0.0 and pdf > 0.0 and wp.isfinite(w):
-                            lam_sum += w
-                            w2_sum += w * w
-                            nu_sum += w * nu_i
-                            if wp.static(preconvolved):
-                                var_sum += (2.0 * nu_r + NU_COS) * chi * w  # Eq. 10, + the cosine's band
-                            else:
-                                var_sum += (nu_l + nu_r + NU_COS) * chi * w  # Eq. 9, + the cosine's band
-        if wp.static(has_lights):
-            if wo[2] > 0.0:
-                # each light's exact term chi_l joins every one of the n_b one-sample estimates w_k of L_p
-                # (w_k -> w_k + D, D = sum_l chi_l): Eq. 5 weighs it as n_b directions, and it adds no variance
-                n_dirs = float(dirs.shape[0])
-                d_sum = float(0.0)
-                for k in range(lights.direction.shape[0]):
-                    wl = to_local(fr, lights.direction[k])
-                    if wl[2] > 0.0:
-                        chi = wp.dot(_LUM, lights.radiance[k]) * wp.dot(_LUM, f.eval(mats, m, wl, wo)) * wl[2]
-                        nu_r = brdf_nu_rho(tables.nu_rho, m, wl, wo)
-                        # a delta light carries every angular frequency: the integrand's band keeps nu_rho + nu_cos
-                        nu_i = bw_one_bounce(wp.vec2(0.0, nu_r + NU_COS), 0.0, dp, wl[2], wo[2], c, 0.0, nu_r)  # Eq. 4
-                        if chi > 0.0 and wp.isfinite(chi):
-                            d_sum += chi
-                            nu_sum += (n_dirs * chi) * nu_i
-                w2_sum += 2.0 * d_sum * lam_sum + n_dirs * d_sum * d_sum   # sum_k (w_k + D)^2
-                lam_sum += n_dirs * d_sum
+        if wo[2] > 0.0:
+            for k in range(dirs.shape[0]):
+                u = frac3(dirs[k] + shift)
+                # one-sample MIS of the BRDF and light samplers, each picked with probability 1/2 (u[0])
+                wi = wp.vec3(0.0)
+                if u[0] < 0.5:
+                    wi = f.sample(mats, m, wo, wp.vec3(2.0 * u[0], u[1], u[2]))
+                else:
+                    wi = to_local(fr, env_sample(env, wp.vec2(u[1], u[2])))
+                if wi[2] > 0.0:
+                    wi_world = to_world(fr, wi)
+                    pdf = MIS_HALF * (f.pdf(mats, m, wi, wo) + env_pdf(env, wi_world))
+                    light = env_light(tables.light, env, wi_world)
+                    rho = wp.dot(_LUM, f.eval(mats, m, wi, wo))
+                    chi = light[0] * rho * wi[2]                  # lambda_i (Eq. 5), integrand of Eq. 1
+                    nu_l = light[1]
+                    nu_r = brdf_nu_rho(tables.nu_rho, m, wi, wo)
+                    # the shading integral over w_i keeps only the light's angular frequencies within the
+                    # band of rho cos (Eq. 8's convolution, read at angular frequency 0): module docstring
+                    nu_in = wp.min(nu_l, nu_r + NU_COS)
+                    nu_i = bw_one_bounce(wp.vec2(0.0, nu_in), 0.0, dp, wi[2], wo[2], c, 0.0, nu_r)  # Eq. 4
+                    w = chi / pdf                                 # importance weight of direction i
+                    if chi > 0.0 and pdf > 0.0 and wp.isfinite(w):
+                        lam_sum += w
+                        w2_sum += w * w
+                        nu_sum += w * nu_i
+                        if wp.static(preconvolved):
+                            var_sum += (2.0 * nu_r + NU_COS) * chi * w  # Eq. 10, + the cosine's band
+                        else:
+                            var_sum += (nu_l + nu_r + NU_COS) * chi * w  # Eq. 9, + the cosine's band
         lam_out[i] = lam_sum
         nu_out[i] = nu_sum
         var_out[i] = var_sum
@@ -533,20 +512,24 @@ def interleave_shifts(n_b: int, side: int) -> np.ndarray:
                     axis=1).astype(np.float32)
 
 
-def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env_data: EnvMapData | None,
+def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env_data: EnvMapData,
                    tables: BandwidthTables, n_b: int = N_B_DEFAULT, seed: int = 0, preconvolved: bool = False,
                    nyquist: float = NYQUIST_FACTOR, stride: int = PASS_STRIDE_DEFAULT,
                    pool_radius: int = POOL_RADIUS_DEFAULT, device: str = "cpu",
-                   threads: int | None = None, lights: Lights | None = None) -> BandwidthBuffer:
+                   threads: int | None = None) -> BandwidthBuffer:
     """Fill the bandwidth buffer: nu, b_p, sigma2 per covered pixel, and the level map (Eq. 11).
 
     ``stride``: the directions are traced once per ``stride x stride`` block of alike pixels (every pixel
     of a block at a silhouette or an edge is traced); ``pool_radius``: each pixel pools the sums of the
     alike traced pixels within that many pixels (interleaved direction sets).  ``stride=1, pool_radius=0``
-    is the plain per-pixel pass of 002 Sec. 3.1.  ``env_data`` None: no environment; ``lights``: the
-    directional lights, whose exact terms join each pixel's Eq. 5 weights (they add no variance)."""
+    is the plain per-pixel pass of 002 Sec. 3.1.  The pass predicts the environment's part of the image:
+    directional lights are not up-sampled but added exactly at every pixel (:mod:`warpbw.adaptive`), so
+    they take no part in it."""
     import time
 
+    if env_data is None:
+        raise WarpbwError("bandwidth pass: the scene has no environment (directional lights need no prediction: "
+                          "their exact term is evaluated at every pixel)")
     dirs_np = direction_set(n_b, seed)
     stride = check_count(stride, "stride", 1)
     pool_radius = check_count(pool_radius, "pool_radius", 0)
@@ -567,11 +550,10 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     nu_sum = wp.zeros(W * H, dtype=wp.vec2, device=device)
     var = wp.zeros(W * H, dtype=wp.float32, device=device)
     w2 = wp.zeros(W * H, dtype=wp.float32, device=device)
-    kernel = make_bandwidth_kernel(materials.kinds, preconvolved, env_data is not None, lights is not None)
-    env_in, lights_in = lighting_inputs(env_data, lights, device)
+    kernel = make_bandwidth_kernel(materials.kinds, preconvolved)
     launch_tiled(kernel, traced.shape[0],
-                 lambda o, c: [gb.data, cam, materials.table, env_in, lights_in, tables, dirs, shifts, side, stride,
-                               int(seed), traced, o, lam, nu_sum, var, w2], device, threads)
+                 lambda o, c: [gb.data, cam, materials.table, env_data, tables, dirs, shifts, side, stride, int(seed),
+                               traced, o, lam, nu_sum, var, w2], device, threads)
     nu = wp.zeros(W * H, dtype=wp.vec2, device=device)
     b_p = wp.zeros(W * H, dtype=wp.float32, device=device)
     sigma2 = wp.zeros(W * H, dtype=wp.float32, device=device)

@@ -12,8 +12,10 @@ and without sampling,
 so a surface facing the light receives irradiance E cos(theta), as in the scene format and in
 ``warpbw.filtering``.  Visibility is ignored, as it is for the environment (002 Eq. 1): a light is not
 shadowed.  The term is deterministic: it adds no variance to the estimator, and a scene lit only by
-lights renders the same at any sample count.  The kernels that use it (``warpbw.shading``,
-``warpbw.bandwidth``) loop over the struct's arrays; a scene without lights compiles no such loop.
+lights renders the same at any sample count.  The kernel that uses it (``warpbw.shading``) loops over the
+struct's arrays; a scene without lights compiles no such loop.  The adaptive method adds this term at
+every pixel after up-sampling the environment's part (``warpbw.adaptive``), so the bandwidth pass leaves
+lights out.
 """
 from __future__ import annotations
 

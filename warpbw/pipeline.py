@@ -10,7 +10,9 @@ Public:
 A material kind the scene does not use is not compiled (its branch is removed from the kernels with
 ``wp.static``); spheres and meshes each have their own G-buffer path; one table per tabulated material
 is in memory.  The environment and the directional ``[[light]]``s are each optional (a scene has at least
-one): a scene without an environment compiles no sampling loop, one without lights no light loop.  ``RenderResult.stats`` says which stages ran and how long each took.
+one): a scene without an environment compiles no sampling loop, one without lights no light loop.  The
+adaptive method needs an environment: it adapts the environment's sampling, and adds the lights' exact
+term at every pixel.  ``RenderResult.stats`` says which stages ran and how long each took.
 """
 from __future__ import annotations
 
@@ -277,13 +279,12 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False):
     from precompute.brdf_bandwidth import SHAPE as BW_TABLE_SHAPE, load_or_build_bandwidth
     from warpbw.bandwidth import env_bandwidth_map, light_table, make_bandwidth_tables
 
-    if prep.env is not None:
-        with _timed(prep.timings, "load_env_bandwidth"):
-            nu_env, origin = env_bandwidth_map(prep.env.pixels, prep.env.name)
-        prep.notes["environment"]["bandwidth"] = origin
-        light = light_table(prep.env.pixels, nu_env)
-    else:
-        light = np.zeros((1, 1, 2), np.float32)  # no environment: the pass compiles no code that reads it
+    if prep.env is None:
+        raise WarpbwError(f"{prep.scene.source}: the bandwidth pass needs an [environment] ([[light]]s are exact "
+                          "and take no part in it)")
+    with _timed(prep.timings, "load_env_bandwidth"):
+        nu_env, origin = env_bandwidth_map(prep.env.pixels, prep.env.name)
+    prep.notes["environment"]["bandwidth"] = origin
     tables = []
     with _timed(prep.timings, "load_brdf_bandwidth"):
         for i, name in enumerate(prep.scene.material_order):
@@ -296,7 +297,8 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False):
                 table, origin = load_or_build_bandwidth(_AnalyticSource(prep, i, m), progress=progress)
             prep.notes.setdefault(f"material.{name}", {"type": m.type})["bandwidth"] = origin
             tables.append(table)
-        struct, keep = make_bandwidth_tables(light, np.stack(tables), device=prep.device)
+        struct, keep = make_bandwidth_tables(light_table(prep.env.pixels, nu_env), np.stack(tables),
+                                             device=prep.device)
     prep.bandwidth = struct
     prep._keep.extend(keep)
     return struct
@@ -343,16 +345,18 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     pool_radius = bandwidth.POOL_RADIUS_DEFAULT if pool_radius is None else pool_radius
     bandwidth.direction_set(n_b)  # validates n_b before any work
     prep, timings = _prepared(scene, device, progress)
+    if prep.env is None:
+        raise WarpbwError(f"{prep.scene.source}: the adaptive method needs an [environment] to adapt to: [[light]]s "
+                          "alone are exact at any spp (use the reference method)")
     tables = prepare_bandwidth(prep, progress)
     for k in ("load_env_bandwidth", "load_brdf_bandwidth"):
         if k in prep.timings and prep is not scene:
             timings[k] = prep.timings[k]
     _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
-                         bandwidth.make_bandwidth_kernel(prep.materials.kinds, preconvolved, prep.env is not None,
-                                                         prep.lights is not None),
-                         make_reference_kernel(prep.materials.kinds, mis, per_pixel_spp=True,
-                                               has_env=prep.env is not None, has_lights=prep.lights is not None)),
-                  timings)
+                         bandwidth.make_bandwidth_kernel(prep.materials.kinds, preconvolved),
+                         make_reference_kernel(prep.materials.kinds, mis, per_pixel_spp=True))
+                  + ((make_reference_kernel(prep.materials.kinds, mis, has_env=False, has_lights=True),)
+                     if prep.lights is not None else ()), timings)
     t0 = time.perf_counter()
     adaptive.load_kernels(prep.device)
     timings["compile"] += time.perf_counter() - t0
@@ -360,7 +364,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     t0 = time.perf_counter()
     buf = bandwidth.bandwidth_pass(gb, prep.camera, prep.materials, prep.env_data, tables, n_b=n_b, seed=seed,
                                    preconvolved=preconvolved, nyquist=nyquist, stride=stride,
-                                   pool_radius=pool_radius, device=prep.device, threads=threads, lights=prep.lights)
+                                   pool_radius=pool_radius, device=prep.device, threads=threads)
     _check_pass_finite(buf, prep.scene.source)
     alloc = bandwidth.allocate_samples(buf, budget, n_min=n_min, n_max=n_max, allocation=allocation,
                                        device=prep.device)
@@ -371,7 +375,9 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     t_h = time.perf_counter() - t0
     timings["shading"] = res.stats["time_s"]["shading"]
     timings["upsampling"] = res.stats["time_s"]["upsampling"]
-    timings["hierarchy"] = max(t_h - timings["shading"] - timings["upsampling"], 0.0)
+    if prep.lights is not None:
+        timings["lights"] = res.stats["time_s"]["lights"]
+    timings["hierarchy"] = max(t_h - timings["shading"] - timings["upsampling"] - timings.get("lights", 0.0), 0.0)
     timings["frame"] = timings["gbuffer"] + timings["bandwidth"] + t_h
     n_cov = int(gb.coverage.sum())
     H, W = prep.height, prep.width
