@@ -332,7 +332,9 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     spread over the pixels the hierarchy shades by ``allocation`` (default: in proportion to the standard
     deviation the bandwidth pass measures, :func:`warpbw.bandwidth.allocate_samples`).  ``aovs`` holds
     the level map, N_p, the predicted variance, the shaded mask, b_p and sigma2.  ``stride`` and
-    ``pool_radius`` set how the bandwidth pass shares its directions (:func:`warpbw.bandwidth.bandwidth_pass`)."""
+    ``pool_radius`` set how the bandwidth pass shares its directions (:func:`warpbw.bandwidth.bandwidth_pass`).
+    The scene needs an environment; its directional lights are added exactly at every pixel
+    (:mod:`warpbw.adaptive`)."""
     from warpbw import adaptive, bandwidth
     from warpbw.gbuffer import make_gbuffer_kernel
     from warpbw.shading import make_reference_kernel
