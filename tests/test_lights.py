@@ -157,3 +157,18 @@ def test_info_lists_the_lights_and_no_environment(tmp_path):
     assert len(s["lights"]) == 2 and s["lights"][1].startswith("directional towards [0.0, 1.0, 0.0]")
     assert s["environment"].startswith("none")
     assert "directional lights exact" in s["stages"][-1] and "environment sampled" not in s["stages"][-1]
+
+
+def test_render_adaptive_cli_reports_the_lights_pass(tmp_path, capsys):
+    """``warpbw render --method adaptive`` on a sky + sun scene: the summary and the stats JSON time the
+    lights' exact pass on its own."""
+    import json
+
+    from warpbw.cli import main
+
+    p = tmp_path / "s.toml"
+    p.write_text(SCENE.format(w=24, h=24, env=SKY, lights=light(), mat=GGX))
+    assert main(["render", str(p), "-o", str(tmp_path / "o.exr"), "--method", "adaptive", "--budget", "1"]) == 0
+    assert "lights (exact, every pixel)" in capsys.readouterr().out
+    stats = json.loads((tmp_path / "o.json").read_text())
+    assert stats["time_s"]["lights"] > 0 and "light:environment+directional" in stats["stages"]

@@ -163,7 +163,9 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
                   f"{res.stats['samples']} samples ({res.stats['samples_per_covered_pixel']:.2f} per covered pixel)")
             print(f"  gbuffer {t['gbuffer'] * 1e3:.1f} ms, bandwidth {t['bandwidth'] * 1e3:.1f} ms "
                   f"({100 * res.stats['bandwidth_time_fraction']:.1f}% of the frame), shading {t['shading']:.3f} s, "
-                  f"up-sampling {t['upsampling'] * 1e3:.1f} ms, frame {t['frame']:.3f} s, total {t['total']:.2f} s")
+                  f"up-sampling {t['upsampling'] * 1e3:.1f} ms"
+                  + (f", lights (exact, every pixel) {t['lights'] * 1e3:.1f} ms" if "lights" in t else "")
+                  + f", frame {t['frame']:.3f} s, total {t['total']:.2f} s")
             print(f"  AOVs {', '.join(str(p[0].name) for p in _aov_paths(out).values())} (+ .png)")
         else:
             sps = res.stats["samples_per_second"]
