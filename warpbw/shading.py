@@ -42,6 +42,10 @@ from warpbw.lights import DirectionalLights, Lights
 # Pixels per kernel launch when tiling the work over threads (small enough for a smooth progress
 # bar, large enough that launch overhead stays under 1%).
 PIXELS_PER_TILE = 4096
+# Smaller launches (the hierarchy's coarse levels, a few thousand pixels each) are cut into at least this
+# many tiles per thread, of no fewer than MIN_PIXELS_PER_TILE pixels, so that every thread gets work.
+TILES_PER_THREAD = 4
+MIN_PIXELS_PER_TILE = 256
 
 
 @wp.struct
@@ -190,6 +194,8 @@ def launch_tiled(kernel, n_items: int, make_inputs: Callable[[int, int], list], 
     if n_items <= 0:
         return
     threads = default_threads(device) if threads is None else max(1, int(threads))
+    if threads > 1:
+        tile = max(MIN_PIXELS_PER_TILE, min(tile, -(-n_items // (TILES_PER_THREAD * threads))))
     tiles = [(o, min(tile, n_items - o)) for o in range(0, n_items, tile)]
     lock = threading.Lock()
 
@@ -200,13 +206,13 @@ def launch_tiled(kernel, n_items: int, make_inputs: Callable[[int, int], list], 
             with lock:
                 progress(c)
 
-    run(tiles[0])  # the first launch loads (compiles) the module, before threads race for it
     if threads == 1 or len(tiles) == 1:
-        for t in tiles[1:]:
+        for t in tiles:
             run(t)
     else:
+        wp.load_module(kernel.module, device=device)  # load (compile) once, before the threads race for it
         with ThreadPoolExecutor(max_workers=threads) as pool:
-            for _ in pool.map(run, tiles[1:]):
+            for _ in pool.map(run, tiles):
                 pass
     wp.synchronize_device(device)
 
