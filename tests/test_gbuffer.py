@@ -112,6 +112,21 @@ def test_nearest_object_wins_and_material_ids():
     assert gb.numpy("material")[16, 16] == 0
 
 
+def test_tiling_over_threads_does_not_change_the_gbuffer():
+    """The primary rays are launched in tiles over a thread pool: one thread and three (tiles of 256 pixels
+    with offsets) fill every pixel the same, a mesh and an analytic sphere together."""
+    cam = make_camera((0.0, 0.0, 6.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 30.0, 61, 47)
+    mesh = _icosphere_spec(0.8, material=1, subdiv=3)
+    mesh.vertices = mesh.vertices + np.array([0.4, 0.0, 1.0])
+    geo = build_geometry([SphereSpec((-0.3, 0.1, -1.0), 0.9, 0)], [mesh])
+    one = _gbuffer_arrays(render_gbuffer(cam, geo, threads=1))
+    three = _gbuffer_arrays(render_gbuffer(cam, geo, threads=3))
+    assert (one["material"] == 0).sum() > 200 and (one["material"] == 1).sum() > 200
+    assert (one["material"] < 0).sum() > 200   # background too
+    for name in one:
+        np.testing.assert_array_equal(one[name], three[name], err_msg=name)
+
+
 def test_real_bunny_ray_cast(shared):
     from warpbw.io.mesh import load_mesh
 

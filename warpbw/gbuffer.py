@@ -8,7 +8,7 @@ Public:
     ``update_mesh(geometry, mesh_index, vertices, normals, curvature)``  deform one mesh in place and
                                      refit the BVH (dynamic geometry, 002 Sec. 4.3, Fig. 18)
     ``GBufferData``                  Warp struct: the per-pixel buffers, as kernels read them
-    ``GBuffer`` / ``render_gbuffer(cam, geometry, device)``     run the pass
+    ``GBuffer`` / ``render_gbuffer(cam, geometry, device, threads)``     run the pass
 
 Conventions (DESIGN.md): right-handed world, +Y up; the camera looks along ``forward`` with
 ``right = normalize(forward x up)`` to the right of the image and row 0 at the top; ``fov`` is the full
@@ -152,8 +152,8 @@ def make_gbuffer_kernel(has_spheres: bool, has_mesh: bool):
 def _gbuffer_kernel(has_spheres: bool, has_mesh: bool):
 
     @wp.kernel(module="unique", enable_backward=False)
-    def gbuffer_kernel(cam: CameraData, spheres: SphereList, mesh: MeshAttributes, gb: GBufferData):
-        i = wp.tid()
+    def gbuffer_kernel(cam: CameraData, spheres: SphereList, mesh: MeshAttributes, gb: GBufferData, offset: int):
+        i = wp.tid() + offset
         x = i % cam.width
         y = i // cam.width
         d = primary_ray_dir(cam, x, y)
@@ -431,10 +431,14 @@ def allocate_gbuffer(width: int, height: int, device: str = "cpu") -> GBuffer:
     return GBuffer(g, width, height)
 
 
-def render_gbuffer(cam: CameraData, geometry: Geometry, device: str = "cpu", out: GBuffer | None = None) -> GBuffer:
-    """Cast one primary ray per pixel and fill the G-buffer (reusing ``out`` when given)."""
+def render_gbuffer(cam: CameraData, geometry: Geometry, device: str = "cpu", out: GBuffer | None = None,
+                   threads: int | None = None) -> GBuffer:
+    """Cast one primary ray per pixel and fill the G-buffer (reusing ``out`` when given); on the CPU the
+    rows are tiled over ``threads`` (default: the cores, as the shading does)."""
+    from warpbw.shading import launch_tiled   # shading builds on this module
+
     gb = out if out is not None else allocate_gbuffer(cam.width, cam.height, device)
     kernel = make_gbuffer_kernel(geometry.has_spheres, geometry.has_mesh)
-    wp.launch(kernel, dim=cam.width * cam.height, inputs=[cam, geometry.spheres, geometry.mesh_attr, gb.data],
-              device=device)
+    launch_tiled(kernel, cam.width * cam.height,
+                 lambda o, c: [cam, geometry.spheres, geometry.mesh_attr, gb.data, o], device, threads)
     return gb

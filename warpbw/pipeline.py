@@ -181,11 +181,11 @@ def _prepared(scene, device: str, progress: bool) -> tuple[PreparedScene, dict]:
     return prep, (dict(prep.timings) if prep is not scene else {})
 
 
-def _gbuffer(prep: PreparedScene, timings: dict) -> GBuffer:
+def _gbuffer(prep: PreparedScene, timings: dict, threads: int | None = None) -> GBuffer:
     import warp as wp
 
     t0 = time.perf_counter()
-    gb = render_gbuffer(prep.camera, prep.geometry, device=prep.device)
+    gb = render_gbuffer(prep.camera, prep.geometry, device=prep.device, threads=threads)
     wp.synchronize_device(prep.device)
     timings["gbuffer"] = time.perf_counter() - t0
     return gb
@@ -209,7 +209,7 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
                          make_reference_kernel(prep.materials.kinds, mis, has_env=prep.env is not None,
                                                has_lights=prep.lights is not None)), timings)
-    gb = _gbuffer(prep, timings)
+    gb = _gbuffer(prep, timings, threads)
     n_cov = int(gb.coverage.sum())
     bar = None
     if progress and n_cov:
@@ -362,7 +362,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     t0 = time.perf_counter()
     adaptive.load_kernels(prep.device)
     timings["compile"] += time.perf_counter() - t0
-    gb = _gbuffer(prep, timings)
+    gb = _gbuffer(prep, timings, threads)
     t0 = time.perf_counter()
     buf = bandwidth.bandwidth_pass(gb, prep.camera, prep.materials, prep.env_data, tables, n_b=n_b, seed=seed,
                                    preconvolved=preconvolved, nyquist=nyquist, stride=stride,
