@@ -434,7 +434,7 @@ def allocate_gbuffer(width: int, height: int, device: str = "cpu") -> GBuffer:
 def render_gbuffer(cam: CameraData, geometry: Geometry, device: str = "cpu", out: GBuffer | None = None,
                    threads: int | None = None) -> GBuffer:
     """Cast one primary ray per pixel and fill the G-buffer (reusing ``out`` when given); on the CPU the
-    rows are tiled over ``threads`` (default: the cores, as the shading does)."""
+    pixels are tiled over ``threads`` (default: the cores, as the shading does)."""
     from warpbw.shading import launch_tiled   # shading builds on this module
 
     gb = out if out is not None else allocate_gbuffer(cam.width, cam.height, device)

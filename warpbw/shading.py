@@ -186,7 +186,8 @@ def default_threads(device: str) -> int:
 def launch_tiled(kernel, n_items: int, make_inputs: Callable[[int, int], list], device: str,
                  threads: int | None = None, progress: Callable[[int], None] | None = None,
                  tile: int = PIXELS_PER_TILE) -> None:
-    """Launch ``kernel`` over ``n_items`` in tiles, on a small thread pool on the CPU.
+    """Launch ``kernel`` over ``n_items`` in tiles, on a small thread pool on the CPU (on a GPU, in one
+    launch unless ``progress`` asks for tiles).
 
     ``make_inputs(offset, count)`` returns the kernel inputs for one tile; ``progress(count)`` is
     called as tiles finish.
@@ -196,6 +197,8 @@ def launch_tiled(kernel, n_items: int, make_inputs: Callable[[int, int], list], 
     threads = default_threads(device) if threads is None else max(1, int(threads))
     if threads > 1:
         tile = max(MIN_PIXELS_PER_TILE, min(tile, -(-n_items // (TILES_PER_THREAD * threads))))
+    elif progress is None and not str(device).startswith("cpu"):
+        tile = n_items   # a GPU launch is parallel by itself: tiles only serve a progress bar there
     tiles = [(o, min(tile, n_items - o)) for o in range(0, n_items, tile)]
     lock = threading.Lock()
 
