@@ -3,6 +3,7 @@
 Public:
     ``DirectionalLights`` (Warp struct: world directions towards the lights and their radiances)
     ``Lights`` / ``make_lights(scene_lights, device) -> Lights | None``   None when the scene has none
+    ``directional_struct(directions, radiances, device) -> DirectionalLights``
 
 A directional light of radiance E (RGB) from the unit world direction l adds to a pixel's radiance, exactly
 and without sampling,
@@ -39,8 +40,14 @@ class Lights:
 
     data: DirectionalLights
     count: int
-    directions: np.ndarray     # (count, 3) float32, unit, world
-    radiances: np.ndarray      # (count, 3) float32
+
+
+def directional_struct(directions, radiances, device: str = "cpu") -> DirectionalLights:
+    """The struct of ``(n, 3)`` unit directions and radiances (n may be 0: a kernel's placeholder)."""
+    s = DirectionalLights()
+    s.direction = wp.array(np.asarray(directions, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
+    s.radiance = wp.array(np.asarray(radiances, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
+    return s
 
 
 def make_lights(scene_lights, device: str = "cpu") -> Lights | None:
@@ -55,9 +62,4 @@ def make_lights(scene_lights, device: str = "cpu") -> Lights | None:
         raise WarpbwError("[[light]]: expected non-zero finite directions towards the lights")
     if not (np.all(np.isfinite(e)) and np.all(e >= 0.0) and np.all(e <= FLOAT32_MAX)):
         raise WarpbwError("[[light]]: expected radiances that are finite, >= 0 and within the float32 range")
-    d32 = (d / norm[:, None]).astype(np.float32)
-    e32 = e.astype(np.float32)
-    s = DirectionalLights()
-    s.direction = wp.array(d32, dtype=wp.vec3, device=device)
-    s.radiance = wp.array(e32, dtype=wp.vec3, device=device)
-    return Lights(s, len(lights), d32, e32)
+    return Lights(directional_struct(d / norm[:, None], e, device), len(lights))

@@ -37,7 +37,7 @@ from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf, env_radiance, env_sample
 from warpbw.errors import WarpbwError
 from warpbw.gbuffer import GBuffer, GBufferData
-from warpbw.lights import DirectionalLights, Lights
+from warpbw.lights import DirectionalLights, Lights, directional_struct
 
 # Pixels per kernel launch when tiling the work over threads (small enough for a smooth progress
 # bar, large enough that launch overhead stays under 1%).
@@ -230,17 +230,10 @@ def lighting_inputs(env_data: EnvMapData | None, lights: Lights | None, device: 
 
         env_data = _placeholder(device, "env", lambda: constant_envmap(0.0, device=device).data)
     if lights is None:
-        lights = _placeholder(device, "lights", lambda: _empty_lights(device))
+        lights = _placeholder(device, "lights", lambda: directional_struct(np.zeros((0, 3)), np.zeros((0, 3)), device))
     else:
         lights = lights.data
     return env_data, lights
-
-
-def _empty_lights(device: str) -> DirectionalLights:
-    s = DirectionalLights()
-    s.direction = wp.zeros(0, dtype=wp.vec3, device=device)
-    s.radiance = wp.zeros(0, dtype=wp.vec3, device=device)
-    return s
 
 
 _PLACEHOLDERS: dict = {}
