@@ -645,18 +645,29 @@ _SPHERE_OBJECT = ('\n[[object]]\nshape = "sphere"\nradius = 0.5\nmaterial = "s"\
                   '[material.s]\ntype = "lambert"\nalbedo = 0.5\n')
 
 
-def test_info_refuses_what_render_refuses(tmp_path):
-    """``warpbw info`` approved scenes that ``render`` (and the benches) refuse: the same one-line error."""
-    needles = ["[[object]] #2", "renders planes only"]
+def test_benches_refuse_planes_beside_a_sphere(tmp_path):
+    """Planes beside spheres or meshes render (both renderers, composited), but each bench measures one
+    renderer: a one-line error naming the scene and what to do, nothing written."""
     (tmp_path / "scene.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', "") + _SPHERE_OBJECT)
-    lines = set()
-    for args in (["info", "scene.toml"], ["info", "scene.toml", "--json"],
-                 ["render", "scene.toml", "-o", "out.exr", "--spp", "1"]):
-        r = run(args, tmp_path)
-        lines.add(assert_one_line_error(r, "scene.toml", *needles))
-        assert r.stdout == "" or args[0] == "render"
-    assert len(lines) == 1, lines
+    r = run(["bench", "scene.toml", "--json", "out.json", "--spp", "1", "--budgets", "1"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "bench measures spheres and meshes alone", "planes")
+    r = run(["bench-filtering", "scene.toml", "--json", "out.json", "--zoom", "1"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "bench-filtering measures planes alone", "spheres or meshes")
     assert_no_outputs(tmp_path)
+
+
+def test_render_with_planes_needs_both_kinds_of_object(tmp_path):
+    from warpbw.pipeline import render_with_planes
+    from warpbw.scene import parse_scene
+
+    planes = parse_scene(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""), tmp_path, "p.toml")
+    with pytest.raises(WarpbwError, match=r"p\.toml: .*planes only .*render_filtering"):
+        render_with_planes(planes, "fixed", 4)
+    both = parse_scene(PLANE_SCENE.replace('normal_map = "map.exr"\n', "") + _SPHERE_OBJECT, tmp_path, "b.toml")
+    with pytest.raises(WarpbwError, match="method: expected 'reference' or 'adaptive', got 'fast'"):
+        render_with_planes(both, "fixed", 4, method="fast")
+    with pytest.raises(WarpbwError, match="needs an \\[environment\\]"):
+        render_with_planes(both, "fixed", 4, method="adaptive", budget=2)
 
 
 def test_plane_scene_through_the_environment_pipeline_is_refused(tmp_path):

@@ -330,6 +330,125 @@ def test_render_adaptive_writes_aovs_and_caches_tables(work, npf_scene):
     assert stats2["pixels_shaded"] >= stats["pixels_shaded"]  # twice the rate: levels no coarser
 
 
+# ------------------------------------------------------------------------------------------ planes beside a sphere
+
+MIXED_SCENE = """\
+[camera]
+position = [0.0, 1.5, 3.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 40.0
+resolution = [48, 32]
+
+[environment]
+procedural = "sky"
+
+[[light]]
+type = "directional"
+direction = [0.3, 0.8, 0.5]
+radiance = [2.0, 2.0, 2.0]
+
+[[object]]
+shape = "plane"
+size = 3.0
+material = "floor"
+
+[[object]]
+shape = "sphere"
+radius = 0.5
+center = [0.0, 0.1, 0.0]
+material = "ball"
+
+[material.floor]
+type = "cook-torrance"
+roughness = 0.2
+f0 = [0.04, 0.04, 0.04]
+diffuse = [0.5, 0.5, 0.5]
+
+[material.ball]
+type = "lambert"
+albedo = 0.8
+"""
+
+
+def _numpy_plane_and_sphere_depths(w, h):
+    """Distances along each pixel's centre ray to the plane y = 0 (inside its 3 x 3 square) and to the sphere of
+    MIXED_SCENE, inf where missed: a numpy pinhole camera and the quadratic's nearer positive root."""
+    o = np.array([0.0, 1.5, 3.0])
+    fwd = -o / np.linalg.norm(o)
+    right = np.cross(fwd, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    tx = math.tan(math.radians(40.0) / 2)
+    x, y = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    d = fwd + ((2 * x / w - 1) * tx)[..., None] * right + ((1 - 2 * y / h) * tx * h / w)[..., None] * up
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    t_p = -o[1] / d[..., 1]
+    p = o + t_p[..., None] * d
+    t_p = np.where((t_p > 0) & (np.abs(p[..., 0]) <= 1.5) & (np.abs(p[..., 2]) <= 1.5), t_p, np.inf)
+    oc = o - np.array([0.0, 0.1, 0.0])
+    b = d @ oc
+    disc = b * b - (oc @ oc - 0.25)
+    t_s = -b - np.sqrt(np.maximum(disc, 0.0))
+    return t_p, np.where((disc > 0) & (t_s > 0), t_s, np.inf)
+
+
+def test_planes_beside_a_sphere_show_whichever_surface_is_nearer(tmp_path):
+    """render_with_planes against the two renderers alone and a numpy ray cast: each pixel is the plane's
+    where the plane is nearer along the centre ray, the sphere's where the sphere is (its lower part sinks
+    below the floor, so each hides the other somewhere), and nothing where neither is hit."""
+    from warpbw.filtering import render_filtering
+    from warpbw.pipeline import render_reference, render_with_planes, split_planes
+    from warpbw.scene import parse_scene
+
+    scene = parse_scene(MIXED_SCENE, tmp_path, "mixed.toml")
+    both = render_with_planes(scene, "fixed", 4, mis=True)
+    sphere_scene, plane_scene = split_planes(scene)
+    sphere = render_reference(sphere_scene, 4, mis=True)
+    plane = render_filtering(plane_scene, "fixed", env_spp=4)
+    t_p, t_s = _numpy_plane_and_sphere_depths(48, 32)
+    with np.errstate(invalid="ignore"):                 # inf - inf where both miss: not a tie
+        clear = ~(np.abs(t_p - t_s) < 1e-3)              # not on the circle where the sphere meets the floor
+    plane_wins = t_p < t_s
+    sphere_wins = t_s < t_p
+    assert (plane_wins & np.isfinite(t_s) & clear).sum() > 5     # the floor hides the sphere's lower part
+    assert (sphere_wins & np.isfinite(t_p) & clear).sum() > 50   # the sphere hides some floor
+    assert np.array_equal(both.aovs["plane"][clear], plane_wins[clear])
+    assert np.array_equal(both.coverage, sphere.coverage | plane.coverage)
+    assert np.array_equal(both.coverage, np.isfinite(np.minimum(t_p, t_s)))
+    m = both.aovs["plane"]
+    assert np.array_equal(both.image[m], plane.image[m])
+    assert np.array_equal(both.image[~m], sphere.image[~m])
+    assert both.stats["planes"]["pixels_covered"] == int(m.sum())
+    assert both.stats["pixels_covered"] == int(both.coverage.sum())
+
+
+def test_render_and_info_of_a_scene_with_planes_beside_a_sphere(tmp_path):
+    (tmp_path / "cache").mkdir()
+    (tmp_path / "mixed.toml").write_text(MIXED_SCENE)
+    info = json.loads(run(["info", "mixed.toml", "--json"], tmp_path).stdout)
+    assert len(info["objects"]) == 2 and info["objects"][0].startswith("plane")
+    assert info["materials"] == {"floor": "cook-torrance", "ball": "lambert"}
+    assert any(st.startswith("planes: ") for st in info["stages"]) and any("composite" in st for st in info["stages"])
+    out = tmp_path / "m.exr"
+    args = ["render", "mixed.toml", "-o", out, "--method", "adaptive", "--budget", "2", "--filter", "toksvig",
+            "--spp", "4", "-q"]
+    run(args, tmp_path)
+    rgb, alpha = rgba(out)
+    stats = json.loads(out.with_suffix(".json").read_text())
+    assert np.isfinite(rgb).all() and int((alpha > 0).sum()) == stats["pixels_covered"]
+    assert stats["method"] == "adaptive" and stats["planes"]["method"] == "toksvig"
+    assert 0 < stats["planes"]["pixels_covered"] < stats["pixels_covered"]
+    assert stats["time_s"]["frame"] >= stats["time_s"]["planes"] > 0
+    mip = read_exr(out.with_suffix(".mip_level.exr")).pixels[..., 0]
+    assert (mip != 0).sum() > 0 and np.all(mip[alpha == 0] == 0)
+    for name in ("level", "n_p", "variance", "shaded", "b_p"):
+        assert out.with_suffix(f".{name}.exr").exists() and out.with_suffix(f".{name}.png").exists()
+    assert out.with_suffix(".mip_level.png").stat().st_size > 0
+    before = out.read_bytes()
+    r = run(args, tmp_path, check=False)
+    assert r.returncode == 2 and "--force" in r.stderr and out.read_bytes() == before
+
+
 EXAMPLES = sorted((Path(__file__).resolve().parents[1] / "examples").glob("*.py"))
 
 

@@ -825,6 +825,38 @@ def test_nearer_plane_wins_and_threads_do_not_change_the_image(tmp_path):
         assert np.array_equal(render_filtering(one, m, threads=2).image, big.image)
 
 
+@pytest.mark.parametrize("method", ["fixed", "ground_truth"])
+def test_planes_over_a_background_show_where_they_are_in_front(tmp_path, method):
+    """A background at camera-space depth z_b (a wall facing the camera, written as a depth image): a pixel shows
+    the plane exactly where the plane's own camera-space depth, from a numpy ray cast, is below z_b; there the
+    image is the plane alone, elsewhere the background untouched.  An empty background (depth 0) is no
+    background at all."""
+    from warpbw.filtering import Background
+
+    w, h = 24, 16
+    s = parse_scene(scene_toml(resolution=(w, h)), tmp_path, "s.toml")
+    alone = render_filtering(s, method)
+    o, d = numpy_camera_rays((0.0, 1.5, 2.0), (0, 0, 0), 40.0, w, h)
+    fwd = -np.asarray((0.0, 1.5, 2.0)) / np.linalg.norm((0.0, 1.5, 2.0))
+    z_plane = (-o[1] / d[..., 1]) * (d @ fwd)           # distance along the ray times cos(ray, forward)
+    z_b = float(np.median(z_plane[alone.coverage]))     # a wall through the middle of the plane
+    z = np.full((h, w), z_b, np.float32)
+    z[:, : w // 4] = 0.0                                # and no background at all in the left quarter
+    bg = np.tile(np.array([0.1, 0.2, 0.3], np.float32), (h, w, 1))
+    over = render_filtering(s, method, background=Background(bg, z))
+    clear = np.abs(z_plane - z_b) > 1e-4 * z_b          # not on the wall's own line
+    front = alone.coverage & ((z == 0) | (z_plane < z_b))
+    assert 0 < (front & clear).sum() < (alone.coverage & clear).sum()
+    assert np.array_equal(over.coverage[clear], front[clear])
+    assert np.array_equal(over.image[over.coverage], alone.image[over.coverage])
+    assert np.array_equal(over.image[~over.coverage], bg[~over.coverage])
+    assert over.stats["pixels_covered"] == int(over.coverage.sum())
+    empty = render_filtering(s, method, background=Background(np.zeros((h, w, 3), np.float32), np.zeros((h, w))))
+    assert np.array_equal(empty.image, alone.image) and np.array_equal(empty.coverage, alone.coverage)
+    with pytest.raises(WarpbwError, match=r"background: expected an \(16, 24, 3\) image"):
+        render_filtering(s, method, background=Background(bg[:-1], z[:-1]))
+
+
 # ------------------------------------------------------------------------------------------ environment light
 
 def numpy_flat_under_constant_sky(cos_o, roughness, radiance=1.0, nt=600, nphi=720):

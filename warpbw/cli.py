@@ -43,6 +43,8 @@ examples:
   warpbw compare out.exr ground_truth.exr       PSNR and relative MSE over covered pixels
   warpbw render planes.toml -o out.exr --filter gmm_aligned
                                                 a scene with planes: reflectance filtering (004)
+  warpbw render bunny_on_floor.toml -o out.exr --method adaptive --budget 8 --filter gmm_aligned
+                                                planes beside spheres or meshes: both renderers, composited
   warpbw bench-filtering planes.toml --zoom 1,2,4,8,16,32 --json f.json --plot f.png
 
 Scene files are TOML; see README.md for the keys.  Images are linear radiance in EXR (R, G, B and the
@@ -183,12 +185,9 @@ def _warn_if_empty(stats: dict) -> None:
               "position, look_at and fov against the objects)", file=sys.stderr)
 
 
-def _check_renderable(scene) -> None:
-    """What ``render`` refuses in the scene itself, whatever the options (``info`` refuses the same)."""
-    if scene.has_planes:
-        from warpbw.filtering import plane_objects
-
-        plane_objects(scene)  # planes only: spheres and meshes beside them are refused
+def _is_mixed(scene) -> bool:
+    """Planes beside spheres or meshes: both renderers, composited (warpbw.pipeline.render_with_planes)."""
+    return scene.has_planes and scene.has_surfaces
 
 
 def _render_filtering_cli(scene, args) -> int:
@@ -231,6 +230,50 @@ def _render_filtering_cli(scene, args) -> int:
     return 0
 
 
+def _render_mixed_cli(scene, args) -> int:
+    """``warpbw render`` of a scene with planes beside spheres or meshes: the spheres and meshes with --method
+    (reference or adaptive), then the planes in front of them with --filter (warpbw.pipeline.render_with_planes)."""
+    import numpy as np
+
+    from warpbw.io.exr import write_exr, write_false_colour_png
+    from warpbw.pipeline import render_with_planes
+
+    method = args.filter or "gmm_aligned"
+    adaptive = args.method == "adaptive"
+    out = Path(args.output)
+    outs = _outputs(out)
+    mip_paths = [out.with_suffix(".mip_level.exr"), out.with_suffix(".mip_level.png")]
+    aov_paths = [p for pair in _aov_paths(out).values() for p in pair] if adaptive else []
+    check_overwrite(list(outs.values()) + aov_paths + mip_paths, args.force)
+    init_warp(args.device)
+    t0 = time.perf_counter()
+    res = render_with_planes(scene, method, args.spp, seed=args.seed, method=args.method, budget=args.budget,
+                             mis=args.mis, n_b=args.nb, device=args.device, progress=not args.quiet,
+                             threads=args.threads, max_anisotropy=args.max_anisotropy, **_adaptive_options(args))
+    res.stats["time_s"]["total"] = round(time.perf_counter() - t0, 6)
+    _write_render(res, outs, args.exposure, scene.source)
+    _warn_if_empty(res.stats)
+    if adaptive:
+        _write_aovs(res, out)
+    level = res.aovs["mip_level"]
+    write_exr(mip_paths[0], level.astype(np.float32), channels=["Y"])
+    write_false_colour_png(mip_paths[1], level, mask=res.aovs["plane"])
+    if not args.quiet:
+        t = res.stats["time_s"]
+        w, h = res.stats["resolution"]
+        pl = res.stats["planes"]
+        surf = (f"adaptive, budget {args.budget:g} spp" if adaptive else f"reference, {args.spp} spp")
+        planes = (f"{args.spp} rays/pixel" if method == "ground_truth" else f"mean mip level {pl['mean_level']:.2f}")
+        print(f"{outs['exr']}  ({w}x{h}, {res.stats['pixels_covered']} covered pixels)")
+        print(f"  spheres and meshes: {surf}, {res.stats['pixels_shaded']} pixels shaded, frame "
+              f"{(t['frame'] - t['planes']):.3f} s")
+        print(f"  planes in front: {pl['pixels_covered']} pixels, filter {method}, {planes}, frame {t['planes']:.3f} s")
+        print(f"  frame {t['frame']:.3f} s, total {t['total']:.2f} s")
+        print(f"  preview {outs['png']}, stats {outs['json']}, mip level {mip_paths[0].name} (+ .png)"
+              + (f", AOVs {', '.join(str(p[0].name) for p in _aov_paths(out).values())} (+ .png)" if adaptive else ""))
+    return 0
+
+
 def _adaptive_options(args) -> dict:
     """--allocation / --nyquist as render_adaptive keywords (only those given)."""
     return {k: getattr(args, k) for k in ("allocation", "nyquist") if getattr(args, k, None) is not None}
@@ -262,16 +305,18 @@ def cmd_render(args) -> int:
 
     if args.method == "adaptive" and args.budget is None:
         raise WarpbwError("--method adaptive needs --budget SAMPLES_PER_PIXEL (mean samples per covered pixel)")
-    if args.method == "adaptive" and args.spp is not None:
-        raise WarpbwError("--spp applies to --method reference only (--method adaptive takes --budget)")
-    if args.spp is None:
-        args.spp = DEFAULT_SPP
     if args.method == "reference" and (args.budget is not None or args.nb is not None
                                        or _adaptive_options(args)):
         raise WarpbwError("--budget, --nb, --allocation and --nyquist apply to --method adaptive only "
                           "(the reference takes --spp)")
     scene = load_scene(args.scene)
-    _check_renderable(scene)
+    mixed = _is_mixed(scene)
+    if args.method == "adaptive" and args.spp is not None and not mixed:
+        raise WarpbwError("--spp applies to --method reference only (--method adaptive takes --budget)")
+    if args.spp is None:
+        args.spp = DEFAULT_SPP
+    if mixed:
+        return _render_mixed_cli(scene, args)
     if scene.has_planes:
         return _render_filtering_cli(scene, args)
     if args.filter is not None:
@@ -299,14 +344,7 @@ def cmd_info(args) -> int:
     from warpbw.pipeline import scene_summary
     from warpbw.scene import load_scene
 
-    scene = load_scene(args.scene)
-    _check_renderable(scene)  # what render would refuse, info refuses too
-    if scene.has_planes:
-        from warpbw.filtering import filtering_summary
-
-        s = filtering_summary(scene)
-    else:
-        s = scene_summary(scene)
+    s = scene_summary(load_scene(args.scene))   # planes, spheres and meshes, or both
     if args.json:
         print(json.dumps(s, indent=2))
         return 0
@@ -442,6 +480,9 @@ def cmd_bench(args) -> int:
 
     _bench_outputs(args)
     scene = load_scene(args.scene)
+    if _is_mixed(scene):
+        raise WarpbwError(f"{scene.source}: bench measures spheres and meshes alone, but the scene also has planes "
+                          "(render it with 'warpbw render'; bench its spheres and meshes in a scene of their own)")
     if scene.has_planes:
         raise WarpbwError(f"{scene.source}: a scene with planes is benchmarked by 'warpbw bench-filtering'")
     if scene.environment is None:
@@ -472,7 +513,9 @@ def cmd_bench_filtering(args) -> int:
     if not scene.has_planes:
         raise WarpbwError(f"{scene.source}: bench-filtering needs a scene with planes (shape = \"plane\"); "
                           "spheres and meshes are benchmarked by 'warpbw bench'")
-    _check_renderable(scene)
+    if _is_mixed(scene):
+        raise WarpbwError(f"{scene.source}: bench-filtering measures planes alone, but the scene also has spheres "
+                          "or meshes (render it with 'warpbw render'; bench its planes in a scene of their own)")
     init_warp(args.device)
     log = (lambda *a, **k: None) if args.quiet else print
     record = bf.run_bench_filtering(scene, zooms=args.zoom, gt_spp=args.gt_spp, runs=args.runs, seed=args.seed,
@@ -555,7 +598,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "reflectance-filtering renderer (004): METHOD is gmm_aligned (default), gmm_unaligned, toksvig, "
                    "lean, fixed, or ground_truth (--spp >= 64 jittered rays per pixel); also writes the mip "
                    "level map OUT.level.exr/.png. Under an [environment], each filtered pixel takes --spp pairs of "
-                   "one BRDF and one environment sample (MIS), each ground-truth ray one pair")
+                   "one BRDF and one environment sample (MIS), each ground-truth ray one pair. A scene with planes "
+                   "beside spheres or meshes renders both: the spheres and meshes with --method (and its options), "
+                   "then the planes in front of them with --filter (--spp also sets the planes' samples under "
+                   "--method adaptive); the mip level map is then OUT.mip_level.exr/.png")
     add_anisotropy_option(r, None)
     common(r, DEFAULT_SPP)
     r.set_defaults(func=cmd_render)

@@ -9,6 +9,7 @@ Public:
     ``render_filtering(scene, method, spp, seed, device, prepared, camera, progress, lod_bias, threads,
                        env_spp)``        -> ``FilterResult``
     ``FilterResult``                     image, coverage, level map, time_s, stats
+    ``Background``                       image and camera-space depth the planes are drawn over
     ``filtering_summary(scene) -> dict``  what ``warpbw info`` prints for a scene with planes
     ``plane_objects(scene) -> list``     the scene's planes; a one-line error when it has other objects too
     ``normal_moment_mipmap(normals) -> list``   box-filtered (mean normal, second moments) levels (numpy)
@@ -76,7 +77,8 @@ like the GMM mipmap).  The GMM mipmaps come from the material's ``gmm`` file (al
 the material's ``gmm_components`` (both) and ``gmm_prior`` (the aligned one's c; the unaligned one has none).
 
 Scope: planes only (spheres and meshes are refused); several planes composite by the depth of each pixel's
-centre ray; no light is occluded (a plane does not shadow another).  A kernel is compiled per method kind with
+centre ray, and so do planes drawn over a ``Background`` (the spheres and meshes of a scene that has both,
+rendered by :mod:`warpbw.pipeline`); no light is occluded (a plane does not shadow another).  A kernel is compiled per method kind with
 or without the environment term: a scene without one compiles no sampling.  The device is an argument (CPU
 launches are tiled over a thread pool); the kernels have been run on the CPU only.
 """
@@ -171,6 +173,9 @@ TILES_PER_THREAD = 4
 MIN_TILE_PIXELS = 256
 # GMM mipmap cache: file name prefix and the version of what is cached (precompute.gmm_mipmap.GMM_VERSION).
 GMM_CACHE_PREFIX = "gmm"
+# Distance along a pixel's centre ray of "nothing in front": every plane hit is closer (float32 range).
+NO_HIT = 3.0e38
+_NO_HIT = wp.constant(NO_HIT)
 
 
 def roughness_variance(m: float) -> float:
@@ -755,6 +760,18 @@ def _ground_truth_kernel(with_env: bool):
 
 
 @wp.kernel(module="unique", enable_backward=False)
+def background_distance_kernel(cam: CameraData, z: wp.array(dtype=wp.float32), depth: wp.array(dtype=wp.float32)):
+    """A background's camera-space depth z (0: empty) -> distance along the pixel's centre ray, the planes'
+    depth test (``NO_HIT`` where the background is empty)."""
+    i = wp.tid()
+    t = float(_NO_HIT)
+    if z[i] > 0.0:
+        d = ray_dir(cam, float(i % cam.width) + 0.5, float(i / cam.width) + 0.5)
+        t = z[i] / wp.dot(d, cam.forward)   # z = t (d . forward) for a unit d
+    depth[i] = t
+
+
+@wp.kernel(module="unique", enable_backward=False)
 def fetch_gmm_kernel(gmm: wp.array(dtype=wp.vec4), lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32),
                      loff: wp.array(dtype=wp.int32), levels: int, K: int, st: wp.array(dtype=wp.vec3),
                      out: wp.array(dtype=wp.vec4)):
@@ -1006,9 +1023,17 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
 # Rendering
 
 @dataclass
-class FilterResult:
+class Background:
+    """What the planes are drawn over (``render_filtering``'s ``background``): another renderer's image of the
+    scene's spheres and meshes and their camera-space depth, the G-buffer's (0 where nothing was hit)."""
     image: np.ndarray       # (H, W, 3) float32 linear radiance
-    coverage: np.ndarray    # (H, W) bool: the pixel's centre ray hits a plane
+    depth: np.ndarray       # (H, W) float32 distance along the camera's forward axis, 0 = empty
+
+
+@dataclass
+class FilterResult:
+    image: np.ndarray       # (H, W, 3) float32 linear radiance (over the background, when one was given)
+    coverage: np.ndarray    # (H, W) bool: the pixel's centre ray hits a plane (in front of the background)
     level: np.ndarray       # (H, W) float32 fractional mip level in [-1, levels - 1] (0 for the ground truth and
                             # uncovered pixels; below 0: magnified, blended towards the fine-scale BRDF)
     time_s: float           # kernel time of the frame (launches + synchronise)
@@ -1045,14 +1070,17 @@ def diffuse_pick(diffuse, f0) -> float:
 def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed: int = 0, device: str = "cpu",
                      prepared: FilteringScene | None = None, camera: Camera | None = None,
                      progress: bool = False, lod_bias: float = LOD_BIAS, threads: int | None = None,
-                     env_spp: int = DEFAULT_ENV_SPP, max_anisotropy: int = DEFAULT_ANISOTROPY) -> FilterResult:
+                     env_spp: int = DEFAULT_ENV_SPP, max_anisotropy: int = DEFAULT_ANISOTROPY,
+                     background: Background | None = None) -> FilterResult:
     """Render ``scene`` (planes under directional lights and / or an environment) with ``method``
     (``ALL_METHODS``); ``camera`` overrides the scene's; ``spp`` is the ground truth's rays per pixel
     (>= MIN_GT_SPP); ``env_spp`` the filtered methods' BRDF + environment sample pairs per pixel when the
     scene has an [environment] (the ground truth takes one pair per ray); ``seed`` seeds both; ``lod_bias``
     is added to every pixel's mip level; ``max_anisotropy`` (1 to ``MAX_ANISOTROPY``) the most probes along a
     footprint's major axis (1: isotropic); CPU launches are tiled over ``threads`` (default: all cores, up
-    to 8)."""
+    to 8).  With a ``background`` (:class:`Background`, at the camera's resolution) the planes are drawn over
+    it: a pixel shows a plane when its centre ray hits one in front of the background's depth, and only
+    those pixels are shaded (the scene's spheres and meshes, rendered by :mod:`warpbw.pipeline`)."""
     from warpbw.shading import default_threads, launch_tiled
 
     if method not in ALL_METHODS:
@@ -1067,9 +1095,19 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     cam_s = camera or scene.camera
     cam = make_camera(cam_s.position, cam_s.look_at, cam_s.up, cam_s.fov, cam_s.width, cam_s.height)
     n = cam_s.width * cam_s.height
+    h, w = cam_s.height, cam_s.width
     dev = prepared.device
-    depth = wp.full(n, 3.0e38, dtype=wp.float32, device=dev)
-    out = wp.zeros(n, dtype=wp.vec3, device=dev)
+    if background is not None:
+        bg_img = np.asarray(background.image)
+        bg_z = np.asarray(background.depth)
+        if bg_img.shape != (h, w, 3) or bg_z.shape != (h, w):
+            raise WarpbwError(f"background: expected an ({h}, {w}, 3) image and an ({h}, {w}) depth (the camera's "
+                              f"{w}x{h}), got {bg_img.shape} and {bg_z.shape}")
+        out = wp.array(bg_img.reshape(n, 3).astype(np.float32), dtype=wp.vec3, device=dev)
+        z = wp.array(bg_z.reshape(n).astype(np.float32), dtype=wp.float32, device=dev)
+    else:
+        out = wp.zeros(n, dtype=wp.vec3, device=dev)
+    depth = wp.full(n, NO_HIT, dtype=wp.float32, device=dev)
     level = wp.zeros(n, dtype=wp.float32, device=dev)
     env = prepared.env.data if prepared.env is not None else EnvMapData()
     with_env = prepared.env is not None
@@ -1077,8 +1115,13 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     nthreads = default_threads(dev) if threads is None else max(1, int(threads))
     tile = max(MIN_TILE_PIXELS, -(-n // (TILES_PER_THREAD * nthreads)))
     wp.load_module(kernel.module, device=dev)   # compile before the clock starts
+    if background is not None:
+        wp.load_module(background_distance_kernel.module, device=dev)
     wp.synchronize_device(dev)
     t0 = time.perf_counter()
+    if background is not None:
+        wp.launch(background_distance_kernel, dim=n, inputs=[cam, z, depth], device=dev)
+        start = depth.numpy().reshape(h, w).copy()   # numpy() of a CPU array is a view of it
     for p in plane_objects(scene):
         m = scene.materials[p.material]
         mp = prepared.mips[p.material]
@@ -1098,9 +1141,8 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
                          dev, nthreads, tile=tile)
     wp.synchronize_device(dev)
     dt = time.perf_counter() - t0
-    h, w = cam_s.height, cam_s.width
     img = out.numpy().reshape(h, w, 3).astype(np.float32)
-    cov = depth.numpy().reshape(h, w) < 3.0e38
+    cov = depth.numpy().reshape(h, w) < (start if background is not None else NO_HIT)
     lev = level.numpy().reshape(h, w)
     stats = {"method": method, "resolution": [w, h], "pixels_covered": int(cov.sum()), "time_s": round(dt, 6),
              "materials": prepared.notes, "non_finite_pixels": int((~np.isfinite(img)).any(-1).sum())}
@@ -1125,12 +1167,8 @@ def zoomed_camera(camera: Camera, zoom: float) -> Camera:
 
 def filtering_summary(scene: Scene) -> dict:
     """What ``warpbw info`` says about a scene with planes (from the scene file alone)."""
-    objects = []
-    for o in scene.objects:
-        if isinstance(o, PlaneObject):
-            objects.append(f"plane size={o.size:g} at {list(o.center)} material={o.material}")
-        else:
-            objects.append(f"{type(o).__name__} material={o.material} (not rendered by the filtering renderer)")
+    objects = [o.describe() + ("" if isinstance(o, PlaneObject) else " (not rendered by the filtering renderer)")
+               for o in scene.objects]
     lights = [li.describe() for li in scene.lights]
     e = scene.environment
     env = "none" if e is None else (

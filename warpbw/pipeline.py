@@ -5,6 +5,9 @@ Public:
     ``render_reference(scene_or_prepared, spp, seed, mis, device, progress) -> RenderResult``
     ``render_adaptive(scene_or_prepared, budget, seed, mis, n_b, n_min, n_max, ...) -> RenderResult``
     ``prepare_bandwidth(prepared, progress)``   the bandwidth pass's tables (adaptive only, built once)
+    ``split_planes(scene) -> (surfaces, planes)``   a scene's spheres and meshes, and its planes, as two scenes
+    ``render_with_planes(scene, filter_method, spp, seed, method, budget, ...) -> RenderResult``
+                                       a scene with both: the spheres and meshes, then the planes over them
     ``scene_summary(scene) -> dict``   what the scene needs (for ``warpbw info``), without loading it
 
 A material kind the scene does not use is not compiled (its branch is removed from the kernels with
@@ -13,6 +16,13 @@ is in memory.  The environment and the directional ``[[light]]``s are each optio
 one): a scene without an environment compiles no sampling loop, one without lights no light loop.  The
 adaptive method needs an environment: it adapts the environment's sampling, and adds the lights' exact
 term at every pixel.  ``RenderResult.stats`` says which stages ran and how long each took.
+
+Planes (004) render with :mod:`warpbw.filtering`.  In a scene that has planes beside spheres or meshes,
+:func:`render_with_planes` renders the spheres and meshes here (reference or adaptive), then draws the planes
+over that image: a pixel shows whichever surface its centre ray hits first (the G-buffer's depth against the
+plane's), and only the pixels a plane wins are shaded by the filtering renderer.  Nothing casts a shadow and
+nothing is reflected in another object: every surface sees the lights and the environment directly, as in
+each renderer alone.
 """
 from __future__ import annotations
 
@@ -27,7 +37,7 @@ from warpbw import brdf as brdf_mod
 from warpbw import envmap
 from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError, is_int
 from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer)
-from warpbw.scene import MeshObject, Scene, SphereObject
+from warpbw.scene import MeshObject, PlaneObject, Scene, SphereObject
 
 
 @dataclass
@@ -110,7 +120,8 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
 
     if scene.has_planes:
         raise WarpbwError(f"{scene.source}: this renderer (spheres and meshes, 002) does not render planes; scenes "
-                          "with planes render with warpbw.filtering.render_filtering (warpbw render)")
+                          "with planes render with warpbw.filtering.render_filtering, or, beside spheres and meshes, "
+                          "with warpbw.pipeline.render_with_planes (warpbw render)")
     if scene.environment is None and not scene.lights:
         raise WarpbwError(f"{scene.source}: the scene has no light (expected an [environment] and / or "
                           "[[light]] tables)")
@@ -414,16 +425,78 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     return RenderResult(res.image, gb.coverage, gb, stats, aovs)
 
 
+def split_planes(scene: Scene) -> tuple:
+    """``(surfaces, planes)``: the scene's spheres and meshes, and its planes, each as a scene of its own with the
+    same camera, environment and lights (None where the scene has no such object)."""
+    from dataclasses import replace
+
+    surf = [o for o in scene.objects if not isinstance(o, PlaneObject)]
+    planes = [o for o in scene.objects if isinstance(o, PlaneObject)]
+    return (replace(scene, objects=surf) if surf else None, replace(scene, objects=planes) if planes else None)
+
+
+def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0, method: str = "reference",
+                       budget: float | None = None, mis: bool = False, n_b: int | None = None, device: str = "cpu",
+                       progress: bool = False, threads: int | None = None, max_anisotropy: int | None = None,
+                       **adaptive_options) -> RenderResult:
+    """Render a scene with planes beside spheres or meshes (module docstring): the spheres and meshes with
+    ``method`` ("reference" at ``spp``, or "adaptive" at ``budget`` with ``n_b`` and ``adaptive_options``, the
+    keywords of :func:`render_adaptive`), then the planes in front of them with the filtering renderer's
+    ``filter_method`` (``spp``: its ground truth's rays per pixel, else its environment pairs per pixel).
+
+    ``stats`` are the spheres and meshes' with ``planes`` (the filtering renderer's) added, ``pixels_covered``
+    counting both and ``time_s.frame`` the sum of the two frames; ``aovs`` add ``mip_level``, the planes'
+    filtering level (0 elsewhere), and ``plane``, True where a plane is in front.  The adaptive AOVs describe the spheres and meshes, also where a plane is in
+    front of them."""
+    from warpbw.filtering import DEFAULT_ANISOTROPY, Background, render_filtering
+
+    surfaces, planes = split_planes(scene)
+    if surfaces is None or planes is None:
+        raise WarpbwError(f"{scene.source}: render_with_planes renders planes beside spheres or meshes; this scene "
+                          f"has {'no plane' if planes is None else 'planes only'} (use "
+                          f"{'render_reference / render_adaptive' if planes is None else 'render_filtering'})")
+    if method not in ("reference", "adaptive"):
+        raise WarpbwError(f"method: expected 'reference' or 'adaptive', got {method!r}")
+    if method == "adaptive":
+        if budget is None:
+            raise WarpbwError("method 'adaptive': expected a budget (mean samples per covered pixel)")
+        res = render_adaptive(surfaces, budget, seed=seed, mis=mis, n_b=n_b, device=device, progress=progress,
+                              threads=threads, **adaptive_options)
+    else:
+        res = render_reference(surfaces, spp, seed=seed, mis=mis, device=device, progress=progress, threads=threads)
+    behind = Background(res.image, res.gbuffer.numpy("depth"))
+    fr = render_filtering(planes, filter_method, spp=spp, seed=seed, device=device, progress=progress,
+                          threads=threads, env_spp=spp, background=behind,
+                          max_anisotropy=DEFAULT_ANISOTROPY if max_anisotropy is None else max_anisotropy)
+    coverage = res.coverage | fr.coverage
+    stats = dict(res.stats)
+    stats["pixels_covered"] = int(coverage.sum())
+    stats["planes"] = fr.stats
+    t = res.stats["time_s"]
+    surfaces_frame = t.get("frame", t["gbuffer"] + t["shading"])   # the reference times no "frame" of its own
+    stats["time_s"] = dict(t, planes=round(fr.time_s, 6), frame=round(surfaces_frame + fr.time_s, 6))
+    return RenderResult(fr.image, coverage, res.gbuffer, stats, dict(res.aovs, mip_level=fr.level, plane=fr.coverage))
+
+
 def scene_summary(scene: Scene) -> dict:
-    """What the scene needs, from the scene file alone (no asset is loaded)."""
+    """What the scene needs, from the scene file alone (no asset is loaded).  A scene with planes beside spheres
+    or meshes lists both renderers' stages (:func:`render_with_planes`)."""
+    surfaces, planes = split_planes(scene)
+    if planes is not None:
+        from warpbw.filtering import filtering_summary
+
+        if surfaces is None:
+            return filtering_summary(scene)
+        s = scene_summary(surfaces)
+        s["objects"] = [o.describe() for o in scene.objects]
+        s["materials"] = {n: scene.materials[n].type for n in scene.material_order}
+        s["unused_materials"] = sorted(set(scene.materials) - set(scene.material_order))
+        s["stages"] = ([f"spheres and meshes: {st}" for st in s["stages"]]
+                       + [f"planes: {st}" for st in filtering_summary(planes)["stages"]]
+                       + ["composite: each pixel shows the surface its centre ray hits first (no shadows)"])
+        return s
     kinds = sorted({scene.materials[n].type for n in scene.material_order})
     env = scene.environment
-    objects = []
-    for o in scene.objects:
-        if isinstance(o, SphereObject):
-            objects.append(f"sphere r={o.radius:g} at {list(o.center)} material={o.material}")
-        else:
-            objects.append(f"mesh {o.file} material={o.material}")
     unused = sorted(set(scene.materials) - set(scene.material_order))
     has_mesh = any(isinstance(o, MeshObject) for o in scene.objects)
     stages = ["gbuffer (" + " + ".join(
@@ -440,7 +513,7 @@ def scene_summary(scene: Scene) -> dict:
         "resolution": [scene.camera.width, scene.camera.height],
         "environment": env.describe() if env is not None else "none (lit by the [[light]]s)",
         "lights": lights,
-        "objects": objects,
+        "objects": [o.describe() for o in scene.objects],
         "materials": {n: scene.materials[n].type for n in scene.material_order},
         "unused_materials": unused,
         "files": [str(p) for p in scene.files()],

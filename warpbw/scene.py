@@ -12,7 +12,8 @@ light, ``radiance``); a scene needs at least one of them (``Scene.environment`` 
 Directional lights light planes (``warpbw.filtering``) and spheres and meshes (``warpbw.lights``) alike.
 Planes (``shape = "plane"``: a square of side ``size`` in the XZ plane facing +Y, centred at ``center``,
 uv in [0, 1]^2 with u along +X and v along +Z) carry ``cook-torrance`` materials with an optional normal
-map (004); they are rendered by ``warpbw.filtering``.
+map (004); they are rendered by ``warpbw.filtering``, and may share a scene with spheres and meshes
+(``warpbw.pipeline.render_with_planes``).
 
 Every error is a ``WarpbwError`` naming the scene file and the key, e.g.
 ``scene.toml: [camera].resolution: expected two positive integers [width, height], got [-1, 512]``.
@@ -140,6 +141,10 @@ class SphereObject:
     radius: float
     material: str
 
+    def describe(self) -> str:
+        """One line for ``warpbw info``."""
+        return f"sphere r={self.radius:g} at {list(self.center)} material={self.material}"
+
 
 @dataclass(frozen=True)
 class MeshObject:
@@ -149,12 +154,20 @@ class MeshObject:
     scale: float = 1.0
     rotate_y: float = 0.0  # degrees
 
+    def describe(self) -> str:
+        """One line for ``warpbw info``."""
+        return f"mesh {self.file} material={self.material}"
+
 
 @dataclass(frozen=True)
 class PlaneObject:
     center: tuple
     size: float
     material: str
+
+    def describe(self) -> str:
+        """One line for ``warpbw info``."""
+        return f"plane size={self.size:g} at {list(self.center)} material={self.material}"
 
 
 @dataclass(frozen=True)
@@ -209,6 +222,11 @@ class Scene:
     def has_planes(self) -> bool:
         """True when some object is a plane (rendered by ``warpbw.filtering``)."""
         return any(isinstance(o, PlaneObject) for o in self.objects)
+
+    @property
+    def has_surfaces(self) -> bool:
+        """True when some object is a sphere or a mesh (rendered by ``warpbw.pipeline``)."""
+        return any(not isinstance(o, PlaneObject) for o in self.objects)
 
     @property
     def material_order(self) -> list:
