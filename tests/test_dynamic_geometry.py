@@ -36,26 +36,31 @@ def sphere_obj(tmp_path):
     return p
 
 
-def test_two_frames_on_a_sphere(tmp_path, sphere_obj, monkeypatch):
+@pytest.mark.parametrize("host_normals", [False, True], ids=["device-normals", "host-normals"])
+def test_two_frames_on_a_sphere(tmp_path, sphere_obj, monkeypatch, host_normals):
     monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
     ex = _example()
     monkeypatch.setattr(ex, "DEFAULT_ENV", tmp_path / "no-probe.exr")    # the default absent: the procedural sky
     out = tmp_path / "out"
     argv = ["--mesh", str(sphere_obj), "--out", str(out), "--frames", "2", "--size", "48", "--budget", "4",
-            "--material", "ggx"]
+            "--material", "ggx"] + (["--host-normals"] if host_normals else [])
     result = ex.main(argv)
     rec = json.loads((out / "dynamic_geometry.json").read_text())
     assert rec["frames"] == json.loads(json.dumps(result["frames"]))
     assert len(rec["frames"]) == 2 and rec["triangles"] == 1280
     for r in rec["frames"]:
         for k, v in r.items():
-            assert isinstance(v, (int, float)) and math.isfinite(v), (k, v)
+            if k == "normals_curvature_s" and not host_normals:
+                assert v is None      # on the device they are timed with the update
+            else:
+                assert isinstance(v, (int, float)) and math.isfinite(v), (k, v)
         assert 0.0 < r["shaded_fraction"] <= 1.0
         assert 0 < r["pixels_shaded"] <= r["pixels_covered"] <= 48 * 48
         assert r["samples"] > 0 and r["fps"] > 0
         assert r["total_s"] >= r["geometry_s"] + r["gbuffer_s"] + r["bandwidth_s"] + r["shading_s"] - 1e-9
     assert math.isfinite(rec["summary"]["mean_fps"]) and rec["summary"]["mean_fps"] > 0
     assert "bandwidth_pass" in rec["stages"]
+    assert rec["normals_and_curvature"].startswith("host" if host_normals else "device")
     # the strip: two rows (frames, shaded masks) of two 48-pixel frames, STRIP_GAP apart
     from PIL import Image
 

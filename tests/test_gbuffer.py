@@ -184,6 +184,34 @@ def test_update_mesh_matches_a_geometry_built_from_scratch():
                                   left.vertices.astype(np.float32))
 
 
+def test_update_mesh_derives_normals_and_curvature_on_the_device_as_the_host_does():
+    """update_mesh without normals and curvature computes them on the device (warpbw.mesh_normals): the
+    G-buffer is the one the host's numpy normals and curvature give, and the other mesh keeps its own."""
+    from warpbw.gbuffer import update_mesh
+    from warpbw.io.mesh import normals_and_curvature
+
+    cam = make_camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 64, 48)
+    left = _icosphere_spec(0.6, material=0, subdiv=3)
+    left.vertices = left.vertices + np.array([-0.9, 0.0, 0.0])
+    right = _icosphere_spec(0.7, material=1, subdiv=4)
+    v = right.vertices * (1.0 + 0.15 * np.sin(6.0 * right.vertices[:, 1:2])) + np.array([0.5, 0.3, 0.4])
+    v32 = v.astype(np.float32).astype(np.float64)   # the positions the device holds
+    n, h = normals_and_curvature(v32, right.faces)
+    host, device = (build_geometry([], [left, right]) for _ in range(2))
+    update_mesh(host, 1, v, n, h)
+    update_mesh(device, 1, v)
+    update_mesh(device, 1, v)     # again: the topology built by the first call is reused
+    assert list(device.topology) == [1]
+    got, want = (_gbuffer_arrays(render_gbuffer(cam, g)) for g in (device, host))
+    assert (want["material"] == 1).sum() > 300
+    np.testing.assert_array_equal(got["material"], want["material"])
+    for name in ("depth", "normal", "curvature", "position"):
+        np.testing.assert_allclose(got[name], want[name], rtol=1e-5, atol=1e-5, err_msg=name)
+    nl = len(left.vertices)
+    np.testing.assert_array_equal(device.mesh_attr.normal.numpy()[:nl], host.mesh_attr.normal.numpy()[:nl])
+    np.testing.assert_array_equal(device.mesh_attr.curvature.numpy()[:nl], host.mesh_attr.curvature.numpy()[:nl])
+
+
 def test_update_mesh_bad_input():
     import pytest
     from warpbw.errors import WarpbwError
@@ -193,6 +221,8 @@ def test_update_mesh_bad_input():
     nv = len(m.vertices)
     geo = build_geometry([], [m])
     ok = (m.vertices, m.normals, m.curvature)
+    with pytest.raises(WarpbwError, match="give both normals and curvature, or neither"):
+        update_mesh(geo, 0, m.vertices, m.normals)
     with pytest.raises(WarpbwError, match=rf"mesh 0 vertices: expected shape \({nv}, 3\) \({nv} vertices"):
         update_mesh(geo, 0, m.vertices[:-1], m.normals, m.curvature)
     with pytest.raises(WarpbwError, match=rf"curvature: expected shape \({nv},\)"):

@@ -5,7 +5,7 @@ Public:
     ``make_camera(position, look_at, up, fov_deg, width, height)`` -> ``CameraData``
     ``camera_rays(cam) -> (origins, dirs)``  numpy, for tests and examples
     ``Geometry`` / ``build_geometry(spheres, meshes, device)``  scene geometry on the device
-    ``update_mesh(geometry, mesh_index, vertices, normals, curvature)``  deform one mesh in place and
+    ``update_mesh(geometry, mesh_index, vertices, normals=None, curvature=None)``  deform one mesh in place and
                                      refit the BVH (dynamic geometry, 002 Sec. 4.3, Fig. 18)
     ``GBufferData``                  Warp struct: the per-pixel buffers, as kernels read them
     ``GBuffer`` / ``render_gbuffer(cam, geometry, device, threads)``     run the pass
@@ -303,6 +303,8 @@ class Geometry:
     _keep: list = field(default_factory=list, repr=False)
     # (first vertex, vertex count) of each MeshSpec in the concatenated vertex arrays, in the order given
     mesh_vertex_ranges: list = field(default_factory=list)
+    # mesh index -> warpbw.mesh_normals.MeshTopology, built by the first update_mesh that derives normals
+    topology: dict = field(default_factory=dict)
 
 
 def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], device: str = "cpu") -> Geometry:
@@ -368,15 +370,16 @@ def _per_vertex(name: str, values, shape: tuple, mesh_index: int) -> np.ndarray:
     return a
 
 
-def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals, curvature) -> None:
+def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, curvature=None) -> None:
     """Deform mesh ``mesh_index`` (its position in ``build_geometry``'s ``meshes``) in place.
 
-    Copies the new vertex positions (V, 3), smooth normals (V, 3) and mean curvatures (V,) into the
-    device arrays the G-buffer kernel reads, at that mesh's offset in the concatenated arrays, then
-    refits the BVH over the moved points (``wp.Mesh.refit``: same topology, new bounds).  The
-    connectivity, uv and materials stay as built.  Nothing is derived from the old geometry, so a
-    frame rendered after this is what ``build_geometry`` with the new vertices would give: the
-    bandwidth pass needs only the G-buffer (002 Sec. 4.3, "Dynamic geometry").
+    Copies the new vertex positions (V, 3) into the device arrays the G-buffer kernel reads, at that mesh's
+    offset in the concatenated arrays, with its smooth normals (V, 3) and mean curvatures (V,): given, or,
+    when both are None, computed on the device from the new positions (:mod:`warpbw.mesh_normals`, the
+    formulas of :mod:`warpbw.io.mesh`).  Then refits the BVH over the moved points (``wp.Mesh.refit``: same
+    topology, new bounds).  The connectivity, uv and materials stay as built.  Nothing is derived from the
+    old geometry, so a frame rendered after this is what ``build_geometry`` with the new vertices would
+    give: the bandwidth pass needs only the G-buffer (002 Sec. 4.3, "Dynamic geometry").
     """
     ranges = geometry.mesh_vertex_ranges
     if geometry.mesh is None or not ranges:
@@ -384,15 +387,26 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals, curvatur
     if not is_int(mesh_index) or not 0 <= mesh_index < len(ranges):
         raise WarpbwError(f"update_mesh: mesh_index: expected an integer in 0..{len(ranges) - 1}, "
                           f"got {mesh_index!r}")
+    if (normals is None) != (curvature is None):
+        raise WarpbwError("update_mesh: give both normals and curvature, or neither (then both are computed on "
+                          "the device)")
     start, count = ranges[int(mesh_index)]
-    v = _per_vertex("vertices", vertices, (count, 3), mesh_index)
-    n = _per_vertex("normals", normals, (count, 3), mesh_index)
-    h = _per_vertex("curvature", curvature, (count,), mesh_index)
-    device = geometry.mesh.points.device
+    copies = [(geometry.mesh.points, _per_vertex("vertices", vertices, (count, 3), mesh_index), wp.vec3)]
     ma = geometry.mesh_attr
-    for dest, src, dtype in ((geometry.mesh.points, v, wp.vec3), (ma.normal, n, wp.vec3),
-                             (ma.curvature, h, wp.float32)):
+    if normals is not None:
+        copies += [(ma.normal, _per_vertex("normals", normals, (count, 3), mesh_index), wp.vec3),
+                   (ma.curvature, _per_vertex("curvature", curvature, (count,), mesh_index), wp.float32)]
+    device = geometry.mesh.points.device
+    for dest, src, dtype in copies:
         wp.copy(dest, wp.array(src, dtype=dtype, device=device), dest_offset=start, count=count)
+    if normals is None:
+        from warpbw.mesh_normals import MeshShading, mesh_topology, normals_and_curvature
+
+        topo = geometry.topology.get(int(mesh_index))
+        if topo is None:   # connectivity only, built on the first call
+            topo = geometry.topology[int(mesh_index)] = mesh_topology(ma.indices.numpy(), start, count, device)
+        normals_and_curvature(geometry.mesh.points, topo, device,
+                              out=MeshShading(ma.normal[start:start + count], ma.curvature[start:start + count]))
     geometry.mesh.refit()
 
 

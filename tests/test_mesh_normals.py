@@ -1,0 +1,121 @@
+"""Vertex normals and mean curvature on the device (warpbw.mesh_normals), for meshes deformed every frame.
+
+Truth: closed forms (a sphere: radial normals and H = 1/r; a spherical band: H = 1/r on its open rims too;
+a plane: H = 0), the invariance of normals and curvature under a rigid motion with uniform scaling
+(normals turn with the motion, H scales by 1 / s), and warpbw.io.mesh's float64 numpy implementation of the
+same formulas on the real bunny and on degenerate input.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+import warp as wp
+from conftest import shared_file
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from warpbw.errors import WarpbwError
+from warpbw.io.mesh import load_mesh, mesh_mean_curvature, normals_and_curvature, vertex_normals
+from warpbw.mesh_normals import mesh_topology
+from warpbw.mesh_normals import normals_and_curvature as device_normals_and_curvature
+
+
+def on_device(verts, faces, first: int = 0, pad: int = 0):
+    """(normals (V, 3), H (V,)) from the device, the mesh stored after ``first`` other points (and ``pad``
+    after it), as a mesh in a concatenated array is."""
+    v = np.asarray(verts, np.float32)
+    pts = np.concatenate([np.full((first, 3), 7.0, np.float32), v, np.full((pad, 3), -7.0, np.float32)])
+    topo = mesh_topology(np.asarray(faces).reshape(-1) + first, first, len(v))
+    r = device_normals_and_curvature(wp.array(pts, dtype=wp.vec3), topo)
+    return r.normals.numpy(), r.curvature.numpy()
+
+
+def angle_between(a, b):
+    """Angles between rows, from the cross product (arccos of float32 dots near 1 loses digits)."""
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.sum(a * b, axis=1))
+
+
+def _band(r=1.5, n_phi=200, n_th=40):
+    """A band of the sphere of radius r between polar angles 20 and 70 degrees: two open rims."""
+    ph, th = np.meshgrid(2 * math.pi * np.arange(n_phi) / n_phi,
+                         math.radians(20) + np.arange(n_th) * math.radians(50) / (n_th - 1), indexing="ij")
+    verts = np.stack([r * np.sin(th) * np.cos(ph), r * np.cos(th), r * np.sin(th) * np.sin(ph)], -1).reshape(-1, 3)
+    idx = np.arange(n_phi * n_th).reshape(n_phi, n_th)
+    a, b = idx[:, :-1].ravel(), idx[:, 1:].ravel()
+    c, d = np.roll(idx, -1, 0)[:, :-1].ravel(), np.roll(idx, -1, 0)[:, 1:].ravel()
+    return verts, np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)])
+
+
+def test_sphere_closed_form():
+    r = 2.0
+    ico = trimesh.creation.icosphere(subdivisions=4, radius=r)
+    v = ico.vertices + np.array([0.3, -1.0, 2.0])
+    n, h = on_device(v, ico.faces, first=5, pad=3)
+    radial = ico.vertices / r
+    assert np.degrees(angle_between(n, radial)).max() < 2.0
+    assert abs(np.median(h) * r - 1.0) < 0.01 and np.all(np.abs(h * r - 1.0) < 0.05)
+
+
+def test_open_band_rims_take_their_interior_neighbours_curvature():
+    r = 1.5
+    v, f = _band(r)
+    n, h = on_device(v, f)
+    assert np.min(np.sum(n * v / r, 1)) > 0.999
+    np.testing.assert_allclose(h, 1 / r, rtol=0.01)
+    # and what the host computes from the same (float32) positions, rims included
+    v32 = v.astype(np.float32).astype(np.float64)
+    np.testing.assert_allclose(h, mesh_mean_curvature(v32, f, vertex_normals(v32, f)), rtol=1e-5)
+
+
+def test_plane_is_flat():
+    x, z = np.meshgrid(np.arange(20) * 0.1, np.arange(30) * 0.07, indexing="ij")
+    v = np.stack([x.ravel(), np.zeros(x.size), z.ravel()], -1)
+    idx = np.arange(600).reshape(20, 30)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    n, h = on_device(v, np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)]))
+    assert np.allclose(np.abs(n[:, 1]), 1.0) and np.all(np.abs(h) < 1e-5)
+
+
+def test_real_bunny_against_the_host(shared):
+    m = load_mesh(shared_file("meshes/bunny.obj"))
+    v = m.vertices.astype(np.float64)
+    n_host, h_host = normals_and_curvature(v, m.faces)
+    n, h = on_device(m.vertices, m.faces)
+    assert angle_between(n, n_host).max() < 1e-5
+    assert np.abs(h - h_host).max() <= 1e-6 * np.abs(h_host).max() + 1e-5
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.floats(0.0, 2 * math.pi), st.floats(0.0, 2 * math.pi), st.floats(0.05, 20.0),
+       st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)))
+def test_rigid_motion_turns_normals_and_scaling_divides_curvature(yaw, pitch, s, t):
+    """Moved by a rotation, scaled by s and shifted by up to 20 s, the band's normals turn with it and its H
+    becomes 1 / (s r)."""
+    r = 1.5
+    v, f = _band(r)
+    rot = trimesh.transformations.euler_matrix(pitch, yaw, 0.0)[:3, :3]
+    n0, _ = on_device(v, f)
+    n1, h1 = on_device(s * (v @ rot.T + 20.0 * np.asarray(t)), f)
+    assert angle_between(n1, n0 @ rot.T).max() < 1e-4
+    np.testing.assert_allclose(h1 * s * r, 1.0, rtol=0.01)   # float32 rounding of the shifted points: ~0.4%
+
+
+def test_degenerate_faces_and_unreferenced_vertices_are_finite_and_match_the_host():
+    # vertex 4 is in no face, face 2 has no area (a repeated corner), face 3 is a sliver on a line
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 0, 1], [1, 0.5, 1], [5, 5, 5], [2, 0, 0]], float)
+    f = np.array([[0, 2, 1], [1, 2, 3], [1, 1, 3], [0, 1, 5]])
+    n, h = on_device(v, f)
+    n_host, h_host = normals_and_curvature(v, f)
+    assert np.isfinite(n).all() and np.isfinite(h).all()
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-6)
+    np.testing.assert_allclose(n[4], [0.0, 1.0, 0.0])   # no incident area: the fallback, +Y
+    np.testing.assert_allclose(n, n_host, atol=1e-6)
+    np.testing.assert_allclose(h, h_host, rtol=1e-5, atol=1e-6)
+
+
+def test_a_face_across_two_meshes_is_refused():
+    with pytest.raises(WarpbwError, match=r"a face joins vertices in \[3, 6\) to others"):
+        mesh_topology(np.array([3, 4, 5, 0, 4, 5]), 3, 3)

@@ -1,0 +1,201 @@
+"""Smooth vertex normals and mean curvature of a deforming triangle mesh, on the device (002 Sec. 4.3).
+
+Public:
+    ``MeshTopology`` / ``mesh_topology(indices, first, count, device)``   one mesh's faces and open boundary,
+                                          from its connectivity alone (built once: a deformation keeps it)
+    ``MeshShading`` / ``normals_and_curvature(points, topology, device)``  normals (V, 3) and H (V,) from the
+                                          current vertex positions
+
+The formulas are :mod:`warpbw.io.mesh`'s, which computes the same on the host when a mesh is loaded:
+area-weighted vertex normals; mean curvature H = -(Laplace-Beltrami(x) . n) / 2 from cotangent weights and
+mixed Voronoi areas (Meyer, Desbrun, Schroeder, Barr 2003), positive on a convex shape with outward normals;
+vertices on an open boundary take the mean H of their interior neighbours.  The device version serves a mesh
+deformed every frame, where the host version (numpy on one core) took about a third of the frame
+(examples/dynamic_geometry.py).  Positions are float32; the per-face terms and their per-vertex sums are
+float64, as on the host: the cotangent Laplacian is a small difference of large terms.
+
+Three small kernels: per face (the face normal, the cotangent weights and the corner areas, summed into
+the vertices with atomic adds), per vertex (normalise, divide), and per boundary pair (the interior
+neighbours' mean).  Atomic adds are atomic on a GPU; on the CPU a launch runs on one thread, so these
+launches are never split over threads (``warpbw.shading.launch_tiled`` would race on the sums).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from warpbw.errors import WarpbwError
+
+# A face whose doubled area is below this fraction of its longest squared edge adds no cotangent weight and
+# no area (warpbw.io.mesh._DEGENERATE_REL_AREA: its cotangents would swamp its neighbours').
+DEGENERATE_REL_AREA = wp.constant(wp.float64(1.0e-12))
+# Normal of a vertex without incident area (warpbw.io.mesh._FALLBACK_NORMAL): +Y, up in the world convention.
+FALLBACK_NORMAL = wp.constant(wp.vec3(0.0, 1.0, 0.0))
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def face_terms_kernel(points: wp.array(dtype=wp.vec3), faces: wp.array(dtype=wp.int32), first: int,
+                      n_sum: wp.array(dtype=wp.vec3d), lap: wp.array(dtype=wp.vec3d),
+                      area: wp.array(dtype=wp.float64)):
+    """One face's share of its corners' normal (area-weighted), Laplacian numerator
+    sum_j (cot a_ij + cot b_ij)(x_j - x_i) and mixed Voronoi area (Meyer et al. 2003, Sec. 3.3-3.4)."""
+    t = wp.tid()
+    i0 = faces[3 * t] - first
+    i1 = faces[3 * t + 1] - first
+    i2 = faces[3 * t + 2] - first
+    p0 = wp.vec3d(points[i0 + first])
+    p1 = wp.vec3d(points[i1 + first])
+    p2 = wp.vec3d(points[i2 + first])
+    e0 = p2 - p1                      # edge k is opposite corner k
+    e1 = p0 - p2
+    e2 = p1 - p0
+    fn = wp.cross(e2, -e1)            # |fn| = twice the area: the sum is area-weighted
+    wp.atomic_add(n_sum, i0, fn)
+    wp.atomic_add(n_sum, i1, fn)
+    wp.atomic_add(n_sum, i2, fn)
+    dbl = wp.length(fn)
+    sq0 = wp.dot(e0, e0)
+    sq1 = wp.dot(e1, e1)
+    sq2 = wp.dot(e2, e2)
+    if dbl > DEGENERATE_REL_AREA * wp.max(sq0, wp.max(sq1, sq2)):
+        c0 = wp.dot(e2, -e1) / dbl    # cotangent of the angle at corner k
+        c1 = wp.dot(e0, -e2) / dbl
+        c2 = wp.dot(e1, -e0) / dbl
+        # the edge opposite corner k joins corners k+1 and k+2, edges_opp[k] = x_(k+2) - x_(k+1)
+        w0 = c0 * e0
+        w1 = c1 * e1
+        w2 = c2 * e2
+        wp.atomic_add(lap, i1, w0)
+        wp.atomic_sub(lap, i2, w0)
+        wp.atomic_add(lap, i2, w1)
+        wp.atomic_sub(lap, i0, w1)
+        wp.atomic_add(lap, i0, w2)
+        wp.atomic_sub(lap, i1, w2)
+        a = wp.float64(0.5) * dbl
+        zero = wp.float64(0.0)
+        if c0 < zero or c1 < zero or c2 < zero:   # obtuse: half the area to the obtuse corner, a quarter to each other
+            q = wp.float64(0.25) * a
+            a0 = q
+            a1 = q
+            a2 = q
+            if c0 < zero:
+                a0 = q + q
+            if c1 < zero:
+                a1 = q + q
+            if c2 < zero:
+                a2 = q + q
+            wp.atomic_add(area, i0, a0)
+            wp.atomic_add(area, i1, a1)
+            wp.atomic_add(area, i2, a2)
+        else:                                     # Voronoi area of each corner (Meyer et al. Eq. 7)
+            eighth = wp.float64(0.125)
+            wp.atomic_add(area, i0, eighth * (sq1 * c1 + sq2 * c2))
+            wp.atomic_add(area, i1, eighth * (sq2 * c2 + sq0 * c0))
+            wp.atomic_add(area, i2, eighth * (sq0 * c0 + sq1 * c1))
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def vertex_finish_kernel(n_sum: wp.array(dtype=wp.vec3d), lap: wp.array(dtype=wp.vec3d),
+                         area: wp.array(dtype=wp.float64), normals: wp.array(dtype=wp.vec3),
+                         curvature: wp.array(dtype=wp.float32)):
+    """Unit normal (the fallback where no area is incident) and H = -(L . n) / (4 A_mixed)."""
+    v = wp.tid()
+    s = n_sum[v]
+    length = wp.length(s)
+    n = FALLBACK_NORMAL
+    nd = wp.vec3d(FALLBACK_NORMAL)
+    if length > wp.float64(0.0):
+        nd = s / length
+        n = wp.vec3(nd)
+    normals[v] = n
+    h = wp.float64(0.0)
+    if area[v] > wp.float64(0.0):
+        h = -wp.dot(lap[v], nd) / (wp.float64(4.0) * area[v])
+    hf = float(h)
+    if not wp.isfinite(hf):
+        hf = 0.0
+    curvature[v] = hf
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def boundary_sum_kernel(x: wp.array(dtype=wp.int32), y: wp.array(dtype=wp.int32),
+                        curvature: wp.array(dtype=wp.float32), s: wp.array(dtype=wp.float64),
+                        c: wp.array(dtype=wp.int32)):
+    """Boundary vertex x[k] gathers the H of its interior neighbour y[k]."""
+    k = wp.tid()
+    wp.atomic_add(s, x[k], wp.float64(curvature[y[k]]))
+    wp.atomic_add(c, x[k], 1)
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def boundary_mean_kernel(boundary: wp.array(dtype=wp.int32), s: wp.array(dtype=wp.float64),
+                         c: wp.array(dtype=wp.int32), curvature: wp.array(dtype=wp.float32)):
+    """A boundary vertex's H: its interior neighbours' mean (0 without any)."""
+    v = boundary[wp.tid()]
+    h = float(0.0)
+    if c[v] > 0:
+        h = float(s[v] / wp.float64(c[v]))
+    curvature[v] = h
+
+
+@dataclass
+class MeshTopology:
+    """One mesh of a concatenated vertex array: its faces (global vertex indices), its vertex range, and its open
+    boundary (``warpbw.io.mesh.boundary_neighbours``), on the device."""
+    faces: wp.array            # int32, 3 per face, indices into the concatenated points
+    first: int                 # the mesh's first vertex in the concatenated points
+    count: int                 # its vertices
+    boundary: wp.array         # int32 boundary vertices (local indices)
+    pair_x: wp.array           # int32 boundary vertex of each (boundary, interior neighbour) pair (local)
+    pair_y: wp.array           # int32 its interior neighbour (local)
+
+
+@dataclass
+class MeshShading:
+    normals: wp.array          # (V,) vec3 unit vertex normals
+    curvature: wp.array        # (V,) float32 mean curvature, 1 / scene units
+
+
+def mesh_topology(indices, first: int, count: int, device: str = "cpu") -> MeshTopology:
+    """The faces of ``indices`` (flat, 3 per face, into a concatenated vertex array) whose vertices lie in
+    ``[first, first + count)``, and their open boundary.  Connectivity only: a deformation keeps it."""
+    from warpbw.io.mesh import boundary_neighbours
+
+    f = np.asarray(indices, np.int64).reshape(-1, 3)
+    mine = (f >= first) & (f < first + count)
+    if np.any(mine.any(axis=1) & ~mine.all(axis=1)):
+        raise WarpbwError(f"mesh topology: a face joins vertices in [{first}, {first + count}) to others")
+    f = f[mine.all(axis=1)]
+    on_boundary, x, y = boundary_neighbours(f - first, count)
+
+    def dev(a):
+        return wp.array(np.ascontiguousarray(a, np.int32), dtype=wp.int32, device=device)
+    return MeshTopology(dev(f.reshape(-1)), int(first), int(count), dev(np.flatnonzero(on_boundary)), dev(x), dev(y))
+
+
+def normals_and_curvature(points: wp.array, topology: MeshTopology, device: str = "cpu",
+                          out: MeshShading | None = None) -> MeshShading:
+    """Area-weighted unit vertex normals and mean curvature of the mesh ``topology`` describes, from the
+    vertex positions in ``points`` (the concatenated array, e.g. ``wp.Mesh.points``).  Written into ``out``
+    when given (views of the G-buffer's per-vertex arrays, say), else into new arrays."""
+    n = topology.count
+    if out is None:
+        out = MeshShading(wp.empty(n, dtype=wp.vec3, device=device), wp.empty(n, dtype=wp.float32, device=device))
+    n_sum = wp.zeros(n, dtype=wp.vec3d, device=device)
+    lap = wp.zeros(n, dtype=wp.vec3d, device=device)
+    area = wp.zeros(n, dtype=wp.float64, device=device)
+    n_faces = topology.faces.shape[0] // 3
+    # one launch each (module docstring: the atomic sums must not be split over CPU threads)
+    wp.launch(face_terms_kernel, dim=n_faces, inputs=[points, topology.faces, topology.first, n_sum, lap, area],
+              device=device)
+    wp.launch(vertex_finish_kernel, dim=n, inputs=[n_sum, lap, area, out.normals, out.curvature], device=device)
+    if topology.boundary.shape[0]:
+        s = wp.zeros(n, dtype=wp.float64, device=device)
+        c = wp.zeros(n, dtype=wp.int32, device=device)
+        wp.launch(boundary_sum_kernel, dim=topology.pair_x.shape[0],
+                  inputs=[topology.pair_x, topology.pair_y, out.curvature, s, c], device=device)
+        wp.launch(boundary_mean_kernel, dim=topology.boundary.shape[0], inputs=[topology.boundary, s, c, out.curvature],
+                  device=device)
+    return out
