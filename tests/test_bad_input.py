@@ -670,6 +670,25 @@ def test_render_with_planes_needs_both_kinds_of_object(tmp_path):
         render_with_planes(both, "fixed", 4, method="adaptive", budget=2)
 
 
+def test_planes_beside_a_sphere_check_the_planes_before_rendering_the_sphere(tmp_path, monkeypatch):
+    """A bad filter argument or normal map of the planes is refused before the spheres and meshes render."""
+    from warpbw import pipeline
+    from warpbw.scene import parse_scene
+
+    def no_render(*a, **k):
+        raise AssertionError("the sphere was rendered before the planes' arguments were checked")
+    monkeypatch.setattr(pipeline, "render_reference", no_render)
+    both = parse_scene(PLANE_SCENE.replace('normal_map = "map.exr"\n', "") + _SPHERE_OBJECT, tmp_path, "b.toml")
+    with pytest.raises(WarpbwError, match=r"spp \(ground-truth rays per pixel\)"):
+        pipeline.render_with_planes(both, "ground_truth", 16)
+    with pytest.raises(WarpbwError, match="filter method 'blur'"):
+        pipeline.render_with_planes(both, "blur", 16)
+    (tmp_path / "map.exr").write_bytes(b"not an image\n")
+    bad_map = parse_scene(PLANE_SCENE + _SPHERE_OBJECT, tmp_path, "m.toml")
+    with pytest.raises(WarpbwError, match=r"normal_map"):
+        pipeline.render_with_planes(bad_map, "fixed", 4)
+
+
 def test_plane_scene_through_the_environment_pipeline_is_refused(tmp_path):
     """The 002 pipeline (render_reference / render_adaptive) called directly on a plane scene lit by
     [[light]]s only: a clear error naming the scene, not a failure inside the environment loader."""

@@ -147,14 +147,7 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
     _warn_if_empty(res.stats)
     if adaptive:
         _write_aovs(res, out)
-    if res.stats.get("non_finite_samples"):
-        print(f"warpbw: warning: {res.stats['non_finite_samples']} samples had a non-finite contribution "
-              "and were dropped", file=sys.stderr)
-    if adaptive and res.stats["allocation"]["over_budget"]:
-        a = res.stats["allocation"]
-        print(f"warpbw: warning: --budget {budget:g} is below one sample per shaded pixel "
-              f"({a['planned_pixels']} pixels to shade, {a['budget_samples']} samples): every shaded pixel "
-              f"got {a['n_min']} sample(s)", file=sys.stderr)
+    _warn_samples(res.stats, budget)
     if not quiet:
         t = res.stats["time_s"]
         w, h = res.stats["resolution"]
@@ -176,6 +169,18 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
                   + (f" ({sps / 1e6:.2f} M samples/s)" if sps else "") + f", total {t['total']:.2f} s")
         print(f"  preview {outs['png']}, stats {outs['json']}")
     return res.stats
+
+
+def _warn_samples(stats: dict, budget: float | None) -> None:
+    """One line each: samples dropped as non-finite; an adaptive budget below one sample per shaded pixel."""
+    if stats.get("non_finite_samples"):
+        print(f"warpbw: warning: {stats['non_finite_samples']} samples had a non-finite contribution "
+              "and were dropped", file=sys.stderr)
+    a = stats.get("allocation")
+    if a is not None and a["over_budget"]:
+        print(f"warpbw: warning: --budget {budget:g} is below one sample per shaded pixel "
+              f"({a['planned_pixels']} pixels to shade, {a['budget_samples']} samples): every shaded pixel "
+              f"got {a['n_min']} sample(s)", file=sys.stderr)
 
 
 def _warn_if_empty(stats: dict) -> None:
@@ -253,6 +258,7 @@ def _render_mixed_cli(scene, args) -> int:
     res.stats["time_s"]["total"] = round(time.perf_counter() - t0, 6)
     _write_render(res, outs, args.exposure, scene.source)
     _warn_if_empty(res.stats)
+    _warn_samples(res.stats, args.budget)
     if adaptive:
         _write_aovs(res, out)
     level = res.aovs["mip_level"]

@@ -7,7 +7,8 @@ Public:
     ``ALL_METHODS``                      ``METHODS`` + ``ground_truth``
     ``prepare_filtering(scene, methods, device, progress, cache) -> FilteringScene``   load / build the mipmaps
     ``render_filtering(scene, method, spp, seed, device, prepared, camera, progress, lod_bias, threads,
-                       env_spp)``        -> ``FilterResult``
+                       env_spp, max_anisotropy, background)``        -> ``FilterResult``
+    ``check_render_args(scene, method, spp, env_spp, max_anisotropy)``  its argument checks, before any work
     ``FilterResult``                     image, coverage, level map, time_s, stats
     ``Background``                       image and camera-space depth the planes are drawn over
     ``filtering_summary(scene) -> dict``  what ``warpbw info`` prints for a scene with planes
@@ -78,8 +79,8 @@ the material's ``gmm_components`` (both) and ``gmm_prior`` (the aligned one's c;
 
 Scope: planes only (spheres and meshes are refused); several planes composite by the depth of each pixel's
 centre ray, and so do planes drawn over a ``Background`` (the spheres and meshes of a scene that has both,
-rendered by :mod:`warpbw.pipeline`); no light is occluded (a plane does not shadow another).  A kernel is compiled per method kind with
-or without the environment term: a scene without one compiles no sampling.  The device is an argument (CPU
+rendered by :mod:`warpbw.pipeline`); no light is occluded (a plane does not shadow another).  A kernel is
+compiled per method kind with or without the environment term: a scene without one compiles no sampling.  The device is an argument (CPU
 launches are tiled over a thread pool); the kernels have been run on the CPU only.
 """
 from __future__ import annotations
@@ -1067,6 +1068,18 @@ def diffuse_pick(diffuse, f0) -> float:
     return min(max(q, DIFFUSE_PICK_MIN), 1.0 - DIFFUSE_PICK_MIN)
 
 
+def check_render_args(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, env_spp: int = DEFAULT_ENV_SPP,
+                      max_anisotropy: int = DEFAULT_ANISOTROPY) -> None:
+    """What ``render_filtering`` refuses in its arguments, before any work (a clear one-line error)."""
+    if method not in ALL_METHODS:
+        raise WarpbwError(f"filter method {method!r}: expected one of {', '.join(ALL_METHODS)}")
+    check_count(max_anisotropy, "max_anisotropy (probes along a footprint's major axis)", 1, MAX_ANISOTROPY)
+    if method == "ground_truth":
+        check_count(spp, "spp (ground-truth rays per pixel)", MIN_GT_SPP, INT32_MAX)  # int32 in the kernels
+    elif scene.environment is not None:
+        check_count(env_spp, "env_spp (environment samples per pixel)", 1, INT32_MAX)
+
+
 def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed: int = 0, device: str = "cpu",
                      prepared: FilteringScene | None = None, camera: Camera | None = None,
                      progress: bool = False, lod_bias: float = LOD_BIAS, threads: int | None = None,
@@ -1083,13 +1096,7 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     those pixels are shaded (the scene's spheres and meshes, rendered by :mod:`warpbw.pipeline`)."""
     from warpbw.shading import default_threads, launch_tiled
 
-    if method not in ALL_METHODS:
-        raise WarpbwError(f"filter method {method!r}: expected one of {', '.join(ALL_METHODS)}")
-    check_count(max_anisotropy, "max_anisotropy (probes along a footprint's major axis)", 1, MAX_ANISOTROPY)
-    if method == "ground_truth":
-        check_count(spp, "spp (ground-truth rays per pixel)", MIN_GT_SPP, INT32_MAX)  # int32 in the kernels
-    elif scene.environment is not None:
-        check_count(env_spp, "env_spp (environment samples per pixel)", 1, INT32_MAX)
+    check_render_args(scene, method, spp, env_spp, max_anisotropy)
     if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm for mp in prepared.mips.values())):
         prepared = prepare_filtering(scene, (method,), device, progress)
     cam_s = camera or scene.camera

@@ -446,9 +446,11 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
 
     ``stats`` are the spheres and meshes' with ``planes`` (the filtering renderer's) added, ``pixels_covered``
     counting both and ``time_s.frame`` the sum of the two frames; ``aovs`` add ``mip_level``, the planes'
-    filtering level (0 elsewhere), and ``plane``, True where a plane is in front.  The adaptive AOVs describe the spheres and meshes, also where a plane is in
-    front of them."""
-    from warpbw.filtering import DEFAULT_ANISOTROPY, Background, render_filtering
+    filtering level (0 elsewhere), and ``plane``, True where a plane is in front.  The adaptive AOVs describe
+    the spheres and meshes, also where a plane is in front of them.  The planes' arguments and maps are checked
+    and their mipmaps loaded (or built) before the spheres and meshes are rendered."""
+    from warpbw.filtering import (DEFAULT_ANISOTROPY, Background, check_render_args, prepare_filtering,
+                                  render_filtering)
 
     surfaces, planes = split_planes(scene)
     if surfaces is None or planes is None:
@@ -457,6 +459,9 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
                           f"{'render_reference / render_adaptive' if planes is None else 'render_filtering'})")
     if method not in ("reference", "adaptive"):
         raise WarpbwError(f"method: expected 'reference' or 'adaptive', got {method!r}")
+    aniso = DEFAULT_ANISOTROPY if max_anisotropy is None else max_anisotropy
+    check_render_args(planes, filter_method, spp, spp, aniso)
+    plane_prep = prepare_filtering(planes, (filter_method,), device, progress)
     if method == "adaptive":
         if budget is None:
             raise WarpbwError("method 'adaptive': expected a budget (mean samples per covered pixel)")
@@ -465,9 +470,8 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
     else:
         res = render_reference(surfaces, spp, seed=seed, mis=mis, device=device, progress=progress, threads=threads)
     behind = Background(res.image, res.gbuffer.numpy("depth"))
-    fr = render_filtering(planes, filter_method, spp=spp, seed=seed, device=device, progress=progress,
-                          threads=threads, env_spp=spp, background=behind,
-                          max_anisotropy=DEFAULT_ANISOTROPY if max_anisotropy is None else max_anisotropy)
+    fr = render_filtering(planes, filter_method, spp=spp, seed=seed, device=device, prepared=plane_prep,
+                          progress=progress, threads=threads, env_spp=spp, max_anisotropy=aniso, background=behind)
     coverage = res.coverage | fr.coverage
     stats = dict(res.stats)
     stats["pixels_covered"] = int(coverage.sum())
@@ -475,7 +479,8 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
     t = res.stats["time_s"]
     surfaces_frame = t.get("frame", t["gbuffer"] + t["shading"])   # the reference times no "frame" of its own
     stats["time_s"] = dict(t, planes=round(fr.time_s, 6), frame=round(surfaces_frame + fr.time_s, 6))
-    return RenderResult(fr.image, coverage, res.gbuffer, stats, dict(res.aovs, mip_level=fr.level, plane=fr.coverage))
+    aovs = dict(res.aovs, mip_level=fr.level, plane=fr.coverage)
+    return RenderResult(fr.image, coverage, res.gbuffer, stats, aovs)
 
 
 def scene_summary(scene: Scene) -> dict:
