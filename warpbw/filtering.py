@@ -80,8 +80,9 @@ the material's ``gmm_components`` (both) and ``gmm_prior`` (the aligned one's c;
 Scope: planes only (spheres and meshes are refused); several planes composite by the depth of each pixel's
 centre ray, and so do planes drawn over a ``Background`` (the spheres and meshes of a scene that has both,
 rendered by :mod:`warpbw.pipeline`); no light is occluded (a plane does not shadow another).  A kernel is
-compiled per method kind with or without the environment term: a scene without one compiles no sampling.  The device is an argument (CPU
-launches are tiled over a thread pool); the kernels have been run on the CPU only.
+compiled per method kind with or without the environment term: a scene without one compiles no sampling.
+The device is an argument (CPU launches are tiled over a thread pool); the kernels have been run on the CPU
+only.
 """
 from __future__ import annotations
 
