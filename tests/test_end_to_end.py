@@ -429,6 +429,12 @@ def test_render_and_info_of_a_scene_with_planes_beside_a_sphere(tmp_path):
     assert len(info["objects"]) == 2 and info["objects"][0].startswith("plane")
     assert info["materials"] == {"floor": "cook-torrance", "ball": "lambert"}
     assert any(st.startswith("planes: ") for st in info["stages"]) and any("composite" in st for st in info["stages"])
+    # the files a render reads include the planes' (a normal map), not only the spheres and meshes'
+    write_exr(tmp_path / "bumps.exr", np.zeros((4, 4, 1), np.float32), channels=["Y"])
+    (tmp_path / "bumpy.toml").write_text(MIXED_SCENE.replace('diffuse = [0.5, 0.5, 0.5]\n',
+                                                             'diffuse = [0.5, 0.5, 0.5]\nnormal_map = "bumps.exr"\n'))
+    bumpy = json.loads(run(["info", "bumpy.toml", "--json"], tmp_path).stdout)
+    assert [Path(f).name for f in bumpy["files"]] == ["bumps.exr"]
     out = tmp_path / "m.exr"
     args = ["render", "mixed.toml", "-o", out, "--method", "adaptive", "--budget", "2", "--filter", "toksvig",
             "--spp", "4", "-q"]

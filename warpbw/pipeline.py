@@ -487,40 +487,35 @@ def scene_summary(scene: Scene) -> dict:
     """What the scene needs, from the scene file alone (no asset is loaded).  A scene with planes beside spheres
     or meshes lists both renderers' stages (:func:`render_with_planes`)."""
     surfaces, planes = split_planes(scene)
-    if planes is not None:
+    if surfaces is None:
         from warpbw.filtering import filtering_summary
 
-        if surfaces is None:
-            return filtering_summary(scene)
-        s = scene_summary(surfaces)
-        s["objects"] = [o.describe() for o in scene.objects]
-        s["materials"] = {n: scene.materials[n].type for n in scene.material_order}
-        s["unused_materials"] = sorted(set(scene.materials) - set(scene.material_order))
-        s["stages"] = ([f"spheres and meshes: {st}" for st in s["stages"]]
-                       + [f"planes: {st}" for st in filtering_summary(planes)["stages"]]
-                       + ["composite: each pixel shows the surface its centre ray hits first (no shadows)"])
-        return s
-    kinds = sorted({scene.materials[n].type for n in scene.material_order})
+        return filtering_summary(scene)
+    kinds = sorted({surfaces.materials[n].type for n in surfaces.material_order})
     env = scene.environment
-    unused = sorted(set(scene.materials) - set(scene.material_order))
-    has_mesh = any(isinstance(o, MeshObject) for o in scene.objects)
+    has_mesh = any(isinstance(o, MeshObject) for o in surfaces.objects)
     stages = ["gbuffer (" + " + ".join(
-        n for n, on in (("analytic spheres", any(isinstance(o, SphereObject) for o in scene.objects)),
+        n for n, on in (("analytic spheres", any(isinstance(o, SphereObject) for o in surfaces.objects)),
                         ("mesh BVH", has_mesh)) if on) + ")",
               "brdf: " + ", ".join(kinds)]
     if any(k in ("merl", "npf") for k in kinds):
         stages.append("tabulated importance sampling (002 Sec. 3.3)")
     stages.append("reference shading (002 Eq. 2)" + (", environment sampled" if env is not None else "")
                   + (", directional lights exact" if scene.lights else ""))
-    lights = [li.describe() for li in scene.lights]
+    if planes is not None:
+        from warpbw.filtering import filtering_summary
+
+        stages = ([f"spheres and meshes: {st}" for st in stages]
+                  + [f"planes: {st}" for st in filtering_summary(planes)["stages"]]
+                  + ["composite: each pixel shows the surface its centre ray hits first (no shadows)"])
     return {
         "scene": scene.source,
         "resolution": [scene.camera.width, scene.camera.height],
         "environment": env.describe() if env is not None else "none (lit by the [[light]]s)",
-        "lights": lights,
+        "lights": [li.describe() for li in scene.lights],
         "objects": [o.describe() for o in scene.objects],
         "materials": {n: scene.materials[n].type for n in scene.material_order},
-        "unused_materials": unused,
+        "unused_materials": sorted(set(scene.materials) - set(scene.material_order)),
         "files": [str(p) for p in scene.files()],
         "stages": stages,
     }
