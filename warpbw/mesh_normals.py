@@ -27,12 +27,13 @@ import numpy as np
 import warp as wp
 
 from warpbw.errors import WarpbwError
+from warpbw.io import mesh as host_mesh
+from warpbw.io.mesh import boundary_neighbours
 
-# A face whose doubled area is below this fraction of its longest squared edge adds no cotangent weight and
-# no area (warpbw.io.mesh._DEGENERATE_REL_AREA: its cotangents would swamp its neighbours').
-DEGENERATE_REL_AREA = wp.constant(wp.float64(1.0e-12))
-# Normal of a vertex without incident area (warpbw.io.mesh._FALLBACK_NORMAL): +Y, up in the world convention.
-FALLBACK_NORMAL = wp.constant(wp.vec3(0.0, 1.0, 0.0))
+# The host's (warpbw.io.mesh): a face whose doubled area is below this fraction of its longest squared edge
+# adds no cotangent weight and no area; a vertex without incident area gets this normal.
+DEGENERATE_REL_AREA = wp.constant(wp.float64(host_mesh.DEGENERATE_REL_AREA))
+FALLBACK_NORMAL = wp.constant(wp.vec3(*host_mesh.FALLBACK_NORMAL))
 
 
 @wp.kernel(module="unique", enable_backward=False)
@@ -161,8 +162,6 @@ class MeshShading:
 def mesh_topology(indices, first: int, count: int, device: str = "cpu") -> MeshTopology:
     """The faces of ``indices`` (flat, 3 per face, into a concatenated vertex array) whose vertices lie in
     ``[first, first + count)``, and their open boundary.  Connectivity only: a deformation keeps it."""
-    from warpbw.io.mesh import boundary_neighbours
-
     f = np.asarray(indices, np.int64).reshape(-1, 3)
     mine = (f >= first) & (f < first + count)
     if np.any(mine.any(axis=1) & ~mine.all(axis=1)):

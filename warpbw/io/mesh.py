@@ -10,11 +10,13 @@ Public functions:
   "Discrete Differential-Geometry Operators for Triangulated 2-Manifolds"), positive on a convex
   shape with outward normals (a sphere of radius r gives 1/r).
 - ``vertex_normals(vertices, faces) -> (V, 3)``: unit area-weighted vertex normals.
+- ``DEGENERATE_REL_AREA``, ``FALLBACK_NORMAL``: where a face stops counting, and a vertex's normal without
+  area (shared with the device version, ``warpbw.mesh_normals``).
 - ``boundary_neighbours(faces, nv) -> (on_boundary, x, y)``: the open boundary's vertices and their
   interior neighbours (x[k] on the boundary, y[k] interior), from the connectivity alone.
 - ``normals_and_curvature(vertices, faces) -> (normals (V, 3), H (V,))``: both of the above for a mesh
   whose vertices moved (dynamic geometry, 002 Sec. 4.3: recomputed every frame, nothing cached; about
-  55 ms for the 70k-triangle bunny on one core, all numpy).
+  55 ms for the 70k-triangle bunny on one core, all numpy; ``warpbw.mesh_normals`` does it on the device).
 
 Class: ``MeshData``.
 """
@@ -33,10 +35,10 @@ from warpbw.errors import FLOAT32_MAX, WarpbwError
 # A triangle whose doubled area is below this fraction of its longest squared edge is treated as
 # degenerate (no cotangent weight, no area): sin of its largest angle is < 1e-12, so its
 # cotangents would overflow the float64 sums of well-shaped neighbours.
-_DEGENERATE_REL_AREA = 1e-12
+DEGENERATE_REL_AREA = 1e-12
 # Normal given to a vertex with no incident area (unreferenced or only degenerate faces): +Y, "up"
 # in the project's world convention (DESIGN.md).
-_FALLBACK_NORMAL = (0.0, 1.0, 0.0)
+FALLBACK_NORMAL = (0.0, 1.0, 0.0)
 _SUPPORTED = "OBJ, PLY, STL or GLB"
 # An OBJ face whose vertex index is 0 (OBJ counts from 1, and from -1 backwards): trimesh reads it as vertex 0,
 # a different triangle from the one the file's author meant, so it is refused.
@@ -73,7 +75,7 @@ def vertex_normals(vertices, faces) -> np.ndarray:
     n = np.stack([np.bincount(f.ravel(), weights=np.repeat(fn[:, k], 3), minlength=len(v)) for k in range(3)], -1)
     length = np.linalg.norm(n, axis=1, keepdims=True)
     ok = length[:, 0] > 0.0
-    n = np.where(ok[:, None], n / np.where(length > 0.0, length, 1.0), np.asarray(_FALLBACK_NORMAL))
+    n = np.where(ok[:, None], n / np.where(length > 0.0, length, 1.0), np.asarray(FALLBACK_NORMAL))
     return n
 
 
@@ -90,7 +92,7 @@ def mesh_mean_curvature(vertices, faces, normals) -> np.ndarray:
     e0, e1, e2 = p2 - p1, p0 - p2, p1 - p0
     dbl_area = np.linalg.norm(np.cross(e2, -e1), axis=1)
     sq = np.stack([np.sum(e0 * e0, 1), np.sum(e1 * e1, 1), np.sum(e2 * e2, 1)], 1)
-    good = dbl_area > _DEGENERATE_REL_AREA * sq.max(axis=1)
+    good = dbl_area > DEGENERATE_REL_AREA * sq.max(axis=1)
     safe = np.where(good, dbl_area, 1.0)
     cot = np.stack([np.sum(e2 * -e1, 1), np.sum(e0 * -e2, 1), np.sum(e1 * -e0, 1)], 1) / safe[:, None]
     cot = np.where(good[:, None], cot, 0.0)
