@@ -169,10 +169,6 @@ PAIR_DIMS = 5
 PairVec = wp.types.vector(length=PAIR_DIMS, dtype=wp.uint32)
 PAIR_ALPHA = wp.constant(PairVec(*[int(a * 2.0 ** 32) for a in _rd_alphas(3) + _rd_alphas(2)]))
 INV_2_24 = wp.constant(1.0 / float(1 << 24))  # the top 24 bits of a fixed-point fraction -> float32 in [0, 1)
-# CPU launches are tiled over a thread pool (warpbw.shading.launch_tiled): this many tiles per thread, so
-# that the threads finish together, of at least this many pixels (launch overhead).
-TILES_PER_THREAD = 4
-MIN_TILE_PIXELS = 256
 # GMM mipmap cache: file name prefix and the version of what is cached (precompute.gmm_mipmap.GMM_VERSION).
 GMM_CACHE_PREFIX = "gmm"
 # Distance along a pixel's centre ray of "nothing in front": every plane hit is closer (float32 range).
@@ -1095,7 +1091,7 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     to 8).  With a ``background`` (:class:`Background`, at the camera's resolution) the planes are drawn over
     it: a pixel shows a plane when its centre ray hits one in front of the background's depth, and only
     those pixels are shaded (the scene's spheres and meshes, rendered by :mod:`warpbw.pipeline`)."""
-    from warpbw.shading import default_threads, launch_tiled
+    from warpbw.shading import launch_tiled
 
     check_render_args(scene, method, spp, env_spp, max_anisotropy)
     if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm for mp in prepared.mips.values())):
@@ -1120,8 +1116,6 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     env = prepared.env.data if prepared.env is not None else EnvMapData()
     with_env = prepared.env is not None
     kernel = _ground_truth_kernel(with_env) if method == "ground_truth" else _filtered_kernel(_CODE[method], with_env)
-    nthreads = default_threads(dev) if threads is None else max(1, int(threads))
-    tile = max(MIN_TILE_PIXELS, -(-n // (TILES_PER_THREAD * nthreads)))
     wp.load_module(kernel.module, device=dev)   # compile before the clock starts
     if background is not None:
         wp.load_module(background_distance_kernel.module, device=dev)
@@ -1138,7 +1132,7 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
             launch_tiled(kernel, n, lambda o, c, pl=pl, mp=mp: [cam, pl, mp.lw, mp.lh, mp.loff, mp.nmean, prepared.ldir,
                                                                prepared.lrad, env, int(spp), int(seed), o, depth,
                                                                out],
-                         dev, nthreads, tile=tile)
+                         dev, threads)
         else:
             gmm, K = mp.gmm.get(method, (wp.zeros(1, dtype=wp.vec4, device=dev), 0))
             pl = _plane_data(p, m, mp, K, lod_bias, max_anisotropy)
@@ -1146,7 +1140,7 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
                                                                         mp.nm2, prepared.ldir, prepared.lrad, env,
                                                                         int(env_spp), int(seed), o, depth, out,
                                                                         level],
-                         dev, nthreads, tile=tile)
+                         dev, threads)
     wp.synchronize_device(dev)
     dt = time.perf_counter() - t0
     img = out.numpy().reshape(h, w, 3).astype(np.float32)
