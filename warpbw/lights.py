@@ -43,7 +43,7 @@ class Lights:
 
 
 def directional_struct(directions, radiances, device: str = "cpu") -> DirectionalLights:
-    """The struct of ``(n, 3)`` unit directions and radiances (n may be 0: a kernel's placeholder)."""
+    """The struct of ``(n, 3)`` unit directions and radiances."""
     s = DirectionalLights()
     s.direction = wp.array(np.asarray(directions, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
     s.radiance = wp.array(np.asarray(radiances, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)

@@ -37,7 +37,7 @@ from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf, env_radiance, env_sample
 from warpbw.errors import WarpbwError
 from warpbw.gbuffer import GBuffer, GBufferData
-from warpbw.lights import DirectionalLights, Lights, directional_struct
+from warpbw.lights import DirectionalLights, Lights
 
 # Pixels per kernel launch when tiling the work over threads (small enough for a smooth progress
 # bar, large enough that launch overhead stays under 1%).
@@ -220,30 +220,12 @@ def launch_tiled(kernel, n_items: int, make_inputs: Callable[[int, int], list], 
     wp.synchronize_device(device)
 
 
-def lighting_inputs(env_data: EnvMapData | None, lights: Lights | None, device: str):
-    """The environment and light structs a kernel takes: placeholders for what the scene lacks (the kernel
-    compiles no code that reads them), and a one-line error when it lacks both."""
+def lighting_inputs(env_data: EnvMapData | None, lights: Lights | None):
+    """The environment and light structs a kernel takes: an empty struct for what the scene lacks (the kernel
+    compiles no code that reads it, as ``warpbw.filtering``'s), and a one-line error when it lacks both."""
     if env_data is None and lights is None:
         raise WarpbwError("shading: the scene has no light (expected an environment or directional lights)")
-    if env_data is None:
-        from warpbw.envmap import constant_envmap
-
-        env_data = _placeholder(device, "env", lambda: constant_envmap(0.0, device=device).data)
-    if lights is None:
-        lights = _placeholder(device, "lights", lambda: directional_struct(np.zeros((0, 3)), np.zeros((0, 3)), device))
-    else:
-        lights = lights.data
-    return env_data, lights
-
-
-_PLACEHOLDERS: dict = {}
-
-
-def _placeholder(device: str, what: str, make):
-    key = (str(device), what)
-    if key not in _PLACEHOLDERS:
-        _PLACEHOLDERS[key] = make()
-    return _PLACEHOLDERS[key]
+    return (EnvMapData() if env_data is None else env_data), (DirectionalLights() if lights is None else lights.data)
 
 
 def covered_pixels(gb: GBuffer, device: str = "cpu") -> wp.array:
@@ -264,7 +246,7 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
     """
     per_pixel = isinstance(spp, wp.array)
     has_env = env_data is not None
-    env_data, lights_data = lighting_inputs(env_data, lights, device)
+    env_data, lights_data = lighting_inputs(env_data, lights)
     kernel = make_reference_kernel(materials.kinds, mis, per_pixel, has_env, lights is not None)
     pix = covered_pixels(gb, device) if pixels is None else pixels
     if out is None:
