@@ -689,6 +689,22 @@ def test_planes_beside_a_sphere_check_the_planes_before_rendering_the_sphere(tmp
         pipeline.render_with_planes(bad_map, "fixed", 4)
 
 
+def test_clip_distance_of_the_wrong_shape_or_nan_is_refused():
+    """render_reference's clip_distance (a per-pixel distance, as render_with_planes passes): one line naming it."""
+    from warpbw.pipeline import render_reference
+    from warpbw.scene import default_scene
+
+    scene = default_scene()
+    w, h = scene.camera.width, scene.camera.height
+    with pytest.raises(WarpbwError, match=rf"distance: expected an \({h}, {w}\) array .* got shape \({h}, {w - 1}\)"):
+        render_reference(scene, 1, clip_distance=np.ones((h, w - 1)))
+    bad = np.full((h, w), np.inf)
+    bad[0, 0] = np.nan
+    with pytest.raises(WarpbwError, match="distance: expected positive distances"):
+        render_reference(scene, 1, clip_distance=bad)
+    with pytest.raises(WarpbwError, match="distance: expected positive distances"):
+        render_reference(scene, 1, clip_distance=np.zeros((h, w)))
+
 def test_plane_scene_through_the_environment_pipeline_is_refused(tmp_path):
     """The 002 pipeline (render_reference / render_adaptive) called directly on a plane scene lit by
     [[light]]s only: a clear error naming the scene, not a failure inside the environment loader."""

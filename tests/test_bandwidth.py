@@ -45,7 +45,7 @@ def run_pass(prep, n_b=16, light=None, **kw):
         nu_rho = prep.bandwidth.nu_rho.numpy().reshape(-1, N_THETA_I, N_CELLS, N_CELLS)
         tables, keep = bw.make_bandwidth_tables(light, nu_rho)
         prep._keep.extend(keep)
-    gb = _gbuffer(prep, {})
+    gb, _ = _gbuffer(prep, {})
     return gb, bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=n_b, **kw)
 
 

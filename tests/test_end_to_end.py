@@ -420,6 +420,26 @@ def test_planes_beside_a_sphere_show_whichever_surface_is_nearer(tmp_path):
     assert np.array_equal(both.image[~m], sphere.image[~m])
     assert both.stats["planes"]["pixels_covered"] == int(m.sum())
     assert both.stats["pixels_covered"] == int(both.coverage.sum())
+    # the sphere's pixels the floor hides are not shaded: the same image from fewer shaded pixels
+    hidden = int((sphere.coverage & m).sum())
+    assert hidden > 5 and both.stats["pixels_hidden"] == hidden
+    assert both.stats["pixels_shaded"] == sphere.stats["pixels_shaded"] - hidden
+    assert both.stats["samples"] == sphere.stats["samples"] - 4 * hidden
+
+
+def test_adaptive_spheres_behind_a_plane_take_no_samples(tmp_path):
+    """Adaptive beside a plane: no sample and no shaded pixel falls where the floor is in front (the sphere's
+    pixels there are hidden before the bandwidth pass)."""
+    from warpbw.pipeline import render_with_planes
+    from warpbw.scene import parse_scene
+
+    scene = parse_scene(MIXED_SCENE, tmp_path, "mixed.toml")
+    res = render_with_planes(scene, "fixed", 4, method="adaptive", budget=4)
+    m = res.aovs["plane"]
+    assert res.stats["pixels_hidden"] > 5
+    assert not res.aovs["shaded"][m].any() and np.all(res.aovs["n_p"][m] == 0)
+    visible = res.coverage & ~m
+    assert res.aovs["shaded"][visible].any()
 
 
 def test_render_and_info_of_a_scene_with_planes_beside_a_sphere(tmp_path):

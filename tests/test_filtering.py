@@ -825,6 +825,38 @@ def test_nearer_plane_wins_and_threads_do_not_change_the_image(tmp_path):
         assert np.array_equal(render_filtering(one, m, threads=2).image, big.image)
 
 
+def test_plane_distance_is_the_nearest_plane_along_each_centre_ray(tmp_path):
+    """plane_distance against a numpy ray cast of two squares at different heights (the raised one smaller and
+    partly over the other): the nearer hit per pixel, inf where a ray misses both; and the pixels it finds are
+    the ones the renderer covers."""
+    from warpbw.filtering import plane_distance
+
+    w, h = 24, 16
+    raised = textwrap.dedent("""
+        [[object]]
+        shape = "plane"
+        center = [0.3, 0.4, 0.1]
+        size = 0.6
+        material = "m"
+        """)
+    s = parse_scene(scene_toml(resolution=(w, h), size=1.5) + raised, tmp_path, "s.toml")
+    o, d = numpy_camera_rays((0.0, 1.5, 2.0), (0, 0, 0), 40.0, w, h)
+    t_ref = np.full((h, w), np.inf)
+    for c, size in (((0.0, 0.0, 0.0), 1.5), ((0.3, 0.4, 0.1), 0.6)):
+        with np.errstate(divide="ignore"):
+            t = np.where(d[..., 1] < 0, (c[1] - o[1]) / d[..., 1], -1.0)
+        p = o + t[..., None] * d
+        on = (t > 0) & (np.abs(p[..., 0] - c[0]) <= size / 2) & (np.abs(p[..., 2] - c[2]) <= size / 2)
+        t_ref = np.where(on, np.minimum(t_ref, t), t_ref)
+    t_w = plane_distance(s)
+    assert t_w.shape == (h, w) and t_w.dtype == np.float32
+    hit = np.isfinite(t_ref)
+    assert 0 < hit.sum() < h * w and np.array_equal(np.isfinite(t_w), hit)
+    assert np.allclose(t_w[hit], t_ref[hit], rtol=1e-5)
+    assert (t_w[hit] < t_ref.max() - 0.1).sum() > 4   # the raised square is in front somewhere
+    assert np.array_equal(np.isfinite(t_w), render_filtering(s, "fixed").coverage)
+
+
 @pytest.mark.parametrize("method", ["fixed", "ground_truth"])
 def test_planes_over_a_background_show_where_they_are_in_front(tmp_path, method):
     """A background at camera-space depth z_b (a wall facing the camera, written as a depth image): a pixel shows

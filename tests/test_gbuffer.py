@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from warpbw.gbuffer import MeshSpec, SphereSpec, build_geometry, camera_rays, make_camera, render_gbuffer
+from warpbw.gbuffer import (MeshSpec, SphereSpec, build_geometry, camera_rays, hide_beyond, make_camera,
+                            render_gbuffer)
 
 
 def _sphere_closed_form(cam, center, radius):
@@ -47,6 +48,33 @@ def test_sphere_matches_closed_form():
     assert np.abs(np.einsum("ij,ij->i", t, n[interior])).max() < 1e-5
     assert (gb.numpy("material").reshape(-1)[~cov] == -1).all()
 
+
+
+def test_hide_beyond_empties_exactly_the_pixels_whose_surface_is_farther():
+    """A wall of distances through the sphere (inf on the left half): the pixels whose closed-form hit lies beyond
+    it become empty and are counted; the others keep every buffer as it was."""
+    cam = make_camera((0.3, 0.4, 3.5), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 96, 64)
+    center, radius = (0.1, -0.05, 0.2), 0.8
+    geo = build_geometry([SphereSpec(center, radius, 0)], [])
+    before = render_gbuffer(cam, geo)
+    hit, _, depth_ref = _sphere_closed_form(cam, center, radius)
+    t_ref = depth_ref / (camera_rays(cam)[1] @ np.array(list(cam.forward)))   # distance along each ray
+    wall = float(np.median(t_ref[hit]))
+    dist = np.full((64, 96), wall)
+    dist[:, :48] = np.inf
+    gb = render_gbuffer(cam, geo)
+    n = hide_beyond(gb, cam, dist)
+    clear = np.abs(t_ref - wall) > 1e-4                       # not on the wall's own line
+    beyond = (hit & (t_ref > wall) & (dist.reshape(-1) < np.inf))
+    assert beyond.sum() > 100 and (hit & ~beyond & clear).sum() > 100
+    cov = gb.coverage.reshape(-1)
+    assert n == int((before.coverage.reshape(-1) & ~cov).sum())
+    assert np.array_equal(cov[clear], (before.coverage.reshape(-1) & ~beyond)[clear])
+    for name in ("position", "normal", "depth", "curvature", "uv", "material"):
+        assert np.array_equal(gb.numpy(name).reshape(-1, *gb.numpy(name).shape[2:])[cov],
+                              before.numpy(name).reshape(-1, *before.numpy(name).shape[2:])[cov])
+    assert (gb.numpy("depth").reshape(-1)[~cov] == 0).all()
+    assert hide_beyond(render_gbuffer(cam, geo), cam, np.full((64, 96), np.inf)) == 0
 
 def test_camera_orientation_row_zero_is_top_and_x_right():
     # A camera on +Z looking at the origin: world +X appears on the right, +Y at the top.

@@ -131,7 +131,7 @@ def test_adaptive_and_the_bandwidth_pass_refuse_a_scene_lit_by_lights_alone():
     with pytest.raises(WarpbwError, match=r"needs an \[environment\]"):
         prepare_bandwidth(prep)
     with pytest.raises(WarpbwError, match=r"no environment"):
-        bw.bandwidth_pass(_gbuffer(prep, {}), prep.camera, prep.materials, None, None)
+        bw.bandwidth_pass(_gbuffer(prep, {})[0], prep.camera, prep.materials, None, None)
 
 
 def test_adaptive_under_a_sun_and_a_sky_is_close_to_the_reference():

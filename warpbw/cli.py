@@ -271,8 +271,8 @@ def _render_mixed_cli(scene, args) -> int:
         surf = (f"adaptive, budget {args.budget:g} spp" if adaptive else f"reference, {args.spp} spp")
         planes = (f"{args.spp} rays/pixel" if method == "ground_truth" else f"mean mip level {pl['mean_level']:.2f}")
         print(f"{outs['exr']}  ({w}x{h}, {res.stats['pixels_covered']} covered pixels)")
-        print(f"  spheres and meshes: {surf}, {res.stats['pixels_shaded']} pixels shaded, frame "
-              f"{(t['frame'] - t['planes']):.3f} s")
+        print(f"  spheres and meshes: {surf}, {res.stats['pixels_shaded']} pixels shaded "
+              f"({res.stats['pixels_hidden']} hidden by planes, not shaded), frame {(t['frame'] - t['planes']):.3f} s")
         print(f"  planes in front: {pl['pixels_covered']} pixels, filter {method}, {planes}, frame {t['planes']:.3f} s")
         print(f"  frame {t['frame']:.3f} s, total {t['total']:.2f} s")
         print(f"  preview {outs['png']}, stats {outs['json']}, mip level {mip_paths[0].name} (+ .png)"

@@ -11,6 +11,8 @@ Public:
     ``check_render_args(scene, method, spp, env_spp, max_anisotropy)``  its argument checks, before any work
     ``FilterResult``                     image, coverage, level map, time_s, stats
     ``Background``                       image and camera-space depth the planes are drawn over
+    ``plane_distance(scene, device) -> (H, W)``   per pixel, the distance along the centre ray to the nearest
+                                         plane (``inf`` where none): what hides the spheres and meshes
     ``filtering_summary(scene) -> dict``  what ``warpbw info`` prints for a scene with planes
     ``plane_objects(scene) -> list``     the scene's planes; a one-line error when it has other objects too
     ``normal_moment_mipmap(normals) -> list``   box-filtered (mean normal, second moments) levels (numpy)
@@ -770,6 +772,17 @@ def background_distance_kernel(cam: CameraData, z: wp.array(dtype=wp.float32), d
 
 
 @wp.kernel(module="unique", enable_backward=False)
+def plane_distance_kernel(cam: CameraData, pl: PlaneData, depth: wp.array(dtype=wp.float32)):
+    """Lower depth[i] to the distance along pixel i's centre ray where it hits the plane (the renderers' test)."""
+    i = wp.tid()
+    d = ray_dir(cam, float(i % cam.width) + 0.5, float(i / cam.width) + 0.5)
+    t = plane_t(cam.origin, d, pl)
+    if t > 0.0 and t < depth[i]:
+        if inside(cam.origin + t * d, pl):
+            depth[i] = t
+
+
+@wp.kernel(module="unique", enable_backward=False)
 def fetch_gmm_kernel(gmm: wp.array(dtype=wp.vec4), lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32),
                      loff: wp.array(dtype=wp.int32), levels: int, K: int, st: wp.array(dtype=wp.vec3),
                      out: wp.array(dtype=wp.vec4)):
@@ -1159,6 +1172,25 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
                                 "samples_per_pixel": 2 * (int(spp) if method == "ground_truth" else int(env_spp)),
                                 "seed": int(seed), "sampler": "R_3 + R_2 Kronecker, random offset per pixel"}
     return FilterResult(img, cov, lev, dt, method, stats)
+
+
+def plane_distance(scene: Scene, device: str = "cpu") -> np.ndarray:
+    """(H, W) float32: per pixel, the distance along its centre ray to the nearest of the scene's planes, ``inf``
+    where it hits none -- the same hit test the renderer makes, from the scene file alone (no map is loaded).
+    A scene that has planes beside spheres and meshes hides the spheres and meshes beyond it
+    (:func:`warpbw.gbuffer.hide_beyond`) before shading them."""
+    cam_s = scene.camera
+    cam = make_camera(cam_s.position, cam_s.look_at, cam_s.up, cam_s.fov, cam_s.width, cam_s.height)
+    n = cam_s.width * cam_s.height
+    depth = wp.full(n, NO_HIT, dtype=wp.float32, device=device)
+    for p in scene.objects:
+        if isinstance(p, PlaneObject):
+            pl = PlaneData()
+            pl.center = wp.vec3(*p.center)
+            pl.size = float(p.size)
+            wp.launch(plane_distance_kernel, dim=n, inputs=[cam, pl, depth], device=device)
+    t = depth.numpy().reshape(cam_s.height, cam_s.width)
+    return np.where(t < NO_HIT, t, np.inf).astype(np.float32)
 
 
 def zoomed_camera(camera: Camera, zoom: float) -> Camera:

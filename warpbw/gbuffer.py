@@ -9,6 +9,8 @@ Public:
                                      refit the BVH (dynamic geometry, 002 Sec. 4.3, Fig. 18)
     ``GBufferData``                  Warp struct: the per-pixel buffers, as kernels read them
     ``GBuffer`` / ``render_gbuffer(cam, geometry, device, threads)``     run the pass
+    ``hide_beyond(gbuffer, cam, distance, device) -> int``   empty the pixels whose surface lies beyond a
+                                     per-pixel distance along the centre ray (hidden by something nearer)
 
 Conventions (DESIGN.md): right-handed world, +Y up; the camera looks along ``forward`` with
 ``right = normalize(forward x up)`` to the right of the image and row 0 at the top; ``fov`` is the full
@@ -230,6 +232,18 @@ def _gbuffer_kernel(has_spheres: bool, has_mesh: bool):
         gb.material[i] = mat
 
     return gbuffer_kernel
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def hide_beyond_kernel(cam: CameraData, t_max: wp.array(dtype=wp.float32), gb: GBufferData,
+                       hidden: wp.array(dtype=wp.int32)):
+    """Empty pixel i when its surface lies beyond t_max[i] along the centre ray (something nearer hides it)."""
+    i = wp.tid()
+    if gb.material[i] >= 0:
+        d = primary_ray_dir(cam, i % cam.width, i // cam.width)
+        if gb.depth[i] / wp.dot(d, cam.forward) > t_max[i]:   # depth = t (d . forward) for a unit d
+            write_empty(gb, i)
+            hidden[i] = 1
 
 
 # ---------------------------------------------------------------------------------------------
@@ -456,3 +470,22 @@ def render_gbuffer(cam: CameraData, geometry: Geometry, device: str = "cpu", out
     launch_tiled(kernel, cam.width * cam.height,
                  lambda o, c: [cam, geometry.spheres, geometry.mesh_attr, gb.data, o], device, threads)
     return gb
+
+
+def hide_beyond(gb: GBuffer, cam: CameraData, distance, device: str = "cpu") -> int:
+    """Empty the G-buffer's pixels whose surface lies beyond ``distance`` (an (H, W) array: per pixel, the
+    distance along its centre ray of something nearer that the G-buffer does not hold, ``inf`` where there is
+    none), so that no later stage shades a surface that will be drawn over.  A surface exactly at the distance
+    stays.  Returns the number of pixels emptied."""
+    dist = np.asarray(distance)
+    if dist.shape != (gb.height, gb.width):
+        raise WarpbwError(f"distance: expected an ({gb.height}, {gb.width}) array (the camera's "
+                          f"{gb.width}x{gb.height}), got shape {dist.shape}")
+    if not np.issubdtype(dist.dtype, np.number) or np.isnan(dist).any() or (dist <= 0).any():
+        raise WarpbwError("distance: expected positive distances along the centre rays (inf where nothing is "
+                          "nearer), got non-positive or NaN values")
+    t_max = wp.array(np.minimum(dist, np.float32(RAY_T_MAX)).astype(np.float32).reshape(-1), dtype=wp.float32,
+                     device=device)
+    hidden = wp.zeros(gb.width * gb.height, dtype=wp.int32, device=device)
+    wp.launch(hide_beyond_kernel, dim=gb.width * gb.height, inputs=[cam, t_max, gb.data, hidden], device=device)
+    return int(hidden.numpy().sum())

@@ -20,9 +20,9 @@ term at every pixel.  ``RenderResult.stats`` says which stages ran and how long 
 Planes (004) render with :mod:`warpbw.filtering`.  In a scene that has planes beside spheres or meshes,
 :func:`render_with_planes` renders the spheres and meshes here (reference or adaptive), then draws the planes
 over that image: a pixel shows whichever surface its centre ray hits first (the G-buffer's depth against the
-plane's), and only the pixels a plane wins are shaded by the filtering renderer.  Nothing casts a shadow and
-nothing is reflected in another object: every surface sees the lights and the environment directly, as in
-each renderer alone.
+plane's), and each renderer shades only the pixels it wins (the spheres and meshes a plane hides are cut from
+their G-buffer before the bandwidth pass and the shading).  Nothing casts a shadow and nothing is reflected in
+another object: every surface sees the lights and the environment directly, as in each renderer alone.
 """
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ import numpy as np
 from warpbw import brdf as brdf_mod
 from warpbw import envmap
 from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError, is_int
-from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer)
+from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, hide_beyond, make_camera, render_gbuffer)
 from warpbw.scene import MeshObject, PlaneObject, Scene, SphereObject
 
 
@@ -192,14 +192,18 @@ def _prepared(scene, device: str, progress: bool) -> tuple[PreparedScene, dict]:
     return prep, (dict(prep.timings) if prep is not scene else {})
 
 
-def _gbuffer(prep: PreparedScene, timings: dict, threads: int | None = None) -> GBuffer:
+def _gbuffer(prep: PreparedScene, timings: dict, threads: int | None = None, clip_distance=None) -> tuple:
+    """The G-buffer, and the number of its pixels ``clip_distance`` hid (None without one)."""
     import warp as wp
 
     t0 = time.perf_counter()
     gb = render_gbuffer(prep.camera, prep.geometry, device=prep.device, threads=threads)
+    hidden = None
+    if clip_distance is not None:
+        hidden = hide_beyond(gb, prep.camera, clip_distance, device=prep.device)
     wp.synchronize_device(prep.device)
     timings["gbuffer"] = time.perf_counter() - t0
-    return gb
+    return gb, hidden
 
 
 def _check_spp(spp) -> None:
@@ -210,8 +214,11 @@ def _check_spp(spp) -> None:
 
 
 def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: str = "cpu",
-                     progress: bool = False, threads: int | None = None) -> RenderResult:
-    """Render a frame with the forward reference estimator (002 Eq. 2) at ``spp`` samples per pixel."""
+                     progress: bool = False, threads: int | None = None, clip_distance=None) -> RenderResult:
+    """Render a frame with the forward reference estimator (002 Eq. 2) at ``spp`` samples per pixel.
+    ``clip_distance`` (an (H, W) array, ``inf`` where nothing is nearer): per pixel, the distance along the
+    centre ray of something nearer that will be drawn over this image; surfaces beyond it are not shaded and
+    not covered (``stats["pixels_hidden"]`` counts them)."""
     from warpbw.gbuffer import make_gbuffer_kernel
     from warpbw.shading import make_reference_kernel, shade_reference
 
@@ -220,7 +227,7 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
                          make_reference_kernel(prep.materials.kinds, mis, has_env=prep.env is not None,
                                                has_lights=prep.lights is not None)), timings)
-    gb = _gbuffer(prep, timings, threads)
+    gb, hidden = _gbuffer(prep, timings, threads, clip_distance)
     n_cov = int(gb.coverage.sum())
     bar = None
     if progress and n_cov:
@@ -242,6 +249,8 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
         "samples_per_second": res.samples / timings["shading"] if timings["shading"] > 0 else None,
         "non_finite_samples": res.non_finite,
     })
+    if hidden is not None:
+        stats["pixels_hidden"] = hidden
     stats["time_s"] = {k: round(v, 6) for k, v in timings.items()}
     return RenderResult(image, gb.coverage, gb, stats)
 
@@ -336,7 +345,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
                     n_min: int | None = None, n_max: int | None = None, preconvolved: bool = False,
                     allocation: str | None = None, nyquist: float | None = None, stride: int | None = None,
                     pool_radius: int | None = None, device: str = "cpu", progress: bool = False,
-                    threads: int | None = None) -> RenderResult:
+                    threads: int | None = None, clip_distance=None) -> RenderResult:
     """Render a frame with bandwidth prediction and hierarchical adaptive shading (002 Sec. 2-3).
 
     ``budget`` is the mean number of samples per covered pixel (the total is budget x covered pixels),
@@ -345,7 +354,8 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     the level map, N_p, the predicted variance, the shaded mask, b_p and sigma2.  ``stride`` and
     ``pool_radius`` set how the bandwidth pass shares its directions (:func:`warpbw.bandwidth.bandwidth_pass`).
     The scene needs an environment; its directional lights are added exactly at every pixel
-    (:mod:`warpbw.adaptive`)."""
+    (:mod:`warpbw.adaptive`).  ``clip_distance`` hides what lies beyond it, as for :func:`render_reference`:
+    a hidden pixel takes no part in the pass, the budget or the hierarchy."""
     from warpbw import adaptive, bandwidth
     from warpbw.gbuffer import make_gbuffer_kernel
     from warpbw.shading import make_reference_kernel
@@ -373,7 +383,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     t0 = time.perf_counter()
     adaptive.load_kernels(prep.device)
     timings["compile"] += time.perf_counter() - t0
-    gb = _gbuffer(prep, timings, threads)
+    gb, hidden = _gbuffer(prep, timings, threads, clip_distance)
     t0 = time.perf_counter()
     buf = bandwidth.bandwidth_pass(gb, prep.camera, prep.materials, prep.env_data, tables, n_b=n_b, seed=seed,
                                    preconvolved=preconvolved, nyquist=nyquist, stride=stride,
@@ -412,6 +422,8 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
         "environment_samples": res.stats["samples"] if mis else 0,
         "bandwidth_time_fraction": timings["bandwidth"] / timings["frame"] if timings["frame"] > 0 else 0.0,
     })
+    if hidden is not None:
+        stats["pixels_hidden"] = hidden
     stats["time_s"] = {k: round(v, 6) for k, v in timings.items()}
     aovs = {
         "level": buf.level.numpy().reshape(H, W),
@@ -444,13 +456,15 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
     keywords of :func:`render_adaptive`), then the planes in front of them with the filtering renderer's
     ``filter_method`` (``spp``: its ground truth's rays per pixel, else its environment pairs per pixel).
 
+    The spheres and meshes a plane hides are not shaded: the planes' distances along the centre rays
+    (:func:`warpbw.filtering.plane_distance`) clip their G-buffer first (:func:`warpbw.gbuffer.hide_beyond`).
     ``stats`` are the spheres and meshes' with ``planes`` (the filtering renderer's) added, ``pixels_covered``
-    counting both and ``time_s.frame`` the sum of the two frames; ``aovs`` add ``mip_level``, the planes'
-    filtering level (0 elsewhere), and ``plane``, True where a plane is in front.  The adaptive AOVs describe
-    the spheres and meshes, also where a plane is in front of them.  The planes' arguments and maps are checked
-    and their mipmaps loaded (or built) before the spheres and meshes are rendered."""
-    from warpbw.filtering import (DEFAULT_ANISOTROPY, Background, check_render_args, prepare_filtering,
-                                  render_filtering)
+    counting both, ``pixels_hidden`` the spheres and meshes' pixels a plane hides, and ``time_s.frame`` the sum
+    of the two frames; ``aovs`` add ``mip_level``, the planes' filtering level (0 elsewhere), and ``plane``, True
+    where a plane is in front.  The planes' arguments and maps are checked and their mipmaps loaded (or built)
+    before the spheres and meshes are rendered."""
+    from warpbw.filtering import (DEFAULT_ANISOTROPY, Background, check_render_args, plane_distance,
+                                  prepare_filtering, render_filtering)
 
     surfaces, planes = split_planes(scene)
     if surfaces is None or planes is None:
@@ -462,13 +476,15 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
     aniso = DEFAULT_ANISOTROPY if max_anisotropy is None else max_anisotropy
     check_render_args(planes, filter_method, spp, spp, aniso)
     plane_prep = prepare_filtering(planes, (filter_method,), device, progress)
+    if method == "adaptive" and budget is None:
+        raise WarpbwError("method 'adaptive': expected a budget (mean samples per covered pixel)")
+    nearer = plane_distance(planes, device)
     if method == "adaptive":
-        if budget is None:
-            raise WarpbwError("method 'adaptive': expected a budget (mean samples per covered pixel)")
         res = render_adaptive(surfaces, budget, seed=seed, mis=mis, n_b=n_b, device=device, progress=progress,
-                              threads=threads, **adaptive_options)
+                              threads=threads, clip_distance=nearer, **adaptive_options)
     else:
-        res = render_reference(surfaces, spp, seed=seed, mis=mis, device=device, progress=progress, threads=threads)
+        res = render_reference(surfaces, spp, seed=seed, mis=mis, device=device, progress=progress, threads=threads,
+                               clip_distance=nearer)
     behind = Background(res.image, res.gbuffer.numpy("depth"))
     fr = render_filtering(planes, filter_method, spp=spp, seed=seed, device=device, prepared=plane_prep,
                           progress=progress, threads=threads, env_spp=spp, max_anisotropy=aniso, background=behind)
@@ -507,7 +523,8 @@ def scene_summary(scene: Scene) -> dict:
 
         stages = ([f"spheres and meshes: {st}" for st in stages]
                   + [f"planes: {st}" for st in filtering_summary(planes)["stages"]]
-                  + ["composite: each pixel shows the surface its centre ray hits first (no shadows)"])
+                  + ["composite: each pixel shows the surface its centre ray hits first; spheres and meshes behind "
+                     "a plane are not shaded (no shadows)"])
     return {
         "scene": scene.source,
         "resolution": [scene.camera.width, scene.camera.height],
