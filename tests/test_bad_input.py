@@ -670,6 +670,16 @@ def test_render_with_planes_needs_both_kinds_of_object(tmp_path):
         render_with_planes(both, "fixed", 4, method="adaptive", budget=2)
 
 
+def test_a_loaded_environment_for_a_scene_without_one_is_refused(tmp_path):
+    from warpbw.envmap import constant_envmap
+    from warpbw.filtering import prepare_filtering
+    from warpbw.scene import parse_scene
+
+    planes = parse_scene(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""), tmp_path, "p.toml")
+    with pytest.raises(WarpbwError, match=r"p\.toml: env: given a loaded environment, but the scene has no "
+                                          r"\[environment\]"):
+        prepare_filtering(planes, ("fixed",), env=constant_envmap((1.0, 1.0, 1.0)))
+
 def test_planes_beside_a_sphere_check_the_planes_before_rendering_the_sphere(tmp_path, monkeypatch):
     """A bad filter argument or normal map of the planes is refused before the spheres and meshes render."""
     from warpbw import pipeline

@@ -392,16 +392,27 @@ def _numpy_plane_and_sphere_depths(w, h):
     return t_p, np.where((disc > 0) & (t_s > 0), t_s, np.inf)
 
 
-def test_planes_beside_a_sphere_show_whichever_surface_is_nearer(tmp_path):
+def test_planes_beside_a_sphere_show_whichever_surface_is_nearer(tmp_path, monkeypatch):
     """render_with_planes against the two renderers alone and a numpy ray cast: each pixel is the plane's
     where the plane is nearer along the centre ray, the sphere's where the sphere is (its lower part sinks
-    below the floor, so each hides the other somewhere), and nothing where neither is hit."""
+    below the floor, so each hides the other somewhere), and nothing where neither is hit.  The two renderers
+    share one loaded environment."""
+    from warpbw import envmap, filtering
     from warpbw.filtering import render_filtering
     from warpbw.pipeline import render_reference, render_with_planes, split_planes
     from warpbw.scene import parse_scene
 
+    loads, load = [], envmap.load_environment
+
+    def counted(*a, **k):
+        loads.append(a)
+        return load(*a, **k)
     scene = parse_scene(MIXED_SCENE, tmp_path, "mixed.toml")
-    both = render_with_planes(scene, "fixed", 4, mis=True)
+    with monkeypatch.context() as mp:
+        for module in (envmap, filtering):
+            mp.setattr(module, "load_environment", counted)
+        both = render_with_planes(scene, "fixed", 4, mis=True)
+    assert len(loads) == 1
     sphere_scene, plane_scene = split_planes(scene)
     sphere = render_reference(sphere_scene, 4, mis=True)
     plane = render_filtering(plane_scene, "fixed", env_spp=4)

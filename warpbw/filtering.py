@@ -5,7 +5,7 @@ ground truth.
 Public:
     ``METHODS``                          the filtered methods: gmm_aligned, gmm_unaligned, toksvig, lean, fixed
     ``ALL_METHODS``                      ``METHODS`` + ``ground_truth``
-    ``prepare_filtering(scene, methods, device, progress, cache) -> FilteringScene``   load / build the mipmaps
+    ``prepare_filtering(scene, methods, device, progress, cache, env) -> FilteringScene``   load / build the mipmaps
     ``render_filtering(scene, method, spp, seed, device, prepared, camera, progress, lod_bias, threads,
                        env_spp, max_anisotropy, background)``        -> ``FilterResult``
     ``check_render_args(scene, method, spp, env_spp, max_anisotropy)``  its argument checks, before any work
@@ -989,17 +989,20 @@ def _gmm_array(levels, device):
 
 
 def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progress: bool = False,
-                      cache: Path | None = None) -> FilteringScene:
+                      cache: Path | None = None, env=None) -> FilteringScene:
     """Load every plane material's normal map and the mipmaps ``methods`` need: the box-filtered normal
     mipmap (always: the ground truth reads its finest level) and, for gmm_aligned / gmm_unaligned, the GMM
-    mipmap from the material's ``gmm`` file or the cache, else built (and cached)."""
+    mipmap from the material's ``gmm`` file or the cache, else built (and cached).  ``env``: the scene's
+    ``[environment]`` already loaded on ``device`` (``warpbw.envmap.EnvMap``, as another renderer of the same
+    scene holds it), used instead of loading it again."""
     planes = plane_objects(scene)
     unknown = [m for m in methods if m not in ALL_METHODS]
     if unknown:
         raise WarpbwError(f"filter method {unknown[0]!r}: expected one of {', '.join(ALL_METHODS)}")
     t0 = time.perf_counter()
-    env = None
-    if scene.environment is not None:   # first: a bad file fails before any mipmap is built
+    if env is not None and scene.environment is None:
+        raise WarpbwError(f"{scene.source}: env: given a loaded environment, but the scene has no [environment]")
+    if scene.environment is not None and env is None:   # first: a bad file fails before any mipmap is built
         try:
             env = load_environment(scene.environment, device)
         except WarpbwError as exc:

@@ -475,15 +475,16 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
         raise WarpbwError(f"method: expected 'reference' or 'adaptive', got {method!r}")
     aniso = DEFAULT_ANISOTROPY if max_anisotropy is None else max_anisotropy
     check_render_args(planes, filter_method, spp, spp, aniso)
-    plane_prep = prepare_filtering(planes, (filter_method,), device, progress)
     if method == "adaptive" and budget is None:
         raise WarpbwError("method 'adaptive': expected a budget (mean samples per covered pixel)")
+    prep = prepare_scene(surfaces, device, progress)
+    plane_prep = prepare_filtering(planes, (filter_method,), device, progress, env=prep.env)   # one environment
     nearer = plane_distance(planes, device)
     if method == "adaptive":
-        res = render_adaptive(surfaces, budget, seed=seed, mis=mis, n_b=n_b, device=device, progress=progress,
+        res = render_adaptive(prep, budget, seed=seed, mis=mis, n_b=n_b, device=device, progress=progress,
                               threads=threads, clip_distance=nearer, **adaptive_options)
     else:
-        res = render_reference(surfaces, spp, seed=seed, mis=mis, device=device, progress=progress, threads=threads,
+        res = render_reference(prep, spp, seed=seed, mis=mis, device=device, progress=progress, threads=threads,
                                clip_distance=nearer)
     behind = Background(res.image, res.gbuffer.numpy("depth"))
     fr = render_filtering(planes, filter_method, spp=spp, seed=seed, device=device, prepared=plane_prep,
@@ -492,9 +493,10 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
     stats = dict(res.stats)
     stats["pixels_covered"] = int(coverage.sum())
     stats["planes"] = fr.stats
-    t = res.stats["time_s"]
+    t = dict({k: round(v, 6) for k, v in prep.timings.items()}, **res.stats["time_s"])   # with the loading
     surfaces_frame = t.get("frame", t["gbuffer"] + t["shading"])   # the reference times no "frame" of its own
-    stats["time_s"] = dict(t, planes=round(fr.time_s, 6), frame=round(surfaces_frame + fr.time_s, 6))
+    stats["time_s"] = dict(t, load_planes=round(plane_prep.precompute_time_s, 6), planes=round(fr.time_s, 6),
+                           frame=round(surfaces_frame + fr.time_s, 6))
     aovs = dict(res.aovs, mip_level=fr.level, plane=fr.coverage)
     return RenderResult(fr.image, coverage, res.gbuffer, stats, aovs)
 
