@@ -149,6 +149,23 @@ def test_flat_map_shades_as_the_plain_cook_torrance_brdf(roughness):
     assert colour_error(g.image, ref, interior) < 0.01
 
 
+def test_ground_truth_on_a_planes_outline_is_the_planes_own_radiance():
+    """A pixel the plane covers in part (share 0.2-0.8, from a numpy 16 x 16 grid of rays): the ground truth
+    averages over the rays that hit the plane, so it is the plain BRDF's radiance there (smooth over a pixel at
+    roughness 0.3), not that radiance scaled by the share (blended with the black beyond)."""
+    s = parse_scene(scene_toml(roughness=0.3, size=1.0), Path.cwd(), "s.toml")
+    ref, cov = numpy_flat_cook_torrance((0.0, 1.5, 2.0), 40.0, 24, 16, 0.3, size=1.0)
+    g = render_filtering(s, "ground_truth", spp=64)
+    assert np.array_equal(g.coverage, cov)
+    share = np.zeros(cov.shape)
+    for jx, jy in np.ndindex(16, 16):
+        o, d = numpy_camera_rays((0.0, 1.5, 2.0), (0, 0, 0), 40.0, 24, 16, jitter=((jx + 0.5) / 16, (jy + 0.5) / 16))
+        p = o + (-o[1] / d[..., 1])[..., None] * d         # every ray looks down at the plane here
+        share += (np.abs(p[..., 0]) <= 0.5) & (np.abs(p[..., 2]) <= 0.5)
+    outline = cov & (share / 256 > 0.2) & (share / 256 < 0.8)
+    assert outline.sum() >= 5
+    assert colour_error(g.image, ref, outline) < 0.02
+
 def test_two_lights_add_up():
     one = parse_scene(scene_toml(lights=1), Path.cwd(), "s.toml")
     two = parse_scene(scene_toml(lights=2), Path.cwd(), "s.toml")

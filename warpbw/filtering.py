@@ -70,9 +70,13 @@ not from independent uniforms: each estimate stays unbiased, and its error is lo
     lean                          one anisotropic Gaussian with the filtered mean and covariance of the
                                   projected normals (LEAN-style first and second moments);
     fixed                         the fine-scale BRDF on the renormalised mean normal;
-    ground_truth                  ``spp`` (>= 64) jittered rays per pixel (box filter), each shaded with the
-                                  fine-scale BRDF at its own hit point (under an environment: one BRDF and
-                                  one environment sample per ray).
+    ground_truth                  ``spp`` (>= 64) jittered rays per pixel, each shaded with the fine-scale BRDF
+                                  at its own hit point (under an environment: one BRDF and one environment
+                                  sample per ray), averaged over the rays that hit the plane (a box filter over
+                                  the part of the pixel the plane covers).  On a plane's outline the pixel is
+                                  the plane's mean radiance there, not blended with what lies behind: the
+                                  methods shade the plane at the centre ray, and reflectance filtering cannot
+                                  change how much of a pixel a plane covers.
 The box-filtered normal mipmaps (toksvig, lean, fixed) hold per texel the mean unit normal and the second
 moments (E[x^2], E[y^2], E[xy]) of the projected normals over the texel's footprint (clipped at the border,
 like the GMM mipmap).  The GMM mipmaps come from the material's ``gmm`` file (aligned) or are built by
@@ -721,8 +725,9 @@ def _ground_truth_kernel(with_env: bool):
                             depth: wp.array(dtype=wp.float32), out: wp.array(dtype=wp.vec3)):
         """spp jittered rays per pixel (stratified on a g x g grid, g = floor(sqrt(spp)), the rest uniform),
         each shaded with the fine-scale BRDF at the bilinearly fetched finest normal (under the environment:
-        one BRDF and one environment sample per ray, balance heuristic); box pixel filter.  A pixel belongs to
-        this plane when its centre ray hits it in front of ``depth``."""
+        one BRDF and one environment sample per ray, balance heuristic); box pixel filter over the rays that
+        hit the plane.  A pixel belongs to this plane when its centre ray hits it in front of ``depth``; if
+        none of its jittered rays does (a sliver of plane), the centre ray alone is shaded."""
         i = wp.tid() + offset
         x = i % cam.width
         y = i / cam.width
@@ -736,12 +741,18 @@ def _ground_truth_kernel(with_env: bool):
             if wp.static(with_env):
                 r, state = pair_offset(state)   # ray k takes pair k of the pixel's sequence
             c = wp.vec3(0.0)
-            for k in range(spp):
-                jx = wp.randf(state)
-                jy = wp.randf(state)
-                if k < g * g:
-                    jx = (float(k % g) + jx) / float(g)
-                    jy = (float(k / g) + jy) / float(g)
+            hits = int(0)
+            for k in range(spp + 1):   # ray spp: the centre ray, only when no jittered ray hit the plane
+                jx = float(0.5)
+                jy = float(0.5)
+                if k < spp:
+                    jx = wp.randf(state)
+                    jy = wp.randf(state)
+                    if k < g * g:
+                        jx = (float(k % g) + jx) / float(g)
+                        jy = (float(k / g) + jy) / float(g)
+                elif hits > 0:
+                    break
                 d = ray_dir(cam, float(x) + jx, float(y) + jy)
                 t = plane_t(cam.origin, d, pl)
                 if t > 0.0:
@@ -754,7 +765,9 @@ def _ground_truth_kernel(with_env: bool):
                         if wp.static(with_env):
                             L = set_lobe(Lobes(), 0, 1.0, n[0], n[1], pl.rough_var, pl.rough_var, 0.0)
                             c = c + lobes_env(L, 1, wo, pl, env, r, k, 1)
-            out[i] = c / float(spp)
+                        hits = hits + 1
+            # the plane's mean over the part of the pixel it covers: what is behind it is not blended in
+            out[i] = c / float(hits)
 
     return ground_truth_kernel
 
