@@ -192,6 +192,13 @@ def _prepared(scene, device: str, progress: bool) -> tuple[PreparedScene, dict]:
     return prep, (dict(prep.timings) if prep is not scene else {})
 
 
+def _clip_kernels(clip_distance) -> tuple:
+    """The kernels a ``clip_distance`` adds to a frame (none without one)."""
+    from warpbw.gbuffer import hide_beyond_kernel
+
+    return (hide_beyond_kernel,) if clip_distance is not None else ()
+
+
 def _gbuffer(prep: PreparedScene, timings: dict, threads: int | None = None, clip_distance=None) -> tuple:
     """The G-buffer, and the number of its pixels ``clip_distance`` hid (None without one)."""
     import warp as wp
@@ -226,7 +233,8 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     prep, timings = _prepared(scene, device, progress)
     _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
                          make_reference_kernel(prep.materials.kinds, mis, has_env=prep.env is not None,
-                                               has_lights=prep.lights is not None)), timings)
+                                               has_lights=prep.lights is not None))
+                  + _clip_kernels(clip_distance), timings)
     gb, hidden = _gbuffer(prep, timings, threads, clip_distance)
     n_cov = int(gb.coverage.sum())
     bar = None
@@ -379,7 +387,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
                          bandwidth.make_bandwidth_kernel(prep.materials.kinds, preconvolved),
                          make_reference_kernel(prep.materials.kinds, mis, per_pixel_spp=True))
                   + ((make_reference_kernel(prep.materials.kinds, mis, has_env=False, has_lights=True),)
-                     if prep.lights is not None else ()), timings)
+                     if prep.lights is not None else ()) + _clip_kernels(clip_distance), timings)
     t0 = time.perf_counter()
     adaptive.load_kernels(prep.device)
     timings["compile"] += time.perf_counter() - t0
