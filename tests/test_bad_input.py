@@ -680,6 +680,7 @@ def test_a_loaded_environment_for_a_scene_without_one_is_refused(tmp_path):
                                           r"\[environment\]"):
         prepare_filtering(planes, ("fixed",), env=constant_envmap((1.0, 1.0, 1.0)))
 
+
 def test_planes_beside_a_sphere_check_the_planes_before_rendering_the_sphere(tmp_path, monkeypatch):
     """A bad filter argument or normal map of the planes is refused before the spheres and meshes render."""
     from warpbw import pipeline
@@ -714,6 +715,7 @@ def test_clip_distance_of_the_wrong_shape_or_nan_is_refused():
         render_reference(scene, 1, clip_distance=bad)
     with pytest.raises(WarpbwError, match="distance: expected positive distances"):
         render_reference(scene, 1, clip_distance=np.zeros((h, w)))
+
 
 def test_plane_scene_through_the_environment_pipeline_is_refused(tmp_path):
     """The 002 pipeline (render_reference / render_adaptive) called directly on a plane scene lit by

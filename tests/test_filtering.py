@@ -166,6 +166,7 @@ def test_ground_truth_on_a_planes_outline_is_the_planes_own_radiance():
     assert outline.sum() >= 5
     assert colour_error(g.image, ref, outline) < 0.02
 
+
 def test_two_lights_add_up():
     one = parse_scene(scene_toml(lights=1), Path.cwd(), "s.toml")
     two = parse_scene(scene_toml(lights=2), Path.cwd(), "s.toml")

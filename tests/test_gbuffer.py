@@ -49,7 +49,6 @@ def test_sphere_matches_closed_form():
     assert (gb.numpy("material").reshape(-1)[~cov] == -1).all()
 
 
-
 def test_hide_beyond_empties_exactly_the_pixels_whose_surface_is_farther():
     """A wall of distances through the sphere (inf on the left half): the pixels whose closed-form hit lies beyond
     it become empty and are counted; the others keep every buffer as it was."""
@@ -75,6 +74,7 @@ def test_hide_beyond_empties_exactly_the_pixels_whose_surface_is_farther():
                               before.numpy(name).reshape(-1, *before.numpy(name).shape[2:])[cov])
     assert (gb.numpy("depth").reshape(-1)[~cov] == 0).all()
     assert hide_beyond(render_gbuffer(cam, geo), cam, np.full((64, 96), np.inf)) == 0
+
 
 def test_camera_orientation_row_zero_is_top_and_x_right():
     # A camera on +Z looking at the origin: world +X appears on the right, +Y at the top.
