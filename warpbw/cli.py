@@ -602,12 +602,14 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--filter", choices=_FILTER_METHODS, default=None,
                    help="scenes with planes (shape = \"plane\", cook-torrance materials) always render with the "
                    "reflectance-filtering renderer (004): METHOD is gmm_aligned (default), gmm_unaligned, toksvig, "
-                   "lean, fixed, or ground_truth (--spp >= 64 jittered rays per pixel); also writes the mip "
+                   "lean, fixed, or ground_truth (--spp >= 64 jittered rays per pixel, averaged over those that "
+                   "hit the plane); also writes the mip "
                    "level map OUT.level.exr/.png. Under an [environment], each filtered pixel takes --spp pairs of "
                    "one BRDF and one environment sample (MIS), each ground-truth ray one pair. A scene with planes "
                    "beside spheres or meshes renders both: the spheres and meshes with --method (and its options), "
                    "then the planes in front of them with --filter (--spp also sets the planes' samples under "
-                   "--method adaptive); the mip level map is then OUT.mip_level.exr/.png")
+                   "--method adaptive); spheres and meshes behind a plane are not shaded; the mip level map is then "
+                   "OUT.mip_level.exr/.png")
     add_anisotropy_option(r, None)
     common(r, DEFAULT_SPP)
     r.set_defaults(func=cmd_render)
@@ -680,7 +682,8 @@ def build_parser() -> argparse.ArgumentParser:
     bf.add_argument("--json", help="write the record here (JSON)")
     bf.add_argument("--plot", help="write the plot here (PNG): error and flicker against zoom")
     bf.add_argument("--gt-spp", type=_positive_int("gt-spp", INT32_MAX), default=_bf.DEFAULT_GT_SPP,
-                    help=f"ground-truth rays per pixel (>= 64; default {_bf.DEFAULT_GT_SPP})")
+                    help=f"ground-truth rays per pixel (>= 64; default {_bf.DEFAULT_GT_SPP}), jittered over the "
+                    "pixel and averaged over those that hit the plane")
     bf.add_argument("--spp", type=_positive_int("spp", INT32_MAX), default=DEFAULT_SPP,
                     help="under an [environment]: pairs of one BRDF and one environment sample per pixel of the "
                     f"filtered methods (default {DEFAULT_SPP}, as warpbw render; their noise is part of the error)")
