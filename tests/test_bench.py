@@ -58,6 +58,65 @@ def test_bench_cli_writes_json_and_plot(tmp_path):
     assert cli_main(["bench", str(scene), "--json", str(out), "--gt-spp", "64", "-q"]) == 2
 
 
+MIXED = """
+[camera]
+position = [0.0, 1.5, 3.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 40.0
+resolution = [32, 24]
+[environment]
+procedural = "sky"
+[[object]]
+shape = "plane"
+size = 3.0
+material = "floor"
+[[object]]
+shape = "sphere"
+center = [0.0, 0.1, 0.0]
+radius = 0.5
+material = "m"
+[material.floor]
+type = "cook-torrance"
+roughness = 0.2
+f0 = [0.04, 0.04, 0.04]
+diffuse = [0.5, 0.5, 0.5]
+[material.m]
+type = "lambert"
+albedo = [0.5, 0.5, 0.5]
+"""
+
+
+def test_bench_of_planes_beside_a_sphere_measures_the_visible_sphere(tmp_path):
+    """A sphere sunk into a floor: bench measures the sphere where the floor does not hide it.  The hidden
+    pixels (the sphere-only render's coverage that the floor's distance clips, counted independently here)
+    are left out of the covered pixels, the cached ground truth is black there and keyed by the whole scene,
+    and the table says so."""
+    import numpy as np
+
+    from warpbw.filtering import plane_distance
+    from warpbw.io.exr import read_exr
+    from warpbw.pipeline import render_reference, split_planes
+    from warpbw.scene import parse_scene
+
+    scene = parse_scene(MIXED, tmp_path, "mixed.toml")
+    rec = bench.run_bench(scene, spp_list=(1, 4), budgets=(1,), gt_spp=64, runs=1, cache_dir=tmp_path / "gt",
+                          progress=False, log=lambda *a, **k: None)
+    sphere_only, planes = split_planes(scene)
+    cov = render_reference(sphere_only, 1).gbuffer
+    t_plane = plane_distance(planes)
+    o = np.asarray([0.0, 1.5, 3.0])                                          # the camera's position
+    t_sphere = np.linalg.norm(cov.numpy("position") - o, axis=-1)          # distance along each centre ray
+    sphere = cov.coverage
+    hidden = sphere & (t_sphere > t_plane + 1e-4)
+    assert hidden.sum() > 3 and (sphere & ~hidden).sum() > 50
+    assert rec["planes"]["pixels_hidden"] == int(hidden.sum())
+    assert rec["pixels_covered"] == int(sphere.sum() - hidden.sum())
+    chunks = sorted((tmp_path / "gt").glob(f"ground_truth-{scene.content_hash()[:16]}-*.exr"))
+    assert len(chunks) == 2
+    gt = read_exr(chunks[0]).pixels[..., :3]
+    assert np.all(gt[hidden] == 0) and np.all(gt[sphere & ~hidden].sum(-1) > 0)
+    assert "pixels hidden by 1 plane(s) left out" in bench.format_table(rec)
+
 @pytest.mark.parametrize("args, match", [(["--budgets", "0,1"], "budgets"), (["--spp", "x"], "spp"),
                                          (["--plot", "p.jpg"], ".png"), ([], "--json")])
 def test_bench_bad_arguments(tmp_path, capsys, args, match):

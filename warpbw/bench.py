@@ -23,9 +23,15 @@ Protocol:
   segment and flagged ``extrapolated``.  The headline ``equal_quality_speedup`` is the best
   non-extrapolated point of the budget sweep (the operating point a user would pick); every point is
   in the record.
+* A scene with planes beside spheres or meshes: its spheres and meshes are benchmarked where no plane hides
+  them.  The planes are not rendered (``warpbw bench-filtering`` measures the filtering renderer, in a scene
+  of planes alone), but every frame, the ground truth's included, is clipped at their distances
+  (``warpbw.pipeline.render_with_planes`` does the same), so the hidden pixels take no samples and are left
+  out of every error; the ground truth is cached under the whole scene's hash.
 """
 from __future__ import annotations
 
+import functools
 import math
 import statistics
 import time
@@ -54,14 +60,17 @@ class GroundTruth:
     key: str
 
 
-def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = 1_000_001, progress: bool = True) -> GroundTruth:
-    """MIS reference at ``gt_spp`` as the mean of cached chunks (at least two, for the doubling check)."""
+def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = 1_000_001, progress: bool = True,
+                 clip_distance=None, scene=None) -> GroundTruth:
+    """MIS reference at ``gt_spp`` as the mean of cached chunks (at least two, for the doubling check),
+    clipped at ``clip_distance`` (``render_reference``'s) and cached under ``scene``'s hash (default: the
+    prepared scene's; a clipped ground truth must name the scene whose planes clip it)."""
     from warpbw.io.exr import read_exr, write_exr
     from warpbw.pipeline import render_reference
 
     chunk = min(GT_CHUNK_SPP, max(1, gt_spp // 2))
     n = max(2, gt_spp // chunk)
-    key = prep.scene.content_hash()[:16]
+    key = (scene if scene is not None else prep.scene).content_hash()[:16]
     cache_dir.mkdir(parents=True, exist_ok=True)
     imgs, t_gt = [], 0.0
     for k in range(n):
@@ -72,7 +81,8 @@ def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = 1_000_001, prog
                 imgs.append(img)
                 continue
         t0 = time.perf_counter()
-        img = render_reference(prep, spp=chunk, seed=seed + k * 1_000_002, mis=True, progress=progress).image
+        img = render_reference(prep, spp=chunk, seed=seed + k * 1_000_002, mis=True, progress=progress,
+                               clip_distance=clip_distance).image
         t_gt += time.perf_counter() - t0
         write_exr(path, img)
         imgs.append(img)
@@ -128,23 +138,35 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
               runs: int = 3, mis: bool = True, cache_dir: Path | None = None, nb_budget: float | None = None,
               seed: int = 0, device: str = "cpu", progress: bool = True, log=print,
               adaptive_options: dict | None = None) -> dict:
-    """Run the protocol on one scene and return the JSON record (see the module docstring).
+    """Run the protocol on one scene and return the JSON record (see the module docstring; a scene with planes
+    beside spheres or meshes benches the spheres and meshes the planes leave visible).
     ``adaptive_options`` go to every ``render_adaptive`` call (e.g. ``allocation``, ``nyquist``)."""
     from precompute.brdf_sampling import cache_dir as default_cache
-    from warpbw.pipeline import prepare_scene, render_adaptive, render_reference
+    from warpbw import pipeline
 
     if runs < 1:
         raise WarpbwError(f"runs: expected at least 1, got {runs}")
+    surfaces, planes = pipeline.split_planes(scene)
+    if surfaces is None:
+        raise WarpbwError(f"{scene.source}: bench measures spheres and meshes, and the scene has planes only "
+                          "(use bench-filtering)")
+    clip = None
+    if planes is not None:
+        from warpbw.filtering import plane_distance
+
+        clip = plane_distance(planes, device)
+    render_reference = functools.partial(pipeline.render_reference, clip_distance=clip)
+    render_adaptive = functools.partial(pipeline.render_adaptive, clip_distance=clip)
     cache_dir = Path(cache_dir) if cache_dir is not None else default_cache() / "ground_truth"
     t0 = time.perf_counter()
-    prep = prepare_scene(scene, device=device, progress=progress)
+    prep = pipeline.prepare_scene(surfaces, device=device, progress=progress)
     # warm-up frames: compile every kernel variant and build the bandwidth tables
     render_reference(prep, spp=1, seed=seed, mis=mis)
     opts = dict(adaptive_options or {})
     render_adaptive(prep, budget=1.0, seed=seed, mis=mis, progress=progress, **opts)
     t_prep = time.perf_counter() - t0
     log(f"assets and warm-up: {t_prep:.1f} s")
-    gt = ground_truth(prep, gt_spp, cache_dir, progress=progress)
+    gt = ground_truth(prep, gt_spp, cache_dir, progress=progress, clip_distance=clip, scene=scene)
     log(f"ground truth: {gt.spp} spp MIS ({gt.chunks} chunks, {gt.render_time_s:.1f} s rendering missing ones)")
     est = "mis" if mis else "brdf_is"
     ref_recs = []
@@ -196,7 +218,7 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     valid = [r for r in ada_recs if not r["extrapolated"] and math.isfinite(r["equal_quality_speedup"])]
     best = max(valid, key=lambda r: r["equal_quality_speedup"]) if valid else None
     record = {
-        "scene": str(prep.scene.source),
+        "scene": str(scene.source),
         "scene_hash": gt.key,
         "resolution": [prep.width, prep.height],
         "pixels_covered": int(cov.sum()) if cov is not None else 0,
@@ -216,6 +238,11 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
                                     if ada_recs else None),
         "asset_and_warmup_time_s": t_prep,
     }
+    if planes is not None:
+        record["planes"] = {"objects": len(planes.objects), "pixels_hidden": int(res.stats["pixels_hidden"]),
+                            "rendered": False,
+                            "note": "spheres and meshes benched where no plane hides them; the planes are not "
+                                    "rendered (bench-filtering measures them in a scene of planes alone)"}
     if nb_recs:
         ps = [r["psnr_db"] for r in nb_recs]
         record["nb_sweep"] = nb_recs
@@ -226,9 +253,13 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
 def format_table(record: dict) -> str:
     lines = [f"{record['scene']}  {record['resolution'][0]}x{record['resolution'][1]}, "
              f"{record['pixels_covered']} covered pixels, estimator {record['estimator']}, "
-             f"ground truth {record['ground_truth_spp']} spp (doubling {record['ground_truth_doubling_delta_db']:.2f} dB)",
-             f"{'method':10s} {'spp/budget':>10s} {'time (s)':>9s} {'PSNR':>7s} {'relMSE':>10s} {'shaded':>7s} "
-             f"{'bw %':>5s} {'speed-up':>9s}"]
+             f"ground truth {record['ground_truth_spp']} spp "
+             f"(doubling {record['ground_truth_doubling_delta_db']:.2f} dB)"]
+    if "planes" in record:
+        lines.append(f"spheres and meshes only: {record['planes']['pixels_hidden']} pixels hidden by "
+                     f"{record['planes']['objects']} plane(s) left out; the planes are not rendered (bench-filtering)")
+    lines.append(f"{'method':10s} {'spp/budget':>10s} {'time (s)':>9s} {'PSNR':>7s} {'relMSE':>10s} {'shaded':>7s} "
+                 f"{'bw %':>5s} {'speed-up':>9s}")
     for r in record["methods"]["reference"]:
         lines.append(f"{'reference':10s} {r['spp']:10d} {r['time_s']:9.3f} {r['psnr_db']:7.2f} {r['relmse']:10.3e}")
     for r in record["methods"]["adaptive"]:
