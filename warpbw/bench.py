@@ -161,7 +161,7 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     t0 = time.perf_counter()
     prep = pipeline.prepare_scene(surfaces, device=device, progress=progress)
     # warm-up frames: compile every kernel variant and build the bandwidth tables
-    render_reference(prep, spp=1, seed=seed, mis=mis)
+    hidden = render_reference(prep, spp=1, seed=seed, mis=mis).stats.get("pixels_hidden", 0)
     opts = dict(adaptive_options or {})
     render_adaptive(prep, budget=1.0, seed=seed, mis=mis, progress=progress, **opts)
     t_prep = time.perf_counter() - t0
@@ -239,7 +239,7 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
         "asset_and_warmup_time_s": t_prep,
     }
     if planes is not None:
-        record["planes"] = {"objects": len(planes.objects), "pixels_hidden": int(res.stats["pixels_hidden"]),
+        record["planes"] = {"objects": len(planes.objects), "pixels_hidden": int(hidden),
                             "rendered": False,
                             "note": "spheres and meshes benched where no plane hides them; the planes are not "
                                     "rendered (bench-filtering measures them in a scene of planes alone)"}
