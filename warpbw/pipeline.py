@@ -6,6 +6,7 @@ Public:
     ``render_adaptive(scene_or_prepared, budget, seed, mis, n_b, n_min, n_max, ...) -> RenderResult``
     ``prepare_bandwidth(prepared, progress)``   the bandwidth pass's tables (adaptive only, built once)
     ``split_planes(scene) -> (surfaces, planes)``   a scene's spheres and meshes, and its planes, as two scenes
+    ``surface_geometry(scene, device) -> Geometry``   its spheres and meshes alone on the device (for depth)
     ``render_with_planes(scene, filter_method, spp, seed, method, budget, ...) -> RenderResult``
                                        a scene with both: the spheres and meshes, then the planes over them
     ``scene_summary(scene) -> dict``   what the scene needs (for ``warpbw info``), without loading it
@@ -145,19 +146,30 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
     with _timed(timings, "load_materials"):
         specs = [_material_spec(scene.materials[name], progress, notes, sources) for name in order]
         materials = brdf_mod.build_material_table(specs, device=device)
-    spheres, meshes = [], []
     with _timed(timings, "load_meshes"):
-        for o in scene.objects:
-            if isinstance(o, SphereObject):
-                spheres.append(SphereSpec(o.center, o.radius, mat_id[o.material]))
-            elif isinstance(o, MeshObject):
-                from warpbw.io.mesh import load_mesh
-
-                md = load_mesh(o.file, translate=o.translate, scale=o.scale, rotate_y_deg=o.rotate_y)
-                meshes.append(MeshSpec(md.vertices, md.faces, md.normals, md.mean_curvature, md.uv,
-                                       mat_id[o.material]))
-        geometry = build_geometry(spheres, meshes, device=device)
+        geometry = _geometry(scene, mat_id, device)
     return PreparedScene(scene, device, cam, geometry, env, materials, timings, notes, sources, lights=lights)
+
+
+def _geometry(scene: Scene, mat_id: dict, device: str):
+    """The scene's spheres and meshes on the device (its planes are left out), material indices from mat_id."""
+    spheres, meshes = [], []
+    for o in scene.objects:
+        if isinstance(o, SphereObject):
+            spheres.append(SphereSpec(o.center, o.radius, mat_id[o.material]))
+        elif isinstance(o, MeshObject):
+            from warpbw.io.mesh import load_mesh
+
+            md = load_mesh(o.file, translate=o.translate, scale=o.scale, rotate_y_deg=o.rotate_y)
+            meshes.append(MeshSpec(md.vertices, md.faces, md.normals, md.mean_curvature, md.uv, mat_id[o.material]))
+    return build_geometry(spheres, meshes, device=device)
+
+
+def surface_geometry(scene: Scene, device: str = "cpu"):
+    """The scene's spheres and meshes on the device, and nothing else (no environment, material or light is
+    loaded; planes are left out): what a G-buffer pass needs to find their depth, e.g. the depth that planes
+    drawn over them are tested against (``warpbw bench-filtering``)."""
+    return _geometry(scene, {name: i for i, name in enumerate(scene.material_order)}, device)
 
 
 def stages_used(prep: PreparedScene, mis: bool, adaptive: bool = False) -> list:
