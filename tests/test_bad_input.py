@@ -645,15 +645,13 @@ _SPHERE_OBJECT = ('\n[[object]]\nshape = "sphere"\nradius = 0.5\nmaterial = "s"\
                   '[material.s]\ntype = "lambert"\nalbedo = 0.5\n')
 
 
-def test_bench_filtering_refuses_planes_beside_a_sphere(tmp_path):
-    """Planes beside spheres or meshes render (both renderers, composited); bench-filtering measures the planes'
-    renderer in a scene of planes alone: a one-line error naming the scene and what to do, nothing written.
-    (bench measures the spheres and meshes such a scene leaves visible, given an [environment]: test_bench.)"""
+def test_bench_of_planes_beside_a_sphere_lit_by_lights_alone_is_refused(tmp_path):
+    """bench measures the spheres and meshes a plane scene leaves visible against an environment-lit reference:
+    lit by directional lights alone, a one-line error naming the scene and what is missing, nothing written.
+    (bench-filtering measures the planes of such a scene: test_bench_filtering.)"""
     (tmp_path / "scene.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', "") + _SPHERE_OBJECT)
     r = run(["bench", "scene.toml", "--json", "out.json", "--spp", "1", "--budgets", "1"], tmp_path)
     assert_one_line_error(r, "scene.toml", "[environment]: missing")
-    r = run(["bench-filtering", "scene.toml", "--json", "out.json", "--zoom", "1"], tmp_path)
-    assert_one_line_error(r, "scene.toml", "bench-filtering measures planes alone", "spheres or meshes")
     assert_no_outputs(tmp_path)
 
 

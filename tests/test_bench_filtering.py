@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from conftest import numpy_camera_rays
 from warpbw.bench_filtering import FLICKER_STEP, colour_error, flicker
 from warpbw.cli import main
 from warpbw.io.exr import read_exr, write_exr
@@ -105,6 +106,36 @@ def test_bench_filtering_writes_the_record_and_the_plot(plane_scene, capsys):
     assert main(args) == 2
     assert "already exists" in capsys.readouterr().err
     assert (d / "f.json").read_text() == before
+
+
+def test_bench_filtering_of_planes_beside_a_sphere_measures_the_visible_plane(plane_scene, capsys):
+    """A sphere standing on the plane hides part of it: at each zoom the covered pixels are exactly those whose
+    centre ray hits the square before the sphere (a numpy ray cast of both), so the hidden plane is neither
+    measured nor counted; the record and the table name the sphere."""
+    d = plane_scene.parent
+    c, r = (0.2, 0.35, 0.0), 0.35
+    plane_scene.write_text(SCENE + f'\n[[object]]\nshape = "sphere"\ncenter = {list(c)}\nradius = {r}\n'
+                           'material = "s"\n\n[material.s]\ntype = "lambert"\nalbedo = 0.5\n')
+    args = ["bench-filtering", str(plane_scene), "--zoom", "1,2", "--gt-spp", "64", "--runs", "1", "-q",
+            "--json", str(d / "f.json")]
+    assert main(args) == 0
+    rec = json.loads((d / "f.json").read_text())
+    assert len(rec["surfaces"]) == 1 and "sphere" in rec["surfaces"][0]
+    assert "no sphere or mesh hides them" in capsys.readouterr().out
+    for z, gt in zip((1.0, 2.0), rec["ground_truth"]):
+        o, dirs = numpy_camera_rays([z * p for p in (0.0, 1.2, 1.2)], (0, 0, 0), 40.0, 16, 12)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_plane = np.where(dirs[..., 1] < 0, -o[1] / dirs[..., 1], -1.0)
+        hit = o + t_plane[..., None] * dirs
+        on_plane = (t_plane > 0) & (np.abs(hit[..., 0]) <= 1.0) & (np.abs(hit[..., 2]) <= 1.0)
+        b = dirs @ (o - np.array(c))                       # |o + t d - c|^2 = r^2, nearer root
+        disc = b * b - (np.sum((o - np.array(c)) ** 2) - r * r)
+        t_sphere = np.where(disc > 0, -b - np.sqrt(np.maximum(disc, 0.0)), np.inf)
+        visible = on_plane & ~((t_sphere > 0) & (t_sphere < t_plane))
+        assert 0 < visible.sum() < on_plane.sum() - 4      # the sphere hides several pixels of the plane
+        assert gt["pixels_covered"] == visible.sum()
+    for rows in rec["methods"].values():
+        assert all(math.isfinite(x["error"]) and math.isfinite(x["flicker"]) for x in rows)
 
 
 def test_bench_filtering_usage_errors(plane_scene, tmp_path, capsys):

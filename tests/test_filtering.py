@@ -20,6 +20,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from conftest import numpy_camera_rays
+
 from warpbw.errors import WarpbwError
 from warpbw.filtering import (ALL_METHODS, METHODS, MIN_GT_SPP, fetch_gmm, gmm_ndf, normal_moment_mipmap,
                               pair_uniforms, prepare_filtering, render_filtering, zoomed_camera)
@@ -83,21 +85,6 @@ def _cache(tmp_path, monkeypatch):
 
 
 # ------------------------------------------------------------------------------------------ independent numpy truth
-
-def numpy_camera_rays(position, look_at, fov_deg, w, h, jitter=(0.5, 0.5)):
-    """The origin and the unit rays (h, w, 3) through the point ``jitter`` (in [0, 1)^2) of every pixel."""
-    o = np.asarray(position, float)
-    fwd = np.asarray(look_at, float) - o
-    fwd /= np.linalg.norm(fwd)
-    right = np.cross(fwd, [0.0, 1.0, 0.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, fwd)
-    tx = math.tan(math.radians(fov_deg) / 2)
-    ty = tx * h / w
-    x, y = np.meshgrid(np.arange(w) + jitter[0], np.arange(h) + jitter[1])
-    d = fwd + ((2 * x / w - 1) * tx)[..., None] * right + ((1 - 2 * y / h) * ty)[..., None] * up
-    return o, d / np.linalg.norm(d, axis=-1, keepdims=True)
-
 
 def numpy_flat_cook_torrance(position, fov, w, h, roughness, size=2.0):
     """Radiance of a flat Cook-Torrance plane (y = 0, normal +Y) under the directional light: Gaussian NDF of

@@ -33,6 +33,12 @@ covers z^2 times more texels.
 * Footprints: isotropic by default (004 Sec. 4.2's trilinear filtering); ``max_anisotropy`` > 1 filters every
   method with up to that many probes along each footprint's major axis (``warpbw.filtering``), recorded as
   ``max_anisotropy``.  The ground truth does not depend on it.
+* A scene with planes beside spheres or meshes: the planes are measured where no sphere or mesh hides them.
+  Per camera a G-buffer pass of the spheres and meshes alone (``warpbw.pipeline.surface_geometry``) gives
+  their depth, and every frame (ground truth and methods) draws the planes over that depth with a black
+  image (``warpbw.filtering.Background``), so the hidden pixels are neither shaded nor counted as covered
+  (the spheres and meshes are measured by ``warpbw bench``).  The record lists them under ``surfaces``
+  (empty for planes alone).
 * A zoom at which no pixel sees a plane (in either frame) is refused before any work.
 * Precompute time: the time to obtain the aligned GMM mipmaps (built unless the scene names a file or
   ``cache`` holds them: the origin is recorded).
@@ -85,15 +91,37 @@ def flicker(a0, a1, g0, g1, mask, norm: float) -> float:
     return float(np.maximum(da - dg, 0.0)[mask].mean() / norm)
 
 
-def _check_coverage(scene, zooms, device: str) -> None:
-    """Refuse, before the mipmaps are built, a zoom at which no pixel sees a plane in one of its two frames
-    (z and z * FLICKER_STEP): its error, flicker and noise would all be undefined (a mean over no pixel)."""
+def _surfaces_behind(surfaces, device: str):
+    """``camera -> Background | None``: the spheres and meshes of ``surfaces`` (a scene, or None) as the black
+    background the planes are drawn over, their camera-space depth from a G-buffer pass at that camera
+    (module docstring); None for planes alone."""
+    if surfaces is None:
+        return lambda camera: None
+    from warpbw.filtering import Background
+    from warpbw.gbuffer import make_camera, render_gbuffer
+    from warpbw.pipeline import surface_geometry
+
+    geometry = surface_geometry(surfaces, device)
+
+    def behind(c):
+        cam = make_camera(c.position, c.look_at, c.up, c.fov, c.width, c.height)
+        depth = render_gbuffer(cam, geometry, device).numpy("depth")
+        return Background(np.zeros(depth.shape + (3,), np.float32), depth)
+
+    return behind
+
+
+def _check_coverage(scene, zooms, device: str, behind) -> None:
+    """Refuse, before the mipmaps are built, a zoom at which no pixel sees a plane (in front of the spheres and
+    meshes ``behind`` gives) in one of its two frames (z and z * FLICKER_STEP): its error, flicker and noise
+    would all be undefined (a mean over no pixel)."""
     from warpbw.filtering import prepare_filtering, render_filtering, zoomed_camera
 
     prep = prepare_filtering(scene, ("fixed",), device)  # the cheapest method: the coverage is the same for all
     for z in zooms:
         for zz in (z, z * FLICKER_STEP):
-            r = render_filtering(scene, "fixed", prepared=prep, camera=zoomed_camera(scene.camera, zz), env_spp=1)
+            cam = zoomed_camera(scene.camera, zz)
+            r = render_filtering(scene, "fixed", prepared=prep, camera=cam, env_spp=1, background=behind(cam))
             if not r.coverage.any():
                 raise WarpbwError(f"--zoom {z:g}: no pixel sees a plane at this zoom (camera distance x {zz:g}), so "
                                   "error and flicker are undefined there: choose smaller zooms")
@@ -103,14 +131,16 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
                         device: str = "cpu", cache: Path | None = None, progress: bool = False,
                         log=lambda *a, **k: None, methods=None, env_spp: int | None = None,
                         max_anisotropy: int | None = None) -> dict:
-    """The benchmark record (module docstring) for a scene with planes."""
+    """The benchmark record (module docstring) for a scene with planes (beside spheres or meshes or not)."""
     from warpbw.filtering import (DEFAULT_ANISOTROPY, DEFAULT_ENV_SPP, MAX_ANISOTROPY, METHODS, MIN_GT_SPP,
                                   prepare_filtering, render_filtering, zoomed_camera)
+    from warpbw.pipeline import split_planes
 
     methods = tuple(methods or METHODS)
     if not scene.has_planes:
         raise WarpbwError(f"{scene.source}: bench-filtering needs a scene with planes (shape = \"plane\") and "
                           "cook-torrance materials")
+    surfaces, scene = split_planes(scene)                 # the spheres and meshes: what the planes hide
     if gt_spp < MIN_GT_SPP:
         raise WarpbwError(f"--gt-spp {gt_spp}: expected at least {MIN_GT_SPP} rays per pixel")
     env_spp = DEFAULT_ENV_SPP if env_spp is None else env_spp
@@ -118,7 +148,8 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     aniso = DEFAULT_ANISOTROPY if max_anisotropy is None else max_anisotropy
     check_count(aniso, "--max-anisotropy (probes along a footprint's major axis)", 1, MAX_ANISOTROPY)
     zooms = [float(z) for z in zooms]
-    _check_coverage(scene, zooms, device)
+    behind = _surfaces_behind(surfaces, device)
+    _check_coverage(scene, zooms, device, behind)
     with tempfile.TemporaryDirectory(prefix="warpbw-gmm-") as tmp:
         t0 = time.perf_counter()
         prep = prepare_filtering(scene, methods + ("ground_truth",), device, progress,
@@ -131,17 +162,19 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
               "runs": int(runs), "seed": int(seed), "flicker_step": FLICKER_STEP, "max_anisotropy": int(aniso),
               "methods": {m: [] for m in methods}, "ground_truth": [],
               "precompute_time_s": round(gmm_time, 4), "prepare_time_s": round(prep_time, 4),
-              "precompute": prep.notes}
+              "precompute": prep.notes,
+              "surfaces": [] if surfaces is None else [o.describe() for o in surfaces.objects]}
     for m in methods:                                     # warm-up: compile every kernel once
         render_filtering(scene, m, prepared=prep, max_anisotropy=aniso)
     for z in zooms:
         cams = (zoomed_camera(scene.camera, z), zoomed_camera(scene.camera, z * FLICKER_STEP))
+        bgs = [behind(c) for c in cams]
         # the same seed in both frames: the same jitter pattern per pixel, so the truth's frame-to-frame change
         # carries as little of its own noise as possible
-        g = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=GT_SEED + seed, prepared=prep, camera=c)
-             for c in cams]
+        g = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=GT_SEED + seed, prepared=prep, camera=c,
+                              background=b) for c, b in zip(cams, bgs)]
         g2 = render_filtering(scene, "ground_truth", spp=gt_spp, seed=GT_SEED_2 + seed, prepared=prep,
-                              camera=cams[0])
+                              camera=cams[0], background=bgs[0])
         cov = g[0].coverage
         both = cov & g[1].coverage
         norm = _norm(g[0].image, cov)
@@ -155,11 +188,11 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
             frames = []
             for k in range(max(1, runs)):
                 r = render_filtering(scene, m, seed=seed, prepared=prep, camera=cams[0], env_spp=env_spp,
-                                     max_anisotropy=aniso)
+                                     max_anisotropy=aniso, background=bgs[0])
                 times.append(r.time_s)
             frames.append(r)
             frames.append(render_filtering(scene, m, seed=seed, prepared=prep, camera=cams[1], env_spp=env_spp,
-                                           max_anisotropy=aniso))
+                                           max_anisotropy=aniso, background=bgs[1]))
             err = colour_error(frames[0].image, g[0].image, cov)
             fl = flicker(frames[0].image, frames[1].image, g[0].image, g[1].image, both, norm)
             record["methods"][m].append({"zoom": z, "error": err, "flicker": fl,
@@ -181,7 +214,10 @@ def format_table(record: dict) -> str:
     zooms = record["zooms"]
     head = f"{'method':<14}" + "".join(f"{'x' + format(z, 'g'):>16}" for z in zooms)
     lines = [f"{record['scene']}  {record['resolution'][0]}x{record['resolution'][1]}, ground truth "
-             f"{record['gt_spp']} rays/pixel; error / flicker per zoom{_aniso_note(record)}", head]
+             f"{record['gt_spp']} rays/pixel; error / flicker per zoom{_aniso_note(record)}"]
+    if record.get("surfaces"):
+        lines.append("planes measured where no sphere or mesh hides them: " + "; ".join(record["surfaces"]))
+    lines.append(head)
     for m, rows in record["methods"].items():
         lines.append(f"{m:<14}" + "".join(f"{r['error']:>9.3f} /{r['flicker']:.3f}" for r in rows))
     lines.append(f"{'gt noise':<14}" + "".join(f"{g['noise']:>9.3f}       " for g in record["ground_truth"]))
