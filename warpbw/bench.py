@@ -24,8 +24,8 @@ Protocol:
   non-extrapolated point of the budget sweep (the operating point a user would pick); every point is
   in the record.
 * A scene with planes beside spheres or meshes: its spheres and meshes are benchmarked where no plane hides
-  them.  The planes are not rendered (``warpbw bench-filtering`` measures the filtering renderer, in a scene
-  of planes alone), but every frame, the ground truth's included, is clipped at their distances
+  them.  The planes are not rendered (``warpbw bench-filtering`` measures the filtering renderer, where no
+  sphere or mesh hides the planes), but every frame, the ground truth's included, is clipped at their distances
   (``warpbw.pipeline.render_with_planes`` does the same), so the hidden pixels take no samples and are left
   out of every error; the ground truth is cached under the whole scene's hash.
 """
@@ -242,7 +242,7 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
         record["planes"] = {"objects": len(planes.objects), "pixels_hidden": int(hidden),
                             "rendered": False,
                             "note": "spheres and meshes benched where no plane hides them; the planes are not "
-                                    "rendered (bench-filtering measures them in a scene of planes alone)"}
+                                    "rendered (bench-filtering measures them where no sphere or mesh hides them)"}
     if nb_recs:
         ps = [r["psnr_db"] for r in nb_recs]
         record["nb_sweep"] = nb_recs
