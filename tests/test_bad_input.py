@@ -947,6 +947,18 @@ def test_bench_filtering_zoom_that_sees_no_plane_is_refused_up_front(tmp_path):
     assert_no_outputs(tmp_path, "b")
 
 
+def test_bench_filtering_of_planes_a_sphere_hides_entirely_is_refused_up_front(tmp_path):
+    """A sphere between the camera and the whole plane: not 'choose smaller zooms' (no zoom helps) but what hides
+    the planes, before any work and with nothing written."""
+    sphere = _SPHERE_OBJECT.replace("radius = 0.5", "radius = 2.0")
+    (tmp_path / "planes.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', "") + sphere)
+    r = run(["bench-filtering", "planes.toml", "--json", "b.json", "--zoom", "1", "--gt-spp", "64", "--runs", "1",
+             "-q"], tmp_path)
+    assert_one_line_error(r, "--zoom 1", "spheres or meshes hide every pixel of the planes", "move them")
+    assert r.stdout == ""
+    assert_no_outputs(tmp_path, "b")
+
+
 def test_json_records_never_hold_nan():
     import json
 

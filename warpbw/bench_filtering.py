@@ -121,10 +121,15 @@ def _check_coverage(scene, zooms, device: str, behind) -> None:
     for z in zooms:
         for zz in (z, z * FLICKER_STEP):
             cam = zoomed_camera(scene.camera, zz)
-            r = render_filtering(scene, "fixed", prepared=prep, camera=cam, env_spp=1, background=behind(cam))
-            if not r.coverage.any():
-                raise WarpbwError(f"--zoom {z:g}: no pixel sees a plane at this zoom (camera distance x {zz:g}), so "
-                                  "error and flicker are undefined there: choose smaller zooms")
+            bg = behind(cam)
+            if render_filtering(scene, "fixed", prepared=prep, camera=cam, env_spp=1, background=bg).coverage.any():
+                continue
+            if bg is not None and render_filtering(scene, "fixed", prepared=prep, camera=cam, env_spp=1).coverage.any():
+                raise WarpbwError(f"--zoom {z:g}: spheres or meshes hide every pixel of the planes at this zoom "
+                                  f"(camera distance x {zz:g}), so error and flicker are undefined there: move them "
+                                  "or the camera")
+            raise WarpbwError(f"--zoom {z:g}: no pixel sees a plane at this zoom (camera distance x {zz:g}), so "
+                              "error and flicker are undefined there: choose smaller zooms")
 
 
 def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP, runs: int = 3, seed: int = 0,
