@@ -117,6 +117,7 @@ def test_bench_of_planes_beside_a_sphere_measures_the_visible_sphere(tmp_path):
     assert np.all(gt[hidden] == 0) and np.all(gt[sphere & ~hidden].sum(-1) > 0)
     assert "pixels hidden by 1 plane(s) left out" in bench.format_table(rec)
 
+
 @pytest.mark.parametrize("args, match", [(["--budgets", "0,1"], "budgets"), (["--spp", "x"], "spp"),
                                          (["--plot", "p.jpg"], ".png"), ([], "--json")])
 def test_bench_bad_arguments(tmp_path, capsys, args, match):
