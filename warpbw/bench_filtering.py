@@ -39,7 +39,8 @@ covers z^2 times more texels.
   image (``warpbw.filtering.Background``), so the hidden pixels are neither shaded nor counted as covered
   (the spheres and meshes are measured by ``warpbw bench``).  The record lists them under ``surfaces``
   (empty for planes alone).
-* A zoom at which no pixel sees a plane (in either frame) is refused before any work.
+* A zoom at which no pixel sees a plane (in either frame), or spheres or meshes hide every pixel that
+  does, is refused before any work, saying which.
 * Precompute time: the time to obtain the aligned GMM mipmaps (built unless the scene names a file or
   ``cache`` holds them: the origin is recorded).
 """
