@@ -36,6 +36,27 @@ def numpy_camera_rays(position, look_at, fov_deg, w, h, jitter=(0.5, 0.5)):
     return o, d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
+def numpy_square_distance(o, d, size, centre=(0.0, 0.0, 0.0)):
+    """Distance along the unit rays ``d`` (..., 3) from ``o`` to a scene plane: the square of side ``size`` about
+    ``centre`` in the plane y = centre[1] (XZ, facing +Y); inf where a ray misses it."""
+    c = np.asarray(centre, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(d[..., 1] != 0, (c[1] - o[1]) / d[..., 1], -1.0)
+    p = o + t[..., None] * d
+    on = (t > 0) & (np.abs(p[..., 0] - c[0]) <= size / 2) & (np.abs(p[..., 2] - c[2]) <= size / 2)
+    return np.where(on, t, np.inf)
+
+
+def numpy_sphere_distance(o, d, centre, radius):
+    """Distance along the unit rays ``d`` (..., 3) from ``o`` to the sphere: the quadratic's nearer root where it
+    is positive, inf where a ray misses."""
+    oc = o - np.asarray(centre, float)
+    b = d @ oc
+    disc = b * b - (oc @ oc - radius * radius)
+    t = -b - np.sqrt(np.maximum(disc, 0.0))
+    return np.where((disc > 0) & (t > 0), t, np.inf)
+
+
 @pytest.fixture(scope="session")
 def shared():
     return shared_file

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from conftest import numpy_camera_rays
+from conftest import numpy_camera_rays, numpy_sphere_distance, numpy_square_distance
 from warpbw.bench_filtering import FLICKER_STEP, colour_error, flicker
 from warpbw.cli import main
 from warpbw.io.exr import read_exr, write_exr
@@ -124,14 +124,9 @@ def test_bench_filtering_of_planes_beside_a_sphere_measures_the_visible_plane(pl
     assert "no sphere or mesh hides them" in capsys.readouterr().out
     for z, gt in zip((1.0, 2.0), rec["ground_truth"]):
         o, dirs = numpy_camera_rays([z * p for p in (0.0, 1.2, 1.2)], (0, 0, 0), 40.0, 16, 12)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t_plane = np.where(dirs[..., 1] < 0, -o[1] / dirs[..., 1], -1.0)
-        hit = o + t_plane[..., None] * dirs
-        on_plane = (t_plane > 0) & (np.abs(hit[..., 0]) <= 1.0) & (np.abs(hit[..., 2]) <= 1.0)
-        b = dirs @ (o - np.array(c))                       # |o + t d - c|^2 = r^2, nearer root
-        disc = b * b - (np.sum((o - np.array(c)) ** 2) - r * r)
-        t_sphere = np.where(disc > 0, -b - np.sqrt(np.maximum(disc, 0.0)), np.inf)
-        visible = on_plane & ~((t_sphere > 0) & (t_sphere < t_plane))
+        t_plane = numpy_square_distance(o, dirs, 2.0)
+        on_plane = np.isfinite(t_plane)
+        visible = on_plane & ~(numpy_sphere_distance(o, dirs, c, r) < t_plane)
         assert 0 < visible.sum() < on_plane.sum() - 4      # the sphere hides several pixels of the plane
         assert gt["pixels_covered"] == visible.sum()
     for rows in rec["methods"].values():

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import numpy_camera_rays, numpy_sphere_distance, numpy_square_distance
 from warpbw.io.exr import read_exr, write_exr
 from warpbw.io.merl import MERL_FILE_SIZE
 
@@ -373,23 +374,8 @@ albedo = 0.8
 def _numpy_plane_and_sphere_depths(w, h):
     """Distances along each pixel's centre ray to the plane y = 0 (inside its 3 x 3 square) and to the sphere of
     MIXED_SCENE, inf where missed: a numpy pinhole camera and the quadratic's nearer positive root."""
-    o = np.array([0.0, 1.5, 3.0])
-    fwd = -o / np.linalg.norm(o)
-    right = np.cross(fwd, [0.0, 1.0, 0.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, fwd)
-    tx = math.tan(math.radians(40.0) / 2)
-    x, y = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
-    d = fwd + ((2 * x / w - 1) * tx)[..., None] * right + ((1 - 2 * y / h) * tx * h / w)[..., None] * up
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
-    t_p = -o[1] / d[..., 1]
-    p = o + t_p[..., None] * d
-    t_p = np.where((t_p > 0) & (np.abs(p[..., 0]) <= 1.5) & (np.abs(p[..., 2]) <= 1.5), t_p, np.inf)
-    oc = o - np.array([0.0, 0.1, 0.0])
-    b = d @ oc
-    disc = b * b - (oc @ oc - 0.25)
-    t_s = -b - np.sqrt(np.maximum(disc, 0.0))
-    return t_p, np.where((disc > 0) & (t_s > 0), t_s, np.inf)
+    o, d = numpy_camera_rays((0.0, 1.5, 3.0), (0.0, 0.0, 0.0), 40.0, w, h)
+    return numpy_square_distance(o, d, 3.0), numpy_sphere_distance(o, d, (0.0, 0.1, 0.0), 0.5)
 
 
 def test_planes_beside_a_sphere_show_whichever_surface_is_nearer(tmp_path, monkeypatch):

@@ -20,7 +20,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import numpy_camera_rays
+from conftest import numpy_camera_rays, numpy_square_distance
 
 from warpbw.errors import WarpbwError
 from warpbw.filtering import (ALL_METHODS, METHODS, MIN_GT_SPP, fetch_gmm, gmm_ndf, normal_moment_mipmap,
@@ -90,9 +90,7 @@ def numpy_flat_cook_torrance(position, fov, w, h, roughness, size=2.0):
     """Radiance of a flat Cook-Torrance plane (y = 0, normal +Y) under the directional light: Gaussian NDF of
     per-axis variance m^2/2 over projected normals, Schlick Fresnel, Lambert, G = 1 (warpbw.filtering docs)."""
     o, d = numpy_camera_rays(position, (0, 0, 0), fov, w, h)
-    t = -o[1] / d[..., 1]
-    p = o + t[..., None] * d
-    cov = (t > 0) & (np.abs(p[..., 0]) <= size / 2) & (np.abs(p[..., 2]) <= size / 2)
+    cov = np.isfinite(numpy_square_distance(o, d, size))
     n = np.array([0.0, 1.0, 0.0])
     wo = -d
     wi = np.asarray(LIGHT_DIR, float) / np.linalg.norm(LIGHT_DIR)
@@ -147,8 +145,7 @@ def test_ground_truth_on_a_planes_outline_is_the_planes_own_radiance():
     share = np.zeros(cov.shape)
     for jx, jy in np.ndindex(16, 16):
         o, d = numpy_camera_rays((0.0, 1.5, 2.0), (0, 0, 0), 40.0, 24, 16, jitter=((jx + 0.5) / 16, (jy + 0.5) / 16))
-        p = o + (-o[1] / d[..., 1])[..., None] * d         # every ray looks down at the plane here
-        share += (np.abs(p[..., 0]) <= 0.5) & (np.abs(p[..., 2]) <= 0.5)
+        share += np.isfinite(numpy_square_distance(o, d, 1.0))
     outline = cov & (share / 256 > 0.2) & (share / 256 < 0.8)
     assert outline.sum() >= 5
     assert colour_error(g.image, ref, outline) < 0.02
@@ -848,11 +845,7 @@ def test_plane_distance_is_the_nearest_plane_along_each_centre_ray(tmp_path):
     o, d = numpy_camera_rays((0.0, 1.5, 2.0), (0, 0, 0), 40.0, w, h)
     t_ref = np.full((h, w), np.inf)
     for c, size in (((0.0, 0.0, 0.0), 1.5), ((0.3, 0.4, 0.1), 0.6)):
-        with np.errstate(divide="ignore"):
-            t = np.where(d[..., 1] < 0, (c[1] - o[1]) / d[..., 1], -1.0)
-        p = o + t[..., None] * d
-        on = (t > 0) & (np.abs(p[..., 0] - c[0]) <= size / 2) & (np.abs(p[..., 2] - c[2]) <= size / 2)
-        t_ref = np.where(on, np.minimum(t_ref, t), t_ref)
+        t_ref = np.minimum(t_ref, numpy_square_distance(o, d, size, c))
     t_w = plane_distance(s)
     assert t_w.shape == (h, w) and t_w.dtype == np.float32
     hit = np.isfinite(t_ref)
