@@ -55,11 +55,11 @@ def _plane_frame(v):
 def _pixels(scene, camera, shape):
     """Flat indices of the pixels whose centre ray hits the plane (and whose neighbours' rays hit its supporting
     plane), their finest-texel coordinates (s, t), footprint level lam (unclamped) and wo in the plane frame."""
-    from warpbw.gbuffer import camera_rays, make_camera
+    from warpbw.gbuffer import camera_rays, scene_camera
 
     (pl,) = scene.objects
     mat = scene.materials[pl.material]
-    cam = make_camera(camera.position, camera.look_at, camera.up, camera.fov, camera.width, camera.height)
+    cam = scene_camera(camera)
     o, d = camera_rays(cam)
     o = o[0]
     right = np.array(list(cam.right)) * (2.0 * cam.tan_half_x / camera.width)

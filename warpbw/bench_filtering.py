@@ -99,14 +99,13 @@ def _surfaces_behind(surfaces, device: str):
     if surfaces is None:
         return lambda camera: None
     from warpbw.filtering import Background
-    from warpbw.gbuffer import make_camera, render_gbuffer
+    from warpbw.gbuffer import render_gbuffer, scene_camera
     from warpbw.pipeline import surface_geometry
 
     geometry = surface_geometry(surfaces, device)
 
     def behind(c):
-        cam = make_camera(c.position, c.look_at, c.up, c.fov, c.width, c.height)
-        depth = render_gbuffer(cam, geometry, device).numpy("depth")
+        depth = render_gbuffer(scene_camera(c), geometry, device).numpy("depth")
         return Background(np.zeros(depth.shape + (3,), np.float32), depth)
 
     return behind

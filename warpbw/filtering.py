@@ -104,7 +104,7 @@ import warp as wp
 from precompute.gmm_mipmap import NORMAL_DIM
 from warpbw.envmap import LUMINANCE_RGB, EnvMapData, env_pdf, env_radiance, env_sample, load_environment
 from warpbw.errors import INT32_MAX, WarpbwError, check_count
-from warpbw.gbuffer import CameraData, make_camera
+from warpbw.gbuffer import CameraData, scene_camera
 from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene
 
 METHODS = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed")
@@ -1126,7 +1126,7 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm for mp in prepared.mips.values())):
         prepared = prepare_filtering(scene, (method,), device, progress)
     cam_s = camera or scene.camera
-    cam = make_camera(cam_s.position, cam_s.look_at, cam_s.up, cam_s.fov, cam_s.width, cam_s.height)
+    cam = scene_camera(cam_s)
     n = cam_s.width * cam_s.height
     h, w = cam_s.height, cam_s.width
     dev = prepared.device
@@ -1196,7 +1196,7 @@ def plane_distance(scene: Scene, device: str = "cpu") -> np.ndarray:
     A scene that has planes beside spheres and meshes hides the spheres and meshes beyond it
     (:func:`warpbw.gbuffer.hide_beyond`) before shading them."""
     cam_s = scene.camera
-    cam = make_camera(cam_s.position, cam_s.look_at, cam_s.up, cam_s.fov, cam_s.width, cam_s.height)
+    cam = scene_camera(cam_s)
     n = cam_s.width * cam_s.height
     depth = wp.full(n, NO_HIT, dtype=wp.float32, device=device)
     for p in scene.objects:

@@ -3,6 +3,7 @@
 Public:
     ``CameraData``                   Warp struct: pinhole camera
     ``make_camera(position, look_at, up, fov_deg, width, height)`` -> ``CameraData``
+    ``scene_camera(camera) -> CameraData``   a scene's [camera] (``warpbw.scene.Camera``)
     ``camera_rays(cam) -> (origins, dirs)``  numpy, for tests and examples
     ``Geometry`` / ``build_geometry(spheres, meshes, device)``  scene geometry on the device
     ``update_mesh(geometry, mesh_index, vertices, normals=None, curvature=None)``  deform one mesh in place and
@@ -271,6 +272,11 @@ def make_camera(position, look_at, up, fov_deg: float, width: int, height: int) 
     cam.width = int(width)
     cam.height = int(height)
     return cam
+
+
+def scene_camera(camera) -> CameraData:
+    """``make_camera`` of a scene's [camera] (``warpbw.scene.Camera``: position, look_at, up, fov, width, height)."""
+    return make_camera(camera.position, camera.look_at, camera.up, camera.fov, camera.width, camera.height)
 
 
 def camera_rays(cam: CameraData):

@@ -37,7 +37,8 @@ import numpy as np
 from warpbw import brdf as brdf_mod
 from warpbw import envmap
 from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError, is_int
-from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, hide_beyond, make_camera, render_gbuffer)
+from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, hide_beyond, render_gbuffer,
+                            scene_camera)
 from warpbw.scene import MeshObject, PlaneObject, Scene, SphereObject
 
 
@@ -129,8 +130,7 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
     timings: dict = {}
     notes: dict = {}
     sources: dict = {}
-    c = scene.camera
-    cam = make_camera(c.position, c.look_at, c.up, c.fov, c.width, c.height)
+    cam = scene_camera(scene.camera)
     env = None
     if scene.environment is not None:
         with _timed(timings, "load_environment"):
