@@ -21,6 +21,45 @@ def shared_file(rel: str) -> Path:
     return p
 
 
+# A plane beside a sphere sunk into it (both renderers, composited): test_end_to_end, test_bench.
+MIXED_SCENE = """\
+[camera]
+position = [0.0, 1.5, 3.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 40.0
+resolution = [48, 32]
+
+[environment]
+procedural = "sky"
+
+[[light]]
+type = "directional"
+direction = [0.3, 0.8, 0.5]
+radiance = [2.0, 2.0, 2.0]
+
+[[object]]
+shape = "plane"
+size = 3.0
+material = "floor"
+
+[[object]]
+shape = "sphere"
+radius = 0.5
+center = [0.0, 0.1, 0.0]
+material = "ball"
+
+[material.floor]
+type = "cook-torrance"
+roughness = 0.2
+f0 = [0.04, 0.04, 0.04]
+diffuse = [0.5, 0.5, 0.5]
+
+[material.ball]
+type = "lambert"
+albedo = 0.8
+"""
+
+
 def numpy_camera_rays(position, look_at, fov_deg, w, h, jitter=(0.5, 0.5)):
     """The origin and the unit rays (h, w, 3) through the point ``jitter`` (in [0, 1)^2) of every pixel."""
     o = np.asarray(position, float)

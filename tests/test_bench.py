@@ -6,6 +6,7 @@ import math
 
 import pytest
 
+from conftest import MIXED_SCENE
 from warpbw import bench
 from warpbw.cli import main as cli_main
 
@@ -58,34 +59,6 @@ def test_bench_cli_writes_json_and_plot(tmp_path):
     assert cli_main(["bench", str(scene), "--json", str(out), "--gt-spp", "64", "-q"]) == 2
 
 
-MIXED = """
-[camera]
-position = [0.0, 1.5, 3.0]
-look_at = [0.0, 0.0, 0.0]
-fov = 40.0
-resolution = [32, 24]
-[environment]
-procedural = "sky"
-[[object]]
-shape = "plane"
-size = 3.0
-material = "floor"
-[[object]]
-shape = "sphere"
-center = [0.0, 0.1, 0.0]
-radius = 0.5
-material = "m"
-[material.floor]
-type = "cook-torrance"
-roughness = 0.2
-f0 = [0.04, 0.04, 0.04]
-diffuse = [0.5, 0.5, 0.5]
-[material.m]
-type = "lambert"
-albedo = [0.5, 0.5, 0.5]
-"""
-
-
 def test_bench_of_planes_beside_a_sphere_measures_the_visible_sphere(tmp_path):
     """A sphere sunk into a floor: bench measures the sphere where the floor does not hide it.  The hidden
     pixels (the sphere-only render's coverage that the floor's distance clips, counted independently here)
@@ -98,7 +71,7 @@ def test_bench_of_planes_beside_a_sphere_measures_the_visible_sphere(tmp_path):
     from warpbw.pipeline import render_reference, split_planes
     from warpbw.scene import parse_scene
 
-    scene = parse_scene(MIXED, tmp_path, "mixed.toml")
+    scene = parse_scene(MIXED_SCENE, tmp_path, "mixed.toml")
     rec = bench.run_bench(scene, spp_list=(1, 4), budgets=(1,), gt_spp=64, runs=1, cache_dir=tmp_path / "gt",
                           progress=False, log=lambda *a, **k: None)
     sphere_only, planes = split_planes(scene)

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import numpy_camera_rays, numpy_sphere_distance, numpy_square_distance
+from conftest import MIXED_SCENE, numpy_camera_rays, numpy_sphere_distance, numpy_square_distance
 from warpbw.io.exr import read_exr, write_exr
 from warpbw.io.merl import MERL_FILE_SIZE
 
@@ -332,44 +332,6 @@ def test_render_adaptive_writes_aovs_and_caches_tables(work, npf_scene):
 
 
 # ------------------------------------------------------------------------------------------ planes beside a sphere
-
-MIXED_SCENE = """\
-[camera]
-position = [0.0, 1.5, 3.0]
-look_at = [0.0, 0.0, 0.0]
-fov = 40.0
-resolution = [48, 32]
-
-[environment]
-procedural = "sky"
-
-[[light]]
-type = "directional"
-direction = [0.3, 0.8, 0.5]
-radiance = [2.0, 2.0, 2.0]
-
-[[object]]
-shape = "plane"
-size = 3.0
-material = "floor"
-
-[[object]]
-shape = "sphere"
-radius = 0.5
-center = [0.0, 0.1, 0.0]
-material = "ball"
-
-[material.floor]
-type = "cook-torrance"
-roughness = 0.2
-f0 = [0.04, 0.04, 0.04]
-diffuse = [0.5, 0.5, 0.5]
-
-[material.ball]
-type = "lambert"
-albedo = 0.8
-"""
-
 
 def _numpy_plane_and_sphere_depths(w, h):
     """Distances along each pixel's centre ray to the plane y = 0 (inside its 3 x 3 square) and to the sphere of
