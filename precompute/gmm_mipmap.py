@@ -66,7 +66,7 @@ Toksvig's (``examples/filtering_floor.py``):
   prior's penalty sum_i a_i sum_k a_ki |mu_i - mu_ki|^2: 0.196-0.210 over the variants tried.  The penalty
   counts nothing for a slot the neighbours leave empty, so the step favours those slots; and the seams it
   can remove (the disk's symmetry axes, where the 2x2 level's quadrants are labelled apart) hold only
-  10-25% of the cost of merging neighbours;
+  9-23% of the cost of merging neighbours (levels 2 and 3);
 - reviving the components that the parent-initialised Lloyd iterations leave empty (a footprint with more
   clusters than its parent's non-empty components), each at the normal furthest from every centre when it
   lies more than 0.2 projected units from them.  The taps fit closer (shaded apart, 0.108 to 0.088), the
