@@ -111,17 +111,28 @@ def _surfaces_behind(surfaces, device: str):
     return behind
 
 
-def _check_coverage(scene, zooms, device: str, behind) -> None:
+def _zoom_frames(scene, zooms, behind) -> list:
+    """Per zoom z, its two frames' cameras (z and z * FLICKER_STEP) and the spheres and meshes behind each
+    (``behind``): ``[(z, (camera, camera), (background, background)), ...]``, computed once for the coverage
+    check and the measurement."""
+    from warpbw.filtering import zoomed_camera
+
+    frames = []
+    for z in zooms:
+        cams = (zoomed_camera(scene.camera, z), zoomed_camera(scene.camera, z * FLICKER_STEP))
+        frames.append((z, cams, tuple(behind(c) for c in cams)))
+    return frames
+
+
+def _check_coverage(scene, frames, device: str) -> None:
     """Refuse, before the mipmaps are built, a zoom at which no pixel sees a plane (in front of the spheres and
-    meshes ``behind`` gives) in one of its two frames (z and z * FLICKER_STEP): its error, flicker and noise
-    would all be undefined (a mean over no pixel)."""
-    from warpbw.filtering import prepare_filtering, render_filtering, zoomed_camera
+    meshes behind it) in one of its two ``frames`` (``_zoom_frames``): its error, flicker and noise would all be
+    undefined (a mean over no pixel)."""
+    from warpbw.filtering import prepare_filtering, render_filtering
 
     prep = prepare_filtering(scene, ("fixed",), device)  # the cheapest method: the coverage is the same for all
-    for z in zooms:
-        for zz in (z, z * FLICKER_STEP):
-            cam = zoomed_camera(scene.camera, zz)
-            bg = behind(cam)
+    for z, cams, bgs in frames:
+        for zz, cam, bg in zip((z, z * FLICKER_STEP), cams, bgs):
             if render_filtering(scene, "fixed", prepared=prep, camera=cam, env_spp=1, background=bg).coverage.any():
                 continue
             if bg is not None and render_filtering(scene, "fixed", prepared=prep, camera=cam, env_spp=1).coverage.any():
@@ -138,7 +149,7 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
                         max_anisotropy: int | None = None) -> dict:
     """The benchmark record (module docstring) for a scene with planes (beside spheres or meshes or not)."""
     from warpbw.filtering import (DEFAULT_ANISOTROPY, DEFAULT_ENV_SPP, MAX_ANISOTROPY, METHODS, MIN_GT_SPP,
-                                  prepare_filtering, render_filtering, zoomed_camera)
+                                  prepare_filtering, render_filtering)
     from warpbw.pipeline import split_planes
 
     methods = tuple(methods or METHODS)
@@ -153,8 +164,8 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     aniso = DEFAULT_ANISOTROPY if max_anisotropy is None else max_anisotropy
     check_count(aniso, "--max-anisotropy (probes along a footprint's major axis)", 1, MAX_ANISOTROPY)
     zooms = [float(z) for z in zooms]
-    behind = _surfaces_behind(surfaces, device)
-    _check_coverage(scene, zooms, device, behind)
+    frames_by_zoom = _zoom_frames(scene, zooms, _surfaces_behind(surfaces, device))
+    _check_coverage(scene, frames_by_zoom, device)
     with tempfile.TemporaryDirectory(prefix="warpbw-gmm-") as tmp:
         t0 = time.perf_counter()
         prep = prepare_filtering(scene, methods + ("ground_truth",), device, progress,
@@ -171,9 +182,7 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
               "surfaces": [] if surfaces is None else [o.describe() for o in surfaces.objects]}
     for m in methods:                                     # warm-up: compile every kernel once
         render_filtering(scene, m, prepared=prep, max_anisotropy=aniso)
-    for z in zooms:
-        cams = (zoomed_camera(scene.camera, z), zoomed_camera(scene.camera, z * FLICKER_STEP))
-        bgs = [behind(c) for c in cams]
+    for z, cams, bgs in frames_by_zoom:
         # the same seed in both frames: the same jitter pattern per pixel, so the truth's frame-to-frame change
         # carries as little of its own noise as possible
         g = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=GT_SEED + seed, prepared=prep, camera=c,
