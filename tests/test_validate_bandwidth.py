@@ -49,6 +49,32 @@ def test_windowed_bandwidth_orders_frequencies_and_scale_free(vb):
     assert np.all(flat["map"][flat["valid"]] == 0.0)
 
 
+@pytest.mark.parametrize("f", [0.02, 0.04, 0.08, 0.2, 0.42])
+def test_even_spectrum_resolves_slow_sines(vb, f):
+    """The mirrored-window (DCT) spectrum reads a sine of f cycles/pixel within a factor 1.5 of f down to
+    0.02, below the 1/32 a 32-point Hann window resolves (it reads every such sine as about 0.06); the truth
+    is the signal's own frequency."""
+    img = sine(f, 0.0, 128)
+    even = np.median(vb.windowed_bandwidth(img, spectrum="even")["map"][48:80, 48:80])
+    assert f / 1.5 < even < 1.5 * f
+    if f <= 0.02:
+        assert np.median(vb.windowed_bandwidth(img)["map"][48:80, 48:80]) > 2.0 * f
+
+
+def test_even_spectrum_subtracts_noise_and_refuses_unknown_spectra(vb):
+    """White noise of known variance: its expected power is subtracted from the DCT spectrum too, and its
+    share of a window's energy matches var / (0.5 + var) (a sine's mean square is 0.5)."""
+    f, var = 0.1, 0.08
+    clean = np.median(vb.windowed_bandwidth(sine(f, 20.0), spectrum="even")["map"][32:64, 32:64])
+    noisy = sine(f, 20.0) + np.random.default_rng(7).normal(0.0, math.sqrt(var), (96, 96))
+    r = vb.windowed_bandwidth(noisy, noise_var=np.full((96, 96), var), spectrum="even")
+    assert np.median(vb.windowed_bandwidth(noisy, spectrum="even")["map"][32:64, 32:64]) > 1.5 * clean
+    assert np.median(r["map"][32:64, 32:64]) == pytest.approx(clean, rel=0.15)
+    assert np.median(r["noise_fraction"][8:16, 8:16]) == pytest.approx(var / (0.5 + var), rel=0.2)
+    with pytest.raises(ValueError, match="spectrum"):
+        vb.windowed_bandwidth(sine(f, 0.0), spectrum="welch")
+
+
 def test_windowed_bandwidth_two_halves_and_coverage(vb):
     """Left half slow, right half fast: each side reads its own frequency; uncovered pixels and windows
     that are mostly uncovered are not valid."""
@@ -113,7 +139,8 @@ def test_quick_run_writes_json_figure_and_refuses_to_overwrite(vb, shared, tmp_p
                 "variance_spearman", "variance_conservative_fraction", "variance_median_ratio",
                 "bis_variance_spearman", "bis_conservative_fraction", "noise_fraction_median",
                 "diagnostic_variance_spearman", "diagnostic_variance_conservative_fraction",
-                "oracle_gradient_spearman", "oracle_gradient_spearman_windowed"):
+                "oracle_gradient_spearman", "oracle_gradient_spearman_windowed",
+                "bandwidth_spearman_even", "bandwidth_spearman_even_windowed"):
         assert isinstance(s[key], float) and math.isfinite(s[key]), key
     for key in ("bandwidth_spearman", "variance_spearman", "bis_variance_spearman"):
         assert -1.0 <= s[key] <= 1.0
