@@ -61,6 +61,18 @@ def test_even_spectrum_resolves_slow_sines(vb, f):
         assert np.median(vb.windowed_bandwidth(img)["map"][48:80, 48:80]) > 2.0 * f
 
 
+def test_even_spectrum_is_the_orthonormal_dct(vb):
+    """Parseval: the bins' power sums to the window's AC energy; and it is scipy's orthonormal DCT-II."""
+    x = np.random.default_rng(5).normal(size=(2, 3, 16, 16))
+    power, radius, ac, _ = vb._even_spectrum(x, None, None)
+    np.testing.assert_allclose(power.sum(axis=(-2, -1)), ac, rtol=1e-12)
+    assert radius.max() == pytest.approx(math.sqrt(2.0) * 15 / 32)
+    scipy_fft = pytest.importorskip("scipy.fft")
+    ref = scipy_fft.dctn(x - x.mean(axis=(-2, -1), keepdims=True), type=2, axes=(-2, -1), norm="ortho") ** 2
+    ref[..., 0, 0] = 0.0
+    np.testing.assert_allclose(power, ref, atol=1e-12)
+
+
 def test_even_spectrum_subtracts_noise_and_refuses_unknown_spectra(vb):
     """White noise of known variance: its expected power is subtracted from the DCT spectrum too, and its
     share of a window's energy matches var / (0.5 + var) (a sine's mean square is 0.5)."""
