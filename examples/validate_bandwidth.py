@@ -589,15 +589,16 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
         f"{times['uniform_variance']:.1f} s, {cfg['bis_samples']} BRDF samples/px in {times['bis_variance']:.1f} s")
 
     t0 = time.perf_counter()
-    wb = windowed_bandwidth(luminance(image), cov, window=cfg["window"], stride=cfg["stride"],
+    lum = luminance(image)
+    wb = windowed_bandwidth(lum, cov, window=cfg["window"], stride=cfg["stride"],
                             noise_var=noise_var, max_noise=cfg["max_noise"])
     bw_ref, bw_valid = wb["map"], wb["valid"]
     b_p_win = windowed_mean(b_p, cov, cfg["window"], cfg["stride"], wb["grid_valid"])
     # the same windows' mirrored (DCT) spectrum: resolves twice as low a frequency (information, not the check)
-    we = windowed_bandwidth(luminance(image), cov, window=cfg["window"], stride=cfg["stride"],
+    we = windowed_bandwidth(lum, cov, window=cfg["window"], stride=cfg["stride"],
                             noise_var=noise_var, max_noise=cfg["max_noise"], spectrum="even")
     bw_even, both = we["map"], we["valid"] & bw_valid
-    grad = relative_gradient(luminance(image), cov)
+    grad = relative_gradient(lum, cov)
     grad_win = windowed_mean(grad, cov, cfg["window"], cfg["stride"], wb["grid_valid"])
     times["windowed_fft"] = time.perf_counter() - t0
 
