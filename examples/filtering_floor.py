@@ -1,10 +1,11 @@
 """Where the filtered methods' error comes from (issue 4): the mip footprint's floor, and the GMM's merge.
 
-    python examples/filtering_floor.py SCENE.toml [SCENE.toml ...] [--zoom 8,16,32] [--json OUT.json]
+    python examples/filtering_floor.py SCENE.toml [SCENE.toml ...] [--zoom 8,16,32] [--max-anisotropy N]
+                                       [--json OUT.json]
 
 For scenes with one normal-mapped plane under directional lights (those of ``examples/filtering_scenes.py``),
 at each zoom, the error against the ground truth (``warpbw.bench_filtering.colour_error``, the benchmark's
-metric) of the five filtered methods and of two references that no method can be asked to beat by much:
+metric) of the five filtered methods and of three references that no method can be asked to beat by much:
 
 * ``floor``: every finest-level texel normal under the mip filter's trilinear weights (the same level and
   position as the methods, ``warpbw.filtering``), each shaded with the fine-scale BRDF -- the exact normal
@@ -16,13 +17,26 @@ metric) of the five filtered methods and of two references that no method can be
   for the normals between texel centres that the ground truth's bilinear normal field has.  Where a pixel
   covers many (the benchmark surfaces at zooms 16 and 32) no method does, and ``floor / toksvig`` is about
   the lowest ratio issue 4's "at most half of Toksvig's" check can show on that surface.
+* ``floor_bilinear``: the same footprint over the normal field the ground truth's rays hit, bilinear between
+  texel centres (``bilinear_normals``, ``BILINEAR_SUB``^2 samples per texel).  Across a sharp edge (a scale's
+  rim, a groove's wall) that field sweeps through normals no texel holds, and where a light's half-vector falls
+  in such a sweep the texel-centre ``floor`` misses light the ground truth sees: there a method whose lobes are
+  wider than a texel's single normal lands below ``floor`` (the scales under a 20-degree camera at zoom 32:
+  floor .54, floor_bilinear .13, the aligned GMM .39).  Every mipmap here is built from texel-centre normals
+  (004 Sec. 4.1 fits "the normals of its footprint at the finest level"); floor - floor_bilinear is what that
+  costs at the footprint.
 * ``gmm_per_tap``: the aligned GMM's eight texels of the trilinear footprint (4 per level, 2 levels) shaded
   as separate mixtures (8 K lobes), instead of first merging corresponding components by moments
   (004 Sec. 4.2).  The difference to ``gmm_aligned`` is what interpolating the components costs -- or gains:
   the merged lobe is wider than each tap's, and on the hemispherical scales at zoom 32 the merged mixture is
   the closer of the two (README, "Reflectance filtering").
 
-Both are numpy, written from ``warpbw.filtering``'s documentation; ``gmm_merged_check`` re-derives the
+With ``--max-anisotropy N`` (``warpbw.filtering``'s anisotropic footprints, not in 004) every method renders
+with up to N probes along each footprint's major axis, and both references filter at the same probes: each
+probe a trilinear footprint of the probe's level, the probes weighted equally (``footprint_probes``).  The
+row's ``mean_probes`` says how many a pixel took on average.
+
+All three are numpy, written from ``warpbw.filtering``'s documentation; ``gmm_merged_check`` re-derives the
 renderer's own ``gmm_aligned`` image the same way and reports its largest deviation (float32 rounding).
 Prints a table per scene and, with ``--json``, writes them all (existing files are kept unless --force).
 """
@@ -38,11 +52,14 @@ import numpy as np
 
 from warpbw.cli_common import init_warp, run_command
 # the renderer's own constants: the references filter and shade at its footprint, with its floors
-from warpbw.filtering import LOD_BIAS, MIN_COS, VARIANCE_FLOOR, roughness_variance
+from warpbw.filtering import (ANISO_PROBE_SLACK, DEFAULT_ANISOTROPY, LOD_BIAS, MAX_ANISOTROPY, MIN_COS,
+                               VARIANCE_FLOOR, roughness_variance)
 
 DEFAULT_ZOOMS = "8,16,32"
 DEFAULT_GT_SPP = 1024
 GT_SEED = 1_000_003              # warpbw.bench_filtering's ground-truth seed (seed 0)
+# floor_bilinear: the ground truth's bilinear normal field sampled this many times per finest texel and axis.
+BILINEAR_SUB = 4
 # Finest normals gathered per batch of pixels (bounds the memory of the floor: a level-l texel holds 4^l).
 BATCH_NORMALS = 1 << 21
 
@@ -54,7 +71,8 @@ def _plane_frame(v):
 
 def _pixels(scene, camera, shape):
     """Flat indices of the pixels whose centre ray hits the plane (and whose neighbours' rays hit its supporting
-    plane), their finest-texel coordinates (s, t), footprint level lam (unclamped) and wo in the plane frame."""
+    plane), their finest-texel coordinates (s, t), the footprint's Jacobian columns (jx, jy) (finest texels per
+    pixel right and down) and wo in the plane frame."""
     from warpbw.gbuffer import camera_rays, scene_camera
 
     (pl,) = scene.objects
@@ -79,9 +97,30 @@ def _pixels(scene, camera, shape):
     stx, tx, _ = hit(base + right)
     sty, ty, _ = hit(base + down)
     idx = np.flatnonzero(inside & (tx > 0) & (ty > 0))
-    rho = np.maximum(np.linalg.norm(stx - st, axis=-1), np.linalg.norm(sty - st, axis=-1))
-    lam = np.log2(np.maximum(rho, 1e-6)) + LOD_BIAS
-    return idx, st[idx], lam[idx], _plane_frame(-raw[idx])
+    return idx, st[idx], (stx - st)[idx], (sty - st)[idx], _plane_frame(-raw[idx])
+
+
+def footprint_probes(jx, jy, max_aniso: int):
+    """``warpbw.filtering.pixel_footprint`` in numpy: per pixel the level lam (unclamped), the number of probes
+    n along the major axis and the step (P, 2) between them, in finest texels.  Isotropic (max_aniso = 1): one
+    probe at log2 of J's longer column + the LOD bias.  Otherwise J J^T's eigen-axes s1 >= s2, probes of radius
+    r = max(s2, s1 / max_aniso, 2^-LOD_BIAS), n = ceil(s1 / r) of them spaced so that their spread and their own
+    r^2 / 12 add up to the pixel box's s1^2 / 12."""
+    rho = np.maximum(np.linalg.norm(jx, axis=-1), np.linalg.norm(jy, axis=-1))
+    n = np.ones(rho.shape, int)
+    step = np.zeros(jx.shape)
+    if max_aniso > 1:
+        jjt = np.einsum("pi,pj->pij", jx, jx) + np.einsum("pi,pj->pij", jy, jy)
+        e, v = np.linalg.eigh(jjt)                       # ascending: e[:, 1] = s1^2, v[:, :, 1] its axis
+        s1, s2 = np.sqrt(np.maximum(e[:, 1], 0.0)), np.sqrt(np.maximum(e[:, 0], 0.0))
+        radius = np.maximum(np.maximum(s2, s1 / max_aniso), 2.0 ** -LOD_BIAS)
+        n_a = np.clip(np.ceil(s1 / radius - ANISO_PROBE_SLACK).astype(int), 1, max_aniso)
+        many = n_a > 1
+        n = np.where(many, n_a, 1)
+        rho = np.where(many, radius, rho)
+        d = np.sqrt(np.maximum(s1 * s1 - radius * radius, 0.0) / np.maximum(n * n - 1, 1))
+        step = np.where(many[:, None], v[:, :, 1] * d[:, None], 0.0)
+    return np.log2(np.maximum(rho, 1e-6)) + LOD_BIAS, n, step
 
 
 def _shade(mat, lights, wo, a, mx, my, var):
@@ -105,30 +144,67 @@ def _shade(mat, lights, wo, a, mx, my, var):
     return out
 
 
-def _taps(st, lam, shapes):
-    """The trilinear filter's eight texels per pixel: (level (P,), column, row, weight) for each."""
+def _taps(st, lam, shapes, n=None, step=None):
+    """The texels the filter reads per pixel: (level (P,), column, row, weight) for each.  One probe: the
+    trilinear filter's eight texels.  ``n`` probes (P,) spaced ``step`` (P, 2) apart along the major axis,
+    centred on st (``warpbw.filtering.probe_offset``): eight per probe, each probe weighted 1 / n (a pixel with
+    fewer probes than the most gets weight 0 from the others)."""
     top = len(shapes) - 1
     l0 = np.floor(lam).astype(int)
     fl = lam - l0
-    for lv, wl in ((l0, 1.0 - fl), (np.minimum(l0 + 1, top), fl)):
-        f = 2.0 ** lv
-        x, y = st[:, 0] / f - 0.5, st[:, 1] / f - 0.5
-        x0, y0 = np.floor(x), np.floor(y)
-        fx, fy = x - x0, y - y0
-        hw = np.array(shapes)[lv]
-        for dc, dr, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-            yield lv, (x0.astype(int) + dc) % hw[:, 1], (y0.astype(int) + dr) % hw[:, 0], w * wl
+    if n is None:
+        n, step = np.ones(st.shape[0], int), np.zeros(st.shape)
+    for j in range(int(n.max())):
+        p = st + ((j - 0.5 * (n - 1)) * (j < n))[:, None] * step
+        wj = (j < n) / n
+        for lv, wl in ((l0, 1.0 - fl), (np.minimum(l0 + 1, top), fl)):
+            f = 2.0 ** lv
+            x, y = p[:, 0] / f - 0.5, p[:, 1] / f - 0.5
+            x0, y0 = np.floor(x), np.floor(y)
+            fx, fy = x - x0, y - y0
+            hw = np.array(shapes)[lv]
+            for dc, dr, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy),
+                              (1, 1, fx * fy)):
+                yield lv, (x0.astype(int) + dc) % hw[:, 1], (y0.astype(int) + dr) % hw[:, 0], w * wl * wj
 
 
-def floor_image(mat, lights, normals, shapes, st, lam, wo):
-    """Every finest normal of each tap's footprint (a level-l texel covers 2^l x 2^l of them, clipped at the
-    border), weighted by the tap's weight, shaded with the fine-scale BRDF."""
+def field_normals(normals, r, c, f: int):
+    """The ground truth's normal field at sub-texel (r, c) of an f x f grid per finest texel (integer arrays of
+    one shape, within the map): the bilinear blend of the four texel normals nearest the sub-texel's centre
+    (texel centres at half-integers, the map tiled), renormalised, as ``warpbw.filtering``'s ground truth
+    fetches it.  f = 1: the texel normals themselves."""
+    if f == 1:
+        return normals[r, c]
     H, W = normals.shape[:2]
+    x, y = (c + 0.5) / f - 0.5, (r + 0.5) / f - 0.5
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = (x - x0)[..., None], (y - y0)[..., None]
+
+    def at(dy, dx):
+        return normals[(y0 + dy) % H, (x0 + dx) % W]
+
+    n = (1 - fy) * ((1 - fx) * at(0, 0) + fx * at(0, 1)) + fy * ((1 - fx) * at(1, 0) + fx * at(1, 1))
+    return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
+def bilinear_normals(normals, f: int):
+    """``field_normals`` over the whole (H f, W f) grid."""
+    H, W = normals.shape[:2]
+    r, c = np.meshgrid(np.arange(H * f), np.arange(W * f), indexing="ij")
+    return field_normals(normals, r, c, f)
+
+
+def floor_image(mat, lights, normals, shapes, st, lam, wo, n=None, step=None, sub: int = 1):
+    """Every finest normal of each tap's footprint (a level-l texel covers 2^l x 2^l of them, clipped at the
+    border), weighted by the tap's weight, shaded with the fine-scale BRDF (``_taps``: n probes per pixel).
+    ``sub`` > 1: the ground truth's normal field sampled ``sub`` x ``sub`` times per finest texel instead
+    (``field_normals``): a level-l texel covers (2^l sub)^2 of those samples."""
+    H, W = normals.shape[0] * sub, normals.shape[1] * sub
     rv = roughness_variance(mat.roughness)
     out = np.zeros((st.shape[0], 3))
-    for lv, col, row, w in _taps(st, lam, shapes):
+    for lv, col, row, w in _taps(st, lam, shapes, n, step):
         for l in np.unique(lv):
-            b = 2 ** int(l)
+            b = 2 ** int(l) * sub
             oy, ox = (g.ravel() for g in np.meshgrid(np.arange(b), np.arange(b), indexing="ij"))
             sel_all = np.flatnonzero(lv == l)
             batch = max(1, BATCH_NORMALS // (b * b))
@@ -137,9 +213,9 @@ def floor_image(mat, lights, normals, shapes, st, lam, wo):
                 r = row[sel, None] * b + oy[None]
                 c = col[sel, None] * b + ox[None]
                 ok = (r < H) & (c < W)
-                n = normals[np.minimum(r, H - 1), np.minimum(c, W - 1)]
+                nrm = field_normals(normals, np.minimum(r, H - 1), np.minimum(c, W - 1), sub)
                 a = ok / ok.sum(1, keepdims=True)
-                out[sel] += w[sel, None] * _shade(mat, lights, wo[sel], a, n[..., 0], n[..., 1], rv)
+                out[sel] += w[sel, None] * _shade(mat, lights, wo[sel], a, nrm[..., 0], nrm[..., 1], rv)
     return out
 
 
@@ -152,14 +228,15 @@ def _recover(q, rv):
     return a, mu[..., 0], mu[..., 1], s2 - VARIANCE_FLOOR + rv
 
 
-def gmm_images(mat, lights, levels, st, lam, wo):
-    """(per tap, merged): the aligned GMM's taps as separate mixtures, and merged by moments (the renderer)."""
+def gmm_images(mat, lights, levels, st, lam, wo, n=None, step=None):
+    """(per tap, merged): the aligned GMM's taps as separate mixtures, and merged by moments (the renderer:
+    its probes' trilinear moments averaged, then recovered)."""
     rv = roughness_variance(mat.roughness)
     shapes = [q.shape[:2] for q in levels]
     K = levels[0].shape[2]
     merged = np.zeros((st.shape[0], K, 4))
     lobes = []
-    for lv, col, row, w in _taps(st, lam, shapes):
+    for lv, col, row, w in _taps(st, lam, shapes, n, step):
         q = np.zeros((st.shape[0], K, 4))
         for l in np.unique(lv):
             sel = lv == l
@@ -171,7 +248,7 @@ def gmm_images(mat, lights, levels, st, lam, wo):
     return per_tap, _shade(mat, lights, wo, *_recover(merged, rv))
 
 
-def analyse(path: Path, zooms, gt_spp: int, log=print) -> dict:
+def analyse(path: Path, zooms, gt_spp: int, log=print, max_anisotropy: int = DEFAULT_ANISOTROPY) -> dict:
     from precompute.surfaces import height_to_normals
     from precompute.gmm_mipmap import level_shapes, load_map
     from warpbw.bench_filtering import colour_error
@@ -202,13 +279,15 @@ def analyse(path: Path, zooms, gt_spp: int, log=print) -> dict:
         cam = zoomed_camera(scene.camera, z)
         gt = render_filtering(scene, "ground_truth", spp=gt_spp, seed=GT_SEED, prepared=prep, camera=cam)
         row = {"zoom": z}
-        imgs = {m: render_filtering(scene, m, prepared=prep, camera=cam).image for m in METHODS}
-        idx, st, lam, wo = _pixels(scene, cam, shapes[0])
+        imgs = {m: render_filtering(scene, m, prepared=prep, camera=cam, max_anisotropy=max_anisotropy).image
+                for m in METHODS}
+        idx, st, jx, jy, wo = _pixels(scene, cam, shapes[0])
+        lam, n, step = footprint_probes(jx, jy, max_anisotropy)
         lam_f = np.clip(lam, 0.0, len(shapes) - 1)
         if (lam < 0).any():
             log(f"  zoom {z:g}: {int((lam < 0).sum())} magnified pixels (level < 0) left out of every figure")
         keep = lam >= 0
-        idx, st, lam_f, wo = idx[keep], st[keep], lam_f[keep], wo[keep]
+        idx, st, lam_f, wo, n, step = idx[keep], st[keep], lam_f[keep], wo[keep], n[keep], step[keep]
         if idx.size == 0:
             log(f"  zoom {z:g}: no pixel filters at level 0 or above: nothing to compare")
             continue
@@ -223,25 +302,32 @@ def analyse(path: Path, zooms, gt_spp: int, log=print) -> dict:
 
         for m in METHODS:
             row[m] = colour_error(imgs[m], gt.image, mask)
-        row["floor"] = colour_error(as_image(floor_image(mat, scene.lights, normals, shapes, st, lam_f, wo)),
+        row["floor"] = colour_error(as_image(floor_image(mat, scene.lights, normals, shapes, st, lam_f, wo, n, step)),
                                     gt.image, mask)
-        per_tap, merged = gmm_images(mat, scene.lights, levels, st, lam_f, wo)
+        row["floor_bilinear"] = colour_error(as_image(floor_image(mat, scene.lights, normals, shapes, st, lam_f, wo,
+                                                                  n, step, sub=BILINEAR_SUB)), gt.image, mask)
+        per_tap, merged = gmm_images(mat, scene.lights, levels, st, lam_f, wo, n, step)
         row["gmm_per_tap"] = colour_error(as_image(per_tap), gt.image, mask)
         scale = float(np.linalg.norm(gt.image[mask], axis=-1).mean())
         row["gmm_merged_check"] = float(np.abs(as_image(merged)[mask] - imgs["gmm_aligned"][mask]).max() / scale)
         row["pixels"] = int(mask.sum())
         row["mean_level"] = float(lam_f.mean())
+        row["mean_probes"] = float(n.mean())
         rows.append(row)
-    return {"scene": str(path), "gt_spp": gt_spp, "components": int(K), "zooms": rows}
+    return {"scene": str(path), "gt_spp": gt_spp, "components": int(K), "max_anisotropy": int(max_anisotropy),
+            "zooms": rows}
 
 
 def format_table(rec: dict) -> str:
-    cols = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed", "gmm_per_tap", "floor")
-    lines = [f"{rec['scene']}: error against the ground truth ({rec['gt_spp']} rays/pixel), K = {rec['components']}",
-             f"{'zoom':>5} {'level':>6}" + "".join(f"{c:>14}" for c in cols)
+    cols = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed", "gmm_per_tap", "floor", "floor_bilinear")
+    aniso = rec.get("max_anisotropy", 1)
+    lines = [f"{rec['scene']}: error against the ground truth ({rec['gt_spp']} rays/pixel), K = {rec['components']}"
+             + (f", up to {aniso} probes per footprint" if aniso > 1 else ""),
+             f"{'zoom':>5} {'level':>6} {'probes':>6}" + "".join(f"{c:>{max(14, len(c) + 2)}}" for c in cols)
              + f"{'aligned/toks':>14}{'floor/toks':>12}{'check':>9}"]
     for r in rec["zooms"]:
-        lines.append(f"{r['zoom']:>5g} {r['mean_level']:>6.2f}" + "".join(f"{r[c]:>14.4f}" for c in cols)
+        lines.append(f"{r['zoom']:>5g} {r['mean_level']:>6.2f} {r['mean_probes']:>6.2f}"
+                     + "".join(f"{r[c]:>{max(14, len(c) + 2)}.4f}" for c in cols)
                      + f"{r['gmm_aligned'] / r['toksvig']:>14.2f}{r['floor'] / r['toksvig']:>12.2f}"
                      + f"{r['gmm_merged_check']:>9.1e}")
     return "\n".join(lines)
@@ -255,6 +341,9 @@ def main(argv=None) -> int:
     ap.add_argument("--zoom", default=DEFAULT_ZOOMS, help=f"zoom factors (default {DEFAULT_ZOOMS})")
     ap.add_argument("--gt-spp", type=int, default=DEFAULT_GT_SPP,
                     help=f"ground-truth rays per pixel (default {DEFAULT_GT_SPP}, at least 64)")
+    ap.add_argument("--max-anisotropy", type=int, default=DEFAULT_ANISOTROPY, metavar="N",
+                    help=f"up to N probes along each footprint's major axis, for the methods and both references "
+                         f"(default {DEFAULT_ANISOTROPY}: isotropic, 004; at most {MAX_ANISOTROPY})")
     ap.add_argument("--json", type=Path, help="write every table here")
     ap.add_argument("--force", action="store_true", help="overwrite --json if it exists")
     args = ap.parse_args(argv)
@@ -264,6 +353,8 @@ def main(argv=None) -> int:
         ap.error(f"--zoom {args.zoom!r}: expected comma-separated positive numbers, e.g. 8,16,32")
     if not zooms or not all(z > 0 and math.isfinite(z) for z in zooms):
         ap.error(f"--zoom {args.zoom!r}: expected comma-separated positive numbers, e.g. 8,16,32")
+    if not 1 <= args.max_anisotropy <= MAX_ANISOTROPY:
+        ap.error(f"--max-anisotropy {args.max_anisotropy}: expected an integer from 1 to {MAX_ANISOTROPY}")
     if args.gt_spp < 64:
         ap.error(f"--gt-spp {args.gt_spp}: expected at least 64 rays per pixel")
     for p in args.scenes:
@@ -275,7 +366,7 @@ def main(argv=None) -> int:
     init_warp("cpu")           # Warp's no-CUDA-driver line, banner and module-load lines kept off the output
     records = []
     for p in args.scenes:
-        rec = analyse(p, zooms, args.gt_spp)
+        rec = analyse(p, zooms, args.gt_spp, max_anisotropy=args.max_anisotropy)
         print(format_table(rec), flush=True)
         records.append(rec)
     if args.json is not None:

@@ -773,6 +773,7 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["filtering_zoom.py", "missing.toml"], "missing.toml: scene file not found"),
     (["filtering_floor.py", "missing.toml"], "missing.toml: no such scene file"),
     (["filtering_floor.py", "--zoom", "0", "s.toml"], "--zoom '0': expected comma-separated positive numbers"),
+    (["filtering_floor.py", "--max-anisotropy", "0", "s.toml"], "--max-anisotropy 0: expected an integer from 1 to 16"),
     (["gbuffer.py", "--mesh", "missing.obj"], "--mesh missing.obj: no such file"),
     (["dynamic_geometry.py", "--mesh", "missing.obj"], "--mesh missing.obj: no such file"),
     (["gbuffer.py", "--resolution", "0", "0"], "--resolution 0 0: expected a width and a height of at least 1"),

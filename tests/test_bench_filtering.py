@@ -269,6 +269,46 @@ def test_benchmark_light_ring_spreads_the_half_vector(tmp_path):
                                    [fs.MIRROR_LIGHT_X, wo[1], -wo[2]]), atol=1e-5)
 
 
+def test_error_floor_example_probes_match_the_pixel_box():
+    # examples/filtering_floor.py's anisotropic footprint: the pixel box's axes are J's singular values (SVD, an
+    # independent route to the eigen-decomposition it uses); n probes of radius r spaced d apart along the
+    # major axis spread as the box does, (n^2 - 1) d^2 / 12 + r^2 / 12 = s1^2 / 12; isotropic: one probe at
+    # log2 of the longer column
+    from warpbw.filtering import LOD_BIAS
+
+    ff = _example("filtering_floor")
+    jx = np.array([[40.0, 0.0], [30.0, 10.0], [1.0, 0.0], [1.2, 0.3]])
+    jy = np.array([[0.0, 5.0], [-5.0, 20.0], [0.0, 1.0], [0.2, 1.0]])
+    lam, n, step = ff.footprint_probes(jx, jy, 16)
+    s = np.linalg.svd(np.stack([jx, jy], -1), compute_uv=False)          # (P, 2), descending
+    r = np.maximum(np.maximum(s[:, 1], s[:, 0] / 16), 2.0 ** -LOD_BIAS)
+    # ceil(40 / 5); ceil(31.7 / 20.5); the last two shorter than a level-0 probe (2^-LOD_BIAS = 1.73 texels)
+    np.testing.assert_array_equal(n, [8, 2, 1, 1])
+    many = n > 1
+    d = np.linalg.norm(step, axis=-1)
+    np.testing.assert_allclose(((n**2 - 1) * d**2 + r**2)[many], (s[:, 0] ** 2)[many], rtol=1e-9)
+    np.testing.assert_allclose(lam[many], np.log2(r[many]) + LOD_BIAS, rtol=1e-12)
+    np.testing.assert_allclose(np.abs(step[0]), [5.0, 0.0], atol=1e-12)  # along the major (x) axis
+    iso_lam, iso_n, iso_step = ff.footprint_probes(jx, jy, 1)
+    assert (iso_n == 1).all() and not iso_step.any()
+    np.testing.assert_allclose(iso_lam, np.log2(np.maximum(np.linalg.norm(jx, axis=-1), np.linalg.norm(jy, axis=-1)))
+                               + LOD_BIAS, rtol=1e-12)
+    np.testing.assert_allclose(lam[~many], iso_lam[~many], rtol=1e-12)
+
+
+def test_error_floor_example_bilinear_field_by_hand():
+    # the ground truth's normal field between texel centres, worked out by hand on a 1x2 map (tiled): sub-texel
+    # centres at 0.25 and 0.75 of a texel blend 1/4 of the neighbour across the nearer edge
+    ff = _example("filtering_floor")
+    a, b = np.array([0.0, 0.0, 1.0]), np.array([0.6, 0.0, 0.8])
+    normals = np.stack([a, b])[None]                                     # (1, 2, 3)
+    np.testing.assert_array_equal(ff.bilinear_normals(normals, 1), normals)
+    fine = ff.bilinear_normals(normals, 2)
+    assert fine.shape == (2, 4, 3)
+    for col, want in enumerate([0.25 * b + 0.75 * a, 0.75 * a + 0.25 * b, 0.75 * b + 0.25 * a, 0.25 * a + 0.75 * b]):
+        np.testing.assert_allclose(fine[:, col], np.tile(want / np.linalg.norm(want), (2, 1)), atol=1e-12)
+
+
 def test_error_floor_example_rederives_the_renderer_and_a_flat_map_has_no_floor(plane_scene):
     # examples/filtering_floor.py shades its references in numpy: its re-derivation of the aligned GMM must be
     # the renderer's image, and on a flat map (every footprint one normal) the floor and the per-tap mixture
@@ -279,7 +319,13 @@ def test_error_floor_example_rederives_the_renderer_and_a_flat_map_has_no_floor(
     for r in rec["zooms"]:
         assert r["gmm_merged_check"] < 1e-3 and r["pixels"] > 0, r
         assert all(np.isfinite(r[k]) and r[k] >= 0 for k in ("floor", "gmm_per_tap")), r
+    # with anisotropic footprints (the camera 45 degrees up: two probes once a pixel covers a few texels) the
+    # references filter at the renderer's probes, and the re-derivation still is the renderer's image
+    rec = ff.analyse(plane_scene, [8.0], 64, log=lambda *a: None, max_anisotropy=16)
+    (r,) = rec["zooms"]
+    assert rec["max_anisotropy"] == 16 and r["mean_probes"] > 1.5, r
+    assert r["gmm_merged_check"] < 1e-3 and np.isfinite(r["floor"]), r
     write_exr(plane_scene.parent / "map.exr", np.zeros((8, 8, 1), np.float32), channels=["Y"])
     for r in ff.analyse(plane_scene, [4.0], 64, log=lambda *a: None)["zooms"]:
-        for k in ("floor", "gmm_per_tap", "gmm_aligned", "toksvig", "lean"):
+        for k in ("floor", "floor_bilinear", "gmm_per_tap", "gmm_aligned", "toksvig", "lean"):
             assert r[k] == pytest.approx(r["fixed"], rel=1e-3, abs=1e-6), (k, r)
