@@ -18,7 +18,7 @@ metric) of the five filtered methods and of three references that no method can 
   covers many (the benchmark surfaces at zooms 16 and 32) no method does, and ``floor / toksvig`` is about
   the lowest ratio issue 4's "at most half of Toksvig's" check can show on that surface.
 * ``floor_bilinear``: the same footprint over the normal field the ground truth's rays hit, bilinear between
-  texel centres (``bilinear_normals``, ``BILINEAR_SUB``^2 samples per texel).  Across a sharp edge (a scale's
+  texel centres (``field_normals``, ``BILINEAR_SUB``^2 samples per texel).  Across a sharp edge (a scale's
   rim, a groove's wall) that field sweeps through normals no texel holds, and where a light's half-vector falls
   in such a sweep the texel-centre ``floor`` misses light the ground truth sees: there a method whose lobes are
   wider than a texel's single normal lands below ``floor`` (the scales under a 20-degree camera at zoom 32:
@@ -185,13 +185,6 @@ def field_normals(normals, r, c, f: int):
 
     n = (1 - fy) * ((1 - fx) * at(0, 0) + fx * at(0, 1)) + fy * ((1 - fx) * at(1, 0) + fx * at(1, 1))
     return n / np.linalg.norm(n, axis=-1, keepdims=True)
-
-
-def bilinear_normals(normals, f: int):
-    """``field_normals`` over the whole (H f, W f) grid."""
-    H, W = normals.shape[:2]
-    r, c = np.meshgrid(np.arange(H * f), np.arange(W * f), indexing="ij")
-    return field_normals(normals, r, c, f)
 
 
 def floor_image(mat, lights, normals, shapes, st, lam, wo, n=None, step=None, sub: int = 1):

@@ -302,8 +302,10 @@ def test_error_floor_example_bilinear_field_by_hand():
     ff = _example("filtering_floor")
     a, b = np.array([0.0, 0.0, 1.0]), np.array([0.6, 0.0, 0.8])
     normals = np.stack([a, b])[None]                                     # (1, 2, 3)
-    np.testing.assert_array_equal(ff.bilinear_normals(normals, 1), normals)
-    fine = ff.bilinear_normals(normals, 2)
+    r, c = np.meshgrid(np.arange(1), np.arange(2), indexing="ij")
+    np.testing.assert_array_equal(ff.field_normals(normals, r, c, 1), normals)
+    r, c = np.meshgrid(np.arange(2), np.arange(4), indexing="ij")                # the whole 2x2-per-texel grid
+    fine = ff.field_normals(normals, r, c, 2)
     assert fine.shape == (2, 4, 3)
     for col, want in enumerate([0.25 * b + 0.75 * a, 0.75 * a + 0.25 * b, 0.75 * b + 0.25 * a, 0.25 * a + 0.75 * b]):
         np.testing.assert_allclose(fine[:, col], np.tile(want / np.linalg.norm(want), (2, 1)), atol=1e-12)
