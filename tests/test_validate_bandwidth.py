@@ -131,6 +131,33 @@ def test_spearman_against_closed_forms(vb):
     assert vb.spearman(a, np.round(a + b, 1)) == pytest.approx(scipy_stats.spearmanr(a, np.round(a + b, 1))[0])
 
 
+@pytest.mark.parametrize("value", [0.05633674, 0.1, 1.0 / 3.0, 0.7])
+def test_interpolation_of_equal_centres_is_exact(vb, value):
+    """Equal valid centres interpolate to exactly their value (no round-off that a rank statistic would read
+    as an order), whatever centres are invalid; unequal centres still interpolate bilinearly."""
+    valid = np.random.default_rng(5).random((9, 9)) > 0.3
+    out, w = vb._interp_to_pixels(np.full((9, 9), value), valid, (33, 33), 4)
+    assert np.all(out[w > 0] == value) and np.all(np.isnan(out[w == 0]))
+    g = np.random.default_rng(1).random((5, 5))
+    out, _ = vb._interp_to_pixels(g, np.ones((5, 5), bool), (20, 20), 4)
+    assert out[4, 4] == g[1, 1]
+    # pixel (6, 2) lies halfway between centres rows 1-2 and columns 0-1
+    assert out[6, 2] == pytest.approx(0.25 * (g[1, 0] + g[1, 1] + g[2, 0] + g[2, 1]), rel=1e-12)
+
+
+def test_spearman_ceiling_is_the_best_ordering_of_the_ties(vb):
+    """The ceiling is the largest Spearman over every tie-free predictor: brute force over all 720 orders
+    of six values, against the closed form (one pair tied in [1, 1, 2, 3]: sqrt(1 - 6 / 60))."""
+    import itertools
+    assert vb.spearman_ceiling(np.array([1.0, 1.0, 2.0, 3.0])) == pytest.approx(math.sqrt(0.9))
+    assert vb.spearman_ceiling(np.arange(10.0)) == pytest.approx(1.0)
+    assert math.isnan(vb.spearman_ceiling(np.array([1.0, 2.0])))
+    ref = np.array([0.5, 0.5, 0.5, 0.7, 0.9, 0.9])
+    best = max(vb.spearman(np.array(p, np.float64), ref) for p in itertools.permutations(range(6)))
+    assert best == pytest.approx(vb.spearman_ceiling(ref), rel=1e-12)
+    assert best < 0.95
+
+
 @pytest.mark.slow
 def test_relative_gradient_of_an_exponential_ramp(vb):
     """L = exp(a x): central differences give |grad L| / L = sinh(a) exactly inside the image."""
@@ -152,10 +179,12 @@ def test_quick_run_writes_json_figure_and_refuses_to_overwrite(vb, shared, tmp_p
                 "bis_variance_spearman", "bis_conservative_fraction", "noise_fraction_median",
                 "diagnostic_variance_spearman", "diagnostic_variance_conservative_fraction",
                 "oracle_gradient_spearman", "oracle_gradient_spearman_windowed",
-                "bandwidth_spearman_even", "bandwidth_spearman_even_windowed"):
+                "bandwidth_spearman_even", "bandwidth_spearman_even_windowed", "bandwidth_spearman_ceiling",
+                "bandwidth_reference_largest_tie"):
         assert isinstance(s[key], float) and math.isfinite(s[key]), key
     for key in ("bandwidth_spearman", "variance_spearman", "bis_variance_spearman"):
         assert -1.0 <= s[key] <= 1.0
+    assert abs(s["bandwidth_spearman"]) <= s["bandwidth_spearman_ceiling"] + 1e-12
     assert 0.0 <= s["variance_conservative_fraction"] <= 1.0
     assert s["covered_pixels"] >= s["variance_pixels"] > 0 and s["bandwidth_pixels"] > 0
     assert rec["settings"]["quick"] is True

@@ -69,6 +69,15 @@ silent:
   frequencies that the band of rho cos can bring back to 0 (Eq. 8's convolution, read at angular
   frequency 0): at most nu_rho + NU_COS.  Diffuse irradiance is smooth, as it should be; a sharp lobe
   (nu_rho large) passes the light unchanged, as before.
+* Curvature c of Eq. 3 is the G-buffer's signed mean curvature H = (k1 + k2) / 2 (the flatland paper has
+  one curvature; 002 names "the Gaussian curvature ... in m^-1", whose unit is m^-2).  A saddle has H ~ 0
+  while its normal turns, so the principal curvature of larger magnitude, k_max = H + sgn(H) sqrt(H^2 - K)
+  (K from the angle deficit), and the RMS sqrt(2 H^2 - K) were measured on meshes instead.  The bunny's
+  bandwidth rank correlation (examples/validate_bandwidth.py, gold-metallic-paint under studio.exr) rises
+  from 0.351 to 0.421 (k_max) and 0.413 (RMS), window-averaged from 0.573 to 0.619 and 0.608; but the gold
+  bunny benchmark shades 45% of its pixels instead of 23% with k_max, gains at budget 32 (42.07 against
+  40.02 dB) and loses at budgets 1-4 (27.55 against 32.17 dB at budget 1), and neither gains more than
+  0.2 dB at the budgets where the best speed-ups fall.  H stays.
 * Luminance (``LUMINANCE``, Rec. 709) reduces the RGB of L and rho to the scalar weights.
 * L_i and nu_a^env come from one reduced lat-long table (:func:`light_table`: mean luminance,
   max-filtered nu_a, at most ``LIGHT_TABLE_WIDTH`` columns), one nearest fetch per direction.
