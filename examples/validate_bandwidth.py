@@ -18,10 +18,9 @@ For each validation scene (a sphere with the NPF fit of color-changing-paint3 un
    whose Hann-weighted coverage is at least ``MIN_WINDOW_COVER`` and whose residual noise is at most
    ``MAX_NOISE_FRACTION`` of their AC energy count (the noise's expected power is subtracted first);
    uncovered pixels inside them take the covered pixels' mean, so the silhouette does not read as a step
-   (filling them instead with the
-   nearest covered pixel's value, which leaves no step where the rim differs from the mean, was measured:
-   0.565 / 0.345 / 0.464 per pixel against 0.568 / 0.351 / 0.491).  Reported: Spearman rank
-   correlation over those pixels, against b_p itself and against b_p averaged over the same window;
+   (filling them instead with the nearest covered pixel's value, which leaves no step where the rim differs
+   from the mean, was measured: 0.565 / 0.345 / 0.464 per pixel against 0.568 / 0.351 / 0.491).  Reported:
+   Spearman rank correlation over those pixels, against b_p itself and against b_p averaged over the same window;
    and, as a yardstick, the same for the converged image's own relative gradient |grad L| / L (an oracle
    that knows the true image: how far any per-pixel statistic can get against this reference).  For
    information, not the check: the same two correlations against the same windows' mirrored (DCT) spectrum,

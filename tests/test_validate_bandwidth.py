@@ -184,7 +184,7 @@ def test_quick_run_writes_json_figure_and_refuses_to_overwrite(vb, shared, tmp_p
         assert isinstance(s[key], float) and math.isfinite(s[key]), key
     for key in ("bandwidth_spearman", "variance_spearman", "bis_variance_spearman"):
         assert -1.0 <= s[key] <= 1.0
-    assert abs(s["bandwidth_spearman"]) <= s["bandwidth_spearman_ceiling"] + 1e-12
+    assert 0.0 < s["bandwidth_spearman_ceiling"] <= 1.0 and 0.0 < s["bandwidth_reference_largest_tie"] <= 1.0
     assert 0.0 <= s["variance_conservative_fraction"] <= 1.0
     assert s["covered_pixels"] >= s["variance_pixels"] > 0 and s["bandwidth_pixels"] > 0
     assert rec["settings"]["quick"] is True
