@@ -78,10 +78,10 @@ silent:
   bunny benchmark shades 45% of its pixels instead of 23% with k_max, gains at budget 32 (42.07 against
   40.02 dB) and loses at budgets 1-4 (27.55 against 32.17 dB at budget 1), and neither gains more than
   0.2 dB at the budgets where the best speed-ups fall.  Curvature estimated in screen space from the
-  G-buffer instead (002 Sec. 3.1; dn . dP / |dP|^2 along each image axis between alike neighbours, which
-  gives 1 / r on a sphere within 2e-6 and correlates 0.92 with the mesh's H on the bunny) ranks lower: 0.307
-  (mean of the two axes, neighbours 1 px away), 0.274 (2 px) and 0.330 (the axis of larger magnitude, 2 px).
-  H stays.
+  G-buffer instead (002 Sec. 3.1: dn . dP / |dP|^2 along each image axis, between neighbours of the same
+  material within 5% in depth; 1 / r on a unit sphere within 2e-6, Pearson 0.92 with the mesh's H on the
+  bunny) ranks lower: 0.307 (mean of the two axes, neighbours 1 px away), 0.274 (2 px) and 0.330 (the axis
+  of larger magnitude, 2 px).  H stays.
 * Luminance (``LUMINANCE``, Rec. 709) reduces the RGB of L and rho to the scalar weights.
 * L_i and nu_a^env come from one reduced lat-long table (:func:`light_table`: mean luminance,
   max-filtered nu_a, at most ``LIGHT_TABLE_WIDTH`` columns), one nearest fetch per direction.
