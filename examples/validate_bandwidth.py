@@ -77,8 +77,8 @@ DATA = HERE.parent.parent / "shared" / "data"   # ../shared/data beside the repo
 # image side in pixels: half 002's 512, so that a 32x32 window spans about a sixth of the sphere's
 # diameter rather than a third at 128 (about 5 minutes for all scenes on 2 cores).  The bandwidth figures
 # move with the size: at 512 (--size 512, 14 minutes) the Hann reference reads 0.296 / 0.292 / 0.453 per
-# pixel and 0.327 / 0.518 / 0.471 window-averaged (256: 0.568 / 0.351 / 0.491 and 0.659 / 0.573 / 0.529);
-# the variance figures hold (Spearman 0.680 / 0.940 / 0.944, conservative on >= 99.7% of pixels)
+# pixel and 0.327 / 0.518 / 0.471 window-averaged (the docstring gives 256's); the variance figures hold
+# (Spearman 0.680 / 0.940 / 0.944, conservative on >= 99.7% of pixels)
 DEFAULT_SIZE = 256
 # converged image: MIS samples per pixel (two halves of 2048).  Residual noise ("noise_fraction_*" in the
 # JSON, every run) is subtracted from the spectra; at 256x256 it is a few % of a window's AC energy (median)
