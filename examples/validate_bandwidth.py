@@ -11,6 +11,9 @@ For each validation scene (a sphere with the NPF fit of color-changing-paint3 un
    noise spreads over all frequencies and would push the reference bandwidth up, so its expected power
    (flat over frequency, known from the per-pixel noise variance) is subtracted from every window's
    spectrum, and windows where it is more than ``MAX_NOISE_FRACTION`` of the energy are left out.
+   The subtraction removes the noise's mean, not its scatter, so the sample count is doubled while the
+   median window is more than ``--ref-noise`` noise (default ``REF_NOISE_TARGET``, 1%), up to
+   ``--ref-spp-max`` (:func:`converged_image`).
 2. Image bandwidth: the predicted b_p (Eq. 6, cycles/pixel) against a reference from a 32x32 Hann-windowed
    FFT of the converged image's luminance, centred on every ``--stride``-th pixel and bilinearly
    interpolated to the others: the radial frequency below which 95% of the window's spectral energy
@@ -80,9 +83,14 @@ DATA = HERE.parent.parent / "shared" / "data"   # ../shared/data beside the repo
 # pixel and 0.327 / 0.518 / 0.471 window-averaged (the docstring gives 256's); the variance figures hold
 # (Spearman 0.680 / 0.940 / 0.944, conservative on >= 99.7% of pixels)
 DEFAULT_SIZE = 256
-# converged image: MIS samples per pixel (two halves of 2048).  Residual noise ("noise_fraction_*" in the
-# JSON, every run) is subtracted from the spectra; at 256x256 it is a few % of a window's AC energy (median)
+# converged image: MIS samples per pixel to start with (two halves of 2048), doubled (:func:`converged_image`)
+# while the residual noise is more than REF_NOISE_TARGET of the median FFT window's AC energy, up to REF_SPP_MAX.
+# The noise's expected power is subtracted from the spectra, but its scatter is not: on the ccp3 sphere at
+# 512x512 the median window was 10.3% noise at 4096 spp and the per-pixel bandwidth Spearman read 0.296; at
+# 16384 spp, 2.8% and 0.530 (at 256x256: 3.1% and 0.568, 0.8% and 0.601)
 REF_SPP = 4096
+REF_NOISE_TARGET = 0.01
+REF_SPP_MAX = 16384           # at most 4x the starting cost (the ccp3 sphere at 512x512 stops there, at 2.8%)
 UNIFORM_SAMPLES = 4096        # stratified uniform directions per pixel for the brute-force variance (64 x 64)
 BIS_SAMPLES = 4096            # BRDF-importance samples per pixel for the renderer's estimator's variance
 FFT_WINDOW = 32               # 002 Sec. 4.1: "a window size of 32x32 pixels"
@@ -103,7 +111,7 @@ TARGET_SPEARMAN = 0.5
 TARGET_CONSERVATIVE = 0.9
 # --quick: tiny everything (a smoke test, < 60 s with warm caches)
 QUICK = {"size": 40, "ref_spp": 32, "uniform_samples": 256, "bis_samples": 256, "window": 16,
-         "nb_diagnostic": 64, "max_noise": 1.0}
+         "nb_diagnostic": 64, "max_noise": 1.0, "ref_spp_max": 64}
 SCATTER_POINTS = 4000         # points per scatter plot (a random subset)
 COLOUR_PERCENTILES = (1.0, 99.0)   # shared log colour range of a pair of maps
 
@@ -563,10 +571,50 @@ def write_figure(path: Path, title: str, r: dict) -> None:
 
 
 # ----------------------------------------------------------------------------------------- driver
+def window_noise_shares(wb: dict) -> np.ndarray:
+    """The residual noise's share of the AC energy of every FFT window that counts (covered, not flat), from
+    :func:`windowed_bandwidth` run with ``noise_var``."""
+    counted = (wb["cover"] >= MIN_WINDOW_COVER) & (wb["energy"] > 0)
+    return wb["noise_fraction"][counted]
+
+
+def converged_image(prep, cfg: dict, log=print) -> dict:
+    """Step 1: the MIS reference as two independently seeded halves, at ``cfg["ref_spp"]`` samples per pixel, then
+    doubled -- two more halves as large as everything rendered so far, averaged in -- while the median FFT window's
+    residual noise share (:func:`window_noise_shares`) exceeds ``cfg["ref_noise"]`` and the doubled count stays
+    within ``cfg["ref_spp_max"]``.  Returns "image" (float64 RGB, the mean of the halves), "coverage", "noise_var"
+    (per-pixel variance of the mean's luminance: a quarter of the halves' squared difference), "spp", "gbuffer",
+    "rounds" ([spp, median noise share] after each) and "windows" (the last :func:`windowed_bandwidth`, Hann)."""
+    from warpbw.pipeline import render_reference
+
+    half = max(1, cfg["ref_spp"] // 2)
+    sums, n_half, rounds, k = [0.0, 0.0], 0, [], 0
+    while True:
+        n = half if n_half == 0 else n_half      # the first pair, then pairs that double the total
+        for h in (0, 1):
+            r = render_reference(prep, spp=n, seed=cfg["seed"] + 2 * k + h, mis=True, device=cfg["device"])
+            sums[h] = sums[h] + r.image.astype(np.float64) * n
+        n_half, k = n_half + n, k + 1
+        a, b = sums[0] / n_half, sums[1] / n_half
+        image, cov = 0.5 * (a + b), r.coverage
+        noise_var = (0.5 * (luminance(a) - luminance(b))) ** 2   # unbiased for the mean's variance
+        wb = windowed_bandwidth(luminance(image), cov, window=cfg["window"], stride=cfg["stride"],
+                                noise_var=noise_var, max_noise=cfg["max_noise"])
+        nf = window_noise_shares(wb)
+        share = float(np.median(nf)) if nf.size else float("nan")
+        rounds.append([2 * n_half, share])
+        more = share > cfg["ref_noise"] and 4 * n_half <= cfg["ref_spp_max"]
+        log(f"    {2 * n_half} spp: residual noise {share:.1%} of the median window's AC energy"
+            + (f" (target {cfg['ref_noise']:.1%}): doubling" if more else ""))
+        if not more:
+            return {"image": image, "coverage": cov, "noise_var": noise_var, "spp": 2 * n_half,
+                    "gbuffer": r.gbuffer, "rounds": rounds, "windows": wb}
+
+
 def validate_scene(name: str, cfg: dict, log=print) -> dict:
     """Run the whole comparison for one scene; returns the maps and the figures ("stats")."""
     from warpbw.bandwidth import bandwidth_pass
-    from warpbw.pipeline import prepare_bandwidth, prepare_scene, render_reference
+    from warpbw.pipeline import prepare_bandwidth, prepare_scene
     from warpbw.scene import parse_scene
 
     times = {}
@@ -578,18 +626,13 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
     log(f"[{name}] assets ready in {times['prepare']:.1f} s ({', '.join(prep.materials.names)}, {prep.env.name})")
 
     t0 = time.perf_counter()
-    half = max(1, cfg["ref_spp"] // 2)
-    ra = render_reference(prep, spp=half, seed=cfg["seed"], mis=True, device=cfg["device"])
-    rb = render_reference(prep, spp=half, seed=cfg["seed"] + 1, mis=True, device=cfg["device"])
-    image = 0.5 * (ra.image.astype(np.float64) + rb.image.astype(np.float64))
-    cov = ra.coverage
-    noise_var = (0.5 * (luminance(ra.image) - luminance(rb.image))) ** 2   # unbiased for the mean's variance
+    conv = converged_image(prep, cfg, log)
+    image, cov, noise_var, gb = conv["image"], conv["coverage"], conv["noise_var"], conv["gbuffer"]
     times["reference_image"] = time.perf_counter() - t0
-    log(f"[{name}] converged image: {2 * half} spp MIS in {times['reference_image']:.1f} s, "
+    log(f"[{name}] converged image: {conv['spp']} spp MIS in {times['reference_image']:.1f} s, "
         f"{int(cov.sum())} covered pixels")
 
     t0 = time.perf_counter()
-    gb = ra.gbuffer
     buf = bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=cfg["n_b"], seed=cfg["seed"],
                          device=cfg["device"])
     H, W = prep.height, prep.width
@@ -616,8 +659,7 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
 
     t0 = time.perf_counter()
     lum = luminance(image)
-    wb = windowed_bandwidth(lum, cov, window=cfg["window"], stride=cfg["stride"],
-                            noise_var=noise_var, max_noise=cfg["max_noise"])
+    wb = conv["windows"]    # the Hann reference of the converged image
     bw_ref, bw_valid = wb["map"], wb["valid"]
     b_p_win = windowed_mean(b_p, cov, cfg["window"], cfg["stride"], wb["grid_valid"])
     # the same windows' mirrored (DCT) spectrum: resolves twice as low a frequency (information, not the check)
@@ -634,8 +676,7 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
     vd = compare_variance(sigma2_diag, var_u, vmask & np.isfinite(sigma2_diag))
     bp, br = b_p[bw_valid], bw_ref[bw_valid]
     pos = (bp > 0) & (br > 0)
-    counted = (wb["cover"] >= MIN_WINDOW_COVER) & (wb["energy"] > 0)
-    nf = wb["noise_fraction"][counted]
+    nf = window_noise_shares(wb)
     stats = {
         "material": scene.materials["m"].npf_name or scene.materials["m"].type,
         "environment": SCENES[name]["probe"],
@@ -677,7 +718,8 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
         "diagnostic_variance_spearman": vd["spearman"],
         "diagnostic_variance_conservative_fraction": vd["conservative_fraction"],
         "diagnostic_variance_median_ratio": vd["median_ratio"],
-        "reference_spp": 2 * half,
+        "reference_spp": conv["spp"],
+        "reference_rounds": conv["rounds"],    # [spp, median window noise share] after each doubling
         "uniform_samples": int(round(math.sqrt(cfg["uniform_samples"]))) ** 2,
         "bis_samples": int(round(math.sqrt(cfg["bis_samples"]))) ** 2,
         "n_b": cfg["n_b"],
@@ -689,7 +731,7 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
     return {"stats": stats, "image": image, "coverage": cov, "b_p": b_p, "b_p_windowed": b_p_win,
             "sigma2": sigma2, "b_p_diagnostic": b_p_diag, "sigma2_diagnostic": sigma2_diag, "var_uniform": var_u,
             "var_bis": var_b, "bw_ref": bw_ref, "bw_valid": bw_valid, "bw_ref_even": bw_even,
-            "bw_valid_even": we["valid"], "noise_var": noise_var, "window": cfg["window"], "ref_spp": 2 * half}
+            "bw_valid_even": we["valid"], "noise_var": noise_var, "window": cfg["window"], "ref_spp": conv["spp"]}
 
 
 def _finite(x):
@@ -746,7 +788,14 @@ def parse_args(argv=None):
     ap.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES), metavar="NAME",
                     help=f"validation scenes (default all: {', '.join(SCENES)})")
     ap.add_argument("--quick", action="store_true", help="tiny sizes and sample counts (smoke test)")
-    ap.add_argument("--ref-spp", type=int, default=None, help=f"converged image spp, MIS (default {REF_SPP})")
+    ap.add_argument("--ref-spp", type=int, default=None,
+                    help=f"converged image spp to start with, MIS (default {REF_SPP}; {QUICK['ref_spp']} with --quick)")
+    ap.add_argument("--ref-noise", type=float, default=REF_NOISE_TARGET,
+                    help="double the converged image's spp while its residual noise is more than this share of the "
+                         f"median FFT window's AC energy (default {REF_NOISE_TARGET})")
+    ap.add_argument("--ref-spp-max", type=int, default=None,
+                    help=f"at most this many spp for the converged image (default {REF_SPP_MAX}; "
+                         f"{QUICK['ref_spp_max']} with --quick; --ref-spp or below: no doubling)")
     ap.add_argument("--uniform-samples", type=int, default=None,
                     help=f"stratified uniform directions per pixel, rounded to a square (default {UNIFORM_SAMPLES})")
     ap.add_argument("--bis-samples", type=int, default=None,
@@ -769,6 +818,7 @@ def parse_args(argv=None):
     pick = (lambda v, full, quick: v if v is not None else (quick if q else full))
     args.size = pick(args.size, DEFAULT_SIZE, QUICK["size"])
     args.ref_spp = pick(args.ref_spp, REF_SPP, QUICK["ref_spp"])
+    args.ref_spp_max = pick(args.ref_spp_max, REF_SPP_MAX, QUICK["ref_spp_max"])
     args.uniform_samples = pick(args.uniform_samples, UNIFORM_SAMPLES, QUICK["uniform_samples"])
     args.bis_samples = pick(args.bis_samples, BIS_SAMPLES, QUICK["bis_samples"])
     args.window = pick(args.window, FFT_WINDOW, QUICK["window"])
@@ -776,7 +826,10 @@ def parse_args(argv=None):
     args.max_noise = pick(args.max_noise, MAX_NOISE_FRACTION, QUICK["max_noise"])
     if not args.max_noise > 0:
         ap.error("--max-noise: expected a positive share")
-    for k in ("size", "ref_spp", "uniform_samples", "bis_samples", "window", "stride", "nb", "nb_diagnostic"):
+    if not args.ref_noise > 0:
+        ap.error("--ref-noise: expected a positive share")
+    for k in ("size", "ref_spp", "ref_spp_max", "uniform_samples", "bis_samples", "window", "stride", "nb",
+              "nb_diagnostic"):
         if getattr(args, k) < 1:
             ap.error(f"--{k.replace('_', '-')}: expected a positive integer")
     if args.window < 4 or args.window % 2:
@@ -792,11 +845,13 @@ def main(argv=None) -> int:
     init_warp(args.device)     # --device checked; Warp's no-CUDA-driver line kept off stderr
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    cfg = {"size": args.size, "ref_spp": args.ref_spp, "uniform_samples": args.uniform_samples,
+    cfg = {"size": args.size, "ref_spp": args.ref_spp, "ref_noise": args.ref_noise, "ref_spp_max": args.ref_spp_max,
+           "uniform_samples": args.uniform_samples,
            "bis_samples": args.bis_samples, "window": args.window, "stride": args.stride, "n_b": args.nb,
            "n_b_diag": args.nb_diagnostic, "max_noise": args.max_noise,
            "seed": args.seed, "device": args.device, "data": Path(args.data)}
-    print(f"validating {len(args.scenes)} scene(s) at {args.size}x{args.size}: reference {args.ref_spp} spp MIS, "
+    print(f"validating {len(args.scenes)} scene(s) at {args.size}x{args.size}: reference {args.ref_spp} spp MIS "
+          f"(doubled while noise > {args.ref_noise:.1%}, up to {args.ref_spp_max}), "
           f"{args.uniform_samples} uniform / {args.bis_samples} BRDF samples per pixel, "
           f"{args.window}x{args.window} FFT windows every {args.stride} px" + (" (quick)" if args.quick else ""),
           flush=True)

@@ -117,6 +117,45 @@ def test_windowed_bandwidth_subtracts_known_white_noise(vb):
     assert not pure["valid"].any()
 
 
+def test_converged_image_doubles_until_the_noise_target(vb, monkeypatch):
+    """A fake renderer (a sine plus white noise of variance SIGMA2 / spp, seeded): the converged image doubles its
+    sample count while the median window's noise share is above the target, and each doubling halves the noise
+    power, so the share falls from s to about s / (2 - s); it stops at the first share under the target or at the
+    cap, and the image is the spp-weighted mean of every pass (the truth: the fake's own clean image)."""
+    import types
+
+    import warpbw.pipeline
+
+    clean = np.stack([sine(0.1, 20.0, 64) + 2.0] * 3, axis=-1)
+    sigma2 = 64.0                                       # per-sample variance of each channel
+    calls = []
+
+    def fake_render(prep, spp, seed, mis, device):
+        calls.append((spp, seed))
+        noise = np.random.default_rng(seed).normal(0.0, math.sqrt(sigma2 / spp), (64, 64, 1))
+        return types.SimpleNamespace(image=(clean + noise).astype(np.float32), coverage=np.ones((64, 64), bool),
+                                     gbuffer="gb")
+
+    monkeypatch.setattr(warpbw.pipeline, "render_reference", fake_render)
+    cfg = {"ref_spp": 64, "ref_noise": 0.05, "ref_spp_max": 16384, "seed": 10, "device": "cpu", "window": 32,
+           "stride": 4, "max_noise": 1.0}
+    conv = vb.converged_image(None, cfg, log=lambda s: None)
+    spps = [r[0] for r in conv["rounds"]]
+    shares = [r[1] for r in conv["rounds"]]
+    assert spps == [64 * 2 ** k for k in range(len(spps))] and conv["spp"] == spps[-1]
+    assert [c[0] for c in calls] == [32, 32] + [n // 2 for n in spps[:-1] for _ in (0, 1)]
+    assert len({c[1] for c in calls}) == len(calls)     # every pass independently seeded
+    assert all(s > cfg["ref_noise"] for s in shares[:-1]) and shares[-1] <= cfg["ref_noise"] and len(spps) >= 3
+    for s0, s1 in zip(shares, shares[1:]):
+        assert s1 == pytest.approx(s0 / (2.0 - s0), rel=0.25)
+    np.testing.assert_allclose(conv["image"], clean, atol=6.0 * math.sqrt(sigma2 / conv["spp"]))
+    assert conv["gbuffer"] == "gb" and conv["windows"]["noise_fraction"].shape == conv["windows"]["grid"].shape
+    # the cap stops it early: one doubling at most
+    calls.clear()
+    capped = vb.converged_image(None, cfg | {"ref_spp_max": 191}, log=lambda s: None)
+    assert [r[0] for r in capped["rounds"]] == [64, 128] and capped["rounds"][-1][1] > cfg["ref_noise"]
+
+
 def test_spearman_against_closed_forms(vb):
     x = np.arange(50.0)
     assert vb.spearman(x, x ** 3 + 1.0) == pytest.approx(1.0)
@@ -188,6 +227,9 @@ def test_quick_run_writes_json_figure_and_refuses_to_overwrite(vb, shared, tmp_p
     assert 0.0 <= s["variance_conservative_fraction"] <= 1.0
     assert s["covered_pixels"] >= s["variance_pixels"] > 0 and s["bandwidth_pixels"] > 0
     assert rec["settings"]["quick"] is True
+    rounds = s["reference_rounds"]                       # --quick: 32 spp, doubled at most once (cap 64)
+    assert rounds[0][0] == 32 and s["reference_spp"] == rounds[-1][0] <= 64
+    assert all(0.0 <= share <= 1.0 for _, share in rounds)
     png = out / "validate_sphere-ggx-studio.png"
     assert png.stat().st_size > 10_000
     maps = np.load(out / "validate_sphere-ggx-studio_maps.npz")
