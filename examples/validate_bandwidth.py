@@ -22,18 +22,19 @@ For each validation scene (a sphere with the NPF fit of color-changing-paint3 un
    ``MAX_NOISE_FRACTION`` of their AC energy count (the noise's expected power is subtracted first);
    uncovered pixels inside them take the covered pixels' mean, so the silhouette does not read as a step
    (filling them instead with the nearest covered pixel's value, which leaves no step where the rim differs
-   from the mean, was measured: 0.565 / 0.345 / 0.464 per pixel against 0.568 / 0.351 / 0.491).  Reported:
+   from the mean, was measured with 4096-spp images: 0.565 / 0.345 / 0.464 per pixel against 0.568 / 0.351 /
+   0.491).  Reported:
    Spearman rank correlation over those pixels, against b_p itself and against b_p averaged over the same window;
    and, as a yardstick, the same for the converged image's own relative gradient |grad L| / L (an oracle
    that knows the true image: how far any per-pixel statistic can get against this reference).  For
    information, not the check: the same two correlations against the same windows' mirrored (DCT) spectrum,
    which resolves down to about 1/64 cycles/pixel (the Hann window reads anything slower than 1/32 as 0.06)
    ("bandwidth_spearman_even", "bandwidth_spearman_even_windowed").  At 256x256 it reads 0.51 / 0.25 / 0.49
-   per pixel and 0.63 / 0.50 / 0.52 window-averaged (Hann: 0.57 / 0.35 / 0.49 and 0.66 / 0.57 / 0.53): a
+   per pixel and 0.63 / 0.50 / 0.52 window-averaged (Hann: 0.60 / 0.35 / 0.49 and 0.69 / 0.57 / 0.53): a
    reference that resolves slower frequencies does not lift the per-pixel figure.  Also reported, the
    ceiling (:func:`spearman_ceiling`): the most any predictor can reach against the reference's ties.  At
    256x256 the Hann reference reads 68% of the GGX sphere's scored pixels at its plateau (slower than it
-   resolves), which caps the correlation there at 0.83 (0.995 and 1.000 on the other two scenes).
+   resolves), which caps the correlation there at 0.83 (0.99 and 1.00 on the other two scenes).
 3. Variance: the predicted sigma2 (Eq. 9, V(L_p) <= sigma2 / N_p for UNIFORM hemisphere sampling,
    002 Sec. 2.4) against the brute-force per-pixel variance of the one-sample uniform estimator
    X = 2 pi lum(L_i rho) cos theta_i, from ``--uniform-samples`` stratified directions per pixel (a Warp
@@ -78,10 +79,10 @@ DATA = HERE.parent.parent / "shared" / "data"   # ../shared/data beside the repo
 
 # ----------------------------------------------------------------------------------------- settings
 # image side in pixels: half 002's 512, so that a 32x32 window spans about a sixth of the sphere's
-# diameter rather than a third at 128 (about 5 minutes for all scenes on 2 cores).  The bandwidth figures
-# move with the size: at 512 (--size 512, 14 minutes) the Hann reference reads 0.296 / 0.292 / 0.453 per
-# pixel and 0.327 / 0.518 / 0.471 window-averaged (the docstring gives 256's); the variance figures hold
-# (Spearman 0.680 / 0.940 / 0.944, conservative on >= 99.7% of pixels)
+# diameter rather than a third at 128 (about 7 minutes for all scenes on 2 cores).  At 512 (--size 512, about
+# 30 minutes) the Hann reference reads 0.565 / 0.292 / 0.514 per pixel (0.296 / 0.292 / 0.453 when every image
+# had 4096 spp, 10.3% / 0.4% / 3.0% noise); the variance figures hold at both sizes (512: Spearman 0.680 /
+# 0.940 / 0.944, conservative on >= 99.7% of pixels).  README "Adaptive shading" has both sizes.
 DEFAULT_SIZE = 256
 # converged image: MIS samples per pixel to start with (two halves of 2048), doubled (:func:`converged_image`)
 # while the residual noise is more than REF_NOISE_TARGET of the median FFT window's AC energy, up to REF_SPP_MAX.
@@ -603,9 +604,11 @@ def converged_image(prep, cfg: dict, log=print) -> dict:
         nf = window_noise_shares(wb)
         share = float(np.median(nf)) if nf.size else float("nan")
         rounds.append([2 * n_half, share])
-        more = share > cfg["ref_noise"] and 4 * n_half <= cfg["ref_spp_max"]
+        over = share > cfg["ref_noise"]
+        more = over and 4 * n_half <= cfg["ref_spp_max"]
+        verdict = ("doubling" if more else "--ref-spp-max reached") if over else ""
         log(f"    {2 * n_half} spp: residual noise {share:.1%} of the median window's AC energy"
-            + (f" (target {cfg['ref_noise']:.1%}): doubling" if more else ""))
+            + (f" (target {cfg['ref_noise']:.1%}): {verdict}" if over else ""))
         if not more:
             return {"image": image, "coverage": cov, "noise_var": noise_var, "spp": 2 * n_half,
                     "gbuffer": r.gbuffer, "rounds": rounds, "windows": wb}
@@ -863,8 +866,8 @@ def main(argv=None) -> int:
                      f"{name}: {r['stats']['material']} under {r['stats']['environment']}, {args.size}x{args.size}",
                      r)
         np.savez_compressed(out / f"validate_{name}_maps.npz", **{k: r[k] for k in (
-            "image", "coverage", "b_p", "b_p_windowed", "sigma2", "b_p_diagnostic", "sigma2_diagnostic", "var_uniform", "var_bis", "bw_ref", "bw_valid",
-            "bw_ref_even", "bw_valid_even", "noise_var")})
+            "image", "coverage", "b_p", "b_p_windowed", "sigma2", "b_p_diagnostic", "sigma2_diagnostic", "var_uniform",
+            "var_bis", "bw_ref", "bw_valid", "bw_ref_even", "bw_valid_even", "noise_var")})
     misses = [f"{n}: {k}" for n, s in results.items() for k, ok in (
         ("bandwidth_spearman", s["bandwidth_spearman"] > TARGET_SPEARMAN),
         ("variance_spearman", s["variance_spearman"] > TARGET_SPEARMAN),

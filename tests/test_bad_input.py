@@ -800,6 +800,9 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["anisotropy_cost.py", "s.toml", "--size", "0x4"], "expected a positive --size"),
     (["anisotropy_cost.py", "s.toml", "--zoom", "a"], "--zoom 'a': expected WxH and comma-separated numbers"),
     (["bench_reference.py", "--material", "nope"], "--material nope: "),
+    (["validate_bandwidth.py", "--out", "v", "--ref-noise", "0"], "--ref-noise: expected a positive share"),
+    (["validate_bandwidth.py", "--out", "v", "--ref-noise", "nan"], "--ref-noise: expected a positive share"),
+    (["validate_bandwidth.py", "--out", "v", "--ref-spp-max", "0"], "--ref-spp-max: expected a positive integer"),
 ])
 def test_examples_refuse_bad_arguments_in_one_line(tmp_path, argv, needle):
     """The example scripts answer bad arguments the way the commands do: status 2, the last stderr line

@@ -152,8 +152,10 @@ def test_converged_image_doubles_until_the_noise_target(vb, monkeypatch):
     assert conv["gbuffer"] == "gb" and conv["windows"]["noise_fraction"].shape == conv["windows"]["grid"].shape
     # the cap stops it early: one doubling at most
     calls.clear()
-    capped = vb.converged_image(None, cfg | {"ref_spp_max": 191}, log=lambda s: None)
+    lines = []
+    capped = vb.converged_image(None, cfg | {"ref_spp_max": 191}, log=lines.append)
     assert [r[0] for r in capped["rounds"]] == [64, 128] and capped["rounds"][-1][1] > cfg["ref_noise"]
+    assert lines[0].endswith("doubling") and lines[-1].endswith("--ref-spp-max reached")
 
 
 def test_spearman_against_closed_forms(vb):
