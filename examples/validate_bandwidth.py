@@ -11,8 +11,8 @@ For each validation scene (a sphere with the NPF fit of color-changing-paint3 un
    noise spreads over all frequencies and would push the reference bandwidth up, so its expected power
    (flat over frequency, known from the per-pixel noise variance) is subtracted from every window's
    spectrum, and windows where it is more than ``MAX_NOISE_FRACTION`` of the energy are left out.
-   The subtraction removes the noise's mean, not its scatter, so the sample count is doubled while the
-   median window is more than ``--ref-noise`` noise (default ``REF_NOISE_TARGET``, 1%), up to
+   The subtraction removes the noise's expected power, not its scatter, so the sample count is doubled
+   while the median window is more than ``--ref-noise`` noise (default ``REF_NOISE_TARGET``, 1%), up to
    ``--ref-spp-max`` (:func:`converged_image`).
 2. Image bandwidth: the predicted b_p (Eq. 6, cycles/pixel) against a reference from a 32x32 Hann-windowed
    FFT of the converged image's luminance, centred on every ``--stride``-th pixel and bilinearly
