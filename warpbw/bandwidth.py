@@ -46,9 +46,9 @@ silent:
   directions per estimate for the price of n_b per block.  Defaults (2, 2)
   trace about a quarter of the pixels; ``stride=1, pool_radius=0`` is the per-pixel pass.  Measured on the
   gold bunny (512x512, forest.exr, MIS, budget 2, PSNR of the mean MSE over 8 seeds): (stride, pool_radius) =
-  (2, 2) 36.4 dB; (1, 0) 34.8; (2, 0) 32.8; (2, 1) 35.5; (2, 4) 34.3 (wider pooling blurs the measured
-  deviation that sets N_p); and a hierarchical plan (4 x 4 blocks where alike, else 2 x 2, else single
-  pixels), which traces 9,508 pixels instead of 22,843: 35.2 (pool 2), 33.0 (0), 32.1 (1).  The variance
+  (2, 2) 36.4 dB; (1, 0) 34.8; (2, 0) 32.8; (2, 1) 35.5; (2, 4) 34.3; and a hierarchical plan (4 x 4 blocks
+  where alike, else 2 x 2, else single pixels), which traces 9,508 pixels instead of 22,843: 35.2 (pool 2),
+  33.0 (0), 32.1 (1).  The variance
   bound sigma2 takes the largest of the neighbours' own n_b-direction estimates instead of their pooled
   mean (Sec. 3.1 max-filters the variance): E(chi^2) is heavy-tailed under small bright lights, and the
   max is conservative on more pixels (bunny under studio.exr, examples/validate_bandwidth.py, measured
