@@ -584,22 +584,25 @@ def converged_image(prep, cfg: dict, log=print) -> dict:
     doubled -- two more halves as large as everything rendered so far, averaged in -- while the median FFT window's
     residual noise share (:func:`window_noise_shares`) exceeds ``cfg["ref_noise"]`` and the doubled count stays
     within ``cfg["ref_spp_max"]``.  Returns "image" (float64 RGB, the mean of the halves), "coverage", "noise_var"
-    (per-pixel variance of the mean's luminance: a quarter of the halves' squared difference), "spp", "gbuffer",
-    "rounds" ([spp, median noise share] after each) and "windows" (the last :func:`windowed_bandwidth`, Hann)."""
+    (per-pixel variance of the mean's luminance: a quarter of the halves' squared difference), "luminance" (the
+    image's), "spp", "gbuffer", "rounds" ([spp, median noise share] after each) and "windows" (the last
+    :func:`windowed_bandwidth`, Hann)."""
     from warpbw.pipeline import render_reference
 
     half = max(1, cfg["ref_spp"] // 2)
-    sums, n_half, rounds, k = [0.0, 0.0], 0, [], 0
+    sums, n_half, rounds = [0.0, 0.0], 0, []
     while True:
         n = half if n_half == 0 else n_half      # the first pair, then pairs that double the total
-        for h in (0, 1):
-            r = render_reference(prep, spp=n, seed=cfg["seed"] + 2 * k + h, mis=True, device=cfg["device"])
+        for h in (0, 1):                         # round k = len(rounds) takes seeds seed + 2k and seed + 2k + 1
+            r = render_reference(prep, spp=n, seed=cfg["seed"] + 2 * len(rounds) + h, mis=True,
+                                 device=cfg["device"])
             sums[h] = sums[h] + r.image.astype(np.float64) * n
-        n_half, k = n_half + n, k + 1
+        n_half += n
         a, b = sums[0] / n_half, sums[1] / n_half
         image, cov = 0.5 * (a + b), r.coverage
+        lum = luminance(image)
         noise_var = (0.5 * (luminance(a) - luminance(b))) ** 2   # unbiased for the mean's variance
-        wb = windowed_bandwidth(luminance(image), cov, window=cfg["window"], stride=cfg["stride"],
+        wb = windowed_bandwidth(lum, cov, window=cfg["window"], stride=cfg["stride"],
                                 noise_var=noise_var, max_noise=cfg["max_noise"])
         nf = window_noise_shares(wb)
         share = float(np.median(nf)) if nf.size else float("nan")
@@ -610,7 +613,7 @@ def converged_image(prep, cfg: dict, log=print) -> dict:
         log(f"    {2 * n_half} spp: residual noise {share:.1%} of the median window's AC energy"
             + (f" (target {cfg['ref_noise']:.1%}): {verdict}" if over else ""))
         if not more:
-            return {"image": image, "coverage": cov, "noise_var": noise_var, "spp": 2 * n_half,
+            return {"image": image, "coverage": cov, "noise_var": noise_var, "luminance": lum, "spp": 2 * n_half,
                     "gbuffer": r.gbuffer, "rounds": rounds, "windows": wb}
 
 
@@ -661,7 +664,7 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
         f"{times['uniform_variance']:.1f} s, {cfg['bis_samples']} BRDF samples/px in {times['bis_variance']:.1f} s")
 
     t0 = time.perf_counter()
-    lum = luminance(image)
+    lum = conv["luminance"]
     wb = conv["windows"]    # the Hann reference of the converged image
     bw_ref, bw_valid = wb["map"], wb["valid"]
     b_p_win = windowed_mean(b_p, cov, cfg["window"], cfg["stride"], wb["grid_valid"])
