@@ -34,7 +34,12 @@ For each validation scene (a sphere with the NPF fit of color-changing-paint3 un
    reference that resolves slower frequencies does not lift the per-pixel figure.  Also reported, the
    ceiling (:func:`spearman_ceiling`): the most any predictor can reach against the reference's ties.  At
    256x256 the Hann reference reads 68% of the GGX sphere's scored pixels at its plateau (slower than it
-   resolves), which caps the correlation there at 0.83 (0.99 and 1.00 on the other two scenes).
+   resolves), which caps the correlation there at 0.83 (0.99 and 1.00 on the other two scenes).  The
+   plateau is one radius shared by eight symmetric bins, inside which the interpolation is flat.  Measured,
+   not adopted: interpolating between distinct radii instead (each radius's bins summed first) leaves no
+   ties, but drops the GGX sphere from 0.49 to 0.32 per pixel (512x512: 0.51 to 0.35).  The other two
+   scenes move by at most 0.03.  So the ties do not hide agreement that a finer reading of the plateau
+   would show (recomputed from the session-26 maps of both sizes).
 3. Variance: the predicted sigma2 (Eq. 9, V(L_p) <= sigma2 / N_p for UNIFORM hemisphere sampling,
    002 Sec. 2.4) against the brute-force per-pixel variance of the one-sample uniform estimator
    X = 2 pi lum(L_i rho) cos theta_i, from ``--uniform-samples`` stratified directions per pixel (a Warp
