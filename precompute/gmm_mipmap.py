@@ -87,6 +87,20 @@ Toksvig's (``examples/filtering_floor.py``):
   fell from 0.183 to 0.132; on the scales 0.129 to 0.080 (0.27x), still tied with the unaligned GMM (1.02x);
   the dunes unchanged (0.0051 to 0.0050).  An aligned build of a 256x256 map took 57-59 s against 3-6 s
   (a scratch patch: the field supersampled to 1024x1024 and fitted from its level 2 up).
+- 004's literal data count: each footprint's 4^l normals, so that the prior (up to 13 neighbour weights
+  times c) rivals the data at levels 0-2 and counts for little above.  Tried with and without the revival
+  above (threshold 0.2).  Zoom-32 error / flicker on the disk, against the default's 0.199 / 0.056:
+  - literal count: 0.187 / 0.055;
+  - literal count with revival: 0.167 / 0.062, which is 0.47x Toksvig's error.
+  Elsewhere both lose a little: the scales' zoom-8 error is 0.225 and 0.233 against 0.219, and the dunes'
+  is 0.0054 against 0.0049.
+  In every fitting variant whose flicker was measured, a lower zoom-32 error on the disk came with higher
+  flicker there.  The (error, flicker) pairs:
+  - revival (0.179, 0.059); c = 16 (0.166, 0.071); c = 64 (0.125, 0.079); K = 8 (0.078, 0.063);
+  - the unaligned GMM flickers 0.058 (0.059 with K = 8);
+  - the literal count alone is the one exception, and it lowers the error too little.
+  So no variant tried both halves Toksvig's error on the disk and keeps the lowest flicker there
+  (``examples/filtering_scenes.py --run``, scratch builds; README "Reflectance filtering").
 """
 from __future__ import annotations
 
