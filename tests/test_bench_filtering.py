@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import numpy_camera_rays, numpy_sphere_distance, numpy_square_distance
-from warpbw.bench_filtering import FLICKER_STEP, colour_error, flicker
+from warpbw.bench_filtering import FLICKER_STEP, colour_error, flicker, temporal_error
 from warpbw.cli import main
 from warpbw.io.exr import read_exr, write_exr
 
@@ -82,6 +82,28 @@ def test_flicker_counts_only_change_beyond_the_truths():
     assert FLICKER_STEP > 1.0
 
 
+def test_temporal_error_is_the_distance_between_the_changes():
+    g0 = np.zeros((1, 3, 3))
+    g1 = g0.copy()
+    g1[0, 0] = [0.0, 2.0, 0.0]           # the truth changes by 2 in pixel 0
+    a0 = np.full((1, 3, 3), 0.5)         # the method's level does not matter, only its change
+    a1 = a0.copy()
+    a1[0, 0, 1] += 1.0                   # 1 where the truth changes by 2: off by 1
+    a1[0, 1, 2] += 3.0                   # 3 where the truth is still: off by 3
+    mask = np.ones((1, 3), bool)
+    assert temporal_error(a0, a1, g0, g1, mask, norm=2.0) == pytest.approx((1.0 + 3.0 + 0.0) / 3 / 2.0)
+    assert temporal_error(g0, g1, g0, g1, mask, norm=1.0) == 0.0
+    # a frozen image never flickers, but misses the truth's whole change
+    assert flicker(a0, a0, g0, g1, mask, norm=1.0) == 0.0
+    assert temporal_error(a0, a0, g0, g1, mask, norm=1.0) == pytest.approx(2.0 / 3)
+    # as much change as the truth, the other way: no flicker, off by twice the change
+    back = a0.copy()
+    back[0, 0, 1] -= 2.0
+    assert flicker(a0, back, g0, g1, mask, norm=1.0) == 0.0
+    assert temporal_error(a0, back, g0, g1, mask, norm=1.0) == pytest.approx(4.0 / 3)
+    assert math.isnan(temporal_error(a0, a1, g0, g1, np.zeros((1, 3), bool), norm=1.0))
+
+
 # ------------------------------------------------------------------------------------------ command line
 
 def test_bench_filtering_writes_the_record_and_the_plot(plane_scene, capsys):
@@ -94,8 +116,10 @@ def test_bench_filtering_writes_the_record_and_the_plot(plane_scene, capsys):
     for rows in rec["methods"].values():
         assert [r["zoom"] for r in rows] == [1.0, 2.0]
         for r in rows:
-            assert {"zoom", "error", "flicker", "time_s"} <= set(r)
-            assert all(math.isfinite(r[k]) and r[k] >= 0 for k in ("error", "flicker", "time_s"))
+            assert {"zoom", "error", "flicker", "time_s", "temporal_error"} <= set(r)
+            assert all(math.isfinite(r[k]) and r[k] >= 0 for k in ("error", "flicker", "time_s", "temporal_error"))
+    for g in rec["ground_truth"]:
+        assert math.isfinite(g["temporal_noise"]) and g["temporal_noise"] >= 0
     assert rec["precompute_time_s"] > 0
     assert rec["precompute"]["m"]["gmm_aligned"]["origin"] == "built"     # measured, not read from a cache
     assert (d / "f.png").read_bytes()[:4] == b"\x89PNG"

@@ -1,13 +1,14 @@
-"""Reflectance-filtering benchmark (issue 4, 004 Fig. 4 / 8): error, flicker and time of each filtered
-method along a zoom-out, against the ground truth.
+"""Reflectance-filtering benchmark (issue 4, 004 Fig. 4 / 8): error, flicker, temporal error and time of each
+filtered method along a zoom-out, against the ground truth.
 
 Public:
     ``DEFAULT_ZOOMS``, ``DEFAULT_GT_SPP``, ``FLICKER_STEP``
     ``colour_error(image, ref, mask) -> float``     per-pixel normalised Euclidean colour error, mean
     ``flicker(a0, a1, g0, g1, mask, norm) -> float``  frame-to-frame change in excess of the ground truth's
+    ``temporal_error(a0, a1, g0, g1, mask, norm) -> float``  frame-to-frame change's distance to the truth's
     ``run_bench_filtering(scene, zooms, gt_spp, runs, seed, device, cache, progress, log, methods,
                           env_spp, max_anisotropy) -> dict``
-    ``write_plot(record, path)``                    error and flicker against zoom, one curve per method
+    ``write_plot(record, path)``                    error, flicker and temporal error against zoom
     ``format_table(record) -> str``
 
 Protocol.  Zoom z: the camera moved away from its look-at point to z times its distance, same resolution
@@ -21,6 +22,14 @@ covers z^2 times more texels.
   |G(z') - G(z)| (clamped at 0: a method may change less than the truth without flickering), normalised as
   the error, mean over the pixels.  A method that follows the truth scores 0; shimmering (a highlight that
   pops between frames as the footprint moves over the texels) scores high.
+* Temporal error (ours, not the issue's; recorded beside the flicker): per pixel covered in both frames, the
+  distance |(I(z') - I(z)) - (G(z') - G(z))| between the method's change and the truth's, normalised and
+  averaged as the flicker.  The flicker counts only change beyond the truth's, so an image that changes less
+  than the truth everywhere scores 0 -- even one that does not change at all, or changes where the truth
+  does not -- and blurrier filters, whose images change less, score lower.  The temporal error is 0 only
+  for a method that changes as the truth does, and a frozen image scores the truth's whole mean change.
+  The ground truth's own floor is ``ground_truth[i].temporal_noise``: the temporal error of a second,
+  independently seeded ground-truth pair.
 * Time: kernel time of one frame after a warm-up frame (compiled kernels), median of ``runs``.
 * Under an [environment] every method also samples it (``warpbw.filtering``: ``env_spp`` BRDF + environment
   pairs per pixel, by default ``warpbw.filtering.DEFAULT_ENV_SPP``; the same seed in both frames of a flicker
@@ -90,6 +99,15 @@ def flicker(a0, a1, g0, g1, mask, norm: float) -> float:
     da = np.linalg.norm(np.asarray(a1, np.float64) - a0, axis=-1)
     dg = np.linalg.norm(np.asarray(g1, np.float64) - g0, axis=-1)
     return float(np.maximum(da - dg, 0.0)[mask].mean() / norm)
+
+
+def temporal_error(a0, a1, g0, g1, mask, norm: float) -> float:
+    """Mean over ``mask`` of |(a1 - a0) - (g1 - g0)| / norm (RGB Euclidean norms)."""
+    mask = np.asarray(mask, bool)
+    if not mask.any():
+        return float("nan")
+    d = (np.asarray(a1, np.float64) - a0) - (np.asarray(g1, np.float64) - g0)
+    return float(np.linalg.norm(d, axis=-1)[mask].mean() / norm)
 
 
 def _surfaces_behind(surfaces, device: str):
@@ -187,16 +205,17 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
         # carries as little of its own noise as possible
         g = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=GT_SEED + seed, prepared=prep, camera=c,
                               background=b) for c, b in zip(cams, bgs)]
-        g2 = render_filtering(scene, "ground_truth", spp=gt_spp, seed=GT_SEED_2 + seed, prepared=prep,
-                              camera=cams[0], background=bgs[0])
+        g2 = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=GT_SEED_2 + seed, prepared=prep, camera=c,
+                               background=b) for c, b in zip(cams, bgs)]
         cov = g[0].coverage
         both = cov & g[1].coverage
         norm = _norm(g[0].image, cov)
-        noise = colour_error(g2.image, g[0].image, cov) / math.sqrt(2.0)
-        gt_flicker = flicker(g[0].image, g[1].image, g2.image, g[1].image, both, norm)
+        noise = colour_error(g2[0].image, g[0].image, cov) / math.sqrt(2.0)
+        gt_flicker = flicker(g[0].image, g[1].image, g2[0].image, g[1].image, both, norm)
+        gt_temporal = temporal_error(g2[0].image, g2[1].image, g[0].image, g[1].image, both, norm)
         record["ground_truth"].append({"zoom": z, "time_s": round(g[0].time_s, 6), "noise": noise,
-                                       "pixels_covered": int(cov.sum())})
-        line = [f"zoom {z:g}: gt noise {noise:.3f}"]
+                                       "temporal_noise": gt_temporal, "pixels_covered": int(cov.sum())})
+        line = [f"zoom {z:g} (error/flicker/temporal error): gt noise {noise:.3f}/{gt_flicker:.4f}/{gt_temporal:.4f}"]
         for m in methods:
             times = []
             frames = []
@@ -209,10 +228,11 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
                                            max_anisotropy=aniso, background=bgs[1]))
             err = colour_error(frames[0].image, g[0].image, cov)
             fl = flicker(frames[0].image, frames[1].image, g[0].image, g[1].image, both, norm)
-            record["methods"][m].append({"zoom": z, "error": err, "flicker": fl,
+            te = temporal_error(frames[0].image, frames[1].image, g[0].image, g[1].image, both, norm)
+            record["methods"][m].append({"zoom": z, "error": err, "flicker": fl, "temporal_error": te,
                                          "time_s": round(statistics.median(times), 6),
                                          "mean_level": float(frames[0].level[cov].mean()) if cov.any() else 0.0})
-            line.append(f"{m} {err:.3f}/{fl:.4f}")
+            line.append(f"{m} {err:.3f}/{fl:.4f}/{te:.4f}")
         record["ground_truth"][-1]["flicker_noise"] = gt_flicker
         log("  ".join(line))
     return record
@@ -224,7 +244,7 @@ def _aniso_note(record: dict) -> str:
 
 
 def format_table(record: dict) -> str:
-    """Error and flicker per method (rows) at each zoom (columns)."""
+    """Error and flicker per method (rows) at each zoom (columns), then the temporal error."""
     zooms = record["zooms"]
     head = f"{'method':<14}" + "".join(f"{'x' + format(z, 'g'):>16}" for z in zooms)
     lines = [f"{record['scene']}  {record['resolution'][0]}x{record['resolution'][1]}, ground truth "
@@ -235,24 +255,32 @@ def format_table(record: dict) -> str:
     for m, rows in record["methods"].items():
         lines.append(f"{m:<14}" + "".join(f"{r['error']:>9.3f} /{r['flicker']:.3f}" for r in rows))
     lines.append(f"{'gt noise':<14}" + "".join(f"{g['noise']:>9.3f}       " for g in record["ground_truth"]))
+    lines.append("temporal error (distance of the frame-to-frame change to the truth's) per zoom")
+    for m, rows in record["methods"].items():
+        lines.append(f"{m:<14}" + "".join(f"{r['temporal_error']:>16.4f}" for r in rows))
+    lines.append(f"{'gt noise':<14}" + "".join(f"{g['temporal_noise']:>16.4f}" for g in record["ground_truth"]))
     lines.append(f"precompute (aligned GMM mipmaps): {record['precompute_time_s']:.2f} s")
     return "\n".join(lines)
 
 
 def write_plot(record: dict, path) -> None:
-    """Error and flicker against zoom, one curve per method; the ground truth's noise as a dashed line."""
+    """Error, flicker and temporal error against zoom, one curve per method; the ground truth's noise (error,
+    temporal error) as a dashed line."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     zooms = record["zooms"]
     for m, rows in record["methods"].items():
         axes[0].plot(zooms, [r["error"] for r in rows], "o-", label=m)
         axes[1].plot(zooms, [r["flicker"] for r in rows], "o-", label=m)
+        axes[2].plot(zooms, [r["temporal_error"] for r in rows], "o-", label=m)
     axes[0].plot(zooms, [g["noise"] for g in record["ground_truth"]], "k--", label="ground-truth noise")
-    for ax, what in zip(axes, ("error against the ground truth", "flicker (change beyond the truth's)")):
+    axes[2].plot(zooms, [g["temporal_noise"] for g in record["ground_truth"]], "k--", label="ground-truth noise")
+    for ax, what in zip(axes, ("error against the ground truth", "flicker (change beyond the truth's)",
+                               "temporal error (change against the truth's)")):
         ax.set_xscale("log", base=2)
         ax.set_xlabel("zoom (camera distance factor)")
         ax.set_ylabel(what)

@@ -663,13 +663,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     from warpbw import bench_filtering as _bf
 
-    bf = sub.add_parser("bench-filtering", help="reflectance filtering along a zoom-out: error, flicker, time",
+    bf = sub.add_parser("bench-filtering",
+                        help="reflectance filtering along a zoom-out: error, flicker, temporal error, time",
                         description="Issue 4 / 004 on a scene with planes: for each zoom (camera distance factor) "
                         "and each filtered method (gmm_aligned, gmm_unaligned, toksvig, lean, fixed), the per-pixel "
                         "normalised Euclidean colour error against the ground truth (mean over covered pixels), the "
                         "flicker (frame-to-frame change beyond the ground truth's own, between zoom z and z * "
-                        "2^(1/8)) and the frame time (median of --runs after a warm-up); and the precompute time of "
-                        "the aligned GMM mipmaps (built afresh unless --cache or the scene's gmm file provides them). "
+                        "2^(1/8)), the temporal error (distance of that change to the ground truth's change: "
+                        "unlike the flicker, an image that changes less than the truth does not score 0) and the "
+                        "frame time (median of --runs after a warm-up); and the precompute time of the aligned GMM "
+                        "mipmaps (built afresh unless --cache or the scene's gmm file provides them). "
                         "In a scene with planes beside spheres or meshes, the planes are measured where no sphere or "
                         "mesh hides them (the spheres and meshes are not shaded: warpbw bench measures them). "
                         "See warpbw/bench_filtering.py for the definitions.")
@@ -679,7 +682,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="zoom factors (default %s); a zoom at which no pixel sees a plane is refused before any "
                     "work" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
     bf.add_argument("--json", help="write the record here (JSON)")
-    bf.add_argument("--plot", help="write the plot here (PNG): error and flicker against zoom")
+    bf.add_argument("--plot", help="write the plot here (PNG): error, flicker and temporal error against zoom")
     bf.add_argument("--gt-spp", type=_positive_int("gt-spp", INT32_MAX), default=_bf.DEFAULT_GT_SPP,
                     help=f"ground-truth rays per pixel (>= 64; default {_bf.DEFAULT_GT_SPP}), jittered over the "
                     "pixel and averaged over those that hit the plane")
