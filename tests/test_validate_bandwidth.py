@@ -243,3 +243,19 @@ def test_quick_run_writes_json_figure_and_refuses_to_overwrite(vb, shared, tmp_p
         vb.main(["--out", str(out), "--quick", "--scenes", "sphere-ggx-studio"])
     assert e.value.code == 2 and png.stat().st_mtime_ns == before
     assert "--force" in capsys.readouterr().err
+
+
+def test_default_scenes_are_the_validation_scenes_and_every_scene_parses(vb, shared, tmp_path):
+    """Without --scenes the script runs issue 3's three validation scenes; the bunny-under-forest scenes are
+    opt-in, and every scene the script offers is a valid scene file for the real data."""
+    from warpbw.scene import parse_scene
+
+    data = shared("brdf/npf.bin").parents[1]
+    shared("meshes/bunny.obj")
+    assert vb.parse_args(["--out", str(tmp_path)]).scenes == list(vb.DEFAULT_SCENES)
+    assert set(vb.DEFAULT_SCENES) < set(vb.SCENES)
+    extra = sorted(set(vb.SCENES) - set(vb.DEFAULT_SCENES))
+    assert vb.parse_args(["--out", str(tmp_path), "--scenes", *extra]).scenes == extra
+    for name in vb.SCENES:
+        scene = parse_scene(vb.scene_toml(name, 16, data), data, source=name)
+        assert scene.camera.width == 16 and scene.environment.file.name == vb.SCENES[name]["probe"]
