@@ -86,6 +86,16 @@ silent:
   material within 5% in depth; 1 / r on a unit sphere within 2e-6, Pearson 0.92 with the mesh's H on the
   bunny) ranks lower: 0.307 (mean of the two axes, neighbours 1 px away), 0.274 (2 px) and 0.330 (the axis
   of larger magnitude, 2 px).  H stays.
+  Also measured (session 27, not adopted): |H| averaged over the neighbourhood, which credits the bumps
+  between which H passes through 0.  Per pixel, on the bunny with gold-metallic-paint under studio.exr, with
+  color-changing-paint3 under forest.exr and with gold-metallic-paint under forest.exr (default 0.351 / 0.302 /
+  0.221):
+  - over the mesh (8 lazy one-ring passes of |H|): 0.516 / 0.383 / 0.350; 4 passes: 0.492 / 0.369 / 0.332;
+  - signed H smoothed instead (the bumps cancel): 0.274 / 0.268 / 0.138 (2 passes);
+  - in screen space over alike pixels within 2 or 4 px: 0.418 / 0.329 / 0.257 and 0.449 / 0.352 / 0.276.
+  The benchmark (MIS, one run each, back to back) splits: the gold bunny gains (3.14x against 2.97x; budget 4,
+  37.96 against 36.84 dB), while the acrylic bunny shades 75% of its pixels instead of 65% and loses about
+  0.9 dB at every budget (0.99x against 1.14x).  Patch: /work/bench/s27_curvature_smoothing_patch.diff.
 * Luminance (``LUMINANCE``, Rec. 709) reduces the RGB of L and rho to the scalar weights.
 * L_i and nu_a^env come from one reduced lat-long table (:func:`light_table`: mean luminance,
   max-filtered nu_a, at most ``LIGHT_TABLE_WIDTH`` columns), one nearest fetch per direction.
