@@ -221,39 +221,36 @@ resolution = [{w}, {h}]
 file = "{data}/envmaps/{probe}"
 rotation = {rotation}
 """
+# the shapes the scenes frame, each with its camera ([camera] position, look_at, fov), and the NPF materials
+SPHERE = {"camera": ("[0.0, 0.0, 3.0]", "[0.0, 0.0, 0.0]", 45.0),
+          "objects": '[[object]]\nshape = "sphere"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0\nmaterial = "m"\n'}
+BUNNY = {"camera": ("[0.0, 0.1, 3.4]", "[0.0, 0.0, 0.0]", 38.0),
+         "objects": '[[object]]\nmesh = "{data}/meshes/bunny.obj"\nmaterial = "m"\n'}
+
+
+def npf_material(name: str) -> str:
+    """[material.m] body of the NPF fit ``name`` read from ../shared/data."""
+    return f'type = "npf"\ntable = "{{data}}/brdf/npf.bin"\nname = "{name}"\nlookup = "linear"\n'
+
+
 SCENES = {
     # 002 Fig. 12's material on a sphere filling most of the frame
-    "sphere-ccp3-forest": {
-        "camera": ("[0.0, 0.0, 3.0]", "[0.0, 0.0, 0.0]", 45.0), "probe": "forest.exr", "rotation": 0.0,
-        "objects": '[[object]]\nshape = "sphere"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0\nmaterial = "m"\n',
-        "material": 'type = "npf"\ntable = "{data}/brdf/npf.bin"\nname = "color-changing-paint3"\nlookup = "linear"\n',
-    },
+    "sphere-ccp3-forest": {**SPHERE, "probe": "forest.exr", "rotation": 0.0,
+                           "material": npf_material("color-changing-paint3")},
     # a mesh (curvature from the G-buffer) with a glossy NPF material
-    "bunny-gmp-studio": {
-        "camera": ("[0.0, 0.1, 3.4]", "[0.0, 0.0, 0.0]", 38.0), "probe": "studio.exr", "rotation": 0.0,
-        "objects": '[[object]]\nmesh = "{data}/meshes/bunny.obj"\nmaterial = "m"\n',
-        "material": 'type = "npf"\ntable = "{data}/brdf/npf.bin"\nname = "gold-metallic-paint"\nlookup = "linear"\n',
-    },
+    "bunny-gmp-studio": {**BUNNY, "probe": "studio.exr", "rotation": 0.0,
+                         "material": npf_material("gold-metallic-paint")},
     # an analytic material: GGX conductor (gold)
-    "sphere-ggx-studio": {
-        "camera": ("[0.0, 0.0, 3.0]", "[0.0, 0.0, 0.0]", 45.0), "probe": "studio.exr", "rotation": 90.0,
-        "objects": '[[object]]\nshape = "sphere"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0\nmaterial = "m"\n',
-        "material": 'type = "ggx"\nalpha = 0.2\nspecular = [1.0, 1.0, 1.0]\n'
-                    'eta = [0.143, 0.374, 1.442]\nk = [3.983, 2.385, 1.603]\n',
-    },
+    "sphere-ggx-studio": {**SPHERE, "probe": "studio.exr", "rotation": 90.0,
+                          "material": 'type = "ggx"\nalpha = 0.2\nspecular = [1.0, 1.0, 1.0]\n'
+                                      'eta = [0.143, 0.374, 1.442]\nk = [3.983, 2.385, 1.603]\n'},
     # not run by default: the bunny under forest.exr, with 002 Fig. 12's material and with the default bunny's
     # (256x256, session 27: per pixel 0.302 and 0.221; b_p window-averaged 0.529 and 0.369; the converged
     # image's own |grad L| / L 0.214 and 0.023 per pixel, 0.587 and 0.270 window-averaged)
-    "bunny-ccp3-forest": {
-        "camera": ("[0.0, 0.1, 3.4]", "[0.0, 0.0, 0.0]", 38.0), "probe": "forest.exr", "rotation": 0.0,
-        "objects": '[[object]]\nmesh = "{data}/meshes/bunny.obj"\nmaterial = "m"\n',
-        "material": 'type = "npf"\ntable = "{data}/brdf/npf.bin"\nname = "color-changing-paint3"\nlookup = "linear"\n',
-    },
-    "bunny-gmp-forest": {
-        "camera": ("[0.0, 0.1, 3.4]", "[0.0, 0.0, 0.0]", 38.0), "probe": "forest.exr", "rotation": 0.0,
-        "objects": '[[object]]\nmesh = "{data}/meshes/bunny.obj"\nmaterial = "m"\n',
-        "material": 'type = "npf"\ntable = "{data}/brdf/npf.bin"\nname = "gold-metallic-paint"\nlookup = "linear"\n',
-    },
+    "bunny-ccp3-forest": {**BUNNY, "probe": "forest.exr", "rotation": 0.0,
+                          "material": npf_material("color-changing-paint3")},
+    "bunny-gmp-forest": {**BUNNY, "probe": "forest.exr", "rotation": 0.0,
+                         "material": npf_material("gold-metallic-paint")},
 }
 # the validation scenes of issue 3 (run when --scenes is not given); the others are for information
 DEFAULT_SCENES = ("sphere-ccp3-forest", "bunny-gmp-studio", "sphere-ggx-studio")
