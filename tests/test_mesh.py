@@ -1,7 +1,8 @@
-"""Mesh loading, normals and mean curvature (warpbw.io.mesh).
+"""Mesh loading, normals and mean curvature (warpbw.io.mesh), and the local curvature the bandwidth pass reads.
 
-Truth: closed forms (sphere: radial normals, H = 1/r; open cylinder: H = 1/(2r); plane: H = 0),
-the transform written out here as matrices, and the bunny's published vertex/face counts.
+Truth: closed forms (sphere: radial normals, H = 1/r; open cylinder: H = 1/(2r); plane: H = 0; bumps
+z = a sin(kx) sin(ky): |H| = a k^2 |sin(kx) sin(ky)|, whose mean is a k^2 (2 / pi)^2), the transform written
+out here as matrices, and the bunny's published vertex/face counts.
 """
 from __future__ import annotations
 
@@ -11,9 +12,11 @@ import numpy as np
 import pytest
 import trimesh
 from conftest import shared_file
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from warpbw.errors import WarpbwError
-from warpbw.io.mesh import load_mesh, mesh_mean_curvature, vertex_normals
+from warpbw.io.mesh import load_mesh, local_curvature, mesh_mean_curvature, vertex_normals
 
 RADIUS = 2.0
 
@@ -166,6 +169,52 @@ def test_real_bunny():
     outward = np.sum(m.normals * (m.vertices - m.vertices.mean(0)), axis=1) > 0
     assert outward.mean() > 0.8
     assert np.median(m.mean_curvature) > 0  # mostly convex with outward normals
+
+
+def test_local_curvature_of_bumps_is_their_mean_curvature_magnitude():
+    """Bumps z = a sin(kx) sin(ky), 8 edges per period (slope 0.04): H changes sign every half period, and
+    |H| = a k^2 |sin(kx) sin(ky)| runs from 0 to a k^2.  Averaged over about two rings, every interior vertex
+    reads close to the closed-form mean a k^2 (2 / pi)^2 (the 8-point sampling and the cotangent stencil read
+    it about 15% low), where |H| itself ranges over 0 to 2.3 times it."""
+    n, e, a = 97, 0.01, 0.0005
+    k = 2 * math.pi / (8 * e)
+    verts, faces = _grid(n, n, lambda u, v: np.stack([u * e, a * np.sin(k * u * e) * np.sin(k * v * e), v * e], -1))
+    h = mesh_mean_curvature(verts, faces, vertex_normals(verts, faces))
+    u, v = np.divmod(np.arange(n * n), n)
+    inner = (np.minimum(u, v) > 20) & (np.maximum(u, v) < n - 20)   # clear of the rims
+    truth = a * k * k * (2 / math.pi) ** 2
+    assert np.abs(h[inner]).max() > 2.0 * truth and np.abs(h[inner]).min() < 0.01 * truth
+    c = local_curvature(h, faces)
+    assert c.dtype == np.float32 and c.shape == h.shape
+    assert np.all((c[inner] > 0.75 * truth) & (c[inner] < 1.25 * truth))
+
+
+def test_local_curvature_keeps_a_spheres_curvature():
+    ico = trimesh.creation.icosphere(subdivisions=4, radius=RADIUS)
+    h = mesh_mean_curvature(ico.vertices, ico.faces, vertex_normals(ico.vertices, ico.faces))
+    c = local_curvature(-h, ico.faces)        # the sign (outward or inward normals) does not matter
+    np.testing.assert_allclose(c, 1.0 / RADIUS, rtol=0.01)
+    np.testing.assert_array_equal(local_curvature(h, ico.faces, passes=0), np.abs(h).astype(np.float32))
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 12), st.floats(1e-3, 50.0), st.booleans())
+def test_local_curvature_is_an_average_of_magnitudes(seed, passes, const, negative):
+    """Every value lies within the range of |H| (a weighted mean of magnitudes), and a constant |H| is kept."""
+    verts, faces = _grid(9, 7, lambda u, v: np.stack([u * 0.1, np.zeros(len(u)), v * 0.1], -1))
+    h = np.random.default_rng(seed).normal(0.0, 10.0, len(verts))
+    c = local_curvature(h, faces, passes=passes)
+    assert np.all(c >= np.abs(h).min() * (1 - 1e-6)) and np.all(c <= np.abs(h).max() * (1 + 1e-6))
+    np.testing.assert_allclose(local_curvature(np.full(len(verts), -const if negative else const), faces,
+                                               passes=passes), const, rtol=1e-6)
+
+
+def test_local_curvature_bad_input():
+    verts, faces = _grid(3, 3, lambda u, v: np.stack([u * 0.1, np.zeros(len(u)), v * 0.1], -1))
+    with pytest.raises(WarpbwError, match="passes"):
+        local_curvature(np.zeros(len(verts)), faces, passes=-1)
+    with pytest.raises(WarpbwError, match="outside 0..8"):
+        local_curvature(np.zeros(len(verts)), faces + 1)
 
 
 # ----------------------------------------------------------------- bad input

@@ -3,7 +3,8 @@
 Truth: closed forms (a sphere: radial normals and H = 1/r; a spherical band: H = 1/r on its open rims too;
 a plane: H = 0), the invariance of normals and curvature under a rigid motion with uniform scaling
 (normals turn with the motion, H scales by 1 / s), and warpbw.io.mesh's float64 numpy implementation of the
-same formulas on the real bunny and on degenerate input.
+same formulas on the real bunny and on degenerate input (and of ``local_curvature``, on the bunny and an
+open band).
 """
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from warpbw.errors import WarpbwError
-from warpbw.io.mesh import load_mesh, mesh_mean_curvature, normals_and_curvature, vertex_normals
+from warpbw.io.mesh import load_mesh, local_curvature, mesh_mean_curvature, normals_and_curvature, vertex_normals
+from warpbw.mesh_normals import local_curvature as device_local_curvature
 from warpbw.mesh_normals import mesh_topology
 from warpbw.mesh_normals import normals_and_curvature as device_normals_and_curvature
 
@@ -86,6 +88,26 @@ def test_real_bunny_against_the_host(shared):
     n, h = on_device(m.vertices, m.faces)
     assert angle_between(n, n_host).max() < 1e-5
     assert np.abs(h - h_host).max() <= 1e-6 * np.abs(h_host).max() + 1e-5
+    c_host = local_curvature(h_host, m.faces)
+    topo = mesh_topology(np.asarray(m.faces).reshape(-1) + 4, 4, len(v))   # stored after 4 other points
+    c = device_local_curvature(wp.array(h_host.astype(np.float32)), topo).numpy()
+    np.testing.assert_allclose(c, c_host, rtol=1e-5)
+
+
+def test_local_curvature_on_an_open_band_against_the_host():
+    """A mesh with open rims (vertices of lower valence), stored after other points, in place (out = input)."""
+    verts, faces = _band()
+    h = np.random.default_rng(3).normal(0.0, 2.0, len(verts)).astype(np.float32)
+    topo = mesh_topology(faces.reshape(-1) + 7, 7, len(verts))
+    for passes in (0, 1, 5):
+        arr = wp.array(h)
+        out = device_local_curvature(arr, topo, passes=passes, out=arr)
+        assert out is arr
+        np.testing.assert_allclose(arr.numpy(), local_curvature(h, faces, passes=passes), rtol=1e-5, atol=1e-6)
+    with pytest.raises(WarpbwError, match="passes"):
+        device_local_curvature(wp.array(h), topo, passes=-2)
+    with pytest.raises(WarpbwError, match="vertices"):
+        device_local_curvature(wp.array(h[:-1]), topo)
 
 
 @settings(max_examples=15, deadline=None)

@@ -18,8 +18,10 @@ Conventions (DESIGN.md): right-handed world, +Y up; the camera looks along ``for
 angle along the image width.  Pixel (x, y) is sampled at its centre.  Buffers are flat, row-major,
 ``index = y * width + x``.  ``depth`` is the distance along ``forward`` (camera-space z), 0 where no
 geometry is hit; ``material`` is -1 there (the coverage mask is ``material >= 0``).  ``view`` is the unit
-direction from the surface point to the camera (``wo`` in world space).  ``curvature`` is the mean
-curvature H = (k1 + k2) / 2, positive on convex surfaces (a sphere of radius r gives 1 / r).
+direction from the surface point to the camera (``wo`` in world space).  ``curvature`` is the curvature
+c >= 0 that the bandwidth pass reads (002 Eq. 3): on a sphere of radius r, 1 / r; on a mesh, whatever its
+``MeshSpec`` gives per vertex, interpolated (``warpbw.io.mesh.local_curvature``, the magnitude of the mean
+curvature H = (k1 + k2) / 2 averaged over about two rings, is what the pipeline gives).
 The tangent is ``d position / d phi`` about +Y on spheres and a branchless orthonormal basis
 (Duff et al. 2017) around the shading normal on meshes: shading here is isotropic.
 """
@@ -78,7 +80,7 @@ class MeshAttributes:
     id: wp.uint64
     indices: wp.array(dtype=wp.int32)        # 3 per face
     normal: wp.array(dtype=wp.vec3)          # per vertex, smooth
-    curvature: wp.array(dtype=wp.float32)    # per vertex mean curvature
+    curvature: wp.array(dtype=wp.float32)    # per vertex curvature (MeshSpec.curvature)
     uv: wp.array(dtype=wp.vec2)              # per vertex (zeros when the mesh has none)
     face_material: wp.array(dtype=wp.int32)
 
@@ -304,7 +306,7 @@ class MeshSpec:
     vertices: np.ndarray       # (V, 3)
     faces: np.ndarray          # (F, 3)
     normals: np.ndarray        # (V, 3)
-    curvature: np.ndarray      # (V,)
+    curvature: np.ndarray      # (V,) what the bandwidth pass reads: warpbw.io.mesh.local_curvature
     uv: np.ndarray | None      # (V, 2)
     material: int
 
@@ -394,9 +396,9 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
     """Deform mesh ``mesh_index`` (its position in ``build_geometry``'s ``meshes``) in place.
 
     Copies the new vertex positions (V, 3) into the device arrays the G-buffer kernel reads, at that mesh's
-    offset in the concatenated arrays, with its smooth normals (V, 3) and mean curvatures (V,): given, or,
-    when both are None, computed on the device from the new positions (:mod:`warpbw.mesh_normals`, the
-    formulas of :mod:`warpbw.io.mesh`).  Then refits the BVH over the moved points (``wp.Mesh.refit``: same
+    offset in the concatenated arrays, with its smooth normals (V, 3) and curvatures (V,) as ``MeshSpec``
+    takes them: given, or, when both are None, computed on the device from the new positions
+    (:mod:`warpbw.mesh_normals`: the normals, H and ``local_curvature``, the formulas of :mod:`warpbw.io.mesh`).  Then refits the BVH over the moved points (``wp.Mesh.refit``: same
     topology, new bounds).  The connectivity, uv and materials stay as built.  Nothing is derived from the
     old geometry, so a frame rendered after this is what ``build_geometry`` with the new vertices would
     give: the bandwidth pass needs only the G-buffer (002 Sec. 4.3, "Dynamic geometry").
@@ -420,13 +422,14 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
     for dest, src, dtype in copies:
         wp.copy(dest, wp.array(src, dtype=dtype, device=device), dest_offset=start, count=count)
     if normals is None:
-        from warpbw.mesh_normals import MeshShading, mesh_topology, normals_and_curvature
+        from warpbw.mesh_normals import MeshShading, local_curvature, mesh_topology, normals_and_curvature
 
         topo = geometry.topology.get(int(mesh_index))
         if topo is None:   # connectivity only, built on the first call
             topo = geometry.topology[int(mesh_index)] = mesh_topology(ma.indices.numpy(), start, count, device)
-        normals_and_curvature(geometry.mesh.points, topo, device,
-                              out=MeshShading(ma.normal[start:start + count], ma.curvature[start:start + count]))
+        shading = MeshShading(ma.normal[start:start + count], ma.curvature[start:start + count])
+        normals_and_curvature(geometry.mesh.points, topo, device, out=shading)
+        local_curvature(shading.curvature, topo, device, out=shading.curvature)
     geometry.mesh.refit()
 
 

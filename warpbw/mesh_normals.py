@@ -5,6 +5,8 @@ Public:
                                           from its connectivity alone (built once: a deformation keeps it)
     ``MeshShading`` / ``normals_and_curvature(points, topology, device)``  normals (V, 3) and H (V,) from the
                                           current vertex positions
+    ``local_curvature(curvature, topology, device, passes)``  |H| averaged over the neighbourhood: the
+                                          curvature the bandwidth pass reads (``warpbw.io.mesh.local_curvature``)
 
 The formulas are :mod:`warpbw.io.mesh`'s, which computes the same on the host when a mesh is loaded:
 area-weighted vertex normals; mean curvature H = -(Laplace-Beltrami(x) . n) / 2 from cotangent weights and
@@ -16,7 +18,8 @@ float64, as on the host: the cotangent Laplacian is a small difference of large 
 
 Three small kernels: per face (the face normal, the cotangent weights and the corner areas, summed into
 the vertices with atomic adds), per vertex (normalise, divide), and per boundary pair (the interior
-neighbours' mean).  Atomic adds are atomic on a GPU; on the CPU a launch runs on one thread, so these
+neighbours' mean); and for ``local_curvature``, per face (the one-ring sums) and per vertex (the lazy
+average), once per pass.  Atomic adds are atomic on a GPU; on the CPU a launch runs on one thread, so these
 launches are never split over threads (``warpbw.shading.launch_tiled`` would race on the sums).
 """
 from __future__ import annotations
@@ -141,6 +144,43 @@ def boundary_mean_kernel(boundary: wp.array(dtype=wp.int32), s: wp.array(dtype=w
     curvature[v] = h
 
 
+@wp.kernel(module="unique", enable_backward=False)
+def one_ring_sum_kernel(faces: wp.array(dtype=wp.int32), first: int, x: wp.array(dtype=wp.float32),
+                        s: wp.array(dtype=wp.float64), deg: wp.array(dtype=wp.int32)):
+    """Each corner of one face gathers x at the face's other two corners (the one-ring sum of
+    ``warpbw.io.mesh.local_curvature``: an interior edge counts twice, once per face)."""
+    t = wp.tid()
+    i0 = faces[3 * t] - first
+    i1 = faces[3 * t + 1] - first
+    i2 = faces[3 * t + 2] - first
+    x0 = wp.float64(x[i0])
+    x1 = wp.float64(x[i1])
+    x2 = wp.float64(x[i2])
+    wp.atomic_add(s, i0, x1 + x2)
+    wp.atomic_add(s, i1, x2 + x0)
+    wp.atomic_add(s, i2, x0 + x1)
+    wp.atomic_add(deg, i0, 2)
+    wp.atomic_add(deg, i1, 2)
+    wp.atomic_add(deg, i2, 2)
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def lazy_average_kernel(x: wp.array(dtype=wp.float32), s: wp.array(dtype=wp.float64),
+                        deg: wp.array(dtype=wp.int32), y: wp.array(dtype=wp.float32)):
+    """One lazy pass, y = (x + one-ring mean) / 2; a vertex without faces keeps x."""
+    v = wp.tid()
+    xv = wp.float64(x[v])
+    if deg[v] > 0:
+        xv = wp.float64(0.5) * xv + wp.float64(0.5) * s[v] / wp.float64(deg[v])
+    y[v] = float(xv)
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def magnitude_kernel(x: wp.array(dtype=wp.float32), y: wp.array(dtype=wp.float32)):
+    v = wp.tid()
+    y[v] = wp.abs(x[v])
+
+
 @dataclass
 class MeshTopology:
     """One mesh of a concatenated vertex array: its faces (global vertex indices), its vertex range, and its open
@@ -197,4 +237,34 @@ def normals_and_curvature(points: wp.array, topology: MeshTopology, device: str 
                   inputs=[topology.pair_x, topology.pair_y, out.curvature, s, c], device=device)
         wp.launch(boundary_mean_kernel, dim=topology.boundary.shape[0], inputs=[topology.boundary, s, c, out.curvature],
                   device=device)
+    return out
+
+
+def local_curvature(curvature: wp.array, topology: MeshTopology, device: str = "cpu",
+                    passes: int = host_mesh.CURVATURE_SMOOTHING_PASSES, out: wp.array | None = None) -> wp.array:
+    """The curvature the bandwidth pass reads, from the mean curvature H (V,) of the mesh ``topology``
+    describes: |H| averaged by ``passes`` lazy one-ring passes, as ``warpbw.io.mesh.local_curvature``.
+    Written into ``out`` when given (which may be ``curvature`` itself), else into a new array."""
+    n = topology.count
+    passes = int(passes)
+    if passes < 0:
+        raise WarpbwError(f"local_curvature: passes: expected an integer >= 0, got {passes}")
+    if curvature.shape[0] != n:
+        raise WarpbwError(f"local_curvature: curvature has {curvature.shape[0]} values, the mesh {n} vertices")
+    if out is None:
+        out = wp.empty(n, dtype=wp.float32, device=device)
+    x = wp.empty(n, dtype=wp.float32, device=device)
+    y = wp.empty(n, dtype=wp.float32, device=device)
+    wp.launch(magnitude_kernel, dim=n, inputs=[curvature, x], device=device)
+    s = wp.zeros(n, dtype=wp.float64, device=device)
+    deg = wp.zeros(n, dtype=wp.int32, device=device)
+    n_faces = topology.faces.shape[0] // 3
+    for k in range(passes):
+        s.zero_()
+        deg.zero_()   # the count is the same every pass; recounting keeps one kernel
+        # one launch (module docstring: the atomic sums must not be split over CPU threads)
+        wp.launch(one_ring_sum_kernel, dim=n_faces, inputs=[topology.faces, topology.first, x, s, deg], device=device)
+        wp.launch(lazy_average_kernel, dim=n, inputs=[x, s, deg, y], device=device)
+        x, y = y, x
+    wp.copy(out, x)
     return out
