@@ -73,29 +73,38 @@ silent:
   frequencies that the band of rho cos can bring back to 0 (Eq. 8's convolution, read at angular
   frequency 0): at most nu_rho + NU_COS.  Diffuse irradiance is smooth, as it should be; a sharp lobe
   (nu_rho large) passes the light unchanged, as before.
-* Curvature c of Eq. 3 is the G-buffer's signed mean curvature H = (k1 + k2) / 2 (the flatland paper has
-  one curvature; 002 names "the Gaussian curvature ... in m^-1", whose unit is m^-2).  A saddle has H ~ 0
-  while its normal turns, so the principal curvature of larger magnitude, k_max = H + sgn(H) sqrt(H^2 - K)
-  (K from the angle deficit), and the RMS sqrt(2 H^2 - K) were measured on meshes instead.  The bunny's
-  bandwidth rank correlation (examples/validate_bandwidth.py, gold-metallic-paint under studio.exr) rises
-  from 0.351 to 0.421 (k_max) and 0.413 (RMS), window-averaged from 0.573 to 0.619 and 0.608; but the gold
-  bunny benchmark shades 45% of its pixels instead of 23% with k_max, gains at budget 32 (42.07 against
-  40.02 dB) and loses at budgets 1-4 (27.55 against 32.17 dB at budget 1), and neither gains more than
-  0.2 dB at the budgets where the best speed-ups fall.  Curvature estimated in screen space from the
-  G-buffer instead (002 Sec. 3.1: dn . dP / |dP|^2 along each image axis, between neighbours of the same
-  material within 5% in depth; 1 / r on a unit sphere within 2e-6, Pearson 0.92 with the mesh's H on the
-  bunny) ranks lower: 0.307 (mean of the two axes, neighbours 1 px away), 0.274 (2 px) and 0.330 (the axis
-  of larger magnitude, 2 px).  H stays.
-  Also measured (session 27, not adopted): |H| averaged over the neighbourhood, which credits the bumps
-  between which H passes through 0.  Per pixel, on the bunny with gold-metallic-paint under studio.exr, with
-  color-changing-paint3 under forest.exr and with gold-metallic-paint under forest.exr (default 0.351 / 0.302 /
-  0.221):
-  - over the mesh (8 lazy one-ring passes of |H|): 0.516 / 0.383 / 0.350; 4 passes: 0.492 / 0.369 / 0.332;
-  - signed H smoothed instead (the bumps cancel): 0.274 / 0.268 / 0.138 (2 passes);
-  - in screen space over alike pixels within 2 or 4 px: 0.418 / 0.329 / 0.257 and 0.449 / 0.352 / 0.276.
-  The benchmark (MIS, one run each, back to back) splits: the gold bunny gains (3.14x against 2.97x; budget 4,
-  37.96 against 36.84 dB), while the acrylic bunny shades 75% of its pixels instead of 65% and loses about
-  0.9 dB at every budget (0.99x against 1.14x).  Patch: /work/bench/s27_curvature_smoothing_patch.diff.
+* Curvature c of Eq. 3 is the G-buffer's: 1 / r on a sphere, and on a mesh the magnitude of the mean
+  curvature H = (k1 + k2) / 2 averaged over about two rings (``warpbw.io.mesh.local_curvature``: 8 lazy
+  one-ring passes; ``warpbw.mesh_normals.local_curvature`` on the device for dynamic geometry).  The flatland
+  paper has one curvature; 002 names "the Gaussian curvature ... in m^-1", whose unit is m^-2, and keeps a
+  max-filtered, hence unsigned, curvature mip-map (Sec. 3.1).  Why the magnitude, averaged: on a scanned mesh
+  H changes sign from vertex to vertex (32% of the bunny's edges join a convex to a concave vertex;
+  neighbouring H correlate at 0.42), so the shading normal turns back and forth at the vertex scale, and a
+  pixel sees how fast it turns, not which way.  With the signed H, Eq. 3's two shears partly cancel on every
+  concave vertex (a focusing mirror), and that reading is right only for concavities much wider than a pixel.
+  Bandwidth rank correlation per pixel (examples/validate_bandwidth.py) on the bunny with gold-metallic-paint
+  under studio.exr, with color-changing-paint3 under forest.exr and with gold-metallic-paint under forest.exr:
+  - signed H (the default until session 28): 0.351 / 0.302 / 0.221 (512x512: 0.292);
+  - |H| per vertex: 0.419 / 0.333 / 0.282;
+  - |H| averaged over the mesh, 4 passes: 0.492 / 0.369 / 0.332; 8 passes (the default): 0.516 / 0.383 /
+    0.350 (512x512: 0.507);
+  - |H| averaged, then given H's sign back: 0.410 / 0.328 / 0.237; the signed H averaged (the bumps cancel):
+    0.274 / 0.268 / 0.138 (2 passes);
+  - log |H| averaged (a geometric mean): 0.461 / 0.375 / 0.289; the smaller of |H| and its average: 0.436 /
+    0.351 / 0.286;
+  - |H| averaged in screen space over alike pixels within 2 or 4 px: 0.418 / 0.329 / 0.257 and 0.449 / 0.352 /
+    0.276;
+  - per vertex, the principal curvature of larger magnitude k_max = H + sgn(H) sqrt(H^2 - K) (K from the
+    angle deficit) and the RMS sqrt(2 H^2 - K): 0.421 and 0.413 on the first scene (with H's sign); on the
+    gold bunny benchmark k_max shaded 45% of the pixels instead of 23% and lost 4.6 dB at budget 1;
+  - curvature in screen space from the G-buffer (dn . dP / |dP|^2 along each image axis, between neighbours
+    of the same material within 5% in depth; 1 / r on a unit sphere within 2e-6): 0.307 (mean of the two
+    axes, 1 px), 0.274 (2 px), 0.330 (the axis of larger magnitude, 2 px).
+  The cost is on the benchmark's acrylic bunny (MIS, one run each, back to back, session 27): it shades 75% of
+  its pixels instead of 65% and loses about 0.9 dB at every budget (0.99x against 1.14x), while the gold bunny
+  gains (3.14x against 2.97x; budget 4, 37.96 against 36.84 dB).  The acrylic bunny is noise-limited: each
+  extra pixel shaded at level 0 takes samples from the others.  Keeping H's sign instead shaded fewer pixels
+  there (64%; 1.19x against 1.06x in one run) but ranks 0.410 on the first scene.
 * Luminance (``LUMINANCE``, Rec. 709) reduces the RGB of L and rho to the scalar weights.
 * L_i and nu_a^env come from one reduced lat-long table (:func:`light_table`: mean luminance,
   max-filtered nu_a, at most ``LIGHT_TABLE_WIDTH`` columns), one nearest fetch per direction.
