@@ -55,6 +55,9 @@ For each validation scene (a sphere with the NPF fit of color-changing-paint3 un
    DIR/validate_<scene>_maps.npz (every map), DIR/validate_bandwidth.json (all figures) and prints a
    table.  Existing outputs are kept unless --force.
 
+The bunny's figures quoted above were measured with the signed mean curvature H that the pass read until
+session 28; with the local |H| (``warpbw.bandwidth`` docstring) it reads 0.516 per pixel and 0.613
+window-averaged at 256x256 (DCT 0.368 and 0.555), 0.507 and 0.582 at 512x512.
 ``--scenes bunny-ccp3-forest bunny-gmp-forest``: the bunny under forest.exr, with 002 Fig. 12's material and
 with the default bunny's, for information (not run by default; figures beside ``SCENES``).
 ``--quick``: tiny sizes and sample counts (for the smoke test; the numbers then mean little).
@@ -245,8 +248,9 @@ SCENES = {
                           "material": 'type = "ggx"\nalpha = 0.2\nspecular = [1.0, 1.0, 1.0]\n'
                                       'eta = [0.143, 0.374, 1.442]\nk = [3.983, 2.385, 1.603]\n'},
     # not run by default: the bunny under forest.exr, with 002 Fig. 12's material and with the default bunny's
-    # (256x256, session 27: per pixel 0.302 and 0.221; b_p window-averaged 0.529 and 0.369; the converged
-    # image's own |grad L| / L 0.214 and 0.023 per pixel, 0.587 and 0.270 window-averaged)
+    # (256x256, session 28: per pixel 0.383 and 0.350; b_p window-averaged 0.535 and 0.382; with the signed H
+    # of sessions <= 27: 0.302 and 0.221, 0.529 and 0.369; the converged image's own |grad L| / L 0.214 and
+    # 0.023 per pixel, 0.587 and 0.270 window-averaged)
     "bunny-ccp3-forest": {**BUNNY, "probe": "forest.exr", "rotation": 0.0,
                           "material": npf_material("color-changing-paint3")},
     "bunny-gmp-forest": {**BUNNY, "probe": "forest.exr", "rotation": 0.0,
