@@ -398,7 +398,8 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
     Copies the new vertex positions (V, 3) into the device arrays the G-buffer kernel reads, at that mesh's
     offset in the concatenated arrays, with its smooth normals (V, 3) and curvatures (V,) as ``MeshSpec``
     takes them: given, or, when both are None, computed on the device from the new positions
-    (:mod:`warpbw.mesh_normals`: the normals, H and ``local_curvature``, the formulas of :mod:`warpbw.io.mesh`).  Then refits the BVH over the moved points (``wp.Mesh.refit``: same
+    (:mod:`warpbw.mesh_normals`: the normals, H and ``local_curvature``, the formulas of
+    :mod:`warpbw.io.mesh`).  Then refits the BVH over the moved points (``wp.Mesh.refit``: same
     topology, new bounds).  The connectivity, uv and materials stay as built.  Nothing is derived from the
     old geometry, so a frame rendered after this is what ``build_geometry`` with the new vertices would
     give: the bandwidth pass needs only the G-buffer (002 Sec. 4.3, "Dynamic geometry").

@@ -1,4 +1,4 @@
-"""Triangle meshes for the G-buffer: loading, smooth normals and mean curvature.
+"""Triangle meshes for the G-buffer: loading, smooth normals, mean curvature and its local magnitude.
 
 Public functions:
 
@@ -14,13 +14,15 @@ Public functions:
   area (shared with the device version, ``warpbw.mesh_normals``).
 - ``boundary_neighbours(faces, nv) -> (on_boundary, x, y)``: the open boundary's vertices and their
   interior neighbours (x[k] on the boundary, y[k] interior), from the connectivity alone.
+- ``normals_and_curvature(vertices, faces) -> (normals (V, 3), H (V,))``: ``vertex_normals`` and
+  ``mesh_mean_curvature`` for a mesh whose vertices moved (dynamic geometry, 002 Sec. 4.3: recomputed every
+  frame, nothing cached; about 55 ms for the 70k-triangle bunny on one core, all numpy;
+  ``warpbw.mesh_normals`` does it on the device).
 - ``local_curvature(mean_curvature, faces, passes=CURVATURE_SMOOTHING_PASSES) -> (V,)``: the curvature the
-  bandwidth pass reads, |H| averaged over about two rings (``warpbw.mesh_normals`` does it on the device).
-- ``normals_and_curvature(vertices, faces) -> (normals (V, 3), H (V,))``: both of the above for a mesh
-  whose vertices moved (dynamic geometry, 002 Sec. 4.3: recomputed every frame, nothing cached; about
-  55 ms for the 70k-triangle bunny on one core, all numpy; ``warpbw.mesh_normals`` does it on the device).
+  bandwidth pass reads, |H| averaged over about two rings (12 ms on the bunny; ``warpbw.mesh_normals`` does
+  it on the device).
 
-Class: ``MeshData``.
+Class: ``MeshData``.  Constant: ``CURVATURE_SMOOTHING_PASSES``.
 """
 from __future__ import annotations
 
