@@ -19,7 +19,9 @@ float64, as on the host: the cotangent Laplacian is a small difference of large 
 Three small kernels: per face (the face normal, the cotangent weights and the corner areas, summed into
 the vertices with atomic adds), per vertex (normalise, divide), and per boundary pair (the interior
 neighbours' mean); and for ``local_curvature``, per face (the one-ring sums) and per vertex (the lazy
-average), once per pass.  Atomic adds are atomic on a GPU; on the CPU a launch runs on one thread, so these
+average), once per pass: 3.7 ms for 8 passes on the bunny on the CPU (a gather over each vertex's ring in
+compressed rows, without atomics, took 6.7 ms in one launch per pass and 10.5 ms in tiles over threads).
+Atomic adds are atomic on a GPU; on the CPU a launch runs on one thread, so these
 launches are never split over threads (``warpbw.shading.launch_tiled`` would race on the sums).
 """
 from __future__ import annotations
