@@ -268,3 +268,30 @@ def test_update_mesh_bad_input():
         update_mesh(build_geometry([SphereSpec((0, 0, 0), 1.0, 0)], []), 0, *ok)
     # a rejected update leaves the device arrays as they were
     np.testing.assert_array_equal(geo.mesh.points.numpy(), m.vertices.astype(np.float32))
+
+
+def test_the_pipeline_gives_meshes_the_local_curvature(tmp_path):
+    """A scene's mesh reaches the G-buffer with |H| averaged over its rings (warpbw.io.mesh.local_curvature),
+    not with its signed mean curvature: on bumps whose H changes sign, every vertex's curvature is >= 0 and
+    is the average warpbw.io.mesh computes from the loaded mesh."""
+    from warpbw.io.mesh import load_mesh, local_curvature
+    from warpbw.pipeline import surface_geometry
+    from warpbw.scene import parse_scene
+
+    n, e = 17, 0.1
+    u, v = np.divmod(np.arange(n * n), n)
+    y = 0.02 * np.sin(2 * np.pi * u / 6) * np.sin(2 * np.pi * v / 6)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)]) + 1
+    (tmp_path / "bumps.obj").write_text("".join(f"v {x * e:.6f} {h:.6f} {z * e:.6f}\n" for x, z, h in zip(u, v, y))
+                                        + "".join(f"f {i} {j} {k}\n" for i, j, k in faces))
+    scene = parse_scene("\n".join([
+        "[camera]", "position = [0.8, 3.0, 3.0]", "look_at = [0.8, 0.0, 0.8]", "fov = 40.0", "resolution = [16, 16]",
+        "[environment]", 'procedural = "sky"', "[[object]]", 'mesh = "bumps.obj"', 'material = "g"',
+        "[material.g]", 'type = "lambert"', "albedo = [0.5, 0.5, 0.5]"]), tmp_path, "bumps")
+    md = load_mesh(tmp_path / "bumps.obj")
+    assert (md.mean_curvature < 0).mean() > 0.2 and (md.mean_curvature > 0).mean() > 0.2
+    got = surface_geometry(scene).mesh_attr.curvature.numpy()
+    np.testing.assert_array_equal(got, local_curvature(md.mean_curvature, md.faces))
+    assert np.all(got >= 0.0)
