@@ -109,8 +109,8 @@ material's roughness 0.08; a 97 x 97 grid in normal space; up to 24 texels per l
 at levels 3 to 8, 0.435 / 0.420 / 0.431 / 0.452 / 0.455 / 0.470 aligned against 0.373 / 0.415 / 0.404 /
 0.429 / 0.432 / 0.356 unaligned (session 28, a scratch script).  That poorer fit is not the whole cause: 004's
 literal data count, which leaves the prior little weight above level 2, left the tie (0.130 against 0.128).
-Four Gaussians are: with 8 components per texel the aligned GMM's zoom-32 error on the scales is 0.50x the
-unaligned GMM's (README "Reflectance filtering").
+The four-Gaussian model limit binds: with 8 components per texel the aligned GMM's zoom-32 error on the scales
+is 0.50x the unaligned GMM's (README "Reflectance filtering").
 """
 from __future__ import annotations
 
