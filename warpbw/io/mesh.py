@@ -44,7 +44,7 @@ DEGENERATE_REL_AREA = 1e-12
 # in the project's world convention (DESIGN.md).
 FALLBACK_NORMAL = (0.0, 1.0, 0.0)
 # Lazy one-ring passes (x <- (x + one-ring mean) / 2) that average |H| into the curvature the bandwidth pass
-# reads (local_curvature): an RMS reach of about two rings (the bunny's edge is about 1.7 px at the validation
+# reads (local_curvature): an RMS reach of about two rings (the bunny's edge is about 2 px at the validation
 # scenes' 256x256).  Bandwidth rank correlation per pixel on the bunny (examples/validate_bandwidth.py;
 # warpbw.bandwidth docstring): 0.351 with the signed H, 0.419 with |H|, 0.492 after 4 passes, 0.516 after 8.
 CURVATURE_SMOOTHING_PASSES = 8
