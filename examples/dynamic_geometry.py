@@ -206,7 +206,7 @@ def main(argv=None):
 
     from warpbw.gbuffer import update_mesh
     from warpbw.io.exr import write_png
-    from warpbw.io.mesh import local_curvature, normals_and_curvature
+    from warpbw.io.mesh import normals_and_curvature
     from warpbw.pipeline import prepare_scene, render_adaptive
     from warpbw.scene import parse_scene
 
@@ -232,7 +232,6 @@ def main(argv=None):
         t_b = time.perf_counter()
         if args.host_normals:
             n, h = normals_and_curvature(v, faces)
-            h = local_curvature(h, faces)
         t_c = time.perf_counter()
         if args.host_normals:
             update_mesh(geo, 0, v, n, h)

@@ -17,7 +17,7 @@ import warp as wp
 from warpbw.cli_common import check_overwrite, init_warp, run_command
 from warpbw.gbuffer import MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.io.exr import write_exr, write_false_colour_png, write_png
-from warpbw.io.mesh import load_mesh, local_curvature
+from warpbw.io.mesh import load_mesh
 
 OUTPUTS = ("normal.png", "depth.png", "curvature.png", "material.png", "gbuffer.exr")
 
@@ -47,8 +47,7 @@ def main():
     init_warp(args.device)     # --device checked; Warp's no-CUDA-driver line kept off stderr
     if Path(args.mesh).exists():
         md = load_mesh(args.mesh, translate=(-0.2, 0.0, 0.0))
-        c = local_curvature(md.mean_curvature, md.faces)     # what the bandwidth pass reads (gbuffer docstring)
-        meshes.append(MeshSpec(md.vertices, md.faces, md.normals, c, md.uv, 0))
+        meshes.append(MeshSpec(md.vertices, md.faces, md.normals, md.mean_curvature, md.uv, 0))
         print(f"mesh {args.mesh}: {len(md.vertices)} vertices, {len(md.faces)} triangles")
     else:
         print(f"{args.mesh} not found: rendering the sphere alone")

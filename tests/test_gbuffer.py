@@ -214,9 +214,9 @@ def test_update_mesh_matches_a_geometry_built_from_scratch():
 
 def test_update_mesh_derives_normals_and_curvature_on_the_device_as_the_host_does():
     """update_mesh without normals and curvature computes them on the device (warpbw.mesh_normals): the
-    G-buffer is the one the host's numpy normals and local curvature give, and the other mesh keeps its own."""
+    G-buffer is the one the host's numpy normals and curvature give, and the other mesh keeps its own."""
     from warpbw.gbuffer import update_mesh
-    from warpbw.io.mesh import local_curvature, normals_and_curvature
+    from warpbw.io.mesh import normals_and_curvature
 
     cam = make_camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 64, 48)
     left = _icosphere_spec(0.6, material=0, subdiv=3)
@@ -225,7 +225,6 @@ def test_update_mesh_derives_normals_and_curvature_on_the_device_as_the_host_doe
     v = right.vertices * (1.0 + 0.15 * np.sin(6.0 * right.vertices[:, 1:2])) + np.array([0.5, 0.3, 0.4])
     v32 = v.astype(np.float32).astype(np.float64)   # the positions the device holds
     n, h = normals_and_curvature(v32, right.faces)
-    h = local_curvature(h, right.faces)
     host, device = (build_geometry([], [left, right]) for _ in range(2))
     update_mesh(host, 1, v, n, h)
     update_mesh(device, 1, v)

@@ -19,9 +19,9 @@ angle along the image width.  Pixel (x, y) is sampled at its centre.  Buffers ar
 ``index = y * width + x``.  ``depth`` is the distance along ``forward`` (camera-space z), 0 where no
 geometry is hit; ``material`` is -1 there (the coverage mask is ``material >= 0``).  ``view`` is the unit
 direction from the surface point to the camera (``wo`` in world space).  ``curvature`` is the curvature
-c >= 0 that the bandwidth pass reads (002 Eq. 3): on a sphere of radius r, 1 / r; on a mesh, whatever its
-``MeshSpec`` gives per vertex, interpolated (``warpbw.io.mesh.local_curvature``, the magnitude of the mean
-curvature H = (k1 + k2) / 2 averaged over about two rings, is what the pipeline gives).
+c >= 0 that the bandwidth pass reads (002 Eq. 3): on a sphere of radius r, 1 / r; on a mesh, the magnitude of
+the mean curvature H = (k1 + k2) / 2 that its ``MeshSpec`` (or ``update_mesh``) gives per vertex, averaged over
+about two rings (``warpbw.io.mesh.local_curvature``; ``warpbw.mesh_normals`` on the device), interpolated.
 The tangent is ``d position / d phi`` about +Y on spheres and a branchless orthonormal basis
 (Duff et al. 2017) around the shading normal on meshes: shading here is isotropic.
 """
@@ -80,7 +80,7 @@ class MeshAttributes:
     id: wp.uint64
     indices: wp.array(dtype=wp.int32)        # 3 per face
     normal: wp.array(dtype=wp.vec3)          # per vertex, smooth
-    curvature: wp.array(dtype=wp.float32)    # per vertex curvature (MeshSpec.curvature)
+    curvature: wp.array(dtype=wp.float32)    # per vertex local |H| (local_curvature of MeshSpec.curvature)
     uv: wp.array(dtype=wp.vec2)              # per vertex (zeros when the mesh has none)
     face_material: wp.array(dtype=wp.int32)
 
@@ -306,7 +306,7 @@ class MeshSpec:
     vertices: np.ndarray       # (V, 3)
     faces: np.ndarray          # (F, 3)
     normals: np.ndarray        # (V, 3)
-    curvature: np.ndarray      # (V,) what the bandwidth pass reads: warpbw.io.mesh.local_curvature
+    curvature: np.ndarray      # (V,) mean curvature H (build_geometry stores its local magnitude)
     uv: np.ndarray | None      # (V, 2)
     material: int
 
@@ -325,12 +325,15 @@ class Geometry:
     _keep: list = field(default_factory=list, repr=False)
     # (first vertex, vertex count) of each MeshSpec in the concatenated vertex arrays, in the order given
     mesh_vertex_ranges: list = field(default_factory=list)
-    # mesh index -> warpbw.mesh_normals.MeshTopology, built by the first update_mesh that derives normals
+    # mesh index -> warpbw.mesh_normals.MeshTopology, built by the first update_mesh of that mesh
     topology: dict = field(default_factory=dict)
 
 
 def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], device: str = "cpu") -> Geometry:
-    """Upload spheres and one BVH over all meshes (concatenated, with a material id per face)."""
+    """Upload spheres and one BVH over all meshes (concatenated, with a material id per face); a mesh's
+    curvature is stored as ``warpbw.io.mesh.local_curvature`` of the H its MeshSpec gives."""
+    from warpbw.io.mesh import local_curvature
+
     sl = SphereList()
     sl.center = wp.array(np.array([s.center for s in spheres], np.float32).reshape(-1, 3), dtype=wp.vec3,
                          device=device)
@@ -351,7 +354,7 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
             verts.append(v)
             faces.append(np.asarray(m.faces, np.int64) + base)
             norms.append(np.asarray(m.normals, np.float32))
-            curv.append(np.asarray(m.curvature, np.float32))
+            curv.append(local_curvature(m.curvature, m.faces))
             uvs.append(np.zeros((len(v), 2), np.float32) if m.uv is None else np.asarray(m.uv, np.float32))
             fmat.append(np.full(len(m.faces), m.material, np.int32))
             base += len(v)
@@ -396,11 +399,11 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
     """Deform mesh ``mesh_index`` (its position in ``build_geometry``'s ``meshes``) in place.
 
     Copies the new vertex positions (V, 3) into the device arrays the G-buffer kernel reads, at that mesh's
-    offset in the concatenated arrays, with its smooth normals (V, 3) and curvatures (V,) as ``MeshSpec``
-    takes them: given, or, when both are None, computed on the device from the new positions
-    (:mod:`warpbw.mesh_normals`: the normals, H and ``local_curvature``, the formulas of
-    :mod:`warpbw.io.mesh`).  Then refits the BVH over the moved points (``wp.Mesh.refit``: same
-    topology, new bounds).  The connectivity, uv and materials stay as built.  Nothing is derived from the
+    offset in the concatenated arrays, with its smooth normals (V, 3) and mean curvatures H (V,): given, or,
+    when both are None, computed on the device from the new positions (:mod:`warpbw.mesh_normals`, the
+    formulas of :mod:`warpbw.io.mesh`).  H is stored as its local magnitude, as ``build_geometry`` stores it
+    (``warpbw.mesh_normals.local_curvature``).  Then refits the BVH over the moved points (``wp.Mesh.refit``:
+    same topology, new bounds).  The connectivity, uv and materials stay as built.  Nothing is derived from the
     old geometry, so a frame rendered after this is what ``build_geometry`` with the new vertices would
     give: the bandwidth pass needs only the G-buffer (002 Sec. 4.3, "Dynamic geometry").
     """
@@ -422,15 +425,15 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
     device = geometry.mesh.points.device
     for dest, src, dtype in copies:
         wp.copy(dest, wp.array(src, dtype=dtype, device=device), dest_offset=start, count=count)
-    if normals is None:
-        from warpbw.mesh_normals import MeshShading, local_curvature, mesh_topology, normals_and_curvature
+    from warpbw.mesh_normals import MeshShading, local_curvature, mesh_topology, normals_and_curvature
 
-        topo = geometry.topology.get(int(mesh_index))
-        if topo is None:   # connectivity only, built on the first call
-            topo = geometry.topology[int(mesh_index)] = mesh_topology(ma.indices.numpy(), start, count, device)
-        shading = MeshShading(ma.normal[start:start + count], ma.curvature[start:start + count])
+    topo = geometry.topology.get(int(mesh_index))
+    if topo is None:   # connectivity only, built on the first call
+        topo = geometry.topology[int(mesh_index)] = mesh_topology(ma.indices.numpy(), start, count, device)
+    shading = MeshShading(ma.normal[start:start + count], ma.curvature[start:start + count])
+    if normals is None:
         normals_and_curvature(geometry.mesh.points, topo, device, out=shading)
-        local_curvature(shading.curvature, topo, device, out=shading.curvature)
+    local_curvature(shading.curvature, topo, device, out=shading.curvature)
     geometry.mesh.refit()
 
 

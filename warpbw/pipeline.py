@@ -158,11 +158,10 @@ def _geometry(scene: Scene, mat_id: dict, device: str):
         if isinstance(o, SphereObject):
             spheres.append(SphereSpec(o.center, o.radius, mat_id[o.material]))
         elif isinstance(o, MeshObject):
-            from warpbw.io.mesh import load_mesh, local_curvature
+            from warpbw.io.mesh import load_mesh
 
             md = load_mesh(o.file, translate=o.translate, scale=o.scale, rotate_y_deg=o.rotate_y)
-            meshes.append(MeshSpec(md.vertices, md.faces, md.normals, local_curvature(md.mean_curvature, md.faces),
-                                   md.uv, mat_id[o.material]))
+            meshes.append(MeshSpec(md.vertices, md.faces, md.normals, md.mean_curvature, md.uv, mat_id[o.material]))
     return build_geometry(spheres, meshes, device=device)
 
 
