@@ -60,6 +60,17 @@ albedo = 0.8
 """
 
 
+def grid_mesh(n_u, n_v, fn):
+    """Triangulated (n_u x n_v) vertex grid; fn(u, v) -> (N, 3) points; faces wound (dv x du)."""
+    uu, vv = np.meshgrid(np.arange(n_u), np.arange(n_v), indexing="ij")
+    verts = fn(uu.ravel(), vv.ravel())
+    idx = np.arange(n_u * n_v).reshape(n_u, n_v)
+    a, b = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()
+    c, d = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)])
+    return verts, faces
+
+
 def numpy_camera_rays(position, look_at, fov_deg, w, h, jitter=(0.5, 0.5)):
     """The origin and the unit rays (h, w, 3) through the point ``jitter`` (in [0, 1)^2) of every pixel."""
     o = np.asarray(position, float)

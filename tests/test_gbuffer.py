@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+from conftest import grid_mesh
 
 from warpbw.gbuffer import (MeshSpec, SphereSpec, build_geometry, camera_rays, hide_beyond, make_camera,
                             render_gbuffer)
@@ -277,14 +278,10 @@ def test_the_pipeline_gives_meshes_the_local_curvature(tmp_path):
     from warpbw.pipeline import surface_geometry
     from warpbw.scene import parse_scene
 
-    n, e = 17, 0.1
-    u, v = np.divmod(np.arange(n * n), n)
-    y = 0.02 * np.sin(2 * np.pi * u / 6) * np.sin(2 * np.pi * v / 6)
-    idx = np.arange(n * n).reshape(n, n)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)]) + 1
-    (tmp_path / "bumps.obj").write_text("".join(f"v {x * e:.6f} {h:.6f} {z * e:.6f}\n" for x, z, h in zip(u, v, y))
-                                        + "".join(f"f {i} {j} {k}\n" for i, j, k in faces))
+    verts, faces = grid_mesh(17, 17, lambda u, v: np.stack(
+        [u * 0.1, 0.02 * np.sin(2 * np.pi * u / 6) * np.sin(2 * np.pi * v / 6), v * 0.1], -1))
+    (tmp_path / "bumps.obj").write_text("".join(f"v {x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in verts)
+                                        + "".join(f"f {i} {j} {k}\n" for i, j, k in faces + 1))
     scene = parse_scene("\n".join([
         "[camera]", "position = [0.8, 3.0, 3.0]", "look_at = [0.8, 0.0, 0.8]", "fov = 40.0", "resolution = [16, 16]",
         "[environment]", 'procedural = "sky"', "[[object]]", 'mesh = "bumps.obj"', 'material = "g"',

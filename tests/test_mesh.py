@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 import trimesh
-from conftest import shared_file
+from conftest import grid_mesh, shared_file
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -106,17 +106,6 @@ def test_rotate_y_is_right_handed(tmp_path):
     np.testing.assert_allclose(x_image, [0, 0, -1], atol=1e-6)  # +X about +Y by 90 degrees -> -Z
 
 
-def _grid(n_u, n_v, fn):
-    """Triangulated (n_u x n_v) vertex grid; fn(u, v) -> (N, 3) points; faces wound (dv x du)."""
-    uu, vv = np.meshgrid(np.arange(n_u), np.arange(n_v), indexing="ij")
-    verts = fn(uu.ravel(), vv.ravel())
-    idx = np.arange(n_u * n_v).reshape(n_u, n_v)
-    a, b = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()
-    c, d = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)])
-    return verts, faces
-
-
 def test_open_cylinder_curvature_and_boundary():
     """Cylinder radius r: H = 1/(2r) everywhere, including the open rims (copied from inside)."""
     r, n_theta, n_y = 1.5, 200, 60
@@ -125,7 +114,7 @@ def test_open_cylinder_curvature_and_boundary():
     def pts(u, v):
         return np.stack([r * np.cos(theta(u)), v * 0.05, r * np.sin(theta(u))], -1)
 
-    verts, faces = _grid(n_theta + 1, n_y, pts)
+    verts, faces = grid_mesh(n_theta + 1, n_y, pts)
     verts = verts[: n_theta * n_y]  # the last column duplicates the first: close the seam
     faces = faces % (n_theta * n_y)
     normals = vertex_normals(verts, faces)
@@ -144,7 +133,7 @@ def test_open_spherical_band_rims():
         th = math.radians(20) + v * math.radians(50) / (n_th - 1)
         return np.stack([r * np.sin(th) * np.cos(ph), r * np.cos(th), r * np.sin(th) * np.sin(ph)], -1)
 
-    verts, faces = _grid(n_phi + 1, n_th, pts)
+    verts, faces = grid_mesh(n_phi + 1, n_th, pts)
     verts = verts[: n_phi * n_th]
     faces = faces[:, ::-1] % (n_phi * n_th)  # u runs against v here: reverse to wind outward
     normals = vertex_normals(verts, faces)
@@ -154,7 +143,7 @@ def test_open_spherical_band_rims():
 
 
 def test_plane_has_zero_curvature():
-    verts, faces = _grid(20, 30, lambda u, v: np.stack([u * 0.1, np.zeros(len(u)), v * 0.07], -1))
+    verts, faces = grid_mesh(20, 30, lambda u, v: np.stack([u * 0.1, np.zeros(len(u)), v * 0.07], -1))
     normals = vertex_normals(verts, faces)
     assert np.allclose(np.abs(normals[:, 1]), 1.0)
     assert np.all(np.abs(mesh_mean_curvature(verts, faces, normals)) < 1e-9)
@@ -178,7 +167,7 @@ def test_local_curvature_of_bumps_is_their_mean_curvature_magnitude():
     it about 15% low), where |H| itself ranges over 0 to 2.3 times it."""
     n, e, a = 97, 0.01, 0.0005
     k = 2 * math.pi / (8 * e)
-    verts, faces = _grid(n, n, lambda u, v: np.stack([u * e, a * np.sin(k * u * e) * np.sin(k * v * e), v * e], -1))
+    verts, faces = grid_mesh(n, n, lambda u, v: np.stack([u * e, a * np.sin(k * u * e) * np.sin(k * v * e), v * e], -1))
     h = mesh_mean_curvature(verts, faces, vertex_normals(verts, faces))
     u, v = np.divmod(np.arange(n * n), n)
     inner = (np.minimum(u, v) > 20) & (np.maximum(u, v) < n - 20)   # clear of the rims
@@ -201,7 +190,7 @@ def test_local_curvature_keeps_a_spheres_curvature():
 @given(st.integers(0, 2**32 - 1), st.integers(0, 12), st.floats(1e-3, 50.0), st.booleans())
 def test_local_curvature_is_an_average_of_magnitudes(seed, passes, const, negative):
     """Every value lies within the range of |H| (a weighted mean of magnitudes), and a constant |H| is kept."""
-    verts, faces = _grid(9, 7, lambda u, v: np.stack([u * 0.1, np.zeros(len(u)), v * 0.1], -1))
+    verts, faces = grid_mesh(9, 7, lambda u, v: np.stack([u * 0.1, np.zeros(len(u)), v * 0.1], -1))
     h = np.random.default_rng(seed).normal(0.0, 10.0, len(verts))
     c = local_curvature(h, faces, passes=passes)
     assert np.all(c >= np.abs(h).min() * (1 - 1e-6)) and np.all(c <= np.abs(h).max() * (1 + 1e-6))
@@ -210,7 +199,7 @@ def test_local_curvature_is_an_average_of_magnitudes(seed, passes, const, negati
 
 
 def test_local_curvature_bad_input():
-    verts, faces = _grid(3, 3, lambda u, v: np.stack([u * 0.1, np.zeros(len(u)), v * 0.1], -1))
+    verts, faces = grid_mesh(3, 3, lambda u, v: np.stack([u * 0.1, np.zeros(len(u)), v * 0.1], -1))
     with pytest.raises(WarpbwError, match="passes"):
         local_curvature(np.zeros(len(verts)), faces, passes=-1)
     with pytest.raises(WarpbwError, match="outside 0..8"):
