@@ -3,6 +3,7 @@
     python examples/bench_scenes.py --out bench_scenes            # write the scenes only
     python examples/bench_scenes.py --out bench_scenes --run      # and run `warpbw bench` on each
     python examples/bench_scenes.py --out bench_scenes --run --no-mis --results nomis   # 002's baseline
+    python examples/bench_scenes.py --out bench_scenes --run --runs 8   # 8 runs per point (the README's table)
 
 Four scenes, two shapes, four NPF-derived MERL materials (one very specular, chrome) and two light
 probes, from ../shared/data:
@@ -84,7 +85,9 @@ def main(argv=None) -> int:
     ap.add_argument("--run", action="store_true", help="run warpbw bench on every scene")
     ap.add_argument("--only", help="comma-separated scene names to run")
     ap.add_argument("--nb", default="16,64,256,1024", help="n_b sweep on the first scene ('' for none)")
-    ap.add_argument("--gt-spp", default="8192")
+    ap.add_argument("--gt-spp", default="8192", help="ground-truth samples per pixel (default 8192; cached)")
+    ap.add_argument("--runs", help="runs per point (warpbw bench --runs; default 3): the table's standard errors "
+                    "shrink as 1/sqrt(runs)")
     ap.add_argument("--cache", help="ground-truth cache directory (warpbw bench --cache)")
     ap.add_argument("--no-mis", action="store_true", help="BRDF importance sampling only (002's baseline)")
     ap.add_argument("--results", help="directory for the JSON and PNG records (default: --out)")
@@ -112,6 +115,8 @@ def main(argv=None) -> int:
             cmd += ["--cache", args.cache]
         if args.no_mis:
             cmd.append("--no-mis")
+        if args.runs:
+            cmd += ["--runs", args.runs]
         if i == 0 and args.nb:
             cmd += ["--nb", args.nb]
         if args.force:

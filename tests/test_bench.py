@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 
 from conftest import MIXED_SCENE
@@ -38,6 +39,40 @@ def test_equal_quality_interpolates_on_log_log():
     assert ext and math.isclose(spp, 64.0, rel_tol=1e-9)
 
 
+def _psnr_of_mean(m):
+    return -10.0 * np.log10(m.mean(axis=-1))   # peak 1
+
+
+@pytest.mark.parametrize("runs", [3, 8])
+def test_psnr_standard_error_matches_the_spread_of_repeated_benchmarks(runs):
+    """Brute force: repeat a 'benchmark' of ``runs`` runs whose MSEs are gamma-distributed (coefficient of
+    variation 0.3, as one run's MSE at a few spp) 20,000 times; the RMS of the delta-method standard errors
+    matches the spread of the PSNRs of the mean MSE within 10%."""
+    rng = np.random.default_rng(1)
+    m = rng.gamma(11.0, 1e-4 / 11.0, size=(20000, runs))
+    truth = _psnr_of_mean(m).std()
+    se = np.array([bench.psnr_standard_error(row) for row in m])
+    assert abs(math.sqrt(np.mean(se ** 2)) / truth - 1.0) < 0.1
+    assert bench.psnr_standard_error([2e-4]) is None and bench.psnr_standard_error([0.0, 0.0]) is None
+
+
+def test_paired_difference_se_sees_what_shared_seeds_cancel():
+    """Two settings whose runs share a firefly factor run by run (log-normal, sigma 0.5) on top of their own
+    noise (sigma 0.05): the paired standard error matches the brute-force spread of the PSNR difference
+    within 15%, and is far below the two points' standard errors combined as if independent."""
+    rng = np.random.default_rng(2)
+    runs, reps = 8, 20000
+    shared = rng.lognormal(0.0, 0.5, size=(reps, runs))
+    a = 1e-4 * shared * rng.lognormal(0.0, 0.05, size=(reps, runs))
+    b = 1.2e-4 * shared * rng.lognormal(0.0, 0.05, size=(reps, runs))
+    d = 10.0 * np.log10(a / b).mean(axis=1)   # the paired per-run differences' mean
+    se = np.array([bench.paired_difference_se(x, y) for x, y in zip(a, b)])
+    assert abs(math.sqrt(np.mean(se ** 2)) / d.std() - 1.0) < 0.15
+    independent = np.hypot(bench.psnr_standard_error(a[0]), bench.psnr_standard_error(b[0]))
+    assert se[0] < 0.3 * independent
+    assert bench.paired_difference_se([1e-4], [1e-4]) is None
+
+
 def test_bench_cli_writes_json_and_plot(tmp_path):
     scene = tmp_path / "s.toml"
     scene.write_text(SCENE)
@@ -54,6 +89,7 @@ def test_bench_cli_writes_json_and_plot(tmp_path):
         assert {"budget", "time_s", "psnr_db", "relmse", "bandwidth_time_s"} <= set(rec)
         assert rec["time_s"] > 0 and rec["bandwidth_time_s"] >= 0
     assert [x["n_b"] for x in r["nb_sweep"]] == [1, 4]
+    assert r["nb_sweep"][0]["psnr_se_db"] is None and r["nb_psnr_range_se_db"] is None   # one run: no spread
     assert list((tmp_path / "gt").glob("ground_truth-*.exr"))  # cached
     # nothing is overwritten without --force
     assert cli_main(["bench", str(scene), "--json", str(out), "--gt-spp", "64", "-q"]) == 2
@@ -104,3 +140,58 @@ def test_bench_bad_arguments(tmp_path, capsys, args, match):
     assert rc == 2
     err = capsys.readouterr().err
     assert match in err and "Traceback" not in err
+
+
+def test_bench_records_the_runs_and_their_standard_errors(tmp_path):
+    """With two runs every point keeps its runs' MSEs (their mean is the point's MSE), its PSNR's standard error,
+    and the n_b sweep the paired standard error of its two ends; the table prints them."""
+    from warpbw.scene import parse_scene
+
+    scene = parse_scene(SCENE, tmp_path, "s.toml")
+    rec = bench.run_bench(scene, spp_list=(1, 4), budgets=(1,), nb_list=(1, 4), gt_spp=64, runs=2,
+                          cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **k: None)
+    points = rec["methods"]["reference"] + rec["methods"]["adaptive"] + rec["nb_sweep"]
+    for p in points:
+        assert len(p["mse_runs"]) == 2 and math.isclose(p["mse"], np.mean(p["mse_runs"]), rel_tol=1e-12)
+        assert p["psnr_se_db"] == bench.psnr_standard_error(p["mse_runs"]) and p["psnr_se_db"] > 0
+    for p in rec["methods"]["adaptive"]:
+        assert p["equal_quality_speedup_se"] == p["equal_quality_speedup"] * bench.speedup_relative_se(
+            rec["methods"]["reference"], p["mse"], p["psnr_se_db"])
+    nb = rec["nb_sweep"]
+    lo, hi = sorted(nb, key=lambda p: p["psnr_db"])
+    assert rec["nb_psnr_range_se_db"] == bench.paired_difference_se(lo["mse_runs"], hi["mse_runs"])
+    table = bench.format_table(rec)
+    assert f"{points[0]['psnr_se_db']:.2f}" in table and "over 2 paired runs" in table
+    json.dumps(rec, allow_nan=False)   # the record stays valid JSON
+
+
+def test_speedup_standard_error_follows_the_power_law_and_brute_force():
+    """Closed form: with the reference's MSE = 8 / spp at a time 0.01 spp, t_eq = 0.08 / MSE, so the speed-up's
+    relative standard error is the two curves' log-MSE standard errors combined (half that at a time 0.01
+    sqrt(spp)).  Brute force: 5,000 repeated
+    benchmarks whose every run's MSE is gamma-noisy (coefficient of variation 0.3, 8 runs per point); the RMS of
+    the predicted errors matches the spread of log speed-up within 15%."""
+    spps = (1, 2, 4, 8, 16, 32)
+    se_a, se_r = 0.3, 0.2
+    ref = [{"spp": s, "mse": 8.0 / s, "time_s": 0.01 * s, "psnr_se_db": se_r} for s in spps]
+    rel = bench.speedup_relative_se(ref, 8.0 / 11.0, se_a)
+    assert math.isclose(rel, math.hypot(se_a, se_r) / bench.DB_PER_LN, rel_tol=1e-6)
+    # a time growing as sqrt(spp) (fixed costs): t_eq ~ MSE^-1/2, half the relative error
+    slow = [{**r, "time_s": 0.01 * math.sqrt(r["spp"])} for r in ref]
+    assert math.isclose(bench.speedup_relative_se(slow, 8.0 / 11.0, se_a), rel / 2.0, rel_tol=1e-6)
+    assert bench.speedup_relative_se(ref, 8.0 / 11.0, None) is None
+    assert bench.speedup_relative_se([{**r, "psnr_se_db": None} for r in ref], 8.0 / 11.0, se_a) is None
+
+    rng = np.random.default_rng(3)
+    runs, shape = 8, 1.0 / 0.3 ** 2
+    logs, preds = [], []
+    for _ in range(5000):
+        rec = []
+        for s in spps:
+            m = rng.gamma(shape, 8.0 / s / shape, size=runs)
+            rec.append({"spp": s, "mse": m.mean(), "time_s": 0.01 * s, "psnr_se_db": bench.psnr_standard_error(m)})
+        a = rng.gamma(shape, (8.0 / 11.0) / shape, size=runs)
+        _, t_eq, _ = bench.equal_quality_time(rec, a.mean())
+        logs.append(math.log(t_eq / 0.01))
+        preds.append(bench.speedup_relative_se(rec, a.mean(), bench.psnr_standard_error(a)))
+    assert abs(math.sqrt(np.mean(np.square(preds))) / np.std(logs) - 1.0) < 0.15

@@ -4,6 +4,8 @@ Public:
     ``GT_CHUNK_SPP``, ``DEFAULT_SPP``, ``DEFAULT_BUDGETS``
     ``ground_truth(prep, gt_spp, cache_dir, ...) -> GroundTruth``   cached, with the doubling check
     ``equal_quality_time(ref_records, mse) -> (time_s, extrapolated)``   log-log interpolation
+    ``psnr_standard_error(mses)``, ``paired_difference_se(mses_a, mses_b)``   noise of the PSNR figures (dB)
+    ``speedup_relative_se(ref_records, mse, psnr_se_db)``   noise of an equal-quality speed-up (relative)
     ``run_bench(scene, spp_list, budgets, nb_list, gt_spp, runs, mis, cache_dir, ...) -> dict``
     ``write_plot(record, path)``      error against time, one curve per method (+ the n_b sweep)
     ``format_table(record) -> str``
@@ -14,7 +16,15 @@ Protocol:
   ``gt_spp`` renders only the missing chunks).  Accepted when the PSNR of a render at the largest
   reference spp against half the ground truth and against all of it differ by < 0.5 dB (recorded).
 * Error: PSNR and relative MSE of linear radiance over covered pixels (:mod:`warpbw.metrics`), averaged
-  over the ``runs`` frames (MSE and relative MSE as means, PSNR of the mean MSE).
+  over the ``runs`` frames (MSE and relative MSE as means, PSNR of the mean MSE).  With two runs or more
+  every point also records its runs' MSEs and the standard error of its PSNR (``psnr_se_db``), and the
+  n_b sweep the standard error of its range (``nb_psnr_range_se_db``): the runs of every n_b share their
+  seeds, so the range's noise is that of the paired per-run differences between its two ends (picked after
+  the fact, so noise alone widens the range: four equal points spread over about twice their standard
+  error).  At a few samples per pixel one run's MSE moves by tens of percent (a firefly), so a PSNR
+  difference of a few tenths of a dB between two points of 3 runs each may be noise (the gold bunny's n_b
+  sweep, README: a range of 0.50 +/- 0.33 dB over 3 runs, 0.15 +/- 0.09 dB over 16); the table prints the
+  standard errors.
 * Time: wall time of a whole frame (G-buffer included; for adaptive also the bandwidth pass) after a
   warm-up frame, median of ``runs`` runs; stage times from the frames' stats.
 * Equal-quality speed-up of an adaptive point: the reference's time at the sample count that reaches
@@ -22,7 +32,9 @@ Protocol:
   counts, divided by the adaptive time.  Outside the measured range it is extrapolated along the end
   segment and flagged ``extrapolated``.  The headline ``equal_quality_speedup`` is the best
   non-extrapolated point of the budget sweep (the operating point a user would pick); every point is
-  in the record.
+  in the record.  Its standard error (``equal_quality_speedup_se``, :func:`speedup_relative_se`) carries the
+  noise of both curves' errors, not of the times.  The headline, the best of the sweep, is picked after the
+  fact, so it leans high where several budgets lie within their standard errors of each other.
 * A scene with planes beside spheres or meshes: its spheres and meshes are benchmarked where no plane hides
   them.  The planes are not rendered (``warpbw bench-filtering`` measures the filtering renderer, where no
   sphere or mesh hides the planes), but every frame, the ground truth's included, is clipped at their distances
@@ -48,6 +60,8 @@ DEFAULT_BUDGETS = (0.5, 1, 2, 4, 8, 16, 32)           # adaptive sweep, mean sam
 DEFAULT_GT_SPP = 8192
 DOUBLING_DB = 0.5                                     # DESIGN.md: doubling the GT spp changes PSNR by < 0.5 dB
 NB_SWEEP_BUDGET = 8                                   # budget of the n_b sweep unless given
+DB_PER_LN = 10.0 / math.log(10.0)                     # d(10 log10 m) = DB_PER_LN dm / m
+SPEEDUP_SE_STEP = 0.05                                # log-MSE step of the slope d log t_eq / d log MSE
 
 
 @dataclass
@@ -114,6 +128,47 @@ def equal_quality_time(ref: list, mse: float) -> tuple[float, float, bool]:
     return math.exp(l_spp), math.exp(l_t), ext or ext_t
 
 
+def psnr_standard_error(mses) -> float | None:
+    """Standard error (dB) of the PSNR of the mean of independent runs' MSEs (delta method: the PSNR moves
+    by DB_PER_LN dm / m); None with fewer than two runs or a zero mean."""
+    m = np.asarray(mses, np.float64)
+    if m.size < 2 or not m.mean() > 0:
+        return None
+    return float(DB_PER_LN * m.std(ddof=1) / math.sqrt(m.size) / m.mean())
+
+
+def paired_difference_se(mses_a, mses_b) -> float | None:
+    """Standard error (dB) of the PSNR difference between two settings whose runs share seeds run by run: the
+    spread of the per-run differences 10 log10(m_a / m_b) over sqrt(runs).  What the seeds share (the same
+    fireflies in both) cancels, unlike the two points' own standard errors combined.  None with fewer than
+    two runs."""
+    a, b = np.asarray(mses_a, np.float64), np.asarray(mses_b, np.float64)
+    if a.shape != b.shape or a.size < 2 or not (np.all(a > 0) and np.all(b > 0)):
+        return None
+    d = 10.0 * np.log10(a / b)
+    return float(d.std(ddof=1) / math.sqrt(d.size))
+
+
+def speedup_relative_se(ref: list, mse: float, psnr_se_db: float | None) -> float | None:
+    """Relative standard error of the equal-quality speed-up at ``mse`` from the noise of the errors: the
+    adaptive point's (its PSNR's standard error ``psnr_se_db``) and the reference curve's at the equal-quality
+    count (its points' standard errors, interpolated in log spp), both carried through the slope of
+    log t_eq against log MSE (-1 where the reference's error falls as 1/spp at a time proportional to spp).
+    Timing noise is not in it.  None with fewer than two runs or outside a finite curve."""
+    if psnr_se_db is None or not (mse > 0) or any(r.get("psnr_se_db") is None for r in ref):
+        return None
+    h = SPEEDUP_SE_STEP
+    _, t_lo, _ = equal_quality_time(ref, mse * math.exp(-h))
+    spp, _, _ = equal_quality_time(ref, mse)
+    _, t_hi, _ = equal_quality_time(ref, mse * math.exp(h))
+    if not all(math.isfinite(x) and x > 0 for x in (t_lo, t_hi, spp)):
+        return None
+    slope = (math.log(t_hi) - math.log(t_lo)) / (2.0 * h)
+    pts = sorted((r["spp"], r["psnr_se_db"]) for r in ref)
+    se_ref, _ = _interp(math.log(spp), np.log([q[0] for q in pts]), np.array([q[1] for q in pts]))
+    return abs(slope) * math.hypot(psnr_se_db, se_ref) / DB_PER_LN
+
+
 def _timed(render, runs: int, gt: GroundTruth):
     """Render ``runs`` frames (run r seeded by the caller); the last frame, the median time, and the
     errors averaged over the frames: MSE and relative MSE are means over the runs' independent noise,
@@ -131,7 +186,8 @@ def _timed(render, runs: int, gt: GroundTruth):
     m = statistics.fmean(mses)
     peak = float(np.max(gt.image[res.coverage])) if res.coverage.any() else 0.0
     psnr = math.inf if m == 0.0 else (-math.inf if peak <= 0.0 else 10.0 * math.log10(peak * peak / m))
-    return res, statistics.median(times), {"psnr_db": psnr, "relmse": statistics.fmean(rels), "mse": m}
+    return res, statistics.median(times), {"psnr_db": psnr, "relmse": statistics.fmean(rels), "mse": m,
+                                           "psnr_se_db": psnr_standard_error(mses), "mse_runs": mses}
 
 
 def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), gt_spp: int = DEFAULT_GT_SPP,
@@ -179,7 +235,7 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
         rec = {"spp": int(spp), "time_s": t, **err,
                "shading_time_s": res.stats["time_s"]["shading"], "gbuffer_time_s": res.stats["time_s"]["gbuffer"]}
         ref_recs.append(rec)
-        log(f"reference {spp:6d} spp   {t:8.3f} s   PSNR {rec['psnr_db']:6.2f} dB   relMSE {rec['relmse']:.3e}")
+        log(f"reference {spp:6d} spp   {t:8.3f} s   PSNR {rec['psnr_db']:6.2f} dB +/- {_se(rec)}   relMSE {rec['relmse']:.3e}")
     # doubling check of the ground truth, with the largest reference render
     from warpbw.metrics import mse as mse_of
 
@@ -201,10 +257,13 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
                "over_budget": res.stats["allocation"]["over_budget"],
                "equal_quality_spp": spp_eq, "equal_quality_reference_time_s": t_eq,
                "equal_quality_speedup": t_eq / t if t > 0 else math.nan, "extrapolated": ext}
+        rel = speedup_relative_se(ref_recs, err["mse"], err["psnr_se_db"])
+        rec["equal_quality_speedup_se"] = rel * rec["equal_quality_speedup"] if rel is not None else None
         ada_recs.append(rec)
-        log(f"adaptive  {b:6g} spp   {t:8.3f} s   PSNR {rec['psnr_db']:6.2f} dB   relMSE {rec['relmse']:.3e}   "
+        log(f"adaptive  {b:6g} spp   {t:8.3f} s   PSNR {rec['psnr_db']:6.2f} dB +/- {_se(rec)}   relMSE {rec['relmse']:.3e}   "
             f"shaded {100 * rec['shaded_fraction']:5.1f}%   bandwidth {100 * rec['bandwidth_time_fraction']:4.1f}%   "
-            f"speed-up {rec['equal_quality_speedup']:.2f}x{' (extrapolated)' if ext else ''}")
+            f"speed-up {rec['equal_quality_speedup']:.2f}x +/- {_se(rec, 'equal_quality_speedup_se')}"
+            f"{' (extrapolated)' if ext else ''}")
     nb_recs = []
     nbb = NB_SWEEP_BUDGET if nb_budget is None else nb_budget
     for n_b in nb_list:
@@ -213,7 +272,7 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
         rec = {"n_b": int(n_b), "budget": float(nbb), "time_s": t, **err,
                "bandwidth_time_s": res.stats["time_s"]["bandwidth"], "shaded_fraction": res.stats["shaded_fraction"]}
         nb_recs.append(rec)
-        log(f"n_b {n_b:5d} (budget {nbb:g})   {t:8.3f} s   PSNR {rec['psnr_db']:6.2f} dB   "
+        log(f"n_b {n_b:5d} (budget {nbb:g})   {t:8.3f} s   PSNR {rec['psnr_db']:6.2f} dB +/- {_se(rec)}   "
             f"bandwidth {rec['bandwidth_time_s'] * 1e3:.1f} ms")
     valid = [r for r in ada_recs if not r["extrapolated"] and math.isfinite(r["equal_quality_speedup"])]
     best = max(valid, key=lambda r: r["equal_quality_speedup"]) if valid else None
@@ -232,6 +291,7 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
         "ground_truth_converged": converged,
         "methods": {"reference": ref_recs, "adaptive": ada_recs},
         "equal_quality_speedup": best["equal_quality_speedup"] if best else None,
+        "equal_quality_speedup_se": best["equal_quality_speedup_se"] if best else None,
         "equal_quality_budget": best["budget"] if best else None,
         "bandwidth_time_fraction": (best["bandwidth_time_fraction"] if best
                                     else statistics.median(r["bandwidth_time_fraction"] for r in ada_recs)
@@ -245,9 +305,17 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
                                     "rendered (bench-filtering measures them where no sphere or mesh hides them)"}
     if nb_recs:
         ps = [r["psnr_db"] for r in nb_recs]
+        hi, lo = nb_recs[int(np.argmax(ps))], nb_recs[int(np.argmin(ps))]
         record["nb_sweep"] = nb_recs
         record["nb_psnr_range_db"] = max(ps) - min(ps)
+        record["nb_psnr_range_se_db"] = paired_difference_se(lo["mse_runs"], hi["mse_runs"])
     return record
+
+
+def _se(rec: dict, key: str = "psnr_se_db") -> str:
+    """A standard error of the record (default: its PSNR's, dB), or '-' (one run)."""
+    se = rec.get(key)
+    return f"{se:.2f}" if se is not None else "-"
 
 
 def format_table(record: dict) -> str:
@@ -258,30 +326,38 @@ def format_table(record: dict) -> str:
     if "planes" in record:
         lines.append(f"spheres and meshes only: {record['planes']['pixels_hidden']} pixels hidden by "
                      f"{record['planes']['objects']} plane(s) left out; the planes are not rendered (bench-filtering)")
-    lines.append(f"{'method':10s} {'spp/budget':>10s} {'time (s)':>9s} {'PSNR':>7s} {'relMSE':>10s} {'shaded':>7s} "
-                 f"{'bw %':>5s} {'speed-up':>9s}")
+    lines.append(f"{'method':10s} {'spp/budget':>10s} {'time (s)':>9s} {'PSNR':>7s} {'+/-':>5s} {'relMSE':>10s} "
+                 f"{'shaded':>7s} {'bw %':>5s} {'speed-up':>9s} {'+/-':>5s}")
     for r in record["methods"]["reference"]:
-        lines.append(f"{'reference':10s} {r['spp']:10d} {r['time_s']:9.3f} {r['psnr_db']:7.2f} {r['relmse']:10.3e}")
+        lines.append(f"{'reference':10s} {r['spp']:10d} {r['time_s']:9.3f} {r['psnr_db']:7.2f} {_se(r):>5s} "
+                     f"{r['relmse']:10.3e}")
     for r in record["methods"]["adaptive"]:
-        lines.append(f"{'adaptive':10s} {r['budget']:10g} {r['time_s']:9.3f} {r['psnr_db']:7.2f} {r['relmse']:10.3e} "
+        lines.append(f"{'adaptive':10s} {r['budget']:10g} {r['time_s']:9.3f} {r['psnr_db']:7.2f} {_se(r):>5s} "
+                     f"{r['relmse']:10.3e} "
                      f"{100 * r['shaded_fraction']:6.1f}% {100 * r['bandwidth_time_fraction']:5.1f} "
-                     f"{r['equal_quality_speedup']:8.2f}x{'*' if r['extrapolated'] else ''}")
+                     f"{r['equal_quality_speedup']:8.2f}x {_se(r, 'equal_quality_speedup_se'):>5s}"
+                     f"{'*' if r['extrapolated'] else ''}")
     s = record["equal_quality_speedup"]
-    lines.append(f"equal-quality speed-up: {s:.2f}x at budget {record['equal_quality_budget']:g}" if s is not None
+    lines.append(f"equal-quality speed-up: {s:.2f}x +/- {_se(record, 'equal_quality_speedup_se')} at budget "
+                 f"{record['equal_quality_budget']:g}" if s is not None
                  else "equal-quality speed-up: none within the measured reference range")
     if record.get("bandwidth_time_fraction") is not None:
         lines.append(f"bandwidth pass: {100 * record['bandwidth_time_fraction']:.1f}% of the frame")
     for r in record.get("nb_sweep", []):
-        lines.append(f"n_b {r['n_b']:5d}: PSNR {r['psnr_db']:.2f} dB, {r['time_s']:.3f} s, "
+        lines.append(f"n_b {r['n_b']:5d}: PSNR {r['psnr_db']:.2f} +/- {_se(r)} dB, {r['time_s']:.3f} s, "
                      f"bandwidth {r['bandwidth_time_s'] * 1e3:.1f} ms")
     if "nb_psnr_range_db" in record:
-        lines.append(f"n_b sweep: PSNR range {record['nb_psnr_range_db']:.2f} dB")
-    lines.append("(* extrapolated beyond the measured reference counts)")
+        se = record.get("nb_psnr_range_se_db")
+        lines.append(f"n_b sweep: PSNR range {record['nb_psnr_range_db']:.2f} dB"
+                     + (f" (standard error {se:.2f} dB over {record['runs']} paired runs)" if se is not None else ""))
+    lines.append("(+/-: standard errors over the runs, of the PSNR in dB and of the speed-up from the errors' noise; "
+                 "* extrapolated beyond the measured reference counts)")
     return "\n".join(lines)
 
 
 def write_plot(record: dict, path) -> None:
-    """PSNR against frame time (one curve per method), and the n_b sweep when present."""
+    """PSNR against frame time (one curve per method), and the n_b sweep when present; error bars of one standard
+    error where the record has them (two runs or more)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -291,8 +367,9 @@ def write_plot(record: dict, path) -> None:
     fig, axes = plt.subplots(1, 2 if has_nb else 1, figsize=(11 if has_nb else 6, 4.2), squeeze=False)
     ax = axes[0][0]
     ref, ada = record["methods"]["reference"], record["methods"]["adaptive"]
-    ax.plot([r["time_s"] for r in ref], [r["psnr_db"] for r in ref], "o-", label=f"reference ({record['estimator']})")
-    ax.plot([r["time_s"] for r in ada], [r["psnr_db"] for r in ada], "s-", label="adaptive (002)")
+    for recs, fmt, label in ((ref, "o-", f"reference ({record['estimator']})"), (ada, "s-", "adaptive (002)")):
+        ax.errorbar([r["time_s"] for r in recs], [r["psnr_db"] for r in recs], fmt=fmt, label=label, capsize=3,
+                    yerr=[r.get("psnr_se_db") or 0.0 for r in recs])
     for r in ref:
         ax.annotate(f"{r['spp']}", (r["time_s"], r["psnr_db"]), fontsize=7, xytext=(3, -8), textcoords="offset points")
     for r in ada:
@@ -304,11 +381,15 @@ def write_plot(record: dict, path) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     s = record["equal_quality_speedup"]
-    ax.set_title(f"equal-quality speed-up {s:.1f}x" if s is not None else "speed against accuracy", fontsize=10)
+    se = record.get("equal_quality_speedup_se")
+    ax.set_title(f"equal-quality speed-up {s:.1f}x" + (f" \u00b1 {se:.1f}" if se is not None else "") if s is not None
+                 else "speed against accuracy", fontsize=10)
     if has_nb:
         ax2 = axes[0][1]
         nb = record["nb_sweep"]
-        ax2.semilogx([r["n_b"] for r in nb], [r["psnr_db"] for r in nb], "o-", color="C2", label="PSNR")
+        ax2.errorbar([r["n_b"] for r in nb], [r["psnr_db"] for r in nb], fmt="o-", color="C2", label="PSNR",
+                     yerr=[r.get("psnr_se_db") or 0.0 for r in nb], capsize=3)
+        ax2.set_xscale("log")
         ax2.set_xlabel("n_b (directions of the bandwidth estimate)")
         ax2.set_ylabel("PSNR (dB)")
         ax3 = ax2.twinx()

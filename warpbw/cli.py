@@ -634,9 +634,11 @@ def build_parser() -> argparse.ArgumentParser:
     bn = sub.add_parser("bench", help="speed against accuracy: adaptive shading vs the reference",
                         description="The measurement protocol of DESIGN.md on SCENE: a cached ground truth (MIS, "
                         "--gt-spp), the reference at each --spp, adaptive shading at each --budget, each timed as the "
-                        "median of --runs frames after a warm-up; PSNR and relative MSE over covered pixels; the "
-                        "equal-quality speed-up (reference time at the adaptive error, log-log interpolation) and the "
-                        "bandwidth pass's share of the frame.  --nb adds the n_b sweep of 002 Fig. 13.  In a scene "
+                        "median of --runs frames after a warm-up; PSNR and relative MSE over covered pixels (with two "
+                        "runs or more, the PSNR's standard error over the runs); the equal-quality speed-up (reference "
+                        "time at the adaptive error, log-log interpolation) and the bandwidth pass's share of the "
+                        "frame.  --nb adds the n_b sweep of 002 Fig. 13 (its runs share seeds across n_b, and the "
+                        "range's standard error is that of the paired differences).  In a scene "
                         "with planes beside spheres or meshes, the spheres and meshes are measured where no plane "
                         "hides them (the planes are not rendered: bench-filtering measures them).",
                         formatter_class=argparse.RawDescriptionHelpFormatter)
