@@ -26,6 +26,21 @@ already computed (``parent_valid``):
   1.2 / 1.5 dB (gold bunny) and 0.4 / 0.5 dB (acrylic bunny), and left the chrome sphere within 0.01 dB;
   dropping g_a altogether (bilinear alpha_i and g_z only) gained 0.04-0.3 dB more, but has no anisotropy.
 
+Measured, not adopted (session 29; MIS, 4 or 8 paired seeds, PSNR against cached 8192-spp ground truths):
+
+* a normal weight g_n = exp(-2 (c_max - n . n_i) / sigma^2), c_max the largest n . n_i of the four parents
+  (so the best-matching parent keeps its weight, and WEIGHT_MIN still tests the paper's weights).  On the
+  benchmark's gold bunny, with sigma = 0.1 rad doubling per level, it gained 0.2 / 0.4 / 0.5 dB at budgets
+  2 / 4 / 8 (0.15 rad fixed: 0.2 / 0.4 / 0.5), left the spheres within 0.02 dB and cost the acrylic bunny
+  0.09 dB; sigma = 0.04 rad cost the ccp3 sphere 0.3 dB.  On two bunnies it was not tuned on (256x256,
+  gold-metallic-paint under studio.exr, color-changing-paint3 under forest.exr; budgets 1-8) it lost up to
+  0.23 dB at low budgets and gained at most 0.12 dB, so the gain did not carry over;
+* up-sampling the ratio of the shading to a per-pixel proxy (the environment's MIP pyramid at the mirror
+  direction, a split-sum-like demodulation), multiplied back by the child's proxy: on the gold bunny the
+  up-sampled pixels' ratio to the ground truth reached 5.8x (MIP level 4) and 10.7x (level 2) at the 99th
+  percentile, against 1.9x with a constant proxy, and PSNR fell from 36.5-38.3 dB to below 25 dB at budgets
+  2-8.  A proxy would need the lobe's own pre-filtered light.
+
 Depth, normal and view are read at the finest level (the G-buffer is not mip-mapped): a level-L pixel
 is represented by the finest pixel at the centre of its footprint.  A pixel whose weights sum to less
 than WEIGHT_MIN (no parent at its depth, e.g. across a depth edge) is not guessed: it is returned in
