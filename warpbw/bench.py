@@ -235,7 +235,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
         rec = {"spp": int(spp), "time_s": t, **err,
                "shading_time_s": res.stats["time_s"]["shading"], "gbuffer_time_s": res.stats["time_s"]["gbuffer"]}
         ref_recs.append(rec)
-        log(f"reference {spp:6d} spp   {t:8.3f} s   PSNR {rec['psnr_db']:6.2f} dB +/- {_se(rec)}   relMSE {rec['relmse']:.3e}")
+        log(f"reference {spp:6d} spp   {t:8.3f} s   PSNR {rec['psnr_db']:6.2f} dB +/- {_se(rec)}   "
+            f"relMSE {rec['relmse']:.3e}")
     # doubling check of the ground truth, with the largest reference render
     from warpbw.metrics import mse as mse_of
 
@@ -260,7 +261,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
         rel = speedup_relative_se(ref_recs, err["mse"], err["psnr_se_db"])
         rec["equal_quality_speedup_se"] = rel * rec["equal_quality_speedup"] if rel is not None else None
         ada_recs.append(rec)
-        log(f"adaptive  {b:6g} spp   {t:8.3f} s   PSNR {rec['psnr_db']:6.2f} dB +/- {_se(rec)}   relMSE {rec['relmse']:.3e}   "
+        log(f"adaptive  {b:6g} spp   {t:8.3f} s   PSNR {rec['psnr_db']:6.2f} dB +/- {_se(rec)}   "
+            f"relMSE {rec['relmse']:.3e}   "
             f"shaded {100 * rec['shaded_fraction']:5.1f}%   bandwidth {100 * rec['bandwidth_time_fraction']:4.1f}%   "
             f"speed-up {rec['equal_quality_speedup']:.2f}x +/- {_se(rec, 'equal_quality_speedup_se')}"
             f"{' (extrapolated)' if ext else ''}")
