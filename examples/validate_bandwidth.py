@@ -800,6 +800,24 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
             "bw_valid_even": we["valid"], "noise_var": noise_var, "window": cfg["window"], "ref_spp": conv["spp"]}
 
 
+def check_targets(results: dict) -> tuple[list, list]:
+    """Issue 3's checks on every scene's figures: those missed, and those (met or missed) whose figure lies within
+    one block-bootstrap standard error of its target, which the check cannot tell from it.  Each is named
+    "scene: key (figure +/- standard error)"."""
+    missed, close = [], []
+    for name, st in results.items():
+        for key, target in (("bandwidth_spearman", TARGET_SPEARMAN), ("variance_spearman", TARGET_SPEARMAN),
+                            ("variance_conservative_fraction", TARGET_CONSERVATIVE)):
+            se = st.get(key + "_se")
+            has_se = se is not None and math.isfinite(se)
+            label = f"{name}: {key} ({st[key]:.3f}" + (f" +/- {se:.3f})" if has_se else ")")
+            if not st[key] > target:
+                missed.append(label)
+            if has_se and abs(st[key] - target) < se:
+                close.append(label)
+    return missed, close
+
+
 def _finite(x):
     """JSON-safe: NaN / inf become None."""
     if isinstance(x, dict):
@@ -935,11 +953,7 @@ def main(argv=None) -> int:
         np.savez_compressed(out / f"validate_{name}_maps.npz", **{k: r[k] for k in (
             "image", "coverage", "b_p", "b_p_windowed", "sigma2", "b_p_diagnostic", "sigma2_diagnostic", "var_uniform",
             "var_bis", "bw_ref", "bw_valid", "bw_ref_even", "bw_valid_even", "noise_var")})
-    misses = [f"{n}: {k} ({s[k]:.3f}" + (f" +/- {s[k + '_se']:.3f})" if (k + "_se") in s else ")")
-              for n, s in results.items() for k, ok in (
-        ("bandwidth_spearman", s["bandwidth_spearman"] > TARGET_SPEARMAN),
-        ("variance_spearman", s["variance_spearman"] > TARGET_SPEARMAN),
-        ("variance_conservative_fraction", s["variance_conservative_fraction"] > TARGET_CONSERVATIVE)) if not ok]
+    misses, close = check_targets(results)
     record = {
         "paper": "002 Fig. 12 (validation of predicted variance and bandwidth)",
         "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in cfg.items()} | {
@@ -947,6 +961,7 @@ def main(argv=None) -> int:
             "reference_mis": True, "bis_mis": False},
         "targets": {"spearman": TARGET_SPEARMAN, "conservative_fraction": TARGET_CONSERVATIVE},
         "missed": misses,
+        "within_one_standard_error": close,
         "scenes": results,
     }
     (out / "validate_bandwidth.json").write_text(json.dumps(_finite(record), indent=2) + "\n")
@@ -954,6 +969,8 @@ def main(argv=None) -> int:
     print_table(results)
     print(f"\ntargets: Spearman > {TARGET_SPEARMAN}, conservative > {TARGET_CONSERVATIVE:.0%}: "
           + ("all met" if not misses else "missed " + "; ".join(misses)))
+    if close:
+        print("within one standard error of the target (the check cannot tell them from it): " + "; ".join(close))
     print(f"wrote {out}/validate_bandwidth.json and one figure + maps per scene")
     return 1 if (args.strict and misses) else 0
 

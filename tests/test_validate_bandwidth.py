@@ -198,6 +198,19 @@ def test_block_bootstrap_se_matches_the_spread_over_independent_images(vb):
     assert math.isnan(vb.block_bootstrap_se(np.arange(4.0).reshape(2, 2), np.ones((2, 2)), np.ones((2, 2), bool), 8))
 
 
+def test_check_targets_names_misses_and_figures_within_noise(vb):
+    """A figure below its target is missed; one within a standard error of it, met or not, is named as such; a
+    figure without a standard error (the conservative fraction) or a NaN one is judged on the target alone."""
+    results = {"a": {"bandwidth_spearman": 0.491, "bandwidth_spearman_se": 0.138, "variance_spearman": 0.94,
+                     "variance_spearman_se": 0.03, "variance_conservative_fraction": 1.0},
+               "b": {"bandwidth_spearman": 0.516, "bandwidth_spearman_se": 0.01, "variance_spearman": float("nan"),
+                     "variance_spearman_se": float("nan"), "variance_conservative_fraction": 0.85}}
+    missed, close = vb.check_targets(results)
+    assert missed == ["a: bandwidth_spearman (0.491 +/- 0.138)", "b: variance_spearman (nan)",
+                      "b: variance_conservative_fraction (0.850)"]
+    assert close == ["a: bandwidth_spearman (0.491 +/- 0.138)"]
+
+
 @pytest.mark.parametrize("value", [0.05633674, 0.1, 1.0 / 3.0, 0.7])
 def test_interpolation_of_equal_centres_is_exact(vb, value):
     """Equal valid centres interpolate to exactly their value (no round-off that a rank statistic would read
