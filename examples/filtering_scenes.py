@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from precompute.surfaces import MAX_SURFACE_SIZE
+from warpbw.bench_filtering import FLICKER_PAIRS_MAX
 from warpbw.cli import MAX_ANISOTROPY
 from warpbw.cli_common import check_overwrite, run_command
 
@@ -174,6 +175,9 @@ def main(argv=None) -> int:
                          "the lights stay those of the default camera")
     ap.add_argument("--max-anisotropy", default="1", metavar="N",
                     help="for --run: up to N probes along each footprint's major axis (default 1: isotropic, 004)")
+    ap.add_argument("--flicker-pairs", default="1", metavar="P",
+                    help="for --run: consecutive frame pairs per zoom the flicker is averaged over (default 1; "
+                         "warpbw bench-filtering --flicker-pairs)")
     ap.add_argument("--force", action="store_true", help="overwrite existing scenes, height fields and results")
     args = ap.parse_args(argv)
     from warpbw.scene import GMM_MAX_COMPONENTS, GMM_MAX_PRIOR
@@ -187,6 +191,8 @@ def main(argv=None) -> int:
         ap.error(f"--components {args.components}: expected an integer from 1 to {GMM_MAX_COMPONENTS}")
     if args.max_anisotropy not in [str(n) for n in range(1, MAX_ANISOTROPY + 1)]:
         ap.error(f"--max-anisotropy {args.max_anisotropy}: expected an integer from 1 to {MAX_ANISOTROPY}")
+    if args.flicker_pairs not in [str(n) for n in range(1, FLICKER_PAIRS_MAX + 1)]:
+        ap.error(f"--flicker-pairs {args.flicker_pairs}: expected an integer from 1 to {FLICKER_PAIRS_MAX}")
     if not (math.isfinite(args.elevation) and 0 < args.elevation < 90):
         ap.error(f"--elevation {args.elevation:g}: expected degrees strictly between 0 and 90 (the camera's up "
                  "is +Y, so it cannot look straight down)")
@@ -199,6 +205,7 @@ def main(argv=None) -> int:
         for p in paths:
             cmd = [sys.executable, "-m", "warpbw.cli", "bench-filtering", str(p), "--zoom", args.zoom,
                    "--gt-spp", args.gt_spp, "--spp", args.spp, "--max-anisotropy", args.max_anisotropy,
+                   "--flicker-pairs", args.flicker_pairs,
                    "--json", str(p.with_suffix(".json")), "--plot",
                    str(p.with_suffix(".png"))] + (["--force"] if args.force else [])
             print("$", " ".join(cmd), flush=True)

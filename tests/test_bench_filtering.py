@@ -355,3 +355,30 @@ def test_error_floor_example_rederives_the_renderer_and_a_flat_map_has_no_floor(
     for r in ff.analyse(plane_scene, [4.0], 64, log=lambda *a: None)["zooms"]:
         for k in ("floor", "floor_bilinear", "gmm_per_tap", "gmm_aligned", "toksvig", "lean"):
             assert r[k] == pytest.approx(r["fixed"], rel=1e-3, abs=1e-6), (k, r)
+
+
+def test_flicker_pairs_average_the_consecutive_pairs(plane_scene, capsys):
+    """With two pairs per zoom, the flicker, temporal error and ground-truth flicker at zoom z are the means of the
+    one-pair figures at z and at z * FLICKER_STEP (independent records, the second pair's frames exactly those);
+    the error stays the frame at z's.  Out-of-range --flicker-pairs is refused."""
+    from warpbw.bench_filtering import FLICKER_PAIRS_MAX, run_bench_filtering
+    from warpbw.scene import load_scene
+
+    scene = load_scene(plane_scene)
+    kw = dict(gt_spp=64, runs=1, methods=("toksvig", "gmm_aligned"))
+    two = run_bench_filtering(scene, zooms=(1.5,), flicker_pairs=2, **kw)
+    one = run_bench_filtering(scene, zooms=(1.5, 1.5 * FLICKER_STEP), **kw)
+    assert two["flicker_pairs"] == 2 and one["flicker_pairs"] == 1
+    for m in kw["methods"]:
+        a, (b0, b1) = two["methods"][m][0], one["methods"][m]
+        assert a["error"] == pytest.approx(b0["error"], rel=1e-12)
+        for k in ("flicker", "temporal_error"):
+            assert a[k] == pytest.approx(0.5 * (b0[k] + b1[k]), rel=1e-9, abs=1e-12)
+        assert b0["flicker"] != pytest.approx(b1["flicker"])    # the two pairs do differ
+    g, (h0, h1) = two["ground_truth"][0], one["ground_truth"]
+    assert g["flicker_noise"] == pytest.approx(0.5 * (h0["flicker_noise"] + h1["flicker_noise"]), rel=1e-9, abs=1e-12)
+    d = plane_scene.parent
+    for bad in ("0", str(FLICKER_PAIRS_MAX + 1)):
+        with pytest.raises(SystemExit) as e:
+            main(["bench-filtering", str(plane_scene), "--json", str(d / "p.json"), "--flicker-pairs", bad])
+        assert e.value.code == 2 and "--flicker-pairs" in capsys.readouterr().err and not (d / "p.json").exists()

@@ -7,7 +7,7 @@ Public:
     ``flicker(a0, a1, g0, g1, mask, norm) -> float``  frame-to-frame change in excess of the ground truth's
     ``temporal_error(a0, a1, g0, g1, mask, norm) -> float``  frame-to-frame change's distance to the truth's
     ``run_bench_filtering(scene, zooms, gt_spp, runs, seed, device, cache, progress, log, methods,
-                          env_spp, max_anisotropy) -> dict``
+                          env_spp, max_anisotropy, flicker_pairs) -> dict``
     ``write_plot(record, path)``                    error, flicker and temporal error against zoom
     ``format_table(record) -> str``
 
@@ -21,7 +21,11 @@ covers z^2 times more texels.
   covered in both, the change |I(z') - I(z)| in excess of the ground truth's own change
   |G(z') - G(z)| (clamped at 0: a method may change less than the truth without flickering), normalised as
   the error, mean over the pixels.  A method that follows the truth scores 0; shimmering (a highlight that
-  pops between frames as the footprint moves over the texels) scores high.
+  pops between frames as the footprint moves over the texels) scores high.  One pair of frames is one
+  sample of where the footprints fall on the texels; ``flicker_pairs`` = P > 1 measures P consecutive pairs,
+  z * FLICKER_STEP^j to z * FLICKER_STEP^(j+1) for j < P, and averages the flicker (and the temporal error) over
+  them, each pair normalised by its first frame's truth, so that pair j scores what a one-pair run at zoom
+  z * FLICKER_STEP^j does (the error stays that of the frame at z).  Recorded as ``flicker_pairs``.
 * Temporal error (ours, not the issue's; recorded beside the flicker): per pixel covered in both frames, the
   distance |(I(z') - I(z)) - (G(z') - G(z))| between the method's change and the truth's, normalised and
   averaged as the flicker.  The flicker counts only change beyond the truth's, so an image that changes less
@@ -72,6 +76,7 @@ DEFAULT_GT_SPP = 1024
 # doubling of the distance).
 FLICKER_STEP = 2.0 ** (1.0 / 8.0)
 # Seeds of the ground truths (plus ``seed``; the second one estimates the ground truth's noise).
+FLICKER_PAIRS_MAX = 8   # at most one octave of the zoom (8 steps of FLICKER_STEP) per zoom
 GT_SEED = 1_000_003
 GT_SEED_2 = 2_000_003
 
@@ -129,28 +134,29 @@ def _surfaces_behind(surfaces, device: str):
     return behind
 
 
-def _zoom_frames(scene, zooms, behind) -> list:
-    """Per zoom z, its two frames' cameras (z and z * FLICKER_STEP) and the spheres and meshes behind each
-    (``behind``): ``[(z, (camera, camera), (background, background)), ...]``, computed once for the coverage
-    check and the measurement."""
+def _zoom_frames(scene, zooms, behind, pairs: int = 1) -> list:
+    """Per zoom z, its frames' zooms z * FLICKER_STEP^j (j = 0 ... ``pairs``), cameras and the spheres and meshes
+    behind each (``behind``): ``[(z, (zoom, ...), (camera, ...), (background, ...)), ...]``, computed once for the
+    coverage check and the measurement."""
     from warpbw.filtering import zoomed_camera
 
     frames = []
     for z in zooms:
-        cams = (zoomed_camera(scene.camera, z), zoomed_camera(scene.camera, z * FLICKER_STEP))
-        frames.append((z, cams, tuple(behind(c) for c in cams)))
+        zz = tuple(z * FLICKER_STEP ** j for j in range(pairs + 1))
+        cams = tuple(zoomed_camera(scene.camera, x) for x in zz)
+        frames.append((z, zz, cams, tuple(behind(c) for c in cams)))
     return frames
 
 
 def _check_coverage(scene, frames, device: str) -> None:
     """Refuse, before the mipmaps are built, a zoom at which no pixel sees a plane (in front of the spheres and
-    meshes behind it) in one of its two ``frames`` (``_zoom_frames``): its error, flicker and noise would all be
+    meshes behind it) in one of its ``frames`` (``_zoom_frames``): its error, flicker and noise would all be
     undefined (a mean over no pixel)."""
     from warpbw.filtering import prepare_filtering, render_filtering
 
     prep = prepare_filtering(scene, ("fixed",), device)  # the cheapest method: the coverage is the same for all
-    for z, cams, bgs in frames:
-        for zz, cam, bg in zip((z, z * FLICKER_STEP), cams, bgs):
+    for z, zooms, cams, bgs in frames:
+        for zz, cam, bg in zip(zooms, cams, bgs):
             if render_filtering(scene, "fixed", prepared=prep, camera=cam, env_spp=1, background=bg).coverage.any():
                 continue
             if bg is not None and render_filtering(scene, "fixed", prepared=prep, camera=cam, env_spp=1).coverage.any():
@@ -164,7 +170,7 @@ def _check_coverage(scene, frames, device: str) -> None:
 def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP, runs: int = 3, seed: int = 0,
                         device: str = "cpu", cache: Path | None = None, progress: bool = False,
                         log=lambda *a, **k: None, methods=None, env_spp: int | None = None,
-                        max_anisotropy: int | None = None) -> dict:
+                        max_anisotropy: int | None = None, flicker_pairs: int = 1) -> dict:
     """The benchmark record (module docstring) for a scene with planes (beside spheres or meshes or not)."""
     from warpbw.filtering import (DEFAULT_ANISOTROPY, DEFAULT_ENV_SPP, MAX_ANISOTROPY, METHODS, MIN_GT_SPP,
                                   prepare_filtering, render_filtering)
@@ -181,8 +187,9 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     check_count(env_spp, "--spp (environment pairs per pixel)", 1, INT32_MAX)  # int32 in the kernels
     aniso = DEFAULT_ANISOTROPY if max_anisotropy is None else max_anisotropy
     check_count(aniso, "--max-anisotropy (probes along a footprint's major axis)", 1, MAX_ANISOTROPY)
+    check_count(flicker_pairs, "--flicker-pairs (consecutive frame pairs per zoom)", 1, FLICKER_PAIRS_MAX)
     zooms = [float(z) for z in zooms]
-    frames_by_zoom = _zoom_frames(scene, zooms, _surfaces_behind(surfaces, device))
+    frames_by_zoom = _zoom_frames(scene, zooms, _surfaces_behind(surfaces, device), int(flicker_pairs))
     _check_coverage(scene, frames_by_zoom, device)
     with tempfile.TemporaryDirectory(prefix="warpbw-gmm-") as tmp:
         t0 = time.perf_counter()
@@ -193,42 +200,49 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     log(f"precompute: {prep_time:.2f} s (aligned GMM mipmaps {gmm_time:.2f} s)")
     record = {"scene": scene.source, "resolution": [scene.camera.width, scene.camera.height], "zooms": zooms,
               "gt_spp": int(gt_spp), "env_spp": int(env_spp) if scene.environment is not None else None,
-              "runs": int(runs), "seed": int(seed), "flicker_step": FLICKER_STEP, "max_anisotropy": int(aniso),
+              "runs": int(runs), "seed": int(seed), "flicker_step": FLICKER_STEP, "flicker_pairs": int(flicker_pairs),
+              "max_anisotropy": int(aniso),
               "methods": {m: [] for m in methods}, "ground_truth": [],
               "precompute_time_s": round(gmm_time, 4), "prepare_time_s": round(prep_time, 4),
               "precompute": prep.notes,
               "surfaces": [] if surfaces is None else [o.describe() for o in surfaces.objects]}
     for m in methods:                                     # warm-up: compile every kernel once
         render_filtering(scene, m, prepared=prep, max_anisotropy=aniso)
-    for z, cams, bgs in frames_by_zoom:
-        # the same seed in both frames: the same jitter pattern per pixel, so the truth's frame-to-frame change
+    for z, _, cams, bgs in frames_by_zoom:
+        # the same seed in every frame: the same jitter pattern per pixel, so the truth's frame-to-frame change
         # carries as little of its own noise as possible
         g = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=GT_SEED + seed, prepared=prep, camera=c,
                               background=b) for c, b in zip(cams, bgs)]
         g2 = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=GT_SEED_2 + seed, prepared=prep, camera=c,
                                background=b) for c, b in zip(cams, bgs)]
         cov = g[0].coverage
-        both = cov & g[1].coverage
-        norm = _norm(g[0].image, cov)
+        both = [g[j].coverage & g[j + 1].coverage for j in range(len(g) - 1)]
+        norms = [_norm(x.image, x.coverage) for x in g[:-1]]   # each pair normalised by its first frame's truth
+
+        def over_pairs(metric, a, ref):
+            """``metric`` of the frames ``a`` against ``ref``, mean over the consecutive pairs."""
+            return statistics.fmean(metric(a[j].image, a[j + 1].image, ref[j].image, ref[j + 1].image, both[j],
+                                           norms[j]) for j in range(len(both)))
+
         noise = colour_error(g2[0].image, g[0].image, cov) / math.sqrt(2.0)
-        gt_flicker = flicker(g[0].image, g[1].image, g2[0].image, g[1].image, both, norm)
-        gt_temporal = temporal_error(g2[0].image, g2[1].image, g[0].image, g[1].image, both, norm)
+        # the first truth's change scored against one whose first frame is the second truth's (its own noise)
+        gt_flicker = statistics.fmean(flicker(g[j].image, g[j + 1].image, g2[j].image, g[j + 1].image, both[j],
+                                              norms[j]) for j in range(len(both)))
+        gt_temporal = over_pairs(temporal_error, g2, g)
         record["ground_truth"].append({"zoom": z, "time_s": round(g[0].time_s, 6), "noise": noise,
                                        "temporal_noise": gt_temporal, "pixels_covered": int(cov.sum())})
         line = [f"zoom {z:g} (error/flicker/temporal error): gt noise {noise:.3f}/{gt_flicker:.4f}/{gt_temporal:.4f}"]
         for m in methods:
             times = []
-            frames = []
             for k in range(max(1, runs)):
                 r = render_filtering(scene, m, seed=seed, prepared=prep, camera=cams[0], env_spp=env_spp,
                                      max_anisotropy=aniso, background=bgs[0])
                 times.append(r.time_s)
-            frames.append(r)
-            frames.append(render_filtering(scene, m, seed=seed, prepared=prep, camera=cams[1], env_spp=env_spp,
-                                           max_anisotropy=aniso, background=bgs[1]))
+            frames = [r] + [render_filtering(scene, m, seed=seed, prepared=prep, camera=c, env_spp=env_spp,
+                                             max_anisotropy=aniso, background=b) for c, b in zip(cams[1:], bgs[1:])]
             err = colour_error(frames[0].image, g[0].image, cov)
-            fl = flicker(frames[0].image, frames[1].image, g[0].image, g[1].image, both, norm)
-            te = temporal_error(frames[0].image, frames[1].image, g[0].image, g[1].image, both, norm)
+            fl = over_pairs(flicker, frames, g)
+            te = over_pairs(temporal_error, frames, g)
             record["methods"][m].append({"zoom": z, "error": err, "flicker": fl, "temporal_error": te,
                                          "time_s": round(statistics.median(times), 6),
                                          "mean_level": float(frames[0].level[cov].mean()) if cov.any() else 0.0})

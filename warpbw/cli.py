@@ -520,6 +520,7 @@ def cmd_bench_filtering(args) -> int:
     log = (lambda *a, **k: None) if args.quiet else print
     record = bf.run_bench_filtering(scene, zooms=args.zoom, gt_spp=args.gt_spp, runs=args.runs, seed=args.seed,
                                     env_spp=args.spp, device=args.device, max_anisotropy=args.max_anisotropy,
+                                    flicker_pairs=args.flicker_pairs,
                                     cache=Path(args.cache) if args.cache else None, progress=not args.quiet, log=log)
     _write_bench(args, record, bf.write_plot)
     print(bf.format_table(record))
@@ -693,6 +694,10 @@ def build_parser() -> argparse.ArgumentParser:
                     f"filtered methods (default {DEFAULT_SPP}, as warpbw render; their noise is part of the error)")
     bf.add_argument("--cache", help="GMM mipmap cache directory to reuse (default: build afresh, so that the "
                     "precompute time is measured)")
+    bf.add_argument("--flicker-pairs", type=_positive_int("flicker-pairs", _bf.FLICKER_PAIRS_MAX), default=1,
+                    help="consecutive frame pairs per zoom (z * step^j to z * step^(j+1)) the flicker and temporal "
+                    f"error are averaged over (default 1; at most {_bf.FLICKER_PAIRS_MAX}, one octave): one pair is "
+                    "one sample of where the footprints fall on the texels")
     add_anisotropy_option(bf, 1)
     bench_common(bf)
     bf.set_defaults(func=cmd_bench_filtering)
