@@ -75,8 +75,8 @@ DEFAULT_GT_SPP = 1024
 # Zoom ratio of two consecutive frames of the continuous zoom-out the flicker is measured on (8 frames per
 # doubling of the distance).
 FLICKER_STEP = 2.0 ** (1.0 / 8.0)
-# Seeds of the ground truths (plus ``seed``; the second one estimates the ground truth's noise).
 FLICKER_PAIRS_MAX = 8   # at most one octave of the zoom (8 steps of FLICKER_STEP) per zoom
+# Seeds of the ground truths (plus ``seed``; the second one estimates the ground truth's noise).
 GT_SEED = 1_000_003
 GT_SEED_2 = 2_000_003
 
