@@ -361,7 +361,7 @@ def test_flicker_pairs_average_the_consecutive_pairs(plane_scene, capsys):
     """With two pairs per zoom, the flicker, temporal error and ground-truth flicker at zoom z are the means of the
     one-pair figures at z and at z * FLICKER_STEP (independent records, the second pair's frames exactly those);
     the error stays the frame at z's.  Out-of-range --flicker-pairs is refused."""
-    from warpbw.bench_filtering import FLICKER_PAIRS_MAX, run_bench_filtering
+    from warpbw.bench_filtering import FLICKER_PAIRS_MAX, format_table, run_bench_filtering
     from warpbw.scene import load_scene
 
     scene = load_scene(plane_scene)
@@ -369,6 +369,7 @@ def test_flicker_pairs_average_the_consecutive_pairs(plane_scene, capsys):
     two = run_bench_filtering(scene, zooms=(1.5,), flicker_pairs=2, **kw)
     one = run_bench_filtering(scene, zooms=(1.5, 1.5 * FLICKER_STEP), **kw)
     assert two["flicker_pairs"] == 2 and one["flicker_pairs"] == 1
+    assert "flicker over 2 frame pairs" in format_table(two) and "frame pairs" not in format_table(one)
     for m in kw["methods"]:
         a, (b0, b1) = two["methods"][m][0], one["methods"][m]
         assert a["error"] == pytest.approx(b0["error"], rel=1e-12)

@@ -262,7 +262,9 @@ def format_table(record: dict) -> str:
     zooms = record["zooms"]
     head = f"{'method':<14}" + "".join(f"{'x' + format(z, 'g'):>16}" for z in zooms)
     lines = [f"{record['scene']}  {record['resolution'][0]}x{record['resolution'][1]}, ground truth "
-             f"{record['gt_spp']} rays/pixel; error / flicker per zoom{_aniso_note(record)}"]
+             f"{record['gt_spp']} rays/pixel; error / flicker per zoom{_aniso_note(record)}"
+             + (f"; flicker over {record['flicker_pairs']} frame pairs per zoom"
+                if record.get("flicker_pairs", 1) > 1 else "")]
     if record.get("surfaces"):
         lines.append("planes measured where no sphere or mesh hides them: " + "; ".join(record["surfaces"]))
     lines.append(head)
