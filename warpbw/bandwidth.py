@@ -103,9 +103,9 @@ silent:
   The cost is on the benchmark's acrylic bunny (MIS, one run each, back to back, session 27): it shades 75% of
   its pixels instead of 65% and loses about 0.9 dB at every budget (0.99x against 1.14x), while the gold bunny
   gains (3.14x against 2.97x; budget 4, 37.96 against 36.84 dB); the full benchmark of session 28 (README)
-  reads 3.48x and 1.05x with MIS (3.69x and 0.99x over 8 runs, session 29).  The acrylic bunny is noise-limited: each extra pixel shaded at level 0
-  takes samples from the others.  Keeping H's sign instead shaded fewer pixels there (64%; 1.19x against
-  1.06x in one run) but ranks 0.410 on the first scene.
+  reads 3.48x and 1.05x with MIS (3.69x and 0.99x over 8 runs, session 29).  The acrylic bunny is
+  noise-limited: each extra pixel shaded at level 0 takes samples from the others.  Keeping H's sign instead
+  shaded fewer pixels there (64%; 1.19x against 1.06x in one run) but ranks 0.410 on the first scene.
 * Luminance (``LUMINANCE``, Rec. 709) reduces the RGB of L and rho to the scalar weights.
 * L_i and nu_a^env come from one reduced lat-long table (:func:`light_table`: mean luminance,
   max-filtered nu_a, at most ``LIGHT_TABLE_WIDTH`` columns), one nearest fetch per direction.
