@@ -732,6 +732,7 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
     times["windowed_fft"] = time.perf_counter() - t0
 
     vmask = cov & np.isfinite(sigma2) & np.isfinite(var_u)
+    tile = BOOTSTRAP_TILE * cfg["window"]   # the block bootstrap's tile side, pixels
     vu = compare_variance(sigma2, var_u, vmask)
     vb = compare_variance(sigma2, var_b, vmask & np.isfinite(var_b))
     vd = compare_variance(sigma2_diag, var_u, vmask & np.isfinite(sigma2_diag))
@@ -746,9 +747,8 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
         "bandwidth_spearman": spearman(bp, br),
         "bandwidth_spearman_windowed": spearman(b_p_win[bw_valid], br),
         # block-bootstrap standard errors over tiles of BOOTSTRAP_TILE FFT windows (block_bootstrap_se)
-        "bandwidth_spearman_se": block_bootstrap_se(b_p, bw_ref, bw_valid, BOOTSTRAP_TILE * cfg["window"]),
-        "bandwidth_spearman_windowed_se": block_bootstrap_se(b_p_win, bw_ref, bw_valid,
-                                                             BOOTSTRAP_TILE * cfg["window"]),
+        "bandwidth_spearman_se": block_bootstrap_se(b_p, bw_ref, bw_valid, tile),
+        "bandwidth_spearman_windowed_se": block_bootstrap_se(b_p_win, bw_ref, bw_valid, tile),
         # the most any predictor can reach against this reference, given its ties (spearman_ceiling)
         "bandwidth_spearman_ceiling": spearman_ceiling(br),
         "bandwidth_reference_largest_tie": (float(np.unique(br, return_counts=True)[1].max()) / br.size
@@ -768,7 +768,7 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
         "noise_fraction_p90": float(np.percentile(nf, 90)) if nf.size else float("nan"),
         "noisy_windows_left_out": float(np.mean(nf > MAX_NOISE_FRACTION)) if nf.size else float("nan"),
         "variance_spearman": vu["spearman"],
-        "variance_spearman_se": block_bootstrap_se(sigma2, var_u, vmask, BOOTSTRAP_TILE * cfg["window"]),
+        "variance_spearman_se": block_bootstrap_se(sigma2, var_u, vmask, tile),
         "variance_conservative_fraction": vu["conservative_fraction"],
         "variance_median_ratio": vu["median_ratio"],
         "variance_pixels": vu["pixels"],
