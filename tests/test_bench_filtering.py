@@ -378,6 +378,8 @@ def test_flicker_pairs_average_the_consecutive_pairs(plane_scene, capsys):
         assert b0["flicker"] != pytest.approx(b1["flicker"])    # the two pairs do differ
     g, (h0, h1) = two["ground_truth"][0], one["ground_truth"]
     assert g["flicker_noise"] == pytest.approx(0.5 * (h0["flicker_noise"] + h1["flicker_noise"]), rel=1e-9, abs=1e-12)
+    noise_row = next(x for x in format_table(two).splitlines() if x.startswith("gt noise"))
+    assert noise_row.split() == ["gt", "noise", f"{g['noise']:.3f}", f"/{g['flicker_noise']:.3f}"]
     d = plane_scene.parent
     for bad in ("0", str(FLICKER_PAIRS_MAX + 1)):
         with pytest.raises(SystemExit) as e:

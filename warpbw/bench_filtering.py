@@ -270,7 +270,11 @@ def format_table(record: dict) -> str:
     lines.append(head)
     for m, rows in record["methods"].items():
         lines.append(f"{m:<14}" + "".join(f"{r['error']:>9.3f} /{r['flicker']:.3f}" for r in rows))
-    lines.append(f"{'gt noise':<14}" + "".join(f"{g['noise']:>9.3f}       " for g in record["ground_truth"]))
+    lines.append(f"{'gt noise':<14}" + "".join(f"{g['noise']:>9.3f} /{g['flicker_noise']:.3f}"
+                                               if "flicker_noise" in g else f"{g['noise']:>9.3f}       "
+                                               for g in record["ground_truth"]))
+    lines.append("(gt noise: what a second, independently seeded ground truth scores; flicker differences below its "
+                 "flicker are within the truth's noise: raise --gt-spp)")
     lines.append("temporal error (distance of the frame-to-frame change to the truth's) per zoom")
     for m, rows in record["methods"].items():
         lines.append(f"{m:<14}" + "".join(f"{r['temporal_error']:>16.4f}" for r in rows))
@@ -281,7 +285,7 @@ def format_table(record: dict) -> str:
 
 def write_plot(record: dict, path) -> None:
     """Error, flicker and temporal error against zoom, one curve per method; the ground truth's noise (error,
-    temporal error) as a dashed line."""
+    flicker, temporal error) as a dashed line."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -295,6 +299,8 @@ def write_plot(record: dict, path) -> None:
         axes[2].plot(zooms, [r["temporal_error"] for r in rows], "o-", label=m)
     axes[0].plot(zooms, [g["noise"] for g in record["ground_truth"]], "k--", label="ground-truth noise")
     axes[2].plot(zooms, [g["temporal_noise"] for g in record["ground_truth"]], "k--", label="ground-truth noise")
+    if all("flicker_noise" in g for g in record["ground_truth"]):
+        axes[1].plot(zooms, [g["flicker_noise"] for g in record["ground_truth"]], "k--", label="ground-truth noise")
     for ax, what in zip(axes, ("error against the ground truth", "flicker (change beyond the truth's)",
                                "temporal error (change against the truth's)")):
         ax.set_xscale("log", base=2)
