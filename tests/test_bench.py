@@ -148,7 +148,7 @@ def test_bench_records_the_runs_and_their_standard_errors(tmp_path):
     from warpbw.scene import parse_scene
 
     scene = parse_scene(SCENE, tmp_path, "s.toml")
-    rec = bench.run_bench(scene, spp_list=(1, 4), budgets=(1,), nb_list=(1, 4), gt_spp=64, runs=2,
+    rec = bench.run_bench(scene, spp_list=(1, 4, 16), budgets=(1,), nb_list=(1, 4), gt_spp=64, runs=2,
                           cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **k: None)
     points = rec["methods"]["reference"] + rec["methods"]["adaptive"] + rec["nb_sweep"]
     for p in points:
@@ -162,7 +162,35 @@ def test_bench_records_the_runs_and_their_standard_errors(tmp_path):
     assert rec["nb_psnr_range_se_db"] == bench.paired_difference_se(lo["mse_runs"], hi["mse_runs"])
     table = bench.format_table(rec)
     assert f"{points[0]['psnr_se_db']:.2f}" in table and "over 2 paired runs" in table
+    assert f"{rec['bandwidth_pass_reference_spp']:.1f} samples per pixel" in table
     json.dumps(rec, allow_nan=False)   # the record stays valid JSON
+
+
+def test_bench_table_says_where_the_frame_goes(tmp_path):
+    """Under an environment and a directional light, the table's breakdown of the best budget's frame names every
+    stage the frame timed: the printed times add up to the frame's (within their rounding)."""
+    from warpbw.scene import parse_scene
+
+    scene = parse_scene(MIXED_SCENE, tmp_path, "s.toml")
+    rec = bench.run_bench(scene, spp_list=(1, 4, 16), budgets=(1,), gt_spp=64, runs=1, cache_dir=tmp_path / "gt",
+                          progress=False, log=lambda *a, **k: None)
+    best = next(p for p in rec["methods"]["adaptive"] if p["budget"] == rec["equal_quality_budget"])
+    assert best["lights_time_s"] > 1e-5
+    # the stages account for the frame (each rounded to a microsecond in the stats)
+    assert sum(best[key] for _, key in bench.FRAME_STAGES) == pytest.approx(best["frame_time_s"], abs=4e-6)
+    line = next(x for x in bench.format_table(rec).splitlines() if x.startswith("where the frame's time goes"))
+    assert line.startswith(f"where the frame's time goes at budget {best['budget']:g}")
+    assert [part.rsplit(" ", 2)[0] for part in line.split(": ", 1)[1].split(", ")] == [
+        name for name, _ in bench.FRAME_STAGES]
+
+
+def test_pass_in_reference_spp_reads_the_reference_at_its_largest_count():
+    """The pass's time over the reference's shading time per sample per pixel, read at the largest count (its
+    fixed costs weigh least there); None without an adaptive point or a reference."""
+    refs = [{"spp": 1, "shading_time_s": 0.3}, {"spp": 8, "shading_time_s": 0.8}, {"spp": 4, "shading_time_s": 0.5}]
+    assert bench.pass_in_reference_spp({"bandwidth_time_s": 0.25}, refs) == pytest.approx(2.5)
+    assert bench.pass_in_reference_spp(None, refs) is None
+    assert bench.pass_in_reference_spp({"bandwidth_time_s": 0.25}, []) is None
 
 
 def test_speedup_standard_error_follows_the_power_law_and_brute_force():

@@ -6,6 +6,8 @@ Public:
     ``equal_quality_time(ref_records, mse) -> (time_s, extrapolated)``   log-log interpolation
     ``psnr_standard_error(mses)``, ``paired_difference_se(mses_a, mses_b)``   noise of the PSNR figures (dB)
     ``speedup_relative_se(ref_records, mse, psnr_se_db)``   noise of an equal-quality speed-up (relative)
+    ``pass_in_reference_spp(best, ref_records)``   the bandwidth pass's time in reference samples per pixel
+    ``FRAME_STAGES``                  the adaptive frame's stages (name, record key) the table breaks down
     ``run_bench(scene, spp_list, budgets, nb_list, gt_spp, runs, mis, cache_dir, ...) -> dict``
     ``write_plot(record, path)``      error against time, one curve per method (+ the n_b sweep)
     ``format_table(record) -> str``
@@ -26,7 +28,10 @@ Protocol:
   sweep, README: a range of 0.50 +/- 0.33 dB over 3 runs, 0.15 +/- 0.09 dB over 16); the table prints the
   standard errors.
 * Time: wall time of a whole frame (G-buffer included; for adaptive also the bandwidth pass) after a
-  warm-up frame, median of ``runs`` runs; stage times from the frames' stats.
+  warm-up frame, median of ``runs`` runs; stage times from the frames' stats.  Where the time goes: the table
+  breaks the best budget's frame into its stages (``FRAME_STAGES``, from its last run), and the record's
+  ``bandwidth_pass_reference_spp`` is that frame's bandwidth pass over the reference's shading time per sample
+  per pixel (at its largest count): what the pass costs, in the samples it could have paid for.
 * Equal-quality speed-up of an adaptive point: the reference's time at the sample count that reaches
   the same MSE, interpolated linearly in (log spp, log MSE) and (log spp, log time) between measured
   counts, divided by the adaptive time.  Outside the measured range it is extrapolated along the end
@@ -252,6 +257,7 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
                "bandwidth_time_s": ts["bandwidth"], "shading_time_s": ts["shading"],
                "upsampling_time_s": ts["upsampling"], "hierarchy_time_s": ts["hierarchy"],
                "gbuffer_time_s": ts["gbuffer"], "frame_time_s": ts["frame"],
+               **({"lights_time_s": ts["lights"]} if "lights" in ts else {}),
                "bandwidth_time_fraction": ts["bandwidth"] / t if t > 0 else 0.0,
                "shaded_fraction": res.stats["shaded_fraction"], "samples": res.stats["samples"],
                "samples_per_covered_pixel": res.stats["samples_per_covered_pixel"],
@@ -299,6 +305,7 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
                                     else statistics.median(r["bandwidth_time_fraction"] for r in ada_recs)
                                     if ada_recs else None),
         "asset_and_warmup_time_s": t_prep,
+        "bandwidth_pass_reference_spp": pass_in_reference_spp(best, ref_recs),
     }
     if planes is not None:
         record["planes"] = {"objects": len(planes.objects), "pixels_hidden": int(hidden),
@@ -318,6 +325,24 @@ def _se(rec: dict, key: str = "psnr_se_db") -> str:
     """A standard error of the record (default: its PSNR's, dB), or '-' (one run)."""
     se = rec.get(key)
     return f"{se:.2f}" if se is not None else "-"
+
+
+# the adaptive frame's stages, as the table names them, and their record keys (directional lights only in
+# scenes that have them)
+FRAME_STAGES = (("G-buffer", "gbuffer_time_s"), ("bandwidth pass", "bandwidth_time_s"),
+                ("shading", "shading_time_s"), ("directional lights", "lights_time_s"),
+                ("hierarchy", "hierarchy_time_s"), ("up-sampling", "upsampling_time_s"))
+
+
+def pass_in_reference_spp(best: dict | None, ref_recs: list) -> float | None:
+    """The bandwidth pass's time at ``best`` (an adaptive record) in units of the reference's shading time per
+    sample per pixel, read at the reference's largest sample count (where fixed costs weigh least); None without
+    either."""
+    if best is None or not ref_recs:
+        return None
+    top = max(ref_recs, key=lambda r: r["spp"])
+    per_spp = top["shading_time_s"] / top["spp"]
+    return best["bandwidth_time_s"] / per_spp if per_spp > 0 else None
 
 
 def format_table(record: dict) -> str:
@@ -345,6 +370,14 @@ def format_table(record: dict) -> str:
                  else "equal-quality speed-up: none within the measured reference range")
     if record.get("bandwidth_time_fraction") is not None:
         lines.append(f"bandwidth pass: {100 * record['bandwidth_time_fraction']:.1f}% of the frame")
+    best = next((r for r in record["methods"]["adaptive"] if r["budget"] == record.get("equal_quality_budget")), None)
+    if best is not None:
+        lines.append(f"where the frame's time goes at budget {best['budget']:g} (its last run): "
+                     + ", ".join(f"{name} {1e3 * best[key]:.0f} ms" for name, key in FRAME_STAGES if key in best))
+        spp = record.get("bandwidth_pass_reference_spp")
+        if spp is not None:
+            lines.append(f"the bandwidth pass costs what the reference's shading spends on {spp:.1f} samples per "
+                         "pixel")
     for r in record.get("nb_sweep", []):
         lines.append(f"n_b {r['n_b']:5d}: PSNR {r['psnr_db']:.2f} +/- {_se(r)} dB, {r['time_s']:.3f} s, "
                      f"bandwidth {r['bandwidth_time_s'] * 1e3:.1f} ms")
