@@ -167,8 +167,9 @@ def test_bench_records_the_runs_and_their_standard_errors(tmp_path):
 
 
 def test_bench_table_says_where_the_frame_goes(tmp_path):
-    """Under an environment and a directional light, the table's breakdown of the best budget's frame names every
-    stage the frame timed: the printed times add up to the frame's (within their rounding)."""
+    """Under an environment and a directional light, the table breaks the best budget's frame into every stage the
+    frame timed: the record's stage times add up to the frame's (within the stats' rounding), and the table names
+    them all, in order."""
     from warpbw.scene import parse_scene
 
     scene = parse_scene(MIXED_SCENE, tmp_path, "s.toml")
