@@ -10,7 +10,7 @@ Public:
     ``BandwidthBuffer`` / ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ..., stride, pool_radius)``
     ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max, allocation)``; ``ALLOCATIONS``
     ``PASS_STRIDE_DEFAULT``, ``POOL_RADIUS_DEFAULT``
-    Warp functions ``brdf_nu_rho(nu_rho, m, wi, wo)`` and ``env_light(light, env, w)`` (table look-ups)
+    Warp functions ``brdf_nu_rho(nu_rho, m, wi, wo)`` and ``light_at_uv(light, uv)`` (table look-ups)
 
 Three Warp kernels over the G-buffer (002 Sec. 2.6: a block plan, the directions, the pooling).  For
 pixel p (point x, view direction w_o, shading normal n, mean curvature c, distance d' to the camera)
@@ -142,7 +142,7 @@ import warp as wp
 
 from warpbw.bandwidth_ops import bw_one_bounce
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
-from warpbw.envmap import EnvMapData, env_pdf, env_sample, env_uv
+from warpbw.envmap import EnvMapData, env_pdf_uv, env_sample, env_uv
 from warpbw.errors import INT32_MAX, WarpbwError, check_count, is_int
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 from warpbw.pyramid import build_pyramid, image_level
@@ -216,10 +216,9 @@ def brdf_nu_rho(nu_rho: wp.array(dtype=wp.float32), m: int, wi: wp.vec3, wo: wp.
 
 
 @wp.func
-def env_light(light: wp.array2d(dtype=wp.vec2), env: EnvMapData, w: wp.vec3):
-    """[luminance, nu_a] of the environment towards world direction w: nearest texel of the reduced
-    map (row centres at (j + 1/2) / h)."""
-    uv = env_uv(env, w)
+def light_at_uv(light: wp.array2d(dtype=wp.vec2), uv: wp.vec2):
+    """[luminance, nu_a] of the environment at lat-long coordinates uv = env_uv(env, w): nearest texel of the
+    reduced map (row centres at (j + 1/2) / h)."""
     h = light.shape[0]
     wd = light.shape[1]
     col = wp.clamp(int(uv[0] * float(wd)), 0, wd - 1)
@@ -379,8 +378,9 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
                     wi = to_local(fr, env_sample(env, wp.vec2(u[1], u[2])))
                 if wi[2] > 0.0:
                     wi_world = to_world(fr, wi)
-                    pdf = MIS_HALF * (f.pdf(mats, m, wi, wo) + env_pdf(env, wi_world))
-                    light = env_light(tables.light, env, wi_world)
+                    uv = env_uv(env, wi_world)                   # once: the pdf and the light table need it
+                    pdf = MIS_HALF * (f.pdf(mats, m, wi, wo) + env_pdf_uv(env, uv))
+                    light = light_at_uv(tables.light, uv)
                     rho = wp.dot(_LUM, f.eval(mats, m, wi, wo))
                     chi = light[0] * rho * wi[2]                  # lambda_i (Eq. 5), integrand of Eq. 1
                     nu_l = light[1]

@@ -50,6 +50,8 @@ Warp functions (take an ``EnvMapData`` and a world direction; directions need no
     env_uv(env, w) -> wp.vec2               lat-long (u, v) of w (for per-texel maps such as nu_a)
     env_sample(env, u: wp.vec2) -> wp.vec3 unit world direction, u in [0, 1)^2
     env_pdf(env, w) -> float               solid-angle pdf of env_sample
+    env_radiance_uv(env, uv), env_pdf_uv(env, uv)   the same at uv = env_uv(env, w): a caller that needs both
+                                           at one direction converts it once (a shading sample's MIS weight)
 
 Host functions:
     envmap_from_array(rgb, rotation_deg=0.0, scale=1.0, name="array", device="cpu") -> EnvMap
@@ -225,6 +227,13 @@ def env_radiance(env: EnvMapData, w: wp.vec3) -> wp.vec3:
 
 
 @wp.func
+def env_radiance_uv(env: EnvMapData, uv: wp.vec2) -> wp.vec3:
+    """env_radiance at the lat-long coordinates uv = env_uv(env, w): a caller that also needs env_pdf_uv there
+    computes them once."""
+    return _bilinear_base(env, uv)
+
+
+@wp.func
 def env_radiance_lod(env: EnvMapData, w: wp.vec3, lod: float) -> wp.vec3:
     """Trilinear lookup in the MIP pyramid: lod 0 is the map, lod k is 2^k times coarser."""
     uv = _dir_to_uv(_to_local(env, w))
@@ -267,7 +276,12 @@ def env_sample(env: EnvMapData, u: wp.vec2) -> wp.vec3:
 @wp.func
 def env_pdf(env: EnvMapData, w: wp.vec3) -> float:
     """Solid-angle pdf of env_sample at world direction w (constant inside each texel cell)."""
-    uv = _dir_to_uv(_to_local(env, w))
+    return env_pdf_uv(env, _dir_to_uv(_to_local(env, w)))
+
+
+@wp.func
+def env_pdf_uv(env: EnvMapData, uv: wp.vec2) -> float:
+    """env_pdf at the lat-long coordinates uv = env_uv(env, w)."""
     i = wp.clamp(int(wp.floor(uv[0] * float(env.width))), 0, env.width - 1)
     j = wp.clamp(int(wp.floor(uv[1] * float(wp.max(env.height - 1, 0)) + 0.5)), 0, env.height - 1)
     return env.cell_pdf[j, i]

@@ -102,7 +102,8 @@ import numpy as np
 import warp as wp
 
 from precompute.gmm_mipmap import NORMAL_DIM
-from warpbw.envmap import LUMINANCE_RGB, EnvMapData, env_pdf, env_radiance, env_sample, load_environment
+from warpbw.envmap import (LUMINANCE_RGB, EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv,
+                           load_environment)
 from warpbw.errors import INT32_MAX, WarpbwError, check_count
 from warpbw.gbuffer import CameraData, scene_camera
 from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene
@@ -500,13 +501,13 @@ def env_mis_term(L: Lobes, nl: int, wi: wp.vec3, wo: wp.vec3, pl: PlaneData, env
     strategy's draw); 0 below the plane."""
     c = wp.vec3(0.0)
     if wi[2] > 0.0:
-        ww = plane_to_world(wi)
+        uv = env_uv(env, plane_to_world(wi))   # once: the radiance and the pdf need it
         h = wp.normalize(wi + wo)
         D, at = lobes_ndf(L, nl, h)          # once: both the BRDF and the BRDF strategy's pdf need it
-        p = sample_pdf(D, at, h, wi, wo, pl) + env_pdf(env, ww)
+        p = sample_pdf(D, at, h, wi, wo, pl) + env_pdf_uv(env, uv)
         if p > 0.0:
             f = cook_torrance_cos(wi, wo, pl, D, lobes_lambert(L, nl, wi))
-            c = wp.cw_mul(env_radiance(env, ww), f) / p
+            c = wp.cw_mul(env_radiance_uv(env, uv), f) / p
     return c
 
 

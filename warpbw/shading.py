@@ -34,7 +34,7 @@ import numpy as np
 import warp as wp
 
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
-from warpbw.envmap import EnvMapData, env_pdf, env_radiance, env_sample
+from warpbw.envmap import EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv
 from warpbw.errors import WarpbwError
 from warpbw.gbuffer import GBuffer, GBufferData
 from warpbw.lights import DirectionalLights, Lights
@@ -136,11 +136,11 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
                     if wi[2] > 0.0:
                         p = f.pdf(mats, m, wi, wo)
                         if p > 0.0:
-                            w_world = to_world(fr, wi)
+                            uv = env_uv(env, to_world(fr, wi))   # once: the radiance and the MIS pdf need it
                             p_sum = p
                             if wp.static(mis):
-                                p_sum = p + env_pdf(env, w_world)
-                            c = wp.cw_mul(f.eval(mats, m, wi, wo), env_radiance(env, w_world)) * (wi[2] / p_sum)
+                                p_sum = p + env_pdf_uv(env, uv)
+                            c = wp.cw_mul(f.eval(mats, m, wi, wo), env_radiance_uv(env, uv)) * (wi[2] / p_sum)
                             if finite3(c):
                                 acc = acc + c
                             else:
@@ -151,10 +151,11 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
                         wl = env_sample(env, ul)
                         wl_local = to_local(fr, wl)
                         if wl_local[2] > 0.0:
-                            pl = env_pdf(env, wl)
+                            uvl = env_uv(env, wl)
+                            pl = env_pdf_uv(env, uvl)
                             if pl > 0.0:
                                 pb = f.pdf(mats, m, wl_local, wo)
-                                c = wp.cw_mul(f.eval(mats, m, wl_local, wo), env_radiance(env, wl)) * (
+                                c = wp.cw_mul(f.eval(mats, m, wl_local, wo), env_radiance_uv(env, uvl)) * (
                                     wl_local[2] / (pl + pb))
                                 if finite3(c):
                                     acc = acc + c
