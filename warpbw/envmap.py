@@ -223,7 +223,7 @@ def env_uv(env: EnvMapData, w: wp.vec3) -> wp.vec2:
 @wp.func
 def env_radiance(env: EnvMapData, w: wp.vec3) -> wp.vec3:
     """Bilinear radiance arriving from world direction w (Mitsuba envmap convention)."""
-    return _bilinear_base(env, _dir_to_uv(_to_local(env, w)))
+    return env_radiance_uv(env, env_uv(env, w))
 
 
 @wp.func
@@ -236,7 +236,7 @@ def env_radiance_uv(env: EnvMapData, uv: wp.vec2) -> wp.vec3:
 @wp.func
 def env_radiance_lod(env: EnvMapData, w: wp.vec3, lod: float) -> wp.vec3:
     """Trilinear lookup in the MIP pyramid: lod 0 is the map, lod k is 2^k times coarser."""
-    uv = _dir_to_uv(_to_local(env, w))
+    uv = env_uv(env, w)
     top = float(env.n_levels - 1)
     l = wp.clamp(lod, 0.0, top)
     if l != l:  # NaN lod -> finest level
@@ -276,7 +276,7 @@ def env_sample(env: EnvMapData, u: wp.vec2) -> wp.vec3:
 @wp.func
 def env_pdf(env: EnvMapData, w: wp.vec3) -> float:
     """Solid-angle pdf of env_sample at world direction w (constant inside each texel cell)."""
-    return env_pdf_uv(env, _dir_to_uv(_to_local(env, w)))
+    return env_pdf_uv(env, env_uv(env, w))
 
 
 @wp.func
