@@ -24,6 +24,17 @@ with ``warpbw bench`` on the ccp3 sphere under forest.exr with a sun (radiance 3
 a 4096-spp ground truth): up-sampling the sun's highlight with the rest held PSNR at 46.0-49.2 dB (speed-up
 2.9x); adding it after the up-sampling gives 47.7-57.1 dB (7.3x).  A scene without an environment has
 nothing to adapt and is refused.
+
+Measured, not adopted (session 31, with a scratch patch; the gold bunny of examples/bench_scenes.py, MIS, 4 runs,
+against its cached 8192-spp ground truth):
+
+* Folding the bandwidth pass's own directions into the shading.  The pass's n_b one-sample MIS directions at a
+  traced pixel are an unbiased estimate of L_p (with the full-resolution radiance instead of the pass's
+  reduced table), worth about n_b / 2 of this module's two-sample MIS steps; a shaded pixel that the pass
+  traced averaged the two by their sample counts (with each block's traced pixel moved to the level-1
+  representative, so that every level-1 texel had one).  Budgets 1 / 2 / 4 / 8 gained 1.34 / 0.56 / 0.24 /
+  0.21 dB and the pass's time did not move, but the best speed-up stayed where it was (3.10x against 3.09x, budget 4): there the error
+  is mostly the up-sampling's bias, which no extra sample at a shaded pixel reaches.
 """
 from __future__ import annotations
 
