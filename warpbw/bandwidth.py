@@ -115,6 +115,12 @@ silent:
   where the reference reads some detail, the per-pixel figure falls from 0.491 to 0.489, 0.487 and 0.479.
 * The level (Eq. 11) is computed from the Nyquist sampling rate ``NYQUIST_FACTOR * b_p``: Sec. 2.2
   says "the required sampling rates at the image plane are twice the local image-space bandwidth".
+  Measured, not adopted (session 31, a scratch patch; gold bunny of examples/bench_scenes.py, MIS, 4 runs): a
+  rate that also grows with the pixel's brightness, times sqrt(mu / median mu) where above 1 (mu the pass's
+  own estimate of L_p), since the up-sampling's bias there sits on bright ridges (README).  It shades 33% of
+  the pixels instead of 25% and reads 29.65 / 33.90 / 37.25 / 39.45 dB at budgets 1 / 2 / 4 / 8 against
+  33.74 / 36.53 / 38.17 / 38.34; its best speed-up, 3.73x +/- 0.69 (budget 8) against 3.09x +/- 0.18
+  (budget 4), is within the noise.  With the factor also below 1 (down to 0.5) the best is 2.90x.
 
 N_p (Sec. 2.4: "keep N_p proportional to" the bound, so that the variance is constant):
 ``N_p = clamp(ceil(k_p / V), n_min, n_max)`` with k_p = sigma2_p ("variance", the paper's), its square
