@@ -29,12 +29,13 @@ Measured, not adopted (session 31, with a scratch patch; the gold bunny of examp
 against its cached 8192-spp ground truth):
 
 * Folding the bandwidth pass's own directions into the shading.  The pass's n_b one-sample MIS directions at a
-  traced pixel are an unbiased estimate of L_p (with the full-resolution radiance instead of the pass's
-  reduced table), worth about n_b / 2 of this module's two-sample MIS steps; a shaded pixel that the pass
-  traced averaged the two by their sample counts (with each block's traced pixel moved to the level-1
-  representative, so that every level-1 texel had one).  Budgets 1 / 2 / 4 / 8 gained 1.34 / 0.56 / 0.24 /
-  0.21 dB and the pass's time did not move, but the best speed-up stayed where it was (3.10x against 3.09x, budget 4): there the error
-  is mostly the up-sampling's bias, which no extra sample at a shaded pixel reaches.
+  traced pixel estimate L_p (with the full-resolution radiance instead of the pass's reduced table), worth
+  about n_b / 2 of this module's two-sample MIS steps; a shaded pixel that the pass traced averaged the two
+  by their sample counts (with each block's traced pixel moved to the level-1 representative, so that every
+  level-1 texel had one).  N_p comes from the same directions, so the blend is not strictly unbiased; the
+  PSNRs include whatever bias that left.  Budgets 1 / 2 / 4 / 8 gained 1.34 / 0.56 / 0.24 / 0.21 dB and the
+  pass's time did not move, but the best speed-up stayed where it was (3.10x against 3.09x, budget 4):
+  there the error is mostly the up-sampling's bias, which no extra sample at a shaded pixel reaches.
 """
 from __future__ import annotations
 
