@@ -230,7 +230,8 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
                                               norms[j]) for j in range(len(both)))
         gt_temporal = over_pairs(temporal_error, g2, g)
         record["ground_truth"].append({"zoom": z, "time_s": round(g[0].time_s, 6), "noise": noise,
-                                       "temporal_noise": gt_temporal, "pixels_covered": int(cov.sum())})
+                                       "flicker_noise": gt_flicker, "temporal_noise": gt_temporal,
+                                       "pixels_covered": int(cov.sum())})
         line = [f"zoom {z:g} (error/flicker/temporal error): gt noise {noise:.3f}/{gt_flicker:.4f}/{gt_temporal:.4f}"]
         for m in methods:
             times = []
@@ -247,7 +248,6 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
                                          "time_s": round(statistics.median(times), 6),
                                          "mean_level": float(frames[0].level[cov].mean()) if cov.any() else 0.0})
             line.append(f"{m} {err:.3f}/{fl:.4f}/{te:.4f}")
-        record["ground_truth"][-1]["flicker_noise"] = gt_flicker
         log("  ".join(line))
     return record
 
