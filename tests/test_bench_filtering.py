@@ -293,6 +293,32 @@ def test_benchmark_light_ring_spreads_the_half_vector(tmp_path):
                                    [fs.MIRROR_LIGHT_X, wo[1], -wo[2]]), atol=1e-5)
 
 
+def test_benchmark_acceptance_checks_read_the_coarsest_zoom():
+    # hand-made records: the checks must read the largest zoom whatever the entries' order, take the ratios of the
+    # aligned GMM's error to the others', and count a flicker tie as the aligned GMM's
+    fs = _example()
+
+    def rec(zoom_err_flicker):
+        names = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed")
+        return {"methods": {n: [{"zoom": z, "error": e[i], "flicker": f[i]} for z, e, f in zoom_err_flicker]
+                            for i, n in enumerate(names)},
+                "ground_truth": [{"zoom": 32.0, "flicker_noise": 0.01}]}
+
+    good = rec([(32.0, (0.1, 0.2, 0.4, 0.3, 0.25), (0.01, 0.02, 0.01, 0.03, 0.5)),
+                (1.0, (9.0, 1.0, 1.0, 1.0, 1.0), (9.0, 0.0, 0.0, 0.0, 0.0))])
+    bad = rec([(8.0, (0.3, 0.2, 0.4, 0.3, 1.0), (0.0, 0.0, 0.0, 0.0, 0.0)),
+               (16.0, (0.3, 0.3, 0.5, 0.3, 0.9), (0.02, 0.03, 0.001, 0.03, 0.5))])
+    g, b = fs.acceptance_checks({"g": good, "b": bad})
+    assert (g["zoom"], b["zoom"]) == (32.0, 16.0)
+    assert (g["vs_toksvig"], g["vs_fixed"], g["vs_unaligned"]) == pytest.approx((0.25, 0.4, 0.5))
+    assert g["lowest_flicker"] == "gmm_aligned" and all(g["passed"].values()) and g["gt_flicker_noise"] == 0.01
+    assert (b["vs_toksvig"], b["vs_fixed"], b["vs_unaligned"]) == pytest.approx((0.6, 1 / 3, 1.0))
+    assert b["passed"] == {"vs_toksvig": False, "vs_fixed": True, "vs_unaligned": False, "lowest_flicker": False}
+    assert b["lowest_flicker"] == "toksvig" and b["gt_flicker_noise"] is None
+    table = fs.format_acceptance([g, b])
+    assert table.count("FAIL") == 3 and "toksvig 0.0010" in table
+
+
 def test_error_floor_example_probes_match_the_pixel_box():
     # examples/filtering_floor.py's anisotropic footprint: the pixel box's axes are J's singular values (SVD, an
     # independent route to the eigen-decomposition it uses); n probes of radius r spaced d apart along the
