@@ -73,7 +73,7 @@ HALF_VECTORS = ((0.0, 0.0), (0.22, 90.0), (0.22, 210.0), (0.22, 330.0),
 MIRROR_LIGHT_X = 0.15
 LIGHT_SETUPS = ("ring", "mirror")
 # issue 4's acceptance at the coarsest zoom: the aligned GMM's error at most this fraction of Toksvig's and of the
-# fixed BRDF's (004 Sec. 5 reports 0.36x and 0.33x), below the unaligned GMM's, and its flicker the lowest
+# fixed BRDF's (004 Fig. 4 and Fig. 8 report 0.36x and 0.33x), below the unaligned GMM's, and its flicker the lowest
 ERROR_RATIO_MAX = 0.5
 
 SCENE = """\
