@@ -36,6 +36,14 @@ against its cached 8192-spp ground truth):
   PSNRs include whatever bias that left.  Budgets 1 / 2 / 4 / 8 gained 1.34 / 0.56 / 0.24 / 0.21 dB and the
   pass's time did not move, but the best speed-up stayed where it was (3.10x against 3.09x, budget 4):
   there the error is mostly the up-sampling's bias, which no extra sample at a shaded pixel reaches.
+* Refining a posteriori (session 32).  An up-sampled texel at level 0 or 1 whose parents in use spread in
+  luminance by more than 1.2 times their mean (max - min) was shaded instead, with its footprint's N_p.  Over
+  8 runs, back to back with the baseline, budgets 2 / 4 / 8 read 36.82 / 38.52 / 39.22 dB against 36.62 /
+  38.20 / 38.85, with 27.6% of the pixels shaded at budget 4 instead of 24.7%; the best speed-up was 3.35x
+  +/- 0.26 against 3.25x +/- 0.23 (budget 4).  The patch measured the spread in numpy, which added 20 ms to
+  the hierarchy's 15; a kernel would win back most of that, about 5% of the frame, still within the noise.
+  The parents' own noise trips a lower threshold (0.8 at level 0 alone shades 33% of the pixels, 3.07x), and a
+  ridge thinner than the parents' spacing can fall between them and leave no trace.
 """
 from __future__ import annotations
 
