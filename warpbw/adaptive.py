@@ -42,8 +42,8 @@ against its cached 8192-spp ground truth):
   38.20 / 38.85, with 27.6% of the pixels shaded at budget 4 instead of 24.7%; the best speed-up was 3.35x
   +/- 0.26 against 3.25x +/- 0.23 (budget 4).  The patch measured the spread in numpy, which added 20 ms to
   the hierarchy's 15; a kernel would win back most of that, about 5% of the frame, still within the noise.
-  The parents' own noise trips a lower threshold (0.8 at level 0 alone shades 33% of the pixels, 3.07x), and a
-  ridge thinner than the parents' spacing can fall between them and leave no trace.
+  The parents' own noise trips a lower threshold (0.8 at level 0 alone: 33% shaded, 3.07x against 3.10x over
+  4 runs), and a ridge thinner than the parents' spacing can fall between them and leave no trace.
 """
 from __future__ import annotations
 
