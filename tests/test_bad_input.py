@@ -330,6 +330,9 @@ def test_spp_zero(tmp_path):
      ["--allocation", "invalid choice"]),
     (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--nyquist", "0"],
      ["--nyquist", "positive"]),
+    # the rate nyquist x b_p is float32: 1e40 became +inf and 0 x inf NaN, with numpy's warnings
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--nyquist", "1e40"],
+     ["--nyquist", "<= 3.40282e+38", "float32", "got 1e40"]),
     # counts the kernels hold in int32: 2^31 would wrap to a negative count (a black image), 2^32 + 1 to one
     (["render", "scene.toml", "-o", "out.exr", "--spp", "2147483648"], ["--spp", "<= 2147483647", "int32"]),
     (["render", "scene.toml", "-o", "out.exr", "--spp", "4294967297"], ["--spp", "<= 2147483647"]),
@@ -373,7 +376,7 @@ def test_spp_zero(tmp_path):
      ["--max-anisotropy 4", "scenes with planes", "only"]),
 ], ids=["no output", "bad threads", "png output", "unknown command", "no command", "adaptive without budget",
         "negative budget", "nan budget", "zero nb", "budget without adaptive", "unknown method",
-        "allocation without adaptive", "unknown allocation", "zero nyquist",
+        "allocation without adaptive", "unknown allocation", "zero nyquist", "nyquist 1e40",
         "spp 2^31", "spp 2^32+1", "demo spp 2^31", "budget 3e9", "nb 2^31", "bench spp 2^31", "bench budgets 1e9",
         "bench spp twice", "bench-filtering zoom twice", "bench gt-spp 2^31", "bench-filtering spp 2^31",
         "seed -1", "seed 2^32", "bench seed -1",

@@ -292,6 +292,22 @@ def test_bad_tables_are_refused():
         bw.make_bandwidth_tables(np.ones((4, 8, 2)), np.zeros((1, 16, 16)))
 
 
+def test_nyquist_factor_beyond_float32_is_refused_and_the_largest_shades_every_pixel_finest():
+    """The rate 2 b_p of Eq. 11 is float32: a factor past its range is refused by name; the largest one
+    puts every covered pixel with b_p > 0 at level 0 (its rate overflows to +inf), with no numpy warning."""
+    import warnings
+
+    prep = prepared(mat=GGX_SHARP, env='procedural = "sky"', w=24, h=20)
+    with pytest.raises(WarpbwError, match="nyquist.*float32"):
+        run_pass(prep, nyquist=1e40)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        gb, buf = run_pass(prep, nyquist=3.4e38)
+    cov = gb.coverage
+    assert cov.any() and (buf.b_p.numpy().reshape(cov.shape)[cov] > 0).all()
+    assert (buf.level.numpy()[cov] == 0).all()
+
+
 def test_adaptive_matches_reference_in_the_limit():
     """With every pixel at level 0 (a huge Nyquist factor) and the uniform allocation, the adaptive
     frame is the reference estimator at the same spp (same estimator, different seeds)."""

@@ -149,7 +149,7 @@ import warp as wp
 from warpbw.bandwidth_ops import bw_one_bounce
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf_uv, env_sample, env_uv
-from warpbw.errors import INT32_MAX, WarpbwError, check_count, is_int
+from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, is_int
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 from warpbw.pyramid import build_pyramid, image_level
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_local, to_world
@@ -580,8 +580,9 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     dirs_np = direction_set(n_b, seed)
     stride = check_count(stride, "stride", 1)
     pool_radius = check_count(pool_radius, "pool_radius", 0)
-    if not (nyquist > 0 and math.isfinite(nyquist)):
-        raise WarpbwError(f"nyquist: expected a positive factor, got {nyquist!r}")
+    if not (0 < nyquist <= FLOAT32_MAX):  # the rate is float32 in the kernels
+        raise WarpbwError(f"nyquist: expected a positive factor within the float32 range "
+                          f"(<= {FLOAT32_MAX:.4g}), got {nyquist!r}")
     t0 = time.perf_counter()
     W, H = gb.width, gb.height
     # the tile of shifts: enough that the pooling window sees each once (its width in blocks)
@@ -611,7 +612,8 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     launch_tiled(pool_kernel, pix.shape[0],
                  lambda o, c: [gb.data, rep, pool_radius, int(n_b), angle, lam, nu_sum, var, w2, pix, o,
                                nu, b_p, sigma2, sigma2_rel, var_mis], device, threads)
-    rate = b_p.numpy() * np.float32(nyquist)
+    with np.errstate(over="ignore"):  # a rate beyond float32 is +inf: level 0 (image_level)
+        rate = b_p.numpy() * np.float32(nyquist)
     level = image_level(rate, gb.coverage, W, H, device=device)
     wp.synchronize_device(device)
     return BandwidthBuffer(nu, b_p, sigma2, sigma2_rel, level, gb.coverage, W, H, int(n_b),

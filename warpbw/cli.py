@@ -291,7 +291,7 @@ def add_adaptive_options(p) -> None:
                    help="adaptive: how N_p follows the pass's estimates: measured (default; the pass's own MIS "
                    "standard deviation), variance (002 Sec. 2.4: the Eq. 9 bound), sqrt (its square root), "
                    "relative (bound / radiance^2), uniform")
-    p.add_argument("--nyquist", type=_positive_float("nyquist"), default=None,
+    p.add_argument("--nyquist", type=_positive_float("nyquist", FLOAT32_MAX), default=None,
                    help="adaptive: sampling rate in multiples of the image bandwidth b_p for the level of Eq. 11 "
                    "(default 2, Nyquist; larger shades more pixels at finer levels)")
 
@@ -430,7 +430,8 @@ def _positive_int(name, hi=None):
 def _why(hi) -> str:
     """Why a count or budget has an upper bound, for the parsers' messages."""
     return {INT32_MAX: " (an int32 in the kernels)",
-            BUDGET_MAX: " (N_p, up to 32 x budget, is an int32 in the kernels)"}.get(hi, "")
+            BUDGET_MAX: " (N_p, up to 32 x budget, is an int32 in the kernels)",
+            FLOAT32_MAX: " (a float32 in the kernels)"}.get(hi, "")
 
 
 def _number_list(name, kind, hi=None):
