@@ -1,7 +1,7 @@
 """Benchmark of the forward reference: G-buffer time, shading throughput, error against spp.
 
     python examples/bench_reference.py [--material gold-metallic-paint] [--probe forest.exr]
-        [--resolution 512 512] [--spp 16,32,64,128,256,512,1024] [--gt-spp 8192] [--out bench_out]
+        [--resolution 512 512] [--spp 16,32,64,128,256,512,1024] [--gt-spp 8192] [--out bench_out] [--force]
 
 Scene: the Stanford bunny (../shared/data/meshes/bunny.obj) with a MERL material written from the NPF
 fit by ``warpbw-precompute npf-to-merl``, under a light probe of ../shared/data/envmaps.
@@ -11,7 +11,8 @@ MIS reference at ``--gt-spp``, the mean of independently seeded 4096-spp chunks 
 when the PSNR of a 1024-spp render against its first half and against the whole differ by < 0.5 dB
 (else it says so).
 Writes bench_out/bench_reference.json, a plot bench_out/bench_reference.png (error against time,
-one curve per estimator) and the ground truth EXR (cached by scene hash).
+one curve per estimator), PNG previews, and the ground truth EXR (cached by scene hash); an earlier run's
+records are kept unless ``--force`` (``--check-only`` updates them by design).
 """
 from __future__ import annotations
 
@@ -25,8 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import init_warp, run_command
+from warpbw.cli import check_command_options
+from warpbw.cli_common import check_overwrite, init_warp, run_command
 from warpbw.errors import WarpbwError
+from warpbw.scene import MAX_RESOLUTION
 
 HERE = Path(__file__).resolve().parent
 GT_CHUNK_SPP = 4096   # spp per cached ground-truth chunk
@@ -67,13 +70,32 @@ def main():
     ap.add_argument("--probe", default="forest.exr")
     ap.add_argument("--rotation", type=float, default=0.0)
     ap.add_argument("--resolution", type=int, nargs=2, default=[512, 512])
-    ap.add_argument("--spp", default="16,32,64,128,256,512,1024")
-    ap.add_argument("--gt-spp", type=int, default=16384, help="ground-truth spp (a multiple of 4096)")
-    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--spp", default="16,32,64,128,256,512,1024", help="comma-separated samples per pixel")
+    ap.add_argument("--gt-spp", type=int, default=16384,
+                    help=f"ground-truth spp (a multiple of {GT_CHUNK_SPP}, at least two chunks)")
+    ap.add_argument("--runs", type=int, default=3, help="timed runs per point (median)")
     ap.add_argument("--out", default="bench_out")
     ap.add_argument("--check-only", action="store_true",
                     help="redo only the ground-truth check, keeping the sweep of an earlier run's JSON")
+    ap.add_argument("--force", action="store_true", help="overwrite an earlier run's records and previews")
     args = ap.parse_args()
+    # the options warpbw bench also has mean the same here: its parsers check them, before any work
+    check_command_options("bench", {"--spp": args.spp, "--runs": str(args.runs)})
+    if args.gt_spp % GT_CHUNK_SPP or args.gt_spp < 2 * GT_CHUNK_SPP:
+        ap.error(f"--gt-spp {args.gt_spp}: expected a multiple of {GT_CHUNK_SPP} of at least {2 * GT_CHUNK_SPP} "
+                 f"(the mean of cached {GT_CHUNK_SPP}-spp chunks, checked against its first half)")
+    if not all(1 <= r <= MAX_RESOLUTION for r in args.resolution):
+        ap.error(f"--resolution {args.resolution[0]} {args.resolution[1]}: expected a width and a height from 1 "
+                 f"to {MAX_RESOLUTION}")
+    if not math.isfinite(args.rotation):
+        ap.error(f"--rotation {args.rotation}: expected a finite angle in degrees")
+    out = Path(args.out)
+    spps = sorted({int(s) for s in args.spp.split(",") if s.strip()})
+    if not args.check_only:
+        check_overwrite([out / "bench_reference.json", out / "bench_reference.png", out / "ground_truth.png"]
+                        + [out / f"{m}_{spps[-1]}spp.png" for m in ("brdf_is", "mis")], args.force, "--out")
+    elif not (out / "bench_reference.json").is_file():
+        ap.error(f"--check-only: {out / 'bench_reference.json'} not found (an earlier run's records are needed)")
 
     import warp as wp
 
@@ -85,13 +107,15 @@ def main():
     from warpbw.pipeline import prepare_scene, render_reference
     from warpbw.scene import parse_scene
 
-    out = Path(args.out)
     merl = out / f"{args.material}.binary"
     if not merl.exists():   # the MERL file from the NPF fit (warpbw-precompute npf-to-merl), --material checked first
         try:
             read_npf(DATA / "brdf" / "npf.bin", args.material)
         except WarpbwError as exc:
             raise WarpbwError(f"--material {args.material}: {exc}") from None
+    if not (DATA / "envmaps" / args.probe).is_file():
+        ap.error(f"--probe {args.probe}: no such probe in {DATA / 'envmaps'}")
+    if not merl.exists():
         out.mkdir(parents=True, exist_ok=True)
         t0 = time.perf_counter()
         npf_to_merl(DATA / "brdf" / "npf.bin", args.material, merl)
@@ -144,7 +168,6 @@ def main():
     cov = render_reference(prep, spp=1, seed=0).coverage
 
     records = {"brdf_is": [], "mis": []}
-    spps = [int(s) for s in args.spp.split(",")]
     for method, mis in () if args.check_only else (("brdf_is", False), ("mis", True)):
         for spp in spps:
             res, t, stats = timed_render(prep, spp, 10 + spp, mis, args.runs)

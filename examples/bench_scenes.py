@@ -27,7 +27,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from warpbw.cli_common import run_command
+from warpbw.cli import check_command_options
+from warpbw.cli_common import check_overwrite, run_command
 
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent.parent / "shared" / "data"
@@ -63,20 +64,28 @@ file = "{merl}"
 """
 
 
-def write_scenes(out: Path) -> list[Path]:
+def scene_texts(out: Path) -> dict[Path, str]:
+    """The TOML of each benchmark scene, by the path it is written to in ``out``."""
+    return {out / f"{name}.toml": TEMPLATE.format(camera=CAMERAS[obj], size=size, probe=DATA / "envmaps" / probe,
+                                                 obj=OBJECTS[obj].format(mesh=DATA / "meshes" / "bunny.obj"),
+                                                 merl=f"{material}.binary")
+            for name, (obj, material, probe, size) in SCENES.items()}
+
+
+def write_scenes(out: Path, force: bool = False) -> list[Path]:
+    """Write the scenes and their MERL files into ``out``.  A scene file already there with other
+    contents (edited by hand, say) is refused without ``force``, before anything is written."""
+    texts = scene_texts(out)
+    check_overwrite([p for p, text in texts.items() if p.exists() and p.read_text() != text], force, "--out")
     out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for name, (obj, material, probe, size) in SCENES.items():
+    for _, material, _, _ in SCENES.values():
         merl = out / f"{material}.binary"
         if not merl.exists():
             subprocess.run([sys.executable, "-m", "precompute", "npf-to-merl", "--table",
                             str(DATA / "brdf" / "npf.bin"), "--material", material, "-o", str(merl)], check=True)
-        text = TEMPLATE.format(camera=CAMERAS[obj], size=size, probe=DATA / "envmaps" / probe,
-                               obj=OBJECTS[obj].format(mesh=DATA / "meshes" / "bunny.obj"), merl=merl.name)
-        p = out / f"{name}.toml"
+    for p, text in texts.items():
         p.write_text(text)
-        paths.append(p)
-    return paths
+    return list(texts)
 
 
 def main(argv=None) -> int:
@@ -96,10 +105,13 @@ def main(argv=None) -> int:
     unknown = sorted(set(args.only.split(",") if args.only else ()) - set(SCENES))
     if unknown:
         ap.error(f"--only {','.join(unknown)}: expected scene names among {', '.join(SCENES)}")
+    # the values passed on to warpbw bench, checked by its own parsers before anything is written
+    check_command_options("bench", {k: v for k, v in (("--gt-spp", args.gt_spp), ("--runs", args.runs),
+                                                         ("--nb", args.nb)) if v})
     if not DATA.is_dir():
         print(f"bench_scenes: {DATA} not found (the shared data folder is needed)", file=sys.stderr)
         return 2
-    paths = write_scenes(Path(args.out))
+    paths = write_scenes(Path(args.out), args.force)
     print("scenes: " + ", ".join(str(p) for p in paths))
     if not args.run:
         return 0

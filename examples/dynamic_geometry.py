@@ -39,8 +39,8 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.cli_common import check_overwrite, init_warp, run_command
-from warpbw.errors import WarpbwError
+from warpbw.cli_common import check_overwrite, init_warp, parse_seed, run_command
+from warpbw.errors import SEED_MAX, WarpbwError
 
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent.parent / "shared" / "data"
@@ -181,7 +181,7 @@ def main(argv=None):
     ap.add_argument("--material", default=DEFAULT_MATERIAL, help="an NPF material name, or 'ggx'")
     ap.add_argument("--env", help="lat-long EXR light probe (default: the shared city.exr; the procedural sky "
                                   "when it is absent)")
-    ap.add_argument("--seed", type=int, default=0, help="frame f uses seed + f")
+    ap.add_argument("--seed", type=parse_seed, default=0, help="frame f uses seed + f (0 to 2^32-1)")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads for shading (default: cores)")
     ap.add_argument("--device", default="cpu", help="Warp device (default cpu)")
     ap.add_argument("--host-normals", action="store_true",
@@ -191,6 +191,11 @@ def main(argv=None):
     args = ap.parse_args(argv)
     if args.frames < 1 or args.size < 8 or not (args.budget > 0 and math.isfinite(args.budget)):
         ap.error("expected --frames >= 1, --size >= 8 and a positive --budget")
+    if args.seed + args.frames - 1 > SEED_MAX:
+        ap.error(f"--seed {args.seed}: frame f uses seed + f, which must stay a uint32 (expected at most "
+                 f"{SEED_MAX - args.frames + 1} with --frames {args.frames})")
+    if args.threads is not None and args.threads < 1:
+        ap.error(f"--threads {args.threads}: expected a positive integer")
     if args.mesh is not None and not Path(args.mesh).is_file():
         ap.error(f"--mesh {args.mesh}: no such file (expected a mesh trimesh loads: OBJ, PLY, STL, GLB)")
     if args.env is not None and not Path(args.env).is_file():

@@ -51,7 +51,7 @@ import numpy as np
 
 from precompute.surfaces import MAX_SURFACE_SIZE
 from warpbw.bench_filtering import FLICKER_PAIRS_MAX
-from warpbw.cli import MAX_ANISOTROPY
+from warpbw.cli import MAX_ANISOTROPY, check_command_options
 from warpbw.cli_common import check_overwrite, run_command
 
 # scene name -> (surface generator name, tiling, material)
@@ -247,6 +247,8 @@ def main(argv=None) -> int:
                  "is +Y, so it cannot look straight down)")
     if args.environment is not None and not args.environment.is_file():
         ap.error(f"--environment {args.environment}: no such file (expected a lat-long EXR probe)")
+    # the values --run passes on to warpbw bench-filtering, checked by its own parsers before anything is written
+    check_command_options("bench-filtering", {"--zoom": args.zoom, "--gt-spp": args.gt_spp, "--spp": args.spp})
     check_overwrite([out / f"{name}{ext}" for name in SCENES for ext in (".toml", ".exr")], args.force)
     paths = write_scenes(out, args.size, lights=args.lights, components=args.components,
                          environment=args.environment, prior=args.prior, elevation_deg=args.elevation)

@@ -806,6 +806,20 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["validate_bandwidth.py", "--out", "v", "--ref-noise", "0"], "--ref-noise: expected a positive share"),
     (["validate_bandwidth.py", "--out", "v", "--ref-noise", "nan"], "--ref-noise: expected a positive share"),
     (["validate_bandwidth.py", "--out", "v", "--ref-spp-max", "0"], "--ref-spp-max: expected a positive integer"),
+    # values a script passes on to warpbw bench / bench-filtering are checked by their parsers up front
+    (["bench_scenes.py", "--runs", "0"], "--runs 0: expected a positive integer"),
+    (["bench_scenes.py", "--nb", "abc"], "--nb abc: expected comma-separated ints"),
+    (["filtering_scenes.py", "--zoom", "0"], "--zoom 0: expected comma-separated positive numbers"),
+    (["filtering_scenes.py", "--gt-spp", "1e40"], "--gt-spp 1e40: expected a positive integer"),
+    (["bench_reference.py", "--spp", "abc"], "--spp abc: expected comma-separated ints"),
+    (["bench_reference.py", "--runs", "0"], "--runs 0: expected a positive integer"),
+    (["bench_reference.py", "--gt-spp", "100"], "--gt-spp 100: expected a multiple of 4096 of at least 8192"),
+    (["bench_reference.py", "--resolution", "0", "5"], "--resolution 0 5: expected a width and a height"),
+    (["bench_reference.py", "--check-only"], "--check-only: bench_out/bench_reference.json not found"),
+    # --seed -1 was a traceback from inside the adaptive render; --threads 0 was taken as 1
+    (["dynamic_geometry.py", "--seed", "-1"], "--seed: expected an integer from 0 to 4294967295"),
+    (["dynamic_geometry.py", "--seed", "4294967295"], "--seed 4294967295: frame f uses seed + f"),
+    (["dynamic_geometry.py", "--threads", "0"], "--threads 0: expected a positive integer"),
 ])
 def test_examples_refuse_bad_arguments_in_one_line(tmp_path, argv, needle):
     """The example scripts answer bad arguments the way the commands do: status 2, the last stderr line
@@ -862,6 +876,25 @@ def test_filtering_zoom_and_brdf_sampling_do_not_overwrite_without_force(tmp_pat
                      "--samples", "1000"], tmp_path)
     example_error(r, "brdf_sampling.py", "brdf_sampling_chrome.png", "--force")
     assert mine.read_text() == "mine\n" and list(mine.parent.iterdir()) == [mine]
+
+
+def test_bench_scripts_keep_an_earlier_run_and_a_scene_edited_by_hand(tmp_path, shared):
+    """bench_reference.py refuses an earlier run's records before any work; bench_scenes.py rewrites its
+    scenes as they were without --force, but refuses one edited by hand."""
+    shared("brdf/npf.bin")
+    mine = tmp_path / "bench_out" / "bench_reference.json"
+    mine.parent.mkdir()
+    mine.write_text("mine\n")
+    example_error(run_example(["bench_reference.py"], tmp_path), "bench_reference.py", "bench_reference.json",
+                  "--force")
+    assert mine.read_text() == "mine\n" and list(mine.parent.iterdir()) == [mine]
+    assert run_example(["bench_scenes.py", "--out", "s"], tmp_path).returncode == 0
+    assert run_example(["bench_scenes.py", "--out", "s"], tmp_path).returncode == 0   # the same contents
+    edited = tmp_path / "s" / "sphere_chrome_studio.toml"
+    edited.write_text(edited.read_text() + "# mine\n")
+    example_error(run_example(["bench_scenes.py", "--out", "s"], tmp_path), "bench_scenes.py",
+                  "s/sphere_chrome_studio.toml", "--force")
+    assert edited.read_text().endswith("# mine\n")
 
 
 def test_filtering_zoom_on_a_scene_without_planes(tmp_path):

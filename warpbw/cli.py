@@ -1,6 +1,8 @@
 """The ``warpbw`` command: render, demo, info, compare, bench, bench-filtering.
 
-Public: ``main(argv=None) -> int``.
+Public: ``main(argv=None) -> int``; ``check_command_options(command, options)`` for scripts that pass
+options on to a ``warpbw`` command or take the same ones (examples/bench_scenes.py, filtering_scenes.py,
+bench_reference.py).
 
 Errors the user can cause print one line, ``warpbw: error: ...``, and exit with status 2.
 Nothing the user has is overwritten without ``--force``.
@@ -716,6 +718,23 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--json", action="store_true", help="print JSON")
     c.set_defaults(func=cmd_compare)
     return p
+
+
+def check_command_options(command: str, options: dict[str, str]) -> None:
+    """Check option values (``{"--runs": "0"}``) with the parsers ``warpbw COMMAND`` has for the options of
+    those names, for a script that passes them on to the command or takes them with the same meaning, so
+    that a bad one is refused, naming it, before the script writes or runs anything.  Raises
+    :class:`WarpbwError`."""
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    parser = sub.choices[command]
+    for option, value in options.items():
+        action = next(a for a in parser._actions if option in a.option_strings)
+        if action.type is None:
+            continue
+        try:
+            action.type(value)
+        except (argparse.ArgumentTypeError, ValueError) as exc:
+            raise WarpbwError(f"{option} {value}: {exc}") from None
 
 
 def main(argv=None) -> int:
