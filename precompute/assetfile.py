@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_input_file
 
 HEADER_KEY = "__header__"
 
@@ -54,9 +54,7 @@ def write_asset(path, fmt: str, version: int, source: str, source_hash: str, arr
 
 def read_asset(path, fmt: str, version: int, rebuild: str) -> Asset:
     """Read an asset of format ``fmt`` and version ``version``; ``rebuild`` is the command to suggest."""
-    p = Path(path)
-    if not p.is_file():
-        raise WarpbwError(f"{p}: file not found")
+    p = check_input_file(path)
     try:
         with np.load(p, allow_pickle=False) as z:
             header = json.loads(str(z[HEADER_KEY]))

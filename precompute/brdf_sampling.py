@@ -24,7 +24,7 @@ import numpy as np
 
 from precompute.assetfile import read_asset, write_asset
 from precompute.progress import progress_callback
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_input_file
 from warpbw.sampling import N_PHI, N_THETA_O, N_U, TABLE_FORMAT, TABLE_VERSION, SamplerTable, build_sampler_table
 
 
@@ -43,9 +43,7 @@ def brdf_source(file, material: str | None = None) -> BrdfSource:
     from warpbw.io.npf import npf_eval, read_npf
     from warpbw.scene import file_digest
 
-    p = Path(file)
-    if not p.is_file():
-        raise WarpbwError(f"{p}: file not found")
+    p = check_input_file(file)
     if material is None:
         brdf = read_merl(p)
         return BrdfSource(p.name, p, file_digest(p), lambda wi, wo: merl_eval(brdf, wi, wo, interpolate=False), brdf)

@@ -124,7 +124,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import SEED_MAX, WarpbwError, check_count, is_int
+from warpbw.errors import SEED_MAX, WarpbwError, check_count, check_input_file, is_int
 
 GMM_FORMAT = "warpbw-gmm-mipmap"
 # 2: the fourth stored quantity is a (d s^2 + |mu|^2) (module docstring); 1 held 004's a (s^2 + |mu|^2).
@@ -694,9 +694,7 @@ def load_map(path, kind: str = "height") -> np.ndarray:
 
     if kind not in KINDS:
         raise WarpbwError(f"kind {kind!r}: expected one of {', '.join(KINDS)}")
-    p = Path(path)
-    if not p.is_file():
-        raise WarpbwError(f"{p}: file not found (expected a {kind} map: OpenEXR or PNG image)")
+    p = check_input_file(path, f"a {kind} map: OpenEXR or PNG image")
     px, bits = _read_pixels(p)
     if px.shape[0] == 0 or px.shape[1] == 0 or px.shape[2] == 0:
         raise WarpbwError(f"{p}: empty image ({px.shape[0]}x{px.shape[1]} texels); expected a {kind} map")

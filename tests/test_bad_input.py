@@ -139,6 +139,17 @@ def test_compare_missing_image(tmp_path):
     assert_one_line_error(r, "nothere.exr", "file not found")
 
 
+def test_a_directory_given_as_an_input_file_is_called_one(tmp_path):
+    """Not 'file not found' for a path that exists: the message says it is a directory."""
+    write_exr(tmp_path / "good.exr", np.ones((4, 8, 3), np.float32))
+    (tmp_path / "adir").mkdir()
+    r = run(["compare", "good.exr", "adir"], tmp_path)
+    assert_one_line_error(r, "adir: a directory, not a file", "expected an OpenEXR image")
+    r = run(["gmm", "adir", "-o", "g.npz"], tmp_path, module="precompute")
+    assert_one_line_error(r, "adir: a directory, not a file", "expected a height map", prog="warpbw-precompute")
+    assert not (tmp_path / "g.npz").exists()
+
+
 def test_compare_images_of_different_sizes(tmp_path):
     write_exr(tmp_path / "a.exr", np.ones((4, 8, 3), np.float32))
     write_exr(tmp_path / "b.exr", np.ones((5, 8, 3), np.float32))

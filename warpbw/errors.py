@@ -2,7 +2,8 @@
 
 Public: ``WarpbwError``; ``is_int(value)`` (an int or numpy integer, not a bool) and
 ``check_count(value, name, lo, hi=None) -> int`` (such an integer in lo..hi, else a ``WarpbwError`` naming
-``name``);
+``name``); ``check_input_file(path, expected) -> Path`` (an existing file, else a ``WarpbwError`` saying
+whether it is missing or a directory);
 the bounds ``INT32_MAX``, ``FLOAT32_MAX`` and ``SEED_MAX`` that user values are checked against.
 
 Anything the user can cause (a bad file, a bad key in a scene, a bad CLI value) is raised as
@@ -12,6 +13,7 @@ The CLIs print it as ``warpbw: error: <message>`` and exit with status 2, never 
 from __future__ import annotations
 
 import numbers
+from pathlib import Path
 
 # The kernels index pixels and count samples (spp, N_p) in Warp int32: a larger count wraps around.
 INT32_MAX = 2**31 - 1
@@ -37,3 +39,13 @@ def check_count(value, name: str, lo: int, hi: int | None = None) -> int:
     if hi is not None and value > hi:
         raise WarpbwError(f"{name}: expected an integer from {lo} to {hi}, got {value!r}")
     return int(value)
+
+
+def check_input_file(path, expected: str = "") -> Path:
+    """``path`` as a ``Path`` when it is an existing file; otherwise a one-line error saying whether it is
+    missing or a directory, and what was ``expected`` (``"an OpenEXR image"``)."""
+    p = Path(path)
+    if not p.is_file():
+        what = "a directory, not a file" if p.is_dir() else "file not found"
+        raise WarpbwError(f"{p}: {what}" + (f" (expected {expected})" if expected else ""))
+    return p

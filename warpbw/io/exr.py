@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_input_file
 
 # First four bytes of every OpenEXR file: the magic number 20000630 = 0x762f3101, stored
 # little-endian (OpenEXR file layout, "Magic Number" section of openexr.com/en/latest/OpenEXRFileLayout.html).
@@ -91,9 +91,7 @@ def read_exr(path) -> ExrImage:
     """Read every channel of an EXR file as float32 ``(H, W, C)`` (half and uint channels converted)."""
     import OpenEXR
 
-    path = Path(path)
-    if not path.is_file():
-        raise WarpbwError(f"{path}: file not found (expected an OpenEXR image)")
+    path = check_input_file(path, "an OpenEXR image")
     _check_magic(path)
     try:
         exr = OpenEXR.File(str(path), separate_channels=True)

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_input_file
 
 # Table resolution of the MERL database (BRDFRead.cpp: BRDF_SAMPLING_RES_THETA_H = 90,
 # BRDF_SAMPLING_RES_THETA_D = 90, BRDF_SAMPLING_RES_PHI_D = 360 of which 180 are stored).
@@ -224,9 +224,7 @@ def merl_eval(brdf: MerlBRDF, wi, wo, interpolate: bool = False) -> np.ndarray:
 
 def read_merl(path) -> MerlBRDF:
     """Read a MERL ``.binary`` file; negative (unmeasured) and non-finite entries become 0, with a warning."""
-    path = Path(path)
-    if not path.is_file():
-        raise WarpbwError(f"{path}: file not found (expected a MERL .binary BRDF of {MERL_FILE_SIZE} bytes)")
+    path = check_input_file(path, f"a MERL .binary BRDF of {MERL_FILE_SIZE} bytes")
     size = path.stat().st_size
     if size != MERL_FILE_SIZE:
         raise WarpbwError(f"{path}: expected {MERL_FILE_SIZE} bytes (MERL .binary), got {size}")

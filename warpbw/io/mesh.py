@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_input_file
 
 # A triangle whose doubled area is below this fraction of its longest squared edge is treated as
 # degenerate (no cotangent weight, no area): sin of its largest angle is < 1e-12, so its
@@ -251,9 +251,7 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     """
     import trimesh
 
-    path = Path(path)
-    if not path.is_file():
-        raise WarpbwError(f"{path}: file not found (expected a mesh: {_SUPPORTED})")
+    path = check_input_file(path, f"a mesh: {_SUPPORTED}")
     if path.stat().st_size == 0:  # trimesh's answer depends on the suffix (for GLB: a face index out of bounds)
         raise WarpbwError(f"{path}: empty file (0 bytes): no triangles found (expected a mesh with faces: "
                           f"{_SUPPORTED})")

@@ -19,11 +19,10 @@ from __future__ import annotations
 
 import difflib
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_input_file
 
 # Material order of the rows of npf.bin (data README, "npf.bin layout"; the MERL database's names).
 NPF_MATERIAL_NAMES: tuple[str, ...] = (
@@ -86,9 +85,7 @@ def _canonical(name: str) -> str:
 
 def read_npf(path, name: str) -> NPFMaterial:
     """Read material ``name`` (one of ``NPF_MATERIAL_NAMES``; case and a ``.binary`` suffix ignored)."""
-    path = Path(path)
-    if not path.is_file():
-        raise WarpbwError(f"{path}: file not found (expected the NPF table npf.bin, {NPF_FILE_SIZE} bytes)")
+    path = check_input_file(path, f"the NPF table npf.bin, {NPF_FILE_SIZE} bytes")
     size = path.stat().st_size
     if size != NPF_FILE_SIZE:
         raise WarpbwError(
