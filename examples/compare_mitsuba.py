@@ -113,7 +113,8 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import init_warp, run_command
+from warpbw.cli_common import init_warp, parse_seed, run_command
+from warpbw.errors import SEED_MAX
 
 # The repository root, so that `python examples/compare_mitsuba.py` finds warpbw without installing.
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -420,7 +421,7 @@ def parse_args(argv=None):
     p.add_argument("--rotation", type=float, default=0.0, help="probe rotation about +Y, degrees (0)")
     p.add_argument("--scale", type=float, default=1.0, help="probe radiance scale (1)")
     p.add_argument("--cases", default=",".join(CASES), help=f"comma list of {', '.join(CASES)}")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=parse_seed, default=0, help="0 to 2^32-1001 (the warm-up frames use seed + 1000)")
     p.add_argument("--out", type=Path, default=None, help="save <case>_mitsuba.exr, <case>_warpbw.exr, <case>.png")
     p.add_argument("--variant", default=None, help=f"Mitsuba variant (default: first usable of {VARIANTS})")
     p.add_argument("--no-mis", dest="mis", action="store_false",
@@ -435,6 +436,16 @@ def parse_args(argv=None):
     a = p.parse_args(argv)
     if a.spp < 1 or a.resolution < 8:
         p.error("--spp must be >= 1 and --resolution >= 8")
+    if a.mitsuba_spp is not None and a.mitsuba_spp < 1:
+        p.error(f"--mitsuba-spp {a.mitsuba_spp}: expected a positive integer")
+    if not math.isfinite(a.rotation):
+        p.error(f"--rotation {a.rotation}: expected a finite angle in degrees")
+    if not (math.isfinite(a.scale) and a.scale > 0):
+        p.error(f"--scale {a.scale}: expected a finite positive radiance scale")
+    if a.seed + 1000 > SEED_MAX:
+        p.error(f"--seed {a.seed}: expected at most {SEED_MAX - 1000} (the warm-up frames use seed + 1000)")
+    if not a.probe.expanduser().is_file():
+        p.error(f"--probe {a.probe}: no such file (expected a lat-long EXR probe)")
     a.cases = [c.strip() for c in a.cases.split(",") if c.strip()]
     unknown = [c for c in a.cases if c not in CASES]
     if unknown:

@@ -831,6 +831,10 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["dynamic_geometry.py", "--seed", "-1"], "--seed: expected an integer from 0 to 4294967295"),
     (["dynamic_geometry.py", "--seed", "4294967295"], "--seed 4294967295: frame f uses seed + f"),
     (["dynamic_geometry.py", "--threads", "0"], "--threads 0: expected a positive integer"),
+    # checked before Mitsuba is imported, so these run without it
+    (["compare_mitsuba.py", "--scale", "nan"], "--scale nan: expected a finite positive radiance scale"),
+    (["compare_mitsuba.py", "--seed", "4294967000"], "--seed 4294967000: expected at most 4294966295"),
+    (["compare_mitsuba.py", "--probe", "missing.exr"], "--probe missing.exr: no such file"),
 ])
 def test_examples_refuse_bad_arguments_in_one_line(tmp_path, argv, needle):
     """The example scripts answer bad arguments the way the commands do: status 2, the last stderr line
