@@ -2,10 +2,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from conftest import grid_mesh
 
-from warpbw.gbuffer import (MeshSpec, SphereSpec, build_geometry, camera_rays, hide_beyond, make_camera,
-                            render_gbuffer)
+from warpbw.errors import WarpbwError
+from warpbw.gbuffer import (MESH_REACH_MAX, SPHERE_REACH_MAX, MeshSpec, SphereSpec, build_geometry, camera_rays,
+                            hide_beyond, make_camera, render_gbuffer, update_mesh)
 
 
 def _sphere_closed_form(cam, center, radius):
@@ -127,6 +129,36 @@ def test_mesh_sphere_agrees_with_analytic_sphere():
     cosang = np.einsum("ij,ij->i", gb_a.numpy("normal")[both], gb_m.numpy("normal")[both])
     assert cosang.min() > 0.999
     assert np.allclose(gb_m.numpy("curvature")[both], 1.0)
+
+
+def test_a_scene_scaled_up_renders_the_same_until_float32_intersection_would_fail_then_is_refused():
+    """Coverage is scale-invariant: a unit sphere (analytic, then a mesh) and its camera scaled by s cover the
+    same pixels as at s = 1, up to the reach float32 intersection handles.  Past it the pixels came out empty
+    (a sphere at s = 1e20, a mesh at s = 1e15, measured), so the pass refuses the camera instead."""
+    def cover(s, mesh):
+        cam = make_camera((0.0, 0.0, 4.0 * s), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, 32, 32)
+        if not mesh:
+            return render_gbuffer(cam, build_geometry([SphereSpec((0, 0, 0), s, 0)], [])).coverage
+        spec = _icosphere_spec(1.0, subdiv=3)
+        spec.vertices = spec.vertices * s
+        return render_gbuffer(cam, build_geometry([], [spec])).coverage
+
+    for mesh, ok, refused in ((False, 1e17, 1e20), (True, 1e11, 1e15)):
+        unit = cover(1.0, mesh)
+        assert 100 < unit.sum() and np.array_equal(cover(ok, mesh), unit)
+        with pytest.raises(WarpbwError, match="float32 ray-(mesh|sphere) intersection"):
+            cover(refused, mesh)
+    assert 5 * 1e17 < SPHERE_REACH_MAX < 5 * 1e20 and 5 * 1e11 < MESH_REACH_MAX < 5 * 1e15
+
+
+def test_update_mesh_moving_a_mesh_out_of_reach_is_refused_at_the_next_frame():
+    cam = make_camera((0.0, 0.0, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, 16, 16)
+    spec = _icosphere_spec(1.0, subdiv=2)
+    geo = build_geometry([], [spec])
+    assert render_gbuffer(cam, geo).coverage.any()
+    update_mesh(geo, 0, spec.vertices * 1e14)
+    with pytest.raises(WarpbwError, match="far side of a mesh"):
+        render_gbuffer(cam, geo)
 
 
 def test_nearest_object_wins_and_material_ids():

@@ -209,6 +209,21 @@ def test_local_curvature_bad_input():
 # ----------------------------------------------------------------- bad input
 
 
+@pytest.mark.parametrize("scale", [1e11, 1e12, 1e26])
+def test_vertices_far_beyond_trimesh_merge_range_stay_distinct(tmp_path, scale):
+    """trimesh merges vertices by rounding x * 1e8 to int64, which wraps beyond 9.2e10: an icosphere of
+    radius 1e12 kept 7 of its 162 vertices (and 1e26 none with area).  Every vertex stays, each at radius
+    ``scale`` with its radial normal."""
+    m = trimesh.creation.icosphere(subdivisions=2)
+    m.vertices = m.vertices * scale
+    m.export(tmp_path / "big.obj")
+    mesh = load_mesh(tmp_path / "big.obj")
+    assert len(mesh.vertices) == 162 and len(mesh.faces) == 320
+    r = np.linalg.norm(mesh.vertices.astype(np.float64), axis=1)
+    np.testing.assert_allclose(r, scale, rtol=1e-6)
+    np.testing.assert_allclose(np.einsum("ij,ij->i", mesh.normals, mesh.vertices / r[:, None]), 1.0, atol=1e-3)
+
+
 def test_missing_file(tmp_path):
     with pytest.raises(WarpbwError, match="ghost.obj.*not found"):
         load_mesh(tmp_path / "ghost.obj")

@@ -10,6 +10,8 @@ Public:
                                      refit the BVH (dynamic geometry, 002 Sec. 4.3, Fig. 18)
     ``GBufferData``                  Warp struct: the per-pixel buffers, as kernels read them
     ``GBuffer`` / ``render_gbuffer(cam, geometry, device, threads)``     run the pass
+    ``check_reach(cam, geometry)``   refuse a camera too far from the geometry for float32 intersection
+                                     (``SPHERE_REACH_MAX``, ``MESH_REACH_MAX``; render_gbuffer calls it)
     ``hide_beyond(gbuffer, cam, distance, device) -> int``   empty the pixels whose surface lies beyond a
                                      per-pixel distance along the centre ray (hidden by something nearer)
 
@@ -35,9 +37,16 @@ from typing import Sequence
 import numpy as np
 import warp as wp
 
-from warpbw.errors import WarpbwError, is_int
+from warpbw.errors import FLOAT32_MAX, WarpbwError, is_int
 
 RAY_T_MAX = 1.0e30
+# Primary rays are intersected in float32, and past these distances from the camera a ray silently misses:
+# intersect_sphere squares lengths (r^2, |q|^2), which overflow beyond sqrt(FLOAT32_MAX) = 1.8e19 scene units
+# (measured: a unit-scene sphere scaled by 1e19 renders, by 1e20 vanishes); Warp's mesh test
+# (intersect_ray_tri_woop, warp/native/intersect.h) multiplies three vertex-to-origin lengths, beyond
+# cbrt(FLOAT32_MAX) = 7.0e12 (an icosphere scaled by 1e12 renders, by 1e15 vanishes).  With a margin of 10:
+SPHERE_REACH_MAX = math.sqrt(FLOAT32_MAX) / 10.0
+MESH_REACH_MAX = FLOAT32_MAX ** (1.0 / 3.0) / 10.0
 
 
 @wp.struct
@@ -327,6 +336,9 @@ class Geometry:
     mesh_vertex_ranges: list = field(default_factory=list)
     # mesh index -> warpbw.mesh_normals.MeshTopology, built by the first update_mesh of that mesh
     topology: dict = field(default_factory=dict)
+    # host copies for check_reach: (center, radius) of each sphere, (lower, upper) corners of each mesh
+    sphere_bounds: list = field(default_factory=list)
+    mesh_bounds: list = field(default_factory=list)
 
 
 def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], device: str = "cpu") -> Geometry:
@@ -376,7 +388,31 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
         ma.curvature = wp.zeros(0, dtype=wp.float32, device=device)
         ma.uv = wp.zeros(0, dtype=wp.vec2, device=device)
         ma.face_material = wp.zeros(0, dtype=wp.int32, device=device)
-    return Geometry(sl, ma, mesh, bool(spheres), bool(meshes), n_tri, mesh_vertex_ranges=ranges)
+    return Geometry(sl, ma, mesh, bool(spheres), bool(meshes), n_tri, mesh_vertex_ranges=ranges,
+                    sphere_bounds=[(np.asarray(s.center, np.float64), float(s.radius)) for s in spheres],
+                    mesh_bounds=[_bounds(v) for v in verts] if meshes else [])
+
+
+def _bounds(vertices) -> tuple:
+    v = np.asarray(vertices, np.float64).reshape(-1, 3)
+    return v.min(axis=0), v.max(axis=0)
+
+
+def check_reach(cam: CameraData, geometry: Geometry) -> None:
+    """Refuse a camera whose rays would reach the geometry beyond what float32 intersection can compute
+    (``SPHERE_REACH_MAX``, ``MESH_REACH_MAX``): those pixels would come out empty without a word."""
+    o = np.array([cam.origin[0], cam.origin[1], cam.origin[2]], np.float64)
+    for kind, reach, limit, why in (
+            ("sphere", max((np.linalg.norm(c - o) + r for c, r in geometry.sphere_bounds), default=0.0),
+             SPHERE_REACH_MAX, "it squares lengths"),
+            ("mesh", max((np.linalg.norm(np.where(o < (lo + hi) / 2, hi, lo) - o)
+                          for lo, hi in geometry.mesh_bounds), default=0.0),
+             MESH_REACH_MAX, "Warp's test multiplies three lengths")):
+        if reach > limit:
+            raise WarpbwError(
+                f"the camera is {reach:.3g} scene units from the far side of a {kind}, beyond the {limit:.2g} "
+                f"that float32 ray-{kind} intersection handles ({why}): its pixels would be left empty; "
+                "expected a smaller scene (scale the objects and the camera down together)")
 
 
 def _per_vertex(name: str, values, shape: tuple, mesh_index: int) -> np.ndarray:
@@ -418,6 +454,7 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
                           "the device)")
     start, count = ranges[int(mesh_index)]
     copies = [(geometry.mesh.points, _per_vertex("vertices", vertices, (count, 3), mesh_index), wp.vec3)]
+    geometry.mesh_bounds[int(mesh_index)] = _bounds(copies[0][1])
     ma = geometry.mesh_attr
     if normals is not None:
         copies += [(ma.normal, _per_vertex("normals", normals, (count, 3), mesh_index), wp.vec3),
@@ -478,6 +515,7 @@ def render_gbuffer(cam: CameraData, geometry: Geometry, device: str = "cpu", out
     pixels are tiled over ``threads`` (default: the cores, as the shading does)."""
     from warpbw.shading import launch_tiled   # shading builds on this module
 
+    check_reach(cam, geometry)
     gb = out if out is not None else allocate_gbuffer(cam.width, cam.height, device)
     kernel = make_gbuffer_kernel(geometry.has_spheres, geometry.has_mesh)
     launch_tiled(kernel, cam.width * cam.height,

@@ -224,6 +224,10 @@ def _check_transform(path: Path, translate, scale, rotate_y_deg):
     return t, s, r
 
 
+# the largest coordinate trimesh's vertex merge is given (its int64 rounding at 1e-8 wraps beyond 9.2e10)
+MERGE_MAX_COORD = 1e9
+
+
 def _check_float32(verts, path, when: str) -> None:
     """Refuse vertices (V, 3) beyond the float32 range, in which the kernels read them; ``when`` ends the
     phrase 'outside the float32 range' (e.g. ' after scale')."""
@@ -280,12 +284,19 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     if n_bad:
         raise WarpbwError(f"{path}: {n_bad} vertices have non-finite coordinates (expected finite numbers)")
     _check_float32(verts, path, "")  # before trimesh's vertex merge, which fails on them
+    # trimesh merges vertices by rounding x * 10^8 to int64, which wraps beyond 9.2e10 and merged distinct
+    # vertices (an icosphere of radius 1e12 kept 7 of its 162); larger meshes are merged at a power-of-two
+    # scale (exact), so that the rounding stays in range
+    big = float(np.abs(verts).max())
+    k = math.ceil(math.log2(big / MERGE_MAX_COORD)) if big > MERGE_MAX_COORD else 0
     try:
+        if k:
+            mesh.vertices = np.asarray(mesh.vertices, dtype=np.float64) * 2.0**-k
         mesh.merge_vertices()
         mesh.remove_unreferenced_vertices()
     except Exception as exc:
         raise WarpbwError(f"{path}: malformed mesh ({_one_line(exc)})") from None
-    verts = np.asarray(mesh.vertices, dtype=np.float64) * s
+    verts = np.asarray(mesh.vertices, dtype=np.float64) * 2.0**k * s
     faces = np.asarray(mesh.faces, dtype=np.int64)
     _, _, p0, p1, p2 = _face_geometry(verts, faces)
     if not np.any(np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1) > 0.0):
