@@ -10,8 +10,9 @@ Public:
                                      refit the BVH (dynamic geometry, 002 Sec. 4.3, Fig. 18)
     ``GBufferData``                  Warp struct: the per-pixel buffers, as kernels read them
     ``GBuffer`` / ``render_gbuffer(cam, geometry, device, threads)``     run the pass
-    ``check_reach(cam, geometry)``   refuse a camera too far from the geometry for float32 intersection
-                                     (``SPHERE_REACH_MAX``, ``MESH_REACH_MAX``; render_gbuffer calls it)
+    ``check_reach(cam, geometry)``   refuse a camera too far from (or, scaled down, too near) the geometry for
+                                     float32 intersection (``SPHERE_REACH_MAX``, ``MESH_REACH_MAX``,
+                                     ``REACH_MIN``; render_gbuffer calls it)
     ``hide_beyond(gbuffer, cam, distance, device) -> int``   empty the pixels whose surface lies beyond a
                                      per-pixel distance along the centre ray (hidden by something nearer)
 
@@ -47,6 +48,12 @@ RAY_T_MAX = 1.0e30
 # cbrt(FLOAT32_MAX) = 7.0e12 (an icosphere scaled by 1e12 renders, by 1e15 vanishes).  With a margin of 10:
 SPHERE_REACH_MAX = math.sqrt(FLOAT32_MAX) / 10.0
 MESH_REACH_MAX = FLOAT32_MAX ** (1.0 / 3.0) / 10.0
+# Scaled far down, squared lengths underflow float32 (smallest normal 1.2e-38, square root 1.1e-19; measured: a
+# unit-scene mesh scaled by 1e-18 lost 4 of 540 pixels, by 1e-19 all); with a margin of 1000:
+REACH_MIN = math.sqrt(float(np.finfo(np.float32).tiny)) * 1.0e3
+# the nearest t accepted on a sphere, relative to its distance and size (an absolute 1e-6 lost every sphere
+# of a scene scaled by 1e-7)
+T_EPS_REL = 1.0e-6
 
 
 @wp.struct
@@ -118,9 +125,10 @@ def intersect_sphere(o: wp.vec3, d: wp.vec3, c: wp.vec3, r: float):
     s = wp.sqrt(disc)
     t0 = -b - s
     t1 = -b + s
-    if t0 > 1.0e-6:
+    eps = T_EPS_REL * wp.max(wp.abs(b), r)   # relative: a sphere of radius 1e-7 is the unit one, scaled
+    if t0 > eps:
         return t0
-    if t1 > 1.0e-6:
+    if t1 > eps:
         return t1
     return -1.0
 
@@ -399,20 +407,26 @@ def _bounds(vertices) -> tuple:
 
 
 def check_reach(cam: CameraData, geometry: Geometry) -> None:
-    """Refuse a camera whose rays would reach the geometry beyond what float32 intersection can compute
-    (``SPHERE_REACH_MAX``, ``MESH_REACH_MAX``): those pixels would come out empty without a word."""
+    """Refuse a camera whose rays would reach an object beyond what float32 intersection can compute
+    (``SPHERE_REACH_MAX``, ``MESH_REACH_MAX``; ``REACH_MIN`` for a scene scaled far down): those pixels
+    would come out empty without a word."""
     o = np.array([cam.origin[0], cam.origin[1], cam.origin[2]], np.float64)
-    for kind, reach, limit, why in (
-            ("sphere", max((np.linalg.norm(c - o) + r for c, r in geometry.sphere_bounds), default=0.0),
-             SPHERE_REACH_MAX, "it squares lengths"),
-            ("mesh", max((np.linalg.norm(np.where(o < (lo + hi) / 2, hi, lo) - o)
-                          for lo, hi in geometry.mesh_bounds), default=0.0),
-             MESH_REACH_MAX, "Warp's test multiplies three lengths")):
+    reaches = ([("sphere", np.linalg.norm(c - o) + r) for c, r in geometry.sphere_bounds]
+               + [("mesh", np.linalg.norm(np.where(o < (lo + hi) / 2, hi, lo) - o))    # the farthest corner
+                  for lo, hi in geometry.mesh_bounds])
+    for kind, reach in reaches:   # the distance to the object's far side
+        limit, why = ((SPHERE_REACH_MAX, "it squares lengths") if kind == "sphere"
+                      else (MESH_REACH_MAX, "Warp's test multiplies three lengths"))
         if reach > limit:
             raise WarpbwError(
                 f"the camera is {reach:.3g} scene units from the far side of a {kind}, beyond the {limit:.2g} "
                 f"that float32 ray-{kind} intersection handles ({why}): its pixels would be left empty; "
                 "expected a smaller scene (scale the objects and the camera down together)")
+        if reach < REACH_MIN:
+            raise WarpbwError(
+                f"the camera is {reach:.3g} scene units from the far side of a {kind}, below the {REACH_MIN:.2g} "
+                f"that float32 ray-{kind} intersection handles (squared lengths underflow): its pixels would be "
+                "left empty; expected a larger scene (scale the objects and the camera up together)")
 
 
 def _per_vertex(name: str, values, shape: tuple, mesh_index: int) -> np.ndarray:
