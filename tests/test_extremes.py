@@ -464,3 +464,43 @@ def test_adaptive_refuses_radiance_whose_square_overflows_the_bandwidth_pass(all
     assert_adaptive_clean(res)
     assert res.stats["samples"] <= 1.15 * 2.0 * res.coverage.sum()
     np.testing.assert_allclose(res.image[res.coverage], 0.8e15, rtol=1e-5)  # Lambert 0.8 under a constant sky
+
+
+# ------------------------------------------------------------------------------------------ scene scale
+
+@pytest.mark.parametrize("shape", ["sphere", "mesh"])
+def test_a_scene_scaled_from_1e_minus_8_to_1e11_renders_the_same_images(city, tmp_path, shape):
+    """Nothing in either renderer has a length scale: a GGX object under the city sun and its camera, scaled by
+    s, give the reference and the adaptive image of s = 1 (within 1e-4 of the brightest pixel; measured 2e-5),
+    and the same pixels shaded.  (A sphere once vanished at s = 1e-7 to an absolute epsilon; a mesh with file
+    coordinates beyond 9e10 lost vertices to trimesh's merge.)"""
+    import trimesh
+
+    from warpbw.pipeline import prepare_scene, render_adaptive
+
+    trimesh.creation.icosphere(subdivisions=3).export(tmp_path / "ico.obj")
+
+    def render(s):
+        obj = ('shape = "sphere"\ncenter = [0.0, 0.0, 0.0]\nradius = %r' % s if shape == "sphere"
+               else 'mesh = "ico.obj"\nscale = %r' % s)
+        text = "\n".join([
+            "[camera]", f"position = [{0.3 * s!r}, {0.5 * s!r}, {4.0 * s!r}]", "look_at = [0.0, 0.0, 0.0]",
+            "fov = 35.0", "resolution = [32, 32]", "[environment]", f'file = "{city}"',
+            "[[object]]", obj, 'material = "g"',
+            "[[object]]", 'shape = "sphere"', f"center = [0.0, 0.0, {40.0 * s!r}]", f"radius = {0.5 * s!r}",
+            'material = "l"',   # behind the camera: the {ggx, lambert} kernels the module already compiled
+            "[material.g]", 'type = "ggx"', "alpha = 0.15", "specular = [1.0, 1.0, 1.0]",
+            "[material.l]", 'type = "lambert"', "albedo = 0.8"])
+        prep = prepare_scene(parse_scene(text, tmp_path, "scaled"))
+        return render_reference(prep, spp=8, seed=3, mis=True), render_adaptive(prep, budget=4.0, seed=3, mis=True)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")   # city.exr's clamped texels
+        ref1, ada1 = render(1.0)
+        assert ref1.coverage.sum() > 200 and 0.0 < ada1.stats["shaded_fraction"] < 1.0
+        for s in (1e-8, 1e11):
+            ref, ada = render(s)
+            assert np.array_equal(ref.coverage, ref1.coverage), s
+            np.testing.assert_allclose(ref.image, ref1.image, rtol=0, atol=1e-4 * ref1.image.max())
+            assert ada.stats["shaded_fraction"] == ada1.stats["shaded_fraction"], s
+            np.testing.assert_allclose(ada.image, ada1.image, rtol=0, atol=1e-4 * ada1.image.max())
