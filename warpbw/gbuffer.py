@@ -12,7 +12,7 @@ Public:
     ``GBuffer`` / ``render_gbuffer(cam, geometry, device, threads)``     run the pass
     ``check_reach(cam, geometry)``   refuse a camera too far from (or, scaled down, too near) the geometry for
                                      float32 intersection (``SPHERE_REACH_MAX``, ``MESH_REACH_MAX``,
-                                     ``REACH_MIN``; render_gbuffer calls it)
+                                     ``SPHERE_REACH_MIN``, ``MESH_REACH_MIN``; render_gbuffer calls it)
     ``hide_beyond(gbuffer, cam, distance, device) -> int``   empty the pixels whose surface lies beyond a
                                      per-pixel distance along the centre ray (hidden by something nearer)
 
@@ -41,16 +41,19 @@ import warp as wp
 from warpbw.errors import FLOAT32_MAX, WarpbwError, is_int
 
 RAY_T_MAX = 1.0e30
-# Primary rays are intersected in float32, and past these distances from the camera a ray silently misses:
-# intersect_sphere squares lengths (r^2, |q|^2), which overflow beyond sqrt(FLOAT32_MAX) = 1.8e19 scene units
-# (measured: a unit-scene sphere scaled by 1e19 renders, by 1e20 vanishes); Warp's mesh test
-# (intersect_ray_tri_woop, warp/native/intersect.h) multiplies three vertex-to-origin lengths, beyond
-# cbrt(FLOAT32_MAX) = 7.0e12 (an icosphere scaled by 1e12 renders, by 1e15 vanishes).  With a margin of 10:
+# Primary rays are intersected in float32, and outside these distances from the camera (to an object's far
+# side) a ray silently misses or lands wrong.  intersect_sphere squares lengths (r^2, |q|^2): they overflow
+# beyond sqrt(FLOAT32_MAX) = 1.8e19 scene units (measured: a unit-scene sphere scaled by 1e19 renders, by 1e20
+# vanishes) and underflow below sqrt(float32 tiny) = 1.1e-19.  Warp's mesh test (intersect_ray_tri_woop,
+# warp/native/intersect.h) multiplies three lengths: beyond cbrt(FLOAT32_MAX) = 7.0e12 it overflows (an
+# icosphere scaled by 1e12 renders, by 1e15 vanishes), below cbrt(tiny) = 2.3e-13 it turns subnormal (scaled
+# by 1e-14, the image moved by 1.7% and the adaptive one by 45%).  Margins: 10 at the top, 1000 at the bottom
+# (a fine mesh's edges are much shorter than its distance, so its products are smaller still).
+_F32_TINY = float(np.finfo(np.float32).tiny)
 SPHERE_REACH_MAX = math.sqrt(FLOAT32_MAX) / 10.0
 MESH_REACH_MAX = FLOAT32_MAX ** (1.0 / 3.0) / 10.0
-# Scaled far down, squared lengths underflow float32 (smallest normal 1.2e-38, square root 1.1e-19; measured: a
-# unit-scene mesh scaled by 1e-18 lost 4 of 540 pixels, by 1e-19 all); with a margin of 1000:
-REACH_MIN = math.sqrt(float(np.finfo(np.float32).tiny)) * 1.0e3
+SPHERE_REACH_MIN = math.sqrt(_F32_TINY) * 1.0e3
+MESH_REACH_MIN = _F32_TINY ** (1.0 / 3.0) * 1.0e3
 # the nearest t accepted on a sphere, relative to its distance and size (an absolute 1e-6 lost every sphere
 # of a scene scaled by 1e-7)
 T_EPS_REL = 1.0e-6
@@ -408,25 +411,21 @@ def _bounds(vertices) -> tuple:
 
 def check_reach(cam: CameraData, geometry: Geometry) -> None:
     """Refuse a camera whose rays would reach an object beyond what float32 intersection can compute
-    (``SPHERE_REACH_MAX``, ``MESH_REACH_MAX``; ``REACH_MIN`` for a scene scaled far down): those pixels
-    would come out empty without a word."""
+    (``SPHERE_REACH_MAX``, ``MESH_REACH_MAX``), or nearer than it can (``SPHERE_REACH_MIN``,
+    ``MESH_REACH_MIN``, a scene scaled far down): those pixels would come out empty or wrong without a word."""
     o = np.array([cam.origin[0], cam.origin[1], cam.origin[2]], np.float64)
     reaches = ([("sphere", np.linalg.norm(c - o) + r) for c, r in geometry.sphere_bounds]
                + [("mesh", np.linalg.norm(np.where(o < (lo + hi) / 2, hi, lo) - o))    # the farthest corner
                   for lo, hi in geometry.mesh_bounds])
     for kind, reach in reaches:   # the distance to the object's far side
-        limit, why = ((SPHERE_REACH_MAX, "it squares lengths") if kind == "sphere"
-                      else (MESH_REACH_MAX, "Warp's test multiplies three lengths"))
-        if reach > limit:
+        lo, hi, why = ((SPHERE_REACH_MIN, SPHERE_REACH_MAX, "it squares lengths") if kind == "sphere"
+                       else (MESH_REACH_MIN, MESH_REACH_MAX, "Warp's test multiplies three lengths"))
+        if not lo <= reach <= hi:
             raise WarpbwError(
-                f"the camera is {reach:.3g} scene units from the far side of a {kind}, beyond the {limit:.2g} "
-                f"that float32 ray-{kind} intersection handles ({why}): its pixels would be left empty; "
-                "expected a smaller scene (scale the objects and the camera down together)")
-        if reach < REACH_MIN:
-            raise WarpbwError(
-                f"the camera is {reach:.3g} scene units from the far side of a {kind}, below the {REACH_MIN:.2g} "
-                f"that float32 ray-{kind} intersection handles (squared lengths underflow): its pixels would be "
-                "left empty; expected a larger scene (scale the objects and the camera up together)")
+                f"the camera is {reach:.3g} scene units from the far side of a {kind}, outside the {lo:.2g} to "
+                f"{hi:.2g} that float32 ray-{kind} intersection handles ({why}): its pixels would be left empty "
+                f"or wrong; expected a {'smaller' if reach > hi else 'larger'} scene (scale the objects and the "
+                "camera together)")
 
 
 def _per_vertex(name: str, values, shape: tuple, mesh_index: int) -> np.ndarray:

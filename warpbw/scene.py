@@ -387,10 +387,16 @@ def _camera(ctx: _Ctx, d: dict) -> Camera:
     if max(res) > MAX_RESOLUTION:
         ctx.fail("[camera].resolution", f"expected at most {MAX_RESOLUTION} pixels per side, got {res!r}")
     fwd = [a - b for a, b in zip(at, pos)]
-    if math.sqrt(sum(c * c for c in fwd)) < 1e-9:
+    # relative to the scene's scale: warpbw.gbuffer.check_reach says how far down a scene may be scaled
+    if math.hypot(*fwd) <= 1e-12 * max(math.hypot(*at), math.hypot(*pos)):
         ctx.fail("[camera].look_at", "must differ from [camera].position")
-    cross = (fwd[1] * up[2] - fwd[2] * up[1], fwd[2] * up[0] - fwd[0] * up[2], fwd[0] * up[1] - fwd[1] * up[0])
-    if math.sqrt(sum(c * c for c in cross)) < 1e-9 * max(1.0, math.sqrt(sum(c * c for c in up))):
+    n_up = math.hypot(*up)
+    if n_up == 0.0:
+        ctx.fail("[camera].up", "must not be zero or parallel to the viewing direction")
+    f = [c / math.hypot(*fwd) for c in fwd]
+    u = [c / n_up for c in up]
+    cross = (f[1] * u[2] - f[2] * u[1], f[2] * u[0] - f[0] * u[2], f[0] * u[1] - f[1] * u[0])
+    if math.hypot(*cross) < 1e-9:
         ctx.fail("[camera].up", "must not be zero or parallel to the viewing direction")
     return Camera(pos, at, up, fov, int(res[0]), int(res[1]))
 
