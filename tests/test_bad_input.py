@@ -8,6 +8,8 @@ must leave no output behind.  Runs in a fresh temporary directory with stdin clo
 """
 from __future__ import annotations
 
+import json
+
 import os
 import subprocess
 import sys
@@ -148,6 +150,20 @@ def test_a_directory_given_as_an_input_file_is_called_one(tmp_path):
     r = run(["gmm", "adir", "-o", "g.npz"], tmp_path, module="precompute")
     assert_one_line_error(r, "adir: a directory, not a file", "expected a height map", prog="warpbw-precompute")
     assert not (tmp_path / "g.npz").exists()
+
+
+def test_compare_refuses_an_image_without_colour_channels_and_names_a_black_reference(tmp_path):
+    """An R,G image was compared through its R channel as grey; a black reference printed 'PSNR -inf' (and
+    --json a bare -Infinity)."""
+    rgb = np.random.default_rng(0).random((4, 8, 3)).astype(np.float32)
+    write_exr(tmp_path / "good.exr", rgb)
+    write_exr(tmp_path / "rg.exr", rgb[..., :2], channels=["R", "G"])
+    r = run(["compare", "rg.exr", "good.exr"], tmp_path)
+    assert_one_line_error(r, "rg.exr", "['R', 'G']", "expected R,G,B or Y")
+    write_exr(tmp_path / "black.exr", np.zeros((4, 8, 3), np.float32))
+    r = run(["compare", "good.exr", "black.exr"], tmp_path)
+    assert r.returncode == 0 and "PSNR   undefined (the reference has no positive value" in r.stdout
+    assert json.loads(run(["compare", "good.exr", "black.exr", "--json"], tmp_path).stdout)["psnr_db"] is None
 
 
 def test_compare_images_of_different_sizes(tmp_path):
@@ -1015,8 +1031,6 @@ def test_bench_filtering_of_planes_a_sphere_hides_entirely_is_refused_up_front(t
 
 
 def test_json_records_never_hold_nan():
-    import json
-
     from warpbw.cli import _json_text
 
     text = _json_text({"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": -float("inf"), "e": 2}})

@@ -378,19 +378,12 @@ def cmd_info(args) -> int:
 def cmd_compare(args) -> int:
     import numpy as np
 
-    from warpbw.io.exr import read_exr
+    from warpbw.io.exr import read_exr, rgb_of
     from warpbw.metrics import compare_images, coverage_from_alpha
 
     a = read_exr(args.test)
     b = read_exr(args.reference)
-
-    def rgb(img):
-        ch = list(img.channels)
-        if all(c in ch for c in "RGB"):
-            return img.pixels[..., [ch.index(c) for c in "RGB"]]
-        return np.repeat(img.pixels[..., :1], 3, axis=-1)
-
-    ta, tb = rgb(a), rgb(b)
+    ta, tb = rgb_of(a), rgb_of(b)   # R,G,B, or a lone grey channel; anything else is refused by name
     if ta.shape != tb.shape:
         raise WarpbwError(f"{args.test} is {ta.shape[1]}x{ta.shape[0]} but {args.reference} is "
                           f"{tb.shape[1]}x{tb.shape[0]}: expected images of the same size")
@@ -405,10 +398,11 @@ def cmd_compare(args) -> int:
             raise WarpbwError(f"{name}: {bad} non-finite values over covered pixels")
     r = compare_images(ta, tb, mask)
     if args.json:
-        print(json.dumps(r))
+        print(_json_text(r), end="")   # strict JSON: an infinite PSNR (identical, or a black reference) is null
     else:
         p = r["psnr_db"]
-        print(f"PSNR   {p:.3f} dB" if math.isfinite(p) else f"PSNR   {p}")
+        print(f"PSNR   {p:.3f} dB" if math.isfinite(p) else "PSNR   inf (identical over the covered pixels)"
+              if p > 0 else "PSNR   undefined (the reference has no positive value over the covered pixels)")
         print(f"relMSE {r['relmse']:.6g}")
         print(f"pixels {r['pixels']} covered")
     return 0

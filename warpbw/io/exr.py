@@ -4,7 +4,8 @@ Public functions:
 
 - ``read_exr(path) -> ExrImage``: every channel of a scan-line or tiled EXR (first part of a
   multi-part file) as float32 ``(H, W, C)``.
-- ``read_rgb(path) -> np.ndarray``: ``(H, W, 3)`` float32 radiance (a single ``Y`` channel is replicated).
+- ``read_rgb(path) -> np.ndarray``: ``(H, W, 3)`` float32 radiance (a single ``Y`` channel is replicated);
+  ``rgb_of(image) -> np.ndarray`` the same from an ``ExrImage`` already read.
 - ``write_exr(path, pixels, channels=None)``: float32, lossless ZIP compression; channel names and
   their order survive a round trip through ``read_exr``.
 - ``linear_to_srgb(x)``: the sRGB transfer function (IEC 61966-2-1) on linear values.
@@ -122,7 +123,11 @@ def read_exr(path) -> ExrImage:
 
 def read_rgb(path) -> np.ndarray:
     """``(H, W, 3)`` float32 RGB from an EXR: R,G,B channels, or a lone ``Y`` (or single) channel as grey."""
-    img = read_exr(path)
+    return rgb_of(read_exr(path))
+
+
+def rgb_of(img: ExrImage) -> np.ndarray:
+    """``(H, W, 3)`` float32 RGB of an image read by :func:`read_exr` (as :func:`read_rgb`)."""
     ch = img.channels
     if all(c in ch for c in ("R", "G", "B")):
         return np.ascontiguousarray(img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]])
