@@ -39,11 +39,11 @@ def prepared(mat=LAMBERT, env="constant = [1.0, 1.0, 1.0]", w=48, h=40, r=1.0):
     return prepare_scene(parse_scene(SCENE.format(w=w, h=h, env=env, mat=mat, r=r)))
 
 
-def run_pass(prep, n_b=16, light=None, **kw):
+def run_pass(prep, n_b=16, nu_env=None, **kw):
     tables = prepare_bandwidth(prep)
-    if light is not None:  # a synthetic light table replaces the environment's
+    if nu_env is not None:  # a synthetic nu_a table replaces the environment's
         nu_rho = prep.bandwidth.nu_rho.numpy().reshape(-1, N_THETA_I, N_CELLS, N_CELLS)
-        tables, keep = bw.make_bandwidth_tables(light, nu_rho)
+        tables, keep = bw.make_bandwidth_tables(nu_env, nu_rho)
         prep._keep.extend(keep)
     gb, _ = _gbuffer(prep, {})
     return gb, bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=n_b, **kw)
@@ -85,15 +85,15 @@ def test_brdf_table_lookup_matches_numpy_cells():
     assert np.mean(out.numpy() == expect) > 0.995
 
 
-def test_light_table_preserves_mean_luminance_and_max_bandwidth():
+def test_nu_env_table_keeps_the_max_bandwidth():
     rng = np.random.default_rng(2)
-    px = rng.random((64, 128, 3)).astype(np.float32)
     nu = rng.random((64, 128)).astype(np.float32) * 50
-    lt = bw.light_table(px, nu, width=32)
-    assert lt.shape == (16, 32, 2)
-    lum = px @ np.array(bw.LUMINANCE, np.float32)
-    assert np.isclose(lt[..., 0].mean(), lum.mean(), rtol=1e-5)
-    assert np.allclose(lt[..., 1], nu.reshape(16, 4, 32, 4).max(axis=(1, 3)))
+    lt = bw.nu_env_table(nu, width=32)
+    assert lt.shape == (16, 32)
+    assert np.allclose(lt, nu.reshape(16, 4, 32, 4).max(axis=(1, 3)))
+    assert bw.nu_env_table(nu, width=256).shape == (64, 128)  # never enlarged
+    with pytest.raises(WarpbwError, match="environment bandwidth table"):
+        bw.make_bandwidth_tables(np.stack([nu, nu], axis=-1), np.zeros((1, N_THETA_I, N_CELLS, N_CELLS)))
 
 
 def test_direction_set_is_stratified():
@@ -129,8 +129,8 @@ def test_lambert_sphere_image_bandwidth_matches_eq4_closed_form():
     pass; the default pass (2 x 2 blocks, pooled over 2 pixels) approximates it on this 36-pixel sphere."""
     a = 7.5
     prep = prepared(r=0.8)
-    light = np.stack([np.ones((8, 16)), np.full((8, 16), a)], axis=-1)
-    gb, buf = run_pass(prep, light=light, stride=1, pool_radius=0)
+    nu_env = np.full((8, 16), a)
+    gb, buf = run_pass(prep, nu_env=nu_env, stride=1, pool_radius=0)
     cov = gb.coverage.reshape(-1)
     pos = gb.data.position.numpy()[cov]
     nrm = gb.data.normal.numpy()[cov]
@@ -144,7 +144,7 @@ def test_lambert_sphere_image_bandwidth_matches_eq4_closed_form():
     interior = cos_x > 0.2
     np.testing.assert_allclose(got[interior], expect[interior], rtol=2e-3)
     assert buf.traced_pixels == int(cov.sum())
-    _, pooled = run_pass(prep, light=light)
+    _, pooled = run_pass(prep, nu_env=nu_env)
     assert pooled.traced_pixels < 0.4 * cov.sum()  # about one pixel in four traced
     ratio = pooled.b_p.numpy()[cov][interior] / expect[interior]
     assert abs(np.median(ratio) - 1) < 0.05
@@ -157,12 +157,11 @@ def test_variance_bound_closed_form_for_lambert():
     And the bound holds: uniform sampling's variance is albedo^2 (4/3 - 1) = albedo^2 / 3."""
     a = 3.0
     prep = prepared()
-    light = np.stack([np.ones((8, 16)), np.full((8, 16), a)], axis=-1)
-    gb, buf = run_pass(prep, n_b=1024, light=light)
+    gb, buf = run_pass(prep, n_b=1024, nu_env=np.full((8, 16), a))
     cov = gb.coverage.reshape(-1)
     expect = 4 * math.pi ** 2 * (a + float(bw.NU_COS)) * (0.6 / math.pi) ** 2 / 3.0
     np.testing.assert_allclose(buf.sigma2.numpy()[cov], expect, rtol=1e-2)
-    _, smooth = run_pass(prep, n_b=1024, light=np.stack([np.ones((8, 16)), np.zeros((8, 16))], axis=-1))
+    _, smooth = run_pass(prep, n_b=1024, nu_env=np.zeros((8, 16)))
     assert np.all(smooth.sigma2.numpy()[cov] >= 0.6 ** 2 / 3.0)
 
 
@@ -214,6 +213,33 @@ def test_measured_mis_variance_matches_quadrature_for_lambert():
     got = buf.variance_mis.numpy()[cov]
     assert abs(np.median(got) / expect - 1) < 0.05
     assert np.all(np.abs(got / expect - 1) < 0.3)
+
+
+def test_measured_mis_variance_follows_brute_force_under_a_small_sun(tmp_path):
+    """Under a sun smaller than a texel of the pass's reduced tables (2 x 2 texels of a 1024 x 512 map,
+    which LIGHT_TABLE_WIDTH reduces 4x), variance_mis still measures the renderer's noise.  For one-sample
+    MIS Y = f / q, q = (p_b + p_e) / 2, and the renderer's two-sample step X = g(a) + g(b), g = f / (p_b +
+    p_e), a ~ p_b, b ~ p_e: Var(Y) = 2 Var(X) + (E_b g - E_e g)^2, so 2 Var(X) <= Var(Y) <= 2 Var(X) + mu^2
+    (grey light and albedo: luminance is any channel).  Var(X) is measured by brute force over seeds.
+    When L_i came from a box-filtered table, directions beside the sun read its mean: Var(Y) up to 1,300x
+    that upper bound on this sphere."""
+    from warpbw.io.exr import write_exr
+
+    px = np.full((512, 1024, 3), 0.5, np.float32)
+    px[180:182, 300:302] = 5000.0
+    write_exr(tmp_path / "sun.exr", px)
+    prep = prepared(env=f'file = "{tmp_path / "sun.exr"}"', w=24, h=24)
+    seeds, spp = 64, 16
+    img = np.array([render_reference(prep, spp, seed=10 + k, mis=True).image[..., 1] for k in range(seeds)],
+                   np.float64)
+    gb, buf = run_pass(prep, n_b=4096, stride=1, pool_radius=0)
+    cov = gb.coverage
+    var_x = img.var(axis=0, ddof=1)[cov] * spp
+    mu = img.mean(axis=0)[cov]
+    var_y = buf.variance_mis.numpy().reshape(cov.shape)[cov]
+    lo, hi = 2 * var_x, 2 * var_x + mu ** 2
+    assert np.max(var_y / hi) < 2.0
+    assert np.mean((var_y >= 0.5 * lo) & (var_y <= 1.5 * hi)) > 0.9  # brute force's own noise: 64 x 16 samples
 
 
 def test_adaptive_lambert_furnace_returns_albedo():
@@ -286,10 +312,10 @@ def test_cli_spells_the_allocations_and_the_default():
 
 
 def test_bad_tables_are_refused():
-    with pytest.raises(WarpbwError, match="light table"):
-        bw.make_bandwidth_tables(np.full((4, 8, 2), np.nan), np.zeros((1, 16, 16, 16)))
+    with pytest.raises(WarpbwError, match="environment bandwidth table: values must be finite"):
+        bw.make_bandwidth_tables(np.full((4, 8), np.nan), np.zeros((1, 16, 16, 16)))
     with pytest.raises(WarpbwError, match="BRDF bandwidth tables"):
-        bw.make_bandwidth_tables(np.ones((4, 8, 2)), np.zeros((1, 16, 16)))
+        bw.make_bandwidth_tables(np.ones((4, 8)), np.zeros((1, 16, 16)))
 
 
 def test_nyquist_factor_beyond_float32_is_refused_and_the_largest_shades_every_pixel_finest():

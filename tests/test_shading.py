@@ -3,9 +3,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from warpbw.errors import WarpbwError
 from warpbw.pipeline import prepare_scene, render_reference
 from warpbw.scene import parse_scene
+from warpbw.shading import tile_ranges
 
 SPHERE_SCENE = """
 [camera]
@@ -151,3 +155,35 @@ def test_per_pixel_sample_counts_for_adaptive_shading():
     untouched = np.setdiff1d(np.arange(n), np.union1d(subset, zero))
     assert (img[untouched] == 7.0).all()
     assert r.samples == 6 * len(shaded_nonzero)
+
+
+# --- tiles over threads ------------------------------------------------------------------------------
+
+@given(st.integers(1, 5000), st.integers(1, 700), st.integers(0, 2**31 - 1))
+@settings(max_examples=60, deadline=None)
+def test_tiles_of_equal_cost_cover_every_item_once_and_balance(n_items, tile, seed):
+    """Tiles cut by cost are contiguous, cover every item once, number as many as tiles of equal counts
+    (or fewer, when one item outweighs a share), and none costs more than an equal share plus its heaviest item."""
+    rng = np.random.default_rng(seed)
+    costs = np.where(rng.random(n_items) < 0.05, rng.integers(0, 2000, n_items), rng.integers(0, 4, n_items))
+    plain = tile_ranges(n_items, tile)
+    tiles = tile_ranges(n_items, tile, costs)
+    assert [o for o, _ in tiles] == [0] + list(np.cumsum([c for _, c in tiles])[:-1])
+    assert sum(c for _, c in tiles) == n_items and all(c > 0 for _, c in tiles)
+    assert len(tiles) <= len(plain)
+    w = costs + 1.0
+    share = w.sum() / len(plain)
+    for o, c in tiles:
+        assert w[o:o + c].sum() <= share + w[o:o + c].max() + 1e-9
+
+
+def test_tiles_of_equal_cost_split_a_compact_hot_spot():
+    """A highlight: 100 items of cost 500 among 3,900 of cost 1 end up spread over several tiles, where
+    tiles of equal counts give one of them nearly all the work."""
+    costs = np.ones(4000)
+    costs[1000:1100] = 500
+    heavy = lambda tiles: max((costs[o:o + c] + 1).sum() for o, c in tiles) / (costs + 1).sum()
+    assert heavy(tile_ranges(4000, 500)) > 0.85
+    assert heavy(tile_ranges(4000, 500, costs)) < 0.2
+    with pytest.raises(WarpbwError, match="tile costs"):
+        tile_ranges(10, 4, np.full(10, np.nan))

@@ -2,15 +2,15 @@
 
 Public:
     ``N_B_DEFAULT``, ``NYQUIST_FACTOR``, ``N_P_MIN_DEFAULT``, ``N_P_MAX_PER_BUDGET``, ``LUMINANCE``
-    ``BandwidthTables`` (Warp struct) / ``make_bandwidth_tables(light, nu_rho, device)``
-    ``light_table(env_pixels, nu_env) -> (h, w, 2)``   reduced [luminance, nu_a] of the environment
+    ``BandwidthTables`` (Warp struct) / ``make_bandwidth_tables(nu_env, nu_rho, device)``
+    ``nu_env_table(nu_env) -> (h, w)``   the environment's nu_a, max-filtered to at most LIGHT_TABLE_WIDTH columns
     ``env_bandwidth_map(pixels, name, cache=None) -> ((H, W) float32 cycles/rad, origin)``
     ``direction_set(n_b, seed) -> (n_b, 3) float32``   stratified points for the n_b directions
     ``interleave_shifts(n_b, side) -> (side^2, 3)``     per-block offsets of the direction set
     ``BandwidthBuffer`` / ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ..., stride, pool_radius)``
     ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max, allocation)``; ``ALLOCATIONS``
     ``PASS_STRIDE_DEFAULT``, ``POOL_RADIUS_DEFAULT``
-    Warp functions ``brdf_nu_rho(nu_rho, m, wi, wo)`` and ``light_at_uv(light, uv)`` (table look-ups)
+    Warp functions ``brdf_nu_rho(nu_rho, m, wi, wo)`` and ``nu_env_at_uv(nu_env, uv)`` (table look-ups)
 
 Three Warp kernels over the G-buffer (002 Sec. 2.6: a block plan, the directions, the pooling).  For
 pixel p (point x, view direction w_o, shading normal n, mean curvature c, distance d' to the camera)
@@ -107,8 +107,19 @@ silent:
   noise-limited: each extra pixel shaded at level 0 takes samples from the others.  Keeping H's sign instead
   shaded fewer pixels there (64%; 1.19x against 1.06x in one run) but ranks 0.410 on the first scene.
 * Luminance (``LUMINANCE``, Rec. 709) reduces the RGB of L and rho to the scalar weights.
-* L_i and nu_a^env come from one reduced lat-long table (:func:`light_table`: mean luminance,
-  max-filtered nu_a, at most ``LIGHT_TABLE_WIDTH`` columns), one nearest fetch per direction.
+* L_i is the environment's own radiance at w_i (the renderer's bilinear look-up, ``env_radiance_uv``), and
+  nu_a^env comes from a reduced lat-long table (:func:`nu_env_table`: nu_a max-filtered to at most
+  ``LIGHT_TABLE_WIDTH`` columns), one nearest fetch per direction.  Until session 34 L_i came from a
+  box-filtered table of the same size: a light smaller than a reduced texel was spread over the texel, so a
+  BRDF-sampled direction beside it read the light's mean, and one the light sampler drew inside it a
+  fraction of its radiance.  Under a 2 x 2-texel sun in a 1024 x 512 map the pass's variance on a Lambert
+  sphere reached 1,333 times the most the renderer's brute-force noise allows (tests/test_bandwidth.py).
+  With the map's own radiance the pass's one-sample MIS variance follows the renderer's per-pixel variance
+  more closely: rank correlation over the shaded pixels 0.46 -> 0.65 on the blue-acrylic bunny under
+  studio.exr (the benchmark's), 0.914 -> 0.931 on the ccp3 sphere, 0.922 -> 0.925 on the gold bunny.  The
+  acrylic bunny gains 0.7-1.0 dB at budgets 8-32 (equal-quality speed-up 0.92x -> 1.13x, 3 runs back to
+  back); the chrome sphere's PSNR moves by under 0.01 dB, the gold bunny's within its noise.  One bilinear
+  fetch instead of a nearest one: the pass took 35 -> 40 ms on the acrylic bunny, 48 -> 51 on the chrome sphere.
   Measured, not adopted (session 28): nu_a max-filtered further over 4, 8 or 16 texels of that table (0.1 to
   0.4 rad, a GGX alpha = 0.2 lobe's reach), so that a direction inside a smooth light would also see its
   edges.  On the GGX sphere of examples/validate_bandwidth.py, whose prediction is lowest in the highlight
@@ -133,6 +144,14 @@ the standard deviation that matters is the renderer's importance-sampled estimat
 does not predict (the paper calls the bound "very conservative").  Measured with MIS, 256x256 and
 512x512, budgets 4 and 16, single frames: +1 to +6 dB over "uniform"; "sqrt" fell between the two
 (bunny, budget 4: uniform 32.8, sqrt 35.3, measured 36.4 dB), "variance" 3 dB below "measured" (ccp3, budget 2).
+The default cap ``n_max = N_P_MAX_PER_BUDGET x budget`` was 32 x budget until session 34.  On the chrome
+sphere of examples/bench_scenes.py (studio.exr, budget 4) that cap held 1,044 of the 5,246 shaded pixels,
+the highlights, and 71% of the samples: Neyman's allocation wanted more there.  At 256 x budget it holds
+one pixel of the four benchmark scenes at their best budgets (gold bunny, budget 4), and the chrome
+sphere's PSNR rises by 4.6-4.9 dB at budgets 1-4 (equal-quality speed-up 12.7x -> 22.7x, 3 runs back to
+back), while its relative MSE, which weighs the dark pixels that gave up samples as much as the
+highlights, rises by a quarter (5.6e-4 -> 6.9e-4 at budget 1).  The gold bunny, whose cap held 68 pixels,
+and the ccp3 sphere (70) move within their noise.
 When even ``n_min`` per shaded pixel exceeds the budget (a budget below the shaded fraction), every
 shaded pixel gets ``n_min`` and ``SampleAllocation.over_budget`` says so; pixels are never left unshaded.
 """
@@ -148,7 +167,7 @@ import warp as wp
 
 from warpbw.bandwidth_ops import bw_one_bounce
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
-from warpbw.envmap import EnvMapData, env_pdf_uv, env_sample, env_uv
+from warpbw.envmap import EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv
 from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, is_int
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 from warpbw.pyramid import build_pyramid, image_level
@@ -157,7 +176,7 @@ from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_local, 
 N_B_DEFAULT = 16              # directions per pixel; 002 Sec. 2.6 and Fig. 13 ("n_b = 16 is sufficient")
 NYQUIST_FACTOR = 2.0          # sampling rate = 2 x bandwidth (002 Sec. 2.2, Nyquist)
 N_P_MIN_DEFAULT = 1           # a shaded pixel gets at least one sample
-N_P_MAX_PER_BUDGET = 32       # default n_max = 32 x budget: caps the samples one pixel may take
+N_P_MAX_PER_BUDGET = 256      # default n_max = 256 x budget: caps the samples one pixel may take (docstring)
 BUDGET_MAX = INT32_MAX / N_P_MAX_PER_BUDGET  # largest budget whose default n_max fits the kernels' int32 N_p
 ALLOCATIONS = ("variance", "sqrt", "relative", "uniform", "measured")
 ALLOCATION_DEFAULT = "measured"  # N_p ~ the pass's own MIS standard deviation: +1-6 dB (module docstring)
@@ -188,7 +207,7 @@ REL_EPS = wp.constant(1.0e-4)  # radiance^2 added to mu^2 in sigma2_rel: black p
 
 @wp.struct
 class BandwidthTables:
-    light: wp.array2d(dtype=wp.vec2)       # (h, w) lat-long [luminance, nu_a (cycles/radian)] of the environment
+    nu_env: wp.array2d(dtype=wp.float32)   # (h, w) lat-long nu_a (cycles/radian) of the environment, max-filtered
     nu_rho: wp.array(dtype=wp.float32)     # n_materials * 16 * 16 * 16 BRDF bandwidth, cycles/radian
 
 
@@ -222,14 +241,14 @@ def brdf_nu_rho(nu_rho: wp.array(dtype=wp.float32), m: int, wi: wp.vec3, wo: wp.
 
 
 @wp.func
-def light_at_uv(light: wp.array2d(dtype=wp.vec2), uv: wp.vec2):
-    """[luminance, nu_a] of the environment at lat-long coordinates uv = env_uv(env, w): nearest texel of the
-    reduced map (row centres at (j + 1/2) / h)."""
-    h = light.shape[0]
-    wd = light.shape[1]
+def nu_env_at_uv(nu_env: wp.array2d(dtype=wp.float32), uv: wp.vec2):
+    """nu_a of the environment at lat-long coordinates uv = env_uv(env, w): nearest texel of the reduced
+    map (row centres at (j + 1/2) / h)."""
+    h = nu_env.shape[0]
+    wd = nu_env.shape[1]
     col = wp.clamp(int(uv[0] * float(wd)), 0, wd - 1)
     row = wp.clamp(int(uv[1] * float(h)), 0, h - 1)
-    return light[row, col]
+    return nu_env[row, col]
 
 
 @wp.func
@@ -384,12 +403,11 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
                     wi = to_local(fr, env_sample(env, wp.vec2(u[1], u[2])))
                 if wi[2] > 0.0:
                     wi_world = to_world(fr, wi)
-                    uv = env_uv(env, wi_world)                   # once: the pdf and the light table need it
+                    uv = env_uv(env, wi_world)                   # once: the pdf, L_i and nu_a need it
                     pdf = MIS_HALF * (f.pdf(mats, m, wi, wo) + env_pdf_uv(env, uv))
-                    light = light_at_uv(tables.light, uv)
                     rho = wp.dot(_LUM, f.eval(mats, m, wi, wo))
-                    chi = light[0] * rho * wi[2]                  # lambda_i (Eq. 5), integrand of Eq. 1
-                    nu_l = light[1]
+                    chi = wp.dot(_LUM, env_radiance_uv(env, uv)) * rho * wi[2]  # lambda_i (Eq. 5), Eq. 1's integrand
+                    nu_l = nu_env_at_uv(tables.nu_env, uv)
                     nu_r = brdf_nu_rho(tables.nu_rho, m, wi, wo)
                     # the shading integral over w_i keeps only the light's angular frequencies within the
                     # band of rho cos (Eq. 8's convolution, read at angular frequency 0): module docstring
@@ -420,44 +438,41 @@ def _reduce_latlong(a: np.ndarray, fy: int, fx: int, op) -> np.ndarray:
     return op(a.reshape(h // fy, fy, w // fx, fx), axis=(1, 3))
 
 
-def light_table(env_pixels: np.ndarray, nu_env: np.ndarray, width: int = None) -> np.ndarray:
-    """The bandwidth pass's view of the environment, ``(h, w, 2)`` float32: [luminance, nu_a].
+def nu_env_table(nu_env: np.ndarray, width: int = None) -> np.ndarray:
+    """The bandwidth pass's view of the environment's angular bandwidth, ``(h, w)`` float32 cycles/radian.
 
-    Reduced to at most ``LIGHT_TABLE_WIDTH`` columns by whole factors: luminance by a box (mean)
-    filter, nu_a by a max filter (conservative).  The pass takes one nearest look-up per direction
-    instead of a bilinear radiance fetch plus a bandwidth fetch; each of its n_b directions stands for
-    2 pi / n_b sr, far more than a reduced texel (2 pi^2 / (h w) sr at the equator)."""
-    px = np.asarray(env_pixels, np.float64)
+    nu_a max-filtered (conservative) to at most ``LIGHT_TABLE_WIDTH`` columns, by whole factors: one
+    nearest look-up per direction instead of a bilinear one; each of the pass's n_b directions stands for
+    2 pi / n_b sr, far more than a reduced texel (2 pi^2 / (h w) sr at the equator).  The radiance L_i
+    is read from the map itself (module docstring)."""
     nu = np.asarray(nu_env, np.float64)
-    if px.ndim != 3 or px.shape[2] != 3 or px.shape[:2] != nu.shape:
-        raise WarpbwError(f"light table: pixels {px.shape} and bandwidth map {nu.shape} do not match")
+    if nu.ndim != 2 or nu.size == 0:
+        raise WarpbwError(f"environment bandwidth table: expected a non-empty (h, w) map, got shape {nu.shape}")
     h, w = nu.shape
     width = LIGHT_TABLE_WIDTH if width is None else int(width)
     f = 1
     while w % (2 * f) == 0 and h % (2 * f) == 0 and w // (2 * f) >= width:
         f *= 2
-    lum = px @ np.asarray(LUMINANCE)
-    return np.stack([_reduce_latlong(lum, f, f, np.mean), _reduce_latlong(nu, f, f, np.max)],
-                    axis=-1).astype(np.float32)
+    return _reduce_latlong(nu, f, f, np.max).astype(np.float32)
 
 
-def make_bandwidth_tables(light, nu_rho, device: str = "cpu") -> tuple[BandwidthTables, list]:
-    """Device copies of the light table (h, w, 2) (:func:`light_table`) and the stacked BRDF tables
-    (M, 16, 16, 16).  Returns the struct and the arrays it references (keep them alive with it)."""
-    lt = np.ascontiguousarray(np.asarray(light, np.float32))
+def make_bandwidth_tables(nu_env, nu_rho, device: str = "cpu") -> tuple[BandwidthTables, list]:
+    """Device copies of the environment's bandwidth table (h, w) (:func:`nu_env_table`) and the stacked BRDF
+    tables (M, 16, 16, 16).  Returns the struct and the arrays it references (keep them alive with it)."""
+    lt = np.ascontiguousarray(np.asarray(nu_env, np.float32))
     rho = np.ascontiguousarray(np.asarray(nu_rho, np.float32))
-    if lt.ndim != 3 or lt.shape[2] != 2 or lt.size == 0:
-        raise WarpbwError(f"light table: expected a non-empty (h, w, 2) array, got shape {lt.shape}")
+    if lt.ndim != 2 or lt.size == 0:
+        raise WarpbwError(f"environment bandwidth table: expected a non-empty (h, w) array, got shape {lt.shape}")
     if rho.ndim != 4 or rho.shape[1:] != (N_THETA_I, N_CELLS, N_CELLS):
         raise WarpbwError(f"BRDF bandwidth tables: expected shape (materials, {N_THETA_I}, {N_CELLS}, {N_CELLS}), "
                           f"got {rho.shape}")
-    for name, a in (("light table", lt), ("BRDF bandwidth tables", rho)):
+    for name, a in (("environment bandwidth table", lt), ("BRDF bandwidth tables", rho)):
         if not np.all(np.isfinite(a)) or np.any(a < 0):
             raise WarpbwError(f"{name}: values must be finite and >= 0")
     s = BandwidthTables()
-    s.light = wp.array(lt, dtype=wp.vec2, device=device)
+    s.nu_env = wp.array(lt, dtype=wp.float32, device=device)
     s.nu_rho = wp.array(rho.reshape(-1), dtype=wp.float32, device=device)
-    return s, [s.light, s.nu_rho]
+    return s, [s.nu_env, s.nu_rho]
 
 
 def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None) -> tuple[np.ndarray, str]:

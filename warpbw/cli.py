@@ -27,8 +27,8 @@ _FILTER_METHODS = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed", "
 # warpbw.bandwidth.ALLOCATIONS, default first (spelled here for the same reason)
 _ALLOCATIONS = ("measured", "variance", "sqrt", "relative", "uniform")
 # warpbw.bandwidth.BUDGET_MAX (spelled here for the same reason): the adaptive N_p goes up to
-# N_P_MAX_PER_BUDGET = 32 x --budget and is an int32 in the kernels
-BUDGET_MAX = INT32_MAX / 32
+# N_P_MAX_PER_BUDGET = 256 x --budget and is an int32 in the kernels
+BUDGET_MAX = INT32_MAX / 256
 # warpbw.filtering.MAX_ANISOTROPY (spelled here for the same reason): the most probes along a footprint's axis
 MAX_ANISOTROPY = 16
 # --exposure in stops: beyond +-150 every non-zero float32 radiance (2^-149 .. 2^128) previews white, or black
@@ -426,7 +426,7 @@ def _positive_int(name, hi=None):
 def _why(hi) -> str:
     """Why a count or budget has an upper bound, for the parsers' messages."""
     return {INT32_MAX: " (an int32 in the kernels)",
-            BUDGET_MAX: " (N_p, up to 32 x budget, is an int32 in the kernels)",
+            BUDGET_MAX: " (N_p, up to 256 x budget, is an int32 in the kernels)",
             FLOAT32_MAX: " (a float32 in the kernels)"}.get(hi, "")
 
 

@@ -317,7 +317,7 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False):
     if prep.bandwidth is not None:
         return prep.bandwidth
     from precompute.brdf_bandwidth import SHAPE as BW_TABLE_SHAPE, load_or_build_bandwidth
-    from warpbw.bandwidth import env_bandwidth_map, light_table, make_bandwidth_tables
+    from warpbw.bandwidth import env_bandwidth_map, make_bandwidth_tables, nu_env_table
 
     if prep.env is None:
         raise WarpbwError(f"{prep.scene.source}: the bandwidth pass needs an [environment] ([[light]]s are exact "
@@ -337,7 +337,7 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False):
                 table, origin = load_or_build_bandwidth(_AnalyticSource(prep, i, m), progress=progress)
             prep.notes.setdefault(f"material.{name}", {"type": m.type})["bandwidth"] = origin
             tables.append(table)
-        struct, keep = make_bandwidth_tables(light_table(prep.env.pixels, nu_env), np.stack(tables),
+        struct, keep = make_bandwidth_tables(nu_env_table(nu_env), np.stack(tables),
                                              device=prep.device)
     prep.bandwidth = struct
     prep._keep.extend(keep)

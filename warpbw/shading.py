@@ -5,6 +5,8 @@ Public:
     ``ShadeResult`` / ``shade_reference(gb, materials, env, spp, seed, ..., lights)``  run it over covered pixels
     ``ShadingFrame`` / ``pixel_frame(gb, i)``  a pixel's (t, b, n) frame and local view direction (Warp)
     ``to_local(frame, w)`` / ``to_world(frame, w)``  directions between world and the frame (Warp)
+    ``launch_tiled(kernel, n_items, make_inputs, device, threads, progress, tile, costs)``  CPU launches over threads
+    ``tile_ranges(n_items, tile, costs) -> [(offset, count)]``  its tiles: equal counts, or equal summed costs
 
 Per pixel p with surface point x, normal n and view direction wo (ignoring visibility, as 002 Eq. 1):
 
@@ -184,14 +186,33 @@ def default_threads(device: str) -> int:
     return max(1, min(os.cpu_count() or 1, 8))
 
 
+def tile_ranges(n_items: int, tile: int, costs: np.ndarray | None = None) -> list[tuple[int, int]]:
+    """(offset, count) of the ceil(n_items / tile) contiguous tiles of a launch: ``tile`` items each, or, with
+    ``costs``, cut where the running cost (each item's cost + 1, for its fixed overhead) crosses equal
+    shares of the total.  An adaptive frame's N_p runs from 1 to hundreds in a compact highlight: tiles of
+    equal counts left one thread shading the highlight alone (chrome sphere of examples/bench_scenes.py,
+    budget 4: 2 threads shaded in 0.071 s against 0.109 s on one; with tiles of equal cost 0.061 s)."""
+    if costs is None:
+        return [(o, min(tile, n_items - o)) for o in range(0, n_items, tile)]
+    c = np.asarray(costs, np.float64).reshape(-1)
+    if c.shape[0] != n_items or not np.all(np.isfinite(c) & (c >= 0)):
+        raise WarpbwError(f"tile costs: expected {n_items} finite values >= 0, got {c.shape[0]}")
+    n_tiles = -(-n_items // tile)
+    run = np.cumsum(c + 1.0)
+    cuts = np.searchsorted(run, run[-1] * np.arange(1, n_tiles) / n_tiles, side="left") + 1
+    bounds = np.unique(np.concatenate([[0], np.minimum(cuts, n_items), [n_items]]))
+    return [(int(a), int(b - a)) for a, b in zip(bounds[:-1], bounds[1:])]
+
+
 def launch_tiled(kernel, n_items: int, make_inputs: Callable[[int, int], list], device: str,
                  threads: int | None = None, progress: Callable[[int], None] | None = None,
-                 tile: int = PIXELS_PER_TILE) -> None:
+                 tile: int = PIXELS_PER_TILE, costs: np.ndarray | None = None) -> None:
     """Launch ``kernel`` over ``n_items`` in tiles, on a small thread pool on the CPU (on a GPU, in one
     launch unless ``progress`` asks for tiles).
 
     ``make_inputs(offset, count)`` returns the kernel inputs for one tile; ``progress(count)`` is
-    called as tiles finish.
+    called as tiles finish.  ``costs`` (one per item, e.g. its sample count) cuts the same number of
+    tiles at equal summed cost instead of equal counts (:func:`tile_ranges`).
     """
     if n_items <= 0:
         return
@@ -200,7 +221,7 @@ def launch_tiled(kernel, n_items: int, make_inputs: Callable[[int, int], list], 
         tile = max(MIN_PIXELS_PER_TILE, min(tile, -(-n_items // (TILES_PER_THREAD * threads))))
     elif progress is None and not str(device).startswith("cpu"):
         tile = n_items   # a GPU launch is parallel by itself: tiles only serve a progress bar there
-    tiles = [(o, min(tile, n_items - o)) for o in range(0, n_items, tile)]
+    tiles = tile_ranges(n_items, tile, costs if threads > 1 else None)
     lock = threading.Lock()
 
     def run(t):
@@ -257,7 +278,8 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
     spp_all = 0 if per_pixel else int(spp)
     launch_tiled(kernel, pix.shape[0],
                  lambda o, c: [gb.data, materials.table, env_data, lights_data, pix, o, spp_all, spp_map, int(seed),
-                               out, bad], device, threads, progress)
+                               out, bad], device, threads, progress,
+                 costs=spp.numpy()[pix.numpy()] if per_pixel else None)
     n = int(pix.shape[0])
     if not has_env:
         samples = 0
