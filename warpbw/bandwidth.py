@@ -8,7 +8,7 @@ Public:
     ``direction_set(n_b, seed) -> (n_b, 3) float32``   stratified points for the n_b directions
     ``interleave_shifts(n_b, side) -> (side^2, 3)``     per-block offsets of the direction set
     ``BandwidthBuffer`` / ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ..., stride, pool_radius)``
-    ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max, allocation)``; ``ALLOCATIONS``
+    ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max, allocation, mis)``; ``ALLOCATIONS``
     ``PASS_STRIDE_DEFAULT``, ``POOL_RADIUS_DEFAULT``
     Warp functions ``brdf_nu_rho(nu_rho, m, wi, wo)`` and ``nu_env_at_uv(nu_env, uv)`` (table look-ups)
 
@@ -55,7 +55,12 @@ silent:
   before the per-tile offsets: 89% of pixels instead of 85%, rank correlation unchanged).
 * The same directions measure the variance of their own one-sample MIS estimate of L_p,
   ``variance_mis`` = E[(chi / pdf)^2] - E[chi / pdf]^2: the spread of the renderer's (MIS) estimator,
-  which the Eq. 9 bound, written for uniform sampling, does not follow (below).
+  which the Eq. 9 bound, written for uniform sampling, does not follow (below).  And, reweighted, that of
+  BRDF sampling alone (the renderer without MIS), ``variance_bis`` = E_pdf[chi^2 / (p_brdf pdf)] - mu^2 =
+  E_brdf[(chi / p_brdf)^2] - mu^2: under a small bright light the two differ by orders of magnitude, and N_p
+  follows the one the frame is rendered with.  Until session 34 a frame without MIS was allocated by the MIS
+  variance; with the cap raised to 256 x budget (below) that gave the chrome sphere's highlights the
+  samples that its other pixels, whose fireflies BRDF sampling cannot avoid, needed (13.6x -> 6.4x).
 * chi_i includes the cosine of Eq. 1 (the paper writes chi_i = L_i rho): grazing directions, which
   carry no energy, then do not inflate the bound.  The integrand's bandwidth in Eq. 9 then includes
   the cosine's, ``NU_COS``: without it a Lambert surface under a smooth light (nu_a, nu_rho -> 0) gets
@@ -118,8 +123,11 @@ silent:
   more closely: rank correlation over the shaded pixels 0.46 -> 0.65 on the blue-acrylic bunny under
   studio.exr (the benchmark's), 0.914 -> 0.931 on the ccp3 sphere, 0.922 -> 0.925 on the gold bunny.  The
   acrylic bunny gains 0.7-1.0 dB at budgets 8-32 (equal-quality speed-up 0.92x -> 1.13x, 3 runs back to
-  back); the chrome sphere's PSNR moves by under 0.01 dB, the gold bunny's within its noise.  One bilinear
-  fetch instead of a nearest one: the pass took 35 -> 40 ms on the acrylic bunny, 48 -> 51 on the chrome sphere.
+  back); the chrome sphere's PSNR moves by under 0.01 dB, the gold bunny's within its noise (8 paired runs,
+  budgets 1-8: -0.30, -0.02, -0.50 and +0.36 dB, each within 1.1 of their standard errors).  The cost is the
+  cache: on the gold bunny the pass takes 104 ms against 94 (median of 15), since the map (6 MB at
+  1024 x 512) misses where the reduced table (256 KB) did not; a nearest fetch in the map costs the same
+  as the bilinear one (103 ms), and the bilinear one is what the renderer integrates.
   Measured, not adopted (session 28): nu_a max-filtered further over 4, 8 or 16 texels of that table (0.1 to
   0.4 rad, a GGX alpha = 0.2 lobe's reach), so that a direction inside a smooth light would also see its
   edges.  On the GGX sphere of examples/validate_bandwidth.py, whose prediction is lowest in the highlight
@@ -323,10 +331,11 @@ def block_plan_kernel(gb: GBufferData, stride: int, rep: wp.array(dtype=wp.int32
 @wp.kernel(module="unique", enable_backward=False)
 def pool_kernel(gb: GBufferData, rep: wp.array(dtype=wp.int32), radius: int, n_b: int, pixel_angle: float,
                 lam_in: wp.array(dtype=wp.float32), nu_in: wp.array(dtype=wp.vec2), var_in: wp.array(dtype=wp.float32),
-                w2_in: wp.array(dtype=wp.float32), pixels: wp.array(dtype=wp.int32), offset: int,
+                w2_in: wp.array(dtype=wp.float32), w2b_in: wp.array(dtype=wp.float32),
+                pixels: wp.array(dtype=wp.int32), offset: int,
                 nu_out: wp.array(dtype=wp.vec2), b_p: wp.array(dtype=wp.float32),
                 sigma2: wp.array(dtype=wp.float32), sigma2_rel: wp.array(dtype=wp.float32),
-                var_mis: wp.array(dtype=wp.float32)):
+                var_mis: wp.array(dtype=wp.float32), var_bis: wp.array(dtype=wp.float32)):
     """Pool the direction sums of the evaluated pixels within ``radius`` pixels that are alike (an
     interleaved set: neighbours used shifted direction sets), then Eq. 5, 6 and 9 per pixel."""
     i = pixels[wp.tid() + offset]
@@ -340,6 +349,7 @@ def pool_kernel(gb: GBufferData, rep: wp.array(dtype=wp.int32), radius: int, n_b
     var = var_in[r]
     var_max = var_in[r]
     w2 = w2_in[r]
+    w2b = w2b_in[r]
     count = float(1.0)
     for yy in range(wp.max(y - radius, 0), wp.min(y + radius + 1, H)):
         for xx in range(wp.max(x - radius, 0), wp.min(x + radius + 1, W)):
@@ -350,6 +360,7 @@ def pool_kernel(gb: GBufferData, rep: wp.array(dtype=wp.int32), radius: int, n_b
                 var += var_in[j]
                 var_max = wp.max(var_max, var_in[j])
                 w2 += w2_in[j]
+                w2b += w2b_in[j]
                 count += 1.0
     nu = wp.vec2(0.0)
     if lam > 0.0:
@@ -363,6 +374,7 @@ def pool_kernel(gb: GBufferData, rep: wp.array(dtype=wp.int32), radius: int, n_b
     mu = lam / n_dirs                                             # the pass's estimate of L_p (Eq. 1)
     sigma2_rel[i] = s2 / (mu * mu + REL_EPS)
     var_mis[i] = wp.max(w2 / n_dirs - mu * mu, 0.0)               # the directions' own one-sample MIS variance
+    var_bis[i] = wp.max(w2b / n_dirs - mu * mu, 0.0)              # BRDF sampling's, from the same directions
 
 
 def make_bandwidth_kernel(kinds, preconvolved: bool = False):
@@ -380,7 +392,8 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
                                 shifts: wp.array(dtype=wp.vec3), side: int, stride: int, seed: int,
                                 pixels: wp.array(dtype=wp.int32), offset: int,
                                 lam_out: wp.array(dtype=wp.float32), nu_out: wp.array(dtype=wp.vec2),
-                                var_out: wp.array(dtype=wp.float32), w2_out: wp.array(dtype=wp.float32)):
+                                var_out: wp.array(dtype=wp.float32), w2_out: wp.array(dtype=wp.float32),
+                                w2b_out: wp.array(dtype=wp.float32)):
         i = pixels[wp.tid() + offset]
         m = gb.material[i]
         fr = pixel_frame(gb, i)
@@ -392,6 +405,7 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
         nu_sum = wp.vec2(0.0)
         var_sum = float(0.0)
         w2_sum = float(0.0)
+        w2b_sum = float(0.0)
         if wo[2] > 0.0:
             for k in range(dirs.shape[0]):
                 u = frac3(dirs[k] + shift)
@@ -404,7 +418,8 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
                 if wi[2] > 0.0:
                     wi_world = to_world(fr, wi)
                     uv = env_uv(env, wi_world)                   # once: the pdf, L_i and nu_a need it
-                    pdf = MIS_HALF * (f.pdf(mats, m, wi, wo) + env_pdf_uv(env, uv))
+                    p_b = f.pdf(mats, m, wi, wo)
+                    pdf = MIS_HALF * (p_b + env_pdf_uv(env, uv))
                     rho = wp.dot(_LUM, f.eval(mats, m, wi, wo))
                     chi = wp.dot(_LUM, env_radiance_uv(env, uv)) * rho * wi[2]  # lambda_i (Eq. 5), Eq. 1's integrand
                     nu_l = nu_env_at_uv(tables.nu_env, uv)
@@ -417,6 +432,10 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
                     if chi > 0.0 and pdf > 0.0 and wp.isfinite(w):
                         lam_sum += w
                         w2_sum += w * w
+                        if p_b > 0.0:
+                            t = w * chi / p_b                     # chi^2 / (p_b q): E_q of it is E_p_b[(chi / p_b)^2]
+                            if wp.isfinite(t):
+                                w2b_sum += t
                         nu_sum += w * nu_i
                         if wp.static(preconvolved):
                             var_sum += (2.0 * nu_r + NU_COS) * chi * w  # Eq. 10, + the cosine's band
@@ -426,6 +445,7 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
         nu_out[i] = nu_sum
         var_out[i] = var_sum
         w2_out[i] = w2_sum
+        w2b_out[i] = w2b_sum
 
     return bandwidth_buffer_kernel
 
@@ -562,6 +582,7 @@ class BandwidthBuffer:
     time_s: float = 0.0
     traced_pixels: int = 0     # pixels whose n_b directions were traced (the rest share a block's)
     variance_mis: wp.array | None = None   # float32 variance of the directions' one-sample MIS estimates of L_p
+    variance_bis: wp.array | None = None   # float32 variance of BRDF sampling's estimate, from the same directions
 
 
 def interleave_shifts(n_b: int, side: int) -> np.ndarray:
@@ -613,26 +634,28 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     nu_sum = wp.zeros(W * H, dtype=wp.vec2, device=device)
     var = wp.zeros(W * H, dtype=wp.float32, device=device)
     w2 = wp.zeros(W * H, dtype=wp.float32, device=device)
+    w2b = wp.zeros(W * H, dtype=wp.float32, device=device)
     kernel = make_bandwidth_kernel(materials.kinds, preconvolved)
     launch_tiled(kernel, traced.shape[0],
                  lambda o, c: [gb.data, cam, materials.table, env_data, tables, dirs, shifts, side, stride, int(seed),
-                               traced, o, lam, nu_sum, var, w2], device, threads)
+                               traced, o, lam, nu_sum, var, w2, w2b], device, threads)
     nu = wp.zeros(W * H, dtype=wp.vec2, device=device)
     b_p = wp.zeros(W * H, dtype=wp.float32, device=device)
     sigma2 = wp.zeros(W * H, dtype=wp.float32, device=device)
     sigma2_rel = wp.zeros(W * H, dtype=wp.float32, device=device)
     var_mis = wp.zeros(W * H, dtype=wp.float32, device=device)
+    var_bis = wp.zeros(W * H, dtype=wp.float32, device=device)
     pix = covered_pixels(gb, device)
     angle = pixel_angle(cam)
     launch_tiled(pool_kernel, pix.shape[0],
-                 lambda o, c: [gb.data, rep, pool_radius, int(n_b), angle, lam, nu_sum, var, w2, pix, o,
-                               nu, b_p, sigma2, sigma2_rel, var_mis], device, threads)
+                 lambda o, c: [gb.data, rep, pool_radius, int(n_b), angle, lam, nu_sum, var, w2, w2b, pix, o,
+                               nu, b_p, sigma2, sigma2_rel, var_mis, var_bis], device, threads)
     with np.errstate(over="ignore"):  # a rate beyond float32 is +inf: level 0 (image_level)
         rate = b_p.numpy() * np.float32(nyquist)
     level = image_level(rate, gb.coverage, W, H, device=device)
     wp.synchronize_device(device)
     return BandwidthBuffer(nu, b_p, sigma2, sigma2_rel, level, gb.coverage, W, H, int(n_b),
-                           time.perf_counter() - t0, int(traced.shape[0]), var_mis)
+                           time.perf_counter() - t0, int(traced.shape[0]), var_mis, var_bis)
 
 
 @dataclass
@@ -671,11 +694,12 @@ def planned_shading(buf: BandwidthBuffer, device: str = "cpu", key=None) -> np.n
 
 
 def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_DEFAULT, n_max: int | None = None,
-                     allocation: str = ALLOCATION_DEFAULT, device: str = "cpu") -> SampleAllocation:
+                     allocation: str = ALLOCATION_DEFAULT, device: str = "cpu", mis: bool = True) -> SampleAllocation:
     """N_p per pixel for ``budget`` samples per covered pixel: proportional to sigma2 ("variance", 002
     Sec. 2.4: constant variance), to its square root ("sqrt"), to sigma2 / L^2 ("relative"), constant
-    ("uniform"), or to the standard deviation the pass measured for its MIS directions ("measured":
-    the allocation that minimises the summed variance for a fixed budget).  Module docstring."""
+    ("uniform"), or to the standard deviation the pass measured for the renderer's estimator ("measured":
+    the allocation that minimises the summed variance for a fixed budget; ``mis`` says which estimator,
+    MIS or BRDF sampling alone).  Module docstring."""
     if allocation not in ALLOCATIONS:
         raise WarpbwError(f"allocation: expected one of {', '.join(ALLOCATIONS)}, got {allocation!r}")
     if isinstance(budget, bool) or not isinstance(budget, (int, float, np.integer, np.floating)) \
@@ -694,7 +718,8 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     n_cov = int(cov.sum())
     total = int(round(budget * n_cov))
     power = {"sqrt": 0.5, "uniform": 0.0, "measured": 0.5}.get(allocation, 1.0)
-    key = {"relative": buf.sigma2_rel, "measured": buf.variance_mis}.get(allocation, buf.sigma2)
+    measured = buf.variance_mis if mis or buf.variance_bis is None else buf.variance_bis
+    key = {"relative": buf.sigma2_rel, "measured": measured}.get(allocation, buf.sigma2)
     if key is None:
         raise WarpbwError(f"allocation {allocation!r}: the bandwidth buffer has no measured variance")
     s = planned_shading(buf, device, key).astype(np.float64) ** power

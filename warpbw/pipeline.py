@@ -344,13 +344,14 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False):
     return struct
 
 
-def _check_pass_finite(buf, source: str) -> None:
+def _check_pass_finite(buf, source: str, mis: bool = True) -> None:
     """Refuse a frame whose bandwidth pass overflowed.  The pass sums squared radiance in float32 (Eq. 9's
-    chi * w and the MIS second moment w^2), so radiance past ~sqrt(FLOAT32_MAX) = 1.8e19 (less where a BRDF
-    peaks) gives inf sigma2: an inf variance AOV, and N_p = n_max on every pixel whatever the budget."""
+    chi * w and the second moments of MIS, or without ``mis`` of BRDF sampling), so radiance past
+    ~sqrt(FLOAT32_MAX) = 1.8e19 (less where a BRDF peaks) gives inf sigma2: an inf variance AOV, and N_p =
+    n_max on every pixel whatever the budget."""
     cov = buf.coverage.reshape(-1)
     bad = np.zeros(cov.shape, bool)
-    for a in (buf.sigma2, buf.sigma2_rel, buf.variance_mis):
+    for a in (buf.sigma2, buf.sigma2_rel, buf.variance_mis if mis else buf.variance_bis):
         if a is not None:
             bad |= ~np.isfinite(a.numpy())
     n_bad = int((bad & cov).sum())
@@ -408,9 +409,9 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     buf = bandwidth.bandwidth_pass(gb, prep.camera, prep.materials, prep.env_data, tables, n_b=n_b, seed=seed,
                                    preconvolved=preconvolved, nyquist=nyquist, stride=stride,
                                    pool_radius=pool_radius, device=prep.device, threads=threads)
-    _check_pass_finite(buf, prep.scene.source)
+    _check_pass_finite(buf, prep.scene.source, mis)
     alloc = bandwidth.allocate_samples(buf, budget, n_min=n_min, n_max=n_max, allocation=allocation,
-                                       device=prep.device)
+                                       device=prep.device, mis=mis)
     timings["bandwidth"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     res = adaptive.shade_hierarchical(gb, prep.camera, prep.materials, prep.env_data, buf.level, alloc.n_p,
