@@ -23,7 +23,7 @@ number of samples per covered pixel, B, over the noise MSE of the allocation nam
 A scene whose v_p is nearly the same everywhere (``oracle_all`` near 1) and whose frame shades most of its
 pixels has little to gain from adaptive shading at any budget: on the benchmark's blue-acrylic bunny under
 studio.exr (examples/bench_scenes.py, budget 32) the frame shades 75% of the pixels, ``oracle_all`` is
-1.14x and ``oracle_shaded`` 2.07x, against 101x and 124x (budget 4) on the chrome sphere.
+1.15x and ``oracle_shaded`` 2.06x, against 101x and 126x (budget 2) on the chrome sphere (README).
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import check_overwrite, init_warp, run_command
+from warpbw.cli_common import check_output_file, init_warp, run_command
 from warpbw.errors import check_count
 
 SEEDS_DEFAULT = 32        # brute-force renders: the oracle's sqrt(v) is biased by about 1 / (2 x seeds)
@@ -124,7 +124,7 @@ def format_report(name: str, r: dict) -> str:
         f"{name}: {r['covered_pixels']} covered pixels, budget {r['budget']:g} (the frame spent "
         f"{r['frame_samples_per_covered_pixel']:.2f}), brute force {r['seeds']} x {r['spp']} spp",
         f"  the 10% noisiest pixels hold {r['top_10pct_variance_share']:.0%} of the variance",
-        f"  noise gain over the reference at equal samples (noise only: no up-sampling bias, no footprints):",
+        "  noise gain over the reference at equal samples (noise only: no up-sampling bias, no footprints):",
         f"    oracle, every pixel shaded      {r['oracle_all']:8.3f}x",
         f"    on the frame's {r['shaded_fraction']:6.1%} shaded:  uniform {r['uniform_shaded']:.3f}x, "
         f"oracle {r['oracle_shaded']:.3f}x (at least 1 sample each: {r['oracle_shaded_min1']:.3f}x), "
@@ -152,7 +152,7 @@ def main(argv=None) -> int:
     check_count(args.spp, "--spp", 1)
     check_count(args.seed, "--seed", 0, 2**32 - 1)
     if args.json:
-        check_overwrite([Path(args.json)], args.force, "--json")
+        check_output_file(args.json, "--json", args.force)
     init_warp(args.device)
     from warpbw.pipeline import prepare_scene
     from warpbw.scene import load_scene
@@ -163,6 +163,7 @@ def main(argv=None) -> int:
     r["scene"] = str(args.scene)
     print(format_report(str(args.scene), r))
     if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(r, indent=2) + "\n")
         print(f"wrote {args.json}")
     return 0

@@ -215,6 +215,23 @@ def test_measured_mis_variance_matches_quadrature_for_lambert():
     assert np.all(np.abs(got / expect - 1) < 0.3)
 
 
+def _under_a_sun(tmp_path, corner: tuple, side: int, radiance: float, mis: bool, spp: int, seeds: int = 64):
+    """A Lambert sphere (24 x 24 pixels) under a grey sky of 0.5 with a side x side-texel sun at texel ``corner``
+    (row, column) of a 1024 x 512 map: the brute-force variance of one renderer step and the mean per covered pixel (luminance: any channel,
+    over ``seeds`` renders of ``spp``), the per-pixel bandwidth pass with 4096 directions, and the coverage."""
+    from warpbw.io.exr import write_exr
+
+    px = np.full((512, 1024, 3), 0.5, np.float32)
+    px[corner[0]:corner[0] + side, corner[1]:corner[1] + side] = radiance
+    write_exr(tmp_path / "sun.exr", px)
+    prep = prepared(env=f'file = "{tmp_path / "sun.exr"}"', w=24, h=24)
+    img = np.array([render_reference(prep, spp, seed=10 + k, mis=mis).image[..., 1] for k in range(seeds)],
+                   np.float64)
+    gb, buf = run_pass(prep, n_b=4096, stride=1, pool_radius=0)
+    cov = gb.coverage
+    return img.var(axis=0, ddof=1)[cov] * spp, img.mean(axis=0)[cov], buf, cov
+
+
 def test_measured_mis_variance_follows_brute_force_under_a_small_sun(tmp_path):
     """Under a sun smaller than a texel of the pass's reduced tables (2 x 2 texels of a 1024 x 512 map,
     which LIGHT_TABLE_WIDTH reduces 4x), variance_mis still measures the renderer's noise.  For one-sample
@@ -223,19 +240,7 @@ def test_measured_mis_variance_follows_brute_force_under_a_small_sun(tmp_path):
     (grey light and albedo: luminance is any channel).  Var(X) is measured by brute force over seeds.
     When L_i came from a box-filtered table, directions beside the sun read its mean: Var(Y) up to 1,300x
     that upper bound on this sphere."""
-    from warpbw.io.exr import write_exr
-
-    px = np.full((512, 1024, 3), 0.5, np.float32)
-    px[180:182, 300:302] = 5000.0
-    write_exr(tmp_path / "sun.exr", px)
-    prep = prepared(env=f'file = "{tmp_path / "sun.exr"}"', w=24, h=24)
-    seeds, spp = 64, 16
-    img = np.array([render_reference(prep, spp, seed=10 + k, mis=True).image[..., 1] for k in range(seeds)],
-                   np.float64)
-    gb, buf = run_pass(prep, n_b=4096, stride=1, pool_radius=0)
-    cov = gb.coverage
-    var_x = img.var(axis=0, ddof=1)[cov] * spp
-    mu = img.mean(axis=0)[cov]
+    var_x, mu, buf, cov = _under_a_sun(tmp_path, (180, 300), 2, 5000.0, mis=True, spp=16)
     var_y = buf.variance_mis.numpy().reshape(cov.shape)[cov]
     lo, hi = 2 * var_x, 2 * var_x + mu ** 2
     assert np.max(var_y / hi) < 2.0
@@ -259,18 +264,7 @@ def test_brdf_sampling_variance_matches_brute_force_under_a_sun(tmp_path):
     directions drawn by MIS (q): the renderer without MIS, measured by brute force (64 renders of 64 spp,
     grey light and albedo), has the same variance over the sphere within 25%, and it is many times the MIS
     variance under this 16 x 16-texel sun (allocating by the one for the other mis-spends the budget)."""
-    from warpbw.io.exr import write_exr
-
-    px = np.full((512, 1024, 3), 0.5, np.float32)
-    px[172:188, 292:308] = 50.0
-    write_exr(tmp_path / "sun.exr", px)
-    prep = prepared(env=f'file = "{tmp_path / "sun.exr"}"', w=24, h=24)
-    seeds, spp = 64, 64
-    img = np.array([render_reference(prep, spp, seed=10 + k, mis=False).image[..., 1] for k in range(seeds)],
-                   np.float64)
-    gb, buf = run_pass(prep, n_b=4096, stride=1, pool_radius=0)
-    cov = gb.coverage
-    var_x = img.var(axis=0, ddof=1)[cov] * spp
+    var_x, _, buf, cov = _under_a_sun(tmp_path, (172, 292), 16, 50.0, mis=False, spp=64)
     var_bis = buf.variance_bis.numpy().reshape(cov.shape)[cov]
     var_mis = buf.variance_mis.numpy().reshape(cov.shape)[cov]
     assert var_bis.mean() == pytest.approx(var_x.mean(), rel=0.25)
