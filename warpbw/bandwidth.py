@@ -124,7 +124,7 @@ silent:
   studio.exr (the benchmark's), 0.914 -> 0.931 on the ccp3 sphere, 0.922 -> 0.925 on the gold bunny.  The
   acrylic bunny gains 0.7-1.0 dB at budgets 8-32 (equal-quality speed-up 0.92x -> 1.13x, 3 runs back to
   back); the chrome sphere's PSNR moves by under 0.01 dB, the gold bunny's within its noise (8 paired runs,
-  budgets 1-8: -0.30, -0.02, -0.50 and +0.36 dB, each within 1.1 of their standard errors).  The cost is the
+  budgets 1-8: -0.30, -0.02, -0.50 and +0.36 dB, each within one standard error of the difference).  The cost is the
   cache: on the gold bunny the pass takes 104 ms against 94 (median of 15), since the map (6 MB at
   1024 x 512) misses where the reduced table (256 KB) did not; a nearest fetch in the map costs the same
   as the bilinear one (103 ms), and the bilinear one is what the renderer integrates.
@@ -144,7 +144,7 @@ silent:
 N_p (Sec. 2.4: "keep N_p proportional to" the bound, so that the variance is constant):
 ``N_p = clamp(ceil(k_p / V), n_min, n_max)`` with k_p = sigma2_p ("variance", the paper's), its square
 root ("sqrt"), sigma2_p / L_p^2 ("relative"), 1 ("uniform") or sqrt(variance_mis) ("measured", the
-default), and the constant V found by bisection so that the pixels the hierarchy will shade (texels of
+default; sqrt(variance_bis) for a frame without MIS), and the constant V found by bisection so that the pixels the hierarchy will shade (texels of
 level L whose min-filtered level is L, with the max-filtered k of their footprint, Sec. 3.1) spend
 ``budget`` samples per covered pixel in total.  Why "measured": N_p proportional to the standard
 deviation minimises the summed variance sum_p var_p / N_p for a fixed budget (Neyman allocation), and
@@ -187,7 +187,7 @@ N_P_MIN_DEFAULT = 1           # a shaded pixel gets at least one sample
 N_P_MAX_PER_BUDGET = 256      # default n_max = 256 x budget: caps the samples one pixel may take (docstring)
 BUDGET_MAX = INT32_MAX / N_P_MAX_PER_BUDGET  # largest budget whose default n_max fits the kernels' int32 N_p
 ALLOCATIONS = ("variance", "sqrt", "relative", "uniform", "measured")
-ALLOCATION_DEFAULT = "measured"  # N_p ~ the pass's own MIS standard deviation: +1-6 dB (module docstring)
+ALLOCATION_DEFAULT = "measured"  # N_p ~ the pass's standard deviation of the frame's estimator: +1-6 dB (docstring)
 LUMINANCE = (0.2126, 0.7152, 0.0722)   # Rec. 709 weights, RGB -> scalar chi
 FOUR_PI_SQ = 4.0 * math.pi * math.pi   # 002 Sec. 2.4: V(L_p) <= 4 pi^2 sigma^2 / N_p
 
