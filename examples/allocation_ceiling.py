@@ -10,13 +10,14 @@ number of samples per covered pixel, B, over the noise MSE of the allocation nam
 
 * ``oracle_all``: every pixel shaded, N_p proportional to sqrt(v_p) (Neyman), the most any per-pixel
   allocation can gain without skipping pixels: mean(v) / mean(sqrt(v))^2;
-* on the pixels the adaptive frame shades (``warpbw render --method adaptive --budget B``, default
+* on the pixels the adaptive frame shades (``warpbw render --method adaptive --budget B --mis``, default
   allocation), with the samples the frame spent there (B per covered pixel, and more where the
   up-sampling found no parent and shaded a pixel it had not planned): ``uniform_shaded`` (equal N_p),
-  ``oracle_shaded`` (Neyman's with the true v_p) and ``frame`` (the frame's own N_p), each against the
-  reference at that many samples.  Each shaded pixel counts once: the
-  noise a coarse texel spreads over its footprint and the up-sampling's bias are left out, so these
-  bound from above what skipping pixels and allocating samples can buy at this budget;
+  ``oracle_shaded`` (Neyman's with the true v_p; ``oracle_shaded_min1`` with at least one sample per
+  pixel, as the frame must) and ``frame`` (the frame's own N_p), each against the reference at that many
+  samples.  Each shaded pixel counts once: the noise a coarse texel spreads over its footprint and the
+  up-sampling's bias are left out, so the oracles bound from above what skipping pixels and allocating
+  samples can buy at this budget;
 * ``rank_measured``: Spearman rank correlation, over those pixels, of the variance the bandwidth pass
   measured for its own directions (the default allocation's key) with v_p.
 
