@@ -21,6 +21,16 @@ def shared_file(rel: str) -> Path:
     return p
 
 
+def load_example(name: str):
+    """The module examples/NAME.py, imported from its file (examples/ is not a package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, ROOT / "examples" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
 # A plane beside a sphere sunk into it (both renderers, composited): test_end_to_end, test_bench.
 MIXED_SCENE = """\
 [camera]

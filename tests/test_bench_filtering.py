@@ -256,14 +256,9 @@ def test_sphere_scene_lit_by_the_lights_alone_renders_through_the_environment_re
 # ------------------------------------------------------------------------------------------ benchmark scenes
 
 def _example(name: str = "filtering_scenes"):
-    import importlib.util
-    from pathlib import Path
+    from conftest import load_example
 
-    path = Path(__file__).resolve().parents[1] / "examples" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(name, path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_example(name)
 
 
 def test_benchmark_light_ring_spreads_the_half_vector(tmp_path):

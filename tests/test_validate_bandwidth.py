@@ -2,23 +2,18 @@
 known frequency, the rank correlation against closed forms, and a --quick run end to end."""
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from conftest import load_example
 
 
 @pytest.fixture(scope="module")
 def vb():
-    spec = importlib.util.spec_from_file_location("validate_bandwidth", ROOT / "examples" / "validate_bandwidth.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_example("validate_bandwidth")
 
 
 def sine(f, angle_deg, n=96, phase=0.4):

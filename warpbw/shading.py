@@ -276,15 +276,16 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
     bad = wp.zeros(1, dtype=wp.int32, device=device)
     spp_map = spp if per_pixel else wp.zeros(0, dtype=wp.int32, device=device)
     spp_all = 0 if per_pixel else int(spp)
+    pixel_spp = spp.numpy()[pix.numpy()] if per_pixel else None   # N_p of each pixel shaded: tile costs, samples
     launch_tiled(kernel, pix.shape[0],
                  lambda o, c: [gb.data, materials.table, env_data, lights_data, pix, o, spp_all, spp_map, int(seed),
                                out, bad], device, threads, progress,
-                 costs=spp.numpy()[pix.numpy()] if per_pixel else None)
+                 costs=pixel_spp)
     n = int(pix.shape[0])
     if not has_env:
         samples = 0
     elif per_pixel:
-        samples = int(spp.numpy()[pix.numpy()].sum()) if n else 0
+        samples = int(pixel_spp.sum()) if n else 0
     else:
         samples = n * spp_all
     return ShadeResult(out, n, samples, int(bad.numpy()[0]))
