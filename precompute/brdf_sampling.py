@@ -25,7 +25,8 @@ import numpy as np
 from precompute.assetfile import read_asset, write_asset
 from precompute.progress import progress_callback
 from warpbw.errors import WarpbwError, check_input_file
-from warpbw.sampling import N_PHI, N_THETA_O, N_U, TABLE_FORMAT, TABLE_VERSION, SamplerTable, build_sampler_table
+from warpbw.sampling import (N_PHI, N_THETA_O, N_U, TABLE_FORMAT, TABLE_VERSION, VIEW_SUBSAMPLES, SamplerTable,
+                             build_sampler_table)
 
 
 @dataclass
@@ -69,7 +70,8 @@ def _rebuild_hint(source) -> str:
 def write_sampling(path, table: SamplerTable, source: BrdfSource, force: bool = False) -> Path:
     return write_asset(path, TABLE_FORMAT, TABLE_VERSION, source.name, source.digest,
                        {"marginal": table.marginal, "conditional": table.conditional, "density": table.density},
-                       params={"n_theta_o": N_THETA_O, "n_u": N_U, "n_phi": N_PHI}, force=force)
+                       params={"n_theta_o": N_THETA_O, "n_u": N_U, "n_phi": N_PHI,
+                               "view_subsamples": VIEW_SUBSAMPLES}, force=force)
 
 
 def read_sampling(path, source: BrdfSource | None = None) -> SamplerTable:

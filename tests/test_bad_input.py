@@ -306,7 +306,7 @@ def _sampling_arrays(what: str) -> dict:
         a["marginal"][3, 5] = np.nan
     elif what == "strings":
         a["marginal"] = np.array(["a", "b"])
-    else:  # "scalar density"
+    elif what == "scalar density":
         a["density"] = np.float32(1.0)
     return a
 
@@ -325,6 +325,23 @@ def test_sampling_file_with_bad_arrays(tmp_path, what, needle):
     write_scene(tmp_path, material='type = "npf"\ntable = "npf.bin"\nname = "chrome"\nsampling = "tables.npz"')
     r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
     assert_one_line_error(r, "tables.npz", needle, "npf.bin --material chrome -o OUT")
+    assert_no_outputs(tmp_path)
+
+
+
+def test_sampling_file_of_an_older_version(tmp_path):
+    """A version-1 sampling table (each view bin built at its centre alone, before session 35) is refused
+    with the command that rebuilds it, not used as if it were current."""
+    from precompute.assetfile import write_asset
+    from precompute.brdf_sampling import brdf_source
+    from warpbw.sampling import TABLE_FORMAT, TABLE_VERSION
+
+    src = brdf_source(_fake_npf_table(tmp_path / "npf.bin"), "chrome")
+    write_asset(tmp_path / "tables.npz", TABLE_FORMAT, TABLE_VERSION - 1, src.name, src.digest,
+                _sampling_arrays("ok"))
+    write_scene(tmp_path, material='type = "npf"\ntable = "npf.bin"\nname = "chrome"\nsampling = "tables.npz"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "tables.npz", f"version {TABLE_VERSION - 1}", "npf.bin --material chrome -o OUT")
     assert_no_outputs(tmp_path)
 
 
