@@ -44,6 +44,11 @@ against its cached 8192-spp ground truth):
   the hierarchy's 15; a kernel would win back most of that, about 5% of the frame, still within the noise.
   The parents' own noise trips a lower threshold (0.8 at level 0 alone: 33% shaded, 3.07x against 3.10x over
   4 runs), and a ridge thinner than the parents' spacing can fall between them and leave no trace.
+* Allocating by each pixel's true variance (session 35, ``/work/bench/s35/oracle_e2e.py``): N_p from a
+  brute-force v_p (Neyman's on the pixels the frame shades, with the same levels and samples) gains 1.09 / 0.63 /
+  0.36 dB on the gold bunny at budgets 2 / 4 / 8 (4 runs), the most an a-posteriori estimate of the variance could
+  give.  Offline, 4 pilot samples per shaded pixel blended with the pass's variance reach about a third of that
+  in dB (README, "How much any allocation could do"), so a two-stage allocation was not built.
 """
 from __future__ import annotations
 
