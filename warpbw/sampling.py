@@ -10,7 +10,7 @@ Public:
 
 Parametrisation (isotropic BRDFs, so the table drops the view azimuth)
 ----------------------------------------------------------------------
-For each of ``N_THETA_O`` view elevations (bin centres uniform in theta_o) the table is a 2D
+For each of ``N_THETA_O`` view-elevation bins (uniform in theta_o) the table is a 2D
 piecewise-constant density over the half vector h = (theta_h, phi_h), with
 ``theta_h = u^2 * pi/2`` (the square-root warp of MERL's theta_h axis, which spends most cells near
 the specular peak, where narrow lobes such as chrome live) and ``phi_h`` measured from the view's
@@ -42,7 +42,9 @@ from typing import Callable, Sequence
 import numpy as np
 import warp as wp
 
-N_THETA_O = 32      # view elevations tabulated (bin centres uniform over [0, pi/2))
+from warpbw.errors import check_count
+
+N_THETA_O = 32      # view-elevation bins tabulated (uniform over [0, pi/2))
 N_U = 64            # half-vector elevation cells, theta_h = u^2 pi/2 (MERL-like warp)
 N_PHI = 64          # half-vector azimuth cells over [0, 2 pi), relative to the view azimuth
 SUBCELLS = 3        # midpoint samples per cell side when integrating the cell weight
@@ -174,6 +176,7 @@ def build_sampler_table(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray],
     over the bin (module docstring; 1: the bin centre's alone).  ``progress(k)`` is called after each view
     elevation bin (for a progress bar).
     """
+    sub_views = check_count(sub_views, "sub_views (view elevations per bin)", 1)
     uu = _cell_midpoints(n_u, sub)                       # (n_u, sub)
     pp = _cell_midpoints(n_phi, sub) * TWO_PI            # (n_phi, sub)
     U = uu[:, None, :, None]                             # (n_u, 1, sub, 1)
