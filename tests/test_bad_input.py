@@ -328,7 +328,6 @@ def test_sampling_file_with_bad_arrays(tmp_path, what, needle):
     assert_no_outputs(tmp_path)
 
 
-
 def test_sampling_file_of_an_older_version(tmp_path):
     """A version-1 sampling table (each view bin built at its centre alone, before session 35) is refused
     with the command that rebuilds it, not used as if it were current."""
