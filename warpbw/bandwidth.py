@@ -7,7 +7,7 @@ Public:
     ``env_bandwidth_map(pixels, name, cache=None) -> ((H, W) float32 cycles/rad, origin)``
     ``direction_set(n_b, seed) -> (n_b, 3) float32``   stratified points for the n_b directions
     ``interleave_shifts(n_b, side) -> (side^2, 3)``     per-block offsets of the direction set
-    ``BandwidthBuffer`` / ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ..., stride, pool_radius)``
+    ``BandwidthBuffer`` (``.estimator_variance(mis)``) / ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ..., stride, pool_radius)``
     ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max, allocation, mis)``; ``ALLOCATIONS``
     ``PASS_STRIDE_DEFAULT``, ``POOL_RADIUS_DEFAULT``
     Warp functions ``brdf_nu_rho(nu_rho, m, wi, wo)`` and ``nu_env_at_uv(nu_env, uv)`` (table look-ups)
@@ -584,6 +584,10 @@ class BandwidthBuffer:
     variance_mis: wp.array | None = None   # float32 variance of the directions' one-sample MIS estimates of L_p
     variance_bis: wp.array | None = None   # float32 variance of BRDF sampling's estimate, from the same directions
 
+    def estimator_variance(self, mis: bool = True) -> wp.array | None:
+        """The measured variance of the frame's estimator: MIS's, or BRDF sampling's alone (where measured)."""
+        return self.variance_mis if mis or self.variance_bis is None else self.variance_bis
+
 
 def interleave_shifts(n_b: int, side: int) -> np.ndarray:
     """``(side^2, 3)`` offsets (mod 1) of the direction set for an interleaved ``side x side`` tile of
@@ -718,8 +722,7 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     n_cov = int(cov.sum())
     total = int(round(budget * n_cov))
     power = {"sqrt": 0.5, "uniform": 0.0, "measured": 0.5}.get(allocation, 1.0)
-    measured = buf.variance_mis if mis or buf.variance_bis is None else buf.variance_bis
-    key = {"relative": buf.sigma2_rel, "measured": measured}.get(allocation, buf.sigma2)
+    key = {"relative": buf.sigma2_rel, "measured": buf.estimator_variance(mis)}.get(allocation, buf.sigma2)
     if key is None:
         raise WarpbwError(f"allocation {allocation!r}: the bandwidth buffer has no measured variance")
     s = planned_shading(buf, device, key).astype(np.float64) ** power

@@ -351,7 +351,7 @@ def _check_pass_finite(buf, source: str, mis: bool = True) -> None:
     n_max on every pixel whatever the budget."""
     cov = buf.coverage.reshape(-1)
     bad = np.zeros(cov.shape, bool)
-    for a in (buf.sigma2, buf.sigma2_rel, buf.variance_mis if mis else buf.variance_bis):
+    for a in (buf.sigma2, buf.sigma2_rel, buf.estimator_variance(mis)):
         if a is not None:
             bad |= ~np.isfinite(a.numpy())
     n_bad = int((bad & cov).sum())
