@@ -65,7 +65,8 @@ from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 from warpbw.lights import Lights
 from warpbw.pyramid import build_pyramid
 from warpbw.shading import shade_reference
-from warpbw.upsample import level_size, representative_pixel, upsample_level
+from warpbw.upsample import (UPSAMPLE_DEFAULT, check_upsample_mode, level_size, representative_pixel,
+                             upsample_level)
 
 MODE_SKIP = 0
 MODE_SHADE = 1
@@ -138,9 +139,12 @@ def _int_map(a, h, w, name):
 
 def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env_data: EnvMapData,
                        level_map, spp_map, seed: int = 0, mis: bool = False, device: str = "cpu",
-                       threads: int | None = None, lights: Lights | None = None) -> AdaptiveResult:
+                       threads: int | None = None, lights: Lights | None = None,
+                       upsample: str = UPSAMPLE_DEFAULT) -> AdaptiveResult:
     """Coarse-to-fine shading of the covered pixels with per-pixel levels and sample counts; ``lights``
-    (directional, or None) are then added exactly at every covered pixel (module docstring)."""
+    (directional, or None) are then added exactly at every covered pixel (module docstring).  ``upsample``:
+    "normal" or "paper" (:mod:`warpbw.upsample`)."""
+    check_upsample_mode(upsample)
     if env_data is None:
         raise WarpbwError("adaptive shading: the scene has no environment to adapt to (directional lights alone "
                           "are exact at any spp: use the reference renderer)")
@@ -175,7 +179,7 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
             t0 = time.perf_counter()
             todo = (mode_np == MODE_UPSAMPLE).astype(np.int32)
             r = upsample_level(gb.data, cam, L, parent_vals, parent_valid, todo, out=vals, out_valid=valid,
-                               device=device)
+                               device=device, mode=upsample)
             t_up += time.perf_counter() - t0
             need = np.flatnonzero(r.needs_shading.numpy())
             n_up = int(todo.sum()) - len(need)

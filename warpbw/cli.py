@@ -26,6 +26,8 @@ DEMO_SPP = 64
 _FILTER_METHODS = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed", "ground_truth")
 # warpbw.bandwidth.ALLOCATIONS, default first (spelled here for the same reason)
 _ALLOCATIONS = ("measured", "variance", "sqrt", "relative", "uniform")
+# warpbw.upsample.UPSAMPLE_MODES, default first (spelled here for the same reason)
+_UPSAMPLE_MODES = ("normal", "paper")
 # warpbw.bandwidth.BUDGET_MAX (spelled here for the same reason): the adaptive N_p goes up to
 # N_P_MAX_PER_BUDGET = 256 x --budget and is an int32 in the kernels
 BUDGET_MAX = INT32_MAX / 256
@@ -283,12 +285,12 @@ def _render_mixed_cli(scene, args) -> int:
 
 
 def _adaptive_options(args) -> dict:
-    """--allocation / --nyquist as render_adaptive keywords (only those given)."""
-    return {k: getattr(args, k) for k in ("allocation", "nyquist") if getattr(args, k, None) is not None}
+    """--allocation / --nyquist / --upsample as render_adaptive keywords (only those given)."""
+    return {k: getattr(args, k) for k in ("allocation", "nyquist", "upsample") if getattr(args, k, None) is not None}
 
 
 def add_adaptive_options(p) -> None:
-    """--allocation and --nyquist, shared by render and bench."""
+    """--allocation, --nyquist and --upsample, shared by render and bench."""
     p.add_argument("--allocation", choices=_ALLOCATIONS, default=None,
                    help="adaptive: how N_p follows the pass's estimates: measured (default; the pass's own MIS "
                    "standard deviation), variance (002 Sec. 2.4: the Eq. 9 bound), sqrt (its square root), "
@@ -296,6 +298,10 @@ def add_adaptive_options(p) -> None:
     p.add_argument("--nyquist", type=_positive_float("nyquist", FLOAT32_MAX), default=None,
                    help="adaptive: sampling rate in multiples of the image bandwidth b_p for the level of Eq. 11 "
                    "(default 2, Nyquist; larger shades more pixels at finer levels)")
+    p.add_argument("--upsample", choices=_UPSAMPLE_MODES, default=None,
+                   help="adaptive: how a pixel that is not shaded is filled from its parents: normal (default; the "
+                   "paper's bilateral weights fitting a plane in the surface normal, so that shading that follows "
+                   "the normal, on bumps, is not blurred) or paper (002 Sec. 3.2: the weighted mean)")
 
 
 def add_anisotropy_option(p, default) -> None:
@@ -315,7 +321,7 @@ def cmd_render(args) -> int:
         raise WarpbwError("--method adaptive needs --budget SAMPLES_PER_PIXEL (mean samples per covered pixel)")
     if args.method == "reference" and (args.budget is not None or args.nb is not None
                                        or _adaptive_options(args)):
-        raise WarpbwError("--budget, --nb, --allocation and --nyquist apply to --method adaptive only "
+        raise WarpbwError("--budget, --nb, --allocation, --nyquist and --upsample apply to --method adaptive only "
                           "(the reference takes --spp)")
     scene = load_scene(args.scene)
     mixed = _is_mixed(scene)

@@ -366,20 +366,22 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
                     n_min: int | None = None, n_max: int | None = None, preconvolved: bool = False,
                     allocation: str | None = None, nyquist: float | None = None, stride: int | None = None,
                     pool_radius: int | None = None, device: str = "cpu", progress: bool = False,
-                    threads: int | None = None, clip_distance=None) -> RenderResult:
+                    threads: int | None = None, clip_distance=None, upsample: str | None = None) -> RenderResult:
     """Render a frame with bandwidth prediction and hierarchical adaptive shading (002 Sec. 2-3).
 
     ``budget`` is the mean number of samples per covered pixel (the total is budget x covered pixels),
     spread over the pixels the hierarchy shades by ``allocation`` (default: in proportion to the standard
     deviation the bandwidth pass measures, :func:`warpbw.bandwidth.allocate_samples`).  ``aovs`` holds
     the level map, N_p, the predicted variance, the shaded mask, b_p and sigma2.  ``stride`` and
-    ``pool_radius`` set how the bandwidth pass shares its directions (:func:`warpbw.bandwidth.bandwidth_pass`).
+    ``pool_radius`` set how the bandwidth pass shares its directions (:func:`warpbw.bandwidth.bandwidth_pass`);
+    ``upsample`` how the hierarchy up-samples ("normal", the default, or "paper": :mod:`warpbw.upsample`).
     The scene needs an environment; its directional lights are added exactly at every pixel
     (:mod:`warpbw.adaptive`).  ``clip_distance`` hides what lies beyond it, as for :func:`render_reference`:
     a hidden pixel takes no part in the pass, the budget or the hierarchy."""
     from warpbw import adaptive, bandwidth
     from warpbw.gbuffer import make_gbuffer_kernel
     from warpbw.shading import make_reference_kernel
+    from warpbw.upsample import UPSAMPLE_DEFAULT, check_upsample_mode
 
     n_b = bandwidth.N_B_DEFAULT if n_b is None else n_b
     n_min = bandwidth.N_P_MIN_DEFAULT if n_min is None else n_min
@@ -387,6 +389,8 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     nyquist = bandwidth.NYQUIST_FACTOR if nyquist is None else nyquist
     stride = bandwidth.PASS_STRIDE_DEFAULT if stride is None else stride
     pool_radius = bandwidth.POOL_RADIUS_DEFAULT if pool_radius is None else pool_radius
+    upsample = UPSAMPLE_DEFAULT if upsample is None else upsample
+    check_upsample_mode(upsample)
     bandwidth.direction_set(n_b)  # validates n_b before any work
     prep, timings = _prepared(scene, device, progress)
     if prep.env is None:
@@ -415,7 +419,8 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     timings["bandwidth"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     res = adaptive.shade_hierarchical(gb, prep.camera, prep.materials, prep.env_data, buf.level, alloc.n_p,
-                                      seed=seed, mis=mis, device=prep.device, threads=threads, lights=prep.lights)
+                                      seed=seed, mis=mis, device=prep.device, threads=threads, lights=prep.lights,
+                                      upsample=upsample)
     t_h = time.perf_counter() - t0
     timings["shading"] = res.stats["time_s"]["shading"]
     timings["upsampling"] = res.stats["time_s"]["upsampling"]
@@ -431,6 +436,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
         "n_b": int(n_b),
         "bandwidth_stride": int(stride),
         "bandwidth_pool_radius": int(pool_radius),
+        "upsample": upsample,
         "bandwidth_traced_pixels": int(buf.traced_pixels),
         "preconvolved_bound": bool(preconvolved),
         "allocation": alloc.stats,

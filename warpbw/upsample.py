@@ -2,7 +2,8 @@
 
 Public:
     ``level_size(width, height, level) -> (w, h)``   size of a pyramid level (ceil-halving)
-    ``UpsampleResult`` / ``upsample_level(...)``    fill the requested pixels of level L from level L+1
+    ``UpsampleResult`` / ``upsample_level(..., mode)``  fill the requested pixels of level L from level L+1
+    ``UPSAMPLE_MODES``, ``UPSAMPLE_DEFAULT``, ``check_upsample_mode(mode)``
     ``parent_weights(...)``                           host wrapper returning the four weights (tests)
 
 A pixel p of level L takes the weighted mean of its four nearest parents p_i at level L+1 that are
@@ -56,12 +57,16 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from warpbw.errors import FLOAT32_MAX, WarpbwError
 from warpbw.gbuffer import CameraData, GBufferData
 
 DEPTH_SIGMA_REL = 0.1   # g_z tolerance, relative to the child's depth (a 10% depth step is an edge)
 COS_X_MIN = 0.05        # clamp of cos theta_x in M (grazing: the kernel width along the normal stays > 0)
 WEIGHT_MIN = 1.0e-4     # below this total weight the pixel is shaded instead of up-sampled
 G_A_UNIT = 4.0          # level-L pixels per unit of v in g_a (module docstring: measured, the paper is silent)
+UPSAMPLE_MODES = ("normal", "paper")   # first-order fit in the normal / the paper's weighted mean (docstring)
+UPSAMPLE_DEFAULT = "normal"
+NORMAL_RIDGE = 1.0e-3   # ridge on the normal fit's slope, in (n . axis)^2 units (about 0.03 rad; docstring)
 
 
 @wp.func
@@ -126,11 +131,34 @@ def parent_axis(x: int, n_parent: int):
     return i0, f
 
 
+@wp.func
+def screen_normal(cam: CameraData, n: wp.vec3):
+    """The normal's components along the image axes, (n . right, n . up): the coordinates of the normal fit."""
+    return wp.vec2(wp.dot(n, cam.right), wp.dot(n, cam.up))
+
+
+@wp.func
+def normal_fit(mean: wp.vec3, total: float, s_u: wp.vec2, s_uu: wp.vec3, s_ul_x: wp.vec3, s_ul_y: wp.vec3,
+               lo: wp.vec3, hi: wp.vec3):
+    """The value at du = 0 of the w_i-weighted least-squares plane L = a + g . du (ridge NORMAL_RIDGE on g),
+    clamped to the parents' range [lo, hi] per channel (module docstring)."""
+    m = s_u / total                                       # weighted mean of du
+    cxx = s_uu[0] / total - m[0] * m[0] + NORMAL_RIDGE    # weighted covariance of du, + ridge
+    cxy = s_uu[1] / total - m[0] * m[1]
+    cyy = s_uu[2] / total - m[1] * m[1] + NORMAL_RIDGE
+    bx = s_ul_x / total - m[0] * mean                     # weighted covariance of du and L
+    by = s_ul_y / total - m[1] * mean
+    det = cxx * cyy - cxy * cxy                           # >= NORMAL_RIDGE^2 > 0
+    gx = (cyy * bx - cxy * by) / det
+    gy = (cxx * by - cxy * bx) / det
+    return wp.min(wp.max(mean - (m[0] * gx + m[1] * gy), lo), hi)
+
+
 @wp.kernel(module="unique", enable_backward=False)
 def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
                           width: int, height: int, parent_width: int, parent_height: int,
                           parent: wp.array(dtype=wp.vec3), parent_valid: wp.array(dtype=wp.int32),
-                          todo: wp.array(dtype=wp.int32),
+                          todo: wp.array(dtype=wp.int32), fit: int,
                           out: wp.array(dtype=wp.vec3), out_valid: wp.array(dtype=wp.int32),
                           needs_shading: wp.array(dtype=wp.int32), weights: wp.array(dtype=wp.vec4)):
     t = wp.tid()
@@ -145,6 +173,7 @@ def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
     n = gb.normal[rp]
     cos_x = wp.abs(wp.dot(n, gb.view[rp]))
     n_screen = screen_frame(cam, n)
+    u_c = screen_normal(cam, n)
     i0, fx = parent_axis(x, parent_width)
     j0, fy = parent_axis(y, parent_height)
     i1 = wp.min(i0 + 1, parent_width - 1)
@@ -152,6 +181,13 @@ def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
     w = wp.vec4(0.0)
     acc = wp.vec3(0.0)
     total = float(0.0)
+    # sums of the normal fit over the parents in use: du = u_i - u_c, du du^T (xx, xy, yy), du_x L, du_y L
+    s_u = wp.vec2(0.0)
+    s_uu = wp.vec3(0.0)
+    s_ul_x = wp.vec3(0.0)
+    s_ul_y = wp.vec3(0.0)
+    lo = wp.vec3(FLOAT32_MAX)
+    hi = wp.vec3(-FLOAT32_MAX)
     for k in range(4):
         px = wp.where(k % 2 == 0, i0, i1)
         py = wp.where(k < 2, j0, j1)
@@ -164,13 +200,25 @@ def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
         w = w + wp.vec4(wp.where(k == 0, wk, 0.0), wp.where(k == 1, wk, 0.0), wp.where(k == 2, wk, 0.0),
                         wp.where(k == 3, wk, 0.0))
         if wk > 0.0:   # never read an unused parent: 0 * NaN would poison the sum
-            acc = acc + wk * parent[q]
+            l_k = parent[q]
+            acc = acc + wk * l_k
             total = total + wk
+            if fit != 0:
+                du = screen_normal(cam, gb.normal[representative_pixel(gb, px, py, level + 1)]) - u_c
+                s_u = s_u + wk * du
+                s_uu = s_uu + wk * wp.vec3(du[0] * du[0], du[0] * du[1], du[1] * du[1])
+                s_ul_x = s_ul_x + (wk * du[0]) * l_k
+                s_ul_y = s_ul_y + (wk * du[1]) * l_k
+                lo = wp.min(lo, l_k)
+                hi = wp.max(hi, l_k)
     weights[t] = w
     if total < WEIGHT_MIN:
         needs_shading[t] = 1
         return
-    out[t] = acc / total
+    mean = acc / total
+    if fit != 0:
+        mean = normal_fit(mean, total, s_u, s_uu, s_ul_x, s_ul_y, lo, hi)
+    out[t] = mean
     out_valid[t] = 1
 
 
@@ -198,14 +246,23 @@ def _i32(a, n, device):
     return wp.array(np.ascontiguousarray(np.asarray(a, np.int32).reshape(n)), dtype=wp.int32, device=device)
 
 
+def check_upsample_mode(mode: str) -> int:
+    """The kernel's ``fit`` flag for an up-sampling mode name (``UPSAMPLE_MODES``)."""
+    if mode not in UPSAMPLE_MODES:
+        raise WarpbwError(f"upsample: expected one of {', '.join(UPSAMPLE_MODES)}, got {mode!r}")
+    return int(mode == "normal")
+
+
 def upsample_level(gb: GBufferData, cam: CameraData, level: int, parent_values, parent_valid, todo,
                    out: wp.array | None = None, out_valid: wp.array | None = None,
-                   device: str = "cpu") -> UpsampleResult:
+                   device: str = "cpu", mode: str = UPSAMPLE_DEFAULT) -> UpsampleResult:
     """Up-sample the pixels of level ``level`` marked in ``todo`` from level ``level + 1``.
 
     ``parent_values`` ((w_{L+1} h_{L+1},) vec3) and ``parent_valid`` (int32) describe the parent level;
     ``out`` / ``out_valid`` (level L) are updated in place when given (pixels not in ``todo`` keep theirs).
+    ``mode``: "normal" (the weights' least-squares fit in the normal) or "paper" (their weighted mean).
     """
+    fit = check_upsample_mode(mode)
     w, h = level_size(gb.width, gb.height, level)
     pw, ph = level_size(gb.width, gb.height, level + 1)
     n, pn = w * h, pw * ph
@@ -218,8 +275,8 @@ def upsample_level(gb: GBufferData, cam: CameraData, level: int, parent_values, 
     needs = wp.zeros(n, dtype=wp.int32, device=device)
     weights = wp.zeros(n, dtype=wp.vec4, device=device)
     wp.launch(upsample_level_kernel, dim=n,
-              inputs=[gb, cam, int(level), w, h, pw, ph, parent_values, parent_valid, todo, out, out_valid, needs,
-                      weights], device=device)
+              inputs=[gb, cam, int(level), w, h, pw, ph, parent_values, parent_valid, todo, fit, out, out_valid,
+                      needs, weights], device=device)
     return UpsampleResult(out, out_valid, needs, weights)
 
 
