@@ -331,6 +331,19 @@ def test_render_adaptive_writes_aovs_and_caches_tables(work, npf_scene):
     stats2 = json.loads(out.with_suffix(".json").read_text())
     assert stats2["allocation"]["allocation"] == "variance"
     assert stats2["pixels_shaded"] >= stats["pixels_shaded"]  # twice the rate: levels no coarser
+    assert stats["upsample"] == "normal"
+    # the paper's weighted mean for up-sampling: same seed, so the same pixels are shaded with the same samples
+    # and only the up-sampled ones change
+    frames = {}
+    for mode in ("normal", "paper"):
+        run(["render", npf_scene, "-o", out, "--method", "adaptive", "--budget", "4", "-q", "--force",
+             "--upsample", mode], work)
+        assert json.loads(out.with_suffix(".json").read_text())["upsample"] == mode
+        frames[mode] = (read_exr(out).pixels[..., :3], read_exr(out.with_suffix(".shaded.exr")).pixels[..., 0] > 0)
+    (normal, shaded), (paper, shaded_paper) = frames["normal"], frames["paper"]
+    assert np.array_equal(shaded, shaded_paper) and np.array_equal(normal[shaded], paper[shaded])
+    up = covered & ~shaded
+    assert up.any() and np.isfinite(normal).all() and not np.array_equal(normal[up], paper[up])
 
 
 # ------------------------------------------------------------------------------------------ planes beside a sphere

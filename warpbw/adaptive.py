@@ -10,8 +10,9 @@ per-pixel sample count N_p.  The level is mip-mapped with a min filter and N_p w
 
 * m == L: is shaded, at the finest pixel at the centre of its footprint (depth and normal are always
   read at the finest level), with the max-filtered N_p of its footprint;
-* m > L:  is up-sampled from its already computed parents at level L + 1 (:mod:`warpbw.upsample`); when
-  no parent can be used (a depth edge, an empty parent) it is shaded instead, never guessed;
+* m > L:  is up-sampled from its already computed parents at level L + 1 (:mod:`warpbw.upsample`: the paper's
+  weights, fitting a plane in the normal unless ``upsample="paper"``); when no parent can be used (a depth
+  edge, an empty parent) it is shaded instead, never guessed;
 * m < L:  is left for finer levels (some pixel under it needs more resolution).
 
 Level 0 then holds every covered pixel.  ``AdaptiveResult.stats`` counts pixels shaded and up-sampled

@@ -7,7 +7,8 @@ Public:
     ``parent_weights(...)``                           host wrapper returning the four weights (tests)
 
 A pixel p of level L takes the weighted mean of its four nearest parents p_i at level L+1 that are
-already computed (``parent_valid``):
+already computed (``parent_valid``), or by default the value at its normal of a plane fitted to them under the
+same weights (the normal fit, below):
 
     w_i = g_z(z - z_i) g_a(p - p_i) alpha_i                                           (002 Sec. 3.2)
 
@@ -27,6 +28,49 @@ already computed (``parent_valid``):
   1.2 / 1.5 dB (gold bunny) and 0.4 / 0.5 dB (acrylic bunny), and left the chrome sphere within 0.01 dB;
   dropping g_a altogether (bilinear alpha_i and g_z only) gained 0.04-0.3 dB more, but has no anisotropy.
 
+The normal fit (``mode="normal"``, the default since session 36; ``"paper"`` is the weighted mean alone).  Under
+the same weights w_i, the pixel takes the value at its own normal of the least-squares plane through its
+parents' values as a function of their normals,
+
+    min_{a, g} sum_i w_i (L_i - a - g . du_i)^2 + NORMAL_RIDGE |g|^2,   du_i = u(n_i) - u(n),
+
+u(n) = (n . right, n . up) the normal's screen components, n_i at the parents' and n at the pixel's
+representative pixels,
+
+so L = a, clamped per channel to the parents' range [min_i L_i, max_i L_i].  With g = 0 (equal normals, or
+parents whose values do not follow their normals) it is the paper's weighted mean; a constant stays constant,
+and a parent the weights drop (another depth, an invalid texel) takes no part.  Why: on a bumpy surface the
+reflected light follows the normal, and the normal changes faster than the parents' spacing, so the weighted
+mean blurs the bumps' highlights.  On the benchmark's gold bunny (``examples/bench_scenes.py``), shading every
+shaded texel with its ground-truth value (noise-free; budget 8's levels; ``/work/bench/s36/upbias.py``) leaves a
+relative MSE of 9.8e-4 with the weighted mean and 5.3e-4 with the fit, and that bias is most of its frames' error
+at budgets of 4 and more.  End to end, with the same N_p and seeds (3 runs; ``mode="paper"`` against
+``"normal"``; MSE against the cached 8192-spp ground truth), ridge 2e-4 / 1e-3, and the clamp:
+
+* gold bunny (512x512, forest.exr): +1.13 / +1.08 dB at budget 4, +2.03 / +1.81 dB at budget 16 (without the
+  clamp +0.95 / +1.03 and +1.95 / +1.84: the clamp helps: the fit picks the parent whose normal is nearest
+  more than it extrapolates);
+* acrylic bunny (256x256, studio.exr, noise-limited: its parents are noisy, and a slope fitted to noise
+  extrapolates it): -0.10 / -0.04 dB at budget 8, -0.03 / +0.02 at 32 (without the clamp -0.29 / -0.09 and
+  -0.20 / -0.01);
+* ccp3 sphere: +0.15 / +0.05 at budget 4, +0.26 / +0.07 at 16 (without the clamp); chrome sphere: within
+  0.01 dB (on a sphere the normal is nearly linear in the image, and the weights already reproduce a linear
+  function);
+* bunnies the ridge was not chosen on (with the clamp): gold-metallic-paint under studio.exr at 256x256
+  -0.04 / +0.36 / +1.03 dB at budgets 2 / 8 / 32 with ridge 1e-3 (-0.17 / +0.25 / +1.00 with 2e-4);
+  color-changing-paint3 and nickel under forest.exr at 256x256 and red-metallic-paint under city.exr (a sun)
+  at 512x512, whose error is noise: within -0.01 to +0.05 dB.
+
+With the defaults, in ``examples/bench_scenes.py``'s 8-run benchmark against session 35's (same seeds, README):
+with MIS the gold bunny +0.68 to +1.98 dB at budgets 2-32 (equal-quality speed-up 3.68x -> 5.07x), the ccp3
+sphere +0.03 to +0.10, the chrome sphere within 0.01, the acrylic bunny -0.03 to -0.05 at budgets 0.5-8; with BRDF
+sampling alone, noisier, the gold bunny -0.05 to -0.09 dB at budgets 0.5-4 and +0.05 to +0.49 at 8-32, the acrylic
+bunny -0.07 to -0.22.
+
+The ridge of 1e-3 (about (0.03 rad)^2 of normal spread) is the larger of the two: it gives up 0.05-0.2 dB of
+the gold bunny's gain for the noise-limited scenes.  Coordinates: the normal's screen components (tried against
+the components in the child's tangent frame: 0.02-0.11 dB less on the gold bunny, without the clamp).
+
 Measured, not adopted (session 29; MIS, 4 or 8 paired seeds, PSNR against cached 8192-spp ground truths):
 
 * a normal weight g_n = exp(-2 (c_max - n . n_i) / sigma^2), c_max the largest n . n_i of the four parents
@@ -40,7 +84,8 @@ Measured, not adopted (session 29; MIS, 4 or 8 paired seeds, PSNR against cached
   direction, a split-sum-like demodulation), multiplied back by the child's proxy: on the gold bunny the
   up-sampled pixels' ratio to the ground truth reached 5.8x (MIP level 4) and 10.7x (level 2) at the 99th
   percentile, against 1.9x with a constant proxy, and PSNR fell from 36.5-38.3 dB to below 25 dB at budgets
-  2-8.  A proxy would need the lobe's own pre-filtered light.
+  2-8.  A proxy would need the lobe's own pre-filtered light.  The normal fit above lets the parents themselves
+  say how the shading follows the normal.
 
 Depth, normal and view are read at the finest level (the G-buffer is not mip-mapped): a level-L pixel
 is represented by the finest pixel at the centre of its footprint.  A pixel whose weights sum to less
