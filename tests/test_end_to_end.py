@@ -332,17 +332,18 @@ def test_render_adaptive_writes_aovs_and_caches_tables(work, npf_scene):
     assert stats2["allocation"]["allocation"] == "variance"
     assert stats2["pixels_shaded"] >= stats["pixels_shaded"]  # twice the rate: levels no coarser
     assert stats["upsample"] == "normal"
-    # the paper's weighted mean for up-sampling: same seed, so the same pixels are shaded with the same samples
-    # and only the up-sampled ones change
+    # the paper's weighted mean for up-sampling: same seed, so the same pixels are shaded with the same samples;
+    # those of level 0 keep their values, the others (up-sampled at level 0) change
     frames = {}
     for mode in ("normal", "paper"):
         run(["render", npf_scene, "-o", out, "--method", "adaptive", "--budget", "4", "-q", "--force",
              "--upsample", mode], work)
         assert json.loads(out.with_suffix(".json").read_text())["upsample"] == mode
-        frames[mode] = (read_exr(out).pixels[..., :3], read_exr(out.with_suffix(".shaded.exr")).pixels[..., 0] > 0)
-    (normal, shaded), (paper, shaded_paper) = frames["normal"], frames["paper"]
-    assert np.array_equal(shaded, shaded_paper) and np.array_equal(normal[shaded], paper[shaded])
-    up = covered & ~shaded
+        frames[mode] = (read_exr(out).pixels[..., :3], read_exr(out.with_suffix(".level.exr")).pixels[..., 0])
+    (normal, level), (paper, level_paper) = frames["normal"], frames["paper"]
+    fine = covered & (level == 0)
+    assert np.array_equal(level, level_paper) and fine.any() and np.array_equal(normal[fine], paper[fine])
+    up = covered & (level > 0)
     assert up.any() and np.isfinite(normal).all() and not np.array_equal(normal[up], paper[up])
 
 
