@@ -44,8 +44,9 @@ reflected light follows the normal, and the normal changes faster than the paren
 mean blurs the bumps' highlights.  On the benchmark's gold bunny (``examples/bench_scenes.py``), shading every
 shaded texel with its ground-truth value (noise-free; budget 8's levels; ``/work/bench/s36/upbias.py``) leaves a
 relative MSE of 9.8e-4 with the weighted mean and 5.3e-4 with the fit, and that bias is most of its frames' error
-at budgets of 4 and more.  End to end, with the same N_p and seeds (3 runs; ``mode="paper"`` against
-``"normal"``; MSE against the cached 8192-spp ground truth), ridge 2e-4 / 1e-3, and the clamp:
+at budgets of 4 and more.  End to end, with the same N_p and seeds (3 runs; a numpy patch of the fit,
+``/work/bench/s36/upreg_e2e.py``, against the weighted mean; the kernel reproduces it to 0.01 dB; MSE against the
+cached 8192-spp ground truth), ridge 2e-4 / 1e-3, and the clamp:
 
 * gold bunny (512x512, forest.exr): +1.13 / +1.08 dB at budget 4, +2.03 / +1.81 dB at budget 16 (without the
   clamp +0.95 / +1.03 and +1.95 / +1.84: the clamp helps: the fit picks the parent whose normal is nearest
