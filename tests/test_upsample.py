@@ -3,6 +3,8 @@ are ignored, weights follow the closed form, grazing pixels narrow the kernel al
 fit follows shading that is a function of the normal on a bumpy surface, where the weighted mean blurs it."""
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 import warp as wp
@@ -139,6 +141,7 @@ def test_odd_sizes_and_tiny_images_run(mode):
             assert np.isfinite(r.values.numpy()).all()
 
 
+@functools.cache   # read-only: shared by the tests below
 def bumpy_gbuffer(size=64, period=0.8, amplitude=0.1, n=161):
     """A height field z = a sin(k x) sin(k y) over [-1.5, 1.5]^2 seen from above, with analytic vertex normals:
     about 14 pixels per period, normals tilted by up to 38 degrees."""

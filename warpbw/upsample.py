@@ -151,10 +151,10 @@ def depth_gaussian(z: float, zi: float):
 
 
 @wp.func
-def parent_weight(gb: GBufferData, cam: CameraData, level: int, x: int, y: int, px: int, py: int,
+def parent_weight(gb: GBufferData, x: int, y: int, px: int, py: int, pi: int,
                   alpha: float, z: float, n_screen: wp.vec2, cos_x: float):
-    """w_i for parent (px, py) at level + 1 of child (x, y) at level (0 when the parent is empty)."""
-    pi = representative_pixel(gb, px, py, level + 1)
+    """w_i for parent (px, py) at the next level, represented by finest pixel ``pi``, of child (x, y)
+    (0 when the parent is empty)."""
     if gb.material[pi] < 0:
         return 0.0
     # parent centre minus child centre, in level-L pixels: (2 px + 1) - (x + 0.5), then in units of G_A_UNIT
@@ -240,9 +240,10 @@ def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
         ax = wp.where(k % 2 == 0, 1.0 - fx, fx)
         ay = wp.where(k < 2, 1.0 - fy, fy)
         q = py * parent_width + px
+        pi = representative_pixel(gb, px, py, level + 1)
         wk = float(0.0)
         if ax * ay > 0.0 and parent_valid[q] != 0:
-            wk = parent_weight(gb, cam, level, x, y, px, py, ax * ay, z, n_screen, cos_x)
+            wk = parent_weight(gb, x, y, px, py, pi, ax * ay, z, n_screen, cos_x)
         w = w + wp.vec4(wp.where(k == 0, wk, 0.0), wp.where(k == 1, wk, 0.0), wp.where(k == 2, wk, 0.0),
                         wp.where(k == 3, wk, 0.0))
         if wk > 0.0:   # never read an unused parent: 0 * NaN would poison the sum
@@ -250,7 +251,7 @@ def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
             acc = acc + wk * l_k
             total = total + wk
             if fit != 0:
-                du = screen_normal(cam, gb.normal[representative_pixel(gb, px, py, level + 1)]) - u_c
+                du = screen_normal(cam, gb.normal[pi]) - u_c
                 s_u = s_u + wk * du
                 s_uu = s_uu + wk * wp.vec3(du[0] * du[0], du[0] * du[1], du[1] * du[1])
                 s_ul_x = s_ul_x + (wk * du[0]) * l_k
