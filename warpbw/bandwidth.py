@@ -7,7 +7,8 @@ Public:
     ``env_bandwidth_map(pixels, name, cache=None) -> ((H, W) float32 cycles/rad, origin)``
     ``direction_set(n_b, seed) -> (n_b, 3) float32``   stratified points for the n_b directions
     ``interleave_shifts(n_b, side) -> (side^2, 3)``     per-block offsets of the direction set
-    ``BandwidthBuffer`` (``.estimator_variance(mis)``) / ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ..., stride, pool_radius)``
+    ``BandwidthBuffer`` (``.estimator_variance(mis)``) /
+    ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ..., stride, pool_radius)``
     ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max, allocation, mis)``; ``ALLOCATIONS``
     ``PASS_STRIDE_DEFAULT``, ``POOL_RADIUS_DEFAULT``
     Warp functions ``brdf_nu_rho(nu_rho, m, wi, wo)`` and ``nu_env_at_uv(nu_env, uv)`` (table look-ups)
@@ -144,14 +145,14 @@ silent:
 N_p (Sec. 2.4: "keep N_p proportional to" the bound, so that the variance is constant):
 ``N_p = clamp(ceil(k_p / V), n_min, n_max)`` with k_p = sigma2_p ("variance", the paper's), its square
 root ("sqrt"), sigma2_p / L_p^2 ("relative"), 1 ("uniform") or sqrt(variance_mis) ("measured", the
-default; sqrt(variance_bis) for a frame without MIS), and the constant V found by bisection so that the pixels the hierarchy will shade (texels of
-level L whose min-filtered level is L, with the max-filtered k of their footprint, Sec. 3.1) spend
-``budget`` samples per covered pixel in total.  Why "measured": N_p proportional to the standard
-deviation minimises the summed variance sum_p var_p / N_p for a fixed budget (Neyman allocation), and
-the standard deviation that matters is the renderer's importance-sampled estimator's, which the bound
-does not predict (the paper calls the bound "very conservative").  Measured with MIS, 256x256 and
-512x512, budgets 4 and 16, single frames: +1 to +6 dB over "uniform"; "sqrt" fell between the two
-(bunny, budget 4: uniform 32.8, sqrt 35.3, measured 36.4 dB), "variance" 3 dB below "measured" (ccp3, budget 2).
+default; sqrt(variance_bis) for a frame without MIS), and the constant V found by bisection so that the
+pixels the hierarchy will shade (texels of level L whose min-filtered level is L, with the max-filtered k of
+their footprint, Sec. 3.1) spend ``budget`` samples per covered pixel in total.  Why "measured": N_p
+proportional to the standard deviation minimises the summed variance sum_p var_p / N_p for a fixed budget
+(Neyman allocation), and the standard deviation that matters is the renderer's importance-sampled
+estimator's, which the bound does not predict (the paper calls the bound "very conservative").  Measured with
+MIS, 256x256 and 512x512, budgets 4 and 16, single frames: +1 to +6 dB over "uniform"; "sqrt" fell between the
+two (bunny, budget 4: uniform 32.8, sqrt 35.3, measured 36.4 dB), "variance" 3 dB below "measured" (ccp3, budget 2).
 The default cap ``n_max = N_P_MAX_PER_BUDGET x budget`` was 32 x budget until session 34.  On the chrome
 sphere of examples/bench_scenes.py (studio.exr, budget 4) that cap held 1,044 of the 5,246 shaded pixels,
 the highlights, and 71% of the samples: Neyman's allocation wanted more there.  At 256 x budget it holds
