@@ -88,6 +88,27 @@ Measured, not adopted (session 29; MIS, 4 or 8 paired seeds, PSNR against cached
   2-8.  A proxy would need the lobe's own pre-filtered light.  The normal fit above lets the parents themselves
   say how the shading follows the normal.
 
+Measured, not adopted (session 37; the same levels, N_p and seeds, 3 runs, paired dB against the fit above;
+``/work/bench/s37/ridge_sweep.py``, ``noise_shrink.patch``): a fit that backs off where its parents are noisy.  Each
+shaded parent carried the variance the bandwidth pass measures for one sample over its N_p, each up-sampled one
+that of its weighted mean.
+
+* The ridge widened by k times the parents' relative noise variance (sum_i w_i sigma_i^2 / sum_i w_i over the
+  luminance of the mean, squared).  With k = 0.01 / 0.03 the acrylic bunny gains 0.03-0.04 / 0.04-0.05 dB at
+  budgets 2-8 with MIS and 0.05-0.08 / 0.07-0.11 dB at budgets 2-32 without, and the gold bunny without MIS
+  +0.06 / +0.09 dB at budget 2.  But the gold bunny with MIS, the scene the fit is for, loses 0.01-0.03 /
+  0.03-0.08 dB at budgets 2-32.
+* The slope shrunk by its own noise, g |g|^2 / (|g|^2 + k tr V_g), V_g = C^-1 V_b C^-1 from the parents' noise
+  (Wiener's factor): with k = 1 the gold bunny with MIS loses 0.12 / 0.18 / 0.09 dB at budgets 2 / 8 / 32, and
+  the acrylic bunny gains at most 0.04 dB.
+
+Why neither helps: the pass's noise estimate is too coarse per pixel to tell a slope from noise.  Against the spread
+of four seeds at the pixels a budget-8 frame shades at level 0 (``/work/bench/s37/calib.py``), the pass's variance
+over N_p is right in sum (the measured is 0.93x the predicted on the gold bunny with MIS) but about 3x the typical
+pixel's noise (median ratio 0.30 / 0.32 / 0.33 on the gold bunny, the acrylic bunny and the ccp3 sphere with MIS),
+and it ranks the pixels' noise at 0.56 / 0.09 / 0.61 (Spearman; 0.45 / 0.11 / 0.37 without MIS).  Four seeds' spread
+is itself noisy, which lowers these ranks, most where the noise is spread evenly (the acrylic bunny).
+
 Depth, normal and view are read at the finest level (the G-buffer is not mip-mapped): a level-L pixel
 is represented by the finest pixel at the centre of its footprint.  A pixel whose weights sum to less
 than WEIGHT_MIN (no parent at its depth, e.g. across a depth edge) is not guessed: it is returned in
