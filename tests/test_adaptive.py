@@ -66,21 +66,41 @@ def test_coarse_levels_reproduce_a_constant_image_with_fewer_shaded_pixels():
     assert fractions[2] < 0.25   # roughly 1/16 of the pixels plus those at depth edges and borders
 
 
-def test_mixed_levels_shade_each_pixel_at_most_once_and_fill_every_covered_pixel():
-    prep, base = setup('type = "ggx"\nalpha = 0.2\nspecular = [1.0, 1.0, 1.0]', env='procedural = "sky"')
+def _footprint_max(a, level):
+    """Max of ``a`` over each level-L texel's 2^L x 2^L footprint (clipped at the border), by reshaping."""
+    s = 1 << level
+    h, w = a.shape
+    padded = np.zeros((-(-h // s) * s, -(-w // s) * s), a.dtype)
+    padded[:h, :w] = a
+    return padded.reshape(padded.shape[0] // s, s, padded.shape[1] // s, s).max(axis=(1, 3))
+
+
+def test_mixed_levels_fill_every_covered_pixel_and_spend_each_footprints_max_samples():
+    prep, base = setup('type = "ggx"\nalpha = 0.2\nspecular = [1.0, 1.0, 1.0]', env='procedural = "sky"',
+                       w=48, h=32)
     cov = base.coverage
     rng = np.random.default_rng(2)
-    level = rng.integers(0, 4, size=cov.shape).astype(np.int32)
+    # levels drawn per 8 x 8 block (drawn per pixel, a footprint's min would almost always be 0), and a few
+    # pixels that need the finest level inside them
+    level = np.kron(rng.integers(0, 4, size=(4, 6)), np.ones((8, 8), np.int64))
+    level = np.where(rng.random(cov.shape) < 0.01, 0, level).astype(np.int32)
     spp = rng.integers(48, 80, size=cov.shape).astype(np.int32)
     r = run(prep, base, level, spp)
     assert np.isfinite(r.image).all()
     # the sky lights every visible point: no covered pixel is left unfilled (at 1 spp a single GGX sample
     # reflected below the horizon would legitimately give 0, hence the sample counts)
     assert (r.image[cov].sum(-1) > 0).all()
-    # a pixel is shaded at a level no coarser than its own requirement, and samples are accounted for
+    # a pixel is shaded at a level no coarser than its own requirement
     sl = r.shaded_level
     assert (sl[r.shaded] <= level[r.shaded]).all()
-    assert r.stats["samples"] >= r.shaded.sum()
+    # each shaded texel of level L takes the max of N_p over its footprint (Sec. 3.1); with sides that are
+    # multiples of 2^3 no two levels' centre pixels coincide, so every shading is one shaded pixel
+    assert sum(lv["shaded"] for lv in r.stats["levels"]) == r.shaded.sum()
+    ys, xs = np.nonzero(r.shaded)
+    expected = sum(int(_footprint_max(spp, L)[ys[sl[ys, xs] == L] >> L, xs[sl[ys, xs] == L] >> L].sum())
+                   for L in range(4))
+    assert len(set(sl[r.shaded].tolist())) == 4    # all four levels shade something
+    assert r.stats["samples"] == expected
 
 
 def test_thread_count_and_tiling_do_not_change_the_frame():

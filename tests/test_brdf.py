@@ -214,3 +214,24 @@ def test_unmeasured_merl_entries_never_reach_shading(tmp_path):
     wo = random_hemisphere(rng, len(wi) * 2)[: len(wi)]
     f = B.eval_brdf(mb, 0, wi, wo)
     assert (f >= 0).all() and np.isfinite(f).all()
+    # the holes read as 0, everything else as written
+    assert np.all(brdf.data[10:20, 30:40, :, 1] == 0) and np.all(brdf.data[0] == 0)
+    rest = np.ones(brdf.data.shape, bool)
+    rest[10:20, 30:40, :, 1] = False
+    rest[0] = False
+    assert np.allclose(brdf.data[rest], 0.5, rtol=1e-6)
+    # the kernel's nearest look-up at bin centres inside the holes: green 0 in the first hole, black in the
+    # theta_h row 0 (the mirror direction), red and blue untouched by the green hole
+    from warpbw.io.merl import dirs_from_half_diff, merl_bin_centres
+
+    near = B.build_material_table([B.MaterialSpec("h", B.MERL, merl=brdf.data, linear=False,
+                                                  sampler=uniform_sampler())])
+    th, td, pd = merl_bin_centres()
+    for i_th, i_td, hole in ((15, 35, "green"), (0, 20, "row 0"), (50, 60, "none")):
+        wi_c, wo_c = dirs_from_half_diff(np.full(6, th[i_th]), np.linspace(0, 2, 6), np.full(6, td[i_td]),
+                                         pd[[5, 40, 80, 100, 140, 170]])
+        ok = (wi_c[:, 2] > 0.05) & (wo_c[:, 2] > 0.05)
+        assert ok.sum() >= 3, hole
+        g = B.eval_brdf(near, 0, wi_c[ok], wo_c[ok])
+        expect = {"green": [1, 0, 1], "row 0": [0, 0, 0], "none": [1, 1, 1]}[hole]
+        assert np.all((g > 0) == np.array(expect, bool)), (hole, g)

@@ -214,9 +214,38 @@ def test_mixture_reproduces_footprint_mean(scales_mips):
     for lvl in (0, 2, 4):
         a, mu, _ = from_moments(scales_mips["no_prior"].levels[lvl])
         mean = np.sum(a[..., None] * mu, axis=-2)
-        fp = footprint_samples(n2, lvl).mean(axis=1).reshape(mean.shape)
+        f = 1 << lvl         # the level's 2^l x 2^l footprints, sliced from the map itself (48 = 3 x 16)
+        fp = n2.reshape(48 // f, f, 48 // f, f, 2).mean(axis=(1, 3))
         np.testing.assert_allclose(mean, fp, atol=2e-5)
         np.testing.assert_allclose(a.sum(-1), 1.0, atol=1e-5)
+
+
+def test_footprint_samples_come_from_each_texels_own_footprint():
+    """Small footprints give every normal of the 2^l x 2^l block once; large ones one normal per cell of a
+    16 x 16 grid over it; a border-clipped footprint only normals inside the map.  The normals are coded by
+    their own pixel position, so each sample says where it came from."""
+    H, W = 70, 45
+    rr, cc = np.meshgrid(np.arange(H), np.arange(W), indexing="ij")
+    n2 = np.stack([rr, cc], -1).astype(np.float64)
+    for lvl in (0, 1, 3, 4, 5, 6):
+        f = 1 << lvl
+        h_l, w_l = -(-H // f), -(-W // f)
+        smp = footprint_samples(n2, lvl, rng=1).reshape(h_l, w_l, -1, 2)
+        tr, tc = np.meshgrid(np.arange(h_l), np.arange(w_l), indexing="ij")
+        assert np.all(smp[..., 0] // f == tr[..., None]) and np.all(smp[..., 1] // f == tc[..., None]), lvl
+        if lvl <= 4:       # full footprints: each of the block's 4^l normals exactly once
+            full = smp[: H // f, : W // f]
+            key = np.sort(full[..., 0] * W + full[..., 1], axis=-1)
+            r0, c0 = np.meshgrid(np.arange(H // f) * f, np.arange(W // f) * f, indexing="ij")
+            block = (r0[..., None, None] + np.arange(f)[:, None]) * W + c0[..., None, None] + np.arange(f)
+            assert np.array_equal(key, np.sort(block.reshape(H // f, W // f, -1), axis=-1)), lvl
+        elif H // f and W // f:   # one per cell of a 16 x 16 grid over a full footprint (none at level 6)
+            cell = f // 16
+            full = smp[: H // f, : W // f]
+            cr = (full[..., 0] % f) // cell
+            ccl = (full[..., 1] % f) // cell
+            key = np.sort(cr * 16 + ccl, axis=-1)
+            assert full.shape[2] == 256 and np.all(key == np.arange(256)), lvl
 
 
 # --------------------------------------------------------------------------------------------------
@@ -309,9 +338,12 @@ def test_single_spike_and_level_shapes():
 
 
 def test_one_by_one_map():
-    mip = build_gmm_mipmap(np.zeros((1, 1)), progress=False)
-    assert len(mip.levels) == 1 and mip.levels[0].shape == (1, 1, K, 4)
-    all_finite(mip)
+    for kw in ({}, {"unaligned": True}):
+        mip = build_gmm_mipmap(np.zeros((1, 1)), progress=False, **kw)
+        assert len(mip.levels) == 1 and mip.levels[0].shape == (1, 1, K, 4)
+        all_finite(mip)
+        a, mu, s2 = from_moments(mip.levels[0])     # one flat normal: all the weight on n = (0, 0), no spread
+        assert np.isclose(a.sum(), 1.0, atol=1e-6) and np.abs(mu).max() < 1e-6 and np.all(s2 <= 2 * VARIANCE_FLOOR)
 
 
 def test_non_power_of_two_map():
