@@ -31,11 +31,12 @@ albedo = [0.5, 0.5, 0.5]
 
 
 def test_equal_quality_interpolates_on_log_log():
-    # reference: MSE = 8 / spp, time = 0.01 spp (exact power laws: log-log interpolation is exact)
-    ref = [{"spp": s, "mse": 8.0 / s, "time_s": 0.01 * s} for s in (1, 2, 4, 8, 16, 32)]
-    spp, t, ext = bench.equal_quality_time(ref, 8.0 / 11.0)
+    # reference: MSE = 8 / spp^0.7, time = 0.01 spp (exact power laws: log-log interpolation is exact; with
+    # 1 / spp itself, interpolating spp linearly in 1 / MSE would be exact too)
+    ref = [{"spp": s, "mse": 8.0 / s ** 0.7, "time_s": 0.01 * s} for s in (1, 2, 4, 8, 16, 32)]
+    spp, t, ext = bench.equal_quality_time(ref, 8.0 / 11.0 ** 0.7)
     assert math.isclose(spp, 11.0, rel_tol=1e-9) and math.isclose(t, 0.11, rel_tol=1e-9) and not ext
-    spp, t, ext = bench.equal_quality_time(ref, 8.0 / 64.0)   # beyond the measured counts
+    spp, t, ext = bench.equal_quality_time(ref, 8.0 / 64.0 ** 0.7)   # beyond the measured counts
     assert ext and math.isclose(spp, 64.0, rel_tol=1e-9)
 
 
@@ -224,3 +225,89 @@ def test_speedup_standard_error_follows_the_power_law_and_brute_force():
         logs.append(math.log(t_eq / 0.01))
         preds.append(bench.speedup_relative_se(rec, a.mean(), bench.psnr_standard_error(a)))
     assert abs(math.sqrt(np.mean(np.square(preds))) / np.std(logs) - 1.0) < 0.15
+
+
+class _FakeClock:
+    """Stands in for bench's ``time`` module: time moves only when a fake renderer says it does."""
+
+    def __init__(self):
+        self.now = 0.0
+
+    def perf_counter(self):
+        return self.now
+
+
+def test_bench_figures_follow_closed_forms_with_fake_renderers(tmp_path, monkeypatch):
+    """Renderers whose errors and times are known exactly: the reference's MSE is 8 k / spp^0.7 (k the runs'
+    mean error factor) at 0.01 s per spp, the adaptive frame's error and time are set per budget, and a
+    pixel outside the coverage carries a huge error.  Then PSNR, relative MSE, the equal-quality spp, time
+    and speed-up, and the best budget follow in closed form (log-log interpolation is exact on power laws)."""
+    from types import SimpleNamespace
+
+    from warpbw import pipeline
+    from warpbw.metrics import RELMSE_EPS
+    from warpbw.scene import parse_scene
+
+    h = w = 24
+    yy, xx = np.mgrid[0:h, 0:w]
+    cov = (yy - 11.5) ** 2 + (xx - 11.5) ** 2 < 10 ** 2
+    truth = (0.2 + 0.6 * np.stack([xx / w, yy / h, np.full((h, w), 0.5)], -1)).astype(np.float32) * cov[..., None]
+    sign = np.where((yy + xx) % 2 == 0, 1.0, -1.0)[..., None]     # the error's pattern: +/- a in every channel
+    run_factor = (1.0, 1.1)                                        # run r's error amplitude is scaled by this
+    k = np.mean(np.square(run_factor))
+    clock = _FakeClock()
+    monkeypatch.setattr(bench, "time", clock)
+    # adaptive: budget -> (reference spp it matches, its frame time)
+    ada = {1.0: (11.0, 0.02), 2.0: (20.0, 0.05), 4.0: (100.0, 0.5)}
+
+    def image(amplitude):
+        out = truth + amplitude * sign * cov[..., None]
+        out[0, 0] = 1e3                                            # uncovered: must not count
+        return out.astype(np.float32)
+
+    def fake_reference(prep, spp, seed=0, mis=False, **kw):
+        if seed >= 1_000_000:                                      # the ground truth's chunks: exact
+            return SimpleNamespace(image=truth.copy(), coverage=cov, stats={})
+        r = seed - 101 * spp if 0 <= seed - 101 * spp < len(run_factor) else 0   # run r (0 for the warm-up)
+        clock.now += 0.01 * spp
+        amp = run_factor[r] * math.sqrt(8.0 / spp ** 0.7)
+        return SimpleNamespace(image=image(amp), coverage=cov,
+                               stats={"time_s": {"shading": 0.009 * spp, "gbuffer": 0.001 * spp}})
+
+    def fake_adaptive(prep, budget, seed=0, mis=False, **kw):
+        spp_eq, t = ada.get(float(budget), (1.0, 0.01))            # the warm-up frame is budget 1 too
+        r = seed // 7
+        clock.now += t
+        amp = run_factor[r] * math.sqrt(8.0 / spp_eq ** 0.7)
+        ts = {"bandwidth": 0.1 * t, "shading": 0.7 * t, "upsampling": 0.1 * t, "hierarchy": 0.05 * t,
+              "gbuffer": 0.05 * t, "frame": t}
+        return SimpleNamespace(image=image(amp), coverage=cov,
+                               stats={"time_s": ts, "shaded_fraction": 0.5, "samples": 10,
+                                      "samples_per_covered_pixel": float(budget),
+                                      "allocation": {"over_budget": False}})
+
+    monkeypatch.setattr(pipeline, "render_reference", fake_reference)
+    monkeypatch.setattr(pipeline, "render_adaptive", fake_adaptive)
+    scene = parse_scene(SCENE, tmp_path, "s.toml")
+    rec = bench.run_bench(scene, spp_list=(1, 4, 16, 64, 256), budgets=(1, 2, 4), gt_spp=64, runs=2,
+                          cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **kw: None)
+    peak = float(truth[cov].max())
+    t_cov = truth[cov].astype(np.float64)
+    for p in rec["methods"]["reference"] + rec["methods"]["adaptive"]:
+        spp = p.get("spp") or ada[p["budget"]][0]
+        m = 8.0 * k / spp ** 0.7
+        assert math.isclose(p["mse"], m, rel_tol=1e-4), p
+        assert math.isclose(p["psnr_db"], 10 * math.log10(peak ** 2 / m), abs_tol=1e-4), p
+        rel = np.mean([np.mean(f * f * 8.0 / spp ** 0.7 / (t_cov ** 2 + RELMSE_EPS)) for f in run_factor])
+        assert math.isclose(p["relmse"], rel, rel_tol=1e-4), p
+    for p in rec["methods"]["reference"]:
+        assert math.isclose(p["time_s"], 0.01 * p["spp"], rel_tol=1e-9)
+    for p in rec["methods"]["adaptive"]:
+        spp_eq, t = ada[p["budget"]]
+        assert math.isclose(p["equal_quality_spp"], spp_eq, rel_tol=1e-4), p
+        assert math.isclose(p["equal_quality_reference_time_s"], 0.01 * spp_eq, rel_tol=1e-4), p
+        assert math.isclose(p["equal_quality_speedup"], 0.01 * spp_eq / t, rel_tol=1e-4), p
+        assert math.isclose(p["bandwidth_time_fraction"], 0.1, rel_tol=1e-9) and not p["extrapolated"]
+    # speed-ups 5.5x, 4x and 2x: the best is budget 1's
+    assert rec["equal_quality_budget"] == 1.0 and math.isclose(rec["equal_quality_speedup"], 5.5, rel_tol=1e-4)
+    assert rec["pixels_covered"] == int(cov.sum()) and rec["ground_truth_doubling_delta_db"] == 0.0

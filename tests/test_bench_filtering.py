@@ -56,6 +56,27 @@ def plane_scene(tmp_path, monkeypatch):
 
 # ------------------------------------------------------------------------------------------ metrics
 
+def test_metrics_count_only_the_masked_pixels():
+    """A third pixel, outside the mask, carries errors and changes of 10: none of the three metrics sees it,
+    and the colour error's normalisation is the masked pixels' mean norm (the hand-computed values of the
+    tests below, with one more pixel)."""
+    ref = np.zeros((1, 3, 3))
+    ref[0, 0] = [3.0, 4.0, 0.0]          # norm 5
+    ref[0, 1] = [0.0, 0.0, 1.0]          # norm 1
+    ref[0, 2] = [0.0, 0.0, 30.0]         # norm 30, masked out
+    img = ref.copy()
+    img[0, 0, 0] += 1.2
+    img[0, 2, 0] += 10.0
+    mask = np.array([[True, True, False]])
+    assert colour_error(img, ref, mask) == pytest.approx((1.2 + 0.0) / 2 / 3.0)
+    g0, a0 = np.zeros((1, 3, 3)), np.zeros((1, 3, 3))
+    g1, a1 = g0.copy(), a0.copy()
+    a1[0, 1] = [0.0, 0.0, 3.0]           # flicker 3 in pixel 1
+    a1[0, 2] = [10.0, 0.0, 0.0]          # and 10 in the masked-out pixel
+    assert flicker(a0, a1, g0, g1, mask, norm=2.0) == pytest.approx(3.0 / 2 / 2.0)
+    assert temporal_error(a0, a1, g0, g1, mask, norm=2.0) == pytest.approx(3.0 / 2 / 2.0)
+
+
 def test_colour_error_is_normalised_by_the_mean_reference_norm():
     ref = np.zeros((1, 2, 3))
     ref[0, 0] = [3.0, 4.0, 0.0]          # norm 5

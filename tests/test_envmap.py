@@ -216,6 +216,49 @@ def test_pdf_integrates_to_one_synthetic():
     assert np.all(pdf[img.max(axis=2) > 0] > 0)
 
 
+def _bilinear_cell_averages(lum, sub=32):
+    """Brute force: each texel cell's mean (over u and v, midpoint rule on sub x sub points, exact for the
+    interpolant, whose kinks at the texel centres fall on the sub-cells' edges) of the bilinear interpolant
+    of ``lum``: texel centres at u = (i + 1/2) / W (periodic), v = j / (H - 1) (clamped)."""
+    h, w = lum.shape
+    t = (np.arange(sub) + 0.5) / sub
+    out = np.zeros((h, w))
+    for j in range(h):
+        v0, v1 = max(j - 0.5, 0.0), min(j + 0.5, h - 1.0)        # the cell in row units (half at the poles)
+        y = v0 + (v1 - v0) * t
+        for i in range(w):
+            x = i - 0.5 + t                   # u W - 1/2 over the cell: texel-centre units, i at its middle
+            i0, fx = np.floor(x).astype(int), x - np.floor(x)
+            j0 = np.minimum(np.floor(y).astype(int), h - 2)
+            fy = y - j0
+            a, b = lum[j0][:, i0 % w], lum[j0][:, (i0 + 1) % w]
+            c, d = lum[j0 + 1][:, i0 % w], lum[j0 + 1][:, (i0 + 1) % w]
+            f = ((1 - fy)[:, None] * ((1 - fx) * a + fx * b) + fy[:, None] * ((1 - fx) * c + fx * d))
+            out[j, i] = f.mean()
+    return out
+
+
+def test_cell_probabilities_are_luminance_times_solid_angle():
+    """Each cell's probability, computed here from the docstring's definition: Rec. 709 luminance of the
+    bilinear interpolant averaged over the cell (brute force), times the cell's solid angle, normalised.
+    Isolated pure red, green and blue texels on a dim floor tell the channel weights apart."""
+    h, w = 7, 12
+    img = np.full((h, w, 3), 0.01, np.float32)
+    img[2, 2] = (1.0, 0.0, 0.0)
+    img[2, 7] = (0.0, 1.0, 0.0)
+    img[4, 4] = (0.0, 0.0, 1.0)
+    img[0, 9] = (0.0, 3.0, 0.0)                                     # and one on a pole row
+    lum = img.astype(np.float64) @ np.array([0.212671, 0.715160, 0.072169])   # Y of the sRGB / Rec. 709 primaries
+    mass = _bilinear_cell_averages(lum) * cell_solid_angles(h, w)[:, None]
+    expected = mass / mass.sum()
+    pdf, total = _pdf_sum_over_cells(E.envmap_from_array(img), h, w)
+    got = pdf * cell_solid_angles(h, w)[:, None]
+    assert total == pytest.approx(1.0, rel=1e-5)
+    np.testing.assert_allclose(got, expected, rtol=1e-5, atol=2e-7)     # float32 CDFs
+    assert got[2, 7] / got[4, 4] == pytest.approx(expected[2, 7] / expected[4, 4], rel=1e-4)
+    assert got[2, 7] / got[4, 4] > 5.0                              # green weighs ~10x blue, not equally
+
+
 def test_pdf_integrates_to_one_studio(studio):
     d, wq = sphere_grid(1024, 2048, seed=1)
     total = float((E.eval_pdf(studio, d) * wq).sum())

@@ -53,6 +53,35 @@ def test_sphere_matches_closed_form():
     assert (gb.numpy("material").reshape(-1)[~cov] == -1).all()
 
 
+def test_mesh_attributes_are_interpolated_with_each_vertexs_own_weight():
+    """One triangle with very different vertex normals and uvs, against a numpy ray-triangle intersection
+    (Moller-Trumbore, float64): the normal is the normalised barycentric mix of the vertex normals and the uv
+    the barycentric mix of the vertex uvs, each weight with its own vertex."""
+    v = np.array([[-1.0, -1.0, 0.0], [1.2, -0.8, 0.1], [-0.1, 1.1, -0.2]])
+    nrm = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, -0.6, 0.8]])
+    uv = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    cam = make_camera((0.1, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 60.0, 48, 40)
+    mesh = MeshSpec(v.astype(np.float32), np.array([[0, 1, 2]], np.int32), nrm.astype(np.float32),
+                    np.zeros(3, np.float32), uv.astype(np.float32), 0)
+    gb = render_gbuffer(cam, build_geometry([], [mesh]))
+    o, d = camera_rays(cam)
+    e1, e2 = v[1] - v[0], v[2] - v[0]
+    pv = np.cross(d, e2)
+    det = pv @ e1
+    tv = o - v[0]
+    b1 = np.einsum("ij,ij->i", tv, pv) / det
+    qv = np.cross(tv, e1)
+    b2 = np.einsum("ij,ij->i", d, qv) / det
+    b = np.stack([1.0 - b1 - b2, b1, b2], -1)
+    inside = (b > 0.02).all(-1)                          # away from the edges, where float32 may hit or miss
+    cov = gb.coverage.reshape(-1)
+    assert inside.sum() > 200 and cov[inside].all() and cov.sum() <= ((b > -0.02).all(-1)).sum()
+    n_ref = b @ nrm
+    n_ref /= np.linalg.norm(n_ref, axis=1, keepdims=True)
+    np.testing.assert_allclose(gb.numpy("normal").reshape(-1, 3)[inside], n_ref[inside], atol=1e-4)
+    np.testing.assert_allclose(gb.numpy("uv").reshape(-1, 2)[inside], (b @ uv)[inside], atol=1e-4)
+
+
 def test_hide_beyond_empties_exactly_the_pixels_whose_surface_is_farther():
     """A wall of distances through the sphere (inf on the left half): the pixels whose closed-form hit lies beyond
     it become empty and are counted; the others keep every buffer as it was."""

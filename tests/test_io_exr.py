@@ -155,15 +155,18 @@ def test_false_colour_png(tmp_path):
     assert (lo, hi) == (2.0, 8.0)
     img = np.asarray(Image.open(tmp_path / "fc.png"))
     assert img.shape == (3, 11, 3)
-    viridis_lo, viridis_hi = (0x44, 0x01, 0x54), (0xFD, 0xE7, 0x25)
+    viridis_lo, viridis_hi, viridis_mid = (0x44, 0x01, 0x54), (0xFD, 0xE7, 0x25), (0x21, 0x91, 0x8C)
     assert np.all(np.abs(img[0, 0].astype(int) - viridis_lo) <= 1)  # below vmin -> first colour
     assert np.all(np.abs(img[0, 10].astype(int) - viridis_hi) <= 1)  # above vmax -> last colour
     assert img[1, 5].tolist() == [0, 0, 0] and img[2, 7].tolist() == [0, 0, 0]
+    assert np.all(np.abs(img[0, 5].astype(int) - viridis_mid) <= 2)  # 5, halfway from 2 to 8
     # log scale: the default range comes from the positive values
     lo, hi = write_false_colour_png(tmp_path / "log.png", np.array([[0.01, 0.1, 1.0, 0.0]]), log=True)
     assert (lo, hi) == (0.01, 1.0)
     img = np.asarray(Image.open(tmp_path / "log.png")).astype(int)
     assert np.all(np.abs(img[0, 0] - viridis_lo) <= 1) and np.all(np.abs(img[0, 2] - viridis_hi) <= 1)
+    # 0.1 lies halfway in log10 between 0.01 and 1 (a linear map would put it at 0.09): viridis(0.5)
+    assert np.all(np.abs(img[0, 1] - viridis_mid) <= 2), img[0, 1]
 
 
 def test_real_probe_reads():
