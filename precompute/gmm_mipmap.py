@@ -403,6 +403,8 @@ class GmmMipmap:
     seed: int = 0
     max_samples: int = DEFAULT_MAX_SAMPLES
     extra: dict = field(default_factory=dict)
+    source: str | None = None          # read from a file: the map it was built from, and that map's content hash
+    source_hash: str | None = None
 
     @property
     def shape(self):
@@ -622,7 +624,8 @@ def read_gmm_mipmap(path) -> GmmMipmap:
         levels = [np.asarray(q, np.float32) for q in levels]
         mip = GmmMipmap(levels, K, float(params.get("prior", DEFAULT_PRIOR)), bool(params.get("unaligned", False)),
                         params.get("kind", "height"), float(params.get("scale", 1.0)), int(params.get("seed", 0)),
-                        int(params.get("max_samples", DEFAULT_MAX_SAMPLES)))
+                        int(params.get("max_samples", DEFAULT_MAX_SAMPLES)),
+                        source=asset.header.get("source"), source_hash=asset.header.get("source_hash"))
     except (TypeError, ValueError, AttributeError):  # arrays of strings, a hand-edited header
         raise WarpbwError(f"{path}: GMM mipmap with non-numeric levels or parameters (rebuild it with: {hint})") \
             from None
@@ -638,6 +641,9 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"     # PNG spec section 5.2
 PNG_BIT_DEPTH_OFFSET = 24            # IHDR: 8 signature + 4 length + 4 type + 4 width + 4 height bytes
 
 
+EXR_ALPHA_CHANNELS = ("A",)    # OpenEXR's alpha (coverage) channel: skipped when looking for a map's data channel
+
+
 def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
     """(H, W, C) float64 in [0, 1] for PNG/Pillow images, raw floats for EXR; and the bits per channel the
     values were read with (None for floating point)."""
@@ -650,9 +656,13 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
         ch = img.channels
         if all(k in ch for k in ("R", "G", "B")):
             return img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]].astype(np.float64), None
-        if "Y" in ch:
-            return img.pixels[..., [ch.index("Y")]].astype(np.float64), None
-        return img.pixels.astype(np.float64), None
+        data = [k for k in ch if k not in EXR_ALPHA_CHANNELS]      # coverage or opacity, never a height
+        if "Y" in data and set(data) <= {"Y", "RY", "BY"}:
+            data = ["Y"]                                            # luminance (and chroma): the luminance
+        if len(data) != 1:
+            raise WarpbwError(f"{p}: OpenEXR channels {', '.join(ch)}: expected R, G, B (a normal map) or one "
+                              "data channel besides alpha (a height field)")
+        return img.pixels[..., [ch.index(data[0])]].astype(np.float64), None
     from PIL import Image, UnidentifiedImageError
 
     bits = None

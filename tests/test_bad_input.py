@@ -609,6 +609,8 @@ def _bad_map(tmp_path: Path, what: str) -> None:
         p.write_bytes(b"height field? no, just bytes\n" * 4)
     elif what == "rgb as height":
         write_exr(p, np.random.default_rng(0).random((4, 4, 3)).astype(np.float32), channels=["R", "G", "B"])
+    elif what == "two data channels":
+        write_exr(p, np.random.default_rng(0).random((4, 4, 2)).astype(np.float32), channels=["Z", "W"])
     elif what == "normals into the surface":
         n = np.zeros((4, 4, 3), np.float32)
         n[..., 2] = 1.0
@@ -624,6 +626,7 @@ def _bad_map(tmp_path: Path, what: str) -> None:
 
 @pytest.mark.parametrize("what,needle", [("not an image", "not an image"),
                                          ("rgb as height", "RGB image with differing channels"),
+                                         ("two data channels", "channels Z, W: expected R, G, B"),
                                          ("normals into the surface", "pointing below the surface"),
                                          ("nan texels", "NaN")])
 def test_bad_normal_map_in_a_plane_scene(tmp_path, what, needle):
@@ -631,6 +634,18 @@ def test_bad_normal_map_in_a_plane_scene(tmp_path, what, needle):
     r = run(["render", "scene.toml", "-o", "out.exr", "--filter", "fixed"], tmp_path)
     assert_one_line_error(r, "scene.toml", "[material.m].normal_map", "map.exr", needle)
     assert_no_outputs(tmp_path)
+
+
+def test_height_field_with_an_alpha_channel_is_read_from_its_data_channel(tmp_path):
+    """A one-channel EXR height field (channel Z) saved with alpha: the heights are Z, never the alpha (OpenEXR
+    lists A before Z)."""
+    from precompute.gmm_mipmap import load_map
+
+    h = np.random.default_rng(2).random((5, 6)).astype(np.float32)
+    write_exr(tmp_path / "za.exr", np.stack([h, np.ones_like(h)], -1), channels=["Z", "A"])
+    np.testing.assert_array_equal(load_map(tmp_path / "za.exr"), h)
+    write_exr(tmp_path / "ya.exr", np.stack([h, np.ones_like(h)], -1), channels=["Y", "A"])
+    np.testing.assert_array_equal(load_map(tmp_path / "ya.exr"), h)
 
 
 def test_gmm_file_built_unaligned_is_refused_as_such(tmp_path):

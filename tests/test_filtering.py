@@ -26,7 +26,7 @@ from warpbw.errors import WarpbwError
 from warpbw.filtering import (ALL_METHODS, METHODS, MIN_GT_SPP, fetch_gmm, gmm_ndf, normal_moment_mipmap,
                               pair_uniforms, prepare_filtering, render_filtering, zoomed_camera)
 from warpbw.io.exr import write_exr
-from warpbw.scene import parse_scene
+from warpbw.scene import file_digest, parse_scene
 
 F0 = (0.9, 0.75, 0.4)
 DIFFUSE = (0.05, 0.04, 0.02)
@@ -556,8 +556,8 @@ def _scales_with_gmm_files(tmp_path, position):
     h = hemispherical_scales(32, scales_across=4)
     mips = {"gmm_aligned": build_gmm_mipmap(h, scale=0.5, progress=False),
             "gmm_unaligned": build_gmm_mipmap(h, scale=0.5, unaligned=True, progress=False)}
-    write_gmm_mipmap(tmp_path / "scales.gmm", mips["gmm_aligned"], "map.exr", "test")
     write_exr(tmp_path / "map.exr", np.asarray(h, np.float32)[..., None], channels=["Y"])
+    write_gmm_mipmap(tmp_path / "scales.gmm", mips["gmm_aligned"], "map.exr", file_digest(tmp_path / "map.exr"))
     s = parse_scene(scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ntiling = 4\ngmm = "scales.gmm"\n',
                                roughness=0.1, position=position, resolution=(24, 16), lights=2)
                     .replace(f"diffuse = {list(DIFFUSE)}", "diffuse = [0.5, 0.4, 0.3]"),   # both terms count
@@ -751,21 +751,29 @@ def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path):
     from precompute.gmm_mipmap import build_gmm_mipmap, load_map, write_gmm_mipmap
 
     h = _bumps(8)
-    write_gmm_mipmap(tmp_path / "other.gmm", build_gmm_mipmap(np.zeros((4, 4)), progress=False), "x", "y")
     s = scene_with_map(tmp_path, heights=h, scale=0.5)
+    digest = file_digest(tmp_path / "map.exr")     # the header names the map a file was built from, by content
     text = scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ngmm = "other.gmm"\n')
+    # a file of another map: of another size, or of this size and parameters but other heights
+    write_gmm_mipmap(tmp_path / "other.gmm", build_gmm_mipmap(np.zeros((4, 4)), progress=False), "x", digest)
     with pytest.raises(WarpbwError, match=r"\[material\.m\]\.gmm: .*4x4 map"):
         prepare_filtering(parse_scene(text, tmp_path, "s.toml"), ("gmm_aligned",))
-    write_gmm_mipmap(tmp_path / "wrong_scale.gmm", build_gmm_mipmap(h, scale=1.0, progress=False), "x", "y")
+    write_gmm_mipmap(tmp_path / "other.gmm", build_gmm_mipmap(2.0 * h, scale=0.5, progress=False),
+                     "taller.exr", "0123", force=True)
+    with pytest.raises(WarpbwError, match=r"\[material\.m\]\.gmm: .*built from taller.exr with different "
+                                          r"content than the material's normal_map map.exr.*gmm map.exr -o"):
+        prepare_filtering(parse_scene(text, tmp_path, "s.toml"), ("gmm_aligned",))
+    write_gmm_mipmap(tmp_path / "wrong_scale.gmm", build_gmm_mipmap(h, scale=1.0, progress=False), "x", digest)
     with pytest.raises(WarpbwError, match=r"\[material\.m\]\.gmm: .*--scale 0\.5"):
         prepare_filtering(parse_scene(text.replace("other.gmm", "wrong_scale.gmm"), tmp_path, "s.toml"),
                           ("gmm_aligned",))
-    write_gmm_mipmap(tmp_path / "good.gmm", build_gmm_mipmap(h, scale=0.5, progress=False), "x", "y")
+    write_gmm_mipmap(tmp_path / "good.gmm", build_gmm_mipmap(h, scale=0.5, progress=False), "x", digest)
     prep = prepare_filtering(parse_scene(text.replace("other.gmm", "good.gmm"), tmp_path, "s.toml"),
                              ("gmm_aligned",))
     assert prep.notes["m"]["gmm_aligned"]["origin"] == "file"
     # a file with another number of components than the material's gmm_components (default 4)
-    write_gmm_mipmap(tmp_path / "k2.gmm", build_gmm_mipmap(h, scale=0.5, components=2, progress=False), "x", "y")
+    write_gmm_mipmap(tmp_path / "k2.gmm", build_gmm_mipmap(h, scale=0.5, components=2, progress=False), "x",
+                     digest)
     k2 = text.replace("other.gmm", "k2.gmm")
     with pytest.raises(WarpbwError, match=r"\[material\.m\]\.gmm: .*--components 2.*gmm_components = 4"):
         prepare_filtering(parse_scene(k2, tmp_path, "s.toml"), ("gmm_aligned",))
@@ -773,7 +781,7 @@ def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path):
                              ("gmm_aligned", "gmm_unaligned"))
     assert prep.notes["m"]["gmm_aligned"]["components"] == prep.notes["m"]["gmm_unaligned"]["components"] == 2
     # a file built with another prior than the material's gmm_prior (default 1)
-    write_gmm_mipmap(tmp_path / "c4.gmm", build_gmm_mipmap(h, scale=0.5, prior=4.0, progress=False), "x", "y")
+    write_gmm_mipmap(tmp_path / "c4.gmm", build_gmm_mipmap(h, scale=0.5, prior=4.0, progress=False), "x", digest)
     c4 = text.replace("other.gmm", "c4.gmm")
     with pytest.raises(WarpbwError, match=r"\[material\.m\]\.gmm: .*--prior 4.*gmm_prior = 1"):
         prepare_filtering(parse_scene(c4, tmp_path, "s.toml"), ("gmm_aligned",))

@@ -964,6 +964,11 @@ def _read_gmm_checked(scene: Scene, name: str):
         from precompute.gmm_mipmap import read_gmm_mipmap
 
         mip = read_gmm_mipmap(path)
+        if mip.source_hash != src.content_hash:   # the file's header names the map it was fitted to, by content
+            flags = f"--kind {src.kind}" + (f" --scale {src.scale:g}" if src.kind == "height" else "")
+            raise WarpbwError(f"{path}: built from {mip.source or 'another map'} with different content than the "
+                              f"material's normal_map {src.name} (rebuild it with: warpbw-precompute gmm "
+                              f"{src.name} -o {path} {flags} --force)")
         want = tuple(src.data.shape[:2])
         if tuple(mip.shape) != want:
             raise WarpbwError(f"{path}: built from a {mip.shape[1]}x{mip.shape[0]} map, but the normal_map is "
