@@ -311,3 +311,33 @@ def test_bench_figures_follow_closed_forms_with_fake_renderers(tmp_path, monkeyp
     # speed-ups 5.5x, 4x and 2x: the best is budget 1's
     assert rec["equal_quality_budget"] == 1.0 and math.isclose(rec["equal_quality_speedup"], 5.5, rel_tol=1e-4)
     assert rec["pixels_covered"] == int(cov.sum()) and rec["ground_truth_doubling_delta_db"] == 0.0
+
+
+@pytest.mark.parametrize("damage", ["one channel", "nan", "cut off", "other size"])
+def test_damaged_ground_truth_chunk_is_rendered_again(tmp_path, damage):
+    """A cached chunk that is unreadable, of other channels or size, or not finite is stale: rendered anew and
+    replaced (the first render's chunk comes back bit for bit: same seed), never averaged in or refused."""
+    from warpbw.io.exr import read_exr, write_exr
+    from warpbw.pipeline import prepare_scene
+    from warpbw.scene import parse_scene
+
+    prep = prepare_scene(parse_scene(SCENE, tmp_path, "s.toml"))
+    cache = tmp_path / "gt"
+    first = bench.ground_truth(prep, 4, cache, progress=False)
+    chunk = sorted(cache.glob("ground_truth-*-chunk0-*.exr"))
+    assert len(chunk) == 1 and first.render_time_s > 0
+    chunk = chunk[0]
+    good = chunk.read_bytes()
+    if damage == "one channel":
+        write_exr(chunk, np.ones((24, 24), np.float32), channels=["Y"])
+    elif damage == "nan":
+        write_exr(chunk, np.full((24, 24, 3), np.nan, np.float32))
+    elif damage == "other size":
+        write_exr(chunk, np.ones((12, 24, 3), np.float32))
+    else:
+        chunk.write_bytes(good[: len(good) // 2])
+    again = bench.ground_truth(prep, 4, cache, progress=False)
+    assert again.render_time_s > 0 and np.array_equal(again.image, first.image)
+    assert read_exr(chunk).pixels.shape == (24, 24, 3) and len(list(cache.iterdir())) == 2   # no .part file left
+    cached = bench.ground_truth(prep, 4, cache, progress=False)       # and now it is read, not rendered
+    assert cached.render_time_s == 0 and np.array_equal(cached.image, first.image)

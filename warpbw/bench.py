@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import statistics
 import time
 from dataclasses import dataclass
@@ -84,7 +85,7 @@ def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = 1_000_001, prog
     """MIS reference at ``gt_spp`` as the mean of cached chunks (at least two, for the doubling check),
     clipped at ``clip_distance`` (``render_reference``'s) and cached under ``scene``'s hash (default: the
     prepared scene's; a clipped ground truth must name the scene whose planes clip it)."""
-    from warpbw.io.exr import read_exr, write_exr
+    from warpbw.io.exr import write_exr
     from warpbw.pipeline import render_reference
 
     chunk = min(GT_CHUNK_SPP, max(1, gt_spp // 2))
@@ -94,18 +95,37 @@ def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = 1_000_001, prog
     imgs, t_gt = [], 0.0
     for k in range(n):
         path = cache_dir / f"ground_truth-{key}-chunk{k}-{chunk}spp.exr"
-        if path.exists():
-            img = read_exr(path).pixels[..., :3]
-            if img.shape[:2] == (prep.height, prep.width):
-                imgs.append(img)
-                continue
+        img = _cached_chunk(path, prep.height, prep.width)
+        if img is not None:
+            imgs.append(img)
+            continue
         t0 = time.perf_counter()
         img = render_reference(prep, spp=chunk, seed=seed + k * 1_000_002, mis=True, progress=progress,
                                clip_distance=clip_distance).image
         t_gt += time.perf_counter() - t0
-        write_exr(path, img)
+        # written beside it and moved into place: an interrupted run leaves no cut-off chunk
+        part = path.with_name(f"{path.stem}.part{os.getpid()}.exr")
+        write_exr(part, img)
+        os.replace(part, path)
         imgs.append(img)
     return GroundTruth(np.mean(imgs, axis=0), np.mean(imgs[: n // 2], axis=0), n * chunk, n, t_gt, key)
+
+
+def _cached_chunk(path: Path, height: int, width: int) -> np.ndarray | None:
+    """A cached ground-truth chunk's RGB, or None when it is missing, unreadable, of another size or channels, or
+    not finite: such a chunk is rendered again (as the table caches rebuild a damaged entry)."""
+    from warpbw.io.exr import read_exr
+
+    if not path.is_file():
+        return None
+    try:
+        img = read_exr(path)
+    except WarpbwError:
+        return None
+    if img.channels[:3] != ["R", "G", "B"] or img.pixels.shape[:2] != (height, width):
+        return None
+    rgb = img.pixels[..., :3]
+    return rgb if np.isfinite(rgb).all() else None
 
 
 def _interp(x: float, xs: np.ndarray, ys: np.ndarray) -> tuple[float, bool]:

@@ -95,29 +95,13 @@ _WARP_NO_DRIVER_LINE = "Could not find or load the NVIDIA CUDA driver"
 
 def _init_warp_quietly(wp) -> None:
     """``wp.init()`` without Warp's no-CUDA-driver line on stderr (other native output is kept)."""
-    import os
-    import tempfile
+    from warpbw.native_output import captured_native_output
 
-    try:
-        sys.stderr.flush()
-        saved = os.dup(2)
-    except (OSError, ValueError):  # no usable fd 2 (embedded interpreter): just init
+    with captured_native_output(fds=(2,)) as lines:
         wp.init()
-        return
-    with tempfile.TemporaryFile() as tmp:
-        os.dup2(tmp.fileno(), 2)
-        try:
-            wp.init()
-        finally:
-            try:
-                sys.stderr.flush()
-            finally:
-                os.dup2(saved, 2)
-                os.close(saved)
-            tmp.seek(0)
-            for line in tmp.read().decode("utf-8", "replace").splitlines():
-                if _WARP_NO_DRIVER_LINE not in line:
-                    print(line, file=sys.stderr)
+    for line in lines:
+        if _WARP_NO_DRIVER_LINE not in line:
+            print(line, file=sys.stderr)
 
 
 def init_warp(device: str):

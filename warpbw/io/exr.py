@@ -20,12 +20,14 @@ names the file.
 """
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from warpbw.errors import WarpbwError, check_input_file
+from warpbw.native_output import captured_native_output
 
 # First four bytes of every OpenEXR file: the magic number 20000630 = 0x762f3101, stored
 # little-endian (OpenEXR file layout, "Magic Number" section of openexr.com/en/latest/OpenEXRFileLayout.html).
@@ -95,22 +97,23 @@ def read_exr(path) -> ExrImage:
     path = check_input_file(path, "an OpenEXR image")
     _check_magic(path)
     try:
-        exr = OpenEXR.File(str(path), separate_channels=True)
-        header = exr.header()
-        chans = exr.channels()
-        planes = {}
-        for name, ch in chans.items():
-            if getattr(ch, "xSampling", 1) != 1 or getattr(ch, "ySampling", 1) != 1:
-                raise WarpbwError(
-                    f"{path}: channel {name!r} is subsampled "
-                    f"({ch.xSampling}x{ch.ySampling}); expected full-resolution channels"
-                )
-            planes[name] = np.asarray(ch.pixels)
-    except WarpbwError:
-        raise
+        # OpenEXR prints its own warnings about a damaged file to the descriptors: they go into the error
+        with captured_native_output() as native:
+            exr = OpenEXR.File(str(path), separate_channels=True)
+            header = exr.header()
+            chans = exr.channels()
+            planes = {name: np.asarray(ch.pixels) for name, ch in chans.items()}
     except Exception as exc:  # OpenEXR raises RuntimeError for truncated / corrupt files
         # OpenEXR's own words for a cut-off file ("file has 0 parts") do not say what is wrong
-        raise WarpbwError(f"{path}: unreadable OpenEXR file, truncated or corrupt ({_one_line(exc)})") from None
+        said = "; ".join(line.replace(f"{path}: ", "").strip() for line in native if line.strip())
+        raise WarpbwError(f"{path}: unreadable OpenEXR file, truncated or corrupt ({_one_line(exc)}"
+                          f"{'; ' + said if said else ''})") from None
+    for line in native:            # a file that read: pass on whatever the library had to say
+        print(line, file=sys.stderr)
+    for name, ch in chans.items():
+        if getattr(ch, "xSampling", 1) != 1 or getattr(ch, "ySampling", 1) != 1:
+            raise WarpbwError(f"{path}: channel {name!r} is subsampled ({ch.xSampling}x{ch.ySampling}); expected "
+                              "full-resolution channels")
     if not planes:
         raise WarpbwError(f"{path}: OpenEXR file has no channels (expected R,G,B or Y)")
     names = _order_channels(list(planes), header.get(_ORDER_ATTRIBUTE))
