@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 from warpbw.cli_common import OneLineParser, check_output_file, parse_seed, run_command
+from warpbw.errors import WarpbwError
 
 
 def cmd_npf_to_merl(args) -> int:
@@ -65,8 +66,12 @@ def cmd_gmm(args) -> int:
     check_output_file(out, "-o", args.force)
     t0 = time.perf_counter()
     data, name, digest = load_source(args.map, args.kind)
-    mip = build_gmm_mipmap(data, kind=args.kind, components=args.components, prior=args.prior, scale=args.scale,
-                           seed=args.seed, progress=not args.quiet, unaligned=args.unaligned)
+    try:
+        mip = build_gmm_mipmap(data, kind=args.kind, components=args.components, prior=args.prior, scale=args.scale,
+                               seed=args.seed, progress=not args.quiet, unaligned=args.unaligned)
+    except WarpbwError as exc:    # the builder names its parameters; here they are options
+        msg = str(exc)
+        raise WarpbwError(f"--{msg}" if msg.split(" ", 1)[0] in ("components", "prior", "scale") else msg) from None
     write_gmm_mipmap(out, mip, name, digest, force=args.force)
     h, w = mip.shape
     how = "unaligned (independent EM per texel)" if args.unaligned else f"aligned, prior c={args.prior:g}"

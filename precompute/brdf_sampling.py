@@ -102,7 +102,11 @@ def read_sampling(path, source: BrdfSource | None = None) -> SamplerTable:
 
 
 def cache_dir() -> Path:
-    return Path(os.environ.get("WARPBW_CACHE", Path.home() / ".cache" / "warpbw"))
+    """Where tables and ground truths are cached: ``$WARPBW_CACHE``, else ~/.cache/warpbw."""
+    env = os.environ.get("WARPBW_CACHE")
+    if env and Path(env).exists() and not Path(env).is_dir():
+        raise WarpbwError(f"WARPBW_CACHE={env}: not a directory (expected the folder warpbw caches its tables in)")
+    return Path(env) if env else Path.home() / ".cache" / "warpbw"
 
 
 def load_or_build(source, explicit, cache, prefix: str, version: int, read, build, write,

@@ -720,9 +720,9 @@ def load_map(path, kind: str = "height") -> np.ndarray:
                 raise WarpbwError(f"{p}: RGB image with differing channels given as a height field (expected a "
                                   "single-channel image; for a tangent-space normal map use --kind normal)")
         heights = np.ascontiguousarray(px[..., 0])
-        if bits == 8 and np.ptp(heights) > 0:
-            warnings.warn(f"{p}: heights read with 8 bits: 256 levels give terraced normals (a 16-bit "
-                          "greyscale PNG or an EXR keeps the detail)", stacklevel=2)
+        if bits is not None and bits <= 8 and np.ptp(heights) > 0:
+            warnings.warn(f"{p}: heights read with {bits} bit{'s' if bits > 1 else ''}: {2 ** bits} levels give "
+                          "terraced normals (a 16-bit greyscale PNG or an EXR keeps the detail)", stacklevel=2)
         return heights
     if px.shape[2] < 3:
         raise WarpbwError(f"{p}: single-channel image given as a normal map (expected an RGB tangent-space "

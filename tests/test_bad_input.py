@@ -117,6 +117,31 @@ def test_precompute_brdf_sampling_of_a_truncated_merl(tmp_path):
     assert not (tmp_path / "x.npz").exists()
 
 
+def test_brdf_tables_beyond_float32_shading_are_refused(tmp_path):
+    """A MERL file of finite float64 entries 1e300, and an NPF row of float32-finite 1e38: both overflowed in the
+    float32 kernels, every sample was dropped and a black image written with status 0."""
+    from warpbw.io.npf import NPF_COLS, NPF_MATERIAL_NAMES
+
+    p = tmp_path / "huge.binary"
+    with open(p, "wb") as f:
+        f.write(np.array([90, 90, 180], "<i4").tobytes())
+        np.full(MERL_FILE_SIZE // 8 - 1, 1e300, "<f8").tofile(f)
+    assert p.stat().st_size == MERL_FILE_SIZE
+    write_scene(tmp_path, material='type = "merl"\nfile = "huge.binary"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "huge.binary", "beyond 1e+20", "float32 shading would overflow")
+    assert_no_outputs(tmp_path)
+    npf = _fake_npf_table(tmp_path / "npf.bin")
+    row = NPF_MATERIAL_NAMES.index("chrome")
+    with open(npf, "r+b") as f:
+        f.seek(row * NPF_COLS * 3 * 4)
+        np.full(NPF_COLS * 3, 1e38, "<f4").tofile(f)
+    r = run(["npf-to-merl", "--table", "npf.bin", "--material", "chrome", "-o", "out.binary"], tmp_path,
+            module="precompute")
+    assert_one_line_error(r, "npf.bin", "(chrome) holds values up to 1e+38", "beyond 1e+20", prog="warpbw-precompute")
+    assert not (tmp_path / "out.binary").exists()
+
+
 def test_png_renamed_exr_as_environment(tmp_path):
     png_named_exr(tmp_path / "probe.exr")
     write_scene(tmp_path, environment='file = "probe.exr"')
@@ -205,6 +230,32 @@ def test_obj_vertex_beyond_float32(tmp_path, vertex, scale):
     r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
     assert_one_line_error(r, "big.obj", "1 vertices lie outside the float32 range")
     assert_no_outputs(tmp_path)
+
+
+def test_scene_file_with_a_byte_order_mark_reads(tmp_path):
+    """Saved as UTF-8 with a BOM (as editors on Windows may): read as the same scene, not 'Invalid statement'."""
+    p = write_scene(tmp_path)
+    p.write_bytes(b"\xef\xbb\xbf" + p.read_bytes())
+    r = run(["info", "scene.toml"], tmp_path)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+
+
+def test_nb_budget_without_nb_is_refused(tmp_path):
+    write_scene(tmp_path)
+    r = run(["bench", "scene.toml", "--json", "b.json", "--nb-budget", "2"], tmp_path)
+    assert_one_line_error(r, "--nb-budget", "only --nb asks for")
+    assert_no_outputs(tmp_path, "b")
+
+
+def test_cache_variable_naming_a_file_is_refused(tmp_path, monkeypatch):
+    from precompute.brdf_sampling import cache_dir
+
+    (tmp_path / "file").write_text("x")
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "file"))
+    with pytest.raises(WarpbwError, match="WARPBW_CACHE=.*file: not a directory"):
+        cache_dir()
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "new"))    # one that does not exist yet is made when needed
+    assert cache_dir() == tmp_path / "new"
 
 
 # ------------------------------------------------------------------------------------------ scene content
@@ -382,8 +433,10 @@ def test_spp_zero(tmp_path):
     (["demo", "-o", "out", "--spp", "2147483648"], ["--spp", "<= 2147483647"]),
     (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "3e9"],
      ["--budget", "<= 8.38861e+06", "int32"]),
-    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--nb", "2147483648"],
-     ["--nb", "<= 2147483647"]),
+    # 2^31 - 1 directions were accepted and the pass's direction set ran the machine out of memory (killed)
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--nb", "65537"],
+     ["--nb", "<= 65536", "002 Fig. 13"]),
+    (["bench", "scene.toml", "--json", "b.json", "--nb", "16,2147483647"], ["--nb", "<= 65536"]),
     (["bench", "scene.toml", "--json", "b.json", "--spp", "1,2147483648"], ["--spp", "<= 2.14748e+09"]),
     (["bench", "scene.toml", "--json", "b.json", "--budgets", "1,1e9"], ["--budgets", "<= 8.38861e+06"]),
     # a value twice in a list would only repeat its measurement
@@ -420,7 +473,8 @@ def test_spp_zero(tmp_path):
 ], ids=["no output", "bad threads", "png output", "unknown command", "no command", "adaptive without budget",
         "negative budget", "nan budget", "zero nb", "budget without adaptive", "unknown method",
         "allocation without adaptive", "unknown allocation", "zero nyquist", "nyquist 1e40",
-        "spp 2^31", "spp 2^32+1", "demo spp 2^31", "budget 3e9", "nb 2^31", "bench spp 2^31", "bench budgets 1e9",
+        "spp 2^31", "spp 2^32+1", "demo spp 2^31", "budget 3e9", "nb 65537", "bench nb 2^31-1", "bench spp 2^31",
+        "bench budgets 1e9",
         "bench spp twice", "bench-filtering zoom twice", "bench gt-spp 2^31", "bench-filtering spp 2^31",
         "seed -1", "seed 2^32", "bench seed -1",
         "bench-filtering seed 2^32", "exposure 1e10", "exposure nan", "exposure inf", "demo exposure -1e3",
@@ -438,7 +492,11 @@ def test_usage_errors_are_one_line(tmp_path, args, needles):
     (["brdf-sampling"], ["required"]),
     (["gmm", "surface:dunes:8", "-o", "out.npz", "--seed", "-1"], ["--seed", "0 to 4294967295", "got -1"]),
     (["gmm", "surface:dunes:8", "-o", "out.npz", "--seed", "4294967296"], ["--seed", "0 to 4294967295"]),
-], ids=["no file", "gmm seed -1", "gmm seed 2^32"])
+    # the builder's parameters, named as the options that set them
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--components", "0"], ["--components 0: expected an integer"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--prior", "-1"], ["--prior -1.0: expected a finite c >= 0"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--scale", "0"], ["--scale 0.0: expected a finite number > 0"]),
+], ids=["no file", "gmm seed -1", "gmm seed 2^32", "gmm components 0", "gmm prior -1", "gmm scale 0"])
 def test_precompute_usage_errors_are_one_line(tmp_path, args, needles):
     assert_one_line_error(run(args, tmp_path, module="precompute"), *needles, prog="warpbw-precompute")
     assert_no_outputs(tmp_path)
@@ -1082,3 +1140,23 @@ def test_truncated_exr_is_called_truncated_or_corrupt(tmp_path):
     assert r.returncode == EXIT_USER_ERROR and "Traceback" not in r.stderr, r.stderr
     assert_one_line_error(r, "cut.exr", "unreadable OpenEXR file, truncated or corrupt")
     assert r.stdout == ""
+
+
+def test_out_of_memory_in_warp_is_one_line(capsys):
+    """Warp reports a failed allocation (CPU or GPU) as a RuntimeError: one line and status 2, not a traceback;
+    any other RuntimeError is a bug and stays one."""
+    from warpbw.cli_common import run_command
+
+    def oom(args):
+        raise RuntimeError("Failed to allocate 3221225472 bytes on device 'cpu'")
+
+    assert run_command("warpbw", oom, None) == EXIT_USER_ERROR
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("warpbw: error: out of memory: Failed to allocate 3221225472 bytes")
+    assert "[camera].resolution" in err[0]
+
+    def bug(args):
+        raise RuntimeError("something else")
+
+    with pytest.raises(RuntimeError, match="something else"):
+        run_command("warpbw", bug, None)

@@ -370,6 +370,7 @@ def test_cli_spells_the_allocations_and_the_default():
     from warpbw import cli
 
     assert set(cli._ALLOCATIONS) == set(bw.ALLOCATIONS) and cli._ALLOCATIONS[0] == bw.ALLOCATION_DEFAULT
+    assert cli.N_B_MAX == bw.N_B_MAX and cli.BUDGET_MAX == bw.BUDGET_MAX
 
 
 def test_bad_tables_are_refused():

@@ -82,6 +82,16 @@ def test_mesh_attributes_are_interpolated_with_each_vertexs_own_weight():
     np.testing.assert_allclose(gb.numpy("uv").reshape(-1, 2)[inside], (b @ uv)[inside], atol=1e-4)
 
 
+def test_camera_frame_depends_on_the_directions_only():
+    """An up vector of 1e-300 (the scene validator accepts it: it is not zero) or 1e300 gives the frame of a unit
+    one; the squares of 1e-300 underflowed and the frame came out NaN (an empty image)."""
+    ref = make_camera((0.3, 0.4, 3.5), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 32, 24)
+    for s in (1e-300, 1e300):
+        cam = make_camera((0.3, 0.4, 3.5), (0.0, 0.0, 0.0), (0.0, s, 0.0), 40.0, 32, 24)
+        for k in ("forward", "right", "up"):
+            np.testing.assert_allclose(list(getattr(cam, k)), list(getattr(ref, k)), rtol=1e-6, atol=1e-7)
+
+
 def test_hide_beyond_empties_exactly_the_pixels_whose_surface_is_farther():
     """A wall of distances through the sphere (inf on the left half): the pixels whose closed-form hit lies beyond
     it become empty and are counted; the others keep every buffer as it was."""

@@ -501,6 +501,11 @@ def test_8_bit_height_field_warns_of_terraces(tmp_path):
     save_png(tmp_path / "h8.png", ramp)
     with pytest.warns(UserWarning, match="h8.png: heights read with 8 bits"):
         np.testing.assert_allclose(load_map(tmp_path / "h8.png", "height"), ramp / 255.0)
+    from PIL import Image
+
+    Image.fromarray(ramp > 100).convert("1").save(tmp_path / "h1.png")      # 1 bit: two levels
+    with pytest.warns(UserWarning, match="h1.png: heights read with 1 bit: 2 levels"):
+        np.testing.assert_array_equal(load_map(tmp_path / "h1.png", "height"), (ramp > 100).astype(float))
     save_png(tmp_path / "h16.png", ramp.astype(np.uint16) * 257)
     save_png(tmp_path / "flat8.png", np.full((4, 4), 7, np.uint8))
     with warnings.catch_warnings():

@@ -81,6 +81,15 @@ def test_obj_texture_coordinates(tmp_path):
     np.testing.assert_allclose(np.abs(m.normals[:, 1]), 1.0)
 
 
+def test_obj_with_a_latin1_comment_loads(tmp_path):
+    """Not UTF-8 (a Latin-1 byte in a comment): trimesh decodes it with charset-normalizer, a declared
+    dependency; without it the file was refused as malformed, naming the missing module."""
+    p = tmp_path / "latin1.obj"
+    p.write_bytes("# caf\xe9 mesh by Ren\xe9\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".encode("latin-1"))
+    m = load_mesh(p)
+    assert m.faces.shape == (1, 3) and np.allclose(m.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+
+
 def test_transform_order(sphere_files):
     p = sphere_files[(4, "ply")]
     base = load_mesh(p)

@@ -188,6 +188,7 @@ from warpbw.pyramid import build_pyramid, image_level
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_local, to_world
 
 N_B_DEFAULT = 16              # directions per pixel; 002 Sec. 2.6 and Fig. 13 ("n_b = 16 is sufficient")
+N_B_MAX = 1 << 16             # 64x the largest n_b of 002 Fig. 13's sweep (1024): a sanity bound on --nb
 NYQUIST_FACTOR = 2.0          # sampling rate = 2 x bandwidth (002 Sec. 2.2, Nyquist)
 N_P_MIN_DEFAULT = 1           # a shaded pixel gets at least one sample
 N_P_MAX_PER_BUDGET = 256      # default n_max = 256 x budget: caps the samples one pixel may take (docstring)
@@ -556,8 +557,9 @@ def direction_set(n_b: int, seed: int = 0) -> np.ndarray:
     """``(n_b, 3)`` float32 Hammersley points ``((k + 1/2) / n_b, phi_2(k), phi_3(k))`` shifted by a seeded
     offset mod 1 (Cranley-Patterson).  u[0] picks the sampler (BRDF below 1/2, light above: half of the
     points each, exactly when n_b is even) and (u[1], u[2]) the direction."""
-    if not is_int(n_b) or n_b < 1:
-        raise WarpbwError(f"n_b: expected a positive integer number of directions, got {n_b!r}")
+    if not is_int(n_b) or not 1 <= n_b <= N_B_MAX:
+        raise WarpbwError(f"n_b: expected an integer number of directions from 1 to {N_B_MAX} (002 Fig. 13 sweeps "
+                          f"16 to 1024), got {n_b!r}")
     k = np.arange(int(n_b))
     shift = np.random.default_rng(seed).random(3)
     u = np.stack([(k + 0.5) / n_b + shift[0], _radical_inverse(k, 2) + shift[1],

@@ -31,6 +31,8 @@ _UPSAMPLE_MODES = ("normal", "paper")
 # warpbw.bandwidth.BUDGET_MAX (spelled here for the same reason): the adaptive N_p goes up to
 # N_P_MAX_PER_BUDGET = 256 x --budget and is an int32 in the kernels
 BUDGET_MAX = INT32_MAX / 256
+# warpbw.bandwidth.N_B_MAX (spelled here for the same reason): a sanity bound on --nb
+N_B_MAX = 1 << 16
 # warpbw.filtering.MAX_ANISOTROPY (spelled here for the same reason): the most probes along a footprint's axis
 MAX_ANISOTROPY = 16
 # --exposure in stops: beyond +-150 every non-zero float32 radiance (2^-149 .. 2^128) previews white, or black
@@ -433,7 +435,8 @@ def _why(hi) -> str:
     """Why a count or budget has an upper bound, for the parsers' messages."""
     return {INT32_MAX: " (an int32 in the kernels)",
             BUDGET_MAX: " (N_p, up to 256 x budget, is an int32 in the kernels)",
-            FLOAT32_MAX: " (a float32 in the kernels)"}.get(hi, "")
+            FLOAT32_MAX: " (a float32 in the kernels)",
+            N_B_MAX: " (002 Fig. 13 sweeps n_b from 16 to 1024)"}.get(hi, "")
 
 
 def _number_list(name, kind, hi=None):
@@ -488,6 +491,8 @@ def cmd_bench(args) -> int:
     from warpbw.scene import load_scene
 
     _bench_outputs(args)
+    if args.nb_budget is not None and not args.nb:
+        raise WarpbwError("--nb-budget: the budget of the n_b sweep, which only --nb asks for (e.g. --nb 16,64,256,1024)")
     scene = load_scene(args.scene)
     if scene.has_planes and not scene.has_surfaces:
         raise WarpbwError(f"{scene.source}: a scene with planes is benchmarked by 'warpbw bench-filtering'")
@@ -594,7 +599,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="adaptive: mean samples per covered pixel, spread over the shaded pixels in proportion to the "
                    "standard deviation the bandwidth pass measures "
                    "(may be below 1)")
-    r.add_argument("--nb", type=_positive_int("nb", INT32_MAX), default=None,
+    r.add_argument("--nb", type=_positive_int("nb", N_B_MAX), default=None,
                    help="adaptive: directions per pixel of the bandwidth estimate, n_b (default 16, 002 Sec. 2.6)")
     add_adaptive_options(r)
     r.add_argument("--filter", choices=_FILTER_METHODS, default=None,
@@ -654,7 +659,7 @@ def build_parser() -> argparse.ArgumentParser:
     bn.add_argument("--budgets", type=_number_list("budgets", float, BUDGET_MAX), default=list(_bench.DEFAULT_BUDGETS),
                     help="adaptive budgets, mean samples per covered pixel (default %s)"
                     % ",".join(f"{b:g}" for b in _bench.DEFAULT_BUDGETS))
-    bn.add_argument("--nb", type=_number_list("nb", int, INT32_MAX), default=None,
+    bn.add_argument("--nb", type=_number_list("nb", int, N_B_MAX), default=None,
                     help="n_b sweep, e.g. 16,64,256,1024 (002 Fig. 13), at --nb-budget")
     add_adaptive_options(bn)
     bn.add_argument("--nb-budget", type=_positive_float("nb-budget", BUDGET_MAX), default=None,

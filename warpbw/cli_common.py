@@ -65,6 +65,10 @@ def check_output_dir(path, option: str) -> None:
     _check_parents(p, option)
 
 
+# How Warp words a failed allocation, on the CPU or a GPU (warp/_src/context.py, allocators: RuntimeError)
+WARP_ALLOCATION_FAILED = "Failed to allocate"
+
+
 def run_command(prog: str, func, args) -> int:
     """Run a subcommand; user errors and warnings print as one line each (``PROG: error: ...``)."""
 
@@ -84,6 +88,12 @@ def run_command(prog: str, func, args) -> int:
             return 130
         except (OSError, MemoryError) as exc:
             print(f"{prog}: error: {exc}", file=sys.stderr)
+            return EXIT_USER_ERROR
+        except RuntimeError as exc:
+            if not str(exc).startswith(WARP_ALLOCATION_FAILED):
+                raise
+            print(f"{prog}: error: out of memory: {exc} (a smaller [camera].resolution, fewer samples or directions "
+                  "need less)", file=sys.stderr)
             return EXIT_USER_ERROR
 
 

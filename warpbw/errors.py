@@ -19,6 +19,11 @@ from pathlib import Path
 INT32_MAX = 2**31 - 1
 # Scene values (positions, radii, radiances, scales) become float32 in the kernels: beyond this they are inf.
 FLOAT32_MAX = 3.4028234663852886e38
+# Largest BRDF value a table may hold (MERL entries after their channel scales, NPF factors).  The 100 MERL
+# materials' NPF fits reach 6.7e6 (rho_s of the mirror-like fits); the kernels multiply a value by up to
+# 1 / (4 cos theta_i cos theta_o) and by the radiance in float32, so values near FLOAT32_MAX overflow to inf there
+# and every sample is dropped: a black image.  1e20 leaves 13 orders of magnitude above the real fits.
+BRDF_VALUE_MAX = 1e20
 # Seeds are uint32 in Warp's RNG and numpy's / scikit-learn's seeding: larger or negative ones wrap or fail.
 SEED_MAX = 2**32 - 1
 

@@ -275,6 +275,7 @@ def hide_beyond_kernel(cam: CameraData, t_max: wp.array(dtype=wp.float32), gb: G
 
 def _unit(v) -> np.ndarray:
     v = np.asarray(v, np.float64)
+    v = v / np.max(np.abs(v))     # first to unit size: the squares of a vector of 1e-300 would underflow to 0
     return v / np.linalg.norm(v)
 
 
@@ -282,7 +283,7 @@ def make_camera(position, look_at, up, fov_deg: float, width: int, height: int) 
     """A pinhole camera; ``fov_deg`` is the full field of view along the image width."""
     o = np.asarray(position, np.float64)
     fwd = _unit(np.asarray(look_at, np.float64) - o)
-    right = _unit(np.cross(fwd, up))
+    right = _unit(np.cross(fwd, _unit(up)))
     cam_up = np.cross(right, fwd)
     cam = CameraData()
     cam.origin = wp.vec3(*o)

@@ -586,7 +586,7 @@ def load_scene(path: Path | str) -> Scene:
     if not p.is_file():
         raise WarpbwError(f"{p}: not a file")
     try:
-        text = p.read_text(encoding="utf-8")
+        text = p.read_text(encoding="utf-8-sig")   # a byte-order mark (editors on Windows) is not TOML
     except (OSError, UnicodeDecodeError) as exc:
         raise WarpbwError(f"{p}: cannot read the scene file as UTF-8 text ({exc.__class__.__name__})") from None
     return parse_scene(text, p.resolve().parent, str(p))

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError, check_input_file
+from warpbw.errors import BRDF_VALUE_MAX, WarpbwError, check_input_file
 
 # Table resolution of the MERL database (BRDFRead.cpp: BRDF_SAMPLING_RES_THETA_H = 90,
 # BRDF_SAMPLING_RES_THETA_D = 90, BRDF_SAMPLING_RES_PHI_D = 360 of which 180 are stored).
@@ -241,6 +241,9 @@ def read_merl(path) -> MerlBRDF:
     n_bad = int(np.count_nonzero(bad))
     scale = np.asarray(MERL_SCALE, dtype=np.float64).reshape(3, 1, 1, 1)
     scaled = np.where(bad, 0.0, raw * scale)
+    if scaled.max() > BRDF_VALUE_MAX:
+        raise WarpbwError(f"{path}: MERL entries up to {scaled.max():.3g} after the channel scales, beyond "
+                          f"{BRDF_VALUE_MAX:g} (float32 shading would overflow them to infinity; expected a MERL BRDF)")
     data = np.ascontiguousarray(np.moveaxis(scaled, 0, -1), dtype=np.float32)
     mask = np.ascontiguousarray(np.moveaxis(bad, 0, -1)) if n_bad else None
     if n_bad:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from warpbw.errors import WarpbwError, check_input_file
+from warpbw.errors import BRDF_VALUE_MAX, WarpbwError, check_input_file
 
 # Material order of the rows of npf.bin (data README, "npf.bin layout"; the MERL database's names).
 NPF_MATERIAL_NAMES: tuple[str, ...] = (
@@ -107,6 +107,9 @@ def read_npf(path, name: str) -> NPFMaterial:
     used = vals[: NPF_COL_F + NPF_BINS]
     if not np.all(np.isfinite(used)) or np.any(used < 0.0):
         raise WarpbwError(f"{path}: row {row} ({key}) holds negative or non-finite values (expected a valid NPF fit)")
+    if used.max() > BRDF_VALUE_MAX:
+        raise WarpbwError(f"{path}: row {row} ({key}) holds values up to {used.max():.3g}, beyond {BRDF_VALUE_MAX:g} "
+                          "(float32 shading would overflow them to infinity; expected a valid NPF fit)")
     return NPFMaterial(
         name=key,
         rho_d=vals[NPF_COL_RHO_D].copy(),
