@@ -718,7 +718,8 @@ def load_map(path, kind: str = "height") -> np.ndarray:
             rgb = px[..., :3]
             if not (np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 0], rgb[..., 2])):
                 raise WarpbwError(f"{p}: RGB image with differing channels given as a height field (expected a "
-                                  "single-channel image; for a tangent-space normal map use --kind normal)")
+                                  "single-channel image; for a tangent-space normal map use --kind normal, or "
+                                  "normal_map_kind = \"normal\" in a scene)")
         heights = np.ascontiguousarray(px[..., 0])
         if bits is not None and bits <= 8 and np.ptp(heights) > 0:
             warnings.warn(f"{p}: heights read with {bits} bit{'s' if bits > 1 else ''}: {2 ** bits} levels give "
@@ -726,7 +727,8 @@ def load_map(path, kind: str = "height") -> np.ndarray:
         return heights
     if px.shape[2] < 3:
         raise WarpbwError(f"{p}: single-channel image given as a normal map (expected an RGB tangent-space "
-                          "normal map; for a height field use --kind height)")
+                          "normal map; for a height field use --kind height, or normal_map_kind = \"height\" in a "
+                          "scene)")
     rgb = px[..., :3]
     try:
         length = np.linalg.norm(rgb, axis=-1)

@@ -371,6 +371,9 @@ def test_cli_spells_the_allocations_and_the_default():
 
     assert set(cli._ALLOCATIONS) == set(bw.ALLOCATIONS) and cli._ALLOCATIONS[0] == bw.ALLOCATION_DEFAULT
     assert cli.N_B_MAX == bw.N_B_MAX and cli.BUDGET_MAX == bw.BUDGET_MAX
+    from warpbw import filtering
+
+    assert cli.MIN_GT_SPP == filtering.MIN_GT_SPP and cli.MAX_ANISOTROPY == filtering.MAX_ANISOTROPY
 
 
 def test_bad_tables_are_refused():

@@ -33,6 +33,8 @@ _UPSAMPLE_MODES = ("normal", "paper")
 BUDGET_MAX = INT32_MAX / 256
 # warpbw.bandwidth.N_B_MAX (spelled here for the same reason): a sanity bound on --nb
 N_B_MAX = 1 << 16
+# warpbw.filtering.MIN_GT_SPP (spelled here for the same reason): the ground truth's fewest rays per pixel
+MIN_GT_SPP = 64
 # warpbw.filtering.MAX_ANISOTROPY (spelled here for the same reason): the most probes along a footprint's axis
 MAX_ANISOTROPY = 16
 # --exposure in stops: beyond +-150 every non-zero float32 radiance (2^-149 .. 2^128) previews white, or black
@@ -210,6 +212,9 @@ def _render_filtering_cli(scene, args) -> int:
         raise WarpbwError(f"{scene.source}: a scene with planes renders with --filter METHOD (reflectance "
                           "filtering, 004); --method, --budget, --nb and --mis apply to spheres and meshes")
     method = args.filter or "gmm_aligned"
+    if method == "ground_truth" and args.spp is not None and args.spp < MIN_GT_SPP:
+        raise WarpbwError(f"--spp {args.spp}: --filter ground_truth traces at least {MIN_GT_SPP} rays per pixel "
+                          "(004's 'many rays')")
     out = Path(args.output)
     outs = _outputs(out)
     level_paths = [out.with_suffix(".level.exr"), out.with_suffix(".level.png")]
