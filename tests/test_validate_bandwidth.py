@@ -233,7 +233,6 @@ def test_spearman_ceiling_is_the_best_ordering_of_the_ties(vb):
     assert best < 0.95
 
 
-@pytest.mark.slow
 def test_relative_gradient_of_an_exponential_ramp(vb):
     """L = exp(a x): central differences give |grad L| / L = sinh(a) exactly inside the image."""
     a = 0.3
