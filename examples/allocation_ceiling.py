@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import check_output_file, init_warp, run_command
+from warpbw.cli_common import OneLineParser, check_output_file, init_warp, run_command
 from warpbw.errors import check_count
 
 SEEDS_DEFAULT = 32        # brute-force renders: the oracle's sqrt(v) is biased by about 1 / (2 x seeds)
@@ -135,7 +135,7 @@ def format_report(name: str, r: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("scene", help="scene file (TOML) with an environment")
     ap.add_argument("--budget", type=float, default=BUDGET_DEFAULT,
                     help=f"samples per covered pixel of the adaptive frame and of the comparison (default {BUDGET_DEFAULT:g})")

@@ -9,18 +9,17 @@ alike, and their ratio.  Compare the times only as that ratio: the machine is sh
 """
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 from dataclasses import replace
 
-from warpbw.cli_common import init_warp, run_command
+from warpbw.cli_common import OneLineParser, init_warp, run_command
 
 METHODS = ("gmm_aligned", "toksvig", "lean")
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("scenes", nargs="+", help="scene files with planes")
     ap.add_argument("--zoom", default="1,8,32", help="zoom factors (default 1,8,32)")
     ap.add_argument("--size", default="512x384", help="frame size WxH (default 512x384)")

@@ -1,12 +1,12 @@
 """Benchmark of the forward reference: G-buffer time, shading throughput, error against spp.
 
     python examples/bench_reference.py [--material gold-metallic-paint] [--probe forest.exr]
-        [--resolution 512 512] [--spp 16,32,64,128,256,512,1024] [--gt-spp 8192] [--out bench_out] [--force]
+        [--resolution 512 512] [--spp 16,32,64,128,256,512,1024] [--gt-spp 16384] [--out bench_out] [--force]
 
 Scene: the Stanford bunny (../shared/data/meshes/bunny.obj) with a MERL material written from the NPF
 fit by ``warpbw-precompute npf-to-merl``, under a light probe of ../shared/data/envmaps.
 
-Protocol (DESIGN.md): times are medians of 3 runs after a warm-up frame; the ground truth is the
+Protocol (../shared/DESIGN.md): times are medians of 3 runs after a warm-up frame; the ground truth is the
 MIS reference at ``--gt-spp``, the mean of independently seeded 4096-spp chunks (each cached), accepted
 when the PSNR of a 1024-spp render against its first half and against the whole differ by < 0.5 dB
 (else it says so).
@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from warpbw.cli import check_command_options
-from warpbw.cli_common import check_overwrite, init_warp, run_command
+from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
 from warpbw.errors import WarpbwError
 from warpbw.scene import MAX_RESOLUTION
 
@@ -65,7 +65,7 @@ def timed_render(prep, spp, seed, mis, runs):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--material", default="gold-metallic-paint")
     ap.add_argument("--probe", default="forest.exr")
     ap.add_argument("--rotation", type=float, default=0.0)

@@ -28,7 +28,7 @@ import sys
 from pathlib import Path
 
 from warpbw.cli import check_command_options
-from warpbw.cli_common import check_overwrite, run_command
+from warpbw.cli_common import OneLineParser, check_overwrite, run_command
 
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent.parent / "shared" / "data"
@@ -89,7 +89,7 @@ def write_scenes(out: Path, force: bool = False) -> list[Path]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="bench_scenes", help="directory for scenes, MERL files and results")
     ap.add_argument("--run", action="store_true", help="run warpbw bench on every scene")
     ap.add_argument("--only", help="comma-separated scene names to run")

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from warpbw import brdf as B
-from warpbw.cli_common import check_overwrite, init_warp, run_command
+from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
 from warpbw.errors import check_count
 from warpbw.io.npf import npf_eval, read_npf
 from warpbw.sampling import build_sampler_table
@@ -25,7 +25,7 @@ GRID = 160   # cells per side of the projected-hemisphere images
 
 def main():
     here = Path(__file__).resolve().parent
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--material", default="gold-metallic-paint")
     ap.add_argument("--table", default=str(here.parent.parent / "shared" / "data" / "brdf" / "npf.bin"))
     ap.add_argument("--samples", type=int, default=400_000)

@@ -113,7 +113,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import init_warp, parse_seed, run_command
+from warpbw.cli_common import OneLineParser, init_warp, parse_seed, run_command
 from warpbw.errors import SEED_MAX
 
 # The repository root, so that `python examples/compare_mitsuba.py` finds warpbw without installing.
@@ -412,7 +412,7 @@ def check_conventions(mi) -> None:
 
 # -------------------------------------------------------------------------------------------- main
 def parse_args(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+    p = OneLineParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--spp", type=int, default=1024, help="samples per pixel for both renderers (1024)")
     p.add_argument("--mitsuba-spp", type=int, default=None, help="Mitsuba's spp if different from --spp")

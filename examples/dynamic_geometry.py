@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.cli_common import check_overwrite, init_warp, parse_seed, run_command
+from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, parse_seed, run_command
 from warpbw.errors import SEED_MAX, WarpbwError
 
 HERE = Path(__file__).resolve().parent
@@ -172,7 +172,7 @@ def _print_table(records: list, summary: dict) -> None:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--mesh", help="mesh file (default: the shared bunny; skipped when it is absent)")
     ap.add_argument("--out", default="dynamic_out", help="output folder")
     ap.add_argument("--frames", type=int, default=10, help="frames to render after the warm-up")

@@ -50,7 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import init_warp, run_command
+from warpbw.cli_common import OneLineParser, init_warp, run_command
 # the renderer's own constants: the references filter and shade at its footprint, with its floors
 from warpbw.filtering import (ANISO_PROBE_SLACK, DEFAULT_ANISOTROPY, LOD_BIAS, MAX_ANISOTROPY, MIN_COS,
                                VARIANCE_FLOOR, roughness_variance)
@@ -327,7 +327,7 @@ def format_table(rec: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+    ap = OneLineParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="The scenes: python examples/filtering_scenes.py --out DIR (DIR/*.toml).")
     ap.add_argument("scenes", nargs="+", type=Path, help="scene files: one normal-mapped plane, directional lights")

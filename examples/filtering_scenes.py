@@ -40,7 +40,6 @@ footprints (``warpbw.filtering``: up to N probes along the major axis) instead o
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import subprocess
@@ -52,7 +51,7 @@ import numpy as np
 from precompute.surfaces import MAX_SURFACE_SIZE
 from warpbw.bench_filtering import FLICKER_PAIRS_MAX
 from warpbw.cli import MAX_ANISOTROPY, check_command_options
-from warpbw.cli_common import check_overwrite, run_command
+from warpbw.cli_common import OneLineParser, check_overwrite, run_command
 
 # scene name -> (surface generator name, tiling, material)
 SCENES = {
@@ -201,7 +200,7 @@ def format_acceptance(rows: list) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="bench_filtering", help="directory for the scenes (default ./bench_filtering)")
     ap.add_argument("--size", type=int, default=256, help="height-field size in texels (default 256)")
     ap.add_argument("--run", action="store_true", help="run warpbw bench-filtering on each scene")

@@ -12,14 +12,13 @@ benchmark come from ``examples/filtering_scenes.py``.
 """
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import check_output_dir, check_overwrite, init_warp, run_command
+from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, init_warp, run_command
 
 TILE = 160          # height of a frame in the strip, pixels
 
@@ -33,7 +32,7 @@ def crop(img, cov):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("scene", help="scene file with planes")
     ap.add_argument("-o", "--output", default="zoom_out", help="output directory (default ./zoom_out)")
     ap.add_argument("--zoom", default="1,2,4,8,16,32", help="zoom factors (default 1,2,4,8,16,32)")

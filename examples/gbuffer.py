@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.cli_common import check_overwrite, init_warp, run_command
+from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
 from warpbw.gbuffer import MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.io.exr import write_exr, write_false_colour_png, write_png
 from warpbw.io.mesh import load_mesh
@@ -24,7 +24,7 @@ OUTPUTS = ("normal.png", "depth.png", "curvature.png", "material.png", "gbuffer.
 
 def main():
     here = Path(__file__).resolve().parent
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--mesh", help="mesh file (default: the shared bunny; the sphere alone when it is absent)")
     ap.add_argument("--out", default="gbuffer_out", help="output folder (default gbuffer_out)")
     ap.add_argument("--resolution", type=int, nargs=2, default=[512, 512], metavar=("W", "H"),

@@ -14,13 +14,12 @@ distribution close to the truth, unaligned ones are averaged into lobes that are
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import check_overwrite, init_warp, run_command
+from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
 
 GRID = 161          # density image resolution over [-1, 1]^2
 
@@ -53,7 +52,7 @@ def show(ax, d):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("-o", "--output", default="gmm_mipmap.png", help="output PNG (default gmm_mipmap.png)")
     ap.add_argument("--surface", default="hemispherical_scales", help="procedural surface (precompute.surfaces)")
     ap.add_argument("--size", type=int, default=128, help="height-field size (default 128)")

@@ -6,7 +6,6 @@ Issue 4's aim: a 512x512 height field with 4 components in under 60 s on 2 cores
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -14,13 +13,13 @@ from pathlib import Path
 
 from precompute.gmm_mipmap import DEFAULT_COMPONENTS, MAX_COMPONENTS, build_gmm_mipmap
 from precompute.surfaces import MAX_SURFACE_SIZE, SURFACES
-from warpbw.cli_common import run_command
+from warpbw.cli_common import OneLineParser, run_command
 
 SIZE = 512           # issue 4 acceptance: "a 512x512 height field with 4 components"
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description="Wall time of the GMM mipmap precompute (warpbw-precompute gmm) "
+    ap = OneLineParser(description="Wall time of the GMM mipmap precompute (warpbw-precompute gmm) "
                                  "of each procedural test surface (issue 4's aim: 512x512, 4 components, "
                                  "under 60 s on 2 cores).")
     ap.add_argument("--size", type=int, default=SIZE, help=f"height-field side in texels (default {SIZE})")

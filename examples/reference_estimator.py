@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from warpbw import brdf as B
-from warpbw.cli_common import check_overwrite, init_warp, run_command
+from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
 from warpbw.envmap import envmap_from_array, load_envmap, procedural_sky
 from warpbw.errors import check_count
 from warpbw.gbuffer import SphereSpec, build_geometry, make_camera, render_gbuffer
@@ -27,7 +27,7 @@ OUTPUTS = ("ref_bis.exr", "ref_bis.png", "ref_mis.exr", "ref_mis.png")
 def main():
     here = Path(__file__).resolve().parent
     data = here.parent.parent / "shared" / "data"
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     default_probe, default_npf = data / "envmaps" / "studio.exr", data / "brdf" / "npf.bin"
     ap.add_argument("--probe", help=f"lat-long EXR light probe (default {default_probe}; the procedural sky "
                                     "when it is absent)")

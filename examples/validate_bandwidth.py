@@ -79,7 +79,7 @@ import warp as wp
 
 from warpbw.bandwidth import LUMINANCE
 from warpbw.brdf import MaterialTable, make_brdf_funcs
-from warpbw.cli_common import init_warp, run_command
+from warpbw.cli_common import OneLineParser, init_warp, run_command
 from warpbw.envmap import EnvMapData, env_radiance
 from warpbw.gbuffer import GBufferData
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_world
@@ -868,7 +868,7 @@ def outputs(out: Path, scenes) -> list:
 
 
 def parse_args(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", required=True, help="output directory (created)")
     ap.add_argument("--size", type=int, default=None, help=f"image side in pixels (default {DEFAULT_SIZE}; "
                                                             f"{QUICK['size']} with --quick)")

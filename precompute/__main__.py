@@ -92,8 +92,9 @@ def _table_args(p: argparse.ArgumentParser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="warpbw-precompute",
                                 description="Offline asset tool of warpbw: MERL files from NPF fits, importance-"
-                                "sampling tables for tabulated BRDFs.  Outputs carry a format name, a version, "
-                                "the source's name and its content hash.")
+                                "sampling tables and angular bandwidth tables of tabulated BRDFs, GMM normal mipmaps "
+                                "of height fields and normal maps.  Tables carry a format name, a version, the "
+                                "source's name and its content hash.")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 

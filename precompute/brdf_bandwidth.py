@@ -8,6 +8,7 @@ Public:
     ``write_brdf_bandwidth(path, table, source, force=False)`` / ``read_brdf_bandwidth(path, source=None)``
     ``load_or_build_bandwidth(source, explicit=None, cache=None, progress=True) -> (table, origin)``
     ``theta_i_centres()``, ``wo_map(n)``, ``wo_to_map(wo)``, ``map_radians_per_pixel(n)``
+    ``lobe_slice(evaluate, theta_i, resolution)``, ``slice_bandwidth(f)``, ``GRAZING_LIMIT``   one lobe's map
 
 Table: ``nu_rho[t, row, col]`` in cycles/radian, float32, shape ``(N_THETA_I, N_CELLS, N_CELLS)``:
 ``t`` = incident-elevation bin (centres ``theta_i = (t + 1/2) (pi/2) / 16``, uniform over

@@ -4,9 +4,10 @@ Public:
     ``brdf_source(file, material=None) -> BrdfSource``  a MERL ``.binary`` or an NPF table + material name
     ``build_brdf_sampling(source, progress=True) -> SamplerTable``
     ``write_sampling(path, table, source, force=False)`` / ``read_sampling(path, source=None)``
-    ``load_or_build_sampling(source, explicit=None, cache_dir=None) -> SamplerTable``
+    ``load_or_build_sampling(source, explicit=None, cache=None, progress=True) -> (SamplerTable, origin)``
     ``load_or_build(source, explicit, cache, prefix, version, read, build, write)``   the shared cache logic
     ``cache_dir()``
+    ``BrdfSource``: what ``brdf_source`` returns (name, path, digest, a numpy evaluator, the loaded BRDF)
 
 The tables are those of :mod:`warpbw.sampling` (per view elevation, over sqrt-warped half vectors),
 stored in the versioned asset format of :mod:`precompute.assetfile`.  The renderer builds them itself,

@@ -280,7 +280,7 @@ def envmap_angular_bandwidth(pixels: np.ndarray, epsilon: float = EPSILON,
                              rule: str = "energy", floor: float | None = None) -> np.ndarray:
     """Angular bandwidth nu_a(w) of a lat-long environment map, in cycles per radian, ``(H, W)``.
 
-    ``pixels`` is ``(H, W, 3)`` (or ``(H, W)``), row 0 at theta = 0 (+Y, DESIGN.md), column ``u``
+    ``pixels`` is ``(H, W, 3)`` (or ``(H, W)``), row 0 at theta = 0 (+Y, ../shared/DESIGN.md), column ``u``
     at longitude ``phi = 2 pi (u + 1/2) / W``.  The map is continued periodically in longitude and
     across each pole (mirrored row, longitude turned by pi) instead of zero-padded, because a
     sphere has no border.
@@ -292,7 +292,7 @@ def envmap_angular_bandwidth(pixels: np.ndarray, epsilon: float = EPSILON,
     ``lambda_max = max(2 pi sin(theta) / W, pi / H)`` is the longest angular side of the texel, and
     we use ``nu_a = b / lambda_max`` with ``b`` in cycles/pixel, i.e. cycles per pixel times pixels
     per radian along that side.  The paper's ``2 pi / 2^I_w`` is ``2 pi`` times our ``b``: it is
-    an angular frequency, while warpbw's unit is cycles/radian (DESIGN.md), so we drop the 2 pi.
+    an angular frequency, while warpbw's unit is cycles/radian (../shared/DESIGN.md), so we drop the 2 pi.
     Why the largest eigenvalue: it is exact for variations along the texel's longest side (both
     axes at the equator of a 2:1 map, latitude everywhere), and it stays finite at the poles,
     where the smaller eigenvalue ``2 pi sin(theta) / W`` goes to 0 and dividing by it would turn

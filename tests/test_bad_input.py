@@ -942,11 +942,18 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["compare_mitsuba.py", "--probe", "missing.exr"], "--probe missing.exr: no such file"),
 ])
 def test_examples_refuse_bad_arguments_in_one_line(tmp_path, argv, needle):
-    """The example scripts answer bad arguments the way the commands do: status 2, the last stderr line
+    """The example scripts answer bad arguments the way the commands do: status 2, one stderr line
     '<script>: error: ...' naming the argument, no traceback (nor Warp's no-CUDA-driver line), and nothing
     written."""
     example_error(run_example(argv, tmp_path), argv[0], needle)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("script", sorted(p.name for p in EXAMPLES_DIR.glob("*.py")))
+def test_every_example_refuses_an_unknown_option_in_one_line(tmp_path, script):
+    """(Scripts with a required argument name that one first.)"""
+    last = example_error(run_example([script, "--no-such-option"], tmp_path), script, f"(see '{script} --help')")
+    assert "--no-such-option" in last or "required" in last, last
 
 
 def run_example(argv, cwd: Path) -> subprocess.CompletedProcess:
@@ -957,7 +964,9 @@ def run_example(argv, cwd: Path) -> subprocess.CompletedProcess:
 def example_error(r: subprocess.CompletedProcess, script: str, *needles: str) -> str:
     assert "Traceback" not in r.stderr and "CUDA driver" not in r.stderr, r.stderr
     assert r.returncode == EXIT_USER_ERROR, (r.returncode, r.stderr)
-    last = r.stderr.strip().splitlines()[-1]
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, r.stderr        # argparse's usage block was printed above the error until session 38
+    last = lines[0]
     assert last.startswith(Path(script).stem) and ": error: " in last, last
     for n in needles:
         assert n in last, last

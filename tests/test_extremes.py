@@ -504,3 +504,22 @@ def test_a_scene_scaled_from_1e_minus_8_to_1e11_renders_the_same_images(city, tm
             np.testing.assert_allclose(ref.image, ref1.image, rtol=0, atol=1e-4 * ref1.image.max())
             assert ada.stats["shaded_fraction"] == ada1.stats["shaded_fraction"], s
             np.testing.assert_allclose(ada.image, ada1.image, rtol=0, atol=1e-4 * ada1.image.max())
+
+
+def test_adaptive_frame_that_overspends_its_budget_says_so():
+    """Under a constant environment the plan shades one texel; the texels the up-sampling cannot fill at the
+    silhouette are shaded at the cap N_max = 256 x budget: the frame spends several times its budget, and warns
+    with the count (it was silent).  Under a varying sky the overrun stays small and nothing is said."""
+    from warpbw.pipeline import OVERSPEND_WARN_RATIO, render_adaptive
+
+    s = scene(env="constant = [1.0, 1.0, 1.0]", objects=[((0.0, 0.0, 0.0), 1.0, "g")], alpha=0.5)
+    with pytest.warns(UserWarning, match=r"extremes: the frame spent .* against a budget of 2: the allocation "
+                                         r"planned \d+ shaded texels, and \d+ more"):
+        res = render_adaptive(s, budget=2.0, seed=1)
+    assert res.stats["samples_per_covered_pixel"] > OVERSPEND_WARN_RATIO * 2.0
+    assert not res.stats["allocation"]["over_budget"]
+    sky = scene(env='procedural = "sky"', objects=[((0.0, 0.0, 0.0), 1.0, "g")], alpha=0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = render_adaptive(sky, budget=2.0, seed=1)
+    assert res.stats["samples_per_covered_pixel"] <= OVERSPEND_WARN_RATIO * 2.0

@@ -120,6 +120,25 @@ def test_adaptive_adds_the_lights_exactly_after_the_up_sampling():
     assert "lights" in both.stats["time_s"] and "lights" not in env_only.stats["time_s"]
 
 
+@pytest.mark.parametrize("mis", [False, True])
+def test_adaptive_frame_uses_the_lights_kernel_it_compiled_before_timing(monkeypatch, mis):
+    """The frame compiles its kernels before it times its stages (the "compile" stage); the lights' kernel it
+    then runs must be the variant it compiled: with MIS a different one was built inside the timed lights stage."""
+    from warpbw import shading
+
+    made = []
+    real = shading._reference_kernel
+
+    def recording(*key):
+        made.append(key)
+        return real(*key)
+
+    monkeypatch.setattr(shading, "_reference_kernel", recording)
+    render_adaptive(scene(mat=GGX, env=SKY, lights=[light()], w=24, h=24), budget=1.0, seed=1, mis=mis)
+    lights_only = {k for k in made if not k[3]}                  # has_env False: the lights' term alone
+    assert lights_only == {(k[0], mis, False, False, True) for k in lights_only} and len(lights_only) == 1
+
+
 def test_adaptive_and_the_bandwidth_pass_refuse_a_scene_lit_by_lights_alone():
     """Lights alone are exact at any spp: there is nothing to adapt, and the pass has nothing to predict."""
     from warpbw.errors import WarpbwError

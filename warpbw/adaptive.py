@@ -210,7 +210,7 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
     t_lights = 0.0
     if lights is not None:
         t0 = time.perf_counter()
-        direct = shade_reference(gb, materials, None, 0, device=device, threads=threads, lights=lights)
+        direct = shade_reference(gb, materials, None, 0, mis=mis, device=device, threads=threads, lights=lights)
         image = image + direct.radiance.numpy().reshape(H, W, 3)
         non_finite += direct.non_finite
         t_lights = time.perf_counter() - t0

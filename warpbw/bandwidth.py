@@ -1,7 +1,9 @@
 """Bandwidth buffer (002 Sec. 2.2, 2.4-2.6, 3.1): per pixel nu, b_p, shading level, variance bound, N_p.
 
 Public:
-    ``N_B_DEFAULT``, ``NYQUIST_FACTOR``, ``N_P_MIN_DEFAULT``, ``N_P_MAX_PER_BUDGET``, ``LUMINANCE``
+    ``N_B_DEFAULT``, ``N_B_MAX``, ``NYQUIST_FACTOR``, ``N_P_MIN_DEFAULT``, ``N_P_MAX_PER_BUDGET``, ``BUDGET_MAX``,
+    ``ALLOCATION_DEFAULT``, ``LUMINANCE``
+    ``make_bandwidth_kernel(kinds, preconvolved)``   the pass's kernel (compiled ahead by the pipeline)
     ``BandwidthTables`` (Warp struct) / ``make_bandwidth_tables(nu_env, nu_rho, device)``
     ``nu_env_table(nu_env) -> (h, w)``   the environment's nu_a, max-filtered to at most LIGHT_TABLE_WIDTH columns
     ``env_bandwidth_map(pixels, name, cache=None) -> ((H, W) float32 cycles/rad, origin)``
@@ -10,6 +12,7 @@ Public:
     ``BandwidthBuffer`` (``.estimator_variance(mis)``) /
     ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ..., stride, pool_radius)``
     ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max, allocation, mis)``; ``ALLOCATIONS``
+    ``planned_shading(buf, device, key)``   the key of the texels the hierarchy will shade; ``pixel_angle(cam)``
     ``PASS_STRIDE_DEFAULT``, ``POOL_RADIUS_DEFAULT``
     Warp functions ``brdf_nu_rho(nu_rho, m, wi, wo)`` and ``nu_env_at_uv(nu_env, uv)`` (table look-ups)
 
@@ -36,7 +39,7 @@ silent:
   (our first version, and what the bound of Sec. 2.4 assumes) miss the lobe of a sharp BRDF and the
   sun of a probe: 16 of them put a chrome sphere's highlights at coarse levels (measured: PSNR stuck at
   32.5 dB whatever the budget) and gave variance rank correlations of 0.1-0.3 against brute force
-  (examples/validate_bandwidth.py); MIS directions, shared and pooled as below, reach 0.68-0.93,
+  (examples/validate_bandwidth.py); MIS directions, shared and pooled as below, reach 0.69-0.96,
   conservative on >= 99.7% of pixels.
 * Sharing: the directions are traced once per ``stride x stride`` block whose pixels are all covered
   and alike (:func:`alike`: same material, depths within ``BLOCK_DEPTH_TOL``, normals within

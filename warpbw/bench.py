@@ -1,8 +1,8 @@
-"""Speed against accuracy: the measurement protocol of DESIGN.md for ``warpbw bench``.
+"""Speed against accuracy: the measurement protocol of ../shared/DESIGN.md for ``warpbw bench``.
 
 Public:
-    ``GT_CHUNK_SPP``, ``DEFAULT_SPP``, ``DEFAULT_BUDGETS``
-    ``ground_truth(prep, gt_spp, cache_dir, ...) -> GroundTruth``   cached, with the doubling check
+    ``GT_CHUNK_SPP``, ``DEFAULT_SPP``, ``DEFAULT_BUDGETS``, ``DEFAULT_GT_SPP``, ``NB_SWEEP_BUDGET``, ``DOUBLING_DB``
+    ``GroundTruth`` / ``ground_truth(prep, gt_spp, cache_dir, ...)``   cached, with the doubling check
     ``equal_quality_time(ref_records, mse) -> (time_s, extrapolated)``   log-log interpolation
     ``psnr_standard_error(mses)``, ``paired_difference_se(mses_a, mses_b)``   noise of the PSNR figures (dB)
     ``speedup_relative_se(ref_records, mse, psnr_se_db)``   noise of an equal-quality speed-up (relative)
@@ -64,7 +64,7 @@ GT_CHUNK_SPP = 4096                                   # spp per cached ground-tr
 DEFAULT_SPP = (1, 2, 4, 8, 16, 32, 64, 128, 256)      # reference sweep
 DEFAULT_BUDGETS = (0.5, 1, 2, 4, 8, 16, 32)           # adaptive sweep, mean samples per covered pixel
 DEFAULT_GT_SPP = 8192
-DOUBLING_DB = 0.5                                     # DESIGN.md: doubling the GT spp changes PSNR by < 0.5 dB
+DOUBLING_DB = 0.5                                     # ../shared/DESIGN.md: doubling GT spp moves PSNR < 0.5 dB
 NB_SWEEP_BUDGET = 8                                   # budget of the n_b sweep unless given
 DB_PER_LN = 10.0 / math.log(10.0)                     # d(10 log10 m) = DB_PER_LN dm / m
 SPEEDUP_SE_STEP = 0.05                                # log-MSE step of the slope d log t_eq / d log MSE

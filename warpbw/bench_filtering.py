@@ -2,7 +2,7 @@
 filtered method along a zoom-out, against the ground truth.
 
 Public:
-    ``DEFAULT_ZOOMS``, ``DEFAULT_GT_SPP``, ``FLICKER_STEP``
+    ``DEFAULT_ZOOMS``, ``DEFAULT_GT_SPP``, ``FLICKER_STEP``, ``FLICKER_PAIRS_MAX``
     ``colour_error(image, ref, mask) -> float``     per-pixel normalised Euclidean colour error, mean
     ``flicker(a0, a1, g0, g1, mask, norm) -> float``  frame-to-frame change in excess of the ground truth's
     ``temporal_error(a0, a1, g0, g1, mask, norm) -> float``  frame-to-frame change's distance to the truth's

@@ -3,7 +3,10 @@
 Public:
     ``MaterialTable``               Warp struct: every material's parameters and tabulated data
     ``BrdfFuncs`` / ``make_brdf_funcs(kinds)``  the eval / sample / pdf ``wp.func`` s for a set of kinds
-    ``build_material_table(specs, device)``     host: pack material specs into a ``MaterialTable``
+    ``MaterialSpec``                one material's kind and parameters, as the scene gives them
+    ``build_material_table(specs, device) -> MaterialBuffers``  host: pack material specs into a ``MaterialTable``
+    ``pack_npf_curves(rho_d, rho_s, d, g1, f)``  an NPF fit's curves in the table's layout
+    ``KIND_NAMES``                  material type name -> kind id
     ``eval_brdf(...)``, ``sample_brdf(...)``, ``pdf_brdf(...)``  host wrappers (numpy in, numpy out) for tests
     ``LAMBERT``, ``GGX``, ``MERL``, ``NPF``     material kind ids
 

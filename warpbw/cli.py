@@ -591,7 +591,10 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="render a scene with the forward reference estimator",
                        description="Render SCENE with N BRDF-importance samples per pixel (002 Eq. 2). Writes "
                        "OUT.exr (linear radiance, A = coverage), OUT.png (sRGB preview) and OUT.json (time per "
-                       "stage, samples, which stages ran).")
+                       "stage, samples, which stages ran; for a scene of planes, filtered by --filter: the "
+                       "filter, its mean mip level and the frame's time, and the mip level map as "
+                       "OUT.level.exr / .png; planes beside spheres or meshes: under 'planes', with "
+                       "OUT.mip_level.exr / .png).")
     r.add_argument("scene", help="scene file (TOML)")
     r.add_argument("-o", "--output", required=True, help="output EXR path")
     r.add_argument("--mis", action="store_true",
@@ -646,7 +649,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("-q", "--quiet", action="store_true", help="only the final table")
 
     bn = sub.add_parser("bench", help="speed against accuracy: adaptive shading vs the reference",
-                        description="The measurement protocol of DESIGN.md on SCENE: a cached ground truth (MIS, "
+                        description="The measurement protocol on SCENE: a cached ground truth (MIS, "
                         "--gt-spp), the reference at each --spp, adaptive shading at each --budget, each timed as the "
                         "median of --runs frames after a warm-up; PSNR and relative MSE over covered pixels (with two "
                         "runs or more, the PSNR's standard error over the runs); the equal-quality speed-up (reference "

@@ -4,7 +4,7 @@ Public: ``WarpbwError``; ``is_int(value)`` (an int or numpy integer, not a bool)
 ``check_count(value, name, lo, hi=None) -> int`` (such an integer in lo..hi, else a ``WarpbwError`` naming
 ``name``); ``check_input_file(path, expected) -> Path`` (an existing file, else a ``WarpbwError`` saying
 whether it is missing or a directory);
-the bounds ``INT32_MAX``, ``FLOAT32_MAX`` and ``SEED_MAX`` that user values are checked against.
+the bounds ``INT32_MAX``, ``FLOAT32_MAX``, ``SEED_MAX`` and ``BRDF_VALUE_MAX`` that user values are checked against.
 
 Anything the user can cause (a bad file, a bad key in a scene, a bad CLI value) is raised as
 ``WarpbwError`` with a one-line message that names the file or key and says what was expected.

@@ -5,6 +5,8 @@ ground truth.
 Public:
     ``METHODS``                          the filtered methods: gmm_aligned, gmm_unaligned, toksvig, lean, fixed
     ``ALL_METHODS``                      ``METHODS`` + ``ground_truth``
+    ``DEFAULT_ENV_SPP``, ``MIN_GT_SPP``, ``DEFAULT_GT_SPP``   environment samples and ground-truth rays per pixel
+    ``FilteringScene``                   what ``prepare_filtering`` returns: the planes' mipmaps on the device
     ``prepare_filtering(scene, methods, device, progress, cache, env) -> FilteringScene``   load / build the mipmaps
     ``render_filtering(scene, method, spp, seed, device, prepared, camera, progress, lod_bias, threads,
                        env_spp, max_anisotropy, background)``        -> ``FilterResult``

@@ -5,18 +5,21 @@ Public:
     ``make_camera(position, look_at, up, fov_deg, width, height)`` -> ``CameraData``
     ``scene_camera(camera) -> CameraData``   a scene's [camera] (``warpbw.scene.Camera``)
     ``camera_rays(cam) -> (origins, dirs)``  numpy, for tests and examples
+    ``SphereSpec``, ``MeshSpec``     one sphere / mesh as ``build_geometry`` takes it
     ``Geometry`` / ``build_geometry(spheres, meshes, device)``  scene geometry on the device
     ``update_mesh(geometry, mesh_index, vertices, normals=None, curvature=None)``  deform one mesh in place and
                                      refit the BVH (dynamic geometry, 002 Sec. 4.3, Fig. 18)
     ``GBufferData``                  Warp struct: the per-pixel buffers, as kernels read them
     ``GBuffer`` / ``render_gbuffer(cam, geometry, device, threads)``     run the pass
+    ``make_gbuffer_kernel(has_spheres, has_mesh)``, ``allocate_gbuffer(width, height, device)``   its kernel
+                                     (the pipeline compiles it ahead) and its buffers
     ``check_reach(cam, geometry)``   refuse a camera too far from (or, scaled down, too near) the geometry for
                                      float32 intersection (``SPHERE_REACH_MAX``, ``MESH_REACH_MAX``,
                                      ``SPHERE_REACH_MIN``, ``MESH_REACH_MIN``; render_gbuffer calls it)
     ``hide_beyond(gbuffer, cam, distance, device) -> int``   empty the pixels whose surface lies beyond a
                                      per-pixel distance along the centre ray (hidden by something nearer)
 
-Conventions (DESIGN.md): right-handed world, +Y up; the camera looks along ``forward`` with
+Conventions (../shared/DESIGN.md): right-handed world, +Y up; the camera looks along ``forward`` with
 ``right = normalize(forward x up)`` to the right of the image and row 0 at the top; ``fov`` is the full
 angle along the image width.  Pixel (x, y) is sampled at its centre.  Buffers are flat, row-major,
 ``index = y * width + x``.  ``depth`` is the distance along ``forward`` (camera-space z), 0 where no

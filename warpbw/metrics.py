@@ -1,4 +1,4 @@
-"""Image error metrics over the pixels covered by geometry (DESIGN.md measurement protocol).
+"""Image error metrics over the pixels covered by geometry (../shared/DESIGN.md measurement protocol).
 
 Public: ``psnr(test, ref, mask)``, ``relmse(test, ref, mask)``, ``mse(test, ref, mask)``,
 ``compare_images(test, ref, mask) -> dict``, ``coverage_from_alpha(pixels, channels)``.

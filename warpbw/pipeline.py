@@ -10,6 +10,8 @@ Public:
     ``render_with_planes(scene, filter_method, spp, seed, method, budget, ...) -> RenderResult``
                                        a scene with both: the spheres and meshes, then the planes over them
     ``scene_summary(scene) -> dict``   what the scene needs (for ``warpbw info``), without loading it
+    ``stages_used(prep, mis, adaptive)``, ``PreparedScene``, ``RenderResult``   the stages a frame ran; the
+                                       two results above
 
 A material kind the scene does not use is not compiled (its branch is removed from the kernels with
 ``wp.static``); spheres and meshes each have their own G-buffer path; one table per tabulated material
@@ -30,6 +32,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,6 +44,9 @@ from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, hide_
                             scene_camera)
 from warpbw.scene import MeshObject, PlaneObject, Scene, SphereObject
 
+# An adaptive frame that spends more than this multiple of its budget (without being over budget by its plan)
+# says so: under the benchmark's probes the texels the up-sampling cannot fill add 0.2-16% to the plan.
+OVERSPEND_WARN_RATIO = 1.25
 
 @dataclass
 class PreparedScene:
@@ -452,6 +458,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     if hidden is not None:
         stats["pixels_hidden"] = hidden
     stats["time_s"] = {k: round(v, 6) for k, v in timings.items()}
+    _warn_if_overspent(stats, alloc, n_cov, prep.scene.source)
     aovs = {
         "level": buf.level.numpy().reshape(H, W),
         "n_p": alloc.n_p,
@@ -462,6 +469,22 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
         "sigma2": buf.sigma2.numpy().reshape(H, W),
     }
     return RenderResult(res.image, gb.coverage, gb, stats, aovs)
+
+
+def _warn_if_overspent(stats: dict, alloc, n_cov: int, source) -> None:
+    """Say so when the frame spent well beyond its budget without being flagged over budget: the allocation
+    spreads the budget over the texels it plans to shade, and texels the up-sampling then cannot fill (a depth
+    edge, an empty parent) are shaded as well, at the N_p of their footprint -- n_max everywhere when the plan
+    left budget over (a constant environment: one planned texel; session 38's numerical-extremes audit)."""
+    budget = stats["budget_spp"]
+    spent = stats["samples_per_covered_pixel"]
+    if alloc.over_budget or not n_cov or spent <= OVERSPEND_WARN_RATIO * budget:
+        return
+    extra = sum(lv["shaded"] for lv in stats["levels"]) - alloc.planned_pixels
+    warnings.warn(f"{source}: the frame spent {spent:.3g} samples per covered pixel against a budget of {budget:g}: "
+                  f"the allocation planned {alloc.planned_pixels} shaded texels, and {max(extra, 0)} more that the "
+                  f"up-sampling could not fill were shaded too, at up to n_max = {alloc.stats['n_max']} samples "
+                  "each (the plan cannot foresee them)", stacklevel=3)
 
 
 def split_planes(scene: Scene) -> tuple:

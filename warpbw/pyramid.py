@@ -41,7 +41,7 @@ reductions, but Eq. 11 stops at level 1); those extra levels are harmless and co
 NaN in float values: the min filter reads NaN as ``-inf`` and the max filter as ``+inf`` (both the
 conservative extreme: finest level, largest variance), from level 0 on; level 0 is a sanitised copy.
 
-Arrays are ``wp.array2d`` of shape (rows = H, cols = W), row 0 at the top (DESIGN.md); flat
+Arrays are ``wp.array2d`` of shape (rows = H, cols = W), row 0 at the top (../shared/DESIGN.md); flat
 row-major buffers such as the G-buffer's (``index = y * W + x``) are accepted with ``width`` and
 ``height`` given.
 """

@@ -6,6 +6,7 @@ Public:
     ``default_scene() -> Scene``                the embedded demo scene (needs no file)
     ``Scene``, ``Camera``, ``Environment``, ``DirectionalLight``, ``SphereObject``, ``MeshObject``,
     ``PlaneObject``, ``Material``, ``DEFAULT_SCENE_TOML``
+    ``file_digest(path) -> str``               blake2b of a file's bytes (the content hashes of scenes and tables)
 
 Lights: an ``[environment]`` and/or ``[[light]]`` tables (``type = "directional"``, ``direction`` towards the
 light, ``radiance``); a scene needs at least one of them (``Scene.environment`` is None without one).

@@ -7,6 +7,8 @@ Public:
     ``to_local(frame, w)`` / ``to_world(frame, w)``  directions between world and the frame (Warp)
     ``launch_tiled(kernel, n_items, make_inputs, device, threads, progress, tile, costs)``  CPU launches over threads
     ``tile_ranges(n_items, tile, costs) -> [(offset, count)]``  its tiles: equal counts, or equal summed costs
+    ``covered_pixels(gb, device) -> wp.array``  the covered pixels' indices; ``default_threads(device)``
+    ``lighting_inputs(env_data, lights)``  the kernel's environment and lights arguments (placeholders if absent)
 
 Per pixel p with surface point x, normal n and view direction wo (ignoring visibility, as 002 Eq. 1):
 

@@ -41,7 +41,7 @@ from warpbw.errors import FLOAT32_MAX, WarpbwError, check_input_file
 # cotangents would overflow the float64 sums of well-shaped neighbours.
 DEGENERATE_REL_AREA = 1e-12
 # Normal given to a vertex with no incident area (unreferenced or only degenerate faces): +Y, "up"
-# in the project's world convention (DESIGN.md).
+# in the project's world convention (../shared/DESIGN.md).
 FALLBACK_NORMAL = (0.0, 1.0, 0.0)
 # Lazy one-ring passes (x <- (x + one-ring mean) / 2) that average |H| into the curvature the bandwidth pass
 # reads (local_curvature): an RMS reach of about two rings (the bunny's edge is about 2 px at the validation
