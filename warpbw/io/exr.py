@@ -20,7 +20,7 @@ names the file.
 """
 from __future__ import annotations
 
-import sys
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -108,8 +108,9 @@ def read_exr(path) -> ExrImage:
         said = "; ".join(line.replace(f"{path}: ", "").strip() for line in native if line.strip())
         raise WarpbwError(f"{path}: unreadable OpenEXR file, truncated or corrupt ({_one_line(exc)}"
                           f"{'; ' + said if said else ''})") from None
-    for line in native:            # a file that read: pass on whatever the library had to say
-        print(line, file=sys.stderr)
+    for line in native:            # a file that read: pass on whatever the library had to say, a warning a line
+        if line.strip():
+            warnings.warn(f"{path}: OpenEXR: {line.replace(f'{path}: ', '').strip()}", stacklevel=2)
     for name, ch in chans.items():
         if getattr(ch, "xSampling", 1) != 1 or getattr(ch, "ySampling", 1) != 1:
             raise WarpbwError(f"{path}: channel {name!r} is subsampled ({ch.xSampling}x{ch.ySampling}); expected "
