@@ -413,7 +413,7 @@ def check_conventions(mi) -> None:
 # -------------------------------------------------------------------------------------------- main
 def parse_args(argv=None):
     p = OneLineParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+                      formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--spp", type=int, default=1024, help="samples per pixel for both renderers (1024)")
     p.add_argument("--mitsuba-spp", type=int, default=None, help="Mitsuba's spp if different from --spp")
     p.add_argument("--resolution", type=int, default=256, help="square image side in pixels (256)")

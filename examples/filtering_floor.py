@@ -328,8 +328,8 @@ def format_table(rec: dict) -> str:
 
 def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter,
-                                 epilog="The scenes: python examples/filtering_scenes.py --out DIR (DIR/*.toml).")
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="The scenes: python examples/filtering_scenes.py --out DIR (DIR/*.toml).")
     ap.add_argument("scenes", nargs="+", type=Path, help="scene files: one normal-mapped plane, directional lights")
     ap.add_argument("--zoom", default=DEFAULT_ZOOMS, help=f"zoom factors (default {DEFAULT_ZOOMS})")
     ap.add_argument("--gt-spp", type=int, default=DEFAULT_GT_SPP,

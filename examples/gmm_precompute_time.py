@@ -20,8 +20,8 @@ SIZE = 512           # issue 4 acceptance: "a 512x512 height field with 4 compon
 
 def main(argv=None) -> int:
     ap = OneLineParser(description="Wall time of the GMM mipmap precompute (warpbw-precompute gmm) "
-                                 "of each procedural test surface (issue 4's aim: 512x512, 4 components, "
-                                 "under 60 s on 2 cores).")
+                       "of each procedural test surface (issue 4's aim: 512x512, 4 components, "
+                       "under 60 s on 2 cores).")
     ap.add_argument("--size", type=int, default=SIZE, help=f"height-field side in texels (default {SIZE})")
     ap.add_argument("--components", type=int, default=DEFAULT_COMPONENTS,
                     help=f"Gaussians per texel (default {DEFAULT_COMPONENTS})")
