@@ -458,7 +458,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     if hidden is not None:
         stats["pixels_hidden"] = hidden
     stats["time_s"] = {k: round(v, 6) for k, v in timings.items()}
-    _warn_if_overspent(stats, alloc, n_cov, prep.scene.source)
+    _warn_if_overspent(stats, alloc, prep.scene.source)
     aovs = {
         "level": buf.level.numpy().reshape(H, W),
         "n_p": alloc.n_p,
@@ -471,14 +471,14 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     return RenderResult(res.image, gb.coverage, gb, stats, aovs)
 
 
-def _warn_if_overspent(stats: dict, alloc, n_cov: int, source) -> None:
+def _warn_if_overspent(stats: dict, alloc, source) -> None:
     """Say so when the frame spent well beyond its budget without being flagged over budget: the allocation
     spreads the budget over the texels it plans to shade, and texels the up-sampling then cannot fill (a depth
     edge, an empty parent) are shaded as well, at the N_p of their footprint -- n_max everywhere when the plan
     left budget over (a constant environment: one planned texel; session 38's numerical-extremes audit)."""
     budget = stats["budget_spp"]
     spent = stats["samples_per_covered_pixel"]
-    if alloc.over_budget or not n_cov or spent <= OVERSPEND_WARN_RATIO * budget:
+    if alloc.over_budget or spent <= OVERSPEND_WARN_RATIO * budget:   # (an empty frame spends 0)
         return
     extra = sum(lv["shaded"] for lv in stats["levels"]) - alloc.planned_pixels
     warnings.warn(f"{source}: the frame spent {spent:.3g} samples per covered pixel against a budget of {budget:g}: "
