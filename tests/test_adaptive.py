@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from warpbw.adaptive import shade_hierarchical
+from warpbw.adaptive import plan_hierarchy, shade_hierarchical
 from warpbw.pipeline import prepare_scene, render_reference
 from warpbw.scene import parse_scene
 
@@ -101,6 +101,38 @@ def test_mixed_levels_fill_every_covered_pixel_and_spend_each_footprints_max_sam
                    for L in range(4))
     assert len(set(sl[r.shaded].tolist())) == 4    # all four levels shade something
     assert r.stats["samples"] == expected
+
+
+def test_the_plan_names_every_texel_the_hierarchy_shades_before_any_sample():
+    """plan_hierarchy reads only the levels and the G-buffer.  Its shaded texels include those whose min-filtered
+    level is coarser than their own but whose parents lie at another depth (the near sphere's silhouette over the
+    far one) or on the background; the hierarchy then shades exactly these (its up-sampling with real values
+    finds no texel it cannot fill beyond them), and a plan that leaves them out is caught doing so."""
+    from dataclasses import replace
+
+    from warpbw.pyramid import build_pyramid
+
+    prep, base = setup('type = "ggx"\nalpha = 0.2\nspecular = [1.0, 1.0, 1.0]', env='procedural = "sky"',
+                       w=48, h=32)
+    level = np.full(base.coverage.shape, 2, np.int32)
+    spp = np.full(base.coverage.shape, 4, np.int32)
+    plan = plan_hierarchy(base.gbuffer, prep.camera, level)
+    mins = build_pyramid(level, op="min").levels
+    masks = plan.shade_masks()
+    edge = [masks[L] & (mins[L].numpy() > L) for L in range(len(masks))]
+    assert edge[0].any() and edge[1].any(), [int(e.sum()) for e in edge]   # at levels 0 and 1 (measured: 3, 2)
+    r = shade_hierarchical(base.gbuffer, prep.camera, prep.materials, prep.env.data, level, spp, seed=5, plan=plan)
+    assert r.stats["unplanned_shaded"] == 0
+    assert [lv["shaded"] for lv in r.stats["levels"]] == [len(pl.shade) for pl in plan.levels]
+    assert r.stats["samples"] == 4 * plan.shaded_texels
+    # the same plan without the level-0 edge texels: the run finds them and shades them anyway
+    pl0 = plan.levels[-1]
+    keep = ~edge[0].reshape(-1)[pl0.shade]
+    cut = replace(plan, levels=plan.levels[:-1] + [replace(pl0, shade=pl0.shade[keep],
+                                                            upsample=np.union1d(pl0.upsample, pl0.shade[~keep]))])
+    r2 = shade_hierarchical(base.gbuffer, prep.camera, prep.materials, prep.env.data, level, spp, seed=5, plan=cut)
+    assert r2.stats["unplanned_shaded"] == int(edge[0].sum()) > 0
+    np.testing.assert_array_equal(r2.image, r.image)
 
 
 def test_thread_count_and_tiling_do_not_change_the_frame():

@@ -462,7 +462,7 @@ def test_adaptive_refuses_radiance_whose_square_overflows_the_bandwidth_pass(all
     s = scene(env="constant = [1e15, 1e15, 1e15]", objects=objs, resolution=(24, 16))
     res = render_adaptive(s, budget=2.0, seed=1, allocation=allocation)
     assert_adaptive_clean(res)
-    assert res.stats["samples"] <= 1.15 * 2.0 * res.coverage.sum()
+    assert res.stats["samples"] <= 2.0 * res.coverage.sum()
     np.testing.assert_allclose(res.image[res.coverage], 0.8e15, rtol=1e-5)  # Lambert 0.8 under a constant sky
 
 
@@ -506,20 +506,24 @@ def test_a_scene_scaled_from_1e_minus_8_to_1e11_renders_the_same_images(city, tm
             np.testing.assert_allclose(ada.image, ada1.image, rtol=0, atol=1e-4 * ada1.image.max())
 
 
-def test_adaptive_frame_that_overspends_its_budget_says_so():
-    """Under a constant environment the plan shades one texel; the texels the up-sampling cannot fill at the
-    silhouette are shaded at the cap N_max = 256 x budget: the frame spends several times its budget, and warns
-    with the count (it was silent).  Under a varying sky the overrun stays small and nothing is said."""
-    from warpbw.pipeline import OVERSPEND_WARN_RATIO, render_adaptive
+def test_adaptive_frame_spends_at_most_its_budget_when_the_up_sampling_cannot_fill_texels():
+    """Under a constant environment the pass plans one texel at the top level, and the up-sampling cannot fill
+    the texels at the silhouette, whose parents lie on the background: they are shaded too.  Before session 39
+    the allocation did not count them, gave the planned texel the cap N_max = 256 x budget everywhere, and the
+    frame spent 4.8x its budget.  Now the allocation is spread over the hierarchy's own plan: the frame takes
+    exactly the samples the allocation planned, on the texels it planned, within the budget.  Under a sky too."""
+    from warpbw.pipeline import render_adaptive
 
-    s = scene(env="constant = [1.0, 1.0, 1.0]", objects=[((0.0, 0.0, 0.0), 1.0, "g")], alpha=0.5)
-    with pytest.warns(UserWarning, match=r"extremes: the frame spent .* against a budget of 2: the allocation "
-                                         r"planned \d+ shaded texels, and \d+ more"):
-        res = render_adaptive(s, budget=2.0, seed=1)
-    assert res.stats["samples_per_covered_pixel"] > OVERSPEND_WARN_RATIO * 2.0
-    assert not res.stats["allocation"]["over_budget"]
-    sky = scene(env='procedural = "sky"', objects=[((0.0, 0.0, 0.0), 1.0, "g")], alpha=0.5)
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        res = render_adaptive(sky, budget=2.0, seed=1)
-    assert res.stats["samples_per_covered_pixel"] <= OVERSPEND_WARN_RATIO * 2.0
+    for env in ("constant = [1.0, 1.0, 1.0]", 'procedural = "sky"'):
+        s = scene(env=env, objects=[((0.0, 0.0, 0.0), 1.0, "g")], alpha=0.5)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            res = render_adaptive(s, budget=2.0, seed=1)
+        st, alloc = res.stats, res.stats["allocation"]
+        levels = res.aovs["level"][res.coverage]
+        shaded = sum(lv["shaded"] for lv in st["levels"])
+        assert not alloc["over_budget"] and st["unplanned_shaded"] == 0, env
+        assert (shaded, st["samples"]) == (alloc["planned_pixels"], alloc["planned_samples"]), env
+        assert st["samples"] <= 2.0 * res.coverage.sum(), env
+        if env.startswith("constant"):   # one level everywhere, one texel of it, and the silhouette's
+            assert levels.min() == levels.max() and st["levels"][0]["shaded"] == 1 and shaded > 1, st["levels"]

@@ -1,7 +1,9 @@
 """Hierarchical adaptive shading (002 Sec. 3.2, Fig. 8): shade coarse to fine, up-sample the rest.
 
 Public:
-    ``AdaptiveResult`` / ``shade_hierarchical(gb, cam, materials, env, level_map, spp_map, ...)``
+    ``HierarchyPlan`` / ``plan_hierarchy(gb, cam, level_map, device)``   which texels each level shades and
+                               up-samples, from the levels and the G-buffer alone (before any sample is drawn)
+    ``AdaptiveResult`` / ``shade_hierarchical(gb, cam, materials, env, level_map, spp_map, ..., plan)``
     ``load_kernels(device)``   compile (or load from Warp's cache) the hierarchy's own kernels
 
 Inputs are the per-pixel shading level (002 Eq. 11, 0 = finest; see :mod:`warpbw.pyramid`) and the
@@ -17,6 +19,15 @@ per-pixel sample count N_p.  The level is mip-mapped with a min filter and N_p w
 
 Level 0 then holds every covered pixel.  ``AdaptiveResult.stats`` counts pixels shaded and up-sampled
 per level and the samples spent.
+
+Which texels are shaded does not depend on what the shading returns: a parent can be used when it was shaded
+or up-sampled, and the up-sampling's weights read only depth, normal, view and those flags.  So
+:func:`plan_hierarchy` settles every level's texels first, with the weighted-mean up-sampling run on zeros, and
+the budget can be spread over exactly the texels that will be shaded, those the up-sampling cannot fill included
+(``warpbw.bandwidth.allocate_samples``'s ``plan``).  Before session 39 the allocation counted only the texels
+whose min-filtered level is their own (and, wrongly, those whose centre pixel is empty), and the others were
+shaded at their footprint's N_p on top of the budget: 0.2-16% more samples under the benchmark's probes, and
+4.8x the budget under a constant environment, where the plan is one texel and N_p is the cap everywhere.
 
 The hierarchy shades and up-samples the environment's part of the image only.  Directional lights
 (:mod:`warpbw.lights`) are exact and cost one BRDF evaluation per light, less than one sample: their term
@@ -131,6 +142,38 @@ class AdaptiveResult:
     stats: dict = field(default_factory=dict)
 
 
+@dataclass
+class PlanLevel:
+    level: int
+    size: tuple                  # (w, h) of the level
+    rep: wp.array                # (w h,) int32: the finest pixel that represents each texel
+    shade: np.ndarray            # texel indices shaded at this level (sorted)
+    upsample: np.ndarray         # texel indices up-sampled from the level above (sorted)
+
+
+@dataclass
+class HierarchyPlan:
+    """What :func:`shade_hierarchical` will do with ``level_map``, coarsest level first (module docstring)."""
+    width: int
+    height: int
+    level_map: np.ndarray        # (H, W) int32: the levels the plan was made for
+    levels: list                 # PlanLevel per level, coarsest first
+
+    def shade_masks(self) -> list:
+        """Per level, finest first: (h_L, w_L) bool, the texels shaded at that level."""
+        out = []
+        for pl in reversed(self.levels):
+            w, h = pl.size
+            m = np.zeros(w * h, bool)
+            m[pl.shade] = True
+            out.append(m.reshape(h, w))
+        return out
+
+    @property
+    def shaded_texels(self) -> int:
+        return int(sum(len(pl.shade) for pl in self.levels))
+
+
 def _int_map(a, h, w, name):
     a = np.asarray(a.numpy() if isinstance(a, wp.array) else a)
     if a.size != h * w:
@@ -138,56 +181,94 @@ def _int_map(a, h, w, name):
     return np.ascontiguousarray(a.reshape(h, w).astype(np.int32))
 
 
+def _classify(gb: GBuffer, levels, L: int, device: str):
+    w, h = level_size(gb.width, gb.height, L)
+    mode = wp.zeros(w * h, dtype=wp.int32, device=device)
+    rep = wp.zeros(w * h, dtype=wp.int32, device=device)
+    wp.launch(classify_level_kernel, dim=w * h, inputs=[gb.data, L, w, levels.levels[L], mode, rep], device=device)
+    return (w, h), mode.numpy(), rep
+
+
+def plan_hierarchy(gb: GBuffer, cam: CameraData, level_map, device: str = "cpu") -> HierarchyPlan:
+    """The texels each level will shade and up-sample for ``level_map`` (module docstring): classify each level,
+    then run the up-sampling's weights on zeros to find the texels no parent can fill, which are shaded too."""
+    W, H = gb.width, gb.height
+    level = _int_map(level_map, H, W, "level_map")
+    levels = build_pyramid(level, op="min", device=device)
+    cov = gb.coverage
+    top = min(int(level[cov].max()) if cov.any() else 0, levels.num_levels - 1)
+    out = []
+    parent_valid = None
+    for L in range(top, -1, -1):
+        (w, h), mode_np, rep = _classify(gb, levels, L, device)
+        up = np.flatnonzero(mode_np == MODE_UPSAMPLE)
+        shade = np.flatnonzero(mode_np == MODE_SHADE)
+        if parent_valid is None:
+            shade, up = np.union1d(shade, up), up[:0]   # the coarsest level has no parents: shade it all
+        elif len(up):
+            todo = np.zeros(w * h, np.int32)
+            todo[up] = 1
+            pw, ph = level_size(W, H, L + 1)
+            r = upsample_level(gb.data, cam, L, np.zeros((pw * ph, 3), np.float32), parent_valid, todo,
+                               device=device, mode="paper")
+            need = r.needs_shading.numpy()[up] != 0
+            shade, up = np.union1d(shade, up[need]), up[~need]
+        valid = np.zeros(w * h, np.int32)
+        valid[shade] = 1
+        valid[up] = 1
+        parent_valid = wp.array(valid, dtype=wp.int32, device=device)
+        out.append(PlanLevel(L, (w, h), rep, shade, up))
+    return HierarchyPlan(W, H, level, out)
+
+
 def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env_data: EnvMapData,
                        level_map, spp_map, seed: int = 0, mis: bool = False, device: str = "cpu",
                        threads: int | None = None, lights: Lights | None = None,
-                       upsample: str = UPSAMPLE_DEFAULT) -> AdaptiveResult:
+                       upsample: str = UPSAMPLE_DEFAULT, plan: HierarchyPlan | None = None) -> AdaptiveResult:
     """Coarse-to-fine shading of the covered pixels with per-pixel levels and sample counts; ``lights``
     (directional, or None) are then added exactly at every covered pixel (module docstring).  ``upsample``:
-    "normal" or "paper" (:mod:`warpbw.upsample`)."""
+    "normal" or "paper" (:mod:`warpbw.upsample`).  ``plan``: :func:`plan_hierarchy`'s for ``level_map``
+    (made here when None)."""
     check_upsample_mode(upsample)
     if env_data is None:
         raise WarpbwError("adaptive shading: the scene has no environment to adapt to (directional lights alone "
                           "are exact at any spp: use the reference renderer)")
     W, H = gb.width, gb.height
     level = _int_map(level_map, H, W, "level_map")
+    if plan is None:
+        plan = plan_hierarchy(gb, cam, level, device=device)
+    elif (plan.width, plan.height) != (W, H) or not np.array_equal(plan.level_map, level):
+        raise ValueError("plan: made for another level map")
     spp = np.maximum(_int_map(spp_map, H, W, "spp_map"), 0)
-    levels = build_pyramid(level, op="min", device=device)
     spps = build_pyramid(spp, op="max", device=device)
     cov = gb.coverage
-    top = int(level[cov].max()) if cov.any() else 0
-    top = min(top, levels.num_levels - 1)
     shaded_full = wp.zeros(W * H, dtype=wp.vec3, device=device)
     spp_at_pixel = wp.zeros(W * H, dtype=wp.int32, device=device)
     shaded_level = np.full(W * H, -1, np.int64)
     per_level = []
     samples = 0
     non_finite = 0
+    unplanned = 0
     t_shade = t_up = 0.0
     parent_vals = parent_valid = None
-    for L in range(top, -1, -1):
-        w, h = level_size(W, H, L)
-        mode = wp.zeros(w * h, dtype=wp.int32, device=device)
-        rep = wp.zeros(w * h, dtype=wp.int32, device=device)
-        wp.launch(classify_level_kernel, dim=w * h, inputs=[gb.data, L, w, levels.levels[L], mode, rep],
-                  device=device)
-        mode_np = mode.numpy()
+    for pl in plan.levels:
+        L, (w, h), rep = pl.level, pl.size, pl.rep
         vals = wp.zeros(w * h, dtype=wp.vec3, device=device)
         valid = wp.zeros(w * h, dtype=wp.int32, device=device)
-        n_up = 0
-        to_shade = np.flatnonzero(mode_np == MODE_SHADE)
-        if parent_vals is not None:
+        to_shade = pl.shade
+        n_up = len(pl.upsample)
+        if n_up:
             t0 = time.perf_counter()
-            todo = (mode_np == MODE_UPSAMPLE).astype(np.int32)
+            todo = np.zeros(w * h, np.int32)
+            todo[pl.upsample] = 1
             r = upsample_level(gb.data, cam, L, parent_vals, parent_valid, todo, out=vals, out_valid=valid,
                                device=device, mode=upsample)
             t_up += time.perf_counter() - t0
             need = np.flatnonzero(r.needs_shading.numpy())
-            n_up = int(todo.sum()) - len(need)
-            to_shade = np.union1d(to_shade, need)
-        else:
-            # the coarsest level has no parents: anything marked for up-sampling is shaded here
-            to_shade = np.union1d(to_shade, np.flatnonzero(mode_np == MODE_UPSAMPLE))
+            if len(need):   # the plan read the same weights, so never; shaded rather than left empty
+                unplanned += len(need)
+                n_up -= len(need)
+                to_shade = np.union1d(to_shade, need)
         n_shaded = len(to_shade)
         if n_shaded:
             t0 = time.perf_counter()
@@ -217,6 +298,7 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
     sl = shaded_level.reshape(H, W)
     n_cov = int(cov.sum())
     stats = {"levels": per_level, "samples": samples, "non_finite_samples": non_finite, "pixels_covered": n_cov,
+             "unplanned_shaded": unplanned,
              "pixels_shaded": int((sl >= 0).sum()),
              "shaded_fraction": float((sl >= 0).sum() / n_cov) if n_cov else 0.0,
              "time_s": {"shading": t_shade, "upsampling": t_up, "lights": t_lights}}

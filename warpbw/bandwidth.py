@@ -11,8 +11,8 @@ Public:
     ``interleave_shifts(n_b, side) -> (side^2, 3)``     per-block offsets of the direction set
     ``BandwidthBuffer`` (``.estimator_variance(mis)``) /
     ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ..., stride, pool_radius)``
-    ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max, allocation, mis)``; ``ALLOCATIONS``
-    ``planned_shading(buf, device, key)``   the key of the texels the hierarchy will shade; ``pixel_angle(cam)``
+    ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max, allocation, mis, plan)``; ``ALLOCATIONS``
+    ``planned_shading(buf, device, key, plan)``   the key of the texels the hierarchy will shade; ``pixel_angle(cam)``
     ``PASS_STRIDE_DEFAULT``, ``POOL_RADIUS_DEFAULT``
     Warp functions ``brdf_nu_rho(nu_rho, m, wi, wo)`` and ``nu_env_at_uv(nu_env, uv)`` (table look-ups)
 
@@ -691,26 +691,31 @@ def _n_of(s: np.ndarray, v: float, n_min: int, n_max: int) -> np.ndarray:
     return np.clip(np.nan_to_num(n, nan=n_max, posinf=n_max), n_min, n_max).astype(np.int64)
 
 
-def planned_shading(buf: BandwidthBuffer, device: str = "cpu", key=None) -> np.ndarray:
-    """sigma2 (or ``key``) of the texels the hierarchy will shade (level L texels whose min-filtered
-    level is L), max-filtered over their footprints."""
+def planned_shading(buf: BandwidthBuffer, device: str = "cpu", key=None, plan=None) -> np.ndarray:
+    """sigma2 (or ``key``) of the texels the hierarchy will shade, max-filtered over their footprints.  ``plan``:
+    per level, finest first, a (h_L, w_L) bool mask of those texels (``warpbw.adaptive.HierarchyPlan.shade_masks``,
+    which knows the texels the up-sampling cannot fill); without one, the level-L texels of some coverage whose
+    min-filtered level is L."""
     W, H = buf.width, buf.height
-    levels = build_pyramid(buf.level, op="min", device=device)
     var = build_pyramid((buf.sigma2 if key is None else key).numpy().reshape(H, W), op="max", device=device)
-    cov = build_pyramid(buf.coverage.astype(np.int32), op="max", device=device)
-    cov_np = buf.coverage
-    top = int(buf.level.numpy()[cov_np].max()) if cov_np.any() else 0
-    top = min(top, levels.num_levels - 1)
-    out = []
-    for L in range(top + 1):
-        mask = (levels.levels[L].numpy() == L) & (cov.levels[L].numpy() > 0)
-        out.append(var.levels[L].numpy()[mask])
+    if plan is None:
+        levels = build_pyramid(buf.level, op="min", device=device)
+        cov = build_pyramid(buf.coverage.astype(np.int32), op="max", device=device)
+        cov_np = buf.coverage
+        top = int(buf.level.numpy()[cov_np].max()) if cov_np.any() else 0
+        top = min(top, levels.num_levels - 1)
+        plan = [(levels.levels[L].numpy() == L) & (cov.levels[L].numpy() > 0) for L in range(top + 1)]
+    if len(plan) > var.num_levels or any(np.shape(m) != tuple(var.shapes[L]) for L, m in enumerate(plan)):
+        raise ValueError(f"plan: expected up to {var.num_levels} masks of shapes {var.shapes}")
+    out = [var.levels[L].numpy()[np.asarray(m, bool)] for L, m in enumerate(plan)]
     return np.concatenate(out) if out else np.zeros(0, np.float32)
 
 
 def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_DEFAULT, n_max: int | None = None,
-                     allocation: str = ALLOCATION_DEFAULT, device: str = "cpu", mis: bool = True) -> SampleAllocation:
-    """N_p per pixel for ``budget`` samples per covered pixel: proportional to sigma2 ("variance", 002
+                     allocation: str = ALLOCATION_DEFAULT, device: str = "cpu", mis: bool = True,
+                     plan=None) -> SampleAllocation:
+    """N_p per pixel for ``budget`` samples per covered pixel, spread over the texels the hierarchy will shade
+    (``plan``, as ``planned_shading`` reads it): proportional to sigma2 ("variance", 002
     Sec. 2.4: constant variance), to its square root ("sqrt"), to sigma2 / L^2 ("relative"), constant
     ("uniform"), or to the standard deviation the pass measured for the renderer's estimator ("measured":
     the allocation that minimises the summed variance for a fixed budget; ``mis`` says which estimator,
@@ -736,7 +741,7 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     key = {"relative": buf.sigma2_rel, "measured": buf.estimator_variance(mis)}.get(allocation, buf.sigma2)
     if key is None:
         raise WarpbwError(f"allocation {allocation!r}: the bandwidth buffer has no measured variance")
-    s = planned_shading(buf, device, key).astype(np.float64) ** power
+    s = planned_shading(buf, device, key, plan).astype(np.float64) ** power
     n_plan = len(s)
     over = n_plan * n_min > total
     if n_plan == 0:

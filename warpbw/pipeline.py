@@ -32,7 +32,6 @@ from __future__ import annotations
 import contextlib
 import math
 import time
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -44,9 +43,6 @@ from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, hide_
                             scene_camera)
 from warpbw.scene import MeshObject, PlaneObject, Scene, SphereObject
 
-# An adaptive frame that spends more than this multiple of its budget (without being over budget by its plan)
-# says so: under the benchmark's probes the texels the up-sampling cannot fill add 0.2-16% to the plan.
-OVERSPEND_WARN_RATIO = 1.25
 
 @dataclass
 class PreparedScene:
@@ -420,14 +416,19 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
                                    preconvolved=preconvolved, nyquist=nyquist, stride=stride,
                                    pool_radius=pool_radius, device=prep.device, threads=threads)
     _check_pass_finite(buf, prep.scene.source, mis)
+    t_pass = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    plan = adaptive.plan_hierarchy(gb, prep.camera, buf.level, device=prep.device)
+    t_plan = time.perf_counter() - t0
+    t0 = time.perf_counter()
     alloc = bandwidth.allocate_samples(buf, budget, n_min=n_min, n_max=n_max, allocation=allocation,
-                                       device=prep.device, mis=mis)
-    timings["bandwidth"] = time.perf_counter() - t0
+                                       device=prep.device, mis=mis, plan=plan.shade_masks())
+    timings["bandwidth"] = t_pass + time.perf_counter() - t0
     t0 = time.perf_counter()
     res = adaptive.shade_hierarchical(gb, prep.camera, prep.materials, prep.env_data, buf.level, alloc.n_p,
                                       seed=seed, mis=mis, device=prep.device, threads=threads, lights=prep.lights,
-                                      upsample=upsample)
-    t_h = time.perf_counter() - t0
+                                      upsample=upsample, plan=plan)
+    t_h = time.perf_counter() - t0 + t_plan
     timings["shading"] = res.stats["time_s"]["shading"]
     timings["upsampling"] = res.stats["time_s"]["upsampling"]
     if prep.lights is not None:
@@ -448,6 +449,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
         "allocation": alloc.stats,
         "levels": res.stats["levels"],
         "pixels_shaded": res.stats["pixels_shaded"],
+        "unplanned_shaded": res.stats["unplanned_shaded"],
         "shaded_fraction": res.stats["shaded_fraction"],
         "samples": res.stats["samples"],
         "non_finite_samples": res.stats["non_finite_samples"],
@@ -458,7 +460,6 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     if hidden is not None:
         stats["pixels_hidden"] = hidden
     stats["time_s"] = {k: round(v, 6) for k, v in timings.items()}
-    _warn_if_overspent(stats, alloc, prep.scene.source)
     aovs = {
         "level": buf.level.numpy().reshape(H, W),
         "n_p": alloc.n_p,
@@ -469,22 +470,6 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
         "sigma2": buf.sigma2.numpy().reshape(H, W),
     }
     return RenderResult(res.image, gb.coverage, gb, stats, aovs)
-
-
-def _warn_if_overspent(stats: dict, alloc, source) -> None:
-    """Say so when the frame spent well beyond its budget without being flagged over budget: the allocation
-    spreads the budget over the texels it plans to shade, and texels the up-sampling then cannot fill (a depth
-    edge, an empty parent) are shaded as well, at the N_p of their footprint -- n_max everywhere when the plan
-    left budget over (a constant environment: one planned texel; session 38's numerical-extremes audit)."""
-    budget = stats["budget_spp"]
-    spent = stats["samples_per_covered_pixel"]
-    if alloc.over_budget or spent <= OVERSPEND_WARN_RATIO * budget:   # (an empty frame spends 0)
-        return
-    extra = sum(lv["shaded"] for lv in stats["levels"]) - alloc.planned_pixels
-    warnings.warn(f"{source}: the frame spent {spent:.3g} samples per covered pixel against a budget of {budget:g}: "
-                  f"the allocation planned {alloc.planned_pixels} shaded texels, and {max(extra, 0)} more that the "
-                  f"up-sampling could not fill were shaded too, at up to n_max = {alloc.stats['n_max']} samples "
-                  "each (the plan cannot foresee them)", stacklevel=3)
 
 
 def split_planes(scene: Scene) -> tuple:
