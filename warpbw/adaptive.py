@@ -149,6 +149,7 @@ class PlanLevel:
     rep: wp.array                # (w h,) int32: the finest pixel that represents each texel
     shade: np.ndarray            # texel indices shaded at this level (sorted)
     upsample: np.ndarray         # texel indices up-sampled from the level above (sorted)
+    weights: wp.array | None = None   # (w h,) vec4: the w_i of the up-sampled texels (warpbw.upsample)
 
 
 @dataclass
@@ -191,7 +192,8 @@ def _classify(gb: GBuffer, levels, L: int, device: str):
 
 def plan_hierarchy(gb: GBuffer, cam: CameraData, level_map, device: str = "cpu") -> HierarchyPlan:
     """The texels each level will shade and up-sample for ``level_map`` (module docstring): classify each level,
-    then run the up-sampling's weights on zeros to find the texels no parent can fill, which are shaded too."""
+    then run the up-sampling's weights on zeros to find the texels no parent can fill, which are shaded too.  The
+    weights are kept for the up-sampling itself, which then reads them instead of computing them again."""
     W, H = gb.width, gb.height
     level = _int_map(level_map, H, W, "level_map")
     levels = build_pyramid(level, op="min", device=device)
@@ -203,6 +205,7 @@ def plan_hierarchy(gb: GBuffer, cam: CameraData, level_map, device: str = "cpu")
         (w, h), mode_np, rep = _classify(gb, levels, L, device)
         up = np.flatnonzero(mode_np == MODE_UPSAMPLE)
         shade = np.flatnonzero(mode_np == MODE_SHADE)
+        weights = None
         if parent_valid is None:
             shade, up = np.union1d(shade, up), up[:0]   # the coarsest level has no parents: shade it all
         elif len(up):
@@ -212,12 +215,12 @@ def plan_hierarchy(gb: GBuffer, cam: CameraData, level_map, device: str = "cpu")
             r = upsample_level(gb.data, cam, L, np.zeros((pw * ph, 3), np.float32), parent_valid, todo,
                                device=device, mode="paper")
             need = r.needs_shading.numpy()[up] != 0
-            shade, up = np.union1d(shade, up[need]), up[~need]
+            shade, up, weights = np.union1d(shade, up[need]), up[~need], r.weights
         valid = np.zeros(w * h, np.int32)
         valid[shade] = 1
         valid[up] = 1
         parent_valid = wp.array(valid, dtype=wp.int32, device=device)
-        out.append(PlanLevel(L, (w, h), rep, shade, up))
+        out.append(PlanLevel(L, (w, h), rep, shade, up, weights))
     return HierarchyPlan(W, H, level, out)
 
 
@@ -262,7 +265,7 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
             todo = np.zeros(w * h, np.int32)
             todo[pl.upsample] = 1
             r = upsample_level(gb.data, cam, L, parent_vals, parent_valid, todo, out=vals, out_valid=valid,
-                               device=device, mode=upsample)
+                               device=device, mode=upsample, weights=pl.weights)
             t_up += time.perf_counter() - t0
             need = np.flatnonzero(r.needs_shading.numpy())
             if len(need):   # the plan read the same weights, so never; shaded rather than left empty

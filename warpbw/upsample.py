@@ -2,7 +2,7 @@
 
 Public:
     ``level_size(width, height, level) -> (w, h)``   size of a pyramid level (ceil-halving)
-    ``UpsampleResult`` / ``upsample_level(..., mode)``  fill the requested pixels of level L from level L+1
+    ``UpsampleResult`` / ``upsample_level(..., mode, weights)``  fill the requested pixels of level L from level L+1
     ``UPSAMPLE_MODES``, ``UPSAMPLE_DEFAULT``, ``check_upsample_mode(mode)``
     ``parent_weights(...)``                           host wrapper returning the four weights (tests)
 
@@ -225,9 +225,11 @@ def normal_fit(mean: wp.vec3, total: float, s_u: wp.vec2, s_uu: wp.vec3, s_ul_x:
 def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
                           width: int, height: int, parent_width: int, parent_height: int,
                           parent: wp.array(dtype=wp.vec3), parent_valid: wp.array(dtype=wp.int32),
-                          todo: wp.array(dtype=wp.int32), fit: int,
+                          todo: wp.array(dtype=wp.int32), fit: int, given: int,
                           out: wp.array(dtype=wp.vec3), out_valid: wp.array(dtype=wp.int32),
                           needs_shading: wp.array(dtype=wp.int32), weights: wp.array(dtype=wp.vec4)):
+    """Up-sample texel t of level L (when ``todo``); the four w_i are computed into ``weights``, or with ``given``
+    read from it (the same parents and flags computed them before: ``warpbw.adaptive.plan_hierarchy``)."""
     t = wp.tid()
     if todo[t] == 0:
         return
@@ -263,7 +265,9 @@ def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
         q = py * parent_width + px
         pi = representative_pixel(gb, px, py, level + 1)
         wk = float(0.0)
-        if ax * ay > 0.0 and parent_valid[q] != 0:
+        if given != 0:
+            wk = weights[t][k]
+        elif ax * ay > 0.0 and parent_valid[q] != 0:
             wk = parent_weight(gb, x, y, px, py, pi, ax * ay, z, n_screen, cos_x)
         w = w + wp.vec4(wp.where(k == 0, wk, 0.0), wp.where(k == 1, wk, 0.0), wp.where(k == 2, wk, 0.0),
                         wp.where(k == 3, wk, 0.0))
@@ -279,7 +283,8 @@ def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
                 s_ul_y = s_ul_y + (wk * du[1]) * l_k
                 lo = wp.min(lo, l_k)
                 hi = wp.max(hi, l_k)
-    weights[t] = w
+    if given == 0:
+        weights[t] = w
     if total < WEIGHT_MIN:
         needs_shading[t] = 1
         return
@@ -323,12 +328,15 @@ def check_upsample_mode(mode: str) -> int:
 
 def upsample_level(gb: GBufferData, cam: CameraData, level: int, parent_values, parent_valid, todo,
                    out: wp.array | None = None, out_valid: wp.array | None = None,
-                   device: str = "cpu", mode: str = UPSAMPLE_DEFAULT) -> UpsampleResult:
+                   device: str = "cpu", mode: str = UPSAMPLE_DEFAULT,
+                   weights: wp.array | None = None) -> UpsampleResult:
     """Up-sample the pixels of level ``level`` marked in ``todo`` from level ``level + 1``.
 
     ``parent_values`` ((w_{L+1} h_{L+1},) vec3) and ``parent_valid`` (int32) describe the parent level;
     ``out`` / ``out_valid`` (level L) are updated in place when given (pixels not in ``todo`` keep theirs).
     ``mode``: "normal" (the weights' least-squares fit in the normal) or "paper" (their weighted mean).
+    ``weights``: the w_i of an earlier call with the same ``parent_valid`` and ``todo`` (its
+    ``UpsampleResult.weights``), read instead of computed again.
     """
     fit = check_upsample_mode(mode)
     w, h = level_size(gb.width, gb.height, level)
@@ -341,10 +349,13 @@ def upsample_level(gb: GBufferData, cam: CameraData, level: int, parent_values, 
     out = out if out is not None else wp.zeros(n, dtype=wp.vec3, device=device)
     out_valid = out_valid if out_valid is not None else wp.zeros(n, dtype=wp.int32, device=device)
     needs = wp.zeros(n, dtype=wp.int32, device=device)
-    weights = wp.zeros(n, dtype=wp.vec4, device=device)
+    given = int(weights is not None)
+    if given and (weights.shape != (n,) or weights.dtype != wp.vec4):
+        raise ValueError(f"weights: expected ({n},) vec4 (level {level}), got {weights.shape} {weights.dtype}")
+    weights = weights if given else wp.zeros(n, dtype=wp.vec4, device=device)
     wp.launch(upsample_level_kernel, dim=n,
-              inputs=[gb, cam, int(level), w, h, pw, ph, parent_values, parent_valid, todo, fit, out, out_valid,
-                      needs, weights], device=device)
+              inputs=[gb, cam, int(level), w, h, pw, ph, parent_values, parent_valid, todo, fit, given, out,
+                      out_valid, needs, weights], device=device)
     return UpsampleResult(out, out_valid, needs, weights)
 
 
