@@ -506,6 +506,72 @@ def test_a_scene_scaled_from_1e_minus_8_to_1e11_renders_the_same_images(city, tm
             np.testing.assert_allclose(ada.image, ada1.image, rtol=0, atol=1e-4 * ada1.image.max())
 
 
+SCALED_PLANE = """\
+[camera]
+position = [0.0, {y!r}, {z!r}]
+look_at = [0.0, 0.0, 0.0]
+fov = 40.0
+resolution = [24, 16]
+
+[[light]]
+type = "directional"
+direction = [0.3, 0.8, -0.5]
+radiance = [3.0, 3.0, 3.0]
+
+[[object]]
+shape = "plane"
+size = {size!r}
+material = "m"
+
+[material.m]
+type = "cook-torrance"
+roughness = 0.2
+f0 = [0.9, 0.75, 0.4]
+diffuse = [0.05, 0.04, 0.02]
+normal_map = "map.exr"
+normal_map_scale = 0.5
+tiling = 2
+"""
+
+
+def test_planes_scaled_from_1e_minus_30_to_1e30_render_the_same_images_and_beyond_are_refused(tmp_path):
+    """Planes are intersected in float32 with lengths linear in the scene's scale: a plane scene scaled by s
+    renders every method's image of s = 1 (measured: within 1.2e-6 of the brightest pixel from 1e-38 to 1e37);
+    beyond float32's range, less its margins (warpbw.filtering.PLANE_REACH_MIN / _MAX), it is refused, naming
+    the plane.  A scene scaled by 1e-200 once rendered an empty image with a warning that blamed the camera;
+    without the check, 1e-45 loses 62% of the plane and 1e38 15% (session 39; the scene parser refuses 1e39)."""
+    from warpbw.errors import WarpbwError
+    from warpbw.filtering import ALL_METHODS, PLANE_REACH_MAX, PLANE_REACH_MIN, plane_distance, prepare_filtering
+    from warpbw.filtering import render_filtering
+
+    u = (np.arange(8) + 0.5) / 8
+    write_exr(tmp_path / "map.exr", (0.02 * np.sin(2 * np.pi * u)[None, :] * np.cos(2 * np.pi * u)[:, None])
+              .astype(np.float32)[..., None], channels=["Y"])
+
+    def plane_scene(k):
+        return parse_scene(SCALED_PLANE.format(y=1.5 * k, z=2.0 * k, size=2.0 * k), tmp_path, "scaled.toml")
+
+    def render(k):
+        sc = plane_scene(k)
+        prep = prepare_filtering(sc, ALL_METHODS)
+        return {m: render_filtering(sc, m, prepared=prep, spp=64) for m in ALL_METHODS}
+
+    ref = render(1.0)
+    assert ref["fixed"].coverage.sum() > 200
+    for k in (1e-30, 1e30):
+        out = render(k)
+        for m in ALL_METHODS:
+            assert np.array_equal(out[m].coverage, ref[m].coverage), (k, m)
+            np.testing.assert_allclose(out[m].image, ref[m].image, rtol=0, atol=1e-4 * ref[m].image.max())
+    for k, word in ((1e-200, "larger"), (1e-40, "larger"), (2e37, "smaller")):
+        with pytest.raises(WarpbwError, match=rf"^scaled\.toml: the camera is .* from the far corner of the plane "
+                                              rf"size=.*outside the .* float32 ray-plane .*expected a {word} scene"):
+            render_filtering(plane_scene(k), "fixed")
+        with pytest.raises(WarpbwError, match="float32 ray-plane"):
+            plane_distance(plane_scene(k))     # the depth test that hides spheres behind planes
+    assert PLANE_REACH_MIN < 3.5e-30 and 3.5e30 < PLANE_REACH_MAX
+
+
 def test_adaptive_frame_spends_at_most_its_budget_when_the_up_sampling_cannot_fill_texels():
     """Under a constant environment the pass plans one texel at the top level, and the up-sampling cannot fill
     the texels at the silhouette, whose parents lie on the background: they are shaded too.  Before session 39

@@ -17,6 +17,8 @@ Public:
                                          plane (``inf`` where none): what hides the spheres and meshes
     ``filtering_summary(scene) -> dict``  what ``warpbw info`` prints for a scene with planes
     ``plane_objects(scene) -> list``     the scene's planes; a one-line error when it has other objects too
+    ``check_plane_reach(camera, planes, source)``   refuse a scene too large or too small for float32 intersection
+                                         (``PLANE_REACH_MIN``, ``PLANE_REACH_MAX``)
     ``normal_moment_mipmap(normals) -> list``   box-filtered (mean normal, second moments) levels (numpy)
     ``fetch_gmm(levels, s, t, level, device) -> (N, K, 4)``  the kernel's trilinear fetch, recovered (a, mu, s2)
     ``gmm_ndf(params, rough_var, h, device) -> (N,)``           the kernel's mixture NDF at directions h
@@ -183,6 +185,13 @@ GMM_CACHE_PREFIX = "gmm"
 # Distance along a pixel's centre ray of "nothing in front": every plane hit is closer (float32 range).
 NO_HIT = 3.0e38
 _NO_HIT = wp.constant(NO_HIT)
+# Planes are intersected in float32, and every length there (plane_t, plane_st, the ray differentials) is linear
+# in the scene's scale: the camera's distance to a plane's far corner must lie in float32's normal range and below
+# NO_HIT.  Measured (session 39, a plane seen from 2.5 sizes away, scaled by s): every method's image within 1.2e-6
+# of s = 1's brightest pixel from reach 3.5e-38 to 3.5e37; at 3.5e-42 off by 0.2%; at 3.5e-45 62% of the plane
+# lost, at 3.5e38 15%.  Margins as gbuffer's: 1000 at the bottom, 10 at the top (``check_plane_reach``).
+PLANE_REACH_MIN = float(np.finfo(np.float32).tiny) * 1.0e3
+PLANE_REACH_MAX = NO_HIT / 10.0
 
 
 def roughness_variance(m: float) -> float:
@@ -922,6 +931,23 @@ def plane_objects(scene: Scene) -> list:
     return planes
 
 
+def check_plane_reach(camera: Camera, planes, source: str) -> None:
+    """Refuse a camera whose distance to a plane's far corner lies outside ``PLANE_REACH_MIN`` to
+    ``PLANE_REACH_MAX``: float32 intersection would leave the plane's pixels empty without a word."""
+    o = np.asarray(camera.position, np.float64)
+    for p in planes:
+        h = 0.5 * float(p.size)
+        corners = np.asarray(p.center, np.float64) + np.array([[a * h, 0.0, b * h] for a in (-1, 1) for b in (-1, 1)])
+        with np.errstate(over="ignore"):
+            reach = float(np.max(np.linalg.norm(corners - o, axis=1)))
+        if not PLANE_REACH_MIN <= reach <= PLANE_REACH_MAX:
+            raise WarpbwError(
+                f"{source}: the camera is {reach:.3g} scene units from the far corner of the {p.describe()}, outside "
+                f"the {PLANE_REACH_MIN:.2g} to {PLANE_REACH_MAX:.2g} that float32 ray-plane intersection handles: its "
+                f"pixels would be left empty; expected a {'smaller' if reach > PLANE_REACH_MAX else 'larger'} scene "
+                "(scale the objects and the camera together)")
+
+
 def _load_normals(scene: Scene, name: str):
     """The material's finest normals (H, W, 3), its source array, kind, scale, display name and hash."""
     from precompute.gmm_mipmap import load_map
@@ -1131,6 +1157,7 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     from warpbw.shading import launch_tiled
 
     check_render_args(scene, method, spp, env_spp, max_anisotropy)
+    check_plane_reach(camera or scene.camera, plane_objects(scene), scene.source)
     if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm for mp in prepared.mips.values())):
         prepared = prepare_filtering(scene, (method,), device, progress)
     cam_s = camera or scene.camera
@@ -1204,6 +1231,7 @@ def plane_distance(scene: Scene, device: str = "cpu") -> np.ndarray:
     A scene that has planes beside spheres and meshes hides the spheres and meshes beyond it
     (:func:`warpbw.gbuffer.hide_beyond`) before shading them."""
     cam_s = scene.camera
+    check_plane_reach(cam_s, [p for p in scene.objects if isinstance(p, PlaneObject)], scene.source)
     cam = scene_camera(cam_s)
     n = cam_s.width * cam_s.height
     depth = wp.full(n, NO_HIT, dtype=wp.float32, device=device)
