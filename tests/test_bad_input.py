@@ -694,6 +694,18 @@ def test_bad_normal_map_in_a_plane_scene(tmp_path, what, needle):
     assert_no_outputs(tmp_path)
 
 
+def test_plane_scene_scaled_beyond_float32_is_refused_not_rendered_empty(tmp_path):
+    """A plane scene scaled by 1e-200 once rendered an empty image, with a warning that blamed the camera: float32
+    intersection cannot reach it.  Now one line names the plane and asks for a larger scene; nothing is written."""
+    write_exr(tmp_path / "map.exr", np.zeros((4, 4, 1), np.float32), channels=["Y"])
+    (tmp_path / "scene.toml").write_text(PLANE_SCENE.replace("position = [0.0, 1.5, 2.0]",
+                                                             "position = [0.0, 1.5e-200, 2.0e-200]")
+                                         .replace("size = 2.0", "size = 2.0e-200"))
+    r = run(["render", "scene.toml", "-o", "out.exr", "--filter", "fixed"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "far corner of the plane", "float32", "expected a larger scene")
+    assert_no_outputs(tmp_path)
+
+
 def test_height_field_with_an_alpha_channel_is_read_from_its_data_channel(tmp_path):
     """A one-channel EXR height field (channel Z) saved with alpha: the heights are Z, never the alpha (OpenEXR
     lists A before Z)."""
