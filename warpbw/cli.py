@@ -497,7 +497,8 @@ def cmd_bench(args) -> int:
 
     _bench_outputs(args)
     if args.nb_budget is not None and not args.nb:
-        raise WarpbwError("--nb-budget: the budget of the n_b sweep, which only --nb asks for (e.g. --nb 16,64,256,1024)")
+        raise WarpbwError("--nb-budget: the budget of the n_b sweep, which only --nb asks for "
+                          "(e.g. --nb 16,64,256,1024)")
     scene = load_scene(args.scene)
     if scene.has_planes and not scene.has_surfaces:
         raise WarpbwError(f"{scene.source}: a scene with planes is benchmarked by 'warpbw bench-filtering'")

@@ -16,7 +16,8 @@ import numpy as np
 
 from warpbw.errors import WarpbwError
 
-RELMSE_EPS = 1.0e-2  # Rousselle, Knaus, Zwicker 2011, "Adaptive sampling and reconstruction using greedy error minimization"
+# Rousselle, Knaus, Zwicker 2011, "Adaptive sampling and reconstruction using greedy error minimization"
+RELMSE_EPS = 1.0e-2
 
 
 def _masked(test, ref, mask):

@@ -195,7 +195,7 @@ class Material:
     npf_name: str | None = None
     lookup: str = "nearest"           # merl / npf: nearest bin or linear between bin centres
     sampling: Path | None = None      # merl / npf: precomputed sampling tables (built and cached if absent)
-    bandwidth: Path | None = None     # merl / npf: precomputed nu_rho table (adaptive method; built and cached if absent)
+    bandwidth: Path | None = None     # merl / npf: precomputed nu_rho table (adaptive method; built, cached if absent)
     # cook-torrance (004 Sec. 3): Gaussian NDF of roughness m, Schlick Fresnel from f0, Lambert albedo
     roughness: float = 0.0
     f0: tuple = (0.0, 0.0, 0.0)
