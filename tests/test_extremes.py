@@ -576,8 +576,9 @@ def test_adaptive_frame_spends_at_most_its_budget_when_the_up_sampling_cannot_fi
     """Under a constant environment the pass plans one texel at the top level, and the up-sampling cannot fill
     the texels at the silhouette, whose parents lie on the background: they are shaded too.  Before session 39
     the allocation did not count them, gave the planned texel the cap N_max = 256 x budget everywhere, and the
-    frame spent 4.8x its budget.  Now the allocation is spread over the hierarchy's own plan: the frame takes
-    exactly the samples the allocation planned, on the texels it planned, within the budget.  Under a sky too."""
+    frame spent 4.5x its budget (8.96 samples per covered pixel).  Now the allocation is spread over the
+    hierarchy's own plan: the frame takes exactly the samples the allocation planned, on the texels it planned,
+    within the budget.  Under a sky too."""
     from warpbw.pipeline import render_adaptive
 
     for env in ("constant = [1.0, 1.0, 1.0]", 'procedural = "sky"'):

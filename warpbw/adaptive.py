@@ -27,7 +27,8 @@ the budget can be spread over exactly the texels that will be shaded, those the 
 (``warpbw.bandwidth.allocate_samples``'s ``plan``).  Before session 39 the allocation counted only the texels
 whose min-filtered level is their own (and, wrongly, those whose centre pixel is empty), and the others were
 shaded at their footprint's N_p on top of the budget: 0.1-2.4% more samples on the benchmark's scenes at their
-budgets (README), and 4.8x the budget under a constant environment, where the plan was one texel.
+budgets (README), and 4.5x the budget under a constant environment (tests/test_extremes.py), where the plan was
+one texel.
 
 The hierarchy shades and up-samples the environment's part of the image only.  Directional lights
 (:mod:`warpbw.lights`) are exact and cost one BRDF evaluation per light, less than one sample: their term
