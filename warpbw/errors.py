@@ -3,7 +3,8 @@
 Public: ``WarpbwError``; ``is_int(value)`` (an int or numpy integer, not a bool) and
 ``check_count(value, name, lo, hi=None) -> int`` (such an integer in lo..hi, else a ``WarpbwError`` naming
 ``name``); ``check_input_file(path, expected) -> Path`` (an existing file, else a ``WarpbwError`` saying
-whether it is missing or a directory);
+whether it is missing or a directory); ``check_camera_reach(reach, lo, hi, target, kind, why, source)`` (the
+camera's distance to an object within what float32 intersection handles);
 the bounds ``INT32_MAX``, ``FLOAT32_MAX``, ``SEED_MAX`` and ``BRDF_VALUE_MAX`` that user values are checked against.
 
 Anything the user can cause (a bad file, a bad key in a scene, a bad CLI value) is raised as
@@ -54,3 +55,17 @@ def check_input_file(path, expected: str = "") -> Path:
         what = "a directory, not a file" if p.is_dir() else "file not found"
         raise WarpbwError(f"{p}: {what}" + (f" (expected {expected})" if expected else ""))
     return p
+
+
+def check_camera_reach(reach: float, lo: float, hi: float, target: str, kind: str, why: str = "",
+                       source: str = "") -> None:
+    """Refuse a camera ``reach`` scene units from ``target`` (the far side or corner of an object) outside
+    [lo, hi], what float32 ray-``kind`` intersection handles (``why``, if given, says why): its pixels would be
+    left empty or wrong without a word.  ``source`` (a scene file) starts the message when given."""
+    if lo <= reach <= hi:
+        return
+    raise WarpbwError(
+        f"{source + ': ' if source else ''}the camera is {reach:.3g} scene units from {target}, outside the "
+        f"{lo:.2g} to {hi:.2g} that float32 ray-{kind} intersection handles{f' ({why})' if why else ''}: its pixels "
+        f"would be left empty or wrong; expected a {'smaller' if reach > hi else 'larger'} scene (scale the objects "
+        "and the camera together)")

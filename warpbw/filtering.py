@@ -108,7 +108,7 @@ import warp as wp
 from precompute.gmm_mipmap import NORMAL_DIM
 from warpbw.envmap import (LUMINANCE_RGB, EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv,
                            load_environment)
-from warpbw.errors import INT32_MAX, WarpbwError, check_count
+from warpbw.errors import INT32_MAX, WarpbwError, check_camera_reach, check_count
 from warpbw.gbuffer import CameraData, scene_camera
 from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene
 
@@ -940,12 +940,8 @@ def check_plane_reach(camera: Camera, planes, source: str) -> None:
         corners = np.asarray(p.center, np.float64) + np.array([[a * h, 0.0, b * h] for a in (-1, 1) for b in (-1, 1)])
         with np.errstate(over="ignore"):
             reach = float(np.max(np.linalg.norm(corners - o, axis=1)))
-        if not PLANE_REACH_MIN <= reach <= PLANE_REACH_MAX:
-            raise WarpbwError(
-                f"{source}: the camera is {reach:.3g} scene units from the far corner of the {p.describe()}, outside "
-                f"the {PLANE_REACH_MIN:.2g} to {PLANE_REACH_MAX:.2g} that float32 ray-plane intersection handles: its "
-                f"pixels would be left empty; expected a {'smaller' if reach > PLANE_REACH_MAX else 'larger'} scene "
-                "(scale the objects and the camera together)")
+        check_camera_reach(reach, PLANE_REACH_MIN, PLANE_REACH_MAX, f"the far corner of the {p.describe()}", "plane",
+                           source=source)
 
 
 def _load_normals(scene: Scene, name: str):
@@ -1157,7 +1153,8 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     from warpbw.shading import launch_tiled
 
     check_render_args(scene, method, spp, env_spp, max_anisotropy)
-    check_plane_reach(camera or scene.camera, plane_objects(scene), scene.source)
+    planes = plane_objects(scene)
+    check_plane_reach(camera or scene.camera, planes, scene.source)
     if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm for mp in prepared.mips.values())):
         prepared = prepare_filtering(scene, (method,), device, progress)
     cam_s = camera or scene.camera
@@ -1188,7 +1185,7 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     if background is not None:
         wp.launch(background_distance_kernel, dim=n, inputs=[cam, z, depth], device=dev)
         start = depth.numpy().reshape(h, w).copy()   # numpy() of a CPU array is a view of it
-    for p in plane_objects(scene):
+    for p in planes:
         m = scene.materials[p.material]
         mp = prepared.mips[p.material]
         if method == "ground_truth":

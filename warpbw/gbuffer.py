@@ -41,7 +41,7 @@ from typing import Sequence
 import numpy as np
 import warp as wp
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError, is_int
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_camera_reach, is_int
 
 RAY_T_MAX = 1.0e30
 # Primary rays are intersected in float32, and outside these distances from the camera (to an object's far
@@ -424,12 +424,7 @@ def check_reach(cam: CameraData, geometry: Geometry) -> None:
     for kind, reach in reaches:   # the distance to the object's far side
         lo, hi, why = ((SPHERE_REACH_MIN, SPHERE_REACH_MAX, "it squares lengths") if kind == "sphere"
                        else (MESH_REACH_MIN, MESH_REACH_MAX, "Warp's test multiplies three lengths"))
-        if not lo <= reach <= hi:
-            raise WarpbwError(
-                f"the camera is {reach:.3g} scene units from the far side of a {kind}, outside the {lo:.2g} to "
-                f"{hi:.2g} that float32 ray-{kind} intersection handles ({why}): its pixels would be left empty "
-                f"or wrong; expected a {'smaller' if reach > hi else 'larger'} scene (scale the objects and the "
-                "camera together)")
+        check_camera_reach(reach, lo, hi, f"the far side of a {kind}", kind, why)
 
 
 def _per_vertex(name: str, values, shape: tuple, mesh_index: int) -> np.ndarray:
