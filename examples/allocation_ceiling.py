@@ -29,13 +29,11 @@ studio.exr (examples/bench_scenes.py, budget 32) the frame shades 75% of the pix
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import OneLineParser, check_output_file, init_warp, run_command
+from warpbw.cli_common import OneLineParser, check_output_file, init_warp, run_command, write_json
 from warpbw.errors import check_count
 
 SEEDS_DEFAULT = 32        # brute-force renders: the oracle's sqrt(v) is biased by about 1 / (2 x seeds)
@@ -164,9 +162,7 @@ def main(argv=None) -> int:
     r["scene"] = str(args.scene)
     print(format_report(str(args.scene), r))
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(r, indent=2) + "\n")
-        print(f"wrote {args.json}")
+        write_json(args.json, r)
     return 0
 
 

@@ -1141,9 +1141,9 @@ def test_bench_filtering_of_planes_a_sphere_hides_entirely_is_refused_up_front(t
 
 
 def test_json_records_never_hold_nan():
-    from warpbw.cli import _json_text
+    from warpbw.cli_common import json_text
 
-    text = _json_text({"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": -float("inf"), "e": 2}})
+    text = json_text({"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": -float("inf"), "e": 2}})
 
     def refuse(name):
         raise AssertionError(f"{name} in strict JSON")

@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
-                               parse_seed, run_command)
+                               json_text, parse_seed, run_command)
 from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError
 
 DEFAULT_SPP = 64
@@ -66,19 +66,6 @@ def _outputs(out: Path) -> dict:
     return {"exr": out, "png": out.with_suffix(".png"), "json": out.with_suffix(".json")}
 
 
-def _json_text(record: dict, **kw) -> str:
-    """``record`` as strict JSON: a non-finite float (no value) becomes null, never a bare NaN or Infinity."""
-    def clean(x):
-        if isinstance(x, float) and not math.isfinite(x):
-            return None
-        if isinstance(x, dict):
-            return {k: clean(v) for k, v in x.items()}
-        if isinstance(x, (list, tuple)):
-            return [clean(v) for v in x]
-        return x
-    return json.dumps(clean(record), indent=2, allow_nan=False, **kw) + "\n"
-
-
 def _check_finite_image(image, source: str) -> None:
     """Refuse, before anything is written, an image with inf or NaN pixels: radiance near the top of the float32
     range (an environment map's or a light's) overflows when the kernels sum the samples of a pixel."""
@@ -102,7 +89,7 @@ def _write_render(res, outs: dict, exposure: float, source: str):
     rgba = np.concatenate([res.image, res.coverage[..., None].astype(np.float32)], axis=-1)
     write_exr(outs["exr"], rgba, channels=["R", "G", "B", "A"])
     write_png(outs["png"], res.image, exposure=exposure)
-    outs["json"].write_text(_json_text(res.stats, default=str))
+    outs["json"].write_text(json_text(res.stats, default=str))
 
 
 # AOVs of the adaptive method (002 Fig. 1d / 18): name -> (what it is, false-colour scale)
@@ -411,7 +398,7 @@ def cmd_compare(args) -> int:
             raise WarpbwError(f"{name}: {bad} non-finite values over covered pixels")
     r = compare_images(ta, tb, mask)
     if args.json:
-        print(_json_text(r), end="")   # strict JSON: an infinite PSNR (identical, or a black reference) is null
+        print(json_text(r), end="")   # strict JSON: an infinite PSNR (identical, or a black reference) is null
     else:
         p = r["psnr_db"]
         print(f"PSNR   {p:.3f} dB" if math.isfinite(p) else "PSNR   inf (identical over the covered pixels)"
@@ -485,7 +472,7 @@ def _write_bench(args, record: dict, write_plot) -> None:
     """The bench record as JSON and its plot as PNG, where asked."""
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(_json_text(record))
+        Path(args.json).write_text(json_text(record))
     if args.plot:
         Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
         write_plot(record, args.plot)

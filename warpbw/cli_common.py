@@ -4,11 +4,14 @@ Public: ``EXIT_USER_ERROR``, ``OneLineParser``, ``run_command(prog, func, args) 
 argparse type of every ``--seed``), ``check_output_file(path, option, force)`` and ``check_output_dir(path,
 option)`` (an output path that cannot be written, refused before any work), ``check_overwrite(paths, force)``
 (several outputs at once, and --force), ``init_warp(device) -> warp`` (Warp initialised without its banner
-or its no-CUDA-driver line, the device checked).
+or its no-CUDA-driver line, the device checked), ``json_text(record) -> str`` (strict JSON, a non-finite float as
+null) and ``write_json(path, record)`` (that, written where asked, and said so).
 """
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import sys
 import warnings
 from pathlib import Path
@@ -142,3 +145,25 @@ def check_overwrite(paths, force: bool, option: str = "-o"):
     if existing:
         raise WarpbwError(f"{existing[0]}: already exists (pass --force to overwrite"
                           f"{' it' if len(existing) == 1 else f' it and {len(existing) - 1} more'})")
+
+
+def json_text(record: dict, **kw) -> str:
+    """``record`` as strict JSON: a non-finite float (no value) becomes null, never a bare NaN or Infinity."""
+    def clean(x):
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        return x
+    return json.dumps(clean(record), indent=2, allow_nan=False, **kw) + "\n"
+
+
+def write_json(path, record: dict) -> Path:
+    """Write ``record`` to ``path`` as :func:`json_text` (its folder made if needed) and print where."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(json_text(record))
+    print(f"wrote {p}")
+    return p

@@ -1,0 +1,104 @@
+"""examples/mirror_smear.py: its diagnostic clamp against an independent formula, its figures against relative
+MSEs computed here from renders of its protocol, and its refusals of bad options."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from conftest import load_example
+from warpbw.bandwidth import LUMINANCE
+from warpbw.errors import WarpbwError
+from warpbw.io.exr import write_exr
+from warpbw.pipeline import prepare_scene, render_adaptive, render_reference
+
+
+@pytest.fixture(scope="module")
+def ms():
+    return load_example("mirror_smear")
+
+
+def _lum(px):
+    return px @ np.asarray(LUMINANCE, np.float64)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), q=st.floats(0.05, 1.0), sun=st.floats(1.0, 1e4))
+def test_clamp_caps_luminance_at_the_quantile_and_keeps_each_texels_colour(seed, q, sun):
+    ms = load_example("mirror_smear")
+    rng = np.random.default_rng(seed)
+    px = rng.uniform(0.0, 1.0, (8, 16, 3)).astype(np.float32)
+    px[2, 3] *= sun   # one HDR texel
+    out = ms.clamp_probe_luminance(px, q)
+    lum, cap = _lum(px), np.quantile(_lum(px), q)
+    np.testing.assert_allclose(_lum(out), np.minimum(lum, cap), rtol=2e-5, atol=1e-7)
+    below = lum <= cap
+    np.testing.assert_array_equal(out[below], px[below])   # untouched below the cap
+    ratio = out / np.maximum(px, 1e-30)                     # one factor per texel: the chromaticity is kept
+    keep = (px > 1e-3).all(axis=-1)
+    np.testing.assert_allclose(ratio[keep], np.repeat(ratio[keep][:, :1], 3, axis=1), rtol=1e-5)
+
+
+def _probe(tmp_path, pixels):
+    path = tmp_path / "probe.exr"
+    write_exr(path, np.asarray(pixels, np.float32))
+    return path
+
+
+def test_clamped_bandwidth_leaves_the_shading_and_the_probe_alone(ms, tmp_path):
+    rng = np.random.default_rng(3)
+    px = rng.uniform(0.05, 1.0, (32, 64, 3)).astype(np.float32)
+    px[8:10, 20:22] = 1e3
+    prep = prepare_scene(ms.mirror_scene(_probe(tmp_path, px), 1e-3, 16))
+    before = render_reference(prep, 2, seed=5, mis=True).image
+    env = prep.env
+    ms.prepare_with_clamped_bandwidth(prep, 0.9)
+    assert prep.env is env and prep.bandwidth is not None
+    np.testing.assert_array_equal(render_reference(prep, 2, seed=5, mis=True).image, before)
+
+
+def _relmse(test, truth, cov):
+    """Rousselle et al.'s relative MSE with eps = 0.01 over covered pixels and channels, written out here."""
+    a, b = test[cov].astype(np.float64), truth[cov].astype(np.float64)
+    return float(np.mean((a - b) ** 2 / (b * b + 0.01)))
+
+
+def test_measure_compares_both_frames_with_the_truth_as_its_docstring_says(ms, tmp_path):
+    """Both frames at seed s, the truth at seed s + 1 and truth_spp, MIS; the shares from the same errors."""
+    rng = np.random.default_rng(11)
+    px = rng.uniform(0.05, 2.0, (16, 32, 3)).astype(np.float32)
+    probe = _probe(tmp_path, px)
+    r = ms.measure(probe, 0.05, 16, budget=2.0, truth_spp=8, seed=4, clamp_q=1.0, worst=3)
+    prep = prepare_scene(ms.mirror_scene(probe, 0.05, 16))
+    truth = render_reference(prep, 8, seed=5, mis=True)
+    cov = truth.coverage.astype(bool)
+    ada = render_adaptive(prep, 2.0, seed=4, mis=True).image
+    assert r["covered_pixels"] == int(cov.sum()) > 50
+    assert r["relmse_reference"] == pytest.approx(
+        _relmse(render_reference(prep, 2, seed=4, mis=True).image, truth.image, cov), rel=1e-6)
+    assert r["relmse_adaptive"] == pytest.approx(_relmse(ada, truth.image, cov), rel=1e-6)
+    err = ((ada - truth.image) ** 2 / (truth.image ** 2 + 0.01)).sum(axis=-1) * cov
+    top = r["worst"][0]
+    assert err[top["y"], top["x"]] == pytest.approx(err.max(), rel=1e-6)
+    assert top["share"] == pytest.approx(err.max() / err.sum(), rel=1e-5)
+    shares = [p["share"] for p in r["worst"]]
+    assert shares == sorted(shares, reverse=True) and r["worst_share"] == pytest.approx(sum(shares))
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--clamp-quantile", "0"], "--clamp-quantile"),
+    (["--clamp-quantile", "1.5"], "--clamp-quantile"),
+    (["--res", "32,x"], "--res"),
+    (["--res", "4"], "--res"),
+    (["--budget", "2.5"], "--budget"),
+    (["--alpha", "-1"], "--alpha"),
+])
+def test_bad_options_are_refused_by_name(ms, tmp_path, argv, match):
+    probe = _probe(tmp_path, np.ones((4, 8, 3), np.float32))
+    with pytest.raises(WarpbwError, match=match):
+        ms.main(["--probe", str(probe)] + argv)
+
+
+def test_a_missing_probe_is_refused_by_name(ms, tmp_path):
+    with pytest.raises(WarpbwError, match="--probe .*no such file"):
+        ms.main(["--probe", str(tmp_path / "nope.exr")])
