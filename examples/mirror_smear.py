@@ -184,9 +184,9 @@ def main(argv=None) -> int:
     init_warp("cpu")
     from tqdm import tqdm
 
-    from warpbw.pipeline import prepare_scene
+    from warpbw.envmap import load_envmap
 
-    env = prepare_scene(mirror_scene(probe, args.alpha, res[0])).env
+    env = load_envmap(probe)
     nu_q = {"probe": nu_a_quantiles(env.pixels, env.name)}
     if args.clamp_quantile < 1.0:
         nu_q["clamped"] = nu_a_quantiles(clamp_probe_luminance(env.pixels, args.clamp_quantile), env.name)

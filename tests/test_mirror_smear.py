@@ -24,8 +24,7 @@ def _lum(px):
 
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), q=st.floats(0.05, 1.0), sun=st.floats(1.0, 1e4))
-def test_clamp_caps_luminance_at_the_quantile_and_keeps_each_texels_colour(seed, q, sun):
-    ms = load_example("mirror_smear")
+def test_clamp_caps_luminance_at_the_quantile_and_keeps_each_texels_colour(ms, seed, q, sun):
     rng = np.random.default_rng(seed)
     px = rng.uniform(0.0, 1.0, (8, 16, 3)).astype(np.float32)
     px[2, 3] *= sun   # one HDR texel

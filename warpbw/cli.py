@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
-                               json_text, parse_seed, run_command)
+                               json_text, parse_seed, run_command, write_json)
 from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError
 
 DEFAULT_SPP = 64
@@ -471,8 +471,7 @@ def _bench_outputs(args) -> None:
 def _write_bench(args, record: dict, write_plot) -> None:
     """The bench record as JSON and its plot as PNG, where asked."""
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json_text(record))
+        write_json(args.json, record, say=False)
     if args.plot:
         Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
         write_plot(record, args.plot)

@@ -5,7 +5,7 @@ argparse type of every ``--seed``), ``check_output_file(path, option, force)`` a
 option)`` (an output path that cannot be written, refused before any work), ``check_overwrite(paths, force)``
 (several outputs at once, and --force), ``init_warp(device) -> warp`` (Warp initialised without its banner
 or its no-CUDA-driver line, the device checked), ``json_text(record) -> str`` (strict JSON, a non-finite float as
-null) and ``write_json(path, record)`` (that, written where asked, and said so).
+null) and ``write_json(path, record, say=True)`` (that, written where asked, and said so).
 """
 from __future__ import annotations
 
@@ -160,10 +160,11 @@ def json_text(record: dict, **kw) -> str:
     return json.dumps(clean(record), indent=2, allow_nan=False, **kw) + "\n"
 
 
-def write_json(path, record: dict) -> Path:
-    """Write ``record`` to ``path`` as :func:`json_text` (its folder made if needed) and print where."""
+def write_json(path, record: dict, say: bool = True) -> Path:
+    """Write ``record`` to ``path`` as :func:`json_text` (its folder made if needed); with ``say``, print where."""
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     p.write_text(json_text(record))
-    print(f"wrote {p}")
+    if say:
+        print(f"wrote {p}")
     return p
