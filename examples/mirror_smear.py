@@ -2,7 +2,7 @@
 
     python examples/mirror_smear.py [--probe ../shared/data/envmaps/city.exr] [--alpha 1e-4]
         [--res 32,64,128] [--budget 4] [--truth-spp 256] [--seed 1] [--clamp-quantile Q] [--worst 8]
-        [--json OUT.json] [--force]
+        [--json OUT.json] [--force] [--write-scene DIR]
 
 For each resolution: a radius-1 sphere of GGX (F = 1, ``--alpha``) at the origin, seen from z = 4 with a
 40-degree field of view, lit by the probe alone, MIS throughout.  The reference at ``--budget`` samples per
@@ -19,6 +19,10 @@ pixel was shaded or up-sampled, and the quantiles of the probe's angular bandwid
 pixels clamped at their Q-quantile of luminance (shading still uses the whole probe), which shows how much of
 the failure comes from the probe's brightest texels dominating the wavelet analysis (Eq. 7's 95% energy rule
 over coarse bands).  Q = 1 leaves the probe as it is.
+
+``--write-scene DIR`` writes the sphere's scene file for each ``--res`` (DIR/mirror_RES.toml, the probe by its
+absolute path) and renders nothing: ``warpbw render`` and ``warpbw compare --error-map`` then show the frames and
+where their errors lie (README, "Where it fails").
 """
 from __future__ import annotations
 
@@ -30,7 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import OneLineParser, check_output_file, init_warp, run_command, write_json
+from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, init_warp, run_command,
+                               write_json)
 from warpbw.errors import WarpbwError, check_count
 
 PROBE_DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "envmaps" / "city.exr"
@@ -43,17 +48,33 @@ NU_A_QUANTILES = (0.5, 0.9, 0.99, 1.0)
 CAMERA_Z, FOV_DEG, RADIUS = 4.0, 40.0, 1.0
 
 
-def mirror_scene(probe: Path, alpha: float, res: int):
-    """The sphere of the module docstring at ``res`` x ``res`` pixels."""
-    from warpbw.scene import parse_scene
-
-    text = "\n".join([
+def mirror_scene_text(probe: Path, alpha: float, res: int) -> str:
+    """The scene file (TOML) of the sphere of the module docstring at ``res`` x ``res`` pixels."""
+    return "\n".join([
         "[camera]", f"position = [0.0, 0.0, {CAMERA_Z}]", "look_at = [0.0, 0.0, 0.0]", f"fov = {FOV_DEG}",
         f"resolution = [{res}, {res}]", "",
         "[environment]", f"file = {json.dumps(str(probe))}", "",
         "[[object]]", 'shape = "sphere"', "center = [0.0, 0.0, 0.0]", f"radius = {RADIUS}", 'material = "m"', "",
         "[material.m]", 'type = "ggx"', f"alpha = {alpha!r}", "specular = [1.0, 1.0, 1.0]", ""])
-    return parse_scene(text, str(probe.parent), f"mirror sphere {res}x{res}")
+
+
+def mirror_scene(probe: Path, alpha: float, res: int):
+    """The sphere of the module docstring at ``res`` x ``res`` pixels, parsed."""
+    from warpbw.scene import parse_scene
+
+    return parse_scene(mirror_scene_text(probe, alpha, res), str(probe.parent), f"mirror sphere {res}x{res}")
+
+
+def write_scenes(out_dir: Path, probe: Path, alpha: float, resolutions: list, force: bool) -> list:
+    """DIR/mirror_RES.toml for each resolution (refused, before any is written, if one exists without --force)."""
+    paths = [out_dir / f"mirror_{r}.toml" for r in resolutions]
+    for p in paths:
+        check_output_file(p, "--write-scene", force)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for p, r in zip(paths, resolutions):
+        p.write_text(mirror_scene_text(probe.resolve(), alpha, r))
+        print(f"wrote {p}")
+    return paths
 
 
 def clamp_probe_luminance(pixels: np.ndarray, q: float) -> np.ndarray:
@@ -88,10 +109,9 @@ def nu_a_quantiles(pixels: np.ndarray, name: str) -> list:
 
 def worst_pixels(adaptive, truth: np.ndarray, cov: np.ndarray, k: int) -> tuple[float, list]:
     """(share of the adaptive frame's relative squared error in its ``k`` worst pixels, those pixels)."""
-    from warpbw.metrics import RELMSE_EPS
+    from warpbw.metrics import relmse_map
 
-    err = ((adaptive.image - truth) ** 2 / (truth * truth + RELMSE_EPS)).sum(axis=-1)
-    err = np.where(cov, err, 0.0)
+    err = relmse_map(adaptive.image, truth, cov)
     order = np.argsort(err, axis=None)[::-1][:k]
     total = float(err.sum())
     rows = []
@@ -163,7 +183,9 @@ def main(argv=None) -> int:
                     help="diagnostic: nu_a from the probe clamped at this luminance quantile, in (0, 1] (default 1)")
     ap.add_argument("--worst", type=int, default=WORST_DEFAULT, help=f"pixels to list (default {WORST_DEFAULT})")
     ap.add_argument("--json", help="write the figures here (JSON)")
-    ap.add_argument("--force", action="store_true", help="overwrite --json")
+    ap.add_argument("--force", action="store_true", help="overwrite --json or --write-scene's files")
+    ap.add_argument("--write-scene", metavar="DIR",
+                    help="write the scene file of each --res as DIR/mirror_RES.toml and render nothing")
     args = ap.parse_args(argv)
     probe = Path(args.probe)
     if not probe.is_file():
@@ -179,6 +201,10 @@ def main(argv=None) -> int:
     check_count(args.seed, "--seed", 0, 2**32 - 2)
     check_count(args.worst, "--worst", 0)
     res = _resolutions(args.res)
+    if args.write_scene:
+        check_output_dir(args.write_scene, "--write-scene")
+        write_scenes(Path(args.write_scene), probe, args.alpha, res, args.force)
+        return 0
     if args.json:
         check_output_file(args.json, "--json", args.force)
     init_warp("cpu")

@@ -191,6 +191,33 @@ def test_compare_refuses_an_image_without_colour_channels_and_names_a_black_refe
     assert json.loads(run(["compare", "good.exr", "black.exr", "--json"], tmp_path).stdout)["psnr_db"] is None
 
 
+def test_compare_error_map_is_refused_before_it_could_replace_a_file(tmp_path):
+    """--error-map: a path not ending in .exr; an existing map (or its PNG) without --force; one of the images
+    compared, whatever --force says; --error-range not LO < HI, or without a map.  Nothing is written or changed."""
+    write_exr(tmp_path / "a.exr", np.ones((4, 8, 3), np.float32))
+    write_exr(tmp_path / "b.exr", np.full((4, 8, 3), 0.5, np.float32))
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    r = run(["compare", "a.exr", "b.exr", "--error-map", "err.png"], tmp_path)
+    assert_one_line_error(r, "--error-map err.png", "expected a path ending in .exr")
+    for target in ("b.exr", "a.exr"):
+        r = run(["compare", "a.exr", "b.exr", "--error-map", target, "--force"], tmp_path)
+        assert_one_line_error(r, f"--error-map {target}", f"would overwrite {target}", "one of the images compared")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    (tmp_path / "err.png").write_bytes(b"mine")
+    r = run(["compare", "a.exr", "b.exr", "--error-map", "err.exr"], tmp_path)
+    assert_one_line_error(r, "err.png: already exists", "--force")
+    assert r.stdout == "" and not (tmp_path / "err.exr").exists() and (tmp_path / "err.png").read_bytes() == b"mine"
+    for rng, needle in (("2,1", "two numbers LO,HI with 0 < LO < HI"), ("1", "two numbers LO,HI"),
+                        ("1,2,3", "two numbers LO,HI"), ("0,1", "comma-separated positive numbers")):
+        r = run(["compare", "a.exr", "b.exr", "--error-map", "new.exr", "--error-range", rng], tmp_path)
+        assert_one_line_error(r, "--error-range", needle)
+    r = run(["compare", "a.exr", "b.exr", "--error-range", "1,2"], tmp_path)
+    assert_one_line_error(r, "--error-range", "give --error-map PATH.exr too")
+    assert not (tmp_path / "new.exr").exists() and not (tmp_path / "new.png").exists()
+    r = run(["compare", "a.exr", "b.exr", "--error-map", "err.exr", "--force"], tmp_path)
+    assert r.returncode == 0 and (tmp_path / "err.exr").exists() and (tmp_path / "err.png").read_bytes() != b"mine"
+
+
 def test_compare_images_of_different_sizes(tmp_path):
     write_exr(tmp_path / "a.exr", np.ones((4, 8, 3), np.float32))
     write_exr(tmp_path / "b.exr", np.ones((5, 8, 3), np.float32))

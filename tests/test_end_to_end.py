@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from conftest import MIXED_SCENE, numpy_camera_rays, numpy_sphere_distance, numpy_square_distance
 from warpbw.io.exr import read_exr, write_exr
@@ -166,6 +168,81 @@ def test_demo_writes_exr_png_json_and_respects_force(tmp_path):
     assert j["psnr_db"] == pytest.approx(10.0 * math.log10(ref.max() ** 2 / mse), abs=1e-3)
     assert j["relmse"] == pytest.approx(np.mean((0.1 * ref) ** 2 / (ref ** 2 + 1e-2)), rel=1e-4)
     assert j["pixels"] == int(covered.sum())
+
+
+def test_compare_error_map_and_worst_share_follow_hand_made_images(tmp_path):
+    """``compare --error-map``: per pixel (t - r)^2 / (r^2 + 0.01), averaged over R, G, B, 0 where not covered; its
+    mean over the covered pixels is the relMSE; the worst 1% of the covered pixels' share of it.  Images made here:
+    a reference of 0.5 with its last column uncovered (A = 0), and a test off by 0.1, 0.2, 0.3 at three pixels."""
+    from PIL import Image
+
+    h, w = 10, 20
+    ref = np.full((h, w, 4), 0.5, np.float32)
+    ref[:, -1, 3] = 0.0                                   # 190 covered pixels: the worst 1% are 2
+    test = ref.copy()
+    bad = {(1, 2): 0.1, (4, 7): 0.2, (8, 15): 0.3}
+    for (y, x), d in bad.items():
+        test[y, x, :3] += d
+    test[3, -1, :3] = 9.0                                 # not covered: in neither figure
+    write_exr(tmp_path / "ref.exr", ref, channels=["R", "G", "B", "A"])
+    write_exr(tmp_path / "test.exr", test, channels=["R", "G", "B", "A"])
+    j = json.loads(run(["compare", "test.exr", "ref.exr", "--json", "--error-map", "err.exr"], tmp_path).stdout)
+    e = {k: d * d / (0.25 + 0.01) for k, d in bad.items()}
+    assert j["pixels"] == 190 and j["worst_pixels"] == 2 and j["error_map"] == "err.exr"
+    assert j["error_range"] == pytest.approx([bad[(1, 2)] ** 2 / 0.26, bad[(8, 15)] ** 2 / 0.26], rel=1e-5)
+    assert j["relmse"] == pytest.approx(sum(e.values()) / 190, rel=1e-5)
+    assert j["worst_share"] == pytest.approx((e[(4, 7)] + e[(8, 15)]) / sum(e.values()), rel=1e-5)
+    img = read_exr(tmp_path / "err.exr")
+    assert img.channels == ["Y", "A"]
+    want = np.zeros((h, w))
+    for k, v in e.items():
+        want[k] = v
+    np.testing.assert_allclose(img.pixels[..., 0], want, rtol=1e-5, atol=1e-9)
+    np.testing.assert_array_equal(img.pixels[..., 1], (ref[..., 3] > 0).astype(np.float32))
+    with Image.open(tmp_path / "err.png") as im:
+        px = np.asarray(im.convert("RGB")).astype(int)
+    lit = px.sum(-1) > 0
+    assert {tuple(int(i) for i in k) for k in np.argwhere(lit)} == set(bad)   # black: no error, or not covered
+    # the default log colour scale runs from the smallest error to the largest (within 10^6 of it): viridis' ends
+    viridis_lo, viridis_hi = [68, 1, 84], [253, 231, 37]
+    assert px[1, 2].tolist() == viridis_lo and px[8, 15].tolist() == viridis_hi
+    r = run(["compare", "test.exr", "ref.exr", "--error-map", "err.exr", "--force"], tmp_path)
+    lo, hi = e[(1, 2)], e[(8, 15)]
+    assert f"log colour scale {lo:.3g} to {hi:.3g}: --error-range {lo:.3g},{hi:.3g}" in r.stdout
+    # on a scale set by hand, a pixel at its top or above is at viridis' top, one at its bottom at the bottom
+    run(["compare", "test.exr", "ref.exr", "--error-map", "err.exr", "--force", "--error-range", f"{e[(4, 7)]!r},1"],
+        tmp_path)
+    with Image.open(tmp_path / "err.png") as im:
+        px2 = np.asarray(im.convert("RGB")).astype(int)
+    assert px2[1, 2].tolist() == viridis_lo and px2[4, 7].tolist() == viridis_lo
+    assert px2[8, 15].tolist() not in (viridis_lo, viridis_hi) and (px2.sum(-1) > 0).sum() == 3
+
+    # every covered pixel 10% off: the error is spread evenly, and the worst 2 hold 2 of the 190 pixels' share
+    test[..., :3] = ref[..., :3] * 1.1
+    write_exr(tmp_path / "even.exr", test, channels=["R", "G", "B", "A"])
+    j = json.loads(run(["compare", "even.exr", "ref.exr", "--json"], tmp_path).stdout)
+    assert j["worst_share"] == pytest.approx(2 / 190, rel=1e-5)
+    r = run(["compare", "even.exr", "ref.exr"], tmp_path)
+    assert "pixels 190 covered; the worst 1% of them (2) hold 1.1% of the relMSE" in r.stdout
+    assert "error map" not in r.stdout
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(0.0, 1e6), min_size=1, max_size=400), st.floats(1e-3, 1.0))
+def test_worst_share_lies_between_its_pixel_share_and_one(values, fraction):
+    """The k = ceil(fraction n) largest of n non-negative errors hold at least k / n of their sum, and at most all of
+    it; both bounds are reached (every value equal; one value alone).  And --help quotes metrics' constants."""
+    from warpbw import cli, metrics
+
+    v = np.asarray(values)
+    share, k = metrics.worst_share(v, None, fraction)
+    assert k == max(1, math.ceil(fraction * v.size))
+    if v.sum() > 0:
+        assert k / v.size - 1e-9 <= share <= 1.0 + 1e-9
+        assert share == pytest.approx(np.sort(v)[::-1][:k].sum() / v.sum(), rel=1e-9)
+    else:
+        assert share == 0.0
+    assert cli._RELMSE_EPS == metrics.RELMSE_EPS and cli._WORST_FRACTION == metrics.WORST_FRACTION
 
 
 # ------------------------------------------------------------------------------------------ NPF, MERL, sampling

@@ -56,6 +56,26 @@ def test_clamped_bandwidth_leaves_the_shading_and_the_probe_alone(ms, tmp_path):
     np.testing.assert_array_equal(render_reference(prep, 2, seed=5, mis=True).image, before)
 
 
+def test_written_scene_renders_as_the_scripts_own(ms, tmp_path):
+    """--write-scene: the file parses to the scene the script renders (the same image, bit for bit, at one seed),
+    renders nothing else, and is not overwritten without --force."""
+    from warpbw.scene import load_scene
+
+    probe = _probe(tmp_path, np.random.default_rng(4).uniform(0.05, 2.0, (16, 32, 3)))
+    out = tmp_path / "scenes"
+    assert ms.main(["--probe", str(probe), "--alpha", "0.01", "--res", "12,16", "--write-scene", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["mirror_12.toml", "mirror_16.toml"]
+    mine = render_reference(prepare_scene(ms.mirror_scene(probe, 0.01, 16)), 2, seed=3, mis=True).image
+    written = render_reference(prepare_scene(load_scene(out / "mirror_16.toml")), 2, seed=3, mis=True).image
+    np.testing.assert_array_equal(written, mine)
+    before = (out / "mirror_12.toml").read_text()
+    with pytest.raises(WarpbwError, match="mirror_12.toml: already exists .*--force"):
+        ms.main(["--probe", str(probe), "--alpha", "0.5", "--res", "12", "--write-scene", str(out)])
+    assert (out / "mirror_12.toml").read_text() == before
+    ms.main(["--probe", str(probe), "--alpha", "0.5", "--res", "12", "--write-scene", str(out), "--force"])
+    assert "alpha = 0.5" in (out / "mirror_12.toml").read_text()
+
+
 def _relmse(test, truth, cov):
     """Rousselle et al.'s relative MSE with eps = 0.01 over covered pixels and channels, written out here."""
     a, b = test[cov].astype(np.float64), truth[cov].astype(np.float64)

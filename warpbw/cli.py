@@ -28,6 +28,10 @@ _FILTER_METHODS = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed", "
 _ALLOCATIONS = ("measured", "variance", "sqrt", "relative", "uniform")
 # warpbw.upsample.UPSAMPLE_MODES, default first (spelled here for the same reason)
 _UPSAMPLE_MODES = ("normal", "paper")
+# warpbw.metrics.RELMSE_EPS and WORST_FRACTION (spelled here for the same reason)
+_RELMSE_EPS = 1.0e-2
+_WORST_FRACTION = 0.01
+ERROR_MAP_DECADES = 6   # compare --error-map's default colour scale: 10^6 below the largest error (ours)
 # warpbw.bandwidth.BUDGET_MAX (spelled here for the same reason): the adaptive N_p goes up to
 # N_P_MAX_PER_BUDGET = 256 x --budget and is an int32 in the kernels
 BUDGET_MAX = INT32_MAX / 256
@@ -49,6 +53,7 @@ examples:
                                                 adaptive shading (002): AOVs out.level.exr, out.n_p.exr, ...
   warpbw bench scene.toml --json b.json --plot b.png   speed against accuracy, adaptive vs reference
   warpbw compare out.exr ground_truth.exr       PSNR and relative MSE over covered pixels
+  warpbw compare out.exr gt.exr --error-map err.exr   and where the error is (err.exr + err.png)
   warpbw render planes.toml -o out.exr --filter gmm_aligned
                                                 a scene with planes: reflectance filtering (004)
   warpbw render bunny_on_floor.toml -o out.exr --method adaptive --budget 8 --filter gmm_aligned
@@ -379,8 +384,9 @@ def cmd_compare(args) -> int:
     import numpy as np
 
     from warpbw.io.exr import read_exr, rgb_of
-    from warpbw.metrics import compare_images, coverage_from_alpha
+    from warpbw.metrics import compare_images, coverage_from_alpha, relmse_map
 
+    maps = _error_map_paths(args)
     a = read_exr(args.test)
     b = read_exr(args.reference)
     ta, tb = rgb_of(a), rgb_of(b)   # R,G,B, or a lone grey channel; anything else is refused by name
@@ -397,6 +403,9 @@ def cmd_compare(args) -> int:
         if bad:
             raise WarpbwError(f"{name}: {bad} non-finite values over covered pixels")
     r = compare_images(ta, tb, mask)
+    if maps:
+        lo, hi = _write_error_map(maps, relmse_map(ta, tb, mask), mask, args.error_range)
+        r.update(error_map=str(maps[0]), error_range=[lo, hi])
     if args.json:
         print(json_text(r), end="")   # strict JSON: an infinite PSNR (identical, or a black reference) is null
     else:
@@ -404,8 +413,53 @@ def cmd_compare(args) -> int:
         print(f"PSNR   {p:.3f} dB" if math.isfinite(p) else "PSNR   inf (identical over the covered pixels)"
               if p > 0 else "PSNR   undefined (the reference has no positive value over the covered pixels)")
         print(f"relMSE {r['relmse']:.6g}")
-        print(f"pixels {r['pixels']} covered")
+        print(f"pixels {r['pixels']} covered; the worst {_WORST_FRACTION:.0%} of them ({r['worst_pixels']}) hold "
+              f"{100 * r['worst_share']:.1f}% of the relMSE")
+        if maps:
+            print(f"error map {maps[0]} (+ {maps[1].name}, log colour scale {lo:.3g} to {hi:.3g}: "
+                  f"--error-range {lo:.3g},{hi:.3g} draws another map on it)")
     return 0
+
+
+def _error_map_paths(args) -> list:
+    """--error-map PATH.exr and its PNG beside it ([] without --error-map), refused before any work if either exists
+    (without --force) or would replace one of the images compared (whatever --force says); --error-range checked."""
+    rng = args.error_range
+    if rng is not None and not args.error_map:
+        raise WarpbwError("--error-range: give --error-map PATH.exr too (the range is that map's colour scale)")
+    if rng is not None and (len(rng) != 2 or rng[0] >= rng[1]):
+        raise WarpbwError(f"--error-range {','.join(f'{v:g}' for v in rng)}: expected two numbers LO,HI with "
+                          "0 < LO < HI")
+    if not args.error_map:
+        return []
+    out = Path(args.error_map)
+    if out.suffix.lower() != ".exr":
+        raise WarpbwError(f"--error-map {out}: expected a path ending in .exr")
+    paths = [out, out.with_suffix(".png")]
+    inputs = {Path(f).resolve() for f in (args.test, args.reference)}
+    for p in paths:
+        if p.resolve() in inputs:
+            raise WarpbwError(f"--error-map {out}: would overwrite {p}, one of the images compared")
+    check_overwrite(paths, args.force, option="--error-map")
+    return paths
+
+
+def _write_error_map(paths: list, err, mask, error_range) -> tuple:
+    """The per-pixel relMSE term as EXR (Y; A = the pixels compared) and a log-scaled false-colour PNG over
+    ``error_range`` (LO, HI), else ERROR_MAP_DECADES below the map's largest value (or from its smallest, when
+    nearer) up to it; returns the range used."""
+    import numpy as np
+
+    from warpbw.io.exr import write_exr, write_false_colour_png
+
+    paths[0].parent.mkdir(parents=True, exist_ok=True)
+    write_exr(paths[0], np.stack([err, mask], -1).astype(np.float32), channels=["Y", "A"])
+    if error_range is None:
+        shown = err[mask & (err > 0)]
+        hi = float(shown.max()) if shown.size else 1.0
+        error_range = (max(float(shown.min()) if shown.size else hi, hi * 10.0 ** -ERROR_MAP_DECADES), hi)
+    lo, hi = error_range
+    return write_false_colour_png(paths[1], err, mask=mask & (err > 0), vmin=lo, vmax=hi, log=True)
 
 
 def _positive_int(name, hi=None):
@@ -712,10 +766,23 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser("compare", help="PSNR and relative MSE of an image against a reference",
                        description="PSNR and relative MSE (linear radiance) over the pixels covered by geometry "
-                       "(the A channel written by warpbw render, else non-black pixels).")
+                       "(the A channel written by warpbw render, else non-black pixels), and the share of the "
+                       f"relative MSE held by the worst {_WORST_FRACTION:.0%} of those pixels: "
+                       f"{_WORST_FRACTION:.0%} if every pixel had the same error, near 100% when a few pixels hold "
+                       "it (fireflies and edges smeared by up-sampling alike: --error-map shows which).")
     c.add_argument("test", help="image to judge (EXR)")
     c.add_argument("reference", help="reference image (EXR)")
     c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--error-map", metavar="PATH.exr",
+                   help="also write the per-pixel relative squared error, (test - ref)^2 / (ref^2 + "
+                   f"{_RELMSE_EPS:g}) averaged "
+                   "over R, G, B (its mean over the covered pixels is the relMSE), as PATH.exr (Y; A = covered) and "
+                   "a log-scaled false-colour PATH.png (black: not covered, or no error)")
+    c.add_argument("--error-range", metavar="LO,HI", type=_number_list("--error-range", float),
+                   help="the PNG's log colour scale, printed (default: from 10^-%d times the map's largest value, "
+                   "or its smallest positive one if larger, to the largest), so that maps of several images can be "
+                   "drawn on one scale" % ERROR_MAP_DECADES)
+    c.add_argument("--force", action="store_true", help="overwrite an existing --error-map")
     c.set_defaults(func=cmd_compare)
     return p
 

@@ -1,12 +1,16 @@
 """Image error metrics over the pixels covered by geometry (../shared/DESIGN.md measurement protocol).
 
 Public: ``psnr(test, ref, mask)``, ``relmse(test, ref, mask)``, ``mse(test, ref, mask)``,
-``compare_images(test, ref, mask) -> dict``, ``coverage_from_alpha(pixels, channels)``.
+``compare_images(test, ref, mask) -> dict``, ``coverage_from_alpha(pixels, channels)``,
+``relmse_map(test, ref, mask) -> (H, W)``, ``worst_share(err_map, mask, fraction)``, ``WORST_FRACTION``.
 
 Both images are linear radiance (H, W, 3).  ``mask`` (H, W) selects the covered pixels; None means all.
 * PSNR = 10 log10(peak^2 / MSE) with ``peak`` the reference's largest value over the mask.
 * relMSE = mean over masked pixels and channels of (test - ref)^2 / (ref^2 + RELMSE_EPS)
   (Rousselle et al. 2011), insensitive to the overall exposure of bright pixels.
+* The relMSE map is that term per pixel, averaged over the channels (0 outside the mask), so relMSE is its mean
+  over the mask; ``worst_share`` is the share of relMSE held by the worst ``fraction`` of the masked pixels:
+  ``fraction`` when every pixel has the same error, near 1 when a few hold it (fireflies, or a smeared edge).
 """
 from __future__ import annotations
 
@@ -18,6 +22,7 @@ from warpbw.errors import WarpbwError
 
 # Rousselle, Knaus, Zwicker 2011, "Adaptive sampling and reconstruction using greedy error minimization"
 RELMSE_EPS = 1.0e-2
+WORST_FRACTION = 0.01   # the worst 1% of the covered pixels (ours: how concentrated the error is)
 
 
 def _masked(test, ref, mask):
@@ -56,9 +61,34 @@ def psnr(test, ref, mask=None) -> float:
     return 10.0 * math.log10(peak * peak / m)
 
 
+def relmse_map(test, ref, mask=None, eps: float = RELMSE_EPS) -> np.ndarray:
+    """(H, W) float64: per pixel the mean over channels of (test - ref)^2 / (ref^2 + eps); 0 outside ``mask``."""
+    _masked(test, ref, mask)                      # the same checks as the scalar metrics
+    a = np.asarray(test, np.float64)
+    b = np.asarray(ref, np.float64)
+    e = np.mean((a - b) ** 2 / (b * b + eps), axis=-1)
+    return e if mask is None else np.where(np.asarray(mask, bool), e, 0.0)
+
+
+def worst_share(err_map, mask=None, fraction: float = WORST_FRACTION) -> tuple[float, int]:
+    """(share of the summed ``err_map`` over ``mask`` held by its ceil(fraction n) largest pixels, that count);
+    the share is 0 when there is no error at all."""
+    if not 0.0 < fraction <= 1.0:
+        raise WarpbwError(f"fraction: expected a number in (0, 1], got {fraction}")
+    e = np.asarray(err_map, np.float64)
+    v = e[np.asarray(mask, bool)] if mask is not None else e.ravel()
+    k = max(1, math.ceil(fraction * v.size))
+    total = float(v.sum())
+    if total <= 0.0:
+        return 0.0, k
+    return float(np.partition(v, v.size - k)[v.size - k:].sum() / total), k
+
+
 def compare_images(test, ref, mask=None) -> dict:
+    share, k = worst_share(relmse_map(test, ref, mask), mask)
     return {"psnr_db": psnr(test, ref, mask), "relmse": relmse(test, ref, mask), "mse": mse(test, ref, mask),
-            "pixels": int(np.asarray(mask).sum()) if mask is not None else int(np.prod(np.shape(ref)[:2]))}
+            "pixels": int(np.asarray(mask).sum()) if mask is not None else int(np.prod(np.shape(ref)[:2])),
+            "worst_pixels": k, "worst_share": share}
 
 
 def coverage_from_alpha(pixels: np.ndarray, channels) -> np.ndarray | None:
