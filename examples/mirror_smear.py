@@ -62,6 +62,7 @@ def mirror_scene(probe: Path, alpha: float, res: int):
     """The sphere of the module docstring at ``res`` x ``res`` pixels, parsed."""
     from warpbw.scene import parse_scene
 
+    probe = Path(probe).resolve()   # the scene names it by an absolute path: a relative --probe is the user's cwd's
     return parse_scene(mirror_scene_text(probe, alpha, res), str(probe.parent), f"mirror sphere {res}x{res}")
 
 

@@ -2,6 +2,8 @@
 MSEs computed here from renders of its protocol, and its refusals of bad options."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
@@ -74,6 +76,17 @@ def test_written_scene_renders_as_the_scripts_own(ms, tmp_path):
     assert (out / "mirror_12.toml").read_text() == before
     ms.main(["--probe", str(probe), "--alpha", "0.5", "--res", "12", "--write-scene", str(out), "--force"])
     assert "alpha = 0.5" in (out / "mirror_12.toml").read_text()
+
+
+def test_a_relative_probe_path_is_read_from_the_working_directory(ms, tmp_path, monkeypatch):
+    # the README runs it as --probe ../shared/data/envmaps/city.exr: the path is the shell's, not the scene's
+    (tmp_path / "probes").mkdir()
+    _probe(tmp_path / "probes", np.random.default_rng(5).uniform(0.05, 2.0, (8, 16, 3)))
+    (tmp_path / "work").mkdir()
+    monkeypatch.chdir(tmp_path / "work")
+    sc = ms.mirror_scene(Path("../probes/probe.exr"), 0.05, 8)
+    assert Path(sc.environment.file) == tmp_path / "probes" / "probe.exr"
+    assert ms.main(["--probe", "../probes/probe.exr", "--res", "8", "--truth-spp", "4", "--worst", "0"]) == 0
 
 
 def _relmse(test, truth, cov):
