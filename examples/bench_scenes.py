@@ -4,6 +4,7 @@
     python examples/bench_scenes.py --out bench_scenes --run      # and run `warpbw bench` on each
     python examples/bench_scenes.py --out bench_scenes --run --no-mis --results nomis   # 002's baseline
     python examples/bench_scenes.py --out bench_scenes --run --runs 8   # 8 runs per point (the README's table)
+    python examples/bench_scenes.py --out bench_scenes --run --env-signal log --results log   # nu_a on log(1 + L/mean)
 
 Four scenes, two shapes, four NPF-derived MERL materials (one very specular, chrome) and two light
 probes, from ../shared/data:
@@ -99,6 +100,7 @@ def main(argv=None) -> int:
                     "shrink as 1/sqrt(runs)")
     ap.add_argument("--cache", help="ground-truth cache directory (warpbw bench --cache)")
     ap.add_argument("--no-mis", action="store_true", help="BRDF importance sampling only (002's baseline)")
+    ap.add_argument("--env-signal", help="what the analysis of the probe's bandwidth reads (warpbw bench --env-signal)")
     ap.add_argument("--results", help="directory for the JSON and PNG records (default: --out)")
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
@@ -107,7 +109,8 @@ def main(argv=None) -> int:
         ap.error(f"--only {','.join(unknown)}: expected scene names among {', '.join(SCENES)}")
     # the values passed on to warpbw bench, checked by its own parsers before anything is written
     check_command_options("bench", {k: v for k, v in (("--gt-spp", args.gt_spp), ("--runs", args.runs),
-                                                         ("--nb", args.nb)) if v})
+                                                         ("--nb", args.nb), ("--env-signal", args.env_signal))
+                                        if v})
     if not DATA.is_dir():
         print(f"bench_scenes: {DATA} not found (the shared data folder is needed)", file=sys.stderr)
         return 2
@@ -129,6 +132,8 @@ def main(argv=None) -> int:
             cmd.append("--no-mis")
         if args.runs:
             cmd += ["--runs", args.runs]
+        if args.env_signal:
+            cmd += ["--env-signal", args.env_signal]
         if i == 0 and args.nb:
             cmd += ["--nb", args.nb]
         if args.force:

@@ -1,8 +1,8 @@
 """Where adaptive shading fails: a near-mirror GGX sphere under a measured probe (README, "Where it fails").
 
     python examples/mirror_smear.py [--probe ../shared/data/envmaps/city.exr] [--alpha 1e-4]
-        [--res 32,64,128] [--budget 4] [--truth-spp 256] [--seed 1] [--clamp-quantile Q] [--worst 8]
-        [--json OUT.json] [--force] [--write-scene DIR]
+        [--res 32,64,128] [--budget 4] [--truth-spp 256] [--seed 1] [--clamp-quantile Q] [--env-signal log]
+        [--worst 8] [--json OUT.json] [--force] [--write-scene DIR]
 
 For each resolution: a radius-1 sphere of GGX (F = 1, ``--alpha``) at the origin, seen from z = 4 with a
 40-degree field of view, lit by the probe alone, MIS throughout.  The reference at ``--budget`` samples per
@@ -18,7 +18,8 @@ pixel was shaded or up-sampled, and the quantiles of the probe's angular bandwid
 ``--clamp-quantile Q`` is a diagnostic, not a method of warpbw: the bandwidth pass reads nu_a from the probe's
 pixels clamped at their Q-quantile of luminance (shading still uses the whole probe), which shows how much of
 the failure comes from the probe's brightest texels dominating the wavelet analysis (Eq. 7's 95% energy rule
-over coarse bands).  Q = 1 leaves the probe as it is.
+over coarse bands).  Q = 1 leaves the probe as it is.  ``--env-signal log`` is the renderer's own option
+(``warpbw render --env-signal``): the analysis reads log(1 + L / mean L) instead of the luminance.
 
 ``--write-scene DIR`` writes the sphere's scene file for each ``--res`` (DIR/mirror_RES.toml, the probe by its
 absolute path) and renders nothing: ``warpbw render`` and ``warpbw compare --error-map`` then show the frames and
@@ -34,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from warpbw.cli import ENV_SIGNALS
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, init_warp, run_command,
                                write_json)
 from warpbw.errors import WarpbwError, check_count
@@ -88,23 +90,23 @@ def clamp_probe_luminance(pixels: np.ndarray, q: float) -> np.ndarray:
     return pixels * scale[..., None]
 
 
-def prepare_with_clamped_bandwidth(prep, q: float) -> None:
+def prepare_with_clamped_bandwidth(prep, q: float, env_signal: str = "radiance") -> None:
     """Build ``prep``'s bandwidth inputs from the clamped probe; the shading keeps the whole probe."""
     from warpbw.pipeline import prepare_bandwidth
 
     env = prep.env
     prep.env = dataclasses.replace(env, pixels=clamp_probe_luminance(env.pixels, q))
     try:
-        prepare_bandwidth(prep)
+        prepare_bandwidth(prep, env_signal=env_signal)
     finally:
         prep.env = env
 
 
-def nu_a_quantiles(pixels: np.ndarray, name: str) -> list:
-    """nu_a of ``pixels`` (cycles/radian) at NU_A_QUANTILES of the probe's texels."""
+def nu_a_quantiles(pixels: np.ndarray, name: str, env_signal: str = "radiance") -> list:
+    """nu_a of ``pixels`` (cycles/radian), analysed on ``env_signal``, at NU_A_QUANTILES of the probe's texels."""
     from warpbw.bandwidth import env_bandwidth_map
 
-    nu, _ = env_bandwidth_map(pixels, name)
+    nu, _ = env_bandwidth_map(pixels, name, signal=env_signal)
     return [float(np.quantile(nu, q)) for q in NU_A_QUANTILES]
 
 
@@ -126,7 +128,7 @@ def worst_pixels(adaptive, truth: np.ndarray, cov: np.ndarray, k: int) -> tuple[
 
 
 def measure(probe: Path, alpha: float, res: int, budget: float, truth_spp: int, seed: int,
-            clamp_q: float, worst: int) -> dict:
+            clamp_q: float, worst: int, env_signal: str = "radiance") -> dict:
     """The figures of the module docstring for one resolution."""
     from warpbw.metrics import relmse
     from warpbw.pipeline import prepare_scene, render_adaptive, render_reference
@@ -136,8 +138,8 @@ def measure(probe: Path, alpha: float, res: int, budget: float, truth_spp: int, 
     cov = truth.coverage.astype(bool)
     ref = render_reference(prep, int(round(budget)), seed=seed, mis=True)
     if clamp_q < 1.0:
-        prepare_with_clamped_bandwidth(prep, clamp_q)
-    ada = render_adaptive(prep, budget, seed=seed, mis=True)
+        prepare_with_clamped_bandwidth(prep, clamp_q, env_signal)
+    ada = render_adaptive(prep, budget, seed=seed, mis=True, env_signal=env_signal)
     share, rows = worst_pixels(ada, truth.image, cov, worst)
     return {"res": res, "covered_pixels": int(cov.sum()),
             "relmse_reference": relmse(ref.image, truth.image, cov),
@@ -182,6 +184,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=1, help="seed of both frames; the truth uses seed + 1 (default 1)")
     ap.add_argument("--clamp-quantile", type=float, default=1.0,
                     help="diagnostic: nu_a from the probe clamped at this luminance quantile, in (0, 1] (default 1)")
+    ap.add_argument("--env-signal", choices=ENV_SIGNALS, default=ENV_SIGNALS[0],
+                    help="what the bandwidth pass's analysis of the probe reads (warpbw render --env-signal; "
+                    "default radiance)")
     ap.add_argument("--worst", type=int, default=WORST_DEFAULT, help=f"pixels to list (default {WORST_DEFAULT})")
     ap.add_argument("--json", help="write the figures here (JSON)")
     ap.add_argument("--force", action="store_true", help="overwrite --json or --write-scene's files")
@@ -214,11 +219,13 @@ def main(argv=None) -> int:
     from warpbw.envmap import load_envmap
 
     env = load_envmap(probe)
-    nu_q = {"probe": nu_a_quantiles(env.pixels, env.name)}
+    nu_q = {"probe": nu_a_quantiles(env.pixels, env.name, args.env_signal)}
     if args.clamp_quantile < 1.0:
-        nu_q["clamped"] = nu_a_quantiles(clamp_probe_luminance(env.pixels, args.clamp_quantile), env.name)
+        nu_q["clamped"] = nu_a_quantiles(clamp_probe_luminance(env.pixels, args.clamp_quantile), env.name,
+                                         args.env_signal)
     print(f"{probe.name}, GGX alpha {args.alpha:g}, budget {args.budget:g} against the reference at "
-          f"{args.budget:g} spp, relative MSE against {args.truth_spp} spp (MIS, seed {args.seed})")
+          f"{args.budget:g} spp, relative MSE against {args.truth_spp} spp (MIS, seed {args.seed}; nu_a analysed on "
+          f"the probe's {args.env_signal})")
     for key, what in (("probe", "the probe"), ("clamped", f"the probe clamped at its {args.clamp_quantile:g} "
                                                             "luminance quantile (the bandwidth pass reads this)")):
         if key in nu_q:
@@ -227,11 +234,11 @@ def main(argv=None) -> int:
     rows = []
     for r in tqdm(res, desc="resolutions", unit="res", leave=False, disable=None):   # no bar off a terminal
         rows.append(measure(probe, args.alpha, r, args.budget, args.truth_spp, args.seed, args.clamp_quantile,
-                            args.worst))
+                            args.worst, args.env_signal))
         tqdm.write(format_row(rows[-1]))
     if args.json:
         out = {"probe": str(probe), "alpha": args.alpha, "budget": args.budget, "truth_spp": args.truth_spp,
-               "seed": args.seed, "clamp_quantile": args.clamp_quantile,
+               "seed": args.seed, "clamp_quantile": args.clamp_quantile, "env_signal": args.env_signal,
                "nu_a_quantiles": {k: dict(zip(map(str, NU_A_QUANTILES), v)) for k, v in nu_q.items()}, "rows": rows}
         write_json(args.json, out)
     return 0

@@ -1,6 +1,7 @@
 """Validation of the bandwidth pass's predictions (002 Sec. 2.2, 2.4 and Fig. 12).
 
-    python examples/validate_bandwidth.py --out DIR [--size 256] [--scenes NAME ...] [--quick] [--force]
+    python examples/validate_bandwidth.py --out DIR [--size 256] [--scenes NAME ...] [--env-signal log] [--quick]
+        [--force]
 
 For each validation scene (a sphere with the NPF fit of color-changing-paint3 under forest.exr, as in
 002 Fig. 12; the bunny with gold-metallic-paint under studio.exr; a GGX gold sphere under studio.exr):
@@ -77,7 +78,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.bandwidth import LUMINANCE
+from warpbw.bandwidth import ENV_SIGNAL_DEFAULT, ENV_SIGNALS, LUMINANCE
 from warpbw.brdf import MaterialTable, make_brdf_funcs
 from warpbw.cli_common import OneLineParser, init_warp, run_command
 from warpbw.envmap import EnvMapData, env_radiance
@@ -682,7 +683,7 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
     t0 = time.perf_counter()
     scene = parse_scene(scene_toml(name, cfg["size"], cfg["data"]), cfg["data"], source=name)
     prep = prepare_scene(scene, device=cfg["device"], progress=False)
-    tables = prepare_bandwidth(prep)
+    tables = prepare_bandwidth(prep, env_signal=cfg["env_signal"])
     times["prepare"] = time.perf_counter() - t0
     log(f"[{name}] assets ready in {times['prepare']:.1f} s ({', '.join(prep.materials.names)}, {prep.env.name})")
 
@@ -789,6 +790,7 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
         "uniform_samples": int(round(math.sqrt(cfg["uniform_samples"]))) ** 2,
         "bis_samples": int(round(math.sqrt(cfg["bis_samples"]))) ** 2,
         "n_b": cfg["n_b"],
+        "env_signal": cfg["env_signal"],
         "time_s": {k: round(v, 3) for k, v in times.items()},
     }
     log(f"[{name}] bandwidth Spearman {stats['bandwidth_spearman']:.3f} over {stats['bandwidth_pixels']} px; "
@@ -894,6 +896,9 @@ def parse_args(argv=None):
                     help=f"leave out FFT windows whose AC energy is more than this share noise "
                          f"(default {MAX_NOISE_FRACTION}; {QUICK['max_noise']} with --quick)")
     ap.add_argument("--nb", type=int, default=16, help="n_b directions of the bandwidth pass (002: 16)")
+    ap.add_argument("--env-signal", choices=ENV_SIGNALS, default=ENV_SIGNAL_DEFAULT,
+                    help="what the analysis of the probe's angular bandwidth reads (warpbw render --env-signal; "
+                    "default radiance)")
     ap.add_argument("--nb-diagnostic", type=int, default=None,
                     help=f"n_b of a second, diagnostic bandwidth pass (default {N_B_DIAGNOSTIC}; 64 with --quick)")
     ap.add_argument("--seed", type=int, default=SEED)
@@ -936,6 +941,7 @@ def main(argv=None) -> int:
     cfg = {"size": args.size, "ref_spp": args.ref_spp, "ref_noise": args.ref_noise, "ref_spp_max": args.ref_spp_max,
            "uniform_samples": args.uniform_samples,
            "bis_samples": args.bis_samples, "window": args.window, "stride": args.stride, "n_b": args.nb,
+           "env_signal": args.env_signal,
            "n_b_diag": args.nb_diagnostic, "max_noise": args.max_noise,
            "seed": args.seed, "device": args.device, "data": Path(args.data)}
     print(f"validating {len(args.scenes)} scene(s) at {args.size}x{args.size}: reference {args.ref_spp} spp MIS "

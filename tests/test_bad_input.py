@@ -451,6 +451,8 @@ def test_spp_zero(tmp_path):
      ["--allocation", "invalid choice"]),
     (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--nyquist", "0"],
      ["--nyquist", "positive"]),
+    (["render", "scene.toml", "-o", "out.exr", "--env-signal", "log"], ["--env-signal", "adaptive only"]),
+    (["bench", "scene.toml", "--json", "b.json", "--env-signal", "linear"], ["--env-signal", "invalid choice"]),
     # the rate nyquist x b_p is float32: 1e40 became +inf and 0 x inf NaN, with numpy's warnings
     (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2", "--nyquist", "1e40"],
      ["--nyquist", "<= 3.40282e+38", "float32", "got 1e40"]),
@@ -499,7 +501,8 @@ def test_spp_zero(tmp_path):
      ["--max-anisotropy 4", "scenes with planes", "only"]),
 ], ids=["no output", "bad threads", "png output", "unknown command", "no command", "adaptive without budget",
         "negative budget", "nan budget", "zero nb", "budget without adaptive", "unknown method",
-        "allocation without adaptive", "unknown allocation", "zero nyquist", "nyquist 1e40",
+        "allocation without adaptive", "unknown allocation", "zero nyquist", "env-signal without adaptive",
+        "unknown env-signal", "nyquist 1e40",
         "spp 2^31", "spp 2^32+1", "demo spp 2^31", "budget 3e9", "nb 65537", "bench nb 2^31-1", "bench spp 2^31",
         "bench budgets 1e9",
         "bench spp twice", "bench-filtering zoom twice", "bench gt-spp 2^31", "bench-filtering spp 2^31",
@@ -964,6 +967,9 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     # values a script passes on to warpbw bench / bench-filtering are checked by their parsers up front
     (["bench_scenes.py", "--runs", "0"], "--runs 0: expected a positive integer"),
     (["bench_scenes.py", "--nb", "abc"], "--nb abc: expected comma-separated ints"),
+    (["bench_scenes.py", "--env-signal", "lin"], "--env-signal lin: expected one of radiance, log"),
+    (["mirror_smear.py", "--env-signal", "lin"], "--env-signal"),
+    (["validate_bandwidth.py", "--out", "v", "--env-signal", "lin"], "--env-signal"),
     (["filtering_scenes.py", "--zoom", "0"], "--zoom 0: expected comma-separated positive numbers"),
     (["filtering_scenes.py", "--gt-spp", "1e40"], "--gt-spp 1e40: expected a positive integer"),
     (["bench_reference.py", "--spp", "abc"], "--spp abc: expected comma-separated ints"),

@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 import warp as wp
+from hypothesis import given, settings, strategies as st
 
 from precompute.brdf_bandwidth import N_CELLS, N_THETA_I, wo_to_map
 from warpbw import bandwidth as bw
@@ -370,6 +371,7 @@ def test_cli_spells_the_allocations_and_the_default():
     from warpbw import cli
 
     assert set(cli._ALLOCATIONS) == set(bw.ALLOCATIONS) and cli._ALLOCATIONS[0] == bw.ALLOCATION_DEFAULT
+    assert set(cli.ENV_SIGNALS) == set(bw.ENV_SIGNALS) and cli.ENV_SIGNALS[0] == bw.ENV_SIGNAL_DEFAULT
     assert cli.N_B_MAX == bw.N_B_MAX and cli.BUDGET_MAX == bw.BUDGET_MAX
     from warpbw import filtering
 
@@ -409,3 +411,85 @@ def test_adaptive_matches_reference_in_the_limit():
     assert cov.sum() > 100 and res.stats["shaded_fraction"] == 1.0
     assert np.all(res.aovs["n_p"][cov] == 256)
     assert np.array_equal(res.image, ref.image)
+
+
+# --- the probe's signal for Eq. 7 (env_signal) -----------------------------------------------------------------
+
+def test_env_signal_is_the_luminance_or_its_log_above_the_mean():
+    lum = np.array([[0.0, 1.0], [3.0, 0.0]], np.float32)   # mean 1
+    assert bw.env_signal(lum, "radiance") is lum
+    np.testing.assert_allclose(bw.env_signal(lum, "log"), [[0.0, math.log(2.0)], [math.log(4.0), 0.0]], rtol=1e-12)
+    with pytest.raises(WarpbwError, match="env_signal: expected one of radiance, log, got 'lin'"):
+        bw.env_signal(lum, "lin")
+
+
+def _sun_edge_probe(sun: float) -> np.ndarray:
+    """A 64x128 sky of 1 with a dark block (0.1) whose right edge is column 40, and a 2x2 sun of ``sun`` 12 columns
+    (34 degrees) beyond that edge."""
+    px = np.ones((64, 128, 3), np.float32)
+    px[30:41, 20:41] = 0.1
+    px[20:22, 52:54] = sun
+    return px
+
+
+def _edge_nu(px, signal, cache) -> float:
+    nu, _ = bw.env_bandwidth_map(px, cache=cache, signal=signal)
+    return float(np.median(nu[31:40, 39:42]))   # the block's right edge, below the sun's rows
+
+
+@pytest.fixture(scope="module")
+def sun_edge(tmp_path_factory):
+    cache = tmp_path_factory.mktemp("env_bw")
+    return cache, _edge_nu(_sun_edge_probe(1.0), "radiance", cache)
+
+
+def test_a_distant_sun_drowns_the_edge_in_the_radiance_analysis(sun_edge):
+    # why the log signal exists (README "Where it fails"): Eq. 7 on radiance reads the edge's bandwidth off the
+    # sun's coarse wavelets, which reach it; without the sun both signals read the same edge
+    cache, alone = sun_edge
+    assert _edge_nu(_sun_edge_probe(1.0), "log", cache) == pytest.approx(alone, rel=0.02)
+    assert _edge_nu(_sun_edge_probe(1.0e4), "radiance", cache) < 0.25 * alone
+
+
+@settings(max_examples=6, deadline=None)
+@given(sun=st.floats(1.0, 1.0e4))
+def test_the_log_signal_keeps_the_edge_beside_suns_up_to_ten_thousand_times_the_sky(sun_edge, sun):
+    # the truth is the edge's bandwidth with no sun at all: the sun lies 34 degrees away and changes nothing there
+    cache, alone = sun_edge
+    assert _edge_nu(_sun_edge_probe(sun), "log", cache) == pytest.approx(alone, rel=0.25)
+
+
+def test_env_bandwidth_maps_are_cached_per_signal_and_old_entries_read_as_radiance(tmp_path):
+    from precompute.assetfile import read_asset, write_asset
+
+    px = _sun_edge_probe(100.0)
+    rad, o1 = bw.env_bandwidth_map(px, cache=tmp_path, signal="radiance")
+    log, o2 = bw.env_bandwidth_map(px, cache=tmp_path, signal="log")
+    assert (o1, o2) == ("built", "built") and not np.array_equal(rad, log)
+    for signal, built in (("radiance", rad), ("log", log)):
+        nu, origin = bw.env_bandwidth_map(px, cache=tmp_path, signal=signal)
+        assert origin == "cache" and np.array_equal(nu, built)
+    # a radiance entry of before this option (no "signal" in its params) still reads, as radiance only
+    (path,) = [f for f in tmp_path.iterdir() if not f.name.startswith("env-bandwidth-log-")]
+    a = read_asset(path, bw.ENV_BW_FORMAT, bw.ENV_BW_VERSION, "")
+    write_asset(path, bw.ENV_BW_FORMAT, bw.ENV_BW_VERSION, a.header["source"], a.header["source_hash"],
+                {"nu_a": np.full_like(rad, 7.0)}, params={"units": "cycles/radian"}, force=True)
+    assert bw.env_bandwidth_map(px, cache=tmp_path, signal="radiance") == (pytest.approx(7.0), "cache")
+    assert np.array_equal(bw.env_bandwidth_map(px, cache=tmp_path, signal="log")[0], log)
+
+
+def test_the_frame_reads_the_signal_it_is_given_and_says_so():
+    prep = prepared(mat=GGX_SHARP, env='procedural = "sky"', w=24, h=20)
+    tables = {}
+    for signal in ("radiance", "log", "radiance"):
+        tables.setdefault(signal, []).append(prepare_bandwidth(prep, env_signal=signal).nu_env.numpy())
+        assert prep.notes["environment"]["bandwidth_signal"] == signal
+    for signal, (t, *_) in tables.items():   # the pass's reduced table of that signal's map
+        nu, _ = bw.env_bandwidth_map(prep.env.pixels, prep.env.name, signal=signal)
+        assert np.array_equal(t, bw.nu_env_table(nu))
+    assert np.array_equal(*tables["radiance"]) and not np.array_equal(tables["radiance"][0], tables["log"][0])
+    res = render_adaptive(prep, budget=2, env_signal="log")
+    assert res.stats["env_signal"] == "log" and prep.bandwidth_signal == "log"
+    assert render_adaptive(prep, budget=2).stats["env_signal"] == "radiance"
+    with pytest.raises(WarpbwError, match="env_signal: expected one of radiance, log, got 'lin'"):
+        render_adaptive(prep, budget=2, env_signal="lin")

@@ -422,6 +422,11 @@ def test_render_adaptive_writes_aovs_and_caches_tables(work, npf_scene):
     assert np.array_equal(level, level_paper) and fine.any() and np.array_equal(normal[fine], paper[fine])
     up = covered & (level > 0)
     assert up.any() and np.isfinite(normal).all() and not np.array_equal(normal[up], paper[up])
+    # the probe's bandwidth analysed on log(1 + L / mean L), on request: its own cache entry beside the radiance one
+    run(["render", npf_scene, "-o", out, "--method", "adaptive", "--budget", "4", "-q", "--force",
+         "--env-signal", "log"], work)
+    assert json.loads(out.with_suffix(".json").read_text())["env_signal"] == "log"
+    assert len(list((work / "cache").glob("env-bandwidth-log-*.npz"))) == 1
 
 
 # ------------------------------------------------------------------------------------------ planes beside a sphere

@@ -95,16 +95,17 @@ def _relmse(test, truth, cov):
     return float(np.mean((a - b) ** 2 / (b * b + 0.01)))
 
 
-def test_measure_compares_both_frames_with_the_truth_as_its_docstring_says(ms, tmp_path):
+@pytest.mark.parametrize("signal", ["radiance", "log"])
+def test_measure_compares_both_frames_with_the_truth_as_its_docstring_says(ms, tmp_path, signal):
     """Both frames at seed s, the truth at seed s + 1 and truth_spp, MIS; the shares from the same errors."""
     rng = np.random.default_rng(11)
     px = rng.uniform(0.05, 2.0, (16, 32, 3)).astype(np.float32)
     probe = _probe(tmp_path, px)
-    r = ms.measure(probe, 0.05, 16, budget=2.0, truth_spp=8, seed=4, clamp_q=1.0, worst=3)
+    r = ms.measure(probe, 0.05, 16, budget=2.0, truth_spp=8, seed=4, clamp_q=1.0, worst=3, env_signal=signal)
     prep = prepare_scene(ms.mirror_scene(probe, 0.05, 16))
     truth = render_reference(prep, 8, seed=5, mis=True)
     cov = truth.coverage.astype(bool)
-    ada = render_adaptive(prep, 2.0, seed=4, mis=True).image
+    ada = render_adaptive(prep, 2.0, seed=4, mis=True, env_signal=signal).image
     assert r["covered_pixels"] == int(cov.sum()) > 50
     assert r["relmse_reference"] == pytest.approx(
         _relmse(render_reference(prep, 2, seed=4, mis=True).image, truth.image, cov), rel=1e-6)

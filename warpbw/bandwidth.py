@@ -6,7 +6,8 @@ Public:
     ``make_bandwidth_kernel(kinds, preconvolved)``   the pass's kernel (compiled ahead by the pipeline)
     ``BandwidthTables`` (Warp struct) / ``make_bandwidth_tables(nu_env, nu_rho, device)``
     ``nu_env_table(nu_env) -> (h, w)``   the environment's nu_a, max-filtered to at most LIGHT_TABLE_WIDTH columns
-    ``env_bandwidth_map(pixels, name, cache=None) -> ((H, W) float32 cycles/rad, origin)``
+    ``env_bandwidth_map(pixels, name, cache=None, signal) -> ((H, W) float32 cycles/rad, origin)``
+    ``ENV_SIGNALS``, ``ENV_SIGNAL_DEFAULT``, ``env_signal(lum, signal)``, ``check_env_signal(signal)``: what it reads
     ``direction_set(n_b, seed) -> (n_b, 3) float32``   stratified points for the n_b directions
     ``interleave_shifts(n_b, side) -> (side^2, 3)``     per-block offsets of the direction set
     ``BandwidthBuffer`` (``.estimator_variance(mis)``) /
@@ -141,6 +142,23 @@ silent:
   0.4 rad, a GGX alpha = 0.2 lobe's reach), so that a direction inside a smooth light would also see its
   edges.  On the GGX sphere of examples/validate_bandwidth.py, whose prediction is lowest in the highlight
   where the reference reads some detail, the per-pixel figure falls from 0.491 to 0.489, 0.487 and 0.479.
+* The probe's nu_a is Eq. 7 applied to its luminance, as 002 applies it (``ENV_SIGNAL_DEFAULT``, "radiance").
+  ``env_signal="log"`` (``--env-signal log``) analyses log(1 + L / mean L) instead (:func:`env_signal`).  Why it
+  exists: Eq. 7 reads a texel's bandwidth off the wavelets that reach it, and a sun's coarse wavelets reach tens
+  of degrees.  In tests/test_bandwidth.py's probe, a dark edge 34 degrees from a 2 x 2-texel sun 10^4 times the
+  sky reads 1.0 cycles/rad on radiance against 6.6 without the sun; on the log it reads 6.1.  A near-mirror
+  then up-samples across such edges (README "Where it fails").  The log leaves the probe linear below its
+  mean and compresses what lies above it.  Once a sun carries most of the mean it fails too: at 5 x 10^4 the
+  same edge reads 1.4.
+  Measured (session 42; ``/work/bench/s42``).  The mirror of ``examples/mirror_smear.py`` at 128 x 128 under
+  city.exr goes from a relative MSE of 0.909 to 0.064 (shaded 19% -> 77%); under studio.exr from 0.0157 to
+  0.0044.  examples/validate_bandwidth.py's per-pixel bandwidth rank goes from 0.599 to 0.711 on the ccp3
+  sphere under forest.exr (002 Fig. 12's scene), 0.520 -> 0.517 on the bunny and 0.494 -> 0.486 on the GGX
+  sphere (both under studio.exr); the variance ranks move by at most 0.01.  On the benchmark
+  (``examples/bench_scenes.py``, MIS, 3 paired runs) it shades more pixels, and at equal budget the frames lose
+  PSNR: the ccp3 sphere 0.06-1.15 dB (shaded 14.5% -> 21.2%), the gold bunny 0.01-0.35 dB (24.9% -> 28.2%),
+  the acrylic bunny 0.01-0.08 dB; the chrome sphere moves by -0.34 to +0.12 dB.  So it is not the default: the
+  benchmark's frames are limited by noise, and every extra pixel shaded takes samples from the others.
 * The level (Eq. 11) is computed from the Nyquist sampling rate ``NYQUIST_FACTOR * b_p``: Sec. 2.2
   says "the required sampling rates at the image plane are twice the local image-space bandwidth".
   Measured, not adopted (session 31, a scratch patch; gold bunny of examples/bench_scenes.py, MIS, 4 runs): a
@@ -209,6 +227,10 @@ POOL_RADIUS_DEFAULT = 2      # pixels pool the alike traced neighbours within 2 
 LIGHT_TABLE_WIDTH = 256      # columns of the reduced environment the pass reads (module docstring)
 ENV_BW_FORMAT = "warpbw.env-bandwidth"
 ENV_BW_VERSION = 1
+# The signal Eq. 7's wavelet analysis of the probe reads (``env_signal``): its luminance, as 002 does (the default),
+# or log(1 + L / mean L), where a sun no longer drowns the rest of the probe's detail (module docstring: the trade)
+ENV_SIGNALS = ("radiance", "log")
+ENV_SIGNAL_DEFAULT = "radiance"
 
 _LUM = wp.constant(wp.vec3(*LUMINANCE))
 _TWO_OVER_PI = wp.constant(2.0 / math.pi)
@@ -505,18 +527,37 @@ def make_bandwidth_tables(nu_env, nu_rho, device: str = "cpu") -> tuple[Bandwidt
     return s, [s.nu_env, s.nu_rho]
 
 
-def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None) -> tuple[np.ndarray, str]:
+def check_env_signal(signal: str) -> str:
+    """``signal`` if it is one of ``ENV_SIGNALS``, else a one-line error naming them."""
+    if signal not in ENV_SIGNALS:
+        raise WarpbwError(f"env_signal: expected one of {', '.join(ENV_SIGNALS)}, got {signal!r}")
+    return signal
+
+
+def env_signal(lum: np.ndarray, signal: str = ENV_SIGNAL_DEFAULT) -> np.ndarray:
+    """The map the wavelet analysis of the probe reads: its luminance ``lum`` itself ("radiance", 002's), or
+    log(1 + L / mean L) ("log", float64): linear in L below the probe's mean, logarithmic above it, so that a sun
+    compressed to a few times the sky's level no longer fills the coarse bands of every texel within reach of its
+    wavelets."""
+    if check_env_signal(signal) == "log":
+        return np.log1p(np.asarray(lum, np.float64) / float(np.mean(lum)))
+    return lum
+
+
+def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
+                      signal: str = ENV_SIGNAL_DEFAULT) -> tuple[np.ndarray, str]:
     """nu_a(w) of a lat-long probe in cycles/radian (002 Sec. 2.3, "Distant illumination").
 
-    Wavelet analysis of the map (:func:`precompute.wavelets.envmap_angular_bandwidth`, about 5 s at
-    1024x512 on one core), with the flatness floor at ``EPSILON`` times the mean radiance (an HDR sun
-    would otherwise make every other texel flat), cached by the pixels' content hash in ``cache``
+    Wavelet analysis of the map's :func:`env_signal` (:func:`precompute.wavelets.envmap_angular_bandwidth`, about
+    5 s at 1024x512 on one core), with the flatness floor at ``EPSILON`` times the signal's mean (an HDR sun
+    would otherwise make every other texel flat), cached by the pixels' content hash and the signal in ``cache``
     (default ``$WARPBW_CACHE``).  A constant map has bandwidth 0 everywhere.  Returns the map and where
     it came from ("constant", "cache" or "built")."""
     from precompute.assetfile import read_asset, write_asset
     from precompute.brdf_sampling import cache_dir
     from precompute.wavelets import EPSILON, envmap_angular_bandwidth
 
+    check_env_signal(signal)
     px = np.ascontiguousarray(np.asarray(pixels, np.float32))
     if px.ndim != 3 or px.shape[2] != 3:
         raise WarpbwError(f"{name}: expected (H, W, 3) pixels for the bandwidth map, got shape {px.shape}")
@@ -525,20 +566,24 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None)
     if float(np.ptp(lum)) == 0.0:
         return np.zeros((h, w), np.float32), "constant"
     digest = "blake2b:" + hashlib.blake2b(px.tobytes() + str(px.shape).encode(), digest_size=16).hexdigest()
-    path = (cache_dir() if cache is None else cache) / f"env-bandwidth-{digest.split(':')[1]}-v{ENV_BW_VERSION}.npz"
+    kind = "" if signal == ENV_SIGNAL_DEFAULT else f"{signal}-"   # the radiance maps keep their cache names
+    path = ((cache_dir() if cache is None else cache)
+            / f"env-bandwidth-{kind}{digest.split(':')[1]}-v{ENV_BW_VERSION}.npz")
     if path.is_file():
         try:
             a = read_asset(path, ENV_BW_FORMAT, ENV_BW_VERSION, "delete the cache file")
             nu = np.asarray(a.arrays["nu_a"], np.float32)
-            if a.header.get("source_hash") == digest and nu.shape == (h, w):
+            if (a.header.get("source_hash") == digest and nu.shape == (h, w)
+                    and a.header.get("params", {}).get("signal", ENV_SIGNAL_DEFAULT) == signal):
                 return nu, "cache"
-        except (WarpbwError, KeyError):
+        except (WarpbwError, KeyError, AttributeError):
             pass  # a stale or damaged cache entry is rebuilt below
-    nu = envmap_angular_bandwidth(lum.astype(np.float64), floor=EPSILON * float(lum.mean())).astype(np.float32)
+    t = env_signal(lum, signal)
+    nu = envmap_angular_bandwidth(t.astype(np.float64), floor=EPSILON * float(t.mean())).astype(np.float32)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         write_asset(path, ENV_BW_FORMAT, ENV_BW_VERSION, name, digest, {"nu_a": nu},
-                    params={"units": "cycles/radian", "floor": "epsilon * mean radiance"}, force=True)
+                    params={"units": "cycles/radian", "floor": "epsilon * mean signal", "signal": signal}, force=True)
     except OSError:
         pass  # a read-only cache only costs the rebuild next time
     return nu, "built"

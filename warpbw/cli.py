@@ -28,6 +28,8 @@ _FILTER_METHODS = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed", "
 _ALLOCATIONS = ("measured", "variance", "sqrt", "relative", "uniform")
 # warpbw.upsample.UPSAMPLE_MODES, default first (spelled here for the same reason)
 _UPSAMPLE_MODES = ("normal", "paper")
+# warpbw.bandwidth.ENV_SIGNALS, default first (spelled here for the same reason)
+ENV_SIGNALS = ("radiance", "log")
 # warpbw.metrics.RELMSE_EPS and WORST_FRACTION (spelled here for the same reason)
 _RELMSE_EPS = 1.0e-2
 _WORST_FRACTION = 0.01
@@ -284,12 +286,13 @@ def _render_mixed_cli(scene, args) -> int:
 
 
 def _adaptive_options(args) -> dict:
-    """--allocation / --nyquist / --upsample as render_adaptive keywords (only those given)."""
-    return {k: getattr(args, k) for k in ("allocation", "nyquist", "upsample") if getattr(args, k, None) is not None}
+    """--allocation / --nyquist / --upsample / --env-signal as render_adaptive keywords (only those given)."""
+    return {k: getattr(args, k) for k in ("allocation", "nyquist", "upsample", "env_signal")
+            if getattr(args, k, None) is not None}
 
 
 def add_adaptive_options(p) -> None:
-    """--allocation, --nyquist and --upsample, shared by render and bench."""
+    """--allocation, --nyquist, --upsample and --env-signal, shared by render and bench."""
     p.add_argument("--allocation", choices=_ALLOCATIONS, default=None,
                    help="adaptive: how N_p follows the pass's estimates: measured (default; the pass's own MIS "
                    "standard deviation), variance (002 Sec. 2.4: the Eq. 9 bound), sqrt (its square root), "
@@ -301,6 +304,11 @@ def add_adaptive_options(p) -> None:
                    help="adaptive: how a pixel that is not shaded is filled from its parents: normal (default; the "
                    "paper's bilateral weights fitting a plane in the surface normal, so that shading that follows "
                    "the normal, on bumps, is not blurred) or paper (002 Sec. 3.2: the weighted mean)")
+    p.add_argument("--env-signal", choices=ENV_SIGNALS, default=None,
+                   help="adaptive: what the wavelet analysis of the probe's angular bandwidth (002 Eq. 7) reads: "
+                   "radiance (default; the paper's) or log, log(1 + L / mean L), where a sun no longer hides the "
+                   "edges around it: near-mirrors under a probe with a sun smear far less, but on the benchmark "
+                   "scenes it shades more pixels and loses up to 1 dB at equal budget (README)")
 
 
 def add_anisotropy_option(p, default) -> None:
@@ -320,8 +328,8 @@ def cmd_render(args) -> int:
         raise WarpbwError("--method adaptive needs --budget SAMPLES_PER_PIXEL (mean samples per covered pixel)")
     if args.method == "reference" and (args.budget is not None or args.nb is not None
                                        or _adaptive_options(args)):
-        raise WarpbwError("--budget, --nb, --allocation, --nyquist and --upsample apply to --method adaptive only "
-                          "(the reference takes --spp)")
+        raise WarpbwError("--budget, --nb, --allocation, --nyquist, --upsample and --env-signal apply to --method "
+                          "adaptive only (the reference takes --spp)")
     scene = load_scene(args.scene)
     mixed = _is_mixed(scene)
     if args.method == "adaptive" and args.spp is not None and not mixed:
@@ -796,6 +804,8 @@ def check_command_options(command: str, options: dict[str, str]) -> None:
     parser = sub.choices[command]
     for option, value in options.items():
         action = next(a for a in parser._actions if option in a.option_strings)
+        if action.choices is not None and value not in action.choices:
+            raise WarpbwError(f"{option} {value}: expected one of {', '.join(map(str, action.choices))}")
         if action.type is None:
             continue
         try:

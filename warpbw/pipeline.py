@@ -58,6 +58,7 @@ class PreparedScene:
     notes: dict = field(default_factory=dict)
     sources: dict = field(default_factory=dict)      # material name -> BrdfSource (merl / npf only)
     bandwidth: object = None                          # BandwidthTables, built on first adaptive frame
+    bandwidth_signal: str | None = None               # the env_signal its nu_a map was analysed on
     lights: object = None                             # warpbw.lights.Lights, or None without [[light]]s
     _keep: list = field(default_factory=list, repr=False)
 
@@ -312,21 +313,25 @@ class _AnalyticSource:
         return brdf_mod.eval_brdf(self._prep.materials, self._index, wi, wo, device=self._prep.device)
 
 
-def prepare_bandwidth(prep: PreparedScene, progress: bool = False):
-    """The bandwidth pass's inputs (adaptive method only; built once per prepared scene): the
-    environment's nu_a map and one nu_rho table per material, from the scene's ``bandwidth`` file,
-    the cache, or built (analytic materials: from the renderer's own BRDF evaluation)."""
-    if prep.bandwidth is not None:
-        return prep.bandwidth
+def prepare_bandwidth(prep: PreparedScene, progress: bool = False, env_signal: str | None = None):
+    """The bandwidth pass's inputs (adaptive method only; built once per prepared scene and ``env_signal``): the
+    environment's nu_a map, analysed on ``env_signal`` (:func:`warpbw.bandwidth.env_signal`; default "radiance"),
+    and one nu_rho table per material, from the scene's ``bandwidth`` file, the cache, or built (analytic materials:
+    from the renderer's own BRDF evaluation)."""
     from precompute.brdf_bandwidth import SHAPE as BW_TABLE_SHAPE, load_or_build_bandwidth
-    from warpbw.bandwidth import env_bandwidth_map, make_bandwidth_tables, nu_env_table
+    from warpbw.bandwidth import (ENV_SIGNAL_DEFAULT, check_env_signal, env_bandwidth_map, make_bandwidth_tables,
+                                  nu_env_table)
 
+    env_signal = check_env_signal(ENV_SIGNAL_DEFAULT if env_signal is None else env_signal)
+    if prep.bandwidth is not None and prep.bandwidth_signal == env_signal:
+        return prep.bandwidth
     if prep.env is None:
         raise WarpbwError(f"{prep.scene.source}: the bandwidth pass needs an [environment] ([[light]]s are exact "
                           "and take no part in it)")
     with _timed(prep.timings, "load_env_bandwidth"):
-        nu_env, origin = env_bandwidth_map(prep.env.pixels, prep.env.name)
+        nu_env, origin = env_bandwidth_map(prep.env.pixels, prep.env.name, signal=env_signal)
     prep.notes["environment"]["bandwidth"] = origin
+    prep.notes["environment"]["bandwidth_signal"] = env_signal
     tables = []
     with _timed(prep.timings, "load_brdf_bandwidth"):
         for i, name in enumerate(prep.scene.material_order):
@@ -341,7 +346,7 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False):
             tables.append(table)
         struct, keep = make_bandwidth_tables(nu_env_table(nu_env), np.stack(tables),
                                              device=prep.device)
-    prep.bandwidth = struct
+    prep.bandwidth, prep.bandwidth_signal = struct, env_signal
     prep._keep.extend(keep)
     return struct
 
@@ -368,7 +373,8 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
                     n_min: int | None = None, n_max: int | None = None, preconvolved: bool = False,
                     allocation: str | None = None, nyquist: float | None = None, stride: int | None = None,
                     pool_radius: int | None = None, device: str = "cpu", progress: bool = False,
-                    threads: int | None = None, clip_distance=None, upsample: str | None = None) -> RenderResult:
+                    threads: int | None = None, clip_distance=None, upsample: str | None = None,
+                    env_signal: str | None = None) -> RenderResult:
     """Render a frame with bandwidth prediction and hierarchical adaptive shading (002 Sec. 2-3).
 
     ``budget`` is the mean number of samples per covered pixel (the total is budget x covered pixels),
@@ -376,10 +382,11 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     deviation the bandwidth pass measures, :func:`warpbw.bandwidth.allocate_samples`).  ``aovs`` holds
     the level map, N_p, the predicted variance, the shaded mask, b_p and sigma2.  ``stride`` and
     ``pool_radius`` set how the bandwidth pass shares its directions (:func:`warpbw.bandwidth.bandwidth_pass`);
-    ``upsample`` how the hierarchy up-samples ("normal", the default, or "paper": :mod:`warpbw.upsample`).
-    The scene needs an environment; its directional lights are added exactly at every pixel
-    (:mod:`warpbw.adaptive`).  ``clip_distance`` hides what lies beyond it, as for :func:`render_reference`:
-    a hidden pixel takes no part in the pass, the budget or the hierarchy."""
+    ``upsample`` how the hierarchy up-samples ("normal", the default, or "paper": :mod:`warpbw.upsample`);
+    ``env_signal`` what the probe's angular bandwidth is analysed on ("radiance", the default, or "log":
+    :func:`warpbw.bandwidth.env_signal`).  The scene needs an environment; its directional lights are added exactly
+    at every pixel (:mod:`warpbw.adaptive`).  ``clip_distance`` hides what lies beyond it, as for
+    :func:`render_reference`: a hidden pixel takes no part in the pass, the budget or the hierarchy."""
     from warpbw import adaptive, bandwidth
     from warpbw.gbuffer import make_gbuffer_kernel
     from warpbw.shading import make_reference_kernel
@@ -393,12 +400,13 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     pool_radius = bandwidth.POOL_RADIUS_DEFAULT if pool_radius is None else pool_radius
     upsample = UPSAMPLE_DEFAULT if upsample is None else upsample
     check_upsample_mode(upsample)
+    env_signal = bandwidth.check_env_signal(bandwidth.ENV_SIGNAL_DEFAULT if env_signal is None else env_signal)
     bandwidth.direction_set(n_b)  # validates n_b before any work
     prep, timings = _prepared(scene, device, progress)
     if prep.env is None:
         raise WarpbwError(f"{prep.scene.source}: the adaptive method needs an [environment] to adapt to: [[light]]s "
                           "alone are exact at any spp (use the reference method)")
-    tables = prepare_bandwidth(prep, progress)
+    tables = prepare_bandwidth(prep, progress, env_signal)
     for k in ("load_env_bandwidth", "load_brdf_bandwidth"):
         if k in prep.timings and prep is not scene:
             timings[k] = prep.timings[k]
@@ -444,6 +452,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
         "bandwidth_stride": int(stride),
         "bandwidth_pool_radius": int(pool_radius),
         "upsample": upsample,
+        "env_signal": env_signal,
         "bandwidth_traced_pixels": int(buf.traced_pixels),
         "preconvolved_bound": bool(preconvolved),
         "allocation": alloc.stats,
