@@ -167,6 +167,13 @@ silent:
   the pixels instead of 25% and reads 29.65 / 33.90 / 37.25 / 39.45 dB at budgets 1 / 2 / 4 / 8 against
   33.74 / 36.53 / 38.17 / 38.34; its best speed-up, 3.73x +/- 0.69 (budget 8) against 3.09x +/- 0.18
   (budget 4), is within the noise.  With the factor also below 1 (down to 0.5) the best is 2.90x.
+  ``--nyquist 1.5`` on all four benchmark scenes (session 42, 3 runs, same seeds as the default's; PSNR against it
+  at budgets 0.5-32): the acrylic bunny gains 0.2-1.0 dB (shaded 74.7% -> 62.8%) and the ccp3 sphere -1.4 to +1.9;
+  the gold bunny gains 0.4-3.0 dB at budgets 0.5-2 and loses 0.1-2.3 dB at 4-32.  The chrome sphere collapses,
+  losing 5.6-22.5 dB: its highlights need level 0.  The rate that balances the up-sampling's bias against the
+  noise of spreading the budget thinner differs from scene to scene, and one factor cannot serve them all.  With
+  ``env_signal="log"`` at 1.5 the figures fall between (gold bunny +2.0 to -2.3, ccp3 +0.7 to -1.2, chrome the same
+  collapse).
 
 N_p (Sec. 2.4: "keep N_p proportional to" the bound, so that the variance is constant):
 ``N_p = clamp(ceil(k_p / V), n_min, n_max)`` with k_p = sigma2_p ("variance", the paper's), its square
