@@ -90,7 +90,7 @@ def clamp_probe_luminance(pixels: np.ndarray, q: float) -> np.ndarray:
     return pixels * scale[..., None]
 
 
-def prepare_with_clamped_bandwidth(prep, q: float, env_signal: str = "radiance") -> None:
+def prepare_with_clamped_bandwidth(prep, q: float, env_signal: str = ENV_SIGNALS[0]) -> None:
     """Build ``prep``'s bandwidth inputs from the clamped probe; the shading keeps the whole probe."""
     from warpbw.pipeline import prepare_bandwidth
 
@@ -102,7 +102,7 @@ def prepare_with_clamped_bandwidth(prep, q: float, env_signal: str = "radiance")
         prep.env = env
 
 
-def nu_a_quantiles(pixels: np.ndarray, name: str, env_signal: str = "radiance") -> list:
+def nu_a_quantiles(pixels: np.ndarray, name: str, env_signal: str = ENV_SIGNALS[0]) -> list:
     """nu_a of ``pixels`` (cycles/radian), analysed on ``env_signal``, at NU_A_QUANTILES of the probe's texels."""
     from warpbw.bandwidth import env_bandwidth_map
 
@@ -128,7 +128,7 @@ def worst_pixels(adaptive, truth: np.ndarray, cov: np.ndarray, k: int) -> tuple[
 
 
 def measure(probe: Path, alpha: float, res: int, budget: float, truth_spp: int, seed: int,
-            clamp_q: float, worst: int, env_signal: str = "radiance") -> dict:
+            clamp_q: float, worst: int, env_signal: str = ENV_SIGNALS[0]) -> dict:
     """The figures of the module docstring for one resolution."""
     from warpbw.metrics import relmse
     from warpbw.pipeline import prepare_scene, render_adaptive, render_reference
