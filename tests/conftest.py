@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 import os
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -68,6 +69,52 @@ diffuse = [0.5, 0.5, 0.5]
 type = "lambert"
 albedo = 0.8
 """
+
+
+# One plane with a Cook-Torrance material under directional lights (issue 4's scene syntax), as TOML text:
+# test_filtering's scenes, and the planes of test_extremes and test_bad_input.
+PLANE_F0 = (0.9, 0.75, 0.4)
+PLANE_DIFFUSE = (0.05, 0.04, 0.02)
+PLANE_LIGHT_DIR = (0.3, 0.8, -0.5)
+PLANE_RADIANCE = (3.0, 2.5, 2.0)
+
+
+def plane_scene_toml(material_extra: str = "", roughness: float = 0.2, position=(0.0, 1.5, 2.0),
+                     resolution=(24, 16), size: float = 2.0, fov: float = 40.0, lights: int = 1,
+                     environment: str = "", light_dir=PLANE_LIGHT_DIR, radiance=PLANE_RADIANCE,
+                     diffuse=PLANE_DIFFUSE) -> str:
+    """A camera looking at a plane of material "m" at the origin; `lights` directional lights (0-2),
+    `environment` and `material_extra` (normal_map = ..., tiling = ...) appended as given; diffuse=None
+    leaves the Lambert term out."""
+    light = f"""
+[[light]]
+type = "directional"
+direction = {list(light_dir)}
+radiance = {list(radiance)}
+"""
+    second = """
+[[light]]
+type = "directional"
+direction = [-0.6, 0.5, 0.4]
+radiance = [0.5, 1.0, 1.5]
+"""
+    return textwrap.dedent(f"""\
+        [camera]
+        position = {list(position)}
+        look_at = [0.0, 0.0, 0.0]
+        fov = {fov}
+        resolution = {list(resolution)}
+        """) + environment + (light if lights > 0 else "") + (second if lights > 1 else "") + textwrap.dedent(f"""
+        [[object]]
+        shape = "plane"
+        size = {size}
+        material = "m"
+
+        [material.m]
+        type = "cook-torrance"
+        roughness = {roughness}
+        f0 = {list(PLANE_F0)}
+        """) + (f"diffuse = {list(diffuse)}\n" if diffuse is not None else "") + material_extra
 
 
 def grid_mesh(n_u, n_v, fn):

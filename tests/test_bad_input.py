@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import plane_scene_toml
+
 from warpbw.errors import WarpbwError
 from warpbw.io.exr import write_exr
 from warpbw.io.merl import MERL_FILE_SIZE
@@ -666,29 +668,8 @@ def test_environment_scale_that_overflows_float32_names_the_scale(tmp_path):
 
 # ------------------------------------------------------------------------------------------ normal maps (issue 4)
 
-PLANE_SCENE = """\
-[camera]
-position = [0.0, 1.5, 2.0]
-look_at = [0.0, 0.0, 0.0]
-fov = 40.0
-resolution = [8, 8]
-
-[[light]]
-type = "directional"
-direction = [0.3, 0.8, -0.5]
-radiance = [3.0, 3.0, 3.0]
-
-[[object]]
-shape = "plane"
-size = 2.0
-material = "m"
-
-[material.m]
-type = "cook-torrance"
-roughness = 0.1
-f0 = [0.9, 0.75, 0.4]
-normal_map = "map.exr"
-"""
+PLANE_SCENE = plane_scene_toml(roughness=0.1, resolution=(8, 8), radiance=(3.0, 3.0, 3.0), diffuse=None,
+                               material_extra='normal_map = "map.exr"\n')
 
 
 def _bad_map(tmp_path: Path, what: str) -> None:

@@ -24,6 +24,8 @@ import warnings
 import numpy as np
 import pytest
 
+from conftest import plane_scene_toml
+
 from warpbw.io.exr import read_rgb, write_exr
 from warpbw.pipeline import render_reference
 from warpbw.scene import GGX_MIN_ALPHA, parse_scene
@@ -506,34 +508,6 @@ def test_a_scene_scaled_from_1e_minus_8_to_1e11_renders_the_same_images(city, tm
             np.testing.assert_allclose(ada.image, ada1.image, rtol=0, atol=1e-4 * ada1.image.max())
 
 
-SCALED_PLANE = """\
-[camera]
-position = [0.0, {y!r}, {z!r}]
-look_at = [0.0, 0.0, 0.0]
-fov = 40.0
-resolution = [24, 16]
-
-[[light]]
-type = "directional"
-direction = [0.3, 0.8, -0.5]
-radiance = [3.0, 3.0, 3.0]
-
-[[object]]
-shape = "plane"
-size = {size!r}
-material = "m"
-
-[material.m]
-type = "cook-torrance"
-roughness = 0.2
-f0 = [0.9, 0.75, 0.4]
-diffuse = [0.05, 0.04, 0.02]
-normal_map = "map.exr"
-normal_map_scale = 0.5
-tiling = 2
-"""
-
-
 def test_planes_scaled_from_1e_minus_30_to_1e30_render_the_same_images_and_beyond_are_refused(tmp_path):
     """Planes are intersected in float32 with lengths linear in the scene's scale: a plane scene scaled by s
     renders every method's image of s = 1 (measured: within 1.2e-6 of the brightest pixel from 1e-38 to 1e37);
@@ -549,7 +523,9 @@ def test_planes_scaled_from_1e_minus_30_to_1e30_render_the_same_images_and_beyon
               .astype(np.float32)[..., None], channels=["Y"])
 
     def plane_scene(k):
-        return parse_scene(SCALED_PLANE.format(y=1.5 * k, z=2.0 * k, size=2.0 * k), tmp_path, "scaled.toml")
+        text = plane_scene_toml(position=(0.0, 1.5 * k, 2.0 * k), size=2.0 * k, radiance=(3.0, 3.0, 3.0),
+                                material_extra='normal_map = "map.exr"\nnormal_map_scale = 0.5\ntiling = 2\n')
+        return parse_scene(text, tmp_path, "scaled.toml")
 
     def render(k):
         sc = plane_scene(k)

@@ -20,54 +20,14 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import numpy_camera_rays, numpy_square_distance
+from conftest import (PLANE_DIFFUSE, PLANE_F0, PLANE_LIGHT_DIR, PLANE_RADIANCE, numpy_camera_rays,
+                      numpy_square_distance, plane_scene_toml)
 
 from warpbw.errors import WarpbwError
 from warpbw.filtering import (ALL_METHODS, METHODS, MIN_GT_SPP, fetch_gmm, gmm_ndf, normal_moment_mipmap,
                               pair_uniforms, prepare_filtering, render_filtering, zoomed_camera)
 from warpbw.io.exr import write_exr
 from warpbw.scene import file_digest, parse_scene
-
-F0 = (0.9, 0.75, 0.4)
-DIFFUSE = (0.05, 0.04, 0.02)
-LIGHT_DIR = (0.3, 0.8, -0.5)
-RADIANCE = (3.0, 2.5, 2.0)
-
-
-def scene_toml(material_extra: str = "", roughness: float = 0.2, position=(0.0, 1.5, 2.0), resolution=(24, 16),
-               size: float = 2.0, fov: float = 40.0, lights: int = 1, environment: str = "",
-               light_dir=LIGHT_DIR, radiance=RADIANCE) -> str:
-    light = f"""
-[[light]]
-type = "directional"
-direction = {list(light_dir)}
-radiance = {list(radiance)}
-"""
-    second = """
-[[light]]
-type = "directional"
-direction = [-0.6, 0.5, 0.4]
-radiance = [0.5, 1.0, 1.5]
-"""
-    return textwrap.dedent(f"""\
-        [camera]
-        position = {list(position)}
-        look_at = [0.0, 0.0, 0.0]
-        fov = {fov}
-        resolution = {list(resolution)}
-        """) + environment + (light if lights > 0 else "") + (second if lights > 1 else "") + textwrap.dedent(f"""
-        [[object]]
-        shape = "plane"
-        size = {size}
-        material = "m"
-
-        [material.m]
-        type = "cook-torrance"
-        roughness = {roughness}
-        f0 = {list(F0)}
-        diffuse = {list(DIFFUSE)}
-        """) + material_extra
-
 
 def scene_with_map(tmp_path: Path, heights=None, normals=None, scale: float = 1.0, tiling: float = 1.0, **kw):
     if heights is not None:
@@ -76,7 +36,7 @@ def scene_with_map(tmp_path: Path, heights=None, normals=None, scale: float = 1.
     else:
         write_exr(tmp_path / "map.exr", np.asarray(normals, np.float32), channels=["R", "G", "B"])
         extra = f'normal_map = "map.exr"\nnormal_map_kind = "normal"\ntiling = {tiling}\n'
-    return parse_scene(scene_toml(extra, **kw), tmp_path, "s.toml")
+    return parse_scene(plane_scene_toml(extra, **kw), tmp_path, "s.toml")
 
 
 @pytest.fixture(autouse=True)
@@ -93,19 +53,19 @@ def numpy_flat_cook_torrance(position, fov, w, h, roughness, size=2.0):
     cov = np.isfinite(numpy_square_distance(o, d, size))
     n = np.array([0.0, 1.0, 0.0])
     wo = -d
-    wi = np.asarray(LIGHT_DIR, float) / np.linalg.norm(LIGHT_DIR)
+    wi = np.asarray(PLANE_LIGHT_DIR, float) / np.linalg.norm(PLANE_LIGHT_DIR)
     hv = wi + wo
     hv /= np.linalg.norm(hv, axis=-1, keepdims=True)
     hxy2 = hv[..., 0] ** 2 + hv[..., 2] ** 2          # the projection on the plane
     var = roughness ** 2 / 2
     D = np.exp(-hxy2 / (2 * var)) / (2 * np.pi * var)
     u = np.clip(np.sum(wo * hv, -1), 0, None)
-    f0 = np.asarray(F0)
+    f0 = np.asarray(PLANE_F0)
     F = f0 + (1 - f0) * (1 - u[..., None]) ** 5
     cos_o = wo @ n
     spec = F * (D / (4 * cos_o))[..., None]
-    diff = np.asarray(DIFFUSE) / np.pi * (1 - F) * max(wi @ n, 0.0)
-    return (spec + diff) * np.asarray(RADIANCE), cov
+    diff = np.asarray(PLANE_DIFFUSE) / np.pi * (1 - F) * max(wi @ n, 0.0)
+    return (spec + diff) * np.asarray(PLANE_RADIANCE), cov
 
 
 def colour_error(img, ref, mask):
@@ -118,7 +78,7 @@ def colour_error(img, ref, mask):
 
 @pytest.mark.parametrize("roughness", [0.05, 0.3])
 def test_flat_map_shades_as_the_plain_cook_torrance_brdf(roughness):
-    s = parse_scene(scene_toml(roughness=roughness), Path.cwd(), "s.toml")
+    s = parse_scene(plane_scene_toml(roughness=roughness), Path.cwd(), "s.toml")
     ref, cov = numpy_flat_cook_torrance((0.0, 1.5, 2.0), 40.0, 24, 16, roughness)
     prep = prepare_filtering(s, ALL_METHODS)
     for m in METHODS:
@@ -138,7 +98,7 @@ def test_ground_truth_on_a_planes_outline_is_the_planes_own_radiance():
     """A pixel the plane covers in part (share 0.2-0.8, from a numpy 16 x 16 grid of rays): the ground truth
     averages over the rays that hit the plane, so it is the plain BRDF's radiance there (smooth over a pixel at
     roughness 0.3), not that radiance scaled by the share (blended with the black beyond)."""
-    s = parse_scene(scene_toml(roughness=0.3, size=1.0), Path.cwd(), "s.toml")
+    s = parse_scene(plane_scene_toml(roughness=0.3, size=1.0), Path.cwd(), "s.toml")
     ref, cov = numpy_flat_cook_torrance((0.0, 1.5, 2.0), 40.0, 24, 16, 0.3, size=1.0)
     g = render_filtering(s, "ground_truth", spp=64)
     assert np.array_equal(g.coverage, cov)
@@ -152,11 +112,11 @@ def test_ground_truth_on_a_planes_outline_is_the_planes_own_radiance():
 
 
 def test_two_lights_add_up():
-    one = parse_scene(scene_toml(lights=1), Path.cwd(), "s.toml")
-    two = parse_scene(scene_toml(lights=2), Path.cwd(), "s.toml")
-    only_second = parse_scene(scene_toml(lights=2).replace(
-        f"direction = {list(LIGHT_DIR)}\nradiance = {list(RADIANCE)}", f"direction = {list(LIGHT_DIR)}\n"
-        "radiance = [0.0, 0.0, 0.0]"), Path.cwd(), "s.toml")
+    one = parse_scene(plane_scene_toml(lights=1), Path.cwd(), "s.toml")
+    two = parse_scene(plane_scene_toml(lights=2), Path.cwd(), "s.toml")
+    only_second = parse_scene(plane_scene_toml(lights=2).replace(
+        f"direction = {list(PLANE_LIGHT_DIR)}\nradiance = {list(PLANE_RADIANCE)}",
+        f"direction = {list(PLANE_LIGHT_DIR)}\nradiance = [0.0, 0.0, 0.0]"), Path.cwd(), "s.toml")
     a = render_filtering(one, "fixed").image
     b = render_filtering(two, "fixed").image
     c = render_filtering(only_second, "fixed").image
@@ -324,14 +284,14 @@ def test_finest_level_every_method_agrees_with_the_ground_truth(tmp_path):
         errs[m] = colour_error(r.image, gt.image, r.coverage)
     assert max(errs.values()) < 0.03, errs
     # ...and the map matters: shading it flat differs from the ground truth by far more than that
-    flat = parse_scene(scene_toml(position=(0.0, 0.6, 0.3), size=0.25, resolution=(32, 24), roughness=0.15,
+    flat = parse_scene(plane_scene_toml(position=(0.0, 0.6, 0.3), size=0.25, resolution=(32, 24), roughness=0.15,
                                   fov=20.0),
                        tmp_path, "s.toml")
     assert colour_error(render_filtering(flat, "fixed").image, gt.image, gt.coverage) > 0.1
 
 
 def test_a_map_without_finer_levels_stays_at_level_0_or_below():
-    s = parse_scene(scene_toml(material_extra="", position=(0.0, 2.0, 0.0001), resolution=(16, 16), fov=30.0),
+    s = parse_scene(plane_scene_toml(material_extra="", position=(0.0, 2.0, 0.0001), resolution=(16, 16), fov=30.0),
                     Path.cwd(), "s.toml")
     # no normal map: one 1x1 level spread over the whole plane, a pixel far smaller than it: level -1
     r = render_filtering(s, "toksvig")
@@ -558,9 +518,9 @@ def _scales_with_gmm_files(tmp_path, position):
             "gmm_unaligned": build_gmm_mipmap(h, scale=0.5, unaligned=True, progress=False)}
     write_exr(tmp_path / "map.exr", np.asarray(h, np.float32)[..., None], channels=["Y"])
     write_gmm_mipmap(tmp_path / "scales.gmm", mips["gmm_aligned"], "map.exr", file_digest(tmp_path / "map.exr"))
-    s = parse_scene(scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ntiling = 4\ngmm = "scales.gmm"\n',
+    s = parse_scene(plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ntiling = 4\ngmm = "scales.gmm"\n',
                                roughness=0.1, position=position, resolution=(24, 16), lights=2)
-                    .replace(f"diffuse = {list(DIFFUSE)}", "diffuse = [0.5, 0.4, 0.3]"),   # both terms count
+                    .replace(f"diffuse = {list(PLANE_DIFFUSE)}", "diffuse = [0.5, 0.4, 0.3]"),   # both terms count
                     tmp_path, "s.toml")
     prep = prepare_filtering(s, METHODS)
     assert prep.notes["m"]["gmm_aligned"]["origin"] == "file"
@@ -720,7 +680,7 @@ def test_extremes_give_finite_images(tmp_path, name):
 
 def test_bad_normal_maps_name_the_material_key(tmp_path):
     (tmp_path / "map.exr").write_bytes(b"this is not an image")
-    s = parse_scene(scene_toml('normal_map = "map.exr"\n'), tmp_path, "s.toml")
+    s = parse_scene(plane_scene_toml('normal_map = "map.exr"\n'), tmp_path, "s.toml")
     with pytest.raises(WarpbwError, match=r"^s\.toml: \[material\.m\]\.normal_map: .*not an image"):
         prepare_filtering(s, ("fixed",))
     rgb = np.random.default_rng(0).random((4, 4, 3)).astype(np.float32)
@@ -735,12 +695,12 @@ def test_bad_normal_maps_name_the_material_key(tmp_path):
 
 
 def test_scene_problems_are_clear_errors(tmp_path):
-    s = parse_scene(scene_toml().replace('radiance = [3.0, 2.5, 2.0]', 'radiance = [1.0, 1.0, 1.0]')
+    s = parse_scene(plane_scene_toml().replace('radiance = [3.0, 2.5, 2.0]', 'radiance = [1.0, 1.0, 1.0]')
                     + '\n[[object]]\nshape = "sphere"\nradius = 1.0\nmaterial = "p"\n[material.p]\n'
                     'type = "lambert"\nalbedo = 0.5\n', tmp_path, "s.toml")
     with pytest.raises(WarpbwError, match=r"\[\[object\]\] #2: .*planes only"):
         prepare_filtering(s, ("fixed",))
-    s = parse_scene(scene_toml(), tmp_path, "s.toml")
+    s = parse_scene(plane_scene_toml(), tmp_path, "s.toml")
     with pytest.raises(WarpbwError, match="filter method 'blur'"):
         render_filtering(s, "blur")
     with pytest.raises(WarpbwError, match=">= 64"):
@@ -753,7 +713,7 @@ def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path):
     h = _bumps(8)
     s = scene_with_map(tmp_path, heights=h, scale=0.5)
     digest = file_digest(tmp_path / "map.exr")     # the header names the map a file was built from, by content
-    text = scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ngmm = "other.gmm"\n')
+    text = plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ngmm = "other.gmm"\n')
     # a file of another map: of another size, or of this size and parameters but other heights
     write_gmm_mipmap(tmp_path / "other.gmm", build_gmm_mipmap(np.zeros((4, 4)), progress=False), "x", digest)
     with pytest.raises(WarpbwError, match=r"\[material\.m\]\.gmm: .*4x4 map"):
@@ -796,7 +756,7 @@ def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path):
     assert np.array_equal(a, b)
     # the material's gmm_prior builds (and caches) the aligned mipmap it names, exactly the builder's; the
     # unaligned baseline (c = 0 whatever the prior) comes from the cache it already has
-    s16 = parse_scene(scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ngmm_prior = 16\n'), tmp_path,
+    s16 = parse_scene(plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ngmm_prior = 16\n'), tmp_path,
                       "s.toml")
     p0 = prepare_filtering(s, ("gmm_unaligned",))
     p3 = prepare_filtering(s16, ("gmm_aligned", "gmm_unaligned"))
@@ -809,7 +769,7 @@ def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path):
 
 
 def test_nearer_plane_wins_and_threads_do_not_change_the_image(tmp_path):
-    text = scene_toml(resolution=(20, 14)) + textwrap.dedent("""
+    text = plane_scene_toml(resolution=(20, 14)) + textwrap.dedent("""
         [[object]]
         shape = "plane"
         center = [0.0, 0.5, 0.0]
@@ -823,7 +783,7 @@ def test_nearer_plane_wins_and_threads_do_not_change_the_image(tmp_path):
         diffuse = [0.0, 0.9, 0.0]
         """)
     s = parse_scene(text, tmp_path, "s.toml")
-    one = parse_scene(scene_toml(resolution=(20, 14)), tmp_path, "s.toml")
+    one = parse_scene(plane_scene_toml(resolution=(20, 14)), tmp_path, "s.toml")
     for m in ("fixed", "ground_truth"):
         both = render_filtering(s, m, threads=2)
         big = render_filtering(one, m, threads=1)
@@ -849,7 +809,7 @@ def test_plane_distance_is_the_nearest_plane_along_each_centre_ray(tmp_path):
         size = 0.6
         material = "m"
         """)
-    s = parse_scene(scene_toml(resolution=(w, h), size=1.5) + raised, tmp_path, "s.toml")
+    s = parse_scene(plane_scene_toml(resolution=(w, h), size=1.5) + raised, tmp_path, "s.toml")
     o, d = numpy_camera_rays((0.0, 1.5, 2.0), (0, 0, 0), 40.0, w, h)
     t_ref = np.full((h, w), np.inf)
     for c, size in (((0.0, 0.0, 0.0), 1.5), ((0.3, 0.4, 0.1), 0.6)):
@@ -872,7 +832,7 @@ def test_planes_over_a_background_show_where_they_are_in_front(tmp_path, method)
     from warpbw.filtering import Background
 
     w, h = 24, 16
-    s = parse_scene(scene_toml(resolution=(w, h)), tmp_path, "s.toml")
+    s = parse_scene(plane_scene_toml(resolution=(w, h)), tmp_path, "s.toml")
     alone = render_filtering(s, method)
     o, d = numpy_camera_rays((0.0, 1.5, 2.0), (0, 0, 0), 40.0, w, h)
     fwd = -np.asarray((0.0, 1.5, 2.0)) / np.linalg.norm((0.0, 1.5, 2.0))
@@ -911,14 +871,14 @@ def numpy_flat_under_constant_sky(cos_o, roughness, radiance=1.0, nt=600, nphi=7
     var = roughness ** 2 / 2
     D = np.exp(-(h[..., 0] ** 2 + h[..., 1] ** 2) / (2 * var)) / (2 * np.pi * var)
     u = np.clip(h @ wo, 0, None)[..., None]
-    F = np.asarray(F0) + (1 - np.asarray(F0)) * (1 - u) ** 5
-    f = F * (D / (4 * cos_o))[..., None] + np.asarray(DIFFUSE) / np.pi * (1 - F) * wi[..., 2:3]
+    F = np.asarray(PLANE_F0) + (1 - np.asarray(PLANE_F0)) * (1 - u) ** 5
+    f = F * (D / (4 * cos_o))[..., None] + np.asarray(PLANE_DIFFUSE) / np.pi * (1 - F) * wi[..., 2:3]
     dw = np.sin(T)[..., None] * (np.pi / 2 / nt) * (2 * np.pi / nphi)
     return radiance * (f * dw).sum(axis=(0, 1))
 
 
 def test_flat_plane_under_a_constant_environment_is_the_hemisphere_integral():
-    s = parse_scene(scene_toml(roughness=0.3, lights=0, resolution=(8, 6),
+    s = parse_scene(plane_scene_toml(roughness=0.3, lights=0, resolution=(8, 6),
                                environment="[environment]\nconstant = [1.0, 1.0, 1.0]\n"), Path.cwd(), "s.toml")
     o, d = numpy_camera_rays((0.0, 1.5, 2.0), (0, 0, 0), 40.0, 8, 6)
     prep = prepare_filtering(s, ALL_METHODS)
@@ -981,9 +941,9 @@ def test_a_small_sun_in_the_environment_shades_as_the_directional_light_of_its_i
 
 def test_environment_and_lights_add_up_and_the_seed_is_the_only_noise(tmp_path):
     env = "[environment]\nprocedural = \"sky\"\n"
-    both = parse_scene(scene_toml(environment=env), Path.cwd(), "s.toml")
-    sky = parse_scene(scene_toml(environment=env, lights=0), Path.cwd(), "s.toml")
-    sun = parse_scene(scene_toml(), Path.cwd(), "s.toml")
+    both = parse_scene(plane_scene_toml(environment=env), Path.cwd(), "s.toml")
+    sky = parse_scene(plane_scene_toml(environment=env, lights=0), Path.cwd(), "s.toml")
+    sun = parse_scene(plane_scene_toml(), Path.cwd(), "s.toml")
     a = render_filtering(both, "toksvig", env_spp=4, seed=7).image
     b = render_filtering(sky, "toksvig", env_spp=4, seed=7).image
     c = render_filtering(sun, "toksvig").image
@@ -992,7 +952,7 @@ def test_environment_and_lights_add_up_and_the_seed_is_the_only_noise(tmp_path):
     assert not np.array_equal(render_filtering(sky, "toksvig", env_spp=4, seed=8).image, b)
     # the random streams are per pixel: how the launch is tiled over threads (tiles of 1024 or 256 pixels here)
     # does not change the image
-    big = parse_scene(scene_toml(environment=env, lights=0, resolution=(64, 64)), Path.cwd(), "s.toml")
+    big = parse_scene(plane_scene_toml(environment=env, lights=0, resolution=(64, 64)), Path.cwd(), "s.toml")
     for m, kw in (("toksvig", {"env_spp": 4}), ("ground_truth", {"spp": 64})):
         assert np.array_equal(render_filtering(big, m, seed=7, threads=1, **kw).image,
                               render_filtering(big, m, seed=7, threads=4, **kw).image), m
@@ -1000,7 +960,7 @@ def test_environment_and_lights_add_up_and_the_seed_is_the_only_noise(tmp_path):
 
 @pytest.mark.parametrize("env_spp", [0, -1, 2.5, True])
 def test_environment_sample_count_must_be_a_positive_integer(env_spp):
-    s = parse_scene(scene_toml(lights=0, environment="[environment]\nconstant = [1.0, 1.0, 1.0]\n"),
+    s = parse_scene(plane_scene_toml(lights=0, environment="[environment]\nconstant = [1.0, 1.0, 1.0]\n"),
                     Path.cwd(), "s.toml")
     with pytest.raises(WarpbwError, match=r"env_spp"):
         render_filtering(s, "toksvig", env_spp=env_spp)
