@@ -40,7 +40,12 @@ For each validation scene (a sphere with the NPF fit of color-changing-paint3 un
    not adopted: interpolating between distinct radii instead (each radius's bins summed first) leaves no
    ties, but drops the GGX sphere from 0.49 to 0.32 per pixel (512x512: 0.51 to 0.35).  The other two
    scenes move by at most 0.03.  So the ties do not hide agreement that a finer reading of the plateau
-   would show (recomputed from the session-26 maps of both sizes).
+   would show (recomputed from the session-26 maps of both sizes).  Nor may the prediction be floored at
+   the window's bin spacing 1/32 so that it ties where the reference does: that lifts the GGX sphere from
+   0.49 to 0.62 (session 43, from session 42's maps), but the reference still orders sines between 0.016
+   and 0.03 cycles/pixel (medians 0.061 to 0.067; its plateau, 0.056, starts below about 0.012), and an
+   exact predictor of sines from 0.004 to 0.3 falls from 0.95 to 0.92 with that floor.  At 1/64 the floor
+   changes nothing.
 3. Variance: the predicted sigma2 (Eq. 9, V(L_p) <= sigma2 / N_p for UNIFORM hemisphere sampling,
    002 Sec. 2.4) against the brute-force per-pixel variance of the one-sample uniform estimator
    X = 2 pi lum(L_i rho) cos theta_i, from ``--uniform-samples`` stratified directions per pixel (a Warp
