@@ -11,8 +11,8 @@ number of samples per covered pixel, B, over the noise MSE of the allocation nam
 * ``oracle_all``: every pixel shaded, N_p proportional to sqrt(v_p) (Neyman), the most any per-pixel
   allocation can gain without skipping pixels: mean(v) / mean(sqrt(v))^2;
 * on the pixels the adaptive frame shades (``warpbw render --method adaptive --budget B --mis``, default
-  allocation), with the samples the frame spent there (B per covered pixel, and more where the
-  up-sampling found no parent and shaded a pixel it had not planned): ``uniform_shaded`` (equal N_p),
+  allocation), with the samples the frame spent there (B per covered pixel: since session 39 the texels the
+  up-sampling cannot fill are planned, and paid for, within the budget): ``uniform_shaded`` (equal N_p),
   ``oracle_shaded`` (Neyman's with the true v_p; ``oracle_shaded_min1`` with at least one sample per
   pixel, as the frame must) and ``frame`` (the frame's own N_p), each against the reference at that many
   samples.  Each shaded pixel counts once: the noise a coarse texel spreads over its footprint and the
@@ -142,7 +142,7 @@ def main(argv=None) -> int:
     ap.add_argument("--spp", type=int, default=SPP_DEFAULT, help=f"samples per pixel of each (default {SPP_DEFAULT})")
     ap.add_argument("--seed", type=int, default=7, help="seed of the adaptive frame (default 7)")
     ap.add_argument("--json", help="write the figures here (JSON)")
-    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--device", default="cpu", help="Warp device (default cpu; cuda where there is one)")
     ap.add_argument("--force", action="store_true", help="overwrite --json")
     args = ap.parse_args(argv)
     if not (args.budget > 0 and np.isfinite(args.budget)):

@@ -66,15 +66,18 @@ def timed_render(prep, spp, seed, mis, runs):
 
 def main():
     ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--material", default="gold-metallic-paint")
-    ap.add_argument("--probe", default="forest.exr")
-    ap.add_argument("--rotation", type=float, default=0.0)
-    ap.add_argument("--resolution", type=int, nargs=2, default=[512, 512])
+    ap.add_argument("--material", default="gold-metallic-paint",
+                    help="NPF material of ../shared/data/brdf/npf.bin, written as MERL (default gold-metallic-paint)")
+    ap.add_argument("--probe", default="forest.exr", help="light probe in ../shared/data/envmaps (default forest.exr)")
+    ap.add_argument("--rotation", type=float, default=0.0, help="the probe's rotation about +Y, degrees (default 0)")
+    ap.add_argument("--resolution", type=int, nargs=2, default=[512, 512], metavar=("W", "H"),
+                    help="image size in pixels (default 512 512)")
     ap.add_argument("--spp", default="16,32,64,128,256,512,1024", help="comma-separated samples per pixel")
     ap.add_argument("--gt-spp", type=int, default=16384,
                     help=f"ground-truth spp (a multiple of {GT_CHUNK_SPP}, at least two chunks)")
     ap.add_argument("--runs", type=int, default=3, help="timed runs per point (median)")
-    ap.add_argument("--out", default="bench_out")
+    ap.add_argument("--out", default="bench_out",
+                    help="folder for the records, previews and the MERL file (default bench_out)")
     ap.add_argument("--check-only", action="store_true",
                     help="redo only the ground-truth check, keeping the sweep of an earlier run's JSON")
     ap.add_argument("--force", action="store_true", help="overwrite an earlier run's records and previews")

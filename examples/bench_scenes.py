@@ -102,7 +102,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-mis", action="store_true", help="BRDF importance sampling only (002's baseline)")
     ap.add_argument("--env-signal", help="what the analysis of the probe's bandwidth reads (warpbw bench --env-signal)")
     ap.add_argument("--results", help="directory for the JSON and PNG records (default: --out)")
-    ap.add_argument("--force", action="store_true")
+    ap.add_argument("--force", action="store_true", help="rewrite changed scene files and overwrite existing "
+                    "results (passed on to warpbw bench)")
     args = ap.parse_args(argv)
     unknown = sorted(set(args.only.split(",") if args.only else ()) - set(SCENES))
     if unknown:

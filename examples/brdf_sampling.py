@@ -26,10 +26,11 @@ GRID = 160   # cells per side of the projected-hemisphere images
 def main():
     here = Path(__file__).resolve().parent
     ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--material", default="gold-metallic-paint")
-    ap.add_argument("--table", default=str(here.parent.parent / "shared" / "data" / "brdf" / "npf.bin"))
-    ap.add_argument("--samples", type=int, default=400_000)
-    ap.add_argument("--out", default="brdf_out")
+    ap.add_argument("--material", default="gold-metallic-paint", help="NPF material name (default gold-metallic-paint)")
+    ap.add_argument("--table", default=str(here.parent.parent / "shared" / "data" / "brdf" / "npf.bin"),
+                    help="NPF table (default ../shared/data/brdf/npf.bin)")
+    ap.add_argument("--samples", type=int, default=400_000, help="directions drawn per view (default 400000)")
+    ap.add_argument("--out", default="brdf_out", help="folder of brdf_sampling_MATERIAL.png (default brdf_out)")
     ap.add_argument("--force", action="store_true", help="overwrite an existing brdf_sampling_MATERIAL.png")
     args = ap.parse_args()
     check_count(args.samples, "--samples", 1)

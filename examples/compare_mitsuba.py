@@ -434,8 +434,10 @@ def parse_args(argv=None):
     p.add_argument("--check-conventions", action="store_true",
                    help="print the camera / envmap / roughconductor conventions measured with Mitsuba, then exit")
     a = p.parse_args(argv)
-    if a.spp < 1 or a.resolution < 8:
-        p.error("--spp must be >= 1 and --resolution >= 8")
+    if a.spp < 1:
+        p.error(f"--spp {a.spp}: expected a positive integer")
+    if a.resolution < 8:
+        p.error(f"--resolution {a.resolution}: expected at least 8 pixels")
     if a.mitsuba_spp is not None and a.mitsuba_spp < 1:
         p.error(f"--mitsuba-spp {a.mitsuba_spp}: expected a positive integer")
     if not math.isfinite(a.rotation):

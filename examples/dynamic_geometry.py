@@ -189,8 +189,12 @@ def main(argv=None):
                     "computes them by default)")
     ap.add_argument("--force", action="store_true", help="overwrite existing outputs")
     args = ap.parse_args(argv)
-    if args.frames < 1 or args.size < 8 or not (args.budget > 0 and math.isfinite(args.budget)):
-        ap.error("expected --frames >= 1, --size >= 8 and a positive --budget")
+    if args.frames < 1:
+        ap.error(f"--frames {args.frames}: expected a positive integer")
+    if args.size < 8:
+        ap.error(f"--size {args.size}: expected at least 8 pixels")
+    if not (args.budget > 0 and math.isfinite(args.budget)):
+        ap.error(f"--budget {args.budget}: expected a positive number of samples per pixel")
     if args.seed + args.frames - 1 > SEED_MAX:
         ap.error(f"--seed {args.seed}: frame f uses seed + f, which must stay a uint32 (expected at most "
                  f"{SEED_MAX - args.frames + 1} with --frames {args.frames})")

@@ -59,7 +59,7 @@ def main(argv=None) -> int:
     ap.add_argument("--level", type=int, default=3, help="mip level of the 2x2 texel block (default 3)")
     ap.add_argument("--texel", type=int, nargs=2, default=(1, 1), metavar=("ROW", "COL"),
                     help="top-left texel of the block at that level (default 1 1)")
-    ap.add_argument("--components", type=int, default=4)
+    ap.add_argument("--components", type=int, default=4, help="Gaussians per texel of both mipmaps (default 4)")
     ap.add_argument("--force", action="store_true", help="overwrite an existing output")
     args = ap.parse_args(argv)
     from precompute.gmm_mipmap import MAX_COMPONENTS, level_shapes

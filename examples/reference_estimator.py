@@ -32,11 +32,13 @@ def main():
     ap.add_argument("--probe", help=f"lat-long EXR light probe (default {default_probe}; the procedural sky "
                                     "when it is absent)")
     ap.add_argument("--npf", help=f"NPF table (default {default_npf}; no NPF sphere when it is absent)")
-    ap.add_argument("--material", default="gold-metallic-paint")
-    ap.add_argument("--spp", type=int, default=64)
-    ap.add_argument("--resolution", type=int, nargs=2, default=[384, 160], metavar=("W", "H"))
-    ap.add_argument("--device", default="cpu")
-    ap.add_argument("--out", default="ref_out")
+    ap.add_argument("--material", default="gold-metallic-paint", help="NPF material of the NPF sphere (default "
+                    "gold-metallic-paint)")
+    ap.add_argument("--spp", type=int, default=64, help="samples per pixel (default 64)")
+    ap.add_argument("--resolution", type=int, nargs=2, default=[384, 160], metavar=("W", "H"),
+                    help="image size in pixels (default 384 160)")
+    ap.add_argument("--device", default="cpu", help="Warp device (default cpu; cuda where there is one)")
+    ap.add_argument("--out", default="ref_out", help="output folder (default ref_out)")
     ap.add_argument("--force", action="store_true", help="overwrite existing outputs in --out")
     args = ap.parse_args()
     dev = args.device

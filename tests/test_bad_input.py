@@ -966,6 +966,12 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["compare_mitsuba.py", "--scale", "nan"], "--scale nan: expected a finite positive radiance scale"),
     (["compare_mitsuba.py", "--seed", "4294967000"], "--seed 4294967000: expected at most 4294966295"),
     (["compare_mitsuba.py", "--probe", "missing.exr"], "--probe missing.exr: no such file"),
+    # each of these named every limit at once until session 43
+    (["compare_mitsuba.py", "--resolution", "-1"], "--resolution -1: expected at least 8 pixels"),
+    (["compare_mitsuba.py", "--spp", "0"], "--spp 0: expected a positive integer"),
+    (["dynamic_geometry.py", "--frames", "0"], "--frames 0: expected a positive integer"),
+    (["dynamic_geometry.py", "--size", "4"], "--size 4: expected at least 8 pixels"),
+    (["dynamic_geometry.py", "--budget", "nan"], "--budget nan: expected a positive number"),
 ])
 def test_examples_refuse_bad_arguments_in_one_line(tmp_path, argv, needle):
     """The example scripts answer bad arguments the way the commands do: status 2, one stderr line
@@ -973,6 +979,19 @@ def test_examples_refuse_bad_arguments_in_one_line(tmp_path, argv, needle):
     written."""
     example_error(run_example(argv, tmp_path), argv[0], needle)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_gmm_precompute_time_keeps_an_existing_json_without_force(tmp_path):
+    """The timing script overwrote its --json silently until session 43; it now refuses before any work."""
+    (tmp_path / "t.json").write_text("kept\n")
+    example_error(run_example(["gmm_precompute_time.py", "--size", "4", "--json", "t.json"], tmp_path),
+                  "gmm_precompute_time.py", "t.json: already exists", "--force")
+    assert (tmp_path / "t.json").read_text() == "kept\n"
+    r = run_example(["gmm_precompute_time.py", "--size", "4", "--components", "1", "--json", "t.json", "--force"],
+                    tmp_path)
+    assert r.returncode == 0, r.stderr
+    record = json.loads((tmp_path / "t.json").read_text())
+    assert record["size"] == 4 and set(record["time_s"]) == {"dunes", "hemispherical_scales", "carved_disk"}
 
 
 @pytest.mark.parametrize("script", sorted(p.name for p in EXAMPLES_DIR.glob("*.py")))

@@ -709,7 +709,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "hides them (the planes are not rendered: bench-filtering measures them).",
                         formatter_class=argparse.RawDescriptionHelpFormatter)
     bn.add_argument("scene", help="scene file (TOML)")
-    bn.add_argument("--json", help="write the record here (JSON)")
+    bn.add_argument("--json", help="write the record here (JSON); give --json, --plot or both")
     bn.add_argument("--plot", help="write the plot here (PNG): PSNR against time, one curve per method")
     bn.add_argument("--spp", type=_number_list("spp", int, INT32_MAX), default=list(_bench.DEFAULT_SPP),
                     help="reference sample counts (default %s)" % ",".join(map(str, _bench.DEFAULT_SPP)))
@@ -753,7 +753,7 @@ def build_parser() -> argparse.ArgumentParser:
     bf.add_argument("--zoom", type=_number_list("zoom", float), default=list(_bf.DEFAULT_ZOOMS),
                     help="zoom factors (default %s); a zoom at which no pixel sees a plane is refused before any "
                     "work" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
-    bf.add_argument("--json", help="write the record here (JSON)")
+    bf.add_argument("--json", help="write the record here (JSON); give --json, --plot or both")
     bf.add_argument("--plot", help="write the plot here (PNG): error, flicker and temporal error against zoom")
     bf.add_argument("--gt-spp", type=_positive_int("gt-spp", INT32_MAX), default=_bf.DEFAULT_GT_SPP,
                     help=f"ground-truth rays per pixel (>= 64; default {_bf.DEFAULT_GT_SPP}), jittered over the "

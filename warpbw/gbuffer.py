@@ -17,7 +17,8 @@ Public:
                                      float32 intersection (``SPHERE_REACH_MAX``, ``MESH_REACH_MAX``,
                                      ``SPHERE_REACH_MIN``, ``MESH_REACH_MIN``; render_gbuffer calls it)
     ``hide_beyond(gbuffer, cam, distance, device) -> int``   empty the pixels whose surface lies beyond a
-                                     per-pixel distance along the centre ray (hidden by something nearer)
+                                     per-pixel distance along the centre ray (hidden by something nearer);
+                                     ``hide_beyond_kernel``, its kernel (the pipeline compiles it ahead)
 
 Conventions (../shared/DESIGN.md): right-handed world, +Y up; the camera looks along ``forward`` with
 ``right = normalize(forward x up)`` to the right of the image and row 0 at the top; ``fov`` is the full

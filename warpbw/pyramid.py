@@ -4,6 +4,7 @@ Public:
     ``max_level(width, height)``          the coarsest level Eq. 11 can give: floor(log2(min(W, H)))
     ``pyramid_shapes(width, height)``     the (rows, cols) of every pyramid level, finest first
     ``image_level(b_p, coverage, width, height, device)`` -> ``wp.array2d(int32)`` (H, W)   Eq. 11
+    ``image_level_kernel``                Eq. 11's kernel (warpbw.adaptive compiles it ahead)
     ``Pyramid`` / ``build_pyramid(values, op, device)``   min- or max-filtered mip-map of any size
     ``level_pyramid`` / ``variance_pyramid`` / ``curvature_pyramid``   the three the paper builds
 

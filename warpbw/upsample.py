@@ -5,6 +5,8 @@ Public:
     ``UpsampleResult`` / ``upsample_level(..., mode, weights)``  fill the requested pixels of level L from level L+1
     ``UPSAMPLE_MODES``, ``UPSAMPLE_DEFAULT``, ``check_upsample_mode(mode)``
     ``parent_weights(...)``                           host wrapper returning the four weights (tests)
+    ``representative_pixel(gb, x, y, level)``         Warp func: the finest pixel at the centre of a level-L pixel
+    ``upsample_level_kernel``                         the up-sampling's kernel (warpbw.adaptive compiles it ahead)
 
 A pixel p of level L takes the weighted mean of its four nearest parents p_i at level L+1 that are
 already computed (``parent_valid``), or by default the value at its normal of a plane fitted to them under the
