@@ -15,14 +15,33 @@ import sys
 import time
 from pathlib import Path
 
-from warpbw.cli_common import OneLineParser, check_output_file, parse_seed, run_command
+from warpbw.cli_common import OneLineParser, check_output_file, check_overwrite, parse_seed, run_command
 from warpbw.errors import WarpbwError
+
+
+# what each subcommand writes: the output's name must end in one of these (a habitual --force after a typo in -o
+# would otherwise replace an image or a BRDF file)
+MERL_SUFFIXES = (".binary",)
+TABLE_SUFFIXES = (".npz",)
+GMM_SUFFIXES = (".npz", ".gmm")     # a scene's gmm = "scales.gmm" (issue 4's scene syntax)
+
+
+def _check_output(args, source, suffixes) -> Path:
+    """-o: a name ending in one of ``suffixes``, not the source it is made from (whatever --force says), and not an
+    existing file without --force; refused before any work."""
+    out = Path(args.output)
+    check_output_file(out, "-o", force=True)      # a directory, or a path under a file: refused first
+    if out.suffix.lower() not in suffixes:
+        raise WarpbwError(f"-o {out}: expected a path ending in {' or '.join(suffixes)}")
+    check_overwrite([out], args.force, inputs=[source] if source is not None else [],
+                    inputs_are="the file it is made from")
+    return out
 
 
 def cmd_npf_to_merl(args) -> int:
     from precompute.npf_to_merl import npf_to_merl
 
-    check_output_file(args.output, "-o", args.force)
+    _check_output(args, args.table, MERL_SUFFIXES)
     t0 = time.perf_counter()
     out = npf_to_merl(args.table, args.material, args.output, force=args.force)
     print(f"{out}  (MERL .binary from {args.table}:{args.material}, {time.perf_counter() - t0:.1f} s)")
@@ -33,8 +52,7 @@ def _table_command(args, build, write, describe) -> int:
     """The table subcommands: refuse an existing output, open the source, build, write, report."""
     from precompute.brdf_sampling import brdf_source
 
-    out = Path(args.output)
-    check_output_file(out, "-o", args.force)
+    out = _check_output(args, args.file, TABLE_SUFFIXES)
     t0 = time.perf_counter()
     source = brdf_source(args.file, args.material)
     table = build(source, progress=not args.quiet)
@@ -60,10 +78,14 @@ def cmd_brdf(args) -> int:
 
 
 def cmd_gmm(args) -> int:
-    from precompute.gmm_mipmap import build_gmm_mipmap, load_source, write_gmm_mipmap
+    from precompute.gmm_mipmap import DEFAULT_PRIOR, build_gmm_mipmap, load_source, write_gmm_mipmap
 
-    out = Path(args.output)
-    check_output_file(out, "-o", args.force)
+    if args.kind == "normal" and args.scale != 1.0:
+        raise WarpbwError(f"--scale {args.scale:g}: applies to --kind height only (a normal map's normals are used "
+                          "as they are)")
+    if args.unaligned and args.prior != DEFAULT_PRIOR:
+        raise WarpbwError(f"--prior {args.prior:g}: the unaligned baseline (--unaligned) has no alignment prior")
+    out = _check_output(args, None if args.map.startswith("surface:") else args.map, GMM_SUFFIXES)
     t0 = time.perf_counter()
     data, name, digest = load_source(args.map, args.kind)
     try:
@@ -84,7 +106,7 @@ def _table_args(p: argparse.ArgumentParser) -> None:
     """The arguments every tabulated-BRDF table command takes: the BRDF, the output, --force, --quiet."""
     p.add_argument("file", help="MERL .binary file, or NPF table with --material")
     p.add_argument("--material", default=None, help="NPF material name when FILE is an NPF table")
-    p.add_argument("-o", "--output", required=True, help="output table file (.npz)")
+    p.add_argument("-o", "--output", required=True, help="output table file (a name ending in .npz)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
@@ -103,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "the 90x90x180 MERL bin centres and write it as a MERL .binary file.")
     a.add_argument("--table", required=True, help="NPF table (npf.bin)")
     a.add_argument("--material", required=True, help="material name, e.g. gold-metallic-paint")
-    a.add_argument("-o", "--output", required=True, help="output .binary file")
+    a.add_argument("-o", "--output", required=True, help="output MERL file (a name ending in .binary)")
     a.add_argument("--force", action="store_true", help="overwrite an existing output")
     a.set_defaults(func=cmd_npf_to_merl)
 
@@ -130,16 +152,17 @@ def build_parser() -> argparse.ArgumentParser:
                        "procedural height field surface:NAME[:SIZE] with NAME one of hemispherical_scales, "
                        "carved_disk, dunes (e.g. surface:dunes:512; SIZE 1..1024, default 512).")
     g.add_argument("map", metavar="MAP", help="height field / normal map image, or surface:NAME[:SIZE]")
-    g.add_argument("-o", "--output", required=True, help="output mipmap file (.npz)")
+    g.add_argument("-o", "--output", required=True, help="output mipmap file (a name ending in .npz or .gmm)")
     g.add_argument("--components", type=int, default=4, help="Gaussians per texel (default 4)")
     g.add_argument("--prior", type=float, default=1.0,
-                   help="alignment constant c of the MAP prior (default 1; 0 is plain EM)")
+                   help="alignment constant c of the MAP prior (default 1; 0 is plain EM; not with --unaligned)")
     g.add_argument("--kind", choices=("height", "normal"), default="height",
                    help="MAP is a single-channel height field (default; 16-bit PNG or EXR: 8 bits "
                         "give terraced normals) or an RGB tangent-space normal map (PNG: [0, 1]-encoded; "
                         "EXR: raw unit vectors or [0, 1]-encoded)")
     g.add_argument("--scale", type=float, default=1.0,
-                   help="height multiplier; heights are in units of the map's width (default 1)")
+                   help="height multiplier; heights are in units of the map's width (default 1; --kind height "
+                   "only)")
     g.add_argument("--unaligned", action="store_true",
                    help="baseline: independent EM per texel (no prior, no neighbour initialisation)")
     g.add_argument("--seed", type=parse_seed, default=0,

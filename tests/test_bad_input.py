@@ -325,9 +325,8 @@ def test_missing_scene_file(tmp_path):
 
 
 def _fake_npf_table(path: Path) -> Path:
-    # the right size; read_npf checks the name before it reads a row
-    with open(path, "wb") as f:
-        f.truncate(NPF_FILE_SIZE)
+    """An NPF table of the right size whose every value is 0.5: each row a valid (if odd) fit."""
+    np.full(NPF_FILE_SIZE // 4, 0.5, "<f4").tofile(path)
     return path
 
 
@@ -649,7 +648,8 @@ def test_radiance_that_overflows_float32_is_refused_not_written(tmp_path, what):
     else:
         text = PLANE_SCENE.replace('normal_map = "map.exr"\n', "").replace("[[light]]", _BRIGHT_LIGHT, 1)
         (tmp_path / "scene.toml").write_text(text.replace("[3.0, 3.0, 3.0]", "[3e38, 3e38, 3e38]"))
-    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "4", "-q"], tmp_path)
+    spp = ["--spp", "4"] if what == "sphere" else []     # planes under lights alone take no samples
+    r = run(["render", "scene.toml", "-o", "out.exr", *spp, "-q"], tmp_path)
     assert_one_line_error(r, "scene.toml", "pixels came out infinite or NaN", "float32", "nothing written")
     assert_no_outputs(tmp_path)
 
@@ -1094,7 +1094,7 @@ def test_camera_that_sees_nothing_warns_in_one_line(tmp_path, planes):
         (tmp_path / "scene.toml").write_text(text)
     else:
         write_scene(tmp_path, obj='shape = "sphere"\nradius = 1.0\ncenter = [0.0, 0.0, 50.0]')
-    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "64"], tmp_path)
+    r = run(["render", "scene.toml", "-o", "out.exr"] + ([] if planes else ["--spp", "64"]), tmp_path)
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     warnings_ = [ln for ln in r.stderr.splitlines() if ln.startswith("warpbw: warning: ")]
     assert len(warnings_) == 1 and "no pixel is covered by geometry" in warnings_[0], r.stderr
@@ -1214,3 +1214,126 @@ def test_out_of_memory_in_warp_is_one_line(capsys):
 
     with pytest.raises(RuntimeError, match="something else"):
         run_command("warpbw", bug, None)
+
+
+# ------------------------------------------------------------------------------------------ session 43's audit
+
+
+def test_outputs_never_replace_an_input_even_with_force(tmp_path):
+    """--force once let a render replace its own light probe, and a precompute its own source, with status 0."""
+    from warpbw.io.exr import write_exr
+
+    probe = np.ones((4, 8, 3), np.float32)
+    write_exr(tmp_path / "probe.exr", probe)
+    before = (tmp_path / "probe.exr").read_bytes()
+    write_scene(tmp_path, environment='file = "probe.exr"')
+    r = run(["render", "scene.toml", "-o", "probe.exr", "--spp", "1", "--force"], tmp_path)
+    assert_one_line_error(r, "-o probe.exr", "would overwrite", "probe.exr", "a file this command reads")
+    r = run(["render", "scene.toml", "-o", "scene.exr", "--spp", "1", "--force"], tmp_path)   # its JSON is fine
+    assert r.returncode == 0, r.stderr
+    r = run(["bench", "scene.toml", "--json", "scene.toml", "--force"], tmp_path)
+    assert_one_line_error(r, "--json scene.toml", "expected a path ending in .json")
+    assert (tmp_path / "probe.exr").read_bytes() == before
+    npf = _fake_npf_table(tmp_path / "npf.bin").read_bytes()
+    for argv, needles in [
+        (["npf-to-merl", "--table", "npf.bin", "--material", "chrome", "-o", "npf.bin", "--force"],
+         ["-o npf.bin", "expected a path ending in .binary"]),
+        (["npf-to-merl", "--table", "t.binary", "--material", "chrome", "-o", "t.binary", "--force"],
+         ["-o t.binary", "would overwrite", "the file it is made from"]),
+        (["brdf-sampling", "npf.bin", "--material", "chrome", "-o", "x.txt"], ["-o x.txt", "ending in .npz"]),
+        (["brdf", "npf.bin", "--material", "chrome", "-o", "npf.bin", "--force"], ["-o npf.bin", ".npz"]),
+        (["gmm", "probe.exr", "-o", "probe.exr", "--force"], ["-o probe.exr", "ending in .npz or .gmm"]),
+        (["gmm", "m.gmm", "-o", "m.gmm", "--force"], ["-o m.gmm", "would overwrite", "the file it is made from"]),
+        (["gmm", "probe.exr", "-o", "g.npz", "--kind", "normal", "--scale", "2"], ["--scale 2", "--kind height"]),
+        (["gmm", "probe.exr", "-o", "g.npz", "--unaligned", "--prior", "5"], ["--prior 5", "--unaligned"]),
+    ]:
+        assert_one_line_error(run(argv, tmp_path, module="precompute"), *needles, prog="warpbw-precompute")
+    assert (tmp_path / "npf.bin").read_bytes() == npf and not (tmp_path / "g.npz").exists()
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc, a folder no file can be made in")
+def test_an_output_folder_that_cannot_be_written_is_refused_before_the_work(tmp_path):
+    """bench ran its whole benchmark, then failed on --json with a bare OS error and lost the results."""
+    write_scene(tmp_path)
+    t0 = time.perf_counter()
+    r = run(["bench", "scene.toml", "--json", "/proc/b.json", "--spp", "1", "--budgets", "1"], tmp_path)
+    assert_one_line_error(r, "--json /proc/b.json", "cannot write in /proc")
+    r = run(["bench", "scene.toml", "--json", "b.json", "--cache", "/proc/gt"], tmp_path)
+    assert_one_line_error(r, "--cache /proc/gt", "cannot write in /proc")
+    r = run(["render", "scene.toml", "-o", "/proc/out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "-o /proc/out.exr", "cannot write in /proc")
+    assert time.perf_counter() - t0 < 60 and not (tmp_path / "b.json").exists()
+
+
+@pytest.mark.parametrize("fill", ["zeros", "unmeasured", "nan"])
+def test_a_merl_file_without_a_positive_entry_is_refused(tmp_path, fill):
+    """It rendered a black sphere with status 0 (after a warning for the unmeasured entries, none for zeros)."""
+    p = tmp_path / "black.binary"
+    value = {"zeros": 0.0, "unmeasured": -1.0, "nan": np.nan}[fill]
+    with open(p, "wb") as f:
+        f.write(np.array([90, 90, 180], "<i4").tobytes())
+        np.full(MERL_FILE_SIZE // 8 - 1, value, "<f8").tofile(f)
+    write_scene(tmp_path, material='type = "merl"\nfile = "black.binary"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == EXIT_USER_ERROR and "Traceback" not in r.stderr, r.stderr
+    assert "black.binary: no positive MERL entry" in lines[-1] and "expected a measured BRDF" in lines[-1], r.stderr
+    assert_no_outputs(tmp_path)
+
+
+def test_an_npf_row_that_reflects_nothing_is_refused(tmp_path):
+    from warpbw.io.npf import NPF_COLS, NPF_CHANNELS, NPF_MATERIAL_NAMES
+
+    table = np.full(NPF_FILE_SIZE // 4, 0.5, "<f4")
+    row = NPF_MATERIAL_NAMES.index("chrome")
+    table[row * NPF_COLS * NPF_CHANNELS:(row + 1) * NPF_COLS * NPF_CHANNELS] = 0.0
+    table.tofile(tmp_path / "npf.bin")
+    r = run(["npf-to-merl", "--table", "npf.bin", "--material", "chrome", "-o", "out.binary"], tmp_path,
+            module="precompute")
+    assert_one_line_error(r, "npf.bin", "(chrome) reflects nothing", prog="warpbw-precompute")
+    assert_no_outputs(tmp_path)
+    # a row of random bytes: numpy's cast warning no longer precedes the error
+    np.random.default_rng(0).integers(0, 256, NPF_FILE_SIZE, dtype=np.uint8).tofile(tmp_path / "rand.bin")
+    r = run(["npf-to-merl", "--table", "rand.bin", "--material", "chrome", "-o", "out.binary"], tmp_path,
+            module="precompute")
+    assert_one_line_error(r, "rand.bin", "(chrome) holds negative or non-finite values", prog="warpbw-precompute")
+
+
+def test_options_that_would_be_ignored_are_refused(tmp_path):
+    """--spp 1,,2 dropped its empty item; --spp on planes lit by lights alone was accepted and unused."""
+    write_scene(tmp_path)
+    r = run(["bench", "scene.toml", "--json", "b.json", "--spp", "1,,2"], tmp_path)
+    assert "--spp" in r.stderr and "empty item" in r.stderr and r.returncode == EXIT_USER_ERROR, r.stderr
+    (tmp_path / "planes.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
+    r = run(["render", "planes.toml", "-o", "out.exr", "--filter", "toksvig", "--spp", "8"], tmp_path)
+    assert_one_line_error(r, "--spp 8", "planes.toml", "[[light]]s alone", "--filter ground_truth")
+    r = run(["bench-filtering", "planes.toml", "--json", "f.json", "--spp", "4"], tmp_path)
+    assert_one_line_error(r, "--spp 4", "planes.toml has none")
+    r = run(["demo", "-o", "out.exr"], tmp_path)
+    assert_one_line_error(r, "-o out.exr", "expected a folder")
+    assert_no_outputs(tmp_path) and not (tmp_path / "f.json").exists()
+
+
+def test_a_mesh_whose_detail_is_lost_to_its_extent_says_so(tmp_path):
+    """It said 'every triangle has zero area' of a triangle of area 5e29: the vertex merge had collapsed it."""
+    (tmp_path / "big.obj").write_text("v 1e30 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    write_scene(tmp_path, obj='mesh = "big.obj"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "big.obj", "every triangle collapses", "coordinates reach 1e+30")
+
+
+def test_huge_environment_scale_under_adaptive_gives_one_error_line(tmp_path):
+    """numpy's 'overflow encountered in reduce' was printed as a warpbw warning above the error."""
+    write_scene(tmp_path, environment='procedural = "sky"\nscale = 1e36')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "2"], tmp_path)
+    assert_one_line_error(r, "scene.toml", "overflowed float32")
+
+
+def test_a_probe_that_is_not_two_to_one_warns(tmp_path):
+    from warpbw.io.exr import write_exr
+
+    write_exr(tmp_path / "square.exr", np.ones((8, 8, 3), np.float32))
+    write_scene(tmp_path, environment='file = "square.exr"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "8x8 is not a 2:1 lat-long map" in r.stderr, r.stderr

@@ -585,8 +585,8 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
                 return nu, "cache"
         except (WarpbwError, KeyError, AttributeError):
             pass  # a stale or damaged cache entry is rebuilt below
-    t = env_signal(lum, signal)
-    nu = envmap_angular_bandwidth(t.astype(np.float64), floor=EPSILON * float(t.mean())).astype(np.float32)
+    t = env_signal(lum, signal).astype(np.float64)     # a float32 mean overflows beyond about 1e33 per texel
+    nu = envmap_angular_bandwidth(t, floor=EPSILON * float(t.mean())).astype(np.float32)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         write_asset(path, ENV_BW_FORMAT, ENV_BW_VERSION, name, digest, {"nu_a": nu},

@@ -135,7 +135,7 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
     outs = _outputs(out)
     adaptive = method == "adaptive"
     paths = list(outs.values()) + ([p for pair in _aov_paths(out).values() for p in pair] if adaptive else [])
-    check_overwrite(paths, force)
+    check_overwrite(paths, force, inputs=scene.input_files())
     init_warp(device)
     t0 = time.perf_counter()
     if adaptive:
@@ -212,7 +212,7 @@ def _render_filtering_cli(scene, args) -> int:
     out = Path(args.output)
     outs = _outputs(out)
     level_paths = [out.with_suffix(".level.exr"), out.with_suffix(".level.png")]
-    check_overwrite(list(outs.values()) + level_paths, args.force)
+    check_overwrite(list(outs.values()) + level_paths, args.force, inputs=scene.input_files())
     init_warp(args.device)
     t0 = time.perf_counter()
     aniso = {} if args.max_anisotropy is None else {"max_anisotropy": args.max_anisotropy}
@@ -254,7 +254,7 @@ def _render_mixed_cli(scene, args) -> int:
     outs = _outputs(out)
     mip_paths = [out.with_suffix(".mip_level.exr"), out.with_suffix(".mip_level.png")]
     aov_paths = [p for pair in _aov_paths(out).values() for p in pair] if adaptive else []
-    check_overwrite(list(outs.values()) + aov_paths + mip_paths, args.force)
+    check_overwrite(list(outs.values()) + aov_paths + mip_paths, args.force, inputs=scene.input_files())
     init_warp(args.device)
     t0 = time.perf_counter()
     res = render_with_planes(scene, method, args.spp, seed=args.seed, method=args.method, budget=args.budget,
@@ -334,6 +334,11 @@ def cmd_render(args) -> int:
     mixed = _is_mixed(scene)
     if args.method == "adaptive" and args.spp is not None and not mixed:
         raise WarpbwError("--spp applies to --method reference only (--method adaptive takes --budget)")
+    if scene.has_planes and not mixed and args.spp is not None and scene.environment is None \
+            and args.filter != "ground_truth":
+        raise WarpbwError(f"--spp {args.spp}: the planes of {scene.source} are lit by [[light]]s alone, shaded in "
+                          "closed form; --spp counts the rays of --filter ground_truth, or the samples of an "
+                          "[environment]")
     if args.spp is None:
         args.spp = DEFAULT_SPP
     if mixed:
@@ -353,6 +358,9 @@ def cmd_render(args) -> int:
 def cmd_demo(args) -> int:
     from warpbw.scene import default_scene
 
+    if Path(args.output).suffix.lower() in (".exr", ".png", ".json"):
+        raise WarpbwError(f"-o {args.output}: expected a folder (demo writes demo.exr, demo.png and demo.json into "
+                          "it)")
     check_output_dir(args.output, "-o")
     out = Path(args.output) / "demo.exr"
     spp = DEMO_SPP if args.spp is None else args.spp
@@ -444,11 +452,8 @@ def _error_map_paths(args) -> list:
     if out.suffix.lower() != ".exr":
         raise WarpbwError(f"--error-map {out}: expected a path ending in .exr")
     paths = [out, out.with_suffix(".png")]
-    inputs = {Path(f).resolve() for f in (args.test, args.reference)}
-    for p in paths:
-        if p.resolve() in inputs:
-            raise WarpbwError(f"--error-map {out}: would overwrite {p}, one of the images compared")
-    check_overwrite(paths, args.force, option="--error-map")
+    check_overwrite(paths, args.force, option="--error-map", inputs=(args.test, args.reference),
+                    inputs_are="one of the images compared")
     return paths
 
 
@@ -495,8 +500,10 @@ def _why(hi) -> str:
 
 def _number_list(name, kind, hi=None):
     def parse(s):
+        if any(not x.strip() for x in s.split(",")):   # "1,,2" once dropped the empty item without a word
+            raise argparse.ArgumentTypeError(f"expected comma-separated {kind.__name__}s, got an empty item in {s!r}")
         try:
-            vals = [kind(x) for x in s.split(",") if x.strip()]
+            vals = [kind(x) for x in s.split(",")]
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected comma-separated {kind.__name__}s, got {s!r}") from None
         if not vals or any(not (v > 0 and math.isfinite(v)) for v in vals):
@@ -513,8 +520,9 @@ def _number_list(name, kind, hi=None):
     return parse
 
 
-def _bench_outputs(args) -> None:
-    """Validate --json / --plot of a bench command and refuse to overwrite them without --force."""
+def _bench_outputs(args, scene) -> None:
+    """Validate --json / --plot of a bench command and refuse to overwrite them without --force (or to overwrite one
+    of the scene's files at all)."""
     outs = [Path(p) for p in (args.json, args.plot) if p]
     if not outs:
         raise WarpbwError("give --json OUT.json and/or --plot OUT.png (where to write the results)")
@@ -527,7 +535,7 @@ def _bench_outputs(args) -> None:
             check_output_file(path, option, force=True)
     if args.cache:
         check_output_dir(args.cache, "--cache")
-    check_overwrite(outs, args.force)
+    check_overwrite(outs, args.force, inputs=scene.input_files())
 
 
 def _write_bench(args, record: dict, write_plot) -> None:
@@ -543,11 +551,11 @@ def cmd_bench(args) -> int:
     from warpbw import bench
     from warpbw.scene import load_scene
 
-    _bench_outputs(args)
     if args.nb_budget is not None and not args.nb:
         raise WarpbwError("--nb-budget: the budget of the n_b sweep, which only --nb asks for "
                           "(e.g. --nb 16,64,256,1024)")
     scene = load_scene(args.scene)
+    _bench_outputs(args, scene)
     if scene.has_planes and not scene.has_surfaces:
         raise WarpbwError(f"{scene.source}: a scene with planes is benchmarked by 'warpbw bench-filtering'")
     if scene.environment is None:
@@ -573,16 +581,19 @@ def cmd_bench_filtering(args) -> int:
     from warpbw import bench_filtering as bf
     from warpbw.scene import load_scene
 
-    _bench_outputs(args)
     scene = load_scene(args.scene)
+    _bench_outputs(args, scene)
     if not scene.has_planes:
         raise WarpbwError(f"{scene.source}: bench-filtering needs a scene with planes (shape = \"plane\"); "
                           "spheres and meshes are benchmarked by 'warpbw bench'")
+    if args.spp is not None and scene.environment is None:
+        raise WarpbwError(f"--spp {args.spp}: counts the samples of an [environment], and {scene.source} has none "
+                          "(its [[light]]s are shaded in closed form)")
     init_warp(args.device)
     log = (lambda *a, **k: None) if args.quiet else print
     record = bf.run_bench_filtering(scene, zooms=args.zoom, gt_spp=args.gt_spp, runs=args.runs, seed=args.seed,
-                                    env_spp=args.spp, device=args.device, max_anisotropy=args.max_anisotropy,
-                                    flicker_pairs=args.flicker_pairs,
+                                    env_spp=DEFAULT_SPP if args.spp is None else args.spp, device=args.device,
+                                    max_anisotropy=args.max_anisotropy, flicker_pairs=args.flicker_pairs,
                                     cache=Path(args.cache) if args.cache else None, progress=not args.quiet, log=log)
     _write_bench(args, record, bf.write_plot)
     print(bf.format_table(record))
@@ -725,7 +736,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help=f"ground-truth samples per pixel (default {_bench.DEFAULT_GT_SPP}; cached in chunks)")
     bn.add_argument("--no-mis", action="store_true",
                     help="compare with BRDF importance sampling only (default: MIS for both methods)")
-    bn.add_argument("--cache", help="ground-truth cache directory (default $WARPBW_CACHE/ground_truth)")
+    bn.add_argument("--cache", help="ground-truth cache directory (default $WARPBW_CACHE/ground_truth, or "
+                    "~/.cache/warpbw/ground_truth without $WARPBW_CACHE)")
     bench_common(bn, "runs per point, each with its own seed (default 3): the time is their median, the error "
                      "the mean of their MSEs, with its standard error from their spread (the n_b sweep's runs share "
                      "their seeds across n_b); at a few samples per pixel a point's PSNR standard error over 3 "
@@ -758,7 +770,7 @@ def build_parser() -> argparse.ArgumentParser:
     bf.add_argument("--gt-spp", type=_positive_int("gt-spp", INT32_MAX), default=_bf.DEFAULT_GT_SPP,
                     help=f"ground-truth rays per pixel (>= 64; default {_bf.DEFAULT_GT_SPP}), jittered over the "
                     "pixel and averaged over those that hit the plane")
-    bf.add_argument("--spp", type=_positive_int("spp", INT32_MAX), default=DEFAULT_SPP,
+    bf.add_argument("--spp", type=_positive_int("spp", INT32_MAX), default=None,
                     help="under an [environment]: pairs of one BRDF and one environment sample per pixel of the "
                     f"filtered methods (default {DEFAULT_SPP}, as warpbw render; their noise is part of the error)")
     bf.add_argument("--cache", help="GMM mipmap cache directory to reuse (default: build afresh, so that the "
@@ -789,7 +801,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--error-range", metavar="LO,HI", type=_number_list("--error-range", float),
                    help="the PNG's log colour scale, printed (default: from 10^-%d times the map's largest value, "
                    "or its smallest positive one if larger, to the largest), so that maps of several images can be "
-                   "drawn on one scale" % ERROR_MAP_DECADES)
+                   "drawn on one scale; write --error-range=LO,HI when LO is negative" % ERROR_MAP_DECADES)
     c.add_argument("--force", action="store_true", help="overwrite an existing --error-map")
     c.set_defaults(func=cmd_compare)
     return p

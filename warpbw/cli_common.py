@@ -2,10 +2,11 @@
 
 Public: ``EXIT_USER_ERROR``, ``OneLineParser``, ``run_command(prog, func, args) -> int``, ``parse_seed`` (the
 argparse type of every ``--seed``), ``check_output_file(path, option, force)`` and ``check_output_dir(path,
-option)`` (an output path that cannot be written, refused before any work), ``check_overwrite(paths, force)``
-(several outputs at once, and --force), ``init_warp(device) -> warp`` (Warp initialised without its banner
-or its no-CUDA-driver line, the device checked), ``json_text(record) -> str`` (strict JSON, a non-finite float as
-null) and ``write_json(path, record, say=True)`` (that, written where asked, and said so).
+option)`` (an output path that cannot be written, refused before any work), ``check_overwrite(paths, force,
+option, inputs)`` (several outputs at once, and --force; never one of the command's inputs), ``init_warp(device)
+-> warp`` (Warp initialised without its banner or its no-CUDA-driver line, the device checked), ``json_text(record)
+-> str`` (strict JSON, a non-finite float as null) and ``write_json(path, record, say=True)`` (that, written where
+asked, and said so).
 """
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import argparse
 import json
 import math
 import sys
+import tempfile
 import warnings
 from pathlib import Path
 
@@ -42,12 +44,22 @@ def parse_seed(s: str) -> int:
 
 
 def _check_parents(path: Path, option: str) -> None:
-    """The nearest existing ancestor of ``path`` must be a directory (else mkdir fails after the work)."""
+    """The nearest existing ancestor of ``path`` must be a directory in which a file can be made (else mkdir or the
+    write fails after the work): a temporary file is made there and removed."""
     for parent in path.parents:
         if parent.exists():
             if not parent.is_dir():
                 raise WarpbwError(f"{option} {path}: {parent} is not a directory")
+            _check_writable(parent, path, option)
             return
+
+
+def _check_writable(folder: Path, path: Path, option: str) -> None:
+    try:
+        with tempfile.TemporaryFile(dir=folder, prefix=".warpbw-write-check-"):
+            pass
+    except OSError as exc:
+        raise WarpbwError(f"{option} {path}: cannot write in {folder} ({exc.strerror or exc})") from None
 
 
 def check_output_file(path, option: str, force: bool) -> None:
@@ -65,7 +77,10 @@ def check_output_dir(path, option: str) -> None:
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise WarpbwError(f"{option} {p}: not a directory (expected a directory, made if absent)")
-    _check_parents(p, option)
+    if p.is_dir():
+        _check_writable(p, p, option)
+    else:
+        _check_parents(p, option)
 
 
 # How Warp words a failed allocation, on the CPU or a GPU (warp/_src/context.py, allocators: RuntimeError)
@@ -135,9 +150,14 @@ def init_warp(device: str):
     return wp
 
 
-def check_overwrite(paths, force: bool, option: str = "-o"):
-    """Refuse, before any work, output files that cannot be written or exist without --force."""
+def check_overwrite(paths, force: bool, option: str = "-o", inputs=(), inputs_are: str = "a file this command reads"):
+    """Refuse, before any work, output files that cannot be written or exist without --force, and, whatever --force
+    says, an output that is one of ``inputs`` (the scene, its probe, a BRDF file, ...: ``--force`` would have
+    replaced a light probe by the render of it)."""
+    read = {Path(f).resolve() for f in inputs}
     for p in paths:  # a directory, or a path under a file, fails whatever --force says
+        if Path(p).resolve() in read:
+            raise WarpbwError(f"{option} {paths[0]}: would overwrite {p}, {inputs_are}")
         check_output_file(p, option, force=True)
     if force:
         return

@@ -558,6 +558,10 @@ def load_envmap(path, rotation_deg: float = 0.0, scale: float = 1.0, device="cpu
     from warpbw.io.exr import read_rgb  # lazy: keeps this module importable on its own
 
     rgb = read_rgb(path)
+    h, w = rgb.shape[:2]
+    if w != 2 * h:   # e.g. a cube-map cross or an angular (mirror-ball) probe: read as lat-long, it is another light
+        warnings.warn(f"envmap {Path(path).name!r}: {w}x{h} is not a 2:1 lat-long map (expected width = 2 x "
+                      "height); read as lat-long anyway", RuntimeWarning, stacklevel=2)
     return _make_envmap(rgb, rotation_deg, scale, Path(path).name, device, stacklevel=2)
 
 

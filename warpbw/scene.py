@@ -5,7 +5,7 @@ Public:
     ``parse_scene(text, base_dir, source) -> Scene``  the same from a string
     ``default_scene() -> Scene``                the embedded demo scene (needs no file)
     ``Scene``, ``Camera``, ``Environment``, ``DirectionalLight``, ``SphereObject``, ``MeshObject``,
-    ``PlaneObject``, ``Material``, ``DEFAULT_SCENE_TOML``
+    ``PlaneObject``, ``Material``, ``DEFAULT_SCENE_TOML``; ``Scene.input_files()``, every file a scene reads
     ``file_digest(path) -> str``               blake2b of a file's bytes (the content hashes of scenes and tables)
 
 Lights: an ``[environment]`` and/or ``[[light]]`` tables (``type = "directional"``, ``direction`` towards the
@@ -228,6 +228,17 @@ class Scene:
     def has_surfaces(self) -> bool:
         """True when some object is a sphere or a mesh (rendered by ``warpbw.pipeline``)."""
         return any(not isinstance(o, PlaneObject) for o in self.objects)
+
+    def input_files(self) -> list:
+        """Every file the scene names or is read from: the scene file, the probe, meshes, BRDF files and tables,
+        normal maps and precomputed assets (a command's outputs may not replace them)."""
+        files = [Path(self.source)] if Path(self.source).is_file() else []   # not "<string>" / "<default scene>"
+        if self.environment is not None and self.environment.file is not None:
+            files.append(self.environment.file)
+        files += [o.file for o in self.objects if isinstance(o, MeshObject)]
+        for m in self.materials.values():
+            files += [f for f in (m.file, m.table, m.sampling, m.bandwidth, m.normal_map, m.gmm) if f is not None]
+        return files
 
     @property
     def material_order(self) -> list:

@@ -300,6 +300,10 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     faces = np.asarray(mesh.faces, dtype=np.int64)
     _, _, p0, p1, p2 = _face_geometry(verts, faces)
     if not np.any(np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1) > 0.0):
+        if k:   # the merge rounds at 1e-8 of 2^k: finer detail collapsed (a vertex at 1e30 beside one at 1)
+            raise WarpbwError(f"{path}: every triangle collapses when vertices closer than {1e-8 * 2.0**k:.3g} are "
+                              f"merged (coordinates reach {big:.3g}: detail finer than about 1e-17 of the largest "
+                              "coordinate is lost; expected a mesh of one scale)")
         raise WarpbwError(f"{path}: every triangle has zero area (expected a mesh with a surface to render)")
     a = math.radians(r)
     ca, sa = math.cos(a), math.sin(a)

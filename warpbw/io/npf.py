@@ -103,13 +103,18 @@ def read_npf(path, name: str) -> NPFMaterial:
         vals = np.fromfile(path, dtype="<f4", count=row_floats, offset=row * row_floats * 4)
     except OSError as exc:
         raise WarpbwError(f"{path}: cannot read NPF table ({exc.strerror or exc})") from None
-    vals = vals.astype(np.float64).reshape(NPF_COLS, NPF_CHANNELS)
+    with np.errstate(invalid="ignore"):   # a signalling NaN's cast warns; non-finite values are refused below
+        vals = vals.astype(np.float64).reshape(NPF_COLS, NPF_CHANNELS)
     used = vals[: NPF_COL_F + NPF_BINS]
     if not np.all(np.isfinite(used)) or np.any(used < 0.0):
         raise WarpbwError(f"{path}: row {row} ({key}) holds negative or non-finite values (expected a valid NPF fit)")
     if used.max() > BRDF_VALUE_MAX:
         raise WarpbwError(f"{path}: row {row} ({key}) holds values up to {used.max():.3g}, beyond {BRDF_VALUE_MAX:g} "
                           "(float32 shading would overflow them to infinity; expected a valid NPF fit)")
+    lobe = [vals[c : c + NPF_BINS] for c in (NPF_COL_D, NPF_COL_G1, NPF_COL_F)]
+    if not (vals[NPF_COL_RHO_D].max() > 0.0 or (vals[NPF_COL_RHO_S].max() > 0.0 and all(x.max() > 0.0 for x in lobe))):
+        raise WarpbwError(f"{path}: row {row} ({key}) reflects nothing (rho_d 0, and rho_s, D, G1 or F all 0; expected "
+                          "a valid NPF fit)")
     return NPFMaterial(
         name=key,
         rho_d=vals[NPF_COL_RHO_D].copy(),
