@@ -118,6 +118,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import numbers
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -230,6 +231,8 @@ def normal_space(normals) -> np.ndarray:
 
 def level_shapes(h: int, w: int) -> list:
     """(h_l, w_l) of every level, finest first: ceil-halving down to 1x1 (a 1x1 map has one level)."""
+    if not (is_int(h) and is_int(w) and h >= 1 and w >= 1):   # 0 never halves to 1: the loop never ended
+        raise WarpbwError(f"map size {h!r}x{w!r}: expected at least 1x1 texels")
     shapes = [(int(h), int(w))]
     while shapes[-1] != (1, 1):
         hh, ww = shapes[-1]
@@ -531,6 +534,11 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
 
     data = _validate(heights_or_normals, kind, components, prior, scale)
     seed = check_count(seed, "seed", 0, SEED_MAX)  # numpy's SeedSequence and scikit-learn take uint32 seeds
+    max_samples = check_count(max_samples, "max_samples", 1)
+    refine_sweeps = check_count(refine_sweeps, "refine_sweeps", 0)
+    if texel_size is not None and not (isinstance(texel_size, numbers.Real) and 0.0 < texel_size < math.inf):
+        raise WarpbwError(f"texel_size: expected a finite length > 0 (or None: 1 / the map's width), got "
+                          f"{texel_size!r}")
     K = int(components)
     c = 0.0 if unaligned else float(prior)
     normals = height_to_normals(data, scale, texel_size) if kind == "height" else data

@@ -1337,3 +1337,84 @@ def test_a_probe_that_is_not_two_to_one_warns(tmp_path):
     r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
     assert r.returncode == 0, r.stderr
     assert "8x8 is not a 2:1 lat-long map" in r.stderr, r.stderr
+
+
+_FURNACE = """\
+[camera]
+position = [0.0, 0.0, 3.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 40.0
+resolution = [8, 8]
+
+[environment]
+constant = [{c}, {c}, {c}]
+
+[[object]]
+shape = "sphere"
+radius = 1.0
+material = "m"
+
+[material.m]
+type = "ggx"
+alpha = 1e-4
+specular = [1.0, 1.0, 1.0]
+"""
+
+
+def test_a_reference_frame_that_loses_samples_to_float32_overflow_is_refused(tmp_path):
+    """A near-mirror in a white furnace returns its radiance c (F = 1); at c = 1e32 radiance times the lobe passed
+    float32, the shading dropped those samples and the frame read 0.42 c with status 0 (a warning on the CLI)."""
+    from warpbw.pipeline import render_reference
+    from warpbw.scene import parse_scene
+
+    ok = render_reference(parse_scene(_FURNACE.format(c=1e30), tmp_path, "f.toml"), 2)
+    assert ok.stats["non_finite_samples"] == 0
+    assert np.mean(ok.image[ok.coverage]) / 1e30 == pytest.approx(1.0, rel=0.02)
+    with pytest.raises(WarpbwError, match=r"f.toml: \d+ of \d+ samples overflowed float32 .*radiance up to 1e\+32"):
+        render_reference(parse_scene(_FURNACE.format(c=1e32), tmp_path, "f.toml"), 2)
+
+
+def test_library_renderers_refuse_bad_seeds_devices_and_scenes(tmp_path):
+    """The CLIs checked these; called from Python they wrapped (seed 2**32 rendered seed 0's image), failed inside
+    numpy or Warp, or on a missing attribute of a path given as the scene."""
+    from warpbw.filtering import render_filtering
+    from warpbw.pipeline import render_adaptive, render_reference
+    from warpbw.scene import parse_scene
+
+    scene = parse_scene(_FURNACE.format(c=1.0), tmp_path, "f.toml")
+    for seed in (-1, 2**32, 1.5, None, "1"):
+        with pytest.raises(WarpbwError, match="seed: expected an integer"):
+            render_reference(scene, 1, seed=seed)
+    with pytest.raises(WarpbwError, match="seed: expected an integer"):
+        render_adaptive(scene, 2, seed=-5)
+    planes = parse_scene(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""), tmp_path, "p.toml")
+    with pytest.raises(WarpbwError, match="seed: expected an integer"):
+        render_filtering(planes, "fixed", seed=2**70)
+    for device in ("bogus", "", 0):
+        with pytest.raises(WarpbwError, match="device .*Warp found: cpu"):
+            render_reference(scene, 1, device=device)
+    with pytest.raises(WarpbwError, match="device bogus"):
+        render_filtering(planes, "fixed", device="bogus")
+    for given in ("f.toml", None):
+        with pytest.raises(WarpbwError, match="scene: expected a warpbw.scene.Scene"):
+            render_reference(given, 1)
+
+
+def test_gmm_builder_refuses_sizes_and_parameters_that_hung_or_failed_inside(tmp_path):
+    """level_shapes(0, 0) never returned (it grew to 24 GB); texel_size 0 divided by zero, nan failed in
+    scikit-learn, -1 flipped the normals; max_samples and refine_sweeps were not checked."""
+    code = ("from precompute.gmm_mipmap import level_shapes\n"
+            "from warpbw.errors import WarpbwError\n"
+            "for hw in ((0, 0), (0, 5), (-1, -1), (2.5, 2)):\n"
+            "    try:\n        level_shapes(*hw)\n    except WarpbwError as e:\n        print(e)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout.count("expected at least 1x1 texels") == 4, r.stdout + r.stderr
+    from precompute.gmm_mipmap import build_gmm_mipmap
+
+    h = np.random.default_rng(0).random((8, 8))
+    for kw, needle in [({"texel_size": 0.0}, "texel_size"), ({"texel_size": float("nan")}, "texel_size"),
+                       ({"texel_size": -1.0}, "texel_size"), ({"max_samples": 0}, "max_samples"),
+                       ({"max_samples": -1}, "max_samples"), ({"refine_sweeps": -1}, "refine_sweeps"),
+                       ({"refine_sweeps": 2.5}, "refine_sweeps")]:
+        with pytest.raises(WarpbwError, match=needle):
+            build_gmm_mipmap(h, progress=False, **kw)

@@ -18,7 +18,7 @@ import tempfile
 import warnings
 from pathlib import Path
 
-from warpbw.errors import SEED_MAX, WarpbwError
+from warpbw.errors import SEED_MAX, WarpbwError, check_device
 
 EXIT_USER_ERROR = 2
 WARP_LOG_WARNING = 30  # warp._src.logger.LOG_WARNING: hide Warp's banner and module-load lines
@@ -138,15 +138,7 @@ def init_warp(device: str):
 
     wp.config.log_level = WARP_LOG_WARNING
     _init_warp_quietly(wp)
-    names = ", ".join(d.alias for d in wp.get_devices())
-    if str(device).startswith("cuda") and not wp.is_cuda_available():
-        # checked before wp.get_device("cuda"), which prints native CUDA errors when there is no driver
-        raise WarpbwError(f"--device {device}: no CUDA device on this machine (no NVIDIA GPU or driver found; "
-                          f"Warp found: {names}); use --device cpu")
-    try:
-        wp.get_device(device)
-    except (RuntimeError, ValueError):
-        raise WarpbwError(f"--device {device}: not available on this machine (Warp found: {names})") from None
+    check_device(device, "--device")
     return wp
 
 

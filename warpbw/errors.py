@@ -4,7 +4,8 @@ Public: ``WarpbwError``; ``is_int(value)`` (an int or numpy integer, not a bool)
 ``check_count(value, name, lo, hi=None) -> int`` (such an integer in lo..hi, else a ``WarpbwError`` naming
 ``name``); ``check_input_file(path, expected) -> Path`` (an existing file, else a ``WarpbwError`` saying
 whether it is missing or a directory); ``check_camera_reach(reach, lo, hi, target, kind, why, source)`` (the
-camera's distance to an object within what float32 intersection handles);
+camera's distance to an object within what float32 intersection handles); ``check_seed(seed, name)`` (a
+uint32) and ``check_device(device, name)`` (a Warp device this machine has), the renderers' own checks;
 the bounds ``INT32_MAX``, ``FLOAT32_MAX``, ``SEED_MAX`` and ``BRDF_VALUE_MAX`` that user values are checked against.
 
 Anything the user can cause (a bad file, a bad key in a scene, a bad CLI value) is raised as
@@ -45,6 +46,30 @@ def check_count(value, name: str, lo: int, hi: int | None = None) -> int:
     if hi is not None and value > hi:
         raise WarpbwError(f"{name}: expected an integer from {lo} to {hi}, got {value!r}")
     return int(value)
+
+
+def check_seed(seed, name: str = "seed") -> int:
+    """A seed the RNGs take as it is: an integer from 0 to ``SEED_MAX`` (else it would wrap, or fail inside numpy)."""
+    return check_count(seed, name, 0, SEED_MAX)
+
+
+def check_device(device, name: str = "device") -> str:
+    """``device`` when Warp has it on this machine (cpu, cuda, cuda:N), else a ``WarpbwError`` naming ``name``."""
+    import warp as wp
+
+    wp.init()
+    names = ", ".join(d.alias for d in wp.get_devices())
+    if not isinstance(device, str) or not device:
+        raise WarpbwError(f"{name} {device!r}: expected a Warp device name (Warp found: {names})")
+    if device.startswith("cuda") and not wp.is_cuda_available():
+        # checked before wp.get_device("cuda"), which prints native CUDA errors when there is no driver
+        raise WarpbwError(f"{name} {device}: no CUDA device on this machine (no NVIDIA GPU or driver found; "
+                          f"Warp found: {names}); use {name + ' cpu' if name.startswith('-') else 'cpu'}")
+    try:
+        wp.get_device(device)
+    except (RuntimeError, ValueError):
+        raise WarpbwError(f"{name} {device}: not available on this machine (Warp found: {names})") from None
+    return device
 
 
 def check_input_file(path, expected: str = "") -> Path:

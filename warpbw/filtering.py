@@ -108,7 +108,7 @@ import warp as wp
 from precompute.gmm_mipmap import NORMAL_DIM
 from warpbw.envmap import (LUMINANCE_RGB, EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv,
                            load_environment)
-from warpbw.errors import INT32_MAX, WarpbwError, check_camera_reach, check_count
+from warpbw.errors import INT32_MAX, WarpbwError, check_camera_reach, check_count, check_device, check_seed
 from warpbw.gbuffer import CameraData, scene_camera
 from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene
 
@@ -1042,6 +1042,7 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
     unknown = [m for m in methods if m not in ALL_METHODS]
     if unknown:
         raise WarpbwError(f"filter method {unknown[0]!r}: expected one of {', '.join(ALL_METHODS)}")
+    check_device(device)
     t0 = time.perf_counter()
     if env is not None and scene.environment is None:
         raise WarpbwError(f"{scene.source}: env: given a loaded environment, but the scene has no [environment]")
@@ -1153,6 +1154,7 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     from warpbw.shading import launch_tiled
 
     check_render_args(scene, method, spp, env_spp, max_anisotropy)
+    check_seed(seed)
     planes = plane_objects(scene)
     check_plane_reach(camera or scene.camera, planes, scene.source)
     if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm for mp in prepared.mips.values())):

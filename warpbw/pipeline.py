@@ -12,6 +12,8 @@ Public:
     ``scene_summary(scene) -> dict``   what the scene needs (for ``warpbw info``), without loading it
     ``stages_used(prep, mis, adaptive)``, ``PreparedScene``, ``RenderResult``   the stages a frame ran; the
                                        two results above
+    ``RADIANCE_OVERFLOW_MIN``           above this radiance, a reference frame that drops samples as non-finite
+                                       is refused (float32 overflow of radiance times the BRDF)
 
 A material kind the scene does not use is not compiled (its branch is removed from the kernels with
 ``wp.static``); spheres and meshes each have their own G-buffer path; one table per tabulated material
@@ -38,7 +40,7 @@ import numpy as np
 
 from warpbw import brdf as brdf_mod
 from warpbw import envmap
-from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError, is_int
+from warpbw.errors import BRDF_VALUE_MAX, FLOAT32_MAX, INT32_MAX, WarpbwError, check_device, check_seed, is_int
 from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, hide_beyond, render_gbuffer,
                             scene_camera)
 from warpbw.scene import MeshObject, PlaneObject, Scene, SphereObject
@@ -123,6 +125,8 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
     """Load the scene's assets (environment, meshes, materials) onto ``device``."""
     from warpbw.lights import make_lights
 
+    _check_scene(scene)
+    check_device(device)
     if scene.has_planes:
         raise WarpbwError(f"{scene.source}: this renderer (spheres and meshes, 002) does not render planes; scenes "
                           "with planes render with warpbw.filtering.render_filtering, or, beside spheres and meshes, "
@@ -202,6 +206,12 @@ def _load_kernels(prep: PreparedScene, kernels, timings: dict) -> None:
     timings["compile"] = timings.get("compile", 0.0) + time.perf_counter() - t0
 
 
+def _check_scene(scene) -> None:
+    if not isinstance(scene, Scene):   # a path or None failed on a missing attribute, deep inside
+        raise WarpbwError(f"scene: expected a warpbw.scene.Scene (from load_scene / parse_scene) or a PreparedScene, "
+                          f"got {type(scene).__name__}")
+
+
 def _prepared(scene, device: str, progress: bool) -> tuple[PreparedScene, dict]:
     prep = scene if isinstance(scene, PreparedScene) else prepare_scene(scene, device, progress)
     return prep, (dict(prep.timings) if prep is not scene else {})
@@ -228,6 +238,22 @@ def _gbuffer(prep: PreparedScene, timings: dict, threads: int | None = None, cli
     return gb, hidden
 
 
+# A sample multiplies the light's radiance by a BRDF value (up to BRDF_VALUE_MAX) in float32: above this radiance a
+# sample the shading drops as non-finite is that product's overflow, and the frame, short of its light, is refused.
+RADIANCE_OVERFLOW_MIN = FLOAT32_MAX / BRDF_VALUE_MAX
+
+
+def _check_overflowed_samples(prep: PreparedScene, n_bad: int, samples: int) -> None:
+    """Refuse a frame whose shading dropped samples to float32 overflow (a white furnace at radiance 1e32 read 0.42
+    of its radiance, status 0); below RADIANCE_OVERFLOW_MIN the count stays a warning (warpbw render)."""
+    env_max = float(np.max(prep.env.pixels)) if prep.env is not None else 0.0
+    l_max = max([env_max] + [max(li.radiance) for li in prep.scene.lights])
+    if n_bad and l_max > RADIANCE_OVERFLOW_MIN:
+        raise WarpbwError(f"{prep.scene.source}: {n_bad} of {samples} samples overflowed float32 (radiance up to "
+                          f"{l_max:.3g}, times the BRDF, passes {FLOAT32_MAX:.3g}) and the image would be missing "
+                          "their light: lower [environment] scale or the lights' radiance")
+
+
 def _check_spp(spp) -> None:
     if not is_int(spp) or spp < 1:
         raise WarpbwError(f"spp: expected a positive integer, got {spp!r}")
@@ -245,6 +271,7 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     from warpbw.shading import make_reference_kernel, shade_reference
 
     _check_spp(spp)
+    check_seed(seed)
     prep, timings = _prepared(scene, device, progress)
     _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
                          make_reference_kernel(prep.materials.kinds, mis, has_env=prep.env is not None,
@@ -262,6 +289,7 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     timings["shading"] = time.perf_counter() - t0
     if bar is not None:
         bar.close()
+    _check_overflowed_samples(prep, res.non_finite, res.samples)
     image = res.radiance.numpy().reshape(prep.height, prep.width, 3)
     stats = _base_stats(prep, "reference", seed, mis, timings, n_cov)
     stats.update({
@@ -402,6 +430,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     check_upsample_mode(upsample)
     env_signal = bandwidth.check_env_signal(bandwidth.ENV_SIGNAL_DEFAULT if env_signal is None else env_signal)
     bandwidth.direction_set(n_b)  # validates n_b before any work
+    check_seed(seed)
     prep, timings = _prepared(scene, device, progress)
     if prep.env is None:
         raise WarpbwError(f"{prep.scene.source}: the adaptive method needs an [environment] to adapt to: [[light]]s "
@@ -510,6 +539,7 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
     from warpbw.filtering import (DEFAULT_ANISOTROPY, Background, check_render_args, plane_distance,
                                   prepare_filtering, render_filtering)
 
+    check_seed(seed)
     surfaces, planes = split_planes(scene)
     if surfaces is None or planes is None:
         raise WarpbwError(f"{scene.source}: render_with_planes renders planes beside spheres or meshes; this scene "
