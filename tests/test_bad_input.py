@@ -1339,26 +1339,11 @@ def test_a_probe_that_is_not_two_to_one_warns(tmp_path):
     assert "8x8 is not a 2:1 lat-long map" in r.stderr, r.stderr
 
 
-_FURNACE = """\
-[camera]
-position = [0.0, 0.0, 3.0]
-look_at = [0.0, 0.0, 0.0]
-fov = 40.0
-resolution = [8, 8]
-
-[environment]
-constant = [{c}, {c}, {c}]
-
-[[object]]
-shape = "sphere"
-radius = 1.0
-material = "m"
-
-[material.m]
-type = "ggx"
-alpha = 1e-4
-specular = [1.0, 1.0, 1.0]
-"""
+def _furnace(c: float) -> str:
+    """A near-mirror GGX sphere (F = 1) under a constant environment of radiance c."""
+    return SCENE.format(resolution="[8, 8]", environment=f"constant = [{c}, {c}, {c}]",
+                        object='shape = "sphere"\nradius = 1.0',
+                        material='type = "ggx"\nalpha = 1e-4\nspecular = [1.0, 1.0, 1.0]')
 
 
 def test_a_reference_frame_that_loses_samples_to_float32_overflow_is_refused(tmp_path):
@@ -1367,11 +1352,11 @@ def test_a_reference_frame_that_loses_samples_to_float32_overflow_is_refused(tmp
     from warpbw.pipeline import render_reference
     from warpbw.scene import parse_scene
 
-    ok = render_reference(parse_scene(_FURNACE.format(c=1e30), tmp_path, "f.toml"), 2)
+    ok = render_reference(parse_scene(_furnace(1e30), tmp_path, "f.toml"), 2)
     assert ok.stats["non_finite_samples"] == 0
     assert np.mean(ok.image[ok.coverage]) / 1e30 == pytest.approx(1.0, rel=0.02)
     with pytest.raises(WarpbwError, match=r"f.toml: \d+ of \d+ samples overflowed float32 .*radiance up to 1e\+32"):
-        render_reference(parse_scene(_FURNACE.format(c=1e32), tmp_path, "f.toml"), 2)
+        render_reference(parse_scene(_furnace(1e32), tmp_path, "f.toml"), 2)
 
 
 def test_library_renderers_refuse_bad_seeds_devices_and_scenes(tmp_path):
@@ -1381,7 +1366,7 @@ def test_library_renderers_refuse_bad_seeds_devices_and_scenes(tmp_path):
     from warpbw.pipeline import render_adaptive, render_reference
     from warpbw.scene import parse_scene
 
-    scene = parse_scene(_FURNACE.format(c=1.0), tmp_path, "f.toml")
+    scene = parse_scene(_furnace(1.0), tmp_path, "f.toml")
     for seed in (-1, 2**32, 1.5, None, "1"):
         with pytest.raises(WarpbwError, match="seed: expected an integer"):
             render_reference(scene, 1, seed=seed)
