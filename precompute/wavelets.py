@@ -78,6 +78,7 @@ DEFAULT_WAVELET = "db4"
 # Coarsest band analysed: band L holds 2^-(L+1) .. 2^-L cycles/pixel (L = 7: periods up to 256 px).
 # Coarser content reads as bandwidth <= 2^-(L+1/2); it bounds memory and time on large images.
 MAX_LEVELS = 7
+VALUE_MAX = 1e150       # band_maxima: beyond, the energies of Eq. 7's rule (squares, sums) overflow float64
 # Relative size of float64 rounding noise in the transform (a constant image's detail
 # coefficients are ~1e-16 of its value, not 0); coefficients under it count as zero.
 _ROUNDING = 1e-9
@@ -158,8 +159,8 @@ def _centre_shift(wavelet: str, level0: int) -> int:
 def _levels_for(shape: tuple[int, int], levels: int | None) -> int:
     if levels is None:
         levels = min(MAX_LEVELS, max(1, int(math.floor(math.log2(max(shape))))))
-    if levels < 1:
-        raise ValueError(f"levels must be >= 1, got {levels}")
+    if levels < 1 or levels > MAX_LEVELS:   # 50 levels padded the image to 2^50 texels: a 64 PiB allocation
+        raise ValueError(f"levels must be from 1 to {MAX_LEVELS}, got {levels}")
     return int(levels)
 
 
@@ -178,6 +179,9 @@ def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int |
         raise ValueError(f"image must be (H, W) or (H, W, C), got shape {np.shape(image)}")
     if not np.all(np.isfinite(img)):
         raise ValueError("image has NaN or infinite values; bandwidth is undefined there")
+    if np.abs(img).max() > VALUE_MAX:   # every pixel's bandwidth came out NaN
+        raise ValueError(f"image values reach {np.abs(img).max():.3g}, beyond {VALUE_MAX:g}: the bands' squared "
+                         "coefficients overflow float64 (scale the image down: its bandwidth does not depend on scale)")
     h, w, c = img.shape
     nlev = _levels_for((h, w), levels)
     wav = pywt.Wavelet(wavelet)

@@ -1403,3 +1403,83 @@ def test_gmm_builder_refuses_sizes_and_parameters_that_hung_or_failed_inside(tmp
                        ({"refine_sweeps": 2.5}, "refine_sweeps")]:
         with pytest.raises(WarpbwError, match=needle):
             build_gmm_mipmap(h, progress=False, **kw)
+
+
+def test_library_helpers_refuse_values_they_once_took_or_failed_on(tmp_path):
+    """threads 0 or 1.5 ran as 1; a NaN bandwidth came back NaN or 1e30 and a cosine of 2 was used; 50 wavelet
+    levels asked numpy for 64 PiB and values of 1e160 gave NaN bandwidths; an exposure of 1e6 stops raised
+    Python's OverflowError."""
+    from precompute.wavelets import band_maxima, local_bandwidth
+    from warpbw.bandwidth_ops import apply_operator
+    from warpbw.io.exr import write_png
+    from warpbw.pipeline import render_reference
+    from warpbw.scene import parse_scene
+
+    scene = parse_scene(_furnace(1.0), tmp_path, "f.toml")
+    for threads in (0, -1, 1.5, "2", True):
+        with pytest.raises(WarpbwError, match="threads: expected an integer >= 1"):
+            render_reference(scene, 1, threads=threads)
+    with pytest.raises(WarpbwError, match="nu has NaN values"):
+        apply_operator("T", [[np.nan, 1.0]], d=1.0)
+    for op in ("R", "one_bounce"):
+        with pytest.raises(WarpbwError, match="nu has NaN values"):
+            apply_operator(op, [[1.0, np.nan]])
+    for cos in (2.0, -1.5):
+        with pytest.raises(WarpbwError, match="cos_i is a cosine"):
+            apply_operator("P_i", [[1.0, 1.0]], cos_i=cos)
+    img = np.random.default_rng(0).random((8, 8))
+    with pytest.raises(ValueError, match="levels must be from 1 to 7, got 50"):
+        band_maxima(img, levels=50)
+    with pytest.raises(ValueError, match="beyond 1e\\+150"):
+        local_bandwidth(img * 1e160)
+    assert np.isfinite(local_bandwidth(img * 1e140)).all()     # the same image, scaled, below the limit
+    np.testing.assert_allclose(local_bandwidth(img * 1e140), local_bandwidth(img), rtol=1e-9)
+    for exposure in (1e6, -1e6, float("nan")):
+        with pytest.raises(WarpbwError, match="exposure"):
+            write_png(tmp_path / "p.png", np.ones((2, 2, 3)), exposure=exposure)
+    assert not (tmp_path / "p.png").exists()
+
+
+def test_metrics_refuse_non_finite_images_and_a_non_positive_eps():
+    """psnr of a NaN image was NaN, mse of an inf one inf, relmse with eps = -1 negative (-0.33)."""
+    from warpbw.metrics import compare_images, mse, psnr, relmse, relmse_map
+
+    ref = np.ones((2, 3, 3))
+    bad = ref.copy()
+    bad[0, 1, 2] = np.nan
+    for f in (mse, psnr, relmse, relmse_map, compare_images):
+        with pytest.raises(WarpbwError, match="test image: 1 non-finite values"):
+            f(bad, ref)
+        with pytest.raises(WarpbwError, match="reference image: 1 non-finite values"):
+            f(ref, bad)
+    mask = np.ones((2, 3), bool)
+    mask[0, 1] = False                                   # a non-finite pixel outside the mask does not count
+    assert mse(bad, ref, mask) == 0.0
+    for eps in (-1.0, 0.0, float("nan"), float("inf")):
+        with pytest.raises(WarpbwError, match="eps: expected a finite number > 0"):
+            relmse(ref, ref, eps=eps)
+    assert relmse(2 * ref, ref, eps=1.0) == pytest.approx(0.5)   # (2 - 1)^2 / (1 + 1)
+
+
+def test_brdf_evaluators_and_probe_helpers_name_bad_arguments(tmp_path):
+    """merl_eval / npf_eval failed in numpy's broadcasting or with an IndexError; read_npf(path, None) answered
+    'close matches: nylon'; procedural_sky with a NaN elevation returned an all-NaN map; sample_directions(env, -1)
+    failed in Warp."""
+    from warpbw.envmap import constant_envmap, procedural_sky, sample_directions
+    from warpbw.io.npf import npf_eval, read_npf
+
+    mat = read_npf(_fake_npf_table(tmp_path / "npf.bin"), "chrome")
+    up = [0.0, 0.0, 1.0]
+    assert npf_eval(mat, [up, up], up).shape == (2, 3)            # one direction broadcasts
+    with pytest.raises(WarpbwError, match="as many incident as outgoing"):
+        npf_eval(mat, [up, up], [up, up, up])
+    with pytest.raises(WarpbwError, match="3 components"):
+        npf_eval(mat, [[0.0, 1.0]], up)
+    with pytest.raises(WarpbwError, match="NPF material name: expected a string"):
+        read_npf(tmp_path / "npf.bin", None)
+    for kw in ({"sun_elevation_deg": float("nan")}, {"sun_radius_deg": 0.0}, {"sun_radiance": -5.0}):
+        with pytest.raises(WarpbwError, match=f"procedural_sky: {next(iter(kw))}"):
+            procedural_sky(8, 4, **kw)
+    assert np.isfinite(procedural_sky(8, 4, sun_radiance=0.0)).all()
+    with pytest.raises(WarpbwError, match="n: expected an integer >= 0"):
+        sample_directions(constant_envmap(1.0), -1)

@@ -252,6 +252,8 @@ def apply_operator(op: str, nu, *, d=0.0, dp=0.0, cos_i=1.0, cos_x=1.0, c=0.0, t
         v = v.reshape(1, -1)
     if v.ndim != 2 or v.shape[1] != 2:
         raise WarpbwError(f"nu must have shape (N, 2), got {np.shape(nu)}")
+    if np.isnan(v).any():   # "T" passed NaN on, "R" turned it into 1e30
+        raise WarpbwError("nu has NaN values (expected bandwidths >= 0, or inf)")
     n = v.shape[0]
     vals = dict(d=d, dp=dp, cos_i=cos_i, cos_x=cos_x, c=c, t=t, rho=rho)
     p = np.empty((n, len(_PARAMS)), dtype=np.float32)
@@ -263,6 +265,8 @@ def apply_operator(op: str, nu, *, d=0.0, dp=0.0, cos_i=1.0, cos_x=1.0, c=0.0, t
             raise WarpbwError(f"parameter {name} is NaN")
         if name in ("t", "rho") and (col < 0).any():
             raise WarpbwError(f"parameter {name} is a bandwidth and must be >= 0, got {col.min()}")
+        if name in ("cos_i", "cos_x") and (np.abs(col) > 1.0).any():
+            raise WarpbwError(f"parameter {name} is a cosine and must lie in [-1, 1], got {col[np.abs(col) > 1.0][0]}")
         p[:, k] = np.broadcast_to(col, (n,))
     if n == 0:
         return np.zeros((0, 2), dtype=np.float32)

@@ -76,7 +76,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_count
 
 wp.set_module_options({"enable_backward": False})  # no gradients are taken: halves compile time
 
@@ -612,6 +612,13 @@ def procedural_sky(
     height = int(height)
     if width < 1 or height < 2:
         raise WarpbwError(f"procedural_sky: need width >= 1 and height >= 2, got {width}x{height}")
+    for what, v in (("sun_elevation_deg", sun_elevation_deg), ("sun_azimuth_deg", sun_azimuth_deg)):
+        if not math.isfinite(v):   # NaN made the whole map NaN
+            raise WarpbwError(f"procedural_sky: {what} {v!r}: expected finite degrees")
+    if not 0.0 < sun_radius_deg < math.inf:
+        raise WarpbwError(f"procedural_sky: sun_radius_deg {sun_radius_deg!r}: expected finite degrees > 0")
+    if not 0.0 <= sun_radiance < math.inf:
+        raise WarpbwError(f"procedural_sky: sun_radiance {sun_radiance!r}: expected a finite radiance >= 0")
     d = texel_directions(width, height)
     el = math.radians(sun_elevation_deg)
     az = math.radians(sun_azimuth_deg)
@@ -672,7 +679,7 @@ def eval_pdf(env: EnvMap, dirs) -> np.ndarray:
 
 def sample_directions(env: EnvMap, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """n directions drawn by env_sample (Warp RNG seeded by seed) and their pdfs."""
-    n = int(n)
+    n = check_count(n, "n", 0)
     dirs = wp.empty(n, dtype=wp.vec3, device=env.device)
     pdf = wp.empty(n, dtype=wp.float32, device=env.device)
     wp.launch(_sample_kernel, dim=n, inputs=[env.data, int(seed), dirs, pdf], device=env.device)

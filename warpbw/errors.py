@@ -6,6 +6,7 @@ Public: ``WarpbwError``; ``is_int(value)`` (an int or numpy integer, not a bool)
 whether it is missing or a directory); ``check_camera_reach(reach, lo, hi, target, kind, why, source)`` (the
 camera's distance to an object within what float32 intersection handles); ``check_seed(seed, name)`` (a
 uint32) and ``check_device(device, name)`` (a Warp device this machine has), the renderers' own checks;
+``check_direction_pairs(wi, wo) -> (wi, wo)`` (the BRDF evaluators' (N, 3) direction pairs, broadcast);
 the bounds ``INT32_MAX``, ``FLOAT32_MAX``, ``SEED_MAX`` and ``BRDF_VALUE_MAX`` that user values are checked against.
 
 Anything the user can cause (a bad file, a bad key in a scene, a bad CLI value) is raised as
@@ -70,6 +71,22 @@ def check_device(device, name: str = "device") -> str:
     except (RuntimeError, ValueError):
         raise WarpbwError(f"{name} {device}: not available on this machine (Warp found: {names})") from None
     return device
+
+
+def check_direction_pairs(wi, wo):
+    """``wi`` and ``wo`` as float64 arrays (N, 3) of one length (a single direction broadcasts), else a ``WarpbwError``
+    (numpy's broadcast error or an IndexError once came from deep inside the evaluators)."""
+    import numpy as np
+
+    a = np.atleast_2d(np.asarray(wi, dtype=np.float64))
+    b = np.atleast_2d(np.asarray(wo, dtype=np.float64))
+    if a.shape[-1:] != (3,) or b.shape[-1:] != (3,):
+        raise WarpbwError(f"wi, wo: expected directions of 3 components, (N, 3), got shapes {a.shape} and {b.shape}")
+    try:
+        return np.broadcast_arrays(a, b)
+    except ValueError:
+        raise WarpbwError(f"wi, wo: expected as many incident as outgoing directions, got shapes {a.shape} and "
+                          f"{b.shape}") from None
 
 
 def check_input_file(path, expected: str = "") -> Path:

@@ -37,7 +37,19 @@ def _masked(test, ref, mask):
         raise WarpbwError(f"mask of shape {mask.shape} does not match images of shape {a.shape[:2]}")
     if not mask.any():
         raise WarpbwError("no pixel is covered by geometry: the error is undefined")
-    return a[mask], b[mask]
+    a, b = a[mask], b[mask]
+    for what, x in (("test", a), ("reference", b)):   # psnr / mse read NaN or inf from them without a word
+        bad = int(np.count_nonzero(~np.isfinite(x)))
+        if bad:
+            raise WarpbwError(f"{what} image: {bad} non-finite values over the covered pixels (expected finite "
+                              "radiance)")
+    return a, b
+
+
+def _check_eps(eps) -> float:
+    if not (isinstance(eps, (int, float, np.floating)) and 0.0 < eps < math.inf):
+        raise WarpbwError(f"eps: expected a finite number > 0 (relMSE's regulariser), got {eps!r}")
+    return float(eps)
 
 
 def mse(test, ref, mask=None) -> float:
@@ -47,7 +59,7 @@ def mse(test, ref, mask=None) -> float:
 
 def relmse(test, ref, mask=None, eps: float = RELMSE_EPS) -> float:
     a, b = _masked(test, ref, mask)
-    return float(np.mean((a - b) ** 2 / (b * b + eps)))
+    return float(np.mean((a - b) ** 2 / (b * b + _check_eps(eps))))
 
 
 def psnr(test, ref, mask=None) -> float:
@@ -66,7 +78,7 @@ def relmse_map(test, ref, mask=None, eps: float = RELMSE_EPS) -> np.ndarray:
     _masked(test, ref, mask)                      # the same checks as the scalar metrics
     a = np.asarray(test, np.float64)
     b = np.asarray(ref, np.float64)
-    e = np.mean((a - b) ** 2 / (b * b + eps), axis=-1)
+    e = np.mean((a - b) ** 2 / (b * b + _check_eps(eps)), axis=-1)
     return e if mask is None else np.where(np.asarray(mask, bool), e, 0.0)
 
 

@@ -39,7 +39,7 @@ import warp as wp
 
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_count
 from warpbw.gbuffer import GBuffer, GBufferData
 from warpbw.lights import DirectionalLights, Lights
 
@@ -218,7 +218,8 @@ def launch_tiled(kernel, n_items: int, make_inputs: Callable[[int, int], list], 
     """
     if n_items <= 0:
         return
-    threads = default_threads(device) if threads is None else max(1, int(threads))
+    # a count >= 1: 0, -1 or 1.5 were once taken as 1 without a word
+    threads = default_threads(device) if threads is None else check_count(threads, "threads", 1)
     if threads > 1:
         tile = max(MIN_PIXELS_PER_TILE, min(tile, -(-n_items // (TILES_PER_THREAD * threads))))
     elif progress is None and not str(device).startswith("cpu"):

@@ -20,6 +20,7 @@ names the file.
 """
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -211,7 +212,14 @@ def write_png(path, rgb, exposure: float = 0.0) -> Path:
         arr = np.repeat(arr[..., None], 3, axis=-1)
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise WarpbwError(f"{path}: cannot write a preview of shape {arr.shape} (expected (H, W, 3))")
-    v = np.nan_to_num(arr * (2.0 ** float(exposure)), nan=0.0, posinf=1.0, neginf=0.0)
+    try:
+        gain = 2.0 ** float(exposure)
+    except (OverflowError, TypeError, ValueError):   # 2.0 ** 1e6 overflows Python's float
+        gain = math.nan
+    if not (0.0 < gain < math.inf):
+        raise WarpbwError(f"{path}: exposure {exposure!r}: expected a finite number of stops (2^exposure a finite "
+                          "gain)")
+    v = np.nan_to_num(arr * gain, nan=0.0, posinf=1.0, neginf=0.0)
     enc = linear_to_srgb(np.clip(v, 0.0, 1.0))
     return _to_png(path, np.round(enc * 255.0).astype(np.uint8))
 

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import BRDF_VALUE_MAX, WarpbwError, check_input_file
+from warpbw.errors import BRDF_VALUE_MAX, WarpbwError, check_direction_pairs, check_input_file
 
 # Table resolution of the MERL database (BRDFRead.cpp: BRDF_SAMPLING_RES_THETA_H = 90,
 # BRDF_SAMPLING_RES_THETA_D = 90, BRDF_SAMPLING_RES_PHI_D = 360 of which 180 are stored).
@@ -182,9 +182,7 @@ def merl_eval(brdf: MerlBRDF, wi, wo, interpolate: bool = False) -> np.ndarray:
     (u_h = sqrt(theta_h/(pi/2))*90 - 0.5, u_d = theta_d/(pi/2)*90 - 0.5, u_p = phi_d/pi*180 - 0.5),
     clamped at the theta edges and periodic (period pi) in phi_d.
     """
-    wi = np.atleast_2d(np.asarray(wi, dtype=np.float64))
-    wo = np.atleast_2d(np.asarray(wo, dtype=np.float64))
-    wi, wo = np.broadcast_arrays(wi, wo)
+    wi, wo = check_direction_pairs(wi, wo)
     above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
     theta_h, theta_d, phi_d = _folded_angles(wi, wo)
     data = brdf.data

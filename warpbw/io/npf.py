@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from warpbw.errors import BRDF_VALUE_MAX, WarpbwError, check_input_file
+from warpbw.errors import BRDF_VALUE_MAX, WarpbwError, check_direction_pairs, check_input_file
 
 # Material order of the rows of npf.bin (data README, "npf.bin layout"; the MERL database's names).
 NPF_MATERIAL_NAMES: tuple[str, ...] = (
@@ -91,6 +91,8 @@ def read_npf(path, name: str) -> NPFMaterial:
         raise WarpbwError(
             f"{path}: expected {NPF_FILE_SIZE} bytes (NPF table, {NPF_ROWS}x{NPF_COLS} RGB float32), got {size}"
         )
+    if not isinstance(name, str):   # None was answered with "close matches: nylon"
+        raise WarpbwError(f"{path}: NPF material name: expected a string such as 'gold-metallic-paint', got {name!r}")
     key = _canonical(name)
     if key not in NPF_MATERIAL_NAMES:
         close = difflib.get_close_matches(key, NPF_MATERIAL_NAMES, n=5, cutoff=0.5)
@@ -142,9 +144,7 @@ def npf_eval(mat: NPFMaterial, wi, wo, interpolate: bool = True) -> np.ndarray:
 
     Exactly reciprocal: every quantity is computed symmetrically in (wi, wo).
     """
-    wi = np.atleast_2d(np.asarray(wi, dtype=np.float64))
-    wo = np.atleast_2d(np.asarray(wo, dtype=np.float64))
-    wi, wo = np.broadcast_arrays(wi, wo)
+    wi, wo = check_direction_pairs(wi, wo)
     wi = wi / np.maximum(np.linalg.norm(wi, axis=-1, keepdims=True), np.finfo(np.float64).tiny)
     wo = wo / np.maximum(np.linalg.norm(wo, axis=-1, keepdims=True), np.finfo(np.float64).tiny)
     ci, co = wi[..., 2], wo[..., 2]
