@@ -1483,3 +1483,30 @@ def test_brdf_evaluators_and_probe_helpers_name_bad_arguments(tmp_path):
     assert np.isfinite(procedural_sky(8, 4, sun_radiance=0.0)).all()
     with pytest.raises(WarpbwError, match="n: expected an integer >= 0"):
         sample_directions(constant_envmap(1.0), -1)
+
+
+def test_renderer_switches_and_levels_are_checked(tmp_path):
+    """mis="yes" switched MIS on; lod_bias inf moved every pixel to the coarsest level; upsample_level took level
+    2.5 as 2 and failed on -1 inside a shift; write_exr stored 1e39 as inf with only numpy's cast warning."""
+    from warpbw.filtering import render_filtering
+    from warpbw.io.exr import write_exr
+    from warpbw.pipeline import render_adaptive, render_reference
+    from warpbw.scene import parse_scene
+    from warpbw.upsample import upsample_level
+
+    scene = parse_scene(_furnace(1.0), tmp_path, "f.toml")
+    with pytest.raises(WarpbwError, match="mis: expected True or False, got 'yes'"):
+        render_reference(scene, 1, mis="yes")
+    with pytest.raises(WarpbwError, match="mis: expected True or False"):
+        render_adaptive(scene, 2, mis=1)
+    planes = parse_scene(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""), tmp_path, "p.toml")
+    for bias in (float("inf"), float("nan")):
+        with pytest.raises(WarpbwError, match="lod_bias"):
+            render_filtering(planes, "lean", lod_bias=bias)
+    for level in (-1, 2.5):
+        with pytest.raises(WarpbwError, match="level: expected an integer >= 0"):
+            upsample_level(None, None, level, None, None, None)
+    with pytest.raises(WarpbwError, match="beyond float32"):
+        write_exr(tmp_path / "big.exr", np.full((2, 2, 3), 1e39))
+    assert not (tmp_path / "big.exr").exists()
+    write_exr(tmp_path / "inf.exr", np.full((2, 2, 3), np.inf))      # inf itself is stored as it is

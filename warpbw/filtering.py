@@ -1155,6 +1155,8 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
 
     check_render_args(scene, method, spp, env_spp, max_anisotropy)
     check_seed(seed)
+    if not math.isfinite(lod_bias):   # inf moved every pixel to the coarsest level
+        raise WarpbwError(f"lod_bias {lod_bias!r}: expected a finite number of mip levels")
     planes = plane_objects(scene)
     check_plane_reach(camera or scene.camera, planes, scene.source)
     if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm for mp in prepared.mips.values())):

@@ -254,6 +254,11 @@ def _check_overflowed_samples(prep: PreparedScene, n_bad: int, samples: int) -> 
                           "their light: lower [environment] scale or the lights' radiance")
 
 
+def _check_mis(mis) -> None:
+    if not isinstance(mis, (bool, np.bool_)):   # "yes" (or "no") switched MIS on
+        raise WarpbwError(f"mis: expected True or False, got {mis!r}")
+
+
 def _check_spp(spp) -> None:
     if not is_int(spp) or spp < 1:
         raise WarpbwError(f"spp: expected a positive integer, got {spp!r}")
@@ -272,6 +277,7 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
 
     _check_spp(spp)
     check_seed(seed)
+    _check_mis(mis)
     prep, timings = _prepared(scene, device, progress)
     _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
                          make_reference_kernel(prep.materials.kinds, mis, has_env=prep.env is not None,
@@ -431,6 +437,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     env_signal = bandwidth.check_env_signal(bandwidth.ENV_SIGNAL_DEFAULT if env_signal is None else env_signal)
     bandwidth.direction_set(n_b)  # validates n_b before any work
     check_seed(seed)
+    _check_mis(mis)
     prep, timings = _prepared(scene, device, progress)
     if prep.env is None:
         raise WarpbwError(f"{prep.scene.source}: the adaptive method needs an [environment] to adapt to: [[light]]s "

@@ -126,7 +126,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_count
 from warpbw.gbuffer import CameraData, GBufferData
 
 DEPTH_SIGMA_REL = 0.1   # g_z tolerance, relative to the child's depth (a 10% depth step is an edge)
@@ -341,6 +341,7 @@ def upsample_level(gb: GBufferData, cam: CameraData, level: int, parent_values, 
     ``UpsampleResult.weights``), read instead of computed again.
     """
     fit = check_upsample_mode(mode)
+    level = check_count(level, "level", 0)   # -1 failed on a negative shift, 2.5 ran as 2
     w, h = level_size(gb.width, gb.height, level)
     pw, ph = level_size(gb.width, gb.height, level + 1)
     n, pn = w * h, pw * ph

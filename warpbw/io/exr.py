@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError, check_input_file
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_input_file
 from warpbw.native_output import captured_native_output
 
 # First four bytes of every OpenEXR file: the magic number 20000630 = 0x762f3101, stored
@@ -167,6 +167,11 @@ def write_exr(path, pixels, channels=None) -> Path:
             f"{path}: channel names {names} do not match {arr.shape[2]} channels "
             "(expected that many distinct, non-empty names without commas)"
         )
+    with np.errstate(invalid="ignore"):
+        big = np.isfinite(arr) & (np.abs(arr) > FLOAT32_MAX)
+    if big.any():   # written as inf, with only numpy's cast warning
+        raise WarpbwError(f"{path}: values up to {np.abs(arr[big]).max():.3g} are beyond float32 ({FLOAT32_MAX:.3g}), "
+                          "in which EXR stores them")
     data = {n: np.ascontiguousarray(arr[..., i], dtype=np.float32) for i, n in enumerate(names)}
     header = {
         "compression": OpenEXR.ZIP_COMPRESSION,
