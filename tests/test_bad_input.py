@@ -1380,6 +1380,9 @@ def test_library_renderers_refuse_bad_seeds_devices_and_scenes(tmp_path):
             render_reference(scene, 1, device=device)
     with pytest.raises(WarpbwError, match="device bogus"):
         render_filtering(planes, "fixed", device="bogus")
+    import warp as wp
+
+    assert render_reference(scene, 1, device=wp.get_device("cpu")).image.shape == (8, 8, 3)   # a Device object
     for given in ("f.toml", None):
         with pytest.raises(WarpbwError, match="scene: expected a warpbw.scene.Scene"):
             render_reference(given, 1)

@@ -55,14 +55,15 @@ def check_seed(seed, name: str = "seed") -> int:
 
 
 def check_device(device, name: str = "device") -> str:
-    """``device`` when Warp has it on this machine (cpu, cuda, cuda:N), else a ``WarpbwError`` naming ``name``."""
+    """``device`` (a name: cpu, cuda, cuda:N; or a ``warp.Device``) when Warp has it on this machine, else a
+    ``WarpbwError`` naming ``name``."""
     import warp as wp
 
     wp.init()
     names = ", ".join(d.alias for d in wp.get_devices())
-    if not isinstance(device, str) or not device:
+    if not isinstance(device, (str, wp.Device)) or not str(device):   # a Device object is fine too
         raise WarpbwError(f"{name} {device!r}: expected a Warp device name (Warp found: {names})")
-    if device.startswith("cuda") and not wp.is_cuda_available():
+    if str(device).startswith("cuda") and not wp.is_cuda_available():
         # checked before wp.get_device("cuda"), which prints native CUDA errors when there is no driver
         raise WarpbwError(f"{name} {device}: no CUDA device on this machine (no NVIDIA GPU or driver found; "
                           f"Warp found: {names}); use {name + ' cpu' if name.startswith('-') else 'cpu'}")
