@@ -246,9 +246,11 @@ RADIANCE_OVERFLOW_MIN = FLOAT32_MAX / BRDF_VALUE_MAX
 def _check_overflowed_samples(prep: PreparedScene, n_bad: int, samples: int) -> None:
     """Refuse a frame whose shading dropped samples to float32 overflow (a white furnace at radiance 1e32 read 0.42
     of its radiance, status 0); below RADIANCE_OVERFLOW_MIN the count stays a warning (warpbw render)."""
+    if not n_bad:   # every frame: the probe's maximum is only read when a sample was dropped
+        return
     env_max = float(np.max(prep.env.pixels)) if prep.env is not None else 0.0
     l_max = max([env_max] + [max(li.radiance) for li in prep.scene.lights])
-    if n_bad and l_max > RADIANCE_OVERFLOW_MIN:
+    if l_max > RADIANCE_OVERFLOW_MIN:
         raise WarpbwError(f"{prep.scene.source}: {n_bad} of {samples} samples overflowed float32 (radiance up to "
                           f"{l_max:.3g}, times the BRDF, passes {FLOAT32_MAX:.3g}) and the image would be missing "
                           "their light: lower [environment] scale or the lights' radiance")
