@@ -190,7 +190,12 @@ def test_compare_refuses_an_image_without_colour_channels_and_names_a_black_refe
     write_exr(tmp_path / "black.exr", np.zeros((4, 8, 3), np.float32))
     r = run(["compare", "good.exr", "black.exr"], tmp_path)
     assert r.returncode == 0 and "PSNR   undefined (the reference has no positive value" in r.stdout
-    assert json.loads(run(["compare", "good.exr", "black.exr", "--json"], tmp_path).stdout)["psnr_db"] is None
+    black = json.loads(run(["compare", "good.exr", "black.exr", "--json"], tmp_path).stdout)
+    assert black["psnr_db"] is None and "no positive value" in black["psnr_note"]
+    # identical images are null in strict JSON too: the note tells the two apart (only mse did)
+    same = json.loads(run(["compare", "good.exr", "good.exr", "--json"], tmp_path).stdout)
+    assert same["psnr_db"] is None and same["psnr_note"].startswith("identical") and same["mse"] == 0.0
+    assert "psnr_note" not in json.loads(run(["compare", "black.exr", "good.exr", "--json"], tmp_path).stdout)
 
 
 def test_compare_error_map_is_refused_before_it_could_replace_a_file(tmp_path):

@@ -169,6 +169,17 @@ def test_false_colour_png(tmp_path):
     assert np.all(np.abs(img[0, 1] - viridis_mid) <= 2), img[0, 1]
 
 
+
+@pytest.mark.parametrize("vmin, vmax, says", [(float("nan"), 1.0, "vmin of the colour scale: expected a finite"),
+                                              (0.0, float("inf"), "vmax of the colour scale: expected a finite"),
+                                              (8.0, 2.0, "expected vmin <= vmax")])
+def test_false_colour_png_refuses_a_colour_scale_it_cannot_draw(tmp_path, vmin, vmax, says):
+    """A NaN or reversed range once drew every pixel in viridis' first colour, silently."""
+    with pytest.raises(WarpbwError, match=says):
+        write_false_colour_png(tmp_path / "fc.png", np.ones((2, 3)), vmin=vmin, vmax=vmax)
+    assert not (tmp_path / "fc.png").exists()
+
+
 def test_real_probe_reads():
     path = shared_file("envmaps/studio.exr")
     img = read_exr(path)

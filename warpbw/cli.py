@@ -396,6 +396,10 @@ def cmd_info(args) -> int:
     return 0
 
 
+_PSNR_IDENTICAL = "identical over the covered pixels"
+_PSNR_UNDEFINED = "the reference has no positive value over the covered pixels"
+
+
 def cmd_compare(args) -> int:
     import numpy as np
 
@@ -422,12 +426,14 @@ def cmd_compare(args) -> int:
     if maps:
         lo, hi = _write_error_map(maps, relmse_map(ta, tb, mask), mask, args.error_range)
         r.update(error_map=str(maps[0]), error_range=[lo, hi])
+    p = r["psnr_db"]
+    why = None if math.isfinite(p) else _PSNR_IDENTICAL if p > 0 else _PSNR_UNDEFINED
     if args.json:
-        print(json_text(r), end="")   # strict JSON: an infinite PSNR (identical, or a black reference) is null
+        if why:   # strict JSON writes an infinite PSNR as null: say which one it is
+            r["psnr_note"] = why
+        print(json_text(r), end="")
     else:
-        p = r["psnr_db"]
-        print(f"PSNR   {p:.3f} dB" if math.isfinite(p) else "PSNR   inf (identical over the covered pixels)"
-              if p > 0 else "PSNR   undefined (the reference has no positive value over the covered pixels)")
+        print(f"PSNR   {p:.3f} dB" if why is None else f"PSNR   {'inf' if p > 0 else 'undefined'} ({why})")
         print(f"relMSE {r['relmse']:.6g}")
         print(f"pixels {r['pixels']} covered; the worst {_WORST_FRACTION:.0%} of them ({r['worst_pixels']}) hold "
               f"{100 * r['worst_share']:.1f}% of the relMSE")
@@ -792,7 +798,9 @@ def build_parser() -> argparse.ArgumentParser:
                        "it (fireflies and edges smeared by up-sampling alike: --error-map shows which).")
     c.add_argument("test", help="image to judge (EXR)")
     c.add_argument("reference", help="reference image (EXR)")
-    c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--json", action="store_true",
+                   help="print JSON (psnr_db, relmse, mse, pixels, worst_pixels, worst_share; an infinite PSNR is "
+                        "null, with psnr_note saying whether the images are identical or the PSNR undefined)")
     c.add_argument("--error-map", metavar="PATH.exr",
                    help="also write the per-pixel relative squared error, (test - ref)^2 / (ref^2 + "
                    f"{_RELMSE_EPS:g}) averaged "

@@ -241,6 +241,11 @@ def write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=Fa
     v = np.asarray(values, dtype=np.float64)
     if v.ndim != 2:
         raise WarpbwError(f"{path}: cannot write a false-colour image of shape {v.shape} (expected (H, W))")
+    for opt, x in (("vmin", vmin), ("vmax", vmax)):
+        if x is not None and not (isinstance(x, (int, float, np.integer, np.floating)) and math.isfinite(x)):
+            raise WarpbwError(f"{path}: {opt} of the colour scale: expected a finite number, got {x!r}")
+    if vmin is not None and vmax is not None and vmin > vmax:
+        raise WarpbwError(f"{path}: colour scale from vmin {vmin:g} to vmax {vmax:g}: expected vmin <= vmax")
     shown = np.isfinite(v)
     if mask is not None:
         m = np.asarray(mask, dtype=bool)
