@@ -729,7 +729,8 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
 class SampleAllocation:
     n_p: np.ndarray            # (H, W) int32 samples per pixel (0 where no geometry)
     variance: np.ndarray       # (H, W) float32 predicted variance bound sigma2 / N_p (0 where no geometry)
-    v_target: float            # the constant V of N_p = ceil(sigma2 / V)
+    v_target: float            # the constant V of N_p = ceil(sigma2 / V); 0: all at n_max; inf (null in JSON):
+                               # all at n_min, or no pixel planned
     planned_pixels: int        # pixels the hierarchy is expected to shade
     planned_samples: int       # samples those pixels will take
     budget_samples: int        # budget x covered pixels
