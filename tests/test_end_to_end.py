@@ -477,6 +477,9 @@ def test_planes_beside_a_sphere_show_whichever_surface_is_nearer(tmp_path, monke
     assert np.array_equal(both.image[~m], sphere.image[~m])
     assert both.stats["planes"]["pixels_covered"] == int(m.sum())
     assert both.stats["pixels_covered"] == int(both.coverage.sum())
+    # the stages of both renderers, the planes' named as such (the floor has no normal map: no GMM is fitted)
+    assert both.stats["stages"] == sphere.stats["stages"] + [f"planes:{st}" for st in plane.stats["stages"]]
+    assert "planes:plain_brdf:planes_without_normal_map" in both.stats["stages"]
     # the sphere's pixels the floor hides are not shaded: the same image from fewer shaded pixels
     hidden = int((sphere.coverage & m).sum())
     assert hidden > 5 and both.stats["pixels_hidden"] == hidden

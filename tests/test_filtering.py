@@ -24,8 +24,9 @@ from conftest import (PLANE_DIFFUSE, PLANE_F0, PLANE_LIGHT_DIR, PLANE_RADIANCE, 
                       numpy_square_distance, plane_scene_toml)
 
 from warpbw.errors import WarpbwError
-from warpbw.filtering import (ALL_METHODS, METHODS, MIN_GT_SPP, fetch_gmm, gmm_ndf, normal_moment_mipmap,
-                              pair_uniforms, prepare_filtering, render_filtering, zoomed_camera)
+from warpbw.filtering import (ALL_METHODS, FLAT_SHADED_AS, METHODS, MIN_GT_SPP, fetch_gmm, gmm_ndf,
+                              normal_moment_mipmap, pair_uniforms, prepare_filtering, render_filtering,
+                              zoomed_camera)
 from warpbw.io.exr import write_exr
 from warpbw.scene import file_digest, parse_scene
 
@@ -77,15 +78,24 @@ def colour_error(img, ref, mask):
 # ------------------------------------------------------------------------------------------ flat map
 
 @pytest.mark.parametrize("roughness", [0.05, 0.3])
-def test_flat_map_shades_as_the_plain_cook_torrance_brdf(roughness):
+def test_flat_map_shades_as_the_plain_cook_torrance_brdf(tmp_path, roughness):
+    """With an all-zero height map every method's own kernel (the GMMs' fitted mipmaps included) shades the plain
+    BRDF; without a normal map the plane shades it too, with no GMM fitted (the scene needs none)."""
     s = parse_scene(plane_scene_toml(roughness=roughness), Path.cwd(), "s.toml")
+    zero = scene_with_map(tmp_path, heights=np.zeros((8, 8)), tiling=3, roughness=roughness)
     ref, cov = numpy_flat_cook_torrance((0.0, 1.5, 2.0), 40.0, 24, 16, roughness)
     prep = prepare_filtering(s, ALL_METHODS)
-    for m in METHODS:
-        r = render_filtering(s, m, prepared=prep)
-        assert np.array_equal(r.coverage, cov), m
-        assert np.allclose(r.image[cov], ref[cov], rtol=2e-4, atol=1e-6), (m, np.abs(r.image[cov] - ref[cov]).max())
-        assert np.all(r.image[~cov] == 0)
+    assert prep.notes["m"]["shaded_as"] == FLAT_SHADED_AS and not any(k.startswith("gmm") for k in prep.notes["m"])
+    prep_zero = prepare_filtering(zero, ALL_METHODS)
+    assert prep_zero.notes["m"]["gmm_aligned"]["components"] == 4 and "shaded_as" not in prep_zero.notes["m"]
+    for scene, pr in ((s, prep), (zero, prep_zero)):
+        for m in METHODS:
+            r = render_filtering(scene, m, prepared=pr)
+            assert np.array_equal(r.coverage, cov), m
+            assert np.allclose(r.image[cov], ref[cov], rtol=2e-4, atol=1e-6), (m, np.abs(r.image[cov] - ref[cov]).max())
+            assert np.all(r.image[~cov] == 0)
+            flat_stage = "plain_brdf:planes_without_normal_map" in r.stats["stages"]
+            assert flat_stage == (scene is s) and any(st.endswith(m) for st in r.stats["stages"]) == (scene is zero)
     if roughness < 0.3:
         return  # a sharp highlight varies within a pixel: the ground truth's pixel average differs from it
     # the ground truth averages over the pixel: equal where the BRDF is smooth over it, within 1%

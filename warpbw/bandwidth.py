@@ -4,6 +4,7 @@ Public:
     ``N_B_DEFAULT``, ``N_B_MAX``, ``NYQUIST_FACTOR``, ``N_P_MIN_DEFAULT``, ``N_P_MAX_PER_BUDGET``, ``BUDGET_MAX``,
     ``ALLOCATION_DEFAULT``, ``LUMINANCE``
     ``make_bandwidth_kernel(kinds, preconvolved)``   the pass's kernel (compiled ahead by the pipeline)
+    ``load_kernels(device)``   compile the block-plan and pooling kernels ahead, outside the pass's time
     ``BandwidthTables`` (Warp struct) / ``make_bandwidth_tables(nu_env, nu_rho, device)``
     ``nu_env_table(nu_env) -> (h, w)``   the environment's nu_a, max-filtered to at most LIGHT_TABLE_WIDTH columns
     ``env_bandwidth_map(pixels, name, cache=None, signal) -> ((H, W) float32 cycles/rad, origin)``
@@ -627,6 +628,13 @@ def pixel_angle(cam: CameraData) -> float:
     fx = 2.0 * math.atan(cam.tan_half_x)
     fy = 2.0 * math.atan(cam.tan_half_y)
     return max(fx / cam.width, fy / cam.height)
+
+
+def load_kernels(device: str = "cpu") -> None:
+    """Load (compile) the pass's block-plan and pooling kernels, so that ``bandwidth_pass`` times only the pass
+    (``make_bandwidth_kernel``'s kernel is loaded by the pipeline beside the others it builds)."""
+    for k in (block_plan_kernel, pool_kernel):
+        wp.load_module(k.module, device=device)
 
 
 @dataclass

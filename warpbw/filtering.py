@@ -16,6 +16,8 @@ Public:
     ``plane_distance(scene, device) -> (H, W)``   per pixel, the distance along the centre ray to the nearest
                                          plane (``inf`` where none): what hides the spheres and meshes
     ``filtering_summary(scene) -> dict``  what ``warpbw info`` prints for a scene with planes
+    ``filtering_stages(method, flat, with_env, with_lights) -> list``   the stages a frame ran (its stats)
+    ``FLAT_SHADED_AS``                   what a plane without a normal map shades with (no GMM is fitted for it)
     ``plane_objects(scene) -> list``     the scene's planes; a one-line error when it has other objects too
     ``check_plane_reach(camera, planes, source)``   refuse a scene too large or too small for float32 intersection
                                          (``PLANE_REACH_MIN``, ``PLANE_REACH_MAX``)
@@ -114,6 +116,8 @@ from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene
 
 METHODS = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed")
 ALL_METHODS = METHODS + ("ground_truth",)
+# What a plane without a normal map shades with, whatever the filter: all of them are the plain BRDF there.
+FLAT_SHADED_AS = "fixed (no normal map: every filter is the plain BRDF; no GMM is fitted)"
 # Kernel codes of the filtered methods (the two GMM methods share a kernel; only their mipmaps differ).
 _CODE = {"gmm_aligned": 0, "gmm_unaligned": 0, "toksvig": 1, "lean": 2, "fixed": 3}
 # Ground truth: at least this many rays per pixel (issue 4: ">= 64"); 004 Fig. 4 used 16.
@@ -905,6 +909,7 @@ class _Mips:
     nmean: wp.array
     nm2: wp.array
     gmm: dict = field(default_factory=dict)        # method -> (wp.array of vec4, K)
+    flat: bool = False     # no normal map: every filtered method shades the plain BRDF (the "fixed" kernel), no GMM
 
 
 @dataclass
@@ -1059,10 +1064,13 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
         lw, lh, loff = _level_arrays(shapes, device)
         nmean = wp.array(np.concatenate([lv[0].reshape(-1, 3) for lv in levels]), dtype=wp.vec3, device=device)
         nm2 = wp.array(np.concatenate([lv[1].reshape(-1, 3) for lv in levels]), dtype=wp.vec3, device=device)
-        mp = _Mips(tuple(shapes[0]), len(shapes), lw, lh, loff, nmean, nm2)
+        flat = scene.materials[name].normal_map is None
+        mp = _Mips(tuple(shapes[0]), len(shapes), lw, lh, loff, nmean, nm2, flat=flat)
         note = {"map": list(shapes[0]), "levels": len(shapes), "source": src_name}
+        if flat:
+            note["shaded_as"] = FLAT_SHADED_AS
         for method in ("gmm_aligned", "gmm_unaligned"):
-            if method in methods:
+            if method in methods and not flat:
                 tb = time.perf_counter()
                 mip, origin = _load_gmm(scene, name, data, kind, scale, src_name, digest,
                                         method == "gmm_unaligned", cache, progress)
@@ -1159,7 +1167,8 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
         raise WarpbwError(f"lod_bias {lod_bias!r}: expected a finite number of mip levels")
     planes = plane_objects(scene)
     check_plane_reach(camera or scene.camera, planes, scene.source)
-    if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm for mp in prepared.mips.values())):
+    if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm and not mp.flat
+                                                             for mp in prepared.mips.values())):
         prepared = prepare_filtering(scene, (method,), device, progress)
     cam_s = camera or scene.camera
     cam = scene_camera(cam_s)
@@ -1181,7 +1190,11 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
     env = prepared.env.data if prepared.env is not None else EnvMapData()
     with_env = prepared.env is not None
     kernel = _ground_truth_kernel(with_env) if method == "ground_truth" else _filtered_kernel(_CODE[method], with_env)
-    wp.load_module(kernel.module, device=dev)   # compile before the clock starts
+    # a plane without a normal map shades the plain BRDF whatever the filter: no GMM is fitted or filtered for it
+    flat_kernel = kernel if method == "ground_truth" else _filtered_kernel(_CODE["fixed"], with_env)
+    used = {flat_kernel if prepared.mips[p.material].flat else kernel for p in planes}
+    for k in used:
+        wp.load_module(k.module, device=dev)   # compile before the clock starts
     if background is not None:
         wp.load_module(background_distance_kernel.module, device=dev)
     wp.synchronize_device(dev)
@@ -1201,18 +1214,22 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
         else:
             gmm, K = mp.gmm.get(method, (wp.zeros(1, dtype=wp.vec4, device=dev), 0))
             pl = _plane_data(p, m, mp, K, lod_bias, max_anisotropy)
-            launch_tiled(kernel, n, lambda o, c, pl=pl, mp=mp, gmm=gmm: [cam, pl, mp.lw, mp.lh, mp.loff, gmm, mp.nmean,
-                                                                        mp.nm2, prepared.ldir, prepared.lrad, env,
-                                                                        int(env_spp), int(seed), o, depth, out,
-                                                                        level],
+            launch_tiled(flat_kernel if mp.flat else kernel, n,
+                         lambda o, c, pl=pl, mp=mp, gmm=gmm: [cam, pl, mp.lw, mp.lh, mp.loff, gmm, mp.nmean, mp.nm2,
+                                                             prepared.ldir, prepared.lrad, env, int(env_spp),
+                                                             int(seed), o, depth, out, level],
                          dev, threads)
     wp.synchronize_device(dev)
     dt = time.perf_counter() - t0
     img = out.numpy().reshape(h, w, 3).astype(np.float32)
     cov = depth.numpy().reshape(h, w) < (start if background is not None else NO_HIT)
     lev = level.numpy().reshape(h, w)
-    stats = {"method": method, "resolution": [w, h], "pixels_covered": int(cov.sum()), "time_s": round(dt, 6),
-             "materials": prepared.notes, "non_finite_pixels": int((~np.isfinite(img)).any(-1).sum())}
+    stats = {"method": method, "device": str(dev), "resolution": [w, h], "pixels_covered": int(cov.sum()),
+             "time_s": round(dt, 6),
+             "materials": prepared.notes,
+             "stages": filtering_stages(method, [prepared.mips[p.material].flat for p in planes], with_env,
+                                        len(prepared.scene.lights) > 0),
+             "non_finite_pixels": int((~np.isfinite(img)).any(-1).sum())}
     if method == "ground_truth":
         stats["spp"] = int(spp)
         stats["seed"] = int(seed)
@@ -1250,6 +1267,21 @@ def zoomed_camera(camera: Camera, zoom: float) -> Camera:
     """The camera moved away from its look-at point: distance times ``zoom``, same resolution and fov."""
     pos = tuple(a + (p - a) * float(zoom) for p, a in zip(camera.position, camera.look_at))
     return replace(camera, position=pos)
+
+
+def filtering_stages(method: str, flat, with_env: bool, with_lights: bool) -> list:
+    """The stages a filtering frame ran (``FilterResult.stats["stages"]``, as ``warpbw.pipeline.stages_used``
+    names the other renderer's): ``flat`` per plane, whether it has no normal map."""
+    s = ["plane_hit+footprint"]
+    if method == "ground_truth":
+        s.append("ground_truth_rays")
+    else:
+        if not all(flat):
+            s.append(("gmm_filtering:" if method.startswith("gmm") else "filtering:") + method)
+        if any(flat):
+            s.append("plain_brdf:planes_without_normal_map")
+    s.append("light:" + "+".join(n for n, on in (("environment", with_env), ("directional", with_lights)) if on))
+    return s
 
 
 def filtering_summary(scene: Scene) -> dict:

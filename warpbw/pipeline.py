@@ -455,6 +455,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
                      if prep.lights is not None else ()) + _clip_kernels(clip_distance), timings)
     t0 = time.perf_counter()
     adaptive.load_kernels(prep.device)
+    bandwidth.load_kernels(prep.device)
     timings["compile"] += time.perf_counter() - t0
     gb, hidden = _gbuffer(prep, timings, threads, clip_distance)
     t0 = time.perf_counter()
@@ -576,6 +577,7 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
     stats = dict(res.stats)
     stats["pixels_covered"] = int(coverage.sum())
     stats["planes"] = fr.stats
+    stats["stages"] = list(res.stats["stages"]) + [f"planes:{st}" for st in fr.stats["stages"]]
     t = dict({k: round(v, 6) for k, v in prep.timings.items()}, **res.stats["time_s"])   # with the loading
     surfaces_frame = t.get("frame", t["gbuffer"] + t["shading"])   # the reference times no "frame" of its own
     stats["time_s"] = dict(t, load_planes=round(plane_prep.precompute_time_s, 6), planes=round(fr.time_s, 6),
