@@ -153,3 +153,4 @@ def test_thread_count_and_tiling_do_not_change_the_frame():
     np.testing.assert_array_equal(one.image, three.image)
     for k in ("level", "n_p", "b_p", "sigma2"):
         np.testing.assert_array_equal(one.aovs[k], three.aovs[k])
+    assert prep.env._mips is None   # nothing the frames ran reads the probe's MIP pyramid: it was never built

@@ -455,6 +455,20 @@ def test_mip_box_filter_and_trilinear_lookup():
     E.eval_pdf(env, [[np.nan, 0.0, 1.0]])
 
 
+def test_mip_pyramid_is_built_only_when_a_lookup_needs_it():
+    """No renderer reads the pyramid, so loading a map does not build it (DESIGN: a stage the scene does not need
+    is not run); the first lod lookup does, once, and the lookups agree with a 2x2 box of the map."""
+    img = np.random.default_rng(5).random((8, 16, 3)).astype(np.float32)
+    env = E.envmap_from_array(img)
+    assert env._mips is None and env.data.n_levels == 1
+    d = np.random.default_rng(6).normal(size=(200, 3))
+    E.eval_radiance_lod(env, d, 1.0)
+    assert env.data.n_levels == 5 and len(env._mips) == 5
+    box = img.reshape(4, 2, 8, 2, 3).mean(axis=(1, 3))
+    assert np.allclose(E.eval_radiance_lod(env, d, 1.0), E.eval_radiance(E.envmap_from_array(box), d), rtol=1e-5)
+    assert E.build_mip_pyramid(env)._mips[1] is env.mip_levels[1]   # built once
+
+
 def test_one_by_one_map():
     env = E.envmap_from_array(np.array([[[2.0, 3.0, 4.0]]], np.float32))
     assert env.mip_levels[0].shape == (1, 1, 3) and len(env.mip_levels) == 1

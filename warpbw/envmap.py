@@ -46,7 +46,7 @@ above; ``lod`` interpolates linearly between the two nearest levels (trilinear).
 
 Warp functions (take an ``EnvMapData`` and a world direction; directions need not be unit):
     env_radiance(env, w) -> wp.vec3        bilinear radiance (scaled) towards w
-    env_radiance_lod(env, w, lod) -> wp.vec3
+    env_radiance_lod(env, w, lod) -> wp.vec3   needs build_mip_pyramid(env) first (else every lod reads level 0)
     env_uv(env, w) -> wp.vec2               lat-long (u, v) of w (for per-texel maps such as nu_a)
     env_sample(env, u: wp.vec2) -> wp.vec3 unit world direction, u in [0, 1)^2
     env_pdf(env, w) -> float               solid-angle pdf of env_sample
@@ -60,6 +60,7 @@ Host functions:
     load_environment(spec, device="cpu") -> EnvMap   a scene's [environment] (``warpbw.scene.Environment``)
     procedural_sky(width=256, height=128, ...) -> np.ndarray (H, W, 3) float32
     build_mip_levels(pixels) -> list[np.ndarray]
+    build_mip_pyramid(env) -> EnvMap   the pyramid on the device, built on first need (no renderer reads it yet)
     texel_directions(width, height) -> np.ndarray (H, W, 3) local directions of texel centres
     eval_radiance(env, dirs) -> (N, 3)           debug / test wrappers: launch a kernel
     eval_radiance_lod(env, dirs, lod) -> (N, 3)
@@ -334,12 +335,17 @@ class EnvMap:
     height: int
     n_clamped: int  # channel values (not pixels) that were negative or non-finite, set to 0
     pixels: np.ndarray  # (H, W, 3) float32, clamped and scaled
-    mip_levels: list[np.ndarray]  # level 0 == pixels, then 2x2 box reductions down to 1x1
     name: str
     rotation_deg: float = 0.0
     scale: float = 1.0
     device: str = "cpu"
     _keep: list = field(default_factory=list, repr=False)  # wp.arrays referenced by data
+    _mips: list | None = field(default=None, repr=False)   # the MIP levels, once build_mip_pyramid made them
+
+    @property
+    def mip_levels(self) -> list[np.ndarray]:
+        """Level 0 == pixels, then 2x2 box reductions down to 1x1 (built on first use, as on the device)."""
+        return build_mip_pyramid(self)._mips
 
 
 def _axis_box_matrix(n: int) -> np.ndarray:
@@ -502,10 +508,6 @@ def _make_envmap(rgb, rotation_deg, scale, name, device, stacklevel) -> EnvMap:
     pixels, n_clamped = _sanitize(rgb, name, scale, stacklevel + 1)
     h, w, _ = pixels.shape
     dist = _build_distribution(pixels)
-    levels = build_mip_levels(pixels)
-    offsets = np.cumsum([0] + [lv.shape[0] * lv.shape[1] for lv in levels[:-1]]).astype(np.int32)
-    packed = np.concatenate([lv.reshape(-1, 3) for lv in levels]).astype(np.float32)
-
     keep = []
 
     def arr(x, dtype):
@@ -525,18 +527,20 @@ def _make_envmap(rgb, rotation_deg, scale, name, device, stacklevel) -> EnvMap:
     data.row_omc = arr(dist["row_omc"], wp.float32)
     data.row_opc = arr(dist["row_opc"], wp.float32)
     data.cell_pdf = arr(dist["cell_pdf"], wp.float32)
-    data.mip_data = arr(packed, wp.vec3)
-    data.mip_offset = arr(offsets, wp.int32)
-    data.mip_width = arr(np.array([lv.shape[1] for lv in levels], np.int32), wp.int32)
-    data.mip_height = arr(np.array([lv.shape[0] for lv in levels], np.int32), wp.int32)
-    data.n_levels = len(levels)
+    # no renderer reads the MIP pyramid (DESIGN: a stage the scene does not need is not run): until
+    # build_mip_pyramid, the "pyramid" is level 0 alone, the map itself (no copy)
+    data.mip_data = data.base.reshape((h * w,))   # a view of the map
+    keep.append(data.mip_data)
+    data.mip_offset = arr(np.zeros(1, np.int32), wp.int32)
+    data.mip_width = arr(np.array([w], np.int32), wp.int32)
+    data.mip_height = arr(np.array([h], np.int32), wp.int32)
+    data.n_levels = 1
     return EnvMap(
         data=data,
         width=w,
         height=h,
         n_clamped=n_clamped,
         pixels=pixels,
-        mip_levels=levels,
         name=name,
         rotation_deg=rotation_deg,
         scale=scale,
@@ -658,8 +662,26 @@ def eval_radiance(env: EnvMap, dirs) -> np.ndarray:
     return out.numpy()
 
 
+def build_mip_pyramid(env: EnvMap) -> EnvMap:
+    """Build ``env``'s MIP pyramid (``build_mip_levels``) and put it on the device, once; returns ``env``.  A
+    kernel that calls ``env_radiance_lod`` needs it: before it, every lod reads level 0."""
+    if env._mips is None:
+        levels = build_mip_levels(env.pixels)
+        offsets = np.cumsum([0] + [lv.shape[0] * lv.shape[1] for lv in levels[:-1]]).astype(np.int32)
+        packed = np.concatenate([lv.reshape(-1, 3) for lv in levels]).astype(np.float32)
+        arrays = [wp.array(np.ascontiguousarray(x), dtype=t, device=env.device) for x, t in (
+            (packed, wp.vec3), (offsets, wp.int32), (np.array([lv.shape[1] for lv in levels], np.int32), wp.int32),
+            (np.array([lv.shape[0] for lv in levels], np.int32), wp.int32))]
+        env.data.mip_data, env.data.mip_offset, env.data.mip_width, env.data.mip_height = arrays
+        env.data.n_levels = len(levels)
+        env._keep.extend(arrays)
+        env._mips = levels
+    return env
+
+
 def eval_radiance_lod(env: EnvMap, dirs, lod) -> np.ndarray:
-    """(N, 3) trilinear MIP lookup; lod is a scalar or (N,)."""
+    """(N, 3) trilinear MIP lookup; lod is a scalar or (N,).  Builds the pyramid first (``build_mip_pyramid``)."""
+    build_mip_pyramid(env)
     d = _dirs_array(env, dirs)
     n = d.shape[0]
     lods = np.broadcast_to(np.asarray(lod, dtype=np.float32), (n,))
