@@ -588,3 +588,33 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys, case):
     assert len(lines) == 1 and lines[0].startswith("warpbw-precompute: error: "), cap.err
     assert src.name in lines[0] and needle in lines[0] and "Traceback" not in cap.err + cap.out
     assert not out.exists()
+
+
+def test_neighbour_prior_sums_over_the_13_neighbours_of_004_by_brute_force():
+    """The prior's sums (004 Sec. 4.1: eight neighbours at the same level, the map tiling; the parent; the four
+    children) against explicit loops over a small odd-sized pyramid, with random weights, means and fitted
+    flags: every neighbour counts once, only when fitted, never the texel itself."""
+    from precompute.gmm_mipmap import _neighbour_prior
+
+    rng = np.random.default_rng(7)
+    K = 3
+    shapes = level_shapes(7, 5)
+    A = [rng.random((h, w, K)) for h, w in shapes]
+    MU = [rng.normal(size=(h, w, K, 2)) for h, w in shapes]
+    fitted = [rng.random((h, w)) < 0.7 for h, w in shapes]
+    for l, (h, w) in enumerate(shapes):
+        ii, jj = np.divmod(np.arange(h * w), w)
+        p_sum, p_w = _neighbour_prior(l, ii, jj, A, MU, fitted, shapes)
+        for t, (i, j) in enumerate(zip(ii, jj)):
+            same = {((i + di) % h, (j + dj) % w) for di in (-1, 0, 1) for dj in (-1, 0, 1)} - {(i, j)}
+            nbrs = [(l, a, b) for a, b in same]
+            if l + 1 < len(shapes):
+                nbrs.append((l + 1, i // 2, j // 2))
+            if l > 0:
+                hc, wc = shapes[l - 1]
+                nbrs += [(l - 1, 2 * i + a, 2 * j + b) for a in (0, 1) for b in (0, 1)
+                         if 2 * i + a < hc and 2 * j + b < wc]
+            want_w = sum((A[m][a, b] for m, a, b in nbrs if fitted[m][a, b]), np.zeros(K))
+            want_s = sum((A[m][a, b][:, None] * MU[m][a, b] for m, a, b in nbrs if fitted[m][a, b]), np.zeros((K, 2)))
+            np.testing.assert_allclose(p_w[t], want_w, rtol=1e-12, atol=1e-12, err_msg=f"level {l} texel {(i, j)}")
+            np.testing.assert_allclose(p_sum[t], want_s, rtol=1e-12, atol=1e-12, err_msg=f"level {l} texel {(i, j)}")
