@@ -74,14 +74,17 @@ def test_paired_difference_se_sees_what_shared_seeds_cancel():
     assert bench.paired_difference_se([1e-4], [1e-4]) is None
 
 
-def test_bench_cli_writes_json_and_plot(tmp_path):
+def test_bench_cli_writes_json_and_plot(tmp_path, capsys):
+    """Every benchmark writes its record and its plot (DESIGN.md): given --json alone, the plot goes beside it.
+    One run is allowed, with a warning that the protocol's time is a median of three."""
     scene = tmp_path / "s.toml"
     scene.write_text(SCENE)
     out, png = tmp_path / "b.json", tmp_path / "b.png"
-    rc = cli_main(["bench", str(scene), "--json", str(out), "--plot", str(png), "--spp", "1,4",
+    rc = cli_main(["bench", str(scene), "--json", str(out), "--spp", "1,4",
                    "--budgets", "1,4", "--nb", "1,4", "--gt-spp", "64", "--runs", "1", "--cache", str(tmp_path / "gt"),
                    "-q"])
     assert rc == 0 and png.stat().st_size > 0
+    assert "--runs 1: the measurement protocol times the median of at least 3 runs" in capsys.readouterr().err
     r = json.loads(out.read_text())
     for key in ("scene", "ground_truth_spp", "methods", "equal_quality_speedup", "bandwidth_time_fraction"):
         assert key in r

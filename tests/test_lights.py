@@ -175,7 +175,7 @@ def test_info_lists_the_lights_and_no_environment(tmp_path):
     s = scene_summary(scene(lights=[light(), light((0.0, 1.0, 0.0))]))
     assert len(s["lights"]) == 2 and s["lights"][1].startswith("directional towards [0.0, 1.0, 0.0]")
     assert s["environment"].startswith("none")
-    assert "directional lights exact" in s["stages"][-1] and "environment sampled" not in s["stages"][-1]
+    assert "directional lights exact" in s["stages"][-1] and "environment light" not in s["stages"][-1]
 
 
 def test_render_adaptive_cli_reports_the_lights_pass(tmp_path, capsys):

@@ -526,16 +526,25 @@ def _number_list(name, kind, hi=None):
     return parse
 
 
+PROTOCOL_RUNS = 3   # DESIGN.md, measurement protocol: the median of at least 3 timed runs
+
+
 def _bench_outputs(args, scene) -> None:
     """Validate --json / --plot of a bench command and refuse to overwrite them without --force (or to overwrite one
-    of the scene's files at all)."""
-    outs = [Path(p) for p in (args.json, args.plot) if p]
-    if not outs:
+    of the scene's files at all).  Every benchmark writes both (DESIGN.md, measurement protocol): the one not
+    given goes beside the other, with its suffix."""
+    if not (args.json or args.plot):
         raise WarpbwError("give --json OUT.json and/or --plot OUT.png (where to write the results)")
     if args.json and Path(args.json).suffix.lower() != ".json":
         raise WarpbwError(f"--json {args.json}: expected a path ending in .json")
     if args.plot and Path(args.plot).suffix.lower() != ".png":
         raise WarpbwError(f"--plot {args.plot}: expected a path ending in .png")
+    args.json = args.json or str(Path(args.plot).with_suffix(".json"))
+    args.plot = args.plot or str(Path(args.json).with_suffix(".png"))
+    outs = [Path(args.json), Path(args.plot)]
+    if args.runs < PROTOCOL_RUNS:
+        print(f"warpbw: warning: --runs {args.runs}: the measurement protocol times the median of at least "
+              f"{PROTOCOL_RUNS} runs (DESIGN.md); fewer give noisier times", file=sys.stderr)
     for option, path in (("--json", args.json), ("--plot", args.plot)):
         if path:
             check_output_file(path, option, force=True)
@@ -551,6 +560,8 @@ def _write_bench(args, record: dict, write_plot) -> None:
     if args.plot:
         Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
         write_plot(record, args.plot)
+    if not args.quiet:
+        print(f"record {args.json}, plot {args.plot}")
 
 
 def cmd_bench(args) -> int:
@@ -693,7 +704,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser("demo", help="render the embedded default scene (needs no file)",
                        description="Render the embedded default scene (three spheres, analytic materials, "
-                       "procedural sky) to DIR/demo.exr, demo.png and demo.json.")
+                       "procedural sky) to DIR/demo.exr, demo.png and demo.json, with the reference estimator and "
+                       "multiple importance sampling (as render --mis): --spp BRDF samples per pixel, each paired "
+                       "with an environment sample.")
     d.add_argument("-o", "--output", default="warpbw_demo", help="output directory (default ./warpbw_demo)")
     common(d, DEMO_SPP)
     d.set_defaults(func=cmd_demo)
@@ -708,7 +721,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     def bench_common(p, runs_help: str):
         """--runs, --seed, --device, --force and -q of both bench commands."""
-        p.add_argument("--runs", type=_positive_int("runs"), default=3, help=runs_help)
+        p.add_argument("--runs", type=_positive_int("runs"), default=PROTOCOL_RUNS, help=runs_help)
         p.add_argument("--seed", type=parse_seed, default=0, help="random seed, 0 to 2^32-1 (default 0)")
         p.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda / cuda:N")
         p.add_argument("--force", action="store_true", help="overwrite existing output files")
@@ -726,8 +739,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "hides them (the planes are not rendered: bench-filtering measures them).",
                         formatter_class=argparse.RawDescriptionHelpFormatter)
     bn.add_argument("scene", help="scene file (TOML)")
-    bn.add_argument("--json", help="write the record here (JSON); give --json, --plot or both")
-    bn.add_argument("--plot", help="write the plot here (PNG): PSNR against time, one curve per method")
+    bn.add_argument("--json", help="write the record here (JSON); without it, beside --plot as OUT.json")
+    bn.add_argument("--plot", help="write the plot here (PNG): PSNR against time, one curve per method; without "
+                    "it, beside --json as OUT.png")
     bn.add_argument("--spp", type=_number_list("spp", int, INT32_MAX), default=list(_bench.DEFAULT_SPP),
                     help="reference sample counts (default %s)" % ",".join(map(str, _bench.DEFAULT_SPP)))
     bn.add_argument("--budgets", type=_number_list("budgets", float, BUDGET_MAX), default=list(_bench.DEFAULT_BUDGETS),
@@ -771,8 +785,9 @@ def build_parser() -> argparse.ArgumentParser:
     bf.add_argument("--zoom", type=_number_list("zoom", float), default=list(_bf.DEFAULT_ZOOMS),
                     help="zoom factors (default %s); a zoom at which no pixel sees a plane is refused before any "
                     "work" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
-    bf.add_argument("--json", help="write the record here (JSON); give --json, --plot or both")
-    bf.add_argument("--plot", help="write the plot here (PNG): error, flicker and temporal error against zoom")
+    bf.add_argument("--json", help="write the record here (JSON); without it, beside --plot as OUT.json")
+    bf.add_argument("--plot", help="write the plot here (PNG): error, flicker and temporal error against zoom; "
+                    "without it, beside --json as OUT.png")
     bf.add_argument("--gt-spp", type=_positive_int("gt-spp", INT32_MAX), default=_bf.DEFAULT_GT_SPP,
                     help=f"ground-truth rays per pixel (>= 64; default {_bf.DEFAULT_GT_SPP}), jittered over the "
                     "pixel and averaged over those that hit the plane")

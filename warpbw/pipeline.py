@@ -603,7 +603,8 @@ def scene_summary(scene: Scene) -> dict:
               "brdf: " + ", ".join(kinds)]
     if any(k in ("merl", "npf") for k in kinds):
         stages.append("tabulated importance sampling (002 Sec. 3.3)")
-    stages.append("reference shading (002 Eq. 2)" + (", environment sampled" if env is not None else "")
+    stages.append("reference shading (002 Eq. 2)" + (", environment light (BRDF samples; with --mis also "
+                                                     "environment samples, MIS)" if env is not None else "")
                   + (", directional lights exact" if scene.lights else ""))
     if planes is not None:
         from warpbw.filtering import filtering_summary
