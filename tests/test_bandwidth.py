@@ -494,3 +494,121 @@ def test_the_frame_reads_the_signal_it_is_given_and_says_so():
     assert render_adaptive(prep, budget=2).stats["env_signal"] == "radiance"
     with pytest.raises(WarpbwError, match="env_signal: expected one of radiance, log, got 'lin'"):
         render_adaptive(prep, budget=2, env_signal="lin")
+
+
+# --- the environment's nu_a table, Eq. 10 and the pooled variance bound --------------------------------------
+
+@wp.kernel(module="unique", enable_backward=False)
+def _nu_env_kernel(tab: wp.array2d(dtype=wp.float32), uv: wp.array(dtype=wp.vec2), out: wp.array(dtype=wp.float32)):
+    i = wp.tid()
+    out[i] = bw.nu_env_at_uv(tab, uv[i])
+
+
+def test_env_table_lookup_matches_numpy_texels():
+    """nu_env_at_uv on a random (h, w) table is the nearest texel of a lat-long map whose texel centres sit at
+    ((i + 1/2) / w, (j + 1/2) / h): table[floor(v h), floor(u w)] in numpy (float32 products, as the kernel's),
+    clamped at u, v = 1.  The uv come from random directions by envmap's convention (u = atan2(x, -z) / 2 pi,
+    v = acos(y) / pi: row 0 is +Y), so directions above the horizon read the table's upper half."""
+    rng = np.random.default_rng(6)
+    h, w = 12, 20
+    tab = rng.random((h, w)).astype(np.float32)
+    d = rng.normal(size=(3000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    uv = np.stack([(np.arctan2(d[:, 0], -d[:, 2]) / (2 * np.pi)) % 1.0, np.arccos(d[:, 1]) / np.pi], axis=1)
+    uv = np.concatenate([uv, [[0.0, 0.0], [1.0, 1.0], [0.999, 0.0], [0.0, 0.999]]]).astype(np.float32)
+    out = wp.zeros(len(uv), dtype=wp.float32)
+    wp.launch(_nu_env_kernel, dim=len(uv), inputs=[wp.array(tab), wp.array(uv, dtype=wp.vec2), out])
+    col = np.clip((uv[:, 0] * np.float32(w)).astype(int), 0, w - 1)
+    row = np.clip((uv[:, 1] * np.float32(h)).astype(int), 0, h - 1)
+    np.testing.assert_array_equal(out.numpy(), tab[row, col])
+    up = d[:, 1] > 1e-3
+    assert np.all(row[:len(d)][up] < h // 2) and np.all(row[:len(d)][d[:, 1] < -1e-3] >= h // 2)
+
+
+def test_lambert_sphere_reads_the_light_bandwidth_below_the_horizon_only_where_it_faces_down():
+    """nu_a = a on the lower half of the sphere of directions (v >= 1/2: y <= 0, envmap's convention), 0 on the
+    upper half; Lambert under a constant sky.  Each path below the horizon carries the nu^i of the uniform case
+    (test above, Eq. 4 by hand), each above it 0, so Eq. 5's nu, and b_p, are the uniform case's times the
+    cosine-weighted fraction of the normal's hemisphere below the horizon: the view factor (1 - n_y) / 2 (the
+    sky view factor of a surface tilted from +Y, (1 + n_y) / 2).  Per-pixel pass, 256 directions: within 0.06."""
+    a = 7.5
+    prep = prepared(r=0.8)
+    nu_env = np.zeros((8, 16))
+    nu_env[4:] = a
+    gb, buf = run_pass(prep, n_b=256, nu_env=nu_env, stride=1, pool_radius=0)
+    cov = gb.coverage.reshape(-1)
+    pos = gb.data.position.numpy()[cov]
+    nrm = gb.data.normal.numpy()[cov]
+    view = gb.data.view.numpy()[cov]
+    d_eye = np.linalg.norm(pos - np.array([0.0, 0.0, 4.0]), axis=1)
+    cos_x = np.maximum(np.sum(nrm * view, axis=1), COS_X_MIN)
+    fov = math.radians(30.0)
+    angle = max(fov / prep.width, 2 * math.atan(math.tan(fov / 2) * prep.height / prep.width) / prep.height)
+    uniform = d_eye * (1 / 0.8) * min(a, float(bw.NU_COS)) / cos_x * angle
+    interior = cos_x > 0.2
+    frac = buf.b_p.numpy()[cov][interior] / uniform[interior]
+    n_y = nrm[interior, 1]
+    assert np.sum(n_y > 0.3) > 20 and np.sum(n_y < -0.3) > 20   # both halves of the sphere are seen
+    np.testing.assert_allclose(frac, (1 - n_y) / 2, atol=0.06)
+
+
+def _pass_with_tables(prep, nu_env, nu_rho, n_b, **kw):
+    """The pass with synthetic nu_a (h, w) and nu_rho (per material, N_THETA_I x N_CELLS x N_CELLS) tables."""
+    tables, keep = bw.make_bandwidth_tables(nu_env, nu_rho)
+    prep._keep.extend(keep)
+    gb, _ = _gbuffer(prep, {})
+    return gb, bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=n_b, **kw)
+
+
+def test_preconvolved_variance_bound_closed_form_for_lambert():
+    """Eq. 10 (pre-convolved lighting): sigma2 = 4 pi^2 E[(2 nu_rho + NU_COS) chi^2], the light's nu_a replaced by
+    a second nu_rho.  A Lambert sphere under a constant sky (chi = (albedo / pi) cos, E_uniform[cos^2] = 1/3) with a
+    synthetic constant BRDF table b and light table a: 4 pi^2 (2 b + NU_COS) (albedo / pi)^2 / 3, and Eq. 9's
+    4 pi^2 (a + b + NU_COS) (albedo / pi)^2 / 3 without pre-convolution.  (Lambert's own table is 0, where Eq. 10
+    reads NU_COS alone and cannot tell 2 nu_rho from nu_rho.)  1024 MIS directions: within 1%."""
+    a, b = 5.0, 1.5
+    prep = prepared()
+    nu_rho = np.full((1, N_THETA_I, N_CELLS, N_CELLS), b)
+    chi2 = 4 * math.pi ** 2 * (0.6 / math.pi) ** 2 / 3.0
+    for pre, nu in ((True, 2 * b + float(bw.NU_COS)), (False, a + b + float(bw.NU_COS))):
+        gb, buf = _pass_with_tables(prep, np.full((8, 16), a), nu_rho, n_b=1024, preconvolved=pre)
+        cov = gb.coverage.reshape(-1)
+        np.testing.assert_allclose(buf.sigma2.numpy()[cov], nu * chi2, rtol=1e-2, err_msg=f"preconvolved={pre}")
+
+
+def test_pooled_variance_bound_is_the_largest_of_the_neighbours(tmp_path):
+    """sigma2 is the largest of the alike traced neighbours' own estimates within pool_radius (module docstring,
+    Sec. 3.1's max filter), not their pooled mean.  A Lambert sphere under a black sky with a 4 x 4-texel sun at +X
+    (sigma2 ~ (n . sun)^2: 0 on the left half, steep across the terminator).  With stride 1 every covered pixel is
+    traced, so the pooled pass must match the max, in numpy, over the (2 r + 1)^2 window of alike pixels (same
+    material, depth within BLOCK_DEPTH_TOL, normals within BLOCK_NORMAL_COS) of the per-pixel pass's sigma2
+    (pool_radius 0).  The two passes look along different direction sets (interleaving): with 1024 directions they
+    agree within 5%, while the window's mean lies 20% or more below its max on the pixels that tell them apart."""
+    from warpbw.io.exr import write_exr
+
+    px = np.zeros((128, 256, 3), np.float32)
+    px[62:66, 62:66] = 1000.0                     # u ~ 1/4 (+X), v ~ 1/2 (the horizon): envmap's convention
+    write_exr(tmp_path / "sun.exr", px)
+    prep = prepared(env=f'file = "{tmp_path / "sun.exr"}"')
+    nu_env = np.ones((8, 16))                     # a constant nu_a: sigma2 follows chi^2 alone
+    gb, own = run_pass(prep, n_b=1024, nu_env=nu_env, stride=1, pool_radius=0)
+    radius = bw.POOL_RADIUS_DEFAULT
+    _, pooled = run_pass(prep, n_b=1024, nu_env=nu_env, stride=1, pool_radius=radius)
+    H, W = gb.height, gb.width
+    cov = gb.coverage
+    s_own = own.sigma2.numpy().reshape(H, W).astype(np.float64)
+    mat = gb.data.material.numpy().reshape(H, W)
+    depth = gb.data.depth.numpy().reshape(H, W)
+    nrm = gb.data.normal.numpy().reshape(H, W, 3)
+    s_max = np.zeros((H, W))
+    s_mean = np.zeros((H, W))
+    for y, x in zip(*np.nonzero(cov)):
+        win = np.s_[max(y - radius, 0):y + radius + 1, max(x - radius, 0):x + radius + 1]
+        alike = (mat[win] == mat[y, x]) & (np.abs(depth[win] - depth[y, x]) <= float(bw.BLOCK_DEPTH_TOL) * depth[y, x]) \
+            & (nrm[win] @ nrm[y, x] >= float(bw.BLOCK_NORMAL_COS))
+        s_max[y, x], s_mean[y, x] = s_own[win][alike].max(), s_own[win][alike].mean()
+    lit = cov & (s_max > 1e-2 * s_max.max())      # the terminator's faint pixels are noise-dominated
+    telling = lit & (s_max > 1.25 * s_mean)
+    assert lit.sum() > 300 and telling.sum() > 200
+    got = pooled.sigma2.numpy().reshape(H, W)
+    np.testing.assert_allclose(got[lit], s_max[lit], rtol=0.05)
