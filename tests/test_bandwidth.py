@@ -604,8 +604,8 @@ def test_pooled_variance_bound_is_the_largest_of_the_neighbours(tmp_path):
     s_mean = np.zeros((H, W))
     for y, x in zip(*np.nonzero(cov)):
         win = np.s_[max(y - radius, 0):y + radius + 1, max(x - radius, 0):x + radius + 1]
-        alike = (mat[win] == mat[y, x]) & (np.abs(depth[win] - depth[y, x]) <= float(bw.BLOCK_DEPTH_TOL) * depth[y, x]) \
-            & (nrm[win] @ nrm[y, x] >= float(bw.BLOCK_NORMAL_COS))
+        near = np.abs(depth[win] - depth[y, x]) <= float(bw.BLOCK_DEPTH_TOL) * depth[y, x]
+        alike = (mat[win] == mat[y, x]) & near & (nrm[win] @ nrm[y, x] >= float(bw.BLOCK_NORMAL_COS))
         s_max[y, x], s_mean[y, x] = s_own[win][alike].max(), s_own[win][alike].mean()
     lit = cov & (s_max > 1e-2 * s_max.max())      # the terminator's faint pixels are noise-dominated
     telling = lit & (s_max > 1.25 * s_mean)
