@@ -1,7 +1,8 @@
 """Angular bandwidth tables of BRDF lobes (002 Sec. 2.3, "Reflectance (angular)").
 
 Public:
-    ``N_THETA_I`` (16), ``N_CELLS`` (16), ``DEFAULT_RESOLUTION`` (128), ``FORMAT``, ``VERSION``
+    ``N_THETA_I`` (16), ``N_CELLS`` (16), ``SHAPE`` (the table's), ``DEFAULT_RESOLUTION`` (128), ``FORMAT``,
+    ``VERSION``
     ``brdf_bandwidth_table(evaluate, resolution=128, progress=None) -> (16, 16, 16) float32``
     ``analytic_brdf_bandwidth_table(evaluate, resolution=128) -> (16, 16, 16) float32``
     ``build_brdf_bandwidth(source, progress=True, resolution=128) -> (16, 16, 16) float32``
@@ -83,7 +84,7 @@ from precompute.wavelets import local_bandwidth
 from warpbw.errors import WarpbwError
 
 __all__ = [
-    "N_THETA_I", "N_CELLS", "DEFAULT_RESOLUTION", "FORMAT", "VERSION",
+    "N_THETA_I", "N_CELLS", "SHAPE", "DEFAULT_RESOLUTION", "FORMAT", "VERSION",
     "GRAZING_LIMIT", "theta_i_centres", "wo_map", "wo_to_map", "map_radians_per_pixel",
     "brdf_bandwidth_table", "analytic_brdf_bandwidth_table", "build_brdf_bandwidth",
     "write_brdf_bandwidth", "read_brdf_bandwidth", "load_or_build_bandwidth",

@@ -4,7 +4,9 @@ Public:
     ``HierarchyPlan`` / ``plan_hierarchy(gb, cam, level_map, device)``   which texels each level shades and
                                up-samples, from the levels and the G-buffer alone (before any sample is drawn)
     ``AdaptiveResult`` / ``shade_hierarchical(gb, cam, materials, env, level_map, spp_map, ..., plan)``
-    ``load_kernels(device)``   compile (or load from Warp's cache) the hierarchy's own kernels
+    ``load_kernels(device)``   compile (or load from Warp's cache) the hierarchy's own kernels:
+                               ``classify_level_kernel``, ``gather_shaded_kernel``, ``level_spp_kernel``
+    ``PlanLevel``              one level of a ``HierarchyPlan``
 
 Inputs are the per-pixel shading level (002 Eq. 11, 0 = finest; see :mod:`warpbw.pyramid`) and the
 per-pixel sample count N_p.  The level is mip-mapped with a min filter and N_p with a max filter

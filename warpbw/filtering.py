@@ -30,6 +30,9 @@ Public:
     ``MAX_ANISOTROPY``, ``DEFAULT_ANISOTROPY``   the most probes along a footprint's major axis; the default (1)
     ``roughness_variance(m)``            the Gaussian NDF's per-axis variance m^2 / 2 of roughness m
     ``diffuse_pick(diffuse, f0)``        the BRDF sampler's probability of a cosine-weighted draw
+    ``Lobes``, a Warp matrix type (``MAX_LOBES`` rows: weight, mean, 2x2 covariance), Warp struct ``PlaneData``;
+    Warp functions ``lobes_ndf(lobes, n, h)``, ``lobes_sample(lobes, n, wo, pl, u)``, ``sample_pdf(D, at, h, wi,
+    wo, pl)``: the lobes' NDF, the BRDF strategy's draw and its solid-angle pdf (tests launch them in kernels)
 
 The model (004 Sec. 3).  Normals live in the projected normal space of ``precompute.gmm_mipmap``: a unit
 normal n is the 2D point (n_x, n_y) in the plane's tangent frame (x along +u = +X, y along -v = -Z, z = +Y:

@@ -7,6 +7,7 @@ Public:
     ``SamplerTable``                    host dataclass: one material's tables (numpy)
     ``build_sampler_table(brdf, ...)``  host: tabulate f cos_i over half-vectors and invert the CDF
     ``pack_samplers(tables, device)``   host: concatenate tables into a ``TabulatedSamplers``
+    ``N_U``, ``N_PHI``, ``TABLE_VERSION``   the tables' cells and format version (the precompute stage writes them)
 
 Parametrisation (isotropic BRDFs, so the table drops the view azimuth)
 ----------------------------------------------------------------------

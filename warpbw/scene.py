@@ -7,6 +7,7 @@ Public:
     ``Scene``, ``Camera``, ``Environment``, ``DirectionalLight``, ``SphereObject``, ``MeshObject``,
     ``PlaneObject``, ``Material``, ``DEFAULT_SCENE_TOML``; ``Scene.input_files()``, every file a scene reads
     ``file_digest(path) -> str``               blake2b of a file's bytes (the content hashes of scenes and tables)
+    ``GMM_MAX_COMPONENTS``                     the most components a material's ``gmm_components`` may ask for
 
 Lights: an ``[environment]`` and/or ``[[light]]`` tables (``type = "directional"``, ``direction`` towards the
 light, ``radiance``); a scene needs at least one of them (``Scene.environment`` is None without one).
