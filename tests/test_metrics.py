@@ -1,0 +1,96 @@
+"""Image error metrics (warpbw.metrics) against closed forms and explicit per-pixel loops.
+
+Truth used: PSNR of a constant offset, 10 log10(peak^2 / d^2); relMSE and its map written out pixel by pixel;
+the worst-share of an error held by one pixel (1) or spread evenly (the fraction); the mask's pixels only."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from warpbw.metrics import (RELMSE_EPS, WORST_FRACTION, compare_images, coverage_from_alpha, mse, psnr, relmse,
+                            relmse_map, worst_share)
+
+
+def _pair(seed=0, h=6, w=9):
+    rng = np.random.default_rng(seed)
+    ref = rng.uniform(0.1, 2.0, (h, w, 3))
+    mask = rng.random((h, w)) < 0.6
+    return ref, mask
+
+
+def test_psnr_of_a_constant_offset_is_the_closed_form_over_the_mask_only():
+    ref, mask = _pair()
+    d = 0.05
+    test = ref + d
+    test[~mask] = 1e6                      # what lies outside the mask is not compared
+    peak = ref[mask].max()
+    assert psnr(test, ref, mask) == pytest.approx(10 * math.log10(peak ** 2 / d ** 2), rel=1e-12)
+    assert mse(test, ref, mask) == pytest.approx(d * d, rel=1e-12)
+
+
+def test_psnr_is_infinite_for_identical_images_and_minus_infinite_for_a_black_reference():
+    ref, mask = _pair(1)
+    assert psnr(ref, ref, mask) == math.inf
+    assert psnr(ref, np.zeros_like(ref), mask) == -math.inf
+
+
+def test_relmse_and_its_map_match_a_per_pixel_loop():
+    ref, mask = _pair(2)
+    test = ref * np.random.default_rng(3).uniform(0.5, 1.5, ref.shape)
+    h, w, _ = ref.shape
+    want_map = np.zeros((h, w))
+    terms = []
+    for y in range(h):
+        for x in range(w):
+            t = [(test[y, x, c] - ref[y, x, c]) ** 2 / (ref[y, x, c] ** 2 + RELMSE_EPS) for c in range(3)]
+            if mask[y, x]:
+                want_map[y, x] = sum(t) / 3
+                terms += t
+    assert relmse(test, ref, mask) == pytest.approx(sum(terms) / len(terms), rel=1e-12)
+    np.testing.assert_allclose(relmse_map(test, ref, mask), want_map, rtol=1e-12, atol=0)
+    # relMSE is the map's mean over the mask (module docstring)
+    assert relmse_map(test, ref, mask)[mask].mean() == pytest.approx(relmse(test, ref, mask), rel=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(k=st.floats(1e-3, 1e3), seed=st.integers(0, 2 ** 16))
+def test_relmse_is_scale_free_when_its_regulariser_scales_too(k, seed):
+    """(k a - k b)^2 / ((k b)^2 + k^2 eps) = (a - b)^2 / (b^2 + eps): exposure does not change the error."""
+    ref, mask = _pair(seed)
+    test = ref * np.random.default_rng(seed + 1).uniform(0.8, 1.2, ref.shape)
+    assert relmse(k * test, k * ref, mask, eps=k * k * RELMSE_EPS) == pytest.approx(relmse(test, ref, mask),
+                                                                                      rel=1e-9)
+
+
+def test_worst_share_of_one_bad_pixel_and_of_an_even_error():
+    n = 1000
+    mask = np.ones((1, n), bool)
+    one = np.zeros((1, n))
+    one[0, 123] = 5.0
+    share, k = worst_share(one, mask)
+    assert (share, k) == (1.0, math.ceil(WORST_FRACTION * n))
+    even, k = worst_share(np.full((1, n), 0.3), mask)
+    assert even == pytest.approx(k / n) and k == 10
+    assert worst_share(np.zeros((1, n)), mask)[0] == 0.0
+
+
+def test_compare_images_gathers_the_same_figures():
+    ref, mask = _pair(4)
+    test = ref + 0.01 * np.random.default_rng(5).normal(size=ref.shape)
+    r = compare_images(test, ref, mask)
+    assert r["psnr_db"] == psnr(test, ref, mask) and r["relmse"] == relmse(test, ref, mask)
+    assert r["mse"] == mse(test, ref, mask) and r["pixels"] == int(mask.sum())
+    assert (r["worst_share"], r["worst_pixels"]) == worst_share(relmse_map(test, ref, mask), mask)
+
+
+def test_coverage_comes_from_the_alpha_channel():
+    px = np.zeros((2, 3, 4), np.float32)
+    px[0, 1, 3] = 1.0
+    px[1, 2, 3] = 0.25
+    np.testing.assert_array_equal(coverage_from_alpha(px, ["R", "G", "B", "A"]),
+                                  [[False, True, False], [False, False, True]])
+    assert coverage_from_alpha(px[..., :3], ["R", "G", "B"]) is None
