@@ -542,9 +542,6 @@ def _bench_outputs(args, scene) -> None:
     args.json = args.json or str(Path(args.plot).with_suffix(".json"))
     args.plot = args.plot or str(Path(args.json).with_suffix(".png"))
     outs = [Path(args.json), Path(args.plot)]
-    if args.runs < PROTOCOL_RUNS:
-        print(f"warpbw: warning: --runs {args.runs}: the measurement protocol times the median of at least "
-              f"{PROTOCOL_RUNS} runs (DESIGN.md); fewer give noisier times", file=sys.stderr)
     for option, path in (("--json", args.json), ("--plot", args.plot)):
         if path:
             check_output_file(path, option, force=True)
@@ -562,6 +559,9 @@ def _write_bench(args, record: dict, write_plot) -> None:
         write_plot(record, args.plot)
     if not args.quiet:
         print(f"record {args.json}, plot {args.plot}")
+    if args.runs < PROTOCOL_RUNS:
+        print(f"warpbw: warning: --runs {args.runs}: the measurement protocol times the median of at least "
+              f"{PROTOCOL_RUNS} runs (DESIGN.md); fewer give noisier times", file=sys.stderr)
 
 
 def cmd_bench(args) -> int:
