@@ -137,8 +137,10 @@ def test_bench_filtering_writes_the_record_and_the_plot(plane_scene, capsys):
     for rows in rec["methods"].values():
         assert [r["zoom"] for r in rows] == [1.0, 2.0]
         for r in rows:
-            assert {"zoom", "error", "flicker", "time_s", "temporal_error"} <= set(r)
-            assert all(math.isfinite(r[k]) and r[k] >= 0 for k in ("error", "flicker", "time_s", "temporal_error"))
+            assert {"zoom", "error", "flicker", "time_s", "temporal_error", "psnr_db", "relmse"} <= set(r)
+            assert all(math.isfinite(r[k]) and r[k] >= 0 for k in ("error", "flicker", "time_s", "temporal_error",
+                                                                    "relmse"))
+            assert math.isfinite(r["psnr_db"]) and (r["relmse"] > 0) == (r["error"] > 0)   # the protocol's too
     for g in rec["ground_truth"]:
         assert math.isfinite(g["temporal_noise"]) and g["temporal_noise"] >= 0
     assert rec["precompute_time_s"] > 0

@@ -8,7 +8,7 @@ Public:
     ``temporal_error(a0, a1, g0, g1, mask, norm) -> float``  frame-to-frame change's distance to the truth's
     ``run_bench_filtering(scene, zooms, gt_spp, runs, seed, device, cache, progress, log, methods,
                           env_spp, max_anisotropy, flicker_pairs) -> dict``
-    ``write_plot(record, path)``                    error, flicker and temporal error against zoom
+    ``write_plot(record, path)``                    error, flicker and temporal error against zoom; error against time
     ``format_table(record) -> str``
 
 Protocol.  Zoom z: the camera moved away from its look-at point to z times its distance, same resolution
@@ -34,6 +34,8 @@ covers z^2 times more texels.
   for a method that changes as the truth does, and a frozen image scores the truth's whole mean change.
   The ground truth's own floor is ``ground_truth[i].temporal_noise``: the temporal error of a second,
   independently seeded ground-truth pair.
+* PSNR and relative MSE (``warpbw.metrics``, the measurement protocol's) of the frame at z against the ground
+  truth over its covered pixels, recorded beside the error as ``psnr_db`` and ``relmse``.
 * Time: kernel time of one frame after a warm-up frame (compiled kernels), median of ``runs``.
 * Under an [environment] every method also samples it (``warpbw.filtering``: ``env_spp`` BRDF + environment
   pairs per pixel, by default ``warpbw.filtering.DEFAULT_ENV_SPP``; the same seed in both frames of a flicker
@@ -68,6 +70,7 @@ from pathlib import Path
 import numpy as np
 
 from warpbw.errors import INT32_MAX, WarpbwError, check_count
+from warpbw.metrics import psnr, relmse
 
 DEFAULT_ZOOMS = (1, 2, 4, 8, 16, 32)
 # Ground-truth rays per pixel of the benchmark: a pixel of the far zooms covers hundreds of texels.
@@ -245,6 +248,8 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
             fl = over_pairs(flicker, frames, g)
             te = over_pairs(temporal_error, frames, g)
             record["methods"][m].append({"zoom": z, "error": err, "flicker": fl, "temporal_error": te,
+                                         "psnr_db": psnr(frames[0].image, g[0].image, cov),
+                                         "relmse": relmse(frames[0].image, g[0].image, cov),
                                          "time_s": round(statistics.median(times), 6),
                                          "mean_level": float(frames[0].level[cov].mean()) if cov.any() else 0.0})
             line.append(f"{m} {err:.3f}/{fl:.4f}/{te:.4f}")
@@ -285,15 +290,17 @@ def format_table(record: dict) -> str:
 
 def write_plot(record: dict, path) -> None:
     """Error, flicker and temporal error against zoom, one curve per method; the ground truth's noise (error,
-    flicker, temporal error) as a dashed line."""
+    flicker, temporal error) as a dashed line; and the error against frame time (the protocol's plot), one curve
+    per method through its zooms."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    fig, axes = plt.subplots(1, 4, figsize=(20, 4.2))
     zooms = record["zooms"]
     for m, rows in record["methods"].items():
+        axes[3].plot([r["time_s"] * 1e3 for r in rows], [r["error"] for r in rows], "o-", label=m)
         axes[0].plot(zooms, [r["error"] for r in rows], "o-", label=m)
         axes[1].plot(zooms, [r["flicker"] for r in rows], "o-", label=m)
         axes[2].plot(zooms, [r["temporal_error"] for r in rows], "o-", label=m)
@@ -301,12 +308,15 @@ def write_plot(record: dict, path) -> None:
     axes[2].plot(zooms, [g["temporal_noise"] for g in record["ground_truth"]], "k--", label="ground-truth noise")
     if all("flicker_noise" in g for g in record["ground_truth"]):
         axes[1].plot(zooms, [g["flicker_noise"] for g in record["ground_truth"]], "k--", label="ground-truth noise")
-    for ax, what in zip(axes, ("error against the ground truth", "flicker (change beyond the truth's)",
-                               "temporal error (change against the truth's)")):
+    for ax, what in zip(axes[:3], ("error against the ground truth", "flicker (change beyond the truth's)",
+                                   "temporal error (change against the truth's)")):
         ax.set_xscale("log", base=2)
         ax.set_xlabel("zoom (camera distance factor)")
         ax.set_ylabel(what)
         ax.grid(True, which="both", alpha=0.3)
+    axes[3].set_xlabel("frame time (ms, kernels; one point per zoom)")
+    axes[3].set_ylabel("error against the ground truth")
+    axes[3].grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=8)
     fig.suptitle(f"{Path(record['scene']).name}: reflectance filtering (004){_aniso_note(record)}; precompute "
                  f"{record['precompute_time_s']:.1f} s", fontsize=10)

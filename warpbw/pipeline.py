@@ -153,7 +153,7 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
     with _timed(timings, "load_materials"):
         specs = [_material_spec(scene.materials[name], progress, notes, sources) for name in order]
         materials = brdf_mod.build_material_table(specs, device=device)
-    with _timed(timings, "load_meshes"):
+    with _timed(timings, "load_geometry"):   # spheres and meshes to the device, the BVH
         geometry = _geometry(scene, mat_id, device)
     return PreparedScene(scene, device, cam, geometry, env, materials, timings, notes, sources, lights=lights)
 
