@@ -428,6 +428,25 @@ def test_sampling_file_of_an_older_version(tmp_path):
     assert_no_outputs(tmp_path)
 
 
+@pytest.mark.parametrize("stored", [3, None, "2"], ids=["newer", "missing", "a string"])
+def test_an_asset_of_a_newer_or_no_version_is_refused(tmp_path, stored):
+    """A reader of version 2 takes version 2 only: a newer file may mean something else, and a file without a
+    version (or with "2") is not one this code wrote."""
+    import json
+
+    from precompute.assetfile import HEADER_KEY, read_asset
+
+    header = {"format": "fmt", "source": "s", "source_hash": "h"}
+    if stored is not None:
+        header["version"] = stored
+    np.savez(tmp_path / "a.npz", **{HEADER_KEY: np.array(json.dumps(header)), "x": np.zeros(2)})
+    with pytest.raises(WarpbwError, match=rf"a\.npz: fmt version {stored!r}, this warpbw reads version 2 \(rebuild"):
+        read_asset(tmp_path / "a.npz", "fmt", 2, "warpbw-precompute x")
+    header["version"] = 2
+    np.savez(tmp_path / "a.npz", **{HEADER_KEY: np.array(json.dumps(header)), "x": np.zeros(2)})
+    assert read_asset(tmp_path / "a.npz", "fmt", 2, "warpbw-precompute x").header["version"] == 2
+
+
 # ------------------------------------------------------------------------------------------ command line
 
 def test_spp_zero(tmp_path):

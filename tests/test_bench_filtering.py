@@ -429,3 +429,105 @@ def test_flicker_pairs_average_the_consecutive_pairs(plane_scene, capsys):
         with pytest.raises(SystemExit) as e:
             main(["bench-filtering", str(plane_scene), "--json", str(d / "p.json"), "--flicker-pairs", bad])
         assert e.value.code == 2 and "--flicker-pairs" in capsys.readouterr().err and not (d / "p.json").exists()
+
+
+# ------------------------------------------------------------------------------------------ pairs by hand
+
+def _px(*reds):
+    """A 1xN float32 image whose pixels are (red, 0, 0): every colour norm and distance is |red|."""
+    img = np.zeros((1, len(reds), 3), np.float32)
+    img[0, :, 0] = reds
+    return img
+
+
+# Frames j = 0, 1, 2 of one zoom (z = 1, two flicker pairs): the plane covers 3, 2 then 1 pixel (uncovered pixels
+# black, as the renderer draws them), so each pair's both-covered mask is the second frame's coverage, smaller
+# than the first's; the first truth's mean colour norm over its covered pixels is 4, 6 then 5 (frame by frame).
+_COVER = ([True, True, True], [True, True, False], [True, False, False])
+_HAND_FRAMES = {
+    "gt1": (_px(2, 4, 6), _px(4, 8, 0), _px(5, 0, 0)),        # seed GT_SEED + seed
+    "gt2": (_px(3, 4, 5), _px(4.5, 7, 0), _px(5.5, 0, 0)),    # seed GT_SEED_2 + seed
+    "method": (_px(2, 5, 6), _px(6, 8, 0), _px(4, 0, 0)),     # every filtered method
+}
+
+
+def _bench_on_hand_frames(monkeypatch):
+    """run_bench_filtering at zoom 1 with two flicker pairs, every renderer call answered from ``_HAND_FRAMES``
+    (the frame picked by the camera's zoom, z * FLICKER_STEP^j, and the ground truth by its seed); no scene is
+    rendered.  Returns the record and the calls made."""
+    from types import SimpleNamespace
+
+    import warpbw.filtering
+    import warpbw.pipeline
+    from warpbw.bench_filtering import GT_SEED, GT_SEED_2, run_bench_filtering
+
+    calls = []
+
+    def fake_render(scene, method, spp=64, seed=0, prepared=None, camera=None, env_spp=1, max_anisotropy=1,
+                    background=None, **kw):
+        j = 0 if camera is None else round(math.log(camera[1]) / math.log(FLICKER_STEP))
+        assert camera is None or camera[1] == pytest.approx(FLICKER_STEP ** j, rel=1e-12)
+        if method == "ground_truth":
+            kind = {GT_SEED: "gt1", GT_SEED_2: "gt2"}[seed]
+        else:
+            kind = "method"
+        calls.append((method, kind, j, seed, spp))
+        return SimpleNamespace(image=_HAND_FRAMES[kind][j].copy(), coverage=np.array([_COVER[j]]),
+                               level=np.full((1, 3), 0.5, np.float32), time_s=0.001)
+
+    monkeypatch.setattr(warpbw.filtering, "render_filtering", fake_render)
+    monkeypatch.setattr(warpbw.filtering, "prepare_filtering", lambda *a, **k: SimpleNamespace(notes={}))
+    monkeypatch.setattr(warpbw.filtering, "zoomed_camera", lambda camera, zoom: ("camera", float(zoom)))
+    monkeypatch.setattr(warpbw.pipeline, "split_planes", lambda scene: (None, scene))
+    scene = SimpleNamespace(has_planes=True, source="hand.toml", environment=None,
+                            camera=SimpleNamespace(width=3, height=1))
+    rec = run_bench_filtering(scene, zooms=(1,), gt_spp=64, runs=1, methods=("toksvig",), flicker_pairs=2)
+    return rec, calls
+
+
+def test_flicker_pairs_method_figures_by_hand(monkeypatch):
+    """Truth: the module docstring's definitions worked out by hand on 1x3 frames (``_HAND_FRAMES``; every pixel
+    (r, 0, 0), so every norm is |r|) -- pair j counts only the pixels the truth covers in both of its frames, and
+    is normalised by the truth's mean norm over the covered pixels of its *first* frame (4 for pair 0, 6 for
+    pair 1; the second frames' are 6 and 5); flicker and temporal error are the mean over the two pairs, the error
+    that of the frame at z alone."""
+    rec, calls = _bench_on_hand_frames(monkeypatch)
+    (row,) = rec["methods"]["toksvig"]
+    assert rec["flicker_pairs"] == 2 and row["zoom"] == 1.0
+    # the method measured at the three frames, with the benchmark's seed (0)
+    assert {(k, j, s) for m, k, j, s, _ in calls if m == "toksvig"} == {("method", 0, 0), ("method", 1, 0),
+                                                                   ("method", 2, 0)}
+    # error, frame 0 over its 3 covered pixels: |2-2|, |5-4|, |6-6| -> 1/3, over the truth's mean norm (2+4+6)/3 = 4
+    assert row["error"] == pytest.approx((1 / 3) / 4, rel=1e-12)
+    # pair 0 over pixels {0, 1} (pixel 2 leaves the plane in frame 1): method changes |6-2| = 4, |8-5| = 3;
+    # truth's |4-2| = 2, |8-4| = 4 -> flicker max(0, 4-2), max(0, 3-4) = 2, 0: mean 1, / 4
+    # pair 1 over pixel {0}: method |4-6| = 2, truth |5-4| = 1 -> 1, / 6
+    assert row["flicker"] == pytest.approx(0.5 * (1.0 / 4 + 1.0 / 6), rel=1e-12)
+    # temporal error: pair 0 |(4) - (2)| = 2, |(3) - (4)| = 1 -> mean 1.5, / 4; pair 1 |(-2) - (1)| = 3, / 6
+    assert row["temporal_error"] == pytest.approx(0.5 * (1.5 / 4 + 3.0 / 6), rel=1e-12)
+    assert row["mean_level"] == pytest.approx(0.5)
+
+
+def test_flicker_pairs_ground_truth_noise_by_hand(monkeypatch):
+    """Truth: the module docstring's ground-truth floors worked out by hand on the 1x3 frames of ``_HAND_FRAMES``
+    (G = the first truth, H = the second, independently seeded one): the noise is H's error against G at z
+    divided by sqrt(2); the temporal noise is H's temporal error against G, pair by pair; the flicker noise
+    (the comment at its line in run_bench_filtering) is G's change scored against the pair (H[j], G[j+1]) --
+    the first truth's change against one whose first frame is the second truth's -- not against H's own pair.
+    Each pair masked by the pixels G covers in both frames and normalised by G's first frame (4, then 6)."""
+    rec, calls = _bench_on_hand_frames(monkeypatch)
+    (gt,) = rec["ground_truth"]
+    assert gt["zoom"] == 1.0 and gt["pixels_covered"] == 3
+    # both truths rendered at the three frames with the benchmark's ray count
+    assert {(k, j, n) for m, k, j, s, n in calls if m == "ground_truth"} == {(k, j, 64) for k in ("gt1", "gt2")
+                                                                              for j in range(3)}
+    # noise: |3-2|, |4-4|, |5-6| -> mean 2/3, / G's norm 4, / sqrt(2)
+    assert gt["noise"] == pytest.approx((2 / 3) / 4 / math.sqrt(2.0), rel=1e-12)
+    # flicker noise, pair 0 over pixels {0, 1}: G's change |4-2| = 2, |8-4| = 4 against |G1 - H0| = |4-3| = 1,
+    # |8-4| = 4 -> max(0, 2-1), max(0, 4-4) = 1, 0: mean 0.5, / 4; pair 1 over pixel {0}: |5-4| = 1 against
+    # |G2 - H1| = |5-4.5| = 0.5 -> 0.5, / 6.  (Against H's own pair, |H1-H0| = 1.5, 3 and |H2-H1| = 1, it would
+    # be (0.5 + 1) / 2 / 4 and 0.)
+    assert gt["flicker_noise"] == pytest.approx(0.5 * (0.5 / 4 + 0.5 / 6), rel=1e-12)
+    # temporal noise: pair 0 |(4.5-3) - (4-2)| = 0.5, |(7-4) - (8-4)| = 1 -> mean 0.75, / 4;
+    # pair 1 |(5.5-4.5) - (5-4)| = 0
+    assert gt["temporal_noise"] == pytest.approx(0.5 * (0.75 / 4 + 0.0), rel=1e-12)

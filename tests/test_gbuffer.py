@@ -56,14 +56,17 @@ def test_sphere_matches_closed_form():
 def test_mesh_attributes_are_interpolated_with_each_vertexs_own_weight():
     """One triangle with very different vertex normals and uvs, against a numpy ray-triangle intersection
     (Moller-Trumbore, float64): the normal is the normalised barycentric mix of the vertex normals and the uv
-    the barycentric mix of the vertex uvs, each weight with its own vertex."""
+    the barycentric mix of the vertex uvs, each weight with its own vertex.  Seen from behind, the two-sided
+    triangle turns its shading normal towards the camera: the same mix, negated."""
+
     v = np.array([[-1.0, -1.0, 0.0], [1.2, -0.8, 0.1], [-0.1, 1.1, -0.2]])
     nrm = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, -0.6, 0.8]])
     uv = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
     cam = make_camera((0.1, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 60.0, 48, 40)
     mesh = MeshSpec(v.astype(np.float32), np.array([[0, 1, 2]], np.int32), nrm.astype(np.float32),
                     np.zeros(3, np.float32), uv.astype(np.float32), 0)
-    gb = render_gbuffer(cam, build_geometry([], [mesh]))
+    geom = build_geometry([], [mesh])
+    gb = render_gbuffer(cam, geom)
     o, d = camera_rays(cam)
     e1, e2 = v[1] - v[0], v[2] - v[0]
     pv = np.cross(d, e2)
@@ -80,6 +83,57 @@ def test_mesh_attributes_are_interpolated_with_each_vertexs_own_weight():
     n_ref /= np.linalg.norm(n_ref, axis=1, keepdims=True)
     np.testing.assert_allclose(gb.numpy("normal").reshape(-1, 3)[inside], n_ref[inside], atol=1e-4)
     np.testing.assert_allclose(gb.numpy("uv").reshape(-1, 2)[inside], (b @ uv)[inside], atol=1e-4)
+    # from behind (the mirror image of the camera through the triangle's plane, roughly): the mix, negated
+    back = make_camera((0.1, 0.0, -3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 60.0, 48, 40)
+    gb = render_gbuffer(back, geom)
+    o, d = camera_rays(back)
+    tv = o - v[0]
+    pv = np.cross(d, e2)
+    det = pv @ e1
+    b1 = np.einsum("ij,ij->i", tv, pv) / det
+    b2 = np.einsum("ij,ij->i", d, np.cross(tv, e1)) / det
+    b = np.stack([1.0 - b1 - b2, b1, b2], -1)
+    inside = (b > 0.02).all(-1)
+    assert inside.sum() > 200 and gb.coverage.reshape(-1)[inside].all()
+    n_ref = b @ nrm
+    n_ref /= -np.linalg.norm(n_ref, axis=1, keepdims=True)
+    np.testing.assert_allclose(gb.numpy("normal").reshape(-1, 3)[inside], n_ref[inside], atol=1e-4)
+    assert np.all(np.einsum("ij,ij->i", gb.numpy("normal").reshape(-1, 3)[inside], -d[inside]) > 0)
+
+
+def test_mesh_curvature_is_the_barycentric_mix_of_the_stored_vertex_curvature():
+    """A flat 6 x 6 vertex grid whose vertices carry a mean curvature H rising along x and y at different rates
+    (so the smoothed per-vertex values, ``local_curvature(H)``, still differ between a triangle's corners):
+    per pixel, the G-buffer's curvature is the barycentric mix, with each vertex's own weight, of those values at
+    the triangle a numpy ray-plane intersection puts the pixel in."""
+    from warpbw.io.mesh import local_curvature
+
+    n = 6
+    verts, faces = grid_mesh(n, n, lambda u, v: np.stack([-1 + 2 * u / (n - 1), -1 + 2 * v / (n - 1),
+                                                          np.zeros(u.shape)], -1))
+    H = 1.0 + 2.0 * (verts[:, 0] + 1) + 0.5 * (verts[:, 1] + 1)
+    curv = local_curvature(H, faces)
+    mesh = MeshSpec(verts.astype(np.float32), faces.astype(np.int32), np.tile([0.0, 0.0, 1.0], (n * n, 1)).astype(
+        np.float32), H.astype(np.float32), np.zeros((n * n, 2), np.float32), 0)
+    cam = make_camera((0.05, 0.03, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 50.0, 48, 40)
+    gb = render_gbuffer(cam, build_geometry([], [mesh]))
+    o, d = camera_rays(cam)
+    p = o + (-o[:, 2] / d[:, 2])[:, None] * d                       # the plane z = 0
+    a, b_, c = (verts[faces[:, k], :2] for k in range(3))           # per face, 2D corners
+    e1, e2 = b_ - a, c - a
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    q = p[:, None, :2] - a[None]
+    w1 = (q[..., 0] * e2[:, 1] - q[..., 1] * e2[:, 0]) / det        # weight of corner 1
+    w2 = (e1[:, 0] * q[..., 1] - e1[:, 1] * q[..., 0]) / det        # weight of corner 2
+    w = np.stack([1.0 - w1 - w2, w1, w2], -1)                       # (pixels, faces, 3)
+    inside = (w > 0.02).all(-1)
+    pix = inside.any(1)
+    face = inside.argmax(1)
+    assert pix.sum() > 300
+    want = np.einsum("pk,pk->p", w[np.arange(len(p)), face], curv[faces[face]])
+    got = gb.numpy("curvature").reshape(-1)
+    np.testing.assert_allclose(got[pix], want[pix], rtol=1e-4)
+    assert np.ptp(want[pix]) > 1.0                                  # it varies across the image
 
 
 def test_camera_frame_depends_on_the_directions_only():

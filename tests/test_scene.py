@@ -11,6 +11,7 @@ import re
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -290,6 +291,41 @@ def test_environment_each_light_alone_is_accepted(tmp_path, env, attr):
     assert given == [attr]
     if attr == "constant":
         assert s.environment.constant == (0.25, 0.25, 0.25)
+
+
+@pytest.mark.parametrize("env", ['file = "probe.exr"', 'procedural = "sky"', "constant = 0.25"])
+def test_environment_rotation_and_scale_are_read_whichever_light(tmp_path, env):
+    """The scene file's rotation (degrees) and scale reach the environment as written, for each kind of light,
+    and the loaded light turns by them (a probe, file or procedural, whose texels are about +Y)."""
+    from warpbw.envmap import load_environment
+    from warpbw.io.exr import write_exr
+
+    write_exr(tmp_path / "probe.exr", np.random.default_rng(0).random((8, 16, 3)).astype(np.float32))
+    s = load_scene(write(tmp_path / "s.toml", scene_text(
+        environment=f"[environment]\n{env}\nrotation = 37.5\nscale = 2.0\n")))
+    assert (s.environment.rotation, s.environment.scale) == (37.5, 2.0)
+    light = load_environment(s.environment)
+    if not env.startswith("constant"):   # a constant light has no orientation (its scale is folded in)
+        assert (light.rotation_deg, light.scale) == (37.5, 2.0)
+
+
+def test_mesh_transform_is_read_as_written(tmp_path):
+    """translate, scale and rotate_y (degrees) of a mesh object reach the loaded mesh: the image of (1, 0, 0)
+    under x' = R_y(90) (2 x) + t, R_y right-handed about +Y (+X -> -Z), worked out by hand: (0, 0, -2) + t."""
+    import trimesh
+
+    from warpbw.pipeline import surface_geometry
+
+    trimesh.Trimesh(vertices=[[1, 0, 0], [0, 1, 0], [0, 0, 0]], faces=[[0, 1, 2]], process=False).export(
+        tmp_path / "tri.obj")
+    obj = ('[[object]]\nmesh = "tri.obj"\ntranslate = [0.5, 0.25, -1.0]\nscale = 2.0\nrotate_y = 90.0\n'
+           'material = "paint"\n')
+    s = load_scene(write(tmp_path / "s.toml", scene_text(objects=obj)))
+    o = s.objects[0]
+    assert (o.translate, o.scale, o.rotate_y) == ((0.5, 0.25, -1.0), 2.0, 90.0)
+    pts = surface_geometry(s).mesh.points.numpy()
+    want = np.array([[0.0, 0.0, -2.0], [0.0, 2.0, 0.0], [0.0, 0.0, 0.0]]) + (0.5, 0.25, -1.0)
+    assert all(np.abs(pts - w).max(axis=1).min() < 1e-5 for w in want), pts
 
 
 @pytest.mark.parametrize("obj", [

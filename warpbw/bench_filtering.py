@@ -44,7 +44,9 @@ covers z^2 times more texels.
 * Ground truth: ``gt_spp`` jittered rays per pixel (``warpbw.filtering``), the same seed in both frames of
   a flicker pair; its own noise is reported per zoom as ``ground_truth[i].noise`` = error of a second,
   independently seeded ground truth / sqrt(2), the floor under every method's error, and
-  ``flicker_noise`` = the flicker score of that second ground truth (what noise alone scores).
+  ``flicker_noise`` = what the truth's noise alone scores as flicker: the first truth's change, G(z') - G(z),
+  scored against the change from the second truth's frame at z to the first truth's at z', G(z') - G2(z),
+  which carries one frame's independent noise.
 * Footprints: isotropic by default (004 Sec. 4.2's trilinear filtering); ``max_anisotropy`` > 1 filters every
   method with up to that many probes along each footprint's major axis (``warpbw.filtering``), recorded as
   ``max_anisotropy``.  The ground truth does not depend on it.
