@@ -344,3 +344,190 @@ def test_damaged_ground_truth_chunk_is_rendered_again(tmp_path, damage):
     assert read_exr(chunk).pixels.shape == (24, 24, 3) and len(list(cache.iterdir())) == 2   # no .part file left
     cached = bench.ground_truth(prep, 4, cache, progress=False)       # and now it is read, not rendered
     assert cached.render_time_s == 0 and np.array_equal(cached.image, first.image)
+
+
+# --- fake renderers whose every frame is the truth plus a known, signed error -------------------------------------
+
+_YY, _XX = np.mgrid[0:24, 0:24]
+_COV = (_YY - 11.5) ** 2 + (_XX - 11.5) ** 2 < 10 ** 2                    # SCENE's 24x24, a covered disc
+_TRUTH = ((0.2 + 0.6 * np.stack([_XX / 24, _YY / 24, np.full((24, 24), 0.5)], -1)) * _COV[..., None]).astype(np.float32)
+_SIGN = np.where((_YY + _XX) % 2 == 0, 1.0, -1.0)[..., None] * _COV[..., None]   # +/-1 on covered pixels
+
+
+def _frame(amplitude):
+    """The truth plus ``amplitude`` times a +/-1 checkerboard on the covered pixels, and a huge uncovered pixel:
+    two such frames of amplitudes a and g differ by an MSE of exactly (a - g)^2 over the coverage."""
+    out = _TRUTH + amplitude * _SIGN
+    out[0, 0] = 1e3
+    return out.astype(np.float32)
+
+
+def _fake_renderers(monkeypatch, ref_amp, ada, chunk_amp=lambda k: 0.0, run_time=(1.0,)):
+    """Install fake ``render_reference`` / ``render_adaptive`` and a fake clock in bench.  The reference's run r at
+    ``spp`` (seeded seed + 101 spp + r, as run_bench does) has amplitude ``ref_amp(spp)`` and takes
+    0.01 spp run_time[r] s; budget b's run r (seeded 7 r) has amplitude ``ada[b][0]`` and takes ada[b][1] run_time[r]
+    s; the ground truth's k-th chunk rendered (seed >= 1e6) has amplitude ``chunk_amp(k)``.  Returns the list of
+    the chunks' seeds, in the order rendered."""
+    from types import SimpleNamespace
+
+    from warpbw import pipeline
+
+    clock = _FakeClock()
+    monkeypatch.setattr(bench, "time", clock)
+    chunk_seeds = []
+
+    def fake_reference(prep, spp, seed=0, mis=False, **kw):
+        if seed >= 1_000_000:
+            chunk_seeds.append(seed)
+            return SimpleNamespace(image=_frame(chunk_amp(len(chunk_seeds) - 1)), coverage=_COV, stats={})
+        r = seed - 101 * spp                                             # negative for the warm-up frame
+        t = 0.01 * spp * (run_time[r % len(run_time)] if r >= 0 else 1.0)
+        clock.now += t
+        return SimpleNamespace(image=_frame(ref_amp(spp)), coverage=_COV,
+                               stats={"time_s": {"shading": 0.9 * t, "gbuffer": 0.1 * t}})
+
+    def fake_adaptive(prep, budget, seed=0, mis=False, **kw):
+        amp, t = ada.get(float(budget), (0.1, 0.01))                     # the warm-up frame is budget 1
+        t *= run_time[(seed // 7) % len(run_time)]
+        clock.now += t
+        ts = {"bandwidth": 0.1 * t, "shading": 0.7 * t, "upsampling": 0.1 * t, "hierarchy": 0.05 * t,
+              "gbuffer": 0.05 * t, "frame": t}
+        return SimpleNamespace(image=_frame(amp), coverage=_COV,
+                               stats={"time_s": ts, "shaded_fraction": 0.5, "samples": 10,
+                                      "samples_per_covered_pixel": float(budget),
+                                      "allocation": {"over_budget": False}})
+
+    monkeypatch.setattr(pipeline, "render_reference", fake_reference)
+    monkeypatch.setattr(pipeline, "render_adaptive", fake_adaptive)
+    return chunk_seeds
+
+
+def _power_law_amp(spp):
+    """Amplitude of a frame whose MSE against an exact ground truth is 8 / spp^0.7."""
+    return math.sqrt(8.0 / spp ** 0.7)
+
+
+def test_doubling_check_compares_the_first_half_of_the_chunks_with_all_of_them(tmp_path, monkeypatch):
+    """Closed form (fake renderers, ../shared/DESIGN.md's doubling check): four ground-truth chunks of amplitudes
+    0, 0.02, 0.07, 0.03 (each independently seeded) make a ground truth of amplitude 0.03 and a half (the first
+    two chunks) of 0.01; the largest reference frame, of amplitude 0.1, then has an MSE of (0.1 - 0.03)^2 and a
+    doubling delta of 20 log10(0.09 / 0.07) = 2.18 dB: not converged."""
+    from warpbw.scene import parse_scene
+
+    amps = (0.0, 0.02, 0.07, 0.03)
+    seeds = _fake_renderers(monkeypatch, ref_amp=lambda spp: 0.1, ada={}, chunk_amp=lambda k: amps[k])
+    scene = parse_scene(SCENE, tmp_path, "s.toml")
+    rec = bench.run_bench(scene, spp_list=(4,), budgets=(), gt_spp=4 * bench.GT_CHUNK_SPP, runs=1,
+                          cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **kw: None)
+    assert len(seeds) == 4 and len(set(seeds)) == 4                       # independently seeded chunks
+    assert rec["ground_truth_spp"] == 4 * bench.GT_CHUNK_SPP
+    assert math.isclose(rec["methods"]["reference"][0]["mse"], 0.07 ** 2, rel_tol=1e-4)
+    assert math.isclose(rec["ground_truth_doubling_delta_db"], 20.0 * math.log10(0.09 / 0.07), rel_tol=1e-4)
+    assert rec["ground_truth_converged"] is False
+
+
+def test_ground_truth_chunks_of_a_real_render_differ(tmp_path, monkeypatch):
+    """Independent truth: a Monte Carlo frame's noise follows its seed, so the two 4-spp chunks of a tiny scene's
+    ground truth (real renderer) differ, and the bench's doubling delta is > 0 and equals the one computed here
+    from the cached chunks (half: chunk 0; whole: their mean) and the bench's last reference frame (spied on)."""
+    from warpbw import pipeline
+    from warpbw.io.exr import read_exr
+    from warpbw.metrics import mse
+    from warpbw.scene import parse_scene
+
+    real, frames = pipeline.render_reference, []
+
+    def spy(*a, **kw):
+        res = real(*a, **kw)
+        frames.append((kw.get("spp"), res))
+        return res
+
+    monkeypatch.setattr(pipeline, "render_reference", spy)
+    scene = parse_scene(SCENE, tmp_path, "s.toml")
+    rec = bench.run_bench(scene, spp_list=(1,), budgets=(), gt_spp=8, runs=1, cache_dir=tmp_path / "gt",
+                          progress=False, log=lambda *a, **kw: None)
+    c0, c1 = (read_exr(p).pixels[..., :3] for p in sorted((tmp_path / "gt").glob("ground_truth-*-chunk*.exr")))
+    cov = frames[-1][1].coverage
+    assert frames[-1][0] == 1 and cov.sum() > 50
+    assert mse(c0, c1, cov) > 0                                           # the chunks differ
+    last = frames[-1][1].image
+    want = abs(10.0 * math.log10(mse(last, c0, cov) / mse(last, (c0 + c1) / 2, cov)))
+    assert rec["ground_truth_doubling_delta_db"] > 0
+    assert math.isclose(rec["ground_truth_doubling_delta_db"], want, rel_tol=1e-5)
+
+
+def test_headline_speedup_is_never_an_extrapolated_point(tmp_path, monkeypatch):
+    """Closed form (fake renderers, reference MSE 8 / spp^0.7 at 0.01 s per spp up to 256 spp): budget 1 matches
+    11 spp in 0.02 s (5.5x); budget 2 matches 1000 spp, beyond the measured counts, in 0.05 s: 200x, but
+    extrapolated, so the headline is budget 1's 5.5x; with budget 2 alone there is no headline."""
+    from warpbw.scene import parse_scene
+
+    ada = {1.0: (_power_law_amp(11.0), 0.02), 2.0: (_power_law_amp(1000.0), 0.05)}
+    _fake_renderers(monkeypatch, ref_amp=_power_law_amp, ada=ada)
+    scene = parse_scene(SCENE, tmp_path, "s.toml")
+    kw = dict(spp_list=(1, 4, 16, 64, 256), gt_spp=64, runs=2, cache_dir=tmp_path / "gt", progress=False,
+              log=lambda *a, **k: None)
+    rec = bench.run_bench(scene, budgets=(1, 2), **kw)
+    one, two = rec["methods"]["adaptive"]
+    assert not one["extrapolated"] and math.isclose(one["equal_quality_speedup"], 5.5, rel_tol=1e-4)
+    assert two["extrapolated"] and math.isclose(two["equal_quality_speedup"], 200.0, rel_tol=1e-3)
+    assert rec["equal_quality_budget"] == 1.0 and math.isclose(rec["equal_quality_speedup"], 5.5, rel_tol=1e-4)
+    assert rec["equal_quality_speedup_se"] == one["equal_quality_speedup_se"]
+    alone = bench.run_bench(scene, budgets=(2,), **kw)
+    assert alone["methods"]["adaptive"][0]["extrapolated"]
+    assert alone["equal_quality_speedup"] is None and alone["equal_quality_budget"] is None
+
+
+def test_equal_quality_below_the_smallest_count_is_extrapolated():
+    """Closed form: on MSE = 8 / spp^0.7 at 0.01 s per spp measured from 1 to 32 spp, an MSE above the 1-spp
+    reference's (that of 0.5 spp) is reached at 0.5 spp in 0.005 s, extrapolated along the first segment, and
+    flagged so; the measured ends themselves are not."""
+    ref = [{"spp": s, "mse": 8.0 / s ** 0.7, "time_s": 0.01 * s} for s in (1, 2, 4, 8, 16, 32)]
+    spp, t, ext = bench.equal_quality_time(ref, 8.0 / 0.5 ** 0.7)
+    assert ext and math.isclose(spp, 0.5, rel_tol=1e-9) and math.isclose(t, 0.005, rel_tol=1e-9)
+    for s in (1, 32):
+        spp, t, ext = bench.equal_quality_time(ref, 8.0 / s ** 0.7)
+        assert not ext and math.isclose(spp, s, rel_tol=1e-9)
+
+
+def test_speedup_standard_error_reads_the_reference_se_at_the_equal_quality_count():
+    """Closed form: reference MSE = 8 / spp at 0.01 s per spp (slope -1), its PSNR's standard error growing as
+    0.1 + 0.05 log2(spp) dB (linear in log spp, so interpolation is exact): at the MSE of 11 spp the reference's
+    standard error is 0.1 + 0.05 log2(11) = 0.273 dB, and the relative standard error of the speed-up is
+    hypot(0.3, 0.273) / (10 / ln 10); beyond the counts, at 64 spp, the line extends to 0.4 dB."""
+    ref = [{"spp": s, "mse": 8.0 / s, "time_s": 0.01 * s, "psnr_se_db": 0.1 + 0.05 * math.log2(s)}
+           for s in (32, 1, 8, 2, 16, 4)]                                 # in no order
+    for spp in (11.0, 3.0, 64.0):
+        se_r = 0.1 + 0.05 * math.log2(spp)
+        rel = bench.speedup_relative_se(ref, 8.0 / spp, 0.3)
+        assert math.isclose(rel, math.hypot(0.3, se_r) / bench.DB_PER_LN, rel_tol=1e-6), spp
+
+
+def test_standard_errors_by_hand():
+    """Hand-computed: per-run PSNR differences of 0 and 10 dB have a sample standard deviation (n - 1) of
+    sqrt(50) and a standard error of sqrt(50) / sqrt(2) = 5 dB; of 0, 10 and 20 dB, 10 / sqrt(3) dB.  Run MSEs 1 and
+    3: mean 2, sample standard deviation sqrt(2), so a PSNR standard error of (10 / ln 10) sqrt(2) / sqrt(2) / 2."""
+    assert math.isclose(bench.paired_difference_se([1e-4, 1e-3], [1e-4, 1e-4]), 5.0, rel_tol=1e-12)
+    assert math.isclose(bench.paired_difference_se([1e-4, 1e-4], [1e-4, 1e-3]), 5.0, rel_tol=1e-12)
+    assert math.isclose(bench.paired_difference_se([1e-4, 1e-3, 1e-2], [1e-4] * 3), 10.0 / math.sqrt(3),
+                        rel_tol=1e-12)
+    assert math.isclose(bench.psnr_standard_error([1.0, 3.0]), bench.DB_PER_LN / 2.0, rel_tol=1e-12)
+
+
+def test_bench_times_are_the_median_of_the_runs(tmp_path, monkeypatch):
+    """A fake clock with known times (../shared/DESIGN.md: median of at least 3 runs): runs 0, 1, 2 take 1, 5 and 2
+    times a frame's base time, so every point's time is twice its base (median; not the minimum 1, mean 2.67 or
+    maximum 5), and the equal-quality speed-up, a ratio of two medians, is the base times' ratio, 5.5x."""
+    from warpbw.scene import parse_scene
+
+    _fake_renderers(monkeypatch, ref_amp=_power_law_amp, ada={1.0: (_power_law_amp(11.0), 0.02)},
+                    run_time=(1.0, 5.0, 2.0))
+    scene = parse_scene(SCENE, tmp_path, "s.toml")
+    rec = bench.run_bench(scene, spp_list=(1, 4, 16, 64), budgets=(1,), gt_spp=64, runs=3, cache_dir=tmp_path / "gt",
+                          progress=False, log=lambda *a, **kw: None)
+    for p in rec["methods"]["reference"]:
+        assert math.isclose(p["time_s"], 2 * 0.01 * p["spp"], rel_tol=1e-9), p
+    (a,) = rec["methods"]["adaptive"]
+    assert math.isclose(a["time_s"], 2 * 0.02, rel_tol=1e-9)
+    assert math.isclose(a["equal_quality_reference_time_s"], 2 * 0.11, rel_tol=1e-4)
+    assert math.isclose(a["equal_quality_speedup"], 5.5, rel_tol=1e-4)
