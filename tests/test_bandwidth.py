@@ -123,6 +123,20 @@ def test_lambert_under_constant_light_has_zero_bandwidth_and_coarsest_level():
     assert np.all(buf.sigma2.numpy()[cov] > 0)
 
 
+def _eq4_lambert_b_p(prep, gb, a, r=0.8):
+    """Per covered pixel of the r-sphere (camera at z = 4, fov 30): the Lambert b_p of a uniform nu_a = a by hand,
+    d' c min(a, NU_COS) / cos_x * pixel angle (test below), with the pixels' cos_x and normals."""
+    cov = gb.coverage.reshape(-1)
+    pos = gb.data.position.numpy()[cov]
+    nrm = gb.data.normal.numpy()[cov]
+    view = gb.data.view.numpy()[cov]
+    d_eye = np.linalg.norm(pos - np.array([0.0, 0.0, 4.0]), axis=1)
+    cos_x = np.maximum(np.sum(nrm * view, axis=1), COS_X_MIN)
+    fov = math.radians(30.0)
+    angle = max(fov / prep.width, 2 * math.atan(math.tan(fov / 2) * prep.height / prep.width) / prep.height)
+    return d_eye * (1 / r) * min(a, float(bw.NU_COS)) / cos_x * angle, cos_x, nrm
+
+
 def test_lambert_sphere_image_bandwidth_matches_eq4_closed_form():
     """Uniform nu_a = a over the sphere of directions, Lambert (nu_rho = 0): the integrand keeps
     a' = min(a, NU_COS) and every path carries nu^i = [c a' / cos_x, d' c a' / cos_x] (Fig. 4 chain by
@@ -133,14 +147,7 @@ def test_lambert_sphere_image_bandwidth_matches_eq4_closed_form():
     nu_env = np.full((8, 16), a)
     gb, buf = run_pass(prep, nu_env=nu_env, stride=1, pool_radius=0)
     cov = gb.coverage.reshape(-1)
-    pos = gb.data.position.numpy()[cov]
-    nrm = gb.data.normal.numpy()[cov]
-    view = gb.data.view.numpy()[cov]
-    d_eye = np.linalg.norm(pos - np.array([0.0, 0.0, 4.0]), axis=1)
-    cos_x = np.maximum(np.sum(nrm * view, axis=1), COS_X_MIN)
-    fov = math.radians(30.0)
-    angle = max(fov / prep.width, 2 * math.atan(math.tan(fov / 2) * prep.height / prep.width) / prep.height)
-    expect = d_eye * (1 / 0.8) * min(a, float(bw.NU_COS)) / cos_x * angle
+    expect, cos_x, _ = _eq4_lambert_b_p(prep, gb, a)
     got = buf.b_p.numpy()[cov]
     interior = cos_x > 0.2
     np.testing.assert_allclose(got[interior], expect[interior], rtol=2e-3)
@@ -537,14 +544,7 @@ def test_lambert_sphere_reads_the_light_bandwidth_below_the_horizon_only_where_i
     nu_env[4:] = a
     gb, buf = run_pass(prep, n_b=256, nu_env=nu_env, stride=1, pool_radius=0)
     cov = gb.coverage.reshape(-1)
-    pos = gb.data.position.numpy()[cov]
-    nrm = gb.data.normal.numpy()[cov]
-    view = gb.data.view.numpy()[cov]
-    d_eye = np.linalg.norm(pos - np.array([0.0, 0.0, 4.0]), axis=1)
-    cos_x = np.maximum(np.sum(nrm * view, axis=1), COS_X_MIN)
-    fov = math.radians(30.0)
-    angle = max(fov / prep.width, 2 * math.atan(math.tan(fov / 2) * prep.height / prep.width) / prep.height)
-    uniform = d_eye * (1 / 0.8) * min(a, float(bw.NU_COS)) / cos_x * angle
+    uniform, cos_x, nrm = _eq4_lambert_b_p(prep, gb, a)
     interior = cos_x > 0.2
     frac = buf.b_p.numpy()[cov][interior] / uniform[interior]
     n_y = nrm[interior, 1]

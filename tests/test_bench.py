@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -240,12 +241,21 @@ class _FakeClock:
         return self.now
 
 
+def _fake_adaptive_result(image, cov, t, budget):
+    """What a fake render_adaptive returns: its image, and a frame time t split over the stages (a tenth in the
+    bandwidth pass)."""
+    ts = {"bandwidth": 0.1 * t, "shading": 0.7 * t, "upsampling": 0.1 * t, "hierarchy": 0.05 * t,
+          "gbuffer": 0.05 * t, "frame": t}
+    return SimpleNamespace(image=image, coverage=cov,
+                           stats={"time_s": ts, "shaded_fraction": 0.5, "samples": 10,
+                                  "samples_per_covered_pixel": float(budget), "allocation": {"over_budget": False}})
+
+
 def test_bench_figures_follow_closed_forms_with_fake_renderers(tmp_path, monkeypatch):
     """Renderers whose errors and times are known exactly: the reference's MSE is 8 k / spp^0.7 (k the runs'
     mean error factor) at 0.01 s per spp, the adaptive frame's error and time are set per budget, and a
     pixel outside the coverage carries a huge error.  Then PSNR, relative MSE, the equal-quality spp, time
     and speed-up, and the best budget follow in closed form (log-log interpolation is exact on power laws)."""
-    from types import SimpleNamespace
 
     from warpbw import pipeline
     from warpbw.metrics import RELMSE_EPS
@@ -282,12 +292,7 @@ def test_bench_figures_follow_closed_forms_with_fake_renderers(tmp_path, monkeyp
         r = seed // 7
         clock.now += t
         amp = run_factor[r] * math.sqrt(8.0 / spp_eq ** 0.7)
-        ts = {"bandwidth": 0.1 * t, "shading": 0.7 * t, "upsampling": 0.1 * t, "hierarchy": 0.05 * t,
-              "gbuffer": 0.05 * t, "frame": t}
-        return SimpleNamespace(image=image(amp), coverage=cov,
-                               stats={"time_s": ts, "shaded_fraction": 0.5, "samples": 10,
-                                      "samples_per_covered_pixel": float(budget),
-                                      "allocation": {"over_budget": False}})
+        return _fake_adaptive_result(image(amp), cov, t, budget)
 
     monkeypatch.setattr(pipeline, "render_reference", fake_reference)
     monkeypatch.setattr(pipeline, "render_adaptive", fake_adaptive)
@@ -368,7 +373,6 @@ def _fake_renderers(monkeypatch, ref_amp, ada, chunk_amp=lambda k: 0.0, run_time
     0.01 spp run_time[r] s; budget b's run r (seeded 7 r) has amplitude ``ada[b][0]`` and takes ada[b][1] run_time[r]
     s; the ground truth's k-th chunk rendered (seed >= 1e6) has amplitude ``chunk_amp(k)``.  Returns the list of
     the chunks' seeds, in the order rendered."""
-    from types import SimpleNamespace
 
     from warpbw import pipeline
 
@@ -390,12 +394,7 @@ def _fake_renderers(monkeypatch, ref_amp, ada, chunk_amp=lambda k: 0.0, run_time
         amp, t = ada.get(float(budget), (0.1, 0.01))                     # the warm-up frame is budget 1
         t *= run_time[(seed // 7) % len(run_time)]
         clock.now += t
-        ts = {"bandwidth": 0.1 * t, "shading": 0.7 * t, "upsampling": 0.1 * t, "hierarchy": 0.05 * t,
-              "gbuffer": 0.05 * t, "frame": t}
-        return SimpleNamespace(image=_frame(amp), coverage=_COV,
-                               stats={"time_s": ts, "shaded_fraction": 0.5, "samples": 10,
-                                      "samples_per_covered_pixel": float(budget),
-                                      "allocation": {"over_budget": False}})
+        return _fake_adaptive_result(_frame(amp), _COV, t, budget)
 
     monkeypatch.setattr(pipeline, "render_reference", fake_reference)
     monkeypatch.setattr(pipeline, "render_adaptive", fake_adaptive)
