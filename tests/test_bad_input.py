@@ -445,6 +445,9 @@ def test_an_asset_of_a_newer_or_no_version_is_refused(tmp_path, stored):
     header["version"] = 2
     np.savez(tmp_path / "a.npz", **{HEADER_KEY: np.array(json.dumps(header)), "x": np.zeros(2)})
     assert read_asset(tmp_path / "a.npz", "fmt", 2, "warpbw-precompute x").header["version"] == 2
+    # the right version of another format is another file
+    with pytest.raises(WarpbwError, match=r"a\.npz: is a 'fmt' file, expected 'other' \(rebuild"):
+        read_asset(tmp_path / "a.npz", "other", 2, "warpbw-precompute x")
 
 
 # ------------------------------------------------------------------------------------------ command line
