@@ -140,6 +140,25 @@ def test_the_plan_names_every_texel_the_hierarchy_shades_before_any_sample():
     np.testing.assert_array_equal(r2.image, r.image)
 
 
+def test_a_pixel_that_needs_the_finest_level_keeps_every_coarser_texel_over_it_unshaded():
+    """002 Sec. 3.1: levels are mip-mapped with a min filter, so a texel is shaded at level L only when no pixel
+    under it needs a finer level.  Level 2 everywhere but one interior pixel at 0: that pixel is shaded at level
+    0, none of the texels over it at levels 1 and 2 is, and the other level-2 texels inside the sphere are."""
+    prep, base = setup('type = "lambert"\nalbedo = 0.5', w=48, h=32)
+    cov = base.coverage
+    level = np.full(cov.shape, 2, np.int32)
+    blocks = cov.reshape(8, 4, 12, 4).all(axis=(1, 3))             # 4 x 4 footprints wholly on a sphere
+    by, bx = np.argwhere(blocks)[len(np.argwhere(blocks)) // 2]
+    y, x = 4 * by + 1, 4 * bx + 2
+    level[y, x] = 0
+    masks = plan_hierarchy(base.gbuffer, prep.camera, level).shade_masks()
+    assert masks[0][y, x]
+    assert not masks[1][y // 2, x // 2] and not masks[2][by, bx]
+    others = blocks.copy()
+    others[by, bx] = False
+    assert masks[2][others].all()
+
+
 def test_thread_count_and_tiling_do_not_change_the_frame():
     """The bandwidth pass and every level's shading are cut into tiles over threads; pixels seed their own
     random numbers, so one thread and three (many small tiles per launch) give the same frame bit for bit."""
