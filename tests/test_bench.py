@@ -530,3 +530,75 @@ def test_bench_times_are_the_median_of_the_runs(tmp_path, monkeypatch):
     assert math.isclose(a["time_s"], 2 * 0.02, rel_tol=1e-9)
     assert math.isclose(a["equal_quality_reference_time_s"], 2 * 0.11, rel_tol=1e-4)
     assert math.isclose(a["equal_quality_speedup"], 5.5, rel_tol=1e-4)
+
+
+# ------------------------------------------------------------ examples/bench_scenes.py (mutation audit, session 44)
+
+# README's benchmark table (the figures it reports are for exactly these scenes): object, NPF material, probe, size
+README_BENCH_SCENES = {
+    "bunny_gold_forest": ("bunny", "gold-metallic-paint", "forest.exr", 512),
+    "sphere_chrome_studio": ("sphere", "chrome", "studio.exr", 256),
+    "sphere_ccp3_forest": ("sphere", "color-changing-paint3", "forest.exr", 256),
+    "bunny_acrylic_studio": ("bunny", "blue-acrylic", "studio.exr", 256),
+}
+
+
+def _bench_scenes():
+    from conftest import load_example
+
+    return load_example("bench_scenes")
+
+
+def test_bench_scenes_are_the_readme_table(tmp_path):
+    """Each scene file parses to README's row: its object (the bunny mesh or a sphere), the MERL file made from its
+    NPF material, its probe and its size."""
+    import tomllib
+    from pathlib import Path
+
+    bs = _bench_scenes()
+    texts = bs.scene_texts(tmp_path)
+    assert sorted(p.stem for p in texts) == sorted(README_BENCH_SCENES)
+    for p, text in texts.items():
+        obj, material, probe, size = README_BENCH_SCENES[p.stem]
+        t = tomllib.loads(text)
+        assert t["camera"]["resolution"] == [size, size], p.stem
+        assert Path(t["environment"]["file"]).name == probe, p.stem
+        (o,) = t["object"]
+        assert (Path(o["mesh"]).name == "bunny.obj") if obj == "bunny" else (o.get("shape") == "sphere"), p.stem
+        assert t["material"]["m"] == {"type": "merl", "file": f"{material}.binary"}, p.stem
+
+
+def test_bench_scenes_run_passes_its_options_to_every_bench_and_the_sweep_to_the_first(tmp_path, monkeypatch, shared):
+    """--run: one `warpbw bench` per scene (those of --only), each with --no-mis, --runs, --gt-spp and the records
+    in --results; the n_b sweep (--nb) on the first scene only (module docstring).  No bench is run: the commands
+    are recorded."""
+    import subprocess
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    shared("brdf/npf.bin")
+    bs = _bench_scenes()
+    calls = []
+
+    def fake_run(cmd, check=False, **kw):
+        calls.append([str(c) for c in cmd])
+        if "npf-to-merl" in cmd:
+            Path(cmd[cmd.index("-o") + 1]).write_bytes(b"")
+        return SimpleNamespace(returncode=0)
+
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    out, res = tmp_path / "s", tmp_path / "r"
+    assert bs.main(["--out", str(out), "--run", "--no-mis", "--runs", "8", "--gt-spp", "16384", "--nb", "16,64",
+                    "--results", str(res)]) == 0
+    benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
+    assert [Path(c[2]).stem for c in benches] == list(bs.SCENES)
+    for i, c in enumerate(benches):
+        stem = Path(c[2]).stem
+        assert "--no-mis" in c and c[c.index("--runs") + 1] == "8" and c[c.index("--gt-spp") + 1] == "16384"
+        assert c[c.index("--json") + 1] == str(res / f"{stem}.json")
+        assert (c[c.index("--nb") + 1] == "16,64") if i == 0 else ("--nb" not in c), stem
+    calls.clear()
+    assert bs.main(["--out", str(out), "--run", "--only", "sphere_chrome_studio"]) == 0
+    benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
+    assert [Path(c[2]).stem for c in benches] == ["sphere_chrome_studio"]
+    assert "--no-mis" not in benches[0] and "--runs" not in benches[0] and "--nb" not in benches[0]

@@ -531,3 +531,34 @@ def test_flicker_pairs_ground_truth_noise_by_hand(monkeypatch):
     # temporal noise: pair 0 |(4.5-3) - (4-2)| = 0.5, |(7-4) - (8-4)| = 1 -> mean 0.75, / 4;
     # pair 1 |(5.5-4.5) - (5-4)| = 0
     assert gt["temporal_noise"] == pytest.approx(0.5 * (0.75 / 4 + 0.0), rel=1e-12)
+
+
+def test_benchmark_acceptance_ratio_of_exactly_the_limit_passes():
+    # issue 4: the aligned GMM's error "at most" half of Toksvig's and of the fixed BRDF's (ERROR_RATIO_MAX): a
+    # hand-made record whose ratios are exactly 0.5 (0.25 / 0.5, exact in binary) passes both; just above fails
+    fs = _example()
+
+    def rec(errors):
+        names = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed")
+        return {"methods": {n: [{"zoom": 32.0, "error": errors[i], "flicker": 0.01 * (i + 1)}]
+                            for i, n in enumerate(names)}}
+
+    (at, above) = fs.acceptance_checks({"at": rec((0.25, 0.3, 0.5, 0.3, 0.5)),
+                                        "above": rec((0.25, 0.3, 0.4999, 0.3, 0.4999))})
+    assert (at["vs_toksvig"], at["vs_fixed"]) == (0.5, 0.5)
+    assert at["passed"] == {"vs_toksvig": True, "vs_fixed": True, "vs_unaligned": True, "lowest_flicker": True}
+    assert above["passed"]["vs_toksvig"] is False and above["passed"]["vs_fixed"] is False
+
+
+def test_benchmark_acceptance_table_puts_each_ratio_under_its_heading():
+    # the printed table is what the acceptance is read from: each figure must sit under its own heading (hand-made
+    # record: aligned 0.1 against Toksvig 0.4, fixed 0.25, unaligned 0.2 -> 0.25, 0.4, 0.5; flicker 0.01 lowest)
+    fs = _example()
+    names = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed")
+    errors, flickers = (0.1, 0.2, 0.4, 0.3, 0.25), (0.01, 0.02, 0.03, 0.04, 0.05)
+    rec = {"methods": {n: [{"zoom": 32.0, "error": errors[i], "flicker": flickers[i]}] for i, n in enumerate(names)},
+           "ground_truth": [{"zoom": 32.0, "flicker_noise": 0.002}]}
+    lines = fs.format_acceptance(fs.acceptance_checks({"s": rec})).splitlines()
+    assert lines[1].split()[:6] == ["scene", "zoom", "error", "/toksvig", "/fixed", "/unaligned"]
+    assert lines[2].split() == ["s", "32", "0.1000", "0.250", "ok", "0.400", "ok", "0.500", "ok", "0.0100", "ok",
+                                "(0.0020)"]

@@ -135,3 +135,41 @@ def test_bad_options_are_refused_by_name(ms, tmp_path, argv, match):
 def test_a_missing_probe_is_refused_by_name(ms, tmp_path):
     with pytest.raises(WarpbwError, match="--probe .*no such file"):
         ms.main(["--probe", str(tmp_path / "nope.exr")])
+
+
+def test_measure_reports_the_shaded_share_and_the_worst_pixels_values_of_the_covered_pixels(ms, tmp_path):
+    """The shaded share is over the pixels the sphere covers (the truth: the adaptive frame's own "shaded" AOV over
+    the truth's coverage, counted here, not over the whole image); each listed pixel's truth and adaptive
+    values are those frames' channel means there."""
+    px = np.random.default_rng(12).uniform(0.05, 2.0, (16, 32, 3)).astype(np.float32)
+    px[4:6, 10:12] = 200.0                        # a bright patch: some pixels get shaded, not all
+    probe = _probe(tmp_path, px)
+    r = ms.measure(probe, 0.05, 16, budget=2.0, truth_spp=8, seed=4, clamp_q=1.0, worst=3)
+    prep = prepare_scene(ms.mirror_scene(probe, 0.05, 16))
+    truth = render_reference(prep, 8, seed=5, mis=True)
+    cov = truth.coverage.astype(bool)
+    ada = render_adaptive(prep, 2.0, seed=4, mis=True)
+    shaded = np.asarray(ada.aovs["shaded"], bool)
+    assert 0 < cov.sum() < cov.size and shaded[cov].sum() > 0
+    assert r["shaded_fraction"] == pytest.approx(shaded[cov].sum() / cov.sum(), rel=1e-12)
+    assert r["samples_per_covered_pixel"] == pytest.approx(ada.stats["samples_per_covered_pixel"], rel=1e-12)
+    for p in r["worst"]:
+        assert p["truth"] == pytest.approx(float(truth.image[p["y"], p["x"]].mean()), rel=1e-6)
+        assert p["adaptive"] == pytest.approx(float(ada.image[p["y"], p["x"]].mean()), rel=1e-6)
+        assert p["shaded"] == bool(shaded[p["y"], p["x"]])
+
+
+def test_nu_a_quantiles_read_the_signal_asked_for(ms, tmp_path, monkeypatch):
+    """--env-signal log: the reported nu_a quantiles are those of the log analysis (warpbw.bandwidth's map on that
+    signal, at NU_A_QUANTILES), which on a probe with a small, very bright sun differ from the radiance's."""
+    from warpbw.bandwidth import env_bandwidth_map
+
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "_cache"))   # the maps are cached: not in ~/.cache
+
+    px = np.random.default_rng(6).uniform(0.05, 1.0, (32, 64, 3)).astype(np.float32)
+    px[6:8, 40:42] = 5e3
+    got = {s: ms.nu_a_quantiles(px, "p", s) for s in ("radiance", "log")}
+    for s, q in got.items():
+        nu, _ = env_bandwidth_map(px, "p", signal=s)
+        np.testing.assert_allclose(q, np.quantile(nu, ms.NU_A_QUANTILES), rtol=1e-6)   # float32 map
+    assert got["log"] != pytest.approx(got["radiance"], rel=1e-3)
