@@ -112,29 +112,37 @@ def test_windowed_bandwidth_subtracts_known_white_noise(vb):
     assert not pure["valid"].any()
 
 
+def _converge_on_fake(vb, monkeypatch, clean, noise, **cfg):
+    """``vb.converged_image`` with render_reference replaced by a fake that returns ``clean`` (H, W, 3) plus
+    ``noise(spp, seed)`` (H, W, 1), fully covered; ``cfg`` overrides the defaults below.  Returns (result, cfg,
+    the (spp, seed) of every call)."""
+    import types
+
+    import warpbw.pipeline
+
+    calls = []
+
+    def fake_render(prep, spp, seed, mis, device):
+        calls.append((spp, seed))
+        return types.SimpleNamespace(image=(clean + noise(spp, seed)).astype(np.float32),
+                                     coverage=np.ones(clean.shape[:2], bool), gbuffer="gb")
+
+    monkeypatch.setattr(warpbw.pipeline, "render_reference", fake_render)
+    cfg = dict({"ref_spp": 64, "ref_noise": 0.05, "ref_spp_max": 16384, "seed": 10, "device": "cpu",
+                "window": 32, "stride": 4, "max_noise": 1.0}, **cfg)
+    return vb.converged_image(None, cfg, log=lambda s: None), cfg, calls
+
+
 def test_converged_image_doubles_until_the_noise_target(vb, monkeypatch):
     """A fake renderer (a sine plus white noise of variance SIGMA2 / spp, seeded): the converged image doubles its
     sample count while the median window's noise share is above the target, and each doubling halves the noise
     power, so the share falls from s to about s / (2 - s); it stops at the first share under the target or at the
     cap, and the image is the spp-weighted mean of every pass (the truth: the fake's own clean image)."""
-    import types
-
-    import warpbw.pipeline
-
     clean = np.stack([sine(0.1, 20.0, 64) + 2.0] * 3, axis=-1)
     sigma2 = 64.0                                       # per-sample variance of each channel
-    calls = []
-
-    def fake_render(prep, spp, seed, mis, device):
-        calls.append((spp, seed))
-        noise = np.random.default_rng(seed).normal(0.0, math.sqrt(sigma2 / spp), (64, 64, 1))
-        return types.SimpleNamespace(image=(clean + noise).astype(np.float32), coverage=np.ones((64, 64), bool),
-                                     gbuffer="gb")
-
-    monkeypatch.setattr(warpbw.pipeline, "render_reference", fake_render)
-    cfg = {"ref_spp": 64, "ref_noise": 0.05, "ref_spp_max": 16384, "seed": 10, "device": "cpu", "window": 32,
-           "stride": 4, "max_noise": 1.0}
-    conv = vb.converged_image(None, cfg, log=lambda s: None)
+    conv, cfg, calls = _converge_on_fake(
+        vb, monkeypatch, clean, lambda spp, seed: np.random.default_rng(seed).normal(0.0, math.sqrt(sigma2 / spp),
+                                                                                      (64, 64, 1)))
     spps = [r[0] for r in conv["rounds"]]
     shares = [r[1] for r in conv["rounds"]]
     assert spps == [64 * 2 ** k for k in range(len(spps))] and conv["spp"] == spps[-1]
@@ -428,22 +436,15 @@ def test_converged_image_doubles_on_the_median_window_not_the_mean(vb, monkeypat
     """A fake renderer whose noise lies in four columns only (46..49 of 96): fewer than half of the counted windows
     (centres 32..64 of 8..88) see any of it, and the halves agree exactly elsewhere, so the median window's noise
     share is 0 and no doubling is asked for, however loud those columns are (their mean share would be large)."""
-    import types
-
-    import warpbw.pipeline
-
     clean = np.stack([sine(0.1, 20.0) + 2.0] * 3, axis=-1)
 
-    def fake_render(prep, spp, seed, mis, device):
+    def noise_in_columns(spp, seed):
         noise = np.zeros((96, 96, 1))
         noise[:, 46:50] = np.random.default_rng(seed).normal(0.0, 3.0, (96, 4, 1))
-        return types.SimpleNamespace(image=(clean + noise).astype(np.float32), coverage=np.ones((96, 96), bool),
-                                     gbuffer="gb")
+        return noise
 
-    monkeypatch.setattr(warpbw.pipeline, "render_reference", fake_render)
-    cfg = {"ref_spp": 64, "ref_noise": 0.01, "ref_spp_max": 1024, "seed": 3, "device": "cpu", "window": 32,
-           "stride": 4, "max_noise": 1.0}
-    conv = vb.converged_image(None, cfg, log=lambda s: None)
+    conv, cfg, _ = _converge_on_fake(vb, monkeypatch, clean, noise_in_columns, ref_noise=0.01, ref_spp_max=1024,
+                                     seed=3)
     shares = vb.window_noise_shares(conv["windows"])
     assert np.mean(shares) > 10 * cfg["ref_noise"] and np.mean(shares > 0) < 0.5   # the setting is as claimed
     assert conv["rounds"] == [[64, 0.0]] and conv["spp"] == 64
