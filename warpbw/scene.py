@@ -232,14 +232,9 @@ class Scene:
 
     def input_files(self) -> list:
         """Every file the scene names or is read from: the scene file, the probe, meshes, BRDF files and tables,
-        normal maps and precomputed assets (a command's outputs may not replace them)."""
-        files = [Path(self.source)] if Path(self.source).is_file() else []   # not "<string>" / "<default scene>"
-        if self.environment is not None and self.environment.file is not None:
-            files.append(self.environment.file)
-        files += [o.file for o in self.objects if isinstance(o, MeshObject)]
-        for m in self.materials.values():
-            files += [f for f in (m.file, m.table, m.sampling, m.bandwidth, m.normal_map, m.gmm) if f is not None]
-        return files
+        normal maps and precomputed assets, unused materials' too (a command's outputs may not replace them)."""
+        source = [Path(self.source)] if Path(self.source).is_file() else []   # not "<string>" / "<default scene>"
+        return source + self._files(self.materials)
 
     @property
     def material_order(self) -> list:
@@ -268,17 +263,17 @@ class Scene:
 
     def files(self) -> list:
         """Every file the scene reads."""
+        return self._files(self.material_order)
+
+    def _files(self, material_names) -> list:
+        """The probe, the meshes, and the files of the materials ``material_names``."""
         out = []
         if self.environment is not None and self.environment.file is not None:
             out.append(self.environment.file)
-        for o in self.objects:
-            if isinstance(o, MeshObject):
-                out.append(o.file)
-        for name in self.material_order:
+        out += [o.file for o in self.objects if isinstance(o, MeshObject)]
+        for name in material_names:
             m = self.materials[name]
-            for p in (m.file, m.table, m.sampling, m.bandwidth, m.normal_map, m.gmm):
-                if p is not None:
-                    out.append(p)
+            out += [p for p in (m.file, m.table, m.sampling, m.bandwidth, m.normal_map, m.gmm) if p is not None]
         return out
 
 
