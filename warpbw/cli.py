@@ -543,20 +543,17 @@ def _bench_outputs(args, scene) -> None:
     args.plot = args.plot or str(Path(args.json).with_suffix(".png"))
     outs = [Path(args.json), Path(args.plot)]
     for option, path in (("--json", args.json), ("--plot", args.plot)):
-        if path:
-            check_output_file(path, option, force=True)
+        check_output_file(path, option, force=True)
     if args.cache:
         check_output_dir(args.cache, "--cache")
     check_overwrite(outs, args.force, inputs=scene.input_files())
 
 
 def _write_bench(args, record: dict, write_plot) -> None:
-    """The bench record as JSON and its plot as PNG, where asked."""
-    if args.json:
-        write_json(args.json, record, say=False)
-    if args.plot:
-        Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
-        write_plot(record, args.plot)
+    """The bench record as JSON and its plot as PNG (both: ``_bench_outputs`` names them)."""
+    write_json(args.json, record, say=False)
+    Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
+    write_plot(record, args.plot)
     if not args.quiet:
         print(f"record {args.json}, plot {args.plot}")
     if args.runs < PROTOCOL_RUNS:
