@@ -29,7 +29,7 @@ metric) of the five filtered methods and of three references that no method can 
   as separate mixtures (8 K lobes), instead of first merging corresponding components by moments
   (004 Sec. 4.2).  The difference to ``gmm_aligned`` is what interpolating the components costs -- or gains:
   the merged lobe is wider than each tap's, and on the hemispherical scales at zoom 32 the merged mixture is
-  the closer of the two (README, "Reflectance filtering").
+  the closer of the two (docs/measurements.md, "The floor under every mipmapped method").
 
 With ``--max-anisotropy N`` (``warpbw.filtering``'s anisotropic footprints, not in 004) every method renders
 with up to N probes along each footprint's major axis, and both references filter at the same probes: each

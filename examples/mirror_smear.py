@@ -23,7 +23,7 @@ over coarse bands).  Q = 1 leaves the probe as it is.  ``--env-signal log`` is t
 
 ``--write-scene DIR`` writes the sphere's scene file for each ``--res`` (DIR/mirror_RES.toml, the probe by its
 absolute path) and renders nothing: ``warpbw render`` and ``warpbw compare --error-map`` then show the frames and
-where their errors lie (README, "Where it fails").
+where their errors lie (docs/measurements.md, "Adaptive shading: where it fails").
 """
 from __future__ import annotations
 

@@ -33,7 +33,8 @@ union of the filtered components' normals.  004 prints the same form with a (s^2
 per-axis s^2 that counts the spread between the filtered components' means d times over (it is the variance
 along the line through two means, not per axis), and every filtered lobe comes out wider than an isotropic
 fit of its normals.
-Measured (README, "Reflectance filtering"): under the benchmark's ring of lights the isotropic match lowers
+Measured (docs/measurements.md, "Reflectance filtering: measurements"):
+under the benchmark's ring of lights the isotropic match lowers
 the aligned GMM's error at zooms 8-32 on all three surfaces (zoom 32: 0.168 to 0.129, 0.219 to 0.207, 0.0119
 to 0.0106).  Files of ``GMM_VERSION`` 1 held 004's form and are refused.
 
@@ -54,7 +55,8 @@ normals are weighted up, as if 256 stratified samples were drawn from it), so th
 strength against the data at every level (see ``build_gmm_mipmap``).  ``unaligned=True`` is the baseline: c = 0 and each texel
 initialised independently (seeded k-means++ then Lloyd), no neighbour information at all.
 
-Measured (README, "Reflectance filtering"; with 004's printed merge): with this order the labels of a texel
+Measured (docs/measurements.md, "Reflectance filtering: measurements"; with 004's printed merge):
+with this order the labels of a texel
 and its parent are the best of all K! relabellings at levels >= 3 (within 0.0023 of it below), so cross-level
 correspondence is not what limits the filtered result; a stronger prior, 004's literal sample count,
 refinement sweeps and per-texel restarts (better local fits, relabelled to the neighbours) each left the
@@ -100,9 +102,10 @@ Toksvig's (``examples/filtering_floor.py``):
   - the unaligned GMM flickers 0.058 (0.059 with K = 8);
   - the literal count alone is the one exception, and it lowers the error too little.
   So no variant tried both halves Toksvig's error on the disk and keeps the lowest flicker there
-  (``examples/filtering_scenes.py --run``, scratch builds; README "Reflectance filtering") -- on one frame
+  (``examples/filtering_scenes.py --run``, scratch builds;
+  docs/measurements.md, "Reflectance filtering: measurements") -- on one frame
   pair.  Over the octave (eight pairs, ``--flicker-pairs 8``) c = 16 does: 0.166 (0.47x Toksvig's) with
-  flicker 0.060 against the unaligned GMM's 0.065 (README, session 32).
+  flicker 0.060 against the unaligned GMM's 0.065 (docs/measurements.md, session 32).
 
 On the scales at zoom 32 the aligned GMM ties with the unaligned one (1.008x its error).  The two are not the
 same mixtures (L1 distance between their densities 0.2-0.4 at levels 4-8), but the prior costs each texel some
@@ -112,7 +115,7 @@ at levels 3 to 8, 0.435 / 0.420 / 0.431 / 0.452 / 0.455 / 0.470 aligned against 
 0.429 / 0.432 / 0.356 unaligned (session 28, a scratch script).  That poorer fit is not the whole cause: 004's
 literal data count, which leaves the prior little weight above level 2, left the tie (0.130 against 0.128).
 The four-Gaussian model limit binds: with 8 components per texel the aligned GMM's zoom-32 error on the scales
-is 0.50x the unaligned GMM's (README "Reflectance filtering").
+is 0.50x the unaligned GMM's (docs/measurements.md, "A stronger alignment prior, more components").
 """
 from __future__ import annotations
 

@@ -586,3 +586,33 @@ def test_readme_commands_parse():
             parsers[prog].parse_args(argv)
         except SystemExit as exc:
             pytest.fail(f"README: '{prog} {' '.join(argv)}' is refused by its parser (status {exc.code})")
+
+
+def _heading_slugs(text: str) -> set:
+    """GitHub's anchors for a Markdown file's headings: lower case, punctuation dropped, spaces to hyphens."""
+    import re
+
+    return {re.sub(r"[^a-z0-9 _-]", "", h.strip().lower()).replace(" ", "-")
+            for h in re.findall(r"^#+ (.*)$", text, re.M)}
+
+
+def test_readme_links_resolve():
+    """Every relative link in README.md and docs/*.md names a file of the repository, and its #anchor a heading
+    of that file: the README points to docs/measurements.md for the full record, and a moved section would
+    otherwise leave a dead link."""
+    import re
+
+    root = Path(__file__).resolve().parents[1]
+    docs = [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+    checked = 0
+    for doc in docs:
+        for target in re.findall(r"\]\(([^)\s]+)\)", doc.read_text()):
+            if re.match(r"[a-z]+://", target):
+                continue
+            path, _, anchor = target.partition("#")
+            f = (doc.parent / path).resolve() if path else doc
+            assert f.is_file(), f"{doc.name}: link to {target!r}, but {f} does not exist"
+            if anchor:
+                assert anchor in _heading_slugs(f.read_text()), f"{doc.name}: no heading in {f.name} for #{anchor}"
+            checked += 1
+    assert checked >= 3, checked

@@ -29,7 +29,8 @@ the budget can be spread over exactly the texels that will be shaded, those the 
 (``warpbw.bandwidth.allocate_samples``'s ``plan``).  Before session 39 the allocation counted only the texels
 whose min-filtered level is their own (and, wrongly, those whose centre pixel is empty), and the others were
 shaded at their footprint's N_p on top of the budget: 0.1-2.4% more samples on the benchmark's scenes at their
-budgets (README), and 4.5x the budget under a constant environment (tests/test_extremes.py), where the plan was
+budgets (docs/measurements.md),
+and 4.5x the budget under a constant environment (tests/test_extremes.py), where the plan was
 one texel.
 
 The hierarchy shades and up-samples the environment's part of the image only.  Directional lights
@@ -63,7 +64,7 @@ against its cached 8192-spp ground truth):
   brute-force v_p (Neyman's on the pixels the frame shades, with the same levels and samples) gains 1.09 / 0.63 /
   0.36 dB on the gold bunny at budgets 2 / 4 / 8 (4 runs), the most an a-posteriori estimate of the variance could
   give.  Offline, 4 pilot samples per shaded pixel blended with the pass's variance reach about a third of that
-  in dB (README, "How much any allocation could do"), so a two-stage allocation was not built.
+  in dB (docs/measurements.md, "How much any allocation could do"), so a two-stage allocation was not built.
 """
 from __future__ import annotations
 

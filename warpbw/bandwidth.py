@@ -118,7 +118,7 @@ silent:
     axes, 1 px), 0.274 (2 px), 0.330 (the axis of larger magnitude, 2 px).
   The cost is on the benchmark's acrylic bunny (MIS, one run each, back to back, session 27): it shades 75% of
   its pixels instead of 65% and loses about 0.9 dB at every budget (0.99x against 1.14x), while the gold bunny
-  gains (3.14x against 2.97x; budget 4, 37.96 against 36.84 dB); the full benchmark of session 28 (README)
+  gains (3.14x against 2.97x; budget 4, 37.96 against 36.84 dB); the full benchmark of session 28 (docs/measurements.md)
   reads 3.48x and 1.05x with MIS (3.69x and 0.99x over 8 runs, session 29).  The acrylic bunny is
   noise-limited: each extra pixel shaded at level 0 takes samples from the others.  Keeping H's sign instead
   shaded fewer pixels there (64%; 1.19x against 1.06x in one run) but ranks 0.410 on the first scene.
@@ -148,7 +148,8 @@ silent:
   exists: Eq. 7 reads a texel's bandwidth off the wavelets that reach it, and a sun's coarse wavelets reach tens
   of degrees.  In tests/test_bandwidth.py's probe, a dark edge 34 degrees from a 2 x 2-texel sun 10^4 times the
   sky reads 1.0 cycles/rad on radiance against 6.6 without the sun; on the log it reads 6.1.  A near-mirror
-  then up-samples across such edges (README "Where it fails").  The log leaves the probe linear below its
+  then up-samples across such edges (docs/measurements.md, "Adaptive shading: where it fails").
+  The log leaves the probe linear below its
   mean and compresses what lies above it.  Once a sun carries most of the mean it fails too: at 5 x 10^4 the
   same edge reads 1.4.
   Measured (session 42; ``/work/bench/s42``).  The mirror of ``examples/mirror_smear.py`` at 128 x 128 under
@@ -164,7 +165,8 @@ silent:
   says "the required sampling rates at the image plane are twice the local image-space bandwidth".
   Measured, not adopted (session 31, a scratch patch; gold bunny of examples/bench_scenes.py, MIS, 4 runs): a
   rate that also grows with the pixel's brightness, times sqrt(mu / median mu) where above 1 (mu the pass's
-  own estimate of L_p), since the up-sampling's bias there sits on bright ridges (README).  It shades 33% of
+  own estimate of L_p), since the up-sampling's bias there sits on bright ridges
+  (docs/measurements.md, "Where the time goes").  It shades 33% of
   the pixels instead of 25% and reads 29.65 / 33.90 / 37.25 / 39.45 dB at budgets 1 / 2 / 4 / 8 against
   33.74 / 36.53 / 38.17 / 38.34; its best speed-up, 3.73x +/- 0.69 (budget 8) against 3.09x +/- 0.18
   (budget 4), is within the noise.  With the factor also below 1 (down to 0.5) the best is 2.90x.

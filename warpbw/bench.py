@@ -25,7 +25,7 @@ Protocol:
   the fact, so noise alone widens the range: four equal points spread over about twice their standard
   error).  At a few samples per pixel one run's MSE moves by tens of percent (a firefly), so a PSNR
   difference of a few tenths of a dB between two points of 3 runs each may be noise (the gold bunny's n_b
-  sweep, README: a range of 0.50 +/- 0.33 dB over 3 runs, 0.15 +/- 0.09 dB over 16); the table prints the
+  sweep, docs/measurements.md: a range of 0.50 +/- 0.33 dB over 3 runs, 0.15 +/- 0.09 dB over 16); the table prints the
   standard errors.
 * Time: wall time of a whole frame (G-buffer included; for adaptive also the bandwidth pass) after a
   warm-up frame, median of ``runs`` runs; stage times from the frames' stats.  Where the time goes: the table

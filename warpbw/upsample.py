@@ -64,7 +64,8 @@ cached 8192-spp ground truth), ridge 2e-4 / 1e-3, and the clamp:
   color-changing-paint3 and nickel under forest.exr at 256x256 and red-metallic-paint under city.exr (a sun)
   at 512x512, whose error is noise: within -0.01 to +0.05 dB.
 
-With the defaults, in ``examples/bench_scenes.py``'s 8-run benchmark against session 35's (same seeds, README):
+With the defaults, in ``examples/bench_scenes.py``'s 8-run benchmark against session 35's
+(same seeds, docs/measurements.md):
 with MIS the gold bunny +0.68 to +1.98 dB at budgets 2-32 (equal-quality speed-up 3.68x -> 5.07x), the ccp3
 sphere +0.03 to +0.10, the chrome sphere within 0.01, the acrylic bunny -0.03 to -0.05 at budgets 0.5-8; with BRDF
 sampling alone, noisier, the gold bunny -0.05 to -0.09 dB at budgets 0.5-4 and +0.05 to +0.49 at 8-32, the acrylic
