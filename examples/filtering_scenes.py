@@ -217,7 +217,7 @@ def main(argv=None) -> int:
                     help="Gaussians per texel of both GMM mipmaps, aligned and unaligned (default 4, 004 Sec. 4.2)")
     ap.add_argument("--prior", type=float, default=1.0,
                     help="alignment constant c of the aligned GMM mipmap's MAP prior (default 1, 004 Sec. 4.1; "
-                         "README: a stronger prior filters the far zooms better)")
+                         "docs/measurements.md: a stronger prior filters the far zooms better)")
     ap.add_argument("--elevation", type=float, default=ELEVATION_DEG,
                     help=f"camera elevation above the plane in degrees, in (0, 90) (default {ELEVATION_DEG:g}); "
                          "the lights stay those of the default camera")

@@ -308,7 +308,7 @@ def add_adaptive_options(p) -> None:
                    help="adaptive: what the wavelet analysis of the probe's angular bandwidth (002 Eq. 7) reads: "
                    "radiance (default; the paper's) or log, log(1 + L / mean L), where a sun no longer hides the "
                    "edges around it: near-mirrors under a probe with a sun smear far less, but on the benchmark "
-                   "scenes it shades more pixels and loses up to 1 dB at equal budget (README)")
+                   "scenes it shades more pixels and loses up to 1.15 dB at equal budget (README)")
 
 
 def add_anisotropy_option(p, default) -> None:
@@ -317,7 +317,7 @@ def add_anisotropy_option(p, default) -> None:
                    metavar="N", help="scenes with planes: filter each pixel's footprint with up to N trilinear probes "
                    f"along its major axis, as GPUs' anisotropic filtering (1 to {MAX_ANISOTROPY}; default 1: one "
                    "isotropic probe at the footprint's larger side, 004 Sec. 4.2). Where the plane is seen at a "
-                   "grazing angle, sharper and mostly closer to the ground truth, but it flickers more (README); up "
+                   "grazing angle, sharper and mostly closer to the ground truth, but it flickers more (docs/measurements.md); up "
                    "to N times the texture fetches")
 
 
