@@ -206,8 +206,9 @@ def main(argv=None) -> int:
     ap.add_argument("--run", action="store_true", help="run warpbw bench-filtering on each scene")
     ap.add_argument("--zoom", default="1,2,4,8,16,32", help="zoom factors for --run")
     ap.add_argument("--gt-spp", default="1024", help="ground-truth rays per pixel for --run")
-    ap.add_argument("--spp", default="64", help="with --environment, the filtered methods' pairs of one BRDF and "
-                    "one environment sample per pixel for --run")
+    ap.add_argument("--spp", default=None, help="with --environment, the filtered methods' pairs of one BRDF and "
+                    "one environment sample per pixel for --run (default: bench-filtering's); the lights are "
+                    "shaded in closed form and take no samples")
     ap.add_argument("--lights", choices=LIGHT_SETUPS, default="ring",
                     help="ring: 8 lights spreading the half-vector over normal space (default); mirror: the one "
                          "light mirroring the view (module docstring)")
@@ -247,7 +248,12 @@ def main(argv=None) -> int:
     if args.environment is not None and not args.environment.is_file():
         ap.error(f"--environment {args.environment}: no such file (expected a lat-long EXR probe)")
     # the values --run passes on to warpbw bench-filtering, checked by its own parsers before anything is written
-    check_command_options("bench-filtering", {"--zoom": args.zoom, "--gt-spp": args.gt_spp, "--spp": args.spp})
+    if args.spp is not None and args.environment is None:
+        ap.error(f"--spp {args.spp}: counts the samples of an --environment, and without one the scenes are lit by "
+                 "directional lights, shaded in closed form")
+    spp = [] if args.spp is None else ["--spp", args.spp]
+    check_command_options("bench-filtering", {"--zoom": args.zoom, "--gt-spp": args.gt_spp,
+                                              **({"--spp": args.spp} if spp else {})})
     check_overwrite([out / f"{name}{ext}" for name in SCENES for ext in (".toml", ".exr")], args.force)
     paths = write_scenes(out, args.size, lights=args.lights, components=args.components,
                          environment=args.environment, prior=args.prior, elevation_deg=args.elevation)
@@ -255,7 +261,7 @@ def main(argv=None) -> int:
         records = {}
         for p in paths:
             cmd = [sys.executable, "-m", "warpbw.cli", "bench-filtering", str(p), "--zoom", args.zoom,
-                   "--gt-spp", args.gt_spp, "--spp", args.spp, "--max-anisotropy", args.max_anisotropy,
+                   "--gt-spp", args.gt_spp, *spp, "--max-anisotropy", args.max_anisotropy,
                    "--flicker-pairs", args.flicker_pairs,
                    "--json", str(p.with_suffix(".json")), "--plot",
                    str(p.with_suffix(".png"))] + (["--force"] if args.force else [])

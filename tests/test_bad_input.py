@@ -980,6 +980,8 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["validate_bandwidth.py", "--out", "v", "--env-signal", "lin"], "--env-signal"),
     (["filtering_scenes.py", "--zoom", "0"], "--zoom 0: expected comma-separated positive numbers"),
     (["filtering_scenes.py", "--gt-spp", "1e40"], "--gt-spp 1e40: expected a positive integer"),
+    # --spp counts environment samples; --run passed it to bench-filtering, which refuses it on the light-lit scenes
+    (["filtering_scenes.py", "--spp", "64"], "--spp 64: counts the samples of an --environment"),
     (["bench_reference.py", "--spp", "abc"], "--spp abc: expected comma-separated ints"),
     (["bench_reference.py", "--runs", "0"], "--runs 0: expected a positive integer"),
     (["bench_reference.py", "--gt-spp", "100"], "--gt-spp 100: expected a multiple of 4096 of at least 8192"),

@@ -4,6 +4,7 @@ the JSON record's keys, the plot, overwrite protection and the routing of plane 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import math
 
 import numpy as np
@@ -309,6 +310,43 @@ def test_benchmark_light_ring_spreads_the_half_vector(tmp_path):
     np.testing.assert_allclose(np.array(mirror.direction) / np.linalg.norm(mirror.direction),
                                np.array([fs.MIRROR_LIGHT_X, wo[1], -wo[2]]) / np.linalg.norm(
                                    [fs.MIRROR_LIGHT_X, wo[1], -wo[2]]), atol=1e-5)
+
+
+@pytest.mark.parametrize("environment", [False, True])
+def test_benchmark_script_run_hands_bench_filtering_what_it_accepts(tmp_path, monkeypatch, capsys, environment):
+    # filtering_scenes.py --run runs `warpbw bench-filtering` on each scene it writes.  Session 43 made bench-filtering
+    # refuse --spp on scenes lit by lights alone, and the script, which always passed --spp, then stopped at its
+    # first scene with exit status 2 (found in session 45; no test ran --run).  The subprocess is replaced by an
+    # in-process call of the same argv, so the test runs the real command line at a tiny size.
+    fs = _example()
+    ran = []
+
+    class Done:
+        def __init__(self, code):
+            self.returncode = code
+
+    real_run = fs.subprocess.run
+
+    def run_in_process(cmd, *a, **k):
+        if list(cmd[1:3]) != ["-m", "warpbw.cli"]:      # anyone else's subprocess (platform's uname, say)
+            return real_run(cmd, *a, **k)
+        assert cmd[0] == fs.sys.executable and cmd[3] == "bench-filtering", cmd
+        ran.append(cmd[3:])
+        return Done(main(cmd[3:] + ["--quiet"]))
+
+    monkeypatch.setattr(fs.subprocess, "run", run_in_process)
+    argv = ["--out", str(tmp_path / "b"), "--size", "8", "--run", "--zoom", "1,2", "--gt-spp", "64"]
+    if environment:
+        probe = tmp_path / "sky.exr"
+        write_exr(probe, np.full((8, 16, 3), 0.5, np.float32))
+        argv += ["--environment", str(probe), "--spp", "4"]
+    assert fs.main(argv) == 0
+    assert [Path(c[1]).stem for c in ran] == list(fs.SCENES)
+    for c in ran:
+        assert ("--spp" in c) == environment and (not environment or c[c.index("--spp") + 1] == "4")
+        rec = json.loads(Path(c[1]).with_suffix(".json").read_text())
+        assert sorted(rec["methods"]) == sorted(["gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed"])
+    assert "carved_disk" in capsys.readouterr().out     # the acceptance table, per scene
 
 
 def test_benchmark_acceptance_checks_read_the_coarsest_zoom():
