@@ -4,8 +4,8 @@ the JSON record's keys, the plot, overwrite protection and the routing of plane 
 from __future__ import annotations
 
 import json
-from pathlib import Path
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
