@@ -251,9 +251,11 @@ def main(argv=None) -> int:
     if args.spp is not None and args.environment is None:
         ap.error(f"--spp {args.spp}: counts the samples of an --environment, and without one the scenes are lit by "
                  "directional lights, shaded in closed form")
+    passed = {"--zoom": args.zoom, "--gt-spp": args.gt_spp}
     spp = [] if args.spp is None else ["--spp", args.spp]
-    check_command_options("bench-filtering", {"--zoom": args.zoom, "--gt-spp": args.gt_spp,
-                                              **({"--spp": args.spp} if spp else {})})
+    if spp:
+        passed["--spp"] = args.spp
+    check_command_options("bench-filtering", passed)
     check_overwrite([out / f"{name}{ext}" for name in SCENES for ext in (".toml", ".exr")], args.force)
     paths = write_scenes(out, args.size, lights=args.lights, components=args.components,
                          environment=args.environment, prior=args.prior, elevation_deg=args.elevation)

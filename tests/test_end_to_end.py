@@ -588,6 +588,12 @@ def test_readme_commands_parse():
             pytest.fail(f"README: '{prog} {' '.join(argv)}' is refused by its parser (status {exc.code})")
 
 
+def _documents() -> list:
+    """README.md and the Markdown files under docs/."""
+    root = Path(__file__).resolve().parents[1]
+    return [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+
+
 def test_inline_commands_in_readme_and_docs_parse():
     """The `warpbw ...` / `warpbw-precompute ...` command lines quoted inline (between backticks) in README.md and
     docs/measurements.md are accepted by their parsers, as the code blocks' are (test_readme_commands_parse): the
@@ -600,9 +606,8 @@ def test_inline_commands_in_readme_and_docs_parse():
     from precompute.__main__ import build_parser as precompute_parser
     from warpbw.cli import build_parser as warpbw_parser
 
-    root = Path(__file__).resolve().parents[1]
     checked = 0
-    for doc in [root / "README.md", *sorted((root / "docs").glob("*.md"))]:
+    for doc in _documents():
         text = re.sub(r"```.*?```", "", doc.read_text(), flags=re.S)
         for m in re.finditer(r"`((?:warpbw|warpbw-precompute) [^`]+)`", text):
             argv = m.group(1).split()
@@ -633,10 +638,8 @@ def test_readme_links_resolve():
     otherwise leave a dead link."""
     import re
 
-    root = Path(__file__).resolve().parents[1]
-    docs = [root / "README.md", *sorted((root / "docs").glob("*.md"))]
     checked = 0
-    for doc in docs:
+    for doc in _documents():
         for target in re.findall(r"\]\(([^)\s]+)\)", doc.read_text()):
             if re.match(r"[a-z]+://", target):
                 continue

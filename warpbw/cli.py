@@ -317,8 +317,8 @@ def add_anisotropy_option(p, default) -> None:
                    metavar="N", help="scenes with planes: filter each pixel's footprint with up to N trilinear probes "
                    f"along its major axis, as GPUs' anisotropic filtering (1 to {MAX_ANISOTROPY}; default 1: one "
                    "isotropic probe at the footprint's larger side, 004 Sec. 4.2). Where the plane is seen at a "
-                   "grazing angle, sharper and mostly closer to the ground truth, but it flickers more (docs/measurements.md); up "
-                   "to N times the texture fetches")
+                   "grazing angle, sharper and mostly closer to the ground truth, but it flickers more "
+                   "(docs/measurements.md); up to N times the texture fetches")
 
 
 def cmd_render(args) -> int:
