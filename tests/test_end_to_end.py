@@ -429,6 +429,40 @@ def test_render_adaptive_writes_aovs_and_caches_tables(work, npf_scene):
     assert len(list((work / "cache").glob("env-bandwidth-log-*.npz"))) == 1
 
 
+def test_a_mesh_curvature_is_derived_only_for_a_frame_with_the_bandwidth_pass(tmp_path, monkeypatch):
+    """Only the bandwidth pass reads a mesh's curvature (002 Eq. 3), so a reference frame never derives it: the
+    mean-curvature operator is not called until the first adaptive frame, which calls it once, lists the stage
+    and times it; the G-buffer then holds local_curvature of the mesh's H, as when it was derived at load."""
+    import trimesh
+
+    import warpbw.io.mesh as mesh_io
+    from warpbw.pipeline import prepare_scene, render_adaptive, render_reference
+    from warpbw.scene import parse_scene
+
+    trimesh.creation.icosphere(subdivisions=3, radius=0.8).export(tmp_path / "ico.obj")
+    write_exr(tmp_path / "sky.exr", np.full((16, 32, 3), 0.5, np.float32))
+    calls = []
+    derive = mesh_io.mesh_mean_curvature
+    monkeypatch.setattr(mesh_io, "mesh_mean_curvature", lambda *a: calls.append(1) or derive(*a))
+    text = "\n".join(["[camera]", "position = [0.0, 0.0, 3.0]", "look_at = [0.0, 0.0, 0.0]", "fov = 40.0",
+                      "resolution = [24, 24]", "[environment]", 'file = "sky.exr"', "[[object]]",
+                      'mesh = "ico.obj"', 'material = "m"', "[material.m]", 'type = "lambert"', "albedo = 0.5"])
+    prep = prepare_scene(parse_scene(text, tmp_path, "ico.toml"))
+    ref = render_reference(prep, spp=4, seed=1)
+    assert not calls and ref.coverage.sum() > 100 and "mesh_curvature" not in ref.stats["stages"]
+    ada = render_adaptive(parse_scene(text, tmp_path, "ico.toml"), budget=2.0, seed=1)
+    assert len(calls) == 1 and "mesh_curvature" in ada.stats["stages"]
+    assert ada.stats["time_s"]["load_mesh_curvature"] > 0
+    render_adaptive(prep, budget=2.0, seed=1)
+    render_adaptive(prep, budget=2.0, seed=2)
+    assert len(calls) == 2   # once per prepared scene
+    md = mesh_io.load_mesh(tmp_path / "ico.obj")
+    want = mesh_io.local_curvature(derive(md.vertices.astype(np.float64), md.faces, md.normals.astype(np.float64)),
+                                   md.faces)
+    np.testing.assert_allclose(prep.geometry.mesh_attr.curvature.numpy(), want, rtol=1e-4)
+    assert abs(np.median(want) * 0.8 - 1.0) < 0.02   # |H| = 1 / r
+
+
 # ------------------------------------------------------------------------------------------ planes beside a sphere
 
 def _numpy_plane_and_sphere_depths(w, h):

@@ -405,6 +405,7 @@ def test_the_pipeline_gives_meshes_the_local_curvature(tmp_path):
     """A scene's mesh reaches the G-buffer with |H| averaged over its rings (warpbw.io.mesh.local_curvature),
     not with its signed mean curvature: on bumps whose H changes sign, every vertex's curvature is >= 0 and
     is the average warpbw.io.mesh computes from the loaded mesh."""
+    from warpbw.gbuffer import ensure_curvature
     from warpbw.io.mesh import load_mesh, local_curvature
     from warpbw.pipeline import surface_geometry
     from warpbw.scene import parse_scene
@@ -419,6 +420,47 @@ def test_the_pipeline_gives_meshes_the_local_curvature(tmp_path):
         "[material.g]", 'type = "lambert"', "albedo = [0.5, 0.5, 0.5]"]), tmp_path, "bumps")
     md = load_mesh(tmp_path / "bumps.obj")
     assert (md.mean_curvature < 0).mean() > 0.2 and (md.mean_curvature > 0).mean() > 0.2
-    got = surface_geometry(scene).mesh_attr.curvature.numpy()
+    geometry = surface_geometry(scene)
+    assert ensure_curvature(geometry)   # derived when a G-buffer first asks for it
+    got = geometry.mesh_attr.curvature.numpy()
     np.testing.assert_array_equal(got, local_curvature(md.mean_curvature, md.faces))
     assert np.all(got >= 0.0)
+
+
+def test_deferred_curvature_is_derived_once_when_a_gbuffer_asks_for_it():
+    """A MeshSpec may defer its curvature (a callable): render_gbuffer(curvature=False) leaves it underived (the
+    mesh reads 0 there, a sphere still 1 / r), and the first G-buffer that asks derives it once and gives the
+    G-buffer of the same mesh with its curvature given.  update_mesh replaces a deferred curvature with the new
+    pose's, which a later G-buffer keeps."""
+    from warpbw.gbuffer import ensure_curvature
+
+    cam = make_camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 64, 48)
+    given = _icosphere_spec(0.7, material=1, subdiv=3)
+    calls = []
+
+    def mean_curvature():
+        calls.append(1)
+        return given.curvature
+
+    deferred = MeshSpec(given.vertices, given.faces, given.normals, mean_curvature, None, 1)
+    ball = SphereSpec((-1.2, 0.0, 0.0), 0.5, 0)
+    geo = build_geometry([ball], [deferred])
+    before = render_gbuffer(cam, geo, curvature=False)
+    assert not calls and geo.curvature_pending
+    on_mesh = before.numpy("material") == 1
+    assert on_mesh.sum() > 300 and np.all(before.numpy("curvature")[on_mesh] == 0.0)
+    np.testing.assert_allclose(before.numpy("curvature")[before.numpy("material") == 0], 2.0, rtol=1e-6)
+    got = _gbuffer_arrays(render_gbuffer(cam, geo))
+    render_gbuffer(cam, geo)
+    assert len(calls) == 1 and not ensure_curvature(geo)
+    want = _gbuffer_arrays(render_gbuffer(cam, build_geometry([ball], [given])))
+    for name in want:
+        np.testing.assert_array_equal(got[name], want[name], err_msg=name)
+    assert np.all(got["curvature"][got["material"] == 1] > 1.0)   # |H| = 1 / 0.7 on the icosphere
+
+    moved = build_geometry([ball], [deferred])
+    update_mesh(moved, 0, 1.1 * given.vertices)   # the new pose's curvature, derived on the device
+    assert not moved.curvature_pending
+    after = render_gbuffer(cam, moved)
+    curv = after.numpy("curvature")[after.numpy("material") == 1]
+    assert len(calls) == 1 and 1.0 / (1.1 * 0.7) * 0.9 < np.median(curv) < 1.0 / (1.1 * 0.7) * 1.1

@@ -7,10 +7,12 @@ Public:
     ``camera_rays(cam) -> (origins, dirs)``  numpy, for tests and examples
     ``SphereSpec``, ``MeshSpec``     one sphere / mesh as ``build_geometry`` takes it
     ``Geometry`` / ``build_geometry(spheres, meshes, device)``  scene geometry on the device
+    ``ensure_curvature(geometry) -> bool``   derive and upload the curvature a MeshSpec deferred (a callable);
+                                     True when there was any (render_gbuffer calls it unless told not to)
     ``update_mesh(geometry, mesh_index, vertices, normals=None, curvature=None)``  deform one mesh in place and
                                      refit the BVH (dynamic geometry, 002 Sec. 4.3, Fig. 18)
     ``GBufferData``                  Warp struct: the per-pixel buffers, as kernels read them
-    ``GBuffer`` / ``render_gbuffer(cam, geometry, device, threads)``     run the pass
+    ``GBuffer`` / ``render_gbuffer(cam, geometry, device, threads, curvature=True)``     run the pass
     ``make_gbuffer_kernel(has_spheres, has_mesh)``, ``allocate_gbuffer(width, height, device)``   its kernel
                                      (the pipeline compiles it ahead) and its buffers
     ``check_reach(cam, geometry)``   refuse a camera too far from (or, scaled down, too near) the geometry for
@@ -29,6 +31,8 @@ direction from the surface point to the camera (``wo`` in world space).  ``curva
 c >= 0 that the bandwidth pass reads (002 Eq. 3): on a sphere of radius r, 1 / r; on a mesh, the magnitude of
 the mean curvature H = (k1 + k2) / 2 that its ``MeshSpec`` (or ``update_mesh``) gives per vertex, averaged over
 about two rings (``warpbw.io.mesh.local_curvature``; ``warpbw.mesh_normals`` on the device), interpolated.
+Only the bandwidth pass reads it, so a MeshSpec may defer H (a callable): it is derived the first time a
+G-buffer asks for curvature, and a G-buffer rendered with ``curvature=False`` reads 0 on that mesh.
 The tangent is ``d position / d phi`` about +Y on spheres and a branchless orthonormal basis
 (Duff et al. 2017) around the shading normal on meshes: shading here is isotropic.
 """
@@ -37,7 +41,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import warp as wp
@@ -331,7 +335,9 @@ class MeshSpec:
     vertices: np.ndarray       # (V, 3)
     faces: np.ndarray          # (F, 3)
     normals: np.ndarray        # (V, 3)
-    curvature: np.ndarray      # (V,) mean curvature H (build_geometry stores its local magnitude)
+    # (V,) mean curvature H (build_geometry stores its local magnitude), or a callable returning it, called only
+    # when a G-buffer needs curvature (ensure_curvature): a frame without the bandwidth pass never derives it
+    curvature: np.ndarray | Callable[[], np.ndarray]
     uv: np.ndarray | None      # (V, 2)
     material: int
 
@@ -355,11 +361,14 @@ class Geometry:
     # host copies for check_reach: (center, radius) of each sphere, (lower, upper) corners of each mesh
     sphere_bounds: list = field(default_factory=list)
     mesh_bounds: list = field(default_factory=list)
+    # mesh index -> (callable returning H, its faces): curvature a MeshSpec deferred, not yet on the device
+    curvature_pending: dict = field(default_factory=dict)
 
 
 def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], device: str = "cpu") -> Geometry:
     """Upload spheres and one BVH over all meshes (concatenated, with a material id per face); a mesh's
-    curvature is stored as ``warpbw.io.mesh.local_curvature`` of the H its MeshSpec gives."""
+    curvature is stored as ``warpbw.io.mesh.local_curvature`` of the H its MeshSpec gives (0 until
+    ``ensure_curvature`` where the MeshSpec defers it)."""
     from warpbw.io.mesh import local_curvature
 
     sl = SphereList()
@@ -373,16 +382,21 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
     mesh = None
     n_tri = 0
     ranges = []
+    pending = {}
     if meshes:
         verts, faces, norms, curv, uvs, fmat = [], [], [], [], [], []
         base = 0
-        for m in meshes:
+        for k, m in enumerate(meshes):
             v = np.asarray(m.vertices, np.float32)
             ranges.append((base, len(v)))
             verts.append(v)
             faces.append(np.asarray(m.faces, np.int64) + base)
             norms.append(np.asarray(m.normals, np.float32))
-            curv.append(local_curvature(m.curvature, m.faces))
+            if callable(m.curvature):
+                pending[k] = (m.curvature, m.faces)
+                curv.append(np.zeros(len(v), np.float32))
+            else:
+                curv.append(local_curvature(m.curvature, m.faces))
             uvs.append(np.zeros((len(v), 2), np.float32) if m.uv is None else np.asarray(m.uv, np.float32))
             fmat.append(np.full(len(m.faces), m.material, np.int32))
             base += len(v)
@@ -406,7 +420,27 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
         ma.face_material = wp.zeros(0, dtype=wp.int32, device=device)
     return Geometry(sl, ma, mesh, bool(spheres), bool(meshes), n_tri, mesh_vertex_ranges=ranges,
                     sphere_bounds=[(np.asarray(s.center, np.float64), float(s.radius)) for s in spheres],
-                    mesh_bounds=[_bounds(v) for v in verts] if meshes else [])
+                    mesh_bounds=[_bounds(v) for v in verts] if meshes else [], curvature_pending=pending)
+
+
+def ensure_curvature(geometry: Geometry) -> bool:
+    """Derive the curvature that ``build_geometry`` deferred (a MeshSpec whose curvature is a callable) and
+    upload it, as ``build_geometry`` stores a given one; then nothing is pending.  Returns True when there was
+    anything to derive."""
+    from warpbw.io.mesh import local_curvature
+
+    pending = geometry.curvature_pending
+    derived = bool(pending)
+    while pending:
+        k, (mean_curvature, faces) = pending.popitem()
+        start, count = geometry.mesh_vertex_ranges[k]
+        c = local_curvature(mean_curvature(), faces)
+        if c.shape != (count,):
+            raise WarpbwError(f"MeshSpec {k}: curvature: expected ({count},) values (one per vertex), "
+                              f"got shape {c.shape}")
+        dest = geometry.mesh_attr.curvature
+        wp.copy(dest, wp.array(c, dtype=wp.float32, device=dest.device), dest_offset=start, count=count)
+    return derived
 
 
 def _bounds(vertices) -> tuple:
@@ -484,6 +518,7 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
     if normals is None:
         normals_and_curvature(geometry.mesh.points, topo, device, out=shading)
     local_curvature(shading.curvature, topo, device, out=shading.curvature)
+    geometry.curvature_pending.pop(int(mesh_index), None)   # replaced by the new pose's
     geometry.mesh.refit()
 
 
@@ -523,12 +558,16 @@ def allocate_gbuffer(width: int, height: int, device: str = "cpu") -> GBuffer:
 
 
 def render_gbuffer(cam: CameraData, geometry: Geometry, device: str = "cpu", out: GBuffer | None = None,
-                   threads: int | None = None) -> GBuffer:
+                   threads: int | None = None, curvature: bool = True) -> GBuffer:
     """Cast one primary ray per pixel and fill the G-buffer (reusing ``out`` when given); on the CPU the
-    pixels are tiled over ``threads`` (default: the cores, as the shading does)."""
+    pixels are tiled over ``threads`` (default: the cores, as the shading does).  With ``curvature=False`` a
+    mesh whose curvature is still deferred (``ensure_curvature``) is not made to derive it, and reads 0: for a
+    frame that no bandwidth pass reads."""
     from warpbw.shading import launch_tiled   # shading builds on this module
 
     check_reach(cam, geometry)
+    if curvature:
+        ensure_curvature(geometry)
     gb = out if out is not None else allocate_gbuffer(cam.width, cam.height, device)
     kernel = make_gbuffer_kernel(geometry.has_spheres, geometry.has_mesh)
     launch_tiled(kernel, cam.width * cam.height,

@@ -4,7 +4,8 @@ Public:
     ``prepare_scene(scene, device, progress) -> PreparedScene``   load assets, build device data
     ``render_reference(scene_or_prepared, spp, seed, mis, device, progress) -> RenderResult``
     ``render_adaptive(scene_or_prepared, budget, seed, mis, n_b, n_min, n_max, ...) -> RenderResult``
-    ``prepare_bandwidth(prepared, progress)``   the bandwidth pass's tables (adaptive only, built once)
+    ``prepare_bandwidth(prepared, progress)``   the bandwidth pass's tables and the meshes' curvature (adaptive
+                                       only, built once)
     ``split_planes(scene) -> (surfaces, planes)``   a scene's spheres and meshes, and its planes, as two scenes
     ``surface_geometry(scene, device) -> Geometry``   its spheres and meshes alone on the device (for depth)
     ``render_with_planes(scene, filter_method, spp, seed, method, budget, ...) -> RenderResult``
@@ -17,7 +18,7 @@ Public:
 
 A material kind the scene does not use is not compiled (its branch is removed from the kernels with
 ``wp.static``); spheres and meshes each have their own G-buffer path; one table per tabulated material
-is in memory.  The environment and the directional ``[[light]]``s are each optional (a scene has at least
+is in memory; a mesh's curvature is derived only for the bandwidth pass.  The environment and the directional ``[[light]]``s are each optional (a scene has at least
 one): a scene without an environment compiles no sampling loop, one without lights no light loop.  The
 adaptive method needs an environment: it adapts the environment's sampling, and adds the lights' exact
 term at every pixel.  ``RenderResult.stats`` says which stages ran and how long each took.
@@ -41,8 +42,8 @@ import numpy as np
 from warpbw import brdf as brdf_mod
 from warpbw import envmap
 from warpbw.errors import BRDF_VALUE_MAX, FLOAT32_MAX, INT32_MAX, WarpbwError, check_device, check_seed, is_int
-from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, hide_beyond, render_gbuffer,
-                            scene_camera)
+from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, ensure_curvature, hide_beyond,
+                            render_gbuffer, scene_camera)
 from warpbw.scene import MeshObject, PlaneObject, Scene, SphereObject
 
 
@@ -168,7 +169,9 @@ def _geometry(scene: Scene, mat_id: dict, device: str):
             from warpbw.io.mesh import load_mesh
 
             md = load_mesh(o.file, translate=o.translate, scale=o.scale, rotate_y_deg=o.rotate_y)
-            meshes.append(MeshSpec(md.vertices, md.faces, md.normals, md.mean_curvature, md.uv, mat_id[o.material]))
+            # its curvature is derived only for a frame with the bandwidth pass (prepare_bandwidth)
+            meshes.append(MeshSpec(md.vertices, md.faces, md.normals, lambda md=md: md.mean_curvature, md.uv,
+                                   mat_id[o.material]))
     return build_geometry(spheres, meshes, device=device)
 
 
@@ -189,6 +192,7 @@ def stages_used(prep: PreparedScene, mis: bool, adaptive: bool = False) -> list:
     s.append("light:" + "+".join(n for n, on in (("environment", prep.env is not None),
                                                    ("directional", prep.lights is not None)) if on))
     if adaptive:
+        s += ["mesh_curvature"] if prep.geometry.has_mesh else []
         s += ["bandwidth_pass", "pyramid", "hierarchical_shading" + ("+mis" if mis else ""), "upsampling"]
     else:
         s.append("reference_shading" + ("+mis" if mis else ""))
@@ -224,12 +228,14 @@ def _clip_kernels(clip_distance) -> tuple:
     return (hide_beyond_kernel,) if clip_distance is not None else ()
 
 
-def _gbuffer(prep: PreparedScene, timings: dict, threads: int | None = None, clip_distance=None) -> tuple:
-    """The G-buffer, and the number of its pixels ``clip_distance`` hid (None without one)."""
+def _gbuffer(prep: PreparedScene, timings: dict, threads: int | None = None, clip_distance=None,
+             curvature: bool = True) -> tuple:
+    """The G-buffer, and the number of its pixels ``clip_distance`` hid (None without one).  Without
+    ``curvature`` a mesh's curvature is not derived for it (``warpbw.gbuffer.render_gbuffer``)."""
     import warp as wp
 
     t0 = time.perf_counter()
-    gb = render_gbuffer(prep.camera, prep.geometry, device=prep.device, threads=threads)
+    gb = render_gbuffer(prep.camera, prep.geometry, device=prep.device, threads=threads, curvature=curvature)
     hidden = None
     if clip_distance is not None:
         hidden = hide_beyond(gb, prep.camera, clip_distance, device=prep.device)
@@ -285,7 +291,7 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
                          make_reference_kernel(prep.materials.kinds, mis, has_env=prep.env is not None,
                                                has_lights=prep.lights is not None))
                   + _clip_kernels(clip_distance), timings)
-    gb, hidden = _gbuffer(prep, timings, threads, clip_distance)
+    gb, hidden = _gbuffer(prep, timings, threads, clip_distance, curvature=False)   # no bandwidth pass reads it
     n_cov = int(gb.coverage.sum())
     bar = None
     if progress and n_cov:
@@ -353,7 +359,8 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False, env_signal: s
     """The bandwidth pass's inputs (adaptive method only; built once per prepared scene and ``env_signal``): the
     environment's nu_a map, analysed on ``env_signal`` (:func:`warpbw.bandwidth.env_signal`; default "radiance"),
     and one nu_rho table per material, from the scene's ``bandwidth`` file, the cache, or built (analytic materials:
-    from the renderer's own BRDF evaluation)."""
+    from the renderer's own BRDF evaluation).  Derives the meshes' curvature too (Eq. 3's c, which only this pass
+    reads; timed as ``load_mesh_curvature``)."""
     from precompute.brdf_bandwidth import SHAPE as BW_TABLE_SHAPE, load_or_build_bandwidth
     from warpbw.bandwidth import (ENV_SIGNAL_DEFAULT, check_env_signal, env_bandwidth_map, make_bandwidth_tables,
                                   nu_env_table)
@@ -384,6 +391,9 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False, env_signal: s
                                              device=prep.device)
     prep.bandwidth, prep.bandwidth_signal = struct, env_signal
     prep._keep.extend(keep)
+    if prep.geometry.curvature_pending:
+        with _timed(prep.timings, "load_mesh_curvature"):   # Eq. 3's c, for the G-buffer of this pass
+            ensure_curvature(prep.geometry)
     return struct
 
 
@@ -445,7 +455,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
         raise WarpbwError(f"{prep.scene.source}: the adaptive method needs an [environment] to adapt to: [[light]]s "
                           "alone are exact at any spp (use the reference method)")
     tables = prepare_bandwidth(prep, progress, env_signal)
-    for k in ("load_env_bandwidth", "load_brdf_bandwidth"):
+    for k in ("load_env_bandwidth", "load_brdf_bandwidth", "load_mesh_curvature"):
         if k in prep.timings and prep is not scene:
             timings[k] = prep.timings[k]
     _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
