@@ -5,6 +5,7 @@
     python examples/bench_scenes.py --out bench_scenes --run --no-mis --results nomis   # 002's baseline
     python examples/bench_scenes.py --out bench_scenes --run --runs 8   # 8 runs per point (the README's table)
     python examples/bench_scenes.py --out bench_scenes --run --env-signal log --results log   # nu_a on log(1 + L/mean)
+    python examples/bench_scenes.py --out bench_scenes --run --only sphere_ccp3_forest_sun   # a sun added exactly
 
 Four scenes, two shapes, four NPF-derived MERL materials (one very specular, chrome) and two light
 probes, from ../shared/data:
@@ -17,6 +18,10 @@ sphere_chrome_studio   sphere      chrome                     studio.exr   256x2
 sphere_ccp3_forest     sphere      color-changing-paint3      forest.exr   256x256
 bunny_acrylic_studio   bunny       blue-acrylic               studio.exr   256x256
 =====================  ==========  =========================  ===========  =========
+
+A fifth scene is written beside them and run only when ``--only`` names it: ``sphere_ccp3_forest_sun``, the
+ccp3 sphere under forest.exr plus a directional sun (``SUN``), whose exact term the adaptive method adds at every
+pixel after the up-sampling (README, "Directional lights").
 
 Each bench writes SCENE.json and SCENE.png beside the scene (``warpbw bench --help``); ``--nb`` adds the
 n_b sweep (002 Fig. 13) to the first scene.
@@ -48,6 +53,12 @@ SCENES = {  # name: (object, NPF material, probe, size)
     "sphere_ccp3_forest": ("sphere", "color-changing-paint3", "forest.exr", 256),
     "bunny_acrylic_studio": ("bunny", "blue-acrylic", "studio.exr", 256),
 }
+# A sun about three times the sky's irradiance on a surface facing up (forest.exr's mean radiance is 0.55, so
+# pi * 0.55 = 1.7), from the upper right in front of the sphere: its highlight is in view.
+SUN = '\n[[light]]\ntype = "directional"\ndirection = [0.4, 0.7, 0.6]\nradiance = [5.0, 4.8, 4.4]\n'
+EXTRA_SCENES = {  # written with SCENES, run only when --only names them: name: (..., [[light]] block)
+    "sphere_ccp3_forest_sun": ("sphere", "color-changing-paint3", "forest.exr", 256, SUN),
+}
 TEMPLATE = """# warpbw benchmark scene (examples/bench_scenes.py)
 [camera]
 {camera}
@@ -55,7 +66,7 @@ resolution = [{size}, {size}]
 
 [environment]
 file = "{probe}"
-
+{lights}
 [[object]]
 {obj}
 
@@ -66,11 +77,13 @@ file = "{merl}"
 
 
 def scene_texts(out: Path) -> dict[Path, str]:
-    """The TOML of each benchmark scene, by the path it is written to in ``out``."""
+    """The TOML of each benchmark scene (SCENES, then EXTRA_SCENES), by the path it is written to in ``out``."""
+    rows = {**{name: row + ("",) for name, row in SCENES.items()}, **EXTRA_SCENES}
     return {out / f"{name}.toml": TEMPLATE.format(camera=CAMERAS[obj], size=size, probe=DATA / "envmaps" / probe,
+                                                 lights=lights,
                                                  obj=OBJECTS[obj].format(mesh=DATA / "meshes" / "bunny.obj"),
                                                  merl=f"{material}.binary")
-            for name, (obj, material, probe, size) in SCENES.items()}
+            for name, (obj, material, probe, size, lights) in rows.items()}
 
 
 def write_scenes(out: Path, force: bool = False) -> list[Path]:
@@ -79,7 +92,7 @@ def write_scenes(out: Path, force: bool = False) -> list[Path]:
     texts = scene_texts(out)
     check_overwrite([p for p, text in texts.items() if p.exists() and p.read_text() != text], force, "--out")
     out.mkdir(parents=True, exist_ok=True)
-    for _, material, _, _ in SCENES.values():
+    for material in sorted({row[1] for row in (*SCENES.values(), *EXTRA_SCENES.values())}):
         merl = out / f"{material}.binary"
         if not merl.exists():
             subprocess.run([sys.executable, "-m", "precompute", "npf-to-merl", "--table",
@@ -93,7 +106,8 @@ def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="bench_scenes", help="directory for scenes, MERL files and results")
     ap.add_argument("--run", action="store_true", help="run warpbw bench on every scene")
-    ap.add_argument("--only", help="comma-separated scene names to run")
+    ap.add_argument("--only", help="comma-separated scene names to run (default: the four of the table; "
+                    f"{', '.join(EXTRA_SCENES)} only when named)")
     ap.add_argument("--nb", default="16,64,256,1024", help="n_b sweep on the first scene ('' for none)")
     ap.add_argument("--gt-spp", default="8192", help="ground-truth samples per pixel (default 8192; cached)")
     ap.add_argument("--runs", help="runs per point (warpbw bench --runs; default 3): the table's standard errors "
@@ -105,9 +119,9 @@ def main(argv=None) -> int:
     ap.add_argument("--force", action="store_true", help="rewrite changed scene files and overwrite existing "
                     "results (passed on to warpbw bench)")
     args = ap.parse_args(argv)
-    unknown = sorted(set(args.only.split(",") if args.only else ()) - set(SCENES))
+    unknown = sorted(set(args.only.split(",") if args.only else ()) - set(SCENES) - set(EXTRA_SCENES))
     if unknown:
-        ap.error(f"--only {','.join(unknown)}: expected scene names among {', '.join(SCENES)}")
+        ap.error(f"--only {','.join(unknown)}: expected scene names among {', '.join([*SCENES, *EXTRA_SCENES])}")
     # the values passed on to warpbw bench, checked by its own parsers before anything is written
     check_command_options("bench", {k: v for k, v in (("--gt-spp", args.gt_spp), ("--runs", args.runs),
                                                          ("--nb", args.nb), ("--env-signal", args.env_signal))
@@ -119,9 +133,9 @@ def main(argv=None) -> int:
     print("scenes: " + ", ".join(str(p) for p in paths))
     if not args.run:
         return 0
-    only = set(args.only.split(",")) if args.only else None
+    only = set(args.only.split(",")) if args.only else set(SCENES)
     for i, p in enumerate(paths):
-        if only and p.stem not in only:
+        if p.stem not in only:
             continue
         res = Path(args.results or args.out) / p.stem
         res.parent.mkdir(parents=True, exist_ok=True)

@@ -551,16 +551,20 @@ def _bench_scenes():
 
 def test_bench_scenes_are_the_readme_table(tmp_path):
     """Each scene file parses to README's row: its object (the bunny mesh or a sphere), the MERL file made from its
-    NPF material, its probe and its size."""
+    NPF material, its probe and its size; the fifth, not run by default, is the ccp3 scene with a sun added."""
     import tomllib
     from pathlib import Path
 
     bs = _bench_scenes()
     texts = bs.scene_texts(tmp_path)
-    assert sorted(p.stem for p in texts) == sorted(README_BENCH_SCENES)
+    assert sorted(p.stem for p in texts) == sorted([*README_BENCH_SCENES, "sphere_ccp3_forest_sun"])
+    sun = tomllib.loads(texts.pop(tmp_path / "sphere_ccp3_forest_sun.toml"))
+    assert sun.pop("light") == [{"type": "directional", "direction": [0.4, 0.7, 0.6], "radiance": [5.0, 4.8, 4.4]}]
+    assert sun == tomllib.loads(texts[tmp_path / "sphere_ccp3_forest.toml"])   # the ccp3 scene plus the sun
     for p, text in texts.items():
         obj, material, probe, size = README_BENCH_SCENES[p.stem]
         t = tomllib.loads(text)
+        assert "light" not in t, p.stem
         assert t["camera"]["resolution"] == [size, size], p.stem
         assert Path(t["environment"]["file"]).name == probe, p.stem
         (o,) = t["object"]
@@ -608,3 +612,7 @@ def test_bench_scenes_run_passes_its_options_to_every_bench_and_the_sweep_to_the
     benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
     assert [Path(c[2]).stem for c in benches] == ["sphere_chrome_studio"]
     assert "--no-mis" not in benches[0] and "--runs" not in benches[0] and "--nb" not in benches[0]
+    calls.clear()   # the sun scene is written with the others, and run only when named
+    assert bs.main(["--out", str(out), "--run", "--only", "sphere_ccp3_forest_sun,sphere_ccp3_forest"]) == 0
+    benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
+    assert [Path(c[2]).stem for c in benches] == ["sphere_ccp3_forest", "sphere_ccp3_forest_sun"]
