@@ -464,3 +464,28 @@ def test_deferred_curvature_is_derived_once_when_a_gbuffer_asks_for_it():
     after = render_gbuffer(cam, moved)
     curv = after.numpy("curvature")[after.numpy("material") == 1]
     assert len(calls) == 1 and 1.0 / (1.1 * 0.7) * 0.9 < np.median(curv) < 1.0 / (1.1 * 0.7) * 1.1
+
+
+def test_deferred_curvature_that_fails_stays_pending_and_a_wrong_shape_is_refused():
+    """A deferred curvature whose derivation fails is not dropped: the mesh stays pending (a later G-buffer derives
+    it, never reads a silent 0), and one with the wrong number of values is refused, naming the MeshSpec."""
+    from warpbw.gbuffer import ensure_curvature
+
+    m = _icosphere_spec(0.5, subdiv=2)
+    tries = []
+
+    def flaky():
+        tries.append(1)
+        if len(tries) == 1:
+            raise OSError("disk went away")
+        return m.curvature
+
+    geo = build_geometry([], [MeshSpec(m.vertices, m.faces, m.normals, flaky, None, 0)])
+    with pytest.raises(OSError):
+        ensure_curvature(geo)
+    assert 0 in geo.curvature_pending
+    assert ensure_curvature(geo) and not geo.curvature_pending
+    np.testing.assert_allclose(geo.mesh_attr.curvature.numpy(), 2.0, rtol=1e-6)   # |H| = 1 / 0.5
+    short = build_geometry([], [MeshSpec(m.vertices, m.faces, m.normals, lambda: m.curvature[:-3], None, 0)])
+    with pytest.raises(WarpbwError, match="MeshSpec 0: curvature"):
+        ensure_curvature(short)

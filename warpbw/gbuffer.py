@@ -431,15 +431,17 @@ def ensure_curvature(geometry: Geometry) -> bool:
 
     pending = geometry.curvature_pending
     derived = bool(pending)
-    while pending:
-        k, (mean_curvature, faces) = pending.popitem()
+    for k in sorted(pending):   # each mesh stays pending until its curvature is on the device
+        mean_curvature, faces = pending[k]
         start, count = geometry.mesh_vertex_ranges[k]
-        c = local_curvature(mean_curvature(), faces)
-        if c.shape != (count,):
+        h = np.asarray(mean_curvature())
+        if h.shape != (count,):
             raise WarpbwError(f"MeshSpec {k}: curvature: expected ({count},) values (one per vertex), "
-                              f"got shape {c.shape}")
+                              f"got shape {h.shape}")
+        c = local_curvature(h, faces)
         dest = geometry.mesh_attr.curvature
         wp.copy(dest, wp.array(c, dtype=wp.float32, device=dest.device), dest_offset=start, count=count)
+        del pending[k]
     return derived
 
 
