@@ -340,6 +340,9 @@ def upsample_level(gb: GBufferData, cam: CameraData, level: int, parent_values, 
     ``mode``: "normal" (the weights' least-squares fit in the normal) or "paper" (their weighted mean).
     ``weights``: the w_i of an earlier call with the same ``parent_valid`` and ``todo`` (its
     ``UpsampleResult.weights``), read instead of computed again.
+    A non-finite parent value propagates to the pixels that give it weight (nothing replaces it with a guess).
+    (The hierarchy's parents are shaded values, which are finite: the shading drops a non-finite sample and
+    counts it, ``warpbw.shading``.)
     """
     fit = check_upsample_mode(mode)
     level = check_count(level, "level", 0)   # -1 failed on a negative shift, 2.5 ran as 2
