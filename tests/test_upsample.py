@@ -92,6 +92,24 @@ def test_invalid_parents_are_ignored(mode):
     assert (r.needs_shading.numpy() == 1).sum() + ok.sum() >= 0.9 * gb.coverage.sum()
 
 
+@MODES
+def test_a_non_finite_valid_parent_propagates_to_the_pixels_that_weigh_it(mode):
+    """The docstring's promise: a valid parent holding NaN or inf is not replaced by a guess; the pixels that give it
+    weight come out non-finite, and the pixels that do not (each level-0 pixel weighs only its four nearest
+    parents) keep their finite values."""
+    gb, cam = gbuffer([SphereSpec((0, 0, 0), 1.2, 0)])
+    valid, _ = parent_valid_from_coverage(gb, 1)
+    for bad in (np.nan, np.inf):
+        parents = np.tile(np.float32([1.0, 1.0, 1.0]), (len(valid), 1))
+        k = int(np.flatnonzero(valid)[len(np.flatnonzero(valid)) // 2])   # a valid parent inside the sphere
+        parents[k] = bad
+        r = upsample_level(gb.data, cam, 0, parents, valid, np.ones(gb.width * gb.height), mode=mode)
+        ok = r.valid.numpy() == 1
+        finite = np.isfinite(r.values.numpy()).all(axis=1)
+        assert 1 <= (ok & ~finite).sum() <= 16, bad   # the pixels around one parent, not the frame
+        assert np.allclose(r.values.numpy()[ok & finite], 1.0)
+
+
 def test_weights_follow_the_closed_form_on_a_frontal_surface():
     # the centre of a big sphere faces the camera: cos theta_x ~ 1, M ~ I, g_z ~ 1
     gb, cam = gbuffer([SphereSpec((0, 0, 0), 3.0, 0)], w=32, h=32, pos=(0.0, 0.0, 8.0))

@@ -292,7 +292,8 @@ def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
         needs_shading[t] = 1
         return
     mean = acc / total
-    if fit != 0:
+    # the fit's clamp to [lo, hi] would turn a non-finite parent into a finite guess: such a mean is kept as it is
+    if fit != 0 and wp.isfinite(mean[0]) and wp.isfinite(mean[1]) and wp.isfinite(mean[2]):
         mean = normal_fit(mean, total, s_u, s_uu, s_ul_x, s_ul_y, lo, hi)
     out[t] = mean
     out_valid[t] = 1
