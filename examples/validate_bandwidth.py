@@ -550,6 +550,16 @@ def relative_gradient(lum: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return np.where(cov, np.hypot(gx, gy) / (np.abs(lum) + GRADIENT_EPS), 0.0)
 
 
+def interior(cov: np.ndarray, margin: float) -> np.ndarray:
+    """The covered pixels farther than ``margin`` pixels from any uncovered one (or from the image's border): with
+    margin = half an FFT window, the pixels whose reference window lies on the object, away from its silhouette.
+    There P_x's 1 / cos theta_x, which raises b_p in a ring a few pixels wide, plays no part, so a rank there says
+    how well the prediction follows the shading itself."""
+    from scipy.ndimage import distance_transform_edt
+
+    return distance_transform_edt(np.pad(cov, 1))[1:-1, 1:-1] > margin
+
+
 def compare_variance(pred: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> dict:
     """Rank correlation, conservative fraction (pred >= ref) and median pred/ref over ``mask``."""
     p, r = pred[mask].astype(np.float64), ref[mask].astype(np.float64)
@@ -744,6 +754,7 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
     vd = compare_variance(sigma2_diag, var_u, vmask & np.isfinite(sigma2_diag))
     bp, br = b_p[bw_valid], bw_ref[bw_valid]
     pos = (bp > 0) & (br > 0)
+    inner = bw_valid & interior(cov, cfg["window"] / 2)
     nf = window_noise_shares(wb)
     stats = {
         "material": scene.materials["m"].npf_name or scene.materials["m"].type,
@@ -759,6 +770,12 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
         "bandwidth_spearman_ceiling": spearman_ceiling(br),
         "bandwidth_reference_largest_tie": (float(np.unique(br, return_counts=True)[1].max()) / br.size
                                             if br.size else float("nan")),
+        # away from the silhouette (interior): the prediction, and what it and the reference share with the
+        # converged image's luminance there (for information, not the check)
+        "bandwidth_spearman_interior": spearman(b_p[inner], bw_ref[inner]),
+        "bandwidth_interior_pixels": int(inner.sum()),
+        "bandwidth_luminance_spearman_interior": spearman(b_p[inner], lum[inner]),
+        "reference_luminance_spearman_interior": spearman(bw_ref[inner], lum[inner]),
         # the same two correlations for a statistic of the converged image itself (relative_gradient)
         "oracle_gradient_spearman": spearman(grad[bw_valid], br),
         "oracle_gradient_spearman_windowed": spearman(grad_win[bw_valid], br),
@@ -842,6 +859,7 @@ def print_table(results: dict) -> None:
             ("bw rho(win)", "{:>11.3f}", "bandwidth_spearman_windowed"),
             ("+/-", "{:>5.3f}", "bandwidth_spearman_windowed_se"),
             ("ceiling", "{:>7.3f}", "bandwidth_spearman_ceiling"),
+            ("interior", "{:>8.3f}", "bandwidth_spearman_interior"),
             ("DCT rho", "{:>7.3f}", "bandwidth_spearman_even"),
             ("DCT rho(win)", "{:>12.3f}", "bandwidth_spearman_even_windowed"),
             ("bp/ref", "{:>7.2f}", "bandwidth_median_ratio"), ("noise", "{:>6.1%}", "noise_fraction_median"),
@@ -864,7 +882,8 @@ def print_table(results: dict) -> None:
         print(" ".join(cells))
     n_b = next(iter(results.values()))["diagnostic_n_b"] if results else N_B_DIAGNOSTIC
     print(f"(diag: the same bandwidth pass with n_b = {n_b} directions; DCT: against the same windows' mirrored "
-          f"spectrum, for information; ceiling: the most any predictor can reach against the reference's ties)")
+          f"spectrum, for information; ceiling: the most any predictor can reach against the reference's ties; "
+          f"interior: bw rho over the pixels more than half a window from the silhouette)")
 
 
 def outputs(out: Path, scenes) -> list:

@@ -412,6 +412,29 @@ def test_quick_run_figures_are_the_maps_figures(quick_run):
     assert s["bis_variance_spearman"] == pytest.approx(scipy_stats.spearmanr(p, m["var_bis"][cov])[0], abs=1e-9)
 
 
+def test_interior_is_the_disk_shrunk_by_the_margin(vb):
+    """interior(): on a disk of radius 30 the pixels more than m from its edge are the disk of radius 30 - m (to
+    the pixel grid's rounding); the image border counts as an edge too."""
+    yy, xx = np.mgrid[0:100, 0:100]
+    r = np.hypot(yy - 49.5, xx - 49.5)
+    for m in (0, 4, 16):
+        got = vb.interior(r < 30.0, m)
+        assert not got[r >= 30.0 - m + 1.0].any() and got[r < 30.0 - m - 1.0].all(), m
+    full = np.ones((20, 20), bool)
+    assert vb.interior(full, 4).sum() == 12 * 12 and not vb.interior(full, 10).any()
+
+
+def test_quick_run_interior_figures_are_the_maps_figures(vb, quick_run):
+    """The interior rank recomputed from the written maps with scipy: b_p against the reference over the reference's
+    pixels more than half a window from the silhouette."""
+    scipy_stats = pytest.importorskip("scipy.stats")
+    s, m = quick_run
+    inner = m["bw_valid"] & vb.interior(m["coverage"], vb.QUICK["window"] / 2)   # --quick: its window
+    assert s["bandwidth_interior_pixels"] == int(inner.sum()) > 20
+    assert s["bandwidth_spearman_interior"] == pytest.approx(
+        scipy_stats.spearmanr(m["b_p"][inner], m["bw_ref"][inner])[0], abs=1e-9)
+
+
 def test_quick_run_window_average_is_the_hann_mean_of_b_p_at_the_centres(vb, quick_run):
     """b_p window-averaged, at window centres (every 4th pixel) whose window counts: the Hann-weighted mean of b_p
     over the covered pixels of the --quick window (16 x 16, rows and columns c - 8 .. c + 7), summed here."""
