@@ -26,6 +26,8 @@ For each validation scene (a sphere with the NPF fit of color-changing-paint3 un
    from the mean, was measured with 4096-spp images: 0.565 / 0.345 / 0.464 per pixel against 0.568 / 0.351 /
    0.491).  Reported:
    Spearman rank correlation over those pixels, against b_p itself and against b_p averaged over the same window;
+   for information, the first over the interior alone (:func:`interior`: more than half a window from the
+   silhouette; 0.613 / 0.546 / 0.107 at 256x256, docs/measurements.md says why the GGX sphere's is low);
    and, as a yardstick, the same for the converged image's own relative gradient |grad L| / L (an oracle
    that knows the true image: how far any per-pixel statistic can get against this reference).  For
    information, not the check: the same two correlations against the same windows' mirrored (DCT) spectrum,
