@@ -99,14 +99,23 @@ def test_a_non_finite_valid_parent_propagates_to_the_pixels_that_weigh_it(mode):
     parents) keep their finite values."""
     gb, cam = gbuffer([SphereSpec((0, 0, 0), 1.2, 0)])
     valid, _ = parent_valid_from_coverage(gb, 1)
-    for bad in (np.nan, np.inf):
+    todo = np.ones(gb.width * gb.height)
+    k = int(np.flatnonzero(valid)[len(np.flatnonzero(valid)) // 2])   # a valid parent inside the sphere
+
+    def upsample(value, how):
         parents = np.tile(np.float32([1.0, 1.0, 1.0]), (len(valid), 1))
-        k = int(np.flatnonzero(valid)[len(np.flatnonzero(valid)) // 2])   # a valid parent inside the sphere
-        parents[k] = bad
-        r = upsample_level(gb.data, cam, 0, parents, valid, np.ones(gb.width * gb.height), mode=mode)
+        parents[k] = value
+        return upsample_level(gb.data, cam, 0, parents, valid, todo, mode=how)
+
+    # the pixels that weigh parent k: those whose weighted mean moves when it does (the weights are the modes')
+    moved = upsample(2.0, "paper")
+    weighs_k = (moved.valid.numpy() == 1) & np.any(moved.values.numpy() != 1.0, axis=1)
+    assert 1 <= weighs_k.sum() <= 16   # the pixels around one parent, not the frame
+    for bad in (np.nan, np.inf):
+        r = upsample(bad, mode)
         ok = r.valid.numpy() == 1
         finite = np.isfinite(r.values.numpy()).all(axis=1)
-        assert 1 <= (ok & ~finite).sum() <= 16, bad   # the pixels around one parent, not the frame
+        np.testing.assert_array_equal(ok & ~finite, weighs_k, err_msg=str(bad))
         assert np.allclose(r.values.numpy()[ok & finite], 1.0)
 
 
