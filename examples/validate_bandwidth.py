@@ -100,7 +100,8 @@ DATA = HERE.parent.parent / "shared" / "data"   # ../shared/data beside the repo
 # diameter rather than a third at 128 (about 7 minutes for all scenes on 2 cores).  At 512 (--size 512, about
 # 30 minutes) the Hann reference reads 0.565 / 0.507 / 0.514 per pixel (the bunny 0.292 with the signed H of
 # before session 28; the spheres 0.296 / 0.453 when every image had 4096 spp, 10.3% / 3.0% noise); the variance
-# figures hold at both sizes (512: Spearman 0.680 / 0.940 / 0.944, conservative on >= 99.7% of pixels).  README "Measured" has both sizes.
+# figures hold at both sizes (512: Spearman 0.680 / 0.940 / 0.944, conservative on >= 99.7% of pixels).
+# README "Measured" has both sizes.
 DEFAULT_SIZE = 256
 # converged image: MIS samples per pixel to start with (two halves of 2048), doubled (:func:`converged_image`)
 # while the residual noise is more than REF_NOISE_TARGET of the median FFT window's AC energy, up to REF_SPP_MAX.

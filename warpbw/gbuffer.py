@@ -434,11 +434,7 @@ def ensure_curvature(geometry: Geometry) -> bool:
     for k in sorted(pending):   # each mesh stays pending until its curvature is on the device
         mean_curvature, faces = pending[k]
         start, count = geometry.mesh_vertex_ranges[k]
-        h = np.asarray(mean_curvature())
-        if h.shape != (count,):
-            raise WarpbwError(f"MeshSpec {k}: curvature: expected ({count},) values (one per vertex), "
-                              f"got shape {h.shape}")
-        c = local_curvature(h, faces)
+        c = local_curvature(_per_vertex("curvature", mean_curvature(), (count,), f"MeshSpec {k}: "), faces)
         dest = geometry.mesh_attr.curvature
         wp.copy(dest, wp.array(c, dtype=wp.float32, device=dest.device), dest_offset=start, count=count)
         del pending[k]
@@ -464,19 +460,18 @@ def check_reach(cam: CameraData, geometry: Geometry) -> None:
         check_camera_reach(reach, lo, hi, f"the far side of a {kind}", kind, why)
 
 
-def _per_vertex(name: str, values, shape: tuple, mesh_index: int) -> np.ndarray:
-    """``values`` as a float32 array of ``shape``, or a WarpbwError naming what was expected."""
+def _per_vertex(name: str, values, shape: tuple, where: str) -> np.ndarray:
+    """``values`` as a float32 array of ``shape``, or a WarpbwError naming ``where`` (the message's start, e.g.
+    "update_mesh: mesh 0 "), ``name`` and what was expected."""
     a = np.asarray(values)
     if a.shape != shape:
-        raise WarpbwError(f"update_mesh: mesh {mesh_index} {name}: expected shape {shape} "
-                          f"({shape[0]} vertices, as built), got {a.shape}")
+        raise WarpbwError(f"{where}{name}: expected shape {shape} ({shape[0]} vertices, as built), got {a.shape}")
     if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
-        raise WarpbwError(f"update_mesh: mesh {mesh_index} {name}: expected numbers, got dtype {a.dtype}")
+        raise WarpbwError(f"{where}{name}: expected numbers, got dtype {a.dtype}")
     a = np.ascontiguousarray(a, dtype=np.float32)
     n_bad = int(np.count_nonzero(~np.isfinite(a)))
     if n_bad:
-        raise WarpbwError(f"update_mesh: mesh {mesh_index} {name}: expected finite values, "
-                          f"{n_bad} are NaN or infinite (or overflow float32)")
+        raise WarpbwError(f"{where}{name}: expected finite values, {n_bad} are NaN or infinite (or overflow float32)")
     return a
 
 
@@ -502,12 +497,13 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
         raise WarpbwError("update_mesh: give both normals and curvature, or neither (then both are computed on "
                           "the device)")
     start, count = ranges[int(mesh_index)]
-    copies = [(geometry.mesh.points, _per_vertex("vertices", vertices, (count, 3), mesh_index), wp.vec3)]
+    where = f"update_mesh: mesh {mesh_index} "
+    copies = [(geometry.mesh.points, _per_vertex("vertices", vertices, (count, 3), where), wp.vec3)]
     geometry.mesh_bounds[int(mesh_index)] = _bounds(copies[0][1])
     ma = geometry.mesh_attr
     if normals is not None:
-        copies += [(ma.normal, _per_vertex("normals", normals, (count, 3), mesh_index), wp.vec3),
-                   (ma.curvature, _per_vertex("curvature", curvature, (count,), mesh_index), wp.float32)]
+        copies += [(ma.normal, _per_vertex("normals", normals, (count, 3), where), wp.vec3),
+                   (ma.curvature, _per_vertex("curvature", curvature, (count,), where), wp.float32)]
     device = geometry.mesh.points.device
     for dest, src, dtype in copies:
         wp.copy(dest, wp.array(src, dtype=dtype, device=device), dest_offset=start, count=count)
