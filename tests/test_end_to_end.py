@@ -463,6 +463,55 @@ def test_a_mesh_curvature_is_derived_only_for_a_frame_with_the_bandwidth_pass(tm
     assert abs(np.median(want) * 0.8 - 1.0) < 0.02   # |H| = 1 / r
 
 
+def test_a_frame_compiles_and_launches_only_the_kernels_its_scene_needs(tmp_path, monkeypatch):
+    """"No stage is compiled or run that the scene does not use", seen from Warp's side: every kernel a frame
+    launches, and every module it loads (compiles) ahead of the clock, is recorded at ``wp.launch`` /
+    ``wp.load_module``.  A Lambert sphere under a constant sky, reference: the spheres-only G-buffer kernel and
+    the reference kernel specialised to {Lambert}, with the environment's loop and no light loop -- nothing
+    else.  With a directional light instead of the sky: the same, with the light loop and no environment loop.
+    Adaptive: the bandwidth pass, the pyramid, the hierarchy and the up-sampling join them, and nothing of the
+    planes' filtering, the mesh operators or the host-side BRDF kernels."""
+    import warp as wp
+
+    from warpbw.brdf import LAMBERT
+    from warpbw.gbuffer import make_gbuffer_kernel
+    from warpbw.pipeline import render_adaptive, render_reference
+    from warpbw.scene import parse_scene
+    from warpbw.shading import make_reference_kernel
+
+    launched, loaded = [], []
+    launch, load_module = wp.launch, wp.load_module
+    monkeypatch.setattr(wp, "launch", lambda kernel, *a, **k: launched.append(kernel) or launch(kernel, *a, **k))
+    monkeypatch.setattr(wp, "load_module", lambda m, *a, **k: loaded.append(m) or load_module(m, *a, **k))
+
+    def frame(render, light: str, **kw) -> tuple[list, list]:
+        launched.clear()
+        loaded.clear()
+        text = "\n".join(["[camera]", "position = [0.0, 0.0, 4.0]", "look_at = [0.0, 0.0, 0.0]", "fov = 30.0",
+                          "resolution = [32, 32]", light, "[[object]]", 'shape = "sphere"', "radius = 1.0",
+                          'material = "m"', "[material.m]", 'type = "lambert"', "albedo = 0.5"])
+        res = render(parse_scene(text, tmp_path, "s.toml"), seed=1, **kw)
+        assert res.coverage.sum() > 100
+        return list(launched), list(loaded)
+
+    sky = "[environment]\nconstant = [1.0, 1.0, 1.0]"
+    sun = '[[light]]\ntype = "directional"\ndirection = [0.0, 0.0, 1.0]\nradiance = [1.0, 1.0, 1.0]'
+    gbuffer = make_gbuffer_kernel(has_spheres=True, has_mesh=False)
+    for light, has_env in ((sky, True), (sun, False)):
+        shade = make_reference_kernel({LAMBERT}, False, has_env=has_env, has_lights=not has_env)
+        kernels, modules = frame(render_reference, light, spp=2)
+        assert {id(k) for k in kernels} == {id(gbuffer), id(shade)}, [k.key for k in kernels]
+        assert {id(m) for m in modules} <= {id(gbuffer.module), id(shade.module)}, [m.name for m in modules]
+
+    kernels, modules = frame(render_adaptive, sky, budget=2.0)
+    launched_by = {k.func.__module__ for k in kernels}
+    assert launched_by == {"warpbw.gbuffer", "warpbw.shading", "warpbw.bandwidth", "warpbw.pyramid",
+                           "warpbw.adaptive", "warpbw.upsample"}
+    assert id(gbuffer) in {id(k) for k in kernels}
+    # nothing compiled ahead goes unused
+    assert {id(m) for m in modules} <= {id(k.module) for k in kernels}, [m.name for m in modules]
+
+
 # ------------------------------------------------------------------------------------------ planes beside a sphere
 
 def _numpy_plane_and_sphere_depths(w, h):

@@ -198,6 +198,8 @@ CASES = [
     ("negative radius", _replace(BASE, "radius = 1.0", "radius = -1.0"), "[[object]] #1.radius"),
     ("missing radius", _replace(BASE, "radius = 1.0\n", ""), "[[object]] #1.radius"),
     ("unknown shape", _replace(BASE, 'shape = "sphere"', 'shape = "cube"'), "[[object]] #1.shape"),
+    ("shape mesh", scene_text(objects='[[object]]\nshape = "mesh"\nfile = "bunny.obj"\nmaterial = "paint"\n'),
+     '[[object]] #1.shape: a mesh object is written mesh = "file.obj" without shape'),
     ("unknown object key", _replace(BASE, "radius = 1.0", "radius = 1.0\ncolour = [1, 0, 0]"),
      "[[object]] #1.colour"),
     ("missing material", _replace(BASE, 'material = "paint"\n', ""), "[[object]] #1.material"),

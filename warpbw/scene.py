@@ -450,6 +450,9 @@ def _object(ctx: _Ctx, d: dict, i: int, materials: dict):
     if ("shape" in d) == ("mesh" in d):
         ctx.fail(key, "expected exactly one of shape = \"sphere\" / \"plane\" or mesh = \"file.obj\"")
     # keys first: a misspelt key ("materal") is reported as unknown, not as a missing "material"
+    if d.get("shape") == "mesh":   # the one shape that is not a shape: meshes name their file instead
+        ctx.fail(f"{key}.shape", 'a mesh object is written mesh = "file.obj" without shape; shape is "sphere" '
+                 'or "plane"')
     if "shape" in d:
         ctx.string(d["shape"], f"{key}.shape", ("sphere", "plane"))
     if "shape" in d and d["shape"] == "plane":
