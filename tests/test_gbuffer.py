@@ -1,12 +1,14 @@
 """G-buffer pass: analytic spheres against the closed form, meshes against the BVH, camera conventions."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
-from conftest import grid_mesh
+from conftest import grid_mesh, numpy_camera_rays, numpy_sphere_distance
 
 from warpbw.errors import WarpbwError
-from warpbw.gbuffer import (MESH_REACH_MAX, MESH_REACH_MIN, SPHERE_REACH_MAX, SPHERE_REACH_MIN, MeshSpec,
+from warpbw.gbuffer import (COORD_SPACING_REL_MAX, MESH_REACH_MAX, MESH_REACH_MIN, SPHERE_REACH_MAX, SPHERE_REACH_MIN, MeshSpec,
                             SphereSpec, build_geometry, camera_rays, hide_beyond, make_camera, render_gbuffer,
                             update_mesh)
 
@@ -248,6 +250,46 @@ def test_a_scene_scaled_up_renders_the_same_until_float32_intersection_would_fai
                 cover(s, mesh)
     assert 5 * 1e17 < SPHERE_REACH_MAX < 5 * 1e20 and 5 * 1e11 < MESH_REACH_MAX < 5 * 1e15
     assert 5e-19 < SPHERE_REACH_MIN < 5e-15 and 5e-14 < MESH_REACH_MIN < 5e-9
+
+
+def test_a_scene_translated_far_from_the_origin_renders_the_same_until_float32_cannot_place_it_then_is_refused():
+    """A unit sphere (analytic, then a mesh) and its camera translated by t along x: the same pixels and normals
+    as at the origin while float32 spaces coordinates finely there (t up to 4e3: spacing 2.4e-4), refused beyond
+    COORD_SPACING_REL_MAX of the object's size.  Before the check, at t = 1e6 the sphere's normals came out up to
+    179 degrees wrong and at 1e10 the camera rounded into the sphere (an empty image), without a word.  A large
+    sphere near the origin is not refused for its size: a ground of radius 1e4 under a camera one unit above it
+    keeps its normals (against the float64 ray cast)."""
+    def frame(t, mesh):
+        shift = np.array([t, 0.0, 0.0])
+        cam = make_camera(tuple(shift + (1.5, 0.5, 4.0)), tuple(shift), (0.0, 1.0, 0.0), 35.0, 32, 32)
+        if not mesh:
+            return render_gbuffer(cam, build_geometry([SphereSpec(tuple(shift), 1.0, 0)], []))
+        spec = _icosphere_spec(1.0, subdiv=3)
+        spec.vertices = spec.vertices + shift
+        return render_gbuffer(cam, build_geometry([], [spec]))
+
+    for mesh in (False, True):
+        unit = frame(0.0, mesh)
+        assert unit.coverage.sum() > 100
+        for t in (1e2, 4e3):
+            gb = frame(t, mesh)
+            assert np.array_equal(gb.coverage, unit.coverage), (t, mesh)
+            cos = np.einsum("ij,ij->i", gb.numpy("normal")[unit.coverage], unit.numpy("normal")[unit.coverage])
+            assert cos.min() > math.cos(2e-3), (t, mesh)
+        for t in (1e5, 1e10):
+            with pytest.raises(WarpbwError, match="lie up to .* from the origin, where float32 spaces coordinates"):
+                frame(t, mesh)
+    assert COORD_SPACING_REL_MAX < 1e-2
+
+    ground = (0.0, -1e4, 0.0)
+    cam = make_camera((0.0, 1.0, 4.0), (0.0, 0.5, 0.0), (0.0, 1.0, 0.0), 40.0, 32, 32)
+    gb = render_gbuffer(cam, build_geometry([SphereSpec(ground, 1e4, 0)], []))
+    o, d = numpy_camera_rays((0.0, 1.0, 4.0), (0.0, 0.5, 0.0), 40.0, 32, 32)
+    t_hit = numpy_sphere_distance(o, d, ground, 1e4)
+    assert np.array_equal(gb.coverage, np.isfinite(t_hit)) and gb.coverage.sum() > 300
+    n_ref = (o + t_hit[..., None] * d - np.asarray(ground)) / 1e4
+    cos = np.einsum("ij,ij->i", gb.numpy("normal")[gb.coverage], n_ref[gb.coverage])
+    assert cos.min() > math.cos(2e-3)
 
 
 def test_update_mesh_moving_a_mesh_out_of_reach_is_refused_at_the_next_frame():
