@@ -353,8 +353,12 @@ class _Ctx:
             self.fail(key, f"expected a number <= {hi:g}, got {v:g}")
         return v
 
-    def vec3(self, v, key: str, lo=None) -> tuple:
+    def vec3(self, v, key: str, lo=None, point: bool = False) -> tuple:
+        """Three numbers; one number stands for three equal ones (a grey colour) unless ``point`` (a position
+        or direction, where 4.0 for [4, 4, 4] is more likely a slip than a wish)."""
         if isinstance(v, (int, float)) and not isinstance(v, bool):
+            if point:
+                self.fail(key, f"expected three numbers [x, y, z] (a point or direction, not one number), got {v!r}")
             v = [v, v, v]
         if not isinstance(v, list) or len(v) != 3:
             self.fail(key, f"expected three numbers [x, y, z], got {v!r}")
@@ -382,9 +386,9 @@ class _Ctx:
 def _camera(ctx: _Ctx, d: dict) -> Camera:
     ctx.table(d, "[camera]", ("position", "look_at", "up", "fov", "resolution"),
               required=("position", "look_at", "fov", "resolution"))
-    pos = ctx.vec3(d["position"], "[camera].position")
-    at = ctx.vec3(d["look_at"], "[camera].look_at")
-    up = ctx.vec3(d.get("up", [0.0, 1.0, 0.0]), "[camera].up")
+    pos = ctx.vec3(d["position"], "[camera].position", point=True)
+    at = ctx.vec3(d["look_at"], "[camera].look_at", point=True)
+    up = ctx.vec3(d.get("up", [0.0, 1.0, 0.0]), "[camera].up", point=True)
     fov = ctx.number(d["fov"], "[camera].fov", lo=0.0, lo_open=True)
     if fov >= 180.0:
         ctx.fail("[camera].fov", f"expected degrees in (0, 180), got {fov:g}")
@@ -435,7 +439,7 @@ def _light(ctx: _Ctx, d: dict, i: int) -> DirectionalLight:
         ctx.fail(key, f"expected a table, got {d!r}")
     ctx.table(d, key, ("type", "direction", "radiance"), required=("type", "direction", "radiance"))
     ctx.string(d["type"], f"{key}.type", LIGHT_TYPES)
-    direction = ctx.vec3(d["direction"], f"{key}.direction")
+    direction = ctx.vec3(d["direction"], f"{key}.direction", point=True)
     length = math.sqrt(sum(c * c for c in direction))
     if length < 1e-9:
         ctx.fail(f"{key}.direction", f"expected a non-zero vector towards the light, got {list(direction)}")
@@ -473,15 +477,15 @@ def _object(ctx: _Ctx, d: dict, i: int, materials: dict):
             if materials[mat].type != "cook-torrance":
                 ctx.fail(f"{key}.material", f"planes take a cook-torrance material, [material.{mat}] is "
                          f"{materials[mat].type!r}")
-            return PlaneObject(ctx.vec3(d.get("center", [0.0, 0.0, 0.0]), f"{key}.center"),
+            return PlaneObject(ctx.vec3(d.get("center", [0.0, 0.0, 0.0]), f"{key}.center", point=True),
                                ctx.number(d["size"], f"{key}.size", lo=0.0, lo_open=True), mat)
         if materials[mat].type == "cook-torrance":
             ctx.fail(f"{key}.material", f"cook-torrance materials apply to planes only (shape = \"plane\"), "
                      f"not to a {shape}")
-        return SphereObject(ctx.vec3(d.get("center", [0.0, 0.0, 0.0]), f"{key}.center"),
+        return SphereObject(ctx.vec3(d.get("center", [0.0, 0.0, 0.0]), f"{key}.center", point=True),
                             ctx.number(d["radius"], f"{key}.radius", lo=0.0, lo_open=True), mat)
     return MeshObject(ctx.path(d["mesh"], f"{key}.mesh"), mat,
-                      ctx.vec3(d.get("translate", [0.0, 0.0, 0.0]), f"{key}.translate"),
+                      ctx.vec3(d.get("translate", [0.0, 0.0, 0.0]), f"{key}.translate", point=True),
                       ctx.number(d.get("scale", 1.0), f"{key}.scale", lo=0.0, lo_open=True),
                       ctx.number(d.get("rotate_y", 0.0), f"{key}.rotate_y"))
 
