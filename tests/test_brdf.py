@@ -75,6 +75,27 @@ def test_conductor_fresnel_matches_complex_formula(analytic):
     assert np.allclose(f, ggx_numpy(wi, wo, 0.4, (1, 1, 1)) * F, rtol=5e-4, atol=1e-7)
 
 
+def test_an_index_matched_conductor_reflects_nothing_and_never_below_zero():
+    """eta = 1, k = 0 (a conductor matched to its medium) has Fresnel 0 at every angle; the kernel's form cancels
+    two equal terms there, and rounding once left values of -1e-8 in the image (negative radiance).  Near it
+    (eta = 1 +- 1e-3, k = 1e-4) the values are >= 0 and follow the complex formula."""
+    rng = np.random.default_rng(5)
+    wi = random_hemisphere(rng, N_DIRS, 0.01)
+    wo = random_hemisphere(rng, len(wi) * 2, 0.01)[: len(wi)]
+    h = wi + wo
+    h /= np.linalg.norm(h, axis=1, keepdims=True)
+    cos_d = np.einsum("ij,ij->i", wi, h)
+    for eta, k in ((1.0, 0.0), (1.001, 1e-4), (0.999, 0.0)):
+        mats = B.build_material_table([B.MaterialSpec("m", B.GGX, alpha=0.2, specular=(1.0, 1.0, 1.0),
+                                                      eta=(eta,) * 3, k=(k,) * 3)])
+        f = B.eval_brdf(mats, 0, wi, wo)
+        assert f.min() >= 0.0, (eta, k, f.min())
+        g = ggx_numpy(wi, wo, 0.2, (1, 1, 1))[:, 0]
+        keep = g > 1e-3
+        fresnel = f[keep, 0] / g[keep]        # the kernel's F, against the complex formula (0 to float32 rounding)
+        assert np.allclose(fresnel, fresnel_conductor_numpy(cos_d[keep], eta, k), rtol=5e-3, atol=1e-6), (eta, k)
+
+
 def test_zero_below_horizon(analytic):
     wi = np.array([[0.3, 0.1, -0.2], [0.0, 0.0, 1.0]])
     wo = np.array([[0.0, 0.0, 1.0], [0.5, 0.0, -0.1]])

@@ -188,10 +188,11 @@ def fresnel_conductor(cos_d: float, eta: float, k: float):
     t1 = a2b2 + c2
     a = wp.sqrt(wp.max(0.5 * (a2b2 + t0), 0.0))
     t2 = 2.0 * c * a
-    rs = (t1 - t2) / wp.max(t1 + t2, 1.0e-20)
+    # both are squared magnitudes (>= 0); rounding made them -1e-8 where the two terms cancel (eta = 1, k = 0)
+    rs = wp.max((t1 - t2) / wp.max(t1 + t2, 1.0e-20), 0.0)
     t3 = c2 * a2b2 + s2 * s2
     t4 = t2 * s2
-    rp = rs * (t3 - t4) / wp.max(t3 + t4, 1.0e-20)
+    rp = rs * wp.max((t3 - t4) / wp.max(t3 + t4, 1.0e-20), 0.0)
     return 0.5 * (rp + rs)
 
 
