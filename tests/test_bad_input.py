@@ -1340,6 +1340,18 @@ def test_options_that_would_be_ignored_are_refused(tmp_path):
     assert_one_line_error(r, "--spp 4", "planes.toml has none")
     r = run(["demo", "-o", "out.exr"], tmp_path)
     assert_one_line_error(r, "-o out.exr", "expected a folder")
+    # a sphere lit by a directional light alone takes no sample: "8 spp" and MIS were printed and recorded
+    sun = '[[light]]\ntype = "directional"\ndirection = [0.0, 0.0, 1.0]\nradiance = [1.0, 1.0, 1.0]'
+    (tmp_path / "sun.toml").write_text(SCENE.format(resolution="[8, 8]", environment="", object='shape = "sphere"\n'
+                                                    'radius = 1.0', material='type = "lambert"\nalbedo = 0.5')
+                                       .replace("[environment]\n", sun))
+    for opt, needle in ((["--spp", "8"], "--spp 8"), (["--mis"], "--mis")):
+        r = run(["render", "sun.toml", "-o", "out.exr", *opt], tmp_path)
+        assert_one_line_error(r, needle, "sun.toml", "[[light]]s alone", "without samples")
+    r = run(["render", "sun.toml", "-o", "out.exr", "-q"], tmp_path)   # no option to refuse: it renders
+    assert r.returncode == 0, r.stderr
+    for name in ("out.exr", "out.png", "out.json"):
+        (tmp_path / name).unlink()
     assert_no_outputs(tmp_path) and not (tmp_path / "f.json").exists()
 
 

@@ -225,6 +225,13 @@ def test_compare_error_map_and_worst_share_follow_hand_made_images(tmp_path):
     r = run(["compare", "even.exr", "ref.exr"], tmp_path)
     assert "pixels 190 covered; the worst 1% of them (2) hold 1.1% of the relMSE" in r.stdout
     assert "error map" not in r.stdout
+    # no scale to print when the map holds one value (it was "log colour scale 1 to 1: --error-range 1,1 draws
+    # another map on it", an option it then refused): an image against itself, and one off evenly
+    r = run(["compare", "ref.exr", "ref.exr", "--error-map", "same.exr"], tmp_path)
+    assert "error map same.exr (+ same.png; no covered pixel has any error)" in r.stdout, r.stdout
+    r = run(["compare", "even.exr", "ref.exr", "--error-map", "even_err.exr"], tmp_path)
+    one = float(np.mean((0.05 ** 2) / (0.25 + 0.01)))
+    assert f"(+ even_err.png; every error is {one:.3g})" in r.stdout and "--error-range" not in r.stdout, r.stdout
 
 
 @settings(max_examples=60, deadline=None)

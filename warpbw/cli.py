@@ -329,7 +329,8 @@ def cmd_render(args) -> int:
     if args.method == "reference" and (args.budget is not None or args.nb is not None
                                        or _adaptive_options(args)):
         raise WarpbwError("--budget, --nb, --allocation, --nyquist, --upsample and --env-signal apply to --method "
-                          "adaptive only (the reference takes --spp)")
+                          "adaptive only, on spheres and meshes under an [environment] (the reference takes --spp; "
+                          "a scene of planes alone renders with --filter METHOD)")
     scene = load_scene(args.scene)
     mixed = _is_mixed(scene)
     if args.method == "adaptive" and args.spp is not None and not mixed:
@@ -339,6 +340,12 @@ def cmd_render(args) -> int:
         raise WarpbwError(f"--spp {args.spp}: the planes of {scene.source} are lit by [[light]]s alone, shaded in "
                           "closed form; --spp counts the rays of --filter ground_truth, or the samples of an "
                           "[environment]")
+    if not scene.has_planes and scene.environment is None and (args.spp is not None or args.mis):
+        # the directional lights' term is exact: a reference frame of them takes no sample for --spp to count
+        # or --mis to weigh (a frame that printed "8 spp" and recorded MIS had taken none)
+        opt = f"--spp {args.spp}" if args.spp is not None else "--mis"
+        raise WarpbwError(f"{opt}: {scene.source} is lit by [[light]]s alone, shaded in closed form without "
+                          "samples; --spp and --mis apply to the samples of an [environment]")
     if args.spp is None:
         args.spp = DEFAULT_SPP
     if mixed:
@@ -437,9 +444,12 @@ def cmd_compare(args) -> int:
         print(f"relMSE {r['relmse']:.6g}")
         print(f"pixels {r['pixels']} covered; the worst {_WORST_FRACTION:.0%} of them ({r['worst_pixels']}) hold "
               f"{100 * r['worst_share']:.1f}% of the relMSE")
-        if maps:
+        if maps and lo < hi:
             print(f"error map {maps[0]} (+ {maps[1].name}, log colour scale {lo:.3g} to {hi:.3g}: "
                   f"--error-range {lo:.3g},{hi:.3g} draws another map on it)")
+        elif maps:   # no scale to give: no error anywhere, or one value wherever there is any
+            what = "no covered pixel has any error" if r["relmse"] == 0 else f"every error is {hi:.3g}"
+            print(f"error map {maps[0]} (+ {maps[1].name}; {what})")
     return 0
 
 
@@ -821,7 +831,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--error-range", metavar="LO,HI", type=_number_list("--error-range", float),
                    help="the PNG's log colour scale, printed (default: from 10^-%d times the map's largest value, "
                    "or its smallest positive one if larger, to the largest), so that maps of several images can be "
-                   "drawn on one scale; write --error-range=LO,HI when LO is negative" % ERROR_MAP_DECADES)
+                   "drawn on one scale (0 < LO < HI)" % ERROR_MAP_DECADES)
     c.add_argument("--force", action="store_true", help="overwrite an existing --error-map")
     c.set_defaults(func=cmd_compare)
     return p

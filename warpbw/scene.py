@@ -531,7 +531,9 @@ def _material(ctx: _Ctx, name: str, d: dict) -> Material:
     key = f"[material.{name}]"
     if not isinstance(d, dict):
         ctx.fail(key, f"expected a table, got {d!r}")
-    t = ctx.string(d.get("type"), f"{key}.type", MATERIAL_TYPES)
+    if "type" not in d:
+        ctx.fail(f"{key}.type", f"missing required key (one of: {', '.join(MATERIAL_TYPES)})")
+    t = ctx.string(d["type"], f"{key}.type", MATERIAL_TYPES)
     allowed, required = _MATERIAL_KEYS[t]
     ctx.table(d, key, allowed, required)
     if t == "cook-torrance":
@@ -577,6 +579,8 @@ def parse_scene(text: str, base_dir: Path | str | None = None, source: str = "<s
         ctx.fail("[environment]", "missing (the scene needs a light: an [environment] with file, procedural = "
                  "\"sky\" or constant, or a [[light]] with type = \"directional\")")
     lights_in = d.get("light", [])
+    if isinstance(lights_in, dict):
+        ctx.fail("[light]", "expected [[light]] (double brackets: one table per light), got a single [light]")
     if not isinstance(lights_in, list) or ("light" in d and not lights_in):
         ctx.fail("[[light]]", "expected one or more [[light]] tables")
     lights = [_light(ctx, li, i) for i, li in enumerate(lights_in)]
@@ -585,6 +589,8 @@ def parse_scene(text: str, base_dir: Path | str | None = None, source: str = "<s
         ctx.fail("[material]", "expected tables [material.NAME]")
     materials = {name: _material(ctx, name, m) for name, m in mats_in.items()}
     objs_in = d.get("object", [])
+    if isinstance(objs_in, dict):   # [object], one table, where each object is one of an array of tables
+        ctx.fail("[object]", "expected [[object]] (double brackets: one table per object), got a single [object]")
     if not isinstance(objs_in, list) or not objs_in:
         ctx.fail("[[object]]", "expected at least one [[object]]")
     objects = [_object(ctx, o, i, materials) for i, o in enumerate(objs_in)]
