@@ -362,6 +362,15 @@ def test_truncated_file_refused(tmp_path):
         read_merl(path)
     msg = str(ei.value)
     assert str(path) in msg and str(MERL_FILE_SIZE) in msg and "4012" in msg and "\n" not in msg
+    assert "NPF" not in msg
+    # an NPF table given as a MERL file (both are "brdf" files in ../shared/data): the message says what it is
+    from warpbw.io.npf import NPF_FILE_SIZE
+
+    npf = tmp_path / "npf.bin"
+    npf.write_bytes(b"\0" * NPF_FILE_SIZE)
+    with pytest.raises(WarpbwError, match=r"npf\.bin: expected .* got 1572864 -- the size of an NPF table: a material "
+                       r"reads it with type = \"npf\""):
+        read_merl(npf)
 
 
 def test_bad_header_refused(tmp_path):

@@ -225,7 +225,12 @@ def read_merl(path) -> MerlBRDF:
     path = check_input_file(path, f"a MERL .binary BRDF of {MERL_FILE_SIZE} bytes")
     size = path.stat().st_size
     if size != MERL_FILE_SIZE:
-        raise WarpbwError(f"{path}: expected {MERL_FILE_SIZE} bytes (MERL .binary), got {size}")
+        from warpbw.io.npf import NPF_FILE_SIZE
+
+        hint = (" -- the size of an NPF table: a material reads it with type = \"npf\", table and name, and "
+                "warpbw-precompute npf-to-merl --table FILE --material NAME tabulates one as MERL"
+                if size == NPF_FILE_SIZE else "")
+        raise WarpbwError(f"{path}: expected {MERL_FILE_SIZE} bytes (MERL .binary), got {size}{hint}")
     try:
         dims = np.fromfile(path, dtype="<i4", count=3)
         raw = np.fromfile(path, dtype="<f8", offset=MERL_HEADER_BYTES)
