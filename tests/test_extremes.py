@@ -548,6 +548,39 @@ def test_planes_scaled_from_1e_minus_30_to_1e30_render_the_same_images_and_beyon
     assert PLANE_REACH_MIN < 3.5e-30 and 3.5e30 < PLANE_REACH_MAX
 
 
+def test_planes_translated_far_from_the_origin_render_the_same_until_float32_cannot_place_them(tmp_path):
+    """A plane scene moved by t along x (camera, look_at and the plane's center): the aligned GMM's image of t = 0
+    at t = 1e3 (float32 spacing 6e-5, 3e-5 of the plane's side); refused beyond COORD_SPACING_REL_MAX of it.
+    Before the check the benchmark's dunes read 37 dB against their frame at the origin at t = 1e5 and 23 dB at
+    1e7, exit 0."""
+    from warpbw.errors import COORD_SPACING_REL_MAX, WarpbwError
+    from warpbw.filtering import plane_distance, render_filtering
+
+    u = (np.arange(8) + 0.5) / 8
+    write_exr(tmp_path / "map.exr", (0.02 * np.sin(2 * np.pi * u)[None, :] * np.cos(2 * np.pi * u)[:, None])
+              .astype(np.float32)[..., None], channels=["Y"])
+
+    def plane_scene(t):
+        text = plane_scene_toml(position=(t, 1.5, 2.0), material_extra='normal_map = "map.exr"\n'
+                                'normal_map_scale = 0.5\ntiling = 2\n')
+        text = text.replace("look_at = [0.0, 0.0, 0.0]", f"look_at = [{t!r}, 0.0, 0.0]")
+        text = text.replace('shape = "plane"', f'shape = "plane"\ncenter = [{t!r}, 0.0, 0.0]')
+        return parse_scene(text, tmp_path, "moved.toml")
+
+    ref = render_filtering(plane_scene(0.0), "gmm_aligned")
+    assert ref.coverage.sum() > 200
+    out = render_filtering(plane_scene(1e3), "gmm_aligned")
+    assert np.array_equal(out.coverage, ref.coverage)
+    np.testing.assert_allclose(out.image, ref.image, rtol=0, atol=1e-3 * ref.image.max())
+    for t in (1e5, 1e10):
+        with pytest.raises(WarpbwError, match=r"^moved\.toml: the camera and the plane size=2.* lie up to .* from "
+                                              r"the origin, where float32 spaces coordinates .*translate the camera"):
+            render_filtering(plane_scene(t), "fixed")
+        with pytest.raises(WarpbwError, match="float32 spaces coordinates"):
+            plane_distance(plane_scene(t))     # the depth test that hides spheres behind planes
+    assert COORD_SPACING_REL_MAX < 1e-2
+
+
 def test_adaptive_frame_spends_at_most_its_budget_when_the_up_sampling_cannot_fill_texels():
     """Under a constant environment the pass plans one texel at the top level, and the up-sampling cannot fill
     the texels at the silhouette, whose parents lie on the background: they are shaded too.  Before session 39

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from conftest import grid_mesh, numpy_camera_rays, numpy_sphere_distance
 
-from warpbw.errors import WarpbwError
-from warpbw.gbuffer import (COORD_SPACING_REL_MAX, MESH_REACH_MAX, MESH_REACH_MIN, SPHERE_REACH_MAX, SPHERE_REACH_MIN, MeshSpec,
+from warpbw.errors import COORD_SPACING_REL_MAX, WarpbwError
+from warpbw.gbuffer import (MESH_REACH_MAX, MESH_REACH_MIN, SPHERE_REACH_MAX, SPHERE_REACH_MIN, MeshSpec,
                             SphereSpec, build_geometry, camera_rays, hide_beyond, make_camera, render_gbuffer,
                             update_mesh)
 

@@ -113,7 +113,8 @@ import warp as wp
 from precompute.gmm_mipmap import NORMAL_DIM
 from warpbw.envmap import (LUMINANCE_RGB, EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv,
                            load_environment)
-from warpbw.errors import INT32_MAX, WarpbwError, check_camera_reach, check_count, check_device, check_seed
+from warpbw.errors import (INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, check_count,
+                           check_device, check_seed)
 from warpbw.gbuffer import CameraData, scene_camera
 from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene
 
@@ -941,7 +942,8 @@ def plane_objects(scene: Scene) -> list:
 
 def check_plane_reach(camera: Camera, planes, source: str) -> None:
     """Refuse a camera whose distance to a plane's far corner lies outside ``PLANE_REACH_MIN`` to
-    ``PLANE_REACH_MAX``: float32 intersection would leave the plane's pixels empty without a word."""
+    ``PLANE_REACH_MAX``: float32 intersection would leave the plane's pixels empty without a word; and a camera
+    and plane so far from the origin that float32 cannot place them (``warpbw.errors.check_coordinate_spacing``)."""
     o = np.asarray(camera.position, np.float64)
     for p in planes:
         h = 0.5 * float(p.size)
@@ -950,6 +952,8 @@ def check_plane_reach(camera: Camera, planes, source: str) -> None:
             reach = float(np.max(np.linalg.norm(corners - o, axis=1)))
         check_camera_reach(reach, PLANE_REACH_MIN, PLANE_REACH_MAX, f"the far corner of the {p.describe()}", "plane",
                            source=source)
+        coord = float(np.abs(np.concatenate([corners.ravel(), o])).max())
+        check_coordinate_spacing(coord, float(p.size), f"the {p.describe()}", source)
 
 
 def _load_normals(scene: Scene, name: str):

@@ -18,8 +18,8 @@ Public:
     ``check_reach(cam, geometry)``   refuse a camera too far from (or, scaled down, too near) the geometry for
                                      float32 intersection (``SPHERE_REACH_MAX``, ``MESH_REACH_MAX``,
                                      ``SPHERE_REACH_MIN``, ``MESH_REACH_MIN``), or a scene so far from the origin
-                                     that float32 cannot place it (``COORD_SPACING_REL_MAX``); render_gbuffer
-                                     calls it
+                                     that float32 cannot place it (``warpbw.errors.COORD_SPACING_REL_MAX``);
+                                     render_gbuffer calls it
     ``hide_beyond(gbuffer, cam, distance, device) -> int``   empty the pixels whose surface lies beyond a
                                      per-pixel distance along the centre ray (hidden by something nearer);
                                      ``hide_beyond_kernel``, its kernel (the pipeline compiles it ahead)
@@ -48,7 +48,7 @@ from typing import Callable, Sequence
 import numpy as np
 import warp as wp
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError, check_camera_reach, is_int
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, is_int
 
 RAY_T_MAX = 1.0e30
 # Primary rays are intersected in float32, and outside these distances from the camera (to an object's far
@@ -67,13 +67,6 @@ MESH_REACH_MIN = _F32_TINY ** (1.0 / 3.0) * 1.0e3
 # the nearest t accepted on a sphere, relative to its distance and size (an absolute 1e-6 lost every sphere
 # of a scene scaled by 1e-7)
 T_EPS_REL = 1.0e-6
-# Far from the origin float32 spaces coordinates coarsely: at 1e6 they are 0.0625 apart, and a unit sphere there
-# (camera beside it) came out with normals up to 179 degrees wrong, at 1e10 with no pixel at all (the camera
-# rounded into it).  A scaled scene keeps its relative spacing; a translated one does not.  So the spacing at
-# the largest coordinate a frame computes with (the camera's, or the object's) may be at most this share of
-# the object's size (a sphere's radius, a mesh's diagonal): 2^-10, a normal error of about 1e-3 radians.
-# Measured on a unit sphere: 0.0039 radians at 1e5 (spacing 2^-7), 4e-4 at the origin.
-COORD_SPACING_REL_MAX = 2.0 ** -10
 
 
 @wp.struct
@@ -459,8 +452,8 @@ def check_reach(cam: CameraData, geometry: Geometry) -> None:
     """Refuse a camera whose rays would reach an object beyond what float32 intersection can compute
     (``SPHERE_REACH_MAX``, ``MESH_REACH_MAX``), or nearer than it can (``SPHERE_REACH_MIN``,
     ``MESH_REACH_MIN``, a scene scaled far down), and a camera or object so far from the origin that float32
-    spaces coordinates there by more than ``COORD_SPACING_REL_MAX`` of the object's size (a scene translated far
-    away): those pixels would come out empty or wrong without a word."""
+    spaces coordinates there by more than ``warpbw.errors.COORD_SPACING_REL_MAX`` of the object's size (a scene
+    translated far away): those pixels would come out empty or wrong without a word."""
     o = np.array([cam.origin[0], cam.origin[1], cam.origin[2]], np.float64)
     reaches = ([("sphere", np.linalg.norm(c - o) + r) for c, r in geometry.sphere_bounds]
                + [("mesh", np.linalg.norm(np.where(o < (lo + hi) / 2, hi, lo) - o))    # the farthest corner
@@ -469,19 +462,12 @@ def check_reach(cam: CameraData, geometry: Geometry) -> None:
         lo, hi, why = ((SPHERE_REACH_MIN, SPHERE_REACH_MAX, "it squares lengths") if kind == "sphere"
                        else (MESH_REACH_MIN, MESH_REACH_MAX, "Warp's test multiplies three lengths"))
         check_camera_reach(reach, lo, hi, f"the far side of a {kind}", kind, why)
-    # (kind, its largest coordinate, its size, what the size is)
-    extents = ([("sphere", float(np.abs(c).max()) + r, r, "radius") for c, r in geometry.sphere_bounds]
-               + [("mesh", float(max(np.abs(lo).max(), np.abs(hi).max())), float(np.linalg.norm(hi - lo)),
-                   "diagonal") for lo, hi in geometry.mesh_bounds])
-    for kind, extent, size, what in extents:
-        coord = max(float(np.abs(o).max()), extent)
-        step = float(np.spacing(np.float32(coord)))
-        if step > COORD_SPACING_REL_MAX * size:
-            raise WarpbwError(
-                f"the camera and a {kind} of {what} {size:.3g} lie up to {coord:.3g} scene units from the origin, where "
-                f"float32 spaces coordinates {step:.3g} apart ({step / size:.2g} of its {what}; at most "
-                f"{COORD_SPACING_REL_MAX:.2g}): its outline and normals would come out wrong; expected a scene nearer "
-                "the origin (translate the camera and the objects together)")
+    # each object's largest coordinate and its size
+    extents = ([(float(np.abs(c).max()) + r, r, f"a sphere of radius {r:.3g}") for c, r in geometry.sphere_bounds]
+               + [(float(max(np.abs(lo).max(), np.abs(hi).max())), float(np.linalg.norm(hi - lo)),
+                   f"a mesh of diagonal {np.linalg.norm(hi - lo):.3g}") for lo, hi in geometry.mesh_bounds])
+    for extent, size, target in extents:
+        check_coordinate_spacing(max(float(np.abs(o).max()), extent), size, target)
 
 
 def _per_vertex(name: str, values, shape: tuple, where: str) -> np.ndarray:
