@@ -268,11 +268,11 @@ def test_render_and_info_of_a_plane_scene_under_an_environment(plane_scene, caps
 
 def test_sphere_scene_lit_by_the_lights_alone_renders_through_the_environment_renderer(tmp_path, capsys):
     """The plane scene's camera and [[light]]s with a sphere instead of the plane: rendered by the 002 renderer
-    (warpbw.lights), not the filtering renderer, and not refused."""
+    (warpbw.lights), not the filtering renderer, and not refused (without --spp: it takes no sample to count)."""
     p = tmp_path / "s.toml"
     p.write_text(SCENE.split("[[object]]")[0] + '[[object]]\nshape = "sphere"\nradius = 1.0\nmaterial = "p"\n'
                  '[material.p]\ntype = "lambert"\nalbedo = 0.5\n')
-    assert main(["render", str(p), "-o", str(tmp_path / "o.exr"), "--spp", "1", "--quiet"]) == 0
+    assert main(["render", str(p), "-o", str(tmp_path / "o.exr"), "--quiet"]) == 0
     stats = json.loads((tmp_path / "o.json").read_text())
     assert "light:directional" in stats["stages"] and stats["samples"] == 0
 

@@ -96,6 +96,27 @@ def test_an_index_matched_conductor_reflects_nothing_and_never_below_zero():
         assert np.allclose(fresnel, fresnel_conductor_numpy(cos_d[keep], eta, k), rtol=5e-3, atol=1e-6), (eta, k)
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0.01, 10.0), st.floats(0.0, 10.0), st.integers(0, 2**31 - 1))
+def test_conductor_fresnel_lies_in_zero_one_and_follows_the_complex_formula(eta, k, seed):
+    """Over eta in [0.01, 10] and k in [0, 10] (dielectric-like to silver-like), the kernel's conductor Fresnel,
+    read off a GGX evaluation, lies in [0, 1] and is the complex formula's |r_s|^2 / |r_p|^2 mean."""
+    rng = np.random.default_rng(seed)
+    wi = random_hemisphere(rng, 200, 0.01)
+    wo = random_hemisphere(rng, len(wi) * 2, 0.01)[: len(wi)]
+    mats = B.build_material_table([B.MaterialSpec("m", B.GGX, alpha=0.3, specular=(1.0, 1.0, 1.0),
+                                                  eta=(eta,) * 3, k=(k,) * 3)])
+    f = B.eval_brdf(mats, 0, wi, wo)[:, 0]
+    g = ggx_numpy(wi, wo, 0.3, (1, 1, 1))[:, 0]
+    keep = g > 1e-3
+    fresnel = f[keep] / g[keep]
+    h = wi + wo
+    h /= np.linalg.norm(h, axis=1, keepdims=True)
+    want = fresnel_conductor_numpy(np.einsum("ij,ij->i", wi, h)[keep], eta, k)
+    assert f.min() >= 0.0 and fresnel.max() <= 1.0 + 1e-3
+    np.testing.assert_allclose(fresnel, want, rtol=5e-3, atol=1e-6)
+
+
 def test_zero_below_horizon(analytic):
     wi = np.array([[0.3, 0.1, -0.2], [0.0, 0.0, 1.0]])
     wo = np.array([[0.0, 0.0, 1.0], [0.5, 0.0, -0.1]])
