@@ -462,12 +462,12 @@ def check_reach(cam: CameraData, geometry: Geometry) -> None:
         lo, hi, why = ((SPHERE_REACH_MIN, SPHERE_REACH_MAX, "it squares lengths") if kind == "sphere"
                        else (MESH_REACH_MIN, MESH_REACH_MAX, "Warp's test multiplies three lengths"))
         check_camera_reach(reach, lo, hi, f"the far side of a {kind}", kind, why)
-    # each object's largest coordinate and its size
-    extents = ([(float(np.abs(c).max()) + r, r, f"a sphere of radius {r:.3g}") for c, r in geometry.sphere_bounds]
-               + [(float(max(np.abs(lo).max(), np.abs(hi).max())), float(np.linalg.norm(hi - lo)),
-                   f"a mesh of diagonal {np.linalg.norm(hi - lo):.3g}") for lo, hi in geometry.mesh_bounds])
-    for extent, size, target in extents:
-        check_coordinate_spacing(max(float(np.abs(o).max()), extent), size, target)
+    # each object's largest coordinate, its size and its name
+    extents = ([(float(np.abs(c).max()) + r, r, "a sphere of radius") for c, r in geometry.sphere_bounds]
+               + [(float(np.abs(np.stack([lo, hi])).max()), float(np.linalg.norm(hi - lo)), "a mesh of diagonal")
+                  for lo, hi in geometry.mesh_bounds])
+    for extent, size, name in extents:
+        check_coordinate_spacing(max(float(np.abs(o).max()), extent), size, f"{name} {size:.3g}")
 
 
 def _per_vertex(name: str, values, shape: tuple, where: str) -> np.ndarray:
