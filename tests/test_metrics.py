@@ -85,6 +85,10 @@ def test_compare_images_gathers_the_same_figures():
     assert r["psnr_db"] == psnr(test, ref, mask) and r["relmse"] == relmse(test, ref, mask)
     assert r["mse"] == mse(test, ref, mask) and r["pixels"] == int(mask.sum())
     assert (r["worst_share"], r["worst_pixels"]) == worst_share(relmse_map(test, ref, mask), mask)
+    # a mask of 0 / 2 (or 0 / 0.5) selects what its bools select, and counts the same pixels
+    for scaled in (mask.astype(np.int64) * 2, mask * 0.5):
+        r2 = compare_images(test, ref, scaled)
+        assert r2["pixels"] == int(mask.sum()) and r2["mse"] == r["mse"]
 
 
 def test_coverage_comes_from_the_alpha_channel():
