@@ -128,7 +128,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import SEED_MAX, WarpbwError, check_count, check_input_file, is_int
+from warpbw.errors import SEED_MAX, WarpbwError, check_count, check_flag, check_input_file, is_int
 
 GMM_FORMAT = "warpbw-gmm-mipmap"
 # 2: the fourth stored quantity is a (d s^2 + |mu|^2) (module docstring); 1 held 004's a (s^2 + |mu|^2).
@@ -539,6 +539,7 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
     seed = check_count(seed, "seed", 0, SEED_MAX)  # numpy's SeedSequence and scikit-learn take uint32 seeds
     max_samples = check_count(max_samples, "max_samples", 1)
     refine_sweeps = check_count(refine_sweeps, "refine_sweeps", 0)
+    unaligned = check_flag(unaligned, "unaligned")   # "no" was truthy: an unaligned build
     if texel_size is not None and not (isinstance(texel_size, numbers.Real) and 0.0 < texel_size < math.inf):
         raise WarpbwError(f"texel_size: expected a finite length > 0 (or None: 1 / the map's width), got "
                           f"{texel_size!r}")

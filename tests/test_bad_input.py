@@ -1424,9 +1424,73 @@ def test_library_renderers_refuse_bad_seeds_devices_and_scenes(tmp_path):
     import warp as wp
 
     assert render_reference(scene, 1, device=wp.get_device("cpu")).image.shape == (8, 8, 3)   # a Device object
+    # flags are True or False: "no" is truthy, and ran the Eq. 10 bound / an unaligned GMM build
+    with pytest.raises(WarpbwError, match="preconvolved: expected True or False, got 'no'"):
+        render_adaptive(scene, 2, preconvolved="no")
+    from precompute.gmm_mipmap import build_gmm_mipmap
+
+    with pytest.raises(WarpbwError, match="unaligned: expected True or False, got 'no'"):
+        build_gmm_mipmap(np.zeros((4, 4)), unaligned="no", progress=False)
+    # a prepared scene renders where it lives: another device was ignored ("cuda" rendered on the CPU)
+    from warpbw.pipeline import prepare_scene
+
+    prep = prepare_scene(scene)
+    assert render_reference(prep, 1).image.shape == render_reference(prep, 1, device="cpu").image.shape
+    for device in ("cuda", "gpu", 0):
+        with pytest.raises(WarpbwError, match="device"):
+            render_reference(prep, 1, device=device)
+        with pytest.raises(WarpbwError, match="device"):
+            render_adaptive(prep, 2, device=device)
     for given in ("f.toml", None):
         with pytest.raises(WarpbwError, match="scene: expected a warpbw.scene.Scene"):
             render_reference(given, 1)
+
+
+def test_the_lower_level_entry_points_refuse_what_crashed_or_rendered_wrong(tmp_path):
+    """Called from Python (edge-case audit, session 47): pixel indices outside the G-buffer crashed the process in
+    shade_reference (segfault), spp 0 or -1 returned a black image (-1 reported -120 samples), "yes" switched
+    MIS on; make_camera turned a NaN, coincident or parallel argument into NaN rays and an empty image."""
+    import warp as wp
+
+    from warpbw.gbuffer import make_camera, render_gbuffer
+    from warpbw.pipeline import prepare_scene
+    from warpbw.scene import parse_scene
+    from warpbw.shading import shade_reference
+
+    prep = prepare_scene(parse_scene(_furnace(1.0), tmp_path, "f.toml"))
+    gb = render_gbuffer(prep.camera, prep.geometry)
+    n = gb.width * gb.height
+
+    def shade(spp=1, **kw):
+        return shade_reference(gb, prep.materials, prep.env_data, spp, **kw)
+
+    assert shade().pixels_shaded == int(gb.coverage.sum()) > 0
+    for kw, needle in [({"pixels": wp.array([0, n], dtype=wp.int32)}, f"pixels: .* in 0..{n - 1}, got values from 0 "
+                        f"to {n}"),
+                       ({"pixels": wp.array([-1], dtype=wp.int32)}, "pixels: .*got values from -1 to -1"),
+                       ({"pixels": [0, 1]}, "pixels: expected a 1-D int32 wp.array .*got list"),
+                       ({"spp": 0}, "spp: expected an integer >= 1, got 0"),
+                       ({"spp": -1}, "spp: expected an integer >= 1, got -1"),
+                       ({"spp": 2.0}, "spp: expected an integer"),
+                       ({"spp": wp.zeros(n - 1, dtype=wp.int32)}, f"spp: expected an int32 array of {n} per-pixel"),
+                       ({"spp": wp.array(np.full(n, -1, np.int32))}, "spp: per-pixel counts must be >= 0"),
+                       ({"mis": "yes"}, "mis: expected True or False, got 'yes'"),
+                       ({"out": wp.zeros(3, dtype=wp.vec3)}, f"out: expected a vec3 array of {n} pixels")]:
+        with pytest.raises(WarpbwError, match=f"^shade_reference: {needle}"):
+            shade(**kw)
+    ok = ((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 8, 8)
+    make_camera(*ok)
+    for i, bad, needle in [(0, (np.nan, 0.0, 3.0), "position: expected three finite"),
+                           (0, (0.0, 3.0), "position: expected three finite"),
+                           (1, ok[0], "look_at: must differ from position"),
+                           (2, (0.0, 0.0, 2.0), "up: must not be zero or parallel"),
+                           (2, (0.0, 0.0, 0.0), "up: must not be zero or parallel"),
+                           (3, float("nan"), "fov_deg: expected degrees in"), (3, 0.0, "fov_deg"), (3, -40.0, "fov_deg"),
+                           (4, 16.5, "width: expected an integer >= 1"), (5, 0, "height: expected an integer >= 1")]:
+        args = list(ok)
+        args[i] = bad
+        with pytest.raises(WarpbwError, match=f"^make_camera: {needle}"):
+            make_camera(*args)
 
 
 def test_gmm_builder_refuses_sizes_and_parameters_that_hung_or_failed_inside(tmp_path):

@@ -439,8 +439,20 @@ def test_update_mesh_bad_input():
         update_mesh(geo, 1, *ok)
     with pytest.raises(WarpbwError, match="no mesh"):
         update_mesh(build_geometry([SphereSpec((0, 0, 0), 1.0, 0)], []), 0, *ok)
-    # a rejected update leaves the device arrays as they were
+    # zero normals shaded the mesh black; a mesh collapsed to a point failed the next frame with ZeroDivisionError
+    with pytest.raises(WarpbwError, match=r"normals: expected unit vectors, got lengths from 0 to 0"):
+        update_mesh(geo, 0, m.vertices, np.zeros_like(m.normals), m.curvature)
+    with pytest.raises(WarpbwError, match="vertices: every vertex lies at one point"):
+        update_mesh(geo, 0, np.ones_like(m.vertices), m.normals, m.curvature)
+    # a rejected update leaves the device arrays as they were, and the bounds the next frame is checked with: a
+    # far move refused for its normals once left the mesh refused at every later frame
+    bounds = [b.copy() for b in geo.mesh_bounds[0]]
+    with pytest.raises(WarpbwError, match="normals"):
+        update_mesh(geo, 0, m.vertices + 1e6, np.zeros_like(m.normals), m.curvature)
     np.testing.assert_array_equal(geo.mesh.points.numpy(), m.vertices.astype(np.float32))
+    assert all(np.array_equal(a, b) for a, b in zip(geo.mesh_bounds[0], bounds))
+    cam = make_camera((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, 16, 16)
+    assert render_gbuffer(cam, geo).coverage.any()
 
 
 def test_the_pipeline_gives_meshes_the_local_curvature(tmp_path):

@@ -213,7 +213,7 @@ import warp as wp
 from warpbw.bandwidth_ops import bw_one_bounce
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv
-from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, is_int
+from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, check_flag, is_int
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 from warpbw.pyramid import build_pyramid, image_level
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_local, to_world
@@ -789,6 +789,7 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
             or not (budget > 0 and math.isfinite(budget)):
         raise WarpbwError(f"budget: expected a positive number of samples per pixel, got {budget!r}")
     check_count(n_min, "n_min", 1, INT32_MAX)
+    check_flag(mis, "mis")
     if n_max is None:
         if budget > BUDGET_MAX:
             raise WarpbwError(f"budget: expected at most {BUDGET_MAX:g} samples per pixel (N_p, up to "

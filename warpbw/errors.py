@@ -6,7 +6,7 @@ Public: ``WarpbwError``; ``is_int(value)`` (an int or numpy integer, not a bool)
 whether it is missing or a directory); ``check_camera_reach(reach, lo, hi, target, kind, why, source)`` (the
 camera's distance to an object within what float32 intersection handles); ``check_coordinate_spacing(coord,
 size, target, source)`` (float32 fine enough where the camera and an object lie, ``COORD_SPACING_REL_MAX``);
-``check_seed(seed, name)`` (a uint32) and ``check_device(device, name)`` (a Warp device this machine has), the
+``check_flag(value, name) -> bool`` (True or False, not a truthy string); ``check_seed(seed, name)`` (a uint32) and ``check_device(device, name)`` (a Warp device this machine has), the
 renderers' own checks; ``check_direction_pairs(wi, wo) -> (wi, wo)`` (the BRDF evaluators' (N, 3) direction
 pairs, broadcast); the bounds ``INT32_MAX``, ``FLOAT32_MAX``, ``SEED_MAX`` and ``BRDF_VALUE_MAX`` that user values are checked against.
 
@@ -48,6 +48,16 @@ def check_count(value, name: str, lo: int, hi: int | None = None) -> int:
     if hi is not None and value > hi:
         raise WarpbwError(f"{name}: expected an integer from {lo} to {hi}, got {value!r}")
     return int(value)
+
+
+def check_flag(value, name: str) -> bool:
+    """``value`` as a bool when it is True or False (a numpy bool too), else a one-line error naming ``name``: a
+    string such as "no" is truthy, and once switched an option on."""
+    import numpy as np
+
+    if not isinstance(value, (bool, np.bool_)):
+        raise WarpbwError(f"{name}: expected True or False, got {value!r}")
+    return bool(value)
 
 
 def check_seed(seed, name: str = "seed") -> int:
@@ -117,6 +127,9 @@ def check_coordinate_spacing(coord: float, size: float, target: str, source: str
     ``size``: its outline and shading would come out wrong without a word.  ``source`` starts the message."""
     import numpy as np
 
+    if not size > 0.0:
+        raise WarpbwError(f"{source + ': ' if source else ''}{target}: expected an object with extent, got size "
+                          f"{size!r}")
     step = float(np.spacing(np.float32(min(abs(coord), FLOAT32_MAX))))
     if step <= COORD_SPACING_REL_MAX * size:
         return

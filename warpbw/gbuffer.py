@@ -48,7 +48,8 @@ from typing import Callable, Sequence
 import numpy as np
 import warp as wp
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, is_int
+from warpbw.errors import (FLOAT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, check_count,
+                           is_int)
 
 RAY_T_MAX = 1.0e30
 # Primary rays are intersected in float32, and outside these distances from the camera (to an object's far
@@ -289,10 +290,30 @@ def _unit(v) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
+def _camera_vector(v, name: str, point: bool = True) -> np.ndarray:
+    """Three finite numbers; a point (not the up direction, whose length is divided out) within float32."""
+    a = np.asarray(v, np.float64) if np.ndim(v) == 1 and np.size(v) == 3 else None
+    if a is None or not np.all(np.isfinite(a)) or (point and np.abs(a).max() > FLOAT32_MAX):
+        raise WarpbwError(f"make_camera: {name}: expected three finite numbers{' within float32' if point else ''}, "
+                          f"got {v!r}")
+    return a
+
+
 def make_camera(position, look_at, up, fov_deg: float, width: int, height: int) -> CameraData:
-    """A pinhole camera; ``fov_deg`` is the full field of view along the image width."""
-    o = np.asarray(position, np.float64)
-    fwd = _unit(np.asarray(look_at, np.float64) - o)
+    """A pinhole camera; ``fov_deg`` is the full field of view along the image width.  The scene parser's checks
+    (``[camera]``) hold here too: a NaN, coincident or parallel argument gave NaN rays and an empty image."""
+    o = _camera_vector(position, "position")
+    d = _camera_vector(look_at, "look_at") - o
+    u = _camera_vector(up, "up", point=False)
+    if not np.abs(d).max() > 0.0:
+        raise WarpbwError("make_camera: look_at: must differ from position")
+    if not (isinstance(fov_deg, (int, float, np.floating, np.integer)) and 0.0 < fov_deg < 180.0):
+        raise WarpbwError(f"make_camera: fov_deg: expected degrees in (0, 180), got {fov_deg!r}")
+    check_count(width, "make_camera: width", 1)
+    check_count(height, "make_camera: height", 1)
+    fwd = _unit(d)
+    if not np.abs(u).max() > 0.0 or np.linalg.norm(np.cross(fwd, _unit(u))) < 1e-9:
+        raise WarpbwError("make_camera: up: must not be zero or parallel to the viewing direction")
     right = _unit(np.cross(fwd, _unit(up)))
     cam_up = np.cross(right, fwd)
     cam = CameraData()
@@ -509,11 +530,21 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
     start, count = ranges[int(mesh_index)]
     where = f"update_mesh: mesh {mesh_index} "
     copies = [(geometry.mesh.points, _per_vertex("vertices", vertices, (count, 3), where), wp.vec3)]
-    geometry.mesh_bounds[int(mesh_index)] = _bounds(copies[0][1])
+    bounds = _bounds(copies[0][1])
+    if not np.any(bounds[1] > bounds[0]):   # no extent: the next frame would divide by its size
+        raise WarpbwError(f"{where}vertices: every vertex lies at one point, {bounds[0].tolist()}; expected a mesh "
+                          "with extent")
     ma = geometry.mesh_attr
     if normals is not None:
-        copies += [(ma.normal, _per_vertex("normals", normals, (count, 3), where), wp.vec3),
+        n = _per_vertex("normals", normals, (count, 3), where)
+        length = np.linalg.norm(n, axis=1)
+        if not np.all(np.abs(length - 1.0) < 1e-3):   # the shading frame is built on them as they are
+            raise WarpbwError(f"{where}normals: expected unit vectors, got lengths from {length.min():.3g} to "
+                              f"{length.max():.3g} (a zero normal shades black)")
+        copies += [(ma.normal, n, wp.vec3),
                    (ma.curvature, _per_vertex("curvature", curvature, (count,), where), wp.float32)]
+    # nothing is changed until everything given has been checked: a refused call leaves the mesh as it was
+    geometry.mesh_bounds[int(mesh_index)] = bounds
     device = geometry.mesh.points.device
     for dest, src, dtype in copies:
         wp.copy(dest, wp.array(src, dtype=dtype, device=device), dest_offset=start, count=count)

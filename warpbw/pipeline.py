@@ -2,7 +2,9 @@
 
 Public:
     ``prepare_scene(scene, device, progress) -> PreparedScene``   load assets, build device data
-    ``render_reference(scene_or_prepared, spp, seed, mis, device, progress) -> RenderResult``
+    ``render_reference(scene_or_prepared, spp, seed, mis, device, progress) -> RenderResult`` (``device``: where
+                                       a Scene is prepared, the CPU by default; a PreparedScene renders where it
+                                       lives, and another device is refused; so for render_adaptive)
     ``render_adaptive(scene_or_prepared, budget, seed, mis, n_b, n_min, n_max, ...) -> RenderResult``
     ``prepare_bandwidth(prepared, progress)``   the bandwidth pass's tables and the meshes' curvature (adaptive
                                        only, built once)
@@ -38,10 +40,12 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import warp as wp
 
 from warpbw import brdf as brdf_mod
 from warpbw import envmap
-from warpbw.errors import BRDF_VALUE_MAX, FLOAT32_MAX, INT32_MAX, WarpbwError, check_device, check_seed, is_int
+from warpbw.errors import (BRDF_VALUE_MAX, FLOAT32_MAX, INT32_MAX, WarpbwError, check_device, check_flag, check_seed,
+                           is_int)
 from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, ensure_curvature, hide_beyond,
                             render_gbuffer, scene_camera)
 from warpbw.scene import MeshObject, PlaneObject, Scene, SphereObject
@@ -216,9 +220,19 @@ def _check_scene(scene) -> None:
                           f"got {type(scene).__name__}")
 
 
-def _prepared(scene, device: str, progress: bool) -> tuple[PreparedScene, dict]:
-    prep = scene if isinstance(scene, PreparedScene) else prepare_scene(scene, device, progress)
-    return prep, (dict(prep.timings) if prep is not scene else {})
+def _prepared(scene, device: str | None, progress: bool) -> tuple[PreparedScene, dict]:
+    """The renderers' ``device``: where a Scene is prepared (None: the CPU); a PreparedScene renders where it lives,
+    and another device named for it is refused (it was ignored: "cuda" rendered on the CPU)."""
+    if isinstance(scene, PreparedScene):
+        if device is None:
+            return scene, {}
+        check_device(device)
+        if wp.get_device(device) != wp.get_device(scene.device):
+            raise WarpbwError(f"device {device}: the prepared scene {scene.scene.source} lives on {scene.device}; "
+                              "prepare it on that device, or pass the Scene")
+        return scene, {}
+    prep = prepare_scene(scene, "cpu" if device is None else device, progress)
+    return prep, dict(prep.timings)
 
 
 def _clip_kernels(clip_distance) -> tuple:
@@ -263,8 +277,7 @@ def _check_overflowed_samples(prep: PreparedScene, n_bad: int, samples: int) -> 
 
 
 def _check_mis(mis) -> None:
-    if not isinstance(mis, (bool, np.bool_)):   # "yes" (or "no") switched MIS on
-        raise WarpbwError(f"mis: expected True or False, got {mis!r}")
+    check_flag(mis, "mis")   # "yes" (or "no") switched MIS on
 
 
 def _check_spp(spp) -> None:
@@ -274,7 +287,7 @@ def _check_spp(spp) -> None:
         raise WarpbwError(f"spp: expected a positive integer <= {INT32_MAX}, got {spp!r}")
 
 
-def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: str = "cpu",
+def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: str | None = None,
                      progress: bool = False, threads: int | None = None, clip_distance=None) -> RenderResult:
     """Render a frame with the forward reference estimator (002 Eq. 2) at ``spp`` samples per pixel.
     ``clip_distance`` (an (H, W) array, ``inf`` where nothing is nearer): per pixel, the distance along the
@@ -418,7 +431,7 @@ def _check_pass_finite(buf, source: str, mis: bool = True) -> None:
 def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b: int | None = None,
                     n_min: int | None = None, n_max: int | None = None, preconvolved: bool = False,
                     allocation: str | None = None, nyquist: float | None = None, stride: int | None = None,
-                    pool_radius: int | None = None, device: str = "cpu", progress: bool = False,
+                    pool_radius: int | None = None, device: str | None = None, progress: bool = False,
                     threads: int | None = None, clip_distance=None, upsample: str | None = None,
                     env_signal: str | None = None) -> RenderResult:
     """Render a frame with bandwidth prediction and hierarchical adaptive shading (002 Sec. 2-3).
@@ -450,6 +463,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     bandwidth.direction_set(n_b)  # validates n_b before any work
     check_seed(seed)
     _check_mis(mis)
+    check_flag(preconvolved, "preconvolved")   # "no" once ran the Eq. 10 bound
     prep, timings = _prepared(scene, device, progress)
     if prep.env is None:
         raise WarpbwError(f"{prep.scene.source}: the adaptive method needs an [environment] to adapt to: [[light]]s "

@@ -39,7 +39,7 @@ import warp as wp
 
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv
-from warpbw.errors import WarpbwError, check_count
+from warpbw.errors import INT32_MAX, WarpbwError, check_count, check_flag
 from warpbw.gbuffer import GBuffer, GBufferData
 from warpbw.lights import DirectionalLights, Lights
 
@@ -259,6 +259,17 @@ def covered_pixels(gb: GBuffer, device: str = "cpu") -> wp.array:
     return wp.array(idx, dtype=wp.int32, device=device)
 
 
+def _check_pixel_indices(pixels, n_pix: int) -> None:
+    """The kernel indexes the G-buffer with ``pixels``: one out of 0..n_pix-1 crashed the process (segfault)."""
+    expected = f"shade_reference: pixels: expected a 1-D int32 wp.array of pixel indices in 0..{n_pix - 1}"
+    if not isinstance(pixels, wp.array) or pixels.ndim != 1 or pixels.dtype != wp.int32:
+        raise WarpbwError(f"{expected}, got {type(pixels).__name__}"
+                          + (f" {pixels.dtype.__name__} {pixels.shape}" if isinstance(pixels, wp.array) else ""))
+    idx = pixels.numpy()
+    if idx.size and not (0 <= idx.min() and idx.max() < n_pix):
+        raise WarpbwError(f"{expected}, got values from {idx.min()} to {idx.max()}")
+
+
 def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapData | None, spp, seed: int = 0,
                     mis: bool = False, device: str = "cpu", threads: int | None = None,
                     progress: Callable[[int], None] | None = None, pixels: wp.array | None = None,
@@ -271,11 +282,25 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
     """
     per_pixel = isinstance(spp, wp.array)
     has_env = env_data is not None
+    mis = check_flag(mis, "shade_reference: mis")
+    n_pix = gb.width * gb.height
+    if per_pixel:
+        if spp.shape != (n_pix,) or spp.dtype != wp.int32:
+            raise WarpbwError(f"shade_reference: spp: expected an int32 array of {n_pix} per-pixel counts (the "
+                              f"G-buffer's {gb.width} x {gb.height}), got {spp.dtype.__name__} {spp.shape}")
+    else:   # no environment: the lights' term takes no sample, and 0 says so
+        check_count(spp, "shade_reference: spp", 1 if has_env else 0, INT32_MAX)
     env_data, lights_data = lighting_inputs(env_data, lights)
     kernel = make_reference_kernel(materials.kinds, mis, per_pixel, has_env, lights is not None)
     pix = covered_pixels(gb, device) if pixels is None else pixels
+    if pixels is not None:
+        _check_pixel_indices(pixels, n_pix)
+    if per_pixel and int(spp.numpy().min(initial=0)) < 0:
+        raise WarpbwError("shade_reference: spp: per-pixel counts must be >= 0")
     if out is None:
-        out = wp.zeros(gb.width * gb.height, dtype=wp.vec3, device=device)
+        out = wp.zeros(n_pix, dtype=wp.vec3, device=device)
+    elif not isinstance(out, wp.array) or out.shape != (n_pix,) or out.dtype != wp.vec3:
+        raise WarpbwError(f"shade_reference: out: expected a vec3 array of {n_pix} pixels, got {out!r:.80}")
     bad = wp.zeros(1, dtype=wp.int32, device=device)
     spp_map = spp if per_pixel else wp.zeros(0, dtype=wp.int32, device=device)
     spp_all = 0 if per_pixel else int(spp)
