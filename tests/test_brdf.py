@@ -117,6 +117,33 @@ def test_conductor_fresnel_lies_in_zero_one_and_follows_the_complex_formula(eta,
     np.testing.assert_allclose(fresnel, want, rtol=5e-3, atol=1e-6)
 
 
+def test_host_wrappers_refuse_what_read_outside_the_table_and_scale_directions_to_unit(analytic):
+    """A material index outside the table read memory beyond it (m = -1 gave 0.62, m = 5 a negative value); a NaN
+    direction gave inf, a zero one zero vectors; wi * 10 read 0.0116 for 0.62; seed 2**32 drew seed 0's samples."""
+    from warpbw.errors import WarpbwError
+
+    wi = np.array([[0.2, 0.1, 0.97]])
+    wo = np.array([[-0.3, 0.2, 0.93]])
+    for m in (-1, 3, 1.0, None):
+        for call in (lambda: B.eval_brdf(analytic, m, wi, wo), lambda: B.pdf_brdf(analytic, m, wi, wo),
+                     lambda: B.sample_brdf(analytic, m, wo, 4)):
+            with pytest.raises(WarpbwError, match=r"m \(material index\): expected an integer"):
+                call()
+    np.testing.assert_allclose(B.eval_brdf(analytic, 1, wi * 10, wo), B.eval_brdf(analytic, 1, wi, wo), rtol=1e-5)
+    np.testing.assert_allclose(B.pdf_brdf(analytic, 1, wi, wo * 0.1), B.pdf_brdf(analytic, 1, wi, wo), rtol=1e-5)
+    for bad in (np.array([[np.nan, 0.0, 1.0]]), np.zeros((1, 3))):
+        with pytest.raises(WarpbwError, match="wi: expected finite non-zero directions, 1 of 1"):
+            B.eval_brdf(analytic, 1, bad, wo)
+        with pytest.raises(WarpbwError, match="wo: expected finite non-zero directions"):
+            B.sample_brdf(analytic, 1, bad, 4)
+    with pytest.raises(WarpbwError, match="wi, wo: expected as many"):
+        B.eval_brdf(analytic, 1, np.ones((3, 3)), np.ones((2, 3)))
+    with pytest.raises(WarpbwError, match=r"seed: expected an integer from 0 to 4294967295"):
+        B.sample_brdf(analytic, 1, wo, 4, seed=2**32)
+    with pytest.raises(WarpbwError, match="n: expected an integer >= 1"):
+        B.sample_brdf(analytic, 1, wo, 0)
+
+
 def test_zero_below_horizon(analytic):
     wi = np.array([[0.3, 0.1, -0.2], [0.0, 0.0, 1.0]])
     wo = np.array([[0.0, 0.0, 1.0], [0.5, 0.0, -0.1]])

@@ -37,6 +37,8 @@ import numpy as np
 import warp as wp
 
 from warpbw import sampling as tabsamp
+from warpbw.errors import (INT32_MAX, WarpbwError, check_count, check_device, check_direction_pairs,
+                           check_seed)
 
 # Material kind ids (stable: stored in MaterialTable.kind).
 LAMBERT = 0
@@ -533,32 +535,56 @@ def _host_kernels(kinds: frozenset):
     return eval_kernel, pdf_kernel, sample_kernel
 
 
-def _vec3_in(x, n, device):
-    a = np.broadcast_to(np.asarray(x, np.float32).reshape(-1, 3), (n, 3))
-    return wp.array(np.ascontiguousarray(a), dtype=wp.vec3, device=device)
+def _unit_directions(d: np.ndarray, name: str) -> np.ndarray:
+    """(N, 3) directions scaled to unit length (the evaluators assume it: wi * 10 read 0.0116 for 0.62), else a
+    WarpbwError for a zero, NaN or infinite one."""
+    length = np.linalg.norm(d, axis=-1, keepdims=True)
+    bad = ~(np.isfinite(length) & (length > 0.0))
+    if bad.any():
+        raise WarpbwError(f"{name}: expected finite non-zero directions, {int(bad.sum())} of {len(d)} are not")
+    return d / length
+
+
+def _check_material(mb: MaterialBuffers, m, device) -> int:
+    """The host wrappers' material index (one outside the table read memory beyond it) and device."""
+    check_device(device)
+    return check_count(m, "m (material index)", 0, len(mb.names) - 1)
+
+
+def _device_dirs(d: np.ndarray, name: str, device) -> wp.array:
+    return wp.array(np.ascontiguousarray(_unit_directions(d, name), np.float32), dtype=wp.vec3, device=device)
 
 
 def eval_brdf(mb: MaterialBuffers, m: int, wi, wo, device: str = "cpu") -> np.ndarray:
-    """f(wi, wo) for material m at N direction pairs (local frame) -> (N, 3)."""
-    n = max(len(np.asarray(wi).reshape(-1, 3)), len(np.asarray(wo).reshape(-1, 3)))
-    out = wp.zeros(n, dtype=wp.vec3, device=device)
-    wp.launch(_host_kernels(mb.kinds)[0], dim=n,
-              inputs=[mb.table, m, _vec3_in(wi, n, device), _vec3_in(wo, n, device), out], device=device)
+    """f(wi, wo) for material m at N direction pairs (local frame; scaled to unit length) -> (N, 3)."""
+    m = _check_material(mb, m, device)
+    wi, wo = (d.reshape(-1, 3) for d in check_direction_pairs(wi, wo))
+    out = wp.zeros(len(wi), dtype=wp.vec3, device=device)
+    wp.launch(_host_kernels(mb.kinds)[0], dim=len(wi),
+              inputs=[mb.table, m, _device_dirs(wi, "wi", device), _device_dirs(wo, "wo", device), out], device=device)
     return out.numpy()
 
 
 def pdf_brdf(mb: MaterialBuffers, m: int, wi, wo, device: str = "cpu") -> np.ndarray:
-    """Solid-angle pdf of the material's sampler at N direction pairs -> (N,)."""
-    n = max(len(np.asarray(wi).reshape(-1, 3)), len(np.asarray(wo).reshape(-1, 3)))
-    out = wp.zeros(n, dtype=float, device=device)
-    wp.launch(_host_kernels(mb.kinds)[1], dim=n,
-              inputs=[mb.table, m, _vec3_in(wi, n, device), _vec3_in(wo, n, device), out], device=device)
+    """Solid-angle pdf of the material's sampler at N direction pairs (scaled to unit length) -> (N,)."""
+    m = _check_material(mb, m, device)
+    wi, wo = (d.reshape(-1, 3) for d in check_direction_pairs(wi, wo))
+    out = wp.zeros(len(wi), dtype=float, device=device)
+    wp.launch(_host_kernels(mb.kinds)[1], dim=len(wi),
+              inputs=[mb.table, m, _device_dirs(wi, "wi", device), _device_dirs(wo, "wo", device), out], device=device)
     return out.numpy()
 
 
 def sample_brdf(mb: MaterialBuffers, m: int, wo, n: int, seed: int = 0, device: str = "cpu") -> np.ndarray:
-    """n directions wi drawn from the material's sampler for view wo (broadcast) -> (n, 3)."""
+    """n directions wi drawn from the material's sampler for view wo (broadcast; scaled to unit length) -> (n, 3)."""
+    m = _check_material(mb, m, device)
+    n = check_count(n, "n", 1, INT32_MAX)
+    seed = check_seed(seed)   # 2**32 drew seed 0's directions
+    wo = np.atleast_2d(np.asarray(wo, np.float64))
+    if wo.shape not in ((1, 3), (n, 3)):
+        raise WarpbwError(f"wo: expected one direction (3,) or ({n}, 3), got shape {wo.shape}")
     out = wp.zeros(n, dtype=wp.vec3, device=device)
     wp.launch(_host_kernels(mb.kinds)[2], dim=n,
-              inputs=[mb.table, m, _vec3_in(wo, n, device), int(seed), out], device=device)
+              inputs=[mb.table, m, _device_dirs(np.broadcast_to(wo, (n, 3)), "wo", device), seed, out],
+              device=device)
     return out.numpy()
