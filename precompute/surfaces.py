@@ -159,9 +159,16 @@ def height_to_normals(h, scale: float = 1.0, texel_size: float | None = None) ->
 def normals_from_map(rgb) -> np.ndarray:
     """Decode a [0, 1]-encoded tangent-space normal map (n = 2 rgb - 1, renormalised) to unit (H, W, 3).
     A texel that decodes to (almost) the zero vector is an error (it holds no direction)."""
-    rgb = np.asarray(rgb, dtype=np.float64)
+    given = np.asarray(rgb)
+    if np.issubdtype(given.dtype, np.integer) or given.dtype == bool:   # 255 decoded to (0.577, 0.577, 0.577)
+        raise WarpbwError(f"normal map of {given.dtype} values: expected floats in [0, 1] (divide an 8- or 16-bit "
+                          "map by 255 or 65535)")
+    rgb = given.astype(np.float64)
     if rgb.ndim != 3 or rgb.shape[-1] < 3:
         raise WarpbwError(f"normal map of shape {rgb.shape}: expected (H, W, 3) RGB")
+    if not np.all(np.isfinite(rgb[..., :3])):
+        raise WarpbwError(f"normal map: {int((~np.isfinite(rgb[..., :3])).any(-1).sum())} texels are NaN or "
+                          "infinite; expected [0, 1]-encoded unit vectors")
     n = 2.0 * rgb[..., :3] - 1.0
     length = np.linalg.norm(n, axis=-1)
     bad = ~(length > 1e-6)

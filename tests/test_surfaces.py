@@ -100,3 +100,9 @@ def test_normals_from_map_decodes_the_encoding():
     bad[2, 3] = 0.5
     with pytest.raises(WarpbwError, match="row 2, column 3"):
         normals_from_map(bad)
+    # 8-bit values were read as [0, 1] floats (255 -> (0.577, 0.577, 0.577)); NaN was "a zero-length normal"
+    with pytest.raises(WarpbwError, match="normal map of uint8 values: expected floats in"):
+        normals_from_map(np.round(bad * 255).astype(np.uint8))
+    bad[1, 1, 0] = np.nan
+    with pytest.raises(WarpbwError, match="1 texels are NaN or infinite"):
+        normals_from_map(bad)
