@@ -53,9 +53,12 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 
 import numpy as np
 import pywt
+
+from warpbw.errors import is_int
 
 __all__ = [
     "EPSILON",
@@ -159,8 +162,8 @@ def _centre_shift(wavelet: str, level0: int) -> int:
 def _levels_for(shape: tuple[int, int], levels: int | None) -> int:
     if levels is None:
         levels = min(MAX_LEVELS, max(1, int(math.floor(math.log2(max(shape))))))
-    if levels < 1 or levels > MAX_LEVELS:   # 50 levels padded the image to 2^50 texels: a 64 PiB allocation
-        raise ValueError(f"levels must be from 1 to {MAX_LEVELS}, got {levels}")
+    if not is_int(levels) or levels < 1 or levels > MAX_LEVELS:   # 50 levels padded the image to 2^50 texels
+        raise ValueError(f"levels must be an integer from 1 to {MAX_LEVELS}, got {levels!r}")  # (2.5 was cut to 2)
     return int(levels)
 
 
@@ -226,6 +229,8 @@ def _bandwidth_from_maxima(lam: np.ndarray, epsilon: float, rule: str, floor: fl
     peak = lam.max(axis=0)  # max_k lambda_k^max per pixel
     if floor is None:
         floor = epsilon * float(lam.max()) if lam.size else 0.0
+    elif not (isinstance(floor, numbers.Real) and math.isfinite(floor) and floor >= 0.0):
+        raise ValueError(f"floor must be a finite number >= 0 (or None), got {floor!r}")   # NaN turned the test off
     # coefficients this small are rounding noise of the transform, not signal
     floor = max(floor, _ROUNDING * float(np.abs(scale)))
     flat = (peak <= floor) | (peak <= 0.0)
@@ -327,8 +332,8 @@ def texture_spatial_bandwidth(image: np.ndarray, metres_per_pixel: float,
     ``metres_per_pixel`` is the texel's side on the surface (the Jacobian of the texture mapping,
     assumed isotropic and constant; 002 Sec. 2.3 "Texture (spatial)").  A finite area light is
     zero-padded (``pad="zero"``, 002 Sec. 2.3); pass ``pad="wrap"`` for a tiling texture."""
-    mpp = float(metres_per_pixel)
+    mpp = float(metres_per_pixel) if isinstance(metres_per_pixel, numbers.Real) else math.nan   # not "0.01"
     if not (mpp > 0.0 and math.isfinite(mpp)):
-        raise ValueError(f"metres_per_pixel must be a positive finite number, got {metres_per_pixel}")
+        raise ValueError(f"metres_per_pixel must be a positive finite number, got {metres_per_pixel!r}")
     return local_bandwidth(image, epsilon=epsilon, wavelet=wavelet, levels=levels, pad=pad,
                            rule=rule) / mpp

@@ -190,6 +190,13 @@ def test_bad_input_is_refused():
         local_bandwidth(np.zeros((16, 16)), rule="median")
     with pytest.raises(ValueError):
         texture_spatial_bandwidth(np.zeros((16, 16)), metres_per_pixel=0.0)
+    # a NaN floor switched the flatness test off; 2.5 levels were cut to 2; a string was read as a length
+    with pytest.raises(ValueError, match="floor must be a finite number >= 0"):
+        local_bandwidth(np.zeros((16, 16)), floor=float("nan"))
+    with pytest.raises(ValueError, match="levels must be an integer"):
+        local_bandwidth(np.zeros((16, 16)), levels=2.5)
+    with pytest.raises(ValueError, match="metres_per_pixel .* got '0.01'"):
+        texture_spatial_bandwidth(np.zeros((16, 16)), metres_per_pixel="0.01")
 
 
 def test_texture_spatial_bandwidth_in_cycles_per_metre():
