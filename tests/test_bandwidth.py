@@ -287,6 +287,23 @@ def test_adaptive_lambert_furnace_returns_albedo():
     assert res.stats["shaded_fraction"] < 0.1          # nothing varies: a few coarse texels are shaded
 
 
+def test_the_pass_refuses_seeds_tiles_and_factors_that_went_wrong():
+    """seed None drew a different direction set at every call; n_b 0 gave infinite shifts; a pool radius of 1e6
+    asked for a 7 TiB tile of shifts (MemoryError); nyquist "1" failed inside a comparison (TypeError)."""
+    with pytest.raises(WarpbwError, match="seed: expected an integer"):
+        bw.direction_set(16, None)
+    with pytest.raises(WarpbwError, match="n_b: expected an integer"):
+        bw.interleave_shifts(0, 2)
+    with pytest.raises(WarpbwError, match=f"side: expected an integer from 1 to {bw.INTERLEAVE_SIDE_MAX}"):
+        bw.interleave_shifts(16, 10**5)
+    prep = prepared(w=16, h=16)
+    with pytest.raises(WarpbwError, match=f"pool_radius: expected an integer from 0 to {bw.POOL_RADIUS_MAX}"):
+        render_adaptive(prep, budget=2.0, pool_radius=10**6)
+    with pytest.raises(WarpbwError, match="nyquist: expected a positive factor"):
+        render_adaptive(prep, budget=2.0, nyquist="1")
+    assert render_adaptive(prep, budget=2.0, pool_radius=bw.POOL_RADIUS_MAX).coverage.any()
+
+
 def test_diffuse_shades_fewer_finest_pixels_than_sharp_specular(shared):
     env = f'file = "{shared("envmaps/forest.exr")}"'
     frac = {}

@@ -205,6 +205,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import math
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -213,7 +214,7 @@ import warp as wp
 from warpbw.bandwidth_ops import bw_one_bounce
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv
-from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, check_flag, is_int
+from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, check_flag, check_seed, is_int
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 from warpbw.pyramid import build_pyramid, image_level
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_local, to_world
@@ -234,6 +235,9 @@ N_THETA_I = 16
 N_CELLS = 16
 PASS_STRIDE_DEFAULT = 2      # directions traced once per 2 x 2 block of alike pixels (module docstring)
 POOL_RADIUS_DEFAULT = 2      # pixels pool the alike traced neighbours within 2 pixels (3 x 3 blocks)
+# far beyond any useful pooling (a 513 x 513 window; 1e6 asked for a 7 TiB tile of shifts), and its tile's side
+POOL_RADIUS_MAX = 256
+INTERLEAVE_SIDE_MAX = 2 * POOL_RADIUS_MAX + 1
 LIGHT_TABLE_WIDTH = 256      # columns of the reduced environment the pass reads (module docstring)
 ENV_BW_FORMAT = "warpbw.env-bandwidth"
 ENV_BW_VERSION = 1
@@ -619,7 +623,7 @@ def direction_set(n_b: int, seed: int = 0) -> np.ndarray:
         raise WarpbwError(f"n_b: expected an integer number of directions from 1 to {N_B_MAX} (002 Fig. 13 sweeps "
                           f"16 to 1024), got {n_b!r}")
     k = np.arange(int(n_b))
-    shift = np.random.default_rng(seed).random(3)
+    shift = np.random.default_rng(check_seed(seed)).random(3)   # None drew a different set at every call
     u = np.stack([(k + 0.5) / n_b + shift[0], _radical_inverse(k, 2) + shift[1],
                   _radical_inverse(k, 3) + shift[2]], axis=1) % 1.0
     return u.astype(np.float32)
@@ -666,7 +670,8 @@ def interleave_shifts(n_b: int, side: int) -> np.ndarray:
     """``(side^2, 3)`` offsets (mod 1) of the direction set for an interleaved ``side x side`` tile of
     blocks: shift j = (j / (side^2 n_b), phi_2(j) / n_b, phi_3(j) / n_b), so that the tile's shifted
     Hammersley sets together stratify side^2 times more finely than one set."""
-    t = max(1, int(side)) ** 2
+    direction_set(n_b)   # the same n_b check (0 gave inf shifts)
+    t = check_count(side, "side", 1, INTERLEAVE_SIDE_MAX) ** 2
     j = np.arange(t)
     return np.stack([j / (t * n_b), _radical_inverse(j, 2) / n_b, _radical_inverse(j, 3) / n_b],
                     axis=1).astype(np.float32)
@@ -691,9 +696,9 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
         raise WarpbwError("bandwidth pass: the scene has no environment (directional lights need no prediction: "
                           "their exact term is evaluated at every pixel)")
     dirs_np = direction_set(n_b, seed)
-    stride = check_count(stride, "stride", 1)
-    pool_radius = check_count(pool_radius, "pool_radius", 0)
-    if not (0 < nyquist <= FLOAT32_MAX):  # the rate is float32 in the kernels
+    stride = check_count(stride, "stride", 1, max(gb.width, gb.height))   # beyond the image's side it shares no more
+    pool_radius = check_count(pool_radius, "pool_radius", 0, POOL_RADIUS_MAX)
+    if not (isinstance(nyquist, numbers.Real) and 0 < nyquist <= FLOAT32_MAX):  # the rate is float32 in the kernels
         raise WarpbwError(f"nyquist: expected a positive factor within the float32 range "
                           f"(<= {FLOAT32_MAX:.4g}), got {nyquist!r}")
     t0 = time.perf_counter()
