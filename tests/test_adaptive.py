@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from warpbw.adaptive import plan_hierarchy, shade_hierarchical
 from warpbw.pipeline import prepare_scene, render_reference
@@ -138,6 +139,26 @@ def test_the_plan_names_every_texel_the_hierarchy_shades_before_any_sample():
     r2 = shade_hierarchical(base.gbuffer, prep.camera, prep.materials, prep.env.data, level, spp, seed=5, plan=cut)
     assert r2.stats["unplanned_shaded"] == int(edge[0].sum()) > 0
     np.testing.assert_array_equal(r2.image, r.image)
+
+
+def test_level_and_sample_maps_outside_their_ranges_are_refused():
+    """A level beyond the top was accepted and dimmed the image, a negative or NaN one failed inside the hierarchy
+    (AttributeError), a fractional one was cut, a negative sample count was read as 0."""
+    from warpbw.errors import WarpbwError
+    from warpbw.pyramid import max_level
+
+    prep, base = setup('type = "lambert"\nalbedo = 0.5', w=24, h=16)
+    shape = base.coverage.shape
+    top = max_level(24, 16)
+    spp = np.full(shape, 2, np.int32)
+    for bad, needle in ((np.full(shape, top + 1), f"from 0 to {top}, got int64 values from {top + 1}"),
+                        (np.full(shape, -1), "from 0 to"), (np.full(shape, np.nan), ".*got float64 values from nan"),
+                        (np.full(shape, 1.5), ".*from 1.5 to 1.5"), (np.full(shape, "1"), ".*got <U1 values")):
+        with pytest.raises(WarpbwError, match=f"^level_map: expected integers {needle}"):
+            run(prep, base, bad, spp)
+    with pytest.raises(WarpbwError, match="^spp_map: expected integers from 0 to 2147483647, got int32 values from -1"):
+        run(prep, base, np.zeros(shape, np.int32), np.full(shape, -1, np.int32))
+    assert run(prep, base, np.full(shape, top, np.int32), spp).shaded.any()       # the top itself is a level
 
 
 def test_a_pixel_that_needs_the_finest_level_keeps_every_coarser_texel_over_it_unshaded():

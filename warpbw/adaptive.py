@@ -76,10 +76,10 @@ import warp as wp
 
 from warpbw.brdf import MaterialBuffers
 from warpbw.envmap import EnvMapData
-from warpbw.errors import WarpbwError
+from warpbw.errors import INT32_MAX, WarpbwError
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 from warpbw.lights import Lights
-from warpbw.pyramid import build_pyramid
+from warpbw.pyramid import build_pyramid, max_level
 from warpbw.shading import shade_reference
 from warpbw.upsample import (UPSAMPLE_DEFAULT, check_upsample_mode, level_size, representative_pixel,
                              upsample_level)
@@ -179,10 +179,17 @@ class HierarchyPlan:
         return int(sum(len(pl.shade) for pl in self.levels))
 
 
-def _int_map(a, h, w, name):
+def _int_map(a, h, w, name, lo: int, hi: int):
+    """An (h, w) int32 map of integers in lo..hi, else a WarpbwError naming ``name`` (a level beyond the top was
+    accepted and dimmed the image; a negative or NaN level failed inside the hierarchy; an spp of 2^31 - 1 ran for
+    hours)."""
     a = np.asarray(a.numpy() if isinstance(a, wp.array) else a)
     if a.size != h * w:
-        raise ValueError(f"{name}: expected {h * w} values ({w}x{h}), got {a.size}")
+        raise WarpbwError(f"{name}: expected {h * w} values ({w}x{h}), got {a.size}")
+    if a.dtype.kind not in "iuf" or not (np.all(np.isfinite(a)) and np.all(a == np.round(a))
+                                         and a.min() >= lo and a.max() <= hi):
+        raise WarpbwError(f"{name}: expected integers from {lo} to {hi}, got {a.dtype} values"
+                          + (f" from {a.min()} to {a.max()}" if a.dtype.kind in "iuf" else ""))
     return np.ascontiguousarray(a.reshape(h, w).astype(np.int32))
 
 
@@ -199,7 +206,7 @@ def plan_hierarchy(gb: GBuffer, cam: CameraData, level_map, device: str = "cpu")
     then run the up-sampling's weights on zeros to find the texels no parent can fill, which are shaded too.  The
     weights are kept for the up-sampling itself, which then reads them instead of computing them again."""
     W, H = gb.width, gb.height
-    level = _int_map(level_map, H, W, "level_map")
+    level = _int_map(level_map, H, W, "level_map", 0, max_level(W, H))
     levels = build_pyramid(level, op="min", device=device)
     cov = gb.coverage
     top = min(int(level[cov].max()) if cov.any() else 0, levels.num_levels - 1)
@@ -241,12 +248,12 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
         raise WarpbwError("adaptive shading: the scene has no environment to adapt to (directional lights alone "
                           "are exact at any spp: use the reference renderer)")
     W, H = gb.width, gb.height
-    level = _int_map(level_map, H, W, "level_map")
+    level = _int_map(level_map, H, W, "level_map", 0, max_level(W, H))
     if plan is None:
         plan = plan_hierarchy(gb, cam, level, device=device)
     elif (plan.width, plan.height) != (W, H) or not np.array_equal(plan.level_map, level):
-        raise ValueError("plan: made for another level map")
-    spp = np.maximum(_int_map(spp_map, H, W, "spp_map"), 0)
+        raise WarpbwError("plan: made for another level map")
+    spp = _int_map(spp_map, H, W, "spp_map", 0, INT32_MAX)
     spps = build_pyramid(spp, op="max", device=device)
     cov = gb.coverage
     shaded_full = wp.zeros(W * H, dtype=wp.vec3, device=device)
