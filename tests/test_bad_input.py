@@ -1485,7 +1485,8 @@ def test_the_lower_level_entry_points_refuse_what_crashed_or_rendered_wrong(tmp_
                            (1, ok[0], "look_at: must differ from position"),
                            (2, (0.0, 0.0, 2.0), "up: must not be zero or parallel"),
                            (2, (0.0, 0.0, 0.0), "up: must not be zero or parallel"),
-                           (3, float("nan"), "fov_deg: expected degrees in"), (3, 0.0, "fov_deg"), (3, -40.0, "fov_deg"),
+                           (3, float("nan"), "fov_deg: expected degrees in"), (3, 0.0, "fov_deg"),
+                           (3, -40.0, "fov_deg"), (0, ("a", "b", "c"), "position: expected three finite"),
                            (4, 16.5, "width: expected an integer >= 1"), (5, 0, "height: expected an integer >= 1")]:
         args = list(ok)
         args[i] = bad

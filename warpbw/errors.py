@@ -6,9 +6,10 @@ Public: ``WarpbwError``; ``is_int(value)`` (an int or numpy integer, not a bool)
 whether it is missing or a directory); ``check_camera_reach(reach, lo, hi, target, kind, why, source)`` (the
 camera's distance to an object within what float32 intersection handles); ``check_coordinate_spacing(coord,
 size, target, source)`` (float32 fine enough where the camera and an object lie, ``COORD_SPACING_REL_MAX``);
-``check_flag(value, name) -> bool`` (True or False, not a truthy string); ``check_seed(seed, name)`` (a uint32) and ``check_device(device, name)`` (a Warp device this machine has), the
-renderers' own checks; ``check_direction_pairs(wi, wo) -> (wi, wo)`` (the BRDF evaluators' (N, 3) direction
-pairs, broadcast); the bounds ``INT32_MAX``, ``FLOAT32_MAX``, ``SEED_MAX`` and ``BRDF_VALUE_MAX`` that user values are checked against.
+``check_flag(value, name) -> bool`` (True or False, not a truthy string); ``check_seed(seed, name)`` (a uint32)
+and ``check_device(device, name)`` (a Warp device this machine has), the renderers' own checks;
+``check_direction_pairs(wi, wo) -> (wi, wo)`` (the BRDF evaluators' (N, 3) direction pairs, broadcast); the bounds
+``INT32_MAX``, ``FLOAT32_MAX``, ``SEED_MAX`` and ``BRDF_VALUE_MAX`` that user values are checked against.
 
 Anything the user can cause (a bad file, a bad key in a scene, a bad CLI value) is raised as
 ``WarpbwError`` with a one-line message that names the file or key and says what was expected.

@@ -292,7 +292,10 @@ def _unit(v) -> np.ndarray:
 
 def _camera_vector(v, name: str, point: bool = True) -> np.ndarray:
     """Three finite numbers; a point (not the up direction, whose length is divided out) within float32."""
-    a = np.asarray(v, np.float64) if np.ndim(v) == 1 and np.size(v) == 3 else None
+    try:
+        a = np.asarray(v, np.float64) if np.ndim(v) == 1 and np.size(v) == 3 else None
+    except (TypeError, ValueError):   # ("a", "b", "c")
+        a = None
     if a is None or not np.all(np.isfinite(a)) or (point and np.abs(a).max() > FLOAT32_MAX):
         raise WarpbwError(f"make_camera: {name}: expected three finite numbers{' within float32' if point else ''}, "
                           f"got {v!r}")
