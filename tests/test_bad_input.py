@@ -1537,7 +1537,7 @@ def test_library_helpers_refuse_values_they_once_took_or_failed_on(tmp_path):
         with pytest.raises(WarpbwError, match="cos_i is a cosine"):
             apply_operator("P_i", [[1.0, 1.0]], cos_i=cos)
     img = np.random.default_rng(0).random((8, 8))
-    with pytest.raises(ValueError, match="levels must be from 1 to 7, got 50"):
+    with pytest.raises(ValueError, match="levels must be an integer from 1 to 7, got 50"):
         band_maxima(img, levels=50)
     with pytest.raises(ValueError, match="beyond 1e\\+150"):
         local_bandwidth(img * 1e160)
