@@ -24,6 +24,8 @@ Conventions (shared with ``precompute.gmm_mipmap``):
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from warpbw.errors import WarpbwError, is_int
@@ -150,6 +152,11 @@ def height_to_normals(h, scale: float = 1.0, texel_size: float | None = None) ->
     if h.ndim != 2 or h.size == 0:
         raise WarpbwError(f"height field of shape {h.shape}: expected a non-empty (H, W) array")
     t = 1.0 / h.shape[1] if texel_size is None else float(texel_size)
+    if not (t > 0.0 and math.isfinite(t)) or not math.isfinite(scale) or not np.all(np.isfinite(h)):
+        # texel_size 0 divided by zero; a NaN scale or height gave NaN normals
+        raise WarpbwError(f"height_to_normals: expected finite heights, a finite scale and a texel_size > 0, got "
+                          f"scale {scale!r}, texel_size {texel_size!r}, {int((~np.isfinite(h)).sum())} non-finite "
+                          "heights")
     dh_dx = (np.roll(h, -1, axis=1) - np.roll(h, 1, axis=1)) * (scale / (2.0 * t))
     dh_dy = (np.roll(h, 1, axis=0) - np.roll(h, -1, axis=0)) * (scale / (2.0 * t))   # y = -row
     n = np.stack([-dh_dx, -dh_dy, np.ones_like(h)], axis=-1)

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from warpbw.errors import WarpbwError
 from warpbw.metrics import (RELMSE_EPS, WORST_FRACTION, compare_images, coverage_from_alpha, mse, psnr, relmse,
                             relmse_map, worst_share)
 
@@ -76,6 +77,20 @@ def test_worst_share_of_one_bad_pixel_and_of_an_even_error():
     even, k = worst_share(np.full((1, n), 0.3), mask)
     assert even == pytest.approx(k / n) and k == 10
     assert worst_share(np.zeros((1, n)), mask)[0] == 0.0
+
+
+def test_worst_share_refuses_maps_it_cannot_rank():
+    """A NaN map gave a NaN share, a negative one a share above 1, an (H, W, 3) one was ranked flat, a mask of
+    another shape raised numpy's IndexError, a fraction "0.5" Python's TypeError."""
+    e = np.ones((4, 4))
+    for bad in (np.full((4, 4), np.nan), -e, np.ones((4, 4, 3))):
+        with pytest.raises(WarpbwError, match="err_map: expected an"):
+            worst_share(bad)
+    with pytest.raises(WarpbwError, match="mask of shape"):
+        worst_share(e, np.ones((3, 4), bool))
+    with pytest.raises(WarpbwError, match="fraction"):
+        worst_share(e, fraction="0.5")
+    assert worst_share(e, fraction=0.25) == (0.25, 4)
 
 
 def test_compare_images_gathers_the_same_figures():

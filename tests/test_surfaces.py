@@ -90,6 +90,16 @@ def test_normals_unit_length_on_every_surface():
         assert np.all(n[..., 2] > 0)
 
 
+def test_height_to_normals_refuses_what_gave_nan_or_divided_by_zero():
+    h = np.random.default_rng(1).random((8, 8))
+    for kw in ({"texel_size": 0.0}, {"texel_size": -1.0}, {"scale": float("nan")}):
+        with pytest.raises(WarpbwError, match="height_to_normals: expected finite heights"):
+            height_to_normals(h, **kw)
+    h[2, 2] = np.nan
+    with pytest.raises(WarpbwError, match="1 non-finite heights"):
+        height_to_normals(h)
+
+
 def test_normals_from_map_decodes_the_encoding():
     rng = np.random.default_rng(3)
     n = rng.normal(size=(5, 7, 3))

@@ -15,6 +15,7 @@ Both images are linear radiance (H, W, 3).  ``mask`` (H, W) selects the covered 
 from __future__ import annotations
 
 import math
+import numbers
 
 import numpy as np
 
@@ -85,9 +86,14 @@ def relmse_map(test, ref, mask=None, eps: float = RELMSE_EPS) -> np.ndarray:
 def worst_share(err_map, mask=None, fraction: float = WORST_FRACTION) -> tuple[float, int]:
     """(share of the summed ``err_map`` over ``mask`` held by its ceil(fraction n) largest pixels, that count);
     the share is 0 when there is no error at all."""
-    if not 0.0 < fraction <= 1.0:
-        raise WarpbwError(f"fraction: expected a number in (0, 1], got {fraction}")
+    if not (isinstance(fraction, numbers.Real) and 0.0 < fraction <= 1.0):
+        raise WarpbwError(f"fraction: expected a number in (0, 1], got {fraction!r}")
     e = np.asarray(err_map, np.float64)
+    if e.ndim != 2 or not np.all(np.isfinite(e)) or (e.size and e.min() < 0.0):   # NaN gave a NaN share
+        raise WarpbwError(f"err_map: expected an (H, W) map of finite errors >= 0, got shape {e.shape}"
+                          + (f", values from {e.min():.3g} to {e.max():.3g}" if e.size else ""))
+    if mask is not None and np.shape(mask) != e.shape:   # an IndexError from numpy
+        raise WarpbwError(f"mask of shape {np.shape(mask)} does not match err_map of shape {e.shape}")
     v = e[np.asarray(mask, bool)] if mask is not None else e.ravel()
     k = max(1, math.ceil(fraction * v.size))
     total = float(v.sum())
