@@ -514,8 +514,11 @@ def nu_env_table(nu_env: np.ndarray, width: int = None) -> np.ndarray:
     nu = np.asarray(nu_env, np.float64)
     if nu.ndim != 2 or nu.size == 0:
         raise WarpbwError(f"environment bandwidth table: expected a non-empty (h, w) map, got shape {nu.shape}")
+    if not (np.all(np.isfinite(nu)) and nu.min() >= 0.0):   # passed through into the pass's weights
+        raise WarpbwError(f"environment bandwidth table: expected finite bandwidths >= 0, got values from "
+                          f"{nu.min():.3g} to {nu.max():.3g}")
     h, w = nu.shape
-    width = LIGHT_TABLE_WIDTH if width is None else int(width)
+    width = LIGHT_TABLE_WIDTH if width is None else check_count(width, "width", 1)
     f = 1
     while w % (2 * f) == 0 and h % (2 * f) == 0 and w // (2 * f) >= width:
         f *= 2
