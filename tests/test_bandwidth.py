@@ -95,7 +95,7 @@ def test_nu_env_table_keeps_the_max_bandwidth():
     assert bw.nu_env_table(nu, width=256).shape == (64, 128)  # never enlarged
     with pytest.raises(WarpbwError, match="environment bandwidth table"):
         bw.make_bandwidth_tables(np.stack([nu, nu], axis=-1), np.zeros((1, N_THETA_I, N_CELLS, N_CELLS)))
-    # NaN and negative bandwidths passed through into the pass's weights; width 0 was a ZeroDivisionError
+    # NaN and negative bandwidths passed through into the pass's weights; width 0 reduced the table as far as it went
     for bad in (np.where(nu > 49, np.nan, nu), -nu):
         with pytest.raises(WarpbwError, match="expected finite bandwidths >= 0"):
             bw.nu_env_table(bad)
