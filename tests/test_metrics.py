@@ -80,11 +80,11 @@ def test_worst_share_of_one_bad_pixel_and_of_an_even_error():
 
 
 def test_worst_share_refuses_maps_it_cannot_rank():
-    """A NaN map gave a NaN share, a negative one a share above 1, an (H, W, 3) one was ranked flat, a mask of
-    another shape raised numpy's IndexError, a fraction "0.5" Python's TypeError."""
+    """A NaN map gave a NaN share, a negative one a share above 1, a mask of another shape raised numpy's
+    IndexError, a fraction "0.5" Python's TypeError."""
     e = np.ones((4, 4))
-    for bad in (np.full((4, 4), np.nan), -e, np.ones((4, 4, 3))):
-        with pytest.raises(WarpbwError, match="err_map: expected an"):
+    for bad in (np.full((4, 4), np.nan), -e):
+        with pytest.raises(WarpbwError, match="err_map: expected finite errors >= 0"):
             worst_share(bad)
     with pytest.raises(WarpbwError, match="mask of shape"):
         worst_share(e, np.ones((3, 4), bool))

@@ -89,9 +89,8 @@ def worst_share(err_map, mask=None, fraction: float = WORST_FRACTION) -> tuple[f
     if not (isinstance(fraction, numbers.Real) and 0.0 < fraction <= 1.0):
         raise WarpbwError(f"fraction: expected a number in (0, 1], got {fraction!r}")
     e = np.asarray(err_map, np.float64)
-    if e.ndim != 2 or not np.all(np.isfinite(e)) or (e.size and e.min() < 0.0):   # NaN gave a NaN share
-        raise WarpbwError(f"err_map: expected an (H, W) map of finite errors >= 0, got shape {e.shape}"
-                          + (f", values from {e.min():.3g} to {e.max():.3g}" if e.size else ""))
+    if not np.all(np.isfinite(e)) or (e.size and e.min() < 0.0):   # NaN gave a NaN share, a negative one above 1
+        raise WarpbwError(f"err_map: expected finite errors >= 0, got values from {e.min():.3g} to {e.max():.3g}")
     if mask is not None and np.shape(mask) != e.shape:   # an IndexError from numpy
         raise WarpbwError(f"mask of shape {np.shape(mask)} does not match err_map of shape {e.shape}")
     v = e[np.asarray(mask, bool)] if mask is not None else e.ravel()
