@@ -315,9 +315,10 @@ def make_camera(position, look_at, up, fov_deg: float, width: int, height: int) 
     check_count(width, "make_camera: width", 1)
     check_count(height, "make_camera: height", 1)
     fwd = _unit(d)
-    if not np.abs(u).max() > 0.0 or np.linalg.norm(np.cross(fwd, _unit(u))) < 1e-9:
+    side = np.cross(fwd, _unit(u)) if np.abs(u).max() > 0.0 else np.zeros(3)
+    if np.linalg.norm(side) < 1e-9:
         raise WarpbwError("make_camera: up: must not be zero or parallel to the viewing direction")
-    right = _unit(np.cross(fwd, _unit(up)))
+    right = _unit(side)
     cam_up = np.cross(right, fwd)
     cam = CameraData()
     cam.origin = wp.vec3(*o)

@@ -259,8 +259,9 @@ def covered_pixels(gb: GBuffer, device: str = "cpu") -> wp.array:
     return wp.array(idx, dtype=wp.int32, device=device)
 
 
-def _check_pixel_indices(pixels, n_pix: int) -> None:
-    """The kernel indexes the G-buffer with ``pixels``: one out of 0..n_pix-1 crashed the process (segfault)."""
+def _check_pixel_indices(pixels, n_pix: int) -> np.ndarray:
+    """``pixels`` on the host, checked: the kernel indexes the G-buffer with them, and one out of 0..n_pix-1
+    crashed the process (segfault)."""
     expected = f"shade_reference: pixels: expected a 1-D int32 wp.array of pixel indices in 0..{n_pix - 1}"
     if not isinstance(pixels, wp.array) or pixels.ndim != 1 or pixels.dtype != wp.int32:
         raise WarpbwError(f"{expected}, got {type(pixels).__name__}"
@@ -268,6 +269,7 @@ def _check_pixel_indices(pixels, n_pix: int) -> None:
     idx = pixels.numpy()
     if idx.size and not (0 <= idx.min() and idx.max() < n_pix):
         raise WarpbwError(f"{expected}, got values from {idx.min()} to {idx.max()}")
+    return idx
 
 
 def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapData | None, spp, seed: int = 0,
@@ -288,15 +290,15 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
         if spp.shape != (n_pix,) or spp.dtype != wp.int32:
             raise WarpbwError(f"shade_reference: spp: expected an int32 array of {n_pix} per-pixel counts (the "
                               f"G-buffer's {gb.width} x {gb.height}), got {spp.dtype.__name__} {spp.shape}")
+        spp_np = spp.numpy()   # one host copy: the check here, the tiles' costs and the sample count below
+        if int(spp_np.min(initial=0)) < 0:
+            raise WarpbwError("shade_reference: spp: per-pixel counts must be >= 0")
     else:   # no environment: the lights' term takes no sample, and 0 says so
         check_count(spp, "shade_reference: spp", 1 if has_env else 0, INT32_MAX)
     env_data, lights_data = lighting_inputs(env_data, lights)
     kernel = make_reference_kernel(materials.kinds, mis, per_pixel, has_env, lights is not None)
     pix = covered_pixels(gb, device) if pixels is None else pixels
-    if pixels is not None:
-        _check_pixel_indices(pixels, n_pix)
-    if per_pixel and int(spp.numpy().min(initial=0)) < 0:
-        raise WarpbwError("shade_reference: spp: per-pixel counts must be >= 0")
+    pix_np = _check_pixel_indices(pixels, n_pix) if pixels is not None else None
     if out is None:
         out = wp.zeros(n_pix, dtype=wp.vec3, device=device)
     elif not isinstance(out, wp.array) or out.shape != (n_pix,) or out.dtype != wp.vec3:
@@ -304,7 +306,10 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
     bad = wp.zeros(1, dtype=wp.int32, device=device)
     spp_map = spp if per_pixel else wp.zeros(0, dtype=wp.int32, device=device)
     spp_all = 0 if per_pixel else int(spp)
-    pixel_spp = spp.numpy()[pix.numpy()] if per_pixel else None   # N_p of each pixel shaded: tile costs, samples
+    if per_pixel:   # N_p of each pixel shaded: tile costs, samples
+        pixel_spp = spp_np[pix.numpy() if pix_np is None else pix_np]
+    else:
+        pixel_spp = None
     launch_tiled(kernel, pix.shape[0],
                  lambda o, c: [gb.data, materials.table, env_data, lights_data, pix, o, spp_all, spp_map, int(seed),
                                out, bad], device, threads, progress,
