@@ -110,7 +110,13 @@ def test_a_non_finite_valid_parent_propagates_to_the_pixels_that_weigh_it(mode):
     # the pixels that weigh parent k: those whose weighted mean moves when it does (the weights are the modes')
     moved = upsample(2.0, "paper")
     weighs_k = (moved.valid.numpy() == 1) & np.any(moved.values.numpy() != 1.0, axis=1)
-    assert 1 <= weighs_k.sum() <= 16   # the pixels around one parent, not the frame
+    # each level-0 pixel weighs its four nearest parents, so parent (px, py), centred on level-0 coordinate
+    # 2 p + 1, is weighed by the 4 x 4 pixels 2 p - 1 .. 2 p + 2 on each axis (inside the sphere: no edge cuts it)
+    pw = level_size(gb.width, gb.height, 1)[0]
+    px, py = k % pw, k // pw
+    block = np.zeros((gb.height, gb.width), bool)
+    block[2 * py - 1:2 * py + 3, 2 * px - 1:2 * px + 3] = True
+    np.testing.assert_array_equal(weighs_k, block.ravel())
     for bad in (np.nan, np.inf):
         r = upsample(bad, mode)
         ok = r.valid.numpy() == 1
