@@ -1619,3 +1619,16 @@ def test_renderer_switches_and_levels_are_checked(tmp_path):
         write_exr(tmp_path / "big.exr", np.full((2, 2, 3), 1e39))
     assert not (tmp_path / "big.exr").exists()
     write_exr(tmp_path / "inf.exr", np.full((2, 2, 3), np.inf))      # inf itself is stored as it is
+
+
+def test_a_reader_that_leaves_early_stops_the_command_quietly(tmp_path):
+    """``warpbw compare A B | head -1``: the closed pipe printed 'warpbw: error: [Errno 32] Broken pipe' and exited
+    with 2, a user error.  Now it stops without a word with 141, as a shell reports a command killed by SIGPIPE."""
+    write_exr(tmp_path / "a.exr", np.ones((4, 4, 3)))
+    env = dict(os.environ, WARPBW_CACHE=str(tmp_path / "_cache"))
+    for _ in range(3):   # the reader leaves before the command writes (Python's start-up alone takes longer)
+        p = subprocess.Popen([sys.executable, "-m", "warpbw.cli", "compare", "a.exr", "a.exr"], cwd=tmp_path, env=env,
+                             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        p.stdout.close()
+        err = p.stderr.read().decode()
+        assert p.wait(timeout=120) == 141 and err == "", (p.returncode, err)

@@ -1,7 +1,7 @@
 """What the two command lines (``warpbw``, ``warpbw-precompute``) share: one-line errors and warnings.
 
-Public: ``EXIT_USER_ERROR``, ``OneLineParser``, ``run_command(prog, func, args) -> int``, ``parse_seed`` (the
-argparse type of every ``--seed``), ``check_output_file(path, option, force)`` and ``check_output_dir(path,
+Public: ``EXIT_USER_ERROR``, ``EXIT_BROKEN_PIPE`` (stdout's reader left), ``OneLineParser``, ``run_command(prog,
+func, args) -> int``, ``parse_seed`` (the argparse type of every ``--seed``), ``check_output_file(path, option, force)`` and ``check_output_dir(path,
 option)`` (an output path that cannot be written, refused before any work), ``check_overwrite(paths, force,
 option, inputs)`` (several outputs at once, and --force; never one of the command's inputs), ``init_warp(device)
 -> warp`` (Warp initialised without its banner or its no-CUDA-driver line, the device checked), ``json_text(record)
@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import tempfile
 import warnings
@@ -21,6 +22,7 @@ from pathlib import Path
 from warpbw.errors import SEED_MAX, WarpbwError, check_device
 
 EXIT_USER_ERROR = 2
+EXIT_BROKEN_PIPE = 128 + 13   # killed by SIGPIPE, as a shell reports it for other commands
 WARP_LOG_WARNING = 30  # warp._src.logger.LOG_WARNING: hide Warp's banner and module-load lines
 
 
@@ -97,7 +99,14 @@ def run_command(prog: str, func, args) -> int:
     with warnings.catch_warnings():
         warnings.showwarning = show_warning
         try:
-            return func(args)
+            status = func(args)
+            sys.stdout.flush()   # here, where a closed pipe is caught, rather than at exit
+            return status
+        except BrokenPipeError:
+            # the reader left (``warpbw compare ... | head -1``): stop quietly, as other Unix tools do, and point
+            # stdout at /dev/null so that the interpreter's own flush at exit does not report it again
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return EXIT_BROKEN_PIPE
         except WarpbwError as exc:
             print(f"{prog}: error: {exc}", file=sys.stderr)
             return EXIT_USER_ERROR
