@@ -58,7 +58,7 @@ import numbers
 import numpy as np
 import pywt
 
-from warpbw.errors import is_int
+from warpbw.errors import WarpbwError, is_int
 
 __all__ = [
     "EPSILON",
@@ -127,7 +127,7 @@ def _pad_axis(a: np.ndarray, axis: int, before: int, after: int, mode: str) -> n
     if mode == "latlong_pole":
         # continue a lat-long map across a pole: the row at theta mirrored, longitude rotated by pi
         if axis != 0:
-            raise ValueError("latlong_pole padding applies to the row (latitude) axis only")
+            raise WarpbwError("latlong_pole padding applies to the row (latitude) axis only")
         h, w = a.shape[0], a.shape[1]
         parts = []
         if before:
@@ -163,7 +163,7 @@ def _levels_for(shape: tuple[int, int], levels: int | None) -> int:
     if levels is None:
         levels = min(MAX_LEVELS, max(1, int(math.floor(math.log2(max(shape))))))
     if not is_int(levels) or levels < 1 or levels > MAX_LEVELS:   # 50 levels padded the image to 2^50 texels
-        raise ValueError(f"levels must be an integer from 1 to {MAX_LEVELS}, got {levels!r}")  # (2.5 was cut to 2)
+        raise WarpbwError(f"levels must be an integer from 1 to {MAX_LEVELS}, got {levels!r}")  # (2.5 was cut to 2)
     return int(levels)
 
 
@@ -179,17 +179,17 @@ def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int |
     if img.ndim == 2:
         img = img[:, :, None]
     if img.ndim != 3 or img.shape[0] < 1 or img.shape[1] < 1:
-        raise ValueError(f"image must be (H, W) or (H, W, C), got shape {np.shape(image)}")
+        raise WarpbwError(f"image must be (H, W) or (H, W, C), got shape {np.shape(image)}")
     if not np.all(np.isfinite(img)):
-        raise ValueError("image has NaN or infinite values; bandwidth is undefined there")
+        raise WarpbwError("image has NaN or infinite values; bandwidth is undefined there")
     if np.abs(img).max() > VALUE_MAX:   # every pixel's bandwidth came out NaN
-        raise ValueError(f"image values reach {np.abs(img).max():.3g}, beyond {VALUE_MAX:g}: the bands' squared "
+        raise WarpbwError(f"image values reach {np.abs(img).max():.3g}, beyond {VALUE_MAX:g}: the bands' squared "
                          "coefficients overflow float64 (scale the image down: its bandwidth does not depend on scale)")
     h, w, c = img.shape
     nlev = _levels_for((h, w), levels)
     wav = pywt.Wavelet(wavelet)
     if not wav.orthogonal:
-        raise ValueError(f"wavelet {wavelet!r} is not orthogonal; swt2(norm=True) needs one")
+        raise WarpbwError(f"wavelet {wavelet!r} is not orthogonal; swt2(norm=True) needs one")
     modes = (pad, pad) if isinstance(pad, str) else tuple(pad)
     step = 2 ** nlev
     # one coarsest-wavelet width of margin on each side keeps the periodic swt2 from wrapping the
@@ -230,10 +230,15 @@ def _bandwidth_from_maxima(lam: np.ndarray, epsilon: float, rule: str, floor: fl
     if floor is None:
         floor = epsilon * float(lam.max()) if lam.size else 0.0
     elif not (isinstance(floor, numbers.Real) and math.isfinite(floor) and floor >= 0.0):
-        raise ValueError(f"floor must be a finite number >= 0 (or None), got {floor!r}")   # NaN turned the test off
+        raise WarpbwError(f"floor must be a finite number >= 0 (or None), got {floor!r}")   # NaN turned the test off
     # coefficients this small are rounding noise of the transform, not signal
     floor = max(floor, _ROUNDING * float(np.abs(scale)))
     flat = (peak <= floor) | (peak <= 0.0)
+    # only ratios of coefficients matter below: work relative to the largest, whose square cannot underflow
+    # (an image scaled by 1e-170 read bandwidth 0 everywhere)
+    top = float(lam.max()) if lam.size else 0.0
+    if top > 0.0:
+        lam, peak = lam / top, peak / top
     safe_peak = np.where(flat, 1.0, peak)
     if rule == "eq7":
         # I_w = finest band i with sum_{k finer than i, and i} lambda_k >= epsilon * peak
@@ -243,7 +248,7 @@ def _bandwidth_from_maxima(lam: np.ndarray, epsilon: float, rule: str, floor: fl
         bw = 2.0 ** (-(first + 1.0))
         return np.where(flat, 0.0, bw)
     if rule != "energy":
-        raise ValueError(f"rule must be 'energy' or 'eq7', got {rule!r}")
+        raise WarpbwError(f"rule must be 'energy' or 'eq7', got {rule!r}")
     kept = np.where(lam >= epsilon * safe_peak[None], lam, 0.0)
     energy = kept ** 2
     # cumulative from the coarsest band down to the finest, at band centres 2^-(i + 1/2)
@@ -276,9 +281,9 @@ def local_bandwidth(image: np.ndarray, epsilon: float = EPSILON, wavelet: str = 
     (bandwidth 0), by default ``epsilon`` times the image's largest coefficient.  Vectorised: the
     only Python loop runs over the ``levels`` wavelet bands."""
     if not (0.0 < epsilon < 1.0):
-        raise ValueError(f"epsilon must be in (0, 1), got {epsilon}")
+        raise WarpbwError(f"epsilon must be in (0, 1), got {epsilon}")
     if not (0.0 < energy_fraction <= 1.0):
-        raise ValueError(f"energy_fraction must be in (0, 1], got {energy_fraction}")
+        raise WarpbwError(f"energy_fraction must be in (0, 1], got {energy_fraction}")
     lam = band_maxima(image, wavelet=wavelet, levels=levels, pad=pad)
     scale = float(np.max(np.abs(image))) if np.size(image) else 0.0
     return _bandwidth_from_maxima(lam, epsilon, rule, floor, energy_fraction, scale)
@@ -314,7 +319,7 @@ def envmap_angular_bandwidth(pixels: np.ndarray, epsilon: float = EPSILON,
     ``epsilon`` times the map's mean radiance (:mod:`warpbw.bandwidth`)."""
     px = np.asarray(pixels, dtype=np.float64)
     if px.ndim not in (2, 3):
-        raise ValueError(f"envmap pixels must be (H, W) or (H, W, C), got shape {px.shape}")
+        raise WarpbwError(f"envmap pixels must be (H, W) or (H, W, C), got shape {px.shape}")
     h, w = px.shape[:2]
     b = local_bandwidth(px, epsilon=epsilon, wavelet=wavelet, levels=levels,
                         pad=("latlong_pole", "wrap"), rule=rule, floor=floor)
@@ -334,6 +339,6 @@ def texture_spatial_bandwidth(image: np.ndarray, metres_per_pixel: float,
     zero-padded (``pad="zero"``, 002 Sec. 2.3); pass ``pad="wrap"`` for a tiling texture."""
     mpp = float(metres_per_pixel) if isinstance(metres_per_pixel, numbers.Real) else math.nan   # not "0.01"
     if not (mpp > 0.0 and math.isfinite(mpp)):
-        raise ValueError(f"metres_per_pixel must be a positive finite number, got {metres_per_pixel!r}")
+        raise WarpbwError(f"metres_per_pixel must be a positive finite number, got {metres_per_pixel!r}")
     return local_bandwidth(image, epsilon=epsilon, wavelet=wavelet, levels=levels, pad=pad,
                            rule=rule) / mpp

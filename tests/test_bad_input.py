@@ -1621,6 +1621,85 @@ def test_renderer_switches_and_levels_are_checked(tmp_path):
     write_exr(tmp_path / "inf.exr", np.full((2, 2, 3), np.inf))      # inf itself is stored as it is
 
 
+def test_lower_level_functions_check_devices_specs_shapes_and_directions(tmp_path):
+    """Called from Python these failed inside Warp or numpy (device "gpu", a 2-component albedo, short NPF curves,
+    (N, 2) directions, a 0-d image, a path of None), or gave a wrong answer without a word: alpha NaN and kind 99
+    were packed into the material table, npf_eval read a NaN direction as 0 (below the horizon), and
+    coverage_from_alpha read the B channel as A when the pixels had fewer channels than names."""
+    from warpbw import brdf as B
+    from warpbw.bandwidth_ops import one_bounce
+    from warpbw.envmap import envmap_from_array
+    from warpbw.gbuffer import render_gbuffer
+    from warpbw.io.merl import half_diff_from_dirs, merl_eval
+    from warpbw.io.npf import npf_eval, read_npf
+    from warpbw.metrics import compare_images, coverage_from_alpha, psnr
+    from warpbw.pipeline import prepare_scene
+    from warpbw.pyramid import image_level
+    from warpbw.scene import parse_scene
+    from warpbw.shading import shade_reference
+
+    prep = prepare_scene(parse_scene(_furnace(1.0), tmp_path, "f.toml"))
+    gb = render_gbuffer(prep.camera, prep.geometry)
+    for call in (lambda d: B.build_material_table([B.MaterialSpec("a", B.LAMBERT, albedo=(0.5,) * 3)], device=d),
+                 lambda d: envmap_from_array(np.ones((4, 8, 3)), device=d),
+                 lambda d: render_gbuffer(prep.camera, prep.geometry, device=d),
+                 lambda d: image_level(np.ones((4, 4), np.float32), device=d),
+                 lambda d: one_bounce([[1.0, 1.0]], 1.0, 1.0, device=d),
+                 lambda d: shade_reference(gb, prep.materials, prep.env_data, 1, device=d)):
+        with pytest.raises(WarpbwError, match="device gpu: not available on this machine"):
+            call("gpu")
+
+    def spec(**kw):
+        return B.MaterialSpec("m", **{"kind": B.GGX, "alpha": 0.2, "specular": (1.0, 1.0, 1.0), **kw})
+
+    assert B.build_material_table([spec()]).names == ["m"]
+    for kw, needle in [({"kind": 99}, "kind: expected one of"), ({"kind": 1.0}, "kind: expected one of"),
+                       ({"alpha": float("nan")}, "alpha: expected a finite number >= 0"),
+                       ({"alpha": -0.1}, "alpha"), ({"albedo": (0.5, 0.5)}, "albedo: expected three finite"),
+                       ({"specular": (1.0, np.inf, 1.0)}, "specular"), ({"eta": (1.0, 1.0, 1.0)}, "both eta and k"),
+                       ({"eta": (1.0,) * 3, "k": (-1.0,) * 3}, "k: expected three finite numbers >= 0"),
+                       ({"kind": B.NPF, "npf": np.zeros(5)}, f"npf: expected {B.NPF_STRIDE} x 3 values, got 5"),
+                       ({"kind": B.MERL, "merl": np.zeros((90, 90, 3))}, "merl: expected 1458000 x 3")]:
+        with pytest.raises(WarpbwError, match=f"material 0 \\('m'\\).*{needle}"):
+            B.build_material_table([spec(**kw)])
+    curves = [np.ones(3), np.ones(3), np.ones((90, 3)), np.ones((90, 3)), np.ones((90, 3))]
+    assert B.pack_npf_curves(*curves).shape == (B.NPF_STRIDE, 3)
+    curves[3] = np.ones((80, 3))
+    with pytest.raises(WarpbwError, match="g1: expected 90 x 3 values, got 240"):
+        B.pack_npf_curves(*curves)
+
+    up, tilt = [0.0, 0.0, 1.0], [0.6, 0.0, 0.8]
+    assert np.shape(half_diff_from_dirs(up, tilt)[0]) == ()              # one pair in, scalars out, as before
+    with pytest.raises(WarpbwError, match="3 components"):
+        half_diff_from_dirs(np.ones((4, 2)), np.ones((4, 2)))
+    mat = read_npf(_fake_npf_table(tmp_path / "npf.bin"), "chrome")
+    merl = type("M", (), {"data": np.ones((90, 90, 180, 3))})()
+    for f in (lambda wi, wo: half_diff_from_dirs(wi, wo), lambda wi, wo: npf_eval(mat, wi, wo),
+              lambda wi, wo: merl_eval(merl, wi, wo)):
+        for bad in ([np.nan, 0.0, 1.0], [0.0, 0.0, 0.0], [np.inf, 0.0, 1.0]):
+            with pytest.raises(WarpbwError, match="wi: expected finite non-zero directions"):
+                f(bad, tilt)
+    # a direction of any length reads as its unit vector, as the device evaluators take it
+    np.testing.assert_allclose(npf_eval(mat, [0.0, 0.0, 7.0], tilt), npf_eval(mat, up, tilt), rtol=1e-12)
+
+    with pytest.raises(WarpbwError, match="test image: expected an array of numbers, got str"):
+        psnr("a", "b")
+    with pytest.raises(WarpbwError, match=r"test image: expected \(H, W\) or \(H, W, C\) values, got shape \(\)"):
+        compare_images(np.float64(1.0), np.float64(1.0))
+    rgba = np.zeros((2, 2, 4))
+    rgba[0, 0, 3] = 1.0
+    assert coverage_from_alpha(rgba, "RGBA").sum() == 1
+    with pytest.raises(WarpbwError, match=r"do not hold the 4 channels"):
+        coverage_from_alpha(rgba[..., :3], "RGBA")
+    from warpbw.io.exr import write_exr
+
+    with pytest.raises(WarpbwError, match="write_exr: expected a file path, got None"):
+        write_exr(None, np.ones((2, 2, 3)))
+    with pytest.raises(WarpbwError, match="cannot write pixels of type <U1"):
+        write_exr(tmp_path / "s.exr", [["a"]])
+    assert not (tmp_path / "s.exr").exists()
+
+
 def test_a_reader_that_leaves_early_stops_the_command_quietly(tmp_path):
     """``warpbw compare A B | head -1``: the closed pipe printed 'warpbw: error: [Errno 32] Broken pipe' and exited
     with 2, a user error.  Now it stops without a word with 141, as a shell reports a command killed by SIGPIPE."""

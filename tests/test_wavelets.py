@@ -21,6 +21,7 @@ from precompute.wavelets import (
     local_bandwidth,
     texture_spatial_bandwidth,
 )
+from warpbw.errors import WarpbwError
 
 N = 128
 Y, X = np.mgrid[0:N, 0:N].astype(np.float64)
@@ -140,6 +141,15 @@ def test_monotone_in_frequency(f1, f2):
         assert m2 > m1
 
 
+@settings(max_examples=20, deadline=None)
+@given(exponent=st.integers(-300, 140))
+def test_bandwidth_does_not_depend_on_the_images_scale(exponent):
+    """Only ratios of wavelet coefficients enter Eq. 7 and the energy rule: scaling the image by 10^k changes
+    nothing, down to 1e-300 (at 1e-170 the squared coefficients underflowed and every pixel read 0)."""
+    img = sine(0.12, 0.3, 48) + 0.5 * (X[:48, :48] > 20)
+    np.testing.assert_allclose(local_bandwidth(img * 10.0 ** exponent), local_bandwidth(img), rtol=1e-9, atol=0)
+
+
 @pytest.mark.parametrize("shape", [(97, 150), (33, 70), (50, 50)])
 def test_non_power_of_two_sizes(shape):
     h, w = shape
@@ -180,22 +190,24 @@ def test_haar_is_accepted():
 
 
 def test_bad_input_is_refused():
-    with pytest.raises(ValueError):
+    """Refused as the renderer's one-line WarpbwError (a ValueError, as these were before)."""
+    assert issubclass(WarpbwError, ValueError)
+    with pytest.raises(WarpbwError):
         local_bandwidth(np.zeros(16))
-    with pytest.raises(ValueError):
+    with pytest.raises(WarpbwError):
         local_bandwidth(np.full((16, 16), np.nan))
-    with pytest.raises(ValueError):
+    with pytest.raises(WarpbwError):
         local_bandwidth(np.zeros((16, 16)), epsilon=0.0)
-    with pytest.raises(ValueError):
+    with pytest.raises(WarpbwError):
         local_bandwidth(np.zeros((16, 16)), rule="median")
-    with pytest.raises(ValueError):
+    with pytest.raises(WarpbwError):
         texture_spatial_bandwidth(np.zeros((16, 16)), metres_per_pixel=0.0)
     # a NaN floor switched the flatness test off; 2.5 levels were cut to 2; a string was read as a length
-    with pytest.raises(ValueError, match="floor must be a finite number >= 0"):
+    with pytest.raises(WarpbwError, match="floor must be a finite number >= 0"):
         local_bandwidth(np.zeros((16, 16)), floor=float("nan"))
-    with pytest.raises(ValueError, match="levels must be an integer"):
+    with pytest.raises(WarpbwError, match="levels must be an integer"):
         local_bandwidth(np.zeros((16, 16)), levels=2.5)
-    with pytest.raises(ValueError, match="metres_per_pixel .* got '0.01'"):
+    with pytest.raises(WarpbwError, match="metres_per_pixel .* got '0.01'"):
         texture_spatial_bandwidth(np.zeros((16, 16)), metres_per_pixel="0.01")
 
 

@@ -62,7 +62,7 @@ import math
 import numpy as np
 import warp as wp
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_device
 
 # Grazing clamp of P_x (002 Fig. 4 has 1 / cos theta_x, unbounded at the silhouette): cos theta_x
 # below 1e-3 (theta_x > 89.94 deg) counts as 1e-3, so P_x scales nu_s by at most 1000.  The image-space
@@ -247,6 +247,7 @@ def apply_operator(op: str, nu, *, d=0.0, dp=0.0, cos_i=1.0, cos_x=1.0, c=0.0, t
     """
     if op not in OPS:
         raise WarpbwError(f"unknown bandwidth operator {op!r}; expected one of {sorted(OPS)}")
+    check_device(device)
     v = np.asarray(nu, dtype=np.float32)
     if v.ndim == 1:
         v = v.reshape(1, -1)

@@ -5,6 +5,7 @@ Public:
     ``BrdfFuncs`` / ``make_brdf_funcs(kinds)``  the eval / sample / pdf ``wp.func`` s for a set of kinds
     ``MaterialSpec``                one material's kind and parameters, as the scene gives them
     ``build_material_table(specs, device) -> MaterialBuffers``  host: pack material specs into a ``MaterialTable``
+    ``check_material_spec(spec, i)``  a spec the table can hold, else a ``WarpbwError`` naming the field
     ``pack_npf_curves(rho_d, rho_s, d, g1, f)``  an NPF fit's curves in the table's layout
     ``KIND_NAMES``                  material type name -> kind id
     ``eval_brdf(...)``, ``sample_brdf(...)``, ``pdf_brdf(...)``  host wrappers (numpy in, numpy out) for tests
@@ -38,7 +39,7 @@ import warp as wp
 
 from warpbw import sampling as tabsamp
 from warpbw.errors import (INT32_MAX, WarpbwError, check_count, check_device, check_direction_pairs,
-                           check_seed)
+                           check_seed, is_int, unit_directions)
 
 # Material kind ids (stable: stored in MaterialTable.kind).
 LAMBERT = 0
@@ -455,14 +456,62 @@ class MaterialBuffers:
 
 def pack_npf_curves(rho_d, rho_s, d, g1, f) -> np.ndarray:
     """NPF curves in MaterialTable.npf order, (NPF_STRIDE, 3) float32."""
-    rows = [np.asarray(rho_d, np.float64).reshape(1, 3), np.asarray(rho_s, np.float64).reshape(1, 3),
-            np.asarray(d).reshape(NPF_BINS, 3), np.asarray(g1).reshape(NPF_BINS, 3),
-            np.asarray(f).reshape(NPF_BINS, 3)]
-    return np.concatenate(rows).astype(np.float32)
+    rows = [_spec_table(v, name, n) for v, name, n in ((rho_d, "rho_d", 1), (rho_s, "rho_s", 1),
+                                                      (d, "d", NPF_BINS), (g1, "g1", NPF_BINS), (f, "f", NPF_BINS))]
+    return np.concatenate(rows)
+
+
+def _spec_vec3(value, what: str, optional: bool = False):
+    """Three finite numbers >= 0 (a colour, eta or k), else a WarpbwError naming ``what``."""
+    if value is None and optional:
+        return None
+    try:
+        v = np.asarray(value, np.float64)
+    except (TypeError, ValueError):
+        v = np.zeros(0)
+    if v.shape != (3,) or not np.isfinite(v).all() or (v < 0.0).any():
+        raise WarpbwError(f"{what}: expected three finite numbers >= 0, got {value!r}")
+    return v
+
+
+def _spec_table(values, what: str, rows: int) -> np.ndarray:
+    """A tabulated BRDF's values as (rows, 3) float32, else a WarpbwError giving the size expected."""
+    try:
+        v = np.asarray(values, np.float32) if values is not None else np.zeros(0, np.float32)
+    except (TypeError, ValueError):
+        raise WarpbwError(f"{what}: expected {rows} x 3 numbers, got {type(values).__name__}") from None
+    if v.size != rows * 3:
+        raise WarpbwError(f"{what}: expected {rows} x 3 values, got {v.size}")
+    return np.ascontiguousarray(v).reshape(rows, 3)
+
+
+def check_material_spec(s: MaterialSpec, i: int) -> MaterialSpec:
+    """A spec the table can hold (the scene parser's specs always pass): a known kind, colours of three finite
+    numbers >= 0, a finite alpha >= 0 (a NaN one made every GGX lookup NaN), tables of the right size."""
+    what = f"material {i} ({getattr(s, 'name', '?')!r})"
+    if not isinstance(s, MaterialSpec):
+        raise WarpbwError(f"{what}: expected a MaterialSpec, got {type(s).__name__}")
+    if not is_int(s.kind) or int(s.kind) not in KIND_NAMES.values():
+        raise WarpbwError(f"{what}.kind: expected one of {KIND_NAMES}, got {s.kind!r}")
+    for field in ("albedo", "specular"):
+        _spec_vec3(getattr(s, field), f"{what}.{field}")
+    for field in ("eta", "k"):
+        _spec_vec3(getattr(s, field), f"{what}.{field}", optional=True)
+    if (s.eta is None) != (s.k is None):
+        raise WarpbwError(f"{what}: a conductor needs both eta and k, got only one")
+    if not isinstance(s.alpha, (int, float, np.floating)) or not math.isfinite(s.alpha) or s.alpha < 0.0:
+        raise WarpbwError(f"{what}.alpha: expected a finite number >= 0, got {s.alpha!r}")
+    if s.kind == MERL:
+        _spec_table(s.merl, f"{what}.merl", MERL_CELLS)
+    elif s.kind == NPF:
+        _spec_table(s.npf, f"{what}.npf", NPF_STRIDE)
+    return s
 
 
 def build_material_table(specs: Sequence[MaterialSpec], device: str = "cpu") -> MaterialBuffers:
-    """Pack material specs (in material-id order) into device arrays."""
+    """Pack material specs (in material-id order) into device arrays (each checked by ``check_material_spec``)."""
+    check_device(device)
+    specs = [check_material_spec(s, i) for i, s in enumerate(specs)]
     n = len(specs)
     kind = np.array([s.kind for s in specs], np.int32)
     data_idx = np.full(n, -1, np.int32)
@@ -471,13 +520,13 @@ def build_material_table(specs: Sequence[MaterialSpec], device: str = "cpu") -> 
     for i, s in enumerate(specs):
         if s.kind == MERL:
             data_idx[i] = len(merls)
-            merls.append(np.ascontiguousarray(s.merl, np.float32).reshape(-1, 3))
+            merls.append(_spec_table(s.merl, s.name, MERL_CELLS))
         elif s.kind == NPF:
             data_idx[i] = len(npfs)
-            npfs.append(np.ascontiguousarray(s.npf, np.float32).reshape(NPF_STRIDE, 3))
+            npfs.append(_spec_table(s.npf, s.name, NPF_STRIDE))
         if s.kind in (MERL, NPF):
             if s.sampler is None:
-                raise ValueError(f"material {s.name!r}: a tabulated BRDF needs its sampling table")
+                raise WarpbwError(f"material {s.name!r}: a tabulated BRDF needs its sampling table")
             samp_idx[i] = len(samplers)
             samplers.append(s.sampler)
 
@@ -535,16 +584,6 @@ def _host_kernels(kinds: frozenset):
     return eval_kernel, pdf_kernel, sample_kernel
 
 
-def _unit_directions(d: np.ndarray, name: str) -> np.ndarray:
-    """(N, 3) directions scaled to unit length (the evaluators assume it: wi * 10 read 0.0116 for 0.62), else a
-    WarpbwError for a zero, NaN or infinite one."""
-    length = np.linalg.norm(d, axis=-1, keepdims=True)
-    bad = ~(np.isfinite(length) & (length > 0.0))
-    if bad.any():
-        raise WarpbwError(f"{name}: expected finite non-zero directions, {int(bad.sum())} of {len(d)} are not")
-    return d / length
-
-
 def _check_material(mb: MaterialBuffers, m, device) -> int:
     """The host wrappers' material index (one outside the table read memory beyond it) and device."""
     check_device(device)
@@ -552,7 +591,7 @@ def _check_material(mb: MaterialBuffers, m, device) -> int:
 
 
 def _device_dirs(d: np.ndarray, name: str, device) -> wp.array:
-    return wp.array(np.ascontiguousarray(_unit_directions(d, name), np.float32), dtype=wp.vec3, device=device)
+    return wp.array(np.ascontiguousarray(unit_directions(d, name), np.float32), dtype=wp.vec3, device=device)
 
 
 def eval_brdf(mb: MaterialBuffers, m: int, wi, wo, device: str = "cpu") -> np.ndarray:

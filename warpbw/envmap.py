@@ -77,7 +77,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.errors import WarpbwError, check_count
+from warpbw.errors import WarpbwError, check_count, check_device
 
 wp.set_module_options({"enable_backward": False})  # no gradients are taken: halves compile time
 
@@ -503,6 +503,7 @@ def _check_scalar(value, what: str, name: str, nonnegative: bool = False) -> flo
 
 
 def _make_envmap(rgb, rotation_deg, scale, name, device, stacklevel) -> EnvMap:
+    check_device(device)
     rotation_deg = _check_scalar(rotation_deg, "rotation_deg", name)
     scale = _check_scalar(scale, "scale", name, nonnegative=True)
     pixels, n_clamped = _sanitize(rgb, name, scale, stacklevel + 1)

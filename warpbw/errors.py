@@ -8,7 +8,8 @@ camera's distance to an object within what float32 intersection handles); ``chec
 size, target, source)`` (float32 fine enough where the camera and an object lie, ``COORD_SPACING_REL_MAX``);
 ``check_flag(value, name) -> bool`` (True or False, not a truthy string); ``check_seed(seed, name)`` (a uint32)
 and ``check_device(device, name)`` (a Warp device this machine has), the renderers' own checks;
-``check_direction_pairs(wi, wo) -> (wi, wo)`` (the BRDF evaluators' (N, 3) direction pairs, broadcast); the bounds
+``check_direction_pairs(wi, wo) -> (wi, wo)`` (the BRDF evaluators' (N, 3) direction pairs, broadcast, unit length)
+and ``unit_directions(d, name)`` (finite non-zero directions scaled to unit length); the bounds
 ``INT32_MAX``, ``FLOAT32_MAX``, ``SEED_MAX`` and ``BRDF_VALUE_MAX`` that user values are checked against.
 
 Anything the user can cause (a bad file, a bad key in a scene, a bad CLI value) is raised as
@@ -33,8 +34,9 @@ BRDF_VALUE_MAX = 1e20
 SEED_MAX = 2**32 - 1
 
 
-class WarpbwError(Exception):
-    """A problem with the user's input, reported in one line without a traceback."""
+class WarpbwError(ValueError):
+    """A problem with the user's input, reported in one line without a traceback.  A ``ValueError``, so that code
+    written against the lower-level functions' earlier plain ``ValueError`` s still catches it."""
 
 
 def is_int(value) -> bool:
@@ -86,9 +88,22 @@ def check_device(device, name: str = "device") -> str:
     return device
 
 
+def unit_directions(d, name: str):
+    """Directions (..., 3) scaled to unit length (the evaluators assume it: wi * 10 read 0.0116 for 0.62), else a
+    ``WarpbwError`` naming ``name`` for a zero, NaN or infinite one (a NaN one read as 0, below the horizon)."""
+    import numpy as np
+
+    d = np.asarray(d, dtype=np.float64)
+    length = np.linalg.norm(d, axis=-1, keepdims=True)
+    bad = ~(np.isfinite(length) & (length > 0.0))
+    if bad.any():
+        raise WarpbwError(f"{name}: expected finite non-zero directions, {int(bad.sum())} of {bad.size} are not")
+    return d / length
+
+
 def check_direction_pairs(wi, wo):
-    """``wi`` and ``wo`` as float64 arrays (N, 3) of one length (a single direction broadcasts), else a ``WarpbwError``
-    (numpy's broadcast error or an IndexError once came from deep inside the evaluators)."""
+    """``wi`` and ``wo`` as unit float64 arrays (N, 3) of one length (a single direction broadcasts), else a
+    ``WarpbwError`` (numpy's broadcast error or an IndexError once came from deep inside the evaluators)."""
     import numpy as np
 
     a = np.atleast_2d(np.asarray(wi, dtype=np.float64))
@@ -96,10 +111,11 @@ def check_direction_pairs(wi, wo):
     if a.shape[-1:] != (3,) or b.shape[-1:] != (3,):
         raise WarpbwError(f"wi, wo: expected directions of 3 components, (N, 3), got shapes {a.shape} and {b.shape}")
     try:
-        return np.broadcast_arrays(a, b)
+        a, b = np.broadcast_arrays(a, b)
     except ValueError:
         raise WarpbwError(f"wi, wo: expected as many incident as outgoing directions, got shapes {a.shape} and "
                           f"{b.shape}") from None
+    return unit_directions(a, "wi"), unit_directions(b, "wo")
 
 
 def check_input_file(path, expected: str = "") -> Path:

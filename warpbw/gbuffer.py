@@ -49,7 +49,7 @@ import numpy as np
 import warp as wp
 
 from warpbw.errors import (FLOAT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, check_count,
-                           is_int)
+                           check_device, is_int)
 
 RAY_T_MAX = 1.0e30
 # Primary rays are intersected in float32, and outside these distances from the camera (to an object's far
@@ -608,6 +608,7 @@ def render_gbuffer(cam: CameraData, geometry: Geometry, device: str = "cpu", out
     frame that no bandwidth pass reads."""
     from warpbw.shading import launch_tiled   # shading builds on this module
 
+    check_device(device)
     check_reach(cam, geometry)
     if curvature:
         ensure_curvature(geometry)

@@ -26,9 +26,20 @@ RELMSE_EPS = 1.0e-2
 WORST_FRACTION = 0.01   # the worst 1% of the covered pixels (ours: how concentrated the error is)
 
 
+def _image(x, what: str) -> np.ndarray:
+    """An (H, W) or (H, W, C) image as float64, else a WarpbwError (numpy's own for strings, an IndexError for 0-d)."""
+    try:
+        a = np.asarray(x, np.float64)
+    except (TypeError, ValueError):
+        raise WarpbwError(f"{what} image: expected an array of numbers, got {type(x).__name__}") from None
+    if a.ndim not in (2, 3):
+        raise WarpbwError(f"{what} image: expected (H, W) or (H, W, C) values, got shape {a.shape}")
+    return a
+
+
 def _masked(test, ref, mask):
-    a = np.asarray(test, np.float64)
-    b = np.asarray(ref, np.float64)
+    a = _image(test, "test")
+    b = _image(ref, "reference")
     if a.shape != b.shape:
         raise WarpbwError(f"images differ in size: {a.shape} and {b.shape}")
     if mask is None:
@@ -77,8 +88,9 @@ def psnr(test, ref, mask=None) -> float:
 def relmse_map(test, ref, mask=None, eps: float = RELMSE_EPS) -> np.ndarray:
     """(H, W) float64: per pixel the mean over channels of (test - ref)^2 / (ref^2 + eps); 0 outside ``mask``."""
     _masked(test, ref, mask)                      # the same checks as the scalar metrics
-    a = np.asarray(test, np.float64)
-    b = np.asarray(ref, np.float64)
+    a, b = _image(test, "test"), _image(ref, "reference")
+    if a.ndim == 2:                               # one channel: the mean over channels is the value itself
+        a, b = a[..., None], b[..., None]
     e = np.mean((a - b) ** 2 / (b * b + _check_eps(eps)), axis=-1)
     return e if mask is None else np.where(np.asarray(mask, bool), e, 0.0)
 
@@ -112,6 +124,9 @@ def compare_images(test, ref, mask=None) -> dict:
 def coverage_from_alpha(pixels: np.ndarray, channels) -> np.ndarray | None:
     """The coverage mask stored in an EXR's A channel (written by ``warpbw render``), else None."""
     ch = list(channels)
-    if "A" in ch:
-        return pixels[..., ch.index("A")] > 0.0
-    return None
+    if "A" not in ch:
+        return None
+    px = np.asarray(pixels)
+    if px.ndim != 3 or px.shape[-1] != len(ch):   # an IndexError, or another channel read as A
+        raise WarpbwError(f"pixels of shape {px.shape} do not hold the {len(ch)} channels {ch} as (H, W, {len(ch)})")
+    return px[..., ch.index("A")] > 0.0

@@ -54,6 +54,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
+from warpbw.errors import WarpbwError, check_device
+
 wp.set_module_options({"enable_backward": False})  # no gradients are taken: halves compile time
 
 OPS = {"min": 0, "max": 1}
@@ -197,13 +199,13 @@ class Pyramid:
 def _check_size(width, height) -> tuple[int, int]:
     w, h = int(width), int(height)
     if w != width or h != height or w < 1 or h < 1:
-        raise ValueError(f"image size must be positive integers, got {width} x {height}")
+        raise WarpbwError(f"image size must be positive integers, got {width} x {height}")
     return w, h
 
 
 def _device_of(values, device):
     if device is not None:
-        return wp.get_device(device)
+        return wp.get_device(check_device(device))
     if isinstance(values, wp.array):
         return values.device
     return wp.get_device("cpu")
@@ -221,22 +223,22 @@ def _as_2d(values, dtype, width, height, device, name):
         arr = np.asarray(values)
     if arr.ndim == 1:
         if width is None or height is None:
-            raise ValueError(f"{name}: a flat buffer needs width and height")
+            raise WarpbwError(f"{name}: a flat buffer needs width and height")
         w, h = _check_size(width, height)
         if arr.size != w * h:
-            raise ValueError(f"{name}: {arr.size} values do not make a {w} x {h} image")
+            raise WarpbwError(f"{name}: {arr.size} values do not make a {w} x {h} image")
         arr = arr.reshape(h, w)
     elif arr.ndim != 2:
-        raise ValueError(f"{name}: expected a 2D (rows, cols) array or a flat buffer, got shape {arr.shape}")
+        raise WarpbwError(f"{name}: expected a 2D (rows, cols) array or a flat buffer, got shape {arr.shape}")
     elif width is not None and height is not None and arr.shape != (int(height), int(width)):
-        raise ValueError(f"{name}: shape {arr.shape} is not (height, width) = ({height}, {width})")
+        raise WarpbwError(f"{name}: shape {arr.shape} is not (height, width) = ({height}, {width})")
     if arr.size == 0:
-        raise ValueError(f"{name}: empty image {arr.shape}")
+        raise WarpbwError(f"{name}: empty image {arr.shape}")
     if dtype == wp.int32:
         if arr.dtype.kind == "f":
-            raise ValueError(f"{name}: expected integers, got {arr.dtype}")
+            raise WarpbwError(f"{name}: expected integers, got {arr.dtype}")
         if arr.dtype.kind in "iu" and arr.size and (arr.min() < -2**31 or arr.max() >= 2**31):
-            raise ValueError(f"{name}: values do not fit in int32")
+            raise WarpbwError(f"{name}: values do not fit in int32")
         arr = arr.astype(np.int32)
     else:
         arr = arr.astype(np.float32)
@@ -253,7 +255,7 @@ def image_level(b_p, coverage=None, width: int | None = None, height: int | None
     ``b_p <= 0`` get ``max_level(W, H)``; ``+inf`` gives 0; NaN gives ``nan_level`` (module doc).
     """
     if nan_level not in NAN_LEVELS:
-        raise ValueError(f"nan_level must be one of {NAN_LEVELS}, got {nan_level!r}")
+        raise WarpbwError(f"nan_level must be one of {NAN_LEVELS}, got {nan_level!r}")
     device = _device_of(b_p, device)
     bp = _as_2d(b_p, wp.float32, width, height, device, "b_p")
     h, w = bp.shape
@@ -281,7 +283,7 @@ def build_pyramid(values, op: str = "min", device=None, *, width: int | None = N
     One kernel launch per level.  Level 0 is a copy: the pyramid never aliases the input.
     """
     if op not in OPS:
-        raise ValueError(f"op must be 'min' or 'max', got {op!r}")
+        raise WarpbwError(f"op must be 'min' or 'max', got {op!r}")
     code = OPS[op]
     device = _device_of(values, device)
     if isinstance(values, wp.array):

@@ -39,7 +39,7 @@ import warp as wp
 
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv
-from warpbw.errors import INT32_MAX, WarpbwError, check_count, check_flag
+from warpbw.errors import INT32_MAX, WarpbwError, check_count, check_device, check_flag
 from warpbw.gbuffer import GBuffer, GBufferData
 from warpbw.lights import DirectionalLights, Lights
 
@@ -285,6 +285,7 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
     per_pixel = isinstance(spp, wp.array)
     has_env = env_data is not None
     mis = check_flag(mis, "shade_reference: mis")
+    check_device(device, "shade_reference: device")
     n_pix = gb.width * gb.height
     if per_pixel:
         if spp.shape != (n_pix,) or spp.dtype != wp.int32:

@@ -21,6 +21,7 @@ names the file.
 from __future__ import annotations
 
 import math
+import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -153,8 +154,12 @@ def write_exr(path, pixels, channels=None) -> Path:
     """
     import OpenEXR
 
+    if not isinstance(path, (str, os.PathLike)) or not str(path):   # Path(None) is a TypeError
+        raise WarpbwError(f"write_exr: expected a file path, got {path!r}")
     path = Path(path)
     arr = np.asarray(pixels)
+    if arr.dtype.kind not in "buif":   # strings, None, objects: numpy's cast error below
+        raise WarpbwError(f"{path}: cannot write pixels of type {arr.dtype} (expected numbers)")
     if arr.ndim == 2:
         arr = arr[..., None]
     if arr.ndim != 3 or arr.shape[0] == 0 or arr.shape[1] == 0:
@@ -167,8 +172,9 @@ def write_exr(path, pixels, channels=None) -> Path:
             f"{path}: channel names {names} do not match {arr.shape[2]} channels "
             "(expected that many distinct, non-empty names without commas)"
         )
+    wide = arr.dtype.kind == "f" and arr.dtype.itemsize > 4   # only float64 (and wider) can exceed float32
     with np.errstate(invalid="ignore"):
-        big = np.isfinite(arr) & (np.abs(arr) > FLOAT32_MAX)
+        big = np.isfinite(arr) & (np.abs(arr) > FLOAT32_MAX) if wide else np.zeros(arr.shape, bool)
     if big.any():   # written as inf, with only numpy's cast warning
         raise WarpbwError(f"{path}: values up to {np.abs(arr[big]).max():.3g} are beyond float32 ({FLOAT32_MAX:.3g}), "
                           "in which EXR stores them")

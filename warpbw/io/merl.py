@@ -104,7 +104,9 @@ def half_diff_from_dirs(wi, wo):
     Returns ``(theta_h, phi_h, theta_d, phi_d)``, phi in (-pi, pi]: h = normalize(wi + wo);
     d = wi rotated by -phi_h about z then by -theta_h about y.
     """
-    theta_h, phi_h, dx, dy, dz = _half_diff_xyz(wi, wo)
+    a, b = check_direction_pairs(wi, wo)   # (N, 3) or a clear error; then back to the inputs' own shape
+    shape = np.broadcast_shapes(np.shape(wi), np.shape(wo))
+    theta_h, phi_h, dx, dy, dz = _half_diff_xyz(a.reshape(shape), b.reshape(shape))
     return theta_h, phi_h, np.arccos(np.clip(dz, -1.0, 1.0)), np.arctan2(dy, dx)
 
 

@@ -144,9 +144,7 @@ def npf_eval(mat: NPFMaterial, wi, wo, interpolate: bool = True) -> np.ndarray:
 
     Exactly reciprocal: every quantity is computed symmetrically in (wi, wo).
     """
-    wi, wo = check_direction_pairs(wi, wo)
-    wi = wi / np.maximum(np.linalg.norm(wi, axis=-1, keepdims=True), np.finfo(np.float64).tiny)
-    wo = wo / np.maximum(np.linalg.norm(wo, axis=-1, keepdims=True), np.finfo(np.float64).tiny)
+    wi, wo = check_direction_pairs(wi, wo)   # unit length; NaN and zero directions refused
     ci, co = wi[..., 2], wo[..., 2]
     above = (ci > 0.0) & (co > 0.0)
     s = wi + wo
