@@ -1622,21 +1622,27 @@ def test_renderer_switches_and_levels_are_checked(tmp_path):
 
 
 def test_lower_level_functions_check_devices_specs_shapes_and_directions(tmp_path):
-    """Called from Python these failed inside Warp or numpy (device "gpu", a 2-component albedo, short NPF curves,
-    (N, 2) directions, a 0-d image, a path of None), or gave a wrong answer without a word: alpha NaN and kind 99
-    were packed into the material table, npf_eval read a NaN direction as 0 (below the horizon), and
-    coverage_from_alpha read the B channel as A when the pixels had fewer channels than names."""
+    """Called from Python these failed inside Warp or numpy (device "gpu" in every function that takes one, a
+    2-component albedo, short NPF curves, (N, 2) directions, a 0-d image, a path of None), or gave a wrong answer
+    without a word: alpha NaN and kind 99 were packed into the material table, npf_eval read a NaN direction as 0
+    (below the horizon), and coverage_from_alpha read the B channel as A when the pixels had fewer channels than
+    names."""
+    from warpbw import adaptive, bandwidth
     from warpbw import brdf as B
     from warpbw.bandwidth_ops import one_bounce
     from warpbw.envmap import envmap_from_array
-    from warpbw.gbuffer import render_gbuffer
+    from warpbw.gbuffer import allocate_gbuffer, build_geometry, hide_beyond, render_gbuffer
     from warpbw.io.merl import half_diff_from_dirs, merl_eval
     from warpbw.io.npf import npf_eval, read_npf
+    from warpbw.lights import directional_struct
+    from warpbw.mesh_normals import mesh_topology
     from warpbw.metrics import compare_images, coverage_from_alpha, psnr
     from warpbw.pipeline import prepare_scene
     from warpbw.pyramid import image_level
+    from warpbw.sampling import pack_samplers
     from warpbw.scene import parse_scene
-    from warpbw.shading import shade_reference
+    from warpbw.shading import covered_pixels, shade_reference
+    from warpbw.upsample import parent_weights
 
     prep = prepare_scene(parse_scene(_furnace(1.0), tmp_path, "f.toml"))
     gb = render_gbuffer(prep.camera, prep.geometry)
@@ -1645,7 +1651,13 @@ def test_lower_level_functions_check_devices_specs_shapes_and_directions(tmp_pat
                  lambda d: render_gbuffer(prep.camera, prep.geometry, device=d),
                  lambda d: image_level(np.ones((4, 4), np.float32), device=d),
                  lambda d: one_bounce([[1.0, 1.0]], 1.0, 1.0, device=d),
-                 lambda d: shade_reference(gb, prep.materials, prep.env_data, 1, device=d)):
+                 lambda d: shade_reference(gb, prep.materials, prep.env_data, 1, device=d),
+                 lambda d: build_geometry([], [], device=d), lambda d: allocate_gbuffer(4, 4, device=d),
+                 lambda d: hide_beyond(gb, prep.camera, np.full((gb.height, gb.width), 1e9), device=d),
+                 lambda d: directional_struct([[0.0, 0.0, 1.0]], [[1.0, 1.0, 1.0]], device=d),
+                 lambda d: covered_pixels(gb, device=d), lambda d: parent_weights(gb.data, prep.camera, 0, device=d),
+                 lambda d: pack_samplers([], device=d), lambda d: mesh_topology(np.zeros((1, 3)), 0, 1, device=d),
+                 adaptive.load_kernels, bandwidth.load_kernels):
         with pytest.raises(WarpbwError, match="device gpu: not available on this machine"):
             call("gpu")
 

@@ -76,7 +76,7 @@ import warp as wp
 
 from warpbw.brdf import MaterialBuffers
 from warpbw.envmap import EnvMapData
-from warpbw.errors import INT32_MAX, WarpbwError
+from warpbw.errors import INT32_MAX, WarpbwError, check_device
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 from warpbw.lights import Lights
 from warpbw.pyramid import build_pyramid, max_level
@@ -131,6 +131,7 @@ def level_spp_kernel(rep: wp.array(dtype=wp.int32), width: int, max_spp: wp.arra
 def load_kernels(device: str = "cpu") -> None:
     """Load the classification, gather, up-sampling and pyramid kernels (the shading kernel is the
     reference estimator's, see :func:`warpbw.shading.make_reference_kernel`)."""
+    check_device(device)
     from warpbw import pyramid, upsample
 
     for k in (classify_level_kernel, gather_shaded_kernel, level_spp_kernel, upsample.upsample_level_kernel,
@@ -243,6 +244,7 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
     (directional, or None) are then added exactly at every covered pixel (module docstring).  ``upsample``:
     "normal" or "paper" (:mod:`warpbw.upsample`).  ``plan``: :func:`plan_hierarchy`'s for ``level_map``
     (made here when None)."""
+    check_device(device)
     check_upsample_mode(upsample)
     if env_data is None:
         raise WarpbwError("adaptive shading: the scene has no environment to adapt to (directional lights alone "

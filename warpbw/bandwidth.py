@@ -214,7 +214,8 @@ import warp as wp
 from warpbw.bandwidth_ops import bw_one_bounce
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv
-from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, check_flag, check_seed, is_int
+from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, check_device, check_flag, check_seed,
+                           is_int)
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 from warpbw.pyramid import build_pyramid, image_level
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_local, to_world
@@ -528,6 +529,7 @@ def nu_env_table(nu_env: np.ndarray, width: int = None) -> np.ndarray:
 def make_bandwidth_tables(nu_env, nu_rho, device: str = "cpu") -> tuple[BandwidthTables, list]:
     """Device copies of the environment's bandwidth table (h, w) (:func:`nu_env_table`) and the stacked BRDF
     tables (M, 16, 16, 16).  Returns the struct and the arrays it references (keep them alive with it)."""
+    check_device(device)
     lt = np.ascontiguousarray(np.asarray(nu_env, np.float32))
     rho = np.ascontiguousarray(np.asarray(nu_rho, np.float32))
     if lt.ndim != 2 or lt.size == 0:
@@ -642,6 +644,7 @@ def pixel_angle(cam: CameraData) -> float:
 def load_kernels(device: str = "cpu") -> None:
     """Load (compile) the pass's block-plan and pooling kernels, so that ``bandwidth_pass`` times only the pass
     (``make_bandwidth_kernel``'s kernel is loaded by the pipeline beside the others it builds)."""
+    check_device(device)
     for k in (block_plan_kernel, pool_kernel):
         wp.load_module(k.module, device=device)
 
@@ -693,6 +696,7 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     is the plain per-pixel pass of 002 Sec. 3.1.  The pass predicts the environment's part of the image:
     directional lights are not up-sampled but added exactly at every pixel (:mod:`warpbw.adaptive`), so
     they take no part in it."""
+    check_device(device)
     import time
 
     if env_data is None:
@@ -767,6 +771,7 @@ def planned_shading(buf: BandwidthBuffer, device: str = "cpu", key=None, plan=No
     per level, finest first, a (h_L, w_L) bool mask of those texels (``warpbw.adaptive.HierarchyPlan.shade_masks``,
     which knows the texels the up-sampling cannot fill); without one, the level-L texels of some coverage whose
     min-filtered level is L."""
+    check_device(device)
     W, H = buf.width, buf.height
     var = build_pyramid((buf.sigma2 if key is None else key).numpy().reshape(H, W), op="max", device=device)
     if plan is None:
@@ -791,6 +796,7 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     ("uniform"), or to the standard deviation the pass measured for the renderer's estimator ("measured":
     the allocation that minimises the summed variance for a fixed budget; ``mis`` says which estimator,
     MIS or BRDF sampling alone).  Module docstring."""
+    check_device(device)
     if allocation not in ALLOCATIONS:
         raise WarpbwError(f"allocation: expected one of {', '.join(ALLOCATIONS)}, got {allocation!r}")
     if isinstance(budget, bool) or not isinstance(budget, (int, float, np.integer, np.floating)) \

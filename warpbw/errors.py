@@ -73,11 +73,13 @@ def check_device(device, name: str = "device") -> str:
     ``WarpbwError`` naming ``name``."""
     import warp as wp
 
+    if isinstance(device, wp.Device):   # a Device object is fine too (and cheap: frame loops pass one)
+        return device
     wp.init()
     names = ", ".join(d.alias for d in wp.get_devices())
-    if not isinstance(device, (str, wp.Device)) or not str(device):   # a Device object is fine too
+    if not isinstance(device, str) or not device:
         raise WarpbwError(f"{name} {device!r}: expected a Warp device name (Warp found: {names})")
-    if str(device).startswith("cuda") and not wp.is_cuda_available():
+    if device.startswith("cuda") and not wp.is_cuda_available():
         # checked before wp.get_device("cuda"), which prints native CUDA errors when there is no driver
         raise WarpbwError(f"{name} {device}: no CUDA device on this machine (no NVIDIA GPU or driver found; "
                           f"Warp found: {names}); use {name + ' cpu' if name.startswith('-') else 'cpu'}")

@@ -1255,6 +1255,7 @@ def plane_distance(scene: Scene, device: str = "cpu") -> np.ndarray:
     where it hits none -- the same hit test the renderer makes, from the scene file alone (no map is loaded).
     A scene that has planes beside spheres and meshes hides the spheres and meshes beyond it
     (:func:`warpbw.gbuffer.hide_beyond`) before shading them."""
+    check_device(device)
     cam_s = scene.camera
     check_plane_reach(cam_s, [p for p in scene.objects if isinstance(p, PlaneObject)], scene.source)
     cam = scene_camera(cam_s)
@@ -1324,6 +1325,7 @@ def fetch_gmm(levels, s, t, level, device: str = "cpu") -> np.ndarray:
     """Recovered (a, mu_x, mu_y, s^2) per component, (N, K, 4), of the GMM mipmap ``levels`` (finest first,
     (h, w, K, 4) moments) at finest-texel coordinates (s, t) and fractional ``level``, by the renderer's
     trilinear fetch (empty components come back as zeros)."""
+    check_device(device)
     shapes = [tuple(q.shape[:2]) for q in levels]
     lw, lh, loff = _level_arrays(shapes, device)
     gmm, K = _gmm_array(levels, device)
@@ -1339,6 +1341,7 @@ def fetch_gmm(levels, s, t, level, device: str = "cpu") -> np.ndarray:
 def gmm_ndf(params, rough_var: float, h, device: str = "cpu") -> np.ndarray:
     """The renderer's mixture NDF at unit directions h (N, 3) for components ``params`` (K, 4) of
     (a, mu_x, mu_y, s^2)."""
+    check_device(device)
     p = np.asarray(params, np.float32).reshape(-1, 4)
     hh = wp.array(np.asarray(h, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
     out = wp.zeros(hh.shape[0], dtype=wp.float32, device=device)
@@ -1350,6 +1353,7 @@ def gmm_ndf(params, rough_var: float, h, device: str = "cpu") -> np.ndarray:
 def pair_uniforms(seed: int, pixel: int, n: int, device: str = "cpu") -> np.ndarray:
     """The uniforms (n, ``PAIR_DIMS``) of pairs 0 .. n - 1 of the environment term at a pixel (``PAIR_ALPHA``):
     columns 0-2 drive the BRDF draw, 3-4 the environment draw."""
+    check_device(device)
     out = wp.zeros((int(n), PAIR_DIMS), dtype=wp.float32, device=device)
     wp.launch(pair_uniforms_kernel, dim=(int(n), PAIR_DIMS), inputs=[int(seed), int(pixel), out], device=device)
     return out.numpy()

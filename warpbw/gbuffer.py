@@ -396,6 +396,7 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
     """Upload spheres and one BVH over all meshes (concatenated, with a material id per face); a mesh's
     curvature is stored as ``warpbw.io.mesh.local_curvature`` of the H its MeshSpec gives (0 until
     ``ensure_curvature`` where the MeshSpec defers it)."""
+    check_device(device)
     from warpbw.io.mesh import local_curvature
 
     sl = SphereList()
@@ -584,6 +585,7 @@ class GBuffer:
 
 
 def allocate_gbuffer(width: int, height: int, device: str = "cpu") -> GBuffer:
+    check_device(device)
     n = width * height
     g = GBufferData()
     g.position = wp.zeros(n, dtype=wp.vec3, device=device)
@@ -624,6 +626,7 @@ def hide_beyond(gb: GBuffer, cam: CameraData, distance, device: str = "cpu") -> 
     distance along its centre ray of something nearer that the G-buffer does not hold, ``inf`` where there is
     none), so that no later stage shades a surface that will be drawn over.  A surface exactly at the distance
     stays.  Returns the number of pixels emptied."""
+    check_device(device)
     dist = np.asarray(distance)
     if dist.shape != (gb.height, gb.width):
         raise WarpbwError(f"distance: expected an ({gb.height}, {gb.width}) array (the camera's "

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_device
 
 
 @wp.struct
@@ -44,6 +44,7 @@ class Lights:
 
 def directional_struct(directions, radiances, device: str = "cpu") -> DirectionalLights:
     """The struct of ``(n, 3)`` unit directions and radiances."""
+    check_device(device)
     s = DirectionalLights()
     s.direction = wp.array(np.asarray(directions, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
     s.radiance = wp.array(np.asarray(radiances, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)

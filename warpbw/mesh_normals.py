@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_device
 from warpbw.io import mesh as host_mesh
 from warpbw.io.mesh import boundary_neighbours
 
@@ -204,6 +204,7 @@ def mesh_topology(indices, first: int, count: int, device: str = "cpu") -> MeshT
     """The faces of ``indices`` (flat, 3 per face, into a concatenated vertex array) whose vertices lie in
     ``[first, first + count)``, their open boundary and each vertex's one-ring count.  Connectivity only: a
     deformation keeps it."""
+    check_device(device)
     f = np.asarray(indices, np.int64).reshape(-1, 3)
     mine = (f >= first) & (f < first + count)
     if np.any(mine.any(axis=1) & ~mine.all(axis=1)):
@@ -223,6 +224,7 @@ def normals_and_curvature(points: wp.array, topology: MeshTopology, device: str 
     """Area-weighted unit vertex normals and mean curvature of the mesh ``topology`` describes, from the
     vertex positions in ``points`` (the concatenated array, e.g. ``wp.Mesh.points``).  Written into ``out``
     when given (views of the G-buffer's per-vertex arrays, say), else into new arrays."""
+    check_device(device)
     n = topology.count
     if out is None:
         out = MeshShading(wp.empty(n, dtype=wp.vec3, device=device), wp.empty(n, dtype=wp.float32, device=device))
@@ -249,6 +251,7 @@ def local_curvature(curvature: wp.array, topology: MeshTopology, device: str = "
     """The curvature the bandwidth pass reads, from the mean curvature H (V,) of the mesh ``topology``
     describes: |H| averaged by ``passes`` lazy one-ring passes, as ``warpbw.io.mesh.local_curvature``.
     Written into ``out`` when given (which may be ``curvature`` itself), else into a new array."""
+    check_device(device)
     n = topology.count
     passes = int(passes)
     if passes < 0:

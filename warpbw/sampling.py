@@ -43,7 +43,7 @@ from typing import Callable, Sequence
 import numpy as np
 import warp as wp
 
-from warpbw.errors import check_count
+from warpbw.errors import check_count, check_device
 
 N_THETA_O = 32      # view-elevation bins tabulated (uniform over [0, pi/2))
 N_U = 64            # half-vector elevation cells, theta_h = u^2 pi/2 (MERL-like warp)
@@ -237,6 +237,7 @@ def _cell_shares(brdf, theta_o: float, h: np.ndarray, jac_h: np.ndarray, n_u: in
 
 def pack_samplers(tables: Sequence[SamplerTable], device: str = "cpu") -> TabulatedSamplers:
     """Concatenate per-material tables (all of one shape) into a ``TabulatedSamplers`` struct."""
+    check_device(device)
     s = TabulatedSamplers()
     if tables:
         shape = tables[0].shape

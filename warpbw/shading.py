@@ -216,6 +216,7 @@ def launch_tiled(kernel, n_items: int, make_inputs: Callable[[int, int], list], 
     called as tiles finish.  ``costs`` (one per item, e.g. its sample count) cuts the same number of
     tiles at equal summed cost instead of equal counts (:func:`tile_ranges`).
     """
+    check_device(device)
     if n_items <= 0:
         return
     # a count >= 1: 0, -1 or 1.5 were once taken as 1 without a word
@@ -255,6 +256,7 @@ def lighting_inputs(env_data: EnvMapData | None, lights: Lights | None):
 
 def covered_pixels(gb: GBuffer, device: str = "cpu") -> wp.array:
     """Indices of the pixels that see geometry, as an int32 device array."""
+    check_device(device)
     idx = np.flatnonzero(gb.coverage.reshape(-1)).astype(np.int32)
     return wp.array(idx, dtype=wp.int32, device=device)
 

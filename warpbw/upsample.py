@@ -127,7 +127,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError, check_count
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_count, check_device
 from warpbw.gbuffer import CameraData, GBufferData
 
 DEPTH_SIGMA_REL = 0.1   # g_z tolerance, relative to the child's depth (a 10% depth step is an edge)
@@ -345,6 +345,7 @@ def upsample_level(gb: GBufferData, cam: CameraData, level: int, parent_values, 
     (The hierarchy's parents are shaded values, which are finite: the shading drops a non-finite sample and
     counts it, ``warpbw.shading``.)
     """
+    check_device(device)
     fit = check_upsample_mode(mode)
     level = check_count(level, "level", 0)   # -1 failed on a negative shift, 2.5 ran as 2
     w, h = level_size(gb.width, gb.height, level)
@@ -369,6 +370,7 @@ def upsample_level(gb: GBufferData, cam: CameraData, level: int, parent_values, 
 
 def parent_weights(gb: GBufferData, cam: CameraData, level: int, device: str = "cpu") -> np.ndarray:
     """The four parent weights of every pixel of ``level`` with every parent valid, (h_L, w_L, 4)."""
+    check_device(device)
     w, h = level_size(gb.width, gb.height, level)
     pw, ph = level_size(gb.width, gb.height, level + 1)
     r = upsample_level(gb, cam, level, np.zeros((pw * ph, 3)), np.ones(pw * ph), np.ones(w * h), device=device)
