@@ -9,6 +9,7 @@ import pytest
 import warp as wp
 from hypothesis import given, settings, strategies as st
 
+from warpbw.errors import WarpbwError
 from warpbw.pyramid import (Pyramid, build_pyramid, curvature_pyramid, image_level, level_pyramid,
                             max_level, pyramid_shapes, variance_pyramid)
 
@@ -144,19 +145,19 @@ def test_curvature_pyramid_takes_abs():
 
 
 def test_bad_input():
-    with pytest.raises(ValueError, match="op"):
+    with pytest.raises(WarpbwError, match="op"):
         build_pyramid(np.zeros((2, 2), np.float32), "mean", "cpu")
-    with pytest.raises(ValueError, match="empty"):
+    with pytest.raises(WarpbwError, match="empty"):
         build_pyramid(np.zeros((0, 3), np.float32), "min", "cpu")
-    with pytest.raises(ValueError, match="width and height"):
+    with pytest.raises(WarpbwError, match="width and height"):
         build_pyramid(np.zeros(6, np.float32), "min", "cpu")
-    with pytest.raises(ValueError, match="do not make"):
+    with pytest.raises(WarpbwError, match="do not make"):
         build_pyramid(np.zeros(6, np.float32), "min", "cpu", width=4, height=2)
-    with pytest.raises(ValueError, match="size"):
+    with pytest.raises(WarpbwError, match="size"):
         pyramid_shapes(0, 3)
-    with pytest.raises(ValueError, match="nan_level"):
+    with pytest.raises(WarpbwError, match="nan_level"):
         image_level(np.ones((2, 2), np.float32), nan_level="middle")
-    with pytest.raises(ValueError, match="coverage"):
+    with pytest.raises(WarpbwError, match="coverage"):
         image_level(np.ones((2, 2), np.float32), np.ones((3, 2), bool))
 
 

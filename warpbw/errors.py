@@ -34,9 +34,10 @@ BRDF_VALUE_MAX = 1e20
 SEED_MAX = 2**32 - 1
 
 
-class WarpbwError(ValueError):
-    """A problem with the user's input, reported in one line without a traceback.  A ``ValueError``, so that code
-    written against the lower-level functions' earlier plain ``ValueError`` s still catches it."""
+class WarpbwError(Exception):
+    """A problem with the user's input, reported in one line without a traceback.  Not a ``ValueError``: code that
+    catches numpy's or Pillow's ValueError around a call into warpbw must not swallow a message meant for the user
+    (a map too large to read was reported as "not an image file")."""
 
 
 def is_int(value) -> bool:
@@ -125,7 +126,9 @@ def check_input_file(path, expected: str = "") -> Path:
     missing or a directory, and what was ``expected`` (``"an OpenEXR image"``)."""
     p = Path(path)
     if not p.is_file():
-        what = "a directory, not a file" if p.is_dir() else "file not found"
+        # a FIFO or a device (/dev/zero) exists: "file not found" sent the user looking for a typo
+        what = ("a directory, not a file" if p.is_dir() else "not a regular file (a pipe, socket or device)"
+                if p.exists() else "file not found")
         raise WarpbwError(f"{p}: {what}" + (f" (expected {expected})" if expected else ""))
     return p
 
