@@ -40,11 +40,13 @@ def _check_output(args, source, suffixes) -> Path:
 
 def cmd_npf_to_merl(args) -> int:
     from precompute.npf_to_merl import npf_to_merl
+    from warpbw.io.npf import read_npf
 
     _check_output(args, args.table, MERL_SUFFIXES)
     t0 = time.perf_counter()
+    name = read_npf(args.table, args.material).name   # as the table spells it (" Gold-Metallic-Paint " was echoed)
     out = npf_to_merl(args.table, args.material, args.output, force=args.force)
-    print(f"{out}  (MERL .binary from {args.table}:{args.material}, {time.perf_counter() - t0:.1f} s)")
+    print(f"{out}  (MERL .binary from {args.table}:{name}, {time.perf_counter() - t0:.1f} s)")
     return 0
 
 
@@ -52,7 +54,13 @@ def _table_command(args, build, write, describe) -> int:
     """The table subcommands: refuse an existing output, open the source, build, write, report."""
     from precompute.brdf_sampling import brdf_source
 
+    from warpbw.io.npf import NPF_FILE_SIZE
+
     out = _check_output(args, args.file, TABLE_SUFFIXES)
+    f = Path(args.file)
+    # read as MERL, the table's error said only how a scene reads one, not this command's own option
+    if args.material is None and f.is_file() and f.stat().st_size == NPF_FILE_SIZE:
+        raise WarpbwError(f"{f}: the size of an NPF table: name one of its materials with --material NAME")
     t0 = time.perf_counter()
     source = brdf_source(args.file, args.material)
     table = build(source, progress=not args.quiet)

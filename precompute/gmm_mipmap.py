@@ -138,6 +138,9 @@ DEFAULT_COMPONENTS = 4
 MAX_COMPONENTS = 16            # a sanity bound on --components (each is one texture in the renderer)
 # 004 Sec. 4.1: c "modulates smoothness among corresponding Gaussians, which we set to 1 for all experiments".
 DEFAULT_PRIOR = 1.0
+# A sanity bound on c: beyond it the prior outweighs the data many times over (a typo), and near 1e308 the
+# prior's weighted sums overflowed into NaN moments.  warpbw.scene.GMM_MAX_PRIOR spells the same bound.
+MAX_PRIOR = 1.0e6
 # d in the M-step for s_i^2 (004 Sec. 4.1): the dimension of the normal space.
 NORMAL_DIM = 2
 # Variance floor (per axis, projected-normal units^2).  A perfectly flat footprint would give s^2 = 0 and
@@ -486,8 +489,8 @@ def _validate(data, kind, components, prior, scale):
         raise WarpbwError(f"kind {kind!r}: expected one of {', '.join(KINDS)}")
     if not is_int(components) or not 1 <= components <= MAX_COMPONENTS:
         raise WarpbwError(f"components {components!r}: expected an integer from 1 to {MAX_COMPONENTS}")
-    if not (np.isfinite(prior) and prior >= 0):
-        raise WarpbwError(f"prior {prior!r}: expected a finite c >= 0")
+    if not (isinstance(prior, numbers.Real) and 0.0 <= prior <= MAX_PRIOR):
+        raise WarpbwError(f"prior {prior!r}: expected a finite c >= 0, at most {MAX_PRIOR:g}")
     if not (np.isfinite(scale) and scale > 0):
         raise WarpbwError(f"scale {scale!r}: expected a finite number > 0")
     data = np.asarray(data, np.float64)
@@ -598,6 +601,9 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
     for l in range(L):
         a = np.where(A[l] > WEIGHT_EPS, A[l], 0.0)
         levels.append(to_moments(a, MU[l], S2[l]).astype(np.float32))
+        if not np.all(np.isfinite(levels[-1])):   # never written: the renderer would refuse the file later
+            raise WarpbwError(f"GMM fit of level {l} gave NaN or infinite moments (components {K}, prior {c:g}); "
+                              "this is a defect, please report it with the map")
     return GmmMipmap(levels, K, float(prior), bool(unaligned), kind, float(scale), int(seed), int(max_samples),
                      extra={"refine_sweeps": int(refine_sweeps)} if refine_sweeps else {})
 
@@ -653,7 +659,19 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"     # PNG spec section 5.2
 PNG_BIT_DEPTH_OFFSET = 24            # IHDR: 8 signature + 4 length + 4 type + 4 width + 4 height bytes
 
 
+# Largest map read from a file (8192 x 8192): a sanity bound, as for procedural surfaces (MAX_SURFACE_SIZE); a
+# 20000 x 20000 PNG of 389 kB stopped in Pillow's decompression-bomb error, with a traceback.
+MAX_MAP_SIDE = 8192
+MAX_MAP_TEXELS = MAX_MAP_SIDE * MAX_MAP_SIDE
 EXR_ALPHA_CHANNELS = ("A",)    # OpenEXR's alpha (coverage) channel: skipped when looking for a map's data channel
+
+
+_MAP_SIZE_EXPECTED = f"expected a map of at most {MAX_MAP_TEXELS} texels ({MAX_MAP_SIDE} x {MAX_MAP_SIDE})"
+
+
+def _check_map_size(p: Path, width: int, height: int) -> None:
+    if width * height > MAX_MAP_TEXELS:
+        raise WarpbwError(f"{p}: {width} x {height} texels: {_MAP_SIZE_EXPECTED}")
 
 
 def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
@@ -665,6 +683,7 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
         head = fh.read(32)
     if head.startswith(EXR_MAGIC):
         img = read_exr(p)
+        _check_map_size(p, img.pixels.shape[1], img.pixels.shape[0])
         ch = img.channels
         if all(k in ch for k in ("R", "G", "B")):
             return img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]].astype(np.float64), None
@@ -679,7 +698,11 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
 
     bits = None
     try:
-        with Image.open(p) as im:
+        with warnings.catch_warnings():   # Pillow's decompression-bomb warning: the bound below is tighter
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            im = Image.open(p)
+        with im:
+            _check_map_size(p, *im.size)
             im.load()
             mode = im.mode
             if mode in ("I;16", "I;16B", "I;16L", "I;16N"):
@@ -698,7 +721,11 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
             else:
                 arr = np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0
                 bits = 8
+    except Image.DecompressionBombError:   # beyond Pillow's own bound (above ours), raised before any size is known
+        raise WarpbwError(f"{p}: over {2 * Image.MAX_IMAGE_PIXELS} texels: {_MAP_SIZE_EXPECTED}") from None
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
+        if head.startswith(PNG_MAGIC):   # it is a PNG: "not an image file" was wrong
+            raise WarpbwError(f"{p}: cannot decode this PNG (truncated or corrupt: {exc})") from None
         raise WarpbwError(f"{p}: not an image file (expected an OpenEXR or PNG image; {type(exc).__name__})") from None
     return (arr[..., None] if arr.ndim == 2 else arr), bits
 
@@ -707,12 +734,14 @@ def load_map(path, kind: str = "height") -> np.ndarray:
     """Read a height field (single channel; an RGB image is accepted only with identical channels) as
     (H, W) float64, or a tangent-space normal map (RGB) as unit (H, W, 3).  PNG normal maps are
     [0, 1]-encoded; an EXR normal map holds the vectors themselves when it has a negative value or when
-    every texel is a unit vector (a [0, 1]-encoded map's texels are not: the flat normal is (0.5, 0.5, 1)),
-    otherwise it is [0, 1]-encoded too.  16-bit greyscale PNGs keep their precision (Pillow reads 16-bit
+    more of its texels are unit vectors as stored than as decoded (a [0, 1]-encoded map's texels are not: the
+    flat normal is stored as (0.5, 0.5, 1)), otherwise it is [0, 1]-encoded too.  Texels shorter than
+    ``NORMAL_LENGTH_MIN`` (as stored or decoded) are an error; texels off unit length by more than ``UNIT_TOL``
+    are renormalised, with a warning.  16-bit greyscale PNGs keep their precision (Pillow reads 16-bit
     RGB PNGs as 8-bit).  Normals more than ``NORMAL_Z_TOL`` below the tangent plane are an error; those
     closer are put in it.  A varying height field read with 8 bits warns (terraced normals).  Every
     problem is a one-line WarpbwError naming the file."""
-    from precompute.surfaces import normals_from_map
+    from precompute.surfaces import normals_from_map, unit_normals
 
     if kind not in KINDS:
         raise WarpbwError(f"kind {kind!r}: expected one of {', '.join(KINDS)}")
@@ -743,18 +772,31 @@ def load_map(path, kind: str = "height") -> np.ndarray:
                           "scene)")
     rgb = px[..., :3]
     try:
-        length = np.linalg.norm(rgb, axis=-1)
-        if rgb.min() < 0 or (bits is None and np.all(np.abs(length - 1.0) <= UNIT_TOL)):
-            if not (length > 1e-6).all():
-                raise WarpbwError("texels hold zero-length normals; expected unit vectors")
-            n = rgb / length[..., None]
-        else:
-            n = normals_from_map(rgb)
+        raw = bits is None and _holds_vectors(rgb)
+        n = unit_normals(rgb) if raw else normals_from_map(rgb)
     except WarpbwError as exc:
         raise WarpbwError(f"{p}: {exc}") from None
+    stored = rgb if raw else 2.0 * rgb - 1.0
+    off = np.abs(np.linalg.norm(stored, axis=-1) - 1.0) > UNIT_TOL
+    if off.any():   # said, since a resampled map's are renormalised here, not by the user
+        r, c = np.argwhere(off)[0]
+        warnings.warn(f"{p}: {int(off.sum())} of {off.size} texels are not unit normals as "
+                      f"{'stored (raw vectors)' if raw else 'decoded (n = 2 rgb - 1)'} (first at row {r}, column "
+                      f"{c}: length {np.linalg.norm(stored[r, c]):.3g}); renormalised", stacklevel=2)
     _check_upward(n, str(p))
     n[..., 2] = np.maximum(n[..., 2], 0.0)   # within NORMAL_Z_TOL below: in the tangent plane
     return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
+def _holds_vectors(rgb) -> bool:
+    """Whether a float (EXR) normal map holds the vectors themselves rather than (n + 1) / 2: it has a negative
+    value, or more of its texels are unit vectors as stored than as decoded.  (The rule was "every texel unit":
+    one texel of length 1.05 in a flat map made the tool decode all of them, tilting each by 55 degrees.)"""
+    if rgb.min() < 0.0:
+        return True
+    as_stored = np.count_nonzero(np.abs(np.linalg.norm(rgb, axis=-1) - 1.0) <= UNIT_TOL)
+    as_decoded = np.count_nonzero(np.abs(np.linalg.norm(2.0 * rgb - 1.0, axis=-1) - 1.0) <= UNIT_TOL)
+    return as_stored > as_decoded
 
 
 def load_source(spec: str, kind: str = "height"):

@@ -10,6 +10,8 @@ Public functions:
 - ``SURFACES``: name -> generator, for ``surface:NAME[:SIZE]`` on the command line.
 - ``height_to_normals(h, scale=1.0, texel_size=None) -> (H, W, 3)`` unit tangent-space normals.
 - ``normals_from_map(rgb) -> (H, W, 3)``: decode a [0, 1]-encoded tangent-space normal map.
+- ``unit_normals(n, what) -> (H, W, 3)``: texel vectors renormalised, refusing those shorter than
+  ``NORMAL_LENGTH_MIN`` (they hold no direction).
 
 Conventions (shared with ``precompute.gmm_mipmap``):
 
@@ -32,6 +34,10 @@ from warpbw.errors import WarpbwError, is_int
 
 # Largest generated surface (issue 4 item 4: "each as a height field of configurable size, up to 1024x1024").
 MAX_SURFACE_SIZE = 1024
+# Shortest vector a normal-map texel may hold before it is renormalised: a unit normal stored with 8 bits
+# per channel decodes to length 1 within 0.7%, while a 50%-grey texel (128, 128, 128), a common placeholder,
+# decodes to (0.004, 0.004, 0.004), length 0.007, whose "direction" is 55 degrees off the surface normal.
+NORMAL_LENGTH_MIN = 0.5
 TWO_PI = 2.0 * np.pi
 
 
@@ -157,15 +163,21 @@ def height_to_normals(h, scale: float = 1.0, texel_size: float | None = None) ->
         raise WarpbwError(f"height_to_normals: expected finite heights, a finite scale and a texel_size > 0, got "
                           f"scale {scale!r}, texel_size {texel_size!r}, {int((~np.isfinite(h)).sum())} non-finite "
                           "heights")
-    dh_dx = (np.roll(h, -1, axis=1) - np.roll(h, 1, axis=1)) * (scale / (2.0 * t))
-    dh_dy = (np.roll(h, 1, axis=0) - np.roll(h, -1, axis=0)) * (scale / (2.0 * t))   # y = -row
+    with np.errstate(over="ignore", invalid="ignore"):
+        dh_dx = (np.roll(h, -1, axis=1) - np.roll(h, 1, axis=1)) * (scale / (2.0 * t))
+        dh_dy = (np.roll(h, 1, axis=0) - np.roll(h, -1, axis=0)) * (scale / (2.0 * t))   # y = -row
     n = np.stack([-dh_dx, -dh_dy, np.ones_like(h)], axis=-1)
+    if not np.all(np.isfinite(n)):   # gave NaN normals, and scikit-learn's "Input X contains NaN"
+        raise WarpbwError(f"height_to_normals: slopes overflow float64 (scale {scale:g} times height differences up "
+                          f"to {np.ptp(h):.3g}, over texels of {t:.3g}); expected a smaller scale")
+    # each normal divided by its largest component first: the squares of slopes beyond 1e154 overflowed
+    n = n / np.max(np.abs(n), axis=-1, keepdims=True)
     return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
 
 def normals_from_map(rgb) -> np.ndarray:
     """Decode a [0, 1]-encoded tangent-space normal map (n = 2 rgb - 1, renormalised) to unit (H, W, 3).
-    A texel that decodes to (almost) the zero vector is an error (it holds no direction)."""
+    A texel that decodes to a vector shorter than ``NORMAL_LENGTH_MIN`` is an error (it holds no direction)."""
     given = np.asarray(rgb)
     if np.issubdtype(given.dtype, np.integer) or given.dtype == bool:   # 255 decoded to (0.577, 0.577, 0.577)
         raise WarpbwError(f"normal map of {given.dtype} values: expected floats in [0, 1] (divide an 8- or 16-bit "
@@ -176,11 +188,17 @@ def normals_from_map(rgb) -> np.ndarray:
     if not np.all(np.isfinite(rgb[..., :3])):
         raise WarpbwError(f"normal map: {int((~np.isfinite(rgb[..., :3])).any(-1).sum())} texels are NaN or "
                           "infinite; expected [0, 1]-encoded unit vectors")
-    n = 2.0 * rgb[..., :3] - 1.0
+    return unit_normals(2.0 * rgb[..., :3] - 1.0, "decode to")
+
+
+def unit_normals(n, what: str = "hold") -> np.ndarray:
+    """Texel vectors (H, W, 3) scaled to unit length, else a WarpbwError when some are shorter than
+    ``NORMAL_LENGTH_MIN`` (a 1e-6 bound let a grey texel through, renormalised to a 55-degree tilt)."""
     length = np.linalg.norm(n, axis=-1)
-    bad = ~(length > 1e-6)
+    bad = ~(length >= NORMAL_LENGTH_MIN)
     if bad.any():
         r, c = np.argwhere(bad)[0]
-        raise WarpbwError(f"{int(bad.sum())} normal-map texels decode to a zero-length normal (first at row {r}, "
-                          f"column {c}); expected [0, 1]-encoded unit vectors")
+        raise WarpbwError(f"{int(bad.sum())} normal-map texels {what} vectors shorter than {NORMAL_LENGTH_MIN} (first "
+                          f"at row {r}, column {c}: length {length[r, c]:.3g}); they hold no direction (a 50%-grey "
+                          "texel of a [0, 1]-encoded map decodes to almost zero); expected unit normals")
     return n / length[..., None]

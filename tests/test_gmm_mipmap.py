@@ -458,6 +458,92 @@ def test_normal_map_below_the_surface(tmp_path):
         load_map(tmp_path / "black.png", "normal")
 
 
+def test_a_float_normal_map_is_read_as_most_of_its_texels_say(tmp_path):
+    """A float map of raw unit normals with one texel off unit length (1.05, or 0.97 in a resampled map) was
+    decoded as (n + 1) / 2 as a whole: every flat normal became (-0.577, -0.577, 0.577), without a word.  It is
+    read as vectors (most texels are unit as stored), and the odd texel is renormalised with a warning."""
+    from warpbw.io.exr import write_exr
+
+    n = np.zeros((6, 6, 3))
+    n[..., 2] = 1.0
+    n[2, 3] = [0.0, 0.0, 1.05]
+    write_exr(tmp_path / "raw.exr", n.astype(np.float32))
+    with pytest.warns(UserWarning, match=r"raw.exr: 1 of 36 texels are not unit normals as stored .*row 2, column 3: "
+                                         r"length 1.05\); renormalised"):
+        got = load_map(tmp_path / "raw.exr", "normal")
+    np.testing.assert_allclose(got, np.broadcast_to([0.0, 0.0, 1.0], got.shape), atol=1e-7)
+    tilt = np.array([0.3, 0.0, np.sqrt(1 - 0.09)])
+    n = np.broadcast_to(tilt, (6, 6, 3)).copy()
+    n[1, 1] *= 0.97
+    write_exr(tmp_path / "tilt.exr", n.astype(np.float32))
+    with pytest.warns(UserWarning, match="tilt.exr: 1 of 36"):
+        np.testing.assert_allclose(load_map(tmp_path / "tilt.exr", "normal"), np.broadcast_to(tilt, n.shape), atol=1e-6)
+    # the same map [0, 1]-encoded, odd texel and all, is still decoded
+    write_exr(tmp_path / "enc.exr", ((n / np.linalg.norm(n, axis=-1, keepdims=True) + 1) / 2).astype(np.float32))
+    np.testing.assert_allclose(load_map(tmp_path / "enc.exr", "normal"), np.broadcast_to(tilt, n.shape), atol=1e-6)
+    n[4, 4] = 0.0                        # a zero vector is named as one (it was called "below the surface")
+    write_exr(tmp_path / "zero.exr", n.astype(np.float32))
+    with pytest.raises(WarpbwError, match=r"zero.exr: 1 normal-map texels hold vectors shorter than 0.5 \(first at "
+                                          r"row 4, column 4: length 0\)"):
+        load_map(tmp_path / "zero.exr", "normal")
+
+
+def test_a_grey_texel_of_a_normal_map_is_refused(tmp_path):
+    """(128, 128, 128) decodes to (0.004, 0.004, 0.004): it passed a 1e-6 length bound and was renormalised to a
+    normal 55 degrees off the surface's.  An all-grey placeholder image went through the same way."""
+    enc = np.full((4, 4, 3), 128, np.uint8)
+    enc[..., 2] = 255
+    enc[3, 1] = 128
+    save_png(tmp_path / "hole.png", enc)
+    with pytest.raises(WarpbwError, match=r"hole.png: 1 normal-map texels decode to vectors shorter than 0.5 "
+                                          r"\(first at row 3, column 1: length 0.00679\)"):
+        load_map(tmp_path / "hole.png", "normal")
+    save_png(tmp_path / "grey.png", np.full((4, 4, 3), 128, np.uint8))
+    with pytest.raises(WarpbwError, match="grey.png: 16 normal-map texels decode to vectors shorter"):
+        load_map(tmp_path / "grey.png", "normal")
+
+
+def test_gmm_builder_refuses_a_prior_and_slopes_that_overflowed_into_nan(tmp_path):
+    """c = 1e308 wrote levels of NaN moments (exit 0); heights times scale 1e155 stopped in scikit-learn ("Input X
+    contains NaN"), and with --unaligned wrote NaN everywhere.  c is bounded by MAX_PRIOR; slopes up to the
+    largest float64 give normals (beyond, a clear error)."""
+    from precompute.gmm_mipmap import MAX_PRIOR
+
+    h = np.random.default_rng(3).random((8, 8))
+    for c in (1e308, MAX_PRIOR * 2, float("nan"), -1.0):
+        with pytest.raises(WarpbwError, match="prior .*expected a finite c >= 0, at most 1e\\+06"):
+            build_gmm_mipmap(h, prior=c, progress=False)
+    mip = build_gmm_mipmap(h, prior=MAX_PRIOR, progress=False)
+    assert all(np.isfinite(q).all() for q in mip.levels)
+    for unaligned in (False, True):
+        mip = build_gmm_mipmap(h, scale=1e155, unaligned=unaligned, progress=False)
+        assert all(np.isfinite(q).all() for q in mip.levels)
+        top = mip.levels[-1][0, 0]
+        # slopes of 1e155: every normal lies in the tangent plane, |mu| = 1 in normal space
+        assert np.linalg.norm(top[:, 1:3].sum(0)) <= top[:, 0].sum() + 1e-5
+    with pytest.raises(WarpbwError, match="slopes overflow float64"):
+        build_gmm_mipmap(h * 3e38, scale=1e300, progress=False)
+
+
+def test_map_files_too_large_or_truncated_are_named(tmp_path):
+    """A 20000 x 20000 PNG (389 kB) stopped in Pillow's DecompressionBombError, with a traceback; a truncated PNG
+    was "not an image file"."""
+    from precompute.gmm_mipmap import MAX_MAP_TEXELS
+
+    save_png(tmp_path / "big.png", np.zeros((20000, 20000), np.uint8))
+    with pytest.raises(WarpbwError, match=f"big.png: over .* texels: expected a map of at most {MAX_MAP_TEXELS}"):
+        load_map(tmp_path / "big.png", "height")
+    save_png(tmp_path / "wide.png", np.zeros((2, MAX_MAP_TEXELS // 2 + 1), np.uint8))
+    with pytest.raises(WarpbwError, match=f"wide.png: {MAX_MAP_TEXELS // 2 + 1} x 2 texels: expected a map"):
+        load_map(tmp_path / "wide.png", "height")
+    v = (np.arange(64 * 64).reshape(64, 64) * 13 % 65536).astype(np.uint16)
+    save_png(tmp_path / "h.png", v)
+    data = (tmp_path / "h.png").read_bytes()
+    (tmp_path / "cut.png").write_bytes(data[: len(data) // 2])
+    with pytest.raises(WarpbwError, match="cut.png: cannot decode this PNG \\(truncated or corrupt"):
+        load_map(tmp_path / "cut.png", "height")
+
+
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(theta=st.floats(0.0, np.pi / 2), phi=st.floats(0.0, 2 * np.pi), exr=st.booleans())
 def test_encoded_normal_round_trip(tmp_path, theta, phi, exr):

@@ -623,11 +623,12 @@ def test_normal_map_value_errors_name_the_key(tmp_path):
 
 
 def test_gmm_components_default_and_bound_match_the_builder(tmp_path):
-    from precompute.gmm_mipmap import DEFAULT_COMPONENTS, MAX_COMPONENTS
+    from precompute.gmm_mipmap import DEFAULT_COMPONENTS, DEFAULT_PRIOR, MAX_COMPONENTS, MAX_PRIOR
 
-    from warpbw.scene import GMM_DEFAULT_COMPONENTS, GMM_MAX_COMPONENTS
+    from warpbw.scene import GMM_DEFAULT_COMPONENTS, GMM_DEFAULT_PRIOR, GMM_MAX_COMPONENTS, GMM_MAX_PRIOR
 
     assert (GMM_DEFAULT_COMPONENTS, GMM_MAX_COMPONENTS) == (DEFAULT_COMPONENTS, MAX_COMPONENTS)
+    assert (GMM_DEFAULT_PRIOR, GMM_MAX_PRIOR) == (DEFAULT_PRIOR, MAX_PRIOR)
     (tmp_path / "n.png").write_bytes(b"x")
     s = load_scene(_plane_scene(tmp_path, material=ARMOUR + 'normal_map = "n.png"\ngmm_components = 8\n'))
     assert s.materials["armour"].gmm_components == 8

@@ -149,6 +149,9 @@ def _zoom_frames(scene, zooms, behind, pairs: int = 1) -> list:
     for z in zooms:
         zz = tuple(z * FLICKER_STEP ** j for j in range(pairs + 1))
         cams = tuple(zoomed_camera(scene.camera, x) for x in zz)
+        if any(np.array_equal(np.float32(c.position), np.float32(c.look_at)) for c in cams):   # make_camera's error
+            raise WarpbwError(f"--zoom {z:g}: puts the camera on its look_at point (its distance times {z:g} rounds "
+                              "to 0 in float32): choose larger zooms")
         frames.append((z, zz, cams, tuple(behind(c) for c in cams)))
     return frames
 
@@ -169,7 +172,8 @@ def _check_coverage(scene, frames, device: str) -> None:
                                   f"(camera distance x {zz:g}), so error and flicker are undefined there: move them "
                                   "or the camera")
             raise WarpbwError(f"--zoom {z:g}: no pixel sees a plane at this zoom (camera distance x {zz:g}), so "
-                              "error and flicker are undefined there: choose smaller zooms")
+                              "error and flicker are undefined there: choose "
+                              + ("larger zooms (this one moves the camera closer)" if zz < 1.0 else "smaller zooms"))
 
 
 def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP, runs: int = 3, seed: int = 0,

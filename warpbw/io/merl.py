@@ -249,10 +249,11 @@ def read_merl(path) -> MerlBRDF:
     if scaled.max() > BRDF_VALUE_MAX:
         raise WarpbwError(f"{path}: MERL entries up to {scaled.max():.3g} after the channel scales, beyond "
                           f"{BRDF_VALUE_MAX:g} (float32 shading would overflow them to infinity; expected a MERL BRDF)")
-    if not scaled.max() > 0.0:   # a black image from a file of zeros or of unmeasured entries helps no one
-        raise WarpbwError(f"{path}: no positive MERL entry ({n_bad} of {3 * MERL_N_BINS} unmeasured, the rest 0; "
-                          "expected a measured BRDF)")
     data = np.ascontiguousarray(np.moveaxis(scaled, 0, -1), dtype=np.float32)
+    if not data.max() > 0.0:   # a black image from a file of zeros or of unmeasured entries helps no one
+        # (read as stored, in float32: entries of 1e-300 passed in float64 and were all 0 there)
+        raise WarpbwError(f"{path}: no positive MERL entry in float32 ({n_bad} of {3 * MERL_N_BINS} unmeasured, "
+                          f"the largest {scaled.max():.3g}; expected a measured BRDF)")
     mask = np.ascontiguousarray(np.moveaxis(bad, 0, -1)) if n_bad else None
     if n_bad:
         warnings.warn(
