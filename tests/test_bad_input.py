@@ -356,6 +356,34 @@ def test_unknown_npf_material_name_in_precompute(tmp_path):
     assert not (tmp_path / "x.npz").exists()
 
 
+def test_precompute_names_pipes_npf_tables_and_materials_as_they_are(tmp_path):
+    """A FIFO or a device given as the input read "file not found"; brdf / brdf-sampling on an NPF table without
+    --material explained only how a scene reads one; npf-to-merl echoed --material as typed."""
+    os.mkfifo(tmp_path / "pipe.exr")
+    for args in (["gmm", "pipe.exr", "-o", "g.npz"], ["gmm", "/dev/zero", "-o", "g.npz"]):
+        assert_one_line_error(run(args, tmp_path, module="precompute"), "not a regular file (a pipe, socket or device)",
+                              prog="warpbw-precompute")
+    _fake_npf_table(tmp_path / "npf.bin")
+    for cmd in ("brdf", "brdf-sampling"):
+        assert_one_line_error(run([cmd, "npf.bin", "-o", "t.npz"], tmp_path, module="precompute"),
+                              "npf.bin: the size of an NPF table: name one of its materials with --material NAME",
+                              prog="warpbw-precompute")
+    r = run(["npf-to-merl", "--table", "npf.bin", "--material", " Chrome ", "-o", "c.binary"], tmp_path,
+            module="precompute")
+    assert r.returncode == 0 and "(MERL .binary from npf.bin:chrome, " in r.stdout, r.stdout + r.stderr
+
+
+def test_bench_filtering_zooms_that_put_the_camera_on_its_target_say_so(tmp_path):
+    """--zoom 5e-324 read "make_camera: look_at: must differ from position", a key the user never gave; 1e-300
+    (no pixel sees the plane) asked for smaller zooms."""
+    (tmp_path / "planes.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
+    for z in ("5e-324", "1e-300"):
+        r = run(["bench-filtering", "planes.toml", "--zoom", z, "--gt-spp", "64", "--runs", "1", "--json", "b.json"],
+                tmp_path)
+        assert_one_line_error(r, "puts the camera on its look_at point", "expected a larger zoom")
+    assert not (tmp_path / "b.json").exists()
+
+
 def _npz_with_header(header: str) -> bytes:
     import io
 
@@ -1294,11 +1322,12 @@ def test_an_output_folder_that_cannot_be_written_is_refused_before_the_work(tmp_
     assert time.perf_counter() - t0 < 60 and not (tmp_path / "b.json").exists()
 
 
-@pytest.mark.parametrize("fill", ["zeros", "unmeasured", "nan"])
+@pytest.mark.parametrize("fill", ["zeros", "unmeasured", "nan", "tiny"])
 def test_a_merl_file_without_a_positive_entry_is_refused(tmp_path, fill):
-    """It rendered a black sphere with status 0 (after a warning for the unmeasured entries, none for zeros)."""
+    """It rendered a black sphere with status 0 (after a warning for the unmeasured entries, none for zeros).  Entries
+    of 1e-300 passed the check in float64 and were all 0 in the float32 table kept."""
     p = tmp_path / "black.binary"
-    value = {"zeros": 0.0, "unmeasured": -1.0, "nan": np.nan}[fill]
+    value = {"zeros": 0.0, "unmeasured": -1.0, "nan": np.nan, "tiny": 1e-300}[fill]
     with open(p, "wb") as f:
         f.write(np.array([90, 90, 180], "<i4").tobytes())
         np.full(MERL_FILE_SIZE // 8 - 1, value, "<f8").tofile(f)
@@ -1537,9 +1566,9 @@ def test_library_helpers_refuse_values_they_once_took_or_failed_on(tmp_path):
         with pytest.raises(WarpbwError, match="cos_i is a cosine"):
             apply_operator("P_i", [[1.0, 1.0]], cos_i=cos)
     img = np.random.default_rng(0).random((8, 8))
-    with pytest.raises(ValueError, match="levels must be an integer from 1 to 7, got 50"):
+    with pytest.raises(WarpbwError, match="levels must be an integer from 1 to 7, got 50"):
         band_maxima(img, levels=50)
-    with pytest.raises(ValueError, match="beyond 1e\\+150"):
+    with pytest.raises(WarpbwError, match="beyond 1e\\+150"):
         local_bandwidth(img * 1e160)
     assert np.isfinite(local_bandwidth(img * 1e140)).all()     # the same image, scaled, below the limit
     np.testing.assert_allclose(local_bandwidth(img * 1e140), local_bandwidth(img), rtol=1e-9)

@@ -1274,6 +1274,9 @@ def plane_distance(scene: Scene, device: str = "cpu") -> np.ndarray:
 def zoomed_camera(camera: Camera, zoom: float) -> Camera:
     """The camera moved away from its look-at point: distance times ``zoom``, same resolution and fov."""
     pos = tuple(a + (p - a) * float(zoom) for p, a in zip(camera.position, camera.look_at))
+    if np.array_equal(np.float32(pos), np.float32(camera.look_at)):   # make_camera's "look_at: must differ" later
+        raise WarpbwError(f"zoom {zoom:g} puts the camera on its look_at point (its distance times {zoom:g} rounds to 0 "
+                          "in float32): expected a larger zoom")
     return replace(camera, position=pos)
 
 
