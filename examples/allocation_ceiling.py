@@ -30,10 +30,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import OneLineParser, check_output_file, init_warp, run_command, write_json
+from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command, write_json
 from warpbw.errors import check_count
 
 SEEDS_DEFAULT = 32        # brute-force renders: the oracle's sqrt(v) is biased by about 1 / (2 x seeds)
@@ -151,7 +152,9 @@ def main(argv=None) -> int:
     check_count(args.spp, "--spp", 1)
     check_count(args.seed, "--seed", 0, 2**32 - 1)
     if args.json:
-        check_output_file(args.json, "--json", args.force)
+        if Path(args.json).suffix.lower() != ".json":
+            ap.error(f"--json {args.json}: expected a path ending in .json")
+        check_overwrite([Path(args.json)], args.force, "--json", inputs=[args.scene])   # never the scene itself
     init_warp(args.device)
     from warpbw.pipeline import prepare_scene
     from warpbw.scene import load_scene

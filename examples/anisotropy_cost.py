@@ -9,11 +9,13 @@ alike, and their ratio.  Compare the times only as that ratio: the machine is sh
 """
 from __future__ import annotations
 
+import math
 import statistics
 import sys
 from dataclasses import replace
 
 from warpbw.cli_common import OneLineParser, init_warp, run_command
+from warpbw.scene import MAX_RESOLUTION
 
 METHODS = ("gmm_aligned", "toksvig", "lean")
 
@@ -33,6 +35,10 @@ def main(argv=None) -> int:
         ap.error(f"--size {args.size!r} / --zoom {args.zoom!r}: expected WxH and comma-separated numbers")
     if w < 1 or h < 1 or args.runs < 1 or not zooms or min(zooms) <= 0:
         ap.error("expected a positive --size, --runs and --zoom")
+    if w > MAX_RESOLUTION or h > MAX_RESOLUTION:
+        ap.error(f"--size {args.size}: expected at most {MAX_RESOLUTION} pixels per side")
+    if not all(math.isfinite(z) for z in zooms):   # nan passed the check above, and inf failed only after the work
+        ap.error(f"--zoom {args.zoom!r}: expected comma-separated positive numbers, e.g. 1,8,32")
 
     init_warp("cpu")
     from warpbw.filtering import MAX_ANISOTROPY, prepare_filtering, render_filtering, zoomed_camera

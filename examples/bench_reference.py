@@ -29,7 +29,7 @@ import numpy as np
 from warpbw.cli import check_command_options
 from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
 from warpbw.errors import WarpbwError
-from warpbw.scene import MAX_RESOLUTION
+from warpbw.scene import MAX_RESOLUTION, toml_escape
 
 HERE = Path(__file__).resolve().parent
 GT_CHUNK_SPP = 4096   # spp per cached ground-truth chunk
@@ -125,8 +125,10 @@ def main():
         print(f"wrote {merl} (MERL .binary from the NPF fit, {time.perf_counter() - t0:.1f} s)")
     out.mkdir(parents=True, exist_ok=True)
     w, h = args.resolution
-    scene = parse_scene(SCENE.format(w=w, h=h, probe=DATA / "envmaps" / args.probe, rotation=args.rotation,
-                                     mesh=DATA / "meshes" / "bunny.obj", merl=merl.resolve()),
+    probe, mesh = DATA / "envmaps" / args.probe, DATA / "meshes" / "bunny.obj"
+    scene = parse_scene(SCENE.format(w=w, h=h, probe=toml_escape(str(probe), f"--probe {args.probe}"),
+                                     rotation=args.rotation, mesh=toml_escape(str(mesh), str(mesh)),
+                                     merl=toml_escape(str(merl.resolve()), f"--out {out}")),
                         base_dir=out, source="bench_reference")
     t0 = time.perf_counter()
     prep = prepare_scene(scene, progress=True)

@@ -34,7 +34,8 @@ import sys
 from pathlib import Path
 
 from warpbw.cli import check_command_options
-from warpbw.cli_common import OneLineParser, check_overwrite, run_command
+from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, run_command
+from warpbw.scene import toml_escape
 
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent.parent / "shared" / "data"
@@ -79,9 +80,10 @@ file = "{merl}"
 def scene_texts(out: Path) -> dict[Path, str]:
     """The TOML of each benchmark scene (SCENES, then EXTRA_SCENES), by the path it is written to in ``out``."""
     rows = {**{name: row + ("",) for name, row in SCENES.items()}, **EXTRA_SCENES}
-    return {out / f"{name}.toml": TEMPLATE.format(camera=CAMERAS[obj], size=size, probe=DATA / "envmaps" / probe,
+    data = toml_escape(str(DATA), str(DATA))   # the shared folder's path, written into every scene
+    return {out / f"{name}.toml": TEMPLATE.format(camera=CAMERAS[obj], size=size, probe=f"{data}/envmaps/{probe}",
                                                  lights=lights,
-                                                 obj=OBJECTS[obj].format(mesh=DATA / "meshes" / "bunny.obj"),
+                                                 obj=OBJECTS[obj].format(mesh=f"{data}/meshes/bunny.obj"),
                                                  merl=f"{material}.binary")
             for name, (obj, material, probe, size, lights) in rows.items()}
 
@@ -104,7 +106,9 @@ def write_scenes(out: Path, force: bool = False) -> list[Path]:
 
 def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", default="bench_scenes", help="directory for scenes, MERL files and results")
+    ap.add_argument("--out", default="bench_scenes", help="directory for scenes, MERL files and results (an "
+                    "OUT/MATERIAL.binary already there is used as it is, a cache: delete it to convert the NPF fit "
+                    "again)")
     ap.add_argument("--run", action="store_true", help="run warpbw bench on every scene")
     ap.add_argument("--only", help="comma-separated scene names to run (default: the four of the table; "
                     f"{', '.join(EXTRA_SCENES)} only when named)")
@@ -126,6 +130,9 @@ def main(argv=None) -> int:
     check_command_options("bench", {k: v for k, v in (("--gt-spp", args.gt_spp), ("--runs", args.runs),
                                                          ("--nb", args.nb), ("--env-signal", args.env_signal))
                                         if v})
+    check_output_dir(args.out, "--out")   # before the MERL files are converted and the scenes written
+    if args.run and args.results:
+        check_output_dir(args.results, "--results")
     if not DATA.is_dir():
         print(f"bench_scenes: {DATA} not found (the shared data folder is needed)", file=sys.stderr)
         return 2

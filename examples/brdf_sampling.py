@@ -16,7 +16,7 @@ import numpy as np
 
 from warpbw import brdf as B
 from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
-from warpbw.errors import check_count
+from warpbw.errors import INT32_MAX, check_count
 from warpbw.io.npf import npf_eval, read_npf
 from warpbw.sampling import build_sampler_table
 
@@ -33,7 +33,7 @@ def main():
     ap.add_argument("--out", default="brdf_out", help="folder of brdf_sampling_MATERIAL.png (default brdf_out)")
     ap.add_argument("--force", action="store_true", help="overwrite an existing brdf_sampling_MATERIAL.png")
     args = ap.parse_args()
-    check_count(args.samples, "--samples", 1)
+    check_count(args.samples, "--samples", 1, INT32_MAX)   # the sampling kernel counts them in int32
     init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
     import matplotlib
 

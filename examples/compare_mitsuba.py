@@ -113,8 +113,9 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import OneLineParser, init_warp, parse_seed, run_command
+from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, init_warp, parse_seed, run_command
 from warpbw.errors import SEED_MAX
+from warpbw.scene import toml_string
 
 # The repository root, so that `python examples/compare_mitsuba.py` finds warpbw without installing.
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -244,7 +245,7 @@ def warpbw_toml(probe: Path, mat: dict, res: int, rotation: float, scale: float)
         f"resolution = [{res}, {res}]",
         "",
         "[environment]",
-        f"file = {str(probe.resolve())!r}".replace("'", '"'),
+        f"file = {toml_string(str(probe.resolve()), f'--probe {probe}')}",   # repr() doubled no backslash
         f"rotation = {float(rotation)!r}",
         f"scale = {float(scale)!r}",
         "",
@@ -423,6 +424,7 @@ def parse_args(argv=None):
     p.add_argument("--cases", default=",".join(CASES), help=f"comma list of {', '.join(CASES)}")
     p.add_argument("--seed", type=parse_seed, default=0, help="0 to 2^32-1001 (the warm-up frames use seed + 1000)")
     p.add_argument("--out", type=Path, default=None, help="save <case>_mitsuba.exr, <case>_warpbw.exr, <case>.png")
+    p.add_argument("--force", action="store_true", help="overwrite those files where --out already holds them")
     p.add_argument("--variant", default=None, help=f"Mitsuba variant (default: first usable of {VARIANTS})")
     p.add_argument("--no-mis", dest="mis", action="store_false",
                    help="warpbw with BRDF sampling only (its CLI default, 002 Eq. 2).  Default: MIS, one BRDF and "
@@ -452,6 +454,11 @@ def parse_args(argv=None):
     unknown = [c for c in a.cases if c not in CASES]
     if unknown:
         p.error(f"unknown case(s) {unknown}; choose from {list(CASES)}")
+    if a.out is not None and not a.check_conventions:   # before Mitsuba is imported, and before any render
+        check_output_dir(a.out, "--out")
+        kinds = ("_mitsuba.exr", ".png") if a.mitsuba_only else ("_mitsuba.exr", "_warpbw.exr", ".png")
+        check_overwrite([a.out / f"{c}{k}" for c in a.cases for k in kinds], a.force, "--out",
+                        inputs=[a.probe.expanduser()])
     return a
 
 

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, parse_seed, run_command
+from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, init_warp, parse_seed, run_command
 from warpbw.errors import SEED_MAX, WarpbwError
 
 HERE = Path(__file__).resolve().parent
@@ -195,6 +195,8 @@ def main(argv=None):
         ap.error(f"--size {args.size}: expected at least 8 pixels")
     if not (args.budget > 0 and math.isfinite(args.budget)):
         ap.error(f"--budget {args.budget}: expected a positive number of samples per pixel")
+    if args.frames - 1 > SEED_MAX:   # frame f uses seed + f: even --seed 0 cannot give more frames their own seed
+        ap.error(f"--frames {args.frames}: expected at most {SEED_MAX + 1} (frame f uses seed + f, a uint32 seed)")
     if args.seed + args.frames - 1 > SEED_MAX:
         ap.error(f"--seed {args.seed}: frame f uses seed + f, which must stay a uint32 (expected at most "
                  f"{SEED_MAX - args.frames + 1} with --frames {args.frames})")
@@ -211,18 +213,20 @@ def main(argv=None):
         print(f"dynamic_geometry: mesh {mesh_path} not found; skipping (pass --mesh FILE)")
         return None
     out = Path(args.out)
-    check_overwrite([out / n for n in OUTPUTS], args.force)
+    check_output_dir(out, "--out")
+    check_overwrite([out / n for n in OUTPUTS], args.force, "--out")
 
     from warpbw.gbuffer import update_mesh
     from warpbw.io.exr import write_png
     from warpbw.io.mesh import normals_and_curvature
     from warpbw.pipeline import prepare_scene, render_adaptive
-    from warpbw.scene import parse_scene
+    from warpbw.scene import parse_scene, toml_escape, toml_string
 
     env_path = Path(args.env) if args.env is not None else DEFAULT_ENV
-    env = f'file = "{env_path}"' if env_path.is_file() else 'procedural = "sky"'
-    scene = parse_scene(SCENE.format(fov=FOV_DEG, w=args.size, h=args.size, env=env, mesh=mesh_path.resolve(),
-                                     material=material), source="<dynamic_geometry>")
+    env = f"file = {toml_string(str(env_path), f'--env {env_path}')}" if env_path.is_file() else 'procedural = "sky"'
+    mesh = toml_escape(str(mesh_path.resolve()), f"--mesh {mesh_path}")   # a quote in the path broke the scene
+    scene = parse_scene(SCENE.format(fov=FOV_DEG, w=args.size, h=args.size, env=env, mesh=mesh, material=material),
+                        source="<dynamic_geometry>")
     t0 = time.perf_counter()
     prep = prepare_scene(scene, device=args.device)
     geo = prep.geometry

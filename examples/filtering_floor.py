@@ -50,9 +50,10 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import OneLineParser, init_warp, run_command
+from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
+from warpbw.errors import INT32_MAX
 # the renderer's own constants: the references filter and shade at its footprint, with its floors
-from warpbw.filtering import (ANISO_PROBE_SLACK, DEFAULT_ANISOTROPY, LOD_BIAS, MAX_ANISOTROPY, MIN_COS,
+from warpbw.filtering import (ANISO_PROBE_SLACK, DEFAULT_ANISOTROPY, LOD_BIAS, MAX_ANISOTROPY, MIN_COS, MIN_GT_SPP,
                                VARIANCE_FLOOR, roughness_variance)
 
 DEFAULT_ZOOMS = "8,16,32"
@@ -261,6 +262,13 @@ def analyse(path: Path, zooms, gt_spp: int, log=print, max_anisotropy: int = DEF
     data = load_map(mat.normal_map, mat.normal_map_kind)
     normals = height_to_normals(data, mat.normal_map_scale) if mat.normal_map_kind == "height" else data
     shapes = level_shapes(*normals.shape[:2])
+    # a zoom whose pixels are all smaller than a finest texel (level < 0) has nothing to compare: refused before the
+    # mipmaps are built and the ground truth rendered, when that holds for every zoom asked for
+    if not any((footprint_probes(*_pixels(scene, zoomed_camera(scene.camera, z), shapes[0])[2:4],
+                                 max_anisotropy)[0] >= 0).any() for z in zooms):
+        raise WarpbwError(f"{path}: at --zoom {','.join(f'{z:g}' for z in zooms)} no pixel that sees the plane filters "
+                          f"at level 0 or above (a pixel covers less than a texel of the {shapes[0][1]}x{shapes[0][0]} "
+                          "map): nothing to compare (expected larger zooms, which move the camera away)")
     prep = prepare_filtering(scene, METHODS + ("ground_truth",))
     mp = prep.mips[pl.material]
     flat, K = mp.gmm["gmm_aligned"]
@@ -346,15 +354,21 @@ def main(argv=None) -> int:
         ap.error(f"--zoom {args.zoom!r}: expected comma-separated positive numbers, e.g. 8,16,32")
     if not zooms or not all(z > 0 and math.isfinite(z) for z in zooms):
         ap.error(f"--zoom {args.zoom!r}: expected comma-separated positive numbers, e.g. 8,16,32")
+    twice = sorted({z for z in zooms if zooms.count(z) > 1})
+    if twice:   # each zoom is one measurement: a repeat would only render it again
+        ap.error(f"--zoom {args.zoom!r}: expected distinct values, got {', '.join(f'{z:g}' for z in twice)} more "
+                 "than once")
     if not 1 <= args.max_anisotropy <= MAX_ANISOTROPY:
         ap.error(f"--max-anisotropy {args.max_anisotropy}: expected an integer from 1 to {MAX_ANISOTROPY}")
-    if args.gt_spp < 64:
-        ap.error(f"--gt-spp {args.gt_spp}: expected at least 64 rays per pixel")
+    if not MIN_GT_SPP <= args.gt_spp <= INT32_MAX:   # the shading kernels count rays in int32
+        ap.error(f"--gt-spp {args.gt_spp}: expected from {MIN_GT_SPP} to {INT32_MAX} rays per pixel")
     for p in args.scenes:
         if not p.is_file():
             ap.error(f"{p}: no such scene file")
-    if args.json is not None and args.json.exists() and not args.force:
-        ap.error(f"{args.json} exists (--force to overwrite)")
+    if args.json is not None:   # before the analysis: a directory, under a file, a scene, or kept without --force
+        if args.json.suffix.lower() != ".json":
+            ap.error(f"--json {args.json}: expected a path ending in .json")
+        check_overwrite([args.json], args.force, "--json", inputs=args.scenes)
 
     init_warp("cpu")           # Warp's no-CUDA-driver line, banner and module-load lines kept off the output
     records = []

@@ -52,6 +52,7 @@ from precompute.surfaces import MAX_SURFACE_SIZE
 from warpbw.bench_filtering import FLICKER_PAIRS_MAX
 from warpbw.cli import MAX_ANISOTROPY, check_command_options
 from warpbw.cli_common import OneLineParser, check_overwrite, run_command
+from warpbw.scene import toml_string
 
 # scene name -> (surface generator name, tiling, material)
 SCENES = {
@@ -136,12 +137,13 @@ def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "rin
     from precompute.surfaces import SURFACES
     from warpbw.io.exr import write_exr
 
-    out.mkdir(parents=True, exist_ok=True)
     el = math.radians(elevation_deg)
     dirs = light_directions(lights)   # for the 60-degree camera, whatever elevation_deg
     light_text = "\n".join(LIGHT.format(x=d[0], y=d[1], z=d[2], e=LIGHT_RADIANCE / len(dirs)) for d in dirs)
-    if environment is not None:
-        light_text = f'[environment]\nfile = "{Path(environment).resolve().as_posix()}"\n'
+    if environment is not None:   # before anything is written: a path TOML cannot hold is refused
+        light_text = (f"[environment]\nfile = "
+                      f"{toml_string(Path(environment).resolve().as_posix(), f'--environment {environment}')}\n")
+    out.mkdir(parents=True, exist_ok=True)
     paths = []
     for name, (surface, tiling, mat) in SCENES.items():
         h = SURFACES[surface](size)
@@ -256,7 +258,9 @@ def main(argv=None) -> int:
     if spp:
         passed["--spp"] = args.spp
     check_command_options("bench-filtering", passed)
-    check_overwrite([out / f"{name}{ext}" for name in SCENES for ext in (".toml", ".exr")], args.force)
+    check_overwrite([out / f"{name}{ext}" for name in SCENES for ext in (".toml", ".exr")], args.force, "--out",
+                    inputs=[args.environment] if args.environment is not None else (),
+                    inputs_are="the --environment probe")
     paths = write_scenes(out, args.size, lights=args.lights, components=args.components,
                          environment=args.environment, prior=args.prior, elevation_deg=args.elevation)
     if args.run:

@@ -48,6 +48,10 @@ def main(argv=None) -> int:
         zooms = []
     if not zooms or not all(z > 0 and math.isfinite(z) for z in zooms):
         ap.error(f"--zoom {args.zoom!r}: expected comma-separated positive numbers, e.g. 1,2,4,8")
+    twice = sorted({z for z in zooms if zooms.count(z) > 1})
+    if twice:   # each zoom is one frame of the strip: a repeat would only render it again
+        ap.error(f"--zoom {args.zoom!r}: expected distinct values, got {', '.join(f'{z:g}' for z in twice)} more "
+                 "than once")
 
     from PIL import Image
 

@@ -18,6 +18,7 @@ from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_com
 from warpbw.gbuffer import MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.io.exr import write_exr, write_false_colour_png, write_png
 from warpbw.io.mesh import load_mesh
+from warpbw.scene import MAX_RESOLUTION
 
 OUTPUTS = ("normal.png", "depth.png", "curvature.png", "material.png", "gbuffer.exr")
 
@@ -33,8 +34,9 @@ def main():
     ap.add_argument("--force", action="store_true", help="overwrite existing outputs in --out")
     args = ap.parse_args()
     w, h = args.resolution
-    if w < 1 or h < 1:
-        ap.error(f"--resolution {w} {h}: expected a width and a height of at least 1 pixel")
+    if not (1 <= w <= MAX_RESOLUTION and 1 <= h <= MAX_RESOLUTION):
+        ap.error(f"--resolution {w} {h}: expected a width and a height of at least 1 pixel and at most "
+                 f"{MAX_RESOLUTION}")
     cam = make_camera((0.0, 0.3, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, w, h)
     spheres = [SphereSpec((1.1, -0.55, -0.6), 0.45, 1)]
     meshes = []

@@ -21,6 +21,8 @@ import numpy as np
 
 from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
 
+DEFAULT_LEVEL = 3   # --level: a 2x2 block of level 3 covers 16x16 finest texels
+DEFAULT_TEXEL = 1   # --texel ROW COL: the block one texel in from the corner
 GRID = 161          # density image resolution over [-1, 1]^2
 
 
@@ -56,9 +58,12 @@ def main(argv=None) -> int:
     ap.add_argument("-o", "--output", default="gmm_mipmap.png", help="output PNG (default gmm_mipmap.png)")
     ap.add_argument("--surface", default="hemispherical_scales", help="procedural surface (precompute.surfaces)")
     ap.add_argument("--size", type=int, default=128, help="height-field size (default 128)")
-    ap.add_argument("--level", type=int, default=3, help="mip level of the 2x2 texel block (default 3)")
-    ap.add_argument("--texel", type=int, nargs=2, default=(1, 1), metavar=("ROW", "COL"),
-                    help="top-left texel of the block at that level (default 1 1)")
+    ap.add_argument("--level", type=int, default=None,
+                    help=f"mip level of the 2x2 texel block (default {DEFAULT_LEVEL}, or the coarsest level of at "
+                    "least 2x2 texels where --size has fewer levels)")
+    ap.add_argument("--texel", type=int, nargs=2, default=None, metavar=("ROW", "COL"),
+                    help=f"top-left texel of the block at that level (default {DEFAULT_TEXEL} {DEFAULT_TEXEL}, or 0 0 "
+                    "where the level has only 2x2 texels)")
     ap.add_argument("--components", type=int, default=4, help="Gaussians per texel of both mipmaps (default 4)")
     ap.add_argument("--force", action="store_true", help="overwrite an existing output")
     args = ap.parse_args(argv)
@@ -75,10 +80,14 @@ def main(argv=None) -> int:
     if not 1 <= args.components <= MAX_COMPONENTS:
         ap.error(f"--components {args.components}: expected an integer from 1 to {MAX_COMPONENTS}")
     sides = [hw[0] for hw in level_shapes(args.size, args.size) if hw[0] >= 2]   # levels with a 2x2 block
+    if args.level is None:   # the defaults adapt to a small --size, which would otherwise refuse them
+        args.level = min(DEFAULT_LEVEL, len(sides) - 1)
     if not 0 <= args.level < len(sides):
         ap.error(f"--level {args.level}: expected 0 to {len(sides) - 1} (levels of at least 2x2 texels at "
                  f"--size {args.size})")
     side = sides[args.level]
+    if args.texel is None:
+        args.texel = [min(DEFAULT_TEXEL, side - 2)] * 2
     if not all(0 <= t <= side - 2 for t in args.texel):
         ap.error(f"--texel {args.texel[0]} {args.texel[1]}: expected ROW and COL from 0 to {side - 2} "
                  f"(level {args.level} has {side}x{side} texels)")

@@ -32,6 +32,8 @@ def main(argv=None) -> int:
     if not 1 <= args.components <= MAX_COMPONENTS:
         ap.error(f"--components {args.components}: expected an integer from 1 to {MAX_COMPONENTS}")
     if args.json:
+        if args.json.suffix.lower() != ".json":
+            ap.error(f"--json {args.json}: expected a path ending in .json")
         check_output_file(args.json, "--json", args.force)
     times = {}
     for name in ("dunes", "hemispherical_scales", "carved_disk"):

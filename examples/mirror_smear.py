@@ -29,16 +29,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli import ENV_SIGNALS
-from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, init_warp, run_command,
-                               write_json)
-from warpbw.errors import WarpbwError, check_count
+from warpbw.cli import BUDGET_MAX, ENV_SIGNALS
+from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
+                               run_command, write_json)
+from warpbw.errors import INT32_MAX, WarpbwError, check_count
+from warpbw.scene import GGX_MIN_ALPHA, toml_string
 
 PROBE_DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "envmaps" / "city.exr"
 ALPHA_DEFAULT = 1.0e-4        # GGX roughness: the scene's minimum is below it (warpbw.scene)
@@ -55,7 +55,7 @@ def mirror_scene_text(probe: Path, alpha: float, res: int) -> str:
     return "\n".join([
         "[camera]", f"position = [0.0, 0.0, {CAMERA_Z}]", "look_at = [0.0, 0.0, 0.0]", f"fov = {FOV_DEG}",
         f"resolution = [{res}, {res}]", "",
-        "[environment]", f"file = {json.dumps(str(probe))}", "",
+        "[environment]", f"file = {toml_string(str(probe), f'--probe {probe}')}", "",
         "[[object]]", 'shape = "sphere"', "center = [0.0, 0.0, 0.0]", f"radius = {RADIUS}", 'material = "m"', "",
         "[material.m]", 'type = "ggx"', f"alpha = {alpha!r}", "specular = [1.0, 1.0, 1.0]", ""])
 
@@ -73,6 +73,8 @@ def write_scenes(out_dir: Path, probe: Path, alpha: float, resolutions: list, fo
     paths = [out_dir / f"mirror_{r}.toml" for r in resolutions]
     for p in paths:
         check_output_file(p, "--write-scene", force)
+    for r in resolutions:   # a scene the loader would refuse is not written (the render path parses it the same way)
+        mirror_scene(probe, alpha, r)
     out_dir.mkdir(parents=True, exist_ok=True)
     for p, r in zip(paths, resolutions):
         p.write_text(mirror_scene_text(probe.resolve(), alpha, r))
@@ -196,14 +198,15 @@ def main(argv=None) -> int:
     probe = Path(args.probe)
     if not probe.is_file():
         raise WarpbwError(f"--probe {probe}: no such file (expected a lat-long HDR probe, EXR or PFM)")
-    if not (np.isfinite(args.alpha) and args.alpha > 0):
-        raise WarpbwError(f"--alpha {args.alpha!r}: expected a positive GGX roughness")
-    if not (args.budget >= 1 and float(args.budget).is_integer()):
-        raise WarpbwError(f"--budget {args.budget!r}: expected a whole number of samples per pixel, at least 1 "
-                          "(the reference renders that many)")
+    if not GGX_MIN_ALPHA <= args.alpha <= 1.0:   # the scene loader's range for a GGX alpha (nan fails too)
+        raise WarpbwError(f"--alpha {args.alpha!r}: expected a GGX roughness from {GGX_MIN_ALPHA:g} to 1")
+    if not (1 <= args.budget <= BUDGET_MAX and float(args.budget).is_integer()):
+        raise WarpbwError(f"--budget {args.budget!r}: expected a whole number of samples per pixel from 1 to "
+                          f"{int(BUDGET_MAX)} (the reference renders that many; the adaptive frame's N_p, up to 256 "
+                          "x budget, is an int32 in the kernels)")
     if not (0.0 < args.clamp_quantile <= 1.0):
         raise WarpbwError(f"--clamp-quantile {args.clamp_quantile!r}: expected a quantile in (0, 1]")
-    check_count(args.truth_spp, "--truth-spp", 1)
+    check_count(args.truth_spp, "--truth-spp", 1, INT32_MAX)   # the shading kernel counts samples in int32
     check_count(args.seed, "--seed", 0, 2**32 - 2)
     check_count(args.worst, "--worst", 0)
     res = _resolutions(args.res)
@@ -212,7 +215,9 @@ def main(argv=None) -> int:
         write_scenes(Path(args.write_scene), probe, args.alpha, res, args.force)
         return 0
     if args.json:
-        check_output_file(args.json, "--json", args.force)
+        if Path(args.json).suffix.lower() != ".json":
+            raise WarpbwError(f"--json {args.json}: expected a path ending in .json")
+        check_overwrite([Path(args.json)], args.force, "--json", inputs=[probe])
     init_warp("cpu")
     from tqdm import tqdm
 

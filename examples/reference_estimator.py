@@ -16,9 +16,10 @@ from pathlib import Path
 from warpbw import brdf as B
 from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
 from warpbw.envmap import envmap_from_array, load_envmap, procedural_sky
-from warpbw.errors import check_count
+from warpbw.errors import INT32_MAX, check_count
 from warpbw.gbuffer import SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.io.exr import write_exr, write_png
+from warpbw.scene import MAX_RESOLUTION
 from warpbw.shading import shade_reference
 
 OUTPUTS = ("ref_bis.exr", "ref_bis.png", "ref_mis.exr", "ref_mis.png")
@@ -43,9 +44,10 @@ def main():
     args = ap.parse_args()
     dev = args.device
     w, h = args.resolution
-    if w < 1 or h < 1:
-        ap.error(f"--resolution {w} {h}: expected a width and a height of at least 1 pixel")
-    check_count(args.spp, "--spp", 1)
+    if not (1 <= w <= MAX_RESOLUTION and 1 <= h <= MAX_RESOLUTION):
+        ap.error(f"--resolution {w} {h}: expected a width and a height of at least 1 pixel and at most "
+                 f"{MAX_RESOLUTION}")
+    check_count(args.spp, "--spp", 1, INT32_MAX)   # the shading kernel counts samples in int32
     for flag, given in (("--probe", args.probe), ("--npf", args.npf)):
         if given is not None and not Path(given).is_file():
             ap.error(f"{flag} {given}: no such file")

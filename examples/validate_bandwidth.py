@@ -87,9 +87,11 @@ import warp as wp
 
 from warpbw.bandwidth import ENV_SIGNAL_DEFAULT, ENV_SIGNALS, LUMINANCE
 from warpbw.brdf import MaterialTable, make_brdf_funcs
-from warpbw.cli_common import OneLineParser, init_warp, run_command
+from warpbw.cli_common import OneLineParser, check_output_dir, init_warp, parse_seed, run_command
+from warpbw.errors import SEED_MAX
 from warpbw.envmap import EnvMapData, env_radiance
 from warpbw.gbuffer import GBufferData
+from warpbw.scene import toml_escape
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_world
 
 HERE = Path(__file__).resolve().parent
@@ -274,10 +276,10 @@ DEFAULT_SCENES = ("sphere-ccp3-forest", "bunny-gmp-studio", "sphere-ggx-studio")
 def scene_toml(name: str, size: int, data: Path = DATA) -> str:
     s = SCENES[name]
     pos, at, fov = s["camera"]
-    text = SCENE_HEADER.format(position=pos, look_at=at, fov=fov, w=size, h=size, data=data.as_posix(),
-                               probe=s["probe"], rotation=s["rotation"])
-    return text + s["objects"].format(data=data.as_posix()) + "[material.m]\n" + s["material"].format(
-        data=data.as_posix())
+    d = toml_escape(data.as_posix(), f"--data {data}")   # inside the scene's quoted paths
+    text = SCENE_HEADER.format(position=pos, look_at=at, fov=fov, w=size, h=size, data=d, probe=s["probe"],
+                               rotation=s["rotation"])
+    return text + s["objects"].format(data=d) + "[material.m]\n" + s["material"].format(data=d)
 
 
 # ----------------------------------------------------------------------------------------- analysis
@@ -699,7 +701,8 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
 
     times = {}
     t0 = time.perf_counter()
-    scene = parse_scene(scene_toml(name, cfg["size"], cfg["data"]), cfg["data"], source=name)
+    data = Path(cfg["data"]).resolve()   # scene_toml writes the paths with it: a relative one was joined twice
+    scene = parse_scene(scene_toml(name, cfg["size"], data), data, source=name)
     prep = prepare_scene(scene, device=cfg["device"], progress=False)
     tables = prepare_bandwidth(prep, env_signal=cfg["env_signal"])
     times["prepare"] = time.perf_counter() - t0
@@ -928,8 +931,8 @@ def parse_args(argv=None):
                     "default radiance)")
     ap.add_argument("--nb-diagnostic", type=int, default=None,
                     help=f"n_b of a second, diagnostic bandwidth pass (default {N_B_DIAGNOSTIC}; 64 with --quick)")
-    ap.add_argument("--seed", type=int, default=SEED, help=f"seed of the converged image's halves, the bandwidth "
-                    f"passes and the brute-force variances (default {SEED})")
+    ap.add_argument("--seed", type=parse_seed, default=SEED, help=f"seed of the converged image's halves, the "
+                    f"bandwidth passes and the brute-force variances (default {SEED})")
     ap.add_argument("--data", default=str(DATA), help="the shared data directory (envmaps/, meshes/, brdf/)")
     ap.add_argument("--device", default="cpu", help="Warp device (default cpu; cuda where there is one)")
     ap.add_argument("--force", action="store_true", help="overwrite existing outputs")
@@ -955,6 +958,16 @@ def parse_args(argv=None):
             ap.error(f"--{k.replace('_', '-')}: expected a positive integer")
     if args.window < 4 or args.window % 2:
         ap.error("--window: expected an even number >= 4")
+    if args.size < args.window:   # the bandwidth pass wants 2 pixels a side, the comparison whole windows
+        ap.error(f"--size {args.size}: expected at least the FFT window's side, {args.window} pixels (--window)")
+    # round k of the converged image renders its halves with seeds seed + 2k and seed + 2k + 1
+    last_round = max(0, (args.ref_spp_max // (2 * max(1, args.ref_spp // 2))).bit_length() - 1)
+    if args.seed + 2 * last_round + 1 > SEED_MAX:
+        ap.error(f"--seed {args.seed}: expected at most {SEED_MAX - 2 * last_round - 1} (the converged image's "
+                 f"halves use seeds up to seed + {2 * last_round + 1}, a uint32)")
+    check_output_dir(args.out, "--out")
+    if not Path(args.data).is_dir():
+        ap.error(f"--data {args.data}: no such directory (expected the shared data: envmaps/, meshes/, brdf/)")
     files = [p for p in outputs(Path(args.out), args.scenes) if p.exists()]
     if files and not args.force:
         ap.error(f"{files[0]} exists (and {len(files) - 1} more outputs); pass --force to overwrite")

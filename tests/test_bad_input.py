@@ -1752,3 +1752,194 @@ def test_a_reader_that_leaves_early_stops_the_command_quietly(tmp_path):
         p.stdout.close()
         err = p.stderr.read().decode()
         assert p.wait(timeout=120) == 141 and err == "", (p.returncode, err)
+
+
+# ------------------------------------------------------------------------------------ examples: options, outputs
+
+def _example_inputs(d: Path) -> None:
+    """What the example tests below read: a sphere scene, a plane scene without a normal map, a small probe, a
+    one-triangle mesh, a file and a folder."""
+    write_scene(d)
+    (d / "planes.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
+    write_exr(d / "probe.exr", np.ones((4, 8, 3), np.float32))
+    (d / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (d / "afile").write_text("keep")
+    (d / "adir").mkdir()
+
+
+def _tree(d: Path) -> dict:
+    return {str(p.relative_to(d)): (p.read_bytes() if p.is_file() else None) for p in sorted(d.rglob("*"))}
+
+
+@pytest.mark.parametrize("argv,needles", [
+    # --json: a .json name, never one of the inputs (the scene was replaced by the JSON, status 0, with --force)
+    (["allocation_ceiling.py", "scene.toml", "--seeds", "2", "--spp", "1", "--budget", "1", "--json", "scene.toml",
+      "--force"], ["--json scene.toml: expected a path ending in .json"]),
+    (["allocation_ceiling.py", "scene.toml", "--seeds", "2", "--spp", "1", "--budget", "1", "--json", "a.png"],
+     ["--json a.png: expected a path ending in .json"]),
+    (["allocation_ceiling.py", "s.json", "--seeds", "2", "--spp", "1", "--budget", "1", "--json", "s.json",
+      "--force"], ["--json s.json: would overwrite s.json"]),
+    (["filtering_floor.py", "planes.toml", "--zoom", "8", "--json", "planes.toml", "--force"],
+     ["--json planes.toml: expected a path ending in .json"]),
+    (["filtering_floor.py", "p.json", "--zoom", "8", "--json", "p.json", "--force"], ["--json p.json: would overwrite"]),
+    # checked before the analysis (these failed after it with a raw errno)
+    (["filtering_floor.py", "planes.toml", "--zoom", "8", "--json", "afile/x.json"],
+     ["--json afile/x.json: afile is not a directory"]),
+    (["filtering_floor.py", "planes.toml", "--zoom", "8", "--json", "adir", "--force"],
+     ["--json adir: expected a path ending in .json"]),
+    (["filtering_floor.py", "planes.toml", "--zoom", "8", "--json", "d.json", "--force"],
+     ["--json d.json: is a directory"]),
+    (["mirror_smear.py", "--probe", "probe.exr", "--res", "8", "--budget", "1", "--truth-spp", "1", "--json", "m.txt"],
+     ["--json m.txt: expected a path ending in .json"]),
+    (["gmm_precompute_time.py", "--size", "4", "--components", "1", "--json", "t.txt"],
+     ["--json t.txt: expected a path ending in .json"]),
+], ids=["allocation_ceiling scene", "allocation_ceiling png", "allocation_ceiling input", "filtering_floor scene",
+        "filtering_floor input", "filtering_floor under a file", "filtering_floor dir", "filtering_floor dir.json",
+        "mirror_smear", "gmm_precompute_time"])
+def test_example_json_outputs_end_in_json_and_never_replace_an_input(tmp_path, argv, needles):
+    """the examples' --json took any name, the scene itself with --force; filtering_floor checked
+    only that it existed, after the whole analysis.  Now: one line before any work, and nothing changed."""
+    _example_inputs(tmp_path)
+    write_scene(tmp_path, "s.json")
+    (tmp_path / "p.json").write_text((tmp_path / "planes.toml").read_text())
+    (tmp_path / "d.json").mkdir()
+    before = _tree(tmp_path)
+    example_error(run_example(argv, tmp_path), argv[0], *needles)
+    assert _tree(tmp_path) == before
+
+
+# a file name TOML cannot take as it is: a double quote, a backslash, a control character and a non-BMP character
+_AWKWARD_NAME = 'we"ird\\back\x01\U0001F600.exr'
+
+
+def test_example_scenes_escape_the_paths_they_write(tmp_path):
+    """filtering_scenes.py pasted --environment into "..." (a quote or a backslash made the scene
+    invalid TOML) and mirror_smear.py wrote json.dumps' surrogate pairs, which TOML refuses; both exited 0."""
+    from warpbw.scene import load_scene
+
+    probe = tmp_path / _AWKWARD_NAME
+    write_exr(probe, np.ones((4, 8, 3), np.float32))
+    r = run_example(["filtering_scenes.py", "--out", "fs", "--size", "4", "--environment", _AWKWARD_NAME], tmp_path)
+    assert r.returncode == 0, r.stderr
+    for name in ("scales", "carved_disk", "dunes"):
+        assert load_scene(tmp_path / "fs" / f"{name}.toml").environment.file == probe.resolve()
+    r = run_example(["mirror_smear.py", "--probe", _AWKWARD_NAME, "--res", "8", "--write-scene", "ms"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert load_scene(tmp_path / "ms" / "mirror_8.toml").environment.file == probe.resolve()
+
+
+@pytest.mark.parametrize("alpha", ["1e300", "2", "1e-9"])
+def test_mirror_smear_writes_no_scene_the_loader_would_refuse(tmp_path, alpha):
+    """--write-scene --alpha 1e300 wrote a scene the loader refuses ("[material.m].alpha"), status 0;
+    the render path refused it only after loading the probe."""
+    write_exr(tmp_path / "probe.exr", np.ones((4, 8, 3), np.float32))
+    r = run_example(["mirror_smear.py", "--probe", "probe.exr", "--res", "8", "--alpha", alpha, "--write-scene", "ms"],
+                    tmp_path)
+    example_error(r, "mirror_smear.py", f"--alpha {float(alpha)!r}: expected a GGX roughness from")
+    assert not (tmp_path / "ms").exists()
+
+
+def test_compare_mitsuba_keeps_existing_outputs_without_force(tmp_path):
+    """compare_mitsuba.py had no --force and wrote its images over any already in --out.  It refuses
+    them now before Mitsuba is imported (so here, where it is not installed, too), and an --out that is a file."""
+    _example_inputs(tmp_path)
+    mine = tmp_path / "cmp" / "lambert.png"
+    mine.parent.mkdir()
+    mine.write_text("mine\n")
+    base = ["compare_mitsuba.py", "--probe", "probe.exr", "--cases", "lambert"]
+    example_error(run_example(base + ["--out", "cmp"], tmp_path), "compare_mitsuba.py", "cmp/lambert.png",
+                  "already exists", "--force")
+    example_error(run_example(base + ["--out", "probe.exr", "--force"], tmp_path), "compare_mitsuba.py",
+                  "--out probe.exr: not a directory")
+    assert mine.read_text() == "mine\n" and list(mine.parent.iterdir()) == [mine]
+    assert "--force" in run_example(["compare_mitsuba.py", "--help"], tmp_path).stdout
+
+
+@pytest.mark.parametrize("argv,needles", [
+    # sizes beyond MAX_RESOLUTION: a raw Warp traceback after loading the assets
+    (["gbuffer.py", "--mesh", "tri.obj", "--resolution", "100000", "100000"],
+     ["--resolution 100000 100000: expected a width and a height", "at most 16384"]),
+    (["reference_estimator.py", "--probe", "probe.exr", "--npf", "afile", "--spp", "1", "--resolution", "100000",
+      "8"], ["--resolution 100000 8: expected a width and a height", "at most 16384"]),
+    (["anisotropy_cost.py", "planes.toml", "--zoom", "1", "--size", "100000x100000", "--runs", "1"],
+     ["--size 100000x100000: expected at most 16384 pixels per side"]),
+    # nan and inf passed the zoom check and failed after the preparation
+    (["anisotropy_cost.py", "planes.toml", "--zoom", "nan", "--size", "8x8"], ["--zoom 'nan': expected"]),
+    (["anisotropy_cost.py", "planes.toml", "--zoom", "1,inf", "--size", "8x8"], ["--zoom '1,inf': expected"]),
+    # a huge --frames blamed --seed, with a negative bound
+    (["dynamic_geometry.py", "--frames", "100000000000", "--material", "ggx"],
+     ["--frames 100000000000: expected at most 4294967296"]),
+    # duplicate zooms rendered twice; warpbw bench-filtering refuses them
+    (["filtering_zoom.py", "planes.toml", "--zoom", "1,1"], ["--zoom '1,1': expected distinct values, got 1"]),
+    (["filtering_floor.py", "planes.toml", "--zoom", "8,16,8"], ["--zoom '8,16,8': expected distinct values, got 8"]),
+    # limits named by the library's parameter ("n", "spp", "-o"), after loading the assets
+    (["brdf_sampling.py", "--table", "afile", "--samples", "100000000000"],
+     ["--samples: expected an integer from 1 to 2147483647"]),
+    (["reference_estimator.py", "--probe", "probe.exr", "--npf", "afile", "--spp", "3000000000",
+      "--resolution", "8", "8"], ["--spp: expected an integer from 1 to 2147483647"]),
+    (["mirror_smear.py", "--probe", "probe.exr", "--res", "8", "--budget", "1e12"],
+     ["--budget 1000000000000.0: expected a whole number of samples per pixel from 1 to 8388607"]),
+    (["filtering_floor.py", "planes.toml", "--gt-spp", "100000000000"],
+     ["--gt-spp 100000000000: expected from 64 to 2147483647"]),
+    (["dynamic_geometry.py", "--mesh", "tri.obj", "--material", "ggx", "--size", "8", "--out", "afile"],
+     ["--out afile: not a directory"]),
+    # validate_bandwidth: --size 1 failed late on an internal "stride", --seed -1 named "seed", an --out that is a
+    # file gave "[Errno 17] File exists"
+    (["validate_bandwidth.py", "--out", "v", "--quick", "--size", "1"], ["--size 1: expected at least", "--window"]),
+    (["validate_bandwidth.py", "--out", "v", "--quick", "--seed", "-1"], ["--seed: expected an integer from 0"]),
+    (["validate_bandwidth.py", "--out", "afile", "--quick"], ["--out afile: not a directory"]),
+    # bench_scenes: an --out that is a file; a --results under one, refused before the scenes are written
+    (["bench_scenes.py", "--out", "afile"], ["--out afile: not a directory"]),
+    (["bench_scenes.py", "--out", "s", "--run", "--results", "afile/r"], ["--results afile/r: afile is not a directory"]),
+], ids=["gbuffer resolution", "reference_estimator resolution", "anisotropy_cost size", "anisotropy_cost nan",
+        "anisotropy_cost inf", "dynamic_geometry frames", "filtering_zoom duplicate", "filtering_floor duplicate",
+        "brdf_sampling samples", "reference_estimator spp", "mirror_smear budget", "filtering_floor gt-spp",
+        "dynamic_geometry out", "validate_bandwidth size", "validate_bandwidth seed", "validate_bandwidth out",
+        "bench_scenes out", "bench_scenes results"])
+def test_examples_refuse_values_up_front_naming_their_own_options(tmp_path, argv, needles):
+    """each of these failed after loading assets or preparing the scene (a raw traceback, or an error
+    naming a parameter or bound the user never gave).  Now: one line naming the option, before any work, and
+    nothing written."""
+    _example_inputs(tmp_path)
+    before = _tree(tmp_path)
+    t0 = time.perf_counter()
+    example_error(run_example(argv, tmp_path), argv[0], *needles)
+    assert _tree(tmp_path) == before
+    assert time.perf_counter() - t0 < 60
+
+
+def test_filtering_floor_refuses_zooms_at_which_no_pixel_filters(tmp_path):
+    """on a 16x16 map, --zoom 8 magnifies every pixel (level < 0) and the script wrote a record with
+    "zooms": [] and exited 0.  It has nothing to compare there: an error naming the zooms, before the mipmaps are
+    built, and no JSON."""
+    r = run_example(["filtering_scenes.py", "--out", "fs", "--size", "16"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = run_example(["filtering_floor.py", "fs/carved_disk.toml", "--zoom", "8", "--gt-spp", "64", "--json", "f.json"],
+                    tmp_path)
+    example_error(r, "filtering_floor.py", "fs/carved_disk.toml: at --zoom 8", "level 0 or above", "larger zooms")
+    assert not (tmp_path / "f.json").exists()
+
+
+def test_gmm_mipmap_defaults_fit_a_small_size(tmp_path):
+    """--size 2 passed the size check, then the defaults the user never gave were refused ("--level 3:
+    expected 0 to 0", with --level 0 "--texel 1 1: expected ROW and COL from 0 to 0")."""
+    for argv in (["--size", "2", "-o", "a.png"], ["--size", "4", "--level", "0", "-o", "b.png"]):
+        r = run_example(["gmm_mipmap.py", *argv], tmp_path)
+        assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert (tmp_path / "a.png").is_file() and (tmp_path / "b.png").is_file()
+
+
+def test_validate_bandwidth_takes_a_relative_data_folder(tmp_path, shared):
+    """a relative --data was joined twice ("../shared/data/../shared/data/envmaps/studio.exr: file
+    not found"), whether or not it pointed at the data."""
+    (tmp_path / "data").symlink_to(shared("envmaps/studio.exr").parents[1], target_is_directory=True)
+    r = run_example(["validate_bandwidth.py", "--quick", "--scenes", "sphere-ggx-studio", "--size", "16", "--data",
+                     "data", "--out", "v"], tmp_path)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert (tmp_path / "v" / "validate_bandwidth.json").is_file()
+
+
+def test_bench_scenes_help_says_a_merl_file_in_out_is_reused():
+    """an existing OUT/MATERIAL.binary is used as a cache without a check; --help now says so."""
+    r = run_example(["bench_scenes.py", "--help"], Path.cwd())
+    assert r.returncode == 0 and "MATERIAL.binary already there is used as it is" in " ".join(r.stdout.split())

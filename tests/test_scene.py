@@ -682,3 +682,25 @@ def test_readme_scene_snippets_parse(tmp_path):
                 (tmp_path / s).touch()
         scene = parse_scene(text, tmp_path, "README.md")
         assert scene.objects, text
+
+
+@settings(max_examples=200, deadline=None)
+@given(text=st.text(alphabet=st.characters(blacklist_categories=("Cs",)), max_size=40))
+def test_toml_string_round_trips_any_path_through_a_toml_reader(text):
+    """Tools that write scenes (examples/filtering_scenes.py, mirror_smear.py ...) pasted paths into "...": a quote or
+    a backslash made the file invalid, and json.dumps wrote non-BMP characters as surrogate pairs, which TOML
+    refuses.  Python's own TOML reader (not ours) gives back exactly the text."""
+    import tomllib
+
+    from warpbw.scene import toml_escape, toml_string
+
+    assert tomllib.loads(f"file = {toml_string(text, 'p')}")["file"] == text
+    assert tomllib.loads(f'file = "dir/{toml_escape(text, "p")}/x.exr"')["file"] == f"dir/{text}/x.exr"
+
+
+def test_toml_string_refuses_text_no_utf8_file_can_hold():
+    """A file name of undecodable bytes reaches Python as lone surrogates: named, not written as broken TOML."""
+    from warpbw.scene import toml_string
+
+    with pytest.raises(WarpbwError, match="--environment a\\udcff.exr: cannot be written in a scene file"):
+        toml_string("a\udcff.exr", "--environment a\udcff.exr")

@@ -7,6 +7,7 @@ Public:
     ``Scene``, ``Camera``, ``Environment``, ``DirectionalLight``, ``SphereObject``, ``MeshObject``,
     ``PlaneObject``, ``Material``, ``DEFAULT_SCENE_TOML``; ``Scene.input_files()``, every file a scene reads
     ``file_digest(path) -> str``               blake2b of a file's bytes (the content hashes of scenes and tables)
+    ``toml_string(text, what)``, ``toml_escape(text, what)``  a path written into a scene file by a tool
     ``GMM_MAX_COMPONENTS``                     the most components a material's ``gmm_components`` may ask for
 
 Lights: an ``[environment]`` and/or ``[[light]]`` tables (``type = "directional"``, ``direction`` towards the
@@ -289,6 +290,28 @@ def _material_fields(m: Material) -> dict:
         for k in _CT_FIELDS:
             d.pop(k)
     return d
+
+
+def toml_escape(text: str, what: str) -> str:
+    """``text`` escaped for the inside of a TOML basic string ("..."), for tools that write scene files: a double
+    quote and a backslash by a backslash, a control character (U+0000-U+001F, U+007F) by its \\uXXXX code, any
+    other character as it is (UTF-8; json.dumps wrote a non-BMP one as a surrogate pair, which TOML refuses).  A
+    text no UTF-8 file can hold (lone surrogates: a file name of undecodable bytes) is a WarpbwError naming
+    ``what`` (an option and its value)."""
+    if any(0xD800 <= ord(c) <= 0xDFFF for c in text):
+        raise WarpbwError(f"{what}: cannot be written in a scene file (expected a path of valid UTF-8 characters)")
+
+    def escaped(c: str) -> str:
+        if c in '"\\':
+            return "\\" + c
+        return f"\\u{ord(c):04X}" if ord(c) < 0x20 or ord(c) == 0x7F else c
+
+    return "".join(map(escaped, text))
+
+
+def toml_string(text: str, what: str) -> str:
+    """``text`` as a TOML basic string, quotes included (``toml_escape``)."""
+    return '"' + toml_escape(text, what) + '"'
 
 
 def file_digest(path: Path, chunk: int = 1 << 22) -> str:
