@@ -304,3 +304,34 @@ def test_unmeasured_merl_entries_never_reach_shading(tmp_path):
         g = B.eval_brdf(near, 0, wi_c[ok], wo_c[ok])
         expect = {"green": [1, 0, 1], "row 0": [0, 0, 0], "none": [1, 1, 1]}[hole]
         assert np.all((g > 0) == np.array(expect, bool)), (hole, g)
+
+
+@pytest.mark.parametrize("eta,k", [(1e4, 0.0), (1.0, 1e4), (1e4, 1e4), (1e3, 50.0), (0.0, 1e4)])
+def test_conductor_fresnel_up_to_the_largest_index_accepted_follows_the_complex_formula(eta, k):
+    """From about 5e9 the kernel's squares overflowed float32 and F read 0 (a mirror rendered black, status 0, no
+    sample reported): eta and k are bounded by CONDUCTOR_INDEX_MAX, in the scene and in the table, and up to it F
+    is the complex formula's (near 1)."""
+    from warpbw.errors import WarpbwError
+    from warpbw.scene import CONDUCTOR_INDEX_MAX, parse_scene
+
+    assert B.CONDUCTOR_INDEX_MAX == CONDUCTOR_INDEX_MAX
+    rng = np.random.default_rng(9)
+    wi = random_hemisphere(rng, 200, 0.01)
+    wo = random_hemisphere(rng, len(wi) * 2, 0.01)[: len(wi)]
+    mats = B.build_material_table([B.MaterialSpec("m", B.GGX, alpha=0.3, specular=(1.0, 1.0, 1.0),
+                                                  eta=(eta,) * 3, k=(k,) * 3)])
+    f = B.eval_brdf(mats, 0, wi, wo)[:, 0]
+    g = ggx_numpy(wi, wo, 0.3, (1, 1, 1))[:, 0]
+    keep = g > 1e-3
+    h = wi + wo
+    h /= np.linalg.norm(h, axis=1, keepdims=True)
+    want = fresnel_conductor_numpy(np.einsum("ij,ij->i", wi, h)[keep], eta, k)
+    np.testing.assert_allclose(f[keep] / g[keep], want, rtol=5e-3, atol=1e-6)
+    with pytest.raises(WarpbwError, match="eta: expected values up to 10000"):
+        B.build_material_table([B.MaterialSpec("m", B.GGX, alpha=0.3, specular=(1.0,) * 3, eta=(5e9,) * 3,
+                                               k=(0.0,) * 3)])
+    text = ('[camera]\nposition = [0, 0, 3]\nlook_at = [0, 0, 0]\nresolution = [4, 4]\n[environment]\nconstant = 1.0\n'
+            '[[object]]\nshape = "sphere"\ncenter = [0, 0, 0]\nradius = 1\nmaterial = "m"\n[material.m]\ntype = "ggx"\n'
+            'alpha = 0.1\nspecular = [1, 1, 1]\neta = [5e9, 1, 1]\nk = [0, 0, 0]\n')
+    with pytest.raises(WarpbwError, match=r"\[material.m\].eta: expected a number <= 10000"):
+        parse_scene(text, ".", "s.toml")

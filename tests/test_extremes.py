@@ -603,3 +603,21 @@ def test_adaptive_frame_spends_at_most_its_budget_when_the_up_sampling_cannot_fi
         assert st["samples"] <= 2.0 * res.coverage.sum(), env
         if env.startswith("constant"):   # one level everywhere, one texel of it, and the silhouette's
             assert levels.min() == levels.max() and st["levels"][0]["shaded"] == 1 and shaded > 1, st["levels"]
+
+
+def test_radiance_that_overflows_in_the_shading_is_refused_by_the_renderers_not_returned(tmp_path):
+    """A sky of 1e33 on a mirror-like plane (roughness 1e-3) seen at a grazing angle: 447 of 512 pixels came back
+    inf or NaN from render_filtering (only stats said so); the command line refused the image, Python returned it.
+    The same sky of 1e18 renders finite."""
+    from warpbw.errors import WarpbwError
+    from warpbw.filtering import METHODS, render_filtering
+
+    def scene(c):
+        env = f"[environment]\nconstant = [{c}, {c}, {c}]\n"
+        return parse_scene(plane_scene_toml(roughness=1e-3, position=(0.0, 0.02, 2.0), size=40.0, resolution=(16, 16),
+                                            fov=30.0, lights=0, environment=env, diffuse=None), tmp_path, "p.toml")
+
+    for method in METHODS + ("ground_truth",):
+        assert np.isfinite(render_filtering(scene(1e18), method, spp=64).image).all(), method
+        with pytest.raises(WarpbwError, match="p.toml: .* pixels came out infinite or NaN"):
+            render_filtering(scene(1e33), method, spp=64)

@@ -74,7 +74,10 @@ TAB_COSINE_MIX = 0.1
 COS_EPS = 1.0e-6
 
 HALF_PI = 0.5 * math.pi
-GGX_MIN_ALPHA = 1.0e-4   # alphas below are clamped (D stays finite in float32 far below this; see ggx_d)
+GGX_MIN_ALPHA = 1.0e-4
+# Largest eta or k a conductor takes (warpbw.scene.CONDUCTOR_INDEX_MAX): fresnel_conductor squares eta^2 k^2, which
+# overflows float32 from about 5e9 (the reflectance then read 0 instead of nearly 1: a mirror rendered black).
+CONDUCTOR_INDEX_MAX = 1.0e4   # alphas below are clamped (D stays finite in float32 far below this; see ggx_d)
 
 
 @wp.struct
@@ -496,7 +499,9 @@ def check_material_spec(s: MaterialSpec, i: int) -> MaterialSpec:
     for field in ("albedo", "specular"):
         _spec_vec3(getattr(s, field), f"{what}.{field}")
     for field in ("eta", "k"):
-        _spec_vec3(getattr(s, field), f"{what}.{field}", optional=True)
+        v = _spec_vec3(getattr(s, field), f"{what}.{field}", optional=True)
+        if v is not None and (v > CONDUCTOR_INDEX_MAX).any():
+            raise WarpbwError(f"{what}.{field}: expected values up to {CONDUCTOR_INDEX_MAX:g}, got {getattr(s, field)!r}")
     if (s.eta is None) != (s.k is None):
         raise WarpbwError(f"{what}: a conductor needs both eta and k, got only one")
     if not isinstance(s.alpha, (int, float, np.floating)) or not math.isfinite(s.alpha) or s.alpha < 0.0:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
                                json_text, parse_seed, run_command, write_json)
-from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError
+from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError, check_finite_image
 
 DEFAULT_SPP = 64
 DEMO_SPP = 64
@@ -73,25 +73,12 @@ def _outputs(out: Path) -> dict:
     return {"exr": out, "png": out.with_suffix(".png"), "json": out.with_suffix(".json")}
 
 
-def _check_finite_image(image, source: str) -> None:
-    """Refuse, before anything is written, an image with inf or NaN pixels: radiance near the top of the float32
-    range (an environment map's or a light's) overflows when the kernels sum the samples of a pixel."""
-    import numpy as np
-
-    bad = int((~np.isfinite(image)).any(axis=-1).sum())
-    if bad:
-        raise WarpbwError(f"{source}: {bad} of {image.shape[0] * image.shape[1]} pixels came out infinite or NaN "
-                          "(the radiance overflowed float32 while the samples were summed; expected environment "
-                          f"and light radiance well below {FLOAT32_MAX:.3g}: lower [environment] scale, the map's "
-                          "values or [[light]] radiance); nothing written")
-
-
 def _write_render(res, outs: dict, exposure: float, source: str):
     import numpy as np
 
     from warpbw.io.exr import write_exr, write_png
 
-    _check_finite_image(res.image, source)
+    check_finite_image(res.image, source)   # the renderers check too; the message then says nothing was written
     outs["exr"].parent.mkdir(parents=True, exist_ok=True)
     rgba = np.concatenate([res.image, res.coverage[..., None].astype(np.float32)], axis=-1)
     write_exr(outs["exr"], rgba, channels=["R", "G", "B", "A"])

@@ -9,7 +9,8 @@ size, target, source)`` (float32 fine enough where the camera and an object lie,
 ``check_flag(value, name) -> bool`` (True or False, not a truthy string); ``check_seed(seed, name)`` (a uint32)
 and ``check_device(device, name)`` (a Warp device this machine has), the renderers' own checks;
 ``check_direction_pairs(wi, wo) -> (wi, wo)`` (the BRDF evaluators' (N, 3) direction pairs, broadcast, unit length)
-and ``unit_directions(d, name)`` (finite non-zero directions scaled to unit length); the bounds
+and ``unit_directions(d, name)`` (finite non-zero directions scaled to unit length); ``check_finite_image(image,
+source)`` (a rendered image without inf or NaN pixels, which radiance near float32's top gives); the bounds
 ``INT32_MAX``, ``FLOAT32_MAX``, ``SEED_MAX`` and ``BRDF_VALUE_MAX`` that user values are checked against.
 
 Anything the user can cause (a bad file, a bad key in a scene, a bad CLI value) is raised as
@@ -102,6 +103,20 @@ def unit_directions(d, name: str):
     if bad.any():
         raise WarpbwError(f"{name}: expected finite non-zero directions, {int(bad.sum())} of {bad.size} are not")
     return d / length
+
+
+def check_finite_image(image, source: str) -> None:
+    """Refuse an image with inf or NaN pixels: radiance near the top of the float32 range (an environment map's or a
+    light's) overflows where a kernel multiplies it by a sharp lobe or sums the samples of a pixel (a plane of
+    roughness 1e-3 under a sky of 1e33 returned 447 of 512 pixels non-finite from Python, without a word)."""
+    import numpy as np
+
+    bad = int((~np.isfinite(image)).any(axis=-1).sum())
+    if bad:
+        raise WarpbwError(f"{source}: {bad} of {image.shape[0] * image.shape[1]} pixels came out infinite or NaN "
+                          "(the radiance overflowed float32 in the shading; expected environment and light radiance "
+                          f"well below {FLOAT32_MAX:.3g}: lower [environment] scale, the map's values or [[light]] "
+                          "radiance); nothing written")
 
 
 def check_direction_pairs(wi, wo):

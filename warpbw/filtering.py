@@ -114,7 +114,7 @@ from precompute.gmm_mipmap import NORMAL_DIM
 from warpbw.envmap import (LUMINANCE_RGB, EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv,
                            load_environment)
 from warpbw.errors import (INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, check_count,
-                           check_device, check_seed)
+                           check_device, check_finite_image, check_seed)
 from warpbw.gbuffer import CameraData, scene_camera
 from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene
 
@@ -1237,6 +1237,7 @@ def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed:
              "stages": filtering_stages(method, [prepared.mips[p.material].flat for p in planes], with_env,
                                         len(prepared.scene.lights) > 0),
              "non_finite_pixels": int((~np.isfinite(img)).any(-1).sum())}
+    check_finite_image(img, prepared.scene.source)
     if method == "ground_truth":
         stats["spp"] = int(spp)
         stats["seed"] = int(seed)

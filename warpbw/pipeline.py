@@ -44,8 +44,8 @@ import warp as wp
 
 from warpbw import brdf as brdf_mod
 from warpbw import envmap
-from warpbw.errors import (BRDF_VALUE_MAX, FLOAT32_MAX, INT32_MAX, WarpbwError, check_device, check_flag, check_seed,
-                           is_int)
+from warpbw.errors import (BRDF_VALUE_MAX, FLOAT32_MAX, INT32_MAX, WarpbwError, check_device, check_finite_image,
+                           check_flag, check_seed, is_int)
 from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, ensure_curvature, hide_beyond,
                             render_gbuffer, scene_camera)
 from warpbw.scene import MeshObject, PlaneObject, Scene, SphereObject
@@ -330,6 +330,7 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     if hidden is not None:
         stats["pixels_hidden"] = hidden
     stats["time_s"] = {k: round(v, 6) for k, v in timings.items()}
+    check_finite_image(image, prep.scene.source)
     return RenderResult(image, gb.coverage, gb, stats)
 
 
@@ -541,6 +542,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
         "b_p": buf.b_p.numpy().reshape(H, W),
         "sigma2": buf.sigma2.numpy().reshape(H, W),
     }
+    check_finite_image(res.image, prep.scene.source)
     return RenderResult(res.image, gb.coverage, gb, stats, aovs)
 
 

@@ -62,6 +62,9 @@ MAX_RESOLUTION = 16384  # per side; larger is almost certainly a typo (and would
 # Smallest GGX alpha accepted (a mirror at any image resolution); the kernel clamps to the same bound
 # (warpbw.brdf.GGX_MIN_ALPHA).
 GGX_MIN_ALPHA = 1.0e-4
+# Largest eta or k of a conductor (warpbw.brdf.CONDUCTOR_INDEX_MAX spells the same bound): measured metals lie below
+# 100 in the visible; from about 5e9 the Fresnel terms' squares overflow float32 and a mirror rendered black.
+CONDUCTOR_INDEX_MAX = 1.0e4
 
 DEFAULT_SCENE_TOML = """\
 # warpbw's embedded default scene: three spheres with analytic materials under the procedural sky.
@@ -376,7 +379,7 @@ class _Ctx:
             self.fail(key, f"expected a number <= {hi:g}, got {v:g}")
         return v
 
-    def vec3(self, v, key: str, lo=None, point: bool = False) -> tuple:
+    def vec3(self, v, key: str, lo=None, point: bool = False, hi=None) -> tuple:
         """Three numbers; one number stands for three equal ones (a grey colour) unless ``point`` (a position
         or direction, where 4.0 for [4, 4, 4] is more likely a slip than a wish)."""
         if isinstance(v, (int, float)) and not isinstance(v, bool):
@@ -385,7 +388,7 @@ class _Ctx:
             v = [v, v, v]
         if not isinstance(v, list) or len(v) != 3:
             self.fail(key, f"expected three numbers [x, y, z], got {v!r}")
-        return tuple(self.number(c, key, lo=lo) for c in v)
+        return tuple(self.number(c, key, lo=lo, hi=hi) for c in v)
 
     def string(self, v, key: str, choices=None) -> str:
         if not isinstance(v, str) or not v:
@@ -573,8 +576,8 @@ def _material(ctx: _Ctx, name: str, d: dict) -> Material:
             ctx.fail(f"{key}.specular", f"expected components in [0, 1] (energy conservation), got {spec}")
         if ("eta" in d) != ("k" in d):
             ctx.fail(key, "conductor Fresnel needs both eta and k")
-        eta = ctx.vec3(d["eta"], f"{key}.eta", lo=0.0) if "eta" in d else None
-        k = ctx.vec3(d["k"], f"{key}.k", lo=0.0) if "k" in d else None
+        eta = ctx.vec3(d["eta"], f"{key}.eta", lo=0.0, hi=CONDUCTOR_INDEX_MAX) if "eta" in d else None
+        k = ctx.vec3(d["k"], f"{key}.k", lo=0.0, hi=CONDUCTOR_INDEX_MAX) if "k" in d else None
         return Material(name, t, alpha=alpha, specular=spec, eta=eta, k=k)
     lookup = ctx.string(d.get("lookup", "nearest"), f"{key}.lookup", LOOKUP_MODES)
     sampling = ctx.path(d["sampling"], f"{key}.sampling") if "sampling" in d else None
