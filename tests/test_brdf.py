@@ -96,11 +96,8 @@ def test_an_index_matched_conductor_reflects_nothing_and_never_below_zero():
         assert np.allclose(fresnel, fresnel_conductor_numpy(cos_d[keep], eta, k), rtol=5e-3, atol=1e-6), (eta, k)
 
 
-@settings(max_examples=40, deadline=None)
-@given(st.floats(0.01, 10.0), st.floats(0.0, 10.0), st.integers(0, 2**31 - 1))
-def test_conductor_fresnel_lies_in_zero_one_and_follows_the_complex_formula(eta, k, seed):
-    """Over eta in [0.01, 10] and k in [0, 10] (dielectric-like to silver-like), the kernel's conductor Fresnel,
-    read off a GGX evaluation, lies in [0, 1] and is the complex formula's |r_s|^2 / |r_p|^2 mean."""
+def _kernel_and_formula_fresnel(eta: float, k: float, seed: int):
+    """(min f, the kernel's conductor F read off GGX evaluations at random pairs, the complex formula's F there)."""
     rng = np.random.default_rng(seed)
     wi = random_hemisphere(rng, 200, 0.01)
     wo = random_hemisphere(rng, len(wi) * 2, 0.01)[: len(wi)]
@@ -109,11 +106,18 @@ def test_conductor_fresnel_lies_in_zero_one_and_follows_the_complex_formula(eta,
     f = B.eval_brdf(mats, 0, wi, wo)[:, 0]
     g = ggx_numpy(wi, wo, 0.3, (1, 1, 1))[:, 0]
     keep = g > 1e-3
-    fresnel = f[keep] / g[keep]
     h = wi + wo
     h /= np.linalg.norm(h, axis=1, keepdims=True)
-    want = fresnel_conductor_numpy(np.einsum("ij,ij->i", wi, h)[keep], eta, k)
-    assert f.min() >= 0.0 and fresnel.max() <= 1.0 + 1e-3
+    return f.min(), f[keep] / g[keep], fresnel_conductor_numpy(np.einsum("ij,ij->i", wi, h)[keep], eta, k)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0.01, 10.0), st.floats(0.0, 10.0), st.integers(0, 2**31 - 1))
+def test_conductor_fresnel_lies_in_zero_one_and_follows_the_complex_formula(eta, k, seed):
+    """Over eta in [0.01, 10] and k in [0, 10] (dielectric-like to silver-like), the kernel's conductor Fresnel,
+    read off a GGX evaluation, lies in [0, 1] and is the complex formula's |r_s|^2 / |r_p|^2 mean."""
+    f_min, fresnel, want = _kernel_and_formula_fresnel(eta, k, seed)
+    assert f_min >= 0.0 and fresnel.max() <= 1.0 + 1e-3
     np.testing.assert_allclose(fresnel, want, rtol=5e-3, atol=1e-6)
 
 
@@ -315,18 +319,8 @@ def test_conductor_fresnel_up_to_the_largest_index_accepted_follows_the_complex_
     from warpbw.scene import CONDUCTOR_INDEX_MAX, parse_scene
 
     assert B.CONDUCTOR_INDEX_MAX == CONDUCTOR_INDEX_MAX
-    rng = np.random.default_rng(9)
-    wi = random_hemisphere(rng, 200, 0.01)
-    wo = random_hemisphere(rng, len(wi) * 2, 0.01)[: len(wi)]
-    mats = B.build_material_table([B.MaterialSpec("m", B.GGX, alpha=0.3, specular=(1.0, 1.0, 1.0),
-                                                  eta=(eta,) * 3, k=(k,) * 3)])
-    f = B.eval_brdf(mats, 0, wi, wo)[:, 0]
-    g = ggx_numpy(wi, wo, 0.3, (1, 1, 1))[:, 0]
-    keep = g > 1e-3
-    h = wi + wo
-    h /= np.linalg.norm(h, axis=1, keepdims=True)
-    want = fresnel_conductor_numpy(np.einsum("ij,ij->i", wi, h)[keep], eta, k)
-    np.testing.assert_allclose(f[keep] / g[keep], want, rtol=5e-3, atol=1e-6)
+    _, fresnel, want = _kernel_and_formula_fresnel(eta, k, 9)
+    np.testing.assert_allclose(fresnel, want, rtol=5e-3, atol=1e-6)
     with pytest.raises(WarpbwError, match="eta: expected values up to 10000"):
         B.build_material_table([B.MaterialSpec("m", B.GGX, alpha=0.3, specular=(1.0,) * 3, eta=(5e9,) * 3,
                                                k=(0.0,) * 3)])
