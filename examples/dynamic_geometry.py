@@ -259,6 +259,8 @@ def main(argv=None):
     render_adaptive(prep, args.budget, seed=args.seed, device=args.device, threads=args.threads)   # warm-up
     print(f"warm-up frame (compile kernels, load or build tables): {time.perf_counter() - t0:.1f} s")
 
+    # only the strip's frames are kept (every frame's image was, whatever --frames asked for)
+    pick = set(np.linspace(0, args.frames - 1, min(args.frames, MAX_STRIP_FRAMES)).round().astype(int).tolist())
     records, images, masks, coverage = [], [], [], []
     for f in range(args.frames):
         t_start = time.perf_counter()
@@ -288,9 +290,10 @@ def main(argv=None):
             "samples": int(res.stats["samples"]),
             "samples_per_covered_pixel": res.stats["samples_per_covered_pixel"],
         })
-        images.append(res.image)
-        coverage.append(res.coverage)
-        masks.append(np.where(res.aovs["shaded"], MASK_SHADED, np.where(res.coverage, MASK_UPSAMPLED, 0.0)))
+        if f in pick:
+            images.append(res.image)
+            coverage.append(res.coverage)
+            masks.append(np.where(res.aovs["shaded"], MASK_SHADED, np.where(res.coverage, MASK_UPSAMPLED, 0.0)))
 
     mean = {k: float(np.mean([r[k] for r in records])) for k in records[0]
             if k.endswith("_s") and records[0][k] is not None}
@@ -315,8 +318,7 @@ def main(argv=None):
         "summary": summary,
     }
     out.mkdir(parents=True, exist_ok=True)
-    pick = np.unique(np.linspace(0, len(images) - 1, min(len(images), MAX_STRIP_FRAMES)).round().astype(int))
-    write_png(out / OUTPUTS[0], _strip([images[i] for i in pick], [masks[i] for i in pick], [coverage[i] for i in pick]))
+    write_png(out / OUTPUTS[0], _strip(images, masks, coverage))
     (out / OUTPUTS[1]).write_text(json.dumps(result, indent=1))
     _print_table(records, summary)
     print(f"wrote {out / OUTPUTS[0]} (frames {', '.join(str(i) for i in pick)}) and {out / OUTPUTS[1]}")
