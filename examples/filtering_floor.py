@@ -242,12 +242,14 @@ def gmm_images(mat, lights, levels, st, lam, wo, n=None, step=None):
     return per_tap, _shade(mat, lights, wo, *_recover(merged, rv))
 
 
-def analyse(path: Path, zooms, gt_spp: int, log=print, max_anisotropy: int = DEFAULT_ANISOTROPY) -> dict:
+def load_checked(path: Path, zooms, max_anisotropy: int = DEFAULT_ANISOTROPY) -> tuple:
+    """The scene at ``path``, its plane, material, finest normals and level shapes, once it is known that the
+    analysis can run on it: one plane under directional lights, a normal map, and a zoom at which some pixel
+    filters at level 0 or above.  ``main`` checks every scene so before the first analysis."""
     from precompute.surfaces import height_to_normals
     from precompute.gmm_mipmap import level_shapes, load_map
-    from warpbw.bench_filtering import colour_error
     from warpbw.errors import WarpbwError
-    from warpbw.filtering import METHODS, prepare_filtering, render_filtering, zoomed_camera
+    from warpbw.filtering import zoomed_camera
     from warpbw.scene import PlaneObject, load_scene
 
     scene = load_scene(path)
@@ -264,11 +266,25 @@ def analyse(path: Path, zooms, gt_spp: int, log=print, max_anisotropy: int = DEF
     shapes = level_shapes(*normals.shape[:2])
     # a zoom whose pixels are all smaller than a finest texel (level < 0) has nothing to compare: refused before the
     # mipmaps are built and the ground truth rendered, when that holds for every zoom asked for
-    if not any((footprint_probes(*_pixels(scene, zoomed_camera(scene.camera, z), shapes[0])[2:4],
-                                 max_anisotropy)[0] >= 0).any() for z in zooms):
+    levels = [footprint_probes(*_pixels(scene, zoomed_camera(scene.camera, z), shapes[0])[2:4], max_anisotropy)[0]
+              for z in zooms]
+    if not any(lam.size for lam in levels):   # the plane smaller than a pixel: the rule below would ask for more zoom
+        raise WarpbwError(f"{path}: at --zoom {','.join(f'{z:g}' for z in zooms)} no pixel's centre ray hits the "
+                          "plane: nothing to compare (expected smaller zooms, which bring the camera closer)")
+    if not any((lam >= 0).any() for lam in levels):
         raise WarpbwError(f"{path}: at --zoom {','.join(f'{z:g}' for z in zooms)} no pixel that sees the plane filters "
                           f"at level 0 or above (a pixel covers less than a texel of the {shapes[0][1]}x{shapes[0][0]} "
                           "map): nothing to compare (expected larger zooms, which move the camera away)")
+    return scene, pl, mat, normals, shapes
+
+
+def analyse(path: Path, zooms, gt_spp: int, log=print, max_anisotropy: int = DEFAULT_ANISOTROPY,
+            loaded: tuple | None = None) -> dict:
+    """The analysis of one scene (module docstring); ``loaded``: its ``load_checked``, when already done."""
+    from warpbw.bench_filtering import colour_error
+    from warpbw.filtering import METHODS, prepare_filtering, render_filtering, zoomed_camera
+
+    scene, pl, mat, normals, shapes = loaded if loaded is not None else load_checked(path, zooms, max_anisotropy)
     prep = prepare_filtering(scene, METHODS + ("ground_truth",))
     mp = prep.mips[pl.material]
     flat, K = mp.gmm["gmm_aligned"]
@@ -371,9 +387,11 @@ def main(argv=None) -> int:
         check_overwrite([args.json], args.force, "--json", inputs=args.scenes)
 
     init_warp("cpu")           # Warp's no-CUDA-driver line, banner and module-load lines kept off the output
+    # every scene checked before the first is analysed (a later one failed after minutes of work, and no JSON)
+    loaded = [load_checked(p, zooms, args.max_anisotropy) for p in args.scenes]
     records = []
-    for p in args.scenes:
-        rec = analyse(p, zooms, args.gt_spp, max_anisotropy=args.max_anisotropy)
+    for p, ld in zip(args.scenes, loaded):
+        rec = analyse(p, zooms, args.gt_spp, max_anisotropy=args.max_anisotropy, loaded=ld)
         print(format_table(rec), flush=True)
         records.append(rec)
     if args.json is not None:

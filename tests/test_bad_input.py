@@ -1920,6 +1920,21 @@ def test_filtering_floor_refuses_zooms_at_which_no_pixel_filters(tmp_path):
     assert not (tmp_path / "f.json").exists()
 
 
+def test_filtering_floor_checks_every_scene_before_analysing_the_first(tmp_path):
+    """With several scenes, one that cannot be analysed (no normal map) failed only after the scenes before it had
+    been analysed (minutes each at real sizes), and no JSON was written for them."""
+    r = run_example(["filtering_scenes.py", "--out", "fs", "--size", "16"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    (tmp_path / "planes.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
+    r = run_example(["filtering_floor.py", "fs/carved_disk.toml", "planes.toml", "--zoom", "128", "--gt-spp", "64"],
+                    tmp_path)
+    example_error(r, "filtering_floor.py", "planes.toml: [material.m] has no normal_map")
+    assert r.stdout.strip() == "", r.stdout      # nothing analysed, nothing printed
+    # a zoom at which the plane is smaller than a pixel asked for larger zooms
+    r = run_example(["filtering_floor.py", "fs/carved_disk.toml", "--zoom", "2048", "--gt-spp", "64"], tmp_path)
+    example_error(r, "filtering_floor.py", "at --zoom 2048 no pixel's centre ray hits the plane", "smaller zooms")
+
+
 def test_gmm_mipmap_defaults_fit_a_small_size(tmp_path):
     """--size 2 passed the size check, then the defaults the user never gave were refused ("--level 3:
     expected 0 to 0", with --level 0 "--texel 1 1: expected ROW and COL from 0 to 0")."""
