@@ -620,14 +620,18 @@ def _radical_inverse(k: np.ndarray, base: int) -> np.ndarray:
     return out
 
 
+def _check_n_b(n_b) -> int:
+    if not is_int(n_b) or not 1 <= n_b <= N_B_MAX:
+        raise WarpbwError(f"n_b: expected an integer number of directions from 1 to {N_B_MAX} (002 Fig. 13 sweeps "
+                          f"16 to 1024), got {n_b!r}")
+    return int(n_b)
+
+
 def direction_set(n_b: int, seed: int = 0) -> np.ndarray:
     """``(n_b, 3)`` float32 Hammersley points ``((k + 1/2) / n_b, phi_2(k), phi_3(k))`` shifted by a seeded
     offset mod 1 (Cranley-Patterson).  u[0] picks the sampler (BRDF below 1/2, light above: half of the
     points each, exactly when n_b is even) and (u[1], u[2]) the direction."""
-    if not is_int(n_b) or not 1 <= n_b <= N_B_MAX:
-        raise WarpbwError(f"n_b: expected an integer number of directions from 1 to {N_B_MAX} (002 Fig. 13 sweeps "
-                          f"16 to 1024), got {n_b!r}")
-    k = np.arange(int(n_b))
+    k = np.arange(_check_n_b(n_b))
     shift = np.random.default_rng(check_seed(seed)).random(3)   # None drew a different set at every call
     u = np.stack([(k + 0.5) / n_b + shift[0], _radical_inverse(k, 2) + shift[1],
                   _radical_inverse(k, 3) + shift[2]], axis=1) % 1.0
@@ -676,7 +680,7 @@ def interleave_shifts(n_b: int, side: int) -> np.ndarray:
     """``(side^2, 3)`` offsets (mod 1) of the direction set for an interleaved ``side x side`` tile of
     blocks: shift j = (j / (side^2 n_b), phi_2(j) / n_b, phi_3(j) / n_b), so that the tile's shifted
     Hammersley sets together stratify side^2 times more finely than one set."""
-    direction_set(n_b)   # the same n_b check (0 gave inf shifts)
+    _check_n_b(n_b)   # 0 gave inf shifts
     t = check_count(side, "side", 1, INTERLEAVE_SIDE_MAX) ** 2
     j = np.arange(t)
     return np.stack([j / (t * n_b), _radical_inverse(j, 2) / n_b, _radical_inverse(j, 3) / n_b],

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
                                json_text, parse_seed, run_command, write_json)
-from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError, check_finite_image
+from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError
 
 DEFAULT_SPP = 64
 DEMO_SPP = 64
@@ -78,7 +78,6 @@ def _write_render(res, outs: dict, exposure: float, source: str):
 
     from warpbw.io.exr import write_exr, write_png
 
-    check_finite_image(res.image, source)   # the renderers check too; the message then says nothing was written
     outs["exr"].parent.mkdir(parents=True, exist_ok=True)
     rgba = np.concatenate([res.image, res.coverage[..., None].astype(np.float32)], axis=-1)
     write_exr(outs["exr"], rgba, channels=["R", "G", "B", "A"])
