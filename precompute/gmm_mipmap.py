@@ -677,13 +677,13 @@ def _check_map_size(p: Path, width: int, height: int) -> None:
 def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
     """(H, W, C) float64 in [0, 1] for PNG/Pillow images, raw floats for EXR; and the bits per channel the
     values were read with (None for floating point)."""
-    from warpbw.io.exr import EXR_MAGIC, read_exr
+    from warpbw.io.exr import EXR_MAGIC, exr_size, read_exr
 
     with open(p, "rb") as fh:
         head = fh.read(32)
     if head.startswith(EXR_MAGIC):
+        _check_map_size(p, *exr_size(p))       # from the header: a map too large is never decoded
         img = read_exr(p)
-        _check_map_size(p, img.pixels.shape[1], img.pixels.shape[0])
         ch = img.channels
         if all(k in ch for k in ("R", "G", "B")):
             return img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]].astype(np.float64), None

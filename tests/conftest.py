@@ -117,6 +117,23 @@ radiance = [0.5, 1.0, 1.5]
         """) + (f"diffuse = {list(diffuse)}\n" if diffuse is not None else "") + material_extra
 
 
+def exr_claiming_size(path, width: int, height: int) -> Path:
+    """A 4 x 4 one-channel EXR whose header's dataWindow is rewritten to claim width x height texels (OpenEXR file
+    layout: the attribute "dataWindow", type "box2i", a 4-byte size, then xMin yMin xMax yMax as int32): a few
+    hundred bytes that a full read would try to decode as the size it claims."""
+    import struct
+
+    from warpbw.io.exr import write_exr
+
+    path = Path(path)
+    write_exr(path, np.zeros((4, 4, 1), np.float32), ["Y"])
+    data = bytearray(path.read_bytes())
+    at = data.index(b"dataWindow\0box2i\0") + len(b"dataWindow\0box2i\0") + 4
+    data[at:at + 16] = struct.pack("<4i", 0, 0, width - 1, height - 1)
+    path.write_bytes(bytes(data))
+    return path
+
+
 def grid_mesh(n_u, n_v, fn):
     """Triangulated (n_u x n_v) vertex grid; fn(u, v) -> (N, 3) points; faces wound (dv x du)."""
     uu, vv = np.meshgrid(np.arange(n_u), np.arange(n_v), indexing="ij")

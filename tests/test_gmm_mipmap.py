@@ -11,6 +11,7 @@ import warnings
 
 import numpy as np
 import pytest
+from conftest import exr_claiming_size
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -536,6 +537,10 @@ def test_map_files_too_large_or_truncated_are_named(tmp_path):
     save_png(tmp_path / "wide.png", np.zeros((2, MAX_MAP_TEXELS // 2 + 1), np.uint8))
     with pytest.raises(WarpbwError, match=f"wide.png: {MAX_MAP_TEXELS // 2 + 1} x 2 texels: expected a map"):
         load_map(tmp_path / "wide.png", "height")
+    # an EXR's size is read from its header before its pixels: this one claims more texels than it holds
+    exr_claiming_size(tmp_path / "claims.exr", 20000, 20000)
+    with pytest.raises(WarpbwError, match="claims.exr: 20000 x 20000 texels: expected a map of at most"):
+        load_map(tmp_path / "claims.exr", "height")
     v = (np.arange(64 * 64).reshape(64, 64) * 13 % 65536).astype(np.uint16)
     save_png(tmp_path / "h.png", v)
     data = (tmp_path / "h.png").read_bytes()

@@ -10,11 +10,12 @@ import shutil
 
 import numpy as np
 import pytest
-from conftest import shared_file
+from conftest import exr_claiming_size, shared_file
 from PIL import Image
 
 from warpbw.errors import WarpbwError
 from warpbw.io.exr import (
+    exr_size,
     linear_to_srgb,
     read_exr,
     read_rgb,
@@ -111,6 +112,22 @@ def test_missing_and_truncated_files(tmp_path):
     (tmp_path / "tiny.exr").write_bytes(b"\x76\x2f")
     with pytest.raises(WarpbwError, match="tiny.exr"):
         read_exr(tmp_path / "tiny.exr")
+
+
+def test_exr_size_reads_the_header_alone(tmp_path):
+    """exr_size gives the data window's (width, height) without decoding a pixel: a file of a few hundred bytes
+    that claims 20000 x 20000 texels is sized, while a full read of it fails."""
+    write_exr(tmp_path / "wide.exr", np.zeros((3, 5, 1), np.float32), ["Y"])
+    assert exr_size(tmp_path / "wide.exr") == (5, 3)
+    big = exr_claiming_size(tmp_path / "big.exr", 20000, 20000)
+    assert big.stat().st_size < 1000 and exr_size(big) == (20000, 20000)
+    with pytest.raises(WarpbwError, match="big.exr: unreadable OpenEXR file"):
+        read_exr(big)
+    with pytest.raises(WarpbwError, match="nothere.exr.*not found"):
+        exr_size(tmp_path / "nothere.exr")
+    (tmp_path / "tiny.exr").write_bytes(b"\x76\x2f\x31\x01\x02")
+    with pytest.raises(WarpbwError, match="tiny.exr: unreadable OpenEXR file"):
+        exr_size(tmp_path / "tiny.exr")
 
 
 def test_write_exr_bad_channel_count(tmp_path):

@@ -4,6 +4,7 @@ Public functions:
 
 - ``read_exr(path) -> ExrImage``: every channel of a scan-line or tiled EXR (first part of a
   multi-part file) as float32 ``(H, W, C)``.
+- ``exr_size(path) -> (width, height)``: the data window's size, from the header alone (no pixel read).
 - ``read_rgb(path) -> np.ndarray``: ``(H, W, 3)`` float32 radiance (a single ``Y`` channel is replicated);
   ``rgb_of(image) -> np.ndarray`` the same from an ``ExrImage`` already read.
 - ``write_exr(path, pixels, channels=None)``: float32, lossless ZIP compression; channel names and
@@ -92,8 +93,8 @@ def _order_channels(names: list[str], recorded: object) -> list[str]:
     return first + sorted(c for c in names if c not in first)
 
 
-def read_exr(path) -> ExrImage:
-    """Read every channel of an EXR file as float32 ``(H, W, C)`` (half and uint channels converted)."""
+def _open_exr(path, header_only: bool):
+    """(checked path, header, channels) of an EXR file; channels is empty when ``header_only``."""
     import OpenEXR
 
     path = check_input_file(path, "an OpenEXR image")
@@ -101,10 +102,9 @@ def read_exr(path) -> ExrImage:
     try:
         # OpenEXR prints its own warnings about a damaged file to the descriptors: they go into the error
         with captured_native_output() as native:
-            exr = OpenEXR.File(str(path), separate_channels=True)
+            exr = OpenEXR.File(str(path), separate_channels=True, header_only=header_only)
             header = exr.header()
-            chans = exr.channels()
-            planes = {name: np.asarray(ch.pixels) for name, ch in chans.items()}
+            chans = {} if header_only else {name: (ch, np.asarray(ch.pixels)) for name, ch in exr.channels().items()}
     except Exception as exc:  # OpenEXR raises RuntimeError for truncated / corrupt files
         # OpenEXR's own words for a cut-off file ("file has 0 parts") do not say what is wrong
         said = "; ".join(line.replace(f"{path}: ", "").strip() for line in native if line.strip())
@@ -113,6 +113,25 @@ def read_exr(path) -> ExrImage:
     for line in native:            # a file that read: pass on whatever the library had to say, a warning a line
         if line.strip():
             warnings.warn(f"{path}: OpenEXR: {line.replace(f'{path}: ', '').strip()}", stacklevel=2)
+    return path, header, chans
+
+
+def exr_size(path) -> tuple[int, int]:
+    """(width, height) of an EXR file's data window, read from its header alone: a size bound can be checked
+    before the pixels are decoded."""
+    path, header, _ = _open_exr(path, header_only=True)
+    try:
+        (x0, y0), (x1, y1) = header["dataWindow"]
+        return int(x1) - int(x0) + 1, int(y1) - int(y0) + 1
+    except (KeyError, TypeError, ValueError):
+        raise WarpbwError(f"{path}: OpenEXR header without a valid dataWindow") from None
+
+
+def read_exr(path) -> ExrImage:
+    """Read every channel of an EXR file as float32 ``(H, W, C)`` (half and uint channels converted)."""
+    path, header, both = _open_exr(path, header_only=False)
+    chans = {name: ch for name, (ch, _) in both.items()}
+    planes = {name: px for name, (_, px) in both.items()}
     for name, ch in chans.items():
         if getattr(ch, "xSampling", 1) != 1 or getattr(ch, "ySampling", 1) != 1:
             raise WarpbwError(f"{path}: channel {name!r} is subsampled ({ch.xSampling}x{ch.ySampling}); expected "
