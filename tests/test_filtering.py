@@ -780,6 +780,19 @@ def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path):
     assert not np.array_equal(got, p1.mips["m"].gmm["gmm_aligned"][0].numpy())
 
 
+def test_gmm_priors_that_agree_to_six_digits_are_cached_apart(tmp_path):
+    """The cache key wrote gmm_prior with %g (6 digits) while the reader compares it to 1e-9: priors 0.5 and
+    0.5000001 shared one entry and evicted each other, so every render paid the whole EM fit again."""
+    write_exr(tmp_path / "map.exr", _bumps(8)[..., None].astype(np.float32), channels=["Y"])
+
+    def origin(prior):
+        text = plane_scene_toml(f'normal_map = "map.exr"\nnormal_map_scale = 0.5\ngmm_prior = {prior!r}\n')
+        return prepare_filtering(parse_scene(text, tmp_path, "s.toml"), ("gmm_aligned",)).notes["m"]["gmm_aligned"]
+
+    assert [origin(c)["origin"] for c in (0.5, 0.5000001, 0.5, 0.5000001)] == ["built", "built", "cache", "cache"]
+    assert origin(0.5000001)["prior"] == 0.5000001
+
+
 def test_nearer_plane_wins_and_threads_do_not_change_the_image(tmp_path):
     text = plane_scene_toml(resolution=(20, 14)) + textwrap.dedent("""
         [[object]]

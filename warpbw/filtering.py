@@ -885,7 +885,7 @@ class _GmmSource:
 
     @property
     def digest(self) -> str:
-        return (f"{self.content_hash}-{self.kind}-s{self.scale:.9g}-K{self.components}-c{self.prior:g}-"
+        return (f"{self.content_hash}-{self.kind}-s{float(self.scale)!r}-K{self.components}-c{float(self.prior)!r}-"
                 f"{'unaligned' if self.unaligned else 'aligned'}")
 
 
