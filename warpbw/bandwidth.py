@@ -593,7 +593,8 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
             a = read_asset(path, ENV_BW_FORMAT, ENV_BW_VERSION, "delete the cache file")
             nu = np.asarray(a.arrays["nu_a"], np.float32)
             if (a.header.get("source_hash") == digest and nu.shape == (h, w)
-                    and a.header.get("params", {}).get("signal", ENV_SIGNAL_DEFAULT) == signal):
+                    and a.header.get("params", {}).get("signal", ENV_SIGNAL_DEFAULT) == signal
+                    and np.isfinite(nu).all() and (nu >= 0).all()):   # a bandwidth is a finite rate
                 return nu, "cache"
         except (WarpbwError, KeyError, AttributeError):
             pass  # a stale or damaged cache entry is rebuilt below
@@ -603,8 +604,8 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
         path.parent.mkdir(parents=True, exist_ok=True)
         write_asset(path, ENV_BW_FORMAT, ENV_BW_VERSION, name, digest, {"nu_a": nu},
                     params={"units": "cycles/radian", "floor": "epsilon * mean signal", "signal": signal}, force=True)
-    except OSError:
-        pass  # a read-only cache only costs the rebuild next time
+    except (OSError, WarpbwError):
+        pass  # a read-only or full cache (write_asset says which, as a WarpbwError) only costs the rebuild next time
     return nu, "built"
 
 
