@@ -27,12 +27,12 @@ from pathlib import Path
 import numpy as np
 
 from warpbw.cli import check_command_options
+from warpbw.bench import GT_CHUNK_SPP
 from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
 from warpbw.errors import WarpbwError
 from warpbw.scene import MAX_RESOLUTION, toml_escape
 
 HERE = Path(__file__).resolve().parent
-GT_CHUNK_SPP = 4096   # spp per cached ground-truth chunk
 DATA = HERE.parent.parent / "shared" / "data"
 
 SCENE = """
@@ -104,7 +104,7 @@ def main():
 
     init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
     from precompute.npf_to_merl import npf_to_merl
-    from warpbw.io.exr import read_exr, write_exr, write_png
+    from warpbw.io.exr import write_png
     from warpbw.io.npf import read_npf
     from warpbw.metrics import mse, psnr, relmse
     from warpbw.pipeline import prepare_scene, render_reference
@@ -151,23 +151,12 @@ def main():
     gbuffer_ms = statistics.median(gb_times) * 1e3
 
     # ground truth: the mean of independently seeded MIS chunks of GT_CHUNK_SPP each, every chunk cached
-    # by scene hash (so raising --gt-spp only renders the missing chunks)
-    key = scene.content_hash()[:16]
-    n_chunks = max(2, args.gt_spp // GT_CHUNK_SPP)
-    chunks, gt_time = [], 0.0
-    for k in range(n_chunks):
-        path = out / f"ground_truth-{key}-chunk{k}-{GT_CHUNK_SPP}spp.exr"
-        if path.exists():
-            chunks.append(read_exr(path).pixels[..., :3])
-            continue
-        t0 = time.perf_counter()
-        img = render_reference(prep, spp=GT_CHUNK_SPP, seed=1_000_001 + k * 1_000_002, mis=True, progress=True).image
-        gt_time += time.perf_counter() - t0
-        write_exr(path, img)
-        chunks.append(img)
-    gt = np.mean(chunks, axis=0)
-    gt_half = np.mean(chunks[: n_chunks // 2], axis=0)
-    gt_spp = n_chunks * GT_CHUNK_SPP
+    # (warpbw.bench.ground_truth: by scene hash, seed and GT_VERSION, so raising --gt-spp only renders the missing
+    # ones and a chunk of an older estimator is never read)
+    from warpbw.bench import ground_truth
+
+    truth = ground_truth(prep, args.gt_spp, out, progress=True)
+    gt, gt_half, gt_spp, n_chunks, gt_time = truth.image, truth.half, truth.spp, truth.chunks, truth.render_time_s
     write_png(out / "ground_truth.png", gt)
     print(f"ground truth {gt_spp} spp ({n_chunks} chunks; {gt_time:.1f} s rendering the missing ones)")
     cov = render_reference(prep, spp=1, seed=0).coverage

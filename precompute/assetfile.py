@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import json
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from warpbw.errors import WarpbwError, check_input_file
+from warpbw.io.staged import staged_outputs
 
 HEADER_KEY = "__header__"
 
@@ -40,15 +42,9 @@ def write_asset(path, fmt: str, version: int, source: str, source_hash: str, arr
         raise WarpbwError(f"{p}: already exists (pass --force to overwrite it)")
     header = {"format": fmt, "version": int(version), "source": source, "source_hash": source_hash,
               "params": params or {}, "writer": f"warpbw {__version__}"}
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(p.name + ".tmp")
-    try:
-        with open(tmp, "wb") as f:
+    with staged_outputs([p]) as tmp:   # a temporary of its own, moved into place: never a cut-off or mixed file
+        with open(tmp[p], "wb") as f:
             np.savez_compressed(f, **{HEADER_KEY: np.array(json.dumps(header))}, **arrays)
-        tmp.replace(p)
-    except BaseException:
-        tmp.unlink(missing_ok=True)  # no stray OUT.tmp
-        raise
     return p
 
 
@@ -59,8 +55,8 @@ def read_asset(path, fmt: str, version: int, rebuild: str) -> Asset:
         with np.load(p, allow_pickle=False) as z:
             header = json.loads(str(z[HEADER_KEY]))
             arrays = {k: z[k] for k in z.files if k != HEADER_KEY}
-    except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError):
-        header = None  # EOFError: numpy's answer to a zero-byte file
+    except (zipfile.BadZipFile, zlib.error, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError):
+        header = None  # EOFError: numpy's answer to a zero-byte file; zlib.error: a damaged deflate stream
     if not isinstance(header, dict):  # also a JSON header that is not an object (a list, a string)
         raise WarpbwError(f"{p}: not a warpbw asset file (expected a {fmt} file written by "
                           f"warpbw-precompute; rebuild it with: {rebuild})")

@@ -128,8 +128,8 @@ def load_or_build(source, explicit, cache, prefix: str, version: int, read, buil
     try:
         d.mkdir(parents=True, exist_ok=True)
         write(path, table, source, force=True)
-    except OSError:
-        pass  # a read-only cache only costs the rebuild next time
+    except (OSError, WarpbwError):
+        pass  # a read-only or full cache, an entry's name taken by a folder: it only costs the rebuild next time
     return table, "built"
 
 

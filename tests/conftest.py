@@ -134,6 +134,25 @@ def exr_claiming_size(path, width: int, height: int) -> Path:
     return path
 
 
+def damage_deflate_stream(path, member: str) -> Path:
+    """Make the deflate stream of ``member`` (e.g. "density.npy") in the .npz ``path`` start with an invalid block
+    type (RFC 1951: bits 1-2 of the first byte, 11 is reserved), as a torn sector would: reading it raises
+    zlib.error before any CRC is checked.  The ZIP local header (PKWARE APPNOTE 4.3.7) is 30 bytes, then the
+    name and the extra field, whose lengths it holds at offsets 26 and 28."""
+    import struct
+    import zipfile
+
+    path = Path(path)
+    with zipfile.ZipFile(path) as z:
+        info = z.getinfo(member)
+    assert info.compress_type == zipfile.ZIP_DEFLATED, info
+    data = bytearray(path.read_bytes())
+    name_len, extra_len = struct.unpack_from("<HH", data, info.header_offset + 26)
+    data[info.header_offset + 30 + name_len + extra_len] |= 0b110
+    path.write_bytes(bytes(data))
+    return path
+
+
 def grid_mesh(n_u, n_v, fn):
     """Triangulated (n_u x n_v) vertex grid; fn(u, v) -> (N, 3) points; faces wound (dv x du)."""
     uu, vv = np.meshgrid(np.arange(n_u), np.arange(n_v), indexing="ij")

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import plane_scene_toml
+from conftest import damage_deflate_stream, plane_scene_toml
 
 from warpbw.errors import WarpbwError
 from warpbw.io.exr import write_exr
@@ -29,9 +29,10 @@ from warpbw.io.npf import NPF_FILE_SIZE
 EXIT_USER_ERROR = 2
 
 
-def run(args, cwd: Path, module: str = "warpbw.cli", timeout: float = 180.0) -> subprocess.CompletedProcess:
+def run(args, cwd: Path, module: str = "warpbw.cli", timeout: float = 180.0,
+        cache: str | None = None) -> subprocess.CompletedProcess:
     env = dict(os.environ)
-    env["WARPBW_CACHE"] = str(cwd / "_cache")  # never ~/.cache
+    env["WARPBW_CACHE"] = cache or str(cwd / "_cache")  # never ~/.cache
     env.pop("PYTHONWARNINGS", None)
     return subprocess.run([sys.executable, "-m", module, *map(str, args)], cwd=cwd, env=env,
                           stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=timeout)
@@ -1958,3 +1959,143 @@ def test_bench_scenes_help_says_a_merl_file_in_out_is_reused():
     """an existing OUT/MATERIAL.binary is used as a cache without a check; --help now says so."""
     r = run_example(["bench_scenes.py", "--help"], Path.cwd())
     assert r.returncode == 0 and "MATERIAL.binary already there is used as it is" in " ".join(r.stdout.split())
+
+
+# ------------------------------------------------------------------------------------------ caches and outputs
+# (session 50's audit of the on-disk caches and of output-file safety)
+
+def test_an_asset_with_a_damaged_deflate_stream_is_rebuilt_or_refused(tmp_path):
+    """A torn sector in a cached table's compressed data was a zlib.error traceback on every later render (only a
+    WarpbwError takes the cache's rebuild path), and so was the same damage in a file the scene names."""
+    from precompute.assetfile import read_asset
+    from warpbw.sampling import TABLE_FORMAT, TABLE_VERSION
+
+    _fake_npf_table(tmp_path / "npf.bin")
+    npf = 'type = "npf"\ntable = "npf.bin"\nname = "chrome"'
+    write_scene(tmp_path, material=npf)
+    assert run(["render", "scene.toml", "-o", "a.exr", "--spp", "1", "-q"], tmp_path).returncode == 0
+    (entry,) = (tmp_path / "_cache").glob("sampling-*.npz")
+    (tmp_path / "tables.npz").write_bytes(entry.read_bytes())
+    damage_deflate_stream(entry, "density.npy")
+    r = run(["render", "scene.toml", "-o", "b.exr", "--spp", "1", "-q"], tmp_path)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert read_asset(entry, TABLE_FORMAT, TABLE_VERSION, "rebuild").arrays["density"].size   # rebuilt
+    damage_deflate_stream(tmp_path / "tables.npz", "density.npy")
+    write_scene(tmp_path, material=npf + '\nsampling = "tables.npz"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "tables.npz", "not a warpbw asset file", "warpbw-precompute brdf-sampling")
+    assert_no_outputs(tmp_path)
+
+
+@pytest.fixture
+def read_only():
+    """Make a file or folder read-only for this process: mode 0444 (0555), and where that does not hold (root)
+    chattr +i, undone after the test; skips where neither can."""
+    made = []
+
+    def make(p: Path) -> Path:
+        p.chmod(0o555 if p.is_dir() else 0o444)
+        if os.access(p, os.W_OK):
+            r = subprocess.run(["chattr", "+i", str(p)], capture_output=True)
+            if r.returncode != 0:
+                pytest.skip(f"cannot make {p.name} read-only here (root, and chattr +i failed)")
+            made.append(p)
+        return p
+
+    yield make
+    for p in made:
+        subprocess.run(["chattr", "-i", str(p)], check=True)
+
+
+@pytest.mark.parametrize("command", ["render", "bench"])
+def test_a_read_only_output_is_refused_before_any_work_even_with_force(tmp_path, read_only, command):
+    """With --force, a read-only out.json was found only when it was written: render left the new image beside the
+    old record, bench lost its whole record.  Now refused up front; every earlier output is as it was."""
+    write_scene(tmp_path)
+    first = {"render": ["render", "scene.toml", "-o", "out.exr", "--spp", "1", "-q"],
+             "bench": ["bench", "scene.toml", "--json", "out.json", "--spp", "1", "--budgets", "1", "--gt-spp", "2",
+                       "--runs", "1", "-q"]}[command]
+    assert run(first, tmp_path).returncode == 0
+    before = {p.name: p.read_bytes() for p in tmp_path.glob("out.*")}
+    read_only(tmp_path / "out.json")
+    r = run(first + ["--force"], tmp_path)
+    assert_one_line_error(r, "out.json: cannot be overwritten", "make it writable")
+    assert {p.name: p.read_bytes() for p in tmp_path.glob("out.*")} == before
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_a_hard_link_to_an_input_is_never_an_output(tmp_path):
+    """The rule "never overwrite an input, even with --force" compared resolved paths only: -o a hard link to the
+    light probe rewrote the probe (status 0), and --error-map a hard link to the test image replaced it."""
+    write_exr(tmp_path / "probe.exr", np.ones((4, 8, 3), np.float32))
+    (tmp_path / "hard.exr").hardlink_to(tmp_path / "probe.exr")
+    probe = (tmp_path / "probe.exr").read_bytes()
+    write_scene(tmp_path, environment='file = "probe.exr"')
+    r = run(["render", "scene.toml", "-o", "hard.exr", "--spp", "1", "--force"], tmp_path)
+    assert_one_line_error(r, "-o hard.exr: would overwrite", "probe.exr, a file this command reads",
+                          "hard.exr is a link to it")
+    (tmp_path / "t_link.exr").hardlink_to(tmp_path / "probe.exr")
+    r = run(["compare", "probe.exr", "probe.exr", "--error-map", "t_link.exr", "--force"], tmp_path)
+    assert_one_line_error(r, "--error-map t_link.exr", "one of the images compared", "t_link.exr is a link to it")
+    assert (tmp_path / "probe.exr").read_bytes() == probe
+
+
+def test_a_write_that_fails_leaves_every_earlier_output(tmp_path, monkeypatch, capsys):
+    """A full disk while the PNG was written (after the EXR) left the new EXR, a 0-byte PNG and the old JSON: a
+    mixed set.  Now the outputs are written beside and moved into place together, so all stay as they were, the
+    message names out.png, and no temporary is left."""
+    from PIL import Image
+
+    from warpbw.cli import main as cli_main
+
+    write_scene(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "_cache"))
+    assert cli_main(["render", "scene.toml", "-o", "out.exr", "--spp", "1", "-q"]) == 0
+    before = {p.name: p.read_bytes() for p in tmp_path.glob("out.*")}
+    assert sorted(before) == ["out.exr", "out.json", "out.png"]
+
+    def full_disk(self, fp, *args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(Image.Image, "save", full_disk)
+    capsys.readouterr()
+    assert cli_main(["render", "scene.toml", "-o", "out.exr", "--spp", "4", "--force", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "out.png: cannot write PNG" in err and "No space left on device" in err and ".part" not in err, err
+    assert {p.name: p.read_bytes() for p in tmp_path.glob("out.*")} == before
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_bench_checks_its_default_ground_truth_cache_before_any_work(tmp_path):
+    """--cache was checked up front, the default $WARPBW_CACHE/ground_truth only when the first chunk was written,
+    after it was rendered, with a raw errno that did not say where the folder came from."""
+    write_scene(tmp_path)
+    (tmp_path / "afile").write_text("keep")
+    r = run(["bench", "scene.toml", "--json", "out.json"], tmp_path, cache="afile/sub")
+    assert_one_line_error(r, "afile is not a directory", "WARPBW_CACHE=afile/sub", "--cache DIR")
+    assert_no_outputs(tmp_path)
+
+
+def test_a_cache_that_cannot_be_written_costs_only_the_rebuild(tmp_path, read_only):
+    """The table caches (sampling, BRDF bandwidth, the probe's bandwidth) are an optimisation: a cache folder that
+    is read-only or lies under a file, or an entry's name taken by a folder (which aborted the render after the
+    build), must still render, and leave the cache as it was."""
+    _fake_npf_table(tmp_path / "npf.bin")
+    write_exr(tmp_path / "probe.exr", np.linspace(0.5, 2.0, 4 * 8 * 3, dtype=np.float32).reshape(4, 8, 3))
+    write_scene(tmp_path, environment='file = "probe.exr"', material='type = "npf"\ntable = "npf.bin"\nname = "chrome"')
+    (tmp_path / "afile").write_text("keep")
+    argv = ["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "1", "--force", "-q"]
+    assert run(argv, tmp_path).returncode == 0
+    entries = sorted(p.name for p in (tmp_path / "_cache").iterdir())
+    assert [e.split("-")[0] for e in entries] == ["bandwidth", "env", "sampling"], entries
+    for p in (tmp_path / "_cache").iterdir():   # every entry's name taken by a folder
+        p.unlink()
+        p.mkdir()
+    (tmp_path / "ro").mkdir()
+    read_only(tmp_path / "ro")
+    for cache in (None, str(tmp_path / "ro"), "afile/sub"):
+        r = run(argv, tmp_path, cache=cache)
+        assert r.returncode == 0 and not r.stderr.strip(), (cache, r.stderr)
+    assert all(p.is_dir() for p in (tmp_path / "_cache").iterdir()) and not list((tmp_path / "ro").iterdir())
+    assert (tmp_path / "afile").read_text() == "keep"

@@ -125,7 +125,7 @@ def test_bench_of_planes_beside_a_sphere_measures_the_visible_sphere(tmp_path):
     assert hidden.sum() > 3 and (sphere & ~hidden).sum() > 50
     assert rec["planes"]["pixels_hidden"] == int(hidden.sum())
     assert rec["pixels_covered"] == int(sphere.sum() - hidden.sum())
-    chunks = sorted((tmp_path / "gt").glob(f"ground_truth-{scene.content_hash()[:16]}-*.exr"))
+    chunks = sorted((tmp_path / "gt").glob(f"ground_truth-{bench.gt_key(scene, bench.GT_SEED)}-*.exr"))
     assert len(chunks) == 2
     gt = read_exr(chunks[0]).pixels[..., :3]
     assert np.all(gt[hidden] == 0) and np.all(gt[sphere & ~hidden].sum(-1) > 0)
@@ -319,6 +319,32 @@ def test_bench_figures_follow_closed_forms_with_fake_renderers(tmp_path, monkeyp
     # speed-ups 5.5x, 4x and 2x: the best is budget 1's
     assert rec["equal_quality_budget"] == 1.0 and math.isclose(rec["equal_quality_speedup"], 5.5, rel_tol=1e-4)
     assert rec["pixels_covered"] == int(cov.sum()) and rec["ground_truth_doubling_delta_db"] == 0.0
+
+
+def test_ground_truth_chunks_of_another_seed_or_version_are_never_read(tmp_path, monkeypatch):
+    """Chunks were cached under the scene's hash alone: another seed's chunks, an older estimator's (a chunk under
+    the old name, here a plain 1e3 image) and the current ones were all read as this ground truth, silently.  Now
+    the name holds the seed and GT_VERSION: each of those renders anew, and only the same seed and version hit."""
+    from warpbw.io.exr import write_exr
+    from warpbw.pipeline import prepare_scene
+    from warpbw.scene import parse_scene
+
+    scene = parse_scene(SCENE, tmp_path, "s.toml")
+    prep = prepare_scene(scene)
+    cache = tmp_path / "gt"
+    cache.mkdir()
+    for k in range(2):   # what the old naming (scene hash, chunk, spp) would have read
+        write_exr(cache / f"ground_truth-{scene.content_hash()[:16]}-chunk{k}-2spp.exr",
+                  np.full((24, 24, 3), 1e3, np.float32))
+    first = bench.ground_truth(prep, 4, cache, progress=False)
+    assert first.render_time_s > 0 and first.image.max() < 1e2
+    other_seed = bench.ground_truth(prep, 4, cache, seed=bench.GT_SEED + 1, progress=False)
+    assert other_seed.render_time_s > 0 and not np.array_equal(other_seed.image, first.image)
+    assert bench.ground_truth(prep, 4, cache, progress=False).render_time_s == 0   # the same seed and version hit
+    monkeypatch.setattr(bench, "GT_VERSION", bench.GT_VERSION + 1)                 # the estimator changed
+    newer = bench.ground_truth(prep, 4, cache, progress=False)
+    assert newer.render_time_s > 0 and newer.key != first.key
+    assert len(list(cache.glob("ground_truth-*.exr"))) == 2 + 3 * 2 and not list(cache.glob(".*"))
 
 
 @pytest.mark.parametrize("damage", ["one channel", "nan", "cut off", "other size"])

@@ -3,6 +3,7 @@
 Public:
     ``GT_CHUNK_SPP``, ``DEFAULT_SPP``, ``DEFAULT_BUDGETS``, ``DEFAULT_GT_SPP``, ``NB_SWEEP_BUDGET``, ``DOUBLING_DB``
     ``GroundTruth`` / ``ground_truth(prep, gt_spp, cache_dir, ...)``   cached, with the doubling check
+    ``GT_VERSION``, ``GT_SEED``, ``gt_key(scene, seed)``   the name of a scene's cached chunks
     ``equal_quality_time(ref_records, mse) -> (time_s, extrapolated)``   log-log interpolation
     ``psnr_standard_error(mses)``, ``paired_difference_se(mses_a, mses_b)``   noise of the PSNR figures (dB)
     ``speedup_relative_se(ref_records, mse, psnr_se_db)``   noise of an equal-quality speed-up (relative)
@@ -14,8 +15,9 @@ Public:
 
 Protocol:
 * Ground truth: the MIS reference at ``gt_spp``, the mean of independently seeded chunks of at most
-  ``GT_CHUNK_SPP`` each, every chunk cached as EXR keyed by the scene's content hash (so raising
-  ``gt_spp`` renders only the missing chunks).  Accepted when the PSNR of a render at the largest
+  ``GT_CHUNK_SPP`` each, every chunk cached as EXR keyed by the scene's content hash, the seed and
+  ``GT_VERSION`` (``gt_key``; so raising ``gt_spp`` renders only the missing chunks, and a chunk of another
+  scene, seed or estimator is never read).  Accepted when the PSNR of a render at the largest
   reference spp against half the ground truth and against all of it differ by < 0.5 dB (recorded).
 * Error: PSNR and relative MSE of linear radiance over covered pixels (:mod:`warpbw.metrics`), averaged
   over the ``runs`` frames (MSE and relative MSE as means, PSNR of the mean MSE).  With two runs or more
@@ -49,8 +51,8 @@ Protocol:
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
-import os
 import statistics
 import time
 from dataclasses import dataclass
@@ -59,11 +61,14 @@ from pathlib import Path
 import numpy as np
 
 from warpbw.errors import WarpbwError
+from warpbw.io.staged import staged_outputs
 
 GT_CHUNK_SPP = 4096                                   # spp per cached ground-truth chunk
 DEFAULT_SPP = (1, 2, 4, 8, 16, 32, 64, 128, 256)      # reference sweep
 DEFAULT_BUDGETS = (0.5, 1, 2, 4, 8, 16, 32)           # adaptive sweep, mean samples per covered pixel
 DEFAULT_GT_SPP = 8192
+GT_VERSION = 2   # of the cached ground-truth chunks: raise it whenever render_reference's estimator changes
+GT_SEED, GT_SEED_STEP = 1_000_001, 1_000_002          # ground-truth chunk k is seeded GT_SEED + k * GT_SEED_STEP
 DOUBLING_DB = 0.5                                     # ../shared/DESIGN.md: doubling GT spp moves PSNR < 0.5 dB
 NB_SWEEP_BUDGET = 8                                   # budget of the n_b sweep unless given
 DB_PER_LN = 10.0 / math.log(10.0)                     # d(10 log10 m) = DB_PER_LN dm / m
@@ -80,7 +85,7 @@ class GroundTruth:
     key: str
 
 
-def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = 1_000_001, progress: bool = True,
+def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = GT_SEED, progress: bool = True,
                  clip_distance=None, scene=None) -> GroundTruth:
     """MIS reference at ``gt_spp`` as the mean of cached chunks (at least two, for the doubling check),
     clipped at ``clip_distance`` (``render_reference``'s) and cached under ``scene``'s hash (default: the
@@ -90,7 +95,7 @@ def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = 1_000_001, prog
 
     chunk = min(GT_CHUNK_SPP, max(1, gt_spp // 2))
     n = max(2, gt_spp // chunk)
-    key = (scene if scene is not None else prep.scene).content_hash()[:16]
+    key = gt_key(scene if scene is not None else prep.scene, seed)
     cache_dir.mkdir(parents=True, exist_ok=True)
     imgs, t_gt = [], 0.0
     for k in range(n):
@@ -100,15 +105,20 @@ def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = 1_000_001, prog
             imgs.append(img)
             continue
         t0 = time.perf_counter()
-        img = render_reference(prep, spp=chunk, seed=seed + k * 1_000_002, mis=True, progress=progress,
+        img = render_reference(prep, spp=chunk, seed=seed + k * GT_SEED_STEP, mis=True, progress=progress,
                                clip_distance=clip_distance).image
         t_gt += time.perf_counter() - t0
-        # written beside it and moved into place: an interrupted run leaves no cut-off chunk
-        part = path.with_name(f"{path.stem}.part{os.getpid()}.exr")
-        write_exr(part, img)
-        os.replace(part, path)
+        with staged_outputs([path]) as tmp:   # an interrupted run leaves no cut-off chunk
+            write_exr(tmp[path], img)
         imgs.append(img)
     return GroundTruth(np.mean(imgs, axis=0), np.mean(imgs[: n // 2], axis=0), n * chunk, n, t_gt, key)
+
+
+def gt_key(scene, seed: int) -> str:
+    """The name under which a scene's ground-truth chunks are cached: its content hash, the first chunk's seed
+    and GT_VERSION (so that chunks of another estimator or seed are never read as this one's)."""
+    h = hashlib.blake2b(f"{scene.content_hash()}|seed {seed}|gt v{GT_VERSION}".encode(), digest_size=8)
+    return f"v{GT_VERSION}-{h.hexdigest()}"
 
 
 def _cached_chunk(path: Path, height: int, width: int) -> np.ndarray | None:
@@ -306,7 +316,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     best = max(valid, key=lambda r: r["equal_quality_speedup"]) if valid else None
     record = {
         "scene": str(scene.source),
-        "scene_hash": gt.key,
+        "scene_hash": scene.content_hash()[:16],
+        "ground_truth_key": gt.key,
         "resolution": [prep.width, prep.height],
         "pixels_covered": int(cov.sum()) if cov is not None else 0,
         "materials": {n: prep.scene.materials[n].type for n in prep.scene.material_order},

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -19,6 +20,7 @@ from pathlib import Path
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
                                json_text, parse_seed, run_command, write_json)
 from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError
+from warpbw.io.staged import staged_outputs
 
 DEFAULT_SPP = 64
 DEMO_SPP = 64
@@ -73,16 +75,17 @@ def _outputs(out: Path) -> dict:
     return {"exr": out, "png": out.with_suffix(".png"), "json": out.with_suffix(".json")}
 
 
-def _write_render(res, outs: dict, exposure: float, source: str):
+def _write_render(res, outs: dict, exposure: float, at: dict):
+    """The image as EXR (RGB + coverage as A), its PNG preview and its stats as JSON, each written to ``at[path]``
+    (``staged_outputs``' temporaries)."""
     import numpy as np
 
     from warpbw.io.exr import write_exr, write_png
 
-    outs["exr"].parent.mkdir(parents=True, exist_ok=True)
     rgba = np.concatenate([res.image, res.coverage[..., None].astype(np.float32)], axis=-1)
-    write_exr(outs["exr"], rgba, channels=["R", "G", "B", "A"])
-    write_png(outs["png"], res.image, exposure=exposure)
-    outs["json"].write_text(json_text(res.stats, default=str))
+    write_exr(at[outs["exr"]], rgba, channels=["R", "G", "B", "A"])
+    write_png(at[outs["png"]], res.image, exposure=exposure)
+    at[outs["json"]].write_text(json_text(res.stats, default=str))
 
 
 # AOVs of the adaptive method (002 Fig. 1d / 18): name -> (what it is, false-colour scale)
@@ -99,7 +102,7 @@ def _aov_paths(out: Path) -> dict:
     return {name: (out.with_suffix(f".{name}.exr"), out.with_suffix(f".{name}.png")) for name in AOVS}
 
 
-def _write_aovs(res, out: Path) -> None:
+def _write_aovs(res, out: Path, at: dict) -> None:
     import numpy as np
 
     from warpbw.io.exr import write_exr, write_false_colour_png
@@ -107,10 +110,10 @@ def _write_aovs(res, out: Path) -> None:
     cov = res.coverage
     for name, (exr, png) in _aov_paths(out).items():
         v = np.asarray(res.aovs[name], dtype=np.float32)
-        write_exr(exr, v, channels=["Y"])
+        write_exr(at[exr], v, channels=["Y"])
         log = AOVS[name][1] == "log"
         shown = cov & (v > 0) if log else cov
-        write_false_colour_png(png, v, mask=shown, log=log)
+        write_false_colour_png(at[png], v, mask=shown, log=log)
 
 
 def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, exposure: float, force: bool,
@@ -131,10 +134,11 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
         res = render_reference(scene, spp=spp, seed=seed, mis=mis, device=device, progress=not quiet,
                                threads=threads)
     res.stats["time_s"]["total"] = round(time.perf_counter() - t0, 6)
-    _write_render(res, outs, exposure, scene.source)
+    with staged_outputs(paths) as at:   # all of them, or none: an error leaves the old set
+        _write_render(res, outs, exposure, at)
+        if adaptive:
+            _write_aovs(res, out, at)
     _warn_if_empty(res.stats)
-    if adaptive:
-        _write_aovs(res, out)
     _warn_samples(res.stats, budget)
     if not quiet:
         t = res.stats["time_s"]
@@ -205,14 +209,15 @@ def _render_filtering_cli(scene, args) -> int:
     res = render_filtering(scene, method, spp=args.spp, seed=args.seed, device=args.device,
                            progress=not args.quiet, threads=args.threads, env_spp=args.spp, **aniso)
     res.stats["time_s"] = {"frame": round(res.time_s, 6), "total": round(time.perf_counter() - t0, 6)}
-    _write_render(res, outs, args.exposure, scene.source)
-    _warn_if_empty(res.stats)
     import numpy as np
 
     from warpbw.io.exr import write_exr, write_false_colour_png
 
-    write_exr(level_paths[0], res.level.astype(np.float32), channels=["Y"])
-    write_false_colour_png(level_paths[1], res.level, mask=res.coverage)
+    with staged_outputs(list(outs.values()) + level_paths) as at:
+        _write_render(res, outs, args.exposure, at)
+        write_exr(at[level_paths[0]], res.level.astype(np.float32), channels=["Y"])
+        write_false_colour_png(at[level_paths[1]], res.level, mask=res.coverage)
+    _warn_if_empty(res.stats)
     if not args.quiet:
         w, h = res.stats["resolution"]
         extra = f", {args.spp} rays/pixel" if method == "ground_truth" else \
@@ -240,21 +245,23 @@ def _render_mixed_cli(scene, args) -> int:
     outs = _outputs(out)
     mip_paths = [out.with_suffix(".mip_level.exr"), out.with_suffix(".mip_level.png")]
     aov_paths = [p for pair in _aov_paths(out).values() for p in pair] if adaptive else []
-    check_overwrite(list(outs.values()) + aov_paths + mip_paths, args.force, inputs=scene.input_files())
+    paths = list(outs.values()) + aov_paths + mip_paths
+    check_overwrite(paths, args.force, inputs=scene.input_files())
     init_warp(args.device)
     t0 = time.perf_counter()
     res = render_with_planes(scene, method, args.spp, seed=args.seed, method=args.method, budget=args.budget,
                              mis=args.mis, n_b=args.nb, device=args.device, progress=not args.quiet,
                              threads=args.threads, max_anisotropy=args.max_anisotropy, **_adaptive_options(args))
     res.stats["time_s"]["total"] = round(time.perf_counter() - t0, 6)
-    _write_render(res, outs, args.exposure, scene.source)
+    with staged_outputs(paths) as at:
+        _write_render(res, outs, args.exposure, at)
+        if adaptive:
+            _write_aovs(res, out, at)
+        level = res.aovs["mip_level"]
+        write_exr(at[mip_paths[0]], level.astype(np.float32), channels=["Y"])
+        write_false_colour_png(at[mip_paths[1]], level, mask=res.aovs["plane"])
     _warn_if_empty(res.stats)
     _warn_samples(res.stats, args.budget)
-    if adaptive:
-        _write_aovs(res, out)
-    level = res.aovs["mip_level"]
-    write_exr(mip_paths[0], level.astype(np.float32), channels=["Y"])
-    write_false_colour_png(mip_paths[1], level, mask=res.aovs["plane"])
     if not args.quiet:
         t = res.stats["time_s"]
         w, h = res.stats["resolution"]
@@ -417,7 +424,8 @@ def cmd_compare(args) -> int:
             raise WarpbwError(f"{name}: {bad} non-finite values over covered pixels")
     r = compare_images(ta, tb, mask)
     if maps:
-        lo, hi = _write_error_map(maps, relmse_map(ta, tb, mask), mask, args.error_range)
+        with staged_outputs(maps) as at:
+            lo, hi = _write_error_map([at[m] for m in maps], relmse_map(ta, tb, mask), mask, args.error_range)
         r.update(error_map=str(maps[0]), error_range=[lo, hi])
     p = r["psnr_db"]
     why = None if math.isfinite(p) else _PSNR_IDENTICAL if p > 0 else _PSNR_UNDEFINED
@@ -467,7 +475,6 @@ def _write_error_map(paths: list, err, mask, error_range) -> tuple:
 
     from warpbw.io.exr import write_exr, write_false_colour_png
 
-    paths[0].parent.mkdir(parents=True, exist_ok=True)
     write_exr(paths[0], np.stack([err, mask], -1).astype(np.float32), channels=["Y", "A"])
     if error_range is None:
         shown = err[mask & (err > 0)]
@@ -525,10 +532,12 @@ def _number_list(name, kind, hi=None):
 PROTOCOL_RUNS = 3   # DESIGN.md, measurement protocol: the median of at least 3 timed runs
 
 
-def _bench_outputs(args, scene) -> None:
+def _bench_outputs(args, scene, default_cache: Path | None = None) -> None:
     """Validate --json / --plot of a bench command and refuse to overwrite them without --force (or to overwrite one
     of the scene's files at all).  Every benchmark writes both (DESIGN.md, measurement protocol): the one not
-    given goes beside the other, with its suffix."""
+    given goes beside the other, with its suffix.  The cache folder the command will write (--cache, else
+    ``default_cache`` where the command has one) is checked too: a ground-truth chunk once failed to be written
+    after it was rendered."""
     if not (args.json or args.plot):
         raise WarpbwError("give --json OUT.json and/or --plot OUT.png (where to write the results)")
     if args.json and Path(args.json).suffix.lower() != ".json":
@@ -542,14 +551,23 @@ def _bench_outputs(args, scene) -> None:
         check_output_file(path, option, force=True)
     if args.cache:
         check_output_dir(args.cache, "--cache")
+    elif default_cache is not None:
+        env = os.environ.get("WARPBW_CACHE")
+        try:
+            check_output_dir(default_cache, "the ground-truth cache")
+        except WarpbwError as exc:
+            raise WarpbwError(f"{exc} ({f'WARPBW_CACHE={env}' if env else 'the default cache'}; pass --cache DIR to "
+                              "cache the ground truth elsewhere)") from None
     check_overwrite(outs, args.force, inputs=scene.input_files())
 
 
 def _write_bench(args, record: dict, write_plot) -> None:
-    """The bench record as JSON and its plot as PNG (both: ``_bench_outputs`` names them)."""
-    write_json(args.json, record, say=False)
-    Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
-    write_plot(record, args.plot)
+    """The bench record as JSON and its plot as PNG (both: ``_bench_outputs`` names them), both or neither: a plot
+    that fails leaves an earlier record as it was."""
+    json_path, plot_path = Path(args.json), Path(args.plot)
+    with staged_outputs([json_path, plot_path]) as at:
+        write_json(at[json_path], record, say=False)
+        write_plot(record, at[plot_path])
     if not args.quiet:
         print(f"record {args.json}, plot {args.plot}")
     if args.runs < PROTOCOL_RUNS:
@@ -564,8 +582,10 @@ def cmd_bench(args) -> int:
     if args.nb_budget is not None and not args.nb:
         raise WarpbwError("--nb-budget: the budget of the n_b sweep, which only --nb asks for "
                           "(e.g. --nb 16,64,256,1024)")
+    from precompute.brdf_sampling import cache_dir
+
     scene = load_scene(args.scene)
-    _bench_outputs(args, scene)
+    _bench_outputs(args, scene, default_cache=cache_dir() / "ground_truth")
     if scene.has_planes and not scene.has_surfaces:
         raise WarpbwError(f"{scene.source}: a scene with planes is benchmarked by 'warpbw bench-filtering'")
     if scene.environment is None:

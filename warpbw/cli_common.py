@@ -20,6 +20,7 @@ import warnings
 from pathlib import Path
 
 from warpbw.errors import SEED_MAX, WarpbwError, check_device
+from warpbw.io.staged import staged_outputs
 
 EXIT_USER_ERROR = 2
 EXIT_BROKEN_PIPE = 128 + 13   # killed by SIGPIPE, as a shell reports it for other commands
@@ -72,6 +73,13 @@ def check_output_file(path, option: str, force: bool) -> None:
     _check_parents(p, option)
     if p.exists() and not force:
         raise WarpbwError(f"{p}: already exists (pass --force to overwrite it)")
+    if p.exists():   # a read-only file (chmod a-w, chattr +i) is the user's "keep this": say so before any work
+        try:
+            with open(p, "ab"):   # append mode: opened for writing, not one byte changed
+                pass
+        except OSError as exc:
+            raise WarpbwError(f"{option} {p}: cannot be overwritten ({exc.strerror or exc}; make it writable, or "
+                              "write elsewhere)") from None
 
 
 def check_output_dir(path, option: str) -> None:
@@ -151,14 +159,26 @@ def init_warp(device: str):
     return wp
 
 
+def _same_file(a: Path, b: Path) -> bool:
+    """``a`` and ``b`` name one file: the same path once links are resolved, or one inode (a hard link)."""
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:   # either is missing: not one file
+        return False
+
+
 def check_overwrite(paths, force: bool, option: str = "-o", inputs=(), inputs_are: str = "a file this command reads"):
     """Refuse, before any work, output files that cannot be written or exist without --force, and, whatever --force
     says, an output that is one of ``inputs`` (the scene, its probe, a BRDF file, ...: ``--force`` would have
     replaced a light probe by the render of it)."""
-    read = {Path(f).resolve() for f in inputs}
+    read = [Path(f) for f in inputs]
     for p in paths:  # a directory, or a path under a file, fails whatever --force says
-        if Path(p).resolve() in read:
-            raise WarpbwError(f"{option} {paths[0]}: would overwrite {p}, {inputs_are}")
+        f = next((f for f in read if _same_file(Path(p), f)), None)
+        if f is not None:
+            how = "" if os.path.normpath(p) == os.path.normpath(f) else f" ({p} is a link to it)"
+            raise WarpbwError(f"{option} {paths[0]}: would overwrite {f}, {inputs_are}{how}")
         check_output_file(p, option, force=True)
     if force:
         return
@@ -184,8 +204,8 @@ def json_text(record: dict, **kw) -> str:
 def write_json(path, record: dict, say: bool = True) -> Path:
     """Write ``record`` to ``path`` as :func:`json_text` (its folder made if needed); with ``say``, print where."""
     p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    p.write_text(json_text(record))
+    with staged_outputs([p]) as at:   # whole or not at all (a full disk leaves the old record)
+        at[p].write_text(json_text(record))
     if say:
         print(f"wrote {p}")
     return p

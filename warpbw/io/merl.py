@@ -19,8 +19,6 @@ in ``../shared/data/README.md``. Directions point away from the surface, +Z is t
 """
 from __future__ import annotations
 
-import os
-import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from warpbw.errors import BRDF_VALUE_MAX, WarpbwError, check_direction_pairs, check_input_file
+from warpbw.io.staged import staged_outputs
 
 # Table resolution of the MERL database (BRDFRead.cpp: BRDF_SAMPLING_RES_THETA_H = 90,
 # BRDF_SAMPLING_RES_THETA_D = 90, BRDF_SAMPLING_RES_PHI_D = 360 of which 180 are stored).
@@ -283,22 +282,10 @@ def write_merl(path, data, force: bool = False) -> Path:
     scale = np.asarray(MERL_SCALE, dtype=np.float64)
     values = np.ascontiguousarray(np.moveaxis(arr / scale, -1, 0), dtype="<f8")
     header = np.asarray([MERL_THETA_H_RES, MERL_THETA_D_RES, MERL_PHI_D_RES], dtype="<i4")
-    tmp_name = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp_name = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-        # mkstemp creates the file 0600; give the result the mode any new file gets (0666 less the umask)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp_name, 0o666 & ~umask)
-        with os.fdopen(fd, "wb") as fh:
+    with staged_outputs([path]) as tmp:   # appears whole (temporary + rename)
+        with open(tmp[path], "wb") as fh:
             fh.write(header.tobytes())
             fh.write(values.tobytes())
-        os.replace(tmp_name, path)
-    except OSError as exc:
-        if tmp_name and os.path.exists(tmp_name):
-            os.unlink(tmp_name)
-        raise WarpbwError(f"{path}: cannot write MERL file ({exc.strerror or exc})") from None
     return path
 
 

@@ -1,0 +1,128 @@
+"""Outputs that appear whole or not at all (``warpbw.io.staged``), and the writers built on it.
+
+Truth here is the file system's: bytes before and after, inode links, modes, and what a planted link points at.
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from warpbw.errors import WarpbwError
+from warpbw.io.staged import staged_outputs
+
+
+def _leftovers(d) -> list:
+    """Hidden temporaries left in ``d``."""
+    return sorted(p.name for p in d.iterdir() if p.name.startswith("."))
+
+
+def test_a_failure_in_the_block_leaves_every_output_as_it_was(tmp_path):
+    """Two outputs, the second writer fails: neither output changes, no temporary stays, and the message names
+    the output, not the temporary."""
+    a, b = tmp_path / "out.exr", tmp_path / "out.json"
+    a.write_bytes(b"old image")
+    b.write_text("old record")
+    with pytest.raises(WarpbwError) as e:
+        with staged_outputs([a, b]) as at:
+            at[a].write_bytes(b"new image")
+            raise WarpbwError(f"{at[b]}: cannot write PNG (No space left on device)")
+    assert str(e.value) == f"{b}: cannot write PNG (No space left on device)"
+    assert a.read_bytes() == b"old image" and b.read_text() == "old record"
+    assert _leftovers(tmp_path) == []
+
+
+def test_an_os_error_names_the_output(tmp_path):
+    out = tmp_path / "sub" / "out.png"
+    with pytest.raises(WarpbwError, match=r"out\.png: cannot write \(No space left on device\)$") as e:
+        with staged_outputs([out]) as at:
+            raise OSError(28, "No space left on device", str(at[out]))
+    assert ".part" not in str(e.value) and not out.exists() and _leftovers(out.parent) == []
+
+
+def test_all_outputs_appear_together_with_the_mode_of_a_new_file(tmp_path):
+    outs = [tmp_path / "a.exr", tmp_path / "deeper" / "b.png"]
+    with staged_outputs(outs) as at:
+        for p in outs:
+            assert at[p].parent == p.parent and at[p].suffix == p.suffix   # writers that go by the suffix
+            at[p].write_text(p.name)
+        assert not any(p.exists() for p in outs)                            # nothing until the block ends
+    assert [p.read_text() for p in outs] == ["a.exr", "b.png"]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert all((p.stat().st_mode & 0o777) == (0o666 & ~umask) for p in outs)   # mkstemp alone gives 0600
+
+
+def test_an_existing_output_is_replaced_not_written_through(tmp_path):
+    """A hard link to the output and a symlink at its place keep the file they pointed at."""
+    probe = tmp_path / "probe.exr"
+    probe.write_bytes(b"the light probe")
+    (tmp_path / "hard.exr").hardlink_to(probe)
+    (tmp_path / "soft.exr").symlink_to(probe)
+    for name in ("hard.exr", "soft.exr"):
+        out = tmp_path / name
+        with staged_outputs([out]) as at:
+            at[out].write_bytes(b"a render")
+        assert out.read_bytes() == b"a render" and not out.is_symlink()
+    assert probe.read_bytes() == b"the light probe"
+
+
+def test_two_writers_of_one_output_get_temporaries_of_their_own(tmp_path):
+    out = tmp_path / "same.npz"
+    with staged_outputs([out]) as first, staged_outputs([out]) as second:
+        assert first[out] != second[out]
+        first[out].write_text("chrome")
+        second[out].write_text("gold")
+    assert out.read_text() == "chrome" and _leftovers(tmp_path) == []   # the last to finish wins, whole
+
+
+def test_write_asset_does_not_follow_a_link_planted_at_a_temporary_name(tmp_path):
+    """write_asset wrote OUT.tmp, a fixed name opened without O_EXCL: a link planted there (a shared
+    WARPBW_CACHE) had a plain render overwrite the file it pointed at, outside the cache."""
+    from precompute.assetfile import read_asset, write_asset
+
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me")
+    out = tmp_path / "cache" / "sampling-key-v2.npz"
+    out.parent.mkdir()
+    (out.parent / f"{out.name}.tmp").symlink_to(victim)
+    write_asset(out, "fmt", 1, "src", "hash", {"a": np.arange(3.0)})
+    assert victim.read_text() == "keep me"
+    assert np.array_equal(read_asset(out, "fmt", 1, "rebuild").arrays["a"], np.arange(3.0))
+
+
+def test_write_merl_leaves_the_old_file_when_it_fails(tmp_path, monkeypatch):
+    """write_merl: a failed write (a full disk) leaves the existing file as it was and no temporary."""
+    from warpbw.io import merl
+
+    out = tmp_path / "m.binary"
+    out.write_bytes(b"an earlier MERL file")
+
+    class FullDisk:
+        def __init__(self, path, mode):
+            self.f = open(path, mode)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.f.close()
+
+        def write(self, data):
+            self.f.write(data[: len(data) // 2])
+            raise OSError(28, "No space left on device", self.f.name)
+
+    monkeypatch.setattr(merl, "open", FullDisk, raising=False)
+    with pytest.raises(WarpbwError, match=r"m\.binary: cannot write \(No space left on device\)"):
+        merl.write_merl(out, np.zeros(merl.MERL_SHAPE), force=True)
+    assert out.read_bytes() == b"an earlier MERL file" and _leftovers(tmp_path) == []
+
+
+def test_an_output_that_cannot_be_made_is_named(tmp_path):
+    """A folder under a file: the message names the output (not a random temporary) and nothing is left."""
+    (tmp_path / "afile").write_text("keep")
+    with pytest.raises(WarpbwError, match=r"afile/sub/out\.exr: cannot write \(Not a directory\)"):
+        with staged_outputs([tmp_path / "ok.png", tmp_path / "afile" / "sub" / "out.exr"]):
+            pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
