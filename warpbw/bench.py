@@ -3,7 +3,7 @@
 Public:
     ``GT_CHUNK_SPP``, ``DEFAULT_SPP``, ``DEFAULT_BUDGETS``, ``DEFAULT_GT_SPP``, ``NB_SWEEP_BUDGET``, ``DOUBLING_DB``
     ``GroundTruth`` / ``ground_truth(prep, gt_spp, cache_dir, ...)``   cached, with the doubling check
-    ``GT_VERSION``, ``GT_SEED``, ``gt_key(scene, seed)``   the name of a scene's cached chunks
+    ``GT_VERSION``, ``GT_SEED``, ``gt_key(scene, seed)``, ``gt_cache_dir()``   where a scene's chunks are cached
     ``equal_quality_time(ref_records, mse) -> (time_s, extrapolated)``   log-log interpolation
     ``psnr_standard_error(mses)``, ``paired_difference_se(mses_a, mses_b)``   noise of the PSNR figures (dB)
     ``speedup_relative_se(ref_records, mse, psnr_se_db)``   noise of an equal-quality speed-up (relative)
@@ -112,6 +112,13 @@ def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = GT_SEED, progre
             write_exr(tmp[path], img)
         imgs.append(img)
     return GroundTruth(np.mean(imgs, axis=0), np.mean(imgs[: n // 2], axis=0), n * chunk, n, t_gt, key)
+
+
+def gt_cache_dir() -> Path:
+    """Where ground-truth chunks are cached unless a folder is given: ``$WARPBW_CACHE/ground_truth``."""
+    from precompute.brdf_sampling import cache_dir
+
+    return cache_dir() / "ground_truth"
 
 
 def gt_key(scene, seed: int) -> str:
@@ -232,7 +239,6 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     """Run the protocol on one scene and return the JSON record (see the module docstring; a scene with planes
     beside spheres or meshes benches the spheres and meshes the planes leave visible).
     ``adaptive_options`` go to every ``render_adaptive`` call (e.g. ``allocation``, ``nyquist``)."""
-    from precompute.brdf_sampling import cache_dir as default_cache
     from warpbw import pipeline
 
     if runs < 1:
@@ -248,7 +254,7 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
         clip = plane_distance(planes, device)
     render_reference = functools.partial(pipeline.render_reference, clip_distance=clip)
     render_adaptive = functools.partial(pipeline.render_adaptive, clip_distance=clip)
-    cache_dir = Path(cache_dir) if cache_dir is not None else default_cache() / "ground_truth"
+    cache_dir = Path(cache_dir) if cache_dir is not None else gt_cache_dir()
     t0 = time.perf_counter()
     prep = pipeline.prepare_scene(surfaces, device=device, progress=progress)
     # warm-up frames: compile every kernel variant and build the bandwidth tables

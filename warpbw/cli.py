@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
-                               json_text, parse_seed, run_command, write_json)
+                               json_text, parse_seed, run_command)
 from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError
 from warpbw.io.staged import staged_outputs
 
@@ -566,7 +566,7 @@ def _write_bench(args, record: dict, write_plot) -> None:
     that fails leaves an earlier record as it was."""
     json_path, plot_path = Path(args.json), Path(args.plot)
     with staged_outputs([json_path, plot_path]) as at:
-        write_json(at[json_path], record, say=False)
+        at[json_path].write_text(json_text(record))
         write_plot(record, at[plot_path])
     if not args.quiet:
         print(f"record {args.json}, plot {args.plot}")
@@ -582,10 +582,8 @@ def cmd_bench(args) -> int:
     if args.nb_budget is not None and not args.nb:
         raise WarpbwError("--nb-budget: the budget of the n_b sweep, which only --nb asks for "
                           "(e.g. --nb 16,64,256,1024)")
-    from precompute.brdf_sampling import cache_dir
-
     scene = load_scene(args.scene)
-    _bench_outputs(args, scene, default_cache=cache_dir() / "ground_truth")
+    _bench_outputs(args, scene, default_cache=bench.gt_cache_dir())
     if scene.has_planes and not scene.has_surfaces:
         raise WarpbwError(f"{scene.source}: a scene with planes is benchmarked by 'warpbw bench-filtering'")
     if scene.environment is None:
