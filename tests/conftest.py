@@ -153,6 +153,27 @@ def damage_deflate_stream(path, member: str) -> Path:
     return path
 
 
+def check_colour_scale(exr_path, scale: dict, mask, log: bool) -> None:
+    """A false-colour map's recorded scale (``colour_scales`` in a render's JSON) against its EXR: from the
+    smallest to the largest value shown (over ``mask``; positive values only on a log scale), and the PNG beside
+    the EXR says the same in its Description text chunk."""
+    from PIL import Image
+
+    from warpbw.io.exr import read_exr
+
+    exr_path = Path(exr_path)
+    v = read_exr(exr_path).pixels[..., 0]
+    shown = v[np.asarray(mask, bool) & (v > 0)] if log else v[np.asarray(mask, bool)]
+    assert shown.size, exr_path
+    png = exr_path.with_suffix(".png")
+    assert scale["png"] == png.name and scale["scale"] == ("log" if log else "linear")
+    assert scale["from"] == pytest.approx(float(shown.min()), rel=1e-6)
+    assert scale["to"] == pytest.approx(float(shown.max()), rel=1e-6)
+    text = Image.open(png).text["Description"]
+    assert ("log10" if log else "linear") in text, text
+    assert f"from {scale['from']:.6g} (dark blue) to {scale['to']:.6g} (yellow)" in text, text
+
+
 def grid_mesh(n_u, n_v, fn):
     """Triangulated (n_u x n_v) vertex grid; fn(u, v) -> (N, 3) points; faces wound (dv x du)."""
     uu, vv = np.meshgrid(np.arange(n_u), np.arange(n_v), indexing="ij")

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import numpy_camera_rays, numpy_sphere_distance, numpy_square_distance
+from conftest import check_colour_scale, numpy_camera_rays, numpy_sphere_distance, numpy_square_distance
 from warpbw.bench_filtering import FLICKER_STEP, colour_error, flicker, temporal_error
 from warpbw.cli import main
 from warpbw.io.exr import read_exr, write_exr
@@ -230,6 +230,8 @@ def test_render_routes_plane_scenes_to_the_filtering_renderer(plane_scene, capsy
     assert cov.any() and np.all(np.isfinite(img.pixels)) and np.all(img.pixels[~cov, :3] == 0)
     assert json.loads((d / "o.json").read_text())["method"] == "lean"
     assert (d / "o.level.exr").exists() and (d / "o.level.png").exists()
+    check_colour_scale(d / "o.level.exr", json.loads((d / "o.json").read_text())["colour_scales"]["level"], cov,
+                       log=False)
     # the default filter is the aligned GMM; the ground truth takes --spp rays per pixel
     assert main(["render", str(plane_scene), "-o", str(d / "g.exr"), "-q"]) == 0
     assert json.loads((d / "g.json").read_text())["method"] == "gmm_aligned"

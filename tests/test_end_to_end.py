@@ -22,8 +22,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from PIL import Image
 
-from conftest import MIXED_SCENE, numpy_camera_rays, numpy_sphere_distance, numpy_square_distance
+from conftest import MIXED_SCENE, check_colour_scale, numpy_camera_rays, numpy_sphere_distance, numpy_square_distance
 from warpbw.io.exr import read_exr, write_exr
 from warpbw.io.merl import MERL_FILE_SIZE
 
@@ -399,6 +400,9 @@ def test_render_adaptive_writes_aovs_and_caches_tables(work, npf_scene):
     stats = json.loads(out.with_suffix(".json").read_text())
     assert stats["method"] == "adaptive" and "bandwidth_pass" in stats["stages"]
     assert stats["samples"] >= stats["pixels_shaded"] >= 1
+    # each false-colour PNG's scale, in the JSON and in the PNG itself, is its EXR's range over the pixels shown
+    for name, log in (("level", False), ("n_p", True), ("variance", True), ("shaded", False), ("b_p", True)):
+        check_colour_scale(out.with_suffix(f".{name}.exr"), stats["colour_scales"][name], covered, log)
     assert {"gbuffer", "bandwidth", "shading", "upsampling", "frame"} <= set(stats["time_s"])
     assert sum(lv["shaded"] for lv in stats["levels"]) == stats["pixels_shaded"]
     assert stats["assets"]["material.m"]["bandwidth"] == "built"
@@ -620,6 +624,11 @@ def test_render_and_info_of_a_scene_with_planes_beside_a_sphere(tmp_path):
     for name in ("level", "n_p", "variance", "shaded", "b_p"):
         assert out.with_suffix(f".{name}.exr").exists() and out.with_suffix(f".{name}.png").exists()
     assert out.with_suffix(".mip_level.png").stat().st_size > 0
+    # both renderers' false-colour maps carry their scales (their ranges are checked in the single-renderer tests)
+    scales = stats["colour_scales"]
+    assert set(scales) == {"level", "n_p", "variance", "shaded", "b_p", "mip_level"}
+    text = Image.open(out.with_suffix(".mip_level.png")).text["Description"]
+    assert f"from {scales['mip_level']['from']:.6g} (dark blue) to {scales['mip_level']['to']:.6g}" in text
     before = out.read_bytes()
     r = run(args, tmp_path, check=False)
     assert r.returncode == 2 and "--force" in r.stderr and out.read_bytes() == before

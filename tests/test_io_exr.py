@@ -184,6 +184,10 @@ def test_false_colour_png(tmp_path):
     assert np.all(np.abs(img[0, 0] - viridis_lo) <= 1) and np.all(np.abs(img[0, 2] - viridis_hi) <= 1)
     # 0.1 lies halfway in log10 between 0.01 and 1 (a linear map would put it at 0.09): viridis(0.5)
     assert np.all(np.abs(img[0, 1] - viridis_mid) <= 2), img[0, 1]
+    # each PNG says its own scale, so that the picture can be read without the command's output
+    assert Image.open(tmp_path / "log.png").text["Description"] == \
+        "viridis colour scale, log10, from 0.01 (dark blue) to 1 (yellow); black: not shown"
+    assert "linear, from 2 (dark blue) to 8 (yellow)" in Image.open(tmp_path / "fc.png").text["Description"]
 
 
 

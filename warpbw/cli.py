@@ -102,18 +102,30 @@ def _aov_paths(out: Path) -> dict:
     return {name: (out.with_suffix(f".{name}.exr"), out.with_suffix(f".{name}.png")) for name in AOVS}
 
 
-def _write_aovs(res, out: Path, at: dict) -> None:
+def _write_map(at: dict, exr: Path, png: Path, values, mask, log: bool = False) -> dict:
+    """A per-pixel map as EXR (Y) and false-colour PNG, each written to ``at[path]``; returns the PNG's colour
+    scale as the stats JSON records it (``colour_scales``)."""
     import numpy as np
 
     from warpbw.io.exr import write_exr, write_false_colour_png
 
-    cov = res.coverage
-    for name, (exr, png) in _aov_paths(out).items():
-        v = np.asarray(res.aovs[name], dtype=np.float32)
-        write_exr(at[exr], v, channels=["Y"])
-        log = AOVS[name][1] == "log"
-        shown = cov & (v > 0) if log else cov
-        write_false_colour_png(at[png], v, mask=shown, log=log)
+    v = np.asarray(values, dtype=np.float32)
+    write_exr(at[exr], v, channels=["Y"])
+    lo, hi = write_false_colour_png(at[png], v, mask=mask & (v > 0) if log else mask, log=log)
+    return {"png": png.name, "scale": "log" if log else "linear", "from": lo, "to": hi}
+
+
+def _write_aovs(res, out: Path, at: dict) -> dict:
+    """The adaptive method's AOVs (EXR + false-colour PNG each); returns their colour scales by name."""
+    return {name: _write_map(at, exr, png, res.aovs[name], res.coverage, log=AOVS[name][1] == "log")
+            for name, (exr, png) in _aov_paths(out).items()}
+
+
+def _scales_line(scales: dict) -> str:
+    """The false-colour PNGs' scales, for the summary a render prints."""
+    return "  colour scales (dark blue to yellow): " + ", ".join(
+        f"{name} {s['from']:.3g} to {s['to']:.3g}" + (" (log)" if s["scale"] == "log" else "")
+        for name, s in scales.items())
 
 
 def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, exposure: float, force: bool,
@@ -135,9 +147,9 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
                                threads=threads)
     res.stats["time_s"]["total"] = round(time.perf_counter() - t0, 6)
     with staged_outputs(paths) as at:   # all of them, or none: an error leaves the old set
+        if adaptive:   # first, so that the stats JSON records their colour scales
+            res.stats["colour_scales"] = _write_aovs(res, out, at)
         _write_render(res, outs, exposure, at)
-        if adaptive:
-            _write_aovs(res, out, at)
     _warn_if_empty(res.stats)
     _warn_samples(res.stats, budget)
     if not quiet:
@@ -154,6 +166,7 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
                   + (f", lights (exact, every pixel) {t['lights'] * 1e3:.1f} ms" if "lights" in t else "")
                   + f", frame {t['frame']:.3f} s, total {t['total']:.2f} s")
             print(f"  AOVs {', '.join(str(p[0].name) for p in _aov_paths(out).values())} (+ .png)")
+            print(_scales_line(res.stats["colour_scales"]))
         else:
             sps = res.stats["samples_per_second"]
             print(f"{outs['exr']}  ({w}x{h}, {spp} spp, {res.stats['pixels_covered']} covered pixels)")
@@ -209,14 +222,9 @@ def _render_filtering_cli(scene, args) -> int:
     res = render_filtering(scene, method, spp=args.spp, seed=args.seed, device=args.device,
                            progress=not args.quiet, threads=args.threads, env_spp=args.spp, **aniso)
     res.stats["time_s"] = {"frame": round(res.time_s, 6), "total": round(time.perf_counter() - t0, 6)}
-    import numpy as np
-
-    from warpbw.io.exr import write_exr, write_false_colour_png
-
     with staged_outputs(list(outs.values()) + level_paths) as at:
+        res.stats["colour_scales"] = {"level": _write_map(at, *level_paths, res.level, res.coverage)}
         _write_render(res, outs, args.exposure, at)
-        write_exr(at[level_paths[0]], res.level.astype(np.float32), channels=["Y"])
-        write_false_colour_png(at[level_paths[1]], res.level, mask=res.coverage)
     _warn_if_empty(res.stats)
     if not args.quiet:
         w, h = res.stats["resolution"]
@@ -228,15 +236,13 @@ def _render_filtering_cli(scene, args) -> int:
         print(f"{outs['exr']}  ({w}x{h}, filter {method}{extra}, {res.stats['pixels_covered']} covered pixels)")
         print(f"  frame {res.time_s * 1e3:.1f} ms, total {res.stats['time_s']['total']:.2f} s")
         print(f"  preview {outs['png']}, stats {outs['json']}, mip level {level_paths[0].name} (+ .png)")
+        print(_scales_line(res.stats["colour_scales"]))
     return 0
 
 
 def _render_mixed_cli(scene, args) -> int:
     """``warpbw render`` of a scene with planes beside spheres or meshes: the spheres and meshes with --method
     (reference or adaptive), then the planes in front of them with --filter (warpbw.pipeline.render_with_planes)."""
-    import numpy as np
-
-    from warpbw.io.exr import write_exr, write_false_colour_png
     from warpbw.pipeline import render_with_planes
 
     method = args.filter or "gmm_aligned"
@@ -254,12 +260,10 @@ def _render_mixed_cli(scene, args) -> int:
                              threads=args.threads, max_anisotropy=args.max_anisotropy, **_adaptive_options(args))
     res.stats["time_s"]["total"] = round(time.perf_counter() - t0, 6)
     with staged_outputs(paths) as at:
+        scales = _write_aovs(res, out, at) if adaptive else {}
+        scales["mip_level"] = _write_map(at, *mip_paths, res.aovs["mip_level"], res.aovs["plane"])
+        res.stats["colour_scales"] = scales
         _write_render(res, outs, args.exposure, at)
-        if adaptive:
-            _write_aovs(res, out, at)
-        level = res.aovs["mip_level"]
-        write_exr(at[mip_paths[0]], level.astype(np.float32), channels=["Y"])
-        write_false_colour_png(at[mip_paths[1]], level, mask=res.aovs["plane"])
     _warn_if_empty(res.stats)
     _warn_samples(res.stats, args.budget)
     if not args.quiet:
@@ -275,6 +279,7 @@ def _render_mixed_cli(scene, args) -> int:
         print(f"  frame {t['frame']:.3f} s, total {t['total']:.2f} s")
         print(f"  preview {outs['png']}, stats {outs['json']}, mip level {mip_paths[0].name} (+ .png)"
               + (f", AOVs {', '.join(str(p[0].name) for p in _aov_paths(out).values())} (+ .png)" if adaptive else ""))
+        print(_scales_line(res.stats["colour_scales"]))
     return 0
 
 

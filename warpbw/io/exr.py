@@ -12,7 +12,8 @@ Public functions:
 - ``linear_to_srgb(x)``: the sRGB transfer function (IEC 61966-2-1) on linear values.
 - ``write_png(path, rgb, exposure=0.0)``: linear radiance -> 8-bit sRGB preview, exposure in stops.
 - ``write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=False)``: a scalar
-  AOV through matplotlib's viridis colour map; returns the ``(vmin, vmax)`` it used.
+  AOV through matplotlib's viridis colour map; returns the ``(vmin, vmax)`` it used, and writes them into the
+  PNG's ``Description`` (``colour_scale_text(lo, hi, log)``).
 
 Class: ``ExrImage`` (``pixels``, ``channels``, ``path``).
 
@@ -218,12 +219,16 @@ def linear_to_srgb(x):
     return np.where(x <= SRGB_LINEAR_THRESHOLD, SRGB_LINEAR_SLOPE * x, hi)
 
 
-def _to_png(path: Path, rgb8: np.ndarray) -> Path:
-    from PIL import Image
+def _to_png(path: Path, rgb8: np.ndarray, text: dict | None = None) -> Path:
+    """``rgb8`` as a PNG, with ``text`` as its tEXt chunks (keyword -> Latin-1 value)."""
+    from PIL import Image, PngImagePlugin
 
+    info = PngImagePlugin.PngInfo()
+    for key, value in (text or {}).items():
+        info.add_text(key, value)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        Image.fromarray(rgb8).save(str(path), format="PNG")
+        Image.fromarray(rgb8).save(str(path), format="PNG", pnginfo=info)
     except Exception as exc:
         raise WarpbwError(f"{path}: cannot write PNG ({_one_line(exc)})") from None
     return path
@@ -258,7 +263,8 @@ def write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=Fa
     """Scalar ``values`` (H, W) -> viridis PNG; pixels outside ``mask`` (or non-finite) are black.
 
     ``vmin``/``vmax`` default to the range of the shown values; ``log`` maps log10 of the values
-    (non-positive values shown at ``vmin``). Returns the ``(vmin, vmax)`` used, in value units.
+    (non-positive values shown at ``vmin``). Returns the ``(vmin, vmax)`` used, in value units; the PNG's
+    ``Description`` text chunk says the same (``colour_scale_text``), so the picture carries its scale.
     """
     from matplotlib import colormaps
 
@@ -291,5 +297,11 @@ def write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=Fa
     rgba = colormaps["viridis"](t)
     rgb8 = np.round(rgba[..., :3] * 255.0).astype(np.uint8)
     rgb8[~shown] = 0
-    _to_png(path, rgb8)
+    _to_png(path, rgb8, {"Description": colour_scale_text(lo, hi, log), "Software": "warpbw"})
     return lo, hi
+
+
+def colour_scale_text(lo: float, hi: float, log: bool) -> str:
+    """How a false-colour PNG maps values to colours, in words (its ``Description`` text chunk)."""
+    return (f"viridis colour scale, {'log10' if log else 'linear'}, from {lo:.6g} (dark blue) to {hi:.6g} "
+            "(yellow); black: not shown")
