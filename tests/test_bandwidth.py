@@ -406,6 +406,9 @@ def test_cli_spells_the_allocations_and_the_default():
     from warpbw import filtering
 
     assert cli.MIN_GT_SPP == filtering.MIN_GT_SPP and cli.MAX_ANISOTROPY == filtering.MAX_ANISOTROPY
+    from warpbw import pipeline
+
+    assert cli.METHODS == pipeline.SUMMARY_METHODS   # render's and info's --method
 
 
 def test_bad_tables_are_refused():

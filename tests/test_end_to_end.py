@@ -24,7 +24,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from conftest import MIXED_SCENE, check_colour_scale, numpy_camera_rays, numpy_sphere_distance, numpy_square_distance
+from conftest import (MIXED_SCENE, check_colour_scale, numpy_camera_rays, numpy_sphere_distance, numpy_square_distance,
+                      plane_scene_toml)
 from warpbw.io.exr import read_exr, write_exr
 from warpbw.io.merl import MERL_FILE_SIZE
 
@@ -472,6 +473,54 @@ def test_a_mesh_curvature_is_derived_only_for_a_frame_with_the_bandwidth_pass(tm
                                    md.faces)
     np.testing.assert_allclose(prep.geometry.mesh_attr.curvature.numpy(), want, rtol=1e-4)
     assert abs(np.median(want) * 0.8 - 1.0) < 0.02   # |H| = 1 / r
+
+
+# what a stage of stats["stages"] is called in warpbw info's list
+STAGE_WORDS = {"mesh_curvature": "mesh curvature", "bandwidth_pass": "bandwidth pass", "pyramid": "level pyramid",
+               "hierarchical_shading": "hierarchical shading", "upsampling": "up-sampling",
+               "reference_shading": "reference shading"}
+
+
+def test_info_lists_the_stages_a_frame_of_each_method_runs(tmp_path):
+    """warpbw info --method M, from the scene file alone, names the stages a frame of M then records having run
+    (stats["stages"]), in their order; the adaptive method is refused where warpbw render refuses it."""
+    import trimesh
+
+    from warpbw.pipeline import render_adaptive, render_reference, scene_summary
+    from warpbw.scene import parse_scene
+
+    trimesh.creation.icosphere(subdivisions=2, radius=0.5).export(tmp_path / "ico.obj")
+    write_exr(tmp_path / "sky.exr", np.full((16, 32, 3), 0.5, np.float32))
+    camera = ["[camera]", "position = [0.0, 0.0, 3.0]", "look_at = [0.0, 0.0, 0.0]", "fov = 50.0",
+              "resolution = [16, 16]"]
+    text = "\n".join(camera + ["[environment]", 'file = "sky.exr"', "[[object]]", 'mesh = "ico.obj"',
+                               "translate = [-0.6, 0.0, 0.0]", 'material = "m"', "[[object]]", 'shape = "sphere"',
+                               "center = [0.6, 0.0, 0.0]", "radius = 0.5", 'material = "g"', "[material.m]",
+                               'type = "lambert"', "albedo = 0.5", "[material.g]", 'type = "ggx"', "alpha = 0.3",
+                               "specular = [0.5, 0.5, 0.5]"])
+    (tmp_path / "s.toml").write_text(text)
+    scene = parse_scene(text, tmp_path, "s.toml")
+    for method, frame in (("reference", lambda: render_reference(scene, spp=2)),
+                          ("adaptive", lambda: render_adaptive(scene, budget=2.0))):
+        listed = [w for st in scene_summary(scene, method)["stages"] for w in STAGE_WORDS.values()
+                  if st.startswith(w)]
+        ran = [STAGE_WORDS[st.split("+")[0]] for st in frame().stats["stages"] if st.split("+")[0] in STAGE_WORDS]
+        assert listed == ran and ran, (method, listed, ran)
+        assert len(ran) == (5 if method == "adaptive" else 1)
+        info = json.loads(run(["info", "s.toml", "--json", "--method", method], tmp_path).stdout)
+        assert info["stages"] == scene_summary(scene, method)["stages"]
+    # refused as render refuses it: lights alone (nothing to adapt), planes alone (reflectance filtering)
+    lit = "\n".join(camera + ["[[light]]", 'type = "directional"', "direction = [0.0, 0.0, 1.0]",
+                              "radiance = [1.0, 1.0, 1.0]", "[[object]]", 'shape = "sphere"', "radius = 0.5",
+                              'material = "m"', "[material.m]", 'type = "lambert"', "albedo = 0.5"])
+    (tmp_path / "lit.toml").write_text(lit)
+    (tmp_path / "planes.toml").write_text(plane_scene_toml())
+    for name in ("lit.toml", "planes.toml"):
+        r = run(["info", name, "--method", "adaptive"], tmp_path, check=False)
+        told = run(["render", name, "-o", "x.exr", "--method", "adaptive", "--budget", "2"], tmp_path, check=False)
+        assert r.returncode == told.returncode == 2 and r.stderr.count("\n") == 1, (r.stderr, told.stderr)
+        assert ("needs an [environment]" if name == "lit.toml" else "reflectance filtering") in r.stderr
+        assert run(["info", name], tmp_path).returncode == 0
 
 
 def test_a_frame_compiles_and_launches_only_the_kernels_its_scene_needs(tmp_path, monkeypatch):

@@ -43,6 +43,8 @@ BUDGET_MAX = INT32_MAX / 256
 N_B_MAX = 1 << 16
 # warpbw.filtering.MIN_GT_SPP (spelled here for the same reason): the ground truth's fewest rays per pixel
 MIN_GT_SPP = 64
+# warpbw.pipeline.SUMMARY_METHODS (spelled here for the same reason): render's and info's --method, default first
+METHODS = ("reference", "adaptive")
 # warpbw.filtering.MAX_ANISOTROPY (spelled here for the same reason): the most probes along a footprint's axis
 MAX_ANISOTROPY = 16
 # --exposure in stops: beyond +-150 every non-zero float32 radiance (2^-149 .. 2^128) previews white, or black
@@ -378,7 +380,7 @@ def cmd_info(args) -> int:
     from warpbw.pipeline import scene_summary
     from warpbw.scene import load_scene
 
-    s = scene_summary(load_scene(args.scene))   # planes, spheres and meshes, or both
+    s = scene_summary(load_scene(args.scene), args.method)   # planes, spheres and meshes, or both
     if args.json:
         print(json.dumps(s, indent=2))
         return 0
@@ -692,7 +694,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("-o", "--output", required=True, help="output EXR path")
     r.add_argument("--mis", action="store_true",
                    help="also sample the environment and combine by multiple importance sampling")
-    r.add_argument("--method", choices=("reference", "adaptive"), default="reference",
+    r.add_argument("--method", choices=METHODS, default=METHODS[0],
                    help="reference: every pixel with --spp samples (default); adaptive: bandwidth prediction and "
                    "hierarchical shading (002), which also writes the AOVs OUT.level/.n_p/.variance/.shaded/.b_p "
                    "as EXR and false-colour PNG")
@@ -730,6 +732,9 @@ def build_parser() -> argparse.ArgumentParser:
     i = sub.add_parser("info", help="summarise what a scene needs", description="Summarise a scene: objects, "
                        "materials, light, the files it reads and the stages a render would run.")
     i.add_argument("scene", help="scene file (TOML)")
+    i.add_argument("--method", choices=METHODS, default=METHODS[0],
+                   help="the stages of warpbw render --method METHOD for the spheres and meshes (default reference; "
+                        "adaptive adds the bandwidth pass, the pyramid and the up-sampling)")
     i.add_argument("--json", action="store_true", help="print JSON")
     i.set_defaults(func=cmd_info)
 

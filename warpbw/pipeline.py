@@ -12,7 +12,8 @@ Public:
     ``surface_geometry(scene, device) -> Geometry``   its spheres and meshes alone on the device (for depth)
     ``render_with_planes(scene, filter_method, spp, seed, method, budget, ...) -> RenderResult``
                                        a scene with both: the spheres and meshes, then the planes over them
-    ``scene_summary(scene) -> dict``   what the scene needs (for ``warpbw info``), without loading it
+    ``scene_summary(scene, method="reference") -> dict``   what the scene needs (for ``warpbw info``), without
+    loading it
     ``stages_used(prep, mis, adaptive)``, ``PreparedScene``, ``RenderResult``   the stages a frame ran; the
                                        two results above
     ``RADIANCE_OVERFLOW_MIN``           above this radiance, a reference frame that drops samples as non-finite
@@ -429,6 +430,12 @@ def _check_pass_finite(buf, source: str, mis: bool = True) -> None:
                           "map's values, or render with --method reference")
 
 
+def _nothing_to_adapt(scene: Scene) -> WarpbwError:
+    """The adaptive method's refusal of a scene without an environment."""
+    return WarpbwError(f"{scene.source}: the adaptive method needs an [environment] to adapt to: [[light]]s "
+                       "alone are exact at any spp (use the reference method)")
+
+
 def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b: int | None = None,
                     n_min: int | None = None, n_max: int | None = None, preconvolved: bool = False,
                     allocation: str | None = None, nyquist: float | None = None, stride: int | None = None,
@@ -467,8 +474,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     check_flag(preconvolved, "preconvolved")   # "no" once ran the Eq. 10 bound
     prep, timings = _prepared(scene, device, progress)
     if prep.env is None:
-        raise WarpbwError(f"{prep.scene.source}: the adaptive method needs an [environment] to adapt to: [[light]]s "
-                          "alone are exact at any spp (use the reference method)")
+        raise _nothing_to_adapt(prep.scene)
     tables = prepare_bandwidth(prep, progress, env_signal)
     for k in ("load_env_bandwidth", "load_brdf_bandwidth", "load_mesh_curvature"):
         if k in prep.timings and prep is not scene:
@@ -612,13 +618,23 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
     return RenderResult(fr.image, coverage, res.gbuffer, stats, aovs)
 
 
-def scene_summary(scene: Scene) -> dict:
-    """What the scene needs, from the scene file alone (no asset is loaded).  A scene with planes beside spheres
-    or meshes lists both renderers' stages (:func:`render_with_planes`)."""
+SUMMARY_METHODS = ("reference", "adaptive")   # what scene_summary describes for the spheres and meshes
+
+
+def scene_summary(scene: Scene, method: str = "reference") -> dict:
+    """What the scene needs, from the scene file alone (no asset is loaded), rendered with ``method`` ("reference"
+    or "adaptive": :func:`render_reference` or :func:`render_adaptive`).  A scene with planes beside spheres or
+    meshes lists both renderers' stages (:func:`render_with_planes`); planes alone render with reflectance
+    filtering only, and the adaptive method is refused there, as ``warpbw render`` refuses it."""
+    if method not in SUMMARY_METHODS:
+        raise WarpbwError(f"method {method!r}: expected one of {', '.join(SUMMARY_METHODS)}")
     surfaces, planes = split_planes(scene)
     if surfaces is None:
         from warpbw.filtering import filtering_summary
 
+        if method == "adaptive":
+            raise WarpbwError(f"{scene.source}: a scene of planes alone renders with reflectance filtering "
+                              "(--filter, 004); the adaptive method applies to spheres and meshes")
         return filtering_summary(scene)
     kinds = sorted({surfaces.materials[n].type for n in surfaces.material_order})
     env = scene.environment
@@ -629,9 +645,19 @@ def scene_summary(scene: Scene) -> dict:
               "brdf: " + ", ".join(kinds)]
     if any(k in ("merl", "npf") for k in kinds):
         stages.append("tabulated importance sampling (002 Sec. 3.3)")
-    stages.append("reference shading (002 Eq. 2)" + (", environment light (BRDF samples; with --mis also "
-                                                     "environment samples, MIS)" if env is not None else "")
-                  + (", directional lights exact" if scene.lights else ""))
+    light = ((", environment light (BRDF samples; with --mis also environment samples, MIS)" if env is not None
+              else "") + (", directional lights exact" if scene.lights else ""))
+    if method == "reference":
+        stages.append("reference shading (002 Eq. 2)" + light)
+    elif env is None:
+        raise _nothing_to_adapt(scene)
+    else:
+        stages += (["mesh curvature (|H| over about two rings of vertices, 002 Eq. 3)"] if has_mesh else []) + [
+            "bandwidth pass (002 Eq. 4-11): the probe's angular bandwidth (wavelets) and each glossy "
+            "material's nu_rho table, built once and cached",
+            "level pyramid (min filter) and variance (max filter) (002 Sec. 3.1)",
+            "hierarchical shading (002 Sec. 3.2)" + light,
+            "up-sampling (anisotropic bilateral weights, 002 Sec. 3.2)"]
     if planes is not None:
         from warpbw.filtering import filtering_summary
 
