@@ -106,6 +106,7 @@ def main():
     from precompute.npf_to_merl import npf_to_merl
     from warpbw.io.exr import write_png
     from warpbw.io.npf import read_npf
+    from warpbw.io.staged import staged_outputs
     from warpbw.metrics import mse, psnr, relmse
     from warpbw.pipeline import prepare_scene, render_reference
     from warpbw.scene import parse_scene
@@ -157,7 +158,7 @@ def main():
 
     truth = ground_truth(prep, args.gt_spp, out, progress=True)
     gt, gt_half, gt_spp, n_chunks, gt_time = truth.image, truth.half, truth.spp, truth.chunks, truth.render_time_s
-    write_png(out / "ground_truth.png", gt)
+    previews = {out / "ground_truth.png": gt}   # written with the records at the end
     print(f"ground truth {gt_spp} spp ({n_chunks} chunks; {gt_time:.1f} s rendering the missing ones)")
     cov = render_reference(prep, spp=1, seed=0).coverage
 
@@ -174,7 +175,7 @@ def main():
             print(f"{method:8s} {spp:5d} spp  {t:7.3f} s  PSNR {rec['psnr_db']:6.2f} dB  relMSE {rec['relmse']:.3e}  "
                   f"{rec['samples_per_s'] / 1e6:.2f} M evals/s")
             if spp == max(spps):
-                write_png(out / f"{method}_{spp}spp.png", res.image)
+                previews[out / f"{method}_{spp}spp.png"] = res.image
     top = max(spps)
     if args.check_only:
         records = json.loads((out / "bench_reference.json").read_text())["methods"]
@@ -192,7 +193,7 @@ def main():
               "ground_truth_spp": gt_spp, "ground_truth_render_time_s": gt_time,
               "ground_truth_doubling_delta_db": d_psnr, "ground_truth_converged": converged,
               "methods": records}
-    (out / "bench_reference.json").write_text(json.dumps(record, indent=2) + "\n")
+    json_path, plot_path = out / "bench_reference.json", out / "bench_reference.png"
 
     import matplotlib
 
@@ -217,7 +218,11 @@ def main():
         a.legend()
     fig.suptitle(f"bunny, {args.material} (NPF->MERL), {args.probe}, {w}x{h}; G-buffer {gbuffer_ms:.0f} ms")
     fig.tight_layout()
-    fig.savefig(out / "bench_reference.png", dpi=110)
+    with staged_outputs([*previews, json_path, plot_path]) as at:   # all, or none: an error leaves the old set
+        for path, image in previews.items():
+            write_png(at[path], image)
+        at[json_path].write_text(json.dumps(record, indent=2) + "\n")
+        fig.savefig(at[plot_path], dpi=110)
     print(f"G-buffer {gbuffer_ms:.1f} ms; wrote {out / 'bench_reference.json'} and {out / 'bench_reference.png'}")
     return 0 if all(math.isfinite(r["psnr_db"]) for v in records.values() for r in v) else 1
 

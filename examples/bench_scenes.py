@@ -35,6 +35,7 @@ from pathlib import Path
 
 from warpbw.cli import check_command_options
 from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, run_command
+from warpbw.io.staged import staged_outputs
 from warpbw.scene import toml_escape
 
 HERE = Path(__file__).resolve().parent
@@ -99,8 +100,9 @@ def write_scenes(out: Path, force: bool = False) -> list[Path]:
         if not merl.exists():
             subprocess.run([sys.executable, "-m", "precompute", "npf-to-merl", "--table",
                             str(DATA / "brdf" / "npf.bin"), "--material", material, "-o", str(merl)], check=True)
-    for p, text in texts.items():
-        p.write_text(text)
+    with staged_outputs(texts) as at:   # every scene, or none: an error leaves the old ones
+        for p, text in texts.items():
+            at[p].write_text(text)
     return list(texts)
 
 

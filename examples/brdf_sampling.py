@@ -18,6 +18,7 @@ from warpbw import brdf as B
 from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
 from warpbw.errors import INT32_MAX, check_count
 from warpbw.io.npf import npf_eval, read_npf
+from warpbw.io.staged import staged_outputs
 from warpbw.sampling import build_sampler_table
 
 GRID = 160   # cells per side of the projected-hemisphere images
@@ -81,8 +82,8 @@ def main():
               f"peak pdf {p.max():.3g} /sr, peak f cos_i {f.max():.3g}")
     fig.suptitle(f"{mat.name} (NPF), log10 scale, projected hemisphere")
     fig.tight_layout()
-    out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=100)
+    with staged_outputs([out_png]) as at:   # whole or not at all: a failed save leaves the old figure
+        fig.savefig(at[out_png], dpi=100)
     print(f"wrote {out_png}")
 
 

@@ -115,6 +115,7 @@ import numpy as np
 
 from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, init_warp, parse_seed, run_command
 from warpbw.errors import SEED_MAX
+from warpbw.io.staged import staged_outputs
 from warpbw.scene import toml_string
 
 # The repository root, so that `python examples/compare_mitsuba.py` finds warpbw without installing.
@@ -490,6 +491,7 @@ def main(argv=None) -> int:
               f"test = warpbw, ref = Mitsuba; acceptance relMSE < {ACCEPT_RELMSE:.0%}")
 
     rows = []
+    exrs, sides = {}, {}   # images by output path, written together at the end
     for case in args.cases:
         mat = CASES[case]
         scene = mitsuba_scene(mi, probe_rgb, mat, args.resolution, mspp, args.rotation, args.scale)
@@ -501,7 +503,7 @@ def main(argv=None) -> int:
             ref2, _, _ = render_mitsuba(mi, scene, mspp, args.seed + 1)
             row["floor"] = float(relmse(ref2, ref, erode(alpha > 0.5, ERODE_PX)))
         if args.out is not None:
-            save_exr(mi, args.out / f"{case}_mitsuba.exr", ref)
+            exrs[args.out / f"{case}_mitsuba.exr"] = ref
         test = None
         if wb is not None:
             toml_text = warpbw_toml(probe, mat, args.resolution, args.rotation, args.scale)
@@ -517,9 +519,9 @@ def main(argv=None) -> int:
                        relmse_sum=relmse_sum(test, ref, mask),
                        n=int(mask.sum()), iou=iou, mean_wb=float(test[cov].mean()))
             if args.out is not None:
-                save_exr(mi, args.out / f"{case}_warpbw.exr", test)
+                exrs[args.out / f"{case}_warpbw.exr"] = test
         if args.out is not None:
-            save_side_by_side(args.out / f"{case}.png", ref, test)
+            sides[args.out / f"{case}.png"] = (ref, test)
         rows.append(row)
 
     if wb is None:
@@ -541,6 +543,11 @@ def main(argv=None) -> int:
             print("note: warpbw ran its default estimator (BRDF sampling only); Mitsuba's path tracer uses MIS. "
                   "Rerun without --no-mis for the equal-estimator comparison, or --noise-floor to see Mitsuba's own noise.")
     if args.out is not None:
+        with staged_outputs([*exrs, *sides]) as at:   # every image, or none: an error leaves the old set
+            for p, rgb in exrs.items():
+                save_exr(mi, at[p], rgb)
+            for p, pair in sides.items():
+                save_side_by_side(at[p], *pair)
         print(f"images written to {args.out}")
     return 0
 

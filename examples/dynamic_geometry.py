@@ -219,6 +219,7 @@ def main(argv=None):
     from warpbw.gbuffer import update_mesh
     from warpbw.io.exr import write_png
     from warpbw.io.mesh import normals_and_curvature
+    from warpbw.io.staged import staged_outputs
     from warpbw.pipeline import prepare_scene, render_adaptive
     from warpbw.scene import parse_scene, toml_escape, toml_string
 
@@ -317,9 +318,9 @@ def main(argv=None):
         "frames": records,
         "summary": summary,
     }
-    out.mkdir(parents=True, exist_ok=True)
-    write_png(out / OUTPUTS[0], _strip(images, masks, coverage))
-    (out / OUTPUTS[1]).write_text(json.dumps(result, indent=1))
+    with staged_outputs([out / n for n in OUTPUTS]) as at:   # both, or neither: an error leaves the old pair
+        write_png(at[out / OUTPUTS[0]], _strip(images, masks, coverage))
+        at[out / OUTPUTS[1]].write_text(json.dumps(result, indent=1))
     _print_table(records, summary)
     print(f"wrote {out / OUTPUTS[0]} (frames {', '.join(str(i) for i in pick)}) and {out / OUTPUTS[1]}")
     return result

@@ -55,6 +55,7 @@ from warpbw.errors import INT32_MAX
 # the renderer's own constants: the references filter and shade at its footprint, with its floors
 from warpbw.filtering import (ANISO_PROBE_SLACK, DEFAULT_ANISOTROPY, LOD_BIAS, MAX_ANISOTROPY, MIN_COS, MIN_GT_SPP,
                                VARIANCE_FLOOR, roughness_variance)
+from warpbw.io.staged import staged_outputs
 
 DEFAULT_ZOOMS = "8,16,32"
 DEFAULT_GT_SPP = 1024
@@ -395,8 +396,8 @@ def main(argv=None) -> int:
         print(format_table(rec), flush=True)
         records.append(rec)
     if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(records, indent=1))
+        with staged_outputs([args.json]) as at:   # whole or not at all: a full disk leaves the old record
+            at[args.json].write_text(json.dumps(records, indent=1))
         print(f"wrote {args.json}")
     return 0
 

@@ -136,6 +136,7 @@ def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "rin
                  elevation_deg: float = ELEVATION_DEG) -> list:
     from precompute.surfaces import SURFACES
     from warpbw.io.exr import write_exr
+    from warpbw.io.staged import staged_outputs
 
     el = math.radians(elevation_deg)
     dirs = light_directions(lights)   # for the 60-degree camera, whatever elevation_deg
@@ -143,19 +144,22 @@ def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "rin
     if environment is not None:   # before anything is written: a path TOML cannot hold is refused
         light_text = (f"[environment]\nfile = "
                       f"{toml_string(Path(environment).resolve().as_posix(), f'--environment {environment}')}\n")
-    out.mkdir(parents=True, exist_ok=True)
-    paths = []
+    heights, texts = {}, {}   # by output path, written together below
     for name, (surface, tiling, mat) in SCENES.items():
         h = SURFACES[surface](size)
-        write_exr(out / f"{name}.exr", h.astype(np.float32)[..., None], channels=["Y"])
+        heights[out / f"{name}.exr"] = h.astype(np.float32)[..., None]
         text = SCENE.format(surface=surface, size=size, tiling=tiling, cy=DISTANCE * math.sin(el),
                             cz=DISTANCE * math.cos(el), fov=FOV_DEG, w=resolution[0], h=resolution[1],
                             lights=light_text, name=name, components=components, prior=prior, **mat)
-        p = out / f"{name}.toml"
-        p.write_text(text)
-        paths.append(p)
-        print(f"wrote {p} and {name}.exr ({surface}, {size}x{size}, tiling {tiling})")
-    return paths
+        texts[out / f"{name}.toml"] = text
+    with staged_outputs([*heights, *texts]) as at:   # every scene and height field, or none
+        for p, h in heights.items():
+            write_exr(at[p], h, channels=["Y"])
+        for p, text in texts.items():
+            at[p].write_text(text)
+    for p, (surface, tiling, _) in zip(texts, SCENES.values()):
+        print(f"wrote {p} and {p.stem}.exr ({surface}, {size}x{size}, tiling {tiling})")
+    return list(texts)
 
 
 def acceptance_checks(records: dict) -> list:

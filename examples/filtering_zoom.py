@@ -60,6 +60,7 @@ def main(argv=None) -> int:
     from warpbw.filtering import (ALL_METHODS, MAX_ANISOTROPY, MIN_GT_SPP, prepare_filtering, render_filtering,
                                   zoomed_camera)
     from warpbw.io.exr import linear_to_srgb
+    from warpbw.io.staged import staged_outputs
     from warpbw.scene import PlaneObject, load_scene
 
     if args.gt_spp < MIN_GT_SPP:
@@ -84,7 +85,7 @@ def main(argv=None) -> int:
             frames[m].append(crop(r.image, r.coverage))
     # one exposure for everything: the ground truth's 99th percentile maps to white
     white = float(np.percentile(np.concatenate([f.reshape(-1, 3) for f in frames["ground_truth"]]), 99)) or 1.0
-    strips = []
+    strips = {}   # by method, written with the grid at the end
     for m in ALL_METHODS:
         tiles = []
         for f in frames[m]:
@@ -97,13 +98,17 @@ def main(argv=None) -> int:
         for t in tiles:
             strip.paste(t, (x, 0))
             x += t.width + 4
-        strip.save(out / f"{m}.png")
-        strips.append(strip)
-        print(f"wrote {out / (m + '.png')}")
-    grid = Image.new("RGB", (max(s.width for s in strips), len(strips) * (TILE + 4)))
-    for i, s in enumerate(strips):
+        strips[m] = strip
+    grid = Image.new("RGB", (max(s.width for s in strips.values()), len(strips) * (TILE + 4)))
+    for i, s in enumerate(strips.values()):
         grid.paste(s, (0, i * (TILE + 4)))
-    grid.save(out / "all.png")
+    pngs = {m: out / f"{m}.png" for m in strips}
+    with staged_outputs([*pngs.values(), out / "all.png"]) as at:   # every strip and the grid, or none
+        for m, p in pngs.items():
+            strips[m].save(at[p])
+        grid.save(at[out / "all.png"])
+    for p in pngs.values():
+        print(f"wrote {p}")
     print(f"wrote {out / 'all.png'} (rows: {', '.join(ALL_METHODS)}; columns: zoom {args.zoom})")
     return 0
 

@@ -18,6 +18,7 @@ from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_com
 from warpbw.gbuffer import MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.io.exr import write_exr, write_false_colour_png, write_png
 from warpbw.io.mesh import load_mesh
+from warpbw.io.staged import staged_outputs
 from warpbw.scene import MAX_RESOLUTION
 
 OUTPUTS = ("normal.png", "depth.png", "curvature.png", "material.png", "gbuffer.exr")
@@ -63,24 +64,24 @@ def main():
         wp.synchronize_device(args.device)
         times.append(time.perf_counter() - t0)
     print(f"G-buffer {w}x{h}: {np.median(times) * 1e3:.1f} ms (median of 5), coverage {gb.coverage.mean():.1%}")
-    out.mkdir(parents=True, exist_ok=True)
-    cov = gb.coverage
-    write_png(out / "normal.png", np.where(cov[..., None], 0.5 * gb.numpy("normal") + 0.5, 0.0) ** 2.2)
-    write_false_colour_png(out / "depth.png", gb.numpy("depth"), mask=cov)
-    curv = gb.numpy("curvature")
-    write_false_colour_png(out / "curvature.png", np.log10(np.abs(curv) + 1e-3), mask=cov)
-    write_false_colour_png(out / "material.png", gb.numpy("material").astype(float), mask=cov)
-    chans, names = [], []
-    for name, comps in (("normal", "XYZ"), ("position", "XYZ"), ("depth", None), ("curvature", None),
-                        ("material", None)):
-        a = gb.numpy(name).astype(np.float32)
-        if comps:
-            chans += [a[..., i] for i in range(3)]
-            names += [f"{name}.{c}" for c in comps]
-        else:
-            chans.append(a)
-            names.append(name)
-    write_exr(out / "gbuffer.exr", np.stack(chans, -1), channels=names)
+    with staged_outputs([out / n for n in OUTPUTS]) as at:   # all five, or none: an error leaves the old set
+        cov = gb.coverage
+        write_png(at[out / "normal.png"], np.where(cov[..., None], 0.5 * gb.numpy("normal") + 0.5, 0.0) ** 2.2)
+        write_false_colour_png(at[out / "depth.png"], gb.numpy("depth"), mask=cov)
+        curv = gb.numpy("curvature")
+        write_false_colour_png(at[out / "curvature.png"], np.log10(np.abs(curv) + 1e-3), mask=cov)
+        write_false_colour_png(at[out / "material.png"], gb.numpy("material").astype(float), mask=cov)
+        chans, names = [], []
+        for name, comps in (("normal", "XYZ"), ("position", "XYZ"), ("depth", None), ("curvature", None),
+                            ("material", None)):
+            a = gb.numpy(name).astype(np.float32)
+            if comps:
+                chans += [a[..., i] for i in range(3)]
+                names += [f"{name}.{c}" for c in comps]
+            else:
+                chans.append(a)
+                names.append(name)
+        write_exr(at[out / "gbuffer.exr"], np.stack(chans, -1), channels=names)
     print(f"wrote {out}/normal.png, depth.png, curvature.png, material.png, gbuffer.exr")
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
+from warpbw.io.staged import staged_outputs
 
 DEFAULT_LEVEL = 3   # --level: a 2x2 block of level 3 covers 16x16 finest texels
 DEFAULT_TEXEL = 1   # --texel ROW COL: the block one texel in from the corner
@@ -141,8 +142,9 @@ def main(argv=None) -> int:
     fig.suptitle(f"{args.surface} {args.size}x{args.size}, level {l}: GMM of four texels and their filtered "
                  "mixture (sqrt density over the projected normal disk)", fontsize=10)
     fig.tight_layout()
-    Path(args.output).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.output, dpi=100)
+    out = Path(args.output)
+    with staged_outputs([out]) as at:   # whole or not at all: a failed save leaves the old figure
+        fig.savefig(at[out], dpi=100)
     print(f"wrote {args.output}")
     return 0
 

@@ -38,6 +38,7 @@ from warpbw.cli import BUDGET_MAX, ENV_SIGNALS
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
                                run_command, write_json)
 from warpbw.errors import INT32_MAX, WarpbwError, check_count
+from warpbw.io.staged import staged_outputs
 from warpbw.scene import GGX_MIN_ALPHA, toml_string
 
 PROBE_DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "envmaps" / "city.exr"
@@ -75,9 +76,10 @@ def write_scenes(out_dir: Path, probe: Path, alpha: float, resolutions: list, fo
         check_output_file(p, "--write-scene", force)
     for r in resolutions:   # a scene the loader would refuse is not written (the render path parses it the same way)
         mirror_scene(probe, alpha, r)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    for p, r in zip(paths, resolutions):
-        p.write_text(mirror_scene_text(probe.resolve(), alpha, r))
+    with staged_outputs(paths) as at:   # every scene, or none: an error leaves the old ones
+        for p, r in zip(paths, resolutions):
+            at[p].write_text(mirror_scene_text(probe.resolve(), alpha, r))
+    for p in paths:
         print(f"wrote {p}")
     return paths
 

@@ -19,6 +19,7 @@ from warpbw.envmap import envmap_from_array, load_envmap, procedural_sky
 from warpbw.errors import INT32_MAX, check_count
 from warpbw.gbuffer import SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.io.exr import write_exr, write_png
+from warpbw.io.staged import staged_outputs
 from warpbw.scene import MAX_RESOLUTION
 from warpbw.shading import shade_reference
 
@@ -77,7 +78,7 @@ def main():
     print(f"assets: {time.perf_counter() - t0:.2f} s ({env.name}, materials {', '.join(mats.names)})")
 
     gb = render_gbuffer(cam, geo, device=dev)
-    out.mkdir(parents=True, exist_ok=True)
+    images = {}   # name -> image, written together at the end
     for mis in (False, True):
         shade_reference(gb, mats, env.data, 1, mis=mis, device=dev)      # warm-up (compiles)
         t0 = time.perf_counter()
@@ -86,11 +87,14 @@ def main():
         evals = res.samples * (2 if mis else 1)
         img = res.radiance.numpy().reshape(h, w, 3)
         name = "ref_mis" if mis else "ref_bis"
-        write_exr(out / f"{name}.exr", img)
-        write_png(out / f"{name}.png", img)
+        images[name] = img
         print(f"{name}: {args.spp} spp over {res.pixels_shaded} pixels in {dt:.2f} s "
               f"({evals / dt / 1e6:.2f} M evaluations/s), non-finite samples {res.non_finite}; "
               f"mean radiance {img[gb.coverage].mean(0).round(4)}")
+    with staged_outputs([out / n for n in OUTPUTS]) as at:   # all four, or none: an error leaves the old set
+        for name, img in images.items():
+            write_exr(at[out / f"{name}.exr"], img)
+            write_png(at[out / f"{name}.png"], img)
     print(f"wrote {out}/ref_bis.exr, ref_mis.exr and PNGs")
 
 

@@ -91,6 +91,7 @@ from warpbw.cli_common import OneLineParser, check_output_dir, init_warp, parse_
 from warpbw.errors import SEED_MAX
 from warpbw.envmap import EnvMapData, env_radiance
 from warpbw.gbuffer import GBufferData
+from warpbw.io.staged import staged_outputs
 from warpbw.scene import toml_escape
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_world
 
@@ -990,16 +991,11 @@ def main(argv=None) -> int:
           f"{args.uniform_samples} uniform / {args.bis_samples} BRDF samples per pixel, "
           f"{args.window}x{args.window} FFT windows every {args.stride} px" + (" (quick)" if args.quick else ""),
           flush=True)
-    results = {}
+    results, maps = {}, {}
     for name in args.scenes:
         r = validate_scene(name, cfg, log=lambda s: print(s, flush=True))
         results[name] = r["stats"]
-        write_figure(out / f"validate_{name}.png",
-                     f"{name}: {r['stats']['material']} under {r['stats']['environment']}, {args.size}x{args.size}",
-                     r)
-        np.savez_compressed(out / f"validate_{name}_maps.npz", **{k: r[k] for k in (
-            "image", "coverage", "b_p", "b_p_windowed", "sigma2", "b_p_diagnostic", "sigma2_diagnostic", "var_uniform",
-            "var_bis", "bw_ref", "bw_valid", "bw_ref_even", "bw_valid_even", "noise_var")})
+        maps[name] = r   # its figure and maps are written with the record at the end
     misses, close = check_targets(results)
     record = {
         "paper": "002 Fig. 12 (validation of predicted variance and bandwidth)",
@@ -1011,7 +1007,15 @@ def main(argv=None) -> int:
         "within_one_standard_error": close,
         "scenes": results,
     }
-    (out / "validate_bandwidth.json").write_text(json.dumps(_finite(record), indent=2) + "\n")
+    with staged_outputs(outputs(out, args.scenes)) as at:   # all, or none: an error leaves the old set
+        for name, r in maps.items():
+            write_figure(at[out / f"validate_{name}.png"],
+                         f"{name}: {r['stats']['material']} under {r['stats']['environment']}, "
+                         f"{args.size}x{args.size}", r)
+            np.savez_compressed(at[out / f"validate_{name}_maps.npz"], **{k: r[k] for k in (
+                "image", "coverage", "b_p", "b_p_windowed", "sigma2", "b_p_diagnostic", "sigma2_diagnostic",
+                "var_uniform", "var_bis", "bw_ref", "bw_valid", "bw_ref_even", "bw_valid_even", "noise_var")})
+        at[out / "validate_bandwidth.json"].write_text(json.dumps(_finite(record), indent=2) + "\n")
     print()
     print_table(results)
     print(f"\ntargets: Spearman > {TARGET_SPEARMAN}, conservative > {TARGET_CONSERVATIVE:.0%}: "

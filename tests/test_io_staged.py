@@ -5,6 +5,7 @@ Truth here is the file system's: bytes before and after, inode links, modes, and
 from __future__ import annotations
 
 import os
+import sys
 
 import numpy as np
 import pytest
@@ -126,3 +127,32 @@ def test_an_output_that_cannot_be_made_is_named(tmp_path):
         with staged_outputs([tmp_path / "ok.png", tmp_path / "afile" / "sub" / "out.exr"]):
             pass
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
+def test_an_example_whose_last_writer_fails_leaves_its_earlier_outputs(tmp_path, monkeypatch):
+    """examples/gbuffer.py writes four PNGs, then gbuffer.exr: a full disk in that last write left four new
+    PNGs beside the old EXR (and a cut-off EXR).  Now every earlier output stays byte for byte, and no temporary."""
+    import trimesh
+    from conftest import load_example
+
+    ex = load_example("gbuffer")
+    mesh = tmp_path / "sphere.obj"
+    trimesh.creation.icosphere(subdivisions=1, radius=0.5).export(mesh)
+    out = tmp_path / "gb"
+    out.mkdir()
+    for name in ex.OUTPUTS:
+        (out / name).write_bytes(f"an earlier {name}".encode())
+
+    def full_disk(path, *args, **kwargs):   # half an EXR, then ENOSPC
+        with open(path, "wb") as f:
+            f.write(b"\x76\x2f\x31\x01 half an EXR")
+        raise OSError(28, "No space left on device", str(path))
+
+    monkeypatch.setattr(ex, "write_exr", full_disk)
+    monkeypatch.setattr(sys, "argv", ["gbuffer.py", "--mesh", str(mesh), "--out", str(out), "--resolution", "8", "8",
+                                      "--force"])
+    with pytest.raises(WarpbwError) as e:
+        ex.main()
+    assert {n: (out / n).read_bytes() for n in ex.OUTPUTS} == {n: f"an earlier {n}".encode() for n in ex.OUTPUTS}
+    assert sorted(p.name for p in out.iterdir()) == sorted(ex.OUTPUTS)   # no .part temporary left
+    assert str(e.value) == f"{out / 'gbuffer.exr'}: cannot write (No space left on device)"
