@@ -1,6 +1,7 @@
 """The ``warpbw-precompute`` command: turn raw assets into the tables the renderer reads.
 
-Public: ``main(argv=None) -> int``.
+Public: ``main(argv=None) -> int``.  The command line's own parts, not an API: ``build_parser()`` and the
+subcommands' handlers ``cmd_npf_to_merl``, ``cmd_brdf_sampling``, ``cmd_brdf`` and ``cmd_gmm``.
 
 Subcommands:
     npf-to-merl    write a MERL ``.binary`` file from one material of an NPF table

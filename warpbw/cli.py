@@ -4,6 +4,10 @@ Public: ``main(argv=None) -> int``; ``check_command_options(command, options)`` 
 options on to a ``warpbw`` command or take the same ones (examples/bench_scenes.py, filtering_scenes.py,
 bench_reference.py).
 
+The command line's own parts, not an API: ``build_parser()`` with ``add_adaptive_options`` and
+``add_anisotropy_option``, and the subcommands' handlers ``cmd_render``, ``cmd_demo``, ``cmd_info``, ``cmd_compare``,
+``cmd_bench`` and ``cmd_bench_filtering`` (each takes the parsed arguments and returns the exit status).
+
 Errors the user can cause print one line, ``warpbw: error: ...``, and exit with status 2.
 Nothing the user has is overwritten without ``--force``.
 """
