@@ -372,6 +372,19 @@ file = "unused.binary"
     assert not any("tabulated" in st for st in summ["stages"])  # merl is unused: no tabulated sampling
 
 
+def test_summary_gives_a_mesh_its_transform_as_written(tmp_path):
+    """warpbw info shows a mesh's scale, rotate_y and translate (in the order they are applied) where they are not
+    the identity; it once showed the file alone, so two placements of one mesh read the same."""
+    write(tmp_path / "tri.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    objs = ('[[object]]\nmesh = "tri.obj"\nmaterial = "paint"\n'
+            '[[object]]\nmesh = "tri.obj"\nmaterial = "paint"\nscale = 0.7\nrotate_y = 30.0\n'
+            'translate = [0.5, 0.0, -1.0]\n')
+    summ = scene_summary(load_scene(write(tmp_path / "s.toml", scene_text(objects=objs))))
+    plain, placed = summ["objects"]
+    assert plain == f"mesh {tmp_path / 'tri.obj'} material=paint"
+    assert placed == f"mesh {tmp_path / 'tri.obj'} scale=0.7 rotate_y=30 deg translate=[0.5, 0.0, -1.0] material=paint"
+
+
 # ------------------------------------------------------------------------------------------ content hash
 
 def _hash_scene(tmp_path) -> Path:

@@ -161,8 +161,11 @@ class MeshObject:
     rotate_y: float = 0.0  # degrees
 
     def describe(self) -> str:
-        """One line for ``warpbw info``."""
-        return f"mesh {self.file} material={self.material}"
+        """One line for ``warpbw info``: the file, its transform where it is not the identity, the material."""
+        moves = ((f" scale={self.scale:g}" if self.scale != 1.0 else "")
+                 + (f" rotate_y={self.rotate_y:g} deg" if self.rotate_y != 0.0 else "")
+                 + (f" translate={list(self.translate)}" if any(t != 0.0 for t in self.translate) else ""))
+        return f"mesh {self.file}{moves} material={self.material}"
 
 
 @dataclass(frozen=True)
