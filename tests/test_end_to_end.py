@@ -128,12 +128,22 @@ def test_demo_writes_exr_png_json_and_respects_force(tmp_path):
         px = np.asarray(im)
     assert (px[~covered] == 0).all() and px[covered].max() > 50
 
+    # the scene itself, beside the image: rendered with warpbw render as the demo renders it (MIS, the same seed),
+    # it gives the demo's image bit for bit
+    scene_file = out / "scene.toml"
+    run(["render", scene_file, "-o", tmp_path / "again.exr", "--spp", "4", "--mis", "-q"], tmp_path)
+    again, again_alpha = rgba(tmp_path / "again.exr")
+    np.testing.assert_array_equal(again, rgb)
+    np.testing.assert_array_equal(again_alpha, alpha)
+
     # again without --force: refused, nothing touched
-    before = {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in (exr, png, js)}
+    before = {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in (exr, png, js, scene_file)}
+    scene_file.write_text(scene_file.read_text() + "# my edit\n")   # an edited scene is the user's
+    before[scene_file] = (scene_file.read_bytes(), scene_file.stat().st_mtime_ns)
     r = run(["demo", "-o", out, "--spp", "4", "-q"], tmp_path, check=False)
     assert r.returncode == 2
     assert r.stderr.startswith("warpbw: error: ") and "--force" in r.stderr and len(r.stderr.splitlines()) == 1
-    assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in (exr, png, js)} == before
+    assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in (exr, png, js, scene_file)} == before
 
     # with --force: rewritten; the same seed gives the same image bit for bit
     run(["demo", "-o", out, "--spp", "4", "-q", "--force"], tmp_path)

@@ -28,6 +28,7 @@ from warpbw.io.staged import staged_outputs
 
 DEFAULT_SPP = 64
 DEMO_SPP = 64
+DEMO_SCENE_NAME = "scene.toml"   # the demo's scene, written beside its image to edit and render
 # warpbw.filtering.ALL_METHODS (spelled here so that --help needs no Warp import)
 _FILTER_METHODS = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed", "ground_truth")
 # warpbw.bandwidth.ALLOCATIONS, default first (spelled here for the same reason)
@@ -136,12 +137,16 @@ def _scales_line(scales: dict) -> str:
 
 def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, exposure: float, force: bool,
             threads, quiet: bool, method: str = "reference", budget: float | None = None,
-            n_b: int | None = None, adaptive_options: dict | None = None) -> dict:
+            n_b: int | None = None, adaptive_options: dict | None = None, texts: dict | None = None) -> dict:
+    """Render ``scene`` and write the image, its preview, stats (and AOVs); ``texts`` (path -> text) are written
+    with them, in the same set (the demo's scene file)."""
     from warpbw.pipeline import render_adaptive, render_reference
 
     outs = _outputs(out)
+    texts = texts or {}
     adaptive = method == "adaptive"
-    paths = list(outs.values()) + ([p for pair in _aov_paths(out).values() for p in pair] if adaptive else [])
+    paths = (list(outs.values()) + ([p for pair in _aov_paths(out).values() for p in pair] if adaptive else [])
+             + list(texts))
     check_overwrite(paths, force, inputs=scene.input_files())
     init_warp(device)
     t0 = time.perf_counter()
@@ -156,6 +161,8 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
         if adaptive:   # first, so that the stats JSON records their colour scales
             res.stats["colour_scales"] = _write_aovs(res, out, at)
         _write_render(res, outs, exposure, at)
+        for p, text in texts.items():
+            at[p].write_text(text)
     _warn_if_empty(res.stats)
     _warn_samples(res.stats, budget)
     if not quiet:
@@ -178,7 +185,7 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
             print(f"{outs['exr']}  ({w}x{h}, {spp} spp, {res.stats['pixels_covered']} covered pixels)")
             print(f"  gbuffer {t['gbuffer'] * 1e3:.1f} ms, shading {t['shading']:.3f} s"
                   + (f" ({sps / 1e6:.2f} M samples/s)" if sps else "") + f", total {t['total']:.2f} s")
-        print(f"  preview {outs['png']}, stats {outs['json']}")
+        print(f"  preview {outs['png']}, stats {outs['json']}" + "".join(f", {p}" for p in texts))
     return res.stats
 
 
@@ -367,16 +374,20 @@ def cmd_render(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from warpbw.scene import default_scene
+    from warpbw.scene import DEFAULT_SCENE_TOML, default_scene
 
-    if Path(args.output).suffix.lower() in (".exr", ".png", ".json"):
-        raise WarpbwError(f"-o {args.output}: expected a folder (demo writes demo.exr, demo.png and demo.json into "
-                          "it)")
+    if Path(args.output).suffix.lower() in (".exr", ".png", ".json", ".toml"):
+        raise WarpbwError(f"-o {args.output}: expected a folder (demo writes demo.exr, demo.png, demo.json and "
+                          f"{DEMO_SCENE_NAME} into it)")
     check_output_dir(args.output, "-o")
     out = Path(args.output) / "demo.exr"
+    scene_file = Path(args.output) / DEMO_SCENE_NAME
     spp = DEMO_SPP if args.spp is None else args.spp
     _render(default_scene(), out, spp, args.seed, True, args.device, args.exposure, args.force,
-            args.threads, args.quiet)
+            args.threads, args.quiet, texts={scene_file: DEFAULT_SCENE_TOML})
+    if not args.quiet:   # where to go next: the same scene, adaptively (the AOVs show where it shaded)
+        print(f"next: warpbw render {scene_file} -o {Path(args.output) / 'adaptive.exr'} --method adaptive "
+              "--budget 4 --mis")
     return 0
 
 
@@ -728,7 +739,8 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Render the embedded default scene (three spheres, analytic materials, "
                        "procedural sky) to DIR/demo.exr, demo.png and demo.json, with the reference estimator and "
                        "multiple importance sampling (as render --mis): --spp BRDF samples per pixel, each paired "
-                       "with an environment sample.")
+                       "with an environment sample.  The scene itself goes to DIR/scene.toml, to edit and render "
+                       "with warpbw render (e.g. --method adaptive --budget 4).")
     d.add_argument("-o", "--output", default="warpbw_demo", help="output directory (default ./warpbw_demo)")
     common(d, DEMO_SPP)
     d.set_defaults(func=cmd_demo)
