@@ -121,7 +121,9 @@ def test_demo_writes_exr_png_json_and_respects_force(tmp_path):
     assert stats["resolution"] == [384, 256] and stats["spp"] == 4 and stats["mis"] is True
     assert stats["stages"] == ["gbuffer:spheres", "brdf:ggx+lambert", "light:environment",
                               "reference_shading+mis"]
-    assert {"gbuffer", "shading", "total"} <= set(stats["time_s"])
+    assert {"gbuffer", "shading", "frame", "total"} <= set(stats["time_s"])
+    t = stats["time_s"]   # the frame as the adaptive method times its own: the G-buffer and the shading
+    assert t["frame"] == pytest.approx(t["gbuffer"] + t["shading"], abs=2e-6) and t["total"] >= t["frame"]
     assert stats["non_finite_samples"] == 0
     with Image.open(png) as im:
         assert im.size == (384, 256) and im.mode == "RGB"
@@ -894,3 +896,26 @@ def test_every_module_lists_its_public_functions_in_its_docstring():
         if missing:
             unlisted[str(path.relative_to(root))] = missing
     assert checked > 100 and not unlisted, unlisted
+
+
+def test_readme_python_example_runs(tmp_path, monkeypatch, capsys):
+    """The README's ``python`` block runs as written, in a folder where warpbw demo has written its scene (here at
+    a smaller resolution, so that it runs in seconds): a renamed function, result field or stats key would
+    otherwise leave a newcomer's first script broken."""
+    import warp as wp
+
+    from warpbw.scene import DEFAULT_SCENE_TOML
+
+    blocks = re.findall(r"```python\n(.*?)```", (Path(__file__).resolve().parents[1] / "README.md").read_text(), re.S)
+    assert blocks
+    small = DEFAULT_SCENE_TOML.replace("resolution = [384, 256]", "resolution = [48, 32]")
+    assert small != DEFAULT_SCENE_TOML
+    (tmp_path / "warpbw_demo").mkdir()
+    (tmp_path / "warpbw_demo" / "scene.toml").write_text(small)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(wp.config, "log_level", wp.config.log_level)   # the block sets it: put it back after
+    for block in blocks:
+        exec(compile(block, "README.md", "exec"), {})
+    assert re.match(r"\d+\.\d dB, shaded \d+%, frame ", capsys.readouterr().out)
+    n_p = read_exr(tmp_path / "n_p.exr")
+    assert n_p.channels == ["Y"] and n_p.pixels.shape == (32, 48, 1) and n_p.pixels.max() >= 1

@@ -315,6 +315,7 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     res = shade_reference(gb, prep.materials, prep.env_data, spp, seed=seed, mis=mis, device=prep.device,
                           threads=threads, progress=bar.update if bar is not None else None, lights=prep.lights)
     timings["shading"] = time.perf_counter() - t0
+    timings["frame"] = timings["gbuffer"] + timings["shading"]   # as the adaptive frame's: no loading, no compiling
     if bar is not None:
         bar.close()
     _check_overflowed_samples(prep, res.non_finite, res.samples)
@@ -611,9 +612,8 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
     stats["planes"] = fr.stats
     stats["stages"] = list(res.stats["stages"]) + [f"planes:{st}" for st in fr.stats["stages"]]
     t = dict({k: round(v, 6) for k, v in prep.timings.items()}, **res.stats["time_s"])   # with the loading
-    surfaces_frame = t.get("frame", t["gbuffer"] + t["shading"])   # the reference times no "frame" of its own
     stats["time_s"] = dict(t, load_planes=round(plane_prep.precompute_time_s, 6), planes=round(fr.time_s, 6),
-                           frame=round(surfaces_frame + fr.time_s, 6))
+                           frame=round(t["frame"] + fr.time_s, 6))
     aovs = dict(res.aovs, mip_level=fr.level, plane=fr.coverage)
     return RenderResult(fr.image, coverage, res.gbuffer, stats, aovs)
 
