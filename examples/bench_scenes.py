@@ -23,8 +23,9 @@ A fifth scene is written beside them and run only when ``--only`` names it: ``sp
 ccp3 sphere under forest.exr plus a directional sun (``SUN``), whose exact term the adaptive method adds at every
 pixel after the up-sampling (README, "Directional lights").
 
-Each bench writes SCENE.json and SCENE.png beside the scene (``warpbw bench --help``); ``--nb`` adds the
-n_b sweep (002 Fig. 13) to the first scene.
+Each bench writes SCENE.json and SCENE.png beside the scene (``warpbw bench --help``). The first scene, the gold
+bunny, also runs the n_b sweep of 002 Fig. 13 (``--nb``, by default 16,64,256,1024; ``--nb ''`` for none); a run
+whose ``--only`` leaves the gold bunny out runs no sweep.
 """
 from __future__ import annotations
 
@@ -114,7 +115,8 @@ def main(argv=None) -> int:
     ap.add_argument("--run", action="store_true", help="run warpbw bench on every scene")
     ap.add_argument("--only", help="comma-separated scene names to run (default: the four of the table; "
                     f"{', '.join(EXTRA_SCENES)} only when named)")
-    ap.add_argument("--nb", default="16,64,256,1024", help="n_b sweep on the first scene ('' for none)")
+    ap.add_argument("--nb", default="16,64,256,1024", help="n_b sweep on the first scene, the gold bunny (default "
+                    "%(default)s; '' for none)")
     ap.add_argument("--gt-spp", default="8192", help="ground-truth samples per pixel (default 8192; cached)")
     ap.add_argument("--runs", help="runs per point (warpbw bench --runs; default 3): the table's standard errors "
                     "shrink as 1/sqrt(runs)")

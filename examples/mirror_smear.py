@@ -42,7 +42,7 @@ from warpbw.io.staged import staged_outputs
 from warpbw.scene import GGX_MIN_ALPHA, toml_string
 
 PROBE_DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "envmaps" / "city.exr"
-ALPHA_DEFAULT = 1.0e-4        # GGX roughness: the scene's minimum is below it (warpbw.scene)
+ALPHA_DEFAULT = 1.0e-4        # GGX roughness: the smallest a scene accepts (warpbw.scene.GGX_MIN_ALPHA)
 RES_DEFAULT = (32, 64, 128)
 BUDGET_DEFAULT = 4.0          # samples per covered pixel, both frames
 TRUTH_SPP_DEFAULT = 256

@@ -1287,6 +1287,14 @@ def test_outputs_never_replace_an_input_even_with_force(tmp_path):
     write_scene(tmp_path, environment='file = "probe.exr"')
     r = run(["render", "scene.toml", "-o", "probe.exr", "--spp", "1", "--force"], tmp_path)
     assert_one_line_error(r, "-o probe.exr", "would overwrite", "probe.exr", "a file this command reads")
+    assert "link" not in r.stderr   # the probe itself, named relatively: no link (it once said "a link to it")
+    # an output beside the image (its preview, its stats) that is an input is named
+    write_scene(tmp_path, environment='file = "probe.png"')
+    (tmp_path / "probe.png").write_bytes(b"a probe the scene names")
+    r = run(["render", "scene.toml", "-o", "probe.exr", "--spp", "1", "--force"], tmp_path)
+    assert_one_line_error(r, "-o probe.exr (its output probe.png): would overwrite", "probe.png, a file this command")
+    assert "link" not in r.stderr and (tmp_path / "probe.png").read_bytes() == b"a probe the scene names"
+    write_scene(tmp_path, environment='file = "probe.exr"')
     r = run(["render", "scene.toml", "-o", "scene.exr", "--spp", "1", "--force"], tmp_path)   # its JSON is fine
     assert r.returncode == 0, r.stderr
     r = run(["bench", "scene.toml", "--json", "scene.toml", "--force"], tmp_path)
@@ -1378,8 +1386,11 @@ def test_options_that_would_be_ignored_are_refused(tmp_path):
     for opt, needle in ((["--spp", "8"], "--spp 8"), (["--mis"], "--mis")):
         r = run(["render", "sun.toml", "-o", "out.exr", *opt], tmp_path)
         assert_one_line_error(r, needle, "sun.toml", "[[light]]s alone", "without samples")
-    r = run(["render", "sun.toml", "-o", "out.exr", "-q"], tmp_path)   # no option to refuse: it renders
+    r = run(["render", "sun.toml", "-o", "out.exr"], tmp_path)   # no option to refuse: it renders
     assert r.returncode == 0, r.stderr
+    # and says so: it printed "64 spp" and recorded spp 64, the default it never took
+    assert "directional lights alone: exact, no samples" in r.stdout and " spp" not in r.stdout
+    assert json.loads((tmp_path / "out.json").read_text())["spp"] == 0
     for name in ("out.exr", "out.png", "out.json"):
         (tmp_path / name).unlink()
     assert_no_outputs(tmp_path) and not (tmp_path / "f.json").exists()

@@ -60,6 +60,7 @@ def test_lambert_sphere_under_a_light_alone_is_the_closed_form():
     assert (res.image[~cov] == 0).all()
     assert (n[cov] @ unit(SUN_DIR) < 0).sum() > 30  # the unlit side is in view, and black
     assert res.stats["samples"] == 0 and "light:directional" in res.stats["stages"]
+    assert res.stats["spp"] == 0   # none taken, whatever was asked (it recorded 3)
 
 
 def test_two_lights_add():

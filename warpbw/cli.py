@@ -182,7 +182,8 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
             print(_scales_line(res.stats["colour_scales"]))
         else:
             sps = res.stats["samples_per_second"]
-            print(f"{outs['exr']}  ({w}x{h}, {spp} spp, {res.stats['pixels_covered']} covered pixels)")
+            taken = f"{spp} spp" if res.stats["spp"] else "directional lights alone: exact, no samples"
+            print(f"{outs['exr']}  ({w}x{h}, {taken}, {res.stats['pixels_covered']} covered pixels)")
             print(f"  gbuffer {t['gbuffer'] * 1e3:.1f} ms, shading {t['shading']:.3f} s"
                   + (f" ({sps / 1e6:.2f} M samples/s)" if sps else "") + f", total {t['total']:.2f} s")
         print(f"  preview {outs['png']}, stats {outs['json']}" + "".join(f", {p}" for p in texts))
@@ -283,7 +284,8 @@ def _render_mixed_cli(scene, args) -> int:
         t = res.stats["time_s"]
         w, h = res.stats["resolution"]
         pl = res.stats["planes"]
-        surf = (f"adaptive, budget {args.budget:g} spp" if adaptive else f"reference, {args.spp} spp")
+        surf = (f"adaptive, budget {args.budget:g} spp" if adaptive else f"reference, {res.stats['spp']} spp"
+                if res.stats["spp"] else "reference, directional lights alone: exact, no samples")
         planes = (f"{args.spp} rays/pixel" if method == "ground_truth" else f"mean mip level {pl['mean_level']:.2f}")
         print(f"{outs['exr']}  ({w}x{h}, {res.stats['pixels_covered']} covered pixels)")
         print(f"  spheres and meshes: {surf}, {res.stats['pixels_shaded']} pixels shaded "
@@ -698,8 +700,12 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument("--force", action="store_true", help="overwrite existing output files")
         sp.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
 
-    r = sub.add_parser("render", help="render a scene with the forward reference estimator",
-                       description="Render SCENE with N BRDF-importance samples per pixel (002 Eq. 2). Writes "
+    r = sub.add_parser("render", help="render a scene (reference or adaptive shading, 002; planes: filtered, 004)",
+                       description="Render SCENE. Spheres and meshes: with the forward reference estimator, --spp "
+                       "BRDF-importance samples per pixel (002 Eq. 2; --mis pairs each with an environment sample), "
+                       "or with --method adaptive, bandwidth prediction and hierarchical shading at --budget samples "
+                       "per covered pixel (002), which also writes its AOVs. Planes: reflectance filtering with "
+                       "--filter (004). Writes "
                        "OUT.exr (linear radiance, A = coverage), OUT.png (sRGB preview) and OUT.json (time per "
                        "stage, samples, which stages ran; for a scene of planes, filtered by --filter: the "
                        "filter, its mean mip level and the frame's time, and the mip level map as "

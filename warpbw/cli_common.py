@@ -177,8 +177,12 @@ def check_overwrite(paths, force: bool, option: str = "-o", inputs=(), inputs_ar
     for p in paths:  # a directory, or a path under a file, fails whatever --force says
         f = next((f for f in read if _same_file(Path(p), f)), None)
         if f is not None:
-            how = "" if os.path.normpath(p) == os.path.normpath(f) else f" ({p} is a link to it)"
-            raise WarpbwError(f"{option} {paths[0]}: would overwrite {f}, {inputs_are}{how}")
+            # a symlink at the output, or another name for the input's inode (a hard link); the same file named
+            # relatively or absolutely is no link
+            linked = Path(p).is_symlink() or Path(p).resolve() != f.resolve()
+            whose = "" if Path(p) == Path(paths[0]) else f" (its output {p})"
+            raise WarpbwError(f"{option} {paths[0]}{whose}: would overwrite {f}, {inputs_are}"
+                              + (f" ({p} is a link to it)" if linked else ""))
         check_output_file(p, option, force=True)
     if force:
         return

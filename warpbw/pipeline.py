@@ -307,10 +307,12 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
                   + _clip_kernels(clip_distance), timings)
     gb, hidden = _gbuffer(prep, timings, threads, clip_distance, curvature=False)   # no bandwidth pass reads it
     n_cov = int(gb.coverage.sum())
+    spp_taken = spp if prep.env is not None else 0   # directional lights alone are exact: no sample is taken
     bar = None
     if progress and n_cov:
         from tqdm import tqdm
-        bar = tqdm(total=n_cov, desc=f"shading {spp} spp", unit="px", leave=False)
+        bar = tqdm(total=n_cov, desc=f"shading {spp} spp" if spp_taken else "shading (lights, exact)", unit="px",
+                   leave=False)
     t0 = time.perf_counter()
     res = shade_reference(gb, prep.materials, prep.env_data, spp, seed=seed, mis=mis, device=prep.device,
                           threads=threads, progress=bar.update if bar is not None else None, lights=prep.lights)
@@ -322,7 +324,7 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     image = res.radiance.numpy().reshape(prep.height, prep.width, 3)
     stats = _base_stats(prep, "reference", seed, mis, timings, n_cov)
     stats.update({
-        "spp": int(spp),
+        "spp": int(spp_taken),
         "pixels_shaded": res.pixels_shaded,
         "samples": res.samples,
         "environment_samples": res.samples if mis else 0,
