@@ -388,8 +388,10 @@ def cmd_demo(args) -> int:
     _render(default_scene(), out, spp, args.seed, True, args.device, args.exposure, args.force,
             args.threads, args.quiet, texts={scene_file: DEFAULT_SCENE_TOML})
     if not args.quiet:   # where to go next: the same scene, adaptively (the AOVs show where it shaded)
-        print(f"next: warpbw render {scene_file} -o {Path(args.output) / 'adaptive.exr'} --method adaptive "
-              "--budget 4 --mis")
+        import shlex
+
+        print(f"next: warpbw render {shlex.quote(str(scene_file))} -o "
+              f"{shlex.quote(str(Path(args.output) / 'adaptive.exr'))} --method adaptive --budget 4 --mis")
     return 0
 
 

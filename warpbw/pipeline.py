@@ -13,7 +13,7 @@ Public:
     ``render_with_planes(scene, filter_method, spp, seed, method, budget, ...) -> RenderResult``
                                        a scene with both: the spheres and meshes, then the planes over them
     ``scene_summary(scene, method="reference") -> dict``   what the scene needs (for ``warpbw info``), without
-    loading it
+                                       loading it; ``SUMMARY_METHODS``, the methods it describes
     ``stages_used(prep, mis, adaptive)``, ``PreparedScene``, ``RenderResult``   the stages a frame ran; the
                                        two results above
     ``RADIANCE_OVERFLOW_MIN``           above this radiance, a reference frame that drops samples as non-finite
