@@ -37,7 +37,8 @@ def _image(x, what: str) -> np.ndarray:
     return a
 
 
-def _masked(test, ref, mask):
+def _checked(test, ref, mask):
+    """(test, reference, mask) as float64 images and an (H, W) bool mask, checked against each other."""
     a = _image(test, "test")
     b = _image(ref, "reference")
     if a.shape != b.shape:
@@ -49,13 +50,18 @@ def _masked(test, ref, mask):
         raise WarpbwError(f"mask of shape {mask.shape} does not match images of shape {a.shape[:2]}")
     if not mask.any():
         raise WarpbwError("no pixel is covered by geometry: the error is undefined")
-    a, b = a[mask], b[mask]
     for what, x in (("test", a), ("reference", b)):   # psnr / mse read NaN or inf from them without a word
-        bad = int(np.count_nonzero(~np.isfinite(x)))
+        bad = int(np.count_nonzero(~np.isfinite(x[mask])))
         if bad:
             raise WarpbwError(f"{what} image: {bad} non-finite values over the covered pixels (expected finite "
                               "radiance)")
-    return a, b
+    return a, b, mask
+
+
+def _masked(test, ref, mask):
+    """The covered pixels of (test, reference), checked."""
+    a, b, m = _checked(test, ref, mask)
+    return a[m], b[m]
 
 
 def _check_eps(eps) -> float:
@@ -87,12 +93,11 @@ def psnr(test, ref, mask=None) -> float:
 
 def relmse_map(test, ref, mask=None, eps: float = RELMSE_EPS) -> np.ndarray:
     """(H, W) float64: per pixel the mean over channels of (test - ref)^2 / (ref^2 + eps); 0 outside ``mask``."""
-    _masked(test, ref, mask)                      # the same checks as the scalar metrics
-    a, b = _image(test, "test"), _image(ref, "reference")
+    a, b, m = _checked(test, ref, mask)           # the same checks as the scalar metrics
     if a.ndim == 2:                               # one channel: the mean over channels is the value itself
         a, b = a[..., None], b[..., None]
     e = np.mean((a - b) ** 2 / (b * b + _check_eps(eps)), axis=-1)
-    return e if mask is None else np.where(np.asarray(mask, bool), e, 0.0)
+    return e if mask is None else np.where(m, e, 0.0)
 
 
 def worst_share(err_map, mask=None, fraction: float = WORST_FRACTION) -> tuple[float, int]:
