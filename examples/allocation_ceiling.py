@@ -47,16 +47,15 @@ def per_pixel_variance(prep, seeds: int, spp: int, progress: bool = False) -> tu
     renders of ``spp`` samples (v = spp x the variance of a render's pixel over the seeds)."""
     from warpbw.pipeline import render_reference
 
+    from tqdm import tqdm
+
     s1 = s2 = 0.0
-    it = range(seeds)
-    if progress:
-        from tqdm import tqdm
-        it = tqdm(it, desc=f"brute force, {spp} spp", unit="render", leave=False)
-    for k in it:
-        r = render_reference(prep, spp, seed=1_000 + k, mis=True)
-        img = r.image.astype(np.float64)
-        s1 = s1 + img
-        s2 = s2 + img * img
+    with tqdm(range(seeds), desc=f"brute force, {spp} spp", unit="render", leave=False, disable=not progress) as it:
+        for k in it:
+            r = render_reference(prep, spp, seed=1_000 + k, mis=True)
+            img = r.image.astype(np.float64)
+            s1 = s1 + img
+            s2 = s2 + img * img
     var = np.maximum(s2 - s1 * s1 / seeds, 0.0) / (seeds - 1)
     return r.coverage.astype(bool), var.sum(axis=-1) * spp
 

@@ -239,10 +239,11 @@ def main(argv=None) -> int:
             print(f"  nu_a of {what}, cycles/radian, at quantiles "
                   + ", ".join(f"{q:g}: {v:.3g}" for q, v in zip(NU_A_QUANTILES, nu_q[key])))
     rows = []
-    for r in tqdm(res, desc="resolutions", unit="res", leave=False, disable=None):   # no bar off a terminal
-        rows.append(measure(probe, args.alpha, r, args.budget, args.truth_spp, args.seed, args.clamp_quantile,
-                            args.worst, args.env_signal))
-        tqdm.write(format_row(rows[-1]))
+    with tqdm(res, desc="resolutions", unit="res", leave=False, disable=None) as bar:   # no bar off a terminal
+        for r in bar:
+            rows.append(measure(probe, args.alpha, r, args.budget, args.truth_spp, args.seed, args.clamp_quantile,
+                                args.worst, args.env_signal))
+            tqdm.write(format_row(rows[-1]))
     if args.json:
         out = {"probe": str(probe), "alpha": args.alpha, "budget": args.budget, "truth_spp": args.truth_spp,
                "seed": args.seed, "clamp_quantile": args.clamp_quantile, "env_signal": args.env_signal,

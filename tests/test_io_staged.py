@@ -156,3 +156,51 @@ def test_an_example_whose_last_writer_fails_leaves_its_earlier_outputs(tmp_path,
     assert {n: (out / n).read_bytes() for n in ex.OUTPUTS} == {n: f"an earlier {n}".encode() for n in ex.OUTPUTS}
     assert sorted(p.name for p in out.iterdir()) == sorted(ex.OUTPUTS)   # no .part temporary left
     assert str(e.value) == f"{out / 'gbuffer.exr'}: cannot write (No space left on device)"
+
+
+# A command stopped in the middle of its writes: the child writes half of each output to its temporary, says so on
+# stdout, then waits to be stopped.
+_STOPPED_WRITER = """
+import sys, time
+from pathlib import Path
+from warpbw.cli_common import run_command
+from warpbw.io.staged import staged_outputs
+
+def write_then_wait(args):
+    out = Path(sys.argv[1])
+    with staged_outputs([out / "image.exr", out / "stats.json"]) as temps:
+        for tmp in temps.values():
+            tmp.write_bytes(b"half of it")
+        print("written", flush=True)
+        time.sleep(60)
+    return 0
+
+sys.exit(run_command("warpbw", write_then_wait, None))
+"""
+
+
+@pytest.mark.parametrize("sig, status, said", [("SIGTERM", 143, "warpbw: terminated"),
+                                               ("SIGINT", 130, "warpbw: interrupted")])
+def test_a_command_stopped_by_a_signal_leaves_its_outputs_and_no_temporary(tmp_path, sig, status, said):
+    """SIGTERM (kill, timeout, a batch scheduler) ended the process where it stood and left every output's hidden
+    .part temporary behind; now it unwinds as Ctrl-C does: the old outputs stay, the temporaries go, and the status
+    is the shell's for the signal."""
+    import signal
+    import subprocess
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "image.exr").write_bytes(b"an earlier image")
+    child = subprocess.Popen([sys.executable, "-c", _STOPPED_WRITER, str(out)], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline() == "written\n"
+        assert len(_leftovers(out)) == 2                      # the temporaries are there while it writes
+        child.send_signal(getattr(signal, sig))
+        _, err = child.communicate(timeout=30)
+    finally:
+        child.kill()
+    assert child.returncode == status
+    assert err.strip() == said
+    assert sorted(p.name for p in out.iterdir()) == ["image.exr"]
+    assert (out / "image.exr").read_bytes() == b"an earlier image"

@@ -1,7 +1,8 @@
 """What the two command lines (``warpbw``, ``warpbw-precompute``) share: one-line errors and warnings.
 
-Public: ``EXIT_USER_ERROR``, ``EXIT_BROKEN_PIPE`` (stdout's reader left), ``OneLineParser``, ``run_command(prog,
-func, args) -> int``, ``parse_seed`` (the argparse type of every ``--seed``), ``check_output_file(path, option, force)`` and ``check_output_dir(path,
+Public: ``EXIT_USER_ERROR``, ``EXIT_BROKEN_PIPE`` (stdout's reader left), ``EXIT_INTERRUPTED`` (Ctrl-C),
+``EXIT_TERMINATED`` (SIGTERM), ``OneLineParser``, ``run_command(prog, func, args) -> int`` (a stopped run leaves
+its outputs as they were), ``parse_seed`` (the argparse type of every ``--seed``), ``check_output_file(path, option, force)`` and ``check_output_dir(path,
 option)`` (an output path that cannot be written, refused before any work), ``check_overwrite(paths, force,
 option, inputs)`` (several outputs at once, and --force; never one of the command's inputs), ``init_warp(device)
 -> warp`` (Warp initialised without its banner or its no-CUDA-driver line, the device checked), ``json_text(record)
@@ -14,9 +15,12 @@ import argparse
 import json
 import math
 import os
+import signal
 import sys
 import tempfile
+import threading
 import warnings
+from contextlib import contextmanager
 from pathlib import Path
 
 from warpbw.errors import SEED_MAX, WarpbwError, check_device
@@ -24,6 +28,8 @@ from warpbw.io.staged import staged_outputs
 
 EXIT_USER_ERROR = 2
 EXIT_BROKEN_PIPE = 128 + 13   # killed by SIGPIPE, as a shell reports it for other commands
+EXIT_INTERRUPTED = 128 + 2    # SIGINT, likewise
+EXIT_TERMINATED = 128 + 15    # SIGTERM, likewise
 WARP_LOG_WARNING = 30  # warp._src.logger.LOG_WARNING: hide Warp's banner and module-load lines
 
 
@@ -97,14 +103,41 @@ def check_output_dir(path, option: str) -> None:
 WARP_ALLOCATION_FAILED = "Failed to allocate"
 
 
+class _Terminated(BaseException):
+    """SIGTERM, raised where the run is (a BaseException, as KeyboardInterrupt is: no ``except Exception`` takes it)."""
+
+
+@contextmanager
+def _sigterm_raises():
+    """While the block runs, SIGTERM (``kill``, ``timeout``, a batch scheduler's stop) raises ``_Terminated``, so
+    that the run unwinds as on Ctrl-C and its staged outputs' temporary files are removed (by default SIGTERM ends
+    the process where it stands and leaves them).  Python handles a signal between bytecodes: one that arrives
+    during a kernel launch acts when the launch returns.  Not in a thread other than the main one (Python sets
+    handlers there only), nor where SIGTERM is ignored (the caller's choice)."""
+    if threading.current_thread() is not threading.main_thread() \
+            or signal.getsignal(signal.SIGTERM) is signal.SIG_IGN:
+        yield
+        return
+
+    def on_sigterm(signum, frame):
+        raise _Terminated
+
+    previous = signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def run_command(prog: str, func, args) -> int:
-    """Run a subcommand; user errors and warnings print as one line each (``PROG: error: ...``)."""
+    """Run a subcommand; user errors and warnings print as one line each (``PROG: error: ...``).  Ctrl-C and
+    SIGTERM stop it with one line and the shell's status for the signal, its outputs untouched."""
 
     def show_warning(message, category, filename, lineno, file=None, line=None):
         # warnings (an environment with clamped pixels, unmeasured MERL entries...) as one line each
         print(f"{prog}: warning: {message}", file=sys.stderr if file is None else file)
 
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), _sigterm_raises():
         warnings.showwarning = show_warning
         try:
             status = func(args)
@@ -120,7 +153,10 @@ def run_command(prog: str, func, args) -> int:
             return EXIT_USER_ERROR
         except KeyboardInterrupt:
             print(f"{prog}: interrupted", file=sys.stderr)
-            return 130
+            return EXIT_INTERRUPTED
+        except _Terminated:
+            print(f"{prog}: terminated", file=sys.stderr)
+            return EXIT_TERMINATED
         except (OSError, MemoryError) as exc:
             print(f"{prog}: error: {exc}", file=sys.stderr)
             return EXIT_USER_ERROR

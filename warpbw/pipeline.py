@@ -314,12 +314,14 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
         bar = tqdm(total=n_cov, desc=f"shading {spp} spp" if spp_taken else "shading (lights, exact)", unit="px",
                    leave=False)
     t0 = time.perf_counter()
-    res = shade_reference(gb, prep.materials, prep.env_data, spp, seed=seed, mis=mis, device=prep.device,
-                          threads=threads, progress=bar.update if bar is not None else None, lights=prep.lights)
+    try:
+        res = shade_reference(gb, prep.materials, prep.env_data, spp, seed=seed, mis=mis, device=prep.device,
+                              threads=threads, progress=bar.update if bar is not None else None, lights=prep.lights)
+    finally:   # closed before an error or an interrupt is said, not drawn again after it at exit
+        if bar is not None:
+            bar.close()
     timings["shading"] = time.perf_counter() - t0
     timings["frame"] = timings["gbuffer"] + timings["shading"]   # as the adaptive frame's: no loading, no compiling
-    if bar is not None:
-        bar.close()
     _check_overflowed_samples(prep, res.non_finite, res.samples)
     image = res.radiance.numpy().reshape(prep.height, prep.width, 3)
     stats = _base_stats(prep, "reference", seed, mis, timings, n_cov)
