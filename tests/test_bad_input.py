@@ -4,7 +4,7 @@ Every case must exit with status 2 and print exactly ONE line on stderr, ``warpb
 ``warpbw-precompute: error: ...``), naming the file or key and what was expected, with no traceback, and
 must leave no output behind.  Runs in a fresh temporary directory with stdin closed; needs no shared data
 (the bad files are made here).  Warp's native "could not find the CUDA driver" line is not filtered out:
-``warpbw.cli_common.init_warp`` keeps it off stderr, and these tests check that.
+``warpbw.native_output.init_warp_quietly`` keeps it off stderr, and these tests check that.
 """
 from __future__ import annotations
 

@@ -25,6 +25,7 @@ from pathlib import Path
 
 from warpbw.errors import SEED_MAX, WarpbwError, check_device
 from warpbw.io.staged import staged_outputs
+from warpbw.native_output import init_warp_quietly
 
 EXIT_USER_ERROR = 2
 EXIT_BROKEN_PIPE = 128 + 13   # killed by SIGPIPE, as a shell reports it for other commands
@@ -168,29 +169,12 @@ def run_command(prog: str, func, args) -> int:
             return EXIT_USER_ERROR
 
 
-# The one line Warp's native library prints at init on a machine without an NVIDIA driver
-# (warp/native/cuda_util.cpp, init_cuda_driver(), fprintf to stderr).  Warp has no setting that skips the
-# driver probe, so init_warp captures file descriptor 2 around wp.init() and passes on every other line.
-_WARP_NO_DRIVER_LINE = "Could not find or load the NVIDIA CUDA driver"
-
-
-def _init_warp_quietly(wp) -> None:
-    """``wp.init()`` without Warp's no-CUDA-driver line on stderr (other native output is kept)."""
-    from warpbw.native_output import captured_native_output
-
-    with captured_native_output(fds=(2,)) as lines:
-        wp.init()
-    for line in lines:
-        if _WARP_NO_DRIVER_LINE not in line:
-            print(line, file=sys.stderr)
-
-
 def init_warp(device: str):
     """Initialise Warp quietly (no banner, no no-CUDA-driver line) and check ``--device``; returns ``warp``."""
     import warp as wp
 
     wp.config.log_level = WARP_LOG_WARNING
-    _init_warp_quietly(wp)
+    init_warp_quietly()
     check_device(device, "--device")
     return wp
 

@@ -75,9 +75,11 @@ def check_device(device, name: str = "device") -> str:
     ``WarpbwError`` naming ``name``."""
     import warp as wp
 
+    from warpbw.native_output import init_warp_quietly
+
     if isinstance(device, wp.Device):   # a Device object is fine too (and cheap: frame loops pass one)
         return device
-    wp.init()
+    init_warp_quietly()
     names = ", ".join(d.alias for d in wp.get_devices())
     if not isinstance(device, str) or not device:
         raise WarpbwError(f"{name} {device!r}: expected a Warp device name (Warp found: {names})")

@@ -3,6 +3,7 @@
 Public:
     ``captured_native_output(fds=(1, 2))``  context manager: what C/C++ code wrote to those descriptors
     inside the block, as a list of lines (filled when the block ends), instead of the terminal
+    ``init_warp_quietly()``  ``wp.init()`` without Warp's no-CUDA-driver line (every other line passed on)
 
 Warp prints a line at initialisation on a machine without an NVIDIA driver, and OpenEXR prints warnings
 and errors about a damaged file before raising its own exception: neither goes through Python's
@@ -45,3 +46,28 @@ def captured_native_output(fds=(1, 2)):
                     os.close(saved[fd])
             tmp.seek(0)
             lines.extend(tmp.read().decode("utf-8", "replace").splitlines())
+
+
+# The one line Warp's native library prints at init on a machine without an NVIDIA driver
+# (warp/native/cuda_util.cpp, init_cuda_driver(), fprintf to stderr).  Warp has no setting that skips the
+# driver probe, so init_warp_quietly captures file descriptor 2 around wp.init() and passes on every other line.
+WARP_NO_DRIVER_LINE = "Could not find or load the NVIDIA CUDA driver"
+
+_warp_initialised = False   # by init_warp_quietly: later calls are free (wp.init() is a no-op then too)
+
+
+def init_warp_quietly() -> None:
+    """``wp.init()`` without Warp's no-CUDA-driver line on stderr (other native output is passed on): a CPU-only
+    machine is warpbw's usual one, where that line is noise.  The command lines and every ``device`` check call it,
+    so it is the first initialisation unless the caller initialised Warp itself."""
+    global _warp_initialised
+    if _warp_initialised:
+        return
+    import warp as wp
+
+    with captured_native_output(fds=(2,)) as lines:
+        wp.init()
+    for line in lines:
+        if WARP_NO_DRIVER_LINE not in line:
+            print(line, file=sys.stderr)
+    _warp_initialised = True
