@@ -543,3 +543,37 @@ def test_deferred_curvature_that_fails_stays_pending_and_a_wrong_shape_is_refuse
     short = build_geometry([], [MeshSpec(m.vertices, m.faces, m.normals, lambda: m.curvature[:-3], None, 0)])
     with pytest.raises(WarpbwError, match="MeshSpec 0: curvature"):
         ensure_curvature(short)
+
+
+def test_build_geometry_and_render_gbuffer_refuse_what_would_render_wrong_or_crash():
+    """Specs built in Python skip the scene file's checks: a negative material id made a sphere vanish (read as
+    background), a face index past the vertices is read out of bounds by Warp's BVH, and a G-buffer of another size
+    given as ``out`` came back claiming that size."""
+    m = _icosphere_spec(0.5, subdiv=1)
+    nv = len(m.vertices)
+    cases = [
+        ([SphereSpec((0, 0, 0), 1.0, -1)], [], r"spheres\[0\] material: expected an integer >= 0, got -1"),
+        ([SphereSpec((0, 0, 0), 0.0, 0)], [], r"spheres\[0\] radius: expected a finite number > 0"),
+        ([SphereSpec((0, np.nan, 0), 1.0, 0)], [], r"spheres\[0\] center: expected three finite numbers"),
+        ([SphereSpec((0, 0), 1.0, 0)], [], r"spheres\[0\] center"),
+        ([SphereSpec((0, 0, 0), 1.0, 1.5)], [], r"spheres\[0\] material: expected an integer"),
+        ([(0, 0, 0, 1.0)], [], r"spheres\[0\]: expected a SphereSpec"),
+        ([], [MeshSpec(m.vertices, m.faces + 1, m.normals, m.curvature, None, 0)],
+         rf"meshes\[0\] faces: expected vertex indices in 0\.\.{nv - 1}, got 1 to {nv}"),
+        ([], [MeshSpec(m.vertices, m.faces.astype(float), m.normals, m.curvature, None, 0)],
+         r"meshes\[0\] faces: expected \(F, 3\) integer"),
+        ([], [MeshSpec(m.vertices, m.faces, m.normals[:-1], m.curvature, None, 0)],
+         rf"meshes\[0\] normals: expected shape \({nv}, 3\)"),
+        ([], [MeshSpec(m.vertices, m.faces, m.normals, m.curvature, np.zeros((nv, 3)), 0)],
+         rf"meshes\[0\] uv: expected shape \({nv}, 2\)"),
+        ([], [MeshSpec(m.vertices, m.faces, m.normals, m.curvature, None, -2)],
+         r"meshes\[0\] material: expected an integer >= 0"),
+    ]
+    for spheres, meshes, msg in cases:
+        with pytest.raises(WarpbwError, match=msg):
+            build_geometry(spheres, meshes)
+    cam = make_camera((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, 8, 8)
+    other = render_gbuffer(make_camera((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, 16, 12),
+                           build_geometry([], [m]))
+    with pytest.raises(WarpbwError, match="render_gbuffer: out: expected a GBuffer of the camera's 8x8, got 16x12"):
+        render_gbuffer(cam, build_geometry([], [m]), out=other)

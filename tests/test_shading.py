@@ -169,6 +169,35 @@ def test_per_pixel_sample_counts_for_adaptive_shading():
     untouched = np.setdiff1d(np.arange(n), np.union1d(subset, zero))
     assert (img[untouched] == 7.0).all()
     assert r.samples == 6 * len(shaded_nonzero)
+    # the map as numpy integers of the image's shape, as the docstring offers (it was refused unless a wp.array)
+    r = shade_reference(gb, prep.materials, prep.env.data, counts.astype(np.int64).reshape(base.coverage.shape),
+                        seed=3, mis=True)
+    assert np.array_equal(r.radiance.numpy()[shaded_nonzero], base.image.reshape(-1, 3)[shaded_nonzero])
+    assert (r.radiance.numpy()[zero] == 0).all()
+
+
+def test_shade_reference_refuses_material_ids_past_its_table_and_an_envmap_for_its_data():
+    """A G-buffer built with ids into another table: id 1 against a table of one material read past its end and
+    shaded black (a large id crashed the process).  An ``EnvMap`` given for its ``.data`` failed inside Warp."""
+    from warpbw.brdf import LAMBERT, MaterialSpec, build_material_table
+    from warpbw.envmap import constant_envmap
+    from warpbw.gbuffer import SphereSpec, build_geometry, make_camera, render_gbuffer
+    from warpbw.shading import shade_reference
+
+    cam = make_camera((0.0, 0.0, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, 12, 12)
+    gb = render_gbuffer(cam, build_geometry([SphereSpec((0, 0, 0), 1.0, 1)], []))
+    one = build_material_table([MaterialSpec("m", LAMBERT, albedo=(0.5, 0.5, 0.5))])
+    env = constant_envmap(1.0)
+    with pytest.raises(WarpbwError, match=r"material id 1, the material table has 1 \(ids 0\.\.0\)"):
+        shade_reference(gb, one, env.data, 4)
+    two = build_material_table([MaterialSpec("a", LAMBERT, albedo=(0.5, 0.5, 0.5)),
+                                MaterialSpec("b", LAMBERT, albedo=(0.25, 0.25, 0.25))])
+    with pytest.raises(WarpbwError, match="env_data: expected an EnvMapData .an EnvMap's .data., got EnvMap"):
+        shade_reference(gb, two, env, 4)
+    with pytest.raises(WarpbwError, match=r"spp: expected 144 per-pixel integer counts, got float64 \(144,\)"):
+        shade_reference(gb, two, env.data, np.full(144, 4.0))
+    img = shade_reference(gb, two, env.data, 4).radiance.numpy()[gb.coverage.reshape(-1)]
+    assert np.allclose(img, 0.25, rtol=1e-5)      # Lambert under a constant sky of 1: its albedo, material b's
 
 
 # --- tiles over threads ------------------------------------------------------------------------------

@@ -42,13 +42,14 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
 import warp as wp
 
-from warpbw.errors import (FLOAT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, check_count,
+from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, check_count,
                            check_device, is_int)
 
 RAY_T_MAX = 1.0e30
@@ -392,11 +393,55 @@ class Geometry:
     curvature_pending: dict = field(default_factory=dict)
 
 
+def _check_sphere_spec(k: int, s: SphereSpec) -> None:
+    where = f"build_geometry: spheres[{k}]"
+    if not isinstance(s, SphereSpec):
+        raise WarpbwError(f"{where}: expected a SphereSpec, got {type(s).__name__}")
+    try:
+        c = np.asarray(s.center, np.float64)
+    except (TypeError, ValueError):
+        c = np.zeros(0)
+    if c.shape != (3,) or not np.all(np.abs(c) < FLOAT32_MAX):
+        raise WarpbwError(f"{where} center: expected three finite numbers, got {s.center!r}")
+    if not (isinstance(s.radius, numbers.Real) and 0.0 < s.radius < FLOAT32_MAX):
+        raise WarpbwError(f"{where} radius: expected a finite number > 0, got {s.radius!r}")
+    # an id the material table lacks was read out of bounds (a black sphere, or a segfault); -1 is background
+    check_count(s.material, f"{where} material", 0, INT32_MAX)
+
+
+def _check_mesh_spec(k: int, m: MeshSpec) -> None:
+    where = f"build_geometry: meshes[{k}] "
+    if not isinstance(m, MeshSpec):
+        raise WarpbwError(f"{where.rstrip()}: expected a MeshSpec, got {type(m).__name__}")
+    v = np.asarray(m.vertices)
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) < 3:
+        raise WarpbwError(f"{where}vertices: expected (V, 3) positions, V >= 3, got shape {v.shape}")
+    n_v = len(v)
+    _per_vertex("vertices", v, (n_v, 3), where)
+    _per_vertex("normals", m.normals, (n_v, 3), where)
+    if m.uv is not None:
+        _per_vertex("uv", m.uv, (n_v, 2), where)
+    if not callable(m.curvature):
+        _per_vertex("curvature", m.curvature, (n_v,), where)
+    f = np.asarray(m.faces)
+    # Warp's BVH reads the vertices the faces index: one out of range crashed the process
+    if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0 or not np.issubdtype(f.dtype, np.integer):
+        raise WarpbwError(f"{where}faces: expected (F, 3) integer vertex indices, F >= 1, got {f.dtype} {f.shape}")
+    if f.min() < 0 or f.max() >= n_v:
+        raise WarpbwError(f"{where}faces: expected vertex indices in 0..{n_v - 1}, got {f.min()} to {f.max()}")
+    check_count(m.material, f"{where}material", 0, INT32_MAX)
+
+
 def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], device: str = "cpu") -> Geometry:
     """Upload spheres and one BVH over all meshes (concatenated, with a material id per face); a mesh's
     curvature is stored as ``warpbw.io.mesh.local_curvature`` of the H its MeshSpec gives (0 until
-    ``ensure_curvature`` where the MeshSpec defers it)."""
+    ``ensure_curvature`` where the MeshSpec defers it).  Material ids index the table the shading is given
+    (``shade_reference`` checks them against it)."""
     check_device(device)
+    for k, s in enumerate(spheres):
+        _check_sphere_spec(k, s)
+    for k, m in enumerate(meshes):
+        _check_mesh_spec(k, m)
     from warpbw.io.mesh import local_curvature
 
     sl = SphereList()
@@ -501,7 +546,7 @@ def _per_vertex(name: str, values, shape: tuple, where: str) -> np.ndarray:
     "update_mesh: mesh 0 "), ``name`` and what was expected."""
     a = np.asarray(values)
     if a.shape != shape:
-        raise WarpbwError(f"{where}{name}: expected shape {shape} ({shape[0]} vertices, as built), got {a.shape}")
+        raise WarpbwError(f"{where}{name}: expected shape {shape} ({shape[0]} vertices), got {a.shape}")
     if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
         raise WarpbwError(f"{where}{name}: expected numbers, got dtype {a.dtype}")
     a = np.ascontiguousarray(a, dtype=np.float32)
@@ -514,10 +559,11 @@ def _per_vertex(name: str, values, shape: tuple, where: str) -> np.ndarray:
 def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, curvature=None) -> None:
     """Deform mesh ``mesh_index`` (its position in ``build_geometry``'s ``meshes``) in place.
 
-    Copies the new vertex positions (V, 3) into the device arrays the G-buffer kernel reads, at that mesh's
-    offset in the concatenated arrays, with its smooth normals (V, 3) and mean curvatures H (V,): given, or,
-    when both are None, computed on the device from the new positions (:mod:`warpbw.mesh_normals`, the
-    formulas of :mod:`warpbw.io.mesh`).  H is stored as its local magnitude, as ``build_geometry`` stores it
+    Copies the new vertex positions (V, 3), in world space as ``build_geometry`` took them (a scene's mesh
+    ``scale``, ``rotate_y`` and ``translate`` are not applied here), into the device arrays the G-buffer kernel
+    reads, at that mesh's offset in the concatenated arrays, with its smooth normals (V, 3) and mean curvatures
+    H (V,): given, or, when both are None, computed on the device from the new positions
+    (:mod:`warpbw.mesh_normals`, the formulas of :mod:`warpbw.io.mesh`).  H is stored as its local magnitude, as ``build_geometry`` stores it
     (``warpbw.mesh_normals.local_curvature``).  Then refits the BVH over the moved points (``wp.Mesh.refit``:
     same topology, new bounds).  The connectivity, uv and materials stay as built.  Nothing is derived from the
     old geometry, so a frame rendered after this is what ``build_geometry`` with the new vertices would
@@ -614,6 +660,10 @@ def render_gbuffer(cam: CameraData, geometry: Geometry, device: str = "cpu", out
     check_reach(cam, geometry)
     if curvature:
         ensure_curvature(geometry)
+    if out is not None and not (isinstance(out, GBuffer) and (out.width, out.height) == (cam.width, cam.height)):
+        got = f"{out.width}x{out.height}" if isinstance(out, GBuffer) else type(out).__name__
+        raise WarpbwError(f"render_gbuffer: out: expected a GBuffer of the camera's {cam.width}x{cam.height}, got "
+                          f"{got}")
     gb = out if out is not None else allocate_gbuffer(cam.width, cam.height, device)
     kernel = make_gbuffer_kernel(geometry.has_spheres, geometry.has_mesh)
     launch_tiled(kernel, cam.width * cam.height,

@@ -274,21 +274,56 @@ def _check_pixel_indices(pixels, n_pix: int) -> np.ndarray:
     return idx
 
 
+def _check_material_ids(gb: GBuffer, materials: MaterialBuffers) -> None:
+    """Every material id the G-buffer holds must index ``materials``: the kernel reads the table with it, and an
+    id past its end shaded black, or crashed the process (segfault)."""
+    if not isinstance(materials, MaterialBuffers):
+        raise WarpbwError(f"shade_reference: materials: expected build_material_table's MaterialBuffers, got "
+                          f"{type(materials).__name__}")
+    n = len(materials.names)
+    top = int(gb.data.material.numpy().max(initial=-1))
+    if top >= n:
+        raise WarpbwError(f"shade_reference: the G-buffer holds material id {top}, the material table has {n} "
+                          f"(ids 0..{n - 1}): build the geometry with ids into that table")
+
+
+def _spp_map(spp, n_pix: int, device: str):
+    """``spp`` as an int32 device array when it is a per-pixel map (a wp.array, or a numpy array of integers, as
+    many as pixels); None when it is one count."""
+    if isinstance(spp, np.ndarray) and spp.ndim >= 1:
+        if not np.issubdtype(spp.dtype, np.integer) or spp.size != n_pix:
+            raise WarpbwError(f"shade_reference: spp: expected {n_pix} per-pixel integer counts, got {spp.dtype} "
+                              f"{spp.shape}")
+        if spp.size and (spp.min() < 0 or spp.max() > INT32_MAX):
+            raise WarpbwError(f"shade_reference: spp: per-pixel counts must be from 0 to {INT32_MAX}, got "
+                              f"{spp.min()} to {spp.max()}")
+        return wp.array(spp.reshape(-1).astype(np.int32), dtype=wp.int32, device=device)
+    return spp if isinstance(spp, wp.array) else None
+
+
 def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapData | None, spp, seed: int = 0,
                     mis: bool = False, device: str = "cpu", threads: int | None = None,
                     progress: Callable[[int], None] | None = None, pixels: wp.array | None = None,
                     out: wp.array | None = None, lights: Lights | None = None) -> ShadeResult:
     """Shade every covered pixel (or the given ``pixels``) and return radiance.
 
-    ``spp`` is one sample count for all pixels, or an int32 array of H*W per-pixel counts N_p.  Pixels
-    not shaded keep the value they have in ``out`` (zeros when ``out`` is not given).  ``env_data`` None:
-    no environment (``lights`` must then be given); ``lights``: directional lights, or None.
+    ``spp`` is one sample count for all pixels, or H*W per-pixel counts N_p (an int32 wp.array, or numpy
+    integers of any shape).  Pixels not shaded keep the value they have in ``out`` (zeros when ``out`` is not
+    given).  ``env_data`` (``EnvMap.data``) None: no environment (``lights`` must then be given); ``lights``:
+    directional lights, or None.
     """
-    per_pixel = isinstance(spp, wp.array)
-    has_env = env_data is not None
     mis = check_flag(mis, "shade_reference: mis")
     check_device(device, "shade_reference: device")
     n_pix = gb.width * gb.height
+    _check_material_ids(gb, materials)
+    if env_data is not None and not isinstance(env_data, EnvMapData.instance_type):   # else an AttributeError in Warp
+        raise WarpbwError(f"shade_reference: env_data: expected an EnvMapData (an EnvMap's .data), got "
+                          f"{type(env_data).__name__}")
+    as_map = _spp_map(spp, n_pix, device)
+    per_pixel = as_map is not None
+    if per_pixel:
+        spp = as_map
+    has_env = env_data is not None
     if per_pixel:
         if spp.shape != (n_pix,) or spp.dtype != wp.int32:
             raise WarpbwError(f"shade_reference: spp: expected an int32 array of {n_pix} per-pixel counts (the "
