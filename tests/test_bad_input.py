@@ -904,13 +904,14 @@ def test_clip_distance_of_the_wrong_shape_or_nan_is_refused():
 
     scene = default_scene()
     w, h = scene.camera.width, scene.camera.height
-    with pytest.raises(WarpbwError, match=rf"distance: expected an \({h}, {w}\) array .* got shape \({h}, {w - 1}\)"):
+    with pytest.raises(WarpbwError, match=rf"^clip_distance: expected an \({h}, {w}\) array .* got shape \({h}, "
+                                          rf"{w - 1}\)"):
         render_reference(scene, 1, clip_distance=np.ones((h, w - 1)))
     bad = np.full((h, w), np.inf)
     bad[0, 0] = np.nan
-    with pytest.raises(WarpbwError, match="distance: expected positive distances"):
+    with pytest.raises(WarpbwError, match="^clip_distance: expected positive distances"):
         render_reference(scene, 1, clip_distance=bad)
-    with pytest.raises(WarpbwError, match="distance: expected positive distances"):
+    with pytest.raises(WarpbwError, match="^clip_distance: expected positive distances"):
         render_reference(scene, 1, clip_distance=np.zeros((h, w)))
 
 
@@ -934,7 +935,7 @@ def test_a_scene_built_in_code_without_any_light_is_refused_by_the_environment_p
     from warpbw.scene import default_scene
 
     scene = replace(default_scene(), environment=None, lights=[])
-    with pytest.raises(WarpbwError, match=r"no light"):
+    with pytest.raises(WarpbwError, match=r"^<default scene>: \[environment\]: missing \(the scene needs a light"):
         render_reference(scene, spp=1)
 
 

@@ -918,3 +918,23 @@ def test_readme_python_example_runs(tmp_path):
     assert "Warp" not in r.stderr and "Traceback" not in r.stderr, r.stderr
     n_p = read_exr(tmp_path / "n_p.exr")
     assert n_p.channels == ["Y"] and n_p.pixels.shape == (32, 48, 1) and n_p.pixels.max() >= 1
+
+
+def test_a_prepared_scene_keeps_its_own_copy_of_the_scene():
+    """prepare_scene shared the caller's Scene: a camera resized afterwards failed the next frame inside numpy
+    (the camera on the device was the old one), an object appended was ignored.  The prepared scene now holds a
+    checked copy: its frames are those of the scene as prepared."""
+    from dataclasses import replace
+
+    from warpbw.pipeline import prepare_scene, render_reference
+    from warpbw.scene import SphereObject, default_scene
+
+    s = default_scene()
+    s.camera = replace(s.camera, width=24, height=16)
+    prep = prepare_scene(s)
+    before = render_reference(prep, spp=2, seed=5)
+    s.camera = replace(s.camera, width=40, height=20)
+    s.objects.append(SphereObject((0.0, 0.0, 2.0), 0.5, s.objects[0].material))
+    after = render_reference(prep, spp=2, seed=5)
+    assert after.image.shape == (16, 24, 3) and np.array_equal(after.image, before.image)
+    assert prep.scene is not s and len(prep.scene.objects) == len(s.objects) - 1

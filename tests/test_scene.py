@@ -717,3 +717,103 @@ def test_toml_string_refuses_text_no_utf8_file_can_hold():
 
     with pytest.raises(WarpbwError, match="--environment a\\udcff.exr: cannot be written in a scene file"):
         toml_string("a\udcff.exr", "--environment a\udcff.exr")
+
+
+# ------------------------------------------------------------------------------------------ scenes built in Python
+
+def test_check_scene_returns_an_equal_copy_of_every_scene_file(tmp_path):
+    """check_scene writes a Scene back into a scene file's tables and reads them with the file's own checks: every
+    scene a file gives (the default scene, lights and planes, normal maps, MERL and NPF materials with their
+    tables) comes back equal, and a copy."""
+    from dataclasses import replace
+
+    from warpbw.scene import check_scene
+
+    (tmp_path / "scales.exr").write_bytes(b"height field bytes")
+    (tmp_path / "scales.gmm").write_bytes(b"mipmap bytes")
+    for name in ("a.binary", "npf.bin", "a.sampling.npz", "a.bandwidth.npz", "bunny.obj"):
+        (tmp_path / name).write_bytes(b"x")
+    normal_mapped = ARMOUR + ('normal_map = "scales.exr"\nnormal_map_kind = "normal"\ntiling = 6\ngmm = "scales.gmm"\n'
+                              "gmm_components = 2\ngmm_prior = 3.0\n")
+    measured = """
+[material.paint]
+type = "merl"
+file = "a.binary"
+lookup = "linear"
+sampling = "a.sampling.npz"
+bandwidth = "a.bandwidth.npz"
+[material.fit]
+type = "npf"
+table = "npf.bin"
+name = "gold-metallic-paint"
+[material.metal]
+type = "ggx"
+alpha = 0.2
+specular = [0.9, 0.8, 0.7]
+eta = [0.2, 0.4, 1.5]
+k = [3.0, 2.4, 1.8]
+"""
+    objects = SPHERE + '\n[[object]]\nmesh = "bunny.obj"\nmaterial = "fit"\nscale = 2.0\nrotate_y = 30.0\n' \
+        + '\n[[object]]\nshape = "sphere"\nradius = 0.5\nmaterial = "metal"\n'
+    scenes = [default_scene(),
+              load_scene(_plane_scene(tmp_path, material=normal_mapped, environment=ENVIRONMENT)),
+              load_scene(write(tmp_path / "m.toml", scene_text(objects=objects, materials=measured,
+                                                              environment=ENVIRONMENT + "rotation = 30\n"
+                                                              + "scale = 2.0\n")))]
+    for s in scenes:
+        copy = check_scene(s)
+        assert copy == s and copy is not s and copy.objects is not s.objects
+    # numpy numbers, and tuples where lists were read, are what a Python user writes
+    s = scenes[0]
+    s2 = replace(s, objects=[replace(o, radius=np.float32(0.5), center=np.array([0.0, 0.0, 0.0]))
+                             for o in s.objects])
+    assert all(o.radius == 0.5 and o.center == (0.0, 0.0, 0.0) for o in check_scene(s2).objects)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda s: {"objects": []}, r"\[\[object\]\]: expected at least one"),
+    (lambda s: {"objects": [SphereObject((0.0, 0.0, 0.0), 1.0, "nonexistent")]},
+     r"\[\[object\]\] #1.material: no \[material.nonexistent\] in the scene"),
+    (lambda s: {"objects": [SphereObject((0.0, 0.0, 0.0), -1.0, s.objects[0].material)]},
+     r"\[\[object\]\] #1.radius: expected a number > 0"),
+    (lambda s: {"materials": {**s.materials, "clay": _replaced(s.materials["clay"], albedo=(2.0, 0.5, 0.5))}},
+     r"\[material.clay\].albedo: expected components in \[0, 1\]"),
+    (lambda s: {"materials": {**s.materials, "clay": _replaced(s.materials["clay"], alpha=0.3)}},
+     r"\[material.clay\].alpha: unknown key"),
+    (lambda s: {"materials": {**s.materials, "clay": _replaced(s.materials["clay"], name="mud")}},
+     r"\[material.clay\]: its Material is named 'mud'"),
+    (lambda s: {"camera": _replaced(s.camera, width=16.0)}, r"\[camera\].resolution: expected two positive"),
+    (lambda s: {"environment": None}, r"\[environment\]: missing"),
+    (lambda s: {"objects": ["a sphere"]}, r"\[\[object\]\] #1: expected a table, got 'a sphere'"),
+])
+def test_a_scene_built_in_python_is_checked_as_a_scene_file_is(edit, message):
+    """A Scene edited in Python skipped every check of the scene file: an unknown material failed with a bare
+    KeyError inside prepare_scene, an albedo of 2 rendered, no object at all rendered an empty image."""
+    from dataclasses import replace
+
+    from warpbw.pipeline import prepare_scene
+    from warpbw.scene import check_scene
+
+    s = default_scene()
+    bad = replace(s, **edit(s))
+    with pytest.raises(WarpbwError, match=rf"^<default scene>: {message}"):
+        check_scene(bad)
+    with pytest.raises(WarpbwError, match=message):
+        prepare_scene(bad)
+
+
+def _replaced(obj, **changes):
+    from dataclasses import replace
+
+    return replace(obj, **changes)
+
+
+def test_check_scene_and_load_scene_refuse_what_is_not_a_scene():
+    from warpbw.scene import check_scene
+
+    with pytest.raises(WarpbwError, match="scene: expected a warpbw.scene.Scene .*, got str"):
+        check_scene("scene.toml")
+    with pytest.raises(WarpbwError, match="scene path: expected a file name .str or Path., got NoneType"):
+        load_scene(None)
+    with pytest.raises(WarpbwError, match="expected the scene's TOML text as a str, got bytes"):
+        parse_scene(DEFAULT_SCENE_TOML.encode())

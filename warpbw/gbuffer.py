@@ -671,18 +671,19 @@ def render_gbuffer(cam: CameraData, geometry: Geometry, device: str = "cpu", out
     return gb
 
 
-def hide_beyond(gb: GBuffer, cam: CameraData, distance, device: str = "cpu") -> int:
+def hide_beyond(gb: GBuffer, cam: CameraData, distance, device: str = "cpu", name: str = "distance") -> int:
     """Empty the G-buffer's pixels whose surface lies beyond ``distance`` (an (H, W) array: per pixel, the
     distance along its centre ray of something nearer that the G-buffer does not hold, ``inf`` where there is
     none), so that no later stage shades a surface that will be drawn over.  A surface exactly at the distance
-    stays.  Returns the number of pixels emptied."""
+    stays.  Returns the number of pixels emptied.  ``name``: what errors call ``distance`` (the caller's name
+    for it)."""
     check_device(device)
     dist = np.asarray(distance)
     if dist.shape != (gb.height, gb.width):
-        raise WarpbwError(f"distance: expected an ({gb.height}, {gb.width}) array (the camera's "
+        raise WarpbwError(f"{name}: expected an ({gb.height}, {gb.width}) array (the camera's "
                           f"{gb.width}x{gb.height}), got shape {dist.shape}")
     if not np.issubdtype(dist.dtype, np.number) or np.isnan(dist).any() or (dist <= 0).any():
-        raise WarpbwError("distance: expected positive distances along the centre rays (inf where nothing is "
+        raise WarpbwError(f"{name}: expected positive distances along the centre rays (inf where nothing is "
                           "nearer), got non-positive or NaN values")
     t_max = wp.array(np.minimum(dist, np.float32(RAY_T_MAX)).astype(np.float32).reshape(-1), dtype=wp.float32,
                      device=device)

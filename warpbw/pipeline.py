@@ -49,7 +49,7 @@ from warpbw.errors import (BRDF_VALUE_MAX, FLOAT32_MAX, INT32_MAX, WarpbwError, 
                            check_flag, check_seed, is_int)
 from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, ensure_curvature, hide_beyond,
                             render_gbuffer, scene_camera)
-from warpbw.scene import MeshObject, PlaneObject, Scene, SphereObject
+from warpbw.scene import MeshObject, PlaneObject, Scene, SphereObject, check_scene
 
 
 @dataclass
@@ -128,18 +128,18 @@ def _material_spec(m, progress: bool, notes: dict, sources: dict) -> brdf_mod.Ma
 
 
 def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> PreparedScene:
-    """Load the scene's assets (environment, meshes, materials) onto ``device``."""
+    """Load the scene's assets (environment, meshes, materials) onto ``device``.  The prepared scene holds a
+    checked copy of ``scene`` (``warpbw.scene.check_scene``): a Scene built in Python is checked as a scene file
+    is, and editing ``scene`` afterwards changes no frame of it (prepare the edited scene again)."""
     from warpbw.lights import make_lights
 
     _check_scene(scene)
+    scene = check_scene(scene)
     check_device(device)
     if scene.has_planes:
         raise WarpbwError(f"{scene.source}: this renderer (spheres and meshes, 002) does not render planes; scenes "
                           "with planes render with warpbw.filtering.render_filtering, or, beside spheres and meshes, "
                           "with warpbw.pipeline.render_with_planes (warpbw render)")
-    if scene.environment is None and not scene.lights:
-        raise WarpbwError(f"{scene.source}: the scene has no light (expected an [environment] and / or "
-                          "[[light]] tables)")
     timings: dict = {}
     notes: dict = {}
     sources: dict = {}
@@ -253,7 +253,7 @@ def _gbuffer(prep: PreparedScene, timings: dict, threads: int | None = None, cli
     gb = render_gbuffer(prep.camera, prep.geometry, device=prep.device, threads=threads, curvature=curvature)
     hidden = None
     if clip_distance is not None:
-        hidden = hide_beyond(gb, prep.camera, clip_distance, device=prep.device)
+        hidden = hide_beyond(gb, prep.camera, clip_distance, device=prep.device, name="clip_distance")
     wp.synchronize_device(prep.device)
     timings["gbuffer"] = time.perf_counter() - t0
     return gb, hidden
@@ -324,7 +324,8 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     timings["frame"] = timings["gbuffer"] + timings["shading"]   # as the adaptive frame's: no loading, no compiling
     _check_overflowed_samples(prep, res.non_finite, res.samples)
     image = res.radiance.numpy().reshape(prep.height, prep.width, 3)
-    stats = _base_stats(prep, "reference", seed, mis, timings, n_cov)
+    # MIS weighs environment samples: under directional lights alone there are none, and the record says so
+    stats = _base_stats(prep, "reference", seed, mis and spp_taken > 0, timings, n_cov)
     stats.update({
         "spp": int(spp_taken),
         "pixels_shaded": res.pixels_shaded,

@@ -4,6 +4,7 @@ Public:
     ``load_scene(path) -> Scene``               read and validate a scene file
     ``parse_scene(text, base_dir, source) -> Scene``  the same from a string
     ``default_scene() -> Scene``                the embedded demo scene (needs no file)
+    ``check_scene(scene) -> Scene``             a checked copy of a Scene built or edited in Python
     ``Scene``, ``Camera``, ``Environment``, ``DirectionalLight``, ``SphereObject``, ``MeshObject``,
     ``PlaneObject``, ``Material``, ``DEFAULT_SCENE_TOML``; ``Scene.input_files()``, every file a scene reads
     ``file_digest(path) -> str``               blake2b of a file's bytes (the content hashes of scenes and tables)
@@ -29,7 +30,7 @@ import hashlib
 import json
 import math
 import sys
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -595,12 +596,20 @@ def _material(ctx: _Ctx, name: str, d: dict) -> Material:
 
 def parse_scene(text: str, base_dir: Path | str | None = None, source: str = "<string>") -> Scene:
     """Parse and validate a scene from TOML text; relative paths resolve against ``base_dir``."""
+    if not isinstance(text, str):   # bytes, a Path: a TypeError from tomllib
+        raise WarpbwError(f"{source}: expected the scene's TOML text as a str, got {type(text).__name__} (a file "
+                          "reads with load_scene)")
     base = Path(base_dir) if base_dir is not None else Path.cwd()
     ctx = _Ctx(source, base)
     try:
         d = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise WarpbwError(f"{source}: not valid TOML: {exc}") from None
+    return _scene_from_tables(ctx, d)
+
+
+def _scene_from_tables(ctx: _Ctx, d: dict) -> Scene:
+    """The Scene a TOML document's tables describe, every value checked."""
     ctx.table(d, "", ("camera", "environment", "light", "object", "material"))  # top level: keys named as they are
     if "camera" not in d:
         ctx.fail("[camera]", "missing (every scene needs a camera)")
@@ -624,12 +633,102 @@ def parse_scene(text: str, base_dir: Path | str | None = None, source: str = "<s
         ctx.fail("[[object]]", "expected at least one [[object]]")
     objects = [_object(ctx, o, i, materials) for i, o in enumerate(objs_in)]
     env = _environment(ctx, d["environment"]) if "environment" in d else None
-    scene = Scene(_camera(ctx, d["camera"]), env, objects, materials, source, base, lights)
-    return scene
+    return Scene(_camera(ctx, d["camera"]), env, objects, materials, ctx.source, ctx.base_dir, lights)
+
+
+# --------------------------------------------------------------------------------------------------
+# A Scene built in Python, checked as a scene file is
+
+def _plain(v):
+    """A field's value as TOML holds it: a list for a tuple or array, a str for a path, a Python number for a
+    numpy one (the checks take int and float only)."""
+    if isinstance(v, Path):
+        return str(v)
+    if hasattr(v, "tolist"):   # numpy arrays and scalars
+        return v.tolist()
+    if isinstance(v, (tuple, list)):
+        return [_plain(c) for c in v]
+    return v
+
+
+_MATERIAL_DEFAULTS = Material("", "")
+_NORMAL_MAP_FIELDS = ("normal_map", "normal_map_kind", "normal_map_scale", "tiling", "gmm", "gmm_components",
+                      "gmm_prior")
+
+
+def _material_table(m) -> dict:
+    """A Material as its [material.NAME] table: the keys its type takes, and any other field set away from its
+    default (which the checks then name as a key the type does not take)."""
+    if not isinstance(m, Material):
+        return m     # the checks say what a table was expected to be
+    allowed = _MATERIAL_KEYS.get(m.type, (("type",), ()))[0]
+    d = {"type": m.type}
+    for f in fields(Material):
+        key = "name" if f.name == "npf_name" else f.name
+        if f.name in ("name", "type"):
+            continue
+        v, default = _plain(getattr(m, f.name)), _plain(getattr(_MATERIAL_DEFAULTS, f.name))
+        if key in _NORMAL_MAP_FIELDS:   # with a normal map (and its scale with heights only)
+            in_type = m.normal_map is not None and (key != "normal_map_scale" or m.normal_map_kind == "height")
+        else:
+            in_type = key in allowed
+        if (in_type and v is not None) or v != default:
+            d[key] = v
+    return d
+
+
+def _object_table(o) -> dict:
+    if isinstance(o, SphereObject):
+        return {"shape": "sphere", "center": _plain(o.center), "radius": _plain(o.radius), "material": o.material}
+    if isinstance(o, PlaneObject):
+        return {"shape": "plane", "center": _plain(o.center), "size": _plain(o.size), "material": o.material}
+    if isinstance(o, MeshObject):
+        return {"mesh": _plain(o.file), "material": o.material, "translate": _plain(o.translate),
+                "scale": _plain(o.scale), "rotate_y": _plain(o.rotate_y)}
+    return o
+
+
+def _scene_tables(scene: Scene) -> dict:
+    """``scene`` as the tables of a scene file (paths absolute or as given)."""
+    c = scene.camera
+    d = {"camera": {"position": _plain(c.position), "look_at": _plain(c.look_at), "up": _plain(c.up),
+                    "fov": _plain(c.fov), "resolution": [_plain(c.width), _plain(c.height)]}
+         if isinstance(c, Camera) else c,
+         "object": [_object_table(o) for o in scene.objects] if isinstance(scene.objects, (list, tuple))
+         else scene.objects,
+         "material": ({name: _material_table(m) for name, m in scene.materials.items()}
+                      if isinstance(scene.materials, dict) else scene.materials)}
+    e = scene.environment
+    if isinstance(e, Environment):
+        d["environment"] = {k: _plain(v) for k, v in (("file", e.file), ("procedural", e.procedural),
+                                                      ("constant", e.constant)) if v is not None}
+        d["environment"].update(rotation=_plain(e.rotation), scale=_plain(e.scale))
+    elif e is not None:
+        d["environment"] = e
+    if scene.lights:
+        d["light"] = [{"type": "directional", "direction": _plain(li.direction), "radiance": _plain(li.radiance)}
+                      if isinstance(li, DirectionalLight) else li for li in scene.lights]
+    return d
+
+
+def check_scene(scene) -> Scene:
+    """A checked copy of ``scene``: a Scene built or edited in Python passes the checks a scene file does (a
+    material no object may name, an albedo above 1, no object at all, ...), and later edits of ``scene`` do not
+    reach the copy.  Errors name the keys as a scene file would."""
+    if not isinstance(scene, Scene):
+        raise WarpbwError(f"scene: expected a warpbw.scene.Scene (from load_scene / parse_scene), got "
+                          f"{type(scene).__name__}")
+    for name, m in (scene.materials.items() if isinstance(scene.materials, dict) else ()):
+        if isinstance(m, Material) and m.name != name:
+            raise WarpbwError(f"{scene.source}: [material.{name}]: its Material is named {m.name!r}; expected the "
+                              "name it is filed under")
+    return _scene_from_tables(_Ctx(scene.source, Path(scene.base_dir)), _scene_tables(scene))
 
 
 def load_scene(path: Path | str) -> Scene:
     """Read and validate a scene file."""
+    if not isinstance(path, (str, Path)):   # None: a TypeError from pathlib
+        raise WarpbwError(f"scene path: expected a file name (str or Path), got {type(path).__name__}")
     p = Path(path)
     if not p.exists():
         raise WarpbwError(f"{p}: scene file not found")
