@@ -61,6 +61,9 @@ def test_lambert_sphere_under_a_light_alone_is_the_closed_form():
     assert (n[cov] @ unit(SUN_DIR) < 0).sum() > 30  # the unlit side is in view, and black
     assert res.stats["samples"] == 0 and "light:directional" in res.stats["stages"]
     assert res.stats["spp"] == 0   # none taken, whatever was asked (it recorded 3)
+    mis = render_reference(scene(lights=[light()]), spp=3, mis=True)
+    assert np.array_equal(mis.image, res.image)
+    assert mis.stats["mis"] is False and "+mis" not in " ".join(mis.stats["stages"])   # nothing was sampled
 
 
 def test_two_lights_add():
