@@ -26,6 +26,7 @@ import pytest
 
 from conftest import plane_scene_toml
 
+from warpbw.errors import WarpbwError
 from warpbw.io.exr import read_rgb, write_exr
 from warpbw.pipeline import render_reference
 from warpbw.scene import GGX_MIN_ALPHA, parse_scene
@@ -280,12 +281,21 @@ def test_ggx_smallest_alpha_is_a_white_mirror(mis):
 
 
 def test_ggx_alpha_below_the_scene_minimum_stays_a_finite_mirror():
-    # float32 ggx_d once broke below alpha ~1.7e-4 (1 + cos^2 (a^2 - 1) == 0 at h = n); 1e-6 is below the
-    # scene's bound (clamped by the kernel to GGX_MIN_ALPHA) and 1e-4 is the bound itself
-    for alpha in (GGX_MIN_ALPHA, 1e-6):
-        s = _furnace_scene(GGX_MIN_ALPHA)
-        s.materials["g"] = dataclasses.replace(s.materials["g"], alpha=alpha)  # bypass the scene's bound
-        _check_white_mirror(s)
+    # float32 ggx_d once broke below alpha ~1.7e-4 (1 + cos^2 (a^2 - 1) == 0 at h = n); 1e-4 is the scene's
+    # bound, and 1e-6, below it, reaches the material table only through the stage API
+    # (build_material_table clamps it to GGX_MIN_ALPHA): a Scene edited in Python is checked as a file is
+    from warpbw.brdf import GGX, LAMBERT, MaterialSpec, build_material_table
+    from warpbw.pipeline import prepare_scene
+
+    prep = prepare_scene(_furnace_scene(GGX_MIN_ALPHA))
+    _check_white_mirror(prep)
+    below = build_material_table([MaterialSpec("g", GGX, alpha=1e-6, specular=(1.0, 1.0, 1.0)),
+                                  MaterialSpec("l", LAMBERT, albedo=(0.8, 0.8, 0.8))])
+    _check_white_mirror(dataclasses.replace(prep, materials=below))
+    edited = _furnace_scene(GGX_MIN_ALPHA)
+    edited.materials["g"] = dataclasses.replace(edited.materials["g"], alpha=1e-6)
+    with pytest.raises(WarpbwError, match=r"\[material\.g\]\.alpha: expected a number >= 0\.0001, got 1e-06"):
+        render_reference(edited, spp=1)
 
 
 def _check_white_mirror(s):
@@ -453,7 +463,6 @@ def test_adaptive_refuses_radiance_whose_square_overflows_the_bandwidth_pass(all
     1e20, within float32 (the reference renders it), squares to 1e40 > 3.4e38.  It once returned inf sigma2 (and,
     with allocation="variance", an inf variance AOV and N_p = n_max everywhere: 24x the budget); now a one-line
     error.  Below the limit (1e15: 1e30 squared) every AOV stays finite."""
-    from warpbw.errors import WarpbwError
     from warpbw.pipeline import render_adaptive
 
     objs = [((0.0, 0.0, 0.0), 1.0, "l")] + hidden("g")
@@ -514,7 +523,6 @@ def test_planes_scaled_from_1e_minus_30_to_1e30_render_the_same_images_and_beyon
     beyond float32's range, less its margins (warpbw.filtering.PLANE_REACH_MIN / _MAX), it is refused, naming
     the plane.  A scene scaled by 1e-200 once rendered an empty image with a warning that blamed the camera;
     without the check, 1e-45 loses 62% of the plane and 1e38 15% (session 39; the scene parser refuses 1e39)."""
-    from warpbw.errors import WarpbwError
     from warpbw.filtering import ALL_METHODS, PLANE_REACH_MAX, PLANE_REACH_MIN, plane_distance, prepare_filtering
     from warpbw.filtering import render_filtering
 
@@ -609,7 +617,6 @@ def test_radiance_that_overflows_in_the_shading_is_refused_by_the_renderers_not_
     """A sky of 1e33 on a mirror-like plane (roughness 1e-3) seen at a grazing angle: 447 of 512 pixels came back
     inf or NaN from render_filtering (only stats said so); the command line refused the image, Python returned it.
     The same sky of 1e18 renders finite."""
-    from warpbw.errors import WarpbwError
     from warpbw.filtering import METHODS, render_filtering
 
     def scene(c):

@@ -719,6 +719,137 @@ def test_scene_problems_are_clear_errors(tmp_path):
         render_filtering(s, "ground_truth", spp=8)
 
 
+
+def test_a_filtering_scene_renders_in_the_scenes_place(tmp_path):
+    """render_filtering(prepare_filtering(s), m) was an AttributeError ('FilteringScene' object has no attribute
+    'environment'), where warpbw.pipeline.render_reference takes its PreparedScene there: now it is the prepared
+    scene, on its own device, and renders as prepared= does."""
+    s = scene_with_map(tmp_path, heights=_bumps(8), scale=0.5, resolution=(16, 16))
+    prep = prepare_filtering(s, ("lean", "gmm_aligned"))
+    for m in ("lean", "gmm_aligned"):
+        r = render_filtering(prep, m, seed=3)
+        assert r.coverage.any() and np.array_equal(r.image, render_filtering(s, m, seed=3, prepared=prep).image), m
+    assert np.array_equal(render_filtering(prep, "fixed", prepared=prep, device="cpu").image,
+                          render_filtering(s, "fixed").image)
+    # the result reads as RenderResult's: its per-pixel maps by name
+    assert render_filtering(prep, "lean").aovs["level"] is not None
+    with pytest.raises(WarpbwError, match=r"^prepared: given a FilteringScene as the scene too"):
+        render_filtering(prep, "lean", prepared=prepare_filtering(s, ("lean",)))
+    with pytest.raises(WarpbwError, match=r"^scene: expected a Scene .* or a FilteringScene .*got str"):
+        render_filtering("s.toml", "lean")
+    with pytest.raises(WarpbwError, match=r"^prepared: expected a FilteringScene .*got Scene"):
+        render_filtering(s, "lean", prepared=s)
+
+
+def test_a_filtering_scene_prepared_for_another_scene_is_refused(tmp_path):
+    """A FilteringScene of another scene was used as it is: a plane material it lacks was a bare KeyError, and a
+    changed map, light or environment rendered the old one without a word.  What it does not hold (a material's
+    roughness, the camera) is read from the scene: such a scene renders with it."""
+    text = plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\n', resolution=(16, 16))
+    write_exr(tmp_path / "map.exr", _bumps(8)[..., None].astype(np.float32), channels=["Y"])
+    s = parse_scene(text, tmp_path, "s.toml")
+    prep = prepare_filtering(s, ("lean",))
+
+    def refused(other, match, method="lean"):
+        with pytest.raises(WarpbwError, match=match):
+            render_filtering(parse_scene(other, tmp_path, "o.toml"), method, prepared=prep)
+
+    refused(text.replace('material = "m"', 'material = "rock"').replace("[material.m]", "[material.rock]"),
+            r"^prepared: prepared for s\.toml, with planes of material m; this scene has planes of material rock; "
+            r"expected prepare_filtering of this scene \(o\.toml\)$")
+    refused(text.replace("normal_map_scale = 0.5", "normal_map_scale = 2.0"),
+            r"^prepared: prepared for s\.toml, where \[material\.m\] has normal_map_scale = 0\.5; this scene's has "
+            r"2\.0; expected")
+    refused(text.replace("radiance = [3.0, 2.5, 2.0]", "radiance = [1.0, 1.0, 1.0]"),
+            r"^prepared: prepared for s\.toml, with \[\[light\]\]s directional .*radiance \[3\.0, 2\.5, 2\.0\]; "
+            r"this scene has directional .*radiance \[1\.0, 1\.0, 1\.0\]; expected")
+    refused(plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\n', resolution=(16, 16),
+                             environment="[environment]\nconstant = [1.0, 1.0, 1.0]\n"),
+            r"^prepared: prepared for s\.toml, with \[environment\] none; this scene has constant \[1\.0, 1\.0, "
+            r"1\.0\].*; expected")
+    # the same scene read again, or another camera and roughness: rendered with the prepared mipmaps
+    again = parse_scene(text, tmp_path, "o.toml")
+    assert np.array_equal(render_filtering(again, "lean", prepared=prep).image, render_filtering(s, "lean").image)
+    rough = parse_scene(text.replace("roughness = 0.2", "roughness = 0.4"), tmp_path, "o.toml")
+    assert np.array_equal(render_filtering(rough, "lean", prepared=prep).image, render_filtering(rough, "lean").image)
+    with pytest.raises(WarpbwError, match=r"^device bogus: not available"):
+        render_filtering(s, "lean", prepared=prep, device="bogus")
+
+
+@pytest.mark.parametrize("bad", ["1", True, None, float("inf"), float("nan"), 1e39, 10**400, np.array([0.5])],
+                         ids=["str", "bool", "None", "inf", "nan", "1e39", "10**400", "array"])
+def test_lod_bias_and_the_other_numbers_must_be_finite_real_numbers(bad):
+    """lod_bias="1" was a TypeError from math.isfinite; zoomed_camera took "2", NaN, inf and -1 (a camera at NaN,
+    inf, or behind its look-at point); gmm_ndf a negative or NaN rough_var; pair_uniforms a seed of -1 and 2.5
+    pairs; threads=0 was refused only after the mipmaps were built.  Each is now a one-line error naming it."""
+    s = parse_scene(plane_scene_toml(resolution=(16, 16)), Path.cwd(), "s.toml")
+    with pytest.raises(WarpbwError, match=r"^lod_bias \(mip levels added to every pixel's level\): expected a finite "
+                                          r"number, got "):
+        render_filtering(s, "lean", lod_bias=bad)
+    with pytest.raises(WarpbwError, match=r"^zoom .*: expected a finite number > 0, got "):
+        zoomed_camera(s.camera, bad)
+    with pytest.raises(WarpbwError, match=r"^rough_var .*: expected a finite number >= 0, got "):
+        gmm_ndf([[1.0, 0.0, 0.0, 0.01]], bad, [[0.0, 0.0, 1.0]])
+    with pytest.raises(WarpbwError, match=r"^n \(pairs\): expected an integer"):
+        pair_uniforms(0, 0, bad)
+
+
+def test_numbers_of_other_types_are_taken_where_they_are_real(monkeypatch):
+    s = parse_scene(plane_scene_toml(resolution=(16, 16)), Path.cwd(), "s.toml")
+    ref = render_filtering(s, "lean", lod_bias=0.5).image
+    for bias in (np.float32(0.5), np.float64(0.5)):
+        assert np.array_equal(render_filtering(s, "lean", lod_bias=bias).image, ref)
+    assert np.array_equal(render_filtering(s, "lean", lod_bias=1).image,
+                          render_filtering(s, "lean", lod_bias=1.0).image)
+    assert zoomed_camera(s.camera, np.float32(2.0)).position == zoomed_camera(s.camera, 2).position
+    for bad, match in ((-1.0, r"^zoom .*> 0, got -1\.0"), (0, r"^zoom .*> 0, got 0")):
+        with pytest.raises(WarpbwError, match=match):
+            zoomed_camera(s.camera, bad)
+    with pytest.raises(WarpbwError, match=r"^rough_var .*>= 0, got -0\.1"):
+        gmm_ndf([[1.0, 0.0, 0.0, 0.01]], -0.1, [[0.0, 0.0, 1.0]])
+    assert gmm_ndf([[1.0, 0.0, 0.0, 0.01]], np.float32(0.02), [[0.0, 0.0, 1.0]])[0] > 0
+    with pytest.raises(WarpbwError, match=r"^seed: expected an integer"):
+        pair_uniforms(-1, 0, 2)
+    with pytest.raises(WarpbwError, match=r"^pixel: expected an integer"):
+        pair_uniforms(0, 2**31, 2)
+    assert pair_uniforms(np.uint32(2**32 - 1), np.int64(3), np.int32(2)).shape == (2, 5)
+    # threads is refused before the mipmaps are loaded or built (a GMM fit of a large map takes minutes)
+    import warpbw.filtering
+
+    def no_prepare(*a, **k):
+        raise AssertionError("prepared before the arguments were checked")
+
+    monkeypatch.setattr(warpbw.filtering, "prepare_filtering", no_prepare)
+    with pytest.raises(WarpbwError, match=r"^threads: expected an integer >= 1, got 0"):
+        render_filtering(s, "gmm_aligned", threads=0)
+
+def test_the_filtering_entry_points_take_a_filtering_scene_and_check_a_scene_built_in_python():
+    """check_render_args, plane_distance and filtering_summary failed on a FilteringScene with an AttributeError;
+    prepare_filtering("lean") took the name letter by letter ("filter method 'l'"); a plane scene edited in Python
+    skipped the scene file's checks (a plane given a Lambert material failed inside the renderer)."""
+    from dataclasses import replace
+
+    from warpbw.filtering import check_render_args, filtering_summary, plane_distance
+    from warpbw.scene import Material
+
+    s = parse_scene(plane_scene_toml(resolution=(12, 12)), Path.cwd(), "s.toml")
+    prep = prepare_filtering(s, "lean")
+    assert prep.scene == s and prep.scene is not s            # a checked copy
+    check_render_args(prep, "lean")
+    assert np.array_equal(plane_distance(prep), plane_distance(s))
+    assert filtering_summary(prep) == filtering_summary(s)
+    with pytest.raises(WarpbwError, match=r"^scene: expected a Scene .*got str"):
+        plane_distance("s.toml")
+    with pytest.raises(WarpbwError, match=r"^progress: expected True or False, got 'no'"):
+        render_filtering(s, "lean", progress="no")
+    lambert = replace(s, materials={"m": Material("m", "lambert", albedo=(0.5, 0.5, 0.5))})
+    with pytest.raises(WarpbwError, match=r"^s\.toml: \[\[object\]\] #1\.material: planes take a cook-torrance "
+                                          r"material"):
+        render_filtering(lambert, "lean")
+    with pytest.raises(WarpbwError, match=r"^s\.toml: \[\[object\]\] #1\.material: planes take"):
+        prepare_filtering(lambert, "lean")
+
+
 def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path):
     from precompute.gmm_mipmap import build_gmm_mipmap, load_map, write_gmm_mipmap
 

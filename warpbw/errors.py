@@ -6,7 +6,8 @@ Public: ``WarpbwError``; ``is_int(value)`` (an int or numpy integer, not a bool)
 whether it is missing or a directory); ``check_camera_reach(reach, lo, hi, target, kind, why, source)`` (the
 camera's distance to an object within what float32 intersection handles); ``check_coordinate_spacing(coord,
 size, target, source)`` (float32 fine enough where the camera and an object lie, ``COORD_SPACING_REL_MAX``);
-``check_flag(value, name) -> bool`` (True or False, not a truthy string); ``check_seed(seed, name)`` (a uint32)
+``check_flag(value, name) -> bool`` (True or False, not a truthy string); ``check_real(value, name, lo,
+lo_open) -> float`` (a finite real number in float32's range, not a bool or a string); ``check_seed(seed, name)`` (a uint32)
 and ``check_device(device, name)`` (a Warp device this machine has), the renderers' own checks;
 ``check_direction_pairs(wi, wo) -> (wi, wo)`` (the BRDF evaluators' (N, 3) direction pairs, broadcast, unit length)
 and ``unit_directions(d, name)`` (finite non-zero directions scaled to unit length); ``check_finite_image(image,
@@ -19,6 +20,7 @@ The CLIs print it as ``warpbw: error: <message>`` and exit with status 2, never 
 """
 from __future__ import annotations
 
+import math
 import numbers
 from pathlib import Path
 
@@ -53,6 +55,24 @@ def check_count(value, name: str, lo: int, hi: int | None = None) -> int:
     if hi is not None and value > hi:
         raise WarpbwError(f"{name}: expected an integer from {lo} to {hi}, got {value!r}")
     return int(value)
+
+
+def check_real(value, name: str, lo: float = -FLOAT32_MAX, lo_open: bool = False) -> float:
+    """``value`` as a float when it is a real number (not a bool or a string: a keyword given "1" reached
+    math.isfinite and came out as a TypeError) that is finite in float32, as the kernels take it, and >= ``lo``
+    (> ``lo`` with ``lo_open``); else a one-line ``WarpbwError`` naming ``name``."""
+    import numpy as np
+
+    x = math.nan
+    if isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)):
+        try:
+            x = float(value)
+        except OverflowError:      # an int beyond float64
+            x = math.inf
+    if not (math.isfinite(x) and abs(x) <= FLOAT32_MAX and (x > lo if lo_open else x >= lo)):
+        bound = "" if lo == -FLOAT32_MAX else f" {'>' if lo_open else '>='} {lo:g}"
+        raise WarpbwError(f"{name}: expected a finite number{bound}, got {value!r}")
+    return x
 
 
 def check_flag(value, name: str) -> bool:

@@ -9,9 +9,10 @@ Public:
     ``FilteringScene``                   what ``prepare_filtering`` returns: the planes' mipmaps on the device
     ``prepare_filtering(scene, methods, device, progress, cache, env) -> FilteringScene``   load / build the mipmaps
     ``render_filtering(scene, method, spp, seed, device, prepared, camera, progress, lod_bias, threads,
-                       env_spp, max_anisotropy, background)``        -> ``FilterResult``
+                       env_spp, max_anisotropy, background)``        -> ``FilterResult``; ``scene`` a ``Scene``
+                                         or its ``FilteringScene`` (then the prepared one, on its own device)
     ``check_render_args(scene, method, spp, env_spp, max_anisotropy)``  its argument checks, before any work
-    ``FilterResult``                     image, coverage, level map, time_s, stats
+    ``FilterResult``                     image, coverage, level map, time_s, stats; ``aovs`` ({"level": level})
     ``Background``                       image and camera-space depth the planes are drawn over
     ``plane_distance(scene, device) -> (H, W)``   per pixel, the distance along the centre ray to the nearest
                                          plane (``inf`` where none): what hides the spheres and meshes
@@ -114,9 +115,9 @@ from precompute.gmm_mipmap import NORMAL_DIM
 from warpbw.envmap import (LUMINANCE_RGB, EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv,
                            load_environment)
 from warpbw.errors import (INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, check_count,
-                           check_device, check_finite_image, check_seed)
+                           check_device, check_finite_image, check_flag, check_real, check_seed)
 from warpbw.gbuffer import CameraData, scene_camera
-from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene
+from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene, check_scene
 
 METHODS = ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed")
 ALL_METHODS = METHODS + ("ground_truth",)
@@ -1049,7 +1050,12 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
     mipmap (always: the ground truth reads its finest level) and, for gmm_aligned / gmm_unaligned, the GMM
     mipmap from the material's ``gmm`` file or the cache, else built (and cached).  ``env``: the scene's
     ``[environment]`` already loaded on ``device`` (``warpbw.envmap.EnvMap``, as another renderer of the same
-    scene holds it), used instead of loading it again."""
+    scene holds it), used instead of loading it again.  The FilteringScene holds a checked copy of ``scene``
+    (``warpbw.scene.check_scene``); ``methods`` may be one method's name."""
+    scene = check_scene(_as_scene(scene))
+    if isinstance(methods, str):   # "lean" was taken letter by letter: filter method 'l'
+        methods = (methods,)
+    progress = check_flag(progress, "progress")
     planes = plane_objects(scene)
     unknown = [m for m in methods if m not in ALL_METHODS]
     if unknown:
@@ -1113,6 +1119,13 @@ class FilterResult:
     method: str
     stats: dict
 
+    @property
+    def aovs(self) -> dict:
+        """The per-pixel maps by name, ``{"level": level}``, as ``warpbw.pipeline.RenderResult.aovs`` holds the
+        adaptive renderer's: code that reads one result reads the other the same way.  (``stats["time_s"]`` stays
+        the frame's kernel time, a float; ``RenderResult``'s is a dict by stage: changing it would break callers.)"""
+        return {"level": self.level}
+
 
 def _plane_data(p: PlaneObject, m, mp: _Mips, K: int, lod_bias: float = LOD_BIAS,
                 max_aniso: int = DEFAULT_ANISOTROPY) -> PlaneData:
@@ -1143,6 +1156,7 @@ def diffuse_pick(diffuse, f0) -> float:
 def check_render_args(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, env_spp: int = DEFAULT_ENV_SPP,
                       max_anisotropy: int = DEFAULT_ANISOTROPY) -> None:
     """What ``render_filtering`` refuses in its arguments, before any work (a clear one-line error)."""
+    scene = _as_scene(scene)
     if method not in ALL_METHODS:
         raise WarpbwError(f"filter method {method!r}: expected one of {', '.join(ALL_METHODS)}")
     check_count(max_anisotropy, "max_anisotropy (probes along a footprint's major axis)", 1, MAX_ANISOTROPY)
@@ -1152,31 +1166,114 @@ def check_render_args(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, env_
         check_count(env_spp, "env_spp (environment samples per pixel)", 1, INT32_MAX)
 
 
-def render_filtering(scene: Scene, method: str, spp: int = DEFAULT_GT_SPP, seed: int = 0, device: str = "cpu",
-                     prepared: FilteringScene | None = None, camera: Camera | None = None,
+# What a FilteringScene's mipmaps were built from, per material (the rest of a material is read from the scene at
+# render time): the box-filtered normal mipmaps, and the GMM mipmaps of each GMM method (``_load_gmm``: the
+# unaligned baseline reads no gmm file and fits with no prior).
+_MIP_FIELDS = ("normal_map", "normal_map_kind", "normal_map_scale")
+_GMM_FIELDS = {"gmm_aligned": ("gmm", "gmm_components", "gmm_prior"), "gmm_unaligned": ("gmm_components",)}
+
+
+def _scene_and_prepared(scene, prepared) -> tuple:
+    """``(Scene, FilteringScene or None)`` from ``render_filtering``'s ``scene`` and ``prepared``: a FilteringScene
+    in the scene's place is the prepared one (as ``warpbw.pipeline.render_reference`` takes a PreparedScene)."""
+    if isinstance(scene, FilteringScene):
+        if prepared is not None and prepared is not scene:
+            raise WarpbwError("prepared: given a FilteringScene as the scene too, and another here; expected one "
+                              "FilteringScene (as the scene, or a Scene with prepared=)")
+        return scene.scene, scene
+    scene = check_scene(_as_scene(scene))   # a Scene built or edited in Python is checked as a scene file is
+    if prepared is not None and not isinstance(prepared, FilteringScene):
+        raise WarpbwError(f"prepared: expected a FilteringScene (prepare_filtering), got {type(prepared).__name__}")
+    return scene, prepared
+
+
+def _as_scene(scene) -> Scene:
+    """The Scene of ``scene``: itself, or a FilteringScene's; anything else is a one-line error (an AttributeError
+    deep inside, before)."""
+    if isinstance(scene, FilteringScene):
+        return scene.scene
+    if not isinstance(scene, Scene):
+        raise WarpbwError(f"scene: expected a Scene (warpbw.scene.load_scene) or a FilteringScene "
+                          f"(prepare_filtering), got {type(scene).__name__}")
+    return scene
+
+
+def _shown(v) -> str:
+    return "none" if v is None else f'"{v}"' if isinstance(v, (str, Path)) else f"{v!r}"
+
+
+def _check_prepared(prepared: FilteringScene, scene: Scene, planes, method: str, device) -> None:
+    """Refuse a FilteringScene that does not hold what ``scene`` renders with: it lives on another device than an
+    explicit ``device``, or it was prepared for a scene whose plane materials, their maps, its lights or its
+    environment differ (its mipmaps, light arrays and environment are used as they are: a missing material was a
+    bare KeyError, a changed map or light rendered the old one without a word)."""
+    if device is not None and wp.get_device(device) != wp.get_device(prepared.device):
+        raise WarpbwError(f"device {device}: the prepared scene {prepared.scene.source} lives on {prepared.device}; "
+                          "prepare it on that device, or pass the Scene")
+    ps = prepared.scene
+    if ps is scene:
+        return
+    head = f"prepared: prepared for {ps.source}"
+    tail = f"; expected prepare_filtering of this scene ({scene.source})"
+    names = list(dict.fromkeys(p.material for p in planes))
+    missing = [n for n in names if n not in prepared.mips]
+    if missing:
+        raise WarpbwError(f"{head}, with planes of material {', '.join(prepared.mips) or '(none)'}; this scene has "
+                          f"planes of material {', '.join(missing)}{tail}")
+    for n in names:
+        a, b = ps.materials[n], scene.materials[n]
+        diff = [f for f in _MIP_FIELDS + _GMM_FIELDS.get(method, ()) if getattr(a, f) != getattr(b, f)]
+        if diff:
+            was = ", ".join(f"{f} = {_shown(getattr(a, f))}" for f in diff)
+            raise WarpbwError(f"{head}, where [material.{n}] has {was}; this scene's has "
+                              f"{', '.join(_shown(getattr(b, f)) for f in diff)}{tail}")
+    if list(ps.lights) != list(scene.lights):
+        def said(sc):
+            return "; ".join(li.describe() for li in sc.lights) or "none"
+        raise WarpbwError(f"{head}, with [[light]]s {said(ps)}; this scene has {said(scene)}{tail}")
+    if ps.environment != scene.environment:
+        def env(sc):
+            return "none" if sc.environment is None else sc.environment.describe()
+        raise WarpbwError(f"{head}, with [environment] {env(ps)}; this scene has {env(scene)}{tail}")
+
+
+def render_filtering(scene: Scene | FilteringScene, method: str, spp: int = DEFAULT_GT_SPP, seed: int = 0,
+                     device: str | None = None, prepared: FilteringScene | None = None, camera: Camera | None = None,
                      progress: bool = False, lod_bias: float = LOD_BIAS, threads: int | None = None,
                      env_spp: int = DEFAULT_ENV_SPP, max_anisotropy: int = DEFAULT_ANISOTROPY,
                      background: Background | None = None) -> FilterResult:
-    """Render ``scene`` (planes under directional lights and / or an environment) with ``method``
-    (``ALL_METHODS``); ``camera`` overrides the scene's; ``spp`` is the ground truth's rays per pixel
-    (>= MIN_GT_SPP); ``env_spp`` the filtered methods' BRDF + environment sample pairs per pixel when the
-    scene has an [environment] (the ground truth takes one pair per ray); ``seed`` seeds both; ``lod_bias``
-    is added to every pixel's mip level; ``max_anisotropy`` (1 to ``MAX_ANISOTROPY``) the most probes along a
-    footprint's major axis (1: isotropic); CPU launches are tiled over ``threads`` (default: all cores, up
-    to 8).  With a ``background`` (:class:`Background`, at the camera's resolution) the planes are drawn over
-    it: a pixel shows a plane when its centre ray hits one in front of the background's depth, and only
-    those pixels are shaded (the scene's spheres and meshes, rendered by :mod:`warpbw.pipeline`)."""
+    """Render ``scene`` (planes under directional lights and / or an environment) with ``method`` (``ALL_METHODS``).
+    ``scene`` is a ``Scene``, or a ``FilteringScene`` (``prepare_filtering``'s), which is then ``prepared``;
+    ``prepared`` holds the scene's maps, lights and environment (one prepared for a scene whose materials' maps,
+    lights or environment differ is refused) and renders on its own device (``device``, when given, must be it;
+    without ``prepared``, the device to prepare on, default cpu); ``camera`` overrides the scene's; ``spp`` is the
+    ground truth's rays per pixel (>= MIN_GT_SPP); ``env_spp`` the filtered methods' BRDF + environment sample pairs
+    per pixel when the scene has an [environment] (the ground truth takes one pair per ray); ``seed`` seeds both;
+    ``lod_bias`` is added to every pixel's mip level; ``max_anisotropy`` (1 to ``MAX_ANISOTROPY``) the most probes
+    along a footprint's major axis (1: isotropic); CPU launches are tiled over ``threads`` (default: all cores, up
+    to 8).  With a ``background`` (:class:`Background`, at the camera's resolution) the planes are drawn over it: a
+    pixel shows a plane when its centre ray hits one in front of the background's depth, and only those pixels are
+    shaded (the scene's spheres and meshes, rendered by :mod:`warpbw.pipeline`)."""
     from warpbw.shading import launch_tiled
 
+    scene, prepared = _scene_and_prepared(scene, prepared)
     check_render_args(scene, method, spp, env_spp, max_anisotropy)
     check_seed(seed)
-    if not math.isfinite(lod_bias):   # inf moved every pixel to the coarsest level
-        raise WarpbwError(f"lod_bias {lod_bias!r}: expected a finite number of mip levels")
+    progress = check_flag(progress, "progress")
+    # a real number: inf moved every pixel to the coarsest level, and "1" was a TypeError from math.isfinite
+    lod_bias = check_real(lod_bias, "lod_bias (mip levels added to every pixel's level)")
+    if threads is not None:   # launch_tiled checks it too, but only after the mipmaps are built
+        check_count(threads, "threads", 1)
+    if device is not None:
+        check_device(device)
     planes = plane_objects(scene)
     check_plane_reach(camera or scene.camera, planes, scene.source)
+    if prepared is not None:
+        _check_prepared(prepared, scene, planes, method, device)
     if prepared is None or (method.startswith("gmm") and any(method not in mp.gmm and not mp.flat
                                                              for mp in prepared.mips.values())):
-        prepared = prepare_filtering(scene, (method,), device, progress)
+        on = prepared.device if prepared is not None else "cpu" if device is None else device
+        prepared = prepare_filtering(scene, (method,), on, progress)
     cam_s = camera or scene.camera
     cam = scene_camera(cam_s)
     n = cam_s.width * cam_s.height
@@ -1257,6 +1354,7 @@ def plane_distance(scene: Scene, device: str = "cpu") -> np.ndarray:
     A scene that has planes beside spheres and meshes hides the spheres and meshes beyond it
     (:func:`warpbw.gbuffer.hide_beyond`) before shading them."""
     check_device(device)
+    scene = _as_scene(scene)
     cam_s = scene.camera
     check_plane_reach(cam_s, [p for p in scene.objects if isinstance(p, PlaneObject)], scene.source)
     cam = scene_camera(cam_s)
@@ -1274,7 +1372,9 @@ def plane_distance(scene: Scene, device: str = "cpu") -> np.ndarray:
 
 def zoomed_camera(camera: Camera, zoom: float) -> Camera:
     """The camera moved away from its look-at point: distance times ``zoom``, same resolution and fov."""
-    pos = tuple(a + (p - a) * float(zoom) for p, a in zip(camera.position, camera.look_at))
+    # a real number > 0: NaN or inf gave a camera at NaN / inf, a negative zoom one behind the look-at point
+    zoom = check_real(zoom, "zoom (times the camera's distance to its look_at point)", 0.0, lo_open=True)
+    pos = tuple(a + (p - a) * zoom for p, a in zip(camera.position, camera.look_at))
     if np.array_equal(np.float32(pos), np.float32(camera.look_at)):   # make_camera's "look_at: must differ" later
         raise WarpbwError(f"zoom {zoom:g} puts the camera on its look_at point (its distance times {zoom:g} rounds to 0 "
                           "in float32): expected a larger zoom")
@@ -1298,6 +1398,7 @@ def filtering_stages(method: str, flat, with_env: bool, with_lights: bool) -> li
 
 def filtering_summary(scene: Scene) -> dict:
     """What ``warpbw info`` says about a scene with planes (from the scene file alone)."""
+    scene = _as_scene(scene)
     objects = [o.describe() + ("" if isinstance(o, PlaneObject) else " (not rendered by the filtering renderer)")
                for o in scene.objects]
     lights = [li.describe() for li in scene.lights]
@@ -1346,6 +1447,7 @@ def gmm_ndf(params, rough_var: float, h, device: str = "cpu") -> np.ndarray:
     """The renderer's mixture NDF at unit directions h (N, 3) for components ``params`` (K, 4) of
     (a, mu_x, mu_y, s^2)."""
     check_device(device)
+    rough_var = check_real(rough_var, "rough_var (the roughness's per-axis variance)", 0.0)  # < 0: NDF below 0
     p = np.asarray(params, np.float32).reshape(-1, 4)
     hh = wp.array(np.asarray(h, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
     out = wp.zeros(hh.shape[0], dtype=wp.float32, device=device)
@@ -1358,6 +1460,9 @@ def pair_uniforms(seed: int, pixel: int, n: int, device: str = "cpu") -> np.ndar
     """The uniforms (n, ``PAIR_DIMS``) of pairs 0 .. n - 1 of the environment term at a pixel (``PAIR_ALPHA``):
     columns 0-2 drive the BRDF draw, 3-4 the environment draw."""
     check_device(device)
+    # as the renderer takes them: a uint32 seed, an int32 pixel index (2.5 and "1" were taken as 2 and 1)
+    seed, pixel = check_seed(seed), check_count(pixel, "pixel", 0, INT32_MAX)
+    n = check_count(n, "n (pairs)", 0, INT32_MAX)
     out = wp.zeros((int(n), PAIR_DIMS), dtype=wp.float32, device=device)
     wp.launch(pair_uniforms_kernel, dim=(int(n), PAIR_DIMS), inputs=[int(seed), int(pixel), out], device=device)
     return out.numpy()
