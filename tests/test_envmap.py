@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+import warp as wp
 
 from conftest import shared_file
 from warpbw import envmap as E
@@ -450,9 +451,32 @@ def test_mip_box_filter_and_trilinear_lookup():
     assert np.allclose(top, img.astype(np.float64).mean(axis=(0, 1)), rtol=1e-5)
     assert np.allclose(E.eval_radiance_lod(env, d, -3.0), lod0, rtol=1e-6)
     assert np.allclose(E.eval_radiance_lod(env, d[:3], np.nan), lod0[:3], rtol=1e-6)
-    # a NaN direction gives no crash (indices are clamped), whatever value it returns
-    E.eval_radiance(env, [[np.nan, 0.0, 1.0]])
-    E.eval_pdf(env, [[np.nan, 0.0, 1.0]])
+    # a NaN direction reaching the kernels gives no crash (indices are clamped), whatever value it returns; the
+    # host-side lookups refuse it
+    nan_dir = wp.array(np.array([[np.nan, 0.0, 1.0]], np.float32), dtype=wp.vec3)
+    for kernel, dtype in ((E._eval_radiance_kernel, wp.vec3), (E._eval_pdf_kernel, wp.float32)):
+        wp.launch(kernel, dim=1, inputs=[env.data, nan_dir, wp.empty(1, dtype=dtype)])
+    with pytest.raises(WarpbwError, match=r"^dirs: expected finite non-zero directions, 1 of 1 are not"):
+        E.eval_radiance(env, [[np.nan, 0.0, 1.0]])
+
+
+def test_host_lookups_check_their_directions():
+    """eval_radiance read (4, 2) through numpy's reshape (a ValueError), a zero direction as a pixel, and a
+    direction of length 10 as a NaN latitude; now directions are checked and scaled to unit length."""
+    env = E.envmap_from_array(np.random.default_rng(1).random((8, 16, 3)).astype(np.float32))
+    d = np.array([[0.3, 0.5, -0.2], [0.0, -1.0, 0.0]])
+    unit = d / np.linalg.norm(d, axis=1, keepdims=True)
+    assert np.array_equal(E.eval_radiance(env, 10.0 * d), E.eval_radiance(env, unit))
+    assert np.array_equal(E.eval_pdf(env, 10.0 * d), E.eval_pdf(env, unit))
+    assert np.array_equal(E.eval_radiance_lod(env, 3.0 * d, 1.0), E.eval_radiance_lod(env, unit, 1.0))
+    for bad, msg in ((np.ones((4, 2)), r"^dirs: expected \(N, 3\) directions \(or one \(3,\)\), got shape \(4, 2\)"),
+                     ([0.0, 0.0, 0.0], r"^dirs: expected finite non-zero directions, 1 of 1 are not"),
+                     ("up", r"^dirs: expected \(N, 3\) directions, got str")):
+        for f in (E.eval_radiance, E.eval_pdf):
+            with pytest.raises(WarpbwError, match=msg):
+                f(env, bad)
+    with pytest.raises(WarpbwError, match=r"^env: expected an EnvMap .*got its \.data \(a Warp struct\)"):
+        E.eval_radiance_lod(env.data, d, 0.0)
 
 
 def test_mip_pyramid_is_built_only_when_a_lookup_needs_it():

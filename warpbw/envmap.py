@@ -77,7 +77,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.errors import WarpbwError, check_count, check_device
+from warpbw.errors import WarpbwError, check_count, check_device, unit_directions
 
 wp.set_module_options({"enable_backward": False})  # no gradients are taken: halves compile time
 
@@ -651,8 +651,19 @@ def procedural_sky(
 
 
 def _dirs_array(env: EnvMap, dirs) -> wp.array:
-    d = np.asarray(dirs, dtype=np.float32).reshape(-1, 3)
-    return wp.array(np.ascontiguousarray(d), dtype=wp.vec3, device=env.device)
+    """``dirs`` ((N, 3) or one (3,)) as unit vec3s on the environment's device, else a one-line error: (4, 2) was a
+    ValueError from numpy's reshape, a zero direction read a pixel, and a long one a NaN latitude."""
+    if not isinstance(env, EnvMap):
+        got = "its .data (a Warp struct)" if isinstance(env, EnvMapData.instance_type) else type(env).__name__
+        raise WarpbwError(f"env: expected an EnvMap (load_envmap, constant_envmap, ...), got {got}")
+    try:
+        d = np.asarray(dirs, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise WarpbwError(f"dirs: expected (N, 3) directions, got {type(dirs).__name__}") from None
+    if d.shape != (3,) and (d.ndim != 2 or d.shape[1] != 3):
+        raise WarpbwError(f"dirs: expected (N, 3) directions (or one (3,)), got shape {d.shape}")
+    d = unit_directions(d.reshape(-1, 3), "dirs")
+    return wp.array(np.ascontiguousarray(d, dtype=np.float32), dtype=wp.vec3, device=env.device)
 
 
 def eval_radiance(env: EnvMap, dirs) -> np.ndarray:
@@ -682,8 +693,8 @@ def build_mip_pyramid(env: EnvMap) -> EnvMap:
 
 def eval_radiance_lod(env: EnvMap, dirs, lod) -> np.ndarray:
     """(N, 3) trilinear MIP lookup; lod is a scalar or (N,).  Builds the pyramid first (``build_mip_pyramid``)."""
-    build_mip_pyramid(env)
     d = _dirs_array(env, dirs)
+    build_mip_pyramid(env)
     n = d.shape[0]
     lods = np.broadcast_to(np.asarray(lod, dtype=np.float32), (n,))
     lw = wp.array(np.ascontiguousarray(lods), dtype=wp.float32, device=env.device)
