@@ -113,3 +113,21 @@ def test_coverage_comes_from_the_alpha_channel():
     np.testing.assert_array_equal(coverage_from_alpha(px, ["R", "G", "B", "A"]),
                                   [[False, True, False], [False, False, True]])
     assert coverage_from_alpha(px[..., :3], ["R", "G", "B"]) is None
+
+
+def test_channels_first_and_an_alpha_channel_are_refused_not_compared():
+    """A (3, H, W) pair was compared as an image three rows high (72 'pixels' for a 6x9 image), and RGBA pairs
+    counted the alpha channel (an EXR's coverage) in every figure."""
+    ref, mask = _pair()
+    test = ref * 1.1
+    for f in (compare_images, relmse, psnr, mse, relmse_map):
+        with pytest.raises(WarpbwError, match=r"^test image: expected channels last, \(H, W, C\), got shape "
+                                              r"\(3, 6, 9\) \(channels first\? np\.moveaxis"):
+            f(np.moveaxis(test, -1, 0), np.moveaxis(ref, -1, 0))
+        rgba = np.concatenate([ref, mask[..., None].astype(float)], -1)
+        with pytest.raises(WarpbwError, match=r"^test image: expected radiance \(H, W, 3\) or one channel, got 4 "
+                                              r"channels \(drop the alpha channel"):
+            f(rgba * 1.1, rgba)
+    # an image three rows high, in RGB or grey, is still an image
+    assert compare_images(test[:3], ref[:3])["pixels"] == 27
+    assert compare_images(test[:3, :, :1], ref[:3, :, :1])["pixels"] == 27

@@ -4,7 +4,8 @@ Public: ``psnr(test, ref, mask)``, ``relmse(test, ref, mask)``, ``mse(test, ref,
 ``compare_images(test, ref, mask) -> dict``, ``coverage_from_alpha(pixels, channels)``,
 ``relmse_map(test, ref, mask) -> (H, W)``, ``worst_share(err_map, mask, fraction)``, ``WORST_FRACTION``.
 
-Both images are linear radiance (H, W, 3).  ``mask`` (H, W) selects the covered pixels; None means all.
+Both images are linear radiance (H, W, 3), or one channel (H, W) / (H, W, 1); channels first and a fourth
+(alpha) channel are refused.  ``mask`` (H, W) selects the covered pixels; None means all.
 * PSNR = 10 log10(peak^2 / MSE) with ``peak`` the reference's largest value over the mask.
 * relMSE = mean over masked pixels and channels of (test - ref)^2 / (ref^2 + RELMSE_EPS)
   (Rousselle et al. 2011), insensitive to the overall exposure of bright pixels.
@@ -24,6 +25,7 @@ from warpbw.errors import WarpbwError
 # Rousselle, Knaus, Zwicker 2011, "Adaptive sampling and reconstruction using greedy error minimization"
 RELMSE_EPS = 1.0e-2
 WORST_FRACTION = 0.01   # the worst 1% of the covered pixels (ours: how concentrated the error is)
+CHANNEL_COUNTS = (1, 3, 4)   # grey, RGB, RGBA: what a last axis of channels holds
 
 
 def _image(x, what: str) -> np.ndarray:
@@ -34,6 +36,13 @@ def _image(x, what: str) -> np.ndarray:
         raise WarpbwError(f"{what} image: expected an array of numbers, got {type(x).__name__}") from None
     if a.ndim not in (2, 3):
         raise WarpbwError(f"{what} image: expected (H, W) or (H, W, C) values, got shape {a.shape}")
+    if a.ndim == 3 and a.shape[0] in CHANNEL_COUNTS and a.shape[-1] not in CHANNEL_COUNTS:
+        # (3, H, W) was read as an image 3 rows high
+        raise WarpbwError(f"{what} image: expected channels last, (H, W, C), got shape {a.shape} (channels first? "
+                          "np.moveaxis(image, 0, -1))")
+    if a.ndim == 3 and a.shape[-1] == 4:   # an EXR's R, G, B, A: the coverage or opacity counted as a colour
+        raise WarpbwError(f"{what} image: expected radiance (H, W, 3) or one channel, got 4 channels (drop the "
+                          "alpha channel: image[..., :3])")
     return a
 
 
