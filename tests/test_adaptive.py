@@ -194,3 +194,20 @@ def test_thread_count_and_tiling_do_not_change_the_frame():
     for k in ("level", "n_p", "b_p", "sigma2"):
         np.testing.assert_array_equal(one.aovs[k], three.aovs[k])
     assert prep.env._mips is None   # nothing the frames ran reads the probe's MIP pyramid: it was never built
+
+
+def test_the_frame_that_loads_the_bandwidth_inputs_times_them_on_a_prepared_scene_too():
+    """The first adaptive frame of a prepared scene spent seconds on the probe's nu_a map and the BRDF tables, but
+    its stats left them out (only an unprepared scene's frame had them): the record summed to less than the wall
+    time.  The frame that loads them records them; the next frame, which reuses them, does not; another env_signal
+    loads the map again."""
+    from warpbw.pipeline import render_adaptive
+
+    prep = prepare_scene(parse_scene(SCENE.format(w=24, h=16, env='procedural = "sky"',
+                                                  mat='type = "ggx"\nalpha = 0.2\nspecular = 0.8')))
+    loads = {"load_env_bandwidth", "load_brdf_bandwidth"}
+    first = render_adaptive(prep, budget=2.0, seed=3)
+    assert loads <= set(first.stats["time_s"]), first.stats["time_s"]
+    assert first.stats["time_s"]["load_env_bandwidth"] == round(prep.timings["load_env_bandwidth"], 6)
+    assert not loads & set(render_adaptive(prep, budget=2.0, seed=3).stats["time_s"])
+    assert loads <= set(render_adaptive(prep, budget=2.0, seed=3, env_signal="log").stats["time_s"])

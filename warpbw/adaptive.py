@@ -260,7 +260,7 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
     cov = gb.coverage
     shaded_full = wp.zeros(W * H, dtype=wp.vec3, device=device)
     spp_at_pixel = wp.zeros(W * H, dtype=wp.int32, device=device)
-    shaded_level = np.full(W * H, -1, np.int64)
+    shaded_level = np.full(W * H, -1, np.int32)   # int32, as the level map
     per_level = []
     samples = 0
     non_finite = 0

@@ -452,9 +452,12 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
 
     ``budget`` is the mean number of samples per covered pixel (the total is budget x covered pixels),
     spread over the pixels the hierarchy shades by ``allocation`` (default: in proportion to the standard
-    deviation the bandwidth pass measures, :func:`warpbw.bandwidth.allocate_samples`).  ``aovs`` holds
-    the level map, N_p, the predicted variance, the shaded mask, b_p and sigma2.  ``stride`` and
-    ``pool_radius`` set how the bandwidth pass shares its directions (:func:`warpbw.bandwidth.bandwidth_pass`);
+    deviation the bandwidth pass measures, :func:`warpbw.bandwidth.allocate_samples`).  ``aovs`` holds (H, W)
+    maps: ``level`` (the pass's level, int32), ``n_p`` (samples per pixel), ``variance`` (the predicted variance),
+    ``shaded`` (the pixels shaded rather than up-sampled), ``shaded_level`` (the level a pixel was shaded at, -1
+    where it was up-sampled or is empty; int32), ``b_p`` (image bandwidth, cycles per pixel, 002 Eq. 6) and
+    ``sigma2`` (the pass's radiance variance).  ``stride`` and ``pool_radius`` set how the bandwidth pass shares
+    its directions (:func:`warpbw.bandwidth.bandwidth_pass`);
     ``upsample`` how the hierarchy up-samples ("normal", the default, or "paper": :mod:`warpbw.upsample`);
     ``env_signal`` what the probe's angular bandwidth is analysed on ("radiance", the default, or "log":
     :func:`warpbw.bandwidth.env_signal`).  The scene needs an environment; its directional lights are added exactly
@@ -481,10 +484,12 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     prep, timings = _prepared(scene, device, progress)
     if prep.env is None:
         raise _nothing_to_adapt(prep.scene)
+    loads = prep.bandwidth is None or prep.bandwidth_signal != env_signal
     tables = prepare_bandwidth(prep, progress, env_signal)
-    for k in ("load_env_bandwidth", "load_brdf_bandwidth", "load_mesh_curvature"):
-        if k in prep.timings and prep is not scene:
-            timings[k] = prep.timings[k]
+    if loads:   # this frame loaded or built the pass's inputs (the first on a prepared scene too): it says so
+        for k in ("load_env_bandwidth", "load_brdf_bandwidth", "load_mesh_curvature"):
+            if k in prep.timings:
+                timings[k] = prep.timings[k]
     _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
                          bandwidth.make_bandwidth_kernel(prep.materials.kinds, preconvolved),
                          make_reference_kernel(prep.materials.kinds, mis, per_pixel_spp=True))
