@@ -1,6 +1,6 @@
 """Versioned asset files written by ``warpbw-precompute`` and read by the renderer.
 
-Public: ``write_asset(path, fmt, version, source, source_hash, arrays, params, force)``,
+Public: ``write_asset(path, fmt, version, source, source_hash, arrays, params, force, inputs=())``,
 ``read_asset(path, fmt, version, rebuild) -> Asset``, ``Asset``.
 
 An asset is a NumPy ``.npz`` archive (no pickles) holding named arrays and a JSON ``header`` with the
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from warpbw.errors import WarpbwError, check_input_file
-from warpbw.io.staged import staged_outputs
+from warpbw.io.staged import check_replaceable, staged_outputs
 
 HEADER_KEY = "__header__"
 
@@ -31,15 +31,12 @@ class Asset:
 
 
 def write_asset(path, fmt: str, version: int, source: str, source_hash: str, arrays: dict,
-                params: dict | None = None, force: bool = False) -> Path:
-    """Write arrays and a header; refuses to overwrite an existing file unless ``force``."""
+                params: dict | None = None, force: bool = False, inputs=()) -> Path:
+    """Write arrays and a header; refuses to overwrite an existing file unless ``force``, and whatever ``force``
+    says, a read-only file or one of ``inputs`` (the files the asset is made from)."""
     from warpbw import __version__
 
-    p = Path(path)
-    if p.is_dir():  # checked before the temporary file is written: it would not replace a directory
-        raise WarpbwError(f"{p}: is a directory (expected a file name)")
-    if p.exists() and not force:
-        raise WarpbwError(f"{p}: already exists (pass --force to overwrite it)")
+    p = check_replaceable(path, force, inputs)
     header = {"format": fmt, "version": int(version), "source": source, "source_hash": source_hash,
               "params": params or {}, "writer": f"warpbw {__version__}"}
     with staged_outputs([p]) as tmp:   # a temporary of its own, moved into place: never a cut-off or mixed file

@@ -3,10 +3,13 @@
 Public:
     ``N_THETA_I`` (16), ``N_CELLS`` (16), ``SHAPE`` (the table's), ``DEFAULT_RESOLUTION`` (128), ``FORMAT``,
     ``VERSION``
-    ``brdf_bandwidth_table(evaluate, resolution=128, progress=None) -> (16, 16, 16) float32``
+    ``brdf_bandwidth_table(evaluate, resolution=128, progress=None) -> (16, 16, 16) float32``   (``evaluate(wi, wo)
+        -> (N, 3)``, RGB)
     ``analytic_brdf_bandwidth_table(evaluate, resolution=128) -> (16, 16, 16) float32``
-    ``build_brdf_bandwidth(source, progress=True, resolution=128) -> (16, 16, 16) float32``
-    ``write_brdf_bandwidth(path, table, source, force=False)`` / ``read_brdf_bandwidth(path, source=None)``
+    ``build_brdf_bandwidth(source, progress=True, resolution=128) -> (16, 16, 16) float32``   (``source``: what
+        :func:`precompute.brdf_sampling.brdf_source` returns, not a path)
+    ``write_brdf_bandwidth(path, table, source, force=False)`` / ``read_brdf_bandwidth(path, source=None)``   (the
+        writer refuses the tables the reader refuses, and never writes over the source's file or a read-only file)
     ``load_or_build_bandwidth(source, explicit=None, cache=None, progress=True) -> (table, origin)``
     ``theta_i_centres()``, ``wo_map(n)``, ``wo_to_map(wo)``, ``map_radians_per_pixel(n)``
     ``lobe_slice(evaluate, theta_i, resolution)``, ``slice_bandwidth(f)``, ``GRAZING_LIMIT``   one lobe's map
@@ -81,7 +84,7 @@ import numpy as np
 from precompute.assetfile import read_asset, write_asset
 from precompute.progress import progress_callback
 from precompute.wavelets import local_bandwidth
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_count
 
 __all__ = [
     "N_THETA_I", "N_CELLS", "SHAPE", "DEFAULT_RESOLUTION", "FORMAT", "VERSION",
@@ -152,14 +155,30 @@ def map_radians_per_pixel(n: int) -> np.ndarray:
 
 
 def _check_resolution(resolution: int) -> int:
-    n = int(resolution)
-    if n < N_CELLS or n % N_CELLS:
-        raise ValueError(f"resolution must be a positive multiple of {N_CELLS}, got {resolution}")
+    """``resolution`` (pixels per side of the analysed slice) as an int: a multiple of N_CELLS, else a WarpbwError."""
+    n = check_count(resolution, "resolution", N_CELLS)
+    if n % N_CELLS:
+        raise WarpbwError(f"resolution: expected a multiple of {N_CELLS} (the table's cells per side; default "
+                          f"{DEFAULT_RESOLUTION}), got {n}")
     return n
 
 
+def _evaluated(evaluate: Callable, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """``evaluate(wi, wo)`` as float64 ``(N, 3)``; any other shape (a grey ``(N,)`` lobe) refused in one line."""
+    n = len(wi)
+    try:
+        f = np.asarray(evaluate(wi, wo), dtype=np.float64)
+    except (TypeError, ValueError):   # None, strings, ragged lists
+        raise WarpbwError(f"evaluate: returned no numeric array for {n} direction pairs (expected shape ({n}, 3), "
+                          "one RGB value per pair)") from None
+    if f.shape != (n, 3):
+        raise WarpbwError(f"evaluate: returned shape {f.shape} for {n} direction pairs (expected ({n}, 3), one RGB "
+                          "value per pair)")
+    return f
+
+
 def lobe_slice(evaluate: Callable, theta_i: float, resolution: int = DEFAULT_RESOLUTION) -> np.ndarray:
-    """``f(wi, wo)`` over the outgoing map for ``wi = (sin theta_i, 0, cos theta_i)``, ``(n, n, C)`` float64.
+    """``f(wi, wo)`` over the outgoing map for ``wi = (sin theta_i, 0, cos theta_i)``, ``(n, n, 3)`` float64.
 
     Past ``GRAZING_LIMIT`` the lobe is continued by odd reflection about the limit along each
     azimuth, ``f(theta) = 2 f(theta_max) - f(2 theta_max - theta)`` (value and slope continuous)."""
@@ -170,12 +189,7 @@ def lobe_slice(evaluate: Callable, theta_i: float, resolution: int = DEFAULT_RES
     wi = np.ascontiguousarray(wi)
 
     def ev(th):
-        f = np.asarray(evaluate(wi, _dirs(th, phi).reshape(-1, 3)), dtype=np.float64)
-        if f.ndim == 1:
-            f = f[:, None]
-        if f.shape[0] != n * n:
-            raise ValueError(f"evaluate returned shape {f.shape} for {n * n} directions")
-        return f.reshape(n, n, -1)
+        return _evaluated(evaluate, wi, _dirs(th, phi).reshape(-1, 3)).reshape(n, n, 3)
 
     f = ev(np.minimum(theta, GRAZING_LIMIT))
     if np.any(past):
@@ -207,7 +221,7 @@ def _block_max(a: np.ndarray) -> np.ndarray:
 
 def brdf_bandwidth_table(evaluate: Callable, resolution: int = DEFAULT_RESOLUTION,
                          progress: Callable[[int], None] | None = None) -> np.ndarray:
-    """nu_rho table ``(16, 16, 16)`` float32, cycles/radian, of any numpy ``evaluate(wi, wo) -> (N, C)``.
+    """nu_rho table ``(16, 16, 16)`` float32, cycles/radian, of any numpy ``evaluate(wi, wo) -> (N, 3)``.
 
     ``progress(k)`` is called after each of the 16 incident elevations with the count done."""
     n = _check_resolution(resolution)
@@ -225,7 +239,11 @@ def analytic_brdf_bandwidth_table(evaluate: Callable, resolution: int = DEFAULT_
 
 
 def build_brdf_bandwidth(source, progress: bool = True, resolution: int = DEFAULT_RESOLUTION) -> np.ndarray:
-    """Table of a :class:`precompute.brdf_sampling.BrdfSource` (a few seconds per material)."""
+    """Table of a :class:`precompute.brdf_sampling.BrdfSource` (a few seconds per material); a path is refused,
+    saying to pass ``brdf_source(path, material)``."""
+    from precompute.brdf_sampling import check_brdf_source
+
+    check_brdf_source(source, "build_brdf_bandwidth")
     with progress_callback(N_THETA_I, f"bandwidth {source.name}", "theta_i", progress) as step:
         return brdf_bandwidth_table(source.evaluate, resolution=resolution, progress=step)
 
@@ -239,14 +257,31 @@ def _rebuild_hint(source) -> str:
 
 def write_brdf_bandwidth(path, table: np.ndarray, source, force: bool = False,
                          resolution: int = DEFAULT_RESOLUTION):
-    """Write a table built from ``source`` (anything with ``name`` and ``digest``)."""
-    t = np.asarray(table, dtype=np.float32)
-    if t.shape != SHAPE:
-        raise ValueError(f"table must have shape {SHAPE}, got {t.shape}")
+    """Write a table built from ``source`` (anything with ``name`` and ``digest``): only one that
+    :func:`read_brdf_bandwidth` would read back, and never over the source's own file (its ``path``), whatever
+    ``force`` says."""
+    from precompute.brdf_sampling import check_brdf_source, source_files
+
+    check_brdf_source(source, "write_brdf_bandwidth", needs=("name", "digest"))
+    t = _checked_table(table, f"table for {path}")
     return write_asset(path, FORMAT, VERSION, source.name, source.digest, {"nu_rho": t},
-                       params={"n_theta_i": N_THETA_I, "n_cells": N_CELLS, "resolution": int(resolution),
+                       params={"n_theta_i": N_THETA_I, "n_cells": N_CELLS, "resolution": _check_resolution(resolution),
                                "map": "lambert-equal-area", "units": "cycles/radian"},
-                       force=force)
+                       force=force, inputs=source_files(source))
+
+
+def _checked_table(table, what: str, fix: str = "") -> np.ndarray:
+    """``table`` as float32 when it is one the renderer reads (shape SHAPE, finite bandwidths >= 0); else a
+    WarpbwError starting with ``what`` and ending with ``fix``.  The writer and the reader both check with it."""
+    try:
+        t = np.asarray(table, dtype=np.float32)
+    except (TypeError, ValueError):   # strings, objects
+        raise WarpbwError(f"{what} is not numeric{fix}") from None
+    if t.shape != SHAPE:
+        raise WarpbwError(f"{what} of shape {t.shape}, this warpbw uses {SHAPE}{fix}")
+    if not np.all(np.isfinite(t)) or np.any(t < 0):
+        raise WarpbwError(f"{what} has negative or non-finite bandwidths{fix}")
+    return t
 
 
 def read_brdf_bandwidth(path, source=None) -> np.ndarray:
@@ -258,13 +293,7 @@ def read_brdf_bandwidth(path, source=None) -> np.ndarray:
                           f"{source.name!r} (rebuild it with: {hint})")
     if "nu_rho" not in a.arrays:
         raise WarpbwError(f"{path}: brdf-bandwidth file lacks array 'nu_rho' (rebuild it with: {hint})")
-    t = np.asarray(a.arrays["nu_rho"], dtype=np.float32)
-    if t.shape != SHAPE:
-        raise WarpbwError(f"{path}: table of shape {t.shape}, this warpbw uses {SHAPE} "
-                          f"(rebuild it with: {hint})")
-    if not np.all(np.isfinite(t)) or np.any(t < 0):
-        raise WarpbwError(f"{path}: table has negative or non-finite bandwidths (rebuild it with: {hint})")
-    return t
+    return _checked_table(a.arrays["nu_rho"], f"{path}: table", f" (rebuild it with: {hint})")
 
 
 def load_or_build_bandwidth(source, explicit=None, cache=None, progress: bool = True) -> tuple[np.ndarray, str]:

@@ -3,7 +3,10 @@
 Public:
     ``brdf_source(file, material=None) -> BrdfSource``  a MERL ``.binary`` or an NPF table + material name
     ``build_brdf_sampling(source, progress=True) -> SamplerTable``
-    ``write_sampling(path, table, source, force=False)`` / ``read_sampling(path, source=None)``
+    ``write_sampling(path, table, source, force=False)`` / ``read_sampling(path, source=None)``   (never over the
+        source's own file, nor a read-only file, whatever ``force`` says)
+    ``check_brdf_source(source, caller, needs) -> source``   a path passed where a source is expected, refused
+    ``source_files(source) -> list``   the file a source was read from (what a table written from it may not replace)
     ``load_or_build_sampling(source, explicit=None, cache=None, progress=True) -> (SamplerTable, origin)``
     ``load_or_build(source, explicit, cache, prefix, version, read, build, write)``   the shared cache logic
     ``cache_dir()``
@@ -54,8 +57,28 @@ def brdf_source(file, material: str | None = None) -> BrdfSource:
                       lambda wi, wo: npf_eval(mat, wi, wo, interpolate=True), mat)
 
 
+def check_brdf_source(source, caller: str, needs=("name", "evaluate")):
+    """``source`` when it has the attributes ``needs`` of a :class:`BrdfSource`; a path, or anything else, refused in
+    one line naming ``caller`` and saying what to pass (a path gave ``'str' object has no attribute 'name'``)."""
+    if isinstance(source, (str, os.PathLike)):
+        raise WarpbwError(f"{caller}: source {str(source)!r} is a path; pass brdf_source(path, material) "
+                          "(precompute.brdf_sampling), which reads it")
+    missing = [a for a in needs if not hasattr(source, a)]
+    if missing:
+        raise WarpbwError(f"{caller}: source {source!r} has no {' or '.join(missing)}; expected what "
+                          "brdf_source(path, material) returns")
+    return source
+
+
+def source_files(source) -> list:
+    """The file ``source`` was read from (``[]`` for one with no ``path``, an analytic material)."""
+    path = getattr(source, "path", None)
+    return [] if path is None else [path]
+
+
 def build_brdf_sampling(source: BrdfSource, progress: bool = True) -> SamplerTable:
     """Tabulate and invert the source's CDF (a few seconds per material)."""
+    check_brdf_source(source, "build_brdf_sampling")
     with progress_callback(N_THETA_O, f"sampling tables {source.name}", "view", progress) as step:
         return build_sampler_table(source.evaluate, progress=step)
 
@@ -69,10 +92,13 @@ def _rebuild_hint(source) -> str:
 
 
 def write_sampling(path, table: SamplerTable, source: BrdfSource, force: bool = False) -> Path:
+    """Write the tables built from ``source``; never over the source's file (a link to it neither), whatever
+    ``force`` says."""
+    check_brdf_source(source, "write_sampling", needs=("name", "digest"))
     return write_asset(path, TABLE_FORMAT, TABLE_VERSION, source.name, source.digest,
                        {"marginal": table.marginal, "conditional": table.conditional, "density": table.density},
                        params={"n_theta_o": N_THETA_O, "n_u": N_U, "n_phi": N_PHI,
-                               "view_subsamples": VIEW_SUBSAMPLES}, force=force)
+                               "view_subsamples": VIEW_SUBSAMPLES}, force=force, inputs=source_files(source))
 
 
 def read_sampling(path, source: BrdfSource | None = None) -> SamplerTable:

@@ -5,6 +5,7 @@ Public function:
 - ``npf_to_merl(table, material, out, force=False) -> Path``: read one material with
   :func:`warpbw.io.npf.read_npf`, evaluate :func:`warpbw.io.npf.npf_eval` (interpolated) at every MERL
   bin centre with :func:`warpbw.io.merl.tabulate_merl`, and write it with :func:`warpbw.io.merl.write_merl`.
+  ``out`` is never ``table`` itself (nor a link to it) and never a read-only file, whatever ``force`` says.
 
 The CLI ``warpbw-precompute npf-to-merl --table T --material NAME -o OUT [--force]`` calls it.
 """
@@ -12,16 +13,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from warpbw.errors import WarpbwError
 from warpbw.io.merl import tabulate_merl, write_merl
 from warpbw.io.npf import npf_eval, read_npf
+from warpbw.io.staged import check_replaceable
 
 
 def npf_to_merl(table, material: str, out, force: bool = False) -> Path:
     """Write NPF material ``material`` of ``table`` to the MERL file ``out``; returns ``out`` as a Path."""
-    out = Path(out)
-    if out.exists() and not force:  # checked before the tabulation, which takes seconds
-        raise WarpbwError(f"{out}: already exists (pass --force to overwrite it)")
+    out = check_replaceable(out, force, inputs=[table])   # before the tabulation, which takes seconds
     mat = read_npf(table, material)
     data = tabulate_merl(lambda wi, wo: npf_eval(mat, wi, wo, interpolate=True), name=f"{table}:{mat.name}")
-    return write_merl(out, data, force=force)
+    return write_merl(out, data, force=force, inputs=[table])

@@ -145,3 +145,77 @@ def test_cli_end_to_end(shared, tmp_path):
     assert t.shape == (N_THETA_I, N_CELLS, N_CELLS) and float(t.max()) > 0
     r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "already exists" in r.stderr and r.stderr.count("\n") == 1
+
+
+# ----------------------------------------------------------------- bad input from Python (an API audit)
+
+
+def _lambert(wi, wo):
+    return np.full((len(wi), 3), 1.0 / math.pi)
+
+
+def _fake_source(tmp_path):
+    """A source read from a small fake file (anything with name, digest and path will do for the writer)."""
+    from types import SimpleNamespace
+
+    src = tmp_path / "m.binary"
+    src.write_bytes(b"the BRDF file the table is made from")
+    return SimpleNamespace(name=src.name, digest="d1", path=src, evaluate=_lambert)
+
+
+def test_build_refuses_a_path_saying_what_to_pass():
+    """``build_brdf_bandwidth("chrome.binary")`` gave AttributeError: 'str' object has no attribute 'name'."""
+    with pytest.raises(WarpbwError, match=r"build_brdf_bandwidth: source 'chrome\.binary' is a path; pass "
+                                          r"brdf_source\(path, material\)"):
+        build_brdf_bandwidth("chrome.binary", progress=False)
+
+
+@pytest.mark.parametrize("resolution, said", [(100, "a multiple of 16"), (0, "an integer >= 16"),
+                                              (64.5, "an integer >= 16")])
+def test_a_bad_resolution_is_named(resolution, said):
+    """A plain ValueError before (and 64.5 was taken as 64)."""
+    with pytest.raises(WarpbwError, match=rf"^resolution: expected {said}"):
+        analytic_brdf_bandwidth_table(_lambert, resolution=resolution)
+
+
+def test_an_evaluator_of_one_channel_is_refused():
+    """An evaluator returning (N,) instead of (N, 3) was accepted."""
+    with pytest.raises(WarpbwError, match=r"evaluate: returned shape \(256,\) for 256 direction pairs "
+                                          r"\(expected \(256, 3\)"):
+        analytic_brdf_bandwidth_table(lambda wi, wo: np.ones(len(wi)), resolution=16)
+
+
+@pytest.mark.parametrize("bad, said", [(np.zeros((8, 16, 16)), r"of shape \(8, 16, 16\), this warpbw uses \(16, 16, "
+                                                                r"16\)$"),
+                                       (-np.ones((16, 16, 16)), "has negative or non-finite bandwidths$"),
+                                       (np.full((16, 16, 16), np.nan), "has negative or non-finite bandwidths$")])
+def test_the_writer_refuses_what_the_reader_refuses(tmp_path, bad, said):
+    """A table of negative bandwidths was written, then refused when read; a wrong shape was a plain ValueError."""
+    out = tmp_path / "t.npz"
+    with pytest.raises(WarpbwError, match=rf"^table for .*t\.npz {said}"):
+        write_brdf_bandwidth(out, bad, _fake_source(tmp_path))
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("link", [None, "hardlink", "symlink"])
+def test_the_writer_never_replaces_its_source(tmp_path, link):
+    """``write_brdf_bandwidth(src.path, table, src, force=True)`` overwrote the .binary it was built from."""
+    source = _fake_source(tmp_path)
+    out = source.path if link is None else tmp_path / "t.npz"
+    if link == "hardlink":
+        out.hardlink_to(source.path)
+    elif link == "symlink":
+        out.symlink_to(source.path)
+    with pytest.raises(WarpbwError) as e:
+        write_brdf_bandwidth(out, np.zeros((16, 16, 16)), source, force=True)
+    assert str(e.value).startswith(f"{out}: would overwrite {source.path}, the file it is made from")
+    assert source.path.read_bytes() == b"the BRDF file the table is made from"
+
+
+def test_the_writer_refuses_a_read_only_output_even_with_force(tmp_path):
+    out = tmp_path / "t.npz"
+    out.write_bytes(b"keep me")
+    out.chmod(0o444)
+    with pytest.raises(WarpbwError, match=r"t\.npz: cannot be overwritten"):
+        write_brdf_bandwidth(out, np.zeros((16, 16, 16)), _fake_source(tmp_path), force=True)
+    assert out.read_bytes() == b"keep me"

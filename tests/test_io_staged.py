@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import os
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from warpbw.errors import WarpbwError
-from warpbw.io.staged import staged_outputs
+from warpbw.io.staged import check_replaceable, staged_outputs
 
 
 def _leftovers(d) -> list:
@@ -67,6 +68,71 @@ def test_an_existing_output_is_replaced_not_written_through(tmp_path):
             at[out].write_bytes(b"a render")
         assert out.read_bytes() == b"a render" and not out.is_symlink()
     assert probe.read_bytes() == b"the light probe"
+
+
+def _read_only(p):
+    """chmod 444 ``p``; returns its bytes and mode, to compare after."""
+    p.chmod(0o444)
+    return p.read_bytes(), p.stat().st_mode
+
+
+@pytest.mark.parametrize("link", ["same", "relative", "symlink", "hardlink"])
+def test_check_replaceable_refuses_an_input_whatever_force_says(tmp_path, monkeypatch, link):
+    """A library writer given its own input as output (``npf_to_merl(T, m, T, force=True)``) replaced it; now the
+    input is refused, named, and said to be a link where it is one."""
+    src = tmp_path / "src.bin"
+    src.write_bytes(b"the input")
+    monkeypatch.chdir(tmp_path)
+    out = {"same": src, "relative": Path("src.bin"), "symlink": tmp_path / "soft.bin",
+           "hardlink": tmp_path / "hard.bin"}[link]
+    if link == "symlink":
+        out.symlink_to(src)
+    elif link == "hardlink":
+        out.hardlink_to(src)
+    for force in (False, True):
+        with pytest.raises(WarpbwError) as e:
+            check_replaceable(out, force, inputs=[src])
+        msg = str(e.value)
+        assert msg.startswith(f"{out}: would overwrite {src}, the file it is made from")
+        assert msg.endswith("is a link to it)") == (link in ("symlink", "hardlink"))
+    assert check_replaceable(tmp_path / "other.bin", False, inputs=[src]) == tmp_path / "other.bin"
+
+
+def test_check_replaceable_refuses_a_read_only_output_even_with_force(tmp_path):
+    out = tmp_path / "kept.npz"
+    out.write_bytes(b"keep me")
+    _read_only(out)
+    with pytest.raises(WarpbwError, match=r"kept\.npz: already exists \(pass --force to overwrite it\)$"):
+        check_replaceable(out, False)
+    with pytest.raises(WarpbwError, match=r"kept\.npz: cannot be overwritten \(.*; make it writable, or write "
+                                          r"elsewhere\)$"):
+        check_replaceable(out, True)
+    out.chmod(0o644)
+    assert check_replaceable(out, True) == out
+
+
+def test_check_replaceable_refuses_a_directory(tmp_path):
+    with pytest.raises(WarpbwError, match="is a directory"):
+        check_replaceable(tmp_path, True)
+
+
+def test_write_merl_refuses_a_read_only_file_and_its_inputs_even_with_force(tmp_path):
+    """write_merl(ro_file, data, force=True) replaced a chmod 444 file (and left it 644); and a MERL file written
+    from another may not replace it."""
+    from warpbw.io.merl import MERL_SHAPE, write_merl
+
+    ro = tmp_path / "ro.binary"
+    ro.write_bytes(b"a read-only MERL file")
+    before = _read_only(ro)
+    with pytest.raises(WarpbwError, match=r"ro\.binary: cannot be overwritten"):
+        write_merl(ro, np.zeros(MERL_SHAPE), force=True)
+    assert (ro.read_bytes(), ro.stat().st_mode) == before
+    src = tmp_path / "src.binary"
+    src.write_bytes(b"the MERL file it is made from")
+    (tmp_path / "hard.binary").hardlink_to(src)
+    with pytest.raises(WarpbwError, match=r"hard\.binary: would overwrite .*src\.binary"):
+        write_merl(tmp_path / "hard.binary", np.zeros(MERL_SHAPE), force=True, inputs=[src])
+    assert src.read_bytes() == b"the MERL file it is made from" and _leftovers(tmp_path) == []
 
 
 def test_two_writers_of_one_output_get_temporaries_of_their_own(tmp_path):
@@ -164,7 +230,7 @@ _STOPPED_WRITER = """
 import sys, time
 from pathlib import Path
 from warpbw.cli_common import run_command
-from warpbw.io.staged import staged_outputs
+from warpbw.io.staged import check_replaceable, staged_outputs
 
 def write_then_wait(args):
     out = Path(sys.argv[1])

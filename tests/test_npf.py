@@ -245,6 +245,35 @@ def test_npf_to_merl_refuses_existing_output(table_path, tmp_path):
     assert out.read_bytes() == b"keep me"
 
 
+@pytest.mark.parametrize("link", [None, "symlink", "hardlink"])
+def test_npf_to_merl_never_replaces_its_table(tmp_path, link):
+    """``npf_to_merl(NPF, "chrome", NPF, force=True)`` replaced the NPF table it read with a 35 MB MERL file (the
+    shared npf.bin was lost so).  A table-sized fake file: refused before it is read."""
+    from warpbw.io.npf import NPF_FILE_SIZE
+
+    table = tmp_path / "npf.bin"
+    table.write_bytes(b"\x01" * NPF_FILE_SIZE)
+    out = table if link is None else tmp_path / "out.binary"
+    if link == "symlink":
+        out.symlink_to(table)
+    elif link == "hardlink":
+        out.hardlink_to(table)
+    with pytest.raises(WarpbwError) as e:
+        npf_to_merl(table, "chrome", out, force=True)
+    assert str(e.value).startswith(f"{out}: would overwrite {table}, the file it is made from")
+    assert table.read_bytes() == b"\x01" * NPF_FILE_SIZE
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted({table.name, out.name})
+
+
+def test_npf_to_merl_refuses_a_read_only_output_even_with_force(tmp_path):
+    out = tmp_path / "kept.binary"
+    out.write_bytes(b"keep me")
+    out.chmod(0o444)
+    with pytest.raises(WarpbwError, match=r"kept\.binary: cannot be overwritten"):
+        npf_to_merl(tmp_path / "npf.bin", "chrome", out, force=True)   # refused before the table is read
+    assert out.read_bytes() == b"keep me"
+
+
 # ----------------------------------------------------------------- bad input
 
 

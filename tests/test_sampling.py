@@ -220,3 +220,45 @@ def test_importance_sampling_is_unbiased_for_views_off_the_xz_plane(materials, g
         valu = (fu * Lu).mean(1) * wu[:, 2] * 2 * np.pi
         assert means_agree(g_is, g_u), (name, azimuth, g_is.mean(), g_u.mean())
         assert means_agree(val, valu), (name, azimuth, val.mean(), valu.mean())
+
+
+# ----------------------------------------------------------------- bad input from Python (an API audit)
+
+
+def test_build_brdf_sampling_refuses_a_path_saying_what_to_pass():
+    """A path gave AttributeError: 'str' object has no attribute 'name'."""
+    from precompute.brdf_sampling import build_brdf_sampling
+    from warpbw.errors import WarpbwError
+
+    with pytest.raises(WarpbwError, match=r"build_brdf_sampling: source 'chrome\.binary' is a path; pass "
+                                          r"brdf_source\(path, material\)"):
+        build_brdf_sampling("chrome.binary", progress=False)
+
+
+@pytest.mark.parametrize("link", [None, "hardlink", "symlink"])
+def test_write_sampling_never_replaces_its_source(tmp_path, link):
+    """``write_sampling(src.path, table, src, force=True)`` overwrote the .binary the tables were built from; a
+    read-only output is refused too."""
+    from precompute.brdf_sampling import BrdfSource, write_sampling
+    from warpbw.errors import WarpbwError
+    from warpbw.sampling import SamplerTable
+
+    src = tmp_path / "m.binary"
+    src.write_bytes(b"the BRDF file")
+    source = BrdfSource(src.name, src, "d1", lambda wi, wo: np.ones((len(wi), 3)))
+    table = SamplerTable(np.zeros((2, 3), np.float32), np.zeros((2, 2, 3), np.float32), np.zeros((2, 2, 2), np.float32))
+    out = src if link is None else tmp_path / "t.npz"
+    if link == "hardlink":
+        out.hardlink_to(src)
+    elif link == "symlink":
+        out.symlink_to(src)
+    with pytest.raises(WarpbwError) as e:
+        write_sampling(out, table, source, force=True)
+    assert str(e.value).startswith(f"{out}: would overwrite {src}, the file it is made from")
+    assert src.read_bytes() == b"the BRDF file"
+    ro = tmp_path / "ro.npz"
+    ro.write_bytes(b"keep me")
+    ro.chmod(0o444)
+    with pytest.raises(WarpbwError, match=r"ro\.npz: cannot be overwritten"):
+        write_sampling(ro, table, source, force=True)
+    assert ro.read_bytes() == b"keep me"

@@ -24,7 +24,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from warpbw.errors import SEED_MAX, WarpbwError, check_device
-from warpbw.io.staged import staged_outputs
+from warpbw.io.staged import check_not_read_only, input_clash, staged_outputs
 from warpbw.native_output import init_warp_quietly
 
 EXIT_USER_ERROR = 2
@@ -81,12 +81,7 @@ def check_output_file(path, option: str, force: bool) -> None:
     if p.exists() and not force:
         raise WarpbwError(f"{p}: already exists (pass --force to overwrite it)")
     if p.exists():   # a read-only file (chmod a-w, chattr +i) is the user's "keep this": say so before any work
-        try:
-            with open(p, "ab"):   # append mode: opened for writing, not one byte changed
-                pass
-        except OSError as exc:
-            raise WarpbwError(f"{option} {p}: cannot be overwritten ({exc.strerror or exc}; make it writable, or "
-                              "write elsewhere)") from None
+        check_not_read_only(p, f"{option} {p}")
 
 
 def check_output_dir(path, option: str) -> None:
@@ -179,30 +174,16 @@ def init_warp(device: str):
     return wp
 
 
-def _same_file(a: Path, b: Path) -> bool:
-    """``a`` and ``b`` name one file: the same path once links are resolved, or one inode (a hard link)."""
-    if a.resolve() == b.resolve():
-        return True
-    try:
-        return os.path.samefile(a, b)
-    except OSError:   # either is missing: not one file
-        return False
-
-
 def check_overwrite(paths, force: bool, option: str = "-o", inputs=(), inputs_are: str = "a file this command reads"):
     """Refuse, before any work, output files that cannot be written or exist without --force, and, whatever --force
     says, an output that is one of ``inputs`` (the scene, its probe, a BRDF file, ...: ``--force`` would have
     replaced a light probe by the render of it)."""
     read = [Path(f) for f in inputs]
     for p in paths:  # a directory, or a path under a file, fails whatever --force says
-        f = next((f for f in read if _same_file(Path(p), f)), None)
-        if f is not None:
-            # a symlink at the output, or another name for the input's inode (a hard link); the same file named
-            # relatively or absolutely is no link
-            linked = Path(p).is_symlink() or Path(p).resolve() != f.resolve()
+        clash = input_clash(p, read, inputs_are)   # the rule every library writer keeps (warpbw.io.staged)
+        if clash is not None:
             whose = "" if Path(p) == Path(paths[0]) else f" (its output {p})"
-            raise WarpbwError(f"{option} {paths[0]}{whose}: would overwrite {f}, {inputs_are}"
-                              + (f" ({p} is a link to it)" if linked else ""))
+            raise WarpbwError(f"{option} {paths[0]}{whose}: {clash}")
         check_output_file(p, option, force=True)
     if force:
         return

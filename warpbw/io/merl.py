@@ -3,7 +3,8 @@
 Public functions:
 
 - ``read_merl(path) -> MerlBRDF``: scaled linear BRDF values (1/sr), unmeasured entries zeroed and counted.
-- ``write_merl(path, data, force=False) -> Path``: the inverse (MERL channel scales undone, float64).
+- ``write_merl(path, data, force=False, inputs=()) -> Path``: the inverse (MERL channel scales undone, float64);
+  never over one of ``inputs`` or a read-only file.
 - ``half_diff_from_dirs(wi, wo) -> (theta_h, phi_h, theta_d, phi_d)``: Rusinkiewicz (1998) coordinates.
 - ``dirs_from_half_diff(theta_h, phi_h, theta_d, phi_d) -> (wi, wo)``: their inverse.
 - ``merl_indices(theta_h, theta_d, phi_d) -> (i_th, i_td, i_pd)``: the MERL binning rules.
@@ -26,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from warpbw.errors import BRDF_VALUE_MAX, WarpbwError, check_direction_pairs, check_input_file
-from warpbw.io.staged import staged_outputs
+from warpbw.io.staged import check_replaceable, staged_outputs
 
 # Table resolution of the MERL database (BRDFRead.cpp: BRDF_SAMPLING_RES_THETA_H = 90,
 # BRDF_SAMPLING_RES_THETA_D = 90, BRDF_SAMPLING_RES_PHI_D = 360 of which 180 are stored).
@@ -263,11 +264,13 @@ def read_merl(path) -> MerlBRDF:
     return MerlBRDF(name=path.stem, path=str(path), data=data, n_unmeasured=n_bad, unmeasured=mask)
 
 
-def write_merl(path, data, force: bool = False) -> Path:
+def write_merl(path, data, force: bool = False, inputs=()) -> Path:
     """Write scaled BRDF values (90, 90, 180, 3) as a MERL ``.binary`` file (float64, channel scales undone).
 
     Negative values are written as they are (readers treat them as unmeasured). Refuses to
-    overwrite an existing file unless ``force``. The file appears atomically (temporary + rename).
+    overwrite an existing file unless ``force``, and whatever ``force`` says, a read-only file or one of
+    ``inputs`` (the files ``data`` was made from): :func:`warpbw.io.staged.check_replaceable`. The file
+    appears atomically (temporary + rename).
     """
     path = Path(path)
     arr = np.asarray(data)
@@ -277,8 +280,7 @@ def write_merl(path, data, force: bool = False) -> Path:
     n_nonfinite = int(np.count_nonzero(~np.isfinite(arr)))
     if n_nonfinite:
         raise WarpbwError(f"{path}: refusing to write {n_nonfinite} non-finite MERL values (expected finite numbers)")
-    if path.exists() and not force:
-        raise WarpbwError(f"{path}: already exists (pass --force to overwrite it)")
+    check_replaceable(path, force, inputs)
     scale = np.asarray(MERL_SCALE, dtype=np.float64)
     values = np.ascontiguousarray(np.moveaxis(arr / scale, -1, 0), dtype="<f8")
     header = np.asarray([MERL_THETA_H_RES, MERL_THETA_D_RES, MERL_PHI_D_RES], dtype="<i4")

@@ -1,6 +1,8 @@
 """Output files that appear whole, or not at all.
 
-Public: ``staged_outputs(paths)``.
+Public: ``staged_outputs(paths)``; ``check_replaceable(path, force, inputs=(), inputs_are=...) -> Path`` (what every
+writer that takes ``force`` checks before its work), ``input_clash(path, inputs, inputs_are=...) -> str | None`` and
+``check_not_read_only(path, label)`` (its parts the command lines share).
 
 Every writer of warpbw (images, records, plots, asset and cache files) writes to a temporary file beside its
 output, and the outputs of one command are moved into place together once all of them are written.  So
@@ -11,10 +13,15 @@ output, and the outputs of one command are moved into place together once all of
   the file it pointed at (``--force`` once rewrote a light probe hard-linked to ``-o``);
 * two runs that write the same output at once do not write into one temporary file: each has its own
   (``mkstemp``, created exclusively, never through a link), and the last to finish wins whole.
+
+Before any work, :func:`check_replaceable` refuses an output that exists without ``force``, and whatever ``force``
+says, one that is a file the writer reads (``npf_to_merl(T, m, T, force=True)`` replaced the NPF table it read) or
+an existing read-only file (``chmod a-w`` is the user's "keep this"; a rename would replace it all the same).
 """
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -22,6 +29,63 @@ from pathlib import Path
 from warpbw.errors import WarpbwError
 
 TEMP_PREFIX = "."   # hidden, so that a listing or a glob of the outputs does not show the temporaries
+MADE_FROM = "the file it is made from"   # what a library writer's ``inputs`` are, in its messages
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """``a`` and ``b`` name one file: the same path once links are resolved, or one inode (a hard link)."""
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:   # either is missing: not one file
+        return False
+
+
+def input_clash(path, inputs, inputs_are: str = MADE_FROM) -> str | None:
+    """``"would overwrite INPUT, INPUTS_ARE"`` (and ``"(PATH is a link to it)"`` where it is one) when ``path`` is
+    the same file as one of ``inputs`` (see :func:`_same_file`: a symlink or a hard link to it counts); else None."""
+    p = Path(path)
+    f = next((Path(f) for f in inputs if _same_file(p, Path(f))), None)
+    if f is None:
+        return None
+    # a symlink at the output, or another name for the input's inode (a hard link); the same file named relatively
+    # or absolutely is no link
+    linked = p.is_symlink() or p.resolve() != f.resolve()
+    return f"would overwrite {f}, {inputs_are}" + (f" ({p} is a link to it)" if linked else "")
+
+
+def check_not_read_only(path, label: str) -> None:
+    """Refuse an existing file that is read-only: one that cannot be opened for writing (``chmod a-w`` for a user,
+    ``chattr +i``), or has no write permission bit at all (``chmod 444``, which root could write all the same).
+    ``label`` starts the message (the path, or the option and the path)."""
+    p = Path(path)
+    try:
+        with open(p, "ab"):   # append mode: opened for writing, not one byte changed
+            pass
+    except OSError as exc:
+        raise WarpbwError(f"{label}: cannot be overwritten ({exc.strerror or exc}; make it writable, or write "
+                          "elsewhere)") from None
+    mode = stat.S_IMODE(p.stat().st_mode)
+    if not mode & 0o222:
+        raise WarpbwError(f"{label}: cannot be overwritten (read-only, mode {mode:04o}; make it writable, or write "
+                          "elsewhere)")
+
+
+def check_replaceable(path, force: bool, inputs=(), inputs_are: str = MADE_FROM) -> Path:
+    """``path`` as a Path, once it may be written: not a directory, not one of ``inputs`` (whatever ``force`` says),
+    not an existing file without ``force``, not an existing read-only file.  Writers call it before their work."""
+    p = Path(path)
+    if p.is_dir():   # a temporary file would not replace a directory
+        raise WarpbwError(f"{p}: is a directory (expected a file name)")
+    clash = input_clash(p, inputs, inputs_are)
+    if clash is not None:
+        raise WarpbwError(f"{p}: {clash}")
+    if p.exists() and not force:
+        raise WarpbwError(f"{p}: already exists (pass --force to overwrite it)")
+    if p.exists():
+        check_not_read_only(p, str(p))
+    return p
 
 
 def _new_file_mode() -> int:
