@@ -211,3 +211,22 @@ def test_the_frame_that_loads_the_bandwidth_inputs_times_them_on_a_prepared_scen
     assert first.stats["time_s"]["load_env_bandwidth"] == round(prep.timings["load_env_bandwidth"], 6)
     assert not loads & set(render_adaptive(prep, budget=2.0, seed=3).stats["time_s"])
     assert loads <= set(render_adaptive(prep, budget=2.0, seed=3, env_signal="log").stats["time_s"])
+
+
+def test_a_budget_below_one_sample_per_shaded_pixel_warns_from_python_too():
+    """budget 0.01 took 0.73 samples per covered pixel, 73 times the budget: only stats['allocation']['over_budget']
+    said so from Python (the command line printed a warning).  Now the renderer warns, naming the samples taken."""
+    import warnings
+
+    from warpbw.pipeline import render_adaptive
+
+    prep = prepare_scene(parse_scene(SCENE.format(w=24, h=16, env='procedural = "sky"',
+                                                  mat='type = "ggx"\nalpha = 0.2\nspecular = 0.8')))
+    with pytest.warns(RuntimeWarning, match=r"^budget 0\.01 is below 1 sample\(s\) per shaded pixel \(\d+ pixels to "
+                                            r"shade, \d+ samples\): every shaded pixel got 1, \d+ samples in all$"):
+        low = render_adaptive(prep, budget=0.01, seed=3)
+    a = low.stats["allocation"]
+    assert a["over_budget"] and low.stats["samples"] == a["planned_samples"] > a["budget_samples"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                 # a budget the allocation keeps: no warning
+        render_adaptive(prep, budget=4.0, seed=3)

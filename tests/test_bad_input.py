@@ -865,6 +865,9 @@ def test_render_with_planes_needs_both_kinds_of_object(tmp_path):
         render_with_planes(both, "fixed", 4, method="fast")
     with pytest.raises(WarpbwError, match="needs an \\[environment\\]"):
         render_with_planes(both, "fixed", 4, method="adaptive", budget=2)
+    # the adaptive method's options on a reference frame were taken without a word
+    with pytest.raises(WarpbwError, match=r"^method 'reference': budget, upsample apply to method 'adaptive' only$"):
+        render_with_planes(both, "fixed", 4, budget=2, upsample="paper")
 
 
 def test_a_loaded_environment_for_a_scene_without_one_is_refused(tmp_path):

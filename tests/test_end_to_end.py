@@ -938,3 +938,14 @@ def test_a_prepared_scene_keeps_its_own_copy_of_the_scene():
     after = render_reference(prep, spp=2, seed=5)
     assert after.image.shape == (16, 24, 3) and np.array_equal(after.image, before.image)
     assert prep.scene is not s and len(prep.scene.objects) == len(s.objects) - 1
+
+
+def test_a_budget_below_one_sample_per_shaded_pixel_is_one_warning_line(tmp_path):
+    """The renderer warns (warpbw.pipeline) and the command line prints it once, as one line."""
+    from warpbw.scene import DEFAULT_SCENE_TOML
+
+    (tmp_path / "s.toml").write_text(DEFAULT_SCENE_TOML.replace("resolution = [384, 256]", "resolution = [48, 32]"))
+    r = run(["render", "s.toml", "-o", "a.exr", "--method", "adaptive", "--budget", "0.01", "-q"], tmp_path)
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1 and re.match(r"warpbw: warning: budget 0\.01 is below 1 sample\(s\) per shaded pixel ",
+                                        lines[0]), r.stderr

@@ -164,7 +164,6 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
         for p, text in texts.items():
             at[p].write_text(text)
     _warn_if_empty(res.stats)
-    _warn_samples(res.stats, budget)
     if not quiet:
         t = res.stats["time_s"]
         w, h = res.stats["resolution"]
@@ -188,18 +187,6 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
                   + (f" ({sps / 1e6:.2f} M samples/s)" if sps else "") + f", total {t['total']:.2f} s")
         print(f"  preview {outs['png']}, stats {outs['json']}" + "".join(f", {p}" for p in texts))
     return res.stats
-
-
-def _warn_samples(stats: dict, budget: float | None) -> None:
-    """One line each: samples dropped as non-finite; an adaptive budget below one sample per shaded pixel."""
-    if stats.get("non_finite_samples"):
-        print(f"warpbw: warning: {stats['non_finite_samples']} samples had a non-finite contribution "
-              "and were dropped", file=sys.stderr)
-    a = stats.get("allocation")
-    if a is not None and a["over_budget"]:
-        print(f"warpbw: warning: --budget {budget:g} is below one sample per shaded pixel "
-              f"({a['planned_pixels']} pixels to shade, {a['budget_samples']} samples): every shaded pixel "
-              f"got {a['n_min']} sample(s)", file=sys.stderr)
 
 
 def _warn_if_empty(stats: dict) -> None:
@@ -279,7 +266,6 @@ def _render_mixed_cli(scene, args) -> int:
         res.stats["colour_scales"] = scales
         _write_render(res, outs, args.exposure, at)
     _warn_if_empty(res.stats)
-    _warn_samples(res.stats, args.budget)
     if not args.quiet:
         t = res.stats["time_s"]
         w, h = res.stats["resolution"]

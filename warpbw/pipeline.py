@@ -38,6 +38,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -338,7 +339,22 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
         stats["pixels_hidden"] = hidden
     stats["time_s"] = {k: round(v, 6) for k, v in timings.items()}
     check_finite_image(image, prep.scene.source)
+    _warn_samples(stats)
     return RenderResult(image, gb.coverage, gb, stats)
+
+
+def _warn_samples(stats: dict) -> None:
+    """A warning each (the command lines print it as one line): samples dropped as non-finite, and an adaptive
+    budget below ``n_min`` per shaded pixel (every shaded pixel then takes ``n_min``: more samples than asked).
+    Both were said by ``warpbw render`` only; from Python they were a stats entry to look for."""
+    if stats.get("non_finite_samples"):
+        warnings.warn(f"{stats['scene']}: {stats['non_finite_samples']} samples had a non-finite contribution and "
+                      "were dropped", RuntimeWarning, stacklevel=3)
+    a = stats.get("allocation")
+    if a is not None and a["over_budget"]:
+        warnings.warn(f"budget {a['budget_spp']:g} is below {a['n_min']} sample(s) per shaded pixel "
+                      f"({a['planned_pixels']} pixels to shade, {a['budget_samples']} samples): every shaded pixel "
+                      f"got {a['n_min']}, {a['planned_samples']} samples in all", RuntimeWarning, stacklevel=3)
 
 
 def _base_stats(prep: PreparedScene, method: str, seed: int, mis: bool, timings: dict, n_cov: int,
@@ -560,6 +576,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
         "sigma2": buf.sigma2.numpy().reshape(H, W),
     }
     check_finite_image(res.image, prep.scene.source)
+    _warn_samples(stats)
     return RenderResult(res.image, gb.coverage, gb, stats, aovs)
 
 
@@ -604,6 +621,9 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
     check_render_args(planes, filter_method, spp, spp, aniso)
     if method == "adaptive" and budget is None:
         raise WarpbwError("method 'adaptive': expected a budget (mean samples per covered pixel)")
+    ignored = [k for k, v in (("budget", budget), ("n_b", n_b), *adaptive_options.items()) if v is not None]
+    if method == "reference" and ignored:   # taken without a word: the frame was the reference at spp
+        raise WarpbwError(f"method 'reference': {', '.join(ignored)} apply to method 'adaptive' only")
     prep = prepare_scene(surfaces, device, progress)
     plane_prep = prepare_filtering(planes, (filter_method,), device, progress, env=prep.env)   # one environment
     nearer = plane_distance(planes, device)
