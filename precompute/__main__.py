@@ -103,7 +103,8 @@ def cmd_gmm(args) -> int:
     except WarpbwError as exc:    # the builder names its parameters; here they are options
         msg = str(exc)
         raise WarpbwError(f"--{msg}" if msg.split(" ", 1)[0] in ("components", "prior", "scale") else msg) from None
-    write_gmm_mipmap(out, mip, name, digest, force=args.force)
+    write_gmm_mipmap(out, mip, name, digest, force=args.force,
+                     inputs=[] if args.map.startswith("surface:") else [args.map])
     h, w = mip.shape
     how = "unaligned (independent EM per texel)" if args.unaligned else f"aligned, prior c={args.prior:g}"
     print(f"{out}  (GMM mipmap of {name}: {h}x{w}, {len(mip.levels)} levels, {mip.components} components, "

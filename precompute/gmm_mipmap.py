@@ -6,7 +6,7 @@ Public functions and classes:
   ``prior``, ``unaligned``, ``kind``, ``scale``, ``seed``, ``max_samples``; ``params()``.
 - ``build_gmm_mipmap(heights_or_normals, kind="height", components=4, prior=1.0, scale=1.0, seed=0,
   progress=True, unaligned=False, texel_size=None, max_samples=256, refine_sweeps=0) -> GmmMipmap``.
-- ``write_gmm_mipmap(path, mip, source_name, source_hash, force=False)``, ``read_gmm_mipmap(path) -> GmmMipmap``.
+- ``write_gmm_mipmap(path, mip, source_name, source_hash, force=False, inputs=())``, ``read_gmm_mipmap(path) -> GmmMipmap``.
 - ``load_map(path, kind) -> ndarray``: an EXR or PNG height field (H, W) or normal map (H, W, 3 unit).
 - ``load_source(spec, kind) -> (array, name, content_hash)``: a file, or ``surface:NAME[:SIZE]``.
 - ``level_shapes(h, w)``, ``normal_space(normals)``, ``footprint_samples(n2, level, max_samples, rng)``.
@@ -615,12 +615,15 @@ def _rebuild_hint(source: str) -> str:
     return f"warpbw-precompute gmm {source} -o OUT --force"
 
 
-def write_gmm_mipmap(path, mip: GmmMipmap, source_name: str, source_hash: str, force: bool = False) -> Path:
-    """Write ``mip`` in the versioned asset format (arrays ``level_0`` ... finest first)."""
+def write_gmm_mipmap(path, mip: GmmMipmap, source_name: str, source_hash: str, force: bool = False,
+                     inputs=()) -> Path:
+    """Write ``mip`` in the versioned asset format (arrays ``level_0`` ... finest first); never over one of
+    ``inputs`` (the map it was built from: a file, or a link to it) whatever ``force`` says."""
     from precompute.assetfile import write_asset
 
     arrays = {f"level_{l}": np.asarray(q, np.float32) for l, q in enumerate(mip.levels)}
-    return write_asset(path, GMM_FORMAT, GMM_VERSION, source_name, source_hash, arrays, mip.params(), force)
+    return write_asset(path, GMM_FORMAT, GMM_VERSION, source_name, source_hash, arrays, mip.params(), force,
+                       inputs=inputs)
 
 
 def read_gmm_mipmap(path) -> GmmMipmap:

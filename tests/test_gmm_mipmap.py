@@ -387,6 +387,14 @@ def test_write_read_round_trip_and_force(tmp_path):
     with pytest.raises(WarpbwError, match="already exists"):
         write_gmm_mipmap(out, mip, "surface:dunes:20", "abc")
     write_gmm_mipmap(out, mip, "surface:dunes:20", "abc", force=True)
+    # never over the map it was built from, whatever force says (a link to it neither)
+    (tmp_path / "map.exr").write_bytes(b"the height field")
+    (tmp_path / "link.gmm").symlink_to(tmp_path / "map.exr")
+    for target in (tmp_path / "map.exr", tmp_path / "link.gmm"):
+        with pytest.raises(WarpbwError, match=rf"{target}: would overwrite {tmp_path / 'map.exr'}, the file it is "
+                                              "made from"):
+            write_gmm_mipmap(target, mip, "map.exr", "abc", force=True, inputs=[tmp_path / "map.exr"])
+    assert (tmp_path / "map.exr").read_bytes() == b"the height field"
 
 
 def test_reading_another_format_is_refused(tmp_path):
