@@ -174,6 +174,16 @@ def check_colour_scale(exr_path, scale: dict, mask, log: bool) -> None:
     assert f"from {scale['from']:.6g} (dark blue) to {scale['to']:.6g} (yellow)" in text, text
 
 
+def named_as(src: Path, link: str | None, other: Path) -> Path:
+    """An output path that is ``src`` itself (``link`` None), or ``other`` made a "symlink" or a "hardlink" to it:
+    the three ways a writer can be handed its own input."""
+    if link == "symlink":
+        other.symlink_to(src)
+    elif link == "hardlink":
+        other.hardlink_to(src)
+    return src if link is None else other
+
+
 def grid_mesh(n_u, n_v, fn):
     """Triangulated (n_u x n_v) vertex grid; fn(u, v) -> (N, 3) points; faces wound (dv x du)."""
     uu, vv = np.meshgrid(np.arange(n_u), np.arange(n_v), indexing="ij")

@@ -18,6 +18,7 @@ import sys
 import numpy as np
 import pytest
 
+from conftest import named_as
 from precompute.brdf_bandwidth import (FORMAT, N_CELLS, N_THETA_I, analytic_brdf_bandwidth_table,
                                        build_brdf_bandwidth, read_brdf_bandwidth, write_brdf_bandwidth)
 from precompute.assetfile import write_asset
@@ -201,11 +202,7 @@ def test_the_writer_refuses_what_the_reader_refuses(tmp_path, bad, said):
 def test_the_writer_never_replaces_its_source(tmp_path, link):
     """``write_brdf_bandwidth(src.path, table, src, force=True)`` overwrote the .binary it was built from."""
     source = _fake_source(tmp_path)
-    out = source.path if link is None else tmp_path / "t.npz"
-    if link == "hardlink":
-        out.hardlink_to(source.path)
-    elif link == "symlink":
-        out.symlink_to(source.path)
+    out = named_as(source.path, link, tmp_path / "t.npz")
     with pytest.raises(WarpbwError) as e:
         write_brdf_bandwidth(out, np.zeros((16, 16, 16)), source, force=True)
     assert str(e.value).startswith(f"{out}: would overwrite {source.path}, the file it is made from")

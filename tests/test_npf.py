@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import shared_file
+from conftest import named_as, shared_file
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -253,11 +253,7 @@ def test_npf_to_merl_never_replaces_its_table(tmp_path, link):
 
     table = tmp_path / "npf.bin"
     table.write_bytes(b"\x01" * NPF_FILE_SIZE)
-    out = table if link is None else tmp_path / "out.binary"
-    if link == "symlink":
-        out.symlink_to(table)
-    elif link == "hardlink":
-        out.hardlink_to(table)
+    out = named_as(table, link, tmp_path / "out.binary")
     with pytest.raises(WarpbwError) as e:
         npf_to_merl(table, "chrome", out, force=True)
     assert str(e.value).startswith(f"{out}: would overwrite {table}, the file it is made from")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conftest import named_as
 from warpbw import brdf as B
 from warpbw.sampling import build_sampler_table
 
@@ -247,11 +248,7 @@ def test_write_sampling_never_replaces_its_source(tmp_path, link):
     src.write_bytes(b"the BRDF file")
     source = BrdfSource(src.name, src, "d1", lambda wi, wo: np.ones((len(wi), 3)))
     table = SamplerTable(np.zeros((2, 3), np.float32), np.zeros((2, 2, 3), np.float32), np.zeros((2, 2, 2), np.float32))
-    out = src if link is None else tmp_path / "t.npz"
-    if link == "hardlink":
-        out.hardlink_to(src)
-    elif link == "symlink":
-        out.symlink_to(src)
+    out = named_as(src, link, tmp_path / "t.npz")
     with pytest.raises(WarpbwError) as e:
         write_sampling(out, table, source, force=True)
     assert str(e.value).startswith(f"{out}: would overwrite {src}, the file it is made from")
