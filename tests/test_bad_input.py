@@ -9,8 +9,8 @@ must leave no output behind.  Runs in a fresh temporary directory with stdin clo
 from __future__ import annotations
 
 import json
-
 import os
+import re
 import subprocess
 import sys
 import time
@@ -1750,8 +1750,18 @@ def test_lower_level_functions_check_devices_specs_shapes_and_directions(tmp_pat
         coverage_from_alpha(rgba[..., :3], "RGBA")
     from warpbw.io.exr import write_exr
 
-    with pytest.raises(WarpbwError, match="write_exr: expected a file path, got None"):
+    with pytest.raises(WarpbwError, match=r"^write_exr: path: expected a file name \(str or Path\), got None"):
         write_exr(None, np.ones((2, 2, 3)))
+    # the readers and the other writers said it with a TypeError from pathlib
+    from warpbw.io.exr import read_exr, write_false_colour_png, write_png
+    from warpbw.io.mesh import load_mesh
+
+    for call, name in ((lambda: read_exr(None), "input file (an OpenEXR image)"),
+                       (lambda: load_mesh(None), "input file"),
+                       (lambda: write_png(None, np.ones((2, 2, 3))), "write_png: path"),
+                       (lambda: write_false_colour_png(None, np.ones((2, 2))), "write_false_colour_png: path")):
+        with pytest.raises(WarpbwError, match=rf"^{re.escape(name)}.*: expected a file name \(str or Path\), got None"):
+            call()
     with pytest.raises(WarpbwError, match="cannot write pixels of type <U1"):
         write_exr(tmp_path / "s.exr", [["a"]])
     assert not (tmp_path / "s.exr").exists()

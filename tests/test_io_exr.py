@@ -201,6 +201,19 @@ def test_false_colour_png_refuses_a_colour_scale_it_cannot_draw(tmp_path, vmin, 
     assert not (tmp_path / "fc.png").exists()
 
 
+def test_false_colour_png_with_one_end_beyond_every_value_draws_a_scale_that_reads_upwards(tmp_path):
+    """vmin 5 over values <= 1 returned (5, 1) and the PNG said "from 5 (dark blue) to 1 (yellow)"; on a log scale
+    vmin -1 became 2.2e-308, a scale of 300 decades."""
+    v = np.array([[0.25, 0.5, 1.0]])
+    assert write_false_colour_png(tmp_path / "a.png", v, vmin=5.0) == (5.0, 5.0)
+    assert write_false_colour_png(tmp_path / "b.png", v, vmax=0.1) == (0.1, 0.1)
+    assert "from 5 (dark blue) to 5 (yellow)" in Image.open(tmp_path / "a.png").text["Description"]
+    for opt in ("vmin", "vmax"):
+        with pytest.raises(WarpbwError, match=rf"{opt} -1 of a log colour scale: expected a number > 0"):
+            write_false_colour_png(tmp_path / "c.png", v, log=True, **{opt: -1.0})
+    assert not (tmp_path / "c.png").exists()
+
+
 def test_real_probe_reads():
     path = shared_file("envmaps/studio.exr")
     img = read_exr(path)

@@ -813,7 +813,7 @@ def test_check_scene_and_load_scene_refuse_what_is_not_a_scene():
 
     with pytest.raises(WarpbwError, match="scene: expected a warpbw.scene.Scene .*, got str"):
         check_scene("scene.toml")
-    with pytest.raises(WarpbwError, match="scene path: expected a file name .str or Path., got NoneType"):
+    with pytest.raises(WarpbwError, match="scene path: expected a file name .str or Path., got None"):
         load_scene(None)
     with pytest.raises(WarpbwError, match="expected the scene's TOML text as a str, got bytes"):
         parse_scene(DEFAULT_SCENE_TOML.encode())

@@ -2,8 +2,8 @@
 
 Public: ``WarpbwError``; ``is_int(value)`` (an int or numpy integer, not a bool) and
 ``check_count(value, name, lo, hi=None) -> int`` (such an integer in lo..hi, else a ``WarpbwError`` naming
-``name``); ``check_input_file(path, expected) -> Path`` (an existing file, else a ``WarpbwError`` saying
-whether it is missing or a directory); ``check_camera_reach(reach, lo, hi, target, kind, why, source)`` (the
+``name``); ``check_path(path, name) -> Path`` (a file name, not None); ``check_input_file(path, expected) -> Path`` (an
+existing file, else a ``WarpbwError`` saying whether it is missing or a directory); ``check_camera_reach(reach, lo, hi, target, kind, why, source)`` (the
 camera's distance to an object within what float32 intersection handles); ``check_coordinate_spacing(coord,
 size, target, source)`` (float32 fine enough where the camera and an object lie, ``COORD_SPACING_REL_MAX``);
 ``check_flag(value, name) -> bool`` (True or False, not a truthy string); ``check_real(value, name, lo,
@@ -158,10 +158,20 @@ def check_direction_pairs(wi, wo):
     return unit_directions(a, "wi"), unit_directions(b, "wo")
 
 
+def check_path(path, name: str = "path") -> Path:
+    """``path`` (a str or os.PathLike, not empty) as a ``Path``, else a one-line error naming ``name``: None or a
+    number was a TypeError from pathlib."""
+    import os
+
+    if not isinstance(path, (str, os.PathLike)) or not str(path):
+        raise WarpbwError(f"{name}: expected a file name (str or Path), got {path!r}")
+    return Path(path)
+
+
 def check_input_file(path, expected: str = "") -> Path:
     """``path`` as a ``Path`` when it is an existing file; otherwise a one-line error saying whether it is
     missing or a directory, and what was ``expected`` (``"an OpenEXR image"``)."""
-    p = Path(path)
+    p = check_path(path, f"input file ({expected})" if expected else "input file")
     if not p.is_file():
         # a FIFO or a device (/dev/zero) exists: "file not found" sent the user looking for a typo
         what = ("a directory, not a file" if p.is_dir() else "not a regular file (a pipe, socket or device)"

@@ -39,7 +39,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError, is_int
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_path, is_int
 
 MATERIAL_TYPES = ("lambert", "ggx", "merl", "npf", "cook-torrance")
 LIGHT_TYPES = ("directional",)
@@ -727,9 +727,7 @@ def check_scene(scene) -> Scene:
 
 def load_scene(path: Path | str) -> Scene:
     """Read and validate a scene file."""
-    if not isinstance(path, (str, Path)):   # None: a TypeError from pathlib
-        raise WarpbwError(f"scene path: expected a file name (str or Path), got {type(path).__name__}")
-    p = Path(path)
+    p = check_path(path, "scene path")   # None: a TypeError from pathlib
     if not p.exists():
         raise WarpbwError(f"{p}: scene file not found")
     if not p.is_file():

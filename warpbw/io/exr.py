@@ -23,14 +23,13 @@ names the file.
 from __future__ import annotations
 
 import math
-import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError, check_input_file
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_input_file, check_path
 from warpbw.native_output import captured_native_output
 
 # First four bytes of every OpenEXR file: the magic number 20000630 = 0x762f3101, stored
@@ -174,9 +173,7 @@ def write_exr(path, pixels, channels=None) -> Path:
     """
     import OpenEXR
 
-    if not isinstance(path, (str, os.PathLike)) or not str(path):   # Path(None) is a TypeError
-        raise WarpbwError(f"write_exr: expected a file path, got {path!r}")
-    path = Path(path)
+    path = check_path(path, "write_exr: path")
     arr = np.asarray(pixels)
     if arr.dtype.kind not in "buif":   # strings, None, objects: numpy's cast error below
         raise WarpbwError(f"{path}: cannot write pixels of type {arr.dtype} (expected numbers)")
@@ -239,7 +236,7 @@ def write_png(path, rgb, exposure: float = 0.0) -> Path:
 
     Values are clipped to [0, 1] before encoding; NaN shows as 0 (black), +inf as 1.
     """
-    path = Path(path)
+    path = check_path(path, "write_png: path")
     arr = np.asarray(rgb, dtype=np.float64)
     if arr.ndim == 3 and arr.shape[2] == 1:
         arr = arr[..., 0]
@@ -268,7 +265,7 @@ def write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=Fa
     """
     from matplotlib import colormaps
 
-    path = Path(path)
+    path = check_path(path, "write_false_colour_png: path")
     v = np.asarray(values, dtype=np.float64)
     if v.ndim != 2:
         raise WarpbwError(f"{path}: cannot write a false-colour image of shape {v.shape} (expected (H, W))")
@@ -277,6 +274,9 @@ def write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=Fa
             raise WarpbwError(f"{path}: {opt} of the colour scale: expected a finite number, got {x!r}")
     if vmin is not None and vmax is not None and vmin > vmax:
         raise WarpbwError(f"{path}: colour scale from vmin {vmin:g} to vmax {vmax:g}: expected vmin <= vmax")
+    for opt, x in (("vmin", vmin), ("vmax", vmax)):
+        if log and x is not None and x <= 0:   # -1 became 2.2e-308: a scale of 300 decades
+            raise WarpbwError(f"{path}: {opt} {x:g} of a log colour scale: expected a number > 0")
     shown = np.isfinite(v)
     if mask is not None:
         m = np.asarray(mask, dtype=bool)
@@ -286,6 +286,8 @@ def write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=Fa
     ok = shown & (v > 0) if log else shown
     lo = float(vmin) if vmin is not None else (float(v[ok].min()) if ok.any() else (1.0 if log else 0.0))
     hi = float(vmax) if vmax is not None else (float(v[ok].max()) if ok.any() else lo)
+    # one end given beyond every shown value: the other end meets it (vmin 5 over values <= 1 said "5 to 1")
+    hi, lo = (max(hi, lo), lo) if vmax is None else (hi, min(lo, hi))
     if log:
         lo = max(lo, np.finfo(np.float64).tiny)
         hi = max(hi, lo)

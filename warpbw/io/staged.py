@@ -26,7 +26,7 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_path
 
 TEMP_PREFIX = "."   # hidden, so that a listing or a glob of the outputs does not show the temporaries
 MADE_FROM = "the file it is made from"   # what a library writer's ``inputs`` are, in its messages
@@ -75,7 +75,7 @@ def check_not_read_only(path, label: str) -> None:
 def check_replaceable(path, force: bool, inputs=(), inputs_are: str = MADE_FROM) -> Path:
     """``path`` as a Path, once it may be written: not a directory, not one of ``inputs`` (whatever ``force`` says),
     not an existing file without ``force``, not an existing read-only file.  Writers call it before their work."""
-    p = Path(path)
+    p = check_path(path, "output path")
     if p.is_dir():   # a temporary file would not replace a directory
         raise WarpbwError(f"{p}: is a directory (expected a file name)")
     clash = input_clash(p, inputs, inputs_are)
