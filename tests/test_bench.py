@@ -56,6 +56,8 @@ def test_psnr_standard_error_matches_the_spread_of_repeated_benchmarks(runs):
     se = np.array([bench.psnr_standard_error(row) for row in m])
     assert abs(math.sqrt(np.mean(se ** 2)) / truth - 1.0) < 0.1
     assert bench.psnr_standard_error([2e-4]) is None and bench.psnr_standard_error([0.0, 0.0]) is None
+    # no MSE is negative or infinite: [-1, 3] read 8.69 dB
+    assert bench.psnr_standard_error([-1.0, 3.0]) is None and bench.psnr_standard_error([1e-4, math.inf]) is None
 
 
 def test_paired_difference_se_sees_what_shared_seeds_cancel():
@@ -73,6 +75,7 @@ def test_paired_difference_se_sees_what_shared_seeds_cancel():
     independent = np.hypot(bench.psnr_standard_error(a[0]), bench.psnr_standard_error(b[0]))
     assert se[0] < 0.3 * independent
     assert bench.paired_difference_se([1e-4], [1e-4]) is None
+    assert bench.paired_difference_se([1e-4, math.inf], [1e-4, 2e-4]) is None    # was NaN
 
 
 def test_bench_cli_writes_json_and_plot(tmp_path, capsys):
@@ -197,6 +200,7 @@ def test_pass_in_reference_spp_reads_the_reference_at_its_largest_count():
     assert bench.pass_in_reference_spp({"bandwidth_time_s": 0.25}, refs) == pytest.approx(2.5)
     assert bench.pass_in_reference_spp(None, refs) is None
     assert bench.pass_in_reference_spp({"bandwidth_time_s": 0.25}, []) is None
+    assert bench.pass_in_reference_spp({"bandwidth_time_s": 0.25}, [{"spp": 0, "shading_time_s": 0.1}]) is None
 
 
 def test_speedup_standard_error_follows_the_power_law_and_brute_force():

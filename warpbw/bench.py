@@ -4,7 +4,7 @@ Public:
     ``GT_CHUNK_SPP``, ``DEFAULT_SPP``, ``DEFAULT_BUDGETS``, ``DEFAULT_GT_SPP``, ``NB_SWEEP_BUDGET``, ``DOUBLING_DB``
     ``GroundTruth`` / ``ground_truth(prep, gt_spp, cache_dir, ...)``   cached, with the doubling check
     ``GT_VERSION``, ``GT_SEED``, ``gt_key(scene, seed)``, ``gt_cache_dir()``   where a scene's chunks are cached
-    ``equal_quality_time(ref_records, mse) -> (time_s, extrapolated)``   log-log interpolation
+    ``equal_quality_time(ref_records, mse) -> (spp, time_s, extrapolated)``   log-log interpolation
     ``psnr_standard_error(mses)``, ``paired_difference_se(mses_a, mses_b)``   noise of the PSNR figures (dB)
     ``speedup_relative_se(ref_records, mse, psnr_se_db)``   noise of an equal-quality speed-up (relative)
     ``pass_in_reference_spp(best, ref_records)``   the bandwidth pass's time in reference samples per pixel
@@ -172,9 +172,10 @@ def equal_quality_time(ref: list, mse: float) -> tuple[float, float, bool]:
 
 def psnr_standard_error(mses) -> float | None:
     """Standard error (dB) of the PSNR of the mean of independent runs' MSEs (delta method: the PSNR moves
-    by DB_PER_LN dm / m); None with fewer than two runs or a zero mean."""
+    by DB_PER_LN dm / m); None with fewer than two runs, or a run's MSE not finite and >= 0 (no MSE is negative:
+    [-1, 3] read 8.69 dB)."""
     m = np.asarray(mses, np.float64)
-    if m.size < 2 or not m.mean() > 0:
+    if m.size < 2 or not (np.all(np.isfinite(m)) and np.all(m >= 0) and m.mean() > 0):
         return None
     return float(DB_PER_LN * m.std(ddof=1) / math.sqrt(m.size) / m.mean())
 
@@ -183,9 +184,9 @@ def paired_difference_se(mses_a, mses_b) -> float | None:
     """Standard error (dB) of the PSNR difference between two settings whose runs share seeds run by run: the
     spread of the per-run differences 10 log10(m_a / m_b) over sqrt(runs).  What the seeds share (the same
     fireflies in both) cancels, unlike the two points' own standard errors combined.  None with fewer than
-    two runs."""
+    two runs, or an MSE not finite and > 0 (an inf gave NaN)."""
     a, b = np.asarray(mses_a, np.float64), np.asarray(mses_b, np.float64)
-    if a.shape != b.shape or a.size < 2 or not (np.all(a > 0) and np.all(b > 0)):
+    if a.shape != b.shape or a.size < 2 or not all(np.all(np.isfinite(x) & (x > 0)) for x in (a, b)):
         return None
     d = 10.0 * np.log10(a / b)
     return float(d.std(ddof=1) / math.sqrt(d.size))
@@ -378,6 +379,8 @@ def pass_in_reference_spp(best: dict | None, ref_recs: list) -> float | None:
     if best is None or not ref_recs:
         return None
     top = max(ref_recs, key=lambda r: r["spp"])
+    if not top["spp"] > 0:   # a ZeroDivisionError
+        return None
     per_spp = top["shading_time_s"] / top["spp"]
     return best["bandwidth_time_s"] / per_spp if per_spp > 0 else None
 
