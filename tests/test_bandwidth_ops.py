@@ -281,6 +281,14 @@ def test_bad_parameters_are_refused(kw):
         bo.apply_operator("R", [[1.0, 2.0], [3.0, 4.0]], **kw)
 
 
+@pytest.mark.parametrize("value", [None, "0.5", [None]], ids=["None", "str", "list of None"])
+def test_a_parameter_that_is_not_a_number_is_named_as_such(value):
+    """d=None was refused as 'parameter d is NaN' (None reads as NaN in a float array), a string by numpy."""
+    with pytest.raises(WarpbwError, match=r"^parameter d: expected a number or one number per bandwidth vector"):
+        bo.apply_operator("T", [[1.0, 2.0]], d=value)
+    np.testing.assert_allclose(bo.apply_operator("T", [[1.0, 2.0]], d=np.float32(0.5)), [[1.0, 1.5]])
+
+
 def test_bad_shape_and_operator_are_refused():
     with pytest.raises(WarpbwError):
         bo.apply_operator("R", [[1.0, 2.0, 3.0]])

@@ -298,3 +298,15 @@ def test_wrong_size_table(table_path, tmp_path):
 def test_missing_table(tmp_path):
     with pytest.raises(WarpbwError, match="absent.bin"):
         read_npf(tmp_path / "absent.bin", "chrome")
+
+
+def test_npf_eval_takes_directions_of_any_length_and_a_true_flag(table_path):
+    """[0, 0, 1e200] was refused as 'not a finite non-zero direction' (its norm overflowed) and [1e-200, 0, 0]
+    likewise (underflow); interpolate="no" was truthy and interpolated."""
+    m = read_npf(table_path, "chrome")
+    wo = [0.0, 0.6, 0.8]
+    base = npf_eval(m, [0.0, 0.0, 1.0], wo)
+    np.testing.assert_array_equal(npf_eval(m, [0.0, 0.0, 1e200], wo), base)
+    np.testing.assert_array_equal(npf_eval(m, [0.0, 0.0, 1e-200], wo), base)
+    with pytest.raises(WarpbwError, match=r"^interpolate: expected True or False, got 'no'"):
+        npf_eval(m, [0.0, 0.0, 1.0], wo, interpolate="no")

@@ -120,11 +120,13 @@ def unit_directions(d, name: str):
     import numpy as np
 
     d = np.asarray(d, dtype=np.float64)
-    length = np.linalg.norm(d, axis=-1, keepdims=True)
-    bad = ~(np.isfinite(length) & (length > 0.0))
+    # scaled by the largest component first: the norm of [0, 0, 1e200] overflowed, of [1e-200, 0, 0] underflowed
+    big = np.max(np.abs(d), axis=-1, keepdims=True)
+    bad = ~(np.isfinite(big) & (big > 0.0))
     if bad.any():
         raise WarpbwError(f"{name}: expected finite non-zero directions, {int(bad.sum())} of {bad.size} are not")
-    return d / length
+    d = d / big
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
 def check_finite_image(image, source: str) -> None:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from warpbw.errors import BRDF_VALUE_MAX, WarpbwError, check_direction_pairs, check_input_file
+from warpbw.errors import BRDF_VALUE_MAX, WarpbwError, check_direction_pairs, check_flag, check_input_file
 
 # Material order of the rows of npf.bin (data README, "npf.bin layout"; the MERL database's names).
 NPF_MATERIAL_NAMES: tuple[str, ...] = (
@@ -145,6 +145,7 @@ def npf_eval(mat: NPFMaterial, wi, wo, interpolate: bool = True) -> np.ndarray:
     Exactly reciprocal: every quantity is computed symmetrically in (wi, wo).
     """
     wi, wo = check_direction_pairs(wi, wo)   # unit length; NaN and zero directions refused
+    interpolate = check_flag(interpolate, "interpolate")   # "no" was truthy
     ci, co = wi[..., 2], wo[..., 2]
     above = (ci > 0.0) & (co > 0.0)
     s = wi + wo
