@@ -644,3 +644,70 @@ def test_pooled_variance_bound_is_the_largest_of_the_neighbours(tmp_path):
     assert lit.sum() > 300 and telling.sum() > 200
     got = pooled.sigma2.numpy().reshape(H, W)
     np.testing.assert_allclose(got[lit], s_max[lit], rtol=0.05)
+
+
+def test_an_empty_table_stack_is_refused():
+    """(0, 16, 16, 16) was taken, and the pass on a one-material scene then read material 0's table past the end of
+    an empty array (a segfault)."""
+    with pytest.raises(WarpbwError, match=r"^BRDF bandwidth tables: .*one table per material \(at least one\), got "
+                                          r"\(0, 16, 16, 16\)"):
+        bw.make_bandwidth_tables(np.ones((2, 4)), np.zeros((0, N_THETA_I, N_CELLS, N_CELLS)))
+
+
+def test_the_pass_checks_its_tables_and_structs_before_any_launch(monkeypatch):
+    """Tables holding fewer BRDF tables than the scene has materials were read past their end (a segfault), tables
+    None failed inside Warp (RuntimeError), and nyquist=True was taken as the factor 1.  All refused before
+    anything is launched (a launch fails the test here, so that the old code cannot crash this process)."""
+    prep = prepared(w=16, h=12)
+    tables = prepare_bandwidth(prep)
+    gb, _ = _gbuffer(prep, {})
+
+    def no_launch(*a, **k):
+        raise AssertionError("launched")
+    monkeypatch.setattr(bw.wp, "launch", no_launch)
+    monkeypatch.setattr(bw, "launch_tiled", no_launch)
+
+    def short(n_floats, env_shape=(2, 4)):
+        t = bw.BandwidthTables()
+        t.nu_env = wp.zeros(env_shape, dtype=wp.float32)
+        t.nu_rho = wp.zeros(n_floats, dtype=wp.float32)
+        return t
+    args = (gb, prep.camera, prep.materials, prep.env.data)
+    n_mat = prep.materials.table.kind.shape[0]
+    for t, msg in ((short(0), r"^bandwidth pass: tables: expected a BRDF bandwidth table \(4096 values\) for each of "
+                              rf"the {n_mat} materials, got 0 values"),
+                   (short(4095), r"^bandwidth pass: tables: expected a BRDF bandwidth table .*got 4095 values"),
+                   (bw.BandwidthTables(), r"^bandwidth pass: tables: expected a BRDF bandwidth table .*got none"),
+                   (short(4096 * n_mat, (0, 4)), r"^bandwidth pass: tables: expected a non-empty environment"),
+                   (None, r"^bandwidth pass: tables: expected BandwidthTables \(make_bandwidth_tables\), got NoneType"),
+                   (wp.zeros(4096, dtype=wp.float64), r"^bandwidth pass: tables: expected BandwidthTables")):
+        with pytest.raises(WarpbwError, match=msg):
+            bw.bandwidth_pass(*args, t, n_b=8)
+    for i, name in enumerate(("gb", "cam", "materials")):
+        bad = list(args)
+        bad[i] = gb.data if name == "gb" else None
+        with pytest.raises(WarpbwError, match=rf"^bandwidth pass: {name}: expected"):
+            bw.bandwidth_pass(*bad, tables, n_b=8)
+    with pytest.raises(WarpbwError, match=r"^bandwidth pass: env_data: expected an EnvMapData, got str"):
+        bw.bandwidth_pass(gb, prep.camera, prep.materials, "sky", tables, n_b=8)
+    for bad in (True, np.True_):
+        with pytest.raises(WarpbwError, match="^nyquist: expected a positive factor"):
+            bw.bandwidth_pass(*args, tables, n_b=8, nyquist=bad)
+
+
+def test_env_bandwidth_map_refuses_empty_non_finite_and_beyond_float32_maps_and_takes_a_str_cache(tmp_path):
+    """A str cache failed on str / str (TypeError), a (0, 0, 3) map with numpy's "zero-size array to reduction",
+    finite float64 pixels of 1e39 were reported as "image has NaN or infinite values" (the float32 cast), and a NaN
+    pixel's error did not name the map."""
+    px = np.random.default_rng(0).random((8, 16, 3)).astype(np.float32)
+    nu, origin = bw.env_bandwidth_map(px, cache=str(tmp_path))
+    assert origin == "built" and nu.shape == (8, 16)
+    assert bw.env_bandwidth_map(px, cache=str(tmp_path))[1] == "cache"
+    for pixels, msg in ((np.ones((0, 0, 3)), r"^sky\.exr: expected non-empty \(H, W, 3\) pixels .*\(0, 0, 3\)"),
+                        (np.ones((4, 8)), r"^sky\.exr: expected non-empty \(H, W, 3\) pixels"),
+                        (np.where(np.arange(px.size).reshape(px.shape) == 5, np.nan, px),
+                         rf"^sky\.exr: 1 of {px.size} pixel values are NaN or infinite"),
+                        (px.astype(np.float64) * 1e39, r"^sky\.exr: pixel values up to 9\.\d+e\+38 exceed float32's "
+                                                       r"range")):
+        with pytest.raises(WarpbwError, match=msg):
+            bw.env_bandwidth_map(pixels, "sky.exr", cache=tmp_path)

@@ -195,3 +195,44 @@ def test_render_adaptive_cli_reports_the_lights_pass(tmp_path, capsys):
     assert "lights (exact, every pixel)" in capsys.readouterr().out
     stats = json.loads((tmp_path / "o.json").read_text())
     assert stats["time_s"]["lights"] > 0 and "light:environment+directional" in stats["stages"]
+
+
+def test_directional_struct_refuses_mismatched_counts_nan_and_zero_directions_and_scales_to_unit():
+    """2 directions with 1 radiance were taken (the shading loops over the directions and reads radiance[k]: past
+    its end), a NaN direction was stored, and [0, 5, 0] stored as it is (the shading takes unit vectors)."""
+    from warpbw.errors import WarpbwError
+    from warpbw.lights import directional_struct
+
+    for d, e, msg in (([[0, 1, 0], [1, 0, 0]], [[1, 1, 1]], r"one per direction, got shapes \(2, 3\) and \(1, 3\)"),
+                      ([0, 1, 0, 1], [[1, 1, 1]], r"got shapes \(4,\) and \(1, 3\)"),
+                      ([[np.nan, 0, 0]], [[1, 1, 1]], r"^directional_struct: directions: expected finite non-zero"),
+                      ([[0, 0, 0]], [[1, 1, 1]], r"^directional_struct: directions: expected finite non-zero"),
+                      ([[0, 1, 0]], [[-1, 1, 1]], r"^directional_struct: radiances: expected radiances that are "
+                                                  r"finite, >= 0"),
+                      ([[0, 1, 0]], [[np.nan, 1, 1]], r"^directional_struct: radiances"),
+                      ([["a", 1, 0]], [[1, 1, 1]], r"^directional_struct: expected \(n, 3\) numbers")):
+        with pytest.raises(WarpbwError, match=msg):
+            directional_struct(d, e)
+    s = directional_struct([[0, 5, 0], [3, 0, 4]], [[1, 2, 3], [0, 0, 0]])
+    np.testing.assert_allclose(s.direction.numpy(), [[0, 1, 0], [0.6, 0, 0.8]], rtol=1e-6)
+    np.testing.assert_array_equal(s.radiance.numpy(), [[1, 2, 3], [0, 0, 0]])
+    assert directional_struct([], []).direction.shape == (0,)
+
+
+def test_make_lights_takes_directions_whose_norm_overflows_or_underflows():
+    """(1e200, 1e200, 0) and (1e-200, 0, 0) were refused as not "non-zero finite": their plain norm overflows or
+    underflows (each is now divided by its largest component first)."""
+    from warpbw.errors import WarpbwError
+    from warpbw.lights import make_lights
+
+    class L:
+        def __init__(self, d, e=(1.0, 1.0, 1.0)):
+            self.direction, self.radiance = d, e
+    got = make_lights([L((1e200, 1e200, 0.0)), L((1e-200, 0.0, 0.0)), L((0.0, -1e-320, 0.0))]).data.direction.numpy()
+    np.testing.assert_allclose(got, [[2 ** -0.5, 2 ** -0.5, 0], [1, 0, 0], [0, -1, 0]], rtol=1e-6)
+    for lights, msg in (([L((0.0, 0.0, 0.0))], r"^\[\[light\]\]: expected finite non-zero directions"),
+                        ([L((np.inf, 0.0, 0.0))], r"^\[\[light\]\]: expected finite non-zero directions"),
+                        ([L((0.0, 1.0))], r"^\[\[light\]\] 0: expected a direction and a radiance of 3 numbers"),
+                        ([L((0.0, 1.0, 0.0), 1.0)], r"^\[\[light\]\] 0: expected a direction and a radiance")):
+        with pytest.raises(WarpbwError, match=msg):
+            make_lights(lights)

@@ -144,3 +144,79 @@ def test_degenerate_faces_and_unreferenced_vertices_are_finite_and_match_the_hos
 def test_a_face_across_two_meshes_is_refused():
     with pytest.raises(WarpbwError, match=r"a face joins vertices in \[3, 6\) to others"):
         mesh_topology(np.array([3, 4, 5, 0, 4, 5]), 3, 3)
+
+
+def _ico162():
+    ico = trimesh.creation.icosphere(subdivisions=2, radius=2.0)
+    v, f = np.asarray(ico.vertices, np.float32), np.asarray(ico.faces)
+    return v, f, mesh_topology(f.reshape(-1), 0, len(v))
+
+
+def _no_launch(monkeypatch):
+    import warpbw.mesh_normals as MN
+
+    def no_launch(*a, **k):
+        raise AssertionError("launched")
+    monkeypatch.setattr(MN.wp, "launch", no_launch)
+
+
+def test_out_arrays_of_the_wrong_size_are_refused_before_the_launch(monkeypatch):
+    """An ``out`` of 3 vertices for a 162-vertex mesh was written past its end: the call returned and the process
+    aborted later ("double free or corruption").  Checked before any launch (a launch fails the test here, so
+    that the old code cannot corrupt this process's heap); local_curvature's ``out`` failed inside wp.copy."""
+    from warpbw.mesh_normals import MeshShading
+
+    v, f, topo = _ico162()
+    pts = wp.array(v, dtype=wp.vec3)
+    curv = wp.zeros(162, dtype=wp.float32)
+    _no_launch(monkeypatch)
+    for out, name in ((MeshShading(wp.empty(3, dtype=wp.vec3), wp.empty(3, dtype=wp.float32)), "out.normals"),
+                      (MeshShading(wp.empty(162, dtype=wp.vec3), wp.empty(3, dtype=wp.float32)), "out.curvature"),
+                      (MeshShading(wp.empty(162, dtype=wp.vec3), wp.empty(162, dtype=wp.float64)), "out.curvature")):
+        with pytest.raises(WarpbwError, match=rf"^{name}: expected a Warp array of 162 "):
+            device_normals_and_curvature(pts, topo, out=out)
+    with pytest.raises(WarpbwError, match=r"^out: expected a MeshShading"):
+        device_normals_and_curvature(pts, topo, out=(pts, curv))
+    with pytest.raises(WarpbwError, match=r"^local_curvature: out: expected a Warp array of 162 float32"):
+        device_local_curvature(curv, topo, out=wp.zeros(3, dtype=wp.float32))
+
+
+def test_points_and_curvature_that_do_not_fit_the_topology_are_refused(monkeypatch):
+    """10 points for a 162-vertex topology were read past their end (garbage curvatures); float64 arrays failed
+    inside Warp's launch (RuntimeError)."""
+    v, f, topo = _ico162()
+    _no_launch(monkeypatch)
+    with pytest.raises(WarpbwError, match=r"^points: expected a Warp array of at least 162 vec3f \(the mesh's "
+                                          r"vertices 0 to 161\), got a Warp array of shape \(10,\) vec3f"):
+        device_normals_and_curvature(wp.array(v[:10], dtype=wp.vec3), topo)
+    with pytest.raises(WarpbwError, match=r"^points: .*got a Warp array of shape \(162,\) vec3d"):
+        device_normals_and_curvature(wp.array(v, dtype=wp.vec3d), topo)
+    with pytest.raises(WarpbwError, match=r"^local_curvature: curvature: .*162 float32.*float64"):
+        device_local_curvature(wp.zeros(162, dtype=wp.float64), topo)
+    with pytest.raises(WarpbwError, match=r"^topology: expected a MeshTopology"):
+        device_normals_and_curvature(wp.array(v, dtype=wp.vec3), f)
+    with pytest.raises(WarpbwError, match=r"^local_curvature: passes: expected an integer >= 0, got 2.5"):
+        device_local_curvature(wp.zeros(162, dtype=wp.float32), topo, passes=2.5)
+
+
+def test_numpy_points_and_curvature_still_work():
+    v, f, topo = _ico162()
+    r = device_normals_and_curvature(v, topo)
+    np.testing.assert_allclose(r.curvature.numpy(), 0.5, rtol=0.05)
+    np.testing.assert_allclose(device_local_curvature(r.curvature.numpy(), topo).numpy(), 0.5, rtol=0.05)
+
+
+def test_mesh_topology_refuses_ranges_and_indices_that_are_not_vertices():
+    """first -1 was taken (its faces' indices shifted), float indices were truncated (1.7 read as 1), count -5
+    said "negative dimensions are not allowed", and a count of 10^12 asked for terabytes of counts."""
+    f = np.asarray(trimesh.creation.icosphere(subdivisions=1).faces).reshape(-1)
+    for args, msg in (((f, -1, 43), r"^first: expected an integer >= 0, got -1"),
+                      ((f, 0.0, 42), r"^first: expected an integer"),
+                      ((f, 0, -5), r"^count: expected an integer >= 0, got -5"),
+                      ((f, 0, 10**12), rf"^count: expected an integer from 0 to {2**31 - 1}"),
+                      ((f, 5, 2**31 - 5), rf"^count: expected an integer from 0 to {2**31 - 6}"),
+                      ((f + 0.7, 0, 42), r"^indices: expected integer vertex indices, got float64"),
+                      ((np.arange(7), 0, 7), r"^indices: expected 3 vertex indices per face, got 7")):
+        with pytest.raises(WarpbwError, match=msg):
+            mesh_topology(*args)
+    assert mesh_topology(np.zeros(0), 0, 3).faces.shape == (0,)   # no faces (an empty list is float64)

@@ -12,7 +12,7 @@ import warp as wp
 from warpbw.errors import WarpbwError
 from warpbw.gbuffer import GBufferData, MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.upsample import (COS_X_MIN, G_A_UNIT, UPSAMPLE_DEFAULT, UPSAMPLE_MODES, anisotropic_gaussian,
-                             level_size, parent_weights, representative_pixel, upsample_level)
+                             level_size, parent_weights, representative_pixel, top_level, upsample_level)
 
 MODES = pytest.mark.parametrize("mode", UPSAMPLE_MODES)
 
@@ -168,7 +168,7 @@ def test_odd_sizes_and_tiny_images_run(mode):
     n_done = 0
     for w, h in ((7, 5), (1, 1), (3, 1)):
         gb, cam = gbuffer([SphereSpec((0, 0, 0), 1.5, 0)], w=w, h=h)
-        for level in range(3):
+        for level in range(min(3, top_level(w, h) + 1)):   # up to the 1 x 1 top (upsample_level's last level)
             lw, lh = level_size(w, h, level)
             valid, _ = parent_valid_from_coverage(gb, level + 1)
             r = upsample_level(gb.data, cam, level, np.ones((len(valid), 3)), valid, np.ones(lw * lh), mode=mode)
@@ -276,3 +276,87 @@ def test_unknown_mode_is_refused_and_the_cli_spells_the_modes():
     with pytest.raises(WarpbwError, match="upsample: expected one of normal, paper, got 'bicubic'"):
         upsample_level(gb.data, cam, 0, np.ones((16, 3)), np.ones(16), np.ones(64), mode="bicubic")
     assert set(cli._UPSAMPLE_MODES) == set(UPSAMPLE_MODES) and cli._UPSAMPLE_MODES[0] == UPSAMPLE_DEFAULT
+
+
+def test_top_level_is_the_one_by_one_level():
+    for w, h in ((1, 1), (3, 1), (7, 5), (16, 12), (17, 2)):
+        top = top_level(w, h)
+        assert level_size(w, h, top) == (1, 1) and (top == 0 or level_size(w, h, top - 1) != (1, 1))
+
+
+def test_level_size_refuses_what_is_not_a_size_or_a_level():
+    """-1 failed on a negative shift (ValueError), 2.7 ran as level 2, a width of 0 or -8 came out as 1, "7" a
+    TypeError."""
+    for args, what in (((7, 5, -1), "level"), ((7, 5, 2.7), "level"), ((0, 5, 0), "width"), ((-8, 5, 1), "width"),
+                       ((7.5, 5, 0), "width"), (("7", 5, 0), "width"), ((7, 0, 0), "height")):
+        with pytest.raises(WarpbwError, match=f"^{what}: expected an integer"):
+            level_size(*args)
+    with pytest.raises(WarpbwError, match="^level: expected an integer >= 0, got -1"):
+        parent_weights(gbuffer([SphereSpec((0, 0, 0), 1.2, 0)], w=8, h=8)[0].data, make_camera(
+            (0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 8, 8), -1)
+
+
+def _level0(w=16, h=12):
+    gb, cam = gbuffer([SphereSpec((0, 0, 0), 1.2, 0)], w=w, h=h)
+    (w0, h0), (w1, h1) = level_size(w, h, 0), level_size(w, h, 1)
+    return gb, cam, w0 * h0, w1 * h1
+
+
+def test_out_arrays_of_the_wrong_size_are_refused_before_the_launch(monkeypatch):
+    """``out`` / ``out_valid`` of 3 texels for a level of 192 were written past their end: the call returned and
+    the process aborted later ("double free or corruption").  Checked before anything is launched (the launch is
+    replaced by a failure here, so that the old code cannot corrupt this process's heap)."""
+    import warpbw.upsample as U
+
+    def no_launch(*a, **k):
+        raise AssertionError("launched")
+    gb, cam, n, pn = _level0()
+    monkeypatch.setattr(U.wp, "launch", no_launch)
+    args = (gb.data, cam, 0, np.zeros((pn, 3)), np.ones(pn), np.ones(n))
+    for kw, name in (({"out": wp.zeros(3, dtype=wp.vec3)}, "out"), ({"out_valid": wp.zeros(3, dtype=wp.int32)},
+                                                                    "out_valid"),
+                     ({"out": wp.zeros(n, dtype=wp.vec4)}, "out"), ({"out_valid": wp.zeros(n, dtype=wp.float32)},
+                                                                    "out_valid"),
+                     ({"out": wp.zeros((n, 1), dtype=wp.vec3)}, "out")):
+        with pytest.raises(WarpbwError, match=rf"^{name}: expected a Warp array of {n} .*\(level 0, 16x12\), got"):
+            upsample_level(*args, **kw)
+
+
+def test_inputs_of_the_wrong_size_or_dtype_are_refused():
+    """parent_values of 2 texels (48 needed) were read past their end (values up to 1e27), a ``todo`` of 3 ints
+    (192 needed) returned without error; a float32 parent array, a GBuffer for its data and weights of the wrong
+    size failed in Warp or as a ValueError."""
+    gb, cam, n, pn = _level0()
+    ok = (np.zeros((pn, 3)), np.ones(pn), np.ones(n))
+    cases = [
+        ((wp.zeros(2, dtype=wp.vec3), ok[1], ok[2]), {}, rf"^parent_values: expected a Warp array of {pn} vec3f "
+                                                         r"\(level 1, 8x6\), got a Warp array of shape \(2,\)"),
+        ((wp.zeros(pn * 3, dtype=wp.float32), ok[1], ok[2]), {}, r"^parent_values: .*got a Warp array .* float32"),
+        ((np.zeros((5, 3)), ok[1], ok[2]), {}, rf"^parent_values: expected {pn} RGB values"),
+        ((ok[0], wp.array(np.ones(2, np.int32)), ok[2]), {}, rf"^parent_valid: expected a Warp array of {pn} int32"),
+        ((ok[0], np.ones(5), ok[2]), {}, rf"^parent_valid: expected {pn} flags"),
+        ((ok[0], ok[1], wp.array(np.ones(3, np.int32))), {}, rf"^todo: expected a Warp array of {n} int32"),
+        ((ok[0], ok[1], wp.array(np.ones(n), dtype=wp.float32)), {}, r"^todo: .*float32"),
+        (ok, {"weights": wp.zeros(3, dtype=wp.vec4)}, rf"^weights: expected a Warp array of {n} vec4f"),
+    ]
+    for (pv, valid, todo), kw, msg in cases:
+        with pytest.raises(WarpbwError, match=msg):
+            upsample_level(gb.data, cam, 0, pv, valid, todo, **kw)
+    with pytest.raises(WarpbwError, match=r"^gb: expected a GBuffer or its GBufferData, got str"):
+        upsample_level("gb", cam, 0, *ok)
+    with pytest.raises(WarpbwError, match=r"^cam: expected a CameraData"):
+        upsample_level(gb.data, None, 0, *ok)
+
+
+def test_a_gbuffer_is_taken_for_its_data_and_levels_stop_at_the_top():
+    gb, cam, n, pn = _level0()
+    ok = (np.full((pn, 3), 0.5), np.ones(pn), np.ones(n))
+    a, b = upsample_level(gb, cam, 0, *ok), upsample_level(gb.data, cam, 0, *ok)
+    assert np.array_equal(a.values.numpy(), b.values.numpy()) and a.valid.numpy().sum() > 0
+    assert top_level(16, 12) == 4
+    r = upsample_level(gb, cam, 4, np.full((1, 3), 0.5), np.ones(1), np.ones(1))   # the 1 x 1 top
+    assert r.values.shape == (1,)
+    for level in (5, 99):   # 99 ran: an int32 shifted past its width in the kernel
+        with pytest.raises(WarpbwError, match=r"^level \(of a 16x12 G-buffer\): expected an integer from 0 to 4, "
+                                              f"got {level}"):
+            upsample_level(gb, cam, level, np.zeros((1, 3)), np.ones(1), np.ones(1))

@@ -207,6 +207,7 @@ import hashlib
 import math
 import numbers
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import warp as wp
@@ -534,9 +535,10 @@ def make_bandwidth_tables(nu_env, nu_rho, device: str = "cpu") -> tuple[Bandwidt
     rho = np.ascontiguousarray(np.asarray(nu_rho, np.float32))
     if lt.ndim != 2 or lt.size == 0:
         raise WarpbwError(f"environment bandwidth table: expected a non-empty (h, w) array, got shape {lt.shape}")
-    if rho.ndim != 4 or rho.shape[1:] != (N_THETA_I, N_CELLS, N_CELLS):
-        raise WarpbwError(f"BRDF bandwidth tables: expected shape (materials, {N_THETA_I}, {N_CELLS}, {N_CELLS}), "
-                          f"got {rho.shape}")
+    if rho.ndim != 4 or rho.shape[1:] != (N_THETA_I, N_CELLS, N_CELLS) or rho.shape[0] == 0:
+        # no table at all was taken, and the pass then read material 0's past the end (a segfault)
+        raise WarpbwError(f"BRDF bandwidth tables: expected shape (materials, {N_THETA_I}, {N_CELLS}, {N_CELLS}) with "
+                          f"one table per material (at least one), got {rho.shape}")
     for name, a in (("environment bandwidth table", lt), ("BRDF bandwidth tables", rho)):
         if not np.all(np.isfinite(a)) or np.any(a < 0):
             raise WarpbwError(f"{name}: values must be finite and >= 0")
@@ -570,23 +572,34 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
     Wavelet analysis of the map's :func:`env_signal` (:func:`precompute.wavelets.envmap_angular_bandwidth`, about
     5 s at 1024x512 on one core), with the flatness floor at ``EPSILON`` times the signal's mean (an HDR sun
     would otherwise make every other texel flat), cached by the pixels' content hash and the signal in ``cache``
-    (default ``$WARPBW_CACHE``).  A constant map has bandwidth 0 everywhere.  Returns the map and where
+    (a path or a str; default ``$WARPBW_CACHE``).  A constant map has bandwidth 0 everywhere.  An empty map, one with
+    NaN or infinite pixels, or one beyond float32's range is refused, naming ``name``.  Returns the map and where
     it came from ("constant", "cache" or "built")."""
     from precompute.assetfile import read_asset, write_asset
     from precompute.brdf_sampling import cache_dir
     from precompute.wavelets import EPSILON, envmap_angular_bandwidth
 
     check_env_signal(signal)
-    px = np.ascontiguousarray(np.asarray(pixels, np.float32))
-    if px.ndim != 3 or px.shape[2] != 3:
-        raise WarpbwError(f"{name}: expected (H, W, 3) pixels for the bandwidth map, got shape {px.shape}")
+    raw = np.asarray(pixels)
+    if raw.ndim != 3 or raw.shape[2] != 3 or raw.size == 0 or raw.dtype.kind not in "biuf":
+        raise WarpbwError(f"{name}: expected non-empty (H, W, 3) pixels for the bandwidth map, got shape {raw.shape} "
+                          f"{raw.dtype}")
+    n_bad = int(np.count_nonzero(~np.isfinite(raw)))
+    if n_bad:   # the wavelet analysis said "image has NaN or infinite values", without naming the map
+        raise WarpbwError(f"{name}: {n_bad} of {raw.size} pixel values are NaN or infinite; expected finite radiance "
+                          "for the bandwidth map")
+    big = float(np.abs(raw).max())
+    if big > FLOAT32_MAX:   # the float32 cast below made them inf, reported as "NaN or infinite"
+        raise WarpbwError(f"{name}: pixel values up to {big:.3g} exceed float32's range ({FLOAT32_MAX:.4g}); "
+                          "expected radiance the renderer can hold (scale the map down)")
+    px = np.ascontiguousarray(raw, np.float32)
     h, w = px.shape[:2]
     lum = px @ np.asarray(LUMINANCE, np.float32)
     if float(np.ptp(lum)) == 0.0:
         return np.zeros((h, w), np.float32), "constant"
     digest = "blake2b:" + hashlib.blake2b(px.tobytes() + str(px.shape).encode(), digest_size=16).hexdigest()
     kind = "" if signal == ENV_SIGNAL_DEFAULT else f"{signal}-"   # the radiance maps keep their cache names
-    path = ((cache_dir() if cache is None else cache)
+    path = ((cache_dir() if cache is None else Path(cache))   # a str failed on str / str
             / f"env-bandwidth-{kind}{digest.split(':')[1]}-v{ENV_BW_VERSION}.npz")
     if path.is_file():
         try:
@@ -688,6 +701,29 @@ def interleave_shifts(n_b: int, side: int) -> np.ndarray:
                     axis=1).astype(np.float32)
 
 
+def _check_pass_inputs(gb, cam, materials, env_data, tables) -> None:
+    """The pass's structs, by type and size (not contents: it runs every frame): the kernel reads the BRDF table of
+    every material the G-buffer names, so a stack of fewer tables than materials was read past its end (a
+    segfault), and None or a float64 array failed inside Warp."""
+    for name, value, kind, what in (
+            ("gb", gb, GBuffer, "a GBuffer (render_gbuffer)"), ("cam", cam, CameraData.cls, "a CameraData"),
+            ("materials", materials, MaterialBuffers, "MaterialBuffers (build_material_table)"),
+            ("env_data", env_data, EnvMapData.cls, "an EnvMapData"),
+            ("tables", tables, BandwidthTables.cls, "BandwidthTables (make_bandwidth_tables)")):
+        if not isinstance(value, kind):
+            raise WarpbwError(f"bandwidth pass: {name}: expected {what}, got {type(value).__name__}")
+    n_mat = materials.table.kind.shape[0] if materials.table.kind is not None else 0
+    per_material = N_THETA_I * N_CELLS * N_CELLS
+    rho, env = tables.nu_rho, tables.nu_env
+    if rho is None or env is None or rho.shape[0] < n_mat * per_material or rho.shape[0] % per_material:
+        got = "none" if rho is None else f"{rho.shape[0]} values"
+        raise WarpbwError(f"bandwidth pass: tables: expected a BRDF bandwidth table ({per_material} values) for each "
+                          f"of the {n_mat} materials, got {got} (make_bandwidth_tables with one table per material)")
+    if env.shape[0] == 0 or env.shape[1] == 0:
+        raise WarpbwError(f"bandwidth pass: tables: expected a non-empty environment bandwidth table, got shape "
+                          f"{env.shape}")
+
+
 def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env_data: EnvMapData,
                    tables: BandwidthTables, n_b: int = N_B_DEFAULT, seed: int = 0, preconvolved: bool = False,
                    nyquist: float = NYQUIST_FACTOR, stride: int = PASS_STRIDE_DEFAULT,
@@ -707,10 +743,13 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     if env_data is None:
         raise WarpbwError("bandwidth pass: the scene has no environment (directional lights need no prediction: "
                           "their exact term is evaluated at every pixel)")
+    _check_pass_inputs(gb, cam, materials, env_data, tables)
     dirs_np = direction_set(n_b, seed)
     stride = check_count(stride, "stride", 1, max(gb.width, gb.height))   # beyond the image's side it shares no more
     pool_radius = check_count(pool_radius, "pool_radius", 0, POOL_RADIUS_MAX)
-    if not (isinstance(nyquist, numbers.Real) and 0 < nyquist <= FLOAT32_MAX):  # the rate is float32 in the kernels
+    # the rate is float32 in the kernels; True was taken as 1
+    if not (isinstance(nyquist, numbers.Real) and not isinstance(nyquist, (bool, np.bool_))
+            and 0 < nyquist <= FLOAT32_MAX):
         raise WarpbwError(f"nyquist: expected a positive factor within the float32 range "
                           f"(<= {FLOAT32_MAX:.4g}), got {nyquist!r}")
     t0 = time.perf_counter()

@@ -6,7 +6,8 @@ Public: ``WarpbwError``; ``is_int(value)`` (an int or numpy integer, not a bool)
 existing file, else a ``WarpbwError`` saying whether it is missing or a directory); ``check_camera_reach(reach, lo, hi, target, kind, why, source)`` (the
 camera's distance to an object within what float32 intersection handles); ``check_coordinate_spacing(coord,
 size, target, source)`` (float32 fine enough where the camera and an object lie, ``COORD_SPACING_REL_MAX``);
-``check_flag(value, name) -> bool`` (True or False, not a truthy string); ``check_real(value, name, lo,
+``check_flag(value, name) -> bool`` (True or False, not a truthy string); ``check_warp_array(a, name, dtype, n,
+device, what, at_least)`` (a 1-D Warp array a kernel may index n items of); ``check_real(value, name, lo,
 lo_open) -> float`` (a finite real number in float32's range, not a bool or a string); ``check_seed(seed, name)`` (a uint32)
 and ``check_device(device, name)`` (a Warp device this machine has), the renderers' own checks;
 ``check_direction_pairs(wi, wo) -> (wi, wo)`` (the BRDF evaluators' (N, 3) direction pairs, broadcast, unit length)
@@ -73,6 +74,23 @@ def check_real(value, name: str, lo: float = -FLOAT32_MAX, lo_open: bool = False
         bound = "" if lo == -FLOAT32_MAX else f" {'>' if lo_open else '>='} {lo:g}"
         raise WarpbwError(f"{name}: expected a finite number{bound}, got {value!r}")
     return x
+
+
+def check_warp_array(a, name: str, dtype, n: int, device, what: str, at_least: bool = False):
+    """``a`` when it is a 1-D Warp array of ``n`` (``at_least``: n or more) ``dtype`` on ``device``, else a
+    one-line ``WarpbwError`` naming ``name`` and ``what`` its items are: kernels index such arrays without
+    bounds, so a shorter one was read, or written, past its end (heap corruption, a segfault later)."""
+    import warp as wp
+
+    ok = isinstance(a, wp.array) and a.ndim == 1 and (a.shape[0] >= n if at_least else a.shape[0] == n)
+    if not (ok and a.dtype == dtype):
+        got = (f"a Warp array of shape {a.shape} {wp.types.type_repr(a.dtype)}" if isinstance(a, wp.array)
+               else type(a).__name__)
+        raise WarpbwError(f"{name}: expected a Warp array of {'at least ' if at_least else ''}{n} "
+                          f"{wp.types.type_repr(dtype)} ({what}), got {got}")
+    if a.device != wp.get_device(device):
+        raise WarpbwError(f"{name}: expected an array on device {device}, got one on {a.device}")
+    return a
 
 
 def check_flag(value, name: str) -> bool:

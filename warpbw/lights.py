@@ -3,7 +3,8 @@
 Public:
     ``DirectionalLights`` (Warp struct: world directions towards the lights and their radiances)
     ``Lights`` / ``make_lights(scene_lights, device) -> Lights | None``   None when the scene has none
-    ``directional_struct(directions, radiances, device) -> DirectionalLights``
+    ``directional_struct(directions, radiances, device) -> DirectionalLights``   (n, 3) directions (scaled to unit
+                                          length) and one radiance each; refuses NaN, zero or mismatched ones
 
 A directional light of radiance E (RGB) from the unit world direction l adds to a pixel's radiance, exactly
 and without sampling,
@@ -42,12 +43,48 @@ class Lights:
     count: int
 
 
+def _unit_directions(d: np.ndarray, what: str) -> np.ndarray:
+    """(n, 3) float64 directions scaled to unit length, else a one-line error: a zero, NaN or infinite one lit
+    nothing or everything.  Each is first divided by its largest component, so that (1e200, 1e200, 0) and
+    (1e-200, 0, 0), whose plain norm overflows or underflows, are directions too."""
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        m = np.max(np.abs(d), axis=1, keepdims=True) if len(d) else np.ones((0, 1))
+        ok = np.isfinite(m[:, 0]) & (m[:, 0] > 0.0) & np.all(np.isfinite(d), axis=1)
+        if not ok.all():
+            k = int(np.flatnonzero(~ok)[0])
+            raise WarpbwError(f"{what}: expected finite non-zero directions towards the lights, light {k} is "
+                              f"{d[k].tolist()}")
+        d = d / m
+        return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def _radiances(e: np.ndarray, what: str) -> np.ndarray:
+    if not (np.all(np.isfinite(e)) and np.all(e >= 0.0) and np.all(e <= FLOAT32_MAX)):
+        raise WarpbwError(f"{what}: expected radiances that are finite, >= 0 and within the float32 range")
+    return e
+
+
 def directional_struct(directions, radiances, device: str = "cpu") -> DirectionalLights:
-    """The struct of ``(n, 3)`` unit directions and radiances."""
+    """The struct of ``(n, 3)`` directions towards the lights (scaled to unit length here: the shading takes them
+    as they are) and their ``(n, 3)`` radiances, one per direction (the shading loops over the directions and reads
+    the radiance of each: 2 directions with 1 radiance read past its end); else a one-line ``WarpbwError``."""
     check_device(device)
+    try:
+        d = np.asarray(directions, np.float64)
+        e = np.asarray(radiances, np.float64)
+    except (TypeError, ValueError):
+        raise WarpbwError("directional_struct: expected (n, 3) numbers for the directions and the radiances") \
+            from None
+    if d.ndim != 2 or d.shape[1:] != (3,) or e.shape != d.shape:
+        if not (d.size == 0 and e.size == 0):
+            raise WarpbwError(f"directional_struct: expected (n, 3) directions and (n, 3) radiances, one per "
+                              f"direction, got shapes {d.shape} and {e.shape}")
+        d = e = np.zeros((0, 3))
+    d = _unit_directions(d, "directional_struct: directions")
+    e = _radiances(e, "directional_struct: radiances")
     s = DirectionalLights()
-    s.direction = wp.array(np.asarray(directions, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
-    s.radiance = wp.array(np.asarray(radiances, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
+    s.direction = wp.array(d.astype(np.float32), dtype=wp.vec3, device=device)
+    s.radiance = wp.array(e.astype(np.float32), dtype=wp.vec3, device=device)
     return s
 
 
@@ -56,11 +93,15 @@ def make_lights(scene_lights, device: str = "cpu") -> Lights | None:
     lights = list(scene_lights or [])
     if not lights:
         return None
-    d = np.array([li.direction for li in lights], np.float64).reshape(-1, 3)
-    e = np.array([li.radiance for li in lights], np.float64).reshape(-1, 3)
-    norm = np.linalg.norm(d, axis=1)
-    if not (np.all(np.isfinite(norm)) and np.all(norm > 0.0)):
-        raise WarpbwError("[[light]]: expected non-zero finite directions towards the lights")
-    if not (np.all(np.isfinite(e)) and np.all(e >= 0.0) and np.all(e <= FLOAT32_MAX)):
-        raise WarpbwError("[[light]]: expected radiances that are finite, >= 0 and within the float32 range")
-    return Lights(directional_struct(d / norm[:, None], e, device), len(lights))
+    d, e = np.zeros((len(lights), 3)), np.zeros((len(lights), 3))
+    for k, li in enumerate(lights):
+        try:
+            dk, ek = np.asarray(li.direction, np.float64), np.asarray(li.radiance, np.float64)
+        except (AttributeError, TypeError, ValueError):
+            dk = ek = np.zeros(0)
+        if dk.shape != (3,) or ek.shape != (3,):
+            raise WarpbwError(f"[[light]] {k}: expected a direction and a radiance of 3 numbers each")
+        d[k], e[k] = dk, ek
+    d = _unit_directions(d, "[[light]]")
+    e = _radiances(e, "[[light]]")
+    return Lights(directional_struct(d, e, device), len(lights))

@@ -3,10 +3,14 @@
 Public:
     ``MeshTopology`` / ``mesh_topology(indices, first, count, device)``   one mesh's faces and open boundary,
                                           from its connectivity alone (built once: a deformation keeps it)
-    ``MeshShading`` / ``normals_and_curvature(points, topology, device)``  normals (V, 3) and H (V,) from the
+    ``MeshShading`` / ``normals_and_curvature(points, topology, device, out)``  normals (V, 3) and H (V,) from the
                                           current vertex positions
-    ``local_curvature(curvature, topology, device, passes)``  |H| averaged over the neighbourhood: the
+    ``local_curvature(curvature, topology, device, passes, out)``  |H| averaged over the neighbourhood: the
                                           curvature the bandwidth pass reads (``warpbw.io.mesh.local_curvature``)
+
+Their arrays are checked against the topology (shape, dtype, device; not their contents) before any launch: the
+kernels index them by vertex without bounds, and an ``out`` of 3 vertices for 162 was written past its end (the call
+returned, the process aborted later), 10 points for 162 vertices read garbage.
 
 The formulas are :mod:`warpbw.io.mesh`'s, which computes the same on the host when a mesh is loaded:
 area-weighted vertex normals; mean curvature H = -(Laplace-Beltrami(x) . n) / 2 from cotangent weights and
@@ -32,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from warpbw.errors import WarpbwError, check_device
+from warpbw.errors import INT32_MAX, WarpbwError, check_count, check_device, check_warp_array
 from warpbw.io import mesh as host_mesh
 from warpbw.io.mesh import boundary_neighbours
 
@@ -200,12 +204,25 @@ class MeshShading:
     curvature: wp.array        # (V,) float32 mean curvature, 1 / scene units
 
 
+def _check_topology(topology) -> None:
+    if not isinstance(topology, MeshTopology):
+        raise WarpbwError(f"topology: expected a MeshTopology (mesh_topology), got {type(topology).__name__}")
+
+
 def mesh_topology(indices, first: int, count: int, device: str = "cpu") -> MeshTopology:
     """The faces of ``indices`` (flat, 3 per face, into a concatenated vertex array) whose vertices lie in
     ``[first, first + count)``, their open boundary and each vertex's one-ring count.  Connectivity only: a
     deformation keeps it."""
     check_device(device)
-    f = np.asarray(indices, np.int64).reshape(-1, 3)
+    first = check_count(first, "first", 0, INT32_MAX)   # -1 was taken, and its faces' indices shifted
+    # the kernels index vertices in int32; beyond, a range of 10^12 asked for terabytes of counts
+    count = check_count(count, "count", 0, INT32_MAX - first)
+    f = np.asarray(indices)
+    if f.dtype.kind not in "iu" and not (f.size == 0 and f.dtype.kind == "f"):
+        raise WarpbwError(f"indices: expected integer vertex indices, got {f.dtype} values (1.7 was taken as 1)")
+    if f.size % 3:
+        raise WarpbwError(f"indices: expected 3 vertex indices per face, got {f.size}")
+    f = f.astype(np.int64).reshape(-1, 3)
     mine = (f >= first) & (f < first + count)
     if np.any(mine.any(axis=1) & ~mine.all(axis=1)):
         raise WarpbwError(f"mesh topology: a face joins vertices in [{first}, {first + count}) to others")
@@ -225,9 +242,22 @@ def normals_and_curvature(points: wp.array, topology: MeshTopology, device: str 
     vertex positions in ``points`` (the concatenated array, e.g. ``wp.Mesh.points``).  Written into ``out``
     when given (views of the G-buffer's per-vertex arrays, say), else into new arrays."""
     check_device(device)
+    _check_topology(topology)
     n = topology.count
+    if not isinstance(points, wp.array):   # numpy (V, 3): copied to the device, as Warp's launch did
+        points = np.asarray(points, np.float32)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise WarpbwError(f"points: expected (V, 3) vertex positions, got shape {points.shape}")
+        points = wp.array(points, dtype=wp.vec3, device=device)
+    check_warp_array(points, "points", wp.vec3, topology.first + n, device,
+                     f"the mesh's vertices {topology.first} to {topology.first + n - 1}", at_least=True)
     if out is None:
         out = MeshShading(wp.empty(n, dtype=wp.vec3, device=device), wp.empty(n, dtype=wp.float32, device=device))
+    elif not isinstance(out, MeshShading):
+        raise WarpbwError(f"out: expected a MeshShading of the mesh's {n} vertices, got {type(out).__name__}")
+    else:
+        check_warp_array(out.normals, "out.normals", wp.vec3, n, device, "the mesh's vertices")
+        check_warp_array(out.curvature, "out.curvature", wp.float32, n, device, "the mesh's vertices")
     n_sum = wp.zeros(n, dtype=wp.vec3d, device=device)
     lap = wp.zeros(n, dtype=wp.vec3d, device=device)
     area = wp.zeros(n, dtype=wp.float64, device=device)
@@ -252,14 +282,19 @@ def local_curvature(curvature: wp.array, topology: MeshTopology, device: str = "
     describes: |H| averaged by ``passes`` lazy one-ring passes, as ``warpbw.io.mesh.local_curvature``.
     Written into ``out`` when given (which may be ``curvature`` itself), else into a new array."""
     check_device(device)
+    _check_topology(topology)
     n = topology.count
-    passes = int(passes)
-    if passes < 0:
-        raise WarpbwError(f"local_curvature: passes: expected an integer >= 0, got {passes}")
-    if curvature.shape[0] != n:
-        raise WarpbwError(f"local_curvature: curvature has {curvature.shape[0]} values, the mesh {n} vertices")
+    passes = check_count(passes, "local_curvature: passes", 0)   # 2.5 ran as 2
+    if not isinstance(curvature, wp.array):   # numpy: copied to the device
+        curvature = np.asarray(curvature, np.float32)
+        if curvature.shape != (n,):
+            raise WarpbwError(f"local_curvature: curvature has shape {curvature.shape}, the mesh {n} vertices")
+        curvature = wp.array(curvature, dtype=wp.float32, device=device)
+    check_warp_array(curvature, "local_curvature: curvature", wp.float32, n, device, "the mesh's vertices")
     if out is None:
         out = wp.empty(n, dtype=wp.float32, device=device)
+    else:
+        check_warp_array(out, "local_curvature: out", wp.float32, n, device, "the mesh's vertices")
     x = wp.empty(n, dtype=wp.float32, device=device)
     y = wp.empty(n, dtype=wp.float32, device=device)
     wp.launch(magnitude_kernel, dim=n, inputs=[curvature, x], device=device)

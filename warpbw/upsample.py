@@ -2,7 +2,9 @@
 
 Public:
     ``level_size(width, height, level) -> (w, h)``   size of a pyramid level (ceil-halving)
-    ``UpsampleResult`` / ``upsample_level(..., mode, weights)``  fill the requested pixels of level L from level L+1
+    ``top_level(width, height)``                      the 1 x 1 level's index, the last ``upsample_level`` takes
+    ``UpsampleResult`` / ``upsample_level(gb, cam, level, ..., mode, weights)``  fill the requested pixels of level
+                                                      L from level L+1 (``gb``: a ``GBuffer`` or its ``GBufferData``)
     ``UPSAMPLE_MODES``, ``UPSAMPLE_DEFAULT``, ``check_upsample_mode(mode)``
     ``parent_weights(...)``                           host wrapper returning the four weights (tests)
     ``representative_pixel(gb, x, y, level)``         Warp func: the finest pixel at the centre of a level-L pixel
@@ -121,14 +123,13 @@ Level sizes halve with rounding up, ``w_{L+1} = ceil(w_L / 2)``, so any image si
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError, check_count, check_device
-from warpbw.gbuffer import CameraData, GBufferData
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_count, check_device, check_warp_array
+from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 
 DEPTH_SIGMA_REL = 0.1   # g_z tolerance, relative to the child's depth (a 10% depth step is an edge)
 COS_X_MIN = 0.05        # clamp of cos theta_x in M (grazing: the kernel width along the normal stays > 0)
@@ -305,8 +306,15 @@ def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
 
 def level_size(width: int, height: int, level: int) -> tuple[int, int]:
     """Size of pyramid level ``level`` (0 = finest): ceil-halving per level."""
-    s = 1 << int(level)
-    return max(1, math.ceil(width / s)), max(1, math.ceil(height / s))
+    width = check_count(width, "width", 1)     # 0 or -8 came out as 1, 7.5 as 8, "7" a TypeError
+    height = check_count(height, "height", 1)
+    s = 1 << check_count(level, "level", 0)    # -1 failed on a negative shift, 2.7 ran as 2
+    return max(1, -(-width // s)), max(1, -(-height // s))
+
+
+def top_level(width: int, height: int) -> int:
+    """Index of the pyramid's 1 x 1 level (``level_size`` halves until then); 0 for a 1 x 1 image."""
+    return (max(check_count(width, "width", 1), check_count(height, "height", 1)) - 1).bit_length()
 
 
 @dataclass
@@ -317,10 +325,13 @@ class UpsampleResult:
     weights: wp.array         # (w_L * h_L,) vec4: the four parent weights (unnormalised)
 
 
-def _i32(a, n, device):
+def _i32(a, name: str, n: int, device, what: str) -> wp.array:
     if isinstance(a, wp.array):
-        return a
-    return wp.array(np.ascontiguousarray(np.asarray(a, np.int32).reshape(n)), dtype=wp.int32, device=device)
+        return check_warp_array(a, name, wp.int32, n, device, what)
+    a = np.asarray(a)
+    if a.size != n:
+        raise WarpbwError(f"{name}: expected {n} flags ({what}), got an array of shape {a.shape}")
+    return wp.array(np.ascontiguousarray(a.astype(np.int32).reshape(n)), dtype=wp.int32, device=device)
 
 
 def check_upsample_mode(mode: str) -> int:
@@ -330,14 +341,16 @@ def check_upsample_mode(mode: str) -> int:
     return int(mode == "normal")
 
 
-def upsample_level(gb: GBufferData, cam: CameraData, level: int, parent_values, parent_valid, todo,
+def upsample_level(gb: GBuffer | GBufferData, cam: CameraData, level: int, parent_values, parent_valid, todo,
                    out: wp.array | None = None, out_valid: wp.array | None = None,
                    device: str = "cpu", mode: str = UPSAMPLE_DEFAULT,
                    weights: wp.array | None = None) -> UpsampleResult:
     """Up-sample the pixels of level ``level`` marked in ``todo`` from level ``level + 1``.
 
+    ``gb``: the G-buffer (a ``GBuffer`` or its ``GBufferData``); ``level``: from 0 to ``top_level``.
     ``parent_values`` ((w_{L+1} h_{L+1},) vec3) and ``parent_valid`` (int32) describe the parent level;
     ``out`` / ``out_valid`` (level L) are updated in place when given (pixels not in ``todo`` keep theirs).
+    Every array must have its level's size (a Warp array also its dtype and ``device``), else a ``WarpbwError``.
     ``mode``: "normal" (the weights' least-squares fit in the normal) or "paper" (their weighted mean).
     ``weights``: the w_i of an earlier call with the same ``parent_valid`` and ``todo`` (its
     ``UpsampleResult.weights``), read instead of computed again.
@@ -347,31 +360,49 @@ def upsample_level(gb: GBufferData, cam: CameraData, level: int, parent_values, 
     """
     check_device(device)
     fit = check_upsample_mode(mode)
-    level = check_count(level, "level", 0)   # -1 failed on a negative shift, 2.5 ran as 2
+    if isinstance(gb, GBuffer):   # its GBufferData is what the kernel takes
+        gb = gb.data
+    if not isinstance(gb, GBufferData.cls):
+        raise WarpbwError(f"gb: expected a GBuffer or its GBufferData, got {type(gb).__name__}")
+    if not isinstance(cam, CameraData.cls):
+        raise WarpbwError(f"cam: expected a CameraData (make_camera), got {type(cam).__name__}")
+    # up to the 1 x 1 top (whose parent is itself, clamped); 99 ran, shifting an int32 past its width in the kernel
+    level = check_count(level, f"level (of a {gb.width}x{gb.height} G-buffer)", 0, top_level(gb.width, gb.height))
     w, h = level_size(gb.width, gb.height, level)
     pw, ph = level_size(gb.width, gb.height, level + 1)
     n, pn = w * h, pw * ph
-    if not isinstance(parent_values, wp.array):
-        parent_values = wp.array(np.asarray(parent_values, np.float32).reshape(pn, 3), dtype=wp.vec3, device=device)
-    parent_valid = _i32(parent_valid, pn, device)
-    todo = _i32(todo, n, device)
-    out = out if out is not None else wp.zeros(n, dtype=wp.vec3, device=device)
-    out_valid = out_valid if out_valid is not None else wp.zeros(n, dtype=wp.int32, device=device)
+    at, parent_at = f"level {level}, {w}x{h}", f"level {level + 1}, {pw}x{ph}"
+    if isinstance(parent_values, wp.array):
+        check_warp_array(parent_values, "parent_values", wp.vec3, pn, device, parent_at)
+    else:
+        parent_values = np.asarray(parent_values, np.float32)
+        if parent_values.size != pn * 3:
+            raise WarpbwError(f"parent_values: expected {pn} RGB values ({parent_at}), got an array of shape "
+                              f"{parent_values.shape}")
+        parent_values = wp.array(parent_values.reshape(pn, 3), dtype=wp.vec3, device=device)
+    parent_valid = _i32(parent_valid, "parent_valid", pn, device, parent_at)
+    todo = _i32(todo, "todo", n, device, at)
+    out = (wp.zeros(n, dtype=wp.vec3, device=device) if out is None
+           else check_warp_array(out, "out", wp.vec3, n, device, at))
+    out_valid = (wp.zeros(n, dtype=wp.int32, device=device) if out_valid is None
+                 else check_warp_array(out_valid, "out_valid", wp.int32, n, device, at))
     needs = wp.zeros(n, dtype=wp.int32, device=device)
     given = int(weights is not None)
-    if given and (weights.shape != (n,) or weights.dtype != wp.vec4):
-        raise ValueError(f"weights: expected ({n},) vec4 (level {level}), got {weights.shape} {weights.dtype}")
-    weights = weights if given else wp.zeros(n, dtype=wp.vec4, device=device)
+    weights = (check_warp_array(weights, "weights", wp.vec4, n, device, at) if given
+               else wp.zeros(n, dtype=wp.vec4, device=device))
     wp.launch(upsample_level_kernel, dim=n,
               inputs=[gb, cam, int(level), w, h, pw, ph, parent_values, parent_valid, todo, fit, given, out,
                       out_valid, needs, weights], device=device)
     return UpsampleResult(out, out_valid, needs, weights)
 
 
-def parent_weights(gb: GBufferData, cam: CameraData, level: int, device: str = "cpu") -> np.ndarray:
+def parent_weights(gb: GBuffer | GBufferData, cam: CameraData, level: int, device: str = "cpu") -> np.ndarray:
     """The four parent weights of every pixel of ``level`` with every parent valid, (h_L, w_L, 4)."""
     check_device(device)
-    w, h = level_size(gb.width, gb.height, level)
-    pw, ph = level_size(gb.width, gb.height, level + 1)
-    r = upsample_level(gb, cam, level, np.zeros((pw * ph, 3)), np.ones(pw * ph), np.ones(w * h), device=device)
+    data = gb.data if isinstance(gb, GBuffer) else gb
+    if not isinstance(data, GBufferData.cls):
+        raise WarpbwError(f"gb: expected a GBuffer or its GBufferData, got {type(gb).__name__}")
+    w, h = level_size(data.width, data.height, level)
+    pw, ph = level_size(data.width, data.height, level + 1)
+    r = upsample_level(data, cam, level, np.zeros((pw * ph, 3)), np.ones(pw * ph), np.ones(w * h), device=device)
     return r.weights.numpy().reshape(h, w, 4)
