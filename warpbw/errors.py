@@ -142,7 +142,9 @@ def unit_directions(d, name: str):
     big = np.max(np.abs(d), axis=-1, keepdims=True)
     bad = ~(np.isfinite(big) & (big > 0.0))
     if bad.any():
-        raise WarpbwError(f"{name}: expected finite non-zero directions, {int(bad.sum())} of {bad.size} are not")
+        k = int(np.flatnonzero(bad.reshape(-1))[0])
+        raise WarpbwError(f"{name}: expected finite non-zero directions, {int(bad.sum())} of {bad.size} are not "
+                          f"(the first, {k}: {d.reshape(-1, 3)[k].tolist()})")
     d = d / big
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 

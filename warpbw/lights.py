@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError, check_device
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_device, unit_directions
 
 
 @wp.struct
@@ -41,21 +41,6 @@ class Lights:
 
     data: DirectionalLights
     count: int
-
-
-def _unit_directions(d: np.ndarray, what: str) -> np.ndarray:
-    """(n, 3) float64 directions scaled to unit length, else a one-line error: a zero, NaN or infinite one lit
-    nothing or everything.  Each is first divided by its largest component, so that (1e200, 1e200, 0) and
-    (1e-200, 0, 0), whose plain norm overflows or underflows, are directions too."""
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        m = np.max(np.abs(d), axis=1, keepdims=True) if len(d) else np.ones((0, 1))
-        ok = np.isfinite(m[:, 0]) & (m[:, 0] > 0.0) & np.all(np.isfinite(d), axis=1)
-        if not ok.all():
-            k = int(np.flatnonzero(~ok)[0])
-            raise WarpbwError(f"{what}: expected finite non-zero directions towards the lights, light {k} is "
-                              f"{d[k].tolist()}")
-        d = d / m
-        return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 def _radiances(e: np.ndarray, what: str) -> np.ndarray:
@@ -80,7 +65,7 @@ def directional_struct(directions, radiances, device: str = "cpu") -> Directiona
             raise WarpbwError(f"directional_struct: expected (n, 3) directions and (n, 3) radiances, one per "
                               f"direction, got shapes {d.shape} and {e.shape}")
         d = e = np.zeros((0, 3))
-    d = _unit_directions(d, "directional_struct: directions")
+    d = unit_directions(d, "directional_struct: directions")
     e = _radiances(e, "directional_struct: radiances")
     s = DirectionalLights()
     s.direction = wp.array(d.astype(np.float32), dtype=wp.vec3, device=device)
@@ -102,6 +87,6 @@ def make_lights(scene_lights, device: str = "cpu") -> Lights | None:
         if dk.shape != (3,) or ek.shape != (3,):
             raise WarpbwError(f"[[light]] {k}: expected a direction and a radiance of 3 numbers each")
         d[k], e[k] = dk, ek
-    d = _unit_directions(d, "[[light]]")
+    d = unit_directions(d, "[[light]]")
     e = _radiances(e, "[[light]]")
     return Lights(directional_struct(d, e, device), len(lights))
