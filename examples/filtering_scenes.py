@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from precompute.surfaces import MAX_SURFACE_SIZE
+from precompute.surfaces import MAX_SURFACE_SIZE, MIN_SURFACE_SIZE
 from warpbw.bench_filtering import FLICKER_PAIRS_MAX
 from warpbw.cli import MAX_ANISOTROPY, check_command_options
 from warpbw.cli_common import OneLineParser, check_overwrite, run_command
@@ -238,8 +238,8 @@ def main(argv=None) -> int:
     from warpbw.scene import GMM_MAX_COMPONENTS, GMM_MAX_PRIOR
 
     out = Path(args.out)
-    if not 1 <= args.size <= MAX_SURFACE_SIZE:
-        ap.error(f"--size {args.size}: expected an integer from 1 to {MAX_SURFACE_SIZE}")
+    if not MIN_SURFACE_SIZE <= args.size <= MAX_SURFACE_SIZE:   # the scales need more than 2 texels per spacing
+        ap.error(f"--size {args.size}: expected an integer from {MIN_SURFACE_SIZE} to {MAX_SURFACE_SIZE}")
     if not (math.isfinite(args.prior) and 0 <= args.prior <= GMM_MAX_PRIOR):
         ap.error(f"--prior {args.prior:g}: expected a finite c >= 0 (at most {GMM_MAX_PRIOR:g})")
     if not 1 <= args.components <= GMM_MAX_COMPONENTS:

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from precompute.gmm_mipmap import DEFAULT_COMPONENTS, MAX_COMPONENTS, build_gmm_mipmap
-from precompute.surfaces import MAX_SURFACE_SIZE, SURFACES
+from precompute.surfaces import MAX_SURFACE_SIZE, MIN_SURFACE_SIZE, SURFACES
 from warpbw.cli_common import OneLineParser, check_output_file, run_command, write_json
 
 SIZE = 512           # issue 4 acceptance: "a 512x512 height field with 4 components"
@@ -27,8 +27,8 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, help="also write the times to this JSON file")
     ap.add_argument("--force", action="store_true", help="overwrite --json")
     args = ap.parse_args(argv)
-    if not 1 <= args.size <= MAX_SURFACE_SIZE:
-        ap.error(f"--size {args.size}: expected an integer from 1 to {MAX_SURFACE_SIZE}")
+    if not MIN_SURFACE_SIZE <= args.size <= MAX_SURFACE_SIZE:   # the scales need more than 2 texels per spacing
+        ap.error(f"--size {args.size}: expected an integer from {MIN_SURFACE_SIZE} to {MAX_SURFACE_SIZE}")
     if not 1 <= args.components <= MAX_COMPONENTS:
         ap.error(f"--components {args.components}: expected an integer from 1 to {MAX_COMPONENTS}")
     if args.json:

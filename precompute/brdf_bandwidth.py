@@ -13,6 +13,8 @@ Public:
     ``load_or_build_bandwidth(source, explicit=None, cache=None, progress=True) -> (table, origin)``
     ``theta_i_centres()``, ``wo_map(n)``, ``wo_to_map(wo)``, ``map_radians_per_pixel(n)``
     ``lobe_slice(evaluate, theta_i, resolution)``, ``slice_bandwidth(f)``, ``GRAZING_LIMIT``   one lobe's map
+    (each checks its input: ``n`` an integer >= 1, ``wo`` finite non-zero 3-vectors, ``theta_i`` in [0, pi/2)
+    radians, ``f`` a square slice, ``evaluate`` and ``progress`` callables; else a one-line ``WarpbwError``)
 
 Table: ``nu_rho[t, row, col]`` in cycles/radian, float32, shape ``(N_THETA_I, N_CELLS, N_CELLS)``:
 ``t`` = incident-elevation bin (centres ``theta_i = (t + 1/2) (pi/2) / 16``, uniform over
@@ -84,7 +86,7 @@ import numpy as np
 from precompute.assetfile import read_asset, write_asset
 from precompute.progress import progress_callback
 from precompute.wavelets import local_bandwidth
-from warpbw.errors import WarpbwError, check_count
+from warpbw.errors import WarpbwError, check_count, check_real, unit_directions
 
 __all__ = [
     "N_THETA_I", "N_CELLS", "SHAPE", "DEFAULT_RESOLUTION", "FORMAT", "VERSION",
@@ -109,6 +111,7 @@ def theta_i_centres() -> np.ndarray:
 
 
 def _pixel_coords(n: int) -> tuple[np.ndarray, np.ndarray]:
+    n = check_count(n, "n", 1)   # 0 divided by zero, -2 gave an empty map, 2.5 a 3x3 one
     c = -1.0 + (np.arange(n) + 0.5) * (2.0 / n)
     x, y = np.meshgrid(c, c)  # x varies along columns, y along rows
     return x, y
@@ -138,9 +141,16 @@ def wo_map(n: int) -> np.ndarray:
 def wo_to_map(wo) -> np.ndarray:
     """Map coordinates ``(x, y)`` in [-1, 1]^2 of directions ``wo`` (..., 3) of the upper hemisphere.
 
-    Cell of a table: ``col = floor((x + 1) / 2 * N_CELLS)``, ``row = floor((y + 1) / 2 * N_CELLS)``."""
-    wo = np.asarray(wo, dtype=np.float64)
-    wo = wo / np.linalg.norm(wo, axis=-1, keepdims=True)
+    Cell of a table: ``col = floor((x + 1) / 2 * N_CELLS)``, ``row = floor((y + 1) / 2 * N_CELLS)``.  ``wo`` need
+    not be unit length; a direction below the horizon maps onto the rim (r = 1).  A zero, NaN or infinite one is
+    refused (it gave NaN coordinates)."""
+    try:
+        wo = np.asarray(wo, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise WarpbwError(f"wo: expected directions of 3 components, (..., 3), got {type(wo).__name__}") from None
+    if wo.ndim < 1 or wo.shape[-1] != 3:
+        raise WarpbwError(f"wo: expected directions of 3 components, (..., 3), got shape {wo.shape}")
+    wo = unit_directions(wo, "wo")
     theta = np.arccos(np.clip(wo[..., 2], -1.0, 1.0))
     r = math.sqrt(2.0) * np.sin(np.minimum(theta, 0.5 * math.pi) / 2.0)
     phi = np.arctan2(wo[..., 1], wo[..., 0])
@@ -163,6 +173,11 @@ def _check_resolution(resolution: int) -> int:
     return n
 
 
+def _check_evaluate(evaluate) -> None:
+    if not callable(evaluate):
+        raise WarpbwError(f"evaluate: expected a function evaluate(wi, wo) -> (N, 3), got {evaluate!r}")
+
+
 def _evaluated(evaluate: Callable, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     """``evaluate(wi, wo)`` as float64 ``(N, 3)``; any other shape (a grey ``(N,)`` lobe) refused in one line."""
     n = len(wi)
@@ -181,8 +196,15 @@ def lobe_slice(evaluate: Callable, theta_i: float, resolution: int = DEFAULT_RES
     """``f(wi, wo)`` over the outgoing map for ``wi = (sin theta_i, 0, cos theta_i)``, ``(n, n, 3)`` float64.
 
     Past ``GRAZING_LIMIT`` the lobe is continued by odd reflection about the limit along each
-    azimuth, ``f(theta) = 2 f(theta_max) - f(2 theta_max - theta)`` (value and slope continuous)."""
+    azimuth, ``f(theta) = 2 f(theta_max) - f(2 theta_max - theta)`` (value and slope continuous).  ``theta_i`` is
+    the incident elevation from the zenith, in [0, pi/2) radians: at or below the horizon a BRDF is zero (2.0 gave a
+    slice of zeros, and a bandwidth of 0, without a word)."""
     n = _check_resolution(resolution)
+    _check_evaluate(evaluate)
+    theta_i = check_real(theta_i, "theta_i", 0.0)
+    if not theta_i < 0.5 * math.pi:
+        raise WarpbwError(f"theta_i: expected an incident elevation in [0, pi/2) radians (from the zenith; at or below "
+                          f"the horizon the lobe is zero), got {theta_i!r}")
     theta, phi = _map_angles(n)
     past = theta > GRAZING_LIMIT
     wi = np.broadcast_to(np.array([math.sin(theta_i), 0.0, math.cos(theta_i)]), (n * n, 3))
@@ -199,8 +221,15 @@ def lobe_slice(evaluate: Callable, theta_i: float, resolution: int = DEFAULT_RES
 
 
 def slice_bandwidth(f: np.ndarray) -> np.ndarray:
-    """Per-pixel angular bandwidth (cycles/radian, ``(n, n)``) of one lobe slice ``(n, n[, C])`` (channels summed)."""
-    f = np.asarray(f, dtype=np.float64)
+    """Per-pixel angular bandwidth (cycles/radian, ``(n, n)``) of one lobe slice ``(n, n[, C])`` (channels summed).
+    A slice that is not square (numpy's broadcast error), empty, or of other rank is refused."""
+    try:
+        f = np.asarray(f, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise WarpbwError("f: expected a lobe slice of numbers, (n, n) or (n, n, C)") from None
+    if f.ndim not in (2, 3) or f.shape[0] != f.shape[1] or f.shape[0] < 1 or (f.ndim == 3 and f.shape[2] < 1):
+        raise WarpbwError(f"f: expected a square lobe slice (n, n) or (n, n, C) over the outgoing map, got shape "
+                          f"{f.shape}")
     if f.ndim == 3:
         f = f.sum(axis=-1)
     n = f.shape[0]
@@ -223,8 +252,12 @@ def brdf_bandwidth_table(evaluate: Callable, resolution: int = DEFAULT_RESOLUTIO
                          progress: Callable[[int], None] | None = None) -> np.ndarray:
     """nu_rho table ``(16, 16, 16)`` float32, cycles/radian, of any numpy ``evaluate(wi, wo) -> (N, 3)``.
 
-    ``progress(k)`` is called after each of the 16 incident elevations with the count done."""
+    ``progress(k)`` is called after each of the 16 incident elevations with the count done (checked before the
+    first slice: a non-callable one failed only after it)."""
     n = _check_resolution(resolution)
+    _check_evaluate(evaluate)
+    if progress is not None and not callable(progress):
+        raise WarpbwError(f"progress: expected a function progress(k) or None, got {progress!r}")
     out = np.zeros(SHAPE, dtype=np.float32)
     for t, th in enumerate(theta_i_centres()):
         out[t] = _block_max(slice_bandwidth(lobe_slice(evaluate, float(th), n)))

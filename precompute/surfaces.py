@@ -3,15 +3,18 @@
 Public functions:
 
 - ``hemispherical_scales(size=512, scales_across=8, radius=0.6, height=0.5) -> (size, size)``:
-  tiled, overlapping hemispherical scales laid like armour (004 Fig. 8).
+  tiled, overlapping hemispherical scales laid like armour (004 Fig. 8); ``size`` must exceed
+  ``2 * scales_across`` (``MIN_TEXELS_PER_SCALE``).
 - ``carved_disk(size=512, radius=0.42, rings=10, spokes=32, depth=0.004, groove_width=0.006)``:
   a raised disk with carved concentric and radial grooves (004 Fig. 4/7).
 - ``dunes(size=512, seed=0, ...)``: wind-rippled sand dunes (004 Fig. 1).
-- ``SURFACES``: name -> generator, for ``surface:NAME[:SIZE]`` on the command line.
+- ``SURFACES``: name -> generator, for ``surface:NAME[:SIZE]`` on the command line; ``MIN_SURFACE_SIZE`` the
+  smallest size all of them hold at their defaults (17), ``MAX_SURFACE_SIZE`` the largest.
 - ``height_to_normals(h, scale=1.0, texel_size=None) -> (H, W, 3)`` unit tangent-space normals.
-- ``normals_from_map(rgb) -> (H, W, 3)``: decode a [0, 1]-encoded tangent-space normal map.
+- ``normals_from_map(rgb) -> (H, W, 3)``: decode a [0, 1]-encoded tangent-space normal map (values
+  more than ``ENCODING_TOL`` outside [0, 1] are refused).
 - ``unit_normals(n, what) -> (H, W, 3)``: texel vectors renormalised, refusing those shorter than
-  ``NORMAL_LENGTH_MIN`` (they hold no direction).
+  ``NORMAL_LENGTH_MIN`` (they hold no direction) and non-finite ones.
 
 Conventions (shared with ``precompute.gmm_mipmap``):
 
@@ -21,16 +24,21 @@ Conventions (shared with ``precompute.gmm_mipmap``):
   default ``texel_size = 1 / W`` a hemisphere of the scales *is* a hemisphere.
 - Tangent space: x along +column, y along -row (image up, since image row 0 is the top; the OpenGL
   normal-map convention), z out of the surface.  A normal map's R, G, B hold n_x, n_y, n_z.
-- Any size from 1 to ``MAX_SURFACE_SIZE``, powers of two or not; float64 output; deterministic
-  (``dunes``, the only random one, takes a seed).
+- Any size from 1 to ``MAX_SURFACE_SIZE``, powers of two or not (the scales need more than 2 texels per
+  scale spacing); float64 output; deterministic (``dunes``, the only random one, takes a seed: an
+  integer from 0 to 2^32 - 1, not None).
+- Parameters are checked, not coerced: a count must be an integer (``scales_across=2.7`` ran as 2,
+  ``wind=(0.5, 0.5)`` as (0, 0)), a length or amplitude a finite number (NaN gave an all-NaN map, inf an
+  OverflowError or an all-inf map); each refusal is a one-line ``WarpbwError`` naming the parameter.
 """
 from __future__ import annotations
 
 import math
+import numbers
 
 import numpy as np
 
-from warpbw.errors import WarpbwError, is_int
+from warpbw.errors import WarpbwError, check_count, check_real, check_seed, is_int
 
 # Largest generated surface (issue 4 item 4: "each as a height field of configurable size, up to 1024x1024").
 MAX_SURFACE_SIZE = 1024
@@ -39,6 +47,27 @@ MAX_SURFACE_SIZE = 1024
 # decodes to (0.004, 0.004, 0.004), length 0.007, whose "direction" is 55 degrees off the surface normal.
 NORMAL_LENGTH_MIN = 0.5
 TWO_PI = 2.0 * np.pi
+# Texels per scale spacing (1 / scales_across of the map) that hemispherical_scales needs: more than 2, the
+# sampling theorem's bound for the pattern's period.  At exactly 1 or 2 the texel grid holds a whole number of
+# texels per spacing in both directions (rows are half a spacing apart, staggered by half a spacing), so every
+# texel centre falls on the same point of its top scale and the map is flat (sizes 8 and 16 at the default 8
+# scales: peak-to-peak 0); below 2 the pattern aliases.
+MIN_TEXELS_PER_SCALE = 2
+SCALES_ACROSS_DEFAULT = 8   # scales per row of hemispherical_scales (004 Fig. 8 shows about as many)
+# The smallest size every surface holds at its defaults (the scales': more than 2 texels per spacing)
+MIN_SURFACE_SIZE = MIN_TEXELS_PER_SCALE * SCALES_ACROSS_DEFAULT + 1
+# Largest scale radius, in spacings: scales overlap from about 0.5 on, and every spacing of radius adds six passes
+# over the map (a radius of 1e6 ran for hours; inf was an OverflowError).
+MAX_SCALE_RADIUS = 4.0
+# How far outside [0, 1] a [0, 1]-encoded normal map's values may lie: resampling overshoots the range by a few
+# percent (a bicubic or Lanczos filter at a sharp crease); an 8- or 16-bit map stored as floats is 255 or 65535
+# times too large (255.0 decoded to (0.577, 0.577, 0.577), a 55-degree tilt, without a word).
+ENCODING_TOL = 0.1
+
+
+def _real(x) -> float:
+    """``x`` as a float when it is a real number (not a bool or a string), else NaN, for the caller to refuse."""
+    return float(x) if isinstance(x, numbers.Real) and not isinstance(x, (bool, np.bool_)) else math.nan
 
 
 def _check_size(size) -> int:
@@ -54,7 +83,7 @@ def _grid(size: int):
     return u, v
 
 
-def hemispherical_scales(size: int = 512, scales_across: int = 8, radius: float = 0.6,
+def hemispherical_scales(size: int = 512, scales_across: int = SCALES_ACROSS_DEFAULT, radius: float = 0.6,
                          height: float = 0.5) -> np.ndarray:
     """Overlapping hemispherical scales like armour (004 Fig. 8).
 
@@ -64,9 +93,21 @@ def hemispherical_scales(size: int = 512, scales_across: int = 8, radius: float 
     every scale shows its rim as a small step onto the one below.
     """
     size = _check_size(size)
-    n = int(scales_across)
-    if n < 1 or not radius > 0 or not height > 0:
-        raise WarpbwError("hemispherical_scales: expected scales_across >= 1, radius > 0, height > 0")
+    n = check_count(scales_across, "hemispherical_scales: scales_across", 1)   # 2.7 ran as 2, "3" as 3
+    radius = check_real(radius, "hemispherical_scales: radius", 0.0, lo_open=True)
+    if radius > MAX_SCALE_RADIUS:
+        raise WarpbwError(f"hemispherical_scales: radius: expected a number > 0 and at most {MAX_SCALE_RADIUS:g} "
+                          f"scale spacings, got {radius!r}")
+    height = check_real(height, "hemispherical_scales: height", 0.0, lo_open=True)
+    if size <= MIN_TEXELS_PER_SCALE * n:
+        fits = (size - 1) // MIN_TEXELS_PER_SCALE
+        need = MIN_TEXELS_PER_SCALE * n + 1
+        fix = [f"a size of at least {need}"] if need <= MAX_SURFACE_SIZE else []
+        fix += [f"scales_across at most {fits}"] if fits >= 1 else []
+        raise WarpbwError(f"hemispherical_scales: size {size} gives {size / n:.3g} texels per scale spacing with "
+                          f"scales_across {n}; expected more than {MIN_TEXELS_PER_SCALE} (at 1 or 2 every texel "
+                          f"samples the same point of its scale and the map is flat, below 2 the pattern aliases)"
+                          + (f": {' or '.join(fix)}" if fix else ""))
     u, v = _grid(size)
     sx = 1.0 / n                      # spacing of scales within a row
     m = 2 * n                         # rows: an even count keeps the stagger periodic
@@ -94,8 +135,14 @@ def carved_disk(size: int = 512, radius: float = 0.42, rings: int = 10, spokes: 
     grooves of parabolic section (``depth`` deep, ``groove_width`` half-wide), like 004 Fig. 4/7.
     Radial grooves run over the outer two thirds only, where they do not crowd together."""
     size = _check_size(size)
-    if not (0 < radius < 0.5) or rings < 0 or spokes < 0 or depth < 0 or not groove_width > 0:
-        raise WarpbwError("carved_disk: expected 0 < radius < 0.5, rings, spokes, depth >= 0, groove_width > 0")
+    radius = check_real(radius, "carved_disk: radius", 0.0, lo_open=True)
+    if not radius < 0.5:
+        raise WarpbwError(f"carved_disk: radius: expected a number > 0 and < 0.5 (map widths), got {radius!r}")
+    rings = check_count(rings, "carved_disk: rings", 0)       # 2.5 ran as 2.5 rings' step
+    spokes = check_count(spokes, "carved_disk: spokes", 0)
+    depth = check_real(depth, "carved_disk: depth", 0.0)      # NaN gave NaN grooves
+    groove_width = check_real(groove_width, "carved_disk: groove_width", 0.0, lo_open=True)
+    thickness = check_real(thickness, "carved_disk: thickness", 0.0)   # NaN gave an all-NaN map
     u, v = _grid(size)
     x, y = u - 0.5, 0.5 - v
     rho = np.hypot(x, y)
@@ -132,15 +179,23 @@ def dunes(size: int = 512, seed: int = 0, dune_amplitude: float = 0.015, ripple_
           wind=(3, 1), ripples_per_wind=12) -> np.ndarray:
     """Wind-rippled sand dunes (004 Fig. 1): long asymmetric dunes across the integer wind vector
     ``wind`` (cycles over the map), wandering by periodic noise, carrying fine asymmetric ripples
-    ``ripples_per_wind`` times denser, whose phase and height vary with low-frequency noise."""
+    ``ripples_per_wind`` times denser, whose phase and height vary with low-frequency noise.  ``wind`` is two
+    integers, not both 0 (the map tiles only for whole cycles); ``seed`` an integer from 0 to 2^32 - 1."""
     size = _check_size(size)
+    seed = check_seed(seed, "dunes: seed")   # None gave a different map each call; -1 numpy's ValueError
+    if (isinstance(wind, (str, bytes)) or not hasattr(wind, "__len__") or len(wind) != 2
+            or not all(is_int(k) for k in wind) or not any(wind)):   # (0.5, 0.5) ran as (0, 0)
+        raise WarpbwError(f"dunes: wind: expected two integers (cycles across the map in u and v), not both 0, got "
+                          f"{wind!r}")
+    R = check_count(ripples_per_wind, "dunes: ripples_per_wind", 1)   # 0.5 ran as 0
+    dune_amplitude = check_real(dune_amplitude, "dunes: dune_amplitude", 0.0)   # NaN gave an all-NaN map
+    ripple_amplitude = check_real(ripple_amplitude, "dunes: ripple_amplitude", 0.0)
     rng = np.random.default_rng(seed)
     u, v = _grid(size)
     kx, ky = int(wind[0]), int(wind[1])
     phase = TWO_PI * (kx * u + ky * v) + 1.5 * _periodic_noise(u, v, rng, 2, 3)
     # asymmetric dune profile: gentle windward slope, steeper lee side
     dune = np.sin(phase + 0.6 * np.sin(phase))
-    R = int(ripples_per_wind)
     rphase = TWO_PI * R * (kx * u + ky * v) + 4.0 * _periodic_noise(u, v, rng, 4, 4)
     ripple = np.sin(rphase) + 0.25 * np.sin(2.0 * rphase + 0.5 * np.pi)   # skewed like wind ripples
     strength = 0.6 + 0.4 * _periodic_noise(u, v, rng, 3, 3)
@@ -157,11 +212,12 @@ def height_to_normals(h, scale: float = 1.0, texel_size: float | None = None) ->
     h = np.asarray(h, dtype=np.float64)
     if h.ndim != 2 or h.size == 0:
         raise WarpbwError(f"height field of shape {h.shape}: expected a non-empty (H, W) array")
-    t = 1.0 / h.shape[1] if texel_size is None else float(texel_size)
+    t = 1.0 / h.shape[1] if texel_size is None else _real(texel_size)
+    given_scale, scale = scale, _real(scale)   # "2" or None were TypeErrors, "x" a ValueError
     if not (t > 0.0 and math.isfinite(t)) or not math.isfinite(scale) or not np.all(np.isfinite(h)):
         # texel_size 0 divided by zero; a NaN scale or height gave NaN normals
         raise WarpbwError(f"height_to_normals: expected finite heights, a finite scale and a texel_size > 0, got "
-                          f"scale {scale!r}, texel_size {texel_size!r}, {int((~np.isfinite(h)).sum())} non-finite "
+                          f"scale {given_scale!r}, texel_size {texel_size!r}, {int((~np.isfinite(h)).sum())} non-finite "
                           "heights")
     with np.errstate(over="ignore", invalid="ignore"):
         dh_dx = (np.roll(h, -1, axis=1) - np.roll(h, 1, axis=1)) * (scale / (2.0 * t))
@@ -177,28 +233,63 @@ def height_to_normals(h, scale: float = 1.0, texel_size: float | None = None) ->
 
 def normals_from_map(rgb) -> np.ndarray:
     """Decode a [0, 1]-encoded tangent-space normal map (n = 2 rgb - 1, renormalised) to unit (H, W, 3).
-    A texel that decodes to a vector shorter than ``NORMAL_LENGTH_MIN`` is an error (it holds no direction)."""
+    A texel that decodes to a vector shorter than ``NORMAL_LENGTH_MIN`` is an error (it holds no direction), and so
+    is a value more than ``ENCODING_TOL`` outside [0, 1] (an 8-bit map as floats: 255.0 read as (0.577, ...))."""
     given = np.asarray(rgb)
     if np.issubdtype(given.dtype, np.integer) or given.dtype == bool:   # 255 decoded to (0.577, 0.577, 0.577)
         raise WarpbwError(f"normal map of {given.dtype} values: expected floats in [0, 1] (divide an 8- or 16-bit "
                           "map by 255 or 65535)")
-    rgb = given.astype(np.float64)
+    try:
+        rgb = given.astype(np.float64)
+    except (TypeError, ValueError):   # strings
+        raise WarpbwError(f"normal map of {given.dtype} values: expected floats in [0, 1]") from None
     if rgb.ndim != 3 or rgb.shape[-1] < 3:
         raise WarpbwError(f"normal map of shape {rgb.shape}: expected (H, W, 3) RGB")
     if not np.all(np.isfinite(rgb[..., :3])):
         raise WarpbwError(f"normal map: {int((~np.isfinite(rgb[..., :3])).any(-1).sum())} texels are NaN or "
                           "infinite; expected [0, 1]-encoded unit vectors")
+    outside = (rgb[..., :3] < -ENCODING_TOL) | (rgb[..., :3] > 1.0 + ENCODING_TOL)
+    if outside.any():
+        r, c = np.argwhere(outside.any(axis=-1))[0]
+        top = float(np.abs(rgb[..., :3]).max())
+        hint = (f" (values up to {top:.4g}: an {'8' if top <= 255.5 else '16'}-bit map stored as floats? divide it by "
+                f"{255 if top <= 255.5 else 65535})" if top > 2.0 else "")
+        raise WarpbwError(f"normal map: {int(outside.any(axis=-1).sum())} texels hold values outside [0, 1] (first at "
+                          f"row {r}, column {c}: {tuple(round(float(x), 4) for x in rgb[r, c, :3])}); expected a "
+                          f"[0, 1]-encoded map, n = 2 rgb - 1{hint}")
     return unit_normals(2.0 * rgb[..., :3] - 1.0, "decode to")
+
+
+def _where(idx: tuple) -> str:
+    return f"row {idx[0]}, column {idx[1]}" if len(idx) == 2 else f"index {idx}"
 
 
 def unit_normals(n, what: str = "hold") -> np.ndarray:
     """Texel vectors (H, W, 3) scaled to unit length, else a WarpbwError when some are shorter than
-    ``NORMAL_LENGTH_MIN`` (a 1e-6 bound let a grey texel through, renormalised to a 55-degree tilt)."""
-    length = np.linalg.norm(n, axis=-1)
+    ``NORMAL_LENGTH_MIN`` (a 1e-6 bound let a grey texel through, renormalised to a 55-degree tilt), NaN or
+    infinite (inf gave NaN with a RuntimeWarning), or the array is not of 3-vectors ((..., 2) was accepted).  Each
+    vector is divided by its largest component before the norm: (1e200, 0, 1) squared overflowed, giving 0."""
+    try:
+        n = np.asarray(n, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise WarpbwError(f"normal-map texels: expected an array of numbers (..., 3), got {type(n).__name__}") \
+            from None
+    if n.ndim < 1 or n.shape[-1] != 3:
+        raise WarpbwError(f"normal-map texels of shape {n.shape}: expected 3-vectors, shape (..., 3)")
+    nonfinite = ~np.all(np.isfinite(n), axis=-1)
+    if nonfinite.any():
+        first = tuple(int(i) for i in np.argwhere(nonfinite)[0])
+        raise WarpbwError(f"{int(nonfinite.sum())} normal-map texels {what} NaN or infinite vectors (first at "
+                          f"{_where(first)}); expected finite unit normals")
+    big = np.max(np.abs(n), axis=-1, keepdims=True)
+    scaled = n / np.where(big > 0.0, big, 1.0)
+    norm = np.linalg.norm(scaled, axis=-1)
+    with np.errstate(over="ignore"):
+        length = big[..., 0] * norm
     bad = ~(length >= NORMAL_LENGTH_MIN)
     if bad.any():
-        r, c = np.argwhere(bad)[0]
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
         raise WarpbwError(f"{int(bad.sum())} normal-map texels {what} vectors shorter than {NORMAL_LENGTH_MIN} (first "
-                          f"at row {r}, column {c}: length {length[r, c]:.3g}); they hold no direction (a 50%-grey "
+                          f"at {_where(idx)}: length {length[idx]:.3g}); they hold no direction (a 50%-grey "
                           "texel of a [0, 1]-encoded map decodes to almost zero); expected unit normals")
-    return n / length[..., None]
+    return scaled / norm[..., None]

@@ -31,7 +31,10 @@ Two rules turn the ``lambda_i^max`` into one bandwidth:
   (002 Fig. 6); the bandwidth is the frequency below which ``ENERGY_FRACTION`` (95%) of it lies
   (000 Fig. 3).  Each band's energy is placed at its geometric centre frequency ``2^-(i+1/2)``
   and the cumulative energy is interpolated linearly in log-frequency between centres, so the
-  estimate is continuous in frequency rather than stuck to powers of two.
+  estimate is continuous in frequency rather than stuck to powers of two.  It reads a sine high, by a
+  factor that hardly depends on the frequency: 1.34x, 1.34x and 1.32x at 1/32, 1/8 and 1/4 cycles/pixel
+  (median over a 256x256 image, ``pad="wrap"``); issue 3 asks for a factor of 2 (``tests/test_wavelets.py``).
+  On these sines the error is on the safe side: a pixel is shaded at a finer level than it needs.
 - ``rule="eq7"``: the paper's discrete level, ``I_w`` = the finest band such that the bands finer
   than it sum to less than ``epsilon * max_k lambda_k^max``; bandwidth ``2^-I_w`` cycles/pixel (the
   top of band ``I_w``).  We read the sum of Eq. 7 as running over the bands *finer* than ``I_w``
@@ -42,8 +45,10 @@ Two rules turn the ``lambda_i^max`` into one bandwidth:
 Finite sources are embedded in zeros (002 Sec. 2.3, area lights: "pad ... with zeros, so that
 its size is doubled"): we pad by one coarsest-wavelet width on every side (``pad="zero"``), then
 up to a multiple of ``2^L`` as ``swt2`` needs, so any size works, and crop back.  ``pad`` may
-also be ``"edge"``/``"reflect"``/``"wrap"`` (``np.pad`` modes) per axis, for signals that continue
-past the image (a periodic tile, the longitude of an environment map).
+also be ``"edge"``/``"reflect"``/``"wrap"`` (``np.pad`` modes, ``PAD_MODES``), one for both axes or a
+``(rows, columns)`` pair, for signals that continue past the image (a periodic tile, the longitude of
+an environment map).  Parameters are checked first: an unknown wavelet or pad mode, a pad of other
+than one or two modes, or a non-numeric ``epsilon`` is a one-line ``WarpbwError`` naming it.
 
 The default wavelet is ``"db4"`` (Daubechies, 4 vanishing moments, 8 taps: "we used 2D Daubechies
 wavelets of order 4", 000 Sec. 4).  Haar is accepted but leaks so much energy into the fine bands
@@ -58,13 +63,14 @@ import numbers
 import numpy as np
 import pywt
 
-from warpbw.errors import WarpbwError, is_int
+from warpbw.errors import FLOAT32_MAX, WarpbwError, is_int
 
 __all__ = [
     "EPSILON",
     "ENERGY_FRACTION",
     "DEFAULT_WAVELET",
     "MAX_LEVELS",
+    "PAD_MODES",
     "band_maxima",
     "local_bandwidth",
     "envmap_angular_bandwidth",
@@ -81,6 +87,9 @@ DEFAULT_WAVELET = "db4"
 # Coarsest band analysed: band L holds 2^-(L+1) .. 2^-L cycles/pixel (L = 7: periods up to 256 px).
 # Coarser content reads as bandwidth <= 2^-(L+1/2); it bounds memory and time on large images.
 MAX_LEVELS = 7
+# pad modes: "zero" (finite source), "latlong_pole" (rows only) and np.pad's modes but "empty" (uninitialised)
+PAD_MODES = ("zero", "latlong_pole", "constant", "edge", "reflect", "symmetric", "wrap", "linear_ramp", "maximum",
+             "mean", "median", "minimum")
 VALUE_MAX = 1e150       # band_maxima: beyond, the energies of Eq. 7's rule (squares, sums) overflow float64
 # Relative size of float64 rounding noise in the transform (a constant image's detail
 # coefficients are ~1e-16 of its value, not 0); coefficients under it count as zero.
@@ -159,6 +168,44 @@ def _centre_shift(wavelet: str, level0: int) -> int:
     return -int(round(c))
 
 
+@functools.lru_cache(maxsize=1)
+def _discrete_wavelets() -> frozenset:
+    return frozenset(pywt.wavelist(kind="discrete"))
+
+
+def _check_wavelet(wavelet) -> pywt.Wavelet:
+    """``wavelet`` as a pywt.Wavelet when it names an orthogonal discrete one, else a one-line WarpbwError ("db99"
+    was pywt's "Unknown wavelet name", None its TypeError)."""
+    if not isinstance(wavelet, str) or wavelet not in _discrete_wavelets():
+        raise WarpbwError(f"wavelet {wavelet!r}: expected the name of an orthogonal discrete wavelet, such as "
+                          f"{DEFAULT_WAVELET!r} (the default), 'haar' or 'sym8' (pywt.wavelist(kind='discrete'))")
+    wav = pywt.Wavelet(wavelet)
+    if not wav.orthogonal:
+        raise WarpbwError(f"wavelet {wavelet!r} is not orthogonal; swt2(norm=True) needs one")
+    return wav
+
+
+def _check_pad(pad) -> tuple[str, str]:
+    """``pad`` as a (rows, columns) pair of ``PAD_MODES``, else a one-line WarpbwError (three modes were accepted,
+    one in a tuple was "not enough values to unpack", "bogus" np.pad's "mode 'bogus' is not supported")."""
+    modes = (pad, pad) if isinstance(pad, str) else tuple(pad) if isinstance(pad, (tuple, list)) else None
+    if modes is None or len(modes) != 2 or not all(isinstance(m, str) and m in PAD_MODES for m in modes):
+        raise WarpbwError(f"pad {pad!r}: expected one mode or a (rows, columns) pair of modes from "
+                          f"{', '.join(PAD_MODES)}")
+    if modes[1] == "latlong_pole":
+        raise WarpbwError("latlong_pole padding applies to the row (latitude) axis only")
+    return modes
+
+
+def _check_fraction(value, name: str, hi_closed: bool) -> float:
+    """``value`` as a float in (0, 1) (or (0, 1] with ``hi_closed``), else a WarpbwError naming ``name`` (the string
+    "0.1" was a TypeError from the comparison)."""
+    x = float(value) if isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) else math.nan
+    if not (0.0 < x < 1.0 or (hi_closed and x == 1.0)):
+        raise WarpbwError(f"{name} must be a number in (0, 1{']' if hi_closed else ')'}, got {value!r}")
+    return x
+
+
 def _levels_for(shape: tuple[int, int], levels: int | None) -> int:
     if levels is None:
         levels = min(MAX_LEVELS, max(1, int(math.floor(math.log2(max(shape))))))
@@ -175,7 +222,14 @@ def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int |
     over channels too (the bandwidth of a colour signal is that of its fastest channel).
     ``pad`` is one mode or a ``(rows, columns)`` pair: ``"zero"`` (finite source, 002 Sec. 2.3),
     any ``np.pad`` mode (``"edge"``, ``"reflect"``, ``"wrap"``), or ``"latlong_pole"`` (rows only)."""
-    img = np.asarray(image, dtype=np.float64)
+    wav = _check_wavelet(wavelet)
+    modes = _check_pad(pad)
+    if np.iscomplexobj(image):   # the imaginary part was dropped with a ComplexWarning
+        raise WarpbwError("image has complex values: expected a real signal")
+    try:
+        img = np.asarray(image, dtype=np.float64)
+    except (TypeError, ValueError):   # strings
+        raise WarpbwError(f"image must be (H, W) or (H, W, C) numbers, got {type(image).__name__}") from None
     if img.ndim == 2:
         img = img[:, :, None]
     if img.ndim != 3 or img.shape[0] < 1 or img.shape[1] < 1:
@@ -187,10 +241,6 @@ def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int |
                          "coefficients overflow float64 (scale the image down: its bandwidth does not depend on scale)")
     h, w, c = img.shape
     nlev = _levels_for((h, w), levels)
-    wav = pywt.Wavelet(wavelet)
-    if not wav.orthogonal:
-        raise WarpbwError(f"wavelet {wavelet!r} is not orthogonal; swt2(norm=True) needs one")
-    modes = (pad, pad) if isinstance(pad, str) else tuple(pad)
     step = 2 ** nlev
     # one coarsest-wavelet width of margin on each side keeps the periodic swt2 from wrapping the
     # image onto itself; then round up to a multiple of 2^L (swt2's requirement).
@@ -280,10 +330,8 @@ def local_bandwidth(image: np.ndarray, epsilon: float = EPSILON, wavelet: str = 
     Eq. 7's threshold; ``floor`` is the absolute coefficient under which a pixel is flat
     (bandwidth 0), by default ``epsilon`` times the image's largest coefficient.  Vectorised: the
     only Python loop runs over the ``levels`` wavelet bands."""
-    if not (0.0 < epsilon < 1.0):
-        raise WarpbwError(f"epsilon must be in (0, 1), got {epsilon}")
-    if not (0.0 < energy_fraction <= 1.0):
-        raise WarpbwError(f"energy_fraction must be in (0, 1], got {energy_fraction}")
+    epsilon = _check_fraction(epsilon, "epsilon", False)
+    energy_fraction = _check_fraction(energy_fraction, "energy_fraction", True)
     lam = band_maxima(image, wavelet=wavelet, levels=levels, pad=pad)
     scale = float(np.max(np.abs(image))) if np.size(image) else 0.0
     return _bandwidth_from_maxima(lam, epsilon, rule, floor, energy_fraction, scale)
@@ -336,9 +384,13 @@ def texture_spatial_bandwidth(image: np.ndarray, metres_per_pixel: float,
 
     ``metres_per_pixel`` is the texel's side on the surface (the Jacobian of the texture mapping,
     assumed isotropic and constant; 002 Sec. 2.3 "Texture (spatial)").  A finite area light is
-    zero-padded (``pad="zero"``, 002 Sec. 2.3); pass ``pad="wrap"`` for a tiling texture."""
-    mpp = float(metres_per_pixel) if isinstance(metres_per_pixel, numbers.Real) else math.nan   # not "0.01"
-    if not (mpp > 0.0 and math.isfinite(mpp)):
-        raise WarpbwError(f"metres_per_pixel must be a positive finite number, got {metres_per_pixel!r}")
+    zero-padded (``pad="zero"``, 002 Sec. 2.3); pass ``pad="wrap"`` for a tiling texture.  ``metres_per_pixel``
+    is at least ``0.5 / FLOAT32_MAX`` (1.5e-39), so that the top bandwidth, 0.5 cycles/pixel, stays finite in
+    float32 (1e-320 gave inf everywhere); True is not a length."""
+    real = isinstance(metres_per_pixel, numbers.Real) and not isinstance(metres_per_pixel, (bool, np.bool_))
+    mpp = float(metres_per_pixel) if real else math.nan   # not "0.01", not True
+    if not (mpp >= 0.5 / FLOAT32_MAX and math.isfinite(mpp)):
+        raise WarpbwError(f"metres_per_pixel must be a positive finite number >= {0.5 / FLOAT32_MAX:.3g} (0.5 "
+                          f"cycles/pixel within float32), got {metres_per_pixel!r}")
     return local_bandwidth(image, epsilon=epsilon, wavelet=wavelet, levels=levels, pad=pad,
                            rule=rule) / mpp

@@ -969,9 +969,10 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["gmm_mipmap.py", "--size", "16", "--level", "99"], "--level 99: expected 0 to 3"),
     (["gmm_mipmap.py", "--size", "16", "--texel", "5", "0"], "--texel 5 0: expected ROW and COL from 0 to 0"),
     (["bench_scenes.py", "--only", "nonsense", "--run"], "--only nonsense: expected scene names"),
-    (["filtering_scenes.py", "--size", "0"], "--size 0: expected an integer from 1 to 1024"),
+    (["filtering_scenes.py", "--size", "0"], "--size 0: expected an integer from 17 to 1024"),
+    (["filtering_scenes.py", "--size", "16"], "--size 16: expected an integer from 17 to 1024"),
     (["filtering_scenes.py", "--prior", "-1"], "--prior -1: expected a finite c >= 0"),
-    (["gmm_precompute_time.py", "--size", "0"], "--size 0: expected an integer from 1 to 1024"),
+    (["gmm_precompute_time.py", "--size", "0"], "--size 0: expected an integer from 17 to 1024"),
     (["filtering_zoom.py", "missing.toml"], "missing.toml: scene file not found"),
     (["filtering_floor.py", "missing.toml"], "missing.toml: no such scene file"),
     (["filtering_floor.py", "--zoom", "0", "s.toml"], "--zoom '0': expected comma-separated positive numbers"),
@@ -1046,14 +1047,14 @@ def test_examples_refuse_bad_arguments_in_one_line(tmp_path, argv, needle):
 def test_gmm_precompute_time_keeps_an_existing_json_without_force(tmp_path):
     """The timing script overwrote its --json silently until session 43; it now refuses before any work."""
     (tmp_path / "t.json").write_text("kept\n")
-    example_error(run_example(["gmm_precompute_time.py", "--size", "4", "--json", "t.json"], tmp_path),
+    example_error(run_example(["gmm_precompute_time.py", "--size", "17", "--json", "t.json"], tmp_path),
                   "gmm_precompute_time.py", "t.json: already exists", "--force")
     assert (tmp_path / "t.json").read_text() == "kept\n"
-    r = run_example(["gmm_precompute_time.py", "--size", "4", "--components", "1", "--json", "t.json", "--force"],
+    r = run_example(["gmm_precompute_time.py", "--size", "17", "--components", "1", "--json", "t.json", "--force"],
                     tmp_path)
     assert r.returncode == 0, r.stderr
     record = json.loads((tmp_path / "t.json").read_text())
-    assert record["size"] == 4 and set(record["time_s"]) == {"dunes", "hemispherical_scales", "carved_disk"}
+    assert record["size"] == 17 and set(record["time_s"]) == {"dunes", "hemispherical_scales", "carved_disk"}
 
 
 @pytest.mark.parametrize("script", sorted(p.name for p in EXAMPLES_DIR.glob("*.py")))
@@ -1083,7 +1084,7 @@ def example_error(r: subprocess.CompletedProcess, script: str, *needles: str) ->
 @pytest.mark.parametrize("argv,existing", [
     (["gbuffer.py", "--resolution", "8", "8"], "gbuffer_out/gbuffer.exr"),
     (["reference_estimator.py", "--resolution", "8", "8", "--spp", "1"], "ref_out/ref_mis.png"),
-    (["filtering_scenes.py", "--size", "8"], "bench_filtering/dunes.exr"),
+    (["filtering_scenes.py", "--size", "17"], "bench_filtering/dunes.exr"),
     (["gmm_mipmap.py", "--size", "16", "-o", "figs/g.png"], "figs/g.png"),
 ])
 def test_examples_do_not_overwrite_without_force(tmp_path, argv, existing):
@@ -1657,9 +1658,13 @@ def test_renderer_switches_and_levels_are_checked(tmp_path):
     for bias in (float("inf"), float("nan")):
         with pytest.raises(WarpbwError, match="lod_bias"):
             render_filtering(planes, "lean", lod_bias=bias)
-    for level in (-1, 2.5):
-        with pytest.raises(WarpbwError, match="level: expected an integer >= 0"):
-            upsample_level(None, None, level, None, None, None)
+    from warpbw.gbuffer import SphereSpec, build_geometry, make_camera, render_gbuffer
+
+    cam = make_camera((0.0, 0.0, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, 8, 8)
+    gb = render_gbuffer(cam, build_geometry([SphereSpec((0.0, 0.0, 0.0), 1.0, 0)], []))
+    for level in (-1, 2.5, 4):
+        with pytest.raises(WarpbwError, match=r"level \(of a 8x8 G-buffer\): expected an integer"):
+            upsample_level(gb, cam, level, None, None, None)
     with pytest.raises(WarpbwError, match="beyond float32"):
         write_exr(tmp_path / "big.exr", np.full((2, 2, 3), 1e39))
     assert not (tmp_path / "big.exr").exists()
@@ -1817,7 +1822,7 @@ def _tree(d: Path) -> dict:
      ["--json d.json: is a directory"]),
     (["mirror_smear.py", "--probe", "probe.exr", "--res", "8", "--budget", "1", "--truth-spp", "1", "--json", "m.txt"],
      ["--json m.txt: expected a path ending in .json"]),
-    (["gmm_precompute_time.py", "--size", "4", "--components", "1", "--json", "t.txt"],
+    (["gmm_precompute_time.py", "--size", "17", "--components", "1", "--json", "t.txt"],
      ["--json t.txt: expected a path ending in .json"]),
 ], ids=["allocation_ceiling scene", "allocation_ceiling png", "allocation_ceiling input", "filtering_floor scene",
         "filtering_floor input", "filtering_floor under a file", "filtering_floor dir", "filtering_floor dir.json",
@@ -1845,7 +1850,7 @@ def test_example_scenes_escape_the_paths_they_write(tmp_path):
 
     probe = tmp_path / _AWKWARD_NAME
     write_exr(probe, np.ones((4, 8, 3), np.float32))
-    r = run_example(["filtering_scenes.py", "--out", "fs", "--size", "4", "--environment", _AWKWARD_NAME], tmp_path)
+    r = run_example(["filtering_scenes.py", "--out", "fs", "--size", "17", "--environment", _AWKWARD_NAME], tmp_path)
     assert r.returncode == 0, r.stderr
     for name in ("scales", "carved_disk", "dunes"):
         assert load_scene(tmp_path / "fs" / f"{name}.toml").environment.file == probe.resolve()
@@ -1938,7 +1943,7 @@ def test_filtering_floor_refuses_zooms_at_which_no_pixel_filters(tmp_path):
     """on a 16x16 map, --zoom 8 magnifies every pixel (level < 0) and the script wrote a record with
     "zooms": [] and exited 0.  It has nothing to compare there: an error naming the zooms, before the mipmaps are
     built, and no JSON."""
-    r = run_example(["filtering_scenes.py", "--out", "fs", "--size", "16"], tmp_path)
+    r = run_example(["filtering_scenes.py", "--out", "fs", "--size", "17"], tmp_path)
     assert r.returncode == 0, r.stderr
     r = run_example(["filtering_floor.py", "fs/carved_disk.toml", "--zoom", "8", "--gt-spp", "64", "--json", "f.json"],
                     tmp_path)
@@ -1949,7 +1954,7 @@ def test_filtering_floor_refuses_zooms_at_which_no_pixel_filters(tmp_path):
 def test_filtering_floor_checks_every_scene_before_analysing_the_first(tmp_path):
     """With several scenes, one that cannot be analysed (no normal map) failed only after the scenes before it had
     been analysed (minutes each at real sizes), and no JSON was written for them."""
-    r = run_example(["filtering_scenes.py", "--out", "fs", "--size", "16"], tmp_path)
+    r = run_example(["filtering_scenes.py", "--out", "fs", "--size", "17"], tmp_path)
     assert r.returncode == 0, r.stderr
     (tmp_path / "planes.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
     r = run_example(["filtering_floor.py", "fs/carved_disk.toml", "planes.toml", "--zoom", "128", "--gt-spp", "64"],
@@ -1964,7 +1969,9 @@ def test_filtering_floor_checks_every_scene_before_analysing_the_first(tmp_path)
 def test_gmm_mipmap_defaults_fit_a_small_size(tmp_path):
     """--size 2 passed the size check, then the defaults the user never gave were refused ("--level 3:
     expected 0 to 0", with --level 0 "--texel 1 1: expected ROW and COL from 0 to 0")."""
+    # dunes: the default surface, the scales, needs 17 texels (precompute.surfaces.MIN_SURFACE_SIZE)
     for argv in (["--size", "2", "-o", "a.png"], ["--size", "4", "--level", "0", "-o", "b.png"]):
+        argv += ["--surface", "dunes"]
         r = run_example(["gmm_mipmap.py", *argv], tmp_path)
         assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     assert (tmp_path / "a.png").is_file() and (tmp_path / "b.png").is_file()

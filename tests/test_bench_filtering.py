@@ -293,7 +293,7 @@ def test_benchmark_light_ring_spreads_the_half_vector(tmp_path):
     fs = _example()
     from warpbw.scene import parse_scene
 
-    paths = fs.write_scenes(tmp_path, 8, resolution=(8, 6), lights="ring")
+    paths = fs.write_scenes(tmp_path, 17, resolution=(8, 6), lights="ring")
     sc = parse_scene(paths[0].read_text(), tmp_path, str(paths[0]))
     cam = np.array(sc.camera.position, float)
     wo = cam / np.linalg.norm(cam)                       # the central ray hits the plane's centre (look_at)
@@ -306,9 +306,9 @@ def test_benchmark_light_ring_spreads_the_half_vector(tmp_path):
         want = (r * math.cos(math.radians(az)), r * math.sin(math.radians(az)))
         np.testing.assert_allclose((h[0], -h[2]), want, atol=2e-5)
     assert sc.materials["m"].gmm_prior == 1.0
-    p16 = fs.write_scenes(tmp_path / "c16", 8, resolution=(8, 6), prior=16.0)[0]
+    p16 = fs.write_scenes(tmp_path / "c16", 17, resolution=(8, 6), prior=16.0)[0]
     assert parse_scene(p16.read_text(), p16.parent, str(p16)).materials["m"].gmm_prior == 16.0
-    (mirror,) = parse_scene(fs.write_scenes(tmp_path / "m", 8, lights="mirror")[0].read_text(), tmp_path).lights
+    (mirror,) = parse_scene(fs.write_scenes(tmp_path / "m", 17, lights="mirror")[0].read_text(), tmp_path).lights
     np.testing.assert_allclose(np.array(mirror.direction) / np.linalg.norm(mirror.direction),
                                np.array([fs.MIRROR_LIGHT_X, wo[1], -wo[2]]) / np.linalg.norm(
                                    [fs.MIRROR_LIGHT_X, wo[1], -wo[2]]), atol=1e-5)
@@ -337,7 +337,7 @@ def test_benchmark_script_run_hands_bench_filtering_what_it_accepts(tmp_path, mo
         return Done(main(cmd[3:] + ["--quiet"]))
 
     monkeypatch.setattr(fs.subprocess, "run", run_in_process)
-    argv = ["--out", str(tmp_path / "b"), "--size", "8", "--run", "--zoom", "1,2", "--gt-spp", "64"]
+    argv = ["--out", str(tmp_path / "b"), "--size", "17", "--run", "--zoom", "1,2", "--gt-spp", "64"]
     if environment:
         probe = tmp_path / "sky.exr"
         write_exr(probe, np.full((8, 16, 3), 0.5, np.float32))

@@ -12,6 +12,7 @@ References (not from the code under test):
 from __future__ import annotations
 
 import math
+import re
 import subprocess
 import sys
 
@@ -216,3 +217,69 @@ def test_the_writer_refuses_a_read_only_output_even_with_force(tmp_path):
     with pytest.raises(WarpbwError, match=r"t\.npz: cannot be overwritten"):
         write_brdf_bandwidth(out, np.zeros((16, 16, 16)), _fake_source(tmp_path), force=True)
     assert out.read_bytes() == b"keep me"
+
+
+# ------------------------------------------------------- the map helpers' own input (API audit, from Python)
+
+
+@pytest.mark.parametrize("n", [0, -2, 2.5, "4", True])
+def test_map_helpers_refuse_a_bad_size(n):
+    """``wo_map(0)`` / ``map_radians_per_pixel(0)`` divided by zero, -2 gave an empty map and 2.5 a 3x3 one."""
+    from precompute.brdf_bandwidth import map_radians_per_pixel, wo_map
+
+    for f in (wo_map, map_radians_per_pixel):
+        with pytest.raises(WarpbwError, match=rf"^n: expected an integer >= 1, got {n!r}$".replace(".", r"\.")):
+            f(n)
+
+
+def test_wo_to_map_refuses_a_direction_without_one():
+    """``wo_to_map([0, 0, 0])`` returned NaN coordinates; (2,) an IndexError."""
+    from precompute.brdf_bandwidth import wo_to_map
+
+    np.testing.assert_allclose(wo_to_map([0.0, 0.0, 5.0]), [0.0, 0.0])            # need not be unit length
+    for bad in ([0.0, 0.0, 0.0], [np.nan, 0.0, 1.0]):
+        with pytest.raises(WarpbwError, match=r"^wo: expected finite non-zero directions"):
+            wo_to_map(bad)
+    with pytest.raises(WarpbwError, match=r"^wo: expected directions of 3 components, \(\.\.\., 3\), got shape \(2,\)$"):
+        wo_to_map([1.0, 0.0])
+
+
+@pytest.mark.parametrize("theta_i, said", [(2.0, r"expected an incident elevation in \[0, pi/2\) radians"),
+                                           (math.pi / 2, r"expected an incident elevation in \[0, pi/2\)"),
+                                           (45.0, r"expected an incident elevation in .*got 45\.0$"),   # degrees
+                                           (-0.1, r"expected a finite number >= 0, got -0\.1$"),
+                                           (float("nan"), r"expected a finite number >= 0, got nan$"),
+                                           ("0.3", r"expected a finite number >= 0, got '0\.3'$")])
+def test_lobe_slice_refuses_an_incident_direction_at_or_below_the_horizon(theta_i, said):
+    """``lobe_slice(ev, theta_i=2.0)`` evaluated wi below the horizon: a real BRDF's slice of zeros, without a word."""
+    from precompute.brdf_bandwidth import lobe_slice
+
+    with pytest.raises(WarpbwError, match=rf"^theta_i: {said}"):
+        lobe_slice(ggx(0.3), theta_i, 16)
+    with pytest.raises(WarpbwError, match=r"^evaluate: expected a function evaluate\(wi, wo\)"):
+        lobe_slice(3, 0.3, 16)
+
+
+@pytest.mark.parametrize("shape", [(16, 32), (16, 32, 3), (16,), (0, 0), (4, 4, 3, 1)])
+def test_slice_bandwidth_refuses_a_slice_that_is_not_square(shape):
+    """A (16, 32) slice failed with numpy's broadcast error; (4, 4, 3, 1) was read as a colour slice."""
+    from precompute.brdf_bandwidth import slice_bandwidth
+
+    with pytest.raises(WarpbwError, match=rf"^f: expected a square lobe slice \(n, n\) or \(n, n, C\) .*got shape "
+                                          rf"{re.escape(str(shape))}$"):
+        slice_bandwidth(np.random.default_rng(0).random(shape))
+
+
+def test_table_refuses_a_progress_that_is_not_callable_before_any_slice():
+    """``progress=5`` was a TypeError after the first slice had been computed."""
+    calls = []
+
+    def evaluate(wi, wo):
+        calls.append(1)
+        return _lambert(wi, wo)
+
+    from precompute.brdf_bandwidth import brdf_bandwidth_table
+
+    with pytest.raises(WarpbwError, match=r"^progress: expected a function progress\(k\) or None, got 5$"):
+        brdf_bandwidth_table(evaluate, 16, progress=5)
+    assert calls == []

@@ -303,3 +303,105 @@ def test_a_degenerate_triangle_beside_a_good_one_is_kept_out_of_the_shading(tmp_
     m = load_mesh(p)
     assert len(m.faces) >= 1
     np.testing.assert_allclose(np.linalg.norm(m.normals, axis=1), 1.0, atol=1e-6)
+
+
+# ------------------------------------------------------- host helpers' own input (API audit, from Python)
+
+TRI_V = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+
+
+@pytest.mark.parametrize("vertices,faces,said", [
+    # a NaN vertex gave all three vertices the fallback normal (0, 1, 0)
+    ([[0, 0, 0], [1, 0, 0], [np.nan, 1, 0]], [[0, 1, 2]], r"^vertices: 1 of 3 are NaN or infinite \(first: vertex 2\)"),
+    ([[0, 0], [1, 0], [0, 1]], [[0, 1, 2]], r"^vertices: expected shape \(V, 3\), got \(3, 2\)$"),
+    # numpy's IndexError, bincount's "must have no negative elements", "weights and list don't have the same length"
+    (TRI_V, [[0, 1, 9999]], r"^faces: 1 vertex indices lie outside 0\.\.2 \(the 3 vertices; got 0 to 9999\)$"),
+    (TRI_V, [[0, 1, -1]], r"^faces: 1 vertex indices lie outside 0\.\.2"),
+    (TRI_V + [[1, 1, 0]], [[0, 1, 2, 3]], r"^faces: expected triangles, shape \(F, 3\), got \(1, 4\) \(triangulate"),
+    (TRI_V, [[0, 1, 1.5]], r"^faces: expected integer vertex indices, got float64 values$"),
+    (TRI_V, "abc", r"^faces: expected integer vertex indices"),
+])
+def test_host_normals_and_curvature_refuse_bad_vertices_and_faces(vertices, faces, said):
+    from warpbw.io.mesh import normals_and_curvature
+
+    for f in (vertex_normals, mesh_mean_curvature, normals_and_curvature):
+        with pytest.raises(WarpbwError, match=said):
+            f(vertices, faces)
+
+
+def test_mean_curvature_without_normals_derives_them():
+    """``mesh_mean_curvature(V, F, None)`` read None as a NaN normal and returned all zeros (the unit sphere's H is
+    1); None now means the vertex normals, and a normals array of the wrong shape is named."""
+    ico = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    h = mesh_mean_curvature(ico.vertices, ico.faces, None)
+    np.testing.assert_allclose(h, mesh_mean_curvature(ico.vertices, ico.faces, vertex_normals(ico.vertices, ico.faces)))
+    np.testing.assert_allclose(h, 1.0, rtol=0.01)
+    np.testing.assert_allclose(mesh_mean_curvature(ico.vertices, ico.faces), h)
+    with pytest.raises(WarpbwError, match=r"^normals: expected one per vertex, shape \(642, 3\), got \(3, 3\)$"):
+        mesh_mean_curvature(ico.vertices, ico.faces, np.zeros((3, 3)))
+
+
+@pytest.mark.parametrize("scale", [1e200, 1e-200, 2.0**600])
+def test_normals_and_curvature_at_extreme_coordinates(scale):
+    """1e200 coordinates overflowed the cross products: NaN normals and H 0.  The geometry is computed at an exact
+    power-of-two scale: the same normals, and H scaled by 1 / scale."""
+    from warpbw.io.mesh import normals_and_curvature
+
+    ico = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    n1, h1 = normals_and_curvature(ico.vertices, ico.faces)
+    n, h = normals_and_curvature(ico.vertices * scale, ico.faces)
+    np.testing.assert_allclose(n, n1, atol=1e-12)
+    np.testing.assert_allclose(h * scale, h1, rtol=1e-9)
+
+
+def test_boundary_neighbours_refuses_faces_beyond_nv():
+    """``boundary_neighbours([[0, 1, 5]], nv=3)`` keyed edges a * nv + b with b >= nv: another edge's key, a
+    plausible but wrong boundary."""
+    from warpbw.io.mesh import boundary_neighbours
+
+    with pytest.raises(WarpbwError, match=r"^faces: 1 vertex indices lie outside 0\.\.2"):
+        boundary_neighbours(np.array([[0, 1, 5]]), 3)
+    with pytest.raises(WarpbwError, match=r"^nv: expected an integer >= 0, got 2\.5$"):
+        boundary_neighbours(np.array([[0, 1, 2]]), 2.5)
+    on, x, y = boundary_neighbours(np.array([[0, 1, 2]]), 3)
+    assert on.tolist() == [True, True, True] and len(x) == len(y) == 0
+
+
+@pytest.mark.parametrize("kw,said", [
+    ({"passes": 2.7}, r"^local_curvature: passes: expected an integer >= 0, got 2\.7$"),   # ran as 2
+    ({"passes": "3"}, r"^local_curvature: passes: expected an integer >= 0, got '3'$"),     # ran as 3
+    ({"mean_curvature": np.full(9, np.nan)}, r"^local_curvature: mean_curvature: 9 of 9 values are NaN"),
+    ({"mean_curvature": np.full(9, 1e39)}, r"mean_curvature: 9 of 9 .*beyond float32"),    # inf in float32
+    ({"mean_curvature": np.ones((9, 2))}, r"mean_curvature: expected one value per vertex, shape \(V,\), got \(9, 2\)$"),
+    ({"faces": "float"}, r"^local_curvature: faces: expected integer vertex indices, got float64 values$"),  # cut
+])
+def test_local_curvature_refuses_what_it_coerced(kw, said):
+    verts, faces = grid_mesh(3, 3, lambda u, v: np.stack([u * 0.1, np.zeros(len(u)), v * 0.1], -1))
+    args = {"mean_curvature": np.ones(len(verts)), "faces": faces, **kw}
+    if kw.get("faces") == "float":
+        args["faces"] = faces + 0.5
+    with pytest.raises(WarpbwError, match=said):
+        local_curvature(**args)
+
+
+def test_load_mesh_refuses_cancelling_triangles_and_a_path_that_is_not_one(tmp_path):
+    """Two coincident, oppositely wound triangles (a two-sided sheet after the vertex merge) gave every vertex the
+    fallback normal (0, 1, 0): their normals cancel, the surface has no direction.  ``load_mesh(None)`` was
+    pathlib's TypeError; a bad translate numpy's ValueError, and scale True ran as 1."""
+    p = tmp_path / "twotri.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 4 6 5\n")
+    with pytest.raises(WarpbwError, match=r"twotri\.obj: 3 vertices have no normal: the triangles around them cancel "
+                                          r"\(coincident triangles wound in opposite directions"):
+        load_mesh(p)
+    # a vertex with other triangles around it keeps a normal: only one whose triangles all cancel is refused
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0.3 0.3 1\nf 1 2 3\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n")
+    np.testing.assert_allclose(np.linalg.norm(load_mesh(p).normals, axis=1), 1.0, rtol=1e-6)
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 1\nf 1 2 3\nf 1 3 2\nf 2 4 3\n")
+    with pytest.raises(WarpbwError, match=r"1 vertices have no normal.*first: vertex 0 at \(0\.0, 0\.0, 0\.0\)"):
+        load_mesh(p)
+    with pytest.raises(WarpbwError, match=r"^input file \(a mesh: .*\): expected a file name \(str or Path\), got None$"):
+        load_mesh(None)
+    with pytest.raises(WarpbwError, match="translate 'abc' is not 3 finite numbers"):
+        load_mesh(p, translate="abc")
+    with pytest.raises(WarpbwError, match="scale True"):
+        load_mesh(p, scale=True)

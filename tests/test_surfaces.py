@@ -116,3 +116,83 @@ def test_normals_from_map_decodes_the_encoding():
     bad[1, 1, 0] = np.nan
     with pytest.raises(WarpbwError, match="1 texels are NaN or infinite"):
         normals_from_map(bad)
+
+
+# ------------------------------------------------------- parameters checked, not coerced (API audit, from Python)
+
+
+@pytest.mark.parametrize("call,said", [
+    (lambda: hemispherical_scales(64, scales_across=2.7), r"^hemispherical_scales: scales_across: expected an integer "
+                                                          r">= 1, got 2\.7$"),                      # ran as 2
+    (lambda: hemispherical_scales(64, scales_across="3"), r"scales_across: expected an integer >= 1, got '3'$"),
+    (lambda: hemispherical_scales(64, radius=float("inf")), r"^hemispherical_scales: radius: expected a finite number "
+                                                            r"> 0, got inf$"),                      # OverflowError
+    (lambda: hemispherical_scales(64, radius=1e6), r"radius: expected a number > 0 and at most 4 scale spacings"),
+    (lambda: hemispherical_scales(64, height=float("inf")), r"height: expected a finite number > 0, got inf$"),
+    (lambda: carved_disk(32, thickness=float("nan")), r"^carved_disk: thickness: expected a finite number >= 0, got "
+                                                      r"nan$"),                                     # all-NaN map
+    (lambda: carved_disk(32, rings=2.5), r"^carved_disk: rings: expected an integer >= 0, got 2\.5$"),
+    (lambda: carved_disk(32, groove_width=float("inf")), r"carved_disk: groove_width: expected a finite number > 0"),
+    (lambda: carved_disk(32, radius=0.5), r"carved_disk: radius: expected a number > 0 and < 0\.5"),
+    (lambda: dunes(32, dune_amplitude=float("nan")), r"^dunes: dune_amplitude: expected a finite number >= 0, got "
+                                                     r"nan$"),                                      # all-NaN map
+    (lambda: dunes(32, wind=(0.5, 0.5)), r"^dunes: wind: expected two integers .*, not both 0, got \(0\.5, 0\.5\)$"),
+    (lambda: dunes(32, wind=(0, 0)), r"^dunes: wind: expected two integers"),
+    (lambda: dunes(32, wind=3), r"^dunes: wind: expected two integers"),                            # TypeError
+    (lambda: dunes(32, ripples_per_wind=0.5), r"^dunes: ripples_per_wind: expected an integer >= 1, got 0\.5$"),
+    (lambda: dunes(32, seed=None), r"^dunes: seed: expected an integer >= 0, got None$"),  # a new map every call
+    (lambda: dunes(32, seed=-1), r"^dunes: seed: expected an integer >= 0, got -1$"),      # numpy's ValueError
+    (lambda: dunes(32, seed=2**32), r"^dunes: seed: expected an integer from 0 to 4294967295"),
+])
+def test_generators_refuse_what_they_coerced(call, said):
+    with pytest.raises(WarpbwError, match=said):
+        call()
+
+
+@pytest.mark.parametrize("size,across", [(8, 8), (16, 8), (3, 2), (2, 1), (12, 8)])
+def test_scales_refuse_a_size_that_cannot_hold_them(size, across):
+    """At 1 or 2 texels per scale spacing every texel centre falls on the same point of its top scale: sizes 8 and
+    16 at the default 8 scales came out flat (peak-to-peak 0); below 2 texels the pattern aliases."""
+    with pytest.raises(WarpbwError, match=rf"^hemispherical_scales: size {size} gives .* texels per scale spacing "
+                                          rf"with scales_across {across}; expected more than 2 .*a size of at least "
+                                          rf"{2 * across + 1}"):
+        hemispherical_scales(size, scales_across=across)
+
+
+@pytest.mark.parametrize("size,across", [(17, 8), (5, 2), (3, 1), (40, 8)])
+def test_scales_just_above_the_bound_are_bumpy(size, across):
+    h = hemispherical_scales(size, scales_across=across)
+    assert np.ptp(h) > 0.01 and np.degrees(np.arccos(height_to_normals(h)[..., 2])).max() > 5.0
+
+
+def test_unit_normals_scales_before_the_norm_and_refuses_non_finite_or_2d_vectors():
+    from precompute.surfaces import unit_normals
+
+    # (1e200, 0, 1) squared overflowed: the texel came back (0, 0, 0)
+    np.testing.assert_array_equal(unit_normals(np.array([[[1e200, 0.0, 1.0]]])), [[[1.0, 0.0, 1e-200]]])
+    np.testing.assert_allclose(unit_normals([[[1e300, 1e300, 1.0]]])[0, 0, :2], np.sqrt(0.5), rtol=1e-15)
+    np.testing.assert_allclose(unit_normals([[0, 0, 2.0], [0, 3.0, 0]]), [[0, 0, 1], [0, 1, 0]])
+    with pytest.raises(WarpbwError, match=r"^1 normal-map texels hold NaN or infinite vectors \(first at row 0, column "
+                                          r"0\)"):
+        unit_normals(np.array([[[np.inf, 0.0, 1.0]]]))       # (nan, 0, 0) with a RuntimeWarning
+    with pytest.raises(WarpbwError, match=r"^normal-map texels of shape \(2, 2, 2\): expected 3-vectors"):
+        unit_normals(np.ones((2, 2, 2)))                     # accepted, renormalised as 2-vectors
+
+
+def test_normals_from_map_refuses_values_outside_the_encoding():
+    """A float map of 255.0 (an 8-bit map not divided) decoded as (0.577, 0.577, 0.577) without a word."""
+    with pytest.raises(WarpbwError, match=r"^normal map: 4 texels hold values outside \[0, 1\] \(first at row 0, column "
+                                          r"0: \(255\.0, 255\.0, 255\.0\)\).* divide it by 255\)$"):
+        normals_from_map(np.full((2, 2, 3), 255.0))
+    with pytest.raises(WarpbwError, match=r"divide it by 65535\)$"):
+        normals_from_map(np.full((2, 2, 3), 65535.0))
+    with pytest.raises(WarpbwError, match=r"outside \[0, 1\] \(first at row 1, column 0: \(-0\.5, 0\.5, 1\.0\)\)"):
+        normals_from_map(np.array([[[0.5, 0.5, 1.0]], [[-0.5, 0.5, 1.0]]]))
+    # within ENCODING_TOL (a resampled map's overshoot) it decodes, renormalised
+    np.testing.assert_allclose(normals_from_map(np.array([[[0.5, 0.5, 1.05]]])), [[[0.0, 0.0, 1.0]]])
+
+
+def test_height_to_normals_names_a_scale_that_is_not_a_number():
+    for kw in ({"scale": "2"}, {"scale": None}, {"texel_size": "x"}, {"scale": True}):
+        with pytest.raises(WarpbwError, match="height_to_normals: expected finite heights, a finite scale"):
+            height_to_normals(np.zeros((4, 4)), **kw)

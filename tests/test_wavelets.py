@@ -313,3 +313,45 @@ def test_real_probe_studio(shared):
             - sat[2 * r + 1:, :-2 * r - 1] + sat[:-2 * r - 1, :-2 * r - 1]) > 0
     flat = ~near
     assert np.median(nu[lights]) > 4 * np.median(nu[flat])
+
+
+# ------------------------------------------------------- parameters named in one line (API audit, from Python)
+
+
+@pytest.mark.parametrize("kw,said", [
+    ({"wavelet": "db99"}, r"^wavelet 'db99': expected the name of an orthogonal discrete wavelet"),  # pywt's ValueError
+    ({"wavelet": None}, r"^wavelet None: expected the name"),                                        # pywt's TypeError
+    ({"pad": "bogus"}, r"^pad 'bogus': expected one mode or a \(rows, columns\) pair of modes from zero, "),  # np.pad's
+    ({"pad": ("wrap",)}, r"^pad \('wrap',\): expected one mode or a \(rows, columns\) pair"),       # unpacking error
+    ({"pad": ("wrap", "wrap", "wrap")}, r"^pad \('wrap', 'wrap', 'wrap'\): expected"),               # accepted
+    ({"pad": None}, r"^pad None: expected"),
+    ({"pad": "empty"}, r"^pad 'empty': expected"),                                                   # uninitialised
+    ({"epsilon": "0.1"}, r"^epsilon must be a number in \(0, 1\), got '0\.1'$"),                      # TypeError
+    ({"energy_fraction": "x"}, r"^energy_fraction must be a number in \(0, 1\], got 'x'$"),
+    ({"epsilon": True}, r"^epsilon must be a number in \(0, 1\), got True$"),
+])
+def test_bad_parameters_are_named(kw, said):
+    with pytest.raises(WarpbwError, match=said):
+        local_bandwidth(np.eye(8), **kw)
+
+
+def test_a_pad_pair_and_np_pad_modes_still_work():
+    img = sine(0.2, 0, 32)
+    np.testing.assert_array_equal(local_bandwidth(img, pad=["wrap", "wrap"]), local_bandwidth(img, pad="wrap"))
+    assert np.all(np.isfinite(local_bandwidth(img, pad=("reflect", "symmetric"))))
+
+
+@pytest.mark.parametrize("mpp", [True, 1e-320, 1e-45])
+def test_texture_metres_per_pixel_must_be_a_length_that_keeps_the_bandwidth_finite(mpp):
+    """True was read as 1 metre; 1e-320 gave inf everywhere (0.5 cycles/pixel / 1e-320)."""
+    with pytest.raises(WarpbwError, match=rf"^metres_per_pixel must be a positive finite number >= 1\.47e-39 .*got "
+                                          rf"{mpp!r}$"):
+        texture_spatial_bandwidth(np.eye(8), metres_per_pixel=mpp)
+    assert np.all(np.isfinite(texture_spatial_bandwidth(np.eye(8), metres_per_pixel=1.5e-39).astype(np.float32)))
+
+
+def test_complex_or_string_images_are_refused():
+    with pytest.raises(WarpbwError, match="complex values"):   # the imaginary part was dropped with a warning
+        local_bandwidth(np.ones((8, 8)) * (1 + 1j))
+    with pytest.raises(WarpbwError, match=r"image must be \(H, W\) or \(H, W, C\) numbers, got str"):
+        local_bandwidth("abc")

@@ -6,11 +6,16 @@ Public functions:
   (anything trimesh reads; a scene of several geometries is concatenated with its node transforms).
   The transform is applied in the order scale, then rotation about +Y, then translation.  Its mean curvature
   is derived on first use (``MeshData.mean_curvature``): only the bandwidth pass reads it.
-- ``mesh_mean_curvature(vertices, faces, normals) -> (V,)``: mean curvature H = (k1 + k2) / 2 from the
+- ``mesh_mean_curvature(vertices, faces, normals=None) -> (V,)``: mean curvature H = (k1 + k2) / 2 from the
   cotangent Laplace-Beltrami operator with mixed Voronoi areas (Meyer, Desbrun, Schroeder, Barr 2003,
   "Discrete Differential-Geometry Operators for Triangulated 2-Manifolds"), positive on a convex
-  shape with outward normals (a sphere of radius r gives 1/r).
+  shape with outward normals (a sphere of radius r gives 1/r); ``normals`` None: ``vertex_normals``'.
 - ``vertex_normals(vertices, faces) -> (V, 3)``: unit area-weighted vertex normals.
+
+Every host helper checks its input first (a one-line ``WarpbwError``): vertices (V, 3) finite, faces (F, 3)
+integer indices into them (a quad, a negative or an out-of-range index is refused, not wrapped or read as
+another vertex).  Coordinates of any float64 magnitude work (1e200 or 1e-200): the geometry is computed at an
+exact power-of-two scale, so the cross products cannot overflow or underflow.
 - ``DEGENERATE_REL_AREA``, ``FALLBACK_NORMAL``: where a face stops counting, and a vertex's normal without
   area (shared with the device version, ``warpbw.mesh_normals``).
 - ``boundary_neighbours(faces, nv) -> (on_boundary, x, y)``: the open boundary's vertices and their
@@ -36,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError, check_input_file
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_count, check_input_file, unit_directions
 
 # A triangle whose doubled area is below this fraction of its longest squared edge is treated as
 # degenerate (no cotangent weight, no area): sin of its largest angle is < 1e-12, so its
@@ -82,6 +87,53 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
+def _checked_vertices(vertices, what: str = "vertices") -> np.ndarray:
+    """``vertices`` as float64 (V, 3) when finite, else a one-line WarpbwError naming ``what`` (a NaN vertex gave
+    its triangle's three vertices the fallback normal, without a word)."""
+    try:
+        v = np.asarray(vertices, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise WarpbwError(f"{what}: expected an array of numbers of shape (V, 3), got {type(vertices).__name__}") \
+            from None
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise WarpbwError(f"{what}: expected shape (V, 3), got {v.shape}")
+    bad = ~np.all(np.isfinite(v), axis=1)
+    if bad.any():
+        raise WarpbwError(f"{what}: {int(bad.sum())} of {len(v)} are NaN or infinite (first: vertex "
+                          f"{int(np.argmax(bad))}); expected finite coordinates")
+    return v
+
+
+def _checked_faces(faces, nv: int, what: str = "faces") -> np.ndarray:
+    """``faces`` as int64 (F, 3) when they are triangles of integer indices in 0..nv-1, else a one-line
+    WarpbwError naming ``what`` (an index out of range was numpy's IndexError, a negative one read a vertex from
+    the end or failed in bincount, an (F, 4) array "weights and list don't have the same length")."""
+    try:
+        f = np.asarray(faces)
+    except (TypeError, ValueError):   # ragged lists
+        raise WarpbwError(f"{what}: expected integer vertex indices of shape (F, 3)") from None
+    if f.size == 0 and f.ndim in (1, 2) and (f.ndim == 1 or f.shape[1] == 3):
+        return np.zeros((0, 3), dtype=np.int64)   # no faces: [] or an empty (0, 3) array
+    if f.dtype.kind not in "iuf" or (f.dtype.kind == "f" and not np.all(np.isfinite(f) & (f == np.round(f)))):
+        raise WarpbwError(f"{what}: expected integer vertex indices, got {f.dtype} values")
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise WarpbwError(f"{what}: expected triangles, shape (F, 3), got {f.shape}"
+                          + (" (triangulate polygons first)" if f.ndim == 2 and f.shape[1] > 3 else ""))
+    lo, hi = f.min(), f.max()
+    if lo < 0 or hi >= nv:
+        out = int(np.count_nonzero((f < 0) | (f >= nv)))
+        raise WarpbwError(f"{what}: {out} vertex indices lie outside 0..{nv - 1} (the {nv} vertices; got {lo:.0f} to "
+                          f"{hi:.0f})")
+    return f.astype(np.int64)
+
+
+def _exact_scale(v: np.ndarray) -> int:
+    """The power of two ``e`` such that ``v * 2^-e`` has its largest coordinate in [0.5, 1): an exact scaling,
+    under which the cross products of 1e200 coordinates (inf, then NaN normals) or 1e-200 ones (0) stay finite."""
+    big = float(np.abs(v).max()) if v.size else 0.0
+    return math.frexp(big)[1] if big > 0.0 else 0
+
+
 def _face_geometry(vertices: np.ndarray, faces: np.ndarray):
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -89,26 +141,55 @@ def _face_geometry(vertices: np.ndarray, faces: np.ndarray):
     return v, f, p0, p1, p2
 
 
-def vertex_normals(vertices, faces) -> np.ndarray:
-    """Unit vertex normals (V, 3) float64: sum of incident face normals weighted by face area."""
-    v, f, p0, p1, p2 = _face_geometry(vertices, faces)
+def _normal_sums(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per vertex, the area-weighted sum of its faces' normals (at the exact scale ``_exact_scale``), and
+    whether a face with area touches it: (V, 3), (V,) bool."""
+    v = np.ldexp(v, -_exact_scale(v))
+    p0, p1, p2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     fn = np.cross(p1 - p0, p2 - p0)  # |fn| = 2 * area, so the sum is area weighted
     n = np.stack([np.bincount(f.ravel(), weights=np.repeat(fn[:, k], 3), minlength=len(v)) for k in range(3)], -1)
+    has_area = np.any(fn != 0.0, axis=1)
+    touched = np.bincount(f[has_area].ravel(), minlength=len(v)) > 0
+    return n, touched
+
+
+def vertex_normals(vertices, faces) -> np.ndarray:
+    """Unit vertex normals (V, 3) float64: sum of incident face normals weighted by face area.  A vertex whose sum
+    is zero gets ``FALLBACK_NORMAL``: one without incident area, or one whose faces cancel (coincident triangles
+    wound in opposite directions; ``load_mesh`` refuses those)."""
+    v = _checked_vertices(vertices)
+    f = _checked_faces(faces, len(v))
+    n, _ = _normal_sums(v, f)
     length = np.linalg.norm(n, axis=1, keepdims=True)
     ok = length[:, 0] > 0.0
     n = np.where(ok[:, None], n / np.where(length > 0.0, length, 1.0), np.asarray(FALLBACK_NORMAL))
     return n
 
 
-def mesh_mean_curvature(vertices, faces, normals) -> np.ndarray:
+def mesh_mean_curvature(vertices, faces, normals=None) -> np.ndarray:
     """Mean curvature per vertex (V,) float64, H = -(Laplace-Beltrami(x) . n) / 2.
 
     Cotangent weights and mixed Voronoi areas (Meyer et al. 2003). Vertices on an open boundary get
     the mean of their interior neighbours' H (0 if they have none); vertices without area get 0.
+    ``normals`` (V, 3) are scaled to unit length; None derives them (``vertex_normals``).  (None was read as a NaN
+    normal, and every H came out 0: the unit icosphere's is 1.)
     """
-    v, f, p0, p1, p2 = _face_geometry(vertices, faces)
+    vertices = _checked_vertices(vertices)
+    faces = _checked_faces(faces, len(vertices))
+    if normals is None:
+        nrm = vertex_normals(vertices, faces)
+    else:
+        try:
+            nrm = np.asarray(normals, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise WarpbwError(f"normals: expected an array of numbers of shape (V, 3), got "
+                              f"{type(normals).__name__}") from None
+        if nrm.shape != vertices.shape:
+            raise WarpbwError(f"normals: expected one per vertex, shape {vertices.shape}, got {nrm.shape}")
+        nrm = unit_directions(nrm, "normals")
+    e_scale = _exact_scale(vertices)   # H is computed at an exact scale and scaled back (H ~ 1 / length)
+    v, f, p0, p1, p2 = _face_geometry(np.ldexp(vertices, -e_scale), faces)
     nv = len(v)
-    nrm = np.asarray(normals, dtype=np.float64)
     # edge k is opposite corner k
     e0, e1, e2 = p2 - p1, p0 - p2, p1 - p0
     dbl_area = np.linalg.norm(np.cross(e2, -e1), axis=1)
@@ -145,7 +226,7 @@ def mesh_mean_curvature(vertices, faces, normals) -> np.ndarray:
     dot = np.sum(lap * nrm, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         h = np.where(a_mixed > 0.0, -dot / (4.0 * a_mixed), 0.0)
-    h = np.where(np.isfinite(h), h, 0.0)
+    h = np.ldexp(np.where(np.isfinite(h), h, 0.0), -e_scale)
 
     # open boundary: the one-sided Laplacian is mostly tangential, so borrow from interior neighbours
     on_boundary, x, y = boundary_neighbours(f, nv)
@@ -159,8 +240,10 @@ def mesh_mean_curvature(vertices, faces, normals) -> np.ndarray:
 def boundary_neighbours(faces, nv: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The mesh's open boundary, from its connectivity alone: ``(on_boundary (V,) bool, x, y)`` with
     x[k] a boundary vertex and y[k] an interior vertex sharing an edge with it (each such pair once per
-    direction it occurs in); a boundary edge belongs to one face only."""
-    f = np.asarray(faces, dtype=np.int64)
+    direction it occurs in); a boundary edge belongs to one face only.  ``faces`` (F, 3) must index 0..nv-1 (an
+    index beyond wrapped into another edge's key, a plausible but wrong boundary)."""
+    nv = check_count(nv, "nv", 0)
+    f = _checked_faces(faces, nv)
     all_edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
     uniq, counts = _unique_edges(all_edges, nv)
     on_boundary = np.zeros(nv, dtype=bool)
@@ -192,14 +275,19 @@ def local_curvature(mean_curvature, faces, passes: int = CURVATURE_SMOOTHING_PAS
     at 0.42), so the shading normal turns back and forth at the vertex scale.  A pixel sees how fast it
     turns, not which way: the signed H averaged cancels the bumps, the magnitude per vertex is noisy.
     A constant |H| (a sphere's 1 / r) is kept exactly; every value stays within the input's range."""
-    h = np.abs(np.asarray(mean_curvature, dtype=np.float64))
-    f = np.asarray(faces, dtype=np.int64)
-    passes = int(passes)
-    if passes < 0:
-        raise WarpbwError(f"local_curvature: passes: expected an integer >= 0, got {passes}")
+    passes = check_count(passes, "local_curvature: passes", 0)   # 2.7 ran as 2 and "3" as 3
+    try:
+        h = np.abs(np.asarray(mean_curvature, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise WarpbwError("local_curvature: mean_curvature: expected an array of numbers, one per vertex") from None
+    if h.ndim != 1:
+        raise WarpbwError(f"local_curvature: mean_curvature: expected one value per vertex, shape (V,), got {h.shape}")
+    bad = ~(h <= FLOAT32_MAX)   # NaN too (all came back NaN); float32 out: 1e39 came back inf
+    if bad.any():
+        raise WarpbwError(f"local_curvature: mean_curvature: {int(bad.sum())} of {len(h)} values are NaN, infinite or "
+                          f"beyond float32 (expected finite values within +-{FLOAT32_MAX:.4g})")
     nv = len(h)
-    if f.size and (f.min() < 0 or f.max() >= nv):
-        raise WarpbwError(f"local_curvature: faces reference vertices outside 0..{nv - 1}")
+    f = _checked_faces(faces, nv, "local_curvature: faces")
     # (to, from) for each face's six ordered corner pairs
     to = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])
     fr = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]])
@@ -221,10 +309,15 @@ def normals_and_curvature(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _check_transform(path: Path, translate, scale, rotate_y_deg):
-    t = np.asarray(translate, dtype=np.float64)
+    try:
+        t = np.asarray(translate, dtype=np.float64)
+    except (TypeError, ValueError):   # "abc" was numpy's "could not convert string to float"
+        t = np.full(1, np.nan)
     if t.shape != (3,) or not np.all(np.isfinite(t)):
         raise WarpbwError(f"{path}: translate {translate!r} is not 3 finite numbers")
     try:
+        if isinstance(scale, (bool, np.bool_)) or isinstance(rotate_y_deg, (bool, np.bool_)):
+            raise TypeError   # True was read as scale 1
         s = float(scale)
         r = float(rotate_y_deg)
     except (TypeError, ValueError):
@@ -267,7 +360,7 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     """
     import trimesh
 
-    path = check_input_file(path, f"a mesh: {_SUPPORTED}")
+    path = check_input_file(path, f"a mesh: {_SUPPORTED}")   # None too (check_path)
     if path.stat().st_size == 0:  # trimesh's answer depends on the suffix (for GLB: a face index out of bounds)
         raise WarpbwError(f"{path}: empty file (0 bytes): no triangles found (expected a mesh with faces: "
                           f"{_SUPPORTED})")
@@ -325,6 +418,14 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     verts[:, 2] = -x * sa + z * ca
     verts += t
     _check_float32(verts, path, " after scale, rotate_y and translate")
+    sums, touched = _normal_sums(verts, faces)
+    cancelled = touched & ~np.any(sums != 0.0, axis=1)
+    if cancelled.any():   # they had the fallback normal (0, 1, 0), whatever the surface's direction
+        i = int(np.argmax(cancelled))
+        raise WarpbwError(f"{path}: {int(cancelled.sum())} vertices have no normal: the triangles around them cancel "
+                          f"(coincident triangles wound in opposite directions, such as both sides of a sheet; first: "
+                          f"vertex {i} at {tuple(round(float(x), 6) for x in verts[i])}); expected consistently wound "
+                          "triangles (remove the oppositely wound copy)")
     normals = vertex_normals(verts, faces)
     uv = getattr(mesh.visual, "uv", None)
     uv = np.asarray(uv, dtype=np.float32) if uv is not None and np.shape(uv) == (len(verts), 2) else None
