@@ -712,9 +712,9 @@ def _scene_tables(scene: Scene) -> dict:
 
 
 def check_scene(scene) -> Scene:
-    """A checked copy of ``scene``: a Scene built or edited in Python passes the checks a scene file does (a
-    material no object may name, an albedo above 1, no object at all, ...), and later edits of ``scene`` do not
-    reach the copy.  Errors name the keys as a scene file would."""
+    """A checked copy of ``scene``: a Scene built or edited in Python passes the checks a scene file does (an
+    object naming a material the scene lacks, an albedo above 1, no object at all, ...), and later edits of
+    ``scene`` do not reach the copy.  Errors name the keys as a scene file would."""
     if not isinstance(scene, Scene):
         raise WarpbwError(f"scene: expected a warpbw.scene.Scene (from load_scene / parse_scene), got "
                           f"{type(scene).__name__}")
