@@ -941,10 +941,12 @@ def test_a_prepared_scene_keeps_its_own_copy_of_the_scene():
 
 
 def test_a_budget_below_one_sample_per_shaded_pixel_is_one_warning_line(tmp_path):
-    """The renderer warns (warpbw.pipeline) and the command line prints it once, as one line."""
-    from warpbw.scene import DEFAULT_SCENE_TOML
-
-    (tmp_path / "s.toml").write_text(DEFAULT_SCENE_TOML.replace("resolution = [384, 256]", "resolution = [48, 32]"))
+    """The renderer warns (warpbw.pipeline) and the command line prints it once, as one line.  (A Lambert sphere
+    under the procedural sky: no bandwidth table to build, a small map to analyse.)"""
+    (tmp_path / "s.toml").write_text(
+        '[camera]\nposition = [0.0, 0.0, 4.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 35.0\nresolution = [48, 32]\n'
+        '[environment]\nprocedural = "sky"\n[[object]]\nshape = "sphere"\nradius = 1.0\nmaterial = "m"\n'
+        '[material.m]\ntype = "lambert"\nalbedo = 0.5\n')
     r = run(["render", "s.toml", "-o", "a.exr", "--method", "adaptive", "--budget", "0.01", "-q"], tmp_path)
     lines = r.stderr.splitlines()
     assert len(lines) == 1 and re.match(r"warpbw: warning: budget 0\.01 is below 1 sample\(s\) per shaded pixel ",
