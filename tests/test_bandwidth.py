@@ -388,7 +388,7 @@ def test_allocation_below_one_sample_per_shaded_pixel_is_flagged():
 
 
 @pytest.mark.parametrize("kw, match", [({"budget": 0}, "budget"), ({"budget": float("nan")}, "budget"),
-                                       ({"budget": 2, "n_min": 0}, "n_min"),
+                                       ({"budget": 2, "n_min": 0}, "n_min"), ({"budget": 2, "mis": "yes"}, "mis"),
                                        ({"budget": 2, "n_min": 4, "n_max": 2}, "n_max"),
                                        ({"budget": 2, "allocation": "magic"}, "allocation")])
 def test_allocation_bad_arguments(kw, match):

@@ -839,8 +839,10 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     Sec. 2.4: constant variance), to its square root ("sqrt"), to sigma2 / L^2 ("relative"), constant
     ("uniform"), or to the standard deviation the pass measured for the renderer's estimator ("measured":
     the allocation that minimises the summed variance for a fixed budget; ``mis`` says which estimator,
-    MIS or BRDF sampling alone).  Module docstring."""
+    MIS or BRDF sampling alone: True by default, where ``render_adaptive``'s frames default to BRDF sampling, so
+    pass the frame's own, as ``render_adaptive`` does).  Module docstring."""
     check_device(device)
+    mis = check_flag(mis, "mis")
     if allocation not in ALLOCATIONS:
         raise WarpbwError(f"allocation: expected one of {', '.join(ALLOCATIONS)}, got {allocation!r}")
     if isinstance(budget, bool) or not isinstance(budget, (int, float, np.integer, np.floating)) \
