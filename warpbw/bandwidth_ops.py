@@ -260,13 +260,13 @@ def apply_operator(op: str, nu, *, d=0.0, dp=0.0, cos_i=1.0, cos_x=1.0, c=0.0, t
     p = np.empty((n, len(_PARAMS)), dtype=np.float32)
     for k, name in enumerate(_PARAMS):
         try:   # None read as NaN ("parameter d is NaN"), a string as numpy's error
-            col = np.asarray(vals[name], dtype=np.float64).reshape(-1)
-            ok = not isinstance(vals[name], (str, bytes)) and np.asarray(vals[name]).dtype.kind in "biuf"
-        except (TypeError, ValueError):
-            ok = False
-        if not ok:
+            raw = np.asarray(vals[name])
+        except (TypeError, ValueError):   # ragged lists
+            raw = np.asarray(None)
+        if raw.dtype.kind not in "biuf":   # None and [None] are objects, strings "U" or "S"
             raise WarpbwError(f"parameter {name}: expected a number or one number per bandwidth vector, got "
                               f"{vals[name]!r:.60}")
+        col = raw.astype(np.float64).reshape(-1)
         if col.size not in (1, n):
             raise WarpbwError(f"parameter {name} has {col.size} values for {n} bandwidth vectors")
         if np.isnan(col).any():

@@ -1181,10 +1181,13 @@ def _scene_and_prepared(scene, prepared) -> tuple:
             raise WarpbwError("prepared: given a FilteringScene as the scene too, and another here; expected one "
                               "FilteringScene (as the scene, or a Scene with prepared=)")
         return scene.scene, scene
-    scene = check_scene(_as_scene(scene))   # a Scene built or edited in Python is checked as a scene file is
+    scene = _as_scene(scene)
     if prepared is not None and not isinstance(prepared, FilteringScene):
         raise WarpbwError(f"prepared: expected a FilteringScene (prepare_filtering), got {type(prepared).__name__}")
-    return scene, prepared
+    if prepared is not None and scene == prepared.scene:
+        # its checked copy, made when it was prepared: a frame loop does not check (and stat) the scene each frame
+        return prepared.scene, prepared
+    return check_scene(scene), prepared   # a Scene built or edited in Python is checked as a scene file is
 
 
 def _as_scene(scene) -> Scene:

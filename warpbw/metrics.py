@@ -79,19 +79,19 @@ def _check_eps(eps) -> float:
     return float(eps)
 
 
-def mse(test, ref, mask=None) -> float:
-    a, b = _masked(test, ref, mask)
+# The figures of checked images (``_masked`` / ``_checked``): each public metric checks its own, and
+# compare_images checks once for all of them.
+
+def _mse_of(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.mean((a - b) ** 2))
 
 
-def relmse(test, ref, mask=None, eps: float = RELMSE_EPS) -> float:
-    a, b = _masked(test, ref, mask)
-    return float(np.mean((a - b) ** 2 / (b * b + _check_eps(eps))))
+def _relmse_of(a: np.ndarray, b: np.ndarray, eps: float) -> float:
+    return float(np.mean((a - b) ** 2 / (b * b + eps)))
 
 
-def psnr(test, ref, mask=None) -> float:
-    a, b = _masked(test, ref, mask)
-    m = float(np.mean((a - b) ** 2))
+def _psnr_of(a: np.ndarray, b: np.ndarray) -> float:
+    m = _mse_of(a, b)
     peak = float(np.max(b))
     if m == 0.0:
         return math.inf
@@ -100,13 +100,30 @@ def psnr(test, ref, mask=None) -> float:
     return 10.0 * math.log10(peak * peak / m)
 
 
+def _relmse_map_of(a: np.ndarray, b: np.ndarray, m: np.ndarray, masked: bool, eps: float) -> np.ndarray:
+    if a.ndim == 2:                               # one channel: the mean over channels is the value itself
+        a, b = a[..., None], b[..., None]
+    e = np.mean((a - b) ** 2 / (b * b + eps), axis=-1)
+    return np.where(m, e, 0.0) if masked else e
+
+
+def mse(test, ref, mask=None) -> float:
+    return _mse_of(*_masked(test, ref, mask))
+
+
+def relmse(test, ref, mask=None, eps: float = RELMSE_EPS) -> float:
+    a, b = _masked(test, ref, mask)
+    return _relmse_of(a, b, _check_eps(eps))
+
+
+def psnr(test, ref, mask=None) -> float:
+    return _psnr_of(*_masked(test, ref, mask))
+
+
 def relmse_map(test, ref, mask=None, eps: float = RELMSE_EPS) -> np.ndarray:
     """(H, W) float64: per pixel the mean over channels of (test - ref)^2 / (ref^2 + eps); 0 outside ``mask``."""
     a, b, m = _checked(test, ref, mask)           # the same checks as the scalar metrics
-    if a.ndim == 2:                               # one channel: the mean over channels is the value itself
-        a, b = a[..., None], b[..., None]
-    e = np.mean((a - b) ** 2 / (b * b + _check_eps(eps)), axis=-1)
-    return e if mask is None else np.where(m, e, 0.0)
+    return _relmse_map_of(a, b, m, mask is not None, _check_eps(eps))
 
 
 def worst_share(err_map, mask=None, fraction: float = WORST_FRACTION) -> tuple[float, int]:
@@ -128,11 +145,13 @@ def worst_share(err_map, mask=None, fraction: float = WORST_FRACTION) -> tuple[f
 
 
 def compare_images(test, ref, mask=None) -> dict:
-    share, k = worst_share(relmse_map(test, ref, mask), mask)
+    a, b, m = _checked(test, ref, mask)   # once for every figure (each metric alone converted and checked again)
+    masked = mask is not None
+    share, k = worst_share(_relmse_map_of(a, b, m, masked, RELMSE_EPS), m if masked else None)
+    am, bm = a[m], b[m]
     # counted as the metrics read the mask (a 0/2 mask counted 64 where 32 were compared)
-    n = int(np.count_nonzero(np.asarray(mask, bool))) if mask is not None else int(np.prod(np.shape(ref)[:2]))
-    return {"psnr_db": psnr(test, ref, mask), "relmse": relmse(test, ref, mask), "mse": mse(test, ref, mask),
-            "pixels": n, "worst_pixels": k, "worst_share": share}
+    return {"psnr_db": _psnr_of(am, bm), "relmse": _relmse_of(am, bm, RELMSE_EPS), "mse": _mse_of(am, bm),
+            "pixels": int(np.count_nonzero(m)), "worst_pixels": k, "worst_share": share}
 
 
 def coverage_from_alpha(pixels: np.ndarray, channels) -> np.ndarray | None:

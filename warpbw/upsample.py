@@ -334,6 +334,14 @@ def _i32(a, name: str, n: int, device, what: str) -> wp.array:
     return wp.array(np.ascontiguousarray(a.astype(np.int32).reshape(n)), dtype=wp.int32, device=device)
 
 
+def _gbuffer_data(gb) -> GBufferData:
+    """The GBufferData the kernel takes, from a GBuffer or itself; anything else a one-line ``WarpbwError``."""
+    data = gb.data if isinstance(gb, GBuffer) else gb
+    if not isinstance(data, GBufferData.cls):
+        raise WarpbwError(f"gb: expected a GBuffer or its GBufferData, got {type(gb).__name__}")
+    return data
+
+
 def check_upsample_mode(mode: str) -> int:
     """The kernel's ``fit`` flag for an up-sampling mode name (``UPSAMPLE_MODES``)."""
     if mode not in UPSAMPLE_MODES:
@@ -360,10 +368,7 @@ def upsample_level(gb: GBuffer | GBufferData, cam: CameraData, level: int, paren
     """
     check_device(device)
     fit = check_upsample_mode(mode)
-    if isinstance(gb, GBuffer):   # its GBufferData is what the kernel takes
-        gb = gb.data
-    if not isinstance(gb, GBufferData.cls):
-        raise WarpbwError(f"gb: expected a GBuffer or its GBufferData, got {type(gb).__name__}")
+    gb = _gbuffer_data(gb)
     if not isinstance(cam, CameraData.cls):
         raise WarpbwError(f"cam: expected a CameraData (make_camera), got {type(cam).__name__}")
     # up to the 1 x 1 top (whose parent is itself, clamped); 99 ran, shifting an int32 past its width in the kernel
@@ -399,9 +404,7 @@ def upsample_level(gb: GBuffer | GBufferData, cam: CameraData, level: int, paren
 def parent_weights(gb: GBuffer | GBufferData, cam: CameraData, level: int, device: str = "cpu") -> np.ndarray:
     """The four parent weights of every pixel of ``level`` with every parent valid, (h_L, w_L, 4)."""
     check_device(device)
-    data = gb.data if isinstance(gb, GBuffer) else gb
-    if not isinstance(data, GBufferData.cls):
-        raise WarpbwError(f"gb: expected a GBuffer or its GBufferData, got {type(gb).__name__}")
+    data = _gbuffer_data(gb)
     w, h = level_size(data.width, data.height, level)
     pw, ph = level_size(data.width, data.height, level + 1)
     r = upsample_level(data, cam, level, np.zeros((pw * ph, 3)), np.ones(pw * ph), np.ones(w * h), device=device)
