@@ -711,3 +711,55 @@ def test_env_bandwidth_map_refuses_empty_non_finite_and_beyond_float32_maps_and_
                                                        r"range")):
         with pytest.raises(WarpbwError, match=msg):
             bw.env_bandwidth_map(pixels, "sky.exr", cache=tmp_path)
+
+
+def test_level_map_is_eq11_at_the_nyquist_rate_of_b_p():
+    """002 Sec. 2.2: the sampling rate is twice b_p; Eq. 11 then gives level = floor(log2(1 / (2 b_p))),
+    clamped to [0, max_level].  (A Nyquist factor of 1 shaded every pixel a level too coarse, and no test saw it.)"""
+    prep = prepared(r=0.8)   # Lambert: b_p from 0.014 to 0.064 cycles/pixel, levels 1 to 5 (of 0 to 5)
+    gb, buf = run_pass(prep, nu_env=np.full((8, 16), 1.0), stride=1, pool_radius=0)
+    cov = gb.coverage
+    b = buf.b_p.numpy().reshape(cov.shape)[cov].astype(np.float64)
+    top = max_level(prep.width, prep.height)
+    with np.errstate(divide="ignore"):
+        want = np.where(b > 0, np.clip(np.floor(-np.log2(2.0 * b)), 0, top), top).astype(int)
+    got = buf.level.numpy()[cov]
+    assert len(np.unique(want)) >= 3, np.unique(want)    # the check can fail: levels away from both clamps
+    np.testing.assert_array_equal(got, want)
+
+
+def test_relative_variance_bound_does_not_depend_on_the_lights_scale():
+    """sigma2_rel = sigma2 / (mu^2 + REL_EPS): Eq. 9's bound scales as L^2 and mu as L, so under a constant sky of
+    radiance 1 and 4 (mu = albedo 0.6 and 2.4 >> sqrt(REL_EPS)) it is the same.  (Dividing by mu made the relative
+    allocation depend on the exposure, and no test saw it.)"""
+    out = []
+    for k in (1.0, 4.0):
+        prep = prepared(env=f"constant = [{k}, {k}, {k}]")
+        gb, buf = run_pass(prep, n_b=256, nu_env=np.full((8, 16), 3.0))
+        cov = gb.coverage.reshape(-1)
+        out.append(buf.sigma2_rel.numpy()[cov].astype(np.float64))
+        # and by the closed form of the furnace: mu = albedo x radiance
+        np.testing.assert_allclose(out[-1] * ((0.6 * k) ** 2 + float(bw.REL_EPS)), buf.sigma2.numpy()[cov],
+                                   rtol=0.05)
+    np.testing.assert_allclose(out[1], out[0], rtol=1e-3)
+
+
+def test_the_pass_interleaves_its_directions_over_the_tile_its_pooling_window_spans(monkeypatch):
+    """warpbw.bandwidth docstring: with the defaults (stride 2, pool radius 2) each pixel pools 3 x 3 blocks, whose
+    direction sets are the 3 x 3 interleaved shifts (interleave_shifts(n_b, side), side = 2 r / stride + 1), and
+    with pool radius 0 there is nothing to interleave.  A spy on interleave_shifts sees the side the pass asks for:
+    a side of 1 stays unbiased (each block keeps its own random offset) and only loses the stratification, which
+    no closed form in the suite can see."""
+    sides = []
+    real = bw.interleave_shifts
+
+    def spy(n_b, side):
+        sides.append(side)
+        return real(n_b, side)
+
+    monkeypatch.setattr(bw, "interleave_shifts", spy)
+    prep = prepared()
+    run_pass(prep)
+    run_pass(prep, stride=1, pool_radius=3)
+    run_pass(prep, stride=2, pool_radius=0)
+    assert sides == [3, 7, 1]

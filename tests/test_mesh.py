@@ -405,3 +405,12 @@ def test_load_mesh_refuses_cancelling_triangles_and_a_path_that_is_not_one(tmp_p
         load_mesh(p, translate="abc")
     with pytest.raises(WarpbwError, match="scale True"):
         load_mesh(p, scale=True)
+
+
+def test_local_curvature_is_a_lazy_one_ring_average_by_hand():
+    """warpbw.io.mesh.local_curvature: x <- (x + m) / 2 per pass, m the mean over the other two corners of every
+    incident face.  Two triangles (0 1 2), (0 2 3), |H| = 1 at vertex 0 only, one pass, by hand: vertex 0 sees
+    1, 2, 2, 3 (m = 0) -> 0.5; vertices 1 and 3 see 0 and a zero (m = 1/2) -> 0.25; vertex 2 sees 0, 1, 0, 3 (m =
+    1/2) -> 0.25.  The non-lazy x <- m also keeps constants."""
+    got = local_curvature(np.array([-1.0, 0.0, 0.0, 0.0]), np.array([[0, 1, 2], [0, 2, 3]]), passes=1)
+    np.testing.assert_allclose(got, [0.5, 0.25, 0.25, 0.25], rtol=1e-6)

@@ -4,6 +4,7 @@ fit follows shading that is a function of the normal on a bumpy surface, where t
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 import pytest
@@ -11,8 +12,9 @@ import warp as wp
 
 from warpbw.errors import WarpbwError
 from warpbw.gbuffer import GBufferData, MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer
-from warpbw.upsample import (COS_X_MIN, G_A_UNIT, UPSAMPLE_DEFAULT, UPSAMPLE_MODES, anisotropic_gaussian,
-                             level_size, parent_weights, representative_pixel, top_level, upsample_level)
+from warpbw.upsample import (COS_X_MIN, DEPTH_SIGMA_REL, G_A_UNIT, UPSAMPLE_DEFAULT, UPSAMPLE_MODES,
+                             anisotropic_gaussian, level_size, parent_weights, representative_pixel, top_level,
+                             upsample_level)
 
 MODES = pytest.mark.parametrize("mode", UPSAMPLE_MODES)
 
@@ -360,3 +362,78 @@ def test_a_gbuffer_is_taken_for_its_data_and_levels_stop_at_the_top():
         with pytest.raises(WarpbwError, match=r"^level \(of a 16x12 G-buffer\): expected an integer from 0 to 4, "
                                               f"got {level}"):
             upsample_level(gb, cam, level, np.zeros((1, 3)), np.ones(1), np.ones(1))
+
+
+def test_upsampling_weights_narrow_along_the_radial_direction_at_a_spheres_limb():
+    """On a sphere centred on the optical axis the projected normal at an image point points away from the
+    sphere's image centre (rotational symmetry), and cos theta_x -> 0 at the limb.  The four weights follow
+    002 Sec. 3.2's w_i = alpha_i g_z g_a with M built from that radial direction.  (Neither cos_x := 1 nor a flipped
+    screen y of the projected normal failed a test before this one.)"""
+    W, H = 48, 40
+    gb, cam = gbuffer([SphereSpec((0, 0, 0), 1.5, 0)], w=W, h=H)
+    wts = parent_weights(gb.data, cam, 0)
+    depth = gb.numpy("depth").reshape(H, W)
+    nrm = gb.numpy("normal").reshape(H, W, 3)
+    view = gb.numpy("view").reshape(H, W, 3)
+    mat = gb.numpy("material").reshape(H, W)
+    pw, ph = (W + 1) // 2, (H + 1) // 2
+    checked = 0
+    for y in range(H):
+        for x in range(W):
+            if mat[y, x] < 0:
+                continue
+            r = np.array([x + 0.5 - W / 2, y + 0.5 - H / 2])          # image right, down
+            cos_x = abs(float(nrm[y, x] @ view[y, x]))
+            if np.linalg.norm(r) < 1 or cos_x > 0.6 or min(abs(r[0]), abs(r[1])) < 0.4 * np.linalg.norm(r):
+                continue                                               # grazing, diagonal pixels only
+            ns = r / np.linalg.norm(r)
+            c = max(cos_x, COS_X_MIN)
+            u = (np.array([x, y]) + 0.5) * 0.5 - 0.5
+            i0 = np.clip(np.floor(u).astype(int), 0, [pw - 1, ph - 1])
+            f = np.where(np.floor(u) < 0, 0.0, u - np.floor(u))
+            want = []
+            for k in range(4):
+                px, py = min(i0[0] + k % 2, pw - 1), min(i0[1] + k // 2, ph - 1)
+                ax = (1 - f[0]) if k % 2 == 0 else f[0]
+                ay = (1 - f[1]) if k < 2 else f[1]
+                qx, qy = min(2 * px + 1, W - 1), min(2 * py + 1, H - 1)
+                if mat[qy, qx] < 0 or ax * ay == 0:
+                    want.append(0.0)
+                    continue
+                v = np.array([2 * px + 1 - (x + 0.5), 2 * py + 1 - (y + 0.5)]) / G_A_UNIT
+                along, across = v @ ns, v @ np.array([-ns[1], ns[0]])
+                gz = math.exp(-((depth[y, x] - depth[qy, qx]) / (DEPTH_SIGMA_REL * depth[y, x])) ** 2)
+                want.append(ax * ay * gz * math.exp(-(across ** 2 + along ** 2 / c ** 2)))
+            np.testing.assert_allclose(wts[y, x], want, rtol=2e-3, atol=1e-7, err_msg=str((x, y, cos_x)))
+            checked += 1
+    assert checked >= 8, checked
+
+
+def _quad(x0, x1, y0, y1, z, material):
+    v = np.array([[x0, y0, z], [x1, y0, z], [x1, y1, z], [x0, y1, z]], np.float32)
+    f = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+    return MeshSpec(v, f, np.tile(np.float32([0, 0, 1]), (4, 1)), np.zeros(4, np.float32), None, material)
+
+
+@MODES
+def test_a_one_pixel_bar_in_front_of_a_wall_has_no_parent_at_its_depth(mode):
+    """002 Sec. 3.2 / upsample docstring: a pixel whose weights sum to less than WEIGHT_MIN (no parent at its depth)
+    is shaded, never guessed.  A bar one pixel high (row 24, at depth 3) in front of a wall (depth 4.4) has both
+    parent rows (23 and 25) on the wall: g_z = exp(-(1.4 / 0.3)^2) = 3e-10 for every parent, so every bar pixel
+    needs shading and none takes the wall's value.  (The depth-edge test's steps underflow g_z to 0: a WEIGHT_MIN of
+    1e-12 filled this bar from the wall, and no test saw it.)"""
+    W, H = 64, 48
+    cam = make_camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, W, H)
+    ty = math.tan(math.radians(20.0)) * H / W
+    bar = _quad(-0.5, 0.5, -0.04 * ty * 3.0, 0.0, 2.0, 0)          # ndc y in [-0.04, 0]: row 24's centre only
+    wall = _quad(-5.0, 5.0, -5.0, 5.0, 0.6, 1)
+    gb = render_gbuffer(cam, build_geometry([], [bar, wall]))
+    own = gb.numpy("material").reshape(H, W)
+    assert np.array_equal(np.unique(np.nonzero(own == 0)[0]), [24])
+    valid, mat = parent_valid_from_coverage(gb, 1)
+    A, B = np.array([1.0, 0, 0], np.float32), np.array([0, 0, 10.0], np.float32)
+    parents = np.where((mat == 0)[:, None], A, B).astype(np.float32)
+    r = upsample_level(gb.data, cam, 0, parents, valid, np.ones(W * H), mode=mode)
+    needs = r.needs_shading.numpy().reshape(H, W) == 1
+    ok = r.valid.numpy().reshape(H, W) == 1
+    assert needs[own == 0].all() and not ok[own == 0].any()

@@ -355,3 +355,40 @@ def test_complex_or_string_images_are_refused():
         local_bandwidth(np.ones((8, 8)) * (1 + 1j))
     with pytest.raises(WarpbwError, match=r"image must be \(H, W\) or \(H, W, C\) numbers, got str"):
         local_bandwidth("abc")
+
+
+def test_envmap_longitude_frequency_at_the_equator_of_a_square_map():
+    """A lat-long map that is not 2:1 (loaded with a warning) has texels 2 pi / W wide at the equator: L = cos(m
+    phi) is m / (2 pi) cycles per radian there, within issue 3's factor 2.  On 2:1 maps the longitude term of
+    lambda_max never binds, so only such a map reads it."""
+    h = w = 128
+    phi = (np.arange(w) + 0.5) * 2 * np.pi / w
+    m = 16
+    nu = envmap_angular_bandwidth(np.ones((h, 1)) * np.cos(m * phi)[None, :])
+    truth = m / (2 * np.pi)
+    eq = nu[60:68]
+    assert eq.min() >= truth / 2 and eq.max() <= truth * 2, (truth, eq.min(), eq.max())
+
+
+@pytest.mark.parametrize("band", [1, 2, 3, 4])
+def test_band_maxima_of_an_impulse_spread_over_the_filter_support_and_one_wavelet_width(band):
+    """Module docstring of precompute.wavelets: lambda_i^max(x) is the largest band-i coefficient over the 2^i + 1
+    coefficients around x.  For an impulse the band-i coefficients are non-zero over the support of the level-i
+    equivalent filter, (2^i - 1)(L - 1) + 1 taps (L = 8 for db4), so lambda_i^max is non-zero over that plus 2^i
+    pixels along a row."""
+    n = 256
+    img = np.zeros((n, n))
+    img[n // 2, n // 2] = 1.0
+    lam = band_maxima(img, levels=4)[band - 1]
+    row = lam[n // 2]
+    width = int(np.count_nonzero(row > 1e-12 * row.max()))
+    assert width == (2 ** band - 1) * 7 + 1 + 2 ** band, width
+
+
+def test_eq7_rule_reads_the_top_of_the_band_that_holds_the_sine():
+    """002 Eq. 7's discrete level I_w gives 2^-I_w cycles/pixel, the top of band I_w: a sine in the finest band
+    (f in 0.25 .. 0.5 cycles/pixel) reads 0.5, and "overestimates" means never below f (the suite checks f = 0.06
+    and 0.2 only, where halving the result still stays above f)."""
+    for f in (0.3, 0.4, 0.47):   # band 1 (0.25 .. 0.5 cycles/pixel): Eq. 7 reads its top, 0.5, and never below f
+        b = local_bandwidth(sine(f, 0), pad="reflect", rule="eq7")[32:96, 32:96]
+        assert np.all(b == 0.5), (f, b.min(), b.max())
