@@ -437,3 +437,28 @@ def test_a_one_pixel_bar_in_front_of_a_wall_has_no_parent_at_its_depth(mode):
     needs = r.needs_shading.numpy().reshape(H, W) == 1
     ok = r.valid.numpy().reshape(H, W) == 1
     assert needs[own == 0].all() and not ok[own == 0].any()
+
+
+def test_the_default_fit_keeps_a_near_spheres_limb_from_a_sphere_just_behind_it():
+    """A sphere 21% nearer than the one behind it (at their overlap the depth step is about 20%): the near sphere's
+    parents hold A = (1, 0, 0), the far one's B = (0, 0, 10), so a pixel's blue channel is the share of B it took
+    (times 10).  At the near limb g_a leaves the near parents, along the normal, little weight, while g_z leaves a
+    far parent 21% deeper exp(-(0.21 / 0.1)^2) = 1.2% of its own: the paper's weighted mean took 73% of B at one
+    pixel (module docstring).  The default fit explains the far parent's value by its far-off normal and takes
+    the value at the pixel's own normal, which is the near sphere's: at most 1% of B."""
+    W, H = 64, 48
+    cam = make_camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, W, H)
+    gb = render_gbuffer(cam, build_geometry([SphereSpec((-0.4, 0, 0.5), 0.8, 0), SphereSpec((0.6, 0, -1.2), 1.0, 1)],
+                                            []))
+    own = gb.numpy("material").reshape(H, W)
+    valid, mat = parent_valid_from_coverage(gb, 1)
+    parents = np.where((mat == 0)[:, None], np.float32([1, 0, 0]), np.float32([0, 0, 10])).astype(np.float32)
+    r = upsample_level(gb.data, cam, 0, parents, valid, np.ones(W * H))
+    near = (own == 0) & (r.valid.numpy().reshape(H, W) == 1)
+    taken = r.values.numpy().reshape(H, W, 3)[near][:, 2] / 10.0
+    beside = np.zeros_like(near)   # near pixels with a far-sphere pixel beside them
+    for axis in (0, 1):
+        for step in (-1, 1):
+            beside |= np.roll(own, step, axis) == 1
+    assert near.sum() > 500 and (near & beside).sum() >= 5, (near.sum(), (near & beside).sum())
+    assert taken.max() <= 0.01, taken.max()

@@ -117,7 +117,12 @@ is itself noisy, which lowers these ranks, most where the noise is spread evenly
 Depth, normal and view are read at the finest level (the G-buffer is not mip-mapped): a level-L pixel
 is represented by the finest pixel at the centre of its footprint.  A pixel whose weights sum to less
 than WEIGHT_MIN (no parent at its depth, e.g. across a depth edge) is not guessed: it is returned in
-``needs_shading`` for the caller to shade at this level.
+``needs_shading`` for the caller to shade at this level.  That test is absolute, and g_z relative: at a limb in
+front of a surface about 20% deeper, g_a leaves the near parents along the normal little weight while g_z leaves a
+far parent exp(-(0.21 / 0.1)^2) = 1.2% of its own, and the paper's weighted mean took 73% of the far value at one
+pixel (two spheres, 64x48; ``test_the_default_fit_keeps_a_near_spheres_limb_from_a_sphere_just_behind_it``).  The
+fit explains the far parent's value by its far-off normal and takes at most 0.4% there (not a guarantee: it is the
+default for the reasons above, and ``mode="paper"`` keeps this bleed).
 
 Level sizes halve with rounding up, ``w_{L+1} = ceil(w_L / 2)``, so any image size works.
 """
