@@ -951,3 +951,19 @@ def test_a_budget_below_one_sample_per_shaded_pixel_is_one_warning_line(tmp_path
     lines = r.stderr.splitlines()
     assert len(lines) == 1 and re.match(r"warpbw: warning: budget 0\.01 is below 1 sample\(s\) per shaded pixel ",
                                         lines[0]), r.stderr
+
+
+def test_adaptive_samples_per_covered_pixel_divides_by_the_covered_pixels():
+    """samples_per_covered_pixel divides by the covered pixels, not every pixel.  ``warpbw bench`` records this
+    figure (warpbw/bench.py); its test mocks the renderer, so nothing checked the renderer's own.  Truth: the
+    definition, from the frame's own sample count and its coverage image, on a sphere that leaves most of the
+    image empty (308 of 576 pixels covered: the two denominators differ by a factor 1.9)."""
+    from test_shading import sphere_scene
+
+    from warpbw.pipeline import render_adaptive
+
+    res = render_adaptive(sphere_scene('type = "lambert"\nalbedo = [0.5, 0.5, 0.5]', w=24, h=24), budget=4.0, seed=1)
+    covered = int(res.coverage.sum())
+    assert 0 < covered < 0.6 * res.coverage.size
+    assert res.stats["samples"] > 0
+    assert res.stats["samples_per_covered_pixel"] == pytest.approx(res.stats["samples"] / covered, rel=1e-12)

@@ -577,3 +577,39 @@ def test_build_geometry_and_render_gbuffer_refuse_what_would_render_wrong_or_cra
                            build_geometry([], [m]))
     with pytest.raises(WarpbwError, match="render_gbuffer: out: expected a GBuffer of the camera's 8x8, got 16x12"):
         render_gbuffer(cam, build_geometry([], [m]), out=other)
+
+
+def test_a_camera_inside_a_sphere_sees_its_inner_side():
+    """The inner-side flip of a sphere's normal (no test saw it dropped).  Truth: a camera at the centre of a sphere of
+    radius r hits it at t = r along every ray d, where the side facing the camera has normal -d (geometry,
+    numpy rays from conftest), depth r (d . forward), and the view vector is -d."""
+    pos, look, r = (0.2, -0.1, 0.3), (0.2, -0.1, 1.3), 4.0
+    w, h = 32, 24
+    cam = make_camera(pos, look, (0.0, 1.0, 0.0), 60.0, w, h)
+    gb = render_gbuffer(cam, build_geometry([SphereSpec(pos, r, 0)], []))
+    assert gb.coverage.all()
+    _, d = numpy_camera_rays(pos, look, 60.0, w, h)
+    d = d.reshape(-1, 3)
+    n = gb.numpy("normal").reshape(-1, 3)
+    assert np.abs(n + d).max() < 1e-4
+    assert np.abs(gb.numpy("view").reshape(-1, 3) + d).max() < 1e-4
+    assert np.abs(gb.numpy("depth").reshape(-1) - r * d[:, 2]).max() < 1e-4
+
+
+def test_mesh_tangent_frames_are_orthonormal_on_both_hemispheres():
+    """A mesh pixel's tangent comes from Duff et al.'s branchless basis, an analytic sphere's from d position /
+    d phi, and only the spheres' frames were tested (a = +1 / (s + n_z) skewed every mesh frame, unseen).  Truth:
+    the definition of a shading frame (|t| = 1, t . n = 0), on an icosphere seen from +Z, -Z and an oblique side,
+    so that both signs of n_z occur."""
+    geo = build_geometry([], [_icosphere_spec(1.0)])
+    seen_neg = seen_pos = 0
+    for pos in ((0.0, 0.0, 4.0), (0.0, 0.0, -4.0), (3.0, 2.0, -2.0)):
+        gb = render_gbuffer(make_camera(pos, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, 32, 32), geo)
+        cov = gb.coverage.reshape(-1)
+        n = gb.numpy("normal").reshape(-1, 3)[cov]
+        t = gb.numpy("tangent").reshape(-1, 3)[cov]
+        seen_neg += int((n[:, 2] < -0.2).sum())
+        seen_pos += int((n[:, 2] > 0.2).sum())
+        assert np.abs(np.linalg.norm(t, axis=1) - 1.0).max() < 1e-4
+        assert np.abs(np.einsum("ij,ij->i", t, n)).max() < 1e-4
+    assert seen_neg > 200 and seen_pos > 200

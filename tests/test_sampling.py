@@ -259,3 +259,37 @@ def test_write_sampling_never_replaces_its_source(tmp_path, link):
     with pytest.raises(WarpbwError, match=r"ro\.npz: cannot be overwritten"):
         write_sampling(ro, table, source, force=True)
     assert ro.read_bytes() == b"keep me"
+
+
+@pytest.fixture(scope="module")
+def halves_merl():
+    """A MERL table ten times brighter for phi_d < pi/2 than above: isotropic and reciprocal (MERL's own
+    parametrisation) but not mirror-symmetric about the plane of incidence, as a measured table need not be."""
+    from warpbw.io.merl import MerlBRDF, merl_eval
+
+    data = np.full((90, 90, 180, 3), 0.2, np.float32)
+    data[:, :, :90] = 2.0
+    brdf = MerlBRDF(name="halves", path=None, data=data)
+    samp = build_sampler_table(lambda wi, wo: merl_eval(brdf, wi, wo), n_theta_o=4, n_u=16, n_phi=32, sub=2,
+                               sub_views=1)
+    return B.build_material_table([B.MaterialSpec("halves", B.MERL, merl=data, linear=False, sampler=samp)])
+
+
+@pytest.mark.parametrize("theta_o", [0.3, 0.9])
+def test_tabulated_pdf_is_the_density_sampled_on_both_sides_of_the_plane_of_incidence(halves_merl, theta_o):
+    """tab_pdf wraps the relative half-vector azimuth into [0, 2 pi) (folding it with |.| passed every test).
+    Truth: for directions drawn from the sampler, E[g(wi) / pdf(wi)] is the solid angle of the region g marks,
+    whatever the density, if and only if pdf is the density the sampler draws from.  With wo in the xz-plane,
+    wi_y < 0 exactly when the half vector lies on the negative-azimuth side; the region {wi_y < 0, wi_z > 0.1}
+    has solid angle 0.9 pi (half of the cap z > 0.1), and so has {wi_y > 0, wi_z > 0.1}.  The cosine share
+    of the mixture keeps the pdf positive there, so the estimate is unbiased."""
+    wo = np.array([np.sin(theta_o), 0.0, np.cos(theta_o)])
+    n = 200_000
+    wi = B.sample_brdf(halves_merl, 0, wo, n, seed=3)
+    p = B.pdf_brdf(halves_merl, 0, wi, np.broadcast_to(wo, wi.shape))
+    for side in (wi[:, 1] < 0.0, wi[:, 1] > 0.0):
+        g = side & (wi[:, 2] > 0.1)
+        assert np.all(p[g] > 0.0)
+        x = np.where(g, 1.0 / np.where(g, p, 1.0), 0.0)
+        se = x.std() / np.sqrt(n)
+        assert abs(x.mean() - 0.9 * np.pi) < max(4.0 * se, 0.01 * 0.9 * np.pi), (x.mean(), se)

@@ -196,3 +196,22 @@ def test_height_to_normals_names_a_scale_that_is_not_a_number():
     for kw in ({"scale": "2"}, {"scale": None}, {"texel_size": "x"}, {"scale": True}):
         with pytest.raises(WarpbwError, match="height_to_normals: expected finite heights, a finite scale"):
             height_to_normals(np.zeros((4, 4)), **kw)
+
+
+def test_hemispherical_scales_peak_where_the_staggered_rows_put_their_centres():
+    """Odd rows are staggered by half a spacing (dropping it, a square grid, not armour, passed every test).  Truth: the
+    docstring's layout in closed form.  With n scales across, row j of 2n has its scale centres at
+    u = (i + 1/2 + (j mod 2) / 2) / n, v = (j + 1/2) / (2n); the next rows' scales (centres 0.71 and 1 spacing
+    away) do not reach a centre for radius 0.6 spacings, so each centre shows the scale's own top,
+    height * sqrt(r^2 - d^2), d the half-texel diagonal to the four texel centres around it."""
+    n, size, radius, height = 4, 64, 0.6, 0.5
+    h = hemispherical_scales(size, scales_across=n, radius=radius, height=height)
+    r = radius / n
+    want = height * np.sqrt(r * r - 2.0 * (0.5 / size) ** 2)
+    tex = size // n                                  # texels per spacing (16); a row is tex / 2 high
+    for j in range(2 * n):
+        row = j * tex // 2 + tex // 4                # the texel rows tex/4 - 1 and tex/4 straddle the centre
+        for i in range(n):
+            col = (i * tex + tex // 2 + (j % 2) * tex // 2) % size
+            block = h[np.ix_([row - 1, row], [(col - 1) % size, col % size])]
+            assert np.allclose(block, want, rtol=1e-9, atol=0.0), (j, i, block, want)
