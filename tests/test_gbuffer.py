@@ -613,3 +613,35 @@ def test_mesh_tangent_frames_are_orthonormal_on_both_hemispheres():
         assert np.abs(np.linalg.norm(t, axis=1) - 1.0).max() < 1e-4
         assert np.abs(np.einsum("ij,ij->i", t, n)).max() < 1e-4
     assert seen_neg > 200 and seen_pos > 200
+
+
+def _sphere_uv(u_out):
+    """GBufferData's documented sphere uv of outward unit normals (..., 3)."""
+    return np.stack([np.arctan2(u_out[..., 0], u_out[..., 2]) / (2 * np.pi) + 0.5,
+                     np.arccos(np.clip(u_out[..., 1], -1, 1)) / np.pi], -1)
+
+
+def test_sphere_uv_is_the_documented_longitude_and_polar_angle_of_the_point_seen_from_either_side():
+    """A sphere's uv is a function of the surface point (the outward normal's longitude and polar angle, as the
+    GBufferData comment says), so a camera inside it reads the same uv at a point as one outside (it read the
+    antipode's: the flipped normal's).  Truth: numpy rays and ray-sphere distances, and the closed form above;
+    the convention's own anchors, u = 1/2 at +Z and 3/4 at +X, v = 0 at +Y."""
+    np.testing.assert_allclose(_sphere_uv(np.eye(3)[[2, 0, 1]]), [[0.5, 0.5], [0.75, 0.5], [0.5, 0.0]], atol=1e-12)
+    c, r, w, h = np.array([0.3, -0.2, 0.1]), 1.5, 40, 32
+    for pos, look in (((0.3, 1.0, 5.0), tuple(c)), (tuple(c + [0.2, 0.1, -0.3]), (2.0, 0.5, 1.0))):
+        cam = make_camera(pos, look, (0.0, 1.0, 0.0), 60.0, w, h)
+        gb = render_gbuffer(cam, build_geometry([SphereSpec(tuple(c), r, 0)], []))
+        o, d = numpy_camera_rays(pos, look, 60.0, w, h)
+        inside = np.linalg.norm(np.asarray(pos) - c) < r
+        if inside:   # the far root: the point ahead on every ray
+            b = d @ (o - c)
+            t = -b + np.sqrt(b * b - (o - c) @ (o - c) + r * r)
+        else:
+            t = numpy_sphere_distance(o, d, c, r)
+        hit = np.isfinite(t)
+        assert np.array_equal(gb.coverage, hit) and hit.sum() > 300
+        u_out = (o + t[..., None] * d - c) / r
+        got, want = gb.numpy("uv").reshape(h, w, 2)[hit], _sphere_uv(u_out)[hit]
+        du = np.abs(got[:, 0] - want[:, 0])
+        du = np.minimum(du, 1.0 - du)   # u wraps at -Z
+        assert du.max() < 1e-4 and np.abs(got[:, 1] - want[:, 1]).max() < 1e-4, (inside, du.max())

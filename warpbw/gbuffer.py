@@ -92,6 +92,8 @@ class GBufferData:
     view: wp.array(dtype=wp.vec3)         # wo, world space, unit, towards the camera
     depth: wp.array(dtype=wp.float32)
     curvature: wp.array(dtype=wp.float32)
+    # sphere: u = atan2(x, z) / 2 pi + 1/2, v = acos(y) / pi of the outward unit normal (x, y, z) (u = 1/2 at +Z,
+    # 3/4 at +X; v = 0 at +Y); mesh: its vertex uv, interpolated (zeros when it has none)
     uv: wp.array(dtype=wp.vec2)
     material: wp.array(dtype=wp.int32)    # -1: no geometry (background)
     width: int
@@ -232,13 +234,14 @@ def _gbuffer_kernel(has_spheres: bool, has_mesh: bool):
                 r = spheres.radius[hit_index]
                 n = (p - c) / r
                 n = wp.normalize(n)
+                # of the point, not of the side seen: the outward normal's longitude and polar angle
+                uv = wp.vec2(wp.atan2(n[0], n[2]) / (2.0 * wp.pi) + 0.5,
+                             wp.acos(wp.clamp(n[1], -1.0, 1.0)) / wp.pi)
                 if wp.dot(n, d) > 0.0:   # camera inside the sphere: see its inner side
                     n = -n
                 gn = n
                 tan = sphere_tangent(n)
                 curv = 1.0 / r
-                uv = wp.vec2(wp.atan2(n[0], n[2]) / (2.0 * wp.pi) + 0.5,
-                             wp.acos(wp.clamp(n[1], -1.0, 1.0)) / wp.pi)
                 mat = spheres.material[hit_index]
         if wp.static(has_mesh):
             if hit_kind == 2:
