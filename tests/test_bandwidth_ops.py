@@ -299,6 +299,6 @@ def test_bad_shape_and_operator_are_refused():
 
 def test_exitant_projection_scales_the_spatial_bandwidth_by_at_most_1000():
     """warpbw.bandwidth_ops docstring: cos theta_x below 1e-3 (theta_x > 89.94 deg) counts as 1e-3, so P_x scales
-    nu_s by at most 1000 (the suite compares with the module's own COS_X_MIN, so any clamp passes)."""
+    nu_s by at most 1000 (the other tests compare with the module's own COS_X_MIN, so any clamp passed them)."""
     out = bo.apply_operator("P_x", [[1.0, 2.0], [1.0, 2.0]], cos_x=np.array([0.0, math.cos(math.radians(89.9))]))
     np.testing.assert_allclose(out, [[1000.0, 2.0], [1.0 / math.cos(math.radians(89.9)), 2.0]], rtol=1e-5)

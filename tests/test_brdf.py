@@ -333,7 +333,7 @@ def test_conductor_fresnel_up_to_the_largest_index_accepted_follows_the_complex_
 
 def test_merl_trilinear_lookup_wraps_phi_d_across_0_and_pi(random_merl):
     """MERL's phi_d axis is periodic with period pi, so within half a bin of phi_d = 0 or pi the
-    trilinear lookup blends the last bin (179) with the first (0).  The suite's random-direction comparison
+    trilinear lookup blends the last bin (179) with the first (0).  The random-direction comparison above
     allows 0.5% of pairs to disagree, and only 1/180 of random pairs fall there.  Truth: the host reader's
     interpolation (tests/test_merl.py::test_interpolation_is_trilinear_with_phi_wrap checks its wrap by hand)."""
     from warpbw.io.merl import dirs_from_half_diff, merl_eval
@@ -358,7 +358,7 @@ def test_merl_trilinear_lookup_wraps_phi_d_across_0_and_pi(random_merl):
 def test_npf_kernel_at_normal_incidence_skips_the_placeholder_bins(npf_materials):
     """The kernel's linear NPF lookup starts at the first valid bin, not bin 0 (no test saw the difference).  G1's bin 0
     is stored as 0 and F's is a placeholder (data README), so at normal incidence the model must read bin 1;
-    reading bin 0 loses the highlight of a sphere's centre.  The suite's random pairs almost never come within
+    reading bin 0 loses the highlight of a sphere's centre.  Random pairs almost never come within
     1.5 bins (1.5 degrees) of the normal.  Truth: the README formula at wi = wo = +Z,
     rho_d + rho_s D[0] F[1] G1[1]^2 / 16 (tests/test_npf.py::test_normal_incidence_keeps_specular checks the
     host model the same way), in both lookup modes."""

@@ -199,7 +199,7 @@ def test_height_to_normals_names_a_scale_that_is_not_a_number():
 
 
 def test_hemispherical_scales_peak_where_the_staggered_rows_put_their_centres():
-    """Odd rows are staggered by half a spacing (dropping it, a square grid, not armour, passed every test).  Truth: the
+    """Odd rows are staggered by half a spacing (a square grid, not armour, passed every other test).  Truth: the
     docstring's layout in closed form.  With n scales across, row j of 2n has its scale centres at
     u = (i + 1/2 + (j mod 2) / 2) / n, v = (j + 1/2) / (2n); the next rows' scales (centres 0.71 and 1 spacing
     away) do not reach a centre for radius 0.6 spacings, so each centre shows the scale's own top,

@@ -387,7 +387,7 @@ def test_band_maxima_of_an_impulse_spread_over_the_filter_support_and_one_wavele
 
 def test_eq7_rule_reads_the_top_of_the_band_that_holds_the_sine():
     """002 Eq. 7's discrete level I_w gives 2^-I_w cycles/pixel, the top of band I_w: a sine in the finest band
-    (f in 0.25 .. 0.5 cycles/pixel) reads 0.5, and "overestimates" means never below f (the suite checks f = 0.06
+    (f in 0.25 .. 0.5 cycles/pixel) reads 0.5, and "overestimates" means never below f (the other tests check f = 0.06
     and 0.2 only, where halving the result still stays above f)."""
     for f in (0.3, 0.4, 0.47):   # band 1 (0.25 .. 0.5 cycles/pixel): Eq. 7 reads its top, 0.5, and never below f
         b = local_bandwidth(sine(f, 0), pad="reflect", rule="eq7")[32:96, 32:96]
