@@ -2131,3 +2131,15 @@ def test_a_cache_that_cannot_be_written_costs_only_the_rebuild(tmp_path, read_on
         assert r.returncode == 0 and not r.stderr.strip(), (cache, r.stderr)
     assert all(p.is_dir() for p in (tmp_path / "_cache").iterdir()) and not list((tmp_path / "ro").iterdir())
     assert (tmp_path / "afile").read_text() == "keep"
+
+
+def test_an_asset_whose_header_names_no_format_is_refused(tmp_path):
+    """An .npz whose JSON header has the right version but no "format" key at all is not a file this reader wrote: it
+    must be refused with the rebuild hint, as a file of another format is."""
+    from precompute.assetfile import HEADER_KEY, read_asset
+
+    p = tmp_path / "x.npz"
+    header = {"version": 3, "source": "s", "source_hash": "h", "params": {}}
+    np.savez_compressed(p, **{HEADER_KEY: np.array(json.dumps(header))}, a=np.zeros(3))
+    with pytest.raises(WarpbwError, match="rebuild it with: REBUILD"):
+        read_asset(p, "warpbw-test-format", 3, "REBUILD")

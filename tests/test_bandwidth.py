@@ -763,3 +763,63 @@ def test_the_pass_interleaves_its_directions_over_the_tile_its_pooling_window_sp
     run_pass(prep, stride=1, pool_radius=3)
     run_pass(prep, stride=2, pool_radius=0)
     assert sides == [3, 7, 1]
+
+
+@pytest.mark.parametrize("allocation, key", [("variance", "sigma2"), ("sqrt", "sigma2"), ("uniform", "sigma2"),
+                                             ("measured", "variance_mis")])
+def test_the_allocations_variance_map_is_each_pixels_variance_over_its_sample_count(allocation, key):
+    """The mean of N_p independent samples of variance v has variance v / N_p, whatever rule chose N_p: the variance
+    map is the per-sample variance (sigma2; the measured estimator variance for "measured") divided by the pixel's
+    own count, not the allocation's key raised to its power."""
+    rng = np.random.default_rng(11)
+    keys = {"sigma2": rng.lognormal(0, 2, size=(12, 16)), "variance_mis": rng.lognormal(0, 2, size=(12, 16))}
+    cov = np.ones((12, 16), bool)
+    cov[:, :3] = False
+    for k in keys:
+        keys[k][~cov] = 0.0
+    buf = _fake_buffer(keys["sigma2"], np.zeros((12, 16)), cov, None, keys["variance_mis"])
+    a = bw.allocate_samples(buf, budget=6.0, n_min=1, n_max=40, allocation=allocation)
+    v = keys[key].astype(np.float32).astype(np.float64)
+    assert np.all(a.n_p[cov] >= 1) and np.all(a.n_p[~cov] == 0)
+    np.testing.assert_allclose(a.variance[cov], v[cov] / a.n_p[cov], rtol=1e-5)
+    assert np.all(a.variance[~cov] == 0.0)
+
+
+def test_planned_shading_reads_each_coarse_texels_largest_sigma2_and_skips_empty_texels():
+    """Every pixel at level 1: the hierarchy shades the 2 x 2 blocks that hold some geometry, each once, and a block's
+    one shading pixel must take as many samples as its most demanding pixel needs (the max of sigma2 over the block,
+    not its min).  Brute force over the blocks of an 8 x 10 frame whose right part is empty."""
+    rng = np.random.default_rng(3)
+    H, W = 8, 10
+    sig = rng.lognormal(0, 1.5, size=(H, W))
+    cov = np.zeros((H, W), bool)
+    cov[:, :5] = True                 # block columns 0 and 1 full, 2 half covered, 3 and 4 empty
+    sig[~cov] = 0.0
+    buf = _fake_buffer(sig, np.ones((H, W)), cov)
+    got = bw.planned_shading(buf)
+    s32 = sig.astype(np.float32)
+    want = [s32[2 * i:2 * i + 2, 2 * j:2 * j + 2].max() for i in range(H // 2) for j in range(W // 2)
+            if cov[2 * i:2 * i + 2, 2 * j:2 * j + 2].any()]
+    assert len(got) == len(want) == (H // 2) * 3
+    np.testing.assert_allclose(np.sort(got), np.sort(want), rtol=1e-6)
+
+
+def test_pixels_whose_normals_differ_widely_never_share_a_blocks_directions():
+    """Block sharing asks for the same material, close depths AND normals within acos(BLOCK_NORMAL_COS) (~18 degrees).
+    A sphere's G-buffer whose odd columns have their normals turned 30 degrees about the vertical (depth and
+    material untouched) leaves most 2 x 2 blocks unlike: the pass must trace as many pixels as the numpy count of
+    the plan (_expected_traced) says, far more than the unperturbed G-buffer needs."""
+    prep = prepared()
+    tables = prepare_bandwidth(prep)
+    gb, _ = _gbuffer(prep, {})
+    base = bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=4).traced_pixels
+    H, W = gb.height, gb.width
+    n = gb.data.normal.numpy().reshape(H, W, 3).astype(np.float64)
+    c, s = math.cos(math.radians(30.0)), math.sin(math.radians(30.0))
+    rot = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])    # about +y, the image's vertical
+    n[:, 1::2] = n[:, 1::2] @ rot.T
+    gb.data.normal.assign(n.reshape(-1, 3).astype(np.float32))
+    buf = bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=4)
+    n_cov = int(gb.coverage.sum())
+    assert buf.traced_pixels == _expected_traced(gb, 2)
+    assert base < 0.5 * n_cov and buf.traced_pixels > 0.8 * n_cov

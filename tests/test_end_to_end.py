@@ -967,3 +967,28 @@ def test_adaptive_samples_per_covered_pixel_divides_by_the_covered_pixels():
     assert 0 < covered < 0.6 * res.coverage.size
     assert res.stats["samples"] > 0
     assert res.stats["samples_per_covered_pixel"] == pytest.approx(res.stats["samples"] / covered, rel=1e-12)
+
+
+def test_a_frame_with_planes_times_both_renderers(tmp_path, monkeypatch):
+    """time_s.frame of a scene with planes beside a sphere is the sum of the two frames: the spheres' and the planes'.
+    The planes' frame is made to report 100 s more than it took, so a frame time that left it out cannot reach it."""
+    import dataclasses
+
+    from warpbw import filtering
+    from warpbw.pipeline import render_with_planes
+    from warpbw.scene import parse_scene
+
+    real = filtering.render_filtering
+    took = []
+
+    def slow(*a, **k):
+        r = real(*a, **k)
+        took.append(r.time_s + 100.0)
+        return dataclasses.replace(r, time_s=took[-1])
+
+    monkeypatch.setattr(filtering, "render_filtering", slow)
+    res = render_with_planes(parse_scene(MIXED_SCENE, tmp_path, "mixed.toml"), "fixed", 4, mis=True)
+    ts = res.stats["time_s"]
+    assert len(took) == 1 and ts["planes"] == pytest.approx(took[0], abs=1e-5)
+    assert ts["frame"] >= ts["planes"] + ts["shading"] - 1e-5
+    assert ts["frame"] < ts["planes"] + 60.0

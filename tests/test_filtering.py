@@ -24,6 +24,7 @@ from hypothesis import strategies as st
 from conftest import (PLANE_DIFFUSE, PLANE_F0, PLANE_LIGHT_DIR, PLANE_RADIANCE, numpy_camera_rays,
                       numpy_square_distance, plane_scene_toml)
 
+from precompute.surfaces import hemispherical_scales
 from warpbw.errors import WarpbwError
 from warpbw.filtering import (ALL_METHODS, DIFFUSE_PICK_MIN, FLAT_SHADED_AS, MAX_LOBES, METHODS, MIN_COS,
                               MIN_GT_SPP, Lobes, PlaneData, fetch_gmm, gmm_ndf, lobes_ndf, lobes_sample,
@@ -329,8 +330,6 @@ def test_level_doubles_with_distance(tmp_path):
 
 
 def test_gmm_beats_the_fixed_brdf_far_away(tmp_path):
-    from precompute.surfaces import hemispherical_scales
-
     s = scene_with_map(tmp_path, heights=hemispherical_scales(32, scales_across=4), scale=0.5, tiling=4,
                        position=(0.0, 2.0, 2.0), size=2.0, resolution=(24, 16), roughness=0.1)
     prep = prepare_filtering(s, ALL_METHODS)
@@ -523,7 +522,7 @@ def _scales_with_gmm_files(tmp_path, position):
     aligned one given to the scene as its gmm file, the unaligned one as the renderer builds it).  Returns the
     scene, its finest normals, the GMM levels per method and the prepared mipmaps."""
     from precompute.gmm_mipmap import build_gmm_mipmap, write_gmm_mipmap
-    from precompute.surfaces import hemispherical_scales, height_to_normals
+    from precompute.surfaces import height_to_normals
 
     h = hemispherical_scales(32, scales_across=4)
     mips = {"gmm_aligned": build_gmm_mipmap(h, scale=0.5, progress=False),
@@ -1291,3 +1290,98 @@ def test_lobe_sampler_follows_its_pdf(lobes):
     chi2 = float(np.sum((obs - exp) ** 2 / exp))
     dof = len(exp) - 1
     assert chi2 < dof + 5 * math.sqrt(2 * dof), (lobes, chi2, dof)
+
+
+def _translated(text: str, c) -> str:
+    """The scene moved rigidly by c: the plane's centre and the camera's position and look-at point (each key
+    found once, so that a change of plane_scene_toml cannot leave the scene unmoved and the test passing)."""
+    cam_old = text.split("position = ")[1].split("\n")[0]
+    pos = [float(v) for v in cam_old.strip("[]").split(",")]
+    for old, new in ((f"position = {cam_old}", f"position = {[p + d for p, d in zip(pos, c)]}"),
+                     ("look_at = [0.0, 0.0, 0.0]", f"look_at = {list(map(float, c))}"),
+                     ('shape = "plane"', f'shape = "plane"\ncenter = {list(map(float, c))}')):
+        assert text.count(old) == 1 and "center = " not in text, old
+        text = text.replace(old, new)
+    return text
+
+
+@pytest.mark.parametrize("method", ["fixed", "ground_truth"])
+def test_moving_plane_camera_and_look_at_together_leaves_the_image_unchanged(tmp_path, method):
+    """Directional lights do not depend on position, so a rigid translation of the whole scene (plane, camera, look-at
+    point) is invisible.  A normal map that stays glued to world X or Z instead of to the plane's own corner would
+    slide under a plane that is not centred at the origin."""
+    write_exr(tmp_path / "map.exr", np.asarray(hemispherical_scales(32, scales_across=4), np.float32)[..., None],
+              channels=["Y"])
+    text = plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ntiling = 2\n', roughness=0.1,
+                            position=(0.0, 1.2, 1.2), resolution=(24, 16))
+    images = []
+    for c in ((0.0, 0.0, 0.0), (0.37, 0.25, -0.61)):
+        s = parse_scene(_translated(text, c), tmp_path, "s.toml")
+        images.append(render_filtering(s, method, spp=64))
+    a, b = images
+    both = a.coverage & b.coverage
+    assert both.sum() > 0.9 * max(a.coverage.sum(), b.coverage.sum())
+    scale = np.linalg.norm(a.image[both], axis=-1).mean()
+    err = np.linalg.norm(a.image[both] - b.image[both], axis=-1).mean() / scale
+    assert err < 2e-3, err
+
+
+def test_a_light_below_the_plane_lights_nothing_whatever_the_method(tmp_path):
+    """A directional light under the plane's macro surface (its direction has y < 0) reaches no point of the plane's
+    upper side: every method's image is black there, the filtered ones as the ground truth.  A tilted lobe mean or a
+    half-vector that still falls inside a wide lobe must not let such a light leak in."""
+    write_exr(tmp_path / "map.exr", np.asarray(hemispherical_scales(32, scales_across=4), np.float32)[..., None],
+              channels=["Y"])
+    s = parse_scene(plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ntiling = 4\n',
+                                     roughness=0.3, position=(0.0, 1.2, 1.2), light_dir=(0.2, -0.08, -1.0)),
+                    tmp_path, "s.toml")
+    methods = [m for m in ALL_METHODS if m != "gmm_unaligned"]   # its kernel is gmm_aligned's
+    prep = prepare_filtering(s, methods)
+    for m in methods:
+        r = render_filtering(s, m, prepared=prep, spp=64)
+        assert r.coverage.sum() > 100
+        assert float(np.abs(r.image[r.coverage]).max()) == 0.0, m
+    # the same light moved above the plane does light it (the scene is not black for another reason)
+    s_up = parse_scene(plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ntiling = 4\n',
+                                        roughness=0.3, position=(0.0, 1.2, 1.2), light_dir=(0.2, 0.08, -1.0)),
+                       tmp_path, "s.toml")
+    r = render_filtering(s_up, "fixed", prepared=prepare_filtering(s_up, ("fixed",)))
+    assert float(r.image[r.coverage].max()) > 1e-3
+
+
+def test_mean_level_in_the_stats_averages_the_covered_pixels_only(tmp_path):
+    """stats["mean_level"] is the mean mip level of the pixels the plane covers; the uncovered pixels' level map holds
+    0, which must not pull the figure towards the finest level.  A plane seen far off covers part of the frame at
+    levels well above 0, so the two means differ by a wide margin."""
+    s = scene_with_map(tmp_path, heights=hemispherical_scales(32, scales_across=4), scale=0.5, tiling=4,
+                       position=(0.0, 4.0, 6.0), size=2.0, resolution=(24, 16), roughness=0.1)
+    r = render_filtering(s, "fixed")
+    cov = r.coverage
+    assert 0.05 < cov.mean() < 0.8
+    want = float(r.level[cov].astype(np.float64).mean())
+    assert want > 1.0
+    assert r.stats["mean_level"] == pytest.approx(want, rel=1e-5)
+    assert abs(r.stats["mean_level"] - float(r.level.mean())) > 0.2
+
+
+def test_ground_truth_shades_each_ray_with_the_unit_normal_between_two_tilted_texels(tmp_path):
+    """Two columns of normals tilted 30 degrees apart in opposite directions, seen from straight above so close that a
+    pixel covers about a hundredth of a texel: each ground-truth pixel is then the fine-scale BRDF at its centre, at
+    the bilinear blend of the two normals renormalised to unit length (between the texels the blend is 13% short of
+    unit length: an unnormalised one darkens the Lambert term and pulls the specular lobe in). Truth:
+    numpy_filtered_render, whose pixels here are all magnified past level -1 (the fine-scale lobe only)."""
+    t = math.radians(30.0)
+    normals = np.zeros((2, 2, 3), np.float32)
+    normals[:, 0] = (math.sin(t), 0.0, math.cos(t))
+    normals[:, 1] = (-math.sin(t), 0.0, math.cos(t))
+    write_exr(tmp_path / "map.exr", normals, channels=["R", "G", "B"])
+    s = parse_scene(plane_scene_toml('normal_map = "map.exr"\nnormal_map_kind = "normal"\n', roughness=0.3,
+                                     position=(0.0, 0.6, 1e-4), resolution=(16, 12), fov=20.0, size=2.0,
+                                     diffuse=(0.5, 0.4, 0.3), lights=2), tmp_path, "s.toml")
+    prep = prepare_filtering(s, ("ground_truth", "fixed"))
+    gt = render_filtering(s, "ground_truth", spp=64, prepared=prep)
+    ref, lam = numpy_filtered_render(s, "fixed", normals, {}, 1.0)
+    cov = gt.coverage
+    assert cov.all() and np.all(lam <= -1.0)
+    err = np.linalg.norm(gt.image - ref, axis=-1).max() / np.linalg.norm(ref, axis=-1).mean()
+    assert err < 5e-3, err

@@ -717,3 +717,34 @@ def test_neighbour_prior_sums_over_the_13_neighbours_of_004_by_brute_force():
             want_s = sum((A[m][a, b][:, None] * MU[m][a, b] for m, a, b in nbrs if fitted[m][a, b]), np.zeros((K, 2)))
             np.testing.assert_allclose(p_w[t], want_w, rtol=1e-12, atol=1e-12, err_msg=f"level {l} texel {(i, j)}")
             np.testing.assert_allclose(p_sum[t], want_s, rtol=1e-12, atol=1e-12, err_msg=f"level {l} texel {(i, j)}")
+
+
+def test_same_level_neighbours_fitted_earlier_enter_each_texels_prior(monkeypatch):
+    """004 Sec. 4.1 fits a level's texels in scan-line order, each pulled towards its already fitted neighbours at the
+    same level as well as its parent and children; the builder's stand-in is four interleaved parity classes.  So at
+    every level of at least 2 x 2 texels, the classes after the first must see same-level neighbours already fitted
+    -- and the fitted ones are exactly the earlier classes' texels.  (Recorded at the prior's input; the truth is
+    the order 004 prescribes, not the builder's result.)"""
+    import precompute.gmm_mipmap as gm
+
+    seen = []
+    real = gm._neighbour_prior
+
+    def spy(l, ii, jj, A, MU, fitted, shapes):
+        seen.append((l, ii.copy(), jj.copy(), fitted[l].copy()))
+        return real(l, ii, jj, A, MU, fitted, shapes)
+
+    monkeypatch.setattr(gm, "_neighbour_prior", spy)
+    mip = gm.build_gmm_mipmap(hemispherical_scales(16, scales_across=2), components=2, progress=False)
+    shapes = [q.shape[:2] for q in mip.levels]
+    for l, (h, w) in enumerate(shapes):
+        calls = [c for c in seen if c[0] == l]
+        if h < 2 or w < 2:
+            continue
+        assert len(calls) == 4, (l, len(calls))
+        done = np.zeros((h, w), bool)
+        for _, ii, jj, fitted in calls:
+            np.testing.assert_array_equal(fitted, done)      # exactly the earlier classes' texels
+            done[ii, jj] = True
+        assert done.all()
+        assert calls[-1][3].sum() == h * w - len(calls[-1][1]) > 0
