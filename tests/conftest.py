@@ -184,6 +184,24 @@ def named_as(src: Path, link: str | None, other: Path) -> Path:
     return src if link is None else other
 
 
+class Handed(Exception):
+    """Raised by ``capture_call``'s stand-in once it has recorded what a command handed it."""
+
+
+def capture_call(monkeypatch, module, name: str) -> dict:
+    """Replace ``module.name`` by a stand-in that records its arguments (keywords by name, positionals as
+    ``_args``) and stops the command with ``Handed``: the commands import the functions they call at call time,
+    so the stand-in is what they call, and no rendering happens."""
+    got = {}
+
+    def fake(*args, **kwargs):
+        got.update(kwargs, _args=args)
+        raise Handed
+
+    monkeypatch.setattr(module, name, fake)
+    return got
+
+
 def grid_mesh(n_u, n_v, fn):
     """Triangulated (n_u x n_v) vertex grid; fn(u, v) -> (N, 3) points; faces wound (dv x du)."""
     uu, vv = np.meshgrid(np.arange(n_u), np.arange(n_v), indexing="ij")

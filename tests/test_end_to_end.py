@@ -25,8 +25,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from conftest import (MIXED_SCENE, check_colour_scale, numpy_camera_rays, numpy_sphere_distance, numpy_square_distance,
-                      plane_scene_toml)
+from conftest import (MIXED_SCENE, Handed, capture_call, check_colour_scale, numpy_camera_rays, numpy_sphere_distance,
+                      numpy_square_distance, plane_scene_toml)
 from warpbw.io.exr import read_exr, write_exr
 from warpbw.io.merl import MERL_FILE_SIZE
 
@@ -992,3 +992,223 @@ def test_a_frame_with_planes_times_both_renderers(tmp_path, monkeypatch):
     assert len(took) == 1 and ts["planes"] == pytest.approx(took[0], abs=1e-5)
     assert ts["frame"] >= ts["planes"] + ts["shading"] - 1e-5
     assert ts["frame"] < ts["planes"] + 60.0
+
+
+_ENV_SCENE = """\
+[camera]
+position = [0.0, 0.0, 4.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 40.0
+resolution = [16, 12]
+
+[environment]
+constant = [1.0, 1.0, 1.0]
+
+[[object]]
+shape = "sphere"
+radius = 1.0
+material = "paint"
+
+[material.paint]
+type = "lambert"
+albedo = 0.5
+"""
+
+
+_PLANE_SCENE = """\
+[camera]
+position = [0.0, 2.0, 3.0]
+look_at = [0.0, -1.0, 0.0]
+fov = 40.0
+resolution = [16, 12]
+
+[environment]
+constant = [1.0, 1.0, 1.0]
+
+[[object]]
+shape = "plane"
+center = [0.0, -1.0, 0.0]
+size = 4.0
+material = "armour"
+
+[material.armour]
+type = "cook-torrance"
+roughness = 0.2
+f0 = [0.9, 0.75, 0.4]
+"""
+
+
+@pytest.fixture
+def env_scene(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "_cache"))
+    (tmp_path / "s.toml").write_text(_ENV_SCENE)
+    (tmp_path / "p.toml").write_text(_PLANE_SCENE)
+    return tmp_path
+
+
+def test_render_adaptive_hands_each_option_to_render_adaptive(env_scene, monkeypatch):
+    """Every option of ``render --method adaptive`` must reach ``render_adaptive`` under the keyword it names,
+    with the value given: an option parsed but dropped on the way would render with the default and say
+    nothing."""
+    import warpbw.pipeline as pipeline
+    from warpbw.cli import main
+
+    got = capture_call(monkeypatch, pipeline, "render_adaptive")
+    with pytest.raises(Handed):
+        main(["render", "s.toml", "-o", "o.exr", "--method", "adaptive", "--budget", "3.5", "--nb", "40", "--mis",
+              "--seed", "17", "--allocation", "sqrt", "--nyquist", "3", "--upsample", "paper",
+              "--env-signal", "log", "--threads", "2", "-q"])
+    assert got["budget"] == 3.5 and got["n_b"] == 40 and got["mis"] is True and got["seed"] == 17
+    assert got["allocation"] == "sqrt" and got["nyquist"] == 3.0 and got["upsample"] == "paper"
+    assert got["env_signal"] == "log" and got["threads"] == 2 and got["progress"] is False
+
+
+def test_render_reference_hands_spp_seed_mis_and_quiet_on(env_scene, monkeypatch):
+    """``render`` (reference): --spp, --seed, --mis and -q must reach ``render_reference`` as spp, seed, mis and
+    progress; without them, the --help defaults (spp as --help prints it, seed 0, no MIS, a progress bar)."""
+    import warpbw.pipeline as pipeline
+    from warpbw.cli import build_parser, main
+
+    got = capture_call(monkeypatch, pipeline, "render_reference")
+    with pytest.raises(Handed):
+        main(["render", "s.toml", "-o", "o.exr", "--spp", "5", "--seed", "9", "--mis", "-q"])
+    assert (got["spp"], got["seed"], got["mis"], got["progress"]) == (5, 9, True, False)
+    got.clear()
+    with pytest.raises(Handed):
+        main(["render", "s.toml", "-o", "o.exr"])
+    sub = next(a for a in build_parser()._actions if hasattr(a, "choices") and isinstance(a.choices, dict))
+    helped = int(re.search(r"default (\d+)", next(a.help for a in sub.choices["render"]._actions
+                                                  if "--spp" in a.option_strings)).group(1))
+    assert (got["spp"], got["seed"], got["mis"], got["progress"]) == (helped, 0, False, True)
+
+
+def test_render_of_planes_hands_filter_spp_seed_and_anisotropy_on(env_scene, monkeypatch):
+    """``render`` of a scene of planes: --filter, --spp (the environment's pairs), --seed and --max-anisotropy
+    must reach ``render_filtering``; without --filter the method is gmm_aligned, as --help says."""
+    import warpbw.filtering as filtering
+    from warpbw.cli import main
+
+    got = capture_call(monkeypatch, filtering, "render_filtering")
+    with pytest.raises(Handed):
+        main(["render", "p.toml", "-o", "o.exr", "--filter", "toksvig", "--spp", "7", "--seed", "3",
+              "--max-anisotropy", "4", "-q"])
+    assert got["_args"][1] == "toksvig" and got["env_spp"] == 7 and got["seed"] == 3 and got["max_anisotropy"] == 4
+    got.clear()
+    with pytest.raises(Handed):
+        main(["render", "p.toml", "-o", "o.exr", "-q"])
+    assert got["_args"][1] == "gmm_aligned"
+
+
+def test_bench_hands_each_option_to_run_bench(env_scene, monkeypatch):
+    """Every option of ``bench`` must reach ``run_bench``: the sweeps, the n_b sweep, --no-mis, the seed and the
+    adaptive options (which every adaptive frame of the sweep must use)."""
+    import warpbw.bench as bench
+    from warpbw.cli import main
+
+    got = capture_call(monkeypatch, bench, "run_bench")
+    with pytest.raises(Handed):
+        main(["bench", "s.toml", "--json", "b.json", "--spp", "2,8", "--budgets", "1,3", "--nb", "16,32",
+              "--nb-budget", "5", "--gt-spp", "128", "--runs", "4", "--no-mis", "--seed", "11",
+              "--allocation", "uniform", "--nyquist", "4", "-q"])
+    assert got["spp_list"] == [2, 8] and got["budgets"] == [1.0, 3.0] and list(got["nb_list"]) == [16, 32]
+    assert got["nb_budget"] == 5.0 and got["gt_spp"] == 128 and got["runs"] == 4 and got["mis"] is False
+    assert got["seed"] == 11 and got["adaptive_options"] == {"allocation": "uniform", "nyquist": 4.0}
+    got.clear()
+    with pytest.raises(Handed):
+        main(["bench", "s.toml", "--json", "b.json", "-q"])
+    assert got["mis"] is True and got["seed"] == 0 and got["runs"] == 3   # --help: MIS, seed 0, 3 runs
+
+
+def test_bench_filtering_hands_each_option_to_run_bench_filtering(env_scene, monkeypatch):
+    """Every option of ``bench-filtering`` must reach ``run_bench_filtering``; without --spp the environment's
+    pairs are 64 (--help: 'default 64, as warpbw render') and without --max-anisotropy one probe."""
+    import warpbw.bench_filtering as bf
+    from warpbw.cli import main
+
+    got = capture_call(monkeypatch, bf, "run_bench_filtering")
+    with pytest.raises(Handed):
+        main(["bench-filtering", "p.toml", "--json", "f.json", "--zoom", "1,3", "--gt-spp", "96", "--spp", "6",
+              "--runs", "2", "--seed", "5", "--flicker-pairs", "3", "--max-anisotropy", "8", "-q"])
+    assert got["zooms"] == [1.0, 3.0] and got["gt_spp"] == 96 and got["env_spp"] == 6 and got["runs"] == 2
+    assert got["seed"] == 5 and got["flicker_pairs"] == 3 and got["max_anisotropy"] == 8
+    got.clear()
+    with pytest.raises(Handed):
+        main(["bench-filtering", "p.toml", "--json", "f.json", "-q"])
+    assert got["env_spp"] == 64 and got["max_anisotropy"] == 1 and got["flicker_pairs"] == 1 and got["runs"] == 3
+
+
+def test_info_hands_method_on(env_scene, monkeypatch):
+    """``info --method adaptive`` must summarise the stages of an adaptive frame, not the reference's."""
+    import warpbw.pipeline as pipeline
+    from warpbw.cli import main
+
+    got = capture_call(monkeypatch, pipeline, "scene_summary")
+    with pytest.raises(Handed):
+        main(["info", "s.toml", "--method", "adaptive"])
+    assert got["_args"][1] == "adaptive"
+
+
+_LIGHT_SCENE = """\
+[camera]
+position = [0.0, 0.0, 4.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 40.0
+resolution = [16, 12]
+
+[[light]]
+type = "directional"
+direction = [0.3, 0.8, 1.0]
+radiance = [0.2, 0.15, 0.1]
+
+[[object]]
+shape = "sphere"
+radius = 1.0
+material = "paint"
+
+[material.paint]
+type = "lambert"
+albedo = 0.5
+"""
+
+
+def test_render_exposure_sets_the_preview_in_stops(tmp_path, monkeypatch):
+    """--exposure E (stops) must reach the PNG preview: the preview of a render at E = 1 is the preview of the same
+    radiance doubled (what 'one stop' means), and a render without --exposure previews at 0 stops ('default 0')
+    -- while the EXR, the radiance itself, does not change with it."""
+    from warpbw.cli import main
+    from warpbw.io.exr import write_png
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "l.toml").write_text(_LIGHT_SCENE)   # lights alone: exact, no samples, fast
+    assert main(["render", "l.toml", "-o", "a.exr", "-q"]) == 0
+    assert main(["render", "l.toml", "-o", "b.exr", "--exposure", "1", "-q"]) == 0
+    a, b = read_exr(tmp_path / "a.exr").pixels, read_exr(tmp_path / "b.exr").pixels
+    assert np.array_equal(a, b)
+    rgb = a[..., :3]
+    write_png(tmp_path / "x0.png", rgb, exposure=0.0)
+    write_png(tmp_path / "x1.png", 2.0 * rgb, exposure=0.0)
+    png = {n: np.asarray(Image.open(tmp_path / f"{n}.png").convert("RGB"), dtype=np.int32)
+           for n in ("a", "b", "x0", "x1")}
+    assert png["a"].sum() > 0 and png["b"].sum() > png["a"].sum()
+    assert np.abs(png["a"] - png["x0"]).max() <= 1
+    assert np.abs(png["b"] - png["x1"]).max() <= 1
+
+
+def test_compare_error_map_default_scale_spans_six_decades(tmp_path, monkeypatch, capsys):
+    """compare --error-map, without --error-range: --help promises a log colour scale 'from 10^-6 times the map's
+    largest value ... to the largest'.  With errors spread over ten decades, the range it reports must be exactly
+    [1e-6 * largest, largest], not wider (the smallest errors would swamp the map) or narrower."""
+    from warpbw.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    ref = np.full((4, 6, 4), 0.5, np.float32)
+    test = ref.copy()
+    test[1, 1, :3] += 1.0e-5     # relative squared error ~4e-10
+    test[2, 4, :3] += 1.0        # ~3.85
+    write_exr(tmp_path / "ref.exr", ref, channels=["R", "G", "B", "A"])
+    write_exr(tmp_path / "test.exr", test, channels=["R", "G", "B", "A"])
+    assert main(["compare", "test.exr", "ref.exr", "--json", "--error-map", "err.exr"]) == 0
+    j = json.loads(capsys.readouterr().out)
+    hi = 1.0 ** 2 / (0.25 + 0.01)
+    assert j["error_range"] == pytest.approx([1e-6 * hi, hi], rel=1e-4)

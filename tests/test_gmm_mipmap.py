@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 import pytest
-from conftest import exr_claiming_size
+from conftest import Handed, exr_claiming_size
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -748,3 +748,48 @@ def test_same_level_neighbours_fitted_earlier_enter_each_texels_prior(monkeypatc
             done[ii, jj] = True
         assert done.all()
         assert calls[-1][3].sum() == h * w - len(calls[-1][1]) > 0
+
+
+def _gmm_capture(monkeypatch, tmp_path, argv, source="surface:dunes:8"):
+    import precompute.gmm_mipmap as gm
+    from precompute.__main__ import main
+
+    monkeypatch.chdir(tmp_path)
+    got = {}
+
+    def fake(data, **kwargs):
+        got.update(kwargs)
+        raise Handed
+
+    monkeypatch.setattr(gm, "build_gmm_mipmap", fake)
+    with pytest.raises(Handed):
+        main(["gmm", source, "-o", "d.npz", "-q", *argv])
+    return got
+
+
+def test_precompute_gmm_hands_each_option_to_the_builder(tmp_path, monkeypatch):
+    """``warpbw-precompute gmm``: --components, --prior, --scale, --seed and --unaligned must reach
+    ``build_gmm_mipmap`` as given (a mipmap built with other settings than asked is refused later by the scene
+    that names it, or worse, matches a scene written for the defaults)."""
+    got = _gmm_capture(monkeypatch, tmp_path, ["--components", "3", "--prior", "0.25", "--scale", "0.05",
+                                               "--seed", "8"])
+    assert (got["kind"], got["components"], got["prior"], got["scale"], got["seed"], got["unaligned"]) == \
+        ("height", 3, 0.25, 0.05, 8, False)
+    got = _gmm_capture(monkeypatch, tmp_path, ["--unaligned"])
+    assert got["unaligned"] is True
+    from PIL import Image
+
+    Image.fromarray(np.full((8, 8, 3), (128, 128, 255), np.uint8)).save(tmp_path / "n.png")
+    got = _gmm_capture(monkeypatch, tmp_path, ["--kind", "normal"], source="n.png")
+    assert got["kind"] == "normal"
+
+
+def test_precompute_gmm_defaults_are_the_scene_files_defaults(tmp_path, monkeypatch):
+    """README: a scene's ``gmm_components`` and ``gmm_prior`` default to 4 and 1, and a ``gmm`` file must have been
+    built with the scene's components and prior.  So ``warpbw-precompute gmm`` without options must build with 4
+    components, prior 1 (its --help says so too), kind height, scale 1 and seed 0."""
+    from warpbw.scene import GMM_DEFAULT_COMPONENTS, GMM_DEFAULT_PRIOR
+
+    got = _gmm_capture(monkeypatch, tmp_path, [])
+    assert (got["components"], got["prior"]) == (4, 1.0) == (GMM_DEFAULT_COMPONENTS, GMM_DEFAULT_PRIOR)
+    assert (got["kind"], got["scale"], got["seed"], got["unaligned"]) == ("height", 1.0, 0, False)
