@@ -1149,27 +1149,11 @@ def test_info_hands_method_on(env_scene, monkeypatch):
     assert got["_args"][1] == "adaptive"
 
 
-_LIGHT_SCENE = """\
-[camera]
-position = [0.0, 0.0, 4.0]
-look_at = [0.0, 0.0, 0.0]
-fov = 40.0
-resolution = [16, 12]
-
-[[light]]
-type = "directional"
-direction = [0.3, 0.8, 1.0]
-radiance = [0.2, 0.15, 0.1]
-
-[[object]]
-shape = "sphere"
-radius = 1.0
-material = "paint"
-
-[material.paint]
-type = "lambert"
-albedo = 0.5
-"""
+# the same sphere under one directional light instead of the sky: exact, no samples
+_LIGHT_SCENE = _ENV_SCENE.replace("[environment]\nconstant = [1.0, 1.0, 1.0]",
+                                  '[[light]]\ntype = "directional"\ndirection = [0.3, 0.8, 1.0]\n'
+                                  "radiance = [0.2, 0.15, 0.1]")
+assert _LIGHT_SCENE != _ENV_SCENE
 
 
 def test_render_exposure_sets_the_preview_in_stops(tmp_path, monkeypatch):
