@@ -157,3 +157,24 @@ def test_top_tenth_share_counts_a_tenth_of_the_covered_pixels(ac, monkeypatch):
     r = ac.allocation_ceiling(None, budget=2.0, seeds=2, spp=1)
     assert r["top_10pct_variance_share"] == pytest.approx(39.0 / 210.0, rel=1e-12)
     assert r["uniform_shaded"] == pytest.approx(1.0, rel=1e-12) and r["rank_measured"] == pytest.approx(1.0)
+
+
+def test_per_pixel_variance_is_the_unbiased_variance_over_the_seeds_times_spp(ac, monkeypatch):
+    """v = spp x the unbiased (n - 1) variance of a pixel over the seeds, RGB summed: renders reading 0, 1 and 5
+    in every channel at 4 spp give 4 x 3 x var([0, 1, 5], ddof=1) = 4 x 3 x 7 = 84 (the n divisor would read 56),
+    and the seeds are 1000, 1001, 1002."""
+    import types
+
+    import warpbw.pipeline
+
+    vals = {1000: 0.0, 1001: 1.0, 1002: 5.0}
+    seen = []
+
+    def fake(prep, spp, seed=0, mis=False, **kw):
+        seen.append((spp, seed, mis))
+        return types.SimpleNamespace(image=np.full((2, 3, 3), vals[seed], np.float32), coverage=np.ones((2, 3), bool))
+
+    monkeypatch.setattr(warpbw.pipeline, "render_reference", fake)
+    cov, v = ac.per_pixel_variance(None, 3, 4)
+    assert seen == [(4, 1000, True), (4, 1001, True), (4, 1002, True)]
+    assert cov.all() and np.allclose(v, 4 * 3 * np.var([0.0, 1.0, 5.0], ddof=1), rtol=1e-12)

@@ -2143,3 +2143,39 @@ def test_an_asset_whose_header_names_no_format_is_refused(tmp_path):
     np.savez_compressed(p, **{HEADER_KEY: np.array(json.dumps(header))}, a=np.zeros(3))
     with pytest.raises(WarpbwError, match="rebuild it with: REBUILD"):
         read_asset(p, "warpbw-test-format", 3, "REBUILD")
+
+
+def _accepted(f, *a):
+    """True when the check takes the value, False when it refuses it with its one-line error."""
+    try:
+        f(*a)
+    except WarpbwError:
+        return False
+    return True
+
+
+def test_the_bounds_of_the_integer_and_real_checks_are_inclusive():
+    """The limits the checks name are themselves accepted: a seed of 2^32 - 1 ("0 to 4294967295") and a count
+    equal to its upper bound pass, one more is refused; the largest float32 (finite, as the kernels take it)
+    passes check_real and the next float64 above it is refused."""
+    from warpbw.errors import FLOAT32_MAX, SEED_MAX, check_count, check_real, check_seed
+
+    assert SEED_MAX == 4294967295
+    assert _accepted(check_seed, 4294967295) and not _accepted(check_seed, 4294967296)
+    assert _accepted(check_count, 5, "n", 1, 5) and not _accepted(check_count, 6, "n", 1, 5)
+    f32max = float(np.finfo(np.float32).max)
+    assert FLOAT32_MAX == f32max
+    assert _accepted(check_real, f32max, "x") and _accepted(check_real, -f32max, "x")
+    assert not _accepted(check_real, float(np.nextafter(f32max, np.inf)), "x")
+
+
+def test_coordinate_spacing_exactly_at_the_limit_is_accepted():
+    """A frame is refused only where float32 spaces coordinates by *more than* COORD_SPACING_REL_MAX (2^-10) of
+    the object's size: at 1024 units float32's spacing is 2^-13, exactly 2^-10 of an object of size 1/8, which is
+    accepted; a slightly smaller object is refused."""
+    from warpbw.errors import COORD_SPACING_REL_MAX, check_coordinate_spacing
+
+    assert COORD_SPACING_REL_MAX == 2.0 ** -10 and float(np.spacing(np.float32(1024.0))) == 2.0 ** -13
+    assert _accepted(check_coordinate_spacing, 1024.0, 0.125, "a sphere")
+    assert not _accepted(check_coordinate_spacing, 1024.0, 0.124, "a sphere")
+    assert not _accepted(check_coordinate_spacing, 1024.0, 0.124, "a sphere")

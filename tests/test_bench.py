@@ -646,3 +646,68 @@ def test_bench_scenes_run_passes_its_options_to_every_bench_and_the_sweep_to_the
     assert bs.main(["--out", str(out), "--run", "--only", "sphere_ccp3_forest_sun,sphere_ccp3_forest"]) == 0
     benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
     assert [Path(c[2]).stem for c in benches] == ["sphere_ccp3_forest", "sphere_ccp3_forest_sun"]
+
+
+def test_bandwidth_time_fraction_is_over_the_frames_wall_time(tmp_path, monkeypatch):
+    """The record's times are wall times of whole frames (bench docstring) and "bandwidth pass: x% of the frame"
+    divides the bandwidth pass by that time: with a frame whose stage sum is half its wall time (host work
+    between stages), the fraction is bandwidth / time_s, not bandwidth / the stage sum."""
+    from warpbw import pipeline
+    from warpbw.scene import parse_scene
+
+    clock = _FakeClock()
+    monkeypatch.setattr(bench, "time", clock)
+    cov = np.ones((8, 8), bool)
+    truth = np.full((8, 8, 3), 0.5, np.float32)
+
+    def fake_reference(prep, spp, seed=0, mis=False, **kw):
+        clock.now += 0.01 * spp
+        if seed >= 1_000_000:
+            return SimpleNamespace(image=truth.copy(), coverage=cov, stats={})
+        return SimpleNamespace(image=truth + np.float32(0.3 / spp), coverage=cov,
+                               stats={"time_s": {"shading": 0.009 * spp, "gbuffer": 0.001 * spp}})
+
+    def fake_adaptive(prep, budget, seed=0, mis=False, **kw):
+        clock.now += 0.04                                          # wall time 0.04 s
+        r = _fake_adaptive_result(truth + np.float32(0.3 / 8), cov, 0.02, budget)   # stages sum to 0.02 s
+        return r
+
+    monkeypatch.setattr(pipeline, "render_reference", fake_reference)
+    monkeypatch.setattr(pipeline, "render_adaptive", fake_adaptive)
+    rec = bench.run_bench(parse_scene(SCENE, tmp_path, "s.toml"), spp_list=(1, 4, 16), budgets=(1,), gt_spp=64,
+                          runs=1, cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **kw: None)
+    (p,) = rec["methods"]["adaptive"]
+    assert p["time_s"] == pytest.approx(0.04, rel=1e-9)
+    assert p["bandwidth_time_fraction"] == pytest.approx(0.002 / 0.04, rel=1e-9)
+
+
+def test_bench_plot_draws_each_method_from_its_own_records(tmp_path, monkeypatch):
+    """The bench plot's curves are PSNR against frame time, one per method, each labelled with its method and
+    drawn from that method's records (a swap would put the adaptive curve under the reference's label), and the
+    title gives the headline speed-up with its standard error."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.axes
+
+    curves, titles = [], []
+    real_eb, real_title = matplotlib.axes.Axes.errorbar, matplotlib.axes.Axes.set_title
+
+    def eb(self, x, y, *a, **kw):
+        curves.append((kw.get("label"), list(x), list(y)))
+        return real_eb(self, x, y, *a, **kw)
+
+    def title(self, t, *a, **kw):
+        titles.append(t)
+        return real_title(self, t, *a, **kw)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "errorbar", eb)
+    monkeypatch.setattr(matplotlib.axes.Axes, "set_title", title)
+    rec = {"scene": "s.toml", "resolution": [8, 8], "ground_truth_spp": 64, "estimator": "MIS",
+           "equal_quality_speedup": 3.25, "equal_quality_speedup_se": 0.5,
+           "methods": {"reference": [{"spp": 1, "time_s": 0.1, "psnr_db": 20.0}, {"spp": 4, "time_s": 0.4,
+                                                                                 "psnr_db": 26.0}],
+                       "adaptive": [{"budget": 1.0, "time_s": 0.05, "psnr_db": 24.0}]}}
+    bench.write_plot(rec, tmp_path / "p.png")
+    assert curves == [("reference (MIS)", [0.1, 0.4], [20.0, 26.0]), ("adaptive (002)", [0.05], [24.0])]
+    assert titles[0] == "equal-quality speed-up 3.2x \u00b1 0.5" and (tmp_path / "p.png").stat().st_size > 0

@@ -602,3 +602,50 @@ def test_benchmark_acceptance_table_puts_each_ratio_under_its_heading():
     assert lines[1].split()[:6] == ["scene", "zoom", "error", "/toksvig", "/fixed", "/unaligned"]
     assert lines[2].split() == ["s", "32", "0.1000", "0.250", "ok", "0.400", "ok", "0.500", "ok", "0.0100", "ok",
                                 "(0.0020)"]
+
+
+def test_filtering_scenes_hands_its_options_to_the_scenes_and_to_bench_filtering(tmp_path, monkeypatch):
+    """--components, --prior, --elevation and --lights reach the written scenes, and --run hands --max-anisotropy,
+    --flicker-pairs, --zoom and --gt-spp on to every warpbw bench-filtering command (their help says so; a
+    default in their place would benchmark another setting than the one asked for)."""
+    from types import SimpleNamespace
+
+    fs = _example()
+    got, cmds = {}, []
+
+    def fake_write(out, size, **kw):
+        got.update(kw, size=size)
+        return [tmp_path / "dunes.toml"]
+
+    def fake_run(cmd, *a, **kw):
+        cmds.append(list(cmd))
+        return SimpleNamespace(returncode=7)                 # stop after the first scene
+
+    monkeypatch.setattr(fs, "write_scenes", fake_write)
+    monkeypatch.setattr(fs.subprocess, "run", fake_run)
+    rc = fs.main(["--out", str(tmp_path / "o"), "--size", "32", "--components", "2", "--prior", "0.5",
+                  "--elevation", "40", "--lights", fs.LIGHT_SETUPS[-1], "--run", "--zoom", "1,3",
+                  "--gt-spp", "96", "--max-anisotropy", "4", "--flicker-pairs", "3"])
+    assert rc == 7
+    assert (got["size"], got["components"], got["prior"], got["elevation_deg"], got["lights"]) == (
+        32, 2, 0.5, 40.0, fs.LIGHT_SETUPS[-1])
+    (cmd,) = cmds
+    opt = {cmd[i]: cmd[i + 1] for i in range(len(cmd) - 1) if cmd[i].startswith("--")}
+    assert (opt["--max-anisotropy"], opt["--flicker-pairs"], opt["--zoom"], opt["--gt-spp"]) == ("4", "3", "1,3", "96")
+
+
+def test_filtering_zoom_renders_with_the_max_anisotropy_asked_for(tmp_path, monkeypatch):
+    """filtering_zoom.py's --max-anisotropy reaches every render_filtering call (and --gt-spp its spp): its help
+    promises the strips at that many probes, not at the default 1."""
+    import warpbw.filtering
+    from conftest import Handed, capture_call
+    from test_bad_input import PLANE_SCENE
+
+    (tmp_path / "planes.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
+    fz = _example("filtering_zoom")
+    monkeypatch.setattr(warpbw.filtering, "prepare_filtering", lambda *a, **kw: None)
+    got = capture_call(monkeypatch, warpbw.filtering, "render_filtering")
+    with pytest.raises(Handed):
+        fz.main([str(tmp_path / "planes.toml"), "-o", str(tmp_path / "z"), "--zoom", "2", "--gt-spp", "80",
+                 "--max-anisotropy", "4"])
+    assert got["max_anisotropy"] == 4 and got["spp"] == 80

@@ -112,3 +112,50 @@ def test_absent_default_mesh_is_skipped_and_a_missing_mesh_is_an_error(tmp_path,
         ex.main(["--env", str(tmp_path / "typo.exr"), "--out", str(tmp_path / "o")])
     assert e.value.code == 2 and "--env" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_dynamic_geometry_hands_budget_and_per_frame_seeds_and_reports_wall_fps(tmp_path, monkeypatch):
+    """--budget reaches every frame's render_adaptive, frame f is rendered with --seed + f (the option's help),
+    and each frame's fps is 1 / its wall time (the whole iteration, as the record's wall_s) with the summary's
+    mean_fps 1 / the mean wall time, bandwidth_share the mean bandwidth time over the mean stage total, and
+    mean_shaded_fraction the mean of the frames' shaded fractions: a figure computed from another time (the
+    stage sum alone), a fixed seed or the default budget would break these identities."""
+    import types
+
+    import warpbw.pipeline
+
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
+    ex = _example()
+    monkeypatch.setattr(ex, "DEFAULT_ENV", tmp_path / "no-probe.exr")
+    mesh = tmp_path / "sphere.obj"
+    trimesh.creation.icosphere(subdivisions=1, radius=0.8).export(mesh)
+    calls = []
+
+    def spy(prep, budget, *a, **kw):        # a frame with known stage times and shaded fraction
+        calls.append((budget, kw.get("seed")))
+        k = len(calls)
+        ts = {"gbuffer": 0.001 * k, "bandwidth": 0.002 * k, "shading": 0.003, "upsampling": 0.001,
+              "hierarchy": 0.0005, "frame": 0.0075 + 0.003 * k}
+        n = prep.width * prep.height
+        return types.SimpleNamespace(image=np.zeros((prep.height, prep.width, 3), np.float32),
+                               coverage=np.ones((prep.height, prep.width), bool),
+                               aovs={"shaded": np.ones((prep.height, prep.width), bool)},
+                               stats={"time_s": ts, "shaded_fraction": 0.1 * k, "pixels_shaded": k,
+                                      "pixels_covered": n, "samples": 3 * k, "samples_per_covered_pixel": 3.0,
+                                      "stages": ["gbuffer", "bandwidth_pass"]})
+
+    monkeypatch.setattr(warpbw.pipeline, "render_adaptive", spy)
+    ex.main(["--mesh", str(mesh), "--out", str(tmp_path / "o"), "--frames", "2", "--size", "8", "--budget", "3",
+             "--seed", "40", "--material", "ggx"])
+    assert calls == [(3.0, 40), (3.0, 40), (3.0, 41)]    # warm-up, then frames 0 and 1
+    rec = json.loads((tmp_path / "o" / "dynamic_geometry.json").read_text())
+    fr, s = rec["frames"], rec["summary"]
+    for r in fr:
+        assert r["fps"] == pytest.approx(1.0 / r["wall_s"], rel=1e-12)
+    assert s["mean_fps"] == pytest.approx(len(fr) / sum(r["wall_s"] for r in fr), rel=1e-12)
+    assert s["bandwidth_share"] == pytest.approx(sum(r["bandwidth_s"] for r in fr) / sum(r["total_s"] for r in fr),
+                                                 rel=1e-12)
+    assert [r["shaded_fraction"] for r in fr] == [0.2, pytest.approx(0.3)]     # frames 0, 1 (calls 2, 3)
+    assert s["mean_shaded_fraction"] == pytest.approx(0.25, rel=1e-12)
+    assert [r["bandwidth_s"] for r in fr] == [0.004, 0.006]
+    assert rec["budget_spp"] == 3.0 and rec["seed"] == 40

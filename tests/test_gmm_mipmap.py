@@ -793,3 +793,21 @@ def test_precompute_gmm_defaults_are_the_scene_files_defaults(tmp_path, monkeypa
     got = _gmm_capture(monkeypatch, tmp_path, [])
     assert (got["components"], got["prior"]) == (4, 1.0) == (GMM_DEFAULT_COMPONENTS, GMM_DEFAULT_PRIOR)
     assert (got["kind"], got["scale"], got["seed"], got["unaligned"]) == ("height", 1.0, 0, False)
+
+
+def test_gmm_precompute_time_builds_with_the_components_asked_for(monkeypatch):
+    """--components and --size reach the timed build (the figure is "N components at SIZE"): the first surface
+    is built from a SIZE x SIZE height field with that many Gaussians."""
+    from conftest import load_example
+
+    gt = load_example("gmm_precompute_time")
+    got = {}
+
+    def fake(h, **kw):
+        got.update(kw, shape=np.shape(h))
+        raise Handed
+
+    monkeypatch.setattr(gt, "build_gmm_mipmap", fake)
+    with pytest.raises(Handed):
+        gt.main(["--size", "17", "--components", "2"])
+    assert got["components"] == 2 and got["shape"][:2] == (17, 17)

@@ -131,3 +131,23 @@ def test_channels_first_and_an_alpha_channel_are_refused_not_compared():
     # an image three rows high, in RGB or grey, is still an image
     assert compare_images(test[:3], ref[:3])["pixels"] == 27
     assert compare_images(test[:3, :, :1], ref[:3, :, :1])["pixels"] == 27
+
+
+def test_relmse_regulariser_is_rousselle_2011s_one_hundredth():
+    """relMSE's regulariser is Rousselle, Knaus and Zwicker 2011's 0.01: a pixel of 2 against a reference of 1
+    gives 1 / 1.01, a pixel of 0.1 against 0 gives 0.01 / 0.01 = 1 (another epsilon changes both)."""
+    assert relmse(np.full((2, 2), 2.0), np.ones((2, 2))) == pytest.approx(1.0 / 1.01, rel=1e-12)
+    assert relmse(np.full((2, 2), 0.1), np.zeros((2, 2))) == pytest.approx(1.0, rel=1e-12)
+
+
+def test_worst_share_counts_the_ceiling_of_the_fraction():
+    """The worst pixels are ceil(fraction x n) of them (docstring): 1% of 150 pixels is 2 pixels, not 1, and
+    their share is then the two largest errors over the total."""
+    e = np.arange(1.0, 151.0)
+    share, k = worst_share(e, fraction=0.01)
+    assert k == 2 and share == pytest.approx((150.0 + 149.0) / e.sum(), rel=1e-12)
+
+
+def test_worst_share_of_the_whole_image_is_one():
+    """fraction may be 1 (the range is (0, 1]): every pixel is among the "worst", they hold all of the error."""
+    assert worst_share(np.array([[1.0, 2.0], [3.0, 0.0]]), fraction=1.0) == (1.0, 4)

@@ -173,3 +173,18 @@ def test_nu_a_quantiles_read_the_signal_asked_for(ms, tmp_path, monkeypatch):
         nu, _ = env_bandwidth_map(px, "p", signal=s)
         np.testing.assert_allclose(q, np.quantile(nu, ms.NU_A_QUANTILES), rtol=1e-6)   # float32 map
     assert got["log"] != pytest.approx(got["radiance"], rel=1e-3)
+
+
+@pytest.mark.parametrize("signal", ["radiance", "log"])
+def test_measure_hands_the_env_signal_to_the_adaptive_frame(ms, tmp_path, monkeypatch, signal):
+    """--env-signal decides what the adaptive frame's bandwidth pass reads (the module docstring): measure hands
+    it to render_adaptive, whichever it is (a fixed default would leave the "log" rows measuring "radiance")."""
+    import warpbw.pipeline
+    from conftest import Handed, capture_call
+
+    probe = tmp_path / "p.exr"
+    write_exr(probe, np.random.default_rng(3).uniform(0.1, 1.0, (8, 16, 3)).astype(np.float32))
+    got = capture_call(monkeypatch, warpbw.pipeline, "render_adaptive")
+    with pytest.raises(Handed):
+        ms.measure(probe, 0.05, 8, budget=1.0, truth_spp=1, seed=2, clamp_q=1.0, worst=1, env_signal=signal)
+    assert got["env_signal"] == signal and got["seed"] == 2 and got["_args"][1] == 1.0

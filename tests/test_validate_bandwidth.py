@@ -484,3 +484,53 @@ def test_windowed_mean_reads_only_the_references_windows(vb):
     assert vb.windowed_mean(vals, ones)[48, 46] == pytest.approx(46.0, rel=1e-12)
     gv[:, 12] = False                                     # centre column 48
     assert vb.windowed_mean(vals, ones, grid_valid=gv)[48, 46] == pytest.approx(44.0, rel=1e-12)
+
+
+def test_block_bootstrap_se_is_the_sample_standard_deviation_of_the_replicates(vb, monkeypatch):
+    """The bootstrap's standard error is the sample standard deviation (n - 1 in the denominator) of the
+    replicate correlations: with the replicate statistics forced to 0.1, 0.3, 0.5 it must be 0.2 exactly
+    (the population formula would give 0.163), so the reported +/- is not biased low."""
+    vals = iter([0.1, 0.3, 0.5])
+    monkeypatch.setattr(vb, "spearman", lambda a, b: next(vals))
+    a = np.arange(16.0).reshape(4, 4)
+    se = vb.block_bootstrap_se(a, a, np.ones((4, 4), bool), 2, reps=3, seed=0)
+    assert se == pytest.approx(0.2, rel=1e-12)
+
+
+def test_a_figure_equal_to_its_target_misses_it(vb):
+    """Issue 3's targets are strict ("rank correlations > 0.5 and a bound conservative on > 90%"): a figure
+    exactly at its target is reported as missed, not met."""
+    st = {"bandwidth_spearman": vb.TARGET_SPEARMAN, "variance_spearman": 0.9,
+          "variance_conservative_fraction": vb.TARGET_CONSERVATIVE}
+    missed, _ = vb.check_targets({"s": st})
+    assert missed == [f"s: bandwidth_spearman ({vb.TARGET_SPEARMAN:.3f})",
+                      f"s: variance_conservative_fraction ({vb.TARGET_CONSERVATIVE:.3f})"]
+
+
+def test_a_window_whose_coverage_equals_the_minimum_counts(vb):
+    """A window counts when its Hann-weighted coverage is "at least" the minimum (module docstring): with the
+    minimum raised to 1, the fully covered windows in the middle of an image still count (their coverage is
+    exactly 1), so a full-coverage image is not read as having no valid window."""
+    y, x = np.mgrid[0:96, 0:96].astype(np.float64)
+    img = np.sin(2.0 * math.pi * 0.1 * x + 0.4)
+    r = vb.windowed_bandwidth(img, min_cover=1.0)
+    assert r["grid_valid"][4:-4, 4:-4].all()
+    assert r["valid"][32:64, 32:64].all()
+    assert not r["grid_valid"][0, 0]            # the corner window reaches past the image: less than 1
+
+
+def test_quick_run_bootstrap_uses_tiles_of_bootstrap_tile_windows(vb, tmp_path):
+    """The reported standard errors come from tiles BOOTSTRAP_TILE FFT windows wide (the docstring's choice, so
+    the tiles span the reference's correlation length): recomputed from the written maps with tiles of
+    2 x 16 px (--quick's window), they match the JSON; tiles of one window would read a different figure."""
+    if not (vb.DATA / "envmaps" / "studio.exr").is_file():
+        pytest.skip("shared studio.exr absent")
+    out = tmp_path / "vb"
+    assert vb.main(["--out", str(out), "--quick", "--scenes", "sphere-ggx-studio"]) == 0
+    s = json.loads((out / "validate_bandwidth.json").read_text())["scenes"]["sphere-ggx-studio"]
+    m = np.load(out / "validate_sphere-ggx-studio_maps.npz")
+    assert vb.BOOTSTRAP_TILE == 2 and vb.QUICK["window"] == 16
+    want = vb.block_bootstrap_se(m["b_p"], m["bw_ref"], m["bw_valid"], 32)
+    other = vb.block_bootstrap_se(m["b_p"], m["bw_ref"], m["bw_valid"], 16)
+    assert want != pytest.approx(other, rel=1e-6)
+    assert s["bandwidth_spearman_se"] == pytest.approx(want, rel=1e-9)
