@@ -172,7 +172,8 @@ def test_per_pixel_variance_is_the_unbiased_variance_over_the_seeds_times_spp(ac
 
     def fake(prep, spp, seed=0, mis=False, **kw):
         seen.append((spp, seed, mis))
-        return types.SimpleNamespace(image=np.full((2, 3, 3), vals[seed], np.float32), coverage=np.ones((2, 3), bool))
+        return types.SimpleNamespace(image=np.full((2, 3, 3), vals[seed], np.float32),
+                                     coverage=np.ones((2, 3), bool))
 
     monkeypatch.setattr(warpbw.pipeline, "render_reference", fake)
     cov, v = ac.per_pixel_variance(None, 3, 4)

@@ -138,11 +138,11 @@ def test_dynamic_geometry_hands_budget_and_per_frame_seeds_and_reports_wall_fps(
               "hierarchy": 0.0005, "frame": 0.0075 + 0.003 * k}
         n = prep.width * prep.height
         return types.SimpleNamespace(image=np.zeros((prep.height, prep.width, 3), np.float32),
-                               coverage=np.ones((prep.height, prep.width), bool),
-                               aovs={"shaded": np.ones((prep.height, prep.width), bool)},
-                               stats={"time_s": ts, "shaded_fraction": 0.1 * k, "pixels_shaded": k,
-                                      "pixels_covered": n, "samples": 3 * k, "samples_per_covered_pixel": 3.0,
-                                      "stages": ["gbuffer", "bandwidth_pass"]})
+                                     coverage=np.ones((prep.height, prep.width), bool),
+                                     aovs={"shaded": np.ones((prep.height, prep.width), bool)},
+                                     stats={"time_s": ts, "shaded_fraction": 0.1 * k, "pixels_shaded": k,
+                                            "pixels_covered": n, "samples": 3 * k, "samples_per_covered_pixel": 3.0,
+                                            "stages": ["gbuffer", "bandwidth_pass"]})
 
     monkeypatch.setattr(warpbw.pipeline, "render_adaptive", spy)
     ex.main(["--mesh", str(mesh), "--out", str(tmp_path / "o"), "--frames", "2", "--size", "8", "--budget", "3",

@@ -511,9 +511,8 @@ def test_a_window_whose_coverage_equals_the_minimum_counts(vb):
     """A window counts when its Hann-weighted coverage is "at least" the minimum (module docstring): with the
     minimum raised to 1, the fully covered windows in the middle of an image still count (their coverage is
     exactly 1), so a full-coverage image is not read as having no valid window."""
-    y, x = np.mgrid[0:96, 0:96].astype(np.float64)
-    img = np.sin(2.0 * math.pi * 0.1 * x + 0.4)
-    r = vb.windowed_bandwidth(img, min_cover=1.0)
+    x = np.mgrid[0:96, 0:96][1].astype(np.float64)
+    r = vb.windowed_bandwidth(np.sin(2.0 * math.pi * 0.1 * x + 0.4), min_cover=1.0)
     assert r["grid_valid"][4:-4, 4:-4].all()
     assert r["valid"][32:64, 32:64].all()
     assert not r["grid_valid"][0, 0]            # the corner window reaches past the image: less than 1
