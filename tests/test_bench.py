@@ -397,12 +397,13 @@ def _frame(amplitude):
     return out.astype(np.float32)
 
 
-def _fake_renderers(monkeypatch, ref_amp, ada, chunk_amp=lambda k: 0.0, run_time=(1.0,)):
+def _fake_renderers(monkeypatch, ref_amp, ada, chunk_amp=lambda k: 0.0, run_time=(1.0,), ada_host_time=0.0):
     """Install fake ``render_reference`` / ``render_adaptive`` and a fake clock in bench.  The reference's run r at
     ``spp`` (seeded seed + 101 spp + r, as run_bench does) has amplitude ``ref_amp(spp)`` and takes
     0.01 spp run_time[r] s; budget b's run r (seeded 7 r) has amplitude ``ada[b][0]`` and takes ada[b][1] run_time[r]
     s; the ground truth's k-th chunk rendered (seed >= 1e6) has amplitude ``chunk_amp(k)``.  Returns the list of
-    the chunks' seeds, in the order rendered."""
+    the chunks' seeds, in the order rendered.  Each adaptive frame also spends ``ada_host_time`` s of wall time
+    outside its stages (its stats' time_s still sum to the frame's t)."""
 
     from warpbw import pipeline
 
@@ -423,7 +424,7 @@ def _fake_renderers(monkeypatch, ref_amp, ada, chunk_amp=lambda k: 0.0, run_time
     def fake_adaptive(prep, budget, seed=0, mis=False, **kw):
         amp, t = ada.get(float(budget), (0.1, 0.01))                     # the warm-up frame is budget 1
         t *= run_time[(seed // 7) % len(run_time)]
-        clock.now += t
+        clock.now += t + ada_host_time
         return _fake_adaptive_result(_frame(amp), _COV, t, budget)
 
     monkeypatch.setattr(pipeline, "render_reference", fake_reference)
@@ -652,28 +653,10 @@ def test_bandwidth_time_fraction_is_over_the_frames_wall_time(tmp_path, monkeypa
     """The record's times are wall times of whole frames (bench docstring) and "bandwidth pass: x% of the frame"
     divides the bandwidth pass by that time: with a frame whose stage sum is half its wall time (host work
     between stages), the fraction is bandwidth / time_s, not bandwidth / the stage sum."""
-    from warpbw import pipeline
     from warpbw.scene import parse_scene
 
-    clock = _FakeClock()
-    monkeypatch.setattr(bench, "time", clock)
-    cov = np.ones((8, 8), bool)
-    truth = np.full((8, 8, 3), 0.5, np.float32)
-
-    def fake_reference(prep, spp, seed=0, mis=False, **kw):
-        clock.now += 0.01 * spp
-        if seed >= 1_000_000:
-            return SimpleNamespace(image=truth.copy(), coverage=cov, stats={})
-        return SimpleNamespace(image=truth + np.float32(0.3 / spp), coverage=cov,
-                               stats={"time_s": {"shading": 0.009 * spp, "gbuffer": 0.001 * spp}})
-
-    def fake_adaptive(prep, budget, seed=0, mis=False, **kw):
-        clock.now += 0.04                                          # wall time 0.04 s
-        r = _fake_adaptive_result(truth + np.float32(0.3 / 8), cov, 0.02, budget)   # stages sum to 0.02 s
-        return r
-
-    monkeypatch.setattr(pipeline, "render_reference", fake_reference)
-    monkeypatch.setattr(pipeline, "render_adaptive", fake_adaptive)
+    _fake_renderers(monkeypatch, ref_amp=_power_law_amp, ada={1.0: (_power_law_amp(11.0), 0.02)},
+                    ada_host_time=0.02)                            # wall time 0.04 s, stages sum to 0.02 s
     rec = bench.run_bench(parse_scene(SCENE, tmp_path, "s.toml"), spp_list=(1, 4, 16), budgets=(1,), gt_spp=64,
                           runs=1, cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **kw: None)
     (p,) = rec["methods"]["adaptive"]

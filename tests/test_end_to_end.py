@@ -1015,27 +1015,8 @@ albedo = 0.5
 """
 
 
-_PLANE_SCENE = """\
-[camera]
-position = [0.0, 2.0, 3.0]
-look_at = [0.0, -1.0, 0.0]
-fov = 40.0
-resolution = [16, 12]
-
-[environment]
-constant = [1.0, 1.0, 1.0]
-
-[[object]]
-shape = "plane"
-center = [0.0, -1.0, 0.0]
-size = 4.0
-material = "armour"
-
-[material.armour]
-type = "cook-torrance"
-roughness = 0.2
-f0 = [0.9, 0.75, 0.4]
-"""
+# a plane under a sky (the option tests hand its --spp to the environment) and a light
+_PLANE_SCENE = plane_scene_toml(resolution=(16, 12), environment="[environment]\nconstant = [1.0, 1.0, 1.0]\n")
 
 
 @pytest.fixture

@@ -819,31 +819,15 @@ def test_check_scene_and_load_scene_refuse_what_is_not_a_scene():
         parse_scene(DEFAULT_SCENE_TOML.encode())
 
 
-_CAM_NO_UP = """\
-[camera]
-position = [0.0, 0.0, 4.0]
-look_at = [0.0, 0.0, 0.0]
-fov = 40.0
-resolution = [32, 24]
-
-[environment]
-constant = [1.0, 1.0, 1.0]
-
-[[object]]
-shape = "sphere"
-radius = 1.0
-material = "paint"
-"""
-
-
 def test_a_camera_without_up_is_y_up_as_the_readme_writes_it(tmp_path):
     """[camera].up may be left out; the camera it gives must be the one README's example (and the embedded scene)
     writes, up = [0, 1, 0]: the environment rotates about +Y and every probe is Y-up, so an omitted up that
     defaulted to another axis would silently roll or tilt every image."""
-    mats = '[material.paint]\ntype = "lambert"\nalbedo = 0.5\n'
-    side = _CAM_NO_UP.replace("position = [0.0, 0.0, 4.0]", "position = [4.0, 0.0, 0.0]")   # looking along -x
-    omitted = parse_scene(side + mats, tmp_path)
-    written = parse_scene(side.replace("fov", "up = [0.0, 1.0, 0.0]\nfov") + mats, tmp_path)
+    side = CAMERA.replace("position = [0.0, 0.0, 4.0]", "position = [4.0, 0.0, 0.0]")   # looking along -x
+    no_up = side.replace("up = [0.0, 1.0, 0.0]\n", "")
+    assert side != CAMERA and no_up != side
+    omitted = parse_scene(scene_text(camera=no_up), tmp_path)
+    written = parse_scene(scene_text(camera=side), tmp_path)
     assert tuple(written.camera.up) == (0.0, 1.0, 0.0)
     assert tuple(omitted.camera.up) == tuple(written.camera.up)
 
@@ -851,10 +835,9 @@ def test_a_camera_without_up_is_y_up_as_the_readme_writes_it(tmp_path):
 def test_cook_torrance_diffuse_defaults_to_zero_as_documented(tmp_path):
     """README: a cook-torrance material's ``diffuse`` is the Lambert albedo, 'default 0'.  Leaving it out must
     give a purely specular material, not one with a hidden diffuse lobe that brightens every plane."""
-    text = _CAM_NO_UP.replace("shape = \"sphere\"\nradius = 1.0", "shape = \"plane\"\ncenter = [0.0, -1.0, 0.0]\n"
-                              "size = 2.0") + \
-        '[material.paint]\ntype = "cook-torrance"\nroughness = 0.2\nf0 = [0.9, 0.8, 0.5]\n'
-    m = parse_scene(text, tmp_path).materials["paint"]
+    no_diffuse = ARMOUR.replace("diffuse = [0.05, 0.04, 0.02]\n", "")
+    assert no_diffuse != ARMOUR
+    m = parse_scene(scene_text(objects=PLANE, materials=no_diffuse), tmp_path).materials["armour"]
     assert tuple(m.diffuse) == (0.0, 0.0, 0.0)
 
 
@@ -866,8 +849,8 @@ def test_tabulated_materials_look_up_the_nearest_bin_by_default(tmp_path, mtype)
     f = tmp_path / "table.bin"
     f.write_bytes(b"x")   # parsing only checks that the file exists
     keys = f'file = "{f.name}"' if mtype == "merl" else f'table = "{f.name}"\nname = "chrome"'
-    m = parse_scene(_CAM_NO_UP + f'[material.paint]\ntype = "{mtype}"\n{keys}\n', tmp_path).materials["paint"]
+    paint = f'[material.paint]\ntype = "{mtype}"\n{keys}\n'
+    m = parse_scene(scene_text(materials=paint), tmp_path).materials["paint"]
     assert m.lookup == "nearest"
-    linear = parse_scene(_CAM_NO_UP + f'[material.paint]\ntype = "{mtype}"\n{keys}\nlookup = "linear"\n',
-                         tmp_path).materials["paint"]
+    linear = parse_scene(scene_text(materials=paint + 'lookup = "linear"\n'), tmp_path).materials["paint"]
     assert linear.lookup == "linear"   # and the key, when written, is read

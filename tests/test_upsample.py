@@ -127,22 +127,27 @@ def test_a_non_finite_valid_parent_propagates_to_the_pixels_that_weigh_it(mode):
         assert np.allclose(r.values.numpy()[ok & finite], 1.0)
 
 
+def _parents(x: int, y: int, pw: int, ph: int) -> list:
+    """Per parent k (002 Sec. 3.2) of pixel (x, y), at the next level of pw x ph pixels: its index (px, py), its
+    bilinear weight alpha_k, and v, its centre's offset from the pixel's in units of G_A_UNIT; the parents stop
+    at the last row and column, as the kernel's do."""
+    u = (np.array([x, y]) + 0.5) * 0.5 - 0.5
+    i0 = np.clip(np.floor(u).astype(int), 0, [pw - 1, ph - 1])
+    f = np.where(np.floor(u) < 0, 0.0, u - np.floor(u))
+    out = []
+    for k in range(4):
+        px, py = min(i0[0] + k % 2, pw - 1), min(i0[1] + k // 2, ph - 1)
+        alpha = ((1 - f[0]) if k % 2 == 0 else f[0]) * ((1 - f[1]) if k < 2 else f[1])
+        out.append((px, py, alpha, np.array([2 * px + 1 - (x + 0.5), 2 * py + 1 - (y + 0.5)]) / G_A_UNIT))
+    return out
+
+
 def test_weights_follow_the_closed_form_on_a_frontal_surface():
     # the centre of a big sphere faces the camera: cos theta_x ~ 1, M ~ I, g_z ~ 1
     gb, cam = gbuffer([SphereSpec((0, 0, 0), 3.0, 0)], w=32, h=32, pos=(0.0, 0.0, 8.0))
     wts = parent_weights(gb.data, cam, 0)
     for x, y in ((16, 16), (15, 16), (16, 15), (15, 15)):
-        u = (np.array([x, y]) + 0.5) * 0.5 - 0.5
-        i0 = np.floor(u)
-        f = u - i0
-        expect = []
-        for k in range(4):
-            px = i0[0] + (k % 2)
-            py = i0[1] + (k // 2)
-            ax = (1 - f[0]) if k % 2 == 0 else f[0]
-            ay = (1 - f[1]) if k < 2 else f[1]
-            v = np.array([2 * px + 1 - (x + 0.5), 2 * py + 1 - (y + 0.5)]) / G_A_UNIT
-            expect.append(ax * ay * np.exp(-(v @ v)))
+        expect = [alpha * np.exp(-(v @ v)) for _, _, alpha, v in _parents(x, y, 16, 16)]
         # a sphere is not a plane: cos theta_x and depth vary slightly over 1.5 pixels (1% on the far parent)
         assert np.allclose(wts[y, x], expect, rtol=1e-2, atol=1e-6)
 
@@ -388,22 +393,15 @@ def test_upsampling_weights_narrow_along_the_radial_direction_at_a_spheres_limb(
                 continue                                               # grazing, diagonal pixels only
             ns = r / np.linalg.norm(r)
             c = max(cos_x, COS_X_MIN)
-            u = (np.array([x, y]) + 0.5) * 0.5 - 0.5
-            i0 = np.clip(np.floor(u).astype(int), 0, [pw - 1, ph - 1])
-            f = np.where(np.floor(u) < 0, 0.0, u - np.floor(u))
             want = []
-            for k in range(4):
-                px, py = min(i0[0] + k % 2, pw - 1), min(i0[1] + k // 2, ph - 1)
-                ax = (1 - f[0]) if k % 2 == 0 else f[0]
-                ay = (1 - f[1]) if k < 2 else f[1]
+            for px, py, alpha, v in _parents(x, y, pw, ph):
                 qx, qy = min(2 * px + 1, W - 1), min(2 * py + 1, H - 1)
-                if mat[qy, qx] < 0 or ax * ay == 0:
+                if mat[qy, qx] < 0 or alpha == 0:
                     want.append(0.0)
                     continue
-                v = np.array([2 * px + 1 - (x + 0.5), 2 * py + 1 - (y + 0.5)]) / G_A_UNIT
                 along, across = v @ ns, v @ np.array([-ns[1], ns[0]])
                 gz = math.exp(-((depth[y, x] - depth[qy, qx]) / (DEPTH_SIGMA_REL * depth[y, x])) ** 2)
-                want.append(ax * ay * gz * math.exp(-(across ** 2 + along ** 2 / c ** 2)))
+                want.append(alpha * gz * math.exp(-(across ** 2 + along ** 2 / c ** 2)))
             np.testing.assert_allclose(wts[y, x], want, rtol=2e-3, atol=1e-7, err_msg=str((x, y, cos_x)))
             checked += 1
     assert checked >= 8, checked
