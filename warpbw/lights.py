@@ -43,17 +43,24 @@ class Lights:
     count: int
 
 
-def _radiances(e: np.ndarray, what: str) -> np.ndarray:
+def _struct(d: np.ndarray, e: np.ndarray, device: str, what_d: str, what_e: str) -> DirectionalLights:
+    """The struct of (n, 3) float64 directions, scaled to unit length, and radiances, each checked once (messages
+    start with ``what_d`` / ``what_e``), then the device."""
+    d = unit_directions(d, what_d)
     if not (np.all(np.isfinite(e)) and np.all(e >= 0.0) and np.all(e <= FLOAT32_MAX)):
-        raise WarpbwError(f"{what}: expected radiances that are finite, >= 0 and within the float32 range")
-    return e
+        raise WarpbwError(f"{what_e}: expected radiances that are finite, >= 0 and within the float32 range")
+    check_device(device)
+    s = DirectionalLights()
+    s.direction = wp.array(d.astype(np.float32), dtype=wp.vec3, device=device)
+    s.radiance = wp.array(e.astype(np.float32), dtype=wp.vec3, device=device)
+    return s
 
 
 def directional_struct(directions, radiances, device: str = "cpu") -> DirectionalLights:
     """The struct of ``(n, 3)`` directions towards the lights (scaled to unit length here: the shading takes them
     as they are) and their ``(n, 3)`` radiances, one per direction (the shading loops over the directions and reads
     the radiance of each: 2 directions with 1 radiance read past its end); else a one-line ``WarpbwError``."""
-    check_device(device)
+    check_device(device)   # first, as before the shapes
     try:
         d = np.asarray(directions, np.float64)
         e = np.asarray(radiances, np.float64)
@@ -65,12 +72,7 @@ def directional_struct(directions, radiances, device: str = "cpu") -> Directiona
             raise WarpbwError(f"directional_struct: expected (n, 3) directions and (n, 3) radiances, one per "
                               f"direction, got shapes {d.shape} and {e.shape}")
         d = e = np.zeros((0, 3))
-    d = unit_directions(d, "directional_struct: directions")
-    e = _radiances(e, "directional_struct: radiances")
-    s = DirectionalLights()
-    s.direction = wp.array(d.astype(np.float32), dtype=wp.vec3, device=device)
-    s.radiance = wp.array(e.astype(np.float32), dtype=wp.vec3, device=device)
-    return s
+    return _struct(d, e, device, "directional_struct: directions", "directional_struct: radiances")
 
 
 def make_lights(scene_lights, device: str = "cpu") -> Lights | None:
@@ -87,6 +89,4 @@ def make_lights(scene_lights, device: str = "cpu") -> Lights | None:
         if dk.shape != (3,) or ek.shape != (3,):
             raise WarpbwError(f"[[light]] {k}: expected a direction and a radiance of 3 numbers each")
         d[k], e[k] = dk, ek
-    d = unit_directions(d, "[[light]]")
-    e = _radiances(e, "[[light]]")
-    return Lights(directional_struct(d, e, device), len(lights))
+    return Lights(_struct(d, e, device, "[[light]]", "[[light]]"), len(lights))   # checked once, as a scene's
