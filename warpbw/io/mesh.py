@@ -158,12 +158,14 @@ def vertex_normals(vertices, faces) -> np.ndarray:
     is zero gets ``FALLBACK_NORMAL``: one without incident area, or one whose faces cancel (coincident triangles
     wound in opposite directions; ``load_mesh`` refuses those)."""
     v = _checked_vertices(vertices)
-    f = _checked_faces(faces, len(v))
-    n, _ = _normal_sums(v, f)
-    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return _unit_normals(_normal_sums(v, _checked_faces(faces, len(v)))[0])
+
+
+def _unit_normals(sums: np.ndarray) -> np.ndarray:
+    """``_normal_sums``' sums scaled to unit length; ``FALLBACK_NORMAL`` where a sum is zero."""
+    length = np.linalg.norm(sums, axis=1, keepdims=True)
     ok = length[:, 0] > 0.0
-    n = np.where(ok[:, None], n / np.where(length > 0.0, length, 1.0), np.asarray(FALLBACK_NORMAL))
-    return n
+    return np.where(ok[:, None], sums / np.where(length > 0.0, length, 1.0), np.asarray(FALLBACK_NORMAL))
 
 
 def mesh_mean_curvature(vertices, faces, normals=None) -> np.ndarray:
@@ -177,7 +179,7 @@ def mesh_mean_curvature(vertices, faces, normals=None) -> np.ndarray:
     vertices = _checked_vertices(vertices)
     faces = _checked_faces(faces, len(vertices))
     if normals is None:
-        nrm = vertex_normals(vertices, faces)
+        nrm = _unit_normals(_normal_sums(vertices, faces)[0])   # vertex_normals', the mesh already checked
     else:
         try:
             nrm = np.asarray(normals, dtype=np.float64)
@@ -187,6 +189,11 @@ def mesh_mean_curvature(vertices, faces, normals=None) -> np.ndarray:
         if nrm.shape != vertices.shape:
             raise WarpbwError(f"normals: expected one per vertex, shape {vertices.shape}, got {nrm.shape}")
         nrm = unit_directions(nrm, "normals")
+    return _mean_curvature(vertices, faces, nrm)
+
+
+def _mean_curvature(vertices: np.ndarray, faces: np.ndarray, nrm: np.ndarray) -> np.ndarray:
+    """``mesh_mean_curvature`` of checked float64 vertices, int64 faces and unit normals."""
     e_scale = _exact_scale(vertices)   # H is computed at an exact scale and scaled back (H ~ 1 / length)
     v, f, p0, p1, p2 = _face_geometry(np.ldexp(vertices, -e_scale), faces)
     nv = len(v)
@@ -303,9 +310,13 @@ def normals_and_curvature(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
     """Unit area-weighted vertex normals (V, 3) and mean curvature H (V,), both float64, from the
     current vertex positions alone: what ``load_mesh`` derives, for a mesh deformed every frame.
 
-    No state is kept between calls (nothing is precomputed from an earlier pose)."""
-    normals = vertex_normals(vertices, faces)
-    return normals, mesh_mean_curvature(vertices, faces, normals)
+    No state is kept between calls (nothing is precomputed from an earlier pose).  The mesh is checked once (it
+    was checked three times: by each function, and the normals again)."""
+    v = _checked_vertices(vertices)
+    f = _checked_faces(faces, len(v))
+    normals = _unit_normals(_normal_sums(v, f)[0])
+    # unit_directions as mesh_mean_curvature(v, f, normals) applies it: the same H, to the last bit
+    return normals, _mean_curvature(v, f, unit_directions(normals, "normals"))
 
 
 def _check_transform(path: Path, translate, scale, rotate_y_deg):
@@ -426,7 +437,7 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
                           f"(coincident triangles wound in opposite directions, such as both sides of a sheet; first: "
                           f"vertex {i} at {tuple(round(float(x), 6) for x in verts[i])}); expected consistently wound "
                           "triangles (remove the oppositely wound copy)")
-    normals = vertex_normals(verts, faces)
+    normals = _unit_normals(sums)   # vertex_normals(verts, faces), from the sums just checked
     uv = getattr(mesh.visual, "uv", None)
     uv = np.asarray(uv, dtype=np.float32) if uv is not None and np.shape(uv) == (len(verts), 2) else None
     return MeshData(
