@@ -202,6 +202,23 @@ def capture_call(monkeypatch, module, name: str) -> dict:
     return got
 
 
+def ref_half_diff_angles(wi, wo):
+    """Rusinkiewicz theta_h, theta_d, phi_d (unfolded, in (-pi, pi]) of direction pairs, by projecting wi on the
+    frame at h (u = R(phi_h) R(theta_h) e_x, v = R(phi_h) e_y) instead of the two rotations warpbw.io.merl uses:
+    test_merl's and test_npf's reference for the MERL bins."""
+    wi = wi / np.linalg.norm(wi, axis=-1, keepdims=True)
+    wo = wo / np.linalg.norm(wo, axis=-1, keepdims=True)
+    h = wi + wo
+    h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    th = np.arccos(np.clip(h[:, 2], -1, 1))
+    ph = np.arctan2(h[:, 1], h[:, 0])
+    u = np.stack([np.cos(th) * np.cos(ph), np.cos(th) * np.sin(ph), -np.sin(th)], -1)
+    v = np.stack([-np.sin(ph), np.cos(ph), np.zeros_like(ph)], -1)
+    td = np.arccos(np.clip(np.sum(wi * h, -1), -1, 1))
+    pd = np.arctan2(np.sum(wi * v, -1), np.sum(wi * u, -1))
+    return th, td, pd
+
+
 def grid_mesh(n_u, n_v, fn):
     """Triangulated (n_u x n_v) vertex grid; fn(u, v) -> (N, 3) points; faces wound (dv x du)."""
     uu, vv = np.meshgrid(np.arange(n_u), np.arange(n_v), indexing="ij")

@@ -15,6 +15,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from conftest import ref_half_diff_angles
 from warpbw.errors import WarpbwError
 from warpbw.io.merl import (
     MERL_FILE_SIZE,
@@ -37,24 +38,9 @@ N_BINS = 90 * 90 * 180
 # ----------------------------------------------------------------- independent reference code
 
 
-def ref_angles(wi, wo):
-    """theta_h, theta_d, phi_d (unfolded) via the frame at h: u = R(phi_h) R(theta_h) e_x, v = R(phi_h) e_y."""
-    wi = wi / np.linalg.norm(wi, axis=-1, keepdims=True)
-    wo = wo / np.linalg.norm(wo, axis=-1, keepdims=True)
-    h = wi + wo
-    h /= np.linalg.norm(h, axis=-1, keepdims=True)
-    th = np.arccos(np.clip(h[:, 2], -1, 1))
-    ph = np.arctan2(h[:, 1], h[:, 0])
-    u = np.stack([np.cos(th) * np.cos(ph), np.cos(th) * np.sin(ph), -np.sin(th)], -1)
-    v = np.stack([-np.sin(ph), np.cos(ph), np.zeros_like(ph)], -1)
-    td = np.arccos(np.clip(np.sum(wi * h, -1), -1, 1))
-    pd = np.arctan2(np.sum(wi * v, -1), np.sum(wi * u, -1))
-    return th, td, pd
-
-
 def ref_coords(wi, wo):
     """Continuous README bin coordinates (before floor) of each pair."""
-    th, td, pd = ref_angles(wi, wo)
+    th, td, pd = ref_half_diff_angles(wi, wo)
     pd = np.where(pd < 0, pd + math.pi, pd)
     return np.sqrt(th / HALF_PI) * 90, td / HALF_PI * 90, pd / math.pi * 180
 
@@ -146,7 +132,7 @@ def test_half_diff_matches_independent_formula():
     rng = np.random.default_rng(1)
     wi, wo = hemisphere(rng, 5000), hemisphere(rng, 5000)
     th, _, td, pd = half_diff_from_dirs(wi, wo)
-    rth, rtd, rpd = ref_angles(wi, wo)
+    rth, rtd, rpd = ref_half_diff_angles(wi, wo)
     np.testing.assert_allclose(th, rth, atol=1e-9)
     np.testing.assert_allclose(td, rtd, atol=1e-7)  # arccos near 0 amplifies rounding
     dphi = np.angle(np.exp(1j * (pd - rpd)))

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import named_as, shared_file
+from conftest import named_as, ref_half_diff_angles, shared_file
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -168,14 +168,7 @@ def test_normal_incidence_keeps_specular(materials, raw):
 
 def ref_bins_and_centres(wi, wo):
     """README MERL bins of each pair (via the frame at h) and (wi, wo) at that bin's centre, phi_h = 0."""
-    h = wi + wo
-    h /= np.linalg.norm(h, axis=-1, keepdims=True)
-    th = np.arccos(np.clip(h[:, 2], -1, 1))
-    ph = np.arctan2(h[:, 1], h[:, 0])
-    u = np.stack([np.cos(th) * np.cos(ph), np.cos(th) * np.sin(ph), -np.sin(th)], -1)
-    v = np.stack([-np.sin(ph), np.cos(ph), np.zeros_like(ph)], -1)
-    td = np.arccos(np.clip(np.sum(wi * h, -1), -1, 1))
-    pd = np.arctan2(np.sum(wi * v, -1), np.sum(wi * u, -1))
+    th, td, pd = ref_half_diff_angles(wi, wo)
     pd = np.where(pd < 0, pd + math.pi, pd)
     cs = [np.sqrt(th / HALF_PI) * 90, td / HALF_PI * 90, pd / math.pi * 180]
     safe = np.all([(c - np.floor(c) > 1e-6) & (c - np.floor(c) < 1 - 1e-6) for c in cs], axis=0)
