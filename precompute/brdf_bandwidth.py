@@ -281,13 +281,6 @@ def build_brdf_bandwidth(source, progress: bool = True, resolution: int = DEFAUL
         return brdf_bandwidth_table(source.evaluate, resolution=resolution, progress=step)
 
 
-def _rebuild_hint(source) -> str:
-    if source is None:
-        return "warpbw-precompute brdf SOURCE [--material NAME] -o OUT --force"
-    mat = f" --material {source.name.split(':', 1)[1]}" if ":" in source.name else ""
-    return f"warpbw-precompute brdf {source.path}{mat} -o OUT --force"
-
-
 def write_brdf_bandwidth(path, table: np.ndarray, source, force: bool = False,
                          resolution: int = DEFAULT_RESOLUTION):
     """Write a table built from ``source`` (anything with ``name`` and ``digest``): only one that
@@ -319,7 +312,9 @@ def _checked_table(table, what: str, fix: str = "") -> np.ndarray:
 
 def read_brdf_bandwidth(path, source=None) -> np.ndarray:
     """Read a table ``(16, 16, 16)`` float32; with ``source``, refuse one built from different data."""
-    hint = _rebuild_hint(source)
+    from precompute.brdf_sampling import rebuild_command
+
+    hint = rebuild_command("brdf", source)
     a = read_asset(path, FORMAT, VERSION, hint)
     if source is not None and a.header.get("source_hash") != source.digest:
         raise WarpbwError(f"{path}: built from {a.header.get('source')!r} with different content than "

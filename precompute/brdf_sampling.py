@@ -7,6 +7,7 @@ Public:
         source's own file, nor a read-only file, whatever ``force`` says)
     ``check_brdf_source(source, caller, needs) -> source``   a path passed where a source is expected, refused
     ``source_files(source) -> list``   the file a source was read from (what a table written from it may not replace)
+    ``rebuild_command(subcommand, source) -> str``   the ``warpbw-precompute`` line that rebuilds a table of a source
     ``load_or_build_sampling(source, explicit=None, cache=None, progress=True) -> (SamplerTable, origin)``
     ``load_or_build(source, explicit, cache, prefix, version, read, build, write)``   the shared cache logic
     ``cache_dir()``
@@ -20,6 +21,7 @@ once, when the scene does not name a precomputed file, and caches them under ``c
 from __future__ import annotations
 
 import os
+import shlex
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -40,6 +42,7 @@ class BrdfSource:
     digest: str                 # content hash of the source bytes (+ material name)
     evaluate: Callable          # numpy (wi, wo) -> (N, 3)
     brdf: object = None         # the loaded MerlBRDF or NPFMaterial (so callers need not read it again)
+    material: str | None = None  # the NPF material's name as the table spells it; None for a MERL file
 
 
 def brdf_source(file, material: str | None = None) -> BrdfSource:
@@ -54,7 +57,7 @@ def brdf_source(file, material: str | None = None) -> BrdfSource:
         return BrdfSource(p.name, p, file_digest(p), lambda wi, wo: merl_eval(brdf, wi, wo, interpolate=False), brdf)
     mat = read_npf(p, material)
     return BrdfSource(f"{p.name}:{mat.name}", p, f"{file_digest(p)}:{mat.name}",
-                      lambda wi, wo: npf_eval(mat, wi, wo, interpolate=True), mat)
+                      lambda wi, wo: npf_eval(mat, wi, wo, interpolate=True), mat, mat.name)
 
 
 def check_brdf_source(source, caller: str, needs=("name", "evaluate")):
@@ -83,12 +86,16 @@ def build_brdf_sampling(source: BrdfSource, progress: bool = True) -> SamplerTab
         return build_sampler_table(source.evaluate, progress=step)
 
 
-def _rebuild_hint(source) -> str:
-    """The command that rebuilds the tables of ``source`` (with --material for an NPF table's material)."""
-    if source is None:
-        return "warpbw-precompute brdf-sampling SOURCE [--material NAME] -o OUT --force"
-    mat = f" --material {source.name.split(':', 1)[1]}" if ":" in source.name else ""
-    return f"warpbw-precompute brdf-sampling {source.path}{mat} -o OUT --force"
+def rebuild_command(subcommand: str, source) -> str:
+    """The ``warpbw-precompute SUBCOMMAND`` line that rebuilds a table of ``source``, with ``--material`` for an NPF
+    table's material, its words quoted for a POSIX shell (a MERL file named ``lab:chrome.binary`` was taken for an NPF
+    material, and a path with a space split); placeholders where the source or its file is unknown."""
+    path = getattr(source, "path", None)
+    if path is None:
+        return f"warpbw-precompute {subcommand} SOURCE [--material NAME] -o OUT --force"
+    material = getattr(source, "material", None)
+    mat = "" if material is None else f" --material {shlex.quote(material)}"
+    return f"warpbw-precompute {subcommand} {shlex.quote(str(path))}{mat} -o OUT --force"
 
 
 def write_sampling(path, table: SamplerTable, source: BrdfSource, force: bool = False) -> Path:
@@ -103,7 +110,7 @@ def write_sampling(path, table: SamplerTable, source: BrdfSource, force: bool = 
 
 def read_sampling(path, source: BrdfSource | None = None) -> SamplerTable:
     """Read a sampling-table file; with ``source``, refuse one built from different data."""
-    hint = _rebuild_hint(source)
+    hint = rebuild_command("brdf-sampling", source)
     a = read_asset(path, TABLE_FORMAT, TABLE_VERSION, hint)
     if source is not None and a.header.get("source_hash") != source.digest:
         raise WarpbwError(f"{path}: built from {a.header.get('source')!r} with different content than "

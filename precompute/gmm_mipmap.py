@@ -122,6 +122,7 @@ from __future__ import annotations
 import hashlib
 import math
 import numbers
+import shlex
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -612,7 +613,7 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
 # Files
 
 def _rebuild_hint(source: str) -> str:
-    return f"warpbw-precompute gmm {source} -o OUT --force"
+    return f"warpbw-precompute gmm {shlex.quote(str(source))} -o OUT --force"   # a name with a space is one word
 
 
 def write_gmm_mipmap(path, mip: GmmMipmap, source_name: str, source_hash: str, force: bool = False,

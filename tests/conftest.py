@@ -202,6 +202,32 @@ def capture_call(monkeypatch, module, name: str) -> dict:
     return got
 
 
+def fake_npf_table(path: Path) -> Path:
+    """An NPF table of the right size whose every value is 0.5: each row a valid (if odd) fit."""
+    from warpbw.io.npf import NPF_FILE_SIZE
+
+    np.full(NPF_FILE_SIZE // 4, 0.5, "<f4").tofile(path)
+    return path
+
+
+def outcome(f, *args, **kwargs) -> str:
+    """What a call did, as text an assertion can print: "returned X", "WarpbwError: MESSAGE", "exit N" (argparse's
+    usage errors), "Handed" (``capture_call``'s stand-in was reached), or "not a WarpbwError: ..." (a traceback the
+    user would have seen)."""
+    from warpbw.errors import WarpbwError
+
+    try:
+        return f"returned {f(*args, **kwargs)!r}"
+    except WarpbwError as exc:
+        return f"WarpbwError: {exc}"
+    except Handed:
+        return "Handed"
+    except SystemExit as exc:
+        return f"exit {exc.code}"
+    except Exception as exc:   # noqa: BLE001
+        return f"not a WarpbwError: {exc!r}"
+
+
 def ref_half_diff_angles(wi, wo):
     """Rusinkiewicz theta_h, theta_d, phi_d (unfolded, in (-pi, pi]) of direction pairs, by projecting wi on the
     frame at h (u = R(phi_h) R(theta_h) e_x, v = R(phi_h) e_y) instead of the two rotations warpbw.io.merl uses:

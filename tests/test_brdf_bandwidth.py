@@ -19,8 +19,8 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import named_as
-from precompute.brdf_bandwidth import (FORMAT, N_CELLS, N_THETA_I, analytic_brdf_bandwidth_table,
+from conftest import named_as, outcome
+from precompute.brdf_bandwidth import (FORMAT, N_CELLS, N_THETA_I, VERSION, analytic_brdf_bandwidth_table,
                                        brdf_bandwidth_table, build_brdf_bandwidth, map_radians_per_pixel,
                                        read_brdf_bandwidth, write_brdf_bandwidth)
 from precompute.assetfile import write_asset
@@ -327,3 +327,11 @@ def test_the_table_is_tabulated_at_the_centre_of_each_incident_bin_the_lookup_us
     brdf_bandwidth_table(evaluate, resolution=16)
     theta = np.unique(np.round(seen, 7))
     np.testing.assert_allclose(theta, (np.arange(N_THETA_I) + 0.5) * (math.pi / 2) / N_THETA_I, atol=1e-7)
+
+
+def test_a_file_without_its_table_is_refused(tmp_path):
+    """A bandwidth asset of the right format and version but no 'nu_rho' array: a one-line refusal with the rebuild
+    hint (it was a KeyError traceback, which the cache's rebuild path does not take either)."""
+    write_asset(tmp_path / "t.npz", FORMAT, VERSION, "m.binary", "d1", {"other": np.zeros(3)})
+    got = outcome(read_brdf_bandwidth, tmp_path / "t.npz")
+    assert got.startswith("WarpbwError: ") and "lacks array 'nu_rho'" in got and "rebuild it with" in got, got

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import named_as, ref_half_diff_angles, shared_file
+from conftest import capture_call, fake_npf_table, named_as, outcome, ref_half_diff_angles, shared_file
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -252,6 +252,23 @@ def test_npf_to_merl_never_replaces_its_table(tmp_path, link):
     assert str(e.value).startswith(f"{out}: would overwrite {table}, the file it is made from")
     assert table.read_bytes() == b"\x01" * NPF_FILE_SIZE
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted({table.name, out.name})
+
+
+@pytest.mark.parametrize("case", ["exists", "its own table"])
+def test_npf_to_merl_refuses_before_the_tabulation(tmp_path, monkeypatch, case):
+    """npf_to_merl checks its output "before the tabulation, which takes seconds": an existing output without force,
+    or the table itself with force, is refused before tabulate_merl is called (the test above cannot tell)."""
+    import precompute.npf_to_merl as nm
+
+    table = fake_npf_table(tmp_path / "npf.bin")
+    got = capture_call(monkeypatch, nm, "tabulate_merl")
+    if case == "exists":
+        out, force, said = tmp_path / "out.binary", False, "already exists"
+        out.write_bytes(b"keep")
+    else:
+        out, force, said = table, True, "would overwrite"
+    result = outcome(nm.npf_to_merl, table, "chrome", out, force=force)
+    assert result.startswith(f"WarpbwError: {out}: {said}") and got == {}, result
 
 
 def test_npf_to_merl_refuses_a_read_only_output_even_with_force(tmp_path):

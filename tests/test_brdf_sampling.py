@@ -1,0 +1,272 @@
+"""The precomputed tables of a tabulated BRDF (precompute.brdf_sampling): opening a source, reading and caching
+tables, the rebuild command a refusal suggests, and the ``brdf-sampling`` / ``brdf`` subcommands' options.
+
+The numeric builders are replaced here by stand-ins that report every step and return a valid table at once
+(``warpbw.sampling`` and ``precompute.brdf_bandwidth`` have their own modules); what is tested is what a user is
+told and which file is read or written.  Truth: README's documented options, defaults and cache folder, the
+precompute parser itself (a rebuild hint must parse as the command that builds that table), sources made by
+hand with known names and digests, and the file system.
+"""
+from __future__ import annotations
+
+import importlib
+import shlex
+
+import numpy as np
+import pytest
+
+from conftest import capture_call, fake_npf_table, outcome
+from precompute.assetfile import write_asset
+from precompute.brdf_sampling import BrdfSource, brdf_source, read_sampling, write_sampling
+from warpbw.sampling import N_PHI, N_THETA_O, N_U, TABLE_FORMAT, TABLE_VERSION, SamplerTable
+
+
+def _sampling_table(n_theta_o: int = N_THETA_O) -> SamplerTable:
+    """A table of the shapes this warpbw reads (finite, >= 0)."""
+    return SamplerTable(np.zeros((n_theta_o, N_U + 1), np.float32), np.zeros((n_theta_o, N_U, N_PHI + 1), np.float32),
+                        np.ones((n_theta_o, N_U, N_PHI), np.float32))
+
+
+def _write_raw(path, table: SamplerTable, source) -> None:
+    """``table`` as a sampling-table file, whatever its shapes or values (write_sampling would write the same)."""
+    write_asset(path, TABLE_FORMAT, TABLE_VERSION, source.name, source.digest,
+                {"marginal": table.marginal, "conditional": table.conditional, "density": table.density})
+
+
+@pytest.fixture
+def fast_builders(monkeypatch):
+    """The two table builders' numeric cores replaced by stand-ins that report every step to ``progress`` and return
+    a valid table at once: the commands, their progress bars and their writers run for real."""
+    import precompute.brdf_bandwidth as bb
+    import precompute.brdf_sampling as bs
+    from precompute.brdf_bandwidth import N_THETA_I, SHAPE
+
+    def sampling(evaluate, progress=None, **kw):
+        for k in range(1, N_THETA_O + 1):
+            progress(k)
+        return _sampling_table()
+
+    def bandwidth(evaluate, resolution=128, progress=None):
+        for k in range(1, N_THETA_I + 1):
+            progress(k)
+        return np.full(SHAPE, 2.0, np.float32)
+
+    monkeypatch.setattr(bs, "build_sampler_table", sampling)
+    monkeypatch.setattr(bb, "brdf_bandwidth_table", bandwidth)
+
+
+def _reader(cmd: str):
+    from precompute.brdf_bandwidth import read_brdf_bandwidth
+
+    return read_sampling if cmd == "brdf-sampling" else read_brdf_bandwidth
+
+
+# ------------------------------------------------------------------------------------------ sources and tables
+
+
+def test_brdf_source_names_an_npf_material_as_the_table_spells_it(tmp_path):
+    """read_npf takes " Chrome " for chrome; a table built with ``--material " Chrome "`` is then the chrome table:
+    same name and digest, so a scene naming "chrome" reads it (it was refused as "different content", and cached
+    under a second key)."""
+    npf = fake_npf_table(tmp_path / "npf.bin")
+    typed, canonical = brdf_source(npf, " Chrome "), brdf_source(npf, "chrome")
+    assert typed.name == canonical.name == "npf.bin:chrome" and typed.material == "chrome"
+    write_sampling(tmp_path / "t.npz", _sampling_table(), typed)
+    got = outcome(read_sampling, tmp_path / "t.npz", canonical)
+    assert got.startswith("returned SamplerTable("), got
+
+
+def test_tables_of_an_edited_source_of_the_same_name_are_refused(tmp_path):
+    """README: the renderer refuses "a table built from different data".  A MERL file edited under the same name has
+    another content hash: its old tables are refused, not matched by name."""
+    path = tmp_path / "m.binary"
+    before = BrdfSource("m.binary", path, "hash-of-the-first-version", None)
+    after = BrdfSource("m.binary", path, "hash-of-the-edited-file", None)
+    write_sampling(tmp_path / "t.npz", _sampling_table(), before)
+    read_sampling(tmp_path / "t.npz", before)
+    assert "different content" in outcome(read_sampling, tmp_path / "t.npz", after)
+
+
+def test_consistent_tables_of_another_resolution_are_refused(tmp_path):
+    """The kernels index the tables with warpbw.sampling's N_THETA_O x N_U x N_PHI: a self-consistent table of half
+    as many view elevations (an older or a hand-made file) is refused with the rebuild hint."""
+    src = BrdfSource("m.binary", tmp_path / "m.binary", "d1", None)
+    _write_raw(tmp_path / "t.npz", _sampling_table(N_THETA_O // 2), src)
+    got = outcome(read_sampling, tmp_path / "t.npz", src)
+    assert f"this warpbw uses {(N_THETA_O, N_U, N_PHI)}" in got and "rebuild it with" in got, got
+
+
+def test_infinite_tables_are_refused(tmp_path):
+    """"tables hold negative or non-finite values": +inf passes a ``>= 0`` test (NaN does not), and an infinite
+    density samples NaN directions."""
+    src = BrdfSource("m.binary", tmp_path / "m.binary", "d1", None)
+    t = _sampling_table()
+    t.density[3, 5, 7] = np.inf
+    _write_raw(tmp_path / "t.npz", t, src)
+    assert "negative or non-finite" in outcome(read_sampling, tmp_path / "t.npz", src)
+
+
+def test_a_source_without_its_attributes_is_refused_in_one_line():
+    """check_brdf_source: an object lacking what the call needs is refused naming the caller and what to pass (it was
+    an AttributeError traceback)."""
+    from types import SimpleNamespace
+
+    from precompute.brdf_sampling import build_brdf_sampling
+
+    got = outcome(build_brdf_sampling, SimpleNamespace(name="x"), progress=False)
+    assert got.startswith("WarpbwError: build_brdf_sampling: source") and "has no evaluate" in got, got
+    got = outcome(write_sampling, "t.npz", _sampling_table(), SimpleNamespace(name="x"))
+    assert got.startswith("WarpbwError: write_sampling: source") and "has no digest" in got, got
+
+
+# ------------------------------------------------------------------------------------------ the rebuild command
+
+
+@pytest.mark.parametrize("cmd", ["brdf-sampling", "brdf"])
+@pytest.mark.parametrize("kind", ["npf material", "merl named like one", "folder with a space"])
+def test_a_refusal_names_the_command_that_rebuilds_that_table(tmp_path, cmd, kind):
+    """The hint in a refusal, split as a POSIX shell splits it and parsed by warpbw-precompute's own parser, is the
+    subcommand that builds that kind of table, on the source's file, with --material exactly for an NPF material.
+    A MERL file named ``lab:chrome.binary`` was taken for an NPF material (``--material chrome.binary``), the
+    bandwidth table's hint could name brdf-sampling, and a folder with a space split the path in two."""
+    from precompute.__main__ import build_parser, cmd_brdf, cmd_brdf_sampling
+
+    if kind == "npf material":
+        src, material = brdf_source(fake_npf_table(tmp_path / "npf.bin"), "chrome"), "chrome"
+    else:
+        folder = tmp_path / ("my tables" if kind == "folder with a space" else "t")
+        src, material = BrdfSource("lab:chrome.binary", folder / "lab:chrome.binary", "d1", None), None
+    write_asset(tmp_path / "old.npz", "another-format", 1, src.name, src.digest, {"x": np.zeros(1)})
+    got = outcome(_reader(cmd), tmp_path / "old.npz", src)
+    assert got.startswith("WarpbwError: ") and "rebuild it with: " in got, got
+    prog, *argv = shlex.split(got.split("rebuild it with: ", 1)[1].rstrip(")"))
+    args = build_parser().parse_args(argv)
+    assert (prog, args.func, args.file, args.material, args.force) == \
+        ("warpbw-precompute", cmd_brdf_sampling if cmd == "brdf-sampling" else cmd_brdf, str(src.path), material,
+         True), got
+    unknown = outcome(_reader(cmd), tmp_path / "old.npz")   # no source: the command, with placeholders
+    assert f"rebuild it with: warpbw-precompute {cmd} SOURCE" in unknown, unknown
+
+
+# ------------------------------------------------------------------------------------------ the cache
+
+
+def test_the_cache_defaults_to_dot_cache_warpbw_in_the_home_folder(tmp_path, monkeypatch):
+    """README: tables are cached under $WARPBW_CACHE (default ~/.cache/warpbw)."""
+    from precompute.brdf_sampling import cache_dir
+
+    monkeypatch.delenv("WARPBW_CACHE", raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path))
+    assert cache_dir() == tmp_path / ".cache" / "warpbw"
+
+
+def test_a_cache_folder_is_made_with_its_parents_and_used_when_given(tmp_path, monkeypatch):
+    """A cache folder that does not exist yet is made, parents and all ($WARPBW_CACHE = ~/.cache/warpbw on a fresh
+    account lacks ~/.cache too), and the second call reads the entry.  A folder passed explicitly (bench-filtering's
+    --cache, or its private folder that keeps the measured precompute time honest) is where the entry goes, not
+    $WARPBW_CACHE."""
+    import precompute.brdf_sampling as bs
+
+    built = []
+
+    def build(source, progress=True):
+        built.append(source.name)
+        return _sampling_table()
+
+    monkeypatch.setattr(bs, "build_brdf_sampling", build)
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "env_cache"))
+    src = BrdfSource("m.binary", tmp_path / "m.binary", "d1", None)
+    cache = tmp_path / "a" / "b" / "cache"
+    origins = [bs.load_or_build_sampling(src, cache=cache, progress=False)[1] for _ in range(2)]
+    assert origins == ["built", "cache"] and built == ["m.binary"]
+    assert len(list(cache.glob("sampling-*.npz"))) == 1
+    assert not (tmp_path / "env_cache").exists()
+
+
+def test_progress_reports_k_of_total(monkeypatch):
+    """precompute.progress: the builders call step(k) with the count done, so after step(k) the bar stands at k and
+    at the end at total (it stood at 1 + 2 + ... + 16 = 136 of 16)."""
+    import tqdm
+
+    from precompute.progress import progress_callback
+
+    bars = []
+
+    class Bar:
+        def __init__(self, total, **kw):
+            self.total, self.n = total, 0
+            bars.append(self)
+
+        def update(self, k):
+            self.n += k
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(tqdm, "tqdm", Bar)
+    seen = []
+    with progress_callback(16, "x", "item", True) as step:
+        for k in range(1, 17):
+            step(k)
+            seen.append(bars[0].n)
+    assert seen == list(range(1, 17)) and bars[0].n == bars[0].total == 16
+
+
+# ------------------------------------------------------------------------------------------ the subcommands
+
+
+@pytest.mark.parametrize("cmd", ["brdf-sampling", "brdf"])
+def test_force_replaces_an_existing_table(tmp_path, monkeypatch, fast_builders, cmd):
+    """--force ("overwrite an existing output") reaches the writer: the file is replaced by a table the renderer's
+    reader takes as built from that source (it was built, then refused with "already exists")."""
+    from precompute.__main__ import main
+
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    (tmp_path / "t.npz").write_bytes(b"an older table")
+    assert outcome(main, [cmd, "npf.bin", "--material", "chrome", "-o", "t.npz", "--force", "-q"]) == "returned 0"
+    _reader(cmd)(tmp_path / "t.npz", brdf_source(tmp_path / "npf.bin", "chrome"))
+
+
+@pytest.mark.parametrize("cmd,module,builder", [("brdf-sampling", "precompute.brdf_sampling", "build_brdf_sampling"),
+                                                ("brdf", "precompute.brdf_bandwidth", "build_brdf_bandwidth")])
+def test_a_table_is_written_to_an_npz_name_only(tmp_path, monkeypatch, capsys, cmd, module, builder):
+    """README: the assets warpbw-precompute writes (besides npf-to-merl's .binary) are .npz archives; --help: "a name
+    ending in .npz".  A .gmm name is the GMM mipmap's: refused before any work."""
+    from precompute.__main__ import main
+
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    got = capture_call(monkeypatch, importlib.import_module(module), builder)
+    assert outcome(main, [cmd, "npf.bin", "--material", "chrome", "-o", "t.gmm", "-q"]) == "returned 2"
+    assert got == {} and "-o t.gmm: expected a path ending in .npz" in capsys.readouterr().err
+    assert not (tmp_path / "t.gmm").exists()
+
+
+@pytest.mark.parametrize("cmd", ["brdf-sampling", "brdf"])
+def test_the_source_as_its_own_output_is_refused_before_it_is_read(tmp_path, monkeypatch, capsys, cmd):
+    """A source named like a table (``m.npz``) given as -o with --force is refused up front as the file the table is
+    made from, whatever --force says; it is not read as a BRDF first."""
+    from precompute.__main__ import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "m.npz").write_bytes(b"the source, whatever it holds")
+    assert outcome(main, [cmd, "m.npz", "-o", "m.npz", "--force", "-q"]) == "returned 2"
+    err = capsys.readouterr().err
+    assert "-o m.npz: would overwrite m.npz, the file it is made from" in err, err
+    assert (tmp_path / "m.npz").read_bytes() == b"the source, whatever it holds"
+
+
+@pytest.mark.parametrize("cmd,bar", [("brdf-sampling", "sampling tables npf.bin:chrome"),
+                                     ("brdf", "bandwidth npf.bin:chrome")])
+def test_a_progress_bar_unless_quiet(tmp_path, monkeypatch, capsys, fast_builders, cmd, bar):
+    """README: "Long renders and precomputes show a progress bar"; -q: "no progress bar"."""
+    from precompute.__main__ import main
+
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    assert outcome(main, [cmd, "npf.bin", "--material", "chrome", "-o", "quiet.npz", "-q"]) == "returned 0"
+    quiet = capsys.readouterr().err
+    assert bar not in quiet and "%|" not in quiet, quiet
+    assert outcome(main, [cmd, "npf.bin", "--material", "chrome", "-o", "loud.npz"]) == "returned 0"
+    assert bar in capsys.readouterr().err
