@@ -854,3 +854,256 @@ def test_tabulated_materials_look_up_the_nearest_bin_by_default(tmp_path, mtype)
     assert m.lookup == "nearest"
     linear = parse_scene(scene_text(materials=paint + 'lookup = "linear"\n'), tmp_path).materials["paint"]
     assert linear.lookup == "linear"   # and the key, when written, is read
+
+
+# ------------------------------------------------------------------------------------------ the ends of each range
+# (mutation round 6: each test fails when its bound moves by one step or its check is dropped)
+
+
+def test_cook_torrance_accepts_the_ends_readme_uses_and_refuses_beyond(tmp_path):
+    """README's reflectance-filtering notes use a plane of "diffuse 1, f0 0 and roughness 0.001" and "f0 = 1 at
+    roughness 1", and call roughness 1e-3 the smallest accepted: those ends are accepted; just below the smallest
+    roughness and above 1 are refused, naming the key."""
+    extremes = (ARMOUR.replace("roughness = 0.08", "roughness = 1.0").replace("[0.9, 0.75, 0.4]", "[1.0, 1.0, 1.0]")
+                .replace("[0.05, 0.04, 0.02]", "1.0"))
+    m = load_scene(_plane_scene(tmp_path, material=extremes, name="a.toml")).materials["armour"]
+    assert (m.roughness, m.f0, m.diffuse) == (1.0, (1.0, 1.0, 1.0), (1.0, 1.0, 1.0))
+    smallest = ARMOUR.replace("roughness = 0.08", "roughness = 1e-3").replace("[0.9, 0.75, 0.4]", "0.0")
+    m = load_scene(_plane_scene(tmp_path, material=smallest, name="b.toml")).materials["armour"]
+    assert (m.roughness, m.f0) == (1e-3, (0.0, 0.0, 0.0))
+    for rough in ("9e-4", "1.5"):
+        expect_error(_plane_scene(tmp_path, material=_replace(ARMOUR, "0.08", rough), name="c.toml"),
+                     "[material.armour].roughness: expected a number")
+
+
+def test_lambert_and_ggx_colours_of_one_are_accepted(tmp_path):
+    """README: lambert albedo and ggx specular each in [0, 1]: 1 itself is accepted (a white furnace).  The property
+    test over [0, 1] drew exactly 1.0 only in some runs."""
+    mats = ('[material.paint]\ntype = "lambert"\nalbedo = [1.0, 1.0, 1.0]\n'
+            '[material.white]\ntype = "ggx"\nalpha = 0.3\nspecular = 1.0\n')
+    s = parse_scene(scene_text(materials=mats), tmp_path)
+    assert s.materials["paint"].albedo == s.materials["white"].specular == (1.0, 1.0, 1.0)
+
+
+def test_environment_radiance_up_to_float32_max_and_a_zero_scale_are_accepted(tmp_path):
+    """The kernels see constant * scale in float32, so the largest float32 itself (numpy's finfo) is a radiance they
+    hold: accepted.  A scale of 0 gives the same black light as constant = 0, which is accepted."""
+    f32_max = float(np.finfo(np.float32).max)
+    top = parse_scene(scene_text(environment=f"[environment]\nconstant = {f32_max!r}\nscale = 1.0\n"), tmp_path)
+    assert top.environment.constant == (f32_max,) * 3
+    off = parse_scene(scene_text(environment="[environment]\nconstant = 1.0\nscale = 0.0\n"), tmp_path).environment
+    assert max(off.constant) * off.scale == 0.0
+
+
+def test_a_conductor_needs_both_eta_and_k(tmp_path):
+    """README: "optional eta, k = [r, g, b] (conductor)", the two together.  k alone was dropped silently: the
+    material rendered as a dielectric."""
+    ggx = '[material.paint]\ntype = "ggx"\nalpha = 0.3\nspecular = 1.0\n'
+    for extra in ("k = [3.0, 2.4, 1.8]\n", "eta = [0.2, 0.4, 1.5]\n"):
+        msg = expect_error(write(tmp_path / "s.toml", scene_text(materials=ggx + extra)), "[material.paint]")
+        assert "both eta and k" in msg
+
+
+def test_a_conductor_k_beyond_the_largest_index_is_refused_in_the_scene(tmp_path):
+    """README: "A conductor's eta and k are at most 1e4".  k = 5e9 passed the scene and was refused only by the
+    material table, naming no scene key.  Both at 1e4 are accepted."""
+    ggx = '[material.paint]\ntype = "ggx"\nalpha = 0.3\nspecular = 1.0\neta = [1e4, 1.0, 1.0]\n'
+    s = parse_scene(scene_text(materials=ggx + "k = [1e4, 1e4, 1e4]\n"), tmp_path)
+    assert s.materials["paint"].k == (1e4,) * 3
+    expect_error(write(tmp_path / "s.toml", scene_text(materials=ggx + "k = [5e9, 1.0, 1.0]\n")),
+                 "[material.paint].k: expected a number <= 10000")
+
+
+def test_a_tiling_of_zero_repeats_is_refused(tmp_path):
+    """tiling is the number of repeats across the plane (README): zero repeats is no map at all."""
+    (tmp_path / "n.png").write_bytes(b"x")
+    expect_error(_plane_scene(tmp_path, material=ARMOUR + 'normal_map = "n.png"\ntiling = 0\n'),
+                 "[material.armour].tiling: expected a number > 0")
+
+
+def test_gmm_components_up_to_the_builders_maximum_are_accepted(tmp_path):
+    """Every count the GMM builder takes (1 to precompute.gmm_mipmap.MAX_COMPONENTS) is a count a scene may ask for;
+    one more is refused."""
+    from precompute.gmm_mipmap import MAX_COMPONENTS
+
+    (tmp_path / "n.png").write_bytes(b"x")
+    base = ARMOUR + 'normal_map = "n.png"\n'
+    for k in (1, MAX_COMPONENTS):
+        s = load_scene(_plane_scene(tmp_path, material=base + f"gmm_components = {k}\n"))
+        assert s.materials["armour"].gmm_components == k
+    expect_error(_plane_scene(tmp_path, material=base + f"gmm_components = {MAX_COMPONENTS + 1}\n"),
+                 "[material.armour].gmm_components")
+
+
+@pytest.mark.parametrize("old, new, key", [
+    ("fov = 40.0", "fov = true", "[camera].fov"),
+    ("radius = 1.0", "radius = true", "[[object]] #1.radius"),
+    ("albedo = [0.5, 0.5, 0.5]", "albedo = [true, 0.5, 0.5]", "[material.paint].albedo"),
+    ("constant = [1.0, 1.0, 1.0]", "constant = [1.0, true, 1.0]", "[environment].constant"),
+])
+def test_a_boolean_is_not_a_number(tmp_path, old, new, key):
+    """TOML's booleans are their own type (toml.io, "Boolean"): `radius = true` must not render a unit sphere."""
+    expect_error(write(tmp_path / "s.toml", _replace(BASE, old, new)), f"{key}: expected a finite number")
+
+
+@pytest.mark.parametrize("old, new, key", [
+    ("position = [0.0, 0.0, 4.0]", "position = [0.0, 0.0, 4.0, 1.0]", "[camera].position"),
+    ("albedo = [0.5, 0.5, 0.5]", "albedo = [0.5, 0.5, 0.5, 1.0]", "[material.paint].albedo"),
+    ("center = [0.0, 0.0, 0.0]", "center = [0.0, 0.0, 0.0, 0.0]", "[[object]] #1.center"),
+])
+def test_four_numbers_are_not_three(tmp_path, old, new, key):
+    """Points and colours are [x, y, z] / [r, g, b] (README): a fourth number (a homogeneous w, an alpha) is refused
+    rather than dropped."""
+    expect_error(write(tmp_path / "s.toml", _replace(BASE, old, new)), f"{key}: expected three numbers")
+
+
+def test_an_empty_npf_material_name_is_refused_by_the_scene(tmp_path):
+    """README: name = "gold-metallic-paint".  An empty name names no NPF material: refused at the key, not later
+    naming the table."""
+    (tmp_path / "npf.bin").write_bytes(b"x")
+    expect_error(write(tmp_path / "s.toml", scene_text(materials='[material.paint]\ntype = "npf"\n'
+                                                                 'table = "npf.bin"\nname = ""\n')),
+                 "[material.paint].name: expected a non-empty string")
+
+
+def test_a_path_from_the_home_folder_is_expanded(tmp_path, monkeypatch):
+    """README: paths are relative to the scene file, and ``~/`` is the home folder ($HOME here), not a folder named
+    "~" beside the scene."""
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / "probe.exr").write_bytes(b"not read by the parser")
+    monkeypatch.setenv("HOME", str(home))
+    at_home = scene_text(environment='[environment]\nfile = "~/probe.exr"\n')
+    s = load_scene(write(tmp_path / "scenes" / "s.toml", at_home))
+    assert s.environment.file == home / "probe.exr"
+
+
+def test_a_mesh_with_a_cook_torrance_material_is_refused(tmp_path):
+    """README: planes carry cook-torrance materials; spheres and meshes the other types (the sphere case is tested
+    above)."""
+    write(tmp_path / "tri.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    msg = expect_error(_plane_scene(tmp_path, objects='[[object]]\nmesh = "tri.obj"\nmaterial = "armour"\n'),
+                       "[[object]] #1.material")
+    assert "cook-torrance" in msg and "planes only" in msg
+
+
+def test_a_material_two_objects_share_is_one_material(tmp_path):
+    """Scene.material_order holds only materials some object uses, one table each in memory: two spheres of one MERL
+    material are one material and one file read."""
+    (tmp_path / "a.binary").write_bytes(b"x")
+    two = SPHERE + _replace(SPHERE, "center = [0.0, 0.0, 0.0]", "center = [2.5, 0.0, 0.0]")
+    s = parse_scene(scene_text(objects=two, materials='[material.paint]\ntype = "merl"\nfile = "a.binary"\n'),
+                    tmp_path)
+    assert s.material_order == ["paint"]
+    assert s.files() == [tmp_path / "a.binary"]
+
+
+def test_an_empty_array_of_lights_is_no_light(tmp_path):
+    """`light = []` is valid TOML; with no [environment] the scene has no light at all, which README refuses ("a
+    scene needs at least one of them")."""
+    with pytest.raises(WarpbwError, match=r"^s: \[\[light\]\]: expected one or more"):
+        parse_scene("light = []\n" + scene_text(environment=""), tmp_path, "s")
+
+
+def test_a_light_direction_is_scaled_not_floored(tmp_path):
+    """A direction towards the light is any non-zero vector (README: normalised), whatever its length: [0, 1e-10, 0]
+    is straight up, as [0, 1e10, 0] is (an absolute floor of 1e-9 refused it, saying "expected a non-zero vector"
+    of a non-zero vector)."""
+    for d in ("[0.0, 1e-10, 0.0]", "[0.0, 1e10, 0.0]", "[0.0, 5e-324, 0.0]"):
+        s = load_scene(_plane_scene(tmp_path, lights=_replace(LIGHT, "[0.0, 2.0, 0.0]", d)))
+        assert s.lights[0].direction == (0.0, 1.0, 0.0), d
+
+
+# ------------------------------------------------------------------------------------------ what a scene file can hold
+
+
+def test_toml_string_refuses_exactly_what_utf8_cannot_encode():
+    """toml_string refuses the lone surrogates U+D800-U+DFFF, both ends included: Python's own UTF-8 codec says
+    which characters a file cannot hold.  Their neighbours round-trip through Python's TOML reader."""
+    import tomllib
+
+    from warpbw.scene import toml_string
+
+    for c in ("\ud800", "\udbff", "\udc00", "\udfff", "\ud7ff", "\ue000"):
+        try:
+            c.encode("utf-8")
+        except UnicodeEncodeError:
+            with pytest.raises(WarpbwError, match="cannot be written in a scene file"):
+                toml_string("a" + c, "p")
+        else:
+            assert tomllib.loads(f"f = {toml_string('a' + c, 'p')}")["f"] == "a" + c
+
+
+def test_toml_string_escapes_every_character_toml_refuses_raw():
+    """TOML 1.0 (toml.io, "String"): a basic string may not hold a raw quote, backslash, or control character other
+    than tab (U+0000-U+001F, U+007F).  A path holding each round-trips through Python's TOML reader (the property
+    test's kills of these were Hypothesis' luck)."""
+    import tomllib
+
+    from warpbw.scene import toml_string
+
+    for c in [chr(i) for i in range(0x20)] + ["\x7f", '"', "\\"]:
+        text = f"dir{c}/probe.exr"
+        written = f"f = {toml_string(text, 'p')}"
+        try:
+            back = tomllib.loads(written)["f"]
+        except tomllib.TOMLDecodeError as exc:
+            back = f"refused by the TOML reader: {exc}"
+        assert back == text, (hex(ord(c)), written)
+
+
+def test_file_digest_covers_every_byte_of_a_large_file(tmp_path):
+    """file_digest keys the cached tables and ground truths: two files differing only in their last byte, past the
+    first 4 MiB read, differ, and the digest is blake2b-128 of the whole file (hashlib's)."""
+    import hashlib
+
+    from warpbw.scene import file_digest
+
+    data = bytes(range(256)) * (5 << 12)             # 5 MiB
+    a, b = tmp_path / "a.bin", tmp_path / "b.bin"
+    a.write_bytes(data)
+    b.write_bytes(data[:-1] + bytes([data[-1] ^ 1]))
+    assert file_digest(a) == hashlib.blake2b(data, digest_size=16).hexdigest()
+    assert file_digest(a) != file_digest(b)
+
+
+def test_check_scene_returns_scenes_with_black_materials(tmp_path):
+    """Every scene a file gives comes back from check_scene (README: a Scene built or edited in Python is checked as
+    a scene file is), albedo 0, a GGX specular 0 and a Cook-Torrance f0 0 included: a value equal to the field's
+    Python default is still written back when the type requires the key."""
+    from warpbw.scene import check_scene
+
+    mats = ('[material.paint]\ntype = "lambert"\nalbedo = 0.0\n'
+            '[material.dark]\ntype = "ggx"\nalpha = 0.3\nspecular = 0.0\n')
+    objs = SPHERE + '[[object]]\nshape = "sphere"\ncenter = [2.5, 0.0, 0.0]\nradius = 0.5\nmaterial = "dark"\n'
+    spheres = parse_scene(scene_text(objects=objs, materials=mats), tmp_path)
+    plane = load_scene(_plane_scene(tmp_path, material=_replace(ARMOUR, "[0.9, 0.75, 0.4]", "0.0")))
+    for s in (spheres, plane):
+        assert check_scene(s) == s
+
+
+@pytest.mark.parametrize("old, new, key", [
+    ("up = [0.0, 1.0, 0.0]", "up = [0.0, 0.0, 0.0]", "[camera].up"),
+    ("position = [0.0, 0.0, 4.0]", "position = [0.0, 0.0, 0.0]", "[camera].look_at: must differ from"),
+], ids=["zero up", "position = look_at = origin"])
+def test_a_camera_without_a_direction_is_one_line_not_a_traceback(tmp_path, old, new, key):
+    """A zero up vector, and a camera at its own look_at point at the origin (0 <= 1e-12 x 0), name the key: both
+    were a ZeroDivisionError traceback."""
+    path = write(tmp_path / "s.toml", _replace(BASE, old, new))
+    try:
+        expect_error(path, key)
+    except ZeroDivisionError as exc:
+        raise AssertionError(f"ZeroDivisionError ({exc}) instead of a one-line error naming {key}") from None
+
+
+def test_input_files_hold_every_file_the_scene_names(tmp_path):
+    """Scene.input_files(): every file the scene names or is read from, unused materials' too (a command's outputs
+    may not replace them): the scene file, the probe and an unused material's MERL file, listed by hand."""
+    (tmp_path / "probe.exr").write_bytes(b"x")
+    (tmp_path / "spare.binary").write_bytes(b"x")
+    spare = '[material.spare]\ntype = "merl"\nfile = "spare.binary"\n'
+    probe = '[environment]\nfile = "probe.exr"\n'
+    p = write(tmp_path / "s.toml", scene_text(environment=probe, materials=PAINT + spare))
+    s = load_scene(p)
+    assert s.files() == [tmp_path / "probe.exr"]          # what the render reads
+    assert sorted(map(str, s.input_files())) == sorted(map(str, [p, tmp_path / "probe.exr", tmp_path / "spare.binary"]))

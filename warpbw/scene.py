@@ -470,8 +470,8 @@ def _light(ctx: _Ctx, d: dict, i: int) -> DirectionalLight:
     ctx.table(d, key, ("type", "direction", "radiance"), required=("type", "direction", "radiance"))
     ctx.string(d["type"], f"{key}.type", LIGHT_TYPES)
     direction = ctx.vec3(d["direction"], f"{key}.direction", point=True)
-    length = math.sqrt(sum(c * c for c in direction))
-    if length < 1e-9:
+    length = math.hypot(*direction)   # scaled: [0, 1e-10, 0] is a direction (an absolute 1e-9 floor refused it)
+    if length == 0.0:
         ctx.fail(f"{key}.direction", f"expected a non-zero vector towards the light, got {list(direction)}")
     radiance = ctx.vec3(d["radiance"], f"{key}.radiance", lo=0.0)
     return DirectionalLight(tuple(c / length for c in direction), radiance)
