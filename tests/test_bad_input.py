@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import damage_deflate_stream, plane_scene_toml
+from conftest import capture_call, damage_deflate_stream, fake_npf_table, outcome, plane_scene_toml
 
 from warpbw.errors import WarpbwError
 from warpbw.io.exr import write_exr
@@ -134,7 +134,7 @@ def test_brdf_tables_beyond_float32_shading_are_refused(tmp_path):
     r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
     assert_one_line_error(r, "huge.binary", "beyond 1e+20", "float32 shading would overflow")
     assert_no_outputs(tmp_path)
-    npf = _fake_npf_table(tmp_path / "npf.bin")
+    npf = fake_npf_table(tmp_path / "npf.bin")
     row = NPF_MATERIAL_NAMES.index("chrome")
     with open(npf, "r+b") as f:
         f.seek(row * NPF_COLS * 3 * 4)
@@ -330,14 +330,8 @@ def test_missing_scene_file(tmp_path):
     assert_one_line_error(r, "nothere.toml", "scene file not found")
 
 
-def _fake_npf_table(path: Path) -> Path:
-    """An NPF table of the right size whose every value is 0.5: each row a valid (if odd) fit."""
-    np.full(NPF_FILE_SIZE // 4, 0.5, "<f4").tofile(path)
-    return path
-
-
 def test_unknown_npf_material_name(tmp_path):
-    _fake_npf_table(tmp_path / "npf.bin")
+    fake_npf_table(tmp_path / "npf.bin")
     write_scene(tmp_path, material='type = "npf"\ntable = "npf.bin"\nname = "chrom"')
     r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
     assert_one_line_error(r, "npf.bin", "unknown NPF material 'chrom'", "chrome")
@@ -345,7 +339,7 @@ def test_unknown_npf_material_name(tmp_path):
 
 
 def test_unknown_npf_material_name_in_precompute(tmp_path):
-    _fake_npf_table(tmp_path / "npf.bin")
+    fake_npf_table(tmp_path / "npf.bin")
     r = run(["npf-to-merl", "--table", "npf.bin", "--material", "gold-metalic-paint", "-o", "out.binary"],
             tmp_path, module="precompute")
     assert_one_line_error(r, "npf.bin", "'gold-metalic-paint'", "gold-metallic-paint", prog="warpbw-precompute")
@@ -364,7 +358,7 @@ def test_precompute_names_pipes_npf_tables_and_materials_as_they_are(tmp_path):
     for args in (["gmm", "pipe.exr", "-o", "g.npz"], ["gmm", "/dev/zero", "-o", "g.npz"]):
         assert_one_line_error(run(args, tmp_path, module="precompute"), "not a regular file (a pipe, socket or device)",
                               prog="warpbw-precompute")
-    _fake_npf_table(tmp_path / "npf.bin")
+    fake_npf_table(tmp_path / "npf.bin")
     for cmd in ("brdf", "brdf-sampling"):
         assert_one_line_error(run([cmd, "npf.bin", "-o", "t.npz"], tmp_path, module="precompute"),
                               "npf.bin: the size of an NPF table: name one of its materials with --material NAME",
@@ -399,7 +393,7 @@ def _npz_with_header(header: str) -> bytes:
 def test_sampling_file_that_is_not_an_asset(tmp_path, content):
     """Zero bytes (numpy's EOFError) and an .npz whose header is JSON but not an object (AttributeError on
     .get) were tracebacks."""
-    _fake_npf_table(tmp_path / "npf.bin")
+    fake_npf_table(tmp_path / "npf.bin")
     (tmp_path / "tables.npz").write_bytes(content)
     write_scene(tmp_path, material='type = "npf"\ntable = "npf.bin"\nname = "chrome"\nsampling = "tables.npz"')
     r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
@@ -433,7 +427,7 @@ def test_sampling_file_with_bad_arrays(tmp_path, what, needle):
     from precompute.brdf_sampling import brdf_source
     from warpbw.sampling import TABLE_FORMAT, TABLE_VERSION
 
-    src = brdf_source(_fake_npf_table(tmp_path / "npf.bin"), "chrome")
+    src = brdf_source(fake_npf_table(tmp_path / "npf.bin"), "chrome")
     write_asset(tmp_path / "tables.npz", TABLE_FORMAT, TABLE_VERSION, src.name, src.digest, _sampling_arrays(what))
     write_scene(tmp_path, material='type = "npf"\ntable = "npf.bin"\nname = "chrome"\nsampling = "tables.npz"')
     r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
@@ -448,7 +442,7 @@ def test_sampling_file_of_an_older_version(tmp_path):
     from precompute.brdf_sampling import brdf_source
     from warpbw.sampling import TABLE_FORMAT, TABLE_VERSION
 
-    src = brdf_source(_fake_npf_table(tmp_path / "npf.bin"), "chrome")
+    src = brdf_source(fake_npf_table(tmp_path / "npf.bin"), "chrome")
     write_asset(tmp_path / "tables.npz", TABLE_FORMAT, TABLE_VERSION - 1, src.name, src.digest,
                 _sampling_arrays("ok"))
     write_scene(tmp_path, material='type = "npf"\ntable = "npf.bin"\nname = "chrome"\nsampling = "tables.npz"')
@@ -589,6 +583,30 @@ def test_precompute_usage_errors_are_one_line(tmp_path, args, needles):
     assert_no_outputs(tmp_path)
 
 
+@pytest.mark.parametrize("argv,missing", [
+    ([], "COMMAND"),
+    (["npf-to-merl", "--material", "chrome", "-o", "x.binary"], "--table"),
+    (["npf-to-merl", "--table", "npf.bin", "-o", "x.binary"], "--material"),
+    (["brdf-sampling", "npf.bin", "--material", "chrome"], "-o/--output"),
+    (["brdf", "npf.bin", "--material", "chrome"], "-o/--output"),
+], ids=["no command", "npf-to-merl no --table", "npf-to-merl no --material", "brdf-sampling no -o", "brdf no -o"])
+def test_precompute_options_the_synopsis_always_gives_are_required(tmp_path, monkeypatch, capsys, argv, missing):
+    """README's synopsis: ``warpbw-precompute npf-to-merl --table T --material NAME -o OUT``, ``brdf-sampling FILE -o
+    OUT``, ``brdf FILE -o OUT``.  Leaving one out is a one-line usage error naming it (status 2), not a traceback (no
+    command: 'Namespace' has no 'func'; no --table: Path(None)) nor a guessed value."""
+    from precompute.__main__ import main
+
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    got = outcome(main, argv)
+    err = capsys.readouterr().err
+    assert got == "exit 2", (got, err)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("warpbw-precompute: error: the following arguments are required:")
+    assert missing in lines[0], lines[0]
+    assert not (tmp_path / "x.binary").exists()
+
+
 def test_counts_beyond_int32_are_refused_by_the_library_too():
     """The bounds the CLI checks at parse time hold for the Python API as well (before any work)."""
     from warpbw import bandwidth, cli, filtering
@@ -641,7 +659,7 @@ def test_existing_preview_is_not_overwritten(tmp_path):
 
 
 def test_existing_precompute_output_is_not_overwritten(tmp_path):
-    _fake_npf_table(tmp_path / "npf.bin")
+    fake_npf_table(tmp_path / "npf.bin")
     (tmp_path / "out.binary").write_bytes(b"keep")
     r = run(["npf-to-merl", "--table", "npf.bin", "--material", "chrome", "-o", "out.binary"], tmp_path,
             module="precompute")
@@ -1192,7 +1210,7 @@ def test_unwritable_output_paths_are_refused_up_front(tmp_path, module, args, ne
     or ignored the --cache), and nothing written."""
     write_scene(tmp_path)
     (tmp_path / "planes.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
-    _fake_npf_table(tmp_path / "npf.bin")
+    fake_npf_table(tmp_path / "npf.bin")
     for d in ("outdir", "dir.exr", "dir.json"):
         (tmp_path / d).mkdir()
     (tmp_path / "afile").write_text("keep")
@@ -1239,12 +1257,15 @@ def test_bench_filtering_of_planes_a_sphere_hides_entirely_is_refused_up_front(t
 def test_json_records_never_hold_nan():
     from warpbw.cli_common import json_text
 
-    text = json_text({"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": -float("inf"), "e": 2}})
+    # tuples too: a record built from dataclasses (asdict keeps them) holds them
+    text = json_text({"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": -float("inf"), "e": 2},
+                      "f": (1.0, float("nan")), "g": [(float("inf"), 2)]})
 
     def refuse(name):
         raise AssertionError(f"{name} in strict JSON")
 
-    assert json.loads(text, parse_constant=refuse) == {"a": None, "b": [1.0, None], "c": {"d": None, "e": 2}}
+    assert json.loads(text, parse_constant=refuse) == {"a": None, "b": [1.0, None], "c": {"d": None, "e": 2},
+                                                       "f": [1.0, None], "g": [[None, 2]]}
 
 
 def test_truncated_exr_is_called_truncated_or_corrupt(tmp_path):
@@ -1279,6 +1300,18 @@ def test_out_of_memory_in_warp_is_one_line(capsys):
         run_command("warpbw", bug, None)
 
 
+def test_out_of_memory_in_numpy_is_one_line(capsys):
+    """A host allocation that fails (numpy's MemoryError) is one line and status 2, as Warp's is."""
+    from warpbw.cli_common import run_command
+
+    def oom(args):
+        raise MemoryError("Unable to allocate 96.0 GiB for an array with shape (65536, 65536, 6)")
+
+    assert outcome(run_command, "warpbw", oom, None) == f"returned {EXIT_USER_ERROR}"
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("warpbw: error: Unable to allocate 96.0 GiB"), err
+
+
 # ------------------------------------------------------------------------------------------ session 43's audit
 
 
@@ -1305,7 +1338,7 @@ def test_outputs_never_replace_an_input_even_with_force(tmp_path):
     r = run(["bench", "scene.toml", "--json", "scene.toml", "--force"], tmp_path)
     assert_one_line_error(r, "--json scene.toml", "expected a path ending in .json")
     assert (tmp_path / "probe.exr").read_bytes() == before
-    npf = _fake_npf_table(tmp_path / "npf.bin").read_bytes()
+    npf = fake_npf_table(tmp_path / "npf.bin").read_bytes()
     for argv, needles in [
         (["npf-to-merl", "--table", "npf.bin", "--material", "chrome", "-o", "npf.bin", "--force"],
          ["-o npf.bin", "expected a path ending in .binary"]),
@@ -1623,7 +1656,7 @@ def test_brdf_evaluators_and_probe_helpers_name_bad_arguments(tmp_path):
     from warpbw.envmap import constant_envmap, procedural_sky, sample_directions
     from warpbw.io.npf import npf_eval, read_npf
 
-    mat = read_npf(_fake_npf_table(tmp_path / "npf.bin"), "chrome")
+    mat = read_npf(fake_npf_table(tmp_path / "npf.bin"), "chrome")
     up = [0.0, 0.0, 1.0]
     assert npf_eval(mat, [up, up], up).shape == (2, 3)            # one direction broadcasts
     with pytest.raises(WarpbwError, match="as many incident as outgoing"):
@@ -1734,7 +1767,7 @@ def test_lower_level_functions_check_devices_specs_shapes_and_directions(tmp_pat
     assert np.shape(half_diff_from_dirs(up, tilt)[0]) == ()              # one pair in, scalars out, as before
     with pytest.raises(WarpbwError, match="3 components"):
         half_diff_from_dirs(np.ones((4, 2)), np.ones((4, 2)))
-    mat = read_npf(_fake_npf_table(tmp_path / "npf.bin"), "chrome")
+    mat = read_npf(fake_npf_table(tmp_path / "npf.bin"), "chrome")
     merl = type("M", (), {"data": np.ones((90, 90, 180, 3))})()
     for f in (lambda wi, wo: half_diff_from_dirs(wi, wo), lambda wi, wo: npf_eval(mat, wi, wo),
               lambda wi, wo: merl_eval(merl, wi, wo)):
@@ -1774,9 +1807,13 @@ def test_lower_level_functions_check_devices_specs_shapes_and_directions(tmp_pat
 
 def test_a_reader_that_leaves_early_stops_the_command_quietly(tmp_path):
     """``warpbw compare A B | head -1``: the closed pipe printed 'warpbw: error: [Errno 32] Broken pipe' and exited
-    with 2, a user error.  Now it stops without a word with 141, as a shell reports a command killed by SIGPIPE."""
+    with 2, a user error.  Now it stops without a word with 141, as a shell reports a command killed by SIGPIPE.  Its
+    stdout is block-buffered, as a pipe's is by default: with PYTHONUNBUFFERED (which a test runner may set) nothing
+    is left to flush at exit, and the interpreter's own flush meeting the closed pipe ("Exception ignored ...
+    BrokenPipeError", status 120) could not be seen."""
     write_exr(tmp_path / "a.exr", np.ones((4, 4, 3)))
     env = dict(os.environ, WARPBW_CACHE=str(tmp_path / "_cache"))
+    env.pop("PYTHONUNBUFFERED", None)
     for _ in range(3):   # the reader leaves before the command writes (Python's start-up alone takes longer)
         p = subprocess.Popen([sys.executable, "-m", "warpbw.cli", "compare", "a.exr", "a.exr"], cwd=tmp_path, env=env,
                              stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -2002,7 +2039,7 @@ def test_an_asset_with_a_damaged_deflate_stream_is_rebuilt_or_refused(tmp_path):
     from precompute.assetfile import read_asset
     from warpbw.sampling import TABLE_FORMAT, TABLE_VERSION
 
-    _fake_npf_table(tmp_path / "npf.bin")
+    fake_npf_table(tmp_path / "npf.bin")
     npf = 'type = "npf"\ntable = "npf.bin"\nname = "chrome"'
     write_scene(tmp_path, material=npf)
     assert run(["render", "scene.toml", "-o", "a.exr", "--spp", "1", "-q"], tmp_path).returncode == 0
@@ -2113,7 +2150,7 @@ def test_a_cache_that_cannot_be_written_costs_only_the_rebuild(tmp_path, read_on
     """The table caches (sampling, BRDF bandwidth, the probe's bandwidth) are an optimisation: a cache folder that
     is read-only or lies under a file, or an entry's name taken by a folder (which aborted the render after the
     build), must still render, and leave the cache as it was."""
-    _fake_npf_table(tmp_path / "npf.bin")
+    fake_npf_table(tmp_path / "npf.bin")
     write_exr(tmp_path / "probe.exr", np.linspace(0.5, 2.0, 4 * 8 * 3, dtype=np.float32).reshape(4, 8, 3))
     write_scene(tmp_path, environment='file = "probe.exr"', material='type = "npf"\ntable = "npf.bin"\nname = "chrome"')
     (tmp_path / "afile").write_text("keep")
@@ -2143,6 +2180,45 @@ def test_an_asset_whose_header_names_no_format_is_refused(tmp_path):
     np.savez_compressed(p, **{HEADER_KEY: np.array(json.dumps(header))}, a=np.zeros(3))
     with pytest.raises(WarpbwError, match="rebuild it with: REBUILD"):
         read_asset(p, "warpbw-test-format", 3, "REBUILD")
+
+
+def test_an_npz_without_a_header_is_not_a_warpbw_asset(tmp_path):
+    """An .npz with no header (numpy's KeyError) is "not a warpbw asset file", with the rebuild hint, as a garbage
+    file is: a KeyError escaped read_asset, and the cache's rebuild path takes a WarpbwError only."""
+    from precompute.assetfile import read_asset
+
+    np.savez(tmp_path / "plain.npz", marginal=np.zeros(3, np.float32))
+    got = outcome(read_asset, tmp_path / "plain.npz", "fmt", 1, "REBUILD")
+    assert got.startswith("WarpbwError: ") and "not a warpbw asset file" in got and "REBUILD" in got, got
+
+
+UNPICKLED = []
+
+
+def _note_unpickling():
+    UNPICKLED.append(True)
+    return "unpickled"
+
+
+class _Sentinel:
+    """Pickled as a call of _note_unpickling: loading it runs code, as any pickle can."""
+
+    def __reduce__(self):
+        return _note_unpickling, ()
+
+
+def test_an_asset_holding_pickled_objects_is_refused_without_unpickling_them(tmp_path):
+    """Assets are "a NumPy .npz archive (no pickles)" (precompute.assetfile): an archive whose array holds objects,
+    otherwise a valid asset, is refused as not a warpbw asset, and its pickle never runs (a cache folder is a
+    place others can write)."""
+    from precompute.assetfile import HEADER_KEY, read_asset
+
+    header = {"format": "fmt", "version": 1, "source": "s", "source_hash": "h", "params": {}}
+    np.savez(tmp_path / "x.npz", **{HEADER_KEY: np.array(json.dumps(header))},
+             table=np.array([_Sentinel()], dtype=object))
+    got = outcome(read_asset, tmp_path / "x.npz", "fmt", 1, "REBUILD")
+    assert got.startswith("WarpbwError: ") and "not a warpbw asset file" in got, got
+    assert UNPICKLED == []
 
 
 def _accepted(f, *a):
@@ -2178,4 +2254,102 @@ def test_coordinate_spacing_exactly_at_the_limit_is_accepted():
     assert COORD_SPACING_REL_MAX == 2.0 ** -10 and float(np.spacing(np.float32(1024.0))) == 2.0 ** -13
     assert _accepted(check_coordinate_spacing, 1024.0, 0.125, "a sphere")
     assert not _accepted(check_coordinate_spacing, 1024.0, 0.124, "a sphere")
-    assert not _accepted(check_coordinate_spacing, 1024.0, 0.124, "a sphere")
+
+
+# ------------------------------------------------------------------------------------------ session 54's audit
+# (mutation round 6: cli_common, native_output and errors; each test fails when its check is weakened or dropped)
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc, a folder no file can be made in")
+def test_an_existing_cache_folder_that_cannot_be_written_is_refused_before_the_work(tmp_path, monkeypatch, capsys):
+    """README: an output folder that cannot be written is refused before the work.  `bench --cache /proc` (a folder
+    that exists, in which no file can be made) ran the benchmark and failed on its first ground-truth chunk."""
+    import warpbw.bench as bench
+    from warpbw.cli import main
+
+    write_scene(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    capture_call(monkeypatch, bench, "run_bench")
+    assert outcome(main, ["bench", "scene.toml", "--json", "b.json", "--cache", "/proc", "-q"]) == "returned 2"
+    err = capsys.readouterr().err
+    assert "--cache /proc" in err and "cannot write in /proc" in err, err
+
+
+def test_check_overwrite_counts_the_other_existing_outputs(tmp_path):
+    """Three of four outputs exist: the message names the first and counts the two others (counted by hand)."""
+    from warpbw.cli_common import check_overwrite
+
+    outs = [tmp_path / n for n in ("o.exr", "o.png", "o.json", "o.mip_level.exr")]
+    for p in outs[:3]:
+        p.write_text("earlier")
+    assert outcome(check_overwrite, outs, False) == \
+        f"WarpbwError: {outs[0]}: already exists (pass --force to overwrite it and 2 more)"
+    for p in outs[1:3]:
+        p.unlink()
+    assert outcome(check_overwrite, outs, False) == \
+        f"WarpbwError: {outs[0]}: already exists (pass --force to overwrite it)"
+
+
+def test_captured_native_output_returns_what_was_written_to_the_descriptor(capfd):
+    """captured_native_output: bytes written to file descriptor 2 (as C code writes them, below Python's sys.stderr)
+    inside the block come back as lines, and none reaches the terminal."""
+    from warpbw.native_output import captured_native_output
+
+    with captured_native_output(fds=(2,)) as lines:
+        os.write(2, b"OpenEXR: first line\nsecond line\n")
+    assert lines == ["OpenEXR: first line", "second line"]
+    assert "first line" not in capfd.readouterr().err
+
+
+_PRINT_THEN_CAPTURE = """
+import sys
+from warpbw.native_output import captured_native_output
+print("wrote out.exr")            # block-buffered: stdout is a pipe
+with captured_native_output() as lines:
+    pass
+print("captured:", lines, file=sys.stderr)
+"""
+
+
+def test_output_printed_before_a_capture_is_not_swallowed_by_it(tmp_path):
+    """A line Python printed before the capture, still in sys.stdout's buffer (stdout a pipe, buffered as by
+    default), reaches stdout, not the capture's lines (where it was lost, or passed on as a native warning)."""
+    env = dict(os.environ)
+    env.pop("PYTHONUNBUFFERED", None)
+    r = subprocess.run([sys.executable, "-c", _PRINT_THEN_CAPTURE], cwd=tmp_path, env=env, capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout == "wrote out.exr\n", (r.stdout, r.stderr)
+    assert "captured: []" in r.stderr, r.stderr
+
+
+def test_a_pixel_with_one_non_finite_channel_is_refused():
+    """README: every renderer refuses an image with inf or NaN pixels.  A pixel whose red alone is NaN, or whose blue
+    alone is inf, is such a pixel: two of the 12 here, counted by hand."""
+    from warpbw.errors import check_finite_image
+
+    img = np.zeros((3, 4, 3), np.float32)
+    img[0, 1, 0] = np.nan
+    img[2, 3, 2] = np.inf
+    with pytest.raises(WarpbwError, match=r"^frame: 2 of 12 pixels came out infinite or NaN"):
+        check_finite_image(img, "frame")
+    check_finite_image(np.zeros((3, 4, 3), np.float32), "frame")   # a finite image passes
+
+
+def test_a_numpy_bool_is_taken_as_a_flag():
+    """check_flag: True or False, a numpy bool too (what indexing a boolean array gives); the string "no", which is
+    truthy, is refused."""
+    from warpbw.errors import check_flag
+
+    assert check_flag(np.array([True, False])[0], "mis") is True
+    assert outcome(check_flag, "no", "mis") == "WarpbwError: mis: expected True or False, got 'no'"
+
+
+def test_check_real_with_an_open_lower_bound_refuses_the_bound_itself():
+    """check_real: >= lo, or > lo with lo_open.  A zoom of 0 (the camera on its look_at point) is refused by it, the
+    smallest positive one is not; with a closed bound 0 itself is taken."""
+    from warpbw.errors import check_real
+
+    assert outcome(check_real, 0.0, "zoom", 0.0, True) == "WarpbwError: zoom: expected a finite number > 0, got 0.0"
+    assert check_real(1e-300, "zoom", 0.0, True) == 1e-300
+    assert check_real(0.0, "scale", 0.0, False) == 0.0

@@ -1062,6 +1062,13 @@ def test_render_reference_hands_spp_seed_mis_and_quiet_on(env_scene, monkeypatch
     helped = int(re.search(r"default (\d+)", next(a.help for a in sub.choices["render"]._actions
                                                   if "--spp" in a.option_strings)).group(1))
     assert (got["spp"], got["seed"], got["mis"], got["progress"]) == (helped, 0, False, True)
+    seed_help = next(a.help for a in sub.choices["render"]._actions if "--seed" in a.option_strings)
+    assert "0 to 2^32-1" in seed_help, seed_help
+    for seed in (0, 2**32 - 1):   # both ends --help names parse and arrive as given (the default 0 is not parsed)
+        got.clear()
+        with pytest.raises(Handed):
+            main(["render", "s.toml", "-o", "o.exr", "--seed", str(seed), "-q"])
+        assert got["seed"] == seed
 
 
 def test_render_of_planes_hands_filter_spp_seed_and_anisotropy_on(env_scene, monkeypatch):

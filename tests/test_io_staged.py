@@ -267,10 +267,68 @@ def test_a_command_stopped_by_a_signal_leaves_its_outputs_and_no_temporary(tmp_p
         assert child.stdout.readline() == "written\n"
         assert len(_leftovers(out)) == 2                      # the temporaries are there while it writes
         child.send_signal(getattr(signal, sig))
-        _, err = child.communicate(timeout=30)
+        _, err = child.communicate(timeout=120)   # well under a second; 30 s ran out once on a loaded machine
     finally:
         child.kill()
     assert child.returncode == status
     assert err.strip() == said
     assert sorted(p.name for p in out.iterdir()) == ["image.exr"]
     assert (out / "image.exr").read_bytes() == b"an earlier image"
+
+
+def test_run_command_leaves_the_sigterm_handler_as_it_found_it():
+    """run_command's SIGTERM handler holds while the command runs: after it returns, the caller's handler is back (a
+    Python caller of cli.main() got the command's termination raised anywhere later)."""
+    import signal
+
+    from warpbw.cli_common import run_command
+
+    def mine(signum, frame):
+        pass
+
+    previous = signal.signal(signal.SIGTERM, mine)
+    try:
+        assert run_command("warpbw", lambda args: 0, None) == 0
+        assert signal.getsignal(signal.SIGTERM) is mine
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def test_run_command_keeps_sigterm_ignored_where_the_caller_ignores_it():
+    """A caller that ignores SIGTERM (its choice, as nohup's for SIGHUP) keeps it ignored: the command, sent SIGTERM
+    while it runs, finishes with status 0 instead of stopping with 143."""
+    import signal
+
+    from warpbw.cli_common import EXIT_TERMINATED, run_command
+
+    assert EXIT_TERMINATED == 128 + signal.SIGTERM
+
+    def terminated_midway(args):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return 0
+
+    previous = signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    try:
+        assert run_command("warpbw", terminated_midway, None) == 0
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def test_an_output_named_twice_is_written_once_and_leaves_no_temporary(tmp_path):
+    """staged_outputs([p, p]): one temporary for p, moved into place once; none left beside it (there were two
+    temporaries, one forgotten, and a KeyError at the commit)."""
+    out = tmp_path / "out.json"
+    with staged_outputs([out, tmp_path / "out.json"]) as at:
+        at[out].write_text("{}")
+        named = list(at)
+    assert named == [out] and out.read_text() == "{}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.json"]
+
+
+def test_missing_folders_at_any_depth_are_made(tmp_path):
+    """staged_outputs: missing folders are made, however deep."""
+    out = tmp_path / "a" / "b" / "c" / "out.exr"
+    with staged_outputs([out]) as at:
+        at[out].write_bytes(b"image")
+    assert out.read_bytes() == b"image"
