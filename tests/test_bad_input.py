@@ -34,6 +34,7 @@ def run(args, cwd: Path, module: str = "warpbw.cli", timeout: float = 180.0,
     env = dict(os.environ)
     env["WARPBW_CACHE"] = cache or str(cwd / "_cache")  # never ~/.cache
     env.pop("PYTHONWARNINGS", None)
+    env.pop("PYTHONUNBUFFERED", None)   # stdout a block-buffered pipe, as a user's shell gives it
     return subprocess.run([sys.executable, "-m", module, *map(str, args)], cwd=cwd, env=env,
                           stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=timeout)
 

@@ -43,6 +43,7 @@ def work(tmp_path_factory):
 def run(args, cwd: Path, module: str = "warpbw.cli", check: bool = True, timeout: float = 300.0):
     env = dict(os.environ)
     env["WARPBW_CACHE"] = str(cwd / "cache")
+    env.pop("PYTHONUNBUFFERED", None)   # stdout a block-buffered pipe, as a user's shell gives it
     r = subprocess.run([sys.executable, "-m", module, *map(str, args)], cwd=cwd, env=env, stdin=subprocess.DEVNULL,
                        capture_output=True, text=True, timeout=timeout)
     assert "Traceback" not in r.stderr, r.stderr
