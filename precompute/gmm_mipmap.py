@@ -612,8 +612,24 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
 # --------------------------------------------------------------------------------------------------
 # Files
 
-def _rebuild_hint(source: str) -> str:
-    return f"warpbw-precompute gmm {shlex.quote(str(source))} -o OUT --force"   # a name with a space is one word
+def _rebuild_hint(source: str, params=None) -> str:
+    """The ``warpbw-precompute gmm`` line that rebuilds a mipmap of ``source`` with the options its header records
+    (those that differ from the defaults: a normal map rebuilt without ``--kind normal`` was read as heights),
+    quoted for a POSIX shell."""
+    p = params if isinstance(params, dict) else {}
+    words = ["warpbw-precompute", "gmm", str(source), "-o", "OUT"]
+    kind, unaligned = p.get("kind", "height"), p.get("unaligned") is True
+    for flag, key, default, used in (("--kind", "kind", "height", True),
+                                     ("--components", "components", DEFAULT_COMPONENTS, True),
+                                     ("--prior", "prior", DEFAULT_PRIOR, not unaligned),   # the CLI refuses both
+                                     ("--scale", "scale", 1.0, kind == "height"),          # height fields only
+                                     ("--seed", "seed", 0, True)):
+        value = p.get(key, default)
+        if used and value != default:
+            words += [flag, f"{value:g}" if isinstance(value, float) else str(value)]
+    if unaligned:
+        words.append("--unaligned")
+    return " ".join(shlex.quote(w) for w in words + ["--force"])
 
 
 def write_gmm_mipmap(path, mip: GmmMipmap, source_name: str, source_hash: str, force: bool = False,
@@ -632,7 +648,7 @@ def read_gmm_mipmap(path) -> GmmMipmap:
     from precompute.assetfile import read_asset
 
     asset = read_asset(path, GMM_FORMAT, GMM_VERSION, _rebuild_hint("MAP"))
-    hint = _rebuild_hint(asset.header.get("source", "MAP"))
+    hint = _rebuild_hint(asset.header.get("source", "MAP"), asset.header.get("params"))
     params = asset.header.get("params", {})
     n = len([k for k in asset.arrays if k.startswith("level_")])
     levels = [asset.arrays.get(f"level_{l}") for l in range(n)]

@@ -811,3 +811,29 @@ def test_gmm_precompute_time_builds_with_the_components_asked_for(monkeypatch):
     with pytest.raises(Handed):
         gt.main(["--size", "17", "--components", "2"])
     assert got["components"] == 2 and got["shape"][:2] == (17, 17)
+
+
+@pytest.mark.parametrize("params, expected", [
+    ({"kind": "normal", "components": 2, "prior": 0.5, "unaligned": False, "scale": 1.0, "seed": 7},
+     dict(kind="normal", components=2, prior=0.5, unaligned=False, scale=1.0, seed=7)),
+    ({"kind": "height", "components": 8, "prior": 1.0, "unaligned": True, "scale": 3.0, "seed": 0},
+     dict(kind="height", components=8, prior=1.0, unaligned=True, scale=3.0, seed=0)),
+    ({}, dict(kind="height", components=4, prior=1.0, unaligned=False, scale=1.0, seed=0)),
+], ids=["normal map", "unaligned height field", "no parameters recorded"])
+def test_a_refused_mipmap_names_the_command_that_rebuilds_it_as_it_was_built(tmp_path, params, expected):
+    """The hint in a refusal, split as a POSIX shell splits it and parsed by warpbw-precompute's own parser, rebuilds
+    the same mipmap: the map (a name with a space is one word) and every option the header records.  It named the
+    map only, so a normal map was rebuilt as a height field, with the default components and prior."""
+    import shlex
+
+    from precompute.__main__ import build_parser, cmd_gmm
+    from precompute.assetfile import write_asset
+    from precompute.gmm_mipmap import GMM_VERSION, read_gmm_mipmap
+
+    write_asset(tmp_path / "m.npz", GMM_FORMAT, GMM_VERSION, "my scales.png", "h", {}, params)   # no levels
+    with pytest.raises(WarpbwError, match="without its levels") as e:
+        read_gmm_mipmap(tmp_path / "m.npz")
+    prog, *argv = shlex.split(str(e.value).split("rebuild it with: ", 1)[1].rstrip(")"))
+    args = build_parser().parse_args(argv)
+    assert (prog, args.func, args.map, args.force) == ("warpbw-precompute", cmd_gmm, "my scales.png", True)
+    assert {k: getattr(args, k) for k in expected} == expected, str(e.value)
