@@ -615,21 +615,18 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
 def _rebuild_hint(source: str, params=None) -> str:
     """The ``warpbw-precompute gmm`` line that rebuilds a mipmap of ``source`` with the options its header records
     (those that differ from the defaults: a normal map rebuilt without ``--kind normal`` was read as heights),
-    quoted for a POSIX shell."""
+    quoted for a POSIX shell.  ``str`` of a float is the shortest text that reads back as it (``:g`` kept six digits:
+    a prior of 0.1234567891 was rebuilt as 0.123457)."""
     p = params if isinstance(params, dict) else {}
+    unaligned = p.get("unaligned") is True
+    # the CLI refuses --prior with --unaligned, and --scale with a normal map
+    unused = ({"prior"} if unaligned else set()) | ({"scale"} if p.get("kind", "height") != "height" else set())
+    defaults = {"kind": "height", "components": DEFAULT_COMPONENTS, "prior": DEFAULT_PRIOR, "scale": 1.0, "seed": 0}
     words = ["warpbw-precompute", "gmm", str(source), "-o", "OUT"]
-    kind, unaligned = p.get("kind", "height"), p.get("unaligned") is True
-    for flag, key, default, used in (("--kind", "kind", "height", True),
-                                     ("--components", "components", DEFAULT_COMPONENTS, True),
-                                     ("--prior", "prior", DEFAULT_PRIOR, not unaligned),   # the CLI refuses both
-                                     ("--scale", "scale", 1.0, kind == "height"),          # height fields only
-                                     ("--seed", "seed", 0, True)):
-        value = p.get(key, default)
-        if used and value != default:
-            words += [flag, f"{value:g}" if isinstance(value, float) else str(value)]
-    if unaligned:
-        words.append("--unaligned")
-    return " ".join(shlex.quote(w) for w in words + ["--force"])
+    for key, default in defaults.items():
+        if key in p and key not in unused and p[key] != default:
+            words += [f"--{key}", str(p[key])]
+    return " ".join(shlex.quote(w) for w in words + ["--unaligned"] * unaligned + ["--force"])
 
 
 def write_gmm_mipmap(path, mip: GmmMipmap, source_name: str, source_hash: str, force: bool = False,

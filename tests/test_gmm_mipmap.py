@@ -814,16 +814,17 @@ def test_gmm_precompute_time_builds_with_the_components_asked_for(monkeypatch):
 
 
 @pytest.mark.parametrize("params, expected", [
-    ({"kind": "normal", "components": 2, "prior": 0.5, "unaligned": False, "scale": 1.0, "seed": 7},
-     dict(kind="normal", components=2, prior=0.5, unaligned=False, scale=1.0, seed=7)),
+    ({"kind": "normal", "components": 2, "prior": 0.1234567891, "unaligned": False, "scale": 1.0, "seed": 7},
+     dict(kind="normal", components=2, prior=0.1234567891, unaligned=False, scale=1.0, seed=7)),
     ({"kind": "height", "components": 8, "prior": 1.0, "unaligned": True, "scale": 3.0, "seed": 0},
      dict(kind="height", components=8, prior=1.0, unaligned=True, scale=3.0, seed=0)),
     ({}, dict(kind="height", components=4, prior=1.0, unaligned=False, scale=1.0, seed=0)),
 ], ids=["normal map", "unaligned height field", "no parameters recorded"])
 def test_a_refused_mipmap_names_the_command_that_rebuilds_it_as_it_was_built(tmp_path, params, expected):
     """The hint in a refusal, split as a POSIX shell splits it and parsed by warpbw-precompute's own parser, rebuilds
-    the same mipmap: the map (a name with a space is one word) and every option the header records.  It named the
-    map only, so a normal map was rebuilt as a height field, with the default components and prior."""
+    the same mipmap: the map (a name with a space is one word) and every option the header records, to the last
+    digit.  It named the map only, so a normal map was rebuilt as a height field, with the default components and
+    prior."""
     import shlex
 
     from precompute.__main__ import build_parser, cmd_gmm
