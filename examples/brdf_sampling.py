@@ -1,7 +1,8 @@
 """BRDF lookup and importance sampling example: a tabulated material's lobe, its sampling pdf and a
 histogram of drawn directions, side by side, for a few view elevations.
 
-    python examples/brdf_sampling.py [--material chrome] [--table ../shared/data/brdf/npf.bin] [--out brdf_out]
+    python examples/brdf_sampling.py [--material gold-metallic-paint] [--table ../shared/data/brdf/npf.bin]
+        [--out brdf_out]
 
 Uses the same Warp functions the renderer uses (warpbw.brdf: eval / sample / pdf) on an NPF material,
 with sampling tables built by numerical inversion of the CDF (002 Sec. 3.3).  The three panels per

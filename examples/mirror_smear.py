@@ -1,8 +1,8 @@
 """Where adaptive shading fails: a near-mirror GGX sphere under a measured probe (README, "Where it fails").
 
     python examples/mirror_smear.py [--probe ../shared/data/envmaps/city.exr] [--alpha 1e-4]
-        [--res 32,64,128] [--budget 4] [--truth-spp 256] [--seed 1] [--clamp-quantile Q] [--env-signal log]
-        [--worst 8] [--json OUT.json] [--force] [--write-scene DIR]
+        [--res 32,64,128] [--budget 4] [--truth-spp 256] [--seed 1] [--clamp-quantile Q]
+        [--env-signal radiance | log] [--worst 8] [--json OUT.json] [--force] [--write-scene DIR]
 
 For each resolution: a radius-1 sphere of GGX (F = 1, ``--alpha``) at the origin, seen from z = 4 with a
 40-degree field of view, lit by the probe alone, MIS throughout.  The reference at ``--budget`` samples per

@@ -1,7 +1,7 @@
 """Validation of the bandwidth pass's predictions (002 Sec. 2.2, 2.4 and Fig. 12).
 
-    python examples/validate_bandwidth.py --out DIR [--size 256] [--scenes NAME ...] [--env-signal log] [--quick]
-        [--force]
+    python examples/validate_bandwidth.py --out DIR [--size 256] [--scenes NAME ...]
+        [--env-signal radiance | log] [--quick] [--force]
 
 For each validation scene (a sphere with the NPF fit of color-changing-paint3 under forest.exr, as in
 002 Fig. 12; the bunny with gold-metallic-paint under studio.exr; a GGX gold sphere under studio.exr):

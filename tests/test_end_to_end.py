@@ -843,6 +843,111 @@ def test_example_commands_in_readme_and_docs_parse(monkeypatch):
         pytest.fail(f"{doc}: 'python examples/{name}.py {' '.join(argv)}' is refused: {err.getvalue().strip()[-300:]}")
 
 
+
+def _states_default(text: str, default, root: Path):
+    """Whether ``text`` (what a help line's "(default ...)" or a usage line's ``[--opt VALUE]`` says) names
+    ``default``: True or False, or None where it cannot say (a computed default, a flag, a sentence).  The value
+    is the text up to a ";" (and for a single value up to ": " or ", "); lists compare item by item, numbers as
+    numbers, paths resolved from the repository root (``../shared/data/...``)."""
+    if default is None or isinstance(default, bool):
+        return None
+    head = text.split(";")[0].strip()
+
+    def value(x):
+        try:
+            return float(x)
+        except (TypeError, ValueError):
+            return str(x)
+
+    if isinstance(default, (list, tuple)):
+        return [value(x) for x in re.split(r"[,\s]+", head) if x] == [value(x) for x in default]
+    head = re.split(r": |, ", head)[0].strip()
+    if " " in head or not head:
+        return None
+    if isinstance(default, (int, float)):
+        return value(head) == float(default)
+    if isinstance(default, Path) or "/" in head:
+        return (root / head).resolve() == (root / Path(default)).resolve()
+    return head == str(default)
+
+
+def _help_default_mismatches(parser, where: str, root: Path) -> tuple:
+    """(mismatches, checked) over every option of ``parser`` and its subcommands whose help says
+    "(default X)", as --help prints it (``%(default)s`` expanded)."""
+    import argparse
+
+    bad, checked = [], 0
+    for a in parser._actions:
+        if isinstance(a, argparse._SubParsersAction):
+            for name, sub in a.choices.items():
+                b, c = _help_default_mismatches(sub, f"{where} {name}", root)
+                bad, checked = bad + b, checked + c
+            continue
+        for said in re.findall(r"\(defaults?:? ([^)]*)\)", parser._get_formatter()._expand_help(a) if a.help else ""):
+            same = _states_default(said, a.default, root)
+            checked += same is not None
+            if same is False:
+                bad.append(f"{where} {'/'.join(a.option_strings) or a.dest}: --help says (default {said}), "
+                           f"the parser's default is {a.default!r}")
+    return bad, checked
+
+
+def _example_parser(monkeypatch, name: str):
+    """The argument parser examples/NAME.py builds: its main() runs until it parses, and stops there."""
+    import argparse
+
+    from conftest import load_example
+
+    class Built(Exception):
+        pass
+
+    def stop(self, args=None, namespace=None):
+        raise Built(self)
+
+    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", stop)
+    monkeypatch.setattr(sys, "argv", [f"{name}.py"])
+    mod = load_example(name)
+    with pytest.raises(Built) as built:
+        mod.main()
+    return mod, built.value.args[0]
+
+
+def test_every_stated_default_is_the_default(monkeypatch):
+    """A default that --help or a script's usage line states is the one the parser applies: the scripts' figures
+    are reproduced from what their docs say (brdf_sampling.py's usage line once read ``[--material chrome]``, and
+    ran gold-metallic-paint).  Checked: every "(default X)" of warpbw, warpbw-precompute and every example's
+    --help, and every ``[--option VALUE]`` of an example's usage line (not a placeholder such as N or DIR)."""
+    import ast
+
+    from precompute.__main__ import build_parser as precompute_parser
+    from warpbw.cli import build_parser as warpbw_parser
+
+    root = Path(__file__).resolve().parents[1]
+    bad, checked = [], 0
+    for prog, parser in (("warpbw", warpbw_parser()), ("warpbw-precompute", precompute_parser())):
+        b, c = _help_default_mismatches(parser, prog, root)
+        bad, checked = bad + b, checked + c
+    n_help = checked
+    for script in sorted((root / "examples").glob("*.py")):
+        mod, parser = _example_parser(monkeypatch, script.stem)
+        b, c = _help_default_mismatches(parser, script.name, root)
+        bad, checked = bad + b, checked + c
+        doc = ast.get_docstring(ast.parse(script.read_text())) or ""
+        usage = re.findall(rf"python examples/{script.stem}\.py.*(?:\n {{8}}.*)*", doc)
+        options = {o: a for a in parser._actions for o in a.option_strings}
+        for text in usage:
+            for opt, said in re.findall(r"\[(--[\w-]+) ([^\]\[|]+)\]", re.sub(r" #.*", "", text)):
+                assert opt in options, f"{script.name}: the usage line names {opt}, which the parser does not have"
+                if said[0].isupper():   # a placeholder: N, DIR, OUT.json
+                    continue
+                same = _states_default(said.strip(), options[opt].default, root)
+                checked += same is not None
+                if same is False:
+                    bad.append(f"{script.name}: the usage line says [{opt} {said}], the parser's default is "
+                               f"{options[opt].default!r}")
+    assert not bad, "\n".join(bad)
+    assert n_help >= 15 and checked - n_help >= 60, (n_help, checked)   # the rules did read the docs
+
 def _heading_slugs(text: str) -> set:
     """GitHub's anchors for a Markdown file's headings: lower case, punctuation dropped, spaces to hyphens."""
     import re
