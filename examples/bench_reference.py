@@ -13,6 +13,10 @@ when the PSNR of a 1024-spp render against its first half and against the whole 
 Writes bench_out/bench_reference.json, a plot bench_out/bench_reference.png (error against time,
 one curve per estimator), PNG previews, and the ground truth EXR (cached by scene hash); an earlier run's
 records are kept unless ``--force`` (``--check-only`` updates them by design).
+
+``--check-only`` redoes the ground truth and its check alone, keeping the sweep of an earlier run's JSON: the
+check renders at that sweep's largest spp, and the options that describe the scene (``--material``, ``--probe``,
+``--rotation``, ``--resolution``, and ``--spp`` where given) must be the ones the sweep was run with.
 """
 from __future__ import annotations
 
@@ -51,6 +55,42 @@ material = "m"
 type = "merl"
 file = "{merl}"
 """
+DEFAULT_SPP = "16,32,64,128,256,512,1024"
+MATERIAL_NOTE = " (NPF -> MERL)"    # how the record names the material: converted from its NPF fit
+
+
+def earlier_sweep(path: Path, material: str, probe: str, rotation: float, resolution, spp) -> tuple:
+    """(methods, spps) of the run ``--check-only`` keeps: the records of ``path`` and the spp they were taken at.
+    Refused, naming the option to pass, where this command describes another scene or (``spp``: a list, or None
+    where ``--spp`` is not given) another sweep; a file that is not such a record is refused too."""
+    try:
+        record = json.loads(path.read_text())
+        scene, methods = record["scene"], record["methods"]
+        spps = sorted({int(r["spp"]) for recs in methods.values() for r in recs})
+        if not methods.get("brdf_is"):
+            raise ValueError("no BRDF-sampling records")
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        why = f"no field {exc}" if isinstance(exc, KeyError) else str(exc)
+        raise WarpbwError(f"--check-only: {path} is not the records of a bench_reference run ({why}); run without "
+                          f"--check-only to make them") from None
+    # "rotation_deg" is written since session 55: an earlier record was made at the default rotation, 0
+    was = {"--material": str(scene.get("material", "")).removesuffix(MATERIAL_NOTE), "--probe": scene.get("probe"),
+           "--rotation": scene.get("rotation_deg", 0.0), "--resolution": scene.get("resolution"), "--spp": spps}
+    now = {"--material": material, "--probe": probe, "--rotation": rotation, "--resolution": list(resolution),
+           "--spp": spps if spp is None else spp}
+    for option in was:
+        if was[option] != now[option]:
+            then = _as_typed(option, was[option])
+            raise WarpbwError(f"--check-only: {path} holds a sweep run with {option} {then}, not "
+                              f"{_as_typed(option, now[option])}; pass {option} {then}")
+    return methods, spps
+
+
+def _as_typed(option: str, value) -> str:
+    """``value`` of ``option`` as it is typed on the command line: --spp 16,64; --resolution 512 512."""
+    if isinstance(value, list):
+        return (",", " ")[option == "--resolution"].join(map(str, value))
+    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 def timed_render(prep, spp, seed, mis, runs):
@@ -72,7 +112,8 @@ def main():
     ap.add_argument("--rotation", type=float, default=0.0, help="the probe's rotation about +Y, degrees (default 0)")
     ap.add_argument("--resolution", type=int, nargs=2, default=[512, 512], metavar=("W", "H"),
                     help="image size in pixels (default 512 512)")
-    ap.add_argument("--spp", default="16,32,64,128,256,512,1024", help="comma-separated samples per pixel")
+    ap.add_argument("--spp", help=f"comma-separated samples per pixel (default {DEFAULT_SPP}; with --check-only, "
+                                  "those of the earlier sweep)")
     ap.add_argument("--gt-spp", type=int, default=16384,
                     help=f"ground-truth spp (a multiple of {GT_CHUNK_SPP}, at least two chunks)")
     ap.add_argument("--runs", type=int, default=3, help="timed runs per point (median)")
@@ -83,7 +124,7 @@ def main():
     ap.add_argument("--force", action="store_true", help="overwrite an earlier run's records and previews")
     args = ap.parse_args()
     # the options warpbw bench also has mean the same here: its parsers check them, before any work
-    check_command_options("bench", {"--spp": args.spp, "--runs": str(args.runs)})
+    check_command_options("bench", {"--spp": args.spp or DEFAULT_SPP, "--runs": str(args.runs)})
     if args.gt_spp % GT_CHUNK_SPP or args.gt_spp < 2 * GT_CHUNK_SPP:
         ap.error(f"--gt-spp {args.gt_spp}: expected a multiple of {GT_CHUNK_SPP} of at least {2 * GT_CHUNK_SPP} "
                  f"(the mean of cached {GT_CHUNK_SPP}-spp chunks, checked against its first half)")
@@ -93,12 +134,15 @@ def main():
     if not math.isfinite(args.rotation):
         ap.error(f"--rotation {args.rotation}: expected a finite angle in degrees")
     out = Path(args.out)
-    spps = sorted({int(s) for s in args.spp.split(",") if s.strip()})
+    spps = sorted({int(s) for s in (args.spp or DEFAULT_SPP).split(",") if s.strip()})
     if not args.check_only:
         check_overwrite([out / "bench_reference.json", out / "bench_reference.png", out / "ground_truth.png"]
                         + [out / f"{m}_{spps[-1]}spp.png" for m in ("brdf_is", "mis")], args.force, "--out")
     elif not (out / "bench_reference.json").is_file():
         ap.error(f"--check-only: {out / 'bench_reference.json'} not found (an earlier run's records are needed)")
+    else:   # the sweep kept, and the spp it was taken at (the check's, and the plot's 1/spp line)
+        kept, spps = earlier_sweep(out / "bench_reference.json", args.material, args.probe, args.rotation,
+                                   args.resolution, spps if args.spp else None)
 
     import warp as wp
 
@@ -178,7 +222,7 @@ def main():
                 previews[out / f"{method}_{spp}spp.png"] = res.image
     top = max(spps)
     if args.check_only:
-        records = json.loads((out / "bench_reference.json").read_text())["methods"]
+        records = kept
     best = render_reference(prep, spp=top, seed=77, mis=True).image
     # with one peak for both (the full ground truth's): PSNR takes its peak from the reference, and the
     # brightest covered pixel of an HDR reference is itself noisy, which would blur the check
@@ -186,8 +230,8 @@ def main():
     converged = d_psnr < 0.5
     print(f"ground-truth check: PSNR of a {top}-spp MIS render against GT/2 vs GT differs by {d_psnr:.3f} dB "
           f"({'< 0.5 dB: converged' if converged else '>= 0.5 dB: NOT converged, raise --gt-spp'})")
-    record = {"scene": {"mesh": "bunny.obj", "material": f"{args.material} (NPF -> MERL)", "probe": args.probe,
-                        "resolution": [w, h], "covered_pixels": int(cov.sum())},
+    record = {"scene": {"mesh": "bunny.obj", "material": args.material + MATERIAL_NOTE, "probe": args.probe,
+                        "rotation_deg": args.rotation, "resolution": [w, h], "covered_pixels": int(cov.sum())},
               "machine": {"cpu_count": __import__("os").cpu_count(), "device": "cpu"},
               "asset_load_s": t_prep, "gbuffer_ms": gbuffer_ms,
               "ground_truth_spp": gt_spp, "ground_truth_render_time_s": gt_time,

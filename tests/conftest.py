@@ -210,6 +210,17 @@ def fake_npf_table(path: Path) -> Path:
     return path
 
 
+class StandInClock:
+    """Stands in for a module's ``time``: ``perf_counter`` reads ``now``, which only the stand-ins that "take
+    time" move, so a figure made of times is known exactly."""
+
+    def __init__(self):
+        self.now = 0.0
+
+    def perf_counter(self):
+        return self.now
+
+
 def outcome(f, *args, **kwargs) -> str:
     """What a call did, as text an assertion can print: "returned X", "WarpbwError: MESSAGE", "exit N" (argparse's
     usage errors), "Handed" (``capture_call``'s stand-in was reached), or "not a WarpbwError: ..." (a traceback the

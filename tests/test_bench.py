@@ -1,14 +1,19 @@
-"""warpbw bench: the equal-quality interpolation against a closed form, and a tiny end-to-end run."""
+"""warpbw bench: the equal-quality interpolation against a closed form, and a tiny end-to-end run.  The scripts
+examples/bench_reference.py and bench_scenes.py, with stand-ins for the renders, the ground truth, the clock and
+the commands they run: their figures against values worked by hand, their options and documented defaults."""
 from __future__ import annotations
 
 import json
 import math
+import sys
+import tomllib
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from conftest import MIXED_SCENE
+from conftest import MIXED_SCENE, StandInClock, load_example, outcome
 from warpbw import bench
 from warpbw.cli import main as cli_main
 
@@ -235,16 +240,6 @@ def test_speedup_standard_error_follows_the_power_law_and_brute_force():
     assert abs(math.sqrt(np.mean(np.square(preds))) / np.std(logs) - 1.0) < 0.15
 
 
-class _FakeClock:
-    """Stands in for bench's ``time`` module: time moves only when a fake renderer says it does."""
-
-    def __init__(self):
-        self.now = 0.0
-
-    def perf_counter(self):
-        return self.now
-
-
 def _fake_adaptive_result(image, cov, t, budget):
     """What a fake render_adaptive returns: its image, and a frame time t split over the stages (a tenth in the
     bandwidth pass)."""
@@ -272,7 +267,7 @@ def test_bench_figures_follow_closed_forms_with_fake_renderers(tmp_path, monkeyp
     sign = np.where((yy + xx) % 2 == 0, 1.0, -1.0)[..., None]     # the error's pattern: +/- a in every channel
     run_factor = (1.0, 1.1)                                        # run r's error amplitude is scaled by this
     k = np.mean(np.square(run_factor))
-    clock = _FakeClock()
+    clock = StandInClock()
     monkeypatch.setattr(bench, "time", clock)
     # adaptive: budget -> (reference spp it matches, its frame time)
     ada = {1.0: (11.0, 0.02), 2.0: (20.0, 0.05), 4.0: (100.0, 0.5)}
@@ -407,7 +402,7 @@ def _fake_renderers(monkeypatch, ref_amp, ada, chunk_amp=lambda k: 0.0, run_time
 
     from warpbw import pipeline
 
-    clock = _FakeClock()
+    clock = StandInClock()
     monkeypatch.setattr(bench, "time", clock)
     chunk_seeds = []
 
@@ -694,3 +689,268 @@ def test_bench_plot_draws_each_method_from_its_own_records(tmp_path, monkeypatch
     bench.write_plot(rec, tmp_path / "p.png")
     assert curves == [("reference (MIS)", [0.1, 0.4], [20.0, 26.0]), ("adaptive (002)", [0.05], [24.0])]
     assert titles[0] == "equal-quality speed-up 3.2x \u00b1 0.5" and (tmp_path / "p.png").stat().st_size > 0
+
+
+# -------------------------------------------------------------------------------- examples/bench_reference.py
+
+RELMSE_EPS_DOC = 1e-2     # relMSE = mean of (a - b)^2 / (b^2 + 1e-2) (README's metrics; compare_mitsuba's label)
+AMP = {False: 0.4, True: 0.1}   # stand-in noise amplitude at 1 spp: BRDF sampling, MIS
+GT_HALF_OFFSET = 0.03           # the first half of the ground truth's chunks: GT + 0.03 * checker
+
+
+def _br_images(h, w):
+    """(ground truth, checker, coverage): GT 1 or 2 by column parity (peak 2), a +-1 checker, the first column not
+    covered."""
+    cols = np.arange(w)[None, :, None]
+    gt = np.broadcast_to(1.0 + (cols % 2), (h, w, 3)).astype(np.float64)
+    c = np.where((np.arange(h)[:, None] + np.arange(w)[None, :]) % 2 == 0, 1.0, -1.0)[..., None] * np.ones(3)
+    cov = np.ones((h, w), bool)
+    cov[:, 0] = False
+    return gt, c, cov
+
+
+def _run_bench_reference(monkeypatch, tmp_path, argv):
+    """bench_reference.main with stand-ins for the MERL conversion, the scene, the renders and the ground truth.
+    A render at N spp is GT + AMP[mis] / sqrt(N) * checker (and 100 on the uncovered column); a timed run r of
+    run_reference takes (1, 2, 6)[r % 3] ms * N * (2 with MIS) on the stand-in clock."""
+    import precompute.npf_to_merl
+    import warpbw.bench
+    import warpbw.gbuffer
+    import warpbw.pipeline
+    import warpbw.scene
+
+    mod = load_example("bench_reference")
+    clock = StandInClock()
+    got = {"renders": [], "merl": [], "toml": None, "gt_spp": None, "loglog": []}
+
+    def npf_to_merl(table, material, out):
+        got["merl"].append(material)
+        Path(out).write_bytes(b"merl")
+        return out
+
+    def parse_scene(text, base_dir=None, source=None):
+        got["toml"] = tomllib.loads(text)
+        w, h = got["toml"]["camera"]["resolution"]
+        return SimpleNamespace(w=w, h=h)
+
+    def prepare_scene(scene, progress=True):
+        return SimpleNamespace(timings={}, camera=None, geometry=None, w=scene.w, h=scene.h)
+
+    def render_reference(prep, spp=1, seed=0, mis=False, **kw):
+        timed = sys._getframe(1).f_code.co_name == "timed_render"
+        got["renders"].append(dict(spp=spp, seed=seed, mis=mis, timed=timed))
+        if timed:
+            clock.now += (1, 2, 6)[(seed - 10 - spp) % 3] * 1e-3 * spp * (2 if mis else 1)
+        gt, c, cov = _br_images(prep.h, prep.w)
+        img = gt + AMP[mis] / math.sqrt(spp) * c
+        img[~cov] = 100.0
+        stats = {"time_s": {"shading": 0.3, "gbuffer": 0.1}, "samples_per_second": 1e6, "non_finite_samples": 0}
+        return SimpleNamespace(image=img, coverage=cov, stats=stats)
+
+    def ground_truth(prep, gt_spp, cache_dir, progress=True):
+        got["gt_spp"] = gt_spp
+        gt, c, _ = _br_images(prep.h, prep.w)
+        return SimpleNamespace(image=gt, half=gt + GT_HALF_OFFSET * c, spp=gt_spp, chunks=gt_spp // 4096,
+                               render_time_s=0.0)
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.axes
+
+    real_loglog = matplotlib.axes.Axes.loglog
+
+    def loglog(self, x, y, *a, **kw):
+        got["loglog"].append((kw.get("label"), list(map(float, x)), list(map(float, y))))
+        return real_loglog(self, x, y, *a, **kw)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "loglog", loglog)
+    monkeypatch.setattr(precompute.npf_to_merl, "npf_to_merl", npf_to_merl)
+    monkeypatch.setattr(warpbw.scene, "parse_scene", parse_scene)
+    monkeypatch.setattr(warpbw.pipeline, "prepare_scene", prepare_scene)
+    monkeypatch.setattr(warpbw.pipeline, "render_reference", render_reference)
+    monkeypatch.setattr(warpbw.gbuffer, "render_gbuffer", lambda *a, **k: None)
+    monkeypatch.setattr(warpbw.bench, "ground_truth", ground_truth)
+    monkeypatch.setattr(mod, "time", clock)
+    monkeypatch.setattr(sys, "argv", ["bench_reference.py", *argv])
+    got["outcome"] = outcome(mod.main)
+    return got
+
+
+def test_bench_reference_records_each_estimator_against_the_ground_truth(tmp_path, monkeypatch, shared):
+    """Module docstring: times are medians of --runs runs; PSNR and relMSE of each render against the ground truth
+    (peak and denominator from the ground truth, over the covered pixels); the doubling check compares a MIS render
+    at the largest spp against GT/2 and GT; throughput counts evaluations (with MIS a BRDF and an environment
+    sample each).  --material, --probe, --rotation, --resolution and --gt-spp reach the scene and the ground
+    truth; the plot's 1/spp line starts at BRDF sampling's first relMSE.  Then --check-only keeps the sweep."""
+    shared("brdf/npf.bin")
+    shared("envmaps/studio.exr")
+    out = tmp_path / "b"
+    argv = ["--material", "chrome", "--probe", "studio.exr", "--rotation", "30", "--resolution", "12", "8",
+            "--spp", "64,16", "--gt-spp", "8192", "--runs", "3", "--out", str(out)]
+    got = _run_bench_reference(monkeypatch, tmp_path, argv)
+    assert got["outcome"] == "returned 0", got["outcome"]
+    assert got["merl"] == ["chrome"] and got["gt_spp"] == 8192
+    env, cam = got["toml"]["environment"], got["toml"]["camera"]
+    assert Path(env["file"]).name == "studio.exr" and env["rotation"] == 30.0 and cam["resolution"] == [12, 8]
+    rec = json.loads((out / "bench_reference.json").read_text())
+    assert rec["scene"]["material"].startswith("chrome") and rec["scene"]["probe"] == "studio.exr"
+    assert rec["scene"]["resolution"] == [12, 8] and rec["scene"]["covered_pixels"] == 8 * 11
+    gt, _, cov = _br_images(8, 12)
+    inv = np.mean(1.0 / (gt[cov] ** 2 + RELMSE_EPS_DOC))
+    for method, mis in (("brdf_is", False), ("mis", True)):
+        recs = rec["methods"][method]
+        assert [r["spp"] for r in recs] == [16, 64], method
+        for r in recs:
+            n = r["spp"]
+            mse = AMP[mis] ** 2 / n
+            assert r["time_s"] == pytest.approx(2e-3 * n * (2 if mis else 1), rel=1e-9), (method, n)
+            assert r["psnr_db"] == pytest.approx(10 * math.log10(2.0 ** 2 / mse), rel=1e-9), (method, n)
+            assert r["relmse"] == pytest.approx(mse * inv, rel=1e-9), (method, n)
+            assert r["shading_s"] == 0.3 and r["gbuffer_s"] == 0.1
+            assert r["samples_per_s"] == pytest.approx(2e6 if mis else 1e6), (method, n)
+    timed = [(r["spp"], r["mis"]) for r in got["renders"] if r["timed"]]
+    assert sorted(timed) == sorted([(n, m) for n in (16, 64) for m in (False, True)] * 3)
+    b = AMP[True] / math.sqrt(64)                  # the MIS render at the largest spp
+    d = abs(20 * math.log10(abs(b - GT_HALF_OFFSET) / b))
+    assert rec["ground_truth_doubling_delta_db"] == pytest.approx(d, rel=1e-9) and d > 0.5
+    assert rec["ground_truth_converged"] is False
+    assert sorted(p.name for p in out.glob("*.png")) == ["bench_reference.png", "brdf_is_64spp.png",
+                                                          "ground_truth.png", "mis_64spp.png"]
+    (line,) = [c for c in got["loglog"] if c[0] == "1/spp"]
+    r16 = rec["methods"]["brdf_is"][0]["relmse"]
+    assert line[1] == [16, 64] and line[2] == pytest.approx([r16, r16 * 16 / 64], rel=1e-9)
+    # --check-only: the sweep of the earlier run is kept, the check redone, no timed render
+    before = rec["methods"]
+    got = _run_bench_reference(monkeypatch, tmp_path, argv + ["--check-only"])
+    assert got["outcome"] == "returned 0", got["outcome"]
+    assert not any(r["timed"] for r in got["renders"])
+    assert json.loads((out / "bench_reference.json").read_text())["methods"] == before
+
+
+def test_bench_reference_check_only_keeps_the_sweep_it_was_run_with(tmp_path, monkeypatch, shared):
+    """--check-only redoes the ground truth's doubling check on an earlier run's sweep (module docstring): at that
+    sweep's largest spp, with the plot's 1/spp line over its spp, whatever --spp defaults to (it once took both
+    from this command's --spp default, 1024, for a sweep of 64 and 256).  Options that describe another scene or
+    sweep are refused before anything is rendered, naming the value to pass, and a file that is not a record is
+    refused naming it."""
+    shared("brdf/npf.bin")
+    shared("envmaps/studio.exr")
+    out = tmp_path / "b"
+    base = ["--material", "chrome", "--probe", "studio.exr", "--resolution", "12", "8", "--gt-spp", "8192",
+            "--out", str(out)]
+    got = _run_bench_reference(monkeypatch, tmp_path, base + ["--spp", "64,256", "--runs", "1"])
+    assert got["outcome"] == "returned 0", got["outcome"]
+    json_path = out / "bench_reference.json"
+    swept = json.loads(json_path.read_text())["methods"]
+    for again in ([], ["--spp", "256,64"]):   # the sweep's spp, given or not
+        got = _run_bench_reference(monkeypatch, tmp_path, base + ["--check-only", *again])
+        assert got["outcome"] == "returned 0", got["outcome"]
+        assert [r for r in got["renders"] if r["spp"] > 1] == [dict(spp=256, seed=77, mis=True, timed=False)]
+        (line,) = [c for c in got["loglog"] if c[0] == "1/spp"]
+        r64 = swept["brdf_is"][0]["relmse"]
+        assert line[1] == [64, 256] and line[2] == pytest.approx([r64, r64 / 4], rel=1e-9)
+        assert json.loads(json_path.read_text())["methods"] == swept
+    for option, then, now in (("--material", "chrome", "gold-metallic-paint"), ("--resolution", "12 8", "8 8"),
+                              ("--rotation", "0", "30"), ("--spp", "64,256", "64,128")):
+        argv = base + ["--check-only", option, *now.split()]
+        got = _run_bench_reference(monkeypatch, tmp_path, argv)
+        assert got["outcome"] == (f"WarpbwError: --check-only: {json_path} holds a sweep run with {option} {then}, "
+                                  f"not {now}; pass {option} {then}"), got["outcome"]
+        assert got["renders"] == [] and json.loads(json_path.read_text())["methods"] == swept
+    json_path.write_text('{"scene": {}}')
+    got = _run_bench_reference(monkeypatch, tmp_path, base + ["--check-only"])
+    assert got["outcome"].startswith(f"WarpbwError: --check-only: {json_path} is not the records of a "
+                                     "bench_reference run"), got["outcome"]
+    assert got["renders"] == []
+
+def test_bench_reference_defaults_are_the_documented_ones(tmp_path, monkeypatch, shared):
+    """Module docstring: gold-metallic-paint under forest.exr at 512x512, spp 16 to 1024 by powers of 2, a 16384-spp
+    ground truth, medians of 3 runs, rotation 0."""
+    shared("brdf/npf.bin")
+    shared("envmaps/forest.exr")
+    got = _run_bench_reference(monkeypatch, tmp_path, ["--out", str(tmp_path / "b")])
+    assert got["outcome"] == "returned 0", got["outcome"]
+    assert got["merl"] == ["gold-metallic-paint"] and got["gt_spp"] == 16384
+    env, cam = got["toml"]["environment"], got["toml"]["camera"]
+    assert Path(env["file"]).name == "forest.exr" and env["rotation"] == 0.0 and cam["resolution"] == [512, 512]
+    timed = [(r["spp"], r["mis"]) for r in got["renders"] if r["timed"]]
+    assert sorted(timed) == sorted([(2 ** k, m) for k in range(4, 11) for m in (False, True)] * 3)
+
+
+# ---------------------------------------------------------------------------------- examples/bench_scenes.py
+
+def _after(cmd, flag):
+    """The value that follows ``flag`` in ``cmd``, or None where ``flag`` is absent."""
+    return cmd[cmd.index(flag) + 1] if flag in cmd else None
+
+
+def _bench_scenes_with_fake_run(monkeypatch, status=0):
+    """bench_scenes with subprocess.run recorded: npf-to-merl writes an empty MERL file, warpbw bench returns
+    ``status``."""
+    import subprocess
+
+    bs = load_example("bench_scenes")
+    calls = []
+
+    def fake_run(cmd, check=False, **kw):
+        cmd = [str(c) for c in cmd]
+        calls.append(cmd)
+        if "npf-to-merl" in cmd:
+            Path(cmd[cmd.index("-o") + 1]).write_bytes(b"")
+            return SimpleNamespace(returncode=0)
+        return SimpleNamespace(returncode=status)
+
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    return bs, calls
+
+
+def test_bench_scenes_passes_cache_env_signal_force_and_the_documented_defaults(tmp_path, monkeypatch, shared):
+    """--cache, --env-signal and --force are "passed on to warpbw bench" (--help) for every scene; without
+    options, --gt-spp 8192 (--help) and the n_b sweep 16,64,256,1024 on the gold bunny (module docstring)."""
+    from warpbw.cli import build_parser
+
+    shared("brdf/npf.bin")
+    bs, calls = _bench_scenes_with_fake_run(monkeypatch)
+    out = tmp_path / "s"
+    assert bs.main(["--out", str(out), "--run", "--cache", str(tmp_path / "gt"), "--env-signal", "log",
+                    "--force", "--only", "sphere_chrome_studio,bunny_acrylic_studio"]) == 0
+    benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
+    assert len(benches) == 2
+    for c in benches:
+        assert _after(c, "--cache") == str(tmp_path / "gt"), c
+        assert _after(c, "--env-signal") == "log" and "--force" in c, c
+        build_parser().parse_args(c[1:])
+    calls.clear()
+    assert bs.main(["--out", str(out), "--run"]) == 0
+    benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
+    assert [Path(c[2]).stem for c in benches] == list(bs.SCENES)
+    for i, c in enumerate(benches):
+        assert _after(c, "--gt-spp") == "8192", c
+        assert _after(c, "--nb") == ("16,64,256,1024" if i == 0 else None), c
+        assert not {"--cache", "--env-signal", "--force", "--runs", "--no-mis"} & set(c), c
+
+
+def test_bench_scenes_reuses_its_merl_files_and_force_rewrites_an_edited_scene(tmp_path, monkeypatch, shared):
+    """--help: an OUT/MATERIAL.binary already there is used as it is (no second conversion); --force rewrites a
+    scene file edited by hand, as the script writes it."""
+    shared("brdf/npf.bin")
+    bs, calls = _bench_scenes_with_fake_run(monkeypatch)
+    out = tmp_path / "s"
+    assert bs.main(["--out", str(out)]) == 0
+    assert sorted(_after(c, "--material") for c in calls) == ["blue-acrylic", "chrome", "color-changing-paint3",
+                                                                     "gold-metallic-paint"]
+    calls.clear()
+    edited = out / "sphere_chrome_studio.toml"
+    text = edited.read_text()
+    edited.write_text(text + "# mine\n")
+    assert outcome(bs.main, ["--out", str(out), "--force"]) == "returned 0"
+    assert calls == [] and edited.read_text() == text
+
+
+def test_bench_scenes_stops_at_the_first_bench_that_fails(tmp_path, monkeypatch, shared):
+    """A failing `warpbw bench` (it has said why) ends the run with its status; the other scenes are not run."""
+    shared("brdf/npf.bin")
+    bs, calls = _bench_scenes_with_fake_run(monkeypatch, status=3)
+    assert bs.main(["--out", str(tmp_path / "s"), "--run"]) == 3
+    assert len([c for c in calls if c[:2] == ["warpbw", "bench"]]) == 1

@@ -1,16 +1,21 @@
 """``warpbw bench-filtering`` and ``warpbw render --filter`` (issue 4): the metrics on hand-made images,
 the JSON record's keys, the plot, overwrite protection and the routing of plane scenes.  Tiny scenes (a
-16x12 image, an 8x8 map, zooms 1 and 2, 64 ground-truth rays): a few seconds in all."""
+16x12 image, an 8x8 map, zooms 1 and 2, 64 ground-truth rays): a few seconds in all.  examples/anisotropy_cost.py
+with stand-in frames whose times are set: its table of median times and ratios, options and defaults."""
 from __future__ import annotations
 
 import json
 import math
+import re
+from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from conftest import check_colour_scale, numpy_camera_rays, numpy_sphere_distance, numpy_square_distance
+from conftest import (check_colour_scale, load_example, numpy_camera_rays, numpy_sphere_distance, numpy_square_distance,
+                      outcome)
 from warpbw.bench_filtering import FLICKER_STEP, colour_error, flicker, temporal_error
 from warpbw.cli import main
 from warpbw.io.exr import read_exr, write_exr
@@ -649,3 +654,87 @@ def test_filtering_zoom_renders_with_the_max_anisotropy_asked_for(tmp_path, monk
         fz.main([str(tmp_path / "planes.toml"), "-o", str(tmp_path / "z"), "--zoom", "2", "--gt-spp", "80",
                  "--max-anisotropy", "4"])
     assert got["max_anisotropy"] == 4 and got["spp"] == 80
+
+
+# --------------------------------------------------------------------------------- examples/anisotropy_cost.py
+
+@dataclass(frozen=True)
+class _Cam:
+    width: int
+    height: int
+
+
+@dataclass(frozen=True)
+class _Scene:
+    camera: _Cam
+
+
+def _run_anisotropy_cost(monkeypatch, argv):
+    """anisotropy_cost.main with stand-ins for the scene, the preparation and the frames.  A frame's time is 1 s
+    for the warm-up, then base * (1, 1, 4, 1, 1, 4, ...) over the timed runs, base = 10 ms isotropic and 30 ms
+    anisotropic: the median is the base, the mean of three runs twice it."""
+    import warpbw.filtering
+    import warpbw.scene
+
+    mod = load_example("anisotropy_cost")
+    calls, seen = [], {}
+
+    def render_filtering(scene, method, prepared=None, camera=None, max_anisotropy=1):
+        key = (method, camera, max_anisotropy)
+        k = seen.get(key, 0)
+        seen[key] = k + 1
+        calls.append(dict(method=method, camera=camera, a=max_anisotropy, size=(scene.camera.width,
+                                                                                scene.camera.height), k=k))
+        base = 0.010 if max_anisotropy == 1 else 0.030
+        return SimpleNamespace(time_s=1.0 if k == 0 else base * (4 if k % 3 == 0 else 1))
+
+    monkeypatch.setattr(mod, "init_warp", lambda dev: None)
+    monkeypatch.setattr(warpbw.scene, "load_scene", lambda path: _Scene(_Cam(64, 48)))
+    monkeypatch.setattr(warpbw.filtering, "prepare_filtering", lambda scene, methods, progress=True: "prep")
+    monkeypatch.setattr(warpbw.filtering, "zoomed_camera", lambda cam, z: ("zoomed", cam, z))
+    monkeypatch.setattr(warpbw.filtering, "render_filtering", render_filtering)
+    return mod, calls, outcome(mod.main, argv)
+
+
+def test_anisotropy_cost_table_is_the_median_ratio_at_each_zoom(monkeypatch, capsys):
+    """Module docstring: at each zoom, for each method, the median kernel time of --runs frames with one probe and
+    with up to --aniso probes, and their ratio (anisotropic over isotropic), for frames of --size at the zoomed
+    camera.  Stand-in times: median 10 ms and 30 ms, so every cell reads 10.0 / 30.0 (3.00x)."""
+    mod, calls, how = _run_anisotropy_cost(monkeypatch, ["s.toml", "--size", "12x8", "--zoom", "2,8", "--runs", "3",
+                                                         "--aniso", "4"])
+    assert how == "returned 0", how
+    cam = _Cam(12, 8)
+    assert {c["size"] for c in calls} == {(12, 8)}
+    assert {c["camera"] for c in calls} == {("zoomed", cam, 2.0), ("zoomed", cam, 8.0)}
+    assert {c["a"] for c in calls} == {1, 4}
+    for m in mod.METHODS:   # per method and zoom: one warm-up and 3 timed frames of each setting
+        for z in (2.0, 8.0):
+            for a in (1, 4):
+                assert sorted(c["k"] for c in calls if c["method"] == m and c["camera"][2] == z and c["a"] == a) \
+                    == [0, 1, 2, 3], (m, z, a)
+    rows = [ln for ln in capsys.readouterr().out.splitlines() if ln.split() and ln.split()[0] in ("2", "8")]
+    assert len(rows) == 2, rows
+    for ln in rows:
+        cells = re.findall(r"([\d.]+) / +([\d.]+) \(([\d.]+)x\)", ln)
+        assert cells == [("10.0", "30.0", "3.00")] * len(mod.METHODS), ln
+
+
+def test_anisotropy_cost_defaults_are_the_documented_ones(monkeypatch):
+    """--help: --runs 5, --aniso 16 (and the zooms 1, 8, 32 at 512x384)."""
+    mod, calls, how = _run_anisotropy_cost(monkeypatch, ["s.toml"])
+    assert how == "returned 0", how
+    assert {c["a"] for c in calls} == {1, 16}
+    assert {c["camera"][2] for c in calls} == {1.0, 8.0, 32.0} and {c["size"] for c in calls} == {(512, 384)}
+    assert max(c["k"] for c in calls) == 5          # the warm-up (0), then 5 timed frames
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["--aniso", "1"], "--aniso 1: expected an integer from 2 to"),   # one probe against itself: a traceback
+    (["--zoom", "0"], "expected a positive --size, --runs and --zoom"),
+])
+def test_anisotropy_cost_refuses_settings_it_cannot_compare(monkeypatch, capsys, argv, needle):
+    """--aniso 1 would time the isotropic frame against itself (and the two settings collapse into one); a zoom of
+    0 has no camera.  Both are usage errors naming the option, before any scene is read."""
+    mod, calls, how = _run_anisotropy_cost(monkeypatch, ["s.toml", *argv])
+    assert how == "exit 2" and calls == [], how
+    assert needle in capsys.readouterr().err

@@ -1,11 +1,15 @@
 """Importance sampling: every sampler's pdf integrates to 1, its samples follow its pdf, and the
-importance-sampled estimate of a pixel agrees with a uniform-sampling estimate."""
+importance-sampled estimate of a pixel agrees with a uniform-sampling estimate.  examples/brdf_sampling.py with a
+Lambertian stand-in: its three panels (f cos, the pdf, the density of drawn directions per steradian) by hand."""
 from __future__ import annotations
+
+import math
+import sys
 
 import numpy as np
 import pytest
 
-from conftest import named_as
+from conftest import fake_npf_table, load_example, named_as
 from warpbw import brdf as B
 from warpbw.sampling import build_sampler_table
 
@@ -293,3 +297,80 @@ def test_tabulated_pdf_is_the_density_sampled_on_both_sides_of_the_plane_of_inci
         x = np.where(g, 1.0 / np.where(g, p, 1.0), 0.0)
         se = x.std() / np.sqrt(n)
         assert abs(x.mean() - 0.9 * np.pi) < max(4.0 * se, 0.01 * 0.9 * np.pi), (x.mean(), se)
+
+
+# --------------------------------------------------------------------------------- examples/brdf_sampling.py
+
+def _run_brdf_sampling(monkeypatch, tmp_path, argv):
+    """brdf_sampling.main with a stand-in material: f = 1/pi (Lambert), pdf = cos/pi, and a "sampler" that returns
+    every projected-hemisphere cell's centre once where y > 0 and three times where y < 0, plus 100 directions
+    below the horizon.  Returns the sampler's calls and the 9 panels drawn (log10 values, row by row)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.axes
+
+    mod = load_example("brdf_sampling")
+    G = mod.GRID
+    x = (np.arange(G) + 0.5) / G * 2 - 1
+    X, Y = np.meshgrid(x, -x)
+    inside = X ** 2 + Y ** 2 < 1
+    up = np.stack([X[inside], Y[inside], np.sqrt(1 - X[inside] ** 2 - Y[inside] ** 2)], -1)
+    drawn = np.concatenate([up, up[up[:, 1] < 0], up[up[:, 1] < 0], np.tile([[0.6, 0.0, -0.8]], (100, 1))])
+    sampled, panels = [], []
+
+    def sample_brdf(mb, i, wo, n, seed=0):
+        sampled.append((np.asarray(wo, float).copy(), n))
+        return drawn.copy()
+
+    real_imshow = matplotlib.axes.Axes.imshow
+
+    def imshow(self, img, *a, **kw):
+        panels.append(np.array(img))
+        return real_imshow(self, img, *a, **kw)
+
+    monkeypatch.setattr(mod, "build_sampler_table", lambda f: None)
+    monkeypatch.setattr(mod.B, "MaterialSpec", lambda *a, **k: None)
+    monkeypatch.setattr(mod.B, "pack_npf_curves", lambda *a: None)
+    monkeypatch.setattr(mod.B, "build_material_table", lambda specs: "mb")
+    monkeypatch.setattr(mod.B, "eval_brdf", lambda mb, i, wi, wo: np.full((len(wi), 3), 1 / math.pi))
+    monkeypatch.setattr(mod.B, "pdf_brdf", lambda mb, i, wi, wo: wi[:, 2] / math.pi)
+    monkeypatch.setattr(mod.B, "sample_brdf", sample_brdf)
+    monkeypatch.setattr(matplotlib.axes.Axes, "imshow", imshow)
+    monkeypatch.setattr(sys, "argv", ["brdf_sampling.py", "--table", str(fake_npf_table(tmp_path / "t.bin")),
+                                      *argv])
+    mod.main()
+    return sampled, panels, inside, X, Y
+
+
+def test_brdf_sampling_panels_are_f_cos_the_pdf_and_the_sample_density_per_steradian(tmp_path, monkeypatch):
+    """Module docstring: per view, f cos_i, the pdf and the histogram of drawn directions, over the projected
+    hemisphere (x, y of wi), at view elevations theta_o = 0.2, 0.8, 1.3 (wo = (sin, 0, cos)).  A cell of the
+    projected disk of area A holds the directions of solid angle A / cos_i, so its density per steradian is
+    count / (N above the horizon) / A * cos_i; the sampler's 100 directions below the horizon do not count, and
+    the top of the image is +y."""
+    sampled, panels, inside, X, Y = _run_brdf_sampling(monkeypatch, tmp_path, ["--out", str(tmp_path / "o"),
+                                                                               "--samples", "1000"])
+    assert (tmp_path / "o" / "brdf_sampling_gold-metallic-paint.png").is_file()
+    assert len(sampled) == 3 and len(panels) == 9
+    for (wo, n), th in zip(sampled, (0.2, 0.8, 1.3)):
+        assert n == 1000
+        np.testing.assert_allclose(wo, [math.sin(th), 0.0, math.cos(th)], atol=1e-12)
+    cos = np.sqrt(np.clip(1 - X ** 2 - Y ** 2, 0, None))
+    cell = (2.0 / len(X)) ** 2
+    n_up = int(inside.sum() + 2 * (inside & (Y < 0)).sum())
+    density = np.where(Y > 0, 1.0, 3.0) / n_up / cell * cos
+    for row in range(3):
+        f, pdf, dens = panels[3 * row: 3 * row + 3]
+        np.testing.assert_allclose(f[inside], np.log10(cos[inside] / math.pi), atol=1e-5)
+        np.testing.assert_allclose(pdf[inside], np.log10(cos[inside] / math.pi), atol=1e-5)
+        np.testing.assert_allclose(dens[inside], np.log10(np.maximum(density[inside], 1e-6)), atol=1e-5)
+
+
+def test_brdf_sampling_defaults_and_figure_named_as_the_table_spells_the_material(tmp_path, monkeypatch):
+    """--help: 400000 directions per view by default; the figure is brdf_sampling_MATERIAL.png with the material as
+    the NPF table names it (read_npf ignores case and spaces: " Chrome " is chrome), as npf-to-merl echoes it."""
+    sampled, _, _, _, _ = _run_brdf_sampling(monkeypatch, tmp_path, ["--out", str(tmp_path / "o"),
+                                                                     "--material", " Chrome "])
+    assert [n for _, n in sampled] == [400_000] * 3
+    assert [p.name for p in (tmp_path / "o").iterdir()] == ["brdf_sampling_chrome.png"]

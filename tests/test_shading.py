@@ -1,11 +1,22 @@
-"""Reference estimator (002 Eq. 2) against closed forms: Lambert under a constant sky, white furnace."""
+"""Reference estimator (002 Eq. 2) against closed forms: Lambert under a constant sky, white furnace.  The scripts
+examples/reference_estimator.py and compare_mitsuba.py with stand-ins for the renders (and for Mitsuba): what they
+hand the estimator, and their figures (throughput, relMSE over the eroded interior) against values worked by
+hand."""
 from __future__ import annotations
+
+import math
+import re
+import sys
+import tomllib
+from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import StandInClock, load_example, outcome
 from warpbw.errors import WarpbwError
 from warpbw.pipeline import prepare_scene, render_reference
 from warpbw.scene import parse_scene
@@ -230,3 +241,208 @@ def test_tiles_of_equal_cost_split_a_compact_hot_spot():
     assert heavy(tile_ranges(4000, 500, costs)) < 0.2
     with pytest.raises(WarpbwError, match="tile costs"):
         tile_ranges(10, 4, np.full(10, np.nan))
+
+
+# ------------------------------------------------------------------------------ examples/reference_estimator.py
+
+def _run_reference_estimator(monkeypatch, tmp_path, argv, out):
+    """Run reference_estimator.main with stand-ins for every stage; returns what they were handed and stdout."""
+    mod = load_example("reference_estimator")
+    got = {"shade": [], "camera": None, "probe": None, "npf": None}
+    clock = StandInClock()
+
+    def load_envmap(path, device=None):
+        got["probe"] = Path(path)
+        return SimpleNamespace(name="probe", data=None)
+
+    def read_npf(path, material):
+        got["npf"] = (Path(path), material)
+        return SimpleNamespace(name=material, rho_d=None, rho_s=None, D=None, G1=None, F=None)
+
+    def make_camera(pos, look, up, fov, w, h):
+        got["camera"] = (w, h)
+        return SimpleNamespace(w=w, h=h)
+
+    def render_gbuffer(cam, geo, device=None):
+        return SimpleNamespace(coverage=np.ones((cam.h, cam.w), bool), w=cam.w, h=cam.h)
+
+    def shade_reference(gb, mats, env, spp, seed=0, mis=False, device=None):
+        got["shade"].append((spp, mis))
+        clock.now += 1.0                                       # every shading "takes" exactly 1 s
+        img = np.full((gb.h * gb.w, 3), 0.5 if mis else 0.25, np.float32)
+        return SimpleNamespace(samples=2_500_000, pixels_shaded=gb.h * gb.w, non_finite=0,
+                               radiance=SimpleNamespace(numpy=lambda: img))
+
+    import warpbw.io.npf
+    import warpbw.sampling
+
+    monkeypatch.setattr(mod, "init_warp", lambda dev: None)
+    monkeypatch.setattr(mod, "load_envmap", load_envmap)
+    monkeypatch.setattr(warpbw.io.npf, "read_npf", read_npf)
+    monkeypatch.setattr(warpbw.sampling, "build_sampler_table", lambda f: None)
+    monkeypatch.setattr(mod.B, "pack_npf_curves", lambda *a: None)
+    monkeypatch.setattr(mod.B, "MaterialSpec", lambda *a, **k: a[0])
+    monkeypatch.setattr(mod.B, "build_material_table", lambda specs, device=None: SimpleNamespace(names=specs))
+    monkeypatch.setattr(mod, "build_geometry", lambda *a, **k: None)
+    monkeypatch.setattr(mod, "make_camera", make_camera)
+    monkeypatch.setattr(mod, "render_gbuffer", render_gbuffer)
+    monkeypatch.setattr(mod, "shade_reference", shade_reference)
+    monkeypatch.setattr(mod, "time", clock)
+    monkeypatch.setattr(sys, "argv", ["reference_estimator.py", *argv, "--out", str(out)])
+    mod.main()
+    return got
+
+
+def test_reference_estimator_passes_its_options_and_names_each_image_by_its_estimator(tmp_path, monkeypatch,
+                                                                                      capsys):
+    """--probe, --npf, --material, --spp and --resolution reach the stages they name (module docstring, --help);
+    the timed renders are BRDF sampling then MIS, written to ref_bis.exr and ref_mis.exr; and the throughput counts
+    evaluations: with MIS a sample is a BRDF and an environment sample (warpbw.shading.ShadeResult.samples), so
+    2.5 M samples in 1 s are 2.50 M evaluations/s without MIS and 5.00 M with it."""
+    from warpbw.io.exr import read_exr
+
+    probe, npf = tmp_path / "p.exr", tmp_path / "t.bin"
+    probe.write_bytes(b"x")
+    npf.write_bytes(b"x")
+    got = _run_reference_estimator(monkeypatch, tmp_path, ["--probe", str(probe), "--npf", str(npf), "--material",
+                                                           "chrome", "--spp", "7", "--resolution", "8", "4"],
+                                   tmp_path / "o")
+    assert got["probe"] == probe and got["npf"] == (npf, "chrome")
+    assert got["camera"] == (8, 4)
+    assert got["shade"] == [(1, False), (7, False), (1, True), (7, True)]     # warm-up, then the timed render
+    assert float(np.unique(read_exr(tmp_path / "o" / "ref_bis.exr").pixels)[0]) == 0.25
+    assert float(np.unique(read_exr(tmp_path / "o" / "ref_mis.exr").pixels)[0]) == 0.5
+    out = capsys.readouterr().out
+    assert re.search(r"ref_bis: 7 spp .*\(2\.50 M evaluations/s\)", out), out
+    assert re.search(r"ref_mis: 7 spp .*\(5\.00 M evaluations/s\)", out), out
+
+
+def test_reference_estimator_defaults_are_the_documented_ones(tmp_path, monkeypatch):
+    """Without options: --spp 64 and --resolution 384 160 (module docstring and --help), the NPF sphere of
+    gold-metallic-paint."""
+    probe, npf = tmp_path / "p.exr", tmp_path / "t.bin"
+    probe.write_bytes(b"x")
+    npf.write_bytes(b"x")
+    got = _run_reference_estimator(monkeypatch, tmp_path, ["--probe", str(probe), "--npf", str(npf)], tmp_path / "o")
+    assert got["shade"] == [(1, False), (64, False), (1, True), (64, True)]
+    assert got["camera"] == (384, 160) and got["npf"] == (npf, "gold-metallic-paint")
+
+
+# ------------------------------------------------------------------------------- examples/compare_mitsuba.py
+
+def test_compare_mitsuba_erode_and_relmse_sum_by_hand():
+    """erode: binary erosion by the (2r+1)^2 square, outside the image uncovered (its docstring; the interior mask
+    of the module docstring); relmse_sum = sum((a - b)^2) / sum(b^2) with b the reference (Mitsuba)."""
+    cm = load_example("compare_mitsuba")
+    full = np.ones((7, 7), bool)
+    want = np.zeros((7, 7), bool)
+    want[2:5, 2:5] = True
+    np.testing.assert_array_equal(cm.erode(full, 2), want)
+    block = np.zeros((9, 10), bool)
+    block[1:8, 1:9] = True
+    want = np.zeros((9, 10), bool)
+    want[3:6, 3:7] = True
+    np.testing.assert_array_equal(cm.erode(block, 2), want)
+    test, ref = np.full((2, 2, 3), 2.0), np.ones((2, 2, 3))
+    assert cm.relmse_sum(test, ref, np.ones((2, 2), bool)) == pytest.approx(1.0)
+
+
+def test_compare_mitsuba_warpbw_side_gets_the_scale_rotation_and_estimator(tmp_path):
+    """The warpbw scene has the probe's --rotation and --scale (the same radiance as Mitsuba's, module docstring);
+    MIS is passed to render_reference only when asked (--no-mis: "its CLI default")."""
+    cm = load_example("compare_mitsuba")
+    t = tomllib.loads(cm.warpbw_toml(tmp_path / "p.exr", cm.CASES["ggx0.4"], 32, 30.0, 2.5))
+    assert t["environment"]["rotation"] == 30.0 and t["environment"]["scale"] == 2.5
+    assert t["camera"]["resolution"] == [32, 32] and t["material"]["m"]["alpha"] == 0.4
+    seen = []
+
+    def render_reference(scene, spp=1, seed=0, device=None, **kw):
+        seen.append(kw)
+        return SimpleNamespace(image=np.zeros((2, 2, 3)), coverage=np.zeros((2, 2), bool))
+
+    for mis in (True, False):
+        cm.render_warpbw(lambda text, base_dir=None: text, render_reference, "", 4, 0, mis)
+    assert seen == [{"mis": True}, {}]
+
+
+def test_compare_mitsuba_options_defaults(tmp_path):
+    """--help: --spp 1024, --resolution 256; MIS by default, BRDF sampling with --no-mis."""
+    cm = load_example("compare_mitsuba")
+    probe = tmp_path / "p.exr"
+    probe.write_bytes(b"x")
+    a = cm.parse_args(["--probe", str(probe)])
+    assert (a.spp, a.resolution, a.mitsuba_spp, a.mis) == (1024, 256, None, True)
+    assert cm.parse_args(["--probe", str(probe), "--no-mis"]).mis is False
+
+
+def _run_compare_mitsuba(monkeypatch, tmp_path, argv):
+    """compare_mitsuba.main with stand-ins for Mitsuba and warpbw on 16x16 images: both cover rows and columns
+    2-13 (so the 2-pixel erosion leaves 4-11, 64 pixels); Mitsuba's image is 1 (at seed 6, 1 + 0.05 * checker);
+    warpbw's is Mitsuba's seed-5 image plus 0.5 on the rim and, in the interior, 0.05 (lambert) or 0.123085
+    (ggx0.1)."""
+    cm = load_example("compare_mitsuba")
+    R = 16
+    cov = np.zeros((R, R), bool)
+    cov[2:14, 2:14] = True
+    inner = cm.erode(cov, 2)
+    c = np.where((np.arange(R)[:, None] + np.arange(R)[None, :]) % 2 == 0, 1.0, -1.0)[..., None] * np.ones(3)
+    got = {"scenes": [], "mitsuba": [], "warpbw": []}
+
+    def mitsuba_scene(mi, probe_rgb, mat, res, spp, rotation, scale):
+        got["scenes"].append(dict(res=res, spp=spp, rotation=rotation, scale=scale))
+        return mat
+
+    def render_mitsuba(mi, scene, spp, seed):
+        got["mitsuba"].append((spp, seed))
+        img = np.ones((R, R, 3), np.float32) + (0.05 * c if seed == 6 else 0.0)
+        return img.astype(np.float32), cov.astype(np.float32), 2.0
+
+    def render_warpbw(ps, rr, toml_text, spp, seed, mis):
+        got["warpbw"].append((spp, seed, mis))
+        d = 0.123085 if tomllib.loads(toml_text)["material"]["m"]["type"] == "ggx" else 0.05
+        img = np.ones((R, R, 3)) + np.where(inner, d, np.where(cov, 0.5, 0.0))[..., None]
+        return img.astype(np.float32), cov.copy(), 1.0
+
+    monkeypatch.setattr(cm, "import_mitsuba", lambda variant=None: (SimpleNamespace(__version__="fake"), "fake"))
+    monkeypatch.setattr(cm, "load_probe", lambda mi, path: np.ones((4, 8, 3), np.float32))
+    monkeypatch.setattr(cm, "import_warpbw", lambda: ("parse_scene", "render_reference"))
+    monkeypatch.setattr(cm, "mitsuba_scene", mitsuba_scene)
+    monkeypatch.setattr(cm, "render_mitsuba", render_mitsuba)
+    monkeypatch.setattr(cm, "render_warpbw", render_warpbw)
+    probe = tmp_path / "p.exr"
+    probe.write_bytes(b"x")
+    got["outcome"] = outcome(cm.main, ["--probe", str(probe), "--resolution", str(R), *argv])
+    return got
+
+
+def test_compare_mitsuba_reports_relmse_over_the_interior_against_mitsuba(tmp_path, monkeypatch, capsys):
+    """Module docstring: relMSE (test = warpbw, ref = Mitsuba: mean of (a - b)^2 / (b^2 + 1e-2)) over warpbw's
+    coverage eroded by 2 pixels, PASS below 1 %; --noise-floor renders Mitsuba again with seed + 1; --mitsuba-spp is
+    Mitsuba's spp, --spp warpbw's; --scale and --rotation reach Mitsuba's scene; --no-mis reaches warpbw.
+    By hand: lambert 0.05^2 / 1.01 = 2.48e-3 (PASS), ggx0.1 0.123085^2 / 1.01 = 1.50e-2 (FAIL), relMSE(sum) d^2,
+    PSNR -20 log10 d (peak 1), 64 pixels, coverage IoU 1, floor 0.05^2 / 1.01."""
+    got = _run_compare_mitsuba(monkeypatch, tmp_path, ["--cases", "lambert,ggx0.1", "--spp", "16", "--mitsuba-spp",
+                                                       "64", "--scale", "2.5", "--rotation", "30", "--seed", "5",
+                                                       "--noise-floor", "--no-mis"])
+    assert got["outcome"] == "returned 0", got["outcome"]
+    assert got["scenes"] == [dict(res=16, spp=64, rotation=30.0, scale=2.5)] * 2
+    assert got["mitsuba"] == [(1, 1005), (64, 5), (64, 6)] * 2
+    assert got["warpbw"] == [(1, 1005, False), (16, 5, False)] * 2
+    rows = {ln.split()[0]: ln.split() for ln in capsys.readouterr().out.splitlines()
+            if ln.split() and ln.split()[0] in ("lambert", "ggx0.1")}
+    for case, d, verdict in (("lambert", 0.05, "PASS"), ("ggx0.1", 0.123085, "FAIL")):
+        r = rows[case]
+        assert float(r[1]) == pytest.approx(d * d / 1.01, rel=5e-3), r
+        assert float(r[2]) == pytest.approx(d * d, rel=5e-3), r
+        assert float(r[3]) == pytest.approx(-20 * math.log10(d), abs=0.01), r
+        assert (int(r[4]), float(r[5])) == (64, 1.0), r
+        assert float(r[9]) == pytest.approx(0.05 ** 2 / 1.01, rel=5e-3), r
+        assert r[10] == verdict, r
+
+
+def test_compare_mitsuba_runs_warpbw_with_mis_by_default(tmp_path, monkeypatch):
+    """Without --no-mis, warpbw renders with MIS (--help: like for like with Mitsuba's path integrator), at --spp
+    for both renderers."""
+    got = _run_compare_mitsuba(monkeypatch, tmp_path, ["--cases", "lambert", "--spp", "8", "--no-warmup"])
+    assert got["outcome"] == "returned 0", got["outcome"]
+    assert got["warpbw"] == [(8, 0, True)] and got["mitsuba"] == [(8, 0)]
