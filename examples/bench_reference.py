@@ -124,7 +124,8 @@ def main():
     ap.add_argument("--force", action="store_true", help="overwrite an earlier run's records and previews")
     args = ap.parse_args()
     # the options warpbw bench also has mean the same here: its parsers check them, before any work
-    check_command_options("bench", {"--spp": args.spp or DEFAULT_SPP, "--runs": str(args.runs)})
+    spp_text = DEFAULT_SPP if args.spp is None else args.spp
+    check_command_options("bench", {"--spp": spp_text, "--runs": str(args.runs)})
     if args.gt_spp % GT_CHUNK_SPP or args.gt_spp < 2 * GT_CHUNK_SPP:
         ap.error(f"--gt-spp {args.gt_spp}: expected a multiple of {GT_CHUNK_SPP} of at least {2 * GT_CHUNK_SPP} "
                  f"(the mean of cached {GT_CHUNK_SPP}-spp chunks, checked against its first half)")
@@ -134,7 +135,7 @@ def main():
     if not math.isfinite(args.rotation):
         ap.error(f"--rotation {args.rotation}: expected a finite angle in degrees")
     out = Path(args.out)
-    spps = sorted({int(s) for s in (args.spp or DEFAULT_SPP).split(",") if s.strip()})
+    spps = sorted({int(s) for s in spp_text.split(",") if s.strip()})
     if not args.check_only:
         check_overwrite([out / "bench_reference.json", out / "bench_reference.png", out / "ground_truth.png"]
                         + [out / f"{m}_{spps[-1]}spp.png" for m in ("brdf_is", "mis")], args.force, "--out")
@@ -142,7 +143,7 @@ def main():
         ap.error(f"--check-only: {out / 'bench_reference.json'} not found (an earlier run's records are needed)")
     else:   # the sweep kept, and the spp it was taken at (the check's, and the plot's 1/spp line)
         kept, spps = earlier_sweep(out / "bench_reference.json", args.material, args.probe, args.rotation,
-                                   args.resolution, spps if args.spp else None)
+                                   args.resolution, None if args.spp is None else spps)
 
     import warp as wp
 
