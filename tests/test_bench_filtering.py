@@ -255,6 +255,48 @@ def test_info_on_a_plane_scene(plane_scene, capsys):
     assert any(str(plane_scene.parent / "map.exr") == f for f in s["files"])
 
 
+# what a stage a filtering frame records (stats["stages"]) is called in warpbw info's list
+PLANE_STAGE_WORDS = {"filtering": "filtered shading", "gmm_filtering": "filtered shading", "plain_brdf": "plain BRDF",
+                     "environment": "environment", "directional": "directional lights"}
+
+
+def _frame_stage_words(stages) -> set:
+    """The words of warpbw info for the stages a filtering frame recorded: "gmm_filtering:gmm_aligned",
+    "plain_brdf:...", "light:environment+directional"."""
+    kinds = [k for st in stages for k in (st[len("light:"):].split("+") if st.startswith("light:")
+                                          else [st.split(":")[0]])]
+    return {PLANE_STAGE_WORDS[k] for k in kinds if k in PLANE_STAGE_WORDS}
+
+
+def test_info_on_planes_lists_what_a_frame_of_each_filter_runs(plane_scene, capsys):
+    """warpbw info, from the scene file alone, names the shading stages a frame of a plane scene records having
+    run: the filtered shading (and its mipmaps) only for a plane with a normal map, the plain BRDF only for one
+    without (it once listed mipmaps and filtered shading for a plane with no map, which no filter builds or runs),
+    the environment and the directional lights only when the scene has them.  Checked on a plane with a map, one
+    without, both in one scene, under lights alone and under a sky alone."""
+    from warpbw.filtering import render_filtering
+    from warpbw.scene import load_scene
+
+    d = plane_scene.parent
+    flat = SCENE.replace('normal_map = "map.exr"\nnormal_map_scale = 0.5\ntiling = 2\n', "")
+    small_flat = flat[flat.index("[[object]]"):].replace('"m"', '"f"').replace("[material.m]", "[material.f]")
+    both = SCENE + small_flat.replace("size = 2.0", "size = 0.5\ncenter = [0.5, 0.01, 0.0]")
+    sky = (SCENE[:SCENE.index("[[light]]")] + '[environment]\nprocedural = "sky"\n\n'
+           + SCENE[SCENE.index("[[object]]"):])
+    seen = set()
+    for name, text in (("mapped", SCENE), ("flat", flat), ("both", both), ("sky", sky)):
+        (d / f"{name}.toml").write_text(text)
+        assert main(["info", str(d / f"{name}.toml"), "--json"]) == 0
+        info = json.loads(capsys.readouterr().out)["stages"]
+        listed = {w for st in info for w in PLANE_STAGE_WORDS.values() if st.startswith(w)}
+        assert any(st.startswith("normal mipmaps") for st in info) == ("filtered shading" in listed), (name, info)
+        scene = load_scene(d / f"{name}.toml")
+        for method in ("toksvig", "gmm_aligned"):
+            ran = _frame_stage_words(render_filtering(scene, method, spp=4).stats["stages"])
+            assert listed == ran, (name, method, info, ran)
+            seen |= ran
+    assert seen == set(PLANE_STAGE_WORDS.values())
+
 def test_render_and_info_of_a_plane_scene_under_an_environment(plane_scene, capsys):
     d = plane_scene.parent
     env = d / "env.toml"

@@ -1410,6 +1410,17 @@ def filtering_summary(scene: Scene) -> dict:
         f"{e.describe()}; sampled per pixel: BRDF and environment samples, multiple importance sampling, "
         "quasi-random (R_3 and R_2 sequences, a random offset per pixel)")
     mats = {n: scene.materials[n].type for n in scene.material_order}
+    # as a frame runs them (filtering_stages): a plane without a normal map has no mipmap, and every filter shades
+    # it with the plain BRDF
+    flat = [scene.materials[o.material].normal_map is None for o in scene.objects if isinstance(o, PlaneObject)]
+    stages = ["analytic ray-plane hit + ray-differential footprint"]
+    if not all(flat):
+        stages += ["normal mipmaps (box filter; GMM, 004 Sec. 4.1, from file or cache or built)",
+                   "filtered shading (004 Sec. 3, 4.2): " + ", ".join(ALL_METHODS)]
+    if any(flat):
+        stages.append("plain BRDF for the planes without a normal map (no mipmap, the same for every filter)")
+    stages += ([] if e is None else ["environment: per pixel BRDF + environment samples (MIS)"]) + \
+        (["directional lights: exact, per pixel"] if scene.lights else [])
     return {
         "scene": scene.source,
         "resolution": [scene.camera.width, scene.camera.height],
@@ -1419,10 +1430,7 @@ def filtering_summary(scene: Scene) -> dict:
         "materials": mats,
         "unused_materials": sorted(set(scene.materials) - set(scene.material_order)),
         "files": [str(p) for p in scene.files()],
-        "stages": ["analytic ray-plane hit + ray-differential footprint",
-                   "normal mipmaps (box filter; GMM, 004 Sec. 4.1, from file or cache or built)",
-                   "filtered shading (004 Sec. 3, 4.2): " + ", ".join(ALL_METHODS)]
-                  + ([] if e is None else ["environment: per pixel BRDF + environment samples (MIS)"]),
+        "stages": stages,
     }
 
 
