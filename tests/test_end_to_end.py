@@ -495,6 +495,34 @@ STAGE_WORDS = {"mesh_curvature": "mesh curvature", "bandwidth_pass": "bandwidth 
                "reference_shading": "reference shading"}
 
 
+def test_info_lists_a_bandwidth_table_only_for_the_method_that_reads_it(tmp_path, monkeypatch, capsys):
+    """warpbw info's "files" are the files a frame of that method reads: a tabulated material's precomputed
+    bandwidth table only with --method adaptive (the bandwidth pass reads it; it was listed for the reference
+    too).  Truth: the table here is not a table at all, and the reference renders the scene while the adaptive
+    method refuses it, naming it."""
+    from conftest import fake_npf_table
+    from warpbw.cli import main as cli_main
+    from warpbw.errors import WarpbwError
+    from warpbw.pipeline import render_adaptive, render_reference
+    from warpbw.scene import load_scene
+
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
+    fake_npf_table(tmp_path / "npf.bin")
+    (tmp_path / "bw.npz").write_bytes(b"not a table")
+    (tmp_path / "s.toml").write_text("\n".join([
+        "[camera]", "position = [0.0, 0.0, 3.0]", "look_at = [0.0, 0.0, 0.0]", "fov = 50.0", "resolution = [8, 8]",
+        "[environment]", 'procedural = "sky"', "[[object]]", 'shape = "sphere"', "radius = 0.8", 'material = "m"',
+        "[material.m]", 'type = "npf"', 'table = "npf.bin"', 'name = "chrome"', 'bandwidth = "bw.npz"']))
+    listed = {}
+    for method in ("reference", "adaptive"):
+        assert cli_main(["info", str(tmp_path / "s.toml"), "--json", "--method", method]) == 0
+        listed[method] = [Path(f).name for f in json.loads(capsys.readouterr().out)["files"]]
+    assert listed == {"reference": ["npf.bin"], "adaptive": ["npf.bin", "bw.npz"]}, listed
+    scene = load_scene(tmp_path / "s.toml")
+    assert render_reference(scene, spp=1).coverage.any()
+    with pytest.raises(WarpbwError, match="bw.npz"):
+        render_adaptive(scene, budget=1.0)
+
 def test_info_lists_the_stages_a_frame_of_each_method_runs(tmp_path):
     """warpbw info --method M, from the scene file alone, names the stages a frame of M then records having run
     (stats["stages"]), in their order; the adaptive method is refused where warpbw render refuses it."""

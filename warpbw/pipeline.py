@@ -703,6 +703,8 @@ def scene_summary(scene: Scene, method: str = "reference") -> dict:
         "objects": [o.describe() for o in scene.objects],
         "materials": {n: scene.materials[n].type for n in scene.material_order},
         "unused_materials": sorted(set(scene.materials) - set(scene.material_order)),
-        "files": [str(p) for p in scene.files()],
+        # a material's bandwidth table is read by the bandwidth pass alone (prepare_bandwidth)
+        "files": [str(p) for p in scene.files()
+                  if method == "adaptive" or p not in {scene.materials[n].bandwidth for n in scene.material_order}],
         "stages": stages,
     }
