@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import capture_call, damage_deflate_stream, fake_npf_table, outcome, plane_scene_toml
+from conftest import capture_call, damage_deflate_stream, fake_npf_table, load_example, outcome, plane_scene_toml
 
 from warpbw.errors import WarpbwError
 from warpbw.io.exr import write_exr
@@ -2354,3 +2354,79 @@ def test_check_real_with_an_open_lower_bound_refuses_the_bound_itself():
     assert outcome(check_real, 0.0, "zoom", 0.0, True) == "WarpbwError: zoom: expected a finite number > 0, got 0.0"
     assert check_real(1e-300, "zoom", 0.0, True) == 1e-300
     assert check_real(0.0, "scale", 0.0, False) == 0.0
+
+
+def test_gbuffer_example_resolution_default_and_bound(tmp_path, monkeypatch):
+    """--help: 'image width and height in pixels (default 512 512)'; the largest accepted side is the scene's
+    MAX_RESOLUTION, one more is refused.  The camera is a stand-in: nothing is rendered."""
+    from warpbw.scene import MAX_RESOLUTION
+
+    ex = load_example("gbuffer")
+    monkeypatch.chdir(tmp_path)
+    got = capture_call(monkeypatch, ex, "make_camera")
+    monkeypatch.setattr(sys, "argv", ["gbuffer.py"])
+    assert outcome(ex.main) == "Handed"
+    assert got["_args"][4:6] == (512, 512)
+    big = str(MAX_RESOLUTION)
+    monkeypatch.setattr(sys, "argv", ["gbuffer.py", "--resolution", big, big])
+    assert outcome(ex.main) == "Handed"
+    assert got["_args"][4:6] == (MAX_RESOLUTION, MAX_RESOLUTION)
+    monkeypatch.setattr(sys, "argv", ["gbuffer.py", "--resolution", str(MAX_RESOLUTION + 1), "8"])
+    assert outcome(ex.main) == "exit 2"
+
+
+def test_gbuffer_example_keeps_every_existing_output_without_force(tmp_path, monkeypatch):
+    """Any one of the five outputs existing stops the example before any work (README: nothing is overwritten
+    without --force); here normal.png, the first."""
+    ex = load_example("gbuffer")
+    out = tmp_path / "gb"
+    out.mkdir()
+    (out / "normal.png").write_bytes(b"mine")
+    (tmp_path / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    capture_call(monkeypatch, ex, "build_geometry")
+    monkeypatch.setattr(sys, "argv", ["gbuffer.py", "--mesh", str(tmp_path / "tri.obj"), "--out", str(out),
+                                      "--resolution", "8", "8"])
+    res = outcome(ex.main)
+    assert res.startswith("WarpbwError: ") and "normal.png" in res and "--force" in res, res
+    assert (out / "normal.png").read_bytes() == b"mine"
+
+
+def test_gmm_mipmap_example_level_and_texel_ranges(tmp_path, monkeypatch):
+    """At --size 16 the levels of at least 2x2 texels are 16, 8, 4 and 2 texels across: --level 0 to 3 (4 is
+    refused in one line); at level 2 (4x4 texels) a 2x2 block starts at texel 0 to 2 (2 2 is accepted)."""
+    import precompute.gmm_mipmap as gm
+
+    ex = load_example("gmm_mipmap")
+    capture_call(monkeypatch, gm, "build_gmm_mipmap")
+    out = str(tmp_path / "g.png")
+    base = ["-o", out, "--surface", "dunes", "--size", "16"]
+    assert outcome(ex.main, base + ["--level", "3"]) == "Handed"
+    assert outcome(ex.main, base + ["--level", "4"]) == "exit 2"
+    assert outcome(ex.main, base + ["--level", "2", "--texel", "2", "2"]) == "Handed"
+    assert outcome(ex.main, base + ["--level", "2", "--texel", "3", "2"]) == "exit 2"
+
+
+def test_filtering_floor_takes_the_bounds_its_help_states(tmp_path, monkeypatch):
+    """--max-anisotropy 'at most 16' (MAX_ANISOTROPY) and --gt-spp 'at least 64' are accepted at the bound; the
+    scene loading is a stand-in."""
+    from warpbw.filtering import MAX_ANISOTROPY, MIN_GT_SPP
+
+    ff = load_example("filtering_floor")
+    p = tmp_path / "s.toml"
+    p.write_text("")
+    got = capture_call(monkeypatch, ff, "load_checked")
+    assert outcome(ff.main, [str(p), "--max-anisotropy", str(MAX_ANISOTROPY)]) == "Handed"
+    assert got["_args"][2:] == (MAX_ANISOTROPY,), got["_args"]
+    assert outcome(ff.main, [str(p), "--gt-spp", str(MIN_GT_SPP)]) == "Handed"
+    assert outcome(ff.main, [str(p), "--max-anisotropy", str(MAX_ANISOTROPY + 1)]) == "exit 2"
+
+
+def test_filtering_floor_hands_its_options_to_the_analysis(tmp_path, monkeypatch):
+    """--gt-spp and --max-anisotropy reach the analysis of every scene (the loading is a stand-in)."""
+    ff = load_example("filtering_floor")
+    p = tmp_path / "s.toml"
+    p.write_text("")
+    monkeypatch.setattr(ff, "load_checked", lambda *a, **k: "loaded")
+    got = capture_call(monkeypatch, ff, "analyse")
+    assert outcome(ff.main, [str(p), "--gt-spp", "100", "--max-anisotropy", "3", "--zoom", "2,4"]) == "Handed"
+    assert got["_args"][1:3] == ([2.0, 4.0], 100) and got.get("max_anisotropy") == 3 and got.get("loaded") == "loaded", got

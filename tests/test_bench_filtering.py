@@ -14,8 +14,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from conftest import (check_colour_scale, load_example, numpy_camera_rays, numpy_sphere_distance, numpy_square_distance,
-                      outcome)
+from conftest import (capture_call, check_colour_scale, load_example, numpy_camera_rays, numpy_sphere_distance,
+                      numpy_square_distance, outcome, plane_scene_toml)
 from warpbw.bench_filtering import FLICKER_STEP, colour_error, flicker, temporal_error
 from warpbw.cli import main
 from warpbw.io.exr import read_exr, write_exr
@@ -780,3 +780,100 @@ def test_anisotropy_cost_refuses_settings_it_cannot_compare(monkeypatch, capsys,
     mod, calls, how = _run_anisotropy_cost(monkeypatch, ["s.toml", *argv])
     assert how == "exit 2" and calls == [], how
     assert needle in capsys.readouterr().err
+
+
+def test_plane_summary_lists_what_the_scene_uses(tmp_path):
+    """filtering_summary (``warpbw info`` on planes): [width, height] as written, every light, the materials the
+    planes use (an unused one listed as unused, its normal map not among the files read, nor the scene file)."""
+    from warpbw.pipeline import scene_summary
+
+    write_exr(tmp_path / "map.exr", np.zeros((8, 8, 1), np.float32), channels=["Y"])
+    write_exr(tmp_path / "spare.exr", np.zeros((8, 8, 1), np.float32), channels=["Y"])
+    spare = ('\n[material.spare]\ntype = "cook-torrance"\nroughness = 0.3\nf0 = [0.5, 0.5, 0.5]\n'
+             'normal_map = "spare.exr"\n')
+    p = tmp_path / "p.toml"
+    p.write_text(plane_scene_toml('normal_map = "map.exr"\n' + spare, resolution=(24, 16), lights=2))
+    from warpbw.scene import load_scene
+
+    s = scene_summary(load_scene(p))
+    assert s["resolution"] == [24, 16]
+    assert len(s["lights"]) == 2
+    assert s["materials"] == {"m": "cook-torrance"} and s["unused_materials"] == ["spare"]
+    assert s["files"] == [str(tmp_path / "map.exr")], s["files"]
+
+
+def test_filtering_floor_table_ratios_are_against_toksvig():
+    """The table's last figures: 'aligned/toks' = gmm_aligned / toksvig and 'floor/toks' = floor / toksvig (issue 4's
+    'at most half of Toksvig's' check), here 0.2 / 0.4 and 0.1 / 0.4."""
+    ff = load_example("filtering_floor")
+    row = {"zoom": 8.0, "mean_level": 1.0, "mean_probes": 1.0, "gmm_aligned": 0.2, "gmm_unaligned": 0.3,
+           "toksvig": 0.4, "lean": 0.5, "fixed": 0.8, "gmm_per_tap": 0.25, "floor": 0.1, "floor_bilinear": 0.05,
+           "gmm_merged_check": 1e-6}
+    table = ff.format_table({"scene": "s.toml", "gt_spp": 64, "components": 4, "max_anisotropy": 1, "zooms": [row]})
+    header, line = table.splitlines()[1:3]
+    fields = dict(zip(header.split(), line.split()))
+    assert fields["aligned/toks"] == "0.50" and fields["floor/toks"] == "0.25", table
+
+
+def _floor_scene(tmp_path, monkeypatch, **kw) -> Path:
+    """A plane_scene_toml scene beside a 16x16 height map, map.exr; the mipmaps built from it cached in the test's
+    folder."""
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "_cache"))
+    u = (np.arange(16) + 0.5) / 16
+    U, V = np.meshgrid(u, u)
+    write_exr(tmp_path / "map.exr", (0.05 * np.sin(2 * np.pi * U) * np.sin(4 * np.pi * V)).astype(np.float32)[..., None],
+              channels=["Y"])
+    p = tmp_path / "floor.toml"
+    p.write_text(plane_scene_toml(**kw))
+    return p
+
+
+def test_filtering_floor_refuses_an_environment_and_a_plane_without_a_map(tmp_path, monkeypatch):
+    """The numpy references shade directional lights only: a scene with an [environment] is refused, as is a plane
+    with no normal map (nothing to filter) -- each in one line, before any rendering."""
+    ff = load_example("filtering_floor")
+    env = _floor_scene(tmp_path, monkeypatch, material_extra='normal_map = "map.exr"\n',
+                       environment='[environment]\nconstant = [1.0, 1.0, 1.0]\n')
+    res = outcome(ff.load_checked, env, [8.0])
+    assert res.startswith("WarpbwError: ") and "no [environment]" in res, res
+    flat = _floor_scene(tmp_path, monkeypatch)
+    res = outcome(ff.load_checked, flat, [8.0])
+    assert res.startswith("WarpbwError: ") and "has no normal_map" in res, res
+
+
+def test_filtering_floor_ground_truth_is_the_benchmarks(tmp_path, monkeypatch):
+    """The module docstring: the ground truth is warpbw.bench_filtering's (seed 0: its GT_SEED), at --gt-spp rays
+    per pixel.  The renderer is a stand-in from the ground truth on."""
+    import warpbw.filtering as filtering
+    from warpbw.bench_filtering import GT_SEED
+
+    ff = load_example("filtering_floor")
+    scene = _floor_scene(tmp_path, monkeypatch, material_extra='normal_map = "map.exr"\n')
+    got = capture_call(monkeypatch, filtering, "render_filtering")
+    assert outcome(ff.analyse, scene, [8.0], 100, log=lambda *a: None) == "Handed"
+    assert got["_args"][1] == "ground_truth" and got["spp"] == 100 and got["seed"] == GT_SEED, got
+
+
+def test_filtering_floor_accepts_zooms_of_which_one_filters(tmp_path, monkeypatch):
+    """load_checked refuses only when no zoom has a pixel at level 0 or above ('when that holds for every zoom asked
+    for'): here zoom 1 magnifies every pixel (levels -1.6 to -0.1 on this 16x16 map) and zoom 4 filters them all."""
+    ff = load_example("filtering_floor")
+    scene = _floor_scene(tmp_path, monkeypatch, material_extra='normal_map = "map.exr"\n')
+    assert outcome(ff.load_checked, scene, [1.0]).startswith("WarpbwError: ")
+    assert outcome(ff.load_checked, scene, [1.0, 4.0]).startswith("returned ")
+
+
+def test_filtering_floor_mean_level_leaves_out_the_magnified_pixels(tmp_path, monkeypatch):
+    """'magnified pixels (level < 0) left out of every figure': at zoom 2 on this map 48 of 110 pixels are magnified,
+    and the row's mean level is the renderer's own mip level (FilterResult.level) averaged over the others."""
+    from warpbw.filtering import render_filtering, zoomed_camera
+    from warpbw.scene import load_scene
+
+    ff = load_example("filtering_floor")
+    path = _floor_scene(tmp_path, monkeypatch, material_extra='normal_map = "map.exr"\n')
+    (row,) = ff.analyse(path, [2.0], 64, log=lambda *a: None)["zooms"]
+    sc = load_scene(path)
+    res = render_filtering(sc, "fixed", camera=zoomed_camera(sc.camera, 2.0))
+    lv = res.level[res.coverage]
+    assert (lv < 0).sum() > 10 and row["pixels"] == (lv >= 0).sum(), row
+    assert row["mean_level"] == pytest.approx(float(lv[lv >= 0].mean()), abs=1e-3), row

@@ -6,7 +6,8 @@ Checks are against file bytes and independent computations: the EXR's A channel 
 pixel count, a re-render with the same seed against the first one bit for bit, a MERL tabulation of an NPF fit
 against the fit itself (means over the sphere), a precomputed sampling file against the renderer's own build
 (identical images), and ``compare``'s PSNR against its closed form for a scaled image.  Every script in ``examples/``
-answers ``--help`` without running anything.
+answers ``--help`` without running anything.  ``info``'s text and stages against the scene and the stages a frame
+records, and ``compare``'s figures over the covered pixels against hand values.
 """
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ from hypothesis import strategies as st
 from PIL import Image
 
 from conftest import (MIXED_SCENE, Handed, capture_call, check_colour_scale, numpy_camera_rays, numpy_sphere_distance,
-                      numpy_square_distance, plane_scene_toml)
+                      numpy_square_distance, outcome, plane_scene_toml)
 from warpbw.io.exr import read_exr, write_exr
 from warpbw.io.merl import MERL_FILE_SIZE
 
@@ -1318,3 +1319,228 @@ def test_compare_error_map_default_scale_spans_six_decades(tmp_path, monkeypatch
     j = json.loads(capsys.readouterr().out)
     hi = 1.0 ** 2 / (0.25 + 0.01)
     assert j["error_range"] == pytest.approx([1e-6 * hi, hi], rel=1e-4)
+
+
+INFO_CAMERA = """\
+[camera]
+position = [0.0, 0.0, 4.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 40.0
+resolution = [24, 16]
+"""
+INFO_SKY = '[environment]\nconstant = [1.0, 1.0, 1.0]\n'
+INFO_SPHERE = '[[object]]\nshape = "sphere"\nradius = 0.5\nmaterial = "paint"\n'
+INFO_MESH = '[[object]]\nmesh = "tri.obj"\nmaterial = "paint"\n'
+INFO_PAINT = '[material.paint]\ntype = "lambert"\nalbedo = 0.5\n'
+INFO_SHINY = '[material.shiny]\ntype = "ggx"\nalpha = 0.2\nspecular = [0.5, 0.5, 0.5]\n'
+INFO_LIGHT = '[[light]]\ntype = "directional"\ndirection = [0.0, 1.0, 0.0]\nradiance = [1.0, 1.0, 1.0]\n'
+INFO_LIGHT2 = '[[light]]\ntype = "directional"\ndirection = [1.0, 0.0, 0.0]\nradiance = [0.5, 0.5, 0.5]\n'
+
+
+def _info_scene(tmp_path, *parts, name="s.toml"):
+    from warpbw.scene import load_scene
+
+    (tmp_path / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    p = tmp_path / name
+    p.write_text("\n".join(parts))
+    return load_scene(p)
+
+
+def test_info_text_shows_every_line_of_the_summary(tmp_path, monkeypatch, capsys):
+    """The text of ``warpbw info``: width x height (24 x 16, as the scene writes [width, height]), the environment's
+    source, rotation and scale, one line per light, per object and per file, and every stage (the same list as
+    ``--json`` prints), the last being the shading."""
+    from warpbw.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    write_exr(tmp_path / "sky.exr", np.full((4, 8, 3), 0.5, np.float32))
+    env = '[environment]\nfile = "sky.exr"\nrotation = 30.0\nscale = 2.0\n'
+    _info_scene(tmp_path, INFO_CAMERA, env, INFO_LIGHT, INFO_LIGHT2, INFO_SPHERE, INFO_MESH, INFO_PAINT)
+    assert main(["info", "s.toml"]) == 0
+    text = capsys.readouterr().out
+    assert main(["info", "s.toml", "--json"]) == 0
+    j = json.loads(capsys.readouterr().out)
+    lines = text.splitlines()
+    assert "resolution  24 x 16" in lines, text
+    assert f"environment file {tmp_path / 'sky.exr'}, rotation 30 deg, scale 2" in lines, text
+    assert [ln for ln in lines if ln.startswith("light ")] == [
+        "light       directional towards [0.0, 1.0, 0.0] radiance [1.0, 1.0, 1.0]",
+        "light       directional towards [1.0, 0.0, 0.0] radiance [0.5, 0.5, 0.5]"], text
+    objects = lines[lines.index("objects") + 1:lines.index("objects") + 3]
+    assert objects[0].startswith("  - sphere r=0.5") and objects[1].startswith(f"  - mesh {tmp_path / 'tri.obj'}")
+    files = lines[lines.index("files") + 1:]
+    assert files == [f"  - {tmp_path / 'sky.exr'}", f"  - {tmp_path / 'tri.obj'}"], text
+    stages = next(ln for ln in lines if ln.startswith("stages      "))
+    assert stages == "stages      " + "; ".join(j["stages"]) and len(j["stages"]) == 3, (stages, j["stages"])
+    assert j["stages"][-1].startswith("reference shading"), j["stages"]
+
+
+def test_summary_names_only_the_geometry_stages_the_scene_uses(tmp_path):
+    """The G-buffer stage names analytic spheres only where the scene has a sphere and the mesh BVH only where it has
+    a mesh (a frame records "gbuffer:spheres", "gbuffer:mesh_bvh"), and the mesh curvature only in an adaptive
+    frame of a scene with a mesh."""
+    from warpbw.pipeline import scene_summary
+
+    spheres = _info_scene(tmp_path, INFO_CAMERA, INFO_SKY, INFO_SPHERE, INFO_PAINT)
+    mesh = _info_scene(tmp_path, INFO_CAMERA, INFO_SKY, INFO_MESH, INFO_PAINT, name="m.toml")
+    both = _info_scene(tmp_path, INFO_CAMERA, INFO_SKY, INFO_SPHERE, INFO_MESH, INFO_PAINT, name="b.toml")
+    assert scene_summary(spheres)["stages"][0] == "gbuffer (analytic spheres)"
+    assert scene_summary(mesh)["stages"][0] == "gbuffer (mesh BVH)"
+    res = outcome(scene_summary, spheres, "fast")
+    assert res.startswith("WarpbwError: method 'fast'"), res
+    assert scene_summary(both)["stages"][0] == "gbuffer (analytic spheres + mesh BVH)"
+    assert not any(st.startswith("mesh curvature") for st in scene_summary(spheres, "adaptive")["stages"])
+    assert sum(st.startswith("mesh curvature") for st in scene_summary(mesh, "adaptive")["stages"]) == 1
+
+
+def test_summary_lists_tabulated_sampling_for_a_merl_material_and_only_the_used_kinds(tmp_path):
+    """A MERL material is sampled from tables as an NPF one is (a frame records "tabulated_sampling"); the BRDF
+    stage names the kinds the objects use, not an unused material's."""
+    from warpbw.pipeline import scene_summary
+
+    (tmp_path / "m.binary").write_bytes(b"not read by info")
+    merl = '[material.paint]\ntype = "merl"\nfile = "m.binary"\n'
+    s = scene_summary(_info_scene(tmp_path, INFO_CAMERA, INFO_SKY, INFO_SPHERE, merl))
+    assert "brdf: merl" in s["stages"] and "tabulated importance sampling (002 Sec. 3.3)" in s["stages"], s["stages"]
+    s = scene_summary(_info_scene(tmp_path, INFO_CAMERA, INFO_SKY, INFO_SPHERE, INFO_PAINT, INFO_SHINY, name="u.toml"))
+    assert s["stages"][1] == "brdf: lambert" and s["unused_materials"] == ["shiny"], s
+
+
+def test_summary_of_a_sky_and_a_sun_shades_both(tmp_path):
+    """Under an environment and directional lights, the shading stage names both light terms (a frame records
+    "light:environment+directional"), for either method."""
+    from warpbw.pipeline import scene_summary
+
+    sc = _info_scene(tmp_path, INFO_CAMERA, INFO_SKY, INFO_LIGHT, INFO_SPHERE, INFO_PAINT)
+    for method, word in (("reference", "reference shading"), ("adaptive", "hierarchical shading")):
+        (shade,) = [st for st in scene_summary(sc, method)["stages"] if st.startswith(word)]
+        assert "environment light" in shade and "directional lights exact" in shade, (method, shade)
+
+
+INFO_MIXED = INFO_CAMERA + INFO_SKY + """
+[[object]]
+shape = "plane"
+size = 3.0
+material = "floor"
+
+[[object]]
+shape = "sphere"
+radius = 0.5
+center = [0.0, 0.6, 0.0]
+material = "paint"
+
+[material.floor]
+type = "cook-torrance"
+roughness = 0.2
+f0 = [0.04, 0.04, 0.04]
+diffuse = [0.5, 0.5, 0.5]
+""" + INFO_PAINT
+
+
+def test_summary_of_planes_beside_a_sphere_gives_the_spheres_renderer_its_own_materials(tmp_path):
+    """Planes beside a sphere: the spheres' renderer compiles the sphere's Lambert kind only (the planes' Cook-Torrance
+    is the filtering renderer's), and the floor's material is used, not unused."""
+    from warpbw.pipeline import scene_summary
+
+    s = scene_summary(_info_scene(tmp_path, INFO_MIXED))
+    assert "spheres and meshes: brdf: lambert" in s["stages"], s["stages"]
+    assert s["unused_materials"] == [] and s["materials"] == {"floor": "cook-torrance", "paint": "lambert"}
+
+
+def _rgba(value, h=4, w=8, alpha=None):
+    px = np.zeros((h, w, 4), np.float32)
+    px[..., :3] = value
+    px[..., 3] = 1.0 if alpha is None else alpha
+    return px
+
+
+def test_compare_reads_the_coverage_of_the_test_image_when_the_reference_has_none(tmp_path, monkeypatch, capsys):
+    """--help: the covered pixels are 'the A channel written by warpbw render, else non-black pixels'.  A render
+    compared with a reference that has no A channel (from another renderer): its A channel still says which
+    pixels count.  Here the images differ only where A = 0, so over the covered pixels they are identical."""
+    from warpbw.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    alpha = np.ones((4, 8), np.float32)
+    alpha[:, 0] = 0.0
+    test = _rgba(0.5, alpha=alpha)
+    test[:, 0, :3] = 3.0
+    write_exr(tmp_path / "test.exr", test, channels=["R", "G", "B", "A"])
+    write_exr(tmp_path / "ref.exr", np.full((4, 8, 3), 0.5, np.float32))
+    assert main(["compare", "test.exr", "ref.exr", "--json"]) == 0
+    j = json.loads(capsys.readouterr().out)
+    assert j["pixels"] == 28 and j["relmse"] == 0.0 and j["mse"] == 0.0, j
+
+
+def test_compare_counts_the_pixels_the_reference_covers_even_where_the_test_misses_them(tmp_path, monkeypatch,
+                                                                                          capsys):
+    """'truth.exr: a render at high --spp' (README): the reference says where the geometry is.  A test render that
+    misses a sphere (A = 0 and black there) is wrong at those pixels: they are compared, (0 - 0.5)^2 / 0.26 at
+    each of the 4 of 32, and not dropped as the test's own A channel would drop them."""
+    from warpbw.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    ref = _rgba(0.5)
+    test = ref.copy()
+    test[1, 2:6] = 0.0            # RGB and A: the test image does not cover these four pixels
+    write_exr(tmp_path / "ref.exr", ref, channels=["R", "G", "B", "A"])
+    write_exr(tmp_path / "test.exr", test, channels=["R", "G", "B", "A"])
+    assert main(["compare", "test.exr", "ref.exr", "--json"]) == 0
+    j = json.loads(capsys.readouterr().out)
+    assert j["pixels"] == 32 and j["relmse"] == pytest.approx(4 * 0.25 / 0.26 / 32, rel=1e-6), j
+
+
+def test_compare_without_alpha_counts_a_pixel_black_in_the_test_only(tmp_path, monkeypatch, capsys):
+    """Without A channels, 'non-black pixels' of either image count: a test that misses geometry (black where the
+    reference is not) is wrong there, and the pixel must be in the figures: (0 - 0.5)^2 / (0.25 + 0.01) over 32."""
+    from warpbw.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    test = np.full((4, 8, 3), 0.5, np.float32)
+    test[2, 3] = 0.0
+    write_exr(tmp_path / "test.exr", test)
+    write_exr(tmp_path / "ref.exr", np.full((4, 8, 3), 0.5, np.float32))
+    assert main(["compare", "test.exr", "ref.exr", "--json"]) == 0
+    j = json.loads(capsys.readouterr().out)
+    assert j["pixels"] == 32 and j["relmse"] == pytest.approx(0.25 / 0.26 / 32, rel=1e-6), j
+
+
+def test_compare_ignores_non_finite_values_outside_the_covered_pixels(tmp_path, monkeypatch, capsys):
+    """The figures are 'over covered pixels' (the refusal itself says 'non-finite values over covered pixels'):
+    a NaN where A = 0 is not compared and not refused; one in a covered pixel is refused in one line naming
+    the image."""
+    from warpbw.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    alpha = np.ones((4, 8), np.float32)
+    alpha[0, 0] = 0.0
+    ref = _rgba(0.5, alpha=alpha)
+    test = ref.copy()
+    test[0, 0, :3] = np.nan
+    write_exr(tmp_path / "ref.exr", ref, channels=["R", "G", "B", "A"])
+    write_exr(tmp_path / "test.exr", test, channels=["R", "G", "B", "A"])
+    assert main(["compare", "test.exr", "ref.exr", "--json"]) == 0
+    j = json.loads(capsys.readouterr().out)
+    assert j["pixels"] == 31 and j["relmse"] == 0.0
+    test[1, 1, 0] = np.nan
+    write_exr(tmp_path / "bad.exr", test, channels=["R", "G", "B", "A"])
+    assert main(["compare", "bad.exr", "ref.exr"]) == 2
+    err = capsys.readouterr().err
+    assert err == "warpbw: error: bad.exr: 1 non-finite values over covered pixels\n", err
+
+
+def test_compare_text_prints_the_relative_mse_and_names_the_map(tmp_path, monkeypatch, capsys):
+    """The text figures: 'relMSE' is the relative MSE, mean of (t - r)^2 / (r^2 + 0.01) = 0.01 / 0.26 at every
+    pixel (not the MSE, 0.01); the error map line names the EXR given to --error-map, with its PNG beside it."""
+    from warpbw.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    write_exr(tmp_path / "ref.exr", np.full((4, 8, 3), 0.5, np.float32))
+    test = np.full((4, 8, 3), 0.6, np.float32)
+    test[0, 0] = 0.7   # a second error value: the map has a colour scale to print
+    write_exr(tmp_path / "test.exr", test)
+    assert main(["compare", "test.exr", "ref.exr", "--error-map", "err.exr"]) == 0
+    out = capsys.readouterr().out
+    rel = (31 * (0.1 ** 2) + 0.2 ** 2) / 0.26 / 32
+    assert f"relMSE {rel:.6g}\n" in out, out
+    assert "\nerror map err.exr (+ err.png, log colour scale " in out, out

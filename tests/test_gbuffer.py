@@ -1,16 +1,19 @@
-"""G-buffer pass: analytic spheres against the closed form, meshes against the BVH, camera conventions."""
+"""G-buffer pass: analytic spheres against the closed form, meshes against the BVH, camera conventions; and
+examples/gbuffer.py's EXR channels against its sphere's closed form."""
 from __future__ import annotations
 
 import math
+import sys
 
 import numpy as np
 import pytest
-from conftest import grid_mesh, numpy_camera_rays, numpy_sphere_distance
+from conftest import grid_mesh, load_example, numpy_camera_rays, numpy_sphere_distance
 
 from warpbw.errors import COORD_SPACING_REL_MAX, WarpbwError
 from warpbw.gbuffer import (MESH_REACH_MAX, MESH_REACH_MIN, SPHERE_REACH_MAX, SPHERE_REACH_MIN, MeshSpec,
                             SphereSpec, build_geometry, camera_rays, hide_beyond, make_camera, render_gbuffer,
                             update_mesh)
+from warpbw.io.exr import read_exr
 
 
 def _sphere_closed_form(cam, center, radius):
@@ -645,3 +648,31 @@ def test_sphere_uv_is_the_documented_longitude_and_polar_angle_of_the_point_seen
         du = np.abs(got[:, 0] - want[:, 0])
         du = np.minimum(du, 1.0 - du)   # u wraps at -Z
         assert du.max() < 1e-4 and np.abs(got[:, 1] - want[:, 1]).max() < 1e-4, (inside, du.max())
+
+
+def test_gbuffer_example_writes_the_sphere_normals_under_their_names_and_times_five_launches(tmp_path, monkeypatch,
+                                                                                               capsys):
+    """gbuffer.exr's channels hold what they are named: on the example's sphere (centre (1.1, -0.55, -0.6), radius
+    0.45, material 1) position.XYZ lies on the sphere and normal.XYZ = (position - centre) / radius.  The printed
+    time is 'the median of 5' launches after a warm-up: six G-buffer launches in all."""
+    import trimesh
+
+    ex = load_example("gbuffer")
+    mesh = tmp_path / "ico.obj"
+    trimesh.creation.icosphere(subdivisions=1, radius=0.3).export(mesh)
+    calls = []
+    real = ex.render_gbuffer
+    monkeypatch.setattr(ex, "render_gbuffer", lambda *a, **k: calls.append(1) or real(*a, **k))
+    out = tmp_path / "gb"
+    monkeypatch.setattr(sys, "argv", ["gbuffer.py", "--mesh", str(mesh), "--out", str(out), "--resolution", "48", "48"])
+    ex.main()
+    assert len(calls) == 6 and "(median of 5)" in capsys.readouterr().out
+    img = read_exr(out / "gbuffer.exr")
+    ch = {c: img.pixels[..., i] for i, c in enumerate(img.channels)}
+    pos = np.stack([ch[f"position.{c}"] for c in "XYZ"], -1)
+    nrm = np.stack([ch[f"normal.{c}"] for c in "XYZ"], -1)
+    centre = np.array([1.1, -0.55, -0.6])
+    sphere = (ch["material"] == 1) & (ch["depth"] > 0)
+    assert sphere.sum() >= 20, sphere.sum()
+    np.testing.assert_allclose(np.linalg.norm(pos[sphere] - centre, axis=-1), 0.45, atol=1e-4)
+    np.testing.assert_allclose(nrm[sphere], (pos[sphere] - centre) / 0.45, atol=1e-3)

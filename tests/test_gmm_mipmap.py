@@ -2,7 +2,8 @@
 
 Truths used here come from outside the code under test: samples drawn from a known mixture,
 scikit-learn's GaussianMixture, a float64 loop-per-texel reference of 004's MAP-EM written below,
-the law of total variance for a two-Gaussian mixture, and maps made by hand.
+the law of total variance for a two-Gaussian mixture, and maps made by hand.  examples/gmm_mipmap.py's options,
+stated defaults and the block it filters, worked out by hand.
 """
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import warnings
 
 import numpy as np
 import pytest
-from conftest import Handed, exr_claiming_size
+from conftest import Handed, capture_call, exr_claiming_size, load_example, outcome
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -838,3 +839,68 @@ def test_a_refused_mipmap_names_the_command_that_rebuilds_it_as_it_was_built(tmp
     args = build_parser().parse_args(argv)
     assert (prog, args.func, args.map, args.force) == ("warpbw-precompute", cmd_gmm, "my scales.png", True)
     assert {k: getattr(args, k) for k in expected} == expected, str(e.value)
+
+
+def test_gmm_mipmap_example_defaults_are_those_its_help_states(tmp_path, monkeypatch):
+    """--help: --size 'default 128', --components 'default 4', the surface hemispherical scales (the module
+    docstring's first example); --components and --size up to their builders' maxima, one more refused."""
+    import precompute.gmm_mipmap as gm
+    import precompute.surfaces as surfaces
+
+    ex = load_example("gmm_mipmap")
+    got = capture_call(monkeypatch, gm, "build_gmm_mipmap")
+    out = str(tmp_path / "g.png")
+    assert outcome(ex.main, ["-o", out]) == "Handed"
+    h = got["_args"][0]
+    assert h.shape == (128, 128) and got["components"] == 4
+    np.testing.assert_array_equal(h, surfaces.SURFACES["hemispherical_scales"](128))
+    assert outcome(ex.main, ["-o", out, "--components", str(gm.MAX_COMPONENTS)]) == "Handed"
+    assert got["components"] == gm.MAX_COMPONENTS
+    assert outcome(ex.main, ["-o", out, "--components", str(gm.MAX_COMPONENTS + 1)]) == "exit 2"
+    sizes = []
+
+    def surface(size):
+        sizes.append(size)
+        raise Handed
+
+    monkeypatch.setitem(surfaces.SURFACES, "dunes", surface)
+    assert outcome(ex.main, ["-o", out, "--surface", "dunes", "--size", str(surfaces.MAX_SURFACE_SIZE)]) == "Handed"
+    assert sizes == [surfaces.MAX_SURFACE_SIZE]
+    assert outcome(ex.main, ["-o", out, "--surface", "dunes", "--size", str(surfaces.MAX_SURFACE_SIZE + 1)]) == "exit 2"
+
+
+def test_gmm_mipmap_example_small_size_takes_the_coarsest_2x2_level_and_block(tmp_path, monkeypatch):
+    """--help: level 'default 3, or the coarsest level of at least 2x2 texels where --size has fewer levels', texel
+    'default 1 1, or 0 0 where the level has only 2x2 texels'.  At --size 8 the levels are 8, 4, 2, 1 texels
+    across: level 2, block 0 0, and the filtered mixture is fetched at the block's centre corner, finest texel
+    (4, 4), level 2."""
+    import warpbw.filtering as filtering
+
+    ex = load_example("gmm_mipmap")
+    got = capture_call(monkeypatch, filtering, "fetch_gmm")
+    res = outcome(ex.main, ["-o", str(tmp_path / "g.png"), "--surface", "dunes", "--size", "8", "--components", "1"])
+    assert res == "Handed", res
+    assert got["_args"][1:4] == (4, 4, 2.0), got["_args"][1:4]
+
+
+def test_gmm_mipmap_example_builds_both_mipmaps_and_filters_at_the_block_corner(tmp_path, monkeypatch):
+    """--level 1 --texel 0 2 at --size 16: texels of 2x2 finest ones, the block's rows 0-1 and columns 2-3, so
+    the corner they share is at column s = 6 and row t = 2 (finest texels; s along the width), level 1; the truth
+    panel holds the block's 4 x 2^2 = 16 finest normals; one mipmap aligned and one unaligned, both with
+    --components."""
+    import precompute.gmm_mipmap as gm
+    import warpbw.filtering as filtering
+
+    ex = load_example("gmm_mipmap")
+    builds, truths = [], []
+    real_build, real_truth = gm.build_gmm_mipmap, ex.truth_density
+    monkeypatch.setattr(gm, "build_gmm_mipmap", lambda h, **k: builds.append(k) or real_build(h, **k))
+    monkeypatch.setattr(ex, "truth_density", lambda n2, *a: truths.append(len(n2)) or real_truth(n2, *a))
+    got = capture_call(monkeypatch, filtering, "fetch_gmm")
+    res = outcome(ex.main, ["-o", str(tmp_path / "g.png"), "--surface", "dunes", "--size", "16", "--components", "1",
+                            "--level", "1", "--texel", "0", "2"])
+    assert res == "Handed", res
+    assert got["_args"][1:4] == (6, 2, 1.0), got["_args"][1:4]
+    assert truths == [16]
+    assert sorted(bool(k.get("unaligned", False)) for k in builds) == [False, True], builds
+    assert [k.get("components") for k in builds] == [1, 1], builds
