@@ -1417,34 +1417,14 @@ def test_summary_of_a_sky_and_a_sun_shades_both(tmp_path):
         assert "environment light" in shade and "directional lights exact" in shade, (method, shade)
 
 
-INFO_MIXED = INFO_CAMERA + INFO_SKY + """
-[[object]]
-shape = "plane"
-size = 3.0
-material = "floor"
-
-[[object]]
-shape = "sphere"
-radius = 0.5
-center = [0.0, 0.6, 0.0]
-material = "paint"
-
-[material.floor]
-type = "cook-torrance"
-roughness = 0.2
-f0 = [0.04, 0.04, 0.04]
-diffuse = [0.5, 0.5, 0.5]
-""" + INFO_PAINT
-
-
 def test_summary_of_planes_beside_a_sphere_gives_the_spheres_renderer_its_own_materials(tmp_path):
     """Planes beside a sphere: the spheres' renderer compiles the sphere's Lambert kind only (the planes' Cook-Torrance
     is the filtering renderer's), and the floor's material is used, not unused."""
     from warpbw.pipeline import scene_summary
 
-    s = scene_summary(_info_scene(tmp_path, INFO_MIXED))
+    s = scene_summary(_info_scene(tmp_path, MIXED_SCENE))
     assert "spheres and meshes: brdf: lambert" in s["stages"], s["stages"]
-    assert s["unused_materials"] == [] and s["materials"] == {"floor": "cook-torrance", "paint": "lambert"}
+    assert s["unused_materials"] == [] and s["materials"] == {"floor": "cook-torrance", "ball": "lambert"}
 
 
 def _rgba(value, h=4, w=8, alpha=None):
