@@ -570,9 +570,32 @@ README_BENCH_SCENES = {
 
 
 def _bench_scenes():
-    from conftest import load_example
-
     return load_example("bench_scenes")
+
+
+def _after(cmd, flag):
+    """The value that follows ``flag`` in ``cmd``, or None where ``flag`` is absent."""
+    return cmd[cmd.index(flag) + 1] if flag in cmd else None
+
+
+def _bench_scenes_with_fake_run(monkeypatch, status=0):
+    """bench_scenes with subprocess.run recorded: npf-to-merl writes an empty MERL file, warpbw bench returns
+    ``status``."""
+    import subprocess
+
+    bs = _bench_scenes()
+    calls = []
+
+    def fake_run(cmd, check=False, **kw):
+        cmd = [str(c) for c in cmd]
+        calls.append(cmd)
+        if "npf-to-merl" in cmd:
+            Path(cmd[cmd.index("-o") + 1]).write_bytes(b"")
+            return SimpleNamespace(returncode=0)
+        return SimpleNamespace(returncode=status)
+
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    return bs, calls
 
 
 def test_bench_scenes_are_the_readme_table(tmp_path):
@@ -602,21 +625,8 @@ def test_bench_scenes_run_passes_its_options_to_every_bench_and_the_sweep_to_the
     """--run: one `warpbw bench` per scene (those of --only), each with --no-mis, --runs, --gt-spp and the records
     in --results; the n_b sweep (--nb) on the first scene only (module docstring).  No bench is run: the commands
     are recorded."""
-    import subprocess
-    from pathlib import Path
-    from types import SimpleNamespace
-
     shared("brdf/npf.bin")
-    bs = _bench_scenes()
-    calls = []
-
-    def fake_run(cmd, check=False, **kw):
-        calls.append([str(c) for c in cmd])
-        if "npf-to-merl" in cmd:
-            Path(cmd[cmd.index("-o") + 1]).write_bytes(b"")
-        return SimpleNamespace(returncode=0)
-
-    monkeypatch.setattr(subprocess, "run", fake_run)
+    bs, calls = _bench_scenes_with_fake_run(monkeypatch)
     out, res = tmp_path / "s", tmp_path / "r"
     assert bs.main(["--out", str(out), "--run", "--no-mis", "--runs", "8", "--gt-spp", "16384", "--nb", "16,64",
                     "--results", str(res)]) == 0
@@ -642,6 +652,57 @@ def test_bench_scenes_run_passes_its_options_to_every_bench_and_the_sweep_to_the
     assert bs.main(["--out", str(out), "--run", "--only", "sphere_ccp3_forest_sun,sphere_ccp3_forest"]) == 0
     benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
     assert [Path(c[2]).stem for c in benches] == ["sphere_ccp3_forest", "sphere_ccp3_forest_sun"]
+
+
+def test_bench_scenes_passes_cache_env_signal_force_and_the_documented_defaults(tmp_path, monkeypatch, shared):
+    """--cache, --env-signal and --force are "passed on to warpbw bench" (--help) for every scene; without
+    options, --gt-spp 8192 (--help) and the n_b sweep 16,64,256,1024 on the gold bunny (module docstring)."""
+    from warpbw.cli import build_parser
+
+    shared("brdf/npf.bin")
+    bs, calls = _bench_scenes_with_fake_run(monkeypatch)
+    out = tmp_path / "s"
+    assert bs.main(["--out", str(out), "--run", "--cache", str(tmp_path / "gt"), "--env-signal", "log",
+                    "--force", "--only", "sphere_chrome_studio,bunny_acrylic_studio"]) == 0
+    benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
+    assert len(benches) == 2
+    for c in benches:
+        assert _after(c, "--cache") == str(tmp_path / "gt"), c
+        assert _after(c, "--env-signal") == "log" and "--force" in c, c
+        build_parser().parse_args(c[1:])
+    calls.clear()
+    assert bs.main(["--out", str(out), "--run"]) == 0
+    benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
+    assert [Path(c[2]).stem for c in benches] == list(bs.SCENES)
+    for i, c in enumerate(benches):
+        assert _after(c, "--gt-spp") == "8192", c
+        assert _after(c, "--nb") == ("16,64,256,1024" if i == 0 else None), c
+        assert not {"--cache", "--env-signal", "--force", "--runs", "--no-mis"} & set(c), c
+
+
+def test_bench_scenes_reuses_its_merl_files_and_force_rewrites_an_edited_scene(tmp_path, monkeypatch, shared):
+    """--help: an OUT/MATERIAL.binary already there is used as it is (no second conversion); --force rewrites a
+    scene file edited by hand, as the script writes it."""
+    shared("brdf/npf.bin")
+    bs, calls = _bench_scenes_with_fake_run(monkeypatch)
+    out = tmp_path / "s"
+    assert bs.main(["--out", str(out)]) == 0
+    assert sorted(_after(c, "--material") for c in calls) == ["blue-acrylic", "chrome", "color-changing-paint3",
+                                                                     "gold-metallic-paint"]
+    calls.clear()
+    edited = out / "sphere_chrome_studio.toml"
+    text = edited.read_text()
+    edited.write_text(text + "# mine\n")
+    assert outcome(bs.main, ["--out", str(out), "--force"]) == "returned 0"
+    assert calls == [] and edited.read_text() == text
+
+
+def test_bench_scenes_stops_at_the_first_bench_that_fails(tmp_path, monkeypatch, shared):
+    """A failing `warpbw bench` (it has said why) ends the run with its status; the other scenes are not run."""
+    shared("brdf/npf.bin")
+    bs, calls = _bench_scenes_with_fake_run(monkeypatch, status=3)
+    assert bs.main(["--out", str(tmp_path / "s"), "--run"]) == 3
+    assert len([c for c in calls if c[:2] == ["warpbw", "bench"]]) == 1
 
 
 def test_bandwidth_time_fraction_is_over_the_frames_wall_time(tmp_path, monkeypatch):
@@ -876,81 +937,3 @@ def test_bench_reference_defaults_are_the_documented_ones(tmp_path, monkeypatch,
     assert Path(env["file"]).name == "forest.exr" and env["rotation"] == 0.0 and cam["resolution"] == [512, 512]
     timed = [(r["spp"], r["mis"]) for r in got["renders"] if r["timed"]]
     assert sorted(timed) == sorted([(2 ** k, m) for k in range(4, 11) for m in (False, True)] * 3)
-
-
-# ---------------------------------------------------------------------------------- examples/bench_scenes.py
-
-def _after(cmd, flag):
-    """The value that follows ``flag`` in ``cmd``, or None where ``flag`` is absent."""
-    return cmd[cmd.index(flag) + 1] if flag in cmd else None
-
-
-def _bench_scenes_with_fake_run(monkeypatch, status=0):
-    """bench_scenes with subprocess.run recorded: npf-to-merl writes an empty MERL file, warpbw bench returns
-    ``status``."""
-    import subprocess
-
-    bs = load_example("bench_scenes")
-    calls = []
-
-    def fake_run(cmd, check=False, **kw):
-        cmd = [str(c) for c in cmd]
-        calls.append(cmd)
-        if "npf-to-merl" in cmd:
-            Path(cmd[cmd.index("-o") + 1]).write_bytes(b"")
-            return SimpleNamespace(returncode=0)
-        return SimpleNamespace(returncode=status)
-
-    monkeypatch.setattr(subprocess, "run", fake_run)
-    return bs, calls
-
-
-def test_bench_scenes_passes_cache_env_signal_force_and_the_documented_defaults(tmp_path, monkeypatch, shared):
-    """--cache, --env-signal and --force are "passed on to warpbw bench" (--help) for every scene; without
-    options, --gt-spp 8192 (--help) and the n_b sweep 16,64,256,1024 on the gold bunny (module docstring)."""
-    from warpbw.cli import build_parser
-
-    shared("brdf/npf.bin")
-    bs, calls = _bench_scenes_with_fake_run(monkeypatch)
-    out = tmp_path / "s"
-    assert bs.main(["--out", str(out), "--run", "--cache", str(tmp_path / "gt"), "--env-signal", "log",
-                    "--force", "--only", "sphere_chrome_studio,bunny_acrylic_studio"]) == 0
-    benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
-    assert len(benches) == 2
-    for c in benches:
-        assert _after(c, "--cache") == str(tmp_path / "gt"), c
-        assert _after(c, "--env-signal") == "log" and "--force" in c, c
-        build_parser().parse_args(c[1:])
-    calls.clear()
-    assert bs.main(["--out", str(out), "--run"]) == 0
-    benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
-    assert [Path(c[2]).stem for c in benches] == list(bs.SCENES)
-    for i, c in enumerate(benches):
-        assert _after(c, "--gt-spp") == "8192", c
-        assert _after(c, "--nb") == ("16,64,256,1024" if i == 0 else None), c
-        assert not {"--cache", "--env-signal", "--force", "--runs", "--no-mis"} & set(c), c
-
-
-def test_bench_scenes_reuses_its_merl_files_and_force_rewrites_an_edited_scene(tmp_path, monkeypatch, shared):
-    """--help: an OUT/MATERIAL.binary already there is used as it is (no second conversion); --force rewrites a
-    scene file edited by hand, as the script writes it."""
-    shared("brdf/npf.bin")
-    bs, calls = _bench_scenes_with_fake_run(monkeypatch)
-    out = tmp_path / "s"
-    assert bs.main(["--out", str(out)]) == 0
-    assert sorted(_after(c, "--material") for c in calls) == ["blue-acrylic", "chrome", "color-changing-paint3",
-                                                                     "gold-metallic-paint"]
-    calls.clear()
-    edited = out / "sphere_chrome_studio.toml"
-    text = edited.read_text()
-    edited.write_text(text + "# mine\n")
-    assert outcome(bs.main, ["--out", str(out), "--force"]) == "returned 0"
-    assert calls == [] and edited.read_text() == text
-
-
-def test_bench_scenes_stops_at_the_first_bench_that_fails(tmp_path, monkeypatch, shared):
-    """A failing `warpbw bench` (it has said why) ends the run with its status; the other scenes are not run."""
-    shared("brdf/npf.bin")
-    bs, calls = _bench_scenes_with_fake_run(monkeypatch, status=3)
-    assert bs.main(["--out", str(tmp_path / "s"), "--run"]) == 3
-    assert len([c for c in calls if c[:2] == ["warpbw", "bench"]]) == 1
