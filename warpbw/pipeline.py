@@ -695,6 +695,8 @@ def scene_summary(scene: Scene, method: str = "reference") -> dict:
                   + [f"planes: {st}" for st in filtering_summary(planes)["stages"]]
                   + ["composite: each pixel shows the surface its centre ray hits first; spheres and meshes behind "
                      "a plane are not shaded (no shadows)"])
+    # a material's bandwidth table is read by the bandwidth pass alone (prepare_bandwidth)
+    unread = set() if method == "adaptive" else {scene.materials[n].bandwidth for n in scene.material_order}
     return {
         "scene": scene.source,
         "resolution": [scene.camera.width, scene.camera.height],
@@ -703,8 +705,6 @@ def scene_summary(scene: Scene, method: str = "reference") -> dict:
         "objects": [o.describe() for o in scene.objects],
         "materials": {n: scene.materials[n].type for n in scene.material_order},
         "unused_materials": sorted(set(scene.materials) - set(scene.material_order)),
-        # a material's bandwidth table is read by the bandwidth pass alone (prepare_bandwidth)
-        "files": [str(p) for p in scene.files()
-                  if method == "adaptive" or p not in {scene.materials[n].bandwidth for n in scene.material_order}],
+        "files": [str(p) for p in scene.files() if p not in unread],
         "stages": stages,
     }
