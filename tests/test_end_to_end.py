@@ -837,40 +837,46 @@ def _example_commands() -> list:
 
 def test_example_commands_in_readme_and_docs_parse(monkeypatch):
     """The ``python examples/X.py ...`` command lines that README.md and docs/measurements.md give are accepted by
-    the script's own parser: each script's main() runs until its arguments are parsed, and stops there (nothing is
-    rendered).  A renamed or removed option would otherwise leave a recorded figure nobody can reproduce."""
+    the script's own parser (``_example_parser``: the one its main() builds; nothing is rendered).  A renamed or
+    removed option would otherwise leave a recorded figure nobody can reproduce."""
     import argparse
     import contextlib
     import io
 
-    from conftest import load_example
-
-    class Parsed(Exception):
-        pass
-
-    parse = argparse.ArgumentParser.parse_args
-
-    def parse_then_stop(self, args=None, namespace=None):
-        parse(self, args, namespace)
-        raise Parsed
-
-    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", parse_then_stop)
+    parse = argparse.ArgumentParser.parse_args   # _example_parser replaces it with a stop
     cmds = _example_commands()
     assert len(cmds) >= 30 and len({c[1] for c in cmds}) >= 10, cmds
-    modules = {}
+    parsers = {}
     for doc, name, argv in cmds:
-        mod = modules.setdefault(name, load_example(name))
-        monkeypatch.setattr(sys, "argv", [f"{name}.py", *argv])
+        if name not in parsers:
+            parsers[name] = _example_parser(monkeypatch, name)[1]
         err = io.StringIO()
         try:
             with contextlib.redirect_stderr(err):
-                mod.main()
-        except Parsed:
-            continue
+                parse(parsers[name], argv)
         except SystemExit:
-            pass
-        pytest.fail(f"{doc}: 'python examples/{name}.py {' '.join(argv)}' is refused: {err.getvalue().strip()[-300:]}")
+            pytest.fail(f"{doc}: 'python examples/{name}.py {' '.join(argv)}' is refused: "
+                        f"{err.getvalue().strip()[-300:]}")
 
+
+def _example_parser(monkeypatch, name: str):
+    """The argument parser examples/NAME.py builds: its main() runs until it parses, and stops there."""
+    import argparse
+
+    from conftest import load_example
+
+    class Built(Exception):
+        pass
+
+    def stop(self, args=None, namespace=None):
+        raise Built(self)
+
+    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", stop)
+    monkeypatch.setattr(sys, "argv", [f"{name}.py"])
+    mod = load_example(name)
+    with pytest.raises(Built) as built:
+        mod.main()
+    return mod, built.value.args[0]
 
 
 def _states_default(text: str, default, root: Path):
@@ -919,26 +925,6 @@ def _help_default_mismatches(parser, where: str, root: Path) -> tuple:
                 bad.append(f"{where} {'/'.join(a.option_strings) or a.dest}: --help says (default {said}), "
                            f"the parser's default is {a.default!r}")
     return bad, checked
-
-
-def _example_parser(monkeypatch, name: str):
-    """The argument parser examples/NAME.py builds: its main() runs until it parses, and stops there."""
-    import argparse
-
-    from conftest import load_example
-
-    class Built(Exception):
-        pass
-
-    def stop(self, args=None, namespace=None):
-        raise Built(self)
-
-    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", stop)
-    monkeypatch.setattr(sys, "argv", [f"{name}.py"])
-    mod = load_example(name)
-    with pytest.raises(Built) as built:
-        mod.main()
-    return mod, built.value.args[0]
 
 
 def test_every_stated_default_is_the_default(monkeypatch):
