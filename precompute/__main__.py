@@ -107,7 +107,7 @@ def cmd_gmm(args) -> int:
                      inputs=[] if args.map.startswith("surface:") else [args.map])
     h, w = mip.shape
     how = "unaligned (independent EM per texel)" if args.unaligned else f"aligned, prior c={args.prior:g}"
-    print(f"{out}  (GMM mipmap of {name}: {h}x{w}, {len(mip.levels)} levels, {mip.components} components, "
+    print(f"{out}  (GMM mipmap of {name}: {w}x{h}, {len(mip.levels)} levels, {mip.components} components, "
           f"{how}, {time.perf_counter() - t0:.1f} s)")
     return 0
 

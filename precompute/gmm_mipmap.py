@@ -239,7 +239,7 @@ def normal_space(normals) -> np.ndarray:
 def level_shapes(h: int, w: int) -> list:
     """(h_l, w_l) of every level, finest first: ceil-halving down to 1x1 (a 1x1 map has one level)."""
     if not (is_int(h) and is_int(w) and h >= 1 and w >= 1):   # 0 never halves to 1: the loop never ended
-        raise WarpbwError(f"map size {h!r}x{w!r}: expected at least 1x1 texels")
+        raise WarpbwError(f"map size {w!r}x{h!r} (width x height): expected at least 1x1 texels")
     shapes = [(int(h), int(w))]
     while shapes[-1] != (1, 1):
         hh, ww = shapes[-1]
@@ -765,7 +765,7 @@ def load_map(path, kind: str = "height") -> np.ndarray:
     p = check_input_file(path, f"a {kind} map: OpenEXR or PNG image")
     px, bits = _read_pixels(p)
     if px.shape[0] == 0 or px.shape[1] == 0 or px.shape[2] == 0:
-        raise WarpbwError(f"{p}: empty image ({px.shape[0]}x{px.shape[1]} texels); expected a {kind} map")
+        raise WarpbwError(f"{p}: empty image ({px.shape[1]}x{px.shape[0]} texels); expected a {kind} map")
     bad = ~np.isfinite(px).all(axis=-1)
     if bad.any():
         r, col = np.argwhere(bad)[0]

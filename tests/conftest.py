@@ -221,6 +221,17 @@ class StandInClock:
         return self.now
 
 
+def attempt(f, *args, **kwargs):
+    """``(value, "")`` when ``f`` returns, ``(None, message)`` when it refuses with a WarpbwError: a test then reads the
+    value or fails on an assertion that prints the refusal, never on the exception."""
+    from warpbw.errors import WarpbwError
+
+    try:
+        return f(*args, **kwargs), ""
+    except WarpbwError as exc:
+        return None, str(exc) or "(empty message)"
+
+
 def outcome(f, *args, **kwargs) -> str:
     """What a call did, as text an assertion can print: "returned X", "WarpbwError: MESSAGE", "exit N" (argparse's
     usage errors), "Handed" (``capture_call``'s stand-in was reached), or "not a WarpbwError: ..." (a traceback the

@@ -2430,3 +2430,20 @@ def test_filtering_floor_hands_its_options_to_the_analysis(tmp_path, monkeypatch
     got = capture_call(monkeypatch, ff, "analyse")
     assert outcome(ff.main, [str(p), "--gt-spp", "100", "--max-anisotropy", "3", "--zoom", "2,4"]) == "Handed"
     assert got["_args"][1:3] == ([2.0, 4.0], 100) and got.get("max_anisotropy") == 3 and got.get("loaded") == "loaded", got
+
+
+# --------------------------------------------------------------------------------------------------------- asset files
+# (mutation round 8: each test fails on a plausible mistake the suite let through)
+
+
+def test_an_asset_header_holds_every_field_its_docstring_lists(tmp_path):
+    """An asset file's header holds what assetfile's docstring lists: "format name, its version, the source asset's
+    name, the source's content hash, the parameters it was built with and the warpbw version that wrote it"."""
+    from precompute.assetfile import read_asset, write_asset
+    from warpbw import __version__
+
+    p = write_asset(tmp_path / "a.npz", "fmt", 3, "src.exr", "hash1", {"x": np.arange(3)}, {"k": 1})
+    a = read_asset(p, "fmt", 3, "rebuild")
+    assert a.header == {"format": "fmt", "version": 3, "source": "src.exr", "source_hash": "hash1",
+                        "params": {"k": 1}, "writer": f"warpbw {__version__}"}
+    np.testing.assert_array_equal(a.arrays["x"], np.arange(3))

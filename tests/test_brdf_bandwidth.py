@@ -19,7 +19,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import named_as, outcome
+from conftest import attempt, named_as, outcome
 from precompute.brdf_bandwidth import (FORMAT, N_CELLS, N_THETA_I, VERSION, analytic_brdf_bandwidth_table,
                                        brdf_bandwidth_table, build_brdf_bandwidth, map_radians_per_pixel,
                                        read_brdf_bandwidth, write_brdf_bandwidth)
@@ -157,13 +157,13 @@ def _lambert(wi, wo):
     return np.full((len(wi), 3), 1.0 / math.pi)
 
 
-def _fake_source(tmp_path):
+def _fake_source(tmp_path, digest="d1"):
     """A source read from a small fake file (anything with name, digest and path will do for the writer)."""
     from types import SimpleNamespace
 
     src = tmp_path / "m.binary"
     src.write_bytes(b"the BRDF file the table is made from")
-    return SimpleNamespace(name=src.name, digest="d1", path=src, evaluate=_lambert)
+    return SimpleNamespace(name=src.name, digest=digest, path=src, evaluate=_lambert)
 
 
 def test_build_refuses_a_path_saying_what_to_pass():
@@ -279,7 +279,6 @@ def test_table_refuses_a_progress_that_is_not_callable_before_any_slice():
         calls.append(1)
         return _lambert(wi, wo)
 
-    from precompute.brdf_bandwidth import brdf_bandwidth_table
 
     with pytest.raises(WarpbwError, match=r"^progress: expected a function progress\(k\) or None, got 5$"):
         brdf_bandwidth_table(evaluate, 16, progress=5)
@@ -335,3 +334,87 @@ def test_a_file_without_its_table_is_refused(tmp_path):
     write_asset(tmp_path / "t.npz", FORMAT, VERSION, "m.binary", "d1", {"other": np.zeros(3)})
     got = outcome(read_brdf_bandwidth, tmp_path / "t.npz")
     assert got.startswith("WarpbwError: ") and "lacks array 'nu_rho'" in got and "rebuild it with" in got, got
+
+
+# ------------------------------------------------------------------------------------------- inputs, outputs and units
+# (mutation round 8: each test fails on a plausible mistake the suite let through)
+
+
+def test_the_lobe_is_evaluated_up_to_85_degrees_and_continued_beyond():
+    """Lobe_slice's docstring: past GRAZING_LIMIT = 85 deg, f(theta) = 2 f(85) - f(170 - theta)"""
+    from precompute.brdf_bandwidth import GRAZING_LIMIT, lobe_slice
+
+    assert GRAZING_LIMIT == pytest.approx(math.radians(85.0))
+    n = 64
+
+    def ev(wi, wo):
+        return np.repeat((1.0 / np.maximum(wo[:, 2], 1e-9))[:, None], 3, axis=1)
+
+    f = lobe_slice(ev, 0.3, n)[..., 0]
+    c = -1.0 + (np.arange(n) + 0.5) * 2.0 / n
+    x, y = np.meshgrid(c, c)
+    th = 2 * np.arcsin(np.minimum(np.hypot(x, y), math.sqrt(2)) / math.sqrt(2))
+    lim = math.radians(85.0)
+    want = np.where(th > lim, 2 / math.cos(lim) - 1 / np.cos(np.maximum(2 * lim - th, 0.0)), 1 / np.cos(th))
+    inside = np.hypot(x, y) < 1.0
+    np.testing.assert_allclose(f[inside], want[inside], rtol=1e-9)
+
+
+def test_wo_to_map_puts_the_horizon_on_the_rim_and_the_axes_on_the_axes():
+    """The equal-area map: r = sqrt(2) sin(theta / 2) (r = 1 at the horizon), (x, y) = r (cos phi, sin phi); a direction
+    below the horizon maps onto the rim (docstring)"""
+    from precompute.brdf_bandwidth import wo_to_map
+
+    np.testing.assert_allclose(wo_to_map([1.0, 0.0, 0.0]), [1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(wo_to_map([0.0, 1.0, 0.0]), [0.0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(wo_to_map([0.0, -2.0, 0.0]), [0.0, -1.0], atol=1e-12)
+    np.testing.assert_allclose(wo_to_map([1.0, 0.0, -1.0]), [1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(wo_to_map([0.0, -1.0, -0.2]), [0.0, -1.0], atol=1e-12)
+    s = math.sqrt(0.5)
+    np.testing.assert_allclose(wo_to_map([s, 0.0, s]), [math.sqrt(2) * math.sin(math.pi / 8), 0.0], atol=1e-12)
+
+
+def test_wo_map_stops_at_the_grazing_limit():
+    """Wo_map's elevations are clamped to GRAZING_LIMIT (85 deg): every direction is above the horizon."""
+    from precompute.brdf_bandwidth import wo_map
+
+    d = wo_map(32)
+    assert d[..., 2].min() == pytest.approx(math.cos(math.radians(85.0)), abs=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=-1), 1.0, atol=1e-12)
+
+
+def test_slice_bandwidth_sums_the_colour_channels():
+    """slice_bandwidth analyses the sum of the colour channels (its docstring), not one channel."""
+    from precompute.brdf_bandwidth import slice_bandwidth
+
+    n = 32
+    y, x = np.mgrid[0:n, 0:n].astype(np.float64)
+    grey = 1.0 + 0.0 * x
+    green = 1.0 + 0.5 * np.sin(2 * np.pi * x / 8)
+    f = np.stack([grey, green, grey], -1)
+    np.testing.assert_allclose(slice_bandwidth(f), slice_bandwidth(grey * 2 + green), rtol=1e-12)
+    assert slice_bandwidth(f).max() > 0
+
+
+def test_a_bandwidth_header_records_the_resolution_it_was_built_at(tmp_path):
+    """The params name the analysed slice's resolution given, not the default."""
+    from precompute.assetfile import read_asset
+
+    p = write_brdf_bandwidth(tmp_path / "t.npz", np.zeros((16, 16, 16)), _fake_source(tmp_path), resolution=64)
+    a = read_asset(p, FORMAT, VERSION, "x")
+    assert a.header["params"]["resolution"] == 64 and a.header["params"]["units"] == "cycles/radian"
+
+
+def test_a_bandwidth_file_of_the_same_name_but_other_content_is_refused(tmp_path):
+    """The reader compares the source's content hash, not its name."""
+    p = write_brdf_bandwidth(tmp_path / "t.npz", np.zeros((16, 16, 16)), _fake_source(tmp_path, "d1"))
+    np.testing.assert_array_equal(read_brdf_bandwidth(p, _fake_source(tmp_path, "d1")), 0.0)
+    said = attempt(read_brdf_bandwidth, p, _fake_source(tmp_path, "d2"))[1]
+    assert "built from 'm.binary' with different content than 'm.binary'" in said, said
+
+
+def test_the_table_reports_each_incident_elevation_done():
+    """progress(k) is called after each of the 16 incident elevations with the count done: 1 to 16 (docstring)."""
+    seen = []
+    brdf_bandwidth_table(lambda wi, wo: np.ones((len(wi), 3)), 16, progress=seen.append)
+    assert seen == list(range(1, N_THETA_I + 1))

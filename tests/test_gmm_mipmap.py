@@ -8,11 +8,13 @@ stated defaults and the block it filters, worked out by hand.
 from __future__ import annotations
 
 import itertools
+import re
+import shlex
 import warnings
 
 import numpy as np
 import pytest
-from conftest import Handed, capture_call, exr_claiming_size, load_example, outcome
+from conftest import Handed, attempt, capture_call, exr_claiming_size, load_example, outcome
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -799,7 +801,6 @@ def test_precompute_gmm_defaults_are_the_scene_files_defaults(tmp_path, monkeypa
 def test_gmm_precompute_time_builds_with_the_components_asked_for(monkeypatch):
     """--components and --size reach the timed build (the figure is "N components at SIZE"): the first surface
     is built from a SIZE x SIZE height field with that many Gaussians."""
-    from conftest import load_example
 
     gt = load_example("gmm_precompute_time")
     got = {}
@@ -826,7 +827,6 @@ def test_a_refused_mipmap_names_the_command_that_rebuilds_it_as_it_was_built(tmp
     the same mipmap: the map (a name with a space is one word) and every option the header records, to the last
     digit.  It named the map only, so a normal map was rebuilt as a height field, with the default components and
     prior."""
-    import shlex
 
     from precompute.__main__ import build_parser, cmd_gmm
     from precompute.assetfile import write_asset
@@ -904,3 +904,231 @@ def test_gmm_mipmap_example_builds_both_mipmaps_and_filters_at_the_block_corner(
     assert truths == [16]
     assert sorted(bool(k.get("unaligned", False)) for k in builds) == [False, True], builds
     assert [k.get("components") for k in builds] == [1, 1], builds
+
+
+# ------------------------------------------------------------------------------------------- inputs, outputs and units
+# (mutation round 8: each test fails on a plausible mistake the suite let through)
+
+
+def test_the_builder_takes_every_documented_value_at_the_ends_of_its_ranges():
+    """The builder takes the ends of its documented ranges: 16 components (MAX_COMPONENTS; 17 is refused) and prior 0
+    (--help: "0 is plain EM")."""
+    from precompute.gmm_mipmap import MAX_COMPONENTS, build_gmm_mipmap
+
+    h = np.random.default_rng(0).random((2, 2)) * 0.1
+    assert MAX_COMPONENTS == 16
+    mip, err = attempt(build_gmm_mipmap, h, components=16, progress=False)
+    assert err == "" and mip.levels[0].shape == (2, 2, 16, 4), err
+    assert "components 17: expected an integer from 1 to 16" in attempt(build_gmm_mipmap, h, components=17,
+                                                                       progress=False)[1]
+    mip, err = attempt(build_gmm_mipmap, h, prior=0.0, progress=False)
+    assert err == "" and mip.prior == 0.0, err
+
+
+def test_a_zero_height_scale_is_refused():
+    """Scale 0 flattens every normal (a finite number > 0, the builder's own message)"""
+    h = np.random.default_rng(0).random((4, 4))
+    for s in (0.0, -1.0):
+        said = attempt(build_gmm_mipmap, h, scale=s, progress=False)[1]
+        assert re.match(r"scale .*: expected a finite number > 0", said), (s, said)
+
+
+def test_a_normal_map_texel_two_8_bit_steps_below_the_horizon_is_refused(tmp_path):
+    """Load_map's docstring: normals more than NORMAL_Z_TOL (one 8-bit step, 2/255) below the tangent plane are an
+    error.  (255, 128, 126) decodes to (1, 1/255, -3/255): z = -0.0118 after normalising."""
+    enc = np.full((3, 4, 3), 128, np.uint8)
+    enc[..., 2] = 255
+    enc[1, 2] = [255, 128, 126]
+    save_png(tmp_path / "below.png", enc)
+    said = attempt(load_map, tmp_path / "below.png", "normal")[1]
+    assert "below.png: 1 texels hold normals pointing below the surface (first at row 1, column 2: z = -0.012)" \
+        in said, said
+
+
+def _hint_args(path):
+    from precompute.__main__ import build_parser
+
+    with pytest.raises(WarpbwError) as e:
+        read_gmm_mipmap(path)
+    argv = shlex.split(str(e.value).split("rebuild it with: ", 1)[1].rstrip(")"))[1:]
+    return build_parser().parse_args(argv)
+
+
+def test_the_rebuild_hint_of_a_normal_map_mipmap_is_a_command_the_tool_accepts(tmp_path):
+    """A normal-map mipmap built from Python with scale 2 (ignored for normals) must not be told to rebuild with
+    --scale, which the command refuses for --kind normal."""
+    from precompute.__main__ import cmd_gmm
+    from precompute.assetfile import write_asset
+    from precompute.gmm_mipmap import GMM_FORMAT, GMM_VERSION
+
+    params = {"kind": "normal", "components": 4, "prior": 1.0, "unaligned": False, "scale": 2.0, "seed": 0}
+    write_asset(tmp_path / "m.npz", GMM_FORMAT, GMM_VERSION, "n.png", "h", {}, params)
+    args = _hint_args(tmp_path / "m.npz")
+    assert args.kind == "normal" and args.scale == 1.0
+    args.output = str(tmp_path / "x.npz")
+    got = outcome(cmd_gmm, args)
+    assert "--scale" not in got, got            # it goes on to read the (missing) map, not refuse --scale
+
+
+def test_a_written_mipmap_reads_back_with_every_parameter_and_its_source(tmp_path):
+    """What the header records (the builder's parameters, the map and its hash) comes back from the file; the renderer
+    compares kind, scale and the map's hash with the material's."""
+    n = np.zeros((4, 6, 3))
+    n[..., 2] = 1.0
+    n[1, 2] = [0.6, 0.0, 0.8]
+    mip = build_gmm_mipmap(n, kind="normal", components=3, prior=0.5, seed=9, max_samples=64, progress=False)
+    write_gmm_mipmap(tmp_path / "n.gmm", mip, "n.exr", "hash-n")
+    back = read_gmm_mipmap(tmp_path / "n.gmm")
+    assert (back.kind, back.components, back.prior, back.seed, back.max_samples, back.unaligned) == \
+        ("normal", 3, 0.5, 9, 64, False)
+    assert (back.source, back.source_hash) == ("n.exr", "hash-n")
+    h = np.random.default_rng(1).random((5, 5)) * 0.1
+    mip = build_gmm_mipmap(h, scale=2.5, unaligned=True, components=2, progress=False)
+    write_gmm_mipmap(tmp_path / "h.gmm", mip, "surface:dunes:5", "hash-h")
+    back = read_gmm_mipmap(tmp_path / "h.gmm")
+    assert (back.kind, back.scale, back.unaligned, back.source) == ("height", 2.5, True, "surface:dunes:5")
+
+
+def test_a_map_of_exactly_the_largest_size_is_not_refused_for_its_size(tmp_path):
+    """MAX_MAP_SIDE x MAX_MAP_SIDE is "at most" the bound; this EXR claims it and holds 4 x 4 texels, so it is read (and
+    found truncated), not refused for its size."""
+    from precompute.gmm_mipmap import MAX_MAP_SIDE, load_map
+
+    exr_claiming_size(tmp_path / "at.exr", MAX_MAP_SIDE, MAX_MAP_SIDE)
+    got = outcome(load_map, tmp_path / "at.exr", "height")
+    assert got.startswith("WarpbwError: ") and "expected a map of at most" not in got, got
+    exr_claiming_size(tmp_path / "over.exr", MAX_MAP_SIDE, MAX_MAP_SIDE + 1)
+    assert "expected a map of at most" in outcome(load_map, tmp_path / "over.exr", "height")
+
+
+def test_a_height_field_whose_blue_channel_differs_is_refused(tmp_path):
+    """load_map's docstring: "an RGB image is accepted only with identical channels"; the blue one counts too."""
+    rgb = np.full((4, 5, 3), 100, np.uint8)
+    rgb[2, 3, 2] = 101
+    save_png(tmp_path / "b.png", rgb)
+    said = attempt(load_map, tmp_path / "b.png", "height")[1]
+    assert "b.png: RGB image with differing channels given as a height field" in said, said
+
+
+def test_an_encoded_exr_normal_map_with_a_zero_value_is_decoded(tmp_path):
+    """A [0, 1]-encoded texel of n_x = -1 stores 0, which is not negative: the map is still [0, 1]-encoded (most texels,
+    the flat (0.5, 0.5, 1), are unit only as decoded)"""
+    from warpbw.io.exr import write_exr
+
+    n = np.zeros((3, 4, 3))
+    n[..., 2] = 1.0
+    n[1, 1] = [-1.0, 0.0, 0.0]
+    write_exr(tmp_path / "enc.exr", ((n + 1) / 2).astype(np.float32), channels=["R", "G", "B"])
+    np.testing.assert_allclose(load_map(tmp_path / "enc.exr", "normal"), n, atol=1e-6)
+
+
+def test_a_float_normal_map_unit_neither_as_stored_nor_as_decoded_is_decoded(tmp_path):
+    """"holds the vectors themselves when it has a negative value or when MORE of its texels are unit vectors as stored
+    than as decoded ..., otherwise it is [0, 1]-encoded too": a tie (none either way) decodes."""
+    from warpbw.io.exr import write_exr
+
+    enc = np.broadcast_to([0.5, 0.5, 0.985], (3, 3, 3)).astype(np.float32)    # decodes to (0, 0, 0.97)
+    write_exr(tmp_path / "soft.exr", enc, channels=["R", "G", "B"])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = load_map(tmp_path / "soft.exr", "normal")
+    said = " ".join(str(w.message) for w in caught)
+    assert "9 of 9 texels are not unit normals as decoded" in said, said
+    np.testing.assert_allclose(got, np.broadcast_to([0.0, 0.0, 1.0], got.shape), atol=1e-6)
+
+
+def test_a_surface_spec_takes_at_most_a_size():
+    """A surface spec is surface:NAME[:SIZE]: anything after the size is refused."""
+    for spec in ("surface:dunes:20:3", "surface:dunes:20:"):
+        said = attempt(load_source, spec)[1]
+        assert "unknown procedural surface (expected surface:NAME[:SIZE]" in said, (spec, said)
+
+
+def test_a_surface_without_a_size_is_512_texels_as_help_says():
+    """--help "SIZE 1..1024, default 512"; the name recorded is the spec that rebuilds it exactly."""
+    h, name, digest = load_source("surface:dunes")
+    assert h.shape == (512, 512) and name == "surface:dunes:512"
+    h2, _, digest2 = load_source(name)
+    assert np.array_equal(h, dunes(512)) and digest == digest2
+
+
+def test_the_gmm_builder_reports_progress_up_to_its_total_over_refinement_sweeps(monkeypatch):
+    """Step(k) reports k of total done: increasing, never past the total, ending at it."""
+    import contextlib
+
+    import precompute.progress as pg
+
+    seen = {}
+
+    @contextlib.contextmanager
+    def fake(total, desc, unit, enabled=True):
+        seen["total"], seen["steps"] = total, []
+        yield seen["steps"].append
+
+    monkeypatch.setattr(pg, "progress_callback", fake)
+    h = np.random.default_rng(0).random((4, 4)) * 0.1
+    for sweeps in (0, 2):
+        build_gmm_mipmap(h, components=2, refine_sweeps=sweeps, progress=False)
+        steps = seen["steps"]
+        assert steps == sorted(set(steps)) and steps[-1] == seen["total"] == 3 * (1 + sweeps), seen
+
+
+def test_gmm_refuses_options_its_help_says_do_not_apply(tmp_path, monkeypatch, capsys):
+    """--scale "--kind height only"; --prior "not with --unaligned"."""
+    import precompute.gmm_mipmap as gm
+
+    capture_call(monkeypatch, gm, "build_gmm_mipmap")
+    n = np.zeros((4, 4, 3), np.uint8)
+    n[..., :2], n[..., 2] = 128, 255
+    save_png(tmp_path / "n.png", n)
+    got = outcome(cli, ["gmm", tmp_path / "n.png", "--kind", "normal", "--scale", "2", "-o", tmp_path / "a.npz", "-q"])
+    assert got == "returned 2" and "--scale 2: applies to --kind height only" in capsys.readouterr().err, got
+    got = outcome(cli, ["gmm", "surface:dunes:20", "--unaligned", "--prior", "3", "-o", tmp_path / "b.npz", "-q"])
+    err = capsys.readouterr().err
+    assert got == "returned 2" and "--prior 3: the unaligned baseline (--unaligned) has no alignment prior" in err, got
+
+
+def test_gmm_refuses_to_write_over_its_map_before_any_work(tmp_path, monkeypatch, capsys):
+    """-o naming the map (through a link) is refused before the fit, whatever --force says."""
+    import precompute.gmm_mipmap as gm
+
+    got = capture_call(monkeypatch, gm, "build_gmm_mipmap")
+    save_png(tmp_path / "h.png", (np.arange(16).reshape(4, 4) * 4000).astype(np.uint16))
+    (tmp_path / "h.gmm").symlink_to(tmp_path / "h.png")
+    ran = outcome(cli, ["gmm", tmp_path / "h.png", "-o", tmp_path / "h.gmm", "--force", "-q"])
+    assert ran == "returned 2" and got == {}, ran      # "Handed": the fit was started first
+    assert "the file it is made from" in capsys.readouterr().err
+
+
+def test_gmm_prints_what_it_built(tmp_path, capsys):
+    """The levels it wrote (level_shapes: 20 -> 10 -> 5 -> 3 -> 2 -> 1, six) and the prior it used."""
+    out = tmp_path / "d.gmm"
+    assert cli(["gmm", "surface:dunes:20", "-o", out, "--components", "2", "--prior", "0.5", "-q"]) == 0
+    printed = capsys.readouterr().out
+    assert len(read_gmm_mipmap(out).levels) == 6
+    assert "20x20, 6 levels, 2 components, aligned, prior c=0.5," in printed, printed
+
+
+def test_gmm_prints_the_map_size_as_width_x_height(tmp_path, capsys):
+    """The size is printed width x height, as warpbw prints every size (the renderer's refusal of the same mipmap says
+    "built from a 8x5 map"): an 8-wide, 5-tall height field reads 8x5 (it read 5x8)."""
+    save_png(tmp_path / "h.png", (np.arange(40).reshape(5, 8) * 1000).astype(np.uint16))
+    assert cli(["gmm", tmp_path / "h.png", "-o", tmp_path / "h.gmm", "-q"]) == 0
+    printed = capsys.readouterr().out
+    assert "(GMM mipmap of h.png: 8x5, " in printed, printed
+    assert outcome(level_shapes, 0, 5).startswith("WarpbwError: map size 5x0 (width x height)")   # h = 0, w = 5
+
+
+def test_gmm_names_the_option_a_bad_scale_came_from(tmp_path, capsys):
+    """The builder's "scale ..." is the command's --scale."""
+    assert cli(["gmm", "surface:dunes:20", "--scale", "0", "-o", tmp_path / "d.gmm", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "error: --scale 0.0: expected a finite number > 0" in err, err
+
+
+def test_gmm_quiet_shows_no_progress_bar(tmp_path, capsys):
+    """-q, --quiet "no progress bar" (the bar is drawn on stderr)"""
+    assert cli(["gmm", "surface:dunes:20", "-o", tmp_path / "d.gmm", "-q"]) == 0
+    assert capsys.readouterr().err == ""
+    assert cli(["gmm", "surface:dunes:20", "-o", tmp_path / "e.gmm"]) == 0
+    assert "GMM mipmap" in capsys.readouterr().err          # without -q there is one (the check can fail)

@@ -1,8 +1,11 @@
 """Procedural test surfaces and the height/normal-map helpers (issue 4 item 4)."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
+from conftest import attempt
 
 from precompute.surfaces import (SURFACES, carved_disk, dunes, height_to_normals, hemispherical_scales,
                                  normals_from_map)
@@ -215,3 +218,112 @@ def test_hemispherical_scales_peak_where_the_staggered_rows_put_their_centres():
             col = (i * tex + tex // 2 + (j % 2) * tex // 2) % size
             block = h[np.ix_([row - 1, row], [(col - 1) % size, col % size])]
             assert np.allclose(block, want, rtol=1e-9, atol=0.0), (j, i, block, want)
+
+
+# ------------------------------------------------------------------------------------------- inputs, outputs and units
+# (mutation round 8: each test fails on a plausible mistake the suite let through)
+
+
+def test_min_surface_size_is_the_smallest_size_every_surface_holds_at_its_defaults():
+    """MIN_SURFACE_SIZE (17, the module docstring) is a size every surface holds at its defaults; the scales refuse one
+    less."""
+    from precompute.surfaces import MIN_SURFACE_SIZE, SURFACES, hemispherical_scales
+
+    assert MIN_SURFACE_SIZE == 17          # the module docstring: "(17)"
+    for name, make in SURFACES.items():
+        h, err = attempt(make, MIN_SURFACE_SIZE)
+        assert err == "" and h.shape == (MIN_SURFACE_SIZE,) * 2, (name, err)
+    assert "texels per scale spacing" in attempt(hemispherical_scales, MIN_SURFACE_SIZE - 1)[1]
+
+
+def test_a_surface_of_the_largest_size_is_made_and_one_more_is_refused():
+    """A surface of MAX_SURFACE_SIZE (1024, issue 4: "up to 1024x1024") is made; one more is refused."""
+    from precompute.surfaces import MAX_SURFACE_SIZE, carved_disk
+
+    assert MAX_SURFACE_SIZE == 1024        # issue 4: "up to 1024x1024"
+    h, err = attempt(carved_disk, 1024, rings=0, spokes=0)
+    assert err == "" and h.shape == (1024, 1024), err
+    assert "expected an integer from 1 to 1024" in attempt(carved_disk, 1025)[1]
+
+
+def test_the_scales_refusal_suggests_a_count_that_fits():
+    """The count the scales' refusal suggests ("scales_across at most N") is accepted at that size; N + 1 is not."""
+    for size, across in [(16, 8), (9, 8), (12, 8), (5, 3)]:
+        _, said = attempt(hemispherical_scales, size, scales_across=across)
+        fits = int(re.search(r"scales_across at most (\d+)", said).group(1))
+        h, err = attempt(hemispherical_scales, size, scales_across=fits)
+        assert err == "" and h.shape == (size, size), (size, across, said, err)
+        assert "texels per scale spacing" in attempt(hemispherical_scales, size, scales_across=fits + 1)[1]
+
+
+def test_the_largest_scale_radius_the_refusal_states_is_accepted():
+    """The refusal's "at most 4 scale spacings" includes 4: a radius of 4 spacings is accepted."""
+    h, err = attempt(hemispherical_scales, 32, scales_across=2, radius=4.0)
+    assert err == "" and h.shape == (32, 32) and np.all(np.isfinite(h)), err
+    assert "at most 4 scale spacings" in attempt(hemispherical_scales, 32, scales_across=2, radius=4.0001)[1]
+
+
+def test_carved_disk_spokes_run_over_the_outer_two_thirds_only():
+    """carved_disk's spokes run over the outer two thirds of the disk (docstring). On the +x axis (theta = 0, a spoke:
+    spokes at multiples of 2 pi / spokes), half-way between rings, the height is the plateau (thickness) inside radius /
+    3 and thickness - depth beyond it."""
+    size, radius, rings, depth, thickness = 257, 0.42, 10, 0.004, 0.01
+    h = carved_disk(size, radius=radius, rings=rings, depth=depth, thickness=thickness)
+    row = size // 2                                    # v = 0.5 exactly: y = 0
+    step = radius / (rings + 1)
+    for k, grooved in [(2, False), (4, True), (6, True)]:   # rho/radius = 0.23, 0.41, 0.59
+        rho = (k + 0.5) * step
+        col = int(round((rho + 0.5) * size - 0.5))
+        x = (col + 0.5) / size - 0.5
+        assert abs(x / step - round(x / step)) * step > 0.006 * 1.5    # clear of the ring grooves
+        want = thickness - depth if grooved else thickness
+        assert h[row, col] == pytest.approx(want, abs=1e-12), (k, x / radius, h[row, col])
+
+
+def test_the_generators_list_every_surface_the_help_names():
+    """--help and the docstring name three procedural surfaces for surface:NAME[:SIZE]."""
+    from precompute.__main__ import build_parser
+    from precompute.gmm_mipmap import load_source
+
+    sub = build_parser()._subparsers._group_actions[0].choices["gmm"]
+    text = " ".join(sub.description.split())
+    for name in ("hemispherical_scales", "carved_disk", "dunes"):
+        assert name in text
+        got, err = attempt(load_source, f"surface:{name}:20")
+        assert err == "" and got[0].shape == (20, 20) and got[1] == f"surface:{name}:20", err
+
+
+def test_height_to_normals_wraps_around_along_rows_too():
+    """A height field periodic down the rows, sin(2 pi k y), y = -row / H map widths: its central-difference slope with
+    wrap-around is exact at every row, the first and last included; the same along columns."""
+    H, W, A, k = 32, 8, 0.01, 2
+    r = np.arange(H)
+    h = np.broadcast_to((A * np.sin(2 * np.pi * k * (-r / H)))[:, None], (H, W))
+    n = height_to_normals(h, texel_size=1.0 / H)
+    slope_y = -n[..., 1] / n[..., 2]                     # dh/dy, y up the image
+    d = 2 * np.pi * k / H
+    want = A * 2 * np.pi * k * np.cos(2 * np.pi * k * (-r / H)) * np.sin(d) / d
+    np.testing.assert_allclose(slope_y[:, 3], want, atol=1e-12)
+    np.testing.assert_allclose(n[..., 0], 0.0, atol=1e-15)
+    nt = height_to_normals(h.T.copy(), texel_size=1.0 / H)      # the same along columns (x = +column)
+    np.testing.assert_allclose(-nt[3, :, 0] / nt[3, :, 2], -want, atol=1e-12)
+
+
+def test_a_normal_map_value_well_outside_the_encoding_is_refused():
+    """Resampling overshoots [0, 1] by a few percent (ENCODING_TOL's comment); 20% over is not that."""
+    np.testing.assert_allclose(normals_from_map(np.array([[[0.5, 0.5, 1.05]]])), [[[0.0, 0.0, 1.0]]])
+    for v in ([0.5, 0.5, 1.2], [-0.2, 0.5, 1.0]):
+        said = attempt(normals_from_map, np.array([[v]]))[1]
+        assert "texels hold values outside [0, 1]" in said, (v, said)
+
+
+def test_vectors_shorter_than_the_stated_minimum_are_refused():
+    """NORMAL_LENGTH_MIN is 0.5; a texel of length 0.3 or 0.45 holds no trustworthy direction."""
+    from precompute.surfaces import NORMAL_LENGTH_MIN, normals_from_map, unit_normals
+
+    assert NORMAL_LENGTH_MIN == 0.5
+    for length in (0.3, 0.45):
+        assert "hold vectors shorter than 0.5" in attempt(unit_normals, np.array([[[0.0, 0.0, length]]]))[1]
+        said = attempt(normals_from_map, np.array([[[0.5, 0.5, (length + 1) / 2]]]))[1]
+        assert "decode to vectors shorter than 0.5" in said, said
+    np.testing.assert_allclose(unit_normals(np.array([[[0.0, 0.0, 0.55]]])), [[[0.0, 0.0, 1.0]]])

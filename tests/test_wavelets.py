@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import attempt
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -392,3 +393,97 @@ def test_eq7_rule_reads_the_top_of_the_band_that_holds_the_sine():
     for f in (0.3, 0.4, 0.47):   # band 1 (0.25 .. 0.5 cycles/pixel): Eq. 7 reads its top, 0.5, and never below f
         b = local_bandwidth(sine(f, 0), pad="reflect", rule="eq7")[32:96, 32:96]
         assert np.all(b == 0.5), (f, b.min(), b.max())
+
+
+# ------------------------------------------------------------------------------------------- inputs, outputs and units
+# (mutation round 8: each test fails on a plausible mistake the suite let through)
+
+
+def _latlong_spot(h=32, w=64, col=0):
+    img = np.zeros((h, w))
+    img[:, col] = 1.0
+    return img
+
+
+def test_envmap_bandwidth_turns_with_the_map_in_longitude():
+    """Longitude wraps (the docstring: a sphere has no border), so rolling the map in longitude rolls its bandwidth: a
+    bright meridian at column 0 reads as one at column 20."""
+    img = _latlong_spot()
+    b = envmap_angular_bandwidth(img)
+    for k in (1, 20, 33):
+        np.testing.assert_allclose(envmap_angular_bandwidth(np.roll(img, k, axis=1)), np.roll(b, k, axis=1),
+                                   rtol=1e-9, atol=1e-12)
+
+
+def test_envmap_floor_is_the_flatness_threshold_and_rule_is_passed_on():
+    """Floor "is local_bandwidth's flatness threshold" (absolute: above every coefficient, every pixel is flat); rule
+    "eq7" gives powers of two in cycles/pixel, 2^-I_w, here times the pixels per radian."""
+    h, w = 32, 64
+    theta = (np.arange(h) + 0.5) * np.pi / h
+    img = np.cos(6 * theta)[:, None] * np.ones((1, w)) + 1.0
+    assert envmap_angular_bandwidth(img).max() > 0
+    assert np.all(envmap_angular_bandwidth(img, floor=1e3) == 0.0)
+    nu = envmap_angular_bandwidth(img, rule="eq7")
+    lam = np.maximum(2 * math.pi * np.sin(theta) / w, math.pi / h)
+    b = (nu * lam[:, None])[nu > 0]
+    np.testing.assert_allclose(np.log2(b), np.round(np.log2(b)), atol=1e-9)
+
+
+def test_texture_bandwidth_passes_on_pad_and_rule():
+    """A tiling texture with pad="wrap" rolls with its bandwidth (no border), and rule="eq7" gives powers of two
+    cycles/pixel."""
+    y, x = np.mgrid[0:32, 0:32].astype(np.float64)
+    img = np.sin(2 * np.pi * x / 8) + 0.5 * np.sin(2 * np.pi * y / 16)
+    img[:, :3] += 1.0                                        # a band at the left edge that wraps to the right
+    mpp = 0.01
+    t = texture_spatial_bandwidth(img, mpp, pad="wrap")
+    np.testing.assert_allclose(texture_spatial_bandwidth(np.roll(img, 11, axis=1), mpp, pad="wrap"),
+                               np.roll(t, 11, axis=1), rtol=1e-9, atol=1e-9)
+    b = texture_spatial_bandwidth(img, mpp, pad="wrap", rule="eq7") * mpp
+    b = b[b > 0]
+    np.testing.assert_allclose(np.log2(b), np.round(np.log2(b)), atol=1e-9)
+
+
+def test_energy_fraction_one_is_accepted_and_reads_no_lower():
+    """Energy_fraction in (0, 1] (its own refusal says so); all the energy lies at or above 95% of it."""
+    y, x = np.mgrid[0:32, 0:32].astype(np.float64)
+    img = np.sin(2 * np.pi * x / 6) + np.sin(2 * np.pi * y / 20)
+    b1, err = attempt(local_bandwidth, img, energy_fraction=1.0)
+    assert err == "" and np.all(b1 >= local_bandwidth(img) - 1e-12) and np.all(np.isfinite(b1)), err
+    for bad in (1.01, 0.0):
+        assert "energy_fraction must be a number in (0, 1]" in attempt(local_bandwidth, img, energy_fraction=bad)[1]
+
+
+def test_epsilon_of_one_is_refused():
+    """Epsilon "must be a number in (0, 1)" (Eq. 7's significance threshold; at 1 only the strongest band would
+    count)"""
+    said = attempt(local_bandwidth, np.eye(8), epsilon=1.0)[1]
+    assert said == "epsilon must be a number in (0, 1), got 1.0", said
+
+
+def test_a_wide_image_is_analysed_down_to_the_period_of_its_long_side():
+    """A 16 x 256 image of a sine of period 128 along its long side: within a factor 2 of 1/128 cycles/px."""
+    x = np.arange(256, dtype=np.float64)
+    img = np.broadcast_to(np.sin(2 * np.pi * x / 128 + 0.3), (16, 256))
+    b = local_bandwidth(img, pad="wrap")
+    med = float(np.median(b[:, 64:192]))
+    assert 1 / 128 / 2 <= med <= 2 / 128, med
+
+
+def test_a_small_source_reads_as_the_same_source_embedded_in_zeros():
+    """"finite sources are embedded in zeros": an 8 x 8 patch reads as it does inside a larger zero field."""
+    rng = np.random.default_rng(4)
+    img = rng.random((8, 8))
+    big = np.zeros((40, 40))
+    big[16:24, 16:24] = img
+    floor = 0.01 * 0.3
+    a = local_bandwidth(img, levels=3, floor=floor)
+    b = local_bandwidth(big, levels=3, floor=floor)[16:24, 16:24]
+    np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+
+
+def test_a_floor_of_zero_is_accepted():
+    """A floor of 0 is accepted (the refusal: "floor must be a finite number >= 0 (or None)")."""
+    img = np.sin(np.arange(16) / 2.0)[None, :] * np.ones((16, 1))
+    b, err = attempt(local_bandwidth, img, floor=0.0)
+    assert err == "" and b.shape == (16, 16) and np.all(np.isfinite(b)) and b.max() > 0, err
