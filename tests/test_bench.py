@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from conftest import MIXED_SCENE, StandInClock, load_example, outcome
+from conftest import MIXED_SCENE, StandInClock, capture_call, load_example, outcome
 from warpbw import bench
 from warpbw.cli import main as cli_main
 
@@ -449,6 +449,37 @@ def test_doubling_check_compares_the_first_half_of_the_chunks_with_all_of_them(t
     assert math.isclose(rec["methods"]["reference"][0]["mse"], 0.07 ** 2, rel_tol=1e-4)
     assert math.isclose(rec["ground_truth_doubling_delta_db"], 20.0 * math.log10(0.09 / 0.07), rel_tol=1e-4)
     assert rec["ground_truth_converged"] is False
+
+
+def test_a_ground_truth_count_that_does_not_split_into_equal_chunks_is_refused(tmp_path, monkeypatch, capsys):
+    """The ground truth is the mean of two or more equal chunks of at most 4096 spp.  --gt-spp 12000 was rendered
+    as 8192 (two chunks of 4096) without a word; such a count is now refused, naming the nearest counts that split
+    (worked by hand), before anything is prepared or rendered: by the command's parser, by the scripts' option
+    check, and by run_bench and ground_truth from Python."""
+    from warpbw import pipeline
+    from warpbw.cli import check_command_options
+    from warpbw.errors import WarpbwError
+    from warpbw.scene import parse_scene
+
+    assert bench.GT_CHUNK_SPP == 4096
+    assert [bench.ground_truth_chunks(s) for s in (2, 3, 64, 8192, 12288, 16384)] == \
+        [(1, 2), (1, 3), (32, 2), (4096, 2), (4096, 3), (4096, 4)]
+    for s, near in [(12000, "8192 or 12288"), (8193, "8192 or 12288"), (16383, "12288 or 16384"), (7, "6 or 8"),
+                    (1, "2")]:
+        assert outcome(bench.ground_truth_chunks, s).endswith(f"chunks of at most 4096 spp; expected {near}"), s
+        with pytest.raises(WarpbwError, match=f"^--gt-spp {s}: .*expected {near}, got {s}$"):
+            check_command_options("bench", {"--gt-spp": str(s)})
+    scene_path = tmp_path / "s.toml"
+    scene_path.write_text(SCENE)
+    handed = capture_call(monkeypatch, bench, "run_bench")
+    assert outcome(cli_main, ["bench", str(scene_path), "--json", str(tmp_path / "b.json"), "--gt-spp", "12000"]) \
+        == "exit 2" and handed == {}
+    assert "argument --gt-spp: the ground truth is the mean of two or more equal chunks" in capsys.readouterr().err
+    monkeypatch.undo()
+    prepared = capture_call(monkeypatch, pipeline, "prepare_scene")
+    got = outcome(bench.run_bench, parse_scene(SCENE, tmp_path, "s.toml"), gt_spp=12000, cache_dir=tmp_path / "gt")
+    assert got.startswith("WarpbwError: --gt-spp 12000: ") and prepared == {}, got
+    assert outcome(bench.ground_truth, None, 12000, tmp_path / "gt").startswith("WarpbwError: --gt-spp 12000: ")
 
 
 def test_ground_truth_chunks_of_a_real_render_differ(tmp_path, monkeypatch):

@@ -3,6 +3,7 @@
 Public:
     ``GT_CHUNK_SPP``, ``DEFAULT_SPP``, ``DEFAULT_BUDGETS``, ``DEFAULT_GT_SPP``, ``NB_SWEEP_BUDGET``, ``DOUBLING_DB``
     ``GroundTruth`` / ``ground_truth(prep, gt_spp, cache_dir, ...)``   cached, with the doubling check
+    ``ground_truth_chunks(gt_spp) -> (spp per chunk, chunks)``, ``gt_spp_refusal(gt_spp)``   how it splits, or why not
     ``GT_VERSION``, ``GT_SEED``, ``gt_key(scene, seed)``, ``gt_cache_dir()``   where a scene's chunks are cached
     ``equal_quality_time(ref_records, mse) -> (spp, time_s, extrapolated)``   log-log interpolation
     ``psnr_standard_error(mses)``, ``paired_difference_se(mses_a, mses_b)``   noise of the PSNR figures (dB)
@@ -14,9 +15,10 @@ Public:
     ``format_table(record) -> str``
 
 Protocol:
-* Ground truth: the MIS reference at ``gt_spp``, the mean of independently seeded chunks of at most
-  ``GT_CHUNK_SPP`` each, every chunk cached as EXR keyed by the scene's content hash, the seed and
-  ``GT_VERSION`` (``gt_key``; so raising ``gt_spp`` renders only the missing chunks, and a chunk of another
+* Ground truth: the MIS reference at ``gt_spp``, the mean of two or more independently seeded chunks of equal
+  size, at most ``GT_CHUNK_SPP`` each (any even count up to 8192 splits so, and beyond it a multiple of 4096;
+  a count that does not is refused, naming the nearest that do), every chunk cached as EXR keyed by the
+  scene's content hash, the seed and ``GT_VERSION`` (``gt_key``; so raising ``gt_spp`` renders only the missing chunks, and a chunk of another
   scene, seed or estimator is never read).  Accepted when the PSNR of a render at the largest
   reference spp against half the ground truth and against all of it differ by < 0.5 dB (recorded).
 * Error: PSNR and relative MSE of linear radiance over covered pixels (:mod:`warpbw.metrics`), averaged
@@ -52,6 +54,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import itertools
 import math
 import statistics
 import time
@@ -85,6 +88,33 @@ class GroundTruth:
     key: str
 
 
+def _split(gt_spp: int) -> tuple[int, int]:
+    chunk = min(GT_CHUNK_SPP, max(1, gt_spp // 2))
+    return chunk, max(2, gt_spp // chunk)
+
+
+def gt_spp_refusal(gt_spp: int) -> str | None:
+    """Why ``gt_spp`` cannot be the ground truth's count, naming the nearest counts that can; None when it can."""
+    chunk, n = _split(gt_spp)
+    if chunk * n == gt_spp:
+        return None
+    above = next(s for s in itertools.count(gt_spp + 1) if math.prod(_split(s)) == s)
+    near = sorted({chunk * n, above})
+    return (f"the ground truth is the mean of two or more equal chunks of at most {GT_CHUNK_SPP} spp; expected "
+            f"{' or '.join(map(str, near))}")
+
+
+def ground_truth_chunks(gt_spp: int) -> tuple[int, int]:
+    """(spp per chunk, number of chunks) of a ground truth of ``gt_spp`` samples per pixel: at least two chunks
+    (the doubling check compares half of them with all) of equal size, at most ``GT_CHUNK_SPP``.  A count that does
+    not split so is refused, naming the nearest counts that do (it was rounded down without a word: 12000 rendered
+    8192)."""
+    why = gt_spp_refusal(gt_spp)
+    if why is not None:
+        raise WarpbwError(f"--gt-spp {gt_spp}: {why}")
+    return _split(gt_spp)
+
+
 def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = GT_SEED, progress: bool = True,
                  clip_distance=None, scene=None) -> GroundTruth:
     """MIS reference at ``gt_spp`` as the mean of cached chunks (at least two, for the doubling check),
@@ -93,8 +123,7 @@ def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = GT_SEED, progre
     from warpbw.io.exr import write_exr
     from warpbw.pipeline import render_reference
 
-    chunk = min(GT_CHUNK_SPP, max(1, gt_spp // 2))
-    n = max(2, gt_spp // chunk)
+    chunk, n = ground_truth_chunks(gt_spp)
     key = gt_key(scene if scene is not None else prep.scene, seed)
     cache_dir.mkdir(parents=True, exist_ok=True)
     imgs, t_gt = [], 0.0
@@ -244,6 +273,7 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
 
     if runs < 1:
         raise WarpbwError(f"runs: expected at least 1, got {runs}")
+    ground_truth_chunks(gt_spp)   # before any work
     surfaces, planes = pipeline.split_planes(scene)
     if surfaces is None:
         raise WarpbwError(f"{scene.source}: bench measures spheres and meshes, and the scene has planes only "

@@ -511,6 +511,17 @@ def _positive_int(name, hi=None):
     return parse
 
 
+def _gt_spp(s):
+    """--gt-spp of warpbw bench: a positive int32 that splits into the ground truth's equal chunks."""
+    from warpbw.bench import gt_spp_refusal
+
+    v = _positive_int("gt-spp", INT32_MAX)(s)
+    why = gt_spp_refusal(v)
+    if why is not None:
+        raise argparse.ArgumentTypeError(f"{why}, got {v}")
+    return v
+
+
 def _why(hi) -> str:
     """Why a count or budget has an upper bound, for the parsers' messages."""
     return {INT32_MAX: " (an int32 in the kernels)",
@@ -783,8 +794,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_adaptive_options(bn)
     bn.add_argument("--nb-budget", type=_positive_float("nb-budget", BUDGET_MAX), default=None,
                     help=f"budget of the n_b sweep (default {_bench.NB_SWEEP_BUDGET})")
-    bn.add_argument("--gt-spp", type=_positive_int("gt-spp", INT32_MAX), default=_bench.DEFAULT_GT_SPP,
-                    help=f"ground-truth samples per pixel (default {_bench.DEFAULT_GT_SPP}; cached in chunks)")
+    bn.add_argument("--gt-spp", type=_gt_spp, default=_bench.DEFAULT_GT_SPP,
+                    help=f"ground-truth samples per pixel (default {_bench.DEFAULT_GT_SPP}; cached in two or more equal "
+                         f"chunks of at most {_bench.GT_CHUNK_SPP} spp: any even count up to "
+                         f"{2 * _bench.GT_CHUNK_SPP}, beyond it a multiple of {_bench.GT_CHUNK_SPP})")
     bn.add_argument("--no-mis", action="store_true",
                     help="compare with BRDF importance sampling only (default: MIS for both methods)")
     bn.add_argument("--cache", help="ground-truth cache directory (default $WARPBW_CACHE/ground_truth, or "
