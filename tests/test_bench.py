@@ -113,7 +113,6 @@ def test_bench_of_planes_beside_a_sphere_measures_the_visible_sphere(tmp_path):
     pixels (the sphere-only render's coverage that the floor's distance clips, counted independently here)
     are left out of the covered pixels, the cached ground truth is black there and keyed by the whole scene,
     and the table says so."""
-    import numpy as np
 
     from warpbw.filtering import plane_distance
     from warpbw.io.exr import read_exr
@@ -632,8 +631,6 @@ def _bench_scenes_with_fake_run(monkeypatch, status=0):
 def test_bench_scenes_are_the_readme_table(tmp_path):
     """Each scene file parses to README's row: its object (the bunny mesh or a sphere), the MERL file made from its
     NPF material, its probe and its size; the fifth, not run by default, is the ccp3 scene with a sun added."""
-    import tomllib
-    from pathlib import Path
 
     bs = _bench_scenes()
     texts = bs.scene_texts(tmp_path)
@@ -968,3 +965,220 @@ def test_bench_reference_defaults_are_the_documented_ones(tmp_path, monkeypatch,
     assert Path(env["file"]).name == "forest.exr" and env["rotation"] == 0.0 and cam["resolution"] == [512, 512]
     timed = [(r["spp"], r["mis"]) for r in got["renders"] if r["timed"]]
     assert sorted(timed) == sorted([(2 ** k, m) for k in range(4, 11) for m in (False, True)] * 3)
+
+
+# -------------------------------------------- what the bench command prints and writes; its table, n_b sweep and cache
+# (mutation round 8: each test fails on a plausible mistake the suite let through)
+
+
+@pytest.fixture
+def bench_dir(tmp_path, monkeypatch):
+    """A working folder holding SCENE as env.toml."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "_cache"))
+    (tmp_path / "env.toml").write_text(SCENE)
+    return tmp_path
+
+
+def _bench_record(converged=True):
+    return {"scene": "s.toml", "resolution": [6, 4], "pixels_covered": 12, "estimator": "mis",
+            "ground_truth_spp": 64, "ground_truth_doubling_delta_db": 0.1 if converged else 0.75,
+            "ground_truth_converged": converged, "runs": 3, "methods": {"reference": [], "adaptive": []},
+            "equal_quality_speedup": None, "equal_quality_speedup_se": None, "equal_quality_budget": None,
+            "bandwidth_time_fraction": None}
+
+
+@pytest.mark.parametrize("converged", [True, False])
+def test_bench_says_where_it_wrote_and_warns_only_of_an_unconverged_ground_truth(bench_dir, monkeypatch, capsys,
+                                                                                   converged):
+    """bench says where it wrote the record and the plot, and warns of the ground truth only when it is not converged
+    (doubling changes PSNR by >= 0.5 dB)."""
+    import warpbw.bench as bench
+    from warpbw.cli import main
+
+    monkeypatch.setattr(bench, "run_bench", lambda *a, **k: _bench_record(converged))
+    monkeypatch.setattr(bench, "write_plot", lambda rec, path: Path(path).write_bytes(b"png"))
+    assert main(["bench", "env.toml", "--json", "b.json", "--cache", "gt"]) == 0
+    out, err = capsys.readouterr()
+    assert "record b.json, plot b.png" in out.splitlines()
+    assert Path("b.png").read_bytes() == b"png" and json.loads(Path("b.json").read_text())["runs"] == 3
+    warned = [x for x in err.splitlines() if "ground truth is not converged" in x]
+    assert warned == ([] if converged else ["warpbw: warning: the ground truth is not converged (doubling changes "
+                                            "PSNR by 0.75 dB >= 0.5 dB): raise --gt-spp"]), err
+
+
+def test_bench_writes_the_record_beside_a_plot_given_alone(bench_dir, monkeypatch, capsys):
+    """bench --plot alone writes the record beside the plot (--help: "--json ...: without it, beside --plot as
+    OUT.json")."""
+    import warpbw.bench as bench
+    from warpbw.cli import main
+
+    monkeypatch.setattr(bench, "run_bench", lambda *a, **k: _bench_record())
+    monkeypatch.setattr(bench, "write_plot", lambda rec, path: Path(path).write_bytes(b"png"))
+    assert main(["bench", "env.toml", "--plot", "b.png", "--cache", "gt"]) == 0
+    assert sorted(p.name for p in Path().glob("b.*")) == ["b.json", "b.png"]
+    assert json.loads(Path("b.json").read_text())["runs"] == 3 and Path("b.png").read_bytes() == b"png"
+    assert "record b.json, plot b.png" in capsys.readouterr().out.splitlines()
+
+
+def test_bench_refuses_to_replace_a_plot_left_alone(bench_dir, monkeypatch, capsys):
+    """The plot goes beside the record (--help) and is an output like it."""
+    import warpbw.bench as bench
+    from warpbw.cli import main
+
+    capture_call(monkeypatch, bench, "run_bench")   # reaching it fails the test
+    Path("b.png").write_bytes(b"mine")
+    assert outcome(main, ["bench", "env.toml", "--json", "b.json", "--cache", "gt", "-q"]) == "returned 2"
+    assert "b.png: already exists" in capsys.readouterr().err and Path("b.png").read_bytes() == b"mine"
+
+
+@pytest.mark.parametrize("runs, warns", [(1, True), (2, True), (3, False), (5, False)])
+def test_bench_warns_of_fewer_runs_than_the_protocols_three(tmp_path, capsys, runs, warns):
+    """bench warns of fewer runs than DESIGN.md's protocol times (the median of at least 3 runs); 3 is enough."""
+    from warpbw.cli import _write_bench
+
+    args = SimpleNamespace(json=str(tmp_path / "r.json"), plot=str(tmp_path / "r.png"), quiet=True, runs=runs)
+    _write_bench(args, {"x": 1}, lambda rec, path: Path(path).write_bytes(b"png"))
+    assert ("--runs" in capsys.readouterr().err) == warns
+
+
+def _table_record():
+    ada = {"budget": 2.0, "time_s": 0.5, "psnr_db": 30.0, "psnr_se_db": 0.25, "relmse": 1e-3,
+           "shaded_fraction": 0.4, "bandwidth_time_fraction": 0.125, "equal_quality_speedup": 3.5,
+           "equal_quality_speedup_se": 0.75, "extrapolated": False,
+           "gbuffer_time_s": 0.004, "bandwidth_time_s": 0.0625, "shading_time_s": 0.3, "hierarchy_time_s": 0.002,
+           "upsampling_time_s": 0.011}
+    far = {**ada, "budget": 8.0, "time_s": 0.25, "psnr_db": 40.0, "psnr_se_db": 0.5, "shaded_fraction": 0.9,
+           "bandwidth_time_fraction": 0.3, "equal_quality_speedup": 10.0, "equal_quality_speedup_se": 2.0,
+           "extrapolated": True, "gbuffer_time_s": 0.5}
+    ref = {"spp": 4, "time_s": 1.25, "psnr_db": 28.0, "psnr_se_db": 0.125, "relmse": 2e-3}
+    return {"scene": "s.toml", "resolution": [6, 4], "pixels_covered": 12, "estimator": "mis", "ground_truth_spp": 64,
+            "ground_truth_doubling_delta_db": 0.1, "runs": 3, "methods": {"reference": [ref], "adaptive": [ada, far]},
+            "equal_quality_speedup": 3.5, "equal_quality_speedup_se": 0.75, "equal_quality_budget": 2.0,
+            "bandwidth_time_fraction": 0.125, "bandwidth_pass_reference_spp": 2.5,
+            "nb_sweep": [{"n_b": 16, "psnr_db": 29.0, "psnr_se_db": 0.2, "time_s": 0.4, "bandwidth_time_s": 0.0123},
+                         {"n_b": 64, "psnr_db": 29.5, "psnr_se_db": 0.3, "time_s": 0.6, "bandwidth_time_s": 0.05}],
+            "nb_psnr_range_db": 0.5, "nb_psnr_range_se_db": 0.2}
+
+
+def test_bench_table_puts_each_figure_under_its_heading(tmp_path):
+    """Each figure of bench's table sits under its heading: shaded as a percentage, bw % the bandwidth pass's share of
+    the frame, the speed-up with its own standard error and * when extrapolated; the stage breakdown of the headline's
+    budget in ms; the n_b rows. Hand-made record."""
+    from warpbw.bench import format_table
+
+    lines = format_table(_table_record()).splitlines()
+    head = next(x for x in lines if x.startswith("method"))
+    assert head.split() == ["method", "spp/budget", "time", "(s)", "PSNR", "+/-", "relMSE", "shaded", "bw", "%",
+                            "speed-up", "+/-"]
+    rows = [x.split() for x in lines if x.startswith(("reference ", "adaptive "))]
+    # shaded in %, bw % as the percentage of the frame, speed-up with its own standard error, * when extrapolated
+    assert rows == [["reference", "4", "1.250", "28.00", "0.12", "2.000e-03"],
+                    ["adaptive", "2", "0.500", "30.00", "0.25", "1.000e-03", "40.0%", "12.5", "3.50x", "0.75"],
+                    ["adaptive", "8", "0.250", "40.00", "0.50", "1.000e-03", "90.0%", "30.0", "10.00x", "2.00*"]]
+    assert "equal-quality speed-up: 3.50x +/- 0.75 at budget 2" in lines
+    assert "bandwidth pass: 12.5% of the frame" in lines
+    # the frame of the headline's budget (2), not of the extrapolated one's, in milliseconds
+    assert ("where the frame's time goes at budget 2 (its last run): G-buffer 4 ms, bandwidth pass 62 ms, "
+            "shading 300 ms, hierarchy 2 ms, up-sampling 11 ms") in lines
+    assert "the bandwidth pass costs what the reference's shading spends on 2.5 samples per pixel" in lines
+    assert "n_b    16: PSNR 29.00 +/- 0.20 dB, 0.400 s, bandwidth 12.3 ms" in lines
+    assert "n_b sweep: PSNR range 0.50 dB (standard error 0.20 dB over 3 paired runs)" in lines
+
+
+def test_nb_sweep_range_is_between_its_best_and_worst_points_not_its_ends(tmp_path, monkeypatch):
+    """Three n_b whose PSNRs are not monotone; the range and its paired standard error are those of the highest and the
+    lowest PSNR (bench docstring: "the paired per-run differences between its two ends", "picked after the fact")"""
+    from warpbw import bench, pipeline
+    from warpbw.scene import parse_scene
+
+
+    amps = {16: (0.2, 0.25), 64: (0.1, 0.15), 256: (0.4, 0.5)}    # per run r: the frame's error amplitude
+
+    clock = StandInClock()
+
+    def fake_reference(prep, spp, seed=0, mis=False, **kw):
+        clock.now += 0.01 * spp
+        return SimpleNamespace(image=_frame(0.0 if seed >= 1_000_000 else 0.3 / math.sqrt(spp)), coverage=_COV,
+                               stats={"time_s": {"shading": 0.01, "gbuffer": 0.001}})
+
+    def fake_adaptive(prep, budget, seed=0, mis=False, n_b=None, **kw):
+        amp = 0.2 if n_b is None else amps[n_b][seed // 7]
+        clock.now += 0.01
+        return _fake_adaptive_result(_frame(amp), _COV, 0.01, budget)
+
+    monkeypatch.setattr(bench, "time", clock)
+    monkeypatch.setattr(pipeline, "render_reference", fake_reference)
+    monkeypatch.setattr(pipeline, "render_adaptive", fake_adaptive)
+    rec = bench.run_bench(parse_scene(SCENE, tmp_path, "s.toml"), spp_list=(1, 4), budgets=(1,), nb_list=(16, 64, 256),
+                          gt_spp=64, runs=2, cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **k: None)
+    peak = float(bench.np.max(_frame(0.0)[_COV]))
+    psnr = {n: 10 * math.log10(peak ** 2 / np.mean(np.square(a))) for n, a in amps.items()}
+    assert [r["psnr_db"] for r in rec["nb_sweep"]] == pytest.approx([psnr[16], psnr[64], psnr[256]], rel=1e-4)
+    assert rec["nb_psnr_range_db"] == pytest.approx(psnr[64] - psnr[256], rel=1e-4)
+    d = [20 * math.log10(amps[256][r] / amps[64][r]) for r in range(2)]      # per-run differences, dB
+    assert rec["nb_psnr_range_se_db"] == pytest.approx(abs(d[0] - d[1]) / 2, rel=1e-4)   # std (n-1) / sqrt(2)
+
+
+def _gt_stand_in(monkeypatch, h=24, w=24):
+    """ground_truth's renderer as a stand-in: a chunk of N spp is the image N everywhere; the spp rendered listed."""
+    from warpbw import pipeline
+
+    rendered = []
+
+    def fake(prep, spp=1, seed=0, mis=False, **kw):
+        rendered.append(spp)
+        return SimpleNamespace(image=np.full((h, w, 3), float(spp), np.float32))
+
+    monkeypatch.setattr(pipeline, "render_reference", fake)
+    return rendered
+
+
+def _prep(tmp_path, h=24, w=24):
+    from warpbw.scene import parse_scene
+
+
+    return SimpleNamespace(scene=parse_scene(SCENE, tmp_path, "s.toml"), height=h, width=w)
+
+
+def test_ground_truth_of_more_samples_does_not_read_chunks_of_fewer(tmp_path, monkeypatch):
+    """64 spp are 2 chunks of 32; 128 spp are 2 chunks of 64, not the 32-spp chunks read again."""
+    rendered = _gt_stand_in(monkeypatch)
+    prep = _prep(tmp_path)
+    assert bench.ground_truth(prep, 64, tmp_path / "gt", progress=False).image.max() == 32.0 and rendered == [32, 32]
+    more = bench.ground_truth(prep, 128, tmp_path / "gt", progress=False)
+    assert rendered == [32, 32, 64, 64] and np.all(more.image == 64.0) and more.spp == 128
+
+
+def test_ground_truth_records_the_samples_it_took(tmp_path, monkeypatch):
+    """Chunks of at most GT_CHUNK_SPP: 12288 spp are three chunks of 4096, and the record's spp is what they hold
+    together."""
+    rendered = _gt_stand_in(monkeypatch)
+    gt = bench.ground_truth(_prep(tmp_path), 12288, tmp_path / "gt", progress=False)
+    assert rendered == [4096] * 3 and gt.spp == sum(rendered) == 12288 and gt.chunks == 3
+
+
+def test_ground_truth_of_a_wide_image_is_read_from_the_cache(tmp_path, monkeypatch):
+    """A 24x12 frame's chunks are read back, not rendered again every time."""
+    rendered = _gt_stand_in(monkeypatch, h=12, w=24)
+    prep = _prep(tmp_path, h=12, w=24)
+    bench.ground_truth(prep, 8, tmp_path / "gt", progress=False)
+    again = bench.ground_truth(prep, 8, tmp_path / "gt", progress=False)
+    assert rendered == [4, 4] and again.render_time_s == 0.0 and again.image.shape == (12, 24, 3)
+
+
+def test_ground_truth_chunk_with_one_nan_pixel_is_rendered_again(tmp_path, monkeypatch):
+    """A cached chunk with one NaN pixel is rendered again (_cached_chunk: "not finite: such a chunk is rendered
+    again"); one is enough to poison the mean."""
+    from warpbw.io.exr import write_exr
+
+    rendered = _gt_stand_in(monkeypatch)
+    prep = _prep(tmp_path)
+    bench.ground_truth(prep, 8, tmp_path / "gt", progress=False)
+    (chunk,) = sorted((tmp_path / "gt").glob("ground_truth-*-chunk0-*.exr"))
+    img = np.full((24, 24, 3), 4.0, np.float32)
+    img[3, 5, 1] = np.nan
+    write_exr(chunk, img)
+    again = bench.ground_truth(prep, 8, tmp_path / "gt", progress=False)
+    assert rendered == [4, 4, 4] and np.isfinite(again.image).all()
+

@@ -14,8 +14,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from conftest import (capture_call, check_colour_scale, load_example, numpy_camera_rays, numpy_sphere_distance,
-                      numpy_square_distance, outcome, plane_scene_toml)
+from conftest import (StandInClock, capture_call, check_colour_scale, load_example, numpy_camera_rays,
+                      numpy_sphere_distance, numpy_square_distance, outcome, plane_scene_toml)
 from warpbw.bench_filtering import FLICKER_STEP, colour_error, flicker, temporal_error
 from warpbw.cli import main
 from warpbw.io.exr import read_exr, write_exr
@@ -329,7 +329,6 @@ def test_sphere_scene_lit_by_the_lights_alone_renders_through_the_environment_re
 # ------------------------------------------------------------------------------------------ benchmark scenes
 
 def _example(name: str = "filtering_scenes"):
-    from conftest import load_example
 
     return load_example(name)
 
@@ -542,7 +541,6 @@ def _bench_on_hand_frames(monkeypatch):
     """run_bench_filtering at zoom 1 with two flicker pairs, every renderer call answered from ``_HAND_FRAMES``
     (the frame picked by the camera's zoom, z * FLICKER_STEP^j, and the ground truth by its seed); no scene is
     rendered.  Returns the record and the calls made."""
-    from types import SimpleNamespace
 
     import warpbw.filtering
     import warpbw.pipeline
@@ -655,7 +653,6 @@ def test_filtering_scenes_hands_its_options_to_the_scenes_and_to_bench_filtering
     """--components, --prior, --elevation and --lights reach the written scenes, and --run hands --max-anisotropy,
     --flicker-pairs, --zoom and --gt-spp on to every warpbw bench-filtering command (their help says so; a
     default in their place would benchmark another setting than the one asked for)."""
-    from types import SimpleNamespace
 
     fs = _example()
     got, cmds = {}, []
@@ -877,3 +874,100 @@ def test_filtering_floor_mean_level_leaves_out_the_magnified_pixels(tmp_path, mo
     lv = res.level[res.coverage]
     assert (lv < 0).sum() > 10 and row["pixels"] == (lv >= 0).sum(), row
     assert row["mean_level"] == pytest.approx(float(lv[lv >= 0].mean()), abs=1e-3), row
+
+
+# ------------------------------------------------------------------------- bench-filtering's table and record, by hand
+# (mutation round 8: each test fails on a plausible mistake the suite let through)
+
+
+def _bf_record(aniso=1):
+    return {"scene": "p.toml", "resolution": [6, 4], "gt_spp": 64, "zooms": [1.0, 2.0], "flicker_pairs": 1,
+            "max_anisotropy": aniso, "surfaces": [],
+            "methods": {"toksvig": [{"error": 0.125, "flicker": 0.0625, "temporal_error": 0.5},
+                                    {"error": 0.25, "flicker": 0.03125, "temporal_error": 0.75}]},
+            "ground_truth": [{"noise": 0.01, "flicker_noise": 0.002, "temporal_noise": 0.003},
+                             {"noise": 0.02, "flicker_noise": 0.004, "temporal_noise": 0.006}],
+            "precompute_time_s": 1.25, "prepare_time_s": 7.5}
+
+
+@pytest.mark.parametrize("aniso", [1, 4])
+def test_bench_filtering_table_puts_each_figure_in_its_row(aniso):
+    """Each figure of bench-filtering's table sits in its row: error / flicker, the temporal error, the ground truth's
+    noise rows, the precompute line; the anisotropy note only above 1 probe."""
+    from warpbw.bench_filtering import format_table
+
+    lines = format_table(_bf_record(aniso)).splitlines()
+    assert ("anisotropic footprints" in lines[0]) == (aniso > 1)
+    if aniso > 1:
+        assert "anisotropic footprints (up to 4 probes)" in lines[0]
+    rows = [x.split() for x in lines if x.startswith(("toksvig", "gt noise"))]
+    assert rows == [["toksvig", "0.125", "/0.062", "0.250", "/0.031"],           # error / flicker
+                    ["gt", "noise", "0.010", "/0.002", "0.020", "/0.004"],
+                    ["toksvig", "0.5000", "0.7500"],                             # temporal error
+                    ["gt", "noise", "0.0030", "0.0060"]]
+    assert lines[-1] == "precompute (aligned GMM mipmaps): 1.25 s"
+
+
+def _hand_bench(monkeypatch, level_outside=9.0, times=(0.001,), cover=None):
+    """run_bench_filtering at zoom 1 on 1x3 frames (the method's off by 1 in pixel 1, the truth's peak 6), pixel 2
+    not covered; the stand-in clock moved 2 s by the mipmaps' preparation, of which the aligned GMM took 0.25 s."""
+    import warpbw.bench_filtering as bf
+    import warpbw.filtering
+    import warpbw.pipeline
+
+
+    clock = StandInClock()
+    cov = np.array([[True, True, False]])
+    k = {"n": 0}
+
+    def fake_render(scene, method, spp=64, seed=0, prepared=None, camera=None, env_spp=1, max_anisotropy=1,
+                    background=None, **kw):
+        j = 0 if camera is None else round(math.log(camera[1]) / math.log(bf.FLICKER_STEP))
+        c = cov if cover is None else cover(j)
+        img = _px(2, 6, 0) if method == "ground_truth" else _px(2, 7, 0)
+        t = times[k["n"] % len(times)]
+        if method == "toksvig" and camera is not None and j == 0:
+            k["n"] += 1
+        return SimpleNamespace(image=img, coverage=c.copy(), level=np.where(c, 0.5, level_outside), time_s=t)
+
+    def fake_prepare(*a, **kw):
+        clock.now += 2.0
+        return SimpleNamespace(notes={"m": {"gmm_aligned": {"time_s": 0.25}}})
+
+    monkeypatch.setattr(bf, "time", clock)
+    monkeypatch.setattr(warpbw.filtering, "render_filtering", fake_render)
+    monkeypatch.setattr(warpbw.filtering, "prepare_filtering", fake_prepare)
+    monkeypatch.setattr(warpbw.filtering, "zoomed_camera", lambda camera, zoom: ("camera", float(zoom)))
+    monkeypatch.setattr(warpbw.pipeline, "split_planes", lambda scene: (None, scene))
+    scene = SimpleNamespace(has_planes=True, source="hand.toml", environment=None,
+                            camera=SimpleNamespace(width=3, height=1))
+    return bf.run_bench_filtering(scene, zooms=(1,), gt_spp=64, runs=len(times), methods=("toksvig",))
+
+
+def test_bench_filtering_record_by_hand(monkeypatch):
+    """run_bench_filtering's record by hand: the mean level over the covered pixels, the median time of the runs, the
+    PSNR with the ground truth's peak, the aligned GMM's precompute time apart from the whole preparation's."""
+    rec = _hand_bench(monkeypatch, times=(0.001, 0.005, 0.002))
+    (row,) = rec["methods"]["toksvig"]
+    assert row["mean_level"] == 0.5                                   # over the covered pixels only
+    assert row["time_s"] == 0.002                                     # the median of the runs' 1, 5, 2 ms
+    # PSNR over the covered pixels, peak from the ground truth (6), MSE (0 + 1) / 2 per channel... of (1, 0, 0)
+    mse = np.mean(np.square(np.array([[0, 0, 0], [1, 0, 0]], float)))
+    assert row["psnr_db"] == pytest.approx(10 * math.log10(36.0 / mse), rel=1e-9)
+    assert rec["precompute_time_s"] == 0.25 and rec["prepare_time_s"] == 2.0
+
+
+def test_bench_filtering_refuses_a_zoom_whose_second_frame_sees_no_plane(monkeypatch):
+    """"a zoom at which no pixel sees a plane (in either frame) ... is refused before any work"."""
+    got = outcome(_hand_bench, monkeypatch, cover=lambda j: np.array([[j == 0, j == 0, False]]))
+    assert got.startswith("WarpbwError: --zoom 1: no pixel sees a plane"), got
+
+
+def test_colour_error_against_a_black_reference_is_finite():
+    """A covered but black ground truth (a plane facing away from its light) leaves the error finite, so the record
+    stays a number."""
+    img = np.zeros((1, 2, 3))
+    img[0, 0] = [3.0, 4.0, 0.0]
+    err = colour_error(img, np.zeros((1, 2, 3)), np.ones((1, 2), bool))
+    assert math.isfinite(err) and err > 0
+

@@ -19,6 +19,7 @@ import stat
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -26,8 +27,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from conftest import (MIXED_SCENE, Handed, capture_call, check_colour_scale, numpy_camera_rays, numpy_sphere_distance,
-                      numpy_square_distance, outcome, plane_scene_toml)
+from conftest import (MIXED_SCENE, Handed, StandInClock, capture_call, check_colour_scale, numpy_camera_rays,
+                      numpy_sphere_distance, numpy_square_distance, outcome, plane_scene_toml)
 from warpbw.io.exr import read_exr, write_exr
 from warpbw.io.merl import MERL_FILE_SIZE
 
@@ -98,7 +99,6 @@ def write_scene(d: Path, name: str, probe: Path, material: str, extra: str = "")
 # ------------------------------------------------------------------------------------------ demo
 
 def test_demo_writes_exr_png_json_and_respects_force(tmp_path):
-    from PIL import Image
 
     out = tmp_path / "demo_out"
     r = run(["demo", "-o", out, "--spp", "4", "-q"], tmp_path)
@@ -191,7 +191,6 @@ def test_compare_error_map_and_worst_share_follow_hand_made_images(tmp_path):
     """``compare --error-map``: per pixel (t - r)^2 / (r^2 + 0.01), averaged over R, G, B, 0 where not covered; its
     mean over the covered pixels is the relMSE; the worst 1% of the covered pixels' share of it.  Images made here:
     a reference of 0.5 with its last column uncovered (A = 0), and a test off by 0.1, 0.2, 0.3 at three pixels."""
-    from PIL import Image
 
     h, w = 10, 20
     ref = np.full((h, w, 4), 0.5, np.float32)
@@ -743,7 +742,6 @@ def _readme_commands():
     """(program, argv) of every ``warpbw`` / ``warpbw-precompute`` line in the README's code blocks:
     continuation lines joined, comments dropped, optional ``[...]`` groups kept with their first
     alternative (``a|b`` -> a; a group of ``...`` dropped)."""
-    import re
 
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
     lines = []
@@ -792,7 +790,6 @@ def test_inline_commands_in_readme_and_docs_parse():
     mentions ("`warpbw bench`", "`warpbw-precompute gmm --prior`") are not command lines and are skipped."""
     import contextlib
     import io
-    import re
 
     from precompute.__main__ import build_parser as precompute_parser
     from warpbw.cli import build_parser as warpbw_parser
@@ -819,7 +816,6 @@ def _example_commands() -> list:
     """(document, script name, argv) of every ``python examples/X.py ...`` line in README.md and docs/*.md, in code
     blocks and inline: comments dropped, optional ``[...]`` groups kept, placeholders (SCENE, B, DIR) given a
     value that every option type accepts ("1"); a line that elides arguments (``...``) is skipped."""
-    import re
     import shlex
 
     out = []
@@ -965,7 +961,6 @@ def test_every_stated_default_is_the_default(monkeypatch):
 
 def _heading_slugs(text: str) -> set:
     """GitHub's anchors for a Markdown file's headings: lower case, punctuation dropped, spaces to hyphens."""
-    import re
 
     return {re.sub(r"[^a-z0-9 _-]", "", h.strip().lower()).replace(" ", "-")
             for h in re.findall(r"^#+ (.*)$", text, re.M)}
@@ -975,7 +970,6 @@ def test_readme_links_resolve():
     """Every relative link in README.md and docs/*.md names a file of the repository, and its #anchor a heading
     of that file: the README points to docs/measurements.md for the full record, and a moved section would
     otherwise leave a dead link."""
-    import re
 
     checked = 0
     for doc in _documents():
@@ -1510,3 +1504,317 @@ def test_compare_text_prints_the_relative_mse_and_names_the_map(tmp_path, monkey
     rel = (31 * (0.1 ** 2) + 0.2 ** 2) / 0.26 / 32
     assert f"relMSE {rel:.6g}\n" in out, out
     assert "\nerror map err.exr (+ err.png, log colour scale " in out, out
+
+
+# -------------------------------------------------------------------------------- what render and demo print and write
+# (mutation round 8: each test fails on a plausible mistake the suite let through)
+
+
+# Stand-in renderers draw 6x4 frames whose figures are known. The scene files are the ones above at 6x4, and
+# conftest's MIXED_SCENE (whose size the stand-ins ignore).
+H, W = 4, 6
+COV = np.zeros((H, W), bool)   # the stand-ins' coverage: 12 of the 24 pixels (the left half)
+COV[:, :3] = True
+
+
+@pytest.fixture
+def small_scenes(tmp_path, monkeypatch):
+    """Scene files in a working folder, the command's clock a stand-in (only the stand-in renders move it)."""
+    import warpbw.cli as cli
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "_cache"))
+    (tmp_path / "env.toml").write_text(_ENV_SCENE.replace("resolution = [16, 12]", "resolution = [6, 4]"))
+    (tmp_path / "light.toml").write_text(_LIGHT_SCENE.replace("resolution = [16, 12]", "resolution = [6, 4]"))
+    (tmp_path / "plane.toml").write_text(plane_scene_toml(resolution=(6, 4)))
+    (tmp_path / "mixed.toml").write_text(MIXED_SCENE)
+    clock = StandInClock()
+    monkeypatch.setattr(cli, "time", clock)
+    return SimpleNamespace(dir=tmp_path, clock=clock)
+
+
+def _image(cov=COV):
+    img = np.zeros((H, W, 3), np.float32)
+    img[cov] = [0.5, 0.25, 0.125]
+    return img
+
+
+def _fake_reference(monkeypatch, clock, stats, took=4.0, cov=COV):
+    import warpbw.pipeline as pipeline
+
+    def fake(scene, spp=1, seed=0, mis=False, **kw):
+        clock.now += took
+        return SimpleNamespace(image=_image(cov), coverage=cov.copy(), stats=json.loads(json.dumps(stats)))
+
+    monkeypatch.setattr(pipeline, "render_reference", fake)
+
+
+def _lines(out: str, start: str) -> str:
+    return next(x for x in out.splitlines() if x.startswith(start))
+
+
+def test_render_reference_summary_gives_each_figure_in_its_unit(small_scenes, monkeypatch, capsys):
+    """The reference render's summary gives each figure in its unit: the G-buffer in ms, samples per second in millions,
+    the command's total wall time (the stand-in clock's 4 s), also in the JSON."""
+    from warpbw.cli import main
+
+    stats = {"time_s": {"gbuffer": 0.0123, "shading": 1.5, "frame": 1.5123}, "resolution": [W, H],
+             "pixels_covered": 12, "samples_per_second": 2.5e6, "spp": 8}
+    _fake_reference(monkeypatch, small_scenes.clock, stats, took=4.0)
+    assert main(["render", "env.toml", "-o", "o.exr", "--spp", "8"]) == 0
+    out = capsys.readouterr().out
+    assert _lines(out, "o.exr") == f"o.exr  ({W}x{H}, 8 spp, 12 covered pixels)"
+    # 12.3 ms of G-buffer, 2.5 million samples per second, and the command's own 4 s (the stand-in clock)
+    assert _lines(out, "  gbuffer") == "  gbuffer 12.3 ms, shading 1.500 s (2.50 M samples/s), total 4.00 s"
+    assert json.loads(Path("o.json").read_text())["time_s"]["total"] == pytest.approx(4.0)
+    assert _lines(out, "  preview") == "  preview o.png, stats o.json"
+
+
+def test_render_of_lights_alone_does_not_print_a_sample_count(small_scenes, capsys):
+    """A frame of directional lights takes no sample, whatever the default --spp is."""
+    from warpbw.cli import main
+
+    assert main(["render", "light.toml", "-o", "l.exr"]) == 0
+    out = capsys.readouterr().out
+    assert json.loads(Path("l.json").read_text())["spp"] == 0
+    first = out.splitlines()[0]
+    assert "directional lights alone: exact, no samples" in first and " spp" not in first, first
+
+
+def _aovs(cov=COV):
+    """Per-pixel AOVs with a known range over the covered pixels, and other values outside them."""
+    yy, xx = np.mgrid[0:H, 0:W]
+    level = np.where(cov, yy % 3, 7).astype(np.float32)                       # 0..2 covered
+    n_p = np.where(cov, np.where(level == 0, 16, 2 ** level), 0).astype(np.float32)   # 2, 4, 16 covered
+    variance = np.where(cov, 0.001 * (1 + xx + yy), 9.0).astype(np.float32)   # 0.001 .. 0.006 covered
+    variance[0, 0] = 0.0                                                      # no estimate there: not on a log scale
+    shaded = np.where(cov, (level == 0), 0).astype(np.float32)
+    b_p = np.where(cov, 0.05 * (1 + yy), 0).astype(np.float32)               # 0.05 .. 0.2
+    return {"level": level, "n_p": n_p, "variance": variance, "shaded": shaded, "b_p": b_p}
+
+
+def _scale(v, cov, log):
+    shown = v[cov & (v > 0)] if log else v[cov]
+    return float(shown.min()), float(shown.max())
+
+
+def test_render_adaptive_summary_and_colour_scales_by_hand(small_scenes, monkeypatch, capsys):
+    """The adaptive render's summary and colour scales, worked by hand from stand-in AOVs: shaded pixels and their
+    percentage, the bandwidth pass in ms with its share, the AOV files, each scale's range over the covered pixels (log
+    scales over the positive ones), and a zero on a log scale drawn black, not as its smallest value."""
+    import warpbw.pipeline as pipeline
+    from warpbw.cli import main
+
+    aovs = _aovs()
+    stats = {"time_s": {"gbuffer": 0.002, "bandwidth": 0.004, "shading": 0.02, "upsampling": 0.001,
+                        "hierarchy": 0.003, "frame": 0.032}, "resolution": [W, H], "n_b": 16,
+             "pixels_covered": 12, "pixels_shaded": 3, "shaded_fraction": 0.25, "samples": 36,
+             "samples_per_covered_pixel": 3.0, "bandwidth_time_fraction": 0.125}
+
+    def fake(scene, budget=None, **kw):
+        small_scenes.clock.now += 0.5
+        return SimpleNamespace(image=_image(), coverage=COV.copy(), stats=json.loads(json.dumps(stats)),
+                               aovs={k: v.copy() for k, v in aovs.items()})
+
+    monkeypatch.setattr(pipeline, "render_adaptive", fake)
+    assert main(["render", "env.toml", "-o", "a.exr", "--method", "adaptive", "--budget", "3"]) == 0
+    out = capsys.readouterr().out
+    assert _lines(out, "a.exr") == f"a.exr  ({W}x{H}, adaptive, budget 3 spp, n_b 16, 12 covered pixels)"
+    assert _lines(out, "  shaded") == "  shaded 3 pixels (25.0%), 36 samples (3.00 per covered pixel)"
+    assert _lines(out, "  gbuffer") == ("  gbuffer 2.0 ms, bandwidth 4.0 ms (12.5% of the frame), shading 0.020 s, "
+                                        "up-sampling 1.0 ms, frame 0.032 s, total 0.50 s")
+    assert _lines(out, "  AOVs") == "  AOVs a.level.exr, a.n_p.exr, a.variance.exr, a.shaded.exr, a.b_p.exr (+ .png)"
+    want = {}
+    for name, log in (("level", False), ("n_p", True), ("variance", True), ("shaded", False), ("b_p", True)):
+        lo, hi = _scale(aovs[name], COV, log)
+        want[name] = (lo, hi, log)
+        assert read_exr(Path(f"a.{name}.exr")).pixels[..., 0] == pytest.approx(aovs[name])
+        assert Path(f"a.{name}.png").stat().st_size > 0
+    line = _lines(out, "  colour scales")
+    assert line == "  colour scales (dark blue to yellow): " + ", ".join(
+        f"{n} {lo:.3g} to {hi:.3g}" + (" (log)" if log else "") for n, (lo, hi, log) in want.items())
+    # a log scale cannot show a zero: the covered pixel of variance 0 is black ("not shown", the PNG's own text),
+    # not dark blue, which the scale says is its smallest value
+
+    with Image.open("a.variance.png") as im:
+        assert "black: not shown" in im.text["Description"]
+        px = np.asarray(im.convert("RGB"))
+    assert not px[0, 0].any() and px[0, 1].any() and not px[:, 3:].any()
+    scales = json.loads(Path("a.json").read_text())["colour_scales"]
+    for name, (lo, hi, log) in want.items():
+        assert scales[name] == {"png": f"a.{name}.png", "scale": "log" if log else "linear",
+                                "from": pytest.approx(lo), "to": pytest.approx(hi)}
+
+
+def test_render_adaptive_refuses_to_replace_an_aov_left_alone(small_scenes, monkeypatch, capsys):
+    """The AOVs are outputs like the image ("Nothing the user has is overwritten without --force")"""
+    import warpbw.pipeline as pipeline
+    from warpbw.cli import main
+
+    capture_call(monkeypatch, pipeline, "render_adaptive")   # reaching it fails the test
+    Path("a.b_p.png").write_bytes(b"mine")
+    assert outcome(main, ["render", "env.toml", "-o", "a.exr", "--method", "adaptive", "--budget", "3", "-q"]) == \
+        "returned 2"
+    assert "a.b_p.png: already exists" in capsys.readouterr().err
+    assert Path("a.b_p.png").read_bytes() == b"mine" and not Path("a.exr").exists()
+
+
+def test_demo_refuses_to_replace_an_edited_scene_file_alone(small_scenes, monkeypatch, capsys):
+    """Demo writes DIR/scene.toml "to edit"; an edited one is the user's, even where the images are gone."""
+    import warpbw.pipeline as pipeline
+    from warpbw.cli import main
+
+    capture_call(monkeypatch, pipeline, "render_reference")   # reaching it fails the test
+    Path("d").mkdir()
+    Path("d/scene.toml").write_text("# my edit\n")
+    assert outcome(main, ["demo", "-o", "d", "-q"]) == "returned 2"
+    assert "scene.toml: already exists" in capsys.readouterr().err
+    assert Path("d/scene.toml").read_text() == "# my edit\n" and not Path("d/demo.exr").exists()
+
+
+def test_demo_next_command_runs_as_printed_from_a_folder_with_a_space(small_scenes, monkeypatch, capsys):
+    """The "next:" command demo prints parses as the shell splits it, from an output folder with a space too (a path
+    with a space split in two, as the rebuild hints once did)."""
+    import shlex
+
+    from warpbw.cli import build_parser, main
+
+    stats = {"time_s": {"gbuffer": 0.001, "shading": 0.01, "frame": 0.011}, "resolution": [W, H],
+             "pixels_covered": 12, "samples_per_second": 1e6, "spp": 4}
+    _fake_reference(monkeypatch, small_scenes.clock, stats, took=1.0)
+    assert main(["demo", "-o", "my out", "--spp", "4"]) == 0
+    line = _lines(capsys.readouterr().out, "next: ")
+    argv = shlex.split(line[len("next: "):])
+    assert argv[0] == "warpbw", line
+    try:
+        args = build_parser().parse_args(argv[1:])
+    except SystemExit as exc:   # argparse's usage error: the printed command does not run
+        raise AssertionError(f"{line!r} does not parse (exit {exc.code})") from None
+    assert (args.command, args.scene, args.output, args.method, args.budget) == (
+        "render", str(Path("my out") / "scene.toml"), str(Path("my out") / "adaptive.exr"), "adaptive", 4.0)
+    assert Path("my out/scene.toml").is_file()
+
+
+def _fake_filtering(monkeypatch, clock, level, cov=COV, time_s=0.0125, stats_extra=None):
+    import warpbw.filtering as filtering
+
+    def fake(scene, method, spp=None, seed=0, **kw):
+        clock.now += 2.0
+        st = {"method": method, "resolution": [W, H], "pixels_covered": int(cov.sum()),
+              "mean_level": float(level[cov].mean()) if cov.any() else 0.0, **(stats_extra or {})}
+        return SimpleNamespace(image=_image(cov), coverage=cov.copy(), level=level.copy(), time_s=time_s, stats=st)
+
+    monkeypatch.setattr(filtering, "render_filtering", fake)
+
+
+def test_render_of_planes_summary_and_level_map_by_hand(small_scenes, monkeypatch, capsys):
+    """The planes' render summary by hand: the mean mip level over the covered pixels (1.5; over all 24 pixels 0.75),
+    the frame in ms, the level map's scale over the covered pixels."""
+    from warpbw.cli import main
+
+    level = np.where(COV, 1.0 + np.arange(W)[None, :] * 0.5, 0.0).astype(np.float32)   # 1, 1.5, 2 covered; 0 outside
+    _fake_filtering(monkeypatch, small_scenes.clock, level)
+    assert main(["render", "plane.toml", "-o", "p.exr", "--filter", "toksvig"]) == 0
+    out = capsys.readouterr().out
+    # the mean mip level over the 12 pixels the plane covers: (1 + 1.5 + 2) / 3 = 1.50 (over all 24 pixels: 0.75)
+    assert _lines(out, "p.exr") == f"p.exr  ({W}x{H}, filter toksvig, mean mip level 1.50, 12 covered pixels)"
+    assert _lines(out, "  frame") == "  frame 12.5 ms, total 2.00 s"
+    assert _lines(out, "  preview") == "  preview p.png, stats p.json, mip level p.level.exr (+ .png)"
+    assert _lines(out, "  colour scales") == "  colour scales (dark blue to yellow): level 1 to 2"
+    st = json.loads(Path("p.json").read_text())
+    assert st["time_s"] == {"frame": 0.0125, "total": 2.0}
+    assert st["colour_scales"]["level"]["from"] == 1.0 and st["colour_scales"]["level"]["to"] == 2.0
+
+
+def test_render_of_planes_ground_truth_summary_gives_the_rays_asked_for(small_scenes, monkeypatch, capsys):
+    """--filter ground_truth traces --spp rays per pixel (--help), and the summary says how many."""
+    from warpbw.cli import main
+
+    level = np.where(COV, 1.0, 0.0).astype(np.float32)
+    _fake_filtering(monkeypatch, small_scenes.clock, level)
+    assert main(["render", "plane.toml", "-o", "g.exr", "--filter", "ground_truth", "--spp", "128"]) == 0
+    assert _lines(capsys.readouterr().out, "g.exr") == \
+        f"g.exr  ({W}x{H}, filter ground_truth, 128 rays/pixel, 12 covered pixels)"
+
+
+def test_render_of_planes_refuses_to_replace_a_level_map_left_alone(small_scenes, monkeypatch, capsys):
+    """The level map is an output like the image: one left alone is not replaced without --force."""
+    import warpbw.filtering as filtering
+    from warpbw.cli import main
+
+    capture_call(monkeypatch, filtering, "render_filtering")   # reaching it fails the test
+    Path("p.level.png").write_bytes(b"mine")
+    assert outcome(main, ["render", "plane.toml", "-o", "p.exr", "-q"]) == "returned 2"
+    assert "p.level.png: already exists" in capsys.readouterr().err
+    assert Path("p.level.png").read_bytes() == b"mine" and not Path("p.exr").exists()
+
+
+def _fake_mixed(monkeypatch, clock, cov, plane, mip, spp=4):
+    import warpbw.pipeline as pipeline
+
+    def fake(scene, filter_method, spp_, **kw):
+        clock.now += 3.0
+        st = {"time_s": {"frame": 0.75, "planes": 0.25}, "resolution": [W, H], "pixels_covered": int(cov.sum()),
+              "pixels_shaded": 5, "pixels_hidden": 2, "spp": spp,
+              "planes": {"pixels_covered": int(plane.sum()), "mean_level": float(mip[plane].mean()) if plane.any()
+                         else 0.0}}
+        return SimpleNamespace(image=_image(cov), coverage=cov.copy(), stats=st,
+                               aovs={"mip_level": mip.copy(), "plane": plane.copy()})
+
+    monkeypatch.setattr(pipeline, "render_with_planes", fake)
+
+
+def test_render_of_planes_beside_a_sphere_summary_and_mip_map_by_hand(small_scenes, monkeypatch, capsys):
+    """Planes beside a sphere, by hand: the spheres' own frame is the whole frame less the planes', the planes' pixel
+    count is theirs, and the mip level map's scale is over the plane's pixels only."""
+    from warpbw.cli import main
+
+    plane = np.zeros((H, W), bool)
+    plane[:, :2] = True                                   # 8 plane pixels; the sphere covers 4 more (column 2)
+    mip = np.where(plane, 2.0 + np.arange(H)[:, None] * 0.2, 0.0).astype(np.float32)   # 2 .. 2.6 on the plane
+    _fake_mixed(monkeypatch, small_scenes.clock, COV, plane, mip)
+    assert main(["render", "mixed.toml", "-o", "m.exr", "--filter", "fixed", "--spp", "4"]) == 0
+    out = capsys.readouterr().out
+    assert _lines(out, "m.exr") == f"m.exr  ({W}x{H}, 12 covered pixels)"
+    # the spheres' own frame is the whole frame less the planes' (0.75 - 0.25 s)
+    assert _lines(out, "  spheres and meshes") == ("  spheres and meshes: reference, 4 spp, 5 pixels shaded (2 hidden "
+                                                   "by planes, not shaded), frame 0.500 s")
+    assert _lines(out, "  planes in front") == ("  planes in front: 8 pixels, filter fixed, mean mip level 2.30, "
+                                                "frame 0.250 s")
+    assert _lines(out, "  frame") == "  frame 0.750 s, total 3.00 s"
+    # the mip level map's scale is over the plane's pixels, not the sphere's (level 0 there)
+    assert _lines(out, "  colour scales") == "  colour scales (dark blue to yellow): mip_level 2 to 2.6"
+
+
+def test_render_of_planes_beside_a_sphere_refuses_to_replace_a_mip_map_left_alone(small_scenes, monkeypatch, capsys):
+    """The mip level map of planes beside a sphere is an output like the image: one left alone is not replaced without
+    --force."""
+    import warpbw.pipeline as pipeline
+    from warpbw.cli import main
+
+    capture_call(monkeypatch, pipeline, "render_with_planes")   # reaching it fails the test
+    Path("m.mip_level.exr").write_bytes(b"mine")
+    assert outcome(main, ["render", "mixed.toml", "-o", "m.exr", "--spp", "4", "-q"]) == "returned 2"
+    assert "m.mip_level.exr: already exists" in capsys.readouterr().err
+    assert Path("m.mip_level.exr").read_bytes() == b"mine"
+
+
+def test_render_of_planes_beside_a_sphere_that_covers_nothing_warns(small_scenes, monkeypatch, capsys):
+    """Every renderer's empty image is said, in one line (warpbw/cli.py _warn_if_empty)"""
+    from warpbw.cli import main
+
+    none = np.zeros((H, W), bool)
+    _fake_mixed(monkeypatch, small_scenes.clock, none, none, np.zeros((H, W), np.float32))
+    assert main(["render", "mixed.toml", "-o", "m.exr", "--spp", "4", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("warpbw: warning: no pixel is covered by geometry") == 1, err
+
+
+@pytest.mark.parametrize("stops", ["150", "-150"])
+def test_exposure_accepts_the_ends_help_names(stops):
+    """--help "-150 to 150"."""
+    from warpbw.cli import build_parser
+
+    got = outcome(build_parser().parse_args, ["render", "s.toml", "-o", "o.exr", "--exposure", stops])
+    assert got.startswith("returned Namespace(") and f"exposure={float(stops)!r}" in got, got
+
