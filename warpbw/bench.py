@@ -18,8 +18,8 @@ Protocol:
 * Ground truth: the MIS reference at ``gt_spp``, the mean of two or more independently seeded chunks of equal
   size, at most ``GT_CHUNK_SPP`` each (any even count up to 8192 splits so, and beyond it a multiple of 4096;
   a count that does not is refused, naming the nearest that do), every chunk cached as EXR keyed by the
-  scene's content hash, the seed and ``GT_VERSION`` (``gt_key``; so raising ``gt_spp`` renders only the missing chunks, and a chunk of another
-  scene, seed or estimator is never read).  Accepted when the PSNR of a render at the largest
+  scene's content hash, the seed and ``GT_VERSION`` (``gt_key``; so raising ``gt_spp`` renders only the
+  missing chunks, and a chunk of another scene, seed or estimator is never read).  Accepted when the PSNR of a render at the largest
   reference spp against half the ground truth and against all of it differ by < 0.5 dB (recorded).
 * Error: PSNR and relative MSE of linear radiance over covered pixels (:mod:`warpbw.metrics`), averaged
   over the ``runs`` frames (MSE and relative MSE as means, PSNR of the mean MSE).  With two runs or more
@@ -89,6 +89,8 @@ class GroundTruth:
 
 
 def _split(gt_spp: int) -> tuple[int, int]:
+    """(spp per chunk, chunks): as many chunks of up to GT_CHUNK_SPP as fit, at least two (their product may fall
+    short of gt_spp)."""
     chunk = min(GT_CHUNK_SPP, max(1, gt_spp // 2))
     return chunk, max(2, gt_spp // chunk)
 
