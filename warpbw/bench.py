@@ -19,8 +19,9 @@ Protocol:
   size, at most ``GT_CHUNK_SPP`` each (any even count up to 8192 splits so, and beyond it a multiple of 4096;
   a count that does not is refused, naming the nearest that do), every chunk cached as EXR keyed by the
   scene's content hash, the seed and ``GT_VERSION`` (``gt_key``; so raising ``gt_spp`` renders only the
-  missing chunks, and a chunk of another scene, seed or estimator is never read).  Accepted when the PSNR of a render at the largest
-  reference spp against half the ground truth and against all of it differ by < 0.5 dB (recorded).
+  missing chunks, and a chunk of another scene, seed or estimator is never read).  Accepted when the PSNR
+  of a render at the largest reference spp against half the ground truth and against all of it differ by
+  < 0.5 dB (recorded).
 * Error: PSNR and relative MSE of linear radiance over covered pixels (:mod:`warpbw.metrics`), averaged
   over the ``runs`` frames (MSE and relative MSE as means, PSNR of the mean MSE).  With two runs or more
   every point also records its runs' MSEs and the standard error of its PSNR (``psnr_se_db``), and the

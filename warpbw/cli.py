@@ -795,8 +795,8 @@ def build_parser() -> argparse.ArgumentParser:
     bn.add_argument("--nb-budget", type=_positive_float("nb-budget", BUDGET_MAX), default=None,
                     help=f"budget of the n_b sweep (default {_bench.NB_SWEEP_BUDGET})")
     bn.add_argument("--gt-spp", type=_gt_spp, default=_bench.DEFAULT_GT_SPP,
-                    help=f"ground-truth samples per pixel (default {_bench.DEFAULT_GT_SPP}; cached in two or more equal "
-                         f"chunks of at most {_bench.GT_CHUNK_SPP} spp: any even count up to "
+                    help=f"ground-truth samples per pixel (default {_bench.DEFAULT_GT_SPP}; cached in two or more "
+                         f"equal chunks of at most {_bench.GT_CHUNK_SPP} spp: any even count up to "
                          f"{2 * _bench.GT_CHUNK_SPP}, beyond it a multiple of {_bench.GT_CHUNK_SPP})")
     bn.add_argument("--no-mis", action="store_true",
                     help="compare with BRDF importance sampling only (default: MIS for both methods)")
