@@ -56,8 +56,9 @@ MIN_TEXELS_PER_SCALE = 2
 SCALES_ACROSS_DEFAULT = 8   # scales per row of hemispherical_scales (004 Fig. 8 shows about as many)
 # The smallest size every surface holds at its defaults (the scales': more than 2 texels per spacing)
 MIN_SURFACE_SIZE = MIN_TEXELS_PER_SCALE * SCALES_ACROSS_DEFAULT + 1
-# Largest scale radius, in spacings: scales overlap from about 0.5 on, and every spacing of radius adds six passes
-# over the map (a radius of 1e6 ran for hours; inf was an OverflowError).
+# Largest scale radius, in spacings: scales overlap from about 0.5 on, and the passes over the map grow as the
+# radius squared (rows times scales along a row; 1.3 s at 4 on a 1024 map, a radius of 1e6 ran for hours; inf was
+# an OverflowError).
 MAX_SCALE_RADIUS = 4.0
 # How far outside [0, 1] a [0, 1]-encoded normal map's values may lie: resampling overshoots the range by a few
 # percent (a bicubic or Lanczos filter at a sharp crease); an 8- or 16-bit map stored as floats is 255 or 65535
@@ -89,8 +90,10 @@ def hemispherical_scales(size: int = 512, scales_across: int = SCALES_ACROSS_DEF
 
     ``scales_across`` scales per row, ``2 * scales_across`` staggered rows (half a spacing apart, so the
     pattern tiles); each scale is a hemisphere of radius ``radius`` spacings flattened vertically by
-    ``height`` (1 = a true hemisphere).  Later rows lie on top of earlier ones, as scales overlap, so
-    every scale shows its rim as a small step onto the one below.
+    ``height`` (1 = a true hemisphere).  Later rows lie on top of earlier ones, and within a row each scale
+    on its left neighbour, as scales overlap, so every scale shows its rim as a small step onto the one below:
+    a texel shows, of the scales that cover it, the one of the latest row and, in that row, the one farthest
+    right.
     """
     size = _check_size(size)
     n = check_count(scales_across, "hemispherical_scales: scales_across", 1)   # 2.7 ran as 2, "3" as 3
@@ -116,12 +119,14 @@ def hemispherical_scales(size: int = 512, scales_across: int = SCALES_ACROSS_DEF
     out = np.zeros((size, size))
     band = np.floor(v / sy).astype(np.int64)
     reach = int(np.ceil(r / sy)) + 1
+    # a scale di spacings along the row from the texel's own lies at least |di| - 1/2 spacings away
+    reach_x = math.ceil(radius + 0.5) - 1
     for dj in range(-reach, reach + 1):          # ascending: later rows are painted on top
         j = band + dj
         yc = (j + 0.5) * sy
         off = 0.5 * sx * (j % 2)                  # stagger odd rows by half a spacing
         i0 = np.floor((u - off) / sx)
-        for di in (-1.0, 0.0, 1.0):
+        for di in range(-reach_x, reach_x + 1):   # ascending: each scale on its left neighbour
             xc = (i0 + di + 0.5) * sx + off
             d2 = (u - xc) ** 2 + (v - yc) ** 2
             inside = d2 < r * r

@@ -327,3 +327,32 @@ def test_vectors_shorter_than_the_stated_minimum_are_refused():
         said = attempt(normals_from_map, np.array([[[0.5, 0.5, (length + 1) / 2]]]))[1]
         assert "decode to vectors shorter than 0.5" in said, said
     np.testing.assert_allclose(unit_normals(np.array([[[0.0, 0.0, 0.55]]])), [[[0.0, 0.0, 1.0]]])
+
+
+def _scales_by_brute_force(size, n, radius, height):
+    """hemispherical_scales from its docstring alone: every scale of every row (centres unwrapped over three periods
+    either way, so wrap-around needs no care), and each texel shows, of the scales covering it, the one of the
+    latest row (lowest centre) and, in that row, the one farthest right."""
+    t = (np.arange(size) + 0.5) / size
+    v, u = np.meshgrid(t, t, indexing="ij")
+    sx, sy, r = 1.0 / n, 1.0 / (2 * n), radius / n
+    best = np.full((size, size, 2), -np.inf)
+    out = np.zeros((size, size))
+    for j in range(-6 * n, 8 * n):                            # rows, unwrapped
+        for i in range(-3 * n, 4 * n):                        # scales of the row, unwrapped
+            xc, yc = (i + 0.5 + 0.5 * (j % 2)) * sx, (j + 0.5) * sy
+            d2 = (u - xc) ** 2 + (v - yc) ** 2
+            on_top = (d2 < r * r) & ((yc > best[..., 0]) | ((yc == best[..., 0]) & (xc > best[..., 1])))
+            best[on_top] = (yc, xc)
+            out = np.where(on_top, height * np.sqrt(np.maximum(r * r - d2, 0.0)), out)
+    return out
+
+
+@pytest.mark.parametrize("radius", [0.6, 2.0, 3.0, 4.0])
+def test_hemispherical_scales_overlap_as_the_docstring_says_at_every_accepted_radius(radius):
+    """Of the scales covering a texel, the one of the latest row and, in it, the one farthest right is on top,
+    whatever the radius (up to MAX_SCALE_RADIUS, 4 spacings).  Only the scales one spacing either side were painted,
+    so from about 2 spacings on the overlap order flipped at every cell boundary: at 3 spacings 0.16 of a 0.17
+    height range off, in steps across the map."""
+    got = hemispherical_scales(48, scales_across=3, radius=radius, height=0.5)
+    np.testing.assert_allclose(got, _scales_by_brute_force(48, 3, radius, 0.5), rtol=0, atol=1e-12)
