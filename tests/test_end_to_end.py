@@ -1518,12 +1518,12 @@ COV[:, :3] = True
 
 
 @pytest.fixture
-def small_scenes(tmp_path, monkeypatch):
-    """Scene files in a working folder, the command's clock a stand-in (only the stand-in renders move it)."""
+def small_scenes(env_scene, monkeypatch):
+    """Scene files in env_scene's working folder, the command's clock a stand-in (only the stand-in renders move
+    it)."""
     import warpbw.cli as cli
 
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "_cache"))
+    tmp_path = env_scene
     (tmp_path / "env.toml").write_text(_ENV_SCENE.replace("resolution = [16, 12]", "resolution = [6, 4]"))
     (tmp_path / "light.toml").write_text(_LIGHT_SCENE.replace("resolution = [16, 12]", "resolution = [6, 4]"))
     (tmp_path / "plane.toml").write_text(plane_scene_toml(resolution=(6, 4)))

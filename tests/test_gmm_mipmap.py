@@ -815,6 +815,17 @@ def test_gmm_precompute_time_builds_with_the_components_asked_for(monkeypatch):
     assert got["components"] == 2 and got["shape"][:2] == (17, 17)
 
 
+def _rebuild_hint(path, match=None):
+    """(program, parsed arguments, refusal text) of the rebuild hint in read_gmm_mipmap's refusal of ``path``, split
+    as a POSIX shell splits it and parsed by warpbw-precompute's own parser."""
+    from precompute.__main__ import build_parser
+
+    with pytest.raises(WarpbwError, match=match) as e:
+        read_gmm_mipmap(path)
+    prog, *argv = shlex.split(str(e.value).split("rebuild it with: ", 1)[1].rstrip(")"))
+    return prog, build_parser().parse_args(argv), str(e.value)
+
+
 @pytest.mark.parametrize("params, expected", [
     ({"kind": "normal", "components": 2, "prior": 0.1234567891, "unaligned": False, "scale": 1.0, "seed": 7},
      dict(kind="normal", components=2, prior=0.1234567891, unaligned=False, scale=1.0, seed=7)),
@@ -827,18 +838,14 @@ def test_a_refused_mipmap_names_the_command_that_rebuilds_it_as_it_was_built(tmp
     the same mipmap: the map (a name with a space is one word) and every option the header records, to the last
     digit.  It named the map only, so a normal map was rebuilt as a height field, with the default components and
     prior."""
-
-    from precompute.__main__ import build_parser, cmd_gmm
+    from precompute.__main__ import cmd_gmm
     from precompute.assetfile import write_asset
-    from precompute.gmm_mipmap import GMM_VERSION, read_gmm_mipmap
+    from precompute.gmm_mipmap import GMM_VERSION
 
     write_asset(tmp_path / "m.npz", GMM_FORMAT, GMM_VERSION, "my scales.png", "h", {}, params)   # no levels
-    with pytest.raises(WarpbwError, match="without its levels") as e:
-        read_gmm_mipmap(tmp_path / "m.npz")
-    prog, *argv = shlex.split(str(e.value).split("rebuild it with: ", 1)[1].rstrip(")"))
-    args = build_parser().parse_args(argv)
+    prog, args, said = _rebuild_hint(tmp_path / "m.npz", match="without its levels")
     assert (prog, args.func, args.map, args.force) == ("warpbw-precompute", cmd_gmm, "my scales.png", True)
-    assert {k: getattr(args, k) for k in expected} == expected, str(e.value)
+    assert {k: getattr(args, k) for k in expected} == expected, said
 
 
 def test_gmm_mipmap_example_defaults_are_those_its_help_states(tmp_path, monkeypatch):
@@ -945,15 +952,6 @@ def test_a_normal_map_texel_two_8_bit_steps_below_the_horizon_is_refused(tmp_pat
         in said, said
 
 
-def _hint_args(path):
-    from precompute.__main__ import build_parser
-
-    with pytest.raises(WarpbwError) as e:
-        read_gmm_mipmap(path)
-    argv = shlex.split(str(e.value).split("rebuild it with: ", 1)[1].rstrip(")"))[1:]
-    return build_parser().parse_args(argv)
-
-
 def test_the_rebuild_hint_of_a_normal_map_mipmap_is_a_command_the_tool_accepts(tmp_path):
     """A normal-map mipmap built from Python with scale 2 (ignored for normals) must not be told to rebuild with
     --scale, which the command refuses for --kind normal."""
@@ -963,7 +961,7 @@ def test_the_rebuild_hint_of_a_normal_map_mipmap_is_a_command_the_tool_accepts(t
 
     params = {"kind": "normal", "components": 4, "prior": 1.0, "unaligned": False, "scale": 2.0, "seed": 0}
     write_asset(tmp_path / "m.npz", GMM_FORMAT, GMM_VERSION, "n.png", "h", {}, params)
-    args = _hint_args(tmp_path / "m.npz")
+    args = _rebuild_hint(tmp_path / "m.npz")[1]
     assert args.kind == "normal" and args.scale == 1.0
     args.output = str(tmp_path / "x.npz")
     got = outcome(cmd_gmm, args)

@@ -467,7 +467,8 @@ def test_a_wide_image_is_analysed_down_to_the_period_of_its_long_side():
     img = np.broadcast_to(np.sin(2 * np.pi * x / 128 + 0.3), (16, 256))
     b = local_bandwidth(img, pad="wrap")
     med = float(np.median(b[:, 64:192]))
-    assert 1 / 128 / 2 <= med <= 2 / 128, med
+    f = 1 / 128                                   # the sine's frequency, cycles per pixel
+    assert f / 2 <= med <= 2 * f, (med, f)
 
 
 def test_a_small_source_reads_as_the_same_source_embedded_in_zeros():
