@@ -302,3 +302,27 @@ def test_exitant_projection_scales_the_spatial_bandwidth_by_at_most_1000():
     nu_s by at most 1000 (the other tests compare with the module's own COS_X_MIN, so any clamp passed them)."""
     out = bo.apply_operator("P_x", [[1.0, 2.0], [1.0, 2.0]], cos_x=np.array([0.0, math.cos(math.radians(89.9))]))
     np.testing.assert_allclose(out, [[1000.0, 2.0], [1.0 / math.cos(math.radians(89.9)), 2.0]], rtol=1e-5)
+
+
+@pytest.mark.parametrize("cx", [-1.0, -0.5, -0.1, -0.01, -1e-4])
+def test_exitant_projection_scales_by_the_magnitude_of_a_negative_cosine(cx):
+    """Module docstring: P_x scales nu_s by 1 / max(|cos theta_x|, COS_X_MIN), for a negative cos theta_x too."""
+    scale = 1.0 / max(abs(cx), bo.COS_X_MIN)
+    r = bo.apply_operator("P_x", [[10.0, 4.0]], cos_x=cx)[0]
+    assert abs(r[0]) == pytest.approx(10.0 * scale, rel=1e-5)
+    assert r[1] == pytest.approx(4.0)
+    # and inside R (B inactive, c = 0): |R [s, a]| = [s / max(|cos_x|, COS_X_MIN), a]
+    rr = bo.apply_reflection([[10.0, 4.0]], 1.0, cx, 0.0, 0.0, math.inf)[0]
+    np.testing.assert_allclose(rr, [10.0 * scale, 4.0], rtol=1e-5)
+
+
+@SET
+@given(nu=nu2, ci=st.floats(-1.0, -0.0625, width=32), cx=cosv, c=st.floats(-10, 10, width=32))
+def test_reflection_takes_the_incident_cosine_by_magnitude(nu, ci, cx, c):
+    """Module docstring (Finiteness): inside R and Eq. 4, P_i scales by |cos theta_i|, so a negative cos_i is Eq. 3 at
+    -cos_i, while P_i alone stays the signed matrix."""
+    ci, cx, c = f32(ci), f32(cx), f32(c)
+    want = Px(cx) @ C(-c) @ S @ C(c) @ Pi(-ci) @ np.array(nu)
+    close(one("R_signed", nu, cos_i=ci, cos_x=cx, c=c, t=0.0, rho=math.inf), want, rtol=1e-4)
+    close(bo.one_bounce([nu], 0.0, 0.0, ci, cx, c, 0.0, math.inf)[0], np.abs(want), rtol=1e-4)
+    close(one("P_i", nu, cos_i=ci), Pi(ci) @ np.array(nu))

@@ -53,7 +53,8 @@ Finiteness
 The composite functions saturate their inputs and every intermediate to ``[-NU_MAX, NU_MAX]``
 (002 Sec. 2: "an arbitrarily large value" for non-band-limited signals; inf is accepted for rho and
 any input), so no product 0 * inf or difference inf - inf can arise: results are finite for any
-curvature, distance or cosine.  P_x divides by ``max(|cos theta_x|, COS_X_MIN)``.
+curvature, distance or cosine.  P_x divides by ``max(|cos theta_x|, COS_X_MIN)``; inside R (and Eq. 4) P_i scales
+by ``min(|cos theta_i|, 1)``, so a cosine's sign never matters there (``bw_incident`` alone is the signed matrix).
 """
 from __future__ import annotations
 
@@ -141,7 +142,8 @@ def _sat2(v: wp.vec2):
 
 @wp.func
 def bw_reflect_signed(nu: wp.vec2, cos_i: float, cos_x: float, c: float, t: float, rho: float):
-    """R nu = P_x C_{-c} S B_{t,rho} C_c P_i nu (002 Eq. 3), signed and saturated to +-NU_MAX."""
+    """R nu = P_x C_{-c} S B_{t,rho} C_c P_i nu (002 Eq. 3), signed and saturated to +-NU_MAX.  P_i scales by
+    min(|cos theta_i|, 1): the incident angle's cosine is taken by magnitude, as P_x's is."""
     cc = _sat(c)
     v = _sat2(nu)
     v = bw_incident(v, wp.min(wp.abs(cos_i), 1.0))
@@ -244,6 +246,7 @@ def apply_operator(op: str, nu, *, d=0.0, dp=0.0, cos_i=1.0, cos_x=1.0, c=0.0, t
 
     Parameters are scalars or length-N arrays (broadcast); only the ones the operator uses matter.
     ``t`` and ``rho`` are bandwidths and must be >= 0 (rho may be inf); NaN parameters are refused.
+    Cosines lie in [-1, 1]; "P_i" alone is the signed matrix, while P_x, and P_i inside R and Eq. 4, take |cos|.
     """
     if op not in OPS:
         raise WarpbwError(f"unknown bandwidth operator {op!r}; expected one of {sorted(OPS)}")
