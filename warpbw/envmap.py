@@ -90,8 +90,9 @@ LUMINANCE_RGB = (0.212671, 0.715160, 0.072169)
 
 # Fraction of a cell's width kept clear at its edges when sampling inside the cell, so that
 # float32 rounding in direction -> (u, v) (about 1e-4 of a cell for a 1024-wide map) never
-# moves a sampled direction into a neighbouring cell. The squeeze is linear, so it changes the
-# in-cell density by 0.2 % at most and only for integrands that vary inside one texel.
+# moves a sampled direction into a neighbouring cell. env_sample clamps onto it: the density stays
+# uniform inside, and the 1e-3 of a cell's probability that falls in each edge strip lands on the
+# strip's inner line, which matters only for integrands that vary inside one texel.
 CELL_EDGE_MARGIN = 1.0e-3
 
 _PI = wp.constant(math.pi)
