@@ -230,3 +230,14 @@ def test_a_budget_below_one_sample_per_shaded_pixel_warns_from_python_too():
     with warnings.catch_warnings():
         warnings.simplefilter("error")                 # a budget the allocation keeps: no warning
         render_adaptive(prep, budget=4.0, seed=3)
+
+
+def test_the_finest_level_everywhere_is_the_reference_on_an_image_taller_than_wide():
+    """Invariance: a hierarchy that shades every texel at level 0 is the reference renderer with the same seeds and
+    sample counts, whatever the image's aspect (each level-0 texel is represented by its own pixel)."""
+    prep, base = setup('type = "ggx"\nalpha = 0.3\nspecular = [0.9, 0.9, 0.9]', env='procedural = "sky"', w=13, h=33)
+    shape = base.coverage.shape
+    r = run(prep, base, np.zeros(shape, np.int32), np.full(shape, 4, np.int32))
+    assert base.coverage[13:].sum() > 20          # rows below the image's width are covered
+    assert np.array_equal(r.image, base.image)
+    assert r.shaded.sum() == base.coverage.sum()

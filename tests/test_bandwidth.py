@@ -12,6 +12,7 @@ from precompute.brdf_bandwidth import N_CELLS, N_THETA_I, wo_to_map
 from warpbw import bandwidth as bw
 from warpbw.bandwidth_ops import COS_X_MIN
 from warpbw.errors import WarpbwError
+from warpbw.io.exr import write_exr
 from warpbw.pipeline import _gbuffer, prepare_bandwidth, prepare_scene, render_adaptive, render_reference
 from warpbw.pyramid import max_level
 from warpbw.scene import parse_scene
@@ -233,8 +234,6 @@ def _under_a_sun(tmp_path, corner: tuple, side: int, radiance: float, mis: bool,
     """A Lambert sphere (24 x 24 pixels) under a grey sky of 0.5 with a side x side-texel sun at texel ``corner``
     (row, column) of a 1024 x 512 map: the brute-force variance of one renderer step and the mean per covered pixel (luminance: any channel,
     over ``seeds`` renders of ``spp``), the per-pixel bandwidth pass with 4096 directions, and the coverage."""
-    from warpbw.io.exr import write_exr
-
     px = np.full((512, 1024, 3), 0.5, np.float32)
     px[corner[0]:corner[0] + side, corner[1]:corner[1] + side] = radiance
     write_exr(tmp_path / "sun.exr", px)
@@ -608,21 +607,18 @@ def test_preconvolved_variance_bound_closed_form_for_lambert():
         np.testing.assert_allclose(buf.sigma2.numpy()[cov], nu * chi2, rtol=1e-2, err_msg=f"preconvolved={pre}")
 
 
-def test_pooled_variance_bound_is_the_largest_of_the_neighbours(tmp_path):
-    """sigma2 is the largest of the alike traced neighbours' own estimates within pool_radius (module docstring,
-    Sec. 3.1's max filter), not their pooled mean.  A Lambert sphere under a black sky with a 4 x 4-texel sun at +X
-    (sigma2 ~ (n . sun)^2: 0 on the left half, steep across the terminator).  With stride 1 every covered pixel is
-    traced, so the pooled pass must match the max, in numpy, over the (2 r + 1)^2 window of alike pixels (same
-    material, depth within BLOCK_DEPTH_TOL, normals within BLOCK_NORMAL_COS) of the per-pixel pass's sigma2
-    (pool_radius 0).  The two passes look along different direction sets (interleaving): with 1024 directions they
-    agree within 5%, while the window's mean lies 20% or more below its max on the pixels that tell them apart."""
-    from warpbw.io.exr import write_exr
-
+def _pooled_under_a_sun(tmp_path, sun_column: int):
+    """A Lambert sphere under a black sky with a 4 x 4-texel sun at column ``sun_column`` of a 256 x 128 map, on
+    the horizon (sigma2 ~ (n . sun)^2: 0 on the far half, steep across the terminator), a constant nu_a (sigma2
+    follows chi^2 alone).  With stride 1 every covered pixel is traced.  Returns the pooled pass's sigma2 and, in
+    numpy over the (2 r + 1)^2 window of alike pixels (same material, depth within BLOCK_DEPTH_TOL, normals within
+    BLOCK_NORMAL_COS) of the per-pixel pass's sigma2 (pool_radius 0): the window's max, its mean, the max without
+    the window's left column, and the lit pixels (the terminator's faint pixels are noise-dominated)."""
     px = np.zeros((128, 256, 3), np.float32)
-    px[62:66, 62:66] = 1000.0                     # u ~ 1/4 (+X), v ~ 1/2 (the horizon): envmap's convention
+    px[62:66, sun_column:sun_column + 4] = 1000.0   # v ~ 1/2 (the horizon); u ~ 1/4 is +X, 3/4 is -X
     write_exr(tmp_path / "sun.exr", px)
     prep = prepared(env=f'file = "{tmp_path / "sun.exr"}"')
-    nu_env = np.ones((8, 16))                     # a constant nu_a: sigma2 follows chi^2 alone
+    nu_env = np.ones((8, 16))
     gb, own = run_pass(prep, n_b=1024, nu_env=nu_env, stride=1, pool_radius=0)
     radius = bw.POOL_RADIUS_DEFAULT
     _, pooled = run_pass(prep, n_b=1024, nu_env=nu_env, stride=1, pool_radius=radius)
@@ -632,17 +628,38 @@ def test_pooled_variance_bound_is_the_largest_of_the_neighbours(tmp_path):
     mat = gb.data.material.numpy().reshape(H, W)
     depth = gb.data.depth.numpy().reshape(H, W)
     nrm = gb.data.normal.numpy().reshape(H, W, 3)
-    s_max = np.zeros((H, W))
-    s_mean = np.zeros((H, W))
+    s_max, s_mean, s_no_left = np.zeros((H, W)), np.zeros((H, W)), np.zeros((H, W))
     for y, x in zip(*np.nonzero(cov)):
-        win = np.s_[max(y - radius, 0):y + radius + 1, max(x - radius, 0):x + radius + 1]
-        near = np.abs(depth[win] - depth[y, x]) <= float(bw.BLOCK_DEPTH_TOL) * depth[y, x]
-        alike = (mat[win] == mat[y, x]) & near & (nrm[win] @ nrm[y, x] >= float(bw.BLOCK_NORMAL_COS))
-        s_max[y, x], s_mean[y, x] = s_own[win][alike].max(), s_own[win][alike].mean()
-    lit = cov & (s_max > 1e-2 * s_max.max())      # the terminator's faint pixels are noise-dominated
+        for left in (x - radius, x - radius + 1):
+            win = np.s_[max(y - radius, 0):y + radius + 1, max(left, 0):x + radius + 1]
+            near = np.abs(depth[win] - depth[y, x]) <= float(bw.BLOCK_DEPTH_TOL) * depth[y, x]
+            alike = (mat[win] == mat[y, x]) & near & (nrm[win] @ nrm[y, x] >= float(bw.BLOCK_NORMAL_COS))
+            if left == x - radius:
+                s_max[y, x], s_mean[y, x] = s_own[win][alike].max(), s_own[win][alike].mean()
+            else:
+                s_no_left[y, x] = s_own[win][alike].max()
+    lit = cov & (s_max > 1e-2 * s_max.max())
+    return pooled.sigma2.numpy().reshape(H, W), s_max, s_mean, s_no_left, lit
+
+
+def test_pooled_variance_bound_is_the_largest_of_the_neighbours(tmp_path):
+    """sigma2 is the largest of the alike traced neighbours' own estimates within pool_radius (module docstring,
+    Sec. 3.1's max filter), not their pooled mean: the pooled pass matches the numpy window max of
+    ``_pooled_under_a_sun`` with the sun at +X.  The two passes look along different direction sets (interleaving):
+    with 1024 directions they agree within 5%, while the window's mean lies 20% or more below its max on the pixels
+    that tell them apart."""
+    got, s_max, s_mean, _, lit = _pooled_under_a_sun(tmp_path, 62)
     telling = lit & (s_max > 1.25 * s_mean)
     assert lit.sum() > 300 and telling.sum() > 200
-    got = pooled.sigma2.numpy().reshape(H, W)
+    np.testing.assert_allclose(got[lit], s_max[lit], rtol=0.05)
+
+
+def test_pooled_variance_bound_reads_the_whole_window_left_of_a_pixel_too(tmp_path):
+    """The window reaches pool_radius pixels on every side (module docstring): with the sun at -X, sigma2 grows to
+    the left, so many windows' max lies in their left column, and the pooled pass still matches the whole window's
+    numpy max within 5%."""
+    got, s_max, _, s_no_left, lit = _pooled_under_a_sun(tmp_path, 190)
+    assert (lit & (s_max > 1.15 * s_no_left)).sum() > 50   # pixels whose max lies in the left column
     np.testing.assert_allclose(got[lit], s_max[lit], rtol=0.05)
 
 
@@ -823,3 +840,173 @@ def test_pixels_whose_normals_differ_widely_never_share_a_blocks_directions():
     n_cov = int(gb.coverage.sum())
     assert buf.traced_pixels == _expected_traced(gb, 2)
     assert base < 0.5 * n_cov and buf.traced_pixels > 0.8 * n_cov
+
+
+def test_planned_shading_without_a_plan_counts_each_texel_at_its_min_filtered_level_only():
+    """Docstring of planned_shading: without a plan, level L shades the covered level-L texels whose min-filtered level
+    is L; a 2 x 2 block holding one level-0 pixel is shaded at level 0 (that pixel), never also at level 1. Brute force
+    over the blocks of an 8 x 10 frame in numpy."""
+    rng = np.random.default_rng(5)
+    H, W = 8, 10
+    sig = rng.lognormal(0, 1.5, size=(H, W))
+    cov = np.ones((H, W), bool)
+    level = np.ones((H, W), np.int32)
+    level[2, 3] = 0                   # one pixel needs the finest level: block (row 1, col 1) is min-filtered to 0
+    buf = _fake_buffer(sig, level, cov)
+    got = bw.planned_shading(buf)
+    s32 = sig.astype(np.float32)
+    want = [s32[2, 3]]                # level 0: the pixel whose level is 0
+    for i in range(H // 2):           # level 1: every block whose min level is 1, with its largest sigma2
+        for j in range(W // 2):
+            if level[2 * i:2 * i + 2, 2 * j:2 * j + 2].min() == 1:
+                want.append(s32[2 * i:2 * i + 2, 2 * j:2 * j + 2].max())
+    assert len(got) == len(want) == 1 + (H // 2) * (W // 2) - 1
+    np.testing.assert_allclose(np.sort(got), np.sort(want), rtol=1e-6)
+
+
+def test_a_convex_mirror_adds_its_two_curvature_shears_in_the_pass():
+    """002 Sec. 2 (bandwidth_ops docstring): on a convex surface S and C_{-c} make the two curvature shears add, so a
+    lobe that passes the light (nu_rho >= nu_a = a) reflects [0, a] to [2 c a, a] before P_x and T_{d'}: nu^i = [2 c a /
+    cos_x, a + d' 2 c a / cos_x] for every direction, b_p = nu_a * pixel angle (Fig. 4 by hand, c = 1 / r on a sphere).
+    A constant BRDF bandwidth table stands in for a sharp lobe."""
+    a, nu_rho, r = 2.0, 50.0, 0.8
+    prep = prepared(r=r)
+    tables, keep = bw.make_bandwidth_tables(np.full((8, 16), a),
+                                            np.full((1, bw.N_THETA_I, bw.N_CELLS, bw.N_CELLS), nu_rho))
+    gb, _ = _gbuffer(prep, {})
+    buf = bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=16, stride=1,
+                            pool_radius=0)
+    cov = gb.coverage.reshape(-1)
+    pos = gb.data.position.numpy()[cov]
+    cos_x = np.maximum(np.sum(gb.data.normal.numpy()[cov] * gb.data.view.numpy()[cov], axis=1), COS_X_MIN)
+    d_eye = np.linalg.norm(pos - np.array([0.0, 0.0, 4.0]), axis=1)
+    fov = math.radians(30.0)
+    angle = max(fov / prep.width, 2 * math.atan(math.tan(fov / 2) * prep.height / prep.width) / prep.height)
+    nu_s = 2 * (1 / r) * a / cos_x
+    interior = cos_x > 0.2
+    np.testing.assert_allclose(buf.nu.numpy()[cov][interior, 0], nu_s[interior], rtol=2e-3)
+    np.testing.assert_allclose(buf.b_p.numpy()[cov][interior], ((a + d_eye * nu_s) * angle)[interior], rtol=2e-3)
+
+
+@pytest.mark.parametrize("name", ["chrome", "gold-metallic-paint"])
+def test_the_pass_estimates_a_tabulated_materials_radiance_without_bias(shared, name):
+    """The pass's own estimate mu of L_p (BandwidthBuffer: sigma2_rel = sigma2 / (mu^2 + REL_EPS)) is an unbiased one-
+    sample MIS estimate: under a constant sky its mean over the sphere's pixels matches a brute-force BRDF-sampled
+    render of the same pixels (256 spp) within 4%. A tabulated (NPF) material's sampler reads u[0] to pick its cosine or
+    table lobe, so the BRDF half of the directions must hand it a uniform u[0]."""
+    mat = f'type = "npf"\ntable = "{shared("brdf/npf.bin")}"\nname = "{name}"\nlookup = "linear"'
+    prep = prepared(mat=mat, w=32, h=32)
+    gb, buf = run_pass(prep, n_b=256)
+    cov = gb.coverage.reshape(-1)
+    s2 = buf.sigma2.numpy()[cov].astype(np.float64)
+    rel = buf.sigma2_rel.numpy()[cov].astype(np.float64)
+    mu = np.sqrt(np.maximum(s2 / rel - float(bw.REL_EPS), 0.0))
+    img = render_reference(prep, 256, seed=1, mis=False).image
+    lum = (img.reshape(-1, 3) @ np.array(bw.LUMINANCE))[cov]
+    ndv = np.sum(gb.data.normal.numpy()[cov] * gb.data.view.numpy()[cov], axis=1)
+    inner = ndv > 0.3
+    assert abs(mu[inner].mean() / lum[inner].mean() - 1.0) < 0.04, (mu[inner].mean(), lum[inner].mean())
+
+
+def test_the_pass_errors_of_pixels_two_tiles_apart_are_uncorrelated():
+    """Module docstring (block_shift): each side x side tile of blocks adds its own random offset to the direction set,
+    so tiles do not look along the same directions. Then the errors of the pass's estimate mu of L_p (from sigma2 /
+    sigma2_rel) at two pixels two tiles apart, whose pooling windows share no block and no tile, are independent: on a
+    Lambert sphere under a constant sky (truth: mu = albedo, the furnace) their correlation over ~1500 pixel pairs is 0
+    within its noise (about 0.03)."""
+    prep = prepared(w=64, h=64)
+    gb, buf = run_pass(prep, n_b=16)          # defaults: stride 2, pool radius 2 -> tiles of 3 x 3 blocks
+    side = (2 * bw.POOL_RADIUS_DEFAULT) // bw.PASS_STRIDE_DEFAULT + 1
+    tile = side * bw.PASS_STRIDE_DEFAULT
+    H, W = gb.height, gb.width
+    cov = gb.coverage
+    s2 = buf.sigma2.numpy().reshape(H, W).astype(np.float64)
+    rel = buf.sigma2_rel.numpy().reshape(H, W).astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mu = np.sqrt(np.maximum(s2 / rel - float(bw.REL_EPS), 0.0))
+    ndv = np.einsum("hwc,hwc->hw", gb.numpy("normal"), gb.numpy("view"))
+    inner = cov & (ndv > 0.5)
+    err = mu - 0.6
+    assert np.abs(err[inner]).max() > 1e-3          # the estimate is noisy enough to tell
+    gap = 2 * tile                            # windows 2 tiles apart share no tile, hence no offset
+    a = inner[:, :-gap] & inner[:, gap:]
+    ea, eb = err[:, :-gap][a], err[:, gap:][a]
+    assert a.sum() > 500
+    corr = np.corrcoef(ea, eb)[0, 1]
+    assert abs(corr) < 0.2, corr
+
+
+def test_env_bandwidth_map_depends_on_the_probes_luminance_alone(tmp_path):
+    """env_bandwidth_map's docstring (002 applies Eq. 7 to the probe's luminance): a coloured probe and the grey probe
+    of its Rec. 709 luminance (R = G = B = Y) have the same bandwidth map. The probe holds a green checker and a blue
+    checker of equal channel values on a grey sky: their luminance contrasts differ tenfold."""
+    h, w = 32, 64
+    px = np.full((h, w, 3), 0.5, np.float32)
+    yy, xx = np.mgrid[0:h, 0:w]
+    check = ((yy // 2 + xx // 2) % 2).astype(np.float32)
+    green = (xx >= 8) & (xx < 24) & (yy >= 8) & (yy < 24)
+    blue = (xx >= 40) & (xx < 56) & (yy >= 8) & (yy < 24)
+    px[green, 1] = 0.5 + 1.5 * check[green]
+    px[blue, 2] = 0.5 + 1.5 * check[blue]
+    y = px.astype(np.float64) @ np.array(bw.LUMINANCE)
+    grey = np.repeat(y[..., None], 3, axis=2).astype(np.float32)
+    nu_col, _ = bw.env_bandwidth_map(px, "coloured", cache=tmp_path)
+    nu_grey, _ = bw.env_bandwidth_map(grey, "grey", cache=tmp_path)
+    assert nu_grey.max() > 0
+    np.testing.assert_allclose(nu_col, nu_grey, rtol=1e-3, atol=1e-3 * float(nu_grey.max()))
+
+
+def test_variance_bound_reads_the_brdf_bandwidth_at_each_incident_elevation():
+    """Eq. 9: sigma2 = 4 pi^2 E_uniform[(nu_a + nu_rho(w_i, w_o) + NU_COS) chi^2]. A synthetic BRDF bandwidth table
+    (layout: incident elevation bin first) that is V for theta_i >= 45 degrees and 0 below, nu_a = 0, a Lambert sphere
+    under a constant sky (chi = albedo / pi cos theta_i): sigma2 = 4 pi^2 (albedo / pi)^2 (NU_COS / 3 + V cos^3(45) / 3)
+    at every pixel (quadrature by hand), whatever the view."""
+    V = 30.0
+    table = np.zeros((1, bw.N_THETA_I, bw.N_CELLS, bw.N_CELLS))
+    table[0, bw.N_THETA_I // 2:] = V               # bins 8..15: theta_i in [45, 90) degrees
+    prep = prepared()
+    tables, keep = bw.make_bandwidth_tables(np.zeros((8, 16)), table)
+    gb, _ = _gbuffer(prep, {})
+    buf = bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=1024, stride=1,
+                            pool_radius=0)
+    cov = gb.coverage.reshape(-1)
+    nu_cos = float(bw.NU_COS)
+    expect = 4 * math.pi ** 2 * (0.6 / math.pi) ** 2 * (nu_cos / 3 + V * math.cos(math.pi / 4) ** 3 / 3)
+    ratio = buf.sigma2.numpy()[cov] / expect      # 1024 MIS directions estimate the step in theta_i
+    assert abs(np.median(ratio) - 1) < 0.01 and np.all(np.abs(ratio - 1) < 0.06), (np.median(ratio), ratio.min(),
+                                                                                     ratio.max())
+
+
+def test_a_shared_pixel_pools_the_traced_neighbours_alike_to_itself_not_to_its_blocks_first_pixel(tmp_path):
+    """Module docstring: each pixel pools the sums of the traced pixels within pool_radius that are alike to it (normals
+    within acos(BLOCK_NORMAL_COS) ~ 18 degrees), and sigma2 is the largest of their estimates. Hand-set normals on a
+    Lambert sphere under a black sky with a sun at +X: every normal faces the camera (+Z, the sun at 90 degrees: no
+    light), except pixel i, turned 15 degrees towards the sun, and pixel j beside it, turned 30. i shares its 2 x 2
+    block's directions (alike to the block's first pixel r, 15 degrees); j's block is not alike, so j is traced; j is
+    alike to i (15 degrees) but not to r (30). So i's sigma2 must reach j's own estimate (per- pixel pass), far above
+    what the +Z pixels see."""
+    px = np.zeros((128, 256, 3), np.float32)
+    px[62:66, 62:66] = 1000.0                     # u ~ 1/4 (+X), v ~ 1/2 (the horizon)
+    write_exr(tmp_path / "sun.exr", px)
+    prep = prepared(env=f'file = "{tmp_path / "sun.exr"}"')
+    nu_rho = prepare_bandwidth(prep).nu_rho.numpy().reshape(-1, bw.N_THETA_I, bw.N_CELLS, bw.N_CELLS)
+    tables, keep = bw.make_bandwidth_tables(np.ones((8, 16)), nu_rho)
+    gb, _ = _gbuffer(prep, {})
+    H, W = gb.height, gb.width
+    ang = np.zeros((H, W))
+    ii, jj = (20, 25), (20, 26)   # r = (20, 24) and i share block (24-25, 20-21); j is first of (26-27, 20-21)
+    ang[ii] = math.radians(15.0)
+    ang[jj] = math.radians(30.0)
+    assert gb.coverage[18:24, 22:30].all()
+    n = np.stack([np.sin(ang), np.zeros_like(ang), np.cos(ang)], -1)
+    t = np.stack([np.cos(ang), np.zeros_like(ang), -np.sin(ang)], -1)
+    gb.data.normal.assign(n.reshape(-1, 3).astype(np.float32))
+    gb.data.tangent.assign(t.reshape(-1, 3).astype(np.float32))
+    own = bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=1024, stride=1,
+                            pool_radius=0).sigma2.numpy().reshape(H, W)
+    pooled = bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=1024, stride=2,
+                               pool_radius=1).sigma2.numpy().reshape(H, W)
+    facing = own[18:24, 22:30].copy()
+    facing[2, 3:5] = 0.0                          # i and j themselves
+    assert own[jj] > 20 * facing.max()            # j sees the sun, the +Z pixels do not
+    assert pooled[ii] >= 0.8 * own[jj], (pooled[ii], own[jj])

@@ -369,3 +369,25 @@ def test_npf_kernel_at_normal_incidence_skips_the_placeholder_bins(npf_materials
         for m in (2 * k, 2 * k + 1):
             got = B.eval_brdf(mb, m, z, z)[0]
             np.testing.assert_allclose(got, truth, rtol=1e-5, err_msg=f"{mat.name} material {m}")
+
+
+def test_a_measured_brdf_after_analytic_materials_reads_its_own_table():
+    """Materials in a table are looked up by their own tabulated data, wherever they sit: a Lambert, a MERL table A,
+    a GGX and a MERL table B; material 1 (then 3) agrees with the host MERL reader of A (then B), as
+    this module's fixture (two MERL materials, sharing one table, at 0 and 1) checks for the first."""
+    from warpbw.io.merl import MerlBRDF, merl_eval
+
+    rng = np.random.default_rng(11)
+    a, b = (rng.uniform(0.0, 2.0, size=(90, 90, 180, 3)).astype(np.float32) for _ in range(2))
+    specs = [B.MaterialSpec("lam", B.LAMBERT, albedo=(0.2, 0.5, 0.9)),
+             B.MaterialSpec("A", B.MERL, merl=a, sampler=uniform_sampler()),
+             B.MaterialSpec("ggx", B.GGX, alpha=0.25, specular=(0.9, 0.6, 0.3)),
+             B.MaterialSpec("B", B.MERL, merl=b, sampler=uniform_sampler())]
+    mb = B.build_material_table(specs)
+    wi = random_hemisphere(rng, N_DIRS, 0.02)
+    wo = random_hemisphere(rng, len(wi) * 2, 0.02)[: len(wi)]
+    for m, data in ((1, a), (3, b)):
+        got = B.eval_brdf(mb, m, wi, wo)
+        ref = merl_eval(MerlBRDF(name="t", path=None, data=data), wi, wo)
+        # random tables: a wrong table is an O(1) error; float32 angles may round into the neighbour bin
+        assert np.mean(np.abs(got - ref).max(1) < 1e-5) > 0.995, m

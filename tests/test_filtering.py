@@ -1385,3 +1385,146 @@ def test_ground_truth_shades_each_ray_with_the_unit_normal_between_two_tilted_te
     assert cov.all() and np.all(lam <= -1.0)
     err = np.linalg.norm(gt.image - ref, axis=-1).max() / np.linalg.norm(ref, axis=-1).mean()
     assert err < 5e-3, err
+
+
+def _tilted_uniform_map(tmp_path, deg, shape=(2, 2)):
+    """Write map.exr: every normal turned ``deg`` degrees from +Z towards +X; return the normals."""
+    t = math.radians(deg)
+    normals = np.zeros(shape + (3,), np.float32)
+    normals[...] = (math.sin(t), 0.0, math.cos(t))
+    write_exr(tmp_path / "map.exr", normals, channels=["R", "G", "B"])
+    return normals
+
+
+def test_ground_truth_lambert_term_follows_each_rays_fine_normal(tmp_path):
+    """A uniform normal map tilted 30 degrees: every ray's fine-scale BRDF (specular and Lambert) is the one at that
+    normal, so the ground truth is this module's numpy re-derivation of 004 Sec. 3's BRDF at the tilted normal
+    (the second light sits where the tilted normal's cosine is a quarter of the plane's)."""
+    normals = _tilted_uniform_map(tmp_path, 30.0)
+    s = parse_scene(plane_scene_toml('normal_map = "map.exr"\nnormal_map_kind = "normal"\n', roughness=0.3,
+                                     position=(0.0, 0.6, 1e-4), resolution=(16, 12), fov=20.0, size=2.0,
+                                     diffuse=(0.5, 0.4, 0.3), lights=2), tmp_path, "s.toml")
+    prep = prepare_filtering(s, ("ground_truth",))
+    gt = render_filtering(s, "ground_truth", spp=64, prepared=prep)
+    ref, _ = numpy_filtered_render(s, "fixed", normals, {}, 1.0)
+    assert gt.coverage.all()
+    err = np.linalg.norm(gt.image - ref, axis=-1).max() / np.linalg.norm(ref, axis=-1).mean()
+    assert err < 5e-3, err
+
+
+def test_a_map_twice_as_wide_as_high_filters_as_documented(tmp_path):
+    """A 16-row x 32-column height map (every benchmark map is square): toksvig, lean and fixed render what
+    this module's numpy re-derivation of the documentation gives (footprint, level, trilinear filter with the
+    rows and columns of each level, lobes, shading), levels to 1e-4 and images to 1e-3 of the mean colour."""
+    from precompute.surfaces import height_to_normals
+
+    r, c = np.meshgrid(np.arange(16) / 16.0, np.arange(32) / 32.0, indexing="ij")
+    h = 0.3 * np.sin(2 * np.pi * 3 * c) * np.cos(2 * np.pi * 2 * r) + 0.2 * np.sin(2 * np.pi * (r + 2 * c))
+    s = scene_with_map(tmp_path, heights=h, scale=0.5, tiling=4, roughness=0.15, diffuse=(0.5, 0.4, 0.3), lights=2)
+    normals = height_to_normals(h, 0.5)
+    prep = prepare_filtering(s, ("toksvig", "lean", "fixed"))
+    for m in ("toksvig", "lean", "fixed"):
+        res = render_filtering(s, m, prepared=prep)
+        ref, lam = numpy_filtered_render(s, m, normals, {}, 1.0)
+        cov = res.coverage
+        assert cov.sum() > 100 and lam[cov].max() > 1.5, m     # the coarser levels are read too
+        assert np.allclose(res.level[cov], lam[cov], atol=1e-4), m
+        err = np.abs(res.image[cov] - ref[cov]).max() / np.linalg.norm(ref[cov], axis=-1).mean()
+        assert err < 1e-3, (m, err)
+
+
+def test_anisotropic_footprints_elongated_along_the_columns_filter_as_documented(tmp_path):
+    """The grazing camera of test_filtering turned 90 degrees about +Y (looking along -X, so footprints are longer
+    along the map's columns than its rows, J J^T's p > q): every method's image with up to 16 and 4 probes is the
+    numpy re-derivation (footprint and major axis from numpy's SVD of J), as at the camera looking along -Z."""
+    x, y, z = grazing_position()
+    s, normals, gmm_levels, prep = _scales_with_gmm_files(tmp_path, (z, y, x))
+    box = [b[0] for b in normal_moment_mipmap(normals)]
+    for max_aniso, zoom in ((16, 1.0), (4, 0.25)):
+        _assert_as_documented(s, prep, normals, gmm_levels, zoom, max_aniso)
+        _, _, n, _, _ = numpy_footprint(s, zoom, box, max_aniso)
+        assert (n > 1).sum() > 50, (max_aniso, zoom)            # most pixels take several probes
+
+
+def test_a_plane_seen_from_below_shows_nothing(tmp_path):
+    """A plane faces +Y (scene docs; plane_t: "front-facing"): a camera below it sees no plane pixel with any method,
+    and plane_distance is infinite at every pixel."""
+    from warpbw.filtering import plane_distance
+
+    s = parse_scene(plane_scene_toml(position=(0.0, -1.5, 2.0)), tmp_path, "s.toml")
+    prep = prepare_filtering(s, ("fixed", "ground_truth"))
+    for m in ("fixed", "ground_truth"):
+        r = render_filtering(s, m, prepared=prep)
+        assert not r.coverage.any() and np.all(r.image == 0), m
+    assert np.all(np.isinf(plane_distance(s)))
+    above = parse_scene(plane_scene_toml(position=(0.0, 1.5, 2.0)), tmp_path, "s.toml")
+    assert render_filtering(above, "fixed").coverage.sum() > 50   # the same plane, seen from above
+
+
+def test_a_footprint_beyond_the_coarsest_level_is_filtered_at_it_and_reported_as_it(tmp_path):
+    """A 4x4 map (3 levels) tiled 32 times, seen straight down from 5 plane half-sizes away: every pixel's footprint
+    lies between levels 2 and 3 (the numpy footprint's unclipped lam), past the coarsest level 2,
+    so its level is levels - 1 = 2 (FilterResult.level lies in [-1, levels - 1]; the numpy re-derivation clips lam
+    there), the mean level is 2, and the image is the re-derivation's at that level."""
+    from precompute.surfaces import height_to_normals
+
+    h = np.random.default_rng(7).random((4, 4)) * 0.3
+    s = scene_with_map(tmp_path, heights=h, scale=0.5, tiling=32, roughness=0.15, diffuse=(0.5, 0.4, 0.3),
+                       position=(0.0, 5.0, 1e-4), fov=40.0)
+    normals = height_to_normals(h, 0.5)
+    box = [b[0] for b in normal_moment_mipmap(normals)]
+    assert len(box) == 3
+    _, lam_free, _, _, _ = numpy_footprint(s, 1.0, box * 4)      # clipped at 11 levels: in effect unclipped
+    prep = prepare_filtering(s, ("toksvig", "lean", "fixed"))
+    for m in ("toksvig", "lean", "fixed"):
+        res = render_filtering(s, m, prepared=prep)
+        ref, lam = numpy_filtered_render(s, m, normals, {}, 1.0)
+        cov = res.coverage
+        assert cov.sum() > 50 and np.all((lam_free[cov] > 2.0) & (lam_free[cov] < 3.0)), m
+        assert np.all(lam[cov] == 2.0) and np.all(res.level[cov] == 2.0), (m, res.level[cov].max())
+        assert res.stats["mean_level"] == 2.0, m
+        err = np.abs(res.image[cov] - ref[cov]).max() / np.linalg.norm(ref[cov], axis=-1).mean()
+        assert err < 1e-3, (m, err)
+
+
+def test_ground_truth_is_the_box_average_of_a_highlight_narrower_than_a_pixel(tmp_path):
+    """A flat plane seen straight down under a light straight up, roughness 0.015: the centre pixel's highlight is
+    about six times brighter at the pixel's centre than on average over it.  The ground truth there (mean of 64
+    seeds; one seed's noise is about 5%) is the box average over the pixel: a 64 x 64 grid of rays shaded with
+    004 Sec. 3's BRDF in numpy (Gaussian NDF of variance m^2 / 2, Schlick, Lambert, G = 1), within 3%."""
+    m, res, fov, pos = 0.015, 9, 60.0, (0.0, 1.0, 1e-4)
+    s = parse_scene(plane_scene_toml(roughness=m, position=pos, resolution=(res, res), fov=fov, size=20.0,
+                                     light_dir=(0.0, 1.0, 0.0)), tmp_path, "s.toml")
+    prep = prepare_filtering(s, ("ground_truth",))
+    c = res // 2
+    gt = np.mean([render_filtering(s, "ground_truth", spp=64, seed=k, prepared=prep).image[c, c] for k in range(64)], 0)
+    k = 64
+    _, d = numpy_camera_rays(pos, (0, 0, 0), fov, res * k, res * k)
+    wo, wi = -d, np.array([0.0, 1.0, 0.0])
+    hv = wo + wi
+    hv /= np.linalg.norm(hv, axis=-1, keepdims=True)
+    var = m * m / 2
+    D = np.exp(-(hv[..., 0] ** 2 + hv[..., 2] ** 2) / (2 * var)) / (2 * np.pi * var)
+    f0 = np.asarray(PLANE_F0)
+    F = f0 + (1 - f0) * (1 - np.clip(np.sum(wo * hv, -1), 0, None))[..., None] ** 5
+    L = (F * (D / (4 * wo[..., 1]))[..., None] + np.asarray(PLANE_DIFFUSE) / np.pi * (1 - F)) * np.asarray(PLANE_RADIANCE)
+    ref = L.reshape(res, k, res, k, 3).mean(axis=(1, 3))
+    centre = L[c * k + k // 2, c * k + k // 2]
+    assert np.linalg.norm(centre) > 4 * np.linalg.norm(ref[c, c])     # the highlight is narrower than the pixel
+    err = np.linalg.norm(gt - ref[c, c]) / np.linalg.norm(ref[c, c])
+    assert err < 0.03, err
+
+
+def test_a_flat_plane_seen_half_a_degree_above_grazing_is_the_cook_torrance_brdf(tmp_path):
+    """A camera 0.3 degrees above a flat plane (under half a degree at every covered pixel; wo_z about 0.005, where
+    1 / (4 wo_z) is still finite): every method shades this module's numpy Cook-Torrance closed form, not black
+    (MIN_COS: only wo_z below 1e-4 shades nothing)."""
+    pos = (0.0, 0.02, 4.0)
+    s = parse_scene(plane_scene_toml(roughness=0.3, position=pos, resolution=(24, 16), fov=1.0), tmp_path, "s.toml")
+    ref, cov = numpy_flat_cook_torrance(pos, 1.0, 24, 16, 0.3)
+    prep = prepare_filtering(s, METHODS)
+    for m in METHODS:
+        r = render_filtering(s, m, prepared=prep)
+        assert np.array_equal(r.coverage, cov) and cov.sum() > 10, m
+        assert np.all(np.linalg.norm(ref[cov], axis=-1) > 0), m
+        assert np.allclose(r.image[cov], ref[cov], rtol=2e-3, atol=1e-6), (m, np.abs(r.image[cov] - ref[cov]).max())

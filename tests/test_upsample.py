@@ -460,3 +460,64 @@ def test_the_default_fit_keeps_a_near_spheres_limb_from_a_sphere_just_behind_it(
             beside |= np.roll(own, step, axis) == 1
     assert near.sum() > 500 and (near & beside).sum() >= 5, (near.sum(), (near & beside).sum())
     assert taken.max() <= 0.01, taken.max()
+
+
+@pytest.mark.parametrize("level", [0, 1])
+def test_a_tall_images_rows_upsample_from_the_two_parent_rows_around_them(level):
+    """002 Sec. 3.2: a texel takes a weighted mean of its four nearest parents. Parents holding their own row index give
+    every texel a value between the two parent rows around its centre, u = (y + 1/2) / 2 - 1/2, and nearer the nearer
+    one (bilinear alpha and g_a both favour it), on an image taller than it is wide too."""
+    W, H = 8, 48
+    cam = make_camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 10.0, W, H)
+    gb = render_gbuffer(cam, build_geometry([SphereSpec((0, 0, 0), 1.5, 0)], []))
+    w, h = level_size(W, H, level)
+    pw, ph = level_size(W, H, level + 1)
+    s = 1 << (level + 1)
+    ys = np.minimum(np.arange(ph) * s + s // 2, H - 1)
+    xs = np.minimum(np.arange(pw) * s + s // 2, W - 1)
+    valid = gb.coverage[np.ix_(ys, xs)].astype(np.int32).reshape(-1)
+    parents = np.repeat(np.arange(ph, dtype=np.float32), pw)[:, None] * np.ones(3, np.float32)
+    r = upsample_level(gb.data, cam, level, parents, valid, np.ones(w * h), mode="paper")
+    vals = r.values.numpy()[:, 0].reshape(h, w)
+    ok = r.valid.numpy().reshape(h, w) == 1
+    vmap = valid.reshape(ph, pw)
+    checked = 0
+    for y in range(h):
+        u = (y + 0.5) * 0.5 - 0.5
+        j0 = int(math.floor(u))
+        f = u - j0
+        if j0 < 0 or j0 + 1 > ph - 1:
+            continue
+        for x in range(w):
+            if not ok[y, x] or not vmap[j0:j0 + 2, :].all():
+                continue
+            checked += 1
+            assert j0 - 1e-4 <= vals[y, x] <= j0 + 1 + 1e-4, (x, y, vals[y, x], j0)
+            assert (vals[y, x] - j0 - 0.5) * (f - 0.5) > 0, (x, y, vals[y, x], u)
+    assert checked > 10 * w // 4
+
+
+@pytest.mark.parametrize("axis", [0, 1])
+def test_a_border_texel_outside_its_parents_centres_takes_the_nearest_parent(axis):
+    """002 Sec. 3.2's bilinear alpha_i, clamped at the border: texel 0 of a row or column lies a quarter parent spacing
+    outside parent 0's centre ((0 + 1/2) / 2 - 1/2 = -1/4), so it takes parent 0 alone. Parents holding their own column
+    (row) index then give column (row) 0 of the level exactly 0, on a sphere filling the frame."""
+    W = H = 32
+    cam = make_camera((0.0, 0.0, 8.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, W, H)
+    gb = render_gbuffer(cam, build_geometry([SphereSpec((0, 0, 0), 3.0, 0)], []))
+    for level in (0, 1):
+        w, h = level_size(W, H, level)
+        pw, ph = level_size(W, H, level + 1)
+        s = 1 << (level + 1)
+        ys = np.minimum(np.arange(ph) * s + s // 2, H - 1)
+        xs = np.minimum(np.arange(pw) * s + s // 2, W - 1)
+        valid = gb.coverage[np.ix_(ys, xs)].astype(np.int32)
+        idx = np.meshgrid(np.arange(pw), np.arange(ph))[axis].astype(np.float32)   # column (0) or row (1) index
+        parents = idx.reshape(-1, 1) * np.ones(3, np.float32)
+        r = upsample_level(gb.data, cam, level, parents, valid.reshape(-1), np.ones(w * h), mode="paper")
+        vals = r.values.numpy()[:, 0].reshape(h, w)
+        ok = r.valid.numpy().reshape(h, w) == 1
+        edge = ok[:, 0] if axis == 0 else ok[0, :]
+        assert edge.sum() >= 4, level
+        got = vals[:, 0] if axis == 0 else vals[0, :]
+        np.testing.assert_allclose(got[edge], 0.0, atol=1e-6, err_msg=f"level {level}")
