@@ -1,4 +1,5 @@
-"""Shared fixtures: where the real test data lives, and a skip when it is absent."""
+"""Shared fixtures: where the real test data lives, and a skip when it is absent; a cache folder of the run
+(``_run_cache``), so that the tests never write into the user's."""
 from __future__ import annotations
 
 import math
@@ -317,6 +318,17 @@ def numpy_sphere_distance(o, d, centre, radius):
 @pytest.fixture(scope="session")
 def shared():
     return shared_file
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _run_cache(tmp_path_factory):
+    """The tables the renderer caches (sampling, bandwidth, GMM, ground truth) go to a folder of this test run,
+    never the user's ``$WARPBW_CACHE`` or ``~/.cache/warpbw``; command-line tests' children inherit it.  A test that
+    needs another folder sets its own with ``monkeypatch``, which restores this one afterwards."""
+    patch = pytest.MonkeyPatch()
+    patch.setenv("WARPBW_CACHE", str(tmp_path_factory.mktemp("warpbw_cache")))
+    yield
+    patch.undo()
 
 
 # Warp: hide the banner and module-load lines in test output (warp._src.logger.LOG_WARNING).

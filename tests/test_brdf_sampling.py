@@ -270,3 +270,12 @@ def test_a_progress_bar_unless_quiet(tmp_path, monkeypatch, capsys, fast_builder
     assert bar not in quiet and "%|" not in quiet, quiet
     assert outcome(main, [cmd, "npf.bin", "--material", "chrome", "-o", "loud.npz"]) == "returned 0"
     assert bar in capsys.readouterr().err
+
+
+def test_the_test_run_caches_into_a_folder_of_its_own(tmp_path_factory):
+    """conftest's ``_run_cache``: the tables the tests build go under this run's temporary folder, not the user's
+    cache (this machine's ~/.cache/warpbw held 35 tables that test runs had written)."""
+    from precompute.brdf_sampling import cache_dir
+
+    base = tmp_path_factory.getbasetemp().resolve()
+    assert base in cache_dir().resolve().parents
