@@ -1818,3 +1818,16 @@ def test_exposure_accepts_the_ends_help_names(stops):
     got = outcome(build_parser().parse_args, ["render", "s.toml", "-o", "o.exr", "--exposure", stops])
     assert got.startswith("returned Namespace(") and f"exposure={float(stops)!r}" in got, got
 
+
+
+def test_an_adaptive_frame_of_spheres_lists_no_mesh_curvature_stage():
+    """warpbw.pipeline: no stage is compiled or run that the scene does not use, and only a mesh has a curvature to
+    derive (a sphere's is 1 / r in the G-buffer kernel).  Truth: a scene of one sphere (no mesh) under a sky: its
+    adaptive stages (the list ends with the adaptive frame's up-sampling) name no mesh curvature."""
+    from test_lights import SKY, scene
+    from warpbw.pipeline import prepare_scene, stages_used
+
+    prep = prepare_scene(scene(env=SKY, w=12, h=16))
+    assert not prep.geometry.has_mesh
+    assert not any("curvature" in s for s in stages_used(prep, mis=True, adaptive=True))
+    assert stages_used(prep, mis=True, adaptive=True)[-1] == "upsampling"   # the adaptive list itself

@@ -358,7 +358,6 @@ def _gbuffer_arrays(gb):
 def test_update_mesh_matches_a_geometry_built_from_scratch():
     # dynamic geometry (002 Sec. 4.3): deforming the second of two meshes in place and refitting the
     # BVH gives the G-buffer of a geometry built from the deformed vertices
-    from warpbw.gbuffer import update_mesh
     from warpbw.io.mesh import normals_and_curvature
 
     cam = make_camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 64, 48)
@@ -392,7 +391,6 @@ def test_update_mesh_matches_a_geometry_built_from_scratch():
 def test_update_mesh_derives_normals_and_curvature_on_the_device_as_the_host_does():
     """update_mesh without normals and curvature computes them on the device (warpbw.mesh_normals): the
     G-buffer is the one the host's numpy normals and curvature give, and the other mesh keeps its own."""
-    from warpbw.gbuffer import update_mesh
     from warpbw.io.mesh import normals_and_curvature
 
     cam = make_camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 64, 48)
@@ -418,10 +416,6 @@ def test_update_mesh_derives_normals_and_curvature_on_the_device_as_the_host_doe
 
 
 def test_update_mesh_bad_input():
-    import pytest
-    from warpbw.errors import WarpbwError
-    from warpbw.gbuffer import update_mesh
-
     m = _icosphere_spec(0.5, subdiv=2)
     nv = len(m.vertices)
     geo = build_geometry([], [m])
@@ -676,3 +670,125 @@ def test_gbuffer_example_writes_the_sphere_normals_under_their_names_and_times_f
     assert sphere.sum() >= 20, sphere.sum()
     np.testing.assert_allclose(np.linalg.norm(pos[sphere] - centre, axis=-1), 0.45, atol=1e-4)
     np.testing.assert_allclose(nrm[sphere], (pos[sphere] - centre) / 0.45, atol=1e-3)
+
+
+def test_sphere_tangent_is_d_position_d_longitude_about_plus_y():
+    """gbuffer docstring: on a sphere the tangent is d position / d phi about +Y, phi the longitude that uv's u
+    measures (u = atan2(x, z) / 2 pi + 1/2): in numpy, (z, 0, -x) of the outward normal, normalised, and a step
+    along it from the surface point raises u.  Camera off every axis, image taller than wide."""
+    cam = make_camera((1.3, 0.9, 3.1), (0.05, -0.1, 0.0), (0.0, 1.0, 0.0), 38.0, 40, 56)
+    center, radius = np.array([0.1, -0.05, 0.2]), 0.8
+    gb = render_gbuffer(cam, build_geometry([SphereSpec(tuple(center), radius, 0)], []))
+    cov = gb.coverage.reshape(-1)
+    p = gb.numpy("position").reshape(-1, 3)[cov].astype(np.float64)
+    t = gb.numpy("tangent").reshape(-1, 3)[cov].astype(np.float64)
+    n = (p - center) / radius
+    away_from_poles = np.hypot(n[:, 0], n[:, 2]) > 0.05
+    assert away_from_poles.sum() > 500
+    expect = np.stack([n[:, 2], np.zeros(len(n)), -n[:, 0]], 1)
+    expect /= np.linalg.norm(expect, axis=1, keepdims=True)
+    np.testing.assert_allclose(t[away_from_poles], expect[away_from_poles], atol=1e-4)
+    # the step along t raises the longitude (away from the seam at u = 0 / 1)
+    q = n + 1e-3 * t
+    u0 = np.arctan2(n[:, 0], n[:, 2]) / (2 * np.pi) + 0.5
+    u1 = np.arctan2(q[:, 0], q[:, 2]) / (2 * np.pi) + 0.5
+    ok = away_from_poles & (np.abs(u0 - 0.5) < 0.45)
+    assert (u1[ok] > u0[ok]).all()
+
+
+def test_mesh_reach_is_measured_to_its_far_side_not_its_near_one():
+    """check_reach's docstring and MESH_REACH_MAX: a mesh is refused when the camera's distance to its far side
+    passes MESH_REACH_MAX, whatever its near side.  Truth: the far corner of a sliver of two triangles from 2 to
+    1.5 MESH_REACH_MAX units in front of the camera (its near corner 2 units away) is out of reach; the same sliver
+    ending at 0.5 MESH_REACH_MAX renders."""
+    cam = make_camera((0.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 1.0, 0.0), 40.0, 8, 12)
+
+    def sliver(far):
+        v = np.array([[-1.0, -1.0, -2.0], [1.0, -1.0, -2.0], [1.0, 1.0, -far], [-1.0, 1.0, -far]], np.float32)
+        f = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+        n = np.tile(np.array([[0.0, 0.0, 1.0]], np.float32), (4, 1))
+        return build_geometry([], [MeshSpec(v, f, n, np.zeros(4, np.float32), None, 0)])
+
+    render_gbuffer(cam, sliver(0.5 * MESH_REACH_MAX))   # within reach: no error
+    with pytest.raises(WarpbwError, match="far side of a mesh"):
+        render_gbuffer(cam, sliver(1.5 * MESH_REACH_MAX))
+
+
+def test_a_camera_inside_a_sphere_off_centre_sees_the_inner_side_at_every_angle():
+    """GBufferData: the geometric normal faces the camera, and a camera inside a sphere sees its inner side.
+    Truth: from a point inside the sphere every ray hits the wall from within, so the inward normal (c - p) / r
+    is the one facing the camera (numpy); placed near the wall and looking along it, the rays meet the wall at
+    every angle, grazing ones included (d . n_out from 0 to 1)."""
+    center, r = np.array([0.3, -0.2, 0.1]), 2.0
+    pos = center + np.array([0.0, 0.0, 1.9])         # 0.1 from the wall
+    look = pos + np.array([1.0, 0.3, 0.0])           # along the wall
+    cam = make_camera(tuple(pos), tuple(look), (0.0, 1.0, 0.0), 100.0, 36, 48)
+    gb = render_gbuffer(cam, build_geometry([SphereSpec(tuple(center), r, 0)], []))
+    assert gb.coverage.all()
+    p = gb.numpy("position").reshape(-1, 3).astype(np.float64)
+    inward = (center - p) / r
+    _, d = camera_rays(cam)
+    cos_out = -np.einsum("ij,ij->i", inward, d)
+    assert cos_out.min() < 0.4 and cos_out.max() > 0.75     # grazing and steeper walls alike
+    np.testing.assert_allclose(gb.numpy("normal").reshape(-1, 3), inward, atol=1e-4)
+    np.testing.assert_allclose(gb.numpy("geo_normal").reshape(-1, 3), inward, atol=1e-4)
+    # module docstring: inside, the tangent is -d position / d phi: (z, 0, -x) of the inward normal, normalised
+    t = gb.numpy("tangent").reshape(-1, 3)
+    ring = np.hypot(inward[:, 0], inward[:, 2]) > 0.05
+    expect = np.stack([inward[:, 2], np.zeros(len(p)), -inward[:, 0]], 1)
+    expect /= np.linalg.norm(expect, axis=1, keepdims=True)
+    np.testing.assert_allclose(t[ring], expect[ring], atol=1e-4)
+
+
+def test_hide_beyond_keeps_a_surface_exactly_at_the_distance():
+    """hide_beyond's docstring: a surface exactly at the distance stays.  Truth: a camera at the origin looking
+    along -Z hits a sphere of radius 1 centred at (0, 0, -5) with its centre pixel (odd width and height: the
+    ray is -Z exactly) at t = 4 exactly (float32 holds 5 - 1 exactly); a distance of 4 there keeps it, the next
+    float32 below 4 hides it."""
+    cam = make_camera((0.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 1.0, 0.0), 30.0, 9, 11)
+    geo = build_geometry([SphereSpec((0.0, 0.0, -5.0), 1.0, 0)], [])
+    for dist, hidden in ((4.0, 0), (float(np.nextafter(np.float32(4.0), np.float32(0.0))), 1)):
+        gb = render_gbuffer(cam, geo)
+        assert gb.numpy("depth")[5, 4] == 4.0
+        d = np.full((11, 9), np.inf)
+        d[5, 4] = dist
+        assert hide_beyond(gb, cam, d) == hidden, dist
+        assert gb.coverage[5, 4] == (hidden == 0)
+
+
+def test_deferred_curvature_of_the_second_mesh_lands_on_that_mesh():
+    """build_geometry / ensure_curvature: each MeshSpec's deferred H is derived when a G-buffer asks for curvature
+    and stored as its local magnitude, which keeps a constant |H| exactly (warpbw.io.mesh.local_curvature).
+    Truth: two square meshes side by side whose callables give H = 0.5 and H = -2.0 everywhere read 0.5 and 2.0
+    on their own pixels (told apart by material)."""
+    def square(x0, h, mat):
+        v = np.array([[x0, -1, 0], [x0 + 1.8, -1, 0], [x0 + 1.8, 1, 0], [x0, 1, 0]], np.float32)
+        f = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+        n = np.tile(np.array([[0, 0, 1]], np.float32), (4, 1))
+        return MeshSpec(v, f, n, lambda: np.full(4, h), None, mat)
+
+    geo = build_geometry([], [square(-1.9, 0.5, 0), square(0.1, -2.0, 1)])
+    cam = make_camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 50.0, 24, 18)
+    gb = render_gbuffer(cam, geo)
+    mat, curv = gb.numpy("material"), gb.numpy("curvature")
+    assert (mat == 0).sum() > 20 and (mat == 1).sum() > 20
+    np.testing.assert_allclose(curv[mat == 0], 0.5, rtol=1e-6)
+    np.testing.assert_allclose(curv[mat == 1], 2.0, rtol=1e-6)
+
+
+def test_a_sphere_whose_far_side_crosses_into_coarser_float32_spacing_is_refused():
+    """check_reach's docstring: an object whose coordinates reach where float32 spaces them by more than
+    COORD_SPACING_REL_MAX of its size is refused; a sphere's coordinates reach |centre| + r.  Truth (numpy's
+    float32 spacing): a sphere of radius 100 centred 50 below 2^20 on X reaches 2^20 + 50, where the spacing is
+    2^-3 > 2^-10 * 100; centred 150 below, it reaches 2^20 - 50, spacing 2^-4 < 2^-10 * 100, and renders."""
+    r, edge = 100.0, 2.0 ** 20
+    assert np.spacing(np.float32(edge + 50)) > COORD_SPACING_REL_MAX * r >= np.spacing(np.float32(edge - 50))
+    for below, refused in ((150.0, False), (50.0, True)):
+        c = (edge - below, 0.0, 0.0)
+        cam = make_camera((edge - below - 600.0, 30.0, 0.0), c, (0.0, 1.0, 0.0), 30.0, 8, 12)
+        geo = build_geometry([SphereSpec(c, r, 0)], [])
+        if refused:
+            with pytest.raises(WarpbwError, match="float32 spaces coordinates"):
+                render_gbuffer(cam, geo)
+        else:
+            assert render_gbuffer(cam, geo).coverage.any()

@@ -236,3 +236,22 @@ def test_make_lights_takes_directions_whose_norm_overflows_or_underflows():
                         ([L((0.0, 1.0, 0.0), 1.0)], r"^\[\[light\]\] 0: expected a direction and a radiance")):
         with pytest.raises(WarpbwError, match=msg):
             make_lights(lights)
+
+
+def test_a_frame_whose_light_overflows_the_shading_is_refused():
+    """warpbw.pipeline: a frame whose shading dropped samples to float32 overflow is refused when the light's
+    radiance passes RADIANCE_OVERFLOW_MIN (FLOAT32_MAX / BRDF_VALUE_MAX), so that the image is not returned
+    short of its light.  Truth: a GGX sphere (alpha 0.05, lobe peak about 30) lit along the view by a directional
+    light of radiance 3e38: E f cos passes FLOAT32_MAX at the highlight; at radiance 1 it renders finite."""
+    from warpbw.errors import WarpbwError
+
+    ggx = 'type = "ggx"\nalpha = 0.05\nspecular = [1.0, 1.0, 1.0]'
+
+    def lit(e):
+        return scene(mat=ggx, lights=[f'[[light]]\ntype = "directional"\ndirection = [0.0, 0.0, 1.0]\n'
+                                      f'radiance = [{e}, {e}, {e}]\n'], w=15, h=15)
+
+    ok = render_reference(lit(1.0), spp=1)
+    assert np.isfinite(ok.image).all() and ok.image.max() > 1.0     # the highlight: f cos above 1
+    with pytest.raises(WarpbwError, match="overflowed float32"):
+        render_reference(lit(3e38), spp=1)

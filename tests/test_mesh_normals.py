@@ -220,3 +220,19 @@ def test_mesh_topology_refuses_ranges_and_indices_that_are_not_vertices():
         with pytest.raises(WarpbwError, match=msg):
             mesh_topology(*args)
     assert mesh_topology(np.zeros(0), 0, 3).faces.shape == (0,)   # no faces (an empty list is float64)
+
+
+def test_a_needle_face_short_against_its_longest_edge_adds_no_curvature_on_the_device():
+    """warpbw.mesh_normals: a face whose doubled area is below DEGENERATE_REL_AREA of its LONGEST squared edge adds
+    no cotangent weight and no area, as on the host (warpbw.io.mesh, numpy).  Truth: the host's H on a closed
+    tetrahedron one of whose faces is a needle 1e6 long and 1e-7 wide (1e-7 of doubled area against a longest
+    squared edge of 1e12, but above 1e-12 of its shortest, 1)."""
+
+
+    v = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0e6, 1.0e-7, 0.0], [4.0e5, 3.0e5, 5.0e5]], np.float32)
+    f = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]], np.int64)
+    n_host, h_host = normals_and_curvature(v.astype(np.float64), f)
+    got = device_normals_and_curvature(wp.array(v, dtype=wp.vec3), mesh_topology(f.reshape(-1), 0, len(v)))
+    h = got.curvature.numpy()
+    assert np.isfinite(h_host).all() and np.abs(h_host).max() < 1e-3     # the needle left out: H of a big tetrahedron
+    np.testing.assert_allclose(h, h_host, rtol=1e-4, atol=1e-9)

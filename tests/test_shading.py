@@ -446,3 +446,29 @@ def test_compare_mitsuba_runs_warpbw_with_mis_by_default(tmp_path, monkeypatch):
     got = _run_compare_mitsuba(monkeypatch, tmp_path, ["--cases", "lambert", "--spp", "8", "--no-warmup"])
     assert got["outcome"] == "returned 0", got["outcome"]
     assert got["warpbw"] == [(8, 0, True)] and got["mitsuba"] == [(8, 0)]
+
+
+def test_a_reference_frame_without_mis_draws_no_environment_samples():
+    """warpbw.shading: only with mis=True does each step also draw a direction from the environment's
+    distribution.  Truth: the stats of a reference frame count 0 environment samples without MIS and as many as
+    the BRDF samples (covered pixels x spp) with it."""
+    from test_lights import SKY, scene
+
+    for mis in (False, True):
+        res = render_reference(scene(env=SKY, w=12, h=16), spp=3, mis=mis)
+        n_cov = int(res.coverage.sum())
+        assert n_cov > 20 and res.stats["samples"] == 3 * n_cov
+        assert res.stats["environment_samples"] == (3 * n_cov if mis else 0), mis
+
+
+def test_an_adaptive_frame_without_mis_draws_no_environment_samples():
+    """warpbw.shading (the adaptive frame shades with the same estimator): only with mis=True does each step also
+    draw a direction from the environment's distribution.  Truth: an adaptive frame's stats count 0 environment
+    samples without MIS and as many as its samples with it."""
+    from test_lights import SKY, scene
+    from warpbw.pipeline import render_adaptive
+
+    for mis in (False, True):
+        res = render_adaptive(scene(env=SKY, w=12, h=16), budget=2.0, mis=mis)
+        assert res.stats["samples"] > 0
+        assert res.stats["environment_samples"] == (res.stats["samples"] if mis else 0), mis

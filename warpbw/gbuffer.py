@@ -35,7 +35,8 @@ the mean curvature H = (k1 + k2) / 2 that its ``MeshSpec`` (or ``update_mesh``) 
 about two rings (``warpbw.io.mesh.local_curvature``; ``warpbw.mesh_normals`` on the device), interpolated.
 Only the bandwidth pass reads it, so a MeshSpec may defer H (a callable): it is derived the first time a
 G-buffer asks for curvature, and a G-buffer rendered with ``curvature=False`` reads 0 on that mesh.
-The tangent is ``d position / d phi`` about +Y on spheres and a branchless orthonormal basis
+The tangent is ``d position / d phi`` about +Y on spheres (its negative on the inner side a camera inside one
+sees, as it is computed from the normal facing the camera) and a branchless orthonormal basis
 (Duff et al. 2017) around the shading normal on meshes: shading here is isotropic.
 """
 from __future__ import annotations
