@@ -44,7 +44,11 @@ Two rules turn the ``lambda_i^max`` into one bandwidth:
 
 Finite sources are embedded in zeros (002 Sec. 2.3, area lights: "pad ... with zeros, so that
 its size is doubled"): we pad by one coarsest-wavelet width on every side (``pad="zero"``), then
-up to a multiple of ``2^L`` as ``swt2`` needs, so any size works, and crop back.  ``pad`` may
+up to a multiple of ``2^L`` as ``swt2`` needs, so any size works, and crop back.  The margin is capped at 4
+times the image's longer side (memory for a tiny image on many levels); the cap binds only where ``levels`` asks
+for more bands than the image's default (a long side under about 0.7 * 2^L), and there the periodic transform
+wraps the coarsest band onto itself: up to 25% off in that band and under 2% in the bandwidth (a 32-pixel blob
+on 7 levels).  ``pad`` may
 also be ``"edge"``/``"reflect"``/``"wrap"`` (``np.pad`` modes, ``PAD_MODES``), one for both axes or a
 ``(rows, columns)`` pair, for signals that continue past the image (a periodic tile, the longitude of
 an environment map).  Parameters are checked first: an unknown wavelet or pad mode, a pad of other
@@ -245,7 +249,7 @@ def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int |
     # one coarsest-wavelet width of margin on each side keeps the periodic swt2 from wrapping the
     # image onto itself; then round up to a multiple of 2^L (swt2's requirement).
     margin = (wav.dec_len - 1) * 2 ** (nlev - 1) // 2 + 2 ** nlev
-    margin = min(margin, 4 * max(h, w))
+    margin = min(margin, 4 * max(h, w))   # the cap of the module docstring
     padded = img
     offsets = []
     for axis, (n, mode) in enumerate(zip((h, w), modes)):

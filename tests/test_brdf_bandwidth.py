@@ -11,6 +11,7 @@ References (not from the code under test):
 """
 from __future__ import annotations
 
+import itertools
 import math
 import re
 import subprocess
@@ -21,8 +22,9 @@ import pytest
 
 from conftest import attempt, named_as, outcome
 from precompute.brdf_bandwidth import (FORMAT, N_CELLS, N_THETA_I, VERSION, analytic_brdf_bandwidth_table,
-                                       brdf_bandwidth_table, build_brdf_bandwidth, map_radians_per_pixel,
-                                       read_brdf_bandwidth, write_brdf_bandwidth)
+                                       brdf_bandwidth_table, build_brdf_bandwidth, lobe_slice,
+                                       map_radians_per_pixel, read_brdf_bandwidth, slice_bandwidth,
+                                       theta_i_centres, write_brdf_bandwidth)
 from precompute.assetfile import write_asset
 from precompute.brdf_sampling import brdf_source
 from warpbw.errors import WarpbwError
@@ -253,8 +255,6 @@ def test_wo_to_map_refuses_a_direction_without_one():
                                            ("0.3", r"expected a finite number >= 0, got '0\.3'$")])
 def test_lobe_slice_refuses_an_incident_direction_at_or_below_the_horizon(theta_i, said):
     """``lobe_slice(ev, theta_i=2.0)`` evaluated wi below the horizon: a real BRDF's slice of zeros, without a word."""
-    from precompute.brdf_bandwidth import lobe_slice
-
     with pytest.raises(WarpbwError, match=rf"^theta_i: {said}"):
         lobe_slice(ggx(0.3), theta_i, 16)
     with pytest.raises(WarpbwError, match=r"^evaluate: expected a function evaluate\(wi, wo\)"):
@@ -264,8 +264,6 @@ def test_lobe_slice_refuses_an_incident_direction_at_or_below_the_horizon(theta_
 @pytest.mark.parametrize("shape", [(16, 32), (16, 32, 3), (16,), (0, 0), (4, 4, 3, 1)])
 def test_slice_bandwidth_refuses_a_slice_that_is_not_square(shape):
     """A (16, 32) slice failed with numpy's broadcast error; (4, 4, 3, 1) was read as a colour slice."""
-    from precompute.brdf_bandwidth import slice_bandwidth
-
     with pytest.raises(WarpbwError, match=rf"^f: expected a square lobe slice \(n, n\) or \(n, n, C\) .*got shape "
                                           rf"{re.escape(str(shape))}$"):
         slice_bandwidth(np.random.default_rng(0).random(shape))
@@ -385,8 +383,6 @@ def test_wo_map_stops_at_the_grazing_limit():
 
 def test_slice_bandwidth_sums_the_colour_channels():
     """slice_bandwidth analyses the sum of the colour channels (its docstring), not one channel."""
-    from precompute.brdf_bandwidth import slice_bandwidth
-
     n = 32
     y, x = np.mgrid[0:n, 0:n].astype(np.float64)
     grey = 1.0 + 0.0 * x
@@ -418,3 +414,68 @@ def test_the_table_reports_each_incident_elevation_done():
     seen = []
     brdf_bandwidth_table(lambda wi, wo: np.ones((len(wi), 3)), 16, progress=seen.append)
     assert seen == list(range(1, N_THETA_I + 1))
+
+
+def _gaussian_lobe(width=0.15):
+    """A numpy lobe about the mirror direction of wi (RGB), for table tests that need no material file."""
+    def evaluate(wi, wo):
+        m = wi * np.array([-1.0, -1.0, 1.0])
+        d2 = np.sum((wo - m) ** 2, axis=-1)
+        v = np.exp(-d2 / (2 * width ** 2))
+        return np.stack([v, 0.5 * v, 0.25 * v], -1)
+    return evaluate
+
+
+def test_each_table_cell_bounds_every_pixel_of_its_block_from_above():
+    """The 16x16 reduction is a MAX over each n/16 x n/16 block (conservative): every cell equals the largest
+    per-pixel bandwidth of the block of the slice it covers, cell (row, col) <- pixels (row*k.., col*k..)."""
+    n = 32
+    k = n // N_CELLS
+    ev = _gaussian_lobe()
+    table = brdf_bandwidth_table(ev, resolution=n)
+    for t in (2, 9):
+        per_pixel = slice_bandwidth(lobe_slice(ev, float(theta_i_centres()[t]), n)).astype(np.float32)
+        assert np.ptp(per_pixel) > 0
+        for row in range(N_CELLS):
+            for col in range(N_CELLS):
+                block = per_pixel[row * k:(row + 1) * k, col * k:(col + 1) * k]
+                assert table[t, row, col] == block.max(), (t, row, col, table[t, row, col], block)
+
+
+def test_slice_bandwidth_does_not_depend_on_which_channel_holds_the_feature():
+    """The channels are summed (a symmetric function of them): permuting R, G, B changes nothing, and a ripple
+    present in the red or the blue channel alone is seen (not read as a flat lobe)."""
+    n = 32
+    y, x = np.mgrid[0:n, 0:n].astype(np.float64)
+    flat = np.ones((n, n))
+    ripple = 1.0 + 0.5 * np.sin(2 * np.pi * x / 8) * np.cos(2 * np.pi * y / 16)
+    f = np.stack([ripple, flat, 0.5 * flat], -1)
+    ref = slice_bandwidth(f)
+    assert ref.max() > 0
+    for perm in itertools.permutations(range(3)):
+        np.testing.assert_allclose(slice_bandwidth(f[..., list(perm)]), ref, rtol=1e-12, err_msg=str(perm))
+
+
+def test_the_continuation_past_the_rim_follows_the_maps_formula_out_to_the_corners():
+    """Docstring: past 85 deg f(theta) = 2 f(85) - f(170 - theta) along each azimuth, with theta = 2 asin(r / sqrt 2)
+    continued beyond the rim up to the square's corners (r <= sqrt 2); re-done here pixel by pixel."""
+    n = 32
+    ev = _gaussian_lobe(0.4)
+    theta_i = math.radians(50.0)
+    got = lobe_slice(ev, theta_i, n)
+    c = -1.0 + (np.arange(n) + 0.5) * 2.0 / n
+    x, y = np.meshgrid(c, c)                       # column -> x, row -> y
+    r = np.hypot(x, y)
+    phi = np.arctan2(y, x)
+    theta = 2.0 * np.arcsin(np.minimum(r, math.sqrt(2.0)) / math.sqrt(2.0))
+    lim = math.radians(85.0)
+    wi = np.array([math.sin(theta_i), 0.0, math.cos(theta_i)])
+
+    def lobe(th, ph):
+        wo = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
+        return ev(np.broadcast_to(wi, wo.shape), wo)
+
+    past = theta > lim
+    want = 2.0 * lobe(np.full(past.sum(), lim), phi[past]) - lobe(np.maximum(2 * lim - theta[past], 0.0), phi[past])
+    assert np.any(r[past] > 1.2)
+    np.testing.assert_allclose(got[past], want, rtol=1e-9, atol=1e-12)

@@ -1130,3 +1130,41 @@ def test_gmm_quiet_shows_no_progress_bar(tmp_path, capsys):
     assert capsys.readouterr().err == ""
     assert cli(["gmm", "surface:dunes:20", "-o", tmp_path / "e.gmm"]) == 0
     assert "GMM mipmap" in capsys.readouterr().err          # without -q there is one (the check can fail)
+
+
+def test_kmeans_init_variance_is_per_axis_of_clusters_of_known_spread():
+    """Samples of two isotropic Gaussians of known sigma: the initial s^2 is sigma^2 per axis (not the total 2 sigma^2)."""
+    rng = np.random.default_rng(3)
+    sigma = np.array([0.03, 0.06])
+    centres = np.array([[-0.4, 0.1], [0.35, -0.2]])
+    lab = np.repeat([0, 1], 4000)
+    x = centres[lab] + rng.normal(size=(8000, 2)) * sigma[lab, None]
+    a, mu, s2 = kmeans_init(x[None], centres[None])
+    assert np.allclose(a[0], [0.5, 0.5], atol=1e-3)
+    assert np.allclose(mu[0], centres, atol=5e-3)
+    assert np.allclose(s2[0], sigma ** 2, rtol=0.1)
+
+
+def test_kmeans_init_gives_an_empty_cluster_the_texels_variance_per_axis():
+    """Samples of one isotropic Gaussian of known sigma, and a second centre far from all of them: that empty cluster
+    starts with weight 0, its own centre and s^2 = sigma^2 (the texel's variance per axis, not 2 sigma^2)."""
+    rng = np.random.default_rng(9)
+    sigma = 0.05
+    x = np.array([0.2, -0.1]) + sigma * rng.normal(size=(6000, 2))
+    centres = np.array([[0.2, -0.1], [0.9, 0.9]])
+    a, mu, s2 = kmeans_init(x[None], centres[None])
+    assert a[0, 1] == 0.0 and np.array_equal(mu[0, 1], centres[1])
+    assert np.allclose(s2[0], sigma ** 2, rtol=0.1), s2
+
+
+def test_footprint_jitter_is_uniform_over_each_cell_not_on_its_diagonal():
+    """Jittered stratified sampling draws a uniform point in each grid cell: row and column offsets independent."""
+    H = W = 128
+    rr, cc = np.meshgrid(np.arange(H), np.arange(W), indexing="ij")
+    n2 = np.stack([rr, cc], -1).astype(np.float64)      # each normal codes its own position
+    smp = footprint_samples(n2, 6, max_samples=256, rng=7)   # f = 64 texels, 16 x 16 cells of 4 x 4 texels
+    dr = smp[..., 0].astype(int) % 4
+    dc = smp[..., 1].astype(int) % 4
+    counts = np.bincount((dr * 4 + dc).ravel(), minlength=16)
+    assert counts.size == 16 and counts.min() > 0.5 * counts.mean(), counts
+    assert abs(np.mean(dr == dc) - 0.25) < 0.06

@@ -320,3 +320,36 @@ def test_npf_eval_takes_directions_of_any_length_and_a_true_flag(table_path):
     np.testing.assert_array_equal(npf_eval(m, [0.0, 0.0, 1e-200], wo), base)
     with pytest.raises(WarpbwError, match=r"^interpolate: expected True or False, got 'no'"):
         npf_eval(m, [0.0, 0.0, 1.0], wo, interpolate="no")
+
+
+def npf_eval_nearest(mat, wi, wo):
+
+    return npf_eval(mat, wi, wo, interpolate=False)
+
+
+def test_npf_near_the_horizon_follows_the_readme_formula_with_the_true_cosines(materials, raw):
+    """README model f = rho_d + rho_s D F G1 G1 / (cos_i cos_o) / 16 (nearest bins) at theta_o = 89.9-89.99 deg: the
+    cosine clamp (docstring: it binds only within ~6e-4 deg of the horizon) must leave these values alone."""
+    half_pi = math.pi / 2
+    rng = np.random.default_rng(8)
+    m = 400
+    ti = np.radians(rng.uniform(20, 70, m))
+    to = np.radians(rng.uniform(89.9, 89.99, m))
+    pi_, po = rng.uniform(0, 2 * np.pi, m), rng.uniform(0, 2 * np.pi, m)
+    wi = np.stack([np.sin(ti) * np.cos(pi_), np.sin(ti) * np.sin(pi_), np.cos(ti)], -1)
+    wo = np.stack([np.sin(to) * np.cos(po), np.sin(to) * np.sin(po), np.cos(to)], -1)
+    h = (wi + wo) / np.linalg.norm(wi + wo, axis=-1, keepdims=True)
+    th = np.arccos(np.clip(h[:, 2], -1, 1))
+    td = np.arccos(np.clip(np.sum(wi * h, -1), -1, 1))
+    u = [np.sqrt(th / half_pi) * 90, td / half_pi * 90, ti / half_pi * 90, to / half_pi * 90]
+    keep = np.all([(x - np.floor(x) > 1e-6) & (x - np.floor(x) < 1 - 1e-6) for x in u], axis=0)
+    keep &= np.all([x >= 1.0 for x in u[1:]], axis=0)
+    wi, wo = wi[keep], wo[keep]
+    iD, iF, iGi, iGo = (np.minimum(np.floor(x[keep]).astype(int), 89) for x in u)
+    ci, co = wi[:, 2:3], wo[:, 2:3]
+    assert keep.sum() > 100 and co.max() < 2e-3
+    for k in (17, 54, 71):
+        row = raw[k]
+        D, G1, F = row[2:92], row[92:182], row[182:272]
+        truth = row[0] + row[1] * D[iD] * F[iF] * G1[iGi] * G1[iGo] / (ci * co) / 16
+        np.testing.assert_allclose(npf_eval_nearest(materials[k], wi, wo), truth, rtol=1e-9)

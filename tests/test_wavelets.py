@@ -488,3 +488,97 @@ def test_a_floor_of_zero_is_accepted():
     img = np.sin(np.arange(16) / 2.0)[None, :] * np.ones((16, 1))
     b, err = attempt(local_bandwidth, img, floor=0.0)
     assert err == "" and b.shape == (16, 16) and np.all(np.isfinite(b)) and b.max() > 0, err
+
+
+def test_a_smooth_source_bands_read_as_the_same_source_embedded_in_zeros_down_to_the_coarsest_band():
+    """Zero embedding (002 Sec. 2.3) and the SWT's shift invariance: a 16x16 blob analysed on 5 bands has the same
+    lambda_i^max in every band, the coarsest too, as inside a large zero field (no wrap-around onto itself)."""
+    n, lev, pad = 16, 5, 64
+    yy, xx = np.mgrid[0:n, 0:n] - (n - 1) / 2
+    img = np.exp(-(xx ** 2 + yy ** 2) / (2 * (n / 6) ** 2))
+    big = np.zeros((n + 2 * pad, n + 2 * pad))
+    big[pad:pad + n, pad:pad + n] = img
+    lam_big = band_maxima(big, levels=lev)[:, pad:pad + n, pad:pad + n]
+    np.testing.assert_allclose(band_maxima(img, levels=lev), lam_big, rtol=1e-6, atol=1e-9 * lam_big.max())
+    floor = 0.01 * lam_big.max()
+    np.testing.assert_allclose(local_bandwidth(img, levels=lev, floor=floor),
+                               local_bandwidth(big, levels=lev, floor=floor)[pad:pad + n, pad:pad + n], rtol=1e-6)
+
+
+def _energy_rule_by_hand(lam, epsilon, floor, fraction=0.95):
+    """The module docstring's energy rule, pixel by pixel: bands under epsilon * the pixel's peak dropped, energies
+    lam^2 at log2 f = -(i + 1/2), cumulative from the coarsest band (from 0 one octave below its centre), linear in
+    log2 f up to ``fraction`` of the total, capped at 0.5 cycles/pixel; 0 where the peak is at most ``floor``."""
+    L, H, W = lam.shape
+    out = np.zeros((H, W))
+    for y in range(H):
+        for x in range(W):
+            v = lam[:, y, x]
+            peak = v.max()
+            if peak <= floor:
+                continue
+            e = np.where(v >= epsilon * peak, v, 0.0) ** 2
+            pts_f = [-(L + 0.5) - 1.0]
+            pts_c = [0.0]
+            for i in range(L, 0, -1):         # coarsest band first
+                pts_f.append(-(i + 0.5))
+                pts_c.append(pts_c[-1] + e[i - 1])
+            target = fraction * pts_c[-1]
+            j = next(k for k in range(1, len(pts_c)) if pts_c[k] >= target * (1 - 1e-12))
+            t = (target - pts_c[j - 1]) / (pts_c[j] - pts_c[j - 1])
+            out[y, x] = min(2.0 ** (pts_f[j - 1] + t * (pts_f[j] - pts_f[j - 1])), 0.5)
+    return out
+
+
+def test_bands_under_epsilon_are_dropped_from_the_energy_rule():
+    """Eq. 7's significance test drops (zeroes) the bands under epsilon * peak: with epsilon = 0.2 the bandwidth is the
+    docstring's energy rule over the kept bands only, re-done by hand pixel by pixel from band_maxima."""
+    n = 32
+    yy, xx = np.mgrid[0:n, 0:n].astype(np.float64)
+    img = (xx > 13).astype(np.float64) + 0.5 * np.sin(2 * np.pi * 0.02 * xx * xx / 4)   # a step and a chirp
+    lam = band_maxima(img, levels=5)
+    eps = 0.2
+    want = _energy_rule_by_hand(lam, eps, floor=eps * lam.max())
+    got = local_bandwidth(img, epsilon=eps, levels=5)
+    assert np.count_nonzero(want) > n * n // 2
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
+
+
+def test_eq7_level_is_where_the_finer_bands_sum_reaches_epsilon_of_the_peak():
+    """Eq. 7 as the docstring reads it, by hand from band_maxima: I_w is the finest band i for which the sum of
+    lambda_k^max over bands k = 1..i reaches epsilon * the pixel's peak; bandwidth 2^-I_w (a sum, not one band)."""
+    n, lev, eps = 32, 5, 0.2
+    rng = np.random.default_rng(5)
+    yy, xx = np.mgrid[0:n, 0:n] - (n - 1) / 2
+    img = np.exp(-(xx ** 2 + yy ** 2) / (2 * 6.0 ** 2)) + 0.02 * rng.standard_normal((n, n))
+    lam = band_maxima(img, levels=lev)
+    want = np.zeros((n, n))
+    for y in range(n):
+        for x in range(n):
+            v = lam[:, y, x]
+            if v.max() <= eps * lam.max():
+                continue
+            i = next(i for i in range(1, lev + 1) if v[:i].sum() >= eps * v.max())
+            want[y, x] = 2.0 ** -i
+    got = local_bandwidth(img, epsilon=eps, levels=lev, rule="eq7")
+    assert len(np.unique(want)) >= 2
+    np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.xfail(strict=True, reason="known defect (docs/testing.md, round 10): _centre_shift measures each band's "
+                   "delay on one SWT level, not on the cascade band_maxima runs, so band i sits about 0.75 * 2^i px "
+                   "down-right of its source and a symmetric blob's bandwidth map is lopsided up to 3.6x")
+@pytest.mark.parametrize("sigma", [8.0, 16.0])
+def test_mirroring_an_image_mirrors_its_bandwidth_map(sigma):
+    """A local bandwidth describes the signal around a pixel, so it cannot depend on the side a feature lies on:
+    the bandwidth of a left-right mirrored image is the mirrored bandwidth, within 25%, over a Gaussian blob out to
+    3 sigma (the Daubechies filters are not symmetric, so equality is only approximate once centred)."""
+    m = 256
+    yy, xx = np.mgrid[0:m, 0:m]
+    r2 = (xx - 127.5) ** 2 + (yy - 127.5) ** 2
+    blob = np.exp(-r2 / (2 * sigma * sigma))
+    nu = local_bandwidth(blob)
+    nu_mirrored = np.fliplr(local_bandwidth(np.fliplr(blob)))
+    inner = r2 < (3 * sigma) ** 2
+    ratio = nu[inner] / nu_mirrored[inner]
+    assert 0.8 < ratio.min() and ratio.max() < 1.25, (ratio.min(), ratio.max())
