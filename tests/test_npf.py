@@ -323,7 +323,7 @@ def test_npf_eval_takes_directions_of_any_length_and_a_true_flag(table_path):
 
 
 def npf_eval_nearest(mat, wi, wo):
-
+    """``npf_eval`` with nearest-bin look-ups, the README model's own."""
     return npf_eval(mat, wi, wo, interpolate=False)
 
 
