@@ -591,6 +591,14 @@ def _pass_with_tables(prep, nu_env, nu_rho, n_b, **kw):
     return gb, bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=n_b, **kw)
 
 
+def _pass_mean(buf) -> np.ndarray:
+    """The pass's own estimate mu of L_p per pixel, from BandwidthBuffer's sigma2_rel = sigma2 / (mu^2 + REL_EPS)."""
+    s2 = buf.sigma2.numpy().astype(np.float64)
+    rel = buf.sigma2_rel.numpy().astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.sqrt(np.maximum(s2 / rel - float(bw.REL_EPS), 0.0))
+
+
 def test_preconvolved_variance_bound_closed_form_for_lambert():
     """Eq. 10 (pre-convolved lighting): sigma2 = 4 pi^2 E[(2 nu_rho + NU_COS) chi^2], the light's nu_a replaced by
     a second nu_rho.  A Lambert sphere under a constant sky (chi = (albedo / pi) cos, E_uniform[cos^2] = 1/3) with a
@@ -871,11 +879,8 @@ def test_a_convex_mirror_adds_its_two_curvature_shears_in_the_pass():
     A constant BRDF bandwidth table stands in for a sharp lobe."""
     a, nu_rho, r = 2.0, 50.0, 0.8
     prep = prepared(r=r)
-    tables, keep = bw.make_bandwidth_tables(np.full((8, 16), a),
-                                            np.full((1, bw.N_THETA_I, bw.N_CELLS, bw.N_CELLS), nu_rho))
-    gb, _ = _gbuffer(prep, {})
-    buf = bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=16, stride=1,
-                            pool_radius=0)
+    gb, buf = _pass_with_tables(prep, np.full((8, 16), a), np.full((1, N_THETA_I, N_CELLS, N_CELLS), nu_rho),
+                                n_b=16, stride=1, pool_radius=0)
     cov = gb.coverage.reshape(-1)
     pos = gb.data.position.numpy()[cov]
     cos_x = np.maximum(np.sum(gb.data.normal.numpy()[cov] * gb.data.view.numpy()[cov], axis=1), COS_X_MIN)
@@ -898,9 +903,7 @@ def test_the_pass_estimates_a_tabulated_materials_radiance_without_bias(shared, 
     prep = prepared(mat=mat, w=32, h=32)
     gb, buf = run_pass(prep, n_b=256)
     cov = gb.coverage.reshape(-1)
-    s2 = buf.sigma2.numpy()[cov].astype(np.float64)
-    rel = buf.sigma2_rel.numpy()[cov].astype(np.float64)
-    mu = np.sqrt(np.maximum(s2 / rel - float(bw.REL_EPS), 0.0))
+    mu = _pass_mean(buf)[cov]
     img = render_reference(prep, 256, seed=1, mis=False).image
     lum = (img.reshape(-1, 3) @ np.array(bw.LUMINANCE))[cov]
     ndv = np.sum(gb.data.normal.numpy()[cov] * gb.data.view.numpy()[cov], axis=1)
@@ -920,10 +923,7 @@ def test_the_pass_errors_of_pixels_two_tiles_apart_are_uncorrelated():
     tile = side * bw.PASS_STRIDE_DEFAULT
     H, W = gb.height, gb.width
     cov = gb.coverage
-    s2 = buf.sigma2.numpy().reshape(H, W).astype(np.float64)
-    rel = buf.sigma2_rel.numpy().reshape(H, W).astype(np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mu = np.sqrt(np.maximum(s2 / rel - float(bw.REL_EPS), 0.0))
+    mu = _pass_mean(buf).reshape(H, W)
     ndv = np.einsum("hwc,hwc->hw", gb.numpy("normal"), gb.numpy("view"))
     inner = cov & (ndv > 0.5)
     err = mu - 0.6
@@ -965,10 +965,7 @@ def test_variance_bound_reads_the_brdf_bandwidth_at_each_incident_elevation():
     table = np.zeros((1, bw.N_THETA_I, bw.N_CELLS, bw.N_CELLS))
     table[0, bw.N_THETA_I // 2:] = V               # bins 8..15: theta_i in [45, 90) degrees
     prep = prepared()
-    tables, keep = bw.make_bandwidth_tables(np.zeros((8, 16)), table)
-    gb, _ = _gbuffer(prep, {})
-    buf = bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data, tables, n_b=1024, stride=1,
-                            pool_radius=0)
+    gb, buf = _pass_with_tables(prep, np.zeros((8, 16)), table, n_b=1024, stride=1, pool_radius=0)
     cov = gb.coverage.reshape(-1)
     nu_cos = float(bw.NU_COS)
     expect = 4 * math.pi ** 2 * (0.6 / math.pi) ** 2 * (nu_cos / 3 + V * math.cos(math.pi / 4) ** 3 / 3)

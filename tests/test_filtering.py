@@ -50,14 +50,14 @@ def _cache(tmp_path, monkeypatch):
 
 # ------------------------------------------------------------------------------------------ independent numpy truth
 
-def numpy_flat_cook_torrance(position, fov, w, h, roughness, size=2.0):
+def numpy_flat_cook_torrance(position, fov, w, h, roughness, size=2.0, light_dir=PLANE_LIGHT_DIR):
     """Radiance of a flat Cook-Torrance plane (y = 0, normal +Y) under the directional light: Gaussian NDF of
     per-axis variance m^2/2 over projected normals, Schlick Fresnel, Lambert, G = 1 (warpbw.filtering docs)."""
     o, d = numpy_camera_rays(position, (0, 0, 0), fov, w, h)
     cov = np.isfinite(numpy_square_distance(o, d, size))
     n = np.array([0.0, 1.0, 0.0])
     wo = -d
-    wi = np.asarray(PLANE_LIGHT_DIR, float) / np.linalg.norm(PLANE_LIGHT_DIR)
+    wi = np.asarray(light_dir, float) / np.linalg.norm(light_dir)
     hv = wi + wo
     hv /= np.linalg.norm(hv, axis=-1, keepdims=True)
     hxy2 = hv[..., 0] ** 2 + hv[..., 2] ** 2          # the projection on the plane
@@ -1387,23 +1387,14 @@ def test_ground_truth_shades_each_ray_with_the_unit_normal_between_two_tilted_te
     assert err < 5e-3, err
 
 
-def _tilted_uniform_map(tmp_path, deg, shape=(2, 2)):
-    """Write map.exr: every normal turned ``deg`` degrees from +Z towards +X; return the normals."""
-    t = math.radians(deg)
-    normals = np.zeros(shape + (3,), np.float32)
-    normals[...] = (math.sin(t), 0.0, math.cos(t))
-    write_exr(tmp_path / "map.exr", normals, channels=["R", "G", "B"])
-    return normals
-
-
 def test_ground_truth_lambert_term_follows_each_rays_fine_normal(tmp_path):
     """A uniform normal map tilted 30 degrees: every ray's fine-scale BRDF (specular and Lambert) is the one at that
     normal, so the ground truth is this module's numpy re-derivation of 004 Sec. 3's BRDF at the tilted normal
     (the second light sits where the tilted normal's cosine is a quarter of the plane's)."""
-    normals = _tilted_uniform_map(tmp_path, 30.0)
-    s = parse_scene(plane_scene_toml('normal_map = "map.exr"\nnormal_map_kind = "normal"\n', roughness=0.3,
-                                     position=(0.0, 0.6, 1e-4), resolution=(16, 12), fov=20.0, size=2.0,
-                                     diffuse=(0.5, 0.4, 0.3), lights=2), tmp_path, "s.toml")
+    t = math.radians(30.0)
+    normals = np.broadcast_to(np.array([math.sin(t), 0.0, math.cos(t)], np.float32), (2, 2, 3))
+    s = scene_with_map(tmp_path, normals=normals, roughness=0.3, position=(0.0, 0.6, 1e-4), resolution=(16, 12),
+                       fov=20.0, size=2.0, diffuse=(0.5, 0.4, 0.3), lights=2)
     prep = prepare_filtering(s, ("ground_truth",))
     gt = render_filtering(s, "ground_truth", spp=64, prepared=prep)
     ref, _ = numpy_filtered_render(s, "fixed", normals, {}, 1.0)
@@ -1499,15 +1490,7 @@ def test_ground_truth_is_the_box_average_of_a_highlight_narrower_than_a_pixel(tm
     c = res // 2
     gt = np.mean([render_filtering(s, "ground_truth", spp=64, seed=k, prepared=prep).image[c, c] for k in range(64)], 0)
     k = 64
-    _, d = numpy_camera_rays(pos, (0, 0, 0), fov, res * k, res * k)
-    wo, wi = -d, np.array([0.0, 1.0, 0.0])
-    hv = wo + wi
-    hv /= np.linalg.norm(hv, axis=-1, keepdims=True)
-    var = m * m / 2
-    D = np.exp(-(hv[..., 0] ** 2 + hv[..., 2] ** 2) / (2 * var)) / (2 * np.pi * var)
-    f0 = np.asarray(PLANE_F0)
-    F = f0 + (1 - f0) * (1 - np.clip(np.sum(wo * hv, -1), 0, None))[..., None] ** 5
-    L = (F * (D / (4 * wo[..., 1]))[..., None] + np.asarray(PLANE_DIFFUSE) / np.pi * (1 - F)) * np.asarray(PLANE_RADIANCE)
+    L, _ = numpy_flat_cook_torrance(pos, fov, res * k, res * k, m, size=20.0, light_dir=(0.0, 1.0, 0.0))
     ref = L.reshape(res, k, res, k, 3).mean(axis=(1, 3))
     centre = L[c * k + k // 2, c * k + k // 2]
     assert np.linalg.norm(centre) > 4 * np.linalg.norm(ref[c, c])     # the highlight is narrower than the pixel

@@ -672,6 +672,12 @@ def test_gbuffer_example_writes_the_sphere_normals_under_their_names_and_times_f
     np.testing.assert_allclose(nrm[sphere], (pos[sphere] - centre) / 0.45, atol=1e-3)
 
 
+def _numpy_sphere_tangent(n: np.ndarray) -> np.ndarray:
+    """d position / d phi about +Y for unit normals n (N, 3): (z, 0, -x) of n, normalised (the gbuffer docstring)."""
+    t = np.stack([n[:, 2], np.zeros(len(n)), -n[:, 0]], 1)
+    return t / np.linalg.norm(t, axis=1, keepdims=True)
+
+
 def test_sphere_tangent_is_d_position_d_longitude_about_plus_y():
     """gbuffer docstring: on a sphere the tangent is d position / d phi about +Y, phi the longitude that uv's u
     measures (u = atan2(x, z) / 2 pi + 1/2): in numpy, (z, 0, -x) of the outward normal, normalised, and a step
@@ -685,8 +691,7 @@ def test_sphere_tangent_is_d_position_d_longitude_about_plus_y():
     n = (p - center) / radius
     away_from_poles = np.hypot(n[:, 0], n[:, 2]) > 0.05
     assert away_from_poles.sum() > 500
-    expect = np.stack([n[:, 2], np.zeros(len(n)), -n[:, 0]], 1)
-    expect /= np.linalg.norm(expect, axis=1, keepdims=True)
+    expect = _numpy_sphere_tangent(n)
     np.testing.assert_allclose(t[away_from_poles], expect[away_from_poles], atol=1e-4)
     # the step along t raises the longitude (away from the seam at u = 0 / 1)
     q = n + 1e-3 * t
@@ -735,9 +740,7 @@ def test_a_camera_inside_a_sphere_off_centre_sees_the_inner_side_at_every_angle(
     # module docstring: inside, the tangent is -d position / d phi: (z, 0, -x) of the inward normal, normalised
     t = gb.numpy("tangent").reshape(-1, 3)
     ring = np.hypot(inward[:, 0], inward[:, 2]) > 0.05
-    expect = np.stack([inward[:, 2], np.zeros(len(p)), -inward[:, 0]], 1)
-    expect /= np.linalg.norm(expect, axis=1, keepdims=True)
-    np.testing.assert_allclose(t[ring], expect[ring], atol=1e-4)
+    np.testing.assert_allclose(t[ring], _numpy_sphere_tangent(inward)[ring], atol=1e-4)
 
 
 def test_hide_beyond_keeps_a_surface_exactly_at_the_distance():
