@@ -155,26 +155,27 @@ def _pad_axis(a: np.ndarray, axis: int, before: int, after: int, mode: str) -> n
 
 
 @functools.lru_cache(maxsize=None)
-def _centre_shift(wavelet: str, level0: int) -> int:
-    """Roll that puts the band's coefficients over the pixels they describe.
+def _centre_shift(wavelet: str, level0: int) -> tuple[int, int]:
+    """``(high, low)``: the rolls that put band ``level0 + 1``'s details over the pixels they describe, along an axis
+    where the band high-passes and along one where it low-passes.
 
-    ``swt2`` output at ``p`` depends on pixels around ``p - c`` (causal filters; Daubechies
-    filters are not symmetric), so we measure ``c`` once: the energy centroid of the 1D response
-    of band ``level0 + 1`` to an impulse, and roll by ``-c``.
-
-    Known defect (docs/testing.md, round 10): ``band_maxima``'s band i comes out of the cascade of the i - 1
-    low-pass levels before it, whose delay this one-level measure leaves out, and a horizontal or vertical detail
-    is low-passed along one axis, which one roll for both axes ignores.  Band i lands about 0.75 * 2^i pixels right
-    of and below its source (strict xfail ``test_each_bands_energy_lies_over_the_impulse_it_describes``)."""
+    ``swt2`` output at ``p`` depends on pixels around ``p - c`` (causal filters; Daubechies filters are not
+    symmetric).  Band ``level0 + 1`` comes out of a cascade: the low-pass levels ``0 .. level0 - 1``, then level
+    ``level0``'s high-pass (a detail axis) or low-pass (the other axis of a horizontal or vertical detail).  We send a
+    1D impulse through that cascade once and roll by minus the energy centroid of each response.  (A one-level
+    measure with one roll for both axes left band i about 0.75 * 2^i pixels right of and below its source.)"""
     w = pywt.Wavelet(wavelet)
-    step = 2 ** (level0 + 1)
-    n = step * (2 * w.dec_len + 4)
+    n = 2 ** (level0 + 2) * (2 * w.dec_len + 4)   # wider than the cascade's support, so nothing wraps
     x = np.zeros(n)
     x[n // 2] = 1.0
-    (_, cd), = pywt.swt(x, w, level=1, start_level=level0, norm=True)
-    e = cd ** 2
-    c = float((e * np.arange(n)).sum() / e.sum()) - n // 2
-    return -int(round(c))
+    for j in range(level0 + 1):
+        (x, d), = pywt.swt(x, w, level=1, start_level=j, norm=True)
+    positions = np.arange(n) - n // 2
+
+    def centroid(e: np.ndarray) -> float:
+        return float((e * positions).sum() / e.sum())
+
+    return -int(round(centroid(d ** 2))), -int(round(centroid(x ** 2)))
 
 
 @functools.lru_cache(maxsize=1)
@@ -271,10 +272,13 @@ def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int |
         # one level at a time (start_level = i) keeps memory at one band of the padded image
         (approx, (ch, cv, cd)), = pywt.swt2(approx, wav, level=1, start_level=i,
                                             axes=(-2, -1), norm=True)
-        mag = np.maximum(np.maximum(np.abs(ch), np.abs(cv)), np.abs(cd)).max(axis=0)
-        # the SWT output is shifted by the filter delay; centre it on the pixel it describes
-        shift = _centre_shift(wav.name, i)
-        mag = np.roll(mag, (shift, shift), axis=(0, 1)) if shift else mag
+        # the SWT output is shifted by the filters' delays; centre each detail on the pixels it describes.
+        # pywt's horizontal detail ch high-passes rows (axis -2) and low-passes columns, cv the reverse
+        hi, lo = _centre_shift(wav.name, i)
+        ch = np.roll(np.abs(ch), (hi, lo), axis=(-2, -1))
+        cv = np.roll(np.abs(cv), (lo, hi), axis=(-2, -1))
+        cd = np.roll(np.abs(cd), (hi, hi), axis=(-2, -1))
+        mag = np.maximum(np.maximum(ch, cv), cd).max(axis=0)
         size = 2 ** (i + 1) + 1  # one wavelet width of band i+1 (1-based): the "contributing" set
         mag = _max_filter_1d(mag, size, 0)
         mag = _max_filter_1d(mag, size, 1)

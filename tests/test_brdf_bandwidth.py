@@ -92,9 +92,10 @@ def test_sharp_lobe_sits_at_the_mirror_direction_of_the_map(ggx_tables):
     assert lobe > 4 * opposite, (lobe, opposite)
 
 
-@pytest.mark.xfail(strict=True, reason="lobes broader than ~0.2 rad read ~0.6-0.9 cycles/rad at their "
-                   "peak: the local 95%-energy estimator cannot order alpha 0.5 below 0.2 there")
 def test_ggx_peak_orders_broad_lobes(ggx_tables):
+    """A broader lobe is a slower signal: alpha 0.5's peak cell reads less than alpha 0.2's.  (Strict xfail until
+    session 58: with the wavelet bands off-centre, the peak cell read detail from the lobe's flank, 0.6-0.9
+    cycles/rad for both.)"""
     assert peak_cell(ggx_tables[0.5]) < peak_cell(ggx_tables[0.2])
 
 

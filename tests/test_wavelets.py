@@ -372,18 +372,24 @@ def test_envmap_longitude_frequency_at_the_equator_of_a_square_map():
 
 
 @pytest.mark.parametrize("band", [1, 2, 3, 4])
-def test_band_maxima_of_an_impulse_spread_over_the_filter_support_and_one_wavelet_width(band):
+@pytest.mark.parametrize("axis", [0, 1])
+def test_band_maxima_of_a_line_spread_over_the_filter_support_and_one_wavelet_width(band, axis):
     """Module docstring of precompute.wavelets: lambda_i^max(x) is the largest band-i coefficient over the 2^i + 1
-    coefficients around x.  For an impulse the band-i coefficients are non-zero over the support of the level-i
-    equivalent filter, (2^i - 1)(L - 1) + 1 taps (L = 8 for db4), so lambda_i^max is non-zero over that plus 2^i
-    pixels along a row."""
+    coefficients around x.  Across a line, the band-i coefficients are non-zero over the support of the level-i
+    equivalent high-pass filter, (2^i - 1)(L - 1) + 1 taps (L = 8 for db4), so lambda_i^max is non-zero over that
+    plus 2^i pixels, and (centred) covers the line.  (A line, not an impulse: across it only one detail orientation
+    answers, where an impulse's row is the union of a high-passed and a low-passed response.)"""
     n = 256
     img = np.zeros((n, n))
-    img[n // 2, n // 2] = 1.0
+    if axis == 0:
+        img[:, n // 2] = 1.0
+    else:
+        img[n // 2, :] = 1.0
     lam = band_maxima(img, levels=4)[band - 1]
-    row = lam[n // 2]
-    width = int(np.count_nonzero(row > 1e-12 * row.max()))
-    assert width == (2 ** band - 1) * 7 + 1 + 2 ** band, width
+    across = lam[n // 2] if axis == 0 else lam[:, n // 2]
+    on = np.flatnonzero(across > 1e-12 * across.max())
+    assert len(on) == on[-1] - on[0] + 1 == (2 ** band - 1) * 7 + 1 + 2 ** band, on
+    assert on[0] < n // 2 < on[-1]
 
 
 def test_eq7_rule_reads_the_top_of_the_band_that_holds_the_sine():
@@ -565,9 +571,6 @@ def test_eq7_level_is_where_the_finer_bands_sum_reaches_epsilon_of_the_peak():
     np.testing.assert_array_equal(got, want)
 
 
-@pytest.mark.xfail(strict=True, reason="known defect (docs/testing.md, round 10): _centre_shift measures each band's "
-                   "delay on one SWT level, not on the cascade band_maxima runs, and rolls both axes alike, so band i "
-                   "sits about 0.75 * 2^i px right of and below its source")
 def test_each_bands_energy_lies_over_the_impulse_it_describes():
     """The module's roll puts each band's coefficients over the pixels they describe (``_centre_shift``): for a
     unit impulse, the energy centroid of lambda_i^max in x and in y lies within a quarter of band i's finest period

@@ -242,7 +242,7 @@ POOL_RADIUS_MAX = 256
 INTERLEAVE_SIDE_MAX = 2 * POOL_RADIUS_MAX + 1
 LIGHT_TABLE_WIDTH = 256      # columns of the reduced environment the pass reads (module docstring)
 ENV_BW_FORMAT = "warpbw.env-bandwidth"
-ENV_BW_VERSION = 1
+ENV_BW_VERSION = 2   # 2: wavelet bands centred on the cascade's delays (session 58); 1: on one level's
 # The signal Eq. 7's wavelet analysis of the probe reads (``env_signal``): its luminance, as 002 does (the default),
 # or log(1 + L / mean L), where a sun no longer drowns the rest of the probe's detail (module docstring: the trade)
 ENV_SIGNALS = ("radiance", "log")
