@@ -19,8 +19,9 @@ pyramid sees a step at an even position only at its coarsest level).  For pixel 
 ``i`` (``i = 1`` finest, period 2..4 px), ``lambda_i^max(x)`` is the largest magnitude, over the
 three orientations and over the ``2^i + 1`` coefficients around ``x`` (one wavelet width, the
 wavelets "contributing to" ``x``), of the band-``i`` coefficients: the per-band maximum of Eq. 7,
-localised to the pixel as in 000 App. A.  Band ``i`` holds frequencies ``2^-(i+1) .. 2^-i``
-cycles/pixel.
+localised to the pixel as in 000 App. A.  The Daubechies filters are causal and not symmetric, so each detail
+is first rolled by the delays of the cascade that made it, per axis (``_centre_shift``), to sit over the pixels it
+describes.  Band ``i`` holds frequencies ``2^-(i+1) .. 2^-i`` cycles/pixel.
 
 Two rules turn the ``lambda_i^max`` into one bandwidth:
 
