@@ -4,7 +4,7 @@
     python examples/bench_scenes.py --out bench_scenes --run      # and run `warpbw bench` on each
     python examples/bench_scenes.py --out bench_scenes --run --no-mis --results nomis   # 002's baseline
     python examples/bench_scenes.py --out bench_scenes --run --runs 8   # 8 runs per point (the README's table)
-    python examples/bench_scenes.py --out bench_scenes --run --env-signal log --results log   # nu_a on log(1 + L/mean)
+    python examples/bench_scenes.py --out bench_scenes --run --env-signal radiance --results radiance   # nu_a as 002
     python examples/bench_scenes.py --out bench_scenes --run --only sphere_ccp3_forest_sun   # a sun added exactly
 
 Four scenes, two shapes, four NPF-derived MERL materials (one very specular, chrome) and two light

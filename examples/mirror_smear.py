@@ -2,7 +2,7 @@
 
     python examples/mirror_smear.py [--probe ../shared/data/envmaps/city.exr] [--alpha 1e-4]
         [--res 32,64,128] [--budget 4] [--truth-spp 256] [--seed 1] [--clamp-quantile Q]
-        [--env-signal radiance | log] [--worst 8] [--json OUT.json] [--force] [--write-scene DIR]
+        [--env-signal log | radiance] [--worst 8] [--json OUT.json] [--force] [--write-scene DIR]
 
 For each resolution: a radius-1 sphere of GGX (F = 1, ``--alpha``) at the origin, seen from z = 4 with a
 40-degree field of view, lit by the probe alone, MIS throughout.  The reference at ``--budget`` samples per
@@ -18,8 +18,9 @@ pixel was shaded or up-sampled, and the quantiles of the probe's angular bandwid
 ``--clamp-quantile Q`` is a diagnostic, not a method of warpbw: the bandwidth pass reads nu_a from the probe's
 pixels clamped at their Q-quantile of luminance (shading still uses the whole probe), which shows how much of
 the failure comes from the probe's brightest texels dominating the wavelet analysis (Eq. 7's 95% energy rule
-over coarse bands).  Q = 1 leaves the probe as it is.  ``--env-signal log`` is the renderer's own option
-(``warpbw render --env-signal``): the analysis reads log(1 + L / mean L) instead of the luminance.
+over coarse bands).  Q = 1 leaves the probe as it is.  ``--env-signal`` is the renderer's own option
+(``warpbw render --env-signal``): the analysis reads log(1 + L / mean L) ("log", the default) or the luminance
+("radiance", 002's).
 
 ``--write-scene DIR`` writes the sphere's scene file for each ``--res`` (DIR/mirror_RES.toml, the probe by its
 absolute path) and renders nothing: ``warpbw render`` and ``warpbw compare --error-map`` then show the frames and
@@ -190,7 +191,7 @@ def main(argv=None) -> int:
                     help="diagnostic: nu_a from the probe clamped at this luminance quantile, in (0, 1] (default 1)")
     ap.add_argument("--env-signal", choices=ENV_SIGNALS, default=ENV_SIGNALS[0],
                     help="what the bandwidth pass's analysis of the probe reads (warpbw render --env-signal; "
-                    "default radiance)")
+                    f"default {ENV_SIGNALS[0]})")
     ap.add_argument("--worst", type=int, default=WORST_DEFAULT, help=f"pixels to list (default {WORST_DEFAULT})")
     ap.add_argument("--json", help="write the figures here (JSON)")
     ap.add_argument("--force", action="store_true", help="overwrite --json or --write-scene's files")

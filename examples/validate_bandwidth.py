@@ -1,7 +1,7 @@
 """Validation of the bandwidth pass's predictions (002 Sec. 2.2, 2.4 and Fig. 12).
 
     python examples/validate_bandwidth.py --out DIR [--size 256] [--scenes NAME ...]
-        [--env-signal radiance | log] [--quick] [--force]
+        [--env-signal log | radiance] [--quick] [--force]
 
 For each validation scene (a sphere with the NPF fit of color-changing-paint3 under forest.exr, as in
 002 Fig. 12; the bunny with gold-metallic-paint under studio.exr; a GGX gold sphere under studio.exr):
@@ -929,7 +929,7 @@ def parse_args(argv=None):
     ap.add_argument("--nb", type=int, default=16, help="n_b directions of the bandwidth pass (002: 16)")
     ap.add_argument("--env-signal", choices=ENV_SIGNALS, default=ENV_SIGNAL_DEFAULT,
                     help="what the analysis of the probe's angular bandwidth reads (warpbw render --env-signal; "
-                    "default radiance)")
+                    f"default {ENV_SIGNAL_DEFAULT})")
     ap.add_argument("--nb-diagnostic", type=int, default=None,
                     help=f"n_b of a second, diagnostic bandwidth pass (default {N_B_DIAGNOSTIC}; 64 with --quick)")
     ap.add_argument("--seed", type=parse_seed, default=SEED, help=f"seed of the converged image's halves, the "

@@ -1028,7 +1028,7 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     # values a script passes on to warpbw bench / bench-filtering are checked by their parsers up front
     (["bench_scenes.py", "--runs", "0"], "--runs 0: expected a positive integer"),
     (["bench_scenes.py", "--nb", "abc"], "--nb abc: expected comma-separated ints"),
-    (["bench_scenes.py", "--env-signal", "lin"], "--env-signal lin: expected one of radiance, log"),
+    (["bench_scenes.py", "--env-signal", "lin"], "--env-signal lin: expected one of log, radiance"),
     (["mirror_smear.py", "--env-signal", "lin"], "--env-signal"),
     (["validate_bandwidth.py", "--out", "v", "--env-signal", "lin"], "--env-signal"),
     (["filtering_scenes.py", "--zoom", "0"], "--zoom 0: expected comma-separated positive numbers"),

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -451,8 +452,17 @@ def test_env_signal_is_the_luminance_or_its_log_above_the_mean():
     lum = np.array([[0.0, 1.0], [3.0, 0.0]], np.float32)   # mean 1
     assert bw.env_signal(lum, "radiance") is lum
     np.testing.assert_allclose(bw.env_signal(lum, "log"), [[0.0, math.log(2.0)], [math.log(4.0), 0.0]], rtol=1e-12)
-    with pytest.raises(WarpbwError, match="env_signal: expected one of radiance, log, got 'lin'"):
+    with pytest.raises(WarpbwError, match="env_signal: expected one of log, radiance, got 'lin'"):
         bw.env_signal(lum, "lin")
+
+
+def test_env_signal_log_of_a_probe_near_the_float32_limit_is_its_shape():
+    """log(1 + L / mean L) depends on L's shape, not its scale: a probe at 1e36 per texel reads what one at 1 does
+    (its float32 mean overflowed to inf, and the log read 0 everywhere with a numpy overflow warning)."""
+    lum = np.tile(np.array([[0.0, 1.0], [3.0, 0.0]], np.float32), (32, 64))   # 64 x 128 texels summing past 3.4e38
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_allclose(bw.env_signal(lum * np.float32(1e36), "log"), bw.env_signal(lum, "log"), rtol=1e-6)
 
 
 def _sun_edge_probe(sun: float) -> np.ndarray:
@@ -529,8 +539,9 @@ def test_the_frame_reads_the_signal_it_is_given_and_says_so():
     assert np.array_equal(*tables["radiance"]) and not np.array_equal(tables["radiance"][0], tables["log"][0])
     res = render_adaptive(prep, budget=2, env_signal="log")
     assert res.stats["env_signal"] == "log" and prep.bandwidth_signal == "log"
-    assert render_adaptive(prep, budget=2).stats["env_signal"] == "radiance"
-    with pytest.raises(WarpbwError, match="env_signal: expected one of radiance, log, got 'lin'"):
+    assert render_adaptive(prep, budget=2, env_signal="radiance").stats["env_signal"] == "radiance"
+    assert render_adaptive(prep, budget=2).stats["env_signal"] == "log"   # the default (session 58)
+    with pytest.raises(WarpbwError, match="env_signal: expected one of log, radiance, got 'lin'"):
         render_adaptive(prep, budget=2, env_signal="lin")
 
 

@@ -143,10 +143,9 @@ silent:
   0.4 rad, a GGX alpha = 0.2 lobe's reach), so that a direction inside a smooth light would also see its
   edges.  On the GGX sphere of examples/validate_bandwidth.py, whose prediction is lowest in the highlight
   where the reference reads some detail, the per-pixel figure falls from 0.491 to 0.489, 0.487 and 0.479.
-* The probe's nu_a is Eq. 7 applied to its luminance, as 002 applies it (``ENV_SIGNAL_DEFAULT``, "radiance").
-  ``env_signal="log"`` (``--env-signal log``) analyses log(1 + L / mean L) instead (:func:`env_signal`).  Why it
-  exists: Eq. 7 reads a texel's bandwidth off the wavelets that reach it, and a sun's coarse wavelets reach tens
-  of degrees.  In tests/test_bandwidth.py's probe, a dark edge 34 degrees from a 2 x 2-texel sun 10^4 times the
+* The probe's nu_a is Eq. 7 applied to log(1 + L / mean L) (``ENV_SIGNAL_DEFAULT``, "log"; :func:`env_signal`).
+  ``env_signal="radiance"`` (``--env-signal radiance``) applies it to the luminance, as 002 does.  Why the log:
+  Eq. 7 reads a texel's bandwidth off the wavelets that reach it, and a sun's coarse wavelets reach tens of degrees.  In tests/test_bandwidth.py's probe, a dark edge 34 degrees from a 2 x 2-texel sun 10^4 times the
   sky reads 1.0 cycles/rad on radiance against 6.6 without the sun; on the log it reads 6.1.  A near-mirror
   then up-samples across such edges (docs/measurements.md, "Adaptive shading: where it fails").
   The log leaves the probe linear below its
@@ -159,8 +158,18 @@ silent:
   sphere (both under studio.exr); the variance ranks move by at most 0.01.  On the benchmark
   (``examples/bench_scenes.py``, MIS, 3 paired runs) it shades more pixels, and at equal budget the frames lose
   PSNR: the ccp3 sphere 0.06-1.15 dB (shaded 14.5% -> 21.2%), the gold bunny 0.01-0.35 dB (24.9% -> 28.2%),
-  the acrylic bunny 0.01-0.08 dB; the chrome sphere moves by -0.34 to +0.12 dB.  So it is not the default: the
-  benchmark's frames are limited by noise, and every extra pixel shaded takes samples from the others.
+  the acrylic bunny 0.01-0.08 dB; the chrome sphere moves by -0.34 to +0.12 dB.  So it was not the default then:
+  the benchmark's frames are limited by noise, and every extra pixel shaded takes samples from the others.
+  The default since session 58 (``/work/s58``).  Once the wavelet bands were centred on what they describe
+  (``precompute.wavelets``), the radiance read the edges of small bright lights slower: the benchmark's chrome
+  sphere under studio.exr lost 0.3 dB at budget 0.5 up to 8.9 dB at 32 against the off-centre code (a thin
+  light's reflection up-sampled from the dark beside it), and the mirror smeared more under studio.exr at every
+  size.  On the centred analysis the log reads, against the off-centre code's radiance (3 paired runs, budgets
+  0.5-32): chrome sphere -0.54 to +0.12 dB, gold bunny +1.1 to +1.6, acrylic bunny +0.2 to +1.4, ccp3 sphere
+  -0.37 to -0.01; against the centred radiance it costs the ccp3 sphere 0.03-0.29 dB and the acrylic bunny up to
+  0.2.  The mirror at 128 x 128 reads 2.9e-3 under city.exr and 2.2e-3 under studio.exr, and the per-pixel
+  bandwidth ranks of examples/validate_bandwidth.py 0.815 / 0.489 / 0.542 (ccp3 sphere / gold bunny / GGX sphere;
+  0.761 / 0.494 / 0.668 on the radiance).
 * The level (Eq. 11) is computed from the Nyquist sampling rate ``NYQUIST_FACTOR * b_p``: Sec. 2.2
   says "the required sampling rates at the image plane are twice the local image-space bandwidth".
   Measured, not adopted (session 31, a scratch patch; gold bunny of examples/bench_scenes.py, MIS, 4 runs): a
@@ -243,10 +252,10 @@ INTERLEAVE_SIDE_MAX = 2 * POOL_RADIUS_MAX + 1
 LIGHT_TABLE_WIDTH = 256      # columns of the reduced environment the pass reads (module docstring)
 ENV_BW_FORMAT = "warpbw.env-bandwidth"
 ENV_BW_VERSION = 2   # 2: wavelet bands centred on the cascade's delays (session 58); 1: on one level's
-# The signal Eq. 7's wavelet analysis of the probe reads (``env_signal``): its luminance, as 002 does (the default),
-# or log(1 + L / mean L), where a sun no longer drowns the rest of the probe's detail (module docstring: the trade)
-ENV_SIGNALS = ("radiance", "log")
-ENV_SIGNAL_DEFAULT = "radiance"
+# The signal Eq. 7's wavelet analysis of the probe reads (``env_signal``): log(1 + L / mean L) (the default), where a
+# sun no longer drowns the rest of the probe's detail, or its luminance, as 002 does (module docstring: the trade)
+ENV_SIGNALS = ("log", "radiance")
+ENV_SIGNAL_DEFAULT = "log"   # session 58 (module docstring); 002 reads the luminance, "radiance"
 
 _LUM = wp.constant(wp.vec3(*LUMINANCE))
 _TWO_OVER_PI = wp.constant(2.0 / math.pi)
@@ -561,7 +570,8 @@ def env_signal(lum: np.ndarray, signal: str = ENV_SIGNAL_DEFAULT) -> np.ndarray:
     compressed to a few times the sky's level no longer fills the coarse bands of every texel within reach of its
     wavelets."""
     if check_env_signal(signal) == "log":
-        return np.log1p(np.asarray(lum, np.float64) / float(np.mean(lum)))
+        # the mean in float64: a float32 sum of a probe at 1e36 overflowed to inf (numpy warned, the log read 0)
+        return np.log1p(np.asarray(lum, np.float64) / float(np.mean(lum, dtype=np.float64)))
     return lum
 
 
@@ -598,7 +608,7 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
     if float(np.ptp(lum)) == 0.0:
         return np.zeros((h, w), np.float32), "constant"
     digest = "blake2b:" + hashlib.blake2b(px.tobytes() + str(px.shape).encode(), digest_size=16).hexdigest()
-    kind = "" if signal == ENV_SIGNAL_DEFAULT else f"{signal}-"   # the radiance maps keep their cache names
+    kind = "" if signal == "radiance" else f"{signal}-"   # the radiance maps keep their cache names
     path = ((cache_dir() if cache is None else Path(cache))   # a str failed on str / str
             / f"env-bandwidth-{kind}{digest.split(':')[1]}-v{ENV_BW_VERSION}.npz")
     if path.is_file():
@@ -606,7 +616,7 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
             a = read_asset(path, ENV_BW_FORMAT, ENV_BW_VERSION, "delete the cache file")
             nu = np.asarray(a.arrays["nu_a"], np.float32)
             if (a.header.get("source_hash") == digest and nu.shape == (h, w)
-                    and a.header.get("params", {}).get("signal", ENV_SIGNAL_DEFAULT) == signal
+                    and a.header.get("params", {}).get("signal", "radiance") == signal
                     and np.isfinite(nu).all() and (nu >= 0).all()):   # a bandwidth is a finite rate
                 return nu, "cache"
         except (WarpbwError, KeyError, AttributeError):

@@ -36,7 +36,7 @@ _ALLOCATIONS = ("measured", "variance", "sqrt", "relative", "uniform")
 # warpbw.upsample.UPSAMPLE_MODES, default first (spelled here for the same reason)
 _UPSAMPLE_MODES = ("normal", "paper")
 # warpbw.bandwidth.ENV_SIGNALS, default first (spelled here for the same reason)
-ENV_SIGNALS = ("radiance", "log")
+ENV_SIGNALS = ("log", "radiance")
 # warpbw.metrics.RELMSE_EPS and WORST_FRACTION (spelled here for the same reason)
 _RELMSE_EPS = 1.0e-2
 _WORST_FRACTION = 0.01
@@ -305,9 +305,9 @@ def add_adaptive_options(p) -> None:
                    "the normal, on bumps, is not blurred) or paper (002 Sec. 3.2: the weighted mean)")
     p.add_argument("--env-signal", choices=ENV_SIGNALS, default=None,
                    help="adaptive: what the wavelet analysis of the probe's angular bandwidth (002 Eq. 7) reads: "
-                   "radiance (default; the paper's) or log, log(1 + L / mean L), where a sun no longer hides the "
-                   "edges around it: near-mirrors under a probe with a sun smear far less, but on the benchmark "
-                   "scenes it shades more pixels and loses up to 1.15 dB at equal budget (README)")
+                   "log (default), log(1 + L / mean L), where a sun or a small bright light no longer hides the edges "
+                   "around it, or radiance (the paper's), which near-mirrors and sharp lobes under small lights "
+                   "up-sample across (README)")
 
 
 def add_anisotropy_option(p, default) -> None:

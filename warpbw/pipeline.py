@@ -394,7 +394,7 @@ class _AnalyticSource:
 
 def prepare_bandwidth(prep: PreparedScene, progress: bool = False, env_signal: str | None = None):
     """The bandwidth pass's inputs (adaptive method only; built once per prepared scene and ``env_signal``): the
-    environment's nu_a map, analysed on ``env_signal`` (:func:`warpbw.bandwidth.env_signal`; default "radiance"),
+    environment's nu_a map, analysed on ``env_signal`` (:func:`warpbw.bandwidth.env_signal`; default "log"),
     and one nu_rho table per material, from the scene's ``bandwidth`` file, the cache, or built (analytic materials:
     from the renderer's own BRDF evaluation).  Derives the meshes' curvature too (Eq. 3's c, which only this pass
     reads; timed as ``load_mesh_curvature``)."""
@@ -475,7 +475,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     ``sigma2`` (the pass's radiance variance).  ``stride`` and ``pool_radius`` set how the bandwidth pass shares
     its directions (:func:`warpbw.bandwidth.bandwidth_pass`);
     ``upsample`` how the hierarchy up-samples ("normal", the default, or "paper": :mod:`warpbw.upsample`);
-    ``env_signal`` what the probe's angular bandwidth is analysed on ("radiance", the default, or "log":
+    ``env_signal`` what the probe's angular bandwidth is analysed on ("log", the default, or "radiance", 002's:
     :func:`warpbw.bandwidth.env_signal`).  The scene needs an environment; its directional lights are added exactly
     at every pixel (:mod:`warpbw.adaptive`).  ``clip_distance`` hides what lies beyond it, as for
     :func:`render_reference`: a hidden pixel takes no part in the pass, the budget or the hierarchy."""
