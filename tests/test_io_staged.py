@@ -261,8 +261,11 @@ def test_a_command_stopped_by_a_signal_leaves_its_outputs_and_no_temporary(tmp_p
     out = tmp_path / "out"
     out.mkdir()
     (out / "image.exr").write_bytes(b"an earlier image")
+    # a shell without job control starts background jobs with SIGINT ignored, and Python then leaves it ignored:
+    # the child gets the default back, as a terminal's Ctrl-C would find it (a CI run under nohup read status 0)
     child = subprocess.Popen([sys.executable, "-c", _STOPPED_WRITER, str(out)], stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True)
+                             stderr=subprocess.PIPE, text=True,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         assert child.stdout.readline() == "written\n"
         assert len(_leftovers(out)) == 2                      # the temporaries are there while it writes
