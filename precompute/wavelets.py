@@ -273,13 +273,12 @@ def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int |
         # one level at a time (start_level = i) keeps memory at one band of the padded image
         (approx, (ch, cv, cd)), = pywt.swt2(approx, wav, level=1, start_level=i,
                                             axes=(-2, -1), norm=True)
-        # the SWT output is shifted by the filters' delays; centre each detail on the pixels it describes.
-        # pywt's horizontal detail ch high-passes rows (axis -2) and low-passes columns, cv the reverse
+        # the SWT output is shifted by the filters' delays; centre each detail on the pixels it describes (after
+        # the maximum over channels: a roll along the image's axes commutes with it).  pywt's horizontal detail ch
+        # high-passes rows (axis -2) and low-passes columns, cv the reverse
         hi, lo = _centre_shift(wav.name, i)
-        ch = np.roll(np.abs(ch), (hi, lo), axis=(-2, -1))
-        cv = np.roll(np.abs(cv), (lo, hi), axis=(-2, -1))
-        cd = np.roll(np.abs(cd), (hi, hi), axis=(-2, -1))
-        mag = np.maximum(np.maximum(ch, cv), cd).max(axis=0)
+        mag = np.max([np.roll(np.abs(d).max(axis=0), shift, axis=(0, 1))
+                      for d, shift in ((ch, (hi, lo)), (cv, (lo, hi)), (cd, (hi, hi)))], axis=0)
         size = 2 ** (i + 1) + 1  # one wavelet width of band i+1 (1-based): the "contributing" set
         mag = _max_filter_1d(mag, size, 0)
         mag = _max_filter_1d(mag, size, 1)
