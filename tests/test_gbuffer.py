@@ -556,9 +556,13 @@ def test_build_geometry_and_render_gbuffer_refuse_what_would_render_wrong_or_cra
         ([SphereSpec((0, 0, 0), 1.0, 1.5)], [], r"spheres\[0\] material: expected an integer"),
         ([(0, 0, 0, 1.0)], [], r"spheres\[0\]: expected a SphereSpec"),
         ([], [MeshSpec(m.vertices, m.faces + 1, m.normals, m.curvature, None, 0)],
-         rf"meshes\[0\] faces: expected vertex indices in 0\.\.{nv - 1}, got 1 to {nv}"),
-        ([], [MeshSpec(m.vertices, m.faces.astype(float), m.normals, m.curvature, None, 0)],
-         r"meshes\[0\] faces: expected \(F, 3\) integer"),
+         rf"meshes\[0\] faces: \d+ vertex indices lie outside 0\.\.{nv - 1} \(the {nv} vertices; got 1 to {nv}\)"),
+        ([], [MeshSpec(m.vertices, m.faces + 0.5, m.normals, m.curvature, None, 0)],
+         r"meshes\[0\] faces: expected integer vertex indices, got float64 values"),
+        ([], [MeshSpec(m.vertices, m.faces[:, :2], m.normals, m.curvature, None, 0)],
+         r"meshes\[0\] faces: expected triangles, shape \(F, 3\)"),
+        ([], [MeshSpec(m.vertices, np.zeros((0, 3), int), m.normals, m.curvature, None, 0)],
+         r"meshes\[0\] faces: expected at least one triangle, got none"),
         ([], [MeshSpec(m.vertices, m.faces, m.normals[:-1], m.curvature, None, 0)],
          rf"meshes\[0\] normals: expected shape \({nv}, 3\)"),
         ([], [MeshSpec(m.vertices, m.faces, m.normals, m.curvature, np.zeros((nv, 3)), 0)],
@@ -570,6 +574,10 @@ def test_build_geometry_and_render_gbuffer_refuse_what_would_render_wrong_or_cra
         with pytest.raises(WarpbwError, match=msg):
             build_geometry(spheres, meshes)
     cam = make_camera((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, 8, 8)
+    # integral float indices are the same faces, as every helper of warpbw.io.mesh reads them
+    as_float = MeshSpec(m.vertices, m.faces.astype(float), m.normals, m.curvature, None, 0)
+    np.testing.assert_array_equal(render_gbuffer(cam, build_geometry([], [as_float])).numpy("depth"),
+                                  render_gbuffer(cam, build_geometry([], [m])).numpy("depth"))
     other = render_gbuffer(make_camera((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, 16, 12),
                            build_geometry([], [m]))
     with pytest.raises(WarpbwError, match="render_gbuffer: out: expected a GBuffer of the camera's 8x8, got 16x12"):

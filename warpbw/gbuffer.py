@@ -52,6 +52,7 @@ import warp as wp
 
 from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, check_count,
                            check_device, is_int)
+from warpbw.io.mesh import checked_faces, local_curvature
 
 RAY_T_MAX = 1.0e30
 # Primary rays are intersected in float32, and outside these distances from the camera (to an object's far
@@ -427,12 +428,9 @@ def _check_mesh_spec(k: int, m: MeshSpec) -> None:
         _per_vertex("uv", m.uv, (n_v, 2), where)
     if not callable(m.curvature):
         _per_vertex("curvature", m.curvature, (n_v,), where)
-    f = np.asarray(m.faces)
     # Warp's BVH reads the vertices the faces index: one out of range crashed the process
-    if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0 or not np.issubdtype(f.dtype, np.integer):
-        raise WarpbwError(f"{where}faces: expected (F, 3) integer vertex indices, F >= 1, got {f.dtype} {f.shape}")
-    if f.min() < 0 or f.max() >= n_v:
-        raise WarpbwError(f"{where}faces: expected vertex indices in 0..{n_v - 1}, got {f.min()} to {f.max()}")
+    if len(checked_faces(m.faces, n_v, f"{where}faces")) == 0:
+        raise WarpbwError(f"{where}faces: expected at least one triangle, got none")
     check_count(m.material, f"{where}material", 0, INT32_MAX)
 
 
@@ -446,8 +444,6 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
         _check_sphere_spec(k, s)
     for k, m in enumerate(meshes):
         _check_mesh_spec(k, m)
-    from warpbw.io.mesh import local_curvature
-
     sl = SphereList()
     sl.center = wp.array(np.array([s.center for s in spheres], np.float32).reshape(-1, 3), dtype=wp.vec3,
                          device=device)
@@ -504,8 +500,6 @@ def ensure_curvature(geometry: Geometry) -> bool:
     """Derive the curvature that ``build_geometry`` deferred (a MeshSpec whose curvature is a callable) and
     upload it, as ``build_geometry`` stores a given one; then nothing is pending.  Returns True when there was
     anything to derive."""
-    from warpbw.io.mesh import local_curvature
-
     pending = geometry.curvature_pending
     derived = bool(pending)
     for k in sorted(pending):   # each mesh stays pending until its curvature is on the device

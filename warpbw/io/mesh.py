@@ -24,6 +24,9 @@ exact power-of-two scale, so the cross products cannot overflow or underflow.
   ``mesh_mean_curvature`` for a mesh whose vertices moved (dynamic geometry, 002 Sec. 4.3: recomputed every
   frame, nothing cached; about 55 ms for the 70k-triangle bunny on one core, all numpy;
   ``warpbw.mesh_normals`` does it on the device).
+- ``checked_faces(faces, nv, what="faces") -> (F, 3) int64``: the faces check every helper here runs, for
+  callers that take faces from elsewhere (``warpbw.gbuffer.build_geometry``): triangles of integer (or
+  integral float) indices into ``nv`` vertices, else a one-line ``WarpbwError`` naming ``what``.
 - ``local_curvature(mean_curvature, faces, passes=CURVATURE_SMOOTHING_PASSES) -> (V,)``: the curvature the
   bandwidth pass reads, |H| averaged over about two rings (12 ms on the bunny; ``warpbw.mesh_normals`` does
   it on the device).
@@ -104,7 +107,7 @@ def _checked_vertices(vertices, what: str = "vertices") -> np.ndarray:
     return v
 
 
-def _checked_faces(faces, nv: int, what: str = "faces") -> np.ndarray:
+def checked_faces(faces, nv: int, what: str = "faces") -> np.ndarray:
     """``faces`` as int64 (F, 3) when they are triangles of integer indices in 0..nv-1, else a one-line
     WarpbwError naming ``what`` (an index out of range was numpy's IndexError, a negative one read a vertex from
     the end or failed in bincount, an (F, 4) array "weights and list don't have the same length")."""
@@ -158,7 +161,7 @@ def vertex_normals(vertices, faces) -> np.ndarray:
     is zero gets ``FALLBACK_NORMAL``: one without incident area, or one whose faces cancel (coincident triangles
     wound in opposite directions; ``load_mesh`` refuses those)."""
     v = _checked_vertices(vertices)
-    return _unit_normals(_normal_sums(v, _checked_faces(faces, len(v)))[0])
+    return _unit_normals(_normal_sums(v, checked_faces(faces, len(v)))[0])
 
 
 def _unit_normals(sums: np.ndarray) -> np.ndarray:
@@ -177,7 +180,7 @@ def mesh_mean_curvature(vertices, faces, normals=None) -> np.ndarray:
     normal, and every H came out 0: the unit icosphere's is 1.)
     """
     vertices = _checked_vertices(vertices)
-    faces = _checked_faces(faces, len(vertices))
+    faces = checked_faces(faces, len(vertices))
     if normals is None:
         nrm = _unit_normals(_normal_sums(vertices, faces)[0])   # vertex_normals', the mesh already checked
     else:
@@ -250,7 +253,7 @@ def boundary_neighbours(faces, nv: int) -> tuple[np.ndarray, np.ndarray, np.ndar
     direction it occurs in); a boundary edge belongs to one face only.  ``faces`` (F, 3) must index 0..nv-1 (an
     index beyond wrapped into another edge's key, a plausible but wrong boundary)."""
     nv = check_count(nv, "nv", 0)
-    f = _checked_faces(faces, nv)
+    f = checked_faces(faces, nv)
     all_edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
     uniq, counts = _unique_edges(all_edges, nv)
     on_boundary = np.zeros(nv, dtype=bool)
@@ -294,7 +297,7 @@ def local_curvature(mean_curvature, faces, passes: int = CURVATURE_SMOOTHING_PAS
         raise WarpbwError(f"local_curvature: mean_curvature: {int(bad.sum())} of {len(h)} values are NaN, infinite or "
                           f"beyond float32 (expected finite values within +-{FLOAT32_MAX:.4g})")
     nv = len(h)
-    f = _checked_faces(faces, nv, "local_curvature: faces")
+    f = checked_faces(faces, nv, "local_curvature: faces")
     # (to, from) for each face's six ordered corner pairs
     to = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])
     fr = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]])
@@ -313,7 +316,7 @@ def normals_and_curvature(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
     No state is kept between calls (nothing is precomputed from an earlier pose).  The mesh is checked once (it
     was checked three times: by each function, and the normals again)."""
     v = _checked_vertices(vertices)
-    f = _checked_faces(faces, len(v))
+    f = checked_faces(faces, len(v))
     normals = _unit_normals(_normal_sums(v, f)[0])
     # unit_directions as mesh_mean_curvature(v, f, normals) applies it: the same H, to the last bit
     return normals, _mean_curvature(v, f, unit_directions(normals, "normals"))
