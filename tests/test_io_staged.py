@@ -279,6 +279,47 @@ def test_a_command_stopped_by_a_signal_leaves_its_outputs_and_no_temporary(tmp_p
     assert (out / "image.exr").read_bytes() == b"an earlier image"
 
 
+class _Stopped(BaseException):
+    """What the test's SIGTERM handler raises (as run_command's does)."""
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_a_stop_while_the_outputs_are_moved_comes_after_the_last_one(tmp_path, monkeypatch, sig):
+    """A Ctrl-C or SIGTERM that arrived between two moves into place stopped the run there: a new image beside the
+    old record.  Now the stop is held until every output is moved, then raised as it would have been; the handler
+    the run had is back afterwards.  Truth: the signal is sent from inside the first move."""
+    import signal
+
+    import warpbw.io.staged as staged
+
+    outs = [tmp_path / "image.exr", tmp_path / "stats.json"]
+    for p in outs:
+        p.write_text("old")
+    real_replace, moves = os.replace, []
+
+    def replace_then_stop(src, dst):
+        real_replace(src, dst)
+        moves.append(dst)
+        if len(moves) == 1:
+            os.kill(os.getpid(), getattr(signal, sig))
+
+    def stopped(signum, frame):
+        raise _Stopped(signum)
+
+    previous = signal.signal(signal.SIGTERM, stopped)
+    try:
+        monkeypatch.setattr(staged.os, "replace", replace_then_stop)
+        with pytest.raises(KeyboardInterrupt if sig == "SIGINT" else _Stopped):
+            with staged_outputs(outs) as temps:
+                for tmp in temps.values():
+                    tmp.write_text("new")
+        assert signal.getsignal(signal.SIGTERM) is stopped
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert [p.read_text() for p in outs] == ["new", "new"] and len(moves) == 2
+    assert _leftovers(tmp_path) == []
+
+
 def test_run_command_leaves_the_sigterm_handler_as_it_found_it():
     """run_command's SIGTERM handler holds while the command runs: after it returns, the caller's handler is back (a
     Python caller of cli.main() got the command's termination raised anywhere later)."""

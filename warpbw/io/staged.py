@@ -8,7 +8,9 @@ Every writer of warpbw (images, records, plots, asset and cache files) writes to
 output, and the outputs of one command are moved into place together once all of them are written.  So
 
 * an interrupted or failed run (a full disk, a killed process, an error in a later writer) leaves every output
-  as it was: no cut-off file, no new image beside an old record;
+  as it was: no cut-off file, no new image beside an old record.  A stop that arrives while the outputs are moved
+  into place (Ctrl-C, SIGTERM, SIGHUP) is held until the last one is moved, then takes effect; SIGKILL cannot be
+  held, and leaves the hidden temporaries (``.NAME.*.part.EXT`` beside each output) for the user to delete;
 * an existing output is replaced, never written through: a hard link to it, or a symlink at its place, keeps
   the file it pointed at (``--force`` once rewrote a light probe hard-linked to ``-o``);
 * two runs that write the same output at once do not write into one temporary file: each has its own
@@ -21,8 +23,10 @@ an existing read-only file (``chmod a-w`` is the user's "keep this"; a rename wo
 from __future__ import annotations
 
 import os
+import signal
 import stat
 import tempfile
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -111,6 +115,32 @@ def _named(exc: BaseException, temps: dict) -> str:
     return msg
 
 
+# the stops a user or a scheduler sends (Ctrl-C, kill, a closed terminal); SIGKILL cannot be held
+HELD_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
+@contextmanager
+def _signals_held():
+    """While the block runs, the signals of ``HELD_SIGNALS`` are recorded instead of handled; when it ends each one
+    recorded is raised again, under the handler it found (an ignored one stays ignored).  Outside the main thread,
+    where Python sets no handler, nothing is held."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+    # None: a handler not set from Python, which Python cannot put back
+    held = {sig: h for sig in HELD_SIGNALS if (h := signal.getsignal(sig)) is not None}
+    for sig in held:
+        signal.signal(sig, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        for sig, handler in held.items():
+            signal.signal(sig, handler)
+        for sig in dict.fromkeys(caught):
+            signal.raise_signal(sig)
+
+
 @contextmanager
 def staged_outputs(paths):
     """Yield ``{output: temporary}`` for ``paths``; write each output to its temporary.  When the block ends
@@ -128,9 +158,10 @@ def staged_outputs(paths):
             except OSError as exc:   # its folder under a file, or not writable: name the output
                 raise WarpbwError(f"{p}: cannot write ({exc.strerror or exc})") from None
         yield dict(temps)
-        for p in outs:
-            os.replace(temps[p], p)
-            del temps[p]
+        with _signals_held():   # a Ctrl-C between two moves left a new image beside an old record
+            for p in outs:
+                os.replace(temps[p], p)
+                del temps[p]
     except WarpbwError as exc:
         raise WarpbwError(_named(exc, temps)) from None
     except OSError as exc:   # a full disk, a folder that went read-only: name the output, not the temporary
