@@ -100,13 +100,15 @@ def test_command_line_writes_json_and_refuses_to_overwrite(tmp_path):
 
 def test_every_figure_by_hand_on_a_fake_frame(ac, monkeypatch):
     """Truth worked out by hand (no renderer): five covered pixels with one-step variances v = [16, 4, 1, 0.04, 4]
-    (a sixth not covered), a frame that shades all but the third with N_p = [6, 3, -, 1, 2] (12 samples, 2.4 per
-    covered pixel) and whose pass measured variance key / N_p with key = v.
+    (a sixth not covered), a frame that shades all but the third with N_p = [6, 3, -, 1, 2], the fourth as a coarse
+    texel that took 2 samples (its footprint's largest N_p): spp = [6, 3, -, 2, 2], 13 samples, 2.6 per covered
+    pixel; its pass measured variance key / N_p with key = v.
       oracle_all = mean(v) / mean(sqrt v)^2 = 5.008 / 1.84^2;  top 10% (one pixel): 16 / 25.04;
-      reference at 2.4 spp: sum(v) / 2.4 = 25.04 / 2.4, over the shaded pixels' sum(v / N):
-      uniform (3 each): 24.04 / 3;  Neyman: (4 + 2 + 0.2 + 2)^2 / 12 = 8.2^2 / 12;
-      Neyman with at least one each: the 0.04 pixel gets 1, the other 11 go 4 : 2 : 2 -> 16 / 5.5 + 4 / 2.75 +
-      0.04 + 4 / 2.75;  the frame's: 16 / 6 + 4 / 3 + 0.04 / 1 + 4 / 2;
+      reference at 2.6 spp: sum(v) / 2.6 = 25.04 / 2.6, over the shaded pixels' sum(v / N):
+      uniform (3.25 each): 24.04 / 3.25;  Neyman: (4 + 2 + 0.2 + 2)^2 / 13 = 8.2^2 / 13;
+      Neyman with at least one each: the 0.04 pixel gets 1, the other 12 go 4 : 2 : 2 -> 16 / 6 + 4 / 3 + 0.04 +
+      4 / 3;  the frame's: 16 / 6 + 4 / 3 + 0.04 / 2 + 4 / 2 (the samples taken, not the N_p map: 12 samples and
+      0.04 / 1 read the frame as spending less than it did);
       rank_measured: key = v on the shaded pixels, so 1 (the measured variance key / N_p alone would rank them
       otherwise)."""
     from types import SimpleNamespace
@@ -117,6 +119,7 @@ def test_every_figure_by_hand_on_a_fake_frame(ac, monkeypatch):
     var = np.array([[16.0, 4.0, 1.0, 0.04, 4.0, 100.0]])
     n_p = np.array([[6.0, 3.0, 0.0, 1.0, 2.0, 0.0]])
     shaded = np.array([[True, True, False, True, True, False]])
+    spp = np.array([[6.0, 3.0, 0.0, 2.0, 2.0, 0.0]])
     key = var.copy()
     seen = {}
 
@@ -128,18 +131,18 @@ def test_every_figure_by_hand_on_a_fake_frame(ac, monkeypatch):
         seen["adaptive"] = (budget, seed, mis)
         with np.errstate(divide="ignore", invalid="ignore"):
             measured = np.where(n_p > 0, key / np.maximum(n_p, 1e-30), 0.0)
-        return SimpleNamespace(aovs={"n_p": n_p, "shaded": shaded, "variance": measured})
+        return SimpleNamespace(aovs={"n_p": n_p, "spp": spp, "shaded": shaded, "variance": measured})
 
     monkeypatch.setattr(ac, "per_pixel_variance", fake_variance)
     monkeypatch.setattr(warpbw.pipeline, "render_adaptive", fake_adaptive)
     r = ac.allocation_ceiling(None, budget=2.0, seeds=5, spp=3, seed=11)
     assert seen == {"variance": (5, 3), "adaptive": (2.0, 11, True)}
-    ref = 25.04 / 2.4
-    want = {"covered_pixels": 5, "frame_samples_per_covered_pixel": 2.4, "shaded_fraction": 0.8,
+    ref = 25.04 / 2.6
+    want = {"covered_pixels": 5, "frame_samples_per_covered_pixel": 2.6, "shaded_fraction": 0.8,
             "top_10pct_variance_share": 16.0 / 25.04, "oracle_all": 5.008 / 1.84 ** 2,
-            "uniform_shaded": ref / (24.04 / 3.0), "oracle_shaded": ref / (8.2 ** 2 / 12.0),
-            "oracle_shaded_min1": ref / (16.0 / 5.5 + 4.0 / 2.75 + 0.04 + 4.0 / 2.75),
-            "frame": ref / (16.0 / 6.0 + 4.0 / 3.0 + 0.04 + 2.0), "rank_measured": 1.0}
+            "uniform_shaded": ref / (24.04 / 3.25), "oracle_shaded": ref / (8.2 ** 2 / 13.0),
+            "oracle_shaded_min1": ref / (16.0 / 6.0 + 4.0 / 3.0 + 0.04 + 4.0 / 3.0),
+            "frame": ref / (16.0 / 6.0 + 4.0 / 3.0 + 0.02 + 2.0), "rank_measured": 1.0}
     for k, v in want.items():
         assert r[k] == pytest.approx(v, rel=1e-9), k
 
@@ -153,7 +156,8 @@ def test_top_tenth_share_counts_a_tenth_of_the_covered_pixels(ac, monkeypatch):
     var = np.arange(1.0, 21.0)[None, :]
     monkeypatch.setattr(ac, "per_pixel_variance", lambda prep, seeds, spp, progress=False: (var > 0, var))
     monkeypatch.setattr(warpbw.pipeline, "render_adaptive", lambda prep, budget, **kw: SimpleNamespace(
-        aovs={"n_p": np.full(var.shape, 2.0), "shaded": var > 0, "variance": var / 2.0}))
+        aovs={"n_p": np.full(var.shape, 2.0), "spp": np.full(var.shape, 2.0), "shaded": var > 0,
+              "variance": var / 2.0}))
     r = ac.allocation_ceiling(None, budget=2.0, seeds=2, spp=1)
     assert r["top_10pct_variance_share"] == pytest.approx(39.0 / 210.0, rel=1e-12)
     assert r["uniform_shaded"] == pytest.approx(1.0, rel=1e-12) and r["rank_measured"] == pytest.approx(1.0)

@@ -405,7 +405,7 @@ def test_render_adaptive_writes_aovs_and_caches_tables(work, npf_scene):
     # measured variance) may draw a zero estimate (both MIS samples miss), but rarely
     assert rgb[covered & ~shaded_mask].max(-1).min() > 0.0
     assert (rgb[covered].max(-1) > 0).mean() > 0.98
-    for name in ("level", "n_p", "variance", "shaded", "b_p"):
+    for name in ("level", "n_p", "spp", "variance", "shaded", "b_p"):
         aov = read_exr(out.with_suffix(f".{name}.exr")).pixels[..., 0]
         assert aov.shape == (32, 32) and np.isfinite(aov).all()
         assert out.with_suffix(f".{name}.png").stat().st_size > 0
@@ -414,9 +414,12 @@ def test_render_adaptive_writes_aovs_and_caches_tables(work, npf_scene):
     assert np.all(n_p[covered] >= 1) and np.all(n_p[~covered] == 0) and shaded[covered].any()
     stats = json.loads(out.with_suffix(".json").read_text())
     assert stats["method"] == "adaptive" and "bandwidth_pass" in stats["stages"]
+    spp = read_exr(out.with_suffix(".spp.exr")).pixels[..., 0]   # what the frame took, where it shaded
+    assert spp.sum() == stats["samples"] and np.array_equal(spp > 0, shaded)
     assert stats["samples"] >= stats["pixels_shaded"] >= 1
     # each false-colour PNG's scale, in the JSON and in the PNG itself, is its EXR's range over the pixels shown
-    for name, log in (("level", False), ("n_p", True), ("variance", True), ("shaded", False), ("b_p", True)):
+    for name, log in (("level", False), ("n_p", True), ("spp", True), ("variance", True), ("shaded", False),
+                      ("b_p", True)):
         check_colour_scale(out.with_suffix(f".{name}.exr"), stats["colour_scales"][name], covered, log)
     assert {"gbuffer", "bandwidth", "shading", "upsampling", "frame"} <= set(stats["time_s"])
     assert sum(lv["shaded"] for lv in stats["levels"]) == stats["pixels_shaded"]
@@ -712,12 +715,12 @@ def test_render_and_info_of_a_scene_with_planes_beside_a_sphere(tmp_path):
     assert stats["time_s"]["frame"] >= stats["time_s"]["planes"] > 0
     mip = read_exr(out.with_suffix(".mip_level.exr")).pixels[..., 0]
     assert (mip != 0).sum() > 0 and np.all(mip[alpha == 0] == 0)
-    for name in ("level", "n_p", "variance", "shaded", "b_p"):
+    for name in ("level", "n_p", "spp", "variance", "shaded", "b_p"):
         assert out.with_suffix(f".{name}.exr").exists() and out.with_suffix(f".{name}.png").exists()
     assert out.with_suffix(".mip_level.png").stat().st_size > 0
     # both renderers' false-colour maps carry their scales (their ranges are checked in the single-renderer tests)
     scales = stats["colour_scales"]
-    assert set(scales) == {"level", "n_p", "variance", "shaded", "b_p", "mip_level"}
+    assert set(scales) == {"level", "n_p", "spp", "variance", "shaded", "b_p", "mip_level"}
     text = Image.open(out.with_suffix(".mip_level.png")).text["Description"]
     assert f"from {scales['mip_level']['from']:.6g} (dark blue) to {scales['mip_level']['to']:.6g}" in text
     before = out.read_bytes()
@@ -1589,8 +1592,9 @@ def _aovs(cov=COV):
     variance = np.where(cov, 0.001 * (1 + xx + yy), 9.0).astype(np.float32)   # 0.001 .. 0.006 covered
     variance[0, 0] = 0.0                                                      # no estimate there: not on a log scale
     shaded = np.where(cov, (level == 0), 0).astype(np.float32)
+    spp = np.where(shaded > 0, n_p * (1 + xx % 2), 0).astype(np.float32)      # 0 (up-sampled); 16, 32 shaded
     b_p = np.where(cov, 0.05 * (1 + yy), 0).astype(np.float32)               # 0.05 .. 0.2
-    return {"level": level, "n_p": n_p, "variance": variance, "shaded": shaded, "b_p": b_p}
+    return {"level": level, "n_p": n_p, "spp": spp, "variance": variance, "shaded": shaded, "b_p": b_p}
 
 
 def _scale(v, cov, log):
@@ -1623,9 +1627,11 @@ def test_render_adaptive_summary_and_colour_scales_by_hand(small_scenes, monkeyp
     assert _lines(out, "  shaded") == "  shaded 3 pixels (25.0%), 36 samples (3.00 per covered pixel)"
     assert _lines(out, "  gbuffer") == ("  gbuffer 2.0 ms, bandwidth 4.0 ms (12.5% of the frame), shading 0.020 s, "
                                         "up-sampling 1.0 ms, frame 0.032 s, total 0.50 s")
-    assert _lines(out, "  AOVs") == "  AOVs a.level.exr, a.n_p.exr, a.variance.exr, a.shaded.exr, a.b_p.exr (+ .png)"
+    assert _lines(out, "  AOVs") == ("  AOVs a.level.exr, a.n_p.exr, a.spp.exr, a.variance.exr, a.shaded.exr, "
+                                     "a.b_p.exr (+ .png)")
     want = {}
-    for name, log in (("level", False), ("n_p", True), ("variance", True), ("shaded", False), ("b_p", True)):
+    for name, log in (("level", False), ("n_p", True), ("spp", True), ("variance", True), ("shaded", False),
+                      ("b_p", True)):
         lo, hi = _scale(aovs[name], COV, log)
         want[name] = (lo, hi, log)
         assert read_exr(Path(f"a.{name}.exr")).pixels[..., 0] == pytest.approx(aovs[name])

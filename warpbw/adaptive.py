@@ -144,6 +144,7 @@ class AdaptiveResult:
     image: np.ndarray            # (H, W, 3) radiance, 0 where no geometry
     shaded: np.ndarray           # (H, W) bool: finest pixels that were shaded (at any level)
     shaded_level: np.ndarray     # (H, W) int: level at which the pixel was shaded, -1 if up-sampled/empty
+    spp: np.ndarray              # (H, W) int32: samples taken at the pixel (its texel's N_p; 0 if up-sampled/empty)
     stats: dict = field(default_factory=dict)
 
 
@@ -318,4 +319,4 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
              "pixels_shaded": int((sl >= 0).sum()),
              "shaded_fraction": float((sl >= 0).sum() / n_cov) if n_cov else 0.0,
              "time_s": {"shading": t_shade, "upsampling": t_up, "lights": t_lights}}
-    return AdaptiveResult(image.astype(np.float32), sl >= 0, sl, stats)
+    return AdaptiveResult(image.astype(np.float32), sl >= 0, sl, spp_at_pixel.numpy().reshape(H, W), stats)

@@ -98,7 +98,9 @@ def _write_render(res, outs: dict, exposure: float, at: dict):
 # AOVs of the adaptive method (002 Fig. 1d / 18): name -> (what it is, false-colour scale)
 AOVS = {
     "level": ("shading level per pixel (002 Eq. 11, 0 = full resolution)", "linear"),
-    "n_p": ("samples per pixel N_p (002 Sec. 2.4)", "log"),
+    "n_p": ("samples allocated per pixel, N_p (002 Sec. 2.4)", "log"),
+    "spp": ("samples the frame took at the pixel: a texel shaded at a coarser level takes the largest N_p of its "
+            "footprint (002 Sec. 3.1); 0 where up-sampled", "log"),
     "variance": ("predicted variance bound sigma2 / N_p (002 Eq. 9)", "log"),
     "shaded": ("1 where the pixel was shaded, 0 where up-sampled", "linear"),
     "b_p": ("predicted image bandwidth, cycles/pixel (002 Eq. 6)", "log"),
@@ -716,7 +718,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also sample the environment and combine by multiple importance sampling")
     r.add_argument("--method", choices=METHODS, default=METHODS[0],
                    help="reference: every pixel with --spp samples (default); adaptive: bandwidth prediction and "
-                   "hierarchical shading (002), which also writes the AOVs OUT.level/.n_p/.variance/.shaded/.b_p "
+                   "hierarchical shading (002), which also writes the AOVs OUT.level/.n_p/.spp/.variance/.shaded/.b_p "
                    "as EXR and false-colour PNG")
     r.add_argument("--budget", type=_positive_float("budget", BUDGET_MAX), default=None,
                    help="adaptive: mean samples per covered pixel, spread over the shaded pixels in proportion to the "
