@@ -320,6 +320,40 @@ def test_a_stop_while_the_outputs_are_moved_comes_after_the_last_one(tmp_path, m
     assert _leftovers(tmp_path) == []
 
 
+def test_the_next_run_removes_what_a_killed_run_left_and_nothing_else(tmp_path):
+    """SIGKILL (the OOM killer, kill -9) cannot be caught: the writer's hidden temporaries stayed beside its outputs
+    for good, unseen.  The next run that writes an output removes that output's temporaries whose process is gone
+    from this machine; it keeps a live writer's, another machine's, another output's, and a file of the user's that
+    only looks like one.  Truth: a real child killed with SIGKILL while it writes."""
+    import signal
+    import subprocess
+
+    out = tmp_path / "out"
+    out.mkdir()
+    child = subprocess.Popen([sys.executable, "-c", _STOPPED_WRITER, str(out)], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline() == "written\n"
+        child.send_signal(signal.SIGKILL)
+        child.communicate(timeout=120)
+    finally:
+        child.kill()
+    killed = _leftovers(out)
+    assert len(killed) == 2 and all(f"-{child.pid}." in n for n in killed), killed
+    host = killed[0].split(".")[2].split("-")[0]
+    kept = [f".image.{host}-{os.getpid()}.abc123.part.exr",        # a live writer (this test)
+            ".image.0000beef-1.abc123.part.exr",                   # another machine's
+            f".image.{host}-{child.pid}.abc123.part.png",          # another output's (image.png)
+            ".image.mine.part.exr"]                                 # the user's
+    for n in kept:
+        (out / n).write_text("keep")
+    with staged_outputs([out / "image.exr"]) as temps:
+        temps[out / "image.exr"].write_bytes(b"whole")
+    assert (out / "image.exr").read_bytes() == b"whole"
+    # stats.json's temporary stays until a run writes stats.json
+    assert _leftovers(out) == sorted(kept + [n for n in killed if n.startswith(".stats.")])
+
+
 def test_run_command_leaves_the_sigterm_handler_as_it_found_it():
     """run_command's SIGTERM handler holds while the command runs: after it returns, the caller's handler is back (a
     Python caller of cli.main() got the command's termination raised anywhere later)."""

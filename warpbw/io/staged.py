@@ -9,8 +9,9 @@ output, and the outputs of one command are moved into place together once all of
 
 * an interrupted or failed run (a full disk, a killed process, an error in a later writer) leaves every output
   as it was: no cut-off file, no new image beside an old record.  A stop that arrives while the outputs are moved
-  into place (Ctrl-C, SIGTERM, SIGHUP) is held until the last one is moved, then takes effect; SIGKILL cannot be
-  held, and leaves the hidden temporaries (``.NAME.*.part.EXT`` beside each output) for the user to delete;
+  into place (Ctrl-C, SIGTERM, SIGHUP) is held until the last one is moved, then takes effect.  SIGKILL cannot be
+  held, and leaves the hidden temporaries (``.NAME.HOST-PID.*.part.EXT`` beside each output); the next run that
+  writes that output removes those whose process is gone from this machine;
 * an existing output is replaced, never written through: a hard link to it, or a symlink at its place, keeps
   the file it pointed at (``--force`` once rewrote a light probe hard-linked to ``-o``);
 * two runs that write the same output at once do not write into one temporary file: each has its own
@@ -22,8 +23,11 @@ an existing read-only file (``chmod a-w`` is the user's "keep this"; a rename wo
 """
 from __future__ import annotations
 
+import hashlib
 import os
+import re
 import signal
+import socket
 import stat
 import tempfile
 import threading
@@ -99,9 +103,53 @@ def _new_file_mode() -> int:
     return 0o666 & ~umask
 
 
+def _writer_tag(pid: int | None = None) -> str:
+    """``HOST-PID``: this machine (a hash of its name, as a folder may be shared between machines) and a process."""
+    host = hashlib.sha1(socket.gethostname().encode()).hexdigest()[:8]
+    return f"{host}-{os.getpid() if pid is None else pid}"
+
+
+def _gone(pid: int) -> bool:
+    """No process ``pid`` runs on this machine (one of another user's answers "not permitted": it runs)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:
+        return False
+    return False
+
+
+def _remove_stale_temps(path: Path) -> list:
+    """Remove the temporaries of ``path`` that a process of this machine, since gone, left (SIGKILL, the OOM killer,
+    a power cut); returns them.  Another machine's, a live process's and any other file are left alone."""
+    host = _writer_tag(0).split("-")[0]
+    head, tail = f"{TEMP_PREFIX}{path.stem}.", f".part{path.suffix}"
+    stale = []
+    try:
+        names = [q for q in path.parent.iterdir() if q.name.startswith(head) and q.name.endswith(tail)]
+    except OSError:   # the folder is not there yet, or not readable: nothing to tidy
+        return stale
+    for q in names:
+        m = _TEMP_WRITER.fullmatch(q.name[len(head):len(q.name) - len(tail)])
+        if m and m["host"] == host and _gone(int(m["pid"])):
+            try:
+                q.unlink()
+                stale.append(q)
+            except OSError:
+                pass
+    return stale
+
+
+# what _temp_beside puts between an output's stem and ".part": the writer's tag, then mkstemp's random name
+_TEMP_WRITER = re.compile(r"(?P<host>[0-9a-f]{8})-(?P<pid>[0-9]+)\.[A-Za-z0-9_]+")
+
+
 def _temp_beside(path: Path, mode: int) -> Path:
-    """An empty temporary file in ``path``'s folder, with its suffix (writers that go by it still do)."""
-    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f"{TEMP_PREFIX}{path.stem}.", suffix=f".part{path.suffix}")
+    """An empty temporary file in ``path``'s folder, with its suffix (writers that go by it still do), named after
+    its writer (:func:`_writer_tag`) so that a later run can tell when it was left behind."""
+    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f"{TEMP_PREFIX}{path.stem}.{_writer_tag()}.",
+                                suffix=f".part{path.suffix}")
     os.close(fd)
     os.chmod(name, mode)
     return Path(name)
@@ -154,6 +202,7 @@ def staged_outputs(paths):
         for p in outs:
             try:
                 p.parent.mkdir(parents=True, exist_ok=True)
+                _remove_stale_temps(p)
                 temps[p] = _temp_beside(p, mode)
             except OSError as exc:   # its folder under a file, or not writable: name the output
                 raise WarpbwError(f"{p}: cannot write ({exc.strerror or exc})") from None
