@@ -103,10 +103,9 @@ def _new_file_mode() -> int:
     return 0o666 & ~umask
 
 
-def _writer_tag(pid: int | None = None) -> str:
-    """``HOST-PID``: this machine (a hash of its name, as a folder may be shared between machines) and a process."""
-    host = hashlib.sha1(socket.gethostname().encode()).hexdigest()[:8]
-    return f"{host}-{os.getpid() if pid is None else pid}"
+def _host_tag() -> str:
+    """This machine, as eight hex digits of a hash of its name (a folder may be shared between machines)."""
+    return hashlib.sha1(socket.gethostname().encode()).hexdigest()[:8]
 
 
 def _gone(pid: int) -> bool:
@@ -120,35 +119,32 @@ def _gone(pid: int) -> bool:
     return False
 
 
-def _remove_stale_temps(path: Path) -> list:
+# what _temp_beside puts between an output's stem and ".part": HOST-PID (its writer), then mkstemp's random name
+_TEMP_WRITER = re.compile(r"(?P<host>[0-9a-f]{8})-(?P<pid>[0-9]+)\.[A-Za-z0-9_]+")
+
+
+def _remove_stale_temps(path: Path) -> None:
     """Remove the temporaries of ``path`` that a process of this machine, since gone, left (SIGKILL, the OOM killer,
-    a power cut); returns them.  Another machine's, a live process's and any other file are left alone."""
-    host = _writer_tag(0).split("-")[0]
+    a power cut).  Another machine's, a live process's and any other file are left alone."""
     head, tail = f"{TEMP_PREFIX}{path.stem}.", f".part{path.suffix}"
-    stale = []
     try:
         names = [q for q in path.parent.iterdir() if q.name.startswith(head) and q.name.endswith(tail)]
-    except OSError:   # the folder is not there yet, or not readable: nothing to tidy
-        return stale
+    except OSError:   # a folder that cannot be listed: nothing to tidy
+        return
+    host = _host_tag()
     for q in names:
         m = _TEMP_WRITER.fullmatch(q.name[len(head):len(q.name) - len(tail)])
         if m and m["host"] == host and _gone(int(m["pid"])):
             try:
                 q.unlink()
-                stale.append(q)
-            except OSError:
+            except OSError:   # tidied by another run first, or not ours to delete: no reason to refuse the output
                 pass
-    return stale
-
-
-# what _temp_beside puts between an output's stem and ".part": the writer's tag, then mkstemp's random name
-_TEMP_WRITER = re.compile(r"(?P<host>[0-9a-f]{8})-(?P<pid>[0-9]+)\.[A-Za-z0-9_]+")
 
 
 def _temp_beside(path: Path, mode: int) -> Path:
     """An empty temporary file in ``path``'s folder, with its suffix (writers that go by it still do), named after
-    its writer (:func:`_writer_tag`) so that a later run can tell when it was left behind."""
-    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f"{TEMP_PREFIX}{path.stem}.{_writer_tag()}.",
+    its writer (``HOST-PID``, :data:`_TEMP_WRITER`) so that a later run can tell when it was left behind."""
+    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f"{TEMP_PREFIX}{path.stem}.{_host_tag()}-{os.getpid()}.",
                                 suffix=f".part{path.suffix}")
     os.close(fd)
     os.chmod(name, mode)
