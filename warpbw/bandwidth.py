@@ -145,11 +145,11 @@ silent:
   where the reference reads some detail, the per-pixel figure falls from 0.491 to 0.489, 0.487 and 0.479.
 * The probe's nu_a is Eq. 7 applied to log(1 + L / mean L) (``ENV_SIGNAL_DEFAULT``, "log"; :func:`env_signal`).
   ``env_signal="radiance"`` (``--env-signal radiance``) applies it to the luminance, as 002 does.  Why the log:
-  Eq. 7 reads a texel's bandwidth off the wavelets that reach it, and a sun's coarse wavelets reach tens of degrees.  In tests/test_bandwidth.py's probe, a dark edge 34 degrees from a 2 x 2-texel sun 10^4 times the
+  Eq. 7 reads a texel's bandwidth off the wavelets that reach it, and a sun's coarse wavelets reach tens of
+  degrees.  In tests/test_bandwidth.py's probe, a dark edge 34 degrees from a 2 x 2-texel sun 10^4 times the
   sky reads 1.0 cycles/rad on radiance against 6.6 without the sun; on the log it reads 6.1.  A near-mirror
   then up-samples across such edges (docs/measurements.md, "Adaptive shading: where it fails").
-  The log leaves the probe linear below its
-  mean and compresses what lies above it.  Once a sun carries most of the mean it fails too: at 5 x 10^4 the
+  The log leaves the probe linear below its mean and compresses what lies above it.  Once a sun carries most of the mean it fails too: at 5 x 10^4 the
   same edge reads 1.4.
   Measured (session 42; ``/work/bench/s42``).  The mirror of ``examples/mirror_smear.py`` at 128 x 128 under
   city.exr goes from a relative MSE of 0.909 to 0.064 (shaded 19% -> 77%); under studio.exr from 0.0157 to
