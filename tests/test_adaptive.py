@@ -67,6 +67,52 @@ def test_coarse_levels_reproduce_a_constant_image_with_fewer_shaded_pixels():
     assert fractions[2] < 0.25   # roughly 1/16 of the pixels plus those at depth edges and borders
 
 
+TWO_MATERIALS = """
+[camera]
+position = [0.0, 0.0, 4.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 40.0
+resolution = [48, 32]
+[environment]
+constant = 1.0
+[[object]]
+shape = "sphere"
+center = [-0.8, 0.0, 0.0]
+radius = 0.8
+material = "dark"
+[[object]]
+shape = "sphere"
+center = [0.8, 0.0, 0.0]
+radius = 0.8
+material = "light"
+[material.dark]
+type = "lambert"
+albedo = [0.1, 0.2, 0.05]
+[material.light]
+type = "lambert"
+albedo = [0.9, 0.6, 0.8]
+"""
+
+
+def test_no_pixel_takes_its_value_from_a_neighbour_of_another_material():
+    # two Lambert spheres touching side by side at one depth, under a constant sky: each pixel is exactly its own
+    # sphere's albedo (closed form), though depth and normal do not separate the spheres where they touch, and the
+    # bandwidth pass, whose light is constant, sends every pixel to the coarsest level
+    from warpbw.pipeline import render_adaptive
+
+    prep = prepare_scene(parse_scene(TWO_MATERIALS))
+    base = render_reference(prep, spp=1, seed=1)
+    cov = base.coverage
+    left = cov & (np.arange(cov.shape[1]) < cov.shape[1] // 2)[None, :]
+    truth = np.where(left[..., None], [0.1, 0.2, 0.05], [0.9, 0.6, 0.8])
+    for lvl in (2, 4):
+        r = run(prep, base, np.full(cov.shape, lvl, np.int32), np.full(cov.shape, 1, np.int32))
+        assert np.allclose(r.image[cov], truth[cov], atol=1e-5), lvl
+    r = render_adaptive(prep, budget=1, seed=1)
+    assert np.allclose(r.image[cov], truth[cov], atol=1e-5)
+    assert r.aovs["shaded"][cov].mean() < 0.25   # still adaptive: most pixels are up-sampled
+
+
 def _footprint_max(a, level):
     """Max of ``a`` over each level-L texel's 2^L x 2^L footprint (clipped at the border), by reshaping."""
     s = 1 << level
