@@ -6,7 +6,8 @@ Public functions and classes:
   ``prior``, ``unaligned``, ``kind``, ``scale``, ``seed``, ``max_samples``; ``params()``.
 - ``build_gmm_mipmap(heights_or_normals, kind="height", components=4, prior=1.0, scale=1.0, seed=0,
   progress=True, unaligned=False, texel_size=None, max_samples=256, refine_sweeps=0) -> GmmMipmap``.
-- ``write_gmm_mipmap(path, mip, source_name, source_hash, force=False, inputs=())``, ``read_gmm_mipmap(path) -> GmmMipmap``.
+- ``write_gmm_mipmap(path, mip, source_name, source_hash, force=False, inputs=())``, ``read_gmm_mipmap(path) -> GmmMipmap``;
+  ``mipmap_problem(levels, components, prior, scale)``, what both refuse; ``rebuild_command(source, params, out)``.
 - ``load_map(path, kind) -> ndarray``: an EXR or PNG height field (H, W) or normal map (H, W, 3 unit).
 - ``load_source(spec, kind) -> (array, name, content_hash)``: a file, or ``surface:NAME[:SIZE]``.
 - ``level_shapes(h, w)``, ``normal_space(normals)``, ``footprint_samples(n2, level, max_samples, rng)``.
@@ -165,6 +166,11 @@ TOP_KMEANS_RESTARTS = 4
 EMPTY_RESPONSIBILITY = 1e-9
 # Stored weights below this recover as an empty component (mean 0, s^2 = VARIANCE_FLOOR).
 WEIGHT_EPS = 1e-8
+# What a file's moments may stray from a mixture of unit-disk normals by (float32 storage and sums; a texel's
+# weights sum to 1 within 1.2e-7 in the builder's files): beyond it a hand-edited or damaged file would filter
+# weights of 1000 or negative variances into the image (read_gmm_mipmap)
+WEIGHT_SUM_TOL = 1e-3
+MOMENT_TOL = 1e-5
 # Texels x samples x components per vectorised batch (float64: ~16 MB per (T, M, K) array).
 BATCH_ELEMENTS = 1 << 21
 KINDS = ("height", "normal")
@@ -612,30 +618,74 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
 # --------------------------------------------------------------------------------------------------
 # Files
 
-def _rebuild_hint(source: str, params=None) -> str:
-    """The ``warpbw-precompute gmm`` line that rebuilds a mipmap of ``source`` with the options its header records
-    (those that differ from the defaults: a normal map rebuilt without ``--kind normal`` was read as heights),
-    quoted for a POSIX shell.  ``str`` of a float is the shortest text that reads back as it (``:g`` kept six digits:
+def rebuild_command(source: str, params=None, out="OUT") -> str:
+    """The ``warpbw-precompute gmm`` line that rebuilds a mipmap of ``source`` into ``out`` with the options
+    ``params`` (a header's, or a material's) records (those that differ from the defaults: a normal map rebuilt
+    without ``--kind normal`` was read as heights), quoted for a POSIX shell.  ``str`` of a float is the shortest text that reads back as it (``:g`` kept six digits:
     a prior of 0.1234567891 was rebuilt as 0.123457)."""
     p = params if isinstance(params, dict) else {}
     unaligned = p.get("unaligned") is True
     # the CLI refuses --prior with --unaligned, and --scale with a normal map
     unused = ({"prior"} if unaligned else set()) | ({"scale"} if p.get("kind", "height") != "height" else set())
     defaults = {"kind": "height", "components": DEFAULT_COMPONENTS, "prior": DEFAULT_PRIOR, "scale": 1.0, "seed": 0}
-    words = ["warpbw-precompute", "gmm", str(source), "-o", "OUT"]
+    words = ["warpbw-precompute", "gmm", str(source), "-o", str(out)]
     for key, default in defaults.items():
         if key in p and key not in unused and p[key] != default:
             words += [f"--{key}", str(p[key])]
     return " ".join(shlex.quote(w) for w in words + ["--unaligned"] * unaligned + ["--force"])
 
 
+def mipmap_problem(levels, components, prior, scale) -> str | None:
+    """What makes ``levels`` (float32 moments, finest first) no GMM mipmap of ``components`` components fitted
+    with ``prior`` at height ``scale``, or None: shapes that do not halve, non-finite moments, negative weights,
+    a texel's weights not summing to 1, a second moment beyond the unit disk or below the squared mean (a negative
+    variance).  What the writer and the reader both check."""
+    if not (is_int(components) and 1 <= components <= MAX_COMPONENTS):
+        return f"{components!r} components (expected 1 to {MAX_COMPONENTS})"
+    if not (math.isfinite(prior) and 0.0 <= prior <= MAX_PRIOR):
+        return f"prior {prior!r} (expected 0 to {MAX_PRIOR:g})"
+    if not (math.isfinite(scale) and scale > 0.0):
+        return f"height scale {scale!r} (expected a finite value above 0)"
+    if not levels or levels[0].ndim != 4:
+        return "no levels" if not levels else f"level 0 of shape {levels[0].shape} (expected (h, w, K, 4))"
+    shapes = level_shapes(*levels[0].shape[:2])
+    if len(shapes) != len(levels) or any(q.shape != s + (components, 4) for q, s in zip(levels, shapes)):
+        return (f"levels of shapes {[tuple(q.shape) for q in levels]} (expected {components} components of 4 "
+                f"moments on levels {shapes})")
+    for l, q in enumerate(levels):
+        if not np.all(np.isfinite(q)):   # NaN moments filtered into the image silently
+            return f"NaN or infinite moments at level {l}"
+        a, qe = q[..., 0].astype(np.float64), q[..., 3].astype(np.float64)
+        m2 = np.square(q[..., 1:3].astype(np.float64)).sum(axis=-1)
+        if np.any(a < -MOMENT_TOL):
+            return f"negative weights at level {l} (down to {a.min():.3g})"
+        total = a.sum(axis=-1)
+        if np.any(np.abs(total - 1.0) > WEIGHT_SUM_TOL):
+            return (f"a texel's weights sum to {total.min():.6g} to {total.max():.6g} at level {l} "
+                    f"(expected 1)")
+        if np.any(qe > a * (1.0 + MOMENT_TOL) + MOMENT_TOL):    # |n| <= 1: E|n|^2 <= 1
+            return f"second moments beyond the unit disk of projected normals at level {l}"
+        if np.any(a * qe < m2 - MOMENT_TOL * a * a - MOMENT_TOL * MOMENT_TOL):   # E|n|^2 >= |mu|^2
+            return f"second moments below the squared means (negative variances) at level {l}"
+    return None
+
+
 def write_gmm_mipmap(path, mip: GmmMipmap, source_name: str, source_hash: str, force: bool = False,
                      inputs=()) -> Path:
     """Write ``mip`` in the versioned asset format (arrays ``level_0`` ... finest first); never over one of
-    ``inputs`` (the map it was built from: a file, or a link to it) whatever ``force`` says."""
+    ``inputs`` (the map it was built from: a file, or a link to it) whatever ``force`` says.  A mipmap that
+    ``read_gmm_mipmap`` would refuse is refused here, before anything is written."""
     from precompute.assetfile import write_asset
 
-    arrays = {f"level_{l}": np.asarray(q, np.float32) for l, q in enumerate(mip.levels)}
+    if not isinstance(mip, GmmMipmap):
+        raise WarpbwError(f"write_gmm_mipmap: mip is {type(mip).__name__}, expected a GmmMipmap")
+    try:
+        arrays = {f"level_{l}": np.asarray(q, np.float32) for l, q in enumerate(mip.levels)}
+        problem = mipmap_problem(list(arrays.values()), mip.components, float(mip.prior), float(mip.scale))
+    except (TypeError, ValueError) as exc:
+        raise WarpbwError(f"write_gmm_mipmap: levels or parameters that are not numbers ({exc})") from None
+    if problem is not None:
+        raise WarpbwError(f"write_gmm_mipmap: not a GMM mipmap ({problem}); {path} is not written")
     return write_asset(path, GMM_FORMAT, GMM_VERSION, source_name, source_hash, arrays, mip.params(), force,
                        inputs=inputs)
 
@@ -644,8 +694,8 @@ def read_gmm_mipmap(path) -> GmmMipmap:
     """Read a file written by ``write_gmm_mipmap``; refuses other formats/versions and malformed levels."""
     from precompute.assetfile import read_asset
 
-    asset = read_asset(path, GMM_FORMAT, GMM_VERSION, _rebuild_hint("MAP"))
-    hint = _rebuild_hint(asset.header.get("source", "MAP"), asset.header.get("params"))
+    asset = read_asset(path, GMM_FORMAT, GMM_VERSION, rebuild_command("MAP"))
+    hint = rebuild_command(asset.header.get("source", "MAP"), asset.header.get("params"))
     params = asset.header.get("params", {})
     n = len([k for k in asset.arrays if k.startswith("level_")])
     levels = [asset.arrays.get(f"level_{l}") for l in range(n)]
@@ -657,15 +707,23 @@ def read_gmm_mipmap(path) -> GmmMipmap:
         raise WarpbwError(f"{path}: GMM mipmap levels have inconsistent shapes (rebuild it with: {hint})")
     try:
         levels = [np.asarray(q, np.float32) for q in levels]
-        mip = GmmMipmap(levels, K, float(params.get("prior", DEFAULT_PRIOR)), bool(params.get("unaligned", False)),
-                        params.get("kind", "height"), float(params.get("scale", 1.0)), int(params.get("seed", 0)),
+        components = params.get("components", K)
+        if isinstance(components, bool) or not is_int(components):
+            raise ValueError(components)
+        mip = GmmMipmap(levels, int(components), float(params.get("prior", DEFAULT_PRIOR)),
+                        bool(params.get("unaligned", False)), params.get("kind", "height"),
+                        float(params.get("scale", 1.0)), int(params.get("seed", 0)),
                         int(params.get("max_samples", DEFAULT_MAX_SAMPLES)),
                         source=asset.header.get("source"), source_hash=asset.header.get("source_hash"))
     except (TypeError, ValueError, AttributeError):  # arrays of strings, a hand-edited header
         raise WarpbwError(f"{path}: GMM mipmap with non-numeric levels or parameters (rebuild it with: {hint})") \
             from None
-    if not all(np.all(np.isfinite(q)) for q in levels):  # NaN moments filtered into the image silently
-        raise WarpbwError(f"{path}: GMM mipmap levels hold NaN or infinite moments (rebuild it with: {hint})")
+    if mip.kind not in KINDS:
+        raise WarpbwError(f"{path}: GMM mipmap of map kind {mip.kind!r}, expected one of {', '.join(KINDS)} "
+                          f"(rebuild it with: {hint})")
+    problem = mipmap_problem(levels, mip.components, mip.prior, mip.scale)
+    if problem is not None:   # a damaged or hand-edited file: weights of 1000 rendered 3400x too bright, silently
+        raise WarpbwError(f"{path}: not a GMM mipmap warpbw wrote: {problem} (rebuild it with: {hint})")
     return mip
 
 

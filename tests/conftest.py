@@ -203,6 +203,18 @@ def capture_call(monkeypatch, module, name: str) -> dict:
     return got
 
 
+def uniform_sampler_table(n_theta_o=None, n_u=None, n_phi=None):
+    """A consistent ``SamplerTable`` (of warpbw.sampling's sizes unless given): every cell of every view bin equally
+    likely, as ``build_sampler_table`` tabulates a BRDF black at every view.  Its CDFs rise from 0 to 1 in equal
+    steps, and its density is each cell's share over the cell's du dphi = 1 / (2 pi)."""
+    from warpbw.sampling import N_PHI, N_THETA_O, N_U, SamplerTable
+
+    nt, nu, nphi = n_theta_o or N_THETA_O, n_u or N_U, n_phi or N_PHI
+    return SamplerTable(np.linspace(0, 1, nu + 1, dtype=np.float32)[None].repeat(nt, 0),
+                        np.linspace(0, 1, nphi + 1, dtype=np.float32)[None, None].repeat(nu, 1).repeat(nt, 0),
+                        np.full((nt, nu, nphi), 1.0 / (2.0 * np.pi), np.float32))
+
+
 def fake_npf_table(path: Path) -> Path:
     """An NPF table of the right size whose every value is 0.5: each row a valid (if odd) fit."""
     from warpbw.io.npf import NPF_FILE_SIZE

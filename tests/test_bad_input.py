@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import attempt, capture_call, damage_deflate_stream, fake_npf_table, load_example, outcome, plane_scene_toml
+from conftest import (attempt, capture_call, damage_deflate_stream, fake_npf_table, load_example, outcome,
+                      plane_scene_toml, uniform_sampler_table)
 
 from warpbw.errors import WarpbwError
 from warpbw.io.exr import write_exr
@@ -405,25 +406,34 @@ def test_sampling_file_that_is_not_an_asset(tmp_path, content):
 
 
 def _sampling_arrays(what: str) -> dict:
-    from warpbw.sampling import N_PHI, N_THETA_O, N_U
-
-    a = {"marginal": np.linspace(0, 1, N_U + 1, dtype=np.float32)[None].repeat(N_THETA_O, 0),
-         "conditional": np.linspace(0, 1, N_PHI + 1, dtype=np.float32)[None, None].repeat(N_U, 1).repeat(N_THETA_O, 0),
-         "density": np.ones((N_THETA_O, N_U, N_PHI), np.float32)}
+    a = dict(vars(uniform_sampler_table()))
     if what == "nan cdf":
         a["marginal"][3, 5] = np.nan
     elif what == "strings":
         a["marginal"] = np.array(["a", "b"])
     elif what == "scalar density":
         a["density"] = np.float32(1.0)
+    elif what == "density zeroed":          # rendered 65,000x too bright
+        a["density"][:] = 0.0
+    elif what == "density doubled":
+        a["density"] *= 2.0
+    elif what == "marginal zeroed":         # rendered 40x too dark
+        a["marginal"][:] = 0.0
+    elif what == "conditional falling":
+        a["conditional"][2, 3, 10] = 0.9
     return a
 
 
 @pytest.mark.parametrize("what,needle", [("nan cdf", "negative or non-finite"), ("strings", "not numeric"),
-                                         ("scalar density", "inconsistent table shapes")])
+                                         ("scalar density", "inconsistent table shapes"),
+                                         ("density zeroed", "density is not the one the CDFs sample"),
+                                         ("density doubled", "density is not the one the CDFs sample"),
+                                         ("marginal zeroed", "marginal CDF does not rise from 0 to 1"),
+                                         ("conditional falling", "conditional CDF does not rise from 0 to 1")])
 def test_sampling_file_with_bad_arrays(tmp_path, what, needle):
     """A sampling-table asset of the right format, version and source whose arrays are unusable: NaN CDFs
-    rendered a near-black image silently, string arrays and a 0-d density were tracebacks."""
+    rendered a near-black image silently, string arrays and a 0-d density were tracebacks, and a density or CDFs
+    that do not agree rendered too bright or too dark, silently."""
     from precompute.assetfile import write_asset
     from precompute.brdf_sampling import brdf_source
     from warpbw.sampling import TABLE_FORMAT, TABLE_VERSION
@@ -817,28 +827,64 @@ def test_gmm_file_built_unaligned_is_refused_as_such(tmp_path):
     assert_no_outputs(tmp_path)
 
 
-@pytest.mark.parametrize("what,needle", [("nan level", "NaN or infinite moments"),
-                                         ("prior a string", "non-numeric levels or parameters")])
+def _damage_moments(level, what):
+    if what == "nan level":
+        level[0, 0, 0, 3] = np.nan
+    elif what == "weights x1000":         # rendered 3400x too bright, silently
+        level[..., 0] *= 1000.0
+    elif what == "a negative weight":
+        level[0, 0, 0, 0] = -0.5
+    elif what == "E|n|^2 zeroed":        # a negative variance
+        level[..., 3] = 0.0
+    elif what == "E|n|^2 beyond the disk":
+        level[..., 3] = 2.0 * level[..., 0]
+
+
+GMM_DAMAGE = [("nan level", "NaN or infinite moments at level 1"), ("weights x1000", "weights sum to 1000"),
+              ("a negative weight", "negative weights at level 1"),
+              ("E|n|^2 zeroed", "negative variances\\) at level 1"),
+              ("E|n|^2 beyond the disk", "beyond the unit disk of projected normals at level 1")]
+GMM_HEADER_DAMAGE = [("prior", "one", "non-numeric levels or parameters"), ("prior", float("nan"), "prior nan"),
+                     ("components", 7, "expected 7 components"), ("components", 0, "0 components"),
+                     ("components", 2.5, "non-numeric levels or parameters"), ("scale", "abc", "non-numeric"),
+                     ("scale", -1.0, "height scale -1.0"), ("kind", "bump", "map kind 'bump'")]
+
+
+@pytest.mark.parametrize("what,needle", GMM_DAMAGE + [(f"{k} = {v!r}", n) for k, v, n in GMM_HEADER_DAMAGE])
 def test_gmm_file_with_bad_contents(tmp_path, what, needle):
-    """A GMM mipmap of the right format and version whose moments are NaN (rendered without a word) or whose
-    header's prior is not a number (a ValueError traceback)."""
+    """A GMM mipmap of the right format and version whose moments are no mixture (NaN, weights that do not sum to
+    1, negative weights or variances: each rendered without a word) or whose header's parameters are not what it
+    holds (a ValueError traceback, or a mipmap of 0 components read)."""
     import json
 
     from precompute.gmm_mipmap import build_gmm_mipmap, read_gmm_mipmap, write_gmm_mipmap
 
     path = tmp_path / "g.npz"
-    write_gmm_mipmap(path, build_gmm_mipmap(np.zeros((4, 4)), components=1, progress=False), "map.exr", "hash")
+    heights = np.random.default_rng(3).random((8, 8)) * 0.3
+    write_gmm_mipmap(path, build_gmm_mipmap(heights, components=2, progress=False), "map.exr", "hash")
+    assert read_gmm_mipmap(path).components == 2   # the builder's own file passes every check
     z = dict(np.load(path))
-    if what == "nan level":
-        z["level_1"][0, 0, 0, 3] = np.nan
-    else:
-        header = json.loads(str(z["__header__"]))
-        header["params"]["prior"] = "one"
-        z["__header__"] = np.array(json.dumps(header))
+    header = json.loads(str(z["__header__"]))
+    damage = {k: v for k, v, _ in GMM_HEADER_DAMAGE if what == f"{k} = {v!r}"}
+    header["params"].update(damage)
+    if not damage:
+        _damage_moments(z["level_1"], what)
+    z["__header__"] = np.array(json.dumps(header))
     np.savez_compressed(path, **z)
     with pytest.raises(WarpbwError, match=needle) as ei:
         read_gmm_mipmap(path)
     assert str(path) in str(ei.value) and "rebuild it with" in str(ei.value)
+
+
+@pytest.mark.parametrize("what,needle", GMM_DAMAGE)
+def test_a_gmm_mipmap_its_reader_would_refuse_is_not_written(tmp_path, what, needle):
+    from precompute.gmm_mipmap import build_gmm_mipmap, write_gmm_mipmap
+
+    mip = build_gmm_mipmap(np.random.default_rng(3).random((8, 8)) * 0.3, components=2, progress=False)
+    _damage_moments(mip.levels[1], what)
+    with pytest.raises(WarpbwError, match=r"^write_gmm_mipmap: not a GMM mipmap \(.*" + needle):
+        write_gmm_mipmap(tmp_path / "g.npz", mip, "map.exr", "hash")
+    assert not list(tmp_path.iterdir())
 
 
 def test_filter_on_a_scene_without_planes(tmp_path):

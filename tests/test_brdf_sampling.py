@@ -15,16 +15,15 @@ import shlex
 import numpy as np
 import pytest
 
-from conftest import capture_call, fake_npf_table, outcome
+from conftest import capture_call, fake_npf_table, outcome, uniform_sampler_table
 from precompute.assetfile import write_asset
 from precompute.brdf_sampling import BrdfSource, brdf_source, read_sampling, write_sampling
 from warpbw.sampling import N_PHI, N_THETA_O, N_U, TABLE_FORMAT, TABLE_VERSION, SamplerTable
 
 
 def _sampling_table(n_theta_o: int = N_THETA_O) -> SamplerTable:
-    """A table of the shapes this warpbw reads (finite, >= 0)."""
-    return SamplerTable(np.zeros((n_theta_o, N_U + 1), np.float32), np.zeros((n_theta_o, N_U, N_PHI + 1), np.float32),
-                        np.ones((n_theta_o, N_U, N_PHI), np.float32))
+    """A consistent table of the shapes this warpbw reads."""
+    return uniform_sampler_table(n_theta_o)
 
 
 def _write_raw(path, table: SamplerTable, source) -> None:

@@ -849,7 +849,10 @@ def test_the_filtering_entry_points_take_a_filtering_scene_and_check_a_scene_bui
         prepare_filtering(lambert, "lean")
 
 
-def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path):
+def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path, monkeypatch):
+    import shlex
+
+    from precompute.__main__ import main as precompute_main
     from precompute.gmm_mipmap import build_gmm_mipmap, load_map, write_gmm_mipmap
 
     h = _bumps(8)
@@ -863,7 +866,7 @@ def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path):
     write_gmm_mipmap(tmp_path / "other.gmm", build_gmm_mipmap(2.0 * h, scale=0.5, progress=False),
                      "taller.exr", "0123", force=True)
     with pytest.raises(WarpbwError, match=r"\[material\.m\]\.gmm: .*built from taller.exr with different "
-                                          r"content than the material's normal_map map.exr.*gmm map.exr -o"):
+                                          r"content than the material's normal_map map.exr.*gmm \S*/map.exr -o"):
         prepare_filtering(parse_scene(text, tmp_path, "s.toml"), ("gmm_aligned",))
     write_gmm_mipmap(tmp_path / "wrong_scale.gmm", build_gmm_mipmap(h, scale=1.0, progress=False), "x", digest)
     with pytest.raises(WarpbwError, match=r"\[material\.m\]\.gmm: .*--scale 0\.5"):
@@ -889,6 +892,19 @@ def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path):
         prepare_filtering(parse_scene(c4, tmp_path, "s.toml"), ("gmm_aligned",))
     prep = prepare_filtering(parse_scene(c4 + "gmm_prior = 4\n", tmp_path, "s.toml"), ("gmm_aligned",))
     assert prep.notes["m"]["gmm_aligned"]["prior"] == 4.0
+    # the command a refusal prints rebuilds the file as the material wants it, from any folder
+    write_gmm_mipmap(tmp_path / "stale.gmm", build_gmm_mipmap(np.zeros((4, 4)), progress=False), "x", digest)
+    stale = text.replace("other.gmm", "stale.gmm") + "gmm_components = 2\ngmm_prior = 4\n"
+    with pytest.raises(WarpbwError) as ei:
+        prepare_filtering(parse_scene(stale, tmp_path, "s.toml"), ("gmm_aligned",))
+    command = shlex.split(str(ei.value).split("rebuild it with: ")[1].rstrip(")"))
+    assert command[:2] == ["warpbw-precompute", "gmm"] and "--components" in command and "--prior" in command
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    assert precompute_main(command[1:] + ["-q"]) == 0
+    prep = prepare_filtering(parse_scene(stale, tmp_path, "s.toml"), ("gmm_aligned",))
+    assert prep.notes["m"]["gmm_aligned"]["origin"] == "file"
     # without a file: built once, then read from the cache
     p1 = prepare_filtering(s, ("gmm_aligned",))
     p2 = prepare_filtering(s, ("gmm_aligned",))

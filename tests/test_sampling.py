@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import fake_npf_table, load_example, named_as
+from conftest import fake_npf_table, load_example, named_as, uniform_sampler_table
 from warpbw import brdf as B
 from warpbw.sampling import build_sampler_table
 
@@ -246,12 +246,11 @@ def test_write_sampling_never_replaces_its_source(tmp_path, link):
     read-only output is refused too."""
     from precompute.brdf_sampling import BrdfSource, write_sampling
     from warpbw.errors import WarpbwError
-    from warpbw.sampling import SamplerTable
 
     src = tmp_path / "m.binary"
     src.write_bytes(b"the BRDF file")
     source = BrdfSource(src.name, src, "d1", lambda wi, wo: np.ones((len(wi), 3)))
-    table = SamplerTable(np.zeros((2, 3), np.float32), np.zeros((2, 2, 3), np.float32), np.zeros((2, 2, 2), np.float32))
+    table = uniform_sampler_table(2, 2, 2)
     out = named_as(src, link, tmp_path / "t.npz")
     with pytest.raises(WarpbwError) as e:
         write_sampling(out, table, source, force=True)

@@ -998,36 +998,37 @@ def _load_gmm(scene: Scene, name: str, data, kind, scale, src_name, digest, unal
 def _read_gmm_checked(scene: Scene, name: str):
     """The reader for ``load_or_build``: an explicit file must match the material's map and parameters."""
     def read(path, src: _GmmSource):
-        from precompute.gmm_mipmap import read_gmm_mipmap
+        from precompute.gmm_mipmap import read_gmm_mipmap, rebuild_command
 
         mip = read_gmm_mipmap(path)
+        # the command that rebuilds the file from the material's own map (its full path: the scene's folder need not
+        # be the current one) with the material's parameters, as it is printed
+        source = scene.materials[name].normal_map or src.name
+        rebuild = rebuild_command(source, {"kind": src.kind, "scale": src.scale, "components": src.components,
+                                           "prior": src.prior, "unaligned": src.unaligned}, path)
         if mip.source_hash != src.content_hash:   # the file's header names the map it was fitted to, by content
-            flags = f"--kind {src.kind}" + (f" --scale {src.scale:g}" if src.kind == "height" else "")
             raise WarpbwError(f"{path}: built from {mip.source or 'another map'} with different content than the "
-                              f"material's normal_map {src.name} (rebuild it with: warpbw-precompute gmm "
-                              f"{src.name} -o {path} {flags} --force)")
+                              f"material's normal_map {src.name} (rebuild it with: {rebuild})")
         want = tuple(src.data.shape[:2])
         if tuple(mip.shape) != want:
             raise WarpbwError(f"{path}: built from a {mip.shape[1]}x{mip.shape[0]} map, but the normal_map is "
-                              f"{want[1]}x{want[0]} (rebuild it with: warpbw-precompute gmm MAP -o {path} --force)")
+                              f"{want[1]}x{want[0]} (rebuild it with: {rebuild})")
         if mip.kind != src.kind or (src.kind == "height" and not math.isclose(mip.scale, src.scale, rel_tol=1e-6)):
             raise WarpbwError(f"{path}: built with --kind {mip.kind} --scale {mip.scale:g}, but the material has "
                               f"normal_map_kind = {src.kind!r}, normal_map_scale = {src.scale:g} (rebuild it with: "
-                              f"warpbw-precompute gmm MAP -o {path} --kind {src.kind} --scale {src.scale:g} --force)")
+                              f"{rebuild})")
         if mip.unaligned and not src.unaligned:  # the material's gmm file is the aligned mipmap (004 Sec. 4.1)
             raise WarpbwError(f"{path}: built with --unaligned (the independent-EM baseline), but a material's gmm "
-                              f"file must be the aligned GMM mipmap (rebuild it without --unaligned: "
-                              f"warpbw-precompute gmm MAP -o {path} --force)")
+                              f"file must be the aligned GMM mipmap (rebuild it without --unaligned: {rebuild})")
         if mip.unaligned != src.unaligned:
             raise WarpbwError(f"{path}: an aligned GMM mipmap, but the unaligned baseline was asked for")
         if mip.components != src.components:
             raise WarpbwError(f"{path}: built with --components {mip.components}, but the material has "
                               f"gmm_components = {src.components} (the unaligned baseline is built with as many; "
-                              f"set gmm_components = {mip.components} or rebuild the file)")
+                              f"set gmm_components = {mip.components} or rebuild it with: {rebuild})")
         if not mip.unaligned and not math.isclose(mip.prior, src.prior, rel_tol=1e-9):
             raise WarpbwError(f"{path}: built with --prior {mip.prior:g}, but the material has gmm_prior = "
-                              f"{src.prior:g} (set gmm_prior = {mip.prior:g} or rebuild the file with --prior "
-                              f"{src.prior:g})")
+                              f"{src.prior:g} (set gmm_prior = {mip.prior:g} or rebuild it with: {rebuild})")
         return mip
     return read
 
