@@ -255,6 +255,9 @@ def test_missing_file(tmp_path):
         # OBJ indices count from 1: trimesh read "f 0 3 4" as the triangle (1, 3, 4), a different surface
         ("zero.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 0 3 4\n", "zero.obj:6: a face has vertex index 0"),
         ("zeroslash.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/1 0/1\n", "zeroslash.obj:5: .*index 0"),
+        # vertices of two numbers: numpy's AxisError from the area test
+        ("flatland.obj", "v 0 0\nv 1 0\nv 0 1\nf 1 2 3\n", "2 coordinates each \\(expected x, y and z"),
+        ("short.obj", "v 0 0 0\nv 1 0\nv 0 1 0\nf 1 2 3\n", "coordinates each \\(expected x, y and z"),
     ],
 )
 def test_malformed_files(tmp_path, name, text, match):
@@ -270,6 +273,14 @@ def test_bad_transform(sphere_files):
         load_mesh(sphere_files[(4, "obj")], scale=-1.0)
     with pytest.raises(WarpbwError, match="translate"):
         load_mesh(sphere_files[(4, "obj")], translate=(0, 1))
+    # so far that float64 collapses its triangles: the translate is named, not the file's winding ("vertices have
+    # no normal: the triangles around them cancel")
+    for far in (1e6, 1e16, 1e30):
+        with pytest.raises(WarpbwError, match=r"after scale, rotate_y and translate\): the camera and a mesh of "
+                                              r"diagonal .* float32 spaces coordinates"):
+            load_mesh(sphere_files[(4, "obj")], translate=(far, 0.0, 0.0))
+    near = load_mesh(sphere_files[(4, "obj")], translate=(100.0, 0.0, 0.0)).vertices
+    np.testing.assert_allclose(near, load_mesh(sphere_files[(4, "obj")]).vertices + [100.0, 0.0, 0.0], atol=1e-4)
 
 
 def test_normals_and_curvature_closed_form_on_a_moved_sphere():

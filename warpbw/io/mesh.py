@@ -44,7 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError, check_count, check_input_file, unit_directions
+from warpbw.errors import (FLOAT32_MAX, WarpbwError, check_coordinate_spacing, check_count, check_input_file,
+                           unit_directions)
 
 # A triangle whose doubled area is below this fraction of its longest squared edge is treated as
 # degenerate (no cotangent weight, no area): sin of its largest angle is < 1e-12, so its
@@ -397,6 +398,9 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)
     if faces.ndim != 2 or faces.shape[0] == 0 or faces.shape[1] != 3:
         raise WarpbwError(f"{path}: no triangles found (expected a mesh with faces: {_SUPPORTED})")
+    if verts.ndim != 2 or verts.shape[1] != 3:   # an OBJ whose "v" lines hold two numbers: numpy's AxisError below
+        raise WarpbwError(f"{path}: vertices read with {verts.shape[-1] if verts.ndim == 2 else 0} coordinates "
+                          "each (expected x, y and z on every vertex line)")
     if faces.min() < 0 or faces.max() >= len(verts):
         raise WarpbwError(f"{path}: faces reference vertices outside 0..{len(verts) - 1} (malformed mesh)")
     n_bad = int(np.count_nonzero(~np.all(np.isfinite(verts), axis=1)))
@@ -430,8 +434,13 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     x, z = verts[:, 0].copy(), verts[:, 2].copy()
     verts[:, 0] = x * ca + z * sa
     verts[:, 2] = -x * sa + z * ca
+    size = float(np.linalg.norm(verts.max(axis=0) - verts.min(axis=0)))
     verts += t
     _check_float32(verts, path, " after scale, rotate_y and translate")
+    # a translate so far that the mesh's triangles collapse (at 1e16 in float64) was blamed on the file below; the
+    # frame's own check (warpbw.gbuffer.check_reach) refuses the same spacing in float32
+    check_coordinate_spacing(float(np.abs(verts).max()), size, f"a mesh of diagonal {size:.3g}",
+                             f"{path} (after scale, rotate_y and translate)")
     sums, touched = _normal_sums(verts, faces)
     cancelled = touched & ~np.any(sums != 0.0, axis=1)
     if cancelled.any():   # they had the fallback normal (0, 1, 0), whatever the surface's direction
