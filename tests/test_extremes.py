@@ -28,7 +28,7 @@ from conftest import plane_scene_toml
 
 from warpbw.errors import WarpbwError
 from warpbw.io.exr import read_rgb, write_exr
-from warpbw.pipeline import render_reference
+from warpbw.pipeline import render_adaptive, render_reference
 from warpbw.scene import GGX_MIN_ALPHA, parse_scene
 
 GRAZING = 0.05  # n . v below this counts as a grazing pixel
@@ -211,6 +211,10 @@ def test_tiny_images_have_the_right_coverage(size):
         assert res.coverage[h // 2, w // 2]  # the centre pixel looks at the sphere's centre
     # Lambert under a constant sky: every cosine-sampled BRDF sample returns albedo * L exactly
     np.testing.assert_allclose(res.image[res.coverage], 0.8, rtol=1e-5)
+    # and adaptively, with the default pass (its 2 x 2 blocks refused a 1 x 1 frame: "stride: expected 1 to 1")
+    ada = render_adaptive(s, budget=2, seed=1)
+    np.testing.assert_array_equal(ada.coverage, expect)
+    np.testing.assert_allclose(ada.image[ada.coverage], 0.8, rtol=1e-5)
 
 
 # ------------------------------------------------------------------------------------------ camera inside a sphere

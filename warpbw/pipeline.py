@@ -490,7 +490,6 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     n_min = bandwidth.N_P_MIN_DEFAULT if n_min is None else n_min
     allocation = bandwidth.ALLOCATION_DEFAULT if allocation is None else allocation
     nyquist = bandwidth.NYQUIST_FACTOR if nyquist is None else nyquist
-    stride = bandwidth.PASS_STRIDE_DEFAULT if stride is None else stride
     pool_radius = bandwidth.POOL_RADIUS_DEFAULT if pool_radius is None else pool_radius
     upsample = UPSAMPLE_DEFAULT if upsample is None else upsample
     check_upsample_mode(upsample)
@@ -502,6 +501,8 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     prep, timings = _prepared(scene, device, progress)
     if prep.env is None:
         raise _nothing_to_adapt(prep.scene)
+    # the default block is no larger than the image (a 1 x 1 frame was refused with "stride: expected 1 to 1")
+    stride = min(bandwidth.PASS_STRIDE_DEFAULT, max(prep.width, prep.height)) if stride is None else stride
     loads = prep.bandwidth is None or prep.bandwidth_signal != env_signal
     tables = prepare_bandwidth(prep, progress, env_signal)
     if loads:   # this frame loaded or built the pass's inputs (the first on a prepared scene too): it says so
