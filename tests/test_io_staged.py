@@ -111,6 +111,32 @@ def test_check_replaceable_refuses_a_read_only_output_even_with_force(tmp_path):
     assert check_replaceable(out, True) == out
 
 
+def test_an_output_that_is_no_regular_file_or_a_dangling_link_is_not_taken_for_a_free_name(tmp_path):
+    import signal
+
+    # a FIFO with force blocked for ever, opened for writing to see whether it was read-only; an alarm ends the test
+    # if it blocks again
+    fifo = tmp_path / "out.exr"
+    os.mkfifo(fifo)
+    previous = signal.signal(signal.SIGALRM, lambda *a: pytest.fail("check_replaceable blocked on a FIFO"))
+    signal.alarm(20)
+    try:
+        with pytest.raises(WarpbwError, match=r"out\.exr: is a FIFO, not a regular file \(expected a file to write "
+                                              r"or replace\)$"):
+            check_replaceable(fifo, True)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+    with pytest.raises(WarpbwError, match=r"null: is a device, not a regular file"):
+        check_replaceable("/dev/null", True)
+    # a dangling link is the user's file too: replaced without --force, it is now refused as any output is
+    link = tmp_path / "link.exr"
+    link.symlink_to(tmp_path / "nowhere.exr")
+    with pytest.raises(WarpbwError, match=r"link\.exr: already exists \(pass --force to overwrite it\)$"):
+        check_replaceable(link, False)
+    assert check_replaceable(link, True) == link
+
+
 def test_check_replaceable_refuses_a_directory_and_what_is_no_file_name(tmp_path):
     with pytest.raises(WarpbwError, match="is a directory"):
         check_replaceable(tmp_path, True)

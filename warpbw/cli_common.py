@@ -24,7 +24,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from warpbw.errors import SEED_MAX, WarpbwError, check_device
-from warpbw.io.staged import check_not_read_only, input_clash, staged_outputs
+from warpbw.io.staged import check_existing_output, input_clash, staged_outputs
 from warpbw.native_output import init_warp_quietly
 
 EXIT_USER_ERROR = 2
@@ -78,10 +78,8 @@ def check_output_file(path, option: str, force: bool) -> None:
     if p.is_dir():
         raise WarpbwError(f"{option} {p}: is a directory (expected a file name)")
     _check_parents(p, option)
-    if p.exists() and not force:
-        raise WarpbwError(f"{p}: already exists (pass --force to overwrite it)")
-    if p.exists():   # a read-only file (chmod a-w, chattr +i) is the user's "keep this": say so before any work
-        check_not_read_only(p, f"{option} {p}")
+    # a read-only file (chmod a-w, chattr +i) is the user's "keep this", a FIFO no file: say so before any work
+    check_existing_output(p, force, f"{option} {p}")
 
 
 def check_output_dir(path, option: str) -> None:

@@ -1,8 +1,9 @@
 """Output files that appear whole, or not at all.
 
 Public: ``staged_outputs(paths)``; ``check_replaceable(path, force, inputs=(), inputs_are=...) -> Path`` (what every
-writer that takes ``force`` checks before its work), ``input_clash(path, inputs, inputs_are=...) -> str | None`` and
-``check_not_read_only(path, label)`` (its parts the command lines share).
+writer that takes ``force`` checks before its work), ``input_clash(path, inputs, inputs_are=...) -> str | None``,
+``check_existing_output(path, force, label)`` and ``check_not_read_only(path, label)`` (its parts the command lines
+share).
 
 Every writer of warpbw (images, records, plots, asset and cache files) writes to a temporary file beside its
 output, and the outputs of one command are moved into place together once all of them are written.  So
@@ -80,6 +81,26 @@ def check_not_read_only(path, label: str) -> None:
                           "elsewhere)")
 
 
+def check_existing_output(path, force: bool, label: str) -> None:
+    """Refuse an output already there without ``force`` (a dangling link counts: it is the user's too, and was
+    replaced without a word), and whatever ``force`` says one that is not a regular file (a FIFO blocked the run for
+    ever, opened for writing; a device or a socket would be replaced by a file) or is read-only.  ``label`` starts
+    the messages of the latter (the path, or the option and the path)."""
+    p = Path(path)
+    if not (p.exists() or p.is_symlink()):
+        return
+    if not force:
+        raise WarpbwError(f"{p}: already exists (pass --force to overwrite it)")
+    if not p.exists():
+        return   # a dangling link: replaced by the file, as a link to a file is
+    mode = p.stat().st_mode
+    if not stat.S_ISREG(mode):
+        kind = ("a FIFO" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
+                else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a file")
+        raise WarpbwError(f"{label}: is {kind}, not a regular file (expected a file to write or replace)")
+    check_not_read_only(p, label)
+
+
 def check_replaceable(path, force: bool, inputs=(), inputs_are: str = MADE_FROM) -> Path:
     """``path`` as a Path, once it may be written: not a directory, not one of ``inputs`` (whatever ``force`` says),
     not an existing file without ``force``, not an existing read-only file.  Writers call it before their work."""
@@ -89,10 +110,7 @@ def check_replaceable(path, force: bool, inputs=(), inputs_are: str = MADE_FROM)
     clash = input_clash(p, inputs, inputs_are)
     if clash is not None:
         raise WarpbwError(f"{p}: {clash}")
-    if p.exists() and not force:
-        raise WarpbwError(f"{p}: already exists (pass --force to overwrite it)")
-    if p.exists():
-        check_not_read_only(p, str(p))
+    check_existing_output(p, force, str(p))
     return p
 
 
