@@ -519,10 +519,11 @@ def test_env_bandwidth_maps_are_cached_per_signal_and_old_entries_read_as_radian
     nu, origin = bw.env_bandwidth_map(px, cache=tmp_path, signal="radiance")
     assert origin == "cache" and np.all(nu == 7.0)
     assert np.array_equal(bw.env_bandwidth_map(px, cache=tmp_path, signal="log")[0], log)
-    # an entry of the right key whose rates are NaN or negative (a bug that wrote it) is rebuilt, not read
-    for bad in (np.nan, -1.0):
+    # an entry of the right key whose rates are NaN, negative (a bug that wrote it) or strings (a ValueError
+    # traceback) is rebuilt, not read
+    for bad in (np.full_like(rad, np.nan), np.full_like(rad, -1.0), np.full(rad.shape, "abc")):
         write_asset(path, bw.ENV_BW_FORMAT, bw.ENV_BW_VERSION, a.header["source"], a.header["source_hash"],
-                    {"nu_a": np.full_like(rad, bad)}, params={"units": "cycles/radian"}, force=True)
+                    {"nu_a": bad}, params={"units": "cycles/radian"}, force=True)
         nu, origin = bw.env_bandwidth_map(px, cache=tmp_path, signal="radiance")
         assert origin == "built" and np.array_equal(nu, rad)
 

@@ -619,8 +619,8 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
                     and a.header.get("params", {}).get("signal", "radiance") == signal
                     and np.isfinite(nu).all() and (nu >= 0).all()):   # a bandwidth is a finite rate
                 return nu, "cache"
-        except (WarpbwError, KeyError, AttributeError):
-            pass  # a stale or damaged cache entry is rebuilt below
+        except (WarpbwError, KeyError, AttributeError, TypeError, ValueError):
+            pass  # a stale or damaged cache entry (strings for numbers: a ValueError) is rebuilt below
     t = env_signal(lum, signal).astype(np.float64)     # a float32 mean overflows beyond about 1e33 per texel
     nu = envmap_angular_bandwidth(t, floor=EPSILON * float(t.mean())).astype(np.float32)
     try:
