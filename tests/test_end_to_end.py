@@ -1418,7 +1418,7 @@ def _rgba(value, h=4, w=8, alpha=None):
 
 
 def test_compare_reads_the_coverage_of_the_test_image_when_the_reference_has_none(tmp_path, monkeypatch, capsys):
-    """--help: the covered pixels are 'the A channel written by warpbw render, else non-black pixels'.  A render
+    """--help: the covered pixels are the reference's A channel, else the test image's, else non-black pixels.  A render
     compared with a reference that has no A channel (from another renderer): its A channel still says which
     pixels count.  Here the images differ only where A = 0, so over the covered pixels they are identical."""
     from warpbw.cli import main
@@ -1433,6 +1433,12 @@ def test_compare_reads_the_coverage_of_the_test_image_when_the_reference_has_non
     assert main(["compare", "test.exr", "ref.exr", "--json"]) == 0
     j = json.loads(capsys.readouterr().out)
     assert j["pixels"] == 28 and j["relmse"] == 0.0 and j["mse"] == 0.0, j
+    # and says so, since the image judged then chose the pixels it is judged on
+    assert j["coverage_from"] == "test.exr"
+    assert main(["compare", "test.exr", "ref.exr"]) == 0
+    assert "coverage from test.exr's A channel (ref.exr has none)" in capsys.readouterr().out
+    assert main(["compare", "ref.exr", "test.exr", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["coverage_from"] == "test.exr"   # the reference's A
 
 
 def test_compare_counts_the_pixels_the_reference_covers_even_where_the_test_misses_them(tmp_path, monkeypatch,

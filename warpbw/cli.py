@@ -427,16 +427,20 @@ def cmd_compare(args) -> int:
     if ta.shape != tb.shape:
         raise WarpbwError(f"{args.test} is {ta.shape[1]}x{ta.shape[0]} but {args.reference} is "
                           f"{tb.shape[1]}x{tb.shape[0]}: expected images of the same size")
-    mask = coverage_from_alpha(b.pixels, b.channels)
+    # the reference's A says what is covered; without one (another renderer's image, whose background shows the
+    # probe), the test image's, and the output says so: the image judged then chooses the pixels it is judged on
+    mask, coverage_from = coverage_from_alpha(b.pixels, b.channels), "reference"
     if mask is None:
-        mask = coverage_from_alpha(a.pixels, a.channels)
+        mask, coverage_from = coverage_from_alpha(a.pixels, a.channels), "test"
     if mask is None:
-        mask = (np.abs(ta).sum(-1) > 0) | (np.abs(tb).sum(-1) > 0)
+        mask, coverage_from = (np.abs(ta).sum(-1) > 0) | (np.abs(tb).sum(-1) > 0), None
     for name, img in ((args.test, ta), (args.reference, tb)):
         bad = int((~np.isfinite(img[mask])).sum())
         if bad:
             raise WarpbwError(f"{name}: {bad} non-finite values over covered pixels")
     r = compare_images(ta, tb, mask)
+    # whose A channel said which pixels count; None: the non-black pixels
+    r["coverage_from"] = {"reference": str(args.reference), "test": str(args.test)}.get(coverage_from)
     if maps:
         with staged_outputs(maps) as at:
             lo, hi = _write_error_map([at[m] for m in maps], relmse_map(ta, tb, mask), mask, args.error_range)
@@ -452,6 +456,8 @@ def cmd_compare(args) -> int:
         print(f"relMSE {r['relmse']:.6g}")
         print(f"pixels {r['pixels']} covered; the worst {_WORST_FRACTION:.0%} of them ({r['worst_pixels']}) hold "
               f"{100 * r['worst_share']:.1f}% of the relMSE")
+        if coverage_from == "test":   # the image judged chose its own pixels
+            print(f"coverage from {args.test}'s A channel ({args.reference} has none)")
         if maps and lo < hi:
             print(f"error map {maps[0]} (+ {maps[1].name}, log colour scale {lo:.3g} to {hi:.3g}: "
                   f"--error-range {lo:.3g},{hi:.3g} draws another map on it)")
@@ -853,7 +859,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser("compare", help="PSNR and relative MSE of an image against a reference",
                        description="PSNR and relative MSE (linear radiance) over the pixels covered by geometry "
-                       "(the A channel written by warpbw render, else non-black pixels), and the share of the "
+                       "(the reference's A channel, as warpbw render writes it; without one, the test image's, as when a "
+                       "render is compared with another renderer's image; else non-black pixels), and the share of the "
                        f"relative MSE held by the worst {_WORST_FRACTION:.0%} of those pixels: "
                        f"{_WORST_FRACTION:.0%} if every pixel had the same error, near 100% when a few pixels hold "
                        "it (fireflies and edges smeared by up-sampling alike: --error-map shows which).")
