@@ -1385,6 +1385,14 @@ def test_outputs_never_replace_an_input_even_with_force(tmp_path):
     r = run(["bench", "scene.toml", "--json", "scene.toml", "--force"], tmp_path)
     assert_one_line_error(r, "--json scene.toml", "expected a path ending in .json")
     assert (tmp_path / "probe.exr").read_bytes() == before
+    # bench's outputs are named by their own options (it said "-o", an option bench does not have)
+    (tmp_path / "scene.json").write_text((tmp_path / "scene.toml").read_text())
+    r = run(["bench", "scene.json", "--json", "scene.json", "--force"], tmp_path)
+    assert_one_line_error(r, "--json scene.json: would overwrite scene.json, a file this command reads")
+    write_scene(tmp_path, environment='file = "probe.png"')
+    r = run(["bench", "scene.toml", "--json", "b.json", "--plot", "probe.png", "--force"], tmp_path)
+    assert_one_line_error(r, "--plot probe.png: would overwrite", "probe.png, a file this command reads")
+    write_scene(tmp_path, environment='file = "probe.exr"')
     npf = fake_npf_table(tmp_path / "npf.bin").read_bytes()
     for argv, needles in [
         (["npf-to-merl", "--table", "npf.bin", "--material", "chrome", "-o", "npf.bin", "--force"],

@@ -589,7 +589,7 @@ def _bench_outputs(args, scene, default_cache: Path | None = None) -> None:
         except WarpbwError as exc:
             raise WarpbwError(f"{exc} ({f'WARPBW_CACHE={env}' if env else 'the default cache'}; pass --cache DIR to "
                               "cache the ground truth elsewhere)") from None
-    check_overwrite(outs, args.force, inputs=scene.input_files())
+    check_overwrite(outs, args.force, option=("--json", "--plot"), inputs=scene.input_files())
 
 
 def _write_bench(args, record: dict, write_plot) -> None:

@@ -175,17 +175,21 @@ def init_warp(device: str):
 def check_overwrite(paths, force: bool, option: str = "-o", inputs=(), inputs_are: str = "a file this command reads"):
     """Refuse, before any work, output files that cannot be written or exist without --force, and, whatever --force
     says, an output that is one of ``inputs`` (the scene, its probe, a BRDF file, ...: ``--force`` would have
-    replaced a light probe by the render of it)."""
+    replaced a light probe by the render of it).  ``option`` names the first path's option, the others being its
+    siblings (``-o out.exr``'s .png, .json, ...), or is one option per path (``("--json", "--plot")``)."""
     read = [Path(f) for f in inputs]
-    for p in paths:  # a directory, or a path under a file, fails whatever --force says
+    options = [option] * len(paths) if isinstance(option, str) else list(option)
+    for p, opt in zip(paths, options):  # a directory, or a path under a file, fails whatever --force says
         clash = input_clash(p, read, inputs_are)   # the rule every library writer keeps (warpbw.io.staged)
         if clash is not None:
+            if not isinstance(option, str):   # each path is named by its own option
+                raise WarpbwError(f"{opt} {p}: {clash}")
             whose = "" if Path(p) == Path(paths[0]) else f" (its output {p})"
             raise WarpbwError(f"{option} {paths[0]}{whose}: {clash}")
-        check_output_file(p, option, force=True)
+        check_output_file(p, opt, force=True)
     if force:
         return
-    existing = [str(p) for p in paths if p.exists()]
+    existing = [str(p) for p in paths if Path(p).exists() or Path(p).is_symlink()]
     if existing:
         raise WarpbwError(f"{existing[0]}: already exists (pass --force to overwrite"
                           f"{' it' if len(existing) == 1 else f' it and {len(existing) - 1} more'})")
