@@ -1467,6 +1467,9 @@ def test_options_that_would_be_ignored_are_refused(tmp_path):
     (tmp_path / "planes.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
     r = run(["render", "planes.toml", "-o", "out.exr", "--filter", "toksvig", "--spp", "8"], tmp_path)
     assert_one_line_error(r, "--spp 8", "planes.toml", "[[light]]s alone", "--filter ground_truth")
+    # --seed too: the frame was byte for byte the seed-0 one
+    r = run(["render", "planes.toml", "-o", "out.exr", "--filter", "toksvig", "--seed", "5"], tmp_path)
+    assert_one_line_error(r, "--seed 5", "planes.toml", "[[light]]s alone", "--filter ground_truth")
     r = run(["bench-filtering", "planes.toml", "--json", "f.json", "--spp", "4"], tmp_path)
     assert_one_line_error(r, "--spp 4", "planes.toml has none")
     r = run(["demo", "-o", "out.exr"], tmp_path)
@@ -1476,7 +1479,7 @@ def test_options_that_would_be_ignored_are_refused(tmp_path):
     (tmp_path / "sun.toml").write_text(SCENE.format(resolution="[8, 8]", environment="", object='shape = "sphere"\n'
                                                     'radius = 1.0', material='type = "lambert"\nalbedo = 0.5')
                                        .replace("[environment]\n", sun))
-    for opt, needle in ((["--spp", "8"], "--spp 8"), (["--mis"], "--mis")):
+    for opt, needle in ((["--spp", "8"], "--spp 8"), (["--mis"], "--mis"), (["--seed", "7"], "--seed 7")):
         r = run(["render", "sun.toml", "-o", "out.exr", *opt], tmp_path)
         assert_one_line_error(r, needle, "sun.toml", "[[light]]s alone", "without samples")
     r = run(["render", "sun.toml", "-o", "out.exr"], tmp_path)   # no option to refuse: it renders

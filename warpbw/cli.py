@@ -336,19 +336,23 @@ def cmd_render(args) -> int:
     mixed = _is_mixed(scene)
     if args.method == "adaptive" and args.spp is not None and not mixed:
         raise WarpbwError("--spp applies to --method reference only (--method adaptive takes --budget)")
-    if scene.has_planes and not mixed and args.spp is not None and scene.environment is None \
-            and args.filter != "ground_truth":
-        raise WarpbwError(f"--spp {args.spp}: the planes of {scene.source} are lit by [[light]]s alone, shaded in "
-                          "closed form; --spp counts the rays of --filter ground_truth, or the samples of an "
-                          "[environment]")
-    if not scene.has_planes and scene.environment is None and (args.spp is not None or args.mis):
-        # the directional lights' term is exact: a reference frame of them takes no sample for --spp to count
-        # or --mis to weigh (a frame that printed "8 spp" and recorded MIS had taken none)
-        opt = f"--spp {args.spp}" if args.spp is not None else "--mis"
+    if scene.has_planes and not mixed and (args.spp is not None or args.seed is not None) \
+            and scene.environment is None and args.filter != "ground_truth":
+        opt = f"--spp {args.spp}" if args.spp is not None else f"--seed {args.seed}"
+        raise WarpbwError(f"{opt}: the planes of {scene.source} are lit by [[light]]s alone, shaded in closed form "
+                          "without random numbers; --spp and --seed apply to the rays of --filter ground_truth, or "
+                          "the samples of an [environment]")
+    if not scene.has_planes and scene.environment is None \
+            and (args.spp is not None or args.mis or args.seed is not None):
+        # the directional lights' term is exact: a reference frame of them takes no sample for --spp to count,
+        # --mis to weigh or --seed to draw (a frame that printed "8 spp" and recorded MIS had taken none)
+        opt = (f"--spp {args.spp}" if args.spp is not None else "--mis" if args.mis else f"--seed {args.seed}")
         raise WarpbwError(f"{opt}: {scene.source} is lit by [[light]]s alone, shaded in closed form without "
-                          "samples; --spp and --mis apply to the samples of an [environment]")
+                          "samples; --spp, --mis and --seed apply to the samples of an [environment]")
     if args.spp is None:
         args.spp = DEFAULT_SPP
+    if args.seed is None:
+        args.seed = 0
     if mixed:
         return _render_mixed_cli(scene, args)
     if scene.has_planes:
@@ -373,7 +377,7 @@ def cmd_demo(args) -> int:
     out = Path(args.output) / "demo.exr"
     scene_file = Path(args.output) / DEMO_SCENE_NAME
     spp = DEMO_SPP if args.spp is None else args.spp
-    _render(default_scene(), out, spp, args.seed, True, args.device, args.exposure, args.force,
+    _render(default_scene(), out, spp, args.seed or 0, True, args.device, args.exposure, args.force,
             args.threads, args.quiet, texts={scene_file: DEFAULT_SCENE_TOML})
     if not args.quiet:   # where to go next: the same scene, adaptively (the AOVs show where it shaded)
         import shlex
@@ -697,7 +701,8 @@ def build_parser() -> argparse.ArgumentParser:
         # default None: render refuses --spp with --method adaptive, so it must know whether --spp was given
         sp.add_argument("--spp", type=_positive_int("spp", INT32_MAX), default=None,
                         help=f"BRDF samples per pixel, N in 002 Eq. 2 (default {spp_default})")
-        sp.add_argument("--seed", type=parse_seed, default=0, help="random seed, 0 to 2^32-1 (default 0)")
+        # default None: render refuses a --seed its scene would not use, so it must know whether one was given
+        sp.add_argument("--seed", type=parse_seed, default=None, help="random seed, 0 to 2^32-1 (default 0)")
         sp.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda / cuda:N")
         sp.add_argument("--exposure", type=_exposure, default=0.0,
                         help=f"PNG preview exposure in stops, -{EXPOSURE_MAX_STOPS:g} to {EXPOSURE_MAX_STOPS:g} "
