@@ -1287,6 +1287,11 @@ def test_bench_filtering_zoom_that_sees_no_plane_is_refused_up_front(tmp_path):
     assert_one_line_error(r, "--zoom 1000", "no pixel sees a plane", "smaller zooms")
     assert r.stdout == ""
     assert_no_outputs(tmp_path, "b")
+    # so far that float32 cannot place the camera: the zoom is named, not the scene alone
+    r = run(["bench-filtering", "planes.toml", "--json", "b.json", "--zoom", "1e6", "--gt-spp", "64", "--runs", "1",
+             "-q"], tmp_path)
+    assert_one_line_error(r, "--zoom 1e+06 (camera distance x 1e+06): planes.toml: the camera", "float32")
+    assert_no_outputs(tmp_path, "b")
 
 
 def test_bench_filtering_of_planes_a_sphere_hides_entirely_is_refused_up_front(tmp_path):

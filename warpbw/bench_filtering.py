@@ -162,7 +162,11 @@ def _check_coverage(scene, frames, device: str) -> None:
     prep = prepare_filtering(scene, ("fixed",), device)  # the cheapest method: the coverage is the same for all
     for z, zooms, cams, bgs in frames:
         for zz, cam, bg in zip(zooms, cams, bgs):
-            if render_filtering(scene, "fixed", prepared=prep, camera=cam, env_spp=1, background=bg).coverage.any():
+            try:   # the zoomed camera's own limits (float32 far from the origin) were blamed on the scene alone
+                seen = render_filtering(scene, "fixed", prepared=prep, camera=cam, env_spp=1, background=bg)
+            except WarpbwError as exc:
+                raise WarpbwError(f"--zoom {z:g} (camera distance x {zz:g}): {exc}") from None
+            if seen.coverage.any():
                 continue
             if bg is not None and render_filtering(scene, "fixed", prepared=prep, camera=cam, env_spp=1).coverage.any():
                 raise WarpbwError(f"--zoom {z:g}: spheres or meshes hide every pixel of the planes at this zoom "
