@@ -137,6 +137,23 @@ def test_an_output_that_is_no_regular_file_or_a_dangling_link_is_not_taken_for_a
     assert check_replaceable(link, True) == link
 
 
+def test_a_long_output_name_is_written_and_one_too_long_refused_before_the_work(tmp_path):
+    from warpbw.cli_common import check_output_file
+
+    # 240 bytes: the output fits the file system's 255, but its temporary, 30 bytes longer, did not (after the work)
+    out = tmp_path / ("d" * 236 + ".exr")
+    with staged_outputs([out]) as at:
+        at[out].write_bytes(b"image")
+    assert out.read_bytes() == b"image" and [p.name for p in tmp_path.iterdir()] == [out.name]
+    # 264 bytes: refused by name first (a raw "[Errno 36] File name too long" after the work, or from is_dir)
+    too_long = tmp_path / ("e" * 260 + ".exr")
+    with pytest.raises(WarpbwError, match=r"e\.exr: a file name of 264 bytes, longer than the file system takes "
+                                          r"\(255\); expected a shorter name$"):
+        check_replaceable(too_long, True)
+    with pytest.raises(WarpbwError, match=r"^-o .*e\.exr: a file name of 264 bytes"):
+        check_output_file(too_long, "-o", force=False)
+
+
 def test_check_replaceable_refuses_a_directory_and_what_is_no_file_name(tmp_path):
     with pytest.raises(WarpbwError, match="is a directory"):
         check_replaceable(tmp_path, True)

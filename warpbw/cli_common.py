@@ -24,7 +24,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from warpbw.errors import SEED_MAX, WarpbwError, check_device
-from warpbw.io.staged import check_existing_output, input_clash, staged_outputs
+from warpbw.io.staged import check_existing_output, check_name_length, input_clash, staged_outputs
 from warpbw.native_output import init_warp_quietly
 
 EXIT_USER_ERROR = 2
@@ -75,6 +75,7 @@ def _check_writable(folder: Path, path: Path, option: str) -> None:
 def check_output_file(path, option: str, force: bool) -> None:
     """Refuse, before any work, an output file that is a directory, lies under a file, or exists without --force."""
     p = Path(path)
+    check_name_length(p, f"{option} {p}")   # first: Python 3.11's is_dir raises on a name too long
     if p.is_dir():
         raise WarpbwError(f"{option} {p}: is a directory (expected a file name)")
     _check_parents(p, option)

@@ -2,8 +2,8 @@
 
 Public: ``staged_outputs(paths)``; ``check_replaceable(path, force, inputs=(), inputs_are=...) -> Path`` (what every
 writer that takes ``force`` checks before its work), ``input_clash(path, inputs, inputs_are=...) -> str | None``,
-``check_existing_output(path, force, label)`` and ``check_not_read_only(path, label)`` (its parts the command lines
-share).
+``check_existing_output(path, force, label)``, ``check_name_length(path, label)`` and ``check_not_read_only(path,
+label)`` (its parts the command lines share).
 
 Every writer of warpbw (images, records, plots, asset and cache files) writes to a temporary file beside its
 output, and the outputs of one command are moved into place together once all of them are written.  So
@@ -105,6 +105,7 @@ def check_replaceable(path, force: bool, inputs=(), inputs_are: str = MADE_FROM)
     """``path`` as a Path, once it may be written: not a directory, not one of ``inputs`` (whatever ``force`` says),
     not an existing file without ``force``, not an existing read-only file.  Writers call it before their work."""
     p = check_path(path, "output path")
+    check_name_length(p, str(p))   # first: Python 3.11's is_dir raises on a name too long
     if p.is_dir():   # a temporary file would not replace a directory
         raise WarpbwError(f"{p}: is a directory (expected a file name)")
     clash = input_clash(p, inputs, inputs_are)
@@ -139,12 +140,44 @@ def _gone(pid: int) -> bool:
 
 # what _temp_beside puts between an output's stem and ".part": HOST-PID (its writer), then mkstemp's random name
 _TEMP_WRITER = re.compile(r"(?P<host>[0-9a-f]{8})-(?P<pid>[0-9]+)\.[A-Za-z0-9_]+")
+# the longest that part can be: 8 hex digits, "-", a pid (Linux's pid_max is at most 2^22: 7 digits; 10 allow
+# any 32-bit one), ".", mkstemp's 8 random characters
+_TEMP_WRITER_MAX = 8 + 1 + 10 + 1 + 8
+NAME_MAX_DEFAULT = 255   # bytes in a file name on Linux's and macOS's file systems, where pathconf cannot say
+
+
+def _name_max(folder: Path) -> int:
+    """The longest file name, in bytes, that ``folder``'s file system takes."""
+    try:
+        return int(os.pathconf(folder, "PC_NAME_MAX"))
+    except (OSError, ValueError, AttributeError):   # a folder not made yet, or no pathconf (Windows)
+        return NAME_MAX_DEFAULT
+
+
+def check_name_length(path, label: str) -> None:
+    """Refuse, before any work, an output whose name is longer than its file system takes (the run failed at its
+    end, with "File name too long")."""
+    p = Path(path)
+    folder = next((q for q in (p.parent, *p.parent.parents) if q.is_dir()), Path("."))
+    n, limit = len(os.fsencode(p.name)), _name_max(folder)
+    if n > limit:
+        raise WarpbwError(f"{label}: a file name of {n} bytes, longer than the file system takes ({limit}); expected "
+                          "a shorter name")
+
+
+def _temp_stem(path: Path) -> str:
+    """``path``'s stem, cut so that a temporary's name ``.STEM.HOST-PID.RANDOM.part.EXT`` fits the file system: an
+    output name of 225 bytes and more failed after the work (the temporary is about 30 bytes longer)."""
+    room = (_name_max(path.parent) - len(os.fsencode(TEMP_PREFIX + "." + ".part" + path.suffix))
+            - _TEMP_WRITER_MAX)
+    stem = os.fsencode(path.stem)
+    return path.stem if len(stem) <= room else stem[:max(room, 1)].decode("utf-8", "ignore")   # a cut character goes
 
 
 def _remove_stale_temps(path: Path) -> None:
     """Remove the temporaries of ``path`` that a process of this machine, since gone, left (SIGKILL, the OOM killer,
     a power cut).  Another machine's, a live process's and any other file are left alone."""
-    head, tail = f"{TEMP_PREFIX}{path.stem}.", f".part{path.suffix}"
+    head, tail = f"{TEMP_PREFIX}{_temp_stem(path)}.", f".part{path.suffix}"
     try:
         names = [q for q in path.parent.iterdir() if q.name.startswith(head) and q.name.endswith(tail)]
     except OSError:   # a folder that cannot be listed: nothing to tidy
@@ -162,8 +195,8 @@ def _remove_stale_temps(path: Path) -> None:
 def _temp_beside(path: Path, mode: int) -> Path:
     """An empty temporary file in ``path``'s folder, with its suffix (writers that go by it still do), named after
     its writer (``HOST-PID``, :data:`_TEMP_WRITER`) so that a later run can tell when it was left behind."""
-    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f"{TEMP_PREFIX}{path.stem}.{_host_tag()}-{os.getpid()}.",
-                                suffix=f".part{path.suffix}")
+    prefix = f"{TEMP_PREFIX}{_temp_stem(path)}.{_host_tag()}-{os.getpid()}."
+    fd, name = tempfile.mkstemp(dir=path.parent, prefix=prefix, suffix=f".part{path.suffix}")
     os.close(fd)
     os.chmod(name, mode)
     return Path(name)
