@@ -732,6 +732,8 @@ def read_gmm_mipmap(path) -> GmmMipmap:
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"     # PNG spec section 5.2
 PNG_BIT_DEPTH_OFFSET = 24            # IHDR: 8 signature + 4 length + 4 type + 4 width + 4 height bytes
+PNG_CUT_TO_8 = ("Pillow reads 16-bit PNGs other than greyscale without alpha with 8 bits; a 16-bit greyscale PNG "
+                "(a height field) or an OpenEXR image keeps the precision")
 
 
 # Largest map read from a file (8192 x 8192): a sanity bound, as for procedural surfaces (MAX_SURFACE_SIZE); a
@@ -749,9 +751,10 @@ def _check_map_size(p: Path, width: int, height: int) -> None:
         raise WarpbwError(f"{p}: {width} x {height} texels: {_MAP_SIZE_EXPECTED}")
 
 
-def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
+def _read_pixels(p: Path) -> tuple[np.ndarray, int | None, bool]:
     """(H, W, C) float64 in [0, 1] for PNG/Pillow images, raw floats for EXR; and the bits per channel the
-    values were read with (None for floating point)."""
+    values were read with (None for floating point); and whether a warning said so already: a 16-bit colour or
+    grey+alpha PNG, which Pillow reads with 8 bits (``PNG_CUT_TO_8``)."""
     from warpbw.io.exr import EXR_MAGIC, exr_size, read_exr
 
     with open(p, "rb") as fh:
@@ -761,17 +764,17 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
         img = read_exr(p)
         ch = img.channels
         if all(k in ch for k in ("R", "G", "B")):
-            return img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]].astype(np.float64), None
+            return img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]].astype(np.float64), None, False
         data = [k for k in ch if k not in EXR_ALPHA_CHANNELS]      # coverage or opacity, never a height
         if "Y" in data and set(data) <= {"Y", "RY", "BY"}:
             data = ["Y"]                                            # luminance (and chroma): the luminance
         if len(data) != 1:
             raise WarpbwError(f"{p}: OpenEXR channels {', '.join(ch)}: expected R, G, B (a normal map) or one "
                               "data channel besides alpha (a height field)")
-        return img.pixels[..., [ch.index(data[0])]].astype(np.float64), None
+        return img.pixels[..., [ch.index(data[0])]].astype(np.float64), None, False
     from PIL import Image, UnidentifiedImageError
 
-    bits = None
+    bits, said_8_bits = None, False
     try:
         with warnings.catch_warnings():   # Pillow's decompression-bomb warning: the bound below is tighter
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
@@ -796,13 +799,17 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
             else:
                 arr = np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0
                 bits = 8
+        if bits == 8 and head.startswith(PNG_MAGIC) and len(head) > PNG_BIT_DEPTH_OFFSET \
+                and head[PNG_BIT_DEPTH_OFFSET] == 16:   # the file held 16 bits: say where the other 8 went
+            warnings.warn(f"{p}: a 16-bit PNG read with 8 bits per channel ({PNG_CUT_TO_8})", stacklevel=3)
+            said_8_bits = True
     except Image.DecompressionBombError:   # beyond Pillow's own bound (above ours), raised before any size is known
         raise WarpbwError(f"{p}: over {2 * Image.MAX_IMAGE_PIXELS} texels: {_MAP_SIZE_EXPECTED}") from None
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
         if head.startswith(PNG_MAGIC):   # it is a PNG: "not an image file" was wrong
             raise WarpbwError(f"{p}: cannot decode this PNG (truncated or corrupt: {exc})") from None
         raise WarpbwError(f"{p}: not an image file (expected an OpenEXR or PNG image; {type(exc).__name__})") from None
-    return (arr[..., None] if arr.ndim == 2 else arr), bits
+    return (arr[..., None] if arr.ndim == 2 else arr), bits, said_8_bits
 
 
 def load_map(path, kind: str = "height") -> np.ndarray:
@@ -813,7 +820,7 @@ def load_map(path, kind: str = "height") -> np.ndarray:
     flat normal is stored as (0.5, 0.5, 1)), otherwise it is [0, 1]-encoded too.  Texels shorter than
     ``NORMAL_LENGTH_MIN`` (as stored or decoded) are an error; texels off unit length by more than ``UNIT_TOL``
     are renormalised, with a warning.  16-bit greyscale PNGs keep their precision (Pillow reads 16-bit
-    RGB PNGs as 8-bit).  Normals more than ``NORMAL_Z_TOL`` below the tangent plane are an error; those
+    RGB and grey + alpha PNGs as 8-bit, and that warns).  Normals more than ``NORMAL_Z_TOL`` below the tangent plane are an error; those
     closer are put in it.  A varying height field read with 8 bits warns (terraced normals).  Every
     problem is a one-line WarpbwError naming the file."""
     from precompute.surfaces import normals_from_map, unit_normals
@@ -821,7 +828,7 @@ def load_map(path, kind: str = "height") -> np.ndarray:
     if kind not in KINDS:
         raise WarpbwError(f"kind {kind!r}: expected one of {', '.join(KINDS)}")
     p = check_input_file(path, f"a {kind} map: OpenEXR or PNG image")
-    px, bits = _read_pixels(p)
+    px, bits, said_8_bits = _read_pixels(p)
     if px.shape[0] == 0 or px.shape[1] == 0 or px.shape[2] == 0:
         raise WarpbwError(f"{p}: empty image ({px.shape[1]}x{px.shape[0]} texels); expected a {kind} map")
     bad = ~np.isfinite(px).all(axis=-1)
@@ -837,7 +844,7 @@ def load_map(path, kind: str = "height") -> np.ndarray:
                                   "single-channel image; for a tangent-space normal map use --kind normal, or "
                                   "normal_map_kind = \"normal\" in a scene)")
         heights = np.ascontiguousarray(px[..., 0])
-        if bits is not None and bits <= 8 and np.ptp(heights) > 0:
+        if bits is not None and bits <= 8 and np.ptp(heights) > 0 and not said_8_bits:
             warnings.warn(f"{p}: heights read with {bits} bit{'s' if bits > 1 else ''}: {2 ** bits} levels give "
                           "terraced normals (a 16-bit greyscale PNG or an EXR keeps the detail)", stacklevel=2)
         return heights

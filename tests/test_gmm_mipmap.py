@@ -598,6 +598,44 @@ def test_builder_refuses_normals_that_are_not_unit_or_point_down():
         build_gmm_mipmap(m, kind="normal", progress=False)
 
 
+def _png16(path, values, colour_type):
+    """A 16-bit PNG of ``values`` (H, W, C) uint16, written by hand (Pillow writes 16-bit greyscale only): colour
+    type 2 is RGB, 4 grey + alpha (PNG spec 11.2.2)."""
+    import struct
+    import zlib
+
+    h, w = values.shape[:2]
+    rows = b"".join(b"\x00" + values[r].astype(">u2").tobytes() for r in range(h))
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, colour_type, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
+
+
+@pytest.mark.parametrize("colour_type,kind", [(2, "height"), (4, "height"), (2, "normal")])
+def test_a_16_bit_png_pillow_reads_with_8_bits_says_so_once(tmp_path, colour_type, kind):
+    # a smooth ramp in the low byte: 16-bit grey keeps its 48 levels, Pillow's 8-bit reading of RGB or grey + alpha
+    # keeps one; the warning said "heights read with 8 bits" as if the file were 8-bit, and a normal map said nothing
+    ramp = (30000 + np.arange(8 * 6).reshape(8, 6)).astype(np.uint16)
+    values = (np.stack([ramp] * 3, -1) if colour_type == 2 and kind == "height" else
+              np.stack([np.full_like(ramp, 32768), np.full_like(ramp, 32768), np.full_like(ramp, 65535)], -1)
+              if colour_type == 2 else np.stack([ramp, np.full_like(ramp, 65535)], -1))
+    _png16(tmp_path / "m.png", values, colour_type)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        load_map(tmp_path / "m.png", kind)
+    assert [str(w.message) for w in said] == [f"{tmp_path / 'm.png'}: a 16-bit PNG read with 8 bits per channel "
+                                              "(Pillow reads 16-bit PNGs other than greyscale without alpha with 8 "
+                                              "bits; a 16-bit greyscale PNG (a height field) or an OpenEXR image keeps "
+                                              "the precision)"]
+    _png16(tmp_path / "g.png", ramp[..., None], 0)   # the same heights as 16-bit grey: read whole, quietly
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert len(np.unique(load_map(tmp_path / "g.png", "height"))) == 48
+
+
 def test_8_bit_height_field_warns_of_terraces(tmp_path):
     ramp = (np.arange(8 * 6).reshape(8, 6) * 5).astype(np.uint8)
     save_png(tmp_path / "h8.png", ramp)
