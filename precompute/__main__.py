@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from warpbw.cli_common import OneLineParser, check_output_file, check_overwrite, parse_seed, run_command
+from warpbw import __version__
 from warpbw.errors import WarpbwError
 
 
@@ -127,6 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 "sampling tables and angular bandwidth tables of tabulated BRDFs, GMM normal mipmaps "
                                 "of height fields and normal maps.  Tables carry a format name, a version, the "
                                 "source's name and its content hash.")
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 

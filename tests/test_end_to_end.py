@@ -1822,6 +1822,22 @@ def test_render_of_planes_beside_a_sphere_that_covers_nothing_warns(small_scenes
     assert err.count("warpbw: warning: no pixel is covered by geometry") == 1, err
 
 
+@pytest.mark.parametrize("command", ["warpbw", "warpbw-precompute"])
+def test_version_is_the_packages(command, capsys):
+    """--version prints the version pyproject.toml installs (it was an unknown option)."""
+    from importlib.metadata import version
+
+    from precompute.__main__ import build_parser as precompute_parser
+    from warpbw.cli import build_parser
+
+    text = (Path(__file__).resolve().parents[1] / "pyproject.toml").read_text()
+    declared = re.search(r'^version = "([^"]+)"', text, re.M).group(1)
+    assert version("warpbw") == declared
+    with pytest.raises(SystemExit) as ei:
+        (build_parser if command == "warpbw" else precompute_parser)().parse_args(["--version"])
+    assert ei.value.code == 0 and capsys.readouterr().out == f"{command} {declared}\n"
+
+
 @pytest.mark.parametrize("stops", ["150", "-150"])
 def test_exposure_accepts_the_ends_help_names(stops):
     """--help "-150 to 150"."""

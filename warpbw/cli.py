@@ -21,6 +21,7 @@ import sys
 import time
 from pathlib import Path
 
+from warpbw import __version__
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
                                json_text, parse_seed, run_command)
 from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError
@@ -694,6 +695,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="warpbw", description="Render measured materials under HDR light with "
                 "NVIDIA Warp kernels (CPU by default; --device cuda selects a GPU, untested so far).",
                 epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
