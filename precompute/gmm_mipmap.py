@@ -618,12 +618,27 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
 # --------------------------------------------------------------------------------------------------
 # Files
 
+def _valid_option(key: str, value) -> bool:
+    """Whether ``warpbw-precompute gmm --KEY VALUE`` would be accepted (for ``rebuild_command``)."""
+    if isinstance(value, bool):
+        return key == "unaligned"
+    if key == "kind":
+        return value in KINDS
+    if key in ("components", "seed"):
+        return is_int(value) and (1 <= value <= MAX_COMPONENTS if key == "components" else 0 <= value <= SEED_MAX)
+    if key in ("prior", "scale"):
+        return isinstance(value, numbers.Real) and math.isfinite(value) and \
+            (0.0 <= value <= MAX_PRIOR if key == "prior" else value > 0.0)
+    return False
+
+
 def rebuild_command(source: str, params=None, out="OUT") -> str:
     """The ``warpbw-precompute gmm`` line that rebuilds a mipmap of ``source`` into ``out`` with the options
     ``params`` (a header's, or a material's) records (those that differ from the defaults: a normal map rebuilt
-    without ``--kind normal`` was read as heights), quoted for a POSIX shell.  ``str`` of a float is the shortest text that reads back as it (``:g`` kept six digits:
-    a prior of 0.1234567891 was rebuilt as 0.123457)."""
-    p = params if isinstance(params, dict) else {}
+    without ``--kind normal`` was read as heights), quoted for a POSIX shell.  ``str`` of a float is the shortest
+    text that reads back as it (``:g`` kept six digits: a prior of 0.1234567891 was rebuilt as 0.123457).  A value
+    the tool would refuse (a damaged header's prior of NaN, a scale of "abc") is left out: the default rebuilds."""
+    p = {k: v for k, v in (params if isinstance(params, dict) else {}).items() if _valid_option(k, v)}
     unaligned = p.get("unaligned") is True
     # the CLI refuses --prior with --unaligned, and --scale with a normal map
     unused = ({"prior"} if unaligned else set()) | ({"scale"} if p.get("kind", "height") != "height" else set())
@@ -702,7 +717,8 @@ def read_gmm_mipmap(path) -> GmmMipmap:
     if n == 0 or any(q is None for q in levels):
         raise WarpbwError(f"{path}: GMM mipmap without its levels (rebuild it with: {hint})")
     K = levels[0].shape[2] if levels[0].ndim == 4 else -1
-    shapes = level_shapes(*levels[0].shape[:2]) if levels[0].ndim == 4 else []
+    # an empty level 0 (0 x 0 texels) has no level shapes: level_shapes' error named no file
+    shapes = level_shapes(*levels[0].shape[:2]) if levels[0].ndim == 4 and min(levels[0].shape[:2]) >= 1 else []
     if len(shapes) != n or any(q.shape != s + (K, 4) for q, s in zip(levels, shapes)):
         raise WarpbwError(f"{path}: GMM mipmap levels have inconsistent shapes (rebuild it with: {hint})")
     try:

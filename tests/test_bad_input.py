@@ -850,7 +850,8 @@ GMM_HEADER_DAMAGE = [("prior", "one", "non-numeric levels or parameters"), ("pri
                      ("scale", -1.0, "height scale -1.0"), ("kind", "bump", "map kind 'bump'")]
 
 
-@pytest.mark.parametrize("what,needle", GMM_DAMAGE + [(f"{k} = {v!r}", n) for k, v, n in GMM_HEADER_DAMAGE])
+@pytest.mark.parametrize("what,needle", GMM_DAMAGE + [(f"{k} = {v!r}", n) for k, v, n in GMM_HEADER_DAMAGE]
+                         + [("empty levels", "inconsistent shapes")])
 def test_gmm_file_with_bad_contents(tmp_path, what, needle):
     """A GMM mipmap of the right format and version whose moments are no mixture (NaN, weights that do not sum to
     1, negative weights or variances: each rendered without a word) or whose header's parameters are not what it
@@ -867,13 +868,18 @@ def test_gmm_file_with_bad_contents(tmp_path, what, needle):
     header = json.loads(str(z["__header__"]))
     damage = {k: v for k, v, _ in GMM_HEADER_DAMAGE if what == f"{k} = {v!r}"}
     header["params"].update(damage)
-    if not damage:
+    if what == "empty levels":   # level_shapes' "map size 0x0" named no file
+        z.update({k: np.zeros((0, 0, 2, 4), np.float32) for k in z if k.startswith("level_")})
+    elif not damage:
         _damage_moments(z["level_1"], what)
     z["__header__"] = np.array(json.dumps(header))
     np.savez_compressed(path, **z)
     with pytest.raises(WarpbwError, match=needle) as ei:
         read_gmm_mipmap(path)
     assert str(path) in str(ei.value) and "rebuild it with" in str(ei.value)
+    # the command it prints takes none of the damaged header's values ("--prior nan", "--scale abc")
+    hint = str(ei.value).split("rebuild it with: ")[1]
+    assert not any(word in hint for word in ("nan", "abc", "bump", "-1.0", "2.5", "--components 0"))
 
 
 @pytest.mark.parametrize("what,needle", GMM_DAMAGE)
