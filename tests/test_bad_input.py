@@ -1452,6 +1452,24 @@ def test_a_merl_file_without_a_positive_entry_is_refused(tmp_path, fill):
     assert_no_outputs(tmp_path)
 
 
+@pytest.mark.parametrize("fill,needle", [("zeros", "no positive MERL entry"), ("unmeasured", "no positive MERL entry"),
+                                         ("tiny", "no positive MERL entry"), ("huge", r"MERL entries up to 3e\+25")])
+def test_write_merl_refuses_what_read_merl_would(tmp_path, fill, needle):
+    """npf-to-merl wrote, with status 0, a file its own reader then refused (an NPF curve of 1e19 tabulates beyond
+    read_merl's 1e20), and write_merl wrote an all-zero table."""
+    from warpbw.io.merl import MERL_SHAPE, read_merl, write_merl
+
+    value = {"zeros": 0.0, "unmeasured": -1.0, "tiny": 1e-300, "huge": 3e25}[fill]
+    data = np.full(MERL_SHAPE, value)
+    with pytest.raises(WarpbwError, match=rf"out\.binary: refusing to write a file read_merl would refuse: {needle}"):
+        write_merl(tmp_path / "out.binary", data)
+    assert not list(tmp_path.iterdir())
+    data[3, 4, 5] = 0.5        # one positive entry, the others as they were: what the reader takes, the writer writes
+    if fill != "huge":
+        write_merl(tmp_path / "out.binary", data)
+        assert read_merl(tmp_path / "out.binary").data.max() == pytest.approx(0.5, rel=1e-6)
+
+
 def test_an_npf_row_that_reflects_nothing_is_refused(tmp_path):
     from warpbw.io.npf import NPF_COLS, NPF_CHANNELS, NPF_MATERIAL_NAMES
 

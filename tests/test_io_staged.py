@@ -172,13 +172,13 @@ def test_write_merl_refuses_a_read_only_file_and_its_inputs_even_with_force(tmp_
     ro.write_bytes(b"a read-only MERL file")
     before = _read_only(ro)
     with pytest.raises(WarpbwError, match=r"ro\.binary: cannot be overwritten"):
-        write_merl(ro, np.zeros(MERL_SHAPE), force=True)
+        write_merl(ro, np.full(MERL_SHAPE, 0.1), force=True)
     assert (ro.read_bytes(), ro.stat().st_mode) == before
     src = tmp_path / "src.binary"
     src.write_bytes(b"the MERL file it is made from")
     (tmp_path / "hard.binary").hardlink_to(src)
     with pytest.raises(WarpbwError, match=r"hard\.binary: would overwrite .*src\.binary"):
-        write_merl(tmp_path / "hard.binary", np.zeros(MERL_SHAPE), force=True, inputs=[src])
+        write_merl(tmp_path / "hard.binary", np.full(MERL_SHAPE, 0.1), force=True, inputs=[src])
     assert src.read_bytes() == b"the MERL file it is made from" and _leftovers(tmp_path) == []
 
 
@@ -229,7 +229,7 @@ def test_write_merl_leaves_the_old_file_when_it_fails(tmp_path, monkeypatch):
 
     monkeypatch.setattr(merl, "open", FullDisk, raising=False)
     with pytest.raises(WarpbwError, match=r"m\.binary: cannot write \(No space left on device\)"):
-        merl.write_merl(out, np.zeros(merl.MERL_SHAPE), force=True)
+        merl.write_merl(out, np.full(merl.MERL_SHAPE, 0.1), force=True)
     assert out.read_bytes() == b"an earlier MERL file" and _leftovers(tmp_path) == []
 
 

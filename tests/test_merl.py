@@ -376,7 +376,7 @@ def test_missing_file(tmp_path):
 def test_write_refuses_overwrite_and_bad_shape(analytic_file, tmp_path):
     size_before = analytic_file.stat().st_mtime_ns
     with pytest.raises(WarpbwError, match="already exists"):
-        write_merl(analytic_file, np.zeros((90, 90, 180, 3)))
+        write_merl(analytic_file, np.full((90, 90, 180, 3), 0.1))
     assert analytic_file.stat().st_mtime_ns == size_before
     with pytest.raises(WarpbwError, match=r"x.binary.*\(90, 90, 180, 3\)"):
         write_merl(tmp_path / "x.binary", np.zeros((90, 90, 90, 3)))

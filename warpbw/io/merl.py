@@ -246,14 +246,10 @@ def read_merl(path) -> MerlBRDF:
     n_bad = int(np.count_nonzero(bad))
     scale = np.asarray(MERL_SCALE, dtype=np.float64).reshape(3, 1, 1, 1)
     scaled = np.where(bad, 0.0, raw * scale)
-    if scaled.max() > BRDF_VALUE_MAX:
-        raise WarpbwError(f"{path}: MERL entries up to {scaled.max():.3g} after the channel scales, beyond "
-                          f"{BRDF_VALUE_MAX:g} (float32 shading would overflow them to infinity; expected a MERL BRDF)")
+    problem = _values_problem(scaled, n_bad)
+    if problem is not None:
+        raise WarpbwError(f"{path}: {problem}")
     data = np.ascontiguousarray(np.moveaxis(scaled, 0, -1), dtype=np.float32)
-    if not data.max() > 0.0:   # a black image from a file of zeros or of unmeasured entries helps no one
-        # (read as stored, in float32: entries of 1e-300 passed in float64 and were all 0 there)
-        raise WarpbwError(f"{path}: no positive MERL entry in float32 ({n_bad} of {3 * MERL_N_BINS} unmeasured, "
-                          f"the largest {scaled.max():.3g}; expected a measured BRDF)")
     mask = np.ascontiguousarray(np.moveaxis(bad, 0, -1)) if n_bad else None
     if n_bad:
         warnings.warn(
@@ -262,6 +258,19 @@ def read_merl(path) -> MerlBRDF:
             stacklevel=2,
         )
     return MerlBRDF(name=path.stem, path=str(path), data=data, n_unmeasured=n_bad, unmeasured=mask)
+
+
+def _values_problem(scaled: np.ndarray, n_bad: int) -> str | None:
+    """What makes BRDF values (after the channel scales; unmeasured entries 0) no MERL BRDF warpbw can shade, or
+    None: what ``read_merl`` refuses, and so ``write_merl`` (npf-to-merl wrote files its reader then refused)."""
+    if scaled.max() > BRDF_VALUE_MAX:
+        return (f"MERL entries up to {scaled.max():.3g} after the channel scales, beyond {BRDF_VALUE_MAX:g} (float32 "
+                "shading would overflow them to infinity; expected a MERL BRDF)")
+    if not np.float32(scaled.max()) > 0.0:   # a black image from a file of zeros or of unmeasured entries helps no
+        # one (read as stored, in float32: entries of 1e-300 passed in float64 and were all 0 there)
+        return (f"no positive MERL entry in float32 ({n_bad} of {3 * MERL_N_BINS} unmeasured, the largest "
+                f"{scaled.max():.3g}; expected a measured BRDF)")
+    return None
 
 
 def write_merl(path, data, force: bool = False, inputs=()) -> Path:
@@ -280,6 +289,9 @@ def write_merl(path, data, force: bool = False, inputs=()) -> Path:
     n_nonfinite = int(np.count_nonzero(~np.isfinite(arr)))
     if n_nonfinite:
         raise WarpbwError(f"{path}: refusing to write {n_nonfinite} non-finite MERL values (expected finite numbers)")
+    problem = _values_problem(np.maximum(arr, 0.0), int(np.count_nonzero(arr < 0.0)))   # negatives: unmeasured
+    if problem is not None:
+        raise WarpbwError(f"{path}: refusing to write a file read_merl would refuse: {problem}")
     check_replaceable(path, force, inputs)
     scale = np.asarray(MERL_SCALE, dtype=np.float64)
     values = np.ascontiguousarray(np.moveaxis(arr / scale, -1, 0), dtype="<f8")
