@@ -17,6 +17,8 @@ import time
 from pathlib import Path
 
 from warpbw.cli_common import OneLineParser, check_output_file, check_overwrite, parse_seed, run_command
+from precompute.gmm_mipmap import MAX_COMPONENTS, MAX_PRIOR
+from precompute.surfaces import MAX_SURFACE_SIZE, MIN_SURFACE_SIZE
 from warpbw import __version__
 from warpbw.errors import WarpbwError
 
@@ -162,12 +164,15 @@ def build_parser() -> argparse.ArgumentParser:
                        "the linearly filterable (a, a mu_x, a mu_y, a E|n|^2) per component (E|n|^2 = "
                        "2 s^2 + |mu|^2, s the std per axis).  MAP is an OpenEXR or PNG (8/16-bit) image, or a "
                        "procedural height field surface:NAME[:SIZE] with NAME one of hemispherical_scales, "
-                       "carved_disk, dunes (e.g. surface:dunes:512; SIZE 1..1024, default 512).")
+                       f"carved_disk, dunes (e.g. surface:dunes:512; SIZE up to {MAX_SURFACE_SIZE}, default 512; "
+                       f"hemispherical_scales needs at least {MIN_SURFACE_SIZE}, and below about 16 texels the "
+                       "others' detail is finer than a texel).")
     g.add_argument("map", metavar="MAP", help="height field / normal map image, or surface:NAME[:SIZE]")
     g.add_argument("-o", "--output", required=True, help="output mipmap file (a name ending in .npz or .gmm)")
-    g.add_argument("--components", type=int, default=4, help="Gaussians per texel (default 4)")
+    g.add_argument("--components", type=int, default=4, help=f"Gaussians per texel, 1 to {MAX_COMPONENTS} (default 4)")
     g.add_argument("--prior", type=float, default=1.0,
-                   help="alignment constant c of the MAP prior (default 1; 0 is plain EM; not with --unaligned)")
+                   help=f"alignment constant c of the MAP prior, 0 to {MAX_PRIOR:g} (default 1; 0 is plain EM; not "
+                   "with --unaligned)")
     g.add_argument("--kind", choices=("height", "normal"), default="height",
                    help="MAP is a single-channel height field (default; 16-bit PNG or EXR: 8 bits "
                         "give terraced normals) or an RGB tangent-space normal map (PNG: [0, 1]-encoded; "

@@ -10,7 +10,8 @@ Public functions:
 - ``dunes(size=512, seed=0, ...)``: wind-rippled sand dunes (004 Fig. 1).
 - ``SURFACES``: name -> generator, for ``surface:NAME[:SIZE]`` on the command line; ``MIN_SURFACE_SIZE`` the
   smallest size all of them hold at their defaults (17), ``MAX_SURFACE_SIZE`` the largest.
-- ``height_to_normals(h, scale=1.0, texel_size=None) -> (H, W, 3)`` unit tangent-space normals.
+- ``height_to_normals(h, scale=1.0, texel_size=None) -> (H, W, 3)`` unit tangent-space normals (warning when
+  ``nyquist_share(h)``, the detail central differences cannot see, exceeds ``NYQUIST_SHARE_WARN``).
 - ``normals_from_map(rgb) -> (H, W, 3)``: decode a [0, 1]-encoded tangent-space normal map (values
   more than ``ENCODING_TOL`` outside [0, 1] are refused).
 - ``unit_normals(n, what) -> (H, W, 3)``: texel vectors renormalised, refusing those shorter than
@@ -35,6 +36,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import warnings
 
 import numpy as np
 
@@ -52,6 +54,9 @@ TWO_PI = 2.0 * np.pi
 # texels per spacing in both directions (rows are half a spacing apart, staggered by half a spacing), so every
 # texel centre falls on the same point of its top scale and the map is flat (sizes 8 and 16 at the default 8
 # scales: peak-to-peak 0); below 2 the pattern aliases.
+# Above this share of a height field's variance at the period of 2 texels (nyquist_share), height_to_normals warns:
+# a checkerboard or a 2 x 2 map is all such detail (share 1); white noise of side W holds about 1/W of it per axis
+NYQUIST_SHARE_WARN = 0.5
 MIN_TEXELS_PER_SCALE = 2
 SCALES_ACROSS_DEFAULT = 8   # scales per row of hemispherical_scales (004 Fig. 8 shows about as many)
 # The smallest size every surface holds at its defaults (the scales': more than 2 texels per spacing)
@@ -210,10 +215,25 @@ def dunes(size: int = 512, seed: int = 0, dune_amplitude: float = 0.015, ripple_
 SURFACES = {"hemispherical_scales": hemispherical_scales, "carved_disk": carved_disk, "dunes": dunes}
 
 
+def nyquist_share(h: np.ndarray) -> float:
+    """The share of the variance of height field ``h`` that alternates from texel to texel along a row or a column
+    (its DFT at frequency 1/2 along that axis, an even side only; the larger of the two): detail that central
+    differences, (h[j+1] - h[j-1]) / 2, do not see (0 for a constant field)."""
+    h = np.asarray(h, dtype=np.float64)
+    var = float(h.var())
+    if not var > 0.0:
+        return 0.0
+    shares = [float(np.mean(np.square(np.mean(np.moveaxis(h, axis, -1) * (-1.0) ** np.arange(h.shape[axis]), -1))))
+              for axis in (0, 1) if h.shape[axis] % 2 == 0]
+    return max(shares, default=0.0) / var
+
+
 def height_to_normals(h, scale: float = 1.0, texel_size: float | None = None) -> np.ndarray:
     """Unit tangent-space normals (H, W, 3) of the height field ``scale * h`` by central differences
     with wrap-around (the map tiles).  ``texel_size`` is a texel's width in height units (default
-    ``1 / W``: heights in units of the map's width).  x along +column, y along -row (image up)."""
+    ``1 / W``: heights in units of the map's width).  x along +column, y along -row (image up).  Warns when more
+    than ``NYQUIST_SHARE_WARN`` of the heights' variance alternates from texel to texel (:func:`nyquist_share`):
+    central differences do not see it, and a checkerboard came out a mirror, silently."""
     h = np.asarray(h, dtype=np.float64)
     if h.ndim != 2 or h.size == 0:
         raise WarpbwError(f"height field of shape {h.shape}: expected a non-empty (H, W) array")
@@ -227,6 +247,11 @@ def height_to_normals(h, scale: float = 1.0, texel_size: float | None = None) ->
     with np.errstate(over="ignore", invalid="ignore"):
         dh_dx = (np.roll(h, -1, axis=1) - np.roll(h, 1, axis=1)) * (scale / (2.0 * t))
         dh_dy = (np.roll(h, 1, axis=0) - np.roll(h, -1, axis=0)) * (scale / (2.0 * t))   # y = -row
+    share = nyquist_share(h)
+    if share > NYQUIST_SHARE_WARN:
+        warnings.warn(f"height field of {h.shape[1]}x{h.shape[0]} texels: {share:.0%} of its variance alternates from "
+                      "texel to texel, which the central differences of its slopes do not see (those normals come "
+                      "out flat); a map sampled twice as finely keeps that detail", stacklevel=2)
     n = np.stack([-dh_dx, -dh_dy, np.ones_like(h)], axis=-1)
     if not np.all(np.isfinite(n)):   # gave NaN normals, and scikit-learn's "Input X contains NaN"
         raise WarpbwError(f"height_to_normals: slopes overflow float64 (scale {scale:g} times height differences up "

@@ -8,7 +8,7 @@ import pytest
 from conftest import attempt
 
 from precompute.surfaces import (SURFACES, carved_disk, dunes, height_to_normals, hemispherical_scales,
-                                 normals_from_map)
+                                 normals_from_map, nyquist_share)
 from warpbw.errors import WarpbwError
 
 
@@ -84,6 +84,31 @@ def test_height_to_normals_of_a_sine_matches_the_analytic_derivative():
     np.testing.assert_allclose(slope[3], analytic, atol=d * d / 6 * 1.01 * np.abs(analytic).max())
     np.testing.assert_allclose(n[..., 1], 0.0, atol=1e-15)
     np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("period", [2, 4, 8])
+def test_detail_central_differences_cannot_see_warns(period):
+    """A height field alternating from texel to texel (period 2) has central differences of exactly 0: its normals are
+    a mirror.  A checkerboard's mipmap was built as one, silently; it warns now, and a period of 4 or more, whose
+    slopes the differences see (the sine above), does not."""
+    import warnings
+
+    W = 16
+    x = np.arange(W)
+    waves = {"rows": np.broadcast_to(np.cos(2 * np.pi * x / period), (W, W)),
+             "checkerboard": np.cos(2 * np.pi * (x[:, None] + x[None, :]) / period)}
+    for name, h in waves.items():
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            n = height_to_normals(0.1 * h)
+        if period == 2:
+            np.testing.assert_array_equal(n, np.broadcast_to([0.0, 0.0, 1.0], n.shape), err_msg=name)   # closed form
+            assert nyquist_share(h) == pytest.approx(1.0) and len(said) == 1, name
+            assert re.search(r"16x16 texels: 100% of its variance alternates from texel to texel", str(said[0].message))
+        else:
+            assert nyquist_share(h) == pytest.approx(0.0, abs=1e-12) and not said, name
+            assert n[..., 2].min() < 0.999, name   # bumpy, as it should be
+    assert nyquist_share(np.ones((4, 4))) == 0.0 and nyquist_share(np.arange(5.0)[None]) == 0.0   # odd: no such band
 
 
 def test_normals_unit_length_on_every_surface():
