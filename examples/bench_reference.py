@@ -34,10 +34,11 @@ from warpbw.cli import check_command_options
 from warpbw.bench import GT_CHUNK_SPP
 from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
 from warpbw.errors import WarpbwError
+from warpbw.io.shared_data import shared_data_dir
 from warpbw.scene import MAX_RESOLUTION, toml_escape
 
 HERE = Path(__file__).resolve().parent
-DATA = HERE.parent.parent / "shared" / "data"
+DATA = shared_data_dir(HERE.parent)
 
 SCENE = """
 [camera]

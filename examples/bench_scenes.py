@@ -36,11 +36,12 @@ from pathlib import Path
 
 from warpbw.cli import check_command_options
 from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, run_command
+from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
 from warpbw.scene import toml_escape
 
 HERE = Path(__file__).resolve().parent
-DATA = HERE.parent.parent / "shared" / "data"
+DATA = shared_data_dir(HERE.parent)
 
 CAMERAS = {
     "bunny": 'position = [0.0, 0.35, 4.6]\nlook_at = [0.0, 0.0, 0.0]\nfov = 35.0',

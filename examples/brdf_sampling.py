@@ -19,6 +19,7 @@ from warpbw import brdf as B
 from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
 from warpbw.errors import INT32_MAX, check_count
 from warpbw.io.npf import npf_eval, read_npf
+from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
 from warpbw.sampling import build_sampler_table
 
@@ -29,7 +30,7 @@ def main():
     here = Path(__file__).resolve().parent
     ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--material", default="gold-metallic-paint", help="NPF material name (default gold-metallic-paint)")
-    ap.add_argument("--table", default=str(here.parent.parent / "shared" / "data" / "brdf" / "npf.bin"),
+    ap.add_argument("--table", default=str(shared_data_dir(here.parent) / "brdf" / "npf.bin"),
                     help="NPF table (default ../shared/data/brdf/npf.bin)")
     ap.add_argument("--samples", type=int, default=400_000, help="directions drawn per view (default 400000)")
     ap.add_argument("--out", default="brdf_out", help="folder of brdf_sampling_MATERIAL.png (default brdf_out)")

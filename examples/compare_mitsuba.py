@@ -115,6 +115,7 @@ import numpy as np
 
 from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, init_warp, parse_seed, run_command
 from warpbw.errors import SEED_MAX
+from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
 from warpbw.scene import toml_string
 
@@ -124,7 +125,7 @@ if str(REPO_ROOT) not in sys.path:
     sys.path.insert(0, str(REPO_ROOT))
 
 # ../shared/data relative to the project root (see ../shared/data/README.md).
-DEFAULT_PROBE = REPO_ROOT.parent / "shared" / "data" / "envmaps" / "studio.exr"
+DEFAULT_PROBE = shared_data_dir(REPO_ROOT) / "envmaps" / "studio.exr"
 LLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
 ACCEPT_RELMSE = 0.01          # acceptance: relMSE below 1 % per case
 ERODE_PX = 2                  # interior = coverage eroded by this many pixels (5x5 square)

@@ -41,9 +41,10 @@ import warp as wp
 
 from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, init_warp, parse_seed, run_command
 from warpbw.errors import SEED_MAX, WarpbwError
+from warpbw.io.shared_data import shared_data_dir
 
 HERE = Path(__file__).resolve().parent
-DATA = HERE.parent.parent / "shared" / "data"
+DATA = shared_data_dir(HERE.parent)
 DEFAULT_MESH = DATA / "meshes" / "bunny.obj"
 DEFAULT_ENV = DATA / "envmaps" / "city.exr"     # procedural sky when absent
 NPF_TABLE = DATA / "brdf" / "npf.bin"

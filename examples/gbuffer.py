@@ -18,6 +18,7 @@ from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_com
 from warpbw.gbuffer import MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.io.exr import write_exr, write_false_colour_png, write_png
 from warpbw.io.mesh import load_mesh
+from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
 from warpbw.scene import MAX_RESOLUTION
 
@@ -42,7 +43,7 @@ def main():
     spheres = [SphereSpec((1.1, -0.55, -0.6), 0.45, 1)]
     meshes = []
     if args.mesh is None:
-        args.mesh = str(here.parent.parent / "shared" / "data" / "meshes" / "bunny.obj")
+        args.mesh = str(shared_data_dir(here.parent) / "meshes" / "bunny.obj")
     elif not Path(args.mesh).is_file():
         ap.error(f"--mesh {args.mesh}: no such file (expected a mesh trimesh loads: OBJ, PLY, STL, GLB)")
     out = Path(args.out)

@@ -39,10 +39,11 @@ from warpbw.cli import BUDGET_MAX, ENV_SIGNALS
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
                                run_command, write_json)
 from warpbw.errors import INT32_MAX, WarpbwError, check_count
+from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
 from warpbw.scene import GGX_MIN_ALPHA, toml_string
 
-PROBE_DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "envmaps" / "city.exr"
+PROBE_DEFAULT = shared_data_dir(Path(__file__).resolve().parents[1]) / "envmaps" / "city.exr"
 ALPHA_DEFAULT = 1.0e-4        # GGX roughness: the smallest a scene accepts (warpbw.scene.GGX_MIN_ALPHA)
 RES_DEFAULT = (32, 64, 128)
 BUDGET_DEFAULT = 4.0          # samples per covered pixel, both frames

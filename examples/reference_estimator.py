@@ -19,6 +19,7 @@ from warpbw.envmap import envmap_from_array, load_envmap, procedural_sky
 from warpbw.errors import INT32_MAX, check_count
 from warpbw.gbuffer import SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.io.exr import write_exr, write_png
+from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
 from warpbw.scene import MAX_RESOLUTION
 from warpbw.shading import shade_reference
@@ -28,7 +29,7 @@ OUTPUTS = ("ref_bis.exr", "ref_bis.png", "ref_mis.exr", "ref_mis.png")
 
 def main():
     here = Path(__file__).resolve().parent
-    data = here.parent.parent / "shared" / "data"
+    data = shared_data_dir(here.parent)
     ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     default_probe, default_npf = data / "envmaps" / "studio.exr", data / "brdf" / "npf.bin"
     ap.add_argument("--probe", help=f"lat-long EXR light probe (default {default_probe}; the procedural sky "

@@ -91,12 +91,13 @@ from warpbw.cli_common import OneLineParser, check_output_dir, init_warp, parse_
 from warpbw.errors import SEED_MAX
 from warpbw.envmap import EnvMapData, env_radiance
 from warpbw.gbuffer import GBufferData
+from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
 from warpbw.scene import toml_escape
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_world
 
 HERE = Path(__file__).resolve().parent
-DATA = HERE.parent.parent / "shared" / "data"   # ../shared/data beside the repository
+DATA = shared_data_dir(HERE.parent)   # ../shared/data beside the repository, or $WARPBW_SHARED_DATA
 
 # ----------------------------------------------------------------------------------------- settings
 # image side in pixels: half 002's 512, so that a 32x32 window spans about a sixth of the sphere's

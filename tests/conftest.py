@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 import math
-import os
 import textwrap
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from warpbw.io.shared_data import shared_data_dir
+
 ROOT = Path(__file__).resolve().parents[1]
-# ../shared/data beside the repository; WARPBW_SHARED_DATA overrides it.
-SHARED_DATA = Path(os.environ.get("WARPBW_SHARED_DATA", ROOT.parent / "shared" / "data"))
+# ../shared/data beside the repository; WARPBW_SHARED_DATA overrides it (as for the examples)
+SHARED_DATA = shared_data_dir(ROOT)
 
 
 def shared_file(rel: str) -> Path:

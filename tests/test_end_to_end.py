@@ -1822,6 +1822,23 @@ def test_render_of_planes_beside_a_sphere_that_covers_nothing_warns(small_scenes
     assert err.count("warpbw: warning: no pixel is covered by geometry") == 1, err
 
 
+def test_the_examples_read_the_shared_data_where_the_tests_do(monkeypatch, tmp_path):
+    """README: the real inputs are read from ../shared/data, or $WARPBW_SHARED_DATA.  The examples read
+    ../shared/data whatever the variable said (a clone elsewhere failed 7 of test_bench's tests)."""
+    from conftest import ROOT, load_example
+    from warpbw.io.shared_data import shared_data_dir
+
+    monkeypatch.delenv("WARPBW_SHARED_DATA", raising=False)
+    assert shared_data_dir(ROOT) == ROOT.parent / "shared" / "data"
+    assert shared_data_dir() == Path(__import__("warpbw").__file__).resolve().parents[1].parent / "shared" / "data"
+    monkeypatch.setenv("WARPBW_SHARED_DATA", str(tmp_path))
+    assert shared_data_dir(ROOT) == shared_data_dir() == tmp_path
+    for name in ("bench_scenes", "bench_reference", "dynamic_geometry", "validate_bandwidth"):
+        assert load_example(name).DATA == tmp_path, name
+    assert load_example("mirror_smear").PROBE_DEFAULT == tmp_path / "envmaps" / "city.exr"
+    assert load_example("compare_mitsuba").DEFAULT_PROBE == tmp_path / "envmaps" / "studio.exr"
+
+
 @pytest.mark.parametrize("command", ["warpbw", "warpbw-precompute"])
 def test_version_is_the_packages(command, capsys):
     """--version prints the version pyproject.toml installs (it was an unknown option)."""
