@@ -37,14 +37,19 @@ def setup(mat, env="constant = 1.0", w=45, h=33):
     return prep, base
 
 
-def run(prep, base, level, spp, seed=5):
-    return shade_hierarchical(base.gbuffer, prep.camera, prep.materials, prep.env.data, level, spp, seed=seed)
+def run(prep, base, level, spp, seed=5, mis=False):
+    return shade_hierarchical(base.gbuffer, prep.camera, prep.materials, prep.env.data, level, spp, seed=seed,
+                              mis=mis)
 
 
-def test_finest_level_everywhere_is_the_reference():
+@pytest.mark.parametrize("mis", [False, True], ids=["brdf", "mis"])
+def test_finest_level_everywhere_is_the_reference(mis):
+    # with MIS too: the hierarchy shading its levels without MIS, whatever it was asked, passed the BRDF-only case
     prep, base = setup('type = "ggx"\nalpha = 0.3\nspecular = [0.9, 0.9, 0.9]', env='procedural = "sky"')
+    if mis:
+        base = render_reference(prep, spp=4, seed=5, mis=True)
     shape = base.coverage.shape
-    r = run(prep, base, np.zeros(shape, np.int32), np.full(shape, 4, np.int32))
+    r = run(prep, base, np.zeros(shape, np.int32), np.full(shape, 4, np.int32), mis=mis)
     assert np.array_equal(r.image, base.image)
     assert r.stats["samples"] == base.stats["samples"]
     assert r.shaded.sum() == base.coverage.sum()

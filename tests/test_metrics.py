@@ -79,6 +79,21 @@ def test_worst_share_of_one_bad_pixel_and_of_an_even_error():
     assert worst_share(np.zeros((1, n)), mask)[0] == 0.0
 
 
+def test_compare_images_ranks_the_worst_pixels_among_the_covered_ones_only():
+    """A 40 x 25 image of which 300 pixels are covered: the worst 1% are 3 covered pixels (of 1000 pixels, 10), and
+    an error at one covered pixel holds all of it; 10 pixels off by far more outside the mask change nothing."""
+    ref = np.full((25, 40, 3), 0.5)
+    mask = np.zeros((25, 40), bool)
+    mask[5:20, 10:30] = True                                # 15 x 20 = 300 covered pixels
+    test = ref.copy()
+    test[~mask] += 100.0                                    # uncovered: in no figure
+    test[7, 12] += 0.2                                      # the one covered error
+    r = compare_images(test, ref, mask)
+    assert r["pixels"] == 300 and r["worst_pixels"] == 3 and r["worst_share"] == 1.0
+    assert r["relmse"] == pytest.approx(0.2 ** 2 / (0.25 + RELMSE_EPS) / 300, rel=1e-9)
+    assert (r["worst_share"], r["worst_pixels"]) == worst_share(relmse_map(test, ref, mask), mask)
+
+
 def test_worst_share_refuses_maps_it_cannot_rank():
     """A NaN map gave a NaN share, a negative one a share above 1, a mask of another shape raised numpy's
     IndexError, a fraction "0.5" Python's TypeError."""
