@@ -312,8 +312,10 @@ def _checked_table(table, what: str, fix: str = "") -> np.ndarray:
 
 def read_brdf_bandwidth(path, source=None) -> np.ndarray:
     """Read a table ``(16, 16, 16)`` float32; with ``source``, refuse one built from different data."""
-    from precompute.brdf_sampling import rebuild_command
+    from precompute.brdf_sampling import check_brdf_source, rebuild_command
 
+    if source is not None:
+        check_brdf_source(source, "read_brdf_bandwidth", needs=("name", "digest"))
     hint = rebuild_command("brdf", source)
     a = read_asset(path, FORMAT, VERSION, hint)
     if source is not None and a.header.get("source_hash") != source.digest:

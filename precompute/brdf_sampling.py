@@ -138,6 +138,8 @@ def write_sampling(path, table: SamplerTable, source: BrdfSource, force: bool = 
 
 def read_sampling(path, source: BrdfSource | None = None) -> SamplerTable:
     """Read a sampling-table file; with ``source``, refuse one built from different data."""
+    if source is not None:
+        check_brdf_source(source, "read_sampling", needs=("name", "digest"))
     hint = rebuild_command("brdf-sampling", source)
     a = read_asset(path, TABLE_FORMAT, TABLE_VERSION, hint)
     if source is not None and a.header.get("source_hash") != source.digest:

@@ -130,7 +130,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import SEED_MAX, WarpbwError, check_count, check_flag, check_input_file, is_int
+from warpbw.errors import SEED_MAX, WarpbwError, check_count, check_flag, check_input_file, is_int, numeric_array
 
 GMM_FORMAT = "warpbw-gmm-mipmap"
 # 2: the fourth stored quantity is a (d s^2 + |mu|^2) (module docstring); 1 held 004's a (s^2 + |mu|^2).
@@ -498,9 +498,9 @@ def _validate(data, kind, components, prior, scale):
         raise WarpbwError(f"components {components!r}: expected an integer from 1 to {MAX_COMPONENTS}")
     if not (isinstance(prior, numbers.Real) and 0.0 <= prior <= MAX_PRIOR):
         raise WarpbwError(f"prior {prior!r}: expected a finite c >= 0, at most {MAX_PRIOR:g}")
-    if not (np.isfinite(scale) and scale > 0):
-        raise WarpbwError(f"scale {scale!r}: expected a finite number > 0")
-    data = np.asarray(data, np.float64)
+    if not (isinstance(scale, numbers.Real) and not isinstance(scale, bool) and math.isfinite(scale) and scale > 0):
+        raise WarpbwError(f"scale {scale!r}: expected a finite number > 0")   # "2", None, [1, 2]: numpy's errors
+    data = numeric_array(data, f"{kind} map", "(H, W) heights" if kind == "height" else "(H, W, 3) normals")
     want = 2 if kind == "height" else 3
     if data.ndim != want or (kind == "normal" and data.shape[-1] != 3) or data.size == 0:
         raise WarpbwError(f"{kind} map of shape {data.shape}: expected "

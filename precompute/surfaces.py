@@ -40,7 +40,7 @@ import warnings
 
 import numpy as np
 
-from warpbw.errors import WarpbwError, check_count, check_real, check_seed, is_int
+from warpbw.errors import WarpbwError, check_count, check_real, check_seed, is_int, numeric_array
 
 # Largest generated surface (issue 4 item 4: "each as a height field of configurable size, up to 1024x1024").
 MAX_SURFACE_SIZE = 1024
@@ -234,7 +234,7 @@ def height_to_normals(h, scale: float = 1.0, texel_size: float | None = None) ->
     ``1 / W``: heights in units of the map's width).  x along +column, y along -row (image up).  Warns when more
     than ``NYQUIST_SHARE_WARN`` of the heights' variance alternates from texel to texel (:func:`nyquist_share`):
     central differences do not see it, and a checkerboard came out a mirror, silently."""
-    h = np.asarray(h, dtype=np.float64)
+    h = numeric_array(h, "height field", "(H, W) heights")   # strings: numpy's "could not convert"
     if h.ndim != 2 or h.size == 0:
         raise WarpbwError(f"height field of shape {h.shape}: expected a non-empty (H, W) array")
     t = 1.0 / h.shape[1] if texel_size is None else _real(texel_size)

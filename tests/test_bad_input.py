@@ -2529,3 +2529,54 @@ def test_an_asset_header_holds_every_field_its_docstring_lists(tmp_path):
     assert a.header == {"format": "fmt", "version": 3, "source": "src.exr", "source_hash": "hash1",
                         "params": {"k": 1}, "writer": f"warpbw {__version__}"}
     np.testing.assert_array_equal(a.arrays["x"], np.arange(3))
+
+
+API_MISUSE = {   # a public function called with the wrong type: numpy's, Python's or pathlib's error, from deep inside
+    "build_gmm_mipmap scale '2'": (lambda c: c.build_gmm_mipmap(c.h, scale="2", progress=False), "scale '2'"),
+    "build_gmm_mipmap scale None": (lambda c: c.build_gmm_mipmap(c.h, scale=None, progress=False), "scale None"),
+    "build_gmm_mipmap strings": (lambda c: c.build_gmm_mipmap([["a", "b"], ["c", "d"]], progress=False),
+                                 "height map: expected"),
+    "build_gmm_mipmap ragged": (lambda c: c.build_gmm_mipmap([[1, 2], [3]], progress=False), "height map: expected"),
+    "build_gmm_mipmap complex": (lambda c: c.build_gmm_mipmap(c.h + 1j, progress=False), "complex numbers"),
+    "height_to_normals strings": (lambda c: c.height_to_normals([["a"]]), "height field: expected"),
+    "merl_eval a path": (lambda c: c.merl_eval("m.binary", c.up, c.up), "expected a MerlBRDF"),
+    "merl_eval a string direction": (lambda c: c.merl_eval(c.merl, "abc", c.up), "wi: expected directions"),
+    "npf_eval None": (lambda c: c.npf_eval(None, c.up, c.up), "expected an NPFMaterial"),
+    "write_merl strings": (lambda c: c.write_merl(c.tmp / "x.binary", np.full(c.MERL_SHAPE, "a")), "MERL data"),
+    "write_merl to None": (lambda c: c.write_merl(None, np.full(c.MERL_SHAPE, 0.1)), "output path"),
+    "tabulate_merl of an int": (lambda c: c.tabulate_merl(5, "n"), "takes a function"),
+    "tabulate_merl of strings": (lambda c: c.tabulate_merl(lambda wi, wo: "x", "n"), "the BRDF's values"),
+    "read_sampling with a path": (lambda c: c.read_sampling(c.tmp / "t.npz", "m.binary"), "is a path"),
+    "read_brdf_bandwidth with a path": (lambda c: c.read_brdf_bandwidth(c.tmp / "b.npz", "m.binary"), "is a path"),
+    "write_sampling of None": (lambda c: c.write_sampling(c.tmp / "t.npz", None, c.src), "expected a SamplerTable"),
+    "write_gmm_mipmap of None": (lambda c: c.write_gmm_mipmap(c.tmp / "g.gmm", None, "n", "h"),
+                                 "expected a GmmMipmap"),
+    "write_gmm_mipmap of no levels": (lambda c: c.write_gmm_mipmap(c.tmp / "g.gmm", c.GmmMipmap([]), "n", "h"),
+                                      "no levels"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(API_MISUSE))
+def test_public_functions_refuse_the_wrong_types_in_one_line(tmp_path, case):
+    from types import SimpleNamespace
+
+    from precompute.brdf_bandwidth import read_brdf_bandwidth
+    from precompute.brdf_sampling import brdf_source, read_sampling, write_sampling
+    from precompute.gmm_mipmap import GmmMipmap, build_gmm_mipmap, write_gmm_mipmap
+    from precompute.surfaces import height_to_normals
+    from warpbw.io.merl import MERL_SHAPE, merl_eval, read_merl, tabulate_merl, write_merl
+    from warpbw.io.npf import npf_eval
+
+    write_merl(tmp_path / "m.binary", np.full(MERL_SHAPE, 0.1))
+    c = SimpleNamespace(tmp=tmp_path, h=np.random.default_rng(0).random((8, 8)), up=np.array([[0.0, 0.0, 1.0]]),
+                        merl=read_merl(tmp_path / "m.binary"), src=brdf_source(tmp_path / "m.binary"),
+                        MERL_SHAPE=MERL_SHAPE, GmmMipmap=GmmMipmap, build_gmm_mipmap=build_gmm_mipmap,
+                        height_to_normals=height_to_normals, merl_eval=merl_eval, npf_eval=npf_eval,
+                        write_merl=write_merl, tabulate_merl=tabulate_merl, read_sampling=read_sampling,
+                        read_brdf_bandwidth=read_brdf_bandwidth, write_sampling=write_sampling,
+                        write_gmm_mipmap=write_gmm_mipmap)
+    call, needle = API_MISUSE[case]
+    with pytest.raises(WarpbwError, match=re.escape(needle)) as ei:
+        call(c)
+    assert "\n" not in str(ei.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.binary"]   # nothing written

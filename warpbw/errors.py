@@ -10,6 +10,7 @@ size, target, source)`` (float32 fine enough where the camera and an object lie,
 device, what, at_least)`` (a 1-D Warp array a kernel may index n items of); ``check_real(value, name, lo,
 lo_open) -> float`` (a finite real number in float32's range, not a bool or a string); ``check_seed(seed, name)`` (a uint32)
 and ``check_device(device, name)`` (a Warp device this machine has), the renderers' own checks;
+``numeric_array(values, name, expected)`` (float64 numbers, not strings or ragged lists);
 ``check_direction_pairs(wi, wo) -> (wi, wo)`` (the BRDF evaluators' (N, 3) direction pairs, broadcast, unit length)
 and ``unit_directions(d, name)`` (finite non-zero directions scaled to unit length); ``check_finite_image(image,
 source)`` (a rendered image without inf or NaN pixels, which radiance near float32's top gives); the bounds
@@ -132,6 +133,22 @@ def check_device(device, name: str = "device") -> str:
     return device
 
 
+def numeric_array(values, name: str, expected: str = "numbers"):
+    """``values`` as a float64 numpy array, else a one-line ``WarpbwError`` naming ``name`` and ``expected``: strings,
+    None and ragged lists gave numpy's "could not convert string to float" or "inhomogeneous shape"."""
+    import numpy as np
+
+    try:
+        complex_values = np.iscomplexobj(values)   # numpy's ComplexWarning, then the real part alone
+        a = None if complex_values else np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise WarpbwError(f"{name}: expected {expected}, got {type(values).__name__} that numpy cannot read as "
+                          "numbers") from None
+    if complex_values:
+        raise WarpbwError(f"{name}: expected {expected}, got complex numbers")
+    return a
+
+
 def unit_directions(d, name: str):
     """Directions (..., 3) scaled to unit length (the evaluators assume it: wi * 10 read 0.0116 for 0.62), else a
     ``WarpbwError`` naming ``name`` for a zero, NaN or infinite one (a NaN one read as 0, below the horizon)."""
@@ -168,8 +185,8 @@ def check_direction_pairs(wi, wo):
     ``WarpbwError`` (numpy's broadcast error or an IndexError once came from deep inside the evaluators)."""
     import numpy as np
 
-    a = np.atleast_2d(np.asarray(wi, dtype=np.float64))
-    b = np.atleast_2d(np.asarray(wo, dtype=np.float64))
+    a = np.atleast_2d(numeric_array(wi, "wi", "directions (N, 3)"))
+    b = np.atleast_2d(numeric_array(wo, "wo", "directions (N, 3)"))
     if a.shape[-1:] != (3,) or b.shape[-1:] != (3,):
         raise WarpbwError(f"wi, wo: expected directions of 3 components, (N, 3), got shapes {a.shape} and {b.shape}")
     try:

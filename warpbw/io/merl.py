@@ -26,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import BRDF_VALUE_MAX, WarpbwError, check_direction_pairs, check_input_file
+from warpbw.errors import (BRDF_VALUE_MAX, WarpbwError, check_direction_pairs, check_input_file, check_path,
+                           numeric_array)
 from warpbw.io.staged import check_replaceable, staged_outputs
 
 # Table resolution of the MERL database (BRDFRead.cpp: BRDF_SAMPLING_RES_THETA_H = 90,
@@ -184,6 +185,8 @@ def merl_eval(brdf: MerlBRDF, wi, wo, interpolate: bool = False) -> np.ndarray:
     (u_h = sqrt(theta_h/(pi/2))*90 - 0.5, u_d = theta_d/(pi/2)*90 - 0.5, u_p = phi_d/pi*180 - 0.5),
     clamped at the theta edges and periodic (period pi) in phi_d.
     """
+    if not isinstance(brdf, MerlBRDF):   # a path or None: "'str' object has no attribute 'data'"
+        raise WarpbwError(f"merl_eval: brdf is {type(brdf).__name__}, expected a MerlBRDF (read_merl(path) reads one)")
     wi, wo = check_direction_pairs(wi, wo)
     above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
     theta_h, theta_d, phi_d = _folded_angles(wi, wo)
@@ -281,8 +284,8 @@ def write_merl(path, data, force: bool = False, inputs=()) -> Path:
     ``inputs`` (the files ``data`` was made from): :func:`warpbw.io.staged.check_replaceable`. The file
     appears atomically (temporary + rename).
     """
-    path = Path(path)
-    arr = np.asarray(data)
+    path = check_path(path, "write_merl: output path")   # None was a TypeError from pathlib
+    arr = numeric_array(data, f"{path}: MERL data", f"BRDF values of shape {MERL_SHAPE}")
     if arr.shape != MERL_SHAPE:
         raise WarpbwError(f"{path}: cannot write MERL data of shape {arr.shape}, expected {MERL_SHAPE}")
     arr = arr.astype(np.float64, copy=False)
@@ -310,6 +313,9 @@ def tabulate_merl(func, name: str) -> np.ndarray:
     centres whose wi or wo lies below the horizon (large theta_h + theta_d) and should return its own
     value there (0 for a BRDF that is 0 below the horizon). ``name`` labels error messages.
     """
+    if not callable(func):   # "'int' object is not callable" from the first chunk
+        raise WarpbwError(f"{name}: tabulate_merl takes a function (wi, wo) -> BRDF values, got "
+                          f"{type(func).__name__}")
     th, td, pd = merl_bin_centres()
     out = np.empty(MERL_SHAPE, dtype=np.float64)
     n_dirs = MERL_THETA_D_RES * MERL_PHI_D_RES
@@ -318,7 +324,7 @@ def tabulate_merl(func, name: str) -> np.ndarray:
         TH, TD, PD = np.meshgrid(th[r0:r1], td, pd, indexing="ij")
         wi, wo = dirs_from_half_diff(TH.ravel(), 0.0, TD.ravel(), PD.ravel())
         n = (r1 - r0) * n_dirs
-        vals = np.asarray(func(wi, wo), dtype=np.float64)
+        vals = numeric_array(func(wi, wo), f"{name}: the BRDF's values", f"({n}, 3) numbers")
         if vals.shape == (n,):
             vals = np.repeat(vals[:, None], 3, axis=1)
         if vals.shape != (n, 3):

@@ -144,6 +144,9 @@ def npf_eval(mat: NPFMaterial, wi, wo, interpolate: bool = True) -> np.ndarray:
 
     Exactly reciprocal: every quantity is computed symmetrically in (wi, wo).
     """
+    if not isinstance(mat, NPFMaterial):   # a path or None: "'NoneType' object has no attribute 'D'"
+        raise WarpbwError(f"npf_eval: mat is {type(mat).__name__}, expected an NPFMaterial (read_npf(path, name) "
+                          "reads one)")
     wi, wo = check_direction_pairs(wi, wo)   # unit length; NaN and zero directions refused
     interpolate = check_flag(interpolate, "interpolate")   # "no" was truthy
     ci, co = wi[..., 2], wo[..., 2]
