@@ -722,7 +722,8 @@ def read_gmm_mipmap(path) -> GmmMipmap:
     if len(shapes) != n or any(q.shape != s + (K, 4) for q, s in zip(levels, shapes)):
         raise WarpbwError(f"{path}: GMM mipmap levels have inconsistent shapes (rebuild it with: {hint})")
     try:
-        levels = [np.asarray(q, np.float32) for q in levels]
+        with np.errstate(over="ignore"):   # float64 moments beyond float32 become inf, refused below (numpy warned)
+            levels = [np.asarray(q, np.float32) for q in levels]
         components = params.get("components", K)
         if isinstance(components, bool) or not is_int(components):
             raise ValueError(components)
@@ -869,6 +870,9 @@ def load_map(path, kind: str = "height") -> np.ndarray:
                           "normal map; for a height field use --kind height, or normal_map_kind = \"height\" in a "
                           "scene)")
     rgb = px[..., :3]
+    if not np.any(rgb):   # read as [0, 1]-encoded, it warned "renormalised", then "pointing below the surface"
+        raise WarpbwError(f"{p}: every texel is (0, 0, 0): an empty image, not a normal map (expected unit normals, "
+                          "or a [0, 1]-encoded map whose flat texel is (0.5, 0.5, 1))")
     try:
         raw = bits is None and _holds_vectors(rgb)
         n = unit_normals(rgb) if raw else normals_from_map(rgb)

@@ -282,8 +282,10 @@ def normals_from_map(rgb) -> np.ndarray:
     if outside.any():
         r, c = np.argwhere(outside.any(axis=-1))[0]
         top = float(np.abs(rgb[..., :3]).max())
-        hint = (f" (values up to {top:.4g}: an {'8' if top <= 255.5 else '16'}-bit map stored as floats? divide it by "
-                f"{255 if top <= 255.5 else 65535})" if top > 2.0 else "")
+        # only where the values fit an integer map's range: 1e30 is no 16-bit map ("an 16-bit map ... divide it by
+        # 65535" was said of it)
+        hint = (f" (values up to {top:.4g}: {'an 8' if top <= 255.5 else 'a 16'}-bit map stored as floats? divide it "
+                f"by {255 if top <= 255.5 else 65535})" if 2.0 < top <= 65535.5 else "")
         raise WarpbwError(f"normal map: {int(outside.any(axis=-1).sum())} texels hold values outside [0, 1] (first at "
                           f"row {r}, column {c}: {tuple(round(float(x), 4) for x in rgb[r, c, :3])}); expected a "
                           f"[0, 1]-encoded map, n = 2 rgb - 1{hint}")

@@ -465,9 +465,16 @@ def test_normal_map_below_the_surface(tmp_path):
     with pytest.raises(WarpbwError, match=r"into.png: 1 texels hold normals pointing below the surface "
                                           r"\(first at row 2, column 3: z = -1.000\)"):
         load_map(tmp_path / "into.png", "normal")
+    # an all-black image, as PNG or EXR: said to be empty, without a "renormalised" warning first
+    from warpbw.io.exr import write_exr
+
     save_png(tmp_path / "black.png", np.zeros((2, 2, 3), np.uint8))
-    with pytest.raises(WarpbwError, match="black.png: 4 texels.*below the surface"):
-        load_map(tmp_path / "black.png", "normal")
+    write_exr(tmp_path / "black.exr", np.zeros((2, 2, 3), np.float32))
+    for name in ("black.png", "black.exr"):
+        with pytest.raises(WarpbwError, match=rf"{name}: every texel is \(0, 0, 0\): an empty image, not a normal "
+                                              "map"), warnings.catch_warnings():
+            warnings.simplefilter("error")
+            load_map(tmp_path / name, "normal")
 
 
 def test_a_float_normal_map_is_read_as_most_of_its_texels_say(tmp_path):

@@ -212,8 +212,12 @@ def test_normals_from_map_refuses_values_outside_the_encoding():
     with pytest.raises(WarpbwError, match=r"^normal map: 4 texels hold values outside \[0, 1\] \(first at row 0, column "
                                           r"0: \(255\.0, 255\.0, 255\.0\)\).* divide it by 255\)$"):
         normals_from_map(np.full((2, 2, 3), 255.0))
-    with pytest.raises(WarpbwError, match=r"divide it by 65535\)$"):
+    with pytest.raises(WarpbwError, match=r"values up to 6\.554e\+04: a 16-bit map stored as floats\? divide it by "
+                                          r"65535\)$"):
         normals_from_map(np.full((2, 2, 3), 65535.0))
+    with pytest.raises(WarpbwError) as ei:    # beyond any integer map's range: no such guess ("an 16-bit map")
+        normals_from_map(np.full((2, 2, 3), 1e30))
+    assert "bit map" not in str(ei.value) and str(ei.value).endswith("n = 2 rgb - 1")
     with pytest.raises(WarpbwError, match=r"outside \[0, 1\] \(first at row 1, column 0: \(-0\.5, 0\.5, 1\.0\)\)"):
         normals_from_map(np.array([[[0.5, 0.5, 1.0]], [[-0.5, 0.5, 1.0]]]))
     # within ENCODING_TOL (a resampled map's overshoot) it decodes, renormalised

@@ -35,7 +35,12 @@ WARP_LOG_WARNING = 30  # warp._src.logger.LOG_WARNING: hide Warp's banner and mo
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """argparse with usage errors in the one-line form ``PROG: error: ...``, status 2."""
+    """argparse with usage errors in the one-line form ``PROG: error: ...``, status 2, and options spelled out
+    (``--for`` ran as ``--force``, and a later option beginning alike would have changed what it meant)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
 
     def error(self, message):
         tool = self.prog.split()[0]

@@ -103,7 +103,9 @@ def _timed(timings: dict, key: str):
         timings[key] = timings.get(key, 0.0) + time.perf_counter() - t0
 
 
-def _material_spec(m, progress: bool, notes: dict, sources: dict) -> brdf_mod.MaterialSpec:
+def _material_spec(m, progress: bool, notes: dict, sources: dict, where: str = "") -> brdf_mod.MaterialSpec:
+    """The MaterialSpec of scene material ``m``; ``where`` (the scene file) starts the message of an NPF material
+    name the table lacks, which named the table alone."""
     kind = brdf_mod.KIND_NAMES[m.type]
     if m.type == "lambert":
         return brdf_mod.MaterialSpec(m.name, kind, albedo=m.albedo)
@@ -119,7 +121,12 @@ def _material_spec(m, progress: bool, notes: dict, sources: dict) -> brdf_mod.Ma
         notes[f"material.{m.name}"] = {"type": "merl", "file": str(m.file), "unmeasured": int(merl.n_unmeasured),
                                        "sampling": origin}
         return brdf_mod.MaterialSpec(m.name, kind, merl=merl.data, linear=m.lookup == "linear", sampler=table)
-    source = brdf_source(m.table, m.npf_name)
+    from warpbw.io.npf import UnknownNpfMaterial
+
+    try:
+        source = brdf_source(m.table, m.npf_name)
+    except UnknownNpfMaterial as exc:
+        raise WarpbwError(f"{where + ': ' if where else ''}[material.{m.name}].name: {exc}") from None
     sources[m.name] = source
     npf = source.brdf
     table, origin = load_or_build_sampling(source, m.sampling, progress=progress)
@@ -158,7 +165,7 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
     order = scene.material_order
     mat_id = {name: i for i, name in enumerate(order)}
     with _timed(timings, "load_materials"):
-        specs = [_material_spec(scene.materials[name], progress, notes, sources) for name in order]
+        specs = [_material_spec(scene.materials[name], progress, notes, sources, scene.source) for name in order]
         materials = brdf_mod.build_material_table(specs, device=device)
     with _timed(timings, "load_geometry"):   # spheres and meshes to the device, the BVH
         geometry = _geometry(scene, mat_id, device)

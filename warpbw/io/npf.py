@@ -83,6 +83,10 @@ def _canonical(name: str) -> str:
     return n[: -len(".binary")] if n.endswith(".binary") else n
 
 
+class UnknownNpfMaterial(WarpbwError):
+    """A material name the NPF table does not hold (a scene names its key when it says so)."""
+
+
 def read_npf(path, name: str) -> NPFMaterial:
     """Read material ``name`` (one of ``NPF_MATERIAL_NAMES``; case and a ``.binary`` suffix ignored)."""
     path = check_input_file(path, f"the NPF table npf.bin, {NPF_FILE_SIZE} bytes")
@@ -98,7 +102,7 @@ def read_npf(path, name: str) -> NPFMaterial:
         close = difflib.get_close_matches(key, NPF_MATERIAL_NAMES, n=5, cutoff=0.5)
         hint = (f"close matches: {', '.join(close)}" if close else
                 f"expected one of the {len(NPF_MATERIAL_NAMES)} MERL material names: {', '.join(NPF_MATERIAL_NAMES)}")
-        raise WarpbwError(f"{path}: unknown NPF material {name!r}; {hint}")
+        raise UnknownNpfMaterial(f"{path}: unknown NPF material {name!r}; {hint}")
     row = NPF_MATERIAL_NAMES.index(key)
     row_floats = NPF_COLS * NPF_CHANNELS
     try:
