@@ -1839,6 +1839,21 @@ def test_the_examples_read_the_shared_data_where_the_tests_do(monkeypatch, tmp_p
     assert load_example("compare_mitsuba").DEFAULT_PROBE == tmp_path / "envmaps" / "studio.exr"
 
 
+@pytest.mark.parametrize("argv", [["render", "s.toml", "-o", "o.exr", "--for"],
+                                  ["bench", "s.toml", "--js", "b.json"], ["gmm", "m.exr", "-o", "g.gmm", "--comp", "2"]])
+def test_options_are_spelled_out(argv, capsys):
+    """argparse took any unambiguous prefix: --for ran as --force (and a later option beginning alike would have
+    changed what a prefix meant).  Each is an unknown option now."""
+    from precompute.__main__ import build_parser as precompute_parser
+    from warpbw.cli import build_parser
+
+    parser = precompute_parser() if argv[0] == "gmm" else build_parser()
+    with pytest.raises(SystemExit) as ei:
+        parser.parse_args(argv)
+    assert ei.value.code == 2 and f"unrecognized arguments: {argv[-1] if argv[0] == 'render' else argv[-2]}" in \
+        capsys.readouterr().err
+
+
 @pytest.mark.parametrize("command", ["warpbw", "warpbw-precompute"])
 def test_version_is_the_packages(command, capsys):
     """--version prints the version pyproject.toml installs (it was an unknown option)."""
