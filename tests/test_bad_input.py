@@ -2586,3 +2586,13 @@ def test_public_functions_refuse_the_wrong_types_in_one_line(tmp_path, case):
         call(c)
     assert "\n" not in str(ei.value)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.binary"]   # nothing written
+
+
+def test_bench_of_a_scene_whose_camera_misses_every_object_says_so_before_the_ground_truth(tmp_path):
+    """It rendered the ground truth, then said "no pixel is covered by geometry: the error is undefined", naming
+    neither the scene nor why."""
+    write_scene(tmp_path, obj='shape = "sphere"\ncenter = [50.0, 0.0, 0.0]\nradius = 1.0')
+    r = run(["bench", "scene.toml", "--json", "b.json", "--cache", "gt"], tmp_path)
+    assert_one_line_error(r, "scene.toml: no pixel shows a sphere or mesh", "the camera misses them")
+    assert not (tmp_path / "gt").exists() or not any((tmp_path / "gt").iterdir())   # no ground truth was rendered
+    assert_no_outputs(tmp_path, "b")

@@ -292,7 +292,12 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     t0 = time.perf_counter()
     prep = pipeline.prepare_scene(surfaces, device=device, progress=progress)
     # warm-up frames: compile every kernel variant and build the bandwidth tables
-    hidden = render_reference(prep, spp=1, seed=seed, mis=mis).stats.get("pixels_hidden", 0)
+    warm = render_reference(prep, spp=1, seed=seed, mis=mis)
+    hidden = warm.stats.get("pixels_hidden", 0)
+    if not warm.coverage.any():   # else "no pixel is covered by geometry: the error is undefined", after the truth
+        raise WarpbwError(f"{scene.source}: no pixel shows a sphere or mesh, so the benchmark's errors are undefined: "
+                          + (f"its planes hide all {hidden} pixels they would cover (move them or the camera)" if hidden
+                             else "the camera misses them (check [camera] position, look_at and fov)"))
     opts = dict(adaptive_options or {})
     render_adaptive(prep, budget=1.0, seed=seed, mis=mis, progress=progress, **opts)
     t_prep = time.perf_counter() - t0
