@@ -2596,3 +2596,15 @@ def test_bench_of_a_scene_whose_camera_misses_every_object_says_so_before_the_gr
     assert_one_line_error(r, "scene.toml: no pixel shows a sphere or mesh", "the camera misses them")
     assert not (tmp_path / "gt").exists() or not any((tmp_path / "gt").iterdir())   # no ground truth was rendered
     assert_no_outputs(tmp_path, "b")
+
+
+def test_a_scene_float32_cannot_place_is_named_and_told_what_would_fit(tmp_path):
+    """The float32 range and spacing refusals named neither the scene nor what to change: a sphere of radius
+    1e-300 at the origin was told to translate the scene (it is too small where it is), one of 1e30 too."""
+    write_scene(tmp_path, obj='shape = "sphere"\nradius = 1e-300')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "scene.toml: the camera and a sphere of radius 1e-300", "an object of at least 0.000")
+    write_scene(tmp_path, obj='shape = "sphere"\nradius = 1e30')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "scene.toml: the camera is 1e+30 scene units from the far side of a sphere")
+    assert_no_outputs(tmp_path)

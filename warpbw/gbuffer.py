@@ -517,12 +517,13 @@ def _bounds(vertices) -> tuple:
     return v.min(axis=0), v.max(axis=0)
 
 
-def check_reach(cam: CameraData, geometry: Geometry) -> None:
+def check_reach(cam: CameraData, geometry: Geometry, source: str = "") -> None:
     """Refuse a camera whose rays would reach an object beyond what float32 intersection can compute
     (``SPHERE_REACH_MAX``, ``MESH_REACH_MAX``), or nearer than it can (``SPHERE_REACH_MIN``,
     ``MESH_REACH_MIN``, a scene scaled far down), and a camera or object so far from the origin that float32
     spaces coordinates there by more than ``warpbw.errors.COORD_SPACING_REL_MAX`` of the object's size (a scene
-    translated far away): those pixels would come out empty or wrong without a word."""
+    translated far away): those pixels would come out empty or wrong without a word.  ``source`` (the scene file)
+    starts the message when given."""
     o = np.array([cam.origin[0], cam.origin[1], cam.origin[2]], np.float64)
     reaches = ([("sphere", np.linalg.norm(c - o) + r) for c, r in geometry.sphere_bounds]
                + [("mesh", np.linalg.norm(np.where(o < (lo + hi) / 2, hi, lo) - o))    # the farthest corner
@@ -530,13 +531,13 @@ def check_reach(cam: CameraData, geometry: Geometry) -> None:
     for kind, reach in reaches:   # the distance to the object's far side
         lo, hi, why = ((SPHERE_REACH_MIN, SPHERE_REACH_MAX, "it squares lengths") if kind == "sphere"
                        else (MESH_REACH_MIN, MESH_REACH_MAX, "Warp's test multiplies three lengths"))
-        check_camera_reach(reach, lo, hi, f"the far side of a {kind}", kind, why)
+        check_camera_reach(reach, lo, hi, f"the far side of a {kind}", kind, why, source)
     # each object's largest coordinate, its size and its name
     extents = ([(float(np.abs(c).max()) + r, r, "a sphere of radius") for c, r in geometry.sphere_bounds]
                + [(float(np.abs(np.stack([lo, hi])).max()), float(np.linalg.norm(hi - lo)), "a mesh of diagonal")
                   for lo, hi in geometry.mesh_bounds])
     for extent, size, name in extents:
-        check_coordinate_spacing(max(float(np.abs(o).max()), extent), size, f"{name} {size:.3g}")
+        check_coordinate_spacing(max(float(np.abs(o).max()), extent), size, f"{name} {size:.3g}", source)
 
 
 def _per_vertex(name: str, values, shape: tuple, where: str) -> np.ndarray:

@@ -48,8 +48,8 @@ from warpbw import brdf as brdf_mod
 from warpbw import envmap
 from warpbw.errors import (BRDF_VALUE_MAX, FLOAT32_MAX, INT32_MAX, WarpbwError, check_device, check_finite_image,
                            check_flag, check_seed, is_int)
-from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, ensure_curvature, hide_beyond,
-                            render_gbuffer, scene_camera)
+from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, check_reach, ensure_curvature,
+                            hide_beyond, render_gbuffer, scene_camera)
 from warpbw.scene import MeshObject, PlaneObject, Scene, SphereObject, check_scene
 
 
@@ -169,6 +169,7 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
         materials = brdf_mod.build_material_table(specs, device=device)
     with _timed(timings, "load_geometry"):   # spheres and meshes to the device, the BVH
         geometry = _geometry(scene, mat_id, device)
+    check_reach(cam, geometry, scene.source)   # what each G-buffer pass checks, here with the scene's name
     return PreparedScene(scene, device, cam, geometry, env, materials, timings, notes, sources, lights=lights)
 
 
