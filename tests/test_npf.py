@@ -280,6 +280,23 @@ def test_npf_to_merl_refuses_a_read_only_output_even_with_force(tmp_path):
     assert out.read_bytes() == b"keep me"
 
 
+def test_npf_to_merl_writes_a_binary_only_and_takes_force_as_a_flag(tmp_path):
+    """From Python, npf_to_merl(..., "image.exr", force=True) replaced an EXR with a MERL file (the command line asks
+    for .binary), and write_merl(..., force="no") replaced a file ("no" is truthy).  Both are refused before the
+    table is read."""
+    from warpbw.io.merl import MERL_SHAPE, write_merl
+
+    image = tmp_path / "image.exr"
+    image.write_bytes(b"an image")
+    with pytest.raises(WarpbwError, match=r"image\.exr: expected a MERL file name ending in \.binary$"):
+        npf_to_merl(tmp_path / "npf.bin", "chrome", image, force=True)
+    kept = tmp_path / "kept.binary"
+    kept.write_bytes(b"keep me")
+    with pytest.raises(WarpbwError, match=r"^force: expected True or False, got 'no'$"):
+        write_merl(kept, np.full(MERL_SHAPE, 0.1), force="no")
+    assert image.read_bytes() == b"an image" and kept.read_bytes() == b"keep me"
+
+
 # ----------------------------------------------------------------- bad input
 
 

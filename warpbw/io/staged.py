@@ -35,7 +35,7 @@ import threading
 from contextlib import contextmanager
 from pathlib import Path
 
-from warpbw.errors import WarpbwError, check_path
+from warpbw.errors import WarpbwError, check_flag, check_path
 
 TEMP_PREFIX = "."   # hidden, so that a listing or a glob of the outputs does not show the temporaries
 MADE_FROM = "the file it is made from"   # what a library writer's ``inputs`` are, in its messages
@@ -105,6 +105,7 @@ def check_replaceable(path, force: bool, inputs=(), inputs_are: str = MADE_FROM)
     """``path`` as a Path, once it may be written: not a directory, not one of ``inputs`` (whatever ``force`` says),
     not an existing file without ``force``, not an existing read-only file.  Writers call it before their work."""
     p = check_path(path, "output path")
+    force = check_flag(force, "force")   # "no" is truthy: write_merl(force="no") replaced the file
     check_name_length(p, str(p))   # first: Python 3.11's is_dir raises on a name too long
     if p.is_dir():   # a temporary file would not replace a directory
         raise WarpbwError(f"{p}: is a directory (expected a file name)")
