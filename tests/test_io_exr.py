@@ -188,6 +188,11 @@ def test_false_colour_png(tmp_path):
     assert Image.open(tmp_path / "log.png").text["Description"] == \
         "viridis colour scale, log10, from 0.01 (dark blue) to 1 (yellow); black: not shown"
     assert "linear, from 2 (dark blue) to 8 (yellow)" in Image.open(tmp_path / "fc.png").text["Description"]
+    # a log scale over values none of which is above 0 (b_p under a constant light): said so, not "1 to 1"
+    assert write_false_colour_png(tmp_path / "zero.png", np.zeros((2, 3)), log=True) == (0.0, 0.0)
+    assert Image.open(tmp_path / "zero.png").text["Description"].startswith(
+        "viridis colour scale, log10: no shown value is above 0")
+    assert np.all(np.abs(np.asarray(Image.open(tmp_path / "zero.png")).astype(int) - viridis_lo) <= 1)
 
 
 

@@ -260,7 +260,8 @@ def write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=Fa
     """Scalar ``values`` (H, W) -> viridis PNG; pixels outside ``mask`` (or non-finite) are black.
 
     ``vmin``/``vmax`` default to the range of the shown values; ``log`` maps log10 of the values
-    (non-positive values shown at ``vmin``). Returns the ``(vmin, vmax)`` used, in value units; the PNG's
+    (non-positive values shown at ``vmin``). Returns the ``(vmin, vmax)`` used, in value units ((0, 0) for a log
+    scale with no shown value above 0); the PNG's
     ``Description`` text chunk says the same (``colour_scale_text``), so the picture carries its scale.
     """
     from matplotlib import colormaps
@@ -299,6 +300,10 @@ def write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=Fa
     rgba = colormaps["viridis"](t)
     rgb8 = np.round(rgba[..., :3] * 255.0).astype(np.uint8)
     rgb8[~shown] = 0
+    if log and vmin is None and vmax is None and not ok.any():   # all 0 (a constant light's b_p): it said "1 to 1"
+        _to_png(path, rgb8, {"Description": "viridis colour scale, log10: no shown value is above 0, all drawn at "
+                                            "the bottom (dark blue); black: not shown", "Software": "warpbw"})
+        return 0.0, 0.0
     _to_png(path, rgb8, {"Description": colour_scale_text(lo, hi, log), "Software": "warpbw"})
     return lo, hi
 
