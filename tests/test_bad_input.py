@@ -2608,3 +2608,11 @@ def test_a_scene_float32_cannot_place_is_named_and_told_what_would_fit(tmp_path)
     r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
     assert_one_line_error(r, "scene.toml: the camera is 1e+30 scene units from the far side of a sphere")
     assert_no_outputs(tmp_path)
+
+
+def test_an_output_named_only_by_its_suffix_is_told_what_is_missing(tmp_path):
+    """-o .exr said "expected a path ending in .exr" of a path that ends so (it is a hidden file's whole name)."""
+    write_scene(tmp_path)
+    r = run(["render", "scene.toml", "-o", "imgs/.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "-o imgs/.exr: expected a path ending in .exr after a name (such as out.exr)")
+    assert_no_outputs(tmp_path)

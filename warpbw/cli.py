@@ -78,8 +78,9 @@ coverage mask as A), with an sRGB PNG preview and a JSON of statistics beside th
 
 
 def _outputs(out: Path) -> dict:
-    if out.suffix.lower() != ".exr":
-        raise WarpbwError(f"-o {out}: expected a path ending in .exr")
+    if out.suffix.lower() != ".exr":   # ".exr" alone is a hidden file's name, without a suffix
+        raise WarpbwError(f"-o {out}: expected a path ending in .exr" + (" after a name (such as out.exr)"
+                                                                         if out.name.lower() == ".exr" else ""))
     return {"exr": out, "png": out.with_suffix(".png"), "json": out.with_suffix(".json")}
 
 
