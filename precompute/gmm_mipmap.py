@@ -6,8 +6,9 @@ Public functions and classes:
   ``prior``, ``unaligned``, ``kind``, ``scale``, ``seed``, ``max_samples``; ``params()``.
 - ``build_gmm_mipmap(heights_or_normals, kind="height", components=4, prior=1.0, scale=1.0, seed=0,
   progress=True, unaligned=False, texel_size=None, max_samples=256, refine_sweeps=0) -> GmmMipmap``.
-- ``write_gmm_mipmap(path, mip, source_name, source_hash, force=False, inputs=())``, ``read_gmm_mipmap(path) -> GmmMipmap``;
-  ``mipmap_problem(levels, components, prior, scale)``, what both refuse; ``rebuild_command(source, params, out)``.
+- ``write_gmm_mipmap(path, mip, source_name, source_hash, force=False, inputs=())``,
+  ``read_gmm_mipmap(path) -> GmmMipmap``; ``mipmap_problem(levels, components, prior, scale)``, what both refuse;
+  ``rebuild_command(source, params, out)``, the command that rebuilds a mipmap.
 - ``load_map(path, kind) -> ndarray``: an EXR or PNG height field (H, W) or normal map (H, W, 3 unit).
 - ``load_source(spec, kind) -> (array, name, content_hash)``: a file, or ``surface:NAME[:SIZE]``.
 - ``level_shapes(h, w)``, ``normal_space(normals)``, ``footprint_samples(n2, level, max_samples, rng)``.
@@ -836,10 +837,10 @@ def load_map(path, kind: str = "height") -> np.ndarray:
     more of its texels are unit vectors as stored than as decoded (a [0, 1]-encoded map's texels are not: the
     flat normal is stored as (0.5, 0.5, 1)), otherwise it is [0, 1]-encoded too.  Texels shorter than
     ``NORMAL_LENGTH_MIN`` (as stored or decoded) are an error; texels off unit length by more than ``UNIT_TOL``
-    are renormalised, with a warning.  16-bit greyscale PNGs keep their precision (Pillow reads 16-bit
-    RGB and grey + alpha PNGs as 8-bit, and that warns).  Normals more than ``NORMAL_Z_TOL`` below the tangent plane are an error; those
-    closer are put in it.  A varying height field read with 8 bits warns (terraced normals).  Every
-    problem is a one-line WarpbwError naming the file."""
+    are renormalised, with a warning; an image of (0, 0, 0) texels only is an error.  16-bit greyscale PNGs keep
+    their precision (Pillow reads 16-bit RGB and grey + alpha PNGs as 8-bit, and that warns).  Normals more than
+    ``NORMAL_Z_TOL`` below the tangent plane are an error; those closer are put in it.  A varying height field read
+    with 8 bits warns (terraced normals).  Every problem is a one-line WarpbwError naming the file."""
     from precompute.surfaces import normals_from_map, unit_normals
 
     if kind not in KINDS:

@@ -1839,8 +1839,8 @@ def test_the_examples_read_the_shared_data_where_the_tests_do(monkeypatch, tmp_p
     assert load_example("compare_mitsuba").DEFAULT_PROBE == tmp_path / "envmaps" / "studio.exr"
 
 
-@pytest.mark.parametrize("argv", [["render", "s.toml", "-o", "o.exr", "--for"],
-                                  ["bench", "s.toml", "--js", "b.json"], ["gmm", "m.exr", "-o", "g.gmm", "--comp", "2"]])
+@pytest.mark.parametrize("argv", [["render", "s.toml", "-o", "o.exr", "--for"], ["bench", "s.toml", "--js", "b.json"],
+                                  ["gmm", "m.exr", "-o", "g.gmm", "--comp", "2"]])
 def test_options_are_spelled_out(argv, capsys):
     """argparse took any unambiguous prefix: --for ran as --force (and a later option beginning alike would have
     changed what a prefix meant).  Each is an unknown option now."""

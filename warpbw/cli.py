@@ -867,8 +867,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser("compare", help="PSNR and relative MSE of an image against a reference",
                        description="PSNR and relative MSE (linear radiance) over the pixels covered by geometry "
-                       "(the reference's A channel, as warpbw render writes it; without one, the test image's, as when a "
-                       "render is compared with another renderer's image; else non-black pixels), and the share of the "
+                       "(the reference's A channel, as warpbw render writes it; without one, the test image's, as "
+                       "when a render is compared with another renderer's image; else non-black pixels), and the "
+                       "share of the "
                        f"relative MSE held by the worst {_WORST_FRACTION:.0%} of those pixels: "
                        f"{_WORST_FRACTION:.0%} if every pixel had the same error, near 100% when a few pixels hold "
                        "it (fireflies and edges smeared by up-sampling alike: --error-map shows which).")

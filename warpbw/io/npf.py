@@ -6,7 +6,8 @@ Public functions:
 - ``read_npf(path, name) -> NPFMaterial``: one material's row of the table (float64 curves).
 - ``npf_eval(mat, wi, wo, interpolate=True) -> (N, 3)``: the README's model, 0 below the horizon.
 
-Classes: ``NPFMaterial``; ``UnknownNpfMaterial``, the ``WarpbwError`` of a name the table lacks. Constants: ``NPF_MATERIAL_NAMES`` (100 names, table order), ``NPF_ROWS``,
+Classes: ``NPFMaterial``; ``UnknownNpfMaterial``, the ``WarpbwError`` of a name the table lacks.
+Constants: ``NPF_MATERIAL_NAMES`` (100 names, table order), ``NPF_ROWS``,
 ``NPF_COLS``, ``NPF_FILE_SIZE``, column offsets ``NPF_COL_*``, ``NPF_BINS``.
 
 Model (README): f = rho_d + rho_s D(theta_h) F(theta_d) G1(theta_i) G1(theta_o) / (cos_i cos_o) / 16.
