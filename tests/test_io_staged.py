@@ -152,6 +152,9 @@ def test_a_long_output_name_is_written_and_one_too_long_refused_before_the_work(
         check_replaceable(too_long, True)
     with pytest.raises(WarpbwError, match=r"^-o .*e\.exr: a file name of 264 bytes"):
         check_output_file(too_long, "-o", force=False)
+    # a folder on the way, too (made by the run, it failed there with a raw OSError)
+    with pytest.raises(WarpbwError, match=r"out\.exr: a folder name fffffffffffffffff?\.\.\. of 300 bytes"):
+        check_output_file(tmp_path / ("f" * 300) / "out.exr", "-o", force=False)
 
 
 def test_check_replaceable_refuses_a_directory_and_what_is_no_file_name(tmp_path):

@@ -102,8 +102,10 @@ def check_existing_output(path, force: bool, label: str) -> None:
 
 
 def check_replaceable(path, force: bool, inputs=(), inputs_are: str = MADE_FROM) -> Path:
-    """``path`` as a Path, once it may be written: not a directory, not one of ``inputs`` (whatever ``force`` says),
-    not an existing file without ``force``, not an existing read-only file.  Writers call it before their work."""
+    """``path`` as a Path, once it may be written: a name its file system takes, not a directory, not one of
+    ``inputs`` (whatever ``force`` says), not an existing file (or link) without ``force``, not an existing
+    read-only file or one that is no regular file (:func:`check_existing_output`).  Writers call it before their
+    work."""
     p = check_path(path, "output path")
     force = check_flag(force, "force")   # "no" is truthy: write_merl(force="no") replaced the file
     check_name_length(p, str(p))   # first: Python 3.11's is_dir raises on a name too long
@@ -155,15 +157,25 @@ def _name_max(folder: Path) -> int:
         return NAME_MAX_DEFAULT
 
 
+def _is_dir(p: Path) -> bool:
+    try:
+        return p.is_dir()
+    except OSError:   # a name too long (Python 3.11 raises where 3.12 answers False)
+        return False
+
+
 def check_name_length(path, label: str) -> None:
-    """Refuse, before any work, an output whose name is longer than its file system takes (the run failed at its
-    end, with "File name too long")."""
+    """Refuse, before any work, an output whose name, or the name of a folder on its way, is longer than its file
+    system takes (the run failed at its end, with "File name too long")."""
     p = Path(path)
-    folder = next((q for q in (p.parent, *p.parent.parents) if q.is_dir()), Path("."))
-    n, limit = len(os.fsencode(p.name)), _name_max(folder)
-    if n > limit:
-        raise WarpbwError(f"{label}: a file name of {n} bytes, longer than the file system takes ({limit}); expected "
-                          "a shorter name")
+    folder = next((q for q in (p.parent, *p.parent.parents) if _is_dir(q)), Path("."))
+    limit = _name_max(folder)
+    for part in p.parts:
+        n = len(os.fsencode(part))
+        if n > limit:
+            what = "file name" if part == p.name else f"folder name {part[:16]}..."
+            raise WarpbwError(f"{label}: a {what} of {n} bytes, longer than the file system takes ({limit}); "
+                              "expected a shorter name")
 
 
 def _temp_stem(path: Path) -> str:
