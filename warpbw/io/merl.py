@@ -185,7 +185,7 @@ def merl_eval(brdf: MerlBRDF, wi, wo, interpolate: bool = False) -> np.ndarray:
     (u_h = sqrt(theta_h/(pi/2))*90 - 0.5, u_d = theta_d/(pi/2)*90 - 0.5, u_p = phi_d/pi*180 - 0.5),
     clamped at the theta edges and periodic (period pi) in phi_d.
     """
-    if not isinstance(brdf, MerlBRDF):   # a path or None: "'str' object has no attribute 'data'"
+    if not hasattr(brdf, "data"):   # a path or None: "'str' object has no attribute 'data'"
         raise WarpbwError(f"merl_eval: brdf is {type(brdf).__name__}, expected a MerlBRDF (read_merl(path) reads one)")
     wi, wo = check_direction_pairs(wi, wo)
     above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)

@@ -149,7 +149,7 @@ def npf_eval(mat: NPFMaterial, wi, wo, interpolate: bool = True) -> np.ndarray:
 
     Exactly reciprocal: every quantity is computed symmetrically in (wi, wo).
     """
-    if not isinstance(mat, NPFMaterial):   # a path or None: "'NoneType' object has no attribute 'D'"
+    if not all(hasattr(mat, k) for k in ("D", "F", "G1", "rho_d", "rho_s")):   # a path or None: "no attribute 'D'"
         raise WarpbwError(f"npf_eval: mat is {type(mat).__name__}, expected an NPFMaterial (read_npf(path, name) "
                           "reads one)")
     wi, wo = check_direction_pairs(wi, wo)   # unit length; NaN and zero directions refused
