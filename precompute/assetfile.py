@@ -1,7 +1,8 @@
 """Versioned asset files written by ``warpbw-precompute`` and read by the renderer.
 
 Public: ``write_asset(path, fmt, version, source, source_hash, arrays, params, force, inputs=())``,
-``read_asset(path, fmt, version, rebuild) -> Asset``, ``Asset``.
+``read_asset(path, fmt, version, rebuild) -> Asset`` (``rebuild``: the command to suggest, or a function of the
+file's header that gives it), ``Asset``.
 
 An asset is a NumPy ``.npz`` archive (no pickles) holding named arrays and a JSON ``header`` with the
 format name, its version, the source asset's name, the source's content hash (blake2b of its bytes),
@@ -45,8 +46,13 @@ def write_asset(path, fmt: str, version: int, source: str, source_hash: str, arr
     return p
 
 
-def read_asset(path, fmt: str, version: int, rebuild: str) -> Asset:
-    """Read an asset of format ``fmt`` and version ``version``; ``rebuild`` is the command to suggest."""
+def read_asset(path, fmt: str, version: int, rebuild) -> Asset:
+    """Read an asset of format ``fmt`` and version ``version``; ``rebuild`` is the command to suggest, or a function
+    of the file's header (a dict) that gives it, so that a file of another version is told how to rebuild it from
+    its own source and parameters."""
+    def how(header) -> str:   # a file of another format gets the header-less command: its header is not ours
+        return rebuild(header if isinstance(header, dict) else {}) if callable(rebuild) else rebuild
+
     p = check_input_file(path)
     try:
         with np.load(p, allow_pickle=False) as z:
@@ -56,11 +62,11 @@ def read_asset(path, fmt: str, version: int, rebuild: str) -> Asset:
         header = None  # EOFError: numpy's answer to a zero-byte file; zlib.error: a damaged deflate stream
     if not isinstance(header, dict):  # also a JSON header that is not an object (a list, a string)
         raise WarpbwError(f"{p}: not a warpbw asset file (expected a {fmt} file written by "
-                          f"warpbw-precompute; rebuild it with: {rebuild})")
+                          f"warpbw-precompute; rebuild it with: {how(None)})")
     if header.get("format") != fmt:
         raise WarpbwError(f"{p}: is a {header.get('format')!r} file, expected {fmt!r} "
-                          f"(rebuild it with: {rebuild})")
+                          f"(rebuild it with: {how(None)})")
     if header.get("version") != version:
         raise WarpbwError(f"{p}: {fmt} version {header.get('version')!r}, this warpbw reads version {version} "
-                          f"(rebuild it with: {rebuild})")
+                          f"(rebuild it with: {how(header)})")
     return Asset(header, arrays)

@@ -710,7 +710,9 @@ def read_gmm_mipmap(path) -> GmmMipmap:
     """Read a file written by ``write_gmm_mipmap``; refuses other formats/versions and malformed levels."""
     from precompute.assetfile import read_asset
 
-    asset = read_asset(path, GMM_FORMAT, GMM_VERSION, rebuild_command("MAP"))
+    # a file of another version is told the command that rebuilds it from its own header's map and options
+    asset = read_asset(path, GMM_FORMAT, GMM_VERSION,
+                       lambda h: rebuild_command(h.get("source", "MAP"), h.get("params")))
     hint = rebuild_command(asset.header.get("source", "MAP"), asset.header.get("params"))
     params = asset.header.get("params", {})
     n = len([k for k in asset.arrays if k.startswith("level_")])

@@ -407,10 +407,14 @@ def test_reading_another_format_is_refused(tmp_path):
     with pytest.raises(WarpbwError, match="warpbw-precompute gmm"):
         read_gmm_mipmap(p)
     # version 1 stored 004's a (s^2 + |mu|^2): read as a E|n|^2 its lobes would be too narrow, so it is refused
-    p = write_asset(tmp_path / "v1.npz", GMM_FORMAT, 1, "s", "h", {"level_0": np.zeros((1, 1, 4, 4))})
+    p = write_asset(tmp_path / "v1.npz", GMM_FORMAT, 1, "dunes.exr", "h", {"level_0": np.zeros((1, 1, 4, 4))},
+                    params={"kind": "height", "scale": 0.05, "components": 2})
     with pytest.raises(WarpbwError) as e:
         read_gmm_mipmap(p)
-    assert "\n" not in str(e.value) and "version 1" in str(e.value) and "warpbw-precompute gmm" in str(e.value)
+    assert "\n" not in str(e.value) and "version 1" in str(e.value)
+    # the command rebuilds it from its own map with its own options ("gmm MAP -o OUT" rebuilt it at scale 1)
+    assert str(e.value).endswith("(rebuild it with: warpbw-precompute gmm dunes.exr -o OUT --components 2 --scale "
+                                 "0.05 --force)"), str(e.value)
 
 
 def save_png(path, arr, mode=None):
