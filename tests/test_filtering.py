@@ -709,7 +709,12 @@ def test_scene_problems_are_clear_errors(tmp_path):
     s = parse_scene(plane_scene_toml().replace('radiance = [3.0, 2.5, 2.0]', 'radiance = [1.0, 1.0, 1.0]')
                     + '\n[[object]]\nshape = "sphere"\nradius = 1.0\nmaterial = "p"\n[material.p]\n'
                     'type = "lambert"\nalbedo = 0.5\n', tmp_path, "s.toml")
-    with pytest.raises(WarpbwError, match=r"\[\[object\]\] #2: .*planes only"):
+    with pytest.raises(WarpbwError, match=r"\[\[object\]\] #2: not a plane, .*planes only .*use warpbw render"):
+        prepare_filtering(s, ("fixed",))
+    # a scene without a plane is told so (it was told that "a scene with planes renders planes only")
+    s = parse_scene(plane_scene_toml().split("[[object]]")[0] + '[[object]]\nshape = "sphere"\nradius = 1.0\n'
+                    'material = "m"\n[material.m]\ntype = "lambert"\nalbedo = 0.5\n', tmp_path, "s.toml")
+    with pytest.raises(WarpbwError, match=r"^s\.toml: no \[\[object\]\] is a plane"):
         prepare_filtering(s, ("fixed",))
     s = parse_scene(plane_scene_toml(), tmp_path, "s.toml")
     with pytest.raises(WarpbwError, match="filter method 'blur'"):

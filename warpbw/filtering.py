@@ -931,12 +931,18 @@ class FilteringScene:
 
 
 def plane_objects(scene: Scene) -> list:
-    """The scene's planes; spheres and meshes beside them are refused (the filtering renderer draws planes only)."""
+    """The scene's planes; a scene without one, or with spheres and meshes beside them, is refused: this renderer
+    draws planes only (``warpbw.pipeline.render_with_planes``, ``warpbw render``, draw planes beside the others)."""
+    if not any(isinstance(o, PlaneObject) for o in scene.objects):
+        raise WarpbwError(f"{scene.source}: no [[object]] is a plane (the filtering renderer draws planes, shape = "
+                          "\"plane\"; render spheres and meshes with warpbw render or warpbw.pipeline)")
     planes = []
     for i, o in enumerate(scene.objects):
         if not isinstance(o, PlaneObject):
-            raise WarpbwError(f"{scene.source}: [[object]] #{i + 1}: a scene with planes renders planes only "
-                              "(the filtering renderer, issue 4); put spheres and meshes in another scene")
+            # it said "a scene with planes renders planes only", of a scene warpbw render draws whole
+            raise WarpbwError(f"{scene.source}: [[object]] #{i + 1}: not a plane, and the filtering renderer draws "
+                              "planes only (for planes beside spheres and meshes use warpbw render, or "
+                              "warpbw.pipeline.render_with_planes)")
         planes.append(o)
     return planes
 
