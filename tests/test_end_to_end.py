@@ -1850,8 +1850,19 @@ def test_options_are_spelled_out(argv, capsys):
     parser = precompute_parser() if argv[0] == "gmm" else build_parser()
     with pytest.raises(SystemExit) as ei:
         parser.parse_args(argv)
-    assert ei.value.code == 2 and f"unrecognized arguments: {argv[-1] if argv[0] == 'render' else argv[-2]}" in \
-        capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert ei.value.code == 2 and f"unrecognized arguments: {argv[-1] if argv[0] == 'render' else argv[-2]}" in err
+    # the subcommand's own --help is the one to read (it pointed to the program's)
+    assert "--help')" in err and f" {argv[0]} --help" in err, err
+
+
+def test_a_second_scene_is_refused_by_the_subcommand(capsys):
+    from warpbw.cli import main
+
+    with pytest.raises(SystemExit) as ei:
+        main(["render", "a.toml", "b.toml", "-o", "x.exr"])
+    assert ei.value.code == 2
+    assert capsys.readouterr().err == ("warpbw: error: unrecognized arguments: b.toml (see 'warpbw render --help')\n")
 
 
 @pytest.mark.parametrize("command", ["warpbw", "warpbw-precompute"])

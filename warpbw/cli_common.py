@@ -42,6 +42,16 @@ class OneLineParser(argparse.ArgumentParser):
         kwargs.setdefault("allow_abbrev", False)
         super().__init__(*args, **kwargs)
 
+    def parse_args(self, args=None, namespace=None):
+        """As argparse's, but arguments left over are refused by the subcommand's parser, which points to its own
+        ``--help`` (``warpbw render a.toml b.toml`` pointed to ``warpbw --help``)."""
+        ns, extra = self.parse_known_args(args, namespace)
+        if extra:
+            chosen = next((a.choices.get(getattr(ns, a.dest, None)) for a in self._actions
+                           if isinstance(a, argparse._SubParsersAction)), None)
+            (chosen or self).error(f"unrecognized arguments: {' '.join(extra)}")
+        return ns
+
     def error(self, message):
         tool = self.prog.split()[0]
         self.exit(EXIT_USER_ERROR, f"{tool}: error: {message} (see '{self.prog} --help')\n")
