@@ -42,17 +42,21 @@ class OneLineParser(argparse.ArgumentParser):
         kwargs.setdefault("allow_abbrev", False)
         super().__init__(*args, **kwargs)
 
-    def parse_args(self, args=None, namespace=None):
-        """As argparse's, but arguments left over are refused by the subcommand's parser, which points to its own
-        ``--help`` (``warpbw render a.toml b.toml`` pointed to ``warpbw --help``)."""
-        ns, extra = self.parse_known_args(args, namespace)
-        if extra:
-            chosen = next((a.choices.get(getattr(ns, a.dest, None)) for a in self._actions
-                           if isinstance(a, argparse._SubParsersAction)), None)
-            (chosen or self).error(f"unrecognized arguments: {' '.join(extra)}")
-        return ns
+    def parse_known_args(self, args=None, namespace=None):
+        # kept for error(): argparse's parse_args refuses leftover arguments through the parser it was called on
+        ns, extra = super().parse_known_args(args, namespace)
+        self._parsed = ns
+        return ns, extra
 
     def error(self, message):
+        # arguments left over are refused by the subcommand's parser, which points to its own --help (warpbw render
+        # a.toml b.toml pointed to 'warpbw --help')
+        parsed = getattr(self, "_parsed", None)
+        if parsed is not None and message.startswith("unrecognized arguments"):
+            chosen = next((a.choices.get(getattr(parsed, a.dest, None)) for a in self._actions
+                           if isinstance(a, argparse._SubParsersAction)), None)
+            if chosen is not None and chosen is not self:
+                chosen.error(message)
         tool = self.prog.split()[0]
         self.exit(EXIT_USER_ERROR, f"{tool}: error: {message} (see '{self.prog} --help')\n")
 
