@@ -620,7 +620,8 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
 # Files
 
 def _valid_option(key: str, value) -> bool:
-    """Whether ``warpbw-precompute gmm --KEY VALUE`` would be accepted (for ``rebuild_command``)."""
+    """Whether ``warpbw-precompute gmm --KEY VALUE`` would be accepted (for ``rebuild_command`` and
+    ``mipmap_problem``)."""
     if isinstance(value, bool):
         return key == "unaligned"
     if key == "kind":
@@ -655,12 +656,13 @@ def mipmap_problem(levels, components, prior, scale) -> str | None:
     """What makes ``levels`` (float32 moments, finest first) no GMM mipmap of ``components`` components fitted
     with ``prior`` at height ``scale``, or None: shapes that do not halve, non-finite moments, negative weights,
     a texel's weights not summing to 1, a second moment beyond the unit disk or below the squared mean (a negative
-    variance).  What the writer and the reader both check."""
-    if not (is_int(components) and 1 <= components <= MAX_COMPONENTS):
+    variance).  What the writer and the reader both check; the parameters are held to what the command line takes
+    (``_valid_option``)."""
+    if not _valid_option("components", components):
         return f"{components!r} components (expected 1 to {MAX_COMPONENTS})"
-    if not (math.isfinite(prior) and 0.0 <= prior <= MAX_PRIOR):
+    if not _valid_option("prior", prior):
         return f"prior {prior!r} (expected 0 to {MAX_PRIOR:g})"
-    if not (math.isfinite(scale) and scale > 0.0):
+    if not _valid_option("scale", scale):
         return f"height scale {scale!r} (expected a finite value above 0)"
     if not levels or levels[0].ndim != 4:
         return "no levels" if not levels else f"level 0 of shape {levels[0].shape} (expected (h, w, K, 4))"

@@ -24,7 +24,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from warpbw.errors import SEED_MAX, WarpbwError, check_device
-from warpbw.io.staged import check_existing_output, check_name_length, input_clash, staged_outputs
+from warpbw.io.staged import check_existing_output, check_name_length, input_clash, output_exists, staged_outputs
 from warpbw.native_output import init_warp_quietly
 
 EXIT_USER_ERROR = 2
@@ -209,7 +209,7 @@ def check_overwrite(paths, force: bool, option: str = "-o", inputs=(), inputs_ar
         check_output_file(p, opt, force=True)
     if force:
         return
-    existing = [str(p) for p in paths if Path(p).exists() or Path(p).is_symlink()]
+    existing = [str(p) for p in paths if output_exists(p)]
     if existing:
         raise WarpbwError(f"{existing[0]}: already exists (pass --force to overwrite"
                           f"{' it' if len(existing) == 1 else f' it and {len(existing) - 1} more'})")

@@ -2,8 +2,8 @@
 
 Public: ``staged_outputs(paths)``; ``check_replaceable(path, force, inputs=(), inputs_are=...) -> Path`` (what every
 writer that takes ``force`` checks before its work), ``input_clash(path, inputs, inputs_are=...) -> str | None``,
-``check_existing_output(path, force, label)``, ``check_name_length(path, label)`` and ``check_not_read_only(path,
-label)`` (its parts the command lines share).
+``output_exists(path)``, ``check_existing_output(path, force, label)``, ``check_name_length(path, label)`` and
+``check_not_read_only(path, label)`` (its parts the command lines share).
 
 Every writer of warpbw (images, records, plots, asset and cache files) writes to a temporary file beside its
 output, and the outputs of one command are moved into place together once all of them are written.  So
@@ -81,13 +81,20 @@ def check_not_read_only(path, label: str) -> None:
                           "elsewhere)")
 
 
+def output_exists(path) -> bool:
+    """Whether an output's name is taken: by a file, or by a link, dangling or not (a dangling link is the user's
+    too, and was replaced without a word)."""
+    p = Path(path)
+    return p.exists() or p.is_symlink()
+
+
 def check_existing_output(path, force: bool, label: str) -> None:
     """Refuse an output already there without ``force`` (a dangling link counts: it is the user's too, and was
     replaced without a word), and whatever ``force`` says one that is not a regular file (a FIFO blocked the run for
     ever, opened for writing; a device or a socket would be replaced by a file) or is read-only.  ``label`` starts
     the messages of the latter (the path, or the option and the path)."""
     p = Path(path)
-    if not (p.exists() or p.is_symlink()):
+    if not output_exists(p):
         return
     if not force:
         raise WarpbwError(f"{p}: already exists (pass --force to overwrite it)")
