@@ -9,7 +9,7 @@ Public functions and classes:
 - ``write_gmm_mipmap(path, mip, source_name, source_hash, force=False, inputs=())``,
   ``read_gmm_mipmap(path) -> GmmMipmap``; ``mipmap_problem(levels, components, prior, scale)``, what both refuse;
   ``rebuild_command(source, params, out)``, the command that rebuilds a mipmap.
-- ``load_map(path, kind) -> ndarray``: an EXR or PNG height field (H, W) or normal map (H, W, 3 unit).
+- ``load_map(path, kind) -> ndarray``: an EXR or PNG (or other Pillow) height field (H, W) or normal map (H, W, 3 unit).
 - ``load_source(spec, kind) -> (array, name, content_hash)``: a file, or ``surface:NAME[:SIZE]``.
 - ``level_shapes(h, w)``, ``normal_space(normals)``, ``footprint_samples(n2, level, max_samples, rng)``.
 - ``em_fit(x, a, mu, s2, c=0.0, prior_sum=None, prior_weight=None, max_iter=..., tol=...)``: the
@@ -756,6 +756,9 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"     # PNG spec section 5.2
 PNG_BIT_DEPTH_OFFSET = 24            # IHDR: 8 signature + 4 length + 4 type + 4 width + 4 height bytes
 PNG_CUT_TO_8 = ("Pillow reads 16-bit PNGs other than greyscale without alpha with 8 bits; a 16-bit greyscale PNG "
                 "(a height field) or an OpenEXR image keeps the precision")
+# Pillow formats whose compression is lossy: its block artifacts become slopes, hence normals, that the surface
+# does not have.  Read, with a warning (JPEG normal maps are common in game assets).
+LOSSY_FORMATS = ("JPEG", "MPO")   # MPO: JPEG frames (a phone camera's)
 
 
 # Largest map read from a file (8192 x 8192): a sanity bound, as for procedural surfaces (MAX_SURFACE_SIZE); a
@@ -774,7 +777,8 @@ def _check_map_size(p: Path, width: int, height: int) -> None:
 
 
 def _read_pixels(p: Path) -> tuple[np.ndarray, int | None, bool]:
-    """(H, W, C) float64 in [0, 1] for PNG/Pillow images, raw floats for EXR; and the bits per channel the
+    """(H, W, C) float64 in [0, 1] for PNG and the other images Pillow reads (TIFF, BMP, ...; a lossy one, such as
+    JPEG, warns), raw floats for EXR; and the bits per channel the
     values were read with (None for floating point); and whether a warning said so already: a 16-bit colour or
     grey+alpha PNG, which Pillow reads with 8 bits (``PNG_CUT_TO_8``)."""
     from warpbw.io.exr import EXR_MAGIC, exr_size, read_exr
@@ -805,6 +809,9 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None, bool]:
             _check_map_size(p, *im.size)
             im.load()
             mode = im.mode
+            if im.format in LOSSY_FORMATS:
+                warnings.warn(f"{p}: a {im.format} image: its lossy compression's block artifacts read as bumps "
+                              "(a PNG or an OpenEXR image keeps the map as made)", stacklevel=3)
             if mode in ("I;16", "I;16B", "I;16L", "I;16N"):
                 arr = np.asarray(im, dtype=np.float64) / 65535.0
                 bits = 16

@@ -665,6 +665,30 @@ def test_8_bit_height_field_warns_of_terraces(tmp_path):
         load_map(tmp_path / "flat8.png", "height")
 
 
+def test_other_pillow_formats_are_read_and_jpeg_warns(tmp_path):
+    """A 16-bit TIFF height field is read whole, like a 16-bit PNG; a JPEG normal map is read, and warns that its
+    lossy compression reads as bumps: its flat blue decodes to normals off the vertical by JPEG's rounding."""
+    from PIL import Image
+
+    ramp = (30000 + np.arange(8 * 6).reshape(8, 6) * 3).astype(np.uint16)
+    Image.fromarray(ramp).save(tmp_path / "h.tif")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_allclose(load_map(tmp_path / "h.tif", "height"), ramp / 65535.0)
+    flat = np.zeros((16, 16, 3), np.uint8)
+    flat[..., :2], flat[..., 2] = 128, 255
+    Image.fromarray(flat).save(tmp_path / "n.jpg", quality=90)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        n = load_map(tmp_path / "n.jpg", "normal")
+    assert any("n.jpg: a JPEG image: its lossy compression" in str(w.message) for w in said), said
+    assert n.shape == (16, 16, 3) and n[..., 2].min() > 0.99
+    Image.fromarray(flat).save(tmp_path / "n.png")     # the same texels lossless: quiet
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_map(tmp_path / "n.png", "normal")
+
+
 def test_bad_inputs_name_the_file(tmp_path):
     from warpbw.io.exr import write_exr
 
