@@ -495,12 +495,13 @@ def _top_centres(x, K: int, seed: int) -> np.ndarray:
 def _validate(data, kind, components, prior, scale):
     if kind not in KINDS:
         raise WarpbwError(f"kind {kind!r}: expected one of {', '.join(KINDS)}")
-    if not is_int(components) or not 1 <= components <= MAX_COMPONENTS:
+    # the command line's ranges (_valid_option); "2", None, [1, 2], True: refused here, not by numpy
+    if not _valid_option("components", components):
         raise WarpbwError(f"components {components!r}: expected an integer from 1 to {MAX_COMPONENTS}")
-    if not (isinstance(prior, numbers.Real) and 0.0 <= prior <= MAX_PRIOR):
+    if not _valid_option("prior", prior):
         raise WarpbwError(f"prior {prior!r}: expected a finite c >= 0, at most {MAX_PRIOR:g}")
-    if not (isinstance(scale, numbers.Real) and not isinstance(scale, bool) and math.isfinite(scale) and scale > 0):
-        raise WarpbwError(f"scale {scale!r}: expected a finite number > 0")   # "2", None, [1, 2]: numpy's errors
+    if not _valid_option("scale", scale):
+        raise WarpbwError(f"scale {scale!r}: expected a finite number > 0")
     data = numeric_array(data, f"{kind} map", "(H, W) heights" if kind == "height" else "(H, W, 3) normals")
     want = 2 if kind == "height" else 3
     if data.ndim != want or (kind == "normal" and data.shape[-1] != 3) or data.size == 0:

@@ -533,9 +533,12 @@ def test_gmm_builder_refuses_a_prior_and_slopes_that_overflowed_into_nan(tmp_pat
     from precompute.gmm_mipmap import MAX_PRIOR
 
     h = np.random.default_rng(3).random((8, 8))
-    for c in (1e308, MAX_PRIOR * 2, float("nan"), -1.0):
+    for c in (1e308, MAX_PRIOR * 2, float("nan"), -1.0, True):   # True: a flag, not the c the CLI would take
         with pytest.raises(WarpbwError, match="prior .*expected a finite c >= 0, at most 1e\\+06"):
             build_gmm_mipmap(h, prior=c, progress=False)
+    for key, value in (("components", True), ("components", 2.0), ("scale", False), ("scale", "2")):
+        with pytest.raises(WarpbwError, match=f"{key} {value!r}: expected"):
+            build_gmm_mipmap(h, progress=False, **{key: value})
     mip = build_gmm_mipmap(h, prior=MAX_PRIOR, progress=False)
     assert all(np.isfinite(q).all() for q in mip.levels)
     for unaligned in (False, True):
