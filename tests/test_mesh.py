@@ -255,9 +255,13 @@ def test_missing_file(tmp_path):
         # OBJ indices count from 1: trimesh read "f 0 3 4" as the triangle (1, 3, 4), a different surface
         ("zero.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 0 3 4\n", "zero.obj:6: a face has vertex index 0"),
         ("zeroslash.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/1 0/1\n", "zeroslash.obj:5: .*index 0"),
-        # vertices of two numbers: numpy's AxisError from the area test
-        ("flatland.obj", "v 0 0\nv 1 0\nv 0 1\nf 1 2 3\n", "2 coordinates each \\(expected x, y and z"),
-        ("short.obj", "v 0 0 0\nv 1 0\nv 0 1 0\nf 1 2 3\n", "coordinates each \\(expected x, y and z"),
+        # vertices of two numbers: numpy's AxisError from the area test; then "vertices read with 2 coordinates each"
+        ("flatland.obj", "v 0 0\nv 1 0\nv 0 1\nf 1 2 3\n", "flatland.obj:1: vertex line 'v 0 0' \\(expected 'v x y z'"),
+        ("short.obj", "v 0 0 0\nv 1 0\nv 0 1 0\nf 1 2 3\n", "short.obj:2: vertex line 'v 1 0' \\(expected 'v x y z'"),
+        # a file cut or mangled mid-line: numpy's "could not be read to its end due to unmatched data"
+        ("cut.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nv 1 1", "cut.obj:5: vertex line 'v 1 1'"),
+        ("word.obj", "v 0 0 0\nv 1 0 0\n  v 0 one 0\nf 1 2 3\n", "word.obj:3: vertex line 'v 0 one 0'"),
+        ("comment.obj", "v 0 0 0 # origin\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "comment.obj:1: .*nothing after them"),
     ],
 )
 def test_malformed_files(tmp_path, name, text, match):
@@ -266,6 +270,16 @@ def test_malformed_files(tmp_path, name, text, match):
     with pytest.raises(WarpbwError, match=match) as ei:
         load_mesh(p)
     assert str(p) in str(ei.value) and "\n" not in str(ei.value)
+
+
+def test_obj_vertex_lines_with_w_colour_comments_and_crlf_are_read(tmp_path):
+    """The vertex-line check (a line that is not 3 to 7 numbers is refused) passes what trimesh reads: a w, a
+    colour, exponents, CRLF line ends, comment lines.  (A comment after the numbers it does not read: refused.)"""
+    p = tmp_path / "ok.obj"
+    p.write_bytes(b"# a triangle\r\nv 0 0 0 1.0\r\nv 1e0 -0. +0 0.5 0.5 0.5\r\nv .0 1 0\r\nf 1 2 3\r\n")
+    mesh = load_mesh(p)
+    assert len(mesh.faces) == 1
+    np.testing.assert_allclose(np.sort(mesh.vertices.sum(axis=1)), [0.0, 1.0, 1.0])
 
 
 def test_bad_transform(sphere_files):

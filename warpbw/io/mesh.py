@@ -63,6 +63,12 @@ _SUPPORTED = "OBJ, PLY, STL or GLB"
 # An OBJ face whose vertex index is 0 (OBJ counts from 1, and from -1 backwards): trimesh reads it as vertex 0,
 # a different triangle from the one the file's author meant, so it is refused.
 _OBJ_ZERO_INDEX = re.compile(rb"^[ \t]*f[ \t][^\n]*?(?<=[ \t])0(?:/\S*)?(?=\s|$)", re.M)
+# An OBJ vertex line that is not 3 to 7 numbers (x y z [w], or x y z r g b [a]: colours as trimesh reads them),
+# and nothing after them (trimesh reads no trailing comment): trimesh stopped in numpy's "could not be read to its
+# end due to unmatched data".
+_OBJ_NUMBER = rb"(?i:[-+]?(?:(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?|nan|inf(?:inity)?))"
+_OBJ_BAD_VERTEX = re.compile(rb"^[ \t]*v[ \t](?![ \t]*(?:" + _OBJ_NUMBER + rb"[ \t]+){2,6}" + _OBJ_NUMBER
+                             + rb"[ \t]*\r?$)[^\n]*", re.M)
 
 
 @dataclass
@@ -357,9 +363,16 @@ def _check_float32(verts, path, when: str) -> None:
                           f"within +-{FLOAT32_MAX:.4g})")
 
 
-def _check_obj_indices(path: Path) -> None:
-    """Refuse an OBJ face with vertex index 0, naming its line (``_OBJ_ZERO_INDEX``)."""
+def _check_obj_lines(path: Path) -> None:
+    """Refuse an OBJ vertex line that is not 3 to 7 numbers (``_OBJ_BAD_VERTEX``) and a face with vertex index 0
+    (``_OBJ_ZERO_INDEX``), naming the line."""
     data = path.read_bytes()
+    m = _OBJ_BAD_VERTEX.search(data)
+    if m is not None:
+        line = data.count(b"\n", 0, m.start()) + 1
+        text = m.group(0).strip().decode("utf-8", "replace")
+        raise WarpbwError(f"{path}:{line}: vertex line {text[:60]!r} (expected 'v x y z': three numbers, optionally a "
+                          "w or a colour, and nothing after them); malformed mesh")
     m = _OBJ_ZERO_INDEX.search(data)
     if m is not None:
         line = data.count(b"\n", 0, m.start()) + 1
@@ -381,7 +394,7 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
                           f"{_SUPPORTED})")
     t, s, r = _check_transform(path, translate, scale, rotate_y_deg)
     if path.suffix.lower() == ".obj":
-        _check_obj_indices(path)
+        _check_obj_lines(path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
