@@ -845,9 +845,9 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None, bool]:
 def load_map(path, kind: str = "height") -> np.ndarray:
     """Read a height field (single channel; an RGB image is accepted only with identical channels) as
     (H, W) float64, or a tangent-space normal map (RGB) as unit (H, W, 3).  PNG normal maps are
-    [0, 1]-encoded; an EXR normal map holds the vectors themselves when it has a negative value or when
-    more of its texels are unit vectors as stored than as decoded (a [0, 1]-encoded map's texels are not: the
-    flat normal is stored as (0.5, 0.5, 1)), otherwise it is [0, 1]-encoded too.  Texels shorter than
+    [0, 1]-encoded; an EXR normal map holds the vectors themselves when it has a negative value or one
+    above 1, or when more of its texels are unit vectors as stored than as decoded (a [0, 1]-encoded map's texels
+    are not: the flat normal is stored as (0.5, 0.5, 1)), otherwise it is [0, 1]-encoded too (``_holds_vectors``).  Texels shorter than
     ``NORMAL_LENGTH_MIN`` (as stored or decoded) are an error; texels off unit length by more than ``UNIT_TOL``
     are renormalised, with a warning; an image of (0, 0, 0) texels only is an error.  16-bit greyscale PNGs keep
     their precision (Pillow reads 16-bit RGB and grey + alpha PNGs as 8-bit, and that warns).  Normals more than
@@ -906,12 +906,23 @@ def load_map(path, kind: str = "height") -> np.ndarray:
 def _holds_vectors(rgb) -> bool:
     """Whether a float (EXR) normal map holds the vectors themselves rather than (n + 1) / 2: it has a negative
     value, or more of its texels are unit vectors as stored than as decoded.  (The rule was "every texel unit":
-    one texel of length 1.05 in a flat map made the tool decode all of them, tilting each by 55 degrees.)"""
-    if rgb.min() < 0.0:
+    one texel of length 1.05 in a flat map made the tool decode all of them, tilting each by 55 degrees.)  A value
+    above 1 cannot be [0, 1]-encoded either.  When neither reading makes most texels unit (a map of unnormalised
+    vectors), the one whose normals lie nearer the vertical on average wins: a tangent-space map is mostly near +z
+    (unnormalised raw vectors were decoded, and refused as pointing below the surface)."""
+    if rgb.min() < 0.0 or rgb.max() > 1.0 + UNIT_TOL:
         return True
     as_stored = np.count_nonzero(np.abs(np.linalg.norm(rgb, axis=-1) - 1.0) <= UNIT_TOL)
-    as_decoded = np.count_nonzero(np.abs(np.linalg.norm(2.0 * rgb - 1.0, axis=-1) - 1.0) <= UNIT_TOL)
-    return as_stored > as_decoded
+    decoded = 2.0 * rgb - 1.0
+    as_decoded = np.count_nonzero(np.abs(np.linalg.norm(decoded, axis=-1) - 1.0) <= UNIT_TOL)
+    if max(as_stored, as_decoded) > rgb[..., 0].size // 2:
+        return as_stored > as_decoded
+
+    def mean_z(v):   # zero vectors count as horizontal
+        length = np.linalg.norm(v, axis=-1)
+        return float(np.mean(np.where(length > 0.0, v[..., 2] / np.maximum(length, 1e-300), 0.0)))
+
+    return mean_z(rgb) > mean_z(decoded)
 
 
 def load_source(spec: str, kind: str = "height"):

@@ -454,6 +454,25 @@ def test_load_normal_map_png_and_exr(tmp_path):
     np.testing.assert_allclose(load_map(tmp_path / "enc.exr", "normal"), n, atol=1e-6)
 
 
+@pytest.mark.parametrize("length", [0.7, 2.0])
+def test_exr_of_unnormalised_vectors_all_non_negative_is_read_as_vectors(tmp_path, length):
+    """Raw vectors of length 0.7 or 2 with no negative component: no texel is unit either way, and they were
+    decoded as (n + 1) / 2 and refused as pointing below the surface.  Read as vectors (one warning: renormalised);
+    the same normals [0, 1]-encoded at 0.97 of their length still decode."""
+    from warpbw.io.exr import write_exr
+
+    rng = np.random.default_rng(1)
+    n = np.abs(rng.normal(size=(8, 8, 3))) * 0.2
+    n[..., 2] = 1.0
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    write_exr(tmp_path / "raw.exr", (n * length).astype(np.float32))
+    with pytest.warns(UserWarning, match="64 of 64 texels are not unit normals as stored \\(raw vectors\\)"):
+        np.testing.assert_allclose(load_map(tmp_path / "raw.exr", "normal"), n, atol=1e-6)
+    write_exr(tmp_path / "enc.exr", ((n + 1.0) / 2.0 * 0.97).astype(np.float32))
+    with pytest.warns(UserWarning, match="as decoded"):
+        np.testing.assert_allclose(load_map(tmp_path / "enc.exr", "normal"), n, atol=0.05)
+
+
 def test_normal_map_below_the_surface(tmp_path):
     """An 8-bit texel one step below the horizon (z = -1/255) lies in the tangent plane; a normal pointing
     into the surface (an object-space map, an all-black image) is an error naming the file and the texel."""
