@@ -60,6 +60,16 @@ def test_lambert_sphere_under_constant_sky_returns_albedo():
     assert (res.image[~res.coverage] == 0).all()
 
 
+def test_a_pixel_of_twenty_million_samples_still_reads_its_albedo():
+    """Every cosine-sampled sample of a Lambert sphere under a constant sky is the albedo, so any sample count
+    reads it: the per-pixel sum was float32 and stopped growing past about 1.7e7 samples (2e7 read 0.885 x albedo,
+    4e7 0.586 x)."""
+    albedo = np.array([0.5, 0.25, 0.125])
+    res = render_reference(sphere_scene(f'type = "lambert"\nalbedo = {albedo.tolist()}', w=1, h=1), spp=20_000_000)
+    assert res.coverage.all()
+    np.testing.assert_allclose(res.image[0, 0], albedo, rtol=1e-6)
+
+
 def test_lambert_sphere_with_mis_returns_albedo_on_average():
     albedo = np.array([0.8, 0.5, 0.2])
     res = render_reference(sphere_scene(f'type = "lambert"\nalbedo = {albedo.tolist()}'), spp=256, seed=4, mis=True)

@@ -551,15 +551,15 @@ def pair_uniform(r: PairVec, k: int, j: int):
 def lobes_env(L: Lobes, nl: int, wo: wp.vec3, pl: PlaneData, env: EnvMapData, r: PairVec, k0: int, n: int):
     """Radiance towards wo under the environment: pairs k0 .. k0 + n - 1 of the sequence offset by r, each
     one BRDF and one environment sample, combined by the balance heuristic (multiple importance sampling)."""
-    c = wp.vec3(0.0)
+    c = wp.vec3d(0.0)   # float64: a float32 sum of 1.7e7 pairs stops growing
     if wo[2] > MIN_COS:
         for k in range(k0, k0 + n):
             ub = wp.vec3(pair_uniform(r, k, 0), pair_uniform(r, k, 1), pair_uniform(r, k, 2))
-            c = c + env_mis_term(L, nl, lobes_sample(L, nl, wo, pl, ub), wo, pl, env)
+            c = c + wp.vec3d(env_mis_term(L, nl, lobes_sample(L, nl, wo, pl, ub), wo, pl, env))
             ue = wp.vec2(pair_uniform(r, k, 3), pair_uniform(r, k, 4))
-            c = c + env_mis_term(L, nl, to_plane(env_sample(env, ue)), wo, pl, env)
-        c = c / float(n)
-    return c
+            c = c + wp.vec3d(env_mis_term(L, nl, to_plane(env_sample(env, ue)), wo, pl, env))
+        c = c / wp.float64(n)
+    return wp.vec3(c)
 
 
 @wp.func
@@ -761,7 +761,7 @@ def _ground_truth_kernel(with_env: bool):
             r = PairVec()
             if wp.static(with_env):
                 r, state = pair_offset(state)   # ray k takes pair k of the pixel's sequence
-            c = wp.vec3(0.0)
+            c = wp.vec3d(0.0)   # float64: a float32 sum of 1.7e7 rays stops growing
             hits = int(0)
             for k in range(spp + 1):   # ray spp: the centre ray, only when no jittered ray hit the plane
                 jx = float(0.5)
@@ -782,13 +782,13 @@ def _ground_truth_kernel(with_env: bool):
                         st = plane_st(p, pl)
                         n = wp.normalize(fetch3(nmean, lw, lh, loff, 0, st[0], st[1]))
                         wo = to_plane(-d)
-                        c = c + shade_fine(n, wo, pl, ldir, lrad)
+                        c = c + wp.vec3d(shade_fine(n, wo, pl, ldir, lrad))
                         if wp.static(with_env):
                             L = set_lobe(Lobes(), 0, 1.0, n[0], n[1], pl.rough_var, pl.rough_var, 0.0)
-                            c = c + lobes_env(L, 1, wo, pl, env, r, k, 1)
+                            c = c + wp.vec3d(lobes_env(L, 1, wo, pl, env, r, k, 1))
                         hits = hits + 1
             # the plane's mean over the part of the pixel it covers: what is behind it is not blended in
-            out[i] = c / float(hits)
+            out[i] = wp.vec3(c / wp.float64(hits))
 
     return ground_truth_kernel
 

@@ -118,7 +118,7 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
         fr = pixel_frame(gb, i)
         wo = fr.wo
         state = wp.rand_init(seed, i)
-        acc = wp.vec3(0.0)
+        acc = wp.vec3d(0.0)   # float64: a float32 sum stops growing past ~1.7e7 samples of one size
         direct = wp.vec3(0.0)
         bad = int(0)
         if wp.static(has_lights):
@@ -146,7 +146,7 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
                                 p_sum = p + env_pdf_uv(env, uv)
                             c = wp.cw_mul(f.eval(mats, m, wi, wo), env_radiance_uv(env, uv)) * (wi[2] / p_sum)
                             if finite3(c):
-                                acc = acc + c
+                                acc = acc + wp.vec3d(c)
                             else:
                                 bad = bad + 1
                     if wp.static(mis):
@@ -162,10 +162,10 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
                                 c = wp.cw_mul(f.eval(mats, m, wl_local, wo), env_radiance_uv(env, uvl)) * (
                                     wl_local[2] / (pl + pb))
                                 if finite3(c):
-                                    acc = acc + c
+                                    acc = acc + wp.vec3d(c)
                                 else:
                                     bad = bad + 1
-        out[i] = acc / float(wp.max(spp, 1)) + direct
+        out[i] = wp.vec3(acc / wp.float64(wp.max(spp, 1))) + direct
         if bad > 0:
             wp.atomic_add(non_finite, 0, bad)
 
