@@ -16,6 +16,7 @@ import pytest
 from conftest import MIXED_SCENE, StandInClock, capture_call, load_example, outcome
 from warpbw import bench
 from warpbw.cli import main as cli_main
+from warpbw.errors import WarpbwError
 
 SCENE = """
 [camera]
@@ -319,6 +320,30 @@ def test_bench_figures_follow_closed_forms_with_fake_renderers(tmp_path, monkeyp
     assert rec["equal_quality_budget"] == 2.0 and math.isclose(rec["equal_quality_speedup"], 8.0, rel_tol=1e-4)
     assert math.isclose(rec["bandwidth_time_fraction"], 0.2, rel_tol=1e-9)
     assert rec["pixels_covered"] == int(cov.sum()) and rec["ground_truth_doubling_delta_db"] == 0.0
+
+
+def test_a_scene_with_nothing_to_measure_is_a_clear_error(tmp_path, monkeypatch):
+    """An all-black probe, and a probe whose light reaches no visible pixel (every frame then equals the ground
+    truth exactly), stopped in a ZeroDivisionError traceback at the ground truth's doubling check."""
+    from warpbw import pipeline
+    from warpbw.io.exr import write_exr
+    from warpbw.scene import parse_scene
+
+    write_exr(tmp_path / "zero.exr", np.zeros((8, 16, 3), np.float32))
+    black = parse_scene(SCENE.replace('procedural = "sky"', 'file = "zero.exr"'), tmp_path, "black.toml")
+    with pytest.raises(WarpbwError, match="black.toml: \\[environment\\] 'zero.exr' is black everywhere"):
+        bench.run_bench(black, spp_list=(1,), budgets=(1,), gt_spp=64, runs=1, cache_dir=tmp_path / "gt",
+                        progress=False, log=lambda *a, **kw: None)
+    cov = np.zeros((24, 24), bool)
+    cov[8:16, 8:16] = True
+    still = np.zeros((24, 24, 3), np.float32)
+    monkeypatch.setattr(pipeline, "render_reference", lambda prep, spp, seed=0, mis=False, **kw: SimpleNamespace(
+        image=still, coverage=cov, stats={"time_s": {"shading": 0.01, "gbuffer": 0.001}}))
+    monkeypatch.setattr(pipeline, "render_adaptive", lambda prep, budget, seed=0, mis=False, **kw:
+                        _fake_adaptive_result(still, cov, 0.01, budget))
+    with pytest.raises(WarpbwError, match="s.toml: the 4-spp reference equals the ground truth exactly"):
+        bench.run_bench(parse_scene(SCENE, tmp_path, "s.toml"), spp_list=(1, 4), budgets=(1,), gt_spp=64, runs=1,
+                        cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **kw: None)
 
 
 def test_ground_truth_chunks_of_another_seed_or_version_are_never_read(tmp_path, monkeypatch):

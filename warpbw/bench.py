@@ -291,6 +291,10 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     cache_dir = Path(cache_dir) if cache_dir is not None else gt_cache_dir()
     t0 = time.perf_counter()
     prep = pipeline.prepare_scene(surfaces, device=device, progress=progress)
+    if prep.env is not None and not np.any(prep.env.pixels):   # else a ZeroDivisionError after the ground truth
+        raise WarpbwError(f"{scene.source}: [environment] {prep.env.name!r} is black everywhere (after its scale and "
+                          "the clamp of negative values): the methods have no light to sample and every error is 0 "
+                          "(expected an environment with light in it)")
     # warm-up frames: compile every kernel variant and build the bandwidth tables
     warm = render_reference(prep, spp=1, seed=seed, mis=mis)
     hidden = warm.stats.get("pixels_hidden", 0)
@@ -320,7 +324,12 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     # doubling check of the ground truth, with the largest reference render
     from warpbw.metrics import mse as mse_of
 
-    d_db = abs(10.0 * math.log10(mse_of(last, gt.half, cov) / mse_of(last, gt.image, cov)))
+    mse_full, mse_half = mse_of(last, gt.image, cov), mse_of(last, gt.half, cov)
+    if mse_full == 0.0 or mse_half == 0.0:   # no noise anywhere: the environment lights nothing the camera sees
+        raise WarpbwError(f"{scene.source}: the {spp}-spp reference equals the ground truth exactly, so there is no "
+                          "error to measure: the environment's light reaches no pixel the camera sees (expected a "
+                          "scene whose visible surfaces the environment lights)")
+    d_db = abs(10.0 * math.log10(mse_half / mse_full))
     converged = d_db < DOUBLING_DB
     log(f"ground-truth check: {d_db:.3f} dB ({'converged' if converged else 'NOT converged: raise --gt-spp'})")
     ada_recs = []
