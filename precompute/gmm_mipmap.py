@@ -609,7 +609,11 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
     levels = []
     for l in range(L):
         a = np.where(A[l] > WEIGHT_EPS, A[l], 0.0)
-        levels.append(to_moments(a, MU[l], S2[l]).astype(np.float32))
+        # E|n|^2 = d s^2 + |mu|^2 <= 1 for normals in the unit disk, which the MAP fit can overstep: the prior
+        # moves mu off its samples' mean, adding |mean - mu|^2 to their spread (steep random heights: E|n|^2 up to
+        # 1 + 3e-4, a file its own reader refuses; mipmap_problem)
+        s2_max = np.maximum((1.0 - np.sum(MU[l] * MU[l], axis=-1)) / NORMAL_DIM, VARIANCE_FLOOR)
+        levels.append(to_moments(a, MU[l], np.minimum(S2[l], s2_max)).astype(np.float32))
         if not np.all(np.isfinite(levels[-1])):   # never written: the renderer would refuse the file later
             raise WarpbwError(f"GMM fit of level {l} gave NaN or infinite moments (components {K}, prior {c:g}); "
                               "this is a defect, please report it with the map")

@@ -545,6 +545,21 @@ def test_a_grey_texel_of_a_normal_map_is_refused(tmp_path):
         load_map(tmp_path / "grey.png", "normal")
 
 
+@pytest.mark.parametrize("prior", [1.0, 64.0])
+def test_steep_random_heights_build_a_mipmap_its_own_writer_takes(tmp_path, prior):
+    """Uniform random heights at scale 1 (slopes of tens: normals near the horizon): the prior pulls a component's
+    mean off its samples' mean, and E|n|^2 = d s^2 + |mu|^2 came out up to 3e-4 above the weight, beyond the unit
+    disk every normal lies in, and warpbw-precompute gmm refused its own output.  The stored moments stay within it."""
+    from precompute.gmm_mipmap import mipmap_problem, write_gmm_mipmap
+
+    h = np.random.default_rng(0).random((37, 53))
+    mip = build_gmm_mipmap(h, prior=prior, progress=False)
+    for q in mip.levels:
+        assert np.all(q[..., 3] <= q[..., 0] * (1 + 1e-6) + 1e-7)
+    assert mipmap_problem(mip.levels, mip.components, mip.prior, mip.scale) is None
+    write_gmm_mipmap(tmp_path / "h.gmm", mip, "h.exr", "hash")
+
+
 def test_gmm_builder_refuses_a_prior_and_slopes_that_overflowed_into_nan(tmp_path):
     """c = 1e308 wrote levels of NaN moments (exit 0); heights times scale 1e155 stopped in scikit-learn ("Input X
     contains NaN"), and with --unaligned wrote NaN everywhere.  c is bounded by MAX_PRIOR; slopes up to the
