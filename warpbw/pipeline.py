@@ -455,9 +455,10 @@ def _check_pass_finite(buf, source: str, mis: bool = True) -> None:
     n_bad = int((bad & cov).sum())
     if n_bad:
         raise WarpbwError(f"{source}: the bandwidth pass's variance (squared radiance) overflowed float32 at {n_bad} "
-                          f"of {int(cov.sum())} covered pixels; --method adaptive expects radiance well below "
-                          f"sqrt({FLOAT32_MAX:.3g}) = {math.sqrt(FLOAT32_MAX):.2g}: lower [environment] scale or the "
-                          "map's values, or render with --method reference")
+                          f"of {int(cov.sum())} covered pixels; --method adaptive expects radiance (the light's "
+                          f"times the BRDF's) well below sqrt({FLOAT32_MAX:.3g}) = {math.sqrt(FLOAT32_MAX):.2g}: lower "
+                          "[environment] scale or the map's values, or the material's BRDF values, or render with "
+                          "--method reference")
 
 
 def _nothing_to_adapt(scene: Scene) -> WarpbwError:
