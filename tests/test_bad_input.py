@@ -24,7 +24,7 @@ from conftest import (attempt, capture_call, damage_deflate_stream, fake_npf_tab
                       plane_scene_toml, uniform_sampler_table)
 
 from warpbw.errors import WarpbwError
-from warpbw.io.exr import write_exr
+from warpbw.io.exr import read_exr, write_exr
 from warpbw.io.merl import MERL_FILE_SIZE
 from warpbw.io.npf import NPF_FILE_SIZE
 
@@ -728,10 +728,20 @@ _BRIGHT_LIGHT = ('[[light]]\ntype = "directional"\ndirection = [0.3, 0.8, 0.5]\n
 
 @pytest.mark.parametrize("what", ["sphere", "plane"])
 def test_radiance_that_overflows_float32_is_refused_not_written(tmp_path, what):
-    """Radiance within the float32 range that overflows when a pixel's samples are summed: the image was
-    written with inf pixels (a white preview) and status 0.  Now one line naming the scene, nothing written."""
+    """Radiance within the float32 range whose pixel overflows it (a sky of 3e38 on white Lambert, plus a light of
+    3e38): the image was written with inf pixels (a white preview) and status 0.  Now one line naming the scene,
+    nothing written.  (The sky alone renders: its samples are summed in float64 since session 61, where a float32
+    sum of four overflowed.)"""
     if what == "sphere":
         write_scene(tmp_path, environment="constant = [3e38, 3e38, 3e38]")
+        assert run(["render", "scene.toml", "-o", "sky.exr", "--spp", "4", "-q"], tmp_path).returncode == 0
+        img = read_exr(tmp_path / "sky.exr").pixels
+        np.testing.assert_allclose(img[img[..., 3] > 0][:, :3], 1.5e38, rtol=1e-6)   # albedo 0.5 x the sky
+        for f in tmp_path.glob("sky.*"):
+            f.unlink()
+        light = '\n[[light]]\ntype = "directional"\ndirection = [0.0, 0.0, 1.0]\nradiance = [3e38, 3e38, 3e38]'
+        write_scene(tmp_path, environment="constant = [3e38, 3e38, 3e38]" + light,
+                    material='type = "lambert"\nalbedo = 1.0')
     else:
         text = PLANE_SCENE.replace('normal_map = "map.exr"\n', "").replace("[[light]]", _BRIGHT_LIGHT, 1)
         (tmp_path / "scene.toml").write_text(text.replace("[3.0, 3.0, 3.0]", "[3e38, 3e38, 3e38]"))
