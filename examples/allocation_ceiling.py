@@ -168,7 +168,7 @@ def main(argv=None) -> int:
     r["scene"] = str(args.scene)
     print(format_report(str(args.scene), r))
     if args.json:
-        write_json(args.json, r)
+        write_json(args.json, r, force=args.force)
     return 0
 
 

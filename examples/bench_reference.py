@@ -264,7 +264,8 @@ def main():
         a.legend()
     fig.suptitle(f"bunny, {args.material} (NPF->MERL), {args.probe}, {w}x{h}; G-buffer {gbuffer_ms:.0f} ms")
     fig.tight_layout()
-    with staged_outputs([*previews, json_path, plot_path]) as at:   # all, or none: an error leaves the old set
+    # all, or none: an error leaves the old set; --check-only rewrites the earlier run's own outputs
+    with staged_outputs([*previews, json_path, plot_path], force=args.force or args.check_only) as at:
         for path, image in previews.items():
             write_png(at[path], image)
         at[json_path].write_text(json.dumps(record, indent=2) + "\n")

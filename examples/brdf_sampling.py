@@ -84,7 +84,7 @@ def main():
               f"peak pdf {p.max():.3g} /sr, peak f cos_i {f.max():.3g}")
     fig.suptitle(f"{mat.name} (NPF), log10 scale, projected hemisphere")
     fig.tight_layout()
-    with staged_outputs([out_png]) as at:   # whole or not at all: a failed save leaves the old figure
+    with staged_outputs([out_png], force=args.force) as at:   # whole or not at all: a failed save leaves the old figure
         fig.savefig(at[out_png], dpi=100)
     print(f"wrote {out_png}")
 

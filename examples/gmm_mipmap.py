@@ -143,7 +143,7 @@ def main(argv=None) -> int:
                  "mixture (sqrt density over the projected normal disk)", fontsize=10)
     fig.tight_layout()
     out = Path(args.output)
-    with staged_outputs([out]) as at:   # whole or not at all: a failed save leaves the old figure
+    with staged_outputs([out], force=args.force) as at:   # whole or not at all: a failed save leaves the old figure
         fig.savefig(at[out], dpi=100)
     print(f"wrote {args.output}")
     return 0

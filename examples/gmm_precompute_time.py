@@ -44,7 +44,7 @@ def main(argv=None) -> int:
         print(f"{name:22s} {args.size}x{args.size}, {args.components} components, {len(mip.levels)} levels: "
               f"{times[name]:6.1f} s")
     if args.json:
-        write_json(args.json, {"size": args.size, "components": args.components, "time_s": times})
+        write_json(args.json, {"size": args.size, "components": args.components, "time_s": times}, force=args.force)
     return 0
 
 

@@ -78,7 +78,7 @@ def write_scenes(out_dir: Path, probe: Path, alpha: float, resolutions: list, fo
         check_output_file(p, "--write-scene", force)
     for r in resolutions:   # a scene the loader would refuse is not written (the render path parses it the same way)
         mirror_scene(probe, alpha, r)
-    with staged_outputs(paths) as at:   # every scene, or none: an error leaves the old ones
+    with staged_outputs(paths, force=force) as at:   # every scene, or none: an error leaves the old ones
         for p, r in zip(paths, resolutions):
             at[p].write_text(mirror_scene_text(probe.resolve(), alpha, r))
     for p in paths:
@@ -250,7 +250,7 @@ def main(argv=None) -> int:
         out = {"probe": str(probe), "alpha": args.alpha, "budget": args.budget, "truth_spp": args.truth_spp,
                "seed": args.seed, "clamp_quantile": args.clamp_quantile, "env_signal": args.env_signal,
                "nu_a_quantiles": {k: dict(zip(map(str, NU_A_QUANTILES), v)) for k, v in nu_q.items()}, "rows": rows}
-        write_json(args.json, out)
+        write_json(args.json, out, force=args.force)
     return 0
 
 

@@ -40,7 +40,9 @@ def write_asset(path, fmt: str, version: int, source: str, source_hash: str, arr
     p = check_replaceable(path, force, inputs)
     header = {"format": fmt, "version": int(version), "source": source, "source_hash": source_hash,
               "params": params or {}, "writer": f"warpbw {__version__}"}
-    with staged_outputs([p]) as tmp:   # a temporary of its own, moved into place: never a cut-off or mixed file
+    # a temporary of its own, moved into place: never a cut-off or mixed file; with force (caches, which two runs may
+    # write at once, and --force) a file that appeared meanwhile is replaced
+    with staged_outputs([p], force=force) as tmp:
         with open(tmp[p], "wb") as f:
             np.savez_compressed(f, **{HEADER_KEY: np.array(json.dumps(header))}, **arrays)
     return p

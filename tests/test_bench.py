@@ -346,6 +346,35 @@ def test_a_scene_with_nothing_to_measure_is_a_clear_error(tmp_path, monkeypatch)
                         cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **kw: None)
 
 
+def test_a_ground_truth_chunk_that_cannot_be_cached_is_used_and_said(tmp_path, monkeypatch):
+    """A chunk's cache name taken by a folder (or a full disk) stopped the bench with "cannot write" after the chunk
+    was rendered, and minutes of rendering were lost.  Now it warns, naming the file, and the bench goes on with the
+    chunk it holds; the other chunk is cached."""
+    from warpbw import pipeline
+    from warpbw.scene import parse_scene
+
+    cov = np.zeros((24, 24), bool)
+    cov[8:16, 8:16] = True
+    rng = np.random.default_rng(0)
+
+    def noisy(*a, **kw):
+        return rng.random((24, 24, 3)).astype(np.float32) * cov[..., None]
+
+    monkeypatch.setattr(pipeline, "render_reference", lambda prep, spp, seed=0, mis=False, **kw: SimpleNamespace(
+        image=noisy(), coverage=cov, stats={"time_s": {"shading": 0.01, "gbuffer": 0.001}}))
+    monkeypatch.setattr(pipeline, "render_adaptive", lambda prep, budget, seed=0, mis=False, **kw:
+                        _fake_adaptive_result(noisy(), cov, 0.01, budget))
+    scene = parse_scene(SCENE, tmp_path, "s.toml")
+    chunk, n = bench.ground_truth_chunks(128)
+    taken = tmp_path / "gt" / f"ground_truth-{bench.gt_key(scene, bench.GT_SEED)}-chunk1-{chunk}spp.exr"
+    taken.mkdir(parents=True)
+    with pytest.warns(UserWarning, match=f"ground truth not cached \\({taken}: cannot write"):
+        rec = bench.run_bench(scene, spp_list=(1, 4), budgets=(1,), gt_spp=128, runs=1, cache_dir=tmp_path / "gt",
+                              progress=False, log=lambda *a, **kw: None)
+    assert n == 2 and rec["ground_truth_spp"] == 128 and taken.is_dir()
+    assert (taken.parent / taken.name.replace("chunk1", "chunk0")).is_file()
+
+
 def test_ground_truth_chunks_of_another_seed_or_version_are_never_read(tmp_path, monkeypatch):
     """Chunks were cached under the scene's hash alone: another seed's chunks, an older estimator's (a chunk under
     the old name, here a plain 1e3 image) and the current ones were all read as this ground truth, silently.  Now
@@ -1064,7 +1093,8 @@ def test_bench_warns_of_fewer_runs_than_the_protocols_three(tmp_path, capsys, ru
     """bench warns of fewer runs than DESIGN.md's protocol times (the median of at least 3 runs); 3 is enough."""
     from warpbw.cli import _write_bench
 
-    args = SimpleNamespace(json=str(tmp_path / "r.json"), plot=str(tmp_path / "r.png"), quiet=True, runs=runs)
+    args = SimpleNamespace(json=str(tmp_path / "r.json"), plot=str(tmp_path / "r.png"), quiet=True, runs=runs,
+                           force=False)
     _write_bench(args, {"x": 1}, lambda rec, path: Path(path).write_bytes(b"png"))
     assert ("--runs" in capsys.readouterr().err) == warns
 

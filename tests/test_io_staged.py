@@ -40,7 +40,7 @@ def test_an_os_error_names_the_output(tmp_path):
     with pytest.raises(WarpbwError, match=r"out\.png: cannot write \(No space left on device\)$") as e:
         with staged_outputs([out]) as at:
             raise OSError(28, "No space left on device", str(at[out]))
-    assert ".part" not in str(e.value) and not out.exists() and _leftovers(out.parent) == []
+    assert ".part" not in str(e.value) and not out.exists() and not out.parent.exists()   # the folder it made: gone
 
 
 def test_all_outputs_appear_together_with_the_mode_of_a_new_file(tmp_path):
@@ -186,12 +186,58 @@ def test_write_merl_refuses_a_read_only_file_and_its_inputs_even_with_force(tmp_
 
 
 def test_two_writers_of_one_output_get_temporaries_of_their_own(tmp_path):
+    """Each writer has its own temporary.  Of two runs writing one new output without --force, the first to finish
+    writes it and the second is refused, naming it (both had passed the check before their work; the second
+    replaced the first's file); with force (--force, a cache's writers) both write it, the last to finish winning
+    whole."""
     out = tmp_path / "same.npz"
-    with staged_outputs([out]) as first, staged_outputs([out]) as second:
-        assert first[out] != second[out]
-        first[out].write_text("chrome")
-        second[out].write_text("gold")
-    assert out.read_text() == "chrome" and _leftovers(tmp_path) == []   # the last to finish wins, whole
+    with pytest.raises(WarpbwError, match="same.npz: already exists: it appeared while this run worked"):
+        with staged_outputs([out], force=False) as first, staged_outputs([out], force=False) as second:
+            assert first[out] != second[out]
+            first[out].write_text("chrome")
+            second[out].write_text("gold")
+    assert out.read_text() == "gold" and _leftovers(tmp_path) == []
+    cache = tmp_path / "cache.npz"
+    with staged_outputs([cache]) as first, staged_outputs([cache]) as second:
+        first[cache].write_text("chrome")
+        second[cache].write_text("gold")
+    assert cache.read_text() == "chrome" and _leftovers(tmp_path) == []
+
+
+def test_an_output_that_appears_during_the_run_is_kept_and_no_output_moved(tmp_path):
+    """The user writes out.json while a render runs (no --force): it was replaced by the render's record.  Now it is
+    kept, and the run's other outputs are not moved either (all or none); with --force it is replaced, and a
+    dangling link that appears counts as taken."""
+    img, rec = tmp_path / "out.exr", tmp_path / "out.json"
+    with pytest.raises(WarpbwError, match=r"out\.json: already exists: .*\(pass --force to overwrite it\)$"):
+        with staged_outputs([img, rec], force=False) as at:
+            at[img].write_text("image")
+            at[rec].write_text("record")
+            rec.write_text("USER NOTES")
+    assert rec.read_text() == "USER NOTES" and not img.exists() and _leftovers(tmp_path) == []
+    with staged_outputs([img, rec], force=True) as at:
+        at[img].write_text("image")
+        at[rec].write_text("record")
+    assert rec.read_text() == "record" and img.read_text() == "image"
+    link = tmp_path / "link.exr"
+    with pytest.raises(WarpbwError, match="link.exr: already exists"):
+        with staged_outputs([link], force=False) as at:
+            at[link].write_text("image")
+            link.symlink_to(tmp_path / "nowhere")
+    assert link.is_symlink() and not link.exists()
+
+
+def test_a_failed_run_removes_the_folders_it_made_and_no_other(tmp_path):
+    """``-o new/sub/a.exr`` on a full disk left new/ and new/sub/ behind, empty.  A folder that was there stays, and
+    so does one the run made in which someone else put a file meanwhile."""
+    (tmp_path / "had").mkdir()
+    outs = [tmp_path / "new" / "sub" / "a.exr", tmp_path / "had" / "b.png", tmp_path / "other" / "c.json"]
+    with pytest.raises(WarpbwError, match="a.exr: cannot write"):
+        with staged_outputs(outs) as at:
+            (tmp_path / "other" / "theirs.txt").write_text("not ours")
+            raise OSError(28, "No space left on device", str(at[outs[0]]))
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["had", "other"]
+    assert [q.name for q in (tmp_path / "other").iterdir()] == ["theirs.txt"] and not any((tmp_path / "had").iterdir())
 
 
 def test_write_asset_does_not_follow_a_link_planted_at_a_temporary_name(tmp_path):
@@ -296,11 +342,12 @@ sys.exit(run_command("warpbw", write_then_wait, None))
 
 
 @pytest.mark.parametrize("sig, status, said", [("SIGTERM", 143, "warpbw: terminated"),
-                                               ("SIGINT", 130, "warpbw: interrupted")])
+                                               ("SIGINT", 130, "warpbw: interrupted"),
+                                               ("SIGHUP", 129, "warpbw: hung up")])
 def test_a_command_stopped_by_a_signal_leaves_its_outputs_and_no_temporary(tmp_path, sig, status, said):
-    """SIGTERM (kill, timeout, a batch scheduler) ended the process where it stood and left every output's hidden
-    .part temporary behind; now it unwinds as Ctrl-C does: the old outputs stay, the temporaries go, and the status
-    is the shell's for the signal."""
+    """SIGTERM (kill, timeout, a batch scheduler) and SIGHUP (a closed terminal, a dropped ssh session) ended the
+    process where it stood and left every output's hidden .part temporary behind; now they unwind as Ctrl-C does: the
+    old outputs stay, the temporaries go, and the status is the shell's for the signal."""
     import signal
     import subprocess
 
@@ -311,7 +358,8 @@ def test_a_command_stopped_by_a_signal_leaves_its_outputs_and_no_temporary(tmp_p
     # the child gets the default back, as a terminal's Ctrl-C would find it (a CI run under nohup read status 0)
     child = subprocess.Popen([sys.executable, "-c", _STOPPED_WRITER, str(out)], stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True,
-                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                             preexec_fn=lambda: [signal.signal(signal.SIGINT, signal.SIG_DFL),
+                                                 signal.signal(signal.SIGHUP, signal.SIG_DFL)])   # nohup: ignored
     try:
         assert child.stdout.readline() == "written\n"
         assert len(_leftovers(out)) == 2                      # the temporaries are there while it writes
@@ -437,6 +485,55 @@ def test_run_command_keeps_sigterm_ignored_where_the_caller_ignores_it():
         assert signal.getsignal(signal.SIGTERM) is signal.SIG_IGN
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def test_a_stop_that_lands_in_a_destructor_is_not_reported_as_an_exception(monkeypatch):
+    """Ctrl-C right after the outputs were moved into place landed in a Warp array's destructor as the command's
+    locals went: "Exception ignored in ... KeyboardInterrupt" and a traceback, after a run that succeeded.  Such
+    reports are left out while a command runs; another exception in a destructor is still reported."""
+    from warpbw.cli_common import run_command
+
+    class Freed:
+        def __init__(self, exc):
+            self.exc = exc
+
+        def __del__(self):
+            raise self.exc
+
+    def command(args):
+        Freed(KeyboardInterrupt())   # dropped at once: its destructor raises
+        Freed(ValueError("a real defect"))
+        return 0
+
+    reported = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: reported.append(type(u.exc_value).__name__))
+    assert run_command("warpbw", command, None) == 0
+    assert reported == ["ValueError"]
+    Freed(KeyboardInterrupt())   # outside a command: reported as Python does
+    assert reported == ["ValueError", "KeyboardInterrupt"]
+
+
+def test_the_console_scripts_answer_a_ctrl_c_during_their_imports_with_one_line(monkeypatch, capsys):
+    """Ctrl-C in the first tenth of a second (numpy and Warp importing) printed a traceback of the import it
+    stopped.  The entry points answer it with one line and status 130, and once the command returns ignore the stops
+    while the interpreter shuts down (a late Ctrl-C printed a traceback from the thread pool's exit)."""
+    import importlib
+    import signal
+
+    from warpbw import entry
+
+    def stopped(name):
+        raise KeyboardInterrupt
+
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        monkeypatch.setattr(importlib, "import_module", stopped)
+        assert entry.warpbw() == 130 and entry.warpbw_precompute() == 130
+        assert capsys.readouterr().err.splitlines() == ["warpbw: interrupted", "warpbw-precompute: interrupted"]
+        assert all(signal.getsignal(sig) is signal.SIG_IGN for sig in saved)
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
 
 
 def test_an_output_named_twice_is_written_once_and_leaves_no_temporary(tmp_path):

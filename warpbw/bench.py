@@ -59,6 +59,7 @@ import itertools
 import math
 import statistics
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -140,8 +141,12 @@ def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = GT_SEED, progre
         img = render_reference(prep, spp=chunk, seed=seed + k * GT_SEED_STEP, mis=True, progress=progress,
                                clip_distance=clip_distance).image
         t_gt += time.perf_counter() - t0
-        with staged_outputs([path]) as tmp:   # an interrupted run leaves no cut-off chunk
-            write_exr(tmp[path], img)
+        try:   # an interrupted run leaves no cut-off chunk; two benches of one scene at once both write it
+            with staged_outputs([path]) as tmp:   # force: a cache
+                write_exr(tmp[path], img)
+        except WarpbwError as exc:   # a full disk, a name taken by a folder: the chunk rendered is not lost
+            warnings.warn(f"ground truth not cached ({exc}); this bench goes on, and the next renders it again",
+                          stacklevel=2)
         imgs.append(img)
     return GroundTruth(np.mean(imgs, axis=0), np.mean(imgs[: n // 2], axis=0), n * chunk, n, t_gt, key)
 

@@ -161,7 +161,7 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
         res = render_reference(scene, spp=spp, seed=seed, mis=mis, device=device, progress=not quiet,
                                threads=threads)
     res.stats["time_s"]["total"] = round(time.perf_counter() - t0, 6)
-    with staged_outputs(paths) as at:   # all of them, or none: an error leaves the old set
+    with staged_outputs(paths, force=force) as at:   # all of them, or none: an error leaves the old set
         if adaptive:   # first, so that the stats JSON records their colour scales
             res.stats["colour_scales"] = _write_aovs(res, out, at)
         _write_render(res, outs, exposure, at)
@@ -227,7 +227,7 @@ def _render_filtering_cli(scene, args) -> int:
     res = render_filtering(scene, method, spp=args.spp, seed=args.seed, device=args.device,
                            progress=not args.quiet, threads=args.threads, env_spp=args.spp, **aniso)
     res.stats["time_s"] = {"frame": round(res.time_s, 6), "total": round(time.perf_counter() - t0, 6)}
-    with staged_outputs(list(outs.values()) + level_paths) as at:
+    with staged_outputs(list(outs.values()) + level_paths, force=args.force) as at:
         res.stats["colour_scales"] = {"level": _write_map(at, *level_paths, res.level, res.coverage)}
         _write_render(res, outs, args.exposure, at)
     _warn_if_empty(res.stats)
@@ -264,7 +264,7 @@ def _render_mixed_cli(scene, args) -> int:
                              mis=args.mis, n_b=args.nb, device=args.device, progress=not args.quiet,
                              threads=args.threads, max_anisotropy=args.max_anisotropy, **_adaptive_options(args))
     res.stats["time_s"]["total"] = round(time.perf_counter() - t0, 6)
-    with staged_outputs(paths) as at:
+    with staged_outputs(paths, force=args.force) as at:
         scales = _write_aovs(res, out, at) if adaptive else {}
         scales["mip_level"] = _write_map(at, *mip_paths, res.aovs["mip_level"], res.aovs["plane"])
         res.stats["colour_scales"] = scales
@@ -448,7 +448,7 @@ def cmd_compare(args) -> int:
     # whose A channel said which pixels count; None: the non-black pixels
     r["coverage_from"] = {"reference": str(args.reference), "test": str(args.test)}.get(coverage_from)
     if maps:
-        with staged_outputs(maps) as at:
+        with staged_outputs(maps, force=args.force) as at:
             lo, hi = _write_error_map([at[m] for m in maps], relmse_map(ta, tb, mask), mask, args.error_range)
         r.update(error_map=str(maps[0]), error_range=[lo, hi])
     p = r["psnr_db"]
@@ -602,7 +602,7 @@ def _write_bench(args, record: dict, write_plot) -> None:
     """The bench record as JSON and its plot as PNG (both: ``_bench_outputs`` names them), both or neither: a plot
     that fails leaves an earlier record as it was."""
     json_path, plot_path = Path(args.json), Path(args.plot)
-    with staged_outputs([json_path, plot_path]) as at:
+    with staged_outputs([json_path, plot_path], force=args.force) as at:
         at[json_path].write_text(json_text(record))
         write_plot(record, at[plot_path])
     if not args.quiet:

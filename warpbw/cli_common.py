@@ -7,7 +7,7 @@ option, force)`` and ``check_output_dir(path, option)`` (an output path that can
 any work), ``check_overwrite(paths, force, option, inputs)`` (several outputs at once, and --force; never one of
 the command's inputs), ``init_warp(device) -> warp`` (Warp initialised without its banner or its no-CUDA-driver
 line, the device checked), ``json_text(record) -> str`` (strict JSON, a non-finite float as null) and
-``write_json(path, record, say=True)`` (that, written where asked, and said so).
+``write_json(path, record, say=True, force=True)`` (that, written where asked, and said so).
 """
 from __future__ import annotations
 
@@ -117,41 +117,72 @@ def check_output_dir(path, option: str) -> None:
 WARP_ALLOCATION_FAILED = "Failed to allocate"
 
 
+# The stops that end a run as Ctrl-C does, with their one line: ``kill``, ``timeout``, a batch scheduler's stop; a
+# closed terminal or a dropped ssh session (SIGHUP ended the process where it stood and left its temporaries)
+STOP_SIGNALS = {name: word for name, word in (("SIGTERM", "terminated"), ("SIGHUP", "hung up"))
+                if hasattr(signal, name)}
+
+
 class _Terminated(BaseException):
-    """SIGTERM, raised where the run is (a BaseException, as KeyboardInterrupt is: no ``except Exception`` takes it)."""
+    """A stop of ``STOP_SIGNALS``, raised where the run is (a BaseException, as KeyboardInterrupt is: no ``except
+    Exception`` takes it); ``signum`` says which."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
 
 
 @contextmanager
 def _sigterm_raises():
-    """While the block runs, SIGTERM (``kill``, ``timeout``, a batch scheduler's stop) raises ``_Terminated``, so
-    that the run unwinds as on Ctrl-C and its staged outputs' temporary files are removed (by default SIGTERM ends
-    the process where it stands and leaves them).  Python handles a signal between bytecodes: one that arrives
-    during a kernel launch acts when the launch returns.  Not in a thread other than the main one (Python sets
-    handlers there only), nor where SIGTERM is ignored (the caller's choice)."""
-    if threading.current_thread() is not threading.main_thread() \
-            or signal.getsignal(signal.SIGTERM) is signal.SIG_IGN:
+    """While the block runs, SIGTERM and SIGHUP (``STOP_SIGNALS``) raise ``_Terminated``, so that the run unwinds as
+    on Ctrl-C and its staged outputs' temporary files are removed (by default they end the process where it stands
+    and leave them).  Python handles a signal between bytecodes: one that arrives during a kernel launch acts when
+    the launch returns.  Not in a thread other than the main one (Python sets handlers there only), nor for a signal
+    that is ignored (the caller's choice: ``nohup`` ignores SIGHUP)."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
 
-    def on_sigterm(signum, frame):
-        raise _Terminated
+    def on_stop(signum, frame):
+        raise _Terminated(signum)
 
-    previous = signal.signal(signal.SIGTERM, on_sigterm)
+    sigs = [getattr(signal, n) for n in STOP_SIGNALS]
+    previous = {sig: signal.signal(sig, on_stop) for sig in sigs if signal.getsignal(sig) is not signal.SIG_IGN}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+@contextmanager
+def _stops_in_destructors_unsaid():
+    """A Ctrl-C or stop that lands in a destructor (a Warp array freed as the command's locals go, right after its
+    outputs were moved into place) cannot unwind the run: Python reports it as "Exception ignored in ...
+    KeyboardInterrupt" with a traceback and goes on.  While the block runs, such a report is left out; any other
+    exception in a destructor is reported as before."""
+    previous = sys.unraisablehook
+
+    def hook(unraisable):
+        if not isinstance(unraisable.exc_value, (KeyboardInterrupt, _Terminated)):
+            previous(unraisable)
+
+    sys.unraisablehook = hook
+    try:
+        yield
+    finally:
+        sys.unraisablehook = previous
 
 
 def run_command(prog: str, func, args) -> int:
-    """Run a subcommand; user errors and warnings print as one line each (``PROG: error: ...``).  Ctrl-C and
-    SIGTERM stop it with one line and the shell's status for the signal, its outputs untouched."""
+    """Run a subcommand; user errors and warnings print as one line each (``PROG: error: ...``).  Ctrl-C, SIGTERM
+    and SIGHUP stop it with one line and the shell's status for the signal, its outputs untouched."""
 
     def show_warning(message, category, filename, lineno, file=None, line=None):
         # warnings (an environment with clamped pixels, unmeasured MERL entries...) as one line each
         print(f"{prog}: warning: {message}", file=sys.stderr if file is None else file)
 
-    with warnings.catch_warnings(), _sigterm_raises():
+    with warnings.catch_warnings(), _sigterm_raises(), _stops_in_destructors_unsaid():
         warnings.showwarning = show_warning
         try:
             status = func(args)
@@ -168,9 +199,12 @@ def run_command(prog: str, func, args) -> int:
         except KeyboardInterrupt:
             print(f"{prog}: interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
-        except _Terminated:
-            print(f"{prog}: terminated", file=sys.stderr)
-            return EXIT_TERMINATED
+        except _Terminated as stop:
+            try:   # after a hang-up the terminal may be gone
+                print(f"{prog}: {STOP_SIGNALS[signal.Signals(stop.signum).name]}", file=sys.stderr)
+            except OSError:
+                pass
+            return 128 + stop.signum   # the shell's status for the signal: EXIT_TERMINATED for SIGTERM
         except (OSError, MemoryError) as exc:
             print(f"{prog}: error: {exc}", file=sys.stderr)
             return EXIT_USER_ERROR
@@ -228,10 +262,11 @@ def json_text(record: dict, **kw) -> str:
     return json.dumps(clean(record), indent=2, allow_nan=False, **kw) + "\n"
 
 
-def write_json(path, record: dict, say: bool = True) -> Path:
-    """Write ``record`` to ``path`` as :func:`json_text` (its folder made if needed); with ``say``, print where."""
+def write_json(path, record: dict, say: bool = True, force: bool = True) -> Path:
+    """Write ``record`` to ``path`` as :func:`json_text` (its folder made if needed); with ``say``, print where.  Without
+    ``force`` (the caller refused an existing ``path`` before its work) a file that appeared there meanwhile is kept."""
     p = Path(path)
-    with staged_outputs([p]) as at:   # whole or not at all (a full disk leaves the old record)
+    with staged_outputs([p], force=force) as at:   # whole or not at all (a full disk leaves the old record)
         at[p].write_text(json_text(record))
     if say:
         print(f"wrote {p}")

@@ -299,7 +299,7 @@ def write_merl(path, data, force: bool = False, inputs=()) -> Path:
     scale = np.asarray(MERL_SCALE, dtype=np.float64)
     values = np.ascontiguousarray(np.moveaxis(arr / scale, -1, 0), dtype="<f8")
     header = np.asarray([MERL_THETA_H_RES, MERL_THETA_D_RES, MERL_PHI_D_RES], dtype="<i4")
-    with staged_outputs([path]) as tmp:   # appears whole (temporary + rename)
+    with staged_outputs([path], force=force) as tmp:   # appears whole (temporary + rename)
         with open(tmp[path], "wb") as fh:
             fh.write(header.tobytes())
             fh.write(values.tobytes())

@@ -1,6 +1,6 @@
 """Output files that appear whole, or not at all.
 
-Public: ``staged_outputs(paths)``; ``check_replaceable(path, force, inputs=(), inputs_are=...) -> Path`` (what every
+Public: ``staged_outputs(paths, force=True)``; ``check_replaceable(path, force, inputs=(), inputs_are=...) -> Path`` (what every
 writer that takes ``force`` checks before its work), ``input_clash(path, inputs, inputs_are=...) -> str | None``,
 ``output_exists(path)``, ``check_existing_output(path, force, label)``, ``check_name_length(path, label)`` and
 ``check_not_read_only(path, label)`` (its parts the command lines share).
@@ -16,7 +16,11 @@ output, and the outputs of one command are moved into place together once all of
 * an existing output is replaced, never written through: a hard link to it, or a symlink at its place, keeps
   the file it pointed at (``--force`` once rewrote a light probe hard-linked to ``-o``);
 * two runs that write the same output at once do not write into one temporary file: each has its own
-  (``mkstemp``, created exclusively, never through a link), and the last to finish wins whole.
+  (``mkstemp``, created exclusively, never through a link).  Without ``force``, an output that is there when the
+  outputs are moved appeared while the run worked (the check before the work found none: another run finished
+  first, or the user wrote it meanwhile): it is kept, and the run refused, no output of it moved.  With ``force``
+  (``--force``, and caches, which two runs may write at once) the last to finish wins whole;
+* a failed run removes the folders it made for its outputs (``-o new/sub/a.exr`` on a full disk left new/sub).
 
 Before any work, :func:`check_replaceable` refuses an output that exists without ``force``, and whatever ``force``
 says, one that is a file the writer reads (``npf_to_merl(T, m, T, force=True)`` replaced the NPF table it read) or
@@ -256,26 +260,77 @@ def _signals_held():
             signal.raise_signal(sig)
 
 
+def _appeared(p: Path) -> WarpbwError:
+    return WarpbwError(f"{p}: already exists: it appeared while this run worked (another run writing it, or you), "
+                       "and is kept; nothing of this run was written (pass --force to overwrite it)")
+
+
+def _move_new(tmp: Path, p: Path) -> None:
+    """Move ``tmp`` to the name ``p``, which must stay free: a hard link made only where no file (or link) is, then
+    the temporary's name removed; ``FileExistsError`` when the name was taken.  Where the file system makes no hard
+    links, a check and a rename (the race is then back, for microseconds)."""
+    try:
+        os.link(tmp, p, follow_symlinks=False)
+    except FileExistsError:
+        raise
+    except OSError:   # no hard links here (FAT, some network file systems)
+        if output_exists(p):
+            raise FileExistsError(p) from None
+        os.replace(tmp, p)
+        return
+    tmp.unlink()
+
+
+def _missing_folders(folder: Path) -> list:
+    """The folders on the way to ``folder`` (itself included) that do not exist, deepest first."""
+    missing = []
+    for q in (folder, *folder.parents):
+        if _is_dir(q) or q.exists():
+            break
+        missing.append(q)
+    return missing
+
+
 @contextmanager
-def staged_outputs(paths):
+def staged_outputs(paths, force: bool = True):
     """Yield ``{output: temporary}`` for ``paths``; write each output to its temporary.  When the block ends
     without an error every temporary is moved onto its output (``os.replace``); on an error they are removed,
     no output is touched, and a ``WarpbwError`` or ``OSError`` raised in the block names the outputs, not the
-    temporaries.  Missing folders are made."""
+    temporaries.  Missing folders are made, and removed again when nothing was moved into them.  Without ``force``
+    (the caller refused existing outputs before its work) an output that is there at the moves appeared meanwhile:
+    it is refused (``_appeared``), and nothing moved; each move then takes a name that is free, or fails."""
     outs = list(dict.fromkeys(Path(p) for p in paths))
     temps: dict = {}
+    made: list = []
     try:
         mode = _new_file_mode()
         for p in outs:
             try:
+                missing = _missing_folders(p.parent)
                 p.parent.mkdir(parents=True, exist_ok=True)
+                made.extend(q for q in missing if q not in made)
                 _remove_stale_temps(p)
                 temps[p] = _temp_beside(p, mode)
             except OSError as exc:   # its folder under a file, or not writable: name the output
                 raise WarpbwError(f"{p}: cannot write ({exc.strerror or exc})") from None
+        force = check_flag(force, "force")
+        new = set() if force else set(outs)
         yield dict(temps)
         with _signals_held():   # a Ctrl-C between two moves left a new image beside an old record
-            for p in outs:
+            taken = next((p for p in outs if p in new and output_exists(p)), None)
+            if taken is not None:
+                raise _appeared(taken)
+            linked = []
+            for p in [q for q in outs if q in new]:   # first the names that must stay free: undone if one is taken
+                try:
+                    _move_new(temps[p], p)
+                except FileExistsError:
+                    for q in linked:
+                        q.unlink(missing_ok=True)
+                    raise _appeared(p) from None
+                linked.append(p)
+                del temps[p]
+            for p in [q for q in outs if q not in new]:
                 os.replace(temps[p], p)
                 del temps[p]
     except WarpbwError as exc:
@@ -287,3 +342,8 @@ def staged_outputs(paths):
     finally:
         for tmp in temps.values():   # those not moved into place
             tmp.unlink(missing_ok=True)
+        for q in sorted(made, key=lambda q: len(q.parts), reverse=True):   # those left empty: a failed run's
+            try:
+                q.rmdir()
+            except OSError:   # holds an output, or a file someone else put there meanwhile
+                pass
