@@ -1,8 +1,8 @@
 """Output files that appear whole, or not at all.
 
-Public: ``staged_outputs(paths, force=True)``; ``check_replaceable(path, force, inputs=(), inputs_are=...) -> Path`` (what every
-writer that takes ``force`` checks before its work), ``input_clash(path, inputs, inputs_are=...) -> str | None``,
-``output_exists(path)``, ``check_existing_output(path, force, label)``, ``check_name_length(path, label)`` and
+Public: ``staged_outputs(paths, force=True)``; ``check_replaceable(path, force, inputs=(), inputs_are=...) -> Path``
+(what every writer that takes ``force`` checks before its work), ``input_clash(path, inputs, inputs_are=...) ->
+str | None``, ``output_exists(path)``, ``check_existing_output(path, force, label)``, ``check_name_length(path, label)`` and
 ``check_not_read_only(path, label)`` (its parts the command lines share).
 
 Every writer of warpbw (images, records, plots, asset and cache files) writes to a temporary file beside its
@@ -300,6 +300,7 @@ def staged_outputs(paths, force: bool = True):
     (the caller refused existing outputs before its work) an output that is there at the moves appeared meanwhile:
     it is refused (``_appeared``), and nothing moved; each move then takes a name that is free, or fails."""
     outs = list(dict.fromkeys(Path(p) for p in paths))
+    move = os.replace if check_flag(force, "force") else _move_new
     temps: dict = {}
     made: list = []
     try:
@@ -313,25 +314,17 @@ def staged_outputs(paths, force: bool = True):
                 temps[p] = _temp_beside(p, mode)
             except OSError as exc:   # its folder under a file, or not writable: name the output
                 raise WarpbwError(f"{p}: cannot write ({exc.strerror or exc})") from None
-        force = check_flag(force, "force")
-        new = set() if force else set(outs)
         yield dict(temps)
         with _signals_held():   # a Ctrl-C between two moves left a new image beside an old record
-            taken = next((p for p in outs if p in new and output_exists(p)), None)
-            if taken is not None:
-                raise _appeared(taken)
-            linked = []
-            for p in [q for q in outs if q in new]:   # first the names that must stay free: undone if one is taken
+            moved = []
+            for p in outs:
                 try:
-                    _move_new(temps[p], p)
-                except FileExistsError:
-                    for q in linked:
+                    move(temps[p], p)
+                except FileExistsError:   # without force: the name was taken meanwhile; the new names made go
+                    for q in moved:
                         q.unlink(missing_ok=True)
                     raise _appeared(p) from None
-                linked.append(p)
-                del temps[p]
-            for p in [q for q in outs if q not in new]:
-                os.replace(temps[p], p)
+                moved.append(p)
                 del temps[p]
     except WarpbwError as exc:
         raise WarpbwError(_named(exc, temps)) from None
