@@ -2,8 +2,8 @@
 
 Public: ``staged_outputs(paths, force=True)``; ``check_replaceable(path, force, inputs=(), inputs_are=...) -> Path``
 (what every writer that takes ``force`` checks before its work), ``input_clash(path, inputs, inputs_are=...) ->
-str | None``, ``output_exists(path)``, ``check_existing_output(path, force, label)``, ``check_name_length(path, label)`` and
-``check_not_read_only(path, label)`` (its parts the command lines share).
+str | None``, ``output_exists(path)``, ``check_existing_output(path, force, label)``, ``check_name_length(path,
+label)`` and ``check_not_read_only(path, label)`` (its parts the command lines share).
 
 Every writer of warpbw (images, records, plots, asset and cache files) writes to a temporary file beside its
 output, and the outputs of one command are moved into place together once all of them are written.  So
