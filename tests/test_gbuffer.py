@@ -7,6 +7,7 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 from conftest import grid_mesh, load_example, numpy_camera_rays, numpy_sphere_distance
 
 from warpbw.errors import COORD_SPACING_REL_MAX, WarpbwError
@@ -803,3 +804,121 @@ def test_a_sphere_whose_far_side_crosses_into_coarser_float32_spacing_is_refused
                 render_gbuffer(cam, geo)
         else:
             assert render_gbuffer(cam, geo).coverage.any()
+
+
+# ------------------------------------------------------------------------------------------ properties (hypothesis)
+# Property-based tests of the G-buffer pass on an analytic sphere (warpbw.gbuffer) for random cameras (position,
+# target, field of view, image size taller or wider than high) and spheres: the buffers agree with a float64
+# ray-sphere intersection written here from the documented camera model, and a rigid translation of camera and
+# sphere together moves only the positions.
+
+
+def reference_rays(position, look_at, fov_deg, w, h):
+    """Unit rays (H*W, 3) through pixel centres, from the docstring's camera: forward towards look_at,
+    right = forward x (+Y), up = right x forward, fov the full angle along the width, square pixels, row 0 on top."""
+    o = np.asarray(position, float)
+    fwd = np.asarray(look_at, float) - o
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    tx = math.tan(math.radians(fov_deg) / 2)
+    ty = tx * h / w
+    x, y = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    d = fwd + ((2 * x / w - 1) * tx)[..., None] * right + ((1 - 2 * y / h) * ty)[..., None] * up
+    return fwd, (d / np.linalg.norm(d, axis=-1, keepdims=True)).reshape(-1, 3)
+
+
+def sphere_hits(o, d, centre, radius):
+    """Nearer positive root t of |o + t d - c| = r per unit ray (float64), inf where the ray misses, and the
+    discriminant over r^2 (small near the limb, where float32 may decide either way)."""
+    oc = o - np.asarray(centre, float)
+    b = d @ oc
+    disc = b * b - (oc @ oc - radius * radius)
+    t = -b - np.sqrt(np.maximum(disc, 0.0))
+    return np.where((disc > 0) & (t > 0), t, np.inf), disc / radius ** 2
+
+
+cameras = dict(direction=st.tuples(st.floats(-math.pi, math.pi), st.floats(-1.3, 1.3)), distance=st.floats(1.5, 8.0),
+               centre=st.tuples(*[st.floats(-3.0, 3.0)] * 3), radius=st.floats(0.2, 2.0),
+               aim=st.tuples(*[st.floats(-0.5, 0.5)] * 3), fov=st.floats(15.0, 90.0),
+               w=st.integers(4, 32), h=st.integers(4, 32))
+
+
+def placement(direction, distance, centre, radius, aim):
+    """A camera outside the sphere, ``distance`` radii beyond its surface in the direction (azimuth, elevation),
+    aimed at the centre moved by ``aim`` radii."""
+    az, el = direction
+    v = np.array([math.cos(el) * math.sin(az), math.sin(el), math.cos(el) * math.cos(az)])
+    c = np.asarray(centre, float)
+    pos = c + (radius + distance * radius) * v
+    return pos, c + radius * np.asarray(aim, float)
+
+
+@settings(max_examples=40, deadline=None)
+@given(**cameras)
+def test_a_spheres_gbuffer_matches_the_analytic_ray_sphere_intersection(direction, distance, centre, radius, aim,
+                                                                       fov, w, h):
+    """For every pixel's centre ray o + t d: coverage where the ray meets the sphere (but within float32 of the
+    limb); there, position o + t d, depth t (d . forward) (camera-space z), the outward unit normal (p - c) / r
+    (the camera is outside), facing the camera (n . view > 0), view -d, curvature 1 / r and a unit tangent
+    perpendicular to the normal; elsewhere material -1 and depth 0."""
+    pos, target = placement(direction, distance, centre, radius, aim)
+    cam = make_camera(tuple(pos), tuple(target), (0.0, 1.0, 0.0), fov, w, h)
+    gb = render_gbuffer(cam, build_geometry([SphereSpec(tuple(centre), radius, 3)], []), threads=1)
+    fwd, d = reference_rays(pos, target, fov, w, h)
+    t, disc = sphere_hits(pos, d, centre, radius)
+    mat = gb.numpy("material").reshape(-1)
+    clear = np.abs(disc) > 1e-4            # rays not grazing the limb
+    hit = np.isfinite(t)
+    np.testing.assert_array_equal((mat == 3)[clear], hit[clear])
+    assert np.all((mat == 3) | (mat == -1))
+    on = hit & (mat == 3) & clear
+    scale = radius * (1.0 + distance) + 1.0          # lengths in this scene
+    p = pos + t[on, None] * d[on]
+    np.testing.assert_allclose(gb.numpy("position").reshape(-1, 3)[on], p, atol=2e-5 * scale + 1e-3 * radius)
+    np.testing.assert_allclose(gb.numpy("depth").reshape(-1)[on], t[on] * (d[on] @ fwd), rtol=1e-4,
+                               atol=1e-3 * radius)
+    n = gb.numpy("normal").reshape(-1, 3)[on].astype(np.float64)
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5)
+    np.testing.assert_allclose(n, (p - np.asarray(centre)) / radius, atol=2e-3)
+    view = gb.numpy("view").reshape(-1, 3)[on]
+    np.testing.assert_allclose(view, -d[on], atol=1e-5)
+    assert np.all(np.sum(n * view, axis=1) > -1e-4)
+    np.testing.assert_allclose(gb.numpy("curvature").reshape(-1)[on], 1.0 / radius, rtol=1e-5)
+    tan = gb.numpy("tangent").reshape(-1, 3)[on].astype(np.float64)
+    np.testing.assert_allclose(np.linalg.norm(tan, axis=1), 1.0, atol=1e-5)
+    assert np.all(np.abs(np.sum(tan * n, axis=1)) < 1e-4)
+    off = ~hit & clear
+    assert np.all(gb.numpy("depth").reshape(-1)[off] == 0.0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(shift=st.tuples(*[st.floats(-20.0, 20.0)] * 3), **cameras)
+def test_translating_camera_and_sphere_together_moves_only_the_positions(shift, direction, distance, centre, radius,
+                                                                         aim, fov, w, h):
+    """A rigid translation of the whole scene (camera, its target and the sphere) changes no ray direction and no
+    distance, so coverage, depth, normal, view, curvature and tangent stay, and positions move by the translation
+    (to float32 rounding of coordinates up to ~30 units)."""
+    pos, target = placement(direction, distance, centre, radius, aim)
+    s = np.asarray(shift, float)
+
+    def gbuffer(offset):
+        cam = make_camera(tuple(pos + offset), tuple(target + offset), (0.0, 1.0, 0.0), fov, w, h)
+        return render_gbuffer(cam, build_geometry([SphereSpec(tuple(np.asarray(centre) + offset), radius, 0)], []),
+                              threads=1)
+
+    a, b = gbuffer(np.zeros(3)), gbuffer(s)
+    _, d = reference_rays(pos, target, fov, w, h)
+    _, disc = sphere_hits(pos, d, centre, radius)
+    clear = np.abs(disc) > 1e-3            # float32 may decide grazing rays either way, differently after a shift
+    ma, mb = a.numpy("material").reshape(-1), b.numpy("material").reshape(-1)
+    np.testing.assert_array_equal(ma[clear], mb[clear])
+    on = clear & (ma >= 0) & (mb >= 0)
+    coord = 30.0 + np.abs(pos).max() + np.abs(s).max()
+    for name, atol in (("depth", 1e-5 * coord), ("normal", 1e-5 * coord / radius), ("view", 1e-5),
+                       ("curvature", 1e-5 / radius), ("tangent", 1e-5 * coord / radius)):
+        va, vb = a.numpy(name).reshape(len(ma), -1)[on], b.numpy(name).reshape(len(mb), -1)[on]
+        np.testing.assert_allclose(vb, va, atol=atol, err_msg=name)
+    np.testing.assert_allclose(b.numpy("position").reshape(-1, 3)[on], a.numpy("position").reshape(-1, 3)[on] + s,
+                               atol=1e-5 * coord)

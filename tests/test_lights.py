@@ -3,15 +3,22 @@ superposition with the environment (reference and adaptive), the adaptive method
 and the pipeline's stages."""
 from __future__ import annotations
 
+import functools
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from warpbw import bandwidth as bw
+from warpbw import brdf as B
 from warpbw.brdf import eval_brdf
+from warpbw.gbuffer import SphereSpec, build_geometry, make_camera, render_gbuffer
+from warpbw.lights import Lights, directional_struct
 from warpbw.pipeline import _gbuffer, prepare_bandwidth, prepare_scene, render_adaptive, render_reference
 from warpbw.scene import parse_scene
+from warpbw.shading import shade_reference
 
 SCENE = """
 [camera]
@@ -255,3 +262,92 @@ def test_a_frame_whose_light_overflows_the_shading_is_refused():
     assert np.isfinite(ok.image).all() and ok.image.max() > 1.0     # the highlight: f cos above 1
     with pytest.raises(WarpbwError, match="overflowed float32"):
         render_reference(lit(3e38), spp=1)
+
+
+# ------------------------------------------------------------------------------------------ properties (hypothesis)
+# Property-based tests of directional lights (warpbw.lights, shaded by warpbw.shading's reference kernel): for any
+# direction (of any length, above or below either sphere's horizon) and any RGB radiance, the exact term
+# E rho(l, wo) max(l . n, 0) of 002 Eq. 1 is linear in E channel by channel, zero wherever the light is below the
+# surface, the Lambert closed form, and the lights of a scene add.  One G-buffer (a Lambert and a GGX sphere) and one
+# compiled kernel serve every example: no environment, so no sample is taken.
+
+
+ALBEDO = np.array([0.8, 0.5, 0.2])
+W, H = 30, 22                       # wider than tall; the spheres side by side
+
+
+@functools.cache
+def two_spheres():
+    """The G-buffer (a Lambert and a GGX sphere), its material table, and per pixel the normal, the material and
+    whether it is covered; made on first use, not when the module is collected."""
+    cam = make_camera((0.7, 1.1, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 50.0, W, H)
+    gb = render_gbuffer(cam, build_geometry([SphereSpec((-0.8, 0.0, 0.0), 0.75, 0),
+                                             SphereSpec((0.8, 0.1, -0.2), 0.7, 1)], []), threads=1)
+    mats = B.build_material_table([B.MaterialSpec("clay", B.LAMBERT, albedo=tuple(ALBEDO)),
+                                   B.MaterialSpec("metal", B.GGX, alpha=0.3, specular=(0.9, 0.7, 0.5))])
+    material = gb.numpy("material").reshape(-1)
+    return SimpleNamespace(gb=gb, mats=mats, normal=gb.numpy("normal").reshape(-1, 3).astype(np.float64),
+                           material=material, covered=material >= 0)
+
+
+def shade(directions, radiances):
+    """The image (H*W, 3) of the scene lit by these directional lights alone."""
+    d = np.asarray(directions, np.float64).reshape(-1, 3)
+    e = np.asarray(radiances, np.float64).reshape(-1, 3)
+    lights = Lights(directional_struct(d, e), len(d))
+    sc = two_spheres()
+    return shade_reference(sc.gb, sc.mats, None, 0, lights=lights, threads=1).radiance.numpy().astype(np.float64)
+
+
+directions = st.tuples(*[st.floats(-1.0, 1.0)] * 3).filter(lambda v: np.linalg.norm(v) > 0.05)
+radiances = st.tuples(*[st.just(0.0) | st.floats(1e-3, 50.0)] * 3)   # within float32: 1e-93 would read 0
+
+
+def test_the_scene_shows_both_materials():
+    """The fixture the properties below rely on: both spheres in view, each over many pixels."""
+    sc = two_spheres()
+    assert (sc.material == 0).sum() > 60 and (sc.material == 1).sum() > 60
+
+
+@settings(max_examples=40, deadline=None)
+@given(direction=directions, radiance=radiances, s=st.floats(1e-3, 1e3))
+def test_a_light_is_linear_in_its_radiance_channel_by_channel(direction, radiance, s):
+    """L_p = E rho(l, wo) max(l . n, 0) (002 Eq. 1 with a Dirac delta at l; module docstring): each channel of E
+    multiplies the same channel of rho cos only.  So the image under E is E times (per channel) the image under
+    white light (1, 1, 1), and scaling E by s scales the image by s."""
+    white = shade(direction, (1.0, 1.0, 1.0))
+    lit = shade(direction, radiance)
+    np.testing.assert_allclose(lit, white * np.asarray(radiance), rtol=2e-6, atol=1e-30)
+    np.testing.assert_allclose(shade(direction, np.asarray(radiance) * s), lit * s, rtol=2e-6, atol=1e-30)
+
+
+@settings(max_examples=40, deadline=None)
+@given(direction=directions, length=st.floats(1e-3, 1e3), radiance=radiances)
+def test_a_light_below_the_horizon_adds_nothing_and_a_lambert_surface_reads_the_closed_form(direction, length,
+                                                                                             radiance):
+    """With l the unit direction towards the light (any length is scaled to unit: directional_struct), a pixel
+    whose normal faces away from it (l . n <= 0) receives exactly 0, on any material; on the Lambert sphere every
+    pixel reads albedo / pi * E * max(l . n, 0), and so does not depend on the length given; the background stays
+    0."""
+    sc = two_spheres()
+    l = unit(direction)
+    img = shade(l * length, radiance)
+    cos = sc.normal @ l
+    below = sc.covered & (cos <= 0.0)
+    assert np.all(img[below] == 0.0)
+    assert np.all(img[~sc.covered] == 0.0)
+    clay = sc.material == 0
+    expect = ALBEDO / math.pi * np.asarray(radiance) * np.maximum(cos[clay], 0.0)[:, None]
+    np.testing.assert_allclose(img[clay], expect, rtol=1e-5, atol=1e-6 * max(radiance))
+
+
+@settings(max_examples=25, deadline=None)
+@given(lights=st.lists(st.tuples(directions, radiances), min_size=2, max_size=4))
+def test_the_lights_of_a_scene_add(lights):
+    """Each light's term is exact and independent of the others (no visibility, no sampling: module docstring),
+    so n lights together give the sum of the n images each gives alone."""
+    dirs = [d for d, _ in lights]
+    rads = [e for _, e in lights]
+    together = shade(dirs, rads)
+    alone = sum(shade(d, e) for d, e in lights)
+    np.testing.assert_allclose(together, alone, rtol=1e-5, atol=1e-6 * (1.0 + max(max(e) for e in rads)))

@@ -238,3 +238,114 @@ def test_level_pyramid_is_conservative():
     ys, xs = np.mgrid[0:h, 0:w]
     for l, got in enumerate(p.numpy()):
         assert np.all(got[ys >> l, xs >> l] <= lv)
+
+
+# ------------------------------------------------------------------------------------------ properties (hypothesis)
+# Property-based tests of the bandwidth-buffer pyramid (warpbw.pyramid, 002 Sec. 3.1): metamorphic relations that
+# hold for any image size (odd, prime, 1 x N, taller than wide) and need no reference implementation: the min and max
+# filters commute with monotone maps, a transposed image gives transposed levels, an image cut at a multiple of 2^l
+# reduces block by block, and Eq. 11's level rises by exactly one when the bandwidth halves.
+
+
+sizes = st.integers(1, 37)
+seeds = st.integers(0, 2**31 - 1)
+
+
+def random_image(w, h, seed, kind, nan_share=0.0):
+    """A float32 image of normal values with ``nan_share`` of NaN, or an int32 level-like map."""
+    rng = np.random.default_rng(seed)
+    if kind == "int":
+        return rng.integers(-3, 12, size=(h, w)).astype(np.int32)
+    x = rng.normal(size=(h, w)).astype(np.float32)
+    x[rng.random((h, w)) < nan_share] = np.nan
+    return x
+
+
+# monotone maps (float32 in, float32 out; evaluated elementwise, so each pixel's image is one fixed number)
+INCREASING = {"affine": lambda x: np.float32(3.0) * x + np.float32(0.5),
+              "cube": lambda x: x * x * x,
+              "step": lambda x: np.floor(x * np.float32(2.0))}     # non-strict: still commutes
+
+
+DECREASING = {"negate": lambda x: -x,
+              "negated-cube": lambda x: -(x * x * x)}
+
+
+@settings(max_examples=40, deadline=None)
+@given(w=sizes, h=sizes, seed=seeds, nan_share=st.sampled_from([0.0, 0.1]),
+       f=st.sampled_from(sorted(INCREASING)), g=st.sampled_from(sorted(DECREASING)))
+def test_min_and_max_filters_commute_with_monotone_maps(w, h, seed, nan_share, f, g):
+    """For f increasing, min over a footprint of f(x) is f(min x) and max of f(x) is f(max x); for g decreasing,
+    min of g(x) is g(max x).  The filters only select values, so this holds exactly, texel by texel, at every level
+    and for any size.  NaN reads as -inf under min and +inf under max (module docstring), the extremes f and g map
+    to the opposite or the same infinity, so NaN pixels keep the relation; and the 1 x 1 top is the image's extreme."""
+    x = random_image(w, h, seed, "float", nan_share)
+    fi, gd = INCREASING[f], DECREASING[g]
+    with np.errstate(over="ignore", invalid="ignore"):
+        mn, mx = build_pyramid(x, "min").numpy(), build_pyramid(x, "max").numpy()
+        mn_f, mx_f = build_pyramid(fi(x), "min").numpy(), build_pyramid(fi(x), "max").numpy()
+        mn_g = build_pyramid(gd(x), "min").numpy()
+        for l in range(len(mn)):
+            np.testing.assert_array_equal(mn_f[l], fi(mn[l]), err_msg=f"min of {f}, level {l}")
+            np.testing.assert_array_equal(mx_f[l], fi(mx[l]), err_msg=f"max of {f}, level {l}")
+            np.testing.assert_array_equal(mn_g[l], gd(mx[l]), err_msg=f"min of {g}, level {l}")
+    # the top texel is the extreme of the whole image, NaN as the conservative infinity
+    nan = np.isnan(x)
+    assert mn[-1].shape == (1, 1)
+    assert mn[-1][0, 0] == (-np.inf if nan.any() else x.min())
+    assert mx[-1][0, 0] == (np.inf if nan.any() else x.max())
+
+
+@settings(max_examples=40, deadline=None)
+@given(w=sizes, h=sizes, seed=seeds, op=st.sampled_from(["min", "max"]), kind=st.sampled_from(["float", "int"]))
+def test_transposing_the_image_transposes_every_level(w, h, seed, op, kind):
+    """The size rule and the 2 x 2 footprints treat rows and columns alike (module docstring), so the pyramid of
+    the transposed image is the transposed pyramid, level by level, for any W x H: an axis slip (a column clamped
+    by the row count, a width halved as a height) shows on images that are not square."""
+    x = random_image(w, h, seed, kind)
+    p = build_pyramid(x, op).numpy()
+    pt = build_pyramid(np.ascontiguousarray(x.T), op).numpy()
+    assert len(p) == len(pt)
+    for l, (a, b) in enumerate(zip(p, pt)):
+        np.testing.assert_array_equal(b, a.T, err_msg=f"level {l} of {w}x{h}")
+
+
+@settings(max_examples=40, deadline=None)
+@given(l=st.integers(1, 3), blocks=st.integers(1, 3), rest=st.integers(1, 20), h=sizes, seed=seeds,
+       op=st.sampled_from(["min", "max"]), axis=st.sampled_from([0, 1]))
+def test_an_image_cut_at_a_multiple_of_2_to_the_l_reduces_block_by_block(l, blocks, rest, h, seed, op, axis):
+    """Texel x of level l covers the finest pixels [x 2^l, (x + 1) 2^l) (clipped at the border; module docstring),
+    so cutting an image at column (or row) k 2^l cuts no footprint of level l: level l of the whole is level l of
+    the left part beside level l of the right part, whatever the right part's (odd) size."""
+    s = 1 << l
+    a = random_image(blocks * s, h, seed, "float")
+    b = random_image(rest, h, seed + 1, "float")
+    if axis == 0:       # cut between rows instead of columns
+        a, b = np.ascontiguousarray(a.T), np.ascontiguousarray(b.T)
+    whole = np.concatenate([a, b], axis=axis)
+    got = build_pyramid(whole, op).numpy()
+    pa, pb = build_pyramid(a, op).numpy(), build_pyramid(b, op).numpy()
+    # a part already reduced to 1 x 1 stays so (an axis that reached 1 stays 1)
+    at = lambda p: p[min(l, len(p) - 1)]   # noqa: E731
+    np.testing.assert_array_equal(at(got), np.concatenate([at(pa), at(pb)], axis=axis))
+
+
+@settings(max_examples=50, deadline=None)
+@given(w=st.integers(1, 70), h=st.integers(1, 70), seed=seeds)
+def test_halving_the_bandwidth_coarsens_the_level_by_one_up_to_the_top(w, h, seed):
+    """Eq. 11, level = min(floor(log2(1 / b_p)), floor(log2(min(W, H)))) clamped at 0: halving b_p adds exactly 1 to
+    floor(log2(1 / b_p)) (power-of-two scalings are exact in float32), so the level of b_p / 2 is the level of b_p
+    plus one, up to the top (for b_p <= 1; above, both clamp to 0); a larger bandwidth never gets a coarser level; and every level lies in [0, top]."""
+    rng = np.random.default_rng(seed)
+    b = np.exp2(rng.uniform(-10.0, 3.0, size=(h, w))).astype(np.float32)
+    b.flat[: min(b.size, 4)] = np.float32(2.0) ** rng.integers(-9, 2, size=min(b.size, 4))   # exact powers of two
+    top = min(w, h).bit_length() - 1    # floor(log2(min(W, H))), exactly
+    assert max_level(w, h) == top
+    lv = image_level(b).numpy()
+    lv_half = image_level(b * np.float32(0.5)).numpy()
+    assert lv.min() >= 0 and lv.max() <= top
+    # b_p <= 1: one level coarser, up to the top; b_p > 1 (floor(log2(1 / b_p)) < 0): still the finest
+    np.testing.assert_array_equal(lv_half, np.where(b <= 1.0, np.minimum(lv + 1, top), 0))
+    # monotone: sorting the bandwidths sorts the levels the other way
+    order = np.argsort(b, axis=None, kind="stable")
+    assert np.all(np.diff(lv.reshape(-1)[order]) <= 0)

@@ -3,15 +3,19 @@ importance-sampled estimate of a pixel agrees with a uniform-sampling estimate. 
 Lambertian stand-in: its three panels (f cos, the pdf, the density of drawn directions per steradian) by hand."""
 from __future__ import annotations
 
+import functools
 import math
 import sys
 
 import numpy as np
 import pytest
+import warp as wp
+from hypothesis import given, settings, strategies as st
 
 from conftest import fake_npf_table, load_example, named_as, uniform_sampler_table
 from warpbw import brdf as B
-from warpbw.sampling import build_sampler_table
+from warpbw.sampling import (LUMINANCE, TabulatedSamplers, build_sampler_table, pack_samplers, tab_pdf,
+                             tab_sample)
 
 NPF_NAMES = ("chrome", "gold-metallic-paint", "pink-felt")
 
@@ -373,3 +377,186 @@ def test_brdf_sampling_defaults_and_figure_named_as_the_table_spells_the_materia
                                                                      "--material", " Chrome "])
     assert [n for _, n in sampled] == [400_000] * 3
     assert [p.name for p in (tmp_path / "o").iterdir()] == ["brdf_sampling_chrome.png"]
+
+
+# ------------------------------------------------------------------------------------------ properties (hypothesis)
+# Property-based tests of the tabulated BRDF samplers (warpbw.sampling, 002 Sec. 3.3), on tables built here from
+# random synthetic BRDFs (a diffuse floor, a lobe about the mirror direction, one side of the plane of incidence
+# dimmed or blacked out) and views of any elevation and azimuth.  ``tab_sample`` and ``tab_pdf`` are called
+# directly from one kernel compiled once for the module, so what is checked is the sampler alone, not the cosine
+# mixture of warpbw.brdf.
+
+
+# small tables, so that each example builds its own in milliseconds
+N_THETA_O, N_U, N_PHI, SUB = 4, 16, 32, 2
+
+
+@wp.kernel(enable_backward=False)
+def _sample_and_pdf(s: TabulatedSamplers, wo: wp.vec3, u: wp.array(dtype=wp.vec2),
+                    wi: wp.array(dtype=wp.vec3), pdf: wp.array(dtype=wp.float32)):
+    t = wp.tid()
+    d = tab_sample(s, 0, wo, u[t])
+    wi[t] = d
+    pdf[t] = tab_pdf(s, 0, d, wo)
+
+
+@wp.kernel(enable_backward=False)
+def _pdf_at(s: TabulatedSamplers, wo: wp.vec3, wi: wp.array(dtype=wp.vec3), pdf: wp.array(dtype=wp.float32)):
+    t = wp.tid()
+    pdf[t] = tab_pdf(s, 0, wi[t], wo)
+
+
+def sample(samplers, wo, n, seed):
+    """n directions drawn by tab_sample for view wo (uniform random numbers from numpy), and tab_pdf at each."""
+    u = np.random.default_rng(seed).random((n, 2)).astype(np.float32)
+    wi = wp.empty(n, dtype=wp.vec3)
+    pdf = wp.empty(n, dtype=wp.float32)
+    wp.launch(_sample_and_pdf, dim=n, inputs=[samplers, wp.vec3(*wo), wp.array(u, dtype=wp.vec2), wi, pdf])
+    return wi.numpy().astype(np.float64), pdf.numpy().astype(np.float64)
+
+
+def pdf_at(samplers, wo, wi):
+    out = wp.empty(len(wi), dtype=wp.float32)
+    wp.launch(_pdf_at, dim=len(wi), inputs=[samplers, wp.vec3(*wo), wp.array(wi.astype(np.float32), dtype=wp.vec3),
+                                            out])
+    return out.numpy().astype(np.float64)
+
+
+def synthetic_brdf(kd, ks, width, side, colour=(1.0, 1.0, 1.0)):
+    """f(wi, wo) = colour (kd + ks exp(-|wi - r|^2 / width^2)), r the mirror of wo, times ``side`` where wi_y < 0
+    (the table's view lies in the xz-plane, so this dims one side of the plane of incidence; 0 blacks it out)."""
+    c = np.asarray(colour, np.float64)
+
+    def f(wi, wo):
+        r = wo * np.array([-1.0, -1.0, 1.0])
+        g = kd + ks * np.exp(-np.sum((wi - r) ** 2, axis=1) / width ** 2)
+        g = np.where(wi[:, 1] < 0.0, side * g, g)
+        return g[:, None] * c[None, :]
+    return f
+
+
+def table_of(brdf):
+    return build_sampler_table(brdf, n_theta_o=N_THETA_O, n_u=N_U, n_phi=N_PHI, sub=SUB, sub_views=1)
+
+
+brdfs = st.builds(synthetic_brdf, kd=st.sampled_from([0.0, 0.05, 0.5]), ks=st.floats(0.2, 5.0),
+                  width=st.floats(0.15, 0.6), side=st.sampled_from([0.0, 0.1, 1.0]))
+elevations = st.floats(0.05, 1.5)
+azimuths = st.floats(-math.pi, math.pi)
+
+
+@settings(max_examples=30, deadline=None)
+@given(brdf=brdfs, theta=elevations, azimuth=azimuths, seed=st.integers(0, 2**31 - 1))
+def test_samples_are_unit_and_their_pdf_is_positive_wherever_they_land_above_the_surface(brdf, theta, azimuth, seed):
+    """A direction drawn is the reflection of the unit view about a unit half vector, so it is unit; where it lands
+    above the surface its half vector lies in a cell the sampler chose, whose probability is positive, so tab_pdf
+    (the density the sampler draws from) is positive and finite there (samples below the horizon are allowed: a
+    cell straddling it sends part of its samples there, tab_pdf's comment)."""
+    s = pack_samplers([table_of(brdf)])
+    wo = view_at(theta, azimuth)
+    wi, pdf = sample(s, wo, 4000, seed)
+    # unit length, up to float32 rounding
+    np.testing.assert_allclose(np.linalg.norm(wi, axis=1), 1.0, atol=1e-5)
+    up = wi[:, 2] > 0.0
+    assert np.all(np.isfinite(pdf))
+    assert np.all(pdf[up] > 0.0), (pdf[up].min(), np.sum(pdf[up] <= 0.0))
+
+
+def hemisphere_grid(nz, nphi):
+    """Midpoints and solid angles of a grid uniform in (z, phi) over the whole sphere (d omega = dz dphi)."""
+    z = -1.0 + (np.arange(nz) + 0.5) * 2.0 / nz
+    ph = (np.arange(nphi) + 0.5) * 2.0 * math.pi / nphi
+    Z, P = np.meshgrid(z, ph, indexing="ij")
+    r = np.sqrt(1.0 - Z * Z)
+    dirs = np.stack([r * np.cos(P), r * np.sin(P), Z], -1).reshape(-1, 3)
+    return dirs, np.full(len(dirs), (2.0 / nz) * (2.0 * math.pi / nphi))
+
+
+Z_BINS, PHI_BINS = 8, 12
+
+
+def direction_bin(d):
+    """A bin of 8 bands of equal z (equal solid angle) times 12 sectors of absolute azimuth."""
+    zb = np.clip(((d[:, 2] + 1.0) * 0.5 * Z_BINS).astype(int), 0, Z_BINS - 1)
+    pb = np.clip((np.mod(np.arctan2(d[:, 1], d[:, 0]), 2.0 * math.pi) / (2.0 * math.pi) * PHI_BINS).astype(int),
+                 0, PHI_BINS - 1)
+    return zb * PHI_BINS + pb
+
+
+@functools.cache
+def quadrature_grid():
+    """The sphere's fine quadrature grid (768 x 1536 cells), its solid angles and each cell's bin; made on first use."""
+    dirs, domega = hemisphere_grid(768, 1536)
+    return dirs, domega, direction_bin(dirs)
+
+
+@settings(max_examples=12, deadline=None)
+@given(brdf=brdfs, theta=elevations, azimuth=azimuths, seed=st.integers(0, 2**31 - 1))
+def test_histogram_of_samples_matches_the_pdf_integrated_over_each_bin(brdf, theta, azimuth, seed):
+    """tab_pdf is the solid-angle density of tab_sample's directions: binned in world bands of z and sectors of
+    absolute azimuth (a binning that knows nothing of the table's half-vector cells), the count of samples in each
+    bin matches N times the integral of tab_pdf over it, computed by a fine quadrature over the sphere (d omega =
+    dz dphi); the integrals also sum to 1 (the pdf is normalised over the sphere, as its comment promises).  Views
+    off the xz-plane and one-sided lobes make an error in the half vector's relative azimuth (mirrored, folded,
+    measured from the wrong axis) or in the change of variables (the Jacobian 4 (wo . h) sin(theta_h) pi u) show."""
+    s = pack_samplers([table_of(brdf)])
+    wo = view_at(theta, azimuth)
+    n = 60_000
+    wi, _ = sample(s, wo, n, seed)
+    observed = np.bincount(direction_bin(wi), minlength=Z_BINS * PHI_BINS)
+    grid, domega, grid_bin = quadrature_grid()
+    mass = np.bincount(grid_bin, weights=pdf_at(s, wo, grid) * domega, minlength=Z_BINS * PHI_BINS)
+    assert abs(mass.sum() - 1.0) < 0.01, mass.sum()
+    expected = mass * n
+    # Poisson noise (5 sigma), plus 0.2% of N for the quadrature of a piecewise-constant density
+    dev = np.abs(observed - expected) / (5.0 * np.sqrt(expected) + 0.002 * n)
+    assert np.all(dev < 1.0), (dev.max(), observed[dev.argmax()], expected[dev.argmax()])
+
+
+def _rot_z(a):
+    c, s_ = math.cos(a), math.sin(a)
+    return np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@settings(max_examples=30, deadline=None)
+@given(brdf=brdfs, theta=elevations, azimuth=azimuths, turn=azimuths, seed=st.integers(0, 2**31 - 1))
+def test_turning_the_view_about_the_normal_turns_its_samples_and_keeps_their_pdf(brdf, theta, azimuth, turn, seed):
+    """The tables drop the view azimuth (isotropic BRDFs; module docstring: phi_h is measured from the view's
+    azimuth), so for the same random numbers the samples of the view turned by an angle about the normal are the
+    samples of the view, turned by that angle, and their pdf is the same (but where rounding moves a sample across
+    the edge of a piecewise-constant cell)."""
+    s = pack_samplers([table_of(brdf)])
+    wo = view_at(theta, azimuth)
+    R = _rot_z(turn)
+    wi, pdf = sample(s, wo, 2000, seed)
+    wi_t, pdf_t = sample(s, R @ wo, 2000, seed)
+    # same random numbers: each turned sample is the sample turned (float32 trigonometry: 2e-4)
+    np.testing.assert_allclose(wi_t, wi @ R.T, atol=2e-4)
+    # the pdf is piecewise constant over cells: a sample within rounding of a cell's edge may read its neighbour's
+    same = np.isclose(pdf_t, pdf, rtol=2e-3, atol=1e-6)
+    assert same.mean() > 0.99, (same.mean(), pdf_t[~same][:5], pdf[~same][:5])
+
+
+@settings(max_examples=20, deadline=None)
+@given(kd=st.floats(0.0, 1.0), ks=st.floats(0.2, 5.0), width=st.floats(0.15, 0.6),
+       c1=st.tuples(*[st.floats(0.05, 1.0)] * 3), c2=st.tuples(*[st.floats(0.05, 1.0)] * 3),
+       scale=st.floats(1e-3, 1e3))
+def test_the_tables_depend_only_on_the_luminance_of_f_up_to_scale(kd, ks, width, c1, c2, scale):
+    """The importance function is Y(f) cos_i (Rec. 709 luminance; module docstring), normalised per view bin, so a
+    coloured BRDF whose colour changes across the hemisphere (a diffuse floor of one colour, a lobe of another)
+    gives the tables of the grey BRDF of the same luminance, and scaling f by any positive factor changes nothing.
+    The CDFs rise from 0 to 1 and the density's cell shares sum to 1 in every view bin."""
+    lum = np.asarray(LUMINANCE)
+    y1, y2 = float(np.dot(c1, lum)), float(np.dot(c2, lum))
+    diffuse = synthetic_brdf(kd, 0.0, 1.0, 1.0)
+    lobe = synthetic_brdf(0.0, ks, width, 1.0)
+    coloured = table_of(lambda wi, wo: diffuse(wi, wo) * np.asarray(c1) + lobe(wi, wo) * np.asarray(c2))
+    grey = table_of(lambda wi, wo: scale * (diffuse(wi, wo) * y1 + lobe(wi, wo) * y2))
+    for name in ("marginal", "conditional", "density"):
+        np.testing.assert_allclose(getattr(coloured, name), getattr(grey, name), rtol=2e-5, atol=1e-6, err_msg=name)
+    # CDFs from 0 to 1, non-decreasing; cell shares (density du dphi) sum to 1 per bin
+    assert np.all(grey.marginal[:, 0] == 0.0) and np.all(grey.marginal[:, -1] == 1.0)
+    assert np.all(np.diff(grey.marginal, axis=1) >= 0.0)
+    assert np.all(np.diff(grey.conditional, axis=2) >= 0.0) and np.all(grey.conditional[..., -1] == 1.0)
+    shares = grey.density.astype(np.float64) * (1.0 / N_U) * (2.0 * math.pi / N_PHI)
+    np.testing.assert_allclose(shares.sum(axis=(1, 2)), 1.0, rtol=1e-4)

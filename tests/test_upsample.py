@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 import warp as wp
+from hypothesis import given, settings, strategies as st
 
 from warpbw.errors import WarpbwError
 from warpbw.gbuffer import GBufferData, MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer
@@ -561,3 +562,147 @@ def test_a_border_texel_outside_its_parents_centres_takes_the_nearest_parent(axi
         assert edge.sum() >= 4, level
         got = vals[:, 0] if axis == 0 else vals[0, :]
         np.testing.assert_allclose(got[edge], 0.0, atol=1e-6, err_msg=f"level {level}")
+
+
+# ------------------------------------------------------------------------------------------ properties (hypothesis)
+# Property-based tests of the bilateral up-sampling (warpbw.upsample, 002 Sec. 3.2) over random scenes of spheres,
+# random cameras (any direction, images taller or wider than high), random levels and random sets of valid parents:
+# a constant stays that constant, the result follows an affine change of the parents' values, the weights are
+# non-negative and zero where a parent may not be used, and a depth edge never takes a parent across it.
+
+
+def camera_around(azimuth, elevation, distance, w, h, look_at=(0.0, 0.0, 0.0), fov=45.0):
+    """A camera at ``distance`` from ``look_at`` in the direction (azimuth, elevation), looking at it, +Y up."""
+    d = np.array([math.cos(elevation) * math.sin(azimuth), math.sin(elevation), math.cos(elevation) * math.cos(azimuth)])
+    pos = np.asarray(look_at) + distance * d
+    return make_camera(tuple(pos), look_at, (0.0, 1.0, 0.0), fov, w, h), pos
+
+
+def centre_representatives(w, h, level):
+    """Finest pixel index at the centre of each texel of ``level`` (clamped to the image), as the docstring says."""
+    lw, lh = level_size(w, h, level)
+    s = 1 << level
+    xs = np.minimum(np.arange(lw) * s + s // 2, w - 1)
+    ys = np.minimum(np.arange(lh) * s + s // 2, h - 1)
+    return (ys[:, None] * w + xs[None, :]).reshape(-1)
+
+
+sphere = st.builds(lambda c, r, m: SphereSpec(c, r, m), st.tuples(*[st.floats(-1.0, 1.0)] * 3), st.floats(0.3, 1.0),
+                   st.integers(0, 1))
+
+
+layouts = dict(spheres=st.lists(sphere, min_size=1, max_size=3), azimuth=st.floats(-math.pi, math.pi),
+               elevation=st.floats(-1.2, 1.2), distance=st.floats(4.0, 7.0), w=st.integers(6, 40),
+               h=st.integers(6, 40), level=st.integers(0, 2), valid_share=st.sampled_from([0.5, 0.9, 1.0]),
+               mode=st.sampled_from(UPSAMPLE_MODES), seed=st.integers(0, 2**31 - 1))
+
+
+def frame(spheres, azimuth, elevation, distance, w, h, level, valid_share, seed):
+    """G-buffer, camera, level (clamped to the top), and parent_valid: the parents over covered pixels, of which
+    a random share is kept (as if the rest were not yet computed)."""
+    cam, _ = camera_around(azimuth, elevation, distance, w, h)
+    gb = render_gbuffer(cam, build_geometry(spheres, []), threads=1)
+    level = min(level, top_level(w, h))
+    rep = centre_representatives(w, h, level + 1)
+    covered = gb.numpy("material").reshape(-1)[rep] >= 0
+    keep = np.random.default_rng(seed).random(len(rep)) < valid_share
+    return gb, cam, level, (covered & keep).astype(np.int32)
+
+
+@settings(max_examples=40, deadline=None)
+@given(c=st.tuples(*[st.floats(1e-3, 1e3)] * 3), **layouts)
+def test_a_constant_image_up_samples_to_that_constant_for_any_layout(c, spheres, azimuth, elevation, distance, w, h,
+                                                                     level, valid_share, mode, seed):
+    """The weighted mean of equal values is that value, whatever the (non-negative) weights; the normal fit of a
+    constant has slope 0 and is then clamped to the parents' range, the constant itself (module docstring: "a
+    constant stays constant").  So every texel written equals c, for any scene, camera, level and set of valid
+    parents; a texel is never both written and left to be shaded, and background texels are neither."""
+    gb, cam, level, valid = frame(spheres, azimuth, elevation, distance, w, h, level, valid_share, seed)
+    lw, lh = level_size(w, h, level)
+    parents = np.tile(np.float32(c), (len(valid), 1))
+    r = upsample_level(gb.data, cam, level, parents, valid, np.ones(lw * lh), mode=mode)
+    ok = r.valid.numpy() == 1
+    needs = r.needs_shading.numpy() == 1
+    np.testing.assert_allclose(r.values.numpy()[ok], np.broadcast_to(np.float32(c), (ok.sum(), 3)), rtol=2e-6)
+    assert not (ok & needs).any()
+    background = gb.numpy("material").reshape(-1)[centre_representatives(w, h, level)] < 0
+    assert not (ok | needs)[background].any()
+    # with every covered parent valid, a covered texel is written or shaded
+    if valid_share == 1.0:
+        assert (ok | needs)[~background].all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(scale=st.floats(0.01, 100.0), shift=st.floats(-10.0, 10.0), **layouts)
+def test_up_sampling_follows_an_affine_change_of_the_parents_values(scale, shift, spheres, azimuth, elevation,
+                                                                   distance, w, h, level, valid_share, mode, seed):
+    """The weights w_i depend on the G-buffer only, never on the parents' values; the weighted mean and the
+    weighted least-squares plane (its value at the pixel's normal) both commute with L -> a L + b for a > 0, and so
+    does the clamp to the parents' range [min_i L_i, max_i L_i].  So up-sampling a L + b gives a times the
+    up-sampling of L, plus b, with the same texels written and the same weights.  The weights are non-negative, and
+    0 for a parent that is not valid."""
+    gb, cam, level, valid = frame(spheres, azimuth, elevation, distance, w, h, level, valid_share, seed)
+    lw, lh = level_size(w, h, level)
+    pw, ph = level_size(w, h, level + 1)
+    L = np.random.default_rng(seed + 1).uniform(0.0, 2.0, size=(len(valid), 3)).astype(np.float32)
+    a = upsample_level(gb.data, cam, level, L, valid, np.ones(lw * lh), mode=mode)
+    b = upsample_level(gb.data, cam, level, (scale * L.astype(np.float64) + shift).astype(np.float32), valid,
+                       np.ones(lw * lh), mode=mode)
+    ok = a.valid.numpy() == 1
+    np.testing.assert_array_equal(b.valid.numpy(), a.valid.numpy())
+    np.testing.assert_array_equal(b.weights.numpy(), a.weights.numpy())
+    # float32 rounding, relative to the values' range: the weighted mean loses under 3e-7 of it (measured over 300
+    # random frames), the fit's 2 x 2 solve (determinant down to the ridge squared, 1e-6) up to 2e-4
+    tol = (2e-6 if mode == "paper" else 1e-3) * (scale * 2.0 + abs(shift))
+    np.testing.assert_allclose(b.values.numpy()[ok], scale * a.values.numpy()[ok].astype(np.float64) + shift,
+                               rtol=0, atol=tol)
+    # weights: non-negative; 0 on every parent not valid (parent k of texel (x, y): lower/upper along each axis)
+    wts = a.weights.numpy().reshape(lh, lw, 4)
+    assert np.all(wts >= 0.0)
+    x, y = np.arange(lw), np.arange(lh)
+    i0 = np.clip(np.floor((x + 0.5) * 0.5 - 0.5).astype(int), 0, pw - 1)
+    j0 = np.clip(np.floor((y + 0.5) * 0.5 - 0.5).astype(int), 0, ph - 1)
+    i1, j1 = np.minimum(i0 + 1, pw - 1), np.minimum(j0 + 1, ph - 1)
+    vv = valid.reshape(ph, pw)
+    for k, (jj, ii) in enumerate([(j0, i0), (j0, i1), (j1, i0), (j1, i1)]):
+        invalid = vv[np.ix_(jj, ii)] == 0
+        assert np.all(wts[..., k][invalid] == 0.0), k
+
+
+@settings(max_examples=30, deadline=None)
+@given(near=st.floats(2.0, 4.0), r_near=st.floats(0.3, 0.9), off=st.tuples(st.floats(-0.5, 0.5), st.floats(-0.5, 0.5)),
+       gap=st.floats(2.5, 6.0), azimuth=st.floats(-math.pi, math.pi), elevation=st.floats(-1.2, 1.2),
+       w=st.integers(8, 40), h=st.integers(8, 40), level=st.integers(0, 2), mode=st.sampled_from(UPSAMPLE_MODES))
+def test_a_depth_edge_never_takes_a_parent_across_it(near, r_near, off, gap, azimuth, elevation, w, h, level, mode):
+    """A near sphere in front of a far one of the same material (so that only depth can tell them apart), the far
+    sphere's nearest depth at least 2.5 times the near one's farthest.  g_z = exp(-((z - z_i) / (0.1 z))^2) gives a
+    parent across that edge at most exp(-36) of its weight (seen from the far side; exp(-225) from the near side),
+    while a texel is written only where its weights sum to WEIGHT_MIN = 1e-4 or more: so the near sphere's texels
+    take the near value and the far sphere's the far value, to float32 rounding, whatever the camera,
+    level and mode (the normal fit's clamp keeps it between parents it weighs)."""
+    cam, pos = camera_around(azimuth, elevation, 5.0, w, h)
+    fwd = np.array(list(cam.forward), np.float64)
+    right, up = np.array(list(cam.right), np.float64), np.array(list(cam.up), np.float64)
+    c_near = pos + near * fwd + off[0] * right + off[1] * up
+    far_min = gap * (near + r_near)         # the far sphere's nearest depth
+    r_far = far_min                         # large: it fills the view behind the near sphere
+    c_far = pos + (far_min + r_far) * fwd
+    gb = render_gbuffer(cam, build_geometry([SphereSpec(tuple(c_near), r_near, 0),
+                                             SphereSpec(tuple(c_far), r_far, 0)], []), threads=1)
+    depth = gb.numpy("depth").reshape(-1)
+    mat = gb.numpy("material").reshape(-1)
+    is_near = (mat >= 0) & (depth <= near + r_near * 1.0001)
+    is_far = (mat >= 0) & (depth >= far_min * 0.9999)
+    assert np.all(is_near | is_far | (mat < 0))
+    level = min(level, top_level(w, h))
+    rep_p = centre_representatives(w, h, level + 1)
+    valid = (mat[rep_p] >= 0).astype(np.int32)
+    A, B = np.float32([1.0, 0.0, 0.0]), np.float32([0.0, 0.0, 1.0])
+    parents = np.where(is_near[rep_p][:, None], A, B).astype(np.float32)
+    lw, lh = level_size(w, h, level)
+    r = upsample_level(gb.data, cam, level, parents, valid, np.ones(lw * lh), mode=mode)
+    ok = r.valid.numpy() == 1
+    rep = centre_representatives(w, h, level)
+    vals = r.values.numpy()
+    np.testing.assert_allclose(vals[ok & is_near[rep]], np.broadcast_to(A, ((ok & is_near[rep]).sum(), 3)), atol=1e-6)
+    np.testing.assert_allclose(vals[ok & is_far[rep]], np.broadcast_to(B, ((ok & is_far[rep]).sum(), 3)), atol=1e-6)
