@@ -51,8 +51,12 @@ PIXELS_PER_TILE = 4096
 TILES_PER_THREAD = 4
 MIN_PIXELS_PER_TILE = 256
 # Samples summed in float32 before their sum joins the pixel's float64 total: a float32 sum of ~1.7e7 equal
-# terms stops growing, and one of 256 is within 256 float32 roundings (1.5e-5) of exact.
+# terms stops growing, and one of 256 is within 256 float32 roundings (1.5e-5) of exact.  Each sample enters the
+# float32 sum divided by SUM_BATCH (a power of two: exact), so that the sum never exceeds its largest sample (four
+# samples of a sky of 3e38 overflowed float32, though their mean does not).
 SUM_BATCH = 256
+SUM_SCALE = 1.0 / SUM_BATCH
+SUM_BATCH_F64 = wp.constant(wp.float64(SUM_BATCH))   # the batch's sum back to its size, in float64
 
 
 @wp.struct
@@ -122,7 +126,8 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
         wo = fr.wo
         state = wp.rand_init(seed, i)
         acc = wp.vec3d(0.0)   # float64: a float32 sum stops growing past ~1.7e7 samples of one size
-        part = wp.vec3(0.0)   # float32 sums of SUM_BATCH samples, added to acc (float64 per sample cost 5%)
+        part = wp.vec3(0.0)   # float32 sums of SUM_BATCH samples / SUM_BATCH, added to acc (float64 per sample
+        # cost 5% of a frame)
         direct = wp.vec3(0.0)
         bad = int(0)
         if wp.static(has_lights):
@@ -139,7 +144,7 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
             if wo[2] > 0.0:
                 for s in range(spp):
                     if s % SUM_BATCH == 0:
-                        acc = acc + wp.vec3d(part)
+                        acc = acc + wp.vec3d(part) * SUM_BATCH_F64
                         part = wp.vec3(0.0)
                     # BRDF-sampled direction (002 Eq. 2)
                     u = wp.vec3(wp.randf(state), wp.randf(state), wp.randf(state))
@@ -153,7 +158,7 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
                                 p_sum = p + env_pdf_uv(env, uv)
                             c = wp.cw_mul(f.eval(mats, m, wi, wo), env_radiance_uv(env, uv)) * (wi[2] / p_sum)
                             if finite3(c):
-                                part = part + c
+                                part = part + c * SUM_SCALE
                             else:
                                 bad = bad + 1
                     if wp.static(mis):
@@ -169,10 +174,10 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
                                 c = wp.cw_mul(f.eval(mats, m, wl_local, wo), env_radiance_uv(env, uvl)) * (
                                     wl_local[2] / (pl + pb))
                                 if finite3(c):
-                                    part = part + c
+                                    part = part + c * SUM_SCALE
                                 else:
                                     bad = bad + 1
-        out[i] = wp.vec3((acc + wp.vec3d(part)) / wp.float64(wp.max(spp, 1))) + direct
+        out[i] = wp.vec3((acc + wp.vec3d(part) * SUM_BATCH_F64) / wp.float64(wp.max(spp, 1))) + direct
         if bad > 0:
             wp.atomic_add(non_finite, 0, bad)
 
