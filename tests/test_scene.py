@@ -418,6 +418,23 @@ def test_content_hash_follows_the_bytes_of_referenced_files(tmp_path):
     assert load_scene(p).content_hash() == h0
 
 
+def test_content_hash_follows_the_files_bytes_not_their_paths(tmp_path):
+    """The ground truth is cached under this hash: a scene folder copied elsewhere, or its probe renamed (the scene
+    edited to match), is the same scene, and its ground truth was rendered again (the files' absolute paths were
+    in the hash)."""
+    import shutil
+
+    h0 = load_scene(_hash_scene(tmp_path / "a")).content_hash()
+    shutil.copytree(tmp_path / "a", tmp_path / "b")
+    assert load_scene(tmp_path / "b" / "s.toml").content_hash() == h0
+    (tmp_path / "b" / "probe.exr").rename(tmp_path / "b" / "sky.exr")
+    scene = tmp_path / "b" / "s.toml"
+    scene.write_text(scene.read_text().replace('"probe.exr"', '"sky.exr"'))
+    assert load_scene(scene).content_hash() == h0
+    (tmp_path / "b" / "sky.exr").write_bytes(b"another probe")
+    assert load_scene(scene).content_hash() != h0
+
+
 def test_content_hash_ignores_unused_materials_but_not_parameters(tmp_path):
     p = _hash_scene(tmp_path)
     h0 = load_scene(p).content_hash()

@@ -254,19 +254,24 @@ class Scene:
         return used
 
     def content_hash(self) -> str:
-        """A hash of the scene's content and of the files it names (for caching ground truths)."""
+        """A hash of the scene's content and of the files it names (for caching ground truths): a file enters by
+        its bytes' digest, not its path, so the same scene copied to another folder, or a probe renamed, hashes
+        alike (a moved bench folder rendered its ground truths again)."""
+        digests = {p: file_digest(p) for p in self.files()}
+
+        def text(x) -> bytes:
+            return json.dumps(_jsonable(x, digests), sort_keys=True).encode()
+
         h = hashlib.blake2b(digest_size=16)
-        h.update(json.dumps(_jsonable(asdict(self.camera)), sort_keys=True).encode())
+        h.update(text(asdict(self.camera)))
         if self.environment is not None:
-            h.update(json.dumps(_jsonable(asdict(self.environment)), sort_keys=True).encode())
+            h.update(text(asdict(self.environment)))
         for li in self.lights:
-            h.update(json.dumps({"light": _jsonable(asdict(li))}, sort_keys=True).encode())
+            h.update(text({"light": asdict(li)}))
         for o in self.objects:
-            h.update(json.dumps(_jsonable(asdict(o)), sort_keys=True).encode())
+            h.update(text(asdict(o)))
         for name in self.material_order:
-            h.update(json.dumps(_jsonable(_material_fields(self.materials[name])), sort_keys=True).encode())
-        for p in self.files():
-            h.update(file_digest(p).encode())
+            h.update(text(_material_fields(self.materials[name])))
         return h.hexdigest()
 
     def files(self) -> list:
@@ -333,13 +338,14 @@ def file_digest(path: Path, chunk: int = 1 << 22) -> str:
     return h.hexdigest()
 
 
-def _jsonable(x: Any):
+def _jsonable(x: Any, digests: dict | None = None):
+    """``x`` with paths as text, or, for those in ``digests``, as ``{"file": DIGEST}``."""
     if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
+        return {k: _jsonable(v, digests) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
+        return [_jsonable(v, digests) for v in x]
     if isinstance(x, Path):
-        return str(x)
+        return {"file": digests[x]} if digests and x in digests else str(x)
     return x
 
 
