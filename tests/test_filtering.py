@@ -1093,6 +1093,17 @@ def test_twenty_million_environment_pairs_or_rays_per_pixel_still_converge():
         assert np.all(few > 0) and np.abs(many / few - 1.0).max() < 2e-3, (method, few, many)
 
 
+def test_the_ground_truth_shows_a_progress_bar_and_the_filters_do_not(capsys):
+    """The ground truth takes minutes at 1024 rays per pixel and 1024^2 pixels, and showed nothing (progress was
+    taken and dropped); the filtered methods take milliseconds and stay quiet."""
+    s = parse_scene(plane_scene_toml(resolution=(16, 12)), Path.cwd(), "s.toml")
+    prep = prepare_filtering(s, ("fixed", "ground_truth"))
+    render_filtering(s, "ground_truth", spp=64, prepared=prep, progress=True)
+    assert "ground truth, 64 rays per pixel" in capsys.readouterr().err
+    render_filtering(s, "fixed", prepared=prep, progress=True)
+    assert capsys.readouterr().err == ""
+
+
 def _small_sun_env(tmp_path, i=64, j=57, w=512, h=256, value=5000.0, sigma=3.0):
     """A black lat-long EXR with a small sun: a Gaussian blob of texels (sigma in texels) around texel (i, j).
     Returns the centre's direction and the irradiance E of the map's bilinear interpolant: a tent of one texel

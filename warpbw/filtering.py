@@ -1316,24 +1316,32 @@ def render_filtering(scene: Scene | FilteringScene, method: str, spp: int = DEFA
     if background is not None:
         wp.launch(background_distance_kernel, dim=n, inputs=[cam, z, depth], device=dev)
         start = depth.numpy().reshape(h, w).copy()   # numpy() of a CPU array is a view of it
-    for p in planes:
-        m = scene.materials[p.material]
-        mp = prepared.mips[p.material]
-        if method == "ground_truth":
-            pl = _plane_data(p, m, mp, 0)
-            launch_tiled(kernel, n, lambda o, c, pl=pl, mp=mp: [cam, pl, mp.lw, mp.lh, mp.loff, mp.nmean, prepared.ldir,
-                                                               prepared.lrad, env, int(spp), int(seed), o, depth,
-                                                               out],
-                         dev, threads)
-        else:
-            gmm, K = mp.gmm.get(method, (wp.zeros(1, dtype=wp.vec4, device=dev), 0))
-            pl = _plane_data(p, m, mp, K, lod_bias, max_anisotropy)
-            launch_tiled(flat_kernel if mp.flat else kernel, n,
-                         lambda o, c, pl=pl, mp=mp, gmm=gmm: [cam, pl, mp.lw, mp.lh, mp.loff, gmm, mp.nmean, mp.nm2,
-                                                             prepared.ldir, prepared.lrad, env, int(env_spp),
-                                                             int(seed), o, depth, out, level],
-                         dev, threads)
-    wp.synchronize_device(dev)
+    bar = None
+    if progress and method == "ground_truth":   # the long one (1024 rays per pixel at 1024^2: minutes)
+        from tqdm import tqdm
+        bar = tqdm(total=n * len(planes), desc=f"ground truth, {spp} rays per pixel", unit="px", leave=False)
+    try:
+        for p in planes:
+            m = scene.materials[p.material]
+            mp = prepared.mips[p.material]
+            if method == "ground_truth":
+                pl = _plane_data(p, m, mp, 0)
+                launch_tiled(kernel, n, lambda o, c, pl=pl, mp=mp: [cam, pl, mp.lw, mp.lh, mp.loff, mp.nmean,
+                                                                   prepared.ldir, prepared.lrad, env, int(spp),
+                                                                   int(seed), o, depth, out],
+                             dev, threads, bar.update if bar is not None else None)
+            else:
+                gmm, K = mp.gmm.get(method, (wp.zeros(1, dtype=wp.vec4, device=dev), 0))
+                pl = _plane_data(p, m, mp, K, lod_bias, max_anisotropy)
+                launch_tiled(flat_kernel if mp.flat else kernel, n,
+                             lambda o, c, pl=pl, mp=mp, gmm=gmm: [cam, pl, mp.lw, mp.lh, mp.loff, gmm, mp.nmean,
+                                                                 mp.nm2, prepared.ldir, prepared.lrad, env,
+                                                                 int(env_spp), int(seed), o, depth, out, level],
+                             dev, threads)
+        wp.synchronize_device(dev)
+    finally:   # closed before an error or an interrupt is said, not drawn again after it at exit
+        if bar is not None:
+            bar.close()
     dt = time.perf_counter() - t0
     img = out.numpy().reshape(h, w, 3).astype(np.float32)
     cov = depth.numpy().reshape(h, w) < (start if background is not None else NO_HIT)
