@@ -544,7 +544,8 @@ def main(argv=None) -> int:
             print("note: warpbw ran its default estimator (BRDF sampling only); Mitsuba's path tracer uses MIS. "
                   "Rerun without --no-mis for the equal-estimator comparison, or --noise-floor to see Mitsuba's own noise.")
     if args.out is not None:
-        with staged_outputs([*exrs, *sides], force=args.force) as at:   # every image, or none: an error leaves the old set
+        # every image, or none: an error leaves the old set
+        with staged_outputs([*exrs, *sides], force=args.force) as at:
             for p, rgb in exrs.items():
                 save_exr(mi, at[p], rgb)
             for p, pair in sides.items():

@@ -319,7 +319,8 @@ def main(argv=None):
         "frames": records,
         "summary": summary,
     }
-    with staged_outputs([out / n for n in OUTPUTS], force=args.force) as at:   # both, or neither: an error leaves the old pair
+    # both, or neither: an error leaves the old pair
+    with staged_outputs([out / n for n in OUTPUTS], force=args.force) as at:
         write_png(at[out / OUTPUTS[0]], _strip(images, masks, coverage))
         at[out / OUTPUTS[1]].write_text(json.dumps(result, indent=1))
     _print_table(records, summary)

@@ -396,7 +396,8 @@ def main(argv=None) -> int:
         print(format_table(rec), flush=True)
         records.append(rec)
     if args.json is not None:
-        with staged_outputs([args.json], force=args.force) as at:   # whole or not at all: a full disk leaves the old record
+        # whole or not at all: a full disk leaves the old record
+        with staged_outputs([args.json], force=args.force) as at:
             at[args.json].write_text(json.dumps(records, indent=1))
         print(f"wrote {args.json}")
     return 0

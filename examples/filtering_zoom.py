@@ -103,7 +103,8 @@ def main(argv=None) -> int:
     for i, s in enumerate(strips.values()):
         grid.paste(s, (0, i * (TILE + 4)))
     pngs = {m: out / f"{m}.png" for m in strips}
-    with staged_outputs([*pngs.values(), out / "all.png"], force=args.force) as at:   # every strip and the grid, or none
+    # every strip and the grid, or none
+    with staged_outputs([*pngs.values(), out / "all.png"], force=args.force) as at:
         for m, p in pngs.items():
             strips[m].save(at[p])
         grid.save(at[out / "all.png"])

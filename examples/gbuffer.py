@@ -65,7 +65,8 @@ def main():
         wp.synchronize_device(args.device)
         times.append(time.perf_counter() - t0)
     print(f"G-buffer {w}x{h}: {np.median(times) * 1e3:.1f} ms (median of 5), coverage {gb.coverage.mean():.1%}")
-    with staged_outputs([out / n for n in OUTPUTS], force=args.force) as at:   # all five, or none: an error leaves the old set
+    # all five, or none: an error leaves the old set
+    with staged_outputs([out / n for n in OUTPUTS], force=args.force) as at:
         cov = gb.coverage
         write_png(at[out / "normal.png"], np.where(cov[..., None], 0.5 * gb.numpy("normal") + 0.5, 0.0) ** 2.2)
         write_false_colour_png(at[out / "depth.png"], gb.numpy("depth"), mask=cov)

@@ -92,7 +92,8 @@ def main():
         print(f"{name}: {args.spp} spp over {res.pixels_shaded} pixels in {dt:.2f} s "
               f"({evals / dt / 1e6:.2f} M evaluations/s), non-finite samples {res.non_finite}; "
               f"mean radiance {img[gb.coverage].mean(0).round(4)}")
-    with staged_outputs([out / n for n in OUTPUTS], force=args.force) as at:   # all four, or none: an error leaves the old set
+    # all four, or none: an error leaves the old set
+    with staged_outputs([out / n for n in OUTPUTS], force=args.force) as at:
         for name, img in images.items():
             write_exr(at[out / f"{name}.exr"], img)
             write_png(at[out / f"{name}.png"], img)

@@ -1008,7 +1008,8 @@ def main(argv=None) -> int:
         "within_one_standard_error": close,
         "scenes": results,
     }
-    with staged_outputs(outputs(out, args.scenes), force=args.force) as at:   # all, or none: an error leaves the old set
+    # all, or none: an error leaves the old set
+    with staged_outputs(outputs(out, args.scenes), force=args.force) as at:
         for name, r in maps.items():
             write_figure(at[out / f"validate_{name}.png"],
                          f"{name}: {r['stats']['material']} under {r['stats']['environment']}, "

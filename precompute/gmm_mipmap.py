@@ -851,8 +851,8 @@ def load_map(path, kind: str = "height") -> np.ndarray:
     (H, W) float64, or a tangent-space normal map (RGB) as unit (H, W, 3).  PNG normal maps are
     [0, 1]-encoded; an EXR normal map holds the vectors themselves when it has a negative value or one
     above 1, or when more of its texels are unit vectors as stored than as decoded (a [0, 1]-encoded map's texels
-    are not: the flat normal is stored as (0.5, 0.5, 1)), otherwise it is [0, 1]-encoded too (``_holds_vectors``).  Texels shorter than
-    ``NORMAL_LENGTH_MIN`` (as stored or decoded) are an error; texels off unit length by more than ``UNIT_TOL``
+    are not: the flat normal is stored as (0.5, 0.5, 1)), otherwise it is [0, 1]-encoded too (``_holds_vectors``).
+    Texels shorter than ``NORMAL_LENGTH_MIN`` (as stored or decoded) are an error; texels off unit length by more than ``UNIT_TOL``
     are renormalised, with a warning; an image of (0, 0, 0) texels only is an error.  16-bit greyscale PNGs keep
     their precision (Pillow reads 16-bit RGB and grey + alpha PNGs as 8-bit, and that warns).  Normals more than
     ``NORMAL_Z_TOL`` below the tangent plane are an error; those closer are put in it.  A varying height field read

@@ -335,7 +335,8 @@ def test_an_image_cut_at_a_multiple_of_2_to_the_l_reduces_block_by_block(l, bloc
 def test_halving_the_bandwidth_coarsens_the_level_by_one_up_to_the_top(w, h, seed):
     """Eq. 11, level = min(floor(log2(1 / b_p)), floor(log2(min(W, H)))) clamped at 0: halving b_p adds exactly 1 to
     floor(log2(1 / b_p)) (power-of-two scalings are exact in float32), so the level of b_p / 2 is the level of b_p
-    plus one, up to the top (for b_p <= 1; above, both clamp to 0); a larger bandwidth never gets a coarser level; and every level lies in [0, top]."""
+    plus one, up to the top (for b_p <= 1; above, both clamp to 0); a larger bandwidth never gets a coarser level;
+    and every level lies in [0, top]."""
     rng = np.random.default_rng(seed)
     b = np.exp2(rng.uniform(-10.0, 3.0, size=(h, w))).astype(np.float32)
     b.flat[: min(b.size, 4)] = np.float32(2.0) ** rng.integers(-9, 2, size=min(b.size, 4))   # exact powers of two

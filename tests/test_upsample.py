@@ -573,7 +573,8 @@ def test_a_border_texel_outside_its_parents_centres_takes_the_nearest_parent(axi
 
 def camera_around(azimuth, elevation, distance, w, h, look_at=(0.0, 0.0, 0.0), fov=45.0):
     """A camera at ``distance`` from ``look_at`` in the direction (azimuth, elevation), looking at it, +Y up."""
-    d = np.array([math.cos(elevation) * math.sin(azimuth), math.sin(elevation), math.cos(elevation) * math.cos(azimuth)])
+    d = np.array([math.cos(elevation) * math.sin(azimuth), math.sin(elevation),
+                  math.cos(elevation) * math.cos(azimuth)])
     pos = np.asarray(look_at) + distance * d
     return make_camera(tuple(pos), look_at, (0.0, 1.0, 0.0), fov, w, h), pos
 

@@ -142,7 +142,7 @@ def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = GT_SEED, progre
                                clip_distance=clip_distance).image
         t_gt += time.perf_counter() - t0
         try:   # an interrupted run leaves no cut-off chunk; two benches of one scene at once both write it
-            with staged_outputs([path]) as tmp:   # force: a cache
+            with staged_outputs([path], force=True) as tmp:   # a cache: the last writer wins
                 write_exr(tmp[path], img)
         except WarpbwError as exc:   # a full disk, a name taken by a folder: the chunk rendered is not lost
             warnings.warn(f"ground truth not cached ({exc}); this bench goes on, and the next renders it again",

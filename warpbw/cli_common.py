@@ -263,8 +263,9 @@ def json_text(record: dict, **kw) -> str:
 
 
 def write_json(path, record: dict, say: bool = True, force: bool = True) -> Path:
-    """Write ``record`` to ``path`` as :func:`json_text` (its folder made if needed); with ``say``, print where.  Without
-    ``force`` (the caller refused an existing ``path`` before its work) a file that appeared there meanwhile is kept."""
+    """Write ``record`` to ``path`` as :func:`json_text` (its folder made if needed); with ``say``, print where.
+    Without ``force`` (the caller refused an existing ``path`` before its work) a file that appeared there meanwhile
+    is kept."""
     p = Path(path)
     with staged_outputs([p], force=force) as at:   # whole or not at all (a full disk leaves the old record)
         at[p].write_text(json_text(record))
