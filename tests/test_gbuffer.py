@@ -814,19 +814,10 @@ def test_a_sphere_whose_far_side_crosses_into_coarser_float32_spacing_is_refused
 
 
 def reference_rays(position, look_at, fov_deg, w, h):
-    """Unit rays (H*W, 3) through pixel centres, from the docstring's camera: forward towards look_at,
-    right = forward x (+Y), up = right x forward, fov the full angle along the width, square pixels, row 0 on top."""
-    o = np.asarray(position, float)
-    fwd = np.asarray(look_at, float) - o
-    fwd /= np.linalg.norm(fwd)
-    right = np.cross(fwd, [0.0, 1.0, 0.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, fwd)
-    tx = math.tan(math.radians(fov_deg) / 2)
-    ty = tx * h / w
-    x, y = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
-    d = fwd + ((2 * x / w - 1) * tx)[..., None] * right + ((1 - 2 * y / h) * ty)[..., None] * up
-    return fwd, (d / np.linalg.norm(d, axis=-1, keepdims=True)).reshape(-1, 3)
+    """The unit forward vector and the unit rays (H*W, 3) through pixel centres of the docstring's camera (conftest's
+    numpy camera: forward towards look_at, right = forward x (+Y), fov the full angle along the width, row 0 on top)."""
+    fwd = np.asarray(look_at, float) - np.asarray(position, float)
+    return fwd / np.linalg.norm(fwd), numpy_camera_rays(position, look_at, fov_deg, w, h)[1].reshape(-1, 3)
 
 
 def sphere_hits(o, d, centre, radius):
