@@ -17,16 +17,11 @@ import sys
 
 def _run(module: str, prog: str) -> int:
     try:
-        try:
-            main = importlib.import_module(module).main
+        try:   # a Ctrl-C while importing, or while the arguments are parsed (outside run_command's own handling)
+            return importlib.import_module(module).main()
         except KeyboardInterrupt:
             print(f"{prog}: interrupted", file=sys.stderr)
             return 128 + signal.SIGINT   # the shell's status, as run_command's EXIT_INTERRUPTED
-        try:
-            return main()
-        except KeyboardInterrupt:   # outside run_command: while the arguments are parsed
-            print(f"{prog}: interrupted", file=sys.stderr)
-            return 128 + signal.SIGINT
     finally:
         for name in ("SIGINT", "SIGTERM", "SIGHUP"):
             if hasattr(signal, name):

@@ -1264,7 +1264,7 @@ def render_filtering(scene: Scene | FilteringScene, method: str, spp: int = DEFA
     to 8).  With a ``background`` (:class:`Background`, at the camera's resolution) the planes are drawn over it: a
     pixel shows a plane when its centre ray hits one in front of the background's depth, and only those pixels are
     shaded (the scene's spheres and meshes, rendered by :mod:`warpbw.pipeline`)."""
-    from warpbw.shading import launch_tiled
+    from warpbw.shading import launch_tiled, progress_bar
 
     scene, prepared = _scene_and_prepared(scene, prepared)
     check_render_args(scene, method, spp, env_spp, max_anisotropy)
@@ -1316,11 +1316,9 @@ def render_filtering(scene: Scene | FilteringScene, method: str, spp: int = DEFA
     if background is not None:
         wp.launch(background_distance_kernel, dim=n, inputs=[cam, z, depth], device=dev)
         start = depth.numpy().reshape(h, w).copy()   # numpy() of a CPU array is a view of it
-    bar = None
-    if progress and method == "ground_truth":   # the long one (1024 rays per pixel at 1024^2: minutes)
-        from tqdm import tqdm
-        bar = tqdm(total=n * len(planes), desc=f"ground truth, {spp} rays per pixel", unit="px", leave=False)
-    try:
+    # a bar for the ground truth alone, the long one (1024 rays per pixel at 1024^2: minutes)
+    with progress_bar(n * len(planes), f"ground truth, {spp} rays per pixel",
+                      progress and method == "ground_truth") as step:
         for p in planes:
             m = scene.materials[p.material]
             mp = prepared.mips[p.material]
@@ -1329,7 +1327,7 @@ def render_filtering(scene: Scene | FilteringScene, method: str, spp: int = DEFA
                 launch_tiled(kernel, n, lambda o, c, pl=pl, mp=mp: [cam, pl, mp.lw, mp.lh, mp.loff, mp.nmean,
                                                                    prepared.ldir, prepared.lrad, env, int(spp),
                                                                    int(seed), o, depth, out],
-                             dev, threads, bar.update if bar is not None else None)
+                             dev, threads, step)
             else:
                 gmm, K = mp.gmm.get(method, (wp.zeros(1, dtype=wp.vec4, device=dev), 0))
                 pl = _plane_data(p, m, mp, K, lod_bias, max_anisotropy)
@@ -1339,9 +1337,6 @@ def render_filtering(scene: Scene | FilteringScene, method: str, spp: int = DEFA
                                                                  int(env_spp), int(seed), o, depth, out, level],
                              dev, threads)
         wp.synchronize_device(dev)
-    finally:   # closed before an error or an interrupt is said, not drawn again after it at exit
-        if bar is not None:
-            bar.close()
     dt = time.perf_counter() - t0
     img = out.numpy().reshape(h, w, 3).astype(np.float32)
     cov = depth.numpy().reshape(h, w) < (start if background is not None else NO_HIT)

@@ -304,7 +304,7 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     centre ray of something nearer that will be drawn over this image; surfaces beyond it are not shaded and
     not covered (``stats["pixels_hidden"]`` counts them)."""
     from warpbw.gbuffer import make_gbuffer_kernel
-    from warpbw.shading import make_reference_kernel, shade_reference
+    from warpbw.shading import make_reference_kernel, progress_bar, shade_reference
 
     _check_spp(spp)
     check_seed(seed)
@@ -317,18 +317,11 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     gb, hidden = _gbuffer(prep, timings, threads, clip_distance, curvature=False)   # no bandwidth pass reads it
     n_cov = int(gb.coverage.sum())
     spp_taken = spp if prep.env is not None else 0   # directional lights alone are exact: no sample is taken
-    bar = None
-    if progress and n_cov:
-        from tqdm import tqdm
-        bar = tqdm(total=n_cov, desc=f"shading {spp} spp" if spp_taken else "shading (lights, exact)", unit="px",
-                   leave=False)
-    t0 = time.perf_counter()
-    try:
+    with progress_bar(n_cov, f"shading {spp} spp" if spp_taken else "shading (lights, exact)",
+                      bool(progress and n_cov)) as step:
+        t0 = time.perf_counter()   # the bar's making is not the frame's
         res = shade_reference(gb, prep.materials, prep.env_data, spp, seed=seed, mis=mis, device=prep.device,
-                              threads=threads, progress=bar.update if bar is not None else None, lights=prep.lights)
-    finally:   # closed before an error or an interrupt is said, not drawn again after it at exit
-        if bar is not None:
-            bar.close()
+                              threads=threads, progress=step, lights=prep.lights)
     timings["shading"] = time.perf_counter() - t0
     timings["frame"] = timings["gbuffer"] + timings["shading"]   # as the adaptive frame's: no loading, no compiling
     _check_overflowed_samples(prep, res.non_finite, res.samples)

@@ -6,6 +6,7 @@ Public:
     ``ShadingFrame`` / ``pixel_frame(gb, i)``  a pixel's (t, b, n) frame and local view direction (Warp)
     ``to_local(frame, w)`` / ``to_world(frame, w)``  directions between world and the frame (Warp)
     ``launch_tiled(kernel, n_items, make_inputs, device, threads, progress, tile, costs)``  CPU launches over threads
+    ``progress_bar(total, desc, enabled)``  a bar for launch_tiled's ``progress`` (context manager; None if off)
     ``tile_ranges(n_items, tile, costs) -> [(offset, count)]``  its tiles: equal counts, or equal summed costs
     ``covered_pixels(gb, device) -> wp.array``  the covered pixels' indices; ``default_threads(device)``
     ``lighting_inputs(env_data, lights)``  the kernel's environment and lights arguments (placeholders if absent)
@@ -31,6 +32,7 @@ import functools
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Callable
 
@@ -216,6 +218,22 @@ def tile_ranges(n_items: int, tile: int, costs: np.ndarray | None = None) -> lis
     cuts = np.searchsorted(run, run[-1] * np.arange(1, n_tiles) / n_tiles, side="left") + 1
     bounds = np.unique(np.concatenate([[0], np.minimum(cuts, n_items), [n_items]]))
     return [(int(a), int(b - a)) for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+@contextmanager
+def progress_bar(total: int, desc: str, enabled: bool = True):
+    """Yield the ``progress`` callable of :func:`launch_tiled` (a tqdm bar over ``total`` pixels), or None when not
+    ``enabled``; the bar is closed before an error or an interrupt is said, not drawn again after it at exit."""
+    if not enabled:
+        yield None
+        return
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, desc=desc, unit="px", leave=False)
+    try:
+        yield bar.update
+    finally:
+        bar.close()
 
 
 def launch_tiled(kernel, n_items: int, make_inputs: Callable[[int, int], list], device: str,
