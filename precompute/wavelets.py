@@ -229,13 +229,14 @@ def _levels_for(shape: tuple[int, int], levels: int | None) -> int:
 
 
 def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int | None = None,
-                pad: str | tuple[str, str] = "zero") -> np.ndarray:
+                pad: str | tuple[str, str] = "zero", progress=None) -> np.ndarray:
     """``lambda_i^max`` of Eq. 7 per pixel: array ``(L, H, W)``, index 0 = band 1 (finest).
 
     ``image`` is ``(H, W)`` or ``(H, W, C)``; for several channels the per-band maximum is taken
     over channels too (the bandwidth of a colour signal is that of its fastest channel).
     ``pad`` is one mode or a ``(rows, columns)`` pair: ``"zero"`` (finite source, 002 Sec. 2.3),
-    any ``np.pad`` mode (``"edge"``, ``"reflect"``, ``"wrap"``), or ``"latlong_pole"`` (rows only)."""
+    any ``np.pad`` mode (``"edge"``, ``"reflect"``, ``"wrap"``), or ``"latlong_pole"`` (rows only).
+    ``progress``, if given, is called as ``progress(bands_done, bands)`` after each band."""
     wav = _check_wavelet(wavelet)
     modes = _check_pad(pad)
     if np.iscomplexobj(image):   # the imaginary part was dropped with a ComplexWarning
@@ -272,20 +273,45 @@ def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int |
 
     out = np.zeros((nlev, h, w), dtype=np.float64)
     approx = np.moveaxis(padded, 2, 0)  # (C, Hp, Wp): swt2 runs on the last two axes
+    del padded, img   # level 0 holds them through approx; later levels need only their approximation
     for i in range(nlev):
         # one level at a time (start_level = i) keeps memory at one band of the padded image
-        (approx, (ch, cv, cd)), = pywt.swt2(approx, wav, level=1, start_level=i,
-                                            axes=(-2, -1), norm=True)
-        # the SWT output is shifted by the filters' delays; centre each detail on the pixels it describes (after
-        # the maximum over channels: a roll along the image's axes commutes with it).  pywt's horizontal detail ch
-        # high-passes rows (axis -2) and low-passes columns, cv the reverse
-        hi, lo = _centre_shift(wav.name, i)
-        mag = np.max([np.roll(np.abs(d).max(axis=0), shift, axis=(0, 1))
-                      for d, shift in ((ch, (hi, lo)), (cv, (lo, hi)), (cd, (hi, hi)))], axis=0)
+        (approx, details), = pywt.swt2(approx, wav, level=1, start_level=i, axes=(-2, -1), norm=True)
         size = 2 ** (i + 1) + 1  # one wavelet width of band i+1 (1-based): the "contributing" set
+        mag, (r0, c0) = _detail_maxima(details, _centre_shift(wav.name, i), (oy, ox), (h, w), size // 2)
+        del details
         mag = _max_filter_1d(mag, size, 0)
         mag = _max_filter_1d(mag, size, 1)
-        out[i] = mag[oy:oy + h, ox:ox + w]
+        out[i] = mag[oy - r0:oy - r0 + h, ox - c0:ox - c0 + w]
+        if progress is not None:
+            progress(i + 1, nlev)
+    return out
+
+
+def _detail_maxima(details, shifts: tuple[int, int], offsets: tuple[int, int], shape: tuple[int, int],
+                   reach: int) -> tuple[np.ndarray, tuple[int, int]]:
+    """The largest magnitude over channels and the three orientations of one band's details, each first rolled by
+    its delays (``shifts``, :func:`_centre_shift`) to sit over the pixels it describes, on the window of the padded
+    grid that the image (``shape`` at ``offsets``) and ``reach`` texels around it cover, clipped to the grid.
+    Returns the window and its first row and column.
+
+    The same values as rolling the whole padded grid and cutting the window out (a roll is a read at shifted,
+    wrapped indices), without a padded-size copy per detail: an 8192 x 4096 probe's build took 250 B per texel.
+    pywt's horizontal detail ch high-passes rows (axis -2) and low-passes columns, cv the reverse."""
+    hi, lo = shifts
+    hp, wp = details[0].shape[-2:]
+    (oy, ox), (h, w) = offsets, shape
+    r0, r1 = max(0, oy - reach), min(hp, oy + h + reach)
+    c0, c1 = max(0, ox - reach), min(wp, ox + w + reach)
+    mag = None
+    for d, (sy, sx) in zip(details, ((hi, lo), (lo, hi), (hi, hi))):
+        rows = (np.arange(r0, r1) - sy) % hp   # np.roll(x, s)[k] is x[(k - s) mod n]
+        cols = (np.arange(c0, c1) - sx) % wp
+        m = np.abs(d[:, rows[:, None], cols[None, :]]).max(axis=0)
+        mag = m if mag is None else np.maximum(mag, m, out=mag)
+    return mag, (r0, c0)
+
+
     return out
 
 
@@ -352,23 +378,28 @@ def _bandwidth_rows(lam, peak, flat, top: float, epsilon: float, rule: str, ener
 def local_bandwidth(image: np.ndarray, epsilon: float = EPSILON, wavelet: str = DEFAULT_WAVELET,
                     levels: int | None = None, pad: str | tuple[str, str] = "zero",
                     rule: str = "energy", floor: float | None = None,
-                    energy_fraction: float = ENERGY_FRACTION) -> np.ndarray:
+                    energy_fraction: float = ENERGY_FRACTION, progress=None) -> np.ndarray:
     """Per-pixel local bandwidth of a 2D signal, in cycles per pixel (0 .. 0.5), shape ``(H, W)``.
 
     002 Sec. 2.3 Eq. 7 / 000 App. A with the 95% energy rule (module docstring).  ``epsilon`` is
     Eq. 7's threshold; ``floor`` is the absolute coefficient under which a pixel is flat
     (bandwidth 0), by default ``epsilon`` times the image's largest coefficient.  Vectorised: the
-    only Python loop runs over the ``levels`` wavelet bands."""
+    only Python loop runs over the ``levels`` wavelet bands.  ``progress``, if given, is called as
+    ``progress(done, total)`` after each band and after the rule (``total``: the bands and one)."""
     epsilon = _check_fraction(epsilon, "epsilon", False)
     energy_fraction = _check_fraction(energy_fraction, "energy_fraction", True)
-    lam = band_maxima(image, wavelet=wavelet, levels=levels, pad=pad)
+    lam = band_maxima(image, wavelet=wavelet, levels=levels, pad=pad,
+                      progress=None if progress is None else lambda k, n: progress(k, n + 1))
     scale = float(np.max(np.abs(image))) if np.size(image) else 0.0
-    return _bandwidth_from_maxima(lam, epsilon, rule, floor, energy_fraction, scale)
+    b = _bandwidth_from_maxima(lam, epsilon, rule, floor, energy_fraction, scale)
+    if progress is not None:
+        progress(len(lam) + 1, len(lam) + 1)
+    return b
 
 
 def envmap_angular_bandwidth(pixels: np.ndarray, epsilon: float = EPSILON,
                              wavelet: str = DEFAULT_WAVELET, levels: int | None = None,
-                             rule: str = "energy", floor: float | None = None) -> np.ndarray:
+                             rule: str = "energy", floor: float | None = None, progress=None) -> np.ndarray:
     """Angular bandwidth nu_a(w) of a lat-long environment map, in cycles per radian, ``(H, W)``.
 
     ``pixels`` is ``(H, W, 3)`` (or ``(H, W)``), row 0 at theta = 0 (+Y, ../shared/DESIGN.md), column ``u``
@@ -393,13 +424,14 @@ def envmap_angular_bandwidth(pixels: np.ndarray, epsilon: float = EPSILON,
     ``floor`` is :func:`local_bandwidth`'s flatness threshold.  Its default (``epsilon`` times the
     strongest coefficient) suits LDR images but not HDR probes: a sun 10^4 times brighter than the
     sky makes every sky and ground texel "flat" (bandwidth 0).  The renderer therefore passes
-    ``epsilon`` times the map's mean radiance (:mod:`warpbw.bandwidth`)."""
+    ``epsilon`` times the map's mean radiance (:mod:`warpbw.bandwidth`).  ``progress``: as
+    :func:`local_bandwidth`'s."""
     px = np.asarray(pixels, dtype=np.float64)
     if px.ndim not in (2, 3):
         raise WarpbwError(f"envmap pixels must be (H, W) or (H, W, C), got shape {px.shape}")
     h, w = px.shape[:2]
     b = local_bandwidth(px, epsilon=epsilon, wavelet=wavelet, levels=levels,
-                        pad=("latlong_pole", "wrap"), rule=rule, floor=floor)
+                        pad=("latlong_pole", "wrap"), rule=rule, floor=floor, progress=progress)
     theta = (np.arange(h) + 0.5) * math.pi / h
     lam_max = np.maximum(2.0 * math.pi * np.sin(theta) / w, math.pi / h)  # radians per pixel
     return b / lam_max[:, None]

@@ -501,6 +501,19 @@ def test_the_log_signal_keeps_the_edge_beside_suns_up_to_ten_thousand_times_the_
     assert _edge_nu(_sun_edge_probe(sun), "log", cache) == pytest.approx(alone, rel=0.25)
 
 
+def test_building_an_env_bandwidth_map_shows_a_bar_naming_the_map_and_reading_it_from_the_cache_shows_none(
+        tmp_path, capsys):
+    px = _sun_edge_probe(100.0)
+    quiet, _ = bw.env_bandwidth_map(px, "probe.exr", cache=tmp_path / "a")
+    assert capsys.readouterr().err == ""
+    nu, origin = bw.env_bandwidth_map(px, "probe.exr", cache=tmp_path / "b", progress=True)
+    err = capsys.readouterr().err
+    assert origin == "built" and np.array_equal(nu, quiet)
+    assert "bandwidth probe.exr" in err and "band/s" in err
+    assert bw.env_bandwidth_map(px, "probe.exr", cache=tmp_path / "b", progress=True)[1] == "cache"
+    assert capsys.readouterr().err == ""
+
+
 def test_env_bandwidth_maps_are_cached_per_signal_and_old_entries_read_as_radiance(tmp_path):
     from precompute.assetfile import read_asset, write_asset
 

@@ -7,7 +7,7 @@ Public:
     ``load_kernels(device)``   compile the block-plan and pooling kernels ahead, outside the pass's time
     ``BandwidthTables`` (Warp struct) / ``make_bandwidth_tables(nu_env, nu_rho, device)``
     ``nu_env_table(nu_env) -> (h, w)``   the environment's nu_a, max-filtered to at most LIGHT_TABLE_WIDTH columns
-    ``env_bandwidth_map(pixels, name, cache=None, signal) -> ((H, W) float32 cycles/rad, origin)``
+    ``env_bandwidth_map(pixels, name, cache=None, signal, progress) -> ((H, W) float32 cycles/rad, origin)``
     ``ENV_SIGNALS``, ``ENV_SIGNAL_DEFAULT``, ``env_signal(lum, signal)``, ``check_env_signal(signal)``: what it reads
     ``direction_set(n_b, seed) -> (n_b, 3) float32``   stratified points for the n_b directions
     ``interleave_shifts(n_b, side) -> (side^2, 3)``     per-block offsets of the direction set
@@ -576,7 +576,7 @@ def env_signal(lum: np.ndarray, signal: str = ENV_SIGNAL_DEFAULT) -> np.ndarray:
 
 
 def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
-                      signal: str = ENV_SIGNAL_DEFAULT) -> tuple[np.ndarray, str]:
+                      signal: str = ENV_SIGNAL_DEFAULT, progress: bool = False) -> tuple[np.ndarray, str]:
     """nu_a(w) of a lat-long probe in cycles/radian (002 Sec. 2.3, "Distant illumination").
 
     Wavelet analysis of the map's :func:`env_signal` (:func:`precompute.wavelets.envmap_angular_bandwidth`, about
@@ -584,9 +584,11 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
     would otherwise make every other texel flat), cached by the pixels' content hash and the signal in ``cache``
     (a path or a str; default ``$WARPBW_CACHE``).  A constant map has bandwidth 0 everywhere.  An empty map, one with
     NaN or infinite pixels, or one beyond float32's range is refused, naming ``name``.  Returns the map and where
-    it came from ("constant", "cache" or "built")."""
+    it came from ("constant", "cache" or "built").  ``progress`` shows a bar over the wavelet bands while it builds
+    (a minute at 8192x4096)."""
     from precompute.assetfile import read_asset, write_asset
     from precompute.brdf_sampling import cache_dir
+    from precompute.progress import progress_callback
     from precompute.wavelets import EPSILON, envmap_angular_bandwidth
 
     check_env_signal(signal)
@@ -622,7 +624,8 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
         except (WarpbwError, KeyError, AttributeError, TypeError, ValueError):
             pass  # a stale or damaged cache entry (strings for numbers: a ValueError) is rebuilt below
     t = env_signal(lum, signal).astype(np.float64)     # a float32 mean overflows beyond about 1e33 per texel
-    nu = envmap_angular_bandwidth(t, floor=EPSILON * float(t.mean())).astype(np.float32)
+    with progress_callback(1, f"bandwidth {name}", "band", progress) as step:
+        nu = envmap_angular_bandwidth(t, floor=EPSILON * float(t.mean()), progress=step).astype(np.float32)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         write_asset(path, ENV_BW_FORMAT, ENV_BW_VERSION, name, digest, {"nu_a": nu},
