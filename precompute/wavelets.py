@@ -299,20 +299,17 @@ def _detail_maxima(details, shifts: tuple[int, int], offsets: tuple[int, int], s
     wrapped indices), without a padded-size copy per detail: an 8192 x 4096 probe's build took 250 B per texel.
     pywt's horizontal detail ch high-passes rows (axis -2) and low-passes columns, cv the reverse."""
     hi, lo = shifts
-    hp, wp = details[0].shape[-2:]
+    n_rows, n_cols = details[0].shape[-2:]
     (oy, ox), (h, w) = offsets, shape
-    r0, r1 = max(0, oy - reach), min(hp, oy + h + reach)
-    c0, c1 = max(0, ox - reach), min(wp, ox + w + reach)
+    r0, r1 = max(0, oy - reach), min(n_rows, oy + h + reach)
+    c0, c1 = max(0, ox - reach), min(n_cols, ox + w + reach)
     mag = None
     for d, (sy, sx) in zip(details, ((hi, lo), (lo, hi), (hi, hi))):
-        rows = (np.arange(r0, r1) - sy) % hp   # np.roll(x, s)[k] is x[(k - s) mod n]
-        cols = (np.arange(c0, c1) - sx) % wp
+        rows = (np.arange(r0, r1) - sy) % n_rows   # np.roll(x, s)[k] is x[(k - s) mod n]
+        cols = (np.arange(c0, c1) - sx) % n_cols
         m = np.abs(d[:, rows[:, None], cols[None, :]]).max(axis=0)
         mag = m if mag is None else np.maximum(mag, m, out=mag)
     return mag, (r0, c0)
-
-
-    return out
 
 
 def _bandwidth_from_maxima(lam: np.ndarray, epsilon: float, rule: str, floor: float | None,

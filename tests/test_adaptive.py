@@ -173,7 +173,10 @@ def test_the_plan_names_every_texel_the_hierarchy_shades_before_any_sample():
     masks = plan.shade_masks()
     edge = [masks[L] & (mins[L].numpy() > L) for L in range(len(masks))]
     assert edge[0].any() and edge[1].any(), [int(e.sum()) for e in edge]   # at levels 0 and 1 (measured: 3, 2)
-    r = shade_hierarchical(base.gbuffer, prep.camera, prep.materials, prep.env.data, level, spp, seed=5, plan=plan)
+    done = []   # the progress callback counts each shaded pixel once, over all levels
+    r = shade_hierarchical(base.gbuffer, prep.camera, prep.materials, prep.env.data, level, spp, seed=5, plan=plan,
+                           progress=done.append)
+    assert sum(done) == plan.shaded_texels
     assert r.stats["unplanned_shaded"] == 0
     assert [lv["shaded"] for lv in r.stats["levels"]] == [len(pl.shade) for pl in plan.levels]
     assert r.stats["samples"] == 4 * plan.shaded_texels
@@ -187,8 +190,11 @@ def test_the_plan_names_every_texel_the_hierarchy_shades_before_any_sample():
     keep = ~edge[0].reshape(-1)[pl0.shade]
     cut = replace(plan, levels=plan.levels[:-1] + [replace(pl0, shade=pl0.shade[keep],
                                                             upsample=np.union1d(pl0.upsample, pl0.shade[~keep]))])
-    r2 = shade_hierarchical(base.gbuffer, prep.camera, prep.materials, prep.env.data, level, spp, seed=5, plan=cut)
+    done.clear()
+    r2 = shade_hierarchical(base.gbuffer, prep.camera, prep.materials, prep.env.data, level, spp, seed=5, plan=cut,
+                            progress=done.append)
     assert r2.stats["unplanned_shaded"] == int(edge[0].sum()) > 0
+    assert sum(done) == plan.shaded_texels
     np.testing.assert_array_equal(r2.image, r.image)
 
 

@@ -69,6 +69,7 @@ against its cached 8192-spp ground truth):
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -240,11 +241,13 @@ def plan_hierarchy(gb: GBuffer, cam: CameraData, level_map, device: str = "cpu")
 def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env_data: EnvMapData,
                        level_map, spp_map, seed: int = 0, mis: bool = False, device: str = "cpu",
                        threads: int | None = None, lights: Lights | None = None,
-                       upsample: str = UPSAMPLE_DEFAULT, plan: HierarchyPlan | None = None) -> AdaptiveResult:
+                       upsample: str = UPSAMPLE_DEFAULT, plan: HierarchyPlan | None = None,
+                       progress: Callable[[int], None] | None = None) -> AdaptiveResult:
     """Coarse-to-fine shading of the covered pixels with per-pixel levels and sample counts; ``lights``
     (directional, or None) are then added exactly at every covered pixel (module docstring).  ``upsample``:
     "normal" or "paper" (:mod:`warpbw.upsample`).  ``plan``: :func:`plan_hierarchy`'s for ``level_map``
-    (made here when None)."""
+    (made here when None).  ``progress(count)`` is called as the shaded pixels' tiles finish, over all levels
+    (``plan.shaded_texels`` in all)."""
     check_device(device)
     check_upsample_mode(upsample)
     if env_data is None:
@@ -295,7 +298,7 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
             wp.launch(level_spp_kernel, dim=n_shaded, inputs=[rep, w, spps.levels[L], texels, spp_at_pixel],
                       device=device)
             res = shade_reference(gb, materials, env_data, spp_at_pixel, seed=seed + 7919 * L, mis=mis,
-                                  device=device, threads=threads, pixels=pix, out=shaded_full)
+                                  device=device, threads=threads, pixels=pix, out=shaded_full, progress=progress)
             samples += res.samples
             non_finite += res.non_finite
             wp.launch(gather_shaded_kernel, dim=n_shaded, inputs=[pix, texels, shaded_full, vals, valid],

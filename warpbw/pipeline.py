@@ -485,7 +485,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     :func:`render_reference`: a hidden pixel takes no part in the pass, the budget or the hierarchy."""
     from warpbw import adaptive, bandwidth
     from warpbw.gbuffer import make_gbuffer_kernel
-    from warpbw.shading import make_reference_kernel
+    from warpbw.shading import make_reference_kernel, progress_bar
     from warpbw.upsample import UPSAMPLE_DEFAULT, check_upsample_mode
 
     n_b = bandwidth.N_B_DEFAULT if n_b is None else n_b
@@ -535,9 +535,11 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
                                        device=prep.device, mis=mis, plan=plan.shade_masks())
     timings["bandwidth"] = t_pass + time.perf_counter() - t0
     t0 = time.perf_counter()
-    res = adaptive.shade_hierarchical(gb, prep.camera, prep.materials, prep.env_data, buf.level, alloc.n_p,
-                                      seed=seed, mis=mis, device=prep.device, threads=threads, lights=prep.lights,
-                                      upsample=upsample, plan=plan)
+    with progress_bar(plan.shaded_texels, f"shading adaptive, budget {budget:g} spp",
+                      bool(progress and plan.shaded_texels)) as step:
+        res = adaptive.shade_hierarchical(gb, prep.camera, prep.materials, prep.env_data, buf.level, alloc.n_p,
+                                          seed=seed, mis=mis, device=prep.device, threads=threads, lights=prep.lights,
+                                          upsample=upsample, plan=plan, progress=step)
     t_h = time.perf_counter() - t0 + t_plan
     timings["shading"] = res.stats["time_s"]["shading"]
     timings["upsampling"] = res.stats["time_s"]["upsampling"]
