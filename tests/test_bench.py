@@ -240,14 +240,15 @@ def test_speedup_standard_error_follows_the_power_law_and_brute_force():
     assert abs(math.sqrt(np.mean(np.square(preds))) / np.std(logs) - 1.0) < 0.15
 
 
-def _fake_adaptive_result(image, cov, t, budget, pass_share=0.1):
+def _fake_adaptive_result(image, cov, t, budget, pass_share=0.1, over_budget=False):
     """What a fake render_adaptive returns: its image, and a frame time t split over the stages (``pass_share`` of
-    it, a tenth by default, in the bandwidth pass)."""
+    it, a tenth by default, in the bandwidth pass); ``over_budget``: its allocation's flag."""
     ts = {"bandwidth": pass_share * t, "shading": (0.8 - pass_share) * t, "upsampling": 0.1 * t,
           "hierarchy": 0.05 * t, "gbuffer": 0.05 * t, "frame": t}
     return SimpleNamespace(image=image, coverage=cov,
                            stats={"time_s": ts, "shaded_fraction": 0.5, "samples": 10,
-                                  "samples_per_covered_pixel": float(budget), "allocation": {"over_budget": False}})
+                                  "samples_per_covered_pixel": max(float(budget), 1.0 if over_budget else 0.0),
+                                  "allocation": {"over_budget": over_budget}})
 
 
 def test_bench_figures_follow_closed_forms_with_fake_renderers(tmp_path, monkeypatch):
@@ -451,7 +452,7 @@ def _fake_renderers(monkeypatch, ref_amp, ada, chunk_amp=lambda k: 0.0, run_time
     """Install fake ``render_reference`` / ``render_adaptive`` and a fake clock in bench.  The reference's run r at
     ``spp`` (seeded seed + 101 spp + r, as run_bench does) has amplitude ``ref_amp(spp)`` and takes
     0.01 spp run_time[r] s; budget b's run r (seeded 7 r) has amplitude ``ada[b][0]`` and takes ada[b][1] run_time[r]
-    s; the ground truth's k-th chunk rendered (seed >= 1e6) has amplitude ``chunk_amp(k)``.  Returns the list of
+    s (over budget where ``ada[b]`` has a third item, True); the ground truth's k-th chunk rendered (seed >= 1e6) has amplitude ``chunk_amp(k)``.  Returns the list of
     the chunks' seeds, in the order rendered.  Each adaptive frame also spends ``ada_host_time`` s of wall time
     outside its stages (its stats' time_s still sum to the frame's t)."""
 
@@ -472,10 +473,10 @@ def _fake_renderers(monkeypatch, ref_amp, ada, chunk_amp=lambda k: 0.0, run_time
                                stats={"time_s": {"shading": 0.9 * t, "gbuffer": 0.1 * t}})
 
     def fake_adaptive(prep, budget, seed=0, mis=False, **kw):
-        amp, t = ada.get(float(budget), (0.1, 0.01))                     # the warm-up frame is budget 1
+        amp, t, *over = ada.get(float(budget), (0.1, 0.01))               # the warm-up frame is budget 1
         t *= run_time[(seed // 7) % len(run_time)]
         clock.now += t + ada_host_time
-        return _fake_adaptive_result(_frame(amp), _COV, t, budget)
+        return _fake_adaptive_result(_frame(amp), _COV, t, budget, over_budget=bool(over and over[0]))
 
     monkeypatch.setattr(pipeline, "render_reference", fake_reference)
     monkeypatch.setattr(pipeline, "render_adaptive", fake_adaptive)
@@ -587,6 +588,54 @@ def test_headline_speedup_is_never_an_extrapolated_point(tmp_path, monkeypatch):
     alone = bench.run_bench(scene, budgets=(2,), **kw)
     assert alone["methods"]["adaptive"][0]["extrapolated"]
     assert alone["equal_quality_speedup"] is None and alone["equal_quality_budget"] is None
+
+
+def test_headline_speedup_skips_an_over_budget_point_where_a_budget_was_kept(tmp_path, monkeypatch):
+    """Closed form as above: budget 0.5 is over budget (every shaded pixel's n_min took more: the frame of a larger
+    budget) and matches 11 spp in 0.01 s (11x); budget 1 matches 11 spp in 0.02 s (5.5x).  The headline is budget
+    1's; the table marks budget 0.5.  With budget 0.5 alone it is the headline, said to be over budget."""
+    from warpbw.scene import parse_scene
+
+    ada = {0.5: (_power_law_amp(11.0), 0.01, True), 1.0: (_power_law_amp(11.0), 0.02)}
+    _fake_renderers(monkeypatch, ref_amp=_power_law_amp, ada=ada)
+    scene = parse_scene(SCENE, tmp_path, "s.toml")
+    kw = dict(spp_list=(1, 4, 16, 64, 256), gt_spp=64, runs=2, cache_dir=tmp_path / "gt", progress=False,
+              log=lambda *a, **k: None)
+    rec = bench.run_bench(scene, budgets=(0.5, 1), **kw)
+    half, one = rec["methods"]["adaptive"]
+    assert half["over_budget"] and not one["over_budget"]
+    assert math.isclose(half["equal_quality_speedup"], 11.0, rel_tol=1e-4)
+    assert rec["equal_quality_budget"] == 1.0 and math.isclose(rec["equal_quality_speedup"], 5.5, rel_tol=1e-4)
+    table = bench.format_table(rec).splitlines()
+    assert [ln.split()[1] for ln in table if ln.startswith("adaptive")] == ["0.5!", "1"]
+    assert "! over budget" in table[-1] and "over budget:" not in "\n".join(table[:-1])
+    alone = bench.run_bench(scene, budgets=(0.5,), **kw)
+    assert alone["equal_quality_budget"] == 0.5 and math.isclose(alone["equal_quality_speedup"], 11.0, rel_tol=1e-4)
+    assert "at budget 0.5 (over budget: 1.00 samples per covered pixel)" in bench.format_table(alone)
+
+
+def test_the_largest_seed_runs_its_derived_seeds_wrapped_into_the_renderers_range(tmp_path, monkeypatch):
+    """bench derives each run's seed from --seed (seed + 101 spp + r, seed + 7 r).  At --seed 4294967295 those
+    passed 2^32 - 1 and the renderers refused them after the ground truth was rendered.  They now wrap modulo 2^32:
+    the renderers' own seed check (``check_seed``) passes on every frame."""
+    from warpbw import pipeline
+    from warpbw.errors import SEED_MAX, check_seed, offset_seed
+    from warpbw.scene import parse_scene
+
+    assert offset_seed(SEED_MAX, 1) == 0 and offset_seed(SEED_MAX, 101 * 4 + 2) == 101 * 4 + 1
+    assert offset_seed(5, 7) == 12
+    _fake_renderers(monkeypatch, ref_amp=_power_law_amp, ada={1.0: (_power_law_amp(11.0), 0.02)})
+    seeds = []
+    for name in ("render_reference", "render_adaptive"):
+        fake = getattr(pipeline, name)
+
+        def checked(prep, *a, fake=fake, seed=0, **kw):
+            seeds.append(check_seed(seed))
+            return fake(prep, *a, seed=seed, **kw)
+        monkeypatch.setattr(pipeline, name, checked)
+    rec = bench.run_bench(parse_scene(SCENE, tmp_path, "s.toml"), spp_list=(1, 4), budgets=(1,), gt_spp=8, runs=2,
+                          seed=SEED_MAX, cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **k: None)
+    assert len(rec["methods"]["reference"]) == 2 and max(seeds) == SEED_MAX and 6 in seeds   # SEED_MAX + 7 r, r = 1
 
 
 def test_equal_quality_below_the_smallest_count_is_extrapolated():

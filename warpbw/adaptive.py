@@ -77,7 +77,7 @@ import warp as wp
 
 from warpbw.brdf import MaterialBuffers
 from warpbw.envmap import EnvMapData
-from warpbw.errors import INT32_MAX, WarpbwError, check_device
+from warpbw.errors import INT32_MAX, WarpbwError, check_device, offset_seed
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData
 from warpbw.lights import Lights
 from warpbw.pyramid import build_pyramid, max_level
@@ -297,7 +297,7 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
             pix = wp.array(rep_np[to_shade].astype(np.int32), dtype=wp.int32, device=device)
             wp.launch(level_spp_kernel, dim=n_shaded, inputs=[rep, w, spps.levels[L], texels, spp_at_pixel],
                       device=device)
-            res = shade_reference(gb, materials, env_data, spp_at_pixel, seed=seed + 7919 * L, mis=mis,
+            res = shade_reference(gb, materials, env_data, spp_at_pixel, seed=offset_seed(seed, 7919 * L), mis=mis,
                                   device=device, threads=threads, pixels=pix, out=shaded_full, progress=progress)
             samples += res.samples
             non_finite += res.non_finite

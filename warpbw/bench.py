@@ -41,8 +41,10 @@ Protocol:
   the same MSE, interpolated linearly in (log spp, log MSE) and (log spp, log time) between measured
   counts, divided by the adaptive time.  Outside the measured range it is extrapolated along the end
   segment and flagged ``extrapolated``.  The headline ``equal_quality_speedup`` is the best
-  non-extrapolated point of the budget sweep (the operating point a user would pick); every point is
-  in the record.  Its standard error (``equal_quality_speedup_se``, :func:`speedup_relative_se`) carries the
+  non-extrapolated point of the budget sweep (the operating point a user would pick) among the budgets the frames
+  kept (``over_budget`` points, whose shaded pixels' minimum of ``n_min`` samples took more, only where no budget was
+  kept: such a point is the frame of a larger budget, timed again, and would be picked for its timing noise); every
+  point is in the record.  Its standard error (``equal_quality_speedup_se``, :func:`speedup_relative_se`) carries the
   noise of both curves' errors, not of the times.  The headline, the best of the sweep, is picked after the
   fact, so it leans high where several budgets lie within their standard errors of each other.
 * A scene with planes beside spheres or meshes: its spheres and meshes are benchmarked where no plane hides
@@ -65,7 +67,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, offset_seed
 from warpbw.io.staged import staged_outputs
 
 GT_CHUNK_SPP = 4096                                   # spp per cached ground-truth chunk
@@ -318,7 +320,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     cov = None
     last = None
     for spp in spp_list:
-        res, t, err = _timed(lambda r: render_reference(prep, spp=spp, seed=seed + 101 * spp + r, mis=mis), runs, gt)
+        res, t, err = _timed(lambda r: render_reference(prep, spp=spp, seed=offset_seed(seed, 101 * spp + r), mis=mis),
+                             runs, gt)
         cov = res.coverage
         last = res.image
         rec = {"spp": int(spp), "time_s": t, **err,
@@ -339,7 +342,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     log(f"ground-truth check: {d_db:.3f} dB ({'converged' if converged else 'NOT converged: raise --gt-spp'})")
     ada_recs = []
     for b in budgets:
-        res, t, err = _timed(lambda r: render_adaptive(prep, budget=b, seed=seed + 7 * r, mis=mis, **opts), runs, gt)
+        res, t, err = _timed(lambda r: render_adaptive(prep, budget=b, seed=offset_seed(seed, 7 * r), mis=mis, **opts),
+                             runs, gt)
         ts = res.stats["time_s"]
         spp_eq, t_eq, ext = equal_quality_time(ref_recs, err["mse"])
         rec = {"budget": float(b), "time_s": t, **err,
@@ -364,15 +368,16 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     nb_recs = []
     nbb = NB_SWEEP_BUDGET if nb_budget is None else nb_budget
     for n_b in nb_list:
-        res, t, err = _timed(lambda r: render_adaptive(prep, budget=nbb, seed=seed + 7 * r, mis=mis, n_b=int(n_b),
-                                                       **opts), runs, gt)
+        res, t, err = _timed(lambda r: render_adaptive(prep, budget=nbb, seed=offset_seed(seed, 7 * r), mis=mis,
+                                                       n_b=int(n_b), **opts), runs, gt)
         rec = {"n_b": int(n_b), "budget": float(nbb), "time_s": t, **err,
                "bandwidth_time_s": res.stats["time_s"]["bandwidth"], "shaded_fraction": res.stats["shaded_fraction"]}
         nb_recs.append(rec)
         log(f"n_b {n_b:5d} (budget {nbb:g})   {t:8.3f} s   PSNR {rec['psnr_db']:6.2f} dB +/- {_se(rec)}   "
             f"bandwidth {rec['bandwidth_time_s'] * 1e3:.1f} ms")
     valid = [r for r in ada_recs if not r["extrapolated"] and math.isfinite(r["equal_quality_speedup"])]
-    best = max(valid, key=lambda r: r["equal_quality_speedup"]) if valid else None
+    kept = [r for r in valid if not r["over_budget"]] or valid   # module docstring
+    best = max(kept, key=lambda r: r["equal_quality_speedup"]) if kept else None
     record = {
         "scene": str(scene.source),
         "scene_hash": scene.content_hash()[:16],
@@ -451,18 +456,21 @@ def format_table(record: dict) -> str:
         lines.append(f"{'reference':10s} {r['spp']:10d} {r['time_s']:9.3f} {r['psnr_db']:7.2f} {_se(r):>5s} "
                      f"{r['relmse']:10.3e}")
     for r in record["methods"]["adaptive"]:
-        lines.append(f"{'adaptive':10s} {r['budget']:10g} {r['time_s']:9.3f} {r['psnr_db']:7.2f} {_se(r):>5s} "
+        lines.append(f"{'adaptive':10s} {r['budget']:9g}{'!' if r.get('over_budget') else ' '} {r['time_s']:9.3f} "
+                     f"{r['psnr_db']:7.2f} {_se(r):>5s} "
                      f"{r['relmse']:10.3e} "
                      f"{100 * r['shaded_fraction']:6.1f}% {100 * r['bandwidth_time_fraction']:5.1f} "
                      f"{r['equal_quality_speedup']:8.2f}x {_se(r, 'equal_quality_speedup_se'):>5s}"
                      f"{'*' if r['extrapolated'] else ''}")
     s = record["equal_quality_speedup"]
+    best = next((r for r in record["methods"]["adaptive"] if r["budget"] == record.get("equal_quality_budget")), None)
+    over = (f" (over budget: {best['samples_per_covered_pixel']:.2f} samples per covered pixel)"
+            if best is not None and best.get("over_budget") else "")
     lines.append(f"equal-quality speed-up: {s:.2f}x +/- {_se(record, 'equal_quality_speedup_se')} at budget "
-                 f"{record['equal_quality_budget']:g}" if s is not None
+                 f"{record['equal_quality_budget']:g}{over}" if s is not None
                  else "equal-quality speed-up: none within the measured reference range")
     if record.get("bandwidth_time_fraction") is not None:
         lines.append(f"bandwidth pass: {100 * record['bandwidth_time_fraction']:.1f}% of the frame")
-    best = next((r for r in record["methods"]["adaptive"] if r["budget"] == record.get("equal_quality_budget")), None)
     if best is not None:
         lines.append(f"where the frame's time goes at budget {best['budget']:g} (its last run): "
                      + ", ".join(f"{name} {1e3 * best[key]:.0f} ms" for name, key in FRAME_STAGES if key in best))
@@ -478,7 +486,11 @@ def format_table(record: dict) -> str:
         lines.append(f"n_b sweep: PSNR range {record['nb_psnr_range_db']:.2f} dB"
                      + (f" (standard error {se:.2f} dB over {record['runs']} paired runs)" if se is not None else ""))
     lines.append("(+/-: standard errors over the runs, of the PSNR in dB and of the speed-up from the errors' noise; "
-                 "* extrapolated beyond the measured reference counts)")
+                 "* extrapolated beyond the measured reference counts"
+                 + ("; ! over budget: n_min samples per shaded pixel took more, and the headline skips it where "
+                    "another budget was kept" if any(r.get("over_budget") for r in record["methods"]["adaptive"])
+                    else "")
+                 + ")")
     return "\n".join(lines)
 
 

@@ -71,7 +71,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import INT32_MAX, WarpbwError, check_count
+from warpbw.errors import INT32_MAX, WarpbwError, check_count, offset_seed
 from warpbw.metrics import psnr, relmse
 
 DEFAULT_ZOOMS = (1, 2, 4, 8, 16, 32)
@@ -221,10 +221,10 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     for z, _, cams, bgs in frames_by_zoom:
         # the same seed in every frame: the same jitter pattern per pixel, so the truth's frame-to-frame change
         # carries as little of its own noise as possible
-        g = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=GT_SEED + seed, prepared=prep, camera=c,
-                              background=b) for c, b in zip(cams, bgs)]
-        g2 = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=GT_SEED_2 + seed, prepared=prep, camera=c,
-                               background=b) for c, b in zip(cams, bgs)]
+        g = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=offset_seed(seed, GT_SEED), prepared=prep,
+                              camera=c, background=b) for c, b in zip(cams, bgs)]
+        g2 = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=offset_seed(seed, GT_SEED_2), prepared=prep,
+                               camera=c, background=b) for c, b in zip(cams, bgs)]
         cov = g[0].coverage
         both = [g[j].coverage & g[j + 1].coverage for j in range(len(g) - 1)]
         norms = [_norm(x.image, x.coverage) for x in g[:-1]]   # each pair normalised by its first frame's truth

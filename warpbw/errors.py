@@ -8,8 +8,9 @@ camera's distance to an object within what float32 intersection handles); ``chec
 size, target, source)`` (float32 fine enough where the camera and an object lie, ``COORD_SPACING_REL_MAX``);
 ``check_flag(value, name) -> bool`` (True or False, not a truthy string); ``check_warp_array(a, name, dtype, n,
 device, what, at_least)`` (a 1-D Warp array a kernel may index n items of); ``check_real(value, name, lo,
-lo_open) -> float`` (a finite real number in float32's range, not a bool or a string); ``check_seed(seed, name)`` (a uint32)
-and ``check_device(device, name)`` (a Warp device this machine has), the renderers' own checks;
+lo_open) -> float`` (a finite real number in float32's range, not a bool or a string); ``check_seed(seed, name)``
+(a uint32), ``offset_seed(seed, offset)`` (a seed derived from the user's, kept a uint32 by wrapping) and
+``check_device(device, name)`` (a Warp device this machine has), the renderers' own checks;
 ``numeric_array(values, name, expected)`` (float64 numbers, not strings or ragged lists);
 ``check_direction_pairs(wi, wo) -> (wi, wo)`` (the BRDF evaluators' (N, 3) direction pairs, broadcast, unit length)
 and ``unit_directions(d, name)`` (finite non-zero directions scaled to unit length); ``check_finite_image(image,
@@ -107,6 +108,12 @@ def check_flag(value, name: str) -> bool:
 def check_seed(seed, name: str = "seed") -> int:
     """A seed the RNGs take as it is: an integer from 0 to ``SEED_MAX`` (else it would wrap, or fail inside numpy)."""
     return check_count(seed, name, 0, SEED_MAX)
+
+
+def offset_seed(seed: int, offset: int) -> int:
+    """``seed + offset`` modulo 2^32: the seed of one run or level derived from the user's, a uint32 for every seed
+    ``check_seed`` takes (``bench --seed 4294967295`` was refused after its ground truth, naming a seed past it)."""
+    return (int(seed) + int(offset)) % (SEED_MAX + 1)
 
 
 def check_device(device, name: str = "device") -> str:
