@@ -187,6 +187,26 @@ def test_demo_writes_exr_png_json_and_respects_force(tmp_path):
     assert j["pixels"] == int(covered.sum())
 
 
+def test_compare_warns_when_both_renders_share_their_seed(tmp_path):
+    """At one seed an image at 4 spp is the first 4 samples of one at 16 (the same stream per pixel): compared with
+    it, its error reads low.  Independent truth: the 4-spp image's squared error against a 16-spp render at its own
+    seed holds its own noise (mean square of the difference) less the shared part, so it is below the error against
+    a 16-spp render at another seed.  compare warns when the .json records show the same seed and scene, and not
+    otherwise."""
+    (tmp_path / "s.toml").write_text(SCENE.replace('file = "{probe}"\nrotation = 90.0', 'procedural = "sky"')
+                                     .format(material='type = "ggx"\nalpha = 0.3\nspecular = [0.9, 0.9, 0.9]',
+                                             extra="").replace('lookup = "linear"\n', ""))
+    for name, spp, seed in (("a", 4, 0), ("t0", 16, 0), ("t1", 16, 1)):
+        run(["render", "s.toml", "-o", f"{name}.exr", "--spp", spp, "--seed", seed, "-q"], tmp_path)
+    same = run(["compare", "a.exr", "t0.exr", "--json"], tmp_path)
+    other = run(["compare", "a.exr", "t1.exr", "--json"], tmp_path)
+    assert json.loads(same.stdout)["mse"] < json.loads(other.stdout)["mse"]
+    assert "same --seed 0" in same.stderr and "another --seed" in same.stderr
+    assert other.stderr == ""
+    (tmp_path / "t0.json").unlink()   # no record beside the reference: nothing to tell
+    assert run(["compare", "a.exr", "t0.exr"], tmp_path).stderr == ""
+
+
 def test_compare_error_map_and_worst_share_follow_hand_made_images(tmp_path):
     """``compare --error-map``: per pixel (t - r)^2 / (r^2 + 0.01), averaged over R, G, B, 0 where not covered; its
     mean over the covered pixels is the relMSE; the worst 1% of the covered pixels' share of it.  Images made here:

@@ -445,6 +445,7 @@ def cmd_compare(args) -> int:
         if bad:
             raise WarpbwError(f"{name}: {bad} non-finite values over covered pixels")
     r = compare_images(ta, tb, mask)
+    _warn_if_seed_shared(args.test, args.reference)
     # whose A channel said which pixels count; None: the non-black pixels
     r["coverage_from"] = {"reference": str(args.reference), "test": str(args.test)}.get(coverage_from)
     if maps:
@@ -471,6 +472,30 @@ def cmd_compare(args) -> int:
             what = "no covered pixel has any error" if r["relmse"] == 0 else f"every error is {hi:.3g}"
             print(f"error map {maps[0]} (+ {maps[1].name}; {what})")
     return 0
+
+
+def _render_record(exr) -> dict | None:
+    """The stats JSON ``warpbw render`` wrote beside ``exr`` (its name with .json), when it is one of a sampled
+    frame (reference or adaptive, with a seed); else None."""
+    try:
+        rec = json.loads(Path(exr).with_suffix(".json").read_text())
+    except (OSError, ValueError):   # none, unreadable, or not JSON: nothing to say
+        return None
+    ok = isinstance(rec, dict) and rec.get("method") in ("reference", "adaptive") and type(rec.get("seed")) is int
+    return rec if ok else None
+
+
+def _warn_if_seed_shared(test, reference) -> None:
+    """At one seed every pixel draws the same stream of samples, so an image at N spp is the first N samples of one
+    at more (and an adaptive frame's finest pixels are the reference's): its error against such a "ground truth"
+    reads low (in theory 10 log10((1 + 1/16) / (1 - 1/16)) = 0.54 dB at 64 against 1024 spp; 0.8 dB measured on the
+    bunny, session 62).  Say so when both images' render records show it."""
+    a, b = _render_record(test), _render_record(reference)
+    if a is not None and b is not None and a["seed"] == b["seed"] and a.get("scene") == b.get("scene"):
+        print(f"warpbw: warning: {test} and {reference} were rendered from one scene at the same --seed "
+              f"{a['seed']} (their .json records say so): they share their random samples, so the error reads "
+              "lower than against an independent reference; render the reference with another --seed",
+              file=sys.stderr)
 
 
 def _error_map_paths(args) -> list:
@@ -705,7 +730,9 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument("--spp", type=_positive_int("spp", INT32_MAX), default=None,
                         help=f"BRDF samples per pixel, N in 002 Eq. 2 (default {spp_default})")
         # default None: render refuses a --seed its scene would not use, so it must know whether one was given
-        sp.add_argument("--seed", type=parse_seed, default=None, help="random seed, 0 to 2^32-1 (default 0)")
+        sp.add_argument("--seed", type=parse_seed, default=None,
+                        help="random seed, 0 to 2^32-1 (default 0); at one seed a pixel draws the same samples, so a "
+                        "ground truth to compare with takes another")
         sp.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda / cuda:N")
         sp.add_argument("--exposure", type=_exposure, default=0.0,
                         help=f"PNG preview exposure in stops, -{EXPOSURE_MAX_STOPS:g} to {EXPOSURE_MAX_STOPS:g} "
@@ -872,7 +899,10 @@ def build_parser() -> argparse.ArgumentParser:
                        "share of the "
                        f"relative MSE held by the worst {_WORST_FRACTION:.0%} of those pixels: "
                        f"{_WORST_FRACTION:.0%} if every pixel had the same error, near 100% when a few pixels hold "
-                       "it (fireflies and edges smeared by up-sampling alike: --error-map shows which).")
+                       "it (fireflies and edges smeared by up-sampling alike: --error-map shows which).  Render the "
+                       "reference with another --seed than the image: at one seed a pixel draws the same samples, so "
+                       "the image's are the first of the reference's and the error reads low (a warning says so when "
+                       "the images' .json records show it).")
     c.add_argument("test", help="image to judge (EXR)")
     c.add_argument("reference", help="reference image (EXR)")
     c.add_argument("--json", action="store_true",
