@@ -111,7 +111,7 @@ def hemispherical_scales(size: int = 512, scales_across: int = SCALES_ACROSS_DEF
         fits = (size - 1) // MIN_TEXELS_PER_SCALE
         need = MIN_TEXELS_PER_SCALE * n + 1
         fix = [f"a size of at least {need}"] if need <= MAX_SURFACE_SIZE else []
-        fix += [f"scales_across at most {fits}"] if fits >= 1 else []
+        fix += [f"scales_across at most {fits} (an argument from Python)"] if fits >= 1 else []
         raise WarpbwError(f"hemispherical_scales: size {size} gives {size / n:.3g} texels per scale spacing with "
                           f"scales_across {n}; expected more than {MIN_TEXELS_PER_SCALE} (at 1 or 2 every texel "
                           f"samples the same point of its scale and the map is flat, below 2 the pattern aliases)"

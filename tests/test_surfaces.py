@@ -276,10 +276,11 @@ def test_a_surface_of_the_largest_size_is_made_and_one_more_is_refused():
 
 
 def test_the_scales_refusal_suggests_a_count_that_fits():
-    """The count the scales' refusal suggests ("scales_across at most N") is accepted at that size; N + 1 is not."""
+    """The count the scales' refusal suggests ("scales_across at most N") is accepted at that size; N + 1 is not.
+    The refusal says it is a Python argument: `warpbw-precompute gmm surface:hemispherical_scales:SIZE` takes none."""
     for size, across in [(16, 8), (9, 8), (12, 8), (5, 3)]:
         _, said = attempt(hemispherical_scales, size, scales_across=across)
-        fits = int(re.search(r"scales_across at most (\d+)", said).group(1))
+        fits = int(re.search(r"scales_across at most (\d+) \(an argument from Python\)", said).group(1))
         h, err = attempt(hemispherical_scales, size, scales_across=fits)
         assert err == "" and h.shape == (size, size), (size, across, said, err)
         assert "texels per scale spacing" in attempt(hemispherical_scales, size, scales_across=fits + 1)[1]

@@ -3,7 +3,7 @@
 Public:
     ``HierarchyPlan`` / ``plan_hierarchy(gb, cam, level_map, device)``   which texels each level shades and
                                up-samples, from the levels and the G-buffer alone (before any sample is drawn)
-    ``AdaptiveResult`` / ``shade_hierarchical(gb, cam, materials, env, level_map, spp_map, ..., plan)``
+    ``AdaptiveResult`` / ``shade_hierarchical(gb, cam, materials, env_data, level_map, spp_map, ..., plan, progress)``
     ``load_kernels(device)``   compile (or load from Warp's cache) the hierarchy's own kernels:
                                ``classify_level_kernel``, ``gather_shaded_kernel``, ``level_spp_kernel``
     ``PlanLevel``              one level of a ``HierarchyPlan``

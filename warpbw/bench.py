@@ -5,10 +5,10 @@ Public:
     ``GroundTruth`` / ``ground_truth(prep, gt_spp, cache_dir, ...)``   cached, with the doubling check
     ``ground_truth_chunks(gt_spp) -> (spp per chunk, chunks)``, ``gt_spp_refusal(gt_spp)``   how it splits, or why not
     ``GT_VERSION``, ``GT_SEED``, ``gt_key(scene, seed)``, ``gt_cache_dir()``   where a scene's chunks are cached
-    ``equal_quality_time(ref_records, mse) -> (spp, time_s, extrapolated)``   log-log interpolation
+    ``equal_quality_time(ref, mse) -> (spp, time_s, extrapolated)``   log-log interpolation
     ``psnr_standard_error(mses)``, ``paired_difference_se(mses_a, mses_b)``   noise of the PSNR figures (dB)
-    ``speedup_relative_se(ref_records, mse, psnr_se_db)``   noise of an equal-quality speed-up (relative)
-    ``pass_in_reference_spp(best, ref_records)``   the bandwidth pass's time in reference samples per pixel
+    ``speedup_relative_se(ref, mse, psnr_se_db)``   noise of an equal-quality speed-up (relative)
+    ``pass_in_reference_spp(best, ref_recs)``   the bandwidth pass's time in reference samples per pixel
     ``FRAME_STAGES``                  the adaptive frame's stages (name, record key) the table breaks down
     ``run_bench(scene, spp_list, budgets, nb_list, gt_spp, runs, mis, cache_dir, ...) -> dict``
     ``write_plot(record, path)``      error against time, one curve per method (+ the n_b sweep)

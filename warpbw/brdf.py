@@ -5,7 +5,7 @@ Public:
     ``BrdfFuncs`` / ``make_brdf_funcs(kinds)``  the eval / sample / pdf ``wp.func`` s for a set of kinds
     ``MaterialSpec``                one material's kind and parameters, as the scene gives them
     ``build_material_table(specs, device) -> MaterialBuffers``  host: pack material specs into a ``MaterialTable``
-    ``check_material_spec(spec, i)``  a spec the table can hold, else a ``WarpbwError`` naming the field
+    ``check_material_spec(s, i)``  a spec the table can hold, else a ``WarpbwError`` naming the field
     ``pack_npf_curves(rho_d, rho_s, d, g1, f)``  an NPF fit's curves in the table's layout
     ``KIND_NAMES``                  material type name -> kind id
     ``eval_brdf(...)``, ``sample_brdf(...)``, ``pdf_brdf(...)``  host wrappers (numpy in, numpy out) for tests

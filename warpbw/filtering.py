@@ -32,7 +32,7 @@ Public:
     ``roughness_variance(m)``            the Gaussian NDF's per-axis variance m^2 / 2 of roughness m
     ``diffuse_pick(diffuse, f0)``        the BRDF sampler's probability of a cosine-weighted draw
     ``Lobes``, a Warp matrix type (``MAX_LOBES`` rows: weight, mean, 2x2 covariance), Warp struct ``PlaneData``;
-    Warp functions ``lobes_ndf(lobes, n, h)``, ``lobes_sample(lobes, n, wo, pl, u)``, ``sample_pdf(D, at, h, wi,
+    Warp functions ``lobes_ndf(L, nl, h)``, ``lobes_sample(L, nl, wo, pl, u)``, ``sample_pdf(D, at, h, wi,
     wo, pl)``: the lobes' NDF, the BRDF strategy's draw and its solid-angle pdf (tests launch them in kernels)
 
 The model (004 Sec. 3).  Normals live in the projected normal space of ``precompute.gmm_mipmap``: a unit
@@ -127,6 +127,8 @@ FLAT_SHADED_AS = "fixed (no normal map: every filter is the plain BRDF; no GMM i
 _CODE = {"gmm_aligned": 0, "gmm_unaligned": 0, "toksvig": 1, "lean": 2, "fixed": 3}
 # Ground truth: at least this many rays per pixel (issue 4: ">= 64"); 004 Fig. 4 used 16.
 MIN_GT_SPP = 64
+# render_filtering's (and `warpbw render --filter ground_truth`'s --spp) default; bench-filtering's truth takes
+# 1024 (warpbw.bench_filtering.DEFAULT_GT_SPP)
 DEFAULT_GT_SPP = 64
 # Mixture weights below this recover as empty components (the GMM builder's bound, 004 Sec. 4.1).
 WEIGHT_EPS = 1e-8

@@ -20,7 +20,7 @@ Public:
                                      ``SPHERE_REACH_MIN``, ``MESH_REACH_MIN``), or a scene so far from the origin
                                      that float32 cannot place it (``warpbw.errors.COORD_SPACING_REL_MAX``);
                                      render_gbuffer calls it
-    ``hide_beyond(gbuffer, cam, distance, device) -> int``   empty the pixels whose surface lies beyond a
+    ``hide_beyond(gb, cam, distance, device, name) -> int``   empty the pixels whose surface lies beyond a
                                      per-pixel distance along the centre ray (hidden by something nearer);
                                      ``hide_beyond_kernel``, its kernel (the pipeline compiles it ahead)
 

@@ -2,12 +2,13 @@
 
 Public:
     ``prepare_scene(scene, device, progress) -> PreparedScene``   load assets, build device data
-    ``render_reference(scene_or_prepared, spp, seed, mis, device, progress) -> RenderResult`` (``device``: where
-                                       a Scene is prepared, the CPU by default; a PreparedScene renders where it
-                                       lives, and another device is refused; so for render_adaptive)
-    ``render_adaptive(scene_or_prepared, budget, seed, mis, n_b, n_min, n_max, ...) -> RenderResult``
-    ``prepare_bandwidth(prepared, progress)``   the bandwidth pass's tables and the meshes' curvature (adaptive
-                                       only, built once)
+    ``render_reference(scene, spp, seed, mis, device, progress) -> RenderResult`` (``scene``: a Scene or a
+                                       PreparedScene; ``device``: where a Scene is prepared, the CPU by default; a
+                                       PreparedScene renders where it lives, and another device is refused; so
+                                       for render_adaptive)
+    ``render_adaptive(scene, budget, seed, mis, n_b, n_min, n_max, ...) -> RenderResult``
+    ``prepare_bandwidth(prep, progress, env_signal)``   the bandwidth pass's tables and the meshes' curvature
+                                       (adaptive only, built once)
     ``split_planes(scene) -> (surfaces, planes)``   a scene's spheres and meshes, and its planes, as two scenes
     ``surface_geometry(scene, device) -> Geometry``   its spheres and meshes alone on the device (for depth)
     ``render_with_planes(scene, filter_method, spp, seed, method, budget, ...) -> RenderResult``

@@ -2,9 +2,9 @@
 
 Public:
     ``make_reference_kernel(kinds, mis)``  the shading kernel for a set of material kinds
-    ``ShadeResult`` / ``shade_reference(gb, materials, env, spp, seed, ..., lights)``  run it over covered pixels
+    ``ShadeResult`` / ``shade_reference(gb, materials, env_data, spp, seed, ..., lights)``  run it over covered pixels
     ``ShadingFrame`` / ``pixel_frame(gb, i)``  a pixel's (t, b, n) frame and local view direction (Warp)
-    ``to_local(frame, w)`` / ``to_world(frame, w)``  directions between world and the frame (Warp)
+    ``to_local(fr, w)`` / ``to_world(fr, w)``  directions between world and the frame (Warp)
     ``launch_tiled(kernel, n_items, make_inputs, device, threads, progress, tile, costs)``  CPU launches over threads
     ``progress_bar(total, desc, enabled)``  a bar for launch_tiled's ``progress`` (context manager; None if off)
     ``tile_ranges(n_items, tile, costs) -> [(offset, count)]``  its tiles: equal counts, or equal summed costs

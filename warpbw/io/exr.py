@@ -6,7 +6,7 @@ Public functions:
   multi-part file) as float32 ``(H, W, C)``.
 - ``exr_size(path) -> (width, height)``: the data window's size, from the header alone (no pixel read).
 - ``read_rgb(path) -> np.ndarray``: ``(H, W, 3)`` float32 radiance (a single ``Y`` channel is replicated);
-  ``rgb_of(image) -> np.ndarray`` the same from an ``ExrImage`` already read.
+  ``rgb_of(img) -> np.ndarray`` the same from an ``ExrImage`` already read.
 - ``write_exr(path, pixels, channels=None)``: float32, lossless ZIP compression; channel names and
   their order survive a round trip through ``read_exr``.
 - ``linear_to_srgb(x)``: the sRGB transfer function (IEC 61966-2-1) on linear values.
