@@ -394,6 +394,7 @@ def test_precomputed_sampling_file_is_used_and_equals_the_built_one(work, shared
     run(["render", scene, "-o", work / "npf_sampling.exr", "--spp", "8", "--seed", "3", "--mis", "-q"], work)
     stats = json.loads((work / "npf_sampling.json").read_text())
     assert stats["assets"]["material.m"]["sampling"] == "file"
+    assert stats["assets"]["material.m"]["sampling_file"] == str(work / "gmp_sampling.npz")   # which file it was
     assert str(work / "gmp_sampling.npz") in run(["info", scene], work).stdout
     # the same tables as the renderer builds itself: the same image, bit for bit
     np.testing.assert_array_equal(rgba(work / "npf_sampling.exr")[0], rgba(npf_render)[0])
@@ -545,6 +546,30 @@ def test_info_lists_a_bandwidth_table_only_for_the_method_that_reads_it(tmp_path
     assert render_reference(scene, spp=1).coverage.any()
     with pytest.raises(WarpbwError, match="bw.npz"):
         render_adaptive(scene, budget=1.0)
+
+def test_the_render_record_names_the_bandwidth_file_it_read(tmp_path, monkeypatch):
+    """Two renders from different precomputed files read alike but for the tables: the record says which file was
+    read (``bandwidth_file``), and nothing where the table was built or cached."""
+    from conftest import fake_npf_table
+    from precompute.brdf_bandwidth import write_brdf_bandwidth
+    from precompute.brdf_sampling import brdf_source
+    from warpbw.pipeline import render_adaptive
+    from warpbw.scene import load_scene
+
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
+    fake_npf_table(tmp_path / "npf.bin")
+    write_brdf_bandwidth(tmp_path / "bw.npz", np.full((16, 16, 16), 2.0, np.float32),
+                         brdf_source(tmp_path / "npf.bin", "chrome"))
+    lines = ["[camera]", "position = [0.0, 0.0, 3.0]", "look_at = [0.0, 0.0, 0.0]", "fov = 50.0", "resolution = [8, 8]",
+             "[environment]", 'procedural = "sky"', "[[object]]", 'shape = "sphere"', "radius = 0.8", 'material = "m"',
+             "[material.m]", 'type = "npf"', 'table = "npf.bin"', 'name = "chrome"']
+    for name, extra in (("file.toml", ['bandwidth = "bw.npz"']), ("built.toml", [])):
+        (tmp_path / name).write_text("\n".join(lines + extra))
+    rec = render_adaptive(load_scene(tmp_path / "file.toml"), budget=2.0).stats["assets"]["material.m"]
+    assert rec["bandwidth"] == "file" and rec["bandwidth_file"] == str(tmp_path / "bw.npz")
+    rec = render_adaptive(load_scene(tmp_path / "built.toml"), budget=2.0).stats["assets"]["material.m"]
+    assert rec["bandwidth"] == "built" and "bandwidth_file" not in rec and "sampling_file" not in rec
+
 
 def test_info_lists_the_stages_a_frame_of_each_method_runs(tmp_path):
     """warpbw info --method M, from the scene file alone, names the stages a frame of M then records having run

@@ -535,6 +535,9 @@ def _scales_with_gmm_files(tmp_path, position):
                     tmp_path, "s.toml")
     prep = prepare_filtering(s, METHODS)
     assert prep.notes["m"]["gmm_aligned"]["origin"] == "file"
+    # the record says which file, and the clustering's seed (two fits of one map differ by it)
+    assert prep.notes["m"]["gmm_aligned"]["file"] == str(tmp_path / "scales.gmm")
+    assert prep.notes["m"]["gmm_aligned"]["seed"] == 0 and "file" not in prep.notes["m"]["gmm_unaligned"]
     return s, height_to_normals(h, 0.5), {k: v.levels for k, v in mips.items()}, prep
 
 

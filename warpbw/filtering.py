@@ -1098,7 +1098,10 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
                                         method == "gmm_unaligned", cache, progress)
                 mp.gmm[method] = _gmm_array(mip.levels, device)
                 note[method] = {"origin": origin, "time_s": round(time.perf_counter() - tb, 6),
-                                "components": int(mip.components), "prior": 0.0 if mip.unaligned else float(mip.prior)}
+                                "components": int(mip.components), "prior": 0.0 if mip.unaligned else float(mip.prior),
+                                "seed": int(mip.seed)}   # the clustering's: two fits of one map differ by it
+                if origin == "file":   # which one (a cache entry or a fit is keyed by the map's content)
+                    note[method]["file"] = str(scene.materials[name].gmm)
         mips[name] = mp
         notes[name] = note
     ldir = np.array([[d[0], -d[2], d[1]] for d in (li.direction for li in scene.lights)], np.float32).reshape(-1, 3)

@@ -104,6 +104,12 @@ def _timed(timings: dict, key: str):
         timings[key] = timings.get(key, 0.0) + time.perf_counter() - t0
 
 
+def _asset_file(key: str, origin: str, path) -> dict:
+    """``{key_file: path}`` for the render record when a table came from the scene's own file (which one it was: two
+    records of renders from different files read alike), else nothing."""
+    return {f"{key}_file": str(path)} if origin == "file" and path is not None else {}
+
+
 def _material_spec(m, progress: bool, notes: dict, sources: dict, where: str = "") -> brdf_mod.MaterialSpec:
     """The MaterialSpec of scene material ``m``; ``where`` (the scene file) starts the message of an NPF material
     name the table lacks, which named the table alone."""
@@ -120,7 +126,7 @@ def _material_spec(m, progress: bool, notes: dict, sources: dict, where: str = "
         merl = source.brdf
         table, origin = load_or_build_sampling(source, m.sampling, progress=progress)
         notes[f"material.{m.name}"] = {"type": "merl", "file": str(m.file), "unmeasured": int(merl.n_unmeasured),
-                                       "sampling": origin}
+                                       "sampling": origin, **_asset_file("sampling", origin, m.sampling)}
         return brdf_mod.MaterialSpec(m.name, kind, merl=merl.data, linear=m.lookup == "linear", sampler=table)
     from warpbw.io.npf import UnknownNpfMaterial
 
@@ -131,7 +137,8 @@ def _material_spec(m, progress: bool, notes: dict, sources: dict, where: str = "
     sources[m.name] = source
     npf = source.brdf
     table, origin = load_or_build_sampling(source, m.sampling, progress=progress)
-    notes[f"material.{m.name}"] = {"type": "npf", "name": npf.name, "sampling": origin}
+    notes[f"material.{m.name}"] = {"type": "npf", "name": npf.name, "sampling": origin,
+                                   **_asset_file("sampling", origin, m.sampling)}
     curves = brdf_mod.pack_npf_curves(npf.rho_d, npf.rho_s, npf.D, npf.G1, npf.F)
     return brdf_mod.MaterialSpec(m.name, kind, npf=curves, linear=m.lookup == "linear", sampler=table)
 
@@ -424,7 +431,8 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False, env_signal: s
                 table, origin = np.zeros(BW_TABLE_SHAPE, np.float32), "constant lobe"
             else:
                 table, origin = load_or_build_bandwidth(_AnalyticSource(prep, i, m), progress=progress)
-            prep.notes.setdefault(f"material.{name}", {"type": m.type})["bandwidth"] = origin
+            prep.notes.setdefault(f"material.{name}", {"type": m.type}).update(
+                bandwidth=origin, **_asset_file("bandwidth", origin, m.bandwidth))
             tables.append(table)
         struct, keep = make_bandwidth_tables(nu_env_table(nu_env), np.stack(tables),
                                              device=prep.device)
