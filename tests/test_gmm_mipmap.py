@@ -7,6 +7,7 @@ stated defaults and the block it filters, worked out by hand.
 """
 from __future__ import annotations
 
+import contextlib
 import itertools
 import re
 import shlex
@@ -1161,9 +1162,8 @@ def test_a_surface_without_a_size_is_512_texels_as_help_says():
 
 
 def test_the_gmm_builder_reports_progress_up_to_its_total_over_refinement_sweeps(monkeypatch):
-    """Step(k) reports k of total done: increasing, never past the total, ending at it."""
-    import contextlib
-
+    """Step(k) reports k of total done (texels of all levels, per sweep): increasing, never past the total, ending
+    at it."""
     import precompute.progress as pg
 
     seen = {}
@@ -1178,7 +1178,7 @@ def test_the_gmm_builder_reports_progress_up_to_its_total_over_refinement_sweeps
     for sweeps in (0, 2):
         build_gmm_mipmap(h, components=2, refine_sweeps=sweeps, progress=False)
         steps = seen["steps"]
-        assert steps == sorted(set(steps)) and steps[-1] == seen["total"] == 3 * (1 + sweeps), seen
+        assert steps == sorted(set(steps)) and steps[-1] == seen["total"] == (16 + 4 + 1) * (1 + sweeps), seen
 
 
 def test_gmm_refuses_options_its_help_says_do_not_apply(tmp_path, monkeypatch, capsys):
@@ -1240,6 +1240,30 @@ def test_gmm_quiet_shows_no_progress_bar(tmp_path, capsys):
     assert capsys.readouterr().err == ""
     assert cli(["gmm", "surface:dunes:20", "-o", tmp_path / "e.gmm"]) == 0
     assert "GMM mipmap" in capsys.readouterr().err          # without -q there is one (the check can fail)
+
+
+@pytest.mark.parametrize("unaligned", [False, True])
+def test_gmm_progress_counts_texels_batch_by_batch(monkeypatch, unaligned):
+    """The bar counts texels as their batches finish (it moved once per level, and the finest level is three
+    quarters of the work): strictly increasing, ending at the texels of all levels of the mipmap built."""
+    import precompute.gmm_mipmap as gm
+    import precompute.progress as pg
+
+    seen = []
+
+    @contextlib.contextmanager
+    def recording(total, desc, unit, enabled=True):
+        seen.append(("total", total, unit))
+        yield lambda k, total=None: seen.append(k)
+
+    monkeypatch.setattr(pg, "progress_callback", recording)
+    monkeypatch.setattr(gm, "BATCH_ELEMENTS", 3 * 2)   # finest level: 3 texels of 1 normal and K = 2 per batch
+    mip = gm.build_gmm_mipmap(np.random.default_rng(1).random((13, 11)) * 0.2, components=2, unaligned=unaligned)
+    texels = sum(lv.shape[0] * lv.shape[1] for lv in mip.levels)
+    assert seen[0] == ("total", texels, "texel")
+    steps = seen[1:]
+    assert steps[-1] == texels and all(b > a for a, b in zip(steps, steps[1:]))
+    assert len(steps) > len(mip.levels) + 40   # 143 finest texels in batches of at most 3
 
 
 def test_kmeans_init_variance_is_per_axis_of_clusters_of_known_spread():
