@@ -537,10 +537,16 @@ def test_info_lists_a_bandwidth_table_only_for_the_method_that_reads_it(tmp_path
         "[camera]", "position = [0.0, 0.0, 3.0]", "look_at = [0.0, 0.0, 0.0]", "fov = 50.0", "resolution = [8, 8]",
         "[environment]", 'procedural = "sky"', "[[object]]", 'shape = "sphere"', "radius = 0.8", 'material = "m"',
         "[material.m]", 'type = "npf"', 'table = "npf.bin"', 'name = "chrome"', 'bandwidth = "bw.npz"']))
+    from warpbw.pipeline import FRAME_BYTES_PER_PIXEL
+
     listed = {}
     for method in ("reference", "adaptive"):
         assert cli_main(["info", str(tmp_path / "s.toml"), "--json", "--method", method]) == 0
-        listed[method] = [Path(f).name for f in json.loads(capsys.readouterr().out)["files"]]
+        summary = json.loads(capsys.readouterr().out)
+        listed[method] = [Path(f).name for f in summary["files"]]
+        assert summary["frame_memory_bytes"] == FRAME_BYTES_PER_PIXEL[method] * 8 * 8   # the frame's estimate
+        assert cli_main(["info", str(tmp_path / "s.toml"), "--method", method]) == 0
+        assert f"GB per {method} frame beyond the assets" in capsys.readouterr().out
     assert listed == {"reference": ["npf.bin"], "adaptive": ["npf.bin", "bw.npz"]}, listed
     scene = load_scene(tmp_path / "s.toml")
     assert render_reference(scene, spp=1).coverage.any()

@@ -633,3 +633,32 @@ def test_radiance_that_overflows_in_the_shading_is_refused_by_the_renderers_not_
         assert np.isfinite(render_filtering(scene(1e18), method, spp=64).image).all(), method
         with pytest.raises(WarpbwError, match="p.toml: .* pixels came out infinite or NaN"):
             render_filtering(scene(1e33), method, spp=64)
+
+
+def test_a_frame_larger_than_the_memory_left_warns_naming_its_resolution(monkeypatch, tmp_path):
+    """The system stops a process that runs out of memory without a word (no error, no image).  A frame whose
+    estimate (FRAME_BYTES_PER_PIXEL times its pixels) passes the memory available warns first; one that fits, or
+    where the available memory is unknown, does not.  Here the available memory is set by hand around the 40x30
+    frame's estimate, and /proc/meminfo's reading is checked against the file itself."""
+    from warpbw import pipeline
+
+    text = ("[camera]\nposition = [0.0, 0.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 50.0\nresolution = [40, 30]\n"
+            "[environment]\nconstant = 1.0\n[[object]]\nshape = \"sphere\"\nradius = 0.8\nmaterial = \"m\"\n"
+            "[material.m]\ntype = \"lambert\"\nalbedo = [0.5, 0.5, 0.5]\n")
+    scene = parse_scene(text, tmp_path, "big.toml")
+    for method, render in (("reference", lambda: render_reference(scene, spp=1)),
+                           ("adaptive", lambda: render_adaptive(scene, budget=1.0))):
+        need = pipeline.FRAME_BYTES_PER_PIXEL[method] * 40 * 30
+        assert pipeline.frame_memory(40, 30, method) == need
+        monkeypatch.setattr(pipeline, "available_memory", lambda: need - 1)
+        with pytest.warns(RuntimeWarning, match=f"40x30 {method} frame takes about .* GB, but .* available"):
+            render()
+        for have in (need, None):
+            monkeypatch.setattr(pipeline, "available_memory", lambda have=have: have)
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                render()
+    monkeypatch.undo()
+    if os.path.exists("/proc/meminfo"):
+        kb = next(int(ln.split()[1]) for ln in open("/proc/meminfo") if ln.startswith("MemAvailable:"))
+        assert abs(pipeline.available_memory() - kb * 1024) < 2**30   # the same reading, a moment later

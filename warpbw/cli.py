@@ -409,6 +409,10 @@ def cmd_info(args) -> int:
     if s["unused_materials"]:
         print("unused      " + ", ".join(s["unused_materials"]) + " (not loaded)")
     print("stages      " + "; ".join(s["stages"]))
+    if "frame_memory_bytes" in s:
+        print(f"memory      about {s['frame_memory_bytes'] / 1e9:.2g} GB per {args.method} frame"
+              + (" of the spheres and meshes" if any("planes:" in st for st in s["stages"]) else "")
+              + " beyond the assets")
     if s["files"]:
         print("files")
         for f in s["files"]:

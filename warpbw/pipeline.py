@@ -13,6 +13,9 @@ Public:
     ``surface_geometry(scene, device) -> Geometry``   its spheres and meshes alone on the device (for depth)
     ``render_with_planes(scene, filter_method, spp, seed, method, budget, ...) -> RenderResult``
                                        a scene with both: the spheres and meshes, then the planes over them
+    ``frame_memory(width, height, method) -> bytes``, ``FRAME_BYTES_PER_PIXEL``, ``available_memory() -> bytes |
+                                       None``   what a frame takes beyond the assets, and what the system has (a
+                                       render warns when its frame would not fit)
     ``scene_summary(scene, method="reference") -> dict``   what the scene needs (for ``warpbw info``), without
                                        loading it; ``SUMMARY_METHODS``, the methods it describes
     ``stages_used(prep, mis, adaptive)``, ``PreparedScene``, ``RenderResult``   the stages a frame ran; the
@@ -253,6 +256,34 @@ def _prepared(scene, device: str | None, progress: bool) -> tuple[PreparedScene,
     return prep, dict(prep.timings)
 
 
+def available_memory() -> int | None:
+    """Bytes of memory the system can give without swapping (Linux's MemAvailable), or None where unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def frame_memory(width: int, height: int, method: str) -> int:
+    """Bytes a ``method`` frame ("reference" or "adaptive") of ``width`` x ``height`` takes beyond the scene's
+    assets (``FRAME_BYTES_PER_PIXEL``; measured on the CPU)."""
+    return FRAME_BYTES_PER_PIXEL[method] * int(width) * int(height)
+
+
+def _warn_if_frame_exceeds_memory(prep: PreparedScene, method: str) -> None:
+    """A frame larger than the memory left is killed by the system without a word (no error, no image): warn first,
+    naming the resolution, so that a user who meant a smaller one can stop it."""
+    need, have = frame_memory(prep.width, prep.height, method), available_memory()
+    if have is not None and need > have:
+        warnings.warn(f"{prep.scene.source}: a {prep.width}x{prep.height} {method} frame takes about "
+                      f"{need / 1e9:.1f} GB, but {have / 1e9:.1f} GB of memory is available: the system may stop "
+                      "it (lower [camera].resolution)", RuntimeWarning, stacklevel=3)
+
+
 def _clip_kernels(clip_distance) -> tuple:
     """The kernels a ``clip_distance`` adds to a frame (none without one)."""
     from warpbw.gbuffer import hide_beyond_kernel
@@ -279,6 +310,9 @@ def _gbuffer(prep: PreparedScene, timings: dict, threads: int | None = None, cli
 # A sample multiplies the light's radiance by a BRDF value (up to BRDF_VALUE_MAX) in float32: above this radiance a
 # sample the shading drops as non-finite is that product's overflow, and the frame, short of its light, is refused.
 RADIANCE_OVERFLOW_MIN = FLOAT32_MAX / BRDF_VALUE_MAX
+# Memory a frame takes per pixel, beyond the scene's assets: the slope of peak RSS over the demo scene at 2048^2 and
+# 4096^2 (session 62: 93 and 228 bytes), rounded up.  A 16384^2 frame (MAX_RESOLUTION) then needs 27 and 64 GB.
+FRAME_BYTES_PER_PIXEL = {"reference": 100, "adaptive": 240}
 
 
 def _check_overflowed_samples(prep: PreparedScene, n_bad: int, samples: int) -> None:
@@ -318,6 +352,7 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     check_seed(seed)
     _check_mis(mis)
     prep, timings = _prepared(scene, device, progress)
+    _warn_if_frame_exceeds_memory(prep, "reference")
     _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
                          make_reference_kernel(prep.materials.kinds, mis, has_env=prep.env is not None,
                                                has_lights=prep.lights is not None))
@@ -510,6 +545,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     _check_mis(mis)
     check_flag(preconvolved, "preconvolved")   # "no" once ran the Eq. 10 bound
     prep, timings = _prepared(scene, device, progress)
+    _warn_if_frame_exceeds_memory(prep, "adaptive")
     if prep.env is None:
         raise _nothing_to_adapt(prep.scene)
     # the default block is no larger than the image (a 1 x 1 frame was refused with "stride: expected 1 to 1")
@@ -724,4 +760,6 @@ def scene_summary(scene: Scene, method: str = "reference") -> dict:
         "unused_materials": sorted(set(scene.materials) - set(scene.material_order)),
         "files": [str(p) for p in scene.files() if p not in unread],
         "stages": stages,
+        # the spheres' and meshes' frame beyond the assets (a filtered plane frame's is not estimated)
+        "frame_memory_bytes": frame_memory(scene.camera.width, scene.camera.height, method),
     }
