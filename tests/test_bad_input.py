@@ -2626,3 +2626,125 @@ def test_an_output_named_only_by_its_suffix_is_told_what_is_missing(tmp_path):
     r = run(["render", "scene.toml", "-o", "imgs/.exr", "--spp", "1"], tmp_path)
     assert_one_line_error(r, "-o imgs/.exr: expected a path ending in .exr after a name (such as out.exr)")
     assert_no_outputs(tmp_path)
+
+
+# ------------------------------------------------------------------------------------- stages driven one at a time
+# (session 62's audit of the stage functions called from Python: each case crashed the process, gave a silently
+# wrong result, or failed deep inside with another exception)
+
+STAGE_SCENE = """\
+[camera]
+position = [0.0, 0.0, 3.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 50.0
+resolution = [24, 16]
+[environment]
+procedural = "sky"
+[[object]]
+shape = "sphere"
+radius = 0.8
+material = "m"
+[material.m]
+type = "lambert"
+albedo = [0.5, 0.5, 0.5]
+"""
+
+
+@pytest.fixture(scope="module")
+def stage_inputs():
+    from types import SimpleNamespace
+
+    from warpbw.adaptive import plan_hierarchy
+    from warpbw.bandwidth import allocate_samples, bandwidth_pass
+    from warpbw.gbuffer import make_camera
+    from warpbw.pipeline import prepare_bandwidth, prepare_scene, render_reference
+    from warpbw.scene import parse_scene
+
+    prep = prepare_scene(parse_scene(STAGE_SCENE))
+    gb = render_reference(prep, spp=1).gbuffer
+    tables = prepare_bandwidth(prep)
+    buf = bandwidth_pass(gb, prep.camera, prep.materials, prep.env_data, tables)
+    level = buf.level.numpy().reshape(16, 24)
+    return SimpleNamespace(prep=prep, gb=gb, cam=prep.camera, tables=tables, buf=buf, level=level,
+                           spp=np.full((16, 24), 2, np.int32), plan=plan_hierarchy(gb, prep.camera, level),
+                           big_cam=make_camera([0, 0, 3], [0, 0, 0], [0, 1, 0], 50.0, 48, 32),
+                           allocate_samples=allocate_samples, bandwidth_pass=bandwidth_pass)
+
+
+def _stage_cases():
+    from warpbw import brdf, envmap, filtering, gbuffer, shading, upsample
+    from warpbw.adaptive import plan_hierarchy, shade_hierarchical
+
+    def shade(c, **kw):
+        args = dict(gb=c.gb, materials=c.prep.materials, env_data=c.prep.env_data, spp=1)
+        return shading.shade_reference(**{**args, **kw})
+
+    def hier(c, **kw):
+        args = dict(gb=c.gb, cam=c.cam, materials=c.prep.materials, env_data=c.prep.env_data, level_map=c.level,
+                    spp_map=c.spp)
+        return shade_hierarchical(**{**args, **kw})
+
+    def lods(c, level):
+        return filtering.fetch_gmm([np.zeros((2, 2, 1, 4))], 0.5, 0.5, level)
+
+    return {   # case: (call, the message's start or a part of it)
+        "shade_reference lights=EnvMap (segfault)": (lambda c: shade(c, lights=c.prep.env),
+                                                     "shade_reference: lights: expected a Lights"),
+        "shade_reference gb=GBufferData": (lambda c: shade(c, gb=c.gb.data), "shade_reference: gb: expected a GBuffer"),
+        "shade_reference seed 2**32 (seed 0's samples)": (lambda c: shade(c, seed=2**32), "shade_reference: seed"),
+        "shade_hierarchical level_map transposed": (lambda c: hier(c, level_map=c.level.T),
+                                                    "level_map: expected an (height, width) = (16, 24) map"),
+        "shade_hierarchical spp_map transposed": (lambda c: hier(c, spp_map=c.spp.T), "spp_map: expected an (height"),
+        "shade_hierarchical seed -1": (lambda c: hier(c, seed=-1), "shade_hierarchical: seed"),
+        "shade_hierarchical plan []": (lambda c: hier(c, plan=[]), "shade_hierarchical: plan: expected a HierarchyPlan"),
+        "shade_hierarchical cam of another size": (lambda c: hier(c, cam=c.big_cam),
+                                                   "shade_hierarchical: cam: 48x32, but the G-buffer is 24x16"),
+        "plan_hierarchy gb None": (lambda c: plan_hierarchy(None, c.cam, c.level), "plan_hierarchy: gb: expected"),
+        "bandwidth_pass cam of another size (b_p halved)": (
+            lambda c: c.bandwidth_pass(c.gb, c.big_cam, c.prep.materials, c.prep.env_data, c.tables),
+            "bandwidth pass: cam: 48x32, but the G-buffer is 24x16"),
+        "bandwidth_pass preconvolved 'yes'": (
+            lambda c: c.bandwidth_pass(c.gb, c.cam, c.prep.materials, c.prep.env_data, c.tables, preconvolved="yes"),
+            "bandwidth pass: preconvolved: expected True or False"),
+        "upsample_level cam of another size": (
+            lambda c: upsample.upsample_level(c.gb, c.big_cam, 0, np.zeros((12 * 8, 3)), np.ones(12 * 8, np.int32),
+                                              np.ones(24 * 16, np.int32)), "upsample_level: cam: 48x32"),
+        "allocate_samples plan of wrong masks": (lambda c: c.allocate_samples(c.buf, 2.0, plan=[np.ones((3, 3), bool)]),
+                                                 "plan: expected a HierarchyPlan or up to"),
+        "build_geometry zero normals (black)": (
+            lambda c: gbuffer.build_geometry([], [gbuffer.MeshSpec(
+                vertices=np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32), faces=np.array([[0, 1, 2]]),
+                normals=np.zeros((3, 3), np.float32), curvature=np.zeros(3, np.float32), uv=None, material=0)]),
+            "build_geometry: meshes[0] normals: expected unit vectors, got lengths from 0 to 0"),
+        "build_geometry spheres None": (lambda c: gbuffer.build_geometry(None, []),
+                                        "build_geometry: spheres: expected a list of SphereSpec"),
+        "allocate_gbuffer width 8.5": (lambda c: gbuffer.allocate_gbuffer(8.5, 8), "allocate_gbuffer: width"),
+        "render_gbuffer cam None": (lambda c: gbuffer.render_gbuffer(None, c.prep.geometry),
+                                    "render_gbuffer: cam: expected a CameraData"),
+        "render_gbuffer curvature 'no'": (lambda c: gbuffer.render_gbuffer(c.cam, c.prep.geometry, curvature="no"),
+                                          "render_gbuffer: curvature: expected True or False"),
+        "sample_directions seed 2**32": (lambda c: envmap.sample_directions(c.prep.env, 4, seed=2**32), "seed: expected"),
+        "sample_directions of EnvMapData": (lambda c: envmap.sample_directions(c.prep.env_data, 4),
+                                            "env: expected an EnvMap"),
+        "fetch_gmm level 99 (segfault)": (lambda c: lods(c, 99.0), "level: expected levels from 0 to 0"),
+        "fetch_gmm level NaN (segfault)": (lambda c: lods(c, np.nan), "level: expected levels from 0 to 0"),
+        "fetch_gmm one array for the levels": (lambda c: filtering.fetch_gmm(np.zeros((2, 2, 1, 4)), 0, 0, 0),
+                                               "levels: expected a list"),
+        "gmm_ndf params (4, 3) (reshaped)": (lambda c: filtering.gmm_ndf(np.zeros((4, 3)), 0.01, [[0, 0, 1]]),
+                                             "params: expected finite (K, 4)"),
+        "gmm_ndf h (6, 2) (reshaped)": (lambda c: filtering.gmm_ndf(np.zeros((3, 4)), 0.01, np.zeros((6, 2))),
+                                        "h: expected (N, 3)"),
+        "eval_brdf of the raw table": (lambda c: brdf.eval_brdf(c.prep.materials.table, 0, [[0, 0, 1]], [[0, 0, 1]]),
+                                       "mb: expected MaterialBuffers"),
+    }
+
+
+STAGE_CASES = _stage_cases()
+
+
+@pytest.mark.parametrize("case", sorted(STAGE_CASES))
+def test_stage_functions_refuse_what_would_crash_or_mislead_in_one_line(stage_inputs, case):
+    call, needle = STAGE_CASES[case]
+    with pytest.raises(WarpbwError, match=re.escape(needle)) as ei:
+        call(stage_inputs)
+    assert "\n" not in str(ei.value)

@@ -450,7 +450,15 @@ def test_mip_box_filter_and_trilinear_lookup():
     top = E.eval_radiance_lod(env, d, 99.0)
     assert np.allclose(top, img.astype(np.float64).mean(axis=(0, 1)), rtol=1e-5)
     assert np.allclose(E.eval_radiance_lod(env, d, -3.0), lod0, rtol=1e-6)
-    assert np.allclose(E.eval_radiance_lod(env, d[:3], np.nan), lod0[:3], rtol=1e-6)
+    # the kernel reads level 0 at a NaN lod (no crash); the host-side lookup refuses one, and a lod of another count
+    unit = (d[:3] / np.linalg.norm(d[:3], axis=1, keepdims=True)).astype(np.float32)
+    out = wp.empty(3, dtype=wp.vec3)
+    wp.launch(E._eval_radiance_lod_kernel, dim=3, device="cpu",
+              inputs=[env.data, wp.array(unit, dtype=wp.vec3), wp.array(np.full(3, np.nan, np.float32)), out])
+    assert np.allclose(out.numpy(), lod0[:3], rtol=1e-6)
+    for bad, msg in ((np.nan, "NaN or infinite"), (None, "NaN or infinite"), ([1.0, 2.0], r"shape \(2,\)")):
+        with pytest.raises(WarpbwError, match=r"^lod: expected a finite level, or 3 of them .* " + msg):
+            E.eval_radiance_lod(env, d[:3], bad)
     # a NaN direction reaching the kernels gives no crash (indices are clamped), whatever value it returns; the
     # host-side lookups refuse it
     nan_dir = wp.array(np.array([[np.nan, 0.0, 1.0]], np.float32), dtype=wp.vec3)

@@ -351,3 +351,17 @@ def test_the_lights_of_a_scene_add(lights):
     together = shade(dirs, rads)
     alone = sum(shade(d, e) for d, e in lights)
     np.testing.assert_allclose(together, alone, rtol=1e-5, atol=1e-6 * (1.0 + max(max(e) for e in rads)))
+
+
+def test_the_shading_takes_directional_structs_own_struct_as_the_lights():
+    """directional_struct (the documented builder of lights from arrays) returns the Warp struct; shade_reference
+    takes it as it takes the Lights wrapper (it was an AttributeError): the Lambert sphere reads
+    albedo / pi * E * max(l . n, 0) (closed form) both ways, bit for bit the same."""
+    sc = two_spheres()
+    d, e = np.array([[0.3, 0.8, 0.5]]), np.array([[2.0, 1.0, 0.5]])
+    bare = shade_reference(sc.gb, sc.mats, None, 0, lights=directional_struct(d, e), threads=1).radiance.numpy()
+    np.testing.assert_array_equal(bare, shade(d, e).astype(np.float32))
+    lam = sc.material == 0
+    l_unit = d[0] / np.linalg.norm(d[0])
+    want = ALBEDO / np.pi * e[0] * np.maximum(sc.normal[lam] @ l_unit, 0.0)[:, None]
+    np.testing.assert_allclose(bare[lam], want, rtol=1e-5, atol=1e-7)

@@ -352,7 +352,7 @@ def test_inputs_of_the_wrong_size_or_dtype_are_refused():
             upsample_level(gb.data, cam, 0, pv, valid, todo, **kw)
     with pytest.raises(WarpbwError, match=r"^gb: expected a GBuffer or its GBufferData, got str"):
         upsample_level("gb", cam, 0, *ok)
-    with pytest.raises(WarpbwError, match=r"^cam: expected a CameraData"):
+    with pytest.raises(WarpbwError, match=r"^upsample_level: cam: expected a CameraData"):
         upsample_level(gb.data, None, 0, *ok)
 
 

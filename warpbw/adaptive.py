@@ -77,8 +77,8 @@ import warp as wp
 
 from warpbw.brdf import MaterialBuffers
 from warpbw.envmap import EnvMapData
-from warpbw.errors import INT32_MAX, WarpbwError, check_device, offset_seed
-from warpbw.gbuffer import CameraData, GBuffer, GBufferData
+from warpbw.errors import INT32_MAX, WarpbwError, check_device, check_instance, check_seed, offset_seed
+from warpbw.gbuffer import CameraData, GBuffer, GBufferData, check_camera_of
 from warpbw.lights import Lights
 from warpbw.pyramid import build_pyramid, max_level
 from warpbw.shading import shade_reference
@@ -187,8 +187,9 @@ def _int_map(a, h, w, name, lo: int, hi: int):
     accepted and dimmed the image; a negative or NaN level failed inside the hierarchy; an spp of 2^31 - 1 ran for
     hours)."""
     a = np.asarray(a.numpy() if isinstance(a, wp.array) else a)
-    if a.size != h * w:
-        raise WarpbwError(f"{name}: expected {h * w} values ({w}x{h}), got {a.size}")
+    if a.shape not in ((h, w), (h * w,)):   # a transposed (w, h) map was taken and scrambled the levels
+        raise WarpbwError(f"{name}: expected an (height, width) = ({h}, {w}) map (or {h * w} values, row-major), got "
+                          f"shape {a.shape}")
     if a.dtype.kind not in "iuf" or not (np.all(np.isfinite(a)) and np.all(a == np.round(a))
                                          and a.min() >= lo and a.max() <= hi):
         raise WarpbwError(f"{name}: expected integers from {lo} to {hi}, got {a.dtype} values"
@@ -208,6 +209,8 @@ def plan_hierarchy(gb: GBuffer, cam: CameraData, level_map, device: str = "cpu")
     """The texels each level will shade and up-sample for ``level_map`` (module docstring): classify each level,
     then run the up-sampling's weights on zeros to find the texels no parent can fill, which are shaded too.  The
     weights are kept for the up-sampling itself, which then reads them instead of computing them again."""
+    check_instance(gb, GBuffer, "plan_hierarchy: gb", "a GBuffer (render_gbuffer's)")
+    check_camera_of(cam, gb, "plan_hierarchy")
     W, H = gb.width, gb.height
     level = _int_map(level_map, H, W, "level_map", 0, max_level(W, H))
     levels = build_pyramid(level, op="min", device=device)
@@ -250,6 +253,11 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
     (``plan.shaded_texels`` in all)."""
     check_device(device)
     check_upsample_mode(upsample)
+    check_instance(gb, GBuffer, "shade_hierarchical: gb", "a GBuffer (render_gbuffer's)")
+    check_camera_of(cam, gb, "shade_hierarchical")
+    seed = check_seed(seed, "shade_hierarchical: seed")   # 2**32 shaded seed 0's frame
+    if plan is not None:
+        check_instance(plan, HierarchyPlan, "shade_hierarchical: plan", "a HierarchyPlan (plan_hierarchy's) or None")
     if env_data is None:
         raise WarpbwError("adaptive shading: the scene has no environment to adapt to (directional lights alone "
                           "are exact at any spp: use the reference renderer)")

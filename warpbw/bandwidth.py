@@ -224,9 +224,9 @@ import warp as wp
 from warpbw.bandwidth_ops import bw_one_bounce
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv
-from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, check_device, check_flag, check_seed,
-                           is_int)
-from warpbw.gbuffer import CameraData, GBuffer, GBufferData
+from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, check_device, check_flag,
+                           check_instance, check_seed, is_int)
+from warpbw.gbuffer import CameraData, GBuffer, GBufferData, check_camera_of
 from warpbw.pyramid import build_pyramid, image_level
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_local, to_world
 
@@ -725,6 +725,7 @@ def _check_pass_inputs(gb, cam, materials, env_data, tables) -> None:
             ("tables", tables, BandwidthTables.cls, "BandwidthTables (make_bandwidth_tables)")):
         if not isinstance(value, kind):
             raise WarpbwError(f"bandwidth pass: {name}: expected {what}, got {type(value).__name__}")
+    check_camera_of(cam, gb, "bandwidth pass")
     n_mat = materials.table.kind.shape[0] if materials.table.kind is not None else 0
     per_material = N_THETA_I * N_CELLS * N_CELLS
     rho, env = tables.nu_rho, tables.nu_env
@@ -757,6 +758,7 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
         raise WarpbwError("bandwidth pass: the scene has no environment (directional lights need no prediction: "
                           "their exact term is evaluated at every pixel)")
     _check_pass_inputs(gb, cam, materials, env_data, tables)
+    preconvolved = check_flag(preconvolved, "bandwidth pass: preconvolved")   # "yes" ran Eq. 10 as truthy
     dirs_np = direction_set(n_b, seed)
     stride = check_count(stride, "stride", 1, max(gb.width, gb.height))   # beyond the image's side it shares no more
     pool_radius = check_count(pool_radius, "pool_radius", 0, POOL_RADIUS_MAX)
@@ -827,8 +829,11 @@ def planned_shading(buf: BandwidthBuffer, device: str = "cpu", key=None, plan=No
     """sigma2 (or ``key``) of the texels the hierarchy will shade, max-filtered over their footprints.  ``plan``:
     per level, finest first, a (h_L, w_L) bool mask of those texels (``warpbw.adaptive.HierarchyPlan.shade_masks``,
     which knows the texels the up-sampling cannot fill); without one, the level-L texels of some coverage whose
-    min-filtered level is L."""
+    min-filtered level is L; the HierarchyPlan itself is read as its masks."""
     check_device(device)
+    check_instance(buf, BandwidthBuffer, "buf", "a BandwidthBuffer (bandwidth_pass's)")
+    if callable(getattr(plan, "shade_masks", None)):   # the plan itself: a TypeError ("no len()") before
+        plan = plan.shade_masks()
     W, H = buf.width, buf.height
     var = build_pyramid((buf.sigma2 if key is None else key).numpy().reshape(H, W), op="max", device=device)
     if plan is None:
@@ -838,8 +843,10 @@ def planned_shading(buf: BandwidthBuffer, device: str = "cpu", key=None, plan=No
         top = int(buf.level.numpy()[cov_np].max()) if cov_np.any() else 0
         top = min(top, levels.num_levels - 1)
         plan = [(levels.levels[L].numpy() == L) & (cov.levels[L].numpy() > 0) for L in range(top + 1)]
-    if len(plan) > var.num_levels or any(np.shape(m) != tuple(var.shapes[L]) for L, m in enumerate(plan)):
-        raise ValueError(f"plan: expected up to {var.num_levels} masks of shapes {var.shapes}")
+    if (not isinstance(plan, (list, tuple)) or len(plan) > var.num_levels
+            or any(np.shape(m) != tuple(var.shapes[L]) for L, m in enumerate(plan))):
+        raise WarpbwError(f"plan: expected a HierarchyPlan or up to {var.num_levels} bool masks, finest first, of "
+                          f"shapes {[tuple(s) for s in var.shapes]}, got {type(plan).__name__}")
     out = [var.levels[L].numpy()[np.asarray(m, bool)] for L, m in enumerate(plan)]
     return np.concatenate(out) if out else np.zeros(0, np.float32)
 

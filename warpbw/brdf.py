@@ -39,7 +39,7 @@ import warp as wp
 
 from warpbw import sampling as tabsamp
 from warpbw.errors import (INT32_MAX, WarpbwError, check_count, check_device, check_direction_pairs,
-                           check_seed, is_int, unit_directions)
+                           check_instance, check_seed, is_int, unit_directions)
 
 # Material kind ids (stable: stored in MaterialTable.kind).
 LAMBERT = 0
@@ -592,6 +592,7 @@ def _host_kernels(kinds: frozenset):
 def _check_material(mb: MaterialBuffers, m, device) -> int:
     """The host wrappers' material index (one outside the table read memory beyond it) and device."""
     check_device(device)
+    check_instance(mb, MaterialBuffers, "mb", "MaterialBuffers (build_material_table's)")   # its .table: no names
     return check_count(m, "m (material index)", 0, len(mb.names) - 1)
 
 

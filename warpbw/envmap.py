@@ -77,7 +77,8 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.errors import WarpbwError, check_count, check_device, unit_directions
+from warpbw.errors import (WarpbwError, check_count, check_device, check_instance, check_seed, numeric_array,
+                           unit_directions)
 
 wp.set_module_options({"enable_backward": False})  # no gradients are taken: halves compile time
 
@@ -693,11 +694,16 @@ def build_mip_pyramid(env: EnvMap) -> EnvMap:
 
 
 def eval_radiance_lod(env: EnvMap, dirs, lod) -> np.ndarray:
-    """(N, 3) trilinear MIP lookup; lod is a scalar or (N,).  Builds the pyramid first (``build_mip_pyramid``)."""
+    """(N, 3) trilinear MIP lookup; lod is a scalar or (N,) finite levels (clamped to the pyramid's, 0 the map
+    itself).  Builds the pyramid first (``build_mip_pyramid``)."""
     d = _dirs_array(env, dirs)
-    build_mip_pyramid(env)
     n = d.shape[0]
-    lods = np.broadcast_to(np.asarray(lod, dtype=np.float32), (n,))
+    lods = numeric_array(lod, "lod", "a number or one per direction")   # "x" and None: numpy's errors
+    if lods.shape not in ((), (n,)) or not np.all(np.isfinite(lods)):   # NaN read level 0 without a word
+        raise WarpbwError(f"lod: expected a finite level, or {n} of them (one per direction), got "
+                          + (f"shape {lods.shape}" if lods.shape not in ((), (n,)) else "NaN or infinite values"))
+    build_mip_pyramid(env)
+    lods = np.broadcast_to(lods.astype(np.float32), (n,))
     lw = wp.array(np.ascontiguousarray(lods), dtype=wp.float32, device=env.device)
     out = wp.empty(n, dtype=wp.vec3, device=env.device)
     wp.launch(_eval_radiance_lod_kernel, dim=n, inputs=[env.data, d, lw, out], device=env.device)
@@ -714,7 +720,9 @@ def eval_pdf(env: EnvMap, dirs) -> np.ndarray:
 
 def sample_directions(env: EnvMap, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """n directions drawn by env_sample (Warp RNG seeded by seed) and their pdfs."""
+    check_instance(env, EnvMap, "env", "an EnvMap (load_envmap, constant_envmap, ...)")
     n = check_count(n, "n", 0)
+    seed = check_seed(seed)   # 2**32 drew seed 0's directions, 1.9 and "0" were taken
     dirs = wp.empty(n, dtype=wp.vec3, device=env.device)
     pdf = wp.empty(n, dtype=wp.float32, device=env.device)
     wp.launch(_sample_kernel, dim=n, inputs=[env.data, int(seed), dirs, pdf], device=env.device)

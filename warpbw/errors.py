@@ -6,7 +6,8 @@ Public: ``WarpbwError``; ``is_int(value)`` (an int or numpy integer, not a bool)
 existing file, else a ``WarpbwError`` saying whether it is missing or a directory); ``check_camera_reach(reach, lo, hi, target, kind, why, source)`` (the
 camera's distance to an object within what float32 intersection handles); ``check_coordinate_spacing(coord,
 size, target, source)`` (float32 fine enough where the camera and an object lie, ``COORD_SPACING_REL_MAX``);
-``check_flag(value, name) -> bool`` (True or False, not a truthy string); ``check_warp_array(a, name, dtype, n,
+``check_flag(value, name) -> bool`` (True or False, not a truthy string); ``check_instance(value, kind, name,
+expected)`` (an object of the kind a stage function reads); ``check_warp_array(a, name, dtype, n,
 device, what, at_least)`` (a 1-D Warp array a kernel may index n items of); ``check_real(value, name, lo,
 lo_open) -> float`` (a finite real number in float32's range, not a bool or a string); ``check_seed(seed, name)``
 (a uint32), ``offset_seed(seed, offset)`` (a seed derived from the user's, kept a uint32 by wrapping) and
@@ -93,6 +94,17 @@ def check_warp_array(a, name: str, dtype, n: int, device, what: str, at_least: b
     if a.device != wp.get_device(device):
         raise WarpbwError(f"{name}: expected an array on device {device}, got one on {a.device}")
     return a
+
+
+def check_instance(value, kind, name: str, expected: str):
+    """``value`` when it is an instance of ``kind`` (a class, a tuple of them, or a Warp struct: its instances'
+    type), else a one-line ``WarpbwError``: ``NAME: expected EXPECTED, got TYPE`` (the stage functions read its
+    fields: a wrong object gave an AttributeError from deep inside, or, handed to a kernel, a segfault)."""
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    kinds = tuple(getattr(k, "instance_type", k) for k in kinds)   # a @wp.struct class: what its instances are
+    if not isinstance(value, kinds):
+        raise WarpbwError(f"{name}: expected {expected}, got {type(value).__name__}")
+    return value
 
 
 def check_flag(value, name: str) -> bool:

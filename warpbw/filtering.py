@@ -115,7 +115,8 @@ from precompute.gmm_mipmap import NORMAL_DIM
 from warpbw.envmap import (LUMINANCE_RGB, EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv,
                            load_environment)
 from warpbw.errors import (INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, check_count,
-                           check_device, check_finite_image, check_flag, check_real, check_seed)
+                           check_device, check_finite_image, check_flag, check_real, check_seed, numeric_array,
+                           unit_directions)
 from warpbw.gbuffer import CameraData, scene_camera
 from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene, check_scene
 
@@ -1455,14 +1456,34 @@ def filtering_summary(scene: Scene) -> dict:
 def fetch_gmm(levels, s, t, level, device: str = "cpu") -> np.ndarray:
     """Recovered (a, mu_x, mu_y, s^2) per component, (N, K, 4), of the GMM mipmap ``levels`` (finest first,
     (h, w, K, 4) moments) at finest-texel coordinates (s, t) and fractional ``level``, by the renderer's
-    trilinear fetch (empty components come back as zeros)."""
+    trilinear fetch (empty components come back as zeros).  ``level`` from 0 to the coarsest level's index (the
+    kernel reads the level arrays at it: 99 or NaN crashed the process)."""
     check_device(device)
+    if not isinstance(levels, (list, tuple)) or not levels:   # one array was iterated as its rows
+        raise WarpbwError(f"levels: expected a list of the mipmap's levels, finest first, got {type(levels).__name__}")
+    levels = [numeric_array(q, f"levels[{i}]", "(h, w, K, 4) moments") for i, q in enumerate(levels)]
+    K = levels[0].shape[2] if levels[0].ndim == 4 else 0
+    for i, q in enumerate(levels):
+        if q.ndim != 4 or q.shape[2:] != (K, 4) or K < 1 or not np.all(np.isfinite(q)):
+            raise WarpbwError(f"levels[{i}]: expected finite (h, w, K, 4) moments with level 0's K = {K}, got shape "
+                              f"{q.shape}")
+    s, t, level = (numeric_array(v, name) for v, name in ((s, "s"), (t, "t"), (level, "level")))
+    try:
+        s, t, level = np.broadcast_arrays(s, t, level)
+    except ValueError:
+        raise WarpbwError(f"s, t, level: expected shapes that broadcast, got {s.shape}, {t.shape}, {level.shape}") \
+            from None
+    if not (np.all(np.isfinite(s)) and np.all(np.isfinite(t))):
+        raise WarpbwError("s, t: expected finite texel coordinates")
+    top = len(levels) - 1
+    if level.size and not (np.all(np.isfinite(level)) and level.min() >= 0 and level.max() <= top):
+        got = "NaN or infinite values" if not np.all(np.isfinite(level)) else f"{level.min():g} to {level.max():g}"
+        raise WarpbwError(f"level: expected levels from 0 to {top} (the mipmap's), got {got}")
     shapes = [tuple(q.shape[:2]) for q in levels]
     lw, lh, loff = _level_arrays(shapes, device)
     gmm, K = _gmm_array(levels, device)
-    s, t, level = np.broadcast_arrays(np.asarray(s, np.float32), np.asarray(t, np.float32),
-                                      np.asarray(level, np.float32))
-    st = wp.array(np.stack([s.ravel(), t.ravel(), level.ravel()], -1), dtype=wp.vec3, device=device)
+    st = wp.array(np.stack([s.ravel(), t.ravel(), level.ravel()], -1).astype(np.float32), dtype=wp.vec3,
+                  device=device)
     out = wp.zeros(st.shape[0] * K, dtype=wp.vec4, device=device)
     wp.launch(fetch_gmm_kernel, dim=(st.shape[0], K), inputs=[gmm, lw, lh, loff, len(levels), K, st, out],
               device=device)
@@ -1474,8 +1495,14 @@ def gmm_ndf(params, rough_var: float, h, device: str = "cpu") -> np.ndarray:
     (a, mu_x, mu_y, s^2)."""
     check_device(device)
     rough_var = check_real(rough_var, "rough_var (the roughness's per-axis variance)", 0.0)  # < 0: NDF below 0
-    p = np.asarray(params, np.float32).reshape(-1, 4)
-    hh = wp.array(np.asarray(h, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
+    # (4, 3) params and (6, 2) directions were reshaped to (3, 4) and (4, 3) without a word
+    p, hv = numeric_array(params, "params", "(K, 4) components"), numeric_array(h, "h", "(N, 3) unit directions")
+    if p.ndim != 2 or p.shape[1] != 4 or not np.all(np.isfinite(p)) or np.any(p[:, 3] < 0):
+        raise WarpbwError(f"params: expected finite (K, 4) components (a, mu_x, mu_y, s^2 >= 0), got shape {p.shape}")
+    if hv.ndim != 2 or hv.shape[1] != 3:
+        raise WarpbwError(f"h: expected (N, 3) directions, got shape {hv.shape}")
+    p = p.astype(np.float32)
+    hh = wp.array(unit_directions(hv, "h").astype(np.float32), dtype=wp.vec3, device=device)
     out = wp.zeros(hh.shape[0], dtype=wp.float32, device=device)
     wp.launch(gmm_ndf_kernel, dim=hh.shape[0], inputs=[wp.array(p, dtype=wp.vec4, device=device), p.shape[0],
                                                        float(rough_var), hh, out], device=device)

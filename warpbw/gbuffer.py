@@ -20,6 +20,8 @@ Public:
                                      ``SPHERE_REACH_MIN``, ``MESH_REACH_MIN``), or a scene so far from the origin
                                      that float32 cannot place it (``warpbw.errors.COORD_SPACING_REL_MAX``);
                                      render_gbuffer calls it
+    ``check_camera_of(cam, gb, where)``   a CameraData of the G-buffer's size, else a one-line error (the
+                                     passes read the pixel angle and rays from it)
     ``hide_beyond(gb, cam, distance, device, name) -> int``   empty the pixels whose surface lies beyond a
                                      per-pixel distance along the centre ray (hidden by something nearer);
                                      ``hide_beyond_kernel``, its kernel (the pipeline compiles it ahead)
@@ -51,7 +53,7 @@ import numpy as np
 import warp as wp
 
 from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, check_count,
-                           check_device, is_int)
+                           check_device, check_flag, check_instance, is_int)
 from warpbw.io.mesh import checked_faces, local_curvature
 
 RAY_T_MAX = 1.0e30
@@ -414,6 +416,16 @@ def _check_sphere_spec(k: int, s: SphereSpec) -> None:
     check_count(s.material, f"{where} material", 0, INT32_MAX)
 
 
+def _check_unit_normals(n: np.ndarray, where: str) -> np.ndarray:
+    """``n`` (V, 3), unit vectors, else a one-line error: a zero normal shaded black without a word (build_geometry
+    took it; update_mesh refused it), and the shading interpolates them as they are, weighting longer ones more."""
+    length = np.linalg.norm(n, axis=1)
+    if not np.all(np.abs(length - 1.0) < 1e-3):
+        raise WarpbwError(f"{where}normals: expected unit vectors, got lengths from {length.min():.3g} to "
+                          f"{length.max():.3g} (a zero normal shades black)")
+    return n
+
+
 def _check_mesh_spec(k: int, m: MeshSpec) -> None:
     where = f"build_geometry: meshes[{k}] "
     if not isinstance(m, MeshSpec):
@@ -423,7 +435,7 @@ def _check_mesh_spec(k: int, m: MeshSpec) -> None:
         raise WarpbwError(f"{where}vertices: expected (V, 3) positions, V >= 3, got shape {v.shape}")
     n_v = len(v)
     _per_vertex("vertices", v, (n_v, 3), where)
-    _per_vertex("normals", m.normals, (n_v, 3), where)
+    _check_unit_normals(_per_vertex("normals", m.normals, (n_v, 3), where), where)
     if m.uv is not None:
         _per_vertex("uv", m.uv, (n_v, 2), where)
     if not callable(m.curvature):
@@ -440,6 +452,10 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
     ``ensure_curvature`` where the MeshSpec defers it).  Material ids index the table the shading is given
     (``shade_reference`` checks them against it)."""
     check_device(device)
+    for name, specs, kind in (("spheres", spheres, "SphereSpec"), ("meshes", meshes, "MeshSpec")):
+        if not isinstance(specs, (list, tuple)):   # None, or one spec: "not iterable" from below
+            raise WarpbwError(f"build_geometry: {name}: expected a list of {kind} (empty for none), got "
+                              f"{type(specs).__name__}")
     for k, s in enumerate(spheres):
         _check_sphere_spec(k, s)
     for k, m in enumerate(meshes):
@@ -586,11 +602,7 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
                           "with extent")
     ma = geometry.mesh_attr
     if normals is not None:
-        n = _per_vertex("normals", normals, (count, 3), where)
-        length = np.linalg.norm(n, axis=1)
-        if not np.all(np.abs(length - 1.0) < 1e-3):   # the shading frame is built on them as they are
-            raise WarpbwError(f"{where}normals: expected unit vectors, got lengths from {length.min():.3g} to "
-                              f"{length.max():.3g} (a zero normal shades black)")
+        n = _check_unit_normals(_per_vertex("normals", normals, (count, 3), where), where)
         copies += [(ma.normal, n, wp.vec3),
                    (ma.curvature, _per_vertex("curvature", curvature, (count,), where), wp.float32)]
     # nothing is changed until everything given has been checked: a refused call leaves the mesh as it was
@@ -629,8 +641,20 @@ class GBuffer:
         return self.numpy("material") >= 0
 
 
+def check_camera_of(cam, gb, where: str) -> None:
+    """``cam`` a CameraData of ``gb``'s size (a GBuffer or its GBufferData: the camera it was rendered from), else a
+    one-line ``WarpbwError`` naming ``where``: the bandwidth pass reads the pixel angle from the camera, and a 48x32
+    camera over a 24x16 G-buffer halved b_p without a word."""
+    check_instance(cam, CameraData, f"{where}: cam", "a CameraData (make_camera's)")
+    if (int(cam.width), int(cam.height)) != (int(gb.width), int(gb.height)):
+        raise WarpbwError(f"{where}: cam: {cam.width}x{cam.height}, but the G-buffer is {gb.width}x{gb.height} "
+                          "(expected the camera it was rendered from)")
+
+
 def allocate_gbuffer(width: int, height: int, device: str = "cpu") -> GBuffer:
     check_device(device)
+    # a size of 8.5 or -3 failed inside Warp, and 0 gave an empty G-buffer
+    width, height = check_count(width, "allocate_gbuffer: width", 1), check_count(height, "allocate_gbuffer: height", 1)
     n = width * height
     g = GBufferData()
     g.position = wp.zeros(n, dtype=wp.vec3, device=device)
@@ -656,6 +680,9 @@ def render_gbuffer(cam: CameraData, geometry: Geometry, device: str = "cpu", out
     from warpbw.shading import launch_tiled   # shading builds on this module
 
     check_device(device)
+    check_instance(cam, CameraData, "render_gbuffer: cam", "a CameraData (make_camera's)")
+    check_instance(geometry, Geometry, "render_gbuffer: geometry", "a Geometry (build_geometry's)")
+    curvature = check_flag(curvature, "render_gbuffer: curvature")   # "no" was truthy
     check_reach(cam, geometry)
     if curvature:
         ensure_curvature(geometry)

@@ -5,6 +5,8 @@ Public:
     ``Lights`` / ``make_lights(scene_lights, device) -> Lights | None``   None when the scene has none
     ``directional_struct(directions, radiances, device) -> DirectionalLights``   (n, 3) directions (scaled to unit
                                           length) and one radiance each; refuses NaN, zero or mismatched ones
+    ``as_lights(lights, name) -> Lights | None``   what the shading takes: None, a Lights, or a DirectionalLights
+                                          struct (wrapped); anything else is a one-line ``WarpbwError``
 
 A directional light of radiance E (RGB) from the unit world direction l adds to a pixel's radiance, exactly
 and without sampling,
@@ -73,6 +75,21 @@ def directional_struct(directions, radiances, device: str = "cpu") -> Directiona
                               f"direction, got shapes {d.shape} and {e.shape}")
         d = e = np.zeros((0, 3))
     return _struct(d, e, device, "directional_struct: directions", "directional_struct: radiances")
+
+
+def as_lights(lights, name: str = "lights") -> Lights | None:
+    """``lights`` as the shading takes them: None (no lights), a ``Lights``, or ``directional_struct``'s struct
+    (wrapped in a ``Lights``); else a one-line ``WarpbwError`` naming ``name`` (an EnvMap, whose ``.data`` the
+    kernel read as the lights' struct, crashed the process)."""
+    if lights is None:
+        return None
+    if isinstance(lights, DirectionalLights.instance_type) and lights.direction is not None \
+            and lights.radiance is not None:
+        return Lights(lights, int(lights.direction.shape[0]))
+    if isinstance(lights, Lights) and isinstance(lights.data, DirectionalLights.instance_type):
+        return lights
+    raise WarpbwError(f"{name}: expected a Lights (make_lights's) or a DirectionalLights struct "
+                      f"(directional_struct's), got {type(lights).__name__}")
 
 
 def make_lights(scene_lights, device: str = "cpu") -> Lights | None:

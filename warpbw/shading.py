@@ -41,9 +41,9 @@ import warp as wp
 
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv
-from warpbw.errors import INT32_MAX, WarpbwError, check_count, check_device, check_flag
+from warpbw.errors import INT32_MAX, WarpbwError, check_count, check_device, check_flag, check_instance, check_seed
 from warpbw.gbuffer import GBuffer, GBufferData
-from warpbw.lights import DirectionalLights, Lights
+from warpbw.lights import DirectionalLights, Lights, as_lights
 
 # Pixels per kernel launch when tiling the work over threads (small enough for a smooth progress
 # bar, large enough that launch overhead stays under 1%).
@@ -279,6 +279,7 @@ def launch_tiled(kernel, n_items: int, make_inputs: Callable[[int, int], list], 
 def lighting_inputs(env_data: EnvMapData | None, lights: Lights | None):
     """The environment and light structs a kernel takes: an empty struct for what the scene lacks (the kernel
     compiles no code that reads it, as ``warpbw.filtering``'s), and a one-line error when it lacks both."""
+    lights = as_lights(lights)
     if env_data is None and lights is None:
         raise WarpbwError("shading: the scene has no light (expected an environment or directional lights)")
     return (EnvMapData() if env_data is None else env_data), (DirectionalLights() if lights is None else lights.data)
@@ -344,6 +345,9 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
     """
     mis = check_flag(mis, "shade_reference: mis")
     check_device(device, "shade_reference: device")
+    check_instance(gb, GBuffer, "shade_reference: gb", "a GBuffer (render_gbuffer's)")
+    seed = check_seed(seed, "shade_reference: seed")   # 2**32 drew seed 0's samples, -1 those of 2**32 - 1
+    lights = as_lights(lights, "shade_reference: lights")
     n_pix = gb.width * gb.height
     _check_material_ids(gb, materials)
     if env_data is not None and not isinstance(env_data, EnvMapData.instance_type):   # else an AttributeError in Warp

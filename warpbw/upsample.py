@@ -140,7 +140,7 @@ import numpy as np
 import warp as wp
 
 from warpbw.errors import FLOAT32_MAX, WarpbwError, check_count, check_device, check_warp_array
-from warpbw.gbuffer import CameraData, GBuffer, GBufferData
+from warpbw.gbuffer import CameraData, GBuffer, GBufferData, check_camera_of
 
 DEPTH_SIGMA_REL = 0.1   # g_z tolerance, relative to the child's depth (a 10% depth step is an edge)
 COS_X_MIN = 0.05        # clamp of cos theta_x in M (grazing: the kernel width along the normal stays > 0)
@@ -380,8 +380,7 @@ def upsample_level(gb: GBuffer | GBufferData, cam: CameraData, level: int, paren
     check_device(device)
     fit = check_upsample_mode(mode)
     gb = _gbuffer_data(gb)
-    if not isinstance(cam, CameraData.cls):
-        raise WarpbwError(f"cam: expected a CameraData (make_camera), got {type(cam).__name__}")
+    check_camera_of(cam, gb, "upsample_level")
     # up to the 1 x 1 top (whose parent is itself, clamped); 99 ran, shifting an int32 past its width in the kernel
     level = check_count(level, f"level (of a {gb.width}x{gb.height} G-buffer)", 0, top_level(gb.width, gb.height))
     w, h = level_size(gb.width, gb.height, level)
