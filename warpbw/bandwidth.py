@@ -215,6 +215,7 @@ import functools
 import hashlib
 import math
 import numbers
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -225,7 +226,7 @@ from warpbw.bandwidth_ops import bw_one_bounce
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv
 from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, check_device, check_flag,
-                           check_instance, check_seed, is_int)
+                           check_instance, check_seed, is_int, numeric_array)
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData, check_camera_of
 from warpbw.pyramid import build_pyramid, image_level
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_local, to_world
@@ -540,8 +541,8 @@ def make_bandwidth_tables(nu_env, nu_rho, device: str = "cpu") -> tuple[Bandwidt
     """Device copies of the environment's bandwidth table (h, w) (:func:`nu_env_table`) and the stacked BRDF
     tables (M, 16, 16, 16).  Returns the struct and the arrays it references (keep them alive with it)."""
     check_device(device)
-    lt = np.ascontiguousarray(np.asarray(nu_env, np.float32))
-    rho = np.ascontiguousarray(np.asarray(nu_rho, np.float32))
+    lt = np.ascontiguousarray(numeric_array(nu_env, "environment bandwidth table", "(h, w) bandwidths"), np.float32)
+    rho = np.ascontiguousarray(numeric_array(nu_rho, "BRDF bandwidth tables", "bandwidths"), np.float32)
     if lt.ndim != 2 or lt.size == 0:
         raise WarpbwError(f"environment bandwidth table: expected a non-empty (h, w) array, got shape {lt.shape}")
     if rho.ndim != 4 or rho.shape[1:] != (N_THETA_I, N_CELLS, N_CELLS) or rho.shape[0] == 0:
@@ -611,6 +612,8 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
         return np.zeros((h, w), np.float32), "constant"
     digest = "blake2b:" + hashlib.blake2b(px.tobytes() + str(px.shape).encode(), digest_size=16).hexdigest()
     kind = "" if signal == "radiance" else f"{signal}-"   # the radiance maps keep their cache names
+    if cache is not None and not isinstance(cache, (str, os.PathLike)):   # 5: pathlib's TypeError
+        raise WarpbwError(f"cache: expected a folder (a path or a str), got {type(cache).__name__}")
     path = ((cache_dir() if cache is None else Path(cache))   # a str failed on str / str
             / f"env-bandwidth-{kind}{digest.split(':')[1]}-v{ENV_BW_VERSION}.npz")
     if path.is_file():

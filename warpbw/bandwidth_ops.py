@@ -59,11 +59,12 @@ by ``min(|cos theta_i|, 1)``, so a cosine's sign never matters there (``bw_incid
 from __future__ import annotations
 
 import math
+import numbers
 
 import numpy as np
 import warp as wp
 
-from warpbw.errors import WarpbwError, check_device
+from warpbw.errors import WarpbwError, check_device, numeric_array
 
 # Grazing clamp of P_x (002 Fig. 4 has 1 / cos theta_x, unbounded at the silhouette): cos theta_x
 # below 1e-3 (theta_x > 89.94 deg) counts as 1e-3, so P_x scales nu_s by at most 1000.  The image-space
@@ -173,19 +174,26 @@ def bw_one_bounce(nu: wp.vec2, d: float, dp: float, cos_i: float, cos_x: float, 
 
 # --- host numpy twins of the linear operators (002 Fig. 4) --------------------------------------------
 
+def _scalar(value, name: str) -> float:
+    """A matrix's parameter as a float, else a one-line ``WarpbwError`` ("a" and [1, 2] gave float()'s errors)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real, np.ndarray)) or np.ndim(value):
+        raise WarpbwError(f"{name}: expected one number, got {value!r:.60}")
+    return float(value)
+
+
 def transport_matrix(d: float) -> np.ndarray:
     """T_d as a 2x2 float64 matrix."""
-    return np.array([[1.0, 0.0], [-float(d), 1.0]])
+    return np.array([[1.0, 0.0], [-_scalar(d, "d"), 1.0]])
 
 
 def incident_matrix(cos_i: float) -> np.ndarray:
     """P_i as a 2x2 float64 matrix."""
-    return np.array([[float(cos_i), 0.0], [0.0, 1.0]])
+    return np.array([[_scalar(cos_i, "cos_i"), 0.0], [0.0, 1.0]])
 
 
 def exitant_matrix(cos_x: float) -> np.ndarray:
     """P_x as a 2x2 float64 matrix, with |cos_x| clamped below at COS_X_MIN as ``bw_exitant``."""
-    return np.array([[1.0 / max(abs(float(cos_x)), COS_X_MIN), 0.0], [0.0, 1.0]])
+    return np.array([[1.0 / max(abs(_scalar(cos_x, "cos_x")), COS_X_MIN), 0.0], [0.0, 1.0]])
 
 
 def mirror_matrix() -> np.ndarray:
@@ -195,7 +203,7 @@ def mirror_matrix() -> np.ndarray:
 
 def curvature_matrix(c: float) -> np.ndarray:
     """C_c as a 2x2 float64 matrix."""
-    return np.array([[1.0, float(c)], [0.0, 1.0]])
+    return np.array([[1.0, _scalar(c, "c")], [0.0, 1.0]])
 
 
 # --- host wrappers ------------------------------------------------------------------------------------------
@@ -251,7 +259,7 @@ def apply_operator(op: str, nu, *, d=0.0, dp=0.0, cos_i=1.0, cos_x=1.0, c=0.0, t
     if op not in OPS:
         raise WarpbwError(f"unknown bandwidth operator {op!r}; expected one of {sorted(OPS)}")
     check_device(device)
-    v = np.asarray(nu, dtype=np.float32)
+    v = numeric_array(nu, "nu", "(N, 2) bandwidths").astype(np.float32)   # strings: numpy's ValueError
     if v.ndim == 1:
         v = v.reshape(1, -1)
     if v.ndim != 2 or v.shape[1] != 2:

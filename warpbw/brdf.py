@@ -38,8 +38,8 @@ import numpy as np
 import warp as wp
 
 from warpbw import sampling as tabsamp
-from warpbw.errors import (INT32_MAX, WarpbwError, check_count, check_device, check_direction_pairs,
-                           check_instance, check_seed, is_int, unit_directions)
+from warpbw.errors import (BRDF_VALUE_MAX, FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, check_device,
+                           check_direction_pairs, check_instance, check_seed, is_int, unit_directions)
 
 # Material kind ids (stable: stored in MaterialTable.kind).
 LAMBERT = 0
@@ -472,8 +472,9 @@ def _spec_vec3(value, what: str, optional: bool = False):
         v = np.asarray(value, np.float64)
     except (TypeError, ValueError):
         v = np.zeros(0)
-    if v.shape != (3,) or not np.isfinite(v).all() or (v < 0.0).any():
-        raise WarpbwError(f"{what}: expected three finite numbers >= 0, got {value!r}")
+    if v.shape != (3,) or not np.isfinite(v).all() or (v < 0.0).any() or (v > FLOAT32_MAX).any():
+        # (1e39 passed, and became inf in the float32 table)
+        raise WarpbwError(f"{what}: expected three finite numbers >= 0 (within float32), got {value!r}")
     return v
 
 
@@ -485,6 +486,10 @@ def _spec_table(values, what: str, rows: int) -> np.ndarray:
         raise WarpbwError(f"{what}: expected {rows} x 3 numbers, got {type(values).__name__}") from None
     if v.size != rows * 3:
         raise WarpbwError(f"{what}: expected {rows} x 3 values, got {v.size}")
+    if v.ndim > 1 and v.shape[-1] != 3:   # channels first, (3, 90, 90, 180), was read as scrambled RGB
+        raise WarpbwError(f"{what}: expected the RGB channels on the last axis (or a flat list), got shape {v.shape}")
+    if not np.all(np.isfinite(v)):
+        raise WarpbwError(f"{what}: expected finite values, got {int((~np.isfinite(v)).sum())} NaN or infinite")
     return np.ascontiguousarray(v).reshape(rows, 3)
 
 
@@ -507,7 +512,10 @@ def check_material_spec(s: MaterialSpec, i: int) -> MaterialSpec:
     if not isinstance(s.alpha, (int, float, np.floating)) or not math.isfinite(s.alpha) or s.alpha < 0.0:
         raise WarpbwError(f"{what}.alpha: expected a finite number >= 0, got {s.alpha!r}")
     if s.kind == MERL:
-        _spec_table(s.merl, f"{what}.merl", MERL_CELLS)
+        table = _spec_table(s.merl, f"{what}.merl", MERL_CELLS)
+        if table.min() < 0.0 or table.max() > BRDF_VALUE_MAX:   # read_merl zeroes unmeasured (negative) entries
+            raise WarpbwError(f"{what}.merl: expected BRDF values from 0 to {BRDF_VALUE_MAX:g} (unmeasured entries "
+                              f"0, as read_merl gives them), got {table.min():.3g} to {table.max():.3g}")
     elif s.kind == NPF:
         _spec_table(s.npf, f"{what}.npf", NPF_STRIDE)
     return s

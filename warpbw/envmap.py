@@ -396,6 +396,7 @@ def _row_boundaries(height: int) -> np.ndarray:
 
 def texel_directions(width: int, height: int) -> np.ndarray:
     """(H, W, 3) local-frame directions of the texel centres (u = (i + 1/2) / W, v = j / (H - 1))."""
+    width, height = check_count(width, "width", 1), check_count(height, "height", 1)   # 0 gave an empty array
     u = (np.arange(width) + 0.5) / width
     v = np.arange(height) / max(height - 1, 1)
     phi = 2.0 * math.pi * u[None, :]

@@ -54,7 +54,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from warpbw.errors import WarpbwError, check_device
+from warpbw.errors import WarpbwError, check_count, check_device, is_int
 
 wp.set_module_options({"enable_backward": False})  # no gradients are taken: halves compile time
 
@@ -189,7 +189,7 @@ class Pyramid:
 
     def level(self, l: int) -> np.ndarray:
         """Level ``l`` as a numpy array of shape (rows, cols)."""
-        return self.levels[l].numpy()
+        return self.levels[check_count(l, "level", 0, self.num_levels - 1)].numpy()   # 99: an IndexError
 
     def numpy(self) -> list[np.ndarray]:
         """Every level as a numpy array, finest first."""
@@ -197,10 +197,9 @@ class Pyramid:
 
 
 def _check_size(width, height) -> tuple[int, int]:
-    w, h = int(width), int(height)
-    if w != width or h != height or w < 1 or h < 1:
+    if not (is_int(width) and is_int(height)) or width < 1 or height < 1:   # None: int()'s TypeError
         raise WarpbwError(f"image size must be positive integers, got {width} x {height}")
-    return w, h
+    return int(width), int(height)
 
 
 def _device_of(values, device):
@@ -221,6 +220,8 @@ def _as_2d(values, dtype, width, height, device, name):
         arr = values.numpy()
     else:
         arr = np.asarray(values)
+        if arr.dtype.kind not in "biuf":   # strings: numpy's "could not convert" from the cast below
+            raise WarpbwError(f"{name}: expected numbers, got {arr.dtype} values")
     if arr.ndim == 1:
         if width is None or height is None:
             raise WarpbwError(f"{name}: a flat buffer needs width and height")
@@ -287,15 +288,15 @@ def build_pyramid(values, op: str = "min", device=None, *, width: int | None = N
     code = OPS[op]
     device = _device_of(values, device)
     if isinstance(values, wp.array):
-        is_int = values.dtype in (wp.int32, wp.int64, wp.int16, wp.int8, wp.uint8, wp.uint16, wp.uint32,
+        integer = values.dtype in (wp.int32, wp.int64, wp.int16, wp.int8, wp.uint8, wp.uint16, wp.uint32,
                                   wp.bool)
     else:
-        is_int = np.asarray(values).dtype.kind in "iub"
-    dtype = wp.int32 if is_int else wp.float32
+        integer = np.asarray(values).dtype.kind in "iub"
+    dtype = wp.int32 if integer else wp.float32
     base = _as_2d(values, dtype, width, height, device, "values")
     h, w = base.shape
     shapes = pyramid_shapes(w, h)
-    if is_int:
+    if integer:
         level0 = wp.clone(base, device=device)
         kernel = reduce_i32_kernel
     else:
@@ -311,7 +312,14 @@ def build_pyramid(values, op: str = "min", device=None, *, width: int | None = N
 
 
 def level_pyramid(level_map, device=None, **kw) -> Pyramid:
-    """The Eq. 11 level map mip-mapped with a MIN filter (a coarse texel is as fine as its finest pixel)."""
+    """The Eq. 11 level map mip-mapped with a MIN filter (a coarse texel is as fine as its finest pixel); the
+    levels are integers (a float map of 1.5 was mip-mapped as floats)."""
+    if isinstance(level_map, wp.array):
+        floats = level_map.dtype in (wp.float16, wp.float32, wp.float64)
+    else:
+        floats = np.asarray(level_map).dtype.kind not in "iub"
+    if floats:
+        raise WarpbwError("level_map: expected integer levels (Eq. 11), got other numbers")
     return build_pyramid(level_map, "min", device, **kw)
 
 

@@ -139,7 +139,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError, check_count, check_device, check_warp_array
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_count, check_device, check_warp_array, numeric_array
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData, check_camera_of
 
 DEPTH_SIGMA_REL = 0.1   # g_z tolerance, relative to the child's depth (a 10% depth step is an edge)
@@ -339,9 +339,11 @@ class UpsampleResult:
 def _i32(a, name: str, n: int, device, what: str) -> wp.array:
     if isinstance(a, wp.array):
         return check_warp_array(a, name, wp.int32, n, device, what)
-    a = np.asarray(a)
+    a = numeric_array(a, name, f"{n} flags ({what})")   # strings: numpy's ValueError
     if a.size != n:
         raise WarpbwError(f"{name}: expected {n} flags ({what}), got an array of shape {a.shape}")
+    if not np.all((a == 0) | (a == 1)):   # cast to int32, 2**32 read 0 (nothing done) and 0.5 read 0
+        raise WarpbwError(f"{name}: expected flags of 0 or 1 ({what}), got other values")
     return wp.array(np.ascontiguousarray(a.astype(np.int32).reshape(n)), dtype=wp.int32, device=device)
 
 
@@ -390,7 +392,7 @@ def upsample_level(gb: GBuffer | GBufferData, cam: CameraData, level: int, paren
     if isinstance(parent_values, wp.array):
         check_warp_array(parent_values, "parent_values", wp.vec3, pn, device, parent_at)
     else:
-        parent_values = np.asarray(parent_values, np.float32)
+        parent_values = numeric_array(parent_values, "parent_values", f"{pn} RGB values").astype(np.float32)
         if parent_values.size != pn * 3:
             raise WarpbwError(f"parent_values: expected {pn} RGB values ({parent_at}), got an array of shape "
                               f"{parent_values.shape}")
