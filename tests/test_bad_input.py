@@ -2672,8 +2672,15 @@ def stage_inputs():
 
 
 def _stage_cases():
-    from warpbw import brdf, envmap, filtering, gbuffer, shading, upsample
+    from warpbw import bandwidth, bandwidth_ops, brdf, envmap, filtering, gbuffer, pyramid, shading, upsample
     from warpbw.adaptive import plan_hierarchy, shade_hierarchical
+    from warpbw.brdf import MERL_CELLS
+    from warpbw.io.merl import MERL_SHAPE
+
+    assert MERL_CELLS * 3 == np.prod(MERL_SHAPE)
+
+    def merl(table):
+        return brdf.build_material_table([brdf.MaterialSpec("m", brdf.MERL, merl=table)])
 
     def shade(c, **kw):
         args = dict(gb=c.gb, materials=c.prep.materials, env_data=c.prep.env_data, spp=1)
@@ -2696,7 +2703,8 @@ def _stage_cases():
                                                     "level_map: expected an (height, width) = (16, 24) map"),
         "shade_hierarchical spp_map transposed": (lambda c: hier(c, spp_map=c.spp.T), "spp_map: expected an (height"),
         "shade_hierarchical seed -1": (lambda c: hier(c, seed=-1), "shade_hierarchical: seed"),
-        "shade_hierarchical plan []": (lambda c: hier(c, plan=[]), "shade_hierarchical: plan: expected a HierarchyPlan"),
+        "shade_hierarchical plan []": (lambda c: hier(c, plan=[]),
+                                       "shade_hierarchical: plan: expected a HierarchyPlan"),
         "shade_hierarchical cam of another size": (lambda c: hier(c, cam=c.big_cam),
                                                    "shade_hierarchical: cam: 48x32, but the G-buffer is 24x16"),
         "plan_hierarchy gb None": (lambda c: plan_hierarchy(None, c.cam, c.level), "plan_hierarchy: gb: expected"),
@@ -2723,7 +2731,8 @@ def _stage_cases():
                                     "render_gbuffer: cam: expected a CameraData"),
         "render_gbuffer curvature 'no'": (lambda c: gbuffer.render_gbuffer(c.cam, c.prep.geometry, curvature="no"),
                                           "render_gbuffer: curvature: expected True or False"),
-        "sample_directions seed 2**32": (lambda c: envmap.sample_directions(c.prep.env, 4, seed=2**32), "seed: expected"),
+        "sample_directions seed 2**32": (lambda c: envmap.sample_directions(c.prep.env, 4, seed=2**32),
+                                         "seed: expected"),
         "sample_directions of EnvMapData": (lambda c: envmap.sample_directions(c.prep.env_data, 4),
                                             "env: expected an EnvMap"),
         "fetch_gmm level 99 (segfault)": (lambda c: lods(c, 99.0), "level: expected levels from 0 to 0"),
@@ -2736,6 +2745,37 @@ def _stage_cases():
                                         "h: expected (N, 3)"),
         "eval_brdf of the raw table": (lambda c: brdf.eval_brdf(c.prep.materials.table, 0, [[0, 0, 1]], [[0, 0, 1]]),
                                        "mb: expected MaterialBuffers"),
+        "MERL table of NaN": (lambda c: merl(np.full(MERL_SHAPE, np.nan)), "expected finite values"),
+        "MERL table of negative values": (lambda c: merl(np.full(MERL_SHAPE, -1.0)), "expected BRDF values from 0 to"),
+        "MERL table channels first (scrambled)": (lambda c: merl(np.zeros((3,) + MERL_SHAPE[:3])),
+                                                  "expected the RGB channels on the last axis"),
+        "albedo 1e39 (inf in float32)": (
+            lambda c: brdf.build_material_table([brdf.MaterialSpec("a", brdf.LAMBERT, albedo=(1e39,) * 3)]),
+            "albedo: expected three finite numbers >= 0 (within float32)"),
+        "upsample_level todo of 2**32 (read 0)": (
+            lambda c: upsample.upsample_level(c.gb, c.cam, 0, np.zeros((12 * 8, 3)), np.ones(12 * 8),
+                                              np.full(24 * 16, 2**32)), "todo: expected flags of 0 or 1"),
+        "upsample_level parent_valid of 0.5 (read 0)": (
+            lambda c: upsample.upsample_level(c.gb, c.cam, 0, np.zeros((12 * 8, 3)), np.full(12 * 8, 0.5),
+                                              np.ones(24 * 16)), "parent_valid: expected flags of 0 or 1"),
+        "upsample_level todo of strings": (
+            lambda c: upsample.upsample_level(c.gb, c.cam, 0, np.zeros((12 * 8, 3)), np.ones(12 * 8),
+                                              ["a"] * (24 * 16)), "todo: expected"),
+        "Pyramid.level 99 (IndexError)": (lambda c: pyramid.build_pyramid(c.level).level(99),
+                                          "level: expected an integer from 0 to"),
+        "pyramid_shapes None": (lambda c: pyramid.pyramid_shapes(None, 4), "image size must be positive integers"),
+        "level_pyramid of floats": (lambda c: pyramid.level_pyramid(np.full((3, 3), 1.5)),
+                                    "level_map: expected integer levels"),
+        "build_pyramid of strings": (lambda c: pyramid.build_pyramid(np.full((2, 2), "a")), "values: expected numbers"),
+        "apply_operator nu of strings": (lambda c: bandwidth_ops.apply_operator("T", [["a", "b"]]), "nu: expected"),
+        "transport_matrix 'a'": (lambda c: bandwidth_ops.transport_matrix("a"), "d: expected one number"),
+        "curvature_matrix [1, 2]": (lambda c: bandwidth_ops.curvature_matrix([1, 2]), "c: expected one number"),
+        "texel_directions 0 wide (empty)": (lambda c: envmap.texel_directions(0, 4), "width: expected"),
+        "env_bandwidth_map cache 5": (lambda c: bandwidth.env_bandwidth_map(c.prep.env.pixels, cache=5),
+                                      "cache: expected a folder"),
+        "make_bandwidth_tables of strings": (
+            lambda c: bandwidth.make_bandwidth_tables([["a"]], np.zeros((1, 16, 16, 16))),
+            "environment bandwidth table: expected"),
     }
 
 
