@@ -1032,3 +1032,22 @@ def test_a_shared_pixel_pools_the_traced_neighbours_alike_to_itself_not_to_its_b
     facing[2, 3:5] = 0.0                          # i and j themselves
     assert own[jj] > 20 * facing.max()            # j sees the sun, the +Z pixels do not
     assert pooled[ii] >= 0.8 * own[jj], (pooled[ii], own[jj])
+
+
+@settings(max_examples=60, deadline=None)
+@given(s=st.lists(st.one_of(st.floats(0.0, 1e30), st.just(math.inf), st.just(math.nan)), min_size=1, max_size=40),
+       log_v=st.floats(-700.0, 700.0), n_min=st.integers(1, 4), n_extra=st.integers(0, 100))
+def test_the_bisections_sample_count_with_the_sanitised_shortcut_equals_the_plain_one(s, log_v, n_min, n_extra):
+    """allocate_samples' bisection replaces non-finite s by inf once and skips that pass (and the NaN one) in each
+    of its 60 steps: the counts must be those of the plain N_p = ceil(s / v) clipped to [n_min, n_max], non-finite
+    s at n_max (written out here), for any v > 0."""
+    from warpbw.bandwidth import _n_of
+
+    a = np.array(s)
+    v = math.exp(log_v)
+    n_max = n_min + n_extra
+    want = np.array([n_max if not math.isfinite(x) else min(max(math.ceil(x / v), n_min), n_max)
+                     if math.isfinite(x / v) else n_max for x in s])
+    fast = _n_of(np.where(np.isfinite(a), a, np.inf), v, n_min, n_max, sanitised=True)
+    np.testing.assert_array_equal(fast, want)
+    np.testing.assert_array_equal(_n_of(a, v, n_min, n_max), want)

@@ -822,8 +822,13 @@ class SampleAllocation:
     stats: dict = field(default_factory=dict)
 
 
-def _n_of(s: np.ndarray, v: float, n_min: int, n_max: int) -> np.ndarray:
+def _n_of(s: np.ndarray, v: float, n_min: int, n_max: int, sanitised: bool = False) -> np.ndarray:
+    """N_p = ceil(s / v) within [n_min, n_max] (a non-finite s, or v = 0: n_max).  ``sanitised``: ``s`` holds inf
+    where it was not finite and ``v`` is finite and > 0, so no NaN can arise and two passes over ``s`` are left out
+    (the bisection calls this 60 times a frame: 10 ms of the gold bunny's 364 at budget 4, session 62)."""
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        if sanitised and 0.0 < v < math.inf:
+            return np.clip(np.ceil(s / v), n_min, n_max).astype(np.int64)
         n = np.ceil(np.where(np.isfinite(s), s, np.inf) / v)
     return np.clip(np.nan_to_num(n, nan=n_max, posinf=n_max), n_min, n_max).astype(np.int64)
 
@@ -902,9 +907,10 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
         pos = s[s > 0]
         lo = math.log(pos.min() / n_max) - 1.0   # every pixel with s > 0 above n_max
         hi = math.log(pos.max() / n_min) + 1.0   # every pixel at n_min
+        s_inf = np.where(np.isfinite(s), s, np.inf)   # once, not in each of the 60 steps
         for _ in range(60):
             mid = 0.5 * (lo + hi)
-            if _n_of(s, math.exp(mid), n_min, n_max).sum() > total:
+            if _n_of(s_inf, math.exp(mid), n_min, n_max, sanitised=True).sum() > total:
                 lo = mid
             else:
                 hi = mid
