@@ -452,9 +452,10 @@ def _fake_renderers(monkeypatch, ref_amp, ada, chunk_amp=lambda k: 0.0, run_time
     """Install fake ``render_reference`` / ``render_adaptive`` and a fake clock in bench.  The reference's run r at
     ``spp`` (seeded seed + 101 spp + r, as run_bench does) has amplitude ``ref_amp(spp)`` and takes
     0.01 spp run_time[r] s; budget b's run r (seeded 7 r) has amplitude ``ada[b][0]`` and takes ada[b][1] run_time[r]
-    s (over budget where ``ada[b]`` has a third item, True); the ground truth's k-th chunk rendered (seed >= 1e6) has amplitude ``chunk_amp(k)``.  Returns the list of
-    the chunks' seeds, in the order rendered.  Each adaptive frame also spends ``ada_host_time`` s of wall time
-    outside its stages (its stats' time_s still sum to the frame's t)."""
+    s (over budget where ``ada[b]`` has a third item, True); the ground truth's k-th chunk rendered (seed >= 1e6)
+    has amplitude ``chunk_amp(k)``.  Returns the list of the chunks' seeds, in the order rendered.  Each adaptive
+    frame also spends ``ada_host_time`` s of wall time outside its stages (its stats' time_s still sum to the
+    frame's t)."""
 
     from warpbw import pipeline
 

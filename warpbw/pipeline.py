@@ -545,9 +545,9 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     _check_mis(mis)
     check_flag(preconvolved, "preconvolved")   # "no" once ran the Eq. 10 bound
     prep, timings = _prepared(scene, device, progress)
-    _warn_if_frame_exceeds_memory(prep, "adaptive")
     if prep.env is None:
         raise _nothing_to_adapt(prep.scene)
+    _warn_if_frame_exceeds_memory(prep, "adaptive")
     # the default block is no larger than the image (a 1 x 1 frame was refused with "stride: expected 1 to 1")
     stride = min(bandwidth.PASS_STRIDE_DEFAULT, max(prep.width, prep.height)) if stride is None else stride
     loads = prep.bandwidth is None or prep.bandwidth_signal != env_signal
