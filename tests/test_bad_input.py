@@ -2699,6 +2699,8 @@ def _stage_cases():
                                                      "shade_reference: lights: expected a Lights"),
         "shade_reference gb=GBufferData": (lambda c: shade(c, gb=c.gb.data), "shade_reference: gb: expected a GBuffer"),
         "shade_reference seed 2**32 (seed 0's samples)": (lambda c: shade(c, seed=2**32), "shade_reference: seed"),
+        "shade_reference spp map transposed": (lambda c: shade(c, spp=c.spp.T),
+                                               "shade_reference: spp: expected per-pixel integer counts of shape"),
         "shade_hierarchical level_map transposed": (lambda c: hier(c, level_map=c.level.T),
                                                     "level_map: expected an (height, width) = (16, 24) map"),
         "shade_hierarchical spp_map transposed": (lambda c: hier(c, spp_map=c.spp.T), "spp_map: expected an (height"),

@@ -318,13 +318,15 @@ def _check_material_ids(gb: GBuffer, materials: MaterialBuffers) -> None:
                           f"(ids 0..{n - 1}): build the geometry with ids into that table")
 
 
-def _spp_map(spp, n_pix: int, device: str):
-    """``spp`` as an int32 device array when it is a per-pixel map (a wp.array, or a numpy array of integers, as
-    many as pixels); None when it is one count."""
+def _spp_map(spp, gb: GBuffer, device: str):
+    """``spp`` as an int32 device array when it is a per-pixel map (a wp.array, or a numpy array of integers of
+    the G-buffer's (height, width) or flat); None when it is one count."""
+    n_pix = gb.width * gb.height
     if isinstance(spp, np.ndarray) and spp.ndim >= 1:
-        if not np.issubdtype(spp.dtype, np.integer) or spp.size != n_pix:
-            raise WarpbwError(f"shade_reference: spp: expected {n_pix} per-pixel integer counts, got {spp.dtype} "
-                              f"{spp.shape}")
+        # a transposed (width, height) map has the size too, and was taken
+        if not np.issubdtype(spp.dtype, np.integer) or spp.shape not in ((gb.height, gb.width), (n_pix,)):
+            raise WarpbwError(f"shade_reference: spp: expected per-pixel integer counts of shape (height, width) = "
+                              f"({gb.height}, {gb.width}) or ({n_pix},), got {spp.dtype} {spp.shape}")
         if spp.size and (spp.min() < 0 or spp.max() > INT32_MAX):
             raise WarpbwError(f"shade_reference: spp: per-pixel counts must be from 0 to {INT32_MAX}, got "
                               f"{spp.min()} to {spp.max()}")
@@ -339,7 +341,7 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
     """Shade every covered pixel (or the given ``pixels``) and return radiance.
 
     ``spp`` is one sample count for all pixels, or H*W per-pixel counts N_p (an int32 wp.array, or numpy
-    integers of any shape).  Pixels not shaded keep the value they have in ``out`` (zeros when ``out`` is not
+    integers of shape (H, W) or (H*W,)).  Pixels not shaded keep the value they have in ``out`` (zeros when ``out`` is not
     given).  ``env_data`` (``EnvMap.data``) None: no environment (``lights`` must then be given); ``lights``:
     directional lights, or None.
     """
@@ -353,7 +355,7 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
     if env_data is not None and not isinstance(env_data, EnvMapData.instance_type):   # else an AttributeError in Warp
         raise WarpbwError(f"shade_reference: env_data: expected an EnvMapData (an EnvMap's .data), got "
                           f"{type(env_data).__name__}")
-    as_map = _spp_map(spp, n_pix, device)
+    as_map = _spp_map(spp, gb, device)
     per_pixel = as_map is not None
     if per_pixel:
         spp = as_map
