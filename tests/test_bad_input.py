@@ -2632,22 +2632,8 @@ def test_an_output_named_only_by_its_suffix_is_told_what_is_missing(tmp_path):
 # (session 62's audit of the stage functions called from Python: each case crashed the process, gave a silently
 # wrong result, or failed deep inside with another exception)
 
-STAGE_SCENE = """\
-[camera]
-position = [0.0, 0.0, 3.0]
-look_at = [0.0, 0.0, 0.0]
-fov = 50.0
-resolution = [24, 16]
-[environment]
-procedural = "sky"
-[[object]]
-shape = "sphere"
-radius = 0.8
-material = "m"
-[material.m]
-type = "lambert"
-albedo = [0.5, 0.5, 0.5]
-"""
+STAGE_SCENE = SCENE.format(resolution="[24, 16]", environment='procedural = "sky"',
+                           object='shape = "sphere"\nradius = 0.8', material='type = "lambert"\nalbedo = 0.5')
 
 
 @pytest.fixture(scope="module")

@@ -569,24 +569,30 @@ def test_ground_truth_chunks_of_a_real_render_differ(tmp_path, monkeypatch):
     assert math.isclose(rec["ground_truth_doubling_delta_db"], want, rel_tol=1e-5)
 
 
+def _power_law_bench(tmp_path, monkeypatch, ada):
+    """``run(budgets) -> record``: run_bench on ``_fake_renderers`` with the reference of MSE 8 / spp^0.7 at 0.01 s
+    per spp, measured from 1 to 256 spp, and the adaptive points ``ada`` (2 runs, a 64-spp ground truth)."""
+    from warpbw.scene import parse_scene
+
+    _fake_renderers(monkeypatch, ref_amp=_power_law_amp, ada=ada)
+    scene = parse_scene(SCENE, tmp_path, "s.toml")
+    return lambda budgets: bench.run_bench(scene, budgets=budgets, spp_list=(1, 4, 16, 64, 256), gt_spp=64, runs=2,
+                                           cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **k: None)
+
+
 def test_headline_speedup_is_never_an_extrapolated_point(tmp_path, monkeypatch):
     """Closed form (fake renderers, reference MSE 8 / spp^0.7 at 0.01 s per spp up to 256 spp): budget 1 matches
     11 spp in 0.02 s (5.5x); budget 2 matches 1000 spp, beyond the measured counts, in 0.05 s: 200x, but
     extrapolated, so the headline is budget 1's 5.5x; with budget 2 alone there is no headline."""
-    from warpbw.scene import parse_scene
-
-    ada = {1.0: (_power_law_amp(11.0), 0.02), 2.0: (_power_law_amp(1000.0), 0.05)}
-    _fake_renderers(monkeypatch, ref_amp=_power_law_amp, ada=ada)
-    scene = parse_scene(SCENE, tmp_path, "s.toml")
-    kw = dict(spp_list=(1, 4, 16, 64, 256), gt_spp=64, runs=2, cache_dir=tmp_path / "gt", progress=False,
-              log=lambda *a, **k: None)
-    rec = bench.run_bench(scene, budgets=(1, 2), **kw)
+    run = _power_law_bench(tmp_path, monkeypatch,
+                           {1.0: (_power_law_amp(11.0), 0.02), 2.0: (_power_law_amp(1000.0), 0.05)})
+    rec = run((1, 2))
     one, two = rec["methods"]["adaptive"]
     assert not one["extrapolated"] and math.isclose(one["equal_quality_speedup"], 5.5, rel_tol=1e-4)
     assert two["extrapolated"] and math.isclose(two["equal_quality_speedup"], 200.0, rel_tol=1e-3)
     assert rec["equal_quality_budget"] == 1.0 and math.isclose(rec["equal_quality_speedup"], 5.5, rel_tol=1e-4)
     assert rec["equal_quality_speedup_se"] == one["equal_quality_speedup_se"]
-    alone = bench.run_bench(scene, budgets=(2,), **kw)
+    alone = run((2,))
     assert alone["methods"]["adaptive"][0]["extrapolated"]
     assert alone["equal_quality_speedup"] is None and alone["equal_quality_budget"] is None
 
@@ -595,14 +601,9 @@ def test_headline_speedup_skips_an_over_budget_point_where_a_budget_was_kept(tmp
     """Closed form as above: budget 0.5 is over budget (every shaded pixel's n_min took more: the frame of a larger
     budget) and matches 11 spp in 0.01 s (11x); budget 1 matches 11 spp in 0.02 s (5.5x).  The headline is budget
     1's; the table marks budget 0.5.  With budget 0.5 alone it is the headline, said to be over budget."""
-    from warpbw.scene import parse_scene
-
-    ada = {0.5: (_power_law_amp(11.0), 0.01, True), 1.0: (_power_law_amp(11.0), 0.02)}
-    _fake_renderers(monkeypatch, ref_amp=_power_law_amp, ada=ada)
-    scene = parse_scene(SCENE, tmp_path, "s.toml")
-    kw = dict(spp_list=(1, 4, 16, 64, 256), gt_spp=64, runs=2, cache_dir=tmp_path / "gt", progress=False,
-              log=lambda *a, **k: None)
-    rec = bench.run_bench(scene, budgets=(0.5, 1), **kw)
+    run = _power_law_bench(tmp_path, monkeypatch,
+                           {0.5: (_power_law_amp(11.0), 0.01, True), 1.0: (_power_law_amp(11.0), 0.02)})
+    rec = run((0.5, 1))
     half, one = rec["methods"]["adaptive"]
     assert half["over_budget"] and not one["over_budget"]
     assert math.isclose(half["equal_quality_speedup"], 11.0, rel_tol=1e-4)
@@ -610,7 +611,7 @@ def test_headline_speedup_skips_an_over_budget_point_where_a_budget_was_kept(tmp
     table = bench.format_table(rec).splitlines()
     assert [ln.split()[1] for ln in table if ln.startswith("adaptive")] == ["0.5!", "1"]
     assert "! over budget" in table[-1] and "over budget:" not in "\n".join(table[:-1])
-    alone = bench.run_bench(scene, budgets=(0.5,), **kw)
+    alone = run((0.5,))
     assert alone["equal_quality_budget"] == 0.5 and math.isclose(alone["equal_quality_speedup"], 11.0, rel_tol=1e-4)
     assert "at budget 0.5 (over budget: 1.00 samples per covered pixel)" in bench.format_table(alone)
 

@@ -579,9 +579,9 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     alloc = bandwidth.allocate_samples(buf, budget, n_min=n_min, n_max=n_max, allocation=allocation,
                                        device=prep.device, mis=mis, plan=plan.shade_masks())
     timings["bandwidth"] = t_pass + time.perf_counter() - t0
-    t0 = time.perf_counter()
     with progress_bar(plan.shaded_texels, f"shading adaptive, budget {budget:g} spp",
                       bool(progress and plan.shaded_texels)) as step:
+        t0 = time.perf_counter()   # the bar's making is not the frame's, as in render_reference
         res = adaptive.shade_hierarchical(gb, prep.camera, prep.materials, prep.env_data, buf.level, alloc.n_p,
                                           seed=seed, mis=mis, device=prep.device, threads=threads, lights=prep.lights,
                                           upsample=upsample, plan=plan, progress=step)
