@@ -222,18 +222,22 @@ def tile_ranges(n_items: int, tile: int, costs: np.ndarray | None = None) -> lis
 
 @contextmanager
 def progress_bar(total: int, desc: str, enabled: bool = True):
-    """Yield the ``progress`` callable of :func:`launch_tiled` (a tqdm bar over ``total`` pixels), or None when not
-    ``enabled``; the bar is closed before an error or an interrupt is said, not drawn again after it at exit."""
+    """Yield the ``progress`` callable of :func:`launch_tiled` (it adds ``count`` pixels to a bar over ``total``,
+    :func:`precompute.progress.progress_callback`'s), or None when not ``enabled``; the bar is closed before an
+    error or an interrupt is said, not drawn again after it at exit."""
     if not enabled:
         yield None
         return
-    from tqdm import tqdm
+    from precompute.progress import progress_callback
 
-    bar = tqdm(total=total, desc=desc, unit="px", leave=False)
-    try:
-        yield bar.update
-    finally:
-        bar.close()
+    with progress_callback(total, desc, "px") as step:
+        done = [0]
+
+        def add(count):
+            done[0] += count
+            step(done[0])
+
+        yield add
 
 
 def launch_tiled(kernel, n_items: int, make_inputs: Callable[[int, int], list], device: str,
