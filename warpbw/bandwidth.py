@@ -17,6 +17,8 @@ Public:
     ``planned_shading(buf, device, key, plan)``   the key of the texels the hierarchy will shade; ``pixel_angle(cam)``
     ``PASS_STRIDE_DEFAULT``, ``POOL_RADIUS_DEFAULT``
     Warp functions ``brdf_nu_rho(nu_rho, m, wi, wo)`` and ``nu_env_at_uv(nu_env, uv)`` (table look-ups)
+    Warp functions ``frac3``, ``block_pixel``, ``block_shift`` (the block plan's arithmetic) and ``alike`` (who pools
+    with whom), and the kernels ``block_plan_kernel``, ``pool_kernel`` (what ``load_kernels`` compiles)
 
 Three Warp kernels over the G-buffer (002 Sec. 2.6: a block plan, the directions, the pooling).  For
 pixel p (point x, view direction w_o, shading normal n, mean curvature c, distance d' to the camera)

@@ -5,11 +5,16 @@ Public:
     ``BrdfFuncs`` / ``make_brdf_funcs(kinds)``  the eval / sample / pdf ``wp.func`` s for a set of kinds
     ``MaterialSpec``                one material's kind and parameters, as the scene gives them
     ``build_material_table(specs, device) -> MaterialBuffers``  host: pack material specs into a ``MaterialTable``
+                                    (``MaterialBuffers``: the table and the kinds and names it holds)
     ``check_material_spec(s, i)``  a spec the table can hold, else a ``WarpbwError`` naming the field
     ``pack_npf_curves(rho_d, rho_s, d, g1, f)``  an NPF fit's curves in the table's layout
     ``KIND_NAMES``                  material type name -> kind id
     ``eval_brdf(...)``, ``sample_brdf(...)``, ``pdf_brdf(...)``  host wrappers (numpy in, numpy out) for tests
     ``LAMBERT``, ``GGX``, ``MERL``, ``NPF``     material kind ids
+    Warp functions the kernels are built of: ``cos_theta``, ``angle_to_z``, ``angle_between``,
+    ``sample_cosine_hemisphere``, ``lambert_eval``; GGX's ``ggx_d``, ``ggx_g1``, ``fresnel_conductor``,
+    ``ggx_fresnel``, ``ggx_eval``, ``ggx_sample_vndf``, ``ggx_pdf``; ``rusinkiewicz``, ``merl_cell``, ``merl_eval``
+    (MERL's look-up), ``npf_curve`` and ``npf_eval``
 
 All directions are in the local shading frame (+Z is the normal) and point away from the surface:
 ``wi`` towards the light, ``wo`` towards the viewer.  BRDF values are in 1/sr.

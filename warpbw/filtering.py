@@ -34,6 +34,14 @@ Public:
     ``Lobes``, a Warp matrix type (``MAX_LOBES`` rows: weight, mean, 2x2 covariance), Warp struct ``PlaneData``;
     Warp functions ``lobes_ndf(L, nl, h)``, ``lobes_sample(L, nl, wo, pl, u)``, ``sample_pdf(D, at, h, wi,
     wo, pl)``: the lobes' NDF, the BRDF strategy's draw and its solid-angle pdf (tests launch them in kernels)
+    Warp functions its kernels are built of: the view (``ray_dir``, ``plane_t``, ``plane_st``, ``inside``,
+    ``to_plane``, ``plane_to_world``, struct ``Footprint``, ``pixel_footprint``, ``probe_offset``), the mipmap
+    fetch (``pmod``, ``texel_index``, ``bilinear_base``, ``fetch4``, ``fetch3``, ``trilinear4``, ``trilinear3``,
+    ``recover``), the model (``gauss2``, ``gauss2_cov``, ``lift``, ``schlick``, ``cook_torrance_cos``,
+    ``half_xy``, ``shade_fine``, ``set_lobe``, ``lobes_lambert``, ``lobes_cos``, ``lobes_direct``), the
+    environment (``env_mis_term``, ``pair_offset``, ``pair_uniform``, ``lobes_env``); the kernels
+    ``background_distance_kernel``, ``plane_distance_kernel`` and, behind ``fetch_gmm`` / ``gmm_ndf`` /
+    ``pair_uniforms``, ``fetch_gmm_kernel``, ``gmm_ndf_kernel``, ``pair_uniforms_kernel``
 
 The model (004 Sec. 3).  Normals live in the projected normal space of ``precompute.gmm_mipmap``: a unit
 normal n is the 2D point (n_x, n_y) in the plane's tangent frame (x along +u = +X, y along -v = -Z, z = +Y:

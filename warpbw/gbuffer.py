@@ -25,6 +25,8 @@ Public:
     ``hide_beyond(gb, cam, distance, device, name) -> int``   empty the pixels whose surface lies beyond a
                                      per-pixel distance along the centre ray (hidden by something nearer);
                                      ``hide_beyond_kernel``, its kernel (the pipeline compiles it ahead)
+    Warp structs ``SphereList``, ``MeshAttributes`` (in ``Geometry``) and functions ``primary_ray_dir``,
+    ``intersect_sphere``, ``orthonormal_tangent``, ``sphere_tangent``, ``write_empty`` (the kernel's pieces)
 
 Conventions (../shared/DESIGN.md): right-handed world, +Y up; the camera looks along ``forward`` with
 ``right = normalize(forward x up)`` to the right of the image and row 0 at the top; ``fov`` is the full

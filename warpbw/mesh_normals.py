@@ -7,6 +7,9 @@ Public:
                                           current vertex positions
     ``local_curvature(curvature, topology, device, passes, out)``  |H| averaged over the neighbourhood: the
                                           curvature the bandwidth pass reads (``warpbw.io.mesh.local_curvature``)
+    Their kernels: ``face_terms_kernel``, ``vertex_finish_kernel``, ``boundary_sum_kernel``,
+    ``boundary_mean_kernel`` (normals and H), ``one_ring_sum_kernel``, ``lazy_average_kernel``,
+    ``magnitude_kernel`` (``local_curvature``)
 
 Their arrays are checked against the topology (shape, dtype, device; not their contents) before any launch: the
 kernels index them by vertex without bounds, and an ``out`` of 3 vertices for 162 was written past its end (the call

@@ -7,6 +7,8 @@ Public:
     ``image_level_kernel``                Eq. 11's kernel (warpbw.adaptive compiles it ahead)
     ``Pyramid`` / ``build_pyramid(values, op, device)``   min- or max-filtered mip-map of any size
     ``level_pyramid`` / ``variance_pyramid`` / ``curvature_pyramid``   the three the paper builds
+    ``sanitize_f32_kernel``, ``reduce_f32_kernel``, ``reduce_i32_kernel``, ``abs_f32_kernel``   the pyramid's
+                                          kernels
 
 Level numbering.  Level 0 is the finest (full resolution); level ``l`` is the image reduced ``2**l``
 times along each axis.  Eq. 11 stores, per pixel,

@@ -8,6 +8,7 @@ Public:
     ``build_sampler_table(brdf, ...)``  host: tabulate f cos_i over half-vectors and invert the CDF
     ``pack_samplers(tables, device)``   host: concatenate tables into a ``TabulatedSamplers``
     ``N_U``, ``N_PHI``, ``TABLE_VERSION``   the tables' cells and format version (the precompute stage writes them)
+    Warp functions ``upper_cell`` (the CDF's binary search), ``angle_to_z``, ``theta_o_bin`` (the view's bin)
 
 Parametrisation (isotropic BRDFs, so the table drops the view azimuth)
 ----------------------------------------------------------------------

@@ -10,6 +10,7 @@ Public:
     ``tile_ranges(n_items, tile, costs) -> [(offset, count)]``  its tiles: equal counts, or equal summed costs
     ``covered_pixels(gb, device) -> wp.array``  the covered pixels' indices; ``default_threads(device)``
     ``lighting_inputs(env_data, lights)``  the kernel's environment and lights arguments (placeholders if absent)
+    ``finite3(v)``  Warp func: all three components finite (a sample that is not is dropped)
 
 Per pixel p with surface point x, normal n and view direction wo (ignoring visibility, as 002 Eq. 1):
 
