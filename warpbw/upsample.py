@@ -10,7 +10,7 @@ Public:
     ``representative_pixel(gb, x, y, level)``         Warp func: the finest pixel at the centre of a level-L pixel
     ``upsample_level_kernel``                         the up-sampling's kernel (warpbw.adaptive compiles it ahead)
     Warp functions of the weights: ``screen_frame``, ``screen_normal``, ``anisotropic_gaussian`` (g_a),
-    ``depth_gaussian`` (g_z), ``parent_axis`` (alpha_i), and ``normal_fit`` (the normal fit)
+    ``depth_gaussian`` (g_z), ``parent_axis`` (alpha_i), ``parent_weight`` (w_i) and ``normal_fit`` (the normal fit)
 
 A pixel p of level L takes the weighted mean of its four nearest parents p_i at level L+1 that are
 already computed (``parent_valid``), or by default the value at its normal of a plane fitted to them under the
