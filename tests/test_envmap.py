@@ -8,6 +8,7 @@ when it is installed, Mitsuba 3 itself.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 import warnings
 
 import numpy as np
@@ -376,6 +377,51 @@ def test_negative_and_nonfinite_pixels_are_clamped_with_one_warning():
         warnings.simplefilter("error")
         assert E.envmap_from_array(np.ones((4, 8, 3))).n_clamped == 0
 
+
+
+@pytest.mark.parametrize("block", [7, 20, 1 << 20])
+@pytest.mark.parametrize("dtype", [np.float16, np.float32, np.float64, np.int64])
+def test_a_probe_is_scaled_and_cleaned_block_by_block_as_it_would_be_whole(monkeypatch, block, dtype):
+    """The probe is converted, scaled and cleaned a few rows at a time (``SANITIZE_BLOCK_TEXELS``; here blocks of
+    one row and of two, over bad values in several of them): the pixels are those of numpy on the whole map
+    (float64 times the scale, to float32, negative and non-finite values to 0) bit for bit, the one warning
+    counts every block's, and an overflow in a later block than the first is counted with the others."""
+    monkeypatch.setattr(E, "SANITIZE_BLOCK_TEXELS", block)
+    rng = np.random.default_rng(3)
+    img = (rng.random((9, 10, 3)) * 7.0 - 1.0).astype(dtype)
+    if np.dtype(dtype).kind == "i":
+        img = rng.integers(-3, 7, (9, 10, 3)).astype(dtype)
+    else:
+        img[4, 2, 1], img[8, 9, 2] = np.nan, -np.inf
+    a = img.astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        want = (a * 0.37).astype(np.float32)
+    bad = ~np.isfinite(want) | (want < 0)
+    want[bad] = 0.0
+    with pytest.warns(RuntimeWarning) as record:
+        env = E.envmap_from_array(img, scale=0.37, name="blocks")
+    assert len(record) == 1 and env.n_clamped == int(bad.sum()) > 2
+    assert f"in {int(bad.any(axis=2).sum())} pixels" in str(record[0].message)
+    assert env.pixels.dtype == np.float32 and env.pixels.flags["C_CONTIGUOUS"]
+    assert np.array_equal(env.pixels.view(np.uint32), want.view(np.uint32))
+    big = np.ones((9, 10, 3))
+    big[2, 0, 0], big[7, 5, 1] = 1e30, 3e38
+    with pytest.raises(WarpbwError, match=r"'blocks': 2 channel values \(up to 3e\+38\) times scale = 1e\+10 exceed"):
+        E.envmap_from_array(big, scale=1e10, name="blocks")
+
+
+def test_the_clamping_warning_points_at_the_callers_line(tmp_path):
+    """The one warning of a map with bad values names the line that loaded it (load_envmap, envmap_from_array),
+    not a line inside warpbw: a user's script sees where its probe came in."""
+    from warpbw.io.exr import write_exr
+
+    img = np.ones((4, 8, 3), np.float32)
+    img[1, 1, 1] = -2.0
+    write_exr(tmp_path / "neg.exr", img)
+    for load in (lambda: E.load_envmap(tmp_path / "neg.exr"), lambda: E.envmap_from_array(img, name="neg")):
+        with pytest.warns(RuntimeWarning, match="set 1 channel values to 0") as record:
+            load()
+        assert [Path(r.filename).name for r in record] == [Path(__file__).name]
 
 def test_bad_arguments_raise_warpbw_error():
     with pytest.raises(WarpbwError, match=r"\(H, W, 3\)"):

@@ -96,6 +96,10 @@ LUMINANCE_RGB = (0.212671, 0.715160, 0.072169)
 # strip's inner line, which matters only for integrands that vary inside one texel.
 CELL_EDGE_MARGIN = 1.0e-3
 
+# Texels a probe is converted, scaled and checked in at a time when it loads (ours): a block's float64 temporaries
+# are then about 40 MB whatever the probe's size (session 63: the whole map's took 60 bytes per texel).
+SANITIZE_BLOCK_TEXELS = 1 << 20
+
 _PI = wp.constant(math.pi)
 _INV_PI = wp.constant(1.0 / math.pi)
 _TWO_PI = wp.constant(2.0 * math.pi)
@@ -430,8 +434,13 @@ def _build_distribution(pixels: np.ndarray) -> dict[str, np.ndarray]:
     opc = 2.0 * np.cos(theta_b / 2.0) ** 2
     cell_omega = (cos_b[:-1] - cos_b[1:]) * (2.0 * math.pi / w)  # (H,) solid angle of one cell
 
-    lum = pixels.astype(np.float64) @ np.asarray(LUMINANCE_RGB)
+    rows = max(1, SANITIZE_BLOCK_TEXELS // w)   # a few rows at a time: float64 temporaries of the whole map held
+    blocks = range(0, h, rows)                   # about 50 bytes per texel (session 63)
+    lum = np.empty((h, w))
+    for r0 in blocks:
+        lum[r0:r0 + rows] = pixels[r0:r0 + rows].astype(np.float64) @ np.asarray(LUMINANCE_RGB)
     weight = _cell_average_filter(lum) * cell_omega[:, None]
+    del lum
     total = weight.sum()
     if not (total > 0.0 and np.isfinite(total)):
         weight = np.broadcast_to(cell_omega[:, None], (h, w)).copy()  # all black: uniform sphere
@@ -441,57 +450,78 @@ def _build_distribution(pixels: np.ndarray) -> dict[str, np.ndarray]:
     cdf_m = np.concatenate([[0.0], np.cumsum(row_w)]) / total
     cdf_m32 = np.maximum.accumulate(cdf_m.astype(np.float32))
     cdf_m32[-1] = 1.0
-
-    cdf_c = np.concatenate([np.zeros((h, 1)), np.cumsum(weight, axis=1)], axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cdf_c = cdf_c / row_w[:, None]
-    empty = ~(row_w > 0.0)
-    cdf_c[empty] = np.linspace(0.0, 1.0, w + 1)[None, :]  # never chosen, kept well-formed
-    cdf_c32 = np.maximum.accumulate(cdf_c.astype(np.float32), axis=1)
-    cdf_c32[:, -1] = 1.0
-
-    # the probabilities the float32 CDFs actually realise
     p_row = np.diff(cdf_m32.astype(np.float64))
-    p_col = np.diff(cdf_c32.astype(np.float64), axis=1)
-    cell_pdf = p_row[:, None] * p_col / cell_omega[:, None]
+
+    empty = ~(row_w > 0.0)
+    cdf_c32 = np.empty((h, w + 1), np.float32)
+    cell_pdf = np.empty((h, w), np.float32)
+    for r0 in blocks:   # each row's conditional CDF is its own
+        r = slice(r0, r0 + rows)
+        cdf_c = np.concatenate([np.zeros((weight[r].shape[0], 1)), np.cumsum(weight[r], axis=1)], axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cdf_c = cdf_c / row_w[r, None]
+        cdf_c[empty[r]] = np.linspace(0.0, 1.0, w + 1)[None, :]  # never chosen, kept well-formed
+        c32 = np.maximum.accumulate(cdf_c.astype(np.float32), axis=1)
+        c32[:, -1] = 1.0
+        cdf_c32[r] = c32
+        # the probabilities the float32 CDFs actually realise
+        p_col = np.diff(c32.astype(np.float64), axis=1)
+        cell_pdf[r] = p_row[r, None] * p_col / cell_omega[r, None]
     return {
         "marginal_cdf": cdf_m32.reshape(1, h + 1),
-        "conditional_cdf": np.ascontiguousarray(cdf_c32),
+        "conditional_cdf": cdf_c32,
         "row_omc": omc.astype(np.float32),
         "row_opc": opc.astype(np.float32),
-        "cell_pdf": cell_pdf.astype(np.float32),
+        "cell_pdf": cell_pdf,
     }
 
 
 def _sanitize(rgb, name: str, scale: float, stacklevel: int) -> tuple[np.ndarray, int]:
+    """The map times ``scale`` as float32 with its negative and non-finite values set to 0 (one warning counts
+    them).  Numeric input is converted, scaled and checked ``SANITIZE_BLOCK_TEXELS`` at a time, each block as the
+    whole map would be (the same bits): a float64 copy of the whole map held 60 bytes per texel at the peak."""
     try:
-        arr = np.asarray(rgb, dtype=np.float64)
+        src = np.asarray(rgb)
+        if src.dtype.kind not in "biuf":   # strings, objects: converted whole, refused as before
+            src = np.asarray(src, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise WarpbwError(f"envmap {name!r}: pixels are not numeric ({exc})") from None
-    if arr.ndim != 3 or arr.shape[2] != 3 or arr.shape[0] < 1 or arr.shape[1] < 1:
-        raise WarpbwError(f"envmap {name!r}: expected an (H, W, 3) RGB array, got shape {arr.shape}")
-    with np.errstate(over="ignore", invalid="ignore"):
-        out = (arr * scale).astype(np.float32)
-    overflow = np.isfinite(arr) & ~np.isfinite(out)
-    if overflow.any():  # finite texels that the scale (or the float32 cast) sends to inf: not a damaged map
-        raise WarpbwError(f"envmap {name!r}: {int(overflow.sum())} channel values (up to "
-                          f"{float(np.abs(arr[overflow]).max()):g}) times scale = {scale:g} exceed the float32 "
-                          "range; expected a smaller [environment] scale or smaller map values")
-    finite = np.isfinite(out)
-    n_nonfinite = int((~finite).sum())
-    n_negative = int((finite & (out < 0.0)).sum())
+    if src.ndim != 3 or src.shape[2] != 3 or src.shape[0] < 1 or src.shape[1] < 1:
+        raise WarpbwError(f"envmap {name!r}: expected an (H, W, 3) RGB array, got shape {src.shape}")
+    h, w = src.shape[:2]
+    out = np.empty((h, w, 3), np.float32)
+    n_overflow, overflow_max, n_nonfinite, n_negative, n_pix = 0, 0.0, 0, 0, 0
+    rows = max(1, SANITIZE_BLOCK_TEXELS // w)
+    for r0 in range(0, h, rows):
+        arr = np.asarray(src[r0:r0 + rows], dtype=np.float64)
+        with np.errstate(over="ignore", invalid="ignore"):
+            block = (arr * scale).astype(np.float32)
+        overflow = np.isfinite(arr) & ~np.isfinite(block)
+        if overflow.any():  # finite texels that the scale (or the float32 cast) sends to inf: not a damaged map
+            n_overflow += int(overflow.sum())
+            overflow_max = max(overflow_max, float(np.abs(arr[overflow]).max()))
+            continue
+        finite = np.isfinite(block)
+        bad = ~finite | (block < 0.0)
+        if bad.any():
+            n_nonfinite += int((~finite).sum())
+            n_negative += int((finite & (block < 0.0)).sum())
+            n_pix += int(bad.any(axis=2).sum())
+            block[bad] = np.float32(0.0)
+        out[r0:r0 + rows] = block
+    if n_overflow:
+        raise WarpbwError(f"envmap {name!r}: {n_overflow} channel values (up to {overflow_max:g}) times scale = "
+                          f"{scale:g} exceed the float32 range; expected a smaller [environment] scale or smaller "
+                          "map values")
     n_bad = n_nonfinite + n_negative
     if n_bad:
-        bad = ~finite | (out < 0.0)
-        n_pix = int(bad.any(axis=2).sum())
-        out = np.where(bad, np.float32(0.0), out)
         warnings.warn(
             f"envmap {name!r}: set {n_bad} channel values to 0 in {n_pix} pixels "
             f"({n_negative} negative, {n_nonfinite} NaN or infinite)",
             RuntimeWarning,
             stacklevel=stacklevel + 1,
         )
-    return np.ascontiguousarray(out), n_bad
+    return out, n_bad
 
 
 def _check_scalar(value, what: str, name: str, nonnegative: bool = False) -> float:
@@ -506,10 +536,19 @@ def _check_scalar(value, what: str, name: str, nonnegative: bool = False) -> flo
 
 
 def _make_envmap(rgb, rotation_deg, scale, name, device, stacklevel) -> EnvMap:
-    check_device(device)
-    rotation_deg = _check_scalar(rotation_deg, "rotation_deg", name)
-    scale = _check_scalar(scale, "scale", name, nonnegative=True)
+    rotation_deg, scale = _check_envmap_args(rotation_deg, scale, name, device)
     pixels, n_clamped = _sanitize(rgb, name, scale, stacklevel + 1)
+    return _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device)
+
+
+def _check_envmap_args(rotation_deg, scale, name, device) -> tuple[float, float]:
+    check_device(device)
+    return (_check_scalar(rotation_deg, "rotation_deg", name),
+            _check_scalar(scale, "scale", name, nonnegative=True))
+
+
+def _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device) -> EnvMap:
+    """The EnvMap of sanitised ``pixels`` (float32, C order), its sampling distribution built."""
     h, w, _ = pixels.shape
     dist = _build_distribution(pixels)
     keep = []
@@ -570,7 +609,11 @@ def load_envmap(path, rotation_deg: float = 0.0, scale: float = 1.0, device="cpu
     if w != 2 * h:   # e.g. a cube-map cross or an angular (mirror-ball) probe: read as lat-long, it is another light
         warnings.warn(f"envmap {Path(path).name!r}: {w}x{h} is not a 2:1 lat-long map (expected width = 2 x "
                       "height); read as lat-long anyway", RuntimeWarning, stacklevel=2)
-    return _make_envmap(rgb, rotation_deg, scale, Path(path).name, device, stacklevel=2)
+    name = Path(path).name
+    rotation_deg, scale = _check_envmap_args(rotation_deg, scale, name, device)
+    pixels, n_clamped = _sanitize(rgb, name, scale, stacklevel=2)
+    del rgb   # the file's pixels, no longer needed while the distribution is built (12 bytes per texel)
+    return _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device)
 
 
 def constant_envmap(radiance, device="cpu") -> EnvMap:

@@ -152,8 +152,11 @@ def read_rgb(path) -> np.ndarray:
 
 
 def rgb_of(img: ExrImage) -> np.ndarray:
-    """``(H, W, 3)`` float32 RGB of an image read by :func:`read_exr` (as :func:`read_rgb`)."""
+    """``(H, W, 3)`` float32 RGB of an image read by :func:`read_exr` (as :func:`read_rgb`): its own pixels when
+    they are R,G,B in that order (no copy), else a new array."""
     ch = img.channels
+    if ch == ["R", "G", "B"]:
+        return img.pixels
     if all(c in ch for c in ("R", "G", "B")):
         return np.ascontiguousarray(img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]])
     grey = "Y" if "Y" in ch else (ch[0] if len(ch) == 1 else None)
