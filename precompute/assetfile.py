@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import zipfile
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,6 +47,26 @@ def write_asset(path, fmt: str, version: int, source: str, source_hash: str, arr
     return p
 
 
+def _members_hold_what_they_declare(p: Path) -> bool:
+    """Each .npy member of the archive holds at least the bytes its header declares (shape times item size).
+    numpy allocates the declared array before it reads: a damaged header declaring 2**40 floats ended the render
+    with "Unable to allocate 4.00 TiB", naming no file, and a cache entry so damaged was not rebuilt.  False also
+    for a member whose .npy header cannot be read; raises what zipfile raises for a damaged archive."""
+    with zipfile.ZipFile(p) as zf:
+        for info in zf.infolist():
+            with zf.open(info) as f:
+                major_minor = np.lib.format.read_magic(f)
+                read_header = {(1, 0): np.lib.format.read_array_header_1_0,
+                               (2, 0): np.lib.format.read_array_header_2_0}.get(major_minor)
+                if read_header is None:   # version 3 (utf-8 field names) is never written here
+                    return False
+                shape, _, dtype = read_header(f)
+                declared = int(np.prod(shape, dtype=object)) * dtype.itemsize
+                if declared > info.file_size - f.tell():
+                    return False
+    return True
+
+
 def read_asset(path, fmt: str, version: int, rebuild) -> Asset:
     """Read an asset of format ``fmt`` and version ``version``; ``rebuild`` is the command to suggest, or a function
     of the file's header (a dict) that gives it, so that a file of another version is told how to rebuild it from
@@ -57,13 +76,17 @@ def read_asset(path, fmt: str, version: int, rebuild) -> Asset:
 
     p = check_input_file(path)
     try:
-        with np.load(p, allow_pickle=False) as z:
-            header = json.loads(str(z[HEADER_KEY]))
-            arrays = {k: z[k] for k in z.files if k != HEADER_KEY}
-    except (zipfile.BadZipFile, zlib.error, ValueError, KeyError, OSError, EOFError, json.JSONDecodeError):
-        header = None  # EOFError: numpy's answer to a zero-byte file; zlib.error: a damaged deflate stream
+        header = None
+        if _members_hold_what_they_declare(p):
+            with np.load(p, allow_pickle=False) as z:
+                header = json.loads(str(z[HEADER_KEY]))
+                arrays = {k: z[k] for k in z.files if k != HEADER_KEY}
+    except Exception:   # noqa: BLE001 -- whatever numpy, zipfile or json raise reading these bytes is their damage
+        header = None   # (EOFError for a zero-byte file, zlib.error, NotImplementedError for an unknown compression,
+        #                 RuntimeError for the encrypted flag, RecursionError for a deeply nested header): refused below,
+        #                 and a cache entry is rebuilt (load_or_build rebuilds on the WarpbwError)
     if not isinstance(header, dict):  # also a JSON header that is not an object (a list, a string)
-        raise WarpbwError(f"{p}: not a warpbw asset file (expected a {fmt} file written by "
+        raise WarpbwError(f"{p}: not a warpbw asset file, or a damaged one (expected a {fmt} file written by "
                           f"warpbw-precompute; rebuild it with: {how(None)})")
     if header.get("format") != fmt:
         raise WarpbwError(f"{p}: is a {header.get('format')!r} file, expected {fmt!r} "

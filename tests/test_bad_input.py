@@ -2159,6 +2159,86 @@ def test_an_asset_with_a_damaged_deflate_stream_is_rebuilt_or_refused(tmp_path):
     assert_no_outputs(tmp_path)
 
 
+
+def _npz_member_replaced(path: Path, member: str, payload: bytes) -> None:
+    """Rewrite the .npz ``path`` with ``member``'s bytes replaced (the archive otherwise as it was)."""
+    import zipfile
+
+    with zipfile.ZipFile(path) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    members[member] = payload
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        for n, b in members.items():
+            z.writestr(n, b)
+
+
+def _central_field_set(path: Path, member: str, offset: int, fmt: str, value: int) -> None:
+    """Set one field of ``member``'s central-directory record (PKWARE APPNOTE 4.3.12: the flags at offset 8, the
+    compression method at 10), where zipfile reads them."""
+    import struct
+
+    data = bytearray(path.read_bytes())
+    at = data.find(b"PK\x01\x02")   # the records' signature; the member's name follows its 46 fixed bytes
+    while data[at + 46:at + 46 + len(member)] != member.encode():
+        at = data.find(b"PK\x01\x02", at + 4)
+        assert at >= 0, member
+    struct.pack_into(fmt, data, at + offset, value)
+    path.write_bytes(bytes(data))
+
+
+def _huge_npy() -> bytes:
+    """A .npy header declaring 2**40 float32 values, and 64 bytes of them."""
+    import io
+
+    buf = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buf, {"descr": "<f4", "fortran_order": False, "shape": (2**40,)})
+    return buf.getvalue() + bytes(64)
+
+
+def _deep_json_npy() -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    np.save(buf, np.array("[" * 100_000 + "]" * 100_000))
+    return buf.getvalue()
+
+
+ASSET_DAMAGE = {   # what each did before: the traceback's last line, or the one line that named no file
+    "a member declaring 2**40 values": lambda p: _npz_member_replaced(p, "density.npy", _huge_npy()),
+    "a header nested 100,000 deep": lambda p: _npz_member_replaced(p, "__header__.npy", _deep_json_npy()),
+    "compression method 99": lambda p: _central_field_set(p, "density.npy", 10, "<H", 99),
+    "the encrypted flag": lambda p: _central_field_set(p, "density.npy", 8, "<H", 1),
+}
+
+
+@pytest.mark.parametrize("damage", list(ASSET_DAMAGE))
+def test_a_damaged_asset_is_refused_by_name_and_a_damaged_cache_entry_rebuilt(tmp_path, damage):
+    """Damage the asset reader let through (file audit, session 63): "Unable to allocate 4.00 TiB", naming no file,
+    for a .npy header declaring a huge array (numpy allocates before it reads), and RecursionError,
+    NotImplementedError and RuntimeError tracebacks for a deeply nested header, an unknown compression method and
+    the zip's encrypted flag.  A table the scene names is refused in one line naming it; a cache entry so damaged
+    ended every render (only a WarpbwError takes the rebuild path) and is now rebuilt."""
+    from precompute.assetfile import read_asset
+    from warpbw.sampling import TABLE_FORMAT, TABLE_VERSION
+
+    fake_npf_table(tmp_path / "npf.bin")
+    npf = 'type = "npf"\ntable = "npf.bin"\nname = "chrome"'
+    write_scene(tmp_path, material=npf)
+    assert run(["render", "scene.toml", "-o", "a.exr", "--spp", "1", "-q"], tmp_path).returncode == 0
+    (entry,) = (tmp_path / "_cache").glob("sampling-*.npz")
+    (tmp_path / "tables.npz").write_bytes(entry.read_bytes())
+    ASSET_DAMAGE[damage](entry)
+    with pytest.raises(WarpbwError, match="not a warpbw asset file, or a damaged one"):
+        read_asset(entry, TABLE_FORMAT, TABLE_VERSION, "rebuild")
+    r = run(["render", "scene.toml", "-o", "b.exr", "--spp", "1", "-q"], tmp_path)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert read_asset(entry, TABLE_FORMAT, TABLE_VERSION, "rebuild").arrays["density"].size   # rebuilt
+    ASSET_DAMAGE[damage](tmp_path / "tables.npz")
+    write_scene(tmp_path, material=npf + '\nsampling = "tables.npz"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "tables.npz", "not a warpbw asset file, or a damaged one", "warpbw-precompute brdf-sampling")
+    assert_no_outputs(tmp_path)
+
 @pytest.fixture
 def read_only():
     """Make a file or folder read-only for this process: mode 0444 (0555), and where that does not hold (root)
