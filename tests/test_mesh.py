@@ -262,6 +262,10 @@ def test_missing_file(tmp_path):
         ("cut.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nv 1 1", "cut.obj:5: vertex line 'v 1 1'"),
         ("word.obj", "v 0 0 0\nv 1 0 0\n  v 0 one 0\nf 1 2 3\n", "word.obj:3: vertex line 'v 0 one 0'"),
         ("comment.obj", "v 0 0 0 # origin\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "comment.obj:1: .*nothing after them"),
+        # a face line of two vertices (a line cut short): trimesh dropped it and the quad rendered half (file audit)
+        ("halfquad.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3\n",
+         "halfquad.obj:6: face line 'f 1 3' has 2 vertices \\(expected 3 or more"),
+        ("bareface.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf\r\n", "bareface.obj:5: face line 'f' has 0 vertices"),
     ],
 )
 def test_malformed_files(tmp_path, name, text, match):
@@ -271,6 +275,31 @@ def test_malformed_files(tmp_path, name, text, match):
         load_mesh(p)
     assert str(p) in str(ei.value) and "\n" not in str(ei.value)
 
+
+
+@pytest.mark.parametrize("damage,said", [
+    (lambda d: d[:-1], "80 triangles \\(84 \\+ 50 x 80 = 4084 bytes\\) but the file is 4083 bytes"),
+    (lambda d: d + b"\0" * 7, "80 triangles .* but the file is 4091 bytes"),
+    (lambda d: d[:80] + (2**32 - 1).to_bytes(4, "little") + d[84:], "4294967295 triangles .* file is 4084 bytes"),
+    (lambda d: d[:80] + (0).to_bytes(4, "little") + d[84:], "0 triangles \\(84 \\+ 50 x 0 = 84 bytes\\)"),
+])
+def test_a_binary_stl_whose_length_is_not_its_triangle_counts_is_refused_saying_so(tmp_path, damage, said):
+    """A binary STL cut short, with bytes appended or with its count damaged was "no triangles found" (trimesh
+    then reads it as ASCII; file audit, session 63): the refusal gives the count, the length it implies and the
+    file's.  The undamaged file (84 + 50 x 80 bytes, an icosphere) and its ASCII export still load."""
+    import trimesh
+
+    ico = trimesh.creation.icosphere(subdivisions=1)
+    good = trimesh.exchange.stl.export_stl(ico)
+    assert len(good) == 84 + 50 * 80
+    (tmp_path / "good.stl").write_bytes(good)
+    (tmp_path / "ascii.stl").write_text(trimesh.exchange.stl.export_stl_ascii(ico))
+    for ok in ("good.stl", "ascii.stl"):
+        assert len(load_mesh(tmp_path / ok).faces) == 80
+    p = tmp_path / "bad.stl"
+    p.write_bytes(damage(good))
+    with pytest.raises(WarpbwError, match=f"bad.stl: binary STL header says {said}.*truncated or corrupt"):
+        load_mesh(p)
 
 def test_obj_vertex_lines_with_w_colour_comments_and_crlf_are_read(tmp_path):
     """The vertex-line check (a line that is not 3 to 7 numbers is refused) passes what trimesh reads: a w, a

@@ -69,6 +69,10 @@ _OBJ_ZERO_INDEX = re.compile(rb"^[ \t]*f[ \t][^\n]*?(?<=[ \t])0(?:/\S*)?(?=\s|$)
 _OBJ_NUMBER = rb"(?i:[-+]?(?:(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?|nan|inf(?:inity)?))"
 _OBJ_BAD_VERTEX = re.compile(rb"^[ \t]*v[ \t](?![ \t]*(?:" + _OBJ_NUMBER + rb"[ \t]+){2,6}" + _OBJ_NUMBER
                              + rb"[ \t]*\r?$)[^\n]*", re.M)
+# An OBJ face line of fewer than three vertices ("f 1 3", a line cut short): trimesh dropped it without a word.
+_OBJ_SHORT_FACE = re.compile(rb"^[ \t]*f(?:[ \t]+\S+){0,2}[ \t]*\r?$", re.M)
+# A binary STL: an 80-byte comment, a uint32 triangle count, then 50 bytes per triangle (an ASCII one starts "solid").
+STL_HEADER_BYTES, STL_TRIANGLE_BYTES = 84, 50
 
 
 @dataclass
@@ -378,6 +382,28 @@ def _check_obj_lines(path: Path) -> None:
         line = data.count(b"\n", 0, m.start()) + 1
         raise WarpbwError(f"{path}:{line}: a face has vertex index 0 (OBJ indices count from 1, or back from -1); "
                           "malformed mesh")
+    m = _OBJ_SHORT_FACE.search(data)
+    if m is not None:
+        line = data.count(b"\n", 0, m.start()) + 1
+        text = m.group(0).strip().decode("utf-8", "replace")
+        raise WarpbwError(f"{path}:{line}: face line {text[:60]!r} has {len(text.split()) - 1} vertices (expected 3 "
+                          "or more; a line cut short?); malformed mesh")
+
+
+def _check_binary_stl(path: Path) -> None:
+    """Refuse a binary STL whose length is not what its triangle count says (cut short, bytes appended, the count
+    damaged): trimesh then read it as ASCII and said "no triangles found"."""
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        head = f.read(STL_HEADER_BYTES)
+    if head[:5].lower() == b"solid" or size < STL_HEADER_BYTES:   # ASCII (or too short to say): trimesh judges it
+        return
+    count = int.from_bytes(head[80:84], "little")
+    want = STL_HEADER_BYTES + STL_TRIANGLE_BYTES * count
+    if size != want:
+        raise WarpbwError(f"{path}: binary STL header says {count} triangles ({STL_HEADER_BYTES} + "
+                          f"{STL_TRIANGLE_BYTES} x {count} = {want} bytes) but the file is {size} bytes: truncated "
+                          "or corrupt")
 
 
 def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg: float = 0.0) -> MeshData:
@@ -395,6 +421,8 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     t, s, r = _check_transform(path, translate, scale, rotate_y_deg)
     if path.suffix.lower() == ".obj":
         _check_obj_lines(path)
+    elif path.suffix.lower() == ".stl":
+        _check_binary_stl(path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
