@@ -205,6 +205,8 @@ def test_compare_warns_when_both_renders_share_their_seed(tmp_path):
     assert other.stderr == ""
     (tmp_path / "t0.json").unlink()   # no record beside the reference: nothing to tell
     assert run(["compare", "a.exr", "t0.exr"], tmp_path).stderr == ""
+    (tmp_path / "t0.json").write_text("[" * 100_000 + "]" * 100_000)   # nested past json's parser: no record either
+    assert run(["compare", "a.exr", "t0.exr"], tmp_path).stderr == ""   # (a RecursionError traceback, session 63)
 
 
 def test_compare_error_map_and_worst_share_follow_hand_made_images(tmp_path):

@@ -483,7 +483,7 @@ def _render_record(exr) -> dict | None:
     frame (reference or adaptive, with a seed); else None."""
     try:
         rec = json.loads(Path(exr).with_suffix(".json").read_text())
-    except (OSError, ValueError):   # none, unreadable, or not JSON: nothing to say
+    except (OSError, ValueError, RecursionError):   # none, unreadable, not JSON, or nested past the parser: nothing
         return None
     ok = isinstance(rec, dict) and rec.get("method") in ("reference", "adaptive") and type(rec.get("seed")) is int
     return rec if ok else None
