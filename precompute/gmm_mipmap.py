@@ -734,6 +734,10 @@ def read_gmm_mipmap(path) -> GmmMipmap:
     shapes = level_shapes(*levels[0].shape[:2]) if levels[0].ndim == 4 and min(levels[0].shape[:2]) >= 1 else []
     if len(shapes) != n or any(q.shape != s + (K, 4) for q, s in zip(levels, shapes)):
         raise WarpbwError(f"{path}: GMM mipmap levels have inconsistent shapes (rebuild it with: {hint})")
+    kinds = sorted({q.dtype.name for q in levels if q.dtype.kind not in "fUSO"})   # strings: refused below
+    if kinds:   # the writer stores float32 moments; a damaged dtype field read as integers rendered another image
+        raise WarpbwError(f"{path}: GMM mipmap levels of type {', '.join(kinds)}, expected floating-point moments "
+                          f"(rebuild it with: {hint})")
     try:
         with np.errstate(over="ignore"):   # float64 moments beyond float32 become inf, refused below (numpy warned)
             levels = [np.asarray(q, np.float32) for q in levels]

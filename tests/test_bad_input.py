@@ -864,7 +864,8 @@ GMM_HEADER_DAMAGE = [("prior", "one", "non-numeric levels or parameters"), ("pri
 
 @pytest.mark.parametrize("what,needle", GMM_DAMAGE + [(f"{k} = {v!r}", n) for k, v, n in GMM_HEADER_DAMAGE]
                          + [("empty levels", "inconsistent shapes"),
-                            ("float64 beyond float32", "NaN or infinite moments at level 1")])
+                            ("float64 beyond float32", "NaN or infinite moments at level 1"),
+                            ("integer level", "levels of type int64, expected floating-point moments")])
 def test_gmm_file_with_bad_contents(tmp_path, what, needle):
     """A GMM mipmap of the right format and version whose moments are no mixture (NaN, weights that do not sum to
     1, negative weights or variances: each rendered without a word) or whose header's parameters are not what it
@@ -885,6 +886,8 @@ def test_gmm_file_with_bad_contents(tmp_path, what, needle):
         z.update({k: np.zeros((0, 0, 2, 4), np.float32) for k in z if k.startswith("level_")})
     elif what == "float64 beyond float32":   # numpy's "overflow encountered in cast" came first, as a warning
         z["level_1"] = z["level_1"].astype(np.float64) * 1e300
+    elif what == "integer level":   # moments truncated to integers passed every check (file audit, session 63)
+        z["level_0"] = z["level_0"].astype(np.int64)   # and rendered another image, exit 0
     elif not damage:
         _damage_moments(z["level_1"], what)
     z["__header__"] = np.array(json.dumps(header))
