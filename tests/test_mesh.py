@@ -301,6 +301,31 @@ def test_a_binary_stl_whose_length_is_not_its_triangle_counts_is_refused_saying_
     with pytest.raises(WarpbwError, match=f"bad.stl: binary STL header says {said}.*truncated or corrupt"):
         load_mesh(p)
 
+
+def test_a_glb_accessor_naming_a_missing_buffer_view_is_not_called_a_bad_face(tmp_path):
+    """Every IndexError inside trimesh was reported as "a face references a vertex that does not exist"; a GLB
+    accessor naming a buffer view the file lacks is a list index (file audit, session 63).  The GLB (glTF 2.0
+    binary: a 12-byte header, then the JSON chunk's length and type) is an icosphere's, its first accessor's
+    bufferView set to 99, the JSON padded with spaces to its length."""
+    import json
+    import struct
+
+    import trimesh
+
+    glb = trimesh.creation.icosphere(subdivisions=1).export(file_type="glb")
+    (tmp_path / "ok.glb").write_bytes(glb)
+    assert len(load_mesh(tmp_path / "ok.glb").faces) == 80
+    n = struct.unpack_from("<I", glb, 12)[0]
+    doc = json.loads(glb[20:20 + n])
+    doc["accessors"][0]["bufferView"] = 99
+    text = json.dumps(doc, separators=(",", ":")).encode()
+    assert len(text) <= n
+    (tmp_path / "bad.glb").write_bytes(glb[:20] + text.ljust(n) + glb[20 + n:])
+    with pytest.raises(WarpbwError, match=r"bad.glb: malformed mesh file, a reference to something it does not "
+                                          r"hold \(list index out of range\)") as ei:
+        load_mesh(tmp_path / "bad.glb")
+    assert "face" not in str(ei.value)
+
 def test_obj_vertex_lines_with_w_colour_comments_and_crlf_are_read(tmp_path):
     """The vertex-line check (a line that is not 3 to 7 numbers is refused) passes what trimesh reads: a w, a
     colour, exponents, CRLF line ends, comment lines.  (A comment after the numbers it does not read: refused.)"""

@@ -427,10 +427,14 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             mesh = trimesh.load_scene(str(path), process=False).to_mesh()
-    except IndexError as exc:  # trimesh indexes its vertex array with the file's face indices
-        raise WarpbwError(
-            f"{path}: a face references a vertex that does not exist ({_one_line(exc)}); malformed mesh"
-        ) from None
+    except IndexError as exc:  # trimesh indexes its vertex array with the file's face indices (numpy's words)
+        if "out of bounds for axis 0" in str(exc):
+            raise WarpbwError(
+                f"{path}: a face references a vertex that does not exist ({_one_line(exc)}); malformed mesh"
+            ) from None
+        raise WarpbwError(   # a GLB accessor naming a buffer view it lacks, say: a list's index, not a face's
+            f"{path}: malformed mesh file, a reference to something it does not hold ({_one_line(exc)}); expected "
+            f"{_SUPPORTED}") from None
     except Exception as exc:  # trimesh raises ValueError, KeyError... on malformed or unknown files
         raise WarpbwError(
             f"{path}: malformed or unsupported mesh file ({_one_line(exc)}); expected {_SUPPORTED}"
