@@ -286,15 +286,19 @@ def test_malformed_files(tmp_path, name, text, match):
 def test_a_binary_stl_whose_length_is_not_its_triangle_counts_is_refused_saying_so(tmp_path, damage, said):
     """A binary STL cut short, with bytes appended or with its count damaged was "no triangles found" (trimesh
     then reads it as ASCII; file audit, session 63): the refusal gives the count, the length it implies and the
-    file's.  The undamaged file (84 + 50 x 80 bytes, an icosphere) and its ASCII export still load."""
+    file's.  The undamaged file (84 + 50 x 80 bytes, an icosphere) and its ASCII export (after a blank line or a
+    byte-order mark too) still load."""
     import trimesh
 
     ico = trimesh.creation.icosphere(subdivisions=1)
     good = trimesh.exchange.stl.export_stl(ico)
     assert len(good) == 84 + 50 * 80
     (tmp_path / "good.stl").write_bytes(good)
-    (tmp_path / "ascii.stl").write_text(trimesh.exchange.stl.export_stl_ascii(ico))
-    for ok in ("good.stl", "ascii.stl"):
+    text = trimesh.exchange.stl.export_stl_ascii(ico)
+    (tmp_path / "ascii.stl").write_text(text)
+    (tmp_path / "blank.stl").write_text(" \n" + text)   # trimesh reads these too: the check must not refuse them
+    (tmp_path / "bom.stl").write_text("\ufeff" + text)
+    for ok in ("good.stl", "ascii.stl", "blank.stl", "bom.stl"):
         assert len(load_mesh(tmp_path / ok).faces) == 80
     p = tmp_path / "bad.stl"
     p.write_bytes(damage(good))

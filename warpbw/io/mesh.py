@@ -390,20 +390,20 @@ def _check_obj_lines(path: Path) -> None:
                           "or more; a line cut short?); malformed mesh")
 
 
-def _check_binary_stl(path: Path) -> None:
-    """Refuse a binary STL whose length is not what its triangle count says (cut short, bytes appended, the count
-    damaged): trimesh then read it as ASCII and said "no triangles found"."""
+def _binary_stl_damage(path: Path) -> str | None:
+    """What is wrong with a file trimesh found no triangles in, when it is a binary STL whose length is not what its
+    triangle count says (cut short, bytes appended, the count damaged; trimesh then read it as ASCII); else None."""
     size = path.stat().st_size
     with open(path, "rb") as f:
         head = f.read(STL_HEADER_BYTES)
-    if head[:5].lower() == b"solid" or size < STL_HEADER_BYTES:   # ASCII (or too short to say): trimesh judges it
-        return
+    if head.lstrip(b" \t\r\n\xef\xbb\xbf")[:5].lower() == b"solid" or size < STL_HEADER_BYTES:   # ASCII, or no header
+        return None
     count = int.from_bytes(head[80:84], "little")
     want = STL_HEADER_BYTES + STL_TRIANGLE_BYTES * count
-    if size != want:
-        raise WarpbwError(f"{path}: binary STL header says {count} triangles ({STL_HEADER_BYTES} + "
-                          f"{STL_TRIANGLE_BYTES} x {count} = {want} bytes) but the file is {size} bytes: truncated "
-                          "or corrupt")
+    if size == want:
+        return None
+    return (f"{path}: binary STL header says {count} triangles ({STL_HEADER_BYTES} + {STL_TRIANGLE_BYTES} x {count} "
+            f"= {want} bytes) but the file is {size} bytes: truncated or corrupt")
 
 
 def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg: float = 0.0) -> MeshData:
@@ -421,8 +421,6 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     t, s, r = _check_transform(path, translate, scale, rotate_y_deg)
     if path.suffix.lower() == ".obj":
         _check_obj_lines(path)
-    elif path.suffix.lower() == ".stl":
-        _check_binary_stl(path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -436,13 +434,15 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
             f"{path}: malformed mesh file, a reference to something it does not hold ({_one_line(exc)}); expected "
             f"{_SUPPORTED}") from None
     except Exception as exc:  # trimesh raises ValueError, KeyError... on malformed or unknown files
+        stl = _binary_stl_damage(path) if path.suffix.lower() == ".stl" else None
         raise WarpbwError(
-            f"{path}: malformed or unsupported mesh file ({_one_line(exc)}); expected {_SUPPORTED}"
+            stl or f"{path}: malformed or unsupported mesh file ({_one_line(exc)}); expected {_SUPPORTED}"
         ) from None
     faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
     verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)
     if faces.ndim != 2 or faces.shape[0] == 0 or faces.shape[1] != 3:
-        raise WarpbwError(f"{path}: no triangles found (expected a mesh with faces: {_SUPPORTED})")
+        stl = _binary_stl_damage(path) if path.suffix.lower() == ".stl" else None
+        raise WarpbwError(stl or f"{path}: no triangles found (expected a mesh with faces: {_SUPPORTED})")
     if verts.ndim != 2 or verts.shape[1] != 3:   # an OBJ whose "v" lines hold two numbers: numpy's AxisError below
         raise WarpbwError(f"{path}: vertices read with {verts.shape[-1] if verts.ndim == 2 else 0} coordinates "
                           "each (expected x, y and z on every vertex line)")
