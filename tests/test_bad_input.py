@@ -2163,6 +2163,33 @@ def test_an_asset_with_a_damaged_deflate_stream_is_rebuilt_or_refused(tmp_path):
 
 
 
+@pytest.mark.parametrize("environment,shown", [
+    # a TOML basic string's escapes put a newline, ESC or U+2028 into a key, a path or a name
+    ('constant = [1.0, 1.0, 1.0]\n"scale\\nwarpbw: done" = 2.0', '[environment].scale\\nwarpbw: done: unknown key'),
+    ('file = "a\\u2028b.exr"', "a\\u2028b.exr"),
+    ('file = "sky\\u001b[31mRED\\u001b[0m\\nline2.exr"', "sky\\x1b[31mRED\\x1b[0m\\nline2.exr"),
+])
+def test_control_characters_in_a_scene_stay_escaped_on_the_one_error_line(tmp_path, environment, shown):
+    """Keys, material names and paths were printed as the scene spelt them: a newline split the one-line error in
+    two (the second line could pass for another warpbw: message) and ESC coloured the terminal (scene fuzzing,
+    session 63).  Every error and warning line now writes control characters as escapes."""
+    write_scene(tmp_path, environment=environment)
+    for command in (["info", "scene.toml"], ["render", "scene.toml", "-o", "out.exr"]):
+        r = run(command, tmp_path)
+        line = assert_one_line_error(r, shown)
+        assert "\x1b" not in r.stderr and "\u2028" not in r.stderr, line
+    assert_no_outputs(tmp_path)
+
+
+def test_printable_escapes_control_characters_and_nothing_else():
+    """warpbw.cli_common.printable against Python's own escapes (repr of each character, quotes dropped)."""
+    from warpbw.cli_common import printable
+
+    for code in [*range(0x20), 0x7F, *range(0x80, 0xA0), 0x2028, 0x2029]:
+        assert printable(f"a{chr(code)}b") == f"a{repr(chr(code))[1:-1]}b", hex(code)
+    kept = "warpbw: error: scene.toml: [material.\"é ß 漢\"] ~ 'x' \\ path/ünï.exr"
+    assert printable(kept) == kept
+
 def _npz_member_replaced(path: Path, member: str, payload: bytes) -> None:
     """Rewrite the .npz ``path`` with ``member``'s bytes replaced (the archive otherwise as it was)."""
     import zipfile

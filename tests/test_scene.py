@@ -983,6 +983,15 @@ def test_an_empty_npf_material_name_is_refused_by_the_scene(tmp_path):
                  "[material.paint].name: expected a non-empty string")
 
 
+
+def test_an_empty_material_name_is_refused_where_it_is_defined(tmp_path):
+    """[material.""] was accepted though no object can name it (material = "" is refused): warpbw info listed a
+    blank, and an object's unknown material said "defined: none" with it the only one (scene fuzzing, session
+    63)."""
+    expect_error(write(tmp_path / "s.toml", scene_text(materials=PAINT + '\n[material.""]\ntype = "lambert"\n'
+                                                                         'albedo = 0.5\n')),
+                 '[material.""]: expected a non-empty material name')
+
 def test_a_path_from_the_home_folder_is_expanded(tmp_path, monkeypatch):
     """README: paths are relative to the scene file, and ``~/`` is the home folder ($HOME here), not a folder named
     "~" beside the scene."""

@@ -7,7 +7,8 @@ option, force)`` and ``check_output_dir(path, option)`` (an output path that can
 any work), ``check_overwrite(paths, force, option, inputs)`` (several outputs at once, and --force; never one of
 the command's inputs), ``init_warp(device) -> warp`` (Warp initialised without its banner or its no-CUDA-driver
 line, the device checked), ``json_text(record) -> str`` (strict JSON, a non-finite float as null) and
-``write_json(path, record, say=True, force=True)`` (that, written where asked, and said so).
+``write_json(path, record, say=True, force=True)`` (that, written where asked, and said so), ``printable(text)``
+(control characters written as escapes, as every error and warning line is printed).
 """
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ import argparse
 import json
 import math
 import os
+import re
 import signal
 import sys
 import tempfile
@@ -32,6 +34,17 @@ EXIT_BROKEN_PIPE = 128 + 13   # killed by SIGPIPE, as a shell reports it for oth
 EXIT_INTERRUPTED = 128 + 2    # SIGINT, likewise
 EXIT_TERMINATED = 128 + 15    # SIGTERM, likewise
 WARP_LOG_WARNING = 30  # warp._src.logger.LOG_WARNING: hide Warp's banner and module-load lines
+
+
+# Control characters (C0, DEL, C1) and Unicode's line and paragraph separators: what splits a line or drives a terminal.
+_CONTROL_CHARACTERS = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+
+
+def printable(text) -> str:
+    """``text`` with its control characters written as escapes (``\\n``, ``\\x1b``).  A scene key, a material name
+    or a path holding a newline split the one-line error in two (the second line could pass for another
+    ``warpbw:`` message), and one holding ESC coloured the terminal (scene fuzzing, session 63)."""
+    return _CONTROL_CHARACTERS.sub(lambda m: m.group(0).encode("unicode_escape").decode("ascii"), str(text))
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -58,7 +71,7 @@ class OneLineParser(argparse.ArgumentParser):
             if chosen is not None and chosen is not self:
                 chosen.error(message)
         tool = self.prog.split()[0]
-        self.exit(EXIT_USER_ERROR, f"{tool}: error: {message} (see '{self.prog} --help')\n")
+        self.exit(EXIT_USER_ERROR, f"{tool}: error: {printable(message)} (see '{self.prog} --help')\n")
 
 
 def parse_seed(s: str) -> int:
@@ -180,7 +193,7 @@ def run_command(prog: str, func, args) -> int:
 
     def show_warning(message, category, filename, lineno, file=None, line=None):
         # warnings (an environment with clamped pixels, unmeasured MERL entries...) as one line each
-        print(f"{prog}: warning: {message}", file=sys.stderr if file is None else file)
+        print(f"{prog}: warning: {printable(message)}", file=sys.stderr if file is None else file)
 
     with warnings.catch_warnings(), _sigterm_raises(), _stops_in_destructors_unsaid():
         warnings.showwarning = show_warning
@@ -194,7 +207,7 @@ def run_command(prog: str, func, args) -> int:
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
             return EXIT_BROKEN_PIPE
         except WarpbwError as exc:
-            print(f"{prog}: error: {exc}", file=sys.stderr)
+            print(f"{prog}: error: {printable(exc)}", file=sys.stderr)
             return EXIT_USER_ERROR
         except KeyboardInterrupt:
             print(f"{prog}: interrupted", file=sys.stderr)
@@ -206,7 +219,7 @@ def run_command(prog: str, func, args) -> int:
                 pass
             return 128 + stop.signum   # the shell's status for the signal: EXIT_TERMINATED for SIGTERM
         except (OSError, MemoryError) as exc:
-            print(f"{prog}: error: {exc}", file=sys.stderr)
+            print(f"{prog}: error: {printable(exc)}", file=sys.stderr)
             return EXIT_USER_ERROR
         except RuntimeError as exc:
             if not str(exc).startswith(WARP_ALLOCATION_FAILED):

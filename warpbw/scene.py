@@ -564,6 +564,8 @@ def _cook_torrance(ctx: _Ctx, name: str, key: str, d: dict) -> Material:
 
 
 def _material(ctx: _Ctx, name: str, d: dict) -> Material:
+    if not name:   # no object can name it (an object's material = "" is refused), and lists showed it as a blank
+        ctx.fail('[material.""]', "expected a non-empty material name (objects refer to a material by its name)")
     key = f"[material.{name}]"
     if not isinstance(d, dict):
         ctx.fail(key, f"expected a table, got {d!r}")
