@@ -1254,6 +1254,43 @@ def test_camera_that_sees_nothing_warns_in_one_line(tmp_path, planes):
     assert not read_exr(tmp_path / "out.exr").pixels[..., 3].any()
 
 
+
+@pytest.mark.parametrize("scene", ["constant zero", "scale zero", "all-NaN probe", "light from below", "albedo 0",
+                                   "plane, light from below", "lit"])
+def test_a_frame_whose_covered_pixels_are_all_black_warns_in_one_line(tmp_path, scene):
+    """A scene whose light is zero where the surfaces are (a constant or scale of 0, a probe whose every texel was
+    NaN and set to 0, a directional light from behind the surfaces) or whose material reflects nothing rendered an
+    all-black image, status 0, without a word (scene fuzzing, session 63).  It still renders, and says so in one
+    line (after the probe's own warning); a lit scene says nothing."""
+    from warpbw.io.exr import read_exr
+
+    below = ('[[light]]\ntype = "directional"\ndirection = [0.0, -1.0, 0.0]\nradiance = [2.0, 2.0, 2.0]\n')
+    if scene == "all-NaN probe":
+        write_exr(tmp_path / "nan.exr", np.full((8, 16, 3), np.nan, np.float32))
+    if scene.startswith("plane"):
+        (tmp_path / "scene.toml").write_text(plane_scene_toml(resolution=(8, 8), light_dir=(0.0, -1.0, 0.0)))
+    else:
+        env = {"constant zero": "constant = [0.0, 0.0, 0.0]", "scale zero": 'procedural = "sky"\nscale = 0.0',
+               "all-NaN probe": 'file = "nan.exr"'}.get(scene, "constant = [1.0, 1.0, 1.0]")
+        write_scene(tmp_path, environment=env, material='type = "lambert"\nalbedo = ' + (
+            "0.0" if scene == "albedo 0" else "0.5"))
+        if scene == "light from below":   # no environment: a plane-less sphere lit from below is half lit
+            text = (tmp_path / "scene.toml").read_text().replace("[environment]\nconstant = [1.0, 1.0, 1.0]\n", "")
+            (tmp_path / "scene.toml").write_text(text.replace("shape = \"sphere\"", "shape = \"sphere\"\ncenter = "
+                                                              "[0.0, 0.0, 0.0]") + below)
+    lights_alone = "light from below" in scene   # closed form, no samples: --spp is refused
+    r = run(["render", "scene.toml", "-o", "out.exr"] + ([] if lights_alone else ["--spp", "4"]), tmp_path)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    said = [ln for ln in r.stderr.splitlines() if "every covered pixel is black" in ln]
+    px = read_exr(tmp_path / "out.exr").pixels
+    covered = px[..., 3] > 0
+    assert covered.any()
+    assert len(said) == int(not px[covered][:, :3].any()), r.stderr
+    assert len(said) == (scene not in ("lit", "light from below")), (scene, r.stderr)
+    if said:
+        assert said[0].startswith("warpbw: warning: ") and "[environment] constant, scale" in said[0]
+
+
 # ------------------------------------------------------------------------------------------ output paths
 
 @pytest.mark.parametrize("module,args,needles", [

@@ -167,7 +167,7 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
         _write_render(res, outs, exposure, at)
         for p, text in texts.items():
             at[p].write_text(text)
-    _warn_if_empty(res.stats)
+    _warn_if_empty(res)
     if not quiet:
         t = res.stats["time_s"]
         w, h = res.stats["resolution"]
@@ -193,11 +193,18 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
     return res.stats
 
 
-def _warn_if_empty(stats: dict) -> None:
-    """An image in which no pixel sees geometry is almost always a camera or a scene mistake: say so."""
-    if stats.get("pixels_covered") == 0:
+def _warn_if_empty(res) -> None:
+    """An image in which no pixel sees geometry is almost always a camera or a scene mistake, and so is one whose
+    covered pixels are all black (a light of zero: a probe whose every texel was NaN, say): say so."""
+    import numpy as np
+
+    if res.stats.get("pixels_covered") == 0:
         print("warpbw: warning: no pixel is covered by geometry, so the image is empty (check [camera] "
               "position, look_at and fov against the objects)", file=sys.stderr)
+    elif not np.any(res.image[res.coverage]):
+        print("warpbw: warning: every covered pixel is black (0): no light reaches the surfaces, or they reflect "
+              "none (check [environment] constant, scale and its probe's values, each [[light]]'s radiance and "
+              "direction, and the materials)", file=sys.stderr)
 
 
 def _is_mixed(scene) -> bool:
@@ -230,7 +237,7 @@ def _render_filtering_cli(scene, args) -> int:
     with staged_outputs(list(outs.values()) + level_paths, force=args.force) as at:
         res.stats["colour_scales"] = {"level": _write_map(at, *level_paths, res.level, res.coverage)}
         _write_render(res, outs, args.exposure, at)
-    _warn_if_empty(res.stats)
+    _warn_if_empty(res)
     if not args.quiet:
         w, h = res.stats["resolution"]
         extra = f", {args.spp} rays/pixel" if method == "ground_truth" else \
@@ -269,7 +276,7 @@ def _render_mixed_cli(scene, args) -> int:
         scales["mip_level"] = _write_map(at, *mip_paths, res.aovs["mip_level"], res.aovs["plane"])
         res.stats["colour_scales"] = scales
         _write_render(res, outs, args.exposure, at)
-    _warn_if_empty(res.stats)
+    _warn_if_empty(res)
     if not args.quiet:
         t = res.stats["time_s"]
         w, h = res.stats["resolution"]
