@@ -587,7 +587,7 @@ def test_planes_translated_far_from_the_origin_render_the_same_until_float32_can
     np.testing.assert_allclose(out.image, ref.image, rtol=0, atol=1e-3 * ref.image.max())
     for t in (1e5, 1e10):
         with pytest.raises(WarpbwError, match=r"^moved\.toml: the camera and the plane size=2.* lie up to .* from "
-                                              r"the origin, where float32 spaces coordinates .*translate the camera"):
+                                              r"the origin, where float32 spaces coordinates .*objects translated"):
             render_filtering(plane_scene(t), "fixed")
         with pytest.raises(WarpbwError, match="float32 spaces coordinates"):
             plane_distance(plane_scene(t))     # the depth test that hides spheres behind planes

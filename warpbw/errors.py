@@ -263,9 +263,9 @@ def check_coordinate_spacing(coord: float, size: float, target: str, source: str
     raise WarpbwError(
         f"{source + ': ' if source else ''}the camera and {target} lie up to {coord:.3g} scene units from the "
         f"origin, where float32 spaces coordinates {step:.3g} apart ({step / size:.2g} of its size; at most "
-        f"{COORD_SPACING_REL_MAX:.2g}): its outline and shading would come out wrong; expected a scene nearer the "
-        "origin (translate the camera and the objects together), or an object of at least "
-        f"{step / COORD_SPACING_REL_MAX:.3g} there")
+        f"{COORD_SPACING_REL_MAX:.2g}): its outline and shading would come out wrong; expected an object of at "
+        f"least {step / COORD_SPACING_REL_MAX:.3g} there, or smaller coordinates (the camera nearer the object, or "
+        "the camera and the objects translated together towards the origin)")
 
 
 def check_camera_reach(reach: float, lo: float, hi: float, target: str, kind: str, why: str = "",
