@@ -60,6 +60,22 @@ def test_round_trip_single_channel_y(tmp_path):
     assert rgb.shape == (16, 9, 3) and all(np.array_equal(rgb[..., c], px) for c in range(3))
 
 
+
+def test_a_lone_channel_other_than_y_is_read_as_grey_with_a_warning(tmp_path):
+    """A depth-only EXR (channel Z) was read as a grey light probe without a word (scene fuzzing, session 63): it
+    still reads as grey, but says so in one warning naming the file and the channel; a lone Y says nothing."""
+    import warnings
+
+    px = np.random.default_rng(4).random((4, 8), dtype=np.float32)
+    write_exr(tmp_path / "z.exr", px[..., None], channels=["Z"])
+    with pytest.warns(RuntimeWarning, match=r"z\.exr: its one channel 'Z' is read as grey radiance") as record:
+        rgb = read_rgb(tmp_path / "z.exr")
+    assert len(record) == 1 and all(np.array_equal(rgb[..., c], px) for c in range(3))
+    write_exr(tmp_path / "y.exr", px)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_rgb(tmp_path / "y.exr")
+
 def test_custom_channel_names_and_order_kept(tmp_path):
     rng = np.random.default_rng(2)
     px = rng.random((8, 8, 3), dtype=np.float32)

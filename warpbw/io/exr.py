@@ -5,7 +5,8 @@ Public functions:
 - ``read_exr(path) -> ExrImage``: every channel of a scan-line or tiled EXR (first part of a
   multi-part file) as float32 ``(H, W, C)``.
 - ``exr_size(path) -> (width, height)``: the data window's size, from the header alone (no pixel read).
-- ``read_rgb(path) -> np.ndarray``: ``(H, W, 3)`` float32 radiance (a single ``Y`` channel is replicated);
+- ``read_rgb(path) -> np.ndarray``: ``(H, W, 3)`` float32 radiance (a single ``Y`` channel is replicated, and so,
+  with a warning, is a lone channel of another name);
   ``rgb_of(img) -> np.ndarray`` the same from an ``ExrImage`` already read.
 - ``write_exr(path, pixels, channels=None)``: float32, lossless ZIP compression; channel names and
   their order survive a round trip through ``read_exr``.
@@ -162,6 +163,9 @@ def rgb_of(img: ExrImage) -> np.ndarray:
     grey = "Y" if "Y" in ch else (ch[0] if len(ch) == 1 else None)
     if grey is None:
         raise WarpbwError(f"{img.path}: channels {ch} hold no colour (expected R,G,B or Y)")
+    if grey != "Y":   # a lone Z (depth) read as a grey probe without a word (scene fuzzing, session 63)
+        warnings.warn(f"{img.path}: its one channel {grey!r} is read as grey radiance (expected R,G,B or Y)",
+                      RuntimeWarning, stacklevel=3)
     return np.ascontiguousarray(np.repeat(img.pixels[..., [ch.index(grey)]], 3, axis=-1))
 
 
