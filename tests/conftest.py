@@ -328,6 +328,29 @@ def numpy_sphere_distance(o, d, centre, radius):
     return np.where((disc > 0) & (t > 0), t, np.inf)
 
 
+@pytest.fixture
+def tqdm_bars(monkeypatch):
+    """``tqdm.tqdm`` replaced by a stand-in that records each bar made (its ``total``, ``desc`` and the count ``n``
+    its updates add up to); yields the list of bars, in the order they were made."""
+    import tqdm
+
+    bars = []
+
+    class Bar:
+        def __init__(self, total, **kw):
+            self.total, self.n, self.desc = total, 0, kw.get("desc")
+            bars.append(self)
+
+        def update(self, k):
+            self.n += k
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(tqdm, "tqdm", Bar)
+    return bars
+
+
 @pytest.fixture(scope="session")
 def shared():
     return shared_file

@@ -182,27 +182,12 @@ def test_a_cache_folder_is_made_with_its_parents_and_used_when_given(tmp_path, m
     assert not (tmp_path / "env_cache").exists()
 
 
-def test_progress_reports_k_of_total(monkeypatch):
+def test_progress_reports_k_of_total(tqdm_bars):
     """precompute.progress: the builders call step(k) with the count done, so after step(k) the bar stands at k and
     at the end at total (it stood at 1 + 2 + ... + 16 = 136 of 16)."""
-    import tqdm
-
     from precompute.progress import progress_callback
 
-    bars = []
-
-    class Bar:
-        def __init__(self, total, **kw):
-            self.total, self.n = total, 0
-            bars.append(self)
-
-        def update(self, k):
-            self.n += k
-
-        def close(self):
-            pass
-
-    monkeypatch.setattr(tqdm, "tqdm", Bar)
+    bars = tqdm_bars
     seen = []
     with progress_callback(16, "x", "item", True) as step:
         for k in range(1, 17):

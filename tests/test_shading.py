@@ -260,32 +260,15 @@ def _mark_item(offset: int, out: wp.array(dtype=float)):
     out[offset + wp.tid()] += 1.0
 
 
-def test_the_shading_bar_counts_every_pixel_once_over_threads_and_none_when_off(monkeypatch):
+def test_the_shading_bar_counts_every_pixel_once_over_threads_and_none_when_off(tqdm_bars):
     """shading.progress_bar, fed the tile counts launch_tiled reports from two threads, stands at the launch's
     item count at the end (the bar is precompute.progress's, which takes running totals); off, it is None."""
-    import tqdm
-    import warp as wp
-
     from warpbw.shading import launch_tiled, progress_bar
 
-    bars = []
-
-    class Bar:
-        def __init__(self, total, **kw):
-            self.total, self.n, self.desc = total, 0, kw.get("desc")
-            bars.append(self)
-
-        def update(self, k):
-            self.n += k
-
-        def close(self):
-            pass
-
-    monkeypatch.setattr(tqdm, "tqdm", Bar)
     out = wp.zeros(5000, dtype=wp.float32, device="cpu")
     with progress_bar(5000, "shading 4 spp") as add:
         launch_tiled(_mark_item, 5000, lambda o, c: [o, out], "cpu", threads=2, progress=add, tile=300)
-    assert [(b.desc, b.n, b.total) for b in bars] == [("shading 4 spp", 5000, 5000)]
+    assert [(b.desc, b.n, b.total) for b in tqdm_bars] == [("shading 4 spp", 5000, 5000)]
     assert np.all(out.numpy() == 1.0)
     with progress_bar(5000, "off", enabled=False) as add:
         assert add is None

@@ -368,26 +368,20 @@ def _check_float32(verts, path, when: str) -> None:
 
 
 def _check_obj_lines(path: Path) -> None:
-    """Refuse an OBJ vertex line that is not 3 to 7 numbers (``_OBJ_BAD_VERTEX``) and a face with vertex index 0
-    (``_OBJ_ZERO_INDEX``), naming the line."""
+    """Refuse an OBJ vertex line that is not 3 to 7 numbers (``_OBJ_BAD_VERTEX``), a face with vertex index 0
+    (``_OBJ_ZERO_INDEX``) and a face of fewer than three vertices (``_OBJ_SHORT_FACE``), naming the line."""
     data = path.read_bytes()
-    m = _OBJ_BAD_VERTEX.search(data)
-    if m is not None:
-        line = data.count(b"\n", 0, m.start()) + 1
-        text = m.group(0).strip().decode("utf-8", "replace")
-        raise WarpbwError(f"{path}:{line}: vertex line {text[:60]!r} (expected 'v x y z': three numbers, optionally a "
-                          "w or a colour, and nothing after them); malformed mesh")
-    m = _OBJ_ZERO_INDEX.search(data)
-    if m is not None:
-        line = data.count(b"\n", 0, m.start()) + 1
-        raise WarpbwError(f"{path}:{line}: a face has vertex index 0 (OBJ indices count from 1, or back from -1); "
-                          "malformed mesh")
-    m = _OBJ_SHORT_FACE.search(data)
-    if m is not None:
-        line = data.count(b"\n", 0, m.start()) + 1
-        text = m.group(0).strip().decode("utf-8", "replace")
-        raise WarpbwError(f"{path}:{line}: face line {text[:60]!r} has {len(text.split()) - 1} vertices (expected 3 "
-                          "or more; a line cut short?); malformed mesh")
+    for pattern, problem in (
+            (_OBJ_BAD_VERTEX, lambda text: f"vertex line {text[:60]!r} (expected 'v x y z': three numbers, optionally "
+                                           "a w or a colour, and nothing after them)"),
+            (_OBJ_ZERO_INDEX, lambda text: "a face has vertex index 0 (OBJ indices count from 1, or back from -1)"),
+            (_OBJ_SHORT_FACE, lambda text: f"face line {text[:60]!r} has {len(text.split()) - 1} vertices (expected "
+                                           "3 or more; a line cut short?)")):
+        m = pattern.search(data)
+        if m is not None:
+            line = data.count(b"\n", 0, m.start()) + 1
+            raise WarpbwError(f"{path}:{line}: {problem(m.group(0).strip().decode('utf-8', 'replace'))}; "
+                              "malformed mesh")
 
 
 def _binary_stl_damage(path: Path) -> str | None:
