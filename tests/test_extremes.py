@@ -662,3 +662,34 @@ def test_a_frame_larger_than_the_memory_left_warns_naming_its_resolution(monkeyp
     if os.path.exists("/proc/meminfo"):
         kb = next(int(ln.split()[1]) for ln in open("/proc/meminfo") if ln.startswith("MemAvailable:"))
         assert abs(pipeline.available_memory() - kb * 1024) < 2**30   # the same reading, a moment later
+
+
+def test_a_probe_too_large_to_load_or_analyse_warns_before_the_work(monkeypatch, tmp_path):
+    """Loading a probe peaks at LOAD_BYTES_PER_TEXEL, building its bandwidth map at ENV_BW_BYTES_PER_TEXEL plus
+    ENV_BW_BYTES_FIXED (5 GB for an 8192x4096 probe, a minute): where the memory available is less, each warns
+    first, naming the probe and its size, as a frame does (session 63).  One that fits, an unknown reading, and a
+    map read from the cache say nothing.  The available memory is set by hand around each estimate."""
+    from warpbw import bandwidth, envmap
+
+    px = np.random.default_rng(5).random((16, 32, 3), dtype=np.float32) + 0.1
+    write_exr(tmp_path / "probe.exr", px)
+    load_need = envmap.LOAD_BYTES_PER_TEXEL * 16 * 32
+    build_need = bandwidth.ENV_BW_BYTES_PER_TEXEL * 16 * 32 + bandwidth.ENV_BW_BYTES_FIXED
+    cache = tmp_path / "cache"
+    monkeypatch.setattr(envmap, "available_memory", lambda: load_need - 1)
+    with pytest.warns(RuntimeWarning, match=r"loading probe\.exr \(32x16\) takes about 0\.0 GB, but 0\.0 GB .*"
+                                            r"available: the system may stop it \(a smaller probe\)"):
+        env = envmap.load_envmap(tmp_path / "probe.exr")
+    monkeypatch.setattr(bandwidth, "available_memory", lambda: build_need - 1)
+    with pytest.warns(RuntimeWarning, match=r"building the bandwidth map of probe\.exr \(32x16\) takes about 0\.2 "
+                                            r"GB, .*the reference method does not build it"):
+        assert bandwidth.env_bandwidth_map(env.pixels, env.name, cache=cache)[1] == "built"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert bandwidth.env_bandwidth_map(env.pixels, env.name, cache=cache)[1] == "cache"
+        for have in (load_need, build_need, None):
+            monkeypatch.setattr(envmap, "available_memory", lambda have=have: have)
+            monkeypatch.setattr(bandwidth, "available_memory", lambda have=have: have)
+            envmap.load_envmap(tmp_path / "probe.exr")
+            if have != load_need:
+                assert bandwidth.env_bandwidth_map(env.pixels, env.name, cache=tmp_path / f"c{have}")[1] == "built"

@@ -8,7 +8,8 @@ Public:
     ``BandwidthTables`` (Warp struct) / ``make_bandwidth_tables(nu_env, nu_rho, device)``
     ``nu_env_table(nu_env) -> (h, w)``   the environment's nu_a, max-filtered to at most LIGHT_TABLE_WIDTH columns
     ``env_bandwidth_map(pixels, name, cache=None, signal, progress) -> ((H, W) float32 cycles/rad, origin)``
-    ``ENV_SIGNALS``, ``ENV_SIGNAL_DEFAULT``, ``env_signal(lum, signal)``, ``check_env_signal(signal)``: what it reads
+    ``ENV_SIGNALS``, ``ENV_SIGNAL_DEFAULT``, ``env_signal(lum, signal)``, ``check_env_signal(signal)``: what it reads;
+    ``ENV_BW_BYTES_PER_TEXEL``, ``ENV_BW_BYTES_FIXED``: the memory its build takes (a warning first where it lacks)
     ``direction_set(n_b, seed) -> (n_b, 3) float32``   stratified points for the n_b directions
     ``interleave_shifts(n_b, side) -> (side^2, 3)``     per-block offsets of the direction set
     ``BandwidthBuffer`` (``.estimator_variance(mis)``) /
@@ -227,8 +228,8 @@ import warp as wp
 from warpbw.bandwidth_ops import bw_one_bounce
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
 from warpbw.envmap import EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv
-from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, check_device, check_flag,
-                           check_instance, check_seed, is_int, numeric_array)
+from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, available_memory, check_count, check_device,
+                           check_flag, check_instance, check_seed, is_int, numeric_array, warn_if_short_of_memory)
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData, check_camera_of
 from warpbw.pyramid import build_pyramid, image_level
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_local, to_world
@@ -254,6 +255,11 @@ POOL_RADIUS_MAX = 256
 INTERLEAVE_SIDE_MAX = 2 * POOL_RADIUS_MAX + 1
 LIGHT_TABLE_WIDTH = 256      # columns of the reduced environment the pass reads (module docstring)
 ENV_BW_FORMAT = "warpbw.env-bandwidth"
+# Peak memory of building a probe's bandwidth map, numpy's allocations under tracemalloc (session 62, after its
+# windowed details): 213 / 168 / 151 bytes per texel at 2048x1024 / 4096x2048 / 8192x4096, which 146 bytes per
+# texel plus 187 MB fits at the two larger sizes and overestimates at the smallest; rounded up.
+ENV_BW_BYTES_PER_TEXEL = 150
+ENV_BW_BYTES_FIXED = 200_000_000
 ENV_BW_VERSION = 2   # 2: wavelet bands centred on the cascade's delays (session 58); 1: on one level's
 # The signal Eq. 7's wavelet analysis of the probe reads (``env_signal``): log(1 + L / mean L) (the default), where a
 # sun no longer drowns the rest of the probe's detail, or its luminance, as 002 does (module docstring: the trade)
@@ -588,7 +594,8 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
     (a path or a str; default ``$WARPBW_CACHE``).  A constant map has bandwidth 0 everywhere.  An empty map, one with
     NaN or infinite pixels, or one beyond float32's range is refused, naming ``name``.  Returns the map and where
     it came from ("constant", "cache" or "built").  ``progress`` shows a bar over the wavelet bands while it builds
-    (a minute at 8192x4096)."""
+    (a minute at 8192x4096); a build that would take more memory than is available (``ENV_BW_BYTES_PER_TEXEL``,
+    5 GB at 8192x4096) warns first."""
     from precompute.assetfile import read_asset, write_asset
     from precompute.brdf_sampling import cache_dir
     from precompute.progress import progress_callback
@@ -628,6 +635,11 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
                 return nu, "cache"
         except (WarpbwError, KeyError, AttributeError, TypeError, ValueError):
             pass  # a stale or damaged cache entry (strings for numbers: a ValueError) is rebuilt below
+    # a minute and 5 GB at 8192x4096: warn first where that is more than the system has (it stops a process that
+    # runs out without a word)
+    warn_if_short_of_memory(ENV_BW_BYTES_PER_TEXEL * h * w + ENV_BW_BYTES_FIXED, available_memory(),
+                            f"building the bandwidth map of {name} ({w}x{h})",
+                            "a smaller probe; the reference method does not build it")
     t = env_signal(lum, signal).astype(np.float64)     # a float32 mean overflows beyond about 1e33 per texel
     with progress_callback(1, f"bandwidth {name}", "band", progress) as step:
         nu = envmap_angular_bandwidth(t, floor=EPSILON * float(t.mean()), progress=step).astype(np.float32)

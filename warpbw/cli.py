@@ -420,6 +420,10 @@ def cmd_info(args) -> int:
         print(f"memory      about {s['frame_memory_bytes'] / 1e9:.2g} GB per {args.method} frame"
               + (" of the spheres and meshes" if any("planes:" in st for st in s["stages"]) else "")
               + " beyond the assets")
+    if "probe_load_memory_bytes" in s:
+        print(f"            about {s['probe_load_memory_bytes'] / 1e9:.2g} GB at the peak to load the probe"
+              + (f", {s['probe_bandwidth_memory_bytes'] / 1e9:.2g} GB to build its bandwidth map (once; then cached)"
+                 if "probe_bandwidth_memory_bytes" in s else ""))
     if s["files"]:
         print("files")
         for f in s["files"]:

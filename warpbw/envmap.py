@@ -55,7 +55,8 @@ Warp functions (take an ``EnvMapData`` and a world direction; directions need no
 
 Host functions:
     envmap_from_array(rgb, rotation_deg=0.0, scale=1.0, name="array", device="cpu") -> EnvMap
-    load_envmap(path, rotation_deg=0.0, scale=1.0, device="cpu") -> EnvMap
+    load_envmap(path, rotation_deg=0.0, scale=1.0, device="cpu") -> EnvMap   (warns first where it would take more
+                                                 memory than is available, ``LOAD_BYTES_PER_TEXEL``)
     constant_envmap(radiance, device="cpu") -> EnvMap
     load_environment(spec, device="cpu") -> EnvMap   a scene's [environment] (``warpbw.scene.Environment``)
     procedural_sky(width=256, height=128, ...) -> np.ndarray (H, W, 3) float32
@@ -77,8 +78,8 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.errors import (WarpbwError, check_count, check_device, check_instance, check_seed, numeric_array,
-                           unit_directions)
+from warpbw.errors import (WarpbwError, available_memory, check_count, check_device, check_instance, check_seed,
+                           numeric_array, unit_directions, warn_if_short_of_memory)
 
 wp.set_module_options({"enable_backward": False})  # no gradients are taken: halves compile time
 
@@ -99,6 +100,9 @@ CELL_EDGE_MARGIN = 1.0e-3
 # Texels a probe is converted, scaled and checked in at a time when it loads (ours): a block's float64 temporaries
 # are then about 40 MB whatever the probe's size (session 63: the whole map's took 60 bytes per texel).
 SANITIZE_BLOCK_TEXELS = 1 << 20
+# Peak memory of loading a probe, numpy's allocations under tracemalloc (session 63): 44 bytes per texel at
+# 4096x2048 and 8192x4096 (1.5 GB), the file's pixels, the map and its sampling distribution; rounded up.
+LOAD_BYTES_PER_TEXEL = 48
 
 _PI = wp.constant(math.pi)
 _INV_PI = wp.constant(1.0 / math.pi)
@@ -602,8 +606,11 @@ def envmap_from_array(rgb, rotation_deg: float = 0.0, scale: float = 1.0, name: 
 
 def load_envmap(path, rotation_deg: float = 0.0, scale: float = 1.0, device="cpu") -> EnvMap:
     """Environment light from a lat-long EXR file (via warpbw.io.exr.read_rgb)."""
-    from warpbw.io.exr import read_rgb  # lazy: keeps this module importable on its own
+    from warpbw.io.exr import exr_size, read_rgb  # lazy: keeps this module importable on its own
 
+    w, h = exr_size(path)   # the header alone: a probe too large to load warns before it is read
+    warn_if_short_of_memory(LOAD_BYTES_PER_TEXEL * w * h, available_memory(), f"loading {Path(path).name} "
+                            f"({w}x{h})", "a smaller probe", stacklevel=2)
     rgb = read_rgb(path)
     h, w = rgb.shape[:2]
     if w != 2 * h:   # e.g. a cube-map cross or an angular (mirror-ball) probe: read as lat-long, it is another light

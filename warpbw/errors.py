@@ -16,7 +16,9 @@ lo_open) -> float`` (a finite real number in float32's range, not a bool or a st
 ``check_direction_pairs(wi, wo) -> (wi, wo)`` (the BRDF evaluators' (N, 3) direction pairs, broadcast, unit length)
 and ``unit_directions(d, name)`` (finite non-zero directions scaled to unit length); ``check_finite_image(image,
 source)`` (a rendered image without inf or NaN pixels, which radiance near float32's top gives); the bounds
-``INT32_MAX``, ``FLOAT32_MAX``, ``SEED_MAX`` and ``BRDF_VALUE_MAX`` that user values are checked against.
+``INT32_MAX``, ``FLOAT32_MAX``, ``SEED_MAX`` and ``BRDF_VALUE_MAX`` that user values are checked against;
+``available_memory() -> bytes | None`` (Linux's MemAvailable) and ``warn_if_short_of_memory(need, have, what, advice)``
+(a warning before a step the system would stop without a word).
 
 Anything the user can cause (a bad file, a bad key in a scene, a bad CLI value) is raised as
 ``WarpbwError`` with a one-line message that names the file or key and says what was expected.
@@ -280,3 +282,26 @@ def check_camera_reach(reach: float, lo: float, hi: float, target: str, kind: st
         f"{lo:.2g} to {hi:.2g} that float32 ray-{kind} intersection handles{f' ({why})' if why else ''}: its pixels "
         f"would be left empty or wrong; expected a {'smaller' if reach > hi else 'larger'} scene (scale the objects "
         "and the camera together)")
+
+
+def available_memory() -> int | None:
+    """Bytes of memory the system can give without swapping (Linux's MemAvailable), or None where unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def warn_if_short_of_memory(need: int, have: int | None, what: str, advice: str, stacklevel: int = 2) -> None:
+    """Warn when ``what`` (a frame, a probe's bandwidth map) takes about ``need`` bytes and ``have`` (the memory
+    available, None where unknown) is less: the system stops such a process without a word (no error, no image),
+    and the warning names what to lower."""
+    import warnings
+
+    if have is not None and need > have:
+        warnings.warn(f"{what} takes about {need / 1e9:.1f} GB, but {have / 1e9:.1f} GB of memory is available: the "
+                      f"system may stop it ({advice})", RuntimeWarning, stacklevel=stacklevel + 1)

@@ -13,9 +13,9 @@ Public:
     ``surface_geometry(scene, device) -> Geometry``   its spheres and meshes alone on the device (for depth)
     ``render_with_planes(scene, filter_method, spp, seed, method, budget, ...) -> RenderResult``
                                        a scene with both: the spheres and meshes, then the planes over them
-    ``frame_memory(width, height, method) -> bytes``, ``FRAME_BYTES_PER_PIXEL``, ``available_memory() -> bytes |
-                                       None``   what a frame takes beyond the assets, and what the system has (a
-                                       render warns when its frame would not fit)
+    ``frame_memory(width, height, method) -> bytes``, ``FRAME_BYTES_PER_PIXEL``   what a frame takes beyond the
+                                       assets (a render warns when its frame would not fit in
+                                       ``warpbw.errors.available_memory()``)
     ``scene_summary(scene, method="reference") -> dict``   what the scene needs (for ``warpbw info``), without
                                        loading it; ``SUMMARY_METHODS``, the methods it describes
     ``stages_used(prep, mis, adaptive)``, ``PreparedScene``, ``RenderResult``   the stages a frame ran; the
@@ -50,8 +50,8 @@ import warp as wp
 
 from warpbw import brdf as brdf_mod
 from warpbw import envmap
-from warpbw.errors import (BRDF_VALUE_MAX, FLOAT32_MAX, INT32_MAX, WarpbwError, check_device, check_finite_image,
-                           check_flag, check_seed, is_int)
+from warpbw.errors import (BRDF_VALUE_MAX, FLOAT32_MAX, INT32_MAX, WarpbwError, available_memory, check_device,
+                           check_finite_image, check_flag, check_seed, is_int, warn_if_short_of_memory)
 from warpbw.gbuffer import (GBuffer, MeshSpec, SphereSpec, build_geometry, check_reach, ensure_curvature,
                             hide_beyond, render_gbuffer, scene_camera)
 from warpbw.scene import MeshObject, PlaneObject, Scene, SphereObject, check_scene
@@ -256,18 +256,6 @@ def _prepared(scene, device: str | None, progress: bool) -> tuple[PreparedScene,
     return prep, dict(prep.timings)
 
 
-def available_memory() -> int | None:
-    """Bytes of memory the system can give without swapping (Linux's MemAvailable), or None where unknown."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return None
-
-
 def frame_memory(width: int, height: int, method: str) -> int:
     """Bytes a ``method`` frame ("reference" or "adaptive") of ``width`` x ``height`` takes beyond the scene's
     assets (``FRAME_BYTES_PER_PIXEL``; measured on the CPU)."""
@@ -277,11 +265,9 @@ def frame_memory(width: int, height: int, method: str) -> int:
 def _warn_if_frame_exceeds_memory(prep: PreparedScene, method: str) -> None:
     """A frame larger than the memory left is killed by the system without a word (no error, no image): warn first,
     naming the resolution, so that a user who meant a smaller one can stop it."""
-    need, have = frame_memory(prep.width, prep.height, method), available_memory()
-    if have is not None and need > have:
-        warnings.warn(f"{prep.scene.source}: a {prep.width}x{prep.height} {method} frame takes about "
-                      f"{need / 1e9:.1f} GB, but {have / 1e9:.1f} GB of memory is available: the system may stop "
-                      "it (lower [camera].resolution)", RuntimeWarning, stacklevel=3)
+    warn_if_short_of_memory(frame_memory(prep.width, prep.height, method), available_memory(),
+                            f"{prep.scene.source}: a {prep.width}x{prep.height} {method} frame",
+                            "lower [camera].resolution", stacklevel=3)
 
 
 def _clip_kernels(clip_distance) -> tuple:
@@ -762,4 +748,25 @@ def scene_summary(scene: Scene, method: str = "reference") -> dict:
         "stages": stages,
         # the spheres' and meshes' frame beyond the assets (a filtered plane frame's is not estimated)
         "frame_memory_bytes": frame_memory(scene.camera.width, scene.camera.height, method),
+        **_probe_memory(env, method),
     }
+
+
+def _probe_memory(env, method: str) -> dict:
+    """The peaks of loading the scene's probe file and, for the adaptive method, of building its bandwidth map
+    (when the cache lacks it), from the file's header: {} without a probe file, or where its header does not read
+    (the render then says what is wrong with it)."""
+    if env is None or env.file is None:
+        return {}
+    from warpbw.bandwidth import ENV_BW_BYTES_FIXED, ENV_BW_BYTES_PER_TEXEL
+    from warpbw.envmap import LOAD_BYTES_PER_TEXEL
+    from warpbw.io.exr import exr_size
+
+    try:
+        w, h = exr_size(env.file)
+    except WarpbwError:
+        return {}
+    out = {"probe_load_memory_bytes": LOAD_BYTES_PER_TEXEL * w * h}
+    if method == "adaptive":
+        out["probe_bandwidth_memory_bytes"] = ENV_BW_BYTES_PER_TEXEL * w * h + ENV_BW_BYTES_FIXED
+    return out
