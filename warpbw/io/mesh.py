@@ -35,9 +35,11 @@ Class: ``MeshData``.  Constant: ``CURVATURE_SMOOTHING_PASSES``.
 """
 from __future__ import annotations
 
+import hashlib
 import math
 import re
 import warnings
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -356,6 +358,9 @@ def _check_transform(path: Path, translate, scale, rotate_y_deg):
 
 # the largest coordinate trimesh's vertex merge is given (its int64 rounding at 1e-8 wraps beyond 9.2e10)
 MERGE_MAX_COORD = 1e9
+# Mesh files kept read and merged in memory (ours): a scene placing one mesh 20 times read it 20 times, 0.3 s each
+# for the bunny (scene fuzzing, session 63).
+MESH_CACHE_FILES = 4
 
 
 def _check_float32(verts, path, when: str) -> None:
@@ -400,19 +405,40 @@ def _binary_stl_damage(path: Path) -> str | None:
             f"= {want} bytes) but the file is {size} bytes: truncated or corrupt")
 
 
-def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg: float = 0.0) -> MeshData:
-    """Load a triangle mesh, apply x' = R_y(rotate_y_deg) (scale * x) + translate, and derive
-    smooth normals (and, when first read, the mean curvature) in the transformed (world) frame.
+@dataclass(frozen=True)
+class _Merged:
+    """A mesh file as read, checked and merged, before its transform: vertices (float64, read-only, times
+    ``2**-k``: merged at a power-of-two scale), faces (int64, read-only), the uv coordinates or None, ``k`` and the
+    largest coordinate ``big``."""
 
-    Coincident vertices are merged (STL stores none shared); vertices split by texture seams stay split.
-    """
+    vertices: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray | None
+    k: int
+    big: float
+
+
+_MERGED: "OrderedDict[tuple, _Merged]" = OrderedDict()
+
+
+def _merged_mesh(path: Path) -> _Merged:
+    """``_read_merged(path)``, kept for the last ``MESH_CACHE_FILES`` files by their path and the digest of their
+    bytes (a file rewritten since is read again, however soon)."""
+    key = (str(path.resolve()), hashlib.blake2b(path.read_bytes(), digest_size=16).digest())
+    if key in _MERGED:
+        _MERGED.move_to_end(key)
+        return _MERGED[key]
+    merged = _read_merged(path)
+    _MERGED[key] = merged
+    while len(_MERGED) > MESH_CACHE_FILES:
+        _MERGED.popitem(last=False)
+    return merged
+
+
+def _read_merged(path: Path) -> _Merged:
+    """Read a mesh file with trimesh, refuse what is malformed (naming the file), and merge coincident vertices."""
     import trimesh
 
-    path = check_input_file(path, f"a mesh: {_SUPPORTED}")   # None too (check_path)
-    if path.stat().st_size == 0:  # trimesh's answer depends on the suffix (for GLB: a face index out of bounds)
-        raise WarpbwError(f"{path}: empty file (0 bytes): no triangles found (expected a mesh with faces: "
-                          f"{_SUPPORTED})")
-    t, s, r = _check_transform(path, translate, scale, rotate_y_deg)
     if path.suffix.lower() == ".obj":
         _check_obj_lines(path)
     try:
@@ -458,8 +484,32 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
         mesh.remove_unreferenced_vertices()
     except Exception as exc:
         raise WarpbwError(f"{path}: malformed mesh ({_one_line(exc)})") from None
-    verts = np.asarray(mesh.vertices, dtype=np.float64) * 2.0**k * s
-    faces = np.asarray(mesh.faces, dtype=np.int64)
+    uv = getattr(mesh.visual, "uv", None)
+    uv = np.array(uv, dtype=np.float32) if uv is not None and np.shape(uv) == (len(mesh.vertices), 2) else None
+    out = _Merged(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64), uv, k, big)
+    for a in (out.vertices, out.faces, out.uv):
+        if a is not None:
+            a.flags.writeable = False
+    return out
+
+
+def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg: float = 0.0) -> MeshData:
+    """Load a triangle mesh, apply x' = R_y(rotate_y_deg) (scale * x) + translate, and derive
+    smooth normals (and, when first read, the mean curvature) in the transformed (world) frame.
+
+    Coincident vertices are merged (STL stores none shared); vertices split by texture seams stay split.  The file
+    is read and merged once while it stays as it is (``MESH_CACHE_FILES``): a scene that places one mesh many times
+    reads it once.
+    """
+    path = check_input_file(path, f"a mesh: {_SUPPORTED}")   # None too (check_path)
+    if path.stat().st_size == 0:  # trimesh's answer depends on the suffix (for GLB: a face index out of bounds)
+        raise WarpbwError(f"{path}: empty file (0 bytes): no triangles found (expected a mesh with faces: "
+                          f"{_SUPPORTED})")
+    t, s, r = _check_transform(path, translate, scale, rotate_y_deg)
+    merged = _merged_mesh(path)
+    k, big = merged.k, merged.big
+    verts = merged.vertices * 2.0**k * s
+    faces = merged.faces
     _, _, p0, p1, p2 = _face_geometry(verts, faces)
     if not np.any(np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1) > 0.0):
         if k:   # the merge rounds at 1e-8 of 2^k: finer detail collapsed (a vertex at 1e30 beside one at 1)
@@ -489,8 +539,7 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
                           f"vertex {i} at {tuple(round(float(x), 6) for x in verts[i])}); expected consistently wound "
                           "triangles (remove the oppositely wound copy)")
     normals = _unit_normals(sums)   # vertex_normals(verts, faces), from the sums just checked
-    uv = getattr(mesh.visual, "uv", None)
-    uv = np.asarray(uv, dtype=np.float32) if uv is not None and np.shape(uv) == (len(verts), 2) else None
+    uv = merged.uv
     return MeshData(
         path=str(path),
         vertices=np.ascontiguousarray(verts, dtype=np.float32),
