@@ -81,10 +81,11 @@ def read_asset(path, fmt: str, version: int, rebuild) -> Asset:
             with np.load(p, allow_pickle=False) as z:
                 header = json.loads(str(z[HEADER_KEY]))
                 arrays = {k: z[k] for k in z.files if k != HEADER_KEY}
-    except Exception:   # noqa: BLE001 -- whatever numpy, zipfile or json raise reading these bytes is their damage
-        header = None   # (EOFError for a zero-byte file, zlib.error, NotImplementedError for an unknown compression,
-        #                 RuntimeError for the encrypted flag, RecursionError for a deeply nested header): refused below,
-        #                 and a cache entry is rebuilt (load_or_build rebuilds on the WarpbwError)
+    except Exception:   # noqa: BLE001 -- whatever numpy, zipfile or json raise reading these bytes is their damage:
+        # EOFError for a zero-byte file, zlib.error, NotImplementedError for an unknown compression, RuntimeError for
+        # the encrypted flag, RecursionError for a deeply nested header.  Refused below; a cache entry is rebuilt
+        # (load_or_build rebuilds on the WarpbwError)
+        header = None
     if not isinstance(header, dict):  # also a JSON header that is not an object (a list, a string)
         raise WarpbwError(f"{p}: not a warpbw asset file, or a damaged one (expected a {fmt} file written by "
                           f"warpbw-precompute; rebuild it with: {how(None)})")

@@ -2254,7 +2254,8 @@ def test_a_damaged_asset_is_refused_by_name_and_a_damaged_cache_entry_rebuilt(tm
     ASSET_DAMAGE[damage](tmp_path / "tables.npz")
     write_scene(tmp_path, material=npf + '\nsampling = "tables.npz"')
     r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
-    assert_one_line_error(r, "tables.npz", "not a warpbw asset file, or a damaged one", "warpbw-precompute brdf-sampling")
+    assert_one_line_error(r, "tables.npz", "not a warpbw asset file, or a damaged one",
+                          "warpbw-precompute brdf-sampling")
     assert_no_outputs(tmp_path)
 
 @pytest.fixture
