@@ -36,7 +36,8 @@ EXIT_TERMINATED = 128 + 15    # SIGTERM, likewise
 WARP_LOG_WARNING = 30  # warp._src.logger.LOG_WARNING: hide Warp's banner and module-load lines
 
 
-# Control characters (C0, DEL, C1) and Unicode's line and paragraph separators: what splits a line or drives a terminal.
+# Control characters (C0, DEL, C1) and Unicode's line and paragraph separators: what splits a line or drives
+# a terminal.
 _CONTROL_CHARACTERS = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029]")
 
 
