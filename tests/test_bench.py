@@ -402,10 +402,13 @@ def test_ground_truth_chunks_of_another_seed_or_version_are_never_read(tmp_path,
     assert len(list(cache.glob("ground_truth-*.exr"))) == 2 + 3 * 2 and not list(cache.glob(".*"))
 
 
-@pytest.mark.parametrize("damage", ["one channel", "nan", "cut off", "other size"])
+@pytest.mark.parametrize("damage", ["one channel", "nan", "cut off", "other size", "negated", "zeroed", "doubled",
+                                    "no digest"])
 def test_damaged_ground_truth_chunk_is_rendered_again(tmp_path, damage):
     """A cached chunk that is unreadable, of other channels or size, or not finite is stale: rendered anew and
-    replaced (the first render's chunk comes back bit for bit: same seed), never averaged in or refused."""
+    replaced (the first render's chunk comes back bit for bit: same seed), never averaged in or refused.  So is one
+    whose pixels are readable but not those its digest note records (negated, zeroed, doubled: each was averaged
+    into the truth, file audit, session 63), and one without the note (written before it, or by hand)."""
     from warpbw.io.exr import read_exr, write_exr
     from warpbw.pipeline import prepare_scene
     from warpbw.scene import parse_scene
@@ -423,8 +426,12 @@ def test_damaged_ground_truth_chunk_is_rendered_again(tmp_path, damage):
         write_exr(chunk, np.full((24, 24, 3), np.nan, np.float32))
     elif damage == "other size":
         write_exr(chunk, np.ones((12, 24, 3), np.float32))
-    else:
+    elif damage == "cut off":
         chunk.write_bytes(good[: len(good) // 2])
+    else:   # readable pixels under the note the renderer wrote (or none)
+        img = read_exr(chunk)
+        px = {"negated": -img.pixels, "zeroed": 0.0 * img.pixels, "doubled": 2.0 * img.pixels}.get(damage, img.pixels)
+        write_exr(chunk, px, channels=img.channels, notes=None if damage == "no digest" else img.notes)
     again = bench.ground_truth(prep, 4, cache, progress=False)
     assert again.render_time_s > 0 and np.array_equal(again.image, first.image)
     assert read_exr(chunk).pixels.shape == (24, 24, 3) and len(list(cache.iterdir())) == 2   # no .part file left

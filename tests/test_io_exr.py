@@ -76,6 +76,21 @@ def test_a_lone_channel_other_than_y_is_read_as_grey_with_a_warning(tmp_path):
         warnings.simplefilter("error")
         read_rgb(tmp_path / "y.exr")
 
+
+def test_notes_round_trip_through_the_header_and_a_file_without_them_has_none(tmp_path):
+    """write_exr's notes (the bench's chunk digest) come back from read_exr as written, str for str; a file written
+    without notes, or by another writer (OpenEXR's own, with only its standard attributes), reads back with none."""
+    import OpenEXR
+
+    px = np.ones((3, 4, 3), np.float32)
+    notes = {"rgb_blake2b": "0f" * 16, "a b": "é ß, 1"}
+    write_exr(tmp_path / "n.exr", px, notes=notes)
+    assert read_exr(tmp_path / "n.exr").notes == notes
+    write_exr(tmp_path / "plain.exr", px)
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                 {"R": px[..., 0], "G": px[..., 1], "B": px[..., 2]}).write(str(tmp_path / "other.exr"))
+    assert read_exr(tmp_path / "plain.exr").notes == {} == read_exr(tmp_path / "other.exr").notes
+
 def test_custom_channel_names_and_order_kept(tmp_path):
     rng = np.random.default_rng(2)
     px = rng.random((8, 8, 3), dtype=np.float32)

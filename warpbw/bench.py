@@ -4,7 +4,8 @@ Public:
     ``GT_CHUNK_SPP``, ``DEFAULT_SPP``, ``DEFAULT_BUDGETS``, ``DEFAULT_GT_SPP``, ``NB_SWEEP_BUDGET``, ``DOUBLING_DB``
     ``GroundTruth`` / ``ground_truth(prep, gt_spp, cache_dir, ...)``   cached, with the doubling check
     ``ground_truth_chunks(gt_spp) -> (spp per chunk, chunks)``, ``gt_spp_refusal(gt_spp)``   how it splits, or why not
-    ``GT_VERSION``, ``GT_SEED``, ``gt_key(scene, seed)``, ``gt_cache_dir()``   where a scene's chunks are cached
+    ``GT_VERSION``, ``GT_SEED``, ``gt_key(scene, seed)``, ``gt_cache_dir()``   where a scene's chunks are cached;
+    ``CHUNK_DIGEST_NOTE``   the note in a chunk's file that holds its pixels' digest
     ``equal_quality_time(ref, mse) -> (spp, time_s, extrapolated)``   log-log interpolation
     ``psnr_standard_error(mses)``, ``paired_difference_se(mses_a, mses_b)``   noise of the PSNR figures (dB)
     ``speedup_relative_se(ref, mse, psnr_se_db)``   noise of an equal-quality speed-up (relative)
@@ -19,7 +20,8 @@ Protocol:
   size, at most ``GT_CHUNK_SPP`` each (any even count up to 8192 splits so, and beyond it a multiple of 4096;
   a count that does not is refused, naming the nearest that do), every chunk cached as EXR keyed by the
   scene's content hash, the seed and ``GT_VERSION`` (``gt_key``; so raising ``gt_spp`` renders only the
-  missing chunks, and a chunk of another scene, seed or estimator is never read).  Accepted when the PSNR
+  missing chunks, and a chunk of another scene, seed or estimator is never read); a chunk whose pixels are not
+  those its digest records is rendered again.  Accepted when the PSNR
   of a render at the largest reference spp against half the ground truth and against all of it differ by
   < 0.5 dB (recorded).
 * Error: PSNR and relative MSE of linear radiance over covered pixels (:mod:`warpbw.metrics`), averaged
@@ -75,6 +77,7 @@ DEFAULT_SPP = (1, 2, 4, 8, 16, 32, 64, 128, 256)      # reference sweep
 DEFAULT_BUDGETS = (0.5, 1, 2, 4, 8, 16, 32)           # adaptive sweep, mean samples per covered pixel
 DEFAULT_GT_SPP = 8192
 GT_VERSION = 2   # of the cached ground-truth chunks: raise it whenever render_reference's estimator changes
+CHUNK_DIGEST_NOTE = "rgb_blake2b"   # a chunk file's note (warpbw.io.exr) holding its pixels' digest
 GT_SEED, GT_SEED_STEP = 1_000_001, 1_000_002          # ground-truth chunk k is seeded GT_SEED + k * GT_SEED_STEP
 DOUBLING_DB = 0.5                                     # ../shared/DESIGN.md: doubling GT spp moves PSNR < 0.5 dB
 NB_SWEEP_BUDGET = 8                                   # budget of the n_b sweep unless given
@@ -145,7 +148,7 @@ def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = GT_SEED, progre
         t_gt += time.perf_counter() - t0
         try:   # an interrupted run leaves no cut-off chunk; two benches of one scene at once both write it
             with staged_outputs([path], force=True) as tmp:   # a cache: the last writer wins
-                write_exr(tmp[path], img)
+                write_exr(tmp[path], img, notes={CHUNK_DIGEST_NOTE: _pixels_digest(img)})
         except WarpbwError as exc:   # a full disk, a name taken by a folder: the chunk rendered is not lost
             warnings.warn(f"ground truth not cached ({exc}); this bench goes on, and the next renders it again",
                           stacklevel=2)
@@ -167,9 +170,16 @@ def gt_key(scene, seed: int) -> str:
     return f"v{GT_VERSION}-{h.hexdigest()}"
 
 
+def _pixels_digest(rgb: np.ndarray) -> str:
+    """blake2b of a chunk's RGB as float32 in C order: what its file's ``CHUNK_DIGEST_NOTE`` records."""
+    return hashlib.blake2b(np.ascontiguousarray(rgb, np.float32).tobytes(), digest_size=16).hexdigest()
+
+
 def _cached_chunk(path: Path, height: int, width: int) -> np.ndarray | None:
-    """A cached ground-truth chunk's RGB, or None when it is missing, unreadable, of another size or channels, or
-    not finite: such a chunk is rendered again (as the table caches rebuild a damaged entry)."""
+    """A cached ground-truth chunk's RGB, or None when it is missing, unreadable, of another size or channels, not
+    finite, or not the pixels its digest note records: such a chunk is rendered again (as the table caches rebuild
+    a damaged entry).  EXR has no checksum: pixels negated, zeroed or read as another pixel type were averaged into
+    the truth, and every reference PSNR fell by 15 dB with only a "raise --gt-spp" hint (file audit, session 63)."""
     from warpbw.io.exr import read_exr
 
     if not path.is_file():
@@ -181,7 +191,9 @@ def _cached_chunk(path: Path, height: int, width: int) -> np.ndarray | None:
     if img.channels[:3] != ["R", "G", "B"] or img.pixels.shape[:2] != (height, width):
         return None
     rgb = img.pixels[..., :3]
-    return rgb if np.isfinite(rgb).all() else None
+    if not np.isfinite(rgb).all() or img.notes.get(CHUNK_DIGEST_NOTE) != _pixels_digest(rgb):
+        return None
+    return rgb
 
 
 def _interp(x: float, xs: np.ndarray, ys: np.ndarray) -> tuple[float, bool]:

@@ -8,15 +8,16 @@ Public functions:
 - ``read_rgb(path) -> np.ndarray``: ``(H, W, 3)`` float32 radiance (a single ``Y`` channel is replicated, and so,
   with a warning, is a lone channel of another name);
   ``rgb_of(img) -> np.ndarray`` the same from an ``ExrImage`` already read.
-- ``write_exr(path, pixels, channels=None)``: float32, lossless ZIP compression; channel names and
-  their order survive a round trip through ``read_exr``.
+- ``write_exr(path, pixels, channels=None, notes=None)``: float32, lossless ZIP compression; channel names and
+  their order survive a round trip through ``read_exr``, and so do ``notes`` (str keys and values, header
+  attributes ``warpbw_note_KEY``).
 - ``linear_to_srgb(x)``: the sRGB transfer function (IEC 61966-2-1) on linear values.
 - ``write_png(path, rgb, exposure=0.0)``: linear radiance -> 8-bit sRGB preview, exposure in stops.
 - ``write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=False)``: a scalar
   AOV through matplotlib's viridis colour map; returns the ``(vmin, vmax)`` it used, and writes them into the
   PNG's ``Description`` (``colour_scale_text(lo, hi, log)``).
 
-Class: ``ExrImage`` (``pixels``, ``channels``, ``path``).
+Class: ``ExrImage`` (``pixels``, ``channels``, ``path``, ``notes``).
 
 Every problem with a user's file is raised as :class:`warpbw.errors.WarpbwError` in one line that
 names the file.
@@ -25,7 +26,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +49,7 @@ _OTHER_MAGICS = (
 # Header attribute in which write_exr records the caller's channel order (EXR itself stores
 # channels sorted by name, so "R,G,B,A" would otherwise come back as "A,B,G,R").
 _ORDER_ATTRIBUTE = "warpbw_channels"
+_NOTE_PREFIX = "warpbw_note_"   # header attributes that hold write_exr's notes
 # Order used for files without that attribute: colour first, then alpha, then the rest by name.
 _CANONICAL_ORDER = ("R", "G", "B", "Y", "A")
 # sRGB transfer function constants (IEC 61966-2-1:1999): linear segment below 0.0031308 with slope
@@ -65,6 +67,7 @@ class ExrImage:
     pixels: np.ndarray
     channels: list[str]
     path: str
+    notes: dict = field(default_factory=dict)   # the write_exr notes the file holds (str -> str)
 
 
 def _one_line(exc: BaseException) -> str:
@@ -144,7 +147,8 @@ def read_exr(path) -> ExrImage:
     if len(shapes) != 1 or len(next(iter(shapes))) != 2:
         raise WarpbwError(f"{path}: channels have shapes {sorted(shapes)}, expected one (H, W) shape")
     pixels = np.stack([planes[n].astype(np.float32, copy=False) for n in names], axis=-1)
-    return ExrImage(pixels=np.ascontiguousarray(pixels), channels=names, path=str(path))
+    notes = {k[len(_NOTE_PREFIX):]: v for k, v in header.items() if k.startswith(_NOTE_PREFIX) and isinstance(v, str)}
+    return ExrImage(pixels=np.ascontiguousarray(pixels), channels=names, path=str(path), notes=notes)
 
 
 def read_rgb(path) -> np.ndarray:
@@ -173,10 +177,11 @@ def _default_channels(c: int) -> list[str]:
     return {1: ["Y"], 3: ["R", "G", "B"], 4: ["R", "G", "B", "A"]}.get(c, [])
 
 
-def write_exr(path, pixels, channels=None) -> Path:
+def write_exr(path, pixels, channels=None, notes: dict | None = None) -> Path:
     """Write ``pixels`` (H, W) or (H, W, C) as float32 EXR (ZIP, lossless); returns the path.
 
-    ``channels`` defaults to Y, RGB or RGBA for C = 1, 3, 4; other C need explicit names.
+    ``channels`` defaults to Y, RGB or RGBA for C = 1, 3, 4; other C need explicit names.  ``notes`` (str keys
+    and values) go into the header and come back as ``read_exr(path).notes``.
     """
     import OpenEXR
 
@@ -207,6 +212,7 @@ def write_exr(path, pixels, channels=None) -> Path:
         "compression": OpenEXR.ZIP_COMPRESSION,
         "type": OpenEXR.scanlineimage,
         _ORDER_ATTRIBUTE: ",".join(names),
+        **{_NOTE_PREFIX + str(k): str(v) for k, v in (notes or {}).items()},
     }
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
