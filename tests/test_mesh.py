@@ -361,6 +361,41 @@ def test_a_mesh_placed_many_times_is_read_once_and_each_copy_is_its_own_load(tmp
     moved = load_mesh(p)
     assert len(calls) == 2 and not np.array_equal(moved.vertices, again[2].vertices)
 
+
+def test_ascii_ply_and_stl_cut_short_are_refused_saying_so_and_trimesh_logs_nothing(tmp_path, caplog):
+    """File audit, session 63: an ASCII PLY cut short rendered the faces it kept (10 of 80), and one whose header
+    declared 2147483647 faces on 80 was read, both without a word; an ASCII STL cut short was "no triangles found";
+    a facet normal that is not three numbers (trimesh recomputes it) printed trimesh's logged tracebacks on stderr.
+    The whole files, binary and ASCII, still load, and a PLY with trailing blank lines too."""
+    import logging
+
+    import trimesh
+
+    ico = trimesh.creation.icosphere(subdivisions=1)                  # 42 vertices, 80 faces
+    ply = trimesh.exchange.ply.export_ply(ico, encoding="ascii").decode()
+    lines = ply.split("\n")
+    body = lines.index("end_header") + 1
+    stl = trimesh.exchange.stl.export_stl_ascii(ico)
+    files = {"ok.ply": ply, "blank.ply": ply + "\n\n", "ok.stl": stl,
+             "normal.stl": stl.replace("facet normal", "facet normal a b c #", 1),
+             "cut.ply": "\n".join(lines[:body + 42 + 10]) + "\n",
+             "count.ply": ply.replace("element face 80", "element face 2147483647"),
+             "cut.stl": stl[: len(stl) // 2]}
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    (tmp_path / "bin.ply").write_bytes(trimesh.exchange.ply.export_ply(ico))
+    caplog.set_level(logging.DEBUG)
+    for ok in ("ok.ply", "blank.ply", "bin.ply", "ok.stl", "normal.stl"):
+        assert len(load_mesh(tmp_path / ok).faces) == 80, ok
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING], caplog.text   # printed on stderr
+    assert logging.root.manager.disable == 0   # logging is back as it was
+    for bad, said in (("cut.ply", "122 rows \\(42 vertex, 80 face\\) but its body holds 52"),
+                      ("count.ply", "2147483689 rows \\(42 vertex, 2147483647 face\\) but its body holds 122"),
+                      ("cut.stl", "ASCII STL that does not end in 'endsolid'")):
+        said = said if bad.endswith(".stl") else "ASCII PLY header declares " + said
+        with pytest.raises(WarpbwError, match=f"{bad}: {said}.*truncated or corrupt"):
+            load_mesh(tmp_path / bad)
+
 def test_obj_vertex_lines_with_w_colour_comments_and_crlf_are_read(tmp_path):
     """The vertex-line check (a line that is not 3 to 7 numbers is refused) passes what trimesh reads: a w, a
     colour, exponents, CRLF line ends, comment lines.  (A comment after the numbers it does not read: refused.)"""

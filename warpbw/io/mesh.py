@@ -36,6 +36,7 @@ Class: ``MeshData``.  Constant: ``CURVATURE_SMOOTHING_PASSES``.
 from __future__ import annotations
 
 import hashlib
+import logging
 import math
 import re
 import warnings
@@ -372,6 +373,25 @@ def _check_float32(verts, path, when: str) -> None:
                           f"within +-{FLOAT32_MAX:.4g})")
 
 
+def _check_ascii_ply_rows(path: Path) -> None:
+    """Refuse an ASCII PLY whose body holds another number of rows than its header's elements declare (one row per
+    vertex, face, ...): trimesh read a file cut short as the faces it kept, and took a face count of 2147483647 on
+    80 faces, without a word."""
+    data = path.read_bytes()
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0 or not re.search(rb"^[ \t]*format[ \t]+ascii", data[:end], re.M):
+        return
+    declared = [(m.group(1).decode("ascii", "replace"), int(m.group(2)))
+                for m in re.finditer(rb"^[ \t]*element[ \t]+(\S+)[ \t]+(\d+)", data[:end], re.M)]
+    body = data[data.find(b"\n", end) + 1:] if data.find(b"\n", end) >= 0 else b""
+    rows = sum(1 for line in body.splitlines() if line.strip())
+    want = sum(n for _, n in declared)
+    if rows != want:
+        said = ", ".join(f"{n} {name}" for name, n in declared)
+        raise WarpbwError(f"{path}: ASCII PLY header declares {want} rows ({said}) but its body holds {rows}: "
+                          "truncated or corrupt")
+
+
 def _check_obj_lines(path: Path) -> None:
     """Refuse an OBJ vertex line that is not 3 to 7 numbers (``_OBJ_BAD_VERTEX``), a face with vertex index 0
     (``_OBJ_ZERO_INDEX``) and a face of fewer than three vertices (``_OBJ_SHORT_FACE``), naming the line."""
@@ -389,13 +409,18 @@ def _check_obj_lines(path: Path) -> None:
                               "malformed mesh")
 
 
-def _binary_stl_damage(path: Path) -> str | None:
-    """What is wrong with a file trimesh found no triangles in, when it is a binary STL whose length is not what its
-    triangle count says (cut short, bytes appended, the count damaged; trimesh then read it as ASCII); else None."""
+def _stl_damage(path: Path) -> str | None:
+    """What is wrong with an STL file trimesh found no triangles in: an ASCII one that does not end in
+    "endsolid" (cut short), or a binary one whose length is not what its triangle count says (cut short, bytes
+    appended, the count damaged; trimesh then read it as ASCII); else None."""
     size = path.stat().st_size
     with open(path, "rb") as f:
         head = f.read(STL_HEADER_BYTES)
-    if head.lstrip(b" \t\r\n\xef\xbb\xbf")[:5].lower() == b"solid" or size < STL_HEADER_BYTES:   # ASCII, or no header
+    if head.lstrip(b" \t\r\n\xef\xbb\xbf")[:5].lower() == b"solid":   # ASCII
+        if b"endsolid" not in path.read_bytes()[-4096:].lower():
+            return f"{path}: ASCII STL that does not end in 'endsolid': truncated or corrupt"
+        return None
+    if size < STL_HEADER_BYTES:
         return None
     count = int.from_bytes(head[80:84], "little")
     want = STL_HEADER_BYTES + STL_TRIANGLE_BYTES * count
@@ -441,6 +466,11 @@ def _read_merged(path: Path) -> _Merged:
 
     if path.suffix.lower() == ".obj":
         _check_obj_lines(path)
+    elif path.suffix.lower() == ".ply":
+        _check_ascii_ply_rows(path)
+    # trimesh logs tracebacks at WARNING (a facet normal it recomputes) that say nothing the user could act on
+    was_disabled = logging.root.manager.disable
+    logging.disable(logging.WARNING)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -454,14 +484,16 @@ def _read_merged(path: Path) -> _Merged:
             f"{path}: malformed mesh file, a reference to something it does not hold ({_one_line(exc)}); expected "
             f"{_SUPPORTED}") from None
     except Exception as exc:  # trimesh raises ValueError, KeyError... on malformed or unknown files
-        stl = _binary_stl_damage(path) if path.suffix.lower() == ".stl" else None
+        stl = _stl_damage(path) if path.suffix.lower() == ".stl" else None
         raise WarpbwError(
             stl or f"{path}: malformed or unsupported mesh file ({_one_line(exc)}); expected {_SUPPORTED}"
         ) from None
+    finally:
+        logging.disable(was_disabled)
     faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
     verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)
     if faces.ndim != 2 or faces.shape[0] == 0 or faces.shape[1] != 3:
-        stl = _binary_stl_damage(path) if path.suffix.lower() == ".stl" else None
+        stl = _stl_damage(path) if path.suffix.lower() == ".stl" else None
         raise WarpbwError(stl or f"{path}: no triangles found (expected a mesh with faces: {_SUPPORTED})")
     if verts.ndim != 2 or verts.shape[1] != 3:   # an OBJ whose "v" lines hold two numbers: numpy's AxisError below
         raise WarpbwError(f"{path}: vertices read with {verts.shape[-1] if verts.ndim == 2 else 0} coordinates "
