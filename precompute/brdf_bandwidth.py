@@ -323,6 +323,10 @@ def read_brdf_bandwidth(path, source=None) -> np.ndarray:
                           f"{source.name!r} (rebuild it with: {hint})")
     if "nu_rho" not in a.arrays:
         raise WarpbwError(f"{path}: brdf-bandwidth file lacks array 'nu_rho' (rebuild it with: {hint})")
+    kind = a.arrays["nu_rho"].dtype
+    if kind.kind not in "fUSO":   # the writer stores float32; integers (a damaged type) changed the image, exit 0
+        raise WarpbwError(f"{path}: table of type {kind.name}, expected floating-point bandwidths (rebuild it with: "
+                          f"{hint})")
     return _checked_table(a.arrays["nu_rho"], f"{path}: table", f" (rebuild it with: {hint})")
 
 

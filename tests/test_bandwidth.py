@@ -533,12 +533,16 @@ def test_env_bandwidth_maps_are_cached_per_signal_and_old_entries_read_as_radian
     assert origin == "cache" and np.all(nu == 7.0)
     assert np.array_equal(bw.env_bandwidth_map(px, cache=tmp_path, signal="log")[0], log)
     # an entry of the right key whose rates are NaN, negative (a bug that wrote it) or strings (a ValueError
-    # traceback) is rebuilt, not read
-    for bad in (np.full_like(rad, np.nan), np.full_like(rad, -1.0), np.full(rad.shape, "abc")):
+    # traceback) is rebuilt, not read; so are integers (another image, exit 0) and float64 beyond float32 (rebuilt
+    # after numpy's overflow warning; file audit, session 63)
+    for bad in (np.full_like(rad, np.nan), np.full_like(rad, -1.0), np.full(rad.shape, "abc"),
+                rad.astype(np.int64), np.full(rad.shape, 1e300)):
         write_asset(path, bw.ENV_BW_FORMAT, bw.ENV_BW_VERSION, a.header["source"], a.header["source_hash"],
                     {"nu_a": bad}, params={"units": "cycles/radian"}, force=True)
-        nu, origin = bw.env_bandwidth_map(px, cache=tmp_path, signal="radiance")
-        assert origin == "built" and np.array_equal(nu, rad)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            nu, origin = bw.env_bandwidth_map(px, cache=tmp_path, signal="radiance")
+        assert origin == "built" and np.array_equal(nu, rad), bad.dtype
 
 
 def test_the_frame_reads_the_signal_it_is_given_and_says_so():

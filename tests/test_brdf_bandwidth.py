@@ -139,6 +139,12 @@ def test_round_trip_and_refusals(npf_tables, tmp_path):
     bad = write_asset(tmp_path / "bad.npz", FORMAT, 1, source.name, source.digest, {"nu_rho": table[:8]})
     with pytest.raises(WarpbwError, match="rebuild"):
         read_brdf_bandwidth(bad)
+    # integers (a damaged type: read, and the image changed, exit 0; file audit, session 63)
+    ints = write_asset(tmp_path / "int.npz", FORMAT, VERSION, source.name, source.digest,
+                       {"nu_rho": table.astype(np.int64)})
+    with pytest.raises(WarpbwError, match=r"int\.npz: table of type int64, expected floating-point bandwidths "
+                                          r"\(rebuild it with: warpbw-precompute brdf"):
+        read_brdf_bandwidth(ints, source)
 
 
 def test_cli_end_to_end(shared, tmp_path):

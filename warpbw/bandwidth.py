@@ -628,8 +628,9 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
     if path.is_file():
         try:
             a = read_asset(path, ENV_BW_FORMAT, ENV_BW_VERSION, "delete the cache file")
-            nu = np.asarray(a.arrays["nu_a"], np.float32)
-            if (a.header.get("source_hash") == digest and nu.shape == (h, w)
+            with np.errstate(over="ignore"):   # float64 beyond float32 becomes inf, a stale entry (numpy warned)
+                nu = np.asarray(a.arrays["nu_a"], np.float32)
+            if (a.header.get("source_hash") == digest and nu.shape == (h, w) and a.arrays["nu_a"].dtype.kind == "f"
                     and a.header.get("params", {}).get("signal", "radiance") == signal
                     and np.isfinite(nu).all() and (nu >= 0).all()):   # a bandwidth is a finite rate
                 return nu, "cache"
