@@ -533,10 +533,12 @@ def test_env_bandwidth_maps_are_cached_per_signal_and_old_entries_read_as_radian
     assert origin == "cache" and np.all(nu == 7.0)
     assert np.array_equal(bw.env_bandwidth_map(px, cache=tmp_path, signal="log")[0], log)
     # an entry of the right key whose rates are NaN, negative (a bug that wrote it) or strings (a ValueError
-    # traceback) is rebuilt, not read; so are integers (another image, exit 0) and float64 beyond float32 (rebuilt
-    # after numpy's overflow warning; file audit, session 63)
+    # traceback) is rebuilt, not read; so are integers (another image, exit 0), float64 beyond float32 (rebuilt
+    # after numpy's overflow warning) and rates above 0.5 H / pi, the most a probe of H rows gives (3e38 was read
+    # and blamed on the radiance; file audit, session 63)
     for bad in (np.full_like(rad, np.nan), np.full_like(rad, -1.0), np.full(rad.shape, "abc"),
-                rad.astype(np.int64), np.full(rad.shape, 1e300)):
+                rad.astype(np.int64), np.full(rad.shape, 1e300), np.full(rad.shape, 3e38, np.float32),
+                np.full(rad.shape, 0.51 * rad.shape[0] / math.pi, np.float32)):   # beyond what any probe gives
         write_asset(path, bw.ENV_BW_FORMAT, bw.ENV_BW_VERSION, a.header["source"], a.header["source_hash"],
                     {"nu_a": bad}, params={"units": "cycles/radian"}, force=True)
         with warnings.catch_warnings():
