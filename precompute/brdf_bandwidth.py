@@ -11,7 +11,7 @@ Public:
     ``write_brdf_bandwidth(path, table, source, force=False)`` / ``read_brdf_bandwidth(path, source=None)``   (the
         writer refuses the tables the reader refuses, and never writes over the source's file or a read-only file)
     ``load_or_build_bandwidth(source, explicit=None, cache=None, progress=True) -> (table, origin)``
-    ``theta_i_centres()``, ``wo_map(n)``, ``wo_to_map(wo)``, ``map_radians_per_pixel(n)``
+    ``theta_i_centres()``, ``wo_map(n)``, ``wo_to_map(wo)``, ``map_radians_per_pixel(n)``, ``nu_rho_max(n)``
     ``lobe_slice(evaluate, theta_i, resolution)``, ``slice_bandwidth(f)``, ``GRAZING_LIMIT``   one lobe's map
     (each checks its input: ``n`` an integer >= 1, ``wo`` finite non-zero 3-vectors, ``theta_i`` in [0, pi/2)
     radians, ``f`` a square slice, ``evaluate`` and ``progress`` callables; else a one-line ``WarpbwError``)
@@ -86,11 +86,11 @@ import numpy as np
 from precompute.assetfile import read_asset, write_asset
 from precompute.progress import progress_callback
 from precompute.wavelets import local_bandwidth
-from warpbw.errors import WarpbwError, check_count, check_real, unit_directions
+from warpbw.errors import WarpbwError, check_count, check_real, is_int, unit_directions
 
 __all__ = [
     "N_THETA_I", "N_CELLS", "SHAPE", "DEFAULT_RESOLUTION", "FORMAT", "VERSION",
-    "GRAZING_LIMIT", "theta_i_centres", "wo_map", "wo_to_map", "map_radians_per_pixel",
+    "GRAZING_LIMIT", "theta_i_centres", "wo_map", "wo_to_map", "map_radians_per_pixel", "nu_rho_max",
     "brdf_bandwidth_table", "analytic_brdf_bandwidth_table", "build_brdf_bandwidth",
     "write_brdf_bandwidth", "read_brdf_bandwidth", "load_or_build_bandwidth",
 ]
@@ -289,25 +289,38 @@ def write_brdf_bandwidth(path, table: np.ndarray, source, force: bool = False,
     from precompute.brdf_sampling import check_brdf_source, source_files
 
     check_brdf_source(source, "write_brdf_bandwidth", needs=("name", "digest"))
-    t = _checked_table(table, f"table for {path}")
+    t = _checked_table(table, f"table for {path}", resolution=_check_resolution(resolution))
     return write_asset(path, FORMAT, VERSION, source.name, source.digest, {"nu_rho": t},
                        params={"n_theta_i": N_THETA_I, "n_cells": N_CELLS, "resolution": _check_resolution(resolution),
                                "map": "lambert-equal-area", "units": "cycles/radian"},
                        force=force, inputs=source_files(source))
 
 
-def _checked_table(table, what: str, fix: str = "") -> np.ndarray:
-    """``table`` as float32 when it is one the renderer reads (shape SHAPE, finite bandwidths >= 0); else a
-    WarpbwError starting with ``what`` and ending with ``fix``.  The writer and the reader both check with it."""
+def _checked_table(table, what: str, fix: str = "", resolution=None) -> np.ndarray:
+    """``table`` as float32 when it is one the renderer reads (shape SHAPE, finite bandwidths >= 0, and with the
+    ``resolution`` it was analysed at, at most what that analysis gives); else a WarpbwError starting with
+    ``what`` and ending with ``fix``.  The writer and the reader both check with it."""
     try:
-        t = np.asarray(table, dtype=np.float32)
+        with np.errstate(over="ignore"):   # float64 beyond float32 becomes inf, refused below
+            t = np.asarray(table, dtype=np.float32)
     except (TypeError, ValueError):   # strings, objects
         raise WarpbwError(f"{what} is not numeric{fix}") from None
     if t.shape != SHAPE:
         raise WarpbwError(f"{what} of shape {t.shape}, this warpbw uses {SHAPE}{fix}")
     if not np.all(np.isfinite(t)) or np.any(t < 0):
         raise WarpbwError(f"{what} has negative or non-finite bandwidths{fix}")
+    if is_int(resolution) and resolution > 0:
+        most = nu_rho_max(int(resolution))
+        if float(t.max()) > most * (1.0 + 1e-6):   # 3e38 was read, and the frame refused for its light's radiance
+            raise WarpbwError(f"{what} holds bandwidths up to {float(t.max()):.3g} cycles/radian, beyond the "
+                              f"{most:g} an analysis at resolution {int(resolution)} gives{fix}")
     return t
+
+
+def nu_rho_max(resolution: int) -> float:
+    """The largest nu_rho an analysis at ``resolution`` gives: 0.5 cycles/pixel over the smallest pixel side,
+    ``2 / resolution`` radians (:func:`map_radians_per_pixel`), i.e. ``resolution / 4`` cycles/radian."""
+    return 0.5 / (2.0 / check_count(resolution, "resolution", 1))
 
 
 def read_brdf_bandwidth(path, source=None) -> np.ndarray:
@@ -327,7 +340,8 @@ def read_brdf_bandwidth(path, source=None) -> np.ndarray:
     if kind.kind not in "fUSO":   # the writer stores float32; integers (a damaged type) changed the image, exit 0
         raise WarpbwError(f"{path}: table of type {kind.name}, expected floating-point bandwidths (rebuild it with: "
                           f"{hint})")
-    return _checked_table(a.arrays["nu_rho"], f"{path}: table", f" (rebuild it with: {hint})")
+    return _checked_table(a.arrays["nu_rho"], f"{path}: table", f" (rebuild it with: {hint})",
+                          a.header.get("params", {}).get("resolution"))
 
 
 def load_or_build_bandwidth(source, explicit=None, cache=None, progress: bool = True) -> tuple[np.ndarray, str]:

@@ -147,6 +147,39 @@ def test_round_trip_and_refusals(npf_tables, tmp_path):
         read_brdf_bandwidth(ints, source)
 
 
+
+@pytest.mark.parametrize("n", [16, 64, 128, 256])
+def test_a_table_beyond_what_its_resolution_gives_is_refused_and_such_a_cache_entry_rebuilt(npf_tables, tmp_path,
+                                                                                              monkeypatch, n):
+    """A bandwidth is at most 0.5 cycles/pixel over the smallest pixel side of the analysed map: nu_rho_max(n) is
+    the largest 0.5 / map_radians_per_pixel(n), n / 4.  A table above it (3e38: read, and the frame refused for its
+    light's radiance; file audit, session 63) is refused naming the resolution its header records, the writer
+    refuses it too, and such a cache entry is rebuilt.  The real tables lie below it (chrome, the sharpest fit,
+    at 128)."""
+    from precompute.brdf_bandwidth import load_or_build_bandwidth, nu_rho_max
+
+    assert nu_rho_max(n) == pytest.approx(float((0.5 / map_radians_per_pixel(n)).max()), rel=1e-12) == n / 4
+    source, table = npf_tables["chrome"]
+    assert 0 < table.max() <= nu_rho_max(128)
+    if n != 128:
+        return
+    huge = np.full_like(table, 3e38)
+    with pytest.raises(WarpbwError, match=r"holds bandwidths up to 3e\+38 cycles/radian, beyond the 32 an analysis "
+                                          r"at resolution 128 gives"):
+        write_brdf_bandwidth(tmp_path / "w.npz", huge, source)
+    p = write_asset(tmp_path / "huge.npz", FORMAT, VERSION, source.name, source.digest, {"nu_rho": huge},
+                    params={"resolution": 128})
+    with pytest.raises(WarpbwError, match=r"huge\.npz: table holds bandwidths up to 3e\+38 .* resolution 128 "
+                                          r"gives \(rebuild it with: warpbw-precompute brdf"):
+        read_brdf_bandwidth(p, source)
+    cache = tmp_path / "cache"
+    assert load_or_build_bandwidth(source, cache=cache, progress=False)[1] == "built"
+    (entry,) = cache.glob("bandwidth-*.npz")
+    write_asset(entry, FORMAT, VERSION, source.name, source.digest, {"nu_rho": huge}, params={"resolution": 128},
+                force=True)
+    again, origin = load_or_build_bandwidth(source, cache=cache, progress=False)
+    assert origin == "built" and np.array_equal(again, table)
+
 def test_cli_end_to_end(shared, tmp_path):
     npf = shared("brdf/npf.bin")
     out = tmp_path / "felt.npz"
