@@ -364,7 +364,8 @@ def test_a_mesh_placed_many_times_is_read_once_and_each_copy_is_its_own_load(tmp
 
 def test_ascii_ply_and_stl_cut_short_are_refused_saying_so_and_trimesh_logs_nothing(tmp_path, caplog):
     """File audit, session 63: an ASCII PLY cut short rendered the faces it kept (10 of 80), and one whose header
-    declared 2147483647 faces on 80 was read, both without a word; an ASCII STL cut short was "no triangles found";
+    declared 2147483647 faces on 80 was read, both without a word; an ASCII STL cut short was "no triangles found",
+    and one whose first line was lost a binary STL of the wrong length;
     a facet normal that is not three numbers (trimesh recomputes it) printed trimesh's logged tracebacks on stderr.
     The whole files, binary and ASCII, still load, and a PLY with trailing blank lines too."""
     import logging
@@ -380,7 +381,7 @@ def test_ascii_ply_and_stl_cut_short_are_refused_saying_so_and_trimesh_logs_noth
              "normal.stl": stl.replace("facet normal", "facet normal a b c #", 1),
              "cut.ply": "\n".join(lines[:body + 42 + 10]) + "\n",
              "count.ply": ply.replace("element face 80", "element face 2147483647"),
-             "cut.stl": stl[: len(stl) // 2]}
+             "cut.stl": stl[: len(stl) // 2], "nosolid.stl": stl[stl.index("\n") + 1:]}
     for name, text in files.items():
         (tmp_path / name).write_text(text)
     (tmp_path / "bin.ply").write_bytes(trimesh.exchange.ply.export_ply(ico))
@@ -391,9 +392,10 @@ def test_ascii_ply_and_stl_cut_short_are_refused_saying_so_and_trimesh_logs_noth
     assert logging.root.manager.disable == 0   # logging is back as it was
     for bad, said in (("cut.ply", "122 rows \\(42 vertex, 80 face\\) but its body holds 52"),
                       ("count.ply", "2147483689 rows \\(42 vertex, 2147483647 face\\) but its body holds 122"),
-                      ("cut.stl", "ASCII STL that does not end in 'endsolid'")):
+                      ("cut.stl", "ASCII STL that does not end in 'endsolid'"),
+                      ("nosolid.stl", "ASCII STL that does not start with 'solid': cut at its start")):
         said = said if bad.endswith(".stl") else "ASCII PLY header declares " + said
-        with pytest.raises(WarpbwError, match=f"{bad}: {said}.*truncated or corrupt"):
+        with pytest.raises(WarpbwError, match=f"{bad}: {said}.*(truncated or )?corrupt"):
             load_mesh(tmp_path / bad)
 
 def test_obj_vertex_lines_with_w_colour_comments_and_crlf_are_read(tmp_path):

@@ -420,6 +420,9 @@ def _stl_damage(path: Path) -> str | None:
         if b"endsolid" not in path.read_bytes()[-4096:].lower():
             return f"{path}: ASCII STL that does not end in 'endsolid': truncated or corrupt"
         return None
+    start = path.read_bytes()[:4096]
+    if b"\0" not in start and re.search(rb"facet[ \t]+normal", start, re.I):   # text after all: its first line lost
+        return f"{path}: ASCII STL that does not start with 'solid': cut at its start or corrupt"
     if size < STL_HEADER_BYTES:
         return None
     count = int.from_bytes(head[80:84], "little")
