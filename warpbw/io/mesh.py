@@ -373,11 +373,10 @@ def _check_float32(verts, path, when: str) -> None:
                           f"within +-{FLOAT32_MAX:.4g})")
 
 
-def _check_ascii_ply_rows(path: Path) -> None:
-    """Refuse an ASCII PLY whose body holds another number of rows than its header's elements declare (one row per
-    vertex, face, ...): trimesh read a file cut short as the faces it kept, and took a face count of 2147483647 on
-    80 faces, without a word."""
-    data = path.read_bytes()
+def _check_ascii_ply_rows(path: Path, data: bytes) -> None:
+    """Refuse an ASCII PLY (``data``, the bytes of ``path``) whose body holds another number of rows than its
+    header's elements declare (one row per vertex, face, ...): trimesh read a file cut short as the faces it kept,
+    and took a face count of 2147483647 on 80 faces, without a word."""
     end = data.find(b"end_header")
     if not data.startswith(b"ply") or end < 0 or not re.search(rb"^[ \t]*format[ \t]+ascii", data[:end], re.M):
         return
@@ -392,10 +391,10 @@ def _check_ascii_ply_rows(path: Path) -> None:
                           "truncated or corrupt")
 
 
-def _check_obj_lines(path: Path) -> None:
-    """Refuse an OBJ vertex line that is not 3 to 7 numbers (``_OBJ_BAD_VERTEX``), a face with vertex index 0
-    (``_OBJ_ZERO_INDEX``) and a face of fewer than three vertices (``_OBJ_SHORT_FACE``), naming the line."""
-    data = path.read_bytes()
+def _check_obj_lines(path: Path, data: bytes) -> None:
+    """Refuse an OBJ (``data``, the bytes of ``path``) vertex line that is not 3 to 7 numbers (``_OBJ_BAD_VERTEX``), a
+    face with vertex index 0 (``_OBJ_ZERO_INDEX``) and a face of fewer than three vertices (``_OBJ_SHORT_FACE``),
+    naming the line."""
     for pattern, problem in (
             (_OBJ_BAD_VERTEX, lambda text: f"vertex line {text[:60]!r} (expected 'v x y z': three numbers, optionally "
                                            "a w or a colour, and nothing after them)"),
@@ -409,18 +408,16 @@ def _check_obj_lines(path: Path) -> None:
                               "malformed mesh")
 
 
-def _stl_damage(path: Path) -> str | None:
-    """What is wrong with an STL file trimesh found no triangles in: an ASCII one that does not end in
-    "endsolid" (cut short), or a binary one whose length is not what its triangle count says (cut short, bytes
-    appended, the count damaged; trimesh then read it as ASCII); else None."""
-    size = path.stat().st_size
-    with open(path, "rb") as f:
-        head = f.read(STL_HEADER_BYTES)
+def _stl_damage(path: Path, data: bytes) -> str | None:
+    """What is wrong with an STL file (``data``, the bytes of ``path``) trimesh found no triangles in: an ASCII one
+    that does not end in "endsolid" (cut short), or a binary one whose length is not what its triangle count says
+    (cut short, bytes appended, the count damaged; trimesh then read it as ASCII); else None."""
+    size, head = len(data), data[:STL_HEADER_BYTES]
     if head.lstrip(b" \t\r\n\xef\xbb\xbf")[:5].lower() == b"solid":   # ASCII
-        if b"endsolid" not in path.read_bytes()[-4096:].lower():
+        if b"endsolid" not in data[-4096:].lower():
             return f"{path}: ASCII STL that does not end in 'endsolid': truncated or corrupt"
         return None
-    start = path.read_bytes()[:4096]
+    start = data[:4096]
     if b"\0" not in start and re.search(rb"facet[ \t]+normal", start, re.I):   # text after all: its first line lost
         return f"{path}: ASCII STL that does not start with 'solid': cut at its start or corrupt"
     if size < STL_HEADER_BYTES:
@@ -452,25 +449,27 @@ _MERGED: "OrderedDict[tuple, _Merged]" = OrderedDict()
 def _merged_mesh(path: Path) -> _Merged:
     """``_read_merged(path)``, kept for the last ``MESH_CACHE_FILES`` files by their path and the digest of their
     bytes (a file rewritten since is read again, however soon)."""
-    key = (str(path.resolve()), hashlib.blake2b(path.read_bytes(), digest_size=16).digest())
+    data = path.read_bytes()
+    key = (str(path.resolve()), hashlib.blake2b(data, digest_size=16).digest())
     if key in _MERGED:
         _MERGED.move_to_end(key)
         return _MERGED[key]
-    merged = _read_merged(path)
+    merged = _read_merged(path, data)
     _MERGED[key] = merged
     while len(_MERGED) > MESH_CACHE_FILES:
         _MERGED.popitem(last=False)
     return merged
 
 
-def _read_merged(path: Path) -> _Merged:
-    """Read a mesh file with trimesh, refuse what is malformed (naming the file), and merge coincident vertices."""
+def _read_merged(path: Path, data: bytes) -> _Merged:
+    """Read a mesh file with trimesh, refuse what is malformed (naming the file; ``data``, its bytes, for the checks
+    before and after trimesh), and merge coincident vertices."""
     import trimesh
 
     if path.suffix.lower() == ".obj":
-        _check_obj_lines(path)
+        _check_obj_lines(path, data)
     elif path.suffix.lower() == ".ply":
-        _check_ascii_ply_rows(path)
+        _check_ascii_ply_rows(path, data)
     # trimesh logs tracebacks at WARNING (a facet normal it recomputes) that say nothing the user could act on
     was_disabled = logging.root.manager.disable
     logging.disable(logging.WARNING)
@@ -487,7 +486,7 @@ def _read_merged(path: Path) -> _Merged:
             f"{path}: malformed mesh file, a reference to something it does not hold ({_one_line(exc)}); expected "
             f"{_SUPPORTED}") from None
     except Exception as exc:  # trimesh raises ValueError, KeyError... on malformed or unknown files
-        stl = _stl_damage(path) if path.suffix.lower() == ".stl" else None
+        stl = _stl_damage(path, data) if path.suffix.lower() == ".stl" else None
         raise WarpbwError(
             stl or f"{path}: malformed or unsupported mesh file ({_one_line(exc)}); expected {_SUPPORTED}"
         ) from None
@@ -496,7 +495,7 @@ def _read_merged(path: Path) -> _Merged:
     faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
     verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)
     if faces.ndim != 2 or faces.shape[0] == 0 or faces.shape[1] != 3:
-        stl = _stl_damage(path) if path.suffix.lower() == ".stl" else None
+        stl = _stl_damage(path, data) if path.suffix.lower() == ".stl" else None
         raise WarpbwError(stl or f"{path}: no triangles found (expected a mesh with faces: {_SUPPORTED})")
     if verts.ndim != 2 or verts.shape[1] != 3:   # an OBJ whose "v" lines hold two numbers: numpy's AxisError below
         raise WarpbwError(f"{path}: vertices read with {verts.shape[-1] if verts.ndim == 2 else 0} coordinates "
