@@ -203,6 +203,10 @@ def test_compare_warns_when_both_renders_share_their_seed(tmp_path):
     assert json.loads(same.stdout)["mse"] < json.loads(other.stdout)["mse"]
     assert "same --seed 0" in same.stderr and "another --seed" in same.stderr
     assert other.stderr == ""
+    for ext in (".exr", ".json"):   # a name holding a newline stays on the warning's one line, escaped
+        (tmp_path / f"a\nb{ext}").write_bytes((tmp_path / f"a{ext}").read_bytes())
+    odd = run(["compare", "a\nb.exr", "t0.exr", "--json"], tmp_path).stderr
+    assert odd.count("\n") == 1 and "a\\nb.exr and t0.exr were rendered" in odd, odd
     (tmp_path / "t0.json").unlink()   # no record beside the reference: nothing to tell
     assert run(["compare", "a.exr", "t0.exr"], tmp_path).stderr == ""
     (tmp_path / "t0.json").write_text("[" * 100_000 + "]" * 100_000)   # nested past json's parser: no record either

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from warpbw import __version__
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
-                               json_text, parse_seed, run_command)
+                               json_text, parse_seed, printable, run_command)
 from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError
 from warpbw.io.staged import staged_outputs
 
@@ -507,10 +507,10 @@ def _warn_if_seed_shared(test, reference) -> None:
     bunny, session 62).  Say so when both images' render records show it."""
     a, b = _render_record(test), _render_record(reference)
     if a is not None and b is not None and a["seed"] == b["seed"] and a.get("scene") == b.get("scene"):
-        print(f"warpbw: warning: {test} and {reference} were rendered from one scene at the same --seed "
-              f"{a['seed']} (their .json records say so): they share their random samples, so the error reads "
-              "lower than against an independent reference; render the reference with another --seed",
-              file=sys.stderr)
+        print(printable(f"warpbw: warning: {test} and {reference} were rendered from one scene at the same --seed "
+                        f"{a['seed']} (their .json records say so): they share their random samples, so the error "
+                        "reads lower than against an independent reference; render the reference with another "
+                        "--seed"), file=sys.stderr)   # the paths as given: a newline in one split the line
 
 
 def _error_map_paths(args) -> list:
