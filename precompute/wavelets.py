@@ -6,7 +6,8 @@ Public API
 - :data:`ENERGY_FRACTION` -- the 95% energy rule (000 Fig. 3, 002 Fig. 6).
 - :func:`band_maxima` -- ``lambda_i^max`` per pixel and per wavelet band, shape ``(L, H, W)``.
 - :func:`local_bandwidth` -- per-pixel bandwidth in cycles per pixel (0 .. 0.5).
-- :func:`envmap_angular_bandwidth` -- a lat-long environment map's nu_a(w) in cycles per radian.
+- :func:`envmap_angular_bandwidth` -- a lat-long environment map's nu_a(w) in cycles per radian;
+  :func:`envmap_bandwidth_max` -- the most it gives a map of that height.
 - :func:`texture_spatial_bandwidth` -- a texture's (or area light's) bandwidth in cycles per metre.
 
 Method
@@ -69,7 +70,7 @@ import numbers
 import numpy as np
 import pywt
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError, is_int
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_count, is_int
 
 __all__ = [
     "EPSILON",
@@ -80,6 +81,7 @@ __all__ = [
     "band_maxima",
     "local_bandwidth",
     "envmap_angular_bandwidth",
+    "envmap_bandwidth_max",
     "texture_spatial_bandwidth",
 ]
 
@@ -432,6 +434,12 @@ def envmap_angular_bandwidth(pixels: np.ndarray, epsilon: float = EPSILON,
     theta = (np.arange(h) + 0.5) * math.pi / h
     lam_max = np.maximum(2.0 * math.pi * np.sin(theta) / w, math.pi / h)  # radians per pixel
     return b / lam_max[:, None]
+
+
+def envmap_bandwidth_max(height: int) -> float:
+    """The largest nu_a :func:`envmap_angular_bandwidth` gives a lat-long map of ``height`` rows: 0.5 cycles/pixel
+    over the texel's longest side, never shorter than ``pi / height`` radians, i.e. ``height / (2 pi)``."""
+    return 0.5 / (math.pi / check_count(height, "height", 1))
 
 
 def texture_spatial_bandwidth(image: np.ndarray, metres_per_pixel: float,

@@ -19,6 +19,7 @@ from precompute.wavelets import (
     ENERGY_FRACTION,
     band_maxima,
     envmap_angular_bandwidth,
+    envmap_bandwidth_max,
     local_bandwidth,
     texture_spatial_bandwidth,
 )
@@ -277,6 +278,21 @@ def test_latlong_pole_padding_continues_the_sphere_across_both_poles():
     padded = _pad_axis(f(np.arange(h)), 0, k, k, "latlong_pole")
     np.testing.assert_allclose(padded, f(np.arange(-k, h + k)), atol=1e-12)
 
+
+@pytest.mark.parametrize("h", [8, 32, 64])
+def test_envmap_bandwidth_max_bounds_the_finest_probes(h):
+    """envmap_bandwidth_max(H) = H / (2 pi): no map of H rows reads above it (a checker at the pixel rate, noise,
+    one bright texel at a pole), and the checker reads more than half of it (the bound is not loose by orders)."""
+    y, x = np.mgrid[0:h, 0:2 * h]
+    spike = np.ones((h, 2 * h))
+    spike[0, 3] = 1e4
+    maps = {"checker": 1.0 + 0.5 * ((x + y) % 2), "noise": np.random.default_rng(h).random((h, 2 * h)),
+            "spike": spike}
+    most = envmap_bandwidth_max(h)
+    assert most == pytest.approx(h / (2 * math.pi), rel=1e-12)
+    for name, img in maps.items():
+        assert envmap_angular_bandwidth(img).max() <= most, name
+    assert envmap_angular_bandwidth(maps["checker"]).max() > 0.5 * most
 
 def test_envmap_bandwidth_at_the_poles_reads_as_elsewhere():
     """L = cos(15 a), a the angle from the horizontal +X axis: 15 / (2 pi) cycles/rad along every great circle

@@ -599,7 +599,7 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
     from precompute.assetfile import read_asset, write_asset
     from precompute.brdf_sampling import cache_dir
     from precompute.progress import progress_callback
-    from precompute.wavelets import EPSILON, envmap_angular_bandwidth
+    from precompute.wavelets import EPSILON, envmap_angular_bandwidth, envmap_bandwidth_max
 
     check_env_signal(signal)
     raw = np.asarray(pixels)
@@ -632,10 +632,9 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
                 nu = np.asarray(a.arrays["nu_a"], np.float32)
             if (a.header.get("source_hash") == digest and nu.shape == (h, w) and a.arrays["nu_a"].dtype.kind == "f"
                     and a.header.get("params", {}).get("signal", "radiance") == signal
-                    and np.isfinite(nu).all() and (nu >= 0).all()   # a bandwidth is a finite rate,
-                    # at most 0.5 cycles/pixel over the texel's longest side, pi / H radians or more: a
-                    # damaged entry at 3e38 was read and blamed on the light's radiance (file audit, session 63)
-                    and (nu <= 0.5 * h / math.pi * (1.0 + 1e-6)).all()):
+                    and np.isfinite(nu).all() and (nu >= 0).all()   # a bandwidth is a finite rate, at most what
+                    # the analysis gives: a damaged entry at 3e38 was read and blamed on the light's radiance
+                    and (nu <= envmap_bandwidth_max(h) * (1.0 + 1e-6)).all()):
                 return nu, "cache"
         except (WarpbwError, KeyError, AttributeError, TypeError, ValueError):
             pass  # a stale or damaged cache entry (strings for numbers: a ValueError) is rebuilt below
