@@ -289,9 +289,10 @@ def write_brdf_bandwidth(path, table: np.ndarray, source, force: bool = False,
     from precompute.brdf_sampling import check_brdf_source, source_files
 
     check_brdf_source(source, "write_brdf_bandwidth", needs=("name", "digest"))
-    t = _checked_table(table, f"table for {path}", resolution=_check_resolution(resolution))
+    n = _check_resolution(resolution)
+    t = _checked_table(table, f"table for {path}", resolution=n)
     return write_asset(path, FORMAT, VERSION, source.name, source.digest, {"nu_rho": t},
-                       params={"n_theta_i": N_THETA_I, "n_cells": N_CELLS, "resolution": _check_resolution(resolution),
+                       params={"n_theta_i": N_THETA_I, "n_cells": N_CELLS, "resolution": n,
                                "map": "lambert-equal-area", "units": "cycles/radian"},
                        force=force, inputs=source_files(source))
 
