@@ -9,7 +9,8 @@ Public:
     ``nu_env_table(nu_env) -> (h, w)``   the environment's nu_a, max-filtered to at most LIGHT_TABLE_WIDTH columns
     ``env_bandwidth_map(pixels, name, cache=None, signal, progress) -> ((H, W) float32 cycles/rad, origin)``
     ``ENV_SIGNALS``, ``ENV_SIGNAL_DEFAULT``, ``env_signal(lum, signal)``, ``check_env_signal(signal)``: what it reads;
-    ``ENV_BW_BYTES_PER_TEXEL``, ``ENV_BW_BYTES_FIXED``: the memory its build takes (a warning first where it lacks)
+    ``env_bandwidth_memory(width, height)``, ``ENV_BW_BYTES_PER_TEXEL``, ``ENV_BW_BYTES_FIXED``: the memory its build
+    takes (a warning first where it lacks)
     ``direction_set(n_b, seed) -> (n_b, 3) float32``   stratified points for the n_b directions
     ``interleave_shifts(n_b, side) -> (side^2, 3)``     per-block offsets of the direction set
     ``BandwidthBuffer`` (``.estimator_variance(mis)``) /
@@ -584,6 +585,12 @@ def env_signal(lum: np.ndarray, signal: str = ENV_SIGNAL_DEFAULT) -> np.ndarray:
     return lum
 
 
+def env_bandwidth_memory(width: int, height: int) -> int:
+    """Bytes building the bandwidth map of a ``width`` x ``height`` probe takes at the peak
+    (``ENV_BW_BYTES_PER_TEXEL`` and ``ENV_BW_BYTES_FIXED``)."""
+    return ENV_BW_BYTES_PER_TEXEL * int(width) * int(height) + ENV_BW_BYTES_FIXED
+
+
 def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
                       signal: str = ENV_SIGNAL_DEFAULT, progress: bool = False) -> tuple[np.ndarray, str]:
     """nu_a(w) of a lat-long probe in cycles/radian (002 Sec. 2.3, "Distant illumination").
@@ -640,7 +647,7 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
             pass  # a stale or damaged cache entry (strings for numbers: a ValueError) is rebuilt below
     # a minute and 5 GB at 8192x4096: warn first where that is more than the system has (it stops a process that
     # runs out without a word)
-    warn_if_short_of_memory(ENV_BW_BYTES_PER_TEXEL * h * w + ENV_BW_BYTES_FIXED, available_memory(),
+    warn_if_short_of_memory(env_bandwidth_memory(w, h), available_memory(),
                             f"building the bandwidth map of {name} ({w}x{h})",
                             "a smaller probe; the reference method does not build it")
     t = env_signal(lum, signal).astype(np.float64)     # a float32 mean overflows beyond about 1e33 per texel

@@ -56,7 +56,7 @@ Warp functions (take an ``EnvMapData`` and a world direction; directions need no
 Host functions:
     envmap_from_array(rgb, rotation_deg=0.0, scale=1.0, name="array", device="cpu") -> EnvMap
     load_envmap(path, rotation_deg=0.0, scale=1.0, device="cpu") -> EnvMap   (warns first where it would take more
-                                                 memory than is available, ``LOAD_BYTES_PER_TEXEL``)
+                                                 memory than is available, ``load_memory(width, height)``)
     constant_envmap(radiance, device="cpu") -> EnvMap
     load_environment(spec, device="cpu") -> EnvMap   a scene's [environment] (``warpbw.scene.Environment``)
     procedural_sky(width=256, height=128, ...) -> np.ndarray (H, W, 3) float32
@@ -604,13 +604,18 @@ def envmap_from_array(rgb, rotation_deg: float = 0.0, scale: float = 1.0, name: 
     return _make_envmap(rgb, rotation_deg, scale, name, device, stacklevel=2)
 
 
+def load_memory(width: int, height: int) -> int:
+    """Bytes loading a ``width`` x ``height`` probe takes at the peak (``LOAD_BYTES_PER_TEXEL``)."""
+    return LOAD_BYTES_PER_TEXEL * int(width) * int(height)
+
+
 def load_envmap(path, rotation_deg: float = 0.0, scale: float = 1.0, device="cpu") -> EnvMap:
     """Environment light from a lat-long EXR file (via warpbw.io.exr.read_rgb)."""
     from warpbw.io.exr import exr_size, read_rgb  # lazy: keeps this module importable on its own
 
     w, h = exr_size(path)   # the header alone: a probe too large to load warns before it is read
-    warn_if_short_of_memory(LOAD_BYTES_PER_TEXEL * w * h, available_memory(), f"loading {Path(path).name} "
-                            f"({w}x{h})", "a smaller probe", stacklevel=2)
+    warn_if_short_of_memory(load_memory(w, h), available_memory(), f"loading {Path(path).name} ({w}x{h})",
+                            "a smaller probe", stacklevel=2)
     rgb = read_rgb(path)
     h, w = rgb.shape[:2]
     if w != 2 * h:   # e.g. a cube-map cross or an angular (mirror-ball) probe: read as lat-long, it is another light

@@ -758,15 +758,15 @@ def _probe_memory(env, method: str) -> dict:
     (the render then says what is wrong with it)."""
     if env is None or env.file is None:
         return {}
-    from warpbw.bandwidth import ENV_BW_BYTES_FIXED, ENV_BW_BYTES_PER_TEXEL
-    from warpbw.envmap import LOAD_BYTES_PER_TEXEL
+    from warpbw.bandwidth import env_bandwidth_memory
+    from warpbw.envmap import load_memory
     from warpbw.io.exr import exr_size
 
     try:
         w, h = exr_size(env.file)
     except WarpbwError:
         return {}
-    out = {"probe_load_memory_bytes": LOAD_BYTES_PER_TEXEL * w * h}
+    out = {"probe_load_memory_bytes": load_memory(w, h)}
     if method == "adaptive":
-        out["probe_bandwidth_memory_bytes"] = ENV_BW_BYTES_PER_TEXEL * w * h + ENV_BW_BYTES_FIXED
+        out["probe_bandwidth_memory_bytes"] = env_bandwidth_memory(w, h)
     return out
