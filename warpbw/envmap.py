@@ -429,6 +429,12 @@ def _cell_average_filter(lum: np.ndarray) -> np.ndarray:
     return g
 
 
+def _row_blocks(h: int, w: int) -> list[slice]:
+    """The rows of an ``h`` x ``w`` map in blocks of about ``SANITIZE_BLOCK_TEXELS`` texels (at least one row)."""
+    rows = max(1, SANITIZE_BLOCK_TEXELS // w)
+    return [slice(r0, r0 + rows) for r0 in range(0, h, rows)]
+
+
 def _build_distribution(pixels: np.ndarray) -> dict[str, np.ndarray]:
     h, w, _ = pixels.shape
     theta_b = _row_boundaries(h)
@@ -438,11 +444,10 @@ def _build_distribution(pixels: np.ndarray) -> dict[str, np.ndarray]:
     opc = 2.0 * np.cos(theta_b / 2.0) ** 2
     cell_omega = (cos_b[:-1] - cos_b[1:]) * (2.0 * math.pi / w)  # (H,) solid angle of one cell
 
-    rows = max(1, SANITIZE_BLOCK_TEXELS // w)   # a few rows at a time: float64 temporaries of the whole map held
-    blocks = range(0, h, rows)                   # about 50 bytes per texel (session 63)
+    blocks = _row_blocks(h, w)   # float64 temporaries of the whole map held about 50 bytes per texel (session 63)
     lum = np.empty((h, w))
-    for r0 in blocks:
-        lum[r0:r0 + rows] = pixels[r0:r0 + rows].astype(np.float64) @ np.asarray(LUMINANCE_RGB)
+    for r in blocks:
+        lum[r] = pixels[r].astype(np.float64) @ np.asarray(LUMINANCE_RGB)
     weight = _cell_average_filter(lum) * cell_omega[:, None]
     del lum
     total = weight.sum()
@@ -459,8 +464,7 @@ def _build_distribution(pixels: np.ndarray) -> dict[str, np.ndarray]:
     empty = ~(row_w > 0.0)
     cdf_c32 = np.empty((h, w + 1), np.float32)
     cell_pdf = np.empty((h, w), np.float32)
-    for r0 in blocks:   # each row's conditional CDF is its own
-        r = slice(r0, r0 + rows)
+    for r in blocks:   # each row's conditional CDF is its own
         cdf_c = np.concatenate([np.zeros((weight[r].shape[0], 1)), np.cumsum(weight[r], axis=1)], axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             cdf_c = cdf_c / row_w[r, None]
@@ -495,9 +499,8 @@ def _sanitize(rgb, name: str, scale: float, stacklevel: int) -> tuple[np.ndarray
     h, w = src.shape[:2]
     out = np.empty((h, w, 3), np.float32)
     n_overflow, overflow_max, n_nonfinite, n_negative, n_pix = 0, 0.0, 0, 0, 0
-    rows = max(1, SANITIZE_BLOCK_TEXELS // w)
-    for r0 in range(0, h, rows):
-        arr = np.asarray(src[r0:r0 + rows], dtype=np.float64)
+    for r in _row_blocks(h, w):
+        arr = np.asarray(src[r], dtype=np.float64)
         with np.errstate(over="ignore", invalid="ignore"):
             block = (arr * scale).astype(np.float32)
         overflow = np.isfinite(arr) & ~np.isfinite(block)
@@ -512,7 +515,7 @@ def _sanitize(rgb, name: str, scale: float, stacklevel: int) -> tuple[np.ndarray
             n_negative += int((finite & (block < 0.0)).sum())
             n_pix += int(bad.any(axis=2).sum())
             block[bad] = np.float32(0.0)
-        out[r0:r0 + rows] = block
+        out[r] = block
     if n_overflow:
         raise WarpbwError(f"envmap {name!r}: {n_overflow} channel values (up to {overflow_max:g}) times scale = "
                           f"{scale:g} exceed the float32 range; expected a smaller [environment] scale or smaller "
