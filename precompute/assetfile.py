@@ -82,9 +82,9 @@ def read_asset(path, fmt: str, version: int, rebuild) -> Asset:
                 header = json.loads(str(z[HEADER_KEY]))
                 arrays = {k: z[k] for k in z.files if k != HEADER_KEY}
     except Exception:   # noqa: BLE001 -- whatever numpy, zipfile or json raise reading these bytes is their damage:
-        # EOFError for a zero-byte file, zlib.error, NotImplementedError for an unknown compression, RuntimeError for
-        # the encrypted flag, RecursionError for a deeply nested header.  Refused below; a cache entry is rebuilt
-        # (load_or_build rebuilds on the WarpbwError)
+        # EOFError for a zero-byte file, zlib.error, zipfile's "compression method is not supported" for an unknown
+        # method, RuntimeError for the encrypted flag, RecursionError for a deeply nested header.  Refused below; a
+        # cache entry is rebuilt (load_or_build rebuilds on the WarpbwError)
         header = None
     if not isinstance(header, dict):  # also a JSON header that is not an object (a list, a string)
         raise WarpbwError(f"{p}: not a warpbw asset file, or a damaged one (expected a {fmt} file written by "
