@@ -217,10 +217,11 @@ def uniform_sampler_table(n_theta_o=None, n_u=None, n_phi=None):
 
 
 def fake_npf_table(path: Path) -> Path:
-    """An NPF table of the right size whose every value is 0.5: each row a valid (if odd) fit."""
+    """An NPF table of the right size whose every value is 0.25: each row a valid (if odd) fit, reflecting 0.79 of
+    the light it receives (precompute.brdf_sampling.ALBEDO_WARN)."""
     from warpbw.io.npf import NPF_FILE_SIZE
 
-    np.full(NPF_FILE_SIZE // 4, 0.5, "<f4").tofile(path)
+    np.full(NPF_FILE_SIZE // 4, 0.25, "<f4").tofile(path)
     return path
 
 

@@ -263,3 +263,54 @@ def test_the_test_run_caches_into_a_folder_of_its_own(tmp_path_factory):
 
     base = tmp_path_factory.getbasetemp().resolve()
     assert base in cache_dir().resolve().parents
+
+
+# ------------------------------------------------------------------------------------ energy: reflects too much
+
+@pytest.mark.parametrize("factor, warns", [(0.98, False), (1.02, True)])
+def test_a_merl_table_that_reflects_more_than_the_bound_is_read_with_a_warning_naming_it(tmp_path, factor, warns):
+    """A constant table c reflects pi c at every view (a Lambertian's closed form): on either side of ALBEDO_WARN
+    it is read, with a warning above it (a table scaled wrongly read without a word)."""
+    import warnings
+
+    from precompute.brdf_sampling import ALBEDO_WARN
+    from warpbw.io.merl import MERL_SHAPE, write_merl
+
+    write_merl(tmp_path / "m.binary", np.full(MERL_SHAPE, factor * ALBEDO_WARN / np.pi))
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        source = brdf_source(tmp_path / "m.binary")
+    assert source.brdf.data.max() > 0
+    texts = [str(w.message) for w in said if "times the light it receives" in str(w.message)]
+    assert len(texts) == int(warns), [str(w.message) for w in said]
+    if warns:
+        assert texts[0].startswith(f"m.binary: reflects {factor * ALBEDO_WARN:.3g} times") and "\n" not in texts[0]
+
+
+def test_a_merl_table_with_every_seventh_entry_at_1e15_warns(tmp_path):
+    """Corrupted-file audit (session 63): a finite but absurd entry in every 7th place rendered an image of mean
+    2.8e10, without a word (BRDF_VALUE_MAX, 1e20, is an overflow bound, not a plausibility one)."""
+    from warpbw.io.merl import MERL_SHAPE, write_merl
+
+    data = np.full(MERL_SHAPE, 0.05).reshape(-1)
+    data[::7] = 1e15
+    write_merl(tmp_path / "seventh.binary", data.reshape(MERL_SHAPE))
+    with pytest.warns(UserWarning, match=r"^seventh\.binary: reflects [0-9.e+]+ times the light it receives"):
+        brdf_source(tmp_path / "seventh.binary")
+
+
+def test_no_material_of_the_real_npf_table_is_said_to_reflect_too_much(shared):
+    """The 100 MERL materials' fits (the data the bound is set from): none beyond ALBEDO_WARN, and the largest
+    albedo at the checked views is the 1.23 the constant's comment cites (light-red-paint)."""
+    from precompute.brdf_sampling import ALBEDO_CHECK_VIEWS_DEG, albedo_excess
+    from warpbw.io.npf import NPF_MATERIAL_NAMES, npf_eval, read_npf
+    from warpbw.sampling import directional_albedo
+
+    table = shared("brdf/npf.bin")
+    top = {}
+    for name in NPF_MATERIAL_NAMES:
+        mat = read_npf(table, name)
+        f = lambda wi, wo: npf_eval(mat, wi, wo)  # noqa: E731
+        assert albedo_excess(f) is None, name
+        top[name] = float(directional_albedo(f, np.radians(ALBEDO_CHECK_VIEWS_DEG)).max())
+    assert max(top, key=top.get) == "light-red-paint" and round(max(top.values()), 2) == 1.23

@@ -6,6 +6,7 @@ Public:
     ``tab_pdf(samplers, s, wi, wo)``    wp.func: its solid-angle pdf
     ``SamplerTable``                    host dataclass: one material's tables (numpy)
     ``build_sampler_table(brdf, ...)``  host: tabulate f cos_i over half-vectors and invert the CDF
+    ``directional_albedo(brdf, theta_o)``  host: the integral of f cos_i over those same cells, per channel
     ``pack_samplers(tables, device)``   host: concatenate tables into a ``TabulatedSamplers``
     ``N_U``, ``N_PHI``, ``TABLE_VERSION``   the tables' cells and format version (the precompute stage writes them)
     Warp functions ``upper_cell`` (the CDF's binary search), ``angle_to_z``, ``theta_o_bin`` (the view's bin)
@@ -167,6 +168,23 @@ def _cell_midpoints(n: int, sub: int) -> np.ndarray:
     return (np.arange(n)[:, None] + (np.arange(sub)[None, :] + 0.5) / sub) / n
 
 
+def _half_vector_grid(n_u: int, n_phi: int, sub: int):
+    """The (u, phi_h) cells' sub-cell half vectors ``h`` (n_u * n_phi * sub^2, 3) (theta_h = u^2 pi/2), d omega_h /
+    du dphi at each (``jac_h``), and the cell's sides ``du``, ``dphi``."""
+    uu = _cell_midpoints(n_u, sub)                       # (n_u, sub)
+    pp = _cell_midpoints(n_phi, sub) * TWO_PI            # (n_phi, sub)
+    U = uu[:, None, :, None]                             # (n_u, 1, sub, 1)
+    P = pp[None, :, None, :]                             # (1, n_phi, 1, sub)
+    theta_h = U * U * HALF_PI
+    sh, ch = np.sin(theta_h), np.cos(theta_h)
+    hx = np.broadcast_to(sh * np.cos(P), (n_u, n_phi, sub, sub))
+    hy = np.broadcast_to(sh * np.sin(P), (n_u, n_phi, sub, sub))
+    hz = np.broadcast_to(ch, (n_u, n_phi, sub, sub))
+    h = np.stack([hx, hy, hz], axis=-1).reshape(-1, 3)
+    jac_h = np.broadcast_to(sh * math.pi * U, (n_u, n_phi, sub, sub)).reshape(-1)  # d omega_h / du dphi
+    return h, jac_h, 1.0 / n_u, TWO_PI / n_phi
+
+
 def build_sampler_table(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray],
                         n_theta_o: int = N_THETA_O, n_u: int = N_U, n_phi: int = N_PHI,
                         sub: int = SUBCELLS, progress: Callable[[int], None] | None = None,
@@ -179,18 +197,7 @@ def build_sampler_table(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray],
     elevation bin (for a progress bar).
     """
     sub_views = check_count(sub_views, "sub_views (view elevations per bin)", 1)
-    uu = _cell_midpoints(n_u, sub)                       # (n_u, sub)
-    pp = _cell_midpoints(n_phi, sub) * TWO_PI            # (n_phi, sub)
-    U = uu[:, None, :, None]                             # (n_u, 1, sub, 1)
-    P = pp[None, :, None, :]                             # (1, n_phi, 1, sub)
-    theta_h = U * U * HALF_PI
-    sh, ch = np.sin(theta_h), np.cos(theta_h)
-    hx = np.broadcast_to(sh * np.cos(P), (n_u, n_phi, sub, sub))
-    hy = np.broadcast_to(sh * np.sin(P), (n_u, n_phi, sub, sub))
-    hz = np.broadcast_to(ch, (n_u, n_phi, sub, sub))
-    h = np.stack([hx, hy, hz], axis=-1).reshape(-1, 3)
-    jac_h = np.broadcast_to(sh * math.pi * U, (n_u, n_phi, sub, sub)).reshape(-1)  # d omega_h / du dphi
-    du, dphi = 1.0 / n_u, TWO_PI / n_phi
+    h, jac_h, du, dphi = _half_vector_grid(n_u, n_phi, sub)
 
     marginal = np.zeros((n_theta_o, n_u + 1))
     conditional = np.zeros((n_theta_o, n_u, n_phi + 1))
@@ -216,24 +223,53 @@ def build_sampler_table(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray],
                         density.astype(np.float32))
 
 
-def _cell_shares(brdf, theta_o: float, h: np.ndarray, jac_h: np.ndarray, n_u: int, n_phi: int) -> np.ndarray:
-    """(n_u, n_phi) shares, summing to 1, of the integral of Y(f) cos_i over each (u, phi_h) cell for the
-    view at elevation ``theta_o`` (midpoint rule on the ``h`` sub-cell half vectors); uniform shares for a
-    BRDF that is black at this view."""
+def _luminance(f: np.ndarray) -> np.ndarray:
+    """(M, 1) Y(f) of BRDF values (M, 3), NaN, +inf and negative values read as 0 (the importance function)."""
+    return np.clip(np.nan_to_num(f @ np.asarray(LUMINANCE), nan=0.0, posinf=0.0), 0.0, None)[:, None]
+
+
+def _rgb(f: np.ndarray) -> np.ndarray:
+    """(M, 3) BRDF values with NaN, +inf and negative values read as 0 (what ``directional_albedo`` integrates)."""
+    return np.clip(np.nan_to_num(f, nan=0.0, posinf=0.0), 0.0, None)
+
+
+def _cell_integrals(brdf, theta_o: float, h: np.ndarray, jac_h: np.ndarray, n_u: int, n_phi: int,
+                    value=_luminance) -> np.ndarray:
+    """(n_u, n_phi, k) integrals of ``value(f)`` (k columns) cos_i over each (u, phi_h) cell for the view at
+    elevation ``theta_o``, per unit cell area du dphi (midpoint rule on the sub-cell half vectors ``h`` of
+    ``_half_vector_grid``)."""
     wo = np.array([math.sin(theta_o), 0.0, math.cos(theta_o)])
     wo_h = h @ wo
     wi = 2.0 * wo_h[:, None] * h - wo
     ok = (wi[:, 2] > 0.0) & (wo_h > 0.0)
-    g = np.zeros(len(h))
+    k = value(np.zeros((1, 3))).shape[1]
+    g = np.zeros((len(h), k))
     if ok.any():
         f = np.asarray(brdf(wi[ok], np.broadcast_to(wo, (int(ok.sum()), 3))), np.float64)
-        y = np.clip(np.nan_to_num(f @ np.asarray(LUMINANCE), nan=0.0, posinf=0.0), 0.0, None)
-        g[ok] = y * wi[ok, 2] * 4.0 * wo_h[ok] * jac_h[ok]
-    w = g.reshape(n_u, n_phi, -1).mean(axis=2)          # cell integrals, up to the cell area
+        # d omega_i = 4 (wo . h) d omega_h
+        g[ok] = value(f) * wi[ok, 2, None] * 4.0 * wo_h[ok, None] * jac_h[ok, None]
+    return g.reshape(n_u, n_phi, -1, k).mean(axis=2)
+
+
+def _cell_shares(brdf, theta_o: float, h: np.ndarray, jac_h: np.ndarray, n_u: int, n_phi: int) -> np.ndarray:
+    """(n_u, n_phi) shares, summing to 1, of the integral of Y(f) cos_i over each (u, phi_h) cell for the
+    view at elevation ``theta_o``; uniform shares for a BRDF that is black at this view."""
+    w = _cell_integrals(brdf, theta_o, h, jac_h, n_u, n_phi)[..., 0]
     total = w.sum()
     if not np.isfinite(total) or total <= 0.0:
         return np.full((n_u, n_phi), 1.0 / (n_u * n_phi))
     return w / total
+
+
+def directional_albedo(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray], theta_o,
+                       n_u: int = N_U, n_phi: int = N_PHI, sub: int = 1) -> np.ndarray:
+    """(len(theta_o), 3) directional albedo a(w_o) = integral of f(w_i, w_o) cos_i d w_i over the hemisphere, per
+    RGB channel, for views at the elevations ``theta_o`` (radians, from the normal), by the midpoint rule over the
+    sampling tables' half-vector cells (``sub``^2 points per cell): at most 1 for a BRDF that conserves energy."""
+    h, jac_h, du, dphi = _half_vector_grid(n_u, n_phi, sub)
+    angles = np.atleast_1d(np.asarray(theta_o, np.float64))
+    return np.array([_cell_integrals(brdf, float(t), h, jac_h, n_u, n_phi, _rgb).sum(axis=(0, 1)) * (du * dphi)
+                     for t in angles]).reshape(len(angles), 3)
 
 
 def pack_samplers(tables: Sequence[SamplerTable], device: str = "cpu") -> TabulatedSamplers:
