@@ -2,7 +2,8 @@
 
 Public: ``write_asset(path, fmt, version, source, source_hash, arrays, params, force, inputs=())``,
 ``read_asset(path, fmt, version, rebuild) -> Asset`` (``rebuild``: the command to suggest, or a function of the
-file's header that gives it), ``Asset``.
+file's header that gives it), ``Asset``, ``check_float_arrays(arrays, what, rebuild_hint)`` (what the readers of
+floating-point tables refuse).
 
 An asset is a NumPy ``.npz`` archive (no pickles) holding named arrays and a JSON ``header`` with the
 format name, its version, the source asset's name, the source's content hash (blake2b of its bytes),
@@ -96,3 +97,12 @@ def read_asset(path, fmt: str, version: int, rebuild) -> Asset:
         raise WarpbwError(f"{p}: {fmt} version {header.get('version')!r}, this warpbw reads version {version} "
                           f"(rebuild it with: {how(header)})")
     return Asset(header, arrays)
+
+
+def check_float_arrays(arrays, what: str, hint: str) -> None:
+    """Refuse, in one line starting ``what``, ``arrays`` of which one holds numbers that are not floating point:
+    the writers store float32, and a damaged dtype field read as integers rendered another image, exit 0.  Strings
+    and objects pass here (each reader refuses them in its own words); ``hint`` ends the message."""
+    kinds = sorted({np.asarray(a).dtype.name for a in arrays if np.asarray(a).dtype.kind not in "fUSO"})
+    if kinds:
+        raise WarpbwError(f"{what} of type {', '.join(kinds)}, expected floating-point numbers{hint}")

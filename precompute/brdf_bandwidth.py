@@ -83,7 +83,7 @@ from typing import Callable
 
 import numpy as np
 
-from precompute.assetfile import read_asset, write_asset
+from precompute.assetfile import check_float_arrays, read_asset, write_asset
 from precompute.progress import progress_callback
 from precompute.wavelets import local_bandwidth
 from warpbw.errors import WarpbwError, check_count, check_real, is_int, unit_directions
@@ -337,10 +337,7 @@ def read_brdf_bandwidth(path, source=None) -> np.ndarray:
                           f"{source.name!r} (rebuild it with: {hint})")
     if "nu_rho" not in a.arrays:
         raise WarpbwError(f"{path}: brdf-bandwidth file lacks array 'nu_rho' (rebuild it with: {hint})")
-    kind = a.arrays["nu_rho"].dtype
-    if kind.kind not in "fUSO":   # the writer stores float32; integers (a damaged type) changed the image, exit 0
-        raise WarpbwError(f"{path}: table of type {kind.name}, expected floating-point bandwidths (rebuild it with: "
-                          f"{hint})")
+    check_float_arrays([a.arrays["nu_rho"]], f"{path}: table", f" (rebuild it with: {hint})")
     return _checked_table(a.arrays["nu_rho"], f"{path}: table", f" (rebuild it with: {hint})",
                           a.header.get("params", {}).get("resolution"))
 

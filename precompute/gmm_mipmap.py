@@ -718,7 +718,7 @@ def write_gmm_mipmap(path, mip: GmmMipmap, source_name: str, source_hash: str, f
 
 def read_gmm_mipmap(path) -> GmmMipmap:
     """Read a file written by ``write_gmm_mipmap``; refuses other formats/versions and malformed levels."""
-    from precompute.assetfile import read_asset
+    from precompute.assetfile import check_float_arrays, read_asset
 
     # a file of another version is told the command that rebuilds it from its own header's map and options
     asset = read_asset(path, GMM_FORMAT, GMM_VERSION,
@@ -734,10 +734,7 @@ def read_gmm_mipmap(path) -> GmmMipmap:
     shapes = level_shapes(*levels[0].shape[:2]) if levels[0].ndim == 4 and min(levels[0].shape[:2]) >= 1 else []
     if len(shapes) != n or any(q.shape != s + (K, 4) for q, s in zip(levels, shapes)):
         raise WarpbwError(f"{path}: GMM mipmap levels have inconsistent shapes (rebuild it with: {hint})")
-    kinds = sorted({q.dtype.name for q in levels if q.dtype.kind not in "fUSO"})   # strings: refused below
-    if kinds:   # the writer stores float32 moments; a damaged dtype field read as integers rendered another image
-        raise WarpbwError(f"{path}: GMM mipmap levels of type {', '.join(kinds)}, expected floating-point moments "
-                          f"(rebuild it with: {hint})")
+    check_float_arrays(levels, f"{path}: GMM mipmap levels", f" (rebuild it with: {hint})")   # strings: below
     try:
         with np.errstate(over="ignore"):   # float64 moments beyond float32 become inf, refused below (numpy warned)
             levels = [np.asarray(q, np.float32) for q in levels]

@@ -865,7 +865,7 @@ GMM_HEADER_DAMAGE = [("prior", "one", "non-numeric levels or parameters"), ("pri
 @pytest.mark.parametrize("what,needle", GMM_DAMAGE + [(f"{k} = {v!r}", n) for k, v, n in GMM_HEADER_DAMAGE]
                          + [("empty levels", "inconsistent shapes"),
                             ("float64 beyond float32", "NaN or infinite moments at level 1"),
-                            ("integer level", "levels of type int64, expected floating-point moments")])
+                            ("integer level", "levels of type int64, expected floating-point numbers")])
 def test_gmm_file_with_bad_contents(tmp_path, what, needle):
     """A GMM mipmap of the right format and version whose moments are no mixture (NaN, weights that do not sum to
     1, negative weights or variances: each rendered without a word) or whose header's parameters are not what it

@@ -142,7 +142,7 @@ def test_round_trip_and_refusals(npf_tables, tmp_path):
     # integers (a damaged type: read, and the image changed, exit 0; file audit, session 63)
     ints = write_asset(tmp_path / "int.npz", FORMAT, VERSION, source.name, source.digest,
                        {"nu_rho": table.astype(np.int64)})
-    with pytest.raises(WarpbwError, match=r"int\.npz: table of type int64, expected floating-point bandwidths "
+    with pytest.raises(WarpbwError, match=r"int\.npz: table of type int64, expected floating-point numbers "
                                           r"\(rebuild it with: warpbw-precompute brdf"):
         read_brdf_bandwidth(ints, source)
 
