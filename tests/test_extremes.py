@@ -693,3 +693,41 @@ def test_a_probe_too_large_to_load_or_analyse_warns_before_the_work(monkeypatch,
             envmap.load_envmap(tmp_path / "probe.exr")
             if have != load_need:
                 assert bandwidth.env_bandwidth_map(env.pixels, env.name, cache=tmp_path / f"c{have}")[1] == "built"
+
+
+def test_meshes_placed_beyond_the_memory_left_warn_after_one_copy_of_each_file(monkeypatch, tmp_path):
+    """A scene placing a mesh thousands of times ran for minutes, 13 MB a bunny, without a word (scene fuzzing,
+    session 63).  Loading one copy of each file gives the triangle count (trimesh's, of the files written here), and
+    MESH_BYTES_PER_TRIANGLE times the copies' triangles past the memory available warns once; exactly that much
+    memory, or an unknown reading, says nothing."""
+    import trimesh
+
+    from warpbw import pipeline
+    from warpbw.io import mesh as mesh_io
+
+    trimesh.creation.icosphere(subdivisions=2).export(tmp_path / "ball.obj")
+    trimesh.creation.box().export(tmp_path / "box.obj")
+    n_ball, n_box = (len(trimesh.load(tmp_path / f, process=False).faces) for f in ("ball.obj", "box.obj"))
+    objects = "".join(f'[[object]]\nmesh = "{f}"\nmaterial = "m"\ntranslate = [{3.0 * i}, 0.0, -9.0]\n'
+                      for i, f in enumerate(["ball.obj", "box.obj", "ball.obj", "ball.obj", "box.obj"]))
+    text = ("[camera]\nposition = [0.0, 0.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 50.0\nresolution = [8, 8]\n"
+            "[environment]\nconstant = 1.0\n[material.m]\ntype = \"lambert\"\nalbedo = [0.5, 0.5, 0.5]\n" + objects)
+    scene = parse_scene(text, tmp_path, "many.toml")
+    triangles = 3 * n_ball + 2 * n_box
+    need = pipeline.mesh_memory(triangles)
+    assert need == pipeline.MESH_BYTES_PER_TRIANGLE * triangles
+    loads, loaded_when_warned = [], []
+    load_mesh, warn = mesh_io.load_mesh, pipeline.warn_if_short_of_memory
+    monkeypatch.setattr(mesh_io, "load_mesh", lambda path, **kw: loads.append(path) or load_mesh(path, **kw))
+    monkeypatch.setattr(pipeline, "warn_if_short_of_memory",
+                        lambda *a, **kw: loaded_when_warned.append(len(loads)) or warn(*a, **kw))
+    monkeypatch.setattr(pipeline, "available_memory", lambda: need - 1)
+    with pytest.warns(RuntimeWarning, match=rf"placing 5 meshes \({triangles:,} triangles\) takes about .* GB, but "
+                                            r".* available: the system may stop it \(fewer copies, or a coarser mesh\)"):
+        prep = pipeline.prepare_scene(scene)
+    assert prep.geometry.has_mesh and len(loads) == 5 and loaded_when_warned[0] == 2   # one copy of each file first
+    for have in (need, None):
+        monkeypatch.setattr(pipeline, "available_memory", lambda have=have: have)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            pipeline.prepare_scene(scene)

@@ -16,6 +16,8 @@ Public:
     ``frame_memory(width, height, method) -> bytes``, ``FRAME_BYTES_PER_PIXEL``   what a frame takes beyond the
                                        assets (a render warns when its frame would not fit in
                                        ``warpbw.errors.available_memory()``)
+    ``mesh_memory(triangles) -> bytes``, ``MESH_BYTES_PER_TRIANGLE``   what the placed meshes take (a render warns
+                                       when they would not fit, after loading one copy of each file)
     ``scene_summary(scene, method="reference") -> dict``   what the scene needs (for ``warpbw info``), without
                                        loading it; ``SUMMARY_METHODS``, the methods it describes
     ``stages_used(prep, mis, adaptive)``, ``PreparedScene``, ``RenderResult``   the stages a frame ran; the
@@ -185,15 +187,29 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
 
 
 def _geometry(scene: Scene, mat_id: dict, device: str):
-    """The scene's spheres and meshes on the device (its planes are left out), material indices from mat_id."""
+    """The scene's spheres and meshes on the device (its planes are left out), material indices from mat_id.  The
+    first copy of each mesh file is loaded first, to warn where all the copies would not fit in memory."""
+    from warpbw.io.mesh import load_mesh
+
+    def load(o):
+        return load_mesh(o.file, translate=o.translate, scale=o.scale, rotate_y_deg=o.rotate_y)
+
+    placed = [o for o in scene.objects if isinstance(o, MeshObject)]
+    first = {}
+    for o in placed:
+        if str(o.file) not in first:
+            first[str(o.file)] = (o, load(o))
+    triangles = sum(len(first[str(o.file)][1].faces) for o in placed)
+    warn_if_short_of_memory(mesh_memory(triangles), available_memory(),
+                            f"placing {len(placed)} meshes ({triangles:,} triangles)",
+                            "fewer copies, or a coarser mesh")
     spheres, meshes = [], []
     for o in scene.objects:
         if isinstance(o, SphereObject):
             spheres.append(SphereSpec(o.center, o.radius, mat_id[o.material]))
         elif isinstance(o, MeshObject):
-            from warpbw.io.mesh import load_mesh
-
-            md = load_mesh(o.file, translate=o.translate, scale=o.scale, rotate_y_deg=o.rotate_y)
+            kept, md = first[str(o.file)]
+            md = md if kept is o else load(o)
             # its curvature is derived only for a frame with the bandwidth pass (prepare_bandwidth)
             meshes.append(MeshSpec(md.vertices, md.faces, md.normals, lambda md=md: md.mean_curvature, md.uv,
                                    mat_id[o.material]))
@@ -299,6 +315,15 @@ RADIANCE_OVERFLOW_MIN = FLOAT32_MAX / BRDF_VALUE_MAX
 # Memory a frame takes per pixel, beyond the scene's assets: the slope of peak RSS over the demo scene at 2048^2 and
 # 4096^2 (session 62: 93 and 228 bytes), rounded up.  A 16384^2 frame (MAX_RESOLUTION) then needs 27 and 64 GB.
 FRAME_BYTES_PER_PIXEL = {"reference": 100, "adaptive": 240}
+# Bytes a placed mesh takes per triangle (its host copies, the merged device arrays, the BVH): 12.9 and 12.4 MB per
+# copy of the 69,666-triangle bunny (peak RSS of `warpbw render`, reference and adaptive, with 10 and 40 copies;
+# session 64), rounded up.
+MESH_BYTES_PER_TRIANGLE = 200
+
+
+def mesh_memory(triangles: int) -> int:
+    """Bytes ``triangles`` placed triangles take (``MESH_BYTES_PER_TRIANGLE``)."""
+    return MESH_BYTES_PER_TRIANGLE * int(triangles)
 
 
 def _check_overflowed_samples(prep: PreparedScene, n_bad: int, samples: int) -> None:
