@@ -2661,6 +2661,14 @@ API_MISUSE = {   # a public function called with the wrong type: numpy's, Python
     "write_merl to None": (lambda c: c.write_merl(None, np.full(c.MERL_SHAPE, 0.1)), "output path"),
     "tabulate_merl of an int": (lambda c: c.tabulate_merl(5, "n"), "takes a function"),
     "tabulate_merl of strings": (lambda c: c.tabulate_merl(lambda wi, wo: "x", "n"), "the BRDF's values"),
+    "directional_albedo of an int": (lambda c: c.directional_albedo(5, 0.0), "takes a function"),
+    "directional_albedo of strings": (lambda c: c.directional_albedo(lambda wi, wo: "x", 0.0), "the BRDF's values"),
+    "directional_albedo of one channel": (lambda c: c.directional_albedo(lambda wi, wo: wi[:, 2], 0.0),
+                                          "returned shape"),
+    "directional_albedo below the surface": (lambda c: c.directional_albedo(c.lambert, [0.0, 2.0]), "below pi/2"),
+    "directional_albedo of NaN": (lambda c: c.directional_albedo(c.lambert, float("nan")), "below pi/2"),
+    "directional_albedo of a string view": (lambda c: c.directional_albedo(c.lambert, "abc"), "theta_o"),
+    "directional_albedo of no cells": (lambda c: c.directional_albedo(c.lambert, 0.0, n_u=0), "n_u"),
     "read_sampling with a path": (lambda c: c.read_sampling(c.tmp / "t.npz", "m.binary"), "is a path"),
     "read_brdf_bandwidth with a path": (lambda c: c.read_brdf_bandwidth(c.tmp / "b.npz", "m.binary"), "is a path"),
     "write_sampling of None": (lambda c: c.write_sampling(c.tmp / "t.npz", None, c.src), "expected a SamplerTable"),
@@ -2681,6 +2689,7 @@ def test_public_functions_refuse_the_wrong_types_in_one_line(tmp_path, case):
     from precompute.surfaces import height_to_normals
     from warpbw.io.merl import MERL_SHAPE, merl_eval, read_merl, tabulate_merl, write_merl
     from warpbw.io.npf import npf_eval
+    from warpbw.sampling import directional_albedo
 
     write_merl(tmp_path / "m.binary", np.full(MERL_SHAPE, 0.1))
     c = SimpleNamespace(tmp=tmp_path, h=np.random.default_rng(0).random((8, 8)), up=np.array([[0.0, 0.0, 1.0]]),
@@ -2689,7 +2698,8 @@ def test_public_functions_refuse_the_wrong_types_in_one_line(tmp_path, case):
                         height_to_normals=height_to_normals, merl_eval=merl_eval, npf_eval=npf_eval,
                         write_merl=write_merl, tabulate_merl=tabulate_merl, read_sampling=read_sampling,
                         read_brdf_bandwidth=read_brdf_bandwidth, write_sampling=write_sampling,
-                        write_gmm_mipmap=write_gmm_mipmap)
+                        write_gmm_mipmap=write_gmm_mipmap, directional_albedo=directional_albedo,
+                        lambert=lambda wi, wo: np.full((len(wi), 3), 0.1))
     call, needle = API_MISUSE[case]
     with pytest.raises(WarpbwError, match=re.escape(needle)) as ei:
         call(c)

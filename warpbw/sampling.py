@@ -45,7 +45,7 @@ from typing import Callable, Sequence
 import numpy as np
 import warp as wp
 
-from warpbw.errors import check_count, check_device
+from warpbw.errors import WarpbwError, check_count, check_device, numeric_array
 
 N_THETA_O = 32      # view-elevation bins tabulated (uniform over [0, pi/2))
 N_U = 64            # half-vector elevation cells, theta_h = u^2 pi/2 (MERL-like warp)
@@ -266,10 +266,32 @@ def directional_albedo(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray], the
     """(len(theta_o), 3) directional albedo a(w_o) = integral of f(w_i, w_o) cos_i d w_i over the hemisphere, per
     RGB channel, for views at the elevations ``theta_o`` (radians, from the normal), by the midpoint rule over the
     sampling tables' half-vector cells (``sub``^2 points per cell): at most 1 for a BRDF that conserves energy."""
+    if not callable(brdf):   # "'int' object is not callable" from the first view
+        raise WarpbwError(f"directional_albedo takes a function (wi, wo) -> BRDF values, got {type(brdf).__name__}")
+    angles = np.atleast_1d(numeric_array(theta_o, "directional_albedo: theta_o", "view elevations in radians"))
+    if angles.ndim != 1 or not np.all((angles >= 0.0) & (angles < HALF_PI)):   # NaN fails too
+        raise WarpbwError(f"directional_albedo: theta_o must be elevations from 0 to below pi/2 radians (a view above "
+                          f"the surface), got {np.asarray(theta_o).tolist() if np.size(theta_o) < 6 else angles}")
+    n_u, n_phi, sub = (check_count(v, f"directional_albedo: {k}", 1) for k, v in
+                       (("n_u", n_u), ("n_phi", n_phi), ("sub", sub)))
     h, jac_h, du, dphi = _half_vector_grid(n_u, n_phi, sub)
-    angles = np.atleast_1d(np.asarray(theta_o, np.float64))
-    return np.array([_cell_integrals(brdf, float(t), h, jac_h, n_u, n_phi, _rgb).sum(axis=(0, 1)) * (du * dphi)
-                     for t in angles]).reshape(len(angles), 3)
+
+    def integrals(t: float) -> np.ndarray:
+        f = _cell_integrals(_checked_values(brdf), t, h, jac_h, n_u, n_phi, _rgb)
+        return f.sum(axis=(0, 1)) * (du * dphi)
+
+    return np.array([integrals(float(t)) for t in angles]).reshape(len(angles), 3)
+
+
+def _checked_values(brdf):
+    """``brdf`` whose values must be (N, 3) numbers for N direction pairs, else a one-line ``WarpbwError``."""
+    def f(wi, wo):
+        v = numeric_array(brdf(wi, wo), "directional_albedo: the BRDF's values", f"({len(wi)}, 3) numbers")
+        if v.shape != (len(wi), 3):
+            raise WarpbwError(f"directional_albedo: the BRDF returned shape {v.shape} for {len(wi)} direction pairs, "
+                              f"expected ({len(wi)}, 3)")
+        return v
+    return f
 
 
 def pack_samplers(tables: Sequence[SamplerTable], device: str = "cpu") -> TabulatedSamplers:
