@@ -224,7 +224,8 @@ def _check_value(data, name: str, typ: str, at: int, size: int, name_max: int, w
         return _Damage(f"{where} damaged at byte {pos}: attribute {name!r} ({typ}): {text}")
 
     if typ == "compression" and data[at] >= len(_COMPRESSIONS):
-        raise bad(at, f"compression method {data[at]}, which OpenEXR does not know (0 to {len(_COMPRESSIONS) - 1})")
+        raise bad(at, f"compression method {data[at]}, not one of the {len(_COMPRESSIONS)} that OpenEXR defines "
+                      f"(0 to {len(_COMPRESSIONS) - 1})")
     if typ == "lineOrder" and data[at] >= len(_LINE_ORDERS):
         raise bad(at, f"line order {data[at]} (expected 0 to {len(_LINE_ORDERS) - 1})")
     if typ == "int" and name == "chunkCount" and _int32(data, at) < 0:
@@ -411,8 +412,8 @@ def _check_chunks(data, table: int, attrs: dict, tiled: bool, name_max: int) -> 
                           f"offset table (bytes 0 to {end - 1}; or the header's {sources}, which make {count} chunks, "
                           "is damaged)")
         if at + leader > n:
-            raise _Damage(f"the file ends after {n} bytes, before {which}, which the offset table (entry at byte "
-                          f"{entry}) puts at byte {at}")
+            raise _Damage(f"the file ends after {n} bytes, {'before' if at >= n else 'inside the leader of'} {which}, "
+                          f"which the offset table (entry at byte {entry}) puts at byte {at}")
         if not tiled and _int32(data, at) != y0 + k * lines:
             raise _Damage(f"{which} damaged at byte {at}: it says it starts at scan line {_int32(data, at)}, expected "
                           f"{y0 + k * lines} {blame}")
@@ -449,8 +450,8 @@ def _check_part_offsets(data, table: int, counts: list[int], multi: bool) -> Non
         for k, at in enumerate(struct.unpack_from(f"<{count}Q", data, entry)):
             which = f"chunk {k + 1} of {count} of part {part}"
             if at < end or at + _PART_NUMBER > n:
-                raise _Damage(f"offset table damaged at byte {entry + 8 * k}: it puts {which} at byte {at}, outside the "
-                              f"pixel data (bytes {end} to {n - 1})")
+                raise _Damage(f"offset table damaged at byte {entry + 8 * k}: it puts {which} at byte {at}, outside "
+                              f"the pixel data (bytes {end} to {n - 1})")
             if multi and _int32(data, at) != part:
                 raise _Damage(f"{which} damaged at byte {at}: it says it belongs to part {_int32(data, at)} (or the "
                               f"offset table entry at byte {entry + 8 * k} is damaged)")
@@ -486,8 +487,8 @@ def _check_layout(data) -> None:
         where = f"header of part {len(counts)}" if multi else "header"
         if multi and counts:
             if at >= n:
-                raise _Damage(f"the file ends after {n} bytes, after the headers of {len(counts)} parts, before the NUL "
-                              "byte that ends them")
+                raise _Damage(f"the file ends after {n} bytes, after the headers of {len(counts)} parts, before the "
+                              "NUL byte that ends them")
             if data[at] == 0:
                 at += 1
                 break
