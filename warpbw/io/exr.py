@@ -382,10 +382,12 @@ def _check_chunks(data, table: int, attrs: dict, tiled: bool, name_max: int) -> 
     pixels unpacked (OpenEXR stores a chunk unpacked when packing does not make it smaller)."""
     n = len(data)
     channels = _channels(data, attrs, name_max, "header")
-    full = all(xs == ys == 1 for *_, xs, ys in channels)     # else the unpacked size is not checked
-    pixel_bytes = sum(_PIXEL_BYTES[t] for _, _, t, _, _ in channels)
+    pixel_bytes = sum(_PIXEL_BYTES[t] for _, _, t, _, _ in channels)     # sampling 1 in a tiled part
     x0, y0, x1, y1 = struct.unpack_from("<4i", data, attrs["dataWindow"][2])
     width, height = x1 - x0 + 1, y1 - y0 + 1
+
+    def scan_line_bytes(first: int, last: int) -> int:    # unpacked, each channel's samples on its own grid
+        return sum(_PIXEL_BYTES[t] * (width // xs) * (last // ys - (first - 1) // ys) for _, _, t, xs, ys in channels)
     if tiled:
         levels, how = _tile_levels(width, height, data, attrs["tiles"][2])
         count = sum(nx * ny for nx, ny in levels)
@@ -421,18 +423,18 @@ def _check_chunks(data, table: int, attrs: dict, tiled: bool, name_max: int) -> 
         if one_level and struct.unpack_from("<4i", data, at) != tile:
             raise _Damage(f"{which} damaged at byte {at}: it says it is tile {struct.unpack_from('<4i', data, at)} "
                           f"(x, y, level x, level y), expected {tile} {blame}")
-        size = _int32(data, at + leader - 4)
-        if size < 0:
-            raise _Damage(f"{which} damaged at byte {at + leader - 4}: its data size is {size}")
-        if at + leader + size > n:
-            raise _Damage(f"the file ends after {n} bytes, inside {which} (from byte {at}, with {size} bytes of data)")
         if not tiled:
-            unpacked = pixel_bytes * width * min(lines, y1 + 1 - (y0 + k * lines))
+            unpacked = scan_line_bytes(y0 + k * lines, min(y1, y0 + k * lines + lines - 1))
         elif one_level:      # a tile on the right or bottom edge holds only the pixels inside the data window
             unpacked = pixel_bytes * min(x_size, width - tile[0] * x_size) * min(y_size, height - tile[1] * y_size)
         else:
             unpacked = pixel_bytes * x_size * y_size
-        if full and size > unpacked:
+        size = _int32(data, at + leader - 4)
+        if size < 0 or (size == 0 and unpacked > 0):
+            raise _Damage(f"{which} damaged at byte {at + leader - 4}: its data size is {size}")
+        if at + leader + size > n:
+            raise _Damage(f"the file ends after {n} bytes, inside {which} (from byte {at}, with {size} bytes of data)")
+        if size > unpacked:
             raise _Damage(f"{which} damaged at byte {at + leader - 4}: its data size is {size} bytes, more than the "
                           f"{unpacked} its pixels take unpacked (or the header's dataWindow or channels are damaged)")
 
