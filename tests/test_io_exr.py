@@ -19,6 +19,7 @@ from PIL import Image
 
 from warpbw.errors import WarpbwError
 from warpbw.io.exr import (
+    EXR_MAGIC,
     exr_size,
     linear_to_srgb,
     read_exr,
@@ -321,6 +322,20 @@ def test_a_compression_that_makes_more_chunks_than_the_table_holds_is_named(tmp_
         "damaged)")
 
 
+def test_a_chunk_larger_than_its_pixels_blames_the_chunk_or_the_window(tmp_path):
+    """A dataWindow shrunk to one row (the table still has its first entry): the first chunk holds 16 rows' data."""
+    data = _valid_exr(tmp_path)
+    _, _, window = _attribute(data, "dataWindow", "box2i")
+    bad = bytearray(data)
+    struct.pack_into("<4i", bad, window, 0, 0, 47, 0)
+    (tmp_path / "row.exr").write_bytes(bad)
+    first = struct.unpack_from("<Q", data, _header_end(data))[0]
+    size = struct.unpack_from("<i", data, first + 4)[0]
+    assert _refusal(tmp_path / "row.exr").endswith(
+        f"chunk 1 of 1 damaged at byte {first + 4}: its data size is {size} bytes, more than the {48 * 12} its pixels "
+        "take unpacked (or the header's dataWindow or channels are damaged)")
+
+
 @settings(max_examples=80, deadline=None)
 @given(st.data())
 def test_every_cut_inside_the_header_or_table_is_refused_saying_where_the_file_ends(tmp_path_factory, draw):
@@ -337,9 +352,34 @@ def test_every_cut_inside_the_header_or_table_is_refused_saying_where_the_file_e
         assert f"truncated or corrupt: the file ends after {cut} bytes, inside " in msg, msg
 
 
+def _subsampled_exr(path):
+    """An uncompressed scan-line EXR of 48 x 40 pixels from y = -4 with Y full and BY, RY sampled 2 x 2, written byte
+    by byte (OpenEXR file layout: channels sorted by name; a chunk a scan line, holding the samples of the channels
+    sampled on it), which OpenEXR's Python binding cannot write."""
+    def attr(name, typ, value):
+        return name.encode() + b"\0" + typ.encode() + b"\0" + struct.pack("<i", len(value)) + value
+
+    chans, box = (("BY", 2), ("RY", 2), ("Y", 1)), struct.pack("<4i", 0, -4, 47, 35)
+    chlist = b"".join(n.encode() + b"\0" + struct.pack("<iB3xii", 2, 0, s, s) for n, s in chans) + b"\0"
+    head = EXR_MAGIC + struct.pack("<I", 2) + b"".join((
+        attr("channels", "chlist", chlist), attr("compression", "compression", b"\0"), attr("dataWindow", "box2i", box),
+        attr("displayWindow", "box2i", box), attr("lineOrder", "lineOrder", b"\0"),
+        attr("pixelAspectRatio", "float", struct.pack("<f", 1)),
+        attr("screenWindowCenter", "v2f", struct.pack("<2f", 0, 0)),
+        attr("screenWindowWidth", "float", struct.pack("<f", 1)), b"\0"))
+    rng = np.random.default_rng(7)
+    chunks = [struct.pack("<i", y) for y in range(-4, 36)]
+    for i, y in enumerate(range(-4, 36)):
+        line = b"".join(rng.random(48 // s, dtype=np.float32).tobytes() for _, s in chans if y % s == 0)
+        chunks[i] += struct.pack("<i", len(line)) + line
+    starts = len(head) + 8 * 40 + np.cumsum([0] + [len(c) for c in chunks[:-1]])
+    path.write_bytes(head + struct.pack("<40Q", *starts) + b"".join(chunks))
+    return path
+
+
 def _valid_files(tmp_path) -> list:
     """EXR files of many kinds that OpenEXR reads: write_exr's; OpenEXR's own in every compression it writes, in both
-    line orders, with half and uint channels; tiled, offset, multi-part and long-named ones."""
+    line orders, with half and uint channels; tiled, offset, multi-part, subsampled and long-named ones."""
     import OpenEXR
 
     px = np.random.default_rng(6).random((37, 53, 3), dtype=np.float32)
@@ -360,6 +400,7 @@ def _valid_files(tmp_path) -> list:
     files.append(tmp_path / "multi.exr")
     OpenEXR.File([OpenEXR.Part({}, {"Y": px[..., 0]}, "left"),
                   OpenEXR.Part({"compression": OpenEXR.PIZ_COMPRESSION}, {"Z": px[..., 1]}, "right")]).write(str(files[-1]))
+    files.append(_subsampled_exr(tmp_path / "subsampled.exr"))
     files.append(tmp_path / "long.exr")
     OpenEXR.File({"an_attribute_name_longer_than_31_bytes": "x"},
                  {"a_channel_name_longer_than_31_bytes": px[..., 0]}).write(str(files[-1]))
@@ -371,10 +412,12 @@ def test_the_diagnosis_finds_nothing_wrong_in_files_openexr_reads(tmp_path):
     a message could blame a part that is whole."""
     from warpbw.io.exr import _exr_damage
 
+    import OpenEXR
+
     files = _valid_files(tmp_path)
     assert len(files) > 30
     for path in files:
-        read_exr(path)
+        OpenEXR.File(str(path), separate_channels=True).channels()     # read_exr refuses the subsampled one
         assert _exr_damage(path) is None, path
 
 
