@@ -66,6 +66,8 @@ _REQUIRED_ATTRIBUTES = {"channels": "chlist", "compression": "compression", "dat
                         "screenWindowCenter": "v2f", "screenWindowWidth": "float"}
 _TILED_ATTRIBUTES = {"tiles": "tiledesc"}
 _MULTI_PART_ATTRIBUTES = {"name": "string", "type": "string", "chunkCount": "int"}
+# Attributes that every part of a multi-part file shares (OpenEXR's multi-part reader checks them against part 0).
+_SHARED_ATTRIBUTES = ("displayWindow", "pixelAspectRatio", "timeCode", "chromaticities")
 # "Predefined Attribute Types": bytes of the value of each fixed-size type.
 _TYPE_SIZES = {"box2i": 16, "box2f": 16, "chromaticities": 32, "compression": 1, "double": 8, "envmap": 1, "float": 4,
                "int": 4, "keycode": 28, "lineOrder": 1, "m33f": 36, "m33d": 72, "m44f": 64, "m44d": 128,
@@ -460,6 +462,18 @@ def _check_part_offsets(data, table: int, counts: list[int], multi: bool) -> Non
         entry += 8 * count
 
 
+def _check_shared(data, first: dict, attrs: dict, where: str) -> None:
+    """The attributes of a later part of a multi-part file that it shares with the first part, equal to them."""
+    for name in _SHARED_ATTRIBUTES:
+        if name in first and name in attrs:
+            _, _, at0, size0 = first[name]
+            typ, _, at, size = attrs[name]
+            if bytes(data[at:at + size]) != bytes(data[at0:at0 + size0]):
+                raise _Damage(f"part headers damaged at byte {at0} or {at}: attribute {name!r} ({typ}) of part 0 "
+                              f"differs from that of {where.replace('header of ', '')}, and every part of a "
+                              "multi-part file shares it")
+
+
 def _check_version(data) -> int:
     """The flags of the version field ("Version Field"), checked."""
     if len(data) < 8:
@@ -484,7 +498,7 @@ def _check_layout(data) -> None:
     flags = _check_version(data)
     name_max = _LONG_NAME_MAX if flags & _LONG_NAMES_FLAG else _NAME_MAX
     multi, deep = bool(flags & _MULTI_PART_FLAG), bool(flags & _NON_IMAGE_FLAG)
-    at, counts, n = 8, [], len(data)
+    at, counts, n, first = 8, [], len(data), {}
     while True:      # one header, or a multi-part file's headers up to the NUL byte that ends them
         where = f"header of part {len(counts)}" if multi else "header"
         if multi and counts:
@@ -509,6 +523,8 @@ def _check_layout(data) -> None:
                             f"needs (the version field's flag 0x{flags & (_MULTI_PART_FLAG | _NON_IMAGE_FLAG):x} says "
                             "the file is one)")
         _check_sampling(data, attrs, name_max, where, tiled)
+        first = first or attrs
+        _check_shared(data, first, attrs, where)       # nothing to compare in the first (or only) part
         counts.append(_int32(data, attrs["chunkCount"][2]) if "chunkCount" in attrs else None)
         at = end
         if not multi:
