@@ -336,6 +336,25 @@ def test_a_chunk_larger_than_its_pixels_blames_the_chunk_or_the_window(tmp_path)
         "take unpacked (or the header's dataWindow or channels are damaged)")
 
 
+def test_parts_of_a_multi_part_file_that_disagree_on_a_shared_attribute_are_named(tmp_path):
+    import OpenEXR
+
+    px = np.ones((8, 6), np.float32)
+    OpenEXR.File([OpenEXR.Part({}, {"Y": px}, "left"), OpenEXR.Part({}, {"Z": px}, "right")]).write(
+        str(tmp_path / "two.exr"))
+    data = (tmp_path / "two.exr").read_bytes()
+    key = b"displayWindow\0box2i\0\x10\0\0\0"
+    first = data.index(key) + len(key)
+    second = data.index(key, first) + len(key)
+    bad = bytearray(data)
+    struct.pack_into("<4i", bad, second, 0, 0, 99, 99)
+    (tmp_path / "two.exr").write_bytes(bad)
+    for read in (read_exr, exr_size):
+        assert _refusal(tmp_path / "two.exr", read).endswith(
+            f"part headers damaged at byte {first} or {second}: attribute 'displayWindow' (box2i) of part 0 differs "
+            "from that of part 1, and every part of a multi-part file shares it")
+
+
 @settings(max_examples=80, deadline=None)
 @given(st.data())
 def test_every_cut_inside_the_header_or_table_is_refused_saying_where_the_file_ends(tmp_path_factory, draw):
