@@ -408,8 +408,9 @@ def _check_chunks(data, table: int, attrs: dict, tiled: bool, name_max: int) -> 
                       f"{table} to {end - 1}")
     leader = _TILE_LEADER if tiled else _SCANLINE_LEADER
     one_level = tiled and len(levels) == 1      # the tiles' order in the other level modes is not checked
-    for k, at in enumerate(struct.unpack_from(f"<{count}Q", data, table)):
+    for k in range(count):        # read an entry at a time: a damaged count can be in the millions
         entry, which = table + 8 * k, f"chunk {k + 1} of {count}"
+        at = struct.unpack_from("<Q", data, entry)[0]
         blame = f"(or the offset table entry at byte {entry}, or the header's {sources}, is damaged)"
         if at < end:
             raise _Damage(f"offset table damaged at byte {entry}: it puts {which} at byte {at}, inside the header and "
@@ -451,8 +452,8 @@ def _check_part_offsets(data, table: int, counts: list[int], multi: bool) -> Non
                       f"({', '.join(map(str, counts))}) make offsets take bytes {table} to {end - 1}")
     entry = table
     for part, count in enumerate(counts):
-        for k, at in enumerate(struct.unpack_from(f"<{count}Q", data, entry)):
-            which = f"chunk {k + 1} of {count} of part {part}"
+        for k in range(count):
+            which, at = f"chunk {k + 1} of {count} of part {part}", struct.unpack_from("<Q", data, entry + 8 * k)[0]
             if at < end or at + _PART_NUMBER > n:
                 raise _Damage(f"offset table damaged at byte {entry + 8 * k}: it puts {which} at byte {at}, outside "
                               f"the pixel data (bytes {end} to {n - 1})")
