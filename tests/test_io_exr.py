@@ -6,15 +6,20 @@ here, the published ends of matplotlib's viridis map (#440154, #fde725), and the
 from __future__ import annotations
 
 import math
+import re
 import shutil
+import struct
 
 import numpy as np
 import pytest
-from conftest import exr_claiming_size, shared_file
+from conftest import SHARED_DATA, exr_claiming_size, shared_file
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from PIL import Image
 
 from warpbw.errors import WarpbwError
 from warpbw.io.exr import (
+    EXR_MAGIC,
     exr_size,
     linear_to_srgb,
     read_exr,
@@ -159,6 +164,291 @@ def test_exr_size_reads_the_header_alone(tmp_path):
     (tmp_path / "tiny.exr").write_bytes(b"\x76\x2f\x31\x01\x02")
     with pytest.raises(WarpbwError, match="tiny.exr: unreadable OpenEXR file"):
         exr_size(tmp_path / "tiny.exr")
+
+
+# ---- damaged headers: the one line names the damaged part and its byte (OpenEXR file layout), not OpenEXR's words
+# ("file has 0 parts", "Unable to open 'x' for read", "'utf-8' codec can't decode ...").  Images of 48 x 40: not the
+# 64 x 64 that OpenEXR assumes for a header without a dataWindow, which would read as if whole.
+
+def _valid_exr(tmp_path) -> bytes:
+    return write_exr(tmp_path / "ok.exr", np.random.default_rng(5).random((40, 48, 3)).astype(np.float32)).read_bytes()
+
+
+def _attribute(data: bytes, name: str, typ: str) -> tuple[int, int, int]:
+    """(first byte, byte of the size, first byte of the value) of attribute ``name`` of type ``typ`` (OpenEXR file
+    layout, "Attribute Layout": name, NUL, type name, NUL, int32 size, value)."""
+    start = data.index(name.encode() + b"\0" + typ.encode() + b"\0")
+    size_at = start + len(name) + len(typ) + 2
+    return start, size_at, size_at + 4
+
+
+def _header_end(data: bytes) -> int:
+    """The byte after the NUL that ends the header of a write_exr file (its last attribute is warpbw_channels)."""
+    _, size_at, value_at = _attribute(data, "warpbw_channels", "string")
+    end = value_at + struct.unpack_from("<i", data, size_at)[0]
+    assert data[end] == 0
+    return end + 1
+
+
+def _refusal(path, read=read_exr) -> str:
+    with pytest.raises(WarpbwError) as ei:
+        read(path)
+    msg = str(ei.value)
+    assert msg.startswith(f"{path}: unreadable OpenEXR file, truncated or corrupt: ") and "\n" not in msg, msg
+    return msg
+
+
+def test_a_header_cut_short_names_the_attribute_it_ends_in(tmp_path):
+    data = _valid_exr(tmp_path)
+    start, _, value_at = _attribute(data, "dataWindow", "box2i")
+    (tmp_path / "cut.exr").write_bytes(data[:value_at + 5])
+    for read in (read_exr, exr_size):
+        assert _refusal(tmp_path / "cut.exr", read).endswith(
+            f"the file ends after {value_at + 5} bytes, inside attribute 'dataWindow' (box2i, from byte {start}) in "
+            f"the header: its value would take bytes {value_at} to {value_at + 15}")
+
+
+def test_an_attribute_of_the_wrong_size_or_type_is_named_with_its_byte(tmp_path):
+    data = _valid_exr(tmp_path)
+    start, size_at, _ = _attribute(data, "dataWindow", "box2i")
+    bad = bytearray(data)
+    struct.pack_into("<i", bad, size_at, 9)
+    (tmp_path / "size.exr").write_bytes(bad)
+    with pytest.raises(WarpbwError, match=rf"size\.exr: unreadable OpenEXR file, truncated or corrupt: header damaged "
+                                          rf"at byte {size_at}: attribute 'dataWindow' has type 'box2i' but size 9 "
+                                          r"\(expected 16\)$"):
+        read_exr(tmp_path / "size.exr")
+    bad = bytearray(data)
+    bad[start + len("dataWindow") + 1] = ord("B")
+    (tmp_path / "type.exr").write_bytes(bad)
+    with pytest.raises(WarpbwError, match=rf"type\.exr: .*: header damaged at byte {start}: attribute 'dataWindow' has "
+                                          r"type 'Box2i' \(expected 'box2i'\)$"):
+        read_exr(tmp_path / "type.exr")
+
+
+def test_a_missing_required_attribute_is_named(tmp_path):
+    """A header rewritten without 'channels' (the offset table moved with it), and one whose 'channels' lost a letter
+    to a flipped byte: the second says which name it found instead."""
+    data = _valid_exr(tmp_path)
+    start, size_at, value_at = _attribute(data, "channels", "chlist")
+    end = value_at + struct.unpack_from("<i", data, size_at)[0]
+    cut = end - start
+    table = _header_end(data)
+    offsets = struct.unpack_from("<3Q", data, table)       # 40 rows, 16 a chunk (ZIP): 3 chunks
+    rest = bytearray(data[table:])
+    struct.pack_into("<3Q", rest, 0, *(o - cut for o in offsets))
+    (tmp_path / "drop.exr").write_bytes(data[:start] + data[end:table] + bytes(rest))
+    msg = _refusal(tmp_path / "drop.exr")
+    assert msg.endswith(f"header (bytes 8 to {table - cut - 1}) damaged: it has no attribute 'channels' (chlist), "
+                        "which every header needs"), msg
+    bad = bytearray(data)
+    bad[start + 2] = ord("x")
+    (tmp_path / "name.exr").write_bytes(bad)
+    assert _refusal(tmp_path / "name.exr", exr_size).endswith(
+        "it has no attribute 'channels' (chlist), which every header needs; it has 'chxnnels' at byte 8: a damaged "
+        "name?")
+
+
+def test_bad_values_of_known_attributes_are_named(tmp_path):
+    data = _valid_exr(tmp_path)
+    _, _, window = _attribute(data, "dataWindow", "box2i")
+    _, _, channels = _attribute(data, "channels", "chlist")
+    cases = {
+        "reversed": (window, struct.pack("<4i", 10, 0, 0, 39),
+                     rf"byte {window}: attribute 'dataWindow' \(box2i\): reversed, from \(10, 0\) to \(0, 39\)"),
+        "pixtype": (channels + 2, struct.pack("<i", 7),
+                    rf"byte {channels + 2}: attribute 'channels' \(chlist\): channel 'B' has pixel type 7 "
+                    r"\(expected 0 UINT, 1 HALF or 2 FLOAT\)"),
+        "sampling": (channels + 10, struct.pack("<i", 7),
+                     rf"byte {channels + 10}: attribute 'channels' \(chlist\): channel 'B' has x sampling 7, but "
+                     r"the dataWindow's x starts at 0 and spans 48 pixels"),
+        "version": (4, struct.pack("<I", 99), r"version field damaged at byte 4: format version 99 \(expected 2\)"),
+    }
+    for name, (at, new, says) in cases.items():
+        bad = bytearray(data)
+        bad[at:at + len(new)] = new
+        (tmp_path / f"{name}.exr").write_bytes(bad)
+        for read in (read_exr, exr_size):
+            with pytest.raises(WarpbwError, match=rf"{name}\.exr: unreadable OpenEXR file, truncated or corrupt: .*{says}"):
+                read(tmp_path / f"{name}.exr")
+
+
+def test_text_that_is_not_utf8_is_named_not_left_to_the_codec(tmp_path):
+    """The Python binding decodes attribute names and strings as UTF-8: a flipped byte there came out as "'utf-8'
+    codec can't decode byte 0xff in position 0"."""
+    data = _valid_exr(tmp_path)
+    start, _, _ = _attribute(data, "compression", "compression")
+    _, _, order = _attribute(data, "warpbw_channels", "string")
+    for name, at, says in (("name", start, rf"header damaged at byte {start}: the name of the attribute after "
+                                           rf"'channels' \(from byte {start}\) is not UTF-8 text \(byte 0xff\)$"),
+                           ("string", order, rf"header damaged at byte {order}: attribute 'warpbw_channels' "
+                                             r"\(string\): not UTF-8 text \(byte 0xff\)$")):
+        bad = bytearray(data)
+        bad[at] = 0xFF
+        (tmp_path / f"{name}.exr").write_bytes(bad)
+        for read in (read_exr, exr_size):
+            msg = _refusal(tmp_path / f"{name}.exr", read)
+            assert re.search(says, msg) and "codec" not in msg, msg
+
+
+def test_a_file_cut_in_its_pixels_names_the_chunk_the_offset_table_points_past_the_end(tmp_path):
+    data = _valid_exr(tmp_path)
+    table = _header_end(data)
+    offsets = struct.unpack_from("<3Q", data, table)
+    (tmp_path / "before.exr").write_bytes(data[:offsets[2]])
+    assert _refusal(tmp_path / "before.exr").endswith(
+        f"the file ends after {offsets[2]} bytes, before chunk 3 of 3, which the offset table (entry at byte "
+        f"{table + 16}) puts at byte {offsets[2]}")
+    (tmp_path / "inside.exr").write_bytes(data[:offsets[1] + 100])
+    size = struct.unpack_from("<i", data, offsets[1] + 4)[0]
+    assert _refusal(tmp_path / "inside.exr").endswith(
+        f"the file ends after {offsets[1] + 100} bytes, inside chunk 2 of 3 (from byte {offsets[1]}, with {size} "
+        "bytes of data)")
+
+
+def test_a_compression_that_makes_more_chunks_than_the_table_holds_is_named(tmp_path):
+    """ZIP (16 scan lines a chunk) rewritten as NONE (1): 40 chunks, whose offsets would run into the pixel data; the
+    message names the table entry and the header attributes it follows from."""
+    data = _valid_exr(tmp_path)
+    _, _, method = _attribute(data, "compression", "compression")
+    bad = bytearray(data)
+    bad[method] = 0
+    (tmp_path / "none.exr").write_bytes(bad)
+    table = _header_end(data)
+    first = struct.unpack_from("<Q", data, table)[0]
+    assert _refusal(tmp_path / "none.exr").endswith(
+        f"offset table damaged at byte {table}: it puts chunk 1 of 40 at byte {first}, inside the header and offset "
+        f"table (bytes 0 to {table + 8 * 40 - 1}; or the header's dataWindow or compression, which make 40 chunks, is "
+        "damaged)")
+
+
+def test_a_chunk_larger_than_its_pixels_blames_the_chunk_or_the_window(tmp_path):
+    """A dataWindow shrunk to one row (the table still has its first entry): the first chunk holds 16 rows' data."""
+    data = _valid_exr(tmp_path)
+    _, _, window = _attribute(data, "dataWindow", "box2i")
+    bad = bytearray(data)
+    struct.pack_into("<4i", bad, window, 0, 0, 47, 0)
+    (tmp_path / "row.exr").write_bytes(bad)
+    first = struct.unpack_from("<Q", data, _header_end(data))[0]
+    size = struct.unpack_from("<i", data, first + 4)[0]
+    assert _refusal(tmp_path / "row.exr").endswith(
+        f"chunk 1 of 1 damaged at byte {first + 4}: its data size is {size} bytes, more than the {48 * 12} its pixels "
+        "take unpacked (or the header's dataWindow or channels are damaged)")
+
+
+def test_parts_of_a_multi_part_file_that_disagree_on_a_shared_attribute_are_named(tmp_path):
+    import OpenEXR
+
+    px = np.ones((8, 6), np.float32)
+    OpenEXR.File([OpenEXR.Part({}, {"Y": px}, "left"), OpenEXR.Part({}, {"Z": px}, "right")]).write(
+        str(tmp_path / "two.exr"))
+    data = (tmp_path / "two.exr").read_bytes()
+    key = b"displayWindow\0box2i\0\x10\0\0\0"
+    first = data.index(key) + len(key)
+    second = data.index(key, first) + len(key)
+    bad = bytearray(data)
+    struct.pack_into("<4i", bad, second, 0, 0, 99, 99)
+    (tmp_path / "two.exr").write_bytes(bad)
+    for read in (read_exr, exr_size):
+        assert _refusal(tmp_path / "two.exr", read).endswith(
+            f"part headers damaged at byte {first} or {second}: attribute 'displayWindow' (box2i) of part 0 differs "
+            "from that of part 1, and every part of a multi-part file shares it")
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.data())
+def test_every_cut_inside_the_header_or_table_is_refused_saying_where_the_file_ends(tmp_path_factory, draw):
+    """A file cut anywhere from its version field to the end of its offset table: read_exr and exr_size (up to the
+    header's end, beyond which it needs no more) refuse it with a WarpbwError that names the file and where it ends,
+    never another exception or OpenEXR's words."""
+    tmp = tmp_path_factory.mktemp("cut")
+    data = _valid_exr(tmp)
+    header_end = _header_end(data)
+    cut = draw.draw(st.integers(4, header_end + 3 * 8 - 1), label="cut")
+    (tmp / "cut.exr").write_bytes(data[:cut])
+    for read in (read_exr, exr_size) if cut < header_end else (read_exr,):
+        msg = _refusal(tmp / "cut.exr", read)
+        assert f"truncated or corrupt: the file ends after {cut} bytes, inside " in msg, msg
+
+
+def _subsampled_exr(path):
+    """An uncompressed scan-line EXR of 48 x 40 pixels from y = -4 with Y full and BY, RY sampled 2 x 2, written byte
+    by byte (OpenEXR file layout: channels sorted by name; a chunk a scan line, holding the samples of the channels
+    sampled on it), which OpenEXR's Python binding cannot write."""
+    def attr(name, typ, value):
+        return name.encode() + b"\0" + typ.encode() + b"\0" + struct.pack("<i", len(value)) + value
+
+    chans, box = (("BY", 2), ("RY", 2), ("Y", 1)), struct.pack("<4i", 0, -4, 47, 35)
+    chlist = b"".join(n.encode() + b"\0" + struct.pack("<iB3xii", 2, 0, s, s) for n, s in chans) + b"\0"
+    head = EXR_MAGIC + struct.pack("<I", 2) + b"".join((
+        attr("channels", "chlist", chlist), attr("compression", "compression", b"\0"), attr("dataWindow", "box2i", box),
+        attr("displayWindow", "box2i", box), attr("lineOrder", "lineOrder", b"\0"),
+        attr("pixelAspectRatio", "float", struct.pack("<f", 1)),
+        attr("screenWindowCenter", "v2f", struct.pack("<2f", 0, 0)),
+        attr("screenWindowWidth", "float", struct.pack("<f", 1)), b"\0"))
+    rng = np.random.default_rng(7)
+    chunks = [struct.pack("<i", y) for y in range(-4, 36)]
+    for i, y in enumerate(range(-4, 36)):
+        line = b"".join(rng.random(48 // s, dtype=np.float32).tobytes() for _, s in chans if y % s == 0)
+        chunks[i] += struct.pack("<i", len(line)) + line
+    starts = len(head) + 8 * 40 + np.cumsum([0] + [len(c) for c in chunks[:-1]])
+    path.write_bytes(head + struct.pack("<40Q", *starts) + b"".join(chunks))
+    return path
+
+
+def _valid_files(tmp_path) -> list:
+    """EXR files of many kinds that OpenEXR reads: write_exr's; OpenEXR's own in every compression it writes, in both
+    line orders, with half and uint channels; tiled, offset, multi-part, subsampled and long-named ones."""
+    import OpenEXR
+
+    px = np.random.default_rng(6).random((37, 53, 3), dtype=np.float32)
+    files = [write_exr(tmp_path / "w.exr", px, notes={"digest": "0f" * 16, "é": "ß"})]
+    chans = {"R": px[..., 0], "G": px[..., 1].astype(np.float16), "B": (px[..., 2] * 100).astype(np.uint32)}
+    for method in range(OpenEXR.NUM_COMPRESSION_METHODS):
+        for order in (OpenEXR.INCREASING_Y, OpenEXR.DECREASING_Y):
+            files.append(tmp_path / f"c{method}_{int(order)}.exr")
+            OpenEXR.File({"compression": OpenEXR.Compression(method), "lineOrder": order}, chans).write(str(files[-1]))
+    tiles = OpenEXR.TileDescription()
+    tiles.xSize, tiles.ySize, tiles.mode, tiles.roundingMode = 8, 16, OpenEXR.ONE_LEVEL, OpenEXR.ROUND_DOWN
+    for method in (OpenEXR.NO_COMPRESSION, OpenEXR.ZIP_COMPRESSION, OpenEXR.PIZ_COMPRESSION):
+        files.append(tmp_path / f"tiled{int(method)}.exr")
+        OpenEXR.File({"compression": method, "type": OpenEXR.tiledimage, "tiles": tiles}, chans).write(str(files[-1]))
+    files.append(tmp_path / "offset.exr")
+    OpenEXR.File({"dataWindow": (np.array([-5, 7], np.int32), np.array([47, 43], np.int32))},
+                 {"Y": px[..., 0]}).write(str(files[-1]))
+    files.append(tmp_path / "multi.exr")
+    OpenEXR.File([OpenEXR.Part({}, {"Y": px[..., 0]}, "left"),
+                  OpenEXR.Part({"compression": OpenEXR.PIZ_COMPRESSION}, {"Z": px[..., 1]}, "right")]).write(str(files[-1]))
+    files.append(_subsampled_exr(tmp_path / "subsampled.exr"))
+    files.append(tmp_path / "long.exr")
+    OpenEXR.File({"an_attribute_name_longer_than_31_bytes": "x"},
+                 {"a_channel_name_longer_than_31_bytes": px[..., 0]}).write(str(files[-1]))
+    return files
+
+
+def test_the_diagnosis_finds_nothing_wrong_in_files_openexr_reads(tmp_path):
+    """The layout checks run only once OpenEXR has refused a file; run on files it reads, they must find nothing, or
+    a message could blame a part that is whole."""
+    from warpbw.io.exr import _exr_damage
+
+    import OpenEXR
+
+    files = _valid_files(tmp_path)
+    assert len(files) > 30
+    for path in files:
+        OpenEXR.File(str(path), separate_channels=True).channels()     # read_exr refuses the subsampled one
+        assert _exr_damage(path) is None, path
+
+
+def test_the_diagnosis_finds_nothing_wrong_in_the_real_probes():
+    from warpbw.io.exr import _exr_damage
+
+    probes = sorted(SHARED_DATA.glob("**/*.exr"))
+    if not probes:
+        pytest.skip(f"real test data {SHARED_DATA} is absent or holds no EXR (clone ../shared beside the repository)")
+    for path in probes:
+        read_exr(path)
+        assert _exr_damage(path) is None, path
 
 
 def test_write_exr_bad_channel_count(tmp_path):
