@@ -429,7 +429,7 @@ def _valid_files(tmp_path) -> list:
 def test_the_diagnosis_finds_nothing_wrong_in_files_openexr_reads(tmp_path):
     """The layout checks run only once OpenEXR has refused a file; run on files it reads, they must find nothing, or
     a message could blame a part that is whole."""
-    from warpbw.io.exr import _exr_damage
+    from warpbw.io.exr_layout import exr_damage
 
     import OpenEXR
 
@@ -437,18 +437,18 @@ def test_the_diagnosis_finds_nothing_wrong_in_files_openexr_reads(tmp_path):
     assert len(files) > 30
     for path in files:
         OpenEXR.File(str(path), separate_channels=True).channels()     # read_exr refuses the subsampled one
-        assert _exr_damage(path) is None, path
+        assert exr_damage(path) is None, path
 
 
 def test_the_diagnosis_finds_nothing_wrong_in_the_real_probes():
-    from warpbw.io.exr import _exr_damage
+    from warpbw.io.exr_layout import exr_damage
 
     probes = sorted(SHARED_DATA.glob("**/*.exr"))
     if not probes:
         pytest.skip(f"real test data {SHARED_DATA} is absent or holds no EXR (clone ../shared beside the repository)")
     for path in probes:
         read_exr(path)
-        assert _exr_damage(path) is None, path
+        assert exr_damage(path) is None, path
 
 
 def test_write_exr_bad_channel_count(tmp_path):
