@@ -429,7 +429,7 @@ def _valid_files(tmp_path) -> list:
 def test_the_diagnosis_finds_nothing_wrong_in_files_openexr_reads(tmp_path):
     """The layout checks run only once OpenEXR has refused a file; run on files it reads, they must find nothing, or
     a message could blame a part that is whole."""
-    from warpbw.io.exr_layout import exr_damage
+    from warpbw.io.exr_layout import exr_damage, first_header_declares
 
     import OpenEXR
 
@@ -438,6 +438,23 @@ def test_the_diagnosis_finds_nothing_wrong_in_files_openexr_reads(tmp_path):
     for path in files:
         OpenEXR.File(str(path), separate_channels=True).channels()     # read_exr refuses the subsampled one
         assert exr_damage(path) is None, path
+        assert first_header_declares(path, "dataWindow", "box2i") is True, path
+        assert first_header_declares(path, "dataWindow", "box2f") is False, path
+
+
+@pytest.mark.parametrize("edit", [(b"dataWindow\0", b"dataWindoX\0"), (b"dataWindow\0box2i", b"dataWindow\0box2f")])
+def test_exr_size_refuses_a_header_without_its_data_window_instead_of_reading_64_by_64(tmp_path, edit):
+    """OpenEXR gives a header whose dataWindow is missing (a damaged name) or of another type its default, 64 x 64
+    pixels: exr_size (warpbw info's probe memory, the probe's size checks) returned that without a word, while
+    read_exr refused the file (session 64's EXR audit)."""
+    path = write_exr(tmp_path / "p.exr", np.ones((20, 30, 3), np.float32))
+    assert exr_size(path) == (30, 20)
+    data = path.read_bytes()
+    assert data.count(edit[0]) == 1
+    path.write_bytes(data.replace(*edit))
+    with pytest.raises(WarpbwError, match=r"p\.exr: unreadable OpenEXR file, truncated or corrupt: header .*damaged.*"
+                                          r"'dataWindow'"):
+        exr_size(path)
 
 
 def test_the_diagnosis_finds_nothing_wrong_in_the_real_probes():

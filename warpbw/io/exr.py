@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from warpbw.errors import FLOAT32_MAX, WarpbwError, check_input_file, check_path
-from warpbw.io.exr_layout import exr_damage
+from warpbw.io.exr_layout import exr_damage, first_header_declares
 from warpbw.native_output import captured_native_output
 
 # First four bytes of every OpenEXR file: the magic number 20000630 = 0x762f3101, stored
@@ -134,6 +134,11 @@ def exr_size(path) -> tuple[int, int]:
     """(width, height) of an EXR file's data window, read from its header alone: a size bound can be checked
     before the pixels are decoded."""
     path, header, _ = _open_exr(path, header_only=True)
+    declared = first_header_declares(path, "dataWindow", "box2i")
+    if declared is not True:   # OpenEXR reads a header without its dataWindow as 64 x 64 pixels
+        found = exr_damage(path) or ("its header has no dataWindow (box2i)" if declared is False else None)
+        if found:
+            raise WarpbwError(f"{path}: unreadable OpenEXR file, truncated or corrupt: {found}")
     try:
         (x0, y0), (x1, y1) = header["dataWindow"]
         return int(x1) - int(x0) + 1, int(y1) - int(y0) + 1

@@ -1,7 +1,9 @@
 """The OpenEXR file layout, read to say which part of a file OpenEXR refused is damaged.
 
-Public function:
+Public functions:
 
+- ``first_header_declares(path, name, typ) -> bool | None``: whether the first header holds that attribute (OpenEXR
+  gives a missing dataWindow its default instead of refusing the file).
 - ``exr_damage(path) -> str | None``: the first damaged part of an EXR file's version field, headers, offset tables
   or chunk leaders that the layout shows, in words naming its byte (None where none shows: damage in the pixel data,
   or beyond what is checked).  ``warpbw.io.exr`` calls it once OpenEXR has refused a file; OpenEXR alone decides
@@ -470,3 +472,20 @@ def exr_damage(path) -> str | None:
     except (OSError, ValueError):    # unreadable now, or emptied since the magic number was read
         return None
     return None
+
+
+def first_header_declares(path, name: str, typ: str) -> bool | None:
+    """Whether the first header of EXR file ``path`` holds attribute ``name`` of type ``typ``; None where the
+    version field or that header is damaged (``exr_damage`` says how) or the file does not read.  OpenEXR gives a
+    header without a dataWindow its default, 64 x 64 pixels, instead of refusing it."""
+    try:
+        with open(path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            try:
+                flags = _check_version(data)
+                attrs, _ = _header_attributes(data, 8, _LONG_NAME_MAX if flags & _LONG_NAMES_FLAG else _NAME_MAX,
+                                              "header")
+            except (_Damage, struct.error):
+                return None
+    except (OSError, ValueError):
+        return None
+    return attrs.get(name, (None,))[0] == typ
