@@ -398,6 +398,101 @@ def test_ascii_ply_and_stl_cut_short_are_refused_saying_so_and_trimesh_logs_noth
         with pytest.raises(WarpbwError, match=f"{bad}: {said}.*(truncated or )?corrupt"):
             load_mesh(tmp_path / bad)
 
+def _ico_ply(encoding: str) -> tuple[str, bytes]:
+    """An icosphere's PLY (42 vertices, 80 faces) as its header's text (up to and with 'end_header') and its body."""
+    import trimesh
+
+    data = trimesh.exchange.ply.export_ply(trimesh.creation.icosphere(subdivisions=1), encoding=encoding)
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    return data[:end].decode(), data[end:]
+
+
+# header lines: 1 ply, 2 format, 3 comment, 4 element vertex 42, 5-7 property float x/y/z, 8 element face 80,
+# 9 property list uchar int vertex_indices, 10 end_header
+@pytest.mark.parametrize("encoding", ["ascii", "binary_little_endian"])
+@pytest.mark.parametrize("old,new,said", [
+    ("end_header\n", "", "bad.ply: PLY header cut short \\(no 'end_header' line\\)"),   # a file cut in its header
+    ("property float y", "property float w", "bad.ply:4: PLY vertex element has no 'y' property \\(expected x, y and z\\)"),
+    ("property float x", "property float128 x", "bad.ply:5: PLY property type 'float128' unknown \\(expected one of "
+                                                 "char, uchar, .*float64\\)"),
+    ("int vertex_indices", "int128 vertex_indices", "bad.ply:9: PLY property type 'int128' unknown"),
+    ("property float y", "property y", "bad.ply:6: PLY property line 'property y' \\(expected 'property TYPE NAME'"),
+    ("element vertex 42", "element vertex -5", "bad.ply:4: PLY element line 'element vertex -5' \\(expected 'element "
+                                               "NAME COUNT', COUNT a whole number 0 or more\\)"),
+    ("element vertex 42", "element vertex 4e9", "bad.ply:4: PLY element line 'element vertex 4e9'"),
+    ("element face", "\nelement face", "bad.ply:8: blank line in the PLY header"),
+    ("comment", "property float q\ncomment", "bad.ply:3: PLY property line 'property float q' before any element"),
+    ("property list uchar int vertex_indices", "property uchar red\nproperty list uchar int corners",
+     "bad.ply:8: PLY face element has no list property of vertex indices \\('vertex_indices' or 'vertex_index'\\)"),
+])
+def test_a_damaged_ply_header_is_refused_naming_its_line(tmp_path, encoding, old, new, said):
+    """File audits, session 63: PLY header damage surfaced in trimesh's or Python's words: a header cut short as "a
+    reference to something it does not hold (list index out of range)", a missing x/y/z or an unknown type as a bare
+    KeyError ("('y')", "('float128')"), faces without a list of vertex indices as "cannot access local variable
+    'faces'"; a property line of another shape trimesh skipped, and read its column as the next property's.  Each
+    is named with its header line, in ASCII and binary PLY alike (the header is text in both)."""
+    head, body = _ico_ply(encoding)
+    assert old in head
+    (tmp_path / "bad.ply").write_bytes(head.replace(old, new, 1).encode() + body)
+    with pytest.raises(WarpbwError, match=said) as ei:
+        load_mesh(tmp_path / "bad.ply")
+    assert "\n" not in str(ei.value)
+
+
+@pytest.mark.parametrize("encoding", ["ascii", "binary_little_endian"])
+def test_a_ply_cut_inside_its_header_is_refused_saying_so(tmp_path, encoding):
+    """A PLY cut anywhere in its header (after its 'ply') was "a reference to something it does not hold (list index
+    out of range)" (file audit, session 63)."""
+    head, _ = _ico_ply(encoding)
+    for cut in range(3, len(head) - 1, 5):
+        (tmp_path / "cut.ply").write_bytes(head[:cut].encode())
+        with pytest.raises(WarpbwError, match="cut.ply: PLY header cut short \\(no 'end_header' line\\): truncated"):
+            load_mesh(tmp_path / "cut.ply")
+
+
+@pytest.mark.parametrize("encoding", ["ascii", "binary_little_endian"])
+def test_ply_header_counts_beyond_the_body_are_refused_saying_so(tmp_path, encoding):
+    """A count of 2**31 - 1 vertices on a body of 42: the ASCII body's rows, or the least bytes a binary body of
+    that many rows takes (each list empty), against what the body holds (file audit, session 63: a binary one was
+    "PLY is unexpected length!")."""
+    head, body = _ico_ply(encoding)
+    (tmp_path / "bad.ply").write_bytes(head.replace("element vertex 42", "element vertex 2147483647").encode() + body)
+    said = ("ASCII PLY header declares 2147483727 rows \\(2147483647 vertex, 80 face\\) but its body holds 122"
+            if encoding == "ascii" else
+            f"binary PLY header declares 2147483647 vertex, 80 face rows \\(at least {(2**31 - 1) * 12 + 80} bytes\\) "
+            f"but its body holds {len(body)} bytes")
+    with pytest.raises(WarpbwError, match=f"bad.ply: {said}: truncated or corrupt"):
+        load_mesh(tmp_path / "bad.ply")
+
+
+@pytest.mark.parametrize("encoding", ["ascii", "binary_little_endian", "binary_big_endian"])
+def test_ply_headers_trimesh_reads_pass_the_header_check(tmp_path, encoding):
+    """The header check refuses nothing trimesh reads right: the sized type names (float32, uint8, int32), faces
+    under 'vertex_index', comment and obj_info lines, a big-endian body, and (binary) a face element whose only
+    property is a list of another name, which trimesh takes as the vertex indices."""
+    import trimesh
+
+    ico = trimesh.creation.icosphere(subdivisions=1)
+    data = trimesh.exchange.ply.export_ply(ico, encoding="ascii" if encoding == "ascii" else "binary")
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    head, body = data[:end].decode(), data[end:]
+    if encoding == "binary_big_endian":   # the same rows, each number byte-swapped
+        vertex = np.frombuffer(body, "<f4", 42 * 3).astype(">f4")
+        face = np.frombuffer(body, [("n", "u1"), ("i", "<i4", 3)], 80, 42 * 12).astype([("n", "u1"), ("i", ">i4", 3)])
+        body = vertex.tobytes() + face.tobytes()
+        head = head.replace("binary_little_endian", "binary_big_endian")
+    head = (head.replace("comment", "obj_info made by hand\ncomment")
+            .replace("float x", "float32 x").replace("uchar int vertex_indices", "uint8 int32 vertex_index"))
+    names = {"sized.ply": head}
+    if encoding != "ascii":
+        names["named.ply"] = head.replace("vertex_index", "corners")
+    for name, text in names.items():
+        (tmp_path / name).write_bytes(text.encode() + body)
+        mesh = load_mesh(tmp_path / name)
+        assert len(mesh.faces) == 80 and len(mesh.vertices) == 42, name
+        np.testing.assert_allclose(np.linalg.norm(mesh.vertices, axis=1), 1.0, rtol=1e-6)
+
+
 def test_obj_vertex_lines_with_w_colour_comments_and_crlf_are_read(tmp_path):
     """The vertex-line check (a line that is not 3 to 7 numbers is refused) passes what trimesh reads: a w, a
     colour, exponents, CRLF line ends, comment lines.  (A comment after the numbers it does not read: refused.)"""

@@ -74,6 +74,13 @@ _OBJ_BAD_VERTEX = re.compile(rb"^[ \t]*v[ \t](?![ \t]*(?:" + _OBJ_NUMBER + rb"[ 
                              + rb"[ \t]*\r?$)[^\n]*", re.M)
 # An OBJ face line of fewer than three vertices ("f 1 3", a line cut short): trimesh dropped it without a word.
 _OBJ_SHORT_FACE = re.compile(rb"^[ \t]*f(?:[ \t]+\S+){0,2}[ \t]*\r?$", re.M)
+# PLY property types and their sizes in bytes: the PLY format's char ... double (Turk 1994) and the sized names int8
+# ... float64 that trimesh's reader also takes (trimesh/exchange/ply.py, _dtypes).
+PLY_TYPE_BYTES = {"char": 1, "uchar": 1, "short": 2, "ushort": 2, "int": 4, "uint": 4, "float": 4, "double": 8,
+                  "int8": 1, "uint8": 1, "int16": 2, "uint16": 2, "int32": 4, "uint32": 4, "int64": 8, "uint64": 8,
+                  "float16": 2, "float32": 4, "float64": 8}
+# The names trimesh's PLY reader looks for on the face element's list of vertex indices (_elements_to_kwargs).
+PLY_FACE_INDEX_NAMES = ("vertex_indices", "vertex_index")
 # A binary STL: an 80-byte comment, a uint32 triangle count, then 50 bytes per triangle (an ASCII one starts "solid").
 STL_HEADER_BYTES, STL_TRIANGLE_BYTES = 84, 50
 
@@ -373,22 +380,105 @@ def _check_float32(verts, path, when: str) -> None:
                           f"within +-{FLOAT32_MAX:.4g})")
 
 
-def _check_ascii_ply_rows(path: Path, data: bytes) -> None:
-    """Refuse an ASCII PLY (``data``, the bytes of ``path``) whose body holds another number of rows than its
-    header's elements declare (one row per vertex, face, ...): trimesh read a file cut short as the faces it kept,
-    and took a face count of 2147483647 on 80 faces, without a word."""
-    end = data.find(b"end_header")
-    if not data.startswith(b"ply") or end < 0 or not re.search(rb"^[ \t]*format[ \t]+ascii", data[:end], re.M):
+@dataclass(frozen=True)
+class _PlyElement:
+    """An element of a PLY header: its name, row count, the header line declaring it, and its properties (name ->
+    (type, the list's count type or None))."""
+
+    name: str
+    count: int
+    line: int
+    props: dict
+
+
+def _ply_header(path: Path, data: bytes) -> tuple[bool, list, int]:
+    """The header of a PLY file (``data``, the bytes of ``path``) as trimesh's reader takes it: whether the body is
+    ASCII, its elements (``_PlyElement``) and where the body starts.  What trimesh would stop on in its own words (a
+    header cut short: "list index out of range"; an unknown type: "('float128')") or skip without a word (a property
+    line of another shape: its column read as the next property's) is a one-line WarpbwError naming the line."""
+    end = re.search(rb"(?<!\S)end_header(?!\S)", data)
+    if end is None:
+        raise WarpbwError(f"{path}: PLY header cut short (no 'end_header' line): truncated or corrupt")
+    newline = data.find(b"\n", end.end())
+    body = len(data) if newline < 0 else newline + 1
+    lines = data[:data.rfind(b"\n", 0, end.start()) + 1].split(b"\n")[:-1]   # the lines before end_header's
+    if not lines or b"ply" not in lines[0].lower():
+        raise WarpbwError(f"{path}: not a PLY file (expected 'ply' on its first line)")
+    if len(lines) < 2:
+        raise WarpbwError(f"{path}:2: PLY header has no 'format' line (expected 'format ascii 1.0' or a binary one)")
+    elements: dict[str, _PlyElement] = {}
+    for number, raw in enumerate(lines[2:], start=3):
+        try:
+            words = raw.decode("utf-8").split()
+        except UnicodeDecodeError:
+            raise WarpbwError(f"{path}:{number}: PLY header line is not UTF-8 text: corrupt") from None
+        said = " ".join(words)
+        if not words:   # trimesh indexed the line's first word
+            raise WarpbwError(f"{path}:{number}: blank line in the PLY header (expected element, property, comment "
+                              "... lines up to 'end_header')")
+        if "element" in words[0]:   # trimesh's test: the word holds "element"
+            count = words[2] if len(words) == 3 else ""
+            if not re.fullmatch(r"\d+", count):
+                raise WarpbwError(f"{path}:{number}: PLY element line {said!r} (expected 'element NAME COUNT', COUNT "
+                                  "a whole number 0 or more)")
+            elements[words[1]] = _PlyElement(words[1], int(count), number, {})
+        elif "property" in words[0]:
+            elements_so_far = list(elements.values())
+            if not elements_so_far:
+                raise WarpbwError(f"{path}:{number}: PLY property line {said!r} before any element line")
+            if len(words) == 5 and "list" in words[1]:
+                types, name = (words[3], words[2]), words[4]
+            elif len(words) == 3 and words[1] != "list":
+                types, name = (words[1], None), words[2]
+            else:   # trimesh skipped the line, and read its column as the next property's
+                raise WarpbwError(f"{path}:{number}: PLY property line {said!r} (expected 'property TYPE NAME' or "
+                                  "'property list COUNT_TYPE TYPE NAME')")
+            for kind in types:
+                if kind is not None and kind not in PLY_TYPE_BYTES:
+                    raise WarpbwError(f"{path}:{number}: PLY property type {kind!r} unknown (expected one of "
+                                      f"{', '.join(PLY_TYPE_BYTES)})")
+            elements_so_far[-1].props[name] = types
+    return b"ascii" in lines[1].lower(), list(elements.values()), body
+
+
+def _check_ply_geometry(path: Path, ascii_body: bool, elements: list) -> None:
+    """Refuse a PLY whose vertices lack x, y or z (trimesh's bare KeyError "('y')") or whose faces lack a list of
+    vertex indices under a name trimesh looks for ("cannot access local variable 'faces'"; a binary file's only
+    list property it takes whatever its name)."""
+    named = {e.name: e for e in elements}
+    vertex, face = named.get("vertex"), named.get("face")
+    for axis in "xyz" if vertex is not None and vertex.count else "":
+        if axis not in vertex.props:
+            raise WarpbwError(f"{path}:{vertex.line}: PLY vertex element has no {axis!r} property (expected x, y "
+                              "and z)")
+    if face is None or not face.count:
         return
-    declared = [(m.group(1).decode("ascii", "replace"), int(m.group(2)))
-                for m in re.finditer(rb"^[ \t]*element[ \t]+(\S+)[ \t]+(\d+)", data[:end], re.M)]
-    body = data[data.find(b"\n", end) + 1:] if data.find(b"\n", end) >= 0 else b""
-    rows = sum(1 for line in body.splitlines() if line.strip())
-    want = sum(n for _, n in declared)
-    if rows != want:
-        said = ", ".join(f"{n} {name}" for name, n in declared)
-        raise WarpbwError(f"{path}: ASCII PLY header declares {want} rows ({said}) but its body holds {rows}: "
-                          "truncated or corrupt")
+    lists = [name for name, (_, count_type) in face.props.items() if count_type is not None]
+    if not (set(lists) & set(PLY_FACE_INDEX_NAMES) or (not ascii_body and len(face.props) == 1 and lists)):
+        raise WarpbwError(f"{path}:{face.line}: PLY face element has no list property of vertex indices "
+                          f"({' or '.join(map(repr, PLY_FACE_INDEX_NAMES))})")
+
+
+def _check_ply(path: Path, data: bytes) -> None:
+    """Refuse a PLY (``data``, the bytes of ``path``) whose header is damaged (``_ply_header``,
+    ``_check_ply_geometry``) or declares more rows than its body holds: an ASCII body of another number of rows (trimesh
+    read a file cut short as the faces it kept, and took a face count of 2147483647 on 80 faces, without a word), a
+    binary one shorter than its rows take at the least (each list empty)."""
+    ascii_body, elements, start = _ply_header(path, data)
+    _check_ply_geometry(path, ascii_body, elements)
+    said = ", ".join(f"{e.count} {e.name}" for e in elements)
+    if ascii_body:
+        rows = sum(1 for line in data[start:].splitlines() if line.strip())
+        want = sum(e.count for e in elements)
+        if rows != want:
+            raise WarpbwError(f"{path}: ASCII PLY header declares {want} rows ({said}) but its body holds {rows}: "
+                              "truncated or corrupt")
+        return
+    least = sum(e.count * sum(PLY_TYPE_BYTES[count_type or kind] for kind, count_type in e.props.values())
+                for e in elements)
+    if least > len(data) - start:
+        raise WarpbwError(f"{path}: binary PLY header declares {said} rows (at least {least} bytes) but its body "
+                          f"holds {len(data) - start} bytes: truncated or corrupt")
 
 
 def _check_obj_lines(path: Path, data: bytes) -> None:
@@ -469,7 +559,7 @@ def _read_merged(path: Path, data: bytes) -> _Merged:
     if path.suffix.lower() == ".obj":
         _check_obj_lines(path, data)
     elif path.suffix.lower() == ".ply":
-        _check_ascii_ply_rows(path, data)
+        _check_ply(path, data)
     # trimesh logs tracebacks at WARNING (a facet normal it recomputes) that say nothing the user could act on
     was_disabled = logging.root.manager.disable
     logging.disable(logging.WARNING)
