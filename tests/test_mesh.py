@@ -6,6 +6,7 @@ out here as matrices, and the bunny's published vertex/face counts.
 """
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -306,29 +307,86 @@ def test_a_binary_stl_whose_length_is_not_its_triangle_counts_is_refused_saying_
         load_mesh(p)
 
 
-def test_a_glb_accessor_naming_a_missing_buffer_view_is_not_called_a_bad_face(tmp_path):
-    """Every IndexError inside trimesh was reported as "a face references a vertex that does not exist"; a GLB
-    accessor naming a buffer view the file lacks is a list index (file audit, session 63).  The GLB (glTF 2.0
-    binary: a 12-byte header, then the JSON chunk's length and type) is an icosphere's, its first accessor's
-    bufferView set to 99, the JSON padded with spaces to its length."""
+def _ico_glb(edit=lambda doc: None) -> bytes:
+    """An icosphere's GLB (42 vertices, 80 faces), its JSON document changed by ``edit``.  The GLB (glTF 2.0 binary):
+    a 12-byte header (magic, version, length), then the JSON chunk's length and type and the JSON, padded with spaces
+    to 4 bytes, then the BIN chunk; the lengths are rewritten with the JSON.  Its layout: accessor 0, 240 face
+    indices (SCALAR uint32) in bufferView 0 (bytes 0 to 960 of buffer 0), accessor 1, 42 positions (VEC3 float32) in
+    bufferView 1 (bytes 960 to 1464)."""
     import json
     import struct
 
     import trimesh
 
     glb = trimesh.creation.icosphere(subdivisions=1).export(file_type="glb")
-    (tmp_path / "ok.glb").write_bytes(glb)
-    assert len(load_mesh(tmp_path / "ok.glb").faces) == 80
     n = struct.unpack_from("<I", glb, 12)[0]
     doc = json.loads(glb[20:20 + n])
-    doc["accessors"][0]["bufferView"] = 99
-    text = json.dumps(doc, separators=(",", ":")).encode()
-    assert len(text) <= n
-    (tmp_path / "bad.glb").write_bytes(glb[:20] + text.ljust(n) + glb[20 + n:])
-    with pytest.raises(WarpbwError, match=r"bad.glb: malformed mesh file, a reference to something it does not "
-                                          r"hold \(list index out of range\)") as ei:
+    edit(doc)
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    rest = glb[20 + n:]
+    return struct.pack("<4sII", b"glTF", 2, 20 + len(text) + len(rest)) + struct.pack("<I4s", len(text), b"JSON") \
+        + text + rest
+
+
+@pytest.mark.parametrize("edit,said", [
+    (lambda d: d["accessors"][0].update(bufferView=99),
+     "glTF accessor 0 names bufferView 99, which the file does not hold \\(it has 2\\)"),
+    (lambda d: d["accessors"][0].update(bufferView=-1),
+     "glTF accessor 0's bufferView -1 is not a whole number 0 or more"),
+    (lambda d: d["bufferViews"][0].update(byteLength=2**31 - 1),
+     "glTF bufferView 0 \\(bytes 0 to 2147483647\\) passes the end of buffer 0 \\(1464 bytes\\): truncated or corrupt"),
+    (lambda d: d["bufferViews"][1].update(byteOffset=4000),
+     "glTF bufferView 1 \\(bytes 4000 to 4504\\) passes the end of buffer 0 \\(1464 bytes\\)"),
+    (lambda d: d["bufferViews"][1].update(buffer=3),
+     "glTF bufferView 1 names buffer 3, which the file does not hold \\(it has 1\\)"),
+    (lambda d: d["accessors"][1].update(count=43),
+     "glTF accessor 1 \\(43 VEC3 of 12 bytes from byte 0\\) passes the end of bufferView 1 \\(504 bytes\\)"),
+    (lambda d: d["accessors"][0].update(count=2**31 - 1),
+     "glTF accessor 0 \\(2147483647 SCALAR of 4 bytes from byte 0\\) passes the end of bufferView 0 \\(960 bytes\\)"),
+    (lambda d: d["accessors"][1].update(byteOffset=12),
+     "glTF accessor 1 \\(42 VEC3 of 12 bytes from byte 12\\) passes"),
+    (lambda d: d["bufferViews"][1].update(byteStride=16),
+     "glTF accessor 1 \\(42 VEC3 of 12 bytes from byte 0, one every 16 bytes\\) passes the end of bufferView 1"),
+    (lambda d: d["accessors"][1].update(type="VEC7"),
+     "glTF accessor 1's type 'VEC7' unknown \\(expected one of SCALAR, VEC2, VEC3, VEC4, MAT2, MAT3, MAT4\\)"),
+    (lambda d: d["accessors"][1].update(componentType=5124), "glTF accessor 1's componentType 5124 unknown"),
+])
+def test_a_glb_reaching_past_what_it_holds_is_refused_naming_the_index(tmp_path, edit, said):
+    """File audits, session 63: a GLB accessor naming a bufferView the file lacks was "a reference to something it
+    does not hold (list index out of range)" (and before that "a face references a vertex that does not exist"), a
+    bufferView passing its buffer's end a bare "AssertionError", an accessor passing its bufferView's numpy's "cannot
+    reshape", an unknown type a bare KeyError; a negative bufferView index read another view.  The JSON chunk's
+    layout is checked before trimesh, and each is named with its index."""
+    (tmp_path / "bad.glb").write_bytes(_ico_glb(edit))
+    with pytest.raises(WarpbwError, match=f"bad.glb: {said}") as ei:
         load_mesh(tmp_path / "bad.glb")
-    assert "face" not in str(ei.value)
+    assert "\n" not in str(ei.value) and "face" not in str(ei.value) and "does not hold (list" not in str(ei.value)
+
+
+def test_glb_and_gltf_layouts_trimesh_reads_pass_the_layout_check(tmp_path):
+    """The layout check passes what trimesh reads: the GLB itself, its JSON rewritten, an explicit byteStride equal
+    to the element, a .gltf with its buffers in files beside it (their lengths not checked, the accessors against
+    their bufferViews still are); a GLB cut inside its BIN chunk is named as such (it was "chunk was not expected
+    length!")."""
+    import trimesh
+
+    (tmp_path / "ok.glb").write_bytes(_ico_glb())
+    (tmp_path / "stride.glb").write_bytes(_ico_glb(lambda d: d["bufferViews"][1].update(byteStride=12)))
+    gltf = trimesh.creation.icosphere(subdivisions=1).export(file_type="gltf")
+    for name, data in gltf.items():
+        (tmp_path / name).write_bytes(data)
+    for name in ("ok.glb", "stride.glb", "model.gltf"):
+        mesh = load_mesh(tmp_path / name)
+        assert len(mesh.faces) == 80 and len(mesh.vertices) == 42, name
+    doc = json.loads(gltf["model.gltf"])
+    doc["accessors"][1]["count"] = 43
+    (tmp_path / "bad.gltf").write_text(json.dumps(doc))
+    with pytest.raises(WarpbwError, match="bad.gltf: glTF accessor 1 \\(43 VEC3 of 12 bytes from byte 0\\) passes"):
+        load_mesh(tmp_path / "bad.gltf")
+    (tmp_path / "cut.glb").write_bytes(_ico_glb()[:-10])
+    with pytest.raises(WarpbwError, match="cut.glb: GLB chunk 1 declares 1464 bytes but 1454 follow its head"):
+        load_mesh(tmp_path / "cut.glb")
 
 
 def test_a_mesh_placed_many_times_is_read_once_and_each_copy_is_its_own_load(tmp_path, monkeypatch):
@@ -412,7 +470,8 @@ def _ico_ply(encoding: str) -> tuple[str, bytes]:
 @pytest.mark.parametrize("encoding", ["ascii", "binary_little_endian"])
 @pytest.mark.parametrize("old,new,said", [
     ("end_header\n", "", "bad.ply: PLY header cut short \\(no 'end_header' line\\)"),   # a file cut in its header
-    ("property float y", "property float w", "bad.ply:4: PLY vertex element has no 'y' property \\(expected x, y and z\\)"),
+    ("property float y", "property float w",
+     "bad.ply:4: PLY vertex element has no 'y' property \\(expected x, y and z\\)"),
     ("property float x", "property float128 x", "bad.ply:5: PLY property type 'float128' unknown \\(expected one of "
                                                  "char, uchar, .*float64\\)"),
     ("int vertex_indices", "int128 vertex_indices", "bad.ply:9: PLY property type 'int128' unknown"),

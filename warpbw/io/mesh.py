@@ -36,6 +36,7 @@ Class: ``MeshData``.  Constant: ``CURVATURE_SMOOTHING_PASSES``.
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import math
 import re
@@ -81,6 +82,14 @@ PLY_TYPE_BYTES = {"char": 1, "uchar": 1, "short": 2, "ushort": 2, "int": 4, "uin
                   "float16": 2, "float32": 4, "float64": 8}
 # The names trimesh's PLY reader looks for on the face element's list of vertex indices (_elements_to_kwargs).
 PLY_FACE_INDEX_NAMES = ("vertex_indices", "vertex_index")
+# A GLB (glTF 2.0's binary container, Khronos glTF 2.0 specification Sec. 4.4): a 12-byte header (magic, version,
+# length), then chunks of an 8-byte head (the data's length, its type) and the data: JSON first, then BIN.
+GLB_HEADER_BYTES, GLB_CHUNK_HEAD_BYTES = 12, 8
+_GLB_MAGIC, _GLB_JSON, _GLB_BIN = b"glTF", b"JSON", b"BIN\0"
+# glTF accessor component types and their sizes in bytes (glTF 2.0 Sec. 3.6.2.2: BYTE ... FLOAT; 5124 is none).
+GLTF_COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+# glTF accessor types and their components per element (the same section; trimesh reads matrices unpadded).
+GLTF_TYPE_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 # A binary STL: an 80-byte comment, a uint32 triangle count, then 50 bytes per triangle (an ASCII one starts "solid").
 STL_HEADER_BYTES, STL_TRIANGLE_BYTES = 84, 50
 
@@ -520,6 +529,114 @@ def _stl_damage(path: Path, data: bytes) -> str | None:
             f"= {want} bytes) but the file is {size} bytes: truncated or corrupt")
 
 
+def _gltf_document(path: Path, data: bytes) -> tuple[dict, list] | None:
+    """The JSON document of a glTF file (``data``, the bytes of ``path``: a GLB, or a .gltf's text) and the length of
+    each buffer as trimesh's reader holds it: a GLB's BIN chunks in turn, None for one read from a URI (not checked
+    here).  None where the JSON does not parse or the GLB's first chunk is not JSON: trimesh's message says that.  A
+    GLB chunk longer than the bytes after its head is refused (trimesh: "chunk was not expected length!")."""
+    if path.suffix.lower() == ".gltf":
+        text, chunks = data, []
+    elif data[:4] == _GLB_MAGIC and data[16:20] == _GLB_JSON:
+        start = GLB_HEADER_BYTES + GLB_CHUNK_HEAD_BYTES
+        text = data[start:start + int.from_bytes(data[12:16], "little")]
+        chunks, pos = [], start + len(text)
+        while pos + GLB_CHUNK_HEAD_BYTES <= len(data):
+            size, kind = int.from_bytes(data[pos:pos + 4], "little"), data[pos + 4:pos + 8]
+            pos += GLB_CHUNK_HEAD_BYTES
+            if pos + size > len(data):
+                raise WarpbwError(f"{path}: GLB chunk {len(chunks) + 1} declares {size} bytes but {len(data) - pos} "
+                                  "follow its head: truncated or corrupt")
+            chunks.append(size if kind == _GLB_BIN else None)
+            pos += size
+    else:
+        return None
+    try:
+        doc = json.loads(text)
+    except (ValueError, UnicodeDecodeError):
+        return None
+    if not isinstance(doc, dict) or not isinstance(doc.get("buffers", []), list):
+        return None
+    bins = iter([size for size in chunks if size is not None])
+    lengths = []
+    for buffer in doc.get("buffers", []):   # trimesh: a buffer with a URI reads it, one without the next BIN chunk
+        if isinstance(buffer, dict) and "uri" in buffer:
+            lengths.append(None)
+        elif (size := next(bins, None)) is not None:
+            lengths.append(size)
+    return doc, lengths + list(bins)
+
+
+def _gltf_whole(path: Path, item: dict, key: str, what: str, default=None, least: int = 0) -> int:
+    """``item[key]`` (``default`` when absent) when a whole number >= ``least``, else a one-line WarpbwError naming
+    ``what`` (trimesh indexed lists with it: a negative one read another item, a float failed in Python's words)."""
+    value = item.get(key, default)
+    if value is None:
+        raise WarpbwError(f"{path}: glTF {what} has no {key!r}")
+    if isinstance(value, bool) or not isinstance(value, int) or value < least:
+        raise WarpbwError(f"{path}: glTF {what}'s {key} {value!r} is not a whole number {least} or more")
+    return value
+
+
+def _check_gltf_views(path: Path, views: list, buffer_bytes: list) -> list:
+    """Refuse a glTF bufferView that names a buffer the file lacks or passes its end (trimesh: "list index out of
+    range", a bare AssertionError); the views' lengths in bytes."""
+    lengths = []
+    for i, view in enumerate(views):
+        what = f"bufferView {i}"
+        buffer = _gltf_whole(path, view, "buffer", what)
+        start, size = _gltf_whole(path, view, "byteOffset", what, 0), _gltf_whole(path, view, "byteLength", what)
+        if buffer >= len(buffer_bytes):
+            raise WarpbwError(f"{path}: glTF {what} names buffer {buffer}, which the file does not hold (it has "
+                              f"{len(buffer_bytes)})")
+        held = buffer_bytes[buffer]
+        if held is not None and start + size > held:
+            raise WarpbwError(f"{path}: glTF {what} (bytes {start} to {start + size}) passes the end of buffer "
+                              f"{buffer} ({held} bytes): truncated or corrupt")
+        lengths.append(size)
+    return lengths
+
+
+def _check_gltf_accessors(path: Path, accessors: list, views: list, view_bytes: list) -> None:
+    """Refuse a glTF accessor that names a bufferView the file lacks, has an unknown type, or whose elements pass its
+    bufferView's end (trimesh: "list index out of range", a bare KeyError ('VEC7'), numpy's "cannot reshape")."""
+    for i, acc in enumerate(accessors):
+        what = f"accessor {i}"
+        if "bufferView" not in acc:   # zeros, or data an extension or a sparse block supplies
+            continue
+        v = _gltf_whole(path, acc, "bufferView", what)
+        if v >= len(views):
+            raise WarpbwError(f"{path}: glTF {what} names bufferView {v}, which the file does not hold (it has "
+                              f"{len(views)})")
+        component, kind = acc.get("componentType"), acc.get("type")
+        for key, value, known in (("componentType", component, GLTF_COMPONENT_BYTES),
+                                  ("type", kind, GLTF_TYPE_COMPONENTS)):
+            if isinstance(value, bool) or value not in known:
+                raise WarpbwError(f"{path}: glTF {what}'s {key} {value!r} unknown (expected one of "
+                                  f"{', '.join(map(str, known))})")
+        count, start = _gltf_whole(path, acc, "count", what), _gltf_whole(path, acc, "byteOffset", what, 0)
+        element = GLTF_COMPONENT_BYTES[component] * GLTF_TYPE_COMPONENTS[kind]
+        stride = _gltf_whole(path, views[v], "byteStride", f"bufferView {v}", element, 1)
+        end = start + (count - 1) * stride + element if count else start
+        if end > view_bytes[v]:
+            every = f", one every {stride} bytes" if stride != element else ""
+            raise WarpbwError(f"{path}: glTF {what} ({count} {kind} of {element} bytes from byte {start}{every}) "
+                              f"passes the end of bufferView {v} ({view_bytes[v]} bytes): truncated or corrupt")
+
+
+def _check_gltf(path: Path, data: bytes) -> None:
+    """Refuse a GLB or glTF (``data``, the bytes of ``path``) whose accessors or bufferViews reach past what it holds
+    (``_check_gltf_views``, ``_check_gltf_accessors``), naming the index, before trimesh reads it."""
+    parsed = _gltf_document(path, data)
+    if parsed is None:
+        return
+    doc, buffer_bytes = parsed
+    views, accessors = doc.get("bufferViews", []), doc.get("accessors", [])
+    if not (isinstance(views, list) and isinstance(accessors, list)
+            and all(isinstance(item, dict) for item in views + accessors)):
+        return   # not a layout trimesh reads either: its message names it
+    _check_gltf_accessors(path, accessors, views, _check_gltf_views(path, views, buffer_bytes))
+
+
 @dataclass(frozen=True)
 class _Merged:
     """A mesh file as read, checked and merged, before its transform: vertices (float64, read-only, times
@@ -551,6 +668,18 @@ def _merged_mesh(path: Path) -> _Merged:
     return merged
 
 
+def _read_failure(path: Path, data: bytes, exc: Exception) -> str:
+    """The message for a file (``data``, the bytes of ``path``) trimesh stopped on with ``exc`` after the checks
+    before it passed: the damage where an STL's check names it, else trimesh's words without a cause they do not give
+    (a GLB's "list index out of range" was "a reference to something it does not hold", an accessor's bufferView)."""
+    stl = _stl_damage(path, data) if path.suffix.lower() == ".stl" else None
+    if stl:
+        return stl
+    if isinstance(exc, IndexError) and "out of bounds for axis 0" in str(exc):   # numpy's, trimesh indexing an array
+        return f"{path}: a face references a vertex that does not exist ({_one_line(exc)}); malformed mesh"
+    return f"{path}: malformed or unsupported mesh file (trimesh: {_one_line(exc)}); expected {_SUPPORTED}"
+
+
 def _read_merged(path: Path, data: bytes) -> _Merged:
     """Read a mesh file with trimesh, refuse what is malformed (naming the file; ``data``, its bytes, for the checks
     before and after trimesh), and merge coincident vertices."""
@@ -560,6 +689,8 @@ def _read_merged(path: Path, data: bytes) -> _Merged:
         _check_obj_lines(path, data)
     elif path.suffix.lower() == ".ply":
         _check_ply(path, data)
+    elif path.suffix.lower() in (".glb", ".gltf"):
+        _check_gltf(path, data)
     # trimesh logs tracebacks at WARNING (a facet normal it recomputes) that say nothing the user could act on
     was_disabled = logging.root.manager.disable
     logging.disable(logging.WARNING)
@@ -567,19 +698,8 @@ def _read_merged(path: Path, data: bytes) -> _Merged:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             mesh = trimesh.load_scene(str(path), process=False).to_mesh()
-    except IndexError as exc:  # trimesh indexes its vertex array with the file's face indices (numpy's words)
-        if "out of bounds for axis 0" in str(exc):
-            raise WarpbwError(
-                f"{path}: a face references a vertex that does not exist ({_one_line(exc)}); malformed mesh"
-            ) from None
-        raise WarpbwError(   # a GLB accessor naming a buffer view it lacks, say: a list's index, not a face's
-            f"{path}: malformed mesh file, a reference to something it does not hold ({_one_line(exc)}); expected "
-            f"{_SUPPORTED}") from None
-    except Exception as exc:  # trimesh raises ValueError, KeyError... on malformed or unknown files
-        stl = _stl_damage(path, data) if path.suffix.lower() == ".stl" else None
-        raise WarpbwError(
-            stl or f"{path}: malformed or unsupported mesh file ({_one_line(exc)}); expected {_SUPPORTED}"
-        ) from None
+    except Exception as exc:  # trimesh raises ValueError, KeyError, IndexError... on malformed or unknown files
+        raise WarpbwError(_read_failure(path, data, exc)) from None
     finally:
         logging.disable(was_disabled)
     faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
