@@ -243,7 +243,8 @@ def test_missing_file(tmp_path):
     "name,text,match",
     [
         ("garbage.obj", "hello world\nthis is not a mesh\n", "no triangles"),
-        ("novertex.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", "does not exist"),
+        ("novertex.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n",
+         "novertex.obj:4: face index 7 is past the file's 3 vertices \\(expected 1 to 3, or -1 to -3 counting back\\)"),
         ("nan.obj", "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n", "non-finite"),
         ("points.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n", "no triangles"),
         ("empty.obj", "", "no triangles"),
@@ -550,6 +551,61 @@ def test_ply_headers_trimesh_reads_pass_the_header_check(tmp_path, encoding):
         mesh = load_mesh(tmp_path / name)
         assert len(mesh.faces) == 80 and len(mesh.vertices) == 42, name
         np.testing.assert_allclose(np.linalg.norm(mesh.vertices, axis=1), 1.0, rtol=1e-6)
+
+
+TRIANGLE_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\n"
+
+
+@pytest.mark.parametrize("faces,said", [
+    # numpy's int64 parse saturated it: "index 9223372036854775806 is out of bounds for axis 0 with size 3"
+    ("f 1 2 99999999999999999999\n", ":4: face index 99999999999999999999 is past the file's 3 vertices \\(expected 1 "
+                                     "to 3, or -1 to -3 counting back\\)"),
+    ("f 1 2 3\nf -1 -2 -99999999999999999999\n", ":5: face index -99999999999999999999 counts back past the 3 vertices "
+                                                "defined before it"),
+    ("f -1 -2 -4\n", ":4: face index -4 counts back past the 3 vertices defined before it"),
+    ("vt 0 0\nvn 0 0 1\nf 1/1/1 2/1/1 3/1/1\nf 1/1/1 3/1/1 9/1/1\n", ":7: face index 9 is past the file's 3 vertices"),
+    # trimesh dropped every texture coordinate for one out of range, and the mesh rendered without them
+    ("vt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\nf 3/3 2/2 1/7\n", ":8: face texture index 7 is past the file's 3 texture "
+                                                              "coordinates \\(expected 1 to 3"),
+    # -1 is the last vertex defined so far: trimesh read it as the file's last, and the first triangle was the second
+    ("f -3 -2 -1\nv 5 0 0\nv 6 0 0\nv 5 1 0\nf -3 -2 -1\n", ":4: face index -3 counts back from the 3 vertices "
+                                                          "defined so far, but trimesh counts back from the file's 6"),
+    ("vt 0 0\nf 1/-1 2/-1 3/-1\nvt 1 1\n", ":5: face texture index -1 counts back from the 1 texture coordinates "
+                                          "defined so far"),
+])
+def test_an_obj_face_index_outside_the_vertices_is_named_as_written_with_its_line(tmp_path, faces, said):
+    """File audit, session 63: an OBJ face index of 99999999999999999999 was reported as "index
+    9223372036854775806" (numpy's int64 parse); an index outside the vertices (or texture coordinates) is named as
+    the file writes it, with its line, counting back from the vertices defined before the face; a relative index
+    that trimesh reads as another vertex than the file means is refused."""
+    (tmp_path / "bad.obj").write_text(TRIANGLE_OBJ + faces)
+    with pytest.raises(WarpbwError, match=f"bad.obj{said}.*; malformed mesh$") as ei:
+        load_mesh(tmp_path / "bad.obj")
+    assert "\n" not in str(ei.value)
+
+
+def test_obj_indices_trimesh_reads_right_load_without_the_line_by_line_check(tmp_path, monkeypatch):
+    """Relative indices after the last vertex line, texture and normal indices in range, and positive indices in a
+    file that defines vertices after faces (objects one after another) load as the file means, and without the
+    line-by-line index check, which runs only where trimesh failed or a relative index comes before a vertex line
+    (so that the bunny's load is not slowed)."""
+    import warpbw.io.mesh as M
+
+    files = {"relative.obj": TRIANGLE_OBJ + "v 1 1 0\nf -4 -3 -2\nf -3 -1 -2\n",
+             "textured.obj": TRIANGLE_OBJ + "vt 0 0\nvt 1 0\nvt 0 1\nvn 0 0 1\nf 1/1/1 2/2/1 3/3/1\n",
+             "objects.obj": TRIANGLE_OBJ + "f 1 2 3\nv 5 0 0\nv 6 0 0\nv 5 1 0\nf 4 5 6\n"}
+    monkeypatch.setattr(M, "_obj_index_problem", lambda *a: pytest.fail("the line-by-line check ran"))
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+        mesh = load_mesh(tmp_path / name)
+        assert mesh.faces.shape == ((1, 3) if name == "textured.obj" else (2, 3)), name
+    np.testing.assert_allclose(load_mesh(tmp_path / "relative.obj").vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0],
+                                                                               [1, 1, 0]])
+    assert load_mesh(tmp_path / "textured.obj").uv is not None
+    np.testing.assert_allclose(np.ptp(load_mesh(tmp_path / "objects.obj").vertices[:, 0]), 6.0)
+    monkeypatch.undo()   # a relative index after an object's vertices, vertices following: checked, and read right
+    (tmp_path / "later.obj").write_text(TRIANGLE_OBJ + "f 1 2 3\nv 5 0 0\nv 6 0 0\nv 5 1 0\nf -3 -2 -1\n")
+    np.testing.assert_allclose(np.ptp(load_mesh(tmp_path / "later.obj").vertices[:, 0]), 6.0)
 
 
 def test_obj_vertex_lines_with_w_colour_comments_and_crlf_are_read(tmp_path):

@@ -73,6 +73,12 @@ _OBJ_ZERO_INDEX = re.compile(rb"^[ \t]*f[ \t][^\n]*?(?<=[ \t])0(?:/\S*)?(?=\s|$)
 _OBJ_NUMBER = rb"(?i:[-+]?(?:(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?|nan|inf(?:inity)?))"
 _OBJ_BAD_VERTEX = re.compile(rb"^[ \t]*v[ \t](?![ \t]*(?:" + _OBJ_NUMBER + rb"[ \t]+){2,6}" + _OBJ_NUMBER
                              + rb"[ \t]*\r?$)[^\n]*", re.M)
+# The indices of an OBJ face corner (v, v/vt, v//vn, v/vt/vn) that trimesh reads: the vertex's and the texture
+# coordinate's (a normal's it drops when out of range, and warpbw derives its own), with the words and the lines
+# defining what they index.  Each counts from 1, or back from -1: the last one defined so far (the OBJ format).
+_OBJ_INDEXED = {b"v": ("face index", "vertices"), b"vt": ("face texture index", "texture coordinates")}
+# A face line holding a minus sign, a negative index: found from the first face line on.
+_OBJ_NEGATIVE_FACE = re.compile(rb"^f[ \t][^\n]*-", re.M)
 # An OBJ face line of fewer than three vertices ("f 1 3", a line cut short): trimesh dropped it without a word.
 _OBJ_SHORT_FACE = re.compile(rb"^[ \t]*f(?:[ \t]+\S+){0,2}[ \t]*\r?$", re.M)
 # PLY property types and their sizes in bytes: the PLY format's char ... double (Turk 1994) and the sized names int8
@@ -507,6 +513,62 @@ def _check_obj_lines(path: Path, data: bytes) -> None:
                               "malformed mesh")
 
 
+def _obj_corner_problem(text: bytes, kind: bytes, so_far: int, total: int) -> str | None:
+    """What is wrong with one index of an OBJ face corner as written (``text``), into the items of ``kind`` (b"v",
+    b"vt": ``_OBJ_INDEXED``), ``so_far`` of them defined before its face and ``total`` in the file; None when trimesh
+    reads the item the file means."""
+    (what, noun), keyword, shown = _OBJ_INDEXED[kind], f"'{kind.decode()}' line", text.decode("utf-8", "replace")
+    try:
+        i = int(text)
+    except ValueError:
+        return f"{what} {shown!r} is not a whole number"
+    if i == 0:
+        return f"{what} 0 (OBJ indices count from 1, or back from -1)"
+    expected = f"expected 1 to {total}, or -1 to -{so_far} counting back"
+    if i > total:
+        return f"{what} {shown} is past the file's {total} {noun} ({expected})"
+    if -i > so_far:
+        return f"{what} {shown} counts back past the {so_far} {noun} defined before it ({expected})"
+    if i < 0 and so_far < total:
+        return (f"{what} {shown} counts back from the {so_far} {noun} defined so far, but trimesh counts back from the "
+                f"file's {total}: another one (expected positive indices, or negative ones after the last {keyword})")
+    return None
+
+
+def _obj_index_problem(path: Path, data: bytes) -> str | None:
+    """The first face corner of an OBJ (``data``, the bytes of ``path``) whose vertex or texture index, as written,
+    lies outside those defined (trimesh's int64 parse made 99999999999999999999 "index 9223372036854775806"), or
+    counts back from those defined so far where more follow (trimesh counts back from the file's last one: another
+    vertex, without a word), with its line; else None.  A loop over the lines, run where trimesh failed or found no
+    texture coordinates, or a face counts back before a definition (``_obj_may_count_back_early``): not on every
+    load."""
+    lines = data.split(b"\n")
+    firsts = [line.split(None, 1)[:1] for line in lines]
+    total = {kind: firsts.count([kind]) for kind in _OBJ_INDEXED}
+    so_far = dict.fromkeys(total, 0)
+    for number, (line, first) in enumerate(zip(lines, firsts), start=1):
+        if first and first[0] in so_far:
+            so_far[first[0]] += 1
+        if first != [b"f"]:
+            continue
+        for corner in line.split()[1:]:
+            for text, kind in zip(corner.split(b"/"), _OBJ_INDEXED):
+                problem = text and _obj_corner_problem(text, kind, so_far[kind], total[kind])
+                if problem:
+                    return f"{path}:{number}: {problem}; malformed mesh"
+    return None
+
+
+def _obj_may_count_back_early(data: bytes) -> bool:
+    """Whether an OBJ (``data``) has a vertex or texture coordinate defined after its first face, and a face with a
+    negative index: the case a relative index may mean another item than trimesh reads (``_obj_index_problem``
+    decides).  Found with trimesh's own markers ("\\nv ", "\\nf "), without a pass over every line."""
+    first_face = 0 if data.startswith(b"f ") else data.find(b"\nf ")
+    if first_face < 0 or max(data.rfind(b"\nv "), data.rfind(b"\nvt ")) < first_face:
+        return False
+    return _OBJ_NEGATIVE_FACE.search(data, first_face) is not None
+
+
 def _stl_damage(path: Path, data: bytes) -> str | None:
     """What is wrong with an STL file (``data``, the bytes of ``path``) trimesh found no triangles in: an ASCII one
     that does not end in "endsolid" (cut short), or a binary one whose length is not what its triangle count says
@@ -672,11 +734,12 @@ def _read_failure(path: Path, data: bytes, exc: Exception) -> str:
     """The message for a file (``data``, the bytes of ``path``) trimesh stopped on with ``exc`` after the checks
     before it passed: the damage where an STL's check names it, else trimesh's words without a cause they do not give
     (a GLB's "list index out of range" was "a reference to something it does not hold", an accessor's bufferView)."""
-    stl = _stl_damage(path, data) if path.suffix.lower() == ".stl" else None
-    if stl:
-        return stl
+    named = {".stl": _stl_damage, ".obj": _obj_index_problem}.get(path.suffix.lower(), lambda path, data: None)
+    problem = named(path, data)
+    if problem:
+        return problem
     if isinstance(exc, IndexError) and "out of bounds for axis 0" in str(exc):   # numpy's, trimesh indexing an array
-        return f"{path}: a face references a vertex that does not exist ({_one_line(exc)}); malformed mesh"
+        return f"{path}: an index in the file lies outside the array it indexes ({_one_line(exc)}); malformed mesh"
     return f"{path}: malformed or unsupported mesh file (trimesh: {_one_line(exc)}); expected {_SUPPORTED}"
 
 
@@ -687,6 +750,9 @@ def _read_merged(path: Path, data: bytes) -> _Merged:
 
     if path.suffix.lower() == ".obj":
         _check_obj_lines(path, data)
+        problem = _obj_index_problem(path, data) if _obj_may_count_back_early(data) else None
+        if problem:
+            raise WarpbwError(problem)
     elif path.suffix.lower() == ".ply":
         _check_ply(path, data)
     elif path.suffix.lower() in (".glb", ".gltf"):
@@ -711,7 +777,12 @@ def _read_merged(path: Path, data: bytes) -> _Merged:
         raise WarpbwError(f"{path}: vertices read with {verts.shape[-1] if verts.ndim == 2 else 0} coordinates "
                           "each (expected x, y and z on every vertex line)")
     if faces.min() < 0 or faces.max() >= len(verts):
-        raise WarpbwError(f"{path}: faces reference vertices outside 0..{len(verts) - 1} (malformed mesh)")
+        raise WarpbwError((_obj_index_problem(path, data) if path.suffix.lower() == ".obj" else None)
+                          or f"{path}: faces reference vertices outside 0..{len(verts) - 1} (malformed mesh)")
+    if path.suffix.lower() == ".obj" and getattr(mesh.visual, "uv", None) is None and b"vt " in data:
+        problem = _obj_index_problem(path, data)   # trimesh drops every texture coordinate for one out of range
+        if problem:
+            raise WarpbwError(problem)
     n_bad = int(np.count_nonzero(~np.all(np.isfinite(verts), axis=1)))
     if n_bad:
         raise WarpbwError(f"{path}: {n_bad} vertices have non-finite coordinates (expected finite numbers)")
