@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -606,6 +607,56 @@ def test_obj_indices_trimesh_reads_right_load_without_the_line_by_line_check(tmp
     monkeypatch.undo()   # a relative index after an object's vertices, vertices following: checked, and read right
     (tmp_path / "later.obj").write_text(TRIANGLE_OBJ + "f 1 2 3\nv 5 0 0\nv 6 0 0\nv 5 1 0\nf -3 -2 -1\n")
     np.testing.assert_allclose(np.ptp(load_mesh(tmp_path / "later.obj").vertices[:, 0]), 6.0)
+
+
+def _damaged_ascii_stl(damage: str) -> bytes:
+    """An icosphere's ASCII STL (80 facets of 7 lines after the 'solid' line: facet normal, outer loop, three vertex
+    lines, endloop, endfacet), damaged: ``zeroed``, 1 KiB of NUL bytes from byte 11 (four facets and parts of two
+    more: file audit 2, session 63); ``two``/``four``, the first vertex line of two or four numbers; ``word``, a
+    letter before the first number of facet 5's first vertex line (line 32); ``normal``, a facet normal that is not
+    numbers."""
+    import trimesh
+
+    text = trimesh.exchange.stl.export_stl_ascii(trimesh.creation.icosphere(subdivisions=1))
+    lines = text.split("\n")
+    first = next(i for i, line in enumerate(lines) if line.strip().startswith("vertex"))
+    if damage == "zeroed":
+        data = bytearray(text.encode())
+        data[11:11 + 1024] = bytes(1024)
+        return bytes(data)
+    if damage == "normal":
+        return text.replace("facet normal", "facet normal a b c #", 1).encode()
+    edit = {"two": (first, lambda line: " ".join(line.split()[:3])), "four": (first, lambda line: line + " 4.0"),
+            "word": (first + 7 * 4, lambda line: line.replace("vertex ", "vertex x", 1))}[damage]
+    lines[edit[0]] = edit[1](lines[edit[0]])
+    return "\n".join(lines).encode()
+
+
+@pytest.mark.parametrize("damage,said", [
+    ("zeroed", ":2: ASCII STL read as 76 triangles, but it has 77 'endfacet' and 228 'vertex' lines and NUL bytes "
+               "\\(first damaged line: 'face\\\\x00.*'\\): truncated or corrupt"),
+    ("two", ":4: ASCII STL line 'vertex -0.5257311121191336 0.85065080835204' \\(expected 'vertex x y z': three "
+            "numbers\\): corrupt"),
+    ("four", ":4: ASCII STL line 'vertex .* 0.0 4.*' \\(expected 'vertex x y z': three numbers\\): corrupt"),
+    ("word", ":32: ASCII STL line 'vertex x-0.52.*' \\(expected 'vertex x y z': three numbers\\): corrupt"),
+])
+def test_an_ascii_stl_with_damaged_facets_is_refused_naming_the_counts_or_the_line(tmp_path, damage, said):
+    """File audit 2, session 63 (F2): trimesh reads the numbers after every 'vertex' keyword, so a zeroed run that
+    wiped whole facets rendered the other 76 of 80 without a word; a vertex line of two or four numbers, or a word
+    in one, stopped it in its own words ("incorrect number of vertices", numpy's "could not be read to its end").
+    The triangles read are counted against the file's 'endfacet' and 'vertex' lines, and where they fall short, or
+    trimesh stops, the first damaged line is named."""
+    (tmp_path / "bad.stl").write_bytes(_damaged_ascii_stl(damage))
+    with pytest.raises(WarpbwError, match=f"^{re.escape(str(tmp_path / 'bad.stl'))}{said}$"):
+        load_mesh(tmp_path / "bad.stl")
+
+
+def test_an_ascii_stl_facet_normal_trimesh_recomputes_loads_and_prints_nothing(tmp_path, capfd):
+    """A facet normal that is not three numbers is recomputed by trimesh (it logged a traceback on stderr): the file
+    loads, whole, and nothing reaches stdout or stderr."""
+    (tmp_path / "normal.stl").write_bytes(_damaged_ascii_stl("normal"))
+    assert len(load_mesh(tmp_path / "normal.stl").faces) == 80
+    assert capfd.readouterr() == ("", "")
 
 
 def test_obj_vertex_lines_with_w_colour_comments_and_crlf_are_read(tmp_path):

@@ -98,6 +98,12 @@ GLTF_COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
 GLTF_TYPE_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 # A binary STL: an 80-byte comment, a uint32 triangle count, then 50 bytes per triangle (an ASCII one starts "solid").
 STL_HEADER_BYTES, STL_TRIANGLE_BYTES = 84, 50
+# A line that is none of an ASCII STL's (solid and endsolid with a name, facet normal with anything after it: trimesh
+# recomputes a normal it cannot read; outer loop, vertex and three numbers, endloop, endfacet, a blank line), or that
+# holds a NUL byte: the first damaged line, named when trimesh stops or reads fewer triangles than the file holds.
+_STL_DAMAGED_LINE = re.compile(
+    rb"^(?!(?:\xef\xbb\xbf)?[ \t]*(?:(?:solid|endsolid|facet[ \t]+normal)(?:[ \t][^\n\0]*)?|outer[ \t]+loop|endloop"
+    rb"|endfacet|vertex(?:[ \t]+" + _OBJ_NUMBER + rb"){3})?[ \t]*\r?$)[^\n]*", re.M | re.I)
 
 
 @dataclass
@@ -591,6 +597,52 @@ def _stl_damage(path: Path, data: bytes) -> str | None:
             f"= {want} bytes) but the file is {size} bytes: truncated or corrupt")
 
 
+def _stl_read_as_ascii(data: bytes) -> bool:
+    """Whether trimesh reads an STL (``data``) as ASCII: it starts with "solid" and is not as long as a binary STL
+    of the triangle count in its bytes 80 to 84 (trimesh tries binary first)."""
+    head = data[:STL_HEADER_BYTES]
+    binary = len(head) == STL_HEADER_BYTES and len(data) == STL_HEADER_BYTES + STL_TRIANGLE_BYTES * int.from_bytes(
+        head[80:], "little")
+    return not binary and head.lstrip(b" \t\r\n\xef\xbb\xbf")[:5].lower() == b"solid"
+
+
+def _stl_damaged_line(data: bytes) -> tuple[int, str] | None:
+    """The first damaged line of an ASCII STL (``data``; ``_STL_DAMAGED_LINE``): its number and what it holds, or
+    None.  A pass over the file, run only where trimesh stopped or fell short."""
+    m = _STL_DAMAGED_LINE.search(data) if _stl_read_as_ascii(data) else None
+    if m is None:
+        return None
+    return data.count(b"\n", 0, m.start()) + 1, m.group(0).strip(b" \t\r").decode("utf-8", "replace")[:50]
+
+
+def _stl_line_problem(path: Path, data: bytes) -> str | None:
+    """An ASCII STL's first damaged line (``_stl_damaged_line``) named with what was expected there, or None."""
+    damaged = _stl_damaged_line(data)
+    if damaged is None:
+        return None
+    number, text = damaged
+    expected = ("'vertex x y z': three numbers" if text[:6].lower() == "vertex" else
+                "solid, facet normal, outer loop, vertex, endloop, endfacet or endsolid")
+    return f"{path}:{number}: ASCII STL line {text!r} (expected {expected}): corrupt"
+
+
+def _check_ascii_stl_read(path: Path, data: bytes, triangles: int) -> None:
+    """Refuse an ASCII STL (``data``, the bytes of ``path``) trimesh read ``triangles`` from where its 'vertex' lines
+    make another number, or its 'endfacet' lines say another, or that holds NUL bytes: trimesh reads the numbers after
+    every 'vertex' up to the first that does not parse, and dropped whole facets without a word (a zeroed run: 76 of
+    80).  Counted in the bytes as they are first, lower-cased only where that falls short."""
+    if b"\0" not in data and data.count(b"vertex") == 3 * triangles and data.count(b"endfacet") == triangles:
+        return
+    low = data.lower()
+    vertices, ends, nul = low.count(b"vertex"), low.count(b"endfacet"), b"\0" in data
+    if nul or vertices != 3 * triangles or ends != triangles:
+        number, text = _stl_damaged_line(data) or ("", "")
+        raise WarpbwError(_stl_damage(path, data) or (
+            f"{path}{f':{number}' if number else ''}: ASCII STL read as {triangles} triangles, but it has {ends} "
+            f"'endfacet' and {vertices} 'vertex' lines{' and NUL bytes' if nul else ''}"
+            f"{f' (first damaged line: {text!r})' if number else ''}: truncated or corrupt"))
+
+
 def _gltf_document(path: Path, data: bytes) -> tuple[dict, list] | None:
     """The JSON document of a glTF file (``data``, the bytes of ``path``: a GLB, or a .gltf's text) and the length of
     each buffer as trimesh's reader holds it: a GLB's BIN chunks in turn, None for one read from a URI (not checked
@@ -734,7 +786,8 @@ def _read_failure(path: Path, data: bytes, exc: Exception) -> str:
     """The message for a file (``data``, the bytes of ``path``) trimesh stopped on with ``exc`` after the checks
     before it passed: the damage where an STL's check names it, else trimesh's words without a cause they do not give
     (a GLB's "list index out of range" was "a reference to something it does not hold", an accessor's bufferView)."""
-    named = {".stl": _stl_damage, ".obj": _obj_index_problem}.get(path.suffix.lower(), lambda path, data: None)
+    named = {".stl": lambda path, data: _stl_damage(path, data) or _stl_line_problem(path, data),
+             ".obj": _obj_index_problem}.get(path.suffix.lower(), lambda path, data: None)
     problem = named(path, data)
     if problem:
         return problem
@@ -770,6 +823,8 @@ def _read_merged(path: Path, data: bytes) -> _Merged:
         logging.disable(was_disabled)
     faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
     verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)
+    if path.suffix.lower() == ".stl" and _stl_read_as_ascii(data):
+        _check_ascii_stl_read(path, data, len(faces))
     if faces.ndim != 2 or faces.shape[0] == 0 or faces.shape[1] != 3:
         stl = _stl_damage(path, data) if path.suffix.lower() == ".stl" else None
         raise WarpbwError(stl or f"{path}: no triangles found (expected a mesh with faces: {_SUPPORTED})")
