@@ -5,7 +5,11 @@ Public functions:
 - ``load_mesh(path, translate=(0, 0, 0), scale=1.0, rotate_y_deg=0.0) -> MeshData``: OBJ, PLY, STL, GLB
   (anything trimesh reads; a scene of several geometries is concatenated with its node transforms).
   The transform is applied in the order scale, then rotation about +Y, then translation.  Its mean curvature
-  is derived on first use (``MeshData.mean_curvature``): only the bandwidth pass reads it.
+  is derived on first use (``MeshData.mean_curvature``): only the bandwidth pass reads it.  A damaged file is a
+  one-line ``WarpbwError`` naming its line or index where the format has one, not trimesh's words: a PLY's header
+  (``_check_ply``), a GLB's or glTF's accessors and bufferViews (``_check_gltf``), before trimesh; an OBJ's face
+  indices (``_obj_index_problem``: where trimesh stops, or would read another vertex or drop the texture
+  coordinates) and an ASCII STL's facets (``_check_ascii_stl_read``: where trimesh stops or reads short).
 - ``mesh_mean_curvature(vertices, faces, normals=None) -> (V,)``: mean curvature H = (k1 + k2) / 2 from the
   cotangent Laplace-Beltrami operator with mixed Voronoi areas (Meyer, Desbrun, Schroeder, Barr 2003,
   "Discrete Differential-Geometry Operators for Triangulated 2-Manifolds"), positive on a convex
