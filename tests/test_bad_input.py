@@ -256,7 +256,7 @@ def test_obj_face_referencing_a_missing_vertex(tmp_path):
     (tmp_path / "badface.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n")
     write_scene(tmp_path, obj='mesh = "badface.obj"')
     r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
-    line = assert_one_line_error(r, "badface.obj", "vertex")
+    line = assert_one_line_error(r, "badface.obj:5: face index 9 is past the file's 3 vertices")
     assert "malformed" in line
     assert_no_outputs(tmp_path)
 
