@@ -590,12 +590,12 @@ def test_obj_indices_trimesh_reads_right_load_without_the_line_by_line_check(tmp
     file that defines vertices after faces (objects one after another) load as the file means, and without the
     line-by-line index check, which runs only where trimesh failed or a relative index comes before a vertex line
     (so that the bunny's load is not slowed)."""
-    import warpbw.io.mesh as M
+    import warpbw.io.mesh_files as F
 
     files = {"relative.obj": TRIANGLE_OBJ + "v 1 1 0\nf -4 -3 -2\nf -3 -1 -2\n",
              "textured.obj": TRIANGLE_OBJ + "vt 0 0\nvt 1 0\nvt 0 1\nvn 0 0 1\nf 1/1/1 2/2/1 3/3/1\n",
              "objects.obj": TRIANGLE_OBJ + "f 1 2 3\nv 5 0 0\nv 6 0 0\nv 5 1 0\nf 4 5 6\n"}
-    monkeypatch.setattr(M, "_obj_index_problem", lambda *a: pytest.fail("the line-by-line check ran"))
+    monkeypatch.setattr(F, "_obj_index_problem", lambda *a: pytest.fail("the line-by-line check ran"))
     for name, text in files.items():
         (tmp_path / name).write_text(text)
         mesh = load_mesh(tmp_path / name)

@@ -18,7 +18,8 @@ and ``unit_directions(d, name)`` (finite non-zero directions scaled to unit leng
 source)`` (a rendered image without inf or NaN pixels, which radiance near float32's top gives); the bounds
 ``INT32_MAX``, ``FLOAT32_MAX``, ``SEED_MAX`` and ``BRDF_VALUE_MAX`` that user values are checked against;
 ``available_memory() -> bytes | None`` (Linux's MemAvailable) and ``warn_if_short_of_memory(need, have, what, advice)``
-(a warning before a step the system would stop without a word).
+(a warning before a step the system would stop without a word); ``one_line(exc) -> str`` (another library's exception
+in one line, its class name where it says nothing).
 
 Anything the user can cause (a bad file, a bad key in a scene, a bad CLI value) is raised as
 ``WarpbwError`` with a one-line message that names the file or key and says what was expected.
@@ -305,3 +306,9 @@ def warn_if_short_of_memory(need: int, have: int | None, what: str, advice: str,
     if have is not None and need > have:
         warnings.warn(f"{what} takes about {need / 1e9:.1f} GB, but {have / 1e9:.1f} GB of memory is available: the "
                       f"system may stop it ({advice})", RuntimeWarning, stacklevel=stacklevel + 1)
+
+
+def one_line(exc: BaseException) -> str:
+    """``exc``'s text with its whitespace and line breaks collapsed, or its class name where it has none (quoted inside
+    a one-line error)."""
+    return " ".join(str(exc).split()) or type(exc).__name__

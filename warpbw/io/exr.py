@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError, check_input_file, check_path
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_input_file, check_path, one_line
 from warpbw.io.exr_layout import exr_damage, first_header_declares
 from warpbw.native_output import captured_native_output
 
@@ -71,10 +71,6 @@ class ExrImage:
     channels: list[str]
     path: str
     notes: dict = field(default_factory=dict)   # the write_exr notes the file holds (str -> str)
-
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def _check_magic(path: Path) -> None:
@@ -122,7 +118,7 @@ def _open_exr(path, header_only: bool):
         if found:
             raise WarpbwError(f"{path}: unreadable OpenEXR file, truncated or corrupt: {found}") from None
         said = "; ".join(line.replace(f"{path}: ", "").strip() for line in native if line.strip())
-        raise WarpbwError(f"{path}: unreadable OpenEXR file, truncated or corrupt ({_one_line(exc)}"
+        raise WarpbwError(f"{path}: unreadable OpenEXR file, truncated or corrupt ({one_line(exc)}"
                           f"{'; ' + said if said else ''})") from None
     for line in native:            # a file that read: pass on whatever the library had to say, a warning a line
         if line.strip():
@@ -233,7 +229,7 @@ def write_exr(path, pixels, channels=None, notes: dict | None = None) -> Path:
         path.parent.mkdir(parents=True, exist_ok=True)
         OpenEXR.File(header, data).write(str(path))
     except Exception as exc:
-        raise WarpbwError(f"{path}: cannot write OpenEXR file ({_one_line(exc)})") from None
+        raise WarpbwError(f"{path}: cannot write OpenEXR file ({one_line(exc)})") from None
     return path
 
 
@@ -255,7 +251,7 @@ def _to_png(path: Path, rgb8: np.ndarray, text: dict | None = None) -> Path:
         path.parent.mkdir(parents=True, exist_ok=True)
         Image.fromarray(rgb8).save(str(path), format="PNG", pnginfo=info)
     except Exception as exc:
-        raise WarpbwError(f"{path}: cannot write PNG ({_one_line(exc)})") from None
+        raise WarpbwError(f"{path}: cannot write PNG ({one_line(exc)})") from None
     return path
 
 
