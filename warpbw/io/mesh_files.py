@@ -45,6 +45,11 @@ _OBJ_INDEXED = {b"v": ("face index", "vertices"), b"vt": ("face texture index", 
 _OBJ_NEGATIVE_FACE = re.compile(rb"^f[ \t][^\n]*-", re.M)
 # An OBJ face line of fewer than three vertices ("f 1 3", a line cut short): trimesh dropped it without a word.
 _OBJ_SHORT_FACE = re.compile(rb"^[ \t]*f(?:[ \t]+\S+){0,2}[ \t]*\r?$", re.M)
+# An OBJ vertex, texture-coordinate or face line that is indented, or whose keyword a tab follows: legal OBJ, but
+# trimesh reads only the lines that start "v ", "vt " or "f " (it splits the text at "\nv " ...) and skips these
+# without a word, so the faces after a skipped vertex took the wrong vertices.  (The file's first line is read
+# indented: trimesh strips the text first.)
+_OBJ_SKIPPED_LINE = re.compile(rb"^(?:[ \t]+(?:v|vt|f)[ \t]|(?:v|vt|f)\t)[^\n]*", re.M)
 # PLY property types and their sizes in bytes: the PLY format's char ... double (Turk 1994) and the sized names int8
 # ... float64 that trimesh's reader also takes (trimesh/exchange/ply.py, _dtypes).
 PLY_TYPE_BYTES = {"char": 1, "uchar": 1, "short": 2, "ushort": 2, "int": 4, "uint": 4, "float": 4, "double": 8,
@@ -175,15 +180,20 @@ def _check_ply(path: Path, data: bytes) -> None:
 
 def _check_obj_lines(path: Path, data: bytes) -> None:
     """Refuse an OBJ (``data``, the bytes of ``path``) vertex line that is not 3 to 7 numbers (``_OBJ_BAD_VERTEX``), a
-    face with vertex index 0 (``_OBJ_ZERO_INDEX``) and a face of fewer than three vertices (``_OBJ_SHORT_FACE``),
-    naming the line."""
+    face with vertex index 0 (``_OBJ_ZERO_INDEX``), a face of fewer than three vertices (``_OBJ_SHORT_FACE``) and a
+    line trimesh would skip (``_OBJ_SKIPPED_LINE``), naming the line."""
+    first = len(data) - len(data.lstrip())   # trimesh strips the text: an indented first line is read
     for pattern, problem in (
             (_OBJ_BAD_VERTEX, lambda text: f"vertex line {text[:60]!r} (expected 'v x y z': three numbers, optionally "
                                            "a w or a colour, and nothing after them)"),
             (_OBJ_ZERO_INDEX, lambda text: "a face has vertex index 0 (OBJ indices count from 1, or back from -1)"),
             (_OBJ_SHORT_FACE, lambda text: f"face line {text[:60]!r} has {len(text.split()) - 1} vertices (expected "
-                                           "3 or more; a line cut short?)")):
-        m = pattern.search(data)
+                                           "3 or more; a line cut short?)"),
+            (_OBJ_SKIPPED_LINE, lambda text: f"line {text[:60]!r} is indented or has a tab after its keyword, and the "
+                                             "OBJ reader (trimesh) skips such lines without a word: the mesh would be "
+                                             "read without it (expected the keyword at the start of the line, then "
+                                             "a space)")):
+        m = pattern.search(data, first if pattern is _OBJ_SKIPPED_LINE else 0)
         if m is not None:
             line = data.count(b"\n", 0, m.start()) + 1
             raise WarpbwError(f"{path}:{line}: {problem(m.group(0).strip().decode('utf-8', 'replace'))}; "
