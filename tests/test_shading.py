@@ -275,6 +275,55 @@ def test_the_shading_bar_counts_every_pixel_once_over_threads_and_none_when_off(
 
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("item_cost, costs", [(50_000, None), (3_000_000, None), (0, None), (None, "ramp")])
+def test_cpu_launches_hold_at_most_launch_cost_max_samples_so_ctrl_c_acts_within_a_second(monkeypatch, threads,
+                                                                                          item_cost, costs):
+    """Python acts on Ctrl-C and SIGTERM only between launches: tiles cut by pixels alone made one launch of 256 pixels
+    x 2e6 samples (SIGINT at 5 s acted on at 36 s; options audit, session 64).  Every item is launched once, and a
+    launch's summed cost (each item's, from the caller) stays within LAUNCH_COST_MAX plus one item's, the part a
+    tile of equal summed cost may pass it by; an item dearer than that is a launch of its own."""
+    from warpbw import shading
+    from warpbw.shading import LAUNCH_COST_MAX, launch_tiled
+
+    n = 5000
+    cost = np.linspace(0, 20_000, n).astype(np.int64) if costs == "ramp" else np.full(n, item_cost)
+    launches = []
+    real = shading.wp.launch
+    monkeypatch.setattr(shading.wp, "launch", lambda k, dim, inputs, device: launches.append((inputs[0], dim))
+                        or real(k, dim=dim, inputs=inputs, device=device))
+    out = wp.zeros(n, dtype=wp.float32, device="cpu")
+    launch_tiled(_mark_item, n, lambda o, c: [o, out], "cpu", threads=threads,
+                 costs=cost if costs == "ramp" else None, item_cost=item_cost)
+    assert np.all(out.numpy() == 1.0)
+    sums = [int(cost[o:o + c].sum()) for o, c in launches]
+    assert max(sums) <= LAUNCH_COST_MAX + cost.max() or all(c == 1 for _, c in launches), sorted(sums)[-3:]
+    if int(cost.sum()) > 4 * LAUNCH_COST_MAX:
+        assert len(launches) >= min(n, int(cost.sum()) // LAUNCH_COST_MAX)
+    else:   # cheap items: the tiles the pixel counts make, as before
+        assert len(launches) <= -(-n // shading.MIN_PIXELS_PER_TILE) * threads
+
+
+def test_cutting_launches_by_their_samples_leaves_every_pixel_as_it_was(monkeypatch, tmp_path):
+    """The samples of a pixel are drawn from its own seed whatever the tile: a frame cut into many launches by
+    LAUNCH_COST_MAX is bit for bit the frame of the few launches its pixel count makes, reference and adaptive."""
+    from warpbw import shading
+    from warpbw.pipeline import render_adaptive, render_reference
+    from warpbw.scene import parse_scene
+
+    text = ("[camera]\nposition = [0.0, 0.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 40.0\nresolution = [24, 16]\n"
+            "[environment]\nprocedural = \"sky\"\n[material.m]\ntype = \"ggx\"\nalpha = 0.3\nspecular = 0.8\n"
+            "[[object]]\nshape = \"sphere\"\nradius = 1.0\nmaterial = \"m\"\n")
+    scene = parse_scene(text, tmp_path, "s.toml")
+    frames = {}
+    for limit in (10**12, 64):
+        monkeypatch.setattr(shading, "LAUNCH_COST_MAX", limit)
+        frames[limit] = (render_reference(scene, spp=16, seed=3).image, render_adaptive(scene, budget=4.0).image)
+    for a, b in zip(frames[10**12], frames[64]):
+        assert np.array_equal(a, b)
+
+
+
 # ------------------------------------------------------------------------------ examples/reference_estimator.py
 
 def _run_reference_estimator(monkeypatch, tmp_path, argv, out):

@@ -813,7 +813,7 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     kernel = make_bandwidth_kernel(materials.kinds, preconvolved)
     launch_tiled(kernel, traced.shape[0],
                  lambda o, c: [gb.data, cam, materials.table, env_data, tables, dirs, shifts, side, stride, int(seed),
-                               traced, o, lam, nu_sum, var, w2, w2b], device, threads)
+                               traced, o, lam, nu_sum, var, w2, w2b], device, threads, item_cost=int(n_b))
     nu = wp.zeros(W * H, dtype=wp.vec2, device=device)
     b_p = wp.zeros(W * H, dtype=wp.float32, device=device)
     sigma2 = wp.zeros(W * H, dtype=wp.float32, device=device)

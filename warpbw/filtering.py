@@ -1341,7 +1341,7 @@ def render_filtering(scene: Scene | FilteringScene, method: str, spp: int = DEFA
                 launch_tiled(kernel, n, lambda o, c, pl=pl, mp=mp: [cam, pl, mp.lw, mp.lh, mp.loff, mp.nmean,
                                                                    prepared.ldir, prepared.lrad, env, int(spp),
                                                                    int(seed), o, depth, out],
-                             dev, threads, step)
+                             dev, threads, step, item_cost=int(spp))
             else:
                 gmm, K = mp.gmm.get(method, (wp.zeros(1, dtype=wp.vec4, device=dev), 0))
                 pl = _plane_data(p, m, mp, K, lod_bias, max_anisotropy)
@@ -1349,7 +1349,7 @@ def render_filtering(scene: Scene | FilteringScene, method: str, spp: int = DEFA
                              lambda o, c, pl=pl, mp=mp, gmm=gmm: [cam, pl, mp.lw, mp.lh, mp.loff, gmm, mp.nmean,
                                                                  mp.nm2, prepared.ldir, prepared.lrad, env,
                                                                  int(env_spp), int(seed), o, depth, out, level],
-                             dev, threads)
+                             dev, threads, item_cost=int(env_spp))
         wp.synchronize_device(dev)
     dt = time.perf_counter() - t0
     img = out.numpy().reshape(h, w, 3).astype(np.float32)

@@ -5,7 +5,8 @@ Public:
     ``ShadeResult`` / ``shade_reference(gb, materials, env_data, spp, seed, ..., lights)``  run it over covered pixels
     ``ShadingFrame`` / ``pixel_frame(gb, i)``  a pixel's (t, b, n) frame and local view direction (Warp)
     ``to_local(fr, w)`` / ``to_world(fr, w)``  directions between world and the frame (Warp)
-    ``launch_tiled(kernel, n_items, make_inputs, device, threads, progress, tile, costs)``  CPU launches over threads
+    ``launch_tiled(kernel, n_items, make_inputs, device, threads, progress, tile, costs, item_cost)``  CPU launches
+        over threads, each of at most ``LAUNCH_COST_MAX`` samples where the items allow it
     ``progress_bar(total, desc, enabled)``  a bar for launch_tiled's ``progress`` (context manager; None if off)
     ``tile_ranges(n_items, tile, costs) -> [(offset, count)]``  its tiles: equal counts, or equal summed costs
     ``covered_pixels(gb, device) -> wp.array``  the covered pixels' indices; ``default_threads(device)``
@@ -30,6 +31,7 @@ and counted in ``ShadeResult.non_finite``, never averaged into the image.
 from __future__ import annotations
 
 import functools
+import math
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -53,6 +55,11 @@ PIXELS_PER_TILE = 4096
 # many tiles per thread, of no fewer than MIN_PIXELS_PER_TILE pixels, so that every thread gets work.
 TILES_PER_THREAD = 4
 MIN_PIXELS_PER_TILE = 256
+# Samples (an item's cost: its samples, rays or directions) in one launch on the CPU, at most: Python acts on Ctrl-C
+# and SIGTERM only between launches, and tiles cut by pixels alone made one launch of 256 pixels x 2e6 samples (SIGINT
+# at 5 s acted on at 36 s) or of 4096 pixels x 1e5 (minutes; options audit, session 64).  2^21 samples take about 1 s
+# on one thread (the demo shades 3.05e6 samples/s on two); a single item of more samples is still one launch.
+LAUNCH_COST_MAX = 2**21
 # Samples summed in float32 before their sum joins the pixel's float64 total: a float32 sum of ~1.7e7 equal
 # terms stops growing, and one of 256 is within 256 float32 roundings (1.5e-5) of exact.  Each sample enters the
 # float32 sum divided by SUM_BATCH (a power of two: exact), so that the sum never exceeds its largest sample (four
@@ -243,24 +250,31 @@ def progress_bar(total: int, desc: str, enabled: bool = True):
 
 def launch_tiled(kernel, n_items: int, make_inputs: Callable[[int, int], list], device: str,
                  threads: int | None = None, progress: Callable[[int], None] | None = None,
-                 tile: int = PIXELS_PER_TILE, costs: np.ndarray | None = None) -> None:
+                 tile: int = PIXELS_PER_TILE, costs: np.ndarray | None = None, item_cost: int | None = None) -> None:
     """Launch ``kernel`` over ``n_items`` in tiles, on a small thread pool on the CPU (on a GPU, in one
     launch unless ``progress`` asks for tiles).
 
     ``make_inputs(offset, count)`` returns the kernel inputs for one tile; ``progress(count)`` is
     called as tiles finish.  ``costs`` (one per item, e.g. its sample count) cuts the same number of
-    tiles at equal summed cost instead of equal counts (:func:`tile_ranges`).
+    tiles at equal summed cost instead of equal counts (:func:`tile_ranges`); ``item_cost`` is every item's cost
+    where they are equal.  On the CPU a launch holds at most ``LAUNCH_COST_MAX`` of cost where the items allow it, so
+    that Ctrl-C acts within about a second.
     """
     check_device(device)
     if n_items <= 0:
         return
     # a count >= 1: 0, -1 or 1.5 were once taken as 1 without a word
     threads = default_threads(device) if threads is None else check_count(threads, "threads", 1)
+    on_cpu = str(device).startswith("cpu")
     if threads > 1:
         tile = max(MIN_PIXELS_PER_TILE, min(tile, -(-n_items // (TILES_PER_THREAD * threads))))
-    elif progress is None and not str(device).startswith("cpu"):
+    elif progress is None and not on_cpu:
         tile = n_items   # a GPU launch is parallel by itself: tiles only serve a progress bar there
-    tiles = tile_ranges(n_items, tile, costs if threads > 1 else None)
+    total = float(np.sum(costs, dtype=np.float64)) if costs is not None else float(item_cost or 0) * n_items
+    by_cost = on_cpu and total > LAUNCH_COST_MAX * -(-n_items // tile)
+    if by_cost:   # more tiles than the counts make, each of about LAUNCH_COST_MAX
+        tile = -(-n_items // min(n_items, math.ceil(total / LAUNCH_COST_MAX)))
+    tiles = tile_ranges(n_items, tile, costs if threads > 1 or by_cost else None)
     lock = threading.Lock()
 
     def run(t):
@@ -392,7 +406,7 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
     launch_tiled(kernel, pix.shape[0],
                  lambda o, c: [gb.data, materials.table, env_data, lights_data, pix, o, spp_all, spp_map, int(seed),
                                out, bad], device, threads, progress,
-                 costs=pixel_spp)
+                 costs=pixel_spp, item_cost=spp_all if has_env else 0)
     n = int(pix.shape[0])
     if not has_env:
         samples = 0
