@@ -1041,6 +1041,27 @@ def test_bench_refuses_a_sphere_scene_lit_by_lights_alone(tmp_path):
     assert_no_outputs(tmp_path, "b")
 
 
+@pytest.mark.parametrize("command, cache, outputs, needles", [
+    ("bench", "r.json", ["--json", "r.json"], ["--cache r.json", "the same path as --json r.json"]),
+    ("bench", "r.png", ["--json", "r.json"], ["--cache r.png", "the same path as --plot r.png"]),
+    ("bench", "r.json/c", ["--json", "r.json"], ["--cache r.json/c", "lies under --json r.json"]),
+    ("bench", "res", ["--json", "res/r.json"], ["--cache res", "holds --json res/r.json"]),
+    ("bench-filtering", "r.json", ["--json", "r.json"], ["--cache r.json", "the same path as --json r.json"]),
+], ids=["bench json", "bench derived plot", "bench under json", "bench holds json", "bench-filtering json"])
+def test_bench_cache_that_is_an_output_is_refused_before_the_work(tmp_path, command, cache, outputs, needles):
+    """``--cache r.json --json r.json`` rendered everything, made the folder r.json (left behind) and ended with
+    "r.json: already exists: it appeared while this run worked" (clifuzz F2)."""
+    if command == "bench":
+        write_scene(tmp_path)
+        extra = ["--spp", "1", "--budgets", "1", "--gt-spp", "16"]
+    else:
+        (tmp_path / "scene.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
+        extra = ["--zoom", "1", "--gt-spp", "64"]
+    r = run([command, "scene.toml", *outputs, "--cache", cache, "--runs", "1", "-q", "--force", *extra], tmp_path)
+    assert_one_line_error(r, *needles)
+    assert not (tmp_path / "r.json").exists() and not (tmp_path / "res").exists()
+
+
 def test_adaptive_render_refuses_a_sphere_scene_lit_by_lights_alone(tmp_path):
     """``--method adaptive`` adapts the environment's sampling; lights alone are exact: a one-line error."""
     (tmp_path / "scene.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', "").split("[[object]]")[0]

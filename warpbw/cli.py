@@ -627,6 +627,7 @@ def _bench_outputs(args, scene, default_cache: Path | None = None) -> None:
     for option, path in (("--json", args.json), ("--plot", args.plot)):
         check_output_file(path, option, force=True)
     if args.cache:
+        _cache_apart_from_outputs(args.cache, (("--json", args.json), ("--plot", args.plot)))
         check_output_dir(args.cache, "--cache")
     elif default_cache is not None:
         env = os.environ.get("WARPBW_CACHE")
@@ -636,6 +637,21 @@ def _bench_outputs(args, scene, default_cache: Path | None = None) -> None:
             raise WarpbwError(f"{exc} ({f'WARPBW_CACHE={env}' if env else 'the default cache'}; pass --cache DIR to "
                               "cache the ground truth elsewhere)") from None
     check_overwrite(outs, args.force, option=("--json", "--plot"), inputs=scene.input_files())
+
+
+def _cache_apart_from_outputs(cache, outputs) -> None:
+    """Refuse a --cache folder that is, holds or lies under one of the outputs (``--cache r.json --json r.json``
+    rendered everything, made the folder r.json and then failed to write the record there)."""
+    c = Path(os.path.realpath(cache))   # realpath: a link loop gives a path, not an error
+    for option, path in outputs:
+        p = Path(os.path.realpath(path))
+        if c == p:
+            raise WarpbwError(f"--cache {cache}: the same path as {option} {path} (expected a folder of its own)")
+        if c.is_relative_to(p):
+            raise WarpbwError(f"--cache {cache}: lies under {option} {path} (expected a folder of its own)")
+        if p.is_relative_to(c):
+            raise WarpbwError(f"--cache {cache}: holds {option} {path} (expected a folder of its own, apart from "
+                              "the outputs)")
 
 
 def _write_bench(args, record: dict, write_plot) -> None:
