@@ -16,7 +16,8 @@ import sys
 import time
 from pathlib import Path
 
-from warpbw.cli_common import OneLineParser, check_output_file, check_overwrite, parse_seed, run_command
+from warpbw.cli_common import (OneLineParser, check_output_file, check_overwrite, parse_seed, printable,
+                               run_command)
 from precompute.gmm_mipmap import MAX_COMPONENTS, MAX_PRIOR
 from precompute.surfaces import MAX_SURFACE_SIZE, MIN_SURFACE_SIZE
 from warpbw import __version__
@@ -50,7 +51,7 @@ def cmd_npf_to_merl(args) -> int:
     t0 = time.perf_counter()
     name = read_npf(args.table, args.material).name   # as the table spells it (" Gold-Metallic-Paint " was echoed)
     out = npf_to_merl(args.table, args.material, args.output, force=args.force)
-    print(f"{out}  (MERL .binary from {args.table}:{name}, {time.perf_counter() - t0:.1f} s)")
+    print(printable(f"{out}  (MERL .binary from {args.table}:{name}, {time.perf_counter() - t0:.1f} s)"))
     return 0
 
 
@@ -69,7 +70,7 @@ def _table_command(args, build, write, describe) -> int:
     source = brdf_source(args.file, args.material)
     table = build(source, progress=not args.quiet)
     write(out, table, source, force=args.force)
-    print(f"{out}  ({describe(source, table)}, {time.perf_counter() - t0:.1f} s)")
+    print(printable(f"{out}  ({describe(source, table)}, {time.perf_counter() - t0:.1f} s)"))
     return 0
 
 
@@ -110,8 +111,9 @@ def cmd_gmm(args) -> int:
                      inputs=[] if args.map.startswith("surface:") else [args.map])
     h, w = mip.shape
     how = "unaligned (independent EM per texel)" if args.unaligned else f"aligned, prior c={args.prior:g}"
-    print(f"{out}  (GMM mipmap of {name}: {w}x{h}, {len(mip.levels)} levels, {mip.components} components, "
-          f"{how}, {time.perf_counter() - t0:.1f} s)")
+    print(printable(f"{out}  (GMM mipmap of {name}: {w}x{h}, {len(mip.levels)} levels, {mip.components} "
+                    f"components, "
+                    f"{how}, {time.perf_counter() - t0:.1f} s)"))
     return 0
 
 

@@ -1062,6 +1062,22 @@ def test_bench_cache_that_is_an_output_is_refused_before_the_work(tmp_path, comm
     assert not (tmp_path / "r.json").exists() and not (tmp_path / "res").exists()
 
 
+@pytest.mark.parametrize("command", ["render", "info"])
+def test_the_success_summary_escapes_control_characters_in_paths(tmp_path, command):
+    """A newline in ``-o`` made the summary's second line read ``warpbw: error: fake.exr  (8x8, 1 spp, ...)`` on
+    stdout, and an ESC coloured the terminal (clifuzz F13): paths are printed as the error lines print them."""
+    name = "a\nwarpbw: error: fake\x1b[31m"
+    if command == "render":
+        write_scene(tmp_path)
+        r = run(["render", "scene.toml", "-o", name + ".exr", "--spp", "1"], tmp_path)
+    else:
+        write_scene(tmp_path, name=name + ".toml")
+        r = run(["info", name + ".toml"], tmp_path)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "\x1b" not in r.stdout and not any(ln.startswith("warpbw: error") for ln in r.stdout.splitlines())
+    assert "a\\nwarpbw: error: fake\\x1b[31m" in r.stdout, r.stdout
+
+
 def test_adaptive_render_refuses_a_sphere_scene_lit_by_lights_alone(tmp_path):
     """``--method adaptive`` adapts the environment's sampling; lights alone are exact: a one-line error."""
     (tmp_path / "scene.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', "").split("[[object]]")[0]
