@@ -92,12 +92,13 @@ def test_bench_cli_writes_json_and_plot(tmp_path, capsys):
     out, png = tmp_path / "b.json", tmp_path / "b.png"
     rc = cli_main(["bench", str(scene), "--json", str(out), "--spp", "1,4",
                    "--budgets", "1,4", "--nb", "1,4", "--gt-spp", "64", "--runs", "1", "--cache", str(tmp_path / "gt"),
-                   "-q"])
+                   "--seed", "7", "-q"])
     assert rc == 0 and png.stat().st_size > 0
     assert "--runs 1: the measurement protocol times the median of at least 3 runs" in capsys.readouterr().err
     r = json.loads(out.read_text())
     for key in ("scene", "ground_truth_spp", "methods", "equal_quality_speedup", "bandwidth_time_fraction"):
         assert key in r
+    assert r["seed"] == 7 and r["device"] == "cpu"   # two records at different --seed told apart (clifuzz F12)
     assert [x["spp"] for x in r["methods"]["reference"]] == [1, 4]
     for rec in r["methods"]["adaptive"]:
         assert {"budget", "time_s", "psnr_db", "relmse", "bandwidth_time_s"} <= set(rec)

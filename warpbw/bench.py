@@ -401,6 +401,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
         "estimator": est,
         "adaptive_options": opts,
         "runs": int(runs),
+        "seed": int(seed),   # the methods' runs (the ground truth's is GT_SEED, whatever --seed says)
+        "device": device,
         "ground_truth_spp": gt.spp,
         "ground_truth_doubling_delta_db": d_db,
         "ground_truth_converged": converged,
