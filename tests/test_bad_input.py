@@ -536,6 +536,7 @@ def test_spp_zero(tmp_path):
     (["bench", "scene.toml", "--json", "b.json", "--spp", "1,4,1"], ["--spp", "distinct", "got 1 more than once"]),
     (["bench-filtering", "scene.toml", "--json", "b.json", "--zoom", "2,2.0"], ["--zoom", "got 2 more than once"]),
     (["bench", "scene.toml", "--json", "b.json", "--gt-spp", "2147483648"], ["--gt-spp", "<= 2147483647"]),
+    (["bench", "scene.toml", "--json", "b.json", "--gt-spp", "3"], ["--gt-spp", "expected 2 or 4, got 3"]),
     (["bench-filtering", "scene.toml", "--json", "b.json", "--spp", "2147483648"], ["--spp", "<= 2147483647"]),
     # seeds are uint32: -1 and 2^32 wrapped onto 2^32 - 1 and 0
     (["render", "scene.toml", "-o", "out.exr", "--seed", "-1"], ["--seed", "0 to 4294967295", "got -1"]),
@@ -569,7 +570,8 @@ def test_spp_zero(tmp_path):
         "unknown env-signal", "nyquist 1e40",
         "spp 2^31", "spp 2^32+1", "demo spp 2^31", "budget 3e9", "nb 65537", "bench nb 2^31-1", "bench spp 2^31",
         "bench budgets 1e9",
-        "bench spp twice", "bench-filtering zoom twice", "bench gt-spp 2^31", "bench-filtering spp 2^31",
+        "bench spp twice", "bench-filtering zoom twice", "bench gt-spp 2^31", "bench gt-spp 3",
+        "bench-filtering spp 2^31",
         "seed -1", "seed 2^32", "bench seed -1",
         "bench-filtering seed 2^32", "exposure 1e10", "exposure nan", "exposure inf", "demo exposure -1e3",
         "spp with adaptive", "max-anisotropy 0", "max-anisotropy 17", "max-anisotropy 2.5", "max-anisotropy abc",
