@@ -55,6 +55,12 @@ METHODS = ("reference", "adaptive")
 MAX_ANISOTROPY = 16
 # --exposure in stops: beyond +-150 every non-zero float32 radiance (2^-149 .. 2^128) previews white, or black
 EXPOSURE_MAX_STOPS = 150.0
+# bench --runs: the timed runs of one point.  The median settles within a few dozen; 1000 runs of even a 16x16 frame
+# take minutes per point, and each run's MSE is kept in the record (2^31 ran until killed, its memory growing)
+RUNS_MAX = 1000
+# --threads: the launches' CPU threads, at most 4 per core the machine reports (more only adds idle threads and tiles)
+THREADS_PER_CORE_MAX = 4
+THREADS_MAX = THREADS_PER_CORE_MAX * (os.cpu_count() or 1)
 
 EPILOG = """\
 examples:
@@ -587,7 +593,9 @@ def _why(hi) -> str:
     return {INT32_MAX: " (an int32 in the kernels)",
             BUDGET_MAX: " (N_p, up to 256 x budget, is an int32 in the kernels)",
             FLOAT32_MAX: " (a float32 in the kernels)",
-            N_B_MAX: " (002 Fig. 13 sweeps n_b from 16 to 1024)"}.get(hi, "")
+            N_B_MAX: " (002 Fig. 13 sweeps n_b from 16 to 1024)",
+            RUNS_MAX: " (the timed runs of one point)",
+            THREADS_MAX: f" ({THREADS_PER_CORE_MAX} per CPU core, {os.cpu_count() or 1} here)"}.get(hi, "")
 
 
 def _number_list(name, kind, hi=None):
@@ -774,8 +782,9 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument("--exposure", type=_exposure, default=0.0,
                         help=f"PNG preview exposure in stops, -{EXPOSURE_MAX_STOPS:g} to {EXPOSURE_MAX_STOPS:g} "
                         "(default 0)")
-        sp.add_argument("--threads", type=_positive_int("threads"), default=None,
-                        help="CPU threads tiling the shading launches (default: all cores)")
+        sp.add_argument("--threads", type=_positive_int("threads", THREADS_MAX), default=None,
+                        help=f"CPU threads tiling the shading launches, 1 to {THREADS_PER_CORE_MAX} per core "
+                        f"({THREADS_MAX} here; default: all cores)")
         sp.add_argument("--force", action="store_true", help="overwrite existing output files")
         sp.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
 
@@ -843,7 +852,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     def bench_common(p, runs_help: str):
         """--runs, --seed, --device, --force and -q of both bench commands."""
-        p.add_argument("--runs", type=_positive_int("runs"), default=PROTOCOL_RUNS, help=runs_help)
+        p.add_argument("--runs", type=_positive_int("runs", RUNS_MAX), default=PROTOCOL_RUNS,
+                       help=f"{runs_help}; 1 to {RUNS_MAX}")
         p.add_argument("--seed", type=parse_seed, default=0, help="random seed, 0 to 2^32-1 (default 0)")
         p.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda / cuda:N")
         p.add_argument("--force", action="store_true", help="overwrite existing output files")
