@@ -326,6 +326,17 @@ def test_binary_scene_file(tmp_path):
     assert_one_line_error(r, "scene.toml", "UTF-8")
 
 
+def test_a_scene_file_of_megabytes_is_refused_before_it_is_read(tmp_path):
+    """``warpbw info big.toml`` read a 1 GB file whole (2 GB of memory, seconds) to call it not valid TOML
+    (clifuzz F11): its size is checked first."""
+    from warpbw.scene import SCENE_FILE_MAX_BYTES
+
+    with open(tmp_path / "big.toml", "wb") as f:
+        f.truncate(SCENE_FILE_MAX_BYTES + 1)   # sparse: no disk, and zeros are no TOML either way
+    r = run(["info", "big.toml"], tmp_path)
+    assert_one_line_error(r, "big.toml", f"{SCENE_FILE_MAX_BYTES + 1} bytes", "a scene file is a few kB")
+
+
 def test_missing_scene_file(tmp_path):
     r = run(["render", "nothere.toml", "-o", "out.exr"], tmp_path)
     assert_one_line_error(r, "nothere.toml", "scene file not found")
