@@ -337,6 +337,32 @@ def test_a_scene_file_of_megabytes_is_refused_before_it_is_read(tmp_path):
     assert_one_line_error(r, "big.toml", f"{SCENE_FILE_MAX_BYTES + 1} bytes", "a scene file is a few kB")
 
 
+_LONG = "L" * 300
+
+
+@pytest.mark.parametrize("args, cache, needles", [
+    (["demo", "-o", _LONG, "--spp", "1"], None, ["-o LLL", "a file name of 300 bytes"]),
+    (["bench", "scene.toml", "--json", "r.json", "--spp", "1", "--budgets", "1", "--gt-spp", "16", "--cache", _LONG],
+     None, ["--cache LLL", "a file name of 300 bytes"]),
+    (["bench-filtering", "scene.toml", "--json", "r.json", "--zoom", "1", "--cache", _LONG], None,
+     ["--cache LLL", "a file name of 300 bytes"]),
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "1"], _LONG,
+     ["WARPBW_CACHE=", "/LLL", "a file name of 300 bytes"]),
+    (["info", _LONG + ".toml"], None, [f"{_LONG}.toml: a file name of 305 bytes"]),
+    (["render", "scene.toml", "-o", "/".join(["d" * 200] * 25) + "/out.exr", "--spp", "1"], None,
+     ["-o dddd", "a path of 5032 bytes", "expected a shorter path"]),
+], ids=["demo -o", "bench --cache", "bench-filtering --cache", "WARPBW_CACHE", "info scene", "render -o path"])
+def test_names_too_long_are_refused_naming_the_option(tmp_path, args, cache, needles):
+    """Each gave a bare "[Errno 36] File name too long: 'LLL...'" naming no option (clifuzz F3): Python 3.11's
+    Path.exists raises on such a name, and a path of names that each fit can pass PATH_MAX."""
+    write_scene(tmp_path, environment='procedural = "sky"',   # a probe with a bandwidth map to cache
+                material='type = "ggx"\nalpha = 0.2\nspecular = [0.9, 0.8, 0.5]')
+    r = run(args, tmp_path, cache=str(tmp_path / cache) if cache else None)
+    line = assert_one_line_error(r, *needles)
+    assert "Errno" not in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml"]
+
+
 def test_missing_scene_file(tmp_path):
     r = run(["render", "nothere.toml", "-o", "out.exr"], tmp_path)
     assert_one_line_error(r, "nothere.toml", "scene file not found")

@@ -118,8 +118,10 @@ def check_output_file(path, option: str, force: bool) -> None:
 
 
 def check_output_dir(path, option: str) -> None:
-    """Refuse, before any work, an output directory that is an existing file or lies under one."""
+    """Refuse, before any work, an output directory that is an existing file or lies under one, or whose name is
+    too long."""
     p = Path(path)
+    check_name_length(p, f"{option} {p}")   # first: Python 3.11's exists raises on a name too long
     if p.exists() and not p.is_dir():
         raise WarpbwError(f"{option} {p}: not a directory (expected a directory, made if absent)")
     if p.is_dir():

@@ -41,6 +41,7 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 from warpbw.errors import FLOAT32_MAX, WarpbwError, check_path, is_int
+from warpbw.io.staged import check_name_length
 
 MATERIAL_TYPES = ("lambert", "ggx", "merl", "npf", "cook-torrance")
 LIGHT_TYPES = ("directional",)
@@ -740,6 +741,7 @@ def check_scene(scene) -> Scene:
 def load_scene(path: Path | str) -> Scene:
     """Read and validate a scene file."""
     p = check_path(path, "scene path")   # None: a TypeError from pathlib
+    check_name_length(p, str(p))   # first: Python 3.11's exists raises on a name too long
     if not p.exists():
         raise WarpbwError(f"{p}: scene file not found")
     if not p.is_file():
