@@ -363,6 +363,19 @@ def test_names_too_long_are_refused_naming_the_option(tmp_path, args, cache, nee
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml"]
 
 
+def test_a_home_that_is_a_file_names_warps_kernel_cache(tmp_path, monkeypatch):
+    """``HOME=hf`` (a file) failed in Warp's kernel-cache init with a bare "[Errno 20] Not a directory: 'hf/.cache'"
+    naming neither the kernel cache nor HOME (clifuzz F4)."""
+    (tmp_path / "hf").write_text("x")
+    monkeypatch.setenv("HOME", "hf")
+    monkeypatch.delenv("WARP_CACHE_PATH", raising=False)
+    write_scene(tmp_path)
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "Warp's kernel cache hf/.cache/warp", "Not a directory at hf/.cache", "set HOME",
+                          "WARP_CACHE_PATH")
+    assert_no_outputs(tmp_path)
+
+
 def test_missing_scene_file(tmp_path):
     r = run(["render", "nothere.toml", "-o", "out.exr"], tmp_path)
     assert_one_line_error(r, "nothere.toml", "scene file not found")
