@@ -643,11 +643,18 @@ def test_usage_errors_are_one_line(tmp_path, args, needles):
     (["brdf-sampling"], ["required"]),
     (["gmm", "surface:dunes:8", "-o", "out.npz", "--seed", "-1"], ["--seed", "0 to 4294967295", "got -1"]),
     (["gmm", "surface:dunes:8", "-o", "out.npz", "--seed", "4294967296"], ["--seed", "0 to 4294967295"]),
-    # the builder's parameters, named as the options that set them
-    (["gmm", "surface:dunes:8", "-o", "out.npz", "--components", "0"], ["--components 0: expected an integer"]),
-    (["gmm", "surface:dunes:8", "-o", "out.npz", "--prior", "-1"], ["--prior -1.0: expected a finite c >= 0"]),
-    (["gmm", "surface:dunes:8", "-o", "out.npz", "--scale", "0"], ["--scale 0.0: expected a finite number > 0"]),
-], ids=["no file", "gmm seed -1", "gmm seed 2^32", "gmm components 0", "gmm prior -1", "gmm scale 0"])
+    # the builder's ranges, said by the parser whatever the value (argparse's "invalid int value: '2.5'" had none)
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--components", "0"],
+     ["--components", "expected an integer from 1 to 16, got 0"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--prior", "-1"], ["--prior", "expected a number from 0 to 1e+06"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--scale", "0"], ["--scale", "expected a finite number > 0, got 0"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--components", "2.5"],
+     ["--components", "expected an integer from 1 to 16, got '2.5'"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--prior", "0x10"],
+     ["--prior", "expected a number from 0 to 1e+06, got '0x10'"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--scale="], ["--scale", "expected a finite number > 0, got ''"]),
+], ids=["no file", "gmm seed -1", "gmm seed 2^32", "gmm components 0", "gmm prior -1", "gmm scale 0",
+        "gmm components 2.5", "gmm prior 0x10", "gmm scale empty"])
 def test_precompute_usage_errors_are_one_line(tmp_path, args, needles):
     assert_one_line_error(run(args, tmp_path, module="precompute"), *needles, prog="warpbw-precompute")
     assert_no_outputs(tmp_path)
