@@ -12,11 +12,13 @@ Subcommands:
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
 
-from warpbw.cli_common import OneLineParser, check_output_file, check_overwrite, parse_seed, run_command
+from warpbw.cli_common import (OneLineParser, check_output_file, check_overwrite, parse_seed, printable,
+                               run_command)
 from precompute.gmm_mipmap import MAX_COMPONENTS, MAX_PRIOR
 from precompute.surfaces import MAX_SURFACE_SIZE, MIN_SURFACE_SIZE
 from warpbw import __version__
@@ -50,7 +52,7 @@ def cmd_npf_to_merl(args) -> int:
     t0 = time.perf_counter()
     name = read_npf(args.table, args.material).name   # as the table spells it (" Gold-Metallic-Paint " was echoed)
     out = npf_to_merl(args.table, args.material, args.output, force=args.force)
-    print(f"{out}  (MERL .binary from {args.table}:{name}, {time.perf_counter() - t0:.1f} s)")
+    print(printable(f"{out}  (MERL .binary from {args.table}:{name}, {time.perf_counter() - t0:.1f} s)"))
     return 0
 
 
@@ -69,7 +71,7 @@ def _table_command(args, build, write, describe) -> int:
     source = brdf_source(args.file, args.material)
     table = build(source, progress=not args.quiet)
     write(out, table, source, force=args.force)
-    print(f"{out}  ({describe(source, table)}, {time.perf_counter() - t0:.1f} s)")
+    print(printable(f"{out}  ({describe(source, table)}, {time.perf_counter() - t0:.1f} s)"))
     return 0
 
 
@@ -110,9 +112,41 @@ def cmd_gmm(args) -> int:
                      inputs=[] if args.map.startswith("surface:") else [args.map])
     h, w = mip.shape
     how = "unaligned (independent EM per texel)" if args.unaligned else f"aligned, prior c={args.prior:g}"
-    print(f"{out}  (GMM mipmap of {name}: {w}x{h}, {len(mip.levels)} levels, {mip.components} components, "
-          f"{how}, {time.perf_counter() - t0:.1f} s)")
+    print(printable(f"{out}  (GMM mipmap of {name}: {w}x{h}, {len(mip.levels)} levels, {mip.components} "
+                    f"components, "
+                    f"{how}, {time.perf_counter() - t0:.1f} s)"))
     return 0
+
+
+def _integer_from(lo: int, hi: int):
+    """argparse type: an integer from ``lo`` to ``hi``, said so for any other value (argparse's own words were
+    "invalid int value: '2.5'", with no range)."""
+    def parse(s):
+        try:
+            v = int(s)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer from {lo} to {hi}, got {s!r}") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"expected an integer from {lo} to {hi}, got {v}")
+        return v
+    parse.__name__ = "integer"
+    return parse
+
+
+def _number_from(lo: float, hi: float | None = None):
+    """argparse type: a finite number from ``lo`` to ``hi`` (``hi`` None: any finite number > ``lo``)."""
+    expected = f"a number from {lo:g} to {hi:g}" if hi is not None else f"a finite number > {lo:g}"
+
+    def parse(s):
+        try:
+            v = float(s)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {s!r}") from None
+        if not (math.isfinite(v) and (lo <= v <= hi if hi is not None else v > lo)):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {s}")
+        return v
+    parse.__name__ = "number"
+    return parse
 
 
 def _table_args(p: argparse.ArgumentParser) -> None:
@@ -170,17 +204,18 @@ def build_parser() -> argparse.ArgumentParser:
                        "others' detail is finer than a texel).")
     g.add_argument("map", metavar="MAP", help="height field / normal map image, or surface:NAME[:SIZE]")
     g.add_argument("-o", "--output", required=True, help="output mipmap file (a name ending in .npz or .gmm)")
-    g.add_argument("--components", type=int, default=4, help=f"Gaussians per texel, 1 to {MAX_COMPONENTS} (default 4)")
-    g.add_argument("--prior", type=float, default=1.0,
+    g.add_argument("--components", type=_integer_from(1, MAX_COMPONENTS), default=4,
+                   help=f"Gaussians per texel, 1 to {MAX_COMPONENTS} (default 4)")
+    g.add_argument("--prior", type=_number_from(0.0, MAX_PRIOR), default=1.0,
                    help=f"alignment constant c of the MAP prior, 0 to {MAX_PRIOR:g} (default 1; 0 is plain EM; not "
                    "with --unaligned)")
     g.add_argument("--kind", choices=("height", "normal"), default="height",
                    help="MAP is a single-channel height field (default; 16-bit PNG or EXR: 8 bits "
                         "give terraced normals) or an RGB tangent-space normal map (PNG: [0, 1]-encoded; "
                         "EXR: raw unit vectors or [0, 1]-encoded)")
-    g.add_argument("--scale", type=float, default=1.0,
-                   help="height multiplier; heights are in units of the map's width (default 1; --kind height "
-                   "only)")
+    g.add_argument("--scale", type=_number_from(0.0), default=1.0,
+                   help="height multiplier, a finite number > 0; heights are in units of the map's width (default 1; "
+                   "--kind height only)")
     g.add_argument("--unaligned", action="store_true",
                    help="baseline: independent EM per texel (no prior, no neighbour initialisation)")
     g.add_argument("--seed", type=parse_seed, default=0,

@@ -34,6 +34,7 @@ import numpy as np
 
 from precompute.assetfile import read_asset, write_asset
 from precompute.progress import progress_callback
+from warpbw.io.staged import check_name_length
 from warpbw.errors import WarpbwError, check_input_file
 from warpbw.sampling import (N_PHI, N_THETA_O, N_U, TABLE_FORMAT, TABLE_VERSION, VIEW_SUBSAMPLES, SamplerTable,
                              build_sampler_table, directional_albedo)
@@ -207,6 +208,8 @@ def read_sampling(path, source: BrdfSource | None = None) -> SamplerTable:
 def cache_dir() -> Path:
     """Where tables and ground truths are cached: ``$WARPBW_CACHE``, else ~/.cache/warpbw."""
     env = os.environ.get("WARPBW_CACHE")
+    if env:
+        check_name_length(Path(env), f"WARPBW_CACHE={env}")   # first: Python 3.11's exists raises on a name too long
     if env and Path(env).exists() and not Path(env).is_dir():
         raise WarpbwError(f"WARPBW_CACHE={env}: not a directory (expected the folder warpbw caches its tables in)")
     return Path(env) if env else Path.home() / ".cache" / "warpbw"

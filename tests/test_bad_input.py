@@ -326,6 +326,56 @@ def test_binary_scene_file(tmp_path):
     assert_one_line_error(r, "scene.toml", "UTF-8")
 
 
+def test_a_scene_file_of_megabytes_is_refused_before_it_is_read(tmp_path):
+    """``warpbw info big.toml`` read a 1 GB file whole (2 GB of memory, seconds) to call it not valid TOML
+    (clifuzz F11): its size is checked first."""
+    from warpbw.scene import SCENE_FILE_MAX_BYTES
+
+    with open(tmp_path / "big.toml", "wb") as f:
+        f.truncate(SCENE_FILE_MAX_BYTES + 1)   # sparse: no disk, and zeros are no TOML either way
+    r = run(["info", "big.toml"], tmp_path)
+    assert_one_line_error(r, "big.toml", f"{SCENE_FILE_MAX_BYTES + 1} bytes", "a scene file is a few kB")
+
+
+_LONG = "L" * 300
+
+
+@pytest.mark.parametrize("args, cache, needles", [
+    (["demo", "-o", _LONG, "--spp", "1"], None, ["-o LLL", "a file name of 300 bytes"]),
+    (["bench", "scene.toml", "--json", "r.json", "--spp", "1", "--budgets", "1", "--gt-spp", "16", "--cache", _LONG],
+     None, ["--cache LLL", "a file name of 300 bytes"]),
+    (["bench-filtering", "scene.toml", "--json", "r.json", "--zoom", "1", "--cache", _LONG], None,
+     ["--cache LLL", "a file name of 300 bytes"]),
+    (["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--budget", "1"], _LONG,
+     ["WARPBW_CACHE=", "/LLL", "a file name of 300 bytes"]),
+    (["info", _LONG + ".toml"], None, [f"{_LONG}.toml: a file name of 305 bytes"]),
+    (["render", "scene.toml", "-o", "/".join(["d" * 200] * 25) + "/out.exr", "--spp", "1"], None,
+     ["-o dddd", "a path of 5032 bytes", "expected a shorter path"]),
+], ids=["demo -o", "bench --cache", "bench-filtering --cache", "WARPBW_CACHE", "info scene", "render -o path"])
+def test_names_too_long_are_refused_naming_the_option(tmp_path, args, cache, needles):
+    """Each gave a bare "[Errno 36] File name too long: 'LLL...'" naming no option (clifuzz F3): Python 3.11's
+    Path.exists raises on such a name, and a path of names that each fit can pass PATH_MAX."""
+    write_scene(tmp_path, environment='procedural = "sky"',   # a probe with a bandwidth map to cache
+                material='type = "ggx"\nalpha = 0.2\nspecular = [0.9, 0.8, 0.5]')
+    r = run(args, tmp_path, cache=str(tmp_path / cache) if cache else None)
+    line = assert_one_line_error(r, *needles)
+    assert "Errno" not in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml"]
+
+
+def test_a_home_that_is_a_file_names_warps_kernel_cache(tmp_path, monkeypatch):
+    """``HOME=hf`` (a file) failed in Warp's kernel-cache init with a bare "[Errno 20] Not a directory: 'hf/.cache'"
+    naming neither the kernel cache nor HOME (clifuzz F4)."""
+    (tmp_path / "hf").write_text("x")
+    monkeypatch.setenv("HOME", "hf")
+    monkeypatch.delenv("WARP_CACHE_PATH", raising=False)
+    write_scene(tmp_path)
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "Warp's kernel cache hf/.cache/warp", "Not a directory at hf/.cache", "set HOME",
+                          "WARP_CACHE_PATH")
+    assert_no_outputs(tmp_path)
+
+
 def test_missing_scene_file(tmp_path):
     r = run(["render", "nothere.toml", "-o", "out.exr"], tmp_path)
     assert_one_line_error(r, "nothere.toml", "scene file not found")
@@ -536,6 +586,11 @@ def test_spp_zero(tmp_path):
     (["bench", "scene.toml", "--json", "b.json", "--spp", "1,4,1"], ["--spp", "distinct", "got 1 more than once"]),
     (["bench-filtering", "scene.toml", "--json", "b.json", "--zoom", "2,2.0"], ["--zoom", "got 2 more than once"]),
     (["bench", "scene.toml", "--json", "b.json", "--gt-spp", "2147483648"], ["--gt-spp", "<= 2147483647"]),
+    (["bench", "scene.toml", "--json", "b.json", "--gt-spp", "3"], ["--gt-spp", "expected 2 or 4, got 3"]),
+    (["bench", "scene.toml", "--json", "b.json", "--runs", "1001"], ["--runs", "<= 1000", "got 1001"]),
+    (["bench-filtering", "scene.toml", "--json", "b.json", "--runs", "2147483648"], ["--runs", "<= 1000"]),
+    (["render", "scene.toml", "-o", "out.exr", "--threads", str(4 * (os.cpu_count() or 1) + 1)],
+     ["--threads", f"<= {4 * (os.cpu_count() or 1)}", "per CPU core"]),
     (["bench-filtering", "scene.toml", "--json", "b.json", "--spp", "2147483648"], ["--spp", "<= 2147483647"]),
     # seeds are uint32: -1 and 2^32 wrapped onto 2^32 - 1 and 0
     (["render", "scene.toml", "-o", "out.exr", "--seed", "-1"], ["--seed", "0 to 4294967295", "got -1"]),
@@ -569,7 +624,9 @@ def test_spp_zero(tmp_path):
         "unknown env-signal", "nyquist 1e40",
         "spp 2^31", "spp 2^32+1", "demo spp 2^31", "budget 3e9", "nb 65537", "bench nb 2^31-1", "bench spp 2^31",
         "bench budgets 1e9",
-        "bench spp twice", "bench-filtering zoom twice", "bench gt-spp 2^31", "bench-filtering spp 2^31",
+        "bench spp twice", "bench-filtering zoom twice", "bench gt-spp 2^31", "bench gt-spp 3", "bench runs 1001", "bench-filtering runs 2^31",
+        "threads beyond 4 per core",
+        "bench-filtering spp 2^31",
         "seed -1", "seed 2^32", "bench seed -1",
         "bench-filtering seed 2^32", "exposure 1e10", "exposure nan", "exposure inf", "demo exposure -1e3",
         "spp with adaptive", "max-anisotropy 0", "max-anisotropy 17", "max-anisotropy 2.5", "max-anisotropy abc",
@@ -586,11 +643,18 @@ def test_usage_errors_are_one_line(tmp_path, args, needles):
     (["brdf-sampling"], ["required"]),
     (["gmm", "surface:dunes:8", "-o", "out.npz", "--seed", "-1"], ["--seed", "0 to 4294967295", "got -1"]),
     (["gmm", "surface:dunes:8", "-o", "out.npz", "--seed", "4294967296"], ["--seed", "0 to 4294967295"]),
-    # the builder's parameters, named as the options that set them
-    (["gmm", "surface:dunes:8", "-o", "out.npz", "--components", "0"], ["--components 0: expected an integer"]),
-    (["gmm", "surface:dunes:8", "-o", "out.npz", "--prior", "-1"], ["--prior -1.0: expected a finite c >= 0"]),
-    (["gmm", "surface:dunes:8", "-o", "out.npz", "--scale", "0"], ["--scale 0.0: expected a finite number > 0"]),
-], ids=["no file", "gmm seed -1", "gmm seed 2^32", "gmm components 0", "gmm prior -1", "gmm scale 0"])
+    # the builder's ranges, said by the parser whatever the value (argparse's "invalid int value: '2.5'" had none)
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--components", "0"],
+     ["--components", "expected an integer from 1 to 16, got 0"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--prior", "-1"], ["--prior", "expected a number from 0 to 1e+06"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--scale", "0"], ["--scale", "expected a finite number > 0, got 0"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--components", "2.5"],
+     ["--components", "expected an integer from 1 to 16, got '2.5'"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--prior", "0x10"],
+     ["--prior", "expected a number from 0 to 1e+06, got '0x10'"]),
+    (["gmm", "surface:dunes:8", "-o", "out.npz", "--scale="], ["--scale", "expected a finite number > 0, got ''"]),
+], ids=["no file", "gmm seed -1", "gmm seed 2^32", "gmm components 0", "gmm prior -1", "gmm scale 0",
+        "gmm components 2.5", "gmm prior 0x10", "gmm scale empty"])
 def test_precompute_usage_errors_are_one_line(tmp_path, args, needles):
     assert_one_line_error(run(args, tmp_path, module="precompute"), *needles, prog="warpbw-precompute")
     assert_no_outputs(tmp_path)
@@ -1039,6 +1103,43 @@ def test_bench_refuses_a_sphere_scene_lit_by_lights_alone(tmp_path):
     r = run(["bench", "scene.toml", "--json", "b.json", "--spp", "1", "--budgets", "1"], tmp_path)
     assert_one_line_error(r, "scene.toml", "[environment]", "exactly")
     assert_no_outputs(tmp_path, "b")
+
+
+@pytest.mark.parametrize("command, cache, outputs, needles", [
+    ("bench", "r.json", ["--json", "r.json"], ["--cache r.json", "the same path as --json r.json"]),
+    ("bench", "r.png", ["--json", "r.json"], ["--cache r.png", "the same path as --plot r.png"]),
+    ("bench", "r.json/c", ["--json", "r.json"], ["--cache r.json/c", "lies under --json r.json"]),
+    ("bench", "res", ["--json", "res/r.json"], ["--cache res", "holds --json res/r.json"]),
+    ("bench-filtering", "r.json", ["--json", "r.json"], ["--cache r.json", "the same path as --json r.json"]),
+], ids=["bench json", "bench derived plot", "bench under json", "bench holds json", "bench-filtering json"])
+def test_bench_cache_that_is_an_output_is_refused_before_the_work(tmp_path, command, cache, outputs, needles):
+    """``--cache r.json --json r.json`` rendered everything, made the folder r.json (left behind) and ended with
+    "r.json: already exists: it appeared while this run worked" (clifuzz F2)."""
+    if command == "bench":
+        write_scene(tmp_path)
+        extra = ["--spp", "1", "--budgets", "1", "--gt-spp", "16"]
+    else:
+        (tmp_path / "scene.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
+        extra = ["--zoom", "1", "--gt-spp", "64"]
+    r = run([command, "scene.toml", *outputs, "--cache", cache, "--runs", "1", "-q", "--force", *extra], tmp_path)
+    assert_one_line_error(r, *needles)
+    assert not (tmp_path / "r.json").exists() and not (tmp_path / "res").exists()
+
+
+@pytest.mark.parametrize("command", ["render", "info"])
+def test_the_success_summary_escapes_control_characters_in_paths(tmp_path, command):
+    """A newline in ``-o`` made the summary's second line read ``warpbw: error: fake.exr  (8x8, 1 spp, ...)`` on
+    stdout, and an ESC coloured the terminal (clifuzz F13): paths are printed as the error lines print them."""
+    name = "a\nwarpbw: error: fake\x1b[31m"
+    if command == "render":
+        write_scene(tmp_path)
+        r = run(["render", "scene.toml", "-o", name + ".exr", "--spp", "1"], tmp_path)
+    else:
+        write_scene(tmp_path, name=name + ".toml")
+        r = run(["info", name + ".toml"], tmp_path)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "\x1b" not in r.stdout and not any(ln.startswith("warpbw: error") for ln in r.stdout.splitlines())
+    assert "a\\nwarpbw: error: fake\\x1b[31m" in r.stdout, r.stdout
 
 
 def test_adaptive_render_refuses_a_sphere_scene_lit_by_lights_alone(tmp_path):

@@ -96,10 +96,11 @@ class GroundTruth:
 
 
 def _split(gt_spp: int) -> tuple[int, int]:
-    """(spp per chunk, chunks): as many chunks of up to GT_CHUNK_SPP as fit, at least two (their product may fall
-    short of gt_spp)."""
+    """(spp per chunk, chunks): two chunks up to 2 x GT_CHUNK_SPP, beyond it as many chunks of GT_CHUNK_SPP as fit
+    (their product may fall short of gt_spp).  Three chunks of 1 spp made --gt-spp 3 pass, an odd count below
+    8192 that the help refuses, and its "doubling" check compared 1 spp with 3 (clifuzz F10)."""
     chunk = min(GT_CHUNK_SPP, max(1, gt_spp // 2))
-    return chunk, max(2, gt_spp // chunk)
+    return chunk, (max(2, gt_spp // chunk) if chunk == GT_CHUNK_SPP else 2)
 
 
 def gt_spp_refusal(gt_spp: int) -> str | None:
@@ -401,6 +402,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
         "estimator": est,
         "adaptive_options": opts,
         "runs": int(runs),
+        "seed": int(seed),   # the methods' runs (the ground truth's is GT_SEED, whatever --seed says)
+        "device": device,
         "ground_truth_spp": gt.spp,
         "ground_truth_doubling_delta_db": d_db,
         "ground_truth_converged": converged,

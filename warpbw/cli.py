@@ -55,6 +55,12 @@ METHODS = ("reference", "adaptive")
 MAX_ANISOTROPY = 16
 # --exposure in stops: beyond +-150 every non-zero float32 radiance (2^-149 .. 2^128) previews white, or black
 EXPOSURE_MAX_STOPS = 150.0
+# bench --runs: the timed runs of one point.  The median settles within a few dozen; 1000 runs of even a 16x16 frame
+# take minutes per point, and each run's MSE is kept in the record (2^31 ran until killed, its memory growing)
+RUNS_MAX = 1000
+# --threads: the launches' CPU threads, at most 4 per core the machine reports (more only adds idle threads and tiles)
+THREADS_PER_CORE_MAX = 4
+THREADS_MAX = THREADS_PER_CORE_MAX * (os.cpu_count() or 1)
 
 EPILOG = """\
 examples:
@@ -172,7 +178,7 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
         t = res.stats["time_s"]
         w, h = res.stats["resolution"]
         if adaptive:
-            print(f"{outs['exr']}  ({w}x{h}, adaptive, budget {budget:g} spp, n_b {res.stats['n_b']}, "
+            print(f"{printable(outs['exr'])}  ({w}x{h}, adaptive, budget {budget:g} spp, n_b {res.stats['n_b']}, "
                   f"{res.stats['pixels_covered']} covered pixels)")
             print(f"  shaded {res.stats['pixels_shaded']} pixels ({100 * res.stats['shaded_fraction']:.1f}%), "
                   f"{res.stats['samples']} samples ({res.stats['samples_per_covered_pixel']:.2f} per covered pixel)")
@@ -181,15 +187,16 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
                   f"up-sampling {t['upsampling'] * 1e3:.1f} ms"
                   + (f", lights (exact, every pixel) {t['lights'] * 1e3:.1f} ms" if "lights" in t else "")
                   + f", frame {t['frame']:.3f} s, total {t['total']:.2f} s")
-            print(f"  AOVs {', '.join(str(p[0].name) for p in _aov_paths(out).values())} (+ .png)")
+            print(f"  AOVs {', '.join(printable(p[0].name) for p in _aov_paths(out).values())} (+ .png)")
             print(_scales_line(res.stats["colour_scales"]))
         else:
             sps = res.stats["samples_per_second"]
             taken = f"{spp} spp" if res.stats["spp"] else "directional lights alone: exact, no samples"
-            print(f"{outs['exr']}  ({w}x{h}, {taken}, {res.stats['pixels_covered']} covered pixels)")
+            print(f"{printable(outs['exr'])}  ({w}x{h}, {taken}, {res.stats['pixels_covered']} covered pixels)")
             print(f"  gbuffer {t['gbuffer'] * 1e3:.1f} ms, shading {t['shading']:.3f} s"
                   + (f" ({sps / 1e6:.2f} M samples/s)" if sps else "") + f", total {t['total']:.2f} s")
-        print(f"  preview {outs['png']}, stats {outs['json']}" + "".join(f", {p}" for p in texts))
+        print(f"  preview {printable(outs['png'])}, stats {printable(outs['json'])}"
+              + "".join(f", {printable(p)}" for p in texts))
     return res.stats
 
 
@@ -245,9 +252,11 @@ def _render_filtering_cli(scene, args) -> int:
         if "environment" in res.stats:
             n_env = res.stats["environment"]["samples_per_pixel"]
             extra += f", environment: {n_env} samples/pixel (BRDF + environment)"
-        print(f"{outs['exr']}  ({w}x{h}, filter {method}{extra}, {res.stats['pixels_covered']} covered pixels)")
+        print(f"{printable(outs['exr'])}  ({w}x{h}, filter {method}{extra}, "
+              f"{res.stats['pixels_covered']} covered pixels)")
         print(f"  frame {res.time_s * 1e3:.1f} ms, total {res.stats['time_s']['total']:.2f} s")
-        print(f"  preview {outs['png']}, stats {outs['json']}, mip level {level_paths[0].name} (+ .png)")
+        print(f"  preview {printable(outs['png'])}, stats {printable(outs['json'])}, "
+              f"mip level {printable(level_paths[0].name)} (+ .png)")
         print(_scales_line(res.stats["colour_scales"]))
     return 0
 
@@ -284,13 +293,15 @@ def _render_mixed_cli(scene, args) -> int:
         surf = (f"adaptive, budget {args.budget:g} spp" if adaptive else f"reference, {res.stats['spp']} spp"
                 if res.stats["spp"] else "reference, directional lights alone: exact, no samples")
         planes = (f"{args.spp} rays/pixel" if method == "ground_truth" else f"mean mip level {pl['mean_level']:.2f}")
-        print(f"{outs['exr']}  ({w}x{h}, {res.stats['pixels_covered']} covered pixels)")
+        print(f"{printable(outs['exr'])}  ({w}x{h}, {res.stats['pixels_covered']} covered pixels)")
         print(f"  spheres and meshes: {surf}, {res.stats['pixels_shaded']} pixels shaded "
               f"({res.stats['pixels_hidden']} hidden by planes, not shaded), frame {(t['frame'] - t['planes']):.3f} s")
         print(f"  planes in front: {pl['pixels_covered']} pixels, filter {method}, {planes}, frame {t['planes']:.3f} s")
         print(f"  frame {t['frame']:.3f} s, total {t['total']:.2f} s")
-        print(f"  preview {outs['png']}, stats {outs['json']}, mip level {mip_paths[0].name} (+ .png)"
-              + (f", AOVs {', '.join(str(p[0].name) for p in _aov_paths(out).values())} (+ .png)" if adaptive else ""))
+        print(f"  preview {printable(outs['png'])}, stats {printable(outs['json'])}, "
+              f"mip level {printable(mip_paths[0].name)} (+ .png)"
+              + (f", AOVs {', '.join(printable(p[0].name) for p in _aov_paths(out).values())} (+ .png)"
+                 if adaptive else ""))
         print(_scales_line(res.stats["colour_scales"]))
     return 0
 
@@ -404,17 +415,17 @@ def cmd_info(args) -> int:
     if args.json:
         print(json.dumps(s, indent=2))
         return 0
-    print(f"scene       {s['scene']}")
+    print(f"scene       {printable(s['scene'])}")
     print(f"resolution  {s['resolution'][0]} x {s['resolution'][1]}")
-    print(f"environment {s['environment']}")
+    print(f"environment {printable(s['environment'])}")
     for li in s.get("lights", []):
-        print(f"light       {li}")
+        print(f"light       {printable(li)}")
     print("objects")
     for o in s["objects"]:
-        print(f"  - {o}")
-    print("materials   " + ", ".join(f"{k} ({v})" for k, v in s["materials"].items()))
+        print(f"  - {printable(o)}")
+    print("materials   " + printable(", ".join(f"{k} ({v})" for k, v in s["materials"].items())))
     if s["unused_materials"]:
-        print("unused      " + ", ".join(s["unused_materials"]) + " (not loaded)")
+        print("unused      " + printable(", ".join(s["unused_materials"])) + " (not loaded)")
     print("stages      " + "; ".join(s["stages"]))
     if "frame_memory_bytes" in s:
         print(f"memory      about {s['frame_memory_bytes'] / 1e9:.2g} GB per {args.method} frame"
@@ -427,7 +438,7 @@ def cmd_info(args) -> int:
     if s["files"]:
         print("files")
         for f in s["files"]:
-            print(f"  - {f}")
+            print(f"  - {printable(f)}")
     return 0
 
 
@@ -479,13 +490,14 @@ def cmd_compare(args) -> int:
         print(f"pixels {r['pixels']} covered; the worst {_WORST_FRACTION:.0%} of them ({r['worst_pixels']}) hold "
               f"{100 * r['worst_share']:.1f}% of the relMSE")
         if coverage_from == "test":   # the image judged chose its own pixels
-            print(f"coverage from {args.test}'s A channel ({args.reference} has none)")
+            print(f"coverage from {printable(args.test)}'s A channel ({printable(args.reference)} has none)")
         if maps and lo < hi:
-            print(f"error map {maps[0]} (+ {maps[1].name}, log colour scale {lo:.3g} to {hi:.3g}: "
+            print(f"error map {printable(maps[0])} (+ {printable(maps[1].name)}, "
+                  f"log colour scale {lo:.3g} to {hi:.3g}: "
                   f"--error-range {lo:.3g},{hi:.3g} draws another map on it)")
         elif maps:   # no scale to give: no error anywhere, or one value wherever there is any
             what = "no covered pixel has any error" if r["relmse"] == 0 else f"every error is {hi:.3g}"
-            print(f"error map {maps[0]} (+ {maps[1].name}; {what})")
+            print(f"error map {printable(maps[0])} (+ {printable(maps[1].name)}; {what})")
     return 0
 
 
@@ -581,7 +593,9 @@ def _why(hi) -> str:
     return {INT32_MAX: " (an int32 in the kernels)",
             BUDGET_MAX: " (N_p, up to 256 x budget, is an int32 in the kernels)",
             FLOAT32_MAX: " (a float32 in the kernels)",
-            N_B_MAX: " (002 Fig. 13 sweeps n_b from 16 to 1024)"}.get(hi, "")
+            N_B_MAX: " (002 Fig. 13 sweeps n_b from 16 to 1024)",
+            RUNS_MAX: " (the timed runs of one point)",
+            THREADS_MAX: f" ({THREADS_PER_CORE_MAX} per CPU core, {os.cpu_count() or 1} here)"}.get(hi, "")
 
 
 def _number_list(name, kind, hi=None):
@@ -627,6 +641,7 @@ def _bench_outputs(args, scene, default_cache: Path | None = None) -> None:
     for option, path in (("--json", args.json), ("--plot", args.plot)):
         check_output_file(path, option, force=True)
     if args.cache:
+        _cache_apart_from_outputs(args.cache, (("--json", args.json), ("--plot", args.plot)))
         check_output_dir(args.cache, "--cache")
     elif default_cache is not None:
         env = os.environ.get("WARPBW_CACHE")
@@ -638,6 +653,21 @@ def _bench_outputs(args, scene, default_cache: Path | None = None) -> None:
     check_overwrite(outs, args.force, option=("--json", "--plot"), inputs=scene.input_files())
 
 
+def _cache_apart_from_outputs(cache, outputs) -> None:
+    """Refuse a --cache folder that is, holds or lies under one of the outputs (``--cache r.json --json r.json``
+    rendered everything, made the folder r.json and then failed to write the record there)."""
+    c = Path(os.path.realpath(cache))   # realpath: a link loop gives a path, not an error
+    for option, path in outputs:
+        p = Path(os.path.realpath(path))
+        if c == p:
+            raise WarpbwError(f"--cache {cache}: the same path as {option} {path} (expected a folder of its own)")
+        if c.is_relative_to(p):
+            raise WarpbwError(f"--cache {cache}: lies under {option} {path} (expected a folder of its own)")
+        if p.is_relative_to(c):
+            raise WarpbwError(f"--cache {cache}: holds {option} {path} (expected a folder of its own, apart from "
+                              "the outputs)")
+
+
 def _write_bench(args, record: dict, write_plot) -> None:
     """The bench record as JSON and its plot as PNG (both: ``_bench_outputs`` names them), both or neither: a plot
     that fails leaves an earlier record as it was."""
@@ -646,7 +676,7 @@ def _write_bench(args, record: dict, write_plot) -> None:
         at[json_path].write_text(json_text(record))
         write_plot(record, at[plot_path])
     if not args.quiet:
-        print(f"record {args.json}, plot {args.plot}")
+        print(f"record {printable(args.json)}, plot {printable(args.plot)}")
     if args.runs < PROTOCOL_RUNS:
         print(f"warpbw: warning: --runs {args.runs}: the measurement protocol times the median of at least "
               f"{PROTOCOL_RUNS} runs (DESIGN.md); fewer give noisier times", file=sys.stderr)
@@ -752,8 +782,9 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument("--exposure", type=_exposure, default=0.0,
                         help=f"PNG preview exposure in stops, -{EXPOSURE_MAX_STOPS:g} to {EXPOSURE_MAX_STOPS:g} "
                         "(default 0)")
-        sp.add_argument("--threads", type=_positive_int("threads"), default=None,
-                        help="CPU threads tiling the shading launches (default: all cores)")
+        sp.add_argument("--threads", type=_positive_int("threads", THREADS_MAX), default=None,
+                        help=f"CPU threads tiling the shading launches, 1 to {THREADS_PER_CORE_MAX} per core "
+                        f"({THREADS_MAX} here; default: all cores)")
         sp.add_argument("--force", action="store_true", help="overwrite existing output files")
         sp.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
 
@@ -821,7 +852,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     def bench_common(p, runs_help: str):
         """--runs, --seed, --device, --force and -q of both bench commands."""
-        p.add_argument("--runs", type=_positive_int("runs"), default=PROTOCOL_RUNS, help=runs_help)
+        p.add_argument("--runs", type=_positive_int("runs", RUNS_MAX), default=PROTOCOL_RUNS,
+                       help=f"{runs_help}; 1 to {RUNS_MAX}")
         p.add_argument("--seed", type=parse_seed, default=0, help="random seed, 0 to 2^32-1 (default 0)")
         p.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda / cuda:N")
         p.add_argument("--force", action="store_true", help="overwrite existing output files")

@@ -8,7 +8,8 @@ any work), ``check_overwrite(paths, force, option, inputs)`` (several outputs at
 the command's inputs), ``init_warp(device) -> warp`` (Warp initialised without its banner or its no-CUDA-driver
 line, the device checked), ``json_text(record) -> str`` (strict JSON, a non-finite float as null) and
 ``write_json(path, record, say=True, force=True)`` (that, written where asked, and said so), ``printable(text)``
-(control characters written as escapes, as every error and warning line is printed).
+(control characters written as escapes, as every error and warning line, and each path of a summary line, is
+printed).
 """
 from __future__ import annotations
 
@@ -117,8 +118,10 @@ def check_output_file(path, option: str, force: bool) -> None:
 
 
 def check_output_dir(path, option: str) -> None:
-    """Refuse, before any work, an output directory that is an existing file or lies under one."""
+    """Refuse, before any work, an output directory that is an existing file or lies under one, or whose name is
+    too long."""
     p = Path(path)
+    check_name_length(p, f"{option} {p}")   # first: Python 3.11's exists raises on a name too long
     if p.exists() and not p.is_dir():
         raise WarpbwError(f"{option} {p}: not a directory (expected a directory, made if absent)")
     if p.is_dir():
@@ -284,5 +287,5 @@ def write_json(path, record: dict, say: bool = True, force: bool = True) -> Path
     with staged_outputs([p], force=force) as at:   # whole or not at all (a full disk leaves the old record)
         at[p].write_text(json_text(record))
     if say:
-        print(f"wrote {p}")
+        print(f"wrote {printable(p)}")
     return p

@@ -3,7 +3,8 @@
 Public:
     ``captured_native_output(fds=(1, 2))``  context manager: what C/C++ code wrote to those descriptors
     inside the block, as a list of lines (filled when the block ends), instead of the terminal
-    ``init_warp_quietly()``  ``wp.init()`` without Warp's no-CUDA-driver line (every other line passed on)
+    ``init_warp_quietly()``  ``wp.init()`` without Warp's no-CUDA-driver line (every other line passed on);
+                             a kernel cache folder Warp cannot make is a ``WarpbwError`` naming it
 
 Warp prints a line at initialisation on a machine without an NVIDIA driver, and OpenEXR prints warnings
 and errors about a damaged file before raising its own exception: neither goes through Python's
@@ -65,9 +66,24 @@ def init_warp_quietly() -> None:
         return
     import warp as wp
 
-    with captured_native_output(fds=(2,)) as lines:
-        wp.init()
+    try:
+        with captured_native_output(fds=(2,)) as lines:
+            wp.init()
+    except OSError as exc:
+        raise _kernel_cache_error(exc, wp.config.kernel_cache_dir) from None
     for line in lines:
         if WARP_NO_DRIVER_LINE not in line:
             print(line, file=sys.stderr)
     _warp_initialised = True
+
+
+def _kernel_cache_error(exc: OSError, cache_dir) -> Exception:
+    """The one-line error for Warp's kernel cache folder that ``wp.init()`` could not make (``HOME`` a file gave a
+    bare "[Errno 20] Not a directory: 'hf/.cache'"); ``exc`` itself when it is about another file."""
+    from warpbw.errors import WarpbwError
+
+    failed = os.fsdecode(exc.filename) if exc.filename is not None else None
+    if not cache_dir or failed is None or not (cache_dir == failed or cache_dir.startswith(failed.rstrip("/") + "/")):
+        return exc
+    return WarpbwError(f"Warp's kernel cache {cache_dir} cannot be made ({exc.strerror or exc} at {failed}): set HOME, "
+                       "or WARP_CACHE_PATH, to a folder where it can be")

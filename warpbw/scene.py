@@ -10,6 +10,7 @@ Public:
     ``file_digest(path) -> str``               blake2b of a file's bytes (the content hashes of scenes and tables)
     ``toml_string(text, what)``, ``toml_escape(text, what)``  a path written into a scene file by a tool
     ``GMM_MAX_COMPONENTS``                     the most components a material's ``gmm_components`` may ask for
+    ``SCENE_FILE_MAX_BYTES``                   the largest scene file read (checked before reading)
 
 Lights: an ``[environment]`` and/or ``[[light]]`` tables (``type = "directional"``, ``direction`` towards the
 light, ``radiance``); a scene needs at least one of them (``Scene.environment`` is None without one).
@@ -40,6 +41,7 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 from warpbw.errors import FLOAT32_MAX, WarpbwError, check_path, is_int
+from warpbw.io.staged import check_name_length
 
 MATERIAL_TYPES = ("lambert", "ggx", "merl", "npf", "cook-torrance")
 LIGHT_TYPES = ("directional",)
@@ -60,6 +62,9 @@ GMM_MAX_PRIOR = 1.0e6
 PROCEDURAL_ENVIRONMENTS = ("sky",)
 LOOKUP_MODES = ("nearest", "linear")
 MAX_RESOLUTION = 16384  # per side; larger is almost certainly a typo (and would not fit in memory)
+# A scene file's size, checked before it is read: a scene is a few kB of TOML (meshes, maps and probes are files it
+# names), and a 1 GB data file given by mistake took 2 GB of memory and seconds to be called "not valid TOML"
+SCENE_FILE_MAX_BYTES = 4 << 20
 # Smallest GGX alpha accepted (a mirror at any image resolution); the kernel clamps to the same bound
 # (warpbw.brdf.GGX_MIN_ALPHA).
 GGX_MIN_ALPHA = 1.0e-4
@@ -736,10 +741,18 @@ def check_scene(scene) -> Scene:
 def load_scene(path: Path | str) -> Scene:
     """Read and validate a scene file."""
     p = check_path(path, "scene path")   # None: a TypeError from pathlib
+    check_name_length(p, str(p))   # first: Python 3.11's exists raises on a name too long
     if not p.exists():
         raise WarpbwError(f"{p}: scene file not found")
     if not p.is_file():
         raise WarpbwError(f"{p}: not a file")
+    try:
+        size = p.stat().st_size
+    except OSError as exc:
+        raise WarpbwError(f"{p}: cannot read the scene file ({exc.strerror or exc.__class__.__name__})") from None
+    if size > SCENE_FILE_MAX_BYTES:
+        raise WarpbwError(f"{p}: {size} bytes; a scene file is a few kB of TOML (expected at most "
+                          f"{SCENE_FILE_MAX_BYTES} bytes)")
     try:
         text = p.read_text(encoding="utf-8-sig")   # a byte-order mark (editors on Windows) is not TOML
     except (OSError, UnicodeDecodeError) as exc:

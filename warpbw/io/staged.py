@@ -158,6 +158,9 @@ _TEMP_WRITER = re.compile(r"(?P<host>[0-9a-f]{8})-(?P<pid>[0-9]+)\.[A-Za-z0-9_]+
 # any 32-bit one), ".", mkstemp's 8 random characters
 _TEMP_WRITER_MAX = 8 + 1 + 10 + 1 + 8
 NAME_MAX_DEFAULT = 255   # bytes in a file name on Linux's and macOS's file systems, where pathconf cannot say
+PATH_MAX_DEFAULT = 4096   # bytes in a path, its final NUL included, on Linux (limits.h), where pathconf cannot say
+# what a temporary's path adds to its output's at most: the prefix, ".", the writer's part and ".part"
+_TEMP_PATH_EXTRA = len(TEMP_PREFIX) + 1 + _TEMP_WRITER_MAX + len(".part")
 
 
 def _name_max(folder: Path) -> int:
@@ -175,9 +178,18 @@ def _is_dir(p: Path) -> bool:
         return False
 
 
+def _path_max(folder: Path) -> int:
+    """The longest path, in bytes with its final NUL, that the system takes in ``folder``'s file system."""
+    try:
+        return int(os.pathconf(folder, "PC_PATH_MAX"))
+    except (OSError, ValueError, AttributeError):
+        return PATH_MAX_DEFAULT
+
+
 def check_name_length(path, label: str) -> None:
-    """Refuse, before any work, an output whose name, or the name of a folder on its way, is longer than its file
-    system takes (the run failed at its end, with "File name too long")."""
+    """Refuse, before any work, a path whose name, or the name of a folder on its way, is longer than its file
+    system takes, or that is longer as a whole (with its temporary's additions) than the system takes (the run
+    failed at its end, with "File name too long"; an input or a folder, with Python's bare "[Errno 36]")."""
     p = Path(path)
     folder = next((q for q in (p.parent, *p.parent.parents) if _is_dir(q)), Path("."))
     limit = _name_max(folder)
@@ -187,6 +199,10 @@ def check_name_length(path, label: str) -> None:
             what = "file name" if part == p.name else f"folder name {part[:16]}..."
             raise WarpbwError(f"{label}: a {what} of {n} bytes, longer than the file system takes ({limit}); "
                               "expected a shorter name")
+    n, room = len(os.fsencode(str(p))), _path_max(folder) - 1 - _TEMP_PATH_EXTRA
+    if n > room:
+        raise WarpbwError(f"{label}: a path of {n} bytes, longer than the system takes ({room}, with room for a "
+                          "temporary file's name); expected a shorter path")
 
 
 def _temp_stem(path: Path) -> str:
