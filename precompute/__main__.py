@@ -17,7 +17,7 @@ import sys
 import time
 from pathlib import Path
 
-from warpbw.cli_common import (OneLineParser, check_output_file, check_overwrite, parse_seed, printable,
+from warpbw.cli_common import (OneLineParser, check_output_file, check_overwrite, parse_path, parse_seed, printable,
                                run_command)
 from precompute.gmm_mipmap import MAX_COMPONENTS, MAX_PRIOR
 from precompute.surfaces import MAX_SURFACE_SIZE, MIN_SURFACE_SIZE
@@ -60,6 +60,7 @@ def _table_command(args, build, write, describe) -> int:
     """The table subcommands: refuse an existing output, open the source, build, write, report."""
     from precompute.brdf_sampling import brdf_source
 
+    from warpbw.io.merl import MERL_FILE_SIZE
     from warpbw.io.npf import NPF_FILE_SIZE
 
     out = _check_output(args, args.file, TABLE_SUFFIXES)
@@ -67,6 +68,9 @@ def _table_command(args, build, write, describe) -> int:
     # read as MERL, the table's error said only how a scene reads one, not this command's own option
     if args.material is None and f.is_file() and f.stat().st_size == NPF_FILE_SIZE:
         raise WarpbwError(f"{f}: the size of an NPF table: name one of its materials with --material NAME")
+    if args.material is not None and f.is_file() and f.stat().st_size == MERL_FILE_SIZE:   # read as an NPF table
+        raise WarpbwError(f"--material {args.material}: applies to NPF tables, and {f} is the size of a MERL file "
+                          f"({MERL_FILE_SIZE} bytes): leave --material out")
     t0 = time.perf_counter()
     source = brdf_source(args.file, args.material)
     table = build(source, progress=not args.quiet)
@@ -94,16 +98,19 @@ def cmd_brdf(args) -> int:
 def cmd_gmm(args) -> int:
     from precompute.gmm_mipmap import DEFAULT_PRIOR, build_gmm_mipmap, load_source, write_gmm_mipmap
 
-    if args.kind == "normal" and args.scale != 1.0:
+    # given at all, even at their defaults: --unaligned --prior 1 was accepted and dropped (options audit, session 64)
+    if args.kind == "normal" and args.scale is not None:
         raise WarpbwError(f"--scale {args.scale:g}: applies to --kind height only (a normal map's normals are used "
                           "as they are)")
-    if args.unaligned and args.prior != DEFAULT_PRIOR:
+    if args.unaligned and args.prior is not None:
         raise WarpbwError(f"--prior {args.prior:g}: the unaligned baseline (--unaligned) has no alignment prior")
+    prior = DEFAULT_PRIOR if args.prior is None else args.prior
+    scale = 1.0 if args.scale is None else args.scale   # heights in units of the map's width, as given
     out = _check_output(args, None if args.map.startswith("surface:") else args.map, GMM_SUFFIXES)
     t0 = time.perf_counter()
     data, name, digest = load_source(args.map, args.kind)
     try:
-        mip = build_gmm_mipmap(data, kind=args.kind, components=args.components, prior=args.prior, scale=args.scale,
+        mip = build_gmm_mipmap(data, kind=args.kind, components=args.components, prior=prior, scale=scale,
                                seed=args.seed, progress=not args.quiet, unaligned=args.unaligned)
     except WarpbwError as exc:    # the builder names its parameters; here they are options
         msg = str(exc)
@@ -111,7 +118,7 @@ def cmd_gmm(args) -> int:
     write_gmm_mipmap(out, mip, name, digest, force=args.force,
                      inputs=[] if args.map.startswith("surface:") else [args.map])
     h, w = mip.shape
-    how = "unaligned (independent EM per texel)" if args.unaligned else f"aligned, prior c={args.prior:g}"
+    how = "unaligned (independent EM per texel)" if args.unaligned else f"aligned, prior c={prior:g}"
     print(printable(f"{out}  (GMM mipmap of {name}: {w}x{h}, {len(mip.levels)} levels, {mip.components} "
                     f"components, "
                     f"{how}, {time.perf_counter() - t0:.1f} s)"))
@@ -153,7 +160,7 @@ def _table_args(p: argparse.ArgumentParser) -> None:
     """The arguments every tabulated-BRDF table command takes: the BRDF, the output, --force, --quiet."""
     p.add_argument("file", help="MERL .binary file, or NPF table with --material")
     p.add_argument("--material", default=None, help="NPF material name when FILE is an NPF table")
-    p.add_argument("-o", "--output", required=True, help="output table file (a name ending in .npz)")
+    p.add_argument("-o", "--output", type=parse_path, required=True, help="output table file (a name ending in .npz)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
@@ -173,7 +180,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "the 90x90x180 MERL bin centres and write it as a MERL .binary file.")
     a.add_argument("--table", required=True, help="NPF table (npf.bin)")
     a.add_argument("--material", required=True, help="material name, e.g. gold-metallic-paint")
-    a.add_argument("-o", "--output", required=True, help="output MERL file (a name ending in .binary)")
+    a.add_argument("-o", "--output", type=parse_path, required=True, help="output MERL file (a name ending in .binary)")
     a.add_argument("--force", action="store_true", help="overwrite an existing output")
     a.set_defaults(func=cmd_npf_to_merl)
 
@@ -203,17 +210,17 @@ def build_parser() -> argparse.ArgumentParser:
                        f"hemispherical_scales needs at least {MIN_SURFACE_SIZE}, and below about 16 texels the "
                        "others' detail is finer than a texel).")
     g.add_argument("map", metavar="MAP", help="height field / normal map image, or surface:NAME[:SIZE]")
-    g.add_argument("-o", "--output", required=True, help="output mipmap file (a name ending in .npz or .gmm)")
+    g.add_argument("-o", "--output", type=parse_path, required=True, help="output mipmap file (a name ending in .npz or .gmm)")
     g.add_argument("--components", type=_integer_from(1, MAX_COMPONENTS), default=4,
                    help=f"Gaussians per texel, 1 to {MAX_COMPONENTS} (default 4)")
-    g.add_argument("--prior", type=_number_from(0.0, MAX_PRIOR), default=1.0,
+    g.add_argument("--prior", type=_number_from(0.0, MAX_PRIOR), default=None,
                    help=f"alignment constant c of the MAP prior, 0 to {MAX_PRIOR:g} (default 1; 0 is plain EM; not "
                    "with --unaligned)")
     g.add_argument("--kind", choices=("height", "normal"), default="height",
                    help="MAP is a single-channel height field (default; 16-bit PNG or EXR: 8 bits "
                         "give terraced normals) or an RGB tangent-space normal map (PNG: [0, 1]-encoded; "
                         "EXR: raw unit vectors or [0, 1]-encoded)")
-    g.add_argument("--scale", type=_number_from(0.0), default=1.0,
+    g.add_argument("--scale", type=_number_from(0.0), default=None,
                    help="height multiplier, a finite number > 0; heights are in units of the map's width (default 1; "
                    "--kind height only)")
     g.add_argument("--unaligned", action="store_true",

@@ -1573,6 +1573,10 @@ def test_outputs_never_replace_an_input_even_with_force(tmp_path):
         (["gmm", "m.gmm", "-o", "m.gmm", "--force"], ["-o m.gmm", "would overwrite", "the file it is made from"]),
         (["gmm", "probe.exr", "-o", "g.npz", "--kind", "normal", "--scale", "2"], ["--scale 2", "--kind height"]),
         (["gmm", "probe.exr", "-o", "g.npz", "--unaligned", "--prior", "5"], ["--prior 5", "--unaligned"]),
+        # given at their defaults they were accepted and dropped (options audit, session 64)
+        (["gmm", "probe.exr", "-o", "g.npz", "--kind", "normal", "--scale", "1"], ["--scale 1", "--kind height"]),
+        (["gmm", "probe.exr", "-o", "g.npz", "--unaligned", "--prior", "1"], ["--prior 1", "--unaligned"]),
+        (["gmm", "probe.exr", "-o", ""], ["-o/--output", "expected a file name, got an empty one"]),
     ]:
         assert_one_line_error(run(argv, tmp_path, module="precompute"), *needles, prog="warpbw-precompute")
     assert (tmp_path / "npf.bin").read_bytes() == npf and not (tmp_path / "g.npz").exists()
@@ -2989,3 +2993,42 @@ def test_stage_functions_refuse_what_would_crash_or_mislead_in_one_line(stage_in
     with pytest.raises(WarpbwError, match=re.escape(needle)) as ei:
         call(stage_inputs)
     assert "\n" not in str(ei.value)
+
+
+def test_options_the_run_would_drop_or_misname_are_refused_in_its_own_words(tmp_path):
+    """Options audit, session 64: options a run would not use were accepted without a word (compare --force without
+    --error-map, --max-anisotropy with the ground truth, which filters nothing); a mixed scene's ground-truth --spp
+    was named by the library's parameter ("spp (ground-truth rays per pixel)"); an empty -o was shown as "-o .", an
+    empty scene name as "(str or Path)"; --material on a MERL file said only that it was not an NPF table; --zoom
+    1e300 was told it was not a finite number and named no option."""
+    from warpbw.io.merl import MERL_SHAPE, write_merl
+
+    write_scene(tmp_path)
+    (tmp_path / "planes.toml").write_text(plane_scene_toml(resolution=(8, 8)))
+    (tmp_path / "mixed.toml").write_text(plane_scene_toml(resolution=(8, 8)) + (
+        '[[object]]\nshape = "sphere"\ncenter = [0.0, 0.5, 0.0]\nradius = 0.3\nmaterial = "d"\n'
+        '[material.d]\ntype = "lambert"\nalbedo = 0.5\n'))
+    write_exr(tmp_path / "a.exr", np.ones((4, 4, 3), np.float32))
+    write_merl(tmp_path / "m.binary", np.full(MERL_SHAPE, 0.1))
+    cases = [
+        (["compare", "a.exr", "a.exr", "--force"], ["--force", "writes nothing but --error-map"]),
+        (["render", "planes.toml", "-o", "o.exr", "--filter", "ground_truth", "--max-anisotropy", "8"],
+         ["--max-anisotropy 8", "--filter ground_truth", "filters nothing"]),
+        (["render", "mixed.toml", "-o", "o.exr", "--filter", "ground_truth", "--max-anisotropy", "8"],
+         ["--max-anisotropy 8", "filters nothing"]),
+        (["render", "mixed.toml", "-o", "o.exr", "--filter", "ground_truth", "--spp", "8"],
+         ["--spp 8", "--filter ground_truth traces at least 64 rays per pixel"]),
+        (["render", "scene.toml", "-o", ""], ["-o/--output", "expected a file name, got an empty one"]),
+        (["info", ""], ["scene", "expected a file name, got an empty one"]),
+        (["bench-filtering", "planes.toml", "--json", "b.json", "--zoom", "1,1e300"],
+         ["--zoom 1e+300", "within float32's range"]),
+    ]
+    for argv, needles in cases:
+        r = run(argv, tmp_path)
+        assert_one_line_error(r, *needles)
+        assert "(str or Path)" not in r.stderr and "-o ." not in r.stderr, r.stderr
+    r = run(["brdf-sampling", "m.binary", "--material", "chrome", "-o", "t.npz"], tmp_path, module="precompute")
+    assert_one_line_error(r, "--material chrome: applies to NPF tables", "m.binary is the size of a MERL file",
+                          "leave --material out", prog="warpbw-precompute")
+    assert_no_outputs(tmp_path)
+    assert not any((tmp_path / n).exists() for n in ("o.exr", "b.json", "t.npz"))

@@ -148,7 +148,10 @@ def _zoom_frames(scene, zooms, behind, pairs: int = 1) -> list:
     frames = []
     for z in zooms:
         zz = tuple(z * FLICKER_STEP ** j for j in range(pairs + 1))
-        cams = tuple(zoomed_camera(scene.camera, x) for x in zz)
+        try:   # the library's "zoom (times the camera's distance ...)" named no option
+            cams = tuple(zoomed_camera(scene.camera, x) for x in zz)
+        except WarpbwError as exc:
+            raise WarpbwError(f"--zoom {z:g}: {exc}") from None
         frames.append((z, zz, cams, tuple(behind(c) for c in cams)))
     return frames
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from warpbw import __version__
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
-                               json_text, parse_seed, printable, run_command)
+                               json_text, parse_path, parse_seed, printable, run_command)
 from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError
 from warpbw.io.staged import staged_outputs
 
@@ -227,10 +227,7 @@ def _render_filtering_cli(scene, args) -> int:
             or _adaptive_options(args):
         raise WarpbwError(f"{scene.source}: a scene with planes renders with --filter METHOD (reflectance "
                           "filtering, 004); --method, --budget, --nb and --mis apply to spheres and meshes")
-    method = args.filter or "gmm_aligned"
-    if method == "ground_truth" and args.spp is not None and args.spp < MIN_GT_SPP:
-        raise WarpbwError(f"--spp {args.spp}: --filter ground_truth traces at least {MIN_GT_SPP} rays per pixel "
-                          "(004's 'many rays')")
+    method = _filter_method(args)
     out = Path(args.output)
     outs = _outputs(out)
     level_paths = [out.with_suffix(".level.exr"), out.with_suffix(".level.png")]
@@ -261,12 +258,26 @@ def _render_filtering_cli(scene, args) -> int:
     return 0
 
 
+def _filter_method(args) -> str:
+    """--filter (gmm_aligned by default), with the options that go with it checked before any work: the ground truth
+    traces at least MIN_GT_SPP rays per pixel and filters nothing (a plane scene and a mixed one alike; the mixed
+    one said "spp (ground-truth rays per pixel)", the library's name, and both took --max-anisotropy and dropped it)."""
+    method = args.filter or "gmm_aligned"
+    if method == "ground_truth" and args.spp is not None and args.spp < MIN_GT_SPP:
+        raise WarpbwError(f"--spp {args.spp}: --filter ground_truth traces at least {MIN_GT_SPP} rays per pixel "
+                          "(004's 'many rays')")
+    if method == "ground_truth" and args.max_anisotropy is not None:
+        raise WarpbwError(f"--max-anisotropy {args.max_anisotropy}: --filter ground_truth traces rays and filters "
+                          "nothing (the option applies to the filtered methods)")
+    return method
+
+
 def _render_mixed_cli(scene, args) -> int:
     """``warpbw render`` of a scene with planes beside spheres or meshes: the spheres and meshes with --method
     (reference or adaptive), then the planes in front of them with --filter (warpbw.pipeline.render_with_planes)."""
     from warpbw.pipeline import render_with_planes
 
-    method = args.filter or "gmm_aligned"
+    method = _filter_method(args)
     adaptive = args.method == "adaptive"
     out = Path(args.output)
     outs = _outputs(out)
@@ -529,6 +540,8 @@ def _error_map_paths(args) -> list:
     """--error-map PATH.exr and its PNG beside it ([] without --error-map), refused before any work if either exists
     (without --force) or would replace one of the images compared (whatever --force says); --error-range checked."""
     rng = args.error_range
+    if args.force and not args.error_map:   # it was accepted and did nothing
+        raise WarpbwError("--force: compare writes nothing but --error-map PATH.exr (give it, or leave --force out)")
     if rng is not None and not args.error_map:
         raise WarpbwError("--error-range: give --error-map PATH.exr too (the range is that map's colour scale)")
     if rng is not None and (len(rng) != 2 or rng[0] >= rng[1]):
@@ -800,7 +813,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "OUT.level.exr / .png; planes beside spheres or meshes: under 'planes', with "
                        "OUT.mip_level.exr / .png).")
     r.add_argument("scene", help="scene file (TOML)")
-    r.add_argument("-o", "--output", required=True, help="output EXR path")
+    r.add_argument("-o", "--output", type=parse_path, required=True, help="output EXR path")
     r.add_argument("--mis", action="store_true",
                    help="also sample the environment and combine by multiple importance sampling")
     r.add_argument("--method", choices=METHODS, default=METHODS[0],
@@ -835,7 +848,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "multiple importance sampling (as render --mis): --spp BRDF samples per pixel, each paired "
                        "with an environment sample.  The scene itself goes to DIR/scene.toml, to edit and render "
                        "with warpbw render (e.g. --method adaptive --budget 4).")
-    d.add_argument("-o", "--output", default="warpbw_demo", help="output directory (default ./warpbw_demo)")
+    d.add_argument("-o", "--output", type=parse_path, default="warpbw_demo", help="output directory (default ./warpbw_demo)")
     common(d, DEMO_SPP)
     d.set_defaults(func=cmd_demo)
 

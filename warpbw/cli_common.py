@@ -2,8 +2,8 @@
 
 Public: ``EXIT_USER_ERROR``, ``EXIT_BROKEN_PIPE`` (stdout's reader left), ``EXIT_INTERRUPTED`` (Ctrl-C),
 ``EXIT_TERMINATED`` (SIGTERM), ``OneLineParser``, ``run_command(prog, func, args) -> int`` (a stopped run leaves
-its outputs as they were), ``parse_seed`` (the argparse type of every ``--seed``), ``check_output_file(path,
-option, force)`` and ``check_output_dir(path, option)`` (an output path that cannot be written, refused before
+its outputs as they were), ``parse_seed`` (the argparse type of every ``--seed``), ``parse_path`` (of every ``-o``:
+not empty), ``check_output_file(path, option, force)`` and ``check_output_dir(path, option)`` (an output path that cannot be written, refused before
 any work), ``check_overwrite(paths, force, option, inputs)`` (several outputs at once, and --force; never one of
 the command's inputs), ``init_warp(device) -> warp`` (Warp initialised without its banner or its no-CUDA-driver
 line, the device checked), ``json_text(record) -> str`` (strict JSON, a non-finite float as null) and
@@ -74,6 +74,14 @@ class OneLineParser(argparse.ArgumentParser):
                 chosen.error(message)
         tool = self.prog.split()[0]
         self.exit(EXIT_USER_ERROR, f"{tool}: error: {printable(message)} (see '{self.prog} --help')\n")
+
+
+def parse_path(s: str) -> str:
+    """argparse type of a path option: any name but an empty one (``-o ""`` was shown as ``-o .``, pathlib's reading
+    of it)."""
+    if not s:
+        raise argparse.ArgumentTypeError("expected a file name, got an empty one")
+    return s
 
 
 def parse_seed(s: str) -> int:

@@ -78,7 +78,9 @@ def check_real(value, name: str, lo: float = -FLOAT32_MAX, lo_open: bool = False
             x = math.inf
     if not (math.isfinite(x) and abs(x) <= FLOAT32_MAX and (x > lo if lo_open else x >= lo)):
         bound = "" if lo == -FLOAT32_MAX else f" {'>' if lo_open else '>='} {lo:g}"
-        raise WarpbwError(f"{name}: expected a finite number{bound}, got {value!r}")
+        beyond = f" within float32's range (+-{FLOAT32_MAX:.4g}, as the kernels take it)" if math.isfinite(x) \
+            and abs(x) > FLOAT32_MAX else ""   # 1e300 was told "expected a finite number", which it is
+        raise WarpbwError(f"{name}: expected a finite number{bound}{beyond}, got {value!r}")
     return x
 
 
@@ -224,7 +226,9 @@ def check_path(path, name: str = "path") -> Path:
     number was a TypeError from pathlib."""
     import os
 
-    if not isinstance(path, (str, os.PathLike)) or not str(path):
+    if isinstance(path, (str, os.PathLike)) and not str(path):   # '(str or Path)' told a CLI user nothing
+        raise WarpbwError(f"{name}: expected a file name, got an empty one")
+    if not isinstance(path, (str, os.PathLike)):
         raise WarpbwError(f"{name}: expected a file name (str or Path), got {path!r}")
     return Path(path)
 
