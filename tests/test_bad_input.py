@@ -660,6 +660,43 @@ def test_precompute_usage_errors_are_one_line(tmp_path, args, needles):
     assert_no_outputs(tmp_path)
 
 
+@pytest.mark.parametrize("module,args,option,values", [
+    ("warpbw.cli", ["render", "scene.toml", "-o", "out.exr", "--output", "out2.exr"], "-o/--output",
+     "(out.exr, then out2.exr)"),
+    ("warpbw.cli", ["render", "scene.toml", "-o", "out.exr", "--spp", "2", "--spp=8"], "--spp", "(2, then 8)"),
+    ("warpbw.cli", ["render", "scene.toml", "-o", "out.exr", "--method", "adaptive", "--method", "reference"],
+     "--method", "(adaptive, then reference)"),
+    ("warpbw.cli", ["bench", "scene.toml", "--json", "out.json", "--json", "out2.json", "--spp", "1",
+                    "--budgets", "1", "--runs", "1"], "--json", "(out.json, then out2.json)"),
+    ("warpbw.cli", ["compare", "a.exr", "b.exr", "--error-map", "out.exr", "--error-map", "out2.exr"],
+     "--error-map", "(out.exr, then out2.exr)"),
+    ("precompute", ["brdf", "npf.bin", "--material", "chrome", "-o", "out.npz", "-o", "out2.npz"], "-o/--output",
+     "(out.npz, then out2.npz)"),
+], ids=["render -o twice", "render --spp twice", "render --method twice", "bench --json twice",
+        "compare --error-map twice", "precompute brdf -o twice"])
+def test_an_option_given_twice_is_a_one_line_usage_error(tmp_path, module, args, option, values):
+    """argparse kept the last of an option's values without a word (clifuzz F8: ``-o a1.exr -o a2.exr --spp 2 --spp 8``
+    wrote a2.exr only, at 8 spp): the second is refused, naming the option and both values, before any work."""
+    write_scene(tmp_path)
+    for name in ("a.exr", "b.exr"):
+        write_exr(tmp_path / name, np.full((4, 4, 3), 0.5, np.float32))
+    fake_npf_table(tmp_path / "npf.bin")
+    prog = "warpbw-precompute" if module == "precompute" else "warpbw"
+    line = assert_one_line_error(run(args, tmp_path, module=module), f"{option} given twice {values}: give it once",
+                                 prog=prog)
+    assert f"{prog} {args[0]} --help" in line
+    assert_no_outputs(tmp_path)
+    assert_no_outputs(tmp_path, "out2")
+
+
+def test_options_given_once_and_a_flag_given_twice_are_usage_that_still_works(tmp_path):
+    """A flag given twice means what it means once (``--force --force``); each store option given once runs."""
+    write_scene(tmp_path)
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1", "--force", "--force", "-q", "-q"], tmp_path)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert (tmp_path / "out.exr").exists()
+
+
 @pytest.mark.parametrize("argv,missing", [
     ([], "COMMAND"),
     (["npf-to-merl", "--material", "chrome", "-o", "x.binary"], "--table"),

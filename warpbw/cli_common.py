@@ -18,6 +18,7 @@ import json
 import math
 import os
 import re
+import shlex
 import signal
 import sys
 import tempfile
@@ -51,17 +52,33 @@ def printable(text) -> str:
 
 class OneLineParser(argparse.ArgumentParser):
     """argparse with usage errors in the one-line form ``PROG: error: ...``, status 2, and options spelled out
-    (``--for`` ran as ``--force``, and a later option beginning alike would have changed what it meant)."""
+    (``--for`` ran as ``--force``, and a later option beginning alike would have changed what it meant).  An option
+    that stores one value may be given once: ``--spp 2 --spp 8`` is refused, naming both values (argparse kept the
+    last one without a word, ``-o a1.exr -o a2.exr`` wrote a2.exr only).  A flag given twice (``--force --force``)
+    means what it means once and is accepted; so would be an ``append`` or ``count`` option, of which there is
+    none.  Subcommands' options are checked by their own parsers (``add_parser`` makes them of this class)."""
 
     def __init__(self, *args, **kwargs):
         kwargs.setdefault("allow_abbrev", False)
         super().__init__(*args, **kwargs)
+        self._given = {}
 
     def parse_known_args(self, args=None, namespace=None):
+        self._given = {}   # each parse starts with no option given (a subcommand's parser is called once in it)
         # kept for error(): argparse's parse_args refuses leftover arguments through the parser it was called on
         ns, extra = super().parse_known_args(args, namespace)
         self._parsed = ns
         return ns, extra
+
+    def _get_values(self, action, arg_strings):
+        # argparse converts each occurrence's strings here, before the action stores them (replacing the last)
+        if isinstance(action, argparse._StoreAction) and action.option_strings:
+            first = self._given.setdefault(action, arg_strings)
+            if first is not arg_strings:
+                shown = [" ".join(shlex.quote(s) for s in v) for v in (first, arg_strings)]
+                self.error(f"{'/'.join(action.option_strings)} given twice ({shown[0]}, then {shown[1]}): give it "
+                           "once")
+        return super()._get_values(action, arg_strings)
 
     def error(self, message):
         # arguments left over are refused by the subcommand's parser, which points to its own --help (warpbw render
