@@ -1231,9 +1231,10 @@ def test_gmm_prints_the_map_size_as_width_x_height(tmp_path, capsys):
 
 def test_gmm_names_the_option_a_bad_scale_came_from(tmp_path, capsys):
     """The builder's "scale ..." is the command's --scale (the parser now says so itself, before the builder)."""
-    assert cli(["gmm", "surface:dunes:20", "--scale", "0", "-o", tmp_path / "d.gmm", "-q"]) == 2
+    with pytest.raises(SystemExit) as stop:   # a usage error: argparse exits with status 2
+        cli(["gmm", "surface:dunes:20", "--scale", "0", "-o", tmp_path / "d.gmm", "-q"])
     err = capsys.readouterr().err
-    assert "error: argument --scale: expected a finite number > 0, got 0" in err, err
+    assert stop.value.code == 2 and "error: argument --scale: expected a finite number > 0, got 0" in err, err
 
 
 def test_gmm_quiet_shows_no_progress_bar(tmp_path, capsys):
