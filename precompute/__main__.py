@@ -19,7 +19,7 @@ from pathlib import Path
 
 from warpbw.cli_common import (OneLineParser, check_output_file, check_overwrite, parse_path, parse_seed, printable,
                                run_command)
-from precompute.gmm_mipmap import MAX_COMPONENTS, MAX_PRIOR
+from precompute.gmm_mipmap import DEFAULT_PRIOR, MAX_COMPONENTS, MAX_PRIOR
 from precompute.surfaces import MAX_SURFACE_SIZE, MIN_SURFACE_SIZE
 from warpbw import __version__
 from warpbw.errors import WarpbwError
@@ -30,6 +30,14 @@ from warpbw.errors import WarpbwError
 MERL_SUFFIXES = (".binary",)
 TABLE_SUFFIXES = (".npz",)
 GMM_SUFFIXES = (".npz", ".gmm")     # a scene's gmm = "scales.gmm" (issue 4's scene syntax)
+
+
+class _Default(float):
+    """A float option's default that the command can tell from the same number given (``is``): gmm's --prior with
+    --unaligned and --scale with --kind normal are refused even at their default values, which the run would drop."""
+
+
+PRIOR_DEFAULT, SCALE_DEFAULT = _Default(DEFAULT_PRIOR), _Default(1.0)   # --scale 1: heights in map widths
 
 
 def _check_output(args, source, suffixes) -> Path:
@@ -96,16 +104,15 @@ def cmd_brdf(args) -> int:
 
 
 def cmd_gmm(args) -> int:
-    from precompute.gmm_mipmap import DEFAULT_PRIOR, build_gmm_mipmap, load_source, write_gmm_mipmap
+    from precompute.gmm_mipmap import build_gmm_mipmap, load_source, write_gmm_mipmap
 
     # given at all, even at their defaults: --unaligned --prior 1 was accepted and dropped (options audit, session 64)
-    if args.kind == "normal" and args.scale is not None:
+    if args.kind == "normal" and args.scale is not SCALE_DEFAULT:
         raise WarpbwError(f"--scale {args.scale:g}: applies to --kind height only (a normal map's normals are used "
                           "as they are)")
-    if args.unaligned and args.prior is not None:
+    if args.unaligned and args.prior is not PRIOR_DEFAULT:
         raise WarpbwError(f"--prior {args.prior:g}: the unaligned baseline (--unaligned) has no alignment prior")
-    prior = DEFAULT_PRIOR if args.prior is None else args.prior
-    scale = 1.0 if args.scale is None else args.scale   # heights in units of the map's width, as given
+    prior, scale = float(args.prior), float(args.scale)
     out = _check_output(args, None if args.map.startswith("surface:") else args.map, GMM_SUFFIXES)
     t0 = time.perf_counter()
     data, name, digest = load_source(args.map, args.kind)
@@ -213,14 +220,14 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("-o", "--output", type=parse_path, required=True, help="output mipmap file (a name ending in .npz or .gmm)")
     g.add_argument("--components", type=_integer_from(1, MAX_COMPONENTS), default=4,
                    help=f"Gaussians per texel, 1 to {MAX_COMPONENTS} (default 4)")
-    g.add_argument("--prior", type=_number_from(0.0, MAX_PRIOR), default=None,
+    g.add_argument("--prior", type=_number_from(0.0, MAX_PRIOR), default=PRIOR_DEFAULT,
                    help=f"alignment constant c of the MAP prior, 0 to {MAX_PRIOR:g} (default 1; 0 is plain EM; not "
                    "with --unaligned)")
     g.add_argument("--kind", choices=("height", "normal"), default="height",
                    help="MAP is a single-channel height field (default; 16-bit PNG or EXR: 8 bits "
                         "give terraced normals) or an RGB tangent-space normal map (PNG: [0, 1]-encoded; "
                         "EXR: raw unit vectors or [0, 1]-encoded)")
-    g.add_argument("--scale", type=_number_from(0.0), default=None,
+    g.add_argument("--scale", type=_number_from(0.0), default=SCALE_DEFAULT,
                    help="height multiplier, a finite number > 0; heights are in units of the map's width (default 1; "
                    "--kind height only)")
     g.add_argument("--unaligned", action="store_true",

@@ -1057,7 +1057,13 @@ def test_bench_reference_check_only_keeps_the_sweep_it_was_run_with(tmp_path, mo
         assert json.loads(json_path.read_text())["methods"] == swept
     for option, then, now in (("--material", "chrome", "gold-metallic-paint"), ("--resolution", "12 8", "8 8"),
                               ("--rotation", "0", "30"), ("--spp", "64,256", "64,128")):
-        argv = base + ["--check-only", option, *now.split()]
+        given = base.copy()   # the option once, with the other value (an option given twice is refused)
+        if option in given:
+            at = given.index(option) + 1
+            given[at:at + len(now.split())] = now.split()
+        else:
+            given += [option, *now.split()]
+        argv = given + ["--check-only"]
         got = _run_bench_reference(monkeypatch, tmp_path, argv)
         assert got["outcome"] == (f"WarpbwError: --check-only: {json_path} holds a sweep run with {option} {then}, "
                                   f"not {now}; pass {option} {then}"), got["outcome"]

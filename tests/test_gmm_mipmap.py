@@ -956,9 +956,7 @@ def test_a_refused_mipmap_names_the_command_that_rebuilds_it_as_it_was_built(tmp
     write_asset(tmp_path / "m.npz", GMM_FORMAT, GMM_VERSION, "my scales.png", "h", {}, params)   # no levels
     prog, args, said = _rebuild_hint(tmp_path / "m.npz", match="without its levels")
     assert (prog, args.func, args.map, args.force) == ("warpbw-precompute", cmd_gmm, "my scales.png", True)
-    left_out = {"prior": 1.0, "scale": 1.0}   # --prior and --scale not given: None, the builder's defaults
-    got = {k: left_out[k] if getattr(args, k) is None and k in left_out else getattr(args, k) for k in expected}
-    assert got == expected, said
+    assert {k: getattr(args, k) for k in expected} == expected, said
 
 
 def test_gmm_mipmap_example_defaults_are_those_its_help_states(tmp_path, monkeypatch):
@@ -1075,7 +1073,7 @@ def test_the_rebuild_hint_of_a_normal_map_mipmap_is_a_command_the_tool_accepts(t
     params = {"kind": "normal", "components": 4, "prior": 1.0, "unaligned": False, "scale": 2.0, "seed": 0}
     write_asset(tmp_path / "m.npz", GMM_FORMAT, GMM_VERSION, "n.png", "h", {}, params)
     args = _rebuild_hint(tmp_path / "m.npz")[1]
-    assert args.kind == "normal" and args.scale is None   # --scale not given
+    assert args.kind == "normal" and args.scale == 1.0
     args.output = str(tmp_path / "x.npz")
     got = outcome(cmd_gmm, args)
     assert "--scale" not in got, got            # it goes on to read the (missing) map, not refuse --scale

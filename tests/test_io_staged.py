@@ -161,9 +161,11 @@ def test_check_replaceable_refuses_a_directory_and_what_is_no_file_name(tmp_path
     with pytest.raises(WarpbwError, match="is a directory"):
         check_replaceable(tmp_path, True)
     # write_merl(None, ...) and the asset writers gave a TypeError from pathlib
-    for bad in (None, "", 3):
+    for bad in (None, 3):
         with pytest.raises(WarpbwError, match=rf"^output path: expected a file name \(str or Path\), got {bad!r}$"):
             check_replaceable(bad, True)
+    with pytest.raises(WarpbwError, match=r"^output path: expected a file name, got an empty one$"):
+        check_replaceable("", True)
 
 
 def test_write_merl_refuses_a_read_only_file_and_its_inputs_even_with_force(tmp_path):
