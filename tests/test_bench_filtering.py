@@ -140,6 +140,7 @@ def test_bench_filtering_writes_the_record_and_the_plot(plane_scene, capsys):
     assert main(args) == 0
     rec = json.loads((d / "f.json").read_text())
     assert set(rec["methods"]) == {"gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed"}
+    assert rec["seed"] == 0 and rec["device"] == "cpu"   # as warpbw bench's record says them (options audit, s64)
     for rows in rec["methods"].values():
         assert [r["zoom"] for r in rows] == [1.0, 2.0]
         for r in rows:

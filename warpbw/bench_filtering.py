@@ -213,8 +213,8 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     log(f"precompute: {prep_time:.2f} s (aligned GMM mipmaps {gmm_time:.2f} s)")
     record = {"scene": scene.source, "resolution": [scene.camera.width, scene.camera.height], "zooms": zooms,
               "gt_spp": int(gt_spp), "env_spp": int(env_spp) if scene.environment is not None else None,
-              "runs": int(runs), "seed": int(seed), "flicker_step": FLICKER_STEP, "flicker_pairs": int(flicker_pairs),
-              "max_anisotropy": int(aniso),
+              "runs": int(runs), "seed": int(seed), "device": device, "flicker_step": FLICKER_STEP,
+              "flicker_pairs": int(flicker_pairs), "max_anisotropy": int(aniso),
               "methods": {m: [] for m in methods}, "ground_truth": [],
               "precompute_time_s": round(gmm_time, 4), "prepare_time_s": round(prep_time, 4),
               "precompute": prep.notes,
