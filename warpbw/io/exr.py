@@ -96,6 +96,11 @@ def _order_channels(names: list[str], recorded: object) -> list[str]:
     return first + sorted(c for c in names if c not in first)
 
 
+def _damaged(path: Path, found: str) -> WarpbwError:
+    """The refusal of an EXR file whose damage the layout shows (``found``: ``exr_layout``'s words)."""
+    return WarpbwError(f"{path}: unreadable OpenEXR file, truncated or corrupt: {found}")
+
+
 def _open_exr(path, header_only: bool):
     """(checked path, header, channels) of an EXR file; channels is empty when ``header_only``."""
     import OpenEXR
@@ -116,7 +121,7 @@ def _open_exr(path, header_only: bool):
             found = (f"a name or text in it is not UTF-8 text (byte 0x{exc.object[exc.start]:02x}), which OpenEXR's "
                      "Python binding cannot read")
         if found:
-            raise WarpbwError(f"{path}: unreadable OpenEXR file, truncated or corrupt: {found}") from None
+            raise _damaged(path, found) from None
         said = "; ".join(line.replace(f"{path}: ", "").strip() for line in native if line.strip())
         raise WarpbwError(f"{path}: unreadable OpenEXR file, truncated or corrupt ({one_line(exc)}"
                           f"{'; ' + said if said else ''})") from None
@@ -134,7 +139,7 @@ def exr_size(path) -> tuple[int, int]:
     if declared is not True:   # OpenEXR reads a header without its dataWindow as 64 x 64 pixels
         found = exr_damage(path) or ("its header has no dataWindow (box2i)" if declared is False else None)
         if found:
-            raise WarpbwError(f"{path}: unreadable OpenEXR file, truncated or corrupt: {found}")
+            raise _damaged(path, found)
     try:
         (x0, y0), (x1, y1) = header["dataWindow"]
         return int(x1) - int(x0) + 1, int(y1) - int(y0) + 1

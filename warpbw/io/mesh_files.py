@@ -75,6 +75,9 @@ _STL_DAMAGED_LINE = re.compile(
     rb"|endfacet|vertex(?:[ \t]+" + _OBJ_NUMBER + rb"){3})?[ \t]*\r?$)[^\n]*", re.M | re.I)
 
 
+def _line_number(data: bytes, at: int) -> int:
+    """The 1-based number of the line of ``data`` that byte ``at`` lies on."""
+    return data.count(b"\n", 0, at) + 1
 
 
 @dataclass(frozen=True)
@@ -195,9 +198,8 @@ def _check_obj_lines(path: Path, data: bytes) -> None:
                                              "a space)")):
         m = pattern.search(data, first if pattern is _OBJ_SKIPPED_LINE else 0)
         if m is not None:
-            line = data.count(b"\n", 0, m.start()) + 1
-            raise WarpbwError(f"{path}:{line}: {problem(m.group(0).strip().decode('utf-8', 'replace'))}; "
-                              "malformed mesh")
+            text = m.group(0).strip().decode("utf-8", "replace")
+            raise WarpbwError(f"{path}:{_line_number(data, m.start())}: {problem(text)}; malformed mesh")
 
 
 def _obj_corner_problem(text: bytes, kind: bytes, so_far: int, total: int) -> str | None:
@@ -257,24 +259,34 @@ def _obj_may_count_back_early(data: bytes) -> bool:
     return _OBJ_NEGATIVE_FACE.search(data, first_face) is not None
 
 
+def _stl_starts_solid(data: bytes) -> bool:
+    """Whether an STL (``data``) starts with "solid", as an ASCII one does (after blanks and a byte-order mark)."""
+    return data[:STL_HEADER_BYTES].lstrip(b" \t\r\n\xef\xbb\xbf")[:5].lower() == b"solid"
+
+
+def _binary_stl_bytes(data: bytes) -> int | None:
+    """The length of a binary STL of the triangle count in bytes 80 to 84 of ``data``; None for a file shorter than
+    the header."""
+    if len(data) < STL_HEADER_BYTES:
+        return None
+    return STL_HEADER_BYTES + STL_TRIANGLE_BYTES * int.from_bytes(data[80:STL_HEADER_BYTES], "little")
+
+
 def _stl_damage(path: Path, data: bytes) -> str | None:
     """What is wrong with an STL file (``data``, the bytes of ``path``) trimesh found no triangles in: an ASCII one
     that does not end in "endsolid" (cut short), or a binary one whose length is not what its triangle count says
     (cut short, bytes appended, the count damaged; trimesh then read it as ASCII); else None."""
-    size, head = len(data), data[:STL_HEADER_BYTES]
-    if head.lstrip(b" \t\r\n\xef\xbb\xbf")[:5].lower() == b"solid":   # ASCII
+    if _stl_starts_solid(data):   # ASCII
         if b"endsolid" not in data[-4096:].lower():
             return f"{path}: ASCII STL that does not end in 'endsolid': truncated or corrupt"
         return None
     start = data[:4096]
     if b"\0" not in start and re.search(rb"facet[ \t]+normal", start, re.I):   # text after all: its first line lost
         return f"{path}: ASCII STL that does not start with 'solid': cut at its start or corrupt"
-    if size < STL_HEADER_BYTES:
+    size, want = len(data), _binary_stl_bytes(data)
+    if want is None or size == want:
         return None
-    count = int.from_bytes(head[80:84], "little")
-    want = STL_HEADER_BYTES + STL_TRIANGLE_BYTES * count
-    if size == want:
-        return None
+    count = (want - STL_HEADER_BYTES) // STL_TRIANGLE_BYTES
     return (f"{path}: binary STL header says {count} triangles ({STL_HEADER_BYTES} + {STL_TRIANGLE_BYTES} x {count} "
             f"= {want} bytes) but the file is {size} bytes: truncated or corrupt")
 
@@ -282,10 +294,7 @@ def _stl_damage(path: Path, data: bytes) -> str | None:
 def _stl_read_as_ascii(data: bytes) -> bool:
     """Whether trimesh reads an STL (``data``) as ASCII: it starts with "solid" and is not as long as a binary STL
     of the triangle count in its bytes 80 to 84 (trimesh tries binary first)."""
-    head = data[:STL_HEADER_BYTES]
-    binary = len(head) == STL_HEADER_BYTES and len(data) == STL_HEADER_BYTES + STL_TRIANGLE_BYTES * int.from_bytes(
-        head[80:], "little")
-    return not binary and head.lstrip(b" \t\r\n\xef\xbb\xbf")[:5].lower() == b"solid"
+    return _binary_stl_bytes(data) != len(data) and _stl_starts_solid(data)
 
 
 def _stl_damaged_line(data: bytes) -> tuple[int, str] | None:
@@ -294,7 +303,7 @@ def _stl_damaged_line(data: bytes) -> tuple[int, str] | None:
     m = _STL_DAMAGED_LINE.search(data) if _stl_read_as_ascii(data) else None
     if m is None:
         return None
-    return data.count(b"\n", 0, m.start()) + 1, m.group(0).strip(b" \t\r").decode("utf-8", "replace")[:50]
+    return _line_number(data, m.start()), m.group(0).strip(b" \t\r").decode("utf-8", "replace")[:50]
 
 
 def _stl_line_problem(path: Path, data: bytes) -> str | None:
@@ -437,9 +446,7 @@ def read_failure(path: Path, data: bytes, exc: Exception) -> str:
     """The message for a file (``data``, the bytes of ``path``) trimesh stopped on with ``exc`` after the checks
     before it passed: the damage where an STL's check names it, else trimesh's words without a cause they do not give
     (a GLB's "list index out of range" was "a reference to something it does not hold", an accessor's bufferView)."""
-    named = {".stl": lambda path, data: _stl_damage(path, data) or _stl_line_problem(path, data),
-             ".obj": _obj_index_problem}.get(path.suffix.lower(), lambda path, data: None)
-    problem = named(path, data)
+    problem = format_damage(path, data) or (_stl_line_problem(path, data) if path.suffix.lower() == ".stl" else None)
     if problem:
         return problem
     if isinstance(exc, IndexError) and "out of bounds for axis 0" in str(exc):   # numpy's, trimesh indexing an array
