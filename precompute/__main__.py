@@ -217,7 +217,8 @@ def build_parser() -> argparse.ArgumentParser:
                        f"hemispherical_scales needs at least {MIN_SURFACE_SIZE}, and below about 16 texels the "
                        "others' detail is finer than a texel).")
     g.add_argument("map", metavar="MAP", help="height field / normal map image, or surface:NAME[:SIZE]")
-    g.add_argument("-o", "--output", type=parse_path, required=True, help="output mipmap file (a name ending in .npz or .gmm)")
+    g.add_argument("-o", "--output", type=parse_path, required=True,
+                   help="output mipmap file (a name ending in .npz or .gmm)")
     g.add_argument("--components", type=_integer_from(1, MAX_COMPONENTS), default=4,
                    help=f"Gaussians per texel, 1 to {MAX_COMPONENTS} (default 4)")
     g.add_argument("--prior", type=_number_from(0.0, MAX_PRIOR), default=PRIOR_DEFAULT,

@@ -848,7 +848,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "multiple importance sampling (as render --mis): --spp BRDF samples per pixel, each paired "
                        "with an environment sample.  The scene itself goes to DIR/scene.toml, to edit and render "
                        "with warpbw render (e.g. --method adaptive --budget 4).")
-    d.add_argument("-o", "--output", type=parse_path, default="warpbw_demo", help="output directory (default ./warpbw_demo)")
+    d.add_argument("-o", "--output", type=parse_path, default="warpbw_demo",
+                   help="output directory (default ./warpbw_demo)")
     common(d, DEMO_SPP)
     d.set_defaults(func=cmd_demo)
 

@@ -3,13 +3,13 @@
 Public: ``EXIT_USER_ERROR``, ``EXIT_BROKEN_PIPE`` (stdout's reader left), ``EXIT_INTERRUPTED`` (Ctrl-C),
 ``EXIT_TERMINATED`` (SIGTERM), ``OneLineParser``, ``run_command(prog, func, args) -> int`` (a stopped run leaves
 its outputs as they were), ``parse_seed`` (the argparse type of every ``--seed``), ``parse_path`` (of every ``-o``:
-not empty), ``check_output_file(path, option, force)`` and ``check_output_dir(path, option)`` (an output path that cannot be written, refused before
-any work), ``check_overwrite(paths, force, option, inputs)`` (several outputs at once, and --force; never one of
-the command's inputs), ``init_warp(device) -> warp`` (Warp initialised without its banner or its no-CUDA-driver
-line, the device checked), ``json_text(record) -> str`` (strict JSON, a non-finite float as null) and
-``write_json(path, record, say=True, force=True)`` (that, written where asked, and said so), ``printable(text)``
-(control characters written as escapes, as every error and warning line, and each path of a summary line, is
-printed).
+not empty), ``check_output_file(path, option, force)`` and ``check_output_dir(path, option)`` (an output path
+that cannot be written, refused before any work), ``check_overwrite(paths, force, option, inputs)`` (several
+outputs at once, and --force; never one of the command's inputs), ``init_warp(device) -> warp`` (Warp initialised
+without its banner or its no-CUDA-driver line, the device checked), ``json_text(record) -> str`` (strict JSON, a
+non-finite float as null) and ``write_json(path, record, say=True, force=True)`` (that, written where asked, and
+said so), ``printable(text)`` (control characters written as escapes, as every error and warning line, and each
+path of a summary line, is printed).
 """
 from __future__ import annotations
 
