@@ -591,6 +591,30 @@ def test_info_estimates_the_memory_a_probe_file_takes_to_load_and_analyse(tmp_pa
         assert cli_main(["info", str(tmp_path / name), "--json", "--method", "adaptive"]) == 0
         assert not [k for k in json.loads(capsys.readouterr().out) if k.startswith("probe_")]
 
+def test_info_estimates_the_memory_the_placed_meshes_take(tmp_path, capsys):
+    """warpbw info gives, from the mesh file's face lines alone, what the render warns on after loading one copy:
+    MESH_BYTES_PER_TRIANGLE for each triangle of each placed copy (an OBJ of two quads placed three times: 12
+    triangles).  A file that does not say (a damaged PLY header) gives nothing, and info still lists the scene."""
+    from warpbw.cli import main as cli_main
+    from warpbw.pipeline import MESH_BYTES_PER_TRIANGLE
+
+    (tmp_path / "quads.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 2 0\nv 1 2 0\nf 1 2 3 4\nf 4 3 6 5\n")
+    (tmp_path / "cut.ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\n")
+    scene = ("[camera]\nposition = [0.0, 0.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 50.0\nresolution = [8, 8]\n"
+             "[environment]\nprocedural = \"sky\"\n[material.m]\ntype = \"lambert\"\nalbedo = 0.5\n"
+             + "".join(f"[[object]]\nmesh = \"{{name}}\"\ntranslate = [{x}.0, 0.0, 0.0]\n"
+                       "material = \"m\"\n" for x in range(3)))
+    (tmp_path / "s.toml").write_text(scene.format(name="quads.obj"))
+    assert cli_main(["info", str(tmp_path / "s.toml"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert (summary["mesh_triangles"], summary["mesh_memory_bytes"]) == (12, 12 * MESH_BYTES_PER_TRIANGLE)
+    assert cli_main(["info", str(tmp_path / "s.toml")]) == 0
+    assert "GB for the meshes' 12 triangles" in capsys.readouterr().out
+    (tmp_path / "cut.toml").write_text(scene.format(name="cut.ply"))
+    assert cli_main(["info", str(tmp_path / "cut.toml"), "--json"]) == 0
+    assert not [k for k in json.loads(capsys.readouterr().out) if k.startswith("mesh_")]
+
+
 def test_the_render_record_names_the_bandwidth_file_it_read(tmp_path, monkeypatch):
     """Two renders from different precomputed files read alike but for the tables: the record says which file was
     read (``bandwidth_file``), and nothing where the table was built or cached."""

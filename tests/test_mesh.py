@@ -856,3 +856,48 @@ def test_an_indented_first_line_is_read_by_trimesh_and_loads(tmp_path):
     p = tmp_path / "first.obj"
     p.write_text("   v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     np.testing.assert_allclose(load_mesh(p).vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+
+
+def _mesh_files_of_every_format(d) -> dict:
+    """An icosphere (80 faces) in every format trimesh writes, an OBJ of quads and a pentagon, and a GLB that
+    places one mesh through two nodes."""
+    ico = trimesh.creation.icosphere(subdivisions=1)
+    files = {"ico.obj": ico.export(file_type="obj"), "ico.stl": trimesh.exchange.stl.export_stl(ico),
+             "ascii.stl": trimesh.exchange.stl.export_stl_ascii(ico), "ico.ply": trimesh.exchange.ply.export_ply(ico),
+             "ascii.ply": trimesh.exchange.ply.export_ply(ico, encoding="ascii"), "ico.glb": ico.export(file_type="glb"),
+             "polygons.obj": "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0.5 2 0\nf 1 2 3 4\nf 4/1 3/1 5/1\n"
+                             "f 1 2 3 5 4\n"}
+    twice = trimesh.Scene()
+    twice.add_geometry(ico, node_name="a", geom_name="ico")
+    twice.graph.update(frame_to="b", frame_from=twice.graph.base_frame, geometry="ico", matrix=trimesh.transformations.translation_matrix([3, 0, 0]))
+    files["twice.glb"] = twice.export(file_type="glb")
+    for file_name, data in files.items():
+        (d / file_name).write_bytes(data.encode() if isinstance(data, str) else data)
+    return files
+
+
+def test_triangle_counts_without_reading_the_geometry_are_what_trimesh_reads(tmp_path):
+    """``mesh_triangles`` (``warpbw info``'s mesh-memory estimate) counts from headers and face lines what
+    ``load_mesh`` gets from trimesh's whole read: quads and pentagons cut into n - 2 triangles, a mesh two GLB
+    nodes place twice, the real bunny's 69,666."""
+    from warpbw.io.mesh import mesh_triangles
+
+    for name in _mesh_files_of_every_format(tmp_path):
+        assert mesh_triangles(tmp_path / name) == len(load_mesh(tmp_path / name).faces), name
+    assert mesh_triangles(tmp_path / "twice.glb") == 160 and mesh_triangles(tmp_path / "polygons.obj") == 6
+    assert mesh_triangles(shared_file("meshes/bunny.obj")) == 69_666
+
+
+def test_triangle_count_is_none_where_the_file_does_not_say(tmp_path):
+    """A format it does not know, a header that does not read, a missing or empty file, a folder: None (no error;
+    a render then says what is wrong)."""
+    from warpbw.io.mesh import mesh_triangles
+
+    (tmp_path / "m.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    (tmp_path / "cut.ply").write_bytes(trimesh.exchange.ply.export_ply(trimesh.creation.box())[:30])
+    (tmp_path / "empty.obj").write_bytes(b"")
+    (tmp_path / "odd.stl").write_bytes(b"\0" * 100)   # neither binary (84 + 50 x 0 bytes) nor ASCII
+    (tmp_path / "no_json.glb").write_bytes(b"glTF" + b"\0" * 40)
+    (tmp_path / "folder.obj").mkdir()
+    for name in ("m.off", "cut.ply", "empty.obj", "odd.stl", "no_json.glb", "folder.obj", "missing.obj"):
+        assert mesh_triangles(tmp_path / name) is None, name

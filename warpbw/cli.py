@@ -446,6 +446,9 @@ def cmd_info(args) -> int:
         print(f"            about {s['probe_load_memory_bytes'] / 1e9:.2g} GB at the peak to load the probe"
               + (f", {s['probe_bandwidth_memory_bytes'] / 1e9:.2g} GB to build its bandwidth map (once; then cached)"
                  if "probe_bandwidth_memory_bytes" in s else ""))
+    if "mesh_memory_bytes" in s:
+        print(f"            about {s['mesh_memory_bytes'] / 1e9:.2g} GB for the meshes' {s['mesh_triangles']:,} "
+              "triangles")
     if s["files"]:
         print("files")
         for f in s["files"]:

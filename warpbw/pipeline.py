@@ -17,7 +17,8 @@ Public:
                                        assets (a render warns when its frame would not fit in
                                        ``warpbw.errors.available_memory()``)
     ``mesh_memory(triangles) -> bytes``, ``MESH_BYTES_PER_TRIANGLE``   what the placed meshes take (a render warns
-                                       when they would not fit, after loading one copy of each file)
+                                       when they would not fit, after loading one copy of each file; ``warpbw
+                                       info`` gives it from the files' headers or face lines)
     ``scene_summary(scene, method="reference") -> dict``   what the scene needs (for ``warpbw info``), without
                                        loading it; ``SUMMARY_METHODS``, the methods it describes
     ``stages_used(prep, mis, adaptive)``, ``PreparedScene``, ``RenderResult``   the stages a frame ran; the
@@ -774,7 +775,22 @@ def scene_summary(scene: Scene, method: str = "reference") -> dict:
         # the spheres' and meshes' frame beyond the assets (a filtered plane frame's is not estimated)
         "frame_memory_bytes": frame_memory(scene.camera.width, scene.camera.height, method),
         **_probe_memory(env, method),
+        **_mesh_memory(surfaces.objects),
     }
+
+
+def _mesh_memory(objects) -> dict:
+    """The placed meshes' triangles and what they take (:func:`mesh_memory`), from the files' headers or face lines
+    (``warpbw.io.mesh.mesh_triangles``): {} without meshes, or where a file does not say (the render then reads it,
+    or says what is wrong with it)."""
+    from warpbw.io.mesh import mesh_triangles
+
+    files = [str(o.file) for o in objects if isinstance(o, MeshObject)]
+    counts = {f: mesh_triangles(f) for f in set(files)}   # each file read once, however often it is placed
+    if not files or None in counts.values():
+        return {}
+    triangles = sum(counts[f] for f in files)
+    return {"mesh_triangles": triangles, "mesh_memory_bytes": mesh_memory(triangles)}
 
 
 def _probe_memory(env, method: str) -> dict:

@@ -33,6 +33,10 @@ exact power-of-two scale, so the cross products cannot overflow or underflow.
   bandwidth pass reads, |H| averaged over about two rings (12 ms on the bunny; ``warpbw.mesh_normals`` does
   it on the device).
 
+- ``mesh_triangles(path) -> int | None``: how many triangles a mesh file holds, from its header or its face lines
+  (``warpbw.io.mesh_files.triangle_count``), without reading its geometry: None where it does not say, or the file
+  does not open.
+
 Class: ``MeshData``.  Constant: ``CURVATURE_SMOOTHING_PASSES``.
 """
 from __future__ import annotations
@@ -51,7 +55,7 @@ import numpy as np
 from warpbw.errors import (FLOAT32_MAX, WarpbwError, check_coordinate_spacing, check_count, check_input_file,
                            one_line, unit_directions)
 from warpbw.io.mesh_files import (SUPPORTED, check_after_reading, check_before_reading, format_damage,
-                                  read_failure)
+                                  read_failure, triangle_count)
 
 # A triangle whose doubled area is below this fraction of its longest squared edge is treated as
 # degenerate (no cotangent weight, no area): sin of its largest angle is < 1e-12, so its
@@ -439,6 +443,18 @@ def _read_merged(path: Path, data: bytes) -> _Merged:
         if a is not None:
             a.flags.writeable = False
     return out
+
+
+def mesh_triangles(path) -> int | None:
+    """How many triangles the mesh file ``path`` holds, read through a memory map (a file larger than memory
+    costs none); None where its format does not say, or it does not open (``load_mesh`` says why)."""
+    import mmap
+
+    try:
+        with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            return triangle_count(Path(path), data)
+    except (OSError, ValueError, TypeError):   # missing, a folder, empty (mmap's ValueError), not a path
+        return None
 
 
 def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg: float = 0.0) -> MeshData:

@@ -12,6 +12,8 @@ its line or index where the format has one, not trimesh's words):
 - ``format_damage(path, data) -> str | None``: what an STL's lengths or an OBJ's face indices say is wrong, where
   trimesh read no triangles or indices outside its vertices.
 - ``read_failure(path, data, exc) -> str``: the message for a file trimesh stopped on with ``exc``.
+- ``triangle_count(path, data) -> int | None``: how many triangles the file holds, from its header or its face lines,
+  without reading its geometry (``warpbw info``'s memory estimate).
 
 Constants: ``SUPPORTED`` (the formats messages name), ``PLY_TYPE_BYTES``, ``PLY_FACE_INDEX_NAMES``,
 ``GLB_HEADER_BYTES``, ``GLB_CHUNK_HEAD_BYTES``, ``GLTF_COMPONENT_BYTES``, ``GLTF_TYPE_COMPONENTS``,
@@ -41,6 +43,13 @@ _OBJ_BAD_VERTEX = re.compile(rb"^[ \t]*v[ \t](?![ \t]*(?:" + _OBJ_NUMBER + rb"[ 
 # coordinate's (a normal's it drops when out of range, and warpbw derives its own), with the words and the lines
 # defining what they index.  Each counts from 1, or back from -1: the last one defined so far (the OBJ format).
 _OBJ_INDEXED = {b"v": ("face index", "vertices"), b"vt": ("face texture index", "texture coordinates")}
+# An OBJ face line as trimesh reads it: "f" at the start of a line, then a space.
+_OBJ_FACE_LINE = re.compile(rb"^f [^\n]*", re.M)
+# An ASCII STL facet, as trimesh's reader counts them.
+_STL_FACET = re.compile(rb"facet[ \t]+normal", re.I)
+# glTF primitive modes (glTF 2.0 Sec. 3.7.2.1): TRIANGLES (the default) holds count / 3 triangles, TRIANGLE_STRIP
+# and TRIANGLE_FAN count - 2; POINTS and the LINES modes none.
+_GLTF_TRIANGLES, _GLTF_STRIP_OR_FAN = 4, (5, 6)
 # A face line holding a minus sign, a negative index: found from the first face line on.
 _OBJ_NEGATIVE_FACE = re.compile(rb"^f[ \t][^\n]*-", re.M)
 # An OBJ face line of fewer than three vertices ("f 1 3", a line cut short): trimesh dropped it without a word.
@@ -485,3 +494,49 @@ def format_damage(path: Path, data: bytes) -> str | None:
     file trimesh read no triangles, or faces outside its vertices, from; None where they say nothing."""
     named = {".stl": _stl_damage, ".obj": _obj_index_problem}.get(path.suffix.lower())
     return None if named is None else named(path, data)
+
+
+def _gltf_triangles(doc: dict) -> int:
+    """The triangles a glTF document (``doc``) places: each mesh's triangle primitives (``_GLTF_TRIANGLES``,
+    ``_GLTF_STRIP_OR_FAN``) counted from their index or position accessor, once for each node that names the mesh
+    (each mesh once where no node does), as trimesh concatenates them.  A KeyError, TypeError or IndexError where
+    the document is not laid out so."""
+    accessors = doc.get("accessors", [])
+
+    def mesh_triangles(mesh: dict) -> int:
+        total = 0
+        for prim in mesh.get("primitives", []):
+            mode = prim.get("mode", _GLTF_TRIANGLES)
+            count = int(accessors[prim["indices"] if "indices" in prim else prim["attributes"]["POSITION"]]["count"])
+            total += count // 3 if mode == _GLTF_TRIANGLES else max(count - 2, 0) if mode in _GLTF_STRIP_OR_FAN else 0
+        return total
+
+    per_mesh = [mesh_triangles(m) for m in doc.get("meshes", [])]
+    placed = [node["mesh"] for node in doc.get("nodes", []) if "mesh" in node]
+    return sum(per_mesh[m] for m in placed) if placed else sum(per_mesh)
+
+
+def triangle_count(path: Path, data) -> int | None:
+    """How many triangles a mesh file (``data``: the bytes of ``path``, or a memory map of them) holds, without
+    reading its geometry: an OBJ's face lines (a face of n corners is n - 2 triangles, as trimesh cuts it), a PLY's
+    face count (a polygon counted as one), an STL's triangle count or facets, a GLB's or glTF's triangle primitives
+    (``_gltf_triangles``).  None for another format, or where the header does not read (a render says what is
+    wrong with it)."""
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".obj":
+            # corners - 2 a face (its "f" is one of its words): a line at a time, so a huge file takes no copy
+            return sum(len(m.group().split()) - 3 for m in _OBJ_FACE_LINE.finditer(data))
+        if suffix == ".ply":
+            face = {e.name: e for e in _ply_header(path, data)[1]}.get("face")
+            return 0 if face is None else face.count
+        if suffix == ".stl":
+            if _binary_stl_bytes(data) == len(data):
+                return (len(data) - STL_HEADER_BYTES) // STL_TRIANGLE_BYTES
+            return sum(1 for _ in _STL_FACET.finditer(data)) if _stl_starts_solid(data) else None
+        if suffix in (".glb", ".gltf"):
+            parsed = _gltf_document(path, bytes(data) if suffix == ".gltf" else data)
+            return None if parsed is None else _gltf_triangles(parsed[0])
+    except (WarpbwError, KeyError, TypeError, IndexError, ValueError, AttributeError):
+        return None
+    return None
