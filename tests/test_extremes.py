@@ -695,11 +695,13 @@ def test_a_probe_too_large_to_load_or_analyse_warns_before_the_work(monkeypatch,
                 assert bandwidth.env_bandwidth_map(env.pixels, env.name, cache=tmp_path / f"c{have}")[1] == "built"
 
 
-def test_meshes_placed_beyond_the_memory_left_warn_after_one_copy_of_each_file(monkeypatch, tmp_path):
+@pytest.mark.parametrize("headers_say", [True, False])
+def test_meshes_placed_beyond_the_memory_left_warn_before_loading_them(monkeypatch, tmp_path, headers_say):
     """A scene placing a mesh thousands of times ran for minutes, 13 MB a bunny, without a word (scene fuzzing,
-    session 63).  Loading one copy of each file gives the triangle count (trimesh's, of the files written here), and
-    MESH_BYTES_PER_TRIANGLE times the copies' triangles past the memory available warns once; exactly that much
-    memory, or an unknown reading, says nothing."""
+    session 63).  MESH_BYTES_PER_TRIANGLE times the copies' triangles (trimesh's count, of the files written here)
+    past the memory available warns once: before any is loaded where the files' face lines give the count, else
+    after one copy of each file (a file whose format does not say, here by a stand-in); exactly that much memory,
+    or an unknown reading, says nothing."""
     import trimesh
 
     from warpbw import pipeline
@@ -722,10 +724,12 @@ def test_meshes_placed_beyond_the_memory_left_warn_after_one_copy_of_each_file(m
     monkeypatch.setattr(pipeline, "warn_if_short_of_memory",
                         lambda *a, **kw: loaded_when_warned.append(len(loads)) or warn(*a, **kw))
     monkeypatch.setattr(pipeline, "available_memory", lambda: need - 1)
+    if not headers_say:
+        monkeypatch.setattr(mesh_io, "mesh_triangles", lambda path: None)
     with pytest.warns(RuntimeWarning, match=rf"placing 5 meshes \({triangles:,} triangles\) takes about .* GB, but "
                                             r".* available: the system may stop it \(fewer copies, or a coarser mesh\)"):
         prep = pipeline.prepare_scene(scene)
-    assert prep.geometry.has_mesh and len(loads) == 5 and loaded_when_warned[0] == 2   # one copy of each file first
+    assert prep.geometry.has_mesh and len(loads) == 5 and loaded_when_warned == [0 if headers_say else 2]
     for have in (need, None):
         monkeypatch.setattr(pipeline, "available_memory", lambda have=have: have)
         with warnings.catch_warnings():

@@ -188,22 +188,29 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
 
 
 def _geometry(scene: Scene, mat_id: dict, device: str):
-    """The scene's spheres and meshes on the device (its planes are left out), material indices from mat_id.  The
-    first copy of each mesh file is loaded first, to warn where all the copies would not fit in memory."""
+    """The scene's spheres and meshes on the device (its planes are left out), material indices from mat_id.  Where
+    the meshes' copies would not fit in memory it warns before loading any where the files' headers or face lines
+    give their triangles (:func:`_placed_triangles`), else after loading the first copy of each file."""
     from warpbw.io.mesh import load_mesh
 
     def load(o):
         return load_mesh(o.file, translate=o.translate, scale=o.scale, rotate_y_deg=o.rotate_y)
 
+    def warn_for(triangles: int) -> None:
+        warn_if_short_of_memory(mesh_memory(triangles), available_memory(),
+                                f"placing {len(placed)} meshes ({triangles:,} triangles)",
+                                "fewer copies, or a coarser mesh")
+
     placed = [o for o in scene.objects if isinstance(o, MeshObject)]
+    said = _placed_triangles(placed) if placed else None
+    if said is not None:
+        warn_for(said)
     first = {}
     for o in placed:
         if str(o.file) not in first:
             first[str(o.file)] = (o, load(o))
-    triangles = sum(len(first[str(o.file)][1].faces) for o in placed)
-    warn_if_short_of_memory(mesh_memory(triangles), available_memory(),
-                            f"placing {len(placed)} meshes ({triangles:,} triangles)",
-                            "fewer copies, or a coarser mesh")
+    if placed and said is None:
+        warn_for(sum(len(first[str(o.file)][1].faces) for o in placed))
     spheres, meshes = [], []
     for o in scene.objects:
         if isinstance(o, SphereObject):
@@ -779,18 +786,25 @@ def scene_summary(scene: Scene, method: str = "reference") -> dict:
     }
 
 
-def _mesh_memory(objects) -> dict:
-    """The placed meshes' triangles and what they take (:func:`mesh_memory`), from the files' headers or face lines
-    (``warpbw.io.mesh.mesh_triangles``): {} without meshes, or where a file does not say (the render then reads it,
-    or says what is wrong with it)."""
+def _placed_triangles(placed: list) -> int | None:
+    """The triangles of the placed meshes (``placed``: their objects), every copy counted, from the files' headers or
+    face lines (``warpbw.io.mesh.mesh_triangles``, each file read once); None where a file does not say."""
     from warpbw.io.mesh import mesh_triangles
 
-    files = [str(o.file) for o in objects if isinstance(o, MeshObject)]
-    counts = {f: mesh_triangles(f) for f in set(files)}   # each file read once, however often it is placed
-    if not files or None in counts.values():
-        return {}
-    triangles = sum(counts[f] for f in files)
-    return {"mesh_triangles": triangles, "mesh_memory_bytes": mesh_memory(triangles)}
+    counts = {str(o.file): None for o in placed}
+    for f in counts:
+        counts[f] = mesh_triangles(f)
+        if counts[f] is None:
+            return None
+    return sum(counts[str(o.file)] for o in placed)
+
+
+def _mesh_memory(objects) -> dict:
+    """The placed meshes' triangles and what they take (:func:`mesh_memory`, :func:`_placed_triangles`): {} without
+    meshes, or where a file does not say (the render then reads it, or says what is wrong with it)."""
+    placed = [o for o in objects if isinstance(o, MeshObject)]
+    triangles = _placed_triangles(placed) if placed else None
+    return {} if triangles is None else {"mesh_triangles": triangles, "mesh_memory_bytes": mesh_memory(triangles)}
 
 
 def _probe_memory(env, method: str) -> dict:
