@@ -1099,6 +1099,64 @@ def test_every_module_lists_its_public_functions_in_its_docstring():
     assert checked > 100 and not unlisted, unlisted
 
 
+def _call_arguments(text: str) -> list:
+    """The arguments of a call as a docstring writes it (``a, b=(0, 0), c: int = 1, ...``), split at its top-level
+    commas."""
+    out, depth, cur = [], 0, ""
+    for ch in text:
+        depth += (ch in "([{") - (ch in ")]}")
+        if ch == "," and depth == 0:
+            out.append(cur.strip())
+            cur = ""
+        else:
+            cur += ch
+    return [a for a in [*out, cur.strip()] if a]
+
+
+def test_every_signature_a_module_docstring_shows_is_the_functions():
+    """A call a module's docstring shows, ``f(a, b=1)``, names parameters ``f`` has, and a default it states is
+    ``f``'s: a researcher calls the stage functions by the names the docstring lists (assetfile's listed
+    ``check_float_arrays(arrays, what, rebuild_hint)``, whose parameter is ``hint``; brdf_bandwidth's
+    ``nu_rho_max(n)``, whose parameter is ``resolution``: either keyword was a TypeError)."""
+    import ast
+    import importlib
+    import inspect
+
+    root = Path(__file__).resolve().parents[1]
+    bad, checked = [], 0
+    for path in sorted([*(root / "warpbw").rglob("*.py"), *(root / "precompute").glob("*.py")]):
+        name = ".".join(path.relative_to(root).with_suffix("").parts).removesuffix(".__init__")
+        mod = importlib.import_module(name)
+        doc = re.sub(r"\s*\n\s*", " ", mod.__doc__ or "")
+        for m in re.finditer(r"(?<![\w.])([A-Za-z_]\w*)\(((?:[^()]|\([^()]*\))*)\)", doc):
+            obj = getattr(mod, m.group(1), None)
+            if obj is None or not (getattr(obj, "__module__", None) == mod.__name__ or hasattr(obj, "func")):
+                continue   # a formula (``cos(theta)``) or another module's function
+            try:
+                params = inspect.signature(getattr(obj, "func", obj)).parameters   # a Warp function's Python body
+            except (TypeError, ValueError):
+                continue
+            if any(p.kind == p.VAR_KEYWORD for p in params.values()):
+                continue
+            for arg in _call_arguments(m.group(2)):
+                said = re.fullmatch(r"(\w+)\s*(?::[^=]*)?(?:=\s*(.+))?", arg)
+                if not said or arg == "...":
+                    continue
+                checked += 1
+                p, default = said.groups()
+                if p not in params:
+                    bad.append(f"{name}: {m.group(0)[:80]}: {m.group(1)} has no parameter {p} ({', '.join(params)})")
+                elif default is not None and default != "...":
+                    try:
+                        value = ast.literal_eval(default)
+                    except ValueError:
+                        value = getattr(mod, default)   # a named constant
+                    if value != params[p].default:
+                        bad.append(f"{name}: {m.group(1)}: the docstring says {p}={default}, the default is "
+                                   f"{params[p].default!r}")
+    assert checked > 500 and not bad, "\n".join(bad)
+
+
 def test_readme_python_example_runs(tmp_path):
     """The README's ``python`` block runs as written, in a fresh interpreter in a folder where warpbw demo has
     written its scene (here at a smaller resolution, so that it runs in seconds): a renamed function, result field
