@@ -1051,6 +1051,16 @@ def test_every_stated_default_is_the_default(monkeypatch):
     assert not bad, "\n".join(bad)
     assert n_help >= 15 and checked - n_help >= 60, (n_help, checked)   # the rules did read the docs
 
+
+def test_validate_bandwidths_help_gives_every_quick_setting(monkeypatch):
+    """validate_bandwidth.py --quick replaces the defaults of QUICK's options: each option's --help says what it
+    becomes ("N with --quick"; --uniform-samples, --bis-samples and --window said only their full default).  The
+    full defaults are test_every_stated_default_is_the_default's."""
+    mod, parser = _example_parser(monkeypatch, "validate_bandwidth")
+    helps = {a.dest: parser._get_formatter()._expand_help(a) for a in parser._actions if a.help}
+    missing = [k for k, v in mod.QUICK.items() if f"{v} with --quick" not in helps[k]]
+    assert len(mod.QUICK) >= 8 and not missing, {k: helps[k] for k in missing}
+
 def _heading_slugs(text: str) -> set:
     """GitHub's anchors for a Markdown file's headings: lower case, punctuation dropped, spaces to hyphens."""
 
