@@ -1592,6 +1592,23 @@ def test_compare_reads_the_coverage_of_the_test_image_when_the_reference_has_non
     assert json.loads(capsys.readouterr().out)["coverage_from"] == "test.exr"   # the reference's A
 
 
+def test_compare_json_prints_the_keys_its_help_lists(tmp_path, monkeypatch, capsys):
+    """compare --json's --help lists the record's keys: every key it prints, with --error-map and for identical
+    images (psnr_note) too, is among them (error_map and error_range were not)."""
+    from warpbw.cli import build_parser, main
+
+    monkeypatch.chdir(tmp_path)
+    write_exr(tmp_path / "a.exr", _rgba(0.5))
+    write_exr(tmp_path / "b.exr", _rgba(0.25))
+    keys = set()
+    for argv in (["a.exr", "b.exr", "--error-map", "e.exr"], ["a.exr", "a.exr"]):
+        assert main(["compare", *argv, "--json"]) == 0
+        keys |= set(json.loads(capsys.readouterr().out))
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices["compare"]
+    listed = set(re.findall(r"\b[a-z]+_?[a-z_]*\b", next(a.help for a in sub._actions if a.dest == "json")))
+    assert {"psnr_note", "error_map", "error_range", "coverage_from"} <= keys and keys <= listed, keys - listed
+
+
 def test_compare_counts_the_pixels_the_reference_covers_even_where_the_test_misses_them(tmp_path, monkeypatch,
                                                                                           capsys):
     """'truth.exr: a render at high --spp' (README): the reference says where the geometry is.  A test render that

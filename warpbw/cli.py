@@ -969,7 +969,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--json", action="store_true",
                    help="print JSON (psnr_db, relmse, mse, pixels, worst_pixels, worst_share, coverage_from: whose A "
                         "channel chose the pixels, null for the non-black ones; an infinite PSNR is null, with "
-                        "psnr_note saying whether the images are identical or the PSNR undefined)")
+                        "psnr_note saying whether the images are identical or the PSNR undefined; with --error-map, "
+                        "error_map, its path, and error_range, the PNG's [LO, HI])")
     c.add_argument("--error-map", metavar="PATH.exr",
                    help="also write the per-pixel relative squared error, (test - ref)^2 / (ref^2 + "
                    f"{_RELMSE_EPS:g}) averaged "
