@@ -1087,6 +1087,22 @@ def test_readme_links_resolve():
     assert checked >= 3, checked
 
 
+def test_the_readme_layout_names_every_module_and_example():
+    """README's Layout names the files of warpbw/, warpbw/io/, precompute/ and examples/ (the map a newcomer reads
+    first), each under its own folder, and names no file that is not there."""
+    root = Path(__file__).resolve().parents[1]
+    block = re.search(r"## Layout\n\n```\n(.*?)```", (root / "README.md").read_text(), re.S).group(1)
+    named = {}
+    folder = None
+    for line in block.splitlines():
+        folder = re.match(r"([\w/]+/) ", line).group(1) if re.match(r"[\w/]+/ ", line) else folder
+        named.setdefault(folder, set()).update(re.findall(r"\b[\w]+\.py\b", line))
+    for folder in ("warpbw/", "warpbw/io/", "precompute/", "examples/"):
+        there = {p.name for p in (root / folder).glob("*.py")} - {"__init__.py"}
+        assert named[folder] == there, (folder, "not named:", there - named[folder], "not there:",
+                                        named[folder] - there)
+
+
 def test_every_module_lists_its_public_functions_in_its_docstring():
     """DESIGN.md's convention, 'a module's public functions are listed in its docstring': every function or class
     of warpbw/ and precompute/ whose name does not start with _ is named in its module's docstring, the Warp
