@@ -155,6 +155,12 @@ def test_bench_filtering_writes_the_record_and_the_plot(plane_scene, capsys):
     assert (d / "f.png").read_bytes()[:4] == b"\x89PNG"
     out = capsys.readouterr().out
     assert "gmm_aligned" in out and "precompute" in out
+    # --cache (--help): the mipmaps built are kept there, and the next run reads them instead of building them
+    for origin in ("built", "cache"):
+        assert main([*args[:-4], "--json", str(d / f"{origin}.json"), "--cache", str(d / "gmm")]) == 0
+        rec = json.loads((d / f"{origin}.json").read_text())
+        assert rec["precompute"]["m"]["gmm_aligned"]["origin"] == origin, rec["precompute"]
+    assert len(list((d / "gmm").glob("*.npz"))) == 2   # the aligned and the unaligned mipmap
     # outputs are not overwritten without --force
     before = (d / "f.json").read_text()
     assert main(args) == 2

@@ -942,8 +942,8 @@ def build_parser() -> argparse.ArgumentParser:
     bf.add_argument("--spp", type=_positive_int("spp", INT32_MAX), default=None,
                     help="under an [environment]: pairs of one BRDF and one environment sample per pixel of the "
                     f"filtered methods (default {DEFAULT_SPP}, as warpbw render; their noise is part of the error)")
-    bf.add_argument("--cache", help="GMM mipmap cache directory to reuse (default: build afresh, so that the "
-                    "precompute time is measured)")
+    bf.add_argument("--cache", help="GMM mipmap cache directory: mipmaps found there are reused, those built are "
+                    "kept there (default: build afresh, so that the precompute time is measured)")
     bf.add_argument("--flicker-pairs", type=_positive_int("flicker-pairs", _bf.FLICKER_PAIRS_MAX), default=1,
                     help="consecutive frame pairs per zoom (z * step^j to z * step^(j+1)) the flicker and temporal "
                     f"error are averaged over (default 1; at most {_bf.FLICKER_PAIRS_MAX}, one octave): one pair is "
