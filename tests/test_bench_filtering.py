@@ -913,6 +913,9 @@ def test_bench_filtering_table_puts_each_figure_in_its_row(aniso):
                     ["toksvig", "0.5000", "0.7500"],                             # temporal error
                     ["gt", "noise", "0.0030", "0.0060"]]
     assert lines[-1] == "precompute (aligned GMM mipmaps): 1.25 s"
+    # the legend says what the gt noise row holds: a second truth's error / sqrt(2) (it said "the error of a second
+    # ground truth"; test_flicker_pairs_ground_truth_noise_by_hand has the sqrt(2))
+    assert "a second, independently seeded one's error / sqrt(2)" in " ".join(lines)
 
 
 def _hand_bench(monkeypatch, level_outside=9.0, times=(0.001,), cover=None):
