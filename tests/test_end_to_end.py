@@ -971,7 +971,8 @@ def _states_default(text: str, default, root: Path):
     """Whether ``text`` (what a help line's "(default ...)" or a usage line's ``[--opt VALUE]`` says) names
     ``default``: True or False, or None where it cannot say (a computed default, a flag, a sentence).  The value
     is the text up to a ";" (and for a single value up to ": " or ", "); lists compare item by item, numbers as
-    numbers, paths resolved from the repository root (``../shared/data/...``)."""
+    numbers, paths resolved from the repository root (``../shared/data/...``: the shared data folder, as
+    ``warpbw.io.shared_data`` finds it)."""
     if default is None or isinstance(default, bool):
         return None
     head = text.split(";")[0].strip()
@@ -990,6 +991,10 @@ def _states_default(text: str, default, root: Path):
     if isinstance(default, (int, float)):
         return value(head) == float(default)
     if isinstance(default, Path) or "/" in head:
+        from warpbw.io.shared_data import shared_data_dir
+
+        # "../shared/data/..." in a usage line is the shared data folder, $WARPBW_SHARED_DATA where it is set
+        head = re.sub(r"^\.\./shared/data(?=/|$)", str(shared_data_dir(root)), head)
         return (root / head).resolve() == (root / Path(default)).resolve()
     return head == str(default)
 
