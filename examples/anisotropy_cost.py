@@ -3,9 +3,10 @@
     python examples/anisotropy_cost.py bench/filtering/*.toml bench/graze20/*.toml [--size 512x384] [--runs 5]
 
 For each scene with planes (those of ``examples/filtering_scenes.py``), at each zoom and for the filtered
-methods, the median kernel time of ``--runs`` frames with one isotropic probe (004) and with up to ``--aniso``
-probes along each footprint's major axis, rendered alternately so that the machine's load falls on both
-alike, and their ratio.  Compare the times only as that ratio: the machine is shared.
+methods gmm_aligned, toksvig and lean (``METHODS``), the median kernel time of ``--runs`` frames with one
+isotropic probe (004) and with up to ``--aniso`` probes along each footprint's major axis, rendered alternately
+so that the machine's load falls on both alike, and their ratio.  Compare the times only as that ratio: the
+machine is shared.
 """
 from __future__ import annotations
 

@@ -11,8 +11,9 @@ MIS reference at ``--gt-spp``, the mean of independently seeded 4096-spp chunks 
 when the PSNR of a render at the sweep's largest ``--spp`` (1024 by default) against its first half and against
 the whole differ by < 0.5 dB (else it says so).
 Writes bench_out/bench_reference.json, a plot bench_out/bench_reference.png (error against time,
-one curve per estimator), PNG previews, and the ground truth EXR (cached by scene hash); an earlier run's
-records are kept unless ``--force`` (``--check-only`` updates them by design).
+one curve per estimator), PNG previews, the MERL file, and the ground truth's chunks as EXR
+(``warpbw.bench.ground_truth``'s cache, by scene hash, seed and ``GT_VERSION``); an earlier run's records are kept
+unless ``--force`` (``--check-only`` updates them by design).
 
 ``--check-only`` redoes the ground truth and its check alone, keeping the sweep of an earlier run's JSON: the
 check renders at that sweep's largest spp, and the options that describe the scene (``--material``, ``--probe``,
@@ -119,7 +120,8 @@ def main():
                     help=f"ground-truth spp (a multiple of {GT_CHUNK_SPP}, at least two chunks)")
     ap.add_argument("--runs", type=int, default=3, help="timed runs per point (median)")
     ap.add_argument("--out", default="bench_out",
-                    help="folder for the records, previews and the MERL file (default bench_out)")
+                    help="folder for the records, previews, the MERL file and the ground truth's cached chunks "
+                    "(default bench_out)")
     ap.add_argument("--check-only", action="store_true",
                     help="redo only the ground-truth check, keeping the sweep of an earlier run's JSON")
     ap.add_argument("--force", action="store_true", help="overwrite an earlier run's records and previews")

@@ -31,7 +31,7 @@ def main():
     ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--material", default="gold-metallic-paint", help="NPF material name (default gold-metallic-paint)")
     ap.add_argument("--table", default=str(shared_data_dir(here.parent) / "brdf" / "npf.bin"),
-                    help="NPF table (default ../shared/data/brdf/npf.bin)")
+                    help="NPF table (default %(default)s: ../shared/data, or $WARPBW_SHARED_DATA)")
     ap.add_argument("--samples", type=int, default=400_000, help="directions drawn per view (default 400000)")
     ap.add_argument("--out", default="brdf_out", help="folder of brdf_sampling_MATERIAL.png (default brdf_out)")
     ap.add_argument("--force", action="store_true", help="overwrite an existing brdf_sampling_MATERIAL.png")

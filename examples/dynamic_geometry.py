@@ -12,7 +12,7 @@ Every frame, from the rest pose and the frame number alone (nothing is precomput
      and refit the BVH (``update_mesh`` -> ``warpbw.mesh_normals``, ``wp.Mesh.refit``); with
      --host-normals, normals and curvature are computed on the host instead (numpy on one core,
      ``warpbw.io.mesh.normals_and_curvature``, the same formulas in float64) and copied;
-  4. ``render_adaptive``: G-buffer, bandwidth pass (from the G-buffer only: normals, depth, curvature),
+  3. ``render_adaptive``: G-buffer, bandwidth pass (from the G-buffer only: normals, depth, curvature),
      hierarchical shading and up-sampling.
 The material and environment tables (sampling, nu_rho, nu_a) do not depend on the geometry and are
 loaded or built once.  A warm-up frame (kernel compilation, tables) is rendered first and not recorded.

@@ -207,11 +207,15 @@ def format_acceptance(rows: list) -> str:
 
 def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", default="bench_filtering", help="directory for the scenes (default ./bench_filtering)")
+    ap.add_argument("--out", default="bench_filtering",
+                    help="directory for the scenes and their height fields, NAME.toml and NAME.exr (default "
+                    "./bench_filtering)")
     ap.add_argument("--size", type=int, default=256, help="height-field size in texels (default 256)")
-    ap.add_argument("--run", action="store_true", help="run warpbw bench-filtering on each scene")
-    ap.add_argument("--zoom", default="1,2,4,8,16,32", help="zoom factors for --run")
-    ap.add_argument("--gt-spp", default="1024", help="ground-truth rays per pixel for --run")
+    ap.add_argument("--run", action="store_true",
+                    help="run warpbw bench-filtering on each scene, its record and plot NAME.json and NAME.png "
+                    "beside it")
+    ap.add_argument("--zoom", default="1,2,4,8,16,32", help="zoom factors for --run (default 1,2,4,8,16,32)")
+    ap.add_argument("--gt-spp", default="1024", help="ground-truth rays per pixel for --run (default 1024)")
     ap.add_argument("--spp", default=None, help="with --environment, the filtered methods' pairs of one BRDF and "
                     "one environment sample per pixel for --run (default: bench-filtering's); the lights are "
                     "shaded in closed form and take no samples")

@@ -34,7 +34,8 @@ def crop(img, cov):
 def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("scene", help="scene file with planes")
-    ap.add_argument("-o", "--output", default="zoom_out", help="output directory (default ./zoom_out)")
+    ap.add_argument("-o", "--output", default="zoom_out",
+                    help="output directory for METHOD.png, one strip per method, and all.png (default ./zoom_out)")
     ap.add_argument("--zoom", default="1,2,4,8,16,32", help="zoom factors (default 1,2,4,8,16,32)")
     ap.add_argument("--gt-spp", type=int, default=256, help="ground-truth rays per pixel (default 256, at least 64)")
     ap.add_argument("--max-anisotropy", type=int, default=1, metavar="N",

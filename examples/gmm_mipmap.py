@@ -57,7 +57,8 @@ def show(ax, d):
 def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("-o", "--output", default="gmm_mipmap.png", help="output PNG (default gmm_mipmap.png)")
-    ap.add_argument("--surface", default="hemispherical_scales", help="procedural surface (precompute.surfaces)")
+    ap.add_argument("--surface", default="hemispherical_scales",
+                    help="procedural surface (precompute.surfaces; default hemispherical_scales)")
     ap.add_argument("--size", type=int, default=128, help="height-field size (default 128)")
     ap.add_argument("--level", type=int, default=None,
                     help=f"mip level of the 2x2 texel block (default {DEFAULT_LEVEL}, or the coarsest level of at "

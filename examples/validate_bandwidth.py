@@ -919,15 +919,19 @@ def parse_args(argv=None):
                     help=f"at most this many spp for the converged image (default {REF_SPP_MAX}; "
                          f"{QUICK['ref_spp_max']} with --quick; --ref-spp or below: no doubling)")
     ap.add_argument("--uniform-samples", type=int, default=None,
-                    help=f"stratified uniform directions per pixel, rounded to a square (default {UNIFORM_SAMPLES})")
+                    help=f"stratified uniform directions per pixel, rounded to a square (default {UNIFORM_SAMPLES}; "
+                         f"{QUICK['uniform_samples']} with --quick)")
     ap.add_argument("--bis-samples", type=int, default=None,
-                    help=f"BRDF-importance samples per pixel (default {BIS_SAMPLES})")
-    ap.add_argument("--window", type=int, default=None, help=f"FFT window side (default {FFT_WINDOW})")
-    ap.add_argument("--stride", type=int, default=FFT_STRIDE, help="pixels between FFT window centres")
+                    help=f"BRDF-importance samples per pixel (default {BIS_SAMPLES}; {QUICK['bis_samples']} with "
+                         "--quick)")
+    ap.add_argument("--window", type=int, default=None,
+                    help=f"FFT window side (default {FFT_WINDOW}; {QUICK['window']} with --quick)")
+    ap.add_argument("--stride", type=int, default=FFT_STRIDE,
+                    help=f"pixels between FFT window centres (default {FFT_STRIDE})")
     ap.add_argument("--max-noise", type=float, default=None,
                     help=f"leave out FFT windows whose AC energy is more than this share noise "
                          f"(default {MAX_NOISE_FRACTION}; {QUICK['max_noise']} with --quick)")
-    ap.add_argument("--nb", type=int, default=16, help="n_b directions of the bandwidth pass (002: 16)")
+    ap.add_argument("--nb", type=int, default=16, help="n_b directions of the bandwidth pass (default 16, as 002)")
     ap.add_argument("--env-signal", choices=ENV_SIGNALS, default=ENV_SIGNAL_DEFAULT,
                     help="what the analysis of the probe's angular bandwidth reads (warpbw render --env-signal; "
                     f"default {ENV_SIGNAL_DEFAULT})")

@@ -201,7 +201,9 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("brdf", help="angular bandwidth table of a tabulated BRDF",
                        description="For 16 incident elevations, the local angular bandwidth (cycles/radian) "
                        "of the outgoing lobe on a 128x128 equal-area map, reduced to 16x16 cells by a maximum "
-                       "(002 Sec. 2.3, 'Reflectance').  FILE is a MERL .binary, or an NPF table with --material.")
+                       "(002 Sec. 2.3, 'Reflectance').  FILE is a MERL .binary, or an NPF table with --material.  "
+                       "The renderer builds and caches these itself for --method adaptive when a scene names none "
+                       "(key 'bandwidth').")
     _table_args(c)
     c.set_defaults(func=cmd_brdf)
 

@@ -2,7 +2,7 @@
 
 Public: ``write_asset(path, fmt, version, source, source_hash, arrays, params, force, inputs=())``,
 ``read_asset(path, fmt, version, rebuild) -> Asset`` (``rebuild``: the command to suggest, or a function of the
-file's header that gives it), ``Asset``, ``check_float_arrays(arrays, what, rebuild_hint)`` (what the readers of
+file's header that gives it), ``Asset``, ``check_float_arrays(arrays, what, hint)`` (what the readers of
 floating-point tables refuse).
 
 An asset is a NumPy ``.npz`` archive (no pickles) holding named arrays and a JSON ``header`` with the

@@ -11,10 +11,11 @@ Public:
     ``write_brdf_bandwidth(path, table, source, force=False)`` / ``read_brdf_bandwidth(path, source=None)``   (the
         writer refuses the tables the reader refuses, and never writes over the source's file or a read-only file)
     ``load_or_build_bandwidth(source, explicit=None, cache=None, progress=True) -> (table, origin)``
-    ``theta_i_centres()``, ``wo_map(n)``, ``wo_to_map(wo)``, ``map_radians_per_pixel(n)``, ``nu_rho_max(n)``
-    ``lobe_slice(evaluate, theta_i, resolution)``, ``slice_bandwidth(f)``, ``GRAZING_LIMIT``   one lobe's map
-    (each checks its input: ``n`` an integer >= 1, ``wo`` finite non-zero 3-vectors, ``theta_i`` in [0, pi/2)
-    radians, ``f`` a square slice, ``evaluate`` and ``progress`` callables; else a one-line ``WarpbwError``)
+    ``theta_i_centres()``, ``wo_map(n)``, ``wo_to_map(wo)``, ``map_radians_per_pixel(n)``,
+    ``nu_rho_max(resolution)``, ``lobe_slice(evaluate, theta_i, resolution)``, ``slice_bandwidth(f)``,
+    ``GRAZING_LIMIT``   one lobe's map (each checks its input: ``n`` and ``resolution`` integers >= 1, ``wo`` finite
+    non-zero 3-vectors, ``theta_i`` in [0, pi/2) radians, ``f`` a square slice, ``evaluate`` and ``progress``
+    callables; else a one-line ``WarpbwError``)
 
 Table: ``nu_rho[t, row, col]`` in cycles/radian, float32, shape ``(N_THETA_I, N_CELLS, N_CELLS)``:
 ``t`` = incident-elevation bin (centres ``theta_i = (t + 1/2) (pi/2) / 16``, uniform over

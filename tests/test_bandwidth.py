@@ -409,6 +409,12 @@ def test_cli_spells_the_allocations_and_the_default():
     from warpbw import pipeline
 
     assert cli.METHODS == pipeline.SUMMARY_METHODS   # render's and info's --method
+    # render's --nb, --nyquist and --max-anisotropy parse to None (the library applies its default): the default
+    # their --help states is the library's
+    sub = next(a for a in cli.build_parser()._actions if a.dest == "command").choices["render"]
+    helps = {a.dest: a.help for a in sub._actions}
+    assert f"(default {bw.N_B_DEFAULT}," in helps["nb"] and f"(default {bw.NYQUIST_FACTOR:g}," in helps["nyquist"]
+    assert f"default {filtering.DEFAULT_ANISOTROPY}:" in helps["max_anisotropy"], helps["max_anisotropy"]
 
 
 def test_bad_tables_are_refused():

@@ -155,6 +155,12 @@ def test_bench_filtering_writes_the_record_and_the_plot(plane_scene, capsys):
     assert (d / "f.png").read_bytes()[:4] == b"\x89PNG"
     out = capsys.readouterr().out
     assert "gmm_aligned" in out and "precompute" in out
+    # --cache (--help): the mipmaps built are kept there, and the next run reads them instead of building them
+    for origin in ("built", "cache"):
+        assert main([*args[:-4], "--json", str(d / f"{origin}.json"), "--cache", str(d / "gmm")]) == 0
+        rec = json.loads((d / f"{origin}.json").read_text())
+        assert rec["precompute"]["m"]["gmm_aligned"]["origin"] == origin, rec["precompute"]
+    assert len(list((d / "gmm").glob("*.npz"))) == 2   # the aligned and the unaligned mipmap
     # outputs are not overwritten without --force
     before = (d / "f.json").read_text()
     assert main(args) == 2
@@ -907,6 +913,9 @@ def test_bench_filtering_table_puts_each_figure_in_its_row(aniso):
                     ["toksvig", "0.5000", "0.7500"],                             # temporal error
                     ["gt", "noise", "0.0030", "0.0060"]]
     assert lines[-1] == "precompute (aligned GMM mipmaps): 1.25 s"
+    # the legend says what the gt noise row holds: a second truth's error / sqrt(2) (it said "the error of a second
+    # ground truth"; test_flicker_pairs_ground_truth_noise_by_hand has the sqrt(2))
+    assert "a second, independently seeded one's error / sqrt(2)" in " ".join(lines)
 
 
 def _hand_bench(monkeypatch, level_outside=9.0, times=(0.001,), cover=None):

@@ -519,3 +519,15 @@ def test_the_continuation_past_the_rim_follows_the_maps_formula_out_to_the_corne
     want = 2.0 * lobe(np.full(past.sum(), lim), phi[past]) - lobe(np.maximum(2 * lim - theta[past], 0.0), phi[past])
     assert np.any(r[past] > 1.2)
     np.testing.assert_allclose(got[past], want, rtol=1e-9, atol=1e-12)
+
+
+def test_the_brdf_commands_help_gives_the_tables_shape():
+    """``warpbw-precompute brdf --help`` spells the table's shape (the command line imports no Warp): 16 incident
+    elevations, a 128x128 map, 16x16 cells; each number is the module's."""
+    from precompute.__main__ import build_parser
+    from precompute.brdf_bandwidth import DEFAULT_RESOLUTION
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices["brdf"]
+    said = sub.description
+    assert f"For {N_THETA_I} incident elevations" in said, said
+    assert f"{DEFAULT_RESOLUTION}x{DEFAULT_RESOLUTION} equal-area map" in said and f"{N_CELLS}x{N_CELLS} cells" in said

@@ -995,7 +995,8 @@ def _states_default(text: str, default, root: Path):
     """Whether ``text`` (what a help line's "(default ...)" or a usage line's ``[--opt VALUE]`` says) names
     ``default``: True or False, or None where it cannot say (a computed default, a flag, a sentence).  The value
     is the text up to a ";" (and for a single value up to ": " or ", "); lists compare item by item, numbers as
-    numbers, paths resolved from the repository root (``../shared/data/...``)."""
+    numbers, paths resolved from the repository root (``../shared/data/...``: the shared data folder, as
+    ``warpbw.io.shared_data`` finds it)."""
     if default is None or isinstance(default, bool):
         return None
     head = text.split(";")[0].strip()
@@ -1014,6 +1015,10 @@ def _states_default(text: str, default, root: Path):
     if isinstance(default, (int, float)):
         return value(head) == float(default)
     if isinstance(default, Path) or "/" in head:
+        from warpbw.io.shared_data import shared_data_dir
+
+        # "../shared/data/..." in a usage line is the shared data folder, $WARPBW_SHARED_DATA where it is set
+        head = re.sub(r"^\.\./shared/data(?=/|$)", str(shared_data_dir(root)), head)
         return (root / head).resolve() == (root / Path(default)).resolve()
     return head == str(default)
 
@@ -1075,6 +1080,16 @@ def test_every_stated_default_is_the_default(monkeypatch):
     assert not bad, "\n".join(bad)
     assert n_help >= 15 and checked - n_help >= 60, (n_help, checked)   # the rules did read the docs
 
+
+def test_validate_bandwidths_help_gives_every_quick_setting(monkeypatch):
+    """validate_bandwidth.py --quick replaces the defaults of QUICK's options: each option's --help says what it
+    becomes ("N with --quick"; --uniform-samples, --bis-samples and --window said only their full default).  The
+    full defaults are test_every_stated_default_is_the_default's."""
+    mod, parser = _example_parser(monkeypatch, "validate_bandwidth")
+    helps = {a.dest: parser._get_formatter()._expand_help(a) for a in parser._actions if a.help}
+    missing = [k for k, v in mod.QUICK.items() if f"{v} with --quick" not in helps[k]]
+    assert len(mod.QUICK) >= 8 and not missing, {k: helps[k] for k in missing}
+
 def _heading_slugs(text: str) -> set:
     """GitHub's anchors for a Markdown file's headings: lower case, punctuation dropped, spaces to hyphens."""
 
@@ -1101,6 +1116,22 @@ def test_readme_links_resolve():
     assert checked >= 3, checked
 
 
+def test_the_readme_layout_names_every_module_and_example():
+    """README's Layout names the files of warpbw/, warpbw/io/, precompute/ and examples/ (the map a newcomer reads
+    first), each under its own folder, and names no file that is not there."""
+    root = Path(__file__).resolve().parents[1]
+    block = re.search(r"## Layout\n\n```\n(.*?)```", (root / "README.md").read_text(), re.S).group(1)
+    named = {}
+    folder = None
+    for line in block.splitlines():
+        folder = re.match(r"([\w/]+/) ", line).group(1) if re.match(r"[\w/]+/ ", line) else folder
+        named.setdefault(folder, set()).update(re.findall(r"\b[\w]+\.py\b", line))
+    for folder in ("warpbw/", "warpbw/io/", "precompute/", "examples/"):
+        there = {p.name for p in (root / folder).glob("*.py")} - {"__init__.py"}
+        assert named[folder] == there, (folder, "not named:", there - named[folder], "not there:",
+                                        named[folder] - there)
+
+
 def test_every_module_lists_its_public_functions_in_its_docstring():
     """DESIGN.md's convention, 'a module's public functions are listed in its docstring': every function or class
     of warpbw/ and precompute/ whose name does not start with _ is named in its module's docstring, the Warp
@@ -1121,6 +1152,64 @@ def test_every_module_lists_its_public_functions_in_its_docstring():
         if missing:
             unlisted[str(path.relative_to(root))] = missing
     assert checked > 100 and not unlisted, unlisted
+
+
+def _call_arguments(text: str) -> list:
+    """The arguments of a call as a docstring writes it (``a, b=(0, 0), c: int = 1, ...``), split at its top-level
+    commas."""
+    out, depth, cur = [], 0, ""
+    for ch in text:
+        depth += (ch in "([{") - (ch in ")]}")
+        if ch == "," and depth == 0:
+            out.append(cur.strip())
+            cur = ""
+        else:
+            cur += ch
+    return [a for a in [*out, cur.strip()] if a]
+
+
+def test_every_signature_a_module_docstring_shows_is_the_functions():
+    """A call a module's docstring shows, ``f(a, b=1)``, names parameters ``f`` has, and a default it states is
+    ``f``'s: a researcher calls the stage functions by the names the docstring lists (assetfile's listed
+    ``check_float_arrays(arrays, what, rebuild_hint)``, whose parameter is ``hint``; brdf_bandwidth's
+    ``nu_rho_max(n)``, whose parameter is ``resolution``: either keyword was a TypeError)."""
+    import ast
+    import importlib
+    import inspect
+
+    root = Path(__file__).resolve().parents[1]
+    bad, checked = [], 0
+    for path in sorted([*(root / "warpbw").rglob("*.py"), *(root / "precompute").glob("*.py")]):
+        name = ".".join(path.relative_to(root).with_suffix("").parts).removesuffix(".__init__")
+        mod = importlib.import_module(name)
+        doc = re.sub(r"\s*\n\s*", " ", mod.__doc__ or "")
+        for m in re.finditer(r"(?<![\w.])([A-Za-z_]\w*)\(((?:[^()]|\([^()]*\))*)\)", doc):
+            obj = getattr(mod, m.group(1), None)
+            if obj is None or not (getattr(obj, "__module__", None) == mod.__name__ or hasattr(obj, "func")):
+                continue   # a formula (``cos(theta)``) or another module's function
+            try:
+                params = inspect.signature(getattr(obj, "func", obj)).parameters   # a Warp function's Python body
+            except (TypeError, ValueError):
+                continue
+            if any(p.kind == p.VAR_KEYWORD for p in params.values()):
+                continue
+            for arg in _call_arguments(m.group(2)):
+                said = re.fullmatch(r"(\w+)\s*(?::[^=]*)?(?:=\s*(.+))?", arg)
+                if not said or arg == "...":
+                    continue
+                checked += 1
+                p, default = said.groups()
+                if p not in params:
+                    bad.append(f"{name}: {m.group(0)[:80]}: {m.group(1)} has no parameter {p} ({', '.join(params)})")
+                elif default is not None and default != "...":
+                    try:
+                        value = ast.literal_eval(default)
+                    except ValueError:
+                        value = getattr(mod, default)   # a named constant
+                    if value != params[p].default:
+                        bad.append(f"{name}: {m.group(1)}: the docstring says {p}={default}, the default is "
+                                   f"{params[p].default!r}")
+    assert checked > 500 and not bad, "\n".join(bad)
 
 
 def test_readme_python_example_runs(tmp_path):
@@ -1546,6 +1635,23 @@ def test_compare_reads_the_coverage_of_the_test_image_when_the_reference_has_non
     assert "coverage from test.exr's A channel (ref.exr has none)" in capsys.readouterr().out
     assert main(["compare", "ref.exr", "test.exr", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["coverage_from"] == "test.exr"   # the reference's A
+
+
+def test_compare_json_prints_the_keys_its_help_lists(tmp_path, monkeypatch, capsys):
+    """compare --json's --help lists the record's keys: every key it prints, with --error-map and for identical
+    images (psnr_note) too, is among them (error_map and error_range were not)."""
+    from warpbw.cli import build_parser, main
+
+    monkeypatch.chdir(tmp_path)
+    write_exr(tmp_path / "a.exr", _rgba(0.5))
+    write_exr(tmp_path / "b.exr", _rgba(0.25))
+    keys = set()
+    for argv in (["a.exr", "b.exr", "--error-map", "e.exr"], ["a.exr", "a.exr"]):
+        assert main(["compare", *argv, "--json"]) == 0
+        keys |= set(json.loads(capsys.readouterr().out))
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices["compare"]
+    listed = set(re.findall(r"\b[a-z]+_?[a-z_]*\b", next(a.help for a in sub._actions if a.dest == "json")))
+    assert {"psnr_note", "error_map", "error_range", "coverage_from"} <= keys and keys <= listed, keys - listed
 
 
 def test_compare_counts_the_pixels_the_reference_covers_even_where_the_test_misses_them(tmp_path, monkeypatch,

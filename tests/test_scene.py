@@ -714,6 +714,59 @@ def test_readme_scene_snippets_parse(tmp_path):
         assert scene.objects, text
 
 
+def test_every_scene_key_is_in_the_readme_and_every_readme_key_is_accepted(tmp_path):
+    """The keys the parser accepts, read from its own "unknown key (expected one of: ...)" message of each kind of
+    table (the top level, [camera], [environment], [[light]], a sphere, a plane, a mesh, each material type), are
+    each named in the README's TOML blocks, where a user looks them up; and every ``key = ...`` those blocks write,
+    in their comments too (``# type = "npf": table = ...``), is one the parser accepts."""
+    tables = [CAMERA, ENVIRONMENT, '[[light]]\ntype = "directional"\ndirection = [0, 1, 0]\nradiance = [1, 1, 1]\n',
+              SPHERE, '[[object]]\nshape = "plane"\nsize = 1.0\nmaterial = "ct"\n',
+              '[[object]]\nmesh = "m.obj"\nmaterial = "paint"\n', PAINT,
+              '[material.g]\ntype = "ggx"\nalpha = 0.2\nspecular = [1, 1, 1]\n',
+              '[material.me]\ntype = "merl"\nfile = "x.binary"\n',
+              '[material.n]\ntype = "npf"\ntable = "npf.bin"\nname = "chrome"\n',
+              '[material.ct]\ntype = "cook-torrance"\nroughness = 0.1\nf0 = [0.5, 0.5, 0.5]\n']
+    for name in ("m.obj", "x.binary", "npf.bin"):
+        (tmp_path / name).touch()
+    parse_scene("".join(tables), tmp_path, "s.toml")   # each table valid as it is
+    accepted = set()
+    for i in range(-1, len(tables)):   # -1: the top level
+        text = "zzz_unknown = 1\n" + "".join(tables) if i < 0 else \
+            "".join(t + "zzz_unknown = 1\n" if j == i else t for j, t in enumerate(tables))
+        with pytest.raises(WarpbwError, match=r"zzz_unknown: unknown key \(expected one of: ") as err:
+            parse_scene(text, tmp_path, "s.toml")
+        accepted |= set(str(err.value).rsplit("expected one of: ", 1)[1].rstrip(")").split(", "))
+    assert {"camera", "look_at", "rotate_y", "normal_map_kind", "bandwidth", "eta"} <= accepted, accepted
+
+    blocks = "\n".join(re.findall(r"```toml\n(.*?)```", (Path(__file__).resolve().parents[1] / "README.md").read_text(),
+                                  re.S))
+    undocumented = sorted(k for k in accepted if not re.search(rf"\b{k}\b", blocks))
+    assert not undocumented, f"scene keys the README's TOML blocks do not name: {undocumented}"
+    written = set(re.findall(r"\b([a-z_0-9]+) *=", blocks))
+    assert len(written) > 30 and written <= accepted, f"README keys the parser refuses: {sorted(written - accepted)}"
+
+
+def test_the_defaults_the_readme_gives_scene_keys_are_the_parsers(tmp_path):
+    """A key of the README's TOML blocks whose comment says "(default X)" (or "; default X") parses, left out, to the
+    scene it gives written ``key = X``; "(default)" alone, to the scene of the value the line writes.  (README said
+    nothing of tiling's or normal_map_scale's default, 1, nor that "height" is normal_map_kind's.)"""
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    blocks = re.findall(r"```toml\n(.*?)```", readme, re.S)
+    camera = re.search(r"\[camera\].*?(?=\n\[[^\[])", blocks[0], re.S).group(0)
+    for name in set(re.findall(r'"([\w.-]+\.(?:exr|obj|binary|npz|gmm|bin|png))"', readme)):
+        (tmp_path / name).touch()
+    checked = []
+    for b in blocks:
+        text = b if "[camera]" in b else camera + "\n" + b
+        for line, key, said in re.findall(r"^((\w+) = [^#\n]*?) *#.*[(;] ?default(?: ([^,;)\s]+))?", text, re.M):
+            written = parse_scene(text if not said else text.replace(line, f"{key} = {said}"), tmp_path, "README")
+            left_out = parse_scene(text.replace(line, ""), tmp_path, "README")
+            assert left_out == written, f"README: {line} (default {said or 'as written'}), but left out it parses as " \
+                                        f"another scene"
+            checked.append(key)
+    assert {"diffuse", "tiling", "normal_map_scale", "normal_map_kind", "gmm_prior"} <= set(checked), checked
+
+
 @settings(max_examples=200, deadline=None)
 @given(text=st.text(alphabet=st.characters(blacklist_categories=("Cs",)), max_size=40))
 def test_toml_string_round_trips_any_path_through_a_toml_reader(text):

@@ -288,8 +288,9 @@ def format_table(record: dict) -> str:
     lines.append(f"{'gt noise':<14}" + "".join(f"{g['noise']:>9.3f} /{g['flicker_noise']:.3f}"
                                                if "flicker_noise" in g else f"{g['noise']:>9.3f}       "
                                                for g in record["ground_truth"]))
-    lines.append("(gt noise: the error / flicker of a second, independently seeded ground truth; two methods whose "
-                 "flicker differs by less than its flicker are not told apart: raise --gt-spp)")
+    lines.append("(gt noise: the ground truth's own noise, a second, independently seeded one's error / sqrt(2), and "
+                 "the flicker that noise scores; two methods whose flicker differs by less than it are not told "
+                 "apart: raise --gt-spp)")
     lines.append("temporal error (distance of the frame-to-frame change to the truth's) per zoom")
     for m, rows in record["methods"].items():
         lines.append(f"{m:<14}" + "".join(f"{r['temporal_error']:>16.4f}" for r in rows))

@@ -857,7 +857,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=cmd_demo)
 
     i = sub.add_parser("info", help="summarise what a scene needs", description="Summarise a scene: objects, "
-                       "materials, light, the files it reads and the stages a render would run.")
+                       "materials, light, the files it reads, the stages a render would run and the memory they "
+                       "would take (a frame; loading the probe and, adaptive, building its bandwidth map).")
     i.add_argument("scene", help="scene file (TOML)")
     i.add_argument("--method", choices=METHODS, default=METHODS[0],
                    help="the stages of warpbw render --method METHOD for the spheres and meshes (default reference; "
@@ -945,8 +946,8 @@ def build_parser() -> argparse.ArgumentParser:
     bf.add_argument("--spp", type=_positive_int("spp", INT32_MAX), default=None,
                     help="under an [environment]: pairs of one BRDF and one environment sample per pixel of the "
                     f"filtered methods (default {DEFAULT_SPP}, as warpbw render; their noise is part of the error)")
-    bf.add_argument("--cache", help="GMM mipmap cache directory to reuse (default: build afresh, so that the "
-                    "precompute time is measured)")
+    bf.add_argument("--cache", help="GMM mipmap cache directory: mipmaps found there are reused, those built are "
+                    "kept there (default: build afresh, so that the precompute time is measured)")
     bf.add_argument("--flicker-pairs", type=_positive_int("flicker-pairs", _bf.FLICKER_PAIRS_MAX), default=1,
                     help="consecutive frame pairs per zoom (z * step^j to z * step^(j+1)) the flicker and temporal "
                     f"error are averaged over (default 1; at most {_bf.FLICKER_PAIRS_MAX}, one octave): one pair is "
@@ -972,7 +973,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--json", action="store_true",
                    help="print JSON (psnr_db, relmse, mse, pixels, worst_pixels, worst_share, coverage_from: whose A "
                         "channel chose the pixels, null for the non-black ones; an infinite PSNR is null, with "
-                        "psnr_note saying whether the images are identical or the PSNR undefined)")
+                        "psnr_note saying whether the images are identical or the PSNR undefined; with --error-map, "
+                        "error_map, its path, and error_range, the PNG's [LO, HI])")
     c.add_argument("--error-map", metavar="PATH.exr",
                    help="also write the per-pixel relative squared error, (test - ref)^2 / (ref^2 + "
                    f"{_RELMSE_EPS:g}) averaged "
