@@ -858,7 +858,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser("info", help="summarise what a scene needs", description="Summarise a scene: objects, "
                        "materials, light, the files it reads, the stages a render would run and the memory they "
-                       "would take (a frame; loading the probe and, adaptive, building its bandwidth map).")
+                       "would take (a frame; loading the probe and, adaptive, building its bandwidth map; the placed "
+                       "meshes, from their files' headers).")
     i.add_argument("scene", help="scene file (TOML)")
     i.add_argument("--method", choices=METHODS, default=METHODS[0],
                    help="the stages of warpbw render --method METHOD for the spheres and meshes (default reference; "
