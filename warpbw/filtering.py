@@ -122,9 +122,9 @@ import warp as wp
 from precompute.gmm_mipmap import NORMAL_DIM
 from warpbw.envmap import (LUMINANCE_RGB, EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv,
                            load_environment)
-from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, check_count,
-                           check_device, check_finite_image, check_flag, check_real, check_seed, numeric_array,
-                           unit_directions)
+from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing,
+                           check_count, check_device, check_finite_image, check_flag, check_real, check_seed,
+                           numeric_array, unit_directions)
 from warpbw.gbuffer import CameraData, scene_camera
 from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene, check_scene
 
