@@ -270,6 +270,19 @@ def test_npf_kernel_reciprocity(npf_materials):
         assert np.allclose(a, b, rtol=1e-3, atol=1e-6)
 
 
+@pytest.mark.parametrize("c", [1e-25, 1e-30, 1e-37])
+def test_npf_kernel_at_a_mirror_pair_grazing_the_horizon_matches_the_host_formula(npf_materials, c):
+    # wi + wo = (0, 0, 2c) normalised to 0 below c ~ 1e-23: theta_d (90 degrees) read 0, and F with it (the red of
+    # gold-metallic-paint 100 times too dark).  The host's float64 npf_eval is the truth.
+    from warpbw.io.npf import npf_eval
+
+    mats, mb = npf_materials
+    wi, wo = np.array([[-1.0, 0.0, c]]), np.array([[1.0, 0.0, c]])
+    for k, mat in enumerate(mats):
+        np.testing.assert_allclose(B.eval_brdf(mb, 2 * k, wi, wo), npf_eval(mat, wi, wo, interpolate=True),
+                                   rtol=1e-3, err_msg=mat.name)
+
+
 def test_unmeasured_merl_entries_never_reach_shading(tmp_path):
     from warpbw.io.merl import read_merl, write_merl
 

@@ -138,7 +138,7 @@ def sample_cosine_hemisphere(u: wp.vec2):
 def half_vector(wi: wp.vec3, wo: wp.vec3):
     """normalize(wi + wo), the sum scaled by its largest component first when that is below HALF_VECTOR_RESCALE:
     for a pair grazing the horizon (wi = (0, 1, 1e-30), wo = (0, -1, 1e-30)) wp.normalize saw a zero length and
-    returned 0, where GGX's D(0) = inf times G1 G1 = 0 made f NaN."""
+    returned 0, where GGX's D(0) = inf times G1 G1 = 0 made f NaN and NPF's theta_d read 0 instead of 90 degrees."""
     s = wi + wo
     m = wp.max(wp.max(wp.abs(s[0]), wp.abs(s[1])), wp.abs(s[2]))
     if m > 0.0 and m < HALF_VECTOR_RESCALE:
@@ -356,7 +356,7 @@ def npf_eval(mats: MaterialTable, m: int, wi: wp.vec3, wo: wp.vec3):
         return wp.vec3(0.0)
     base = mats.data[m] * NPF_STRIDE
     lin = mats.linear[m]
-    h = wp.normalize(wi + wo)
+    h = half_vector(wi, wo)
     theta_h = angle_to_z(h)
     theta_d = angle_between(wi, h)
     theta_i = angle_to_z(wi)
