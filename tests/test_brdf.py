@@ -270,6 +270,41 @@ def test_npf_kernel_reciprocity(npf_materials):
         assert np.allclose(a, b, rtol=1e-3, atol=1e-6)
 
 
+@pytest.fixture(scope="module")
+def ggx_by_alpha():
+    """One white GGX material per alpha, built once (each build_material_table allocates device arrays)."""
+    cache = {}
+
+    def get(alpha):
+        if alpha not in cache:
+            cache[alpha] = B.build_material_table([B.MaterialSpec("g", B.GGX, alpha=alpha, specular=(1.0, 1.0, 1.0))])
+        return cache[alpha]
+    return get
+
+
+@settings(max_examples=40, deadline=None)
+@given(log_alpha=st.integers(-8, 0), log_cos_o=st.floats(-6.0, 0.0), phi_o=st.floats(0.0, 6.28),
+       seed=st.integers(0, 2**31 - 1))
+def test_every_ggx_sample_weighs_g1_of_its_direction(ggx_by_alpha, log_alpha, log_cos_o, phi_o, seed):
+    """VNDF sampling (Heitz 2018): f cos_i / pdf = F G1(wi) for every direction drawn above the horizon, at every
+    roughness from the scene's smallest alpha to 1 and every view down to 1e-6 above the horizon (G1 here in
+    float64; cosines clamped at COS_EPS as the kernel documents)."""
+    alpha = max(2.0 ** (log_alpha * 1.66), B.GGX_MIN_ALPHA)   # 1 ... 1e-4
+    mb = ggx_by_alpha(alpha)
+    cos_o = 10.0 ** log_cos_o
+    s = np.sqrt(1.0 - cos_o ** 2)
+    wo = np.array([np.cos(phi_o) * s, np.sin(phi_o) * s, cos_o])
+    wi = B.sample_brdf(mb, 0, wo, 4096, seed=seed).astype(np.float64)
+    wi = wi[wi[:, 2] > 0.0]
+    p = B.pdf_brdf(mb, 0, wi, wo)
+    assert (p > 0.0).all(), int((p <= 0.0).sum())
+    f = B.eval_brdf(mb, 0, wi, wo)[:, 0]
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    c = wi[:, 2]
+    g1 = 2.0 * c / (c + np.sqrt(alpha ** 2 + (1.0 - alpha ** 2) * c * c))
+    np.testing.assert_allclose(f * c / p, g1 * c / np.maximum(c, B.COS_EPS), rtol=2e-3, atol=1e-6)
+
+
 @pytest.mark.parametrize("c", [1e-25, 1e-30, 1e-37])
 def test_npf_kernel_at_a_mirror_pair_grazing_the_horizon_matches_the_host_formula(npf_materials, c):
     # wi + wo = (0, 0, 2c) normalised to 0 below c ~ 1e-23: theta_d (90 degrees) read 0, and F with it (the red of
