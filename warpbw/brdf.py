@@ -80,7 +80,7 @@ COS_EPS = 1.0e-6
 
 HALF_PI = 0.5 * math.pi
 # Below this largest component, wi + wo is scaled up before normalising (ours): its squared length, about 4 cos^2 for
-# a mirror pair at the horizon, leaves float32's normal range (1.2e-38) under |wi + wo| ~ 1e-19.
+# a mirror pair at the horizon, leaves float32's normal range (1.2e-38) under |wi + wo| ~ 1e-19 and is 0 under ~1e-23.
 HALF_VECTOR_RESCALE = 1.0e-15
 GGX_MIN_ALPHA = 1.0e-4
 # Largest eta or k a conductor takes (warpbw.scene.CONDUCTOR_INDEX_MAX): fresnel_conductor squares eta^2 k^2, which
