@@ -892,7 +892,8 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     ("uniform"), or to the standard deviation the pass measured for the renderer's estimator ("measured":
     the allocation that minimises the summed variance for a fixed budget; ``mis`` says which estimator,
     MIS or BRDF sampling alone: True by default, where ``render_adaptive``'s frames default to BRDF sampling, so
-    pass the frame's own, as ``render_adaptive`` does).  Module docstring."""
+    pass the frame's own, as ``render_adaptive`` does).  A key that is not finite and >= 0 at a covered pixel (the
+    pass's float32 squares overflowed) is refused: no N_p then keeps the budget.  Module docstring."""
     check_device(device)
     mis = check_flag(mis, "mis")
     if allocation not in ALLOCATIONS:
