@@ -302,6 +302,33 @@ def test_a_sharp_lobe_seen_at_the_horizon_is_importance_sampled_without_fireflie
 
 
 @pytest.fixture(scope="module")
+def chrome_npf(shared):
+    """npf.bin's chrome (the sharpest lobe of the real fits) with its sampling table."""
+    from warpbw.io.npf import npf_eval, read_npf
+
+    m = read_npf(shared("brdf/npf.bin"), "chrome")
+    samp = build_sampler_table(lambda wi, wo: npf_eval(m, wi, wo))
+    return B.build_material_table([B.MaterialSpec("chrome", B.NPF, npf=B.pack_npf_curves(m.rho_d, m.rho_s, m.D, m.G1,
+                                                                                         m.F), linear=True,
+                                                  sampler=samp)])
+
+
+@pytest.mark.parametrize("cos_o", [2e-5, 1e-4])
+def test_real_chrome_seen_at_the_horizon_is_importance_sampled_without_fireflies(chrome_npf, cos_o):
+    """The same on real data: chrome's BRDF-sampled directional albedo at these views read about 3e7 and 3e6 (single
+    weights up to 6e10) where uniform sampling reads 1.34 and 0.27."""
+    wo = view_at(np.arccos(cos_o), 1.0)
+    n = 100_000
+    wi = B.sample_brdf(chrome_npf, 0, wo, n, seed=3)
+    ok = wi[:, 2] > 0
+    g_is = np.zeros(n)
+    g_is[ok] = B.eval_brdf(chrome_npf, 0, wi[ok], wo).mean(1) * wi[ok, 2] / B.pdf_brdf(chrome_npf, 0, wi[ok], wo)
+    wu = uniform_hemisphere(np.random.default_rng(1), 2_000_000)
+    g_u = B.eval_brdf(chrome_npf, 0, wu, wo).mean(1) * wu[:, 2] * 2 * np.pi
+    assert means_agree(g_is, g_u), (cos_o, g_is.mean(), g_u.mean())
+
+
+@pytest.fixture(scope="module")
 def halves_merl():
     """A MERL table ten times brighter for phi_d < pi/2 than above: isotropic and reciprocal (MERL's own
     parametrisation) but not mirror-symmetric about the plane of incidence, as a measured table need not be."""
