@@ -387,6 +387,24 @@ def test_allocation_below_one_sample_per_shaded_pixel_is_flagged():
     assert a.over_budget and np.all(a.n_p == 1)
 
 
+@pytest.mark.parametrize("allocation", bw.ALLOCATIONS)
+def test_allocation_refuses_an_overflowed_variance_and_keeps_the_budget_just_below_it(allocation):
+    """An inf key (the pass's float32 sum of squared radiance overflowed) made the bisection's upper end inf: that
+    pixel took n_max = 256 x budget and the others n_min, 64 times the frame's budget of 4 with over_budget False
+    (and an inf variance AOV).  Now a one-line error; the largest finite float32 there is allocated within budget."""
+    rng = np.random.default_rng(6)
+    sig = rng.lognormal(0, 2, size=(8, 8))
+    sig[3, 5] = np.inf
+    cov = np.ones((8, 8), bool)
+    buf = _fake_buffer(sig, np.zeros((8, 8)), cov, sig, sig)
+    with pytest.raises(WarpbwError, match=r"variance is not a finite number >= 0 at 1 of 64 covered pixels"):
+        bw.allocate_samples(buf, budget=4.0, allocation=allocation)
+    sig[3, 5] = np.finfo(np.float32).max
+    a = bw.allocate_samples(_fake_buffer(sig, np.zeros((8, 8)), cov, sig, sig), budget=4.0, allocation=allocation)
+    assert not a.over_budget and a.n_p.sum() <= 4 * 64 and a.n_p.min() >= 1
+    assert np.isfinite(a.variance).all()
+
+
 @pytest.mark.parametrize("kw, match", [({"budget": 0}, "budget"), ({"budget": float("nan")}, "budget"),
                                        ({"budget": 2, "n_min": 0}, "n_min"), ({"budget": 2, "mis": "yes"}, "mis"),
                                        ({"budget": 2, "n_min": 4, "n_max": 2}, "n_max"),

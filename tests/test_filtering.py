@@ -803,6 +803,18 @@ def test_lod_bias_and_the_other_numbers_must_be_finite_real_numbers(bad):
         pair_uniforms(0, 0, bad)
 
 
+def test_gmm_ndf_of_a_component_too_sharp_for_float32_is_refused_and_a_sharp_one_is_the_closed_form():
+    """A component of s^2 = rough_var = 0 is a delta: the kernel's Gaussian read 0 / 0 and returned NaN (inf below
+    var 4.7e-40); now a one-line error.  Sharp but representable, the NDF at its mean is 1 / (2 pi var)."""
+    h = [[0.0, 0.0, 1.0], [0.1, 0.0, 1.0]]
+    for s2, rough_var in ((0.0, 0.0), (1e-45, 0.0), (0.0, 1e-41)):
+        with pytest.raises(WarpbwError, match=r"^params: expected s\^2 \+ rough_var > 4\.7e-40 for every component"):
+            gmm_ndf([[1.0, 0.0, 0.0, s2]], rough_var, h)
+    assert gmm_ndf([[0.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.01]], 0.0, h)[0] == pytest.approx(1.0 / (2 * np.pi * 0.01),
+                                                                                              rel=1e-6)
+    np.testing.assert_allclose(gmm_ndf([[1.0, 0.0, 0.0, 1e-10]], 0.0, h), [1.0 / (2 * np.pi * 1e-10), 0.0], rtol=1e-6)
+
+
 def test_numbers_of_other_types_are_taken_where_they_are_real(monkeypatch):
     s = parse_scene(plane_scene_toml(resolution=(16, 16)), Path.cwd(), "s.toml")
     ref = render_filtering(s, "lean", lod_bias=0.5).image

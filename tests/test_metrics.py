@@ -67,6 +67,24 @@ def test_relmse_is_scale_free_when_its_regulariser_scales_too(k, seed):
                                                                                       rel=1e-9)
 
 
+@settings(max_examples=60, deadline=None)
+@given(e=st.integers(-1000, 1020), seed=st.integers(0, 2 ** 16))
+def test_psnr_and_relmse_are_the_same_at_every_power_of_two_exposure_float64_holds(e, seed):
+    """PSNR does not depend on the exposure, and relMSE does not once its regulariser scales with it: scaled by 2^e,
+    exactly, anywhere in float64's range, they give the unscaled figures.  A reference past ~1e154 squared to inf
+    (PSNR inf / inf = NaN, relMSE NaN) and values below ~1e-162 to 0 (PSNR inf for unequal images)."""
+    ref, mask = _pair(seed)
+    test = ref * np.random.default_rng(seed + 1).uniform(0.8, 1.2, ref.shape)
+    k = 2.0 ** e
+    assert psnr(test * k, ref * k, mask) == pytest.approx(psnr(test, ref, mask), rel=1e-12)
+    if abs(e) <= 500:   # k^2 eps stays a normal float64
+        assert relmse(test * k, ref * k, mask, eps=RELMSE_EPS * k * k) == pytest.approx(relmse(test, ref, mask),
+                                                                                        rel=1e-9)
+    big = 2.0 ** 1020   # the eps of 1e-2 does not matter beside a reference this bright: relMSE is mean((a / b - 1)^2)
+    want = np.mean((test[mask] / ref[mask] - 1.0) ** 2)
+    assert relmse(test * big, ref * big, mask) == pytest.approx(want, rel=1e-9)
+
+
 def test_worst_share_of_one_bad_pixel_and_of_an_even_error():
     n = 1000
     mask = np.ones((1, n), bool)

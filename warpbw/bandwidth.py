@@ -892,7 +892,8 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     ("uniform"), or to the standard deviation the pass measured for the renderer's estimator ("measured":
     the allocation that minimises the summed variance for a fixed budget; ``mis`` says which estimator,
     MIS or BRDF sampling alone: True by default, where ``render_adaptive``'s frames default to BRDF sampling, so
-    pass the frame's own, as ``render_adaptive`` does).  Module docstring."""
+    pass the frame's own, as ``render_adaptive`` does).  A key that is not finite and >= 0 at a covered pixel (the
+    pass's float32 squares overflowed) is refused: no N_p then keeps the budget.  Module docstring."""
     check_device(device)
     mis = check_flag(mis, "mis")
     if allocation not in ALLOCATIONS:
@@ -917,6 +918,13 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     key = {"relative": buf.sigma2_rel, "measured": buf.estimator_variance(mis)}.get(allocation, buf.sigma2)
     if key is None:
         raise WarpbwError(f"allocation {allocation!r}: the bandwidth buffer has no measured variance")
+    sig = key.numpy().reshape(H, W).astype(np.float64)
+    bad = cov & ~(np.isfinite(sig) & (sig >= 0.0))
+    if bad.any():   # an inf (overflowed) value set hi = inf in the bisection: N_p = n_max there, n_min elsewhere,
+        # and the frame took n_max x the budget with over_budget False; the variance AOV read inf
+        raise WarpbwError(f"allocation {allocation!r}: the bandwidth buffer's variance is not a finite number >= 0 at "
+                          f"{int(bad.sum())} of {n_cov} covered pixels (e.g. {sig[bad][0]:g}: the pass's squared "
+                          "radiance overflowed float32); expected lower radiance")
     s = planned_shading(buf, device, key, plan).astype(np.float64) ** power
     n_plan = len(s)
     over = n_plan * n_min > total
@@ -939,7 +947,6 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
             else:
                 hi = mid
         v = math.exp(hi)
-    sig = key.numpy().reshape(H, W).astype(np.float64)
     if v == 0.0:
         n_p = np.full((H, W), n_max, np.int64)
     else:

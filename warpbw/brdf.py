@@ -11,7 +11,7 @@ Public:
     ``KIND_NAMES``                  material type name -> kind id
     ``eval_brdf(...)``, ``sample_brdf(...)``, ``pdf_brdf(...)``  host wrappers (numpy in, numpy out) for tests
     ``LAMBERT``, ``GGX``, ``MERL``, ``NPF``     material kind ids
-    Warp functions the kernels are built of: ``cos_theta``, ``angle_to_z``, ``angle_between``,
+    Warp functions the kernels are built of: ``cos_theta``, ``angle_to_z``, ``angle_between``, ``half_vector``,
     ``sample_cosine_hemisphere``, ``lambert_eval``; GGX's ``ggx_d``, ``ggx_g1``, ``fresnel_conductor``,
     ``ggx_fresnel``, ``ggx_eval``, ``ggx_sample_vndf``, ``ggx_pdf``; ``rusinkiewicz``, ``merl_cell``, ``merl_eval``
     (MERL's look-up), ``npf_curve`` and ``npf_eval``
@@ -79,6 +79,9 @@ TAB_COSINE_MIX = 0.1
 COS_EPS = 1.0e-6
 
 HALF_PI = 0.5 * math.pi
+# Below this largest component, wi + wo is scaled up before normalising (ours): its squared length, about 4 cos^2 for
+# a mirror pair at the horizon, leaves float32's normal range (1.2e-38) under |wi + wo| ~ 1e-19 and is 0 under ~1e-23.
+HALF_VECTOR_RESCALE = 1.0e-15
 GGX_MIN_ALPHA = 1.0e-4
 # Largest eta or k a conductor takes (warpbw.scene.CONDUCTOR_INDEX_MAX): fresnel_conductor squares eta^2 k^2, which
 # overflows float32 from about 5e9 (the reflectance then read 0 instead of nearly 1: a mirror rendered black).
@@ -129,6 +132,18 @@ def sample_cosine_hemisphere(u: wp.vec2):
     r = wp.sqrt(u[0])
     phi = 2.0 * wp.pi * u[1]
     return wp.vec3(r * wp.cos(phi), r * wp.sin(phi), wp.sqrt(wp.max(0.0, 1.0 - u[0])))
+
+
+@wp.func
+def half_vector(wi: wp.vec3, wo: wp.vec3):
+    """normalize(wi + wo), the sum scaled by its largest component first when that is below HALF_VECTOR_RESCALE:
+    for a pair grazing the horizon (wi = (0, 1, 1e-30), wo = (0, -1, 1e-30)) wp.normalize saw a zero length and
+    returned 0, where GGX's D(0) = inf times G1 G1 = 0 made f NaN and NPF's theta_d read 0 instead of 90 degrees."""
+    s = wi + wo
+    m = wp.max(wp.max(wp.abs(s[0]), wp.abs(s[1])), wp.abs(s[2]))
+    if m > 0.0 and m < HALF_VECTOR_RESCALE:
+        s = s / m
+    return wp.normalize(s)
 
 
 @wp.func
@@ -228,7 +243,7 @@ def ggx_eval(mats: MaterialTable, m: int, wi: wp.vec3, wo: wp.vec3):
     if ci <= 0.0 or co <= 0.0:
         return wp.vec3(0.0)
     alpha = mats.alpha[m]
-    h = wp.normalize(wi + wo)
+    h = half_vector(wi, wo)
     d = ggx_d(h, alpha)
     g = ggx_g1(ci, alpha) * ggx_g1(co, alpha)
     f = ggx_fresnel(mats, m, wp.dot(wi, h))
@@ -258,11 +273,13 @@ def ggx_sample_vndf(wo: wp.vec3, alpha: float, u: wp.vec2):
 @wp.func
 def ggx_pdf(wi: wp.vec3, wo: wp.vec3, alpha: float):
     # pdf of VNDF sampling in solid angle: G1(wo) D(h) / (4 cos_o).  Defined over the whole sphere
-    # (samples reflected below the horizon carry their share), so it integrates to exactly 1.
+    # (samples reflected below the horizon carry their share), so it integrates to exactly 1.  VNDF's factor
+    # max(wo . h, 0) needs no test: h ~ wi + wo gives wo . h = (1 + wo . wi) / |wi + wo| >= 0 for unit directions,
+    # and a test on the rounded dot product read 0 for directions the sampler draws at grazing views (sharp lobes).
     if wo[2] <= 0.0:
         return 0.0
-    h = wp.normalize(wi + wo)
-    if h[2] <= 0.0 or wp.dot(wo, h) <= 0.0:
+    h = half_vector(wi, wo)
+    if h[2] <= 0.0:
         return 0.0
     return ggx_g1(wo[2], alpha) * ggx_d(h, alpha) / (4.0 * wp.max(wo[2], COS_EPS))
 
@@ -339,7 +356,7 @@ def npf_eval(mats: MaterialTable, m: int, wi: wp.vec3, wo: wp.vec3):
         return wp.vec3(0.0)
     base = mats.data[m] * NPF_STRIDE
     lin = mats.linear[m]
-    h = wp.normalize(wi + wo)
+    h = half_vector(wi, wo)
     theta_h = angle_to_z(h)
     theta_d = angle_between(wi, h)
     theta_i = angle_to_z(wi)

@@ -122,9 +122,9 @@ import warp as wp
 from precompute.gmm_mipmap import NORMAL_DIM
 from warpbw.envmap import (LUMINANCE_RGB, EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv,
                            load_environment)
-from warpbw.errors import (INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, check_count,
-                           check_device, check_finite_image, check_flag, check_real, check_seed, numeric_array,
-                           unit_directions)
+from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing,
+                           check_count, check_device, check_finite_image, check_flag, check_real, check_seed,
+                           numeric_array, unit_directions)
 from warpbw.gbuffer import CameraData, scene_camera
 from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene, check_scene
 
@@ -1510,6 +1510,13 @@ def gmm_ndf(params, rough_var: float, h, device: str = "cpu") -> np.ndarray:
     if hv.ndim != 2 or hv.shape[1] != 3:
         raise WarpbwError(f"h: expected (N, 3) directions, got shape {hv.shape}")
     p = p.astype(np.float32)
+    # a component's Gaussian has per-axis variance s^2 + rough_var (module docstring): 0 is a delta, which the kernel
+    # read as 0 / 0 = NaN, and below 1 / (2 pi FLOAT32_MAX) = 4.7e-40 its peak 1 / (2 pi var) is inf in float32
+    var = p[:, 3] + np.float32(rough_var)
+    sharp = (p[:, 0] > 0.0) & ~(var > 1.0 / (TWO_PI * FLOAT32_MAX))
+    if sharp.any():
+        raise WarpbwError(f"params: expected s^2 + rough_var > {1.0 / (TWO_PI * FLOAT32_MAX):.2g} for every component "
+                          f"of weight > 0 (a Gaussian of variance 0 is a delta), got {float(var[sharp][0]):g}")
     hh = wp.array(unit_directions(hv, "h").astype(np.float32), dtype=wp.vec3, device=device)
     out = wp.zeros(hh.shape[0], dtype=wp.float32, device=device)
     wp.launch(gmm_ndf_kernel, dim=hh.shape[0], inputs=[wp.array(p, dtype=wp.vec4, device=device), p.shape[0],

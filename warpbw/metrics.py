@@ -86,11 +86,29 @@ def _mse_of(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.mean((a - b) ** 2))
 
 
+def _pow2_below(x) -> np.ndarray:
+    """2^(e - 1) for x = f 2^e (0.5 <= |f| < 1): a power of two within a factor 2 below |x| (1 for x = 0).  Dividing
+    by it is exact, so a metric computed on the scaled values has the same bits, without squares that leave float64
+    (values past 1e154 squared to inf, below 1e-162 to 0)."""
+    return np.ldexp(1.0, np.frexp(x)[1] - 1)
+
+
+def _relmse_terms(a: np.ndarray, b: np.ndarray, eps: float) -> np.ndarray:
+    """(a - b)^2 / (b^2 + eps) per value, numerator and denominator divided by q^2, q = max(1, _pow2_below(max(|a|,
+    |b|))): the same bits below 2, and no inf / inf = NaN where a value's square overflows."""
+    q = np.maximum(_pow2_below(np.maximum(np.abs(a), np.abs(b))), 1.0)
+    return (a / q - b / q) ** 2 / ((b / q) ** 2 + eps / q / q)
+
+
 def _relmse_of(a: np.ndarray, b: np.ndarray, eps: float) -> float:
-    return float(np.mean((a - b) ** 2 / (b * b + eps)))
+    return float(np.mean(_relmse_terms(a, b, eps)))
 
 
 def _psnr_of(a: np.ndarray, b: np.ndarray) -> float:
+    # PSNR does not depend on the scale: both images divided by a power of two near their largest magnitude first
+    # (a reference of 1.3e154 against a black test gave inf / inf = NaN; values of 1e-200 gave an MSE of 0, inf dB)
+    s = _pow2_below(max(float(np.max(np.abs(a))), float(np.max(np.abs(b)))))
+    a, b = a / s, b / s
     m = _mse_of(a, b)
     peak = float(np.max(b))
     if m == 0.0:
@@ -103,7 +121,7 @@ def _psnr_of(a: np.ndarray, b: np.ndarray) -> float:
 def _relmse_map_of(a: np.ndarray, b: np.ndarray, m: np.ndarray, masked: bool, eps: float) -> np.ndarray:
     if a.ndim == 2:                               # one channel: the mean over channels is the value itself
         a, b = a[..., None], b[..., None]
-    e = np.mean((a - b) ** 2 / (b * b + eps), axis=-1)
+    e = np.mean(_relmse_terms(a, b, eps), axis=-1)
     return np.where(m, e, 0.0) if masked else e
 
 

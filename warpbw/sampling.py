@@ -59,6 +59,9 @@ TABLE_VERSION = 2    # 2: bins average VIEW_SUBSAMPLES view elevations (session 
 
 HALF_PI = 0.5 * math.pi
 TWO_PI = 2.0 * math.pi
+# Below this wo . h, tab_pdf takes it as |wi + wo| / 2 (equal for unit directions, ours): the rounded dot product's
+# error, about 1e-7, is then under 1e-4 of it.
+COS_D_EXACT = 1.0e-3
 
 
 @wp.struct
@@ -131,8 +134,15 @@ def tab_pdf(samplers: TabulatedSamplers, s: int, wi: wp.vec3, wo: wp.vec3):
     nu = samplers.n_u
     npf = samplers.n_phi
     j = theta_o_bin(samplers, wo)
-    h = wp.normalize(wi + wo)
-    if h[2] <= 0.0 or wp.dot(wo, h) <= 0.0:
+    s_io = wi + wo
+    h = wp.normalize(s_io)
+    # wo . h = |wi + wo| / 2 for unit wi, wo (|wi + wo|^2 = 2 + 2 wi . wo): at a grazing view the rounded dot
+    # product of wo and h lost its digits and read <= 0 for directions tab_sample draws (pdf 0: weights of up to
+    # f pi / TAB_COSINE_MIX), so where it is small the length is taken instead
+    cos_d = wp.dot(wo, h)
+    if cos_d < COS_D_EXACT:
+        cos_d = 0.5 * wp.length(s_io)
+    if h[2] <= 0.0 or cos_d <= 0.0:
         return 0.0
     theta_h = angle_to_z(h)
     uh = wp.sqrt(theta_h / HALF_PI)
@@ -142,7 +152,7 @@ def tab_pdf(samplers: TabulatedSamplers, s: int, wi: wp.vec3, wo: wp.vec3):
     b = wp.clamp(int(rel / TWO_PI * float(npf)), 0, npf - 1)
     p_uphi = samplers.density[((s * nt + j) * nu + a) * npf + b]
     # (u, phi_h) -> half-vector solid angle -> reflected direction (002 Sec. 3.3 change of variables)
-    jac = wp.sin(theta_h) * wp.pi * uh * 4.0 * wp.max(wp.dot(wo, h), 0.0)
+    jac = wp.sin(theta_h) * wp.pi * uh * 4.0 * cos_d
     return p_uphi / wp.max(jac, 1.0e-12)
 
 
