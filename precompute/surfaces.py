@@ -222,10 +222,13 @@ def nyquist_share(h: np.ndarray) -> float:
     h = numeric_array(h, "nyquist_share: h", "a height field (H, W)")
     if h.ndim != 2 or h.size == 0:   # (N,): an IndexError; None: 0.0
         raise WarpbwError(f"nyquist_share: expected a non-empty height field (H, W), got shape {h.shape}")
-    var = float(h.var())
-    if not math.isfinite(var):   # NaN heights read as share 0 (no hidden detail)
-        raise WarpbwError("nyquist_share: expected finite heights, got NaN or infinite ones (or a variance beyond "
-                          "float64)")
+    with np.errstate(over="ignore", invalid="ignore"):   # handled below
+        var = float(h.var())
+    if not math.isfinite(var):
+        if not np.all(np.isfinite(h)):   # NaN heights read as share 0 (no hidden detail)
+            raise WarpbwError("nyquist_share: expected finite heights, got NaN or infinite ones")
+        h = h / np.max(np.abs(h))   # the share is scale-free: heights of 1e300 overflowed the variance alone
+        var = float(h.var())
     if not var > 0.0:
         return 0.0
     shares = [float(np.mean(np.square(np.mean(np.moveaxis(h, axis, -1) * (-1.0) ** np.arange(h.shape[axis]), -1))))

@@ -3244,3 +3244,13 @@ def test_api_edge_inputs_that_are_valid_still_work():
     assert np.allclose(mean, [[[0.6, 0.0, 0.8]]]) and np.allclose(second, [[[0.36, 0.0, 0.0]]])
     # T_d = [[1, 0], [-d, 1]] (002 Fig. 4): an infinite distance shears nu_a to -inf, nu_s unchanged
     assert np.array_equal(apply_operator("T", [[1.0, 1.0]], d=np.inf), [[1.0, -np.inf]])
+
+
+def test_nyquist_share_is_scale_free_up_to_float64s_top():
+    """A checkerboard alternates from texel to texel: all of its variance is at frequency 1/2 (share 1), at any
+    height; at 1e300 the variance overflowed, and the check for NaN heights must not refuse it."""
+    from precompute.surfaces import nyquist_share
+
+    board = (np.indices((4, 6)).sum(axis=0) % 2).astype(np.float64)
+    assert nyquist_share(board) == pytest.approx(1.0)
+    assert nyquist_share(1e300 * board) == pytest.approx(1.0)

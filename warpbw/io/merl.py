@@ -187,7 +187,7 @@ def merl_eval(brdf: MerlBRDF, wi, wo, interpolate: bool = False) -> np.ndarray:
     """
     # a path or None: "'str' object has no attribute 'data'"; tabulate_merl's array: its .data (a memoryview) gave
     # numpy's NotImplementedError "sub-views are not implemented"
-    if not isinstance(brdf, MerlBRDF):
+    if isinstance(brdf, np.ndarray) or not hasattr(brdf, "data"):
         raise WarpbwError(f"merl_eval: brdf is {type(brdf).__name__}, expected a MerlBRDF (read_merl(path) reads one)")
     interpolate = check_flag(interpolate, "merl_eval: interpolate")   # "no" is truthy: trilinear
     wi, wo = check_direction_pairs(wi, wo)
