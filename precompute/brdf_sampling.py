@@ -35,7 +35,7 @@ import numpy as np
 from precompute.assetfile import read_asset, write_asset
 from precompute.progress import progress_callback
 from warpbw.io.staged import check_name_length
-from warpbw.errors import WarpbwError, check_input_file
+from warpbw.errors import WarpbwError, check_input_file, check_instance
 from warpbw.sampling import (N_PHI, N_THETA_O, N_U, TABLE_FORMAT, TABLE_VERSION, VIEW_SUBSAMPLES, SamplerTable,
                              build_sampler_table, directional_albedo)
 
@@ -145,6 +145,7 @@ TABLE_CONSISTENCY_TOL = 1e-3
 def sampling_problem(table: SamplerTable) -> str | None:
     """What makes ``table`` no sampler ``build_sampler_table`` could have built, or None: CDFs that do not rise
     from 0 to 1, or a density that is not the one they sample (what the writer and the reader both refuse)."""
+    check_instance(table, SamplerTable, "sampling_problem: table", "a SamplerTable (build_sampler_table's)")
     m, c, d = (np.asarray(x, np.float64) for x in (table.marginal, table.conditional, table.density))
     for name, cdf in (("marginal", m), ("conditional", c)):
         if np.any(cdf[..., 0] != 0.0) or np.any(np.abs(cdf[..., -1] - 1.0) > TABLE_CONSISTENCY_TOL) \

@@ -219,8 +219,16 @@ def nyquist_share(h: np.ndarray) -> float:
     """The share of the variance of height field ``h`` that alternates from texel to texel along a row or a column
     (its DFT at frequency 1/2 along that axis, an even side only; the larger of the two): detail that central
     differences, (h[j+1] - h[j-1]) / 2, do not see (0 for a constant field)."""
-    h = np.asarray(h, dtype=np.float64)
-    var = float(h.var())
+    h = numeric_array(h, "nyquist_share: h", "a height field (H, W)")
+    if h.ndim != 2 or h.size == 0:   # (N,): an IndexError; None: 0.0
+        raise WarpbwError(f"nyquist_share: expected a non-empty height field (H, W), got shape {h.shape}")
+    with np.errstate(over="ignore", invalid="ignore"):   # handled below
+        var = float(h.var())
+    if not math.isfinite(var):
+        if not np.all(np.isfinite(h)):   # NaN heights read as share 0 (no hidden detail)
+            raise WarpbwError("nyquist_share: expected finite heights, got NaN or infinite ones")
+        h = h / np.max(np.abs(h))   # the share is scale-free: heights of 1e300 overflowed the variance alone
+        var = float(h.var())
     if not var > 0.0:
         return 0.0
     shares = [float(np.mean(np.square(np.mean(np.moveaxis(h, axis, -1) * (-1.0) ** np.arange(h.shape[axis]), -1))))

@@ -3069,3 +3069,185 @@ def test_options_the_run_would_drop_or_misname_are_refused_in_its_own_words(tmp_
                           "leave --material out", prog="warpbw-precompute")
     assert_no_outputs(tmp_path)
     assert not any((tmp_path / n).exists() for n in ("o.exr", "b.json", "t.npz"))
+
+
+def _api_cases():
+    """Python API audit, session 65: each public stage function called with bad input (api_scratch/report.md of the
+    session).  Each case: (call taking a scratch folder, the refusal's start or a part of it)."""
+    from types import SimpleNamespace
+
+    from precompute import brdf_sampling, surfaces
+    from warpbw import bandwidth, bandwidth_ops, envmap, filtering, gbuffer, pyramid, sampling, shading
+    from warpbw.io import exr, merl
+
+    def lambert(wi, wo):
+        return np.full((len(wi), 3), 1.0 / np.pi)
+
+    def table(**kw):
+        return sampling.build_sampler_table(lambert, **{"n_theta_o": 2, "n_u": 4, "n_phi": 4, "sub": 1, **kw})
+
+    unit = np.zeros((4, 4, 3))
+    unit[..., 2] = 1.0
+    nan_normal = unit.copy()
+    nan_normal[1, 2] = np.nan
+    return {
+        "fetch_gmm level 1 the size of level 0 (read at other texels)": (
+            lambda d: filtering.fetch_gmm([np.zeros((2, 2, 1, 4)), np.zeros((2, 2, 1, 4))], 0.5, 0.5, 1.0),
+            "levels[1]: expected level 0's (2, 2) halved 1 times (rounded up), (1, 1), got (2, 2)"),
+        "fetch_gmm a level below 1x1": (
+            lambda d: filtering.fetch_gmm([np.zeros((1, 1, 1, 4)), np.zeros((1, 1, 1, 4))], 0.5, 0.5, 0.0),
+            "levels: expected at most 1 levels for a level 0 of (1, 1)"),
+        "normal_moment_mipmap (H, W) (numpy's broadcast error)": (
+            lambda d: filtering.normal_moment_mipmap(np.ones((4, 4))), "normals: expected unit normals (H, W, 3)"),
+        "normal_moment_mipmap None (an IndexError)": (
+            lambda d: filtering.normal_moment_mipmap(None), "normals: expected unit normals (H, W, 3)"),
+        "normal_moment_mipmap a NaN normal (NaN on every level)": (
+            lambda d: filtering.normal_moment_mipmap(nan_normal), "1 of 16 are not (the first, texel (1, 2)"),
+        "normal_moment_mipmap normals 5 long (means 5 long)": (
+            lambda d: filtering.normal_moment_mipmap(5.0 * unit), "normals: expected unit normals (length 1 within"),
+        "roughness_variance '0.3' (squared as 0.045)": (
+            lambda d: filtering.roughness_variance("0.3"), "m (roughness): expected a finite number >= 0"),
+        "roughness_variance NaN": (lambda d: filtering.roughness_variance(np.nan), "m (roughness): expected"),
+        "roughness_variance None (float()'s TypeError)": (lambda d: filtering.roughness_variance(None),
+                                                         "m (roughness): expected"),
+        "build_sampler_table n_u 0 (ZeroDivisionError)": (lambda d: table(n_u=0), "build_sampler_table: n_u"),
+        "build_sampler_table n_phi 2.5 (numpy's TypeError)": (lambda d: table(n_phi=2.5), "build_sampler_table: n_phi"),
+        "build_sampler_table n_theta_o -1 (numpy's ValueError)": (lambda d: table(n_theta_o=-1),
+                                                                 "build_sampler_table: n_theta_o"),
+        "build_sampler_table brdf None": (lambda d: sampling.build_sampler_table(None),
+                                          "build_sampler_table takes a function (wi, wo)"),
+        "build_sampler_table values (N,) (numpy's matmul error)": (
+            lambda d: sampling.build_sampler_table(lambda wi, wo: np.ones(len(wi)), n_theta_o=1, n_u=2, n_phi=2),
+            "build_sampler_table: the BRDF returned shape"),
+        "pack_samplers [None] (an AttributeError)": (lambda d: sampling.pack_samplers([None]),
+                                                     "pack_samplers: tables[0]: expected a SamplerTable"),
+        "pack_samplers None (packed as no table)": (lambda d: sampling.pack_samplers(None),
+                                                    "pack_samplers: tables: expected a list"),
+        "pack_samplers tables of two shapes (a ValueError)": (
+            lambda d: sampling.pack_samplers([table(), table(n_u=2)]), "pack_samplers: sampling tables of different"),
+        "env_signal log of a black map (NaN everywhere)": (lambda d: bandwidth.env_signal(np.zeros((4, 8)), "log"),
+                                                           "env_signal: the log signal divides"),
+        "nyquist_share NaN heights (share 0)": (lambda d: surfaces.nyquist_share(np.full((4, 4), np.nan)),
+                                               "nyquist_share: expected finite heights"),
+        "nyquist_share (N,) (an IndexError)": (lambda d: surfaces.nyquist_share(np.ones(8)),
+                                              "nyquist_share: expected a non-empty height field (H, W)"),
+        "write_false_colour_png log 'no' (a log scale)": (
+            lambda d: exr.write_false_colour_png(d / "m.png", np.ones((2, 2)), log="no"),
+            "log: expected True or False"),
+        "rgb_of an array (an AttributeError)": (lambda d: exr.rgb_of(np.zeros((2, 2, 3))),
+                                                "rgb_of: expected an ExrImage"),
+        "camera_rays None": (lambda d: gbuffer.camera_rays(None), "camera_rays: cam: expected a CameraData"),
+        "check_reach of a scene Camera": (lambda d: gbuffer.check_reach(SimpleNamespace(), None),
+                                          "check_reach: cam: expected a CameraData"),
+        "ensure_curvature None": (lambda d: gbuffer.ensure_curvature(None), "ensure_curvature: geometry: expected"),
+        "build_mip_pyramid of EnvMapData": (lambda d: envmap.build_mip_pyramid(envmap.constant_envmap(1.0).data),
+                                            "build_mip_pyramid: env: expected an EnvMap"),
+        "covered_pixels None": (lambda d: shading.covered_pixels(None), "covered_pixels: gb: expected a GBuffer"),
+        "pixel_angle None": (lambda d: bandwidth.pixel_angle(None), "pixel_angle: cam: expected a CameraData"),
+        "allocate_samples None": (lambda d: bandwidth.allocate_samples(None, 4.0),
+                                  "allocate_samples: buf: expected a BandwidthBuffer"),
+        "zoomed_camera None": (lambda d: filtering.zoomed_camera(None, 2.0), "zoomed_camera: camera: expected"),
+        "plane_objects None": (lambda d: filtering.plane_objects(None), "plane_objects: scene: expected a Scene"),
+        "sampling_problem None": (lambda d: brdf_sampling.sampling_problem(None),
+                                  "sampling_problem: table: expected a SamplerTable"),
+        "procedural_sky width 8.5 (drawn 8 wide)": (lambda d: envmap.procedural_sky(8.5, 4),
+                                                    "procedural_sky: width: expected an integer >= 1"),
+        "procedural_sky sun_radiance 1e39 (inf in float32)": (
+            lambda d: envmap.procedural_sky(8, 4, sun_radiance=1e39), "procedural_sky: sun_radiance: expected"),
+        "transport_matrix NaN (a matrix of NaN)": (lambda d: bandwidth_ops.transport_matrix(np.nan),
+                                                   "d: expected a number, got NaN"),
+        "apply_operator d 1e39 (inf in the kernel)": (
+            lambda d: bandwidth_ops.apply_operator("T", [[1.0, 1.0]], d=1e39), "parameter d: 1e+39 is beyond float32"),
+        "apply_operator nu 1e39 (inf in the kernel)": (
+            lambda d: bandwidth_ops.apply_operator("S", [[1e39, 1.0]]), "nu: 1e+39 is beyond float32's range"),
+        "curvature_pyramid absolute 'no' (|curvature| taken)": (
+            lambda d: pyramid.curvature_pyramid(-np.ones((2, 2)), absolute="no"),
+            "curvature_pyramid: absolute: expected True or False"),
+        "estimator_variance mis 'no' (MIS's variance)": (
+            lambda d: bandwidth.BandwidthBuffer.estimator_variance(SimpleNamespace(variance_mis=1, variance_bis=2),
+                                                                   "no"), "estimator_variance: mis: expected True"),
+        "tile_ranges tile 0 (range()'s ValueError)": (lambda d: shading.tile_ranges(10, 0), "tile_ranges: tile"),
+        "tile_ranges n_items -1 (no tile)": (lambda d: shading.tile_ranges(-1, 4), "tile_ranges: n_items"),
+        "merl_eval of tabulate_merl's array (numpy's NotImplementedError)": (
+            lambda d: merl.merl_eval(np.zeros((90, 90, 180, 3)), [[0, 0, 1]], [[0, 0, 1]]),
+            "merl_eval: brdf is ndarray, expected a MerlBRDF"),
+        "merl_eval interpolate 'no' (trilinear)": (
+            lambda d: merl.merl_eval(merl.MerlBRDF("m", None, np.zeros((90, 90, 180, 3), np.float32)), [[0, 0, 1]],
+                                     [[0, 0, 1]], interpolate="no"), "merl_eval: interpolate: expected True or False"),
+        "diffuse_pick NaN diffuse (0.5)": (lambda d: filtering.diffuse_pick((np.nan, 0, 0), (0.5, 0.5, 0.5)),
+                                           "diffuse_pick: diffuse: expected three finite numbers >= 0"),
+        "diffuse_pick inf f0 (NaN)": (lambda d: filtering.diffuse_pick((0.5, 0.5, 0.5), (np.inf, 0, 0)),
+                                      "diffuse_pick: f0: expected three finite numbers >= 0"),
+        "gmm_ndf a weight of 1e39 (inf in float32)": (
+            lambda d: filtering.gmm_ndf([[1e39, 0.0, 0.0, 0.1]], 0.01, [[0.0, 0.0, 1.0]]),
+            "params: expected finite (K, 4) components (a, mu_x, mu_y, s^2 >= 0) within float32's range"),
+    }
+
+
+API_CASES = _api_cases()
+
+
+@pytest.mark.parametrize("case", sorted(API_CASES))
+def test_api_functions_refuse_bad_input_in_one_line(tmp_path, case):
+    """Before session 65 each of these was a traceback from inside numpy or the function (ZeroDivisionError,
+    AttributeError, numpy's broadcast and matmul errors) or a silently wrong result (NaN, a string squared)."""
+    call, needle = API_CASES[case]
+    with pytest.raises(WarpbwError, match=re.escape(needle)) as ei:
+        call(tmp_path)
+    assert "\n" not in str(ei.value)
+
+
+# In a child, after its imports, with its address space capped 2 GB above what it holds: on the old code the first
+# case died of SIGFPE and the second never returned, filling memory (12 GB in four minutes).
+_CHILD = """
+import resource, sys
+import numpy as np
+from warpbw import filtering
+from warpbw.errors import WarpbwError
+held = int(next(l for l in open("/proc/self/status") if l.startswith("VmSize")).split()[1]) * 1024
+resource.setrlimit(resource.RLIMIT_AS, (held + 2 * 2**30, resource.getrlimit(resource.RLIMIT_AS)[1]))
+try:
+    {call}
+except WarpbwError as exc:
+    print("WarpbwError:", exc)
+"""
+
+
+@pytest.mark.parametrize("call, needle", [
+    ("filtering.fetch_gmm([np.zeros((0, 0, 1, 4))], 0.5, 0.5, 0.0)", "levels[0]: expected at least 1x1 texels"),
+    ("filtering.normal_moment_mipmap(np.zeros((0, 4, 3)))", "normals: expected unit normals (H, W, 3) of at least 1x1"),
+], ids=["fetch_gmm empty level (SIGFPE)", "normal_moment_mipmap empty (endless loop)"])
+def test_api_inputs_that_crashed_or_hung_the_process_are_refused(tmp_path, call, needle):
+    env = {**os.environ, "WARPBW_CACHE": str(tmp_path)}
+    try:
+        r = subprocess.run([sys.executable, "-c", _CHILD.format(call=call)], capture_output=True, text=True,
+                           timeout=300, env=env, cwd=tmp_path)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"{call} did not return within 300 s")
+    last = (r.stdout.strip().splitlines() or [""])[-1]   # after Warp's banner
+    assert r.returncode == 0 and last.startswith("WarpbwError: ") and needle in last, \
+        (r.returncode, r.stdout, r.stderr[-800:])
+
+
+def test_api_edge_inputs_that_are_valid_still_work():
+    """The session 65 checks refuse only what is wrong: no item has no tile (it was an IndexError with costs), a
+    1x1 normal map is one level, inf parameters still reach the operators, and float32 unit normals pass."""
+    from warpbw.bandwidth_ops import apply_operator
+    from warpbw.filtering import normal_moment_mipmap
+    from warpbw.shading import tile_ranges
+
+    assert tile_ranges(0, 4, np.zeros(0)) == [] and tile_ranges(0, 4) == []
+    (mean, second), = normal_moment_mipmap(np.array([[[0.6, 0.0, 0.8]]], np.float32))
+    assert np.allclose(mean, [[[0.6, 0.0, 0.8]]]) and np.allclose(second, [[[0.36, 0.0, 0.0]]])
+    # T_d = [[1, 0], [-d, 1]] (002 Fig. 4): an infinite distance shears nu_a to -inf, nu_s unchanged
+    assert np.array_equal(apply_operator("T", [[1.0, 1.0]], d=np.inf), [[1.0, -np.inf]])
+
+
+def test_nyquist_share_is_scale_free_up_to_float64s_top():
+    """A checkerboard alternates from texel to texel: all of its variance is at frequency 1/2 (share 1), at any
+    height; at 1e300 the variance overflowed, and the check for NaN heights must not refuse it."""
+    from precompute.surfaces import nyquist_share
+
+    board = (np.indices((4, 6)).sum(axis=0) % 2).astype(np.float64)
+    assert nyquist_share(board) == pytest.approx(1.0)
+    assert nyquist_share(1e300 * board) == pytest.approx(1.0)

@@ -580,8 +580,14 @@ def env_signal(lum: np.ndarray, signal: str = ENV_SIGNAL_DEFAULT) -> np.ndarray:
     compressed to a few times the sky's level no longer fills the coarse bands of every texel within reach of its
     wavelets."""
     if check_env_signal(signal) == "log":
+        lum = numeric_array(lum, "env_signal: lum", "luminance values")
         # the mean in float64: a float32 sum of a probe at 1e36 overflowed to inf (numpy warned, the log read 0)
-        return np.log1p(np.asarray(lum, np.float64) / float(np.mean(lum, dtype=np.float64)))
+        mean = float(np.mean(lum)) if lum.size else math.nan
+        if not (math.isfinite(mean) and mean > 0.0 and lum.min() >= 0.0):   # a black map's 0 / 0: NaN at every texel
+            raise WarpbwError(f"env_signal: the log signal divides the luminance by its mean: expected finite "
+                              f"luminance >= 0 with a mean > 0, got mean {mean:g}" + (f", minimum {lum.min():g}"
+                                                                                     if lum.size else ""))
+        return np.log1p(lum / mean)
     return lum
 
 
@@ -694,6 +700,7 @@ def direction_set(n_b: int, seed: int = 0) -> np.ndarray:
 
 def pixel_angle(cam: CameraData) -> float:
     """max(f_x / W, f_y / H) of Eq. 6: radians per pixel (full fields of view f_x, f_y)."""
+    check_instance(cam, CameraData, "pixel_angle: cam", "a CameraData (make_camera's)")
     fx = 2.0 * math.atan(cam.tan_half_x)
     fy = 2.0 * math.atan(cam.tan_half_y)
     return max(fx / cam.width, fy / cam.height)
@@ -727,6 +734,7 @@ class BandwidthBuffer:
 
     def estimator_variance(self, mis: bool = True) -> wp.array | None:
         """The measured variance of the frame's estimator: MIS's, or BRDF sampling's alone (where measured)."""
+        mis = check_flag(mis, "estimator_variance: mis")   # "no" is truthy: MIS's variance
         return self.variance_mis if mis or self.variance_bis is None else self.variance_bis
 
 
@@ -895,6 +903,7 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     pass the frame's own, as ``render_adaptive`` does).  A key that is not finite and >= 0 at a covered pixel (the
     pass's float32 squares overflowed) is refused: no N_p then keeps the budget.  Module docstring."""
     check_device(device)
+    check_instance(buf, BandwidthBuffer, "allocate_samples: buf", "a BandwidthBuffer (bandwidth_pass's)")
     mis = check_flag(mis, "mis")
     if allocation not in ALLOCATIONS:
         raise WarpbwError(f"allocation: expected one of {', '.join(ALLOCATIONS)}, got {allocation!r}")

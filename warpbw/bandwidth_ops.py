@@ -64,7 +64,7 @@ import numbers
 import numpy as np
 import warp as wp
 
-from warpbw.errors import WarpbwError, check_device, numeric_array
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_device, numeric_array
 
 # Grazing clamp of P_x (002 Fig. 4 has 1 / cos theta_x, unbounded at the silhouette): cos theta_x
 # below 1e-3 (theta_x > 89.94 deg) counts as 1e-3, so P_x scales nu_s by at most 1000.  The image-space
@@ -178,6 +178,8 @@ def _scalar(value, name: str) -> float:
     """A matrix's parameter as a float, else a one-line ``WarpbwError`` ("a" and [1, 2] gave float()'s errors)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real, np.ndarray)) or np.ndim(value):
         raise WarpbwError(f"{name}: expected one number, got {value!r:.60}")
+    if math.isnan(float(value)):   # a matrix of NaN, where apply_operator refuses a NaN parameter
+        raise WarpbwError(f"{name}: expected a number, got NaN")
     return float(value)
 
 
@@ -248,18 +250,29 @@ def _bandwidth_op_kernel(op: int, nu: wp.array(dtype=wp.vec2), p: wp.array2d(dty
     out[i] = r
 
 
+def _check_float32(name: str, a: np.ndarray) -> None:
+    """Refuse finite values beyond float32's range: the kernel takes float32, where 1e39 became inf without a word."""
+    big = np.isfinite(a) & (np.abs(a) > FLOAT32_MAX)
+    if big.any():
+        raise WarpbwError(f"{name}: {a[big].reshape(-1)[0]:.3g} is beyond float32's range (+-{FLOAT32_MAX:.4g}, as the "
+                          "kernel takes it); expected a smaller value, or inf")
+
+
 def apply_operator(op: str, nu, *, d=0.0, dp=0.0, cos_i=1.0, cos_x=1.0, c=0.0, t=0.0, rho=math.inf,
                    device: str = "cpu") -> np.ndarray:
     """Apply the operator named ``op`` (a key of ``OPS``) to N bandwidth vectors ``nu`` (N, 2) -> (N, 2).
 
     Parameters are scalars or length-N arrays (broadcast); only the ones the operator uses matter.
-    ``t`` and ``rho`` are bandwidths and must be >= 0 (rho may be inf); NaN parameters are refused.
+    ``t`` and ``rho`` are bandwidths and must be >= 0 (rho may be inf); NaN parameters are refused, and so are finite
+    values (of ``nu`` too) beyond float32's range, which the kernel would read as inf.
     Cosines lie in [-1, 1]; "P_i" alone is the signed matrix, while P_x, and P_i inside R and Eq. 4, take |cos|.
     """
     if op not in OPS:
         raise WarpbwError(f"unknown bandwidth operator {op!r}; expected one of {sorted(OPS)}")
     check_device(device)
-    v = numeric_array(nu, "nu", "(N, 2) bandwidths").astype(np.float32)   # strings: numpy's ValueError
+    nu = numeric_array(nu, "nu", "(N, 2) bandwidths")   # strings: numpy's ValueError
+    _check_float32("nu", nu)
+    v = nu.astype(np.float32)
     if v.ndim == 1:
         v = v.reshape(1, -1)
     if v.ndim != 2 or v.shape[1] != 2:
@@ -282,6 +295,7 @@ def apply_operator(op: str, nu, *, d=0.0, dp=0.0, cos_i=1.0, cos_x=1.0, c=0.0, t
             raise WarpbwError(f"parameter {name} has {col.size} values for {n} bandwidth vectors")
         if np.isnan(col).any():
             raise WarpbwError(f"parameter {name} is NaN")
+        _check_float32(f"parameter {name}", col)
         if name in ("t", "rho") and (col < 0).any():
             raise WarpbwError(f"parameter {name} is a bandwidth and must be >= 0, got {col.min()}")
         if name in ("cos_i", "cos_x") and (np.abs(col) > 1.0).any():

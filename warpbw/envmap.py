@@ -78,8 +78,8 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.errors import (WarpbwError, available_memory, check_count, check_device, check_instance, check_seed,
-                           numeric_array, unit_directions, warn_if_short_of_memory)
+from warpbw.errors import (WarpbwError, available_memory, check_count, check_device, check_instance, check_real,
+                           check_seed, numeric_array, unit_directions, warn_if_short_of_memory)
 
 wp.set_module_options({"enable_backward": False})  # no gradients are taken: halves compile time
 
@@ -674,17 +674,13 @@ def procedural_sky(
     sun disk of ``sun_radiance`` (about 100x to 250x the sky) with a soft edge and a faint glow.
     The azimuth follows u: 0 degrees is -Z, 90 degrees is +X. Deterministic, no file needed.
     """
-    width = int(width)
-    height = int(height)
-    if width < 1 or height < 2:
-        raise WarpbwError(f"procedural_sky: need width >= 1 and height >= 2, got {width}x{height}")
-    for what, v in (("sun_elevation_deg", sun_elevation_deg), ("sun_azimuth_deg", sun_azimuth_deg)):
-        if not math.isfinite(v):   # NaN made the whole map NaN
-            raise WarpbwError(f"procedural_sky: {what} {v!r}: expected finite degrees")
-    if not 0.0 < sun_radius_deg < math.inf:
-        raise WarpbwError(f"procedural_sky: sun_radius_deg {sun_radius_deg!r}: expected finite degrees > 0")
-    if not 0.0 <= sun_radiance < math.inf:
-        raise WarpbwError(f"procedural_sky: sun_radiance {sun_radiance!r}: expected a finite radiance >= 0")
+    width = check_count(width, "procedural_sky: width", 1)   # 8.5 was drawn 8 wide, None was int()'s TypeError
+    height = check_count(height, "procedural_sky: height", 2)
+    # NaN made the whole map NaN; "35" was math.isfinite's TypeError; a radiance of 1e39 is inf in float32
+    sun_elevation_deg = check_real(sun_elevation_deg, "procedural_sky: sun_elevation_deg (degrees)")
+    sun_azimuth_deg = check_real(sun_azimuth_deg, "procedural_sky: sun_azimuth_deg (degrees)")
+    sun_radius_deg = check_real(sun_radius_deg, "procedural_sky: sun_radius_deg (degrees)", 0.0, lo_open=True)
+    sun_radiance = check_real(sun_radiance, "procedural_sky: sun_radiance", 0.0)
     d = texel_directions(width, height)
     el = math.radians(sun_elevation_deg)
     az = math.radians(sun_azimuth_deg)
@@ -738,6 +734,7 @@ def eval_radiance(env: EnvMap, dirs) -> np.ndarray:
 def build_mip_pyramid(env: EnvMap) -> EnvMap:
     """Build ``env``'s MIP pyramid (``build_mip_levels``) and put it on the device, once; returns ``env``.  A
     kernel that calls ``env_radiance_lod`` needs it: before it, every lod reads level 0."""
+    check_instance(env, EnvMap, "build_mip_pyramid: env", "an EnvMap (load_envmap, constant_envmap, ...)")
     if env._mips is None:
         levels = build_mip_levels(env.pixels)
         offsets = np.cumsum([0] + [lv.shape[0] * lv.shape[1] for lv in levels[:-1]]).astype(np.int32)

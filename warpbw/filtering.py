@@ -123,8 +123,8 @@ from precompute.gmm_mipmap import NORMAL_DIM
 from warpbw.envmap import (LUMINANCE_RGB, EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv,
                            load_environment)
 from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing,
-                           check_count, check_device, check_finite_image, check_flag, check_real, check_seed,
-                           numeric_array, unit_directions)
+                           check_count, check_device, check_finite_image, check_flag, check_instance, check_real,
+                           check_seed, numeric_array, unit_directions)
 from warpbw.gbuffer import CameraData, scene_camera
 from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene, check_scene
 
@@ -150,6 +150,9 @@ MIN_MEAN_LENGTH = 1e-4
 TOKSVIG_LENGTH_EPS = 1e-6
 # wo_z below this (a grazing view of the macro surface) shades nothing: 1 / (4 wo_z) would blow up.
 MIN_COS = 1e-4
+# How far from unit length a normal ``normal_moment_mipmap`` takes may be: float32 maps renormalised in float64
+# are within 1e-7; a vector 5 long was averaged as it was, its level's mean normal and moments 5 and 25 times too large.
+UNIT_LENGTH_TOL = 1e-3
 # LOD bias (levels): trilinear filtering at log2(footprint) blurs over a bilinear tent of level-l texels that
 # are themselves box averages -- a filter of variance 4^l / 12 + 4^l / 6 = 4^l / 4 finest texels^2, where the
 # pixel's box of side rho has rho^2 / 12.  Equal variances at l = log2(rho) - log2(3) / 2: the mipmap then
@@ -216,7 +219,8 @@ PLANE_REACH_MAX = NO_HIT / 10.0
 
 def roughness_variance(m: float) -> float:
     """Per-axis variance of the Gaussian NDF of roughness m: m^2 / 2 (Beckmann's slope variance)."""
-    return 0.5 * float(m) * float(m)
+    m = check_real(m, "m (roughness)", 0.0)   # "0.3" was squared as 0.045, None was float()'s TypeError, NaN NaN
+    return 0.5 * m * m
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -865,7 +869,16 @@ def normal_moment_mipmap(normals) -> list:
     """Box-filtered normal mipmap of unit normals (H, W, 3): levels finest first (ceil-halving to 1x1, as
     ``precompute.gmm_mipmap.level_shapes``), each a pair (mean normal (h, w, 3), second moments of the
     projected normals (h, w, 3) = (E[x^2], E[y^2], E[xy])), means over the texel's clipped footprint."""
-    n = np.asarray(normals, np.float64)
+    n = numeric_array(normals, "normals", "unit normals (H, W, 3)")
+    if n.ndim != 3 or n.shape[2] != 3 or n.size == 0:   # an empty map never halved to 1x1: a loop that filled memory
+        raise WarpbwError(f"normals: expected unit normals (H, W, 3) of at least 1x1 texels, got shape {n.shape}")
+    off = np.abs(np.linalg.norm(n, axis=-1) - 1.0)   # NaN too: it spread to every level above its texel
+    if not np.all(off <= UNIT_LENGTH_TOL):
+        k = int(np.argmax(~(off <= UNIT_LENGTH_TOL)))
+        at = tuple(int(i) for i in np.unravel_index(k, off.shape))
+        raise WarpbwError(f"normals: expected unit normals (length 1 within {UNIT_LENGTH_TOL:g}), "
+                          f"{int(np.sum(~(off <= UNIT_LENGTH_TOL)))} of {off.size} are not (the first, texel {at}: "
+                          f"{n.reshape(-1, 3)[k].tolist()})")
     q = np.concatenate([n, n[..., :1] ** 2, n[..., 1:2] ** 2, n[..., :1] * n[..., 1:2]], axis=-1)
     sums, counts = q, np.ones(q.shape[:2])
     out = [(q[..., :3].astype(np.float32), q[..., 3:].astype(np.float32))]
@@ -944,6 +957,7 @@ class FilteringScene:
 def plane_objects(scene: Scene) -> list:
     """The scene's planes; a scene without one, or with spheres and meshes beside them, is refused: this renderer
     draws planes only (``warpbw.pipeline.render_with_planes``, ``warpbw render``, draw planes beside the others)."""
+    check_instance(scene, Scene, "plane_objects: scene", "a Scene (warpbw.scene.parse_scene's)")
     if not any(isinstance(o, PlaneObject) for o in scene.objects):
         raise WarpbwError(f"{scene.source}: no [[object]] is a plane (the filtering renderer draws planes, shape = "
                           "\"plane\"; render spheres and meshes with warpbw render or warpbw.pipeline)")
@@ -1168,6 +1182,10 @@ def _plane_data(p: PlaneObject, m, mp: _Mips, K: int, lod_bias: float = LOD_BIAS
 
 def diffuse_pick(diffuse, f0) -> float:
     """Probability that the BRDF strategy draws a cosine-weighted direction (``DIFFUSE_PICK_MIN``)."""
+    for name, v in (("diffuse", diffuse), ("f0", f0)):   # NaN gave 0.5, inf NaN, (0.5, 0.5) numpy's dot error
+        rgb = numeric_array(v, f"diffuse_pick: {name}", "an RGB triple")
+        if rgb.shape != (3,) or not (np.all(np.isfinite(rgb)) and np.all(rgb >= 0.0)):
+            raise WarpbwError(f"diffuse_pick: {name}: expected three finite numbers >= 0, got {np.asarray(v).tolist()}")
     ld = float(np.dot(LUMINANCE_RGB, diffuse))
     ls = float(np.dot(LUMINANCE_RGB, f0))
     q = ld / (ld + ls) if ld + ls > 0.0 else 0.5
@@ -1399,6 +1417,7 @@ def plane_distance(scene: Scene, device: str = "cpu") -> np.ndarray:
 
 def zoomed_camera(camera: Camera, zoom: float) -> Camera:
     """The camera moved away from its look-at point: distance times ``zoom``, same resolution and fov."""
+    check_instance(camera, Camera, "zoomed_camera: camera", "a scene's Camera (warpbw.scene.Camera)")
     # a real number > 0: NaN or inf gave a camera at NaN / inf, a negative zoom one behind the look-at point
     zoom = check_real(zoom, "zoom (times the camera's distance to its look_at point)", 0.0, lo_open=True)
     pos = tuple(a + (p - a) * zoom for p, a in zip(camera.position, camera.look_at))
@@ -1475,6 +1494,20 @@ def fetch_gmm(levels, s, t, level, device: str = "cpu") -> np.ndarray:
         if q.ndim != 4 or q.shape[2:] != (K, 4) or K < 1 or not np.all(np.isfinite(q)):
             raise WarpbwError(f"levels[{i}]: expected finite (h, w, K, 4) moments with level 0's K = {K}, got shape "
                               f"{q.shape}")
+    # the kernel wraps texel indices by each level's size: an empty level divided by zero (SIGFPE: the process died),
+    # and a level of another size than level 0 halved was read at other texels than the renderer's
+    from precompute.gmm_mipmap import level_shapes
+
+    if levels[0].shape[0] < 1 or levels[0].shape[1] < 1:
+        raise WarpbwError(f"levels[0]: expected at least 1x1 texels, got shape {levels[0].shape}")
+    chain = level_shapes(*levels[0].shape[:2])
+    if len(levels) > len(chain):
+        raise WarpbwError(f"levels: expected at most {len(chain)} levels for a level 0 of {levels[0].shape[:2]} (down "
+                          f"to 1x1), got {len(levels)}")
+    for i, (q, hw) in enumerate(zip(levels, chain)):
+        if q.shape[:2] != hw:
+            raise WarpbwError(f"levels[{i}]: expected level 0's {levels[0].shape[:2]} halved {i} times (rounded up), "
+                              f"{hw}, got {q.shape[:2]}")
     s, t, level = (numeric_array(v, name) for v, name in ((s, "s"), (t, "t"), (level, "level")))
     try:
         s, t, level = np.broadcast_arrays(s, t, level)
@@ -1505,8 +1538,10 @@ def gmm_ndf(params, rough_var: float, h, device: str = "cpu") -> np.ndarray:
     rough_var = check_real(rough_var, "rough_var (the roughness's per-axis variance)", 0.0)  # < 0: NDF below 0
     # (4, 3) params and (6, 2) directions were reshaped to (3, 4) and (4, 3) without a word
     p, hv = numeric_array(params, "params", "(K, 4) components"), numeric_array(h, "h", "(N, 3) unit directions")
-    if p.ndim != 2 or p.shape[1] != 4 or not np.all(np.isfinite(p)) or np.any(p[:, 3] < 0):
-        raise WarpbwError(f"params: expected finite (K, 4) components (a, mu_x, mu_y, s^2 >= 0), got shape {p.shape}")
+    # 1e39 is inf in float32, as the kernel takes it: an inf or NaN NDF
+    if p.ndim != 2 or p.shape[1] != 4 or not np.all(np.abs(p) <= FLOAT32_MAX) or np.any(p[:, 3] < 0):
+        raise WarpbwError(f"params: expected finite (K, 4) components (a, mu_x, mu_y, s^2 >= 0) within float32's "
+                          f"range, got shape {p.shape}" + (f", values up to {np.abs(p).max():.3g}" if p.size else ""))
     if hv.ndim != 2 or hv.shape[1] != 3:
         raise WarpbwError(f"h: expected (N, 3) directions, got shape {hv.shape}")
     p = p.astype(np.float32)

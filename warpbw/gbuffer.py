@@ -349,6 +349,7 @@ def scene_camera(camera) -> CameraData:
 
 def camera_rays(cam: CameraData):
     """(origins, dirs) of every pixel's primary ray, each (H*W, 3) float64, row-major, row 0 at the top."""
+    check_instance(cam, CameraData, "camera_rays: cam", "a CameraData (make_camera's)")   # None: an AttributeError
     w, h = cam.width, cam.height
     x, y = np.meshgrid(np.arange(w), np.arange(h))
     sx = (2.0 * (x.ravel() + 0.5) / w - 1.0) * cam.tan_half_x
@@ -518,6 +519,7 @@ def ensure_curvature(geometry: Geometry) -> bool:
     """Derive the curvature that ``build_geometry`` deferred (a MeshSpec whose curvature is a callable) and
     upload it, as ``build_geometry`` stores a given one; then nothing is pending.  Returns True when there was
     anything to derive."""
+    check_instance(geometry, Geometry, "ensure_curvature: geometry", "a Geometry (build_geometry's)")
     pending = geometry.curvature_pending
     derived = bool(pending)
     for k in sorted(pending):   # each mesh stays pending until its curvature is on the device
@@ -542,6 +544,8 @@ def check_reach(cam: CameraData, geometry: Geometry, source: str = "") -> None:
     spaces coordinates there by more than ``warpbw.errors.COORD_SPACING_REL_MAX`` of the object's size (a scene
     translated far away): those pixels would come out empty or wrong without a word.  ``source`` (the scene file)
     starts the message when given."""
+    check_instance(cam, CameraData, "check_reach: cam", "a CameraData (make_camera's)")
+    check_instance(geometry, Geometry, "check_reach: geometry", "a Geometry (build_geometry's)")
     o = np.array([cam.origin[0], cam.origin[1], cam.origin[2]], np.float64)
     reaches = ([("sphere", np.linalg.norm(c - o) + r) for c, r in geometry.sphere_bounds]
                + [("mesh", np.linalg.norm(np.where(o < (lo + hi) / 2, hi, lo) - o))    # the farthest corner

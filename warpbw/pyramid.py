@@ -56,7 +56,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from warpbw.errors import WarpbwError, check_count, check_device, is_int
+from warpbw.errors import WarpbwError, check_count, check_device, check_flag, is_int
 
 wp.set_module_options({"enable_backward": False})  # no gradients are taken: halves compile time
 
@@ -335,7 +335,7 @@ def curvature_pyramid(curvature, device=None, *, absolute: bool = True, width: i
     """Screen-space curvature mip-mapped with a MAX filter.  With ``absolute`` (default) the max is
     taken over ``|curvature|``, so concave (negative) regions are not hidden by flat ones."""
     device = _device_of(curvature, device)
-    if not absolute:
+    if not check_flag(absolute, "curvature_pyramid: absolute"):   # "no" is truthy: |curvature| was taken
         return build_pyramid(curvature, "max", device, width=width, height=height)
     c = _as_2d(curvature, wp.float32, width, height, device, "curvature")
     a = wp.empty(c.shape, dtype=wp.float32, device=device)

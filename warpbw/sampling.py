@@ -45,7 +45,7 @@ from typing import Callable, Sequence
 import numpy as np
 import warp as wp
 
-from warpbw.errors import WarpbwError, check_count, check_device, numeric_array
+from warpbw.errors import WarpbwError, check_count, check_device, check_instance, numeric_array
 
 N_THETA_O = 32      # view-elevation bins tabulated (uniform over [0, pi/2))
 N_U = 64            # half-vector elevation cells, theta_h = u^2 pi/2 (MERL-like warp)
@@ -206,7 +206,13 @@ def build_sampler_table(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray],
     over the bin (module docstring; 1: the bin centre's alone).  ``progress(k)`` is called after each view
     elevation bin (for a progress bar).
     """
+    if not callable(brdf):   # "'NoneType' object is not callable" from the first view
+        raise WarpbwError(f"build_sampler_table takes a function (wi, wo) -> BRDF values, got {type(brdf).__name__}")
+    # n_u 0 was a ZeroDivisionError, n_phi 2.5 and n_theta_o -1 numpy's errors
+    n_theta_o, n_u, n_phi, sub = (check_count(v, f"build_sampler_table: {k}", 1) for k, v in
+                                  (("n_theta_o", n_theta_o), ("n_u", n_u), ("n_phi", n_phi), ("sub", sub)))
     sub_views = check_count(sub_views, "sub_views (view elevations per bin)", 1)
+    brdf = _checked_values(brdf, "build_sampler_table")   # values of another shape: numpy's matmul error
     h, jac_h, du, dphi = _half_vector_grid(n_u, n_phi, sub)
 
     marginal = np.zeros((n_theta_o, n_u + 1))
@@ -287,18 +293,19 @@ def directional_albedo(brdf: Callable[[np.ndarray, np.ndarray], np.ndarray], the
     h, jac_h, du, dphi = _half_vector_grid(n_u, n_phi, sub)
 
     def integrals(t: float) -> np.ndarray:
-        f = _cell_integrals(_checked_values(brdf), t, h, jac_h, n_u, n_phi, _rgb)
+        f = _cell_integrals(_checked_values(brdf, "directional_albedo"), t, h, jac_h, n_u, n_phi, _rgb)
         return f.sum(axis=(0, 1)) * (du * dphi)
 
     return np.array([integrals(float(t)) for t in angles]).reshape(len(angles), 3)
 
 
-def _checked_values(brdf):
-    """``brdf`` whose values must be (N, 3) numbers for N direction pairs, else a one-line ``WarpbwError``."""
+def _checked_values(brdf, caller: str):
+    """``brdf`` whose values must be (N, 3) numbers for N direction pairs, else a one-line ``WarpbwError`` that
+    ``caller`` starts."""
     def f(wi, wo):
-        v = numeric_array(brdf(wi, wo), "directional_albedo: the BRDF's values", f"({len(wi)}, 3) numbers")
+        v = numeric_array(brdf(wi, wo), f"{caller}: the BRDF's values", f"({len(wi)}, 3) numbers")
         if v.shape != (len(wi), 3):
-            raise WarpbwError(f"directional_albedo: the BRDF returned shape {v.shape} for {len(wi)} direction pairs, "
+            raise WarpbwError(f"{caller}: the BRDF returned shape {v.shape} for {len(wi)} direction pairs, "
                               f"expected ({len(wi)}, 3)")
         return v
     return f
@@ -307,12 +314,16 @@ def _checked_values(brdf):
 def pack_samplers(tables: Sequence[SamplerTable], device: str = "cpu") -> TabulatedSamplers:
     """Concatenate per-material tables (all of one shape) into a ``TabulatedSamplers`` struct."""
     check_device(device)
+    if not isinstance(tables, (list, tuple)):   # None packed no table: the kernels then read an empty one
+        raise WarpbwError(f"pack_samplers: tables: expected a list of SamplerTable, got {type(tables).__name__}")
+    for i, t in enumerate(tables):   # None: an AttributeError ('shape') from the loop below
+        check_instance(t, SamplerTable, f"pack_samplers: tables[{i}]", "a SamplerTable (build_sampler_table's)")
     s = TabulatedSamplers()
     if tables:
         shape = tables[0].shape
         for t in tables:
             if t.shape != shape:
-                raise ValueError(f"sampling tables of different shapes {t.shape} and {shape}")
+                raise WarpbwError(f"pack_samplers: sampling tables of different shapes {t.shape} and {shape}")
         nt, nu, nphi = shape
         cat = lambda name: np.concatenate([getattr(t, name).reshape(-1) for t in tables])  # noqa: E731
         s.marginal = wp.array(cat("marginal"), dtype=wp.float32, device=device)

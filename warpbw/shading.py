@@ -216,11 +216,15 @@ def tile_ranges(n_items: int, tile: int, costs: np.ndarray | None = None) -> lis
     shares of the total.  An adaptive frame's N_p runs from 1 to hundreds in a compact highlight: tiles of
     equal counts left one thread shading the highlight alone (chrome sphere of examples/bench_scenes.py,
     budget 4: 2 threads shaded in 0.071 s against 0.109 s on one; with tiles of equal cost 0.061 s)."""
+    n_items = check_count(n_items, "tile_ranges: n_items", 0)   # -1 gave no tile, 2.5 a tile of 2.5 items
+    tile = check_count(tile, "tile_ranges: tile", 1)            # 0: range()'s ValueError
     if costs is None:
         return [(o, min(tile, n_items - o)) for o in range(0, n_items, tile)]
     c = np.asarray(costs, np.float64).reshape(-1)
     if c.shape[0] != n_items or not np.all(np.isfinite(c) & (c >= 0)):
         raise WarpbwError(f"tile costs: expected {n_items} finite values >= 0, got {c.shape[0]}")
+    if n_items == 0:   # no running cost to cut: an IndexError
+        return []
     n_tiles = -(-n_items // tile)
     run = np.cumsum(c + 1.0)
     cuts = np.searchsorted(run, run[-1] * np.arange(1, n_tiles) / n_tiles, side="left") + 1
@@ -307,6 +311,7 @@ def lighting_inputs(env_data: EnvMapData | None, lights: Lights | None):
 def covered_pixels(gb: GBuffer, device: str = "cpu") -> wp.array:
     """Indices of the pixels that see geometry, as an int32 device array."""
     check_device(device)
+    check_instance(gb, GBuffer, "covered_pixels: gb", "a GBuffer (render_gbuffer's)")
     idx = np.flatnonzero(gb.coverage.reshape(-1)).astype(np.int32)
     return wp.array(idx, dtype=wp.int32, device=device)
 

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import FLOAT32_MAX, WarpbwError, check_input_file, check_path, one_line
+from warpbw.errors import FLOAT32_MAX, WarpbwError, check_flag, check_input_file, check_path, one_line
 from warpbw.io.exr_layout import exr_damage, first_header_declares
 from warpbw.native_output import captured_native_output
 
@@ -175,6 +175,8 @@ def read_rgb(path) -> np.ndarray:
 def rgb_of(img: ExrImage) -> np.ndarray:
     """``(H, W, 3)`` float32 RGB of an image read by :func:`read_exr` (as :func:`read_rgb`): its own pixels when
     they are R,G,B in that order (no copy), else a new array."""
+    if not isinstance(img, ExrImage):   # a numpy array: an AttributeError ('channels')
+        raise WarpbwError(f"rgb_of: expected an ExrImage (read_exr's), got {type(img).__name__}")
     ch = img.channels
     if ch == ["R", "G", "B"]:
         return img.pixels
@@ -296,6 +298,7 @@ def write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=Fa
     from matplotlib import colormaps
 
     path = check_path(path, "write_false_colour_png: path")
+    log = check_flag(log, f"{path}: log")   # "no" is truthy: a log scale, described as one
     v = np.asarray(values, dtype=np.float64)
     if v.ndim != 2:
         raise WarpbwError(f"{path}: cannot write a false-colour image of shape {v.shape} (expected (H, W))")

@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import (BRDF_VALUE_MAX, WarpbwError, check_direction_pairs, check_input_file, check_path,
-                           numeric_array)
+from warpbw.errors import (BRDF_VALUE_MAX, WarpbwError, check_direction_pairs, check_flag, check_input_file,
+                           check_path, numeric_array)
 from warpbw.io.staged import check_replaceable, staged_outputs
 
 # Table resolution of the MERL database (BRDFRead.cpp: BRDF_SAMPLING_RES_THETA_H = 90,
@@ -185,8 +185,11 @@ def merl_eval(brdf: MerlBRDF, wi, wo, interpolate: bool = False) -> np.ndarray:
     (u_h = sqrt(theta_h/(pi/2))*90 - 0.5, u_d = theta_d/(pi/2)*90 - 0.5, u_p = phi_d/pi*180 - 0.5),
     clamped at the theta edges and periodic (period pi) in phi_d.
     """
-    if not hasattr(brdf, "data"):   # a path or None: "'str' object has no attribute 'data'"
+    # a path or None: "'str' object has no attribute 'data'"; tabulate_merl's array: its .data (a memoryview) gave
+    # numpy's NotImplementedError "sub-views are not implemented"
+    if isinstance(brdf, np.ndarray) or not hasattr(brdf, "data"):
         raise WarpbwError(f"merl_eval: brdf is {type(brdf).__name__}, expected a MerlBRDF (read_merl(path) reads one)")
+    interpolate = check_flag(interpolate, "merl_eval: interpolate")   # "no" is truthy: trilinear
     wi, wo = check_direction_pairs(wi, wo)
     above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
     theta_h, theta_d, phi_d = _folded_angles(wi, wo)
