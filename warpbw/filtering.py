@@ -119,7 +119,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from precompute.gmm_mipmap import NORMAL_DIM
+from precompute.gmm_mipmap import NORMAL_DIM, level_shapes
 from warpbw.envmap import (LUMINANCE_RGB, EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv,
                            load_environment)
 from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing,
@@ -1496,8 +1496,6 @@ def fetch_gmm(levels, s, t, level, device: str = "cpu") -> np.ndarray:
                               f"{q.shape}")
     # the kernel wraps texel indices by each level's size: an empty level divided by zero (SIGFPE: the process died),
     # and a level of another size than level 0 halved was read at other texels than the renderer's
-    from precompute.gmm_mipmap import level_shapes
-
     if levels[0].shape[0] < 1 or levels[0].shape[1] < 1:
         raise WarpbwError(f"levels[0]: expected at least 1x1 texels, got shape {levels[0].shape}")
     chain = level_shapes(*levels[0].shape[:2])
