@@ -236,3 +236,20 @@ def test_a_needle_face_short_against_its_longest_edge_adds_no_curvature_on_the_d
     h = got.curvature.numpy()
     assert np.isfinite(h_host).all() and np.abs(h_host).max() < 1e-3     # the needle left out: H of a big tetrahedron
     np.testing.assert_allclose(h, h_host, rtol=1e-4, atol=1e-9)
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
+def test_a_vertex_that_is_not_finite_is_refused_naming_its_faces(value):
+    """A NaN or infinite vertex gave the vertices around it the fallback normal (0, 1, 0) and a made-up curvature,
+    without a word (the session 65 API audit); the host version refuses it, and so does the device one now, with
+    the count of faces that touch it (an icosphere vertex has 5 or 6; trimesh's count is the truth).  Stored after
+    other finite points, only the mesh's own are read."""
+    ico = trimesh.creation.icosphere(subdivisions=2)
+    v = np.array(ico.vertices, np.float32)
+    v[7, 1] = value
+    touching = int(np.count_nonzero(np.any(ico.faces == 7, axis=1)))
+    with pytest.raises(WarpbwError, match=rf"^points: {touching} of the mesh's {len(ico.faces)} faces have a vertex "
+                                          r"that is not finite \(NaN or infinite\); expected finite positions$"):
+        on_device(v, ico.faces, first=4)
+    with pytest.raises(WarpbwError):
+        normals_and_curvature(v, ico.faces)

@@ -11,9 +11,11 @@ Public:
     ``boundary_mean_kernel`` (normals and H), ``one_ring_sum_kernel``, ``lazy_average_kernel``,
     ``magnitude_kernel`` (``local_curvature``)
 
-Their arrays are checked against the topology (shape, dtype, device; not their contents) before any launch: the
-kernels index them by vertex without bounds, and an ``out`` of 3 vertices for 162 was written past its end (the call
-returned, the process aborted later), 10 points for 162 vertices read garbage.
+Their arrays are checked against the topology (shape, dtype, device) before any launch: the kernels index them by
+vertex without bounds, and an ``out`` of 3 vertices for 162 was written past its end (the call returned, the process
+aborted later), 10 points for 162 vertices read garbage.  The face kernel counts the faces with a vertex that is not
+finite, and ``normals_and_curvature`` refuses them in one line (its neighbours got the fallback normal, and a
+made-up H, without a word).
 
 The formulas are :mod:`warpbw.io.mesh`'s, which computes the same on the host when a mesh is loaded:
 area-weighted vertex normals; mean curvature H = -(Laplace-Beltrami(x) . n) / 2 from cotangent weights and
@@ -52,9 +54,10 @@ FALLBACK_NORMAL = wp.constant(wp.vec3(*host_mesh.FALLBACK_NORMAL))
 @wp.kernel(module="unique", enable_backward=False)
 def face_terms_kernel(points: wp.array(dtype=wp.vec3), faces: wp.array(dtype=wp.int32), first: int,
                       n_sum: wp.array(dtype=wp.vec3d), lap: wp.array(dtype=wp.vec3d),
-                      area: wp.array(dtype=wp.float64)):
+                      area: wp.array(dtype=wp.float64), non_finite: wp.array(dtype=wp.int32)):
     """One face's share of its corners' normal (area-weighted), Laplacian numerator
-    sum_j (cot a_ij + cot b_ij)(x_j - x_i) and mixed Voronoi area (Meyer et al. 2003, Sec. 3.3-3.4)."""
+    sum_j (cot a_ij + cot b_ij)(x_j - x_i) and mixed Voronoi area (Meyer et al. 2003, Sec. 3.3-3.4); a face with
+    a corner that is not finite adds nothing and is counted in ``non_finite``."""
     t = wp.tid()
     i0 = faces[3 * t] - first
     i1 = faces[3 * t + 1] - first
@@ -62,6 +65,10 @@ def face_terms_kernel(points: wp.array(dtype=wp.vec3), faces: wp.array(dtype=wp.
     p0 = wp.vec3d(points[i0 + first])
     p1 = wp.vec3d(points[i1 + first])
     p2 = wp.vec3d(points[i2 + first])
+    # squares of float32 coordinates cannot overflow float64: only NaN or inf reads as not finite
+    if not wp.isfinite(wp.dot(p0, p0) + wp.dot(p1, p1) + wp.dot(p2, p2)):
+        wp.atomic_add(non_finite, 0, 1)
+        return
     e0 = p2 - p1                      # edge k is opposite corner k
     e1 = p0 - p2
     e2 = p1 - p0
@@ -265,9 +272,14 @@ def normals_and_curvature(points: wp.array, topology: MeshTopology, device: str 
     lap = wp.zeros(n, dtype=wp.vec3d, device=device)
     area = wp.zeros(n, dtype=wp.float64, device=device)
     n_faces = topology.faces.shape[0] // 3
+    non_finite = wp.zeros(1, dtype=wp.int32, device=device)
     # one launch each (module docstring: the atomic sums must not be split over CPU threads)
-    wp.launch(face_terms_kernel, dim=n_faces, inputs=[points, topology.faces, topology.first, n_sum, lap, area],
-              device=device)
+    wp.launch(face_terms_kernel, dim=n_faces, inputs=[points, topology.faces, topology.first, n_sum, lap, area,
+                                                     non_finite], device=device)
+    bad = int(non_finite.numpy()[0])   # the faces around a NaN vertex gave its neighbours (0, 1, 0) and a made-up H
+    if bad:
+        raise WarpbwError(f"points: {bad} of the mesh's {n_faces} faces have a vertex that is not finite (NaN or "
+                          "infinite); expected finite positions")
     wp.launch(vertex_finish_kernel, dim=n, inputs=[n_sum, lap, area, out.normals, out.curvature], device=device)
     if topology.boundary.shape[0]:
         s = wp.zeros(n, dtype=wp.float64, device=device)
