@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from conftest import MIXED_SCENE, StandInClock, capture_call, load_example, outcome
+from conftest import MIXED_SCENE, StandInClock, capture_call, killed_writer_temp, load_example, outcome
 from warpbw import bench
 from warpbw.cli import main as cli_main
 from warpbw.errors import WarpbwError
@@ -1287,6 +1287,21 @@ def test_ground_truth_of_a_wide_image_is_read_from_the_cache(tmp_path, monkeypat
     bench.ground_truth(prep, 8, tmp_path / "gt", progress=False)
     again = bench.ground_truth(prep, 8, tmp_path / "gt", progress=False)
     assert rendered == [4, 4] and again.render_time_s == 0.0 and again.image.shape == (12, 24, 3)
+
+
+def test_reading_a_cached_chunk_removes_what_a_killed_writer_of_it_left(tmp_path, monkeypatch):
+    """Two benches of one scene render its chunks at once and one is killed while it writes a chunk (SIGKILL); the
+    other writes the chunk whole, and later benches read it.  No bench wrote it again, so the killed one's hidden
+    temporary stayed in the cache for good; reading the chunk now removes it.  Truth: a real process killed while it
+    wrote the chunk; the chunks are read, not rendered again."""
+    rendered = _gt_stand_in(monkeypatch)
+    prep = _prep(tmp_path)
+    first = bench.ground_truth(prep, 8, tmp_path / "gt", progress=False)
+    chunks = sorted((tmp_path / "gt").iterdir())
+    killed_writer_temp(chunks[1])
+    again = bench.ground_truth(prep, 8, tmp_path / "gt", progress=False)
+    assert rendered == [4, 4] and np.array_equal(again.image, first.image)
+    assert sorted((tmp_path / "gt").iterdir()) == chunks
 
 
 def test_ground_truth_chunk_with_one_nan_pixel_is_rendered_again(tmp_path, monkeypatch):
