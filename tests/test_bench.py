@@ -840,6 +840,41 @@ def test_bench_scenes_reuses_its_merl_files_and_force_rewrites_an_edited_scene(t
     assert calls == [] and edited.read_text() == text
 
 
+def test_two_bench_scenes_into_one_out_at_once_both_go_on_with_a_whole_merl_file(tmp_path, monkeypatch, shared):
+    """Two bench_scenes runs into one --out at once (two --only runs, say) both convert a material that is not there
+    yet.  The later one found the other's file when its npf-to-merl started, was refused ("already exists") and
+    ended in a CalledProcessError traceback.  OUT holds these files as a cache (--help): the conversion now replaces
+    the file whole, and the run goes on.  Truth: the real npf-to-merl command, with the other run's file written
+    between this run's look for it and its command; the file ends as the NPF fit's MERL tabulation."""
+    import subprocess
+
+    from precompute.__main__ import main as precompute_main
+    from warpbw.io.merl import read_merl
+
+    npf = shared("brdf/npf.bin")
+    bs = _bench_scenes()
+    out = tmp_path / "s"
+
+    def run(cmd, check=False, **kw):
+        cmd = [str(c) for c in cmd]
+        merl = Path(cmd[cmd.index("-o") + 1])
+        if _after(cmd, "--material") != "chrome":
+            merl.write_bytes(b"")
+            return SimpleNamespace(returncode=0)
+        merl.write_bytes(b"the other run's file")   # the other run, here first
+        status = precompute_main(cmd[3:])
+        if check and status:
+            raise subprocess.CalledProcessError(status, cmd)
+        return SimpleNamespace(returncode=status)
+
+    monkeypatch.setattr(subprocess, "run", run)
+    assert bs.main(["--out", str(out)]) == 0
+    theirs = tmp_path / "chrome.binary"
+    assert precompute_main(["npf-to-merl", "--table", str(npf), "--material", "chrome", "-o", str(theirs)]) == 0
+    assert (out / "chrome.binary").read_bytes() == theirs.read_bytes()
+    assert read_merl(out / "chrome.binary").name == "chrome"
+
+
 def test_bench_scenes_stops_at_the_first_bench_that_fails(tmp_path, monkeypatch, shared):
     """A failing `warpbw bench` (it has said why) ends the run with its status; the other scenes are not run."""
     shared("brdf/npf.bin")
