@@ -29,7 +29,7 @@ from pathlib import Path
 
 from warpbw.errors import SEED_MAX, WarpbwError, check_device
 from warpbw.io.staged import check_existing_output, check_name_length, input_clash, output_exists, staged_outputs
-from warpbw.native_output import init_warp_quietly
+from warpbw.native_output import init_warp_quietly, kernel_cache_write_error
 
 EXIT_USER_ERROR = 2
 EXIT_BROKEN_PIPE = 128 + 13   # killed by SIGPIPE, as a shell reports it for other commands
@@ -247,8 +247,8 @@ def run_command(prog: str, func, args) -> int:
             except OSError:
                 pass
             return 128 + stop.signum   # the shell's status for the signal: EXIT_TERMINATED for SIGTERM
-        except (OSError, MemoryError) as exc:
-            print(f"{prog}: error: {printable(exc)}", file=sys.stderr)
+        except (OSError, MemoryError) as exc:   # Warp's kernel cache on a full disk: named, not a bare "[Errno 28]"
+            print(f"{prog}: error: {printable(kernel_cache_write_error(exc))}", file=sys.stderr)
             return EXIT_USER_ERROR
         except RuntimeError as exc:
             if not str(exc).startswith(WARP_ALLOCATION_FAILED):

@@ -5,6 +5,8 @@ Public:
     inside the block, as a list of lines (filled when the block ends), instead of the terminal
     ``init_warp_quietly()``  ``wp.init()`` without Warp's no-CUDA-driver line (every other line passed on);
                              a kernel cache folder Warp cannot make is a ``WarpbwError`` naming it
+    ``kernel_cache_write_error(exc)``  the ``WarpbwError`` naming Warp's kernel cache for an error Warp raised
+                             writing a compiled module there; ``exc`` itself for any other
 
 Warp prints a line at initialisation on a machine without an NVIDIA driver, and OpenEXR prints warnings
 and errors about a damaged file before raising its own exception: neither goes through Python's
@@ -17,6 +19,7 @@ import contextlib
 import os
 import sys
 import tempfile
+import traceback
 
 
 @contextlib.contextmanager
@@ -87,3 +90,24 @@ def _kernel_cache_error(exc: OSError, cache_dir) -> Exception:
         return exc
     return WarpbwError(f"Warp's kernel cache {cache_dir} cannot be made ({exc.strerror or exc} at {failed}): set HOME, "
                        "or WARP_CACHE_PATH, to a folder where it can be")
+
+
+def kernel_cache_write_error(exc: BaseException) -> BaseException:
+    """The one-line error for an ``OSError`` that Warp raised while it wrote a module it compiled into its kernel
+    cache: a full disk or quota, a file-size limit (``ulimit -f``) ended the run with a bare "[Errno 28] No space
+    left on device", naming no file (a write to an open file names none) nor the kernel cache.  ``exc`` itself for
+    any other error, or one about another file."""
+    wp = sys.modules.get("warp")
+    if not isinstance(exc, OSError) or wp is None or not getattr(wp.config, "kernel_cache_dir", None):
+        return exc
+    from warpbw.errors import WarpbwError
+
+    cache_dir = wp.config.kernel_cache_dir
+    package = os.path.dirname(os.path.abspath(wp.__file__)) + os.sep
+    failed = os.fsdecode(exc.filename) if exc.filename is not None else None
+    in_warp = any(os.path.abspath(f.filename).startswith(package) for f in traceback.extract_tb(exc.__traceback__))
+    if not in_warp or not (failed is None or os.path.abspath(failed).startswith(os.path.abspath(cache_dir) + os.sep)):
+        return exc
+    at = f" at {failed}" if failed is not None else ""
+    return WarpbwError(f"Warp's kernel cache {cache_dir}: cannot write a compiled module there ({exc.strerror or exc}"
+                       f"{at}): make room there, or set WARP_CACHE_PATH to a folder where it can be written")
