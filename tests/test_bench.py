@@ -377,6 +377,22 @@ def test_a_ground_truth_chunk_that_cannot_be_cached_is_used_and_said(tmp_path, m
     assert (taken.parent / taken.name.replace("chunk1", "chunk0")).is_file()
 
 
+@pytest.mark.parametrize("cache", ["afile", "afile/sub"])
+def test_a_ground_truth_cache_folder_that_is_a_file_is_said_and_the_bench_goes_on(tmp_path, monkeypatch, cache):
+    """From Python, ``ground_truth(prep, gt_spp, cache_dir)`` with a cache folder that is a file, or lies under one,
+    raised a bare FileExistsError / NotADirectoryError ("[Errno 17] File exists") naming no parameter, before any
+    chunk was rendered; a chunk that cannot be cached for another reason (a full disk, its name taken) is said and
+    the bench goes on with it.  Now the same holds here, naming the file in the way.  Truth: the stand-in chunk of
+    N spp is N everywhere."""
+    rendered = _gt_stand_in(monkeypatch)
+    (tmp_path / "afile").write_text("mine")
+    with pytest.warns(UserWarning, match=f"ground truth not cached .*: cannot write \\({tmp_path / 'afile'} is not "
+                                         "a directory\\)"):
+        gt = bench.ground_truth(_prep(tmp_path), 8, tmp_path / cache, progress=False)
+    assert rendered == [4, 4] and np.all(gt.image == 4.0) and gt.spp == 8
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"] and (tmp_path / "afile").read_text() == "mine"
+
+
 def test_ground_truth_chunks_of_another_seed_or_version_are_never_read(tmp_path, monkeypatch):
     """Chunks were cached under the scene's hash alone: another seed's chunks, an older estimator's (a chunk under
     the old name, here a plain 1e3 image) and the current ones were all read as this ground truth, silently.  Now

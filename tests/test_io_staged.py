@@ -285,12 +285,17 @@ def test_write_merl_leaves_the_old_file_when_it_fails(tmp_path, monkeypatch):
 
 
 def test_an_output_that_cannot_be_made_is_named(tmp_path):
-    """A folder under a file: the message names the output (not a random temporary) and nothing is left."""
+    """A folder under a file: the message names the output (not a random temporary) and the file in the way (a
+    cache folder that is a file gave "cannot write (File exists)"), and nothing is left."""
     (tmp_path / "afile").write_text("keep")
-    with pytest.raises(WarpbwError, match=r"afile/sub/out\.exr: cannot write \(Not a directory\)"):
+    in_the_way = rf"cannot write \({tmp_path / 'afile'} is not a directory\)"
+    with pytest.raises(WarpbwError, match=rf"afile/sub/out\.exr: {in_the_way}"):
         with staged_outputs([tmp_path / "ok.png", tmp_path / "afile" / "sub" / "out.exr"]):
             pass
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+    with pytest.raises(WarpbwError, match=rf"afile/out\.exr: {in_the_way}"):
+        with staged_outputs([tmp_path / "afile" / "out.exr"]):
+            pass
 
 
 def test_an_example_whose_last_writer_fails_leaves_its_earlier_outputs(tmp_path, monkeypatch):

@@ -135,7 +135,6 @@ def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = GT_SEED, progre
 
     chunk, n = ground_truth_chunks(gt_spp)
     key = gt_key(scene if scene is not None else prep.scene, seed)
-    cache_dir.mkdir(parents=True, exist_ok=True)
     imgs, t_gt = [], 0.0
     for k in range(n):
         path = cache_dir / f"ground_truth-{key}-chunk{k}-{chunk}spp.exr"

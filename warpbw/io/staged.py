@@ -332,8 +332,10 @@ def staged_outputs(paths, force: bool = True):
                 made.extend(q for q in missing if q not in made)
                 remove_stale_temps(p)
                 temps[p] = _temp_beside(p, mode)
-            except OSError as exc:   # its folder under a file, or not writable: name the output
-                raise WarpbwError(f"{p}: cannot write ({exc.strerror or exc})") from None
+            except OSError as exc:   # its folder under a file, or not writable: name the output (and the file)
+                under = next((q for q in p.parents if q.exists() and not q.is_dir()), None)   # "File exists" said
+                why = f"{under} is not a directory" if under is not None else exc.strerror or exc
+                raise WarpbwError(f"{p}: cannot write ({why})") from None
         yield dict(temps)
         with _signals_held():   # a Ctrl-C between two moves left a new image beside an old record
             moved = []
