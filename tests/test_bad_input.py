@@ -397,6 +397,8 @@ def test_a_kernel_cache_that_cannot_take_a_compiled_module_is_named(tmp_path):
     assert_one_line_error(r, f"Warp's kernel cache {tmp_path / 'kernels'}", "cannot write a compiled module there",
                           "File too large", "WARP_CACHE_PATH")
     assert_no_outputs(tmp_path)
+    # nor the build folder of the module it could not write (MODULE_pPID_tTHREAD, with its cut-off source)
+    assert [p.name for p in (tmp_path / "kernels").glob("*/*_p*_t*")] == []
 
 
 def test_missing_scene_file(tmp_path):
