@@ -100,12 +100,12 @@ def kernel_cache_write_error(exc: BaseException) -> BaseException:
     cache: a full disk or quota, a file-size limit (``ulimit -f``) ended the run with a bare "[Errno 28] No space
     left on device", naming no file (a write to an open file names none) nor the kernel cache.  ``exc`` itself for
     any other error, or one about another file."""
-    wp = sys.modules.get("warp")
-    if not isinstance(exc, OSError) or wp is None or not getattr(wp.config, "kernel_cache_dir", None):
+    wp = sys.modules.get("warp")   # a Warp imported only in part (a stop during its import) has no config
+    cache_dir = getattr(getattr(wp, "config", None), "kernel_cache_dir", None)
+    if not isinstance(exc, OSError) or not cache_dir:
         return exc
     from warpbw.errors import WarpbwError
 
-    cache_dir = wp.config.kernel_cache_dir
     package = os.path.dirname(os.path.abspath(wp.__file__)) + os.sep
     failed = os.fsdecode(exc.filename) if exc.filename is not None else None
     in_warp = any(os.path.abspath(f.filename).startswith(package) for f in traceback.extract_tb(exc.__traceback__))
