@@ -36,6 +36,7 @@ from pathlib import Path
 
 from warpbw.cli import check_command_options
 from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, run_command
+from warpbw.errors import WarpbwError
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
 from warpbw.scene import toml_escape
@@ -100,8 +101,14 @@ def write_scenes(out: Path, force: bool = False) -> list[Path]:
     for material in sorted({row[1] for row in (*SCENES.values(), *EXTRA_SCENES.values())}):
         merl = out / f"{material}.binary"
         if not merl.exists():
-            subprocess.run([sys.executable, "-m", "precompute", "npf-to-merl", "--table",
-                            str(DATA / "brdf" / "npf.bin"), "--material", material, "-o", str(merl)], check=True)
+            # --force: OUT holds these files as a cache (--help), and a second bench_scenes into the same OUT (two
+            # --only runs at once) converts the same material to the same bytes; without it the later to finish
+            # was refused ("appeared while this run worked") and this script ended in a traceback
+            status = subprocess.run([sys.executable, "-m", "precompute", "npf-to-merl", "--table",
+                                     str(DATA / "brdf" / "npf.bin"), "--material", material, "-o", str(merl),
+                                     "--force"]).returncode
+            if status:   # npf-to-merl has said why (check=True printed a traceback under it)
+                raise WarpbwError(f"{merl}: converting {material} from the NPF table failed (status {status})")
     with staged_outputs(texts) as at:   # every scene, or none: an error leaves the old ones
         for p, text in texts.items():
             at[p].write_text(text)

@@ -34,8 +34,8 @@ import numpy as np
 
 from precompute.assetfile import read_asset, write_asset
 from precompute.progress import progress_callback
-from warpbw.io.staged import check_name_length
 from warpbw.errors import WarpbwError, check_input_file, check_instance
+from warpbw.io.staged import check_name_length, remove_stale_temps
 from warpbw.sampling import (N_PHI, N_THETA_O, N_U, TABLE_FORMAT, TABLE_VERSION, VIEW_SUBSAMPLES, SamplerTable,
                              build_sampler_table, directional_albedo)
 
@@ -225,6 +225,7 @@ def load_or_build(source, explicit, cache, prefix: str, version: int, read, buil
     d = Path(cache) if cache is not None else cache_dir()
     key = source.digest.replace(":", "-").replace("/", "_")
     path = d / f"{prefix}-{key}-v{version}.npz"
+    remove_stale_temps(path)   # a killed writer's, where another run wrote the entry whole: none writes it again
     if path.is_file():
         try:
             return read(path, source), "cache"

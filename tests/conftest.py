@@ -236,6 +236,44 @@ class StandInClock:
         return self.now
 
 
+_KILLED_WRITER = """
+import sys, time
+from pathlib import Path
+from warpbw.io.staged import staged_outputs
+
+out = Path(sys.argv[1])
+with staged_outputs([out]) as temps:
+    temps[out].write_bytes(b"half of it")
+    print("written", flush=True)
+    time.sleep(60)
+"""
+
+
+def killed_writer_temp(path) -> Path:
+    """The hidden temporary that a real process, killed with SIGKILL while it wrote ``path`` (``staged_outputs``),
+    left beside it (``path`` itself is as it was)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    before = set(path.parent.iterdir())
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    child = subprocess.Popen([sys.executable, "-c", _KILLED_WRITER, str(path)], stdout=subprocess.PIPE, text=True,
+                             env=env)
+    try:
+        assert child.stdout.readline() == "written\n"
+        child.send_signal(signal.SIGKILL)
+        child.communicate(timeout=60)
+    finally:
+        child.kill()
+    (temp,) = set(path.parent.iterdir()) - before
+    assert temp.name.startswith(".") and f"-{child.pid}." in temp.name
+    return temp
+
+
 def attempt(f, *args, **kwargs):
     """``(value, "")`` when ``f`` returns, ``(None, message)`` when it refuses with a WarpbwError: a test then reads the
     value or fails on an assertion that prints the refusal, never on the exception."""

@@ -376,6 +376,31 @@ def test_a_home_that_is_a_file_names_warps_kernel_cache(tmp_path, monkeypatch):
     assert_no_outputs(tmp_path)
 
 
+def test_a_kernel_cache_that_cannot_take_a_compiled_module_is_named(tmp_path):
+    """Warp writes each module it compiles into its kernel cache (~/.cache/warp, or WARP_CACHE_PATH): on a full disk
+    or quota the run ended with a bare "[Errno 28] No space left on device", naming neither a file nor the kernel
+    cache (a write to an open file names none).  Truth: a real write refused by the system, here a file-size limit
+    (``ulimit -f``: Python ignores SIGXFSZ, so the write fails with "File too large") and an empty kernel cache, so
+    that the first module is compiled and written."""
+    import resource
+
+    write_scene(tmp_path)
+    env = dict(os.environ, WARPBW_CACHE=str(tmp_path / "_cache"), WARP_CACHE_PATH=str(tmp_path / "kernels"))
+    limit = 4096   # bytes: a module's C++ source is tens of kB
+
+    def small_files():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    r = subprocess.run([sys.executable, "-m", "warpbw.cli", "render", "scene.toml", "-o", "out.exr", "--spp", "1"],
+                       cwd=tmp_path, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=180,
+                       preexec_fn=small_files)
+    assert_one_line_error(r, f"Warp's kernel cache {tmp_path / 'kernels'}", "cannot write a compiled module there",
+                          "File too large", "WARP_CACHE_PATH")
+    assert_no_outputs(tmp_path)
+    # nor the build folder of the module it could not write (MODULE_pPID_tTHREAD, with its cut-off source)
+    assert [p.name for p in (tmp_path / "kernels").glob("*/*_p*_t*")] == []
+
+
 def test_missing_scene_file(tmp_path):
     r = run(["render", "nothere.toml", "-o", "out.exr"], tmp_path)
     assert_one_line_error(r, "nothere.toml", "scene file not found")

@@ -9,6 +9,7 @@ import pytest
 import warp as wp
 from hypothesis import given, settings, strategies as st
 
+from conftest import killed_writer_temp
 from precompute.brdf_bandwidth import N_CELLS, N_THETA_I, wo_to_map
 from warpbw import bandwidth as bw
 from warpbw.bandwidth_ops import COS_X_MIN
@@ -536,6 +537,20 @@ def test_building_an_env_bandwidth_map_shows_a_bar_naming_the_map_and_reading_it
     assert "bandwidth probe.exr" in err and "band/s" in err
     assert bw.env_bandwidth_map(px, "probe.exr", cache=tmp_path / "b", progress=True)[1] == "cache"
     assert capsys.readouterr().err == ""
+
+
+def test_reading_an_env_bandwidth_map_from_the_cache_removes_what_a_killed_writer_of_it_left(tmp_path):
+    """Two renders of one probe build its bandwidth map at once and one is killed while it writes the entry
+    (SIGKILL); the other writes it whole, and later renders read it.  No render wrote it again, so the killed one's
+    hidden temporary (as large as the entry: megabytes for a large probe) stayed in the cache for good; reading
+    the entry now removes it.  Truth: a real process killed while it wrote the entry."""
+    px = _sun_edge_probe(100.0)
+    built, origin = bw.env_bandwidth_map(px, cache=tmp_path)
+    (entry,) = tmp_path.iterdir()
+    killed_writer_temp(entry)
+    nu, again = bw.env_bandwidth_map(px, cache=tmp_path)
+    assert (origin, again) == ("built", "cache") and np.array_equal(nu, built)
+    assert list(tmp_path.iterdir()) == [entry]
 
 
 def test_env_bandwidth_maps_are_cached_per_signal_and_old_entries_read_as_radiance(tmp_path):

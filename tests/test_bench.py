@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from conftest import MIXED_SCENE, StandInClock, capture_call, load_example, outcome
+from conftest import MIXED_SCENE, StandInClock, capture_call, killed_writer_temp, load_example, outcome
 from warpbw import bench
 from warpbw.cli import main as cli_main
 from warpbw.errors import WarpbwError
@@ -375,6 +375,22 @@ def test_a_ground_truth_chunk_that_cannot_be_cached_is_used_and_said(tmp_path, m
                               progress=False, log=lambda *a, **kw: None)
     assert n == 2 and rec["ground_truth_spp"] == 128 and taken.is_dir()
     assert (taken.parent / taken.name.replace("chunk1", "chunk0")).is_file()
+
+
+@pytest.mark.parametrize("cache", ["afile", "afile/sub"])
+def test_a_ground_truth_cache_folder_that_is_a_file_is_said_and_the_bench_goes_on(tmp_path, monkeypatch, cache):
+    """From Python, ``ground_truth(prep, gt_spp, cache_dir)`` with a cache folder that is a file, or lies under one,
+    raised a bare FileExistsError / NotADirectoryError ("[Errno 17] File exists") naming no parameter, before any
+    chunk was rendered; a chunk that cannot be cached for another reason (a full disk, its name taken) is said and
+    the bench goes on with it.  Now the same holds here, naming the file in the way.  Truth: the stand-in chunk of
+    N spp is N everywhere."""
+    rendered = _gt_stand_in(monkeypatch)
+    (tmp_path / "afile").write_text("mine")
+    with pytest.warns(UserWarning, match=f"ground truth not cached .*: cannot write \\({tmp_path / 'afile'} is not "
+                                         "a directory\\)"):
+        gt = bench.ground_truth(_prep(tmp_path), 8, tmp_path / cache, progress=False)
+    assert rendered == [4, 4] and np.all(gt.image == 4.0) and gt.spp == 8
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"] and (tmp_path / "afile").read_text() == "mine"
 
 
 def test_ground_truth_chunks_of_another_seed_or_version_are_never_read(tmp_path, monkeypatch):
@@ -840,6 +856,41 @@ def test_bench_scenes_reuses_its_merl_files_and_force_rewrites_an_edited_scene(t
     assert calls == [] and edited.read_text() == text
 
 
+def test_two_bench_scenes_into_one_out_at_once_both_go_on_with_a_whole_merl_file(tmp_path, monkeypatch, shared):
+    """Two bench_scenes runs into one --out at once (two --only runs, say) both convert a material that is not there
+    yet.  The later one found the other's file when its npf-to-merl started, was refused ("already exists") and
+    ended in a CalledProcessError traceback.  OUT holds these files as a cache (--help): the conversion now replaces
+    the file whole, and the run goes on.  Truth: the real npf-to-merl command, with the other run's file written
+    between this run's look for it and its command; the file ends as the NPF fit's MERL tabulation."""
+    import subprocess
+
+    from precompute.__main__ import main as precompute_main
+    from warpbw.io.merl import read_merl
+
+    npf = shared("brdf/npf.bin")
+    bs = _bench_scenes()
+    out = tmp_path / "s"
+
+    def run(cmd, check=False, **kw):
+        cmd = [str(c) for c in cmd]
+        merl = Path(cmd[cmd.index("-o") + 1])
+        if _after(cmd, "--material") != "chrome":
+            merl.write_bytes(b"")
+            return SimpleNamespace(returncode=0)
+        merl.write_bytes(b"the other run's file")   # the other run, here first
+        status = precompute_main(cmd[3:])
+        if check and status:
+            raise subprocess.CalledProcessError(status, cmd)
+        return SimpleNamespace(returncode=status)
+
+    monkeypatch.setattr(subprocess, "run", run)
+    assert bs.main(["--out", str(out)]) == 0
+    theirs = tmp_path / "chrome.binary"
+    assert precompute_main(["npf-to-merl", "--table", str(npf), "--material", "chrome", "-o", str(theirs)]) == 0
+    assert (out / "chrome.binary").read_bytes() == theirs.read_bytes()
+    assert read_merl(out / "chrome.binary").name == "chrome"
+
+
 def test_bench_scenes_stops_at_the_first_bench_that_fails(tmp_path, monkeypatch, shared):
     """A failing `warpbw bench` (it has said why) ends the run with its status; the other scenes are not run."""
     shared("brdf/npf.bin")
@@ -1287,6 +1338,21 @@ def test_ground_truth_of_a_wide_image_is_read_from_the_cache(tmp_path, monkeypat
     bench.ground_truth(prep, 8, tmp_path / "gt", progress=False)
     again = bench.ground_truth(prep, 8, tmp_path / "gt", progress=False)
     assert rendered == [4, 4] and again.render_time_s == 0.0 and again.image.shape == (12, 24, 3)
+
+
+def test_reading_a_cached_chunk_removes_what_a_killed_writer_of_it_left(tmp_path, monkeypatch):
+    """Two benches of one scene render its chunks at once and one is killed while it writes a chunk (SIGKILL); the
+    other writes the chunk whole, and later benches read it.  No bench wrote it again, so the killed one's hidden
+    temporary stayed in the cache for good; reading the chunk now removes it.  Truth: a real process killed while it
+    wrote the chunk; the chunks are read, not rendered again."""
+    rendered = _gt_stand_in(monkeypatch)
+    prep = _prep(tmp_path)
+    first = bench.ground_truth(prep, 8, tmp_path / "gt", progress=False)
+    chunks = sorted((tmp_path / "gt").iterdir())
+    killed_writer_temp(chunks[1])
+    again = bench.ground_truth(prep, 8, tmp_path / "gt", progress=False)
+    assert rendered == [4, 4] and np.array_equal(again.image, first.image)
+    assert sorted((tmp_path / "gt").iterdir()) == chunks
 
 
 def test_ground_truth_chunk_with_one_nan_pixel_is_rendered_again(tmp_path, monkeypatch):

@@ -15,7 +15,7 @@ import shlex
 import numpy as np
 import pytest
 
-from conftest import capture_call, fake_npf_table, outcome, uniform_sampler_table
+from conftest import capture_call, fake_npf_table, killed_writer_temp, outcome, uniform_sampler_table
 from precompute.assetfile import write_asset
 from precompute.brdf_sampling import BrdfSource, brdf_source, read_sampling, write_sampling
 from warpbw.sampling import N_PHI, N_THETA_O, N_U, TABLE_FORMAT, TABLE_VERSION, SamplerTable
@@ -180,6 +180,31 @@ def test_a_cache_folder_is_made_with_its_parents_and_used_when_given(tmp_path, m
     assert origins == ["built", "cache"] and built == ["m.binary"]
     assert len(list(cache.glob("sampling-*.npz"))) == 1
     assert not (tmp_path / "env_cache").exists()
+
+
+def test_reading_a_cache_entry_removes_what_a_killed_writer_of_it_left(tmp_path, monkeypatch):
+    """Two runs build one cache entry at once and one is killed while it writes (SIGKILL: a scheduler's preemption,
+    the OOM killer); the other writes the entry whole, and every later run reads it.  No run wrote the entry again,
+    so the killed one's hidden temporary (as large as the entry) stayed in the cache for good; reading the entry now
+    removes it, and the entry is read as it was.  Truth: a real process killed while it wrote the entry."""
+    import precompute.brdf_sampling as bs
+
+    built = []
+
+    def build(source, progress=True):
+        built.append(source.name)
+        return _sampling_table()
+
+    monkeypatch.setattr(bs, "build_brdf_sampling", build)
+    src = BrdfSource("m.binary", tmp_path / "m.binary", "d1", None)
+    cache = tmp_path / "cache"
+    assert bs.load_or_build_sampling(src, cache=cache, progress=False)[1] == "built"
+    (entry,) = cache.iterdir()
+    whole = entry.read_bytes()
+    killed_writer_temp(entry)
+    table, origin = bs.load_or_build_sampling(src, cache=cache, progress=False)
+    assert origin == "cache" and built == ["m.binary"] and np.array_equal(table.density, _sampling_table().density)
+    assert list(cache.iterdir()) == [entry] and entry.read_bytes() == whole
 
 
 def test_progress_reports_k_of_total(tqdm_bars):

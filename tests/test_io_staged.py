@@ -285,12 +285,17 @@ def test_write_merl_leaves_the_old_file_when_it_fails(tmp_path, monkeypatch):
 
 
 def test_an_output_that_cannot_be_made_is_named(tmp_path):
-    """A folder under a file: the message names the output (not a random temporary) and nothing is left."""
+    """A folder under a file: the message names the output (not a random temporary) and the file in the way (a
+    cache folder that is a file gave "cannot write (File exists)"), and nothing is left."""
     (tmp_path / "afile").write_text("keep")
-    with pytest.raises(WarpbwError, match=r"afile/sub/out\.exr: cannot write \(Not a directory\)"):
+    in_the_way = rf"cannot write \({tmp_path / 'afile'} is not a directory\)"
+    with pytest.raises(WarpbwError, match=rf"afile/sub/out\.exr: {in_the_way}"):
         with staged_outputs([tmp_path / "ok.png", tmp_path / "afile" / "sub" / "out.exr"]):
             pass
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+    with pytest.raises(WarpbwError, match=rf"afile/out\.exr: {in_the_way}"):
+        with staged_outputs([tmp_path / "afile" / "out.exr"]):
+            pass
 
 
 def test_an_example_whose_last_writer_fails_leaves_its_earlier_outputs(tmp_path, monkeypatch):
@@ -373,6 +378,60 @@ def test_a_command_stopped_by_a_signal_leaves_its_outputs_and_no_temporary(tmp_p
     assert err.strip() == said
     assert sorted(p.name for p in out.iterdir()) == ["image.exr"]
     assert (out / "image.exr").read_bytes() == b"an earlier image"
+
+
+_STOPPED_COMPILE = """
+import os, signal, sys
+import warp._src.build as build
+
+real = build.build_cpu
+
+def stopped_build(*args, **kwargs):   # the stop arrives while Warp compiles a module (C++ source written)
+    os.kill(os.getpid(), getattr(signal, sys.argv[1]))
+    return real(*args, **kwargs)
+
+build.build_cpu = stopped_build
+from warpbw.cli import main
+sys.exit(main(["render", "scene.toml", "-o", "out.exr", "--spp", "1"]))
+"""
+
+_SPHERE_SCENE = """
+[camera]
+position = [0.0, 0.0, 4.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 40.0
+resolution = [8, 8]
+[environment]
+constant = [1.0, 1.0, 1.0]
+[[object]]
+shape = "sphere"
+radius = 1.0
+material = "m"
+[material.m]
+type = "lambert"
+albedo = 0.5
+"""
+
+
+@pytest.mark.parametrize("sig, status, said", [("SIGTERM", 143, "warpbw: terminated"),
+                                               ("SIGINT", 130, "warpbw: interrupted")])
+def test_a_command_stopped_while_warp_compiles_leaves_no_build_folder_in_its_kernel_cache(tmp_path, sig, status,
+                                                                                          said):
+    """Warp compiles a module in a build folder beside its kernel cache entry (MODULE_pPID_tTHREAD) and removes it
+    once the module is in place: a Ctrl-C or SIGTERM during a compile (the first run's minute) left the folder, and
+    its C++ source, in the kernel cache for good.  Truth: a real process whose stop arrives while Warp compiles (the
+    compiler forced to send it), with an empty kernel cache."""
+    import signal
+    import subprocess
+
+    (tmp_path / "scene.toml").write_text(_SPHERE_SCENE)
+    kernels = tmp_path / "kernels"
+    env = dict(os.environ, WARPBW_CACHE=str(tmp_path / "_cache"), WARP_CACHE_PATH=str(kernels))
+    r = subprocess.run([sys.executable, "-c", _STOPPED_COMPILE, sig], cwd=tmp_path, env=env, capture_output=True,
+                       text=True, timeout=300, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    assert (r.returncode, r.stderr.strip()) == (status, said)
+    assert [p.name for p in kernels.glob("*/*") if "_p" in p.name and "_t" in p.name] == []
+    assert kernels.is_dir() and sorted(p.name for p in tmp_path.iterdir()) == ["kernels", "scene.toml"]   # no output
 
 
 class _Stopped(BaseException):

@@ -613,6 +613,7 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
     from precompute.brdf_sampling import cache_dir
     from precompute.progress import progress_callback
     from precompute.wavelets import EPSILON, envmap_angular_bandwidth, envmap_bandwidth_max
+    from warpbw.io.staged import remove_stale_temps
 
     check_env_signal(signal)
     raw = np.asarray(pixels)
@@ -638,6 +639,7 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
         raise WarpbwError(f"cache: expected a folder (a path or a str), got {type(cache).__name__}")
     path = ((cache_dir() if cache is None else Path(cache))   # a str failed on str / str
             / f"env-bandwidth-{kind}{digest.split(':')[1]}-v{ENV_BW_VERSION}.npz")
+    remove_stale_temps(path)   # a killed writer's, where another run wrote the entry whole: none writes it again
     if path.is_file():
         try:
             a = read_asset(path, ENV_BW_FORMAT, ENV_BW_VERSION, "delete the cache file")

@@ -70,7 +70,7 @@ from pathlib import Path
 import numpy as np
 
 from warpbw.errors import WarpbwError, offset_seed
-from warpbw.io.staged import staged_outputs
+from warpbw.io.staged import remove_stale_temps, staged_outputs
 
 GT_CHUNK_SPP = 4096                                   # spp per cached ground-truth chunk
 DEFAULT_SPP = (1, 2, 4, 8, 16, 32, 64, 128, 256)      # reference sweep
@@ -137,7 +137,6 @@ def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = GT_SEED, progre
 
     chunk, n = ground_truth_chunks(gt_spp)
     key = gt_key(scene if scene is not None else prep.scene, seed)
-    cache_dir.mkdir(parents=True, exist_ok=True)
     imgs, t_gt = [], 0.0
     for k in range(n):
         path = cache_dir / f"ground_truth-{key}-chunk{k}-{chunk}spp.exr"
@@ -185,6 +184,7 @@ def _cached_chunk(path: Path, height: int, width: int) -> np.ndarray | None:
     the truth, and every reference PSNR fell by 15 dB with only a "raise --gt-spp" hint (file audit, session 63)."""
     from warpbw.io.exr import read_exr
 
+    remove_stale_temps(path)   # a killed writer's, where another bench wrote the chunk whole: none writes it again
     if not path.is_file():
         return None
     try:

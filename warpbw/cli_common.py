@@ -29,7 +29,7 @@ from pathlib import Path
 
 from warpbw.errors import SEED_MAX, WarpbwError, check_device
 from warpbw.io.staged import check_existing_output, check_name_length, input_clash, output_exists, staged_outputs
-from warpbw.native_output import init_warp_quietly
+from warpbw.native_output import init_warp_quietly, kernel_cache_write_error, remove_unfinished_kernel_builds
 
 EXIT_USER_ERROR = 2
 EXIT_BROKEN_PIPE = 128 + 13   # killed by SIGPIPE, as a shell reports it for other commands
@@ -218,7 +218,8 @@ def _stops_in_destructors_unsaid():
 
 def run_command(prog: str, func, args) -> int:
     """Run a subcommand; user errors and warnings print as one line each (``PROG: error: ...``).  Ctrl-C, SIGTERM
-    and SIGHUP stop it with one line and the shell's status for the signal, its outputs untouched."""
+    and SIGHUP stop it with one line and the shell's status for the signal, its outputs untouched (and no build folder
+    of a compile it stopped left in Warp's kernel cache)."""
 
     def show_warning(message, category, filename, lineno, file=None, line=None):
         # warnings (an environment with clamped pixels, unmeasured MERL entries...) as one line each
@@ -247,8 +248,8 @@ def run_command(prog: str, func, args) -> int:
             except OSError:
                 pass
             return 128 + stop.signum   # the shell's status for the signal: EXIT_TERMINATED for SIGTERM
-        except (OSError, MemoryError) as exc:
-            print(f"{prog}: error: {printable(exc)}", file=sys.stderr)
+        except (OSError, MemoryError) as exc:   # Warp's kernel cache on a full disk: named, not a bare "[Errno 28]"
+            print(f"{prog}: error: {printable(kernel_cache_write_error(exc))}", file=sys.stderr)
             return EXIT_USER_ERROR
         except RuntimeError as exc:
             if not str(exc).startswith(WARP_ALLOCATION_FAILED):
@@ -256,6 +257,8 @@ def run_command(prog: str, func, args) -> int:
             print(f"{prog}: error: out of memory: {exc} (a smaller [camera].resolution, fewer samples or directions "
                   "need less)", file=sys.stderr)
             return EXIT_USER_ERROR
+        finally:   # a stop or an error during a compile left Warp's build folder in its kernel cache for good
+            remove_unfinished_kernel_builds()
 
 
 def init_warp(device: str):

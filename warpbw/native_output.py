@@ -5,6 +5,10 @@ Public:
     inside the block, as a list of lines (filled when the block ends), instead of the terminal
     ``init_warp_quietly()``  ``wp.init()`` without Warp's no-CUDA-driver line (every other line passed on);
                              a kernel cache folder Warp cannot make is a ``WarpbwError`` naming it
+    ``kernel_cache_write_error(exc)``  the ``WarpbwError`` naming Warp's kernel cache for an error Warp raised
+                             writing a compiled module there; ``exc`` itself for any other
+    ``remove_unfinished_kernel_builds()``  the build folders this process left in Warp's kernel cache (a stop or
+                             an error during a compile), removed
 
 Warp prints a line at initialisation on a machine without an NVIDIA driver, and OpenEXR prints warnings
 and errors about a damaged file before raising its own exception: neither goes through Python's
@@ -15,8 +19,10 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import sys
 import tempfile
+import traceback
 
 
 @contextlib.contextmanager
@@ -87,3 +93,47 @@ def _kernel_cache_error(exc: OSError, cache_dir) -> Exception:
         return exc
     return WarpbwError(f"Warp's kernel cache {cache_dir} cannot be made ({exc.strerror or exc} at {failed}): set HOME, "
                        "or WARP_CACHE_PATH, to a folder where it can be")
+
+
+def kernel_cache_write_error(exc: BaseException) -> BaseException:
+    """The one-line error for an ``OSError`` that Warp raised while it wrote a module it compiled into its kernel
+    cache: a full disk or quota, a file-size limit (``ulimit -f``) ended the run with a bare "[Errno 28] No space
+    left on device", naming no file (a write to an open file names none) nor the kernel cache.  ``exc`` itself for
+    any other error, or one about another file."""
+    wp = sys.modules.get("warp")   # a Warp imported only in part (a stop during its import) has no config
+    cache_dir = getattr(getattr(wp, "config", None), "kernel_cache_dir", None)
+    if not isinstance(exc, OSError) or not cache_dir:
+        return exc
+    from warpbw.errors import WarpbwError
+
+    package = os.path.dirname(os.path.abspath(wp.__file__)) + os.sep
+    failed = os.fsdecode(exc.filename) if exc.filename is not None else None
+    in_warp = any(os.path.abspath(f.filename).startswith(package) for f in traceback.extract_tb(exc.__traceback__))
+    if not in_warp or not (failed is None or os.path.abspath(failed).startswith(os.path.abspath(cache_dir) + os.sep)):
+        return exc
+    at = f" at {failed}" if failed is not None else ""
+    return WarpbwError(f"Warp's kernel cache {cache_dir}: cannot write a compiled module there ({exc.strerror or exc}"
+                       f"{at}): make room there, or set WARP_CACHE_PATH to a folder where it can be written")
+
+
+# Where Warp compiles a module before it moves the result into its kernel cache: ``MODULE_pPID_tTHREAD`` beside the
+# module's entry (warp/_src/context.py, Module._compile; warp/_src/build.py for LTO objects)
+KERNEL_BUILD_SUFFIX = "_p{pid}_t"
+
+
+def remove_unfinished_kernel_builds() -> None:
+    """Remove the build folders this process left in Warp's kernel cache.  Warp removes one only once its module is
+    in place, so a Ctrl-C or SIGTERM during a compile (the first run's minute, when a user is likeliest to stop it),
+    or a full disk, left it there for good: 100-200 kB of C++ source each, never read again (a later run builds in
+    a folder named after its own process)."""
+    wp = sys.modules.get("warp")
+    cache_dir = getattr(getattr(wp, "config", None), "kernel_cache_dir", None)
+    if not cache_dir:
+        return
+    mark = KERNEL_BUILD_SUFFIX.format(pid=os.getpid())
+    try:
+        names = [e.name for e in os.scandir(cache_dir) if mark in e.name and e.is_dir(follow_symlinks=False)]
+    except OSError:   # no kernel cache (yet), or one that cannot be listed: nothing to tidy
+        return
+    for name in names:
+        shutil.rmtree(os.path.join(cache_dir, name), ignore_errors=True)

@@ -3,7 +3,8 @@
 Public: ``staged_outputs(paths, force=True)``; ``check_replaceable(path, force, inputs=(), inputs_are=...) -> Path``
 (what every writer that takes ``force`` checks before its work), ``input_clash(path, inputs, inputs_are=...) ->
 str | None``, ``output_exists(path)``, ``check_existing_output(path, force, label)``, ``check_name_length(path,
-label)`` and ``check_not_read_only(path, label)`` (its parts the command lines share).
+label)`` and ``check_not_read_only(path, label)`` (its parts the command lines share); ``remove_stale_temps(path)``
+(what the readers of a cache entry call: see below).
 
 Every writer of warpbw (images, records, plots, asset and cache files) writes to a temporary file beside its
 output, and the outputs of one command are moved into place together once all of them are written.  So
@@ -12,7 +13,9 @@ output, and the outputs of one command are moved into place together once all of
   as it was: no cut-off file, no new image beside an old record.  A stop that arrives while the outputs are moved
   into place (Ctrl-C, SIGTERM, SIGHUP) is held until the last one is moved, then takes effect.  SIGKILL cannot be
   held, and leaves the hidden temporaries (``.NAME.HOST-PID.*.part.EXT`` beside each output); the next run that
-  writes that output removes those whose process is gone from this machine;
+  writes that output removes those whose process is gone from this machine, and so does the next run that reads a
+  cache entry (:func:`remove_stale_temps`): where a run killed while it wrote an entry shared the cache with one
+  that wrote it whole, no run writes that entry again;
 * an existing output is replaced, never written through: a hard link to it, or a symlink at its place, keeps
   the file it pointed at (``--force`` once rewrote a light probe hard-linked to ``-o``);
 * two runs that write the same output at once do not write into one temporary file: each has its own
@@ -214,9 +217,10 @@ def _temp_stem(path: Path) -> str:
     return path.stem if len(stem) <= room else stem[:max(room, 1)].decode("utf-8", "ignore")   # a cut character goes
 
 
-def _remove_stale_temps(path: Path) -> None:
+def remove_stale_temps(path) -> None:
     """Remove the temporaries of ``path`` that a process of this machine, since gone, left (SIGKILL, the OOM killer,
     a power cut).  Another machine's, a live process's and any other file are left alone."""
+    path = Path(path)
     head, tail = f"{TEMP_PREFIX}{_temp_stem(path)}.", f".part{path.suffix}"
     try:
         names = [q for q in path.parent.iterdir() if q.name.startswith(head) and q.name.endswith(tail)]
@@ -326,10 +330,12 @@ def staged_outputs(paths, force: bool = True):
                 missing = _missing_folders(p.parent)
                 p.parent.mkdir(parents=True, exist_ok=True)
                 made.extend(q for q in missing if q not in made)
-                _remove_stale_temps(p)
+                remove_stale_temps(p)
                 temps[p] = _temp_beside(p, mode)
-            except OSError as exc:   # its folder under a file, or not writable: name the output
-                raise WarpbwError(f"{p}: cannot write ({exc.strerror or exc})") from None
+            except OSError as exc:   # its folder under a file, or not writable: name the output (and the file)
+                under = next((q for q in p.parents if q.exists() and not q.is_dir()), None)   # "File exists" said
+                why = f"{under} is not a directory" if under is not None else exc.strerror or exc
+                raise WarpbwError(f"{p}: cannot write ({why})") from None
         yield dict(temps)
         with _signals_held():   # a Ctrl-C between two moves left a new image beside an old record
             moved = []
