@@ -126,6 +126,20 @@ def test_worst_share_refuses_maps_it_cannot_rank():
     assert worst_share(e, fraction=0.25) == (0.25, 4)
 
 
+def test_compare_images_refuses_an_error_past_float64_naming_the_test_image(recwarn):
+    """A float64 test image of 1e200 against a black reference: its relative squared error, 1e400 / eps, passes
+    float64 (the metrics' own answer is inf).  compare_images said "err_map: expected finite errors", a parameter
+    the caller never passed, after numpy's divide warning; now one line naming the test image.  The same values
+    within float32's range, as an EXR holds them, compare."""
+    ref = np.zeros((4, 4, 3))
+    with pytest.raises(WarpbwError, match=r"^test image: its relative squared error against the reference passes "
+                                          r"float64's range \(values up to 1e\+200\)"):
+        compare_images(np.full((4, 4, 3), 1e200), ref)
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+    r = compare_images(np.full((4, 4, 3), 3e38), ref)
+    assert r["relmse"] == pytest.approx(9e76 / RELMSE_EPS) and r["worst_share"] == pytest.approx(r["worst_pixels"] / 16)
+
+
 def test_compare_images_gathers_the_same_figures():
     ref, mask = _pair(4)
     test = ref + 0.01 * np.random.default_rng(5).normal(size=ref.shape)

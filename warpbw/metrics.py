@@ -165,7 +165,13 @@ def worst_share(err_map, mask=None, fraction: float = WORST_FRACTION) -> tuple[f
 def compare_images(test, ref, mask=None) -> dict:
     a, b, m = _checked(test, ref, mask)   # once for every figure (each metric alone converted and checked again)
     masked = mask is not None
-    share, k = worst_share(_relmse_map_of(a, b, m, masked, RELMSE_EPS), m if masked else None)
+    with np.errstate(over="ignore", divide="ignore"):   # said below
+        rel = _relmse_map_of(a, b, m, masked, RELMSE_EPS)
+    if not np.all(np.isfinite(rel)):   # float64 values past ~1e154 against a dark reference: worst_share named err_map
+        raise WarpbwError(f"test image: its relative squared error against the reference passes float64's range "
+                          f"(values up to {max(float(np.abs(a).max()), float(np.abs(b).max())):.3g}); expected "
+                          "radiance within float32's range, as EXR holds it")
+    share, k = worst_share(rel, m if masked else None)
     am, bm = a[m], b[m]
     # counted as the metrics read the mask (a 0/2 mask counted 64 where 32 were compared)
     return {"psnr_db": _psnr_of(am, bm), "relmse": _relmse_of(am, bm, RELMSE_EPS), "mse": _mse_of(am, bm),
