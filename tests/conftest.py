@@ -249,28 +249,36 @@ with staged_outputs([out]) as temps:
 """
 
 
-def killed_writer_temp(path) -> Path:
-    """The hidden temporary that a real process, killed with SIGKILL while it wrote ``path`` (``staged_outputs``),
-    left beside it (``path`` itself is as it was)."""
+def kill_when_written(script: str, *args: str, timeout: float = 60.0) -> int:
+    """Run ``script`` (Python source) in a child process with ``args``, SIGKILL it once it prints "written" (its
+    outputs staged, not yet moved into place), and return its process id once it is gone (within ``timeout``
+    seconds)."""
     import os
     import signal
     import subprocess
     import sys
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    before = set(path.parent.iterdir())
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-    child = subprocess.Popen([sys.executable, "-c", _KILLED_WRITER, str(path)], stdout=subprocess.PIPE, text=True,
-                             env=env)
+    child = subprocess.Popen([sys.executable, "-c", script, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             text=True, env=env)
     try:
         assert child.stdout.readline() == "written\n"
         child.send_signal(signal.SIGKILL)
-        child.communicate(timeout=60)
+        child.communicate(timeout=timeout)
     finally:
         child.kill()
+    return child.pid
+
+
+def killed_writer_temp(path) -> Path:
+    """The hidden temporary that a real process, killed with SIGKILL while it wrote ``path`` (``staged_outputs``),
+    left beside it (``path`` itself is as it was)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    before = set(path.parent.iterdir())
+    pid = kill_when_written(_KILLED_WRITER, str(path))
     (temp,) = set(path.parent.iterdir()) - before
-    assert temp.name.startswith(".") and f"-{child.pid}." in temp.name
+    assert temp.name.startswith(".") and f"-{pid}." in temp.name
     return temp
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import kill_when_written
 
 from warpbw.errors import WarpbwError
 from warpbw.io.staged import check_replaceable, staged_outputs
@@ -480,25 +481,15 @@ def test_the_next_run_removes_what_a_killed_run_left_and_nothing_else(tmp_path):
     for good, unseen.  The next run that writes an output removes that output's temporaries whose process is gone
     from this machine; it keeps a live writer's, another machine's, another output's, and a file of the user's that
     only looks like one.  Truth: a real child killed with SIGKILL while it writes."""
-    import signal
-    import subprocess
-
     out = tmp_path / "out"
     out.mkdir()
-    child = subprocess.Popen([sys.executable, "-c", _STOPPED_WRITER, str(out)], stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True)
-    try:
-        assert child.stdout.readline() == "written\n"
-        child.send_signal(signal.SIGKILL)
-        child.communicate(timeout=120)
-    finally:
-        child.kill()
+    pid = kill_when_written(_STOPPED_WRITER, str(out), timeout=120.0)
     killed = _leftovers(out)
-    assert len(killed) == 2 and all(f"-{child.pid}." in n for n in killed), killed
+    assert len(killed) == 2 and all(f"-{pid}." in n for n in killed), killed
     host = killed[0].split(".")[2].split("-")[0]
     kept = [f".image.{host}-{os.getpid()}.abc123.part.exr",        # a live writer (this test)
             ".image.0000beef-1.abc123.part.exr",                   # another machine's
-            f".image.{host}-{child.pid}.abc123.part.png",          # another output's (image.png)
+            f".image.{host}-{pid}.abc123.part.png",          # another output's (image.png)
             ".image.mine.part.exr"]                                 # the user's
     for n in kept:
         (out / n).write_text("keep")
