@@ -185,8 +185,8 @@ def merl_eval(brdf: MerlBRDF, wi, wo, interpolate: bool = False) -> np.ndarray:
     (u_h = sqrt(theta_h/(pi/2))*90 - 0.5, u_d = theta_d/(pi/2)*90 - 0.5, u_p = phi_d/pi*180 - 0.5),
     clamped at the theta edges and periodic (period pi) in phi_d.
     """
-    # a path or None: "'str' object has no attribute 'data'"; tabulate_merl's array: its .data (a memoryview) gave
-    # numpy's NotImplementedError "sub-views are not implemented"
+    # a path or None: "'str' object has no attribute 'data'"; tabulate_merl's array: its .data is a memoryview,
+    # which numpy refused to index as a sub-view (a traceback from inside numpy)
     if isinstance(brdf, np.ndarray) or not hasattr(brdf, "data"):
         raise WarpbwError(f"merl_eval: brdf is {type(brdf).__name__}, expected a MerlBRDF (read_merl(path) reads one)")
     interpolate = check_flag(interpolate, "merl_eval: interpolate")   # "no" is truthy: trilinear
