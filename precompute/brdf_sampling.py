@@ -168,6 +168,9 @@ def write_sampling(path, table: SamplerTable, source: BrdfSource, force: bool = 
     problem = sampling_problem(table)
     if problem is not None:
         raise WarpbwError(f"write_sampling: not a sampling table ({problem}); {path} is not written")
+    if table.shape != (N_THETA_O, N_U, N_PHI):   # read_sampling refuses them: the file was written, then unreadable
+        raise WarpbwError(f"write_sampling: tables of shape {table.shape}, the renderer reads "
+                          f"{(N_THETA_O, N_U, N_PHI)} (build_sampler_table's defaults); {path} is not written")
     return write_asset(path, TABLE_FORMAT, TABLE_VERSION, source.name, source.digest,
                        {"marginal": table.marginal, "conditional": table.conditional, "density": table.density},
                        params={"n_theta_o": N_THETA_O, "n_u": N_U, "n_phi": N_PHI,

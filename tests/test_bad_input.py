@@ -1310,6 +1310,45 @@ def test_gmm_precompute_time_keeps_an_existing_json_without_force(tmp_path):
     assert record["size"] == 17 and set(record["time_s"]) == {"dunes", "hemispherical_scales", "carved_disk"}
 
 
+def _asset_variants(tmp_path: Path) -> dict:
+    """Files examples/read_assets.py must refuse, by what its one line should say."""
+    import zipfile
+
+    from precompute.assetfile import write_asset
+
+    ok = write_asset(tmp_path / "ok.npz", "warpbw.brdf-bandwidth", 2, "m", "d0",
+                     {"nu_rho": np.ones((16, 16, 16), np.float32)})
+    (tmp_path / "folder.npz").mkdir()
+    (tmp_path / "text.npz").write_text("not an archive\n")
+    (tmp_path / "cut.npz").write_bytes(ok.read_bytes()[:200])
+    write_asset(tmp_path / "v1.npz", "warpbw.brdf-bandwidth", 1, "m", "d0", {"nu_rho": np.ones((16, 16, 16))})
+    write_asset(tmp_path / "other.npz", "someone-elses-format", 2, "m", "d0", {"x": np.ones(3)})
+    write_asset(tmp_path / "lacks.npz", "warpbw.brdf-sampling", 2, "m", "d0", {"density": np.ones((2, 3, 4))})
+    write_asset(tmp_path / "ints.npz", "warpbw.brdf-bandwidth", 2, "m", "d0", {"nu_rho": np.ones((16, 16, 16), int)})
+    np.savez(tmp_path / "plain.npz", a=np.ones(3))
+    with zipfile.ZipFile(tmp_path / "badjson.npz", "w") as z:
+        with z.open("__header__.npy", "w") as f:
+            np.lib.format.write_array(f, np.array("{not json"))
+    return {"missing.npz": "no such file", "folder.npz": "a folder, not a file", "text.npz": "not a .npz archive",
+            "cut.npz": "not a .npz archive", "v1.npz": "version 1; this reader reads version 2",
+            "other.npz": "not a warpbw asset of a known format", "lacks.npz": "arrays not as the format has them",
+            "ints.npz": "expected floating-point arrays", "plain.npz": "not a warpbw asset (no __header__ member)",
+            "badjson.npz": "__header__ member is not JSON"}
+
+
+def test_read_assets_refuses_what_is_not_an_asset_in_one_line(tmp_path):
+    """examples/read_assets.py reads with numpy alone, so it does its own refusing: each file that is no asset of a
+    format it reads gets one line naming the file and what is wrong (numpy's and zipfile's own errors, a KeyError
+    or a traceback otherwise)."""
+    for name, said in _asset_variants(tmp_path).items():
+        example_error(run_example(["read_assets.py", name], tmp_path), "read_assets.py", name, said)
+    for argv, said in ((["--view-deg", "90"], "--view-deg: expected degrees from 0 to 89"),
+                       (["--samples", "10"], "--samples: expected an integer >= 1000"),
+                       (["--roughness", "0"], "--roughness: expected 0.02 to 1"),
+                       (["--seed", "-1"], "--seed: expected an integer >= 0")):
+        example_error(run_example(["read_assets.py", "ok.npz", *argv], tmp_path), "read_assets.py", said)
+
+
 @pytest.mark.parametrize("script", sorted(p.name for p in EXAMPLES_DIR.glob("*.py")))
 def test_every_example_refuses_an_unknown_option_in_one_line(tmp_path, script):
     """(Scripts with a required argument name that one first.)"""

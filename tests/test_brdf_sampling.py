@@ -95,6 +95,15 @@ def test_consistent_tables_of_another_resolution_are_refused(tmp_path):
     assert f"this warpbw uses {(N_THETA_O, N_U, N_PHI)}" in got and "rebuild it with" in got, got
 
 
+def test_tables_of_another_resolution_are_not_written(tmp_path):
+    """write_sampling writes only what read_sampling reads (its docstring): a consistent table of other shapes was
+    written, and the file then refused by every reader of it."""
+    src = BrdfSource("m.binary", tmp_path / "m.binary", "d1", None)
+    got = outcome(write_sampling, tmp_path / "t.npz", _sampling_table(N_THETA_O // 2), src)
+    assert f"the renderer reads {(N_THETA_O, N_U, N_PHI)}" in got and "is not written" in got, got
+    assert not (tmp_path / "t.npz").exists()
+
+
 def test_infinite_tables_are_refused(tmp_path):
     """"tables hold negative or non-finite values": +inf passes a ``>= 0`` test (NaN does not), and an infinite
     density samples NaN directions."""
