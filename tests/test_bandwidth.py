@@ -306,7 +306,9 @@ def test_adaptive_lambert_furnace_returns_albedo():
     prep = prepared(w=40, h=40)
     res = render_adaptive(prep, budget=2.0, seed=1)
     cov = res.coverage
-    assert np.allclose(res.image[cov], 0.6, rtol=2e-2)  # Lambertian sphere under a constant sky
+    # Lambertian sphere under a constant sky: every cosine-sampled sample is the albedo exactly, and up-sampling a
+    # constant returns it, so the only error is float32 rounding (2.4e-7 measured); 2e-2 let a 1% bias pass
+    np.testing.assert_allclose(res.image[cov], 0.6, rtol=1e-5)
     assert res.stats["shaded_fraction"] < 0.1          # nothing varies: a few coarse texels are shaded
 
 
