@@ -993,7 +993,7 @@ def test_the_pass_estimates_a_tabulated_materials_radiance_without_bias(shared, 
     cov = gb.coverage.reshape(-1)
     mu = _pass_mean(buf)[cov]
     img = render_reference(prep, 256, seed=1, mis=False).image
-    lum = (img.reshape(-1, 3) @ np.array(bw.LUMINANCE))[cov]
+    lum = (img.reshape(-1, 3) @ np.array([0.2126, 0.7152, 0.0722]))[cov]   # Rec. 709 luminance (ITU-R BT.709)
     ndv = np.sum(gb.data.normal.numpy()[cov] * gb.data.view.numpy()[cov], axis=1)
     inner = ndv > 0.3
     assert abs(mu[inner].mean() / lum[inner].mean() - 1.0) < 0.04, (mu[inner].mean(), lum[inner].mean())
@@ -1036,7 +1036,7 @@ def test_env_bandwidth_map_depends_on_the_probes_luminance_alone(tmp_path):
     blue = (xx >= 40) & (xx < 56) & (yy >= 8) & (yy < 24)
     px[green, 1] = 0.5 + 1.5 * check[green]
     px[blue, 2] = 0.5 + 1.5 * check[blue]
-    y = px.astype(np.float64) @ np.array(bw.LUMINANCE)
+    y = px.astype(np.float64) @ np.array([0.2126, 0.7152, 0.0722])   # ITU-R BT.709 weights, not the module's own
     grey = np.repeat(y[..., None], 3, axis=2).astype(np.float32)
     nu_col, _ = bw.env_bandwidth_map(px, "coloured", cache=tmp_path)
     nu_grey, _ = bw.env_bandwidth_map(grey, "grey", cache=tmp_path)
