@@ -95,6 +95,14 @@ def test_deformation_moves_the_mesh_and_frame_zero_only_ripples():
         ratio = np.hypot(v[:, 0], v[:, 2])[r_rest > 1e-6] / r_rest[r_rest > 1e-6]
         assert np.all(np.abs(ratio - 1.0) <= ex.RIPPLE_AMPLITUDE + 1e-12)
     assert np.abs(v3 - v0).max() > 0.01                        # frames differ
+    # "frame zero only ripples": the twist swings as sin(2 pi frame / period), 0 at frame 0, so every vertex keeps
+    # its azimuth about the axis there (the checks above hold for any twist, which keeps the distance to the axis);
+    # at frame 3 the top and the bottom turn opposite ways (the twist grows with the height from the middle)
+    off = r_rest > 1e-6
+    turn = lambda v: np.angle((v[:, 0] + 1j * v[:, 2]) / (rest[:, 0] + 1j * rest[:, 2]))[off]  # noqa: E731
+    np.testing.assert_allclose(turn(v0), 0.0, atol=1e-12)
+    top, bottom = rest[off, 1] > 0.5, rest[off, 1] < -0.5
+    assert np.all(np.sign(turn(v3)[top]) == -np.sign(turn(v3)[bottom][0])) and np.abs(turn(v3)).max() > 0.05
 
 
 def test_absent_default_mesh_is_skipped_and_a_missing_mesh_is_an_error(tmp_path, capsys, monkeypatch):

@@ -17,9 +17,19 @@ from warpbw.gbuffer import (MESH_REACH_MAX, MESH_REACH_MIN, SPHERE_REACH_MAX, SP
 from warpbw.io.exr import read_exr
 
 
-def _sphere_closed_form(cam, center, radius):
-    """Independent ray-sphere intersection in float64: (hit mask, normals, depth) per pixel."""
-    o, d = camera_rays(cam)
+def _rays(position, look_at, fov_deg, w, h):
+    """(origins, unit directions) (H*W, 3) of the pixel-centre rays and the unit forward vector, in float64, from
+    the documented camera model (conftest's numpy camera), not from make_camera's frame or camera_rays."""
+    o, d = numpy_camera_rays(position, look_at, fov_deg, w, h)
+    fwd = np.asarray(look_at, float) - o
+    d = d.reshape(-1, 3)
+    return np.broadcast_to(o, d.shape), d, fwd / np.linalg.norm(fwd)
+
+
+def _sphere_closed_form(camera, center, radius):
+    """Independent ray-sphere intersection in float64 of the rays of ``camera`` = (position, look_at, fov, w, h):
+    (hit mask, normals, depth, ray directions) per pixel."""
+    o, d, fwd = _rays(*camera)
     c = np.asarray(center, np.float64)
     oc = o - c
     b = np.einsum("ij,ij->i", oc, d)
@@ -29,20 +39,22 @@ def _sphere_closed_form(cam, center, radius):
     t = -b - np.sqrt(np.where(hit, disc, 0.0))
     p = o + t[:, None] * d
     n = (p - c) / radius
-    fwd = np.array(list(cam.forward), np.float64)
     depth = np.einsum("ij,j->i", p - o, fwd)
-    return hit, n, depth
+    return hit, n, depth, d
+
+
+CAMERA = ((0.3, 0.4, 3.5), (0.0, 0.0, 0.0), 40.0, 96, 64)   # position, look_at, fov, width, height (up +Y)
 
 
 def test_sphere_matches_closed_form():
-    cam = make_camera((0.3, 0.4, 3.5), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 96, 64)
+    cam = make_camera(CAMERA[0], CAMERA[1], (0.0, 1.0, 0.0), *CAMERA[2:])
     center, radius = (0.1, -0.05, 0.2), 0.8
     geo = build_geometry([SphereSpec(center, radius, 0)], [])
     gb = render_gbuffer(cam, geo)
-    hit, n_ref, depth_ref = _sphere_closed_form(cam, center, radius)
+    hit, n_ref, depth_ref, d_ref = _sphere_closed_form(CAMERA, center, radius)
     cov = gb.coverage.reshape(-1)
     assert hit.sum() > 1000
-    interior = hit & (np.abs(np.einsum("ij,ij->i", n_ref, camera_rays(cam)[1])) > 0.05)
+    interior = hit & (np.abs(np.einsum("ij,ij->i", n_ref, d_ref)) > 0.05)
     assert np.array_equal(cov[interior], hit[interior])
     assert not cov[~hit].any()
     n = gb.numpy("normal").reshape(-1, 3)
@@ -73,7 +85,7 @@ def test_mesh_attributes_are_interpolated_with_each_vertexs_own_weight():
                     np.zeros(3, np.float32), uv.astype(np.float32), 0)
     geom = build_geometry([], [mesh])
     gb = render_gbuffer(cam, geom)
-    o, d = camera_rays(cam)
+    o, d, _ = _rays((0.1, 0.0, 3.0), (0.0, 0.0, 0.0), 60.0, 48, 40)
     e1, e2 = v[1] - v[0], v[2] - v[0]
     pv = np.cross(d, e2)
     det = pv @ e1
@@ -92,7 +104,7 @@ def test_mesh_attributes_are_interpolated_with_each_vertexs_own_weight():
     # from behind (the mirror image of the camera through the triangle's plane, roughly): the mix, negated
     back = make_camera((0.1, 0.0, -3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 60.0, 48, 40)
     gb = render_gbuffer(back, geom)
-    o, d = camera_rays(back)
+    o, d, _ = _rays((0.1, 0.0, -3.0), (0.0, 0.0, 0.0), 60.0, 48, 40)
     tv = o - v[0]
     pv = np.cross(d, e2)
     det = pv @ e1
@@ -123,7 +135,7 @@ def test_mesh_curvature_is_the_barycentric_mix_of_the_stored_vertex_curvature():
         np.float32), H.astype(np.float32), np.zeros((n * n, 2), np.float32), 0)
     cam = make_camera((0.05, 0.03, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 50.0, 48, 40)
     gb = render_gbuffer(cam, build_geometry([], [mesh]))
-    o, d = camera_rays(cam)
+    o, d, _ = _rays((0.05, 0.03, 3.0), (0.0, 0.0, 0.0), 50.0, 48, 40)
     p = o + (-o[:, 2] / d[:, 2])[:, None] * d                       # the plane z = 0
     a, b_, c = (verts[faces[:, k], :2] for k in range(3))           # per face, 2D corners
     e1, e2 = b_ - a, c - a
@@ -155,12 +167,12 @@ def test_camera_frame_depends_on_the_directions_only():
 def test_hide_beyond_empties_exactly_the_pixels_whose_surface_is_farther():
     """A wall of distances through the sphere (inf on the left half): the pixels whose closed-form hit lies beyond
     it become empty and are counted; the others keep every buffer as it was."""
-    cam = make_camera((0.3, 0.4, 3.5), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 96, 64)
+    cam = make_camera(CAMERA[0], CAMERA[1], (0.0, 1.0, 0.0), *CAMERA[2:])
     center, radius = (0.1, -0.05, 0.2), 0.8
     geo = build_geometry([SphereSpec(center, radius, 0)], [])
     before = render_gbuffer(cam, geo)
-    hit, _, depth_ref = _sphere_closed_form(cam, center, radius)
-    t_ref = depth_ref / (camera_rays(cam)[1] @ np.array(list(cam.forward)))   # distance along each ray
+    hit, _, depth_ref, d_ref = _sphere_closed_form(CAMERA, center, radius)
+    t_ref = depth_ref / (d_ref @ _rays(*CAMERA)[2])   # distance along each ray
     wall = float(np.median(t_ref[hit]))
     dist = np.full((64, 96), wall)
     dist[:, :48] = np.inf

@@ -13,11 +13,18 @@ from hypothesis import given, settings, strategies as st
 
 from warpbw.errors import WarpbwError
 from warpbw.gbuffer import GBufferData, MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer
-from warpbw.upsample import (COS_X_MIN, DEPTH_SIGMA_REL, G_A_UNIT, UPSAMPLE_DEFAULT, UPSAMPLE_MODES,
-                             anisotropic_gaussian, level_size, parent_weights, representative_pixel, top_level,
-                             upsample_level)
+from warpbw.upsample import (UPSAMPLE_DEFAULT, UPSAMPLE_MODES, anisotropic_gaussian, level_size, parent_weights,
+                             representative_pixel, top_level, upsample_level)
 
 MODES = pytest.mark.parametrize("mode", UPSAMPLE_MODES)
+
+# The weights' constants as warpbw.upsample documents them, not read from the module (a closed form that takes the
+# module's own constant passes whatever value it holds):
+G_A_UNIT = 4.0          # module docstring: "G_A_UNIT = 4 level-L pixels (two parent spacings)"
+COS_X_MIN = 0.05        # module docstring: at a silhouette (cos theta_x = 0.05) the parent 1.5 pixels away along the
+                        # normal keeps exp(-56) of its weight: (1.5 / G_A_UNIT / 0.05)^2 = 56.25
+DEPTH_SIGMA_REL = 0.1   # module docstring (the normal fit): a far parent 21% deeper keeps exp(-(0.21 / 0.1)^2) = 1.2%
+                        # of its weight under g_z(dz) = exp(-(dz / (DEPTH_SIGMA_REL z))^2)
 
 
 def gbuffer(spheres, w=48, h=40, pos=(0.0, 0.0, 5.0)):
