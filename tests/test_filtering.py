@@ -431,8 +431,8 @@ def numpy_box_mipmap(normals):
     """The box-filtered normal mipmap the docstring of warpbw.filtering describes, for a map whose sides are powers of
     two (every footprint whole): level l's texel is the mean over its 2^l x 2^l block of the unit normals n and of
     the projected second moments (n_x^2, n_y^2, n_x n_y).  Written here so that the re-derivation does not take its
-    mipmap from ``normal_moment_mipmap``, the renderer's own (a mistake there, such as n_x n_z for the cross moment,
-    would be in both images)."""
+    mipmap from ``normal_moment_mipmap``, the renderer's own (a mistake there would be in both images: coarse levels
+    transposed on a square map passed the comparison)."""
     n = np.asarray(normals, np.float64)
     h, w = n.shape[:2]
     assert h & (h - 1) == 0 and w & (w - 1) == 0, (h, w)
@@ -1514,7 +1514,7 @@ def test_anisotropic_footprints_elongated_along_the_columns_filter_as_documented
     numpy re-derivation (footprint and major axis from numpy's SVD of J), as at the camera looking along -Z."""
     x, y, z = grazing_position()
     s, normals, gmm_levels, prep = _scales_with_gmm_files(tmp_path, (z, y, x))
-    box = [b[0] for b in normal_moment_mipmap(normals)]
+    box = [b[0] for b in numpy_box_mipmap(normals)]
     for max_aniso, zoom in ((16, 1.0), (4, 0.25)):
         _assert_as_documented(s, prep, normals, gmm_levels, zoom, max_aniso)
         _, _, n, _, _ = numpy_footprint(s, zoom, box, max_aniso)
@@ -1547,7 +1547,7 @@ def test_a_footprint_beyond_the_coarsest_level_is_filtered_at_it_and_reported_as
     s = scene_with_map(tmp_path, heights=h, scale=0.5, tiling=32, roughness=0.15, diffuse=(0.5, 0.4, 0.3),
                        position=(0.0, 5.0, 1e-4), fov=40.0)
     normals = height_to_normals(h, 0.5)
-    box = [b[0] for b in normal_moment_mipmap(normals)]
+    box = [b[0] for b in numpy_box_mipmap(normals)]
     assert len(box) == 3
     _, lam_free, _, _, _ = numpy_footprint(s, 1.0, box * 4)      # clipped at 11 levels: in effect unclipped
     prep = prepare_filtering(s, ("toksvig", "lean", "fixed"))
