@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 
 from precompute.gmm_mipmap import (GMM_FORMAT, VARIANCE_FLOOR, build_gmm_mipmap, em_fit, filter_moments,
                                    footprint_samples, from_moments, kmeans_init, kmeans_plus_plus, level_shapes,
-                                   load_map, load_source, moment_match, normal_space, read_gmm_mipmap, to_moments,
+                                   load_map, load_source, moment_match, read_gmm_mipmap, to_moments,
                                    write_gmm_mipmap)
 from precompute.surfaces import dunes, hemispherical_scales
 from warpbw.errors import WarpbwError
@@ -212,10 +212,14 @@ def test_dunes_aligned_vs_unaligned():
 
 
 def test_mixture_reproduces_footprint_mean(scales_mips):
-    # without prior the mixture's mean is the footprint mean (EM keeps the first moment exactly)
+    # without prior the mixture's mean is the footprint mean (EM keeps the first moment exactly); the projected
+    # normals (n_x, n_y) of 004 Sec. 3 taken here from the unit normals themselves (normal_space, the builder's own
+    # projection, gave them before, so a slip in it was in both means)
     h = hemispherical_scales(48, scales_across=4)
     from precompute.surfaces import height_to_normals
-    n2 = normal_space(height_to_normals(h))
+    n = height_to_normals(h)
+    np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1.0, atol=1e-12)
+    n2 = n[..., :2]
     for lvl in (0, 2, 4):
         a, mu, _ = from_moments(scales_mips["no_prior"].levels[lvl])
         mean = np.sum(a[..., None] * mu, axis=-2)
