@@ -158,7 +158,10 @@ def test_bench_bad_arguments(tmp_path, capsys, args, match):
 
 def test_bench_records_the_runs_and_their_standard_errors(tmp_path):
     """With two runs every point keeps its runs' MSEs (their mean is the point's MSE), its PSNR's standard error,
-    and the n_b sweep the paired standard error of its two ends; the table prints them."""
+    and the n_b sweep the paired standard error of its two ends; the table prints them.  The standard errors of two
+    runs by hand (not from bench's own helpers, which gave the expected values before): the sample standard
+    deviation of m1, m2 is |m1 - m2| / sqrt(2), so the PSNR's is (10 / ln 10) |m1 - m2| / (m1 + m2), and the paired
+    difference's, of per-run differences d1, d2, is |d1 - d2| / 2."""
     from warpbw.scene import parse_scene
 
     scene = parse_scene(SCENE, tmp_path, "s.toml")
@@ -167,13 +170,16 @@ def test_bench_records_the_runs_and_their_standard_errors(tmp_path):
     points = rec["methods"]["reference"] + rec["methods"]["adaptive"] + rec["nb_sweep"]
     for p in points:
         assert len(p["mse_runs"]) == 2 and math.isclose(p["mse"], np.mean(p["mse_runs"]), rel_tol=1e-12)
-        assert p["psnr_se_db"] == bench.psnr_standard_error(p["mse_runs"]) and p["psnr_se_db"] > 0
+        m1, m2 = p["mse_runs"]
+        assert p["psnr_se_db"] == pytest.approx(10 / math.log(10) * abs(m1 - m2) / (m1 + m2), rel=1e-12)
+        assert p["psnr_se_db"] > 0
     for p in rec["methods"]["adaptive"]:
         assert p["equal_quality_speedup_se"] == p["equal_quality_speedup"] * bench.speedup_relative_se(
             rec["methods"]["reference"], p["mse"], p["psnr_se_db"])
     nb = rec["nb_sweep"]
     lo, hi = sorted(nb, key=lambda p: p["psnr_db"])
-    assert rec["nb_psnr_range_se_db"] == bench.paired_difference_se(lo["mse_runs"], hi["mse_runs"])
+    d1, d2 = (10 * math.log10(a / b) for a, b in zip(lo["mse_runs"], hi["mse_runs"]))
+    assert rec["nb_psnr_range_se_db"] == pytest.approx(abs(d1 - d2) / 2, rel=1e-9)
     table = bench.format_table(rec)
     assert f"{points[0]['psnr_se_db']:.2f}" in table and "over 2 paired runs" in table
     assert f"{rec['bandwidth_pass_reference_spp']:.1f} samples per pixel" in table

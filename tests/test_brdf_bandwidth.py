@@ -106,6 +106,28 @@ def test_ggx_peak_near_gaussian_reference(ggx_tables, alpha):
     assert ref / 2.5 < got < ref * 2.5, (alpha, got, ref)
 
 
+@pytest.mark.parametrize("nu", [2.0, 6.0])
+def test_a_ripple_of_known_cycles_per_radian_reads_in_cycles_per_radian(nu):
+    """A lobe slice 1 + cos(2 pi nu theta_o)/2 over the equal-area map (r = sqrt(2) sin(theta_o / 2), the module's
+    layout) has nu cycles per radian of arc along every meridian.  slice_bandwidth divides the wavelets' cycles/pixel
+    by the smaller side of the pixel (map_radians_per_pixel), the azimuthal one, while this ripple runs along the
+    radial side, 1 / cos^2(theta_o / 2) times longer (d theta / dr = sqrt(2) / cos(theta_o / 2) against
+    sin(theta_o) d phi / dr = sqrt(2) cos(theta_o / 2)): so b cos^2(theta_o / 2) is the estimator's reading of a sine
+    of nu cycles/radian.  The estimator reads a pure sine at 0.8 to 1.5 times its frequency (test_wavelets' sines, 0.04
+    to 0.4 cycles/pixel in four directions; here 0.81 to 1.50 over theta_o 0.3 to 1.2 rad, nu 1 to 12), hence
+    [0.75, 1.6].  The GGX peaks (within 2.5x of a Gaussian approximation) and the orderings let a halved or doubled
+    table through (every other test of this module passed with slice_bandwidth's result halved)."""
+    n = 128
+    c = -1.0 + (np.arange(n) + 0.5) * 2.0 / n
+    x, y = np.meshgrid(c, c)
+    theta = 2.0 * np.arcsin(np.minimum(np.hypot(x, y), math.sqrt(2.0)) / math.sqrt(2.0))
+    f = 1.0 + 0.5 * np.cos(2.0 * math.pi * nu * theta)
+    b = slice_bandwidth(np.stack([f, 0.5 * f, 0.2 * f], -1))
+    ring = (theta > 0.3) & (theta < 1.2)           # clear of the pole's cusp and of the grazing continuation
+    read = b[ring] * np.cos(theta[ring] / 2.0) ** 2 / nu
+    assert 0.75 <= read.min() and read.max() <= 1.6, (nu, read.min(), read.max())
+
+
 @pytest.fixture(scope="module")
 def npf_tables(shared):
     npf = shared("brdf/npf.bin")

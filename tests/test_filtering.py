@@ -427,6 +427,26 @@ def numpy_footprint(scene, zoom, levels, max_anisotropy=1):
     return st0, np.clip(lam, -1.0, len(levels) - 1), n, offsets, bound
 
 
+def numpy_box_mipmap(normals):
+    """The box-filtered normal mipmap the docstring of warpbw.filtering describes, for a map whose sides are powers of
+    two (every footprint whole): level l's texel is the mean over its 2^l x 2^l block of the unit normals n and of
+    the projected second moments (n_x^2, n_y^2, n_x n_y).  Written here so that the re-derivation does not take its
+    mipmap from ``normal_moment_mipmap``, the renderer's own (a mistake there would be in both images: coarse levels
+    transposed on a square map passed the comparison)."""
+    n = np.asarray(normals, np.float64)
+    h, w = n.shape[:2]
+    assert h & (h - 1) == 0 and w & (w - 1) == 0, (h, w)
+    m2 = np.stack([n[..., 0] ** 2, n[..., 1] ** 2, n[..., 0] * n[..., 1]], -1)
+    levels, f = [], 1
+    while True:
+        hl, wl = max(h // f, 1), max(w // f, 1)
+        fh, fw = h // hl, w // wl
+        levels.append(tuple(q.reshape(hl, fh, wl, fw, 3).mean(axis=(1, 3)) for q in (n, m2)))
+        if (hl, wl) == (1, 1):
+            return levels
+        f *= 2
+
+
 def numpy_filtered_render(scene, method, normals, gmm_levels, zoom, max_anisotropy=1):
     """What warpbw.filtering's docstring says a filtered method renders, written out in numpy (float64) for one
     plane: per pixel the footprint (``numpy_footprint``: isotropic, its larger side rho from the neighbouring
@@ -439,7 +459,7 @@ def numpy_filtered_render(scene, method, normals, gmm_levels, zoom, max_anisotro
     mat = scene.materials["m"]
     W, H = cam.width, cam.height
     _, d = numpy_camera_rays(cam.position, cam.look_at, cam.fov, W, H)
-    box = normal_moment_mipmap(normals)
+    box = numpy_box_mipmap(normals)
     st0, lam_px, n_px, offsets, _ = numpy_footprint(scene, zoom, [b[0] for b in box], max_anisotropy)
     s, t, lam = st0[..., 0].ravel(), st0[..., 1].ravel(), np.maximum(lam_px, 0.0).ravel()
     n_probes, offsets = n_px.ravel(), offsets.reshape(-1, max_anisotropy, 2)
@@ -581,7 +601,7 @@ def test_every_filtered_method_with_anisotropic_footprints_is_what_its_documenta
     # the grazing camera: each method's image with up to N probes along the footprint's major axis must be the
     # numpy re-derivation (footprint from numpy's SVD of J), to the isotropic comparison's precision
     s, normals, gmm_levels, prep = _scales_with_gmm_files(tmp_path, grazing_position())
-    box = [b[0] for b in normal_moment_mipmap(normals)]
+    box = [b[0] for b in numpy_box_mipmap(normals)]
     bounds, probes = set(), set()
     for max_aniso, zoom in ANISOTROPIC_CASES:
         lam = _assert_as_documented(s, prep, normals, gmm_levels, zoom, max_aniso)
@@ -1494,7 +1514,7 @@ def test_anisotropic_footprints_elongated_along_the_columns_filter_as_documented
     numpy re-derivation (footprint and major axis from numpy's SVD of J), as at the camera looking along -Z."""
     x, y, z = grazing_position()
     s, normals, gmm_levels, prep = _scales_with_gmm_files(tmp_path, (z, y, x))
-    box = [b[0] for b in normal_moment_mipmap(normals)]
+    box = [b[0] for b in numpy_box_mipmap(normals)]
     for max_aniso, zoom in ((16, 1.0), (4, 0.25)):
         _assert_as_documented(s, prep, normals, gmm_levels, zoom, max_aniso)
         _, _, n, _, _ = numpy_footprint(s, zoom, box, max_aniso)
@@ -1527,7 +1547,7 @@ def test_a_footprint_beyond_the_coarsest_level_is_filtered_at_it_and_reported_as
     s = scene_with_map(tmp_path, heights=h, scale=0.5, tiling=32, roughness=0.15, diffuse=(0.5, 0.4, 0.3),
                        position=(0.0, 5.0, 1e-4), fov=40.0)
     normals = height_to_normals(h, 0.5)
-    box = [b[0] for b in normal_moment_mipmap(normals)]
+    box = [b[0] for b in numpy_box_mipmap(normals)]
     assert len(box) == 3
     _, lam_free, _, _, _ = numpy_footprint(s, 1.0, box * 4)      # clipped at 11 levels: in effect unclipped
     prep = prepare_filtering(s, ("toksvig", "lean", "fixed"))

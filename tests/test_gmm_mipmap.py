@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 
 from precompute.gmm_mipmap import (GMM_FORMAT, VARIANCE_FLOOR, build_gmm_mipmap, em_fit, filter_moments,
                                    footprint_samples, from_moments, kmeans_init, kmeans_plus_plus, level_shapes,
-                                   load_map, load_source, moment_match, normal_space, read_gmm_mipmap, to_moments,
+                                   load_map, load_source, moment_match, read_gmm_mipmap, to_moments,
                                    write_gmm_mipmap)
 from precompute.surfaces import dunes, hemispherical_scales
 from warpbw.errors import WarpbwError
@@ -212,10 +212,14 @@ def test_dunes_aligned_vs_unaligned():
 
 
 def test_mixture_reproduces_footprint_mean(scales_mips):
-    # without prior the mixture's mean is the footprint mean (EM keeps the first moment exactly)
+    # without prior the mixture's mean is the footprint mean (EM keeps the first moment exactly); the projected
+    # normals (n_x, n_y) of 004 Sec. 3 taken here from the unit normals themselves (normal_space, the builder's own
+    # projection, gave them before, so a slip in it was in both means)
     h = hemispherical_scales(48, scales_across=4)
     from precompute.surfaces import height_to_normals
-    n2 = normal_space(height_to_normals(h))
+    n = height_to_normals(h)
+    np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1.0, atol=1e-12)
+    n2 = n[..., :2]
     for lvl in (0, 2, 4):
         a, mu, _ = from_moments(scales_mips["no_prior"].levels[lvl])
         mean = np.sum(a[..., None] * mu, axis=-2)
@@ -288,16 +292,30 @@ def test_linear_filtering_is_the_moment_matched_component():
 
 
 def test_trilinear_filtering_of_stored_float32_levels(scales_mips):
+    """Four stored float32 texels of a built level, filtered with weights w: component k is the mixture of the
+    texels' component k weighted w_t a_t.  Truth decoded here from the stored layout (a, a mu_x, a mu_y,
+    a (2 s^2 + |mu|^2)) without the module's from_moments or moment_match (which once gave the expected value, so a
+    mistake shared by from_moments on both sides, such as mu_x and mu_y read swapped, went unseen): weight
+    sum w_t a_t, mean sum p_t mu_t, and per-axis variance by the law of total variance, sum p_t s_t^2 +
+    sum p_t |mu_t - mean|^2 / 2 (p_t = w_t a_t / sum w a), floored at VARIANCE_FLOOR."""
     q = scales_mips["aligned"].levels[1].astype(np.float64)
     w = np.array([0.1, 0.2, 0.3, 0.4])
-    texels = np.stack([q[0, 0], q[0, 1], q[1, 0], q[1, 1]])
+    texels = np.stack([q[0, 0], q[0, 1], q[1, 0], q[1, 1]])           # (4 texels, K, 4)
     af, muf, s2f = from_moments(filter_moments(texels, w))
-    a, mu, s2 = from_moments(texels)
-    ma, mmu, ms2 = moment_match(a, mu, s2, w)
-    ok = ma > 1e-6
-    np.testing.assert_allclose(af, ma, rtol=1e-12)
-    np.testing.assert_allclose(muf[ok], mmu[ok], rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(s2f[ok], np.maximum(ms2[ok], VARIANCE_FLOOR), rtol=1e-6, atol=1e-9)
+    a_t = texels[..., 0]                                               # (4, K)
+    ok = np.sum(w[:, None] * a_t, axis=0) > 1e-6                       # components the four texels hold
+    used = a_t > 0
+    safe = np.where(used, a_t, 1.0)
+    mu_t = np.where(used[..., None], texels[..., 1:3] / safe[..., None], 0.0)                   # (4, K, 2)
+    s2_t = np.where(used, (texels[..., 3] / safe - np.sum(mu_t ** 2, axis=-1)) / 2, 0.0)        # per axis
+    wa = w[:, None] * a_t
+    p = wa / np.where(ok, wa.sum(axis=0), 1.0)
+    mean = np.sum(p[..., None] * mu_t, axis=0)
+    var = np.sum(p * s2_t, axis=0) + np.sum(p * np.sum((mu_t - mean) ** 2, axis=-1), axis=0) / 2
+    assert ok.sum() >= 2 and np.ptp(mu_t[:, ok], axis=0).max() > 1e-3   # the texels' components do differ
+    np.testing.assert_allclose(af, wa.sum(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(muf[ok], mean[ok], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(s2f[ok], np.maximum(var[ok], VARIANCE_FLOOR), rtol=1e-6, atol=1e-9)
 
 
 def test_moments_round_trip_and_zero_weight():
