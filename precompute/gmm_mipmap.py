@@ -17,6 +17,8 @@ Public functions and classes:
 - ``kmeans_init(x, centres, ...)``, ``kmeans_plus_plus(x, K, rng)``: vectorised clustering initialisation.
 - ``to_moments(a, mu, s2) -> q``, ``from_moments(q) -> (a, mu, s2)``, ``filter_moments(q, weights)``,
   ``moment_match(a, mu, s2, weights)``: the linearly filterable form of 004 Sec. 4.2 (below).
+  Each of these helpers refuses a wrong shape, a NaN or infinite value, a negative weight or a variance <= 0 with a
+  one-line WarpbwError; the builder, whose input ``_validate`` checked, calls their unchecked cores (``_em_fit``...).
 
 Representation.  A unit normal n is the 2D point (n_x, n_y) -- its projection on the tangent plane,
 as 004 Sec. 3 does ("a unit normal n can be represented as a 2D vector in x-y space").  Projected
@@ -131,7 +133,8 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import SEED_MAX, WarpbwError, check_count, check_flag, check_input_file, is_int, numeric_array
+from warpbw.errors import (SEED_MAX, WarpbwError, check_count, check_flag, check_input_file, check_real, is_int,
+                           numeric_array)
 
 GMM_FORMAT = "warpbw-gmm-mipmap"
 # 2: the fourth stored quantity is a (d s^2 + |mu|^2) (module docstring); 1 held 004's a (s^2 + |mu|^2).
@@ -186,11 +189,50 @@ UNIT_TOL = 1e-2
 
 
 # --------------------------------------------------------------------------------------------------
+# Input checks of the public numeric helpers.  Each helper checks its arguments once and calls its unchecked core
+# (``_name``), which the builder calls on the map ``_validate`` checked: nothing is checked per EM batch or iteration.
+
+def _checked(values, name: str, expected: str, shape=(...,), lo: float | None = None, lo_open: bool = False,
+             at_least: tuple = ()) -> np.ndarray:
+    """``values`` as finite float64 numbers of ``shape`` (``None`` items: any length; a leading ``...``: any leading
+    axes), each >= ``lo`` (> with ``lo_open``), axis i at least ``at_least[i]`` long; else a one-line WarpbwError
+    naming ``name`` (a wrong shape was numpy's broadcast error, NaN or a variance <= 0 a NaN result)."""
+    a = numeric_array(values, name, expected)
+    tail = shape[1:] if shape[:1] == (...,) else shape
+    fits = (a.ndim >= len(tail) if shape[:1] == (...,) else a.ndim == len(tail)) \
+        and all(t is None or n == t for n, t in zip(a.shape[a.ndim - len(tail):], tail)) \
+        and all(n >= m for n, m in zip(a.shape, at_least))
+    if not fits:
+        raise WarpbwError(f"{name}: expected {expected}, got shape {a.shape}")
+    bad = ~np.isfinite(a)
+    if lo is not None:
+        bad |= ~(a > lo) if lo_open else ~(a >= lo)
+    if bad.any():
+        k = int(np.argmax(bad.reshape(-1)))
+        raise WarpbwError(f"{name}: expected {expected}, {int(bad.sum())} of {a.size} values are not (the first: "
+                          f"{a.reshape(-1)[k]!r})")
+    return a
+
+
+def _checked_components(a, mu, s2, where: str, lead: tuple = (...,)):
+    """Weights a (``lead``, K) >= 0, means mu (a's shape, 2) and variances s2 (a's shape) > 0, all finite, checked."""
+    a = _checked(a, f"{where}: a", f"finite weights ({'..., ' if lead == (...,) else 'T, '}K) >= 0", lead + (None,),
+                 lo=0.0)
+    mu = _checked(mu, f"{where}: mu", f"finite means of shape {a.shape + (2,)} (a's, then 2)", a.shape + (2,))
+    s2 = _checked(s2, f"{where}: s2", f"finite variances of shape {a.shape} (a's) > 0", a.shape, lo=0.0, lo_open=True)
+    return a, mu, s2
+
+
+# --------------------------------------------------------------------------------------------------
 # The filterable form (004 Sec. 4.2)
 
 def to_moments(a, mu, s2) -> np.ndarray:
     """(..., K), (..., K, 2), (..., K) -> (..., K, 4): (a, a mu_x, a mu_y, a (d s^2 + |mu|^2)), s^2 per axis
     (the filterable form, module docstring; 004 Sec. 4.2)."""
+    return _to_moments(*_checked_components(a, mu, s2, "to_moments"))
+
+
+def _to_moments(a, mu, s2) -> np.ndarray:
     a = np.asarray(a, np.float64)
     mu = np.asarray(mu, np.float64)
     s2 = np.asarray(s2, np.float64)
@@ -201,6 +243,10 @@ def to_moments(a, mu, s2) -> np.ndarray:
 def from_moments(q):
     """Inverse of ``to_moments`` (004 Sec. 4.2: mu = T(a mu)/T(a); s^2 = (T(a E|n|^2)/T(a) - |mu|^2) / d).
     Safe for a = 0: such a component comes back with mean 0 and s^2 = VARIANCE_FLOOR."""
+    return _from_moments(_checked(q, "from_moments: q", "finite moments (..., K, 4)", (..., None, 4)))
+
+
+def _from_moments(q):
     q = np.asarray(q, np.float64)
     a = q[..., 0]
     ok = a > WEIGHT_EPS
@@ -213,6 +259,10 @@ def from_moments(q):
 def filter_moments(q, weights, axis: int = 0) -> np.ndarray:
     """Linear (bi/trilinear) filtering of stored moments: sum_k w_k q_k along ``axis`` (what the texture
     unit does at run time, 004 Sec. 4.2)."""
+    q = _checked(q, "filter_moments: q", "finite moments (..., 4)", (..., 4))
+    axis = _checked_axis(axis, q.ndim, "filter_moments", "moments")
+    _checked(weights, "filter_moments: weights", f"{q.shape[axis]} finite filter weights (q's axis {axis})",
+             (q.shape[axis],))
     q = np.moveaxis(np.asarray(q, np.float64), axis, 0)
     w = np.asarray(weights, np.float64)
     return np.tensordot(w, q, axes=(0, 0))
@@ -223,6 +273,14 @@ def moment_match(a, mu, s2, weights, axis: int = 0):
     form of the module docstring): with filter weights w_k, a = sum w_k a_k, mu = sum w_k a_k mu_k / a,
     s^2 = (sum w_k a_k (d s_k^2 + |mu_k|^2) / a - |mu|^2) / d -- the isotropic Gaussian with the weighted
     mixture's mean and second moment (per axis, its total variance over d)."""
+    a, mu, s2 = _checked_components(a, mu, s2, "moment_match")
+    axis = _checked_axis(axis, a.ndim, "moment_match", "components")
+    w = _checked(weights, "moment_match: weights", f"{a.shape[axis]} finite filter weights (a's axis {axis})",
+                 (a.shape[axis],))
+    a_f = np.tensordot(w, np.moveaxis(a, axis, 0), axes=(0, 0))
+    if not np.all(a_f > 0):   # mu = sum w_k a_k mu_k / a: 0/0
+        raise WarpbwError(f"moment_match: the filtered weight sum w_k a_k is not > 0 at {int(np.sum(~(a_f > 0)))} of "
+                          f"{a_f.size} places (no component to match there)")
     a = np.moveaxis(np.asarray(a, np.float64), axis, 0)
     mu = np.moveaxis(np.asarray(mu, np.float64), axis, 0)
     s2 = np.moveaxis(np.asarray(s2, np.float64), axis, 0)
@@ -237,8 +295,24 @@ def moment_match(a, mu, s2, weights, axis: int = 0):
 # --------------------------------------------------------------------------------------------------
 # Normal space, levels, footprints
 
+def _checked_axis(axis, ndim: int, where: str, last: str) -> int:
+    """``axis`` of an array of ``ndim`` axes as numpy counts them, any but the last (``last``), as 0 .. ndim - 2."""
+    if not (is_int(axis) and -ndim <= axis < ndim and axis % ndim != ndim - 1):
+        raise WarpbwError(f"{where}: axis: expected an integer from {-ndim} to {ndim - 2}, not {-1} or {ndim - 1} "
+                          f"(the {last}), got {axis!r}")
+    return int(axis) % ndim
+
+
 def normal_space(normals) -> np.ndarray:
     """Unit normals (..., 3) -> projected coordinates (n_x, n_y) (..., 2) (004 Sec. 3)."""
+    n = _checked(normals, "normal_space: normals", "finite normals (..., 3)", (..., 3))
+    if not np.all(np.linalg.norm(n, axis=-1) > 0):   # 0/0
+        raise WarpbwError(f"normal_space: normals: expected non-zero normals, "
+                          f"{int(np.sum(~(np.linalg.norm(n, axis=-1) > 0)))} of {n.size // 3} are (0, 0, 0)")
+    return _normal_space(n)
+
+
+def _normal_space(normals) -> np.ndarray:
     n = np.asarray(normals, np.float64)
     return n[..., :2] / np.linalg.norm(n, axis=-1, keepdims=True)
 
@@ -259,6 +333,15 @@ def footprint_samples(n2, level: int, max_samples: int = DEFAULT_MAX_SAMPLES, rn
     texels.  M = 4^level when that is at most ``max_samples`` (every normal, once, for full footprints);
     otherwise one jittered normal per cell of a g x g grid over the footprint (g^2 <= max_samples, seeded).
     Footprints clipped by the map's border are covered by the same M samples, spread evenly."""
+    n2 = _checked(n2, "footprint_samples: n2", "a finite map (H, W, C) of at least 1x1 texels", (None, None, None),
+                  at_least=(1, 1))
+    top = len(level_shapes(*n2.shape[:2])) - 1
+    level = check_count(level, f"footprint_samples: level (of a {n2.shape[1]}x{n2.shape[0]} map)", 0, top)
+    max_samples = check_count(max_samples, "footprint_samples: max_samples", 1)
+    return _footprint_samples(n2, level, max_samples, rng)
+
+
+def _footprint_samples(n2, level: int, max_samples: int = DEFAULT_MAX_SAMPLES, rng=None) -> np.ndarray:
     n2 = np.asarray(n2)
     H, W = n2.shape[:2]
     f = 1 << level
@@ -294,6 +377,17 @@ def _sq_dist(x, mu):
 
 def kmeans_plus_plus(x, K: int, rng) -> np.ndarray:
     """Seeded k-means++ seeding per texel, vectorised: (T, M, 2) -> centres (T, K, 2)."""
+    x = _checked_samples(x, "kmeans_plus_plus")
+    return _kmeans_plus_plus(x, check_count(K, "kmeans_plus_plus: K (components)", 1), rng)
+
+
+def _checked_samples(x, where: str) -> np.ndarray:
+    """Samples x (T, M, 2), M >= 1, finite."""
+    return _checked(x, f"{where}: x", "finite samples (T, M, 2) of at least 1 per texel", (None, None, 2),
+                    at_least=(0, 1))
+
+
+def _kmeans_plus_plus(x, K: int, rng) -> np.ndarray:
     rng = np.random.default_rng(rng)
     T, M, _ = x.shape
     t = np.arange(T)
@@ -313,6 +407,18 @@ def kmeans_init(x, centres, iterations: int = KMEANS_ITERATIONS, fallback_s2=Non
     """Lloyd iterations from ``centres`` (T, K, 2), vectorised; returns the initial (a, mu, s2) of EM:
     cluster fractions, centroids, within-cluster variance per axis.  An empty cluster keeps its centre,
     weight 0 and ``fallback_s2`` (T, K) (default: the texel's variance per axis), floored."""
+    x = _checked_samples(x, "kmeans_init")
+    centres = _checked(centres, "kmeans_init: centres", f"finite centres ({x.shape[0]}, K, 2) (x's T)",
+                       (x.shape[0], None, 2), at_least=(0, 1))
+    iterations = check_count(iterations, "kmeans_init: iterations", 0)
+    if fallback_s2 is not None:
+        fallback_s2 = _checked(fallback_s2, "kmeans_init: fallback_s2",
+                               f"finite variances of shape {centres.shape[:2]} (centres' T, K) > 0",
+                               centres.shape[:2], lo=0.0, lo_open=True)
+    return _kmeans_init(x, centres, iterations, fallback_s2)
+
+
+def _kmeans_init(x, centres, iterations: int = KMEANS_ITERATIONS, fallback_s2=None):
     x = np.asarray(x, np.float64)
     mu = np.array(centres, np.float64)
     T, M, _ = x.shape
@@ -347,6 +453,26 @@ def em_fit(x, a, mu, s2, c: float = 0.0, prior_sum=None, prior_weight=None,
     samples were drawn from every footprint, see ``build_gmm_mipmap``); it only sets the data's weight
     against the prior.  Stops when the largest change of a mean or weight is below ``tol`` (``tol=0``:
     exactly ``max_iter`` iterations).  Returns float64 (a, mu, s2, iterations)."""
+    x = _checked_samples(x, "em_fit")
+    a, mu, s2 = _checked_components(a, mu, s2, "em_fit", lead=(x.shape[0],))
+    if not np.all(a.sum(axis=-1) > 0):   # log a = -inf for every component: NaN responsibilities
+        raise WarpbwError(f"em_fit: a: expected weights of sum > 0 per texel, {int(np.sum(~(a.sum(axis=-1) > 0)))} "
+                          f"of {a.shape[0]} texels have none")
+    c = check_real(c, "em_fit: c (prior weight)", 0.0)
+    if prior_sum is not None:
+        prior_sum = _checked(prior_sum, "em_fit: prior_sum", f"finite sums of shape {mu.shape} (mu's)", mu.shape)
+    if prior_weight is not None:
+        prior_weight = _checked(prior_weight, "em_fit: prior_weight", f"finite weights of shape {a.shape} (a's) >= 0",
+                                a.shape, lo=0.0)
+    max_iter = check_count(max_iter, "em_fit: max_iter", 0)
+    tol = check_real(tol, "em_fit: tol", 0.0)
+    if sample_count is not None:
+        sample_count = check_real(sample_count, "em_fit: sample_count", 0.0, lo_open=True)
+    return _em_fit(x, a, mu, s2, c, prior_sum, prior_weight, max_iter, tol, sample_count)
+
+
+def _em_fit(x, a, mu, s2, c: float = 0.0, prior_sum=None, prior_weight=None,
+            max_iter: int = EM_MAX_ITERATIONS, tol: float = EM_TOLERANCE, sample_count: float | None = None):
     x = np.asarray(x, np.float64)
     a = np.array(a, np.float64)
     mu = np.array(mu, np.float64)
@@ -558,7 +684,7 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
     K = int(components)
     c = 0.0 if unaligned else float(prior)
     normals = height_to_normals(data, scale, texel_size) if kind == "height" else data
-    n2 = normal_space(normals)
+    n2 = _normal_space(normals)   # the map _validate checked: the helpers' unchecked cores below
     H, W = n2.shape[:2]
     shapes = level_shapes(H, W)
     L = len(shapes)
@@ -574,7 +700,7 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
         for sweep in range(sweeps):
             for l in range(L - 1, -1, -1):                       # coarse to fine (004 Sec. 4.1)
                 rng = np.random.default_rng(ss.spawn(1)[0])
-                x_all = footprint_samples(n2, l, max_samples, rng)
+                x_all = _footprint_samples(n2, l, max_samples, rng)
                 h, w = shapes[l]
                 M = x_all.shape[1]
                 ii_all, jj_all = np.divmod(np.arange(h * w), w)
@@ -592,19 +718,19 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
                         x = x_all[idx[b]]
                         bi, bj = ii[b], jj[b]
                         if unaligned:
-                            a0, mu0, s20 = kmeans_init(x, kmeans_plus_plus(x, K, rng))
+                            a0, mu0, s20 = _kmeans_init(x, _kmeans_plus_plus(x, K, rng))
                         elif sweep > 0:
                             a0, mu0, s20 = A[l][bi, bj], MU[l][bi, bj], S2[l][bi, bj]
                         elif l == L - 1:
-                            a0, mu0, s20 = kmeans_init(x, _top_centres(x[0], K, seed)[None])
+                            a0, mu0, s20 = _kmeans_init(x, _top_centres(x[0], K, seed)[None])
                         else:                                  # from the parent: component i keeps its meaning
-                            a0, mu0, s20 = kmeans_init(x, MU[l + 1][bi // 2, bj // 2],
-                                                       fallback_s2=S2[l + 1][bi // 2, bj // 2])
+                            a0, mu0, s20 = _kmeans_init(x, MU[l + 1][bi // 2, bj // 2],
+                                                        fallback_s2=S2[l + 1][bi // 2, bj // 2])
                         if unaligned:
-                            a1, mu1, s21, _ = em_fit(x, a0, mu0, s20)
+                            a1, mu1, s21, _ = _em_fit(x, a0, mu0, s20)
                         else:
-                            a1, mu1, s21, _ = em_fit(x, a0, mu0, s20, c, p_sum[b], p_w[b],
-                                                     sample_count=max(M, max_samples))
+                            a1, mu1, s21, _ = _em_fit(x, a0, mu0, s20, c, p_sum[b], p_w[b],
+                                                      sample_count=max(M, max_samples))
                         A[l][bi, bj], MU[l][bi, bj], S2[l][bi, bj] = a1, mu1, s21
                         done += b.stop - b.start
                         step(done)
@@ -616,7 +742,7 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
         # moves mu off its samples' mean, adding |mean - mu|^2 to their spread (steep random heights: E|n|^2 up to
         # 1 + 3e-4, a file its own reader refuses; mipmap_problem)
         s2_max = np.maximum((1.0 - np.sum(MU[l] * MU[l], axis=-1)) / NORMAL_DIM, VARIANCE_FLOOR)
-        levels.append(to_moments(a, MU[l], np.minimum(S2[l], s2_max)).astype(np.float32))
+        levels.append(_to_moments(a, MU[l], np.minimum(S2[l], s2_max)).astype(np.float32))
         if not np.all(np.isfinite(levels[-1])):   # never written: the renderer would refuse the file later
             raise WarpbwError(f"GMM fit of level {l} gave NaN or infinite moments (components {K}, prior {c:g}); "
                               "this is a defect, please report it with the map")

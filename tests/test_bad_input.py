@@ -3315,3 +3315,107 @@ def test_nyquist_share_is_scale_free_up_to_float64s_top():
     board = (np.indices((4, 6)).sum(axis=0) % 2).astype(np.float64)
     assert nyquist_share(board) == pytest.approx(1.0)
     assert nyquist_share(1e300 * board) == pytest.approx(1.0)
+
+
+def _gmm_helper_cases():
+    """precompute.gmm_mipmap's public numeric helpers (the module docstring's list; the builder checks its own input
+    and calls their unchecked cores), called with bad input: each was a traceback from inside numpy (broadcast,
+    index, shift and unpacking errors) or a NaN or silently wrong result.  Each case: (call, the refusal's start)."""
+    from precompute import gmm_mipmap as gm
+
+    x = np.random.default_rng(2).normal(0.0, 0.1, (3, 16, 2))           # 3 texels of 16 samples
+    a, mu, s2 = np.full((3, 2), 0.5), np.zeros((3, 2, 2)), np.full((3, 2), 0.01)
+    nan_x = x.copy()
+    nan_x[1, 4, 0] = np.nan
+    q = gm.to_moments(a, mu, s2)                                        # (3, 2, 4)
+    return {
+        "to_moments mu (K,) for a (K,) (numpy's stack error)": (
+            lambda: gm.to_moments([1.0], [0.0], [0.1]), "to_moments: mu: expected finite means of shape (1, 2)"),
+        "to_moments a variance of -0.1 (a negative second moment)": (
+            lambda: gm.to_moments([1.0], [[0.0, 0.0]], [-0.1]), "to_moments: s2: expected finite variances"),
+        "to_moments a NaN weight": (lambda: gm.to_moments([np.nan], [[0.0, 0.0]], [0.1]),
+                                    "to_moments: a: expected finite weights (..., K) >= 0"),
+        "from_moments (K, 3) (numpy's IndexError)": (lambda: gm.from_moments(np.ones((2, 3))),
+                                                     "from_moments: q: expected finite moments (..., K, 4)"),
+        "from_moments a NaN moment (a NaN mean)": (lambda: gm.from_moments([[0.5, np.nan, 0.0, 0.1]]),
+                                                   "from_moments: q: expected finite moments"),
+        "filter_moments 3 weights for 2 texels (numpy's tensordot error)": (
+            lambda: gm.filter_moments(q[:2], [0.2, 0.3, 0.5]), "filter_moments: weights: expected 2 finite"),
+        "filter_moments axis 5 (numpy's AxisError)": (
+            lambda: gm.filter_moments(q, [0.5, 0.5, 0.0], axis=5),
+            "filter_moments: axis: expected an integer from -3 to 1, not -1 or 2 (the moments)"),
+        "filter_moments a NaN weight (NaN moments)": (lambda: gm.filter_moments(q, [0.5, np.nan, 0.5]),
+                                                      "filter_moments: weights: expected 3 finite filter weights"),
+        "moment_match weights 0 (0/0: NaN)": (lambda: gm.moment_match(a, mu, s2, [0.0, 0.0, 0.0]),
+                                              "moment_match: the filtered weight sum w_k a_k is not > 0 at 2 of 2"),
+        "moment_match mu (3, 2, 3) (numpy's broadcast error)": (
+            lambda: gm.moment_match(a, np.zeros((3, 2, 3)), s2, [1.0, 0.0, 0.0]),
+            "moment_match: mu: expected finite means of shape (3, 2, 2)"),
+        "moment_match a variance of -1": (lambda: gm.moment_match(a, mu, -s2, [1.0, 0.0, 0.0]),
+                                          "moment_match: s2: expected finite variances of shape (3, 2) (a's) > 0"),
+        "normal_space a (0, 0, 0) normal (NaN)": (lambda: gm.normal_space([[0.0, 0.0, 1.0], [0.0, 0.0, 0.0]]),
+                                                  "normal_space: normals: expected non-zero normals, 1 of 2"),
+        "normal_space 2-vectors (projected as if 3-D)": (lambda: gm.normal_space(np.ones((4, 4, 2))),
+                                                         "normal_space: normals: expected finite normals (..., 3)"),
+        "footprint_samples level -1 (a negative shift count)": (
+            lambda: gm.footprint_samples(np.zeros((4, 4, 2)), -1), "footprint_samples: level (of a 4x4 map)"),
+        "footprint_samples an (H, W) map (numpy's indexing error)": (
+            lambda: gm.footprint_samples(np.zeros((4, 4)), 1),
+            "footprint_samples: n2: expected a finite map (H, W, C)"),
+        "footprint_samples max_samples -4 (isqrt's ValueError)": (
+            lambda: gm.footprint_samples(np.zeros((4, 4, 2)), 1, max_samples=-4), "footprint_samples: max_samples"),
+        "kmeans_plus_plus no sample per texel (rng.integers' ValueError)": (
+            lambda: gm.kmeans_plus_plus(np.zeros((3, 0, 2)), 2, 0), "kmeans_plus_plus: x: expected finite samples"),
+        "kmeans_plus_plus K 0 (no centre, without a word)": (lambda: gm.kmeans_plus_plus(x, 0, 0),
+                                                             "kmeans_plus_plus: K (components): expected an integer"),
+        "kmeans_plus_plus samples (M, 2) (an unpacking ValueError)": (
+            lambda: gm.kmeans_plus_plus(x[0], 2, 0), "kmeans_plus_plus: x: expected finite samples (T, M, 2)"),
+        "kmeans_init centres of 2 texels for 3 (numpy's einsum error)": (
+            lambda: gm.kmeans_init(x, np.zeros((2, 2, 2))), "kmeans_init: centres: expected finite centres (3, K, 2)"),
+        "kmeans_init a NaN sample (a NaN centroid)": (lambda: gm.kmeans_init(nan_x, mu),
+                                                      "kmeans_init: x: expected finite samples"),
+        "em_fit weights all 0 (NaN responsibilities)": (lambda: gm.em_fit(x, np.zeros((3, 2)), mu, s2),
+                                                        "em_fit: a: expected weights of sum > 0 per texel, 3 of 3"),
+        "em_fit a NaN sample (NaN fit)": (lambda: gm.em_fit(nan_x, a, mu, s2), "em_fit: x: expected finite samples"),
+        "em_fit a variance of 0": (lambda: gm.em_fit(x, a, mu, 0 * s2), "em_fit: s2: expected finite variances"),
+        "em_fit prior_sum (3, 2) (numpy's broadcast error)": (
+            lambda: gm.em_fit(x, a, mu, s2, 1.0, np.zeros((3, 2)), a), "em_fit: prior_sum: expected finite sums"),
+        "em_fit c '1' (a TypeError)": (lambda: gm.em_fit(x, a, mu, s2, "1", mu, a), "em_fit: c (prior weight)"),
+        "em_fit c NaN (plain EM, without a word)": (lambda: gm.em_fit(x, a, mu, s2, np.nan, mu, a),
+                                                    "em_fit: c (prior weight): expected a finite number >= 0"),
+        "em_fit mu (3, 2, 3) (numpy's einsum error)": (lambda: gm.em_fit(x, a, np.zeros((3, 2, 3)), s2),
+                                                       "em_fit: mu: expected finite means of shape (3, 2, 2)"),
+    }
+
+
+GMM_HELPER_CASES = _gmm_helper_cases()
+
+
+@pytest.mark.parametrize("case", sorted(GMM_HELPER_CASES))
+def test_gmm_mipmap_helpers_refuse_bad_input_in_one_line(case):
+    """Each of precompute.gmm_mipmap's public EM and moment helpers refuses bad input with a one-line WarpbwError
+    naming the helper and the parameter (leftovers of the session 65 API audit)."""
+    call, needle = GMM_HELPER_CASES[case]
+    with pytest.raises(WarpbwError, match=re.escape(needle)) as ei:
+        call()
+    assert "\n" not in str(ei.value)
+
+
+def test_the_gmm_mipmap_helpers_still_take_their_edge_inputs():
+    """What the checks must not refuse: an empty batch of texels (T = 0), a component of weight 0 beside others, one
+    sample per texel, the top level of a map, an axis counted from the end as numpy counts it; each as the module
+    docstring's formulas give it."""
+    from precompute import gmm_mipmap as gm
+
+    a, mu, s2 = np.array([[1.0, 0.0]]), np.array([[[0.2, -0.1], [0.0, 0.0]]]), np.array([[0.01, 0.02]])
+    q = gm.to_moments(a, mu, s2)
+    assert np.allclose(q[0, 0], [1.0, 0.2, -0.1, 2 * 0.01 + 0.05]) and np.all(q[0, 1] == 0.0)
+    assert np.allclose(gm.filter_moments(np.stack([q, 3 * q]), [0.25, 0.25], axis=-4), q)   # numpy's axis 0
+    x = np.array([[[0.3, 0.4]]])                                          # one texel of one sample
+    fa, fmu, fs2, _ = gm.em_fit(x, a, mu, s2)
+    assert np.allclose(fmu[0, 0], [0.3, 0.4]) and fa[0, 0] == 1.0 and fs2[0, 0] == gm.VARIANCE_FLOOR
+    e = gm.em_fit(np.zeros((0, 4, 2)), np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros((0, 2)))
+    assert [v.shape for v in e[:3]] == [(0, 2), (0, 2, 2), (0, 2)]
+    assert gm.footprint_samples(np.zeros((4, 4, 2)), 2).shape == (1, 16, 2)   # the top level: the whole map
+    n = gm.normal_space([[0.0, 0.6, 0.8]])
+    assert np.allclose(n, [[0.0, 0.6]])

@@ -981,3 +981,60 @@ def test_colour_error_against_a_black_reference_is_finite():
     err = colour_error(img, np.zeros((1, 2, 3)), np.ones((1, 2), bool))
     assert math.isfinite(err) and err > 0
 
+
+
+
+def test_a_gmm_folder_a_killed_benchmark_left_in_the_temporary_folder_is_removed_by_the_next_run(monkeypatch,
+                                                                                                  tmp_path):
+    """run_bench_filtering built its GMM mipmaps in a tempfile.TemporaryDirectory ("warpbw-gmm-XXXX" in /tmp): a
+    SIGKILL left it there for good.  Now the folder is named after its process ("warpbw-gmm-HOST-PID.XXXXXXXX", HOST
+    the first 8 hex digits of the SHA-1 of the machine's name, as the staged outputs' temporaries) and each run
+    first removes those of this machine's processes that are gone.  Truth: a folder (with a mipmap file in it) named
+    after a process that ran and ended is removed; one of this live process, one of another machine and an entry of
+    another name are kept; the mipmaps are built in a folder named after this process, gone once the run ends."""
+    import hashlib
+    import os
+    import socket
+    import subprocess
+    import sys
+    import tempfile
+
+    import warpbw.filtering
+    import warpbw.pipeline
+    from warpbw.bench_filtering import run_bench_filtering
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    host = hashlib.sha1(socket.gethostname().encode()).hexdigest()[:8]
+    ended = subprocess.Popen([sys.executable, "-c", "pass"])
+    ended.wait()
+    dead, live = f"warpbw-gmm-{host}-{ended.pid}.k1ll3d00", f"warpbw-gmm-{host}-{os.getpid()}.l1ve0000"
+    elsewhere, other = f"warpbw-gmm-{'0' * 8 if host != '0' * 8 else '1' * 8}-{ended.pid}.0th3rh0s", "warpbw-gmm-notes"
+    for name in (dead, live, elsewhere, other):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "m.gmm.npz").write_bytes(b"a mipmap")
+    built_in = []
+
+    class Built(Exception):
+        """Where the stand-in stops the run: the mipmaps' folder is all this test reads."""
+
+    def prepare(scene, methods, device="cpu", progress=False, cache=None):
+        if cache is None:   # the coverage check's preparation, before the mipmaps
+            return SimpleNamespace(notes={})
+        built_in.append((Path(cache), sorted(p.name for p in tmp_path.iterdir())))
+        raise Built
+
+    def render(scene, method, **kw):
+        return SimpleNamespace(coverage=np.ones((1, 3), bool))
+
+    monkeypatch.setattr(warpbw.filtering, "prepare_filtering", prepare)
+    monkeypatch.setattr(warpbw.filtering, "render_filtering", render)
+    monkeypatch.setattr(warpbw.filtering, "zoomed_camera", lambda camera, zoom: ("camera", float(zoom)))
+    monkeypatch.setattr(warpbw.pipeline, "split_planes", lambda scene: (None, scene))
+    scene = SimpleNamespace(has_planes=True, source="hand.toml", environment=None,
+                            camera=SimpleNamespace(width=3, height=1))
+    with pytest.raises(Built):
+        run_bench_filtering(scene, zooms=(1,), gt_spp=64, runs=1, methods=("toksvig",))
+    ((cache, during),) = built_in
+    assert during == sorted([live, elsewhere, other, cache.name])   # the dead process's folder went first
+    assert cache.parent == tmp_path and cache.name.startswith(f"warpbw-gmm-{host}-{os.getpid()}."), cache
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live, elsewhere, other])

@@ -2178,3 +2178,47 @@ def test_compare_mitsuba_script_writes_both_renderers_images_and_its_table(tmp_p
     inside = np.zeros((24, 24), bool)
     inside[8:16, 8:16] = True   # the sphere's middle: radius 1 at distance 4, 35 degrees across, covers +-8 px
     assert abs(ours[inside].mean() / mit[inside].mean() - 1.0) < 0.05
+
+
+_SHADING_SIGNALLED = """
+import sys
+import warp as wp
+
+real = wp.launch
+
+def launch(kernel, *args, **kwargs):   # says when the first shading launch starts (its module loaded)
+    if "shade_reference" in kernel.key and not said:
+        wp.load_module(kernel.module, device="cpu")
+        said.append(print("shading", flush=True))
+    return real(kernel, *args, **kwargs)
+
+said = []
+wp.launch = launch
+from warpbw.cli import main
+sys.exit(main(["render", "scene.toml", "-o", "out.exr", "--spp", "2147483647", "-q", "--threads", "1"]))
+"""
+
+
+def test_ctrl_c_stops_a_one_pixel_frame_of_two_billion_samples_between_its_launches(tmp_path):
+    """One pixel of more than LAUNCH_COST_MAX samples was one launch: a 1 x 1 frame at --spp 2^31 - 1 held Ctrl-C for
+    that pixel's 2e9 samples (about half an hour on one thread; leftovers of the options audit, session 64).  Now it is
+    shaded in passes of LAUNCH_COST_MAX samples (about a second each): a real process, sent SIGINT once its shading
+    has begun, ends with the interruption's line and status and writes no image, long before the samples are done."""
+    import signal
+
+    (tmp_path / "scene.toml").write_text(
+        "[camera]\nposition = [0.0, 0.0, 4.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 40.0\nresolution = [1, 1]\n"
+        "[environment]\nconstant = [1.0, 1.0, 1.0]\n[[object]]\nshape = \"sphere\"\nradius = 1.0\nmaterial = \"m\"\n"
+        "[material.m]\ntype = \"lambert\"\nalbedo = 0.5\n")
+    env = dict(os.environ, WARPBW_CACHE=str(tmp_path / "cache"))
+    child = subprocess.Popen([sys.executable, "-c", _SHADING_SIGNALLED], cwd=tmp_path, env=env, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        assert child.stdout.readline() == "shading\n"
+        child.send_signal(signal.SIGINT)
+        _, err = child.communicate(timeout=120)   # a pass is about a second; the whole pixel, half an hour
+    finally:
+        child.kill()
+    assert (child.returncode, err.strip()) == (130, "warpbw: interrupted")
+    assert [p.name for p in tmp_path.iterdir() if p.name != "cache"] == ["scene.toml"]   # no image, no temporary

@@ -1595,3 +1595,41 @@ def test_a_flat_plane_seen_half_a_degree_above_grazing_is_the_cook_torrance_brdf
         assert np.array_equal(r.coverage, cov) and cov.sum() > 10, m
         assert np.all(np.linalg.norm(ref[cov], axis=-1) > 0), m
         assert np.allclose(r.image[cov], ref[cov], rtol=2e-3, atol=1e-6), (m, np.abs(r.image[cov] - ref[cov]).max())
+
+
+def test_pair_uniforms_warns_before_it_takes_more_memory_than_is_available(monkeypatch):
+    """pair_uniforms(seed, pixel, 2**31 - 1) allocated its (n, 5) float32 uniforms, 43 GB, without a word (the system
+    then stops the process without one either); it now warns as the frames do (warpbw.errors.warn_if_short_of_memory)
+    first.  Truth: the uniforms' own size, 20 bytes a pair (5 float32: u.nbytes), against the memory a stand-in
+    reports available; the 43 GB are never allocated (a stand-in for wp.zeros stops the call there)."""
+    import warnings
+
+    import warpbw.filtering as F
+
+    class Allocated(Exception):
+        """Where the stand-in stops a large allocation."""
+
+    real_zeros = F.wp.zeros
+
+    def zeros(shape, *args, **kwargs):
+        if int(np.prod(shape)) > 10**6:
+            raise Allocated
+        return real_zeros(shape, *args, **kwargs)
+
+    monkeypatch.setattr(F.wp, "zeros", zeros)
+    monkeypatch.setattr(F, "available_memory", lambda: 10**9, raising=False)
+    with pytest.warns(RuntimeWarning, match=r"^pair_uniforms: n = 2147483647 pairs takes about 42\.9 GB, but 1\.0 GB "
+                                            r"of memory is available: the system may stop it \(ask for fewer pairs\)"):
+        with pytest.raises(Allocated):
+            pair_uniforms(0, 0, 2**31 - 1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        u = pair_uniforms(0, 0, 1000)   # 20,000 bytes
+        monkeypatch.setattr(F, "available_memory", lambda: u.nbytes)   # exactly enough: no warning
+        assert np.array_equal(pair_uniforms(0, 0, 1000), u)
+        monkeypatch.setattr(F, "available_memory", lambda: None)        # unknown (not Linux): no warning
+        assert np.array_equal(pair_uniforms(0, 0, 1000), u)
+    assert u.shape == (1000, 5) and u.nbytes == 20_000
+    monkeypatch.setattr(F, "available_memory", lambda: u.nbytes - 1)
+    with pytest.warns(RuntimeWarning, match=r"^pair_uniforms: n = 1000 pairs takes about 0\.0 GB"):
+        assert np.array_equal(pair_uniforms(0, 0, 1000), u)

@@ -553,3 +553,33 @@ def test_an_adaptive_frame_without_mis_draws_no_environment_samples():
         res = render_adaptive(scene(env=SKY, w=12, h=16), budget=2.0, mis=mis)
         assert res.stats["samples"] > 0
         assert res.stats["environment_samples"] == (res.stats["samples"] if mis else 0), mis
+
+
+def test_a_pixel_of_more_than_launch_cost_max_samples_is_shaded_in_passes_as_in_one_launch(monkeypatch):
+    """A pixel of more than LAUNCH_COST_MAX samples was one launch (Ctrl-C waited for all of it); now its samples are
+    drawn in passes of launches, each carrying the pixel's random state and float64 sum to the next.  Truth: the same
+    frame shaded in one launch per pixel (LAUNCH_COST_MAX above every count), bit for bit, with the lights' term added
+    once; one count for every pixel and a per-pixel map whose pixels end in different passes (N_p = 0 the lights
+    alone).  The passes are seen: launches that start past a pixel's first sample."""
+    from test_lights import GGX, SKY, light, scene
+    from warpbw import shading
+    from warpbw.shading import shade_reference
+
+    prep = prepare_scene(scene(GGX, env=SKY, lights=(light(),), w=10, h=8))
+    gb = render_reference(prep, spp=1, seed=1).gbuffer
+    n = gb.width * gb.height
+    counts = np.random.default_rng(5).choice([0, 1, 255, 256, 257, 700, 1300], n).astype(np.int32)
+    real, starts = shading.wp.launch, []
+    monkeypatch.setattr(shading.wp, "launch", lambda k, dim, inputs, device: starts.append(inputs[11])
+                        or real(k, dim=dim, inputs=inputs, device=device))
+    for spp in (1300, counts):
+        frames = []
+        for limit in (10**12, 300):   # 300: passes of 256 samples, one float32 batch
+            monkeypatch.setattr(shading, "LAUNCH_COST_MAX", limit)
+            starts.clear()
+            r = shade_reference(gb, prep.materials, prep.env.data, spp, seed=9, mis=True, lights=prep.lights)
+            frames.append((r.radiance.numpy(), r.samples, r.non_finite, sorted(set(starts))))
+        (one, samples, bad, one_starts), (passes, samples_p, bad_p, pass_starts) = frames
+        assert one_starts == [0] and pass_starts == [0, 256, 512, 768, 1024, 1280]
+        assert np.array_equal(one, passes) and (samples, bad) == (samples_p, bad_p)
+        assert np.all(np.isfinite(one)) and one.max() > 0

@@ -2,7 +2,7 @@
 filtered method along a zoom-out, against the ground truth.
 
 Public:
-    ``DEFAULT_ZOOMS``, ``DEFAULT_GT_SPP``, ``FLICKER_STEP``, ``FLICKER_PAIRS_MAX``
+    ``DEFAULT_ZOOMS``, ``DEFAULT_GT_SPP``, ``FLICKER_STEP``, ``FLICKER_PAIRS_MAX``, ``GMM_TEMP_PREFIX``
     ``colour_error(image, ref, mask) -> float``     per-pixel normalised Euclidean colour error, mean
     ``flicker(a0, a1, g0, g1, mask, norm) -> float``  frame-to-frame change in excess of the ground truth's
     ``temporal_error(a0, a1, g0, g1, mask, norm) -> float``  frame-to-frame change's distance to the truth's
@@ -65,13 +65,13 @@ from __future__ import annotations
 
 import math
 import statistics
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 from warpbw.errors import INT32_MAX, WarpbwError, check_count, offset_seed
+from warpbw.io.staged import temporary_folder
 from warpbw.metrics import psnr, relmse
 
 DEFAULT_ZOOMS = (1, 2, 4, 8, 16, 32)
@@ -84,6 +84,9 @@ FLICKER_PAIRS_MAX = 8   # at most one octave of the zoom (8 steps of FLICKER_STE
 # Seeds of the ground truths (plus ``seed``; the second one estimates the ground truth's noise).
 GT_SEED = 1_000_003
 GT_SEED_2 = 2_000_003
+# The system's temporary folder holds the GMM mipmaps a run without ``cache`` builds, in a folder of this prefix
+# named after its process (``warpbw.io.staged.temporary_folder``: the next run removes one a SIGKILL left).
+GMM_TEMP_PREFIX = "warpbw-gmm-"
 
 
 def _norm(ref, mask) -> float:
@@ -204,7 +207,7 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     zooms = [float(z) for z in zooms]
     frames_by_zoom = _zoom_frames(scene, zooms, _surfaces_behind(surfaces, device), int(flicker_pairs))
     _check_coverage(scene, frames_by_zoom, device)
-    with tempfile.TemporaryDirectory(prefix="warpbw-gmm-") as tmp:
+    with temporary_folder(GMM_TEMP_PREFIX) as tmp:   # named after this process: the next run removes it if killed
         t0 = time.perf_counter()
         prep = prepare_filtering(scene, methods + ("ground_truth",), device, progress,
                                  cache=Path(cache) if cache is not None else Path(tmp))

@@ -122,9 +122,10 @@ import warp as wp
 from precompute.gmm_mipmap import NORMAL_DIM, level_shapes
 from warpbw.envmap import (LUMINANCE_RGB, EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv,
                            load_environment)
-from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing,
-                           check_count, check_device, check_finite_image, check_flag, check_instance, check_real,
-                           check_seed, numeric_array, unit_directions)
+from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, available_memory, check_camera_reach,
+                           check_coordinate_spacing, check_count, check_device, check_finite_image, check_flag,
+                           check_instance, check_real, check_seed, numeric_array, unit_directions,
+                           warn_if_short_of_memory)
 from warpbw.gbuffer import CameraData, scene_camera
 from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene, check_scene
 
@@ -1564,6 +1565,9 @@ def pair_uniforms(seed: int, pixel: int, n: int, device: str = "cpu") -> np.ndar
     # as the renderer takes them: a uint32 seed, an int32 pixel index (2.5 and "1" were taken as 2 and 1)
     seed, pixel = check_seed(seed), check_count(pixel, "pixel", 0, INT32_MAX)
     n = check_count(n, "n (pairs)", 0, INT32_MAX)
+    # n float32 rows of PAIR_DIMS on the host (n = 2^31 - 1: 43 GB, allocated without a word)
+    warn_if_short_of_memory(int(n) * PAIR_DIMS * 4, available_memory(), f"pair_uniforms: n = {n} pairs",
+                            "ask for fewer pairs")
     out = wp.zeros((int(n), PAIR_DIMS), dtype=wp.float32, device=device)
     wp.launch(pair_uniforms_kernel, dim=(int(n), PAIR_DIMS), inputs=[int(seed), int(pixel), out], device=device)
     return out.numpy()

@@ -58,7 +58,8 @@ MIN_PIXELS_PER_TILE = 256
 # Samples (an item's cost: its samples, rays or directions) in one launch on the CPU, at most: Python acts on Ctrl-C
 # and SIGTERM only between launches, and tiles cut by pixels alone made one launch of 256 pixels x 2e6 samples (SIGINT
 # at 5 s acted on at 36 s) or of 4096 pixels x 1e5 (minutes; options audit, session 64).  2^21 samples take about 1 s
-# on one thread (the demo shades 3.05e6 samples/s on two); a single item of more samples is still one launch.
+# on one thread (the demo shades 3.05e6 samples/s on two); shade_reference shades a pixel of more samples in passes
+# of about this many, one launch each (carrying its random state and sum, bit for bit the single launch's).
 LAUNCH_COST_MAX = 2**21
 # Samples summed in float32 before their sum joins the pixel's float64 total: a float32 sum of ~1.7e7 equal
 # terms stops growing, and one of 256 is within 256 float32 roundings (1.5e-5) of exact.  Each sample enters the
@@ -126,8 +127,11 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
     def shade_reference_kernel(gb: GBufferData, mats: MaterialTable, env: EnvMapData, lights: DirectionalLights,
                                pixels: wp.array(dtype=wp.int32), offset: int, spp_all: int,
                                spp_map: wp.array(dtype=wp.int32), seed: int,
-                               out: wp.array(dtype=wp.vec3), non_finite: wp.array(dtype=wp.int32)):
-        i = pixels[wp.tid() + offset]
+                               out: wp.array(dtype=wp.vec3), non_finite: wp.array(dtype=wp.int32),
+                               first: int, last: int, carry_state: wp.array(dtype=wp.uint32),
+                               carry_sum: wp.array(dtype=wp.vec3d)):
+        j = wp.tid() + offset
+        i = pixels[j]
         spp = spp_all
         if wp.static(per_pixel_spp):
             spp = spp_map[i]
@@ -138,10 +142,16 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
         acc = wp.vec3d(0.0)   # float64: a float32 sum stops growing past ~1.7e7 samples of one size
         part = wp.vec3(0.0)   # float32 sums of SUM_BATCH samples / SUM_BATCH, added to acc (float64 per sample
         # cost 5% of a frame)
+        s_end = wp.min(spp, last)   # this launch draws the pixel's samples first .. s_end - 1 (all: first = 0,
+        if first > 0:               # last = spp); a later pass of a pixel too long for one launch goes on from
+            if first >= s_end:      # the random state and the sum its previous pass left in carry_*
+                return
+            state = carry_state[j]
+            acc = carry_sum[j]
         direct = wp.vec3(0.0)
         bad = int(0)
         if wp.static(has_lights):
-            if wo[2] > 0.0:
+            if wo[2] > 0.0 and s_end == spp:   # once, in the pixel's last pass
                 for k in range(lights.direction.shape[0]):
                     ld = to_local(fr, lights.direction[k])
                     if ld[2] > 0.0:
@@ -152,7 +162,7 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
                             bad = bad + 1
         if wp.static(has_env):
             if wo[2] > 0.0:
-                for s in range(spp):
+                for s in range(first, s_end):
                     if s % SUM_BATCH == 0:
                         acc = acc + wp.vec3d(part) * SUM_BATCH_F64
                         part = wp.vec3(0.0)
@@ -187,7 +197,11 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
                                     part = part + c * SUM_SCALE
                                 else:
                                     bad = bad + 1
-        out[i] = wp.vec3((acc + wp.vec3d(part) * SUM_BATCH_F64) / wp.float64(wp.max(spp, 1))) + direct
+        if s_end < spp:   # a pass ends at a multiple of SUM_BATCH: its sum is the one the next batch would start from
+            carry_state[j] = state
+            carry_sum[j] = acc + wp.vec3d(part) * SUM_BATCH_F64
+        else:
+            out[i] = wp.vec3((acc + wp.vec3d(part) * SUM_BATCH_F64) / wp.float64(wp.max(spp, 1))) + direct
         if bad > 0:
             wp.atomic_add(non_finite, 0, bad)
 
@@ -367,7 +381,8 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
     ``spp`` is one sample count for all pixels, or H*W per-pixel counts N_p (an int32 wp.array, or numpy
     integers of shape (H, W) or (H*W,)).  Pixels not shaded keep the value they have in ``out`` (zeros when ``out`` is not
     given).  ``env_data`` (``EnvMap.data``) None: no environment (``lights`` must then be given); ``lights``:
-    directional lights, or None.
+    directional lights, or None.  On the CPU a pixel of more than ``LAUNCH_COST_MAX`` samples is shaded in passes
+    of launches (Ctrl-C acts between them), bit for bit the image of one launch per pixel.
     """
     mis = check_flag(mis, "shade_reference: mis")
     check_device(device, "shade_reference: device")
@@ -408,11 +423,23 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
         pixel_spp = spp_np[pix.numpy() if pix_np is None else pix_np]
     else:
         pixel_spp = None
-    launch_tiled(kernel, pix.shape[0],
-                 lambda o, c: [gb.data, materials.table, env_data, lights_data, pix, o, spp_all, spp_map, int(seed),
-                               out, bad], device, threads, progress,
-                 costs=pixel_spp, item_cost=spp_all if has_env else 0)
     n = int(pix.shape[0])
+    longest = (int(pixel_spp.max(initial=0)) if per_pixel else spp_all) if has_env else 0
+    # a pixel of more than LAUNCH_COST_MAX samples is shaded in passes of `chunk` samples on the CPU, each its own
+    # launches, so that Ctrl-C acts between them (a 1 x 1 frame at 2^31 - 1 spp was one launch of hours)
+    chunk = max(SUM_BATCH, LAUNCH_COST_MAX // SUM_BATCH * SUM_BATCH)
+    split = str(device).startswith("cpu") and longest > LAUNCH_COST_MAX
+    passes = [(s, min(s + chunk, INT32_MAX)) for s in range(0, longest, chunk)] if split else [(0, INT32_MAX)]
+    carry_state = wp.zeros(n if split else 0, dtype=wp.uint32, device=device)
+    carry_sum = wp.zeros(n if split else 0, dtype=wp.vec3d, device=device)
+    step = progress if progress is None or not split else (lambda c: progress(c / len(passes)))
+    for first, last in passes:
+        costs = None if pixel_spp is None else np.clip(pixel_spp - first, 0, last - first)
+        launch_tiled(kernel, n,
+                     lambda o, c, first=first, last=last: [gb.data, materials.table, env_data, lights_data, pix, o,
+                                                           spp_all, spp_map, int(seed), out, bad, first, last,
+                                                           carry_state, carry_sum], device, threads, step,
+                     costs=costs, item_cost=max(0, min(spp_all - first, last - first)) if has_env else 0)
     if not has_env:
         samples = 0
     elif per_pixel:

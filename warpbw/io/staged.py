@@ -4,7 +4,8 @@ Public: ``staged_outputs(paths, force=True)``; ``check_replaceable(path, force, 
 (what every writer that takes ``force`` checks before its work), ``input_clash(path, inputs, inputs_are=...) ->
 str | None``, ``output_exists(path)``, ``check_existing_output(path, force, label)``, ``check_name_length(path,
 label)`` and ``check_not_read_only(path, label)`` (its parts the command lines share); ``remove_stale_temps(path)``
-(what the readers of a cache entry call: see below).
+(what the readers of a cache entry call: see below); ``temporary_folder(prefix, parent)`` (a work folder, removed at
+the end, whose name says its process: one a SIGKILL left is removed by the next run that makes one of that prefix).
 
 Every writer of warpbw (images, records, plots, asset and cache files) writes to a temporary file beside its
 output, and the outputs of one command are moved into place together once all of them are written.  So
@@ -34,6 +35,7 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import shutil
 import signal
 import socket
 import stat
@@ -234,6 +236,30 @@ def remove_stale_temps(path) -> None:
                 q.unlink()
             except OSError:   # tidied by another run first, or not ours to delete: no reason to refuse the output
                 pass
+
+
+@contextmanager
+def temporary_folder(prefix: str, parent=None):
+    """Yield a new folder ``PREFIXHOST-PID.XXXXXXXX`` in ``parent`` (the system's temporary folder when None), and
+    remove it with what it holds at the end.  ``tempfile.TemporaryDirectory`` folders that a SIGKILL left stayed for
+    good (the filtering benchmark's GMM mipmaps, megabytes each); these are named after their writer, as
+    :func:`remove_stale_temps`'s files, and each call first removes the folders of ``prefix`` in ``parent`` whose
+    process of this machine is gone.  Another machine's, a live process's and any other entry are left alone."""
+    parent = Path(tempfile.gettempdir() if parent is None else parent)
+    host = _host_tag()
+    try:
+        names = [q for q in parent.iterdir() if q.name.startswith(prefix)]
+    except OSError:   # a folder that cannot be listed: nothing to tidy (mkdtemp says why it cannot make one)
+        names = []
+    for q in names:
+        m = _TEMP_WRITER.fullmatch(q.name[len(prefix):])
+        if m and m["host"] == host and _gone(int(m["pid"])) and q.is_dir() and not q.is_symlink():
+            shutil.rmtree(q, ignore_errors=True)   # not ours to delete, or tidied by another run first: no matter
+    folder = Path(tempfile.mkdtemp(prefix=f"{prefix}{host}-{os.getpid()}.", dir=parent))
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)   # what is left (a file still open elsewhere) goes with the next run
 
 
 def _temp_beside(path: Path, mode: int) -> Path:
