@@ -152,7 +152,6 @@ def test_bandwidth_does_not_depend_on_the_images_scale(exponent):
     np.testing.assert_allclose(local_bandwidth(img * 10.0 ** exponent), local_bandwidth(img), rtol=1e-9, atol=0)
 
 
-
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1), h=st.integers(6, 40), w=st.integers(6, 40),
        pad=st.sampled_from(["zero", "edge", "reflect", "wrap"]), rule=st.sampled_from(["energy", "eq7"]))
@@ -166,6 +165,7 @@ def test_a_transposed_image_reads_its_bandwidth_transposed(seed, h, w, pad, rule
                                rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(local_bandwidth(img.T, pad=pad, rule=rule), local_bandwidth(img, pad=pad, rule=rule).T,
                                rtol=1e-9, atol=1e-12)
+
 
 @pytest.mark.parametrize("shape", [(97, 150), (33, 70), (50, 50)])
 def test_non_power_of_two_sizes(shape):
