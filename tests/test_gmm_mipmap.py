@@ -291,6 +291,33 @@ def test_linear_filtering_is_the_moment_matched_component():
         assert np.var(x, axis=0).mean() == pytest.approx(s2f[k], rel=0.02)
 
 
+
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), texels=st.integers(1, 8), k=st.integers(1, 5), convex=st.booleans())
+def test_filtering_any_texels_with_any_weights_is_the_mixture_of_their_components(seed, texels, k, convex):
+    """Linear filtering of the stored moments, sum_t w_t q_t, over any number of texels and any non-negative
+    weights (convex ones, as trilinear and anisotropic filters use, or not): component i comes back as the
+    isotropic Gaussian of the mixture sum_t w_t a_ti g_ti -- weight sum_t w_t a_ti, its mean, and its per-axis
+    variance by the law of total variance, sum_t p_t s_ti^2 + sum_t p_t |mu_ti - mean|^2 / 2 (p_t = w_t a_ti /
+    sum w a; an isotropic 2D Gaussian spreads 2 s^2 about its mean).  moment_match agrees."""
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(0.05, 1.0, (texels, k))
+    r, ang = np.sqrt(rng.uniform(0.0, 0.8, (texels, k))), rng.uniform(0.0, 2 * np.pi, (texels, k))
+    mu = np.stack([r * np.cos(ang), r * np.sin(ang)], -1)            # means inside the unit disk
+    s2 = np.exp(rng.uniform(np.log(1e-4), np.log(0.05), (texels, k)))
+    w = rng.dirichlet(np.ones(texels)) if convex else rng.uniform(0.01, 3.0, texels)
+    af, muf, s2f = from_moments(filter_moments(to_moments(a, mu, s2), w))
+    wa = w[:, None] * a
+    p = wa / wa.sum(axis=0)
+    mean = np.sum(p[..., None] * mu, axis=0)
+    var = np.sum(p * s2, axis=0) + np.sum(p * np.sum((mu - mean) ** 2, axis=-1), axis=0) / 2
+    np.testing.assert_allclose(af, wa.sum(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(muf, mean, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(s2f, var, rtol=1e-7, atol=1e-12)
+    ma, mmu, ms2 = moment_match(a, mu, s2, w)
+    np.testing.assert_allclose(np.concatenate([ma, ms2]), np.concatenate([af, s2f]), rtol=1e-9)
+    np.testing.assert_allclose(mmu, muf, rtol=1e-9, atol=1e-12)
+
 def test_trilinear_filtering_of_stored_float32_levels(scales_mips):
     """Four stored float32 texels of a built level, filtered with weights w: component k is the mixture of the
     texels' component k weighted w_t a_t.  Truth decoded here from the stored layout (a, a mu_x, a mu_y,
