@@ -276,6 +276,29 @@ def test_normal_moment_mipmap_means_over_clipped_footprints():
     assert np.allclose(lv[-1][0][0, 0], n.reshape(-1, 3).mean(0), atol=1e-6)
 
 
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), h=st.integers(1, 19), w=st.integers(1, 19))
+def test_normal_moment_mipmap_of_any_size_is_the_mean_over_each_clipped_footprint(seed, h, w):
+    """Dense brute force over every texel of every level, any map size: levels ceil-halve to 1x1, and texel (i, j)
+    of level l holds the mean normal and the mean (x^2, y^2, xy) of the projected normals over finest rows
+    [i 2^l, (i + 1) 2^l) and columns [j 2^l, (j + 1) 2^l), clipped at the map's border (module docstring)."""
+    rng = np.random.default_rng(seed)
+    n = rng.normal(size=(h, w, 3))
+    n[..., 2] = np.abs(n[..., 2]) + 0.2
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    q = np.concatenate([n, n[..., :1] ** 2, n[..., 1:2] ** 2, n[..., :1] * n[..., 1:2]], -1)
+    lv = normal_moment_mipmap(n)
+    shapes = [(h, w)]
+    while shapes[-1] != (1, 1):
+        shapes.append((-(-shapes[-1][0] // 2), -(-shapes[-1][1] // 2)))
+    assert [m.shape[:2] for m, _ in lv] == shapes
+    for l, (mean, second) in enumerate(lv):
+        f = 2 ** l
+        want = np.array([[q[i * f:(i + 1) * f, j * f:(j + 1) * f].reshape(-1, 6).mean(0)
+                          for j in range(mean.shape[1])] for i in range(mean.shape[0])])
+        np.testing.assert_allclose(np.concatenate([mean, second], -1), want, atol=2e-7)
+
 # ------------------------------------------------------------------------------------------ against the ground truth
 
 def _bumps(size=16):
