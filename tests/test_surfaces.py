@@ -88,6 +88,7 @@ def test_height_to_normals_of_any_tilted_plane_is_its_closed_form_normal(gx, gy,
     np.testing.assert_allclose(n[1:-1, 1:-1], np.broadcast_to(want, n[1:-1, 1:-1].shape), atol=1e-9)
 
 
+@pytest.mark.filterwarnings("ignore:height field of")   # small random maps hold much texel-to-texel detail
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1), rows=st.integers(3, 12), cols=st.integers(3, 12),
        scale=st.floats(0.05, 20.0))
