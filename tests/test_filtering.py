@@ -27,7 +27,7 @@ from conftest import (PLANE_DIFFUSE, PLANE_F0, PLANE_LIGHT_DIR, PLANE_RADIANCE, 
 from precompute.surfaces import hemispherical_scales
 from warpbw.errors import WarpbwError
 from warpbw.filtering import (ALL_METHODS, DIFFUSE_PICK_MIN, FLAT_SHADED_AS, MAX_LOBES, METHODS, MIN_COS,
-                              MIN_GT_SPP, Lobes, PlaneData, fetch_gmm, gmm_ndf, lobes_ndf, lobes_sample,
+                              MIN_GT_SPP, Lobes, PlaneData, diffuse_pick, fetch_gmm, gmm_ndf, lobes_ndf, lobes_sample,
                               normal_moment_mipmap, pair_uniforms, prepare_filtering, render_filtering, sample_pdf,
                               zoomed_camera)
 from warpbw.io.exr import write_exr
@@ -1399,6 +1399,29 @@ def test_lobe_sampler_follows_its_pdf(lobes):
     assert chi2 < dof + 5 * math.sqrt(2 * dof), (lobes, chi2, dof)
 
 
+
+
+REC709_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])   # ITU-R BT.709 luminance of linear RGB
+
+
+@settings(max_examples=60, deadline=None)
+@given(diffuse=st.lists(st.floats(0.0, 1.0), min_size=3, max_size=3),
+       f0=st.lists(st.floats(0.0, 1.0), min_size=3, max_size=3), channel=st.integers(0, 2), more=st.floats(0.0, 1.0))
+def test_diffuse_pick_is_the_diffuse_luminance_share_kept_off_zero_and_one(diffuse, f0, channel, more):
+    """diffuse_pick is the diffuse albedo's share of the diffuse + f0 luminance (Rec. 709 weights), clamped to
+    [DIFFUSE_PICK_MIN, 1 - DIFFUSE_PICK_MIN] (1/2 when both are black); so more diffuse in any channel never
+    lowers it and more f0 never raises it."""
+    d, f = np.array(diffuse), np.array(f0)
+    ld, ls = REC709_LUMINANCE @ d, REC709_LUMINANCE @ f
+    share = ld / (ld + ls) if ld + ls > 0 else 0.5
+    q = diffuse_pick(d, f)
+    # BT.709 prints 4 digits; weights of more digits (0.212671, ...) differ by at most 4.3e-4 of a weight, which
+    # moves a share s by at most 2 * 4.3e-4 * s (1 - s) <= 2.2e-4
+    assert q == pytest.approx(min(max(share, DIFFUSE_PICK_MIN), 1 - DIFFUSE_PICK_MIN), abs=2.5e-4)
+    bump = np.zeros(3)
+    bump[channel] = more
+    assert diffuse_pick(d + bump, f) >= q - 1e-12
+    assert diffuse_pick(d, f + bump) <= q + 1e-12
 
 @settings(max_examples=15, deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1), nl=st.integers(1, 3), q=st.floats(DIFFUSE_PICK_MIN, 0.9),
