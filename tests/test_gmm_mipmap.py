@@ -119,6 +119,30 @@ def test_plain_em_never_lowers_the_likelihood(seed, k, m, spread):
     assert np.all(np.isfinite(ll))
     assert np.all(np.diff(ll, axis=0) >= -1e-9 * np.abs(ll[1:])), np.diff(ll, axis=0).min()
 
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), k=st.integers(1, 6), m=st.integers(4, 100))
+def test_lloyd_iterations_never_raise_the_within_cluster_sum_of_squares(seed, k, m):
+    """Lloyd's algorithm: assigning each sample to its nearest centre and moving each centre to its cluster's mean
+    each never raise sum_j min_i |x_j - mu_i|^2 (an empty cluster keeps its centre, which raises nothing), from
+    any start (here k-means++ seeds or arbitrary points); and the returned weights are the cluster fractions."""
+    rng = np.random.default_rng(seed)
+    T = 3
+    x = rng.normal(scale=0.2, size=(T, m, 2)) + rng.uniform(-0.5, 0.5, (T, m, 1)) * [1.0, -0.5]
+    start = kmeans_plus_plus(x, k, seed) if seed % 2 else rng.uniform(-0.8, 0.8, (T, k, 2))
+
+    def sse(mu):
+        return np.sum(np.min(np.sum((x[:, :, None] - mu[:, None]) ** 2, axis=-1), axis=-1), axis=-1)
+
+    costs = [sse(start)]
+    for iterations in range(1, 8):
+        a, mu, _ = kmeans_init(x, start, iterations=iterations)
+        costs.append(sse(mu))
+        nearest = np.argmin(np.sum((x[:, :, None] - mu[:, None]) ** 2, axis=-1), axis=-1)
+        np.testing.assert_allclose(a, (nearest[..., None] == np.arange(k)).mean(axis=1), atol=1e-12)
+    costs = np.array(costs)
+    assert np.all(np.diff(costs, axis=0) <= 1e-12 * costs[:-1] + 1e-15), np.diff(costs, axis=0).max()
+
 def reference_map_em(x, a, mu, s2, c, p_sum, p_w, n_iter):
     """004 Sec. 4.1 MAP-EM written plainly, one texel, one sample at a time (float64)."""
     a, mu, s2 = a.copy(), mu.copy(), s2.copy()
