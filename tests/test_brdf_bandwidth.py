@@ -19,6 +19,8 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from conftest import attempt, named_as, outcome
 from precompute.brdf_bandwidth import (FORMAT, N_CELLS, N_THETA_I, VERSION, analytic_brdf_bandwidth_table,
@@ -433,6 +435,35 @@ def test_wo_to_map_puts_the_horizon_on_the_rim_and_the_axes_on_the_axes():
     s = math.sqrt(0.5)
     np.testing.assert_allclose(wo_to_map([s, 0.0, s]), [math.sqrt(2) * math.sin(math.pi / 8), 0.0], atol=1e-12)
 
+
+
+@settings(max_examples=60, deadline=None)
+@given(theta=st.floats(0.0, math.pi / 2), phi=st.floats(-math.pi, math.pi), length=st.floats(1e-3, 1e3))
+def test_wo_to_map_is_lamberts_equal_area_projection_of_any_direction(theta, phi, length):
+    """Lambert's azimuthal equal-area map (module docstring): the disc of radius r holds the cap of solid angle
+    2 pi (1 - cos theta) over area pi r^2, so pi r^2 = 2 pi (1 - cos theta) / 2, r^2 = 1 - cos theta, for every
+    direction of the upper hemisphere; the azimuth is kept; a direction's length does not matter."""
+    from precompute.brdf_bandwidth import wo_to_map
+
+    wo = length * np.array([math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta)])
+    x, y = wo_to_map(wo)
+    assert x * x + y * y == pytest.approx(1.0 - math.cos(theta), rel=1e-9, abs=1e-12)
+    if math.sin(theta) > 1e-9:   # the zenith has no azimuth
+        assert math.remainder(math.atan2(y, x) - phi, 2 * math.pi) == pytest.approx(0.0, abs=1e-7)
+
+
+def test_wo_to_map_undoes_wo_map_over_every_pixel_inside_the_grazing_limit():
+    """Dense sweep: the direction wo_map gives each pixel centre maps back onto that centre (x = -1 + (c + 1/2) 2/n
+    along columns, y likewise along rows), for every pixel whose direction is not clamped at GRAZING_LIMIT."""
+    from precompute.brdf_bandwidth import GRAZING_LIMIT, wo_map, wo_to_map
+
+    n = 64
+    c = -1.0 + (np.arange(n) + 0.5) * (2.0 / n)
+    x, y = np.meshgrid(c, c)
+    inside = np.hypot(x, y) < math.sqrt(2.0) * math.sin(GRAZING_LIMIT / 2.0) - 1e-9
+    got = wo_to_map(wo_map(n))
+    assert inside.sum() > 0.7 * n * n
+    np.testing.assert_allclose(got[inside], np.stack([x, y], -1)[inside], atol=1e-12)
 
 def test_wo_map_stops_at_the_grazing_limit():
     """Wo_map's elevations are clamped to GRAZING_LIMIT (85 deg): every direction is above the horizon."""

@@ -10,10 +10,13 @@ hand with known names and digests, and the file system.
 from __future__ import annotations
 
 import importlib
+import re
 import shlex
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from conftest import capture_call, fake_npf_table, killed_writer_temp, outcome, uniform_sampler_table
 from precompute.assetfile import write_asset
@@ -320,6 +323,25 @@ def test_a_merl_table_that_reflects_more_than_the_bound_is_read_with_a_warning_n
     if warns:
         assert texts[0].startswith(f"m.binary: reflects {factor * ALBEDO_WARN:.3g} times") and "\n" not in texts[0]
 
+
+
+@settings(max_examples=40, deadline=None)
+@given(rho=st.lists(st.floats(0.0, 4.0), min_size=3, max_size=3))
+def test_a_lambertian_of_any_colour_is_called_too_bright_exactly_when_a_channel_reflects_more_than_the_bound(rho):
+    """A Lambertian of albedo rho_c per channel, f = rho_c / pi, reflects exactly rho_c at every view (the
+    hemisphere integral of cos / pi is 1).  albedo_excess says so exactly when the brightest channel exceeds
+    ALBEDO_WARN, and names that channel and its albedo; pairs within 1e-3 of the bound are left out (the
+    midpoint rule is within 1e-4 of the closed form)."""
+    from precompute.brdf_sampling import ALBEDO_WARN, albedo_excess
+
+    rho = np.array(rho)
+    assume(abs(rho.max() - ALBEDO_WARN) > 1e-3)
+    said = albedo_excess(lambda wi, wo: np.broadcast_to(rho / np.pi, (len(wi), 3)))
+    assert (said is not None) == (rho.max() > ALBEDO_WARN)
+    if said is not None:
+        top = re.match(r"reflects ([0-9.]+) times the light it receives", said)
+        assert top and float(top.group(1)) == pytest.approx(rho.max(), rel=4e-3)   # 3 digits
+        assert f"in the {'RGB'[int(np.argmax(rho))]} channel" in said
 
 def test_a_merl_table_with_every_seventh_entry_at_1e15_warns(tmp_path):
     """Corrupted-file audit (session 63): a finite but absurd entry in every 7th place rendered an image of mean

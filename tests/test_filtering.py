@@ -27,7 +27,7 @@ from conftest import (PLANE_DIFFUSE, PLANE_F0, PLANE_LIGHT_DIR, PLANE_RADIANCE, 
 from precompute.surfaces import hemispherical_scales
 from warpbw.errors import WarpbwError
 from warpbw.filtering import (ALL_METHODS, DIFFUSE_PICK_MIN, FLAT_SHADED_AS, MAX_LOBES, METHODS, MIN_COS,
-                              MIN_GT_SPP, Lobes, PlaneData, fetch_gmm, gmm_ndf, lobes_ndf, lobes_sample,
+                              MIN_GT_SPP, Lobes, PlaneData, diffuse_pick, fetch_gmm, gmm_ndf, lobes_ndf, lobes_sample,
                               normal_moment_mipmap, pair_uniforms, prepare_filtering, render_filtering, sample_pdf,
                               zoomed_camera)
 from warpbw.io.exr import write_exr
@@ -275,6 +275,29 @@ def test_normal_moment_mipmap_means_over_clipped_footprints():
                                         np.mean(block[:, 0] * block[:, 1])], atol=1e-6)
     assert np.allclose(lv[-1][0][0, 0], n.reshape(-1, 3).mean(0), atol=1e-6)
 
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), h=st.integers(1, 19), w=st.integers(1, 19))
+def test_normal_moment_mipmap_of_any_size_is_the_mean_over_each_clipped_footprint(seed, h, w):
+    """Dense brute force over every texel of every level, any map size: levels ceil-halve to 1x1, and texel (i, j)
+    of level l holds the mean normal and the mean (x^2, y^2, xy) of the projected normals over finest rows
+    [i 2^l, (i + 1) 2^l) and columns [j 2^l, (j + 1) 2^l), clipped at the map's border (module docstring)."""
+    rng = np.random.default_rng(seed)
+    n = rng.normal(size=(h, w, 3))
+    n[..., 2] = np.abs(n[..., 2]) + 0.2
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    q = np.concatenate([n, n[..., :1] ** 2, n[..., 1:2] ** 2, n[..., :1] * n[..., 1:2]], -1)
+    lv = normal_moment_mipmap(n)
+    shapes = [(h, w)]
+    while shapes[-1] != (1, 1):
+        shapes.append((-(-shapes[-1][0] // 2), -(-shapes[-1][1] // 2)))
+    assert [m.shape[:2] for m, _ in lv] == shapes
+    for l, (mean, second) in enumerate(lv):
+        f = 2 ** l
+        want = np.array([[q[i * f:(i + 1) * f, j * f:(j + 1) * f].reshape(-1, 6).mean(0)
+                          for j in range(mean.shape[1])] for i in range(mean.shape[0])])
+        np.testing.assert_allclose(np.concatenate([mean, second], -1), want, atol=2e-7)
 
 # ------------------------------------------------------------------------------------------ against the ground truth
 
@@ -1375,6 +1398,74 @@ def test_lobe_sampler_follows_its_pdf(lobes):
     dof = len(exp) - 1
     assert chi2 < dof + 5 * math.sqrt(2 * dof), (lobes, chi2, dof)
 
+
+
+
+REC709_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])   # ITU-R BT.709 luminance of linear RGB
+
+
+@settings(max_examples=60, deadline=None)
+@given(diffuse=st.lists(st.floats(0.0, 1.0), min_size=3, max_size=3),
+       f0=st.lists(st.floats(0.0, 1.0), min_size=3, max_size=3), channel=st.integers(0, 2), more=st.floats(0.0, 1.0))
+def test_diffuse_pick_is_the_diffuse_luminance_share_kept_off_zero_and_one(diffuse, f0, channel, more):
+    """diffuse_pick is the diffuse albedo's share of the diffuse + f0 luminance (Rec. 709 weights), clamped to
+    [DIFFUSE_PICK_MIN, 1 - DIFFUSE_PICK_MIN] (1/2 when both are black); so more diffuse in any channel never
+    lowers it and more f0 never raises it."""
+    d, f = np.array(diffuse), np.array(f0)
+    ld, ls = REC709_LUMINANCE @ d, REC709_LUMINANCE @ f
+    share = ld / (ld + ls) if ld + ls > 0 else 0.5
+    q = diffuse_pick(d, f)
+    # BT.709 prints 4 digits; weights of more digits (0.212671, ...) differ by at most 4.3e-4 of a weight, which
+    # moves a share s by at most 2 * 4.3e-4 * s (1 - s) <= 2.2e-4
+    assert q == pytest.approx(min(max(share, DIFFUSE_PICK_MIN), 1 - DIFFUSE_PICK_MIN), abs=2.5e-4)
+    bump = np.zeros(3)
+    bump[channel] = more
+    assert diffuse_pick(d + bump, f) >= q - 1e-12
+    assert diffuse_pick(d, f + bump) <= q + 1e-12
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), nl=st.integers(1, 3), q=st.floats(DIFFUSE_PICK_MIN, 0.9),
+       theta_o=st.floats(0.0, 1.2), phi_o=st.floats(-math.pi, math.pi))
+def test_lobe_sampler_pdf_holds_the_mass_of_the_draws_it_keeps_for_any_lobes_and_view(seed, nl, q, theta_o, phi_o):
+    """For random lobes (weights, means, correlated covariances), any view up to 69 degrees and any diffuse_pick:
+    ``sample_pdf`` is the documented formula (``numpy_lobes_pdf``) and is never negative, and its integral over
+    the upper hemisphere (midpoint rule, 256 x 512 equal-solid-angle cells) is the share of ``lobes_sample``'s
+    draws that land there (5 x 10^4 draws; bound: 5 binomial standard errors plus 2e-3 for the quadrature),
+    at most 1: what leaves the hemisphere (a half vector off the disk, a reflection below the horizon) is lost
+    from both alike."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for _ in range(nl):
+        ev, ang = rng.uniform(0.004, 0.03, 2), rng.uniform(0.0, math.pi)
+        R = np.array([[math.cos(ang), -math.sin(ang)], [math.sin(ang), math.cos(ang)]])
+        S = R @ np.diag(ev) @ R.T
+        r, t = rng.uniform(0.0, 0.3), rng.uniform(0.0, 2 * math.pi)
+        rows.append((rng.uniform(0.1, 1.0), r * math.cos(t), r * math.sin(t), S[0, 0], S[1, 1], S[0, 1]))
+    wo = np.array([math.sin(theta_o) * math.cos(phi_o), math.sin(theta_o) * math.sin(phi_o), math.cos(theta_o)])
+    L = np.zeros((1, MAX_LOBES, 6), np.float32)
+    L[0, :nl] = rows
+    pl = PlaneData()
+    pl.diffuse_pick = q
+    args = [wp.array(L, dtype=Lobes), nl, wp.vec3(*wo), pl]
+    nz, nphi = 256, 512
+    z = (np.arange(nz) + 0.5) / nz
+    ph = (np.arange(nphi) + 0.5) / nphi * 2 * np.pi
+    Z, P = np.meshgrid(z, ph, indexing="ij")
+    rr = np.sqrt(1 - Z * Z)
+    wq = np.stack([rr * np.cos(P), rr * np.sin(P), Z], -1).reshape(-1, 3)
+    pdf = wp.zeros(len(wq), dtype=wp.float32)
+    wp.launch(_sample_pdf_kernel, dim=len(wq), inputs=args + [wp.array(wq.astype(np.float32), dtype=wp.vec3), pdf])
+    pdf = pdf.numpy().astype(np.float64)
+    assert pdf.min() >= 0.0
+    np.testing.assert_allclose(pdf, numpy_lobes_pdf(rows, q, wq, wo), rtol=2e-4, atol=1e-5)
+    mass = pdf.sum() * 2 * np.pi / (nz * nphi)
+    n = 50_000
+    out = wp.zeros(n, dtype=wp.vec3)
+    wp.launch(_lobes_sample_kernel, dim=n, inputs=args + [wp.array(rng.uniform(size=(n, 3)).astype(np.float32),
+                                                                     dtype=wp.vec3), out])
+    kept = float(np.mean(out.numpy()[:, 2] > 0.0))
+    assert mass <= 1.0 + 2e-3
+    assert abs(mass - kept) < 5 * math.sqrt(max(kept * (1 - kept), 1e-4) / n) + 2e-3, (mass, kept)
 
 def _translated(text: str, c) -> str:
     """The scene moved rigidly by c: the plane's centre and the camera's position and look-at point (each key

@@ -91,6 +91,58 @@ def test_em_without_prior_equals_sklearn_spherical_gmm():
         np.testing.assert_allclose(s2[t], gm.covariances_, rtol=1e-9, atol=1e-14)
 
 
+
+def mixture_log_likelihood(x, a, mu, s2):
+    """sum_j log sum_i a_i g(x_j; mu_i, s_i^2 I_2) per texel, written from the density (T, M, 2) -> (T,)."""
+    d2 = np.sum((x[:, :, None, :] - mu[:, None, :, :]) ** 2, axis=-1)
+    with np.errstate(divide="ignore"):
+        terms = np.log(a)[:, None, :] - d2 / (2 * s2[:, None, :]) - np.log(2 * np.pi * s2)[:, None, :]
+    top = terms.max(axis=-1, keepdims=True)
+    return np.sum(top[..., 0] + np.log(np.exp(terms - top).sum(axis=-1)), axis=1)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), k=st.integers(1, 5), m=st.integers(8, 120), spread=st.floats(0.01, 0.4))
+def test_plain_em_never_lowers_the_likelihood(seed, k, m, spread):
+    """Dempster, Laird and Rubin: each EM iteration (E-step, then the M-step's maximum) never lowers the data's
+    log-likelihood under the mixture, from any start, for any data; the M-step's variance floor is a bound the
+    maximum is clipped to, which keeps it so.  Checked over 12 iterations on random texels and random starts."""
+    rng = np.random.default_rng(seed)
+    T = 3
+    x = rng.normal(scale=spread, size=(T, m, 2)) + rng.uniform(-0.4, 0.4, (T, 1, 2)) * (rng.random((T, m, 1)) < 0.5)
+    a, mu, s2 = rng.dirichlet(np.ones(k), size=T), rng.uniform(-0.5, 0.5, (T, k, 2)), rng.uniform(1e-3, 0.1, (T, k))
+    ll = [mixture_log_likelihood(x, a, mu, s2)]
+    for _ in range(12):
+        a, mu, s2, _ = em_fit(x, a, mu, s2, c=0.0, max_iter=1, tol=0.0)
+        ll.append(mixture_log_likelihood(x, a, mu, s2))
+    ll = np.array(ll)
+    assert np.all(np.isfinite(ll))
+    assert np.all(np.diff(ll, axis=0) >= -1e-9 * np.abs(ll[1:])), np.diff(ll, axis=0).min()
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), k=st.integers(1, 6), m=st.integers(4, 100))
+def test_lloyd_iterations_never_raise_the_within_cluster_sum_of_squares(seed, k, m):
+    """Lloyd's algorithm: assigning each sample to its nearest centre and moving each centre to its cluster's mean
+    each never raise sum_j min_i |x_j - mu_i|^2 (an empty cluster keeps its centre, which raises nothing), from
+    any start (here k-means++ seeds or arbitrary points); and the returned weights are the cluster fractions."""
+    rng = np.random.default_rng(seed)
+    T = 3
+    x = rng.normal(scale=0.2, size=(T, m, 2)) + rng.uniform(-0.5, 0.5, (T, m, 1)) * [1.0, -0.5]
+    start = kmeans_plus_plus(x, k, seed) if seed % 2 else rng.uniform(-0.8, 0.8, (T, k, 2))
+
+    def sse(mu):
+        return np.sum(np.min(np.sum((x[:, :, None] - mu[:, None]) ** 2, axis=-1), axis=-1), axis=-1)
+
+    costs = [sse(start)]
+    for iterations in range(1, 8):
+        a, mu, _ = kmeans_init(x, start, iterations=iterations)
+        costs.append(sse(mu))
+        nearest = np.argmin(np.sum((x[:, :, None] - mu[:, None]) ** 2, axis=-1), axis=-1)
+        np.testing.assert_allclose(a, (nearest[..., None] == np.arange(k)).mean(axis=1), atol=1e-12)
+    costs = np.array(costs)
+    assert np.all(np.diff(costs, axis=0) <= 1e-12 * costs[:-1] + 1e-15), np.diff(costs, axis=0).max()
+
 def reference_map_em(x, a, mu, s2, c, p_sum, p_w, n_iter):
     """004 Sec. 4.1 MAP-EM written plainly, one texel, one sample at a time (float64)."""
     a, mu, s2 = a.copy(), mu.copy(), s2.copy()
@@ -290,6 +342,33 @@ def test_linear_filtering_is_the_moment_matched_component():
         assert np.allclose(x.mean(0), muf[k], atol=3e-3)
         assert np.var(x, axis=0).mean() == pytest.approx(s2f[k], rel=0.02)
 
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), texels=st.integers(1, 8), k=st.integers(1, 5), convex=st.booleans())
+def test_filtering_any_texels_with_any_weights_is_the_mixture_of_their_components(seed, texels, k, convex):
+    """Linear filtering of the stored moments, sum_t w_t q_t, over any number of texels and any non-negative
+    weights (convex ones, as trilinear and anisotropic filters use, or not): component i comes back as the
+    isotropic Gaussian of the mixture sum_t w_t a_ti g_ti -- weight sum_t w_t a_ti, its mean, and its per-axis
+    variance by the law of total variance, sum_t p_t s_ti^2 + sum_t p_t |mu_ti - mean|^2 / 2 (p_t = w_t a_ti /
+    sum w a; an isotropic 2D Gaussian spreads 2 s^2 about its mean).  moment_match agrees."""
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(0.05, 1.0, (texels, k))
+    r, ang = np.sqrt(rng.uniform(0.0, 0.8, (texels, k))), rng.uniform(0.0, 2 * np.pi, (texels, k))
+    mu = np.stack([r * np.cos(ang), r * np.sin(ang)], -1)            # means inside the unit disk
+    s2 = np.exp(rng.uniform(np.log(1e-4), np.log(0.05), (texels, k)))
+    w = rng.dirichlet(np.ones(texels)) if convex else rng.uniform(0.01, 3.0, texels)
+    af, muf, s2f = from_moments(filter_moments(to_moments(a, mu, s2), w))
+    wa = w[:, None] * a
+    p = wa / wa.sum(axis=0)
+    mean = np.sum(p[..., None] * mu, axis=0)
+    var = np.sum(p * s2, axis=0) + np.sum(p * np.sum((mu - mean) ** 2, axis=-1), axis=0) / 2
+    np.testing.assert_allclose(af, wa.sum(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(muf, mean, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(s2f, var, rtol=1e-7, atol=1e-12)
+    ma, mmu, ms2 = moment_match(a, mu, s2, w)
+    np.testing.assert_allclose(np.concatenate([ma, ms2]), np.concatenate([af, s2f]), rtol=1e-9)
+    np.testing.assert_allclose(mmu, muf, rtol=1e-9, atol=1e-12)
 
 def test_trilinear_filtering_of_stored_float32_levels(scales_mips):
     """Four stored float32 texels of a built level, filtered with weights w: component k is the mixture of the

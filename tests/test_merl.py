@@ -297,6 +297,33 @@ def test_reciprocity(random_brdf, ti, pi_, to, po):
         assert np.array_equal(a, b), (interp, a, b)
 
 
+
+@settings(max_examples=60, deadline=None)
+@given(ti=theta_above, pi_=phi_any, to=theta_above, po=phi_any, turn=phi_any)
+def test_turning_both_directions_about_the_normal_changes_nothing_but_phi_h(random_brdf, ti, pi_, to, po, turn):
+    """Isotropy: turning wi and wo together by any angle about the normal (+Z) keeps theta_h, theta_d and phi_d
+    (Rusinkiewicz's difference vector lives in the frame of h) and adds the angle to phi_h, so a table of unrelated
+    random values looks up the same value: trilinear to rounding, nearest wherever the pair is not within 1e-6 of a
+    bin boundary (by the README's bins, conftest's reference).  Rounding moves phi_d by ~1e-16 / sin(theta_d), so
+    the lookups are compared where sin(theta_d) > 1e-6 (at most ~1e-8 of a bin)."""
+    c, s = math.cos(turn), math.sin(turn)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    wi, wo = _sph(ti, pi_)[None], _sph(to, po)[None]
+    th, ph, td, pd = (float(x[0]) for x in half_diff_from_dirs(wi, wo))
+    th2, ph2, td2, pd2 = (float(x[0]) for x in half_diff_from_dirs(wi @ rot.T, wo @ rot.T))
+    assert (th2, td2) == pytest.approx((th, td), abs=1e-7)
+    if math.sin(th) > 1e-6:   # phi_h at the normal is undefined
+        assert math.remainder(ph2 - ph - turn, 2 * math.pi) == pytest.approx(0.0, abs=1e-6)
+    if not math.sin(td) > 1e-6:   # phi_d of wi == wo (theta_d = 0) is undefined: rounding picks any
+        return
+    assert math.remainder(pd2 - pd, 2 * math.pi) == pytest.approx(0.0, abs=1e-6)
+    a = merl_eval(random_brdf, wi, wo, interpolate=True)
+    b = merl_eval(random_brdf, wi @ rot.T, wo @ rot.T, interpolate=True)
+    np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-9)
+    (_, safe), (_, safe2) = ref_bins(wi, wo), ref_bins(wi @ rot.T, wo @ rot.T)
+    if safe[0] and safe2[0]:
+        np.testing.assert_array_equal(merl_eval(random_brdf, wi @ rot.T, wo @ rot.T), merl_eval(random_brdf, wi, wo))
+
 def test_unmeasured_entries_counted_and_never_negative(analytic_table, tmp_path):
     data = analytic_table.copy()
     rng = np.random.default_rng(6)

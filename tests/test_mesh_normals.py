@@ -128,6 +128,48 @@ def test_rigid_motion_turns_normals_and_scaling_divides_curvature(yaw, pitch, s,
     assert np.median(e) < 0.005 and e.max() < 0.03
 
 
+
+def _bumpy_sphere(seed, amplitude):
+    """An icosphere (162 vertices) with each vertex moved along its radius by up to +-amplitude of the radius:
+    convex and concave spots, so H takes both signs."""
+    ico = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    rng = np.random.default_rng(seed)
+    v = ico.vertices * (1.0 + amplitude * rng.uniform(-1.0, 1.0, (len(ico.vertices), 1)))
+    return v, np.asarray(ico.faces)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), amplitude=st.floats(0.0, 0.3))
+def test_reversing_every_face_turns_the_normals_and_the_sign_of_h(seed, amplitude):
+    """Orientation: the cotangent Laplacian and the mixed areas do not depend on the order of a face's corners, the
+    face normal does, so reversing every face negates each vertex normal and H = -(L . n) / (4 A) (positive on a
+    convex shape with outward normals, negative where it is concave), on any shape."""
+    v, f = _bumpy_sphere(seed, amplitude)
+    n, h = on_device(v, f)
+    n_rev, h_rev = on_device(v, f[:, ::-1])
+    np.testing.assert_allclose(n_rev, -n, atol=1e-6)
+    np.testing.assert_allclose(h_rev, -h, rtol=1e-5, atol=1e-5 * np.abs(h).max())
+    if amplitude > 0.1:
+        assert h.min() < 0.0 < h.max()   # both signs were tested
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), passes=st.integers(0, 12), const=st.floats(-50.0, 50.0))
+def test_local_curvature_stays_within_the_range_of_abs_h_and_keeps_a_constant(seed, passes, const):
+    """Each lazy pass is a convex combination, y = x / 2 + (one-ring mean) / 2, of |H|: after any number of passes
+    every vertex lies within [min |H|, max |H|] (float32 rounding aside), and a constant H of either sign comes back
+    as its magnitude."""
+    v, f = _bumpy_sphere(0, 0.0)
+    topo = mesh_topology(f.reshape(-1), 0, len(v))
+    h = np.random.default_rng(seed).normal(0.0, 3.0, len(v)).astype(np.float32)
+    out = device_local_curvature(wp.array(h), topo, passes=passes).numpy()
+    lo, hi = np.abs(h).min(), np.abs(h).max()
+    assert out.min() >= lo * (1 - 1e-6) and out.max() <= hi * (1 + 1e-6)
+    if passes > 0:
+        assert np.ptp(out) < np.ptp(np.abs(h))   # and it does smooth
+    flat = device_local_curvature(wp.array(np.full(len(v), const, np.float32)), topo, passes=passes).numpy()
+    np.testing.assert_allclose(flat, abs(np.float32(const)), rtol=1e-6)
+
 def test_degenerate_faces_and_unreferenced_vertices_are_finite_and_match_the_host():
     # vertex 4 is in no face, face 2 has no area (a repeated corner), face 3 is a sliver on a line
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 0, 1], [1, 0.5, 1], [5, 5, 5], [2, 0, 0]], float)

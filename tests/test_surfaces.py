@@ -6,6 +6,8 @@ import re
 import numpy as np
 import pytest
 from conftest import attempt
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from precompute.surfaces import (SURFACES, carved_disk, dunes, height_to_normals, hemispherical_scales,
                                  normals_from_map, nyquist_share)
@@ -70,6 +72,41 @@ def test_height_to_normals_of_a_tilted_plane():
     want = np.array([-2.0 * gx, -2.0 * gy, 1.0]) / np.sqrt(1.0 + 4.0 * gx * gx + 4.0 * gy * gy)
     np.testing.assert_allclose(n[1:-1, 1:-1], np.broadcast_to(want, n[1:-1, 1:-1].shape), atol=1e-12)
 
+
+
+@settings(max_examples=40, deadline=None)
+@given(gx=st.floats(-50.0, 50.0), gy=st.floats(-50.0, 50.0), scale=st.floats(-20.0, 20.0),
+       t=st.floats(1e-4, 1.0))
+def test_height_to_normals_of_any_tilted_plane_is_its_closed_form_normal(gx, gy, scale, t):
+    """Any plane h = gx x + gy y (x = column t, y = -row t) has the normal (-s gx, -s gy, 1) / |.| away from the
+    wrap-around seam, whatever its slopes, scale s and texel size t (the docstring's convention: x along +column,
+    y along -row); central differences are exact on a plane, so only rounding is left."""
+    r, c = np.mgrid[0:7, 0:9].astype(np.float64)
+    n = height_to_normals(gx * c * t + gy * (-r) * t, scale=scale, texel_size=t)
+    want = np.array([-scale * gx, -scale * gy, 1.0])
+    want /= np.linalg.norm(want)
+    np.testing.assert_allclose(n[1:-1, 1:-1], np.broadcast_to(want, n[1:-1, 1:-1].shape), atol=1e-9)
+
+
+@pytest.mark.filterwarnings("ignore:height field of")   # small random maps hold much texel-to-texel detail
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), rows=st.integers(3, 12), cols=st.integers(3, 12),
+       scale=st.floats(0.05, 20.0))
+def test_height_to_normals_turns_with_the_map(seed, rows, cols, scale):
+    """Mirroring or transposing a height field mirrors or transposes its normal map, with the tangent components
+    turned the same way (x = +column, y = -row): a left-right flip negates n_x, an up-down flip n_y, and the
+    transpose (x <-> -y) maps (n_x, n_y) to (-n_y, -n_x).  Texel size given, so the transpose's width is no
+    matter.  Central differences are symmetric, so this holds to rounding for any heights."""
+    h = np.random.default_rng(seed).normal(size=(rows, cols))
+    t = 0.1
+    n = height_to_normals(h, scale=scale, texel_size=t)
+    lr = height_to_normals(h[:, ::-1], scale=scale, texel_size=t)
+    np.testing.assert_allclose(lr, n[:, ::-1] * [-1.0, 1.0, 1.0], atol=1e-12)
+    ud = height_to_normals(h[::-1], scale=scale, texel_size=t)
+    np.testing.assert_allclose(ud, n[::-1] * [1.0, -1.0, 1.0], atol=1e-12)
+    tr = height_to_normals(h.T, scale=scale, texel_size=t)
+    np.testing.assert_allclose(tr, np.stack([-n[..., 1], -n[..., 0], n[..., 2]], -1).transpose(1, 0, 2),
+                               atol=1e-12)
 
 def test_height_to_normals_of_a_sine_matches_the_analytic_derivative():
     W, A, k = 64, 0.01, 2                                  # periodic: wrap-around is exact

@@ -152,6 +152,21 @@ def test_bandwidth_does_not_depend_on_the_images_scale(exponent):
     np.testing.assert_allclose(local_bandwidth(img * 10.0 ** exponent), local_bandwidth(img), rtol=1e-9, atol=0)
 
 
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), h=st.integers(6, 40), w=st.integers(6, 40),
+       pad=st.sampled_from(["zero", "edge", "reflect", "wrap"]), rule=st.sampled_from(["energy", "eq7"]))
+def test_a_transposed_image_reads_its_bandwidth_transposed(seed, h, w, pad, rule):
+    """The 2D transform is separable and the same filters run along both axes; the horizontal and vertical details
+    swap under a transpose and the per-pixel maximum takes all three orientations.  So the transposed image's
+    bands and bandwidth are the transposed ones, for any size, pad mode and rule (rows and columns treated
+    alike)."""
+    img = np.random.default_rng(seed).normal(size=(h, w)).cumsum(axis=0).cumsum(axis=1)   # some smooth, some rough
+    np.testing.assert_allclose(band_maxima(img.T, pad=pad), band_maxima(img, pad=pad).transpose(0, 2, 1),
+                               rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(local_bandwidth(img.T, pad=pad, rule=rule), local_bandwidth(img, pad=pad, rule=rule).T,
+                               rtol=1e-9, atol=1e-12)
+
+
 @pytest.mark.parametrize("shape", [(97, 150), (33, 70), (50, 50)])
 def test_non_power_of_two_sizes(shape):
     h, w = shape
