@@ -384,6 +384,52 @@ def test_allocation_spends_the_budget_and_respects_clamps(allocation):
     assert np.all(r[n_p == 1] <= v_hi * (1 + 1e-9)) and np.all(r[n_p == 40] >= 39 * v_lo * (1 - 1e-9))
 
 
+def _block_reduce(a, level, op, pad):
+    """a (H, W) reduced over blocks of 2**level pixels per axis (the last blocks cut short), in numpy."""
+    b = 1 << level
+    h, w = -(-a.shape[0] // b), -(-a.shape[1] // b)
+    p = np.full((h * b, w * b), pad, a.dtype)
+    p[:a.shape[0], :a.shape[1]] = a
+    return op(p.reshape(h, b, w, b), axis=(1, 3))
+
+
+@settings(max_examples=40, deadline=None)
+@given(w=st.integers(1, 24), h=st.integers(1, 24), seed=st.integers(0, 2**31 - 1),
+       allocation=st.sampled_from(bw.ALLOCATIONS), budget=st.floats(0.3, 40.0), more=st.floats(1.0, 4.0),
+       n_min=st.integers(1, 4), n_max_extra=st.one_of(st.none(), st.integers(0, 60)))
+def test_allocation_over_any_levels_is_monotone_and_the_shaded_texels_keep_the_budget(w, h, seed, allocation, budget,
+                                                                                     more, n_min, n_max_extra):
+    """Over random sizes, levels, coverage and keys (002 Sec. 2.4; docstring): a pixel of larger variance key never
+    gets fewer samples than one of smaller key, a larger budget never gives any pixel fewer samples, and the
+    texels the hierarchy shades (a level-L texel whose min-filtered level is L and that covers some pixel), each
+    at the largest N_p under it, take at most the budget (brute force over 2**L blocks here) -- or, when even
+    n_min per shaded texel exceeds it, every covered pixel gets n_min and the allocation says so."""
+    rng = np.random.default_rng(seed)
+    cov = rng.random((h, w)) < 0.8
+    top = max_level(w, h)
+    level = np.where(cov, rng.integers(0, top + 1, size=(h, w)), top)
+    sig = np.where(cov & (rng.random((h, w)) < 0.85), rng.lognormal(0, 2, size=(h, w)), 0.0)
+    buf = _fake_buffer(sig, level, cov, sig, sig)
+    n_max = None if n_max_extra is None else n_min + n_max_extra
+    a = bw.allocate_samples(buf, budget=budget, n_min=n_min, n_max=n_max, allocation=allocation)
+    b = bw.allocate_samples(buf, budget=budget * more, n_min=n_min, n_max=n_max, allocation=allocation)
+    assert np.all(a.n_p[~cov] == 0) and np.all(b.n_p >= a.n_p)
+    key = sig.astype(np.float32)[cov]
+    n = a.n_p[cov]
+    order = np.lexsort((n, key))   # by key, ties by N_p
+    assert np.all(np.diff(n[order]) >= 0)
+    total = int(round(budget * cov.sum()))
+    spent = 0
+    for L in range(int(level[cov].max()) + 1 if cov.any() else 0):
+        shaded = (_block_reduce(level, L, np.min, top) == L) & _block_reduce(cov, L, np.any, False)
+        spent += int(_block_reduce(a.n_p, L, np.max, 0)[shaded].sum())
+    assert a.planned_samples == spent
+    if a.over_budget:
+        assert np.all(a.n_p[cov] == n_min) and spent > total
+    else:
+        assert spent <= total and a.budget_samples == total
+
+
 def test_measured_allocation_follows_the_estimator_the_frame_uses():
     """allocation="measured" takes the MIS variance for a frame with MIS and BRDF sampling's without: two
     opposite patterns give opposite orders (N_p ~ sqrt of the one in use)."""
