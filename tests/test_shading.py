@@ -159,14 +159,15 @@ def test_same_seed_same_image_different_seed_different_noise():
     assert a.stats["samples"] == 4 * a.stats["pixels_covered"]
 
 
-SCALED_MATERIALS = ('type = "lambert"\nalbedo = [0.8, 0.5, 0.2]', 'type = "ggx"\nalpha = 0.2\nspecular = [0.9, 0.6, 0.3]',
+SCALED_MATERIALS = ('type = "lambert"\nalbedo = [0.8, 0.5, 0.2]',
+                    'type = "ggx"\nalpha = 0.2\nspecular = [0.9, 0.6, 0.3]',
                     'type = "ggx"\nalpha = 0.05\nspecular = [1.0, 1.0, 1.0]\neta = [0.143, 0.374, 1.442]\n'
                     'k = [3.983, 2.385, 1.603]')
 
 
 @settings(max_examples=12, deadline=None)
-@given(k=st.floats(1e-3, 1e3), mis=st.booleans(), mat=st.sampled_from(SCALED_MATERIALS), rotation=st.floats(-180, 180),
-       seed=st.integers(0, 2**16))
+@given(k=st.floats(1e-3, 1e3), mis=st.booleans(), mat=st.sampled_from(SCALED_MATERIALS),
+       rotation=st.floats(-180, 180), seed=st.integers(0, 2**16))
 def test_scaling_the_environment_scales_the_image_sample_for_sample(k, mis, mat, rotation, seed):
     """002 Eq. 2 is linear in L_i, and each sampler's pdf is normalised (the environment's by its luminance's total),
     so neither the directions drawn nor the MIS weights see the environment's scale: with the same seed, an
