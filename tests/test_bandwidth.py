@@ -903,6 +903,58 @@ def test_relative_variance_bound_does_not_depend_on_the_lights_scale():
     np.testing.assert_allclose(out[1], out[0], rtol=1e-3)
 
 
+_EXPOSED_MATERIALS = (LAMBERT, GGX_SHARP)   # the sky's and GGX_SHARP's tables: built by the tests above
+_exposures = {}
+
+
+def _pass_under_a_sky_of_scale(mat, k, tables=None):
+    """The pass's nu, b_p, level and sigma2 (covered pixels) for a sphere under the procedural sky scaled by k, with
+    the given bandwidth tables (else the scene's own), and the prepared scene (it keeps the tables alive)."""
+    prep = prepared(mat=mat, env=f'procedural = "sky"\nscale = {k!r}', w=24, h=18)
+    gb, _ = _gbuffer(prep, {})
+    buf = bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data,
+                            prepare_bandwidth(prep) if tables is None else tables, n_b=8)
+    cov = gb.coverage.reshape(-1)
+    return (buf.nu.numpy()[cov], buf.b_p.numpy()[cov], buf.level.numpy().reshape(-1)[cov],
+            buf.sigma2.numpy()[cov].astype(np.float64)), prep
+
+
+@settings(max_examples=8, deadline=None)
+@given(log_k=st.floats(-3.0, 3.0), mat=st.sampled_from(_EXPOSED_MATERIALS))
+def test_the_exposure_of_the_light_leaves_the_bandwidths_and_levels_and_scales_the_variance_by_its_square(log_k, mat):
+    """A bandwidth is a frequency: under an environment k times brighter the pass's nu, b_p and level are unchanged,
+    while Eq. 9's variance bound, a second moment of radiance, scales by k^2 (exposures 1e-3 to 1e3, float32: 1e-5).
+    The environment's nu_a map is the unscaled sky's (that it does not see the exposure either is the next test's);
+    building it per exposure took a second each."""
+    k = 10.0 ** log_k
+    if mat not in _exposures:
+        _exposures[mat] = _pass_under_a_sky_of_scale(mat, 1.0)
+    (nu, b_p, level, sigma2), prep = _exposures[mat]
+    (nu_k, b_p_k, level_k, sigma2_k), _ = _pass_under_a_sky_of_scale(mat, k, prep.bandwidth)
+    assert b_p.max() > 0.0   # the sky has detail: the pass sees some
+    np.testing.assert_allclose(nu_k, nu, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(b_p_k, b_p, rtol=1e-5, atol=1e-9)
+    assert np.mean(level_k == level) > 0.99   # a b_p within rounding of a power of two may change its floor
+    np.testing.assert_allclose(sigma2_k / k ** 2, sigma2, rtol=1e-5, atol=1e-12 * sigma2.max())
+
+
+@settings(max_examples=20, deadline=None)
+@given(log_k=st.floats(-6.0, 6.0), signal=st.sampled_from(bw.ENV_SIGNALS), seed=st.integers(0, 2**16))
+def test_the_env_bandwidth_map_does_not_see_the_probes_exposure(tmp_path_factory, log_k, signal, seed):
+    """Eq. 7 reads where a probe's wavelet energy lies, not how much there is: "radiance" is linear in L and its
+    energy fractions do not see a factor, "log" divides L by the probe's mean first.  So a probe k times brighter
+    (1e-6 to 1e6) has the same nu_a map, for either signal (float32 pixels: 1e-4)."""
+    rng = np.random.default_rng(seed)
+    px = rng.gamma(0.5, 1.0, size=(16, 32, 3)).astype(np.float32)
+    px[rng.integers(16), rng.integers(32)] *= 200.0   # a small sun
+    k = np.float32(10.0 ** log_k)
+    cache = tmp_path_factory.mktemp("exposure")
+    nu, _ = bw.env_bandwidth_map(px, "probe", cache=cache, signal=signal)
+    nu_k, _ = bw.env_bandwidth_map(px * k, "brighter", cache=cache, signal=signal)
+    assert nu.max() > 0.0
+    np.testing.assert_allclose(nu_k, nu, rtol=1e-4, atol=1e-4 * float(nu.max()))
+
+
 def test_the_pass_interleaves_its_directions_over_the_tile_its_pooling_window_spans(monkeypatch):
     """warpbw.bandwidth docstring: with the defaults (stride 2, pool radius 2) each pixel pools 3 x 3 blocks, whose
     direction sets are the 3 x 3 interleaved shifts (interleave_shifts(n_b, side), side = 2 r / stride + 1), and
