@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from warpbw.adaptive import plan_hierarchy, shade_hierarchical
 from warpbw.pipeline import prepare_scene, render_reference
@@ -152,6 +153,40 @@ def test_mixed_levels_fill_every_covered_pixel_and_spend_each_footprints_max_sam
     expected = sum(int(_footprint_max(spp, L)[ys[sl[ys, xs] == L] >> L, xs[sl[ys, xs] == L] >> L].sum())
                    for L in range(4))
     assert len(set(sl[r.shaded].tolist())) == 4    # all four levels shade something
+    assert r.stats["samples"] == expected
+
+
+@pytest.fixture(scope="module")
+def lambert_under_a_constant_sky():
+    """Lambert under a constant sky at 48 x 32 (sides multiples of 2^4: no two levels' centre pixels coincide up to
+    level 4): each cosine-weighted sample is exactly the albedo, so is every pixel, shaded or up-sampled."""
+    return setup('type = "lambert"\nalbedo = [0.6, 0.4, 0.2]', w=48, h=32)
+
+
+@settings(max_examples=25, deadline=None)
+@given(block=st.integers(0, 3), finest=st.sampled_from([0.0, 0.02, 0.2]), top=st.integers(0, 4),
+       n_max=st.integers(1, 6), seed=st.integers(0, 2**31 - 1))
+def test_any_level_and_sample_maps_fill_a_constant_image_and_spend_each_footprints_max(
+        lambert_under_a_constant_sky, block, finest, top, n_max, seed):
+    """For any level map (levels drawn per 2^block x 2^block block, some pixels sent to the finest level) and any
+    sample map: every covered pixel holds the constant (the hierarchy only shades it or up-samples equal values),
+    the background stays 0, no pixel is shaded at a level coarser than its own, and the samples spent are each
+    shaded texel's largest N_p over its footprint (002 Sec. 3.1: N_p max-filtered; brute force by blocks here)."""
+    prep, base = lambert_under_a_constant_sky
+    cov = base.coverage
+    rng = np.random.default_rng(seed)
+    b = 1 << block
+    level = np.kron(rng.integers(0, top + 1, size=(-(-32 // b), -(-48 // b))), np.ones((b, b), np.int64))[:32, :48]
+    level = np.where(rng.random(cov.shape) < finest, 0, level).astype(np.int32)
+    spp = rng.integers(1, n_max + 1, size=cov.shape).astype(np.int32)
+    r = run(prep, base, level, spp, seed=seed)
+    np.testing.assert_allclose(r.image[cov], np.broadcast_to([0.6, 0.4, 0.2], (cov.sum(), 3)), atol=1e-5)
+    assert (r.image[~cov] == 0).all() and not r.shaded[~cov].any()
+    sl = r.shaded_level
+    assert (sl[r.shaded] <= level[r.shaded]).all()
+    ys, xs = np.nonzero(r.shaded)
+    expected = sum(int(_footprint_max(spp, L)[ys[sl[ys, xs] == L] >> L, xs[sl[ys, xs] == L] >> L].sum())
+                   for L in range(top + 1))
     assert r.stats["samples"] == expected
 
 

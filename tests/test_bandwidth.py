@@ -384,6 +384,52 @@ def test_allocation_spends_the_budget_and_respects_clamps(allocation):
     assert np.all(r[n_p == 1] <= v_hi * (1 + 1e-9)) and np.all(r[n_p == 40] >= 39 * v_lo * (1 - 1e-9))
 
 
+def _block_reduce(a, level, op, pad):
+    """a (H, W) reduced over blocks of 2**level pixels per axis (the last blocks cut short), in numpy."""
+    b = 1 << level
+    h, w = -(-a.shape[0] // b), -(-a.shape[1] // b)
+    p = np.full((h * b, w * b), pad, a.dtype)
+    p[:a.shape[0], :a.shape[1]] = a
+    return op(p.reshape(h, b, w, b), axis=(1, 3))
+
+
+@settings(max_examples=40, deadline=None)
+@given(w=st.integers(1, 24), h=st.integers(1, 24), seed=st.integers(0, 2**31 - 1),
+       allocation=st.sampled_from(bw.ALLOCATIONS), budget=st.floats(0.3, 40.0), more=st.floats(1.0, 4.0),
+       n_min=st.integers(1, 4), n_max_extra=st.one_of(st.none(), st.integers(0, 60)))
+def test_allocation_over_any_levels_is_monotone_and_the_shaded_texels_keep_the_budget(w, h, seed, allocation, budget,
+                                                                                     more, n_min, n_max_extra):
+    """Over random sizes, levels, coverage and keys (002 Sec. 2.4; docstring): a pixel of larger variance key never
+    gets fewer samples than one of smaller key, a larger budget never gives any pixel fewer samples, and the
+    texels the hierarchy shades (a level-L texel whose min-filtered level is L and that covers some pixel), each
+    at the largest N_p under it, take at most the budget (brute force over 2**L blocks here) -- or, when even
+    n_min per shaded texel exceeds it, every covered pixel gets n_min and the allocation says so."""
+    rng = np.random.default_rng(seed)
+    cov = rng.random((h, w)) < 0.8
+    top = max_level(w, h)
+    level = np.where(cov, rng.integers(0, top + 1, size=(h, w)), top)
+    sig = np.where(cov & (rng.random((h, w)) < 0.85), rng.lognormal(0, 2, size=(h, w)), 0.0)
+    buf = _fake_buffer(sig, level, cov, sig, sig)
+    n_max = None if n_max_extra is None else n_min + n_max_extra
+    a = bw.allocate_samples(buf, budget=budget, n_min=n_min, n_max=n_max, allocation=allocation)
+    b = bw.allocate_samples(buf, budget=budget * more, n_min=n_min, n_max=n_max, allocation=allocation)
+    assert np.all(a.n_p[~cov] == 0) and np.all(b.n_p >= a.n_p)
+    key = sig.astype(np.float32)[cov]
+    n = a.n_p[cov]
+    order = np.lexsort((n, key))   # by key, ties by N_p
+    assert np.all(np.diff(n[order]) >= 0)
+    total = int(round(budget * cov.sum()))
+    spent = 0
+    for L in range(int(level[cov].max()) + 1 if cov.any() else 0):
+        shaded = (_block_reduce(level, L, np.min, top) == L) & _block_reduce(cov, L, np.any, False)
+        spent += int(_block_reduce(a.n_p, L, np.max, 0)[shaded].sum())
+    assert a.planned_samples == spent
+    if a.over_budget:
+        assert np.all(a.n_p[cov] == n_min) and spent > total
+    else:
+        assert spent <= total and a.budget_samples == total
+
+
 def test_measured_allocation_follows_the_estimator_the_frame_uses():
     """allocation="measured" takes the MIS variance for a frame with MIS and BRDF sampling's without: two
     opposite patterns give opposite orders (N_p ~ sqrt of the one in use)."""
@@ -855,6 +901,58 @@ def test_relative_variance_bound_does_not_depend_on_the_lights_scale():
         np.testing.assert_allclose(out[-1] * ((0.6 * k) ** 2 + float(bw.REL_EPS)), buf.sigma2.numpy()[cov],
                                    rtol=0.05)
     np.testing.assert_allclose(out[1], out[0], rtol=1e-3)
+
+
+_EXPOSED_MATERIALS = (LAMBERT, GGX_SHARP)   # the sky's and GGX_SHARP's tables: built by the tests above
+_exposures = {}
+
+
+def _pass_under_a_sky_of_scale(mat, k, tables=None):
+    """The pass's nu, b_p, level and sigma2 (covered pixels) for a sphere under the procedural sky scaled by k, with
+    the given bandwidth tables (else the scene's own), and the prepared scene (it keeps the tables alive)."""
+    prep = prepared(mat=mat, env=f'procedural = "sky"\nscale = {k!r}', w=24, h=18)
+    gb, _ = _gbuffer(prep, {})
+    buf = bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data,
+                            prepare_bandwidth(prep) if tables is None else tables, n_b=8)
+    cov = gb.coverage.reshape(-1)
+    return (buf.nu.numpy()[cov], buf.b_p.numpy()[cov], buf.level.numpy().reshape(-1)[cov],
+            buf.sigma2.numpy()[cov].astype(np.float64)), prep
+
+
+@settings(max_examples=8, deadline=None)
+@given(log_k=st.floats(-3.0, 3.0), mat=st.sampled_from(_EXPOSED_MATERIALS))
+def test_the_exposure_of_the_light_leaves_the_bandwidths_and_levels_and_scales_the_variance_by_its_square(log_k, mat):
+    """A bandwidth is a frequency: under an environment k times brighter the pass's nu, b_p and level are unchanged,
+    while Eq. 9's variance bound, a second moment of radiance, scales by k^2 (exposures 1e-3 to 1e3, float32: 1e-5).
+    The environment's nu_a map is the unscaled sky's (that it does not see the exposure either is the next test's);
+    building it per exposure took a second each."""
+    k = 10.0 ** log_k
+    if mat not in _exposures:
+        _exposures[mat] = _pass_under_a_sky_of_scale(mat, 1.0)
+    (nu, b_p, level, sigma2), prep = _exposures[mat]
+    (nu_k, b_p_k, level_k, sigma2_k), _ = _pass_under_a_sky_of_scale(mat, k, prep.bandwidth)
+    assert b_p.max() > 0.0   # the sky has detail: the pass sees some
+    np.testing.assert_allclose(nu_k, nu, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(b_p_k, b_p, rtol=1e-5, atol=1e-9)
+    assert np.mean(level_k == level) > 0.99   # a b_p within rounding of a power of two may change its floor
+    np.testing.assert_allclose(sigma2_k / k ** 2, sigma2, rtol=1e-5, atol=1e-12 * sigma2.max())
+
+
+@settings(max_examples=20, deadline=None)
+@given(log_k=st.floats(-6.0, 6.0), signal=st.sampled_from(bw.ENV_SIGNALS), seed=st.integers(0, 2**16))
+def test_the_env_bandwidth_map_does_not_see_the_probes_exposure(tmp_path_factory, log_k, signal, seed):
+    """Eq. 7 reads where a probe's wavelet energy lies, not how much there is: "radiance" is linear in L and its
+    energy fractions do not see a factor, "log" divides L by the probe's mean first.  So a probe k times brighter
+    (1e-6 to 1e6) has the same nu_a map, for either signal (float32 pixels: 1e-4)."""
+    rng = np.random.default_rng(seed)
+    px = rng.gamma(0.5, 1.0, size=(16, 32, 3)).astype(np.float32)
+    px[rng.integers(16), rng.integers(32)] *= 200.0   # a small sun
+    k = np.float32(10.0 ** log_k)
+    cache = tmp_path_factory.mktemp("exposure")
+    nu, _ = bw.env_bandwidth_map(px, "probe", cache=cache, signal=signal)
+    nu_k, _ = bw.env_bandwidth_map(px * k, "brighter", cache=cache, signal=signal)
+    assert nu.max() > 0.0
+    np.testing.assert_allclose(nu_k, nu, rtol=1e-4, atol=1e-4 * float(nu.max()))
 
 
 def test_the_pass_interleaves_its_directions_over_the_tile_its_pooling_window_spans(monkeypatch):

@@ -97,6 +97,37 @@ def test_worst_share_of_one_bad_pixel_and_of_an_even_error():
     assert worst_share(np.zeros((1, n)), mask)[0] == 0.0
 
 
+@settings(max_examples=50, deadline=None)
+@given(h=st.integers(1, 12), w=st.integers(1, 12), channels=st.sampled_from([None, 1, 3]),
+       flip=st.sampled_from(["rows", "columns", "transpose"]), spread=st.floats(0.0, 4.0),
+       f1=st.floats(1e-3, 1.0), f2=st.floats(1e-3, 1.0), seed=st.integers(0, 2 ** 16))
+def test_figures_ignore_where_the_pixels_lie_and_the_worst_share_is_bounded_and_grows_with_the_fraction(
+        h, w, channels, flip, spread, f1, f2, seed):
+    """The figures are means and a ranking over the covered pixels, so flipping or transposing both images with
+    their mask leaves every figure of compare_images (float64 sums in another order: 1e-12).  The worst ceil(f n)
+    of n errors hold at least their count's share of the total (the largest values' mean is at least the mean) and
+    at most all of it, a larger fraction holds no less, and the share is that of the largest errors (sorted here)."""
+    rng = np.random.default_rng(seed)
+    shape = (h, w) if channels is None else (h, w, channels)
+    ref = rng.uniform(0.0, 2.0, shape)
+    test = ref * np.exp(spread * rng.normal(size=shape))
+    mask = rng.random((h, w)) < 0.7
+    mask.flat[rng.integers(mask.size)] = True
+    move = {"rows": lambda a: a[::-1], "columns": lambda a: a[:, ::-1], "transpose": lambda a: np.swapaxes(a, 0, 1)}
+    a, b = compare_images(test, ref, mask), compare_images(move[flip](test), move[flip](ref), move[flip](mask))
+    assert a.keys() == b.keys()
+    for key in a:
+        assert b[key] == pytest.approx(a[key], rel=1e-12, abs=1e-300), key
+    err = relmse_map(test, ref, mask)
+    v = np.sort(err[mask])[::-1]
+    lo, hi = sorted((f1, f2))
+    (s_lo, k_lo), (s_hi, k_hi) = worst_share(err, mask, lo), worst_share(err, mask, hi)
+    assert k_lo == math.ceil(lo * v.size) and k_hi == math.ceil(hi * v.size)
+    if v.sum() > 0.0:
+        assert s_lo == pytest.approx(v[:k_lo].sum() / v.sum(), rel=1e-12)
+        assert k_lo / v.size * (1 - 1e-12) <= s_lo <= s_hi * (1 + 1e-12) and s_hi <= 1.0 + 1e-12
+
+
 def test_compare_images_ranks_the_worst_pixels_among_the_covered_ones_only():
     """A 40 x 25 image of which 300 pixels are covered: the worst 1% are 3 covered pixels (of 1000 pixels, 10), and
     an error at one covered pixel holds all of it; 10 pixels off by far more outside the mask change nothing."""

@@ -159,6 +159,29 @@ def test_same_seed_same_image_different_seed_different_noise():
     assert a.stats["samples"] == 4 * a.stats["pixels_covered"]
 
 
+SCALED_MATERIALS = ('type = "lambert"\nalbedo = [0.8, 0.5, 0.2]',
+                    'type = "ggx"\nalpha = 0.2\nspecular = [0.9, 0.6, 0.3]',
+                    'type = "ggx"\nalpha = 0.05\nspecular = [1.0, 1.0, 1.0]\neta = [0.143, 0.374, 1.442]\n'
+                    'k = [3.983, 2.385, 1.603]')
+
+
+@settings(max_examples=12, deadline=None)
+@given(k=st.floats(1e-3, 1e3), mis=st.booleans(), mat=st.sampled_from(SCALED_MATERIALS),
+       rotation=st.floats(-180, 180), seed=st.integers(0, 2**16))
+def test_scaling_the_environment_scales_the_image_sample_for_sample(k, mis, mat, rotation, seed):
+    """002 Eq. 2 is linear in L_i, and each sampler's pdf is normalised (the environment's by its luminance's total),
+    so neither the directions drawn nor the MIS weights see the environment's scale: with the same seed, an
+    environment k times brighter gives k times the image, pixel for pixel (float32 rounding), with BRDF sampling
+    or MIS, for any material and rotation.  A pdf that read the unnormalised radiance, or a clamp on radiance,
+    breaks it."""
+    env = f'procedural = "sky"\nrotation = {rotation!r}\nscale = '
+    a = render_reference(sphere_scene(mat, env=env + "1.0", w=16, h=12), spp=8, seed=seed, mis=mis)
+    b = render_reference(sphere_scene(mat, env=env + repr(k), w=16, h=12), spp=8, seed=seed, mis=mis)
+    assert np.array_equal(a.coverage, b.coverage) and a.coverage.any()
+    want = k * a.image.astype(np.float64)
+    np.testing.assert_allclose(b.image, want, rtol=1e-5, atol=1e-6 * float(np.abs(want).max()))
+
+
 def test_per_pixel_sample_counts_for_adaptive_shading():
     """N_p per pixel (002 Sec. 2.4): a constant map reproduces the fixed-spp image bit for bit, a subset of
     pixels leaves the others as they were, and N_p = 0 shades to 0."""
