@@ -65,10 +65,15 @@ def read_asset(path) -> tuple[dict, dict]:
                 raise AssetError(f"{path}: not a warpbw asset (no {HEADER_KEY} member)")
             text = str(z[HEADER_KEY])
             arrays = {k: z[k] for k in z.files if k != HEADER_KEY}
-    except OSError as e:     # missing, a folder, unreadable
+    except AssetError:
+        raise
+    except OSError as e:     # not readable (permissions), or a read error
         raise AssetError(f"{path}: cannot be read ({e.strerror or e})") from None
-    except (ValueError, EOFError, zipfile.BadZipFile) as e:   # a damaged member, a pickled one
-        raise AssetError(f"{path}: a damaged .npz archive ({str(e).splitlines()[0][:200]})") from None
+    except MemoryError:      # a damaged member's header declaring more data than memory holds (numpy allocates first)
+        raise AssetError(f"{path}: a damaged .npz archive (a member declares more data than memory holds)") from None
+    except Exception as e:   # a damaged member or zip entry (numpy's parser raises several kinds), a pickled one
+        why = (str(e).splitlines() or [type(e).__name__])[0][:200]
+        raise AssetError(f"{path}: a damaged .npz archive ({why})") from None
     try:
         header = json.loads(text)
     except ValueError:

@@ -1329,11 +1329,16 @@ def _asset_variants(tmp_path: Path) -> dict:
     with zipfile.ZipFile(tmp_path / "badjson.npz", "w") as z:
         with z.open("__header__.npy", "w") as f:
             np.lib.format.write_array(f, np.array("{not json"))
+    with zipfile.ZipFile(ok) as src, zipfile.ZipFile(tmp_path / "huge.npz", "w") as z:
+        z.writestr("__header__.npy", src.read("__header__.npy"))
+        with z.open("nu_rho.npy", "w") as f:   # a damaged header: 2^40 floats declared, 64 bytes held
+            np.lib.format.write_array_header_1_0(f, {"descr": "<f4", "fortran_order": False, "shape": (2 ** 40,)})
+            f.write(bytes(64))
     return {"missing.npz": "no such file", "folder.npz": "a folder, not a file", "text.npz": "not a .npz archive",
             "cut.npz": "not a .npz archive", "v1.npz": "version 1; this reader reads version 2",
             "other.npz": "not a warpbw asset of a known format", "lacks.npz": "arrays not as the format has them",
             "ints.npz": "expected floating-point arrays", "plain.npz": "not a warpbw asset (no __header__ member)",
-            "badjson.npz": "__header__ member is not JSON"}
+            "badjson.npz": "__header__ member is not JSON", "huge.npz": "a damaged .npz archive"}
 
 
 def test_read_assets_refuses_what_is_not_an_asset_in_one_line(tmp_path):

@@ -126,8 +126,11 @@ def tab_sample(samplers: TabulatedSamplers, s: int, wo: wp.vec3, u: wp.vec2):
 
 @wp.func
 def tab_pdf(samplers: TabulatedSamplers, s: int, wi: wp.vec3, wo: wp.vec3):
-    # Defined over the whole sphere (a cell straddling the horizon sends part of its samples below),
-    # so that it integrates to exactly 1.
+    # Defined over the whole sphere (a cell straddling the horizon sends part of its samples below), so that it
+    # integrates to 1 -- less, within a degree of the horizon, the share of draws whose cell's half vector faces
+    # away from this view (the bin's tables were built at other views): they reflect to below the surface, where f
+    # is 0, and read pdf 0 here (chrome's NPF fit: 4.6% of its draws at 89.9 degrees, 7.2% at 89.99, none above
+    # the surface).  The estimate stays unbiased; those draws are wasted.
     if wo[2] <= 0.0:
         return 0.0
     nt = samplers.n_theta_o
