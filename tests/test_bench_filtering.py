@@ -544,13 +544,24 @@ _HAND_FRAMES = {
 }
 
 
+def _hand_scene(monkeypatch, render, prepare):
+    """A 3x1 scene of planes for run_bench_filtering, whose renderer and mipmap preparation are ``render`` and
+    ``prepare`` (and the zoomed camera a ("camera", zoom) pair): nothing is built or rendered."""
+    import warpbw.filtering
+    import warpbw.pipeline
+
+    monkeypatch.setattr(warpbw.filtering, "render_filtering", render)
+    monkeypatch.setattr(warpbw.filtering, "prepare_filtering", prepare)
+    monkeypatch.setattr(warpbw.filtering, "zoomed_camera", lambda camera, zoom: ("camera", float(zoom)))
+    monkeypatch.setattr(warpbw.pipeline, "split_planes", lambda scene: (None, scene))
+    return SimpleNamespace(has_planes=True, source="hand.toml", environment=None,
+                           camera=SimpleNamespace(width=3, height=1))
+
+
 def _bench_on_hand_frames(monkeypatch):
     """run_bench_filtering at zoom 1 with two flicker pairs, every renderer call answered from ``_HAND_FRAMES``
     (the frame picked by the camera's zoom, z * FLICKER_STEP^j, and the ground truth by its seed); no scene is
     rendered.  Returns the record and the calls made."""
-
-    import warpbw.filtering
-    import warpbw.pipeline
     from warpbw.bench_filtering import GT_SEED, GT_SEED_2, run_bench_filtering
 
     calls = []
@@ -567,12 +578,7 @@ def _bench_on_hand_frames(monkeypatch):
         return SimpleNamespace(image=_HAND_FRAMES[kind][j].copy(), coverage=np.array([_COVER[j]]),
                                level=np.full((1, 3), 0.5, np.float32), time_s=0.001)
 
-    monkeypatch.setattr(warpbw.filtering, "render_filtering", fake_render)
-    monkeypatch.setattr(warpbw.filtering, "prepare_filtering", lambda *a, **k: SimpleNamespace(notes={}))
-    monkeypatch.setattr(warpbw.filtering, "zoomed_camera", lambda camera, zoom: ("camera", float(zoom)))
-    monkeypatch.setattr(warpbw.pipeline, "split_planes", lambda scene: (None, scene))
-    scene = SimpleNamespace(has_planes=True, source="hand.toml", environment=None,
-                            camera=SimpleNamespace(width=3, height=1))
+    scene = _hand_scene(monkeypatch, fake_render, lambda *a, **k: SimpleNamespace(notes={}))
     rec = run_bench_filtering(scene, zooms=(1,), gt_spp=64, runs=1, methods=("toksvig",), flicker_pairs=2)
     return rec, calls
 
@@ -922,9 +928,6 @@ def _hand_bench(monkeypatch, level_outside=9.0, times=(0.001,), cover=None):
     """run_bench_filtering at zoom 1 on 1x3 frames (the method's off by 1 in pixel 1, the truth's peak 6), pixel 2
     not covered; the stand-in clock moved 2 s by the mipmaps' preparation, of which the aligned GMM took 0.25 s."""
     import warpbw.bench_filtering as bf
-    import warpbw.filtering
-    import warpbw.pipeline
-
 
     clock = StandInClock()
     cov = np.array([[True, True, False]])
@@ -945,12 +948,7 @@ def _hand_bench(monkeypatch, level_outside=9.0, times=(0.001,), cover=None):
         return SimpleNamespace(notes={"m": {"gmm_aligned": {"time_s": 0.25}}})
 
     monkeypatch.setattr(bf, "time", clock)
-    monkeypatch.setattr(warpbw.filtering, "render_filtering", fake_render)
-    monkeypatch.setattr(warpbw.filtering, "prepare_filtering", fake_prepare)
-    monkeypatch.setattr(warpbw.filtering, "zoomed_camera", lambda camera, zoom: ("camera", float(zoom)))
-    monkeypatch.setattr(warpbw.pipeline, "split_planes", lambda scene: (None, scene))
-    scene = SimpleNamespace(has_planes=True, source="hand.toml", environment=None,
-                            camera=SimpleNamespace(width=3, height=1))
+    scene = _hand_scene(monkeypatch, fake_render, fake_prepare)
     return bf.run_bench_filtering(scene, zooms=(1,), gt_spp=64, runs=len(times), methods=("toksvig",))
 
 
@@ -999,8 +997,6 @@ def test_a_gmm_folder_a_killed_benchmark_left_in_the_temporary_folder_is_removed
     import sys
     import tempfile
 
-    import warpbw.filtering
-    import warpbw.pipeline
     from warpbw.bench_filtering import run_bench_filtering
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
@@ -1026,12 +1022,7 @@ def test_a_gmm_folder_a_killed_benchmark_left_in_the_temporary_folder_is_removed
     def render(scene, method, **kw):
         return SimpleNamespace(coverage=np.ones((1, 3), bool))
 
-    monkeypatch.setattr(warpbw.filtering, "prepare_filtering", prepare)
-    monkeypatch.setattr(warpbw.filtering, "render_filtering", render)
-    monkeypatch.setattr(warpbw.filtering, "zoomed_camera", lambda camera, zoom: ("camera", float(zoom)))
-    monkeypatch.setattr(warpbw.pipeline, "split_planes", lambda scene: (None, scene))
-    scene = SimpleNamespace(has_planes=True, source="hand.toml", environment=None,
-                            camera=SimpleNamespace(width=3, height=1))
+    scene = _hand_scene(monkeypatch, render, prepare)
     with pytest.raises(Built):
         run_bench_filtering(scene, zooms=(1,), gt_spp=64, runs=1, methods=("toksvig",))
     ((cache, during),) = built_in
