@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 import warp as wp
-from hypothesis import given, settings, strategies as st
+from hypothesis import example, given, settings, strategies as st
 
 from conftest import fake_npf_table, load_example, named_as, uniform_sampler_table
 from warpbw import brdf as B
@@ -253,7 +253,7 @@ def test_write_sampling_never_replaces_its_source(tmp_path, link):
     src = tmp_path / "m.binary"
     src.write_bytes(b"the BRDF file")
     source = BrdfSource(src.name, src, "d1", lambda wi, wo: np.ones((len(wi), 3)))
-    table = uniform_sampler_table(2, 2, 2)
+    table = uniform_sampler_table()   # of the shapes the renderer reads (the writer refuses others first)
     out = named_as(src, link, tmp_path / "t.npz")
     with pytest.raises(WarpbwError) as e:
         write_sampling(out, table, source, force=True)
@@ -549,13 +549,17 @@ def quadrature_grid():
 
 @settings(max_examples=12, deadline=None)
 @given(brdf=brdfs, theta=elevations, azimuth=azimuths, seed=st.integers(0, 2**31 - 1))
+@example(brdf=synthetic_brdf(0.0, 1.0, 0.1875, 0.0), theta=1.0, azimuth=1.0, seed=0)   # the quadrature's worst yet
 def test_histogram_of_samples_matches_the_pdf_integrated_over_each_bin(brdf, theta, azimuth, seed):
     """tab_pdf is the solid-angle density of tab_sample's directions: binned in world bands of z and sectors of
     absolute azimuth (a binning that knows nothing of the table's half-vector cells), the count of samples in each
     bin matches N times the integral of tab_pdf over it, computed by a fine quadrature over the sphere (d omega =
     dz dphi); the integrals also sum to 1 (the pdf is normalised over the sphere, as its comment promises).  Views
     off the xz-plane and one-sided lobes make an error in the half vector's relative azimuth (mirrored, folded,
-    measured from the wrong axis) or in the change of variables (the Jacobian 4 (wo . h) sin(theta_h) pi u) show."""
+    measured from the wrong axis) or in the change of variables (the Jacobian 4 (wo . h) sin(theta_h) pi u) show.
+    The quadrature's own error reaches 1%: for a one-sided lobe of width 0.1875 seen 1 rad from the normal
+    (kd 0, ks 1, azimuth 1), which hypothesis found, the grid reads 0.9899, a grid of twice the resolution 1.0002,
+    and the midpoint rule in the table's own (u, phi_h) cells 1 within 1e-8."""
     s = pack_samplers([table_of(brdf)])
     wo = view_at(theta, azimuth)
     n = 60_000
@@ -563,7 +567,7 @@ def test_histogram_of_samples_matches_the_pdf_integrated_over_each_bin(brdf, the
     observed = np.bincount(direction_bin(wi), minlength=Z_BINS * PHI_BINS)
     grid, domega, grid_bin = quadrature_grid()
     mass = np.bincount(grid_bin, weights=pdf_at(s, wo, grid) * domega, minlength=Z_BINS * PHI_BINS)
-    assert abs(mass.sum() - 1.0) < 0.01, mass.sum()
+    assert abs(mass.sum() - 1.0) < 0.02, mass.sum()
     expected = mass * n
     # Poisson noise (5 sigma), plus 0.2% of N for the quadrature of a piecewise-constant density
     dev = np.abs(observed - expected) / (5.0 * np.sqrt(expected) + 0.002 * n)
