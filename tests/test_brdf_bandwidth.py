@@ -69,6 +69,34 @@ def peak_cell(table):
     return float(table[0, c - 1:c + 1, c - 1:c + 1].max())
 
 
+def test_threads_share_the_slices_and_give_the_one_threads_table():
+    """brdf_bandwidth_table analyses its 16 slices on a pool of threads: the table is bit for bit the one thread's
+    (each slice's analysis is independent of the others), ``progress`` still counts 1 .. 16 in order, ``evaluate`` is
+    called from the calling thread alone (a user's evaluator need not be thread-safe), and a thread count outside 1
+    .. TABLE_THREADS_MAX is refused in one line."""
+    import threading
+
+    from precompute.brdf_bandwidth import TABLE_THREADS_MAX, brdf_bandwidth_table
+
+    callers, counted = set(), {}
+
+    def lobe(wi, wo):
+        callers.add(threading.get_ident())
+        mirror = wi * np.array([-1.0, -1.0, 1.0])
+        return np.repeat(np.exp(30.0 * (np.sum(wo * mirror, axis=1, keepdims=True) - 1.0)), 3, axis=1)
+
+    for threads in (1, 2, 3):
+        counted[threads] = []
+        table = brdf_bandwidth_table(lobe, resolution=16, progress=counted[threads].append, threads=threads)
+        if threads == 1:
+            one = table
+        assert np.array_equal(table, one) and table.max() > 0.0
+        assert counted[threads] == list(range(1, N_THETA_I + 1))
+    assert callers == {threading.get_ident()}
+    for bad in (0, TABLE_THREADS_MAX + 1, 1.5):
+        assert "threads" in outcome(brdf_bandwidth_table, lobe, 16, None, bad)
+
+
 def test_lambert_is_flat():
     t = analytic_brdf_bandwidth_table(lambda wi, wo: np.full((len(wi), 3), 1.0 / math.pi))
     assert t.shape == (N_THETA_I, N_CELLS, N_CELLS) and t.dtype == np.float32
