@@ -34,6 +34,15 @@ def load_example(name: str):
     return mod
 
 
+def lambert_sphere_scene(w: int, h: int) -> str:
+    """A unit Lambert sphere of albedo 0.5 under a constant white sky, seen from (0, 0, 4) at 40 degrees, as a scene
+    file of w x h pixels: the smallest scene a render needs (every covered pixel is the albedo)."""
+    return (f"[camera]\nposition = [0.0, 0.0, 4.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 40.0\nresolution = [{w}, {h}]\n\n"
+            "[environment]\nconstant = [1.0, 1.0, 1.0]\n\n"
+            '[[object]]\nshape = "sphere"\nradius = 1.0\nmaterial = "m"\n\n'
+            '[material.m]\ntype = "lambert"\nalbedo = 0.5\n')
+
+
 # A plane beside a sphere sunk into it (both renderers, composited): test_end_to_end, test_bench.
 MIXED_SCENE = """\
 [camera]

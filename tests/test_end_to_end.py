@@ -27,8 +27,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from conftest import (MIXED_SCENE, Handed, StandInClock, capture_call, check_colour_scale, numpy_camera_rays,
-                      numpy_sphere_distance, numpy_square_distance, outcome, plane_scene_toml)
+from conftest import (MIXED_SCENE, Handed, StandInClock, capture_call, check_colour_scale, lambert_sphere_scene,
+                      numpy_camera_rays, numpy_sphere_distance, numpy_square_distance, outcome, plane_scene_toml)
 from warpbw.io.exr import read_exr, write_exr
 from warpbw.io.merl import MERL_FILE_SIZE
 
@@ -1308,25 +1308,7 @@ def test_a_frame_with_planes_times_both_renderers(tmp_path, monkeypatch):
     assert ts["frame"] < ts["planes"] + 60.0
 
 
-_ENV_SCENE = """\
-[camera]
-position = [0.0, 0.0, 4.0]
-look_at = [0.0, 0.0, 0.0]
-fov = 40.0
-resolution = [16, 12]
-
-[environment]
-constant = [1.0, 1.0, 1.0]
-
-[[object]]
-shape = "sphere"
-radius = 1.0
-material = "paint"
-
-[material.paint]
-type = "lambert"
-albedo = 0.5
-"""
+_ENV_SCENE = lambert_sphere_scene(16, 12)
 
 
 # a plane under a sky (the option tests hand its --spp to the environment) and a light
@@ -1746,7 +1728,7 @@ def small_scenes(env_scene, monkeypatch):
     import warpbw.cli as cli
 
     tmp_path = env_scene
-    (tmp_path / "env.toml").write_text(_ENV_SCENE.replace("resolution = [16, 12]", "resolution = [6, 4]"))
+    (tmp_path / "env.toml").write_text(lambert_sphere_scene(6, 4))
     (tmp_path / "light.toml").write_text(_LIGHT_SCENE.replace("resolution = [16, 12]", "resolution = [6, 4]"))
     (tmp_path / "plane.toml").write_text(plane_scene_toml(resolution=(6, 4)))
     (tmp_path / "mixed.toml").write_text(MIXED_SCENE)
@@ -2206,10 +2188,7 @@ def test_ctrl_c_stops_a_one_pixel_frame_of_two_billion_samples_between_its_launc
     has begun, ends with the interruption's line and status and writes no image, long before the samples are done."""
     import signal
 
-    (tmp_path / "scene.toml").write_text(
-        "[camera]\nposition = [0.0, 0.0, 4.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 40.0\nresolution = [1, 1]\n"
-        "[environment]\nconstant = [1.0, 1.0, 1.0]\n[[object]]\nshape = \"sphere\"\nradius = 1.0\nmaterial = \"m\"\n"
-        "[material.m]\ntype = \"lambert\"\nalbedo = 0.5\n")
+    (tmp_path / "scene.toml").write_text(lambert_sphere_scene(1, 1))
     env = dict(os.environ, WARPBW_CACHE=str(tmp_path / "cache"))
     child = subprocess.Popen([sys.executable, "-c", _SHADING_SIGNALLED], cwd=tmp_path, env=env, stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True,

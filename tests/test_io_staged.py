@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import kill_when_written
+from conftest import kill_when_written, lambert_sphere_scene
 
 from warpbw.errors import WarpbwError
 from warpbw.io.staged import check_replaceable, staged_outputs
@@ -396,23 +396,6 @@ from warpbw.cli import main
 sys.exit(main(["render", "scene.toml", "-o", "out.exr", "--spp", "1"]))
 """
 
-_SPHERE_SCENE = """
-[camera]
-position = [0.0, 0.0, 4.0]
-look_at = [0.0, 0.0, 0.0]
-fov = 40.0
-resolution = [8, 8]
-[environment]
-constant = [1.0, 1.0, 1.0]
-[[object]]
-shape = "sphere"
-radius = 1.0
-material = "m"
-[material.m]
-type = "lambert"
-albedo = 0.5
-"""
-
 
 @pytest.mark.parametrize("sig, status, said", [("SIGTERM", 143, "warpbw: terminated"),
                                                ("SIGINT", 130, "warpbw: interrupted")])
@@ -425,7 +408,7 @@ def test_a_command_stopped_while_warp_compiles_leaves_no_build_folder_in_its_ker
     import signal
     import subprocess
 
-    (tmp_path / "scene.toml").write_text(_SPHERE_SCENE)
+    (tmp_path / "scene.toml").write_text(lambert_sphere_scene(8, 8))
     kernels = tmp_path / "kernels"
     env = dict(os.environ, WARPBW_CACHE=str(tmp_path / "_cache"), WARP_CACHE_PATH=str(kernels))
     r = subprocess.run([sys.executable, "-c", _STOPPED_COMPILE, sig], cwd=tmp_path, env=env, capture_output=True,
