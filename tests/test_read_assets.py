@@ -234,13 +234,20 @@ def test_the_bandwidth_check_reads_the_cells_the_precompute_map_names(tmp_path):
 
 def test_the_readers_versions_and_the_readme_follow_the_package():
     """A format's version raised in the package (a layout changed) must be raised in the script, which refuses other
-    versions, and README's "Asset files" must name each format, its version and its arrays."""
+    versions, as must a constant the script copies; and README's "Asset files" must name each format, its version
+    and its arrays."""
     from precompute.brdf_bandwidth import FORMAT, VERSION
     from precompute.gmm_mipmap import GMM_FORMAT, GMM_VERSION
     from warpbw.sampling import TABLE_FORMAT, TABLE_VERSION
 
     package = {TABLE_FORMAT: TABLE_VERSION, FORMAT: VERSION, GMM_FORMAT: GMM_VERSION}
     assert {k: v[0] for k, v in ra.FORMATS.items()} == package
+    # the constants the numpy reader copies (it imports nothing of warpbw) are the package's
+    import precompute.gmm_mipmap as gm
+    import warpbw.filtering as wf
+    import warpbw.sampling as ws
+    assert (ra.COS_D_EXACT, ra.WEIGHT_EPS, ra.VARIANCE_FLOOR, ra.NORMAL_DIM) == \
+        (ws.COS_D_EXACT, wf.WEIGHT_EPS, wf.VARIANCE_FLOOR, gm.NORMAL_DIM)
     readme = (ROOT / "README.md").read_text()
     section = readme.split("### Asset files", 1)[1].split("\n## ", 1)[0]
     for fmt, version in package.items():
