@@ -1,18 +1,20 @@
 """The ``warpbw-precompute`` command: turn raw assets into the tables the renderer reads.
 
 Public: ``main(argv=None) -> int``.  The command line's own parts, not an API: ``build_parser()`` and the
-subcommands' handlers ``cmd_npf_to_merl``, ``cmd_brdf_sampling``, ``cmd_brdf`` and ``cmd_gmm``.
+subcommands' handlers ``cmd_npf_to_merl``, ``cmd_brdf_sampling``, ``cmd_brdf``, ``cmd_batch`` and ``cmd_gmm``.
 
 Subcommands:
     npf-to-merl    write a MERL ``.binary`` file from one material of an NPF table
     brdf-sampling  build importance-sampling tables of a tabulated BRDF (002 Sec. 3.3)
     brdf           angular bandwidth table nu_rho of a tabulated BRDF (002 Sec. 2.3)
+    batch          both tables of many tabulated BRDFs (every NPF material, a folder of MERL files), on Dask
     gmm            EM-aligned GMM normal mipmap of a height field or normal map (004 Sec. 4.1)
 """
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -101,6 +103,54 @@ def cmd_brdf(args) -> int:
     return _table_command(args, build_brdf_bandwidth, write_brdf_bandwidth, lambda source, t: (
         f"angular bandwidth of {source.name}: {t.shape[0]} incident elevations x {t.shape[1]}x{t.shape[2]} "
         f"outgoing cells, max {float(t.max()):.2f} cycles/radian"))
+
+
+def _csv(option: str):
+    """argparse type: comma-separated names, none empty."""
+    def parse(s):
+        names = [n.strip() for n in s.split(",")]
+        if not all(names):
+            raise argparse.ArgumentTypeError(f"expected comma-separated names, got {s!r}")
+        return names
+    parse.__name__ = option
+    return parse
+
+
+def cmd_batch(args) -> int:
+    from precompute.batch import TABLES, batch_items, check_outputs, check_tables, run_batch
+    from warpbw.cli_common import check_output_file, write_json
+
+    tables = TABLES if args.tables is None else tuple(args.tables)
+    try:    # the library names its parameters; here they are options
+        items = batch_items(args.sources, None if args.materials == ["all"] else args.materials)
+        check_tables(tables)
+    except WarpbwError as exc:
+        msg = str(exc)
+        raise WarpbwError(f"--{msg}" if msg.split(":", 1)[0] in ("materials", "tables") else msg) from None
+    out = Path(args.output)
+    record_path = out / "batch.json" if args.json is None else Path(args.json)
+    if record_path.suffix.lower() != ".json":
+        raise WarpbwError(f"--json {record_path}: expected a path ending in .json")
+    check_outputs(items, out, tables, force=args.force, resume=args.resume)
+    check_output_file(record_path, "--json", force=args.force or args.resume)
+    workers = min(args.workers or os.cpu_count() or 1, len(items))
+    how = "one after the other" if args.scheduler == "sync" else f"{workers} at once"
+    print(printable(f"{len(items)} BRDFs, {' and '.join(tables)} tables into {out}/ (Dask's {args.scheduler} "
+                    f"scheduler, {how})"), flush=True)
+    record = run_batch(items, out, tables, scheduler=args.scheduler, workers=workers, force=args.force,
+                       resume=args.resume, progress=not args.quiet)
+    for r in record["items"]:
+        for w in r["warnings"]:
+            print(printable(f"warpbw-precompute: warning: {w}"), file=sys.stderr)
+        if r["error"] is not None:
+            print(printable(f"warpbw-precompute: error: {r['name']}: {r['error']}"), file=sys.stderr)
+    write_json(record_path, record, say=False)
+    kept = sum(len(r["kept"]) for r in record["items"])
+    built = sum(len(r["time_s"]) - 1 - len(r["kept"]) for r in record["items"] if r["error"] is None)
+    print(printable(f"{out}/  ({built} tables built{f', {kept} kept' if kept else ''}, {record['failed']} BRDFs "
+                    f"failed; {record['wall_s']:.1f} s wall, {record['work_s']:.1f} s of work; record in "
+                    f"{record_path})"))
+    return 1 if record["failed"] else 0
 
 
 def cmd_gmm(args) -> int:
@@ -206,6 +256,34 @@ def build_parser() -> argparse.ArgumentParser:
                        "(key 'bandwidth').")
     _table_args(c)
     c.set_defaults(func=cmd_brdf)
+
+    bt = sub.add_parser("batch", help="both tables of many tabulated BRDFs, on Dask",
+                        description="Build the importance-sampling and angular bandwidth tables of many tabulated "
+                        "BRDFs, each BRDF one task on Dask (pip install -e \".[batch]\"): every material of an NPF "
+                        "table (or --materials), MERL .binary files, folders of them.  Each writes "
+                        "OUT/NAME.sampling.npz and OUT/NAME.bandwidth.npz, the files brdf-sampling and brdf write, "
+                        "bit for bit; a scene names them with sampling = and bandwidth =.  A BRDF that cannot be "
+                        "read is reported and the others go on (exit 1 at the end).  The record "
+                        "(OUT/batch.json) holds each BRDF's outputs, times, largest nu_rho, warnings and error.")
+    bt.add_argument("sources", nargs="+", metavar="SOURCE",
+                    help="an NPF table (npf.bin), a MERL .binary file, or a folder of MERL files")
+    bt.add_argument("-o", "--output", type=parse_path, required=True, help="output folder (made if absent)")
+    bt.add_argument("--materials", type=_csv("materials"), default=["all"],
+                    help="the NPF tables' materials, comma-separated (default all 100)")
+    bt.add_argument("--tables", type=_csv("tables"), default=None,
+                    help="which tables: sampling, bandwidth or both, comma-separated (default both)")
+    bt.add_argument("--scheduler", choices=("processes", "threads", "sync"), default="processes",
+                    help="Dask's local scheduler (default processes: the builders hold the GIL; sync runs in this "
+                    "process, one BRDF after the other)")
+    bt.add_argument("--workers", type=_integer_from(1, 1024), default=None,
+                    help="tasks at once (default one per core, at most one per BRDF)")
+    bt.add_argument("--json", type=parse_path, default=None, help="the record (default OUT/batch.json)")
+    bt.add_argument("--resume", action="store_true",
+                    help="keep the outputs that already hold this BRDF's table (an earlier, stopped batch's) and "
+                    "build the rest; another file in their place is refused unless --force is given too")
+    bt.add_argument("--force", action="store_true", help="replace existing outputs and record")
+    bt.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    bt.set_defaults(func=cmd_batch)
 
     g = sub.add_parser("gmm", help="GMM normal mipmap of a height field or normal map",
                        description="Build a mipmap whose texels hold an N-component Gaussian mixture of the "

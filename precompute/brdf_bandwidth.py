@@ -7,7 +7,7 @@ Public:
         (``evaluate(wi, wo) -> (N, 3)``, RGB; ``threads``: the slices' analyses run on that many, default one per
         core up to ``TABLE_THREADS_MAX``, bit for bit one thread's table)
     ``analytic_brdf_bandwidth_table(evaluate, resolution=128) -> (16, 16, 16) float32``
-    ``build_brdf_bandwidth(source, progress=True, resolution=128) -> (16, 16, 16) float32``   (``source``: what
+    ``build_brdf_bandwidth(source, progress=True, resolution=128, threads=None) -> (16, 16, 16) float32``   (``source``: what
         :func:`precompute.brdf_sampling.brdf_source` returns, not a path)
     ``write_brdf_bandwidth(path, table, source, force=False)`` / ``read_brdf_bandwidth(path, source=None)``   (the
         writer refuses the tables the reader refuses, and never writes over the source's file or a read-only file)
@@ -300,14 +300,15 @@ def analytic_brdf_bandwidth_table(evaluate: Callable, resolution: int = DEFAULT_
     return brdf_bandwidth_table(evaluate, resolution=resolution)
 
 
-def build_brdf_bandwidth(source, progress: bool = True, resolution: int = DEFAULT_RESOLUTION) -> np.ndarray:
+def build_brdf_bandwidth(source, progress: bool = True, resolution: int = DEFAULT_RESOLUTION,
+                         threads: int | None = None) -> np.ndarray:
     """Table of a :class:`precompute.brdf_sampling.BrdfSource` (a few seconds per material); a path is refused,
-    saying to pass ``brdf_source(path, material)``."""
+    saying to pass ``brdf_source(path, material)``.  ``threads``: as :func:`brdf_bandwidth_table`'s."""
     from precompute.brdf_sampling import check_brdf_source
 
     check_brdf_source(source, "build_brdf_bandwidth")
     with progress_callback(N_THETA_I, f"bandwidth {source.name}", "theta_i", progress) as step:
-        return brdf_bandwidth_table(source.evaluate, resolution=resolution, progress=step)
+        return brdf_bandwidth_table(source.evaluate, resolution=resolution, progress=step, threads=threads)
 
 
 def write_brdf_bandwidth(path, table: np.ndarray, source, force: bool = False,

@@ -3424,3 +3424,76 @@ def test_the_gmm_mipmap_helpers_still_take_their_edge_inputs():
     assert gm.footprint_samples(np.zeros((4, 4, 2)), 2).shape == (1, 16, 2)   # the top level: the whole map
     n = gm.normal_space([[0.0, 0.6, 0.8]])
     assert np.allclose(n, [[0.0, 0.6]])
+
+
+# ------------------------------------------------------------------------------------- warpbw-precompute batch
+
+@pytest.mark.parametrize("argv,needles", [
+    (["npf.bin", "--materials", "chrom"], ["npf.bin: unknown NPF material 'chrom'", "close matches: chrome"]),
+    (["npf.bin", "--materials", "chrome,,steel"], ["--materials: expected comma-separated names"]),
+    (["grey.binary", "--materials", "chrome"], ["--materials: apply to NPF tables, and no source is one"]),
+    (["npf.bin", "--materials", "chrome,Chrome"], ["npf.bin:chrome and npf.bin:chrome would both write the tables "
+                                                    "named 'chrome'"]),
+    (["grey.binary", "sub"], ["grey.binary and sub/grey.binary would both write the tables named 'grey'"]),
+    (["notes.txt"], ["notes.txt: not an NPF table (1572864 bytes), a MERL file (a name ending in .binary) or a "
+                     "folder of MERL files"]),
+    (["missing.bin"], ["missing.bin: no such file or folder"]),
+    (["empty"], ["empty: a folder without MERL files"]),
+    (["grey.binary", "--tables", "sampling,normals"], ["--tables: expected some of sampling, bandwidth, each once"]),
+    (["grey.binary", "--tables", "sampling,sampling"], ["--tables: expected some of sampling, bandwidth, each once"]),
+    (["grey.binary", "--json", "rec.txt"], ["--json rec.txt: expected a path ending in .json"]),
+    (["grey.binary", "--workers", "0"], ["--workers: expected an integer from 1 to 1024"]),
+], ids=["unknown material", "empty name", "materials without NPF", "material twice", "one name twice",
+        "not a BRDF", "missing", "empty folder", "unknown table", "table twice", "record suffix", "no workers"])
+def test_batch_refuses_bad_sources_and_options_before_any_work(tmp_path, argv, needles):
+    """Each is one line naming the source or option (unknown names with their close matches), status 2, and no
+    output folder made: a batch of 100 BRDFs is not started to fail on the last one's name."""
+    from warpbw.io.merl import MERL_SHAPE, write_merl
+
+    fake_npf_table(tmp_path / "npf.bin")
+    write_merl(tmp_path / "grey.binary", np.full(MERL_SHAPE, 0.3))
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub/grey.binary").write_bytes((tmp_path / "grey.binary").read_bytes())
+    (tmp_path / "notes.txt").write_text("not a BRDF")
+    (tmp_path / "empty").mkdir()
+    r = run(["batch", *argv, "-o", "out", "-q"], tmp_path, module="precompute")
+    assert_one_line_error(r, *needles, prog="warpbw-precompute")
+    assert not (tmp_path / "out").exists()
+
+
+def test_batch_refuses_an_output_folder_that_is_a_file_or_a_source_in_it(tmp_path):
+    """-o naming a file is refused before any work; so is a batch whose outputs would replace one of its own BRDF
+    files, whatever --force says."""
+    from warpbw.io.merl import MERL_SHAPE, write_merl
+
+    write_merl(tmp_path / "grey.binary", np.full(MERL_SHAPE, 0.3))
+    (tmp_path / "out").write_text("a file")
+    r = run(["batch", "grey.binary", "-o", "out", "-q"], tmp_path, module="precompute")
+    assert_one_line_error(r, "-o out: not a directory", prog="warpbw-precompute")
+    assert (tmp_path / "out").read_text() == "a file"
+    (tmp_path / "t").mkdir()
+    (tmp_path / "t/grey.sampling.npz").symlink_to(tmp_path / "grey.binary")    # an output that is the source
+    before = (tmp_path / "grey.binary").read_bytes()
+    r = run(["batch", "grey.binary", "-o", "t", "--tables", "sampling", "--force", "-q"], tmp_path,
+            module="precompute")
+    assert_one_line_error(r, "t/grey.sampling.npz", "grey.binary, a BRDF file of the batch", prog="warpbw-precompute")
+    assert (tmp_path / "grey.binary").read_bytes() == before
+
+
+def test_batch_without_dask_says_how_to_install_it(tmp_path, monkeypatch):
+    """Dask is an optional dependency: without it the batch is refused in one line that says what to install."""
+    import builtins
+
+    from precompute.batch import BatchItem, run_batch
+
+    real_import = builtins.__import__
+
+    def no_dask(name, *a, **kw):
+        if name == "dask" or name.startswith("dask."):
+            raise ImportError("No module named 'dask'")
+        return real_import(name, *a, **kw)
+
+    monkeypatch.setattr(builtins, "__import__", no_dask)
+    with pytest.raises(WarpbwError, match=r'not installed: pip install -e "\.\[batch\]"'):
+        run_batch([BatchItem("x.binary", None, "x")], tmp_path / "out")
+    assert not (tmp_path / "out").exists()

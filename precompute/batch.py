@@ -1,0 +1,252 @@
+"""Tables of many tabulated BRDFs at once, as independent Dask tasks (DESIGN.md, "Scaling past one machine").
+
+Public:
+    ``TABLES`` (``"sampling"``, ``"bandwidth"``: what ``warpbw-precompute brdf-sampling`` and ``brdf`` write),
+    ``BATCH_FORMAT`` (the record's format name), ``SCHEDULERS``
+    ``BatchItem``   one BRDF: a MERL ``.binary`` file, or one material of an NPF table, and the name its outputs take
+    ``batch_items(sources, materials=None) -> list[BatchItem]``   NPF tables (every material, or ``materials``), MERL
+        files and folders of them, in the order given; refused before any work when a source is neither, when a
+        material is unknown, or when two BRDFs would write the same file
+    ``check_tables(tables) -> tuple``   some of ``TABLES``, each once
+    ``output_paths(item, out_dir, tables) -> dict``   ``{table: out_dir / f"{item.name}.{table}.npz"}``
+    ``check_outputs(items, out_dir, tables, force=False, resume=False)``   the refusals before any work
+    ``build_item(item, outputs, threads=1, force=False, resume=False) -> dict``   one task: open the BRDF, build and
+        write its tables (with ``resume``, keep each that reads back as this BRDF's); never raises for a bad BRDF,
+        its record says what went wrong
+    ``run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers=None, force=False, resume=False,
+        progress=True) -> dict``   every item as one task on Dask's ``scheduler`` (``"processes"``, ``"threads"``,
+        ``"sync"``, or anything ``dask.compute(scheduler=...)`` takes, such as a ``dask.distributed.Client``); the
+        batch's record, one entry per item in the items' order
+
+Each BRDF is one task: its tables are the ones the single-material commands write, bit for bit (the builders take
+no seed and a table does not depend on how many threads built it), so a batch on a cluster and a loop on a laptop
+give the same files.  A BRDF that cannot be read does not stop the others: its record holds the error, and the
+command exits 1 after the batch.  Dask is an optional dependency (``pip install -e ".[batch]"``).
+"""
+from __future__ import annotations
+
+import os
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+from warpbw.errors import WarpbwError
+
+TABLES = ("sampling", "bandwidth")
+BATCH_FORMAT = "warpbw-precompute-batch"
+SCHEDULERS = ("processes", "threads", "sync")
+MERL_SUFFIX = ".binary"
+TABLE_SUFFIX = ".npz"
+
+
+@dataclass(frozen=True)
+class BatchItem:
+    path: str                   # the MERL file or the NPF table
+    material: str | None        # the NPF material; None for a MERL file
+    name: str                   # what its outputs are named after: the material, or the MERL file's stem
+
+
+def _folder_items(folder: Path) -> list:
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() == MERL_SUFFIX and p.is_file())
+    if not files:
+        raise WarpbwError(f"{folder}: a folder without MERL files (expected files ending in {MERL_SUFFIX})")
+    return [BatchItem(str(p), None, p.stem) for p in files]
+
+
+def batch_items(sources, materials=None) -> list:
+    """The BRDFs of ``sources`` (NPF tables, MERL files, folders of MERL files), in order; ``materials`` (names, or
+    None for all 100) picks an NPF table's."""
+    from warpbw.io.merl import MERL_FILE_SIZE
+    from warpbw.io.npf import NPF_FILE_SIZE, NPF_MATERIAL_NAMES, read_npf
+
+    sources = [sources] if isinstance(sources, (str, os.PathLike)) else list(sources)
+    if not sources:
+        raise WarpbwError("sources: expected at least one NPF table, MERL file or folder of MERL files")
+    items, tables = [], 0
+    for s in sources:
+        p = Path(s)
+        if p.is_dir():
+            items += _folder_items(p)
+        elif p.is_file() and p.stat().st_size == NPF_FILE_SIZE:
+            tables += 1
+            for m in NPF_MATERIAL_NAMES if materials is None else materials:
+                name = read_npf(p, m).name    # refuses an unknown name (with close matches) or a damaged row
+                items.append(BatchItem(str(p), name, name))
+        elif p.is_file() and (p.suffix.lower() == MERL_SUFFIX or p.stat().st_size == MERL_FILE_SIZE):
+            items.append(BatchItem(str(p), None, p.stem))
+        elif not p.exists():
+            raise WarpbwError(f"{p}: no such file or folder (expected an NPF table, a MERL {MERL_SUFFIX} file or "
+                              "a folder of them)")
+        else:
+            raise WarpbwError(f"{p}: not an NPF table ({NPF_FILE_SIZE} bytes), a MERL file (a name ending in "
+                              f"{MERL_SUFFIX}) or a folder of MERL files")
+    if materials is not None and tables == 0:
+        raise WarpbwError("materials: apply to NPF tables, and no source is one")
+    seen = {}
+    for it in items:
+        other = seen.setdefault(it.name.lower(), it)   # case: one file on a case-insensitive file system
+        if other is not it:
+            what = (lambda i: f"{i.path}:{i.material}" if i.material else i.path)
+            raise WarpbwError(f"{what(other)} and {what(it)} would both write the tables named {it.name!r} (a "
+                              "material or file given twice, or two files of one name: batch them separately)")
+    return items
+
+
+def output_paths(item: BatchItem, out_dir, tables=TABLES) -> dict:
+    return {t: Path(out_dir) / f"{item.name}.{t}{TABLE_SUFFIX}" for t in tables}
+
+
+def check_tables(tables) -> tuple:
+    """``tables`` as a tuple, each one of ``TABLES`` once; else a one-line error."""
+    tables = tuple(tables)
+    bad = [t for t in tables if t not in TABLES]
+    if not tables or bad or len(set(tables)) != len(tables):
+        raise WarpbwError(f"tables: expected some of {', '.join(TABLES)}, each once, got {', '.join(tables) or 'none'}")
+    return tables
+
+
+def check_outputs(items, out_dir, tables=TABLES, force: bool = False, resume: bool = False) -> None:
+    """Before any work: the folder can hold the outputs, none of them is a source, and none exists unless ``force``
+    (replace it) or ``resume`` (keep it if it is this BRDF's table, checked by its task)."""
+    from warpbw.cli_common import check_output_dir, check_overwrite
+    from warpbw.io.staged import output_exists
+
+    check_output_dir(out_dir, "-o")
+    paths = [p for it in items for p in output_paths(it, out_dir, check_tables(tables)).values()]
+    check_overwrite(paths, True, inputs=sorted({it.path for it in items}), inputs_are="a BRDF file of the batch")
+    existing = [p for p in paths if output_exists(p)]
+    if existing and not (force or resume):
+        more = f" and {len(existing) - 1} more outputs" if len(existing) > 1 else ""
+        raise WarpbwError(f"{existing[0]}{more}: already exist{'s' if not more else ''} (pass --resume to keep the "
+                          "tables an earlier batch wrote and build the rest, or --force to replace them)")
+
+
+def _kept(path: Path, read, source):
+    """The table ``path`` holds if ``read`` accepts it as ``source``'s (an earlier batch's, kept by ``--resume``);
+    else None."""
+    if not path.exists():
+        return None
+    try:
+        return read(path, source)
+    except WarpbwError:
+        return None
+
+
+def build_item(item: BatchItem, outputs: dict, threads: int = 1, force: bool = False, resume: bool = False) -> dict:
+    """One BRDF's task: its record ``{"name", "source", "outputs", "time_s", "kept", "nu_rho_max", "warnings",
+    "error"}``; the tables not ``kept`` are built and written (``force``: over an existing file)."""
+    from precompute.brdf_bandwidth import build_brdf_bandwidth, read_brdf_bandwidth, write_brdf_bandwidth
+    from precompute.brdf_sampling import brdf_source, build_brdf_sampling, read_sampling, write_sampling
+
+    steps = {"sampling": (read_sampling, lambda s: build_brdf_sampling(s, progress=False), write_sampling),
+             "bandwidth": (read_brdf_bandwidth, lambda s: build_brdf_bandwidth(s, progress=False, threads=threads),
+                           write_brdf_bandwidth)}
+    record = {"name": item.name, "source": item.path, "material": item.material,
+              "outputs": {t: str(p) for t, p in outputs.items()}, "time_s": {}, "kept": [], "nu_rho_max": None,
+              "warnings": [], "error": None}
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        try:
+            t0 = time.perf_counter()
+            source = brdf_source(item.path, item.material)
+            record["time_s"]["open"] = time.perf_counter() - t0
+            for t, path in outputs.items():
+                read, build, write = steps[t]
+                path = Path(path)
+                t0 = time.perf_counter()
+                table = _kept(path, read, source) if resume else None
+                if table is not None:
+                    record["kept"].append(t)
+                elif resume and path.exists() and not force:
+                    raise WarpbwError(f"{path}: exists and is not a {t} table of {source.name} (pass --force as "
+                                      "well to replace it)")
+                else:
+                    table = build(source)
+                    write(path, table, source, force=force or resume)
+                record["time_s"][t] = time.perf_counter() - t0
+                if t == "bandwidth":
+                    record["nu_rho_max"] = float(table.max())
+        except WarpbwError as exc:
+            record["error"] = str(exc)
+    record["warnings"] = [str(w.message) for w in said]
+    return record
+
+
+def _dask():
+    try:
+        import dask
+    except ImportError:
+        raise WarpbwError("the batch runs on Dask, which is not installed: pip install -e \".[batch]\" (or "
+                          "pip install dask)") from None
+    return dask
+
+
+def _threads_per_task(scheduler, workers: int) -> int:
+    """The bandwidth tables' threads in each task: the cores left to it by the other workers of this machine."""
+    cores = os.cpu_count() or 1
+    return max(1, cores // workers) if scheduler in SCHEDULERS else 1
+
+
+def run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers: int | None = None, force: bool = False,
+              resume: bool = False, progress: bool = True) -> dict:
+    """Build every item's tables into ``out_dir``, one Dask task per item; the batch's record."""
+    from warpbw import __version__
+
+    dask = _dask()
+    tables = check_tables(tables)
+    if isinstance(scheduler, str) and scheduler not in SCHEDULERS:
+        raise WarpbwError(f"scheduler: expected one of {', '.join(SCHEDULERS)} (or a Dask client), got {scheduler!r}")
+    cores = os.cpu_count() or 1
+    workers = min(cores, len(items)) if workers is None else workers
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise WarpbwError(f"workers: expected an integer >= 1, got {workers!r}")
+    workers = 1 if scheduler == "sync" else workers
+    items = list(items)
+    check_outputs(items, out_dir, tables, force=force, resume=resume)
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    threads = _threads_per_task(scheduler, workers)
+    tasks = [dask.delayed(build_item, pure=False)(it, output_paths(it, out_dir, tables), threads, force, resume)
+             for it in items]
+    t0 = time.perf_counter()
+    with _progress_bar(len(tasks), progress):
+        kw = {"num_workers": workers} if isinstance(scheduler, str) else {}
+        if scheduler == "processes":
+            kw["chunksize"] = 1     # dask sends tasks to a worker process in chunks (of 6): one BRDF is work enough
+        records = list(dask.compute(*tasks, scheduler=scheduler, **kw))
+    wall = time.perf_counter() - t0
+    work = sum(sum(r["time_s"].values()) for r in records)
+    return {"format": BATCH_FORMAT, "writer": f"warpbw {__version__}", "out_dir": str(out_dir),
+            "tables": list(tables), "scheduler": scheduler if isinstance(scheduler, str) else type(scheduler).__name__,
+            "workers": workers, "threads_per_task": threads, "wall_s": wall, "work_s": work,
+            "failed": sum(r["error"] is not None for r in records), "items": records}
+
+
+class _progress_bar:
+    """A tqdm bar over the batch's items, advanced by Dask's local schedulers as each item's task ends (a
+    distributed client runs no such callback: the bar then jumps at the end)."""
+
+    def __init__(self, total: int, enabled: bool):
+        self.total, self.enabled = total, enabled
+
+    def __enter__(self):
+        if not self.enabled:
+            return self
+        from dask.callbacks import Callback
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=self.total, desc="batch", unit="BRDF")
+
+        def posttask(key, result, dsk, state, worker_id):
+            if isinstance(result, dict) and "outputs" in result:   # an item's task, not dask's final tuple
+                self.bar.update(1)
+
+        self.callback = Callback(posttask=posttask)
+        self.callback.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        if self.enabled:
+            self.callback.__exit__(*exc)
+            self.bar.close()
+        return False

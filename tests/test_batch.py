@@ -1,0 +1,144 @@
+"""warpbw-precompute batch (precompute.batch): many BRDFs' tables as Dask tasks.
+
+Truth: the single-material commands' files (a batch must write the same bytes), the tables' own readers (a kept or
+written table reads back as its BRDF's), and the record against what is on disk."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from conftest import fake_npf_table, outcome, shared_file
+
+pytest.importorskip("dask", reason="the batch runs on Dask: pip install -e '.[batch]'")
+
+
+def _merl(path, value=0.3):
+    """A Lambertian MERL file (every entry ``value``)."""
+    from warpbw.io.merl import MERL_SHAPE, write_merl
+
+    write_merl(path, np.full(MERL_SHAPE, value))
+    return path
+
+
+def _batch(*args):
+    from precompute.__main__ import main
+
+    return outcome(main, ["batch", *args, "-q"])
+
+
+def _single(cmd, src, material, out):
+    from precompute.__main__ import main
+
+    extra = ["--material", material] if material else []
+    assert outcome(main, [cmd, str(src), *extra, "-o", str(out), "-q"]) == "returned 0"
+    return out.read_bytes()
+
+
+def test_a_batch_writes_the_single_commands_files_byte_for_byte(tmp_path, monkeypatch):
+    """Two BRDFs (a real NPF material and a MERL file) on the processes scheduler, two workers: each table is the
+    file warpbw-precompute brdf-sampling / brdf writes for it, byte for byte, and the record says so."""
+    npf = shared_file("brdf/npf.bin")
+    monkeypatch.chdir(tmp_path)
+    merl = _merl(tmp_path / "grey.binary")
+    assert _batch(str(npf), str(merl), "--materials", "pink-felt", "-o", "out", "--workers", "2") == "returned 0"
+    for name, src, material in (("pink-felt", npf, "pink-felt"), ("grey", merl, None)):
+        assert (tmp_path / f"out/{name}.sampling.npz").read_bytes() == \
+            _single("brdf-sampling", src, material, tmp_path / f"{name}.s.npz"), name
+        assert (tmp_path / f"out/{name}.bandwidth.npz").read_bytes() == \
+            _single("brdf", src, material, tmp_path / f"{name}.b.npz"), name
+    record = json.loads((tmp_path / "out/batch.json").read_text())
+    assert [r["name"] for r in record["items"]] == ["pink-felt", "grey"]
+    assert record["scheduler"] == "processes" and record["workers"] == 2 and record["failed"] == 0
+    from precompute.brdf_bandwidth import read_brdf_bandwidth
+
+    for r in record["items"]:
+        assert r["error"] is None and r["kept"] == [] and set(r["time_s"]) == {"open", "sampling", "bandwidth"}
+        assert r["nu_rho_max"] == float(read_brdf_bandwidth(r["outputs"]["bandwidth"]).max())
+
+
+@pytest.mark.parametrize("scheduler", ["sync", "threads"])
+def test_every_npf_material_by_default_and_schedulers_agree(tmp_path, monkeypatch, scheduler):
+    """Without --materials an NPF table gives its 100 materials, named as the table names them, in its order; the
+    sync and threads schedulers write the bytes the one-material command writes (sampling tables of a stand-in
+    table whose rows are all alike: the files still differ by their material's name and digest)."""
+    from precompute.batch import batch_items
+    from warpbw.io.npf import NPF_MATERIAL_NAMES
+
+    monkeypatch.chdir(tmp_path)
+    npf = fake_npf_table(tmp_path / "npf.bin")
+    items = batch_items([npf])
+    assert [i.name for i in items] == list(NPF_MATERIAL_NAMES) and {i.material for i in items} == set(NPF_MATERIAL_NAMES)
+    assert _batch("npf.bin", "--materials", "Chrome,nickel.binary", "--tables", "sampling", "-o", "out",
+                  "--scheduler", scheduler) == "returned 0"
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["batch.json", "chrome.sampling.npz",
+                                                                     "nickel.sampling.npz"]
+    for m in ("chrome", "nickel"):
+        assert (tmp_path / f"out/{m}.sampling.npz").read_bytes() == \
+            _single("brdf-sampling", npf, m, tmp_path / f"{m}.npz")
+
+
+def test_a_brdf_that_cannot_be_read_fails_alone(tmp_path, monkeypatch, capsys):
+    """A damaged MERL file among good BRDFs: its error is printed and recorded, naming the file, the others' tables
+    are written, and the command exits 1 after the batch (a traceback used to end a loop over materials)."""
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    _merl(tmp_path / "fine.binary")
+    with open(tmp_path / "black.binary", "wb") as f:      # the right size, no positive entry: read_merl refuses it
+        f.write(np.array([90, 90, 180], "<i4").tobytes())
+        np.zeros(90 * 90 * 180 * 3, "<f8").tofile(f)
+    r = _batch("npf.bin", "black.binary", "fine.binary", "--materials", "chrome", "--tables", "sampling", "-o", "out",
+               "--scheduler", "sync")
+    assert r == "returned 1", r
+    err = capsys.readouterr().err
+    assert "error: black: " in err and "black.binary: no positive MERL entry" in err, err
+    assert (tmp_path / "out/chrome.sampling.npz").exists() and (tmp_path / "out/fine.sampling.npz").exists()
+    assert not (tmp_path / "out/black.sampling.npz").exists()
+    record = json.loads((tmp_path / "out/batch.json").read_text())
+    assert record["failed"] == 1
+    assert [r["error"] is None for r in record["items"]] == [True, False, True]
+
+
+def test_resume_keeps_this_brdfs_tables_builds_the_rest_and_refuses_a_stranger(tmp_path, monkeypatch, capsys):
+    """A stopped batch goes on with --resume: a table that reads back as its BRDF's is kept (its bytes and time
+    untouched), a missing one is built; a file in its place that is another BRDF's table is refused, and replaced
+    only with --force as well.  Without either, the existing outputs are refused before any work."""
+    from precompute.batch import BatchItem, output_paths
+
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    args = ["npf.bin", "--materials", "chrome,nickel", "--tables", "sampling", "-o", "out", "--scheduler", "sync"]
+    assert _batch(*args) == "returned 0"
+    chrome, nickel = (tmp_path / "out/chrome.sampling.npz"), (tmp_path / "out/nickel.sampling.npz")
+    assert chrome == tmp_path / output_paths(BatchItem("npf.bin", "chrome", "chrome"), "out", ("sampling",))["sampling"]
+    before = chrome.read_bytes(), chrome.stat().st_mtime_ns
+    nickel_bytes = nickel.read_bytes()
+    nickel.unlink()
+    capsys.readouterr()
+    assert _batch(*args) == "returned 2"
+    assert "error: out/chrome.sampling.npz: already exists (pass --resume to keep the tables an earlier batch " \
+        "wrote and build the rest, or --force to replace them)" in capsys.readouterr().err
+    assert _batch(*args, "--resume") == "returned 0"
+    record = json.loads((tmp_path / "out/batch.json").read_text())
+    assert [r["kept"] for r in record["items"]] == [["sampling"], []]
+    assert (chrome.read_bytes(), chrome.stat().st_mtime_ns) == before and nickel.read_bytes() == nickel_bytes
+
+    nickel.write_bytes(chrome.read_bytes())          # chrome's table in nickel's place
+    assert _batch(*args, "--resume") == "returned 1"
+    assert "out/nickel.sampling.npz: exists and is not a sampling table of npf.bin:nickel" in capsys.readouterr().err
+    assert nickel.read_bytes() == chrome.read_bytes()
+    assert _batch(*args, "--resume", "--force") == "returned 0"
+    assert nickel.read_bytes() == nickel_bytes
+
+
+def test_a_progress_bar_over_the_brdfs(tmp_path, monkeypatch, tqdm_bars):
+    """One bar, one step per BRDF (not per Dask task: dask's own final task is not a BRDF); none with -q."""
+    from precompute.__main__ import main
+
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    args = ["batch", "npf.bin", "--materials", "chrome,nickel,steel", "--tables", "sampling", "--scheduler", "sync"]
+    assert outcome(main, [*args, "-o", "a", "-q"]) == "returned 0" and tqdm_bars == []
+    assert outcome(main, [*args, "-o", "b"]) == "returned 0"
+    assert [(b.desc, b.total, b.n) for b in tqdm_bars] == [("batch", 3, 3)]
