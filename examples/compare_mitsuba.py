@@ -7,12 +7,18 @@ Usage::
     python examples/compare_mitsuba.py --no-mis              # warpbw with BRDF sampling only
     python examples/compare_mitsuba.py --cases ggx0.1 --spp 256 --resolution 128 --out /tmp/cmp
     python examples/compare_mitsuba.py --mitsuba-only --out /tmp/mitsuba_out
+    python examples/compare_mitsuba.py --json cmp.json --plot cmp.png   # and the record and its plot
 
 For every case it prints the relative MSE and PSNR of warpbw's image against Mitsuba's over the
 sphere's interior (warpbw's coverage mask eroded by 2 pixels, so that silhouette pixels, whose value
 depends on how each renderer filters the edge, do not count), the wall time of each renderer (after
 one warm-up render at 1 spp, so kernel compilation is not counted) and PASS/FAIL against the 1 %
 acceptance threshold.  The exit code is 0 whatever the figures are; it is non-zero only on an error.
+``--json OUT.json`` / ``--plot OUT.png`` (as ``warpbw bench``'s: the one not given goes beside the other; an
+existing file is kept without ``--force``, refused before any render) write the record of the run (the settings,
+Mitsuba's version and variant, and every figure of the table per case, units in the names) and its plot (relMSE
+against the acceptance, and each renderer's time, per case).  Each time is one render, not a median: compare them
+as the ratio only.
 
 Install Mitsuba 3 (an optional extra, not a dependency of warpbw)::
 
@@ -113,7 +119,8 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, init_warp, parse_seed, run_command
+from warpbw.cli_common import (OneLineParser, check_output_dir, check_overwrite, check_record_outputs, init_warp,
+                               parse_seed, run_command, write_record)
 from warpbw.errors import SEED_MAX
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
@@ -426,7 +433,12 @@ def parse_args(argv=None):
     p.add_argument("--cases", default=",".join(CASES), help=f"comma list of {', '.join(CASES)}")
     p.add_argument("--seed", type=parse_seed, default=0, help="0 to 2^32-1001 (the warm-up frames use seed + 1000)")
     p.add_argument("--out", type=Path, default=None, help="save <case>_mitsuba.exr, <case>_warpbw.exr, <case>.png")
-    p.add_argument("--force", action="store_true", help="overwrite those files where --out already holds them")
+    p.add_argument("--json", help="write the record here (JSON): the settings and every figure of the table; "
+                   "without it, beside --plot as OUT.json")
+    p.add_argument("--plot", help="write the plot here (PNG): relMSE against the acceptance and each renderer's "
+                   "time, per case; without it, beside --json as OUT.png")
+    p.add_argument("--force", action="store_true", help="overwrite those files where --out already holds them, and "
+                   "--json / --plot")
     p.add_argument("--variant", default=None, help=f"Mitsuba variant (default: first usable of {VARIANTS})")
     p.add_argument("--no-mis", dest="mis", action="store_false",
                    help="warpbw with BRDF sampling only (its CLI default, 002 Eq. 2).  Default: MIS, one BRDF and "
@@ -461,7 +473,49 @@ def parse_args(argv=None):
         kinds = ("_mitsuba.exr", ".png") if a.mitsuba_only else ("_mitsuba.exr", "_warpbw.exr", ".png")
         check_overwrite([a.out / f"{c}{k}" for c in a.cases for k in kinds], a.force, "--out",
                         inputs=[a.probe.expanduser()])
+    if not a.check_conventions:   # as warpbw bench's: the one not given beside the other, checked before any render
+        a.json, a.plot = check_record_outputs(a.json, a.plot, a.force, inputs=[a.probe.expanduser()])
     return a
+
+
+# the record's names of a table row's figures (units in the names, as warpbw bench's record)
+RECORD_KEYS = {"t_mi": "mitsuba_time_s", "t_wb": "warpbw_time_s", "mean_mi": "mitsuba_mean", "mean_wb": "warpbw_mean",
+               "relmse": "relmse", "relmse_sum": "relmse_sum", "psnr": "psnr_db", "n": "pixels",
+               "iou": "coverage_iou", "floor": "noise_floor_relmse"}
+
+
+def write_plot(record: dict, path) -> None:
+    """Per case: warpbw's relMSE against Mitsuba (and Mitsuba's own noise floor) with the acceptance line, and each
+    renderer's time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cases = record["cases"]
+    x = np.arange(len(cases))
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(10, 4))
+    if any("relmse" in c for c in cases):
+        ax.bar(x - 0.2, [c.get("relmse", np.nan) for c in cases], 0.4, label="warpbw vs Mitsuba")
+    if any("noise_floor_relmse" in c for c in cases):
+        ax.bar(x + 0.2, [c.get("noise_floor_relmse", np.nan) for c in cases], 0.4, label="Mitsuba vs Mitsuba")
+    ax.axhline(record["acceptance_relmse"], color="C3", ls="--", label=f"acceptance {record['acceptance_relmse']:.0%}")
+    ax.set_yscale("log")
+    ax.set_ylabel("relMSE over the interior")
+    ax2.bar(x - 0.2, [c["mitsuba_time_s"] for c in cases], 0.4, label=f"Mitsuba ({record['mitsuba_spp']} spp)")
+    if any("warpbw_time_s" in c for c in cases):
+        ax2.bar(x + 0.2, [c.get("warpbw_time_s", np.nan) for c in cases], 0.4,
+                label=f"warpbw ({record['warpbw_spp']} spp, {'MIS' if record['mis'] else 'BRDF sampling'})")
+    ax2.set_ylabel("render time (s)")
+    for a in (ax, ax2):
+        a.set_xticks(x, [c["case"] for c in cases])
+        a.grid(True, axis="y", which="both", alpha=0.3)
+        a.legend(fontsize=8)
+    fig.suptitle(f"{Path(record['probe']).name}, {record['resolution']}x{record['resolution']}; Mitsuba "
+                 f"{record['mitsuba_version']} {record['mitsuba_variant']}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def main(argv=None) -> int:
@@ -551,6 +605,21 @@ def main(argv=None) -> int:
             for p, pair in sides.items():
                 save_side_by_side(at[p], *pair)
         print(f"images written to {args.out}")
+    if args.json is not None:
+        cases = []
+        for r in rows:
+            c = {"case": r["case"], **{RECORD_KEYS[k]: v for k, v in r.items() if k in RECORD_KEYS}}
+            c["mitsuba_msamples_per_s"] = args.resolution ** 2 * mspp / r["t_mi"] / 1e6
+            if "t_wb" in r:
+                c["time_ratio"] = r["t_wb"] / r["t_mi"]
+                c["result"] = "PASS" if r["relmse"] < ACCEPT_RELMSE else "FAIL"
+            cases.append(c)
+        record = {"probe": str(probe), "rotation_deg": args.rotation, "scale": args.scale,
+                  "resolution": args.resolution, "mitsuba_spp": mspp, "warpbw_spp": None if wb is None else args.spp,
+                  "mis": args.mis, "seed": args.seed, "warmup": not args.no_warmup, "erode_px": ERODE_PX,
+                  "acceptance_relmse": ACCEPT_RELMSE, "metric": metric_label, "mitsuba_version": str(mi.__version__),
+                  "mitsuba_variant": variant, "device": "cpu", "cases": cases}
+        write_record(args.json, args.plot, record, write_plot, force=args.force)
     return 0
 
 

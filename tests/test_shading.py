@@ -4,6 +4,7 @@ hand the estimator, and their figures (throughput, relMSE over the eroded interi
 hand."""
 from __future__ import annotations
 
+import json
 import math
 import re
 import sys
@@ -542,6 +543,58 @@ def test_compare_mitsuba_reports_relmse_over_the_interior_against_mitsuba(tmp_pa
         assert (int(r[4]), float(r[5])) == (64, 1.0), r
         assert float(r[9]) == pytest.approx(0.05 ** 2 / 1.01, rel=5e-3), r
         assert r[10] == verdict, r
+
+
+def test_compare_mitsuba_record_holds_the_printed_table_and_a_plot(tmp_path, monkeypatch, capsys):
+    """DESIGN.md, measurement protocol: every benchmark writes a JSON record and a PNG plot.  The comparison printed
+    its table only; --json now holds every figure of each row under a name with its unit (the stand-ins' by hand:
+    lambert relMSE 0.05^2 / 1.01, Mitsuba 2 s, warpbw 1 s, ratio 0.5), the settings and Mitsuba's version, and its
+    plot is beside it."""
+    import matplotlib.image
+
+    monkeypatch.chdir(tmp_path)
+    got = _run_compare_mitsuba(monkeypatch, tmp_path, ["--cases", "lambert,ggx0.1", "--spp", "16", "--mitsuba-spp",
+                                                       "64", "--noise-floor", "--json", "c.json"])
+    assert got["outcome"] == "returned 0", got["outcome"]
+    rows = {ln.split()[0]: ln.split() for ln in capsys.readouterr().out.splitlines()
+            if ln.split() and ln.split()[0] in ("lambert", "ggx0.1")}
+    rec = json.loads((tmp_path / "c.json").read_text())
+    assert (rec["resolution"], rec["mitsuba_spp"], rec["warpbw_spp"], rec["mis"]) == (16, 64, 16, True)
+    assert rec["mitsuba_version"] == "fake" and rec["acceptance_relmse"] == 0.01 and rec["device"] == "cpu"
+    assert [c["case"] for c in rec["cases"]] == ["lambert", "ggx0.1"]
+    for c in rec["cases"]:
+        r = rows[c["case"]]
+        assert r[1:] == [f"{c['relmse']:.2e}", f"{c['relmse_sum']:.2e}", f"{c['psnr_db']:.2f}", str(c["pixels"]),
+                         f"{c['coverage_iou']:.4f}", f"{c['mitsuba_time_s']:.2f}", f"{c['warpbw_time_s']:.2f}",
+                         f"{c['time_ratio']:.2f}", f"{c['noise_floor_relmse']:.2e}", c["result"]]
+        assert (c["mitsuba_time_s"], c["warpbw_time_s"], c["time_ratio"], c["pixels"]) == (2.0, 1.0, 0.5, 64)
+        assert c["mitsuba_msamples_per_s"] == pytest.approx(16 * 16 * 64 / 2.0 / 1e6)
+    assert rec["cases"][0]["relmse"] == pytest.approx(0.05 ** 2 / 1.01, rel=5e-3)
+    assert [c["result"] for c in rec["cases"]] == ["PASS", "FAIL"]
+    with open(tmp_path / "c.png", "rb") as f:
+        assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+    img = matplotlib.image.imread(tmp_path / "c.png")
+    assert img.ndim == 3 and min(img.shape[:2]) > 100 and np.ptp(img[..., :3]) > 0
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--json", "old.json"], "old.json: already exists"),
+    (["--plot", "q.png"], "q.png: already exists"),
+    (["--json", "new.json"], "new.png: already exists"),
+    (["--json", "c.txt"], "--json c.txt: expected a path ending in .json"),
+    (["--plot", "c.jpg", "--force"], "--plot c.jpg: expected a path ending in .png"),
+    (["--json", "p.exr.json", "--plot", "p.exr", "--force"], "--plot p.exr: expected a path ending in .png"),
+])
+def test_compare_mitsuba_refuses_its_record_before_any_render(tmp_path, monkeypatch, argv, needle):
+    """--json / --plot follow warpbw bench's rules, checked before Mitsuba is imported or anything rendered."""
+    monkeypatch.chdir(tmp_path)
+    for name in ("old.json", "q.png", "new.png"):
+        (tmp_path / name).write_text("kept\n")
+    got = _run_compare_mitsuba(monkeypatch, tmp_path, ["--cases", "lambert", "--spp", "8", *argv])
+    assert got["outcome"].startswith("WarpbwError") and needle in got["outcome"], got["outcome"]
+    assert got["mitsuba"] == got["warpbw"] == []
+    assert all((tmp_path / n).read_text() == "kept\n" for n in ("old.json", "q.png", "new.png"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["new.png", "old.json", "p.exr", "q.png"]
 
 
 def test_compare_mitsuba_runs_warpbw_with_mis_by_default(tmp_path, monkeypatch):
