@@ -350,8 +350,9 @@ def test_cutting_launches_by_their_samples_leaves_every_pixel_as_it_was(monkeypa
 
 # ------------------------------------------------------------------------------ examples/reference_estimator.py
 
-def _run_reference_estimator(monkeypatch, tmp_path, argv, out):
-    """Run reference_estimator.main with stand-ins for every stage; returns what they were handed and stdout."""
+def _run_reference_estimator(monkeypatch, tmp_path, argv, out, seconds=lambda k: 1.0):
+    """Run reference_estimator.main with stand-ins for every stage; returns what they were handed.  Shading call k
+    (from 0) "takes" seconds(k) on the stand-in clock."""
     mod = load_example("reference_estimator")
     got = {"shade": [], "camera": None, "probe": None, "npf": None}
     clock = StandInClock()
@@ -372,8 +373,8 @@ def _run_reference_estimator(monkeypatch, tmp_path, argv, out):
         return SimpleNamespace(coverage=np.ones((cam.h, cam.w), bool), w=cam.w, h=cam.h)
 
     def shade_reference(gb, mats, env, spp, seed=0, mis=False, device=None):
+        clock.now += seconds(len(got["shade"]))                # by default every shading "takes" exactly 1 s
         got["shade"].append((spp, mis))
-        clock.now += 1.0                                       # every shading "takes" exactly 1 s
         img = np.full((gb.h * gb.w, 3), 0.5 if mis else 0.25, np.float32)
         return SimpleNamespace(samples=2_500_000, pixels_shaded=gb.h * gb.w, non_finite=0,
                                radiance=SimpleNamespace(numpy=lambda: img))
@@ -414,7 +415,7 @@ def test_reference_estimator_passes_its_options_and_names_each_image_by_its_esti
                                    tmp_path / "o")
     assert got["probe"] == probe and got["npf"] == (npf, "chrome")
     assert got["camera"] == (8, 4)
-    assert got["shade"] == [(1, False), (7, False), (1, True), (7, True)]     # warm-up, then the timed render
+    assert got["shade"] == [(1, False), *[(7, False)] * 3, (1, True), *[(7, True)] * 3]   # warm-up, 3 timed
     assert float(np.unique(read_exr(tmp_path / "o" / "ref_bis.exr").pixels)[0]) == 0.25
     assert float(np.unique(read_exr(tmp_path / "o" / "ref_mis.exr").pixels)[0]) == 0.5
     out = capsys.readouterr().out
@@ -423,14 +424,80 @@ def test_reference_estimator_passes_its_options_and_names_each_image_by_its_esti
 
 
 def test_reference_estimator_defaults_are_the_documented_ones(tmp_path, monkeypatch):
-    """Without options: --spp 64 and --resolution 384 160 (module docstring and --help), the NPF sphere of
-    gold-metallic-paint."""
+    """Without options: --spp 64, --runs 3 and --resolution 384 160 (module docstring and --help), the NPF sphere
+    of gold-metallic-paint."""
     probe, npf = tmp_path / "p.exr", tmp_path / "t.bin"
     probe.write_bytes(b"x")
     npf.write_bytes(b"x")
     got = _run_reference_estimator(monkeypatch, tmp_path, ["--probe", str(probe), "--npf", str(npf)], tmp_path / "o")
-    assert got["shade"] == [(1, False), (64, False), (1, True), (64, True)]
+    assert got["shade"] == [(1, False), *[(64, False)] * 3, (1, True), *[(64, True)] * 3]
     assert got["camera"] == (384, 160) and got["npf"] == (npf, "gold-metallic-paint")
+
+
+def test_reference_estimator_times_the_median_of_its_runs_and_records_what_it_prints(tmp_path, monkeypatch,
+                                                                                      capsys):
+    """DESIGN.md, measurement protocol: the median of at least 3 runs after a warm-up, and a JSON record and a PNG
+    plot.  The example timed one frame per estimator and wrote neither.  Stand-in clock: the warm-ups take 100 s,
+    the timed frames 3, 1 and 2 s (BRDF sampling) and 6, 2 and 4 s (MIS): medians 2 s and 4 s, so 2.5 M samples
+    read 1.25 M evaluations/s and, two evaluations each with MIS, 1.25 again."""
+    import matplotlib.image
+
+    probe, npf = tmp_path / "p.exr", tmp_path / "t.bin"
+    probe.write_bytes(b"x")
+    npf.write_bytes(b"x")
+    secs = [100.0, 3.0, 1.0, 2.0, 100.0, 6.0, 2.0, 4.0]
+    _run_reference_estimator(monkeypatch, tmp_path, ["--probe", str(probe), "--npf", str(npf), "--spp", "7",
+                                                     "--resolution", "8", "4", "--json", str(tmp_path / "r.json")],
+                             tmp_path / "o", seconds=lambda k: secs[k])
+    out = capsys.readouterr().out
+    rec = json.loads((tmp_path / "r.json").read_text())
+    assert (rec["resolution"], rec["spp"], rec["runs"], rec["device"]) == ([8, 4], 7, 3, "cpu") and rec["threads"] >= 1
+    for name, runs, median in (("ref_bis", [3.0, 1.0, 2.0], 2.0), ("ref_mis", [6.0, 2.0, 4.0], 4.0)):
+        e = rec["estimators"][name]
+        assert e["time_runs_s"] == runs and e["time_s"] == median and e["evaluations_per_s"] == 1.25e6
+        m = re.search(rf"{name}: 7 spp over (\d+) pixels in ([\d.]+) s \(([\d.]+) M evaluations/s\), non-finite "
+                      rf"samples (\d+); mean radiance \[([\d. ]+)\]", out)
+        assert m, out
+        assert (int(m[1]), m[2], m[3], int(m[4])) == (e["pixels_shaded"], f"{e['time_s']:.2f}",
+                                                     f"{e['evaluations_per_s'] / 1e6:.2f}", e["non_finite_samples"])
+        assert [float(v) for v in m[5].split()] == pytest.approx(e["mean_radiance"], abs=1e-4)
+    assert rec["estimators"]["ref_mis"]["mean_radiance"] == [0.5, 0.5, 0.5]
+    img = matplotlib.image.imread(tmp_path / "r.png")
+    assert img.ndim == 3 and min(img.shape[:2]) > 100 and np.ptp(img[..., :3]) > 0
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--json", "old.json"], "old.json: already exists"),
+    (["--plot", "q.png"], "q.png: already exists"),
+    (["--json", "r.txt"], "--json r.txt: expected a path ending in .json"),
+    (["--plot", "r.jpg"], "--plot r.jpg: expected a path ending in .png"),
+])
+def test_reference_estimator_refuses_its_record_before_any_work(tmp_path, monkeypatch, argv, needle):
+    """--json / --plot follow warpbw bench's rules, checked before the probe is read or anything shaded."""
+    monkeypatch.chdir(tmp_path)
+    probe, npf = tmp_path / "p.exr", tmp_path / "t.bin"
+    probe.write_bytes(b"x")
+    npf.write_bytes(b"x")
+    for name in ("old.json", "q.png"):
+        (tmp_path / name).write_text("kept\n")
+    how = outcome(_run_reference_estimator, monkeypatch, tmp_path, ["--probe", str(probe), "--npf", str(npf),
+                                                                    *argv], tmp_path / "o")
+    assert how.startswith("WarpbwError") and needle in how, how
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.json", "p.exr", "q.png", "t.bin"]
+
+
+@pytest.mark.parametrize("runs, warns", [(1, True), (2, True), (3, False)])
+def test_reference_estimator_warns_of_fewer_runs_than_the_protocols_three(tmp_path, monkeypatch, capsys, runs,
+                                                                          warns):
+    probe, npf = tmp_path / "p.exr", tmp_path / "t.bin"
+    probe.write_bytes(b"x")
+    npf.write_bytes(b"x")
+    got = _run_reference_estimator(monkeypatch, tmp_path, ["--probe", str(probe), "--npf", str(npf), "--runs",
+                                                           str(runs)], tmp_path / "o")
+    assert len(got["shade"]) == 2 * (1 + runs)
+    err = capsys.readouterr().err
+    assert (f"reference_estimator: warning: --runs {runs}: the measurement protocol times the median of at least 3"
+            in err) == warns, err
 
 
 # ------------------------------------------------------------------------------- examples/compare_mitsuba.py
