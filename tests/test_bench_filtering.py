@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from conftest import (StandInClock, capture_call, check_colour_scale, load_example, numpy_camera_rays,
+from conftest import (Handed, StandInClock, capture_call, check_colour_scale, load_example, numpy_camera_rays,
                       numpy_sphere_distance, numpy_square_distance, outcome, plane_scene_toml)
 from warpbw.bench_filtering import FLICKER_STEP, colour_error, flicker, temporal_error
 from warpbw.cli import main
@@ -975,6 +975,53 @@ def test_filtering_floor_mean_level_leaves_out_the_magnified_pixels(tmp_path, mo
     lv = res.level[res.coverage]
     assert (lv < 0).sum() > 10 and row["pixels"] == (lv >= 0).sum(), row
     assert row["mean_level"] == pytest.approx(float(lv[lv >= 0].mean()), abs=1e-3), row
+
+
+def test_filtering_floor_record_and_plot_hold_the_printed_tables(tmp_path, monkeypatch, capsys):
+    """DESIGN.md, measurement protocol: every benchmark writes a JSON record and a PNG plot.  The script wrote its
+    tables as JSON only; --plot now writes each scene's errors against zoom beside them, and every figure of the
+    printed table is the record's (at its printed precision)."""
+    ff = load_example("filtering_floor")
+    scene = _floor_scene(tmp_path, monkeypatch, material_extra='normal_map = "map.exr"\n')
+    assert ff.main([str(scene), "--zoom", "4,8", "--gt-spp", "64", "--plot", str(tmp_path / "f.png")]) == 0
+    out = capsys.readouterr().out
+    (rec,) = json.loads((tmp_path / "f.json").read_text())
+    assert rec["scene"] == str(scene) and rec["gt_spp"] == 64 and rec["device"] == "cpu"
+    lines = out.splitlines()
+    header = next(ln for ln in lines if ln.split()[:3] == ["zoom", "level", "probes"]).split()
+    rows = [dict(zip(header, ln.split())) for ln in lines if re.match(r"\s+[48] ", ln)]
+    assert [float(r["zoom"]) for r in rows] == [z["zoom"] for z in rec["zooms"]] == [4.0, 8.0], out
+    for r, z in zip(rows, rec["zooms"]):
+        assert (r["level"], r["probes"]) == (f"{z['mean_level']:.2f}", f"{z['mean_probes']:.2f}")
+        for c in ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed", "gmm_per_tap", "floor",
+                  "floor_bilinear"):
+            assert r[c] == f"{z[c]:.4f}", c
+        assert r["aligned/toks"] == f"{z['gmm_aligned'] / z['toksvig']:.2f}" and r["check"] == \
+            f"{z['gmm_merged_check']:.1e}"
+    assert f"record {tmp_path / 'f.json'}, plot {tmp_path / 'f.png'}" in out
+    img = _png_rgb(tmp_path / "f.png")
+    assert img.shape[1] > 300
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--json", "old.json"], "old.json: already exists"),
+    (["--plot", "q.png"], "q.png: already exists"),
+    (["--json", "new.json"], "new.png: already exists"),
+    (["--plot", "f.jpg"], "--plot f.jpg: expected a path ending in .png"),
+    (["--json", "floor.json", "--plot", "floor.toml", "--force"], "--plot floor.toml: expected a path ending in .png"),
+])
+def test_filtering_floor_refuses_its_outputs_before_any_work(tmp_path, monkeypatch, argv, needle):
+    """--json / --plot follow warpbw bench's rules, checked before Warp is started or a scene read."""
+    ff = load_example("filtering_floor")
+    scene = _floor_scene(tmp_path, monkeypatch, material_extra='normal_map = "map.exr"\n')
+    monkeypatch.chdir(tmp_path)
+    for name in ("old.json", "q.png", "new.png"):
+        (tmp_path / name).write_text("kept\n")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    monkeypatch.setattr(ff, "init_warp", lambda dev: (_ for _ in ()).throw(Handed()))
+    how = outcome(ff.main, [str(scene), "--zoom", "8", *argv])
+    assert how.startswith("WarpbwError") and needle in how, how
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
 # ------------------------------------------------------------------------- bench-filtering's table and record, by hand
