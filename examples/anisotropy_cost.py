@@ -30,6 +30,11 @@ from warpbw.scene import MAX_RESOLUTION
 METHODS = ("gmm_aligned", "toksvig", "lean")
 
 
+def _scene_name(path: str) -> str:
+    """A scene's folder and name (bench/filtering/scales.toml and bench/graze20/scales.toml are both "scales")."""
+    return "/".join(Path(path).with_suffix("").parts[-2:])
+
+
 def write_plot(record: dict, path) -> None:
     """The anisotropic frame's time over the isotropic one's against zoom, one line per scene and method."""
     import matplotlib
@@ -41,7 +46,7 @@ def write_plot(record: dict, path) -> None:
     for i, sc in enumerate(record["scenes"]):
         for j, m in enumerate(record["methods"]):
             ax.plot([r["zoom"] for r in sc["zooms"]], [r["methods"][m]["ratio"] for r in sc["zooms"]],
-                    "os^"[j % 3] + "-", color=f"C{i % 10}", label=f"{Path(sc['scene']).stem}: {m}")
+                    "os^"[j % 3] + "-", color=f"C{i % 10}", label=f"{_scene_name(sc['scene'])}: {m}")
     ax.axhline(1.0, color="k", lw=0.8, ls="--")
     ax.set_xscale("log", base=2)
     ax.set_xlabel("zoom (camera distance factor)")
