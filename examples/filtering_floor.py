@@ -368,7 +368,7 @@ def write_plot(records: list, path) -> None:
         ax.set_xscale("log", base=2)
         ax.set_xlabel("zoom (camera distance factor)")
         ax.set_ylabel(f"error against the ground truth ({rec['gt_spp']} rays/pixel)")
-        ax.set_title(Path(rec["scene"]).name, fontsize=10)
+        ax.set_title("/".join(Path(rec["scene"]).parts[-2:]), fontsize=10)   # graze20/scales, filtering/scales
         ax.grid(True, which="both", alpha=0.3)
     axes[0][0].legend(fontsize=7)
     fig.tight_layout()
