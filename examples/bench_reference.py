@@ -9,8 +9,8 @@ fit by ``warpbw-precompute npf-to-merl``, under a light probe of ../shared/data/
 
 Protocol (../shared/DESIGN.md): times are medians of ``--runs`` runs (default 3; fewer warn, as ``warpbw bench``'s)
 after a warm-up frame; the ground truth is the MIS reference at ``--gt-spp``, the mean of independently seeded
-4096-spp chunks (each cached), accepted when the PSNR of a render at the sweep's largest ``--spp`` (1024 by default) against its first half and against
-the whole differ by < 0.5 dB (else it says so).
+4096-spp chunks (each cached), accepted when the PSNR of a render at the sweep's largest ``--spp`` (1024 by
+default) against its first half and against the whole differ by < 0.5 dB (else it says so).
 Writes bench_out/bench_reference.json, a plot bench_out/bench_reference.png (error against time,
 one curve per estimator), PNG previews, the MERL file, and the ground truth's chunks as EXR
 (``warpbw.bench.ground_truth``'s cache, by scene hash, seed and ``GT_VERSION``); an earlier run's records are kept
