@@ -537,6 +537,41 @@ def test_compare_mitsuba_warpbw_side_gets_the_scale_rotation_and_estimator(tmp_p
     assert seen == [{"mis": True}, {}]
 
 
+def test_compare_mitsuba_times_warpbws_render_alone_as_mitsubas(tmp_path, monkeypatch):
+    """Mitsuba's scene is built before its timed render; warpbw's scene was handed to render_reference as a Scene,
+    so its probe, materials and geometry were loaded inside the timed call (DESIGN.md: the wall time of a frame).
+    Stand-ins on a stand-in clock: loading a scene takes 100 s, a render 1 s, and render_reference loads a scene it
+    is handed unprepared, as warpbw.pipeline's does.  The time is the render's alone: 1 s."""
+    import warpbw.pipeline
+
+    cm = load_example("compare_mitsuba")
+    clock = StandInClock()
+    prepared = []
+
+    def prepare_scene(scene, device="cpu", progress=False):
+        clock.now += 100.0
+        prepared.append(scene)
+        return SimpleNamespace(prepared=scene)
+
+    def render_reference(scene, spp=1, seed=0, mis=False, device=None, **kw):
+        if not hasattr(scene, "prepared"):
+            scene = prepare_scene(scene)
+        clock.now += 1.0
+        return SimpleNamespace(image=np.zeros((2, 2, 3)), coverage=np.zeros((2, 2), bool))
+
+    monkeypatch.setattr(warpbw.pipeline, "prepare_scene", prepare_scene)
+    monkeypatch.setattr(warpbw.pipeline, "render_reference", render_reference)
+    monkeypatch.setattr(cm, "time", clock)
+    monkeypatch.setattr(cm, "init_warp", lambda dev: None)
+    from warpbw.io.exr import write_exr
+
+    probe = tmp_path / "p.exr"
+    write_exr(probe, np.ones((4, 8, 3), np.float32))
+    toml_text = cm.warpbw_toml(probe, cm.CASES["lambert"], 8, 0.0, 1.0)
+    _, _, seconds = cm.render_warpbw(*cm.import_warpbw(), toml_text, 4, 0, True)
+    assert seconds == 1.0 and len(prepared) == 1
+
+
 def test_compare_mitsuba_options_defaults(tmp_path):
     """--help: --spp 1024, --resolution 256; MIS by default, BRDF sampling with --no-mis."""
     cm = load_example("compare_mitsuba")
