@@ -11,14 +11,14 @@ Usage::
 
 For every case it prints the relative MSE and PSNR of warpbw's image against Mitsuba's over the
 sphere's interior (warpbw's coverage mask eroded by 2 pixels, so that silhouette pixels, whose value
-depends on how each renderer filters the edge, do not count), the wall time of each renderer (after
-one warm-up render at 1 spp, so kernel compilation is not counted) and PASS/FAIL against the 1 %
+depends on how each renderer filters the edge, do not count), the wall time of each renderer (the median of
+``--runs`` renders, default 3 -- fewer warn, as ``warpbw bench``'s --runs -- after one warm-up render at 1 spp, so
+kernel compilation is not counted) and PASS/FAIL against the 1 %
 acceptance threshold.  The exit code is 0 whatever the figures are; it is non-zero only on an error.
 ``--json OUT.json`` / ``--plot OUT.png`` (as ``warpbw bench``'s: the one not given goes beside the other; an
 existing file is kept without ``--force``, refused before any render) write the record of the run (the settings,
 Mitsuba's version and variant, and every figure of the table per case, units in the names) and its plot (relMSE
-against the acceptance, and each renderer's time, per case).  Each time is one render, not a median: compare them
-as the ratio only.
+against the acceptance, and each renderer's time, per case).  Compare the times as their ratio only.
 
 Install Mitsuba 3 (an optional extra, not a dependency of warpbw)::
 
@@ -113,14 +113,15 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import statistics
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import (OneLineParser, check_output_dir, check_overwrite, check_record_outputs, init_warp,
-                               parse_seed, run_command, write_record)
+from warpbw.cli_common import (PROTOCOL_RUNS, OneLineParser, check_output_dir, check_overwrite, check_record_outputs,
+                               few_runs_warning, init_warp, parse_seed, run_command, write_record)
 from warpbw.errors import SEED_MAX
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
@@ -434,6 +435,8 @@ def parse_args(argv=None):
     p.add_argument("--spp", type=int, default=1024, help="samples per pixel for both renderers (1024)")
     p.add_argument("--mitsuba-spp", type=int, default=None, help="Mitsuba's spp if different from --spp")
     p.add_argument("--resolution", type=int, default=256, help="square image side in pixels (256)")
+    p.add_argument("--runs", type=int, default=PROTOCOL_RUNS,
+                   help=f"timed renders per renderer and case, the same seed (median; default {PROTOCOL_RUNS})")
     p.add_argument("--probe", type=Path, default=DEFAULT_PROBE, help=f"lat-long EXR probe ({DEFAULT_PROBE})")
     p.add_argument("--rotation", type=float, default=0.0, help="probe rotation about +Y, degrees (0)")
     p.add_argument("--scale", type=float, default=1.0, help="probe radiance scale (1)")
@@ -461,6 +464,8 @@ def parse_args(argv=None):
         p.error(f"--spp {a.spp}: expected a positive integer")
     if a.resolution < 8:
         p.error(f"--resolution {a.resolution}: expected at least 8 pixels")
+    if a.runs < 1:
+        p.error(f"--runs {a.runs}: expected a positive integer")
     if a.mitsuba_spp is not None and a.mitsuba_spp < 1:
         p.error(f"--mitsuba-spp {a.mitsuba_spp}: expected a positive integer")
     if not math.isfinite(a.rotation):
@@ -483,6 +488,12 @@ def parse_args(argv=None):
     if not a.check_conventions:   # as warpbw bench's: the one not given beside the other, checked before any render
         a.json, a.plot = check_record_outputs(a.json, a.plot, a.force, inputs=[a.probe.expanduser()])
     return a
+
+
+def median_of_runs(render, runs: int) -> tuple:
+    """``render()`` -> (..., seconds), called ``runs`` times: the last call's results with the median seconds."""
+    outs = [render() for _ in range(runs)]
+    return (*outs[-1][:-1], statistics.median(o[-1] for o in outs))
 
 
 # the record's names of a table row's figures (units in the names, as warpbw bench's record)
@@ -559,7 +570,7 @@ def main(argv=None) -> int:
         scene = mitsuba_scene(mi, probe_rgb, mat, args.resolution, mspp, args.rotation, args.scale)
         if not args.no_warmup:
             render_mitsuba(mi, scene, 1, args.seed + 1000)
-        ref, alpha, t_mi = render_mitsuba(mi, scene, mspp, args.seed)
+        ref, alpha, t_mi = median_of_runs(lambda: render_mitsuba(mi, scene, mspp, args.seed), args.runs)
         row = dict(case=case, t_mi=t_mi, mean_mi=float(ref[alpha > 0.5].mean()))
         if args.noise_floor:
             ref2, _, _ = render_mitsuba(mi, scene, mspp, args.seed + 1)
@@ -571,7 +582,8 @@ def main(argv=None) -> int:
             toml_text = warpbw_toml(probe, mat, args.resolution, args.rotation, args.scale)
             if not args.no_warmup:
                 render_warpbw(*wb, toml_text, 1, args.seed + 1000, args.mis)
-            test, cov, t_wb = render_warpbw(*wb, toml_text, args.spp, args.seed, args.mis)
+            test, cov, t_wb = median_of_runs(lambda: render_warpbw(*wb, toml_text, args.spp, args.seed, args.mis),
+                                             args.runs)
             if test.shape != ref.shape:
                 fail(f"warpbw image {test.shape} and Mitsuba image {ref.shape} differ in shape")
             mask = erode(cov, ERODE_PX)
@@ -623,10 +635,14 @@ def main(argv=None) -> int:
             cases.append(c)
         record = {"probe": str(probe), "rotation_deg": args.rotation, "scale": args.scale,
                   "resolution": args.resolution, "mitsuba_spp": mspp, "warpbw_spp": None if wb is None else args.spp,
-                  "mis": args.mis, "seed": args.seed, "warmup": not args.no_warmup, "erode_px": ERODE_PX,
+                  "mis": args.mis, "seed": args.seed, "runs": args.runs, "warmup": not args.no_warmup,
+                  "erode_px": ERODE_PX,
                   "acceptance_relmse": ACCEPT_RELMSE, "metric": metric_label, "mitsuba_version": str(mi.__version__),
                   "mitsuba_variant": variant, "device": "cpu", "cases": cases}
         write_record(args.json, args.plot, record, write_plot, force=args.force)
+    warning = few_runs_warning(args.runs)
+    if warning is not None:
+        print(f"compare_mitsuba: warning: {warning}", file=sys.stderr)
     return 0
 
 

@@ -573,12 +573,12 @@ def test_compare_mitsuba_times_warpbws_render_alone_as_mitsubas(tmp_path, monkey
 
 
 def test_compare_mitsuba_options_defaults(tmp_path):
-    """--help: --spp 1024, --resolution 256; MIS by default, BRDF sampling with --no-mis."""
+    """--help: --spp 1024, --resolution 256, --runs 3; MIS by default, BRDF sampling with --no-mis."""
     cm = load_example("compare_mitsuba")
     probe = tmp_path / "p.exr"
     probe.write_bytes(b"x")
     a = cm.parse_args(["--probe", str(probe)])
-    assert (a.spp, a.resolution, a.mitsuba_spp, a.mis) == (1024, 256, None, True)
+    assert (a.spp, a.resolution, a.mitsuba_spp, a.mis, a.runs) == (1024, 256, None, True, 3)
     assert cm.parse_args(["--probe", str(probe), "--no-mis"]).mis is False
 
 
@@ -633,8 +633,8 @@ def test_compare_mitsuba_reports_relmse_over_the_interior_against_mitsuba(tmp_pa
                                                        "--noise-floor", "--no-mis"])
     assert got["outcome"] == "returned 0", got["outcome"]
     assert got["scenes"] == [dict(res=16, spp=64, rotation=30.0, scale=2.5)] * 2
-    assert got["mitsuba"] == [(1, 1005), (64, 5), (64, 6)] * 2
-    assert got["warpbw"] == [(1, 1005, False), (16, 5, False)] * 2
+    assert got["mitsuba"] == [(1, 1005), *[(64, 5)] * 3, (64, 6)] * 2      # the warm-up, 3 timed runs, the floor
+    assert got["warpbw"] == [(1, 1005, False), *[(16, 5, False)] * 3] * 2
     rows = {ln.split()[0]: ln.split() for ln in capsys.readouterr().out.splitlines()
             if ln.split() and ln.split()[0] in ("lambert", "ggx0.1")}
     for case, d, verdict in (("lambert", 0.05, "PASS"), ("ggx0.1", 0.123085, "FAIL")):
@@ -702,9 +702,52 @@ def test_compare_mitsuba_refuses_its_record_before_any_render(tmp_path, monkeypa
 def test_compare_mitsuba_runs_warpbw_with_mis_by_default(tmp_path, monkeypatch):
     """Without --no-mis, warpbw renders with MIS (--help: like for like with Mitsuba's path integrator), at --spp
     for both renderers."""
-    got = _run_compare_mitsuba(monkeypatch, tmp_path, ["--cases", "lambert", "--spp", "8", "--no-warmup"])
+    got = _run_compare_mitsuba(monkeypatch, tmp_path, ["--cases", "lambert", "--spp", "8", "--no-warmup", "--runs",
+                                                       "1"])
     assert got["outcome"] == "returned 0", got["outcome"]
     assert got["warpbw"] == [(8, 0, True)] and got["mitsuba"] == [(8, 0)]
+
+
+def test_compare_mitsuba_times_the_median_of_its_runs_and_warns_below_three(tmp_path, monkeypatch, capsys):
+    """DESIGN.md's protocol times the median of at least 3 runs; the comparison timed one render of each renderer.
+    Now --runs renders of each (the same seed), the median of their times (stand-ins on a stand-in clock: Mitsuba
+    3, 1, 2 s, warpbw 6, 2, 4 s: medians 2 and 4, ratio 2.00); fewer than 3 warn as warpbw bench's --runs."""
+    cm = load_example("compare_mitsuba")
+    secs = {"mitsuba": iter([3.0, 1.0, 2.0]), "warpbw": iter([6.0, 2.0, 4.0])}
+    got = {"mitsuba": [], "warpbw": []}
+    img = np.ones((16, 16, 3), np.float32)
+    cov = np.zeros((16, 16), bool)
+    cov[2:14, 2:14] = True
+
+    def render_mitsuba(mi, scene, spp, seed):
+        got["mitsuba"].append((spp, seed))
+        return img, cov.astype(np.float32), next(secs["mitsuba"])
+
+    def render_warpbw(ps, rr, toml_text, spp, seed, mis):
+        got["warpbw"].append((spp, seed))
+        return img, cov.copy(), next(secs["warpbw"])
+
+    monkeypatch.setattr(cm, "import_mitsuba", lambda variant=None: (SimpleNamespace(__version__="fake"), "fake"))
+    monkeypatch.setattr(cm, "load_probe", lambda mi, path: np.ones((4, 8, 3), np.float32))
+    monkeypatch.setattr(cm, "import_warpbw", lambda: ("parse_scene", "render_reference"))
+    monkeypatch.setattr(cm, "mitsuba_scene", lambda *a: None)
+    monkeypatch.setattr(cm, "render_mitsuba", render_mitsuba)
+    monkeypatch.setattr(cm, "render_warpbw", render_warpbw)
+    probe = tmp_path / "p.exr"
+    probe.write_bytes(b"x")
+    assert outcome(cm.main, ["--probe", str(probe), "--resolution", "16", "--cases", "lambert", "--spp", "8",
+                             "--no-warmup"]) == "returned 0"
+    assert got == {"mitsuba": [(8, 0)] * 3, "warpbw": [(8, 0)] * 3}
+    out, err = capsys.readouterr()
+    row = next(ln.split() for ln in out.splitlines() if ln.startswith("lambert"))
+    assert row[6:9] == ["2.00", "4.00", "2.00"], row
+    assert "warning" not in err
+    for runs, warns in ((1, True), (2, True)):
+        secs = {"mitsuba": iter([1.0] * runs), "warpbw": iter([1.0] * runs)}
+        assert outcome(cm.main, ["--probe", str(probe), "--resolution", "16", "--cases", "lambert", "--spp", "8",
+                                 "--no-warmup", "--runs", str(runs)]) == "returned 0"
+        assert (f"compare_mitsuba: warning: --runs {runs}: the measurement protocol times the median of at least 3"
+                in capsys.readouterr().err) == warns
 
 
 def test_a_reference_frame_without_mis_draws_no_environment_samples():
