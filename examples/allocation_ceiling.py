@@ -1,7 +1,7 @@
 """How much noise any sample allocation could save on a scene, and how much the adaptive frame's saves.
 
     python examples/allocation_ceiling.py SCENE.toml [--budget 8] [--seeds 32] [--spp 16] [--seed 7]
-        [--json OUT.json] [--force]
+        [--json OUT.json] [--plot OUT.png] [--force]
 
 Brute force: the scene's reference (MIS) rendered ``--seeds`` times at ``--spp`` samples per pixel; the
 spread of each pixel over the seeds gives v_p, the variance of one MIS step (RGB channels summed, as
@@ -26,6 +26,10 @@ A scene whose v_p is nearly the same everywhere (``oracle_all`` near 1) and whos
 pixels has little to gain from adaptive shading at any budget: on the benchmark's blue-acrylic bunny under
 studio.exr (examples/bench_scenes.py, budget 32) the frame shades 75% of the pixels, ``oracle_all`` is
 1.15x and ``oracle_shaded`` 2.06x, against 101x and 126x (budget 2) on the chrome sphere (docs/measurements.md).
+
+``--json`` / ``--plot`` (as ``warpbw bench``'s: the one not given goes beside the other; an existing file is kept
+without ``--force``, refused before any work) write every figure, with the settings and the device, and the plot
+of the noise gains (``GAINS``) against 1x.
 """
 from __future__ import annotations
 
@@ -35,12 +39,13 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command, write_json
+from warpbw.cli_common import OneLineParser, check_record_outputs, init_warp, run_command, write_record
 from warpbw.errors import check_count
 
 SEEDS_DEFAULT = 32        # brute-force renders: the oracle's sqrt(v) is biased by about 1 / (2 x seeds)
 SPP_DEFAULT = 16          # samples per pixel of each brute-force render
 BUDGET_DEFAULT = 8.0
+GAINS = ("oracle_all", "uniform_shaded", "oracle_shaded", "oracle_shaded_min1", "frame")   # the report's noise gains
 
 
 def per_pixel_variance(prep, seeds: int, spp: int, progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -122,6 +127,27 @@ def allocation_ceiling(prep, budget: float = BUDGET_DEFAULT, seeds: int = SEEDS_
     return out
 
 
+def write_plot(record: dict, path) -> None:
+    """The noise gains over the reference at equal samples (``GAINS``), against 1x (no gain)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.bar(range(len(GAINS)), [record[k] for k in GAINS], color=["C0", "C1", "C2", "C2", "C3"])
+    ax.axhline(1.0, color="k", lw=0.8, ls="--")
+    ax.set_xticks(range(len(GAINS)), GAINS, fontsize=8)
+    ax.set_yscale("log")
+    ax.set_ylabel("noise gain over the reference at equal samples")
+    ax.grid(True, axis="y", which="both", alpha=0.3)
+    ax.set_title(f"{Path(record['scene']).name}: budget {record['budget']:g}, {record['shaded_fraction']:.0%} "
+                 f"shaded; brute force {record['seeds']} x {record['spp']} spp", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def format_report(name: str, r: dict) -> str:
     return "\n".join([
         f"{name}: {r['covered_pixels']} covered pixels, budget {r['budget']:g} (the frame spent "
@@ -145,19 +171,19 @@ def main(argv=None) -> int:
                     help=f"brute-force renders, at least 2 (default {SEEDS_DEFAULT})")
     ap.add_argument("--spp", type=int, default=SPP_DEFAULT, help=f"samples per pixel of each (default {SPP_DEFAULT})")
     ap.add_argument("--seed", type=int, default=7, help="seed of the adaptive frame (default 7)")
-    ap.add_argument("--json", help="write the figures here (JSON)")
+    ap.add_argument("--json", help="write the figures here (JSON); without it, beside --plot as OUT.json")
+    ap.add_argument("--plot", help="write the plot here (PNG): the noise gains; without it, beside --json as "
+                    "OUT.png")
     ap.add_argument("--device", default="cpu", help="Warp device (default cpu; cuda where there is one)")
-    ap.add_argument("--force", action="store_true", help="overwrite --json")
+    ap.add_argument("--force", action="store_true", help="overwrite --json and --plot")
     args = ap.parse_args(argv)
     if not (args.budget > 0 and np.isfinite(args.budget)):
         ap.error(f"--budget {args.budget!r}: expected a positive number of samples per pixel")
     check_count(args.seeds, "--seeds", 2)
     check_count(args.spp, "--spp", 1)
     check_count(args.seed, "--seed", 0, 2**32 - 1)
-    if args.json:
-        if Path(args.json).suffix.lower() != ".json":
-            ap.error(f"--json {args.json}: expected a path ending in .json")
-        check_overwrite([Path(args.json)], args.force, "--json", inputs=[args.scene])   # never the scene itself
+    # never the scene itself
+    json_path, plot_path = check_record_outputs(args.json, args.plot, args.force, inputs=[args.scene])
     init_warp(args.device)
     from warpbw.pipeline import prepare_scene
     from warpbw.scene import load_scene
@@ -166,9 +192,10 @@ def main(argv=None) -> int:
     prep = prepare_scene(scene, device=args.device)
     r = allocation_ceiling(prep, args.budget, args.seeds, args.spp, args.seed, progress=True)
     r["scene"] = str(args.scene)
+    r["device"] = args.device
     print(format_report(str(args.scene), r))
-    if args.json:
-        write_json(args.json, r, force=args.force)
+    if json_path is not None:
+        write_record(json_path, plot_path, r, write_plot, force=args.force)
     return 0
 
 

@@ -1,15 +1,16 @@
 """Benchmark of the forward reference: G-buffer time, shading throughput, error against spp.
 
     python examples/bench_reference.py [--material gold-metallic-paint] [--probe forest.exr]
-        [--resolution 512 512] [--spp 16,32,64,128,256,512,1024] [--gt-spp 16384] [--out bench_out] [--force]
+        [--resolution 512 512] [--spp 16,32,64,128,256,512,1024] [--gt-spp 16384] [--runs 3] [--out bench_out]
+        [--force]
 
 Scene: the Stanford bunny (../shared/data/meshes/bunny.obj) with a MERL material written from the NPF
 fit by ``warpbw-precompute npf-to-merl``, under a light probe of ../shared/data/envmaps.
 
-Protocol (../shared/DESIGN.md): times are medians of 3 runs after a warm-up frame; the ground truth is the
-MIS reference at ``--gt-spp``, the mean of independently seeded 4096-spp chunks (each cached), accepted
-when the PSNR of a render at the sweep's largest ``--spp`` (1024 by default) against its first half and against
-the whole differ by < 0.5 dB (else it says so).
+Protocol (../shared/DESIGN.md): times are medians of ``--runs`` runs (default 3; fewer warn, as ``warpbw bench``'s)
+after a warm-up frame; the ground truth is the MIS reference at ``--gt-spp``, the mean of independently seeded
+4096-spp chunks (each cached), accepted when the PSNR of a render at the sweep's largest ``--spp`` (1024 by
+default) against its first half and against the whole differ by < 0.5 dB (else it says so).
 Writes bench_out/bench_reference.json, a plot bench_out/bench_reference.png (error against time,
 one curve per estimator), PNG previews, the MERL file, and the ground truth's chunks as EXR
 (``warpbw.bench.ground_truth``'s cache, by scene hash, seed and ``GT_VERSION``); an earlier run's records are kept
@@ -33,7 +34,7 @@ import numpy as np
 
 from warpbw.cli import check_command_options
 from warpbw.bench import GT_CHUNK_SPP
-from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
+from warpbw.cli_common import OneLineParser, check_overwrite, few_runs_warning, init_warp, run_command
 from warpbw.errors import WarpbwError
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.scene import MAX_RESOLUTION, toml_escape
@@ -237,6 +238,9 @@ def main():
     record = {"scene": {"mesh": "bunny.obj", "material": args.material + MATERIAL_NOTE, "probe": args.probe,
                         "rotation_deg": args.rotation, "resolution": [w, h], "covered_pixels": int(cov.sum())},
               "machine": {"cpu_count": __import__("os").cpu_count(), "device": "cpu"},
+              # the timed runs per point: --check-only keeps the earlier sweep, and the count it was timed with
+              "runs": (json.loads((out / "bench_reference.json").read_text()).get("runs") if args.check_only
+                       else args.runs),
               "asset_load_s": t_prep, "gbuffer_ms": gbuffer_ms,
               "ground_truth_spp": gt_spp, "ground_truth_render_time_s": gt_time,
               "ground_truth_doubling_delta_db": d_psnr, "ground_truth_converged": converged,
@@ -273,6 +277,9 @@ def main():
         at[json_path].write_text(json.dumps(record, indent=2) + "\n")
         fig.savefig(at[plot_path], dpi=110)
     print(f"G-buffer {gbuffer_ms:.1f} ms; wrote {out / 'bench_reference.json'} and {out / 'bench_reference.png'}")
+    warning = None if args.check_only else few_runs_warning(args.runs)   # as warpbw bench's
+    if warning is not None:
+        print(f"bench_reference: warning: {warning}", file=sys.stderr)
     return 0 if all(math.isfinite(r["psnr_db"]) for v in records.values() for r in v) else 1
 
 

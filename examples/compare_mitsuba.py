@@ -7,12 +7,18 @@ Usage::
     python examples/compare_mitsuba.py --no-mis              # warpbw with BRDF sampling only
     python examples/compare_mitsuba.py --cases ggx0.1 --spp 256 --resolution 128 --out /tmp/cmp
     python examples/compare_mitsuba.py --mitsuba-only --out /tmp/mitsuba_out
+    python examples/compare_mitsuba.py --json cmp.json --plot cmp.png   # and the record and its plot
 
 For every case it prints the relative MSE and PSNR of warpbw's image against Mitsuba's over the
 sphere's interior (warpbw's coverage mask eroded by 2 pixels, so that silhouette pixels, whose value
-depends on how each renderer filters the edge, do not count), the wall time of each renderer (after
-one warm-up render at 1 spp, so kernel compilation is not counted) and PASS/FAIL against the 1 %
+depends on how each renderer filters the edge, do not count), the wall time of each renderer (the median of
+``--runs`` renders, default 3 -- fewer warn, as ``warpbw bench``'s --runs -- after one warm-up render at 1 spp, so
+kernel compilation is not counted) and PASS/FAIL against the 1 %
 acceptance threshold.  The exit code is 0 whatever the figures are; it is non-zero only on an error.
+``--json OUT.json`` / ``--plot OUT.png`` (as ``warpbw bench``'s: the one not given goes beside the other; an
+existing file is kept without ``--force``, refused before any render) write the record of the run (the settings,
+Mitsuba's version and variant, and every figure of the table per case, units in the names) and its plot (relMSE
+against the acceptance, and each renderer's time, per case).  Compare the times as their ratio only.
 
 Install Mitsuba 3 (an optional extra, not a dependency of warpbw)::
 
@@ -107,13 +113,15 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import statistics
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, init_warp, parse_seed, run_command
+from warpbw.cli_common import (PROTOCOL_RUNS, OneLineParser, check_output_dir, check_overwrite, check_record_outputs,
+                               few_runs_warning, init_warp, parse_seed, run_command, write_record)
 from warpbw.errors import SEED_MAX
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
@@ -268,15 +276,22 @@ def warpbw_toml(probe: Path, mat: dict, res: int, rotation: float, scale: float)
 
 
 def import_warpbw():
-    """Returns (parse_scene, render_reference) or raises ImportError with the reason."""
+    """Returns (prepare, render_reference), ``prepare(toml_text, base_dir)`` the scene parsed and its assets (probe,
+    materials, geometry) loaded; or raises ImportError with the reason.  Mitsuba's scene is built before its timed
+    render, and so is warpbw's: a Scene handed to render_reference was loaded inside the timed call (the probe
+    alone 0.07-0.15 s, a 128x128 GGX sphere's 16-spp frame timed 0.28 s where it takes 0.11 s)."""
     init_warp("cpu")         # no banner or module-load lines, nor Warp's no-CUDA-driver line on stderr
-    from warpbw.pipeline import render_reference
+    from warpbw.pipeline import prepare_scene, render_reference
     from warpbw.scene import parse_scene
-    return parse_scene, render_reference
+
+    def prepare(toml_text: str, base_dir=None):
+        return prepare_scene(parse_scene(toml_text, base_dir=base_dir), device="cpu")
+    return prepare, render_reference
 
 
 def render_warpbw(parse_scene, render_reference, toml_text: str, spp: int, seed: int, mis: bool = False):
-    """Returns (rgb (H,W,3) float32, coverage (H,W) bool, seconds)."""
+    """Returns (rgb (H,W,3) float32, coverage (H,W) bool, seconds of the render alone); ``parse_scene`` is
+    ``import_warpbw``'s ``prepare``."""
     scene = parse_scene(toml_text, base_dir=REPO_ROOT)
     kw = {"mis": True} if mis else {}
     t0 = time.perf_counter()
@@ -420,13 +435,20 @@ def parse_args(argv=None):
     p.add_argument("--spp", type=int, default=1024, help="samples per pixel for both renderers (1024)")
     p.add_argument("--mitsuba-spp", type=int, default=None, help="Mitsuba's spp if different from --spp")
     p.add_argument("--resolution", type=int, default=256, help="square image side in pixels (256)")
+    p.add_argument("--runs", type=int, default=PROTOCOL_RUNS,
+                   help=f"timed renders per renderer and case, the same seed (median; default {PROTOCOL_RUNS})")
     p.add_argument("--probe", type=Path, default=DEFAULT_PROBE, help=f"lat-long EXR probe ({DEFAULT_PROBE})")
     p.add_argument("--rotation", type=float, default=0.0, help="probe rotation about +Y, degrees (0)")
     p.add_argument("--scale", type=float, default=1.0, help="probe radiance scale (1)")
     p.add_argument("--cases", default=",".join(CASES), help=f"comma list of {', '.join(CASES)}")
     p.add_argument("--seed", type=parse_seed, default=0, help="0 to 2^32-1001 (the warm-up frames use seed + 1000)")
     p.add_argument("--out", type=Path, default=None, help="save <case>_mitsuba.exr, <case>_warpbw.exr, <case>.png")
-    p.add_argument("--force", action="store_true", help="overwrite those files where --out already holds them")
+    p.add_argument("--json", help="write the record here (JSON): the settings and every figure of the table; "
+                   "without it, beside --plot as OUT.json")
+    p.add_argument("--plot", help="write the plot here (PNG): relMSE against the acceptance and each renderer's "
+                   "time, per case; without it, beside --json as OUT.png")
+    p.add_argument("--force", action="store_true", help="overwrite those files where --out already holds them, and "
+                   "--json / --plot")
     p.add_argument("--variant", default=None, help=f"Mitsuba variant (default: first usable of {VARIANTS})")
     p.add_argument("--no-mis", dest="mis", action="store_false",
                    help="warpbw with BRDF sampling only (its CLI default, 002 Eq. 2).  Default: MIS, one BRDF and "
@@ -442,6 +464,8 @@ def parse_args(argv=None):
         p.error(f"--spp {a.spp}: expected a positive integer")
     if a.resolution < 8:
         p.error(f"--resolution {a.resolution}: expected at least 8 pixels")
+    if a.runs < 1:
+        p.error(f"--runs {a.runs}: expected a positive integer")
     if a.mitsuba_spp is not None and a.mitsuba_spp < 1:
         p.error(f"--mitsuba-spp {a.mitsuba_spp}: expected a positive integer")
     if not math.isfinite(a.rotation):
@@ -461,7 +485,55 @@ def parse_args(argv=None):
         kinds = ("_mitsuba.exr", ".png") if a.mitsuba_only else ("_mitsuba.exr", "_warpbw.exr", ".png")
         check_overwrite([a.out / f"{c}{k}" for c in a.cases for k in kinds], a.force, "--out",
                         inputs=[a.probe.expanduser()])
+    if not a.check_conventions:   # as warpbw bench's: the one not given beside the other, checked before any render
+        a.json, a.plot = check_record_outputs(a.json, a.plot, a.force, inputs=[a.probe.expanduser()])
     return a
+
+
+def median_of_runs(render, runs: int) -> tuple:
+    """``render()`` -> (..., seconds), called ``runs`` times: the last call's results with the median seconds."""
+    outs = [render() for _ in range(runs)]
+    return (*outs[-1][:-1], statistics.median(o[-1] for o in outs))
+
+
+# the record's names of a table row's figures (units in the names, as warpbw bench's record)
+RECORD_KEYS = {"t_mi": "mitsuba_time_s", "t_wb": "warpbw_time_s", "mean_mi": "mitsuba_mean", "mean_wb": "warpbw_mean",
+               "relmse": "relmse", "relmse_sum": "relmse_sum", "psnr": "psnr_db", "n": "pixels",
+               "iou": "coverage_iou", "floor": "noise_floor_relmse"}
+
+
+def write_plot(record: dict, path) -> None:
+    """Per case: warpbw's relMSE against Mitsuba (and Mitsuba's own noise floor) with the acceptance line, and each
+    renderer's time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cases = record["cases"]
+    x = np.arange(len(cases))
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(10, 4))
+    if any("relmse" in c for c in cases):
+        ax.bar(x - 0.2, [c.get("relmse", np.nan) for c in cases], 0.4, label="warpbw vs Mitsuba")
+    if any("noise_floor_relmse" in c for c in cases):
+        ax.bar(x + 0.2, [c.get("noise_floor_relmse", np.nan) for c in cases], 0.4, label="Mitsuba vs Mitsuba")
+    ax.axhline(record["acceptance_relmse"], color="C3", ls="--", label=f"acceptance {record['acceptance_relmse']:.0%}")
+    ax.set_yscale("log")
+    ax.set_ylabel("relMSE over the interior")
+    ax2.bar(x - 0.2, [c["mitsuba_time_s"] for c in cases], 0.4, label=f"Mitsuba ({record['mitsuba_spp']} spp)")
+    if any("warpbw_time_s" in c for c in cases):
+        ax2.bar(x + 0.2, [c.get("warpbw_time_s", np.nan) for c in cases], 0.4,
+                label=f"warpbw ({record['warpbw_spp']} spp, {'MIS' if record['mis'] else 'BRDF sampling'})")
+    ax2.set_ylabel("render time (s)")
+    for a in (ax, ax2):
+        a.set_xticks(x, [c["case"] for c in cases])
+        a.grid(True, axis="y", which="both", alpha=0.3)
+        a.legend(fontsize=8)
+    fig.suptitle(f"{Path(record['probe']).name}, {record['resolution']}x{record['resolution']}; Mitsuba "
+                 f"{record['mitsuba_version']} {record['mitsuba_variant']}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def main(argv=None) -> int:
@@ -498,7 +570,7 @@ def main(argv=None) -> int:
         scene = mitsuba_scene(mi, probe_rgb, mat, args.resolution, mspp, args.rotation, args.scale)
         if not args.no_warmup:
             render_mitsuba(mi, scene, 1, args.seed + 1000)
-        ref, alpha, t_mi = render_mitsuba(mi, scene, mspp, args.seed)
+        ref, alpha, t_mi = median_of_runs(lambda: render_mitsuba(mi, scene, mspp, args.seed), args.runs)
         row = dict(case=case, t_mi=t_mi, mean_mi=float(ref[alpha > 0.5].mean()))
         if args.noise_floor:
             ref2, _, _ = render_mitsuba(mi, scene, mspp, args.seed + 1)
@@ -510,7 +582,8 @@ def main(argv=None) -> int:
             toml_text = warpbw_toml(probe, mat, args.resolution, args.rotation, args.scale)
             if not args.no_warmup:
                 render_warpbw(*wb, toml_text, 1, args.seed + 1000, args.mis)
-            test, cov, t_wb = render_warpbw(*wb, toml_text, args.spp, args.seed, args.mis)
+            test, cov, t_wb = median_of_runs(lambda: render_warpbw(*wb, toml_text, args.spp, args.seed, args.mis),
+                                             args.runs)
             if test.shape != ref.shape:
                 fail(f"warpbw image {test.shape} and Mitsuba image {ref.shape} differ in shape")
             mask = erode(cov, ERODE_PX)
@@ -551,6 +624,25 @@ def main(argv=None) -> int:
             for p, pair in sides.items():
                 save_side_by_side(at[p], *pair)
         print(f"images written to {args.out}")
+    if args.json is not None:
+        cases = []
+        for r in rows:
+            c = {"case": r["case"], **{RECORD_KEYS[k]: v for k, v in r.items() if k in RECORD_KEYS}}
+            c["mitsuba_msamples_per_s"] = args.resolution ** 2 * mspp / r["t_mi"] / 1e6
+            if "t_wb" in r:
+                c["time_ratio"] = r["t_wb"] / r["t_mi"]
+                c["result"] = "PASS" if r["relmse"] < ACCEPT_RELMSE else "FAIL"
+            cases.append(c)
+        record = {"probe": str(probe), "rotation_deg": args.rotation, "scale": args.scale,
+                  "resolution": args.resolution, "mitsuba_spp": mspp, "warpbw_spp": None if wb is None else args.spp,
+                  "mis": args.mis, "seed": args.seed, "runs": args.runs, "warmup": not args.no_warmup,
+                  "erode_px": ERODE_PX,
+                  "acceptance_relmse": ACCEPT_RELMSE, "metric": metric_label, "mitsuba_version": str(mi.__version__),
+                  "mitsuba_variant": variant, "device": "cpu", "cases": cases}
+        write_record(args.json, args.plot, record, write_plot, force=args.force)
+    warning = few_runs_warning(args.runs)
+    if warning is not None:
+        print(f"compare_mitsuba: warning: {warning}", file=sys.stderr)
     return 0
 
 

@@ -23,6 +23,9 @@ Writes, under --out:
   dynamic_geometry.json  one record per frame: time of each stage (deform, host normals + curvature
                          (null on the device: they are part of the next), update + refit, G-buffer,
                          bandwidth, shading, up-sampling), total, fps, shaded fraction, samples; the means;
+                         the settings, device and threads;
+  dynamic_geometry_times.png  the measurement's plot (DESIGN.md, measurement protocol): each frame's stage
+                         times (stacked) and fps, and its shaded fraction;
 and prints the table and the mean frames per second.  The paper's Fig. 18: 66 ms per frame (15 fps)
 on a 2009 GPU; here the same kernels run on the CPU.  The default probe is city.exr: under the
 high-frequency forest.exr the bandwidth pass asks for nearly every pixel at 256x256 (about 99.6% shaded).
@@ -30,7 +33,6 @@ high-frequency forest.exr the bandwidth pass asks for nearly every pixel at 256x
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -39,7 +41,8 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, init_warp, parse_seed, run_command
+from warpbw.cli_common import (OneLineParser, check_output_dir, check_overwrite, few_runs_warning, init_warp,
+                               json_text, parse_seed, run_command)
 from warpbw.errors import SEED_MAX, WarpbwError
 from warpbw.io.shared_data import shared_data_dir
 
@@ -89,7 +92,10 @@ material = "m"
 {material}
 """
 
-OUTPUTS = ("dynamic_geometry.png", "dynamic_geometry.json")
+OUTPUTS = ("dynamic_geometry.png", "dynamic_geometry.json", "dynamic_geometry_times.png")
+# the stages of a frame's time as the record names them, stacked in the plot (their sum is the frame's total_s:
+# the scene has no [[light]])
+PLOT_STAGES = ("geometry_s", "gbuffer_s", "bandwidth_s", "shading_s", "hierarchy_s", "upsampling_s")
 
 
 def deform(rest: np.ndarray, frame: int, axis_xz: np.ndarray, y_range: tuple) -> np.ndarray:
@@ -155,6 +161,43 @@ def _strip(images: list, masks: list, coverage: list) -> np.ndarray:
         out[:h, x:x + w] = img
         out[h + STRIP_GAP:, x:x + w] = m[..., None]
     return out
+
+
+def write_plot(record: dict, path) -> None:
+    """Per frame: the stage times stacked (ms) with the fps on a second axis, and the shaded fraction."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+
+    frames = record["frames"]
+    f = [r["frame"] for r in frames]
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+    bottom = np.zeros(len(frames))
+    for k in PLOT_STAGES:
+        ms = np.array([r[k] * 1e3 for r in frames])
+        ax.bar(f, ms, bottom=bottom, label=k[:-2])
+        bottom += ms
+    ax.set_ylabel("stage time (ms)")
+    ax.legend(fontsize=7, loc="upper left")
+    fps = ax.twinx()
+    fps.plot(f, [r["fps"] for r in frames], "ko-", label="fps (wall)")
+    fps.set_ylabel("frames per second (wall)")
+    fps.set_ylim(0, 1.15 * max(r["fps"] for r in frames))
+    fps.legend(fontsize=7, loc="upper right")
+    ax2.plot(f, [r["shaded_fraction"] for r in frames], "s-", color="C3")
+    ax2.set_ylim(0, 1.05)
+    ax2.set_ylabel("shaded fraction")
+    ax2.set_xlabel("frame")
+    ax2.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+    ax2.grid(True, alpha=0.3)
+    s = record["summary"]
+    fig.suptitle(f"dynamic geometry: {record['size'][0]}x{record['size'][1]}, budget {record['budget_spp']:g} spp; "
+                 f"mean {s['mean_fps']:.2f} fps, {s['mean_shaded_fraction']:.1%} shaded", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def _print_table(records: list, summary: dict) -> None:
@@ -223,6 +266,7 @@ def main(argv=None):
     from warpbw.io.staged import staged_outputs
     from warpbw.pipeline import prepare_scene, render_adaptive
     from warpbw.scene import parse_scene, toml_escape, toml_string
+    from warpbw.shading import default_threads
 
     env_path = Path(args.env) if args.env is not None else DEFAULT_ENV
     env = f"file = {toml_string(str(env_path), f'--env {env_path}')}" if env_path.is_file() else 'procedural = "sky"'
@@ -311,6 +355,7 @@ def main(argv=None):
         "mesh": str(mesh_path), "vertices": int(count), "triangles": int(len(faces)),
         "material": material_desc, "environment": env, "size": [args.size, args.size],
         "budget_spp": args.budget, "seed": args.seed, "device": args.device,
+        "threads": default_threads(args.device) if args.threads is None else args.threads,
         "normals_and_curvature": "host (numpy)" if args.host_normals else "device (warpbw.mesh_normals)",
         "stages": res.stats["stages"],
         "deformation": {"ripple_amplitude": RIPPLE_AMPLITUDE, "ripple_cycles": RIPPLE_CYCLES,
@@ -322,9 +367,14 @@ def main(argv=None):
     # both, or neither: an error leaves the old pair
     with staged_outputs([out / n for n in OUTPUTS], force=args.force) as at:
         write_png(at[out / OUTPUTS[0]], _strip(images, masks, coverage))
-        at[out / OUTPUTS[1]].write_text(json.dumps(result, indent=1))
+        at[out / OUTPUTS[1]].write_text(json_text(result))
+        write_plot(result, at[out / OUTPUTS[2]])
     _print_table(records, summary)
     print(f"wrote {out / OUTPUTS[0]} (frames {', '.join(str(i) for i in pick)}) and {out / OUTPUTS[1]}")
+    print(f"plot {out / OUTPUTS[2]} (stage times, fps and shaded fraction per frame)")
+    warning = few_runs_warning(args.frames, "--frames")
+    if warning is not None:
+        print(f"dynamic_geometry: warning: {warning}", file=sys.stderr)
     return result
 
 

@@ -1,7 +1,7 @@
 """Where the filtered methods' error comes from (issue 4): the mip footprint's floor, and the GMM's merge.
 
     python examples/filtering_floor.py SCENE.toml [SCENE.toml ...] [--zoom 8,16,32] [--max-anisotropy N]
-                                       [--json OUT.json]
+                                       [--json OUT.json] [--plot OUT.png] [--force]
 
 For scenes with one normal-mapped plane under directional lights (those of ``examples/filtering_scenes.py``),
 at each zoom, the error against the ground truth (``warpbw.bench_filtering.colour_error``, the benchmark's
@@ -38,24 +38,24 @@ row's ``mean_probes`` says how many a pixel took on average.
 
 All three are numpy, written from ``warpbw.filtering``'s documentation; ``gmm_merged_check`` re-derives the
 renderer's own ``gmm_aligned`` image the same way and reports its largest deviation (float32 rounding).
-Prints a table per scene and, with ``--json``, writes them all (existing files are kept unless --force).
+Prints a table per scene and, with ``--json`` / ``--plot`` (as ``warpbw bench``'s: the one not given goes beside
+the other; existing files are kept unless --force, refused before any work), writes them all (a list, one record
+per scene) and the plot of every method's error and the references against zoom, one panel per scene.
 """
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
+from warpbw.cli_common import OneLineParser, check_record_outputs, init_warp, run_command, write_record
 from warpbw.errors import INT32_MAX
 # the renderer's own constants: the references filter and shade at its footprint, with its floors
 from warpbw.filtering import (ANISO_PROBE_SLACK, DEFAULT_ANISOTROPY, LOD_BIAS, MAX_ANISOTROPY, MIN_COS, MIN_GT_SPP,
                                VARIANCE_FLOOR, roughness_variance)
-from warpbw.io.staged import staged_outputs
 
 DEFAULT_ZOOMS = "8,16,32"
 DEFAULT_GT_SPP = 1024
@@ -351,6 +351,31 @@ def format_table(rec: dict) -> str:
     return "\n".join(lines)
 
 
+def write_plot(records: list, path) -> None:
+    """Per scene, the error against the ground truth against zoom: one line per method, the references dashed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from warpbw.filtering import METHODS
+
+    fig, axes = plt.subplots(1, len(records), figsize=(5.5 * len(records), 4.2), squeeze=False)
+    for ax, rec in zip(axes[0], records):
+        zooms = [r["zoom"] for r in rec["zooms"]]
+        for c in (*METHODS, "gmm_per_tap", "floor", "floor_bilinear"):
+            ax.plot(zooms, [r[c] for r in rec["zooms"]], "o-" if c in METHODS else "x--", label=c)
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("zoom (camera distance factor)")
+        ax.set_ylabel(f"error against the ground truth ({rec['gt_spp']} rays/pixel)")
+        ax.set_title("/".join(Path(rec["scene"]).parts[-2:]), fontsize=10)   # graze20/scales, filtering/scales
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__.split("\n\n")[0],
                        formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -362,8 +387,10 @@ def main(argv=None) -> int:
     ap.add_argument("--max-anisotropy", type=int, default=DEFAULT_ANISOTROPY, metavar="N",
                     help=f"up to N probes along each footprint's major axis, for the methods and both references "
                          f"(default {DEFAULT_ANISOTROPY}: isotropic, 004; at most {MAX_ANISOTROPY})")
-    ap.add_argument("--json", type=Path, help="write every table here")
-    ap.add_argument("--force", action="store_true", help="overwrite --json if it exists")
+    ap.add_argument("--json", type=Path, help="write every table here; without it, beside --plot as OUT.json")
+    ap.add_argument("--plot", type=Path, help="write the plot here (PNG): each scene's errors against zoom; "
+                    "without it, beside --json as OUT.png")
+    ap.add_argument("--force", action="store_true", help="overwrite --json and --plot if they exist")
     args = ap.parse_args(argv)
     try:
         zooms = [float(z) for z in args.zoom.split(",") if z.strip()]
@@ -382,10 +409,8 @@ def main(argv=None) -> int:
     for p in args.scenes:
         if not p.is_file():
             ap.error(f"{p}: no such scene file")
-    if args.json is not None:   # before the analysis: a directory, under a file, a scene, or kept without --force
-        if args.json.suffix.lower() != ".json":
-            ap.error(f"--json {args.json}: expected a path ending in .json")
-        check_overwrite([args.json], args.force, "--json", inputs=args.scenes)
+    # before the analysis: a directory, under a file, a scene, or kept without --force
+    json_path, plot_path = check_record_outputs(args.json, args.plot, args.force, inputs=args.scenes)
 
     init_warp("cpu")           # Warp's no-CUDA-driver line, banner and module-load lines kept off the output
     # every scene checked before the first is analysed (a later one failed after minutes of work, and no JSON)
@@ -394,12 +419,9 @@ def main(argv=None) -> int:
     for p, ld in zip(args.scenes, loaded):
         rec = analyse(p, zooms, args.gt_spp, max_anisotropy=args.max_anisotropy, loaded=ld)
         print(format_table(rec), flush=True)
-        records.append(rec)
-    if args.json is not None:
-        # whole or not at all: a full disk leaves the old record
-        with staged_outputs([args.json], force=args.force) as at:
-            at[args.json].write_text(json.dumps(records, indent=1))
-        print(f"wrote {args.json}")
+        records.append({**rec, "device": "cpu"})
+    if json_path is not None:   # both or neither: a full disk leaves the old record
+        write_record(json_path, plot_path, records, write_plot, force=args.force)
     return 0
 
 

@@ -1,10 +1,13 @@
 """G-buffer example: cast one ray per pixel at a sphere and the Stanford bunny, save the buffers.
 
     python examples/gbuffer.py [--mesh ../shared/data/meshes/bunny.obj] [--out gbuffer_out] [--device cpu]
-        [--force]
+        [--json OUT.json] [--plot OUT.png] [--force]
 
 Writes normal.png, depth.png, curvature.png, material.png and gbuffer.exr (all buffers as channels),
-and prints the ray-cast time (after a warm-up launch that compiles the kernel).
+and prints the ray-cast time (the median of ``RUNS`` launches after a warm-up launch that compiles the kernel).
+``--json`` / ``--plot`` (as ``warpbw bench``'s: the one not given goes beside the other; an existing file is kept
+without ``--force``, refused before any work) write the record (the settings, the mesh's size, the device, each
+launch's time and their median, the coverage) and the plot of the launches' times and their median.
 """
 import argparse
 import sys
@@ -14,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.cli_common import OneLineParser, check_overwrite, init_warp, run_command
+from warpbw.cli_common import OneLineParser, check_overwrite, check_record_outputs, init_warp, run_command, write_record
 from warpbw.gbuffer import MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.io.exr import write_exr, write_false_colour_png, write_png
 from warpbw.io.mesh import load_mesh
@@ -23,6 +26,30 @@ from warpbw.io.staged import staged_outputs
 from warpbw.scene import MAX_RESOLUTION
 
 OUTPUTS = ("normal.png", "depth.png", "curvature.png", "material.png", "gbuffer.exr")
+RUNS = 5   # timed launches (their median; DESIGN.md's protocol asks for at least 3)
+
+
+def write_plot(record: dict, path) -> None:
+    """Each timed launch's G-buffer time and their median."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = [t * 1e3 for t in record["time_runs_s"]]
+    fig, ax = plt.subplots(figsize=(6, 3.8))
+    ax.plot(range(1, len(runs) + 1), runs, "o", label="launch")
+    ax.axhline(record["time_s"] * 1e3, color="C3", ls="--", label=f"median {record['time_s'] * 1e3:.1f} ms")
+    ax.set_ylim(bottom=0)
+    ax.set_xlabel("timed launch (after a warm-up)")
+    ax.set_ylabel("G-buffer time (ms)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    w, h = record["resolution"]
+    ax.set_title(f"G-buffer {w}x{h}, {record['triangles']} triangles + a sphere, {record['device']}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def main():
@@ -33,7 +60,10 @@ def main():
     ap.add_argument("--resolution", type=int, nargs=2, default=[512, 512], metavar=("W", "H"),
                     help="image width and height in pixels (default 512 512)")
     ap.add_argument("--device", default="cpu", help="Warp device (default cpu)")
-    ap.add_argument("--force", action="store_true", help="overwrite existing outputs in --out")
+    ap.add_argument("--json", help="write the record here (JSON); without it, beside --plot as OUT.json")
+    ap.add_argument("--plot", help="write the plot here (PNG): each launch's time; without it, beside --json as "
+                    "OUT.png")
+    ap.add_argument("--force", action="store_true", help="overwrite existing outputs in --out, and --json / --plot")
     args = ap.parse_args()
     w, h = args.resolution
     if not (1 <= w <= MAX_RESOLUTION and 1 <= h <= MAX_RESOLUTION):
@@ -48,6 +78,7 @@ def main():
         ap.error(f"--mesh {args.mesh}: no such file (expected a mesh trimesh loads: OBJ, PLY, STL, GLB)")
     out = Path(args.out)
     check_overwrite([out / n for n in OUTPUTS], args.force)
+    json_path, plot_path = check_record_outputs(args.json, args.plot, args.force, inputs=[args.mesh])
     init_warp(args.device)     # --device checked; Warp's no-CUDA-driver line kept off stderr
     if Path(args.mesh).exists():
         md = load_mesh(args.mesh, translate=(-0.2, 0.0, 0.0))
@@ -59,12 +90,12 @@ def main():
     gb = render_gbuffer(cam, geo, device=args.device)       # warm-up: compiles the kernel
     wp.synchronize_device(args.device)
     times = []
-    for _ in range(5):
+    for _ in range(RUNS):
         t0 = time.perf_counter()
         render_gbuffer(cam, geo, device=args.device, out=gb)
         wp.synchronize_device(args.device)
         times.append(time.perf_counter() - t0)
-    print(f"G-buffer {w}x{h}: {np.median(times) * 1e3:.1f} ms (median of 5), coverage {gb.coverage.mean():.1%}")
+    print(f"G-buffer {w}x{h}: {np.median(times) * 1e3:.1f} ms (median of {RUNS}), coverage {gb.coverage.mean():.1%}")
     # all five, or none: an error leaves the old set
     with staged_outputs([out / n for n in OUTPUTS], force=args.force) as at:
         cov = gb.coverage
@@ -85,6 +116,13 @@ def main():
                 names.append(name)
         write_exr(at[out / "gbuffer.exr"], np.stack(chans, -1), channels=names)
     print(f"wrote {out}/normal.png, depth.png, curvature.png, material.png, gbuffer.exr")
+    if json_path is not None:
+        record = {"resolution": [w, h], "mesh": args.mesh if meshes else None,
+                  "vertices": int(sum(len(m.vertices) for m in meshes)),
+                  "triangles": int(sum(len(m.faces) for m in meshes)), "spheres": len(spheres),
+                  "device": args.device, "runs": RUNS, "time_s": float(np.median(times)), "time_runs_s": times,
+                  "coverage_fraction": float(gb.coverage.mean())}
+        write_record(json_path, plot_path, record, write_plot, force=args.force)
 
 
 if __name__ == "__main__":

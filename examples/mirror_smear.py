@@ -2,7 +2,7 @@
 
     python examples/mirror_smear.py [--probe ../shared/data/envmaps/city.exr] [--alpha 1e-4]
         [--res 32,64,128] [--budget 4] [--truth-spp 256] [--seed 1] [--clamp-quantile Q]
-        [--env-signal log | radiance] [--worst 8] [--json OUT.json] [--force] [--write-scene DIR]
+        [--env-signal log | radiance] [--worst 8] [--json OUT.json] [--plot OUT.png] [--force] [--write-scene DIR]
 
 For each resolution: a radius-1 sphere of GGX (F = 1, ``--alpha``) at the origin, seen from z = 4 with a
 40-degree field of view, lit by the probe alone, MIS throughout.  The reference at ``--budget`` samples per
@@ -25,6 +25,10 @@ over coarse bands).  Q = 1 leaves the probe as it is.  ``--env-signal`` is the r
 ``--write-scene DIR`` writes the sphere's scene file for each ``--res`` (DIR/mirror_RES.toml, the probe by its
 absolute path) and renders nothing: ``warpbw render`` and ``warpbw compare --error-map`` then show the frames and
 where their errors lie (docs/measurements.md, "Adaptive shading: where it fails").
+
+``--json`` / ``--plot`` (as ``warpbw bench``'s: the one not given goes beside the other; an existing file is kept
+without ``--force``, refused before any work) write every figure printed, with the settings, and the plot of both
+frames' relative MSE and the adaptive frame's shaded fraction against resolution.
 """
 from __future__ import annotations
 
@@ -36,8 +40,8 @@ from pathlib import Path
 import numpy as np
 
 from warpbw.cli import BUDGET_MAX, ENV_SIGNALS
-from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
-                               run_command, write_json)
+from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_record_outputs, init_warp,
+                               run_command, write_record)
 from warpbw.errors import INT32_MAX, WarpbwError, check_count
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
@@ -167,6 +171,36 @@ def format_row(r: dict) -> str:
     return "\n".join(lines)
 
 
+def write_plot(record: dict, path) -> None:
+    """Both frames' relative MSE against the truth, and the adaptive frame's shaded fraction, against resolution."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = record["rows"]
+    res = [r["res"] for r in rows]
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    ax.plot(res, [r["relmse_reference"] for r in rows], "o-", label=f"reference, {record['budget']:g} spp")
+    ax.plot(res, [r["relmse_adaptive"] for r in rows], "s-", label=f"adaptive, budget {record['budget']:g}")
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xlabel("resolution (pixels a side)")
+    ax.set_ylabel(f"relative MSE against {record['truth_spp']} spp")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(loc="upper left", fontsize=8)
+    ax2 = ax.twinx()
+    ax2.plot(res, [r["shaded_fraction"] for r in rows], "^--", color="C2", label="adaptive: shaded fraction")
+    ax2.set_ylim(0, 1.05)
+    ax2.set_ylabel("shaded fraction of covered pixels")
+    ax2.legend(loc="upper right", fontsize=8)
+    ax.set_title(f"{Path(record['probe']).name}, GGX alpha {record['alpha']:g} (nu_a from its "
+                 f"{record['env_signal']})", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def _resolutions(text: str) -> list:
     try:
         res = [int(t) for t in text.split(",") if t.strip()]
@@ -194,8 +228,10 @@ def main(argv=None) -> int:
                     help="what the bandwidth pass's analysis of the probe reads (warpbw render --env-signal; "
                     f"default {ENV_SIGNALS[0]})")
     ap.add_argument("--worst", type=int, default=WORST_DEFAULT, help=f"pixels to list (default {WORST_DEFAULT})")
-    ap.add_argument("--json", help="write the figures here (JSON)")
-    ap.add_argument("--force", action="store_true", help="overwrite --json or --write-scene's files")
+    ap.add_argument("--json", help="write the figures here (JSON); without it, beside --plot as OUT.json")
+    ap.add_argument("--plot", help="write the plot here (PNG): both frames' relative MSE and the shaded fraction "
+                    "against resolution; without it, beside --json as OUT.png")
+    ap.add_argument("--force", action="store_true", help="overwrite --json / --plot or --write-scene's files")
     ap.add_argument("--write-scene", metavar="DIR",
                     help="write the scene file of each --res as DIR/mirror_RES.toml and render nothing")
     args = ap.parse_args(argv)
@@ -218,10 +254,7 @@ def main(argv=None) -> int:
         check_output_dir(args.write_scene, "--write-scene")
         write_scenes(Path(args.write_scene), probe, args.alpha, res, args.force)
         return 0
-    if args.json:
-        if Path(args.json).suffix.lower() != ".json":
-            raise WarpbwError(f"--json {args.json}: expected a path ending in .json")
-        check_overwrite([Path(args.json)], args.force, "--json", inputs=[probe])
+    json_path, plot_path = check_record_outputs(args.json, args.plot, args.force, inputs=[probe])
     init_warp("cpu")
     from tqdm import tqdm
 
@@ -246,11 +279,12 @@ def main(argv=None) -> int:
             rows.append(measure(probe, args.alpha, r, args.budget, args.truth_spp, args.seed, args.clamp_quantile,
                                 args.worst, args.env_signal))
             tqdm.write(format_row(rows[-1]))
-    if args.json:
+    if json_path is not None:
         out = {"probe": str(probe), "alpha": args.alpha, "budget": args.budget, "truth_spp": args.truth_spp,
                "seed": args.seed, "clamp_quantile": args.clamp_quantile, "env_signal": args.env_signal,
+               "device": "cpu",
                "nu_a_quantiles": {k: dict(zip(map(str, NU_A_QUANTILES), v)) for k, v in nu_q.items()}, "rows": rows}
-        write_json(args.json, out, force=args.force)
+        write_record(json_path, plot_path, out, write_plot, force=args.force)
     return 0
 
 

@@ -183,3 +183,67 @@ def test_per_pixel_variance_is_the_unbiased_variance_over_the_seeds_times_spp(ac
     cov, v = ac.per_pixel_variance(None, 3, 4)
     assert seen == [(4, 1000, True), (4, 1001, True), (4, 1002, True)]
     assert cov.all() and np.allclose(v, 4 * 3 * np.var([0.0, 1.0, 5.0], ddof=1), rtol=1e-12)
+
+
+_FIGURES = {"budget": 2.0, "seeds": 5, "spp": 3, "covered_pixels": 5, "frame_samples_per_covered_pixel": 2.6,
+            "shaded_fraction": 0.8, "top_10pct_variance_share": 0.639, "oracle_all": 1.4792, "uniform_shaded": 1.3018,
+            "oracle_shaded": 1.8617, "oracle_shaded_min1": 1.8025, "frame": 1.6643, "rank_measured": 1.0}
+
+
+def _run_main(ac, monkeypatch, argv):
+    """main with stand-ins for Warp, the scene and the analysis (which returns _FIGURES); returns its outcome and
+    whether the analysis ran."""
+    import warpbw.pipeline
+    import warpbw.scene
+    from conftest import outcome
+
+    ran = []
+    monkeypatch.setattr(ac, "init_warp", lambda dev: ran.append("warp"))
+    monkeypatch.setattr(warpbw.scene, "load_scene", lambda path: path)
+    monkeypatch.setattr(warpbw.pipeline, "prepare_scene", lambda scene, device=None: scene)
+    monkeypatch.setattr(ac, "allocation_ceiling", lambda *a, **k: (ran.append("analysis"), dict(_FIGURES))[1])
+    return outcome(ac.main, argv), ran
+
+
+def test_record_and_plot_hold_the_printed_figures(ac, monkeypatch, tmp_path, capsys):
+    """DESIGN.md, measurement protocol: every benchmark writes a JSON record and a PNG plot.  The script wrote the
+    record alone; --plot now writes the noise gains beside it, and every figure printed is the record's."""
+    import re
+
+    import matplotlib.image
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "s.toml").write_text("")
+    how, ran = _run_main(ac, monkeypatch, ["s.toml", "--plot", "a.png", "--device", "cpu"])
+    assert how == "returned 0" and ran == ["warp", "analysis"], how
+    out = capsys.readouterr().out
+    rec = json.loads((tmp_path / "a.json").read_text())
+    assert rec == {**_FIGURES, "scene": "s.toml", "device": "cpu"}
+    gains = dict(re.findall(r"(uniform|oracle|at least 1 sample each:|the frame's) ([\d.]+)x", out))
+    gains["every pixel shaded"] = re.search(r"oracle, every pixel shaded +([\d.]+)x", out)[1]
+    want = {"every pixel shaded": rec["oracle_all"], "uniform": rec["uniform_shaded"], "oracle": rec["oracle_shaded"],
+            "at least 1 sample each:": rec["oracle_shaded_min1"], "the frame's": rec["frame"]}
+    assert set(gains) == set(want), out
+    for k, v in gains.items():
+        assert v == f"{want[k]:.3f}", (k, out)
+    assert f"rank correlation of the pass's measured variance with the brute force: {rec['rank_measured']:.3f}" in out
+    img = matplotlib.image.imread(tmp_path / "a.png")
+    assert img.ndim == 3 and min(img.shape[:2]) > 100 and np.ptp(img[..., :3]) > 0
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--json", "old.json"], "old.json: already exists"),
+    (["--plot", "q.png"], "q.png: already exists"),
+    (["--json", "new.json"], "new.png: already exists"),
+    (["--plot", "a.jpg"], "--plot a.jpg: expected a path ending in .png"),
+    (["--json", "s.json", "--plot", "s.toml", "--force"], "--plot s.toml: expected a path ending in .png"),
+])
+def test_record_outputs_are_refused_before_any_work(ac, monkeypatch, tmp_path, argv, needle):
+    """--json / --plot follow warpbw bench's rules, checked before Warp is started or the scene read."""
+    monkeypatch.chdir(tmp_path)
+    for name in ("s.toml", "old.json", "q.png", "new.png"):
+        (tmp_path / name).write_text("kept\n")
+    how, ran = _run_main(ac, monkeypatch, ["s.toml", *argv])
+    assert how.startswith("WarpbwError") and needle in how and ran == [], how
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["new.png", "old.json", "q.png", "s.toml"]
+    assert all((tmp_path / n).read_text() == "kept\n" for n in ("s.toml", "old.json", "q.png", "new.png"))

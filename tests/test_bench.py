@@ -1089,6 +1089,29 @@ def test_bench_reference_records_each_estimator_against_the_ground_truth(tmp_pat
     assert json.loads((out / "bench_reference.json").read_text())["methods"] == before
 
 
+@pytest.mark.parametrize("runs, warns", [(1, True), (2, True), (3, False)])
+def test_bench_reference_records_its_runs_and_warns_below_three(tmp_path, monkeypatch, capsys, shared, runs, warns):
+    """DESIGN.md's protocol times the median of at least 3 runs: the record now says how many runs each time is the
+    median of (it did not), fewer than 3 are timed with warpbw bench's warning, and --check-only, which times
+    nothing, keeps the earlier sweep's count and says nothing of it."""
+    shared("brdf/npf.bin")
+    shared("envmaps/studio.exr")
+    out = tmp_path / "b"
+    argv = ["--probe", "studio.exr", "--resolution", "12", "8", "--spp", "16", "--gt-spp", "8192",
+            "--runs", str(runs), "--out", str(out)]
+    got = _run_bench_reference(monkeypatch, tmp_path, argv)
+    assert got["outcome"] == "returned 0", got["outcome"]
+    assert sum(r["timed"] for r in got["renders"]) == 2 * runs      # both estimators
+    assert json.loads((out / "bench_reference.json").read_text())["runs"] == runs
+    err = capsys.readouterr().err
+    assert (f"bench_reference: warning: --runs {runs}: the measurement protocol times the median of at least 3"
+            in err) == warns, err
+    got = _run_bench_reference(monkeypatch, tmp_path, argv[:-4] + ["--runs", "5", "--out", str(out), "--check-only"])
+    assert got["outcome"] == "returned 0", got["outcome"]
+    assert json.loads((out / "bench_reference.json").read_text())["runs"] == runs
+    assert "warning: --runs" not in capsys.readouterr().err
+
+
 def test_bench_reference_check_only_keeps_the_sweep_it_was_run_with(tmp_path, monkeypatch, shared):
     """--check-only redoes the ground truth's doubling check on an earlier run's sweep (module docstring): at that
     sweep's largest spp, with the plot's 1/spp line over its spp, whatever --spp defaults to (it once took both

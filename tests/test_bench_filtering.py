@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from conftest import (StandInClock, capture_call, check_colour_scale, load_example, numpy_camera_rays,
+from conftest import (Handed, StandInClock, capture_call, check_colour_scale, load_example, numpy_camera_rays,
                       numpy_sphere_distance, numpy_square_distance, outcome, plane_scene_toml)
 from warpbw.bench_filtering import FLICKER_STEP, colour_error, flicker, temporal_error
 from warpbw.cli import main
@@ -792,6 +792,94 @@ def test_anisotropy_cost_refuses_settings_it_cannot_compare(monkeypatch, capsys,
     assert needle in capsys.readouterr().err
 
 
+def _png_rgb(path):
+    """The PNG at ``path`` as matplotlib reads it (it refuses anything but a whole PNG), as (H, W, 3+) floats."""
+    import matplotlib.image
+
+    with open(path, "rb") as f:
+        assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+    img = matplotlib.image.imread(path)
+    assert img.ndim == 3 and img.shape[0] > 100 and img.shape[1] > 100 and np.ptp(img[..., :3]) > 0
+    return img
+
+
+def test_anisotropy_cost_record_holds_the_printed_table(monkeypatch, capsys, tmp_path):
+    """DESIGN.md, measurement protocol: every benchmark writes a JSON record and a PNG plot.  The script printed its
+    table only; --json now holds every cell (per scene, zoom and method: the medians in seconds and their ratio)
+    with the settings and the device, and --plot is beside it.  Stand-in times: medians 10 ms and 30 ms (3.00x)."""
+    monkeypatch.chdir(tmp_path)
+    mod, calls, how = _run_anisotropy_cost(monkeypatch, ["a.toml", "b.toml", "--size", "12x8", "--zoom", "2,8",
+                                                         "--runs", "3", "--aniso", "4", "--json", "r.json"])
+    assert how == "returned 0", how
+    out = capsys.readouterr().out
+    rec = json.loads(Path("r.json").read_text())
+    assert rec["size"] == [12, 8] and rec["zooms"] == [2.0, 8.0] and rec["runs"] == 3 and rec["aniso"] == 4
+    assert rec["methods"] == list(mod.METHODS) and rec["device"] == "cpu" and rec["threads"] >= 1
+    assert [sc["scene"] for sc in rec["scenes"]] == ["a.toml", "b.toml"]
+    # the printed table, scene by scene: "ZOOM  t1 / ta (ratiox)" for each method
+    tables = re.split(r"^\S+\.toml: ", out, flags=re.M)[1:]
+    assert len(tables) == 2, out
+    for sc, table in zip(rec["scenes"], tables):
+        rows = [ln.split(None, 1) for ln in table.splitlines() if re.match(r"\s*[\d.]+\s+[\d.]+ /", ln)]
+        assert [float(z) for z, _ in rows] == [r["zoom"] for r in sc["zooms"]] == [2.0, 8.0]
+        for (_, cells), r in zip(rows, sc["zooms"]):
+            printed = re.findall(r"([\d.]+) / +([\d.]+) \(([\d.]+)x\)", cells)
+            for m, (t1, ta, ratio) in zip(mod.METHODS, printed):
+                got = r["methods"][m]
+                assert (f"{got['isotropic_time_s'] * 1e3:.1f}", f"{got['anisotropic_time_s'] * 1e3:.1f}",
+                        f"{got['ratio']:.2f}") == (t1, ta, ratio)
+                assert got["isotropic_time_s"] == pytest.approx(0.010) and got["anisotropic_time_s"] == \
+                    pytest.approx(0.030) and got["ratio"] == pytest.approx(3.0)
+    _png_rgb(tmp_path / "r.png")
+    assert "record r.json, plot r.png" in out
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--json", "old.json"], "old.json: already exists"),
+    (["--plot", "p.png"], "p.png: already exists"),
+    (["--json", "new.json"], "new.png: already exists"),           # the plot beside it would replace a file
+    (["--json", "r.txt"], "--json r.txt: expected a path ending in .json"),
+    (["--plot", "r.jpg"], "--plot r.jpg: expected a path ending in .png"),
+    (["--json", "s.toml", "--force"], "--json s.toml: expected a path ending in .json"),
+    (["--plot", "s.png", "--json", "s.toml.json", "--force"], "--plot s.png: is a directory"),
+])
+def test_anisotropy_cost_refuses_its_outputs_before_any_frame(monkeypatch, capsys, tmp_path, argv, needle):
+    """--json / --plot follow warpbw bench's rules: the suffix, an existing file kept without --force, checked
+    before the scene is read or a frame rendered (the stand-in records none), nothing written."""
+    monkeypatch.chdir(tmp_path)
+    for name in ("old.json", "p.png", "new.png", "s.toml"):
+        Path(name).write_text("kept\n")
+    Path("s.png").mkdir()
+    before = sorted(p.name for p in tmp_path.iterdir())
+    mod, calls, how = _run_anisotropy_cost(monkeypatch, ["s.toml", "--size", "12x8", "--zoom", "2", *argv])
+    assert how.startswith("WarpbwError") and needle in how and calls == [], how
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    assert all(Path(n).read_text() == "kept\n" for n in ("old.json", "p.png", "new.png", "s.toml"))
+
+
+def test_anisotropy_cost_force_replaces_both_outputs(monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)
+    Path("r.json").write_text("old\n")
+    Path("r.png").write_text("old\n")
+    mod, calls, how = _run_anisotropy_cost(monkeypatch, ["s.toml", "--size", "12x8", "--zoom", "2", "--runs", "3",
+                                                         "--plot", "r.png", "--force"])
+    assert how == "returned 0", how
+    assert json.loads(Path("r.json").read_text())["scenes"][0]["zooms"][0]["methods"]["lean"]["ratio"] == \
+        pytest.approx(3.0)
+    _png_rgb(tmp_path / "r.png")
+
+
+@pytest.mark.parametrize("runs, warns", [(1, True), (2, True), (3, False)])
+def test_anisotropy_cost_warns_of_fewer_runs_than_the_protocols_three(monkeypatch, capsys, runs, warns):
+    """As warpbw bench: fewer than 3 timed runs are timed, with the protocol's warning on stderr."""
+    mod, calls, how = _run_anisotropy_cost(monkeypatch, ["s.toml", "--size", "12x8", "--zoom", "2",
+                                                         "--runs", str(runs)])
+    assert how == "returned 0", how
+    err = capsys.readouterr().err
+    assert (f"anisotropy_cost: warning: --runs {runs}: the measurement protocol times the median of at least 3"
+            in err) == warns, err
+
+
 def test_plane_summary_lists_what_the_scene_uses(tmp_path):
     """filtering_summary (``warpbw info`` on planes): [width, height] as written, every light, the materials the
     planes use (an unused one listed as unused, its normal map not among the files read, nor the scene file)."""
@@ -887,6 +975,53 @@ def test_filtering_floor_mean_level_leaves_out_the_magnified_pixels(tmp_path, mo
     lv = res.level[res.coverage]
     assert (lv < 0).sum() > 10 and row["pixels"] == (lv >= 0).sum(), row
     assert row["mean_level"] == pytest.approx(float(lv[lv >= 0].mean()), abs=1e-3), row
+
+
+def test_filtering_floor_record_and_plot_hold_the_printed_tables(tmp_path, monkeypatch, capsys):
+    """DESIGN.md, measurement protocol: every benchmark writes a JSON record and a PNG plot.  The script wrote its
+    tables as JSON only; --plot now writes each scene's errors against zoom beside them, and every figure of the
+    printed table is the record's (at its printed precision)."""
+    ff = load_example("filtering_floor")
+    scene = _floor_scene(tmp_path, monkeypatch, material_extra='normal_map = "map.exr"\n')
+    assert ff.main([str(scene), "--zoom", "4,8", "--gt-spp", "64", "--plot", str(tmp_path / "f.png")]) == 0
+    out = capsys.readouterr().out
+    (rec,) = json.loads((tmp_path / "f.json").read_text())
+    assert rec["scene"] == str(scene) and rec["gt_spp"] == 64 and rec["device"] == "cpu"
+    lines = out.splitlines()
+    header = next(ln for ln in lines if ln.split()[:3] == ["zoom", "level", "probes"]).split()
+    rows = [dict(zip(header, ln.split())) for ln in lines if re.match(r"\s+[48] ", ln)]
+    assert [float(r["zoom"]) for r in rows] == [z["zoom"] for z in rec["zooms"]] == [4.0, 8.0], out
+    for r, z in zip(rows, rec["zooms"]):
+        assert (r["level"], r["probes"]) == (f"{z['mean_level']:.2f}", f"{z['mean_probes']:.2f}")
+        for c in ("gmm_aligned", "gmm_unaligned", "toksvig", "lean", "fixed", "gmm_per_tap", "floor",
+                  "floor_bilinear"):
+            assert r[c] == f"{z[c]:.4f}", c
+        assert r["aligned/toks"] == f"{z['gmm_aligned'] / z['toksvig']:.2f}" and r["check"] == \
+            f"{z['gmm_merged_check']:.1e}"
+    assert f"record {tmp_path / 'f.json'}, plot {tmp_path / 'f.png'}" in out
+    img = _png_rgb(tmp_path / "f.png")
+    assert img.shape[1] > 300
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--json", "old.json"], "old.json: already exists"),
+    (["--plot", "q.png"], "q.png: already exists"),
+    (["--json", "new.json"], "new.png: already exists"),
+    (["--plot", "f.jpg"], "--plot f.jpg: expected a path ending in .png"),
+    (["--json", "floor.json", "--plot", "floor.toml", "--force"], "--plot floor.toml: expected a path ending in .png"),
+])
+def test_filtering_floor_refuses_its_outputs_before_any_work(tmp_path, monkeypatch, argv, needle):
+    """--json / --plot follow warpbw bench's rules, checked before Warp is started or a scene read."""
+    ff = load_example("filtering_floor")
+    scene = _floor_scene(tmp_path, monkeypatch, material_extra='normal_map = "map.exr"\n')
+    monkeypatch.chdir(tmp_path)
+    for name in ("old.json", "q.png", "new.png"):
+        (tmp_path / name).write_text("kept\n")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    monkeypatch.setattr(ff, "init_warp", lambda dev: (_ for _ in ()).throw(Handed()))
+    how = outcome(ff.main, [str(scene), "--zoom", "8", *argv])
+    assert how.startswith("WarpbwError") and needle in how, how
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
 # ------------------------------------------------------------------------- bench-filtering's table and record, by hand

@@ -9,6 +9,7 @@ import importlib.util
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -167,3 +168,89 @@ def test_dynamic_geometry_hands_budget_and_per_frame_seeds_and_reports_wall_fps(
     assert s["mean_shaded_fraction"] == pytest.approx(0.25, rel=1e-12)
     assert [r["bandwidth_s"] for r in fr] == [0.004, 0.006]
     assert rec["budget_spp"] == 3.0 and rec["seed"] == 40
+
+
+def _run_with_known_frames(tmp_path, monkeypatch, argv):
+    """The example's main with a stand-in render_adaptive whose call k (the warm-up is call 1) takes stage times
+    and a shaded fraction that grow with k; returns the main's outcome and the calls."""
+    import types
+
+    import warpbw.pipeline
+    from conftest import outcome
+
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
+    ex = _example()
+    monkeypatch.setattr(ex, "DEFAULT_ENV", tmp_path / "no-probe.exr")
+    mesh = tmp_path / "sphere.obj"
+    trimesh.creation.icosphere(subdivisions=1, radius=0.8).export(mesh)
+    calls = []
+
+    def spy(prep, budget, *a, **kw):
+        calls.append(kw.get("seed"))
+        k = len(calls)
+        ts = {"gbuffer": 0.001 * k, "bandwidth": 0.002 * k, "shading": 0.003, "upsampling": 0.001,
+              "hierarchy": 0.0005, "frame": 0.0055 + 0.003 * k}
+        n = prep.width * prep.height
+        return types.SimpleNamespace(image=np.zeros((prep.height, prep.width, 3), np.float32),
+                                     coverage=np.ones((prep.height, prep.width), bool),
+                                     aovs={"shaded": np.ones((prep.height, prep.width), bool)},
+                                     stats={"time_s": ts, "shaded_fraction": 0.1 * k, "pixels_shaded": k,
+                                            "pixels_covered": n, "samples": 3 * k, "samples_per_covered_pixel": 3.0,
+                                            "stages": ["gbuffer", "bandwidth_pass"]})
+
+    monkeypatch.setattr(warpbw.pipeline, "render_adaptive", spy)
+    return outcome(ex.main, ["--mesh", str(mesh), "--out", str(tmp_path / "o"), "--size", "8", "--material", "ggx",
+                             *argv]), calls
+
+
+def test_dynamic_geometry_writes_a_plot_and_records_what_it_prints(tmp_path, monkeypatch, capsys):
+    """DESIGN.md, measurement protocol: every benchmark writes a JSON record and a PNG plot.  The example wrote the
+    record and Fig. 18's strip of frames, but no plot of what it measures; now dynamic_geometry_times.png (stage
+    times, fps and shaded fraction per frame) is written beside them, the record names the threads, and every
+    number of the printed table is the record's (stand-in frames: the bandwidth pass 2k ms and the shaded
+    fraction 10k % on call k)."""
+    from PIL import Image
+
+    how, calls = _run_with_known_frames(tmp_path, monkeypatch, ["--frames", "3", "--threads", "2"])
+    assert how.startswith("returned {"), how
+    out = capsys.readouterr().out
+    rec = json.loads((tmp_path / "o" / "dynamic_geometry.json").read_text())
+    assert rec["device"] == "cpu" and rec["threads"] == 2 and rec["budget_spp"] == 8.0 and rec["size"] == [8, 8]
+    rows = [ln.split() for ln in out.splitlines() if ln.split() and ln.split()[0].isdigit() and len(ln.split()) == 11]
+    assert [int(r[0]) for r in rows] == [0, 1, 2], out
+    keys = ("geometry_s", "update_refit_s", "gbuffer_s", "bandwidth_s", "shading_s", "upsampling_s", "total_s")
+    for row, fr in zip(rows, rec["frames"]):
+        assert row[1:8] == [f"{fr[k] * 1e3:.1f}" for k in keys]
+        assert row[8] == f"{fr['fps']:.2f}" and row[9] == f"{fr['shaded_fraction']:.1%}"
+        assert int(row[10]) == fr["samples"]
+    assert [r[4] for r in rows] == ["4.0", "6.0", "8.0"] and [r[9] for r in rows] == ["20.0%", "30.0%", "40.0%"]
+    mean = re.search(r"mean: ([\d.]+) ms per frame, ([\d.]+) fps; shaded fraction ([\d.]+)%", out)
+    s = rec["summary"]
+    assert mean.groups() == (f"{s['mean_total_s'] * 1e3:.1f}", f"{s['mean_fps']:.2f}",
+                             f"{s['mean_shaded_fraction'] * 100:.1f}")
+    png = tmp_path / "o" / "dynamic_geometry_times.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    img = np.asarray(Image.open(png))
+    assert img.ndim == 3 and min(img.shape[:2]) > 100 and np.ptp(img[..., :3]) > 0
+    assert f"plot {png}" in out
+
+
+def test_dynamic_geometry_keeps_an_existing_plot_without_force(tmp_path, monkeypatch):
+    """The new plot is one of the outputs --force guards: an existing one is refused before any frame."""
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "dynamic_geometry_times.png").write_text("kept\n")
+    how, calls = _run_with_known_frames(tmp_path, monkeypatch, ["--frames", "3"])
+    assert "dynamic_geometry_times.png: already exists" in how and calls == [], how
+    assert (tmp_path / "o" / "dynamic_geometry_times.png").read_text() == "kept\n"
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["dynamic_geometry_times.png"]
+
+
+@pytest.mark.parametrize("frames, warns", [(1, True), (2, True), (3, False)])
+def test_dynamic_geometry_warns_of_fewer_frames_than_the_protocols_three(tmp_path, monkeypatch, capsys, frames,
+                                                                        warns):
+    """As warpbw bench warns of fewer than 3 --runs: fewer than 3 timed frames are rendered, with the warning."""
+    how, calls = _run_with_known_frames(tmp_path, monkeypatch, ["--frames", str(frames)])
+    assert how.startswith("returned {") and len(calls) == 1 + frames, how
+    err = capsys.readouterr().err
+    assert (f"dynamic_geometry: warning: --frames {frames}: the measurement protocol times the median of at least 3"
+            in err) == warns, err

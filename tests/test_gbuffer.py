@@ -693,6 +693,56 @@ def test_gbuffer_example_writes_the_sphere_normals_under_their_names_and_times_f
     np.testing.assert_allclose(nrm[sphere], (pos[sphere] - centre) / 0.45, atol=1e-3)
 
 
+def test_gbuffer_example_record_and_plot_hold_the_printed_time(tmp_path, monkeypatch, capsys):
+    """DESIGN.md, measurement protocol: every benchmark writes a JSON record and a PNG plot.  The example printed
+    its G-buffer time only; --json now records the five launches, their median (the printed figure), the coverage
+    and the mesh's size (an icosphere of subdivision 1: 42 vertices, 80 triangles), with its plot beside it."""
+    import json
+    import re
+
+    import matplotlib.image
+    import trimesh
+
+    ex = load_example("gbuffer")
+    mesh = tmp_path / "ico.obj"
+    trimesh.creation.icosphere(subdivisions=1, radius=0.3).export(mesh)
+    monkeypatch.setattr(sys, "argv", ["gbuffer.py", "--mesh", str(mesh), "--out", str(tmp_path / "gb"),
+                                      "--resolution", "48", "32", "--json", str(tmp_path / "g.json")])
+    ex.main()
+    out = capsys.readouterr().out
+    rec = json.loads((tmp_path / "g.json").read_text())
+    m = re.search(r"G-buffer 48x32: ([\d.]+) ms \(median of 5\), coverage ([\d.]+)%", out)
+    assert m, out
+    assert len(rec["time_runs_s"]) == rec["runs"] == 5 and rec["time_s"] == float(np.median(rec["time_runs_s"]))
+    assert m[1] == f"{rec['time_s'] * 1e3:.1f}" and m[2] == f"{rec['coverage_fraction'] * 100:.1f}"
+    assert (rec["resolution"], rec["vertices"], rec["triangles"], rec["spheres"], rec["device"]) == \
+        ([48, 32], 42, 80, 1, "cpu")
+    img = matplotlib.image.imread(tmp_path / "g.png")
+    assert img.ndim == 3 and min(img.shape[:2]) > 100 and np.ptp(img[..., :3]) > 0
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--json", "old.json"], "old.json: already exists"),
+    (["--plot", "q.png"], "q.png: already exists"),
+    (["--json", "g.txt"], "--json g.txt: expected a path ending in .json"),
+    (["--json", "tri.json", "--plot", "tri.obj", "--force"], "--plot tri.obj: expected a path ending in .png"),
+])
+def test_gbuffer_example_refuses_its_record_before_any_work(tmp_path, monkeypatch, argv, needle):
+    """--json / --plot follow warpbw bench's rules, checked before Warp is started or the mesh read."""
+    from conftest import Handed, outcome
+
+    ex = load_example("gbuffer")
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    for name in ("old.json", "q.png"):
+        (tmp_path / name).write_text("kept\n")
+    monkeypatch.setattr(ex, "init_warp", lambda dev: (_ for _ in ()).throw(Handed()))
+    monkeypatch.setattr(sys, "argv", ["gbuffer.py", "--mesh", "tri.obj", "--resolution", "8", "8", *argv])
+    how = outcome(ex.main)
+    assert how.startswith("WarpbwError") and needle in how, how
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.json", "q.png", "tri.obj"]
+
+
 def _numpy_sphere_tangent(n: np.ndarray) -> np.ndarray:
     """d position / d phi about +Y for unit normals n (N, 3): (z, 0, -x) of n, normalised (the gbuffer docstring)."""
     t = np.stack([n[:, 2], np.zeros(len(n)), -n[:, 0]], 1)

@@ -9,13 +9,16 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import json
 import re
 import shlex
 import warnings
+from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from conftest import Handed, attempt, capture_call, exr_claiming_size, load_example, outcome
+from conftest import Handed, StandInClock, attempt, capture_call, exr_claiming_size, load_example, outcome
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -25,6 +28,8 @@ from precompute.gmm_mipmap import (GMM_FORMAT, VARIANCE_FLOOR, build_gmm_mipmap,
                                    write_gmm_mipmap)
 from precompute.surfaces import dunes, hemispherical_scales
 from warpbw.errors import WarpbwError
+
+EXAMPLE_GMM_TIME = Path(__file__).resolve().parents[1] / "examples" / "gmm_precompute_time.py"
 
 K = 4
 
@@ -1011,16 +1016,119 @@ def test_gmm_precompute_time_builds_with_the_components_asked_for(monkeypatch):
     is built from a SIZE x SIZE height field with that many Gaussians."""
 
     gt = load_example("gmm_precompute_time")
-    got = {}
+    got = []
 
-    def fake(h, **kw):
-        got.update(kw, shape=np.shape(h))
-        raise Handed
+    def fake(h, **kw):   # the first build is the untimed warm-up; the second the first timed one
+        got.append(dict(kw, shape=np.shape(h)))
+        if len(got) == 2:
+            raise Handed
+        return SimpleNamespace(levels=[None])
 
     monkeypatch.setattr(gt, "build_gmm_mipmap", fake)
     with pytest.raises(Handed):
-        gt.main(["--size", "17", "--components", "2"])
-    assert got["components"] == 2 and got["shape"][:2] == (17, 17)
+        gt.main(["--size", "24", "--components", "2"])
+    assert [g["components"] for g in got] == [2, 2] and got[1]["shape"][:2] == (24, 24)
+
+
+def _run_gmm_precompute_time(monkeypatch, argv, runs: int = 3):
+    """gmm_precompute_time.main with stand-ins for the build and the clock: the warm-up takes 100 s, and the
+    ``runs`` timed builds of each surface 3, 1, 2, 3, 1, 2, ... seconds (the median of three runs is 2 s); the
+    builds of the i-th surface have 5 + i levels."""
+    gt = load_example("gmm_precompute_time")
+    clock, calls = StandInClock(), []
+
+    def build(h, components, progress):
+        k = len(calls)
+        calls.append(np.shape(h))
+        clock.now += 100.0 if k == 0 else (3.0, 1.0, 2.0)[(k - 1) % 3]
+        return SimpleNamespace(levels=[None] * (5 + max(0, k - 1) // runs))
+
+    monkeypatch.setattr(gt, "build_gmm_mipmap", build)
+    monkeypatch.setattr(gt, "time", clock)
+    return gt, calls, outcome(gt.main, argv)
+
+
+def test_gmm_precompute_time_record_and_plot_hold_what_it_prints(monkeypatch, capsys, tmp_path):
+    """DESIGN.md, measurement protocol: every benchmark writes a JSON record and a PNG plot, its time the median of
+    at least 3 runs after a warm-up.  The script timed one build per surface (the first paying the imports) and
+    wrote no plot; now each surface's printed seconds and its record's ``time_s`` are the median of --runs timed
+    builds (stand-in clock: runs of 3, 1 and 2 s, median 2), the 100 s warm-up in none of them, and --json's plot is
+    beside it."""
+    import matplotlib.image
+
+    monkeypatch.chdir(tmp_path)
+    gt, calls, how = _run_gmm_precompute_time(monkeypatch, ["--size", "20", "--components", "2", "--json", "t.json"])
+    assert how == "returned 0", how
+    assert len(calls) == 1 + 3 * 3 and set(calls[1:]) == {(20, 20)}
+    out = capsys.readouterr().out
+    rows = re.findall(r"^(\w+) +20x20, 2 components, (\d+) levels: +([\d.]+) s$", out, flags=re.M)
+    assert [r[0] for r in rows] == ["dunes", "hemispherical_scales", "carved_disk"], out
+    rec = json.loads((tmp_path / "t.json").read_text())
+    assert (rec["size"], rec["components"], rec["runs"], rec["aim_time_s"]) == (20, 2, 3, 60.0)
+    assert rec["cpu_count"] >= 1
+    for i, (name, levels, secs) in enumerate(rows):
+        assert rec["time_s"][name] == 2.0 and f"{rec['time_s'][name]:.1f}" == secs
+        assert rec["time_runs_s"][name] == [3.0, 1.0, 2.0]
+        assert rec["levels"][name] == int(levels) == 5 + i
+    with open(tmp_path / "t.png", "rb") as f:
+        assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+    img = matplotlib.image.imread(tmp_path / "t.png")
+    assert img.ndim == 3 and min(img.shape[:2]) > 100 and np.ptp(img[..., :3]) > 0
+    assert "record t.json, plot t.png" in out
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--json", "old.json"], "old.json: already exists"),
+    (["--plot", "p.png"], "p.png: already exists"),
+    (["--json", "new.json"], "new.png: already exists"),      # the plot beside it would replace a file
+    (["--json", "t.txt"], "--json t.txt: expected a path ending in .json"),
+    (["--plot", "t.jpg", "--force"], "--plot t.jpg: expected a path ending in .png"),
+    (["--plot", "d.png", "--force"], "--plot d.png: is a directory"),
+])
+def test_gmm_precompute_time_refuses_its_outputs_before_any_build(monkeypatch, tmp_path, argv, needle):
+    """--json / --plot follow warpbw bench's rules (suffix, an existing file kept without --force), checked before
+    the first build (the stand-in records none), nothing written."""
+    monkeypatch.chdir(tmp_path)
+    for name in ("old.json", "p.png", "new.png"):
+        (tmp_path / name).write_text("kept\n")
+    (tmp_path / "d.png").mkdir()
+    before = sorted(p.name for p in tmp_path.iterdir())
+    gt, calls, how = _run_gmm_precompute_time(monkeypatch, ["--size", "20", *argv])
+    assert how.startswith("WarpbwError") and needle in how and calls == [], how
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    assert all((tmp_path / n).read_text() == "kept\n" for n in ("old.json", "p.png", "new.png"))
+
+
+@pytest.mark.parametrize("runs, warns", [(1, True), (2, True), (3, False)])
+def test_gmm_precompute_time_times_runs_and_warns_below_three(monkeypatch, capsys, runs, warns):
+    """--runs builds per surface (default 3, warpbw bench's); fewer are timed with the protocol's warning."""
+    gt, calls, how = _run_gmm_precompute_time(monkeypatch, ["--size", "20", "--runs", str(runs)], runs)
+    assert how == "returned 0" and len(calls) == 1 + 3 * runs, how
+    err = capsys.readouterr().err
+    assert (f"gmm_precompute_time: warning: --runs {runs}: the measurement protocol times the median of at least 3"
+            in err) == warns, err
+
+
+def test_gmm_precompute_time_writes_a_real_record(tmp_path):
+    """The script itself on the smallest map it takes (17x17, 1 component, 1 run): the record's keys, its times
+    those printed, and a PNG matplotlib reads."""
+    import subprocess
+    import sys
+
+    import matplotlib.image
+
+    r = subprocess.run([sys.executable, str(EXAMPLE_GMM_TIME), "--size", "17", "--components", "1", "--runs", "1",
+                        "--plot", "t.png"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    rec = json.loads((tmp_path / "t.json").read_text())
+    assert {"size", "components", "runs", "cpu_count", "aim_time_s", "time_s", "time_runs_s", "levels"} <= set(rec)
+    rows = re.findall(r"^(\w+) +17x17, 1 components, (\d+) levels: +([\d.]+) s$", r.stdout, flags=re.M)
+    assert len(rows) == 3, r.stdout
+    for name, levels, secs in rows:
+        assert f"{rec['time_s'][name]:6.1f}".strip() == secs and rec["time_runs_s"][name] == [rec["time_s"][name]]
+        assert rec["levels"][name] == int(levels) == 6   # 17, 9, 5, 3, 2, 1 texels a side
+    assert matplotlib.image.imread(tmp_path / "t.png").ndim == 3
+    assert "--runs 1: the measurement protocol" in r.stderr
 
 
 def _rebuild_hint(path, match=None):

@@ -2,6 +2,8 @@
 MSEs computed here from renders of its protocol, and its refusals of bad options."""
 from __future__ import annotations
 
+import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -188,3 +190,48 @@ def test_measure_hands_the_env_signal_to_the_adaptive_frame(ms, tmp_path, monkey
     with pytest.raises(Handed):
         ms.measure(probe, 0.05, 8, budget=1.0, truth_spp=1, seed=2, clamp_q=1.0, worst=1, env_signal=signal)
     assert got["env_signal"] == signal and got["seed"] == 2 and got["_args"][1] == 1.0
+
+
+def test_record_and_plot_hold_the_printed_figures(ms, tmp_path, capsys):
+    """DESIGN.md, measurement protocol: every benchmark writes a JSON record and a PNG plot.  The script wrote the
+    record alone; --plot now writes both frames' relMSE and the shaded fraction against resolution beside it, and
+    the record's figures are those printed (at their printed precision)."""
+    import matplotlib.image
+
+    probe = _probe(tmp_path, np.random.default_rng(5).uniform(0.05, 2.0, (8, 16, 3)))
+    assert ms.main(["--probe", str(probe), "--res", "8,16", "--truth-spp", "4", "--budget", "1", "--worst", "2",
+                    "--plot", str(tmp_path / "m.png")]) == 0
+    out = capsys.readouterr().out
+    rec = json.loads((tmp_path / "m.json").read_text())
+    assert (rec["budget"], rec["truth_spp"], rec["seed"], rec["device"]) == (1.0, 4, 1, "cpu")
+    printed = re.findall(r"^ *(\d+)x(\d+) +reference (\S+) +adaptive (\S+) \(shaded (\d+)%, ([\d.]+) samples per "
+                         r"covered pixel; its (\d+) worst pixels hold (\d+)% of its error\)$", out, flags=re.M)
+    assert [int(p[0]) for p in printed] == [r["res"] for r in rec["rows"]] == [8, 16], out
+    for p, r in zip(printed, rec["rows"]):
+        assert p[2:] == (f"{r['relmse_reference']:.3g}", f"{r['relmse_adaptive']:.3g}",
+                         f"{r['shaded_fraction']:.0%}"[:-1], f"{r['samples_per_covered_pixel']:.2f}",
+                         str(len(r["worst"])), f"{r['worst_share']:.0%}"[:-1])
+    img = matplotlib.image.imread(tmp_path / "m.png")
+    assert img.ndim == 3 and min(img.shape[:2]) > 100 and np.ptp(img[..., :3]) > 0
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--json", "old.json"], "old.json: already exists"),
+    (["--plot", "q.png"], "q.png: already exists"),
+    (["--json", "new.json"], "new.png: already exists"),
+    (["--plot", "m.jpg"], "--plot m.jpg: expected a path ending in .png"),
+    (["--json", "probe.json", "--plot", "probe.exr", "--force"], "--plot probe.exr: expected a path ending in .png"),
+])
+def test_record_outputs_are_refused_before_any_work(ms, tmp_path, monkeypatch, argv, needle):
+    """--json / --plot follow warpbw bench's rules, checked before Warp is started or the probe read."""
+    from conftest import Handed
+
+    monkeypatch.chdir(tmp_path)
+    probe = _probe(tmp_path, np.ones((8, 16, 3)))
+    for name in ("old.json", "q.png", "new.png"):
+        (tmp_path / name).write_text("kept\n")
+    monkeypatch.setattr(ms, "init_warp", lambda dev: (_ for _ in ()).throw(Handed()))
+    with pytest.raises(WarpbwError, match=re.escape(needle)):
+        ms.main(["--probe", str(probe), "--res", "8", *argv])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["new.png", "old.json", "probe.exr", "q.png"]
+    assert all((tmp_path / n).read_text() == "kept\n" for n in ("old.json", "q.png", "new.png"))

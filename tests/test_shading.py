@@ -4,6 +4,7 @@ hand the estimator, and their figures (throughput, relMSE over the eroded interi
 hand."""
 from __future__ import annotations
 
+import json
 import math
 import re
 import sys
@@ -349,8 +350,9 @@ def test_cutting_launches_by_their_samples_leaves_every_pixel_as_it_was(monkeypa
 
 # ------------------------------------------------------------------------------ examples/reference_estimator.py
 
-def _run_reference_estimator(monkeypatch, tmp_path, argv, out):
-    """Run reference_estimator.main with stand-ins for every stage; returns what they were handed and stdout."""
+def _run_reference_estimator(monkeypatch, tmp_path, argv, out, seconds=lambda k: 1.0):
+    """Run reference_estimator.main with stand-ins for every stage; returns what they were handed.  Shading call k
+    (from 0) "takes" seconds(k) on the stand-in clock."""
     mod = load_example("reference_estimator")
     got = {"shade": [], "camera": None, "probe": None, "npf": None}
     clock = StandInClock()
@@ -371,8 +373,8 @@ def _run_reference_estimator(monkeypatch, tmp_path, argv, out):
         return SimpleNamespace(coverage=np.ones((cam.h, cam.w), bool), w=cam.w, h=cam.h)
 
     def shade_reference(gb, mats, env, spp, seed=0, mis=False, device=None):
+        clock.now += seconds(len(got["shade"]))                # by default every shading "takes" exactly 1 s
         got["shade"].append((spp, mis))
-        clock.now += 1.0                                       # every shading "takes" exactly 1 s
         img = np.full((gb.h * gb.w, 3), 0.5 if mis else 0.25, np.float32)
         return SimpleNamespace(samples=2_500_000, pixels_shaded=gb.h * gb.w, non_finite=0,
                                radiance=SimpleNamespace(numpy=lambda: img))
@@ -413,7 +415,7 @@ def test_reference_estimator_passes_its_options_and_names_each_image_by_its_esti
                                    tmp_path / "o")
     assert got["probe"] == probe and got["npf"] == (npf, "chrome")
     assert got["camera"] == (8, 4)
-    assert got["shade"] == [(1, False), (7, False), (1, True), (7, True)]     # warm-up, then the timed render
+    assert got["shade"] == [(1, False), *[(7, False)] * 3, (1, True), *[(7, True)] * 3]   # warm-up, 3 timed
     assert float(np.unique(read_exr(tmp_path / "o" / "ref_bis.exr").pixels)[0]) == 0.25
     assert float(np.unique(read_exr(tmp_path / "o" / "ref_mis.exr").pixels)[0]) == 0.5
     out = capsys.readouterr().out
@@ -422,14 +424,80 @@ def test_reference_estimator_passes_its_options_and_names_each_image_by_its_esti
 
 
 def test_reference_estimator_defaults_are_the_documented_ones(tmp_path, monkeypatch):
-    """Without options: --spp 64 and --resolution 384 160 (module docstring and --help), the NPF sphere of
-    gold-metallic-paint."""
+    """Without options: --spp 64, --runs 3 and --resolution 384 160 (module docstring and --help), the NPF sphere
+    of gold-metallic-paint."""
     probe, npf = tmp_path / "p.exr", tmp_path / "t.bin"
     probe.write_bytes(b"x")
     npf.write_bytes(b"x")
     got = _run_reference_estimator(monkeypatch, tmp_path, ["--probe", str(probe), "--npf", str(npf)], tmp_path / "o")
-    assert got["shade"] == [(1, False), (64, False), (1, True), (64, True)]
+    assert got["shade"] == [(1, False), *[(64, False)] * 3, (1, True), *[(64, True)] * 3]
     assert got["camera"] == (384, 160) and got["npf"] == (npf, "gold-metallic-paint")
+
+
+def test_reference_estimator_times_the_median_of_its_runs_and_records_what_it_prints(tmp_path, monkeypatch,
+                                                                                      capsys):
+    """DESIGN.md, measurement protocol: the median of at least 3 runs after a warm-up, and a JSON record and a PNG
+    plot.  The example timed one frame per estimator and wrote neither.  Stand-in clock: the warm-ups take 100 s,
+    the timed frames 3, 1 and 2 s (BRDF sampling) and 6, 2 and 4 s (MIS): medians 2 s and 4 s, so 2.5 M samples
+    read 1.25 M evaluations/s and, two evaluations each with MIS, 1.25 again."""
+    import matplotlib.image
+
+    probe, npf = tmp_path / "p.exr", tmp_path / "t.bin"
+    probe.write_bytes(b"x")
+    npf.write_bytes(b"x")
+    secs = [100.0, 3.0, 1.0, 2.0, 100.0, 6.0, 2.0, 4.0]
+    _run_reference_estimator(monkeypatch, tmp_path, ["--probe", str(probe), "--npf", str(npf), "--spp", "7",
+                                                     "--resolution", "8", "4", "--json", str(tmp_path / "r.json")],
+                             tmp_path / "o", seconds=lambda k: secs[k])
+    out = capsys.readouterr().out
+    rec = json.loads((tmp_path / "r.json").read_text())
+    assert (rec["resolution"], rec["spp"], rec["runs"], rec["device"]) == ([8, 4], 7, 3, "cpu") and rec["threads"] >= 1
+    for name, runs, median in (("ref_bis", [3.0, 1.0, 2.0], 2.0), ("ref_mis", [6.0, 2.0, 4.0], 4.0)):
+        e = rec["estimators"][name]
+        assert e["time_runs_s"] == runs and e["time_s"] == median and e["evaluations_per_s"] == 1.25e6
+        m = re.search(rf"{name}: 7 spp over (\d+) pixels in ([\d.]+) s \(([\d.]+) M evaluations/s\), non-finite "
+                      rf"samples (\d+); mean radiance \[([\d. ]+)\]", out)
+        assert m, out
+        assert (int(m[1]), m[2], m[3], int(m[4])) == (e["pixels_shaded"], f"{e['time_s']:.2f}",
+                                                     f"{e['evaluations_per_s'] / 1e6:.2f}", e["non_finite_samples"])
+        assert [float(v) for v in m[5].split()] == pytest.approx(e["mean_radiance"], abs=1e-4)
+    assert rec["estimators"]["ref_mis"]["mean_radiance"] == [0.5, 0.5, 0.5]
+    img = matplotlib.image.imread(tmp_path / "r.png")
+    assert img.ndim == 3 and min(img.shape[:2]) > 100 and np.ptp(img[..., :3]) > 0
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--json", "old.json"], "old.json: already exists"),
+    (["--plot", "q.png"], "q.png: already exists"),
+    (["--json", "r.txt"], "--json r.txt: expected a path ending in .json"),
+    (["--plot", "r.jpg"], "--plot r.jpg: expected a path ending in .png"),
+])
+def test_reference_estimator_refuses_its_record_before_any_work(tmp_path, monkeypatch, argv, needle):
+    """--json / --plot follow warpbw bench's rules, checked before the probe is read or anything shaded."""
+    monkeypatch.chdir(tmp_path)
+    probe, npf = tmp_path / "p.exr", tmp_path / "t.bin"
+    probe.write_bytes(b"x")
+    npf.write_bytes(b"x")
+    for name in ("old.json", "q.png"):
+        (tmp_path / name).write_text("kept\n")
+    how = outcome(_run_reference_estimator, monkeypatch, tmp_path, ["--probe", str(probe), "--npf", str(npf),
+                                                                    *argv], tmp_path / "o")
+    assert how.startswith("WarpbwError") and needle in how, how
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.json", "p.exr", "q.png", "t.bin"]
+
+
+@pytest.mark.parametrize("runs, warns", [(1, True), (2, True), (3, False)])
+def test_reference_estimator_warns_of_fewer_runs_than_the_protocols_three(tmp_path, monkeypatch, capsys, runs,
+                                                                          warns):
+    probe, npf = tmp_path / "p.exr", tmp_path / "t.bin"
+    probe.write_bytes(b"x")
+    npf.write_bytes(b"x")
+    got = _run_reference_estimator(monkeypatch, tmp_path, ["--probe", str(probe), "--npf", str(npf), "--runs",
+                                                           str(runs)], tmp_path / "o")
+    assert len(got["shade"]) == 2 * (1 + runs)
+    err = capsys.readouterr().err
+    assert (f"reference_estimator: warning: --runs {runs}: the measurement protocol times the median of at least 3"
+            in err) == warns, err
 
 
 # ------------------------------------------------------------------------------- examples/compare_mitsuba.py
@@ -469,13 +537,48 @@ def test_compare_mitsuba_warpbw_side_gets_the_scale_rotation_and_estimator(tmp_p
     assert seen == [{"mis": True}, {}]
 
 
+def test_compare_mitsuba_times_warpbws_render_alone_as_mitsubas(tmp_path, monkeypatch):
+    """Mitsuba's scene is built before its timed render; warpbw's scene was handed to render_reference as a Scene,
+    so its probe, materials and geometry were loaded inside the timed call (DESIGN.md: the wall time of a frame).
+    Stand-ins on a stand-in clock: loading a scene takes 100 s, a render 1 s, and render_reference loads a scene it
+    is handed unprepared, as warpbw.pipeline's does.  The time is the render's alone: 1 s."""
+    import warpbw.pipeline
+
+    cm = load_example("compare_mitsuba")
+    clock = StandInClock()
+    prepared = []
+
+    def prepare_scene(scene, device="cpu", progress=False):
+        clock.now += 100.0
+        prepared.append(scene)
+        return SimpleNamespace(prepared=scene)
+
+    def render_reference(scene, spp=1, seed=0, mis=False, device=None, **kw):
+        if not hasattr(scene, "prepared"):
+            scene = prepare_scene(scene)
+        clock.now += 1.0
+        return SimpleNamespace(image=np.zeros((2, 2, 3)), coverage=np.zeros((2, 2), bool))
+
+    monkeypatch.setattr(warpbw.pipeline, "prepare_scene", prepare_scene)
+    monkeypatch.setattr(warpbw.pipeline, "render_reference", render_reference)
+    monkeypatch.setattr(cm, "time", clock)
+    monkeypatch.setattr(cm, "init_warp", lambda dev: None)
+    from warpbw.io.exr import write_exr
+
+    probe = tmp_path / "p.exr"
+    write_exr(probe, np.ones((4, 8, 3), np.float32))
+    toml_text = cm.warpbw_toml(probe, cm.CASES["lambert"], 8, 0.0, 1.0)
+    _, _, seconds = cm.render_warpbw(*cm.import_warpbw(), toml_text, 4, 0, True)
+    assert seconds == 1.0 and len(prepared) == 1
+
+
 def test_compare_mitsuba_options_defaults(tmp_path):
-    """--help: --spp 1024, --resolution 256; MIS by default, BRDF sampling with --no-mis."""
+    """--help: --spp 1024, --resolution 256, --runs 3; MIS by default, BRDF sampling with --no-mis."""
     cm = load_example("compare_mitsuba")
     probe = tmp_path / "p.exr"
     probe.write_bytes(b"x")
     a = cm.parse_args(["--probe", str(probe)])
-    assert (a.spp, a.resolution, a.mitsuba_spp, a.mis) == (1024, 256, None, True)
+    assert (a.spp, a.resolution, a.mitsuba_spp, a.mis, a.runs) == (1024, 256, None, True, 3)
     assert cm.parse_args(["--probe", str(probe), "--no-mis"]).mis is False
 
 
@@ -530,8 +633,8 @@ def test_compare_mitsuba_reports_relmse_over_the_interior_against_mitsuba(tmp_pa
                                                        "--noise-floor", "--no-mis"])
     assert got["outcome"] == "returned 0", got["outcome"]
     assert got["scenes"] == [dict(res=16, spp=64, rotation=30.0, scale=2.5)] * 2
-    assert got["mitsuba"] == [(1, 1005), (64, 5), (64, 6)] * 2
-    assert got["warpbw"] == [(1, 1005, False), (16, 5, False)] * 2
+    assert got["mitsuba"] == [(1, 1005), *[(64, 5)] * 3, (64, 6)] * 2      # the warm-up, 3 timed runs, the floor
+    assert got["warpbw"] == [(1, 1005, False), *[(16, 5, False)] * 3] * 2
     rows = {ln.split()[0]: ln.split() for ln in capsys.readouterr().out.splitlines()
             if ln.split() and ln.split()[0] in ("lambert", "ggx0.1")}
     for case, d, verdict in (("lambert", 0.05, "PASS"), ("ggx0.1", 0.123085, "FAIL")):
@@ -544,12 +647,107 @@ def test_compare_mitsuba_reports_relmse_over_the_interior_against_mitsuba(tmp_pa
         assert r[10] == verdict, r
 
 
+def test_compare_mitsuba_record_holds_the_printed_table_and_a_plot(tmp_path, monkeypatch, capsys):
+    """DESIGN.md, measurement protocol: every benchmark writes a JSON record and a PNG plot.  The comparison printed
+    its table only; --json now holds every figure of each row under a name with its unit (the stand-ins' by hand:
+    lambert relMSE 0.05^2 / 1.01, Mitsuba 2 s, warpbw 1 s, ratio 0.5), the settings and Mitsuba's version, and its
+    plot is beside it."""
+    import matplotlib.image
+
+    monkeypatch.chdir(tmp_path)
+    got = _run_compare_mitsuba(monkeypatch, tmp_path, ["--cases", "lambert,ggx0.1", "--spp", "16", "--mitsuba-spp",
+                                                       "64", "--noise-floor", "--json", "c.json"])
+    assert got["outcome"] == "returned 0", got["outcome"]
+    rows = {ln.split()[0]: ln.split() for ln in capsys.readouterr().out.splitlines()
+            if ln.split() and ln.split()[0] in ("lambert", "ggx0.1")}
+    rec = json.loads((tmp_path / "c.json").read_text())
+    assert (rec["resolution"], rec["mitsuba_spp"], rec["warpbw_spp"], rec["mis"]) == (16, 64, 16, True)
+    assert rec["mitsuba_version"] == "fake" and rec["acceptance_relmse"] == 0.01 and rec["device"] == "cpu"
+    assert [c["case"] for c in rec["cases"]] == ["lambert", "ggx0.1"]
+    for c in rec["cases"]:
+        r = rows[c["case"]]
+        assert r[1:] == [f"{c['relmse']:.2e}", f"{c['relmse_sum']:.2e}", f"{c['psnr_db']:.2f}", str(c["pixels"]),
+                         f"{c['coverage_iou']:.4f}", f"{c['mitsuba_time_s']:.2f}", f"{c['warpbw_time_s']:.2f}",
+                         f"{c['time_ratio']:.2f}", f"{c['noise_floor_relmse']:.2e}", c["result"]]
+        assert (c["mitsuba_time_s"], c["warpbw_time_s"], c["time_ratio"], c["pixels"]) == (2.0, 1.0, 0.5, 64)
+        assert c["mitsuba_msamples_per_s"] == pytest.approx(16 * 16 * 64 / 2.0 / 1e6)
+    assert rec["cases"][0]["relmse"] == pytest.approx(0.05 ** 2 / 1.01, rel=5e-3)
+    assert [c["result"] for c in rec["cases"]] == ["PASS", "FAIL"]
+    with open(tmp_path / "c.png", "rb") as f:
+        assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+    img = matplotlib.image.imread(tmp_path / "c.png")
+    assert img.ndim == 3 and min(img.shape[:2]) > 100 and np.ptp(img[..., :3]) > 0
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--json", "old.json"], "old.json: already exists"),
+    (["--plot", "q.png"], "q.png: already exists"),
+    (["--json", "new.json"], "new.png: already exists"),
+    (["--json", "c.txt"], "--json c.txt: expected a path ending in .json"),
+    (["--plot", "c.jpg", "--force"], "--plot c.jpg: expected a path ending in .png"),
+    (["--json", "p.exr.json", "--plot", "p.exr", "--force"], "--plot p.exr: expected a path ending in .png"),
+])
+def test_compare_mitsuba_refuses_its_record_before_any_render(tmp_path, monkeypatch, argv, needle):
+    """--json / --plot follow warpbw bench's rules, checked before Mitsuba is imported or anything rendered."""
+    monkeypatch.chdir(tmp_path)
+    for name in ("old.json", "q.png", "new.png"):
+        (tmp_path / name).write_text("kept\n")
+    got = _run_compare_mitsuba(monkeypatch, tmp_path, ["--cases", "lambert", "--spp", "8", *argv])
+    assert got["outcome"].startswith("WarpbwError") and needle in got["outcome"], got["outcome"]
+    assert got["mitsuba"] == got["warpbw"] == []
+    assert all((tmp_path / n).read_text() == "kept\n" for n in ("old.json", "q.png", "new.png"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["new.png", "old.json", "p.exr", "q.png"]
+
+
 def test_compare_mitsuba_runs_warpbw_with_mis_by_default(tmp_path, monkeypatch):
     """Without --no-mis, warpbw renders with MIS (--help: like for like with Mitsuba's path integrator), at --spp
     for both renderers."""
-    got = _run_compare_mitsuba(monkeypatch, tmp_path, ["--cases", "lambert", "--spp", "8", "--no-warmup"])
+    got = _run_compare_mitsuba(monkeypatch, tmp_path, ["--cases", "lambert", "--spp", "8", "--no-warmup", "--runs",
+                                                       "1"])
     assert got["outcome"] == "returned 0", got["outcome"]
     assert got["warpbw"] == [(8, 0, True)] and got["mitsuba"] == [(8, 0)]
+
+
+def test_compare_mitsuba_times_the_median_of_its_runs_and_warns_below_three(tmp_path, monkeypatch, capsys):
+    """DESIGN.md's protocol times the median of at least 3 runs; the comparison timed one render of each renderer.
+    Now --runs renders of each (the same seed), the median of their times (stand-ins on a stand-in clock: Mitsuba
+    3, 1, 2 s, warpbw 6, 2, 4 s: medians 2 and 4, ratio 2.00); fewer than 3 warn as warpbw bench's --runs."""
+    cm = load_example("compare_mitsuba")
+    secs = {"mitsuba": iter([3.0, 1.0, 2.0]), "warpbw": iter([6.0, 2.0, 4.0])}
+    got = {"mitsuba": [], "warpbw": []}
+    img = np.ones((16, 16, 3), np.float32)
+    cov = np.zeros((16, 16), bool)
+    cov[2:14, 2:14] = True
+
+    def render_mitsuba(mi, scene, spp, seed):
+        got["mitsuba"].append((spp, seed))
+        return img, cov.astype(np.float32), next(secs["mitsuba"])
+
+    def render_warpbw(ps, rr, toml_text, spp, seed, mis):
+        got["warpbw"].append((spp, seed))
+        return img, cov.copy(), next(secs["warpbw"])
+
+    monkeypatch.setattr(cm, "import_mitsuba", lambda variant=None: (SimpleNamespace(__version__="fake"), "fake"))
+    monkeypatch.setattr(cm, "load_probe", lambda mi, path: np.ones((4, 8, 3), np.float32))
+    monkeypatch.setattr(cm, "import_warpbw", lambda: ("parse_scene", "render_reference"))
+    monkeypatch.setattr(cm, "mitsuba_scene", lambda *a: None)
+    monkeypatch.setattr(cm, "render_mitsuba", render_mitsuba)
+    monkeypatch.setattr(cm, "render_warpbw", render_warpbw)
+    probe = tmp_path / "p.exr"
+    probe.write_bytes(b"x")
+    assert outcome(cm.main, ["--probe", str(probe), "--resolution", "16", "--cases", "lambert", "--spp", "8",
+                             "--no-warmup"]) == "returned 0"
+    assert got == {"mitsuba": [(8, 0)] * 3, "warpbw": [(8, 0)] * 3}
+    out, err = capsys.readouterr()
+    row = next(ln.split() for ln in out.splitlines() if ln.startswith("lambert"))
+    assert row[6:9] == ["2.00", "4.00", "2.00"], row
+    assert "warning" not in err
+    for runs, warns in ((1, True), (2, True)):
+        secs = {"mitsuba": iter([1.0] * runs), "warpbw": iter([1.0] * runs)}
+        assert outcome(cm.main, ["--probe", str(probe), "--resolution", "16", "--cases", "lambert", "--spp", "8",
+                                 "--no-warmup", "--runs", str(runs)]) == "returned 0"
+        assert (f"compare_mitsuba: warning: --runs {runs}: the measurement protocol times the median of at least 3"
+                in capsys.readouterr().err) == warns
 
 
 def test_a_reference_frame_without_mis_draws_no_environment_samples():

@@ -22,8 +22,9 @@ import time
 from pathlib import Path
 
 from warpbw import __version__
-from warpbw.cli_common import (OneLineParser, check_output_dir, check_output_file, check_overwrite, init_warp,
-                               json_text, parse_path, parse_seed, printable, run_command)
+from warpbw.cli_common import (PROTOCOL_RUNS, OneLineParser, check_output_dir, check_output_file, check_overwrite,
+                               few_runs_warning, init_warp, json_text, parse_path, parse_seed, printable,
+                               record_paths, run_command, write_record)
 from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError
 from warpbw.io.staged import staged_outputs
 
@@ -636,9 +637,6 @@ def _number_list(name, kind, hi=None):
     return parse
 
 
-PROTOCOL_RUNS = 3   # DESIGN.md, measurement protocol: the median of at least 3 timed runs
-
-
 def _bench_outputs(args, scene, default_cache: Path | None = None) -> None:
     """Validate --json / --plot of a bench command and refuse to overwrite them without --force (or to overwrite one
     of the scene's files at all).  Every benchmark writes both (DESIGN.md, measurement protocol): the one not
@@ -647,12 +645,7 @@ def _bench_outputs(args, scene, default_cache: Path | None = None) -> None:
     after it was rendered."""
     if not (args.json or args.plot):
         raise WarpbwError("give --json OUT.json and/or --plot OUT.png (where to write the results)")
-    if args.json and Path(args.json).suffix.lower() != ".json":
-        raise WarpbwError(f"--json {args.json}: expected a path ending in .json")
-    if args.plot and Path(args.plot).suffix.lower() != ".png":
-        raise WarpbwError(f"--plot {args.plot}: expected a path ending in .png")
-    args.json = args.json or str(Path(args.plot).with_suffix(".json"))
-    args.plot = args.plot or str(Path(args.json).with_suffix(".png"))
+    args.json, args.plot = record_paths(args.json, args.plot)
     outs = [Path(args.json), Path(args.plot)]
     for option, path in (("--json", args.json), ("--plot", args.plot)):
         check_output_file(path, option, force=True)
@@ -687,15 +680,10 @@ def _cache_apart_from_outputs(cache, outputs) -> None:
 def _write_bench(args, record: dict, write_plot) -> None:
     """The bench record as JSON and its plot as PNG (both: ``_bench_outputs`` names them), both or neither: a plot
     that fails leaves an earlier record as it was."""
-    json_path, plot_path = Path(args.json), Path(args.plot)
-    with staged_outputs([json_path, plot_path], force=args.force) as at:
-        at[json_path].write_text(json_text(record))
-        write_plot(record, at[plot_path])
-    if not args.quiet:
-        print(f"record {printable(args.json)}, plot {printable(args.plot)}")
-    if args.runs < PROTOCOL_RUNS:
-        print(f"warpbw: warning: --runs {args.runs}: the measurement protocol times the median of at least "
-              f"{PROTOCOL_RUNS} runs (DESIGN.md); fewer give noisier times", file=sys.stderr)
+    write_record(args.json, args.plot, record, write_plot, force=args.force, say=not args.quiet)
+    warning = few_runs_warning(args.runs)
+    if warning is not None:
+        print(f"warpbw: warning: {warning}", file=sys.stderr)
 
 
 def cmd_bench(args) -> int:

@@ -9,7 +9,11 @@ outputs at once, and --force; never one of the command's inputs), ``init_warp(de
 without its banner or its no-CUDA-driver line, the device checked), ``json_text(record) -> str`` (strict JSON, a
 non-finite float as null) and ``write_json(path, record, say=True, force=True)`` (that, written where asked, and
 said so), ``printable(text)`` (control characters written as escapes, as every error and warning line, and each
-path of a summary line, is printed).
+path of a summary line, is printed).  A measurement's record and plot (DESIGN.md, measurement protocol: every
+benchmark writes both; ``warpbw bench`` and the timing scripts of examples/): ``record_paths(json, plot)`` (the
+suffixes checked, the one not given beside the other), ``check_record_outputs(json, plot, force, inputs)`` (that,
+and the overwrite check, before any work), ``write_record(json, plot, record, write_plot, force, say)`` (both or
+neither), ``PROTOCOL_RUNS`` and ``few_runs_warning(runs)`` (the protocol's least number of timed runs).
 """
 from __future__ import annotations
 
@@ -317,3 +321,49 @@ def write_json(path, record: dict, say: bool = True, force: bool = True) -> Path
     if say:
         print(f"wrote {printable(p)}")
     return p
+
+
+PROTOCOL_RUNS = 3   # DESIGN.md, measurement protocol: the median of at least 3 timed runs
+
+
+def few_runs_warning(runs: int, option: str = "--runs") -> str | None:
+    """The warning for fewer timed runs than the protocol's ``PROTOCOL_RUNS`` (without the ``PROG: warning:``
+    prefix), or None."""
+    if runs >= PROTOCOL_RUNS:
+        return None
+    return (f"{option} {runs}: the measurement protocol times the median of at least {PROTOCOL_RUNS} runs "
+            "(DESIGN.md); fewer give noisier times")
+
+
+def record_paths(json_path, plot_path) -> tuple[str | None, str | None]:
+    """``--json OUT.json`` / ``--plot OUT.png`` of a measurement, each refused unless it ends in its suffix; the
+    one not given goes beside the other, with its suffix (every benchmark writes both, DESIGN.md); neither given:
+    ``(None, None)``."""
+    if json_path and Path(json_path).suffix.lower() != ".json":
+        raise WarpbwError(f"--json {json_path}: expected a path ending in .json")
+    if plot_path and Path(plot_path).suffix.lower() != ".png":
+        raise WarpbwError(f"--plot {plot_path}: expected a path ending in .png")
+    if not (json_path or plot_path):
+        return None, None
+    return (str(json_path or Path(plot_path).with_suffix(".json")),
+            str(plot_path or Path(json_path).with_suffix(".png")))
+
+
+def check_record_outputs(json_path, plot_path, force: bool, inputs=()) -> tuple[str | None, str | None]:
+    """:func:`record_paths`, and both refused, before any work, where they cannot be written, exist without
+    --force or are one of ``inputs`` (``check_overwrite``).  Returns the two paths (or two Nones)."""
+    json_path, plot_path = record_paths(json_path, plot_path)
+    if json_path is not None:
+        check_overwrite([Path(json_path), Path(plot_path)], force, option=("--json", "--plot"), inputs=inputs)
+    return json_path, plot_path
+
+
+def write_record(json_path, plot_path, record: dict, write_plot, force: bool, say: bool = True) -> None:
+    """``record`` as JSON (:func:`json_text`) and ``write_plot(record, path)``'s PNG, both or neither: a plot that
+    fails leaves an earlier record as it was.  With ``say``, print where."""
+    j, p = Path(json_path), Path(plot_path)
+    with staged_outputs([j, p], force=force) as at:
+        at[j].write_text(json_text(record))
+        write_plot(record, at[p])
+    if say:
+        print(f"record {printable(json_path)}, plot {printable(plot_path)}")
