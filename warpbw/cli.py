@@ -833,7 +833,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "standard deviation the bandwidth pass measures "
                    "(may be below 1)")
     r.add_argument("--nb", type=_positive_int("nb", N_B_MAX), default=None,
-                   help="adaptive: directions per pixel of the bandwidth estimate, n_b (default 16, 002 Sec. 2.6)")
+                   help="adaptive: directions the bandwidth pass traces per 2x2 block of alike pixels (per pixel at "
+                   "an edge; each pixel pools its neighbours' too), n_b (default 16, 002 Sec. 2.6)")
     add_adaptive_options(r)
     r.add_argument("--filter", choices=_FILTER_METHODS, default=None,
                    help="scenes with planes (shape = \"plane\", cook-torrance materials) always render with the "
