@@ -1265,6 +1265,39 @@ def test_readme_plane_block_accepts_the_gmm_its_comment_builds(tmp_path, monkeyp
     assert list(prepared.mips) == ["armour"]
 
 
+def test_the_names_the_readme_points_to_exist():
+    """What the README names in backticks for a reader to look up is there: a dotted name (``warpbw.shading.
+    LAUNCH_COST_MAX``, ``warpbw.scene.check_scene``) imports and has that attribute, a bare constant
+    (``MESH_BYTES_PER_TRIANGLE``) is defined by a module of warpbw/ or precompute/, and a file path
+    (``warpbw/upsample.py``, ``tests/test_lights.py``) is a file of the repository.  A renamed constant or moved
+    module would otherwise leave the README pointing at nothing."""
+    import importlib
+
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    dotted = set(re.findall(r"`((?:warpbw|precompute)(?:\.\w+)+)(?:\([^`]*\))?`", readme))
+    constants = set(re.findall(r"`([A-Z][A-Z0-9_]{4,})`", readme))
+    paths = set(re.findall(r"`((?:warpbw|precompute|examples|tests|docs)/[\w/]+\.(?:py|md))`", readme))
+    assert len(dotted) >= 10 and len(constants) >= 2 and len(paths) >= 10, (dotted, constants, paths)
+    missing, absent = [], object()
+    for name in sorted(dotted):
+        parts = name.split(".")
+        for cut in range(len(parts), 0, -1):   # the longest importable prefix, then attributes
+            try:
+                obj = importlib.import_module(".".join(parts[:cut]))
+            except ModuleNotFoundError:
+                continue
+            for attr in parts[cut:]:
+                obj = getattr(obj, attr, absent)
+            if obj is absent:
+                missing.append(name)
+            break
+    defined = "\n".join(f.read_text() for d in ("warpbw", "precompute") for f in (root / d).rglob("*.py"))
+    missing += [c for c in sorted(constants) if not re.search(rf"^{c} *[:=]", defined, re.M)]
+    missing += [p for p in sorted(paths) if not (root / p).is_file()]
+    assert not missing, f"README names what is not there: {missing}"
+
+
 def test_a_prepared_scene_keeps_its_own_copy_of_the_scene():
     """prepare_scene shared the caller's Scene: a camera resized afterwards failed the next frame inside numpy
     (the camera on the device was the old one), an object appended was ignored.  The prepared scene now holds a
