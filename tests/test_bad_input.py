@@ -1768,6 +1768,14 @@ def test_options_that_would_be_ignored_are_refused(tmp_path):
     assert_one_line_error(r, "--seed 5", "planes.toml", "[[light]]s alone", "--filter ground_truth")
     r = run(["bench-filtering", "planes.toml", "--json", "f.json", "--spp", "4"], tmp_path)
     assert_one_line_error(r, "--spp 4", "planes.toml has none")
+    # planes beside a sphere, all under lights alone: --spp, --mis and --seed were accepted and drew nothing
+    (tmp_path / "mixed.toml").write_text((tmp_path / "planes.toml").read_text() + (
+        '[[object]]\nshape = "sphere"\ncenter = [0.0, 0.5, 0.0]\nradius = 0.3\nmaterial = "d"\n'
+        '[material.d]\ntype = "lambert"\nalbedo = 0.5\n'))
+    for opt, needles in ((["--spp", "8"], ("--spp 8", "--filter ground_truth")), (["--mis"], ("--mis",)),
+                         (["--seed", "7"], ("--seed 7", "--filter ground_truth"))):
+        r = run(["render", "mixed.toml", "-o", "out.exr", "--filter", "toksvig", *opt], tmp_path)
+        assert_one_line_error(r, *needles, "mixed.toml", "[[light]]s alone")
     r = run(["demo", "-o", "out.exr"], tmp_path)
     assert_one_line_error(r, "-o out.exr", "expected a folder")
     # a sphere lit by a directional light alone takes no sample: "8 spp" and MIS were printed and recorded

@@ -1234,6 +1234,70 @@ def test_readme_python_example_runs(tmp_path):
     assert n_p.channels == ["Y"] and n_p.pixels.shape == (32, 48, 1) and n_p.pixels.max() >= 1
 
 
+def test_readme_plane_block_accepts_the_gmm_its_comment_builds(tmp_path, monkeypatch):
+    """The README's plane block says where its ``gmm`` file comes from ("from warpbw-precompute gmm scales.exr --scale
+    0.05 -o scales.gmm", and that a file of another map, kind, scale, components or prior is refused): that command,
+    run on a small height field, builds a mipmap the block's material takes as it is.  A block whose scale, kind,
+    components or prior moved away from its comment would be refused here, as it is for a newcomer who runs it."""
+    from precompute.__main__ import main as precompute_main
+    from precompute.surfaces import hemispherical_scales
+    from warpbw.filtering import prepare_filtering
+    from warpbw.scene import parse_scene
+
+    blocks = re.findall(r"```toml\n(.*?)```", (Path(__file__).resolve().parents[1] / "README.md").read_text(), re.S)
+    plane = next(b for b in blocks if 'shape = "plane"' in b)
+    camera = re.search(r"\[camera\].*?(?=\n\[[^\[])", blocks[0], re.S).group(0)
+    command = re.search(r"from warpbw-precompute (gmm [^(\n]*?)\s*\n", plane).group(1).split()
+    assert "-o" in command and command[command.index("-o") + 1] == re.search(r'gmm = "([^"]+)"', plane).group(1)
+    normal_map = re.search(r'normal_map = "([^"]+)"', plane).group(1)
+    write_exr(tmp_path / normal_map, hemispherical_scales(24).astype(np.float32), channels=["Y"])
+    monkeypatch.chdir(tmp_path)
+    assert precompute_main([*command, "-q"]) == 0
+    scene = parse_scene(camera.replace("resolution = [512, 512]", "resolution = [16, 12]") + "\n" + plane, tmp_path,
+                        "README.md")
+    import precompute.gmm_mipmap as gmm_mipmap
+
+    def no_build(*args, **kwargs):   # the file must be taken as it is, not rebuilt
+        raise AssertionError("the README's gmm file was not used")
+
+    monkeypatch.setattr(gmm_mipmap, "build_gmm_mipmap", no_build)
+    prepared = prepare_filtering(scene, methods=("gmm_aligned",))
+    assert list(prepared.mips) == ["armour"]
+
+
+def test_the_names_the_readme_points_to_exist():
+    """What the README names in backticks for a reader to look up is there: a dotted name (``warpbw.shading.
+    LAUNCH_COST_MAX``, ``warpbw.scene.check_scene``) imports and has that attribute, a bare constant
+    (``MESH_BYTES_PER_TRIANGLE``) is defined by a module of warpbw/ or precompute/, and a file path
+    (``warpbw/upsample.py``, ``tests/test_lights.py``) is a file of the repository.  A renamed constant or moved
+    module would otherwise leave the README pointing at nothing."""
+    import importlib
+
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    dotted = set(re.findall(r"`((?:warpbw|precompute)(?:\.\w+)+)(?:\([^`]*\))?`", readme))
+    constants = set(re.findall(r"`([A-Z][A-Z0-9_]{4,})`", readme))
+    paths = set(re.findall(r"`((?:warpbw|precompute|examples|tests|docs)/[\w/]+\.(?:py|md))`", readme))
+    assert len(dotted) >= 10 and len(constants) >= 2 and len(paths) >= 10, (dotted, constants, paths)
+    missing, absent = [], object()
+    for name in sorted(dotted):
+        parts = name.split(".")
+        for cut in range(len(parts), 0, -1):   # the longest importable prefix, then attributes
+            try:
+                obj = importlib.import_module(".".join(parts[:cut]))
+            except ModuleNotFoundError:
+                continue
+            for attr in parts[cut:]:
+                obj = getattr(obj, attr, absent)
+            if obj is absent:
+                missing.append(name)
+            break
+    defined = "\n".join(f.read_text() for d in ("warpbw", "precompute") for f in (root / d).rglob("*.py"))
+    missing += [c for c in sorted(constants) if not re.search(rf"^{c} *[:=]", defined, re.M)]
+    missing += [p for p in sorted(paths) if not (root / p).is_file()]
+    assert not missing, f"README names what is not there: {missing}"
+
+
 def test_a_prepared_scene_keeps_its_own_copy_of_the_scene():
     """prepare_scene shared the caller's Scene: a camera resized afterwards failed the next frame inside numpy
     (the camera on the device was the old one), an object appended was ignored.  The prepared scene now holds a

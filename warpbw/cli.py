@@ -368,12 +368,17 @@ def cmd_render(args) -> int:
     mixed = _is_mixed(scene)
     if args.method == "adaptive" and args.spp is not None and not mixed:
         raise WarpbwError("--spp applies to --method reference only (--method adaptive takes --budget)")
-    if scene.has_planes and not mixed and (args.spp is not None or args.seed is not None) \
+    if scene.has_planes and (args.spp is not None or args.seed is not None) \
             and scene.environment is None and args.filter != "ground_truth":
+        # a mixed scene's spheres and meshes under lights alone take no samples either (their term is exact)
         opt = f"--spp {args.spp}" if args.spp is not None else f"--seed {args.seed}"
-        raise WarpbwError(f"{opt}: the planes of {scene.source} are lit by [[light]]s alone, shaded in closed form "
-                          "without random numbers; --spp and --seed apply to the rays of --filter ground_truth, or "
-                          "the samples of an [environment]")
+        lit = f"{scene.source} is" if mixed else f"the planes of {scene.source} are"
+        raise WarpbwError(f"{opt}: {lit} lit by [[light]]s alone, shaded in closed form without random numbers; "
+                          "--spp and --seed apply to the rays of --filter ground_truth, or the samples of an "
+                          "[environment]")
+    if mixed and scene.environment is None and args.mis:
+        raise WarpbwError(f"--mis: {scene.source} is lit by [[light]]s alone, shaded in closed form without samples; "
+                          "--mis weighs the samples of an [environment]")
     if not scene.has_planes and scene.environment is None \
             and (args.spp is not None or args.mis or args.seed is not None):
         # the directional lights' term is exact: a reference frame of them takes no sample for --spp to count,
@@ -816,7 +821,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "standard deviation the bandwidth pass measures "
                    "(may be below 1)")
     r.add_argument("--nb", type=_positive_int("nb", N_B_MAX), default=None,
-                   help="adaptive: directions per pixel of the bandwidth estimate, n_b (default 16, 002 Sec. 2.6)")
+                   help="adaptive: directions the bandwidth pass traces per 2x2 block of alike pixels (per pixel at "
+                   "an edge; each pixel pools its neighbours' too), n_b (default 16, 002 Sec. 2.6)")
     add_adaptive_options(r)
     r.add_argument("--filter", choices=_FILTER_METHODS, default=None,
                    help="scenes with planes (shape = \"plane\", cook-torrance materials) always render with the "
