@@ -201,11 +201,11 @@ def run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers: int
     workers = min(cores, len(items)) if workers is None else workers
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise WarpbwError(f"workers: expected an integer >= 1, got {workers!r}")
-    workers = 1 if scheduler == "sync" else workers
+    workers = 1 if scheduler == "sync" else workers if isinstance(scheduler, str) else None   # a client's own
     items = list(items)
     check_outputs(items, out_dir, tables, force=force, resume=resume)
     Path(out_dir).mkdir(parents=True, exist_ok=True)
-    threads = _threads_per_task(scheduler, workers)
+    threads = _threads_per_task(scheduler, workers or 1)
     tasks = [dask.delayed(build_item, pure=False)(it, output_paths(it, out_dir, tables), threads, force, resume)
              for it in items]
     t0 = time.perf_counter()
@@ -217,14 +217,15 @@ def run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers: int
     wall = time.perf_counter() - t0
     work = sum(sum(r["time_s"].values()) for r in records)
     return {"format": BATCH_FORMAT, "writer": f"warpbw {__version__}", "out_dir": str(out_dir),
-            "tables": list(tables), "scheduler": scheduler if isinstance(scheduler, str) else type(scheduler).__name__,
+            "tables": list(tables), "scheduler": scheduler if isinstance(scheduler, str) else
+            getattr(scheduler, "__qualname__", None) or type(scheduler).__name__,   # a client: "Client"
             "workers": workers, "threads_per_task": threads, "wall_s": wall, "work_s": work,
             "failed": sum(r["error"] is not None for r in records), "items": records}
 
 
 class _progress_bar:
     """A tqdm bar over the batch's items, advanced by Dask's local schedulers as each item's task ends (a
-    distributed client runs no such callback: the bar then jumps at the end)."""
+    distributed client runs no such callback here: the bar then fills at the end)."""
 
     def __init__(self, total: int, enabled: bool):
         self.total, self.enabled = total, enabled
@@ -248,5 +249,7 @@ class _progress_bar:
     def __exit__(self, *exc):
         if self.enabled:
             self.callback.__exit__(*exc)
+            if exc[0] is None:   # every item done (a distributed client's tasks ran no callback here)
+                self.bar.update(self.total - self.bar.n)
             self.bar.close()
         return False

@@ -142,3 +142,22 @@ def test_a_progress_bar_over_the_brdfs(tmp_path, monkeypatch, tqdm_bars):
     assert outcome(main, [*args, "-o", "a", "-q"]) == "returned 0" and tqdm_bars == []
     assert outcome(main, [*args, "-o", "b"]) == "returned 0"
     assert [(b.desc, b.total, b.n) for b in tqdm_bars] == [("batch", 3, 3)]
+
+
+def test_a_scheduler_of_the_callers_own_runs_the_same_tasks(tmp_path, monkeypatch, tqdm_bars):
+    """``run_batch(scheduler=...)`` takes what ``dask.compute`` takes (a ``dask.distributed.Client``, here dask's own
+    synchronous ``get``): the same files as the sync scheduler, the record names it and claims no worker count of
+    this machine, and the bar is full at the end."""
+    import dask
+
+    from precompute.batch import batch_items, run_batch
+
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    items = batch_items(["npf.bin"], ["chrome", "steel"])
+    own = run_batch(items, "own", tables=("sampling",), scheduler=dask.get)
+    sync = run_batch(items, "sync", tables=("sampling",), scheduler="sync", progress=False)
+    assert (own["scheduler"], own["workers"], sync["workers"]) == (dask.get.__qualname__, None, 1)
+    for m in ("chrome", "steel"):
+        assert (tmp_path / f"own/{m}.sampling.npz").read_bytes() == (tmp_path / f"sync/{m}.sampling.npz").read_bytes()
+    assert [(b.total, b.n) for b in tqdm_bars] == [(2, 2)]
