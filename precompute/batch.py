@@ -185,7 +185,7 @@ def _dask():
 def _threads_per_task(scheduler, workers: int) -> int:
     """The bandwidth tables' threads in each task: the cores left to it by the other workers of this machine."""
     cores = os.cpu_count() or 1
-    return max(1, cores // workers) if scheduler in SCHEDULERS else 1
+    return max(1, cores // workers) if isinstance(scheduler, str) else 1
 
 
 def run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers: int | None = None, force: bool = False,
@@ -197,12 +197,14 @@ def run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers: int
     tables = check_tables(tables)
     if isinstance(scheduler, str) and scheduler not in SCHEDULERS:
         raise WarpbwError(f"scheduler: expected one of {', '.join(SCHEDULERS)} (or a Dask client), got {scheduler!r}")
+    items = list(items)
+    if not items:
+        raise WarpbwError("items: expected at least one BRDF (batch_items gives them)")
     cores = os.cpu_count() or 1
     workers = min(cores, len(items)) if workers is None else workers
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise WarpbwError(f"workers: expected an integer >= 1, got {workers!r}")
     workers = 1 if scheduler == "sync" else workers if isinstance(scheduler, str) else None   # a client's own
-    items = list(items)
     check_outputs(items, out_dir, tables, force=force, resume=resume)
     Path(out_dir).mkdir(parents=True, exist_ok=True)
     threads = _threads_per_task(scheduler, workers or 1)

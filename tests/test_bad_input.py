@@ -3505,3 +3505,20 @@ def test_batch_without_dask_says_how_to_install_it(tmp_path, monkeypatch):
     with pytest.raises(WarpbwError, match=r'not installed: pip install -e "\.\[batch\]"'):
         run_batch([BatchItem("x.binary", None, "x")], tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("kw,needle", [
+    ({"items": []}, "items: expected at least one BRDF"),
+    ({"workers": 0}, "workers: expected an integer >= 1, got 0"),
+    ({"workers": True}, "workers: expected an integer >= 1, got True"),
+    ({"scheduler": "cluster"}, "scheduler: expected one of processes, threads, sync (or a Dask client), got 'cluster'"),
+    ({"tables": ()}, "tables: expected some of sampling, bandwidth, each once, got none"),
+])
+def test_run_batch_refuses_bad_arguments_before_any_work(tmp_path, kw, needle):
+    """The Python entry of the batch names its parameter, as the command names its option; no folder is made."""
+    from precompute.batch import BatchItem, run_batch
+
+    args = {"items": [BatchItem("x.binary", None, "x")], "out_dir": tmp_path / "out", **kw}
+    with pytest.raises(WarpbwError, match=re.escape(needle)):
+        run_batch(**args)
+    assert not (tmp_path / "out").exists()
