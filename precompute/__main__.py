@@ -122,7 +122,7 @@ def cmd_batch(args) -> int:
 
     tables = TABLES if args.tables is None else tuple(args.tables)
     try:    # the library names its parameters; here they are options
-        items = batch_items(args.sources, None if args.materials == ["all"] else args.materials)
+        items = batch_items(args.sources, args.materials)
         check_tables(tables)
     except WarpbwError as exc:
         msg = str(exc)
@@ -268,8 +268,8 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("sources", nargs="+", metavar="SOURCE",
                     help="an NPF table (npf.bin), a MERL .binary file, or a folder of MERL files")
     bt.add_argument("-o", "--output", type=parse_path, required=True, help="output folder (made if absent)")
-    bt.add_argument("--materials", type=_csv("materials"), default=["all"],
-                    help="the NPF tables' materials, comma-separated (default all 100)")
+    bt.add_argument("--materials", type=_csv("materials"), default=None,
+                    help="the NPF tables' materials, comma-separated (without it, all 100)")
     bt.add_argument("--tables", type=_csv("tables"), default=None,
                     help="which tables: sampling, bandwidth or both, comma-separated (default both)")
     bt.add_argument("--scheduler", choices=("processes", "threads", "sync"), default="processes",

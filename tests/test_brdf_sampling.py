@@ -48,7 +48,7 @@ def fast_builders(monkeypatch):
             progress(k)
         return _sampling_table()
 
-    def bandwidth(evaluate, resolution=128, progress=None):
+    def bandwidth(evaluate, resolution=128, progress=None, threads=None):
         for k in range(1, N_THETA_I + 1):
             progress(k)
         return np.full(SHAPE, 2.0, np.float32)
