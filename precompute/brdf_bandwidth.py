@@ -56,7 +56,10 @@ reflection, ``f(theta) = 2 f(85 deg) - f(170 deg - theta)``, which keeps value a
 continuous, through the rim and the square's corners (the map formula extended to ``r <= sqrt 2``),
 and the image is edge-padded for the wavelet transform.  Zero padding or a hard stop would put a
 false step or kink at the rim (a Lambert lobe would read as a sharp disc).  Cells beyond the rim
-carry the bandwidth of that continuation: a by-product, never looked up for real directions.
+carry the bandwidth of that continuation: a by-product, never looked up for real directions (a look-up,
+:func:`wo_to_map` and the renderer's, puts every direction at ``r <= 1``).  A cell crossing the rim takes
+only its pixels of real directions (below): the continuation's pixels had put GGX's rim cells up to 1.9x,
+gold-metallic-paint's 1.8x, above what their real pixels give (session 67).
 
 Jacobian to radians (per unit of map coordinate, at ``r``; ``cos(theta_o/2) = sqrt(1 - r^2/2)``):
 radial ``d theta / d r = sqrt(2) / cos(theta_o/2)`` (sqrt 2 .. 2), tangential
@@ -74,7 +77,10 @@ per-pixel bandwidth (:func:`precompute.wavelets.local_bandwidth`, 95% energy rul
 periods 2 .. 256 px, so a lobe broader than the map reads as at most ~2^-7.5 cycles/px, ~0.25
 cycles/radian; an exactly constant lobe reads 0) is
 reduced to 16x16 cells by a MAX over each ``n/16`` x ``n/16`` block (conservative), as the paper
-computes "the bandwidth for higher-resolution angular slices and scale[s] down the slices".
+computes "the bandwidth for higher-resolution angular slices and scale[s] down the slices".  In a block
+that holds real directions the max runs over its pixels whose square meets the closed disc ``r <= 1``
+(centre inside the rim or not: every real direction a look-up can put in the cell lies in one of them,
+down to a cell the rim only grazes, as at n = 16 or 32); a block wholly beyond the rim takes all its pixels.
 
 Cost: ``16 * n^2`` BRDF evaluations and 16 wavelet analyses; a few seconds per material at n = 128.
 """
@@ -104,7 +110,8 @@ N_THETA_I = 16          # incident elevations (bin centres uniform over [0, pi/2
 N_CELLS = 16            # outgoing map cells per side; paper: "a 16x16 image for each reflectance lobe"
 DEFAULT_RESOLUTION = 128  # analysed slice, n x n pixels (a multiple of N_CELLS)
 FORMAT = "warpbw.brdf-bandwidth"
-VERSION = 2   # 2: wavelet bands centred on the cascade's delays (session 58); 1: on one level's
+VERSION = 3   # 3: a cell crossing the rim takes its real directions' pixels only (session 67); 2: wavelet bands
+              # centred on the cascade's delays (session 58); 1: on one level's
 SHAPE = (N_THETA_I, N_CELLS, N_CELLS)
 GRAZING_LIMIT = math.radians(85.0)  # outgoing elevations past this are continued, not evaluated
 WAVELET_LEVELS = 7                  # bands analysed: periods 2 .. 256 px (module docstring)
@@ -250,10 +257,22 @@ def slice_bandwidth(f: np.ndarray) -> np.ndarray:
     return b / map_radians_per_pixel(n)
 
 
+def _real_pixels(n: int) -> np.ndarray:
+    """``(n, n)`` bool: the pixels that hold real directions, those whose square meets the closed disc ``r <= 1``
+    (the square's nearest point to the map's centre lies within it), centre beyond the rim or not."""
+    x, y = _pixel_coords(n)
+    half = 1.0 / n   # half a pixel's side, 2/n map units
+    return np.hypot(np.maximum(np.abs(x) - half, 0.0), np.maximum(np.abs(y) - half, 0.0)) <= 1.0
+
+
 def _block_max(a: np.ndarray) -> np.ndarray:
+    """16x16 cells of a per-pixel map: the max over the block's pixels of real directions (``_real_pixels``), or
+    over the whole block where it holds none (beyond the rim: the continuation's, module docstring)."""
     n = a.shape[0]
     k = n // N_CELLS
-    return a.reshape(N_CELLS, k, N_CELLS, k).max(axis=(1, 3))
+    blocks = a.reshape(N_CELLS, k, N_CELLS, k)
+    real = _real_pixels(n).reshape(N_CELLS, k, N_CELLS, k)
+    return np.where(real.any(axis=(1, 3)), np.where(real, blocks, -np.inf).max(axis=(1, 3)), blocks.max(axis=(1, 3)))
 
 
 def brdf_bandwidth_table(evaluate: Callable, resolution: int = DEFAULT_RESOLUTION,

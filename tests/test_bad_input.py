@@ -1315,16 +1315,19 @@ def _asset_variants(tmp_path: Path) -> dict:
     import zipfile
 
     from precompute.assetfile import write_asset
+    from precompute.brdf_bandwidth import VERSION
 
-    ok = write_asset(tmp_path / "ok.npz", "warpbw.brdf-bandwidth", 2, "m", "d0",
+    ok = write_asset(tmp_path / "ok.npz", "warpbw.brdf-bandwidth", VERSION, "m", "d0",
                      {"nu_rho": np.ones((16, 16, 16), np.float32)})
     (tmp_path / "folder.npz").mkdir()
     (tmp_path / "text.npz").write_text("not an archive\n")
     (tmp_path / "cut.npz").write_bytes(ok.read_bytes()[:200])
-    write_asset(tmp_path / "v1.npz", "warpbw.brdf-bandwidth", 1, "m", "d0", {"nu_rho": np.ones((16, 16, 16))})
+    write_asset(tmp_path / "old.npz", "warpbw.brdf-bandwidth", VERSION - 1, "m", "d0",
+                {"nu_rho": np.ones((16, 16, 16))})
     write_asset(tmp_path / "other.npz", "someone-elses-format", 2, "m", "d0", {"x": np.ones(3)})
     write_asset(tmp_path / "lacks.npz", "warpbw.brdf-sampling", 2, "m", "d0", {"density": np.ones((2, 3, 4))})
-    write_asset(tmp_path / "ints.npz", "warpbw.brdf-bandwidth", 2, "m", "d0", {"nu_rho": np.ones((16, 16, 16), int)})
+    write_asset(tmp_path / "ints.npz", "warpbw.brdf-bandwidth", VERSION, "m", "d0",
+                {"nu_rho": np.ones((16, 16, 16), int)})
     np.savez(tmp_path / "plain.npz", a=np.ones(3))
     with zipfile.ZipFile(tmp_path / "badjson.npz", "w") as z:
         with z.open("__header__.npy", "w") as f:
@@ -1335,7 +1338,7 @@ def _asset_variants(tmp_path: Path) -> dict:
             np.lib.format.write_array_header_1_0(f, {"descr": "<f4", "fortran_order": False, "shape": (2 ** 40,)})
             f.write(bytes(64))
     return {"missing.npz": "no such file", "folder.npz": "a folder, not a file", "text.npz": "not a .npz archive",
-            "cut.npz": "not a .npz archive", "v1.npz": "version 1; this reader reads version 2",
+            "cut.npz": "not a .npz archive", "old.npz": f"version {VERSION - 1}; this reader reads version {VERSION}",
             "other.npz": "not a warpbw asset of a known format", "lacks.npz": "arrays not as the format has them",
             "ints.npz": "expected floating-point arrays", "plain.npz": "not a warpbw asset (no __header__ member)",
             "badjson.npz": "__header__ member is not JSON", "huge.npz": "a damaged .npz archive"}
