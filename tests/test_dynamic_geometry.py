@@ -100,7 +100,7 @@ def test_deformation_moves_the_mesh_and_frame_zero_only_ripples():
     # its azimuth about the axis there (the checks above hold for any twist, which keeps the distance to the axis);
     # at frame 3 the top and the bottom turn opposite ways (the twist grows with the height from the middle)
     off = r_rest > 1e-6
-    turn = lambda v: np.angle((v[:, 0] + 1j * v[:, 2]) / (rest[:, 0] + 1j * rest[:, 2]))[off]  # noqa: E731
+    turn = lambda v: np.angle((v[off, 0] + 1j * v[off, 2]) / (rest[off, 0] + 1j * rest[off, 2]))  # noqa: E731
     np.testing.assert_allclose(turn(v0), 0.0, atol=1e-12)
     top, bottom = rest[off, 1] > 0.5, rest[off, 1] < -0.5
     assert np.all(np.sign(turn(v3)[top]) == -np.sign(turn(v3)[bottom][0])) and np.abs(turn(v3)).max() > 0.05
@@ -129,33 +129,8 @@ def test_dynamic_geometry_hands_budget_and_per_frame_seeds_and_reports_wall_fps(
     mean_fps 1 / the mean wall time, bandwidth_share the mean bandwidth time over the mean stage total, and
     mean_shaded_fraction the mean of the frames' shaded fractions: a figure computed from another time (the
     stage sum alone), a fixed seed or the default budget would break these identities."""
-    import types
-
-    import warpbw.pipeline
-
-    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
-    ex = _example()
-    monkeypatch.setattr(ex, "DEFAULT_ENV", tmp_path / "no-probe.exr")
-    mesh = tmp_path / "sphere.obj"
-    trimesh.creation.icosphere(subdivisions=1, radius=0.8).export(mesh)
-    calls = []
-
-    def spy(prep, budget, *a, **kw):        # a frame with known stage times and shaded fraction
-        calls.append((budget, kw.get("seed")))
-        k = len(calls)
-        ts = {"gbuffer": 0.001 * k, "bandwidth": 0.002 * k, "shading": 0.003, "upsampling": 0.001,
-              "hierarchy": 0.0005, "frame": 0.0075 + 0.003 * k}
-        n = prep.width * prep.height
-        return types.SimpleNamespace(image=np.zeros((prep.height, prep.width, 3), np.float32),
-                                     coverage=np.ones((prep.height, prep.width), bool),
-                                     aovs={"shaded": np.ones((prep.height, prep.width), bool)},
-                                     stats={"time_s": ts, "shaded_fraction": 0.1 * k, "pixels_shaded": k,
-                                            "pixels_covered": n, "samples": 3 * k, "samples_per_covered_pixel": 3.0,
-                                            "stages": ["gbuffer", "bandwidth_pass"]})
-
-    monkeypatch.setattr(warpbw.pipeline, "render_adaptive", spy)
-    ex.main(["--mesh", str(mesh), "--out", str(tmp_path / "o"), "--frames", "2", "--size", "8", "--budget", "3",
-             "--seed", "40", "--material", "ggx"])
+    how, calls = _run_with_known_frames(tmp_path, monkeypatch, ["--frames", "2", "--budget", "3", "--seed", "40"])
+    assert how.startswith("returned {"), how
     assert calls == [(3.0, 40), (3.0, 40), (3.0, 41)]    # warm-up, then frames 0 and 1
     rec = json.loads((tmp_path / "o" / "dynamic_geometry.json").read_text())
     fr, s = rec["frames"], rec["summary"]
@@ -172,7 +147,7 @@ def test_dynamic_geometry_hands_budget_and_per_frame_seeds_and_reports_wall_fps(
 
 def _run_with_known_frames(tmp_path, monkeypatch, argv):
     """The example's main with a stand-in render_adaptive whose call k (the warm-up is call 1) takes stage times
-    and a shaded fraction that grow with k; returns the main's outcome and the calls."""
+    and a shaded fraction that grow with k; returns the main's outcome and the calls' (budget, seed)."""
     import types
 
     import warpbw.pipeline
@@ -185,8 +160,8 @@ def _run_with_known_frames(tmp_path, monkeypatch, argv):
     trimesh.creation.icosphere(subdivisions=1, radius=0.8).export(mesh)
     calls = []
 
-    def spy(prep, budget, *a, **kw):
-        calls.append(kw.get("seed"))
+    def spy(prep, budget, *a, **kw):        # a frame with known stage times and shaded fraction
+        calls.append((budget, kw.get("seed")))
         k = len(calls)
         ts = {"gbuffer": 0.001 * k, "bandwidth": 0.002 * k, "shading": 0.003, "upsampling": 0.001,
               "hierarchy": 0.0005, "frame": 0.0055 + 0.003 * k}
