@@ -2265,3 +2265,31 @@ def test_ctrl_c_stops_a_one_pixel_frame_of_two_billion_samples_between_its_launc
         child.kill()
     assert (child.returncode, err.strip()) == (130, "warpbw: interrupted")
     assert [p.name for p in tmp_path.iterdir() if p.name != "cache"] == ["scene.toml"]   # no image, no temporary
+
+
+def test_info_says_which_nu_rho_tables_the_scene_names_rather_than_builds(tmp_path):
+    """warpbw info --method adaptive said every glossy material's nu_rho table is "built once and cached", also for a
+    material whose scene names a precomputed ``bandwidth`` file (which the pass reads, and builds nothing): the
+    materials that name one are now listed as read from the scene's files."""
+    from conftest import fake_npf_table
+    from warpbw.pipeline import scene_summary
+    from warpbw.scene import parse_scene
+
+    npf = fake_npf_table(tmp_path / "npf.bin")
+    write_exr(tmp_path / "sky.exr", np.full((16, 32, 3), 0.5, np.float32))
+    head = ['[camera]', 'position = [0.0, 0.0, 3.0]', 'look_at = [0.0, 0.0, 0.0]', 'fov = 50.0',
+            'resolution = [16, 16]', '[environment]', 'file = "sky.exr"']
+    objs = ['[[object]]', 'shape = "sphere"', 'center = [-0.6, 0.0, 0.0]', 'radius = 0.5', 'material = "a"',
+            '[[object]]', 'shape = "sphere"', 'center = [0.6, 0.0, 0.0]', 'radius = 0.5', 'material = "b"']
+    mats = [f'[material.{m}]\ntype = "npf"\ntable = "{npf.name}"\nname = "{n}"' for m, n in (("a", "chrome"),
+                                                                                          ("b", "nickel"))]
+
+    def bandwidth_stage(extra_a: str) -> str:
+        text = "\n".join(head + objs + [mats[0] + extra_a, mats[1]])
+        stages = scene_summary(parse_scene(text, tmp_path, "s.toml"), "adaptive")["stages"]
+        return next(st for st in stages if st.startswith("bandwidth pass"))
+
+    assert bandwidth_stage("").endswith("nu_rho table, built once and cached")
+    (tmp_path / "a.npz").write_bytes(b"")   # named, not read: the summary loads no asset
+    assert bandwidth_stage('\nbandwidth = "a.npz"').endswith(
+        "nu_rho table, built once and cached (a's read from the scene's bandwidth file)")

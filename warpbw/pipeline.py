@@ -754,9 +754,12 @@ def scene_summary(scene: Scene, method: str = "reference") -> dict:
     elif env is None:
         raise _nothing_to_adapt(scene)
     else:
+        named = [n for n in surfaces.material_order if surfaces.materials[n].bandwidth is not None]
+        given = (f" ({', '.join(named)}'s read from the scene's bandwidth file{'s' if len(named) > 1 else ''})"
+                 if named else "")
         stages += (["mesh curvature (|H| over about two rings of vertices, 002 Eq. 3)"] if has_mesh else []) + [
             "bandwidth pass (002 Eq. 4-11): the probe's angular bandwidth (wavelets) and each glossy "
-            "material's nu_rho table, built once and cached",
+            f"material's nu_rho table, built once and cached{given}",
             "level pyramid (min filter) and variance (max filter) (002 Sec. 3.1)",
             "hierarchical shading (002 Sec. 3.2)" + light,
             "up-sampling (anisotropic bilateral weights, 002 Sec. 3.2)"]
