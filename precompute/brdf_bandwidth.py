@@ -7,8 +7,8 @@ Public:
         (``evaluate(wi, wo) -> (N, 3)``, RGB; ``threads``: the slices' analyses run on that many, default one per
         core up to ``TABLE_THREADS_MAX``, bit for bit one thread's table)
     ``analytic_brdf_bandwidth_table(evaluate, resolution=128) -> (16, 16, 16) float32``
-    ``build_brdf_bandwidth(source, progress=True, resolution=128, threads=None) -> (16, 16, 16) float32``   (``source``: what
-        :func:`precompute.brdf_sampling.brdf_source` returns, not a path)
+    ``build_brdf_bandwidth(source, progress=True, resolution=128, threads=None) -> (16, 16, 16) float32``
+        (``source``: what :func:`precompute.brdf_sampling.brdf_source` returns, not a path)
     ``write_brdf_bandwidth(path, table, source, force=False)`` / ``read_brdf_bandwidth(path, source=None)``   (the
         writer refuses the tables the reader refuses, and never writes over the source's file or a read-only file)
     ``load_or_build_bandwidth(source, explicit=None, cache=None, progress=True) -> (table, origin)``

@@ -70,7 +70,8 @@ def test_every_npf_material_by_default_and_the_threads_scheduler_agrees(tmp_path
     monkeypatch.chdir(tmp_path)
     npf = fake_npf_table(tmp_path / "npf.bin")
     items = batch_items([npf])
-    assert [i.name for i in items] == list(NPF_MATERIAL_NAMES) and {i.material for i in items} == set(NPF_MATERIAL_NAMES)
+    assert [i.name for i in items] == list(NPF_MATERIAL_NAMES)
+    assert {i.material for i in items} == set(NPF_MATERIAL_NAMES)
     assert _batch("npf.bin", "--materials", "Chrome,nickel.binary", "--tables", "sampling", "-o", "out",
                   "--scheduler", scheduler) == "returned 0"
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["batch.json", "chrome.sampling.npz",
@@ -151,8 +152,8 @@ def test_a_progress_bar_over_the_brdfs(tmp_path, monkeypatch, tqdm_bars):
 
 def test_a_scheduler_of_the_callers_own_runs_the_same_tasks(tmp_path, monkeypatch, tqdm_bars):
     """``run_batch(scheduler=...)`` takes what ``dask.compute`` takes (a ``dask.distributed.Client``, here dask's own
-    synchronous ``get``): the same files as the sync scheduler (and it as the single command), the record names it and claims no worker count of
-    this machine, and the bar is full at the end."""
+    synchronous ``get``): the same files as the sync scheduler (and it as the single command), the record names it
+    and claims no worker count of this machine, and the bar is full at the end."""
     import dask
 
     from precompute.batch import batch_items, run_batch

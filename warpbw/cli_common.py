@@ -10,10 +10,11 @@ without its banner or its no-CUDA-driver line, the device checked), ``json_text(
 non-finite float as null) and ``write_json(path, record, say=True, force=True)`` (that, written where asked, and
 said so), ``printable(text)`` (control characters written as escapes, as every error and warning line, and each
 path of a summary line, is printed).  A measurement's record and plot (DESIGN.md, measurement protocol: every
-benchmark writes both; ``warpbw bench`` and the timing scripts of examples/): ``record_paths(json_path, plot_path)`` (the
-suffixes checked, the one not given beside the other), ``check_record_outputs(json_path, plot_path, force, inputs)`` (that,
-and the overwrite check, before any work), ``write_record(json_path, plot_path, record, write_plot, force, say)`` (both or
-neither), ``PROTOCOL_RUNS`` and ``few_runs_warning(runs)`` (the protocol's least number of timed runs).
+benchmark writes both; ``warpbw bench`` and the timing scripts of examples/):
+``record_paths(json_path, plot_path)`` (the suffixes checked, the one not given beside the other),
+``check_record_outputs(json_path, plot_path, force, inputs)`` (that, and the overwrite check, before any work),
+``write_record(json_path, plot_path, record, write_plot, force, say)`` (both or neither), ``PROTOCOL_RUNS`` and
+``few_runs_warning(runs)`` (the protocol's least number of timed runs).
 """
 from __future__ import annotations
 
