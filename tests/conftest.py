@@ -225,6 +225,18 @@ def uniform_sampler_table(n_theta_o=None, n_u=None, n_phi=None):
                         np.full((nt, nu, nphi), 1.0 / (2.0 * np.pi), np.float32))
 
 
+def plot_png(path) -> np.ndarray:
+    """A benchmark's plot: a whole PNG (its signature, and matplotlib reads it), a real figure (over 100 pixels a
+    side) and not blank; returned as (H, W, 3+) floats."""
+    import matplotlib.image
+
+    with open(path, "rb") as f:
+        assert f.read(8) == b"\x89PNG\r\n\x1a\n", path
+    img = matplotlib.image.imread(path)
+    assert img.ndim == 3 and min(img.shape[:2]) > 100 and np.ptp(img[..., :3]) > 0, (path, img.shape)
+    return img
+
+
 def fake_npf_table(path: Path) -> Path:
     """An NPF table of the right size whose every value is 0.25: each row a valid (if odd) fit, reflecting 0.79 of
     the light it receives (precompute.brdf_sampling.ALBEDO_WARN)."""

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import ROOT, load_example
+from conftest import ROOT, load_example, plot_png
 from warpbw.pipeline import prepare_scene
 from warpbw.scene import parse_scene
 
@@ -210,8 +210,6 @@ def test_record_and_plot_hold_the_printed_figures(ac, monkeypatch, tmp_path, cap
     record alone; --plot now writes the noise gains beside it, and every figure printed is the record's."""
     import re
 
-    import matplotlib.image
-
     monkeypatch.chdir(tmp_path)
     (tmp_path / "s.toml").write_text("")
     how, ran = _run_main(ac, monkeypatch, ["s.toml", "--plot", "a.png", "--device", "cpu"])
@@ -227,8 +225,7 @@ def test_record_and_plot_hold_the_printed_figures(ac, monkeypatch, tmp_path, cap
     for k, v in gains.items():
         assert v == f"{want[k]:.3f}", (k, out)
     assert f"rank correlation of the pass's measured variance with the brute force: {rec['rank_measured']:.3f}" in out
-    img = matplotlib.image.imread(tmp_path / "a.png")
-    assert img.ndim == 3 and min(img.shape[:2]) > 100 and np.ptp(img[..., :3]) > 0
+    plot_png(tmp_path / "a.png")
 
 
 @pytest.mark.parametrize("argv, needle", [

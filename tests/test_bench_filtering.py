@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from conftest import (Handed, StandInClock, capture_call, check_colour_scale, load_example, numpy_camera_rays,
-                      numpy_sphere_distance, numpy_square_distance, outcome, plane_scene_toml)
+                      numpy_sphere_distance, numpy_square_distance, outcome, plane_scene_toml, plot_png)
 from warpbw.bench_filtering import FLICKER_STEP, colour_error, flicker, temporal_error
 from warpbw.cli import main
 from warpbw.io.exr import read_exr, write_exr
@@ -792,17 +792,6 @@ def test_anisotropy_cost_refuses_settings_it_cannot_compare(monkeypatch, capsys,
     assert needle in capsys.readouterr().err
 
 
-def _png_rgb(path):
-    """The PNG at ``path`` as matplotlib reads it (it refuses anything but a whole PNG), as (H, W, 3+) floats."""
-    import matplotlib.image
-
-    with open(path, "rb") as f:
-        assert f.read(8) == b"\x89PNG\r\n\x1a\n"
-    img = matplotlib.image.imread(path)
-    assert img.ndim == 3 and img.shape[0] > 100 and img.shape[1] > 100 and np.ptp(img[..., :3]) > 0
-    return img
-
-
 def test_anisotropy_cost_record_holds_the_printed_table(monkeypatch, capsys, tmp_path):
     """DESIGN.md, measurement protocol: every benchmark writes a JSON record and a PNG plot.  The script printed its
     table only; --json now holds every cell (per scene, zoom and method: the medians in seconds and their ratio)
@@ -830,7 +819,7 @@ def test_anisotropy_cost_record_holds_the_printed_table(monkeypatch, capsys, tmp
                         f"{got['ratio']:.2f}") == (t1, ta, ratio)
                 assert got["isotropic_time_s"] == pytest.approx(0.010) and got["anisotropic_time_s"] == \
                     pytest.approx(0.030) and got["ratio"] == pytest.approx(3.0)
-    _png_rgb(tmp_path / "r.png")
+    plot_png(tmp_path / "r.png")
     assert "record r.json, plot r.png" in out
 
 
@@ -866,7 +855,7 @@ def test_anisotropy_cost_force_replaces_both_outputs(monkeypatch, tmp_path):
     assert how == "returned 0", how
     assert json.loads(Path("r.json").read_text())["scenes"][0]["zooms"][0]["methods"]["lean"]["ratio"] == \
         pytest.approx(3.0)
-    _png_rgb(tmp_path / "r.png")
+    plot_png(tmp_path / "r.png")
 
 
 @pytest.mark.parametrize("runs, warns", [(1, True), (2, True), (3, False)])
@@ -999,7 +988,7 @@ def test_filtering_floor_record_and_plot_hold_the_printed_tables(tmp_path, monke
         assert r["aligned/toks"] == f"{z['gmm_aligned'] / z['toksvig']:.2f}" and r["check"] == \
             f"{z['gmm_merged_check']:.1e}"
     assert f"record {tmp_path / 'f.json'}, plot {tmp_path / 'f.png'}" in out
-    img = _png_rgb(tmp_path / "f.png")
+    img = plot_png(tmp_path / "f.png")
     assert img.shape[1] > 300
 
 

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
-from conftest import grid_mesh, load_example, numpy_camera_rays, numpy_sphere_distance
+from conftest import grid_mesh, load_example, numpy_camera_rays, numpy_sphere_distance, plot_png
 
 from warpbw.errors import COORD_SPACING_REL_MAX, WarpbwError
 from warpbw.gbuffer import (MESH_REACH_MAX, MESH_REACH_MIN, SPHERE_REACH_MAX, SPHERE_REACH_MIN, MeshSpec,
@@ -700,7 +700,6 @@ def test_gbuffer_example_record_and_plot_hold_the_printed_time(tmp_path, monkeyp
     import json
     import re
 
-    import matplotlib.image
     import trimesh
 
     ex = load_example("gbuffer")
@@ -717,8 +716,7 @@ def test_gbuffer_example_record_and_plot_hold_the_printed_time(tmp_path, monkeyp
     assert m[1] == f"{rec['time_s'] * 1e3:.1f}" and m[2] == f"{rec['coverage_fraction'] * 100:.1f}"
     assert (rec["resolution"], rec["vertices"], rec["triangles"], rec["spheres"], rec["device"]) == \
         ([48, 32], 42, 80, 1, "cpu")
-    img = matplotlib.image.imread(tmp_path / "g.png")
-    assert img.ndim == 3 and min(img.shape[:2]) > 100 and np.ptp(img[..., :3]) > 0
+    plot_png(tmp_path / "g.png")
 
 
 @pytest.mark.parametrize("argv, needle", [

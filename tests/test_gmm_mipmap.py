@@ -18,7 +18,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from conftest import Handed, StandInClock, attempt, capture_call, exr_claiming_size, load_example, outcome
+from conftest import (Handed, StandInClock, attempt, capture_call, exr_claiming_size, load_example, outcome,
+                      plot_png)
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -1054,8 +1055,6 @@ def test_gmm_precompute_time_record_and_plot_hold_what_it_prints(monkeypatch, ca
     wrote no plot; now each surface's printed seconds and its record's ``time_s`` are the median of --runs timed
     builds (stand-in clock: runs of 3, 1 and 2 s, median 2), the 100 s warm-up in none of them, and --json's plot is
     beside it."""
-    import matplotlib.image
-
     monkeypatch.chdir(tmp_path)
     gt, calls, how = _run_gmm_precompute_time(monkeypatch, ["--size", "20", "--components", "2", "--json", "t.json"])
     assert how == "returned 0", how
@@ -1070,10 +1069,7 @@ def test_gmm_precompute_time_record_and_plot_hold_what_it_prints(monkeypatch, ca
         assert rec["time_s"][name] == 2.0 and f"{rec['time_s'][name]:.1f}" == secs
         assert rec["time_runs_s"][name] == [3.0, 1.0, 2.0]
         assert rec["levels"][name] == int(levels) == 5 + i
-    with open(tmp_path / "t.png", "rb") as f:
-        assert f.read(8) == b"\x89PNG\r\n\x1a\n"
-    img = matplotlib.image.imread(tmp_path / "t.png")
-    assert img.ndim == 3 and min(img.shape[:2]) > 100 and np.ptp(img[..., :3]) > 0
+    plot_png(tmp_path / "t.png")
     assert "record t.json, plot t.png" in out
 
 

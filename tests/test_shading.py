@@ -18,7 +18,7 @@ import warp as wp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conftest import StandInClock, load_example, outcome
+from conftest import StandInClock, load_example, outcome, plot_png
 from warpbw.errors import WarpbwError
 from warpbw.pipeline import prepare_scene, render_reference
 from warpbw.scene import parse_scene
@@ -440,8 +440,6 @@ def test_reference_estimator_times_the_median_of_its_runs_and_records_what_it_pr
     plot.  The example timed one frame per estimator and wrote neither.  Stand-in clock: the warm-ups take 100 s,
     the timed frames 3, 1 and 2 s (BRDF sampling) and 6, 2 and 4 s (MIS): medians 2 s and 4 s, so 2.5 M samples
     read 1.25 M evaluations/s and, two evaluations each with MIS, 1.25 again."""
-    import matplotlib.image
-
     probe, npf = tmp_path / "p.exr", tmp_path / "t.bin"
     probe.write_bytes(b"x")
     npf.write_bytes(b"x")
@@ -462,8 +460,7 @@ def test_reference_estimator_times_the_median_of_its_runs_and_records_what_it_pr
                                                      f"{e['evaluations_per_s'] / 1e6:.2f}", e["non_finite_samples"])
         assert [float(v) for v in m[5].split()] == pytest.approx(e["mean_radiance"], abs=1e-4)
     assert rec["estimators"]["ref_mis"]["mean_radiance"] == [0.5, 0.5, 0.5]
-    img = matplotlib.image.imread(tmp_path / "r.png")
-    assert img.ndim == 3 and min(img.shape[:2]) > 100 and np.ptp(img[..., :3]) > 0
+    plot_png(tmp_path / "r.png")
 
 
 @pytest.mark.parametrize("argv, needle", [
@@ -652,8 +649,6 @@ def test_compare_mitsuba_record_holds_the_printed_table_and_a_plot(tmp_path, mon
     its table only; --json now holds every figure of each row under a name with its unit (the stand-ins' by hand:
     lambert relMSE 0.05^2 / 1.01, Mitsuba 2 s, warpbw 1 s, ratio 0.5), the settings and Mitsuba's version, and its
     plot is beside it."""
-    import matplotlib.image
-
     monkeypatch.chdir(tmp_path)
     got = _run_compare_mitsuba(monkeypatch, tmp_path, ["--cases", "lambert,ggx0.1", "--spp", "16", "--mitsuba-spp",
                                                        "64", "--noise-floor", "--json", "c.json"])
@@ -673,10 +668,7 @@ def test_compare_mitsuba_record_holds_the_printed_table_and_a_plot(tmp_path, mon
         assert c["mitsuba_msamples_per_s"] == pytest.approx(16 * 16 * 64 / 2.0 / 1e6)
     assert rec["cases"][0]["relmse"] == pytest.approx(0.05 ** 2 / 1.01, rel=5e-3)
     assert [c["result"] for c in rec["cases"]] == ["PASS", "FAIL"]
-    with open(tmp_path / "c.png", "rb") as f:
-        assert f.read(8) == b"\x89PNG\r\n\x1a\n"
-    img = matplotlib.image.imread(tmp_path / "c.png")
-    assert img.ndim == 3 and min(img.shape[:2]) > 100 and np.ptp(img[..., :3]) > 0
+    plot_png(tmp_path / "c.png")
 
 
 @pytest.mark.parametrize("argv, needle", [
