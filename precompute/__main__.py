@@ -146,7 +146,7 @@ def cmd_batch(args) -> int:
             print(printable(f"warpbw-precompute: error: {r['name']}: {r['error']}"), file=sys.stderr)
     write_json(record_path, record, say=False)
     kept = sum(len(r["kept"]) for r in record["items"])
-    built = sum(len(r["time_s"]) - 1 - len(r["kept"]) for r in record["items"] if r["error"] is None)
+    built = sum(len(r["outputs"]) - len(r["kept"]) for r in record["items"] if r["error"] is None)
     print(printable(f"{out}/  ({built} tables built{f', {kept} kept' if kept else ''}, {record['failed']} BRDFs "
                     f"failed; {record['wall_s']:.1f} s wall, {record['work_s']:.1f} s of work; record in "
                     f"{record_path})"))
