@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 import pytest
 import warp as wp
-from hypothesis import given, settings, strategies as st
+from hypothesis import example, given, settings, strategies as st
 
 from conftest import killed_writer_temp
 from precompute.brdf_bandwidth import N_CELLS, N_THETA_I, wo_to_map
@@ -921,9 +921,12 @@ def _pass_under_a_sky_of_scale(mat, k, tables=None):
 
 @settings(max_examples=8, deadline=None)
 @given(log_k=st.floats(-3.0, 3.0), mat=st.sampled_from(_EXPOSED_MATERIALS))
+@example(log_k=-1.5, mat=LAMBERT)   # float32's worst found: 1.003e-5
 def test_the_exposure_of_the_light_leaves_the_bandwidths_and_levels_and_scales_the_variance_by_its_square(log_k, mat):
     """A bandwidth is a frequency: under an environment k times brighter the pass's nu, b_p and level are unchanged,
-    while Eq. 9's variance bound, a second moment of radiance, scales by k^2 (exposures 1e-3 to 1e3, float32: 1e-5).
+    while Eq. 9's variance bound, a second moment of radiance, scales by k^2 (exposures 1e-3 to 1e3).  float32: over
+    61 exposures in that range sigma2 / k^2 strayed from sigma2 by at most 1.01e-5 (Lambert; GGX 6.8e-7), so rtol
+    1e-5 failed at k = 10^-1.5 (1.003e-5); 3e-5 still tells k^2 from any other power of k.
     The environment's nu_a map is the unscaled sky's (that it does not see the exposure either is the next test's);
     building it per exposure took a second each."""
     k = 10.0 ** log_k
@@ -935,7 +938,7 @@ def test_the_exposure_of_the_light_leaves_the_bandwidths_and_levels_and_scales_t
     np.testing.assert_allclose(nu_k, nu, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(b_p_k, b_p, rtol=1e-5, atol=1e-9)
     assert np.mean(level_k == level) > 0.99   # a b_p within rounding of a power of two may change its floor
-    np.testing.assert_allclose(sigma2_k / k ** 2, sigma2, rtol=1e-5, atol=1e-12 * sigma2.max())
+    np.testing.assert_allclose(sigma2_k / k ** 2, sigma2, rtol=3e-5, atol=1e-12 * sigma2.max())
 
 
 @settings(max_examples=20, deadline=None)
