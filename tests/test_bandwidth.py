@@ -726,11 +726,8 @@ def _pass_with_tables(prep, nu_env, nu_rho, n_b, **kw):
 
 
 def _pass_mean(buf) -> np.ndarray:
-    """The pass's own estimate mu of L_p per pixel, from BandwidthBuffer's sigma2_rel = sigma2 / (mu^2 + REL_EPS)."""
-    s2 = buf.sigma2.numpy().astype(np.float64)
-    rel = buf.sigma2_rel.numpy().astype(np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.sqrt(np.maximum(s2 / rel - float(bw.REL_EPS), 0.0))
+    """The pass's own estimate mu of L_p per pixel (BandwidthBuffer.mu)."""
+    return buf.mu.numpy().astype(np.float64)
 
 
 def test_preconvolved_variance_bound_closed_form_for_lambert():
@@ -888,19 +885,47 @@ def test_level_map_is_eq11_at_the_nyquist_rate_of_b_p():
 
 
 def test_relative_variance_bound_does_not_depend_on_the_lights_scale():
-    """sigma2_rel = sigma2 / (mu^2 + REL_EPS): Eq. 9's bound scales as L^2 and mu as L, so under a constant sky of
-    radiance 1 and 4 (mu = albedo 0.6 and 2.4 >> sqrt(REL_EPS)) it is the same.  (Dividing by mu made the relative
-    allocation depend on the exposure, and no test saw it.)"""
+    """sigma2_rel = sigma2 / (mu^2 + (REL_FLOOR m)^2), m the frame's median mu: Eq. 9's bound scales as L^2, and mu and
+    m as L, so under a constant sky of radiance 1e-3, 1 and 4 it is the same.  (Dividing by mu made the relative
+    allocation depend on the exposure; then an absolute floor of 1e-4 did, below mu ~ 0.01: under the 1e-3 sky every
+    pixel's sigma2_rel was sigma2 / 1e-4, and the "relative" allocation was "variance".)"""
     out = []
-    for k in (1.0, 4.0):
+    for k in (1e-3, 1.0, 4.0):
         prep = prepared(env=f"constant = [{k}, {k}, {k}]")
         gb, buf = run_pass(prep, n_b=256, nu_env=np.full((8, 16), 3.0))
         cov = gb.coverage.reshape(-1)
         out.append(buf.sigma2_rel.numpy()[cov].astype(np.float64))
-        # and by the closed form of the furnace: mu = albedo x radiance
-        np.testing.assert_allclose(out[-1] * ((0.6 * k) ** 2 + float(bw.REL_EPS)), buf.sigma2.numpy()[cov],
+        # and by the closed form of the furnace: mu = albedo x radiance at every pixel, so m is that too
+        np.testing.assert_allclose(out[-1] * (0.6 * k) ** 2 * (1.0 + bw.REL_FLOOR ** 2), buf.sigma2.numpy()[cov],
                                    rtol=0.05)
-    np.testing.assert_allclose(out[1], out[0], rtol=1e-3)
+    np.testing.assert_allclose(out[0], out[1], rtol=1e-3)
+    np.testing.assert_allclose(out[2], out[1], rtol=1e-3)
+
+
+def test_the_relative_bound_of_a_dark_pixel_is_its_bound_over_the_floor_and_a_black_frame_reads_0(tmp_path):
+    """sigma2_rel's floor (REL_FLOOR times the frame's median mu over its lit pixels) keeps a dark pixel from dividing
+    by ~0, and it must not divide 0 by 0 where nothing is lit.  A probe lit only in a band of longitudes (a fifth of
+    the sphere's pixels face away from it): where mu = 0, sigma2 = 0 and sigma2_rel = 0; elsewhere sigma2_rel =
+    sigma2 / (mu^2 + (REL_FLOOR m)^2) by the buffer's own mu, m the lit pixels' median (not all pixels').  A black
+    sky: 0 everywhere, no NaN."""
+    from warpbw.io.exr import write_exr
+
+    band = np.zeros((16, 32, 3), np.float32)
+    band[:, :4] = 1.0
+    write_exr(tmp_path / "band.exr", band)
+    for env in (f'file = "{(tmp_path / "band.exr").as_posix()}"', "constant = [0.0, 0.0, 0.0]"):
+        gb, buf = run_pass(prepared(env=env, w=24, h=18), n_b=16)
+        cov = gb.coverage.reshape(-1)
+        mu, s2, rel = (a.numpy()[cov].astype(np.float64) for a in (buf.mu, buf.sigma2, buf.sigma2_rel))
+        assert np.all(np.isfinite(rel)) and np.all(rel >= 0.0)
+        np.testing.assert_array_equal(s2[mu == 0.0], 0.0)
+        np.testing.assert_array_equal(rel[mu == 0.0], 0.0)
+        if env.startswith("constant"):
+            assert not mu.any()
+            continue
+        assert 0.1 < (mu == 0.0).mean() < 0.5, (mu == 0.0).mean()   # dark and lit pixels both
+        m = np.median(mu[mu > 0.0])
+        np.testing.assert_allclose(rel, s2 / (mu ** 2 + (bw.REL_FLOOR * m) ** 2), rtol=1e-5)
 
 
 _EXPOSED_MATERIALS = (LAMBERT, GGX_SHARP)   # the sky's and GGX_SHARP's tables: built by the tests above
@@ -908,15 +933,16 @@ _exposures = {}
 
 
 def _pass_under_a_sky_of_scale(mat, k, tables=None):
-    """The pass's nu, b_p, level and sigma2 (covered pixels) for a sphere under the procedural sky scaled by k, with
-    the given bandwidth tables (else the scene's own), and the prepared scene (it keeps the tables alive)."""
+    """The pass's nu, b_p, level, sigma2 and sigma2_rel (covered pixels) for a sphere under the procedural sky scaled
+    by k, with the given bandwidth tables (else the scene's own), and the prepared scene (it keeps the tables
+    alive)."""
     prep = prepared(mat=mat, env=f'procedural = "sky"\nscale = {k!r}', w=24, h=18)
     gb, _ = _gbuffer(prep, {})
     buf = bw.bandwidth_pass(gb, prep.camera, prep.materials, prep.env.data,
                             prepare_bandwidth(prep) if tables is None else tables, n_b=8)
     cov = gb.coverage.reshape(-1)
     return (buf.nu.numpy()[cov], buf.b_p.numpy()[cov], buf.level.numpy().reshape(-1)[cov],
-            buf.sigma2.numpy()[cov].astype(np.float64)), prep
+            buf.sigma2.numpy()[cov].astype(np.float64), buf.sigma2_rel.numpy()[cov].astype(np.float64)), prep
 
 
 @settings(max_examples=8, deadline=None)
@@ -926,19 +952,22 @@ def test_the_exposure_of_the_light_leaves_the_bandwidths_and_levels_and_scales_t
     """A bandwidth is a frequency: under an environment k times brighter the pass's nu, b_p and level are unchanged,
     while Eq. 9's variance bound, a second moment of radiance, scales by k^2 (exposures 1e-3 to 1e3).  float32: over
     61 exposures in that range sigma2 / k^2 strayed from sigma2 by at most 1.01e-5 (Lambert; GGX 6.8e-7), so rtol
-    1e-5 failed at k = 10^-1.5 (1.003e-5); 3e-5 still tells k^2 from any other power of k.
+    1e-5 failed at k = 10^-1.5 (1.003e-5); 3e-5 still tells k^2 from any other power of k.  The bound relative to
+    each pixel's radiance ("relative" allocation) is dimensionless: unchanged (with an absolute floor under mu^2, the
+    1e-3 sky's pixels changed their share of the budget 0.008x to 3.7x).
     The environment's nu_a map is the unscaled sky's (that it does not see the exposure either is the next test's);
     building it per exposure took a second each."""
     k = 10.0 ** log_k
     if mat not in _exposures:
         _exposures[mat] = _pass_under_a_sky_of_scale(mat, 1.0)
-    (nu, b_p, level, sigma2), prep = _exposures[mat]
-    (nu_k, b_p_k, level_k, sigma2_k), _ = _pass_under_a_sky_of_scale(mat, k, prep.bandwidth)
+    (nu, b_p, level, sigma2, rel), prep = _exposures[mat]
+    (nu_k, b_p_k, level_k, sigma2_k, rel_k), _ = _pass_under_a_sky_of_scale(mat, k, prep.bandwidth)
     assert b_p.max() > 0.0   # the sky has detail: the pass sees some
     np.testing.assert_allclose(nu_k, nu, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(b_p_k, b_p, rtol=1e-5, atol=1e-9)
     assert np.mean(level_k == level) > 0.99   # a b_p within rounding of a power of two may change its floor
     np.testing.assert_allclose(sigma2_k / k ** 2, sigma2, rtol=3e-5, atol=1e-12 * sigma2.max())
+    np.testing.assert_allclose(rel_k, rel, rtol=1e-4, atol=1e-9 * rel.max())
 
 
 @settings(max_examples=20, deadline=None)
@@ -1084,7 +1113,7 @@ def test_a_convex_mirror_adds_its_two_curvature_shears_in_the_pass():
 
 @pytest.mark.parametrize("name", ["chrome", "gold-metallic-paint"])
 def test_the_pass_estimates_a_tabulated_materials_radiance_without_bias(shared, name):
-    """The pass's own estimate mu of L_p (BandwidthBuffer: sigma2_rel = sigma2 / (mu^2 + REL_EPS)) is an unbiased one-
+    """The pass's own estimate mu of L_p (BandwidthBuffer.mu, which sigma2_rel divides by) is an unbiased one-
     sample MIS estimate: under a constant sky its mean over the sphere's pixels matches a brute-force BRDF-sampled
     render of the same pixels (256 spp) within 4%. A tabulated (NPF) material's sampler reads u[0] to pick its cosine or
     table lobe, so the BRDF half of the directions must hand it a uniform u[0]."""
@@ -1102,10 +1131,10 @@ def test_the_pass_estimates_a_tabulated_materials_radiance_without_bias(shared, 
 
 def test_the_pass_errors_of_pixels_two_tiles_apart_are_uncorrelated():
     """Module docstring (block_shift): each side x side tile of blocks adds its own random offset to the direction set,
-    so tiles do not look along the same directions. Then the errors of the pass's estimate mu of L_p (from sigma2 /
-    sigma2_rel) at two pixels two tiles apart, whose pooling windows share no block and no tile, are independent: on a
-    Lambert sphere under a constant sky (truth: mu = albedo, the furnace) their correlation over ~1500 pixel pairs is 0
-    within its noise (about 0.03)."""
+    so tiles do not look along the same directions. Then the errors of the pass's estimate mu of L_p
+    (BandwidthBuffer.mu) at two pixels two tiles apart, whose pooling windows share no block and no tile, are
+    independent: on a Lambert sphere under a constant sky (truth: mu = albedo, the furnace) their correlation over
+    ~1500 pixel pairs is 0 within its noise (about 0.03)."""
     prep = prepared(w=64, h=64)
     gb, buf = run_pass(prep, n_b=16)          # defaults: stride 2, pool radius 2 -> tiles of 3 x 3 blocks
     side = (2 * bw.POOL_RADIUS_DEFAULT) // bw.PASS_STRIDE_DEFAULT + 1

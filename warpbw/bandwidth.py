@@ -20,9 +20,11 @@ Public:
     ``PASS_STRIDE_DEFAULT``, ``POOL_RADIUS_DEFAULT``
     Warp functions ``brdf_nu_rho(nu_rho, m, wi, wo)`` and ``nu_env_at_uv(nu_env, uv)`` (table look-ups)
     Warp functions ``frac3``, ``block_pixel``, ``block_shift`` (the block plan's arithmetic) and ``alike`` (who pools
-    with whom), and the kernels ``block_plan_kernel``, ``pool_kernel`` (what ``load_kernels`` compiles)
+    with whom), and the kernels ``block_plan_kernel``, ``pool_kernel``, ``relative_bound_kernel`` (what
+    ``load_kernels`` compiles)
 
-Three Warp kernels over the G-buffer (002 Sec. 2.6: a block plan, the directions, the pooling).  For
+Three Warp kernels over the G-buffer (002 Sec. 2.6: a block plan, the directions, the pooling), and one that
+relates the bound to each pixel's radiance (``relative_bound_kernel``).  For
 pixel p (point x, view direction w_o, shading normal n, mean curvature c, distance d' to the camera)
 and n_b directions w_i with density pdf_i:
 
@@ -193,7 +195,8 @@ silent:
 
 N_p (Sec. 2.4: "keep N_p proportional to" the bound, so that the variance is constant):
 ``N_p = clamp(ceil(k_p / V), n_min, n_max)`` with k_p = sigma2_p ("variance", the paper's), its square
-root ("sqrt"), sigma2_p / L_p^2 ("relative"), 1 ("uniform") or sqrt(variance_mis) ("measured", the
+root ("sqrt"), sigma2_p / L_p^2 ("relative"; L_p^2 + (REL_FLOOR m)^2 with m the frame's median L_p over its
+lit pixels, so that it does not see the exposure), 1 ("uniform") or sqrt(variance_mis) ("measured", the
 default; sqrt(variance_bis) for a frame without MIS), and the constant V found by bisection so that the
 pixels the hierarchy will shade (texels of level L whose min-filtered level is L, with the max-filtered k of
 their footprint, Sec. 3.1) spend ``budget`` samples per covered pixel in total.  Why "measured": N_p
@@ -277,7 +280,10 @@ NU_COS = wp.constant(0.3)
 BLOCK_DEPTH_TOL = wp.constant(0.05)   # relative depth step that separates two surfaces (module docstring)
 BLOCK_NORMAL_COS = wp.constant(0.95)  # normals more than ~18 degrees apart do not share estimates
 MIS_HALF = wp.constant(0.5)   # each of the two samplers is picked with probability 1/2 (one-sample MIS)
-REL_EPS = wp.constant(1.0e-4)  # radiance^2 added to mu^2 in sigma2_rel: black pixels do not divide by 0
+# sigma2_rel = sigma2 / (mu^2 + (REL_FLOOR m)^2), m the frame's median mu over its lit pixels: dark pixels do not
+# divide by ~0, and the floor scales with the light, so "relative" does not see the exposure (an absolute 1e-4 made a
+# 1000x dimmer sky's allocation "variance"; 0.04 of a Lambert sphere's median mu under the sky, 0.24, is that old 0.01)
+REL_FLOOR = 0.04
 
 
 @wp.struct
@@ -396,12 +402,25 @@ def block_plan_kernel(gb: GBufferData, stride: int, rep: wp.array(dtype=wp.int32
 
 
 @wp.kernel(module="unique", enable_backward=False)
+def relative_bound_kernel(sigma2: wp.array(dtype=wp.float32), mu: wp.array(dtype=wp.float32), floor2: float,
+                          sigma2_rel: wp.array(dtype=wp.float32)):
+    """sigma2 / (mu^2 + floor^2): the bound relative to the pixel's own radiance ("relative" allocation).  A pixel
+    with mu = 0 took no light from any direction, so its sigma2 is 0 too: 0 there when the whole frame is black."""
+    i = wp.tid()
+    den = mu[i] * mu[i] + floor2
+    if den > 0.0:
+        sigma2_rel[i] = sigma2[i] / den
+    else:
+        sigma2_rel[i] = 0.0
+
+
+@wp.kernel(module="unique", enable_backward=False)
 def pool_kernel(gb: GBufferData, rep: wp.array(dtype=wp.int32), radius: int, n_b: int, pixel_angle: float,
                 lam_in: wp.array(dtype=wp.float32), nu_in: wp.array(dtype=wp.vec2), var_in: wp.array(dtype=wp.float32),
                 w2_in: wp.array(dtype=wp.float32), w2b_in: wp.array(dtype=wp.float32),
                 pixels: wp.array(dtype=wp.int32), offset: int,
                 nu_out: wp.array(dtype=wp.vec2), b_p: wp.array(dtype=wp.float32),
-                sigma2: wp.array(dtype=wp.float32), sigma2_rel: wp.array(dtype=wp.float32),
+                sigma2: wp.array(dtype=wp.float32), mu_out: wp.array(dtype=wp.float32),
                 var_mis: wp.array(dtype=wp.float32), var_bis: wp.array(dtype=wp.float32)):
     """Pool the direction sums of the evaluated pixels within ``radius`` pixels that are alike (an
     interleaved set: neighbours used shifted direction sets), then Eq. 5, 6 and 9 per pixel."""
@@ -439,7 +458,7 @@ def pool_kernel(gb: GBufferData, rep: wp.array(dtype=wp.int32), radius: int, n_b
     s2 = _FOUR_PI_SQ * var_max / (float(wp.max(n_b, 1)) * _TWO_PI)
     sigma2[i] = s2
     mu = lam / n_dirs                                             # the pass's estimate of L_p (Eq. 1)
-    sigma2_rel[i] = s2 / (mu * mu + REL_EPS)
+    mu_out[i] = mu
     var_mis[i] = wp.max(w2 / n_dirs - mu * mu, 0.0)               # the directions' own one-sample MIS variance
     var_bis[i] = wp.max(w2b / n_dirs - mu * mu, 0.0)              # BRDF sampling's, from the same directions
 
@@ -712,7 +731,7 @@ def load_kernels(device: str = "cpu") -> None:
     """Load (compile) the pass's block-plan and pooling kernels, so that ``bandwidth_pass`` times only the pass
     (``make_bandwidth_kernel``'s kernel is loaded by the pipeline beside the others it builds)."""
     check_device(device)
-    for k in (block_plan_kernel, pool_kernel):
+    for k in (block_plan_kernel, pool_kernel, relative_bound_kernel):
         wp.load_module(k.module, device=device)
 
 
@@ -723,7 +742,7 @@ class BandwidthBuffer:
     nu: wp.array               # vec2 [nu_s, nu_a] at the eye (Eq. 5)
     b_p: wp.array              # float32 image bandwidth, cycles/pixel (Eq. 6)
     sigma2: wp.array           # float32 variance bound numerator: V(L_p) <= sigma2 / N_p (Eq. 9 / 10)
-    sigma2_rel: wp.array       # float32 sigma2 / (mu^2 + REL_EPS), mu the pass's own estimate of L_p
+    sigma2_rel: wp.array       # float32 sigma2 / (mu^2 + (REL_FLOOR m)^2), m the frame's median lit mu
     level: wp.array            # int32 (H, W) shading level (Eq. 11 on NYQUIST_FACTOR * b_p)
     coverage: np.ndarray       # (H, W) bool
     width: int
@@ -733,6 +752,7 @@ class BandwidthBuffer:
     traced_pixels: int = 0     # pixels whose n_b directions were traced (the rest share a block's)
     variance_mis: wp.array | None = None   # float32 variance of the directions' one-sample MIS estimates of L_p
     variance_bis: wp.array | None = None   # float32 variance of BRDF sampling's estimate, from the same directions
+    mu: wp.array | None = None             # float32 the pass's own estimate of L_p's luminance (Eq. 1), pooled
 
     def estimator_variance(self, mis: bool = True) -> wp.array | None:
         """The measured variance of the frame's estimator: MIS's, or BRDF sampling's alone (where measured)."""
@@ -828,19 +848,24 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     b_p = wp.zeros(W * H, dtype=wp.float32, device=device)
     sigma2 = wp.zeros(W * H, dtype=wp.float32, device=device)
     sigma2_rel = wp.zeros(W * H, dtype=wp.float32, device=device)
+    mu = wp.zeros(W * H, dtype=wp.float32, device=device)
     var_mis = wp.zeros(W * H, dtype=wp.float32, device=device)
     var_bis = wp.zeros(W * H, dtype=wp.float32, device=device)
     pix = covered_pixels(gb, device)
     angle = pixel_angle(cam)
     launch_tiled(pool_kernel, pix.shape[0],
                  lambda o, c: [gb.data, rep, pool_radius, int(n_b), angle, lam, nu_sum, var, w2, w2b, pix, o,
-                               nu, b_p, sigma2, sigma2_rel, var_mis, var_bis], device, threads)
+                               nu, b_p, sigma2, mu, var_mis, var_bis], device, threads)
+    mu_lit = mu.numpy()[gb.coverage.reshape(-1)]
+    mu_lit = mu_lit[mu_lit > 0.0]
+    floor = REL_FLOOR * float(np.median(mu_lit)) if mu_lit.size else 0.0
+    wp.launch(relative_bound_kernel, dim=W * H, inputs=[sigma2, mu, floor * floor, sigma2_rel], device=device)
     with np.errstate(over="ignore"):  # a rate beyond float32 is +inf: level 0 (image_level)
         rate = b_p.numpy() * np.float32(nyquist)
     level = image_level(rate, gb.coverage, W, H, device=device)
     wp.synchronize_device(device)
     return BandwidthBuffer(nu, b_p, sigma2, sigma2_rel, level, gb.coverage, W, H, int(n_b),
-                           time.perf_counter() - t0, int(traced.shape[0]), var_mis, var_bis)
+                           time.perf_counter() - t0, int(traced.shape[0]), var_mis, var_bis, mu)
 
 
 @dataclass
