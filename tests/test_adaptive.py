@@ -3,9 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import example, given, settings, strategies as st
 
 from warpbw.adaptive import plan_hierarchy, shade_hierarchical
+from warpbw.bandwidth import ALLOCATIONS
 from warpbw.pipeline import prepare_scene, render_reference
 from warpbw.scene import parse_scene
 
@@ -355,3 +356,38 @@ def test_the_finest_level_everywhere_is_the_reference_on_an_image_taller_than_wi
     assert base.coverage[13:].sum() > 20          # rows below the image's width are covered
     assert np.array_equal(r.image, base.image)
     assert r.shaded.sum() == base.coverage.sum()
+
+
+_UNIT_SKY_FRAMES = {}
+
+
+@settings(max_examples=8, deadline=None)
+@given(log_k=st.floats(-3.0, 3.0), allocation=st.sampled_from(ALLOCATIONS))
+@example(log_k=-3.0, allocation="relative")
+def test_a_sky_k_times_brighter_gives_the_same_plan_and_k_times_the_frame(log_k, allocation):
+    """Light is linear and a bandwidth is a frequency: under the sky scaled by k (1e-3 to 1e3) an adaptive frame
+    shades the same pixels at the same levels with the same samples, and each pixel reads k times its value, for
+    every allocation (the seeds are per pixel).  With float32 a rate or a share within rounding of a step may take
+    the next one, so 99% of the pixels must agree.  ("relative" divided by mu^2 + 1e-4, an absolute floor: under the
+    1e-3 sky it allocated as "variance" did.)"""
+    from warpbw.pipeline import render_adaptive
+
+    k = 10.0 ** log_k
+
+    def frame(scale):
+        prep = prepare_scene(parse_scene(SCENE.format(w=40, h=30, env=f'procedural = "sky"\nscale = {scale!r}',
+                                                      mat='type = "ggx"\nalpha = 0.2\nspecular = 0.8')))
+        return render_adaptive(prep, budget=2.0, seed=3, mis=True, allocation=allocation)
+
+    if allocation not in _UNIT_SKY_FRAMES:
+        _UNIT_SKY_FRAMES[allocation] = frame(1.0)
+    one, bright = _UNIT_SKY_FRAMES[allocation], frame(float(k))
+    cov = one.coverage
+    assert cov.sum() > 300 and (allocation == "uniform" or len(np.unique(one.aovs["n_p"][cov])) > 2)   # it varies
+    same = cov & (one.aovs["spp"] == bright.aovs["spp"]) & (one.aovs["shaded"] == bright.aovs["shaded"])
+    assert same.sum() >= 0.99 * cov.sum(), (same.sum(), cov.sum())
+    for name in ("level", "n_p"):
+        assert np.mean(one.aovs[name][cov] == bright.aovs[name][cov]) >= 0.99, name
+    ratio = bright.image[same] / np.maximum(one.image[same], 1e-30)
+    lit = one.image[same] > 1e-6 * one.image[cov].max()
+    np.testing.assert_allclose(ratio[lit], k, rtol=1e-4)
