@@ -131,10 +131,17 @@ def light_directions(setup: str = "ring", elevation_deg: float = ELEVATION_DEG) 
     return dirs
 
 
+def height_field(name: str, size: int) -> np.ndarray:
+    """The height field of ``SCENES[name]``'s surface at ``size`` texels square, as NAME.exr holds it: float32
+    (size, size, 1), one channel (written with ``channels=["Y"]``; examples/bunny_on_floor.py's floor too)."""
+    from precompute.surfaces import SURFACES
+
+    return SURFACES[SCENES[name][0]](size).astype(np.float32)[..., None]
+
+
 def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "ring", components: int = 4,
                  environment: Path | None = None, prior: float = 1.0,
                  elevation_deg: float = ELEVATION_DEG) -> list:
-    from precompute.surfaces import SURFACES
     from warpbw.io.exr import write_exr
     from warpbw.io.staged import staged_outputs
 
@@ -146,8 +153,7 @@ def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "rin
                       f"{toml_string(Path(environment).resolve().as_posix(), f'--environment {environment}')}\n")
     heights, texts = {}, {}   # by output path, written together below
     for name, (surface, tiling, mat) in SCENES.items():
-        h = SURFACES[surface](size)
-        heights[out / f"{name}.exr"] = h.astype(np.float32)[..., None]
+        heights[out / f"{name}.exr"] = height_field(name, size)
         text = SCENE.format(surface=surface, size=size, tiling=tiling, cy=DISTANCE * math.sin(el),
                             cz=DISTANCE * math.cos(el), fov=FOV_DEG, w=resolution[0], h=resolution[1],
                             lights=light_text, name=name, components=components, prior=prior, **mat)

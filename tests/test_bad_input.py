@@ -1225,6 +1225,9 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["filtering_scenes.py", "--size", "0"], "--size 0: expected an integer from 17 to 1024"),
     (["filtering_scenes.py", "--size", "16"], "--size 16: expected an integer from 17 to 1024"),
     (["filtering_scenes.py", "--prior", "-1"], "--prior -1: expected a finite c >= 0"),
+    (["bunny_on_floor.py", "--out", "m", "--size", "16"], "--size 16: expected an integer from 17 to 1024"),
+    (["bunny_on_floor.py", "--out", "m", "--size", "1025"], "--size 1025: expected an integer from 17 to 1024"),
+    (["bunny_on_floor.py"], "the following arguments are required: --out"),
     (["gmm_precompute_time.py", "--size", "0"], "--size 0: expected an integer from 17 to 1024"),
     (["filtering_zoom.py", "missing.toml"], "missing.toml: scene file not found"),
     (["filtering_floor.py", "missing.toml"], "missing.toml: no such scene file"),
@@ -1432,6 +1435,42 @@ def test_bench_scripts_keep_an_earlier_run_and_a_scene_edited_by_hand(tmp_path, 
     example_error(run_example(["bench_scenes.py", "--out", "s"], tmp_path), "bench_scenes.py",
                   "s/sphere_chrome_studio.toml", "--force")
     assert edited.read_text().endswith("# mine\n")
+
+
+def test_bunny_on_floor_keeps_a_scene_or_height_field_of_other_contents_without_force(tmp_path, shared):
+    """examples/bunny_on_floor.py rewrites its scene as it was without --force, but refuses a scene edited by hand or
+    a height field of another --size, before anything is written (the height field stays the earlier one)."""
+    from warpbw.io.exr import read_exr
+
+    for rel in ("meshes/bunny.obj", "envmaps/forest.exr", "brdf/npf.bin"):
+        shared(rel)
+    assert run_example(["bunny_on_floor.py", "--out", "m", "--size", "19"], tmp_path).returncode == 0
+    assert run_example(["bunny_on_floor.py", "--out", "m", "--size", "19"], tmp_path).returncode == 0   # the same
+    scene, heights = tmp_path / "m" / "bunny_on_floor.toml", tmp_path / "m" / "dunes.exr"
+    example_error(run_example(["bunny_on_floor.py", "--out", "m", "--size", "17"], tmp_path), "bunny_on_floor.py",
+                  "m/dunes.exr: already exists", "--force")
+    assert read_exr(heights).pixels.shape == (19, 19, 1)
+    scene.write_text(scene.read_text() + "# mine\n")
+    example_error(run_example(["bunny_on_floor.py", "--out", "m", "--size", "19"], tmp_path), "bunny_on_floor.py",
+                  "m/bunny_on_floor.toml: already exists", "--force")
+    example_error(run_example(["bunny_on_floor.py", "--out", "m", "--size", "17"], tmp_path), "bunny_on_floor.py",
+                  "m/bunny_on_floor.toml: already exists", "it and 1 more", "--force")
+    assert scene.read_text().endswith("# mine\n") and read_exr(heights).pixels.shape == (19, 19, 1)
+    assert sorted(p.name for p in scene.parent.iterdir()) == ["bunny_on_floor.toml", "dunes.exr"]
+    r = run_example(["bunny_on_floor.py", "--out", "m", "--size", "17", "--force"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "# mine" not in scene.read_text() and read_exr(heights).pixels.shape == (17, 17, 1)
+
+
+def test_bunny_on_floor_without_the_shared_data_says_so_and_writes_nothing(tmp_path, monkeypatch):
+    """The scene names the shared bunny, probe and NPF table by their absolute paths: without them, one line naming
+    the missing file and where the folder is looked for, and no scene naming files that are not there."""
+    (tmp_path / "data" / "meshes").mkdir(parents=True)
+    (tmp_path / "data" / "meshes" / "bunny.obj").write_text("v 0 0 0\n")
+    monkeypatch.setenv("WARPBW_SHARED_DATA", str(tmp_path / "data"))
+    example_error(run_example(["bunny_on_floor.py", "--out", "m"], tmp_path), "bunny_on_floor.py",
+                  f"{tmp_path / 'data' / 'envmaps' / 'forest.exr'}: not found", "WARPBW_SHARED_DATA")
+    assert not (tmp_path / "m").exists()
 
 
 def test_filtering_zoom_on_a_scene_without_planes(tmp_path):
@@ -2324,11 +2363,13 @@ def test_compare_mitsuba_keeps_existing_outputs_without_force(tmp_path):
     # bench_scenes: an --out that is a file; a --results under one, refused before the scenes are written
     (["bench_scenes.py", "--out", "afile"], ["--out afile: not a directory"]),
     (["bench_scenes.py", "--out", "s", "--run", "--results", "afile/r"], ["--results afile/r: afile is not a directory"]),
+    (["bunny_on_floor.py", "--out", "afile"], ["--out afile: not a directory"]),
+    (["bunny_on_floor.py", "--out", "afile/m"], ["--out afile/m: afile is not a directory"]),
 ], ids=["gbuffer resolution", "reference_estimator resolution", "anisotropy_cost size", "anisotropy_cost nan",
         "anisotropy_cost inf", "dynamic_geometry frames", "filtering_zoom duplicate", "filtering_floor duplicate",
         "brdf_sampling samples", "reference_estimator spp", "mirror_smear budget", "filtering_floor gt-spp",
         "dynamic_geometry out", "validate_bandwidth size", "validate_bandwidth seed", "validate_bandwidth out",
-        "bench_scenes out", "bench_scenes results"])
+        "bench_scenes out", "bench_scenes results", "bunny_on_floor out", "bunny_on_floor out under a file"])
 def test_examples_refuse_values_up_front_naming_their_own_options(tmp_path, argv, needles):
     """each of these failed after loading assets or preparing the scene (a raw traceback, or an error
     naming a parameter or bound the user never gave).  Now: one line naming the option, before any work, and

@@ -841,6 +841,51 @@ def test_render_and_info_of_a_scene_with_planes_beside_a_sphere(tmp_path):
     assert r.returncode == 2 and "--force" in r.stderr and out.read_bytes() == before
 
 
+@pytest.mark.filterwarnings("ignore:envmap 'forest.exr'")   # the probe's few negative values, set to 0
+def test_bunny_on_floor_scene_shows_the_bunny_and_the_floor(tmp_path, shared):
+    """examples/bunny_on_floor.py writes the README's mixed scene: the shared bunny (NPF) sunk a little into a plane
+    with the dunes height field, under forest.exr.  A small render of it (the scene's resolution shrunk) against a
+    numpy ray cast of its camera against the floor's square and the OBJ's own vertices: every pixel of the floor
+    is covered, the floor is drawn nowhere else, the bunny hides part of it and shows beyond it, and the bunny's
+    lowest point lies just below the floor."""
+    from conftest import load_example
+    from precompute.surfaces import dunes
+    from warpbw.pipeline import render_with_planes
+    from warpbw.scene import MeshObject, PlaneObject, parse_scene
+
+    mesh, probe, table = (shared(rel) for rel in ("meshes/bunny.obj", "envmaps/forest.exr", "brdf/npf.bin"))
+    path = load_example("bunny_on_floor").write_scene(tmp_path, 17)
+    text = path.read_text()
+    assert text.count("resolution = [256, 192]") == 1
+    scene = parse_scene(text.replace("resolution = [256, 192]", "resolution = [64, 48]"), tmp_path, str(path))
+    (floor,) = [o for o in scene.objects if isinstance(o, PlaneObject)]
+    (bunny,) = [o for o in scene.objects if isinstance(o, MeshObject)]
+    assert len(scene.objects) == 2 and bunny.file.resolve() == mesh.resolve()
+    assert scene.environment.file.resolve() == probe.resolve()
+    gold, sand = scene.materials[bunny.material], scene.materials[floor.material]
+    assert (gold.type, gold.table.resolve(), gold.npf_name) == ("npf", table.resolve(), NPF_MATERIAL)
+    assert sand.type == "cook-torrance" and sand.normal_map == tmp_path / "dunes.exr"
+    np.testing.assert_array_equal(read_exr(sand.normal_map).pixels[..., 0], dunes(17).astype(np.float32))
+    # sunk a little: the OBJ's lowest vertex, moved as the scene says, below the floor by under a tenth of its height
+    y = np.array([ln.split()[2] for ln in mesh.read_text().splitlines() if ln.startswith("v ")], float)
+    y = y * bunny.scale + bunny.translate[1]
+    assert 0 < floor.center[1] - y.min() < 0.1 * (y.max() - y.min())
+
+    cam = scene.camera
+    o, d = numpy_camera_rays(cam.position, cam.look_at, cam.fov, 64, 48)
+    on_floor = np.isfinite(numpy_square_distance(o, d, floor.size, floor.center))
+    res = render_with_planes(scene, "fixed", 1)
+    drawn = res.aovs["plane"]
+    assert on_floor.mean() > 0.5                                  # the floor fills much of the frame
+    assert np.array_equal(res.coverage & on_floor, on_floor)     # each of its pixels shows the floor or the bunny
+    assert not (drawn & ~on_floor).any()
+    hidden = on_floor & ~drawn                                    # the floor's pixels the bunny hides
+    assert 0.1 * on_floor.sum() < hidden.sum() < 0.5 * on_floor.sum()
+    assert (res.coverage & ~on_floor).sum() > 10                  # the bunny's ears beyond the floor's far edge
+    assert res.stats["pixels_hidden"] > 0                         # the floor hides the bunny's sunk part
+    assert res.stats["pixels_covered"] == int(res.coverage.sum())
+
+
 EXAMPLES = sorted((Path(__file__).resolve().parents[1] / "examples").glob("*.py"))
 
 

@@ -75,7 +75,7 @@ examples:
   warpbw compare out.exr gt.exr --error-map err.exr   and where the error is (err.exr + err.png)
   warpbw render planes.toml -o out.exr --filter gmm_aligned
                                                 a scene with planes: reflectance filtering (004)
-  warpbw render bunny_on_floor.toml -o out.exr --method adaptive --budget 8 --filter gmm_aligned
+  warpbw render mixed/bunny_on_floor.toml -o out.exr --method adaptive --budget 8 --filter gmm_aligned
                                                 planes beside spheres or meshes: both renderers, composited
   warpbw bench-filtering planes.toml --zoom 1,2,4,8,16,32 --json f.json --plot f.png
 
