@@ -5,6 +5,7 @@ Pure Python (no Warp kernels, no shared data): runs in a second or two.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import re
@@ -127,6 +128,26 @@ def test_relative_path_is_not_resolved_against_the_working_directory(tmp_path, m
     monkeypatch.chdir(tmp_path / "cwd")
     msg = expect_error(scene, "[environment].file")
     assert str(tmp_path / "scenes" / "probe.exr") in msg
+
+
+def test_a_scene_parsed_against_a_relative_folder_is_checked_and_prepared_as_parsed(tmp_path, monkeypatch):
+    """parse_scene(text, "sub") resolved "probe.exr" to sub/probe.exr, relative to the working directory, and kept
+    "sub" as the scene's folder: check_scene (which prepare_scene runs) then joined the two, and refused the scene
+    it had just accepted ("file not found: sub/sub/probe.exr").  The folder is taken as absolute when parsed, so the
+    paths also survive a later change of working directory."""
+    from warpbw.scene import check_scene
+
+    write(tmp_path / "sub" / "probe.exr", "not read by the parser")
+    monkeypatch.chdir(tmp_path)
+    s = parse_scene(scene_text(environment='[environment]\nfile = "probe.exr"\n'), "sub", "s.toml")
+    assert s.environment.file == tmp_path / "sub" / "probe.exr" and s.base_dir == tmp_path / "sub"
+    monkeypatch.chdir(tmp_path / "sub")
+    assert check_scene(s).environment.file == tmp_path / "sub" / "probe.exr"
+    # a Scene built in Python with a relative folder: checked twice, the same file
+    monkeypatch.chdir(tmp_path)
+    built = dataclasses.replace(s, base_dir=Path("sub"),
+                                environment=dataclasses.replace(s.environment, file=Path("probe.exr")))
+    assert check_scene(check_scene(built)).environment.file == tmp_path / "sub" / "probe.exr"
 
 
 # ------------------------------------------------------------------------------------------ validation errors

@@ -612,7 +612,8 @@ def parse_scene(text: str, base_dir: Path | str | None = None, source: str = "<s
     if not isinstance(text, str):   # bytes, a Path: a TypeError from tomllib
         raise WarpbwError(f"{source}: expected the scene's TOML text as a str, got {type(text).__name__} (a file "
                           "reads with load_scene)")
-    base = Path(base_dir) if base_dir is not None else Path.cwd()
+    # absolute: a relative folder made relative paths that check_scene joined to it again (sub/sub/probe.exr)
+    base = Path(base_dir).absolute() if base_dir is not None else Path.cwd()
     ctx = _Ctx(source, base)
     try:
         d = tomllib.loads(text)
@@ -735,7 +736,7 @@ def check_scene(scene) -> Scene:
         if isinstance(m, Material) and m.name != name:
             raise WarpbwError(f"{scene.source}: [material.{name}]: its Material is named {m.name!r}; expected the "
                               "name it is filed under")
-    return _scene_from_tables(_Ctx(scene.source, Path(scene.base_dir)), _scene_tables(scene))
+    return _scene_from_tables(_Ctx(scene.source, Path(scene.base_dir).absolute()), _scene_tables(scene))
 
 
 def load_scene(path: Path | str) -> Scene:
