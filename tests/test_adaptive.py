@@ -388,6 +388,7 @@ def test_a_sky_k_times_brighter_gives_the_same_plan_and_k_times_the_frame(log_k,
     assert same.sum() >= 0.99 * cov.sum(), (same.sum(), cov.sum())
     for name in ("level", "n_p"):
         assert np.mean(one.aovs[name][cov] == bright.aovs[name][cov]) >= 0.99, name
-    ratio = bright.image[same] / np.maximum(one.image[same], 1e-30)
-    lit = one.image[same] > 1e-6 * one.image[cov].max()
-    np.testing.assert_allclose(ratio[lit], k, rtol=1e-4)
+    # a shaded pixel reads its own samples alone; an up-sampled one its parents', which agree when every pixel does
+    check = same & one.aovs["shaded"] if (same != cov).any() else cov
+    np.testing.assert_allclose(bright.image[check], k * one.image[check].astype(np.float64), rtol=1e-4,
+                               atol=1e-7 * k * one.image[cov].max())
