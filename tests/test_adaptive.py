@@ -396,7 +396,7 @@ def test_a_sky_k_times_brighter_gives_the_same_plan_and_k_times_the_frame(log_k,
 _UNIT_LIT_FRAMES = {}
 
 
-@settings(max_examples=8, deadline=None)
+@settings(max_examples=6, deadline=None)
 @given(log_k=st.floats(-4.0, 4.0), mis=st.booleans(), upsample=st.sampled_from(["normal", "paper"]))
 @example(log_k=-4.0, mis=False, upsample="paper")
 @example(log_k=4.0, mis=True, upsample="normal")
