@@ -1520,6 +1520,41 @@ def test_moving_plane_camera_and_look_at_together_leaves_the_image_unchanged(tmp
     assert err < 2e-3, err
 
 
+_UNIT_LIGHT_FRAMES = {}
+
+
+@settings(max_examples=10, deadline=None)
+@given(log_k=st.floats(-4.0, 4.0), method=st.sampled_from(ALL_METHODS))
+def test_lights_and_environment_k_times_brighter_give_k_times_the_frame_at_the_same_levels(tmp_path_factory, log_k,
+                                                                                           method):
+    """Light is linear and a footprint is geometry: a normal-mapped plane under a directional light and the sky, both
+    scaled by k (1e-4 to 1e4), renders k times the frame at the same mip levels, by every method (the same seed).
+    Measured (session 68, 32 x 24, k = 1e-4 ... 1e4, each method under lights, the sky and both): levels identical,
+    image / k within 2.1e-5 of the unit frame (relative, pixels above 1e-4 of the brightest)."""
+    if "folder" not in _UNIT_LIGHT_FRAMES:                 # one noisy height map for every example
+        _UNIT_LIGHT_FRAMES["folder"] = tmp_path_factory.mktemp("exposure")
+        heights = np.random.default_rng(1).standard_normal((32, 32)) * 0.05
+        write_exr(_UNIT_LIGHT_FRAMES["folder"] / "map.exr", heights.astype(np.float32)[..., None], channels=["Y"])
+    folder = _UNIT_LIGHT_FRAMES["folder"]
+    k = 10.0 ** log_k
+
+    def frame(scale):
+        text = plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 1.0\ntiling = 2\n', resolution=(32, 24),
+                                radiance=[c * scale for c in PLANE_RADIANCE],
+                                environment=f'[environment]\nprocedural = "sky"\nscale = {scale!r}\n')
+        return render_filtering(parse_scene(text, folder, "s.toml"), method, spp=MIN_GT_SPP, seed=2, env_spp=8)
+
+    if method not in _UNIT_LIGHT_FRAMES:
+        _UNIT_LIGHT_FRAMES[method] = frame(1.0)
+    one, bright = _UNIT_LIGHT_FRAMES[method], frame(float(k))
+    cov = one.coverage
+    assert cov.sum() > 200 and np.array_equal(bright.coverage, cov)
+    assert np.array_equal(bright.level, one.level)
+    assert method == "ground_truth" or np.ptp(one.level[cov]) > 0.5        # the footprints span levels
+    lit = cov[..., None] & (one.image > 1e-4 * one.image[cov].max())
+    np.testing.assert_allclose(bright.image[lit] / one.image[lit], k, rtol=1e-4)
+
+
 def test_a_light_below_the_plane_lights_nothing_whatever_the_method(tmp_path):
     """A directional light under the plane's macro surface (its direction has y < 0) reaches no point of the plane's
     upper side: every method's image is black there, the filtered ones as the ground truth.  A tilted lobe mean or a
