@@ -289,10 +289,10 @@ def import_warpbw():
     return prepare, render_reference
 
 
-def render_warpbw(parse_scene, render_reference, toml_text: str, spp: int, seed: int, mis: bool = False):
-    """Returns (rgb (H,W,3) float32, coverage (H,W) bool, seconds of the render alone); ``parse_scene`` is
-    ``import_warpbw``'s ``prepare``."""
-    scene = parse_scene(toml_text, base_dir=REPO_ROOT)
+def render_warpbw(prepare, render_reference, toml_text: str, spp: int, seed: int, mis: bool = False):
+    """Returns (rgb (H,W,3) float32, coverage (H,W) bool, seconds of the render alone); ``prepare`` is
+    ``import_warpbw``'s."""
+    scene = prepare(toml_text, base_dir=REPO_ROOT)
     kw = {"mis": True} if mis else {}
     t0 = time.perf_counter()
     res = render_reference(scene, spp=spp, seed=seed, device="cpu", **kw)

@@ -2272,9 +2272,9 @@ def test_the_reference_agrees_with_mitsuba(case, res, spp, mean_tol):
     scene = cm.mitsuba_scene(mi, cm.load_probe(mi, probe), mat, res, spp, 0.0, 1.0)
     first, _, _ = cm.render_mitsuba(mi, scene, spp, 1)
     second, _, _ = cm.render_mitsuba(mi, scene, spp, 2)
-    parse_scene, render_reference = cm.import_warpbw()
+    prepare, render_reference = cm.import_warpbw()
     with pytest.warns(RuntimeWarning, match="studio.exr"):   # three negative texels set to 0, as Mitsuba's are
-        ours, cov, _ = cm.render_warpbw(parse_scene, render_reference, cm.warpbw_toml(probe, mat, res, 0.0, 1.0),
+        ours, cov, _ = cm.render_warpbw(prepare, render_reference, cm.warpbw_toml(probe, mat, res, 0.0, 1.0),
                                         spp, 1, mis=True)
     inside = cm.erode(cov, cm.ERODE_PX)
     assert inside.sum() > 0.3 * res * res
