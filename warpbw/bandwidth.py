@@ -847,7 +847,7 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     nu = wp.zeros(W * H, dtype=wp.vec2, device=device)
     b_p = wp.zeros(W * H, dtype=wp.float32, device=device)
     sigma2 = wp.zeros(W * H, dtype=wp.float32, device=device)
-    sigma2_rel = wp.zeros(W * H, dtype=wp.float32, device=device)
+    sigma2_rel = wp.empty(W * H, dtype=wp.float32, device=device)   # relative_bound_kernel writes every pixel
     mu = wp.zeros(W * H, dtype=wp.float32, device=device)
     var_mis = wp.zeros(W * H, dtype=wp.float32, device=device)
     var_bis = wp.zeros(W * H, dtype=wp.float32, device=device)
