@@ -3136,6 +3136,9 @@ def _stage_cases():
         "texel_directions 0 wide (empty)": (lambda c: envmap.texel_directions(0, 4), "width: expected"),
         "env_bandwidth_map cache 5": (lambda c: bandwidth.env_bandwidth_map(c.prep.env.pixels, cache=5),
                                       "cache: expected a folder"),
+        "env_bandwidth_map source a path": (   # it names the cache file
+            lambda c: bandwidth.env_bandwidth_map(c.prep.env.pixels, source="../../x:ab"),
+            "source: expected the probe's source digest"),
         "make_bandwidth_tables of strings": (
             lambda c: bandwidth.make_bandwidth_tables([["a"]], np.zeros((1, 16, 16, 16))),
             "environment bandwidth table: expected"),

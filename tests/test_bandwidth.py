@@ -987,6 +987,45 @@ def test_the_env_bandwidth_map_does_not_see_the_probes_exposure(tmp_path_factory
     np.testing.assert_allclose(nu_k, nu, rtol=1e-4, atol=1e-4 * float(nu.max()))
 
 
+def test_the_probe_at_another_exposure_reads_its_nu_a_map_from_the_cache_and_another_probe_does_not(tmp_path,
+                                                                                                      monkeypatch):
+    """The nu_a map does not see the exposure (the test above), so the pipeline keys its cache entry by the probe as
+    given, before its [environment] scale (EnvMap.source_digest): the probe at scale 7.3 and at 0.02 reads the
+    scale-1 entry, which holds the map a fresh build at 7.3 gives (rtol 1e-4, as above).  Keyed by the scaled pixels
+    it was rebuilt at each exposure (1.1-2.0 s for forest.exr and city.exr).  A probe with one texel changed, or the values
+    rotated, is another probe: built."""
+    from warpbw.io.exr import write_exr
+
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
+    rng = np.random.default_rng(5)
+    px = rng.gamma(0.5, 1.0, size=(16, 32, 3)).astype(np.float32)
+    px[3, 7] *= 300.0   # a small sun
+    write_exr(tmp_path / "probe.exr", px)
+    other = px.copy()
+    other[9, 20, 1] += 0.5
+    write_exr(tmp_path / "other.exr", other)
+
+    def bandwidth_of(file, scale):
+        prep = prepared(env=f'file = "{(tmp_path / file).as_posix()}"\nscale = {scale!r}', w=8, h=6)
+        prepare_bandwidth(prep)
+        return prep.notes["environment"]["bandwidth"], prep.bandwidth.nu_env.numpy(), prep.env
+
+    origin, table, env = bandwidth_of("probe.exr", 1.0)
+    assert origin == "built" and table.max() > 0.0
+    for scale in (7.3, 0.02):
+        origin_k, table_k, env_k = bandwidth_of("probe.exr", scale)
+        assert origin_k == "cache", scale
+        np.testing.assert_array_equal(table_k, table)
+        fresh, how = bw.env_bandwidth_map(env_k.pixels, "fresh", cache=tmp_path / "fresh")   # keyed by its pixels
+        assert how == "built"
+        nu, _ = bw.env_bandwidth_map(env_k.pixels, "scaled", source=env_k.source_digest)   # the cached entry
+        np.testing.assert_allclose(nu, fresh, rtol=1e-4, atol=1e-4 * float(fresh.max()))
+    assert bandwidth_of("other.exr", 7.3)[0] == "built"
+    rolled = tmp_path / "rolled.exr"
+    write_exr(rolled, np.roll(px, 8, axis=1))
+    assert bandwidth_of("rolled.exr", 1.0)[0] == "built"
+
+
 def test_the_pass_interleaves_its_directions_over_the_tile_its_pooling_window_spans(monkeypatch):
     """warpbw.bandwidth docstring: with the defaults (stride 2, pool radius 2) each pixel pools 3 x 3 blocks, whose
     direction sets are the 3 x 3 interleaved shifts (interleave_shifts(n_b, side), side = 2 r / stride + 1), and

@@ -149,6 +149,25 @@ def test_axes_of_the_mapping():
     assert np.allclose(got, [5.0, 7.0, 100.0, 200.0, 300.0, 400.0], rtol=1e-5)
 
 
+@settings(max_examples=10, deadline=None)
+@given(scale=st.floats(1e-6, 1e6), rotation=st.floats(-360.0, 360.0), i=st.integers(0, 4 * 8 * 3 - 1))
+def test_the_source_digest_names_the_map_as_given_whatever_its_scale_and_rotation(tmp_path_factory, scale, rotation,
+                                                                                   i):
+    """EnvMap.source_digest keys the caches of what the exposure does not change (the nu_a map): the same values at
+    any scale and rotation share it, the file's and the array's alike; one value one float32 step away does not."""
+    from warpbw.io.exr import write_exr
+
+    px = np.random.default_rng(1).gamma(0.5, 1.0, size=(4, 8, 3)).astype(np.float32)
+    base = E.envmap_from_array(px)
+    assert base.source_digest and E.envmap_from_array(px, rotation, scale).source_digest == base.source_digest
+    nudged = px.copy()
+    nudged.reshape(-1)[i] = np.nextafter(nudged.reshape(-1)[i], np.float32(np.inf))
+    assert E.envmap_from_array(nudged, rotation, scale).source_digest != base.source_digest
+    path = tmp_path_factory.mktemp("digest") / "p.exr"
+    write_exr(path, px)
+    assert E.load_envmap(path, rotation, scale).source_digest == base.source_digest
+
+
 def test_rotation_about_y_moves_the_light_like_mitsuba():
     h, w = 9, 16
     img = np.zeros((h, w, 3), np.float32)

@@ -7,7 +7,7 @@ Public:
     ``load_kernels(device)``   compile the block-plan and pooling kernels ahead, outside the pass's time
     ``BandwidthTables`` (Warp struct) / ``make_bandwidth_tables(nu_env, nu_rho, device)``
     ``nu_env_table(nu_env) -> (h, w)``   the environment's nu_a, max-filtered to at most LIGHT_TABLE_WIDTH columns
-    ``env_bandwidth_map(pixels, name, cache=None, signal, progress) -> ((H, W) float32 cycles/rad, origin)``
+    ``env_bandwidth_map(pixels, name, cache=None, signal, progress, source) -> ((H, W) float32 cycles/rad, origin)``
     ``ENV_SIGNALS``, ``ENV_SIGNAL_DEFAULT``, ``env_signal(lum, signal)``, ``check_env_signal(signal)``: what it reads;
     ``env_bandwidth_memory(width, height)``, ``ENV_BW_BYTES_PER_TEXEL``, ``ENV_BW_BYTES_FIXED``: the memory its build
     takes (a warning first where it lacks)
@@ -223,6 +223,7 @@ import hashlib
 import math
 import numbers
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -617,13 +618,17 @@ def env_bandwidth_memory(width: int, height: int) -> int:
 
 
 def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
-                      signal: str = ENV_SIGNAL_DEFAULT, progress: bool = False) -> tuple[np.ndarray, str]:
+                      signal: str = ENV_SIGNAL_DEFAULT, progress: bool = False,
+                      source: str | None = None) -> tuple[np.ndarray, str]:
     """nu_a(w) of a lat-long probe in cycles/radian (002 Sec. 2.3, "Distant illumination").
 
     Wavelet analysis of the map's :func:`env_signal` (:func:`precompute.wavelets.envmap_angular_bandwidth`, about
     5 s at 1024x512 on one core), with the flatness floor at ``EPSILON`` times the signal's mean (an HDR sun
     would otherwise make every other texel flat), cached by the pixels' content hash and the signal in ``cache``
-    (a path or a str; default ``$WARPBW_CACHE``).  A constant map has bandwidth 0 everywhere.  An empty map, one with
+    (a path or a str; default ``$WARPBW_CACHE``).  The map does not see the probe's exposure (either signal); given
+    ``source``, the hash of the probe before its scale (``EnvMap.source_digest``), the cache is keyed by it instead, so
+    that the probe at another ``[environment] scale`` reads the entry (``pixels`` must then be that probe times a
+    scale > 0).  A constant map has bandwidth 0 everywhere.  An empty map, one with
     NaN or infinite pixels, or one beyond float32's range is refused, naming ``name``.  Returns the map and where
     it came from ("constant", "cache" or "built").  ``progress`` shows a bar over the wavelet bands while it builds
     (a minute at 8192x4096); a build that would take more memory than is available (``ENV_BW_BYTES_PER_TEXEL``,
@@ -635,6 +640,10 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
     from warpbw.io.staged import remove_stale_temps
 
     check_env_signal(signal)
+    if source is not None and not (isinstance(source, str) and re.fullmatch(r"[\w-]+:[0-9a-f]+", source)):
+        # it names the cache file: "sha256-source:" and hex digits (EnvMap.source_digest)
+        raise WarpbwError(f"source: expected the probe's source digest (\"NAME:HEX\", EnvMap.source_digest), "
+                          f"got {source!r}")
     raw = np.asarray(pixels)
     if raw.ndim != 3 or raw.shape[2] != 3 or raw.size == 0 or raw.dtype.kind not in "biuf":
         raise WarpbwError(f"{name}: expected non-empty (H, W, 3) pixels for the bandwidth map, got shape {raw.shape} "
@@ -652,7 +661,7 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
     lum = px @ np.asarray(LUMINANCE, np.float32)
     if float(np.ptp(lum)) == 0.0:
         return np.zeros((h, w), np.float32), "constant"
-    digest = "blake2b:" + hashlib.blake2b(px.tobytes() + str(px.shape).encode(), digest_size=16).hexdigest()
+    digest = source or "blake2b:" + hashlib.blake2b(px.tobytes() + str(px.shape).encode(), digest_size=16).hexdigest()
     kind = "" if signal == "radiance" else f"{signal}-"   # the radiance maps keep their cache names
     if cache is not None and not isinstance(cache, (str, os.PathLike)):   # 5: pathlib's TypeError
         raise WarpbwError(f"cache: expected a folder (a path or a str), got {type(cache).__name__}")

@@ -70,6 +70,7 @@ Host functions:
 """
 from __future__ import annotations
 
+import hashlib
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -349,6 +350,9 @@ class EnvMap:
     rotation_deg: float = 0.0
     scale: float = 1.0
     device: str = "cpu"
+    # a hash of the map as given, before its scale (the input's values, dtype and shape): the same probe at any
+    # exposure has the same one, so what does not depend on the exposure (the nu_a map) is cached by it
+    source_digest: str = ""
     _keep: list = field(default_factory=list, repr=False)  # wp.arrays referenced by data
     _mips: list | None = field(default=None, repr=False)   # the MIP levels, once build_mip_pyramid made them
 
@@ -484,10 +488,11 @@ def _build_distribution(pixels: np.ndarray) -> dict[str, np.ndarray]:
     }
 
 
-def _sanitize(rgb, name: str, scale: float, stacklevel: int) -> tuple[np.ndarray, int]:
+def _sanitize(rgb, name: str, scale: float, stacklevel: int) -> tuple[np.ndarray, int, str]:
     """The map times ``scale`` as float32 with its negative and non-finite values set to 0 (one warning counts
-    them).  Numeric input is converted, scaled and checked ``SANITIZE_BLOCK_TEXELS`` at a time, each block as the
-    whole map would be (the same bits): a float64 copy of the whole map held 60 bytes per texel at the peak."""
+    them), and the map's ``source_digest`` (a hash of the input as given, before the scale).  Numeric input is
+    converted, scaled and checked ``SANITIZE_BLOCK_TEXELS`` at a time, each block as the whole map would be (the
+    same bits): a float64 copy of the whole map held 60 bytes per texel at the peak."""
     try:
         src = np.asarray(rgb)
         if src.dtype.kind not in "biuf":   # strings, objects: converted whole, refused as before
@@ -498,8 +503,10 @@ def _sanitize(rgb, name: str, scale: float, stacklevel: int) -> tuple[np.ndarray
         raise WarpbwError(f"envmap {name!r}: expected an (H, W, 3) RGB array, got shape {src.shape}")
     h, w = src.shape[:2]
     out = np.empty((h, w, 3), np.float32)
+    digest = hashlib.sha256(f"{src.dtype.str} {src.shape}".encode())   # 2.5x blake2b's speed here (4 ms per 1024x512)
     n_overflow, overflow_max, n_nonfinite, n_negative, n_pix = 0, 0.0, 0, 0, 0
     for r in _row_blocks(h, w):
+        digest.update(np.ascontiguousarray(src[r]).tobytes())   # the values as given: a float32 probe, 12 B/texel
         arr = np.asarray(src[r], dtype=np.float64)
         with np.errstate(over="ignore", invalid="ignore"):
             block = (arr * scale).astype(np.float32)
@@ -528,7 +535,7 @@ def _sanitize(rgb, name: str, scale: float, stacklevel: int) -> tuple[np.ndarray
             RuntimeWarning,
             stacklevel=stacklevel + 1,
         )
-    return out, n_bad
+    return out, n_bad, "sha256-source:" + digest.hexdigest()
 
 
 def _check_scalar(value, what: str, name: str, nonnegative: bool = False) -> float:
@@ -544,8 +551,8 @@ def _check_scalar(value, what: str, name: str, nonnegative: bool = False) -> flo
 
 def _make_envmap(rgb, rotation_deg, scale, name, device, stacklevel) -> EnvMap:
     rotation_deg, scale = _check_envmap_args(rotation_deg, scale, name, device)
-    pixels, n_clamped = _sanitize(rgb, name, scale, stacklevel + 1)
-    return _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device)
+    pixels, n_clamped, digest = _sanitize(rgb, name, scale, stacklevel + 1)
+    return _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, digest)
 
 
 def _check_envmap_args(rotation_deg, scale, name, device) -> tuple[float, float]:
@@ -554,7 +561,7 @@ def _check_envmap_args(rotation_deg, scale, name, device) -> tuple[float, float]
             _check_scalar(scale, "scale", name, nonnegative=True))
 
 
-def _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device) -> EnvMap:
+def _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, source_digest) -> EnvMap:
     """The EnvMap of sanitised ``pixels`` (float32, C order), its sampling distribution built."""
     h, w, _ = pixels.shape
     dist = _build_distribution(pixels)
@@ -595,6 +602,7 @@ def _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device) -> EnvMap:
         rotation_deg=rotation_deg,
         scale=scale,
         device=str(device),
+        source_digest=source_digest,
         _keep=keep,
     )
 
@@ -626,9 +634,9 @@ def load_envmap(path, rotation_deg: float = 0.0, scale: float = 1.0, device="cpu
                       "height); read as lat-long anyway", RuntimeWarning, stacklevel=2)
     name = Path(path).name
     rotation_deg, scale = _check_envmap_args(rotation_deg, scale, name, device)
-    pixels, n_clamped = _sanitize(rgb, name, scale, stacklevel=2)
+    pixels, n_clamped, digest = _sanitize(rgb, name, scale, stacklevel=2)
     del rgb   # the file's pixels, no longer needed while the distribution is built (12 bytes per texel)
-    return _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device)
+    return _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, digest)
 
 
 def constant_envmap(radiance, device="cpu") -> EnvMap:

@@ -472,7 +472,8 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False, env_signal: s
         raise WarpbwError(f"{prep.scene.source}: the bandwidth pass needs an [environment] ([[light]]s are exact "
                           "and take no part in it)")
     with _timed(prep.timings, "load_env_bandwidth"):
-        nu_env, origin = env_bandwidth_map(prep.env.pixels, prep.env.name, signal=env_signal, progress=progress)
+        nu_env, origin = env_bandwidth_map(prep.env.pixels, prep.env.name, signal=env_signal, progress=progress,
+                                           source=prep.env.source_digest or None)   # shared by every exposure
     prep.notes["environment"]["bandwidth"] = origin
     prep.notes["environment"]["bandwidth_signal"] = env_signal
     tables = []
