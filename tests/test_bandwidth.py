@@ -992,8 +992,8 @@ def test_the_probe_at_another_exposure_reads_its_nu_a_map_from_the_cache_and_ano
     """The nu_a map does not see the exposure (the test above), so the pipeline keys its cache entry by the probe as
     given, before its [environment] scale (EnvMap.source_digest): the probe at scale 7.3 and at 0.02 reads the
     scale-1 entry, which holds the map a fresh build at 7.3 gives (rtol 1e-4, as above).  Keyed by the scaled pixels
-    it was rebuilt at each exposure (1.1-2.0 s for forest.exr and city.exr).  A probe with one texel changed, or the values
-    rotated, is another probe: built."""
+    it was rebuilt at each exposure (1.1-2.0 s for forest.exr and city.exr).  A probe with one texel changed, or the
+    values rotated, is another probe: built."""
     from warpbw.io.exr import write_exr
 
     monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
