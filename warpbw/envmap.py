@@ -55,6 +55,8 @@ Warp functions (take an ``EnvMapData`` and a world direction; directions need no
 
 Host functions:
     envmap_from_array(rgb, rotation_deg=0.0, scale=1.0, name="array", device="cpu") -> EnvMap
+        (``EnvMap.source_digest`` hashes the map as given, before its scale: what the exposure does not change,
+        the nu_a map, is cached by it)
     load_envmap(path, rotation_deg=0.0, scale=1.0, device="cpu") -> EnvMap   (warns first where it would take more
                                                  memory than is available, ``load_memory(width, height)``)
     constant_envmap(radiance, device="cpu") -> EnvMap
