@@ -679,7 +679,7 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
     refine_sweeps = check_count(refine_sweeps, "refine_sweeps", 0)
     unaligned = check_flag(unaligned, "unaligned")   # "no" was truthy: an unaligned build
     if texel_size is not None and not (isinstance(texel_size, numbers.Real) and 0.0 < texel_size < math.inf):
-        raise WarpbwError(f"texel_size: expected a finite length > 0 (or None: 1 / the map's width), got "
+        raise WarpbwError(f"texel_size: expected a finite length > 0 (or None: the map spans the unit square), got "
                           f"{texel_size!r}")
     K = int(components)
     c = 0.0 if unaligned else float(prior)

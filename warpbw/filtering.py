@@ -911,8 +911,11 @@ class _GmmSource:
 
     @property
     def digest(self) -> str:
+        # a non-square height map's rows are differentiated over 1 / H (they were over 1 / W): its older builds are
+        # not read
+        rows = "-rows" if self.kind == "height" and self.data.shape[0] != self.data.shape[1] else ""
         return (f"{self.content_hash}-{self.kind}-s{float(self.scale)!r}-K{self.components}-c{float(self.prior)!r}-"
-                f"{'unaligned' if self.unaligned else 'aligned'}")
+                f"{'unaligned' if self.unaligned else 'aligned'}{rows}")
 
 
 def _build_gmm(src: _GmmSource, progress: bool = True):
