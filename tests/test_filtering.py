@@ -1575,9 +1575,10 @@ def test_camera_light_and_height_map_turned_about_the_plane_give_the_same_frame(
     and its height map turned with them (np.rot90(h, k): the plane lays column j at u = (j + 1/2) / W along +X and
     row i at v = (i + 1/2) / H along +Z), render the same frame at the same levels, for a square map or not -- a
     W x H map spans the plane's unit square, so its rows lie 1 / H apart.  Powers of two: an odd side's coarser
-    levels clip their last texel's footprint, which a turn moves to the first (9 x 4 turned twice: 11%).  Measured (session 69, 48 x 36, a 64 x 64
-    and a 64 x 32 map, each deterministic method and the ground truth): within 9e-6 of the brightest pixel; the
-    64 x 32 map's rows were differentiated over 1 / W, and its turned frame differed by 64% on average."""
+    levels clip their last texel's footprint, which a turn moves to the first (9 x 4 turned twice: 11%).  Measured
+    (session 69, 48 x 36, a 64 x 64 and a 64 x 32 map, each deterministic method and the ground truth): within 9e-6
+    of the brightest pixel; the 64 x 32 map's rows were differentiated over 1 / W, and its turned frame differed by
+    64% on average."""
     folder = tmp_path_factory.mktemp("turned")
     heights = np.random.default_rng(seed).standard_normal((rows, cols)) * 0.02
     frames = []
@@ -1591,6 +1592,40 @@ def test_camera_light_and_height_map_turned_about_the_plane_give_the_same_frame(
     assert a.coverage.sum() > 200 and np.array_equal(a.coverage, b.coverage)
     np.testing.assert_allclose(b.level, a.level, atol=1e-4)
     np.testing.assert_allclose(b.image, a.image, atol=1e-4 * float(a.image.max()))
+
+
+_TILED = {}
+
+
+@pytest.mark.filterwarnings("ignore:height field of")   # small random maps hold much texel-to-texel detail
+@settings(max_examples=10, deadline=None)
+@given(n=st.integers(2, 4), zoom=st.floats(0.25, 4.0), lod_bias=st.floats(-1.5, 3.0),
+       method=st.sampled_from(("fixed", "toksvig", "lean", "ground_truth")))
+def test_tiling_n_is_the_map_tiled_n_times_at_one_nth_the_scale(tmp_path_factory, n, zoom, lod_bias, method):
+    """A plane's texel coordinates are (u, v) tiling (W, H), so ``tiling = n`` with a W x W map reads the same texels as
+    ``tiling = 1`` with the map tiled n x n (np.tile), whose width is n times the map's: its heights, in units of its
+    width, shade alike at 1/n the scale.  Level l of both pyramids holds the same texels (a power-of-two map's level-l
+    texel covers 2^l x 2^l finest ones, the tiled one's whole copies beyond its own top), so every zoom and LOD bias
+    gives the same frame.  Measured (session 69, 48 x 36, dunes 8 x 8 and 32 x 32, zoom 0.25-16, levels -1 to 6):
+    identical to the bit, but for the reported level, which stops at the single map's top."""
+    if "folder" not in _TILED:
+        _TILED["folder"] = tmp_path_factory.mktemp("tiled")
+        _TILED["h"] = np.random.default_rng(7).standard_normal((8, 8)) * 0.02
+    folder, h = _TILED["folder"], _TILED["h"]
+    frames = []
+    for tiling, heights, scale in ((n, h, 1.0), (1, np.tile(h, (n, n)), 1.0 / n)):
+        name = f"map{n}_{tiling}.exr"
+        if not (folder / name).exists():
+            write_exr(folder / name, heights.astype(np.float32)[..., None], channels=["Y"])
+        s = parse_scene(plane_scene_toml(f'normal_map = "{name}"\nnormal_map_scale = {scale!r}\ntiling = {tiling}\n',
+                                         resolution=(32, 24), lights=2), folder, "s.toml")
+        frames.append(render_filtering(s, method, spp=MIN_GT_SPP, seed=2, lod_bias=lod_bias,
+                                       camera=zoomed_camera(s.camera, zoom)))
+    a, b = frames
+    assert a.coverage.sum() > 10 and np.array_equal(a.coverage, b.coverage)
+    below_top = a.coverage & (a.level < 3.0)              # the single 8 x 8 map's top is level 3
+    np.testing.assert_allclose(b.level[below_top], a.level[below_top], atol=1e-5)
+    np.testing.assert_allclose(b.image, a.image, rtol=1e-5, atol=1e-6 * float(a.image.max()))
 
 def test_a_light_below_the_plane_lights_nothing_whatever_the_method(tmp_path):
     """A directional light under the plane's macro surface (its direction has y < 0) reaches no point of the plane's
