@@ -991,6 +991,30 @@ def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path, mo
     assert not np.array_equal(got, p1.mips["m"].gmm["gmm_aligned"][0].numpy())
 
 
+def test_gmm_file_of_a_non_square_height_map_fitted_with_rows_1_over_w_apart_is_refused(tmp_path, monkeypatch):
+    """A W x H height map spans the plane's square, its rows 1/H apart; before session 69 they were differentiated
+    1/W apart, and a GMM file fitted then (a builder given that texel size does the same) holds slopes the other
+    methods no longer shade.  Such a file is refused with the command that rebuilds it, whose file is then used."""
+    import shlex
+
+    from precompute.__main__ import main as precompute_main
+    from precompute.gmm_mipmap import build_gmm_mipmap, write_gmm_mipmap
+
+    h = _bumps(8)[:4]                                       # 8 wide, 4 tall
+    scene_with_map(tmp_path, heights=h, scale=0.5)          # writes map.exr
+    digest = file_digest(tmp_path / "map.exr")
+    text = plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ngmm = "old.gmm"\n')
+    write_gmm_mipmap(tmp_path / "old.gmm", build_gmm_mipmap(h, scale=0.5, texel_size=1.0 / 8, progress=False),
+                     "map.exr", digest)
+    with pytest.raises(WarpbwError, match=r"\[material\.m\]\.gmm: .*8x4 height map with its rows 1/8 apart") as ei:
+        prepare_filtering(parse_scene(text, tmp_path, "s.toml"), ("gmm_aligned",))
+    command = shlex.split(str(ei.value).split("rebuild it with: ")[1].rstrip(")"))
+    monkeypatch.chdir(tmp_path)
+    assert precompute_main(command[1:] + ["-q"]) == 0
+    prep = prepare_filtering(parse_scene(text, tmp_path, "s.toml"), ("gmm_aligned",))
+    assert prep.notes["m"]["gmm_aligned"]["origin"] == "file"
+
+
 def test_gmm_priors_that_agree_to_six_digits_are_cached_apart(tmp_path):
     """The cache key wrote gmm_prior with %g (6 digits) while the reader compares it to 1e-9: priors 0.5 and
     0.5000001 shared one entry and evicted each other, so every render paid the whole EM fit again."""
