@@ -5,7 +5,8 @@ Public functions and classes:
 - ``GmmMipmap``: ``levels`` (list, finest first, of float32 ``(h_l, w_l, K, 4)`` moments), ``components``,
   ``prior``, ``unaligned``, ``kind``, ``scale``, ``seed``, ``max_samples``; ``params()``.
 - ``build_gmm_mipmap(heights_or_normals, kind="height", components=4, prior=1.0, scale=1.0, seed=0,
-  progress=True, unaligned=False, texel_size=None, max_samples=256, refine_sweeps=0) -> GmmMipmap``.
+  progress=True, unaligned=False, texel_size=None, max_samples=256, refine_sweeps=0) -> GmmMipmap``; a non-square
+  height map's build records ``ROW_SPACING_KEY: ROW_SPACING`` (its rows 1 / H apart) in its parameters.
 - ``write_gmm_mipmap(path, mip, source_name, source_hash, force=False, inputs=())``,
   ``read_gmm_mipmap(path) -> GmmMipmap``; ``mipmap_problem(levels, components, prior, scale)``, what both refuse;
   ``rebuild_command(source, params, out)``, the command that rebuilds a mipmap.
@@ -139,6 +140,10 @@ from warpbw.errors import (SEED_MAX, WarpbwError, check_count, check_flag, check
 GMM_FORMAT = "warpbw-gmm-mipmap"
 # 2: the fourth stored quantity is a (d s^2 + |mu|^2) (module docstring); 1 held 004's a (s^2 + |mu|^2).
 GMM_VERSION = 2
+# A non-square height map's rows are 1 / H apart (precompute.surfaces.height_to_normals; they were 1 / W before
+# session 69): its builds say so in their parameters, and a file of such a map without it is refused by the renderer
+ROW_SPACING_KEY = "row_spacing"
+ROW_SPACING = "1/H"
 # 004 Sec. 4.2: "Our current implementation utilizes mixtures of four Gaussians".
 DEFAULT_COMPONENTS = 4
 MAX_COMPONENTS = 16            # a sanity bound on --components (each is one texture in the renderer)
@@ -679,7 +684,7 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
     refine_sweeps = check_count(refine_sweeps, "refine_sweeps", 0)
     unaligned = check_flag(unaligned, "unaligned")   # "no" was truthy: an unaligned build
     if texel_size is not None and not (isinstance(texel_size, numbers.Real) and 0.0 < texel_size < math.inf):
-        raise WarpbwError(f"texel_size: expected a finite length > 0 (or None: 1 / the map's width), got "
+        raise WarpbwError(f"texel_size: expected a finite length > 0 (or None: the map spans the unit square), got "
                           f"{texel_size!r}")
     K = int(components)
     c = 0.0 if unaligned else float(prior)
@@ -746,8 +751,11 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
         if not np.all(np.isfinite(levels[-1])):   # never written: the renderer would refuse the file later
             raise WarpbwError(f"GMM fit of level {l} gave NaN or infinite moments (components {K}, prior {c:g}); "
                               "this is a defect, please report it with the map")
+    extra = {"refine_sweeps": int(refine_sweeps)} if refine_sweeps else {}
+    if kind == "height" and texel_size is None and H != W:
+        extra[ROW_SPACING_KEY] = ROW_SPACING   # what a renderer checks before it shades with a non-square map's file
     return GmmMipmap(levels, K, float(prior), bool(unaligned), kind, float(scale), int(seed), int(max_samples),
-                     extra={"refine_sweeps": int(refine_sweeps)} if refine_sweeps else {})
+                     extra=extra)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -871,6 +879,7 @@ def read_gmm_mipmap(path) -> GmmMipmap:
                         bool(params.get("unaligned", False)), params.get("kind", "height"),
                         float(params.get("scale", 1.0)), int(params.get("seed", 0)),
                         int(params.get("max_samples", DEFAULT_MAX_SAMPLES)),
+                        extra={k: params[k] for k in ("refine_sweeps", ROW_SPACING_KEY) if k in params},
                         source=asset.header.get("source"), source_hash=asset.header.get("source_hash"))
     except (TypeError, ValueError, AttributeError):  # arrays of strings, a hand-edited header
         raise WarpbwError(f"{path}: GMM mipmap with non-numeric levels or parameters (rebuild it with: {hint})") \

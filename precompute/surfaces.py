@@ -22,7 +22,8 @@ Conventions (shared with ``precompute.gmm_mipmap``):
 - Every surface tiles: it is periodic over the map, and ``height_to_normals`` differentiates with
   wrap-around, so the map can repeat across an object without seams.
 - Heights are in units of the map's width (the map spans 1 unit across), so with ``scale=1`` and the
-  default ``texel_size = 1 / W`` a hemisphere of the scales *is* a hemisphere.
+  default texel size a hemisphere of the scales *is* a hemisphere.  By default the map spans the unit square,
+  as a plane lays it (``warpbw.filtering``: u and v each in [0, 1]): texels ``1 / W`` wide and ``1 / H`` tall.
 - Tangent space: x along +column, y along -row (image up, since image row 0 is the top; the OpenGL
   normal-map convention), z out of the surface.  A normal map's R, G, B hold n_x, n_y, n_z.
 - Any size from 1 to ``MAX_SURFACE_SIZE``, powers of two or not (the scales need more than 2 texels per
@@ -238,14 +239,16 @@ def nyquist_share(h: np.ndarray) -> float:
 
 def height_to_normals(h, scale: float = 1.0, texel_size: float | None = None) -> np.ndarray:
     """Unit tangent-space normals (H, W, 3) of the height field ``scale * h`` by central differences
-    with wrap-around (the map tiles).  ``texel_size`` is a texel's width in height units (default
-    ``1 / W``: heights in units of the map's width).  x along +column, y along -row (image up).  Warns when more
+    with wrap-around (the map tiles).  ``texel_size`` is a (square) texel's side in height units; by default
+    the map spans the unit square, as a plane lays it (u and v each in [0, 1]): a texel ``1 / W`` wide and
+    ``1 / H`` tall, heights in units of the map's width.  x along +column, y along -row (image up).  Warns when more
     than ``NYQUIST_SHARE_WARN`` of the heights' variance alternates from texel to texel (:func:`nyquist_share`):
     central differences do not see it, and a checkerboard came out a mirror, silently."""
     h = numeric_array(h, "height field", "(H, W) heights")   # strings: numpy's "could not convert"
     if h.ndim != 2 or h.size == 0:
         raise WarpbwError(f"height field of shape {h.shape}: expected a non-empty (H, W) array")
     t = 1.0 / h.shape[1] if texel_size is None else _real(texel_size)
+    t_y = 1.0 / h.shape[0] if texel_size is None else t   # a row's height: 1 / W made a 2:1 map's rows 2x steep
     given_scale, scale = scale, _real(scale)   # "2" or None were TypeErrors, "x" a ValueError
     if not (t > 0.0 and math.isfinite(t)) or not math.isfinite(scale) or not np.all(np.isfinite(h)):
         # texel_size 0 divided by zero; a NaN scale or height gave NaN normals
@@ -254,7 +257,7 @@ def height_to_normals(h, scale: float = 1.0, texel_size: float | None = None) ->
                           "heights")
     with np.errstate(over="ignore", invalid="ignore"):
         dh_dx = (np.roll(h, -1, axis=1) - np.roll(h, 1, axis=1)) * (scale / (2.0 * t))
-        dh_dy = (np.roll(h, 1, axis=0) - np.roll(h, -1, axis=0)) * (scale / (2.0 * t))   # y = -row
+        dh_dy = (np.roll(h, 1, axis=0) - np.roll(h, -1, axis=0)) * (scale / (2.0 * t_y))   # y = -row
     share = nyquist_share(h)
     if share > NYQUIST_SHARE_WARN:
         warnings.warn(f"height field of {h.shape[1]}x{h.shape[0]} texels: {share:.0%} of its variance alternates from "

@@ -991,6 +991,30 @@ def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path, mo
     assert not np.array_equal(got, p1.mips["m"].gmm["gmm_aligned"][0].numpy())
 
 
+def test_gmm_file_of_a_non_square_height_map_fitted_with_rows_1_over_w_apart_is_refused(tmp_path, monkeypatch):
+    """A W x H height map spans the plane's square, its rows 1/H apart; before session 69 they were differentiated
+    1/W apart, and a GMM file fitted then (a builder given that texel size does the same) holds slopes the other
+    methods no longer shade.  Such a file is refused with the command that rebuilds it, whose file is then used."""
+    import shlex
+
+    from precompute.__main__ import main as precompute_main
+    from precompute.gmm_mipmap import build_gmm_mipmap, write_gmm_mipmap
+
+    h = _bumps(8)[:4]                                       # 8 wide, 4 tall
+    scene_with_map(tmp_path, heights=h, scale=0.5)          # writes map.exr
+    digest = file_digest(tmp_path / "map.exr")
+    text = plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ngmm = "old.gmm"\n')
+    write_gmm_mipmap(tmp_path / "old.gmm", build_gmm_mipmap(h, scale=0.5, texel_size=1.0 / 8, progress=False),
+                     "map.exr", digest)
+    with pytest.raises(WarpbwError, match=r"\[material\.m\]\.gmm: .*8x4 height map with its rows 1/8 apart") as ei:
+        prepare_filtering(parse_scene(text, tmp_path, "s.toml"), ("gmm_aligned",))
+    command = shlex.split(str(ei.value).split("rebuild it with: ")[1].rstrip(")"))
+    monkeypatch.chdir(tmp_path)
+    assert precompute_main(command[1:] + ["-q"]) == 0
+    prep = prepare_filtering(parse_scene(text, tmp_path, "s.toml"), ("gmm_aligned",))
+    assert prep.notes["m"]["gmm_aligned"]["origin"] == "file"
+
+
 def test_gmm_priors_that_agree_to_six_digits_are_cached_apart(tmp_path):
     """The cache key wrote gmm_prior with %g (6 digits) while the reader compares it to 1e-9: priors 0.5 and
     0.5000001 shared one entry and evicted each other, so every render paid the whole EM fit again."""
@@ -1554,6 +1578,78 @@ def test_lights_and_environment_k_times_brighter_give_k_times_the_frame_at_the_s
     lit = cov[..., None] & (one.image > 1e-4 * one.image[cov].max())
     np.testing.assert_allclose(bright.image[lit] / one.image[lit], k, rtol=1e-4)
 
+
+
+def _quarter_turns(v, k: int) -> list:
+    """``v`` turned k quarter turns about +Y, right-handed (warpbw.envmap's R: (x, y, z) -> (z, y, -x)), exactly."""
+    x, y, z = v
+    for _ in range(k):
+        x, z = z, -x
+    return [x, y, z]
+
+
+@pytest.mark.filterwarnings("ignore:height field of")   # small random maps hold much texel-to-texel detail
+@settings(max_examples=12, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), rows=st.sampled_from((4, 8, 16)), cols=st.sampled_from((4, 8, 16)),
+       k=st.integers(1, 3),
+       method=st.sampled_from(("fixed", "toksvig", "lean", "ground_truth")))
+def test_camera_light_and_height_map_turned_about_the_plane_give_the_same_frame(tmp_path_factory, seed, rows, cols,
+                                                                                k, method):
+    """The plane has no preferred direction: the camera and the light turned k quarter turns about its centre (+Y),
+    and its height map turned with them (np.rot90(h, k): the plane lays column j at u = (j + 1/2) / W along +X and
+    row i at v = (i + 1/2) / H along +Z), render the same frame at the same levels, for a square map or not -- a
+    W x H map spans the plane's unit square, so its rows lie 1 / H apart.  Powers of two: an odd side's coarser
+    levels clip their last texel's footprint, which a turn moves to the first (9 x 4 turned twice: 11%).  Measured
+    (session 69, 48 x 36, a 64 x 64 and a 64 x 32 map, each deterministic method and the ground truth): within 9e-6
+    of the brightest pixel; the 64 x 32 map's rows were differentiated over 1 / W, and its turned frame differed by
+    64% on average."""
+    folder = tmp_path_factory.mktemp("turned")
+    heights = np.random.default_rng(seed).standard_normal((rows, cols)) * 0.02
+    frames = []
+    for turns, h in ((0, heights), (k, np.rot90(heights, k))):
+        write_exr(folder / f"map{turns}.exr", np.ascontiguousarray(h, np.float32)[..., None], channels=["Y"])
+        text = plane_scene_toml(f'normal_map = "map{turns}.exr"\nnormal_map_scale = 1.0\ntiling = 2\n',
+                                resolution=(24, 16), position=_quarter_turns((0.4, 1.5, 2.0), turns),
+                                light_dir=_quarter_turns(PLANE_LIGHT_DIR, turns))
+        frames.append(render_filtering(parse_scene(text, folder, "s.toml"), method, spp=MIN_GT_SPP, seed=2))
+    a, b = frames
+    assert a.coverage.sum() > 200 and np.array_equal(a.coverage, b.coverage)
+    np.testing.assert_allclose(b.level, a.level, atol=1e-4)
+    np.testing.assert_allclose(b.image, a.image, atol=1e-4 * float(a.image.max()))
+
+
+_TILED = {}
+
+
+@pytest.mark.filterwarnings("ignore:height field of")   # small random maps hold much texel-to-texel detail
+@settings(max_examples=10, deadline=None)
+@given(n=st.integers(2, 4), zoom=st.floats(0.25, 4.0), lod_bias=st.floats(-1.5, 3.0),
+       method=st.sampled_from(("fixed", "toksvig", "lean", "ground_truth")))
+def test_tiling_n_is_the_map_tiled_n_times_at_one_nth_the_scale(tmp_path_factory, n, zoom, lod_bias, method):
+    """A plane's texel coordinates are (u, v) tiling (W, H), so ``tiling = n`` with a W x W map reads the same texels as
+    ``tiling = 1`` with the map tiled n x n (np.tile), whose width is n times the map's: its heights, in units of its
+    width, shade alike at 1/n the scale.  Level l of both pyramids holds the same texels (a power-of-two map's level-l
+    texel covers 2^l x 2^l finest ones, the tiled one's whole copies beyond its own top), so every zoom and LOD bias
+    gives the same frame.  Measured (session 69, 48 x 36, dunes 8 x 8 and 32 x 32, zoom 0.25-16, levels -1 to 6):
+    identical to the bit, but for the reported level, which stops at the single map's top."""
+    if "folder" not in _TILED:
+        _TILED["folder"] = tmp_path_factory.mktemp("tiled")
+        _TILED["h"] = np.random.default_rng(7).standard_normal((8, 8)) * 0.02
+    folder, h = _TILED["folder"], _TILED["h"]
+    frames = []
+    for tiling, heights, scale in ((n, h, 1.0), (1, np.tile(h, (n, n)), 1.0 / n)):
+        name = f"map{n}_{tiling}.exr"
+        if not (folder / name).exists():
+            write_exr(folder / name, heights.astype(np.float32)[..., None], channels=["Y"])
+        s = parse_scene(plane_scene_toml(f'normal_map = "{name}"\nnormal_map_scale = {scale!r}\ntiling = {tiling}\n',
+                                         resolution=(32, 24), lights=2), folder, "s.toml")
+        frames.append(render_filtering(s, method, spp=MIN_GT_SPP, seed=2, lod_bias=lod_bias,
+                                       camera=zoomed_camera(s.camera, zoom)))
+    a, b = frames
+    assert a.coverage.sum() > 10 and np.array_equal(a.coverage, b.coverage)
+    below_top = a.coverage & (a.level < 3.0)              # the single 8 x 8 map's top is level 3
+    np.testing.assert_allclose(b.level[below_top], a.level[below_top], atol=1e-5)
+    np.testing.assert_allclose(b.image, a.image, rtol=1e-5, atol=1e-6 * float(a.image.max()))
 
 def test_a_light_below_the_plane_lights_nothing_whatever_the_method(tmp_path):
     """A directional light under the plane's macro surface (its direction has y < 0) reaches no point of the plane's

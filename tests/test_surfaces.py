@@ -88,6 +88,18 @@ def test_height_to_normals_of_any_tilted_plane_is_its_closed_form_normal(gx, gy,
     np.testing.assert_allclose(n[1:-1, 1:-1], np.broadcast_to(want, n[1:-1, 1:-1].shape), atol=1e-9)
 
 
+@settings(max_examples=30, deadline=None)
+@given(gx=st.floats(-5.0, 5.0), gy=st.floats(-5.0, 5.0), rows=st.integers(3, 12), cols=st.integers(3, 12))
+def test_height_to_normals_default_lays_the_map_on_the_unit_square(gx, gy, rows, cols):
+    """By default a W x H map spans the unit square, as a plane lays it: column j at x = j / W, row i at y = -i / H.
+    So the plane h = gx x + gy y has the normal (-gx, -gy, 1) / |.| whatever the map's shape (rows were 1 / W apart:
+    a 2:1 map came out twice as steep along its rows)."""
+    r, c = np.mgrid[0:rows, 0:cols].astype(np.float64)
+    n = height_to_normals(gx * c / cols + gy * (-r) / rows)
+    want = np.array([-gx, -gy, 1.0]) / np.sqrt(1.0 + gx * gx + gy * gy)
+    np.testing.assert_allclose(n[1:-1, 1:-1], np.broadcast_to(want, n[1:-1, 1:-1].shape), atol=1e-9)
+
+
 @pytest.mark.filterwarnings("ignore:height field of")   # small random maps hold much texel-to-texel detail
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1), rows=st.integers(3, 12), cols=st.integers(3, 12),

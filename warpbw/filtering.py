@@ -1030,7 +1030,7 @@ def _load_gmm(scene: Scene, name: str, data, kind, scale, src_name, digest, unal
 def _read_gmm_checked(scene: Scene, name: str):
     """The reader for ``load_or_build``: an explicit file must match the material's map and parameters."""
     def read(path, src: _GmmSource):
-        from precompute.gmm_mipmap import read_gmm_mipmap, rebuild_command
+        from precompute.gmm_mipmap import ROW_SPACING, ROW_SPACING_KEY, read_gmm_mipmap, rebuild_command
 
         mip = read_gmm_mipmap(path)
         # the command that rebuilds the file from the material's own map (its full path: the scene's folder need not
@@ -1045,6 +1045,11 @@ def _read_gmm_checked(scene: Scene, name: str):
         if tuple(mip.shape) != want:
             raise WarpbwError(f"{path}: built from a {mip.shape[1]}x{mip.shape[0]} map, but the normal_map is "
                               f"{want[1]}x{want[0]} (rebuild it with: {rebuild})")
+        if (src.kind == "height" and want[0] != want[1]
+                and mip.kind == "height" and mip.extra.get(ROW_SPACING_KEY) != ROW_SPACING):
+            raise WarpbwError(f"{path}: built from this {want[1]}x{want[0]} height map with its rows 1/{want[1]} apart "
+                              f"(before session 69), where the plane lays them 1/{want[0]} apart (rebuild it with: "
+                              f"{rebuild})")
         if mip.kind != src.kind or (src.kind == "height" and not math.isclose(mip.scale, src.scale, rel_tol=1e-6)):
             raise WarpbwError(f"{path}: built with --kind {mip.kind} --scale {mip.scale:g}, but the material has "
                               f"normal_map_kind = {src.kind!r}, normal_map_scale = {src.scale:g} (rebuild it with: "
