@@ -1048,8 +1048,8 @@ def _read_gmm_checked(scene: Scene, name: str):
         if (src.kind == "height" and want[0] != want[1]
                 and mip.kind == "height" and mip.extra.get(ROW_SPACING_KEY) != ROW_SPACING):
             raise WarpbwError(f"{path}: built from this {want[1]}x{want[0]} height map with its rows 1/{want[1]} apart "
-                              f"(before session 69), where the plane lays them 1/{want[0]} apart (rebuild it with: "
-                              f"{rebuild})")
+                              f"(an earlier warpbw's build), where the plane lays them 1/{want[0]} apart (rebuild it "
+                              f"with: {rebuild})")
         if mip.kind != src.kind or (src.kind == "height" and not math.isclose(mip.scale, src.scale, rel_tol=1e-6)):
             raise WarpbwError(f"{path}: built with --kind {mip.kind} --scale {mip.scale:g}, but the material has "
                               f"normal_map_kind = {src.kind!r}, normal_map_scale = {src.scale:g} (rebuild it with: "
