@@ -325,7 +325,9 @@ def brdf_nu_rho(nu_rho: wp.array(dtype=wp.float32), m: int, wi: wp.vec3, wo: wp.
 @wp.func
 def nu_env_at_uv(nu_env: wp.array2d(dtype=wp.float32), uv: wp.vec2):
     """nu_a of the environment at lat-long coordinates uv = env_uv(env, w): nearest texel of the reduced
-    map (row centres at (j + 1/2) / h)."""
+    map (row centres at (j + 1/2) / h, precompute.wavelets' rows; the radiance's row j sits at v = j / (H - 1),
+    warpbw.envmap's: every probe row's own direction still reads the table row that holds it, and every direction
+    one holding a row of its bilinear pair: the half-texel offset stays inside a table row (session 69)."""
     h = nu_env.shape[0]
     wd = nu_env.shape[1]
     col = wp.clamp(int(uv[0] * float(wd)), 0, wd - 1)
