@@ -1903,9 +1903,9 @@ def test_the_gmm_components_listed_in_another_order_render_the_same_frame(tmp_pa
         name = "m" + "".join(map(str, perm)) + ".gmm"
         if not (folder / name).exists():
             write_gmm_mipmap(folder / name, m, "map.exr", file_digest(folder / "map.exr"))
-        s = parse_scene(plane_scene_toml(f'normal_map = "map.exr"\nnormal_map_scale = 0.5\ntiling = 4\ngmm = "{name}"\n',
-                                         roughness=0.1, position=(0.3, 1.2, 2.0), lights=2, resolution=(48, 32),
-                                         diffuse=(0.5, 0.4, 0.3)), folder, "s.toml")
+        material = f'normal_map = "map.exr"\nnormal_map_scale = 0.5\ntiling = 4\ngmm = "{name}"\n'
+        s = parse_scene(plane_scene_toml(material, roughness=0.1, position=(0.3, 1.2, 2.0), lights=2,
+                                         resolution=(48, 32), diffuse=(0.5, 0.4, 0.3)), folder, "s.toml")
         frames.append(render_filtering(s, "gmm_aligned", camera=zoomed_camera(s.camera, zoom)))
     a, b = frames
     assert a.coverage.sum() >= 100
