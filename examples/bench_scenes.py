@@ -37,6 +37,7 @@ from pathlib import Path
 from warpbw.cli import check_command_options
 from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, run_command
 from warpbw.errors import WarpbwError
+from warpbw.io.merl import TABULATION_VERSION
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
 from warpbw.scene import toml_escape
@@ -100,7 +101,9 @@ def write_scenes(out: Path, force: bool = False) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     for material in sorted({row[1] for row in (*SCENES.values(), *EXTRA_SCENES.values())}):
         merl = out / f"{material}.binary"
-        if not merl.exists():
+        stamp = merl.with_name(merl.name + ".tabulation")   # which tabulate_merl wrote it (a MERL file cannot say)
+        current = stamp.is_file() and stamp.read_text(errors="replace").strip() == str(TABULATION_VERSION)
+        if not (merl.exists() and current):   # missing, or an earlier tabulation's (a cache entry gone stale)
             # --force: OUT holds these files as a cache (--help), and a second bench_scenes into the same OUT (two
             # --only runs at once) converts the same material to the same bytes; without it the later to finish
             # was refused ("appeared while this run worked") and this script ended in a traceback
@@ -109,6 +112,7 @@ def write_scenes(out: Path, force: bool = False) -> list[Path]:
                                      "--force"]).returncode
             if status:   # npf-to-merl has said why (check=True printed a traceback under it)
                 raise WarpbwError(f"{merl}: converting {material} from the NPF table failed (status {status})")
+            stamp.write_text(f"{TABULATION_VERSION}\n")
     with staged_outputs(texts) as at:   # every scene, or none: an error leaves the old ones
         for p, text in texts.items():
             at[p].write_text(text)
@@ -119,6 +123,7 @@ def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="bench_scenes", help="directory for scenes, MERL files and results (an "
                     "OUT/MATERIAL.binary already there is used as it is, a cache: delete it to convert the NPF fit "
+                    "again; one an earlier tabulation wrote, as OUT/MATERIAL.binary.tabulation says, is converted "
                     "again)")
     ap.add_argument("--run", action="store_true", help="run warpbw bench on every scene")
     ap.add_argument("--only", help="comma-separated scene names to run (default: the four of the table; "

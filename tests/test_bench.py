@@ -862,6 +862,24 @@ def test_bench_scenes_reuses_its_merl_files_and_force_rewrites_an_edited_scene(t
     assert calls == [] and edited.read_text() == text
 
 
+def test_bench_scenes_converts_again_a_merl_file_an_earlier_tabulation_wrote(tmp_path, monkeypatch, shared):
+    """The MERL files are a cache of npf-to-merl's tabulation (warpbw.io.merl.TABULATION_VERSION), which session 69
+    changed (the bins the horizon cuts), and a MERL file cannot say which one wrote it: a file of the earlier one was
+    used as it was.  A file whose stamp (OUT/MATERIAL.binary.tabulation) is missing or names another version is
+    converted again; a current one is not."""
+    shared("brdf/npf.bin")
+    bs, calls = _bench_scenes_with_fake_run(monkeypatch)
+    out = tmp_path / "s"
+    assert bs.main(["--out", str(out)]) == 0
+    calls.clear()
+    (out / "chrome.binary.tabulation").unlink()                    # a folder of an earlier warpbw: no stamp
+    (out / "blue-acrylic.binary.tabulation").write_text("1\n")     # the earlier tabulation's
+    assert bs.main(["--out", str(out)]) == 0
+    assert sorted(_after(c, "--material") for c in calls) == ["blue-acrylic", "chrome"]
+    calls.clear()
+    assert bs.main(["--out", str(out)]) == 0 and calls == []
+
+
 def test_two_bench_scenes_into_one_out_at_once_both_go_on_with_a_whole_merl_file(tmp_path, monkeypatch, shared):
     """Two bench_scenes runs into one --out at once (two --only runs, say) both convert a material that is not there
     yet.  The later one found the other's file when its npf-to-merl started, was refused ("already exists") and

@@ -14,7 +14,7 @@ Public functions:
   cos-weighted mean over the bins the horizon cuts, ``horizon_bins() -> (90, 90, 180) bool``).
 
 Class: ``MerlBRDF``. Constants: ``MERL_THETA_H_RES``, ``MERL_THETA_D_RES``, ``MERL_PHI_D_RES``,
-``MERL_SCALE``, ``MERL_FILE_SIZE``, ``HORIZON_SUBSAMPLES``.
+``MERL_SCALE``, ``MERL_FILE_SIZE``, ``HORIZON_SUBSAMPLES``, ``TABULATION_VERSION``.
 
 Format and binning follow the MERL database's ``BRDFRead.cpp`` (Matusik et al. 2003) as restated
 in ``../shared/data/README.md``. Directions point away from the surface, +Z is the normal.
@@ -52,6 +52,9 @@ _TABULATE_ROWS_PER_CHUNK = 9
 # and 4x one 16-spp run's MSE (session 69).  Weighted by cos_i cos_o, the mean stays finite under the 1 / (cos_i
 # cos_o) of the fit.
 HORIZON_SUBSAMPLES = 4
+# What tabulate_merl writes, for whoever keeps its files as a cache (examples/bench_scenes.py): 2, the horizon bins'
+# weighted means (session 69); 1, every bin its centre's value.  A MERL file has no header to say it.
+TABULATION_VERSION = 2
 _HORIZON_BINS_PER_CHUNK = 2048   # horizon bins per call of the BRDF (x HORIZON_SUBSAMPLES^3 pairs)
 
 
