@@ -1009,7 +1009,8 @@ def test_the_scene_turned_about_y_turns_the_gbuffer_and_leaves_the_frame(tmp_pat
         p = lambda v: repr(_turned_about_y(v, t).tolist())
         text = "\n".join([
             "[camera]", f"position = {p((0.3, 0.9, 4.2))}", f"look_at = {p((0.1, 0.0, 0.0))}", "fov = 40.0",
-            "resolution = [32, 24]", "[[light]]", 'type = "directional"', f"direction = {p((0.4, 0.7, 0.3))}", "radiance = [3.0, 2.5, 2.0]",
+            "resolution = [32, 24]", "[[light]]", 'type = "directional"', f"direction = {p((0.4, 0.7, 0.3))}",
+            "radiance = [3.0, 2.5, 2.0]",
             "[[light]]", 'type = "directional"', f"direction = {p((-0.6, 0.2, -0.5))}", "radiance = [1.0, 1.5, 2.0]",
             "[[object]]", 'shape = "sphere"', f"center = {p((-0.9, 0.0, 0.2))}", "radius = 0.6", 'material = "a"',
             "[[object]]", 'shape = "sphere"', f"center = {p((0.2, -0.3, -0.8))}", "radius = 0.5", 'material = "b"',
