@@ -493,5 +493,5 @@ def test_the_world_turned_about_y_gives_the_same_plan_and_frame(theta, mis):
     one, turned = _UNTURNED_FRAMES[mis], frame(float(theta))
     cov = one.coverage
     assert cov.sum() > 200 and len(np.unique(one.aovs["n_p"][cov])) > 2 and one.aovs["shaded"][cov].mean() < 0.9
-    assert np.array_equal(turned.coverage, cov)
+    assert (turned.coverage != cov).sum() <= 1   # a ray within float32 rounding of a silhouette may miss once turned
     _assert_the_same_plan_and_k_times_the_frame(one, turned, 1.0)

@@ -1580,7 +1580,6 @@ def test_lights_and_environment_k_times_brighter_give_k_times_the_frame_at_the_s
     np.testing.assert_allclose(bright.image[lit] / one.image[lit], k, rtol=1e-4)
 
 
-
 def _quarter_turns(v, k: int) -> list:
     """``v`` turned k quarter turns about +Y, right-handed (warpbw.envmap's R: (x, y, z) -> (z, y, -x)), exactly."""
     x, y, z = v
@@ -1651,6 +1650,7 @@ def test_tiling_n_is_the_map_tiled_n_times_at_one_nth_the_scale(tmp_path_factory
     below_top = a.coverage & (a.level < 3.0)              # the single 8 x 8 map's top is level 3
     np.testing.assert_allclose(b.level[below_top], a.level[below_top], atol=1e-5)
     np.testing.assert_allclose(b.image, a.image, rtol=1e-5, atol=1e-6 * float(a.image.max()))
+
 
 def test_a_light_below_the_plane_lights_nothing_whatever_the_method(tmp_path):
     """A directional light under the plane's macro surface (its direction has y < 0) reaches no point of the plane's

@@ -1023,12 +1023,15 @@ def test_the_scene_turned_about_y_turns_the_gbuffer_and_leaves_the_frame(tmp_pat
     if "frame" not in _UNTURNED:
         _UNTURNED["frame"] = frame(0.0)
     one, turned = _UNTURNED["frame"], frame(float(theta))
-    cov = one.coverage
+    # a ray within float32 rounding of a silhouette or a box edge may hit on one side and miss on the other: at most
+    # two such pixels, and the rest compared
+    cov = one.coverage & turned.coverage
+    assert (one.coverage != turned.coverage).sum() <= 2
     assert cov.sum() > 200 and len(np.unique(one.gbuffer.numpy("material")[cov])) == 2
-    assert np.array_equal(turned.coverage, cov)
-    np.testing.assert_array_equal(turned.gbuffer.numpy("material"), one.gbuffer.numpy("material"))
+    np.testing.assert_array_equal(turned.gbuffer.numpy("material")[cov], one.gbuffer.numpy("material")[cov])
     for name, atol in (("position", 1e-5 * 5.0), ("normal", 1e-4), ("view", 1e-5)):
         want = _turned_about_y(one.gbuffer.numpy(name)[cov], theta)
         np.testing.assert_allclose(turned.gbuffer.numpy(name)[cov], want, atol=atol, err_msg=name)
-    np.testing.assert_allclose(turned.gbuffer.numpy("depth"), one.gbuffer.numpy("depth"), rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(turned.image, one.image, atol=1e-4 * float(one.image.max()))
+    np.testing.assert_allclose(turned.gbuffer.numpy("depth")[cov], one.gbuffer.numpy("depth")[cov], rtol=1e-5,
+                               atol=1e-6)
+    np.testing.assert_allclose(turned.image[cov], one.image[cov], atol=1e-4 * float(one.image.max()))
