@@ -341,31 +341,31 @@ def tabulate_merl(func, name: str) -> np.ndarray:
     for r0 in range(0, MERL_THETA_H_RES, _TABULATE_ROWS_PER_CHUNK):
         r1 = min(r0 + _TABULATE_ROWS_PER_CHUNK, MERL_THETA_H_RES)
         TH, TD, PD = np.meshgrid(th[r0:r1], td, pd, indexing="ij")
-        vals = _tabulated_values(func, name, TH.ravel(), TD.ravel(), PD.ravel(), "MERL bin centres")
+        wi, wo = dirs_from_half_diff(TH.ravel(), 0.0, TD.ravel(), PD.ravel())
+        vals = _tabulated_values(func, name, wi, wo, "MERL bin centres")
         out[r0:r1] = vals.reshape(r1 - r0, MERL_THETA_D_RES, MERL_PHI_D_RES, 3)
     cut = np.argwhere(horizon_bins())
     s = HORIZON_SUBSAMPLES
     q = (np.arange(s) + 0.5) / s   # the sub-points' places in a bin, per axis
     for c0 in range(0, len(cut), _HORIZON_BINS_PER_CHUNK):
-        i, j, k = (a[:, None, None, None] for a in cut[c0:c0 + _HORIZON_BINS_PER_CHUNK].T)
+        ii, jj, kk = cut[c0:c0 + _HORIZON_BINS_PER_CHUNK].T
+        i, j, k = (a[:, None, None, None] for a in (ii, jj, kk))
         TH = ((i + q[:, None, None]) / MERL_THETA_H_RES) ** 2 * _HALF_PI
         TD = (j + q[:, None]) / MERL_THETA_D_RES * _HALF_PI
         PD = (k + q) / MERL_PHI_D_RES * np.pi
         TH, TD, PD = (np.broadcast_to(a, TH.shape[:1] + (s, s, s)).ravel() for a in (TH, TD, PD))
-        vals = _tabulated_values(func, name, TH, TD, PD, "points of MERL bins at the horizon")
         wi, wo = dirs_from_half_diff(TH, 0.0, TD, PD)
+        vals = _tabulated_values(func, name, wi, wo, "points of MERL bins at the horizon")
         w = (np.maximum(wi[:, 2], 0.0) * np.maximum(wo[:, 2], 0.0)).reshape(-1, s ** 3, 1)
         total = w.sum(axis=1)
         mean = (vals.reshape(-1, s ** 3, 3) * w).sum(axis=1) / np.where(total > 0.0, total, 1.0)
-        ii, jj, kk = cut[c0:c0 + _HORIZON_BINS_PER_CHUNK].T
         out[ii, jj, kk] = np.where(total > 0.0, mean, out[ii, jj, kk])
     return out
 
 
-def _tabulated_values(func, name: str, th, td, pd, where: str) -> np.ndarray:
-    """(N, 3) ``func`` at the direction pairs of the (theta_h, theta_d, phi_d) points (phi_h = 0), checked."""
-    wi, wo = dirs_from_half_diff(th, 0.0, td, pd)
-    n = len(th)
+def _tabulated_values(func, name: str, wi, wo, where: str) -> np.ndarray:
+    """(N, 3) ``func`` at the direction pairs ``wi``, ``wo`` (N, 3), checked."""
+    n = len(wi)
     vals = numeric_array(func(wi, wo), f"{name}: the BRDF's values", f"({n}, 3) numbers")
     if vals.shape == (n,):
         vals = np.repeat(vals[:, None], 3, axis=1)
