@@ -349,6 +349,14 @@ def ref_half_diff_angles(wi, wo):
     return th, td, pd
 
 
+def turned_about_y(v, theta_deg: float) -> np.ndarray:
+    """Points or directions (..., 3) turned by theta_deg about +Y, right-handed (+90 degrees takes -Z to -X: the
+    envmap's rotation and a mesh's rotate_y, README): the turned-world tests of test_gbuffer and test_adaptive."""
+    c, s = math.cos(math.radians(theta_deg)), math.sin(math.radians(theta_deg))
+    v = np.asarray(v, np.float64)
+    return np.stack([v[..., 0] * c + v[..., 2] * s, v[..., 1], -v[..., 0] * s + v[..., 2] * c], -1)
+
+
 def grid_mesh(n_u, n_v, fn):
     """Triangulated (n_u x n_v) vertex grid; fn(u, v) -> (N, 3) points; faces wound (dv x du)."""
     uu, vv = np.meshgrid(np.arange(n_u), np.arange(n_v), indexing="ij")

@@ -1,12 +1,11 @@
 """Hierarchical adaptive shading (002 Sec. 3.2): against the reference and a closed form."""
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 from hypothesis import example, given, settings, strategies as st
 
+from conftest import turned_about_y
 from warpbw.adaptive import plan_hierarchy, shade_hierarchical
 from warpbw.bandwidth import ALLOCATIONS
 from warpbw.pipeline import prepare_scene, render_reference
@@ -435,9 +434,8 @@ def test_a_sky_and_a_light_k_times_brighter_give_the_same_plan_and_k_times_the_f
 
 
 def _turned(v, theta_deg: float) -> str:
-    """``v`` turned by theta_deg about +Y, right-handed (warpbw.envmap's R: +90 degrees takes -Z to -X), as TOML."""
-    c, s = math.cos(math.radians(theta_deg)), math.sin(math.radians(theta_deg))
-    return repr([v[0] * c + v[2] * s, v[1], -v[0] * s + v[2] * c])
+    """``v`` turned by theta_deg about +Y (conftest.turned_about_y), as TOML."""
+    return repr(turned_about_y(v, theta_deg).tolist())
 
 
 TURNED_SCENE = """

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
-from conftest import grid_mesh, load_example, numpy_camera_rays, numpy_sphere_distance, plot_png
+from conftest import grid_mesh, load_example, numpy_camera_rays, numpy_sphere_distance, plot_png, turned_about_y
 
 from warpbw.errors import COORD_SPACING_REL_MAX, WarpbwError
 from warpbw.gbuffer import (MESH_REACH_MAX, MESH_REACH_MIN, SPHERE_REACH_MAX, SPHERE_REACH_MIN, MeshSpec,
@@ -975,14 +975,6 @@ def test_translating_camera_and_sphere_together_moves_only_the_positions(shift, 
                                atol=1e-5 * coord)
 
 
-def _turned_about_y(v, theta_deg: float) -> np.ndarray:
-    """Points or directions (..., 3) turned by theta_deg about +Y, right-handed (+90 degrees takes -Z to -X: the
-    envmap's rotation and a mesh's rotate_y, README)."""
-    c, s = math.cos(math.radians(theta_deg)), math.sin(math.radians(theta_deg))
-    v = np.asarray(v, np.float64)
-    return np.stack([v[..., 0] * c + v[..., 2] * s, v[..., 1], -v[..., 0] * s + v[..., 2] * c], -1)
-
-
 _UNTURNED = {}
 
 
@@ -1006,7 +998,7 @@ def test_the_scene_turned_about_y_turns_the_gbuffer_and_leaves_the_frame(tmp_pat
     folder = _UNTURNED["folder"]
 
     def frame(t):
-        p = lambda v: repr(_turned_about_y(v, t).tolist())
+        p = lambda v: repr(turned_about_y(v, t).tolist())
         text = "\n".join([
             "[camera]", f"position = {p((0.3, 0.9, 4.2))}", f"look_at = {p((0.1, 0.0, 0.0))}", "fov = 40.0",
             "resolution = [32, 24]", "[[light]]", 'type = "directional"', f"direction = {p((0.4, 0.7, 0.3))}",
@@ -1030,7 +1022,7 @@ def test_the_scene_turned_about_y_turns_the_gbuffer_and_leaves_the_frame(tmp_pat
     assert cov.sum() > 200 and len(np.unique(one.gbuffer.numpy("material")[cov])) == 2
     np.testing.assert_array_equal(turned.gbuffer.numpy("material")[cov], one.gbuffer.numpy("material")[cov])
     for name, atol in (("position", 1e-5 * 5.0), ("normal", 1e-4), ("view", 1e-5)):
-        want = _turned_about_y(one.gbuffer.numpy(name)[cov], theta)
+        want = turned_about_y(one.gbuffer.numpy(name)[cov], theta)
         np.testing.assert_allclose(turned.gbuffer.numpy(name)[cov], want, atol=atol, err_msg=name)
     np.testing.assert_allclose(turned.gbuffer.numpy("depth")[cov], one.gbuffer.numpy("depth")[cov], rtol=1e-5,
                                atol=1e-6)
