@@ -25,6 +25,7 @@ from precompute.gmm_mipmap import DEFAULT_PRIOR, MAX_COMPONENTS, MAX_PRIOR
 from precompute.surfaces import MAX_SURFACE_SIZE, MIN_SURFACE_SIZE
 from warpbw import __version__
 from warpbw.errors import WarpbwError
+from warpbw.scene import LOOKUP_MODES
 
 
 # what each subcommand writes: the output's name must end in one of these (a habitual --force after a typo in -o
@@ -82,7 +83,7 @@ def _table_command(args, build, write, describe) -> int:
         raise WarpbwError(f"--material {args.material}: applies to NPF tables, and {f} is the size of a MERL file "
                           f"({MERL_FILE_SIZE} bytes): leave --material out")
     t0 = time.perf_counter()
-    source = brdf_source(args.file, args.material)
+    source = brdf_source(args.file, args.material, getattr(args, "lookup", None))
     table = build(source, progress=not args.quiet)
     write(out, table, source, force=args.force)
     print(printable(f"{out}  ({describe(source, table)}, {time.perf_counter() - t0:.1f} s)"))
@@ -255,6 +256,12 @@ def build_parser() -> argparse.ArgumentParser:
                        "The renderer builds and caches these itself for --method adaptive when a scene names none "
                        "(key 'bandwidth').")
     _table_args(c)
+    c.add_argument("--lookup", choices=LOOKUP_MODES, default=None,
+                   help="how the material reads its tables, as the scene's lookup says: nearest (the bin a direction "
+                   "pair falls in; the scene's default) or linear (between bin centres).  The table is the bandwidth "
+                   "of the BRDF as it is shaded, and nearest-bin steps vary faster than interpolated curves (an NPF "
+                   "fit's cells by up to 1.9x), so the renderer refuses a table of another lookup than its "
+                   "material's.  Default: MERL nearest, NPF linear (the tables built before the option)")
     c.set_defaults(func=cmd_brdf)
 
     bt = sub.add_parser("batch", help="both tables of many tabulated BRDFs, on Dask",

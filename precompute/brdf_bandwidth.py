@@ -10,7 +10,8 @@ Public:
     ``build_brdf_bandwidth(source, progress=True, resolution=128, threads=None) -> (16, 16, 16) float32``
         (``source``: what :func:`precompute.brdf_sampling.brdf_source` returns, not a path)
     ``write_brdf_bandwidth(path, table, source, force=False)`` / ``read_brdf_bandwidth(path, source=None)``   (the
-        writer refuses the tables the reader refuses, and never writes over the source's file or a read-only file)
+        writer refuses the tables the reader refuses, and never writes over the source's file or a read-only file;
+        the reader refuses a table of another lookup than the source's, below)
     ``load_or_build_bandwidth(source, explicit=None, cache=None, progress=True) -> (table, origin)``
     ``theta_i_centres()``, ``wo_map(n)``, ``wo_to_map(wo)``, ``map_radians_per_pixel(n)``,
     ``nu_rho_max(resolution)``, ``lobe_slice(evaluate, theta_i, resolution)``, ``slice_bandwidth(f)``,
@@ -82,6 +83,16 @@ that holds real directions the max runs over its pixels whose square meets the c
 (centre inside the rim or not: every real direction a look-up can put in the cell lies in one of them,
 down to a cell the rim only grazes, as at n = 16 or 32); a block wholly beyond the rim takes all its pixels.
 
+Lookup.  A tabulated BRDF's table is the bandwidth of the BRDF its material shades: ``source.evaluate`` reads the
+MERL or NPF tables with the source's lookup (``brdf_source(file, material, lookup)``; the renderer asks for the
+material's ``lookup``).  The nearest-bin steps of an NPF fit read faster than its interpolated curves (by the cell:
+median 1.00x, 99th percentile 1.17-1.3x, up to 1.9x, gold-metallic-paint; session 70), so a table of the other lookup
+may lie below what is shaded.  The file records the lookup (``params["lookup"]``); the reader refuses a table of
+another lookup than its source's, naming both and the command that rebuilds it.  A file written before session 70
+records none: it was built with its kind's default (``precompute.brdf_sampling.TABLE_LOOKUP``: MERL nearest, NPF
+linear) and is read for that lookup only.  The cache keys the tables by the source's digest, which carries any other
+lookup (``:lookup-nearest``), so the default's entries are the ones built before.
+
 Cost: ``16 * n^2`` BRDF evaluations and 16 wavelet analyses; a few seconds per material at n = 128.
 """
 from __future__ import annotations
@@ -98,6 +109,7 @@ from precompute.assetfile import check_float_arrays, read_asset, write_asset
 from precompute.progress import progress_callback
 from precompute.wavelets import local_bandwidth
 from warpbw.errors import WarpbwError, check_count, check_real, is_int, unit_directions
+from warpbw.scene import LOOKUP_MODES
 
 __all__ = [
     "N_THETA_I", "N_CELLS", "SHAPE", "DEFAULT_RESOLUTION", "FORMAT", "VERSION",
@@ -335,14 +347,17 @@ def write_brdf_bandwidth(path, table: np.ndarray, source, force: bool = False,
     """Write a table built from ``source`` (anything with ``name`` and ``digest``): only one that
     :func:`read_brdf_bandwidth` would read back, and never over the source's own file (its ``path``), whatever
     ``force`` says."""
-    from precompute.brdf_sampling import check_brdf_source, source_files
+    from precompute.brdf_sampling import check_brdf_source, source_files, source_lookup
 
     check_brdf_source(source, "write_brdf_bandwidth", needs=("name", "digest"))
     n = _check_resolution(resolution)
     t = _checked_table(table, f"table for {path}", resolution=n)
-    return write_asset(path, FORMAT, VERSION, source.name, source.digest, {"nu_rho": t},
-                       params={"n_theta_i": N_THETA_I, "n_cells": N_CELLS, "resolution": n,
-                               "map": "lambert-equal-area", "units": "cycles/radian"},
+    params = {"n_theta_i": N_THETA_I, "n_cells": N_CELLS, "resolution": n, "map": "lambert-equal-area",
+              "units": "cycles/radian"}
+    lookup = source_lookup(source)
+    if lookup is not None:   # a tabulated BRDF's (an analytic one has no tables to look up)
+        params["lookup"] = lookup
+    return write_asset(path, FORMAT, VERSION, source.name, source.digest, {"nu_rho": t}, params=params,
                        force=force, inputs=source_files(source))
 
 
@@ -374,16 +389,16 @@ def nu_rho_max(resolution: int) -> float:
 
 
 def read_brdf_bandwidth(path, source=None) -> np.ndarray:
-    """Read a table ``(16, 16, 16)`` float32; with ``source``, refuse one built from different data."""
+    """Read a table ``(16, 16, 16)`` float32; with ``source``, refuse one built from different data or with another
+    lookup than the source's (module docstring, "Lookup")."""
     from precompute.brdf_sampling import check_brdf_source, rebuild_command
 
     if source is not None:
         check_brdf_source(source, "read_brdf_bandwidth", needs=("name", "digest"))
     hint = rebuild_command("brdf", source)
     a = read_asset(path, FORMAT, VERSION, hint)
-    if source is not None and a.header.get("source_hash") != source.digest:
-        raise WarpbwError(f"{path}: built from {a.header.get('source')!r} with different content than "
-                          f"{source.name!r} (rebuild it with: {hint})")
+    if source is not None:
+        _check_source(path, a.header, source, hint)
     if "nu_rho" not in a.arrays:
         raise WarpbwError(f"{path}: brdf-bandwidth file lacks array 'nu_rho' (rebuild it with: {hint})")
     check_float_arrays([a.arrays["nu_rho"]], f"{path}: table", f" (rebuild it with: {hint})")
@@ -391,11 +406,32 @@ def read_brdf_bandwidth(path, source=None) -> np.ndarray:
                           a.header.get("params", {}).get("resolution"))
 
 
+def _check_source(path, header: dict, source, hint: str) -> None:
+    """Refuse the file of ``header`` unless it was built from ``source``'s data with ``source``'s lookup."""
+    from precompute.brdf_sampling import default_lookup, digest_at, source_lookup
+
+    got = want = source_lookup(source)   # None: an analytic source, which looks nothing up
+    if want is not None:
+        params = header.get("params")
+        recorded = params.get("lookup") if isinstance(params, dict) else None
+        got = default_lookup(source) if recorded is None else recorded
+        if got != want and got in LOOKUP_MODES and header.get("source_hash") == digest_at(source, got):
+            old = "" if recorded is not None else " (recorded by none: a file from before session 70, built then " \
+                                                  "with the kind's default)"
+            raise WarpbwError(f"{path}: a nu_rho table of {header.get('source')!r} read with the {got} lookup{old}, "
+                              f"expected the {want} lookup the material shades with (rebuild it with: {hint})")
+    if got != want or header.get("source_hash") != source.digest:   # another BRDF's (with another lookup or not)
+        raise WarpbwError(f"{path}: built from {header.get('source')!r} with different content than "
+                          f"{source.name!r} (rebuild it with: {hint})")
+
+
 def load_or_build_bandwidth(source, explicit=None, cache=None, progress: bool = True) -> tuple[np.ndarray, str]:
-    """The source's nu_rho table: from ``explicit`` if given, else the cache, else built and cached.
+    """The source's nu_rho table: from ``explicit`` if given, else the cache, else built and cached; the table of the
+    lookup ``source`` reads with (module docstring, "Lookup").
 
     Returns the table and where it came from ("file", "cache" or "built"); the cache is the sampling
-    tables' (``$WARPBW_CACHE``), keyed by the source's content hash."""
+    tables' (``$WARPBW_CACHE``), keyed by the source's digest (content hash, material, lookup when not the
+    default)."""
     from precompute.brdf_sampling import load_or_build
 
     return load_or_build(source, explicit, cache, "bandwidth", VERSION, read_brdf_bandwidth, build_brdf_bandwidth,

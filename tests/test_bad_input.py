@@ -3569,3 +3569,41 @@ def test_run_batch_refuses_bad_arguments_before_any_work(tmp_path, kw, needle):
     with pytest.raises(WarpbwError, match=re.escape(needle)):
         run_batch(**args)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_bandwidth_file_built_for_another_lookup_than_the_materials_is_refused(tmp_path, monkeypatch):
+    """The renderer asks for the nu_rho table of the BRDF its material shades, read with the material's ``lookup``
+    (precompute.brdf_bandwidth, "Lookup"): a scene's ``bandwidth = "bw.npz"`` built for NPF's table default (linear,
+    as ``warpbw-precompute brdf`` builds without --lookup) under a material of the scene's default lookup (nearest) is
+    refused in one line naming the file, both lookups and the command that rebuilds it; the same file under
+    ``lookup = "linear"`` is read.  Without a file the table is built for the nearest lookup and cached apart from
+    the linear one, while the sampling tables keep their one lookup-free entry."""
+    from precompute.brdf_bandwidth import VERSION, write_brdf_bandwidth
+    from precompute.brdf_sampling import brdf_source
+    from warpbw.pipeline import render_adaptive
+    from warpbw.sampling import TABLE_VERSION
+    from warpbw.scene import file_digest, load_scene
+
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("WARPBW_CACHE", str(cache))
+    npf = fake_npf_table(tmp_path / "npf.bin")
+    bw = write_brdf_bandwidth(tmp_path / "bw.npz", np.full((16, 16, 16), 2.0, np.float32), brdf_source(npf, "chrome"))
+    lines = ["[camera]", "position = [0.0, 0.0, 3.0]", "look_at = [0.0, 0.0, 0.0]", "fov = 50.0", "resolution = [8, 8]",
+             "[environment]", 'procedural = "sky"', "[[object]]", 'shape = "sphere"', "radius = 0.8", 'material = "m"',
+             "[material.m]", 'type = "npf"', 'table = "npf.bin"', 'name = "chrome"']
+    for name, extra in (("nearest.toml", ['bandwidth = "bw.npz"']), ("linear.toml", ['bandwidth = "bw.npz"',
+                                                                                      'lookup = "linear"']),
+                        ("built.toml", [])):
+        (tmp_path / name).write_text("\n".join(lines + extra))
+    said = attempt(render_adaptive, load_scene(tmp_path / "nearest.toml"), budget=2.0)[1]
+    assert "\n" not in said and said.startswith(f"{bw}: a nu_rho table of 'npf.bin:chrome' read with the linear "
+                                                "lookup, expected the nearest lookup the material shades with"), said
+    assert said.endswith(f"(rebuild it with: warpbw-precompute brdf {npf} --material chrome --lookup nearest -o OUT "
+                         "--force)"), said
+    rec = render_adaptive(load_scene(tmp_path / "linear.toml"), budget=2.0).stats["assets"]["material.m"]
+    assert rec["bandwidth"] == "file" and rec["bandwidth_file"] == str(bw)
+    rec = render_adaptive(load_scene(tmp_path / "built.toml"), budget=2.0).stats["assets"]["material.m"]
+    assert rec["bandwidth"] == "built"
+    key = f"{file_digest(npf)}-chrome"
+    assert sorted(p.name for p in cache.glob("sampling-*")) == [f"sampling-{key}-v{TABLE_VERSION}.npz"]
+    assert sorted(p.name for p in cache.glob("bandwidth-*")) == [f"bandwidth-{key}-lookup-nearest-v{VERSION}.npz"]

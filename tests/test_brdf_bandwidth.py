@@ -774,3 +774,172 @@ def test_the_brdf_commands_help_gives_the_tables_shape():
     said = sub.description
     assert f"For {N_THETA_I} incident elevations" in said, said
     assert f"{DEFAULT_RESOLUTION}x{DEFAULT_RESOLUTION} equal-area map" in said and f"{N_CELLS}x{N_CELLS} cells" in said
+
+
+# ----------------------------------------------------------------- the lookup the material shades with (session 70)
+
+
+def _hand_nearest_cells(mat, theta_i: float, n: int):
+    """Truth for one slice, built here from the module docstring's definitions: the NPF fit read at its nearest bins
+    (``npf_eval(interpolate=False)``, what a material of ``lookup = "nearest"`` shades) over the equal-area map, odd
+    continuation past 85 degrees, channels summed, scaled to its peak, ``precompute.wavelets.local_bandwidth`` (db4,
+    edge padding), cycles/pixel over the smaller pixel side, the max over each cell.  Returns the cells and which
+    cells lie wholly inside the rim (the ones compared: the rim's take only their real pixels)."""
+    from precompute.brdf_bandwidth import WAVELET_LEVELS
+    from precompute.wavelets import local_bandwidth
+    from warpbw.io.npf import npf_eval
+
+    c = -1.0 + (np.arange(n) + 0.5) * 2.0 / n
+    x, y = np.meshgrid(c, c)
+    r = np.hypot(x, y)
+    theta = 2.0 * np.arcsin(np.minimum(r, math.sqrt(2.0)) / math.sqrt(2.0))
+    phi = np.arctan2(y, x)
+    lim = math.radians(85.0)
+    wi = np.tile([math.sin(theta_i), 0.0, math.cos(theta_i)], (n * n, 1))
+
+    def lobe(th):
+        d = np.stack([np.sin(th) * np.cos(phi), np.sin(th) * np.sin(phi), np.cos(th)], -1).reshape(-1, 3)
+        return npf_eval(mat, wi, d, interpolate=False).sum(axis=1).reshape(n, n)
+
+    g = lobe(np.minimum(theta, lim))
+    past = theta > lim
+    g = np.where(past, 2.0 * g - lobe(np.where(past, 2.0 * lim - theta, theta)), g)
+    b = local_bandwidth(g / np.abs(g).max(), pad="edge", levels=WAVELET_LEVELS)
+    b = b / (np.sqrt(2.0 - np.minimum(r, 1.0) ** 2) * 2.0 / n)
+    k = n // N_CELLS
+    inside = (np.hypot(np.abs(x) + 1.0 / n, np.abs(y) + 1.0 / n) <= 1.0).reshape(N_CELLS, k, N_CELLS, k)
+    return b.reshape(N_CELLS, k, N_CELLS, k).max(axis=(1, 3)), inside.all(axis=(1, 3))
+
+
+def test_a_nearest_npf_table_holds_the_bandwidth_of_the_nearest_bin_lobes_it_shades(shared):
+    """A material of ``type = "npf"`` shades with the lookup its scene names (nearest by default), and its table is
+    the bandwidth of that BRDF: gold-metallic-paint's table of the nearest lookup (resolution 64) equals, cell for
+    cell inside the rim, the analysis of its nearest-bin slices built here (at least what is shaded: never below).
+    The table of the interpolated curves, which every NPF material had before session 70, lies up to 18% below it
+    there (and up to 1.9x below at the rim, at resolution 128)."""
+    from precompute.brdf_sampling import with_lookup
+
+    source = with_lookup(brdf_source(shared("brdf/npf.bin"), "gold-metallic-paint"), "nearest")
+    table = build_brdf_bandwidth(source, progress=False, resolution=64)
+    for t in (5, 14):   # where the interpolated table lies furthest below (0.82x, 0.83x)
+        truth, inside = _hand_nearest_cells(source.brdf, float(theta_i_centres()[t]), 64)
+        ratio = table[t][inside] / truth[inside]
+        assert inside.sum() == 164 and np.all(truth[inside] > 0)
+        assert 0.999 <= ratio.min() and ratio.max() <= 1.001, (t, ratio.min(), ratio.max())
+
+
+def _smooth_merl(path):
+    """A MERL file whose values vary across bins along each axis (so its nearest and trilinear lookups differ)."""
+    from warpbw.io.merl import MERL_SHAPE, write_merl
+
+    h, d, p = np.meshgrid(*(np.arange(k) for k in MERL_SHAPE[:3]), indexing="ij")
+    v = 0.2 + 0.1 * np.sin(0.4 * h) * np.cos(0.3 * d) + 0.05 * np.cos(0.2 * p)
+    return write_merl(path, np.repeat(v[..., None], 3, axis=-1) * np.array([1.0, 0.8, 0.6]))
+
+
+def test_the_default_sources_tables_are_the_ones_built_before_lookups(shared, tmp_path):
+    """``brdf_source(file, material)`` without a lookup reads as every table was built before session 70 (MERL
+    nearest, NPF interpolated), so the existing cache entries and files stay valid: its table is bit for bit the one
+    built from ``merl_eval(interpolate=False)`` / ``npf_eval(interpolate=True)`` directly, and its name, digest and
+    cache entry are those of before.  The other lookup reads the other way and is cached apart (resolution 32)."""
+    from precompute.brdf_bandwidth import load_or_build_bandwidth
+    from precompute.brdf_sampling import with_lookup
+    from warpbw.io.merl import merl_eval
+    from warpbw.io.npf import npf_eval
+    from warpbw.scene import file_digest
+
+    npf = shared("brdf/npf.bin")
+    merl = _smooth_merl(tmp_path / "m.binary")
+    for src, old, other, name, digest in (
+            (brdf_source(npf, "gold-metallic-paint"), lambda b: lambda wi, wo: npf_eval(b, wi, wo, interpolate=True),
+             "nearest", "npf.bin:gold-metallic-paint", f"{file_digest(npf)}:gold-metallic-paint"),
+            (brdf_source(merl), lambda b: lambda wi, wo: merl_eval(b, wi, wo, interpolate=False), "linear",
+             "m.binary", file_digest(merl))):
+        assert (src.name, src.digest) == (name, digest)
+        table = build_brdf_bandwidth(src, progress=False, resolution=32)
+        np.testing.assert_array_equal(table, brdf_bandwidth_table(old(src.brdf), resolution=32))
+        alt = with_lookup(src, other)
+        assert (alt.name, alt.digest) == (f"{name} ({other} lookup)", f"{digest}:lookup-{other}")
+        assert not np.array_equal(build_brdf_bandwidth(alt, progress=False, resolution=32), table)
+        assert with_lookup(alt, None).digest == digest and with_lookup(src, None) is src
+    src = brdf_source(npf, "pink-felt")   # the cache: the default's entry is the one of before, the other apart
+    cache = tmp_path / "cache"
+    load_or_build_bandwidth(src, cache=cache, progress=False)
+    load_or_build_bandwidth(with_lookup(src, "nearest"), cache=cache, progress=False)
+    key = f"{file_digest(npf)}-pink-felt"
+    assert sorted(p.name for p in cache.iterdir()) == [f"bandwidth-{key}-lookup-nearest-v{VERSION}.npz",
+                                                       f"bandwidth-{key}-v{VERSION}.npz"]
+
+
+def test_a_table_of_another_lookup_is_refused_naming_both_and_the_command(shared, tmp_path):
+    """The file records its lookup; the reader refuses a table of another lookup than its source's in one line that
+    names the file, both lookups and the command that rebuilds it (with ``--lookup`` when not the kind's default).
+    A file from before session 70 records none: it is read for its kind's default only (NPF: linear)."""
+    from precompute.assetfile import read_asset
+    from precompute.brdf_sampling import with_lookup
+
+    npf = shared("brdf/npf.bin")
+    linear = brdf_source(npf, "pink-felt")
+    nearest = with_lookup(linear, "nearest")
+    table = np.full((N_THETA_I, N_CELLS, N_CELLS), 2.0, np.float32)
+    lin = write_brdf_bandwidth(tmp_path / "lin.npz", table, linear)
+    near = write_brdf_bandwidth(tmp_path / "near.npz", table, nearest)
+    assert read_asset(near, FORMAT, VERSION, "x").header["params"]["lookup"] == "nearest"
+    old = write_asset(tmp_path / "old.npz", FORMAT, VERSION, linear.name, linear.digest, {"nu_rho": table},
+                      params={"resolution": 128})
+    for path, source in ((lin, linear), (old, linear), (near, nearest)):
+        np.testing.assert_array_equal(read_brdf_bandwidth(path, source), table)
+    cmd = f"warpbw-precompute brdf {npf} --material pink-felt"
+    for path, source, got, want, fix in ((lin, nearest, "linear", "nearest", f"{cmd} --lookup nearest -o OUT"),
+                                         (old, nearest, "linear", "nearest", f"{cmd} --lookup nearest -o OUT"),
+                                         (near, linear, "nearest", "linear", f"{cmd} -o OUT")):
+        said = attempt(read_brdf_bandwidth, path, source)[1]
+        assert "\n" not in said and said.startswith(f"{path}: a nu_rho table of 'npf.bin:pink-felt"), said
+        assert f"read with the {got} lookup" in said and f"expected the {want} lookup the material shades with" in said
+        assert f"(rebuild it with: {fix} --force)" in said, said
+        assert ("recorded by none" in said) == (path == old), said
+    other = brdf_source(npf, "chrome")   # another material's table is still refused for its content
+    said = attempt(read_brdf_bandwidth, near, with_lookup(other, "linear"))[1]
+    assert "with different content than 'npf.bin:chrome'" in said, said
+
+
+def test_the_brdf_command_builds_the_table_of_the_lookup_it_is_given(shared, tmp_path, monkeypatch, capsys):
+    """``warpbw-precompute brdf FILE --material M --lookup nearest|linear``: the table is built from the fit read with
+    that lookup (the evaluator the builder is handed, compared with ``npf_eval`` at random direction pairs) and reads
+    back for that lookup only; without --lookup, NPF's default (linear), as before.  --help says why it matters; a
+    third lookup is refused in one line."""
+    import precompute.brdf_bandwidth as bb
+    from precompute.__main__ import build_parser, main
+    from precompute.brdf_sampling import with_lookup
+    from warpbw.io.npf import npf_eval, read_npf
+
+    npf = shared("brdf/npf.bin")
+    handed = []
+
+    def table(evaluate, resolution=128, progress=None, threads=None):
+        handed.append(evaluate)
+        return np.full(bb.SHAPE, 2.0, np.float32)
+
+    monkeypatch.setattr(bb, "brdf_bandwidth_table", table)
+    mat = read_npf(npf, "gold-metallic-paint")
+    rng = np.random.default_rng(1)
+    wi, wo = (v / np.linalg.norm(v, axis=1, keepdims=True) for v in np.abs(rng.normal(size=(2, 4000, 3))))
+    source = brdf_source(npf, "gold-metallic-paint")
+    for lookup in ("nearest", "linear", None):
+        out = tmp_path / f"{lookup}.npz"
+        argv = ["brdf", str(npf), "--material", "gold-metallic-paint", "-o", str(out), "-q"]
+        assert main(argv + ([] if lookup is None else ["--lookup", lookup])) == 0
+        want = "linear" if lookup is None else lookup
+        np.testing.assert_array_equal(handed[-1](wi, wo), npf_eval(mat, wi, wo, interpolate=want == "linear"))
+        assert not np.allclose(handed[-1](wi, wo), npf_eval(mat, wi, wo, interpolate=want != "linear"))
+        read_brdf_bandwidth(out, with_lookup(source, want))
+        other = "nearest" if want == "linear" else "linear"
+        assert "lookup the material shades with" in attempt(read_brdf_bandwidth, out, with_lookup(source, other))[1]
+    assert "(nearest lookup)" in capsys.readouterr().out
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices["brdf"]
+    helped = next(a.help for a in sub._actions if a.dest == "lookup")
+    assert "refuses a table of another lookup" in helped and "nearest-bin steps vary faster" in helped, helped
+    assert outcome(main, ["brdf", str(npf), "--material", "chrome", "--lookup", "cubic", "-o",
+                          str(tmp_path / "c.npz")]) == "exit 2"
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--lookup" in err and "nearest" in err, err

@@ -381,3 +381,42 @@ def test_no_material_of_the_real_npf_table_is_said_to_reflect_too_much(shared):
     by_hand = max(float(np.pi * npf_eval(mat, wi, np.broadcast_to([np.sin(t), 0.0, np.cos(t)], wi.shape)).mean(0).max())
                   for t in np.radians(ALBEDO_CHECK_VIEWS_DEG))
     assert round(by_hand, 2) == 1.23 and by_hand == pytest.approx(top["light-red-paint"], abs=1e-3), by_hand
+
+
+def test_the_sampling_tables_do_not_follow_the_lookup(shared, tmp_path, monkeypatch):
+    """Module docstring, "Lookup": the sampling tables are lookup-free (their density is sampled exactly whatever BRDF
+    it was tabulated from), so a source read with another lookup than its kind's default gets the default's tables:
+    built from the BRDF read at the default (NPF: linear; the evaluator the builder is handed, compared with npf_eval
+    at random pairs), cached once under the default's key, written and read under the default's name and digest, and
+    a refusal's command carries no --lookup (brdf-sampling has none).  The bandwidth table's cache entry is apart."""
+    import precompute.brdf_sampling as bs
+    from precompute.brdf_sampling import load_or_build_sampling, rebuild_command, with_lookup
+    from warpbw.io.npf import npf_eval
+
+    handed = []
+
+    def build(evaluate, progress=None, **kw):
+        handed.append(evaluate)
+        return _sampling_table()
+
+    monkeypatch.setattr(bs, "build_sampler_table", build)
+    npf = shared("brdf/npf.bin")
+    linear = brdf_source(npf, "gold-metallic-paint")
+    nearest = with_lookup(linear, "nearest")
+    cache = tmp_path / "cache"
+    assert load_or_build_sampling(nearest, cache=cache, progress=False)[1] == "built"
+    assert load_or_build_sampling(linear, cache=cache, progress=False)[1] == "cache"
+    key = linear.digest.replace(":", "-")
+    assert [p.name for p in cache.iterdir()] == [f"sampling-{key}-v{TABLE_VERSION}.npz"]
+    rng = np.random.default_rng(2)
+    wi, wo = (v / np.linalg.norm(v, axis=1, keepdims=True) for v in np.abs(rng.normal(size=(2, 2000, 3))))
+    (evaluate,) = handed
+    np.testing.assert_array_equal(evaluate(wi, wo), npf_eval(linear.brdf, wi, wo, interpolate=True))
+    p = write_sampling(tmp_path / "s.npz", _sampling_table(), nearest)
+    read_sampling(p, linear)
+    read_sampling(p, nearest)
+    other = brdf_source(npf, "chrome")
+    said = outcome(read_sampling, p, with_lookup(other, "nearest"))
+    assert "with different content than 'npf.bin:chrome'" in said and "--lookup" not in said, said
+    assert "--lookup" not in rebuild_command("brdf-sampling", nearest)
+    assert rebuild_command("brdf", nearest).endswith("--material gold-metallic-paint --lookup nearest -o OUT --force")

@@ -458,10 +458,12 @@ class _AnalyticSource:
 def prepare_bandwidth(prep: PreparedScene, progress: bool = False, env_signal: str | None = None):
     """The bandwidth pass's inputs (adaptive method only; built once per prepared scene and ``env_signal``): the
     environment's nu_a map, analysed on ``env_signal`` (:func:`warpbw.bandwidth.env_signal`; default "log"),
-    and one nu_rho table per material, from the scene's ``bandwidth`` file, the cache, or built (analytic materials:
-    from the renderer's own BRDF evaluation).  Derives the meshes' curvature too (Eq. 3's c, which only this pass
+    and one nu_rho table per material, from the scene's ``bandwidth`` file, the cache, or built (MERL and NPF
+    materials: of the BRDF read with the material's ``lookup``; analytic materials: from the renderer's own BRDF
+    evaluation).  Derives the meshes' curvature too (Eq. 3's c, which only this pass
     reads; timed as ``load_mesh_curvature``)."""
     from precompute.brdf_bandwidth import SHAPE as BW_TABLE_SHAPE, load_or_build_bandwidth
+    from precompute.brdf_sampling import with_lookup
     from warpbw.bandwidth import (ENV_SIGNAL_DEFAULT, check_env_signal, env_bandwidth_map, make_bandwidth_tables,
                                   nu_env_table)
 
@@ -480,8 +482,9 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False, env_signal: s
     with _timed(prep.timings, "load_brdf_bandwidth"):
         for i, name in enumerate(prep.scene.material_order):
             m = prep.scene.materials[name]
-            if name in prep.sources:
-                table, origin = load_or_build_bandwidth(prep.sources[name], m.bandwidth, progress=progress)
+            if name in prep.sources:   # the table of the BRDF as the material shades it: read with its lookup
+                table, origin = load_or_build_bandwidth(with_lookup(prep.sources[name], m.lookup), m.bandwidth,
+                                                        progress=progress)
             elif m.type == "lambert":
                 table, origin = np.zeros(BW_TABLE_SHAPE, np.float32), "constant lobe"
             else:
