@@ -268,8 +268,9 @@ def build_parser() -> argparse.ArgumentParser:
                         description="Build the importance-sampling and angular bandwidth tables of many tabulated "
                         "BRDFs, each BRDF one task on Dask (pip install -e \".[batch]\"): every material of an NPF "
                         "table (or --materials), MERL .binary files, folders of them.  Each writes "
-                        "OUT/NAME.sampling.npz and OUT/NAME.bandwidth.npz, the files brdf-sampling and brdf write, "
-                        "bit for bit; a scene names them with sampling = and bandwidth =.  A BRDF that cannot be "
+                        "OUT/NAME.sampling.npz and OUT/NAME.bandwidth.npz, the files brdf-sampling and brdf (without "
+                        "--lookup: an NPF material's table is the one of lookup = \"linear\") write, bit for bit; a "
+                        "scene names them with sampling = and bandwidth =.  A BRDF that cannot be "
                         "read is reported and the others go on (exit 1 at the end).  The record "
                         "(OUT/batch.json) holds each BRDF's outputs, times, largest nu_rho, warnings and error.")
     bt.add_argument("sources", nargs="+", metavar="SOURCE",

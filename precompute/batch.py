@@ -20,8 +20,10 @@ Public:
 
 Each BRDF is one task: its tables are the ones the single-material commands write, bit for bit (the builders take
 no seed and a table does not depend on how many threads built it), so a batch on a cluster and a loop on a laptop
-give the same files.  A BRDF that cannot be read does not stop the others: its record holds the error, and the
-command exits 1 after the batch.  Dask is an optional dependency (``pip install -e ".[batch]"``).
+give the same files.  The bandwidth tables are those of each kind's default lookup (``brdf`` without ``--lookup``;
+``precompute.brdf_sampling.TABLE_LOOKUP``: an NPF material's is then the table of ``lookup = "linear"``).  A BRDF
+that cannot be read does not stop the others: its record holds the error, and the command exits 1 after the batch.
+Dask is an optional dependency (``pip install -e ".[batch]"``).
 """
 from __future__ import annotations
 

@@ -85,9 +85,10 @@ down to a cell the rim only grazes, as at n = 16 or 32); a block wholly beyond t
 
 Lookup.  A tabulated BRDF's table is the bandwidth of the BRDF its material shades: ``source.evaluate`` reads the
 MERL or NPF tables with the source's lookup (``brdf_source(file, material, lookup)``; the renderer asks for the
-material's ``lookup``).  The nearest-bin steps of an NPF fit read faster than its interpolated curves (by the cell:
-median 1.00x, 99th percentile 1.17-1.3x, up to 1.9x, gold-metallic-paint; session 70), so a table of the other lookup
-may lie below what is shaded.  The file records the lookup (``params["lookup"]``); the reader refuses a table of
+material's ``lookup``).  The nearest-bin steps of an NPF fit read faster than its interpolated curves in places (the
+nearest table over the linear one, by the cell: median 1.00-1.01x, 99th percentile 1.05-1.20x, largest 1.30-1.94x
+over gold-metallic-paint, chrome and color-changing-paint3; session 70), so a table of the other lookup may lie below
+what is shaded.  The file records the lookup (``params["lookup"]``); the reader refuses a table of
 another lookup than its source's, naming both and the command that rebuilds it.  A file written before session 70
 records none: it was built with its kind's default (``precompute.brdf_sampling.TABLE_LOOKUP``: MERL nearest, NPF
 linear) and is read for that lookup only.  The cache keys the tables by the source's digest, which carries any other

@@ -33,9 +33,10 @@ stay valid.  Another lookup adds ``" (LOOKUP lookup)"`` to the name and ``":look
 table built from it is cached under its own key and is refused for the other lookup.  The angular bandwidth table
 (:mod:`precompute.brdf_bandwidth`) follows the lookup: the nearest-bin steps of an NPF fit read up to 1.9x faster than
 its interpolated curves.  The sampling tables do not: their density is tabulated from the BRDF and sampled exactly
-whatever BRDF it came from (the estimator divides by the table's own pdf), so they are lookup-free, built from
-``with_lookup(source, None)`` whatever source they are given: one table, and one cache key, per BRDF.  The two tables'
-cache entries cannot be confused either: their prefixes (``sampling-``, ``bandwidth-``) and formats differ.
+whatever BRDF it came from (the estimator divides by the table's own pdf), so they are lookup-free, built from the
+source read at its kind's default lookup whatever source they are given: one table, and one cache key, per BRDF.
+The two tables' cache entries cannot be confused either: their prefixes (``sampling-``, ``bandwidth-``) and formats
+differ.
 """
 from __future__ import annotations
 
