@@ -139,7 +139,7 @@ def cmd_batch(args) -> int:
     print(printable(f"{len(items)} BRDFs, {' and '.join(tables)} tables into {out}/ (Dask's {args.scheduler} "
                     f"scheduler, {how})"), flush=True)
     record = run_batch(items, out, tables, scheduler=args.scheduler, workers=workers, force=args.force,
-                       resume=args.resume, progress=not args.quiet)
+                       resume=args.resume, progress=not args.quiet, lookup=args.lookup)
     for r in record["items"]:
         for w in r["warnings"]:
             print(printable(f"warpbw-precompute: warning: {w}"), file=sys.stderr)
@@ -268,10 +268,9 @@ def build_parser() -> argparse.ArgumentParser:
                         description="Build the importance-sampling and angular bandwidth tables of many tabulated "
                         "BRDFs, each BRDF one task on Dask (pip install -e \".[batch]\"): every material of an NPF "
                         "table (or --materials), MERL .binary files, folders of them.  Each writes "
-                        "OUT/NAME.sampling.npz and OUT/NAME.bandwidth.npz, the files brdf-sampling and brdf (without "
-                        "--lookup: an NPF material's table is the one of lookup = \"linear\") write, bit for bit; a "
-                        "scene names them with sampling = and bandwidth =.  A BRDF that cannot be "
-                        "read is reported and the others go on (exit 1 at the end).  The record "
+                        "OUT/NAME.sampling.npz and OUT/NAME.bandwidth.npz, the files brdf-sampling and brdf (with "
+                        "the same --lookup) write, bit for bit; a scene names them with sampling = and bandwidth =.  "
+                        "A BRDF that cannot be read is reported and the others go on (exit 1 at the end).  The record "
                         "(OUT/batch.json) holds each BRDF's outputs, times, largest nu_rho, warnings and error.")
     bt.add_argument("sources", nargs="+", metavar="SOURCE",
                     help="an NPF table (npf.bin), a MERL .binary file, or a folder of MERL files")
@@ -289,6 +288,11 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--resume", action="store_true",
                     help="keep the outputs that already hold this BRDF's table (an earlier, stopped batch's) and "
                     "build the rest; another file in their place is refused unless --force is given too")
+    bt.add_argument("--lookup", choices=LOOKUP_MODES, default=None,
+                    help="the lookup the scenes' materials shade with (brdf --lookup): the bandwidth tables are "
+                    "those of the BRDFs read with it, and a scene refuses a table of another lookup than its "
+                    "material's.  Default: MERL nearest, NPF linear (so a material that keeps lookup's default, "
+                    "nearest, needs --lookup nearest for its NPF tables)")
     bt.add_argument("--force", action="store_true", help="replace existing outputs and record")
     bt.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     bt.set_defaults(func=cmd_batch)

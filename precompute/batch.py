@@ -10,20 +10,21 @@ Public:
     ``check_tables(tables) -> tuple``   some of ``TABLES``, each once
     ``output_paths(item, out_dir, tables) -> dict``   ``{table: out_dir / f"{item.name}.{table}.npz"}``
     ``check_outputs(items, out_dir, tables, force=False, resume=False)``   the refusals before any work
-    ``build_item(item, outputs, threads=1, force=False, resume=False) -> dict``   one task: open the BRDF, build and
-        write its tables (with ``resume``, keep each that reads back as this BRDF's); never raises for a bad BRDF,
-        its record says what went wrong
+    ``build_item(item, outputs, threads=1, force=False, resume=False, lookup=None) -> dict``   one task: open the
+        BRDF, build and write its tables (with ``resume``, keep each that reads back as this BRDF's); never raises
+        for a bad BRDF, its record says what went wrong
     ``run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers=None, force=False, resume=False,
-        progress=True) -> dict``   every item as one task on Dask's ``scheduler`` (``"processes"``, ``"threads"``,
-        ``"sync"``, or anything ``dask.compute(scheduler=...)`` takes, such as a ``dask.distributed.Client``); the
-        batch's record, one entry per item in the items' order
+        progress=True, lookup=None) -> dict``   every item as one task on Dask's ``scheduler`` (``"processes"``,
+        ``"threads"``, ``"sync"``, or anything ``dask.compute(scheduler=...)`` takes, such as a
+        ``dask.distributed.Client``); the batch's record, one entry per item in the items' order
 
 Each BRDF is one task: its tables are the ones the single-material commands write, bit for bit (the builders take
 no seed and a table does not depend on how many threads built it), so a batch on a cluster and a loop on a laptop
-give the same files.  The bandwidth tables are those of each kind's default lookup (``brdf`` without ``--lookup``;
-``precompute.brdf_sampling.TABLE_LOOKUP``: an NPF material's is then the table of ``lookup = "linear"``).  A BRDF
-that cannot be read does not stop the others: its record holds the error, and the command exits 1 after the batch.
-Dask is an optional dependency (``pip install -e ".[batch]"``).
+give the same files.  The bandwidth tables are those of ``lookup`` (``"nearest"`` or ``"linear"``, what the
+scenes' materials will shade with: ``brdf --lookup``), by default each kind's own (``brdf`` without ``--lookup``;
+``precompute.brdf_sampling.TABLE_LOOKUP``: an NPF material's is then the table of ``lookup = "linear"``); the
+sampling tables do not depend on it.  A BRDF that cannot be read does not stop the others: its record holds the error,
+and the command exits 1 after the batch.  Dask is an optional dependency (``pip install -e ".[batch]"``).
 """
 from __future__ import annotations
 
@@ -135,9 +136,11 @@ def _kept(path: Path, read, source):
         return None
 
 
-def build_item(item: BatchItem, outputs: dict, threads: int = 1, force: bool = False, resume: bool = False) -> dict:
+def build_item(item: BatchItem, outputs: dict, threads: int = 1, force: bool = False, resume: bool = False,
+               lookup: str | None = None) -> dict:
     """One BRDF's task: its record ``{"name", "source", "outputs", "time_s", "kept", "nu_rho_max", "warnings",
-    "error"}``; the tables not ``kept`` are built and written (``force``: over an existing file)."""
+    "error"}``; the tables not ``kept`` are built and written (``force``: over an existing file), the bandwidth
+    table of the BRDF read with ``lookup`` (None: its kind's default)."""
     from precompute.brdf_bandwidth import build_brdf_bandwidth, read_brdf_bandwidth, write_brdf_bandwidth
     from precompute.brdf_sampling import brdf_source, build_brdf_sampling, read_sampling, write_sampling
 
@@ -151,7 +154,7 @@ def build_item(item: BatchItem, outputs: dict, threads: int = 1, force: bool = F
         warnings.simplefilter("always")
         try:
             t0 = time.perf_counter()
-            source = brdf_source(item.path, item.material)
+            source = brdf_source(item.path, item.material, lookup)
             record["time_s"]["open"] = time.perf_counter() - t0
             for t, path in outputs.items():
                 read, build, write = steps[t]
@@ -191,12 +194,17 @@ def _threads_per_task(scheduler, workers: int) -> int:
 
 
 def run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers: int | None = None, force: bool = False,
-              resume: bool = False, progress: bool = True) -> dict:
-    """Build every item's tables into ``out_dir``, one Dask task per item; the batch's record."""
+              resume: bool = False, progress: bool = True, lookup: str | None = None) -> dict:
+    """Build every item's tables into ``out_dir``, one Dask task per item, the bandwidth tables of ``lookup`` (module
+    docstring); the batch's record."""
     from warpbw import __version__
+    from warpbw.scene import LOOKUP_MODES
 
     dask = _dask()
     tables = check_tables(tables)
+    if lookup is not None and lookup not in LOOKUP_MODES:
+        raise WarpbwError(f"lookup: expected one of {', '.join(LOOKUP_MODES)} (or None: each kind's default), got "
+                          f"{lookup!r}")
     if isinstance(scheduler, str) and scheduler not in SCHEDULERS:
         raise WarpbwError(f"scheduler: expected one of {', '.join(SCHEDULERS)} (or a Dask client), got {scheduler!r}")
     items = list(items)
@@ -210,8 +218,8 @@ def run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers: int
     check_outputs(items, out_dir, tables, force=force, resume=resume)
     Path(out_dir).mkdir(parents=True, exist_ok=True)
     threads = _threads_per_task(scheduler, workers or 1)
-    tasks = [dask.delayed(build_item, pure=False)(it, output_paths(it, out_dir, tables), threads, force, resume)
-             for it in items]
+    tasks = [dask.delayed(build_item, pure=False)(it, output_paths(it, out_dir, tables), threads, force, resume,
+                                                  lookup) for it in items]
     t0 = time.perf_counter()
     with _progress_bar(len(tasks), progress):
         kw = {"num_workers": workers} if isinstance(scheduler, str) else {}
@@ -223,7 +231,7 @@ def run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers: int
     return {"format": BATCH_FORMAT, "writer": f"warpbw {__version__}", "out_dir": str(out_dir),
             "tables": list(tables), "scheduler": scheduler if isinstance(scheduler, str) else
             getattr(scheduler, "__qualname__", None) or type(scheduler).__name__,   # a client: "Client"
-            "workers": workers, "threads_per_task": threads, "wall_s": wall, "work_s": work,
+            "workers": workers, "threads_per_task": threads, "lookup": lookup, "wall_s": wall, "work_s": work,
             "failed": sum(r["error"] is not None for r in records), "items": records}
 
 

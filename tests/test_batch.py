@@ -28,10 +28,10 @@ def _batch(*args):
     return outcome(main, ["batch", *args, "-q"])
 
 
-def _single(cmd, src, material, out):
+def _single(cmd, src, material, out, *more):
     from precompute.__main__ import main
 
-    extra = ["--material", material] if material else []
+    extra = (["--material", material] if material else []) + list(more)
     assert outcome(main, [cmd, str(src), *extra, "-o", str(out), "-q"]) == "returned 0"
     return out.read_bytes()
 
@@ -79,6 +79,30 @@ def test_every_npf_material_by_default_and_the_threads_scheduler_agrees(tmp_path
     for m in ("chrome", "nickel"):
         assert (tmp_path / f"out/{m}.sampling.npz").read_bytes() == \
             _single("brdf-sampling", npf, m, tmp_path / f"{m}.npz")
+
+
+def test_lookup_gives_the_bandwidth_table_brdf_writes_with_it_and_leaves_the_sampling_table(tmp_path, monkeypatch):
+    """--lookup nearest: an NPF material's bandwidth file is the one ``brdf --lookup nearest`` writes, byte for byte
+    (the table of the BRDF a scene's default lookup shades, which the renderer asks for), its sampling file the one
+    ``brdf-sampling`` writes (no lookup), and the record names the lookup; an unknown lookup is refused."""
+    from precompute.batch import batch_items, run_batch
+    from precompute.brdf_bandwidth import read_brdf_bandwidth
+    from precompute.brdf_sampling import brdf_source
+    from warpbw.errors import WarpbwError
+
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    assert _batch("npf.bin", "--materials", "chrome", "--lookup", "nearest", "-o", "out", "--scheduler",
+                  "sync") == "returned 0"
+    assert (tmp_path / "out/chrome.bandwidth.npz").read_bytes() == \
+        _single("brdf", "npf.bin", "chrome", tmp_path / "b.npz", "--lookup", "nearest")
+    assert (tmp_path / "out/chrome.sampling.npz").read_bytes() == \
+        _single("brdf-sampling", "npf.bin", "chrome", tmp_path / "s.npz")
+    read_brdf_bandwidth(tmp_path / "out/chrome.bandwidth.npz", brdf_source("npf.bin", "chrome", "nearest"))
+    assert json.loads((tmp_path / "out/batch.json").read_text())["lookup"] == "nearest"
+    with pytest.raises(WarpbwError, match="lookup: expected one of nearest, linear"):
+        run_batch(batch_items("npf.bin", ["chrome"]), tmp_path / "out2", scheduler="sync", lookup="cubic")
+    assert not (tmp_path / "out2").exists()
 
 
 def test_a_brdf_that_cannot_be_read_fails_alone(tmp_path, monkeypatch, capsys):
