@@ -258,10 +258,10 @@ def build_parser() -> argparse.ArgumentParser:
     _table_args(c)
     c.add_argument("--lookup", choices=LOOKUP_MODES, default=None,
                    help="how the material reads its tables, as the scene's lookup says: nearest (the bin a direction "
-                   "pair falls in; the scene's default) or linear (between bin centres).  The table is the bandwidth "
-                   "of the BRDF as it is shaded, and nearest-bin steps vary faster than interpolated curves (an NPF "
-                   "fit's cells by up to 1.9x), so the renderer refuses a table of another lookup than its "
-                   "material's.  Default: MERL nearest, NPF linear (the tables built before the option)")
+                   "pair falls in) or linear (between bin centres).  The table is the bandwidth of the BRDF as it is "
+                   "shaded, and nearest-bin steps vary faster than interpolated curves (an NPF fit's cells by up to "
+                   "1.9x), so the renderer refuses a table of another lookup than its material's.  Default: the "
+                   "scene's, MERL nearest, NPF linear")
     c.set_defaults(func=cmd_brdf)
 
     bt = sub.add_parser("batch", help="both tables of many tabulated BRDFs, on Dask",
@@ -291,8 +291,7 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--lookup", choices=LOOKUP_MODES, default=None,
                     help="the lookup the scenes' materials shade with (brdf --lookup): the bandwidth tables are "
                     "those of the BRDFs read with it, and a scene refuses a table of another lookup than its "
-                    "material's.  Default: MERL nearest, NPF linear (so a material that keeps lookup's default, "
-                    "nearest, needs --lookup nearest for its NPF tables)")
+                    "material's.  Default: the scene's, MERL nearest, NPF linear")
     bt.add_argument("--force", action="store_true", help="replace existing outputs and record")
     bt.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     bt.set_defaults(func=cmd_batch)

@@ -55,7 +55,7 @@ from warpbw.errors import WarpbwError, check_input_file, check_instance
 from warpbw.io.staged import check_name_length, remove_stale_temps
 from warpbw.sampling import (N_PHI, N_THETA_O, N_U, TABLE_FORMAT, TABLE_VERSION, VIEW_SUBSAMPLES, SamplerTable,
                              build_sampler_table, directional_albedo)
-from warpbw.scene import LOOKUP_MODES
+from warpbw.scene import LOOKUP_DEFAULT, LOOKUP_MODES
 
 
 @dataclass
@@ -69,9 +69,10 @@ class BrdfSource:
     lookup: str | None = None   # what ``evaluate`` reads the tables with; None: the kind's TABLE_LOOKUP
 
 
-# The lookup a tabulated BRDF's tables are built with when none is named: what every table was built with before
-# session 70 (MERL: its own nearest-bin lookup; NPF: the interpolated curves), so that such tables stay valid.
-TABLE_LOOKUP = {"merl": "nearest", "npf": "linear"}
+# The lookup a tabulated BRDF's tables are built with when none is named: the scene's default for its kind
+# (warpbw.scene.LOOKUP_DEFAULT: MERL its own nearest bin, NPF its curves interpolated), and what every table was built
+# with before session 70, so that such tables stay valid.
+TABLE_LOOKUP = dict(LOOKUP_DEFAULT)
 
 
 # Views (degrees from the normal) at which a tabulated BRDF's directional albedo is checked, and the albedo above

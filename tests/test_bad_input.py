@@ -3573,10 +3573,10 @@ def test_run_batch_refuses_bad_arguments_before_any_work(tmp_path, kw, needle):
 
 def test_a_bandwidth_file_built_for_another_lookup_than_the_materials_is_refused(tmp_path, monkeypatch):
     """The renderer asks for the nu_rho table of the BRDF its material shades, read with the material's ``lookup``
-    (precompute.brdf_bandwidth, "Lookup"): a scene's ``bandwidth = "bw.npz"`` built for NPF's table default (linear,
-    as ``warpbw-precompute brdf`` builds without --lookup) under a material of the scene's default lookup (nearest) is
-    refused in one line naming the file, both lookups and the command that rebuilds it; the same file under
-    ``lookup = "linear"`` is read.  Without a file the table is built for the nearest lookup and cached apart from
+    (precompute.brdf_bandwidth, "Lookup"): a scene's ``bandwidth = "bw.npz"`` built for NPF's default (linear, as
+    ``warpbw-precompute brdf`` builds without --lookup) under a material of ``lookup = "nearest"`` is refused in one
+    line naming the file, both lookups and the command that rebuilds it; the same file under NPF's default lookup
+    is read.  Without a file the table is built for the nearest lookup and cached apart from
     the linear one, while the sampling tables keep their one lookup-free entry."""
     from precompute.brdf_bandwidth import VERSION, write_brdf_bandwidth
     from precompute.brdf_sampling import brdf_source
@@ -3591,9 +3591,8 @@ def test_a_bandwidth_file_built_for_another_lookup_than_the_materials_is_refused
     lines = ["[camera]", "position = [0.0, 0.0, 3.0]", "look_at = [0.0, 0.0, 0.0]", "fov = 50.0", "resolution = [8, 8]",
              "[environment]", 'procedural = "sky"', "[[object]]", 'shape = "sphere"', "radius = 0.8", 'material = "m"',
              "[material.m]", 'type = "npf"', 'table = "npf.bin"', 'name = "chrome"']
-    for name, extra in (("nearest.toml", ['bandwidth = "bw.npz"']), ("linear.toml", ['bandwidth = "bw.npz"',
-                                                                                      'lookup = "linear"']),
-                        ("built.toml", [])):
+    for name, extra in (("nearest.toml", ['bandwidth = "bw.npz"', 'lookup = "nearest"']),
+                        ("linear.toml", ['bandwidth = "bw.npz"']), ("built.toml", ['lookup = "nearest"'])):
         (tmp_path / name).write_text("\n".join(lines + extra))
     said = attempt(render_adaptive, load_scene(tmp_path / "nearest.toml"), budget=2.0)[1]
     assert "\n" not in said and said.startswith(f"{bw}: a nu_rho table of 'npf.bin:chrome' read with the linear "

@@ -812,11 +812,11 @@ def _hand_nearest_cells(mat, theta_i: float, n: int):
 
 
 def test_a_nearest_npf_table_holds_the_bandwidth_of_the_nearest_bin_lobes_it_shades(shared):
-    """A material of ``type = "npf"`` shades with the lookup its scene names (nearest by default), and its table is
+    """A material of ``type = "npf"`` shades with the lookup its scene names (linear by default), and its table is
     the bandwidth of that BRDF: gold-metallic-paint's table of the nearest lookup (resolution 64) equals, cell for
     cell inside the rim, the analysis of its nearest-bin slices built here (at least what is shaded: never below).
-    The table of the interpolated curves, which every NPF material had before session 70, lies up to 18% below it
-    there (and up to 1.9x below at the rim, at resolution 128)."""
+    The table of the interpolated curves, which every NPF material had before session 70 (whatever it shaded with),
+    lies up to 18% below it there (and up to 1.9x below at the rim, at resolution 128)."""
     from precompute.brdf_sampling import with_lookup
 
     source = with_lookup(brdf_source(shared("brdf/npf.bin"), "gold-metallic-paint"), "nearest")

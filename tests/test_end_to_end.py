@@ -627,7 +627,7 @@ def test_the_render_record_names_the_bandwidth_file_it_read(tmp_path, monkeypatc
     monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
     fake_npf_table(tmp_path / "npf.bin")
     write_brdf_bandwidth(tmp_path / "bw.npz", np.full((16, 16, 16), 2.0, np.float32),
-                         brdf_source(tmp_path / "npf.bin", "chrome", "nearest"))   # the scene's default lookup
+                         brdf_source(tmp_path / "npf.bin", "chrome"))   # NPF's default lookup, the scene's too
     lines = ["[camera]", "position = [0.0, 0.0, 3.0]", "look_at = [0.0, 0.0, 0.0]", "fov = 50.0", "resolution = [8, 8]",
              "[environment]", 'procedural = "sky"', "[[object]]", 'shape = "sphere"', "radius = 0.8", 'material = "m"',
              "[material.m]", 'type = "npf"', 'table = "npf.bin"', 'name = "chrome"']

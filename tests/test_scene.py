@@ -932,19 +932,20 @@ def test_cook_torrance_diffuse_defaults_to_zero_as_documented(tmp_path):
     assert tuple(m.diffuse) == (0.0, 0.0, 0.0)
 
 
-@pytest.mark.parametrize("mtype", ["merl", "npf"])
-def test_tabulated_materials_look_up_the_nearest_bin_by_default(tmp_path, mtype):
-    """README: a MERL (or NPF) material's ``lookup`` is "nearest" (MERL's own) unless "linear" is asked for.
-    An omitted lookup must be "nearest": interpolating by default would change every tabulated material's
-    image and its precomputed tables' meaning without the user asking."""
+@pytest.mark.parametrize("mtype, default, other", [("merl", "nearest", "linear"), ("npf", "linear", "nearest")])
+def test_tabulated_materials_look_up_their_kinds_default(tmp_path, mtype, default, other):
+    """README: a MERL material's ``lookup`` is "nearest" (MERL's own) unless "linear" is asked for; an NPF material's
+    is "linear", between the fit's bin centres (../shared/data/README.md: "linear interpolation between bin centres
+    is better"; since session 70, before which it was "nearest"), unless "nearest" is asked for.  A default that
+    moves changes every such material's image and which precomputed nu_rho tables it accepts."""
     f = tmp_path / "table.bin"
     f.write_bytes(b"x")   # parsing only checks that the file exists
     keys = f'file = "{f.name}"' if mtype == "merl" else f'table = "{f.name}"\nname = "chrome"'
     paint = f'[material.paint]\ntype = "{mtype}"\n{keys}\n'
     m = parse_scene(scene_text(materials=paint), tmp_path).materials["paint"]
-    assert m.lookup == "nearest"
-    linear = parse_scene(scene_text(materials=paint + 'lookup = "linear"\n'), tmp_path).materials["paint"]
-    assert linear.lookup == "linear"   # and the key, when written, is read
+    assert m.lookup == default
+    asked = parse_scene(scene_text(materials=paint + f'lookup = "{other}"\n'), tmp_path).materials["paint"]
+    assert asked.lookup == other   # and the key, when written, is read
 
 
 # ------------------------------------------------------------------------------------------ the ends of each range

@@ -61,6 +61,11 @@ GMM_DEFAULT_PRIOR = 1.0
 GMM_MAX_PRIOR = 1.0e6
 PROCEDURAL_ENVIRONMENTS = ("sky",)
 LOOKUP_MODES = ("nearest", "linear")
+# A tabulated material's lookup when its scene names none.  MERL's own is the nearest bin; an NPF fit's 90-bin curves
+# sample smooth functions, read between bin centres ("linear interpolation between bin centres is better", data
+# README, npf.bin layout; the nearest bins' steps put nu_rho cells up to 1.9x above the curves').  The precomputed
+# tables of each kind are built with the same lookup by default (precompute.brdf_sampling.TABLE_LOOKUP).
+LOOKUP_DEFAULT = {"merl": "nearest", "npf": "linear"}
 MAX_RESOLUTION = 16384  # per side; larger is almost certainly a typo (and would not fit in memory)
 # A scene file's size, checked before it is read: a scene is a few kB of TOML (meshes, maps and probes are files it
 # names), and a 1 GB data file given by mistake took 2 GB of memory and seconds to be called "not valid TOML"
@@ -207,7 +212,7 @@ class Material:
     file: Path | None = None          # merl .binary
     table: Path | None = None         # npf table
     npf_name: str | None = None
-    lookup: str = "nearest"           # merl / npf: nearest bin or linear between bin centres
+    lookup: str | None = None         # merl / npf: nearest bin or linear between bin centres (None: LOOKUP_DEFAULT)
     sampling: Path | None = None      # merl / npf: precomputed sampling tables (built and cached if absent)
     bandwidth: Path | None = None     # merl / npf: precomputed nu_rho table (adaptive method; built, cached if absent)
     # cook-torrance (004 Sec. 3): Gaussian NDF of roughness m, Schlick Fresnel from f0, Lambert albedo
@@ -221,6 +226,10 @@ class Material:
     gmm: Path | None = None           # precomputed GMM mipmap (built and cached if absent)
     gmm_components: int = GMM_DEFAULT_COMPONENTS   # Gaussians per texel of the built (or given) GMM mipmaps
     gmm_prior: float = GMM_DEFAULT_PRIOR           # alignment constant c of the built (or given) aligned one
+
+    def __post_init__(self):
+        if self.lookup is None:   # the kind's (other kinds look nothing up: "nearest", as their hashes always held)
+            object.__setattr__(self, "lookup", LOOKUP_DEFAULT.get(self.type, "nearest"))
 
 
 @dataclass
@@ -596,7 +605,7 @@ def _material(ctx: _Ctx, name: str, d: dict) -> Material:
         eta = ctx.vec3(d["eta"], f"{key}.eta", lo=0.0, hi=CONDUCTOR_INDEX_MAX) if "eta" in d else None
         k = ctx.vec3(d["k"], f"{key}.k", lo=0.0, hi=CONDUCTOR_INDEX_MAX) if "k" in d else None
         return Material(name, t, alpha=alpha, specular=spec, eta=eta, k=k)
-    lookup = ctx.string(d.get("lookup", "nearest"), f"{key}.lookup", LOOKUP_MODES)
+    lookup = ctx.string(d.get("lookup", LOOKUP_DEFAULT[t]), f"{key}.lookup", LOOKUP_MODES)
     sampling = ctx.path(d["sampling"], f"{key}.sampling") if "sampling" in d else None
     bandwidth = ctx.path(d["bandwidth"], f"{key}.bandwidth") if "bandwidth" in d else None
     if t == "merl":
