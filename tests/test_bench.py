@@ -880,6 +880,107 @@ def test_bench_scenes_converts_again_a_merl_file_an_earlier_tabulation_wrote(tmp
     assert bs.main(["--out", str(out)]) == 0 and calls == []
 
 
+def test_bench_scenes_converts_again_a_merl_file_of_another_npf_table(tmp_path, monkeypatch, shared):
+    """The tabulation depends on the NPF table's bytes as much as on TABULATION_VERSION, and a stamp of the version
+    alone kept a file converted from another npf.bin (cache-key audit, session 70).  The stamp now holds the
+    table's digest (precompute.npf_to_merl.tabulation_stamp): the table changed, every material is converted again,
+    and a stamp of the version alone (session 69's) counts as stale."""
+    table = tmp_path / "npf.bin"
+    table.write_bytes(shared("brdf/npf.bin").read_bytes())
+    bs, calls = _bench_scenes_with_fake_run(monkeypatch)
+    monkeypatch.setattr(bs, "NPF_TABLE", table)
+    out = tmp_path / "s"
+    assert bs.main(["--out", str(out)]) == 0 and len(calls) == 4
+    calls.clear()
+    assert bs.main(["--out", str(out)]) == 0 and calls == []
+    table.write_bytes(table.read_bytes()[:-1] + b"\x01")      # another fit, same size
+    assert bs.main(["--out", str(out)]) == 0
+    assert sorted(_after(c, "--material") for c in calls) == ["blue-acrylic", "chrome", "color-changing-paint3",
+                                                                     "gold-metallic-paint"]
+    assert all(_after(c, "--table") == str(table) for c in calls)
+    calls.clear()
+    (out / "chrome.binary.tabulation").write_text("2\n")      # session 69's stamp: the version alone
+    assert bs.main(["--out", str(out)]) == 0
+    assert [_after(c, "--material") for c in calls] == ["chrome"]
+
+
+def _bench_reference_until_the_render(monkeypatch, tmp_path, shared, argv):
+    """examples/bench_reference.py with ``argv``, its shared data in ``tmp_path/data`` (a copy of npf.bin, the
+    probes linked), npf_to_merl recorded (it writes a stand-in file) and parse_scene stopping the run: returns the
+    run, the materials converted and the table."""
+    import precompute.npf_to_merl
+    import warpbw.scene
+
+    data = tmp_path / "data"
+    (data / "brdf").mkdir(parents=True)
+    table = data / "brdf" / "npf.bin"
+    table.write_bytes(shared("brdf/npf.bin").read_bytes())
+    (data / "envmaps").symlink_to(shared("envmaps/forest.exr").parent)
+    br = load_example("bench_reference")
+    monkeypatch.setattr(br, "DATA", data)
+    converted = []
+
+    def convert(tab, material, out, force=False):
+        converted.append(material)
+        Path(out).write_bytes(b"stand-in MERL")
+        return Path(out)
+
+    class Stop(Exception):
+        pass
+
+    def stop(*a, **k):
+        raise Stop
+
+    monkeypatch.setattr(precompute.npf_to_merl, "npf_to_merl", convert)
+    monkeypatch.setattr(warpbw.scene, "parse_scene", stop)
+
+    def run(*extra):
+        monkeypatch.setattr(sys, "argv", ["bench_reference.py", *argv, *extra])
+        with pytest.raises(Stop):
+            br.main()
+    return run, converted, table
+
+
+def test_bench_reference_converts_again_a_stale_merl_file(tmp_path, monkeypatch, shared):
+    """OUT/MATERIAL.binary is bench_reference's cache of npf-to-merl's tabulation, and was used whenever it existed:
+    a file of session 68's tabulation (before the horizon bins' means, warpbw.io.merl.TABULATION_VERSION 2) or of
+    another npf.bin was benchmarked as the current NPF fit (cache-key audit, session 70).  It is now stamped as
+    bench_scenes.py stamps its files: a missing or stale stamp converts it again; a current one does not."""
+    out = tmp_path / "out"
+    run, converted, table = _bench_reference_until_the_render(monkeypatch, tmp_path, shared, ["--out", str(out)])
+    run()
+    assert converted == ["gold-metallic-paint"]
+    run()
+    assert converted == ["gold-metallic-paint"]                # current: used as it is
+    stamp = out / "gold-metallic-paint.binary.tabulation"
+    stamp.unlink()                                             # a folder of an earlier warpbw: no stamp
+    run()
+    assert converted == ["gold-metallic-paint"] * 2
+    table.write_bytes(table.read_bytes()[:-1] + b"\x01")       # another NPF table
+    run()
+    assert converted == ["gold-metallic-paint"] * 3
+
+
+def test_bench_reference_check_only_refuses_a_stale_merl_file(tmp_path, monkeypatch, shared):
+    """--check-only keeps the sweep an earlier run measured on OUT's MERL file: a stale one (converted again, the
+    ground truth would be another material's) is refused, saying to run without --check-only."""
+    out = tmp_path / "out"
+    run, converted, _ = _bench_reference_until_the_render(monkeypatch, tmp_path, shared,
+                                                          ["--out", str(out), "--resolution", "8", "8"])
+    out.mkdir()
+    (out / "gold-metallic-paint.binary").write_bytes(b"session 68's MERL")
+    (out / "bench_reference.json").write_text(json.dumps(
+        {"scene": {"material": "gold-metallic-paint", "probe": "forest.exr", "rotation_deg": 0.0,
+                   "resolution": [8, 8]}, "methods": {"brdf_is": [{"spp": 4}], "mis": [{"spp": 4}]}}))
+    monkeypatch.setattr(sys, "argv", ["bench_reference.py", "--out", str(out), "--resolution", "8", "8",
+                                      "--check-only"])
+    br = load_example("bench_reference")
+    monkeypatch.setattr(br, "DATA", tmp_path / "data")
+    with pytest.raises(WarpbwError, match="--check-only: .*gold-metallic-paint.binary is not the current tabulation"):
+        br.main()
+    assert converted == []
+
+
 def test_two_bench_scenes_into_one_out_at_once_both_go_on_with_a_whole_merl_file(tmp_path, monkeypatch, shared):
     """Two bench_scenes runs into one --out at once (two --only runs, say) both convert a material that is not there
     yet.  The later one found the other's file when its npf-to-merl started, was refused ("already exists") and
@@ -1002,7 +1103,7 @@ def _run_bench_reference(monkeypatch, tmp_path, argv):
     clock = StandInClock()
     got = {"renders": [], "merl": [], "toml": None, "gt_spp": None, "loglog": []}
 
-    def npf_to_merl(table, material, out):
+    def npf_to_merl(table, material, out, force=False):
         got["merl"].append(material)
         Path(out).write_bytes(b"merl")
         return out
