@@ -123,8 +123,8 @@ def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="bench_scenes", help="directory for scenes, MERL files and results (an "
                     "OUT/MATERIAL.binary already there is used as it is, a cache: delete it to convert the NPF fit "
-                    "again; one whose stamp OUT/MATERIAL.binary.tabulation names another tabulation or NPF table, or is "
-                    "missing, is converted again)")
+                    "again; one whose stamp OUT/MATERIAL.binary.tabulation names another tabulation or NPF table, "
+                    "or is missing, is converted again)")
     ap.add_argument("--run", action="store_true", help="run warpbw bench on every scene")
     ap.add_argument("--only", help="comma-separated scene names to run (default: the four of the table; "
                     f"{', '.join(EXTRA_SCENES)} only when named)")
