@@ -1518,3 +1518,111 @@ def test_ground_truth_chunk_with_one_nan_pixel_is_rendered_again(tmp_path, monke
     again = bench.ground_truth(prep, 8, tmp_path / "gt", progress=False)
     assert rendered == [4, 4, 4] and np.isfinite(again.image).all()
 
+
+
+_KEY_SCENE = """
+[camera]
+position = [0.0, 0.0, 4.0]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov = 30.0
+resolution = [24, 16]
+[environment]
+file = "probe.exr"
+rotation = 10.0
+scale = 1.0
+[[light]]
+type = "directional"
+direction = [0.0, 1.0, 0.0]
+radiance = [1.0, 1.0, 1.0]
+[[object]]
+shape = "sphere"
+center = [0.0, 0.0, 0.0]
+radius = 1.0
+material = "g"
+[[object]]
+mesh = "m.obj"
+material = "t"
+translate = [0.0, 0.0, 0.0]
+scale = 1.0
+rotate_y = 0.0
+[[object]]
+shape = "plane"
+center = [0.0, -1.0, 0.0]
+size = 4.0
+material = "ct"
+[material.g]
+type = "ggx"
+alpha = 0.2
+specular = [0.9, 0.9, 0.9]
+eta = [0.2, 0.4, 1.4]
+k = [3.9, 2.4, 1.6]
+[material.t]
+type = "merl"
+file = "a.binary"
+lookup = "nearest"
+sampling = "samp.npz"
+[material.ct]
+type = "cook-torrance"
+roughness = 0.3
+f0 = [0.04, 0.04, 0.04]
+"""
+
+# Every input of the reference the ground truth's chunks are rendered with, changed alone (cache-key audit, session
+# 70): scene text edits (old, new) and file rewrites (name, bytes).  The plane clips the truth (run_bench).
+_GT_INPUTS = {
+    "camera position": ("position = [0.0, 0.0, 4.0]", "position = [0.0, 0.0, 4.5]"),
+    "camera look_at": ("look_at = [0.0, 0.0, 0.0]", "look_at = [0.0, 0.1, 0.0]"),
+    "camera up": ("up = [0.0, 1.0, 0.0]", "up = [0.1, 1.0, 0.0]"),
+    "camera fov": ("fov = 30.0", "fov = 31.0"),
+    "resolution": ("[24, 16]", "[24, 18]"),
+    "env rotation": ("rotation = 10.0", "rotation = 11.0"),
+    "env scale": ("scale = 1.0\n[[light]]", "scale = 2.0\n[[light]]"),
+    "env source": ('file = "probe.exr"', 'procedural = "sky"'),
+    "light direction": ("direction = [0.0, 1.0, 0.0]", "direction = [0.0, 0.0, 1.0]"),
+    "light radiance": ("radiance = [1.0, 1.0, 1.0]", "radiance = [2.0, 1.0, 1.0]"),
+    "sphere centre": ("center = [0.0, 0.0, 0.0]", "center = [0.1, 0.0, 0.0]"),
+    "sphere radius": ("radius = 1.0", "radius = 0.9"),
+    "mesh translate": ("translate = [0.0, 0.0, 0.0]", "translate = [0.1, 0.0, 0.0]"),
+    "mesh scale": ("scale = 1.0\nrotate_y", "scale = 1.5\nrotate_y"),
+    "mesh rotate_y": ("rotate_y = 0.0", "rotate_y = 5.0"),
+    "plane centre": ("center = [0.0, -1.0, 0.0]", "center = [0.0, -0.9, 0.0]"),
+    "plane size": ("size = 4.0", "size = 5.0"),
+    "ggx alpha": ("alpha = 0.2", "alpha = 0.25"),
+    "ggx specular": ("specular = [0.9, 0.9, 0.9]", "specular = [0.8, 0.9, 0.9]"),
+    "ggx eta": ("eta = [0.2, 0.4, 1.4]", "eta = [0.3, 0.4, 1.4]"),
+    "ggx k": ("k = [3.9, 2.4, 1.6]", "k = [3.8, 2.4, 1.6]"),
+    "merl lookup": ('lookup = "nearest"', 'lookup = "linear"'),
+    "materials swapped": ('material = "g"\n[[object]]\nmesh = "m.obj"\nmaterial = "t"',
+                          'material = "t"\n[[object]]\nmesh = "m.obj"\nmaterial = "g"'),
+    "probe bytes": ("probe.exr", b"another probe"),
+    "mesh bytes": ("m.obj", b"v 0 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\n"),
+    "merl bytes": ("a.binary", b"another merl"),
+    "sampling table bytes": ("samp.npz", b"other tables"),
+}
+
+
+@pytest.mark.parametrize("what", list(_GT_INPUTS))
+def test_every_input_of_the_reference_changes_the_ground_truths_key(tmp_path, what):
+    """A cached chunk is read back by its key alone (and its size): an input of the reference the key missed would
+    average a chunk of another scene into the truth, silently.  Each input of the audit's table changed alone gives
+    another key; the seed too, and the same scene gives the same key."""
+    from warpbw.scene import parse_scene
+
+    files = {"probe.exr": b"probe", "m.obj": b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "a.binary": b"merl",
+             "samp.npz": b"tables"}
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+
+    def key(text, seed=bench.GT_SEED):
+        return bench.gt_key(parse_scene(text, base_dir=tmp_path, source="s.toml"), seed)
+
+    k0 = key(_KEY_SCENE)
+    assert key(_KEY_SCENE) == k0 and key(_KEY_SCENE, bench.GT_SEED + 1) != k0
+    old, new = _GT_INPUTS[what]
+    if isinstance(new, bytes):
+        (tmp_path / old).write_bytes(new)
+        assert key(_KEY_SCENE) != k0
+    else:
+        assert old in _KEY_SCENE
+        assert key(_KEY_SCENE.replace(old, new, 1)) != k0
