@@ -12,9 +12,10 @@ after a warm-up frame; the ground truth is the MIS reference at ``--gt-spp``, th
 4096-spp chunks (each cached), accepted when the PSNR of a render at the sweep's largest ``--spp`` (1024 by
 default) against its first half and against the whole differ by < 0.5 dB (else it says so).
 Writes bench_out/bench_reference.json, a plot bench_out/bench_reference.png (error against time,
-one curve per estimator), PNG previews, the MERL file, and the ground truth's chunks as EXR
-(``warpbw.bench.ground_truth``'s cache, by scene hash, seed and ``GT_VERSION``); an earlier run's records are kept
-unless ``--force`` (``--check-only`` updates them by design).
+one curve per estimator), PNG previews, the MERL file (kept as a cache, stamped beside it as
+``precompute.npf_to_merl`` says; converted again where the stamp is missing or stale), and the ground truth's
+chunks as EXR (``warpbw.bench.ground_truth``'s cache, by scene hash, seed and ``GT_VERSION``); an earlier run's
+records are kept unless ``--force`` (``--check-only`` updates them by design).
 
 ``--check-only`` redoes the ground truth and its check alone, keeping the sweep of an earlier run's JSON: the
 check renders at that sweep's largest spp, and the options that describe the scene (``--material``, ``--probe``,
@@ -152,7 +153,7 @@ def main():
     import warp as wp
 
     init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
-    from precompute.npf_to_merl import npf_to_merl
+    from precompute.npf_to_merl import npf_to_merl, tabulation_is_current, write_tabulation_stamp
     from warpbw.io.exr import write_png
     from warpbw.io.npf import read_npf
     from warpbw.io.staged import staged_outputs
@@ -160,18 +161,27 @@ def main():
     from warpbw.pipeline import prepare_scene, render_reference
     from warpbw.scene import parse_scene
 
-    merl = out / f"{args.material}.binary"
-    if not merl.exists():   # the MERL file from the NPF fit (warpbw-precompute npf-to-merl), --material checked first
+    merl, table = out / f"{args.material}.binary", DATA / "brdf" / "npf.bin"
+    # the MERL file from the NPF fit (warpbw-precompute npf-to-merl), kept in OUT as a cache: used as it is while its
+    # stamp says the current tabulation of this table wrote it, else converted again (bench_scenes.py does the same;
+    # a file of session 68's tabulation was used as it was)
+    current = tabulation_is_current(merl, table, args.material)
+    if not current:   # --material checked first
         try:
-            read_npf(DATA / "brdf" / "npf.bin", args.material)
+            read_npf(table, args.material)
         except WarpbwError as exc:
             raise WarpbwError(f"--material {args.material}: {exc}") from None
+        if args.check_only and merl.exists():   # the kept sweep measured that file's material
+            raise WarpbwError(f"--check-only: {merl} is not the current tabulation of {args.material} (its stamp "
+                              f"{merl.name}.tabulation says otherwise or is missing), so the kept sweep measured "
+                              "another material; run without --check-only")
     if not (DATA / "envmaps" / args.probe).is_file():
         ap.error(f"--probe {args.probe}: no such probe in {DATA / 'envmaps'}")
-    if not merl.exists():
+    if not current:
         out.mkdir(parents=True, exist_ok=True)
         t0 = time.perf_counter()
-        npf_to_merl(DATA / "brdf" / "npf.bin", args.material, merl)
+        npf_to_merl(table, args.material, merl, force=True)   # OUT's own cache entry, stale or missing
+        write_tabulation_stamp(merl, table, args.material)
         print(f"wrote {merl} (MERL .binary from the NPF fit, {time.perf_counter() - t0:.1f} s)")
     out.mkdir(parents=True, exist_ok=True)
     w, h = args.resolution

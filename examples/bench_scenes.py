@@ -34,16 +34,17 @@ import subprocess
 import sys
 from pathlib import Path
 
+from precompute.npf_to_merl import tabulation_is_current, write_tabulation_stamp
 from warpbw.cli import check_command_options
 from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, run_command
 from warpbw.errors import WarpbwError
-from warpbw.io.merl import TABULATION_VERSION
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
 from warpbw.scene import toml_escape
 
 HERE = Path(__file__).resolve().parent
 DATA = shared_data_dir(HERE.parent)
+NPF_TABLE = DATA / "brdf" / "npf.bin"   # the NPF fits the MERL files are converted from
 
 CAMERAS = {
     "bunny": 'position = [0.0, 0.35, 4.6]\nlook_at = [0.0, 0.0, 0.0]\nfov = 35.0',
@@ -101,18 +102,17 @@ def write_scenes(out: Path, force: bool = False) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     for material in sorted({row[1] for row in (*SCENES.values(), *EXTRA_SCENES.values())}):
         merl = out / f"{material}.binary"
-        stamp = merl.with_name(merl.name + ".tabulation")   # which tabulate_merl wrote it (a MERL file cannot say)
-        current = stamp.is_file() and stamp.read_text(errors="replace").strip() == str(TABULATION_VERSION)
-        if not (merl.exists() and current):   # missing, or an earlier tabulation's (a cache entry gone stale)
+        # which tabulation of which table wrote it (a MERL file cannot say): its stamp beside it
+        if not tabulation_is_current(merl, NPF_TABLE, material):   # missing, or stale (another tabulation or table)
             # --force: OUT holds these files as a cache (--help), and a second bench_scenes into the same OUT (two
             # --only runs at once) converts the same material to the same bytes; without it the later to finish
             # was refused ("appeared while this run worked") and this script ended in a traceback
             status = subprocess.run([sys.executable, "-m", "precompute", "npf-to-merl", "--table",
-                                     str(DATA / "brdf" / "npf.bin"), "--material", material, "-o", str(merl),
+                                     str(NPF_TABLE), "--material", material, "-o", str(merl),
                                      "--force"]).returncode
             if status:   # npf-to-merl has said why (check=True printed a traceback under it)
                 raise WarpbwError(f"{merl}: converting {material} from the NPF table failed (status {status})")
-            stamp.write_text(f"{TABULATION_VERSION}\n")
+            write_tabulation_stamp(merl, NPF_TABLE, material)
     with staged_outputs(texts) as at:   # every scene, or none: an error leaves the old ones
         for p, text in texts.items():
             at[p].write_text(text)
@@ -123,8 +123,8 @@ def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="bench_scenes", help="directory for scenes, MERL files and results (an "
                     "OUT/MATERIAL.binary already there is used as it is, a cache: delete it to convert the NPF fit "
-                    "again; one an earlier tabulation wrote, as OUT/MATERIAL.binary.tabulation says, is converted "
-                    "again)")
+                    "again; one whose stamp OUT/MATERIAL.binary.tabulation names another tabulation or NPF table, "
+                    "or is missing, is converted again)")
     ap.add_argument("--run", action="store_true", help="run warpbw bench on every scene")
     ap.add_argument("--only", help="comma-separated scene names to run (default: the four of the table; "
                     f"{', '.join(EXTRA_SCENES)} only when named)")

@@ -880,6 +880,107 @@ def test_bench_scenes_converts_again_a_merl_file_an_earlier_tabulation_wrote(tmp
     assert bs.main(["--out", str(out)]) == 0 and calls == []
 
 
+def test_bench_scenes_converts_again_a_merl_file_of_another_npf_table(tmp_path, monkeypatch, shared):
+    """The tabulation depends on the NPF table's bytes as much as on TABULATION_VERSION, and a stamp of the version
+    alone kept a file converted from another npf.bin (cache-key audit, session 70).  The stamp now holds the
+    table's digest (precompute.npf_to_merl.tabulation_stamp): the table changed, every material is converted again,
+    and a stamp of the version alone (session 69's) counts as stale."""
+    table = tmp_path / "npf.bin"
+    table.write_bytes(shared("brdf/npf.bin").read_bytes())
+    bs, calls = _bench_scenes_with_fake_run(monkeypatch)
+    monkeypatch.setattr(bs, "NPF_TABLE", table)
+    out = tmp_path / "s"
+    assert bs.main(["--out", str(out)]) == 0 and len(calls) == 4
+    calls.clear()
+    assert bs.main(["--out", str(out)]) == 0 and calls == []
+    table.write_bytes(table.read_bytes()[:-1] + b"\x01")      # another fit, same size
+    assert bs.main(["--out", str(out)]) == 0
+    assert sorted(_after(c, "--material") for c in calls) == ["blue-acrylic", "chrome", "color-changing-paint3",
+                                                                     "gold-metallic-paint"]
+    assert all(_after(c, "--table") == str(table) for c in calls)
+    calls.clear()
+    (out / "chrome.binary.tabulation").write_text("2\n")      # session 69's stamp: the version alone
+    assert bs.main(["--out", str(out)]) == 0
+    assert [_after(c, "--material") for c in calls] == ["chrome"]
+
+
+def _bench_reference_until_the_render(monkeypatch, tmp_path, shared, argv):
+    """examples/bench_reference.py with ``argv``, its shared data in ``tmp_path/data`` (a copy of npf.bin, the
+    probes linked), npf_to_merl recorded (it writes a stand-in file) and parse_scene stopping the run: returns the
+    run, the materials converted and the table."""
+    import precompute.npf_to_merl
+    import warpbw.scene
+
+    data = tmp_path / "data"
+    (data / "brdf").mkdir(parents=True)
+    table = data / "brdf" / "npf.bin"
+    table.write_bytes(shared("brdf/npf.bin").read_bytes())
+    (data / "envmaps").symlink_to(shared("envmaps/forest.exr").parent)
+    br = load_example("bench_reference")
+    monkeypatch.setattr(br, "DATA", data)
+    converted = []
+
+    def convert(tab, material, out, force=False):
+        converted.append(material)
+        Path(out).write_bytes(b"stand-in MERL")
+        return Path(out)
+
+    class Stop(Exception):
+        pass
+
+    def stop(*a, **k):
+        raise Stop
+
+    monkeypatch.setattr(precompute.npf_to_merl, "npf_to_merl", convert)
+    monkeypatch.setattr(warpbw.scene, "parse_scene", stop)
+
+    def run(*extra):
+        monkeypatch.setattr(sys, "argv", ["bench_reference.py", *argv, *extra])
+        with pytest.raises(Stop):
+            br.main()
+    return run, converted, table
+
+
+def test_bench_reference_converts_again_a_stale_merl_file(tmp_path, monkeypatch, shared):
+    """OUT/MATERIAL.binary is bench_reference's cache of npf-to-merl's tabulation, and was used whenever it existed:
+    a file of session 68's tabulation (before the horizon bins' means, warpbw.io.merl.TABULATION_VERSION 2) or of
+    another npf.bin was benchmarked as the current NPF fit (cache-key audit, session 70).  It is now stamped as
+    bench_scenes.py stamps its files: a missing or stale stamp converts it again; a current one does not."""
+    out = tmp_path / "out"
+    run, converted, table = _bench_reference_until_the_render(monkeypatch, tmp_path, shared, ["--out", str(out)])
+    run()
+    assert converted == ["gold-metallic-paint"]
+    run()
+    assert converted == ["gold-metallic-paint"]                # current: used as it is
+    stamp = out / "gold-metallic-paint.binary.tabulation"
+    stamp.unlink()                                             # a folder of an earlier warpbw: no stamp
+    run()
+    assert converted == ["gold-metallic-paint"] * 2
+    table.write_bytes(table.read_bytes()[:-1] + b"\x01")       # another NPF table
+    run()
+    assert converted == ["gold-metallic-paint"] * 3
+
+
+def test_bench_reference_check_only_refuses_a_stale_merl_file(tmp_path, monkeypatch, shared):
+    """--check-only keeps the sweep an earlier run measured on OUT's MERL file: a stale one (converted again, the
+    ground truth would be another material's) is refused, saying to run without --check-only."""
+    out = tmp_path / "out"
+    run, converted, _ = _bench_reference_until_the_render(monkeypatch, tmp_path, shared,
+                                                          ["--out", str(out), "--resolution", "8", "8"])
+    out.mkdir()
+    (out / "gold-metallic-paint.binary").write_bytes(b"session 68's MERL")
+    (out / "bench_reference.json").write_text(json.dumps(
+        {"scene": {"material": "gold-metallic-paint", "probe": "forest.exr", "rotation_deg": 0.0,
+                   "resolution": [8, 8]}, "methods": {"brdf_is": [{"spp": 4}], "mis": [{"spp": 4}]}}))
+    monkeypatch.setattr(sys, "argv", ["bench_reference.py", "--out", str(out), "--resolution", "8", "8",
+                                      "--check-only"])
+    br = load_example("bench_reference")
+    monkeypatch.setattr(br, "DATA", tmp_path / "data")
+    with pytest.raises(WarpbwError, match="--check-only: .*gold-metallic-paint.binary is not the current tabulation"):
+        br.main()
+    assert converted == []
+
+
 def test_two_bench_scenes_into_one_out_at_once_both_go_on_with_a_whole_merl_file(tmp_path, monkeypatch, shared):
     """Two bench_scenes runs into one --out at once (two --only runs, say) both convert a material that is not there
     yet.  The later one found the other's file when its npf-to-merl started, was refused ("already exists") and
@@ -1002,7 +1103,7 @@ def _run_bench_reference(monkeypatch, tmp_path, argv):
     clock = StandInClock()
     got = {"renders": [], "merl": [], "toml": None, "gt_spp": None, "loglog": []}
 
-    def npf_to_merl(table, material, out):
+    def npf_to_merl(table, material, out, force=False):
         got["merl"].append(material)
         Path(out).write_bytes(b"merl")
         return out
@@ -1417,3 +1518,111 @@ def test_ground_truth_chunk_with_one_nan_pixel_is_rendered_again(tmp_path, monke
     again = bench.ground_truth(prep, 8, tmp_path / "gt", progress=False)
     assert rendered == [4, 4, 4] and np.isfinite(again.image).all()
 
+
+
+_KEY_SCENE = """
+[camera]
+position = [0.0, 0.0, 4.0]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov = 30.0
+resolution = [24, 16]
+[environment]
+file = "probe.exr"
+rotation = 10.0
+scale = 1.0
+[[light]]
+type = "directional"
+direction = [0.0, 1.0, 0.0]
+radiance = [1.0, 1.0, 1.0]
+[[object]]
+shape = "sphere"
+center = [0.0, 0.0, 0.0]
+radius = 1.0
+material = "g"
+[[object]]
+mesh = "m.obj"
+material = "t"
+translate = [0.0, 0.0, 0.0]
+scale = 1.0
+rotate_y = 0.0
+[[object]]
+shape = "plane"
+center = [0.0, -1.0, 0.0]
+size = 4.0
+material = "ct"
+[material.g]
+type = "ggx"
+alpha = 0.2
+specular = [0.9, 0.9, 0.9]
+eta = [0.2, 0.4, 1.4]
+k = [3.9, 2.4, 1.6]
+[material.t]
+type = "merl"
+file = "a.binary"
+lookup = "nearest"
+sampling = "samp.npz"
+[material.ct]
+type = "cook-torrance"
+roughness = 0.3
+f0 = [0.04, 0.04, 0.04]
+"""
+
+# Every input of the reference the ground truth's chunks are rendered with, changed alone (cache-key audit, session
+# 70): scene text edits (old, new) and file rewrites (name, bytes).  The plane clips the truth (run_bench).
+_GT_INPUTS = {
+    "camera position": ("position = [0.0, 0.0, 4.0]", "position = [0.0, 0.0, 4.5]"),
+    "camera look_at": ("look_at = [0.0, 0.0, 0.0]", "look_at = [0.0, 0.1, 0.0]"),
+    "camera up": ("up = [0.0, 1.0, 0.0]", "up = [0.1, 1.0, 0.0]"),
+    "camera fov": ("fov = 30.0", "fov = 31.0"),
+    "resolution": ("[24, 16]", "[24, 18]"),
+    "env rotation": ("rotation = 10.0", "rotation = 11.0"),
+    "env scale": ("scale = 1.0\n[[light]]", "scale = 2.0\n[[light]]"),
+    "env source": ('file = "probe.exr"', 'procedural = "sky"'),
+    "light direction": ("direction = [0.0, 1.0, 0.0]", "direction = [0.0, 0.0, 1.0]"),
+    "light radiance": ("radiance = [1.0, 1.0, 1.0]", "radiance = [2.0, 1.0, 1.0]"),
+    "sphere centre": ("center = [0.0, 0.0, 0.0]", "center = [0.1, 0.0, 0.0]"),
+    "sphere radius": ("radius = 1.0", "radius = 0.9"),
+    "mesh translate": ("translate = [0.0, 0.0, 0.0]", "translate = [0.1, 0.0, 0.0]"),
+    "mesh scale": ("scale = 1.0\nrotate_y", "scale = 1.5\nrotate_y"),
+    "mesh rotate_y": ("rotate_y = 0.0", "rotate_y = 5.0"),
+    "plane centre": ("center = [0.0, -1.0, 0.0]", "center = [0.0, -0.9, 0.0]"),
+    "plane size": ("size = 4.0", "size = 5.0"),
+    "ggx alpha": ("alpha = 0.2", "alpha = 0.25"),
+    "ggx specular": ("specular = [0.9, 0.9, 0.9]", "specular = [0.8, 0.9, 0.9]"),
+    "ggx eta": ("eta = [0.2, 0.4, 1.4]", "eta = [0.3, 0.4, 1.4]"),
+    "ggx k": ("k = [3.9, 2.4, 1.6]", "k = [3.8, 2.4, 1.6]"),
+    "merl lookup": ('lookup = "nearest"', 'lookup = "linear"'),
+    "materials swapped": ('material = "g"\n[[object]]\nmesh = "m.obj"\nmaterial = "t"',
+                          'material = "t"\n[[object]]\nmesh = "m.obj"\nmaterial = "g"'),
+    "probe bytes": ("probe.exr", b"another probe"),
+    "mesh bytes": ("m.obj", b"v 0 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\n"),
+    "merl bytes": ("a.binary", b"another merl"),
+    "sampling table bytes": ("samp.npz", b"other tables"),
+}
+
+
+@pytest.mark.parametrize("what", list(_GT_INPUTS))
+def test_every_input_of_the_reference_changes_the_ground_truths_key(tmp_path, what):
+    """A cached chunk is read back by its key alone (and its size): an input of the reference the key missed would
+    average a chunk of another scene into the truth, silently.  Each input of the audit's table changed alone gives
+    another key; the seed too, and the same scene gives the same key."""
+    from warpbw.scene import parse_scene
+
+    files = {"probe.exr": b"probe", "m.obj": b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "a.binary": b"merl",
+             "samp.npz": b"tables"}
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+
+    def key(text, seed=bench.GT_SEED):
+        return bench.gt_key(parse_scene(text, base_dir=tmp_path, source="s.toml"), seed)
+
+    k0 = key(_KEY_SCENE)
+    assert key(_KEY_SCENE) == k0 and key(_KEY_SCENE, bench.GT_SEED + 1) != k0
+    old, new = _GT_INPUTS[what]
+    if isinstance(new, bytes):
+        (tmp_path / old).write_bytes(new)
+        assert key(_KEY_SCENE) != k0
+    else:
+        assert old in _KEY_SCENE
+        assert key(_KEY_SCENE.replace(old, new, 1)) != k0

@@ -943,3 +943,20 @@ def test_the_brdf_command_builds_the_table_of_the_lookup_it_is_given(shared, tmp
                           str(tmp_path / "c.npz")]) == "exit 2"
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--lookup" in err and "nearest" in err, err
+
+
+@pytest.mark.parametrize("field, value", [("alpha", 0.25), ("specular", (0.8, 0.9, 0.9)), ("eta", (0.3, 0.4, 1.4)),
+                                          ("k", (3.8, 2.4, 1.6)), ("type", "lambert")])
+def test_every_parameter_of_an_analytic_lobe_changes_its_tables_cache_key(field, value):
+    """An analytic material's nu_rho table is cached under its parameters' digest (warpbw.pipeline._AnalyticSource)
+    and read back by it alone: each parameter the GGX lobe is evaluated with (brdf.MaterialSpec: alpha, specular,
+    eta, k) changed alone gives another key (cache-key audit, session 70); the material's name does not."""
+    from dataclasses import replace
+
+    from warpbw.pipeline import _AnalyticSource
+    from warpbw.scene import Material
+
+    gold = Material("gold", "ggx", alpha=0.2, specular=(0.9, 0.9, 0.9), eta=(0.2, 0.4, 1.4), k=(3.9, 2.4, 1.6))
+    d0 = _AnalyticSource(None, 0, gold).digest
+    assert _AnalyticSource(None, 0, replace(gold, name="other")).digest == d0
+    assert _AnalyticSource(None, 0, replace(gold, **{field: value})).digest != d0

@@ -1950,3 +1950,18 @@ def test_a_height_map_its_normal_map_its_offset_and_its_rescaling_render_the_sam
         np.testing.assert_allclose(b.level, a.level, atol=1e-5, err_msg=name)
         # float32 heights: an offset of 4 leaves differences of 4 * 2^-24 over texels 1/8 apart
         np.testing.assert_allclose(b.image, a.image, rtol=0.0, atol=1e-4 * float(a.image.max()), err_msg=name)
+
+
+@pytest.mark.parametrize("field, value", [("content_hash", "another-map"), ("kind", "normal"), ("scale", 2.0),
+                                          ("components", 3), ("prior", 0.5), ("unaligned", True)])
+def test_every_input_of_a_gmm_fit_changes_its_cache_key(field, value):
+    """A GMM mipmap is cached under its source's digest (warpbw.filtering._GmmSource; the reader then checks the map's
+    hash, shape, kind, scale, components, prior and alignment): each input of build_gmm_mipmap the material sets,
+    changed alone, gives another key (cache-key audit, session 70); the map's file name does not."""
+    from dataclasses import replace
+
+    from warpbw.filtering import _GmmSource
+
+    src = _GmmSource(None, "height", 1.0, False, "h.exr", "map-hash", 4, 1.0)
+    assert replace(src, name="renamed.exr").digest == src.digest
+    assert replace(src, **{field: value}).digest != src.digest
