@@ -1519,7 +1519,6 @@ def test_ground_truth_chunk_with_one_nan_pixel_is_rendered_again(tmp_path, monke
     assert rendered == [4, 4, 4] and np.isfinite(again.image).all()
 
 
-
 _KEY_SCENE = """
 [camera]
 position = [0.0, 0.0, 4.0]
