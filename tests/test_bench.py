@@ -1625,3 +1625,38 @@ def test_every_input_of_the_reference_changes_the_ground_truths_key(tmp_path, wh
     else:
         assert old in _KEY_SCENE
         assert key(_KEY_SCENE.replace(old, new, 1)) != k0
+
+
+def test_a_bandwidth_file_leaves_the_ground_truths_key_and_the_reference_frame_alone(tmp_path, monkeypatch):
+    """The reference never reads a material's nu_rho table (``bandwidth =``, which only the adaptive pass reads), so
+    the truth's key ignores it (``Scene.reference_hash``): a scene naming one, naming another, and naming none share
+    a key, and a table built again renders no truth again.  A scene naming none keys as before session 70 (the
+    content hash; the truths cached then stay valid).  And why it may: the reference frame of a scene naming a file
+    that is no table at all is the frame without it, bit for bit."""
+    import hashlib
+
+    from conftest import fake_npf_table
+    from warpbw.pipeline import render_reference
+    from warpbw.scene import load_scene, parse_scene
+
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
+    fake_npf_table(tmp_path / "npf.bin")
+    (tmp_path / "bw1.npz").write_bytes(b"one table")
+    (tmp_path / "bw2.npz").write_bytes(b"another table")
+    lines = ["[camera]", "position = [0.0, 0.0, 3.0]", "look_at = [0.0, 0.0, 0.0]", "fov = 50.0", "resolution = [8, 8]",
+             "[environment]", 'procedural = "sky"', "[[object]]", 'shape = "sphere"', "radius = 0.8", 'material = "m"',
+             "[material.m]", 'type = "npf"', 'table = "npf.bin"', 'name = "chrome"']
+    texts = {bw: "\n".join(lines + ([] if bw is None else [f'bandwidth = "{bw}"'])) for bw in (None, "bw1.npz",
+                                                                                             "bw2.npz")}
+    scenes = {bw: parse_scene(t, base_dir=tmp_path, source="s.toml") for bw, t in texts.items()}
+    keys = {bw: bench.gt_key(s, bench.GT_SEED) for bw, s in scenes.items()}
+    assert len(set(keys.values())) == 1, keys
+    assert len({s.content_hash() for s in scenes.values()}) == 3   # the record's scene_hash still tells them apart
+    before = hashlib.blake2b(f"{scenes[None].content_hash()}|seed {bench.GT_SEED}|gt v{bench.GT_VERSION}".encode(),
+                             digest_size=8)
+    assert keys[None] == f"v{bench.GT_VERSION}-{before.hexdigest()}"
+    (tmp_path / "with.toml").write_text(texts["bw1.npz"])
+    (tmp_path / "without.toml").write_text(texts[None])
+    frames = [render_reference(load_scene(tmp_path / f"{n}.toml"), spp=4, seed=3, mis=True).image
+              for n in ("with", "without")]
+    np.testing.assert_array_equal(frames[0], frames[1])

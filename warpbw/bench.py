@@ -166,9 +166,10 @@ def gt_cache_dir() -> Path:
 
 
 def gt_key(scene, seed: int) -> str:
-    """The name under which a scene's ground-truth chunks are cached: its content hash, the first chunk's seed
-    and GT_VERSION (so that chunks of another estimator or seed are never read as this one's)."""
-    h = hashlib.blake2b(f"{scene.content_hash()}|seed {seed}|gt v{GT_VERSION}".encode(), digest_size=8)
+    """The name under which a scene's ground-truth chunks are cached: the hash of what the reference renders
+    (``Scene.reference_hash``), the first chunk's seed and GT_VERSION (so that chunks of another estimator or seed are
+    never read as this one's)."""
+    h = hashlib.blake2b(f"{scene.reference_hash()}|seed {seed}|gt v{GT_VERSION}".encode(), digest_size=8)
     return f"v{GT_VERSION}-{h.hexdigest()}"
 
 

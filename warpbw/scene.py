@@ -6,7 +6,8 @@ Public:
     ``default_scene() -> Scene``                the embedded demo scene (needs no file)
     ``check_scene(scene) -> Scene``             a checked copy of a Scene built or edited in Python
     ``Scene``, ``Camera``, ``Environment``, ``DirectionalLight``, ``SphereObject``, ``MeshObject``,
-    ``PlaneObject``, ``Material``, ``DEFAULT_SCENE_TOML``; ``Scene.input_files()``, every file a scene reads
+    ``PlaneObject``, ``Material``, ``DEFAULT_SCENE_TOML``; ``Scene.input_files()``, every file a scene reads;
+    ``Scene.content_hash()``, of its content and files, and ``Scene.reference_hash()``, of what the reference renders
     ``file_digest(path) -> str``               blake2b of a file's bytes (the content hashes of scenes and tables)
     ``toml_string(text, what)``, ``toml_escape(text, what)``  a path written into a scene file by a tool
     ``GMM_MAX_COMPONENTS``                     the most components a material's ``gmm_components`` may ask for
@@ -31,7 +32,7 @@ import hashlib
 import json
 import math
 import sys
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -287,6 +288,16 @@ class Scene:
         for name in self.material_order:
             h.update(text(_material_fields(self.materials[name])))
         return h.hexdigest()
+
+    def reference_hash(self) -> str:
+        """``content_hash`` of what the forward reference renders (the key of ``warpbw bench``'s cached ground truths):
+        the scene without its materials' ``bandwidth`` files, nu_rho tables only the adaptive method's pass reads, so
+        that a table built again does not render a ground truth again.  A scene that names no such file hashes as
+        ``content_hash`` does (ground truths cached before session 70 stay valid)."""
+        if all(m.bandwidth is None for m in self.materials.values()):
+            return self.content_hash()
+        mats = {name: replace(m, bandwidth=None) for name, m in self.materials.items()}
+        return replace(self, materials=mats).content_hash()
 
     def files(self) -> list:
         """Every file the scene reads."""
