@@ -27,9 +27,9 @@ once, when the scene does not name a precomputed file, and caches them under ``c
 
 Lookup.  A material shades its tables with ``lookup = "nearest"`` (the bin a direction pair falls in) or ``"linear"``
 (between bin centres; ``warpbw.scene.LOOKUP_MODES``), and a source's ``evaluate`` reads them with its ``lookup``.
-``lookup=None`` is the kind's ``TABLE_LOOKUP``, the one every table was built with before session 70 (MERL nearest,
-NPF linear): such a source's name and digest are the file's (and the material's), so existing cache entries and files
-stay valid.  Another lookup adds ``" (LOOKUP lookup)"`` to the name and ``":lookup-LOOKUP"`` to the digest, so a
+``lookup=None`` is the kind's ``TABLE_LOOKUP`` (MERL nearest, NPF linear): the scene's default for that kind
+(``warpbw.scene.LOOKUP_DEFAULT``) and the one every table was built with before session 70.  Such a source's name and
+digest are the file's (and the material's), so existing cache entries and files stay valid.  Another lookup adds ``" (LOOKUP lookup)"`` to the name and ``":lookup-LOOKUP"`` to the digest, so a
 table built from it is cached under its own key and is refused for the other lookup.  The angular bandwidth table
 (:mod:`precompute.brdf_bandwidth`) follows the lookup: the nearest-bin steps of an NPF fit read up to 1.9x faster than
 its interpolated curves.  The sampling tables do not: their density is tabulated from the BRDF and sampled exactly
