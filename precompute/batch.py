@@ -197,14 +197,12 @@ def run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers: int
               resume: bool = False, progress: bool = True, lookup: str | None = None) -> dict:
     """Build every item's tables into ``out_dir``, one Dask task per item, the bandwidth tables of ``lookup`` (module
     docstring); the batch's record."""
+    from precompute.brdf_sampling import check_lookup
     from warpbw import __version__
-    from warpbw.scene import LOOKUP_MODES
 
     dask = _dask()
     tables = check_tables(tables)
-    if lookup is not None and lookup not in LOOKUP_MODES:
-        raise WarpbwError(f"lookup: expected one of {', '.join(LOOKUP_MODES)} (or None: each kind's default), got "
-                          f"{lookup!r}")
+    check_lookup(lookup)   # before any work, as the other arguments (each task would record it as its error)
     if isinstance(scheduler, str) and scheduler not in SCHEDULERS:
         raise WarpbwError(f"scheduler: expected one of {', '.join(SCHEDULERS)} (or a Dask client), got {scheduler!r}")
     items = list(items)

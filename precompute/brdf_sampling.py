@@ -6,7 +6,8 @@ Public:
         the light it receives)
     ``TABLE_LOOKUP`` (``{"merl": "nearest", "npf": "linear"}``), ``default_lookup(source) -> str``,
         ``source_lookup(source) -> str | None``, ``with_lookup(source, lookup) -> BrdfSource``,
-        ``digest_at(source, lookup) -> str``   the lookup a source's ``evaluate`` reads its tables with (below)
+        ``digest_at(source, lookup) -> str``   the lookup a source's ``evaluate`` reads its tables with (below);
+        ``check_lookup(lookup) -> str | None``, one of ``warpbw.scene.LOOKUP_MODES`` or None, else a one-line error
     ``albedo_excess(evaluate) -> str | None``  what says a BRDF is far from conserving energy
     ``build_brdf_sampling(source, progress=True) -> SamplerTable``
     ``write_sampling(path, table, source, force=False)`` / ``read_sampling(path, source=None)``   (never over the
@@ -29,8 +30,9 @@ Lookup.  A material shades its tables with ``lookup = "nearest"`` (the bin a dir
 (between bin centres; ``warpbw.scene.LOOKUP_MODES``), and a source's ``evaluate`` reads them with its ``lookup``.
 ``lookup=None`` is the kind's ``TABLE_LOOKUP`` (MERL nearest, NPF linear): the scene's default for that kind
 (``warpbw.scene.LOOKUP_DEFAULT``) and the one every table was built with before session 70.  Such a source's name and
-digest are the file's (and the material's), so existing cache entries and files stay valid.  Another lookup adds ``" (LOOKUP lookup)"`` to the name and ``":lookup-LOOKUP"`` to the digest, so a
-table built from it is cached under its own key and is refused for the other lookup.  The angular bandwidth table
+digest are the file's (and the material's), so existing cache entries and files stay valid.  Another lookup adds
+``" (LOOKUP lookup)"`` to the name and ``":lookup-LOOKUP"`` to the digest, so a table built from it is cached under its
+own key and is refused for the other lookup.  The angular bandwidth table
 (:mod:`precompute.brdf_bandwidth`) follows the lookup: the nearest-bin steps of an NPF fit read up to 1.9x faster than
 its interpolated curves.  The sampling tables do not: their density is tabulated from the BRDF and sampled exactly
 whatever BRDF it came from (the estimator divides by the table's own pdf), so they are lookup-free, built from the
@@ -92,7 +94,7 @@ def brdf_source(file, material: str | None = None, lookup: str | None = None) ->
     from warpbw.io.npf import read_npf
     from warpbw.scene import file_digest
 
-    _check_lookup(lookup)   # before the file is read (a MERL file is 35 MB)
+    check_lookup(lookup)   # before the file is read (a MERL file is 35 MB)
     p = check_input_file(file)
     if material is None:
         source = BrdfSource(p.name, p, file_digest(p), None, read_merl(p))
@@ -106,7 +108,8 @@ def brdf_source(file, material: str | None = None, lookup: str | None = None) ->
     return source
 
 
-def _check_lookup(lookup) -> str | None:
+def check_lookup(lookup) -> str | None:
+    """``lookup`` when it is one of ``LOOKUP_MODES`` or None (its kind's default); else a one-line ``WarpbwError``."""
     if lookup is not None and lookup not in LOOKUP_MODES:
         raise WarpbwError(f"lookup: expected one of {', '.join(LOOKUP_MODES)} (or None: the kind's table default), "
                           f"got {lookup!r}")
@@ -162,7 +165,7 @@ def with_lookup(source: BrdfSource, lookup: str | None) -> BrdfSource:
     """The BRDF of ``source`` read with ``lookup`` (None: its kind's default), from the BRDF it already holds: neither
     its file nor its albedo is read again.  ``source`` itself when it already reads with that lookup."""
     check_brdf_source(source, "with_lookup", needs=("name", "digest", "brdf", "material", "lookup"))
-    want = default_lookup(source) if _check_lookup(lookup) is None else lookup
+    want = default_lookup(source) if check_lookup(lookup) is None else lookup
     have = source_lookup(source)
     if want == have:
         return source

@@ -294,8 +294,6 @@ class Scene:
         the scene without its materials' ``bandwidth`` files, nu_rho tables only the adaptive method's pass reads, so
         that a table built again does not render a ground truth again.  A scene that names no such file hashes as
         ``content_hash`` does (ground truths cached before session 70 stay valid)."""
-        if all(m.bandwidth is None for m in self.materials.values()):
-            return self.content_hash()
         mats = {name: replace(m, bandwidth=None) for name, m in self.materials.items()}
         return replace(self, materials=mats).content_hash()
 
