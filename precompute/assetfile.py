@@ -3,12 +3,23 @@
 Public: ``write_asset(path, fmt, version, source, source_hash, arrays, params, force, inputs=())``,
 ``read_asset(path, fmt, version, rebuild) -> Asset`` (``rebuild``: the command to suggest, or a function of the
 file's header that gives it), ``Asset``, ``check_float_arrays(arrays, what, hint)`` (what the readers of
-floating-point tables refuse).
+floating-point tables refuse); ``read_header(path) -> dict | None`` (the header alone) and
+``settings_mismatch(params, current, unrecorded=None) -> str | None`` (what a cache reader checks, below).
 
 An asset is a NumPy ``.npz`` archive (no pickles) holding named arrays and a JSON ``header`` with the
 format name, its version, the source asset's name, the source's content hash (blake2b of its bytes),
 the parameters it was built with and the warpbw version that wrote it.  The renderer refuses a file of
 another format or version with a message that says how to rebuild it.
+
+Builder settings.  A file's ``params`` record the settings its builder ran with (the sampling tables' view
+subsamples, the nu_rho table's resolution, wavelet and epsilon, ...).  A file the user names in a scene may have been
+built with other legitimate settings (``warpbw-precompute brdf --resolution 64``) and is read as it is; an entry of
+warpbw's own cache (``$WARPBW_CACHE``) stands for what the builder would build now, so its reader compares the
+recorded settings with the builder's current ones (``settings_mismatch``) and treats a difference as a stale entry,
+rebuilt and replaced as one of another version is (``precompute.brdf_sampling.load_or_build``,
+``warpbw.bandwidth.env_bandwidth_map``): a constant changed without a version bump no longer serves the old tables.
+A setting an older file does not record is read as the value its builder used then (each reader's ``unrecorded``),
+so entries whose settings equal the current ones stay valid.
 """
 from __future__ import annotations
 
@@ -97,6 +108,49 @@ def read_asset(path, fmt: str, version: int, rebuild) -> Asset:
         raise WarpbwError(f"{p}: {fmt} version {header.get('version')!r}, this warpbw reads version {version} "
                           f"(rebuild it with: {how(header)})")
     return Asset(header, arrays)
+
+
+def read_header(path) -> dict | None:
+    """The JSON header of the asset file ``path`` without its arrays (a cache reader's cheap look at its ``params``),
+    or None when ``path`` is no asset file, or a damaged one (``read_asset`` then says what is wrong)."""
+    try:
+        if not _members_hold_what_they_declare(Path(path)):
+            return None
+        with np.load(path, allow_pickle=False) as z:
+            header = json.loads(str(z[HEADER_KEY]))
+    except Exception:   # noqa: BLE001 -- as read_asset: whatever reading these bytes raises is their damage
+        return None
+    return header if isinstance(header, dict) else None
+
+
+def _same_setting(recorded, current) -> bool:
+    """Whether a recorded setting is ``current``: numbers by value (JSON keeps 4 and 0.01 as written; a bool is no
+    number), anything else as JSON gives it back (a tuple recorded is a list)."""
+    def number(x):
+        return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
+    if number(recorded) or number(current):
+        return number(recorded) and number(current) and float(recorded) == float(current)
+    return recorded == json.loads(json.dumps(current))
+
+
+def settings_mismatch(params, current: dict, unrecorded: dict | None = None) -> str | None:
+    """The first of the builder's ``current`` settings (key -> value) that a file's recorded ``params`` (its
+    header's) gives otherwise, as "KEY RECORDED, the builder's VALUE"; None when every one agrees.  A key the file
+    does not record is read as ``unrecorded``'s value (what the builder used before its files recorded the key, or
+    what the writer leaves out at its default), and differs when ``unrecorded`` lacks it; ``params`` that are no
+    dict record nothing.  Keys ``params`` holds beyond ``current`` are not compared."""
+    params = params if isinstance(params, dict) else {}
+    unrecorded = unrecorded or {}
+    for key, value in current.items():
+        if key in params:
+            recorded = params[key]
+        elif key in unrecorded:
+            recorded = unrecorded[key]
+        else:
+            return f"{key} not recorded, the builder's {value!r}"
+        if not _same_setting(recorded, value):
+            return f"{key} {recorded!r}, the builder's {value!r}"
+    return None
 
 
 def check_float_arrays(arrays, what: str, hint: str) -> None:

@@ -13,6 +13,7 @@ Public:
         writer refuses the tables the reader refuses, and never writes over the source's file or a read-only file;
         the reader refuses a table of another lookup than the source's, below)
     ``load_or_build_bandwidth(source, explicit=None, cache=None, progress=True) -> (table, origin)``
+    ``bandwidth_settings(resolution=128) -> dict``, ``BANDWIDTH_UNRECORDED``   the builder settings a table records
     ``theta_i_centres()``, ``wo_map(n)``, ``wo_to_map(wo)``, ``map_radians_per_pixel(n)``,
     ``nu_rho_max(resolution)``, ``lobe_slice(evaluate, theta_i, resolution)``, ``slice_bandwidth(f)``,
     ``GRAZING_LIMIT``   one lobe's map (each checks its input: ``n`` and ``resolution`` integers >= 1, ``wo`` finite
@@ -94,6 +95,15 @@ records none: it was built with its kind's default (``precompute.brdf_sampling.T
 linear) and is read for that lookup only.  The cache keys the tables by the source's digest, which carries any other
 lookup (``:lookup-nearest``), so the default's entries are the ones built before.
 
+Builder settings.  A table records what it was built with (``bandwidth_settings(resolution)``: its cells, the
+analysed resolution, the map, and the wavelet analysis's wavelet, bands, epsilon and energy fraction,
+:mod:`precompute.wavelets`).  A cache entry is read only when they equal the builder's current ones (at
+``DEFAULT_RESOLUTION``; ``precompute.assetfile.settings_mismatch``), else it is rebuilt and replaced without a word,
+so that ``precompute.wavelets.EPSILON`` changed without a version bump no longer serves the old tables.  A file
+written before session 71 records no wavelet settings; it was built with db4, 7 bands, epsilon 0.01 and 95% of the
+energy (``BANDWIDTH_UNRECORDED``).  A file the scene names (``bandwidth =``) is read whatever settings it records
+(``warpbw-precompute brdf --resolution 64``'s, say).
+
 Cost: ``16 * n^2`` BRDF evaluations and 16 wavelet analyses; a few seconds per material at n = 128.
 """
 from __future__ import annotations
@@ -116,7 +126,8 @@ __all__ = [
     "N_THETA_I", "N_CELLS", "SHAPE", "DEFAULT_RESOLUTION", "FORMAT", "VERSION",
     "GRAZING_LIMIT", "theta_i_centres", "wo_map", "wo_to_map", "map_radians_per_pixel", "nu_rho_max",
     "brdf_bandwidth_table", "analytic_brdf_bandwidth_table", "build_brdf_bandwidth",
-    "write_brdf_bandwidth", "read_brdf_bandwidth", "load_or_build_bandwidth",
+    "write_brdf_bandwidth", "read_brdf_bandwidth", "load_or_build_bandwidth", "bandwidth_settings",
+    "BANDWIDTH_UNRECORDED",
 ]
 
 N_THETA_I = 16          # incident elevations (bin centres uniform over [0, pi/2)); paper: 16 inputs
@@ -131,6 +142,24 @@ WAVELET_LEVELS = 7                  # bands analysed: periods 2 .. 256 px (modul
 # Threads the slices' wavelet analyses share, at most (ours): pywt's transforms (96% of a table's time) release the
 # GIL, and 2 threads built gold-metallic-paint's table in 3.3 s against 6.3 s on one (2 cores; bit for bit the same)
 TABLE_THREADS_MAX = N_THETA_I
+# What a table built before session 71 was built with where it records nothing: precompute.wavelets' defaults and
+# WAVELET_LEVELS, unchanged since the first tables
+BANDWIDTH_UNRECORDED = {"wavelet": "db4", "wavelet_levels": 7, "epsilon": 0.01, "energy_fraction": 0.95}
+
+
+def _analysis() -> dict:
+    """The wavelet analysis a slice's bandwidth takes (``precompute.wavelets``' constants, read now)."""
+    from precompute import wavelets
+
+    return {"wavelet": wavelets.DEFAULT_WAVELET, "wavelet_levels": WAVELET_LEVELS, "epsilon": wavelets.EPSILON,
+            "energy_fraction": wavelets.ENERGY_FRACTION}
+
+
+def bandwidth_settings(resolution: int = DEFAULT_RESOLUTION) -> dict:
+    """The settings ``build_brdf_bandwidth`` builds with at ``resolution``, as a table's ``params`` records them
+    (module docstring, "Builder settings"; beside them it records the map and the units, which name what the table
+    is, and the lookup, which the reader checks)."""
+    return {"n_theta_i": N_THETA_I, "n_cells": N_CELLS, "resolution": int(resolution), **_analysis()}
 
 
 def theta_i_centres() -> np.ndarray:
@@ -266,7 +295,9 @@ def slice_bandwidth(f: np.ndarray) -> np.ndarray:
     peak = float(np.max(np.abs(f))) if f.size else 0.0
     if peak <= 0.0:
         return np.zeros((n, n))
-    b = local_bandwidth(f / peak, pad="edge", levels=WAVELET_LEVELS)  # cycles/pixel
+    k = _analysis()   # what the table records
+    b = local_bandwidth(f / peak, k["epsilon"], k["wavelet"], k["wavelet_levels"], pad="edge",
+                        energy_fraction=k["energy_fraction"])  # cycles/pixel
     return b / map_radians_per_pixel(n)
 
 
@@ -353,8 +384,7 @@ def write_brdf_bandwidth(path, table: np.ndarray, source, force: bool = False,
     check_brdf_source(source, "write_brdf_bandwidth", needs=("name", "digest"))
     n = _check_resolution(resolution)
     t = _checked_table(table, f"table for {path}", resolution=n)
-    params = {"n_theta_i": N_THETA_I, "n_cells": N_CELLS, "resolution": n, "map": "lambert-equal-area",
-              "units": "cycles/radian"}
+    params = {**bandwidth_settings(n), "map": "lambert-equal-area", "units": "cycles/radian"}
     lookup = source_lookup(source)
     if lookup is not None:   # a tabulated BRDF's (an analytic one has no tables to look up)
         params["lookup"] = lookup
@@ -432,8 +462,9 @@ def load_or_build_bandwidth(source, explicit=None, cache=None, progress: bool = 
 
     Returns the table and where it came from ("file", "cache" or "built"); the cache is the sampling
     tables' (``$WARPBW_CACHE``), keyed by the source's digest (content hash, material, lookup when not the
-    default)."""
+    default); an entry that records other builder settings than ``bandwidth_settings()`` is rebuilt (module
+    docstring, "Builder settings")."""
     from precompute.brdf_sampling import load_or_build
 
     return load_or_build(source, explicit, cache, "bandwidth", VERSION, read_brdf_bandwidth, build_brdf_bandwidth,
-                         write_brdf_bandwidth, progress)
+                         write_brdf_bandwidth, progress, bandwidth_settings(), BANDWIDTH_UNRECORDED)

@@ -17,7 +17,9 @@ Public:
     ``source_files(source) -> list``   the file a source was read from (what a table written from it may not replace)
     ``rebuild_command(subcommand, source) -> str``   the ``warpbw-precompute`` line that rebuilds a table of a source
     ``load_or_build_sampling(source, explicit=None, cache=None, progress=True) -> (SamplerTable, origin)``
-    ``load_or_build(source, explicit, cache, prefix, version, read, build, write)``   the shared cache logic
+    ``load_or_build(source, explicit, cache, prefix, version, read, build, write, progress, settings, unrecorded)``
+        the shared cache logic (a cache entry of other recorded builder settings is rebuilt, below)
+    ``sampling_settings() -> dict``, ``SAMPLING_UNRECORDED``   the builder settings a sampling table records
     ``cache_dir()``
     ``BrdfSource``: what ``brdf_source`` returns (name, path, digest, a numpy evaluator, the loaded BRDF)
 
@@ -39,6 +41,13 @@ whatever BRDF it came from (the estimator divides by the table's own pdf), so th
 source read at its kind's default lookup whatever source they are given: one table, and one cache key, per BRDF.
 The two tables' cache entries cannot be confused either: their prefixes (``sampling-``, ``bandwidth-``) and formats
 differ.
+
+Builder settings.  A table records the settings it was built with (``sampling_settings()``: the cells, the view
+elevations averaged per bin, the midpoint samples per cell side).  A cache entry is read only when they equal the
+builder's current ones (``precompute.assetfile.settings_mismatch``), else it is rebuilt and replaced as a damaged or
+older entry is, without a word: ``warpbw.sampling.VIEW_SUBSAMPLES`` changed without a version bump no longer serves
+the old tables.  A file written before session 71 records no ``subcells``; it was built with 3
+(``SAMPLING_UNRECORDED``).  A file the scene names (``sampling =``) is read whatever settings it records.
 """
 from __future__ import annotations
 
@@ -51,11 +60,11 @@ from typing import Callable
 
 import numpy as np
 
-from precompute.assetfile import read_asset, write_asset
+from precompute.assetfile import read_asset, read_header, settings_mismatch, write_asset
 from precompute.progress import progress_callback
 from warpbw.errors import WarpbwError, check_input_file, check_instance
 from warpbw.io.staged import check_name_length, remove_stale_temps
-from warpbw.sampling import (N_PHI, N_THETA_O, N_U, TABLE_FORMAT, TABLE_VERSION, VIEW_SUBSAMPLES, SamplerTable,
+from warpbw.sampling import (N_PHI, N_THETA_O, N_U, TABLE_FORMAT, TABLE_VERSION, SamplerTable,
                              build_sampler_table, directional_albedo)
 from warpbw.scene import LOOKUP_DEFAULT, LOOKUP_MODES
 
@@ -226,8 +235,10 @@ def build_brdf_sampling(source: BrdfSource, progress: bool = True) -> SamplerTab
     """Tabulate and invert the source's CDF (a few seconds per material), at its kind's default lookup whatever
     ``source`` reads with (module docstring)."""
     source = _lookup_free(check_brdf_source(source, "build_brdf_sampling"))
-    with progress_callback(N_THETA_O, f"sampling tables {source.name}", "view", progress) as step:
-        return build_sampler_table(source.evaluate, progress=step)
+    k = sampling_settings()   # what the table records, so that its params say what built it
+    with progress_callback(k["n_theta_o"], f"sampling tables {source.name}", "view", progress) as step:
+        return build_sampler_table(source.evaluate, n_theta_o=k["n_theta_o"], n_u=k["n_u"], n_phi=k["n_phi"],
+                                   sub=k["subcells"], progress=step, sub_views=k["view_subsamples"])
 
 
 def rebuild_command(subcommand: str, source) -> str:
@@ -244,6 +255,21 @@ def rebuild_command(subcommand: str, source) -> str:
     if subcommand == "brdf" and lookup is not None and lookup != default_lookup(source):   # the tables that follow it
         mat += f" --lookup {lookup}"
     return f"warpbw-precompute {subcommand} {shlex.quote(str(path))}{mat} -o OUT --force"
+
+
+# What a sampling table built before session 71 was built with where it records nothing (warpbw.sampling.SUBCELLS
+# has been 3 since the first tables)
+SAMPLING_UNRECORDED = {"subcells": 3}
+
+
+def sampling_settings() -> dict:
+    """The settings ``build_brdf_sampling`` builds with, as a table's ``params`` records them: its cells
+    (``n_theta_o``, ``n_u``, ``n_phi``), the view elevations averaged per bin and the midpoint samples per cell side
+    (``warpbw.sampling``'s constants, read now)."""
+    from warpbw import sampling
+
+    return {"n_theta_o": sampling.N_THETA_O, "n_u": sampling.N_U, "n_phi": sampling.N_PHI,
+            "view_subsamples": sampling.VIEW_SUBSAMPLES, "subcells": sampling.SUBCELLS}
 
 
 # How far a view's tabulated density (as cell shares) may lie from the shares its two CDFs give, in L1 over the
@@ -283,8 +309,7 @@ def write_sampling(path, table: SamplerTable, source: BrdfSource, force: bool = 
                           f"{(N_THETA_O, N_U, N_PHI)} (build_sampler_table's defaults); {path} is not written")
     return write_asset(path, TABLE_FORMAT, TABLE_VERSION, source.name, source.digest,
                        {"marginal": table.marginal, "conditional": table.conditional, "density": table.density},
-                       params={"n_theta_o": N_THETA_O, "n_u": N_U, "n_phi": N_PHI,
-                               "view_subsamples": VIEW_SUBSAMPLES}, force=force, inputs=source_files(source))
+                       params=sampling_settings(), force=force, inputs=source_files(source))
 
 
 def read_sampling(path, source: BrdfSource | None = None) -> SamplerTable:
@@ -330,10 +355,13 @@ def cache_dir() -> Path:
 
 
 def load_or_build(source, explicit, cache, prefix: str, version: int, read, build, write,
-                  progress: bool = True) -> tuple:
+                  progress: bool = True, settings: dict | None = None, unrecorded: dict | None = None) -> tuple:
     """A source's table: from ``explicit`` if given, else the cache (``PREFIX-DIGEST-vVERSION.npz``, the source's
     digest with ``:`` and ``/`` as ``-`` and ``_``), else built and cached.  Returns the table and where it came
-    from ("file", "cache" or "built")."""
+    from ("file", "cache" or "built").  ``settings``: the builder's current settings (key -> value) a cache entry's
+    ``params`` must record (``precompute.assetfile.settings_mismatch``, with ``unrecorded`` for keys older entries
+    lack); an entry that records others is stale, rebuilt and replaced as a damaged one is.  ``explicit`` is read
+    whatever settings it records."""
     if explicit is not None:
         return read(explicit, source), "file"
     d = Path(cache) if cache is not None else cache_dir()
@@ -342,9 +370,11 @@ def load_or_build(source, explicit, cache, prefix: str, version: int, read, buil
     remove_stale_temps(path)   # a killed writer's, where another run wrote the entry whole: none writes it again
     if path.is_file():
         try:
-            return read(path, source), "cache"
+            if settings is None or settings_mismatch((read_header(path) or {}).get("params"), settings,
+                                                     unrecorded) is None:
+                return read(path, source), "cache"
         except WarpbwError:
-            pass  # a stale or damaged cache entry is rebuilt below
+            pass  # a stale or damaged cache entry is rebuilt below (so is one of other builder settings, above)
     table = build(source, progress=progress)
     try:
         d.mkdir(parents=True, exist_ok=True)
@@ -363,4 +393,4 @@ def load_or_build_sampling(source: BrdfSource, explicit=None, cache: Path | None
     """
     source = _lookup_free(check_brdf_source(source, "load_or_build_sampling", needs=("name", "digest")))
     return load_or_build(source, explicit, cache, "sampling", TABLE_VERSION, read_sampling, build_brdf_sampling,
-                         write_sampling, progress)
+                         write_sampling, progress, sampling_settings(), SAMPLING_UNRECORDED)

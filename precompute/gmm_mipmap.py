@@ -4,6 +4,8 @@ Public functions and classes:
 
 - ``GmmMipmap``: ``levels`` (list, finest first, of float32 ``(h_l, w_l, K, 4)`` moments), ``components``,
   ``prior``, ``unaligned``, ``kind``, ``scale``, ``seed``, ``max_samples``; ``params()``.
+- ``fit_settings(seed=0, max_samples=256, refine_sweeps=0) -> dict``, ``GMM_UNRECORDED``, ``NORMAL_SPACE``: the fit's
+  settings as a file's parameters record them (what the renderer's cache compares, ``warpbw.filtering``).
 - ``build_gmm_mipmap(heights_or_normals, kind="height", components=4, prior=1.0, scale=1.0, seed=0,
   progress=True, unaligned=False, texel_size=None, max_samples=256, refine_sweeps=0) -> GmmMipmap``; a non-square
   height map's build records ``ROW_SPACING_KEY: ROW_SPACING`` (its rows 1 / H apart) in its parameters.
@@ -145,6 +147,10 @@ GMM_VERSION = 2
 ROW_SPACING_KEY = "row_spacing"
 ROW_SPACING = "1/H"
 # 004 Sec. 4.2: "Our current implementation utilizes mixtures of four Gaussians".
+# The representation a file's parameters name (module docstring, "Representation")
+NORMAL_SPACE = "projected (n_x, n_y); x = +column, y = -row"
+# What a file records nothing of was fitted with: refine_sweeps is recorded only when it is not 0
+GMM_UNRECORDED = {"refine_sweeps": 0}
 DEFAULT_COMPONENTS = 4
 MAX_COMPONENTS = 16            # a sanity bound on --components (each is one texture in the renderer)
 # 004 Sec. 4.1: c "modulates smoothness among corresponding Gaussians, which we set to 1 for all experiments".
@@ -563,7 +569,15 @@ class GmmMipmap:
                 "kind": self.kind, "scale": float(self.scale), "seed": int(self.seed),
                 "max_samples": int(self.max_samples), "levels": len(self.levels),
                 "shape": [int(s) for s in self.shape],
-                "normal_space": "projected (n_x, n_y); x = +column, y = -row", **self.extra}
+                "normal_space": NORMAL_SPACE, **self.extra}
+
+
+def fit_settings(seed: int = 0, max_samples: int = DEFAULT_MAX_SAMPLES, refine_sweeps: int = 0) -> dict:
+    """The fit's settings beyond the map and the material's (kind, scale, components, prior, unaligned), as a file's
+    parameters record them (``GMM_UNRECORDED`` for what they leave out): the renderer builds its cache entries with
+    ``fit_settings()`` and rebuilds an entry that records others (``precompute.brdf_sampling.load_or_build``)."""
+    return {"seed": int(seed), "max_samples": int(max_samples), "refine_sweeps": int(refine_sweeps),
+            "normal_space": NORMAL_SPACE}
 
 
 def _neighbour_prior(l, ii, jj, A, MU, fitted, shapes):

@@ -650,6 +650,50 @@ def test_env_bandwidth_maps_are_cached_per_signal_and_old_entries_read_as_radian
         assert origin == "built" and np.array_equal(nu, rad), bad.dtype
 
 
+def test_an_env_bandwidth_cache_entry_of_another_epsilon_is_rebuilt_and_one_from_before_session_71_read(
+        tmp_path, monkeypatch):
+    """A probe's nu_a map records the wavelet analysis it was built with (wavelet, epsilon, energy fraction) beside
+    its signal.  A cache entry that records another epsilon (precompute.wavelets.EPSILON changed without a version
+    bump served the old map) is stale: rebuilt, as a fresh build, and replaced.  An entry written before session 71,
+    which records its signal alone (db4, epsilon 0.01, 95% then), is read without a build; the constant itself
+    changed makes it stale."""
+    import precompute.wavelets as wv
+    from precompute.assetfile import read_header, write_asset
+
+    builds = []
+    real = wv.envmap_angular_bandwidth
+
+    def counting(*a, **kw):
+        builds.append(1)
+        return real(*a, **kw)
+
+    px = _sun_edge_probe(100.0)
+    fresh, _ = bw.env_bandwidth_map(px, cache=tmp_path / "fresh")
+    monkeypatch.setattr(wv, "envmap_angular_bandwidth", counting)
+    cache = tmp_path / "cache"
+    assert bw.env_bandwidth_map(px, cache=cache)[1] == "built" and len(builds) == 1
+    (entry,) = cache.iterdir()
+    h = read_header(entry)
+    assert h["params"] == {"units": "cycles/radian", "floor": "epsilon * mean signal", "signal": "log",
+                           "wavelet": wv.DEFAULT_WAVELET, "epsilon": wv.EPSILON,
+                           "energy_fraction": wv.ENERGY_FRACTION}
+    before_71 = {"units": "cycles/radian", "floor": "epsilon * mean signal", "signal": "log"}
+    seven = np.full_like(fresh, 7.0)
+    write_asset(entry, bw.ENV_BW_FORMAT, bw.ENV_BW_VERSION, h["source"], h["source_hash"], {"nu_a": seven},
+                params=dict(before_71, wavelet="db4", epsilon=0.02, energy_fraction=0.95), force=True)
+    nu, origin = bw.env_bandwidth_map(px, cache=cache)
+    assert origin == "built" and len(builds) == 2 and np.array_equal(nu, fresh)
+    assert read_header(entry)["params"]["epsilon"] == wv.EPSILON
+    assert bw.env_bandwidth_map(px, cache=cache)[1] == "cache" and len(builds) == 2
+    write_asset(entry, bw.ENV_BW_FORMAT, bw.ENV_BW_VERSION, h["source"], h["source_hash"], {"nu_a": seven},
+                params=before_71, force=True)
+    nu, origin = bw.env_bandwidth_map(px, cache=cache)
+    assert origin == "cache" and len(builds) == 2 and np.all(nu == 7.0)
+    monkeypatch.setattr(wv, "EPSILON", 0.02)
+    nu, origin = bw.env_bandwidth_map(px, cache=cache)
+    assert origin == "built" and len(builds) == 3 and read_header(entry)["params"]["epsilon"] == 0.02
+
+
 def test_the_frame_reads_the_signal_it_is_given_and_says_so():
     prep = prepared(mat=GGX_SHARP, env='procedural = "sky"', w=24, h=20)
     tables = {}

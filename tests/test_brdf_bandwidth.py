@@ -264,7 +264,7 @@ def test_a_table_beyond_what_its_resolution_gives_is_refused_and_such_a_cache_en
     light's radiance; file audit, session 63) is refused naming the resolution its header records, the writer
     refuses it too, and such a cache entry is rebuilt.  The real tables lie below it (chrome, the sharpest fit,
     at 128)."""
-    from precompute.brdf_bandwidth import load_or_build_bandwidth, nu_rho_max
+    from precompute.brdf_bandwidth import bandwidth_settings, load_or_build_bandwidth, nu_rho_max
 
     assert nu_rho_max(n) == pytest.approx(float((0.5 / map_radians_per_pixel(n)).max()), rel=1e-12) == n / 4
     source, table = npf_tables["chrome"]
@@ -283,10 +283,61 @@ def test_a_table_beyond_what_its_resolution_gives_is_refused_and_such_a_cache_en
     cache = tmp_path / "cache"
     assert load_or_build_bandwidth(source, cache=cache, progress=False)[1] == "built"
     (entry,) = cache.glob("bandwidth-*.npz")
-    write_asset(entry, FORMAT, VERSION, source.name, source.digest, {"nu_rho": huge}, params={"resolution": 128},
+    # the builder's settings recorded, so that the entry is rebuilt for its bandwidths, not for its settings
+    write_asset(entry, FORMAT, VERSION, source.name, source.digest, {"nu_rho": huge}, params=bandwidth_settings(),
                 force=True)
     again, origin = load_or_build_bandwidth(source, cache=cache, progress=False)
     assert origin == "built" and np.array_equal(again, table)
+
+def test_a_cache_entry_of_other_wavelet_settings_is_rebuilt_and_a_user_file_of_another_resolution_read(
+        npf_tables, tmp_path, monkeypatch):
+    """A nu_rho table records the wavelet analysis it was built with (wavelet, bands, epsilon, energy fraction) beside
+    its resolution.  A cache entry that records another epsilon (precompute.wavelets.EPSILON changed without a
+    version bump served the old tables) is stale: rebuilt, as a fresh build, and replaced.  An entry of the builder's
+    settings is read without a build, and so is one written before session 71, which records no wavelet settings
+    (db4, 7 bands, epsilon 0.01, 95% then); the constant itself changed makes that entry stale.  A file the scene
+    names, built with ``warpbw-precompute brdf --resolution 64``, is read as it is."""
+    import precompute.brdf_bandwidth as bb
+    from precompute.assetfile import read_header
+    from precompute.wavelets import DEFAULT_WAVELET, ENERGY_FRACTION, EPSILON
+
+    source, table = npf_tables["chrome"]
+    assert bb.bandwidth_settings() == {"n_theta_i": N_THETA_I, "n_cells": N_CELLS, "resolution": 128,
+                                       "wavelet": DEFAULT_WAVELET, "wavelet_levels": 7, "epsilon": EPSILON,
+                                       "energy_fraction": ENERGY_FRACTION}
+    builds = []
+    real = bb.build_brdf_bandwidth
+
+    def counting(src, progress=True, **kw):
+        builds.append(src.name)
+        return real(src, progress=progress, **kw)
+
+    monkeypatch.setattr(bb, "build_brdf_bandwidth", counting)
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    entry = cache / f"bandwidth-{source.digest.replace(':', '-').replace('/', '_')}-v{VERSION}.npz"
+    ones = np.ones_like(table)   # a valid table, not chrome's
+    before_71 = {"n_theta_i": N_THETA_I, "n_cells": N_CELLS, "resolution": 128, "map": "lambert-equal-area",
+                 "units": "cycles/radian", "lookup": "linear"}
+    write_asset(entry, FORMAT, VERSION, source.name, source.digest, {"nu_rho": ones},
+                params=dict(before_71, wavelet="db4", wavelet_levels=7, epsilon=0.02, energy_fraction=0.95))
+    got, origin = bb.load_or_build_bandwidth(source, cache=cache, progress=False)
+    assert origin == "built" and builds == [source.name] and np.array_equal(got, table)
+    assert read_header(entry)["params"]["epsilon"] == EPSILON
+    got, origin = bb.load_or_build_bandwidth(source, cache=cache, progress=False)
+    assert origin == "cache" and len(builds) == 1 and np.array_equal(got, table)
+    write_asset(entry, FORMAT, VERSION, source.name, source.digest, {"nu_rho": ones}, params=before_71, force=True)
+    got, origin = bb.load_or_build_bandwidth(source, cache=cache, progress=False)
+    assert origin == "cache" and len(builds) == 1 and np.array_equal(got, ones)
+    monkeypatch.setattr("precompute.wavelets.EPSILON", 0.02)
+    got, origin = bb.load_or_build_bandwidth(source, cache=cache, progress=False)
+    assert origin == "built" and len(builds) == 2 and read_header(entry)["params"]["epsilon"] == 0.02
+    monkeypatch.undo()
+    r64 = real(source, progress=False, resolution=64)
+    user = bb.write_brdf_bandwidth(tmp_path / "r64.npz", r64, source, resolution=64)
+    got, origin = bb.load_or_build_bandwidth(source, user, cache=cache, progress=False)
+    assert origin == "file" and np.array_equal(got, r64) and not np.array_equal(r64, table)
+
 
 def test_a_version_2_table_is_rebuilt_from_the_cache_and_refused_when_given(npf_tables, tmp_path):
     """Version 3 changed the cells crossing the rim (their real directions' pixels only), so a version-2 table, valid

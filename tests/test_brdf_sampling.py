@@ -219,6 +219,58 @@ def test_reading_a_cache_entry_removes_what_a_killed_writer_of_it_left(tmp_path,
     assert list(cache.iterdir()) == [entry] and entry.read_bytes() == whole
 
 
+def test_a_cache_entry_of_other_builder_settings_is_rebuilt_and_one_of_equal_settings_read(tmp_path, monkeypatch):
+    """A sampling table records the settings it was built with.  A cache entry that records others (view_subsamples
+    2: warpbw.sampling.VIEW_SUBSAMPLES changed without a version bump served the old tables, session 70) is stale:
+    rebuilt, as a fresh build, and replaced.  One of the builder's settings is read without a build, and so is one
+    written before session 71, which records no subcells (3 then); the constant itself changed makes it stale.  A
+    file the scene names is read whatever settings it records."""
+    import precompute.brdf_sampling as bs
+    import warpbw.sampling as ws
+    from precompute.assetfile import read_header
+
+    assert bs.sampling_settings() == {"n_theta_o": ws.N_THETA_O, "n_u": ws.N_U, "n_phi": ws.N_PHI,
+                                      "view_subsamples": ws.VIEW_SUBSAMPLES, "subcells": ws.SUBCELLS}
+    src = brdf_source(fake_npf_table(tmp_path / "npf.bin"), "chrome")
+    fresh = bs.build_brdf_sampling(src, progress=False)
+    builds = []
+    real = bs.build_brdf_sampling
+
+    def counting(source, progress=True):
+        builds.append(source.name)
+        return real(source, progress=progress)
+
+    def same(a, b):
+        return all(np.array_equal(getattr(a, k), getattr(b, k)) for k in ("marginal", "conditional", "density"))
+
+    monkeypatch.setattr(bs, "build_brdf_sampling", counting)
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    entry = cache / f"sampling-{src.digest.replace(':', '-').replace('/', '_')}-v{TABLE_VERSION}.npz"
+    other = _sampling_table()   # valid tables, not this BRDF's
+    arrays = {"marginal": other.marginal, "conditional": other.conditional, "density": other.density}
+    before_71 = {"n_theta_o": N_THETA_O, "n_u": N_U, "n_phi": N_PHI, "view_subsamples": ws.VIEW_SUBSAMPLES}
+    write_asset(entry, TABLE_FORMAT, TABLE_VERSION, src.name, src.digest, arrays,
+                params=dict(before_71, view_subsamples=2))
+    table, origin = bs.load_or_build_sampling(src, cache=cache, progress=False)
+    assert origin == "built" and builds == [src.name] and same(table, fresh)
+    assert read_header(entry)["params"]["view_subsamples"] == ws.VIEW_SUBSAMPLES
+    table, origin = bs.load_or_build_sampling(src, cache=cache, progress=False)
+    assert origin == "cache" and len(builds) == 1 and same(table, fresh)
+    write_asset(entry, TABLE_FORMAT, TABLE_VERSION, src.name, src.digest, arrays, params=before_71, force=True)
+    table, origin = bs.load_or_build_sampling(src, cache=cache, progress=False)
+    assert origin == "cache" and len(builds) == 1 and same(table, other)
+    monkeypatch.setattr(ws, "SUBCELLS", 2)
+    table, origin = bs.load_or_build_sampling(src, cache=cache, progress=False)
+    assert origin == "built" and len(builds) == 2 and read_header(entry)["params"]["subcells"] == 2
+    monkeypatch.undo()
+    user = tmp_path / "user.npz"
+    write_asset(user, TABLE_FORMAT, TABLE_VERSION, src.name, src.digest, arrays,
+                params=dict(before_71, view_subsamples=2, subcells=5))
+    table, origin = bs.load_or_build_sampling(src, user, cache=cache, progress=False)
+    assert origin == "file" and same(table, other)
+
+
 def test_progress_reports_k_of_total(tqdm_bars):
     """precompute.progress: the builders call step(k) with the count done, so after step(k) the bar stands at k and
     at the end at total (it stood at 1 + 2 + ... + 16 = 136 of 16)."""

@@ -1016,6 +1016,82 @@ def test_gmm_file_of_a_non_square_height_map_fitted_with_rows_1_over_w_apart_is_
     assert prep.notes["m"]["gmm_aligned"]["origin"] == "file"
 
 
+def test_a_gmm_cache_entry_fitted_with_other_settings_is_rebuilt_and_a_gmm_file_so_fitted_used(tmp_path):
+    """A GMM mipmap records the fit's settings (seed, samples per footprint, refinement sweeps).  A cache entry of
+    this map and material fitted with others is stale: rebuilt, as a fresh fit, and replaced; then read without a
+    fit.  A material's gmm file fitted so is the user's choice and is used as it is."""
+    from precompute.assetfile import read_header
+    from precompute.gmm_mipmap import build_gmm_mipmap, load_map, write_gmm_mipmap
+
+    h = _bumps(8)
+    s = scene_with_map(tmp_path, heights=h, scale=0.5)
+    digest = file_digest(tmp_path / "map.exr")
+    fresh = build_gmm_mipmap(load_map(tmp_path / "map.exr"), scale=0.5, progress=False)
+    other = build_gmm_mipmap(load_map(tmp_path / "map.exr"), scale=0.5, max_samples=16, progress=False)
+    assert not np.array_equal(fresh.levels[0], other.levels[0])
+
+    def flat(mip):
+        return np.concatenate([q.reshape(-1, 4) for q in mip.levels])
+
+    assert prepare_filtering(s, ("gmm_aligned",)).notes["m"]["gmm_aligned"]["origin"] == "built"
+    (entry,) = (tmp_path / "_cache").glob("gmm-*.npz")
+    write_gmm_mipmap(entry, other, "map.exr", digest, force=True)
+    prep = prepare_filtering(s, ("gmm_aligned",))
+    assert prep.notes["m"]["gmm_aligned"]["origin"] == "built"
+    assert np.array_equal(prep.mips["m"].gmm["gmm_aligned"][0].numpy(), flat(fresh))
+    assert read_header(entry)["params"]["max_samples"] == fresh.max_samples
+    assert prepare_filtering(s, ("gmm_aligned",)).notes["m"]["gmm_aligned"]["origin"] == "cache"
+    write_gmm_mipmap(tmp_path / "mine.gmm", other, "map.exr", digest)
+    text = plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ngmm = "mine.gmm"\n')
+    prep = prepare_filtering(parse_scene(text, tmp_path, "s.toml"), ("gmm_aligned",))
+    assert prep.notes["m"]["gmm_aligned"]["origin"] == "file"
+    assert np.array_equal(prep.mips["m"].gmm["gmm_aligned"][0].numpy(), flat(other))
+
+
+MIXED_SPHERE = """
+[[object]]
+shape = "sphere"
+center = [0.0, 0.5, 0.0]
+radius = 0.3
+material = "d"
+
+[material.d]
+type = "lambert"
+albedo = [0.5, 0.5, 0.5]
+"""
+
+
+@pytest.mark.parametrize("mixed", [False, True], ids=["planes", "planes and a sphere"])
+def test_warpbw_render_refuses_a_wrong_gmm_file_before_any_other_work(tmp_path, monkeypatch, capsys, mixed):
+    """A material's gmm file fitted to another map is refused in one line naming the scene, the key and the file,
+    before anything else is loaded or rendered: the environment, the normal mipmaps, the spheres' materials and
+    geometry, the G-buffer (each stands in here by a function that fails).  It was read after the environment and
+    the box mipmaps, and in a scene with spheres after those were loaded."""
+    import warpbw.filtering as fl
+    import warpbw.pipeline as pl
+    from precompute.gmm_mipmap import build_gmm_mipmap, write_gmm_mipmap
+    from warpbw.cli import main
+
+    scene_with_map(tmp_path, heights=_bumps(8), scale=0.5)    # writes map.exr
+    write_gmm_mipmap(tmp_path / "bad.gmm", build_gmm_mipmap(np.zeros((4, 4)), progress=False), "x",
+                     file_digest(tmp_path / "map.exr"))
+    text = plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ngmm = "bad.gmm"\n',
+                            environment='[environment]\nconstant = [0.5, 0.5, 0.5]\n')
+    (tmp_path / "scene.toml").write_text(text + (MIXED_SPHERE if mixed else ""))
+
+    def work(*a, **kw):
+        raise AssertionError("work done before the gmm file was checked")
+
+    for module, name in ((fl, "load_environment"), (fl, "normal_moment_mipmap"), (pl, "prepare_scene"),
+                         (pl, "render_gbuffer"), (pl, "_gbuffer")):
+        monkeypatch.setattr(module, name, work)
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", "scene.toml", "-o", "out.exr", "-q"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "scene.toml: [material.m].gmm: " in err and "bad.gmm" in err and "4x4 map" in err, err
+    assert not (tmp_path / "out.exr").exists()
+
+
 def test_gmm_priors_that_agree_to_six_digits_are_cached_apart(tmp_path):
     """The cache key wrote gmm_prior with %g (6 digits) while the reader compares it to 1e-9: priors 0.5 and
     0.5000001 shared one entry and evicted each other, so every render paid the whole EM fit again."""

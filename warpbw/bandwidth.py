@@ -7,7 +7,8 @@ Public:
     ``load_kernels(device)``   compile the block-plan and pooling kernels ahead, outside the pass's time
     ``BandwidthTables`` (Warp struct) / ``make_bandwidth_tables(nu_env, nu_rho, device)``
     ``nu_env_table(nu_env) -> (h, w)``   the environment's nu_a, max-filtered to at most LIGHT_TABLE_WIDTH columns
-    ``env_bandwidth_map(pixels, name, cache=None, signal, progress, source) -> ((H, W) float32 cycles/rad, origin)``
+    ``env_bandwidth_map(pixels, name, cache=None, signal, progress, source) -> ((H, W) float32 cycles/rad, origin)``;
+    ``env_bandwidth_settings(signal) -> dict``, ``ENV_BW_UNRECORDED``: the builder settings its cache entries record
     ``ENV_SIGNALS``, ``ENV_SIGNAL_DEFAULT``, ``env_signal(lum, signal)``, ``check_env_signal(signal)``: what it reads;
     ``env_bandwidth_memory(width, height)``, ``ENV_BW_BYTES_PER_TEXEL``, ``ENV_BW_BYTES_FIXED``: the memory its build
     takes (a warning first where it lacks)
@@ -270,6 +271,9 @@ ENV_BW_VERSION = 2   # 2: wavelet bands centred on the cascade's delays (session
 # sun no longer drowns the rest of the probe's detail, or its luminance, as 002 does (module docstring: the trade)
 ENV_SIGNALS = ("log", "radiance")
 ENV_SIGNAL_DEFAULT = "log"   # session 58 (module docstring); 002 reads the luminance, "radiance"
+# What a probe's bandwidth map built before session 71 (or, for the signal, session 58) was built with where it
+# records nothing: the radiance signal, and precompute.wavelets' defaults, unchanged since the first maps
+ENV_BW_UNRECORDED = {"signal": "radiance", "wavelet": "db4", "epsilon": 0.01, "energy_fraction": 0.95}
 
 _LUM = wp.constant(wp.vec3(*LUMINANCE))
 _TWO_OVER_PI = wp.constant(2.0 / math.pi)
@@ -619,6 +623,16 @@ def env_bandwidth_memory(width: int, height: int) -> int:
     return ENV_BW_BYTES_PER_TEXEL * int(width) * int(height) + ENV_BW_BYTES_FIXED
 
 
+def env_bandwidth_settings(signal: str = ENV_SIGNAL_DEFAULT) -> dict:
+    """The settings ``env_bandwidth_map`` builds a map of ``signal`` with, as its cache entry's ``params`` records them
+    (``precompute.wavelets``' constants, read now; beside them it records the units and the floor's rule, which name
+    what the map is): an entry that records others is rebuilt."""
+    from precompute import wavelets
+
+    return {"signal": check_env_signal(signal), "wavelet": wavelets.DEFAULT_WAVELET, "epsilon": wavelets.EPSILON,
+            "energy_fraction": wavelets.ENERGY_FRACTION}
+
+
 def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
                       signal: str = ENV_SIGNAL_DEFAULT, progress: bool = False,
                       source: str | None = None) -> tuple[np.ndarray, str]:
@@ -634,14 +648,16 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
     NaN or infinite pixels, or one beyond float32's range is refused, naming ``name``.  Returns the map and where
     it came from ("constant", "cache" or "built").  ``progress`` shows a bar over the wavelet bands while it builds
     (a minute at 8192x4096); a build that would take more memory than is available (``ENV_BW_BYTES_PER_TEXEL``,
-    5 GB at 8192x4096) warns first."""
-    from precompute.assetfile import read_asset, write_asset
+    5 GB at 8192x4096) warns first.  A cache entry whose recorded settings are not ``env_bandwidth_settings(signal)``
+    (``precompute.assetfile.settings_mismatch``, with ``ENV_BW_UNRECORDED`` for what older entries lack) is stale:
+    rebuilt and replaced, as a damaged one is."""
+    from precompute.assetfile import read_asset, settings_mismatch, write_asset
     from precompute.brdf_sampling import cache_dir
     from precompute.progress import progress_callback
-    from precompute.wavelets import EPSILON, envmap_angular_bandwidth, envmap_bandwidth_max
+    from precompute.wavelets import envmap_angular_bandwidth, envmap_bandwidth_max
     from warpbw.io.staged import remove_stale_temps
 
-    check_env_signal(signal)
+    settings = env_bandwidth_settings(signal)
     if source is not None and not (isinstance(source, str) and re.fullmatch(r"[\w-]+:[0-9a-f]+", source)):
         # it names the cache file: "sha256-source:" and hex digits (EnvMap.source_digest)
         raise WarpbwError(f"source: expected the probe's source digest (\"NAME:HEX\", EnvMap.source_digest), "
@@ -676,7 +692,7 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
             with np.errstate(over="ignore"):   # float64 beyond float32 becomes inf, a stale entry (numpy warned)
                 nu = np.asarray(a.arrays["nu_a"], np.float32)
             if (a.header.get("source_hash") == digest and nu.shape == (h, w) and a.arrays["nu_a"].dtype.kind == "f"
-                    and a.header.get("params", {}).get("signal", "radiance") == signal
+                    and settings_mismatch(a.header.get("params"), settings, ENV_BW_UNRECORDED) is None
                     and np.isfinite(nu).all() and (nu >= 0).all()   # a bandwidth is a finite rate, at most what
                     # the analysis gives: a damaged entry at 3e38 was read and blamed on the light's radiance
                     and (nu <= envmap_bandwidth_max(h) * (1.0 + 1e-6)).all()):
@@ -690,11 +706,12 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
                             "a smaller probe; the reference method does not build it")
     t = env_signal(lum, signal).astype(np.float64)     # a float32 mean overflows beyond about 1e33 per texel
     with progress_callback(1, f"bandwidth {name}", "band", progress) as step:
-        nu = envmap_angular_bandwidth(t, floor=EPSILON * float(t.mean()), progress=step).astype(np.float32)
+        nu = envmap_angular_bandwidth(t, settings["epsilon"], settings["wavelet"],
+                                      floor=settings["epsilon"] * float(t.mean()), progress=step).astype(np.float32)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         write_asset(path, ENV_BW_FORMAT, ENV_BW_VERSION, name, digest, {"nu_a": nu},
-                    params={"units": "cycles/radian", "floor": "epsilon * mean signal", "signal": signal}, force=True)
+                    params={"units": "cycles/radian", "floor": "epsilon * mean signal", **settings}, force=True)
     except (OSError, WarpbwError):
         pass  # a read-only or full cache (write_asset says which, as a WarpbwError) only costs the rebuild next time
     return nu, "built"

@@ -7,7 +7,10 @@ Public:
     ``ALL_METHODS``                      ``METHODS`` + ``ground_truth``
     ``DEFAULT_ENV_SPP``, ``MIN_GT_SPP``, ``DEFAULT_GT_SPP``   environment samples and ground-truth rays per pixel
     ``FilteringScene``                   what ``prepare_filtering`` returns: the planes' mipmaps on the device
-    ``prepare_filtering(scene, methods, device, progress, cache, env) -> FilteringScene``   load / build the mipmaps
+    ``prepare_filtering(scene, methods, device, progress, cache, env, gmm_files) -> FilteringScene``   load / build
+                                         the mipmaps
+    ``check_gmm_files(scene, methods) -> {material: (GmmMipmap, seconds)}``   the planes' ``gmm`` files read and
+                                         checked against their materials before any other work (below)
     ``render_filtering(scene, method, spp, seed, device, prepared, camera, progress, lod_bias, threads,
                        env_spp, max_anisotropy, background)``        -> ``FilterResult``; ``scene`` a ``Scene``
                                          or its ``FilteringScene`` (then the prepared one, on its own device)
@@ -100,6 +103,12 @@ moments (E[x^2], E[y^2], E[xy]) of the projected normals over the texel's footpr
 like the GMM mipmap).  The GMM mipmaps come from the material's ``gmm`` file (aligned) or are built by
 ``precompute.gmm_mipmap`` and cached under ``$WARPBW_CACHE`` (``precompute.brdf_sampling.load_or_build``), with
 the material's ``gmm_components`` (both) and ``gmm_prior`` (the aligned one's c; the unaligned one has none).
+A cache entry fitted with other settings than the fit's current ones (``precompute.gmm_mipmap.fit_settings``: seed,
+samples per footprint, refinement sweeps) is rebuilt; a material's ``gmm`` file is taken whatever seed it was fitted
+with.  That file is read and checked first (``check_gmm_files``: format, version, and that it was fitted to the
+material's normal map with its kind, scale, components and prior), before the environment, the normal mipmaps, and
+in ``warpbw.pipeline.render_with_planes`` before the spheres and meshes are loaded: a wrong file is refused in one
+line naming it before any rendering work.
 
 Scope: planes only (spheres and meshes are refused); several planes composite by the depth of each pixel's
 centre ray, and so do planes drawn over a ``Background`` (the spheres and meshes of a scene that has both,
@@ -916,10 +925,12 @@ class _GmmSource:
 
 
 def _build_gmm(src: _GmmSource, progress: bool = True):
-    from precompute.gmm_mipmap import build_gmm_mipmap
+    from precompute.gmm_mipmap import build_gmm_mipmap, fit_settings
 
+    k = fit_settings()   # what a cache entry records and is compared with (load_or_build)
     return build_gmm_mipmap(src.data, kind=src.kind, components=src.components, prior=src.prior,
-                            scale=src.scale, unaligned=src.unaligned, progress=progress)
+                            scale=src.scale, seed=k["seed"], progress=progress, unaligned=src.unaligned,
+                            max_samples=k["max_samples"], refine_sweeps=k["refine_sweeps"])
 
 
 def _write_gmm(path, mip, src: _GmmSource, force: bool = False):
@@ -1008,21 +1019,65 @@ def _load_normals(scene: Scene, name: str):
     return normals, data, m.normal_map_kind, m.normal_map_scale, m.normal_map.name, file_digest(m.normal_map)
 
 
-def _load_gmm(scene: Scene, name: str, data, kind, scale, src_name, digest, unaligned: bool, cache, progress):
-    from precompute.brdf_sampling import load_or_build
-    from precompute.gmm_mipmap import DEFAULT_PRIOR, GMM_VERSION
+def _gmm_source(scene: Scene, name: str, data, kind, scale, src_name, digest, unaligned: bool) -> _GmmSource:
+    from precompute.gmm_mipmap import DEFAULT_PRIOR
 
     m = scene.materials[name]
     # the unaligned baseline fits with c = 0 whatever the material's prior: its cache entry does not depend on it
-    src = _GmmSource(np.asarray(data), kind, float(scale), unaligned, src_name, digest, int(m.gmm_components),
-                     DEFAULT_PRIOR if unaligned else float(m.gmm_prior))
+    return _GmmSource(np.asarray(data), kind, float(scale), unaligned, src_name, digest, int(m.gmm_components),
+                      DEFAULT_PRIOR if unaligned else float(m.gmm_prior))
+
+
+def check_gmm_files(scene: Scene, methods=METHODS) -> dict:
+    """Read the ``gmm`` file of each plane material of ``scene`` when ``methods`` (a name or several) shade with it
+    (``gmm_aligned``), and check it as ``prepare_filtering`` reads it: its format and version, its levels, and that it
+    was fitted to the material's normal map (by content and size) with the material's kind, scale, components and
+    prior.  A wrong file is one line naming the scene, the material's key and the file, and the command that
+    rebuilds it.  Returns ``{material: (GmmMipmap, seconds the read took)}``, which ``prepare_filtering`` takes as
+    ``gmm_files`` instead of reading them again; {} when no method reads them."""
+    from precompute.gmm_mipmap import load_map
+    from warpbw.scene import file_digest
+
+    scene = check_scene(_as_scene(scene))
+    if "gmm_aligned" not in ((methods,) if isinstance(methods, str) else tuple(methods)):
+        return {}
+    out = {}
+    for name in dict.fromkeys(o.material for o in scene.objects if isinstance(o, PlaneObject)):
+        m = scene.materials[name]
+        if m.gmm is None:
+            continue
+        t0 = time.perf_counter()
+        try:
+            data = load_map(m.normal_map, m.normal_map_kind)
+        except WarpbwError as exc:
+            raise WarpbwError(f"{scene.source}: [material.{name}].normal_map: {exc}") from None
+        src = _gmm_source(scene, name, data, m.normal_map_kind, m.normal_map_scale, m.normal_map.name,
+                          file_digest(m.normal_map), False)
+        try:
+            out[name] = (_read_gmm_checked(scene, name)(m.gmm, src), time.perf_counter() - t0)
+        except WarpbwError as exc:
+            raise _gmm_error(scene, name, exc) from None
+    return out
+
+
+def _gmm_error(scene: Scene, name: str, exc: WarpbwError) -> WarpbwError:
+    """The error of a material's gmm file, naming the scene and the key (once)."""
+    return exc if str(exc).startswith(scene.source) else WarpbwError(f"{scene.source}: [material.{name}].gmm: {exc}")
+
+
+def _load_gmm(scene: Scene, name: str, data, kind, scale, src_name, digest, unaligned: bool, cache, progress):
+    from precompute.brdf_sampling import load_or_build
+    from precompute.gmm_mipmap import GMM_UNRECORDED, GMM_VERSION, fit_settings
+
+    m = scene.materials[name]
+    src = _gmm_source(scene, name, data, kind, scale, src_name, digest, unaligned)
     explicit = None if unaligned else m.gmm
     try:
         mip, origin = load_or_build(src, explicit, cache, GMM_CACHE_PREFIX, GMM_VERSION, _read_gmm_checked(scene, name),
-                                    _build_gmm, _write_gmm, progress)
+                                    _build_gmm, _write_gmm, progress, fit_settings(), GMM_UNRECORDED)
     except WarpbwError as exc:
-        if explicit is not None and not str(exc).startswith(scene.source):
-            raise WarpbwError(f"{scene.source}: [material.{name}].gmm: {exc}") from None
+        if explicit is not None:
+            raise _gmm_error(scene, name, exc) from None
         raise
     return mip, origin
 
@@ -1083,12 +1138,14 @@ def _gmm_array(levels, device):
 
 
 def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progress: bool = False,
-                      cache: Path | None = None, env=None) -> FilteringScene:
+                      cache: Path | None = None, env=None, gmm_files: dict | None = None) -> FilteringScene:
     """Load every plane material's normal map and the mipmaps ``methods`` need: the box-filtered normal
     mipmap (always: the ground truth reads its finest level) and, for gmm_aligned / gmm_unaligned, the GMM
     mipmap from the material's ``gmm`` file or the cache, else built (and cached).  ``env``: the scene's
     ``[environment]`` already loaded on ``device`` (``warpbw.envmap.EnvMap``, as another renderer of the same
-    scene holds it), used instead of loading it again.  The FilteringScene holds a checked copy of ``scene``
+    scene holds it), used instead of loading it again.  The materials' ``gmm`` files are read and checked first
+    (``check_gmm_files``), before the environment and any mipmap; ``gmm_files``: what ``check_gmm_files(scene,
+    methods)`` returned, taken instead of reading them again.  The FilteringScene holds a checked copy of ``scene``
     (``warpbw.scene.check_scene``); ``methods`` may be one method's name."""
     scene = check_scene(_as_scene(scene))
     if isinstance(methods, str):   # "lean" was taken letter by letter: filter method 'l'
@@ -1102,6 +1159,8 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
     t0 = time.perf_counter()
     if env is not None and scene.environment is None:
         raise WarpbwError(f"{scene.source}: env: given a loaded environment, but the scene has no [environment]")
+    if gmm_files is None:   # first: a wrong file is refused before any other work
+        gmm_files = check_gmm_files(scene, methods)
     if scene.environment is not None and env is None:   # first: a bad file fails before any mipmap is built
         try:
             env = load_environment(scene.environment, device)
@@ -1123,8 +1182,12 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
         for method in ("gmm_aligned", "gmm_unaligned"):
             if method in methods and not flat:
                 tb = time.perf_counter()
-                mip, origin = _load_gmm(scene, name, data, kind, scale, src_name, digest,
-                                        method == "gmm_unaligned", cache, progress)
+                if method == "gmm_aligned" and name in gmm_files:   # read and checked already
+                    mip, t_read = gmm_files[name]
+                    origin, tb = "file", tb - t_read
+                else:
+                    mip, origin = _load_gmm(scene, name, data, kind, scale, src_name, digest,
+                                            method == "gmm_unaligned", cache, progress)
                 mp.gmm[method] = _gmm_array(mip.levels, device)
                 note[method] = {"origin": origin, "time_s": round(time.perf_counter() - tb, 6),
                                 "components": int(mip.components), "prior": 0.0 if mip.unaligned else float(mip.prior),

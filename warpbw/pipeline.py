@@ -680,10 +680,11 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
     ``stats`` are the spheres and meshes' with ``planes`` (the filtering renderer's) added, ``pixels_covered``
     counting both, ``pixels_hidden`` the spheres and meshes' pixels a plane hides, and ``time_s.frame`` the sum
     of the two frames; ``aovs`` add ``mip_level``, the planes' filtering level (0 elsewhere), and ``plane``, True
-    where a plane is in front.  The planes' arguments and maps are checked and their mipmaps loaded (or built)
-    before the spheres and meshes are rendered."""
-    from warpbw.filtering import (DEFAULT_ANISOTROPY, Background, check_render_args, plane_distance,
-                                  prepare_filtering, render_filtering)
+    where a plane is in front.  The planes' arguments and ``gmm`` files are checked before the spheres and meshes
+    are loaded (``warpbw.filtering.check_gmm_files``), and their mipmaps loaded (or built) before they are
+    rendered."""
+    from warpbw.filtering import (DEFAULT_ANISOTROPY, Background, check_gmm_files, check_render_args,
+                                  plane_distance, prepare_filtering, render_filtering)
 
     check_seed(seed)
     surfaces, planes = split_planes(scene)
@@ -700,8 +701,10 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
     ignored = [k for k, v in (("budget", budget), ("n_b", n_b), *adaptive_options.items()) if v is not None]
     if method == "reference" and ignored:   # taken without a word: the frame was the reference at spp
         raise WarpbwError(f"method 'reference': {', '.join(ignored)} apply to method 'adaptive' only")
+    gmm_files = check_gmm_files(planes, filter_method)   # first: a wrong gmm file is refused before any work
     prep = prepare_scene(surfaces, device, progress)
-    plane_prep = prepare_filtering(planes, (filter_method,), device, progress, env=prep.env)   # one environment
+    plane_prep = prepare_filtering(planes, (filter_method,), device, progress, env=prep.env,   # one environment
+                                   gmm_files=gmm_files)
     nearer = plane_distance(planes, device)
     if method == "adaptive":
         res = render_adaptive(prep, budget, seed=seed, mis=mis, n_b=n_b, device=device, progress=progress,
