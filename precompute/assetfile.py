@@ -13,7 +13,7 @@ another format or version with a message that says how to rebuild it.
 
 Builder settings.  A file's ``params`` record the settings its builder ran with (the sampling tables' view
 subsamples, the nu_rho table's resolution, wavelet and epsilon, ...).  A file the user names in a scene may have been
-built with other legitimate settings (``warpbw-precompute brdf --resolution 64``) and is read as it is; an entry of
+built with other legitimate settings (a nu_rho table analysed at another resolution) and is read as it is; an entry of
 warpbw's own cache (``$WARPBW_CACHE``) stands for what the builder would build now, so its reader compares the
 recorded settings with the builder's current ones (``settings_mismatch``) and treats a difference as a stale entry,
 rebuilt and replaced as one of another version is (``precompute.brdf_sampling.load_or_build``,

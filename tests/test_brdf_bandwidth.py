@@ -296,7 +296,7 @@ def test_a_cache_entry_of_other_wavelet_settings_is_rebuilt_and_a_user_file_of_a
     version bump served the old tables) is stale: rebuilt, as a fresh build, and replaced.  An entry of the builder's
     settings is read without a build, and so is one written before session 71, which records no wavelet settings
     (db4, 7 bands, epsilon 0.01, 95% then); the constant itself changed makes that entry stale.  A file the scene
-    names, built with ``warpbw-precompute brdf --resolution 64``, is read as it is."""
+    names, analysed at a resolution of 64 (``build_brdf_bandwidth``'s ``resolution``), is read as it is."""
     import precompute.brdf_bandwidth as bb
     from precompute.assetfile import read_header
     from precompute.wavelets import DEFAULT_WAVELET, ENERGY_FRACTION, EPSILON
