@@ -1473,6 +1473,15 @@ def test_bunny_on_floor_without_the_shared_data_says_so_and_writes_nothing(tmp_p
     assert not (tmp_path / "m").exists()
 
 
+def test_bench_scenes_without_the_shared_data_says_so_as_an_error_and_writes_nothing(tmp_path, monkeypatch):
+    """bench_scenes.py printed "bench_scenes: DIR not found ...", without the "error:" every other refusal has, and
+    without saying where the folder is looked for."""
+    monkeypatch.setenv("WARPBW_SHARED_DATA", str(tmp_path / "nowhere"))
+    example_error(run_example(["bench_scenes.py", "--out", "s"], tmp_path), "bench_scenes.py",
+                  f"{tmp_path / 'nowhere'}: not found", "WARPBW_SHARED_DATA")
+    assert not (tmp_path / "s").exists()
+
+
 def test_filtering_zoom_on_a_scene_without_planes(tmp_path):
     """Not the filtering renderer's 'renders planes only' (there is no plane to keep): says there is none."""
     write_scene(tmp_path)
