@@ -1286,7 +1286,14 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["compare_mitsuba.py", "--seed", "4294967000"], "--seed 4294967000: expected at most 4294966295"),
     (["compare_mitsuba.py", "--probe", "missing.exr"], "--probe missing.exr: no such file"),
     # each of these named every limit at once until session 43
-    (["compare_mitsuba.py", "--resolution", "-1"], "--resolution -1: expected at least 8 pixels"),
+    (["compare_mitsuba.py", "--resolution", "-1"], "--resolution -1: expected at least 9 pixels"),
+    # 8 was accepted and both renderers ran before "no pixel is covered by geometry" (the interior, coverage eroded
+    # by 2 pixels, was empty); no case ran nothing and exited 0; a case given twice ran twice
+    (["compare_mitsuba.py", "--resolution", "8"], "--resolution 8: expected at least 9 pixels"),
+    (["compare_mitsuba.py", "--cases", ","], "--cases ',': expected distinct names among lambert, ggx0.1, ggx0.4"),
+    (["compare_mitsuba.py", "--cases", "lambert,ggx0.1,lambert"], "--cases 'lambert,ggx0.1,lambert': expected "
+     "distinct names"),
+    (["compare_mitsuba.py", "--cases", "lambert,foo"], "--cases 'lambert,foo': expected distinct names among"),
     (["compare_mitsuba.py", "--spp", "0"], "--spp 0: expected a positive integer"),
     (["dynamic_geometry.py", "--frames", "0"], "--frames 0: expected a positive integer"),
     (["dynamic_geometry.py", "--size", "4"], "--size 4: expected at least 8 pixels"),
@@ -2318,6 +2325,50 @@ def test_mirror_smear_writes_no_scene_the_loader_would_refuse(tmp_path, alpha):
                     tmp_path)
     example_error(r, "mirror_smear.py", f"--alpha {float(alpha)!r}: expected a GGX roughness from")
     assert not (tmp_path / "ms").exists()
+
+
+def test_compare_mitsubas_least_resolution_leaves_an_interior_to_compare(tmp_path):
+    """The sphere's interior (warpbw's coverage eroded by ERODE_PX) over which compare_mitsuba.py measures the error
+    holds pixels from RESOLUTION_MIN on, and none one pixel below it (where the comparison failed after both
+    renders)."""
+    cm = load_example("compare_mitsuba")
+    prepare, render_reference = cm.import_warpbw()
+    probe = tmp_path / "probe.exr"
+    write_exr(probe, np.full((8, 16, 3), 0.5, np.float32))
+    interior = {}
+    for res in (cm.RESOLUTION_MIN - 1, cm.RESOLUTION_MIN):
+        toml_text = cm.warpbw_toml(probe, cm.CASES["lambert"], res, 0.0, 1.0)
+        _, cov, _ = cm.render_warpbw(prepare, render_reference, toml_text, 1, 0)
+        interior[res] = int(cm.erode(cov, cm.ERODE_PX).sum())
+    assert interior[cm.RESOLUTION_MIN - 1] == 0 < interior[cm.RESOLUTION_MIN], interior
+
+
+def test_compare_mitsubas_refusals_are_error_lines(tmp_path):
+    """Its refusals past the parser (a Mitsuba variant it cannot use) printed "compare_mitsuba: ..." with status 1,
+    without the "error:" of every other refusal."""
+    pytest.importorskip("mitsuba")
+    write_exr(tmp_path / "probe.exr", np.full((8, 16, 3), 0.5, np.float32))
+    example_error(run_example(["compare_mitsuba.py", "--variant", "nonesuch", "--probe", "probe.exr", "--resolution",
+                               "16", "--spp", "1"], tmp_path), "compare_mitsuba.py",
+                  "none of the Mitsuba variants ['nonesuch'] can be used")
+
+
+def test_compare_mitsuba_without_mitsuba_says_how_to_install_it_from_the_checkout(monkeypatch):
+    """It said "pip install 'warpbw[mitsuba]'", which asks the package index for a project named warpbw (not this
+    one); README installs the extra from the checkout."""
+    import builtins
+
+    cm = load_example("compare_mitsuba")
+    real_import = builtins.__import__
+
+    def no_mitsuba(name, *a, **kw):
+        if name == "mitsuba" or name.startswith("mitsuba."):
+            raise ImportError("No module named 'mitsuba'")
+        return real_import(name, *a, **kw)
+
+    monkeypatch.setattr(builtins, "__import__", no_mitsuba)
+    with pytest.raises(WarpbwError, match=re.escape('Mitsuba 3 is not installed: pip install -e ".[mitsuba]"')):
+        cm.import_mitsuba()
 
 
 def test_compare_mitsuba_keeps_existing_outputs_without_force(tmp_path):
