@@ -1296,7 +1296,7 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["compare_mitsuba.py", "--cases", "lambert,foo"], "--cases 'lambert,foo': expected distinct names among"),
     (["compare_mitsuba.py", "--spp", "0"], "--spp 0: expected a positive integer"),
     (["dynamic_geometry.py", "--frames", "0"], "--frames 0: expected a positive integer"),
-    (["dynamic_geometry.py", "--size", "4"], "--size 4: expected at least 8 pixels"),
+    (["dynamic_geometry.py", "--size", "4"], "--size 4: expected 8 to 16384 pixels"),
     (["dynamic_geometry.py", "--budget", "nan"], "--budget nan: expected a positive number"),
 ])
 def test_examples_refuse_bad_arguments_in_one_line(tmp_path, argv, needle):
@@ -2415,6 +2415,12 @@ def test_compare_mitsuba_keeps_existing_outputs_without_force(tmp_path):
      ["--gt-spp 100000000000: expected from 64 to 2147483647"]),
     (["dynamic_geometry.py", "--mesh", "tri.obj", "--material", "ggx", "--size", "8", "--out", "afile"],
      ["--out afile: not a directory"]),
+    # a budget past the kernels' int32 N_p was refused as "budget" after loading the mesh and the probe (16 s), a
+    # size past the scene's largest as "<dynamic_geometry>: [camera].resolution"
+    (["dynamic_geometry.py", "--mesh", "tri.obj", "--material", "ggx", "--size", "8", "--budget", "1e30"],
+     ["--budget 1e+30: expected a positive number of samples per pixel, at most 8.38861e+06"]),
+    (["dynamic_geometry.py", "--mesh", "tri.obj", "--material", "ggx", "--size", "16385"],
+     ["--size 16385: expected 8 to 16384 pixels"]),
     # validate_bandwidth: --size 1 failed late on an internal "stride", --seed -1 named "seed", an --out that is a
     # file gave "[Errno 17] File exists"
     (["validate_bandwidth.py", "--out", "v", "--quick", "--size", "1"], ["--size 1: expected at least", "--window"]),
@@ -2428,7 +2434,7 @@ def test_compare_mitsuba_keeps_existing_outputs_without_force(tmp_path):
 ], ids=["gbuffer resolution", "reference_estimator resolution", "anisotropy_cost size", "anisotropy_cost nan",
         "anisotropy_cost inf", "dynamic_geometry frames", "filtering_zoom duplicate", "filtering_floor duplicate",
         "brdf_sampling samples", "reference_estimator spp", "mirror_smear budget", "filtering_floor gt-spp",
-        "dynamic_geometry out", "validate_bandwidth size", "validate_bandwidth seed", "validate_bandwidth out",
+        "dynamic_geometry out", "dynamic_geometry budget", "dynamic_geometry size", "validate_bandwidth size", "validate_bandwidth seed", "validate_bandwidth out",
         "bench_scenes out", "bench_scenes results", "bunny_on_floor out", "bunny_on_floor out under a file"])
 def test_examples_refuse_values_up_front_naming_their_own_options(tmp_path, argv, needles):
     """each of these failed after loading assets or preparing the scene (a raw traceback, or an error
