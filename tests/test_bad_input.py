@@ -2415,6 +2415,12 @@ def test_compare_mitsuba_keeps_existing_outputs_without_force(tmp_path):
      ["--gt-spp 100000000000: expected from 64 to 2147483647"]),
     (["dynamic_geometry.py", "--mesh", "tri.obj", "--material", "ggx", "--size", "8", "--out", "afile"],
      ["--out afile: not a directory"]),
+    # allocation_ceiling: a budget past the kernels' int32 N_p was refused as "budget" after the --seeds brute-force
+    # renders (minutes on a bench scene), an spp past int32 as "spp"
+    (["allocation_ceiling.py", "scene.toml", "--seeds", "2", "--spp", "1", "--budget", "1e30"],
+     ["--budget 1e+30: expected a positive number of samples per pixel, at most 8.38861e+06"]),
+    (["allocation_ceiling.py", "scene.toml", "--seeds", "2", "--spp", "2147483648"],
+     ["--spp: expected an integer from 1 to 2147483647"]),
     # a budget past the kernels' int32 N_p was refused as "budget" after loading the mesh and the probe (16 s), a
     # size past the scene's largest as "<dynamic_geometry>: [camera].resolution"
     (["dynamic_geometry.py", "--mesh", "tri.obj", "--material", "ggx", "--size", "8", "--budget", "1e30"],
@@ -2434,7 +2440,7 @@ def test_compare_mitsuba_keeps_existing_outputs_without_force(tmp_path):
 ], ids=["gbuffer resolution", "reference_estimator resolution", "anisotropy_cost size", "anisotropy_cost nan",
         "anisotropy_cost inf", "dynamic_geometry frames", "filtering_zoom duplicate", "filtering_floor duplicate",
         "brdf_sampling samples", "reference_estimator spp", "mirror_smear budget", "filtering_floor gt-spp",
-        "dynamic_geometry out", "dynamic_geometry budget", "dynamic_geometry size", "validate_bandwidth size", "validate_bandwidth seed", "validate_bandwidth out",
+        "dynamic_geometry out", "allocation_ceiling budget", "allocation_ceiling spp", "dynamic_geometry budget", "dynamic_geometry size", "validate_bandwidth size", "validate_bandwidth seed", "validate_bandwidth out",
         "bench_scenes out", "bench_scenes results", "bunny_on_floor out", "bunny_on_floor out under a file"])
 def test_examples_refuse_values_up_front_naming_their_own_options(tmp_path, argv, needles):
     """each of these failed after loading assets or preparing the scene (a raw traceback, or an error
