@@ -121,7 +121,8 @@ def write_scenes(out: Path, force: bool = False) -> list[Path]:
 
 def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", default="bench_scenes", help="directory for scenes, MERL files and results (an "
+    ap.add_argument("--out", default="bench_scenes", help="directory for scenes, MERL files and results (default "
+                    "%(default)s; an "
                     "OUT/MATERIAL.binary already there is used as it is, a cache: delete it to convert the NPF fit "
                     "again; one whose stamp OUT/MATERIAL.binary.tabulation names another tabulation or NPF table, "
                     "or is missing, is converted again)")

@@ -433,16 +433,18 @@ def check_conventions(mi) -> None:
 def parse_args(argv=None):
     p = OneLineParser(description=__doc__.split("\n\n")[0],
                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--spp", type=int, default=1024, help="samples per pixel for both renderers (1024)")
+    p.add_argument("--spp", type=int, default=1024, help="samples per pixel for both renderers (default %(default)s)")
     p.add_argument("--mitsuba-spp", type=int, default=None, help="Mitsuba's spp if different from --spp")
-    p.add_argument("--resolution", type=int, default=256, help="square image side in pixels (256)")
+    p.add_argument("--resolution", type=int, default=256,
+                   help=f"square image side in pixels, at least {RESOLUTION_MIN} (default %(default)s)")
     p.add_argument("--runs", type=int, default=PROTOCOL_RUNS,
                    help=f"timed renders per renderer and case, the same seed (median; default {PROTOCOL_RUNS})")
-    p.add_argument("--probe", type=Path, default=DEFAULT_PROBE, help=f"lat-long EXR probe ({DEFAULT_PROBE})")
-    p.add_argument("--rotation", type=float, default=0.0, help="probe rotation about +Y, degrees (0)")
-    p.add_argument("--scale", type=float, default=1.0, help="probe radiance scale (1)")
-    p.add_argument("--cases", default=",".join(CASES), help=f"comma list of {', '.join(CASES)}")
-    p.add_argument("--seed", type=parse_seed, default=0, help="0 to 2^32-1001 (the warm-up frames use seed + 1000)")
+    p.add_argument("--probe", type=Path, default=DEFAULT_PROBE, help="lat-long EXR probe (default %(default)s)")
+    p.add_argument("--rotation", type=float, default=0.0, help="probe rotation about +Y, degrees (default %(default)g)")
+    p.add_argument("--scale", type=float, default=1.0, help="probe radiance scale (default %(default)g)")
+    p.add_argument("--cases", default=",".join(CASES), help=f"comma list of {', '.join(CASES)} (default %(default)s)")
+    p.add_argument("--seed", type=parse_seed, default=0,
+                   help="0 to 2^32-1001 (default %(default)s; the warm-up frames use seed + 1000)")
     p.add_argument("--out", type=Path, default=None, help="save <case>_mitsuba.exr, <case>_warpbw.exr, <case>.png")
     p.add_argument("--json", help="write the record here (JSON): the settings and every figure of the table; "
                    "without it, beside --plot as OUT.json")

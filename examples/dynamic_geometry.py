@@ -228,7 +228,8 @@ def main(argv=None):
     ap.add_argument("--material", default=DEFAULT_MATERIAL, help="an NPF material name, or 'ggx' (default %(default)s)")
     ap.add_argument("--env", help="lat-long EXR light probe (default: the shared city.exr; the procedural sky "
                                   "when it is absent)")
-    ap.add_argument("--seed", type=parse_seed, default=0, help="frame f uses seed + f (0 to 2^32-1)")
+    ap.add_argument("--seed", type=parse_seed, default=0,
+                    help="frame f uses seed + f (0 to 2^32-1; default %(default)s)")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads for shading (default: cores)")
     ap.add_argument("--device", default="cpu", help="Warp device (default cpu)")
     ap.add_argument("--host-normals", action="store_true",

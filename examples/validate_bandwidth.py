@@ -939,7 +939,8 @@ def parse_args(argv=None):
                     help=f"n_b of a second, diagnostic bandwidth pass (default {N_B_DIAGNOSTIC}; 64 with --quick)")
     ap.add_argument("--seed", type=parse_seed, default=SEED, help=f"seed of the converged image's halves, the "
                     f"bandwidth passes and the brute-force variances (default {SEED})")
-    ap.add_argument("--data", default=str(DATA), help="the shared data directory (envmaps/, meshes/, brdf/)")
+    ap.add_argument("--data", default=str(DATA), help="the shared data directory, envmaps/, meshes/, brdf/ (default "
+                    "%(default)s: ../shared/data beside the repository, or $WARPBW_SHARED_DATA)")
     ap.add_argument("--device", default="cpu", help="Warp device (default cpu; cuda where there is one)")
     ap.add_argument("--force", action="store_true", help="overwrite existing outputs")
     ap.add_argument("--strict", action="store_true", help="exit 1 when an acceptance target is missed")
