@@ -243,6 +243,19 @@ def test_missing_mesh_file(tmp_path):
     assert_no_outputs(tmp_path)
 
 
+@pytest.mark.parametrize("name", ["bunny.toml", "bunny", "bunny.obj.bak"])
+def test_a_mesh_named_without_a_suffix_trimesh_reads_is_refused_by_the_scene(tmp_path, name):
+    """trimesh picks its reader by the name's suffix: an OBJ saved as "bunny" or "bunny.obj.bak" passed the scene's
+    checks and ``warpbw info``, and the render stopped after loading the probe with "malformed or unsupported mesh
+    file (trimesh: file_type '...' not supported)", a good mesh called malformed.  The scene names the key."""
+    (tmp_path / name).write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    write_scene(tmp_path, obj=f'mesh = "{name}"')
+    for command in (["info", "scene.toml"], ["render", "scene.toml", "-o", "out.exr", "--spp", "1"]):
+        assert_one_line_error(run(command, tmp_path), "scene.toml: [[object]] #1.mesh:", name,
+                              "expected a name ending in .obj, .ply, .stl or .glb")
+    assert_no_outputs(tmp_path)
+
+
 def test_garbage_obj(tmp_path):
     (tmp_path / "garbage.obj").write_text("this is not a mesh\n@@@ ### !!!\nf foo bar baz\n")
     write_scene(tmp_path, obj='mesh = "garbage.obj"')
