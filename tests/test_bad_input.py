@@ -2426,6 +2426,9 @@ def test_compare_mitsuba_keeps_existing_outputs_without_force(tmp_path):
      ["--budget 1000000000000.0: expected a whole number of samples per pixel from 1 to 8388607"]),
     (["filtering_floor.py", "planes.toml", "--gt-spp", "100000000000"],
      ["--gt-spp 100000000000: expected from 64 to 2147483647"]),
+    # filtering_zoom named the renderer's "spp (ground-truth rays per pixel)", after loading the scene
+    (["filtering_zoom.py", "planes.toml", "--zoom", "1", "--gt-spp", "2147483648"],
+     ["--gt-spp 2147483648: expected from 64 to 2147483647"]),
     (["dynamic_geometry.py", "--mesh", "tri.obj", "--material", "ggx", "--size", "8", "--out", "afile"],
      ["--out afile: not a directory"]),
     # allocation_ceiling: a budget past the kernels' int32 N_p was refused as "budget" after the --seeds brute-force
@@ -2452,7 +2455,7 @@ def test_compare_mitsuba_keeps_existing_outputs_without_force(tmp_path):
     (["bunny_on_floor.py", "--out", "afile/m"], ["--out afile/m: afile is not a directory"]),
 ], ids=["gbuffer resolution", "reference_estimator resolution", "anisotropy_cost size", "anisotropy_cost nan",
         "anisotropy_cost inf", "dynamic_geometry frames", "filtering_zoom duplicate", "filtering_floor duplicate",
-        "brdf_sampling samples", "reference_estimator spp", "mirror_smear budget", "filtering_floor gt-spp",
+        "brdf_sampling samples", "reference_estimator spp", "mirror_smear budget", "filtering_floor gt-spp", "filtering_zoom gt-spp",
         "dynamic_geometry out", "allocation_ceiling budget", "allocation_ceiling spp", "dynamic_geometry budget", "dynamic_geometry size", "validate_bandwidth size", "validate_bandwidth seed", "validate_bandwidth out",
         "bench_scenes out", "bench_scenes results", "bunny_on_floor out", "bunny_on_floor out under a file"])
 def test_examples_refuse_values_up_front_naming_their_own_options(tmp_path, argv, needles):
