@@ -93,7 +93,7 @@ from warpbw.envmap import EnvMapData, env_radiance
 from warpbw.gbuffer import GBufferData
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
-from warpbw.scene import toml_escape
+from warpbw.scene import MAX_RESOLUTION, toml_escape
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_world
 
 HERE = Path(__file__).resolve().parent
@@ -965,6 +965,8 @@ def parse_args(argv=None):
             ap.error(f"--{k.replace('_', '-')}: expected a positive integer")
     if args.window < 4 or args.window % 2:
         ap.error("--window: expected an even number >= 4")
+    if args.size > MAX_RESOLUTION:   # not after loading the first scene's probe, as its [camera].resolution
+        ap.error(f"--size {args.size}: expected at most {MAX_RESOLUTION} pixels (a scene's largest side)")
     if args.size < args.window:   # the bandwidth pass wants 2 pixels a side, the comparison whole windows
         ap.error(f"--size {args.size}: expected at least the FFT window's side, {args.window} pixels (--window)")
     # round k of the converged image renders its halves with seeds seed + 2k and seed + 2k + 1
