@@ -727,6 +727,23 @@ def test_an_option_given_twice_is_a_one_line_usage_error(tmp_path, module, args,
     assert_no_outputs(tmp_path, "out2")
 
 
+def test_a_bounds_reason_is_its_own_options_not_another_bounds_of_the_same_value(monkeypatch):
+    """The parsers' reasons for a bound were looked up by the bound's value, and --threads' (4 per core) varies with the
+    machine: on 2 cores it is 8, so "--flicker-pairs 9" read "expected a positive integer <= 8 (4 per CPU core, 2
+    here)" (on 4 cores --max-anisotropy 17 would have).  Only --threads gives that reason."""
+    import argparse
+
+    from warpbw import cli
+    from warpbw.bench_filtering import FLICKER_PAIRS_MAX
+
+    for name, hi, said in (("flicker-pairs", FLICKER_PAIRS_MAX, False), ("max-anisotropy", cli.MAX_ANISOTROPY, False),
+                           ("threads", FLICKER_PAIRS_MAX, True)):
+        monkeypatch.setattr(cli, "THREADS_MAX", hi)   # a machine of hi / 4 cores
+        with pytest.raises(argparse.ArgumentTypeError) as refused:
+            cli._positive_int(name, hi)(str(hi + 1))
+        assert ("per CPU core" in str(refused.value)) == said, (name, str(refused.value))
+
+
 def test_options_given_once_and_a_flag_given_twice_are_usage_that_still_works(tmp_path):
     """A flag given twice means what it means once (``--force --force``); each store option given once runs."""
     write_scene(tmp_path)
