@@ -85,7 +85,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.bandwidth import ENV_SIGNAL_DEFAULT, ENV_SIGNALS, LUMINANCE
+from warpbw.bandwidth import ENV_SIGNAL_DEFAULT, ENV_SIGNALS, LUMINANCE, N_B_MAX
 from warpbw.brdf import MaterialTable, make_brdf_funcs
 from warpbw.cli_common import OneLineParser, check_output_dir, init_warp, parse_seed, run_command
 from warpbw.errors import SEED_MAX
@@ -965,6 +965,9 @@ def parse_args(argv=None):
             ap.error(f"--{k.replace('_', '-')}: expected a positive integer")
     if args.window < 4 or args.window % 2:
         ap.error("--window: expected an even number >= 4")
+    for opt, n_b in (("--nb", args.nb), ("--nb-diagnostic", args.nb_diagnostic)):   # not as the pass's "n_b", later
+        if n_b > N_B_MAX:
+            ap.error(f"{opt} {n_b}: expected at most {N_B_MAX} directions (002 Fig. 13 sweeps n_b from 16 to 1024)")
     if args.size > MAX_RESOLUTION:   # not after loading the first scene's probe, as its [camera].resolution
         ap.error(f"--size {args.size}: expected at most {MAX_RESOLUTION} pixels (a scene's largest side)")
     if args.size < args.window:   # the bandwidth pass wants 2 pixels a side, the comparison whole windows

@@ -2466,6 +2466,10 @@ def test_compare_mitsuba_keeps_existing_outputs_without_force(tmp_path):
     (["validate_bandwidth.py", "--out", "v", "--quick", "--seed", "-1"], ["--seed: expected an integer from 0"]),
     # past the scenes' largest side it was refused as "sphere-ccp3-forest: [camera].resolution", after the probe
     (["validate_bandwidth.py", "--out", "v", "--quick", "--size", "16385"], ["--size 16385: expected at most 16384"]),
+    # n_b past the pass's largest was refused as "n_b" after the converged image (16 to 24 s at --quick)
+    (["validate_bandwidth.py", "--out", "v", "--quick", "--nb", "65537"], ["--nb 65537: expected at most 65536"]),
+    (["validate_bandwidth.py", "--out", "v", "--quick", "--nb-diagnostic", "65537"],
+     ["--nb-diagnostic 65537: expected at most 65536"]),
     (["validate_bandwidth.py", "--out", "afile", "--quick"], ["--out afile: not a directory"]),
     # bench_scenes: an --out that is a file; a --results under one, refused before the scenes are written
     (["bench_scenes.py", "--out", "afile"], ["--out afile: not a directory"]),
@@ -2475,7 +2479,7 @@ def test_compare_mitsuba_keeps_existing_outputs_without_force(tmp_path):
 ], ids=["gbuffer resolution", "reference_estimator resolution", "anisotropy_cost size", "anisotropy_cost nan",
         "anisotropy_cost inf", "dynamic_geometry frames", "filtering_zoom duplicate", "filtering_floor duplicate",
         "brdf_sampling samples", "reference_estimator spp", "mirror_smear budget", "filtering_floor gt-spp", "filtering_zoom gt-spp",
-        "dynamic_geometry out", "allocation_ceiling budget", "allocation_ceiling spp", "dynamic_geometry budget", "dynamic_geometry size", "validate_bandwidth size", "validate_bandwidth seed", "validate_bandwidth size past 16384", "validate_bandwidth out",
+        "dynamic_geometry out", "allocation_ceiling budget", "allocation_ceiling spp", "dynamic_geometry budget", "dynamic_geometry size", "validate_bandwidth size", "validate_bandwidth seed", "validate_bandwidth size past 16384", "validate_bandwidth nb", "validate_bandwidth nb-diagnostic", "validate_bandwidth out",
         "bench_scenes out", "bench_scenes results", "bunny_on_floor out", "bunny_on_floor out under a file"])
 def test_examples_refuse_values_up_front_naming_their_own_options(tmp_path, argv, needles):
     """each of these failed after loading assets or preparing the scene (a raw traceback, or an error
