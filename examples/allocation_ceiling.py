@@ -39,8 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
+from warpbw.cli import BUDGET_MAX
 from warpbw.cli_common import OneLineParser, check_record_outputs, init_warp, run_command, write_record
-from warpbw.errors import check_count
+from warpbw.errors import INT32_MAX, check_count
 
 SEEDS_DEFAULT = 32        # brute-force renders: the oracle's sqrt(v) is biased by about 1 / (2 x seeds)
 SPP_DEFAULT = 16          # samples per pixel of each brute-force render
@@ -177,10 +178,11 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cpu", help="Warp device (default cpu; cuda where there is one)")
     ap.add_argument("--force", action="store_true", help="overwrite --json and --plot")
     args = ap.parse_args(argv)
-    if not (args.budget > 0 and np.isfinite(args.budget)):
-        ap.error(f"--budget {args.budget!r}: expected a positive number of samples per pixel")
+    if not 0 < args.budget <= BUDGET_MAX:   # not after the brute-force renders, as the renderer's "budget"
+        ap.error(f"--budget {args.budget:g}: expected a positive number of samples per pixel, at most {BUDGET_MAX:g} "
+                 "(N_p, up to 256 x budget, is an int32 in the kernels)")
     check_count(args.seeds, "--seeds", 2)
-    check_count(args.spp, "--spp", 1)
+    check_count(args.spp, "--spp", 1, INT32_MAX)
     check_count(args.seed, "--seed", 0, 2**32 - 1)
     # never the scene itself
     json_path, plot_path = check_record_outputs(args.json, args.plot, args.force, inputs=[args.scene])

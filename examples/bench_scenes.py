@@ -121,7 +121,8 @@ def write_scenes(out: Path, force: bool = False) -> list[Path]:
 
 def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", default="bench_scenes", help="directory for scenes, MERL files and results (an "
+    ap.add_argument("--out", default="bench_scenes", help="directory for scenes, MERL files and results (default "
+                    "%(default)s; an "
                     "OUT/MATERIAL.binary already there is used as it is, a cache: delete it to convert the NPF fit "
                     "again; one whose stamp OUT/MATERIAL.binary.tabulation names another tabulation or NPF table, "
                     "or is missing, is converted again)")
@@ -151,8 +152,8 @@ def main(argv=None) -> int:
     if args.run and args.results:
         check_output_dir(args.results, "--results")
     if not DATA.is_dir():
-        print(f"bench_scenes: {DATA} not found (the shared data folder is needed)", file=sys.stderr)
-        return 2
+        raise WarpbwError(f"{DATA}: not found (the scenes need the shared data folder's probes, bunny and NPF table: "
+                          "clone ../shared beside the repository or set $WARPBW_SHARED_DATA)")
     paths = write_scenes(Path(args.out), args.force)
     print("scenes: " + ", ".join(str(p) for p in paths))
     if not args.run:
@@ -163,7 +164,9 @@ def main(argv=None) -> int:
             continue
         res = Path(args.results or args.out) / p.stem
         res.parent.mkdir(parents=True, exist_ok=True)
-        cmd = ["warpbw", "bench", str(p), "--json", f"{res}.json", "--plot", f"{res}.png",
+        # this interpreter's warpbw, as npf-to-merl above: not the `warpbw` on $PATH, absent where the virtual
+        # environment is not activated, and another install's where one comes first
+        cmd = [sys.executable, "-m", "warpbw.cli", "bench", str(p), "--json", f"{res}.json", "--plot", f"{res}.png",
                "--gt-spp", args.gt_spp, "-q"]
         if args.cache:
             cmd += ["--cache", args.cache]

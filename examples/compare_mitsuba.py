@@ -22,7 +22,7 @@ against the acceptance, and each renderer's time, per case).  Compare the times 
 
 Install Mitsuba 3 (an optional extra, not a dependency of warpbw)::
 
-    pip install 'warpbw[mitsuba]'          # i.e. pip install mitsuba
+    pip install -e ".[mitsuba]"           # in the checkout; i.e. pip install mitsuba
     apt-get install -y libllvm19           # Mitsuba's llvm_* variants abort with LLVM 14/15
 
 This script sets ``DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM-19.so`` when the variable is
@@ -122,7 +122,7 @@ import numpy as np
 
 from warpbw.cli_common import (PROTOCOL_RUNS, OneLineParser, check_output_dir, check_overwrite, check_record_outputs,
                                few_runs_warning, init_warp, parse_seed, run_command, write_record)
-from warpbw.errors import SEED_MAX
+from warpbw.errors import SEED_MAX, WarpbwError
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
 from warpbw.scene import toml_string
@@ -137,6 +137,7 @@ DEFAULT_PROBE = shared_data_dir(REPO_ROOT) / "envmaps" / "studio.exr"
 LLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
 ACCEPT_RELMSE = 0.01          # acceptance: relMSE below 1 % per case
 ERODE_PX = 2                  # interior = coverage eroded by this many pixels (5x5 square)
+RESOLUTION_MIN = 9            # the least side whose interior holds a pixel (at 8 none: the error was undefined)
 VARIANTS = ("llvm_ad_rgb", "llvm_rgb", "scalar_rgb")
 
 # The scene: camera on +Z looking at a unit sphere at the origin.
@@ -152,9 +153,8 @@ CASES = {
 
 
 def fail(msg: str) -> None:
-    """Exit with a one-line message (status 1)."""
-    print(f"compare_mitsuba: {msg}", file=sys.stderr)
-    sys.exit(1)
+    """Stop with a one-line message, ``compare_mitsuba: error: ...`` (status 2, as every refusal)."""
+    raise WarpbwError(msg)
 
 
 # ----------------------------------------------------------------------------------------- Mitsuba
@@ -165,7 +165,8 @@ def import_mitsuba(variant: str | None = None):
     try:
         import mitsuba as mi
     except ImportError:
-        fail("Mitsuba 3 is not installed; pip install 'warpbw[mitsuba]' (and apt-get install libllvm19)")
+        fail('Mitsuba 3 is not installed: pip install -e ".[mitsuba]" in the checkout (and apt-get install libllvm19 '
+             'for its fast variants)')
     available = mi.variants()
     if variant is not None:
         candidates = [variant]
@@ -432,16 +433,18 @@ def check_conventions(mi) -> None:
 def parse_args(argv=None):
     p = OneLineParser(description=__doc__.split("\n\n")[0],
                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--spp", type=int, default=1024, help="samples per pixel for both renderers (1024)")
+    p.add_argument("--spp", type=int, default=1024, help="samples per pixel for both renderers (default %(default)s)")
     p.add_argument("--mitsuba-spp", type=int, default=None, help="Mitsuba's spp if different from --spp")
-    p.add_argument("--resolution", type=int, default=256, help="square image side in pixels (256)")
+    p.add_argument("--resolution", type=int, default=256,
+                   help=f"square image side in pixels, at least {RESOLUTION_MIN} (default %(default)s)")
     p.add_argument("--runs", type=int, default=PROTOCOL_RUNS,
                    help=f"timed renders per renderer and case, the same seed (median; default {PROTOCOL_RUNS})")
-    p.add_argument("--probe", type=Path, default=DEFAULT_PROBE, help=f"lat-long EXR probe ({DEFAULT_PROBE})")
-    p.add_argument("--rotation", type=float, default=0.0, help="probe rotation about +Y, degrees (0)")
-    p.add_argument("--scale", type=float, default=1.0, help="probe radiance scale (1)")
-    p.add_argument("--cases", default=",".join(CASES), help=f"comma list of {', '.join(CASES)}")
-    p.add_argument("--seed", type=parse_seed, default=0, help="0 to 2^32-1001 (the warm-up frames use seed + 1000)")
+    p.add_argument("--probe", type=Path, default=DEFAULT_PROBE, help="lat-long EXR probe (default %(default)s)")
+    p.add_argument("--rotation", type=float, default=0.0, help="probe rotation about +Y, degrees (default %(default)g)")
+    p.add_argument("--scale", type=float, default=1.0, help="probe radiance scale (default %(default)g)")
+    p.add_argument("--cases", default=",".join(CASES), help=f"comma list of {', '.join(CASES)} (default %(default)s)")
+    p.add_argument("--seed", type=parse_seed, default=0,
+                   help="0 to 2^32-1001 (default %(default)s; the warm-up frames use seed + 1000)")
     p.add_argument("--out", type=Path, default=None, help="save <case>_mitsuba.exr, <case>_warpbw.exr, <case>.png")
     p.add_argument("--json", help="write the record here (JSON): the settings and every figure of the table; "
                    "without it, beside --plot as OUT.json")
@@ -462,8 +465,9 @@ def parse_args(argv=None):
     a = p.parse_args(argv)
     if a.spp < 1:
         p.error(f"--spp {a.spp}: expected a positive integer")
-    if a.resolution < 8:
-        p.error(f"--resolution {a.resolution}: expected at least 8 pixels")
+    if a.resolution < RESOLUTION_MIN:
+        p.error(f"--resolution {a.resolution}: expected at least {RESOLUTION_MIN} pixels (the sphere's interior, "
+                f"its coverage eroded by {ERODE_PX}, holds none below)")
     if a.runs < 1:
         p.error(f"--runs {a.runs}: expected a positive integer")
     if a.mitsuba_spp is not None and a.mitsuba_spp < 1:
@@ -474,12 +478,12 @@ def parse_args(argv=None):
         p.error(f"--scale {a.scale}: expected a finite positive radiance scale")
     if a.seed + 1000 > SEED_MAX:
         p.error(f"--seed {a.seed}: expected at most {SEED_MAX - 1000} (the warm-up frames use seed + 1000)")
+    cases = [c.strip() for c in a.cases.split(",") if c.strip()]
+    if not cases or len(set(cases)) < len(cases) or not set(cases) <= set(CASES):   # none ran nothing, exit 0
+        p.error(f"--cases {a.cases!r}: expected distinct names among {', '.join(CASES)}")
+    a.cases = cases
     if not a.probe.expanduser().is_file():
         p.error(f"--probe {a.probe}: no such file (expected a lat-long EXR probe)")
-    a.cases = [c.strip() for c in a.cases.split(",") if c.strip()]
-    unknown = [c for c in a.cases if c not in CASES]
-    if unknown:
-        p.error(f"unknown case(s) {unknown}; choose from {list(CASES)}")
     if a.out is not None and not a.check_conventions:   # before Mitsuba is imported, and before any render
         check_output_dir(a.out, "--out")
         kinds = ("_mitsuba.exr", ".png") if a.mitsuba_only else ("_mitsuba.exr", "_warpbw.exr", ".png")

@@ -41,10 +41,12 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from warpbw.cli import BUDGET_MAX
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_overwrite, few_runs_warning, init_warp,
                                json_text, parse_seed, run_command)
 from warpbw.errors import SEED_MAX, WarpbwError
 from warpbw.io.shared_data import shared_data_dir
+from warpbw.scene import MAX_RESOLUTION
 
 HERE = Path(__file__).resolve().parent
 DATA = shared_data_dir(HERE.parent)
@@ -218,14 +220,16 @@ def _print_table(records: list, summary: dict) -> None:
 def main(argv=None):
     ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--mesh", help="mesh file (default: the shared bunny; skipped when it is absent)")
-    ap.add_argument("--out", default="dynamic_out", help="output folder")
-    ap.add_argument("--frames", type=int, default=10, help="frames to render after the warm-up")
-    ap.add_argument("--budget", type=float, default=8.0, help="mean samples per covered pixel")
-    ap.add_argument("--size", type=int, default=256, help="image width and height in pixels")
-    ap.add_argument("--material", default=DEFAULT_MATERIAL, help="an NPF material name, or 'ggx'")
+    ap.add_argument("--out", default="dynamic_out", help="output folder (default %(default)s)")
+    ap.add_argument("--frames", type=int, default=10, help="frames to render after the warm-up (default %(default)s)")
+    ap.add_argument("--budget", type=float, default=8.0, help="mean samples per covered pixel (default %(default)g)")
+    ap.add_argument("--size", type=int, default=256,
+                    help=f"image width and height in pixels, 8 to {MAX_RESOLUTION} (default %(default)s)")
+    ap.add_argument("--material", default=DEFAULT_MATERIAL, help="an NPF material name, or 'ggx' (default %(default)s)")
     ap.add_argument("--env", help="lat-long EXR light probe (default: the shared city.exr; the procedural sky "
                                   "when it is absent)")
-    ap.add_argument("--seed", type=parse_seed, default=0, help="frame f uses seed + f (0 to 2^32-1)")
+    ap.add_argument("--seed", type=parse_seed, default=0,
+                    help="frame f uses seed + f (0 to 2^32-1; default %(default)s)")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads for shading (default: cores)")
     ap.add_argument("--device", default="cpu", help="Warp device (default cpu)")
     ap.add_argument("--host-normals", action="store_true",
@@ -235,10 +239,11 @@ def main(argv=None):
     args = ap.parse_args(argv)
     if args.frames < 1:
         ap.error(f"--frames {args.frames}: expected a positive integer")
-    if args.size < 8:
-        ap.error(f"--size {args.size}: expected at least 8 pixels")
-    if not (args.budget > 0 and math.isfinite(args.budget)):
-        ap.error(f"--budget {args.budget}: expected a positive number of samples per pixel")
+    if not 8 <= args.size <= MAX_RESOLUTION:
+        ap.error(f"--size {args.size}: expected 8 to {MAX_RESOLUTION} pixels")
+    if not 0 < args.budget <= BUDGET_MAX:   # not after loading the mesh and the probe, as the renderer's "budget"
+        ap.error(f"--budget {args.budget:g}: expected a positive number of samples per pixel, at most {BUDGET_MAX:g} "
+                 "(N_p, up to 256 x budget, is an int32 in the kernels)")
     if args.frames - 1 > SEED_MAX:   # frame f uses seed + f: even --seed 0 cannot give more frames their own seed
         ap.error(f"--frames {args.frames}: expected at most {SEED_MAX + 1} (frame f uses seed + f, a uint32 seed)")
     if args.seed + args.frames - 1 > SEED_MAX:

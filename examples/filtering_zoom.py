@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, init_warp, run_command
+from warpbw.errors import INT32_MAX
 
 TILE = 160          # height of a frame in the strip, pixels
 
@@ -37,7 +38,7 @@ def main(argv=None) -> int:
     ap.add_argument("-o", "--output", default="zoom_out",
                     help="output directory for METHOD.png, one strip per method, and all.png (default ./zoom_out)")
     ap.add_argument("--zoom", default="1,2,4,8,16,32", help="zoom factors (default 1,2,4,8,16,32)")
-    ap.add_argument("--gt-spp", type=int, default=256, help="ground-truth rays per pixel (default 256, at least 64)")
+    ap.add_argument("--gt-spp", type=int, default=256, help="ground-truth rays per pixel, 64 to 2^31-1 (default 256)")
     ap.add_argument("--max-anisotropy", type=int, default=1, metavar="N",
                     help="filter with up to N probes along each footprint's major axis (default 1: isotropic, 004; "
                     "see warpbw render --help)")
@@ -64,8 +65,8 @@ def main(argv=None) -> int:
     from warpbw.io.staged import staged_outputs
     from warpbw.scene import PlaneObject, load_scene
 
-    if args.gt_spp < MIN_GT_SPP:
-        ap.error(f"--gt-spp {args.gt_spp}: expected at least {MIN_GT_SPP} rays per pixel")
+    if not MIN_GT_SPP <= args.gt_spp <= INT32_MAX:   # the shading kernels count rays in int32
+        ap.error(f"--gt-spp {args.gt_spp}: expected from {MIN_GT_SPP} to {INT32_MAX} rays per pixel")
     if not 1 <= args.max_anisotropy <= MAX_ANISOTROPY:
         ap.error(f"--max-anisotropy {args.max_anisotropy}: expected an integer from 1 to {MAX_ANISOTROPY}")
     scene = load_scene(args.scene)

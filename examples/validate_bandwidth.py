@@ -85,7 +85,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.bandwidth import ENV_SIGNAL_DEFAULT, ENV_SIGNALS, LUMINANCE
+from warpbw.bandwidth import ENV_SIGNAL_DEFAULT, ENV_SIGNALS, LUMINANCE, N_B_MAX
 from warpbw.brdf import MaterialTable, make_brdf_funcs
 from warpbw.cli_common import OneLineParser, check_output_dir, init_warp, parse_seed, run_command
 from warpbw.errors import SEED_MAX
@@ -93,7 +93,7 @@ from warpbw.envmap import EnvMapData, env_radiance
 from warpbw.gbuffer import GBufferData
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
-from warpbw.scene import toml_escape
+from warpbw.scene import MAX_RESOLUTION, toml_escape
 from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_world
 
 HERE = Path(__file__).resolve().parent
@@ -939,7 +939,8 @@ def parse_args(argv=None):
                     help=f"n_b of a second, diagnostic bandwidth pass (default {N_B_DIAGNOSTIC}; 64 with --quick)")
     ap.add_argument("--seed", type=parse_seed, default=SEED, help=f"seed of the converged image's halves, the "
                     f"bandwidth passes and the brute-force variances (default {SEED})")
-    ap.add_argument("--data", default=str(DATA), help="the shared data directory (envmaps/, meshes/, brdf/)")
+    ap.add_argument("--data", default=str(DATA), help="the shared data directory, envmaps/, meshes/, brdf/ (default "
+                    "%(default)s: ../shared/data beside the repository, or $WARPBW_SHARED_DATA)")
     ap.add_argument("--device", default="cpu", help="Warp device (default cpu; cuda where there is one)")
     ap.add_argument("--force", action="store_true", help="overwrite existing outputs")
     ap.add_argument("--strict", action="store_true", help="exit 1 when an acceptance target is missed")
@@ -964,6 +965,11 @@ def parse_args(argv=None):
             ap.error(f"--{k.replace('_', '-')}: expected a positive integer")
     if args.window < 4 or args.window % 2:
         ap.error("--window: expected an even number >= 4")
+    for opt, n_b in (("--nb", args.nb), ("--nb-diagnostic", args.nb_diagnostic)):   # not as the pass's "n_b", later
+        if n_b > N_B_MAX:
+            ap.error(f"{opt} {n_b}: expected at most {N_B_MAX} directions (002 Fig. 13 sweeps n_b from 16 to 1024)")
+    if args.size > MAX_RESOLUTION:   # not after loading the first scene's probe, as its [camera].resolution
+        ap.error(f"--size {args.size}: expected at most {MAX_RESOLUTION} pixels (a scene's largest side)")
     if args.size < args.window:   # the bandwidth pass wants 2 pixels a side, the comparison whole windows
         ap.error(f"--size {args.size}: expected at least the FFT window's side, {args.window} pixels (--window)")
     # round k of the converged image renders its halves with seeds seed + 2k and seed + 2k + 1

@@ -243,6 +243,19 @@ def test_missing_mesh_file(tmp_path):
     assert_no_outputs(tmp_path)
 
 
+@pytest.mark.parametrize("name", ["bunny.toml", "bunny", "bunny.obj.bak"])
+def test_a_mesh_named_without_a_suffix_trimesh_reads_is_refused_by_the_scene(tmp_path, name):
+    """trimesh picks its reader by the name's suffix: an OBJ saved as "bunny" or "bunny.obj.bak" passed the scene's
+    checks and ``warpbw info``, and the render stopped after loading the probe with "malformed or unsupported mesh
+    file (trimesh: file_type '...' not supported)", a good mesh called malformed.  The scene names the key."""
+    (tmp_path / name).write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    write_scene(tmp_path, obj=f'mesh = "{name}"')
+    for command in (["info", "scene.toml"], ["render", "scene.toml", "-o", "out.exr", "--spp", "1"]):
+        assert_one_line_error(run(command, tmp_path), "scene.toml: [[object]] #1.mesh:", name,
+                              "expected a name ending in .obj, .ply, .stl or .glb")
+    assert_no_outputs(tmp_path)
+
+
 def test_garbage_obj(tmp_path):
     (tmp_path / "garbage.obj").write_text("this is not a mesh\n@@@ ### !!!\nf foo bar baz\n")
     write_scene(tmp_path, obj='mesh = "garbage.obj"')
@@ -712,6 +725,23 @@ def test_an_option_given_twice_is_a_one_line_usage_error(tmp_path, module, args,
     assert f"{prog} {args[0]} --help" in line
     assert_no_outputs(tmp_path)
     assert_no_outputs(tmp_path, "out2")
+
+
+def test_a_bounds_reason_is_its_own_options_not_another_bounds_of_the_same_value(monkeypatch):
+    """The parsers' reasons for a bound were looked up by the bound's value, and --threads' (4 per core) varies with the
+    machine: on 2 cores it is 8, so "--flicker-pairs 9" read "expected a positive integer <= 8 (4 per CPU core, 2
+    here)" (on 4 cores --max-anisotropy 17 would have).  Only --threads gives that reason."""
+    import argparse
+
+    from warpbw import cli
+    from warpbw.bench_filtering import FLICKER_PAIRS_MAX
+
+    for name, hi, said in (("flicker-pairs", FLICKER_PAIRS_MAX, False), ("max-anisotropy", cli.MAX_ANISOTROPY, False),
+                           ("threads", FLICKER_PAIRS_MAX, True)):
+        monkeypatch.setattr(cli, "THREADS_MAX", hi)   # a machine of hi / 4 cores
+        with pytest.raises(argparse.ArgumentTypeError) as refused:
+            cli._positive_int(name, hi)(str(hi + 1))
+        assert ("per CPU core" in str(refused.value)) == said, (name, str(refused.value))
 
 
 def test_options_given_once_and_a_flag_given_twice_are_usage_that_still_works(tmp_path):
@@ -1286,10 +1316,17 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["compare_mitsuba.py", "--seed", "4294967000"], "--seed 4294967000: expected at most 4294966295"),
     (["compare_mitsuba.py", "--probe", "missing.exr"], "--probe missing.exr: no such file"),
     # each of these named every limit at once until session 43
-    (["compare_mitsuba.py", "--resolution", "-1"], "--resolution -1: expected at least 8 pixels"),
+    (["compare_mitsuba.py", "--resolution", "-1"], "--resolution -1: expected at least 9 pixels"),
+    # 8 was accepted and both renderers ran before "no pixel is covered by geometry" (the interior, coverage eroded
+    # by 2 pixels, was empty); no case ran nothing and exited 0; a case given twice ran twice
+    (["compare_mitsuba.py", "--resolution", "8"], "--resolution 8: expected at least 9 pixels"),
+    (["compare_mitsuba.py", "--cases", ","], "--cases ',': expected distinct names among lambert, ggx0.1, ggx0.4"),
+    (["compare_mitsuba.py", "--cases", "lambert,ggx0.1,lambert"], "--cases 'lambert,ggx0.1,lambert': expected "
+     "distinct names"),
+    (["compare_mitsuba.py", "--cases", "lambert,foo"], "--cases 'lambert,foo': expected distinct names among"),
     (["compare_mitsuba.py", "--spp", "0"], "--spp 0: expected a positive integer"),
     (["dynamic_geometry.py", "--frames", "0"], "--frames 0: expected a positive integer"),
-    (["dynamic_geometry.py", "--size", "4"], "--size 4: expected at least 8 pixels"),
+    (["dynamic_geometry.py", "--size", "4"], "--size 4: expected 8 to 16384 pixels"),
     (["dynamic_geometry.py", "--budget", "nan"], "--budget nan: expected a positive number"),
 ])
 def test_examples_refuse_bad_arguments_in_one_line(tmp_path, argv, needle):
@@ -1471,6 +1508,15 @@ def test_bunny_on_floor_without_the_shared_data_says_so_and_writes_nothing(tmp_p
     example_error(run_example(["bunny_on_floor.py", "--out", "m"], tmp_path), "bunny_on_floor.py",
                   f"{tmp_path / 'data' / 'envmaps' / 'forest.exr'}: not found", "WARPBW_SHARED_DATA")
     assert not (tmp_path / "m").exists()
+
+
+def test_bench_scenes_without_the_shared_data_says_so_as_an_error_and_writes_nothing(tmp_path, monkeypatch):
+    """bench_scenes.py printed "bench_scenes: DIR not found ...", without the "error:" every other refusal has, and
+    without saying where the folder is looked for."""
+    monkeypatch.setenv("WARPBW_SHARED_DATA", str(tmp_path / "nowhere"))
+    example_error(run_example(["bench_scenes.py", "--out", "s"], tmp_path), "bench_scenes.py",
+                  f"{tmp_path / 'nowhere'}: not found", "WARPBW_SHARED_DATA")
+    assert not (tmp_path / "s").exists()
 
 
 def test_filtering_zoom_on_a_scene_without_planes(tmp_path):
@@ -2311,6 +2357,50 @@ def test_mirror_smear_writes_no_scene_the_loader_would_refuse(tmp_path, alpha):
     assert not (tmp_path / "ms").exists()
 
 
+def test_compare_mitsubas_least_resolution_leaves_an_interior_to_compare(tmp_path):
+    """The sphere's interior (warpbw's coverage eroded by ERODE_PX) over which compare_mitsuba.py measures the error
+    holds pixels from RESOLUTION_MIN on, and none one pixel below it (where the comparison failed after both
+    renders)."""
+    cm = load_example("compare_mitsuba")
+    prepare, render_reference = cm.import_warpbw()
+    probe = tmp_path / "probe.exr"
+    write_exr(probe, np.full((8, 16, 3), 0.5, np.float32))
+    interior = {}
+    for res in (cm.RESOLUTION_MIN - 1, cm.RESOLUTION_MIN):
+        toml_text = cm.warpbw_toml(probe, cm.CASES["lambert"], res, 0.0, 1.0)
+        _, cov, _ = cm.render_warpbw(prepare, render_reference, toml_text, 1, 0)
+        interior[res] = int(cm.erode(cov, cm.ERODE_PX).sum())
+    assert interior[cm.RESOLUTION_MIN - 1] == 0 < interior[cm.RESOLUTION_MIN], interior
+
+
+def test_compare_mitsubas_refusals_are_error_lines(tmp_path):
+    """Its refusals past the parser (a Mitsuba variant it cannot use) printed "compare_mitsuba: ..." with status 1,
+    without the "error:" of every other refusal."""
+    pytest.importorskip("mitsuba")
+    write_exr(tmp_path / "probe.exr", np.full((8, 16, 3), 0.5, np.float32))
+    example_error(run_example(["compare_mitsuba.py", "--variant", "nonesuch", "--probe", "probe.exr", "--resolution",
+                               "16", "--spp", "1"], tmp_path), "compare_mitsuba.py",
+                  "none of the Mitsuba variants ['nonesuch'] can be used")
+
+
+def test_compare_mitsuba_without_mitsuba_says_how_to_install_it_from_the_checkout(monkeypatch):
+    """It said "pip install 'warpbw[mitsuba]'", which asks the package index for a project named warpbw (not this
+    one); README installs the extra from the checkout."""
+    import builtins
+
+    cm = load_example("compare_mitsuba")
+    real_import = builtins.__import__
+
+    def no_mitsuba(name, *a, **kw):
+        if name == "mitsuba" or name.startswith("mitsuba."):
+            raise ImportError("No module named 'mitsuba'")
+        return real_import(name, *a, **kw)
+
+    monkeypatch.setattr(builtins, "__import__", no_mitsuba)
+    with pytest.raises(WarpbwError, match=re.escape('Mitsuba 3 is not installed: pip install -e ".[mitsuba]"')):
+        cm.import_mitsuba()
+
+
 def test_compare_mitsuba_keeps_existing_outputs_without_force(tmp_path):
     """compare_mitsuba.py had no --force and wrote its images over any already in --out.  It refuses
     them now before Mitsuba is imported (so here, where it is not installed, too), and an --out that is a file."""
@@ -2353,12 +2443,33 @@ def test_compare_mitsuba_keeps_existing_outputs_without_force(tmp_path):
      ["--budget 1000000000000.0: expected a whole number of samples per pixel from 1 to 8388607"]),
     (["filtering_floor.py", "planes.toml", "--gt-spp", "100000000000"],
      ["--gt-spp 100000000000: expected from 64 to 2147483647"]),
+    # filtering_zoom named the renderer's "spp (ground-truth rays per pixel)", after loading the scene
+    (["filtering_zoom.py", "planes.toml", "--zoom", "1", "--gt-spp", "2147483648"],
+     ["--gt-spp 2147483648: expected from 64 to 2147483647"]),
     (["dynamic_geometry.py", "--mesh", "tri.obj", "--material", "ggx", "--size", "8", "--out", "afile"],
      ["--out afile: not a directory"]),
+    # allocation_ceiling: a budget past the kernels' int32 N_p was refused as "budget" after the --seeds brute-force
+    # renders (minutes on a bench scene), an spp past int32 as "spp"
+    (["allocation_ceiling.py", "scene.toml", "--seeds", "2", "--spp", "1", "--budget", "1e30"],
+     ["--budget 1e+30: expected a positive number of samples per pixel, at most 8.38861e+06"]),
+    (["allocation_ceiling.py", "scene.toml", "--seeds", "2", "--spp", "2147483648"],
+     ["--spp: expected an integer from 1 to 2147483647"]),
+    # a budget past the kernels' int32 N_p was refused as "budget" after loading the mesh and the probe (16 s), a
+    # size past the scene's largest as "<dynamic_geometry>: [camera].resolution"
+    (["dynamic_geometry.py", "--mesh", "tri.obj", "--material", "ggx", "--size", "8", "--budget", "1e30"],
+     ["--budget 1e+30: expected a positive number of samples per pixel, at most 8.38861e+06"]),
+    (["dynamic_geometry.py", "--mesh", "tri.obj", "--material", "ggx", "--size", "16385"],
+     ["--size 16385: expected 8 to 16384 pixels"]),
     # validate_bandwidth: --size 1 failed late on an internal "stride", --seed -1 named "seed", an --out that is a
     # file gave "[Errno 17] File exists"
     (["validate_bandwidth.py", "--out", "v", "--quick", "--size", "1"], ["--size 1: expected at least", "--window"]),
     (["validate_bandwidth.py", "--out", "v", "--quick", "--seed", "-1"], ["--seed: expected an integer from 0"]),
+    # past the scenes' largest side it was refused as "sphere-ccp3-forest: [camera].resolution", after the probe
+    (["validate_bandwidth.py", "--out", "v", "--quick", "--size", "16385"], ["--size 16385: expected at most 16384"]),
+    # n_b past the pass's largest was refused as "n_b" after the converged image (16 to 24 s at --quick)
+    (["validate_bandwidth.py", "--out", "v", "--quick", "--nb", "65537"], ["--nb 65537: expected at most 65536"]),
+    (["validate_bandwidth.py", "--out", "v", "--quick", "--nb-diagnostic", "65537"],
+     ["--nb-diagnostic 65537: expected at most 65536"]),
     (["validate_bandwidth.py", "--out", "afile", "--quick"], ["--out afile: not a directory"]),
     # bench_scenes: an --out that is a file; a --results under one, refused before the scenes are written
     (["bench_scenes.py", "--out", "afile"], ["--out afile: not a directory"]),
@@ -2367,8 +2478,8 @@ def test_compare_mitsuba_keeps_existing_outputs_without_force(tmp_path):
     (["bunny_on_floor.py", "--out", "afile/m"], ["--out afile/m: afile is not a directory"]),
 ], ids=["gbuffer resolution", "reference_estimator resolution", "anisotropy_cost size", "anisotropy_cost nan",
         "anisotropy_cost inf", "dynamic_geometry frames", "filtering_zoom duplicate", "filtering_floor duplicate",
-        "brdf_sampling samples", "reference_estimator spp", "mirror_smear budget", "filtering_floor gt-spp",
-        "dynamic_geometry out", "validate_bandwidth size", "validate_bandwidth seed", "validate_bandwidth out",
+        "brdf_sampling samples", "reference_estimator spp", "mirror_smear budget", "filtering_floor gt-spp", "filtering_zoom gt-spp",
+        "dynamic_geometry out", "allocation_ceiling budget", "allocation_ceiling spp", "dynamic_geometry budget", "dynamic_geometry size", "validate_bandwidth size", "validate_bandwidth seed", "validate_bandwidth size past 16384", "validate_bandwidth nb", "validate_bandwidth nb-diagnostic", "validate_bandwidth out",
         "bench_scenes out", "bench_scenes results", "bunny_on_floor out", "bunny_on_floor out under a file"])
 def test_examples_refuse_values_up_front_naming_their_own_options(tmp_path, argv, needles):
     """each of these failed after loading assets or preparing the scene (a raw traceback, or an error

@@ -765,6 +765,25 @@ def _bench_scenes_with_fake_run(monkeypatch, status=0):
     return bs, calls
 
 
+def _benches(calls):
+    """The ``warpbw bench`` commands among ``calls``, each as ``["warpbw", "bench", ...]``: bench_scenes runs them as
+    ``python -m warpbw.cli bench ...`` with its own interpreter."""
+    prefix = [sys.executable, "-m", "warpbw.cli"]
+    return [["warpbw", *c[len(prefix):]] for c in calls if c[:len(prefix) + 1] == [*prefix, "bench"]]
+
+
+def test_bench_scenes_runs_the_bench_of_its_own_interpreter(tmp_path, monkeypatch, shared):
+    """--run ran ``warpbw`` from $PATH: with the interpreter of a virtual environment not activated it stopped on
+    "[Errno 2] No such file or directory: 'warpbw'", and with another install's ``warpbw`` first on $PATH it benched
+    that install's code.  Each bench is ``sys.executable -m warpbw.cli bench``, as npf-to-merl's conversion here and
+    filtering_scenes.py's --run are."""
+    shared("brdf/npf.bin")
+    bs, calls = _bench_scenes_with_fake_run(monkeypatch)
+    assert bs.main(["--out", str(tmp_path / "s"), "--run", "--only", "sphere_chrome_studio"]) == 0
+    runs = [c for c in calls if "npf-to-merl" not in c]
+    assert len(runs) == 1 and runs[0][:4] == [sys.executable, "-m", "warpbw.cli", "bench"], runs
+
+
 def test_bench_scenes_are_the_readme_table(tmp_path):
     """Each scene file parses to README's row: its object (the bunny mesh or a sphere), the MERL file made from its
     NPF material, its probe and its size; the fifth, not run by default, is the ccp3 scene with a sun added."""
@@ -795,7 +814,7 @@ def test_bench_scenes_run_passes_its_options_to_every_bench_and_the_sweep_to_the
     out, res = tmp_path / "s", tmp_path / "r"
     assert bs.main(["--out", str(out), "--run", "--no-mis", "--runs", "8", "--gt-spp", "16384", "--nb", "16,64",
                     "--results", str(res)]) == 0
-    benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
+    benches = _benches(calls)
     assert [Path(c[2]).stem for c in benches] == list(bs.SCENES)
     for i, c in enumerate(benches):
         stem = Path(c[2]).stem
@@ -810,12 +829,12 @@ def test_bench_scenes_run_passes_its_options_to_every_bench_and_the_sweep_to_the
         build_parser().parse_args(c[1:])
     calls.clear()
     assert bs.main(["--out", str(out), "--run", "--only", "sphere_chrome_studio"]) == 0
-    benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
+    benches = _benches(calls)
     assert [Path(c[2]).stem for c in benches] == ["sphere_chrome_studio"]
     assert "--no-mis" not in benches[0] and "--runs" not in benches[0] and "--nb" not in benches[0]
     calls.clear()   # the sun scene is written with the others, and run only when named
     assert bs.main(["--out", str(out), "--run", "--only", "sphere_ccp3_forest_sun,sphere_ccp3_forest"]) == 0
-    benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
+    benches = _benches(calls)
     assert [Path(c[2]).stem for c in benches] == ["sphere_ccp3_forest", "sphere_ccp3_forest_sun"]
 
 
@@ -829,7 +848,7 @@ def test_bench_scenes_passes_cache_env_signal_force_and_the_documented_defaults(
     out = tmp_path / "s"
     assert bs.main(["--out", str(out), "--run", "--cache", str(tmp_path / "gt"), "--env-signal", "log",
                     "--force", "--only", "sphere_chrome_studio,bunny_acrylic_studio"]) == 0
-    benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
+    benches = _benches(calls)
     assert len(benches) == 2
     for c in benches:
         assert _after(c, "--cache") == str(tmp_path / "gt"), c
@@ -837,7 +856,7 @@ def test_bench_scenes_passes_cache_env_signal_force_and_the_documented_defaults(
         build_parser().parse_args(c[1:])
     calls.clear()
     assert bs.main(["--out", str(out), "--run"]) == 0
-    benches = [c for c in calls if c[:2] == ["warpbw", "bench"]]
+    benches = _benches(calls)
     assert [Path(c[2]).stem for c in benches] == list(bs.SCENES)
     for i, c in enumerate(benches):
         assert _after(c, "--gt-spp") == "8192", c
@@ -1021,7 +1040,7 @@ def test_bench_scenes_stops_at_the_first_bench_that_fails(tmp_path, monkeypatch,
     shared("brdf/npf.bin")
     bs, calls = _bench_scenes_with_fake_run(monkeypatch, status=3)
     assert bs.main(["--out", str(tmp_path / "s"), "--run"]) == 3
-    assert len([c for c in calls if c[:2] == ["warpbw", "bench"]]) == 1
+    assert len(_benches(calls)) == 1
 
 
 def test_bandwidth_time_fraction_is_over_the_frames_wall_time(tmp_path, monkeypatch):

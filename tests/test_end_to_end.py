@@ -1165,6 +1165,47 @@ def test_every_stated_default_is_the_default(monkeypatch):
     assert n_help >= 15 and checked - n_help >= 60, (n_help, checked)   # the rules did read the docs
 
 
+def _options_whose_default_is_unsaid(parser, where: str, usage: str = "") -> list:
+    """Options of ``parser`` and its subcommands with a default (not None or False: a flag, or an option whose
+    absence the help describes) whose --help says no "default" and which ``usage`` (a script's usage line) does not
+    give as ``[--option VALUE]``."""
+    import argparse
+
+    out = []
+    for a in parser._actions:
+        if isinstance(a, argparse._SubParsersAction):
+            for name, sub in a.choices.items():
+                out += _options_whose_default_is_unsaid(sub, f"{where} {name}")
+            continue
+        if (not a.option_strings or a.default is None or a.default is False or a.default == argparse.SUPPRESS
+                or isinstance(a, (argparse._HelpAction, argparse._VersionAction))):
+            continue
+        said = "default" in (parser._get_formatter()._expand_help(a) if a.help else "")
+        if not said and not any(re.search(rf"\[{re.escape(o)} [^\]]+\]", usage) for o in a.option_strings):
+            out.append(f"{where} {'/'.join(a.option_strings)} (default {a.default!r})")
+    return out
+
+
+def test_every_option_with_a_default_says_it(monkeypatch):
+    """A user reads an option's default in --help (or in a script's usage line, which --help prints): bench_scenes.py
+    --out, compare_mitsuba.py --cases and --seed, dynamic_geometry.py --seed and validate_bandwidth.py --data said
+    none (compare_mitsuba's "(1024)" said a number, not that it is the default).
+    test_every_stated_default_is_the_default holds what they say to the parsers' defaults."""
+    import ast
+
+    from precompute.__main__ import build_parser as precompute_parser
+    from warpbw.cli import build_parser as warpbw_parser
+
+    root = Path(__file__).resolve().parents[1]
+    unsaid = (_options_whose_default_is_unsaid(warpbw_parser(), "warpbw")
+              + _options_whose_default_is_unsaid(precompute_parser(), "warpbw-precompute"))
+    for script in sorted((root / "examples").glob("*.py")):
+        doc = ast.get_docstring(ast.parse(script.read_text())) or ""
+        usage = "\n".join(re.findall(rf"python examples/{script.stem}\.py.*(?:\n {{8}}.*)*", doc))
+        unsaid += _options_whose_default_is_unsaid(_example_parser(monkeypatch, script.stem)[1], script.name, usage)
+    assert not unsaid, "\n".join(unsaid)
+
+
 def test_validate_bandwidths_help_gives_every_quick_setting(monkeypatch):
     """validate_bandwidth.py --quick replaces the defaults of QUICK's options: each option's --help says what it
     becomes ("N with --quick"; --uniform-samples, --bis-samples and --window said only their full default).  The

@@ -593,7 +593,7 @@ def _positive_int(name, hi=None):
         if v < 1:
             raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
         if hi is not None and v > hi:
-            raise argparse.ArgumentTypeError(f"expected a positive integer <= {hi}{_why(hi)}, got {v}")
+            raise argparse.ArgumentTypeError(f"expected a positive integer <= {hi}{_why(hi, name)}, got {v}")
         return v
     parse.__name__ = name
     return parse
@@ -610,14 +610,16 @@ def _gt_spp(s):
     return v
 
 
-def _why(hi) -> str:
-    """Why a count or budget has an upper bound, for the parsers' messages."""
+def _why(hi, name: str) -> str:
+    """Why the option ``name`` has the upper bound ``hi``, for the parsers' messages.  --threads' bound varies with the
+    machine, so it is told by the name: by its value, --flicker-pairs (8) read "4 per CPU core" on 2 cores."""
+    if name == "threads":
+        return f" ({THREADS_PER_CORE_MAX} per CPU core, {os.cpu_count() or 1} here)"
     return {INT32_MAX: " (an int32 in the kernels)",
             BUDGET_MAX: " (N_p, up to 256 x budget, is an int32 in the kernels)",
             FLOAT32_MAX: " (a float32 in the kernels)",
             N_B_MAX: " (002 Fig. 13 sweeps n_b from 16 to 1024)",
-            RUNS_MAX: " (the timed runs of one point)",
-            THREADS_MAX: f" ({THREADS_PER_CORE_MAX} per CPU core, {os.cpu_count() or 1} here)"}.get(hi, "")
+            RUNS_MAX: " (the timed runs of one point)"}.get(hi, "")
 
 
 def _number_list(name, kind, hi=None):
@@ -631,7 +633,7 @@ def _number_list(name, kind, hi=None):
         if not vals or any(not (v > 0 and math.isfinite(v)) for v in vals):
             raise argparse.ArgumentTypeError(f"expected comma-separated positive numbers, got {s!r}")
         if hi is not None and max(vals) > hi:
-            raise argparse.ArgumentTypeError(f"expected comma-separated positive numbers <= {hi:g}{_why(hi)}, "
+            raise argparse.ArgumentTypeError(f"expected comma-separated positive numbers <= {hi:g}{_why(hi, name)}, "
                                              f"got {max(vals):g}")
         twice = sorted({v for v in vals if vals.count(v) > 1})
         if twice:  # each value is one measurement: a repeat would only run it again
@@ -753,7 +755,7 @@ def _positive_float(name, hi=None):
         if not (v > 0 and math.isfinite(v)):
             raise argparse.ArgumentTypeError(f"expected a positive number, got {s}")
         if hi is not None and v > hi:
-            raise argparse.ArgumentTypeError(f"expected a positive number <= {hi:g}{_why(hi)}, got {s}")
+            raise argparse.ArgumentTypeError(f"expected a positive number <= {hi:g}{_why(hi, name)}, got {s}")
         return v
     parse.__name__ = name
     return parse

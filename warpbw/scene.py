@@ -42,6 +42,7 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 from warpbw.errors import FLOAT32_MAX, WarpbwError, check_path, is_int
+from warpbw.io.mesh_files import suffix_problem
 from warpbw.io.staged import check_name_length
 
 MATERIAL_TYPES = ("lambert", "ggx", "merl", "npf", "cook-torrance")
@@ -543,10 +544,13 @@ def _object(ctx: _Ctx, d: dict, i: int, materials: dict):
                      f"not to a {shape}")
         return SphereObject(ctx.vec3(d.get("center", [0.0, 0.0, 0.0]), f"{key}.center", point=True),
                             ctx.number(d["radius"], f"{key}.radius", lo=0.0, lo_open=True), mat)
-    return MeshObject(ctx.path(d["mesh"], f"{key}.mesh"), mat,
-                      ctx.vec3(d.get("translate", [0.0, 0.0, 0.0]), f"{key}.translate", point=True),
-                      ctx.number(d.get("scale", 1.0), f"{key}.scale", lo=0.0, lo_open=True),
-                      ctx.number(d.get("rotate_y", 0.0), f"{key}.rotate_y"))
+    obj = MeshObject(ctx.path(d["mesh"], f"{key}.mesh"), mat,
+                     ctx.vec3(d.get("translate", [0.0, 0.0, 0.0]), f"{key}.translate", point=True),
+                     ctx.number(d.get("scale", 1.0), f"{key}.scale", lo=0.0, lo_open=True),
+                     ctx.number(d.get("rotate_y", 0.0), f"{key}.rotate_y"))
+    if suffix_problem(obj.file):   # here, not after loading the probe, and not left unsaid by warpbw info
+        ctx.fail(f"{key}.mesh", suffix_problem(obj.file))
+    return obj
 
 
 _MATERIAL_KEYS = {

@@ -55,7 +55,7 @@ import numpy as np
 from warpbw.errors import (FLOAT32_MAX, WarpbwError, check_coordinate_spacing, check_count, check_input_file,
                            one_line, unit_directions)
 from warpbw.io.mesh_files import (SUPPORTED, check_after_reading, check_before_reading, format_damage,
-                                  read_failure, triangle_count)
+                                  read_failure, suffix_problem, triangle_count)
 
 # A triangle whose doubled area is below this fraction of its longest squared edge is treated as
 # degenerate (no cotangent weight, no area): sin of its largest angle is < 1e-12, so its
@@ -466,6 +466,8 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     reads it once.
     """
     path = check_input_file(path, f"a mesh: {SUPPORTED}")   # None too (check_path)
+    if suffix_problem(path):
+        raise WarpbwError(suffix_problem(path))
     if path.stat().st_size == 0:  # trimesh's answer depends on the suffix (for GLB: a face index out of bounds)
         raise WarpbwError(f"{path}: empty file (0 bytes): no triangles found (expected a mesh with faces: "
                           f"{SUPPORTED})")

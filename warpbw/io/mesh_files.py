@@ -14,10 +14,12 @@ its line or index where the format has one, not trimesh's words):
 - ``read_failure(path, data, exc) -> str``: the message for a file trimesh stopped on with ``exc``.
 - ``triangle_count(path, data) -> int | None``: how many triangles the file holds, from its header or its face lines,
   without reading its geometry (``warpbw info``'s memory estimate).
+- ``suffix_problem(path) -> str | None``: what is wrong with the file's name, where trimesh has no reader for its
+  suffix (it picks one by the name alone).
 
-Constants: ``SUPPORTED`` (the formats messages name), ``PLY_TYPE_BYTES``, ``PLY_FACE_INDEX_NAMES``,
-``GLB_HEADER_BYTES``, ``GLB_CHUNK_HEAD_BYTES``, ``GLTF_COMPONENT_BYTES``, ``GLTF_TYPE_COMPONENTS``,
-``STL_HEADER_BYTES``, ``STL_TRIANGLE_BYTES``.
+Constants: ``SUPPORTED`` (the formats messages name), ``MESH_SUFFIXES`` (their names' suffixes), ``PLY_TYPE_BYTES``,
+``PLY_FACE_INDEX_NAMES``, ``GLB_HEADER_BYTES``, ``GLB_CHUNK_HEAD_BYTES``, ``GLTF_COMPONENT_BYTES``,
+``GLTF_TYPE_COMPONENTS``, ``STL_HEADER_BYTES``, ``STL_TRIANGLE_BYTES``.
 """
 from __future__ import annotations
 
@@ -30,6 +32,8 @@ from warpbw.errors import WarpbwError, one_line
 
 # The formats named in messages (trimesh reads them, and others: a file of another suffix is tried as it is).
 SUPPORTED = "OBJ, PLY, STL or GLB"
+# Their names' suffixes (and glTF's), which ``suffix_problem`` accepts without importing trimesh (2 s).
+MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
 # An OBJ face whose vertex index is 0 (OBJ counts from 1, and from -1 backwards): trimesh reads it as vertex 0,
 # a different triangle from the one the file's author meant, so it is refused.
 _OBJ_ZERO_INDEX = re.compile(rb"^[ \t]*f[ \t][^\n]*?(?<=[ \t])0(?:/\S*)?(?=\s|$)", re.M)
@@ -449,6 +453,21 @@ def _check_gltf(path: Path, data: bytes) -> None:
             and all(isinstance(item, dict) for item in views + accessors)):
         return   # not a layout trimesh reads either: its message names it
     _check_gltf_accessors(path, accessors, views, _check_gltf_views(path, views, buffer_bytes))
+
+
+def suffix_problem(path: Path) -> str | None:
+    """What is wrong with the name of the mesh file ``path``, or None: trimesh picks its reader by the name's suffix
+    alone, so an OBJ saved as "bunny" or "bunny.obj.bak" did not read ("malformed or unsupported mesh file")."""
+    name = path.name.lower()
+    if name.endswith(MESH_SUFFIXES):
+        return None
+    import trimesh
+
+    if any(name.endswith(f".{f}") for f in trimesh.available_formats()):
+        return None
+    return (f"{path}: trimesh reads a mesh by its name's suffix, and has no reader for "
+            f"{repr(path.suffix) if path.suffix else 'a name without one'} (expected a name ending in .obj, .ply, .stl "
+            "or .glb, or another format trimesh reads)")
 
 
 def read_failure(path: Path, data: bytes, exc: Exception) -> str:
