@@ -23,7 +23,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from warpbw.cli_common import (OneLineParser, check_record_outputs, few_runs_warning, init_warp, run_command,
+from warpbw.cli_common import (RUNS_MAX, OneLineParser, check_record_outputs, few_runs_warning, init_warp, run_command,
                                write_record)
 from warpbw.scene import MAX_RESOLUTION
 
@@ -79,6 +79,8 @@ def main(argv=None) -> int:
         ap.error(f"--size {args.size!r} / --zoom {args.zoom!r}: expected WxH and comma-separated numbers")
     if w < 1 or h < 1 or args.runs < 1 or not zooms or min(zooms) <= 0:
         ap.error("expected a positive --size, --runs and --zoom")
+    if args.runs > RUNS_MAX:
+        ap.error(f"--runs {args.runs}: expected at most {RUNS_MAX} (the timed runs of one point)")
     if w > MAX_RESOLUTION or h > MAX_RESOLUTION:
         ap.error(f"--size {args.size}: expected at most {MAX_RESOLUTION} pixels per side")
     if not all(math.isfinite(z) for z in zooms):   # nan passed the check above, and inf failed only after the work

@@ -120,8 +120,8 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.cli_common import (PROTOCOL_RUNS, OneLineParser, check_output_dir, check_overwrite, check_record_outputs,
-                               few_runs_warning, init_warp, parse_seed, run_command, write_record)
+from warpbw.cli_common import (PROTOCOL_RUNS, RUNS_MAX, OneLineParser, check_output_dir, check_overwrite,
+                               check_record_outputs, few_runs_warning, init_warp, parse_seed, run_command, write_record)
 from warpbw.errors import SEED_MAX, WarpbwError
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
@@ -468,8 +468,8 @@ def parse_args(argv=None):
     if a.resolution < RESOLUTION_MIN:
         p.error(f"--resolution {a.resolution}: expected at least {RESOLUTION_MIN} pixels (the sphere's interior, "
                 f"its coverage eroded by {ERODE_PX}, holds none below)")
-    if a.runs < 1:
-        p.error(f"--runs {a.runs}: expected a positive integer")
+    if not 1 <= a.runs <= RUNS_MAX:
+        p.error(f"--runs {a.runs}: expected an integer from 1 to {RUNS_MAX} (the timed runs of one point)")
     if a.mitsuba_spp is not None and a.mitsuba_spp < 1:
         p.error(f"--mitsuba-spp {a.mitsuba_spp}: expected a positive integer")
     if not math.isfinite(a.rotation):

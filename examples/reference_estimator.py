@@ -19,8 +19,8 @@ import time
 from pathlib import Path
 
 from warpbw import brdf as B
-from warpbw.cli_common import (PROTOCOL_RUNS, OneLineParser, check_overwrite, check_record_outputs, few_runs_warning,
-                               init_warp, run_command, write_record)
+from warpbw.cli_common import (PROTOCOL_RUNS, RUNS_MAX, OneLineParser, check_overwrite, check_record_outputs,
+                               few_runs_warning, init_warp, run_command, write_record)
 from warpbw.envmap import envmap_from_array, load_envmap, procedural_sky
 from warpbw.errors import INT32_MAX, check_count
 from warpbw.gbuffer import SphereSpec, build_geometry, make_camera, render_gbuffer
@@ -86,7 +86,7 @@ def main():
         ap.error(f"--resolution {w} {h}: expected a width and a height of at least 1 pixel and at most "
                  f"{MAX_RESOLUTION}")
     check_count(args.spp, "--spp", 1, INT32_MAX)   # the shading kernel counts samples in int32
-    check_count(args.runs, "--runs", 1)
+    check_count(args.runs, "--runs", 1, RUNS_MAX)   # the timed runs of one point
     for flag, given in (("--probe", args.probe), ("--npf", args.npf)):
         if given is not None and not Path(given).is_file():
             ap.error(f"{flag} {given}: no such file")

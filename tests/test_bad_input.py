@@ -2476,11 +2476,23 @@ def test_compare_mitsuba_keeps_existing_outputs_without_force(tmp_path):
     (["bench_scenes.py", "--out", "s", "--run", "--results", "afile/r"], ["--results afile/r: afile is not a directory"]),
     (["bunny_on_floor.py", "--out", "afile"], ["--out afile: not a directory"]),
     (["bunny_on_floor.py", "--out", "afile/m"], ["--out afile/m: afile is not a directory"]),
+    # --runs had no upper bound in these (warpbw bench's is 1000): 2^31 ran until killed
+    (["anisotropy_cost.py", "planes.toml", "--zoom", "1", "--size", "8x8", "--runs", "1001"],
+     ["--runs 1001: expected at most 1000"]),
+    (["compare_mitsuba.py", "--resolution", "16", "--runs", "2147483648"],
+     ["--runs 2147483648: expected an integer from 1 to 1000"]),
+    (["gmm_precompute_time.py", "--runs", "1001"], ["--runs 1001: expected an integer from 1 to 1000"]),
+    (["reference_estimator.py", "--probe", "probe.exr", "--npf", "afile", "--spp", "1", "--resolution", "8", "8",
+      "--runs", "1001"], ["--runs: expected an integer from 1 to 1000"]),
 ], ids=["gbuffer resolution", "reference_estimator resolution", "anisotropy_cost size", "anisotropy_cost nan",
         "anisotropy_cost inf", "dynamic_geometry frames", "filtering_zoom duplicate", "filtering_floor duplicate",
-        "brdf_sampling samples", "reference_estimator spp", "mirror_smear budget", "filtering_floor gt-spp", "filtering_zoom gt-spp",
-        "dynamic_geometry out", "allocation_ceiling budget", "allocation_ceiling spp", "dynamic_geometry budget", "dynamic_geometry size", "validate_bandwidth size", "validate_bandwidth seed", "validate_bandwidth size past 16384", "validate_bandwidth nb", "validate_bandwidth nb-diagnostic", "validate_bandwidth out",
-        "bench_scenes out", "bench_scenes results", "bunny_on_floor out", "bunny_on_floor out under a file"])
+        "brdf_sampling samples", "reference_estimator spp", "mirror_smear budget", "filtering_floor gt-spp",
+        "filtering_zoom gt-spp", "dynamic_geometry out", "allocation_ceiling budget", "allocation_ceiling spp",
+        "dynamic_geometry budget", "dynamic_geometry size", "validate_bandwidth size", "validate_bandwidth seed",
+        "validate_bandwidth size past 16384", "validate_bandwidth nb", "validate_bandwidth nb-diagnostic",
+        "validate_bandwidth out", "bench_scenes out", "bench_scenes results", "bunny_on_floor out",
+        "bunny_on_floor out under a file", "anisotropy_cost runs", "compare_mitsuba runs", "gmm_precompute_time runs",
+        "reference_estimator runs"])
 def test_examples_refuse_values_up_front_naming_their_own_options(tmp_path, argv, needles):
     """each of these failed after loading assets or preparing the scene (a raw traceback, or an error
     naming a parameter or bound the user never gave).  Now: one line naming the option, before any work, and

@@ -22,9 +22,9 @@ import time
 from pathlib import Path
 
 from warpbw import __version__
-from warpbw.cli_common import (PROTOCOL_RUNS, OneLineParser, check_output_dir, check_output_file, check_overwrite,
-                               few_runs_warning, init_warp, json_text, parse_path, parse_seed, printable,
-                               record_paths, run_command, write_record)
+from warpbw.cli_common import (PROTOCOL_RUNS, RUNS_MAX, OneLineParser, check_output_dir, check_output_file,
+                               check_overwrite, few_runs_warning, init_warp, json_text, parse_path, parse_seed,
+                               printable, record_paths, run_command, write_record)
 from warpbw.errors import FLOAT32_MAX, INT32_MAX, WarpbwError
 from warpbw.io.staged import staged_outputs
 
@@ -56,9 +56,6 @@ METHODS = ("reference", "adaptive")
 MAX_ANISOTROPY = 16
 # --exposure in stops: beyond +-150 every non-zero float32 radiance (2^-149 .. 2^128) previews white, or black
 EXPOSURE_MAX_STOPS = 150.0
-# bench --runs: the timed runs of one point.  The median settles within a few dozen; 1000 runs of even a 16x16 frame
-# take minutes per point, and each run's MSE is kept in the record (2^31 ran until killed, its memory growing)
-RUNS_MAX = 1000
 # --threads: the launches' CPU threads, at most 4 per core the machine reports (more only adds idle threads and tiles)
 THREADS_PER_CORE_MAX = 4
 THREADS_MAX = THREADS_PER_CORE_MAX * (os.cpu_count() or 1)

@@ -13,8 +13,8 @@ path of a summary line, is printed).  A measurement's record and plot (DESIGN.md
 benchmark writes both; ``warpbw bench`` and the timing scripts of examples/):
 ``record_paths(json_path, plot_path)`` (the suffixes checked, the one not given beside the other),
 ``check_record_outputs(json_path, plot_path, force, inputs)`` (that, and the overwrite check, before any work),
-``write_record(json_path, plot_path, record, write_plot, force, say)`` (both or neither), ``PROTOCOL_RUNS`` and
-``few_runs_warning(runs)`` (the protocol's least number of timed runs).
+``write_record(json_path, plot_path, record, write_plot, force, say)`` (both or neither), ``PROTOCOL_RUNS``,
+``few_runs_warning(runs)`` (the protocol's least number of timed runs) and ``RUNS_MAX`` (every --runs's most).
 """
 from __future__ import annotations
 
@@ -325,6 +325,10 @@ def write_json(path, record: dict, say: bool = True, force: bool = True) -> Path
 
 
 PROTOCOL_RUNS = 3   # DESIGN.md, measurement protocol: the median of at least 3 timed runs
+# --runs of every measurement: the timed runs of one point.  The median settles within a few dozen; 1000 runs of even
+# a 16x16 frame take minutes per point, and each run's MSE is kept in the record (2^31 ran until killed, its memory
+# growing)
+RUNS_MAX = 1000
 
 
 def few_runs_warning(runs: int, option: str = "--runs") -> str | None:
