@@ -56,8 +56,11 @@ def per_pixel_variance(prep, seeds: int, spp: int, progress: bool = False) -> tu
 
     from tqdm import tqdm
 
+    from precompute.progress import bar_options
+
     s1 = s2 = 0.0
-    with tqdm(range(seeds), desc=f"brute force, {spp} spp", unit="render", leave=False, disable=not progress) as it:
+    with tqdm(range(seeds), desc=f"brute force, {spp} spp", unit="render", leave=False, disable=not progress,
+              **bar_options()) as it:
         for k in it:
             r = render_reference(prep, spp, seed=1_000 + k, mis=True)
             img = r.image.astype(np.float64)

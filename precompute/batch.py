@@ -246,7 +246,9 @@ class _progress_bar:
         from dask.callbacks import Callback
         from tqdm import tqdm
 
-        self.bar = tqdm(total=self.total, desc="batch", unit="BRDF")
+        from precompute.progress import bar_options
+
+        self.bar = tqdm(total=self.total, desc="batch", unit="BRDF", **bar_options())
 
         def posttask(key, result, dsk, state, worker_id):
             if isinstance(result, dict) and "outputs" in result:   # an item's task, not dask's final tuple

@@ -1,22 +1,62 @@
-"""Progress bars for the precompute builders.
+"""Progress bars for the precompute builders and the renderer's long launches.
 
-Public: ``progress_callback(total, desc, unit, enabled) -> context manager yielding step(k, total=None)``.
+Public: ``progress_callback(total, desc, unit, enabled) -> context manager yielding step(k, total=None)``;
+``bar_options(stream=None) -> dict`` (tqdm's keyword arguments for a bar on ``stream``, stderr by default) and
+``LOG_INTERVAL_S``.
+
+On a terminal a bar is tqdm's own, redrawn in place.  Off one (a log file, a pipe, a batch scheduler's output) a
+redrawn bar is a carriage return and the whole bar again ten times a second, all on one line that never ends (an
+8-minute ground truth wrote about half a megabyte of it); there each state of the bar is a line of its own, at most
+one every ``LOG_INTERVAL_S`` seconds after the first, and the bar's erasing at its end writes nothing.
 """
 from __future__ import annotations
 
 import contextlib
+import sys
+
+LOG_INTERVAL_S = 30.0   # ours: off a terminal, a bar's state at most every 30 s (a log is read, not watched)
+
+
+class _LogLines:
+    """A stream for tqdm off a terminal: each redraw (``"\\r" + bar + padding``) becomes the bar alone on a line,
+    and a redraw that holds only blanks (the bar erased) writes nothing."""
+
+    def __init__(self, stream):
+        self.stream = stream
+
+    def write(self, text: str) -> int:
+        line = text.replace("\r", "").rstrip()
+        if line:
+            self.stream.write(line + "\n")
+        return len(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
+def bar_options(stream=None) -> dict:
+    """tqdm's keyword arguments for a bar on ``stream`` (None: ``sys.stderr`` as it is now): none on a terminal;
+    off one, lines at most every ``LOG_INTERVAL_S`` (module docstring)."""
+    stream = sys.stderr if stream is None else stream
+    try:
+        tty = stream.isatty()
+    except (AttributeError, ValueError):   # no isatty, or a closed stream
+        tty = False
+    if tty:
+        return {}
+    return {"file": _LogLines(stream), "mininterval": LOG_INTERVAL_S, "maxinterval": LOG_INTERVAL_S}
 
 
 @contextlib.contextmanager
 def progress_callback(total: int, desc: str, unit: str, enabled: bool = True):
-    """Yield ``step(k, total=None)``: report that ``k`` of ``total`` items are done (a tqdm bar when ``enabled``);
-    a ``total`` given to ``step`` replaces the bar's (for work whose size its callee decides)."""
+    """Yield ``step(k, total=None)``: report that ``k`` of ``total`` items are done (a tqdm bar when ``enabled``,
+    ``bar_options``'); a ``total`` given to ``step`` replaces the bar's (for work whose size its callee decides)."""
     if not enabled:
         yield lambda k, total=None: None
         return
     from tqdm import tqdm
 
-    bar = tqdm(total=total, desc=desc, unit=unit, leave=False)
+    bar = tqdm(total=total, desc=desc, unit=unit, leave=False, **bar_options())
     done = [0]
 
     def step(k, total=None):

@@ -10,8 +10,10 @@ hand with known names and digests, and the file system.
 from __future__ import annotations
 
 import importlib
+import io
 import re
 import shlex
+import sys
 
 import numpy as np
 import pytest
@@ -285,6 +287,44 @@ def test_progress_reports_k_of_total(tqdm_bars):
     assert seen == list(range(1, 17)) and bars[0].n == bars[0].total == 16
 
 
+class _Stream(io.StringIO):
+    def __init__(self, tty: bool):
+        super().__init__()
+        self.tty = tty
+
+    def isatty(self) -> bool:
+        return self.tty
+
+
+@pytest.mark.parametrize("interval, lines", [(0.0, 5), (3600.0, 1)])
+def test_off_a_terminal_each_state_of_a_bar_is_a_line_at_most_every_interval(monkeypatch, interval, lines):
+    """Off a terminal (a log file, a pipe) tqdm's redraws were carriage returns, ten a second, on one line that never
+    ended.  There each state is a line of its own: the first when the bar starts, then at most one per
+    ``LOG_INTERVAL_S`` (at 0, one per update; at an hour, none after the first), and nothing when it is erased."""
+    from precompute import progress
+
+    stream = _Stream(tty=False)
+    monkeypatch.setattr(sys, "stderr", stream)
+    monkeypatch.setattr(progress, "LOG_INTERVAL_S", interval)
+    with progress.progress_callback(4, "tables", "view", True) as step:
+        for k in range(1, 5):
+            step(k)
+    text = stream.getvalue()
+    assert "\r" not in text and text.endswith("\n"), repr(text)
+    got = text.splitlines()
+    assert len(got) == lines and all(g.startswith("tables:") for g in got), got
+    assert got[0].startswith("tables:   0%") and (lines == 1 or got[-1].startswith("tables: 100%")), got
+
+
+def test_on_a_terminal_a_bar_is_tqdms_own():
+    """A terminal keeps the bar redrawn in place (no options), and a stream without isatty counts as no terminal."""
+    from precompute.progress import LOG_INTERVAL_S, bar_options
+
+    assert bar_options(_Stream(tty=True)) == {}
+    opts = bar_options(object())
+    assert opts["mininterval"] == opts["maxinterval"] == LOG_INTERVAL_S > 1
+
+
 # ------------------------------------------------------------------------------------------ the subcommands
 
 
@@ -342,7 +382,8 @@ def test_a_progress_bar_unless_quiet(tmp_path, monkeypatch, capsys, fast_builder
     quiet = capsys.readouterr().err
     assert bar not in quiet and "%|" not in quiet, quiet
     assert outcome(main, [cmd, "npf.bin", "--material", "chrome", "-o", "loud.npz"]) == "returned 0"
-    assert bar in capsys.readouterr().err
+    loud = capsys.readouterr().err
+    assert bar in loud and "\r" not in loud, repr(loud)   # off a terminal: lines, not redraws (precompute.progress)
 
 
 def test_the_test_run_caches_into_a_folder_of_its_own(tmp_path_factory):
