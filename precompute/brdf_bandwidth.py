@@ -95,15 +95,15 @@ records none: it was built with its kind's default (``precompute.brdf_sampling.T
 linear) and is read for that lookup only.  The cache keys the tables by the source's digest, which carries any other
 lookup (``:lookup-nearest``), so the default's entries are the ones built before.
 
-Builder settings.  A table records what it was built with (``bandwidth_settings(resolution)``: its cells, the
+Builder settings. A table records what it was built with (``bandwidth_settings(resolution)``: its cells, the
 analysed resolution, and the wavelet analysis's wavelet, bands, epsilon and energy fraction,
-:mod:`precompute.wavelets`; beside them the map, the units and the lookup).  A cache entry is read only when they equal the builder's current ones (at
-``DEFAULT_RESOLUTION``; ``precompute.assetfile.settings_mismatch``), else it is rebuilt and replaced without a word,
-so that ``precompute.wavelets.EPSILON`` changed without a version bump no longer serves the old tables.  A file
-written before session 71 records no wavelet settings; it was built with db4, 7 bands, epsilon 0.01 and 95% of the
-energy (``BANDWIDTH_UNRECORDED``).  A file the scene names (``bandwidth =``) is read whatever settings it records
-(one that ``build_brdf_bandwidth`` analysed at a ``resolution`` of 64 and ``write_brdf_bandwidth`` wrote with it,
-say).
+:mod:`precompute.wavelets`; beside them the map, the units and the lookup). A cache entry is read only when they
+equal the builder's current ones (at ``DEFAULT_RESOLUTION``; ``precompute.assetfile.settings_mismatch``), else it is
+rebuilt and replaced without a word, so that ``precompute.wavelets.EPSILON`` changed without a version bump no
+longer serves the old tables. A file written before session 71 records no wavelet settings; it was built with db4, 7
+bands, epsilon 0.01 and 95% of the energy (``BANDWIDTH_UNRECORDED``). A file the scene names (``bandwidth =``) is
+read whatever settings it records (one that ``build_brdf_bandwidth`` analysed at a ``resolution`` of 64 and
+``write_brdf_bandwidth`` wrote with it, say).
 
 Cost: ``16 * n^2`` BRDF evaluations and 16 wavelet analyses; a few seconds per material at n = 128.
 """

@@ -398,7 +398,8 @@ def local_bandwidth(image: np.ndarray, epsilon: float = EPSILON, wavelet: str = 
 
 def envmap_angular_bandwidth(pixels: np.ndarray, epsilon: float = EPSILON,
                              wavelet: str = DEFAULT_WAVELET, levels: int | None = None,
-                             rule: str = "energy", floor: float | None = None, progress=None) -> np.ndarray:
+                             rule: str = "energy", floor: float | None = None, progress=None,
+                             energy_fraction: float = ENERGY_FRACTION) -> np.ndarray:
     """Angular bandwidth nu_a(w) of a lat-long environment map, in cycles per radian, ``(H, W)``.
 
     ``pixels`` is ``(H, W, 3)`` (or ``(H, W)``), row 0 at theta = 0 (+Y, ../shared/DESIGN.md), column ``u``
@@ -430,7 +431,8 @@ def envmap_angular_bandwidth(pixels: np.ndarray, epsilon: float = EPSILON,
         raise WarpbwError(f"envmap pixels must be (H, W) or (H, W, C), got shape {px.shape}")
     h, w = px.shape[:2]
     b = local_bandwidth(px, epsilon=epsilon, wavelet=wavelet, levels=levels,
-                        pad=("latlong_pole", "wrap"), rule=rule, floor=floor, progress=progress)
+                        pad=("latlong_pole", "wrap"), rule=rule, floor=floor, energy_fraction=energy_fraction,
+                        progress=progress)
     theta = (np.arange(h) + 0.5) * math.pi / h
     lam_max = np.maximum(2.0 * math.pi * np.sin(theta) / w, math.pi / h)  # radians per pixel
     return b / lam_max[:, None]

@@ -694,6 +694,20 @@ def test_an_env_bandwidth_cache_entry_of_another_epsilon_is_rebuilt_and_one_from
     assert origin == "built" and len(builds) == 3 and read_header(entry)["params"]["epsilon"] == 0.02
 
 
+def test_an_env_bandwidth_map_is_built_with_the_energy_fraction_it_records(tmp_path, monkeypatch):
+    """The map records precompute.wavelets.ENERGY_FRACTION as read at build time, so the analysis must take that
+    value too (it took local_bandwidth's default, fixed when the module loaded): with the fraction at 0.5 the map
+    differs from the one at 0.95, and lies nowhere above it (half the energy lies below a lower frequency)."""
+    import precompute.wavelets as wv
+
+    px = _sun_edge_probe(100.0)
+    at_95, _ = bw.env_bandwidth_map(px, cache=tmp_path / "a")
+    monkeypatch.setattr(wv, "ENERGY_FRACTION", 0.5)
+    at_50, origin = bw.env_bandwidth_map(px, cache=tmp_path / "b")
+    assert origin == "built" and not np.array_equal(at_50, at_95)
+    assert (at_50 <= at_95 + 1e-6).all()   # half the energy lies below a lower frequency, never a higher one
+
+
 def test_the_frame_reads_the_signal_it_is_given_and_says_so():
     prep = prepared(mat=GGX_SHARP, env='procedural = "sky"', w=24, h=20)
     tables = {}

@@ -707,7 +707,8 @@ def env_bandwidth_map(pixels: np.ndarray, name: str = "environment", cache=None,
     t = env_signal(lum, signal).astype(np.float64)     # a float32 mean overflows beyond about 1e33 per texel
     with progress_callback(1, f"bandwidth {name}", "band", progress) as step:
         nu = envmap_angular_bandwidth(t, settings["epsilon"], settings["wavelet"],
-                                      floor=settings["epsilon"] * float(t.mean()), progress=step).astype(np.float32)
+                                      floor=settings["epsilon"] * float(t.mean()), progress=step,
+                                      energy_fraction=settings["energy_fraction"]).astype(np.float32)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         write_asset(path, ENV_BW_FORMAT, ENV_BW_VERSION, name, digest, {"nu_a": nu},
