@@ -1091,9 +1091,12 @@ def load_source(spec: str, kind: str = "height"):
     if s.startswith("surface:"):
         parts = s.split(":")
         name = parts[1] if len(parts) > 1 else ""
-        if name not in SURFACES or len(parts) > 3:
+        if name not in SURFACES:
             raise WarpbwError(f"{s}: unknown procedural surface (expected surface:NAME[:SIZE] with NAME one of "
                               f"{', '.join(SURFACES)})")
+        if len(parts) > 3:   # a known surface with more fields was called unknown
+            raise WarpbwError(f"{s}: expected surface:NAME[:SIZE], one size at most (got {len(parts) - 2} fields "
+                              f"after {name})")
         if kind != "height":
             raise WarpbwError(f"{s}: procedural surfaces are height fields (use --kind height)")
         try:

@@ -187,6 +187,12 @@ CASES = [
      "[material.paint].type: missing required key (one of: lambert, ggx"),
     ("[object] for [[object]]", _replace(BASE, "[[object]]", "[object]"),
      "[object]: expected [[object]] (double brackets: one table per object)"),
+    # a value that is not tables was told only that no object was given
+    ("object a number", "object = 3\n" + scene_text(objects=""),
+     "[[object]]: expected at least one [[object]] table, got object = 3"),
+    ("object empty", "object = []\n" + scene_text(objects=""),
+     "[[object]]: expected at least one [[object]] table, got object = []"),
+    ("light a string", 'light = "sun"\n' + BASE, "[[light]]: expected one or more [[light]] tables, got light = 'sun'"),
     ("albedo > 1", _replace(BASE, "albedo = [0.5, 0.5, 0.5]", "albedo = [0.5, 1.5, 0.5]"),
      "[material.paint].albedo"),
     ("albedo negative", _replace(BASE, "albedo = [0.5, 0.5, 0.5]", "albedo = -0.5"), "[material.paint].albedo"),

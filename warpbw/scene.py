@@ -656,7 +656,7 @@ def _scene_from_tables(ctx: _Ctx, d: dict) -> Scene:
     if isinstance(lights_in, dict):
         ctx.fail("[light]", "expected [[light]] (double brackets: one table per light), got a single [light]")
     if not isinstance(lights_in, list) or ("light" in d and not lights_in):
-        ctx.fail("[[light]]", "expected one or more [[light]] tables")
+        ctx.fail("[[light]]", f"expected one or more [[light]] tables, got light = {lights_in!r}")
     lights = [_light(ctx, li, i) for i, li in enumerate(lights_in)]
     mats_in = d.get("material", {})
     if not isinstance(mats_in, dict):
@@ -665,8 +665,9 @@ def _scene_from_tables(ctx: _Ctx, d: dict) -> Scene:
     objs_in = d.get("object", [])
     if isinstance(objs_in, dict):   # [object], one table, where each object is one of an array of tables
         ctx.fail("[object]", "expected [[object]] (double brackets: one table per object), got a single [object]")
-    if not isinstance(objs_in, list) or not objs_in:
-        ctx.fail("[[object]]", "expected at least one [[object]]")
+    if not isinstance(objs_in, list) or not objs_in:   # object = 3 was told only that none was given
+        ctx.fail("[[object]]", "expected at least one [[object]]"
+                 + (f" table, got object = {objs_in!r}" if "object" in d else ""))
     objects = [_object(ctx, o, i, materials) for i, o in enumerate(objs_in)]
     env = _environment(ctx, d["environment"]) if "environment" in d else None
     return Scene(_camera(ctx, d["camera"]), env, objects, materials, ctx.source, ctx.base_dir, lights)
