@@ -145,9 +145,10 @@ def main(argv=None) -> int:
     if unknown:
         ap.error(f"--only {','.join(unknown)}: expected scene names among {', '.join([*SCENES, *EXTRA_SCENES])}")
     # the values passed on to warpbw bench, checked by its own parsers before anything is written
+    # (an empty --nb means no sweep; any other value given, empty too, is checked: --gt-spp '' ran at 8192)
     check_command_options("bench", {k: v for k, v in (("--gt-spp", args.gt_spp), ("--runs", args.runs),
                                                          ("--nb", args.nb), ("--env-signal", args.env_signal))
-                                        if v})
+                                    if v or (v is not None and k != "--nb")})
     check_output_dir(args.out, "--out")   # before the MERL files are converted and the scenes written
     if args.run and args.results:
         check_output_dir(args.results, "--results")

@@ -955,10 +955,11 @@ def parse_args(argv=None):
     args.window = pick(args.window, FFT_WINDOW, QUICK["window"])
     args.nb_diagnostic = pick(args.nb_diagnostic, N_B_DIAGNOSTIC, QUICK["nb_diagnostic"])
     args.max_noise = pick(args.max_noise, MAX_NOISE_FRACTION, QUICK["max_noise"])
-    if not args.max_noise > 0:
-        ap.error("--max-noise: expected a positive share")
-    if not args.ref_noise > 0:
-        ap.error("--ref-noise: expected a positive share")
+    # shares of a window's energy: above 1 --max-noise leaves no window out and --ref-noise never doubles the spp
+    if not 0 < args.max_noise <= 1:
+        ap.error(f"--max-noise {args.max_noise:g}: expected a positive share, at most 1")
+    if not 0 < args.ref_noise <= 1:
+        ap.error(f"--ref-noise {args.ref_noise:g}: expected a positive share, at most 1")
     for k in ("size", "ref_spp", "ref_spp_max", "uniform_samples", "bis_samples", "window", "stride", "nb",
               "nb_diagnostic"):
         if getattr(args, k) < 1:
@@ -972,6 +973,8 @@ def parse_args(argv=None):
         ap.error(f"--size {args.size}: expected at most {MAX_RESOLUTION} pixels (a scene's largest side)")
     if args.size < args.window:   # the bandwidth pass wants 2 pixels a side, the comparison whole windows
         ap.error(f"--size {args.size}: expected at least the FFT window's side, {args.window} pixels (--window)")
+    if args.stride > args.size:   # one window centre, and a map of the others interpolated from none
+        ap.error(f"--stride {args.stride}: expected at most --size, {args.size} pixels")
     # round k of the converged image renders its halves with seeds seed + 2k and seed + 2k + 1
     last_round = max(0, (args.ref_spp_max // (2 * max(1, args.ref_spp // 2))).bit_length() - 1)
     if args.seed + 2 * last_round + 1 > SEED_MAX:

@@ -1289,11 +1289,20 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     (["anisotropy_cost.py", "s.toml", "--size", "0x4"], "expected a positive --size"),
     (["anisotropy_cost.py", "s.toml", "--zoom", "a"], "--zoom 'a': expected WxH and comma-separated numbers"),
     (["bench_reference.py", "--material", "nope"], "--material nope: "),
-    (["validate_bandwidth.py", "--out", "v", "--ref-noise", "0"], "--ref-noise: expected a positive share"),
-    (["validate_bandwidth.py", "--out", "v", "--ref-noise", "nan"], "--ref-noise: expected a positive share"),
+    (["validate_bandwidth.py", "--out", "v", "--ref-noise", "0"], "--ref-noise 0: expected a positive share"),
+    (["validate_bandwidth.py", "--out", "v", "--ref-noise", "nan"], "--ref-noise nan: expected a positive share"),
+    # shares above 1 ran, meaning nothing (the doubling never ran, no window was left out)
+    (["validate_bandwidth.py", "--out", "v", "--ref-noise", "1.5"], "--ref-noise 1.5: expected a positive share, at "
+     "most 1"),
+    (["validate_bandwidth.py", "--out", "v", "--max-noise", "2"], "--max-noise 2: expected a positive share, at most 1"),
+    (["validate_bandwidth.py", "--out", "v", "--quick", "--stride", "100000"], "--stride 100000: expected at most "
+     "--size"),
     (["validate_bandwidth.py", "--out", "v", "--ref-spp-max", "0"], "--ref-spp-max: expected a positive integer"),
     # values a script passes on to warpbw bench / bench-filtering are checked by their parsers up front
     (["bench_scenes.py", "--runs", "0"], "--runs 0: expected a positive integer"),
+    # an empty value was left unchecked: --gt-spp '' ran at 8192 (an empty --nb means no sweep)
+    (["bench_scenes.py", "--gt-spp", ""], "--gt-spp '': expected a positive integer"),
+    (["bench_scenes.py", "--runs", ""], "--runs '': expected a positive integer"),
     (["bench_scenes.py", "--nb", "abc"], "--nb abc: expected comma-separated ints"),
     (["bench_scenes.py", "--env-signal", "lin"], "--env-signal lin: expected one of log, radiance"),
     (["mirror_smear.py", "--env-signal", "lin"], "--env-signal"),

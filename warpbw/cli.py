@@ -17,6 +17,7 @@ import argparse
 import json
 import math
 import os
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -992,14 +993,15 @@ def check_command_options(command: str, options: dict[str, str]) -> None:
     parser = sub.choices[command]
     for option, value in options.items():
         action = next(a for a in parser._actions if option in a.option_strings)
+        shown = shlex.quote(value)   # '' for an empty value ("--gt-spp : expected ..." named none)
         if action.choices is not None and value not in action.choices:
-            raise WarpbwError(f"{option} {value}: expected one of {', '.join(map(str, action.choices))}")
+            raise WarpbwError(f"{option} {shown}: expected one of {', '.join(map(str, action.choices))}")
         if action.type is None:
             continue
         try:
             action.type(value)
         except (argparse.ArgumentTypeError, ValueError) as exc:
-            raise WarpbwError(f"{option} {value}: {exc}") from None
+            raise WarpbwError(f"{option} {shown}: {exc}") from None
 
 
 def main(argv=None) -> int:
