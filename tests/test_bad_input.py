@@ -1294,7 +1294,8 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
     # shares above 1 ran, meaning nothing (the doubling never ran, no window was left out)
     (["validate_bandwidth.py", "--out", "v", "--ref-noise", "1.5"], "--ref-noise 1.5: expected a positive share, at "
      "most 1"),
-    (["validate_bandwidth.py", "--out", "v", "--max-noise", "2"], "--max-noise 2: expected a positive share, at most 1"),
+    (["validate_bandwidth.py", "--out", "v", "--max-noise", "2"], "--max-noise 2: expected a positive share, at "
+     "most 1"),
     (["validate_bandwidth.py", "--out", "v", "--quick", "--stride", "100000"], "--stride 100000: expected at most "
      "--size"),
     (["validate_bandwidth.py", "--out", "v", "--ref-spp-max", "0"], "--ref-spp-max: expected a positive integer"),
