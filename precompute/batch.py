@@ -11,8 +11,8 @@ Public:
     ``output_paths(item, out_dir, tables) -> dict``   ``{table: out_dir / f"{item.name}.{table}.npz"}``
     ``check_outputs(items, out_dir, tables, force=False, resume=False)``   the refusals before any work
     ``build_item(item, outputs, threads=1, force=False, resume=False, lookup=None) -> dict``   one task: open the
-        BRDF, build and write its tables (with ``resume``, keep each that reads back as this BRDF's); never raises
-        for a bad BRDF, its record says what went wrong
+        BRDF, build and write its tables (with ``resume``, keep each that reads back as this BRDF's and records the
+        builder settings it would be built with now); never raises for a bad BRDF, its record says what went wrong
     ``run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers=None, force=False, resume=False,
         progress=True, lookup=None) -> dict``   every item as one task on Dask's ``scheduler`` (``"processes"``,
         ``"threads"``, ``"sync"``, or anything ``dask.compute(scheduler=...)`` takes, such as a
@@ -34,6 +34,7 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+from precompute.assetfile import read_header, settings_mismatch
 from warpbw.errors import WarpbwError
 
 TABLES = ("sampling", "bandwidth")
@@ -125,15 +126,21 @@ def check_outputs(items, out_dir, tables=TABLES, force: bool = False, resume: bo
                           "tables an earlier batch wrote and build the rest, or --force to replace them)")
 
 
-def _kept(path: Path, read, source):
-    """The table ``path`` holds if ``read`` accepts it as ``source``'s (an earlier batch's, kept by ``--resume``);
-    else None."""
+def _kept(path: Path, kind: str, read, source, settings: dict, unrecorded: dict) -> tuple:
+    """``(table, None)``: the ``kind`` table ``path`` holds, if ``read`` accepts it as ``source``'s and it records the
+    builder settings the batch builds with now (``settings``; ``unrecorded`` for what older files leave out,
+    ``precompute.assetfile.settings_mismatch``), an earlier batch's kept by ``--resume``; else ``(None, why)``, why
+    being None where ``path`` does not exist."""
     if not path.exists():
-        return None
+        return None, None
     try:
-        return read(path, source)
+        table = read(path, source)
     except WarpbwError:
-        return None
+        return None, f"is not a {kind} table of {source.name}"
+    other = settings_mismatch((read_header(path) or {}).get("params"), settings, unrecorded)
+    if other is not None:   # a table of this BRDF, but not the one the batch builds now (another warpbw's constants)
+        return None, f"is a {kind} table of {source.name} built with other settings ({other})"
+    return table, None
 
 
 def build_item(item: BatchItem, outputs: dict, threads: int = 1, force: bool = False, resume: bool = False,
@@ -141,12 +148,15 @@ def build_item(item: BatchItem, outputs: dict, threads: int = 1, force: bool = F
     """One BRDF's task: its record ``{"name", "source", "outputs", "time_s", "kept", "nu_rho_max", "warnings",
     "error"}``; the tables not ``kept`` are built and written (``force``: over an existing file), the bandwidth
     table of the BRDF read with ``lookup`` (None: its kind's default)."""
-    from precompute.brdf_bandwidth import build_brdf_bandwidth, read_brdf_bandwidth, write_brdf_bandwidth
-    from precompute.brdf_sampling import brdf_source, build_brdf_sampling, read_sampling, write_sampling
+    from precompute.brdf_bandwidth import (BANDWIDTH_UNRECORDED, bandwidth_settings, build_brdf_bandwidth,
+                                           read_brdf_bandwidth, write_brdf_bandwidth)
+    from precompute.brdf_sampling import (SAMPLING_UNRECORDED, brdf_source, build_brdf_sampling, read_sampling,
+                                          sampling_settings, write_sampling)
 
-    steps = {"sampling": (read_sampling, lambda s: build_brdf_sampling(s, progress=False), write_sampling),
+    steps = {"sampling": (read_sampling, lambda s: build_brdf_sampling(s, progress=False), write_sampling,
+                          sampling_settings(), SAMPLING_UNRECORDED),
              "bandwidth": (read_brdf_bandwidth, lambda s: build_brdf_bandwidth(s, progress=False, threads=threads),
-                           write_brdf_bandwidth)}
+                           write_brdf_bandwidth, bandwidth_settings(), BANDWIDTH_UNRECORDED)}
     record = {"name": item.name, "source": item.path, "material": item.material,
               "outputs": {t: str(p) for t, p in outputs.items()}, "time_s": {}, "kept": [], "nu_rho_max": None,
               "warnings": [], "error": None}
@@ -157,15 +167,14 @@ def build_item(item: BatchItem, outputs: dict, threads: int = 1, force: bool = F
             source = brdf_source(item.path, item.material, lookup)
             record["time_s"]["open"] = time.perf_counter() - t0
             for t, path in outputs.items():
-                read, build, write = steps[t]
+                read, build, write, settings, unrecorded = steps[t]
                 path = Path(path)
                 t0 = time.perf_counter()
-                table = _kept(path, read, source) if resume else None
+                table, why = _kept(path, t, read, source, settings, unrecorded) if resume else (None, None)
                 if table is not None:
                     record["kept"].append(t)
                 elif resume and path.exists() and not force:
-                    raise WarpbwError(f"{path}: exists and is not a {t} table of {source.name} (pass --force as "
-                                      "well to replace it)")
+                    raise WarpbwError(f"{path}: exists and {why} (pass --force as well to replace it)")
                 else:
                     table = build(source)
                     write(path, table, source, force=force or resume)

@@ -158,6 +158,38 @@ def test_resume_keeps_this_brdfs_tables_builds_the_rest_and_refuses_a_stranger(t
     assert nickel.read_bytes() == nickel_bytes
 
 
+def test_resume_refuses_this_brdfs_table_of_other_builder_settings(tmp_path, monkeypatch, capsys):
+    """--resume kept any file that read back as its BRDF's table, also one built with other builder settings (an
+    older warpbw whose constants changed without a version bump), so a resumed batch mixed two builders' tables.
+    Such a file is refused, naming the setting, and replaced with --force as well; one whose header records the
+    same settings is kept."""
+    from precompute.assetfile import read_asset, read_header, write_asset
+
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    args = ["npf.bin", "--materials", "chrome", "--tables", "sampling", "-o", "out", "--scheduler", "sync"]
+    assert _batch(*args) == "returned 0"
+    chrome = tmp_path / "out/chrome.sampling.npz"
+    fresh = chrome.read_bytes()
+    h = read_header(chrome)
+    a = read_asset(chrome, h["format"], h["version"], "rebuild")
+    write_asset(chrome, h["format"], h["version"], h["source"], h["source_hash"], a.arrays,
+                params={**h["params"], "view_subsamples": h["params"]["view_subsamples"] + 1}, force=True)
+    other = chrome.read_bytes()
+    capsys.readouterr()
+    assert _batch(*args, "--resume") == "returned 1"
+    err = capsys.readouterr().err
+    assert "out/chrome.sampling.npz: exists and is a sampling table of npf.bin:chrome built with other settings " \
+        f"(view_subsamples {h['params']['view_subsamples'] + 1}, the builder's {h['params']['view_subsamples']}) " \
+        "(pass --force as well to replace it)" in err, err
+    assert chrome.read_bytes() == other
+    assert _batch(*args, "--resume", "--force") == "returned 0"
+    assert chrome.read_bytes() == fresh
+    assert _batch(*args, "--resume") == "returned 0"
+    record = json.loads((tmp_path / "out/batch.json").read_text())
+    assert record["items"][0]["kept"] == ["sampling"] and chrome.read_bytes() == fresh
+
+
 def test_a_progress_bar_over_the_brdfs(tmp_path, monkeypatch, tqdm_bars):
     """One bar, one step per BRDF (not per Dask task: dask's own final task is not a BRDF); none with -q.  The
     tables are a stand-in's (the sync scheduler runs the tasks in this process), a uniform one."""
