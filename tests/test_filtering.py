@@ -992,6 +992,32 @@ def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path, mo
     assert not np.array_equal(got, p1.mips["m"].gmm["gmm_aligned"][0].numpy())
 
 
+def test_a_named_gmm_file_and_its_normal_map_are_each_read_once(tmp_path, monkeypatch):
+    """check_gmm_files reads the normal map to check the gmm file against it; prepare_filtering then read the map
+    again (and hashed it again).  Each is read once, and the frame's mipmaps are those of a map read afresh."""
+    import precompute.gmm_mipmap as gm
+
+    h = _bumps(8)
+    scene_with_map(tmp_path, heights=h, scale=0.5)
+    digest = file_digest(tmp_path / "map.exr")
+    gm.write_gmm_mipmap(tmp_path / "good.gmm", gm.build_gmm_mipmap(h, scale=0.5, progress=False), "x", digest)
+    text = plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ngmm = "good.gmm"\n')
+    reads = []
+    real = gm.load_map
+
+    def counting(path, *a, **kw):
+        reads.append(Path(path).name)
+        return real(path, *a, **kw)
+
+    monkeypatch.setattr(gm, "load_map", counting)
+    prep = prepare_filtering(parse_scene(text, tmp_path, "s.toml"), ("gmm_aligned", "toksvig"))
+    assert reads == ["map.exr"], reads
+    assert prep.notes["m"]["gmm_aligned"]["origin"] == "file"
+    monkeypatch.setattr(gm, "load_map", real)
+    fresh = prepare_filtering(parse_scene(text.replace('gmm = "good.gmm"\n', ""), tmp_path, "s.toml"), ("toksvig",))
+    assert np.array_equal(prep.mips["m"].nmean.numpy(), fresh.mips["m"].nmean.numpy())
+
+
 def test_gmm_file_of_a_non_square_height_map_fitted_with_rows_1_over_w_apart_is_refused(tmp_path, monkeypatch):
     """A W x H height map spans the plane's square, its rows 1/H apart; before session 69 they were differentiated
     1/W apart, and a GMM file fitted then (a builder given that texel size does the same) holds slopes the other

@@ -1033,11 +1033,9 @@ def check_gmm_files(scene: Scene, methods=METHODS) -> dict:
     (``gmm_aligned``), and check it as ``prepare_filtering`` reads it: its format and version, its levels, and that it
     was fitted to the material's normal map (by content and size) with the material's kind, scale, components and
     prior.  A wrong file is one line naming the scene, the material's key and the file, and the command that
-    rebuilds it.  Returns ``{material: (GmmMipmap, seconds the read took)}``, which ``prepare_filtering`` takes as
-    ``gmm_files`` instead of reading them again; {} when no method reads them."""
-    from precompute.gmm_mipmap import load_map
-    from warpbw.scene import file_digest
-
+    rebuilds it.  Returns ``{material: (GmmMipmap, seconds the read took, the normal map as _load_normals gives
+    it)}``, which ``prepare_filtering`` takes as ``gmm_files`` instead of reading the files and the maps again; {}
+    when no method reads them."""
     scene = check_scene(_as_scene(scene))
     if "gmm_aligned" not in ((methods,) if isinstance(methods, str) else tuple(methods)):
         return {}
@@ -1046,15 +1044,11 @@ def check_gmm_files(scene: Scene, methods=METHODS) -> dict:
         m = scene.materials[name]
         if m.gmm is None:
             continue
-        t0 = time.perf_counter()
+        loaded = _load_normals(scene, name)   # (normals, data, kind, scale, name, digest): read once, kept
+        src = _gmm_source(scene, name, *loaded[1:], False)
+        t0 = time.perf_counter()   # the file's read, as _load_gmm's time would count it
         try:
-            data = load_map(m.normal_map, m.normal_map_kind)
-        except WarpbwError as exc:
-            raise WarpbwError(f"{scene.source}: [material.{name}].normal_map: {exc}") from None
-        src = _gmm_source(scene, name, data, m.normal_map_kind, m.normal_map_scale, m.normal_map.name,
-                          file_digest(m.normal_map), False)
-        try:
-            out[name] = (_read_gmm_checked(scene, name)(m.gmm, src), time.perf_counter() - t0)
+            out[name] = (_read_gmm_checked(scene, name)(m.gmm, src), time.perf_counter() - t0, loaded)
         except WarpbwError as exc:
             raise _gmm_error(scene, name, exc) from None
     return out
@@ -1168,7 +1162,8 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
             raise WarpbwError(f"{scene.source}: [environment]: {exc}") from None
     mips, notes = {}, {}
     for name in dict.fromkeys(p.material for p in planes):
-        normals, data, kind, scale, src_name, digest = _load_normals(scene, name)
+        normals, data, kind, scale, src_name, digest = (gmm_files[name][2] if name in gmm_files   # read already
+                                                        else _load_normals(scene, name))
         levels = normal_moment_mipmap(normals)
         shapes = [lv[0].shape[:2] for lv in levels]
         lw, lh, loff = _level_arrays(shapes, device)
@@ -1183,7 +1178,7 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
             if method in methods and not flat:
                 tb = time.perf_counter()
                 if method == "gmm_aligned" and name in gmm_files:   # read and checked already
-                    mip, t_read = gmm_files[name]
+                    mip, t_read, _ = gmm_files[name]
                     origin, tb = "file", tb - t_read
                 else:
                     mip, origin = _load_gmm(scene, name, data, kind, scale, src_name, digest,
