@@ -164,10 +164,15 @@ def _at_lookup(source: BrdfSource, lookup: str | None) -> BrdfSource:
     return replace(source, name=source.name + name, digest=source.digest + digest, evaluate=evaluate, lookup=lookup)
 
 
+def _untagged(source) -> tuple[str, str]:
+    """``source``'s name and digest without what its lookup added to them (those at its kind's default)."""
+    name, digest = _lookup_tags(source, source_lookup(source))
+    return source.name[:len(source.name) - len(name)], source.digest[:len(source.digest) - len(digest)]
+
+
 def digest_at(source, lookup: str) -> str:
     """The digest ``source`` has when read with ``lookup`` (its own digest, retagged; module docstring)."""
-    have = _lookup_tags(source, source_lookup(source))[1]
-    return source.digest[:len(source.digest) - len(have)] + _lookup_tags(source, lookup)[1]
+    return _untagged(source)[1] + _lookup_tags(source, lookup)[1]
 
 
 def with_lookup(source: BrdfSource, lookup: str | None) -> BrdfSource:
@@ -181,10 +186,8 @@ def with_lookup(source: BrdfSource, lookup: str | None) -> BrdfSource:
     if source.brdf is None:
         raise WarpbwError(f"with_lookup: source {source.name!r} holds no BRDF to read with the {want} lookup; expected "
                           "what brdf_source(path, material) returns")
-    name, digest = _lookup_tags(source, have)   # back to the untagged source, then on to ``want``
-    base = replace(source, name=source.name[:len(source.name) - len(name)],
-                   digest=source.digest[:len(source.digest) - len(digest)], lookup=None)
-    return _at_lookup(base, want)
+    name, digest = _untagged(source)   # back to the source at its kind's default, then on to ``want``
+    return _at_lookup(replace(source, name=name, digest=digest, lookup=None), want)
 
 
 def albedo_excess(evaluate) -> str | None:

@@ -548,8 +548,9 @@ def _object(ctx: _Ctx, d: dict, i: int, materials: dict):
                      ctx.vec3(d.get("translate", [0.0, 0.0, 0.0]), f"{key}.translate", point=True),
                      ctx.number(d.get("scale", 1.0), f"{key}.scale", lo=0.0, lo_open=True),
                      ctx.number(d.get("rotate_y", 0.0), f"{key}.rotate_y"))
-    if suffix_problem(obj.file):   # here, not after loading the probe, and not left unsaid by warpbw info
-        ctx.fail(f"{key}.mesh", suffix_problem(obj.file))
+    problem = suffix_problem(obj.file)
+    if problem:   # here, not after loading the probe, and not left unsaid by warpbw info
+        ctx.fail(f"{key}.mesh", problem)
     return obj
 
 

@@ -466,8 +466,9 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     reads it once.
     """
     path = check_input_file(path, f"a mesh: {SUPPORTED}")   # None too (check_path)
-    if suffix_problem(path):
-        raise WarpbwError(suffix_problem(path))
+    problem = suffix_problem(path)
+    if problem:
+        raise WarpbwError(problem)
     if path.stat().st_size == 0:  # trimesh's answer depends on the suffix (for GLB: a face index out of bounds)
         raise WarpbwError(f"{path}: empty file (0 bytes): no triangles found (expected a mesh with faces: "
                           f"{SUPPORTED})")
