@@ -1,7 +1,8 @@
 """The ``warpbw-precompute`` command: turn raw assets into the tables the renderer reads.
 
 Public: ``main(argv=None) -> int``.  The command line's own parts, not an API: ``build_parser()`` and the
-subcommands' handlers ``cmd_npf_to_merl``, ``cmd_brdf_sampling``, ``cmd_brdf``, ``cmd_batch`` and ``cmd_gmm``.
+subcommands' handlers ``cmd_npf_to_merl``, ``cmd_brdf_sampling``, ``cmd_brdf``, ``cmd_batch``, ``cmd_gmm`` and
+``cmd_info``.
 
 Subcommands:
     npf-to-merl    write a MERL ``.binary`` file from one material of an NPF table
@@ -9,6 +10,7 @@ Subcommands:
     brdf           angular bandwidth table nu_rho of a tabulated BRDF (002 Sec. 2.3)
     batch          both tables of many tabulated BRDFs (every NPF material, a folder of MERL files), on Dask
     gmm            EM-aligned GMM normal mipmap of a height field or normal map (004 Sec. 4.1)
+    info           what asset files hold: format, version, source, settings, arrays (``precompute.asset_info``)
 """
 from __future__ import annotations
 
@@ -19,8 +21,8 @@ import sys
 import time
 from pathlib import Path
 
-from warpbw.cli_common import (OneLineParser, check_output_file, check_overwrite, parse_path, parse_seed, printable,
-                               run_command)
+from warpbw.cli_common import (EXIT_USER_ERROR, OneLineParser, check_output_file, check_overwrite, parse_path,
+                               parse_seed, printable, run_command)
 from precompute.gmm_mipmap import DEFAULT_PRIOR, MAX_COMPONENTS, MAX_PRIOR
 from precompute.surfaces import MAX_SURFACE_SIZE, MIN_SURFACE_SIZE
 from warpbw import __version__
@@ -183,6 +185,28 @@ def cmd_gmm(args) -> int:
     return 0
 
 
+def cmd_info(args) -> int:
+    from precompute.asset_info import asset_info, info_lines
+    from warpbw.cli_common import json_text
+
+    records, bad = [], 0
+    for path in args.files:
+        try:
+            rec = asset_info(path)
+        except WarpbwError as exc:   # said at once, in its place among the others; the rest go on
+            sys.stdout.flush()
+            print(f"warpbw-precompute: error: {printable(exc)}", file=sys.stderr, flush=True)
+            records.append({"path": str(path), "error": str(exc)})
+            bad += 1
+            continue
+        records.append(rec)
+        if not args.json:
+            print("\n".join(([""] if len(records) - bad > 1 else []) + [printable(line) for line in info_lines(rec)]))
+    if args.json:
+        print(json_text(records), end="")
+    return EXIT_USER_ERROR if bad else 0
+
+
 def _integer_from(lo: int, hi: int):
     """argparse type: an integer from ``lo`` to ``hi``, said so for any other value (argparse's own words were
     "invalid int value: '2.5'", with no range)."""
@@ -329,6 +353,24 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--force", action="store_true", help="overwrite an existing output")
     g.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     g.set_defaults(func=cmd_gmm)
+
+    i = sub.add_parser("info", help="what asset files hold: format, version, source, settings, arrays",
+                       description="Look inside the files warpbw-precompute writes (sampling tables, nu_rho tables, "
+                       "GMM mipmaps) and the renderer's cache holds ($WARPBW_CACHE; also a probe's nu_a map).  For "
+                       "each FILE: its format and version and what it is; whether this warpbw reads it (yes, or no "
+                       "and why: another version, or what its reader refuses); the source it was built from (name, "
+                       "content hash) and the warpbw that wrote it; the parameters it records; whether its builder "
+                       "settings are the ones the builder would use now (a cache entry of other settings is "
+                       "rebuilt, a file a scene names is read as it is); each array's name, shape, dtype, least and "
+                       "greatest finite value and count of NaN or infinite values; a GMM mipmap's levels and "
+                       "components.  A FILE that is missing, a directory, not an asset file or a damaged one is "
+                       "named in one error line where it comes, the other files are still shown, and the command "
+                       "exits 2.")
+    i.add_argument("files", nargs="+", metavar="FILE", help="an asset file (.npz or .gmm)")
+    i.add_argument("--json", action="store_true",
+                   help="print a JSON list, one object per FILE in order (strict JSON: NaN as null; a FILE that "
+                   "could not be read is {\"path\": ..., \"error\": ...}); the hash is given whole")
+    i.set_defaults(func=cmd_info)
     return p
 
 

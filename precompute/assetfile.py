@@ -4,7 +4,8 @@ Public: ``write_asset(path, fmt, version, source, source_hash, arrays, params, f
 ``read_asset(path, fmt, version, rebuild) -> Asset`` (``rebuild``: the command to suggest, or a function of the
 file's header that gives it), ``Asset``, ``check_float_arrays(arrays, what, hint)`` (what the readers of
 floating-point tables refuse); ``read_header(path) -> dict | None`` (the header alone) and
-``settings_mismatch(params, current, unrecorded=None) -> str | None`` (what a cache reader checks, below).
+``settings_mismatch(params, current, unrecorded=None) -> str | None`` (what a cache reader checks, below);
+``read_any_asset(path) -> Asset`` (header and arrays of whatever format and version: ``warpbw-precompute info``).
 
 An asset is a NumPy ``.npz`` archive (no pickles) holding named arrays and a JSON ``header`` with the
 format name, its version, the source asset's name, the source's content hash (blake2b of its bytes),
@@ -79,6 +80,22 @@ def _members_hold_what_they_declare(p: Path) -> bool:
     return True
 
 
+def _load(p: Path) -> tuple:
+    """``(header, arrays)`` of the archive ``p``, the header as JSON gives it back (any value); ``(None, {})`` when
+    its bytes are no asset file's."""
+    try:
+        if _members_hold_what_they_declare(p):
+            with np.load(p, allow_pickle=False) as z:
+                header = json.loads(str(z[HEADER_KEY]))
+                return header, {k: z[k] for k in z.files if k != HEADER_KEY}
+    except Exception:   # noqa: BLE001 -- whatever numpy, zipfile or json raise reading these bytes is their damage:
+        # EOFError for a zero-byte file, zlib.error, zipfile's "compression method is not supported" for an unknown
+        # method, RuntimeError for the encrypted flag, RecursionError for a deeply nested header.  Refused by the
+        # callers; a cache entry is rebuilt (load_or_build rebuilds on the WarpbwError)
+        pass
+    return None, {}
+
+
 def read_asset(path, fmt: str, version: int, rebuild) -> Asset:
     """Read an asset of format ``fmt`` and version ``version``; ``rebuild`` is the command to suggest, or a function
     of the file's header (a dict) that gives it, so that a file of another version is told how to rebuild it from
@@ -87,17 +104,7 @@ def read_asset(path, fmt: str, version: int, rebuild) -> Asset:
         return rebuild(header if isinstance(header, dict) else {}) if callable(rebuild) else rebuild
 
     p = check_input_file(path)
-    try:
-        header = None
-        if _members_hold_what_they_declare(p):
-            with np.load(p, allow_pickle=False) as z:
-                header = json.loads(str(z[HEADER_KEY]))
-                arrays = {k: z[k] for k in z.files if k != HEADER_KEY}
-    except Exception:   # noqa: BLE001 -- whatever numpy, zipfile or json raise reading these bytes is their damage:
-        # EOFError for a zero-byte file, zlib.error, zipfile's "compression method is not supported" for an unknown
-        # method, RuntimeError for the encrypted flag, RecursionError for a deeply nested header.  Refused below; a
-        # cache entry is rebuilt (load_or_build rebuilds on the WarpbwError)
-        header = None
+    header, arrays = _load(p)
     if not isinstance(header, dict):  # also a JSON header that is not an object (a list, a string)
         raise WarpbwError(f"{p}: not a warpbw asset file, or a damaged one (expected a {fmt} file written by "
                           f"warpbw-precompute; rebuild it with: {how(None)})")
@@ -107,6 +114,18 @@ def read_asset(path, fmt: str, version: int, rebuild) -> Asset:
     if header.get("version") != version:
         raise WarpbwError(f"{p}: {fmt} version {header.get('version')!r}, this warpbw reads version {version} "
                           f"(rebuild it with: {how(header)})")
+    return Asset(header, arrays)
+
+
+def read_any_asset(path) -> Asset:
+    """The header and arrays of the asset file ``path`` whatever its format and version (``warpbw-precompute info``
+    says what a file holds); a file that is none, or a damaged one, is refused in one line as ``read_asset`` refuses
+    it.  The header is a dict; what it holds is not checked."""
+    p = check_input_file(path, "an asset file of warpbw")
+    header, arrays = _load(p)
+    if not isinstance(header, dict):
+        raise WarpbwError(f"{p}: not a warpbw asset file, or a damaged one (expected an .npz archive with a JSON "
+                          "header, as warpbw-precompute and the renderer's cache write)")
     return Asset(header, arrays)
 
 
