@@ -776,6 +776,62 @@ def test_precompute_options_the_synopsis_always_gives_are_required(tmp_path, mon
     assert not (tmp_path / "x.binary").exists()
 
 
+def _written(path: Path, data: bytes) -> Path:
+    path.write_bytes(data)
+    return path
+
+
+def _asset_with_header(path: Path, header_text: str) -> Path:
+    np.savez_compressed(path, __header__=np.array(header_text), nu_rho=np.zeros((2, 2), np.float32))
+    return path
+
+
+_NOT_AN_ASSET = "not a warpbw asset file, or a damaged one"
+INFO_BAD_FILES = {   # name -> (make it in a folder, what its one line says after "PATH: ")
+    "missing": (lambda d: d / "absent.npz", "file not found (expected an asset file of warpbw)"),
+    "directory": (lambda d: (d / "folder.npz").mkdir() or d / "folder.npz",
+                  "a directory, not a file (expected an asset file of warpbw)"),
+    "empty": (lambda d: _written(d / "empty.npz", b""), _NOT_AN_ASSET),
+    "npf table": (lambda d: fake_npf_table(d / "npf.bin"), _NOT_AN_ASSET),
+    "truncated npz": (lambda d: _written(d / "cut.npz", (d / "good.npz").read_bytes()[:-100]), _NOT_AN_ASSET),
+    "damaged array": (lambda d: damage_deflate_stream(_written(d / "torn.npz", (d / "good.npz").read_bytes()),
+                                                      "nu_rho.npy"), _NOT_AN_ASSET),
+    "header not JSON": (lambda d: _asset_with_header(d / "text.npz", "format: warpbw.brdf-bandwidth"), _NOT_AN_ASSET),
+    "header a list": (lambda d: _asset_with_header(d / "list.npz", "[1, 2]"), _NOT_AN_ASSET),
+    "header without format": (lambda d: _asset_with_header(d / "nofmt.npz", '{"version": 3}'),
+                              f"{_NOT_AN_ASSET} (its header names no format"),
+}
+
+
+@pytest.mark.parametrize("case", list(INFO_BAD_FILES))
+@pytest.mark.parametrize("as_json", [False, True], ids=["text", "json"])
+def test_precompute_info_names_a_bad_file_and_still_shows_the_others(tmp_path, capsys, case, as_json):
+    """``warpbw-precompute info good.npz BAD good.npz``: BAD (missing, a directory, no asset file, a damaged one) is
+    named in one error line saying what was expected, the good files are shown all the same (--json: the list holds
+    ``{"path", "error"}`` in BAD's place), and the command exits 2, without a traceback."""
+    from precompute.__main__ import main
+
+    good = np.savez_compressed(tmp_path / "good.npz", __header__=np.array(json.dumps(
+        {"format": "warpbw.brdf-bandwidth", "version": 3, "source": "m.binary", "source_hash": "h", "params": {},
+         "writer": "warpbw test"})), nu_rho=np.full((16, 16, 16), 1.5, np.float32)) or tmp_path / "good.npz"
+    make, said = INFO_BAD_FILES[case]
+    bad = make(tmp_path)
+    argv = ["info", *(["--json"] if as_json else []), str(good), str(bad), str(good)]
+    got = outcome(main, argv)
+    out, err = capsys.readouterr()
+    assert got == "returned 2", (got, err)
+    assert err.startswith(f"warpbw-precompute: error: {bad}: {said}") and err.count("\n") == 1, err
+    if as_json:
+        records = json.loads(out)
+        assert [sorted(r) if "error" in r else r["path"] for r in records] == [
+            str(good), ["error", "path"], str(good)], records
+        assert records[1] == {"path": str(bad), "error": err.split("error: ", 1)[1].strip()}
+        assert records[0]["arrays"][0]["max"] == 1.5
+    else:
+        assert out.count(f"{good}\n  format    warpbw.brdf-bandwidth version 3") == 2, out
+        assert str(bad) not in out, out
+
+
 def test_counts_beyond_int32_are_refused_by_the_library_too():
     """The bounds the CLI checks at parse time hold for the Python API as well (before any work)."""
     from warpbw import bandwidth, cli, filtering
