@@ -1095,6 +1095,24 @@ def test_bench_filtering_refuses_a_zoom_whose_second_frame_sees_no_plane(monkeyp
     assert got.startswith("WarpbwError: --zoom 1: no pixel sees a plane"), got
 
 
+def test_bench_filtering_refuses_a_zoom_whose_ground_truth_is_black(plane_scene, capsys):
+    """A plane lit from below its horizon (or by nothing) shades black in every method and in the ground truth
+    (README: "from 1e-6 below it 0"): the errors, relative to the truth's mean of 0, are undefined.  The benchmark
+    recorded 0 for every method at every zoom, exit 0, as if each matched the truth; now it refuses, as warpbw
+    bench refuses a scene whose light reaches no pixel, naming the zoom and what to check."""
+    d = plane_scene.parent
+    plane_scene.write_text(SCENE.replace("direction = [0.0, 0.8, -0.6]", "direction = [0.0, -0.8, -0.6]"))
+    args = ["bench-filtering", str(plane_scene), "--zoom", "1,2", "--gt-spp", "64", "--runs", "1", "-q",
+            "--json", str(d / "f.json")]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert re.fullmatch(r"warpbw: error: --zoom 1: the ground truth is black at every pixel that sees a plane "
+                        r"\(camera distance x 1\), so its error and flicker are undefined: no light reaches the "
+                        r"planes, or they reflect none \(check each \[\[light\]\]'s direction, towards the light "
+                        r"and above the planes, the \[environment\] and the materials\)", err), err
+    assert not (d / "f.json").exists() and not (d / "f.png").exists()
+
+
 def test_colour_error_against_a_black_reference_is_finite():
     """A covered but black ground truth (a plane facing away from its light) leaves the error finite, so the record
     stays a number."""

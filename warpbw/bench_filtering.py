@@ -57,7 +57,9 @@ covers z^2 times more texels.
   (the spheres and meshes are measured by ``warpbw bench``).  The record lists them under ``surfaces``
   (empty for planes alone).
 * A zoom at which no pixel sees a plane (in either frame), or spheres or meshes hide every pixel that
-  does, is refused before any work, saying which.
+  does, is refused before any work, saying which; one whose ground truth is black at every pixel that sees a
+  plane (lit from below the planes' horizon, or by nothing: every method is black too, and the error relative to
+  the truth's mean is undefined) once that truth is rendered.
 * Precompute time: the time to obtain the aligned GMM mipmaps (built unless the scene names a file or
   ``cache`` holds them: the origin is recorded).
 """
@@ -183,6 +185,18 @@ def _check_coverage(scene, frames, device: str) -> None:
                               + ("larger zooms (this one moves the camera closer)" if zz < 1.0 else "smaller zooms"))
 
 
+def _check_lit(z: float, zooms, truths) -> None:
+    """Refuse a zoom whose ground truth (``truths``, one frame per zoom of ``zooms``) is black at every covered pixel:
+    a plane lit from below its horizon, or by nothing, shades black in every method too, and the error, relative to
+    the truth's mean, is undefined (it read 0 for every method, as if each matched the truth)."""
+    for zz, g in zip(zooms, truths):
+        if not np.any(g.image[g.coverage]):
+            raise WarpbwError(f"--zoom {z:g}: the ground truth is black at every pixel that sees a plane (camera "
+                              f"distance x {zz:g}), so its error and flicker are undefined: no light reaches the "
+                              "planes, or they reflect none (check each [[light]]'s direction, towards the light and "
+                              "above the planes, the [environment] and the materials)")
+
+
 def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP, runs: int = 3, seed: int = 0,
                         device: str = "cpu", cache: Path | None = None, progress: bool = False,
                         log=lambda *a, **k: None, methods=None, env_spp: int | None = None,
@@ -224,11 +238,12 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
               "surfaces": [] if surfaces is None else [o.describe() for o in surfaces.objects]}
     for m in methods:                                     # warm-up: compile every kernel once
         render_filtering(scene, m, prepared=prep, max_anisotropy=aniso)
-    for z, _, cams, bgs in frames_by_zoom:
+    for z, zz_all, cams, bgs in frames_by_zoom:
         # the same seed in every frame: the same jitter pattern per pixel, so the truth's frame-to-frame change
         # carries as little of its own noise as possible
         g = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=offset_seed(seed, GT_SEED), prepared=prep,
                               camera=c, background=b) for c, b in zip(cams, bgs)]
+        _check_lit(z, zz_all, g)
         g2 = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=offset_seed(seed, GT_SEED_2), prepared=prep,
                                camera=c, background=b) for c, b in zip(cams, bgs)]
         cov = g[0].coverage
