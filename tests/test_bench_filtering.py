@@ -1113,6 +1113,30 @@ def test_bench_filtering_refuses_a_zoom_whose_ground_truth_is_black(plane_scene,
     assert not (d / "f.json").exists() and not (d / "f.png").exists()
 
 
+def test_bench_filtering_refuses_a_zoom_whose_flicker_pair_shares_no_covered_pixel(plane_scene, capsys):
+    """The flicker and the temporal error are means over the pixels that see a plane in both frames of a pair
+    (module docstring).  A small plane near the image's edge, one pixel in each frame, moves to the next pixel as
+    the camera backs away by FLICKER_STEP (a numpy ray cast of both frames says so): both were NaN in the table
+    and null in the record, exit 0.  Now the zoom is refused before any work, as one that sees no plane is."""
+    d = plane_scene.parent
+    pos, centre, size = np.array([0.0, 2.0, 2.0]), (1.06, 0.0, 0.0), 0.2
+    seen = []
+    for z in (1.0, FLICKER_STEP):
+        o, dirs = numpy_camera_rays(z * pos, (0, 0, 0), 40.0, 16, 12)
+        seen.append(np.isfinite(numpy_square_distance(o, dirs, size, centre)))
+    assert seen[0].any() and seen[1].any() and not (seen[0] & seen[1]).any()
+    text = SCENE.replace("position = [0.0, 1.2, 1.2]", "position = [0.0, 2.0, 2.0]")
+    plane_scene.write_text(text.replace("size = 2.0", f"center = {list(centre)}\nsize = {size}"))
+    args = ["bench-filtering", str(plane_scene), "--zoom", "1", "--gt-spp", "64", "--runs", "1", "-q",
+            "--json", str(d / "f.json")]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("warpbw: error: --zoom 1: no pixel sees a plane in both frames of a flicker pair (camera distance x "
+                   f"1 and x {FLICKER_STEP:g}), so the flicker, a mean over those pixels, is undefined there: choose "
+                   "other zooms"), err
+    assert not (d / "f.json").exists()
+
+
 def test_colour_error_against_a_black_reference_is_finite():
     """A covered but black ground truth (a plane facing away from its light) leaves the error finite, so the record
     stays a number."""
