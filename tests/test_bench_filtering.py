@@ -950,6 +950,28 @@ def test_filtering_floor_accepts_zooms_of_which_one_filters(tmp_path, monkeypatc
     assert outcome(ff.load_checked, scene, [1.0, 4.0]).startswith("returned ")
 
 
+def test_filtering_floor_refuses_lights_below_the_plane_and_skips_a_black_truth(tmp_path, monkeypatch):
+    """A plane lit from below its horizon is black in every method and in the ground truth (README: "from 1e-6 below
+    it 0"): every error was 0 and the table's ratio to Toksvig's ended in a ZeroDivisionError traceback.  Such a scene
+    is refused before any work; a zoom at which the truth is black over every pixel compared (a mirror whose
+    highlight is out of view) is left out with a line that says so, as a zoom with no filtered pixel is."""
+    ff = load_example("filtering_floor")
+    below = _floor_scene(tmp_path, monkeypatch, material_extra='normal_map = "map.exr"\n', light_dir=(0.3, -0.8, 0.2))
+    got = outcome(ff.main, [str(below), "--zoom", "4", "--gt-spp", "64"])
+    assert got == (f"WarpbwError: {below}: every [[light]] lies at or below the plane's horizon, or is black: the "
+                   "plane is black in every method and in the ground truth, nothing to compare (expected a light above "
+                   "the plane)"), got
+    mirror = _floor_scene(tmp_path, monkeypatch, material_extra='normal_map = "map.exr"\nnormal_map_scale = 0.001\n',
+                          roughness=0.001, diffuse=None, light_dir=(0.0, 0.2, 1.0))
+    text = mirror.read_text().replace("f0 = [", "f0 = [1.0, 1.0, 1.0]\n# f0 = [")
+    mirror.write_text(text)
+    logged = []
+    rec = ff.analyse(mirror, [4.0], 64, log=logged.append)
+    assert rec["zooms"] == [] and logged == ["  zoom 4: the ground truth is black at every pixel compared: nothing "
+                                             "to compare"], logged
+    assert ff.format_table(rec).splitlines()[1].split()[:3] == ["zoom", "level", "probes"]   # a header, no row
+
+
 def test_filtering_floor_mean_level_leaves_out_the_magnified_pixels(tmp_path, monkeypatch):
     """'magnified pixels (level < 0) left out of every figure': at zoom 2 on this map 48 of 110 pixels are magnified,
     and the row's mean level is the renderer's own mip level (FilterResult.level) averaged over the others."""
