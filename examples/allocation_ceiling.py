@@ -29,7 +29,9 @@ studio.exr (examples/bench_scenes.py, budget 32) the frame shades 75% of the pix
 
 ``--json`` / ``--plot`` (as ``warpbw bench``'s: the one not given goes beside the other; an existing file is kept
 without ``--force``, refused before any work) write every figure, with the settings and the device, and the plot
-of the noise gains (``GAINS``) against 1x.
+of the noise gains (``GAINS``) against 1x.  A scene with no noise to allocate (a black environment, refused before the
+brute force; surfaces that reflect none of the light) or no covered pixel is refused: every gain is a ratio of noise
+MSEs.
 """
 from __future__ import annotations
 
@@ -100,11 +102,26 @@ def allocation_ceiling(prep, budget: float = BUDGET_DEFAULT, seeds: int = SEEDS_
     """The figures of the module docstring for a prepared scene."""
     from scipy.stats import spearmanr
 
+    from warpbw.errors import WarpbwError
     from warpbw.pipeline import render_adaptive
 
+    where = f"{prep.scene.source}: " if prep is not None else ""   # None: the tests' stand-in renders
+    env = getattr(prep, "env", None)
+    if env is not None and not np.any(env.pixels):   # before the brute force, as warpbw bench refuses it
+        raise WarpbwError(f"{where}[environment] {env.name!r} is black everywhere (after its scale and the clamp of "
+                          "negative values): no light to sample, so no noise to allocate (expected an environment with "
+                          "light in it)")
     cov, var = per_pixel_variance(prep, seeds, spp, progress)
     v = var[cov]
     n_cov = int(cov.sum())
+    # every gain is a ratio of noise MSEs: inf and nan for no noise, a ZeroDivisionError for no pixel
+    if not n_cov:
+        raise WarpbwError(f"{where}no pixel shows a sphere or mesh, so there is nothing to allocate (check [camera] "
+                          "position, look_at and fov)")
+    if not np.any(v):
+        raise WarpbwError(f"{where}every covered pixel reads the same in the {seeds} brute-force renders (surfaces "
+                          "that reflect none of the light): no noise to allocate, so every gain is undefined (expected "
+                          "surfaces the environment lights)")
     sig = np.sqrt(v)
     frame = render_adaptive(prep, budget, seed=seed, mis=True)
     n_p = np.maximum(np.asarray(frame.aovs["n_p"], np.float64)[cov], 1.0)

@@ -40,7 +40,9 @@ All three are numpy, written from ``warpbw.filtering``'s documentation; ``gmm_me
 renderer's own ``gmm_aligned`` image the same way and reports its largest deviation (float32 rounding).
 Prints a table per scene and, with ``--json`` / ``--plot`` (as ``warpbw bench``'s: the one not given goes beside
 the other; existing files are kept unless --force, refused before any work), writes them all (a list, one record
-per scene) and the plot of every method's error and the references against zoom, one panel per scene.
+per scene) and the plot of every method's error and the references against zoom, one panel per scene.  A scene
+whose every light lies at or below the plane's horizon (every figure 0) is refused before any work; a zoom at which
+the ground truth is black over every pixel compared (a mirror's highlight out of view) is left out, saying so.
 """
 from __future__ import annotations
 
@@ -258,6 +260,11 @@ def load_checked(path: Path, zooms, max_anisotropy: int = DEFAULT_ANISOTROPY) ->
             or not scene.lights):
         raise WarpbwError(f"{path}: expected one plane under directional lights and no [environment] "
                           "(the numpy references shade directional lights only)")
+    if not any(light.direction[1] > 0.0 and max(light.radiance) > 0.0 for light in scene.lights):
+        # the plane faces +Y: every figure 0, and the table's ratios to Toksvig's error a ZeroDivisionError
+        raise WarpbwError(f"{path}: every [[light]] lies at or below the plane's horizon, or is black: the plane is "
+                          "black in every method and in the ground truth, nothing to compare (expected a light above "
+                          "the plane)")
     (pl,) = scene.objects
     mat = scene.materials[pl.material]
     if mat.normal_map is None:
@@ -312,6 +319,9 @@ def analyse(path: Path, zooms, gt_spp: int, log=print, max_anisotropy: int = DEF
         mask = np.zeros(gt.coverage.size, bool)
         mask[idx] = True
         mask = mask.reshape(gt.coverage.shape) & gt.coverage
+        if not np.any(gt.image[mask]):   # every error relative to a mean of 0 (a mirror's highlight out of view)
+            log(f"  zoom {z:g}: the ground truth is black at every pixel compared: nothing to compare")
+            continue
 
         def as_image(vals):
             img = np.zeros((gt.coverage.size, 3))

@@ -59,7 +59,8 @@ def main(argv=None) -> int:
     ap.add_argument("-o", "--output", default="gmm_mipmap.png", help="output PNG (default gmm_mipmap.png)")
     ap.add_argument("--surface", default="hemispherical_scales",
                     help="procedural surface (precompute.surfaces; default hemispherical_scales)")
-    ap.add_argument("--size", type=int, default=128, help="height-field size (default 128)")
+    ap.add_argument("--size", type=int, default=128, help="height-field size, 2 to 1024, at least 17 for "
+                    "hemispherical_scales (default 128)")
     ap.add_argument("--level", type=int, default=None,
                     help=f"mip level of the 2x2 texel block (default {DEFAULT_LEVEL}, or the coarsest level of at "
                     "least 2x2 texels where --size has fewer levels)")
@@ -70,7 +71,7 @@ def main(argv=None) -> int:
     ap.add_argument("--force", action="store_true", help="overwrite an existing output")
     args = ap.parse_args(argv)
     from precompute.gmm_mipmap import MAX_COMPONENTS, level_shapes
-    from precompute.surfaces import MAX_SURFACE_SIZE, SURFACES
+    from precompute.surfaces import MAX_SURFACE_SIZE, MIN_SURFACE_SIZE, SURFACES
 
     if Path(args.output).suffix.lower() != ".png":
         ap.error(f"-o {args.output}: expected a path ending in .png")
@@ -79,6 +80,11 @@ def main(argv=None) -> int:
         ap.error(f"--surface {args.surface}: expected one of {', '.join(SURFACES)}")
     if not 2 <= args.size <= MAX_SURFACE_SIZE:
         ap.error(f"--size {args.size}: expected an integer from 2 to {MAX_SURFACE_SIZE}")
+    if args.surface == "hemispherical_scales" and args.size < MIN_SURFACE_SIZE:   # else refused by its generator,
+        # naming no option ("scales_across at most 3 (an argument from Python)")
+        ap.error(f"--size {args.size}: expected an integer from {MIN_SURFACE_SIZE} to {MAX_SURFACE_SIZE} for "
+                 f"hemispherical_scales (more than 2 texels per scale spacing; the other surfaces take 2 to "
+                 f"{MAX_SURFACE_SIZE})")
     if not 1 <= args.components <= MAX_COMPONENTS:
         ap.error(f"--components {args.components}: expected an integer from 1 to {MAX_COMPONENTS}")
     sides = [hw[0] for hw in level_shapes(args.size, args.size) if hw[0] >= 2]   # levels with a 2x2 block

@@ -28,7 +28,8 @@ where their errors lie (docs/measurements.md, "Adaptive shading: where it fails"
 
 ``--json`` / ``--plot`` (as ``warpbw bench``'s: the one not given goes beside the other; an existing file is kept
 without ``--force``, refused before any work) write every figure printed, with the settings, and the plot of both
-frames' relative MSE and the adaptive frame's shaded fraction against resolution.
+frames' relative MSE and the adaptive frame's shaded fraction against resolution.  A probe black everywhere (every
+error 0) is refused once read, before any render.
 """
 from __future__ import annotations
 
@@ -261,6 +262,9 @@ def main(argv=None) -> int:
     from warpbw.envmap import load_envmap
 
     env = load_envmap(probe)
+    if not np.any(env.pixels):   # every error 0, and a plot with no positive value on its log axis
+        raise WarpbwError(f"--probe {probe}: black everywhere (after the clamp of negative values): the mirror "
+                          "reflects nothing and every error is 0 (expected a probe with light in it)")
     nu_q = {"probe": nu_a_quantiles(env.pixels, env.name, args.env_signal)}
     if args.clamp_quantile < 1.0:
         nu_q["clamped"] = nu_a_quantiles(clamp_probe_luminance(env.pixels, args.clamp_quantile), env.name,

@@ -244,3 +244,30 @@ def test_record_outputs_are_refused_before_any_work(ac, monkeypatch, tmp_path, a
     assert how.startswith("WarpbwError") and needle in how and ran == [], how
     assert sorted(p.name for p in tmp_path.iterdir()) == ["new.png", "old.json", "q.png", "s.toml"]
     assert all((tmp_path / n).read_text() == "kept\n" for n in ("s.toml", "old.json", "q.png", "new.png"))
+
+
+def test_a_frame_with_no_noise_to_allocate_is_refused(ac, monkeypatch):
+    """Every gain is a ratio of noise MSEs: a black environment or surfaces that reflect none of the light (every
+    v_p 0) printed 'infx' and 'nan' with numpy's "invalid value" warnings, and recorded null gains (exit 0); a camera
+    that sees nothing ended in a ZeroDivisionError traceback.  Each is now refused in one line, the black environment
+    before the brute-force renders, as warpbw bench refuses it."""
+    from warpbw.errors import WarpbwError
+
+    renders = []
+    brute_force = ac.per_pixel_variance
+    monkeypatch.setattr(ac, "per_pixel_variance", lambda *a, **k: (renders.append(1), brute_force(*a, **k))[1])
+    lit = SCENE.format(objects=SPHERE.format(x=0.0, m="bright"))
+    black = parse_scene(lit.replace("constant = [1.0, 1.0, 1.0]", "constant = [0.0, 0.0, 0.0]"), ".", "extremes")
+    with pytest.raises(WarpbwError, match=r"^extremes: \[environment\] .* is black everywhere \(after its scale and "
+                                          r"the clamp of negative values\): no light to sample, so no noise to "
+                                          r"allocate"):
+        ac.allocation_ceiling(prepare_scene(black), budget=2.0, seeds=2, spp=1)
+    assert renders == []
+    dark = parse_scene(lit.replace("albedo = [0.8, 0.8, 0.8]", "albedo = [0.0, 0.0, 0.0]"), ".", "extremes")
+    with pytest.raises(WarpbwError, match=r"^extremes: every covered pixel reads the same in the 2 brute-force "
+                                          r"renders \(surfaces that reflect none of the light\): no noise to allocate"):
+        ac.allocation_ceiling(prepare_scene(dark), budget=2.0, seeds=2, spp=1)
+    away = parse_scene(lit.replace("look_at = [0.0, 0.0, 0.0]", "look_at = [0.0, 0.0, 12.0]"), ".", "extremes")
+    with pytest.raises(WarpbwError, match=r"^extremes: no pixel shows a sphere or mesh, so there is nothing to "
+                                          r"allocate \(check \[camera\] position, look_at and fov\)$"):
+        ac.allocation_ceiling(prepare_scene(away), budget=2.0, seeds=2, spp=1)

@@ -950,6 +950,28 @@ def test_filtering_floor_accepts_zooms_of_which_one_filters(tmp_path, monkeypatc
     assert outcome(ff.load_checked, scene, [1.0, 4.0]).startswith("returned ")
 
 
+def test_filtering_floor_refuses_lights_below_the_plane_and_skips_a_black_truth(tmp_path, monkeypatch):
+    """A plane lit from below its horizon is black in every method and in the ground truth (README: "from 1e-6 below
+    it 0"): every error was 0 and the table's ratio to Toksvig's ended in a ZeroDivisionError traceback.  Such a scene
+    is refused before any work; a zoom at which the truth is black over every pixel compared (a mirror whose
+    highlight is out of view) is left out with a line that says so, as a zoom with no filtered pixel is."""
+    ff = load_example("filtering_floor")
+    below = _floor_scene(tmp_path, monkeypatch, material_extra='normal_map = "map.exr"\n', light_dir=(0.3, -0.8, 0.2))
+    got = outcome(ff.main, [str(below), "--zoom", "4", "--gt-spp", "64"])
+    assert got == (f"WarpbwError: {below}: every [[light]] lies at or below the plane's horizon, or is black: the "
+                   "plane is black in every method and in the ground truth, nothing to compare (expected a light above "
+                   "the plane)"), got
+    mirror = _floor_scene(tmp_path, monkeypatch, material_extra='normal_map = "map.exr"\nnormal_map_scale = 0.001\n',
+                          roughness=0.001, diffuse=None, light_dir=(0.0, 0.2, 1.0))
+    text = mirror.read_text().replace("f0 = [", "f0 = [1.0, 1.0, 1.0]\n# f0 = [")
+    mirror.write_text(text)
+    logged = []
+    rec = ff.analyse(mirror, [4.0], 64, log=logged.append)
+    assert rec["zooms"] == [] and logged == ["  zoom 4: the ground truth is black at every pixel compared: nothing "
+                                             "to compare"], logged
+    assert ff.format_table(rec).splitlines()[1].split()[:3] == ["zoom", "level", "probes"]   # a header, no row
+
+
 def test_filtering_floor_mean_level_leaves_out_the_magnified_pixels(tmp_path, monkeypatch):
     """'magnified pixels (level < 0) left out of every figure': at zoom 2 on this map 48 of 110 pixels are magnified,
     and the row's mean level is the renderer's own mip level (FilterResult.level) averaged over the others."""
@@ -1093,6 +1115,48 @@ def test_bench_filtering_refuses_a_zoom_whose_second_frame_sees_no_plane(monkeyp
     """"a zoom at which no pixel sees a plane (in either frame) ... is refused before any work"."""
     got = outcome(_hand_bench, monkeypatch, cover=lambda j: np.array([[j == 0, j == 0, False]]))
     assert got.startswith("WarpbwError: --zoom 1: no pixel sees a plane"), got
+
+
+def test_bench_filtering_refuses_a_zoom_whose_ground_truth_is_black(plane_scene, capsys):
+    """A plane lit from below its horizon (or by nothing) shades black in every method and in the ground truth
+    (README: "from 1e-6 below it 0"): the errors, relative to the truth's mean of 0, are undefined.  The benchmark
+    recorded 0 for every method at every zoom, exit 0, as if each matched the truth; now it refuses, as warpbw
+    bench refuses a scene whose light reaches no pixel, naming the zoom and what to check."""
+    d = plane_scene.parent
+    plane_scene.write_text(SCENE.replace("direction = [0.0, 0.8, -0.6]", "direction = [0.0, -0.8, -0.6]"))
+    args = ["bench-filtering", str(plane_scene), "--zoom", "1,2", "--gt-spp", "64", "--runs", "1", "-q",
+            "--json", str(d / "f.json")]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert re.fullmatch(r"warpbw: error: --zoom 1: the ground truth is black at every pixel that sees a plane "
+                        r"\(camera distance x 1\), so its error and flicker are undefined: no light reaches the "
+                        r"planes, or they reflect none \(check each \[\[light\]\]'s direction, towards the light "
+                        r"and above the planes, the \[environment\] and the materials\)", err), err
+    assert not (d / "f.json").exists() and not (d / "f.png").exists()
+
+
+def test_bench_filtering_refuses_a_zoom_whose_flicker_pair_shares_no_covered_pixel(plane_scene, capsys):
+    """The flicker and the temporal error are means over the pixels that see a plane in both frames of a pair
+    (module docstring).  A small plane near the image's edge, one pixel in each frame, moves to the next pixel as
+    the camera backs away by FLICKER_STEP (a numpy ray cast of both frames says so): both were NaN in the table
+    and null in the record, exit 0.  Now the zoom is refused before any work, as one that sees no plane is."""
+    d = plane_scene.parent
+    pos, centre, size = np.array([0.0, 2.0, 2.0]), (1.06, 0.0, 0.0), 0.2
+    seen = []
+    for z in (1.0, FLICKER_STEP):
+        o, dirs = numpy_camera_rays(z * pos, (0, 0, 0), 40.0, 16, 12)
+        seen.append(np.isfinite(numpy_square_distance(o, dirs, size, centre)))
+    assert seen[0].any() and seen[1].any() and not (seen[0] & seen[1]).any()
+    text = SCENE.replace("position = [0.0, 1.2, 1.2]", "position = [0.0, 2.0, 2.0]")
+    plane_scene.write_text(text.replace("size = 2.0", f"center = {list(centre)}\nsize = {size}"))
+    args = ["bench-filtering", str(plane_scene), "--zoom", "1", "--gt-spp", "64", "--runs", "1", "-q",
+            "--json", str(d / "f.json")]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("warpbw: error: --zoom 1: no pixel sees a plane in both frames of a flicker pair (camera distance x "
+                   f"1 and x {FLICKER_STEP:g}), so the flicker, a mean over those pixels, is undefined there: choose "
+                   "other zooms"), err
+    assert not (d / "f.json").exists()
 
 
 def test_colour_error_against_a_black_reference_is_finite():

@@ -531,6 +531,13 @@ def test_false_colour_png(tmp_path):
     assert Image.open(tmp_path / "zero.png").text["Description"].startswith(
         "viridis colour scale, log10: no shown value is above 0")
     assert np.all(np.abs(np.asarray(Image.open(tmp_path / "zero.png")).astype(int) - viridis_lo) <= 1)
+    # ... and over no shown pixel at all: the command line's log AOVs mask their non-positive values out, so an
+    # adaptive frame that sees nothing, or a black one, draws every PNG black; its text once said "dark blue"
+    hidden = np.zeros((2, 3), bool)
+    assert write_false_colour_png(tmp_path / "none.png", np.zeros((2, 3)), mask=hidden, log=True) == (0.0, 0.0)
+    assert not np.asarray(Image.open(tmp_path / "none.png")).any()
+    assert Image.open(tmp_path / "none.png").text["Description"] == \
+        "viridis colour scale, log10: no value shown; black: not shown"
 
 
 

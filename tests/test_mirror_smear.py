@@ -139,6 +139,24 @@ def test_a_missing_probe_is_refused_by_name(ms, tmp_path):
         ms.main(["--probe", str(tmp_path / "nope.exr")])
 
 
+def test_a_black_probe_is_refused_before_any_render(ms, tmp_path, monkeypatch):
+    """A probe black everywhere (here but for a negative texel, which loading clamps to 0) leaves the mirror black:
+    every relative MSE 0, a record of zeros, matplotlib's "Data has no positive values, and therefore cannot be
+    log-scaled" for the plot, exit 0.  It is refused once the probe is read, before any render, as warpbw bench
+    refuses it."""
+    px = np.zeros((8, 16, 3), np.float32)
+    px[3, 5] = -1.0
+    probe = _probe(tmp_path, px)
+    monkeypatch.setattr(ms, "measure", lambda *a, **k: pytest.fail("rendered"))
+    with pytest.warns(RuntimeWarning, match="3 negative"):
+        with pytest.raises(WarpbwError, match=r"^--probe .*probe\.exr: black everywhere \(after the clamp of negative "
+                                              r"values\): the mirror reflects nothing and every error is 0 \(expected "
+                                              r"a probe with light in it\)$"):
+            ms.main(["--probe", str(probe), "--res", "8", "--budget", "1", "--truth-spp", "1",
+                     "--json", str(tmp_path / "m.json")])
+    assert not (tmp_path / "m.json").exists()
+
+
 def test_measure_reports_the_shaded_share_and_the_worst_pixels_values_of_the_covered_pixels(ms, tmp_path):
     """The shaded share is over the pixels the sphere covers (the truth: the adaptive frame's own "shaded" AOV over
     the truth's coverage, counted here, not over the whole image); each listed pixel's truth and adaptive

@@ -56,8 +56,11 @@ covers z^2 times more texels.
   image (``warpbw.filtering.Background``), so the hidden pixels are neither shaded nor counted as covered
   (the spheres and meshes are measured by ``warpbw bench``).  The record lists them under ``surfaces``
   (empty for planes alone).
-* A zoom at which no pixel sees a plane (in either frame), or spheres or meshes hide every pixel that
-  does, is refused before any work, saying which.
+* A zoom at which no pixel sees a plane (in either frame, or in both frames of a flicker pair: a plane of a pixel or
+  two that moves to the next one), or spheres or meshes hide every pixel that does, is refused before any work,
+  saying which; one whose ground truth is black at every pixel that sees a plane (lit from below the planes'
+  horizon, or by nothing: every method is black too, and the error relative to the truth's mean is undefined)
+  once that truth is rendered.
 * Precompute time: the time to obtain the aligned GMM mipmaps (built unless the scene names a file or
   ``cache`` holds them: the origin is recorded).
 """
@@ -161,17 +164,19 @@ def _zoom_frames(scene, zooms, behind, pairs: int = 1) -> list:
 
 def _check_coverage(scene, frames, device: str) -> None:
     """Refuse, before the mipmaps are built, a zoom at which no pixel sees a plane (in front of the spheres and
-    meshes behind it) in one of its ``frames`` (``_zoom_frames``): its error, flicker and noise would all be
-    undefined (a mean over no pixel)."""
+    meshes behind it) in one of its ``frames`` (``_zoom_frames``), or in both frames of one of its flicker pairs: its
+    error, flicker and noise would be undefined (a mean over no pixel)."""
     from warpbw.filtering import prepare_filtering, render_filtering
 
     prep = prepare_filtering(scene, ("fixed",), device)  # the cheapest method: the coverage is the same for all
     for z, zooms, cams, bgs in frames:
+        covered = []
         for zz, cam, bg in zip(zooms, cams, bgs):
             try:   # the zoomed camera's own limits (float32 far from the origin) were blamed on the scene alone
                 seen = render_filtering(scene, "fixed", prepared=prep, camera=cam, env_spp=1, background=bg)
             except WarpbwError as exc:
                 raise WarpbwError(f"--zoom {z:g} (camera distance x {zz:g}): {exc}") from None
+            covered.append(seen.coverage)
             if seen.coverage.any():
                 continue
             if bg is not None and render_filtering(scene, "fixed", prepared=prep, camera=cam, env_spp=1).coverage.any():
@@ -181,6 +186,23 @@ def _check_coverage(scene, frames, device: str) -> None:
             raise WarpbwError(f"--zoom {z:g}: no pixel sees a plane at this zoom (camera distance x {zz:g}), so "
                               "error and flicker are undefined there: choose "
                               + ("larger zooms (this one moves the camera closer)" if zz < 1.0 else "smaller zooms"))
+        for j in range(len(zooms) - 1):   # a plane of a pixel or two can move to the next pixel within a pair
+            if not (covered[j] & covered[j + 1]).any():
+                raise WarpbwError(f"--zoom {z:g}: no pixel sees a plane in both frames of a flicker pair (camera "
+                                  f"distance x {zooms[j]:g} and x {zooms[j + 1]:g}), so the flicker, a mean over those "
+                                  "pixels, is undefined there: choose other zooms")
+
+
+def _check_lit(z: float, zooms, truths) -> None:
+    """Refuse a zoom whose ground truth (``truths``, one frame per zoom of ``zooms``) is black at every covered pixel:
+    a plane lit from below its horizon, or by nothing, shades black in every method too, and the error, relative to
+    the truth's mean, is undefined (it read 0 for every method, as if each matched the truth)."""
+    for zz, g in zip(zooms, truths):
+        if not np.any(g.image[g.coverage]):
+            raise WarpbwError(f"--zoom {z:g}: the ground truth is black at every pixel that sees a plane (camera "
+                              f"distance x {zz:g}), so its error and flicker are undefined: no light reaches the "
+                              "planes, or they reflect none (check each [[light]]'s direction, towards the light and "
+                              "above the planes, the [environment] and the materials)")
 
 
 def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP, runs: int = 3, seed: int = 0,
@@ -224,11 +246,12 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
               "surfaces": [] if surfaces is None else [o.describe() for o in surfaces.objects]}
     for m in methods:                                     # warm-up: compile every kernel once
         render_filtering(scene, m, prepared=prep, max_anisotropy=aniso)
-    for z, _, cams, bgs in frames_by_zoom:
+    for z, zz_all, cams, bgs in frames_by_zoom:
         # the same seed in every frame: the same jitter pattern per pixel, so the truth's frame-to-frame change
         # carries as little of its own noise as possible
         g = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=offset_seed(seed, GT_SEED), prepared=prep,
                               camera=c, background=b) for c, b in zip(cams, bgs)]
+        _check_lit(z, zz_all, g)
         g2 = [render_filtering(scene, "ground_truth", spp=gt_spp, seed=offset_seed(seed, GT_SEED_2), prepared=prep,
                                camera=c, background=b) for c, b in zip(cams, bgs)]
         cov = g[0].coverage

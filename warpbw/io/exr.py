@@ -333,8 +333,12 @@ def write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=Fa
     rgb8 = np.round(rgba[..., :3] * 255.0).astype(np.uint8)
     rgb8[~shown] = 0
     if log and vmin is None and vmax is None and not ok.any():   # all 0 (a constant light's b_p): it said "1 to 1"
-        _to_png(path, rgb8, {"Description": "viridis colour scale, log10: no shown value is above 0, all drawn at "
-                                            "the bottom (dark blue); black: not shown", "Software": "warpbw"})
+        # no pixel shown at all (a mask that leaves none, as the command line's for a black or empty frame): all
+        # black, where the text once said "dark blue"
+        text = ("no shown value is above 0, all drawn at the bottom (dark blue)" if shown.any() else
+                "no value shown")
+        _to_png(path, rgb8, {"Description": f"viridis colour scale, log10: {text}; black: not shown",
+                             "Software": "warpbw"})
         return 0.0, 0.0
     _to_png(path, rgb8, {"Description": colour_scale_text(lo, hi, log), "Software": "warpbw"})
     return lo, hi
