@@ -57,7 +57,8 @@ Initialisation is clustering: k-means (scikit-learn) on the whole map's normals 
 then at each finer level Lloyd iterations started from the parent's means, so component i keeps its
 meaning from level to level.  Footprints with more than ``max_samples`` normals (default 256) are
 subsampled by stratified jittered sampling (one normal per cell of a 16x16 grid), seeded: at most
-(texels x 256 x K) work per level.  The data term always counts 256 samples (a smaller footprint's
+(texels x 256 x K) work per level.  A footprint the map's border clips (a side that is no power of two) weighs each
+of its texels equally: its enumerated slots, some on the same texel, are weighted in the clustering and EM.  The data term always counts 256 samples (a smaller footprint's
 normals are weighted up, as if 256 stratified samples were drawn from it), so the prior has the same
 strength against the data at every level (see ``build_gmm_mipmap``).  ``unaligned=True`` is the baseline: c = 0 and each texel
 initialised independently (seeded k-means++ then Lloyd), no neighbour information at all.
@@ -149,8 +150,11 @@ ROW_SPACING = "1/H"
 # 004 Sec. 4.2: "Our current implementation utilizes mixtures of four Gaussians".
 # The representation a file's parameters name (module docstring, "Representation")
 NORMAL_SPACE = "projected (n_x, n_y); x = +column, y = -row"
+# How a footprint the map's border clips weighs its texels: each equally (``_footprint_weights``, session 72); files
+# from before record nothing, and were fitted with some texels of such footprints counted twice ("strata")
+CLIPPED_FOOTPRINTS_KEY, CLIPPED_FOOTPRINTS = "clipped_footprints", "texels weighed equally"
 # What a file records nothing of was fitted with: refine_sweeps is recorded only when it is not 0
-GMM_UNRECORDED = {"refine_sweeps": 0}
+GMM_UNRECORDED = {"refine_sweeps": 0, CLIPPED_FOOTPRINTS_KEY: "strata"}
 DEFAULT_COMPONENTS = 4
 MAX_COMPONENTS = 16            # a sanity bound on --components (each is one texture in the renderer)
 # 004 Sec. 4.1: c "modulates smoothness among corresponding Gaussians, which we set to 1 for all experiments".
@@ -343,7 +347,9 @@ def footprint_samples(n2, level: int, max_samples: int = DEFAULT_MAX_SAMPLES, rn
     """The finest-level normals of each level-``level`` texel's footprint: (h_l * w_l, M, 2), row-major
     texels.  M = 4^level when that is at most ``max_samples`` (every normal, once, for full footprints);
     otherwise one jittered normal per cell of a g x g grid over the footprint (g^2 <= max_samples, seeded).
-    Footprints clipped by the map's border are covered by the same M samples, spread evenly."""
+    Footprints clipped by the map's border are covered by the same M samples: jittered cells over the clipped
+    footprint, or the 2^l x 2^l slots spread over its texels, some of which then take two (the builder weighs
+    them by ``_footprint_weights``, so that each texel counts once)."""
     n2 = _checked(n2, "footprint_samples: n2", "a finite map (H, W, C) of at least 1x1 texels", (None, None, None),
                   at_least=(1, 1))
     top = len(level_shapes(*n2.shape[:2])) - 1
@@ -376,6 +382,29 @@ def _footprint_samples(n2, level: int, max_samples: int = DEFAULT_MAX_SAMPLES, r
     return n2[rows, cols].reshape(h_l * w_l, g * g, n2.shape[-1])
 
 
+def _footprint_weights(H: int, W: int, level: int, max_samples: int = DEFAULT_MAX_SAMPLES) -> np.ndarray | None:
+    """Per-sample weights (h_l * w_l, M) that weigh every texel of a footprint equally in ``_footprint_samples``'
+    samples, mean 1 per texel; None when they are all 1.  Jittered strata cover a clipped footprint uniformly, but
+    enumerated ones (a footprint of at most ``max_samples`` texels) put 2^l slots per axis on the n < 2^l texels the
+    border leaves: where n does not divide 2^l some texels take two slots (a 7-texel side: one of them 2/8 of the
+    weight, the others 1/8).  A slot's weight is (2^l / n) / (the slots its texel takes), per axis."""
+    f = 1 << level
+    g = min(f, max(1, int(math.isqrt(int(max_samples)))))
+    if g != f:
+        return None
+
+    def per_axis(size: int) -> np.ndarray:   # (blocks, f): the weight of each slot along one axis
+        n = np.minimum(f, size - np.arange(-(-size // f)) * f)[:, None]
+        texel = np.floor((np.arange(f) + 0.5) * n / f)                           # the slot's texel, as above
+        slots = np.sum(texel[:, :, None] == texel[:, None, :], axis=-1)          # slots its texel takes
+        return (f / n) / slots
+
+    wr, wc = per_axis(H), per_axis(W)
+    if np.all(wr == 1.0) and np.all(wc == 1.0):
+        return None
+    return (wr[:, None, :, None] * wc[None, :, None, :]).reshape(wr.shape[0] * wc.shape[0], f * f)
+
+
 # --------------------------------------------------------------------------------------------------
 # Clustering initialisation and EM, vectorised over texels
 
@@ -398,15 +427,20 @@ def _checked_samples(x, where: str) -> np.ndarray:
                     at_least=(0, 1))
 
 
-def _kmeans_plus_plus(x, K: int, rng) -> np.ndarray:
+def _kmeans_plus_plus(x, K: int, rng, w=None) -> np.ndarray:
+    """``w`` (T, M): the samples' weights (``_footprint_weights``), None: all 1."""
     rng = np.random.default_rng(rng)
     T, M, _ = x.shape
     t = np.arange(T)
     centres = np.empty((T, K, 2))
-    centres[:, 0] = x[t, rng.integers(0, M, size=T)]
+    if w is None:
+        centres[:, 0] = x[t, rng.integers(0, M, size=T)]
+    else:   # the first centre drawn in proportion to the weights
+        cdf = np.cumsum(w, axis=1)
+        centres[:, 0] = x[t, np.minimum(np.sum(cdf < (rng.random(T) * cdf[:, -1])[:, None], axis=1), M - 1)]
     mind = np.sum((x - centres[:, :1]) ** 2, axis=-1)
     for k in range(1, K):
-        cdf = np.cumsum(mind, axis=1)
+        cdf = np.cumsum(mind if w is None else w * mind, axis=1)
         u = rng.random(T) * cdf[:, -1]
         j = np.minimum(np.sum(cdf < u[:, None], axis=1), M - 1)
         centres[:, k] = x[t, j]
@@ -429,29 +463,39 @@ def kmeans_init(x, centres, iterations: int = KMEANS_ITERATIONS, fallback_s2=Non
     return _kmeans_init(x, centres, iterations, fallback_s2)
 
 
-def _kmeans_init(x, centres, iterations: int = KMEANS_ITERATIONS, fallback_s2=None):
+def _kmeans_init(x, centres, iterations: int = KMEANS_ITERATIONS, fallback_s2=None, w=None):
+    """``w`` (T, M): the samples' weights, mean 1 per texel (``_footprint_weights``); None: all 1."""
     x = np.asarray(x, np.float64)
     mu = np.array(centres, np.float64)
     T, M, _ = x.shape
     K = mu.shape[1]
     ks = np.arange(K)
+
+    def assigned(lab):   # (T, M, K): each sample's weight on its cluster
+        onehot = (lab[..., None] == ks).astype(np.float64)
+        return onehot if w is None else onehot * w[..., None]
+
     for _ in range(max(1, iterations)):
         lab = np.argmin(_sq_dist(x, mu), axis=-1)
-        onehot = (lab[..., None] == ks).astype(np.float64)
+        onehot = assigned(lab)
         cnt = onehot.sum(axis=1)
         sums = np.einsum("tmk,tmd->tkd", onehot, x)
-        new = np.where(cnt[..., None] > 0, sums / np.maximum(cnt, 1.0)[..., None], mu)
+        new = np.where(cnt[..., None] > 0, sums / np.where(cnt > 0, cnt, 1.0)[..., None], mu)
         done = np.array_equal(new, mu)
         mu = new
         if done:
             break
     lab = np.argmin(_sq_dist(x, mu), axis=-1)
-    onehot = (lab[..., None] == ks).astype(np.float64)
+    onehot = assigned(lab)
     cnt = onehot.sum(axis=1)
     within = np.einsum("tmk,tmk->tk", onehot, _sq_dist(x, mu))
-    if fallback_s2 is None:
+    if fallback_s2 is None and w is None:
         fallback_s2 = np.broadcast_to(np.var(x, axis=1).mean(axis=-1)[:, None], (T, K))
-    s2 = np.where(cnt > 0, within / (NORMAL_DIM * np.maximum(cnt, 1.0)), fallback_s2)
+    elif fallback_s2 is None:   # the weighted variance per axis
+        mean = np.einsum("tm,tmd->td", w, x) / M
+        var = np.einsum("tm,tmd->td", w, (x - mean[:, None, :]) ** 2) / M
+        fallback_s2 = np.broadcast_to(var.mean(axis=-1)[:, None], (T, K))
+    s2 = np.where(cnt > 0, within / (NORMAL_DIM * np.where(cnt > 0, cnt, 1.0)), fallback_s2)
     return cnt / M, mu, np.maximum(s2, VARIANCE_FLOOR)
 
 
@@ -483,7 +527,8 @@ def em_fit(x, a, mu, s2, c: float = 0.0, prior_sum=None, prior_weight=None,
 
 
 def _em_fit(x, a, mu, s2, c: float = 0.0, prior_sum=None, prior_weight=None,
-            max_iter: int = EM_MAX_ITERATIONS, tol: float = EM_TOLERANCE, sample_count: float | None = None):
+            max_iter: int = EM_MAX_ITERATIONS, tol: float = EM_TOLERANCE, sample_count: float | None = None, w=None):
+    """``w`` (T, M): the samples' weights, mean 1 per texel (``_footprint_weights``); None: all 1."""
     x = np.asarray(x, np.float64)
     a = np.array(a, np.float64)
     mu = np.array(mu, np.float64)
@@ -508,6 +553,8 @@ def _em_fit(x, a, mu, s2, c: float = 0.0, prior_sum=None, prior_weight=None,
         logp -= logp.max(axis=-1, keepdims=True)
         r = np.exp(logp)
         r /= r.sum(axis=-1, keepdims=True)
+        if w is not None:   # a sample's responsibilities count its weight
+            r *= w[..., None]
         # M-step (004 Sec. 4.1):
         #   a_i = (1/M) sum_j E[z_ij]
         #   mu_i = (sum_j E[z_ij] n_j + c sum_k a_ki mu_ki) / (sum_j E[z_ij] + c sum_k a_ki)
@@ -577,7 +624,7 @@ def fit_settings(seed: int = 0, max_samples: int = DEFAULT_MAX_SAMPLES, refine_s
     parameters record them (``GMM_UNRECORDED`` for what they leave out): the renderer builds its cache entries with
     ``fit_settings()`` and rebuilds an entry that records others (``precompute.brdf_sampling.load_or_build``)."""
     return {"seed": int(seed), "max_samples": int(max_samples), "refine_sweeps": int(refine_sweeps),
-            "normal_space": NORMAL_SPACE}
+            "normal_space": NORMAL_SPACE, CLIPPED_FOOTPRINTS_KEY: CLIPPED_FOOTPRINTS}
 
 
 def _neighbour_prior(l, ii, jj, A, MU, fitted, shapes):
@@ -615,22 +662,24 @@ def _neighbour_prior(l, ii, jj, A, MU, fitted, shapes):
     return p_sum, p_w
 
 
-def _top_centres(x, K: int, seed: int) -> np.ndarray:
+def _top_centres(x, K: int, seed: int, w=None) -> np.ndarray:
     """k-means (scikit-learn) on the whole map's normals -> (K, 2) centres, largest cluster first; with
-    fewer distinct normals than K the extra centres repeat the first (they start empty)."""
+    fewer distinct normals than K the extra centres repeat the first (they start empty).  ``w`` (M,): the samples'
+    weights (``_footprint_weights``); None: all 1."""
     from sklearn.cluster import KMeans
 
     distinct = np.unique(x, axis=0)
     k = min(K, len(distinct))
     if k == len(distinct):
         centres = distinct
-        counts = np.array([np.sum(np.all(x == c, axis=-1)) for c in distinct])
+        counts = np.array([np.sum(np.all(x == c, axis=-1) if w is None else w[np.all(x == c, axis=-1)])
+                           for c in distinct])
     else:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            km = KMeans(n_clusters=k, n_init=TOP_KMEANS_RESTARTS, random_state=seed).fit(x)
+            km = KMeans(n_clusters=k, n_init=TOP_KMEANS_RESTARTS, random_state=seed).fit(x, sample_weight=w)
         centres = km.cluster_centers_
-        counts = np.bincount(km.labels_, minlength=k)
+        counts = np.bincount(km.labels_, weights=w, minlength=k)
     centres = centres[np.argsort(-counts, kind="stable")]
     if k < K:
         centres = np.concatenate([centres, np.repeat(centres[:1], K - k, axis=0)])
@@ -720,6 +769,7 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
             for l in range(L - 1, -1, -1):                       # coarse to fine (004 Sec. 4.1)
                 rng = np.random.default_rng(ss.spawn(1)[0])
                 x_all = _footprint_samples(n2, l, max_samples, rng)
+                w_all = _footprint_weights(H, W, l, max_samples)   # None: every sample weighs 1
                 h, w = shapes[l]
                 M = x_all.shape[1]
                 ii_all, jj_all = np.divmod(np.arange(h * w), w)
@@ -735,21 +785,25 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
                         p_sum, p_w = _neighbour_prior(l, ii, jj, A, MU, fitted, shapes)
                     for b in _batched(idx.size, M * K):
                         x = x_all[idx[b]]
+                        # a batch of unclipped footprints takes the unweighted path: their fits stay bit for bit
+                        wx = None if w_all is None else w_all[idx[b]]
+                        wx = None if wx is None or np.all(wx == 1.0) else wx
                         bi, bj = ii[b], jj[b]
                         if unaligned:
-                            a0, mu0, s20 = _kmeans_init(x, _kmeans_plus_plus(x, K, rng))
+                            a0, mu0, s20 = _kmeans_init(x, _kmeans_plus_plus(x, K, rng, wx), w=wx)
                         elif sweep > 0:
                             a0, mu0, s20 = A[l][bi, bj], MU[l][bi, bj], S2[l][bi, bj]
                         elif l == L - 1:
-                            a0, mu0, s20 = _kmeans_init(x, _top_centres(x[0], K, seed)[None])
+                            top = _top_centres(x[0], K, seed, None if wx is None else wx[0])
+                            a0, mu0, s20 = _kmeans_init(x, top[None], w=wx)
                         else:                                  # from the parent: component i keeps its meaning
                             a0, mu0, s20 = _kmeans_init(x, MU[l + 1][bi // 2, bj // 2],
-                                                        fallback_s2=S2[l + 1][bi // 2, bj // 2])
+                                                        fallback_s2=S2[l + 1][bi // 2, bj // 2], w=wx)
                         if unaligned:
-                            a1, mu1, s21, _ = _em_fit(x, a0, mu0, s20)
+                            a1, mu1, s21, _ = _em_fit(x, a0, mu0, s20, w=wx)
                         else:
                             a1, mu1, s21, _ = _em_fit(x, a0, mu0, s20, c, p_sum[b], p_w[b],
-                                                      sample_count=max(M, max_samples))
+                                                      sample_count=max(M, max_samples), w=wx)
                         A[l][bi, bj], MU[l][bi, bj], S2[l][bi, bj] = a1, mu1, s21
                         done += b.stop - b.start
                         step(done)
@@ -766,6 +820,7 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
             raise WarpbwError(f"GMM fit of level {l} gave NaN or infinite moments (components {K}, prior {c:g}); "
                               "this is a defect, please report it with the map")
     extra = {"refine_sweeps": int(refine_sweeps)} if refine_sweeps else {}
+    extra[CLIPPED_FOOTPRINTS_KEY] = CLIPPED_FOOTPRINTS
     if kind == "height" and texel_size is None and H != W:
         extra[ROW_SPACING_KEY] = ROW_SPACING   # what a renderer checks before it shades with a non-square map's file
     return GmmMipmap(levels, K, float(prior), bool(unaligned), kind, float(scale), int(seed), int(max_samples),
@@ -893,7 +948,8 @@ def read_gmm_mipmap(path) -> GmmMipmap:
                         bool(params.get("unaligned", False)), params.get("kind", "height"),
                         float(params.get("scale", 1.0)), int(params.get("seed", 0)),
                         int(params.get("max_samples", DEFAULT_MAX_SAMPLES)),
-                        extra={k: params[k] for k in ("refine_sweeps", ROW_SPACING_KEY) if k in params},
+                        extra={k: params[k] for k in ("refine_sweeps", ROW_SPACING_KEY, CLIPPED_FOOTPRINTS_KEY)
+                               if k in params},
                         source=asset.header.get("source"), source_hash=asset.header.get("source_hash"))
     except (TypeError, ValueError, AttributeError):  # arrays of strings, a hand-edited header
         raise WarpbwError(f"{path}: GMM mipmap with non-numeric levels or parameters (rebuild it with: {hint})") \

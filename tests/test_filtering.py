@@ -1074,6 +1074,29 @@ def test_a_gmm_cache_entry_fitted_with_other_settings_is_rebuilt_and_a_gmm_file_
     assert np.array_equal(prep.mips["m"].gmm["gmm_aligned"][0].numpy(), flat(other))
 
 
+def test_a_gmm_cache_entry_from_before_clipped_footprints_were_weighed_is_rebuilt(tmp_path):
+    """Entries written before session 72 fitted a footprint the border clips with some of its texels counted twice
+    and record nothing of it: such an entry (its params without ``clipped_footprints``) is rebuilt; a gmm file the
+    material names that lacks it is read as it is."""
+    from precompute.assetfile import read_header
+    from precompute.gmm_mipmap import build_gmm_mipmap, load_map, write_gmm_mipmap
+
+    s = scene_with_map(tmp_path, heights=_bumps(8), scale=0.5)
+    digest = file_digest(tmp_path / "map.exr")
+    old = build_gmm_mipmap(load_map(tmp_path / "map.exr"), scale=0.5, progress=False)
+    old.extra.pop("clipped_footprints")
+    assert prepare_filtering(s, ("gmm_aligned",)).notes["m"]["gmm_aligned"]["origin"] == "built"
+    (entry,) = (tmp_path / "_cache").glob("gmm-*.npz")
+    write_gmm_mipmap(entry, old, "map.exr", digest, force=True)
+    assert "clipped_footprints" not in read_header(entry)["params"]
+    assert prepare_filtering(s, ("gmm_aligned",)).notes["m"]["gmm_aligned"]["origin"] == "built"
+    assert read_header(entry)["params"]["clipped_footprints"] == "texels weighed equally"
+    write_gmm_mipmap(tmp_path / "mine.gmm", old, "map.exr", digest)
+    text = plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ngmm = "mine.gmm"\n')
+    assert prepare_filtering(parse_scene(text, tmp_path, "s.toml"), ("gmm_aligned",)).notes["m"]["gmm_aligned"][
+        "origin"] == "file"
+
+
 MIXED_SPHERE = """
 [[object]]
 shape = "sphere"
