@@ -550,6 +550,7 @@ def quadrature_grid():
 @settings(max_examples=12, deadline=None)
 @given(brdf=brdfs, theta=elevations, azimuth=azimuths, seed=st.integers(0, 2**31 - 1))
 @example(brdf=synthetic_brdf(0.0, 1.0, 0.1875, 0.0), theta=1.0, azimuth=1.0, seed=0)   # the quadrature's worst yet
+@example(brdf=synthetic_brdf(0.0, 1.0, 0.5, 0.0), theta=1.5, azimuth=0.0, seed=0)   # 0.3% of draws wasted, one bin
 def test_histogram_of_samples_matches_the_pdf_integrated_over_each_bin(brdf, theta, azimuth, seed):
     """tab_pdf is the solid-angle density of tab_sample's directions: binned in world bands of z and sectors of
     absolute azimuth (a binning that knows nothing of the table's half-vector cells), the count of samples in each
@@ -559,15 +560,22 @@ def test_histogram_of_samples_matches_the_pdf_integrated_over_each_bin(brdf, the
     measured from the wrong axis) or in the change of variables (the Jacobian 4 (wo . h) sin(theta_h) pi u) show.
     The quadrature's own error reaches 1%: for a one-sided lobe of width 0.1875 seen 1 rad from the normal
     (kd 0, ks 1, azimuth 1), which hypothesis found, the grid reads 0.9899, a grid of twice the resolution 1.0002,
-    and the midpoint rule in the table's own (u, phi_h) cells 1 within 1e-8."""
+    and the midpoint rule in the table's own (u, phi_h) cells 1 within 1e-8.
+    Near the horizon a draw whose cell's half vector faces away from the view reflects below the surface, where
+    tab_pdf reads 0 (its comment: wasted, the estimate unbiased); those draws are set apart, each checked below the
+    surface, and the rest binned.  Hypothesis found 154 of them in one bin (kd 0, ks 1, width 0.5, side 0, a view
+    1.5 rad from the normal; 0.31% of the draws, the pdf's mass 0.9969) when they were binned with the others."""
     s = pack_samplers([table_of(brdf)])
     wo = view_at(theta, azimuth)
     n = 60_000
-    wi, _ = sample(s, wo, n, seed)
-    observed = np.bincount(direction_bin(wi), minlength=Z_BINS * PHI_BINS)
+    wi, pdf = sample(s, wo, n, seed)
+    wasted = pdf == 0.0
+    assert np.all(wi[wasted, 2] <= 0.0), wi[wasted & (wi[:, 2] > 0.0)][:5]
+    observed = np.bincount(direction_bin(wi[~wasted]), minlength=Z_BINS * PHI_BINS)
     grid, domega, grid_bin = quadrature_grid()
     mass = np.bincount(grid_bin, weights=pdf_at(s, wo, grid) * domega, minlength=Z_BINS * PHI_BINS)
     assert abs(mass.sum() - 1.0) < 0.02, mass.sum()
+    assert wasted.mean() < 1.0 - mass.sum() + 0.02, (wasted.mean(), mass.sum())
     expected = mass * n
     # Poisson noise (5 sigma), plus 0.2% of N for the quadrature of a piecewise-constant density
     dev = np.abs(observed - expected) / (5.0 * np.sqrt(expected) + 0.002 * n)
