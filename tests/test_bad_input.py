@@ -2685,8 +2685,21 @@ ASSET_DAMAGE = {   # each was a traceback or a line that named no file, and such
 }
 
 
+@pytest.fixture(scope="module")
+def fake_npf_sampling_entry(tmp_path_factory):
+    """The sampling-table cache entry a one-spp render of the fake NPF sphere writes: (its name, its bytes).  Built
+    once for the ASSET_DAMAGE cases (the same table file, so the same entry: one render instead of five)."""
+    d = tmp_path_factory.mktemp("fake_npf_entry")
+    fake_npf_table(d / "npf.bin")
+    write_scene(d, material='type = "npf"\ntable = "npf.bin"\nname = "chrome"')
+    assert run(["render", "scene.toml", "-o", "a.exr", "--spp", "1", "-q"], d).returncode == 0
+    (entry,) = (d / "_cache").glob("sampling-*.npz")
+    return entry.name, entry.read_bytes()
+
+
 @pytest.mark.parametrize("damage", list(ASSET_DAMAGE))
-def test_a_damaged_asset_is_refused_by_name_and_a_damaged_cache_entry_rebuilt(tmp_path, damage):
+def test_a_damaged_asset_is_refused_by_name_and_a_damaged_cache_entry_rebuilt(tmp_path, damage,
+                                                                              fake_npf_sampling_entry):
     """Damage the asset reader let through: a torn sector in a compressed member (a zlib.error traceback), and
     (file audit, session 63) "Unable to allocate 4.00 TiB", naming no file, for a .npy header declaring a huge
     array (numpy allocates before it reads), and RecursionError, NotImplementedError and RuntimeError tracebacks for
@@ -2699,9 +2712,11 @@ def test_a_damaged_asset_is_refused_by_name_and_a_damaged_cache_entry_rebuilt(tm
     fake_npf_table(tmp_path / "npf.bin")
     npf = 'type = "npf"\ntable = "npf.bin"\nname = "chrome"'
     write_scene(tmp_path, material=npf)
-    assert run(["render", "scene.toml", "-o", "a.exr", "--spp", "1", "-q"], tmp_path).returncode == 0
-    (entry,) = (tmp_path / "_cache").glob("sampling-*.npz")
-    (tmp_path / "tables.npz").write_bytes(entry.read_bytes())
+    name, entry_bytes = fake_npf_sampling_entry   # the entry this scene's render writes (same table file)
+    entry = tmp_path / "_cache" / name
+    entry.parent.mkdir()
+    entry.write_bytes(entry_bytes)
+    (tmp_path / "tables.npz").write_bytes(entry_bytes)
     ASSET_DAMAGE[damage](entry)
     with pytest.raises(WarpbwError, match="not a warpbw asset file, or a damaged one"):
         read_asset(entry, TABLE_FORMAT, TABLE_VERSION, "rebuild")

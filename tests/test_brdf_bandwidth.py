@@ -12,6 +12,7 @@ References (not from the code under test):
 from __future__ import annotations
 
 import itertools
+import json
 import math
 import re
 import subprocess
@@ -221,6 +222,27 @@ def npf_tables(shared):
             for m in ("chrome", "pink-felt")}
 
 
+@pytest.fixture(scope="module")
+def memo_build(npf_tables):
+    """``build_brdf_bandwidth`` remembering what it built: a table of the same source (digest) and builder settings
+    (``bandwidth_settings`` at that resolution, read at the call: a patched epsilon is another key) is the one built
+    before, as a copy; anything else is built.  The build is deterministic (bit for bit at any thread count), so the
+    cache tests that hand it to ``load_or_build_bandwidth`` see the tables a real build gives, without building
+    npf_tables' again (a few seconds each at resolution 128)."""
+    import precompute.brdf_bandwidth as bb
+
+    real = bb.build_brdf_bandwidth   # the module's, before any test patches it
+    done = {(src.digest, json.dumps(bb.bandwidth_settings())): table for src, table in npf_tables.values()}
+
+    def build(source, progress=True, resolution=bb.DEFAULT_RESOLUTION, threads=None):
+        key = (source.digest, json.dumps(bb.bandwidth_settings(resolution)))
+        if key not in done:
+            done[key] = real(source, progress=progress, resolution=resolution, threads=threads)
+        return done[key].copy()
+
+    return build
+
+
 def test_chrome_much_sharper_than_felt(npf_tables):
     chrome, felt = npf_tables["chrome"][1], npf_tables["pink-felt"][1]
     # interior cells (centre within 60 deg of the normal), away from the grazing continuation
@@ -258,7 +280,8 @@ def test_round_trip_and_refusals(npf_tables, tmp_path):
 
 @pytest.mark.parametrize("n", [16, 64, 128, 256])
 def test_a_table_beyond_what_its_resolution_gives_is_refused_and_such_a_cache_entry_rebuilt(npf_tables, tmp_path,
-                                                                                              monkeypatch, n):
+                                                                                              monkeypatch, n,
+                                                                                              memo_build):
     """A bandwidth is at most 0.5 cycles/pixel over the smallest pixel side of the analysed map: nu_rho_max(n) is
     the largest 0.5 / map_radians_per_pixel(n), n / 4.  A table above it (3e38: read, and the frame refused for its
     light's radiance; file audit, session 63) is refused naming the resolution its header records, the writer
@@ -281,6 +304,7 @@ def test_a_table_beyond_what_its_resolution_gives_is_refused_and_such_a_cache_en
                                           r"gives \(rebuild it with: warpbw-precompute brdf"):
         read_brdf_bandwidth(p, source)
     cache = tmp_path / "cache"
+    monkeypatch.setattr("precompute.brdf_bandwidth.build_brdf_bandwidth", memo_build)   # chrome's built once
     assert load_or_build_bandwidth(source, cache=cache, progress=False)[1] == "built"
     (entry,) = cache.glob("bandwidth-*.npz")
     # the builder's settings recorded, so that the entry is rebuilt for its bandwidths, not for its settings
@@ -290,7 +314,7 @@ def test_a_table_beyond_what_its_resolution_gives_is_refused_and_such_a_cache_en
     assert origin == "built" and np.array_equal(again, table)
 
 def test_a_cache_entry_of_other_wavelet_settings_is_rebuilt_and_a_user_file_of_another_resolution_read(
-        npf_tables, tmp_path, monkeypatch):
+        npf_tables, tmp_path, monkeypatch, memo_build):
     """A nu_rho table records the wavelet analysis it was built with (wavelet, bands, epsilon, energy fraction) beside
     its resolution.  A cache entry that records another epsilon (precompute.wavelets.EPSILON changed without a
     version bump served the old tables) is stale: rebuilt, as a fresh build, and replaced.  An entry of the builder's
@@ -306,7 +330,7 @@ def test_a_cache_entry_of_other_wavelet_settings_is_rebuilt_and_a_user_file_of_a
                                        "wavelet": DEFAULT_WAVELET, "wavelet_levels": 7, "epsilon": EPSILON,
                                        "energy_fraction": ENERGY_FRACTION}
     builds = []
-    real = bb.build_brdf_bandwidth
+    real = memo_build   # chrome's default table is npf_tables'; at epsilon 0.02 or resolution 64 it is built
 
     def counting(src, progress=True, **kw):
         builds.append(src.name)
@@ -339,7 +363,8 @@ def test_a_cache_entry_of_other_wavelet_settings_is_rebuilt_and_a_user_file_of_a
     assert origin == "file" and np.array_equal(got, r64) and not np.array_equal(r64, table)
 
 
-def test_a_version_2_table_is_rebuilt_from_the_cache_and_refused_when_given(npf_tables, tmp_path):
+def test_a_version_2_table_is_rebuilt_from_the_cache_and_refused_when_given(npf_tables, tmp_path, monkeypatch,
+                                                                           memo_build):
     """Version 3 changed the cells crossing the rim (their real directions' pixels only), so a version-2 table, valid
     in every other way, is stale: the renderer's cache (entries PREFIX-HASH-vVERSION.npz) rebuilds it beside the old
     entry, and a version-2 file given explicitly is refused in one line naming the command that rebuilds it."""
@@ -351,6 +376,7 @@ def test_a_version_2_table_is_rebuilt_from_the_cache_and_refused_when_given(npf_
     key = source.digest.replace(":", "-").replace("/", "_")
     old = write_asset(cache / f"bandwidth-{key}-v2.npz", FORMAT, 2, source.name, source.digest,
                       {"nu_rho": np.ones_like(table)}, params={"resolution": 128})
+    monkeypatch.setattr("precompute.brdf_bandwidth.build_brdf_bandwidth", memo_build)   # pink-felt's built once
     got, origin = load_or_build_bandwidth(source, cache=cache, progress=False)
     assert origin == "built" and np.array_equal(got, table)
     assert (cache / f"bandwidth-{key}-v3.npz").is_file()
@@ -888,7 +914,7 @@ def _smooth_merl(path):
     return write_merl(path, np.repeat(v[..., None], 3, axis=-1) * np.array([1.0, 0.8, 0.6]))
 
 
-def test_the_default_sources_tables_are_the_ones_built_before_lookups(shared, tmp_path):
+def test_the_default_sources_tables_are_the_ones_built_before_lookups(shared, tmp_path, monkeypatch, memo_build):
     """``brdf_source(file, material)`` without a lookup reads as every table was built before session 70 (MERL
     nearest, NPF interpolated), so the existing cache entries and files stay valid: its table is bit for bit the one
     built from ``merl_eval(interpolate=False)`` / ``npf_eval(interpolate=True)`` directly, and its name, digest and
@@ -915,6 +941,7 @@ def test_the_default_sources_tables_are_the_ones_built_before_lookups(shared, tm
         assert with_lookup(alt, None).digest == digest and with_lookup(src, None) is src
     src = brdf_source(npf, "pink-felt")   # the cache: the default's entry is the one of before, the other apart
     cache = tmp_path / "cache"
+    monkeypatch.setattr("precompute.brdf_bandwidth.build_brdf_bandwidth", memo_build)   # pink-felt's built once
     load_or_build_bandwidth(src, cache=cache, progress=False)
     load_or_build_bandwidth(with_lookup(src, "nearest"), cache=cache, progress=False)
     key = f"{file_digest(npf)}-pink-felt"

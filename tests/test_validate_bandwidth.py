@@ -257,10 +257,22 @@ def test_relative_gradient_of_an_exponential_ramp(vb):
     assert np.all(vb.relative_gradient(lum, np.zeros_like(lum, bool)) == 0)
 
 
-def test_quick_run_writes_json_figure_and_refuses_to_overwrite(vb, shared, tmp_path, capsys):
+@pytest.fixture(scope="module")
+def quick_out(vb, shared, tmp_path_factory):
+    """One ``--quick`` run of sphere-ggx-studio for the module's tests of it: (its --out folder, what it printed)."""
+    import contextlib
+    import io
+
     shared("envmaps/studio.exr")
-    out = tmp_path / "vb"
-    assert vb.main(["--out", str(out), "--quick", "--scenes", "sphere-ggx-studio"]) == 0
+    out = tmp_path_factory.mktemp("vbq") / "vb"
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert vb.main(["--out", str(out), "--quick", "--scenes", "sphere-ggx-studio"]) == 0
+    return out, printed.getvalue()
+
+
+def test_quick_run_writes_json_figure_and_refuses_to_overwrite(vb, quick_out, capsys):
+    out, printed = quick_out
     rec = json.loads((out / "validate_bandwidth.json").read_text())
     s = rec["scenes"]["sphere-ggx-studio"]
     for key in ("bandwidth_spearman", "bandwidth_spearman_windowed", "bandwidth_median_ratio",
@@ -286,7 +298,7 @@ def test_quick_run_writes_json_figure_and_refuses_to_overwrite(vb, shared, tmp_p
     maps = np.load(out / "validate_sphere-ggx-studio_maps.npz")
     cov = maps["coverage"]
     assert np.isfinite(maps["sigma2"][cov]).all() and (maps["var_uniform"][cov] >= 0).all()
-    assert "sphere-ggx-studio" in capsys.readouterr().out
+    assert "sphere-ggx-studio" in printed
 
     before = png.stat().st_mtime_ns
     with pytest.raises(SystemExit) as e:
@@ -388,10 +400,8 @@ def test_brute_force_variance_of_a_lambert_sphere_under_a_constant_sky(vb):
 
 
 @pytest.fixture(scope="module")
-def quick_run(vb, shared, tmp_path_factory):
-    shared("envmaps/studio.exr")
-    out = tmp_path_factory.mktemp("vbq")
-    assert vb.main(["--out", str(out), "--quick", "--scenes", "sphere-ggx-studio"]) == 0
+def quick_run(quick_out):
+    out = quick_out[0]
     rec = json.loads((out / "validate_bandwidth.json").read_text())
     return rec["scenes"]["sphere-ggx-studio"], dict(np.load(out / "validate_sphere-ggx-studio_maps.npz"))
 
@@ -525,14 +535,11 @@ def test_a_window_whose_coverage_equals_the_minimum_counts(vb):
     assert not r["grid_valid"][0, 0]            # the corner window reaches past the image: less than 1
 
 
-def test_quick_run_bootstrap_uses_tiles_of_bootstrap_tile_windows(vb, tmp_path):
+def test_quick_run_bootstrap_uses_tiles_of_bootstrap_tile_windows(vb, quick_out):
     """The reported standard errors come from tiles BOOTSTRAP_TILE FFT windows wide (the docstring's choice, so
     the tiles span the reference's correlation length): recomputed from the written maps with tiles of
     2 x 16 px (--quick's window), they match the JSON; tiles of one window would read a different figure."""
-    if not (vb.DATA / "envmaps" / "studio.exr").is_file():
-        pytest.skip("shared studio.exr absent")
-    out = tmp_path / "vb"
-    assert vb.main(["--out", str(out), "--quick", "--scenes", "sphere-ggx-studio"]) == 0
+    out = quick_out[0]
     s = json.loads((out / "validate_bandwidth.json").read_text())["scenes"]["sphere-ggx-studio"]
     m = np.load(out / "validate_sphere-ggx-studio_maps.npz")
     assert vb.BOOTSTRAP_TILE == 2 and vb.QUICK["window"] == 16
