@@ -58,10 +58,11 @@ then at each finer level Lloyd iterations started from the parent's means, so co
 meaning from level to level.  Footprints with more than ``max_samples`` normals (default 256) are
 subsampled by stratified jittered sampling (one normal per cell of a 16x16 grid), seeded: at most
 (texels x 256 x K) work per level.  A footprint the map's border clips (a side that is no power of two) weighs each
-of its texels equally: its enumerated slots, some on the same texel, are weighted in the clustering and EM.  The data term always counts 256 samples (a smaller footprint's
-normals are weighted up, as if 256 stratified samples were drawn from it), so the prior has the same
-strength against the data at every level (see ``build_gmm_mipmap``).  ``unaligned=True`` is the baseline: c = 0 and each texel
-initialised independently (seeded k-means++ then Lloyd), no neighbour information at all.
+of its texels equally: its enumerated slots, some on the same texel, are weighted in the clustering and EM.  The
+data term always counts 256 samples (a smaller footprint's normals are weighted up, as if 256 stratified samples
+were drawn from it), so the prior has the same strength against the data at every level (see
+``build_gmm_mipmap``).  ``unaligned=True`` is the baseline: c = 0 and each texel initialised independently (seeded
+k-means++ then Lloyd), no neighbour information at all.
 
 Measured (docs/measurements.md, "Reflectance filtering: measurements"; with 004's printed merge):
 with this order the labels of a texel
