@@ -222,4 +222,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("allocation_ceiling", lambda _: main(), None))
+    sys.exit(run_command("allocation_ceiling.py", lambda _: main(), None))

@@ -124,9 +124,9 @@ def main(argv=None) -> int:
         write_record(json_path, plot_path, record, write_plot, force=args.force)
     warning = few_runs_warning(args.runs)
     if warning is not None:
-        print(f"anisotropy_cost: warning: {warning}", file=sys.stderr)
+        print(f"anisotropy_cost.py: warning: {warning}", file=sys.stderr)
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("anisotropy_cost", lambda _: main(), None))
+    sys.exit(run_command("anisotropy_cost.py", lambda _: main(), None))

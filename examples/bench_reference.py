@@ -289,9 +289,9 @@ def main():
     print(f"G-buffer {gbuffer_ms:.1f} ms; wrote {out / 'bench_reference.json'} and {out / 'bench_reference.png'}")
     warning = None if args.check_only else few_runs_warning(args.runs)   # as warpbw bench's
     if warning is not None:
-        print(f"bench_reference: warning: {warning}", file=sys.stderr)
+        print(f"bench_reference.py: warning: {warning}", file=sys.stderr)
     return 0 if all(math.isfinite(r["psnr_db"]) for v in records.values() for r in v) else 1
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("bench_reference", lambda _: main(), None))
+    sys.exit(run_command("bench_reference.py", lambda _: main(), None))

@@ -189,4 +189,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("bench_scenes", lambda _: main(), None))
+    sys.exit(run_command("bench_scenes.py", lambda _: main(), None))

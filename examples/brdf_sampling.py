@@ -90,4 +90,4 @@ def main():
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("brdf_sampling", lambda _: main(), None))
+    sys.exit(run_command("brdf_sampling.py", lambda _: main(), None))

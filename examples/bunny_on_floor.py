@@ -158,4 +158,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("bunny_on_floor", lambda _: main(), None))
+    sys.exit(run_command("bunny_on_floor.py", lambda _: main(), None))

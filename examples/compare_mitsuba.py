@@ -153,7 +153,7 @@ CASES = {
 
 
 def fail(msg: str) -> None:
-    """Stop with a one-line message, ``compare_mitsuba: error: ...`` (status 2, as every refusal)."""
+    """Stop with a one-line message, ``compare_mitsuba.py: error: ...`` (status 2, as every refusal)."""
     raise WarpbwError(msg)
 
 
@@ -646,9 +646,9 @@ def main(argv=None) -> int:
         write_record(args.json, args.plot, record, write_plot, force=args.force)
     warning = few_runs_warning(args.runs)
     if warning is not None:
-        print(f"compare_mitsuba: warning: {warning}", file=sys.stderr)
+        print(f"compare_mitsuba.py: warning: {warning}", file=sys.stderr)
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("compare_mitsuba", lambda _: main(), None))
+    sys.exit(run_command("compare_mitsuba.py", lambda _: main(), None))

@@ -379,7 +379,7 @@ def main(argv=None):
     print(f"plot {out / OUTPUTS[2]} (stage times, fps and shaded fraction per frame)")
     warning = few_runs_warning(args.frames, "--frames")
     if warning is not None:
-        print(f"dynamic_geometry: warning: {warning}", file=sys.stderr)
+        print(f"dynamic_geometry.py: warning: {warning}", file=sys.stderr)
     return result
 
 
@@ -389,4 +389,4 @@ def _cli(_args) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("dynamic_geometry", _cli, None))
+    sys.exit(run_command("dynamic_geometry.py", _cli, None))

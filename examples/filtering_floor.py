@@ -436,4 +436,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("filtering_floor", lambda _: main(), None))
+    sys.exit(run_command("filtering_floor.py", lambda _: main(), None))

@@ -295,4 +295,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("filtering_scenes", lambda _: main(), None))
+    sys.exit(run_command("filtering_scenes.py", lambda _: main(), None))

@@ -117,4 +117,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("filtering_zoom", lambda _: main(), None))
+    sys.exit(run_command("filtering_zoom.py", lambda _: main(), None))

@@ -126,4 +126,4 @@ def main():
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("gbuffer", lambda _: main(), None))
+    sys.exit(run_command("gbuffer.py", lambda _: main(), None))

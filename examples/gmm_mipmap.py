@@ -157,4 +157,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("gmm_mipmap", lambda _: main(), None))
+    sys.exit(run_command("gmm_mipmap.py", lambda _: main(), None))

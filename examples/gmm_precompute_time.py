@@ -93,9 +93,9 @@ def main(argv=None) -> int:
         write_record(json_path, plot_path, record, write_plot, force=args.force)
     warning = few_runs_warning(args.runs)
     if warning is not None:
-        print(f"gmm_precompute_time: warning: {warning}", file=sys.stderr)
+        print(f"gmm_precompute_time.py: warning: {warning}", file=sys.stderr)
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("gmm_precompute_time", lambda _: main(), None))
+    sys.exit(run_command("gmm_precompute_time.py", lambda _: main(), None))

@@ -293,4 +293,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("mirror_smear", lambda _: main(), None))
+    sys.exit(run_command("mirror_smear.py", lambda _: main(), None))

@@ -387,4 +387,4 @@ def main() -> int:
 if __name__ == "__main__":
     from warpbw.cli_common import run_command
 
-    sys.exit(run_command("read_assets", lambda _: main(), None))
+    sys.exit(run_command("read_assets.py", lambda _: main(), None))

@@ -152,8 +152,8 @@ def main():
         write_record(json_path, plot_path, record, write_plot, force=args.force)
     warning = few_runs_warning(args.runs)
     if warning is not None:
-        print(f"reference_estimator: warning: {warning}", file=sys.stderr)
+        print(f"reference_estimator.py: warning: {warning}", file=sys.stderr)
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("reference_estimator", lambda _: main(), None))
+    sys.exit(run_command("reference_estimator.py", lambda _: main(), None))

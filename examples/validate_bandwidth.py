@@ -1042,4 +1042,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_command("validate_bandwidth", lambda _: main(), None))
+    sys.exit(run_command("validate_bandwidth.py", lambda _: main(), None))

@@ -1242,7 +1242,7 @@ def test_bench_reference_records_its_runs_and_warns_below_three(tmp_path, monkey
     assert sum(r["timed"] for r in got["renders"]) == 2 * runs      # both estimators
     assert json.loads((out / "bench_reference.json").read_text())["runs"] == runs
     err = capsys.readouterr().err
-    assert (f"bench_reference: warning: --runs {runs}: the measurement protocol times the median of at least 3"
+    assert (f"bench_reference.py: warning: --runs {runs}: the measurement protocol times the median of at least 3"
             in err) == warns, err
     got = _run_bench_reference(monkeypatch, tmp_path, argv[:-4] + ["--runs", "5", "--out", str(out), "--check-only"])
     assert got["outcome"] == "returned 0", got["outcome"]

@@ -865,7 +865,7 @@ def test_anisotropy_cost_warns_of_fewer_runs_than_the_protocols_three(monkeypatc
                                                          "--runs", str(runs)])
     assert how == "returned 0", how
     err = capsys.readouterr().err
-    assert (f"anisotropy_cost: warning: --runs {runs}: the measurement protocol times the median of at least 3"
+    assert (f"anisotropy_cost.py: warning: --runs {runs}: the measurement protocol times the median of at least 3"
             in err) == warns, err
 
 

@@ -80,7 +80,7 @@ def test_a_successful_run_exits_0(tmp_path, sphere_obj):
                         "--frames", "1", "--size", "8", "--budget", "1", "--material", "ggx"],
                        cwd=tmp_path, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, (r.returncode, r.stderr)
-    assert all(ln.startswith("dynamic_geometry: warning: ") for ln in r.stderr.splitlines()), r.stderr
+    assert all(ln.startswith("dynamic_geometry.py: warning: ") for ln in r.stderr.splitlines()), r.stderr
     assert (tmp_path / "out" / "dynamic_geometry.json").is_file()
 
 
@@ -225,5 +225,5 @@ def test_dynamic_geometry_warns_of_fewer_frames_than_the_protocols_three(tmp_pat
     how, calls = _run_with_known_frames(tmp_path, monkeypatch, ["--frames", str(frames)])
     assert how.startswith("returned {") and len(calls) == 1 + frames, how
     err = capsys.readouterr().err
-    assert (f"dynamic_geometry: warning: --frames {frames}: the measurement protocol times the median of at least 3"
+    assert (f"dynamic_geometry.py: warning: --frames {frames}: the measurement protocol times the median of at least 3"
             in err) == warns, err

@@ -1141,7 +1141,7 @@ def test_gmm_precompute_time_times_runs_and_warns_below_three(monkeypatch, capsy
     gt, calls, how = _run_gmm_precompute_time(monkeypatch, ["--size", "20", "--runs", str(runs)], runs)
     assert how == "returned 0" and len(calls) == 1 + 3 * runs, how
     err = capsys.readouterr().err
-    assert (f"gmm_precompute_time: warning: --runs {runs}: the measurement protocol times the median of at least 3"
+    assert (f"gmm_precompute_time.py: warning: --runs {runs}: the measurement protocol times the median of at least 3"
             in err) == warns, err
 
 

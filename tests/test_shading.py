@@ -493,7 +493,7 @@ def test_reference_estimator_warns_of_fewer_runs_than_the_protocols_three(tmp_pa
                                                            str(runs)], tmp_path / "o")
     assert len(got["shade"]) == 2 * (1 + runs)
     err = capsys.readouterr().err
-    assert (f"reference_estimator: warning: --runs {runs}: the measurement protocol times the median of at least 3"
+    assert (f"reference_estimator.py: warning: --runs {runs}: the measurement protocol times the median of at least 3"
             in err) == warns, err
 
 
@@ -738,7 +738,7 @@ def test_compare_mitsuba_times_the_median_of_its_runs_and_warns_below_three(tmp_
         secs = {"mitsuba": iter([1.0] * runs), "warpbw": iter([1.0] * runs)}
         assert outcome(cm.main, ["--probe", str(probe), "--resolution", "16", "--cases", "lambert", "--spp", "8",
                                  "--no-warmup", "--runs", str(runs)]) == "returned 0"
-        assert (f"compare_mitsuba: warning: --runs {runs}: the measurement protocol times the median of at least 3"
+        assert (f"compare_mitsuba.py: warning: --runs {runs}: the measurement protocol times the median of at least 3"
                 in capsys.readouterr().err) == warns
 
 
