@@ -261,18 +261,19 @@ def rebuild_command(subcommand: str, source) -> str:
 
 
 # What a sampling table built before session 71 was built with where it records nothing (warpbw.sampling.SUBCELLS
-# has been 3 since the first tables)
-SAMPLING_UNRECORDED = {"subcells": 3}
+# has been 3 since the first tables, and LUMINANCE, recorded since session 72, Rec. 709's weights)
+SAMPLING_UNRECORDED = {"subcells": 3, "luminance": [0.2126, 0.7152, 0.0722]}
 
 
 def sampling_settings() -> dict:
     """The settings ``build_brdf_sampling`` builds with, as a table's ``params`` records them: its cells
     (``n_theta_o``, ``n_u``, ``n_phi``), the view elevations averaged per bin and the midpoint samples per cell side
-    (``warpbw.sampling``'s constants, read now)."""
+    (``warpbw.sampling``'s constants, read now), and the luminance weights of the importance function Y(f) cos_i."""
     from warpbw import sampling
 
     return {"n_theta_o": sampling.N_THETA_O, "n_u": sampling.N_U, "n_phi": sampling.N_PHI,
-            "view_subsamples": sampling.VIEW_SUBSAMPLES, "subcells": sampling.SUBCELLS}
+            "view_subsamples": sampling.VIEW_SUBSAMPLES, "subcells": sampling.SUBCELLS,
+            "luminance": list(sampling.LUMINANCE)}
 
 
 # How far a view's tabulated density (as cell shares) may lie from the shares its two CDFs give, in L1 over the

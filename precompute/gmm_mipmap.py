@@ -4,8 +4,9 @@ Public functions and classes:
 
 - ``GmmMipmap``: ``levels`` (list, finest first, of float32 ``(h_l, w_l, K, 4)`` moments), ``components``,
   ``prior``, ``unaligned``, ``kind``, ``scale``, ``seed``, ``max_samples``; ``params()``.
-- ``fit_settings(seed=0, max_samples=256, refine_sweeps=0) -> dict``, ``GMM_UNRECORDED``, ``NORMAL_SPACE``: the fit's
-  settings as a file's parameters record them (what the renderer's cache compares, ``warpbw.filtering``).
+- ``fit_settings(seed=0, max_samples=256, refine_sweeps=0) -> dict``, ``fit_constants() -> dict``, ``GMM_UNRECORDED``,
+  ``NORMAL_SPACE``: the fit's settings as a file's parameters record them (what the renderer's cache compares,
+  ``warpbw.filtering``).
 - ``build_gmm_mipmap(heights_or_normals, kind="height", components=4, prior=1.0, scale=1.0, seed=0,
   progress=True, unaligned=False, texel_size=None, max_samples=256, refine_sweeps=0) -> GmmMipmap``; a non-square
   height map's build records ``ROW_SPACING_KEY: ROW_SPACING`` (its rows 1 / H apart) in its parameters.
@@ -154,8 +155,12 @@ NORMAL_SPACE = "projected (n_x, n_y); x = +column, y = -row"
 # How a footprint the map's border clips weighs its texels: each equally (``_footprint_weights``, session 72); files
 # from before record nothing, and were fitted with some texels of such footprints counted twice ("strata")
 CLIPPED_FOOTPRINTS_KEY, CLIPPED_FOOTPRINTS = "clipped_footprints", "texels weighed equally"
-# What a file records nothing of was fitted with: refine_sweeps is recorded only when it is not 0
-GMM_UNRECORDED = {"refine_sweeps": 0, CLIPPED_FOOTPRINTS_KEY: "strata"}
+# What a file records nothing of was fitted with: refine_sweeps is recorded only when it is not 0, and files before
+# session 72 record neither how clipped footprints were weighed nor the fit's constants (``fit_constants``), which
+# have had these values since the builder was written (git log -G)
+GMM_UNRECORDED = {"refine_sweeps": 0, CLIPPED_FOOTPRINTS_KEY: "strata", "em_tolerance": 1e-4,
+                  "em_max_iterations": 60, "kmeans_iterations": 10, "top_kmeans_restarts": 4,
+                  "variance_floor": 1e-6, "weight_eps": 1e-8, "batch_elements": 1 << 21}
 DEFAULT_COMPONENTS = 4
 MAX_COMPONENTS = 16            # a sanity bound on --components (each is one texture in the renderer)
 # 004 Sec. 4.1: c "modulates smoothness among corresponding Gaussians, which we set to 1 for all experiments".
@@ -625,7 +630,17 @@ def fit_settings(seed: int = 0, max_samples: int = DEFAULT_MAX_SAMPLES, refine_s
     parameters record them (``GMM_UNRECORDED`` for what they leave out): the renderer builds its cache entries with
     ``fit_settings()`` and rebuilds an entry that records others (``precompute.brdf_sampling.load_or_build``)."""
     return {"seed": int(seed), "max_samples": int(max_samples), "refine_sweeps": int(refine_sweeps),
-            "normal_space": NORMAL_SPACE, CLIPPED_FOOTPRINTS_KEY: CLIPPED_FOOTPRINTS}
+            "normal_space": NORMAL_SPACE, **fit_constants()}
+
+
+def fit_constants() -> dict:
+    """The module's constants a fit depends on, as a file records them (read now: a changed constant makes the
+    cache's entries stale) -- how clipped footprints weigh their texels, EM's and k-means' stopping rules, the
+    variance floor, the empty-weight threshold and the batch size (the unaligned fit's random draws follow it)."""
+    return {CLIPPED_FOOTPRINTS_KEY: CLIPPED_FOOTPRINTS, "em_tolerance": EM_TOLERANCE,
+            "em_max_iterations": EM_MAX_ITERATIONS, "kmeans_iterations": KMEANS_ITERATIONS,
+            "top_kmeans_restarts": TOP_KMEANS_RESTARTS, "variance_floor": VARIANCE_FLOOR, "weight_eps": WEIGHT_EPS,
+            "batch_elements": BATCH_ELEMENTS}
 
 
 def _neighbour_prior(l, ii, jj, A, MU, fitted, shapes):
@@ -821,7 +836,7 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
             raise WarpbwError(f"GMM fit of level {l} gave NaN or infinite moments (components {K}, prior {c:g}); "
                               "this is a defect, please report it with the map")
     extra = {"refine_sweeps": int(refine_sweeps)} if refine_sweeps else {}
-    extra[CLIPPED_FOOTPRINTS_KEY] = CLIPPED_FOOTPRINTS
+    extra.update(fit_constants())
     if kind == "height" and texel_size is None and H != W:
         extra[ROW_SPACING_KEY] = ROW_SPACING   # what a renderer checks before it shades with a non-square map's file
     return GmmMipmap(levels, K, float(prior), bool(unaligned), kind, float(scale), int(seed), int(max_samples),
@@ -949,7 +964,7 @@ def read_gmm_mipmap(path) -> GmmMipmap:
                         bool(params.get("unaligned", False)), params.get("kind", "height"),
                         float(params.get("scale", 1.0)), int(params.get("seed", 0)),
                         int(params.get("max_samples", DEFAULT_MAX_SAMPLES)),
-                        extra={k: params[k] for k in ("refine_sweeps", ROW_SPACING_KEY, CLIPPED_FOOTPRINTS_KEY)
+                        extra={k: params[k] for k in ("refine_sweeps", ROW_SPACING_KEY, *fit_constants())
                                if k in params},
                         source=asset.header.get("source"), source_hash=asset.header.get("source_hash"))
     except (TypeError, ValueError, AttributeError):  # arrays of strings, a hand-edited header

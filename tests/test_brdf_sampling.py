@@ -232,7 +232,8 @@ def test_a_cache_entry_of_other_builder_settings_is_rebuilt_and_one_of_equal_set
     from precompute.assetfile import read_header
 
     assert bs.sampling_settings() == {"n_theta_o": ws.N_THETA_O, "n_u": ws.N_U, "n_phi": ws.N_PHI,
-                                      "view_subsamples": ws.VIEW_SUBSAMPLES, "subcells": ws.SUBCELLS}
+                                      "view_subsamples": ws.VIEW_SUBSAMPLES, "subcells": ws.SUBCELLS,
+                                      "luminance": [0.2126, 0.7152, 0.0722]}   # Rec. 709
     src = brdf_source(fake_npf_table(tmp_path / "npf.bin"), "chrome")
     fresh = bs.build_brdf_sampling(src, progress=False)
     builds = []
@@ -265,6 +266,14 @@ def test_a_cache_entry_of_other_builder_settings_is_rebuilt_and_one_of_equal_set
     monkeypatch.setattr(ws, "SUBCELLS", 2)
     table, origin = bs.load_or_build_sampling(src, cache=cache, progress=False)
     assert origin == "built" and len(builds) == 2 and read_header(entry)["params"]["subcells"] == 2
+    monkeypatch.setattr(ws, "SUBCELLS", 3)
+    # the luminance weights of the importance function, recorded since session 72: an entry from before (Rec. 709's
+    # then) is read; other weights make it stale
+    write_asset(entry, TABLE_FORMAT, TABLE_VERSION, src.name, src.digest, arrays, params=before_71, force=True)
+    assert bs.load_or_build_sampling(src, cache=cache, progress=False)[1] == "cache" and len(builds) == 2
+    monkeypatch.setattr(ws, "LUMINANCE", (0.3, 0.6, 0.1))
+    assert bs.load_or_build_sampling(src, cache=cache, progress=False)[1] == "built" and len(builds) == 3
+    assert read_header(entry)["params"]["luminance"] == [0.3, 0.6, 0.1]
     monkeypatch.undo()
     user = tmp_path / "user.npz"
     write_asset(user, TABLE_FORMAT, TABLE_VERSION, src.name, src.digest, arrays,

@@ -1097,6 +1097,32 @@ def test_a_gmm_cache_entry_from_before_clipped_footprints_were_weighed_is_rebuil
         "origin"] == "file"
 
 
+def test_a_gmm_cache_entry_records_the_fits_constants_and_is_rebuilt_when_one_changes(tmp_path, monkeypatch):
+    """Since session 72 a GMM mipmap records the fit's constants (EM's and k-means' stopping rules, the variance
+    floor, ...), guarded before by version bumps alone.  An entry that records none of them (an earlier build's) is
+    read, at the values they have had since the builder was written (1e-4, 60, 10, 4, 1e-6, 1e-8, 2^21, written here);
+    with EM's tolerance changed it is stale and rebuilt, and the rebuilt entry records the new value."""
+    import precompute.gmm_mipmap as gm
+    from precompute.assetfile import read_header
+
+    s = scene_with_map(tmp_path, heights=_bumps(8), scale=0.5)
+    digest = file_digest(tmp_path / "map.exr")
+    assert prepare_filtering(s, ("gmm_aligned",)).notes["m"]["gmm_aligned"]["origin"] == "built"
+    (entry,) = (tmp_path / "_cache").glob("gmm-*.npz")
+    recorded = read_header(entry)["params"]
+    then = {"em_tolerance": 1e-4, "em_max_iterations": 60, "kmeans_iterations": 10, "top_kmeans_restarts": 4,
+            "variance_floor": 1e-6, "weight_eps": 1e-8, "batch_elements": 2 ** 21}
+    assert {k: recorded[k] for k in then} == then
+    mip = gm.build_gmm_mipmap(gm.load_map(tmp_path / "map.exr"), scale=0.5, progress=False)
+    for k in then:
+        mip.extra.pop(k)
+    gm.write_gmm_mipmap(entry, mip, "map.exr", digest, force=True)
+    assert prepare_filtering(s, ("gmm_aligned",)).notes["m"]["gmm_aligned"]["origin"] == "cache"
+    monkeypatch.setattr(gm, "EM_TOLERANCE", 1e-5)
+    assert prepare_filtering(s, ("gmm_aligned",)).notes["m"]["gmm_aligned"]["origin"] == "built"
+    assert read_header(entry)["params"]["em_tolerance"] == 1e-5
+
+
 MIXED_SPHERE = """
 [[object]]
 shape = "sphere"
