@@ -24,8 +24,9 @@ number of samples per covered pixel, B, over the noise MSE of the allocation nam
 
 A scene whose v_p is nearly the same everywhere (``oracle_all`` near 1) and whose frame shades most of its
 pixels has little to gain from adaptive shading at any budget: on the benchmark's blue-acrylic bunny under
-studio.exr (examples/bench_scenes.py, budget 32) the frame shades 75% of the pixels, ``oracle_all`` is
-1.15x and ``oracle_shaded`` 2.06x, against 101x and 126x (budget 2) on the chrome sphere (docs/measurements.md).
+studio.exr (examples/bench_scenes.py, budget 32) the frame shades 57% of the pixels, ``oracle_all`` is
+1.15x and ``oracle_shaded`` 3.13x, against 101x and 124x (budget 2) on the chrome sphere (session 58's code;
+before it, 75% and 2.06x, and 126x; docs/measurements.md).
 
 ``--json`` / ``--plot`` (as ``warpbw bench``'s: the one not given goes beside the other; an existing file is kept
 without ``--force``, refused before any work) write every figure, with the settings and the device, and the plot

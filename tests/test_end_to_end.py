@@ -1390,20 +1390,19 @@ def test_readme_plane_block_accepts_the_gmm_its_comment_builds(tmp_path, monkeyp
     assert list(prepared.mips) == ["armour"]
 
 
-def test_the_names_the_readme_points_to_exist():
-    """What the README names in backticks for a reader to look up is there: a dotted name (``warpbw.shading.
-    LAUNCH_COST_MAX``, ``warpbw.scene.check_scene``) imports and has that attribute, a bare constant
-    (``MESH_BYTES_PER_TRIANGLE``) is defined by a module of warpbw/ or precompute/, and a file path
-    (``warpbw/upsample.py``, ``tests/test_lights.py``) is a file of the repository.  A renamed constant or moved
-    module would otherwise leave the README pointing at nothing."""
+def _names_not_there(text: str, root: Path) -> list:
+    """What ``text`` names in backticks for a reader to look up and the repository does not have: a dotted name
+    (``warpbw.shading.LAUNCH_COST_MAX``) that does not import or lacks that attribute, a bare constant
+    (``MESH_BYTES_PER_TRIANGLE``) that no module of warpbw/ or precompute/ defines and no Python file of the
+    repository quotes (an environment variable such as ``WARP_CACHE_PATH``), a file path (``warpbw/upsample.py``)
+    that is not a file, and a test (``test_the_reference_agrees_with_mitsuba``) that is neither a test function nor
+    a module under tests/."""
     import importlib
 
-    root = Path(__file__).resolve().parents[1]
-    readme = (root / "README.md").read_text()
-    dotted = set(re.findall(r"`((?:warpbw|precompute)(?:\.\w+)+)(?:\([^`]*\))?`", readme))
-    constants = set(re.findall(r"`([A-Z][A-Z0-9_]{4,})`", readme))
-    paths = set(re.findall(r"`((?:warpbw|precompute|examples|tests|docs)/[\w/]+\.(?:py|md))`", readme))
-    assert len(dotted) >= 10 and len(constants) >= 2 and len(paths) >= 10, (dotted, constants, paths)
+    dotted = set(re.findall(r"`((?:warpbw|precompute)(?:\.\w+)+)(?:\([^`]*\))?`", text))
+    constants = set(re.findall(r"`([A-Z][A-Z0-9_]{4,})`", text))
+    paths = set(re.findall(r"`((?:warpbw|precompute|examples|tests|docs)/[\w/]+\.(?:py|md))`", text))
+    tests = set(re.findall(r"`(test_\w+)`", text))
     missing, absent = [], object()
     for name in sorted(dotted):
         parts = name.split(".")
@@ -1418,9 +1417,45 @@ def test_the_names_the_readme_points_to_exist():
                 missing.append(name)
             break
     defined = "\n".join(f.read_text() for d in ("warpbw", "precompute") for f in (root / d).rglob("*.py"))
-    missing += [c for c in sorted(constants) if not re.search(rf"^{c} *[:=]", defined, re.M)]
+    quoted = "\n".join(f.read_text() for d in ("warpbw", "precompute", "examples", "tests")
+                       for f in (root / d).rglob("*.py"))
+    missing += [c for c in sorted(constants)
+                if not re.search(rf"^{c} *[:=]", defined, re.M) and not re.search(rf"[\"']{c}[\"']", quoted)]
     missing += [p for p in sorted(paths) if not (root / p).is_file()]
+    test_src = "\n".join(f.read_text() for f in (root / "tests").glob("*.py"))
+    missing += [n for n in sorted(tests)
+                if not re.search(rf"^\s*def {n}\(", test_src, re.M) and not (root / "tests" / f"{n}.py").is_file()]
+    return missing
+
+
+def test_the_names_the_readme_points_to_exist():
+    """What the README names in backticks for a reader to look up is there (``_names_not_there``): a dotted name
+    (``warpbw.shading.LAUNCH_COST_MAX``, ``warpbw.scene.check_scene``), a bare constant (``MESH_BYTES_PER_TRIANGLE``),
+    a file path (``warpbw/upsample.py``, ``tests/test_lights.py``), a test.  A renamed constant or moved module would
+    otherwise leave the README pointing at nothing."""
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    assert len(re.findall(r"`(?:warpbw|precompute)(?:\.\w+)+`", readme)) >= 10
+    assert len(set(re.findall(r"`([A-Z][A-Z0-9_]{4,})`", readme))) >= 2
+    assert len(set(re.findall(r"`((?:warpbw|precompute|examples|tests|docs)/[\w/]+\.(?:py|md))`", readme))) >= 10
+    missing = _names_not_there(readme, root)
     assert not missing, f"README names what is not there: {missing}"
+
+
+def test_the_names_the_docs_point_to_exist():
+    """The same for docs/measurements.md and docs/testing.md, which name the constants, functions, files and tests
+    a figure or an audit finding rests on (``warpbw.bench.speedup_relative_se``, ``warpbw.io.merl.horizon_bins``,
+    ``test_the_reference_agrees_with_mitsuba``): testing.md still named `REL_EPS`, the relative allocation's floor
+    that session 68 replaced with ``REL_FLOOR``."""
+    root = Path(__file__).resolve().parents[1]
+    bad, checked = {}, 0
+    for doc in sorted((root / "docs").glob("*.md")):
+        text = doc.read_text()
+        checked += len(set(re.findall(r"`((?:warpbw|precompute)(?:\.\w+)+|[A-Z][A-Z0-9_]{4,}|test_\w+)`", text)))
+        missing = _names_not_there(text, root)
+        if missing:
+            bad[doc.name] = missing
+    assert checked >= 40 and not bad, (checked, bad)
 
 
 def test_a_prepared_scene_keeps_its_own_copy_of_the_scene():

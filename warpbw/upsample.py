@@ -23,7 +23,8 @@ same weights (the normal fit, below):
   materials side by side at one depth are an edge of the image that depth and normal do not see, and that the
   bandwidth pass does not see either when the light is smooth: under a constant environment every pixel's b_p
   is 0, and the paper's weights gave a gold sphere the colour of the clay and glossy spheres beside it (the
-  demo scene at 128x96, budget 8: 14.3 dB against the reference at 8 spp's 21.6; session 60).
+  demo scene at 128x96, budget 8, seeds 1-3: 14.2-14.3 dB against the reference at 8 spp's 21.3, 34.5-34.9 dB with
+  the material check; session 60, docs/measurements.md).
 * g_z(dz) = exp(-(dz / (DEPTH_SIGMA_REL z))^2): cancels parents at another depth (relative tolerance).
 * g_a(v) = exp(-v^T M v), M = R_phi^T diag(1, 1 / cos^2 theta_x) R_phi, phi the angle of the
   screen-projected normal and theta_x the angle between normal and view: the kernel is narrower along the
