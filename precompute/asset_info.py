@@ -2,7 +2,8 @@
 :mod:`precompute.__main__`'s).
 
 Public: ``asset_info(path) -> dict`` (the record ``--json`` prints), ``info_lines(record) -> list`` (the lines
-the command prints), ``AssetFormat`` and ``formats() -> dict`` (format name -> ``AssetFormat``: the version this warpbw
+the command prints), ``header_status(path) -> dict`` (the header's part alone: ``warpbw info`` of a scene's files),
+``AssetFormat`` and ``formats() -> dict`` (format name -> ``AssetFormat``: the version this warpbw
 reads, what the file is in words, the builder's current settings and what older files leave unrecorded, its reader).
 
 A file's header (:mod:`precompute.assetfile`) names its format and version, its source and the source's content hash,
@@ -29,7 +30,7 @@ import numpy as np
 from precompute.assetfile import read_any_asset, read_asset, settings_mismatch
 from warpbw.errors import WarpbwError
 
-__all__ = ["AssetFormat", "formats", "asset_info", "info_lines"]
+__all__ = ["AssetFormat", "formats", "asset_info", "info_lines", "header_status"]
 
 HASH_SHOWN = 12        # hex digits of a content hash the text shows (the JSON holds it whole)
 PARAM_LIST_SHOWN = 6   # items of a recorded list the text shows (the JSON holds it whole)
@@ -146,25 +147,56 @@ def asset_info(path) -> dict:
            "source": h.get("source"), "source_hash": h.get("source_hash"), "writer": h.get("writer"),
            "params": params, "settings": None, "settings_differ": None, "settings_note": None}
     extra = {}
-    if fmt is None:
-        rec["not_read"] = f"{fmt_name!r} is not a format warpbw reads"
-    elif h.get("version") != fmt.version:
-        rec["not_read"] = f"version {h.get('version')!r}, this warpbw reads {fmt.version}"
-    else:
+    rec.update(_header_checks(h, fmt))
+    if rec["not_read"] is None:
         try:
             extra = fmt.read(path)
             rec["reads"] = True
         except WarpbwError as exc:
             msg = str(exc)
             rec["not_read"] = msg[len(f"{path}: "):] if msg.startswith(f"{path}: ") else msg
-        differ = settings_mismatch(params, fmt.settings(params if isinstance(params, dict) else {}), fmt.unrecorded)
-        rec["settings"] = "current" if differ is None else "differ"
-        if differ is not None:
-            rec["settings_differ"] = differ
-            rec["settings_note"] = SETTINGS_DIFFER_CACHE if fmt.cache_only else SETTINGS_DIFFER
     rec.update(extra)
     rec["arrays"] = [_array_info(k, np.asarray(v)) for k, v in asset.arrays.items()]
     return rec
+
+
+def _header_checks(h: dict, fmt: AssetFormat | None) -> dict:
+    """What the header ``h`` of a file of format ``fmt`` (None: one warpbw does not know) tells without its arrays:
+    ``not_read`` (another format or version; None when this warpbw reads both) and the builder settings' check
+    (``settings``, ``settings_differ``, ``settings_note``: ``asset_info``'s)."""
+    params = h.get("params")
+    out = {"not_read": None, "settings": None, "settings_differ": None, "settings_note": None}
+    if fmt is None:
+        out["not_read"] = f"{h.get('format')!r} is not a format warpbw reads"
+        return out
+    if h.get("version") != fmt.version:
+        out["not_read"] = f"version {h.get('version')!r}, this warpbw reads {fmt.version}"
+        return out
+    differ = settings_mismatch(params, fmt.settings(params if isinstance(params, dict) else {}), fmt.unrecorded)
+    out["settings"] = "current" if differ is None else "differ"
+    if differ is not None:
+        out["settings_differ"] = differ
+        out["settings_note"] = SETTINGS_DIFFER_CACHE if fmt.cache_only else SETTINGS_DIFFER
+    return out
+
+
+def header_status(path) -> dict:
+    """What the header of the asset file ``path`` says, its arrays not read and its reader not asked (``warpbw info``
+    of a scene lists it beside the file): ``path``, ``format``, ``version``, ``what``, ``not_read`` (another format
+    or version, else None), ``settings``, ``settings_differ``; or ``path`` and ``error`` for a file that is missing
+    or no asset file (a damaged one: its reader says more)."""
+    from precompute.assetfile import read_header
+
+    p = Path(path)
+    h = read_header(p) if p.is_file() else None
+    if not isinstance(h, dict) or not isinstance(h.get("format"), str):
+        why = "not a warpbw asset file, or a damaged one" if p.is_file() else "no such file"
+        return {"path": str(p), "error": why}
+    fmt = formats().get(h["format"])
+    checks = _header_checks(h, fmt)
+    return {"path": str(p), "format": h["format"], "version": h.get("version"),
+            "what": None if fmt is None else fmt.what, "not_read": checks["not_read"],
+            "settings": checks["settings"], "settings_differ": checks["settings_differ"]}
 
 
 def _short_hash(h) -> str:

@@ -560,6 +560,63 @@ def test_info_lists_a_bandwidth_table_only_for_the_method_that_reads_it(tmp_path
         render_adaptive(scene, budget=1.0)
 
 
+def test_info_says_what_the_precomputed_files_a_scene_names_are(tmp_path, monkeypatch, capsys):
+    """warpbw info lists beside each precomputed file a material names (gmm, sampling, bandwidth) what its header
+    says: its kind and version, another version this warpbw does not read, builder settings other than the
+    builder's (read as they are), or a file that is no asset file.  Truth: a GMM mipmap written here, and copies whose
+    headers are rewritten here with numpy (version 1; EM's tolerance 1e-3), and bytes that are no archive."""
+    from precompute.gmm_mipmap import build_gmm_mipmap, write_gmm_mipmap
+    from warpbw.cli import main as cli_main
+    from warpbw.io.exr import write_exr
+
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
+    heights = np.add.outer(np.sin(np.arange(8.0)), np.cos(np.arange(8.0))) * 0.02
+    write_exr(tmp_path / "h.exr", heights.astype(np.float32)[..., None], ["Y"])
+    write_gmm_mipmap(tmp_path / "ok.gmm", build_gmm_mipmap(heights, progress=False), "h.exr", "x")
+
+    def rewritten(name, **change):
+        with np.load(tmp_path / "ok.gmm") as z:
+            members = {k: z[k] for k in z.files}
+        header = json.loads(str(members["__header__"]))
+        header["params"].update(change.pop("params", {}))
+        header.update(change)
+        members["__header__"] = np.array(json.dumps(header))
+        with open(tmp_path / name, "wb") as f:
+            np.savez_compressed(f, **members)
+
+    rewritten("v1.gmm", version=1)
+    rewritten("other.gmm", params={"em_tolerance": 1e-3})
+    (tmp_path / "junk.gmm").write_bytes(b"not an archive")
+    lines = ["[camera]", "position = [0.0, 1.2, 1.2]", "look_at = [0.0, 0.0, 0.0]", "fov = 40.0",
+             "resolution = [8, 8]", "[[light]]", 'type = "directional"', "direction = [0.3, 0.8, -0.5]",
+             "radiance = [3.0, 3.0, 3.0]"]
+    names = ["ok", "v1", "other", "junk"]
+    for i, n in enumerate(names):
+        lines += ["[[object]]", 'shape = "plane"', f"center = [{3.0 * i}, 0.0, 0.0]", "size = 2.0",
+                  f'material = "{n}"']
+    for n in names:
+        lines += [f"[material.{n}]", 'type = "cook-torrance"', "roughness = 0.08", "f0 = [0.9, 0.75, 0.4]",
+                  'normal_map = "h.exr"', f'gmm = "{n}.gmm"']
+    (tmp_path / "s.toml").write_text("\n".join(lines))
+    assert cli_main(["info", str(tmp_path / "s.toml"), "--json"]) == 0
+    assets = {Path(a["path"]).name: a for a in json.loads(capsys.readouterr().out)["assets"]}
+    assert list(assets) == [f"{n}.gmm" for n in names]
+    assert assets["ok.gmm"]["version"] == 2 and assets["ok.gmm"]["not_read"] is None
+    assert assets["ok.gmm"]["settings"] == "current"
+    assert assets["v1.gmm"]["not_read"] == "version 1, this warpbw reads 2" and assets["v1.gmm"]["settings"] is None
+    assert assets["other.gmm"]["settings"] == "differ"
+    assert assets["other.gmm"]["settings_differ"] == "em_tolerance 0.001, the builder's 0.0001"
+    assert assets["junk.gmm"] == {"path": str(tmp_path / "junk.gmm"),
+                                  "error": "not a warpbw asset file, or a damaged one"}
+    assert cli_main(["info", str(tmp_path / "s.toml")]) == 0
+    text = capsys.readouterr().out
+    for name, said in (("ok", "version 2; builder settings current"),
+                       ("v1", ": version 1, this warpbw reads 2"),
+                       ("other", "builder settings differ (em_tolerance 0.001, the builder's 0.0001): read as it is"),
+                       ("junk", "not a warpbw asset file, or a damaged one")):
+        assert f"{name}.gmm (" in text and said in text.split(f"{name}.gmm (")[1].splitlines()[0], (name, text)
+
+
 def test_info_estimates_the_memory_a_probe_file_takes_to_load_and_analyse(tmp_path, capsys):
     """warpbw info gives, from the probe's header alone, the peak of loading it (LOAD_BYTES_PER_TEXEL) and, with
     --method adaptive, of building its bandwidth map (ENV_BW_BYTES_PER_TEXEL plus ENV_BW_BYTES_FIXED): an 8192x4096

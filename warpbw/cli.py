@@ -423,10 +423,18 @@ def cmd_demo(args) -> int:
 
 
 def cmd_info(args) -> int:
+    from precompute.asset_info import header_status
     from warpbw.pipeline import scene_summary
     from warpbw.scene import load_scene
 
-    s = scene_summary(load_scene(args.scene), args.method)   # planes, spheres and meshes, or both
+    scene = load_scene(args.scene)
+    s = scene_summary(scene, args.method)   # planes, spheres and meshes, or both
+    # the precomputed files the materials name (sampling, bandwidth, gmm), as their headers describe them: another
+    # version or other builder settings said before a render (the render still checks each against its source)
+    named = {str(p) for n in scene.material_order for p in (scene.materials[n].sampling,
+                                                              scene.materials[n].bandwidth, scene.materials[n].gmm)
+             if p is not None}
+    s["assets"] = [header_status(f) for f in s["files"] if f in named]
     if args.json:
         print(json.dumps(s, indent=2))
         return 0
@@ -455,9 +463,22 @@ def cmd_info(args) -> int:
               "triangles")
     if s["files"]:
         print("files")
+        status = {a["path"]: a for a in s["assets"]}
         for f in s["files"]:
-            print(f"  - {printable(f)}")
+            print(f"  - {printable(f)}" + (f" ({printable(_asset_status_text(status[f]))})" if f in status else ""))
     return 0
+
+
+def _asset_status_text(a: dict) -> str:
+    """An asset file's ``header_status`` in a few words, for ``warpbw info``'s list of files."""
+    if "error" in a:
+        return a["error"]
+    if a["not_read"] is not None:   # another version, or a format this warpbw does not know
+        return f"{a['what'] or a['format']}: {a['not_read']}"
+    what = f"{a['what']}, version {a['version']}"
+    if a["settings"] == "differ":
+        return f"{what}; builder settings differ ({a['settings_differ']}): read as it is"
+    return f"{what}; builder settings current"
 
 
 _PSNR_IDENTICAL = "identical over the covered pixels"
@@ -851,9 +872,11 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=cmd_demo)
 
     i = sub.add_parser("info", help="summarise what a scene needs", description="Summarise a scene: objects, "
-                       "materials, light, the files it reads, the stages a render would run and the memory they "
-                       "would take (a frame; loading the probe and, adaptive, building its bandwidth map; the placed "
-                       "meshes, from their files' headers).")
+                       "materials, light, the files it reads (beside each precomputed file a material names, what its "
+                       "header says: its kind and version, a version this warpbw does not read, builder settings "
+                       "other than the builder's), the stages a render would run and the memory they would take (a "
+                       "frame; loading the probe and, adaptive, building its bandwidth map; the placed meshes, from "
+                       "their files' headers).")
     i.add_argument("scene", help="scene file (TOML)")
     i.add_argument("--method", choices=METHODS, default=METHODS[0],
                    help="the stages of warpbw render --method METHOD for the spheres and meshes (default reference; "
