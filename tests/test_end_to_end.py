@@ -599,7 +599,10 @@ def test_info_says_what_the_precomputed_files_a_scene_names_are(tmp_path, monkey
                   'normal_map = "h.exr"', f'gmm = "{n}.gmm"']
     (tmp_path / "s.toml").write_text("\n".join(lines))
     assert cli_main(["info", str(tmp_path / "s.toml"), "--json"]) == 0
-    assets = {Path(a["path"]).name: a for a in json.loads(capsys.readouterr().out)["assets"]}
+    summary = json.loads(capsys.readouterr().out)
+    # the four materials' one normal map listed once (it was listed once per material)
+    assert [Path(f).name for f in summary["files"]] == ["h.exr", "ok.gmm", "v1.gmm", "other.gmm", "junk.gmm"]
+    assets = {Path(a["path"]).name: a for a in summary["assets"]}
     assert list(assets) == [f"{n}.gmm" for n in names]
     assert assets["ok.gmm"]["version"] == 2 and assets["ok.gmm"]["not_read"] is None
     assert assets["ok.gmm"]["settings"] == "current"

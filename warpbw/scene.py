@@ -303,7 +303,8 @@ class Scene:
         return self._files(self.material_order)
 
     def _files(self, material_names) -> list:
-        """The probe, the meshes, and the files of the materials ``material_names``."""
+        """The probe, the meshes, and the files of the materials ``material_names``, each once (materials sharing a
+        normal map, meshes placed twice: ``warpbw info`` listed such a file once per use)."""
         out = []
         if self.environment is not None and self.environment.file is not None:
             out.append(self.environment.file)
@@ -311,7 +312,7 @@ class Scene:
         for name in material_names:
             m = self.materials[name]
             out += [p for p in (m.file, m.table, m.sampling, m.bandwidth, m.normal_map, m.gmm) if p is not None]
-        return out
+        return list(dict.fromkeys(out))
 
 
 # Material fields only cook-torrance materials use: left out of other materials' hashes, so that the hashes
