@@ -364,16 +364,27 @@ def footprint_samples(n2, level: int, max_samples: int = DEFAULT_MAX_SAMPLES, rn
     return _footprint_samples(n2, level, max_samples, rng)
 
 
+def _grid_side(f: int, max_samples: int) -> int:
+    """Samples per axis of a footprint f texels wide: every texel (g = f, enumerated) while f^2 <= ``max_samples``,
+    else one per cell of a g x g grid, g^2 <= ``max_samples``."""
+    return min(f, max(1, int(math.isqrt(int(max_samples)))))
+
+
+def _block_sides(size: int, f: int) -> np.ndarray:
+    """Texels of each f-texel block along an axis of ``size`` texels: f, and the border's clipped remainder last."""
+    return np.minimum(f, size - np.arange(-(-size // f)) * f).astype(np.float64)
+
+
 def _footprint_samples(n2, level: int, max_samples: int = DEFAULT_MAX_SAMPLES, rng=None) -> np.ndarray:
     n2 = np.asarray(n2)
     H, W = n2.shape[:2]
     f = 1 << level
     h_l, w_l = -(-H // f), -(-W // f)
-    g = min(f, max(1, int(math.isqrt(int(max_samples)))))
+    g = _grid_side(f, max_samples)
     r0 = np.arange(h_l) * f
     c0 = np.arange(w_l) * f
-    nr = np.minimum(f, H - r0).astype(np.float64)
-    nc = np.minimum(f, W - c0).astype(np.float64)
+    nr = _block_sides(H, f)
+    nc = _block_sides(W, f)
     cell = np.arange(g, dtype=np.float64)
     if g == f:      # enumerate: stratum centres are the texels themselves
         ju = jv = 0.5
@@ -395,12 +406,11 @@ def _footprint_weights(H: int, W: int, level: int, max_samples: int = DEFAULT_MA
     border leaves: where n does not divide 2^l some texels take two slots (a 7-texel side: one of them 2/8 of the
     weight, the others 1/8).  A slot's weight is (2^l / n) / (the slots its texel takes), per axis."""
     f = 1 << level
-    g = min(f, max(1, int(math.isqrt(int(max_samples)))))
-    if g != f:
+    if _grid_side(f, max_samples) != f:
         return None
 
     def per_axis(size: int) -> np.ndarray:   # (blocks, f): the weight of each slot along one axis
-        n = np.minimum(f, size - np.arange(-(-size // f)) * f)[:, None]
+        n = _block_sides(size, f)[:, None]
         texel = np.floor((np.arange(f) + 0.5) * n / f)                           # the slot's texel, as above
         slots = np.sum(texel[:, :, None] == texel[:, None, :], axis=-1)          # slots its texel takes
         return (f / n) / slots
