@@ -80,14 +80,14 @@ def _members_hold_what_they_declare(p: Path) -> bool:
     return True
 
 
-def _load(p: Path) -> tuple:
-    """``(header, arrays)`` of the archive ``p``, the header as JSON gives it back (any value); ``(None, {})`` when
-    its bytes are no asset file's."""
+def _load(p: Path, arrays: bool = True) -> tuple:
+    """``(header, arrays)`` of the archive ``p``, the header as JSON gives it back (any value; ``arrays=False``: the
+    header alone, ``{}`` for the arrays); ``(None, {})`` when its bytes are no asset file's."""
     try:
         if _members_hold_what_they_declare(p):
             with np.load(p, allow_pickle=False) as z:
                 header = json.loads(str(z[HEADER_KEY]))
-                return header, {k: z[k] for k in z.files if k != HEADER_KEY}
+                return header, ({k: z[k] for k in z.files if k != HEADER_KEY} if arrays else {})
     except Exception:   # noqa: BLE001 -- whatever numpy, zipfile or json raise reading these bytes is their damage:
         # EOFError for a zero-byte file, zlib.error, zipfile's "compression method is not supported" for an unknown
         # method, RuntimeError for the encrypted flag, RecursionError for a deeply nested header.  Refused by the
@@ -132,13 +132,7 @@ def read_any_asset(path) -> Asset:
 def read_header(path) -> dict | None:
     """The JSON header of the asset file ``path`` without its arrays (a cache reader's cheap look at its ``params``),
     or None when ``path`` is no asset file, or a damaged one (``read_asset`` then says what is wrong)."""
-    try:
-        if not _members_hold_what_they_declare(Path(path)):
-            return None
-        with np.load(path, allow_pickle=False) as z:
-            header = json.loads(str(z[HEADER_KEY]))
-    except Exception:   # noqa: BLE001 -- as read_asset: whatever reading these bytes raises is their damage
-        return None
+    header, _ = _load(Path(path), arrays=False)
     return header if isinstance(header, dict) else None
 
 
