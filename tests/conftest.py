@@ -24,6 +24,23 @@ def shared_file(rel: str) -> Path:
     return p
 
 
+def rewrite_asset(src: Path, dst: Path, arrays=None, params=None, drop=(), **fields) -> Path:
+    """A copy of the asset file ``src`` with its header's ``fields`` and ``params`` replaced (``drop``: params
+    removed) and ``arrays`` replaced, written with NumPy alone (a file of another version, format or settings)."""
+    import json
+
+    with np.load(src) as z:
+        members = {k: z[k] for k in z.files}
+    header = json.loads(str(members["__header__"]))
+    header.update(fields)
+    header["params"] = {k: v for k, v in {**header["params"], **(params or {})}.items() if k not in drop}
+    members["__header__"] = np.array(json.dumps(header))
+    members.update(arrays or {})
+    with open(dst, "wb") as f:
+        np.savez_compressed(f, **members)
+    return dst
+
+
 def load_example(name: str):
     """The module examples/NAME.py, imported from its file (examples/ is not a package)."""
     import importlib.util

@@ -15,25 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import fake_npf_table, uniform_sampler_table
+from conftest import rewrite_asset as rewrite
 
 from precompute.__main__ import main
 
 HEADER = "__header__"
-
-
-def rewrite(src: Path, dst: Path, arrays=None, params=None, drop=(), **fields) -> Path:
-    """A copy of the asset ``src`` with its header's ``fields`` and ``params`` replaced (``drop``: params removed) and
-    ``arrays`` replaced, written with NumPy alone."""
-    with np.load(src) as z:
-        members = {k: z[k] for k in z.files}
-    header = json.loads(str(members[HEADER]))
-    header.update(fields)
-    header["params"] = {k: v for k, v in {**header["params"], **(params or {})}.items() if k not in drop}
-    members[HEADER] = np.array(json.dumps(header))
-    members.update(arrays or {})
-    with open(dst, "wb") as f:
-        np.savez_compressed(f, **members)
-    return dst
 
 
 def numpy_arrays(path: Path) -> dict:

@@ -565,6 +565,7 @@ def test_info_says_what_the_precomputed_files_a_scene_names_are(tmp_path, monkey
     says: its kind and version, another version this warpbw does not read, builder settings other than the
     builder's (read as they are), or a file that is no asset file.  Truth: a GMM mipmap written here, and copies whose
     headers are rewritten here with numpy (version 1; EM's tolerance 1e-3), and bytes that are no archive."""
+    from conftest import rewrite_asset
     from precompute.gmm_mipmap import build_gmm_mipmap, write_gmm_mipmap
     from warpbw.cli import main as cli_main
     from warpbw.io.exr import write_exr
@@ -574,18 +575,8 @@ def test_info_says_what_the_precomputed_files_a_scene_names_are(tmp_path, monkey
     write_exr(tmp_path / "h.exr", heights.astype(np.float32)[..., None], ["Y"])
     write_gmm_mipmap(tmp_path / "ok.gmm", build_gmm_mipmap(heights, progress=False), "h.exr", "x")
 
-    def rewritten(name, **change):
-        with np.load(tmp_path / "ok.gmm") as z:
-            members = {k: z[k] for k in z.files}
-        header = json.loads(str(members["__header__"]))
-        header["params"].update(change.pop("params", {}))
-        header.update(change)
-        members["__header__"] = np.array(json.dumps(header))
-        with open(tmp_path / name, "wb") as f:
-            np.savez_compressed(f, **members)
-
-    rewritten("v1.gmm", version=1)
-    rewritten("other.gmm", params={"em_tolerance": 1e-3})
+    rewrite_asset(tmp_path / "ok.gmm", tmp_path / "v1.gmm", version=1)
+    rewrite_asset(tmp_path / "ok.gmm", tmp_path / "other.gmm", params={"em_tolerance": 1e-3})
     (tmp_path / "junk.gmm").write_bytes(b"not an archive")
     lines = ["[camera]", "position = [0.0, 1.2, 1.2]", "look_at = [0.0, 0.0, 0.0]", "fov = 40.0",
              "resolution = [8, 8]", "[[light]]", 'type = "directional"', "direction = [0.3, 0.8, -0.5]",
