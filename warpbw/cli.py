@@ -431,9 +431,8 @@ def cmd_info(args) -> int:
     s = scene_summary(scene, args.method)   # planes, spheres and meshes, or both
     # the precomputed files the materials name (sampling, bandwidth, gmm), as their headers describe them: another
     # version or other builder settings said before a render (the render still checks each against its source)
-    named = {str(p) for n in scene.material_order for p in (scene.materials[n].sampling,
-                                                              scene.materials[n].bandwidth, scene.materials[n].gmm)
-             if p is not None}
+    used = [scene.materials[n] for n in scene.material_order]
+    named = {str(p) for m in used for p in (m.sampling, m.bandwidth, m.gmm) if p is not None}
     s["assets"] = [header_status(f) for f in s["files"] if f in named]
     if args.json:
         print(json.dumps(s, indent=2))
