@@ -1894,7 +1894,14 @@ def test_write_merl_refuses_what_read_merl_would(tmp_path, fill, needle):
     data[3, 4, 5] = 0.5        # one positive entry, the others as they were: what the reader takes, the writer writes
     if fill != "huge":
         write_merl(tmp_path / "out.binary", data)
-        assert read_merl(tmp_path / "out.binary").data.max() == pytest.approx(0.5, rel=1e-6)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            assert read_merl(tmp_path / "out.binary").data.max() == pytest.approx(0.5, rel=1e-6)
+        # the reader says so where it sets entries to 0, and only there
+        said = [str(w.message) for w in caught if "unmeasured" in str(w.message)]
+        unmeasured = (f"{tmp_path / 'out.binary'}: 4373997 of 4374000 MERL entries are unmeasured (negative or "
+                      "non-finite); set to 0")
+        assert said == ([unmeasured] if fill == "unmeasured" else []), said
 
 
 def test_an_npf_row_that_reflects_nothing_is_refused(tmp_path):

@@ -931,7 +931,6 @@ def test_render_and_info_of_a_scene_with_planes_beside_a_sphere(tmp_path):
     assert r.returncode == 2 and "--force" in r.stderr and out.read_bytes() == before
 
 
-@pytest.mark.filterwarnings("ignore:envmap 'forest.exr'")   # the probe's few negative values, set to 0
 def test_bunny_on_floor_scene_shows_the_bunny_and_the_floor(tmp_path, shared):
     """examples/bunny_on_floor.py writes the README's mixed scene: the shared bunny (NPF) sunk a little into a plane
     with the dunes height field, under forest.exr.  A small render of it (the scene's resolution shrunk) against a

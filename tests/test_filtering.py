@@ -1929,6 +1929,7 @@ def test_a_plane_seen_from_below_shows_nothing(tmp_path):
     assert render_filtering(above, "fixed").coverage.sum() > 50   # the same plane, seen from above
 
 
+@pytest.mark.filterwarnings("ignore:height field of")   # a 4 x 4 random map holds much texel-to-texel detail
 def test_a_footprint_beyond_the_coarsest_level_is_filtered_at_it_and_reported_as_it(tmp_path):
     """A 4x4 map (3 levels) tiled 32 times, seen straight down from 5 plane half-sizes away: every pixel's footprint
     lies between levels 2 and 3 (the numpy footprint's unclipped lam), past the coarsest level 2,
