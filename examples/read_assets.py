@@ -215,7 +215,8 @@ def gmm_fetch(levels: list, s, t, lam) -> np.ndarray:
     fractional level ``lam`` (0 the finest), by trilinear filtering of the stored moments.
 
     Level l is (h_l, w_l, K, 4), each level the one below halved rounding up, down to 1 x 1; its texel j covers
-    finest texels [j 2^l, (j + 1) 2^l), centred at (j + 1/2) 2^l; the map tiles (indices wrap).  A component is
+    finest texels [j 2^l, (j + 1) 2^l), centred at (j + 1/2) 2^l -- but where a side is no power of two the border
+    clips the last texel, [j 2^l, n), centred on those texels; the map tiles with its own period n.  A component is
     stored as (a, a mu_x, a mu_y, a (2 s^2 + |mu|^2)), so filtering is linear; mu and the per-axis variance s^2
     are recovered after it."""
     s, t, lam = np.broadcast_arrays(*(np.asarray(v, np.float64) for v in (s, t, lam)))
@@ -232,17 +233,43 @@ def gmm_fetch(levels: list, s, t, lam) -> np.ndarray:
     return np.where(full[..., None], np.stack([a, mx, my, s2], -1), 0.0)
 
 
+def _axis(l: int, n_l: int, n: int, x: np.ndarray):
+    """Along one axis of n finest texels (n_l at level l): the texel whose centre is the last at or before finest
+    coordinate x and the fraction of the way to the next centre, the map tiling with period n (a last texel the
+    border clips is centred on the texels it covers, and the texel after it is texel 0 of the next tile)."""
+    f = 2.0 ** l
+    u = x / f - 0.5
+    x0 = np.floor(u)
+    fx = u - x0
+    if n_l * f != n:
+        u = x - np.floor(x / n) * n                    # in the first tile
+        last = n_l - 1.0
+        c_last = 0.5 * (last * f + n)
+        x0 = np.floor(u / f - 0.5)
+        fx = u / f - 0.5 - x0
+        c0 = (x0 + 0.5) * f
+        before = u < 0.5 * f                           # between the previous tile's last texel and texel 0
+        after = u >= c_last                            # between the last texel and the next tile's texel 0
+        towards = ~before & ~after & (x0 == last - 1)  # towards the clipped last texel
+        fx = np.where(towards, (u - c0) / np.where(towards, c_last - c0, 1.0), fx)
+        fx = np.where(before, (u - (c_last - n)) / (0.5 * f + n - c_last), fx)
+        fx = np.where(after, (u - c_last) / (n + 0.5 * f - c_last), fx)
+        x0 = np.where(before, -1.0, np.where(after, last, x0))
+        fx = np.clip(fx, 0.0, 1.0)
+    return x0.astype(np.int64), fx
+
+
 def _bilinear(levels: list, level: np.ndarray, s: np.ndarray, t: np.ndarray) -> np.ndarray:
     """(N, K, 4) moments of each point's own level, bilinear between the four nearest texel centres."""
     out = np.zeros((len(s),) + levels[0].shape[2:])
+    H, W = levels[0].shape[:2]
     for l in np.unique(level):
         at = level == l
         q = levels[l].astype(np.float64)
         h, w = q.shape[:2]
-        x, y = s[at] / 2.0 ** l - 0.5, t[at] / 2.0 ** l - 0.5
-        x0, y0 = np.floor(x), np.floor(y)
-        fx, fy = (x - x0)[:, None, None], (y - y0)[:, None, None]
-        c, r = x0.astype(np.int64), y0.astype(np.int64)
+        c, fx = _axis(int(l), w, W, s[at])
+        r, fy = _axis(int(l), h, H, t[at])
+        fx, fy = fx[:, None, None], fy[:, None, None]
         out[at] = ((1 - fx) * (1 - fy) * q[r % h, c % w] + fx * (1 - fy) * q[r % h, (c + 1) % w]
                    + (1 - fx) * fy * q[(r + 1) % h, c % w] + fx * fy * q[(r + 1) % h, (c + 1) % w])
     return out

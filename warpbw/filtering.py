@@ -39,8 +39,8 @@ Public:
     wo, pl)``: the lobes' NDF, the BRDF strategy's draw and its solid-angle pdf (tests launch them in kernels)
     Warp functions its kernels are built of: the view (``ray_dir``, ``plane_t``, ``plane_st``, ``inside``,
     ``to_plane``, ``plane_to_world``, struct ``Footprint``, ``pixel_footprint``, ``probe_offset``), the mipmap
-    fetch (``pmod``, ``texel_index``, ``bilinear_base``, ``fetch4``, ``fetch3``, ``trilinear4``, ``trilinear3``,
-    ``recover``), the model (``gauss2``, ``gauss2_cov``, ``lift``, ``schlick``, ``cook_torrance_cos``,
+    fetch (``pmod``, ``texel_index``, ``axis_base``, ``bilinear_base``, ``fetch4``, ``fetch3``, ``trilinear4``,
+    ``trilinear3``, ``recover``), the model (``gauss2``, ``gauss2_cov``, ``lift``, ``schlick``, ``cook_torrance_cos``,
     ``half_xy``, ``shade_fine``, ``set_lobe``, ``lobes_lambert``, ``lobes_cos``, ``lobes_direct``), the
     environment (``env_mis_term``, ``pair_offset``, ``pair_uniform``, ``lobes_env``); the kernels
     ``background_distance_kernel``, ``plane_distance_kernel`` and, behind ``fetch_gmm`` / ``gmm_ndf`` /
@@ -306,23 +306,55 @@ def texel_index(lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32), loff
 
 
 @wp.func
-def bilinear_base(l: int, s: float, t: float):
-    """(column, row) of the lower-left of the 2 x 2 level-l texels around finest coordinates (s, t), and the
-    fractions (fx, fy) towards the next ones: level-l texel j covers finest texels [j 2^l, (j + 1) 2^l),
-    its centre at (j + 1/2) 2^l."""
+def axis_base(l: int, n_l: int, n: int, s: float):
+    """Along one axis of n finest texels (n_l at level l): the index of the level-l texel whose centre is the last at
+    or before finest coordinate s, and the fraction (0 to 1) of the way from that centre to the next, the map tiling
+    with period n.  Level-l texel j covers finest texels [j 2^l, min((j + 1) 2^l, n)), its centre in the middle:
+    (j + 1/2) 2^l, but where the border clips the last texel (n_l 2^l > n: n is no power of two) that texel's clipped
+    centre, and the texel after it is texel 0 of the next tile, n further on (a period of n_l 2^l mixed the tiles
+    up: their texels were read off the map's period from the second tile on)."""
     f = wp.pow(2.0, float(l))
     x = s / f - 0.5
-    y = t / f - 0.5
     x0 = wp.floor(x)
-    y0 = wp.floor(y)
-    return wp.vec4(x0, y0, x - x0, y - y0)
+    fx = x - x0
+    if n_l * int(f) != n:
+        period = float(n)
+        u = s - wp.floor(s / period) * period      # s in the first tile, [0, n] (n only by rounding)
+        last = float(n_l - 1)
+        c_last = 0.5 * (last * f + period)         # the clipped last texel's centre
+        if u < 0.5 * f:                            # between the previous tile's last texel and texel 0
+            x0 = -1.0
+            fx = (u - (c_last - period)) / (0.5 * f + period - c_last)
+        elif u >= c_last:                          # between the last texel and the next tile's texel 0
+            x0 = last
+            fx = (u - c_last) / (period + 0.5 * f - c_last)
+        else:
+            x0 = wp.floor(u / f - 0.5)
+            c0 = (x0 + 0.5) * f
+            if x0 == last - 1.0:                   # towards the clipped last texel
+                fx = (u - c0) / (c_last - c0)
+            else:
+                fx = u / f - 0.5 - x0
+        fx = wp.clamp(fx, 0.0, 1.0)
+    return wp.vec2(x0, fx)
+
+
+@wp.func
+def bilinear_base(lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32), l: int, s: float, t: float):
+    """(column, row) of the lower-left of the 2 x 2 level-l texels around finest coordinates (s, t), and the
+    fractions (fx, fy) towards the next ones (``axis_base`` along each axis; lw, lh the levels' sizes, level 0 the
+    map's): level-l texel j covers finest texels [j 2^l, (j + 1) 2^l), its centre at (j + 1/2) 2^l (a last texel
+    the map's border clips, at its clipped centre)."""
+    bx = axis_base(l, lw[l], lw[0], s)
+    by = axis_base(l, lh[l], lh[0], t)
+    return wp.vec4(bx[0], by[0], bx[1], by[1])
 
 
 @wp.func
 def fetch4(q: wp.array(dtype=wp.vec4), lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32),
            loff: wp.array(dtype=wp.int32), l: int, s: float, t: float, K: int, k: int):
     """Bilinear fetch of component k of a K-component vec4 texture at level l (wrap-around: the map tiles)."""
-    b = bilinear_base(l, s, t)
+    b = bilinear_base(lw, lh, l, s, t)
     c = int(b[0])
     r = int(b[1])
     fx = b[2]
@@ -337,7 +369,7 @@ def fetch4(q: wp.array(dtype=wp.vec4), lw: wp.array(dtype=wp.int32), lh: wp.arra
 def fetch3(q: wp.array(dtype=wp.vec3), lw: wp.array(dtype=wp.int32), lh: wp.array(dtype=wp.int32),
            loff: wp.array(dtype=wp.int32), l: int, s: float, t: float):
     """``fetch4`` for a one-component vec3 texture."""
-    b = bilinear_base(l, s, t)
+    b = bilinear_base(lw, lh, l, s, t)
     c = int(b[0])
     r = int(b[1])
     fx = b[2]
