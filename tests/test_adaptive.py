@@ -493,3 +493,52 @@ def test_the_world_turned_about_y_gives_the_same_plan_and_frame(theta, mis):
     assert cov.sum() > 200 and len(np.unique(one.aovs["n_p"][cov])) > 2 and one.aovs["shaded"][cov].mean() < 0.9
     assert (turned.coverage != cov).sum() <= 1   # a ray within float32 rounding of a silhouette may miss once turned
     _assert_the_same_plan_and_k_times_the_frame(one, turned, 1.0)
+
+
+ONE_PIXEL_SPHERE = """
+[camera]
+position = [0.0, 0.0, 4.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 35.0
+resolution = [32, 32]
+[environment]
+procedural = "sky"
+[[object]]
+shape = "sphere"
+center = [0.0, 0.0, -6.0]
+radius = 5.0
+material = "m"
+{extra}
+[material.m]
+type = "lambert"
+albedo = [0.6, 0.4, 0.2]
+"""
+
+
+def test_a_pixel_shaded_at_two_levels_counts_the_samples_of_both_in_the_spp_map():
+    """A sphere covering one pixel, (14, 18), in front of a big one: (14, 18) is the representative pixel of level-2
+    texel (3, 4) (4 x + 2, 4 y + 2), so with every level at 2 it is shaded there; at level 0 none of its level-1
+    parents (the pixels (13 or 15, 17 or 19)) lies at its depth, so it is shaded again.  The frame takes 4 + 4 samples
+    at it, and the spp map (render_adaptive's "spp" AOV, documented to sum to the frame's samples) must say 8: it said
+    4 (the level-0 shading overwrote the level-2 one) and summed to 256 of the frame's 260 samples.  Truth: N_p = 4 at
+    every pixel, 64 level-2 texels and the one pixel again."""
+    prep = prepare_scene(parse_scene(ONE_PIXEL_SPHERE.format(extra="")))
+    gb = render_reference(prep, spp=1, seed=0).gbuffer
+    x, y = 4 * 3 + 2, 4 * 4 + 2
+    eye = np.array([0.0, 0.0, 4.0])
+    c = eye + 0.5 * (gb.numpy("position").reshape(32, 32, 3)[y, x] - eye)   # half way to the big sphere
+    pixel = 2 * np.linalg.norm(c - eye) * np.tan(np.radians(17.5)) / 32     # one pixel's width there
+    extra = f'[[object]]\nshape = "sphere"\ncenter = [{c[0]}, {c[1]}, {c[2]}]\nradius = {0.3 * pixel}\nmaterial = "m"'
+    prep = prepare_scene(parse_scene(ONE_PIXEL_SPHERE.format(extra=extra)))
+    gb = render_reference(prep, spp=1, seed=0).gbuffer
+    depth = gb.numpy("depth").reshape(32, 32)
+    assert [tuple(p) for p in np.argwhere(depth < 0.75 * depth.max())] == [(y, x)]   # the one near pixel
+    assert gb.coverage.all()
+    shape = gb.coverage.shape
+    r = shade_hierarchical(gb, prep.camera, prep.materials, prep.env.data, np.full(shape, 2, np.int32),
+                           np.full(shape, 4, np.int32), seed=1)
+    assert [lv["shaded"] for lv in r.stats["levels"]] == [64, 0, 1]
+    assert r.stats["samples"] == 4 * 65
+    assert r.spp[y, x] == 8
+    assert int(r.spp.sum()) == r.stats["samples"]
+    assert r.shaded.sum() == r.stats["pixels_shaded"] == 64

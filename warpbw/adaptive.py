@@ -144,8 +144,9 @@ def load_kernels(device: str = "cpu") -> None:
 class AdaptiveResult:
     image: np.ndarray            # (H, W, 3) radiance, 0 where no geometry
     shaded: np.ndarray           # (H, W) bool: finest pixels that were shaded (at any level)
-    shaded_level: np.ndarray     # (H, W) int: level at which the pixel was shaded, -1 if up-sampled/empty
-    spp: np.ndarray              # (H, W) int32: samples taken at the pixel (its texel's N_p; 0 if up-sampled/empty)
+    shaded_level: np.ndarray     # (H, W) int: finest level at which the pixel was shaded, -1 if up-sampled/empty
+    spp: np.ndarray              # (H, W) int32: samples taken at the pixel (its texel's N_p, summed over the levels
+                                 # that shaded it; 0 if up-sampled/empty): sums to stats["samples"]
     stats: dict = field(default_factory=dict)
 
 
@@ -272,6 +273,9 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
     cov = gb.coverage
     shaded_full = wp.zeros(W * H, dtype=wp.vec3, device=device)
     spp_at_pixel = wp.zeros(W * H, dtype=wp.int32, device=device)
+    # samples taken per pixel over all levels: a texel's representative pixel may be shaded again at a finer level
+    # (no parent at its depth there), and spp_at_pixel holds only the last level's N_p
+    spp_taken = np.zeros(W * H, np.int64)
     shaded_level = np.full(W * H, -1, np.int32)   # int32, as the level map
     per_level = []
     samples = 0
@@ -312,6 +316,7 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
             wp.launch(gather_shaded_kernel, dim=n_shaded, inputs=[pix, texels, shaded_full, vals, valid],
                       device=device)
             shaded_level[rep_np[to_shade]] = L
+            spp_taken[rep_np[to_shade]] += spp_at_pixel.numpy()[rep_np[to_shade]]   # one texel per pixel a level
             t_shade += time.perf_counter() - t0
         per_level.append({"level": L, "size": [w, h], "shaded": n_shaded, "upsampled": n_up})
         parent_vals, parent_valid = vals, valid
@@ -330,4 +335,5 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
              "pixels_shaded": int((sl >= 0).sum()),
              "shaded_fraction": float((sl >= 0).sum() / n_cov) if n_cov else 0.0,
              "time_s": {"shading": t_shade, "upsampling": t_up, "lights": t_lights}}
-    return AdaptiveResult(image.astype(np.float32), sl >= 0, sl, spp_at_pixel.numpy().reshape(H, W), stats)
+    return AdaptiveResult(image.astype(np.float32), sl >= 0, sl,
+                          np.minimum(spp_taken, INT32_MAX).astype(np.int32).reshape(H, W), stats)
