@@ -266,7 +266,10 @@ ENV_BW_FORMAT = "warpbw.env-bandwidth"
 # texel plus 187 MB fits at the two larger sizes and overestimates at the smallest; rounded up.
 ENV_BW_BYTES_PER_TEXEL = 150
 ENV_BW_BYTES_FIXED = 200_000_000
-ENV_BW_VERSION = 2   # 2: wavelet bands centred on the cascade's delays (session 58); 1: on one level's
+# 3: rows padded past both poles come back unturned (session 73: changes maps under about 352 rows, such as the
+# 512 x 256 procedural sky; 1024 x 512 probes read the same); 2: wavelet bands centred on the cascade's delays
+# (session 58); 1: on one level's
+ENV_BW_VERSION = 3
 # The signal Eq. 7's wavelet analysis of the probe reads (``env_signal``): log(1 + L / mean L) (the default), where a
 # sun no longer drowns the rest of the probe's detail, or its luminance, as 002 does (module docstring: the trade)
 ENV_SIGNALS = ("log", "radiance")
