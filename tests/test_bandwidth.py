@@ -1226,6 +1226,23 @@ def test_the_pass_estimates_a_tabulated_materials_radiance_without_bias(shared, 
     assert abs(mu[inner].mean() / lum[inner].mean() - 1.0) < 0.04, (mu[inner].mean(), lum[inner].mean())
 
 
+@pytest.mark.xfail(strict=True, reason="the pass's chi is lum(L) lum(rho) cos, the product of the luminances, not "
+                   "the luminance of L rho cos; the fix (chi = lum(L * rho) cos) moves the benchmark's allocations "
+                   "(coloured MERL materials under coloured probes), so it is reported (session 73), not committed")
+def test_the_pass_estimates_the_luminance_of_a_coloured_materials_radiance_under_a_coloured_sky():
+    """mu (BandwidthBuffer.mu: "the pass's own estimate of L_p's luminance") of a red Lambert sphere (albedo 0.9, 0.1,
+    0.1) under a constant blue sky (0.1, 0.1, 0.9): L_p = albedo * sky at every pixel (closed form), luminance 0.0328.
+    The product of the two luminances, which the pass estimated, is 0.0426 (+30%); under a green sky a red surface,
+    black in the frame, read as lit."""
+    albedo, sky = np.array([0.9, 0.1, 0.1]), np.array([0.1, 0.1, 0.9])
+    prep = prepared(mat=f'type = "lambert"\nalbedo = {albedo.tolist()}', env=f"constant = {sky.tolist()}", w=32, h=32)
+    gb, buf = run_pass(prep, n_b=256, stride=1, pool_radius=0)
+    mu = buf.mu.numpy()[gb.coverage.reshape(-1)]
+    want = float(np.array([0.2126, 0.7152, 0.0722]) @ (albedo * sky))   # Rec. 709 luminance (ITU-R BT.709)
+    assert abs(np.median(mu) / want - 1.0) < 0.03, (np.median(mu), want)
+    assert np.all(np.abs(mu / want - 1.0) < 0.1)
+
+
 def test_the_pass_errors_of_pixels_two_tiles_apart_are_uncorrelated():
     """Module docstring (block_shift): each side x side tile of blocks adds its own random offset to the direction set,
     so tiles do not look along the same directions. Then the errors of the pass's estimate mu of L_p

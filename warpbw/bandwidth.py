@@ -6,7 +6,7 @@ Public:
     ``make_bandwidth_kernel(kinds, preconvolved)``   the pass's kernel (compiled ahead by the pipeline)
     ``load_kernels(device)``   compile the block-plan and pooling kernels ahead, outside the pass's time
     ``BandwidthTables`` (Warp struct) / ``make_bandwidth_tables(nu_env, nu_rho, device)``
-    ``nu_env_table(nu_env) -> (h, w)``   the environment's nu_a, max-filtered to at most LIGHT_TABLE_WIDTH columns
+    ``nu_env_table(nu_env) -> (h, w)``   the environment's nu_a, max-filtered by halves to LIGHT_TABLE_WIDTH columns
     ``env_bandwidth_map(pixels, name, cache=None, signal, progress, source) -> ((H, W) float32 cycles/rad, origin)``;
     ``env_bandwidth_settings(signal) -> dict``, ``ENV_BW_UNRECORDED``: the builder settings its cache entries record
     ``ENV_SIGNALS``, ``ENV_SIGNAL_DEFAULT``, ``env_signal(lum, signal)``, ``check_env_signal(signal)``: what it reads;
@@ -131,7 +131,7 @@ silent:
   shaded fewer pixels there (64%; 1.19x against 1.06x in one run) but ranks 0.410 on the first scene.
 * Luminance (``LUMINANCE``, Rec. 709) reduces the RGB of L and rho to the scalar weights.
 * L_i is the environment's own radiance at w_i (the renderer's bilinear look-up, ``env_radiance_uv``), and
-  nu_a^env comes from a reduced lat-long table (:func:`nu_env_table`: nu_a max-filtered to at most
+  nu_a^env comes from a reduced lat-long table (:func:`nu_env_table`: nu_a max-filtered by halves down to
   ``LIGHT_TABLE_WIDTH`` columns), one nearest fetch per direction.  Until session 34 L_i came from a
   box-filtered table of the same size: a light smaller than a reduced texel was spread over the texel, so a
   BRDF-sampled direction beside it read the light's mean, and one the light sampler drew inside it a
@@ -259,14 +259,17 @@ POOL_RADIUS_DEFAULT = 2      # pixels pool the alike traced neighbours within 2 
 # far beyond any useful pooling (a 513 x 513 window; 1e6 asked for a 7 TiB tile of shifts), and its tile's side
 POOL_RADIUS_MAX = 256
 INTERLEAVE_SIDE_MAX = 2 * POOL_RADIUS_MAX + 1
-LIGHT_TABLE_WIDTH = 256      # columns of the reduced environment the pass reads (module docstring)
+LIGHT_TABLE_WIDTH = 256      # fewest columns nu_env_table reduces the environment to by halves (module docstring)
 ENV_BW_FORMAT = "warpbw.env-bandwidth"
 # Peak memory of building a probe's bandwidth map, numpy's allocations under tracemalloc (session 62, after its
 # windowed details): 213 / 168 / 151 bytes per texel at 2048x1024 / 4096x2048 / 8192x4096, which 146 bytes per
 # texel plus 187 MB fits at the two larger sizes and overestimates at the smallest; rounded up.
 ENV_BW_BYTES_PER_TEXEL = 150
 ENV_BW_BYTES_FIXED = 200_000_000
-ENV_BW_VERSION = 2   # 2: wavelet bands centred on the cascade's delays (session 58); 1: on one level's
+# 3: rows padded past both poles come back unturned (session 73: changes maps under about 352 rows, such as the
+# 512 x 256 procedural sky; 1024 x 512 probes read the same); 2: wavelet bands centred on the cascade's delays
+# (session 58); 1: on one level's
+ENV_BW_VERSION = 3
 # The signal Eq. 7's wavelet analysis of the probe reads (``env_signal``): log(1 + L / mean L) (the default), where a
 # sun no longer drowns the rest of the probe's detail, or its luminance, as 002 does (module docstring: the trade)
 ENV_SIGNALS = ("log", "radiance")
@@ -554,8 +557,10 @@ def _reduce_latlong(a: np.ndarray, fy: int, fx: int, op) -> np.ndarray:
 def nu_env_table(nu_env: np.ndarray, width: int = None) -> np.ndarray:
     """The bandwidth pass's view of the environment's angular bandwidth, ``(h, w)`` float32 cycles/radian.
 
-    nu_a max-filtered (conservative) to at most ``LIGHT_TABLE_WIDTH`` columns, by whole factors: one
-    nearest look-up per direction instead of a bilinear one; each of the pass's n_b directions stands for
+    nu_a max-filtered (conservative) over blocks of 2^k x 2^k texels, the largest 2^k that divides both sides and
+    leaves at least ``LIGHT_TABLE_WIDTH`` (``width``) columns: 256 of a probe 2^n >= 256 wide, but 500 of a
+    1000 x 500 probe, and a map with an odd side is not reduced (the docstring said "at most" until session 73).
+    One nearest look-up per direction instead of a bilinear one; each of the pass's n_b directions stands for
     2 pi / n_b sr, far more than a reduced texel (2 pi^2 / (h w) sr at the equator).  The radiance L_i
     is read from the map itself (module docstring)."""
     nu = np.asarray(nu_env, np.float64)
