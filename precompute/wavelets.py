@@ -54,8 +54,11 @@ wraps the coarsest band onto itself: up to 25% off in that band and under 2% in 
 on 7 levels).
 ``pad`` may also be ``"edge"``/``"reflect"``/``"wrap"`` (``np.pad`` modes, ``PAD_MODES``), one for both axes or a
 ``(rows, columns)`` pair, for signals that continue past the image (a periodic tile, the longitude of
-an environment map).  Parameters are checked first: an unknown wavelet or pad mode, a pad of other
-than one or two modes, or a non-numeric ``epsilon`` is a one-line ``WarpbwError`` naming it.
+an environment map).  A periodic axis ``"wrap"``, or ``"latlong_pole"`` rows, whose period (n, or 2n across both
+poles) reaches a multiple of ``2^L`` within the margin is padded to exactly those whole periods instead, so that
+``swt2``'s own wrap is the axis's continuation (a margin rounded up to ``2^L`` put a seam 416 columns past a
+1024-wide probe's edge, within the coarse bands' reach).  Parameters are checked first: an unknown wavelet or pad
+mode, a pad of other than one or two modes, or a non-numeric ``epsilon`` is a one-line ``WarpbwError`` naming it.
 
 The default wavelet is ``"db4"`` (Daubechies, 4 vanishing moments, 8 taps: "we used 2D Daubechies
 wavelets of order 4", 000 Sec. 4).  Haar is accepted but leaks so much energy into the fine bands
@@ -263,13 +266,24 @@ def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int |
     margin = (wav.dec_len - 1) * 2 ** (nlev - 1) // 2 + 2 ** nlev
     margin = min(margin, 4 * max(h, w))   # the cap of the module docstring
     padded = img
-    offsets = []
+    offsets, whole = [], []
     for axis, (n, mode) in enumerate(zip((h, w), modes)):
-        before = margin
-        total = n + 2 * margin
-        after = margin + (-total) % step
+        # a periodic axis (longitude; latitude across both poles, period 2n) is padded to the fewest whole periods
+        # that swt2 takes (a multiple of 2^L), where that is no more than the margin: swt2's own wrap is then the
+        # axis's continuation.  A margin rounded up to a multiple of 2^L holds no whole number of periods in general
+        # (a 1024-wide probe: 1792 columns, 1.75 turns), and the coarse bands met a seam 416 columns past the edge.
+        period = {"wrap": n, "latlong_pole": 2 * n}.get(mode)
+        span = None if period is None else period * (step // math.gcd(period, step))
+        if span is not None and span <= n + 2 * margin + step:
+            before = (span - n) // 2
+            after = span - n - before
+        else:
+            before = margin
+            total = n + 2 * margin
+            after = margin + (-total) % step
         padded = _pad_axis(padded, axis, before, after, mode)
         offsets.append(before)
+        whole.append(span is not None and before + n + after == span)
     oy, ox = offsets
 
     out = np.zeros((nlev, h, w), dtype=np.float64)
@@ -279,7 +293,7 @@ def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int |
         # one level at a time (start_level = i) keeps memory at one band of the padded image
         (approx, details), = pywt.swt2(approx, wav, level=1, start_level=i, axes=(-2, -1), norm=True)
         size = 2 ** (i + 1) + 1  # one wavelet width of band i+1 (1-based): the "contributing" set
-        mag, (r0, c0) = _detail_maxima(details, _centre_shift(wav.name, i), (oy, ox), (h, w), size // 2)
+        mag, (r0, c0) = _detail_maxima(details, _centre_shift(wav.name, i), (oy, ox), (h, w), size // 2, whole)
         del details
         mag = _max_filter_1d(mag, size, 0)
         mag = _max_filter_1d(mag, size, 1)
@@ -290,7 +304,7 @@ def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int |
 
 
 def _detail_maxima(details, shifts: tuple[int, int], offsets: tuple[int, int], shape: tuple[int, int],
-                   reach: int) -> tuple[np.ndarray, tuple[int, int]]:
+                   reach: int, whole: tuple[bool, bool] = (False, False)) -> tuple[np.ndarray, tuple[int, int]]:
     """The largest magnitude over channels and the three orientations of one band's details, each first rolled by
     its delays (``shifts``, :func:`_centre_shift`) to sit over the pixels it describes, on the window of the padded
     grid that the image (``shape`` at ``offsets``) and ``reach`` texels around it cover, clipped to the grid.
@@ -302,8 +316,9 @@ def _detail_maxima(details, shifts: tuple[int, int], offsets: tuple[int, int], s
     hi, lo = shifts
     n_rows, n_cols = details[0].shape[-2:]
     (oy, ox), (h, w) = offsets, shape
-    r0, r1 = max(0, oy - reach), min(n_rows, oy + h + reach)
-    c0, c1 = max(0, ox - reach), min(n_cols, ox + w + reach)
+    # an axis padded to whole periods (``whole``) wraps: the window may reach past the grid's ends
+    r0, r1 = (oy - reach, oy + h + reach) if whole[0] else (max(0, oy - reach), min(n_rows, oy + h + reach))
+    c0, c1 = (ox - reach, ox + w + reach) if whole[1] else (max(0, ox - reach), min(n_cols, ox + w + reach))
     mag = None
     for d, (sy, sx) in zip(details, ((hi, lo), (lo, hi), (hi, hi))):
         rows = (np.arange(r0, r1) - sy) % n_rows   # np.roll(x, s)[k] is x[(k - s) mod n]

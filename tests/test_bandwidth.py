@@ -1226,9 +1226,6 @@ def test_the_pass_estimates_a_tabulated_materials_radiance_without_bias(shared, 
     assert abs(mu[inner].mean() / lum[inner].mean() - 1.0) < 0.04, (mu[inner].mean(), lum[inner].mean())
 
 
-@pytest.mark.xfail(strict=True, reason="the pass's chi is lum(L) lum(rho) cos, the product of the luminances, not "
-                   "the luminance of L rho cos; the fix (chi = lum(L * rho) cos) moves the benchmark's allocations "
-                   "(coloured MERL materials under coloured probes), so it is reported (session 73), not committed")
 def test_the_pass_estimates_the_luminance_of_a_coloured_materials_radiance_under_a_coloured_sky():
     """mu (BandwidthBuffer.mu: "the pass's own estimate of L_p's luminance") of a red Lambert sphere (albedo 0.9, 0.1,
     0.1) under a constant blue sky (0.1, 0.1, 0.9): L_p = albedo * sky at every pixel (closed form), luminance 0.0328.

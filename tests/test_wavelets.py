@@ -305,13 +305,7 @@ def test_latlong_pole_padding_continues_the_sphere_across_both_poles(k):
     np.testing.assert_allclose(padded, f(np.arange(-k, h + k)), atol=1e-12)
 
 
-SEAM = ("band_maxima pads a periodic axis by a margin and rounds the grid up to a multiple of 2^L, not of the "
-        "period, so swt2's own wrap puts a seam 352 texels beyond the map's edge, within reach of the coarse bands; "
-        "the fix (padding a periodic axis whose period divides by 2^L to whole periods) changes the benchmark "
-        "probes' maps (session 73 report)")
-
-
-@pytest.mark.parametrize("h", [64, pytest.param(128, marks=pytest.mark.xfail(strict=True, reason=SEAM))])
+@pytest.mark.parametrize("h", [64, 128])
 def test_a_small_latlong_maps_bands_are_those_of_the_sphere_unfolded_over_its_period(h):
     """A lat-long map continued across both poles is periodic in rows with period 2h: its h rows, then the same
     rows mirrored at longitude + pi.  So band_maxima of an h x 2h map padded ("latlong_pole", "wrap") equals that
@@ -489,7 +483,6 @@ def test_envmap_bandwidth_turns_with_the_map_in_longitude():
                                    rtol=1e-9, atol=1e-12)
 
 
-@pytest.mark.xfail(strict=True, reason=SEAM)
 def test_envmap_bandwidth_of_a_map_whose_padded_width_is_no_whole_number_of_turns_turns_with_it():
     """As above on a 256 x 512 map: its padded width, 1280 columns, is 2.5 turns of longitude, so the periodic
     transform meets a seam 416 columns past the map's right edge (352 before its left), and the bandwidth near

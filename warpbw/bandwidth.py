@@ -129,7 +129,9 @@ silent:
   reads 3.48x and 1.05x with MIS (3.69x and 0.99x over 8 runs, session 29).  The acrylic bunny is
   noise-limited: each extra pixel shaded at level 0 takes samples from the others.  Keeping H's sign instead
   shaded fewer pixels there (64%; 1.19x against 1.06x in one run) but ranks 0.410 on the first scene.
-* Luminance (``LUMINANCE``, Rec. 709) reduces the RGB of L and rho to the scalar weights.
+* Luminance (``LUMINANCE``, Rec. 709) reduces the RGB integrand L rho cos to the scalar chi: the luminance of the
+  product, so that mu estimates L_p's luminance.  Until session 73 it was the product of the luminances of L and rho,
+  1.3x L_p's for a red Lambert under a blue sky, and a red surface under a green sky read as lit.
 * L_i is the environment's own radiance at w_i (the renderer's bilinear look-up, ``env_radiance_uv``), and
   nu_a^env comes from a reduced lat-long table (:func:`nu_env_table`: nu_a max-filtered by halves down to
   ``LIGHT_TABLE_WIDTH`` columns), one nearest fetch per direction.  Until session 34 L_i came from a
@@ -266,10 +268,11 @@ ENV_BW_FORMAT = "warpbw.env-bandwidth"
 # texel plus 187 MB fits at the two larger sizes and overestimates at the smallest; rounded up.
 ENV_BW_BYTES_PER_TEXEL = 150
 ENV_BW_BYTES_FIXED = 200_000_000
-# 3: rows padded past both poles come back unturned (session 73: changes maps under about 352 rows, such as the
+# 4: periodic axes padded to whole periods, no seam (session 73; every probe's map changes, up to 22% on 0.2-3% of
+# its texels); 3: rows padded past both poles come back unturned (session 73: changes maps under about 352 rows, such as the
 # 512 x 256 procedural sky; 1024 x 512 probes read the same); 2: wavelet bands centred on the cascade's delays
 # (session 58); 1: on one level's
-ENV_BW_VERSION = 3
+ENV_BW_VERSION = 4
 # The signal Eq. 7's wavelet analysis of the probe reads (``env_signal``): log(1 + L / mean L) (the default), where a
 # sun no longer drowns the rest of the probe's detail, or its luminance, as 002 does (module docstring: the trade)
 ENV_SIGNALS = ("log", "radiance")
@@ -516,8 +519,8 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
                     uv = env_uv(env, wi_world)                   # once: the pdf, L_i and nu_a need it
                     p_b = f.pdf(mats, m, wi, wo)
                     pdf = MIS_HALF * (p_b + env_pdf_uv(env, uv))
-                    rho = wp.dot(_LUM, f.eval(mats, m, wi, wo))
-                    chi = wp.dot(_LUM, env_radiance_uv(env, uv)) * rho * wi[2]  # lambda_i (Eq. 5), Eq. 1's integrand
+                    # lambda_i (Eq. 5), Eq. 1's integrand: the luminance of L rho cos (module docstring)
+                    chi = wp.dot(_LUM, wp.cw_mul(env_radiance_uv(env, uv), f.eval(mats, m, wi, wo))) * wi[2]
                     nu_l = nu_env_at_uv(tables.nu_env, uv)
                     nu_r = brdf_nu_rho(tables.nu_rho, m, wi, wo)
                     # the shading integral over w_i keeps only the light's angular frequencies within the
