@@ -269,9 +269,9 @@ ENV_BW_FORMAT = "warpbw.env-bandwidth"
 ENV_BW_BYTES_PER_TEXEL = 150
 ENV_BW_BYTES_FIXED = 200_000_000
 # 4: periodic axes padded to whole periods, no seam (session 73; every probe's map changes, up to 22% on 0.2-3% of
-# its texels); 3: rows padded past both poles come back unturned (session 73: changes maps under about 352 rows, such as the
-# 512 x 256 procedural sky; 1024 x 512 probes read the same); 2: wavelet bands centred on the cascade's delays
-# (session 58); 1: on one level's
+# its texels); 3: rows padded past both poles come back unturned (session 73: changes maps under about 352 rows,
+# such as the 512 x 256 procedural sky; 1024 x 512 probes read the same); 2: wavelet bands centred on the cascade's
+# delays (session 58); 1: on one level's
 ENV_BW_VERSION = 4
 # The signal Eq. 7's wavelet analysis of the probe reads (``env_signal``): log(1 + L / mean L) (the default), where a
 # sun no longer drowns the rest of the probe's detail, or its luminance, as 002 does (module docstring: the trade)
