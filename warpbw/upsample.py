@@ -7,7 +7,8 @@ Public:
                                                       L from level L+1 (``gb``: a ``GBuffer`` or its ``GBufferData``)
     ``UPSAMPLE_MODES``, ``UPSAMPLE_DEFAULT``, ``check_upsample_mode(mode)``
     ``parent_weights(...)``                           host wrapper returning the four weights (tests)
-    ``representative_pixel(gb, x, y, level)``         Warp func: the finest pixel at the centre of a level-L pixel
+    ``representative_pixel(gb, x, y, level)``         Warp func: the finest pixel at the centre of a level-L pixel's
+                                                      whole footprint, clamped to the image
     ``upsample_level_kernel``                         the up-sampling's kernel (warpbw.adaptive compiles it ahead)
     Warp functions of the weights: ``screen_frame``, ``screen_normal``, ``anisotropic_gaussian`` (g_a),
     ``depth_gaussian`` (g_z), ``parent_axis`` (alpha_i), ``parent_weight`` (w_i) and ``normal_fit`` (the normal fit)
@@ -164,7 +165,9 @@ NORMAL_RIDGE = 1.0e-3   # ridge on the normal fit's slope, in (n . axis)^2 units
 
 @wp.func
 def representative_pixel(gb: GBufferData, x: int, y: int, level: int):
-    """Finest pixel at the centre of level-L pixel (x, y)'s footprint (clamped to the image)."""
+    """Finest pixel at the centre of level-L pixel (x, y)'s whole 2^L x 2^L footprint, clamped to the image: where the
+    image's border clips the footprint (a side of no power of two), that pixel lies off the clipped part's centre
+    (7 pixels wide, level 2, texel 1 covers pixels 4-6 and is represented by pixel 6)."""
     s = 1 << level
     fx = wp.min(x * s + s // 2, gb.width - 1)
     fy = wp.min(y * s + s // 2, gb.height - 1)
