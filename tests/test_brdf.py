@@ -560,3 +560,19 @@ def test_ggx_pdf_is_positive_for_every_direction_its_sampler_draws_at_grazing_vi
         c = wi[:, 2]
         g1 = 2.0 * c / (c + np.sqrt(alpha ** 2 + (1.0 - alpha ** 2) * c * c))
         np.testing.assert_allclose(f * c / p, g1 * c / np.maximum(c, B.COS_EPS), rtol=2e-3, atol=1e-6)
+
+
+@pytest.mark.parametrize("c", [1e-25, 1e-30, 1e-37])
+def test_merl_kernel_at_a_mirror_pair_grazing_the_horizon_reads_the_bins_of_its_angles(c):
+    # wi = (c, 1, c), wo = (c, -1, c): h = (1, 0, 1) / sqrt(2), theta_h = 45 degrees, so i_th = floor(sqrt(1/2) 90)
+    # = 63; wi . h = sqrt(2) c, theta_d = 90 degrees (bin 89); d = R_y(-45) wi = (0, 1, sqrt(2) c), phi_d = 90
+    # degrees (bin 90).  wi + wo = (2c, 0, 2c) normalised to 0 below c ~ 1e-23 (float32's squared length
+    # underflows), and the kernel read theta_h 0 (bin 0).  Each entry of the table holds its own bin (i, j, k).
+    i, j, k = np.meshgrid(np.arange(90.0), np.arange(90.0), np.arange(180.0), indexing="ij")
+    data = np.stack([i, j, k], axis=-1).astype(np.float32)
+    mb = B.build_material_table([B.MaterialSpec("n", B.MERL, merl=data, linear=False, sampler=uniform_sampler()),
+                                 B.MaterialSpec("l", B.MERL, merl=data, linear=True, sampler=uniform_sampler())])
+    wi, wo = np.array([[c, 1.0, c]]), np.array([[c, -1.0, c]])
+    np.testing.assert_array_equal(B.eval_brdf(mb, 0, wi, wo), [[63.0, 89.0, 90.0]])
+    # trilinear between bin centres: u_h = sqrt(1/2) 90 - 1/2, u_d = 89.5 clamped to 89, u_p = 89.5
+    np.testing.assert_allclose(B.eval_brdf(mb, 1, wi, wo), [[np.sqrt(0.5) * 90.0 - 0.5, 89.0, 89.5]], rtol=1e-5)

@@ -138,7 +138,8 @@ def sample_cosine_hemisphere(u: wp.vec2):
 def half_vector(wi: wp.vec3, wo: wp.vec3):
     """normalize(wi + wo), the sum scaled by its largest component first when that is below HALF_VECTOR_RESCALE:
     for a pair grazing the horizon (wi = (0, 1, 1e-30), wo = (0, -1, 1e-30)) wp.normalize saw a zero length and
-    returned 0, where GGX's D(0) = inf times G1 G1 = 0 made f NaN and NPF's theta_d read 0 instead of 90 degrees."""
+    returned 0, where GGX's D(0) = inf times G1 G1 = 0 made f NaN and NPF's theta_d read 0 instead of 90 degrees (and
+    MERL's theta_h, ``rusinkiewicz``, 0 instead of 45 for wi = (c, 1, c), wo = (c, -1, c))."""
     s = wi + wo
     m = wp.max(wp.max(wp.abs(s[0]), wp.abs(s[1])), wp.abs(s[2]))
     if m > 0.0 and m < HALF_VECTOR_RESCALE:
@@ -148,8 +149,10 @@ def half_vector(wi: wp.vec3, wo: wp.vec3):
 
 @wp.func
 def rusinkiewicz(wi: wp.vec3, wo: wp.vec3):
-    """(theta_h, theta_d, phi_d) of a direction pair, phi_d folded into [0, pi) by reciprocity."""
-    h = wp.normalize(wi + wo)
+    """(theta_h, theta_d, phi_d) of a direction pair, phi_d folded into [0, pi) by reciprocity.  h is
+    ``half_vector``'s: wp.normalize(wi + wo) was 0 for wi = (c, 1, c), wo = (c, -1, c) below c ~ 1e-23, and theta_h
+    read 0, not 45 degrees."""
+    h = half_vector(wi, wo)
     theta_h = angle_to_z(h)
     phi_h = wp.atan2(h[1], h[0])
     # d = R_y(-theta_h) R_z(-phi_h) wi
