@@ -128,7 +128,7 @@ def angle_between(a: wp.vec3, b: wp.vec3):
 
 @wp.func
 def sample_cosine_hemisphere(u: wp.vec2):
-    # Malley's method: concentric disk lifted to the hemisphere; pdf = cos / pi.
+    # Malley's method: a uniform point of the unit disk (polar mapping) lifted to the hemisphere; pdf = cos / pi.
     r = wp.sqrt(u[0])
     phi = 2.0 * wp.pi * u[1]
     return wp.vec3(r * wp.cos(phi), r * wp.sin(phi), wp.sqrt(wp.max(0.0, 1.0 - u[0])))
