@@ -456,17 +456,14 @@ def _seam_copies(mesh) -> np.ndarray | None:
     """Per vertex of a merged trimesh mesh with uv, the index of the first vertex at its position, or None where
     every vertex is its own: trimesh's merge keeps apart the vertices whose uv differ, and those are one point of the
     surface, written once per side of a texture seam (their smooth normal and H come from the faces on both sides).
-    Keyed as trimesh's merge keys them without the uv (``trimesh.grouping.merge_vertices``: the position at
-    ``tol.merge``, and the per-vertex normals to 2 digits where trimesh holds them: the OBJ and GLB files tried
-    (trimesh 5.2) held none: only the uv kept copies of a point apart)."""
+    Positions are keyed as trimesh's merge keys them (``trimesh.grouping.merge_vertices``, at ``tol.merge``).  The
+    file's own normals split nothing: trimesh 5.2 kept none of an OBJ's, a PLY's or a GLB's (tried), and the normals
+    here are derived, smooth, from the faces."""
     import trimesh
 
     verts = np.asarray(mesh.vertices, dtype=np.float64)
-    key = [np.round(verts * 10.0 ** trimesh.util.decimal_to_digits(trimesh.tol.merge))]
-    normals = mesh._cache["vertex_normals"]   # where trimesh's merge reads them, or None
-    if np.shape(normals) == verts.shape:
-        key.append(np.round(np.asarray(normals, dtype=np.float64) * 100.0))
-    _, first, inverse = np.unique(np.column_stack(key), axis=0, return_index=True, return_inverse=True)
+    key = np.round(verts * 10.0 ** trimesh.util.decimal_to_digits(trimesh.tol.merge))
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
     if len(first) == len(verts):
         return None
     return first[inverse.reshape(-1)].astype(np.int64)
