@@ -541,10 +541,18 @@ def test_mip_box_filter_and_trilinear_lookup():
     d = rng.normal(size=(500, 3))
     lod0 = E.eval_radiance_lod(env, d, 0.0)
     assert np.allclose(lod0, E.eval_radiance(env, d), rtol=1e-6, atol=1e-7)
-    # level 1 with the lookup convention written out here
-    coarse_env = E.envmap_from_array(coarse)
+    # level 1 with the lookup convention written out here: column k at u = (k + 1/2) / 8, row k at the centre of the
+    # level-0 rows 2k and 2k + 1, v = (2k + 1/2) / 9, clamped to rows 0 and 4 beyond them
     lod1 = E.eval_radiance_lod(env, d, 1.0)
-    assert np.allclose(lod1, E.eval_radiance(coarse_env, d), rtol=1e-5, atol=1e-6)
+    dn = d / np.linalg.norm(d, axis=1, keepdims=True)
+    x = np.mod(np.arctan2(dn[:, 0], -dn[:, 2]) / (2 * np.pi) * 8 - 0.5, 8)
+    y = np.clip((np.arccos(np.clip(dn[:, 1], -1, 1)) / np.pi * 9 - 0.5) / 2, 0, 4)
+    x0, y0 = np.floor(x).astype(int), np.minimum(np.floor(y).astype(int), 3)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    x1 = (x0 + 1) % 8
+    expect1 = ((coarse[y0, x0] * (1 - fx) + coarse[y0, x1] * fx) * (1 - fy)
+               + (coarse[y0 + 1, x0] * (1 - fx) + coarse[y0 + 1, x1] * fx) * fy)
+    assert np.allclose(lod1, expect1, rtol=1e-4, atol=1e-5)
     half = E.eval_radiance_lod(env, d, 0.5)
     assert np.allclose(half, 0.5 * (lod0 + lod1), rtol=1e-5, atol=1e-6)
     top = E.eval_radiance_lod(env, d, 99.0)
@@ -589,7 +597,9 @@ def test_host_lookups_check_their_directions():
 
 def test_mip_pyramid_is_built_only_when_a_lookup_needs_it():
     """No renderer reads the pyramid, so loading a map does not build it (DESIGN: a stage the scene does not need
-    is not run); the first lod lookup does, once, and the lookups agree with a 2x2 box of the map."""
+    is not run); the first lod lookup does, once, and the lookups agree with a 2x2 box of the map, whose row k
+    sits at the centre of the rows it averages, v = (2k + 1/2) / 7 (the box map as a map of its own reads it at
+    v' = k / 3: the same u, v' = clip((7 v - 1/2) / 2, 0, 3) / 3)."""
     img = np.random.default_rng(5).random((8, 16, 3)).astype(np.float32)
     env = E.envmap_from_array(img)
     assert env._mips is None and env.data.n_levels == 1
@@ -597,7 +607,13 @@ def test_mip_pyramid_is_built_only_when_a_lookup_needs_it():
     E.eval_radiance_lod(env, d, 1.0)
     assert env.data.n_levels == 5 and len(env._mips) == 5
     box = img.reshape(4, 2, 8, 2, 3).mean(axis=(1, 3))
-    assert np.allclose(E.eval_radiance_lod(env, d, 1.0), E.eval_radiance(E.envmap_from_array(box), d), rtol=1e-5)
+    dn = d / np.linalg.norm(d, axis=1, keepdims=True)
+    # (off the poles by 1e-6 of a row: a direction at a pole has no u of its own)
+    v_box = np.clip((7.0 * np.arccos(dn[:, 1]) / np.pi - 0.5) / 2.0, 1e-6, 3.0 - 1e-6) / 3.0
+    rho = np.hypot(dn[:, 0], dn[:, 2])[:, None]
+    d_box = np.concatenate([dn[:, :1] / rho * np.sin(np.pi * v_box)[:, None], np.cos(np.pi * v_box)[:, None],
+                            dn[:, 2:] / rho * np.sin(np.pi * v_box)[:, None]], axis=1)
+    assert np.allclose(E.eval_radiance_lod(env, d, 1.0), E.eval_radiance(E.envmap_from_array(box), d_box), rtol=1e-4)
     assert E.build_mip_pyramid(env)._mips[1] is env.mip_levels[1]   # built once
 
 
@@ -697,3 +713,22 @@ def test_environment_samples_fill_each_cell_uniformly_up_to_its_edges():
     t = (u * env.width) % 1.0
     share = np.histogram(t, bins=125, range=(0.0, 1.0))[0] / (len(t) / 125)
     assert np.all(np.abs(share - 1.0) < 0.25), (share.min(), share.max(), share[:2], share[-2:])
+
+
+@pytest.mark.parametrize("h", [64, 63, 33])
+def test_mip_levels_keep_what_they_average_where_it_was(h):
+    """A box filter is symmetric: a step filtered by it still crosses half its height where it stepped.  Truth: level
+    0's crossing, between the 8th and 9th rows from the bottom, for the levels whose rows (up to 8 of level 0's) are no
+    taller than the bright cap.  A level's rows were placed at k / (H_l - 1), as level 0's are, which moved each row's
+    contents towards the nearer pole: at lod 3 the cap's edge moved by 3.0 rows of level 0 on 64 rows (2.3 on 33), at
+    lod 2 by 1.2 (0.8); now by 0 on 64 rows and at most 0.44 where odd heights are resampled (63, 33)."""
+    img = np.zeros((h, 2 * h, 3), np.float32)
+    img[h - 8:] = 1.0     # a bright cap about -Y
+    env = E.envmap_from_array(img)
+    v = np.linspace(0.6, 1.0, 8001)
+    d = np.stack([np.full_like(v, 1e-7), np.cos(np.pi * v), -np.sin(np.pi * v)], 1)
+    step = (h - 8.5) / (h - 1)
+    for lod in range(4):
+        val = E.eval_radiance_lod(env, d, float(lod))[:, 0]
+        moved = (v[np.argmax(val >= 0.5)] - step) * (h - 1)   # in rows of level 0
+        assert abs(moved) < 0.5, f"lod {lod}: the cap's edge moved by {moved:+.2f} rows of level 0"

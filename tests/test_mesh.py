@@ -901,3 +901,57 @@ def test_triangle_count_is_none_where_the_file_does_not_say(tmp_path):
     (tmp_path / "folder.obj").mkdir()
     for name in ("m.off", "cut.ply", "empty.obj", "odd.stl", "no_json.glb", "folder.obj", "missing.obj"):
         assert mesh_triangles(tmp_path / name) is None, name
+
+
+def _latlong_sphere_obj(nu: int, nv: int, radius: float, normals: bool = False) -> str:
+    """A lat-long sphere as an OBJ with a texture seam: the vertex at longitude 0 is written again at u = 1, and each
+    pole once per column, as UV-unwrapped meshes are (``normals``: a ``vn`` per vertex, its own closed form)."""
+    lines, faces = [], []
+    for j in range(nv + 1):
+        th = math.pi * j / nv
+        for i in range(nu + 1):
+            ph = 2.0 * math.pi * i / nu
+            p = (math.sin(th) * math.sin(ph), math.cos(th), math.sin(th) * math.cos(ph))
+            lines.append("v %.12f %.12f %.12f" % tuple(radius * c for c in p))
+            lines.append("vt %.12f %.12f" % (i / nu, 1.0 - j / nv))
+            if normals:
+                lines.append("vn %.12f %.12f %.12f" % p)
+    for j in range(nv):
+        for i in range(nu):
+            a, b, c, d = (j * (nu + 1) + i + 1, j * (nu + 1) + i + 2, (j + 1) * (nu + 1) + i + 2,
+                          (j + 1) * (nu + 1) + i + 1)
+            for tri in ((a, d, c), (a, c, b)):
+                faces.append("f " + " ".join(f"{k}/{k}/{k}" if normals else f"{k}/{k}" for k in tri))
+    return "\n".join(lines + faces) + "\n"
+
+
+@pytest.mark.parametrize("with_vn", [False, True])
+def test_a_texture_seam_is_no_crease_in_the_smooth_normals_or_the_curvature(tmp_path, with_vn):
+    """A uv seam is a cut in the texture, not in the surface: the vertices written twice along it (and once per
+    column at the poles) keep their own uv, but their normal and H are the surface's, from the faces on both sides.
+    Truth: the sphere's closed form p / r and H = 1 / r.  Each seam copy saw only the faces on its own side: its
+    normal was off by up to 5.9 degrees (half a column's angle) where the rest of its ring is off by at most 1.9 (the
+    area weighting's), and a pole copy in zero-area faces only had the fallback +Y (180 degrees off at the south
+    pole).  With a `vn` per vertex too (the same either side of the seam)."""
+    p = tmp_path / "uvsphere.obj"
+    p.write_text(_latlong_sphere_obj(32, 16, RADIUS, normals=with_vn))
+    m = load_mesh(p)
+    assert m.uv is not None
+    v = m.vertices.astype(np.float64)
+    truth = v / np.linalg.norm(v, axis=1, keepdims=True)
+    err = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", m.normals, truth), -1.0, 1.0)))
+    seam = (np.abs(v[:, 0]) < 1e-6) & (v[:, 2] > 1e-3)   # longitude 0: written at u = 0 and at u = 1
+    pole = np.abs(v[:, 1]) > RADIUS * (1.0 - 1e-9)
+    assert seam.sum() == 2 * 15 and pole.sum() == 2 * 33   # the split copies are still there, each with its uv
+    assert np.unique(m.uv[seam][:, 0]).tolist() == [0.0, 1.0]
+    # the area weighting's own error (1.9 degrees on the rings next to the poles, 0.2 elsewhere) is the same along a
+    # ring of latitude: a seam copy is within it
+    ring = np.round(np.degrees(np.arccos(np.clip(v[:, 1] / RADIUS, -1.0, 1.0))) / (180.0 / 16)).astype(int)
+    for k in range(1, 16):
+        off = err[(ring == k) & ~seam]
+        assert err[(ring == k) & seam].max() < off.max() + 1e-3, \
+            f"ring {k}: seam normals off by {err[(ring == k) & seam].max():.2f} degrees, the ring's by {off.max():.2f}"
+    assert err[pole].max() < 1e-3, f"pole normals off by up to {err[pole].max():.2f} degrees"
+    h = m.mean_curvature * RADIUS
+    assert np.abs(h[~pole] - 1.0).max() < 0.01
+    assert np.abs(h[seam] - 1.0).max() < 0.01

@@ -41,8 +41,12 @@ probability.
 
 MIP pyramid (``env_radiance_lod``): level 0 is the map; each next level is a 2x2 box reduction
 (``n -> max(1, n // 2)`` per axis; an odd axis is box-resampled with fractional coverage so the
-mean is preserved exactly) down to 1x1. Each level is itself a lat-long map with the convention
-above; ``lod`` interpolates linearly between the two nearest levels (trilinear).
+mean is preserved exactly) down to 1x1. A level's column ``i`` is centred at ``u = (i + 1/2) / W_l`` as
+above, and its row ``k`` at the centre of the rows it averages, ``v = v0_l + k dv_l`` (level 0: 0 and
+``1 / (H - 1)``; an even reduction: ``v0 + dv / 2`` and ``2 dv``), clamped to its first and last rows'
+``v`` towards the poles.  (Placed at ``k / (H_l - 1)``, as level 0's rows are, the rows' contents moved
+towards the nearer pole: a bright cap's edge by 3 rows of level 0 at lod 3.)  ``lod`` interpolates
+linearly between the two nearest levels (trilinear).
 
 Warp functions (take an ``EnvMapData`` and a world direction; directions need not be unit):
     env_radiance(env, w) -> wp.vec3        bilinear radiance (scaled) towards w
@@ -63,6 +67,7 @@ Host functions:
     load_environment(spec, device="cpu") -> EnvMap   a scene's [environment] (``warpbw.scene.Environment``)
     procedural_sky(width=256, height=128, ...) -> np.ndarray (H, W, 3) float32
     build_mip_levels(pixels) -> list[np.ndarray]
+    mip_row_positions(heights) -> np.ndarray (n_levels, 2)   where each level's rows sit: (v0, dv)
     build_mip_pyramid(env) -> EnvMap   the pyramid on the device, built on first need (no renderer reads it yet)
     texel_directions(width, height) -> np.ndarray (H, W, 3) local directions of texel centres
     eval_radiance(env, dirs) -> (N, 3)           debug / test wrappers: launch a kernel
@@ -132,6 +137,7 @@ class EnvMapData:
     mip_offset: wp.array(dtype=wp.int32)  # (n_levels,) start of each level in mip_data
     mip_width: wp.array(dtype=wp.int32)
     mip_height: wp.array(dtype=wp.int32)
+    mip_row_v: wp.array(dtype=wp.vec2)  # (n_levels,) (v0, dv): row k of the level sits at v = v0 + k dv
     n_levels: wp.int32
 
 
@@ -199,7 +205,11 @@ def _bilinear_level(env: EnvMapData, level: wp.int32, uv: wp.vec2) -> wp.vec3:
     w = env.mip_width[level]
     h = env.mip_height[level]
     off = env.mip_offset[level]
-    g = _grid_coords(uv, w, h)
+    rv = env.mip_row_v[level]
+    v = float(0.0)   # the level's own row coordinate as a lat-long v (row k at k / (h - 1)), its end rows clamped
+    if h > 1:
+        v = wp.clamp((uv[1] - rv[0]) / rv[1], 0.0, float(h - 1)) / float(h - 1)
+    g = _grid_coords(wp.vec2(uv[0], v), w, h)
     i0 = wp.clamp(int(g[0]), 0, w - 1)  # integer clamps: a NaN direction must not index out of range
     j0 = wp.clamp(int(g[1]), 0, wp.max(h - 2, 0))
     i1 = i0 + 1
@@ -400,6 +410,21 @@ def build_mip_levels(pixels: np.ndarray) -> list[np.ndarray]:
     return levels
 
 
+def mip_row_positions(heights) -> np.ndarray:
+    """(n_levels, 2) float32 (v0, dv) of MIP levels of ``heights`` rows (``build_mip_levels``' sizes): row k of a
+    level sits at ``v = v0 + k dv``, the centre of the level-0 rows it averages (level 0: row j at j / (H - 1))."""
+    h0 = int(heights[0])
+    v0, dv = 0.0, (1.0 / (h0 - 1) if h0 > 1 else 1.0)
+    out = [(v0, dv)]
+    for n in heights[:-1]:
+        n = int(n)
+        if n > 1:   # output k averages input rows [k n / m, (k + 1) n / m): centred at (k + 1/2) n / m - 1/2
+            m = max(1, n // 2)
+            v0, dv = v0 + dv * (0.5 * n / m - 0.5), dv * n / m
+        out.append((v0, dv))
+    return np.array(out, np.float32)
+
+
 def _row_boundaries(height: int) -> np.ndarray:
     """theta at the H + 1 row-cell boundaries: 0, pi (j - 1/2) / (H - 1) for j = 1..H-1, pi."""
     if height == 1:
@@ -593,6 +618,7 @@ def _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, source_dige
     data.mip_offset = arr(np.zeros(1, np.int32), wp.int32)
     data.mip_width = arr(np.array([w], np.int32), wp.int32)
     data.mip_height = arr(np.array([h], np.int32), wp.int32)
+    data.mip_row_v = arr(mip_row_positions([h]), wp.vec2)
     data.n_levels = 1
     return EnvMap(
         data=data,
@@ -751,8 +777,10 @@ def build_mip_pyramid(env: EnvMap) -> EnvMap:
         packed = np.concatenate([lv.reshape(-1, 3) for lv in levels]).astype(np.float32)
         arrays = [wp.array(np.ascontiguousarray(x), dtype=t, device=env.device) for x, t in (
             (packed, wp.vec3), (offsets, wp.int32), (np.array([lv.shape[1] for lv in levels], np.int32), wp.int32),
-            (np.array([lv.shape[0] for lv in levels], np.int32), wp.int32))]
-        env.data.mip_data, env.data.mip_offset, env.data.mip_width, env.data.mip_height = arrays
+            (np.array([lv.shape[0] for lv in levels], np.int32), wp.int32),
+            (mip_row_positions([lv.shape[0] for lv in levels]), wp.vec2))]
+        (env.data.mip_data, env.data.mip_offset, env.data.mip_width, env.data.mip_height,
+         env.data.mip_row_v) = arrays
         env.data.n_levels = len(levels)
         env._keep.extend(arrays)
         env._mips = levels

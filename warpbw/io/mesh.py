@@ -80,15 +80,19 @@ class MeshData:
     faces: np.ndarray  # (F, 3) int32
     normals: np.ndarray  # (V, 3) float32 unit, smooth, area-weighted
     uv: np.ndarray | None = None  # (V, 2) float32
-    # float64 (vertices, normals) for mean_curvature, dropped once it is derived
+    # float64 (vertices, normals, faces, surface) for mean_curvature, dropped once it is derived: the surface's
+    # vertices, normals and faces, and each vertex's surface vertex (None: the vertices are the surface's)
     _exact: tuple | None = field(default=None, repr=False, compare=False)
 
     @cached_property
     def mean_curvature(self) -> np.ndarray:
-        """(V,) float32 mean curvature H, 1/(scene units), positive where convex (``mesh_mean_curvature``)."""
-        verts, normals = self._exact if self._exact is not None else (self.vertices, self.normals)
+        """(V,) float32 mean curvature H, 1/(scene units), positive where convex (``mesh_mean_curvature``); the
+        copies of a vertex split by a texture seam share the surface's H (``load_mesh``)."""
+        verts, normals, faces, surface = (self._exact if self._exact is not None
+                                          else (self.vertices, self.normals, self.faces, None))
         self._exact = None
-        return np.ascontiguousarray(mesh_mean_curvature(verts, self.faces, normals), dtype=np.float32)
+        h = mesh_mean_curvature(verts, faces, normals)
+        return np.ascontiguousarray(h if surface is None else h[surface], dtype=np.float32)
 
 
 def _checked_vertices(vertices, what: str = "vertices") -> np.ndarray:
@@ -364,13 +368,15 @@ def _check_float32(verts, path, when: str) -> None:
 class _Merged:
     """A mesh file as read, checked and merged, before its transform: vertices (float64, read-only, times
     ``2**-k``: merged at a power-of-two scale), faces (int64, read-only), the uv coordinates or None, ``k`` and the
-    largest coordinate ``big``."""
+    largest coordinate ``big``; ``surface``: per vertex, the index of its first copy among the vertices split by
+    their uv alone (a texture seam: one point of the surface), or None where none are."""
 
     vertices: np.ndarray
     faces: np.ndarray
     uv: np.ndarray | None
     k: int
     big: float
+    surface: np.ndarray | None = None
 
 
 _MERGED: "OrderedDict[tuple, _Merged]" = OrderedDict()
@@ -438,11 +444,29 @@ def _read_merged(path: Path, data: bytes) -> _Merged:
         raise WarpbwError(f"{path}: malformed mesh ({one_line(exc)})") from None
     uv = getattr(mesh.visual, "uv", None)
     uv = np.array(uv, dtype=np.float32) if uv is not None and np.shape(uv) == (len(mesh.vertices), 2) else None
-    out = _Merged(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64), uv, k, big)
-    for a in (out.vertices, out.faces, out.uv):
+    out = _Merged(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64), uv, k, big,
+                  _seam_copies(mesh) if uv is not None else None)
+    for a in (out.vertices, out.faces, out.uv, out.surface):
         if a is not None:
             a.flags.writeable = False
     return out
+
+
+def _seam_copies(mesh) -> np.ndarray | None:
+    """Per vertex of a merged trimesh mesh with uv, the index of the first vertex at its position, or None where
+    every vertex is its own: trimesh's merge keeps apart the vertices whose uv differ, and those are one point of the
+    surface, written once per side of a texture seam (their smooth normal and H come from the faces on both sides).
+    Positions are keyed as trimesh's merge keys them (``trimesh.grouping.merge_vertices``, at ``tol.merge``).  The
+    file's own normals split nothing: trimesh 5.2 kept none of an OBJ's, a PLY's or a GLB's (tried), and the normals
+    here are derived, smooth, from the faces."""
+    import trimesh
+
+    verts = np.asarray(mesh.vertices, dtype=np.float64)
+    key = np.round(verts * 10.0 ** trimesh.util.decimal_to_digits(trimesh.tol.merge))
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    if len(first) == len(verts):
+        return None
+    return first[inverse.reshape(-1)].astype(np.int64)
 
 
 def mesh_triangles(path) -> int | None:
@@ -461,7 +485,9 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     """Load a triangle mesh, apply x' = R_y(rotate_y_deg) (scale * x) + translate, and derive
     smooth normals (and, when first read, the mean curvature) in the transformed (world) frame.
 
-    Coincident vertices are merged (STL stores none shared); vertices split by texture seams stay split.  The file
+    Coincident vertices are merged (STL stores none shared); vertices split by texture seams stay split, each with
+    its uv, but take the smooth normal and H of the surface, from the faces on both sides of the seam (a uv layout
+    changes neither; each copy saw only its own side's faces, 5.9 degrees off on a 32-column sphere).  The file
     is read and merged once while it stays as it is (``MESH_CACHE_FILES``): a scene that places one mesh many times
     reads it once.
     """
@@ -497,7 +523,10 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     # frame's own check (warpbw.gbuffer.check_reach) refuses the same spacing in float32
     check_coordinate_spacing(float(np.abs(verts).max()), size, f"a mesh of diagonal {size:.3g}",
                              f"{path} (after scale, rotate_y and translate)")
-    sums, touched = _normal_sums(verts, faces)
+    surface = merged.surface
+    # the surface: each seam's copies as one vertex (their first), so that its faces on both sides meet there
+    s_verts, s_faces = (verts, faces) if surface is None else (verts, surface[faces])
+    sums, touched = _normal_sums(s_verts, s_faces)
     cancelled = touched & ~np.any(sums != 0.0, axis=1)
     if cancelled.any():   # they had the fallback normal (0, 1, 0), whatever the surface's direction
         i = int(np.argmax(cancelled))
@@ -505,13 +534,13 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
                           f"(coincident triangles wound in opposite directions, such as both sides of a sheet; first: "
                           f"vertex {i} at {tuple(round(float(x), 6) for x in verts[i])}); expected consistently wound "
                           "triangles (remove the oppositely wound copy)")
-    normals = _unit_normals(sums)   # vertex_normals(verts, faces), from the sums just checked
+    normals = _unit_normals(sums)   # vertex_normals(s_verts, s_faces), from the sums just checked
     uv = merged.uv
     return MeshData(
         path=str(path),
         vertices=np.ascontiguousarray(verts, dtype=np.float32),
         faces=np.ascontiguousarray(faces, dtype=np.int32),
-        normals=np.ascontiguousarray(normals, dtype=np.float32),
+        normals=np.ascontiguousarray(normals if surface is None else normals[surface], dtype=np.float32),
         uv=None if uv is None else np.ascontiguousarray(uv),
-        _exact=(verts, normals),
+        _exact=(s_verts, normals, s_faces, surface),
     )
