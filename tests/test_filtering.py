@@ -218,13 +218,23 @@ def test_trilinear_fetch_of_a_tiled_mipmap_is_the_brute_force_filter():
         return np.maximum(1.0 - np.abs(x - c[None, :] - images) / size, 0.0).sum(axis=0)
 
     for (s, t, lam), g in zip(pts, got):
-        l0 = int(np.floor(lam))
-        acc = np.zeros((K, 4))
-        for l, wl in ((l0, 1.0 - (lam - l0)), (l0 + 1, lam - l0)):
-            q = levels[l]
-            w = tent(t, 2.0 ** l, q.shape[0])[:, None] * tent(s, 2.0 ** l, q.shape[1])[None, :]
-            acc += wl * np.einsum("rc,rckm->km", w, q)
+        acc = _trilinear_moments(levels, s, t, lam, lambda x, l, n_l, n: tent(x, 2.0 ** l, n_l))
         _assert_fetched_as_filtered(g, acc, abs_a=1e-7)
+
+
+def _trilinear_moments(levels: list, s: float, t: float, lam: float, weights) -> np.ndarray:
+    """(K, 4) stored moments at finest coordinates (s, t), blended linearly between levels floor(lam) and the next
+    (the last level alone beyond it); ``weights(x, l, n_l, n)`` gives the (n_l,) weights of level l's texels along
+    an axis of n finest texels at coordinate x."""
+    H, W = levels[0].shape[:2]
+    last = len(levels) - 1
+    l0 = min(int(np.floor(lam)), last)
+    acc = np.zeros(levels[0].shape[2:])
+    for l, wl in ((l0, 1.0 - (lam - l0)), (min(l0 + 1, last), lam - l0)):
+        q = levels[l]
+        w = weights(t, l, q.shape[0], H)[:, None] * weights(s, l, q.shape[1], W)[None, :]
+        acc += wl * np.einsum("rc,rckm->km", w, q)
+    return acc
 
 
 def _assert_fetched_as_filtered(g: np.ndarray, acc: np.ndarray, abs_a: float, where=()):
@@ -258,20 +268,14 @@ def test_trilinear_fetch_of_a_map_of_no_power_of_two_side_tiles_with_the_maps_pe
         moved = fetch_gmm(levels32, pts[:, 0] + tx * W, pts[:, 1] + ty * H, pts[:, 2])
         assert np.allclose(moved, base, atol=1e-5), (tx, ty, np.abs(moved - base).max())
 
-    def hats(x, level_size, n, l):
+    def hats(x, l, n_l, n):
         # (n_l,) weights of the level's texels at finest coordinate x: periodic linear interpolation between centres
-        lo = np.arange(level_size) * 2.0 ** l
+        lo = np.arange(n_l) * 2.0 ** l
         centres = 0.5 * (lo + np.minimum(lo + 2.0 ** l, n))
-        return np.array([np.interp(x, centres, np.eye(level_size)[j], period=n) for j in range(level_size)])
+        return np.array([np.interp(x, centres, np.eye(n_l)[j], period=n) for j in range(n_l)])
 
     for (s, t, lam), g in zip(pts, base):
-        l0 = min(int(np.floor(lam)), len(levels) - 1)
-        acc = np.zeros((K, 4))
-        for l, wl in ((l0, 1.0 - (lam - l0)), (min(l0 + 1, len(levels) - 1), lam - l0)):
-            q = levels[l]
-            wgt = hats(t, q.shape[0], H, l)[:, None] * hats(s, q.shape[1], W, l)[None, :]
-            acc += wl * np.einsum("rc,rckm->km", wgt, q)
-        _assert_fetched_as_filtered(g, acc, abs_a=1e-6, where=(s, t, lam))
+        _assert_fetched_as_filtered(g, _trilinear_moments(levels, s, t, lam, hats), abs_a=1e-6, where=(s, t, lam))
 
 
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])

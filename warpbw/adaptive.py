@@ -305,8 +305,8 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
         if n_shaded:
             t0 = time.perf_counter()
             texels = wp.array(to_shade.astype(np.int32), dtype=wp.int32, device=device)
-            rep_np = rep.numpy()
-            pix = wp.array(rep_np[to_shade].astype(np.int32), dtype=wp.int32, device=device)
+            pix_np = rep.numpy()[to_shade]   # the texels' representative pixels: one texel per pixel a level
+            pix = wp.array(pix_np.astype(np.int32), dtype=wp.int32, device=device)
             wp.launch(level_spp_kernel, dim=n_shaded, inputs=[rep, w, spps.levels[L], texels, spp_at_pixel],
                       device=device)
             res = shade_reference(gb, materials, env_data, spp_at_pixel, seed=offset_seed(seed, 7919 * L), mis=mis,
@@ -315,8 +315,8 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
             non_finite += res.non_finite
             wp.launch(gather_shaded_kernel, dim=n_shaded, inputs=[pix, texels, shaded_full, vals, valid],
                       device=device)
-            shaded_level[rep_np[to_shade]] = L
-            spp_taken[rep_np[to_shade]] += spp_at_pixel.numpy()[rep_np[to_shade]]   # one texel per pixel a level
+            shaded_level[pix_np] = L
+            spp_taken[pix_np] += spp_at_pixel.numpy()[pix_np]
             t_shade += time.perf_counter() - t0
         per_level.append({"level": L, "size": [w, h], "shaded": n_shaded, "upsampled": n_up})
         parent_vals, parent_valid = vals, valid
