@@ -105,7 +105,8 @@ bands, epsilon 0.01 and 95% of the energy (``BANDWIDTH_UNRECORDED``). A file the
 read whatever settings it records (one that ``build_brdf_bandwidth`` analysed at a ``resolution`` of 64 and
 ``write_brdf_bandwidth`` wrote with it, say).
 
-Cost: ``16 * n^2`` BRDF evaluations and 16 wavelet analyses; a few seconds per material at n = 128.
+Cost: ``16 (n^2 + p)`` BRDF evaluations, ``p`` the pixels past ``GRAZING_LIMIT`` (28% of ``n^2``: 4,628 at n = 128,
+each evaluated once more at its mirrored elevation), and 16 wavelet analyses; a few seconds per material at n = 128.
 """
 from __future__ import annotations
 
@@ -265,16 +266,14 @@ def lobe_slice(evaluate: Callable, theta_i: float, resolution: int = DEFAULT_RES
                           f"the horizon the lobe is zero), got {theta_i!r}")
     theta, phi = _map_angles(n)
     past = theta > GRAZING_LIMIT
-    wi = np.broadcast_to(np.array([math.sin(theta_i), 0.0, math.cos(theta_i)]), (n * n, 3))
-    wi = np.ascontiguousarray(wi)
+    w = np.array([math.sin(theta_i), 0.0, math.cos(theta_i)])
 
-    def ev(th):
-        return _evaluated(evaluate, wi, _dirs(th, phi).reshape(-1, 3)).reshape(n, n, 3)
+    def ev(th, ph):   # f at the outgoing directions (th, ph), 1-D arrays
+        return _evaluated(evaluate, np.ascontiguousarray(np.broadcast_to(w, (th.size, 3))), _dirs(th, ph))
 
-    f = ev(np.minimum(theta, GRAZING_LIMIT))
-    if np.any(past):
-        mirrored = ev(np.where(past, np.maximum(2.0 * GRAZING_LIMIT - theta, 0.0), theta))
-        f = np.where(past[..., None], 2.0 * f - mirrored, f)
+    f = ev(np.minimum(theta, GRAZING_LIMIT).ravel(), phi.ravel()).reshape(n, n, 3)
+    if np.any(past):   # the mirrored directions of the pixels past the limit only (they had all n^2 evaluated)
+        f[past] = 2.0 * f[past] - ev(np.maximum(2.0 * GRAZING_LIMIT - theta[past], 0.0), phi[past])
     return f
 
 

@@ -1038,3 +1038,27 @@ def test_every_parameter_of_an_analytic_lobe_changes_its_tables_cache_key(field,
     d0 = _AnalyticSource(None, 0, gold).digest
     assert _AnalyticSource(None, 0, replace(gold, name="other")).digest == d0
     assert _AnalyticSource(None, 0, replace(gold, **{field: value})).digest != d0
+
+
+def test_a_slice_evaluates_each_pixel_once_and_the_pixels_past_the_grazing_limit_once_more():
+    """The module docstring's cost: ``16 (n^2 + p)`` BRDF evaluations, p the pixels past 85 degrees (each once more
+    at its mirrored elevation, 170 degrees minus its own).  Truth from the map's formula, theta_o = 2 asin(r /
+    sqrt 2): at n = 128, 4,628 such pixels.  (The continuation evaluated all n^2 pixels' mirrors, 32 n^2 per table;
+    session 74.)  The mirrored pairs are those of the past pixels, in the order of the map's rows."""
+    n = 128
+    c = -1.0 + (np.arange(n) + 0.5) * 2.0 / n
+    x, y = np.meshgrid(c, c)
+    theta = 2.0 * np.arcsin(np.minimum(np.hypot(x, y), math.sqrt(2.0)) / math.sqrt(2.0))
+    past = theta > math.radians(85.0)
+    assert past.sum() == 4628
+    calls = []
+
+    def ev(wi, wo):
+        calls.append(np.array(wo))
+        return np.ones((len(wi), 3))
+
+    lobe_slice(ev, 0.3, n)
+    assert [len(w) for w in calls] == [n * n, int(past.sum())]
+    mirrored = np.clip(math.radians(170.0) - theta[past], 0.0, None)
+    np.testing.assert_allclose(np.arccos(np.clip(calls[1][:, 2], -1.0, 1.0)), mirrored, atol=1e-7)
+    np.testing.assert_allclose(np.arctan2(calls[1][:, 1], calls[1][:, 0]), np.arctan2(y, x)[past], atol=1e-12)
