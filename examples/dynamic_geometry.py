@@ -11,7 +11,8 @@ Every frame, from the rest pose and the frame number alone (nothing is precomput
   2. copy the positions to the device, recompute smooth vertex normals and cotangent mean curvature there
      and refit the BVH (``update_mesh`` -> ``warpbw.mesh_normals``, ``wp.Mesh.refit``); with
      --host-normals, normals and curvature are computed on the host instead (numpy on one core,
-     ``warpbw.io.mesh.normals_and_curvature``, the same formulas in float64) and copied;
+     ``warpbw.io.mesh.normals_and_curvature``, the same formulas in float64) and copied; either way the
+     copies of a vertex a texture seam split are one vertex (the seam map ``load_mesh`` computed once);
   3. ``render_adaptive``: G-buffer, bandwidth pass (from the G-buffer only: normals, depth, curvature),
      hierarchical shading and up-sampling.
 The material and environment tables (sampling, nu_rho, nu_a) do not depend on the geometry and are
@@ -284,6 +285,7 @@ def main(argv=None):
     start, count = geo.mesh_vertex_ranges[0]
     rest = geo.mesh.points.numpy()[start:start + count].astype(np.float64)   # the animation's input pose
     faces = geo.mesh_attr.indices.numpy().reshape(-1, 3) - start
+    surface = geo.mesh_surface[0]   # the seam map load_mesh computed (None without uv seams, as on the bunny)
     prep.camera = _camera(rest, args.size, args.size)
     axis_xz = 0.5 * (rest.min(0) + rest.max(0))[[0, 2]]
     y_range = (float(rest[:, 1].min()), float(rest[:, 1].max()))
@@ -295,7 +297,7 @@ def main(argv=None):
         v = deform(rest, f, axis_xz, y_range)
         t_b = time.perf_counter()
         if args.host_normals:
-            n, h = normals_and_curvature(v, faces)
+            n, h = normals_and_curvature(v, faces, surface)
         t_c = time.perf_counter()
         if args.host_normals:
             update_mesh(geo, 0, v, n, h)

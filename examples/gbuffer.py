@@ -82,7 +82,7 @@ def main():
     init_warp(args.device)     # --device checked; Warp's no-CUDA-driver line kept off stderr
     if Path(args.mesh).exists():
         md = load_mesh(args.mesh, translate=(-0.2, 0.0, 0.0))
-        meshes.append(MeshSpec(md.vertices, md.faces, md.normals, md.mean_curvature, md.uv, 0))
+        meshes.append(MeshSpec(md.vertices, md.faces, md.normals, md.mean_curvature, md.uv, 0, md.surface))
         print(f"mesh {args.mesh}: {len(md.vertices)} vertices, {len(md.faces)} triangles")
     else:
         print(f"{args.mesh} not found: rendering the sphere alone")

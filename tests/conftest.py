@@ -385,6 +385,37 @@ def grid_mesh(n_u, n_v, fn):
     return verts, faces
 
 
+def latlong_sphere_obj(nu: int, nv: int, radius: float, normals: bool = False, deform=None, uv: bool = True) -> str:
+    """A lat-long sphere as an OBJ with a texture seam: the vertex at longitude 0 is written again at u = 1, and each
+    pole once per column, as UV-unwrapped meshes are (``normals``: a ``vn`` per vertex, its own closed form).
+    ``deform``: (N, 3) positions -> (N, 3), applied to the vertices written (a function of the position, so that the
+    copies stay together); ``uv`` False: the same file without its ``vt``, whose copies a load merges (no seam)."""
+    pts, uvs, faces = [], [], []
+    for j in range(nv + 1):
+        th = math.pi * j / nv
+        for i in range(nu + 1):
+            ph = 2.0 * math.pi * i / nu
+            pts.append((math.sin(th) * math.sin(ph), math.cos(th), math.sin(th) * math.cos(ph)))
+            uvs.append((i / nu, 1.0 - j / nv))
+    unit = np.array(pts)
+    pos = radius * unit if deform is None else np.asarray(deform(radius * unit), np.float64)
+    lines = []
+    for p, n, t in zip(pos, unit, uvs):
+        lines.append("v %.12f %.12f %.12f" % tuple(p))
+        if uv:
+            lines.append("vt %.12f %.12f" % t)
+        if normals:
+            lines.append("vn %.12f %.12f %.12f" % tuple(n))
+    ref = "{k}/{k}/{k}" if normals and uv else "{k}//{k}" if normals else "{k}/{k}" if uv else "{k}"
+    for j in range(nv):
+        for i in range(nu):
+            a, b, c, d = (j * (nu + 1) + i + 1, j * (nu + 1) + i + 2, (j + 1) * (nu + 1) + i + 2,
+                          (j + 1) * (nu + 1) + i + 1)
+            for tri in ((a, d, c), (a, c, b)):
+                faces.append("f " + " ".join(ref.format(k=k) for k in tri))
+    return "\n".join(lines + faces) + "\n"
+
+
 def numpy_camera_rays(position, look_at, fov_deg, w, h, jitter=(0.5, 0.5)):
     """The origin and the unit rays (h, w, 3) through the point ``jitter`` (in [0, 1)^2) of every pixel."""
     o = np.asarray(position, float)

@@ -145,9 +145,10 @@ def test_dynamic_geometry_hands_budget_and_per_frame_seeds_and_reports_wall_fps(
     assert rec["budget_spp"] == 3.0 and rec["seed"] == 40
 
 
-def _run_with_known_frames(tmp_path, monkeypatch, argv):
+def _run_with_known_frames(tmp_path, monkeypatch, argv, mesh=None):
     """The example's main with a stand-in render_adaptive whose call k (the warm-up is call 1) takes stage times
-    and a shaded fraction that grow with k; returns the main's outcome and the calls' (budget, seed)."""
+    and a shaded fraction that grow with k; returns the main's outcome and the calls' (budget, seed).  ``mesh``: an
+    OBJ's text (default: an icosphere)."""
     import types
 
     import warpbw.pipeline
@@ -156,8 +157,12 @@ def _run_with_known_frames(tmp_path, monkeypatch, argv):
     monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
     ex = _example()
     monkeypatch.setattr(ex, "DEFAULT_ENV", tmp_path / "no-probe.exr")
-    mesh = tmp_path / "sphere.obj"
-    trimesh.creation.icosphere(subdivisions=1, radius=0.8).export(mesh)
+    if mesh is None:
+        mesh = tmp_path / "sphere.obj"
+        trimesh.creation.icosphere(subdivisions=1, radius=0.8).export(mesh)
+    else:
+        (tmp_path / "mesh.obj").write_text(mesh)
+        mesh = tmp_path / "mesh.obj"
     calls = []
 
     def spy(prep, budget, *a, **kw):        # a frame with known stage times and shaded fraction
@@ -227,3 +232,44 @@ def test_dynamic_geometry_warns_of_fewer_frames_than_the_protocols_three(tmp_pat
     err = capsys.readouterr().err
     assert (f"dynamic_geometry.py: warning: --frames {frames}: the measurement protocol times the median of at least 3"
             in err) == warns, err
+
+
+@pytest.mark.parametrize("host_normals", [False, True], ids=["device-normals", "host-normals"])
+def test_a_texture_seam_deforms_as_one_surface(tmp_path, monkeypatch, host_normals):
+    """A mesh with a texture seam (a lat-long sphere whose uv split the vertices at longitude 0 and the poles): every
+    deformed frame gives the copies of a split vertex one normal and one curvature, the seamless surface's, whether
+    the device derives them or --host-normals computes them with the seam map load_mesh made (each copy took its own
+    side's faces: 5.9 degrees apart on the seam, 180 at the south pole).  Truth: the copies are one point of the
+    surface, and the deformed sphere written without uv (no seam) gives their normal."""
+    import warpbw.gbuffer
+    from conftest import latlong_sphere_obj
+
+    from warpbw.io.mesh import vertex_normals
+
+    seen = []
+    real = warpbw.gbuffer.update_mesh
+
+    def spy(geo, k, v, *nh):
+        real(geo, k, v, *nh)
+        start, count = geo.mesh_vertex_ranges[k]
+        seen.append((np.asarray(v, np.float64), geo.mesh_attr.normal.numpy()[start:start + count].copy(),
+                     geo.mesh_attr.curvature.numpy()[start:start + count].copy(), geo.mesh_surface[k],
+                     geo.mesh_attr.indices.numpy().reshape(-1, 3) - start, bool(nh)))
+
+    monkeypatch.setattr(warpbw.gbuffer, "update_mesh", spy)
+    how, calls = _run_with_known_frames(tmp_path, monkeypatch, ["--frames", "2"] + (["--host-normals"] * host_normals),
+                                        mesh=latlong_sphere_obj(32, 16, 0.8))
+    assert how.startswith("returned {") and len(seen) == 3, how
+    for v, n, c, surface, faces, given in seen:
+        assert given == host_normals and surface is not None
+        copies = surface != np.arange(len(v))
+        assert copies.sum() == 15 + 2 * 32
+        np.testing.assert_array_equal(n[copies], n[surface[copies]])
+        np.testing.assert_array_equal(c[copies], c[surface[copies]])
+        # the seamless mesh: the faces with each seam's copies welded into one vertex
+        welded = np.unique(surface, return_inverse=True)[1].reshape(-1)
+        w = np.zeros((welded.max() + 1, 3))
+        w[welded] = v
+        truth = vertex_normals(w, welded[faces])[welded]
+        off = np.degrees(np.arctan2(np.linalg.norm(np.cross(n, truth), axis=1), np.einsum("ij,ij->i", n, truth)))
+        assert off.max() < 0.01, f"normals off the seamless surface's by up to {off.max():.2f} degrees"

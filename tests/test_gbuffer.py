@@ -8,7 +8,8 @@ import sys
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
-from conftest import grid_mesh, load_example, numpy_camera_rays, numpy_sphere_distance, plot_png, turned_about_y
+from conftest import (grid_mesh, latlong_sphere_obj, load_example, numpy_camera_rays, numpy_sphere_distance, plot_png,
+                      turned_about_y)
 
 from warpbw.errors import COORD_SPACING_REL_MAX, WarpbwError
 from warpbw.gbuffer import (MESH_REACH_MAX, MESH_REACH_MIN, SPHERE_REACH_MAX, SPHERE_REACH_MIN, MeshSpec,
@@ -426,6 +427,130 @@ def test_update_mesh_derives_normals_and_curvature_on_the_device_as_the_host_doe
     nl = len(left.vertices)
     np.testing.assert_array_equal(device.mesh_attr.normal.numpy()[:nl], host.mesh_attr.normal.numpy()[:nl])
     np.testing.assert_array_equal(device.mesh_attr.curvature.numpy()[:nl], host.mesh_attr.curvature.numpy()[:nl])
+
+
+def _bumped(p):
+    """A deformation with no symmetry about the seam's plane (x = 0), moved off the origin."""
+    x, y, z = p.T
+    swell = 1.0 + 0.15 * np.sin(2.0 * x + 3.0 * y + 1.0) * np.cos(1.5 * z - 0.5)
+    return p * swell[:, None] + np.array([0.3, -0.2, 0.1])
+
+
+def _seamed_sphere(tmp_path, name, **kw):
+    """The 32 x 16 lat-long sphere of radius 2 as load_mesh gives it: (MeshData, MeshSpec)."""
+    from warpbw.io.mesh import load_mesh
+
+    (tmp_path / name).write_text(latlong_sphere_obj(32, 16, 2.0, **kw))
+    md = load_mesh(tmp_path / name)
+    return md, MeshSpec(md.vertices, md.faces, md.normals, md.mean_curvature, md.uv, 0, md.surface)
+
+
+def _shading(geo):
+    return geo.mesh_attr.normal.numpy().copy(), geo.mesh_attr.curvature.numpy().copy()
+
+
+@pytest.mark.parametrize("host_normals", [False, True], ids=["device-normals", "host-normals"])
+def test_update_mesh_gives_a_texture_seam_the_surface_s_normals_and_curvature(tmp_path, host_normals):
+    """A uv seam is a cut in the texture, not in the surface: load_mesh gives the copies of a vertex it split the
+    surface's normal and H (session 73), and update_mesh (dynamic geometry) must too, whether it derives them on the
+    device or is given warpbw.io.mesh.normals_and_curvature's with the mesh's seam map.  It summed the split
+    topology: a seam copy's normal was off by 5.9 degrees, a pole copy's 180 (the fallback +Y at the south pole), and
+    the stored curvature by 6.6% of 1 / r (2.9% away from the seam: its smoothing spread it).
+    Truth, re-submitting the loaded sphere unchanged: the closed form, p / r and 1 / r (within the ring's own error,
+    as load_mesh's test); deformed (no symmetry about the seam): the same deformed sphere written without uv, whose
+    load merges the copies into one vertex (no seam: the path meshes without uv, the bunny, take)."""
+    from warpbw.io.mesh import load_mesh, local_curvature, normals_and_curvature
+
+    md, spec = _seamed_sphere(tmp_path, "rest.obj")
+    assert md.surface is not None and (md.surface != np.arange(len(md.vertices))).sum() == 15 + 2 * 32
+    geo = build_geometry([], [spec])
+
+    def update(v):
+        if host_normals:
+            update_mesh(geo, 0, v, *normals_and_curvature(v, md.faces, md.surface))
+        else:
+            update_mesh(geo, 0, v)
+        return _shading(geo)
+
+    v = md.vertices.astype(np.float64)
+    n, c = update(md.vertices)
+    err = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", n, v / np.linalg.norm(v, axis=1, keepdims=True)),
+                                       -1.0, 1.0)))
+    seam = (np.abs(v[:, 0]) < 1e-6) & (v[:, 2] > 1e-3)
+    pole = np.abs(v[:, 1]) > 2.0 * (1.0 - 1e-6)
+    assert seam.sum() == 30 and pole.sum() == 66
+    ring = np.round(np.degrees(np.arccos(np.clip(v[:, 1] / 2.0, -1.0, 1.0))) / (180.0 / 16)).astype(int)
+    for k in range(1, 16):
+        assert err[(ring == k) & seam].max() < err[(ring == k) & ~seam].max() + 1e-3, \
+            f"ring {k}: seam normals off by {err[(ring == k) & seam].max():.2f} degrees"
+    assert err[pole].max() < 0.01, f"pole normals off by up to {err[pole].max():.2f} degrees"
+    assert np.abs(c * 2.0 - 1.0).max() < 0.005, f"curvature off by up to {np.abs(c * 2.0 - 1.0).max():.4f} of 1 / r"
+
+    deformed, _ = _seamed_sphere(tmp_path, "deformed.obj", deform=_bumped)
+    (tmp_path / "welded.obj").write_text(latlong_sphere_obj(32, 16, 2.0, deform=_bumped, uv=False))
+    welded = load_mesh(tmp_path / "welded.obj")
+    assert welded.uv is None and welded.surface is None and len(welded.vertices) == len(md.vertices) - 79
+    np.testing.assert_allclose(deformed.vertices, _bumped(v), atol=1e-6)   # the same vertices, moved
+    at = {tuple(np.round(p, 5)): i for i, p in enumerate(welded.vertices.astype(np.float64))}
+    same = np.array([at[tuple(np.round(p, 5))] for p in deformed.vertices.astype(np.float64)])
+    n, c = update(deformed.vertices)
+    off = np.degrees(np.arctan2(np.linalg.norm(np.cross(n, welded.normals[same]), axis=1),
+                                np.einsum("ij,ij->i", n, welded.normals[same])))
+    assert off.max() < 1e-3, f"normals off the seamless mesh's by up to {off.max():.3f} degrees (vertex " \
+                             f"{np.argmax(off)}, a seam copy: {md.surface[np.argmax(off)] != np.argmax(off)})"
+    want = local_curvature(welded.mean_curvature, welded.faces)[same]
+    np.testing.assert_allclose(c, want, rtol=1e-4, atol=1e-6)
+
+
+@pytest.mark.parametrize("deferred", [False, True], ids=["given", "deferred"])
+def test_build_geometry_averages_the_curvature_over_a_texture_seam_as_over_the_surface(tmp_path, deferred):
+    """The curvature build_geometry stores (|H| averaged over two rings, warpbw.io.mesh.local_curvature) is the
+    surface's where a texture seam split vertices, whether the MeshSpec gives H or defers it (ensure_curvature),
+    and so is a scene's (the pipeline hands load_mesh's seam map on): each copy was averaged over its own side's
+    ring alone, up to 0.27 away from the seamless mesh's (of 0.38 to 0.82) on a bumped sphere.  Truth: the same mesh
+    written without uv (no seam)."""
+    from warpbw.gbuffer import ensure_curvature
+    from warpbw.io.mesh import load_mesh, local_curvature
+    from warpbw.pipeline import surface_geometry
+    from warpbw.scene import parse_scene
+
+    md, spec = _seamed_sphere(tmp_path, "deformed.obj", deform=_bumped)
+    (tmp_path / "welded.obj").write_text(latlong_sphere_obj(32, 16, 2.0, deform=_bumped, uv=False))
+    welded = load_mesh(tmp_path / "welded.obj")
+    at = {tuple(np.round(p, 5)): i for i, p in enumerate(welded.vertices.astype(np.float64))}
+    same = np.array([at[tuple(np.round(p, 5))] for p in md.vertices.astype(np.float64)])
+    want = local_curvature(welded.mean_curvature, welded.faces)[same]
+    if deferred:
+        spec.curvature = lambda: md.mean_curvature
+    geo = build_geometry([], [spec])
+    assert ensure_curvature(geo) == deferred
+    np.testing.assert_allclose(_shading(geo)[1], want, rtol=1e-5, atol=1e-6)
+    if deferred:
+        scene = parse_scene("\n".join([
+            "[camera]", "position = [0.0, 0.0, 9.0]", "look_at = [0.0, 0.0, 0.0]", "fov = 40.0", "resolution = [8, 8]",
+            "[environment]", 'procedural = "sky"', "[[object]]", 'mesh = "deformed.obj"', 'material = "g"',
+            "[material.g]", 'type = "lambert"', "albedo = [0.5, 0.5, 0.5]"]), tmp_path, "seamed")
+        geo = surface_geometry(scene)
+        assert ensure_curvature(geo)
+        np.testing.assert_allclose(_shading(geo)[1], want, rtol=1e-5, atol=1e-6)
+
+
+def test_a_seam_map_that_is_not_one_is_refused():
+    """MeshSpec.surface: one vertex index per vertex, each naming a vertex that names itself, else a one-line error
+    naming it (a copy naming another copy would take values never computed)."""
+    m = _icosphere_spec(0.5, subdiv=1)
+    nv = len(m.vertices)
+    ok = np.arange(nv)
+    ok[5] = 0
+    build_geometry([], [MeshSpec(m.vertices, m.faces, m.normals, m.curvature, None, 0, ok)])
+    for bad, match in ((ok[:-1], rf"surface: expected an integer vertex index per vertex, shape \({nv},\)"),
+                       (ok.astype(float), "surface: expected an integer"),
+                       (np.where(np.arange(nv) == 3, nv, ok), rf"surface: indices from 0 to {nv}; expected "),
+                       (np.where(np.arange(nv) == 6, 5, ok),
+                        r"surface: 1 vertices name a vertex that is not its own surface vertex \(first: vertex 6 "
+                        r"names 5, which names 0\)")):
+        with pytest.raises(WarpbwError, match=r"build_geometry: meshes\[0\] " + match):
+            build_geometry([], [MeshSpec(m.vertices, m.faces, m.normals, m.curvature, None, 0, bad)])
 
 
 def test_update_mesh_bad_input():

@@ -13,7 +13,7 @@ import re
 import numpy as np
 import pytest
 import trimesh
-from conftest import grid_mesh, shared_file
+from conftest import grid_mesh, latlong_sphere_obj, shared_file
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -903,28 +903,6 @@ def test_triangle_count_is_none_where_the_file_does_not_say(tmp_path):
         assert mesh_triangles(tmp_path / name) is None, name
 
 
-def _latlong_sphere_obj(nu: int, nv: int, radius: float, normals: bool = False) -> str:
-    """A lat-long sphere as an OBJ with a texture seam: the vertex at longitude 0 is written again at u = 1, and each
-    pole once per column, as UV-unwrapped meshes are (``normals``: a ``vn`` per vertex, its own closed form)."""
-    lines, faces = [], []
-    for j in range(nv + 1):
-        th = math.pi * j / nv
-        for i in range(nu + 1):
-            ph = 2.0 * math.pi * i / nu
-            p = (math.sin(th) * math.sin(ph), math.cos(th), math.sin(th) * math.cos(ph))
-            lines.append("v %.12f %.12f %.12f" % tuple(radius * c for c in p))
-            lines.append("vt %.12f %.12f" % (i / nu, 1.0 - j / nv))
-            if normals:
-                lines.append("vn %.12f %.12f %.12f" % p)
-    for j in range(nv):
-        for i in range(nu):
-            a, b, c, d = (j * (nu + 1) + i + 1, j * (nu + 1) + i + 2, (j + 1) * (nu + 1) + i + 2,
-                          (j + 1) * (nu + 1) + i + 1)
-            for tri in ((a, d, c), (a, c, b)):
-                faces.append("f " + " ".join(f"{k}/{k}/{k}" if normals else f"{k}/{k}" for k in tri))
-    return "\n".join(lines + faces) + "\n"
-
-
 @pytest.mark.parametrize("with_vn", [False, True])
 def test_a_texture_seam_is_no_crease_in_the_smooth_normals_or_the_curvature(tmp_path, with_vn):
     """A uv seam is a cut in the texture, not in the surface: the vertices written twice along it (and once per
@@ -934,7 +912,7 @@ def test_a_texture_seam_is_no_crease_in_the_smooth_normals_or_the_curvature(tmp_
     area weighting's), and a pole copy in zero-area faces only had the fallback +Y (180 degrees off at the south
     pole).  With a `vn` per vertex too (the same either side of the seam)."""
     p = tmp_path / "uvsphere.obj"
-    p.write_text(_latlong_sphere_obj(32, 16, RADIUS, normals=with_vn))
+    p.write_text(latlong_sphere_obj(32, 16, RADIUS, normals=with_vn))
     m = load_mesh(p)
     assert m.uv is not None
     v = m.vertices.astype(np.float64)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import trimesh
 import warp as wp
-from conftest import shared_file
+from conftest import latlong_sphere_obj, shared_file
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -92,6 +92,37 @@ def test_real_bunny_against_the_host(shared):
     topo = mesh_topology(np.asarray(m.faces).reshape(-1) + 4, 4, len(v))   # stored after 4 other points
     c = device_local_curvature(wp.array(h_host.astype(np.float32)), topo).numpy()
     np.testing.assert_allclose(c, c_host, rtol=1e-5)
+
+
+def test_a_seam_map_makes_its_copies_one_vertex_on_the_device_as_on_the_host(tmp_path):
+    """mesh_topology's surface (load_mesh's seam map): the device's normals, H and local curvature of a seamed,
+    bumped lat-long sphere (stored after other points) are the host's with the same map, which are load_mesh's of
+    the same file, and every seam copy holds exactly its surface vertex's values (a copy left with the split
+    topology's: the faces of its own side, or none at a pole)."""
+    (tmp_path / "s.obj").write_text(latlong_sphere_obj(32, 16, 2.0, deform=lambda p: p * (
+        1.0 + 0.2 * np.sin(2.0 * p[:, :1] + 3.0 * p[:, 1:2] + 1.0))))
+    m = load_mesh(tmp_path / "s.obj")
+    v, f, s = m.vertices.astype(np.float64), m.faces, m.surface
+    n_host, h_host = normals_and_curvature(v, f, s)
+    assert angle_between(n_host, m.normals).max() < 1e-5
+    np.testing.assert_allclose(h_host, m.mean_curvature, rtol=1e-4, atol=1e-5)   # from the float32 positions
+    pts = np.concatenate([np.full((5, 3), 7.0, np.float32), m.vertices])
+    topo = mesh_topology(np.asarray(f).reshape(-1) + 5, 5, len(v), surface=s)
+    r = device_normals_and_curvature(wp.array(pts, dtype=wp.vec3), topo)
+    n, h = r.normals.numpy(), r.curvature.numpy()
+    assert angle_between(n, n_host).max() < 1e-5
+    assert np.abs(h - h_host).max() <= 1e-6 * np.abs(h_host).max() + 1e-5
+    c = device_local_curvature(r.curvature, topo).numpy()
+    np.testing.assert_allclose(c, local_curvature(h_host, f, surface=s), rtol=1e-5)
+    copies = s != np.arange(len(v))
+    assert copies.sum() == 15 + 2 * 32
+    for a in (n, h, c):
+        np.testing.assert_array_equal(a[copies], a[s[copies]])
+    c = int(np.flatnonzero(copies)[0])
+    assert s[100] == 100 and not np.any(s[np.arange(len(v)) != 100] == 100)
+    with pytest.raises(WarpbwError, match=rf"^mesh topology: surface: 1 vertices name a vertex that is not its own "
+                                          rf"surface vertex \(first: vertex 100 names {c}, which names {s[c]}\)"):
+        mesh_topology(np.asarray(f).reshape(-1), 0, len(v), surface=np.where(np.arange(len(v)) == 100, c, s))
 
 
 def test_local_curvature_on_an_open_band_against_the_host():

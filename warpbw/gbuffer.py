@@ -56,7 +56,7 @@ import warp as wp
 
 from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, check_count,
                            check_device, check_flag, check_instance, is_int)
-from warpbw.io.mesh import checked_faces, local_curvature
+from warpbw.io.mesh import checked_faces, checked_surface, local_curvature
 
 RAY_T_MAX = 1.0e30
 # Primary rays are intersected in float32, and outside these distances from the camera (to an object's far
@@ -378,6 +378,10 @@ class MeshSpec:
     curvature: np.ndarray | Callable[[], np.ndarray]
     uv: np.ndarray | None      # (V, 2)
     material: int
+    # (V,) the seam map (warpbw.io.mesh.MeshData.surface, computed at load): per vertex, the vertex it is one point
+    # of the surface with, where a texture seam split it; None: every vertex its own.  The local curvature here and
+    # update_mesh's normals and H treat each seam's copies as one vertex, as load_mesh does.
+    surface: np.ndarray | None = None
 
 
 @dataclass
@@ -401,6 +405,8 @@ class Geometry:
     mesh_bounds: list = field(default_factory=list)
     # mesh index -> (callable returning H, its faces): curvature a MeshSpec deferred, not yet on the device
     curvature_pending: dict = field(default_factory=dict)
+    # each MeshSpec's seam map (int64 (V,), local indices) or None, in the order given
+    mesh_surface: list = field(default_factory=list)
 
 
 def _check_sphere_spec(k: int, s: SphereSpec) -> None:
@@ -443,6 +449,7 @@ def _check_mesh_spec(k: int, m: MeshSpec) -> None:
         _per_vertex("uv", m.uv, (n_v, 2), where)
     if not callable(m.curvature):
         _per_vertex("curvature", m.curvature, (n_v,), where)
+    checked_surface(m.surface, n_v, f"{where}surface")
     # Warp's BVH reads the vertices the faces index: one out of range crashed the process
     if len(checked_faces(m.faces, n_v, f"{where}faces")) == 0:
         raise WarpbwError(f"{where}faces: expected at least one triangle, got none")
@@ -452,8 +459,8 @@ def _check_mesh_spec(k: int, m: MeshSpec) -> None:
 def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], device: str = "cpu") -> Geometry:
     """Upload spheres and one BVH over all meshes (concatenated, with a material id per face); a mesh's
     curvature is stored as ``warpbw.io.mesh.local_curvature`` of the H its MeshSpec gives (0 until
-    ``ensure_curvature`` where the MeshSpec defers it).  Material ids index the table the shading is given
-    (``shade_reference`` checks them against it)."""
+    ``ensure_curvature`` where the MeshSpec defers it), each seam's copies as one vertex (``MeshSpec.surface``).
+    Material ids index the table the shading is given (``shade_reference`` checks them against it)."""
     check_device(device)
     for name, specs, kind in (("spheres", spheres, "SphereSpec"), ("meshes", meshes, "MeshSpec")):
         if not isinstance(specs, (list, tuple)):   # None, or one spec: "not iterable" from below
@@ -475,6 +482,7 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
     n_tri = 0
     ranges = []
     pending = {}
+    surfaces = [checked_surface(m.surface, len(np.asarray(m.vertices)), "") for m in meshes]
     if meshes:
         verts, faces, norms, curv, uvs, fmat = [], [], [], [], [], []
         base = 0
@@ -488,7 +496,7 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
                 pending[k] = (m.curvature, m.faces)
                 curv.append(np.zeros(len(v), np.float32))
             else:
-                curv.append(local_curvature(m.curvature, m.faces))
+                curv.append(local_curvature(m.curvature, m.faces, surface=surfaces[k]))
             uvs.append(np.zeros((len(v), 2), np.float32) if m.uv is None else np.asarray(m.uv, np.float32))
             fmat.append(np.full(len(m.faces), m.material, np.int32))
             base += len(v)
@@ -512,7 +520,8 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
         ma.face_material = wp.zeros(0, dtype=wp.int32, device=device)
     return Geometry(sl, ma, mesh, bool(spheres), bool(meshes), n_tri, mesh_vertex_ranges=ranges,
                     sphere_bounds=[(np.asarray(s.center, np.float64), float(s.radius)) for s in spheres],
-                    mesh_bounds=[_bounds(v) for v in verts] if meshes else [], curvature_pending=pending)
+                    mesh_bounds=[_bounds(v) for v in verts] if meshes else [], curvature_pending=pending,
+                    mesh_surface=surfaces)
 
 
 def ensure_curvature(geometry: Geometry) -> bool:
@@ -525,7 +534,8 @@ def ensure_curvature(geometry: Geometry) -> bool:
     for k in sorted(pending):   # each mesh stays pending until its curvature is on the device
         mean_curvature, faces = pending[k]
         start, count = geometry.mesh_vertex_ranges[k]
-        c = local_curvature(_per_vertex("curvature", mean_curvature(), (count,), f"MeshSpec {k}: "), faces)
+        c = local_curvature(_per_vertex("curvature", mean_curvature(), (count,), f"MeshSpec {k}: "), faces,
+                            surface=geometry.mesh_surface[k])
         dest = geometry.mesh_attr.curvature
         wp.copy(dest, wp.array(c, dtype=wp.float32, device=dest.device), dest_offset=start, count=count)
         del pending[k]
@@ -584,11 +594,15 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
     ``scale``, ``rotate_y`` and ``translate`` are not applied here), into the device arrays the G-buffer kernel
     reads, at that mesh's offset in the concatenated arrays, with its smooth normals (V, 3) and mean curvatures
     H (V,): given, or, when both are None, computed on the device from the new positions
-    (:mod:`warpbw.mesh_normals`, the formulas of :mod:`warpbw.io.mesh`).  H is stored as its local magnitude, as ``build_geometry`` stores it
-    (``warpbw.mesh_normals.local_curvature``).  Then refits the BVH over the moved points (``wp.Mesh.refit``:
-    same topology, new bounds).  The connectivity, uv and materials stay as built.  Nothing is derived from the
-    old geometry, so a frame rendered after this is what ``build_geometry`` with the new vertices would
-    give: the bandwidth pass needs only the G-buffer (002 Sec. 4.3, "Dynamic geometry").
+    (:mod:`warpbw.mesh_normals`, the formulas of :mod:`warpbw.io.mesh`).  A mesh whose ``MeshSpec.surface`` (the seam
+    map ``load_mesh`` computes once) names vertices split by a texture seam is summed over its surface: each seam's
+    copies are one vertex, from the faces on both sides, and take the same normal and H, as ``load_mesh`` gives a
+    mesh loaded in this pose (the copies are expected to move together).  H is stored as its local magnitude, as
+    ``build_geometry`` stores it (``warpbw.mesh_normals.local_curvature``, over the surface too).  Then refits the
+    BVH over the moved points (``wp.Mesh.refit``: same topology, new bounds).  The connectivity, uv, seam map and
+    materials stay as built.  Nothing is derived from the old geometry, so a frame rendered after this is what
+    ``build_geometry`` with the new vertices would give: the bandwidth pass needs only the G-buffer (002 Sec. 4.3,
+    "Dynamic geometry").
     """
     ranges = geometry.mesh_vertex_ranges
     if geometry.mesh is None or not ranges:
@@ -620,7 +634,8 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
 
     topo = geometry.topology.get(int(mesh_index))
     if topo is None:   # connectivity only, built on the first call
-        topo = geometry.topology[int(mesh_index)] = mesh_topology(ma.indices.numpy(), start, count, device)
+        topo = geometry.topology[int(mesh_index)] = mesh_topology(ma.indices.numpy(), start, count, device,
+                                                                  geometry.mesh_surface[int(mesh_index)])
     shading = MeshShading(ma.normal[start:start + count], ma.curvature[start:start + count])
     if normals is None:
         normals_and_curvature(geometry.mesh.points, topo, device, out=shading)

@@ -1,15 +1,16 @@
 """Smooth vertex normals and mean curvature of a deforming triangle mesh, on the device (002 Sec. 4.3).
 
 Public:
-    ``MeshTopology`` / ``mesh_topology(indices, first, count, device)``   one mesh's faces and open boundary,
-                                          from its connectivity alone (built once: a deformation keeps it)
+    ``MeshTopology`` / ``mesh_topology(indices, first, count, device, surface=None)``   one mesh's faces and open
+                                          boundary, from its connectivity alone (built once: a deformation keeps
+                                          it), with the copies of a vertex a texture seam split as one vertex
     ``MeshShading`` / ``normals_and_curvature(points, topology, device, out)``  normals (V, 3) and H (V,) from the
                                           current vertex positions
     ``local_curvature(curvature, topology, device, passes, out)``  |H| averaged over the neighbourhood: the
                                           curvature the bandwidth pass reads (``warpbw.io.mesh.local_curvature``)
     Their kernels: ``face_terms_kernel``, ``vertex_finish_kernel``, ``boundary_sum_kernel``,
     ``boundary_mean_kernel`` (normals and H), ``one_ring_sum_kernel``, ``lazy_average_kernel``,
-    ``magnitude_kernel`` (``local_curvature``)
+    ``magnitude_kernel`` (``local_curvature``), ``seam_copy_kernel``, ``seam_copy_scalar_kernel`` (both)
 
 Their arrays are checked against the topology (shape, dtype, device) before any launch: the kernels index them by
 vertex without bounds, and an ``out`` of 3 vertices for 162 was written past its end (the call returned, the process
@@ -31,6 +32,11 @@ neighbours' mean); and for ``local_curvature``, per face (the one-ring sums) and
 average, dividing by the ring counts ``mesh_topology`` derives once), once per pass: 2.8 ms for 8 passes on the
 bunny on the CPU (3.7 ms when the counts were re-summed every pass; a gather over each vertex's ring in
 compressed rows, without atomics, took 6.7 ms in one launch per pass and 10.5 ms in tiles over threads).
+Seams: a mesh whose uv split vertices (``warpbw.io.mesh.MeshData.surface``, the map computed at load) is
+summed over its surface, each seam's copies as one vertex (the faces on both sides meet there), and one launch
+over the copies then hands each the values of its surface vertex, as ``warpbw.io.mesh.load_mesh`` gives them
+(each copy summed its own side's faces alone: 5.9 degrees off on a 32-column sphere, the fallback normal at the
+poles); a mesh without seams (the bunny) launches nothing more.
 Atomic adds are atomic on a GPU; on the CPU a launch runs on one thread, so these
 launches are never split over threads (``warpbw.shading.launch_tiled`` would race on the sums).
 """
@@ -195,6 +201,23 @@ def magnitude_kernel(x: wp.array(dtype=wp.float32), y: wp.array(dtype=wp.float32
     y[v] = wp.abs(x[v])
 
 
+@wp.kernel(module="unique", enable_backward=False)
+def seam_copy_kernel(copies: wp.array(dtype=wp.int32), copy_of: wp.array(dtype=wp.int32),
+                     normals: wp.array(dtype=wp.vec3), curvature: wp.array(dtype=wp.float32)):
+    """Seam copy copies[k] takes the normal and H of its surface vertex copy_of[k] (which is no copy: the reads
+    never meet the writes)."""
+    k = wp.tid()
+    normals[copies[k]] = normals[copy_of[k]]
+    curvature[copies[k]] = curvature[copy_of[k]]
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def seam_copy_scalar_kernel(copies: wp.array(dtype=wp.int32), copy_of: wp.array(dtype=wp.int32),
+                            x: wp.array(dtype=wp.float32)):
+    k = wp.tid()
+    x[copies[k]] = x[copy_of[k]]
+
+
 @dataclass
 class MeshTopology:
     """One mesh of a concatenated vertex array: its faces (global vertex indices), its vertex range, its open
@@ -206,6 +229,10 @@ class MeshTopology:
     pair_x: wp.array           # int32 boundary vertex of each (boundary, interior neighbour) pair (local)
     pair_y: wp.array           # int32 its interior neighbour (local)
     ring_count: wp.array       # int32 (count,) terms of each vertex's one-ring sum: 2 per incident face
+    # int32 seam copies (local) and the surface vertex each is one point with (local): the faces above name the
+    # surface vertex only; empty where no vertex is split (mesh_topology's surface None)
+    copies: wp.array = None
+    copy_of: wp.array = None
 
 
 @dataclass
@@ -219,10 +246,12 @@ def _check_topology(topology) -> None:
         raise WarpbwError(f"topology: expected a MeshTopology (mesh_topology), got {type(topology).__name__}")
 
 
-def mesh_topology(indices, first: int, count: int, device: str = "cpu") -> MeshTopology:
+def mesh_topology(indices, first: int, count: int, device: str = "cpu", surface=None) -> MeshTopology:
     """The faces of ``indices`` (flat, 3 per face, into a concatenated vertex array) whose vertices lie in
     ``[first, first + count)``, their open boundary and each vertex's one-ring count.  Connectivity only: a
-    deformation keeps it."""
+    deformation keeps it.  ``surface`` (count,) (``warpbw.io.mesh.MeshData.surface``, local indices; None: every
+    vertex its own): the seam map, under which the faces name each seam's copies by their surface vertex, so that
+    the sums meet over the seam and no seam edge reads as an open boundary; the copies take its values."""
     check_device(device)
     first = check_count(first, "first", 0, INT32_MAX)   # -1 was taken, and its faces' indices shifted
     # the kernels index vertices in int32; beyond, a range of 10^12 asked for terabytes of counts
@@ -236,14 +265,26 @@ def mesh_topology(indices, first: int, count: int, device: str = "cpu") -> MeshT
     mine = (f >= first) & (f < first + count)
     if np.any(mine.any(axis=1) & ~mine.all(axis=1)):
         raise WarpbwError(f"mesh topology: a face joins vertices in [{first}, {first + count}) to others")
-    f = f[mine.all(axis=1)]
-    on_boundary, x, y = boundary_neighbours(f - first, count)
+    f = f[mine.all(axis=1)] - first
+    surface = host_mesh.checked_surface(surface, count, "mesh topology: surface")
+    copies = np.zeros(0, np.int64) if surface is None else np.flatnonzero(surface != np.arange(count))
+    if len(copies):
+        f = surface[f]
+    on_boundary, x, y = boundary_neighbours(f, count)
 
     def dev(a):
         return wp.array(np.ascontiguousarray(a, np.int32), dtype=wp.int32, device=device)
-    ring_count = 2 * np.bincount((f - first).ravel(), minlength=count)
-    return MeshTopology(dev(f.reshape(-1)), int(first), int(count), dev(np.flatnonzero(on_boundary)), dev(x), dev(y),
-                        dev(ring_count))
+    ring_count = 2 * np.bincount(f.ravel(), minlength=count)
+    return MeshTopology(dev((f + first).reshape(-1)), int(first), int(count), dev(np.flatnonzero(on_boundary)), dev(x),
+                        dev(y), dev(ring_count), dev(copies), dev(copies if surface is None else surface[copies]))
+
+
+def _copy_to_seams(topology: MeshTopology, device: str, *arrays) -> None:
+    """Each seam copy takes the values its surface vertex has in ``arrays`` (normals and H, or one scalar)."""
+    n = 0 if topology.copies is None else topology.copies.shape[0]
+    if n:
+        kernel = seam_copy_kernel if len(arrays) == 2 else seam_copy_scalar_kernel
+        wp.launch(kernel, dim=n, inputs=[topology.copies, topology.copy_of, *arrays], device=device)
 
 
 def normals_and_curvature(points: wp.array, topology: MeshTopology, device: str = "cpu",
@@ -288,13 +329,15 @@ def normals_and_curvature(points: wp.array, topology: MeshTopology, device: str 
                   inputs=[topology.pair_x, topology.pair_y, out.curvature, s, c], device=device)
         wp.launch(boundary_mean_kernel, dim=topology.boundary.shape[0], inputs=[topology.boundary, s, c, out.curvature],
                   device=device)
+    _copy_to_seams(topology, device, out.normals, out.curvature)
     return out
 
 
 def local_curvature(curvature: wp.array, topology: MeshTopology, device: str = "cpu",
                     passes: int = host_mesh.CURVATURE_SMOOTHING_PASSES, out: wp.array | None = None) -> wp.array:
     """The curvature the bandwidth pass reads, from the mean curvature H (V,) of the mesh ``topology``
-    describes: |H| averaged by ``passes`` lazy one-ring passes, as ``warpbw.io.mesh.local_curvature``.
+    describes: |H| averaged by ``passes`` lazy one-ring passes, as ``warpbw.io.mesh.local_curvature`` (each seam's
+    copies as one vertex, where the topology has a seam map).
     Written into ``out`` when given (which may be ``curvature`` itself), else into a new array."""
     check_device(device)
     _check_topology(topology)
@@ -322,4 +365,5 @@ def local_curvature(curvature: wp.array, topology: MeshTopology, device: str = "
         wp.launch(lazy_average_kernel, dim=n, inputs=[x, s, topology.ring_count, y], device=device)
         x, y = y, x
     wp.copy(out, x)
+    _copy_to_seams(topology, device, out)
     return out

@@ -220,7 +220,7 @@ def _geometry(scene: Scene, mat_id: dict, device: str):
             md = md if kept is o else load(o)
             # its curvature is derived only for a frame with the bandwidth pass (prepare_bandwidth)
             meshes.append(MeshSpec(md.vertices, md.faces, md.normals, lambda md=md: md.mean_curvature, md.uv,
-                                   mat_id[o.material]))
+                                   mat_id[o.material], md.surface))
     return build_geometry(spheres, meshes, device=device)
 
 

@@ -22,22 +22,26 @@ exact power-of-two scale, so the cross products cannot overflow or underflow.
   area (shared with the device version, ``warpbw.mesh_normals``).
 - ``boundary_neighbours(faces, nv) -> (on_boundary, x, y)``: the open boundary's vertices and their
   interior neighbours (x[k] on the boundary, y[k] interior), from the connectivity alone.
-- ``normals_and_curvature(vertices, faces) -> (normals (V, 3), H (V,))``: ``vertex_normals`` and
+- ``normals_and_curvature(vertices, faces, surface=None) -> (normals (V, 3), H (V,))``: ``vertex_normals`` and
   ``mesh_mean_curvature`` for a mesh whose vertices moved (dynamic geometry, 002 Sec. 4.3: recomputed every
   frame, nothing cached; about 55 ms for the 70k-triangle bunny on one core, all numpy;
-  ``warpbw.mesh_normals`` does it on the device).
+  ``warpbw.mesh_normals`` does it on the device); ``surface`` (``MeshData.surface``): the copies of a vertex
+  split by a texture seam are one vertex of the surface, as ``load_mesh`` derives them.
 - ``checked_faces(faces, nv, what="faces") -> (F, 3) int64``: the faces check every helper here runs, for
   callers that take faces from elsewhere (``warpbw.gbuffer.build_geometry``): triangles of integer (or
   integral float) indices into ``nv`` vertices, else a one-line ``WarpbwError`` naming ``what``.
-- ``local_curvature(mean_curvature, faces, passes=CURVATURE_SMOOTHING_PASSES) -> (V,)``: the curvature the
-  bandwidth pass reads, |H| averaged over about two rings (12 ms on the bunny; ``warpbw.mesh_normals`` does
-  it on the device).
+- ``local_curvature(mean_curvature, faces, passes=CURVATURE_SMOOTHING_PASSES, surface=None) -> (V,)``: the
+  curvature the bandwidth pass reads, |H| averaged over about two rings (12 ms on the bunny; ``warpbw.mesh_normals``
+  does it on the device); ``surface`` as for ``normals_and_curvature``.
+- ``checked_surface(surface, nv, what="surface") -> (V,) int64 | None``: a seam map's check (``MeshData.surface``):
+  per vertex, an index in 0..nv-1 that is its own (the surface vertex of a seam's copies), else a one-line
+  ``WarpbwError`` naming ``what``.
 
 - ``mesh_triangles(path) -> int | None``: how many triangles a mesh file holds, from its header or its face lines
   (``warpbw.io.mesh_files.triangle_count``), without reading its geometry: None where it does not say, or the file
   does not open.
 
-Class: ``MeshData``.  Constant: ``CURVATURE_SMOOTHING_PASSES``.
+Class: ``MeshData`` (``surface``: the seam map, computed once at load).  Constant: ``CURVATURE_SMOOTHING_PASSES``.
 """
 from __future__ import annotations
 
@@ -80,6 +84,10 @@ class MeshData:
     faces: np.ndarray  # (F, 3) int32
     normals: np.ndarray  # (V, 3) float32 unit, smooth, area-weighted
     uv: np.ndarray | None = None  # (V, 2) float32
+    # (V,) int64: per vertex, the vertex it is one point of the surface with (the first of the copies a texture seam
+    # split, which uv alone tell apart; its own index elsewhere), or None where no vertex is split.  Computed once at
+    # load; warpbw.gbuffer.update_mesh (MeshSpec.surface) derives a deformed pose's normals and H through it.
+    surface: np.ndarray | None = None
     # float64 (vertices, normals, faces, surface) for mean_curvature, dropped once it is derived: the surface's
     # vertices, normals and faces, and each vertex's surface vertex (None: the vertices are the surface's)
     _exact: tuple | None = field(default=None, repr=False, compare=False)
@@ -279,7 +287,7 @@ def _unique_edges(edges: np.ndarray, nv: int):
     return np.stack([keys // nv, keys % nv], axis=1), counts
 
 
-def local_curvature(mean_curvature, faces, passes: int = CURVATURE_SMOOTHING_PASSES) -> np.ndarray:
+def local_curvature(mean_curvature, faces, passes: int = CURVATURE_SMOOTHING_PASSES, surface=None) -> np.ndarray:
     """The curvature c >= 0 that the bandwidth pass reads (002 Eq. 3) at each vertex, (V,) float32: |H|
     averaged over the vertex's neighbourhood by ``passes`` lazy one-ring passes, x <- (x + m) / 2, where m
     is the mean of x over the other two corners of every face incident to the vertex (an interior edge
@@ -289,7 +297,11 @@ def local_curvature(mean_curvature, faces, passes: int = CURVATURE_SMOOTHING_PAS
     vertex to vertex (32% of the bunny's edges join a convex to a concave vertex; neighbouring H correlate
     at 0.42), so the shading normal turns back and forth at the vertex scale.  A pixel sees how fast it
     turns, not which way: the signed H averaged cancels the bumps, the magnitude per vertex is noisy.
-    A constant |H| (a sphere's 1 / r) is kept exactly; every value stays within the input's range."""
+    A constant |H| (a sphere's 1 / r) is kept exactly; every value stays within the input's range.
+
+    ``surface`` (``MeshData.surface``, None: every vertex its own): the copies of a vertex split by a texture seam
+    are averaged as one vertex, over the faces on both sides, and each copy takes its value (each copy averaged over
+    its own side's ring alone, and the two came out different on a surface whose |H| varies)."""
     passes = check_count(passes, "local_curvature: passes", 0)   # 2.7 ran as 2 and "3" as 3
     try:
         h = np.abs(np.asarray(mean_curvature, dtype=np.float64))
@@ -303,6 +315,9 @@ def local_curvature(mean_curvature, faces, passes: int = CURVATURE_SMOOTHING_PAS
                           f"beyond float32 (expected finite values within +-{FLOAT32_MAX:.4g})")
     nv = len(h)
     f = checked_faces(faces, nv, "local_curvature: faces")
+    surface = checked_surface(surface, nv, "local_curvature: surface")
+    if surface is not None:
+        f = surface[f]   # the seam's copies as their surface vertex: the others keep no faces
     # (to, from) for each face's six ordered corner pairs
     to = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])
     fr = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]])
@@ -311,20 +326,49 @@ def local_curvature(mean_curvature, faces, passes: int = CURVATURE_SMOOTHING_PAS
     for _ in range(passes):
         m = np.bincount(to, weights=h[fr], minlength=nv)
         h = np.where(has, 0.5 * h + 0.5 * m / np.maximum(deg, 1.0), h)
-    return h.astype(np.float32)
+    return (h if surface is None else h[surface]).astype(np.float32)
 
 
-def normals_and_curvature(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
+def checked_surface(surface, nv: int, what: str = "surface") -> np.ndarray | None:
+    """``surface`` (a seam map, ``MeshData.surface``) as int64 (nv,), or None for None: per vertex an integer index
+    in 0..nv-1 naming a vertex that names itself (the surface vertex of the copies a texture seam split), else a
+    one-line WarpbwError naming ``what`` (a copy naming another copy would take a value that is never computed)."""
+    if surface is None:
+        return None
+    s = np.asarray(surface)
+    if s.shape != (nv,) or s.dtype.kind not in "iu":
+        raise WarpbwError(f"{what}: expected an integer vertex index per vertex, shape ({nv},), got "
+                          f"{s.dtype} values of shape {s.shape}")
+    s = s.astype(np.int64)
+    if nv and (s.min() < 0 or s.max() >= nv):
+        raise WarpbwError(f"{what}: indices from {s.min()} to {s.max()}; expected vertices in 0..{nv - 1}")
+    loose = s[s] != s
+    if loose.any():
+        i = int(np.argmax(loose))
+        raise WarpbwError(f"{what}: {int(loose.sum())} vertices name a vertex that is not its own surface vertex "
+                          f"(first: vertex {i} names {s[i]}, which names {s[s[i]]}); expected each seam's copies to "
+                          "name one of them that names itself")
+    return s
+
+
+def normals_and_curvature(vertices, faces, surface=None) -> tuple[np.ndarray, np.ndarray]:
     """Unit area-weighted vertex normals (V, 3) and mean curvature H (V,), both float64, from the
     current vertex positions alone: what ``load_mesh`` derives, for a mesh deformed every frame.
 
+    ``surface`` (``MeshData.surface``, the seam map computed at load; None: every vertex its own): the copies of a
+    vertex split by a texture seam take the normal and H of the surface there, from the faces on both sides, as
+    ``load_mesh`` gives them (each copy took its own side's faces alone: 5.9 degrees off on a 32-column sphere).
     No state is kept between calls (nothing is precomputed from an earlier pose).  The mesh is checked once (it
     was checked three times: by each function, and the normals again)."""
     v = _checked_vertices(vertices)
     f = checked_faces(faces, len(v))
+    surface = checked_surface(surface, len(v))
+    if surface is not None:
+        f = surface[f]   # the seam's copies as their surface vertex, whose faces meet there
     normals = _unit_normals(_normal_sums(v, f)[0])
     # unit_directions as mesh_mean_curvature(v, f, normals) applies it: the same H, to the last bit
-    return normals, _mean_curvature(v, f, unit_directions(normals, "normals"))
+    h = _mean_curvature(v, f, unit_directions(normals, "normals"))
+    return (normals, h) if surface is None else (normals[surface], h[surface])
 
 
 def _check_transform(path: Path, translate, scale, rotate_y_deg):
@@ -542,5 +586,6 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
         faces=np.ascontiguousarray(faces, dtype=np.int32),
         normals=np.ascontiguousarray(normals if surface is None else normals[surface], dtype=np.float32),
         uv=None if uv is None else np.ascontiguousarray(uv),
+        surface=surface,
         _exact=(s_verts, normals, s_faces, surface),
     )
