@@ -1043,6 +1043,49 @@ def test_bench_scenes_stops_at_the_first_bench_that_fails(tmp_path, monkeypatch,
     assert len(_benches(calls)) == 1
 
 
+@pytest.mark.parametrize("spp_list", [(1, 16), (16, 1)])
+def test_doubling_check_reads_the_largest_reference_count_in_any_order(tmp_path, monkeypatch, spp_list):
+    """The doubling check renders "at the largest reference spp" (module docstring), whatever order --spp gives.
+    Closed form (fake renderers): chunks of amplitudes 0 and 0.02 make a ground truth of 0.01 and a half of 0; the
+    16-spp frame, of amplitude 0.4 / sqrt(16) = 0.1, has a delta of 20 log10(0.1 / 0.09) = 0.92 dB, not converged.
+    With --spp 16,1 the check read the 1-spp frame (amplitude 0.4): 0.22 dB, converged."""
+    from warpbw.scene import parse_scene
+
+    _fake_renderers(monkeypatch, ref_amp=lambda spp: 0.4 / math.sqrt(spp), ada={}, chunk_amp=lambda k: (0.0, 0.02)[k])
+    rec = bench.run_bench(parse_scene(SCENE, tmp_path, "s.toml"), spp_list=spp_list, budgets=(), gt_spp=64, runs=1,
+                          cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **kw: None)
+    assert [r["spp"] for r in rec["methods"]["reference"]] == list(spp_list)   # the records keep the order given
+    assert rec["ground_truth_doubling_delta_db"] == pytest.approx(20.0 * math.log10(0.1 / 0.09), rel=1e-4)
+    assert rec["ground_truth_converged"] is False
+
+
+@pytest.mark.parametrize("seed, runs, budgets, match", [
+    (bench.GT_SEED - 101 * 16, 1, (), "reference's run 0 at 16 spp would be seeded 1000001, the seed of the ground "
+                                      "truth's chunk 0"),
+    (bench.GT_SEED + bench.GT_SEED_STEP - 101 * 4 - 2, 3, (), "reference's run 2 at 4 spp .* chunk 1"),
+    (bench.GT_SEED - 7 * 2, 3, (1,), "adaptive run 2 would shade its level 0 seeded 1000001"),
+    (bench.GT_SEED - 7919 * 3, 1, (1,), "adaptive run 0 would shade its level 3 seeded 1000001"),
+])
+def test_a_seed_whose_runs_would_draw_the_ground_truths_samples_is_refused(tmp_path, monkeypatch, seed, runs,
+                                                                          budgets, match):
+    """The ground truth's chunks are seeded GT_SEED + k GT_SEED_STEP "whatever --seed says", and the shading seeds
+    pixel i with rand_init(seed, i): a run seeded as a chunk draws that chunk's first samples, pixel by pixel, and its
+    error against the truth reads low (--seed 998385: the 16-spp reference's MSE 1.04e-3, against 1.7e-3 to 2.1e-3 at
+    seeds 0 to 3 on this scene, real renders).  Such a seed is refused before any frame, naming the run; the default
+    seed passes (fake renderers), and so do the neighbouring seeds (the check alone: the fakes take them for chunks)."""
+    from warpbw.scene import parse_scene
+
+    _fake_renderers(monkeypatch, ref_amp=_power_law_amp, ada={1.0: (_power_law_amp(11.0), 0.02)})
+    scene = parse_scene(SCENE, tmp_path, "s.toml")
+    kw = dict(spp_list=(4, 16), budgets=budgets, gt_spp=4 * bench.GT_CHUNK_SPP, runs=runs, cache_dir=tmp_path / "gt",
+              progress=False, log=lambda *a, **k: None)
+    with pytest.raises(WarpbwError, match=f"seed {seed}: the {match}.*expected another seed"):
+        bench.run_bench(scene, seed=seed, **kw)
+    assert bench.run_bench(scene, seed=0, **kw)["seed"] == 0
+    for ok in (seed - 1, seed + 1) if runs == 1 else (seed + 1000,):
+        assert bench._seed_refusal(ok, kw["spp_list"], runs, bool(budgets), 5, 4) is None
+
+
 def test_bandwidth_time_fraction_is_over_the_frames_wall_time(tmp_path, monkeypatch):
     """The record's times are wall times of whole frames (bench docstring) and "bandwidth pass: x% of the frame"
     divides the bandwidth pass by that time: with a frame whose stage sum is half its wall time (host work

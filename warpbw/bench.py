@@ -22,8 +22,9 @@ Protocol:
   scene's content hash, the seed and ``GT_VERSION`` (``gt_key``; so raising ``gt_spp`` renders only the
   missing chunks, and a chunk of another scene, seed or estimator is never read); a chunk whose pixels are not
   those its digest records is rendered again.  Accepted when the PSNR
-  of a render at the largest reference spp against half the ground truth and against all of it differ by
-  < 0.5 dB (recorded).
+  of a render at the largest reference spp (whatever the order of ``spp_list``) against half the ground truth and
+  against all of it differ by < 0.5 dB (recorded).  The chunks are seeded ``GT_SEED + k GT_SEED_STEP`` whatever
+  ``seed`` says, and a ``seed`` whose runs would be seeded as a chunk is (and so draw its samples) is refused.
 * Error: PSNR and relative MSE of linear radiance over covered pixels (:mod:`warpbw.metrics`), averaged
   over the ``runs`` frames (MSE and relative MSE as means, PSNR of the mean MSE).  With two runs or more
   every point also records its runs' MSEs and the standard error of its PSNR (``psnr_se_db``), and the
@@ -288,6 +289,34 @@ def _timed(render, runs: int, gt: GroundTruth):
                                            "psnr_se_db": psnr_standard_error(mses), "mse_runs": mses}
 
 
+# run r of a reference count spp is seeded seed + REF_SEED_SPP * spp + r, adaptive run r seed + ADA_SEED_RUN * r (its
+# hierarchy's level L adds warpbw.adaptive.LEVEL_SEED_STEP * L)
+REF_SEED_SPP, ADA_SEED_RUN = 101, 7
+
+
+def _seed_refusal(seed: int, spp_list, runs: int, adaptive: bool, levels: int, chunks: int) -> str | None:
+    """Why ``seed`` cannot seed the bench's runs: one of them would be seeded as a ground-truth chunk is, and so draw
+    that chunk's samples pixel by pixel (the shading seeds pixel i with rand_init(seed, i)), which hides part of its
+    error (--seed 998385 read the 16-spp reference's MSE as 1.04e-3 against 1.7-2.1e-3 at seeds 0-3, 2.5 dB high);
+    None when none is."""
+    from warpbw.adaptive import LEVEL_SEED_STEP
+
+    gt = {GT_SEED + k * GT_SEED_STEP: k for k in range(chunks)}
+    for spp in spp_list:
+        for r in range(runs):
+            s = offset_seed(seed, REF_SEED_SPP * spp + r)
+            if s in gt:
+                return (f"the reference's run {r} at {spp} spp would be seeded {s}, the seed of the ground truth's "
+                        f"chunk {gt[s]}")
+    for r in range(runs if adaptive else 0):
+        for L in range(levels):
+            s = offset_seed(offset_seed(seed, ADA_SEED_RUN * r), LEVEL_SEED_STEP * L)
+            if s in gt:
+                return (f"the adaptive run {r} would shade its level {L} seeded {s}, the seed of the ground truth's "
+                        f"chunk {gt[s]}")
+    return None
+
+
 def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), gt_spp: int = DEFAULT_GT_SPP,
               runs: int = 3, mis: bool = True, cache_dir: Path | None = None, nb_budget: float | None = None,
               seed: int = 0, device: str = "cpu", progress: bool = True, log=print,
@@ -296,10 +325,18 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     beside spheres or meshes benches the spheres and meshes the planes leave visible).
     ``adaptive_options`` go to every ``render_adaptive`` call (e.g. ``allocation``, ``nyquist``)."""
     from warpbw import pipeline
+    from warpbw.pyramid import pyramid_shapes
 
     if runs < 1:
         raise WarpbwError(f"runs: expected at least 1, got {runs}")
-    ground_truth_chunks(gt_spp)   # before any work
+    _, chunks = ground_truth_chunks(gt_spp)   # before any work
+    if not len(spp_list):   # the doubling check renders the largest
+        raise WarpbwError("spp_list: expected at least one reference sample count")
+    why = _seed_refusal(seed, spp_list, runs, bool(len(budgets) or len(nb_list)),
+                        len(pyramid_shapes(scene.camera.width, scene.camera.height)), chunks)
+    if why is not None:
+        raise WarpbwError(f"seed {seed}: {why}, so it would draw that chunk's samples and its error would read "
+                          "low; expected another seed")
     surfaces, planes = pipeline.split_planes(scene)
     if surfaces is None:
         raise WarpbwError(f"{scene.source}: bench measures spheres and meshes, and the scene has planes only "
@@ -334,12 +371,13 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     est = "mis" if mis else "brdf_is"
     ref_recs = []
     cov = None
-    last = None
+    top = None   # (spp, frame) of the largest count: the doubling check's render (--spp comes in any order)
     for spp in spp_list:
-        res, t, err = _timed(lambda r: render_reference(prep, spp=spp, seed=offset_seed(seed, 101 * spp + r), mis=mis),
-                             runs, gt)
+        res, t, err = _timed(lambda r: render_reference(prep, spp=spp, seed=offset_seed(seed, REF_SEED_SPP * spp + r),
+                                                        mis=mis), runs, gt)
         cov = res.coverage
-        last = res.image
+        if top is None or spp > top[0]:
+            top = (spp, res.image)
         rec = {"spp": int(spp), "time_s": t, **err,
                "shading_time_s": res.stats["time_s"]["shading"], "gbuffer_time_s": res.stats["time_s"]["gbuffer"]}
         ref_recs.append(rec)
@@ -348,6 +386,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     # doubling check of the ground truth, with the largest reference render
     from warpbw.metrics import mse as mse_of
 
+    spp, last = top   # the check read the last count given: --spp 16,1 checked the 1-spp frame (0.22 dB, converged,
+    # where the 16-spp frame's 0.92 dB is not)
     mse_full, mse_half = mse_of(last, gt.image, cov), mse_of(last, gt.half, cov)
     if mse_full == 0.0 or mse_half == 0.0:   # no noise anywhere: the environment lights nothing the camera sees
         raise WarpbwError(f"{scene.source}: the {spp}-spp reference equals the ground truth exactly, so there is no "
@@ -358,8 +398,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     log(f"ground-truth check: {d_db:.3f} dB ({'converged' if converged else 'NOT converged: raise --gt-spp'})")
     ada_recs = []
     for b in budgets:
-        res, t, err = _timed(lambda r: render_adaptive(prep, budget=b, seed=offset_seed(seed, 7 * r), mis=mis, **opts),
-                             runs, gt)
+        res, t, err = _timed(lambda r: render_adaptive(prep, budget=b, seed=offset_seed(seed, ADA_SEED_RUN * r),
+                                                       mis=mis, **opts), runs, gt)
         ts = res.stats["time_s"]
         spp_eq, t_eq, ext = equal_quality_time(ref_recs, err["mse"])
         rec = {"budget": float(b), "time_s": t, **err,
@@ -384,8 +424,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     nb_recs = []
     nbb = NB_SWEEP_BUDGET if nb_budget is None else nb_budget
     for n_b in nb_list:
-        res, t, err = _timed(lambda r: render_adaptive(prep, budget=nbb, seed=offset_seed(seed, 7 * r), mis=mis,
-                                                       n_b=int(n_b), **opts), runs, gt)
+        res, t, err = _timed(lambda r: render_adaptive(prep, budget=nbb, seed=offset_seed(seed, ADA_SEED_RUN * r),
+                                                       mis=mis, n_b=int(n_b), **opts), runs, gt)
         rec = {"n_b": int(n_b), "budget": float(nbb), "time_s": t, **err,
                "bandwidth_time_s": res.stats["time_s"]["bandwidth"], "shaded_fraction": res.stats["shaded_fraction"]}
         nb_recs.append(rec)
