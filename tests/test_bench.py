@@ -1086,6 +1086,31 @@ def test_a_seed_whose_runs_would_draw_the_ground_truths_samples_is_refused(tmp_p
         assert bench._seed_refusal(ok, kw["spp_list"], runs, bool(budgets), 5, 4) is None
 
 
+# What the reference reads of a uv-seamed lat-long sphere (load_mesh's vertices and normals, rounded to 1e-4), per
+# GT_VERSION: 3's is the loader's before session 73 (f916b81) gave the seam's copies the surface's normal.
+SEAMED_MESH_DIGEST = {3: "bff296236e97b9e2", 4: "3b277a56f7fdda6b"}
+
+
+def test_the_ground_truths_version_follows_what_the_reference_reads_of_a_mesh(tmp_path):
+    """A cached ground-truth chunk is keyed by the scene's content, its seed and GT_VERSION only: a change of what the
+    reference renders of the same files must raise GT_VERSION, else the old truth is read as the new one's.  Session
+    73 changed a uv-seamed mesh's normals (f916b81) under GT_VERSION 3: the same key, v3-28451f995e6d531d, for a
+    48x48 GGX (alpha 0.05) uv sphere before and after, whose 256-spp frames at the same seed differed on 448 of 1664
+    covered pixels, by up to 0.18 (57%) on the seam's columns.  The loader's output is pinned per version here, so
+    that the next such change fails until GT_VERSION is raised with it."""
+    import hashlib
+
+    from test_mesh import _latlong_sphere_obj
+    from warpbw.io.mesh import load_mesh
+
+    p = tmp_path / "uvsphere.obj"
+    p.write_text(_latlong_sphere_obj(32, 16, 1.0))
+    m = load_mesh(p)
+    a = np.round(np.concatenate([np.asarray(m.vertices, np.float64), np.asarray(m.normals, np.float64)]), 4) + 0.0
+    assert hashlib.blake2b(a.tobytes(), digest_size=8).hexdigest() == SEAMED_MESH_DIGEST.get(bench.GT_VERSION), \
+        f"load_mesh's output changed: raise GT_VERSION (now {bench.GT_VERSION}) and record the new digest"
+
+
 def test_bandwidth_time_fraction_is_over_the_frames_wall_time(tmp_path, monkeypatch):
     """The record's times are wall times of whole frames (bench docstring) and "bandwidth pass: x% of the frame"
     divides the bandwidth pass by that time: with a frame whose stage sum is half its wall time (host work
