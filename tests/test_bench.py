@@ -1156,6 +1156,14 @@ def test_bench_plot_draws_each_method_from_its_own_records(tmp_path, monkeypatch
     bench.write_plot(rec, tmp_path / "p.png")
     assert curves == [("reference (MIS)", [0.1, 0.4], [20.0, 26.0]), ("adaptive (002)", [0.05], [24.0])]
     assert titles[0] == "equal-quality speed-up 3.2x \u00b1 0.5" and (tmp_path / "p.png").stat().st_size > 0
+    # --spp, --budgets and --nb in any order: each curve runs along its counts (16, 1, 4 was drawn 16 -> 1 -> 4)
+    curves.clear()
+    rec["methods"]["reference"] = [{"spp": s, "time_s": 0.1 * s, "psnr_db": 20.0 + s} for s in (16, 1, 4)]
+    rec["methods"]["adaptive"] = [{"budget": b, "time_s": 0.05 * b, "psnr_db": 24.0 + b} for b in (2.0, 0.5, 1.0)]
+    rec["nb_sweep"] = [{"n_b": n, "budget": 8.0, "time_s": 0.001 * n, "psnr_db": 30.0} for n in (64, 16, 1024)]
+    bench.write_plot(rec, tmp_path / "p2.png")
+    assert curves == [("reference (MIS)", [0.1, 0.4, 1.6], [21.0, 24.0, 36.0]),
+                      ("adaptive (002)", [0.025, 0.05, 0.1], [24.5, 25.0, 26.0]), ("PSNR", [16, 64, 1024], [30.0] * 3)]
 
 
 # -------------------------------------------------------------------------------- examples/bench_reference.py

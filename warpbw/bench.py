@@ -564,7 +564,9 @@ def write_plot(record: dict, path) -> None:
     has_nb = bool(record.get("nb_sweep"))
     fig, axes = plt.subplots(1, 2 if has_nb else 1, figsize=(11 if has_nb else 6, 4.2), squeeze=False)
     ax = axes[0][0]
-    ref, ada = record["methods"]["reference"], record["methods"]["adaptive"]
+    # each curve in the order of its counts (--spp, --budgets and --nb come in any order: 16,1,4 drew 16 -> 1 -> 4)
+    ref = sorted(record["methods"]["reference"], key=lambda r: r["spp"])
+    ada = sorted(record["methods"]["adaptive"], key=lambda r: r["budget"])
     for recs, fmt, label in ((ref, "o-", f"reference ({record['estimator']})"), (ada, "s-", "adaptive (002)")):
         ax.errorbar([r["time_s"] for r in recs], [r["psnr_db"] for r in recs], fmt=fmt, label=label, capsize=3,
                     yerr=[r.get("psnr_se_db") or 0.0 for r in recs])
@@ -584,7 +586,7 @@ def write_plot(record: dict, path) -> None:
                  else "speed against accuracy", fontsize=10)
     if has_nb:
         ax2 = axes[0][1]
-        nb = record["nb_sweep"]
+        nb = sorted(record["nb_sweep"], key=lambda r: r["n_b"])
         ax2.errorbar([r["n_b"] for r in nb], [r["psnr_db"] for r in nb], fmt="o-", color="C2", label="PSNR",
                      yerr=[r.get("psnr_se_db") or 0.0 for r in nb], capsize=3)
         ax2.set_xscale("log")
