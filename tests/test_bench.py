@@ -550,7 +550,7 @@ def test_a_ground_truth_count_that_does_not_split_into_equal_chunks_is_refused(t
 
     assert bench.GT_CHUNK_SPP == 4096
     assert [bench.ground_truth_chunks(s) for s in (2, 4, 64, 8192, 12288, 16384)] == \
-        [(1, 2), (2, 2), (32, 2), (4096, 2), (4096, 3), (4096, 4)]
+        [(1, 2), (2, 2), (32, 2), (4096, 2), (2048, 6), (4096, 4)]
     for s, near in [(12000, "8192 or 12288"), (8193, "8192 or 12288"), (16383, "12288 or 16384"), (7, "6 or 8"),
                     (1, "2"), (3, "2 or 4")]:   # 3 was three chunks of 1 spp, an odd count the help refuses
         assert outcome(bench.ground_truth_chunks, s).endswith(f"chunks of at most 4096 spp; expected {near}"), s
@@ -567,6 +567,26 @@ def test_a_ground_truth_count_that_does_not_split_into_equal_chunks_is_refused(t
     got = outcome(bench.run_bench, parse_scene(SCENE, tmp_path, "s.toml"), gt_spp=12000, cache_dir=tmp_path / "gt")
     assert got.startswith("WarpbwError: --gt-spp 12000: ") and prepared == {}, got
     assert outcome(bench.ground_truth, None, 12000, tmp_path / "gt").startswith("WarpbwError: --gt-spp 12000: ")
+
+
+def test_half_of_the_ground_truths_chunks_hold_half_its_samples(tmp_path, monkeypatch):
+    """The doubling check (../shared/DESIGN.md: doubling the ground truth's samples moves PSNR < 0.5 dB) averages
+    the first half of the chunks: for every count accepted, those hold half the samples.  --gt-spp 12288 was three
+    chunks of 4096 and its "half" the first one, 4096 spp against 12288 (a tripling check; 20480: 8192 against
+    20480).  Closed form (fake renderers) at 12288: six chunks of amplitudes 0, 0, 0, 0.06, 0.06, 0.06 make a truth
+    of 0.03 and a half of 0; a 16-spp frame of amplitude 0.1 reads 20 log10(0.1 / 0.07) = 3.10 dB."""
+    from warpbw.scene import parse_scene
+
+    accepted = [*range(2, 8193, 2), *range(3 * 4096, 40 * 4096 + 1, 4096)]   # the help's: even to 8192, then 4096 k
+    for s in accepted:
+        assert bench.gt_spp_refusal(s) is None, s
+        chunk, n = bench.ground_truth_chunks(s)
+        assert chunk * n == s and n % 2 == 0 and chunk * (n // 2) * 2 == s and chunk <= bench.GT_CHUNK_SPP, s
+    seeds = _fake_renderers(monkeypatch, ref_amp=lambda spp: 0.1, ada={}, chunk_amp=lambda k: 0.06 * (k >= 3))
+    rec = bench.run_bench(parse_scene(SCENE, tmp_path, "s.toml"), spp_list=(16,), budgets=(), gt_spp=12288, runs=1,
+                          cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **kw: None)
+    assert len(seeds) == 6 and rec["ground_truth_spp"] == 12288
+    assert rec["ground_truth_doubling_delta_db"] == pytest.approx(20.0 * math.log10(0.1 / 0.07), rel=1e-4)
 
 
 def test_ground_truth_chunks_of_a_real_render_differ(tmp_path, monkeypatch):
@@ -1567,11 +1587,14 @@ def test_ground_truth_of_more_samples_does_not_read_chunks_of_fewer(tmp_path, mo
 
 
 def test_ground_truth_records_the_samples_it_took(tmp_path, monkeypatch):
-    """Chunks of at most GT_CHUNK_SPP: 12288 spp are three chunks of 4096, and the record's spp is what they hold
-    together."""
+    """Chunks of at most GT_CHUNK_SPP, in an even number: 16384 spp are four chunks of 4096, 12288 six of 2048 (three
+    of 4096 have no half), and the record's spp is what they hold together."""
     rendered = _gt_stand_in(monkeypatch)
+    gt = bench.ground_truth(_prep(tmp_path), 16384, tmp_path / "gt", progress=False)
+    assert rendered == [4096] * 4 and gt.spp == sum(rendered) == 16384 and gt.chunks == 4
+    rendered.clear()
     gt = bench.ground_truth(_prep(tmp_path), 12288, tmp_path / "gt", progress=False)
-    assert rendered == [4096] * 3 and gt.spp == sum(rendered) == 12288 and gt.chunks == 3
+    assert rendered == [2048] * 6 and gt.spp == sum(rendered) == 12288 and gt.chunks == 6
 
 
 def test_ground_truth_of_a_wide_image_is_read_from_the_cache(tmp_path, monkeypatch):

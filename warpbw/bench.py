@@ -17,8 +17,9 @@ Public:
 
 Protocol:
 * Ground truth: the MIS reference at ``gt_spp``, the mean of two or more independently seeded chunks of equal
-  size, at most ``GT_CHUNK_SPP`` each (any even count up to 8192 splits so, and beyond it a multiple of 4096;
-  a count that does not is refused, naming the nearest that do), every chunk cached as EXR keyed by the
+  size, at most ``GT_CHUNK_SPP`` each, in an even number (any even count up to 8192 splits so, and beyond it a
+  multiple of 4096, an odd multiple in chunks of 2048; a count that does not is refused, naming the nearest that
+  do), every chunk cached as EXR keyed by the
   scene's content hash, the seed and ``GT_VERSION`` (``gt_key``; so raising ``gt_spp`` renders only the
   missing chunks, and a chunk of another scene, seed or estimator is never read); a chunk whose pixels are not
   those its digest records is rendered again.  Accepted when the PSNR
@@ -101,10 +102,15 @@ class GroundTruth:
 
 def _split(gt_spp: int) -> tuple[int, int]:
     """(spp per chunk, chunks): two chunks up to 2 x GT_CHUNK_SPP, beyond it as many chunks of GT_CHUNK_SPP as fit
-    (their product may fall short of gt_spp).  Three chunks of 1 spp made --gt-spp 3 pass, an odd count below
-    8192 that the help refuses, and its "doubling" check compared 1 spp with 3 (clifuzz F10)."""
+    (their product may fall short of gt_spp), an odd number of them as twice as many of half the size: the doubling
+    check averages half of the chunks, which must hold half the samples.  Three chunks of 1 spp made --gt-spp 3
+    pass, an odd count below 8192 that the help refuses, and its "doubling" check compared 1 spp with 3 (clifuzz
+    F10); --gt-spp 12288 was three chunks of 4096, and its check compared 4096 spp with 12288 (session 74)."""
     chunk = min(GT_CHUNK_SPP, max(1, gt_spp // 2))
-    return chunk, (max(2, gt_spp // chunk) if chunk == GT_CHUNK_SPP else 2)
+    if chunk < GT_CHUNK_SPP:
+        return chunk, 2
+    n = max(2, gt_spp // chunk)
+    return (chunk // 2, 2 * n) if n % 2 else (chunk, n)
 
 
 def gt_spp_refusal(gt_spp: int) -> str | None:
