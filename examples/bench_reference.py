@@ -9,8 +9,9 @@ fit by ``warpbw-precompute npf-to-merl``, under a light probe of ../shared/data/
 
 Protocol (../shared/DESIGN.md): times are medians of ``--runs`` runs (default 3; fewer warn, as ``warpbw bench``'s)
 after a warm-up frame; the ground truth is the MIS reference at ``--gt-spp``, the mean of independently seeded
-4096-spp chunks (each cached), accepted when the PSNR of a render at the sweep's largest ``--spp`` (1024 by
-default) against its first half and against the whole differ by < 0.5 dB (else it says so).
+4096-spp chunks (2048 for an odd multiple of 4096, so that half of them hold half the samples; each cached),
+accepted when the PSNR of a render at the sweep's largest ``--spp`` (1024 by default) against its first half and
+against the whole differ by < 0.5 dB (else it says so).
 Writes bench_out/bench_reference.json, a plot bench_out/bench_reference.png (error against time,
 one curve per estimator), PNG previews, the MERL file (kept as a cache, stamped beside it as
 ``precompute.npf_to_merl`` says; converted again where the stamp is missing or stale), and the ground truth's
@@ -133,7 +134,7 @@ def main():
     check_command_options("bench", {"--spp": spp_text, "--runs": str(args.runs)})
     if args.gt_spp % GT_CHUNK_SPP or args.gt_spp < 2 * GT_CHUNK_SPP:
         ap.error(f"--gt-spp {args.gt_spp}: expected a multiple of {GT_CHUNK_SPP} of at least {2 * GT_CHUNK_SPP} "
-                 f"(the mean of cached {GT_CHUNK_SPP}-spp chunks, checked against its first half)")
+                 f"(the mean of cached chunks of at most {GT_CHUNK_SPP} spp, checked against its first half)")
     if not all(1 <= r <= MAX_RESOLUTION for r in args.resolution):
         ap.error(f"--resolution {args.resolution[0]} {args.resolution[1]}: expected a width and a height from 1 "
                  f"to {MAX_RESOLUTION}")
@@ -210,7 +211,7 @@ def main():
         gb_times.append(time.perf_counter() - t0)
     gbuffer_ms = statistics.median(gb_times) * 1e3
 
-    # ground truth: the mean of independently seeded MIS chunks of GT_CHUNK_SPP each, every chunk cached
+    # ground truth: the mean of independently seeded MIS chunks (warpbw.bench.ground_truth_chunks), every chunk cached
     # (warpbw.bench.ground_truth: by scene hash, seed and GT_VERSION, so raising --gt-spp only renders the missing
     # ones and a chunk of an older estimator is never read)
     from warpbw.bench import ground_truth

@@ -550,7 +550,7 @@ def test_a_ground_truth_count_that_does_not_split_into_equal_chunks_is_refused(t
 
     assert bench.GT_CHUNK_SPP == 4096
     assert [bench.ground_truth_chunks(s) for s in (2, 4, 64, 8192, 12288, 16384)] == \
-        [(1, 2), (2, 2), (32, 2), (4096, 2), (4096, 3), (4096, 4)]
+        [(1, 2), (2, 2), (32, 2), (4096, 2), (2048, 6), (4096, 4)]
     for s, near in [(12000, "8192 or 12288"), (8193, "8192 or 12288"), (16383, "12288 or 16384"), (7, "6 or 8"),
                     (1, "2"), (3, "2 or 4")]:   # 3 was three chunks of 1 spp, an odd count the help refuses
         assert outcome(bench.ground_truth_chunks, s).endswith(f"chunks of at most 4096 spp; expected {near}"), s
@@ -567,6 +567,26 @@ def test_a_ground_truth_count_that_does_not_split_into_equal_chunks_is_refused(t
     got = outcome(bench.run_bench, parse_scene(SCENE, tmp_path, "s.toml"), gt_spp=12000, cache_dir=tmp_path / "gt")
     assert got.startswith("WarpbwError: --gt-spp 12000: ") and prepared == {}, got
     assert outcome(bench.ground_truth, None, 12000, tmp_path / "gt").startswith("WarpbwError: --gt-spp 12000: ")
+
+
+def test_half_of_the_ground_truths_chunks_hold_half_its_samples(tmp_path, monkeypatch):
+    """The doubling check (../shared/DESIGN.md: doubling the ground truth's samples moves PSNR < 0.5 dB) averages
+    the first half of the chunks: for every count accepted, those hold half the samples.  --gt-spp 12288 was three
+    chunks of 4096 and its "half" the first one, 4096 spp against 12288 (a tripling check; 20480: 8192 against
+    20480).  Closed form (fake renderers) at 12288: six chunks of amplitudes 0, 0, 0, 0.06, 0.06, 0.06 make a truth
+    of 0.03 and a half of 0; a 16-spp frame of amplitude 0.1 reads 20 log10(0.1 / 0.07) = 3.10 dB."""
+    from warpbw.scene import parse_scene
+
+    accepted = [*range(2, 8193, 2), *range(3 * 4096, 40 * 4096 + 1, 4096)]   # the help's: even to 8192, then 4096 k
+    for s in accepted:
+        assert bench.gt_spp_refusal(s) is None, s
+        chunk, n = bench.ground_truth_chunks(s)
+        assert chunk * n == s and n % 2 == 0 and chunk * (n // 2) * 2 == s and chunk <= bench.GT_CHUNK_SPP, s
+    seeds = _fake_renderers(monkeypatch, ref_amp=lambda spp: 0.1, ada={}, chunk_amp=lambda k: 0.06 * (k >= 3))
+    rec = bench.run_bench(parse_scene(SCENE, tmp_path, "s.toml"), spp_list=(16,), budgets=(), gt_spp=12288, runs=1,
+                          cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **kw: None)
+    assert len(seeds) == 6 and rec["ground_truth_spp"] == 12288
+    assert rec["ground_truth_doubling_delta_db"] == pytest.approx(20.0 * math.log10(0.1 / 0.07), rel=1e-4)
 
 
 def test_ground_truth_chunks_of_a_real_render_differ(tmp_path, monkeypatch):
@@ -1043,6 +1063,74 @@ def test_bench_scenes_stops_at_the_first_bench_that_fails(tmp_path, monkeypatch,
     assert len(_benches(calls)) == 1
 
 
+@pytest.mark.parametrize("spp_list", [(1, 16), (16, 1)])
+def test_doubling_check_reads_the_largest_reference_count_in_any_order(tmp_path, monkeypatch, spp_list):
+    """The doubling check renders "at the largest reference spp" (module docstring), whatever order --spp gives.
+    Closed form (fake renderers): chunks of amplitudes 0 and 0.02 make a ground truth of 0.01 and a half of 0; the
+    16-spp frame, of amplitude 0.4 / sqrt(16) = 0.1, has a delta of 20 log10(0.1 / 0.09) = 0.92 dB, not converged.
+    With --spp 16,1 the check read the 1-spp frame (amplitude 0.4): 0.22 dB, converged."""
+    from warpbw.scene import parse_scene
+
+    _fake_renderers(monkeypatch, ref_amp=lambda spp: 0.4 / math.sqrt(spp), ada={}, chunk_amp=lambda k: (0.0, 0.02)[k])
+    rec = bench.run_bench(parse_scene(SCENE, tmp_path, "s.toml"), spp_list=spp_list, budgets=(), gt_spp=64, runs=1,
+                          cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **kw: None)
+    assert [r["spp"] for r in rec["methods"]["reference"]] == list(spp_list)   # the records keep the order given
+    assert rec["ground_truth_doubling_delta_db"] == pytest.approx(20.0 * math.log10(0.1 / 0.09), rel=1e-4)
+    assert rec["ground_truth_converged"] is False
+
+
+@pytest.mark.parametrize("seed, runs, budgets, match", [
+    (bench.GT_SEED - 101 * 16, 1, (), "reference's run 0 at 16 spp would be seeded 1000001, the seed of the ground "
+                                      "truth's chunk 0"),
+    (bench.GT_SEED + bench.GT_SEED_STEP - 101 * 4 - 2, 3, (), "reference's run 2 at 4 spp .* chunk 1"),
+    (bench.GT_SEED - 7 * 2, 3, (1,), "adaptive run 2 would shade its level 0 seeded 1000001"),
+    (bench.GT_SEED - 7919 * 3, 1, (1,), "adaptive run 0 would shade its level 3 seeded 1000001"),
+])
+def test_a_seed_whose_runs_would_draw_the_ground_truths_samples_is_refused(tmp_path, monkeypatch, seed, runs,
+                                                                          budgets, match):
+    """The ground truth's chunks are seeded GT_SEED + k GT_SEED_STEP "whatever --seed says", and the shading seeds
+    pixel i with rand_init(seed, i): a run seeded as a chunk draws that chunk's first samples, pixel by pixel, and its
+    error against the truth reads low (--seed 998385: the 16-spp reference's MSE 1.04e-3, against 1.7e-3 to 2.1e-3 at
+    seeds 0 to 3 on this scene, real renders).  Such a seed is refused before any frame, naming the run; the default
+    seed passes (fake renderers), and so do the neighbouring seeds (the check alone: the fakes take them for chunks)."""
+    from warpbw.scene import parse_scene
+
+    _fake_renderers(monkeypatch, ref_amp=_power_law_amp, ada={1.0: (_power_law_amp(11.0), 0.02)})
+    scene = parse_scene(SCENE, tmp_path, "s.toml")
+    kw = dict(spp_list=(4, 16), budgets=budgets, gt_spp=4 * bench.GT_CHUNK_SPP, runs=runs, cache_dir=tmp_path / "gt",
+              progress=False, log=lambda *a, **k: None)
+    with pytest.raises(WarpbwError, match=f"seed {seed}: the {match}.*expected another seed"):
+        bench.run_bench(scene, seed=seed, **kw)
+    assert bench.run_bench(scene, seed=0, **kw)["seed"] == 0
+    for ok in (seed - 1, seed + 1) if runs == 1 else (seed + 1000,):
+        assert bench._seed_refusal(ok, kw["spp_list"], runs, bool(budgets), 5, 4) is None
+
+
+# What the reference reads of a uv-seamed lat-long sphere (load_mesh's vertices and normals, rounded to 1e-4), per
+# GT_VERSION: 3's is the loader's before session 73 (f916b81) gave the seam's copies the surface's normal.
+SEAMED_MESH_DIGEST = {3: "bff296236e97b9e2", 4: "3b277a56f7fdda6b"}
+
+
+def test_the_ground_truths_version_follows_what_the_reference_reads_of_a_mesh(tmp_path):
+    """A cached ground-truth chunk is keyed by the scene's content, its seed and GT_VERSION only: a change of what the
+    reference renders of the same files must raise GT_VERSION, else the old truth is read as the new one's.  Session
+    73 changed a uv-seamed mesh's normals (f916b81) under GT_VERSION 3: the same key, v3-28451f995e6d531d, for a
+    48x48 GGX (alpha 0.05) uv sphere before and after, whose 256-spp frames at the same seed differed on 448 of 1664
+    covered pixels, by up to 0.18 (57%) on the seam's columns.  The loader's output is pinned per version here, so
+    that the next such change fails until GT_VERSION is raised with it."""
+    import hashlib
+
+    from test_mesh import _latlong_sphere_obj
+    from warpbw.io.mesh import load_mesh
+
+    p = tmp_path / "uvsphere.obj"
+    p.write_text(_latlong_sphere_obj(32, 16, 1.0))
+    m = load_mesh(p)
+    a = np.round(np.concatenate([np.asarray(m.vertices, np.float64), np.asarray(m.normals, np.float64)]), 4) + 0.0
+    assert hashlib.blake2b(a.tobytes(), digest_size=8).hexdigest() == SEAMED_MESH_DIGEST.get(bench.GT_VERSION), \
+        f"load_mesh's output changed: raise GT_VERSION (now {bench.GT_VERSION}) and record the new digest"
+
+
 def test_bandwidth_time_fraction_is_over_the_frames_wall_time(tmp_path, monkeypatch):
     """The record's times are wall times of whole frames (bench docstring) and "bandwidth pass: x% of the frame"
     divides the bandwidth pass by that time: with a frame whose stage sum is half its wall time (host work
@@ -1088,6 +1176,14 @@ def test_bench_plot_draws_each_method_from_its_own_records(tmp_path, monkeypatch
     bench.write_plot(rec, tmp_path / "p.png")
     assert curves == [("reference (MIS)", [0.1, 0.4], [20.0, 26.0]), ("adaptive (002)", [0.05], [24.0])]
     assert titles[0] == "equal-quality speed-up 3.2x \u00b1 0.5" and (tmp_path / "p.png").stat().st_size > 0
+    # --spp, --budgets and --nb in any order: each curve runs along its counts (16, 1, 4 was drawn 16 -> 1 -> 4)
+    curves.clear()
+    rec["methods"]["reference"] = [{"spp": s, "time_s": 0.1 * s, "psnr_db": 20.0 + s} for s in (16, 1, 4)]
+    rec["methods"]["adaptive"] = [{"budget": b, "time_s": 0.05 * b, "psnr_db": 24.0 + b} for b in (2.0, 0.5, 1.0)]
+    rec["nb_sweep"] = [{"n_b": n, "budget": 8.0, "time_s": 0.001 * n, "psnr_db": 30.0} for n in (64, 16, 1024)]
+    bench.write_plot(rec, tmp_path / "p2.png")
+    assert curves == [("reference (MIS)", [0.1, 0.4, 1.6], [21.0, 24.0, 36.0]),
+                      ("adaptive (002)", [0.025, 0.05, 0.1], [24.5, 25.0, 26.0]), ("PSNR", [16, 64, 1024], [30.0] * 3)]
 
 
 # -------------------------------------------------------------------------------- examples/bench_reference.py
@@ -1491,11 +1587,14 @@ def test_ground_truth_of_more_samples_does_not_read_chunks_of_fewer(tmp_path, mo
 
 
 def test_ground_truth_records_the_samples_it_took(tmp_path, monkeypatch):
-    """Chunks of at most GT_CHUNK_SPP: 12288 spp are three chunks of 4096, and the record's spp is what they hold
-    together."""
+    """Chunks of at most GT_CHUNK_SPP, in an even number: 16384 spp are four chunks of 4096, 12288 six of 2048 (three
+    of 4096 have no half), and the record's spp is what they hold together."""
     rendered = _gt_stand_in(monkeypatch)
+    gt = bench.ground_truth(_prep(tmp_path), 16384, tmp_path / "gt", progress=False)
+    assert rendered == [4096] * 4 and gt.spp == sum(rendered) == 16384 and gt.chunks == 4
+    rendered.clear()
     gt = bench.ground_truth(_prep(tmp_path), 12288, tmp_path / "gt", progress=False)
-    assert rendered == [4096] * 3 and gt.spp == sum(rendered) == 12288 and gt.chunks == 3
+    assert rendered == [2048] * 6 and gt.spp == sum(rendered) == 12288 and gt.chunks == 6
 
 
 def test_ground_truth_of_a_wide_image_is_read_from_the_cache(tmp_path, monkeypatch):

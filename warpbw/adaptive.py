@@ -88,6 +88,8 @@ from warpbw.upsample import (UPSAMPLE_DEFAULT, check_upsample_mode, level_size, 
 MODE_SKIP = 0
 MODE_SHADE = 1
 MODE_UPSAMPLE = 2
+LEVEL_SEED_STEP = 7919   # level L is shaded with seed + LEVEL_SEED_STEP L (warpbw.bench keeps its runs off the
+# ground truth's seeds with it)
 
 
 @wp.kernel(module="unique", enable_backward=False)
@@ -309,8 +311,9 @@ def shade_hierarchical(gb: GBuffer, cam: CameraData, materials: MaterialBuffers,
             pix = wp.array(pix_np.astype(np.int32), dtype=wp.int32, device=device)
             wp.launch(level_spp_kernel, dim=n_shaded, inputs=[rep, w, spps.levels[L], texels, spp_at_pixel],
                       device=device)
-            res = shade_reference(gb, materials, env_data, spp_at_pixel, seed=offset_seed(seed, 7919 * L), mis=mis,
-                                  device=device, threads=threads, pixels=pix, out=shaded_full, progress=progress)
+            res = shade_reference(gb, materials, env_data, spp_at_pixel, seed=offset_seed(seed, LEVEL_SEED_STEP * L),
+                                  mis=mis, device=device, threads=threads, pixels=pix, out=shaded_full,
+                                  progress=progress)
             samples += res.samples
             non_finite += res.non_finite
             wp.launch(gather_shaded_kernel, dim=n_shaded, inputs=[pix, texels, shaded_full, vals, valid],

@@ -17,13 +17,15 @@ Public:
 
 Protocol:
 * Ground truth: the MIS reference at ``gt_spp``, the mean of two or more independently seeded chunks of equal
-  size, at most ``GT_CHUNK_SPP`` each (any even count up to 8192 splits so, and beyond it a multiple of 4096;
-  a count that does not is refused, naming the nearest that do), every chunk cached as EXR keyed by the
+  size, at most ``GT_CHUNK_SPP`` each, in an even number (any even count up to 8192 splits so, and beyond it a
+  multiple of 4096, an odd multiple in chunks of 2048; a count that does not is refused, naming the nearest that
+  do), every chunk cached as EXR keyed by the
   scene's content hash, the seed and ``GT_VERSION`` (``gt_key``; so raising ``gt_spp`` renders only the
   missing chunks, and a chunk of another scene, seed or estimator is never read); a chunk whose pixels are not
   those its digest records is rendered again.  Accepted when the PSNR
-  of a render at the largest reference spp against half the ground truth and against all of it differ by
-  < 0.5 dB (recorded).
+  of a render at the largest reference spp (whatever the order of ``spp_list``) against half the ground truth and
+  against all of it differ by < 0.5 dB (recorded).  The chunks are seeded ``GT_SEED + k GT_SEED_STEP`` whatever
+  ``seed`` says, and a ``seed`` whose runs would be seeded as a chunk is (and so draw its samples) is refused.
 * Error: PSNR and relative MSE of linear radiance over covered pixels (:mod:`warpbw.metrics`), averaged
   over the ``runs`` frames (MSE and relative MSE as means, PSNR of the mean MSE).  With two runs or more
   every point also records its runs' MSEs and the standard error of its PSNR (``psnr_se_db``), and the
@@ -76,9 +78,10 @@ GT_CHUNK_SPP = 4096                                   # spp per cached ground-tr
 DEFAULT_SPP = (1, 2, 4, 8, 16, 32, 64, 128, 256)      # reference sweep
 DEFAULT_BUDGETS = (0.5, 1, 2, 4, 8, 16, 32)           # adaptive sweep, mean samples per covered pixel
 DEFAULT_GT_SPP = 8192
-# of the cached ground-truth chunks: raise it whenever render_reference's estimator changes (3, session 65: the
-# tabulated and GGX pdfs at grazing views, warpbw.sampling.COS_D_EXACT)
-GT_VERSION = 3
+# of the cached ground-truth chunks: raise it whenever what render_reference renders changes, its estimator or its
+# inputs (3, session 65: the tabulated and GGX pdfs at grazing views, warpbw.sampling.COS_D_EXACT; 4, session 74: a
+# mesh's normals along a texture seam, session 73's f916b81, which moved a uv sphere's seam pixels by up to 57%)
+GT_VERSION = 4
 CHUNK_DIGEST_NOTE = "rgb_blake2b"   # a chunk file's note (warpbw.io.exr) holding its pixels' digest
 GT_SEED, GT_SEED_STEP = 1_000_001, 1_000_002          # ground-truth chunk k is seeded GT_SEED + k * GT_SEED_STEP
 DOUBLING_DB = 0.5                                     # ../shared/DESIGN.md: doubling GT spp moves PSNR < 0.5 dB
@@ -99,10 +102,15 @@ class GroundTruth:
 
 def _split(gt_spp: int) -> tuple[int, int]:
     """(spp per chunk, chunks): two chunks up to 2 x GT_CHUNK_SPP, beyond it as many chunks of GT_CHUNK_SPP as fit
-    (their product may fall short of gt_spp).  Three chunks of 1 spp made --gt-spp 3 pass, an odd count below
-    8192 that the help refuses, and its "doubling" check compared 1 spp with 3 (clifuzz F10)."""
+    (their product may fall short of gt_spp), an odd number of them as twice as many of half the size: the doubling
+    check averages half of the chunks, which must hold half the samples.  Three chunks of 1 spp made --gt-spp 3
+    pass, an odd count below 8192 that the help refuses, and its "doubling" check compared 1 spp with 3 (clifuzz
+    F10); --gt-spp 12288 was three chunks of 4096, and its check compared 4096 spp with 12288 (session 74)."""
     chunk = min(GT_CHUNK_SPP, max(1, gt_spp // 2))
-    return chunk, (max(2, gt_spp // chunk) if chunk == GT_CHUNK_SPP else 2)
+    if chunk < GT_CHUNK_SPP:
+        return chunk, 2
+    n = max(2, gt_spp // chunk)
+    return (chunk // 2, 2 * n) if n % 2 else (chunk, n)
 
 
 def gt_spp_refusal(gt_spp: int) -> str | None:
@@ -288,6 +296,34 @@ def _timed(render, runs: int, gt: GroundTruth):
                                            "psnr_se_db": psnr_standard_error(mses), "mse_runs": mses}
 
 
+# run r of a reference count spp is seeded seed + REF_SEED_SPP * spp + r, adaptive run r seed + ADA_SEED_RUN * r (its
+# hierarchy's level L adds warpbw.adaptive.LEVEL_SEED_STEP * L)
+REF_SEED_SPP, ADA_SEED_RUN = 101, 7
+
+
+def _seed_refusal(seed: int, spp_list, runs: int, adaptive: bool, levels: int, chunks: int) -> str | None:
+    """Why ``seed`` cannot seed the bench's runs: one of them would be seeded as a ground-truth chunk is, and so draw
+    that chunk's samples pixel by pixel (the shading seeds pixel i with rand_init(seed, i)), which hides part of its
+    error (--seed 998385 read the 16-spp reference's MSE as 1.04e-3 against 1.7-2.1e-3 at seeds 0-3, 2.5 dB high);
+    None when none is."""
+    from warpbw.adaptive import LEVEL_SEED_STEP
+
+    gt = {GT_SEED + k * GT_SEED_STEP: k for k in range(chunks)}
+    for spp in spp_list:
+        for r in range(runs):
+            s = offset_seed(seed, REF_SEED_SPP * spp + r)
+            if s in gt:
+                return (f"the reference's run {r} at {spp} spp would be seeded {s}, the seed of the ground truth's "
+                        f"chunk {gt[s]}")
+    for r in range(runs if adaptive else 0):
+        for L in range(levels):
+            s = offset_seed(offset_seed(seed, ADA_SEED_RUN * r), LEVEL_SEED_STEP * L)
+            if s in gt:
+                return (f"the adaptive run {r} would shade its level {L} seeded {s}, the seed of the ground truth's "
+                        f"chunk {gt[s]}")
+    return None
+
+
 def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), gt_spp: int = DEFAULT_GT_SPP,
               runs: int = 3, mis: bool = True, cache_dir: Path | None = None, nb_budget: float | None = None,
               seed: int = 0, device: str = "cpu", progress: bool = True, log=print,
@@ -296,10 +332,18 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     beside spheres or meshes benches the spheres and meshes the planes leave visible).
     ``adaptive_options`` go to every ``render_adaptive`` call (e.g. ``allocation``, ``nyquist``)."""
     from warpbw import pipeline
+    from warpbw.pyramid import pyramid_shapes
 
     if runs < 1:
         raise WarpbwError(f"runs: expected at least 1, got {runs}")
-    ground_truth_chunks(gt_spp)   # before any work
+    _, chunks = ground_truth_chunks(gt_spp)   # before any work
+    if not len(spp_list):   # the doubling check renders the largest
+        raise WarpbwError("spp_list: expected at least one reference sample count")
+    why = _seed_refusal(seed, spp_list, runs, bool(len(budgets) or len(nb_list)),
+                        len(pyramid_shapes(scene.camera.width, scene.camera.height)), chunks)
+    if why is not None:
+        raise WarpbwError(f"seed {seed}: {why}, so it would draw that chunk's samples and its error would read "
+                          "low; expected another seed")
     surfaces, planes = pipeline.split_planes(scene)
     if surfaces is None:
         raise WarpbwError(f"{scene.source}: bench measures spheres and meshes, and the scene has planes only "
@@ -334,12 +378,13 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     est = "mis" if mis else "brdf_is"
     ref_recs = []
     cov = None
-    last = None
+    top = None   # (spp, frame) of the largest count: the doubling check's render (--spp comes in any order)
     for spp in spp_list:
-        res, t, err = _timed(lambda r: render_reference(prep, spp=spp, seed=offset_seed(seed, 101 * spp + r), mis=mis),
-                             runs, gt)
+        res, t, err = _timed(lambda r: render_reference(prep, spp=spp, seed=offset_seed(seed, REF_SEED_SPP * spp + r),
+                                                        mis=mis), runs, gt)
         cov = res.coverage
-        last = res.image
+        if top is None or spp > top[0]:
+            top = (spp, res.image)
         rec = {"spp": int(spp), "time_s": t, **err,
                "shading_time_s": res.stats["time_s"]["shading"], "gbuffer_time_s": res.stats["time_s"]["gbuffer"]}
         ref_recs.append(rec)
@@ -348,6 +393,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     # doubling check of the ground truth, with the largest reference render
     from warpbw.metrics import mse as mse_of
 
+    spp, last = top   # the check read the last count given: --spp 16,1 checked the 1-spp frame (0.22 dB, converged,
+    # where the 16-spp frame's 0.92 dB is not)
     mse_full, mse_half = mse_of(last, gt.image, cov), mse_of(last, gt.half, cov)
     if mse_full == 0.0 or mse_half == 0.0:   # no noise anywhere: the environment lights nothing the camera sees
         raise WarpbwError(f"{scene.source}: the {spp}-spp reference equals the ground truth exactly, so there is no "
@@ -358,8 +405,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     log(f"ground-truth check: {d_db:.3f} dB ({'converged' if converged else 'NOT converged: raise --gt-spp'})")
     ada_recs = []
     for b in budgets:
-        res, t, err = _timed(lambda r: render_adaptive(prep, budget=b, seed=offset_seed(seed, 7 * r), mis=mis, **opts),
-                             runs, gt)
+        res, t, err = _timed(lambda r: render_adaptive(prep, budget=b, seed=offset_seed(seed, ADA_SEED_RUN * r),
+                                                       mis=mis, **opts), runs, gt)
         ts = res.stats["time_s"]
         spp_eq, t_eq, ext = equal_quality_time(ref_recs, err["mse"])
         rec = {"budget": float(b), "time_s": t, **err,
@@ -384,8 +431,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     nb_recs = []
     nbb = NB_SWEEP_BUDGET if nb_budget is None else nb_budget
     for n_b in nb_list:
-        res, t, err = _timed(lambda r: render_adaptive(prep, budget=nbb, seed=offset_seed(seed, 7 * r), mis=mis,
-                                                       n_b=int(n_b), **opts), runs, gt)
+        res, t, err = _timed(lambda r: render_adaptive(prep, budget=nbb, seed=offset_seed(seed, ADA_SEED_RUN * r),
+                                                       mis=mis, n_b=int(n_b), **opts), runs, gt)
         rec = {"n_b": int(n_b), "budget": float(nbb), "time_s": t, **err,
                "bandwidth_time_s": res.stats["time_s"]["bandwidth"], "shaded_fraction": res.stats["shaded_fraction"]}
         nb_recs.append(rec)
@@ -523,7 +570,9 @@ def write_plot(record: dict, path) -> None:
     has_nb = bool(record.get("nb_sweep"))
     fig, axes = plt.subplots(1, 2 if has_nb else 1, figsize=(11 if has_nb else 6, 4.2), squeeze=False)
     ax = axes[0][0]
-    ref, ada = record["methods"]["reference"], record["methods"]["adaptive"]
+    # each curve in the order of its counts (--spp, --budgets and --nb come in any order: 16,1,4 drew 16 -> 1 -> 4)
+    ref = sorted(record["methods"]["reference"], key=lambda r: r["spp"])
+    ada = sorted(record["methods"]["adaptive"], key=lambda r: r["budget"])
     for recs, fmt, label in ((ref, "o-", f"reference ({record['estimator']})"), (ada, "s-", "adaptive (002)")):
         ax.errorbar([r["time_s"] for r in recs], [r["psnr_db"] for r in recs], fmt=fmt, label=label, capsize=3,
                     yerr=[r.get("psnr_se_db") or 0.0 for r in recs])
@@ -543,7 +592,7 @@ def write_plot(record: dict, path) -> None:
                  else "speed against accuracy", fontsize=10)
     if has_nb:
         ax2 = axes[0][1]
-        nb = record["nb_sweep"]
+        nb = sorted(record["nb_sweep"], key=lambda r: r["n_b"])
         ax2.errorbar([r["n_b"] for r in nb], [r["psnr_db"] for r in nb], fmt="o-", color="C2", label="PSNR",
                      yerr=[r.get("psnr_se_db") or 0.0 for r in nb], capsize=3)
         ax2.set_xscale("log")
