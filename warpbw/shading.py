@@ -25,8 +25,9 @@ Directional ``[[light]]``s (:mod:`warpbw.lights`) add their exact term E rho(l, 
 besides the estimate: they cost no samples and add no variance.  A scene without an environment (lights
 only) compiles no sampling loop: its image is the lights' term whatever ``spp`` is, and it takes 0 samples.
 
-Samples whose contribution is not finite (a pdf that underflows at a grazing angle, say) are dropped
-and counted in ``ShadeResult.non_finite``, never averaged into the image.
+Samples whose contribution is not finite (a pdf that underflows at a grazing angle, say) are dropped:
+they add nothing to the sum, which is still divided by ``spp`` (each counts as a sample of value 0, so such a
+pixel reads low, never NaN), and they are counted in ``ShadeResult.non_finite``.
 """
 from __future__ import annotations
 
@@ -214,7 +215,7 @@ class ShadeResult:
     pixels_shaded: int
     samples: int                # BRDF samples (N per pixel; 0 without an environment); with MIS as many
                                 # environment samples again
-    non_finite: int             # samples dropped because their contribution was not finite
+    non_finite: int             # samples dropped (counted as 0 in the mean) because their contribution was not finite
 
 
 def default_threads(device: str) -> int:
@@ -379,8 +380,8 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
     """Shade every covered pixel (or the given ``pixels``) and return radiance.
 
     ``spp`` is one sample count for all pixels, or H*W per-pixel counts N_p (an int32 wp.array, or numpy
-    integers of shape (H, W) or (H*W,)).  Pixels not shaded keep the value they have in ``out`` (zeros when ``out`` is not
-    given).  ``env_data`` (``EnvMap.data``) None: no environment (``lights`` must then be given); ``lights``:
+    integers of shape (H, W) or (H*W,)).  Pixels not shaded keep the value they have in ``out`` (zeros when ``out``
+    is not given).  ``env_data`` (``EnvMap.data``) None: no environment (``lights`` must then be given); ``lights``:
     directional lights, or None.  On the CPU a pixel of more than ``LAUNCH_COST_MAX`` samples is shaded in passes
     of launches (Ctrl-C acts between them), bit for bit the image of one launch per pixel.
     """
