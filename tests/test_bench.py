@@ -1120,11 +1120,11 @@ def test_the_ground_truths_version_follows_what_the_reference_reads_of_a_mesh(tm
     that the next such change fails until GT_VERSION is raised with it."""
     import hashlib
 
-    from test_mesh import _latlong_sphere_obj
+    from conftest import latlong_sphere_obj
     from warpbw.io.mesh import load_mesh
 
     p = tmp_path / "uvsphere.obj"
-    p.write_text(_latlong_sphere_obj(32, 16, 1.0))
+    p.write_text(latlong_sphere_obj(32, 16, 1.0))
     m = load_mesh(p)
     a = np.round(np.concatenate([np.asarray(m.vertices, np.float64), np.asarray(m.normals, np.float64)]), 4) + 0.0
     assert hashlib.blake2b(a.tobytes(), digest_size=8).hexdigest() == SEAMED_MESH_DIGEST.get(bench.GT_VERSION), \
