@@ -802,7 +802,8 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
                 if unaligned:
                     classes = [np.arange(h * w)]
                 else:
-                    classes = [np.flatnonzero((ii_all % 2 == pi) & (jj_all % 2 == pj)) for pi in (0, 1) for pj in (0, 1)]
+                    classes = [np.flatnonzero((ii_all % 2 == pi) & (jj_all % 2 == pj))
+                               for pi in (0, 1) for pj in (0, 1)]
                 for idx in classes:
                     if idx.size == 0:
                         continue
@@ -1087,9 +1088,9 @@ def load_map(path, kind: str = "height") -> np.ndarray:
     [0, 1]-encoded; an EXR normal map holds the vectors themselves when it has a negative value or one
     above 1, or when more of its texels are unit vectors as stored than as decoded (a [0, 1]-encoded map's texels
     are not: the flat normal is stored as (0.5, 0.5, 1)), otherwise it is [0, 1]-encoded too (``_holds_vectors``).
-    Texels shorter than ``NORMAL_LENGTH_MIN`` (as stored or decoded) are an error; texels off unit length by more than ``UNIT_TOL``
-    are renormalised, with a warning; an image of (0, 0, 0) texels only is an error.  16-bit greyscale PNGs keep
-    their precision (Pillow reads 16-bit RGB and grey + alpha PNGs as 8-bit, and that warns).  Normals more than
+    Texels shorter than ``NORMAL_LENGTH_MIN`` (as stored or decoded) are an error; texels off unit length by more than
+    ``UNIT_TOL`` are renormalised, with a warning; an image of (0, 0, 0) texels only is an error.  16-bit greyscale PNGs
+    keep their precision (Pillow reads 16-bit RGB and grey + alpha PNGs as 8-bit, and that warns).  Normals more than
     ``NORMAL_Z_TOL`` below the tangent plane are an error; those closer are put in it.  A varying height field read
     with 8 bits warns (terraced normals).  Every problem is a one-line WarpbwError naming the file."""
     from precompute.surfaces import normals_from_map, unit_normals

@@ -253,8 +253,8 @@ def height_to_normals(h, scale: float = 1.0, texel_size: float | None = None) ->
     if not (t > 0.0 and math.isfinite(t)) or not math.isfinite(scale) or not np.all(np.isfinite(h)):
         # texel_size 0 divided by zero; a NaN scale or height gave NaN normals
         raise WarpbwError(f"height_to_normals: expected finite heights, a finite scale and a texel_size > 0, got "
-                          f"scale {given_scale!r}, texel_size {texel_size!r}, {int((~np.isfinite(h)).sum())} non-finite "
-                          "heights")
+                          f"scale {given_scale!r}, texel_size {texel_size!r}, "
+                          f"{int((~np.isfinite(h)).sum())} non-finite heights")
     with np.errstate(over="ignore", invalid="ignore"):
         dh_dx = (np.roll(h, -1, axis=1) - np.roll(h, 1, axis=1)) * (scale / (2.0 * t))
         dh_dy = (np.roll(h, 1, axis=0) - np.roll(h, -1, axis=0)) * (scale / (2.0 * t_y))   # y = -row

@@ -531,7 +531,8 @@ def check_material_spec(s: MaterialSpec, i: int) -> MaterialSpec:
     for field in ("eta", "k"):
         v = _spec_vec3(getattr(s, field), f"{what}.{field}", optional=True)
         if v is not None and (v > CONDUCTOR_INDEX_MAX).any():
-            raise WarpbwError(f"{what}.{field}: expected values up to {CONDUCTOR_INDEX_MAX:g}, got {getattr(s, field)!r}")
+            raise WarpbwError(f"{what}.{field}: expected values up to {CONDUCTOR_INDEX_MAX:g}, "
+                              f"got {getattr(s, field)!r}")
     if (s.eta is None) != (s.k is None):
         raise WarpbwError(f"{what}: a conductor needs both eta and k, got only one")
     if not isinstance(s.alpha, (int, float, np.floating)) or not math.isfinite(s.alpha) or s.alpha < 0.0:

@@ -3,9 +3,10 @@
 Public: ``WarpbwError``; ``is_int(value)`` (an int or numpy integer, not a bool) and
 ``check_count(value, name, lo, hi=None) -> int`` (such an integer in lo..hi, else a ``WarpbwError`` naming
 ``name``); ``check_path(path, name) -> Path`` (a file name, not None); ``check_input_file(path, expected) -> Path`` (an
-existing file, else a ``WarpbwError`` saying whether it is missing or a directory); ``check_camera_reach(reach, lo, hi, target, kind, why, source)`` (the
-camera's distance to an object within what float32 intersection handles); ``check_coordinate_spacing(coord,
-size, target, source)`` (float32 fine enough where the camera and an object lie, ``COORD_SPACING_REL_MAX``);
+existing file, else a ``WarpbwError`` saying whether it is missing or a directory);
+``check_camera_reach(reach, lo, hi, target, kind, why, source)`` (the camera's distance to an object within what float32
+intersection handles); ``check_coordinate_spacing(coord, size, target, source)`` (float32 fine enough where the camera
+and an object lie, ``COORD_SPACING_REL_MAX``);
 ``check_flag(value, name) -> bool`` (True or False, not a truthy string); ``check_instance(value, kind, name,
 expected)`` (an object of the kind a stage function reads); ``check_warp_array(a, name, dtype, n,
 device, what, at_least)`` (a 1-D Warp array a kernel may index n items of); ``check_real(value, name, lo,

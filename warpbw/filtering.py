@@ -1518,8 +1518,8 @@ def zoomed_camera(camera: Camera, zoom: float) -> Camera:
     zoom = check_real(zoom, "zoom (times the camera's distance to its look_at point)", 0.0, lo_open=True)
     pos = tuple(a + (p - a) * zoom for p, a in zip(camera.position, camera.look_at))
     if np.array_equal(np.float32(pos), np.float32(camera.look_at)):   # make_camera's "look_at: must differ" later
-        raise WarpbwError(f"zoom {zoom:g} puts the camera on its look_at point (its distance times {zoom:g} rounds to 0 "
-                          "in float32): expected a larger zoom")
+        raise WarpbwError(f"zoom {zoom:g} puts the camera on its look_at point (its distance times {zoom:g} rounds "
+                          "to 0 in float32): expected a larger zoom")
     return replace(camera, position=pos)
 
 

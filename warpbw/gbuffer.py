@@ -54,8 +54,8 @@ from typing import Callable, Sequence
 import numpy as np
 import warp as wp
 
-from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing, check_count,
-                           check_device, check_flag, check_instance, is_int)
+from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing,
+                           check_count, check_device, check_flag, check_instance, is_int)
 from warpbw.io.mesh import checked_faces, checked_surface, local_curvature
 
 RAY_T_MAX = 1.0e30

@@ -31,7 +31,8 @@ A material kind the scene does not use is not compiled (its branch is removed fr
 is in memory; a mesh's curvature is derived only for the bandwidth pass.  The environment and the
 directional ``[[light]]``s are each optional (a scene has at least one): a scene without an environment
 compiles no sampling loop, one without lights no light loop.  The adaptive method needs an environment: it
-adapts the environment's sampling, and adds the lights' exact term at every pixel.  ``RenderResult.stats`` says which stages ran and how long each took.
+adapts the environment's sampling, and adds the lights' exact term at every pixel.  ``RenderResult.stats`` says
+which stages ran and how long each took.
 
 Planes (004) render with :mod:`warpbw.filtering`.  In a scene that has planes beside spheres or meshes,
 :func:`render_with_planes` renders the spheres and meshes here (reference or adaptive), then draws the planes
