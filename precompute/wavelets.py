@@ -57,8 +57,15 @@ on 7 levels).
 an environment map).  A periodic axis ``"wrap"``, or ``"latlong_pole"`` rows, whose period (n, or 2n across both
 poles) reaches a multiple of ``2^L`` within the margin is padded to exactly those whole periods instead, so that
 ``swt2``'s own wrap is the axis's continuation (a margin rounded up to ``2^L`` put a seam 416 columns past a
-1024-wide probe's edge, within the coarse bands' reach).  Parameters are checked first: an unknown wavelet or pad
-mode, a pad of other than one or two modes, or a non-numeric ``epsilon`` is a one-line ``WarpbwError`` naming it.
+1024-wide probe's edge, within the coarse bands' reach).  Any other period (a 1000-wide probe's: 16 turns are the
+fewest that make a multiple of ``2^7``) is given one period, transformed circularly by our own one-level transform
+(``_swt2_level``): the a trous filters need no particular length, only pywt's ``swt2`` asks for one, so the bands
+and their frequencies are the same, and where both apply it gives pywt's coefficients to rounding.  The map then
+turns with the probe bit for bit (session 74: such axes had got the rounded-up margin and its seam, and a
+1000 x 500 probe turned by half a turn and back moved 0.41% of its texels by up to 13%); maps whose periods fit
+the margin (1024 x 512, 512 x 256) are pywt's, bit for bit as before.  Parameters are checked first: an unknown
+wavelet or pad mode, a pad of other than one or two modes, or a non-numeric ``epsilon`` is a one-line ``WarpbwError``
+naming it.
 
 The default wavelet is ``"db4"`` (Daubechies, 4 vanishing moments, 8 taps: "we used 2D Daubechies
 wavelets of order 4", 000 Sec. 4).  Haar is accepted but leaks so much energy into the fine bands
@@ -104,6 +111,8 @@ PAD_MODES = ("zero", "latlong_pole", "constant", "edge", "reflect", "symmetric",
 VALUE_MAX = 1e150       # band_maxima: beyond, the energies of Eq. 7's rule (squares, sums) overflow float64
 # Texels per block of rows when the bands' maxima are reduced to a bandwidth (a few MB of temporaries per block).
 ROW_BLOCK_TEXELS = 1 << 16
+# Outputs per block of the circular transform (_atrous_axis): its sums and one temporary stay in a core's cache
+ATROUS_BLOCK_TEXELS = 1 << 15
 # Relative size of float64 rounding noise in the transform (a constant image's detail
 # coefficients are ~1e-16 of its value, not 0); coefficients under it count as zero.
 _ROUNDING = 1e-9
@@ -266,24 +275,29 @@ def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int |
     margin = (wav.dec_len - 1) * 2 ** (nlev - 1) // 2 + 2 ** nlev
     margin = min(margin, 4 * max(h, w))   # the cap of the module docstring
     padded = img
-    offsets, whole = [], []
+    offsets, whole, circular = [], [], []
     for axis, (n, mode) in enumerate(zip((h, w), modes)):
         # a periodic axis (longitude; latitude across both poles, period 2n) is padded to the fewest whole periods
         # that swt2 takes (a multiple of 2^L), where that is no more than the margin: swt2's own wrap is then the
         # axis's continuation.  A margin rounded up to a multiple of 2^L holds no whole number of periods in general
         # (a 1024-wide probe: 1792 columns, 1.75 turns), and the coarse bands met a seam 416 columns past the edge.
+        # Where no such multiple fits (a 1000-wide probe: 16 turns), the axis holds one period and is transformed
+        # circularly on it by _atrous_axis, which takes any length (until session 74 it got the margin and its seam).
         period = {"wrap": n, "latlong_pole": 2 * n}.get(mode)
         span = None if period is None else period * (step // math.gcd(period, step))
         if span is not None and span <= n + 2 * margin + step:
             before = (span - n) // 2
             after = span - n - before
+        elif period is not None:
+            before, after = 0, period - n
         else:
             before = margin
             total = n + 2 * margin
             after = margin + (-total) % step
         padded = _pad_axis(padded, axis, before, after, mode)
         offsets.append(before)
-        whole.append(span is not None and before + n + after == span)
+        whole.append(period is not None and before + n + after in (span, period))
+        circular.append(period is not None and before + n + after == period != span)
     oy, ox = offsets
 
     out = np.zeros((nlev, h, w), dtype=np.float64)
@@ -291,9 +305,17 @@ def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int |
     del padded, img   # level 0 holds them through approx; later levels need only their approximation
     for i in range(nlev):
         # one level at a time (start_level = i) keeps memory at one band of the padded image
-        (approx, details), = pywt.swt2(approx, wav, level=1, start_level=i, axes=(-2, -1), norm=True)
         size = 2 ** (i + 1) + 1  # one wavelet width of band i+1 (1-based): the "contributing" set
-        mag, (r0, c0) = _detail_maxima(details, _centre_shift(wav.name, i), (oy, ox), (h, w), size // 2, whole)
+        shifts, row0 = _centre_shift(wav.name, i), 0
+        if any(circular):
+            # the details on the rows the window below reads: its rows, each orientation's row delay back
+            row0 = oy - size // 2 - max(shifts)
+            approx, details = _swt2_level(approx, wav, i, (row0, h + 2 * (size // 2) + max(shifts) - min(shifts)))
+            if details[0].shape[-2] == approx.shape[-2]:
+                row0 = 0   # every row
+        else:   # the same transform; pywt's is kept where it applies (maps bit for bit those of session 73)
+            (approx, details), = pywt.swt2(approx, wav, level=1, start_level=i, axes=(-2, -1), norm=True)
+        mag, (r0, c0) = _detail_maxima(details, shifts, (oy, ox), (h, w), size // 2, whole, (row0, approx.shape[-2]))
         del details
         mag = _max_filter_1d(mag, size, 0)
         mag = _max_filter_1d(mag, size, 1)
@@ -303,8 +325,73 @@ def band_maxima(image: np.ndarray, wavelet: str = DEFAULT_WAVELET, levels: int |
     return out
 
 
+def _atrous_axis(x: np.ndarray, filters, level0: int, axis: int, rows: tuple[int, int] | None = None) -> list:
+    """One level (``start_level = level0``) of the stationary wavelet transform of ``x`` ``(C, R, W)`` along ``axis``
+    (-2 or -1), circular on the axis's length ``n``, whatever it is: ``out[m] = sum_k f[k] x[(m + (K/2 - k)
+    2^level0) mod n]`` for each ``K``-tap filter ``f`` of ``filters``, which is pywt.swt's alignment (where it
+    applies, n a multiple of ``2^(level0 + 1)``).  pywt refuses other lengths, but the a trous filters need none: on
+    the circle of ``n`` samples the level is the convolution with the dilated filter, whose response at ``f``
+    cycles/pixel is the filter's at ``2^level0 f`` for any ``n``, so the bands and their units are the same.  Each
+    output sums the taps in one order, so the result turns with ``x`` bit for bit.  ``rows`` ``(first, count)``: only
+    the output rows ``first .. first + count - 1`` (mod R), else all.  Blocks of ``ATROUS_BLOCK_TEXELS`` outputs at a
+    time keep the sums in cache (summed over whole arrays, a 4000 x 2000 probe's build took 28-33 s against session
+    73's 15-19 s, beside other work).
+    Returns one array per filter."""
+    taps, s = len(filters[0]), 2 ** level0
+    offsets = [(taps // 2 - k) * s for k in range(taps)]
+    first = offsets[-1]   # the smallest offset
+    n_ch, n_rows, n_cols = x.shape
+    row0, count = (0, n_rows) if rows is None else rows
+    cols = np.arange(first, n_cols + offsets[0]) % n_cols if axis % 3 == 2 else None   # wraps as often as needed
+
+    def read(r0: int, r1: int, c: int) -> np.ndarray:   # rows r0 .. r1 - 1 of channel c, wrapped: a view if they can
+        return x[c, r0:r1] if 0 <= r0 and r1 <= n_rows else x[c, np.arange(r0, r1) % n_rows]
+
+    outs = [np.empty((n_ch, count, n_cols)) for _ in filters]
+    block = max(1, ATROUS_BLOCK_TEXELS // n_cols)
+    tmp = np.empty((min(block, count), n_cols))
+    for c in range(n_ch):
+        for b0 in range(0, count, block):
+            b1 = min(count, b0 + block)
+            r0, r1, t = row0 + b0, row0 + b1, tmp[:b1 - b0]
+            if cols is not None:
+                ext = read(r0, r1, c)[:, cols]
+                views = [ext[:, o - first:o - first + n_cols] for o in offsets]
+            else:
+                views = [read(r0 + o, r1 + o, c) for o in offsets]
+            for out, f in zip(outs, filters):
+                o = out[c, b0:b1]
+                np.multiply(views[0], f[0], out=o)
+                for v, fk in zip(views[1:], f[1:]):
+                    o += np.multiply(v, fk, out=t)
+    return outs
+
+
+def _swt2_level(x: np.ndarray, wav: pywt.Wavelet, level0: int,
+                rows: tuple[int, int] | None = None) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+    """``pywt.swt2(x, wav, level=1, start_level=level0, axes=(-2, -1), norm=True)[0]`` on axes of any length, each
+    circular (:func:`_atrous_axis`): ``(cA, (cH, cV, cD))``, cH high-passing rows and low-passing columns.  norm=True
+    scales the filters by 1/sqrt(2).  ``rows`` ``(first, count)``: the details only on those rows (mod R), the rows
+    band_maxima reads (a lat-long map's unfolded period is twice the map's rows: the build of a 8000 x 4000 probe
+    took 5.6 GB with every row's details, 4.9 GB with these, as on session 73's code)."""
+    lo = np.asarray(wav.dec_lo, np.float64) / math.sqrt(2.0)
+    hi = np.asarray(wav.dec_hi, np.float64) / math.sqrt(2.0)
+    if rows is None or rows[1] >= x.shape[-2]:
+        a, d = _atrous_axis(x, (lo, hi), level0, -2)
+        aa, ad = _atrous_axis(a, (lo, hi), level0, -1)
+    else:
+        a, = _atrous_axis(x, (lo,), level0, -2)
+        d, = _atrous_axis(x, (hi,), level0, -2, rows)
+        aa, = _atrous_axis(a, (lo,), level0, -1)
+        ad, = _atrous_axis(a, (hi,), level0, -1, rows)
+    del a
+    da, dd = _atrous_axis(d, (lo, hi), level0, -1)
+    return aa, (da, ad, dd)
+
+
 def _detail_maxima(details, shifts: tuple[int, int], offsets: tuple[int, int], shape: tuple[int, int],
-                   reach: int, whole: tuple[bool, bool] = (False, False)) -> tuple[np.ndarray, tuple[int, int]]:
+                   reach: int, whole: tuple[bool, bool] = (False, False),
+                   held_rows: tuple[int, int] | None = None) -> tuple[np.ndarray, tuple[int, int]]:
     """The largest magnitude over channels and the three orientations of one band's details, each first rolled by
     its delays (``shifts``, :func:`_centre_shift`) to sit over the pixels it describes, on the window of the padded
     grid that the image (``shape`` at ``offsets``) and ``reach`` texels around it cover, clipped to the grid.
@@ -312,16 +399,19 @@ def _detail_maxima(details, shifts: tuple[int, int], offsets: tuple[int, int], s
 
     The same values as rolling the whole padded grid and cutting the window out (a roll is a read at shifted,
     wrapped indices), without a padded-size copy per detail: an 8192 x 4096 probe's build took 250 B per texel.
-    pywt's horizontal detail ch high-passes rows (axis -2) and low-passes columns, cv the reverse."""
+    pywt's horizontal detail ch high-passes rows (axis -2) and low-passes columns, cv the reverse.  ``held_rows``
+    ``(row0, n_rows)``: the details hold the grid's rows from ``row0`` on (mod ``n_rows``), those the window reads
+    (:func:`_swt2_level`), not all of them."""
     hi, lo = shifts
-    n_rows, n_cols = details[0].shape[-2:]
+    n_cols = details[0].shape[-1]
+    row0, n_rows = (0, details[0].shape[-2]) if held_rows is None else held_rows
     (oy, ox), (h, w) = offsets, shape
     # an axis padded to whole periods (``whole``) wraps: the window may reach past the grid's ends
     r0, r1 = (oy - reach, oy + h + reach) if whole[0] else (max(0, oy - reach), min(n_rows, oy + h + reach))
     c0, c1 = (ox - reach, ox + w + reach) if whole[1] else (max(0, ox - reach), min(n_cols, ox + w + reach))
     mag = None
     for d, (sy, sx) in zip(details, ((hi, lo), (lo, hi), (hi, hi))):
-        rows = (np.arange(r0, r1) - sy) % n_rows   # np.roll(x, s)[k] is x[(k - s) mod n]
+        rows = (np.arange(r0, r1) - sy - row0) % n_rows   # np.roll(x, s)[k] is x[(k - s) mod n]
         cols = (np.arange(c0, c1) - sx) % n_cols
         m = np.abs(d[:, rows[:, None], cols[None, :]]).max(axis=0)
         mag = m if mag is None else np.maximum(mag, m, out=mag)

@@ -94,8 +94,8 @@ def test_each_format_is_named_read_and_its_arrays_ranged(assets, capsys):
                       f"{assets['npf_digest']}:chrome"),
         "gmm": ("warpbw-gmm-mipmap", 2, "GMM normal mipmap (004 Sec. 4.1)", "surface:dunes:16",
                 assets["dunes_digest"]),
-        "env": ("warpbw.env-bandwidth", 4, "a probe's angular bandwidth map nu_a", "probe.exr",   # named by it
-                "blake2b:" + re.search(r"-([0-9a-f]{32})-v4\.npz$", assets["env"].name).group(1)),
+        "env": ("warpbw.env-bandwidth", 5, "a probe's angular bandwidth map nu_a", "probe.exr",   # named by it
+                "blake2b:" + re.search(r"-([0-9a-f]{32})-v5\.npz$", assets["env"].name).group(1)),
     }
     for (key, (fmt, version, what, source, digest)), rec in zip(expected.items(), records):
         text = block(out, assets[key])

@@ -498,6 +498,96 @@ def test_envmap_bandwidth_of_a_map_whose_padded_width_is_no_whole_number_of_turn
                                    rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.parametrize("h, w", [(250, 500), (60, 120)])
+def test_envmap_bandwidth_of_a_map_whose_whole_turns_do_not_fit_the_margin_turns_with_it(h, w):
+    """As above on maps whose whole turns no multiple of 2^L within the margin holds (500 columns: 32 turns at L = 7;
+    120 columns: 8 turns at L = 6; their rows across both poles likewise): until session 74 they got the margin
+    rounded up to 2^L and its seam (a 1000 x 500 probe turned half a turn and back: up to 13% on 0.41% of its texels);
+    now the transform is circular on one period, and the map turns with the probe bit for bit."""
+    y, x = np.mgrid[0:h, 0:w]
+    img = 0.2 + 0.1 * np.sin(2 * np.pi * 3 * x / w) * np.sin(np.pi * (y + 0.5) / h)
+    img[h // 3:h // 3 + 4, 2:6] = 30.0   # a small bright light beside longitude 0
+    b = envmap_angular_bandwidth(img)
+    for k in (1, 7, w // 2):
+        np.testing.assert_array_equal(np.roll(envmap_angular_bandwidth(np.roll(img, k, axis=1)), -k, axis=1), b)
+
+
+@pytest.mark.parametrize("pad", [("latlong_pole", "wrap"), ("wrap", "wrap"), ("zero", "wrap")])
+def test_a_periodic_axis_whose_whole_periods_do_not_fit_reads_as_the_same_signal_tiled_to_whole_periods(pad):
+    """A 60 x 120 map on 6 levels: 120 columns (and 120 rows across both poles) reach a multiple of 2^6 only at 8
+    periods, beyond the margin.  The truth: the same periodic signal tiled 8 times, whose width pywt.swt2 takes as it
+    is (whole periods, swt2's own wrap), cut back to the map.  Until session 74 the map's own bands met the seam of
+    its margin (up to 0.0095, 2.4%, in the coarse bands)."""
+    h, w, tiles = 60, 120, 8   # 8 x 120 = 960 = 15 x 2^6
+    theta = (np.arange(h) + 0.5) * np.pi / h
+    phi = (np.arange(w) + 0.5) * 2 * np.pi / w
+    x, y = np.sin(theta)[:, None] * np.cos(phi)[None], np.cos(theta)[:, None] * np.ones((1, w))
+    img = 1.2 + 0.5 * y + 0.3 * x * y + 0.2 * np.cos(9 * np.arccos(np.clip(x, -1.0, 1.0)))
+    img[20:23, 2:5] += 3.0
+    got = band_maxima(img, levels=6, pad=pad)
+    if pad[0] == "zero":
+        truth = band_maxima(np.tile(img, (1, tiles)), levels=6, pad=pad)
+    else:
+        period = np.concatenate([img, np.roll(img[::-1], w // 2, axis=1)]) if pad[0] == "latlong_pole" else img
+        truth = band_maxima(np.tile(period, (tiles * w // len(period), tiles)), levels=6, pad="wrap")
+    np.testing.assert_allclose(got, truth[:, :h, :w], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("n, level0", [(64, 2), (1000, 6), (1000, 3), (45, 5), (50, 5)])
+def test_the_circular_transform_of_any_length_is_the_dilated_filters_convolution(n, level0):
+    """precompute.wavelets._swt2_level: where pywt.swt2 applies (n a multiple of 2^(level0 + 1)) it gives pywt's
+    coefficients; on any n it is the circular correlation with the filters dilated by 2^level0 at pywt's alignment,
+    computed here through the DFT (filter response times the signal's spectrum), and keeps the energy (an orthogonal
+    filter pair scaled by 1/sqrt(2), |H|^2 + |G|^2 = 1 at every frequency, so on every circle).  n = 45 and 50 are
+    shorter than the level's filter (7 * 32 + 1 taps): it wraps several times.  Asked for the details on some rows
+    only, it gives those rows of them."""
+    import pywt
+
+    from precompute.wavelets import _swt2_level
+
+    wav = pywt.Wavelet("db4")
+    x = np.random.default_rng(n + level0).standard_normal((2, n, n + 3 if n % 2 ** (level0 + 1) else n))
+    a, (ch, cv, cd) = _swt2_level(x, wav, level0)
+    if x.shape[1] % 2 ** (level0 + 1) == 0 and x.shape[2] % 2 ** (level0 + 1) == 0:
+        (pa, (ph, pv, pd)), = pywt.swt2(x, wav, level=1, start_level=level0, axes=(-2, -1), norm=True)
+        for p, q in ((a, pa), (ch, ph), (cv, pv), (cd, pd)):
+            np.testing.assert_allclose(p, q, rtol=0, atol=1e-12)
+
+    def response(f, m):
+        # out[j] = sum_k f[k] x[j + (K/2 - k) s]: in the DFT, X[q] times sum_k f[k] exp(2 pi i q (K/2 - k) s / m)
+        k = np.arange(len(f))
+        q = np.arange(m)[:, None]
+        return (np.asarray(f) / np.sqrt(2) * np.exp(2j * np.pi * q * (len(f) // 2 - k) * 2 ** level0 / m)).sum(1)
+
+    spec = np.fft.fft2(x)
+    filt = {"a": wav.dec_lo, "d": wav.dec_hi}
+    for name, got in (("aa", a), ("da", ch), ("ad", cv), ("dd", cd)):
+        r = response(filt[name[0]], x.shape[1])[:, None] * response(filt[name[1]], x.shape[2])[None, :]
+        np.testing.assert_allclose(got, np.fft.ifft2(spec * r).real, rtol=0, atol=1e-10)
+    energy = sum((c ** 2).sum() for c in (a, ch, cv, cd))
+    assert energy == pytest.approx((x ** 2).sum(), rel=1e-12)
+    # the details on some rows only (band_maxima's window), from before row 0 on: those rows of the whole
+    first, count = -7, min(20, n - 1)
+    part, details = _swt2_level(x, wav, level0, (first, count))
+    assert np.array_equal(part, a)
+    for got, whole in zip(details, (ch, cv, cd)):
+        np.testing.assert_allclose(got, whole[:, np.arange(first, first + count) % n], rtol=0, atol=1e-12)
+
+
+def test_envmap_bandwidth_of_a_map_whose_whole_turns_do_not_fit_reads_a_known_frequency():
+    """L = cos(15 a), a the angle from +X: 15 / (2 pi) cycles/rad along every great circle through +-X (the test
+    above at 128 x 256), on a 100 x 200 map, whose turns and rows the circular transform takes: the median nu_a
+    within the factor 2 of issue 3, and no row near a pole faster than the others."""
+    n, h, w = 15, 100, 200
+    theta = (np.arange(h) + 0.5) * np.pi / h
+    phi = (np.arange(w) + 0.5) * 2 * np.pi / w
+    x = np.sin(theta)[:, None] * np.cos(phi)[None]
+    nu = envmap_angular_bandwidth(np.cos(n * np.arccos(np.clip(x, -1.0, 1.0))))
+    truth = n / (2 * np.pi)
+    assert truth / FACTOR <= np.median(nu) <= truth * FACTOR, np.median(nu)
+    assert np.concatenate([nu[:8], nu[-8:]]).max() <= nu[8:-8].max()
+
+
 def test_envmap_floor_is_the_flatness_threshold_and_rule_is_passed_on():
     """Floor "is local_bandwidth's flatness threshold" (absolute: above every coefficient, every pixel is flat); rule
     "eq7" gives powers of two in cycles/pixel, 2^-I_w, here times the pixels per radian."""
@@ -706,11 +796,13 @@ def test_band_maxima_equal_rolling_and_filtering_the_whole_padded_grid(shape, ch
     250 B per texel when every detail was rolled whole).  Reference: pywt's swt2 of the same padded grid, each
     detail rolled whole by np.roll, maxima over channels and orientations, scipy's maximum_filter (the window
     clipped at the grid's edges), then cut out.  Bit for bit, the capped margin included, where the window reaches
-    past the grid."""
+    past the grid.  The 61 x 130 lat-long map's 122 rows across both poles and 130 columns reach a multiple of 2^7
+    only far beyond the margin: its grid is one period of each, transformed circularly (_swt2_level, which its own
+    tests check against pywt and the DFT), and the window and the filter wrap around it."""
     import pywt
     from scipy.ndimage import maximum_filter
 
-    from precompute.wavelets import _centre_shift, _pad_axis
+    from precompute.wavelets import _centre_shift, _pad_axis, _swt2_level
 
     h, w = shape
     img = np.random.default_rng(4).random((h, w, channels)) ** 3
@@ -718,18 +810,25 @@ def test_band_maxima_equal_rolling_and_filtering_the_whole_padded_grid(shape, ch
     step = 2 ** nlev
     margin = min(7 * 2 ** (nlev - 1) // 2 + step, 4 * max(h, w))   # db4: 8 taps
     modes = (pad, pad) if isinstance(pad, str) else pad
+    circular = modes == ("latlong_pole", "wrap")
+    start = 0 if circular else margin
     padded = img
     for axis, (n, mode) in enumerate(zip((h, w), modes)):
-        padded = _pad_axis(padded, axis, margin, margin + (-(n + 2 * margin)) % step, mode)
+        before, after = (0, n if mode == "latlong_pole" else 0) if circular else (margin, margin + (-(n + 2 * margin))
+                                                                                  % step)
+        padded = _pad_axis(padded, axis, before, after, mode)
     approx = np.moveaxis(padded, 2, 0)
     want = []
     for i in range(nlev):
-        (approx, (ch, cv, cd)), = pywt.swt2(approx, "db4", level=1, start_level=i, axes=(-2, -1), norm=True)
+        if circular:
+            approx, (ch, cv, cd) = _swt2_level(approx, pywt.Wavelet("db4"), i)
+        else:
+            (approx, (ch, cv, cd)), = pywt.swt2(approx, "db4", level=1, start_level=i, axes=(-2, -1), norm=True)
         hi, lo = _centre_shift("db4", i)
         mag = np.max([np.roll(np.abs(d).max(axis=0), s, axis=(0, 1))
                       for d, s in ((ch, (hi, lo)), (cv, (lo, hi)), (cd, (hi, hi)))], axis=0)
-        mag = maximum_filter(mag, size=2 ** (i + 1) + 1, mode="constant", cval=-np.inf)
-        want.append(mag[margin:margin + h, margin:margin + w])
+        mag = maximum_filter(mag, size=2 ** (i + 1) + 1, mode="wrap" if circular else "constant", cval=-np.inf)
+        want.append(mag[start:start + h, start:start + w])
     got = band_maxima(img, levels=levels, pad=pad)
     assert got.shape == (nlev, h, w)
     assert np.array_equal(got, np.array(want))

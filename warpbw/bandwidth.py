@@ -268,11 +268,14 @@ ENV_BW_FORMAT = "warpbw.env-bandwidth"
 # texel plus 187 MB fits at the two larger sizes and overestimates at the smallest; rounded up.
 ENV_BW_BYTES_PER_TEXEL = 150
 ENV_BW_BYTES_FIXED = 200_000_000
-# 4: periodic axes padded to whole periods, no seam (session 73; every probe's map changes, up to 22% on 0.2-3% of
-# its texels); 3: rows padded past both poles come back unturned (session 73: changes maps under about 352 rows,
+# 5: a periodic axis whose whole periods do not fit the margin is transformed circularly on one period (session 74: the
+# maps of such probes change, by more than 1% on 0.8-4.3% of their texels and by up to 35% (forest.exr resampled to 960
+# x 480, 1000 x 500, 2000 x 1000, the sky at 1000 x 500); 1024 x 512 probes and the 512 x 256 sky read bit for bit the
+# same); 4: periodic axes padded to whole periods, no seam (session 73; every probe's map changes, up to 22% on 0.2-3%
+# of its texels); 3: rows padded past both poles come back unturned (session 73: changes maps under about 352 rows,
 # such as the 512 x 256 procedural sky; 1024 x 512 probes read the same); 2: wavelet bands centred on the cascade's
 # delays (session 58); 1: on one level's
-ENV_BW_VERSION = 4
+ENV_BW_VERSION = 5
 # The signal Eq. 7's wavelet analysis of the probe reads (``env_signal``): log(1 + L / mean L) (the default), where a
 # sun no longer drowns the rest of the probe's detail, or its luminance, as 002 does (module docstring: the trade)
 ENV_SIGNALS = ("log", "radiance")
