@@ -1355,3 +1355,39 @@ def test_the_bisections_sample_count_with_the_sanitised_shortcut_equals_the_plai
     fast = _n_of(np.where(np.isfinite(a), a, np.inf), v, n_min, n_max, sanitised=True)
     np.testing.assert_array_equal(fast, want)
     np.testing.assert_array_equal(_n_of(a, v, n_min, n_max), want)
+
+
+def test_the_relative_allocations_variance_map_is_the_bound_over_the_sample_count_not_the_relative_key():
+    """The variance map holds a variance of radiance, sigma2 / N_p, whichever rule chose N_p: "relative" allocates by
+    sigma2 / (mu^2 + floor^2), a number without units, and that key over N_p is no variance (it does not scale with
+    the light's square).  A fake buffer whose relative key differs from sigma2 tells the two apart."""
+    rng = np.random.default_rng(12)
+    sig = rng.lognormal(0, 2, size=(12, 16))
+    rel = rng.lognormal(0, 2, size=(12, 16))
+    cov = np.ones((12, 16), bool)
+    cov[:, :3] = False
+    sig[~cov] = rel[~cov] = 0.0
+    a = bw.allocate_samples(_fake_buffer(sig, np.zeros((12, 16)), cov, rel), budget=6.0, n_min=1, n_max=40,
+                            allocation="relative")
+    order = np.argsort(rel[cov])   # the relative key chose N_p
+    assert np.all(np.diff(a.n_p[cov][order]) >= 0) and len(np.unique(a.n_p[cov])) > 3
+    v = sig.astype(np.float32).astype(np.float64)
+    np.testing.assert_allclose(a.variance[cov], v[cov] / a.n_p[cov], rtol=1e-5)
+    assert np.all(a.variance[~cov] == 0.0)
+
+
+@pytest.mark.parametrize("allocation", bw.ALLOCATIONS)
+def test_the_variance_map_of_a_frame_under_a_sky_k_times_brighter_is_k_squared_times_as_large(allocation):
+    """Light is linear: under the sky scaled by k = 100 a frame takes the same N_p (tests/test_adaptive.py) and each
+    pixel's estimate is k times the other's, so its variance, the variance map, is k^2 times as large under every
+    allocation (the relative one read the same map under both skies)."""
+    maps = []
+    for scale in (1.0, 100.0):
+        prep = prepared(mat=GGX_SHARP.replace("0.05", "0.2"), env=f'procedural = "sky"\nscale = {scale!r}', w=24,
+                        h=20)
+        f = render_adaptive(prep, budget=2.0, seed=3, mis=True, allocation=allocation)
+        maps.append((f.aovs["variance"].astype(np.float64), f.aovs["n_p"], f.coverage))
+    (v1, n1, cov), (v2, n2, _) = maps
+    same = cov & (n1 == n2) & (v1 > 0)
+    assert same.sum() >= 0.95 * cov.sum()
+    np.testing.assert_allclose(v2[same], 1e4 * v1[same], rtol=1e-3)

@@ -908,7 +908,9 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
 @dataclass
 class SampleAllocation:
     n_p: np.ndarray            # (H, W) int32 samples per pixel (0 where no geometry)
-    variance: np.ndarray       # (H, W) float32 predicted variance bound sigma2 / N_p (0 where no geometry)
+    variance: np.ndarray       # (H, W) float32 predicted variance of the pixel's estimate, v / N_p (0 where no
+                               # geometry): v the variance the pass measured for the frame's estimator ("measured")
+                               # or the bound sigma2 (Eq. 9 / 10; every other allocation, "relative" included)
     v_target: float            # the constant V of N_p = ceil(sigma2 / V); 0: all at n_max; inf (null in JSON):
                                # all at n_min, or no pixel planned
     planned_pixels: int        # pixels the hierarchy is expected to shade
@@ -1025,8 +1027,11 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     else:
         n_p = _n_of(sig ** power, v, n_min, n_max)
     n_p = np.where(cov, n_p, 0).astype(np.int32)
+    # the variance map is a variance of radiance: "relative"'s key sigma2 / (mu^2 + floor^2) has no units (it read the
+    # same under a sky 100 times brighter until session 74), so its map is the bound sigma2 over N_p, as the others'
+    var = buf.sigma2.numpy().reshape(H, W).astype(np.float64) if allocation == "relative" else sig
     with np.errstate(divide="ignore", invalid="ignore"):
-        variance = np.where(cov & (n_p > 0), sig / np.maximum(n_p, 1), 0.0).astype(np.float32)
+        variance = np.where(cov & (n_p > 0), var / np.maximum(n_p, 1), 0.0).astype(np.float32)
     planned = int(_n_of(s, v, n_min, n_max).sum()) if v != 0.0 else n_plan * n_max
     stats = {"budget_spp": float(budget), "n_min": int(n_min), "n_max": int(n_max), "allocation": allocation,
              "v_target": v,
