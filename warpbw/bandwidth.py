@@ -89,7 +89,7 @@ silent:
   The allocation and the variance map still read ``variance_mis`` (session 74, tests/test_bandwidth.py's xfail):
   allocating by ``variance_step`` changes MIS frames by +0.01 to +0.05 dB (128 x 128 spheres with every pixel
   shaded, GGX alpha 0.03 under studio.exr, 0.2 under forest.exr, Lambert under studio.exr, budgets 2 and 8, 6
-  paired seeds against 4096 spp; -0.01 to +0.05 with the default levels at 256 x 256).
+  paired seeds against 4096 spp; -0.04 to +0.01 with the default levels at 256 x 256, against 2048 spp).
 * chi_i includes the cosine of Eq. 1 (the paper writes chi_i = L_i rho): grazing directions, which
   carry no energy, then do not inflate the bound.  The integrand's bandwidth in Eq. 9 then includes
   the cosine's, ``NU_COS``: without it a Lambert surface under a smooth light (nu_a, nu_rho -> 0) gets
