@@ -1355,3 +1355,77 @@ def test_the_bisections_sample_count_with_the_sanitised_shortcut_equals_the_plai
     fast = _n_of(np.where(np.isfinite(a), a, np.inf), v, n_min, n_max, sanitised=True)
     np.testing.assert_array_equal(fast, want)
     np.testing.assert_array_equal(_n_of(a, v, n_min, n_max), want)
+
+
+def test_the_relative_allocations_variance_map_is_the_bound_over_the_sample_count_not_the_relative_key():
+    """The variance map holds a variance of radiance, sigma2 / N_p, whichever rule chose N_p: "relative" allocates by
+    sigma2 / (mu^2 + floor^2), a number without units, and that key over N_p is no variance (it does not scale with
+    the light's square).  A fake buffer whose relative key differs from sigma2 tells the two apart."""
+    rng = np.random.default_rng(12)
+    sig = rng.lognormal(0, 2, size=(12, 16))
+    rel = rng.lognormal(0, 2, size=(12, 16))
+    cov = np.ones((12, 16), bool)
+    cov[:, :3] = False
+    sig[~cov] = rel[~cov] = 0.0
+    a = bw.allocate_samples(_fake_buffer(sig, np.zeros((12, 16)), cov, rel), budget=6.0, n_min=1, n_max=40,
+                            allocation="relative")
+    order = np.argsort(rel[cov])   # the relative key chose N_p
+    assert np.all(np.diff(a.n_p[cov][order]) >= 0) and len(np.unique(a.n_p[cov])) > 3
+    v = sig.astype(np.float32).astype(np.float64)
+    np.testing.assert_allclose(a.variance[cov], v[cov] / a.n_p[cov], rtol=1e-5)
+    assert np.all(a.variance[~cov] == 0.0)
+
+
+@pytest.mark.parametrize("allocation", bw.ALLOCATIONS)
+def test_the_variance_map_of_a_frame_under_a_sky_k_times_brighter_is_k_squared_times_as_large(allocation):
+    """Light is linear: under the sky scaled by k = 100 a frame takes the same N_p (tests/test_adaptive.py) and each
+    pixel's estimate is k times the other's, so its variance, the variance map, is k^2 times as large under every
+    allocation (the relative one read the same map under both skies)."""
+    maps = []
+    for scale in (1.0, 100.0):
+        prep = prepared(mat=GGX_SHARP.replace("0.05", "0.2"), env=f'procedural = "sky"\nscale = {scale!r}', w=24,
+                        h=20)
+        f = render_adaptive(prep, budget=2.0, seed=3, mis=True, allocation=allocation)
+        maps.append((f.aovs["variance"].astype(np.float64), f.aovs["n_p"], f.coverage))
+    (v1, n1, cov), (v2, n2, _) = maps
+    same = cov & (n1 == n2) & (v1 > 0)
+    assert same.sum() >= 0.95 * cov.sum()
+    np.testing.assert_allclose(v2[same], 1e4 * v1[same], rtol=1e-3)
+
+
+def test_the_pass_measures_the_variance_of_the_renderers_two_sample_mis_step():
+    """The renderer's MIS step X = g(a) + g(b), g = f / (p_b + p_e), a ~ p_b, b ~ p_e, has Var(X) = int f^2 / (p_b +
+    p_e) - a_b^2 - a_e^2 with a_j = int f p_j / (p_b + p_e) (a_b + a_e = L_p); the pass's one-sample MIS directions Y =
+    f / q, q = (p_b + p_e) / 2, estimate int f^2 / (p_b + p_e) = E[Y^2] / 2 and a_b = E[Y p_b / (p_b + p_e)], so
+    ``variance_step`` should match a brute force of X over seeds (Lambert sphere under a 2 x 2-texel sun of 5000 on a
+    sky of 0.5), where ``variance_mis``, Var(Y) = 2 Var(X) + (a_b - a_e)^2, reads 2.5x or more."""
+    import pathlib
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        var_x, _, buf, cov = _under_a_sun(pathlib.Path(d), (180, 300), 2, 5000.0, mis=True, spp=16)
+    step = buf.variance_step.numpy().reshape(cov.shape)[cov]
+    one = buf.variance_mis.numpy().reshape(cov.shape)[cov]
+    assert abs(np.median(step / var_x) - 1.0) < 0.1, np.median(step / var_x)
+    assert np.mean(np.abs(step / var_x - 1.0) < 0.5) > 0.9   # brute force's own noise: 64 x 16 samples
+    assert np.median(one / var_x) > 2.5
+
+
+@pytest.mark.xfail(strict=True, reason="session 74: the measured MIS allocation and its variance map read the "
+                   "one-sample MIS variance (2-4.5x the renderer's step, unevenly); the fix changes the benchmark's "
+                   "MIS frames (by +0.01 to +0.05 dB on small spheres), so it is reported, not applied")
+def test_a_mis_frames_measured_allocation_and_variance_map_follow_the_renderers_step_variance():
+    """Neyman's allocation for the frame's estimator is N_p ~ its own standard deviation, and the variance map its
+    variance over N_p: with MIS the renderer takes two-sample steps (``variance_step``), not the pass's one-sample
+    estimate (``variance_mis``).  Two opposite patterns tell them apart."""
+    rng = np.random.default_rng(13)
+    v_one = rng.lognormal(0, 2, size=(20, 24))
+    cov = np.ones((20, 24), bool)
+    buf = _fake_buffer(v_one, np.zeros((20, 24)), cov, None, v_one)
+    v_step = 1.0 / v_one
+    buf.variance_step = wp.array(v_step.reshape(-1).astype(np.float32))
+    a = bw.allocate_samples(buf, budget=6.0, n_min=1, n_max=1000, mis=True)
+    order = np.argsort(v_step.reshape(-1))
+    assert np.all(np.diff(a.n_p.reshape(-1)[order]) >= 0)
+    v = v_step.astype(np.float32).astype(np.float64)
+    np.testing.assert_allclose(a.variance, v / a.n_p, rtol=1e-5)

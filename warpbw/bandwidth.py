@@ -79,6 +79,17 @@ silent:
   follows the one the frame is rendered with.  Until session 34 a frame without MIS was allocated by the MIS
   variance; with the cap raised to 256 x budget (below) that gave the chrome sphere's highlights the
   samples that its other pixels, whose fireflies BRDF sampling cannot avoid, needed (13.6x -> 6.4x).
+  The renderer's MIS step is not the pass's one-sample estimate Y but two samples, X = g(a) + g(b), g = chi /
+  (p_brdf + p_env), a ~ p_brdf, b ~ p_env (:mod:`warpbw.shading`): Var(X) = int chi^2 / (p_brdf + p_env) - a_b^2 -
+  a_e^2, a_j = int chi p_j / (p_brdf + p_env), and Var(Y) = 2 Var(X) + (a_b - a_e)^2.  The same directions
+  estimate it, ``variance_step`` = E[Y^2] / 2 - a_b^2 - a_e^2 with a_b = E[Y p_brdf / (p_brdf + p_env)] and a_e =
+  mu - a_b: against 200 renders of 8 spp per pixel (24 x 24 spheres, Lambert and GGX alpha 0.2 under a constant
+  sky, the procedural sky and a 2 x 2-texel sun of 5000 on a sky of 0.5; 4096 directions per pixel) its ratio to
+  the brute force has medians 1.00-1.02 (10th-90th percentiles 0.85-1.19), ``variance_mis``'s 2.1-4.5 (1.8-5.4).
+  The allocation and the variance map still read ``variance_mis`` (session 74, tests/test_bandwidth.py's xfail):
+  allocating by ``variance_step`` changes MIS frames by +0.01 to +0.05 dB (128 x 128 spheres with every pixel
+  shaded, GGX alpha 0.03 under studio.exr, 0.2 under forest.exr, Lambert under studio.exr, budgets 2 and 8, 6
+  paired seeds against 4096 spp; -0.04 to +0.01 with the default levels at 256 x 256, against 2048 spp).
 * chi_i includes the cosine of Eq. 1 (the paper writes chi_i = L_i rho): grazing directions, which
   carry no energy, then do not inflate the bound.  The integrand's bandwidth in Eq. 9 then includes
   the cosine's, ``NU_COS``: without it a Lambert surface under a smooth light (nu_a, nu_rho -> 0) gets
@@ -434,10 +445,11 @@ def relative_bound_kernel(sigma2: wp.array(dtype=wp.float32), mu: wp.array(dtype
 def pool_kernel(gb: GBufferData, rep: wp.array(dtype=wp.int32), radius: int, n_b: int, pixel_angle: float,
                 lam_in: wp.array(dtype=wp.float32), nu_in: wp.array(dtype=wp.vec2), var_in: wp.array(dtype=wp.float32),
                 w2_in: wp.array(dtype=wp.float32), w2b_in: wp.array(dtype=wp.float32),
-                pixels: wp.array(dtype=wp.int32), offset: int,
+                lamb_in: wp.array(dtype=wp.float32), pixels: wp.array(dtype=wp.int32), offset: int,
                 nu_out: wp.array(dtype=wp.vec2), b_p: wp.array(dtype=wp.float32),
                 sigma2: wp.array(dtype=wp.float32), mu_out: wp.array(dtype=wp.float32),
-                var_mis: wp.array(dtype=wp.float32), var_bis: wp.array(dtype=wp.float32)):
+                var_mis: wp.array(dtype=wp.float32), var_bis: wp.array(dtype=wp.float32),
+                var_step: wp.array(dtype=wp.float32)):
     """Pool the direction sums of the evaluated pixels within ``radius`` pixels that are alike (an
     interleaved set: neighbours used shifted direction sets), then Eq. 5, 6 and 9 per pixel."""
     i = pixels[wp.tid() + offset]
@@ -452,6 +464,7 @@ def pool_kernel(gb: GBufferData, rep: wp.array(dtype=wp.int32), radius: int, n_b
     var_max = var_in[r]
     w2 = w2_in[r]
     w2b = w2b_in[r]
+    lamb = lamb_in[r]
     count = float(1.0)
     for yy in range(wp.max(y - radius, 0), wp.min(y + radius + 1, H)):
         for xx in range(wp.max(x - radius, 0), wp.min(x + radius + 1, W)):
@@ -463,6 +476,7 @@ def pool_kernel(gb: GBufferData, rep: wp.array(dtype=wp.int32), radius: int, n_b
                 var_max = wp.max(var_max, var_in[j])
                 w2 += w2_in[j]
                 w2b += w2b_in[j]
+                lamb += lamb_in[j]
                 count += 1.0
     nu = wp.vec2(0.0)
     if lam > 0.0:
@@ -477,6 +491,10 @@ def pool_kernel(gb: GBufferData, rep: wp.array(dtype=wp.int32), radius: int, n_b
     mu_out[i] = mu
     var_mis[i] = wp.max(w2 / n_dirs - mu * mu, 0.0)               # the directions' own one-sample MIS variance
     var_bis[i] = wp.max(w2b / n_dirs - mu * mu, 0.0)              # BRDF sampling's, from the same directions
+    # the renderer's MIS step, one BRDF and one environment direction (balance heuristic): module docstring
+    a_b = lamb / n_dirs
+    a_e = mu - a_b
+    var_step[i] = wp.max(0.5 * w2 / n_dirs - a_b * a_b - a_e * a_e, 0.0)
 
 
 def make_bandwidth_kernel(kinds, preconvolved: bool = False):
@@ -495,7 +513,7 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
                                 pixels: wp.array(dtype=wp.int32), offset: int,
                                 lam_out: wp.array(dtype=wp.float32), nu_out: wp.array(dtype=wp.vec2),
                                 var_out: wp.array(dtype=wp.float32), w2_out: wp.array(dtype=wp.float32),
-                                w2b_out: wp.array(dtype=wp.float32)):
+                                w2b_out: wp.array(dtype=wp.float32), lamb_out: wp.array(dtype=wp.float32)):
         i = pixels[wp.tid() + offset]
         m = gb.material[i]
         fr = pixel_frame(gb, i)
@@ -508,6 +526,7 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
         var_sum = float(0.0)
         w2_sum = float(0.0)
         w2b_sum = float(0.0)
+        lamb_sum = float(0.0)
         if wo[2] > 0.0:
             for k in range(dirs.shape[0]):
                 u = frac3(dirs[k] + shift)
@@ -534,6 +553,7 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
                     if chi > 0.0 and pdf > 0.0 and wp.isfinite(w):
                         lam_sum += w
                         w2_sum += w * w
+                        lamb_sum += w * MIS_HALF * p_b / pdf      # the BRDF direction's share, p_b / (p_b + p_env)
                         if p_b > 0.0:
                             t = w * chi / p_b                     # chi^2 / (p_b q): E_q of it is E_p_b[(chi / p_b)^2]
                             if wp.isfinite(t):
@@ -548,6 +568,7 @@ def _bandwidth_kernel(kinds: frozenset, preconvolved: bool):
         var_out[i] = var_sum
         w2_out[i] = w2_sum
         w2b_out[i] = w2b_sum
+        lamb_out[i] = lamb_sum
 
     return bandwidth_buffer_kernel
 
@@ -793,6 +814,8 @@ class BandwidthBuffer:
     variance_mis: wp.array | None = None   # float32 variance of the directions' one-sample MIS estimates of L_p
     variance_bis: wp.array | None = None   # float32 variance of BRDF sampling's estimate, from the same directions
     mu: wp.array | None = None             # float32 the pass's own estimate of L_p's luminance (Eq. 1), pooled
+    variance_step: wp.array | None = None  # float32 variance of the renderer's MIS step (a BRDF and an environment
+                                           # direction, balance heuristic), from the same directions
 
     def estimator_variance(self, mis: bool = True) -> wp.array | None:
         """The measured variance of the frame's estimator: MIS's, or BRDF sampling's alone (where measured)."""
@@ -880,10 +903,11 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     var = wp.zeros(W * H, dtype=wp.float32, device=device)
     w2 = wp.zeros(W * H, dtype=wp.float32, device=device)
     w2b = wp.zeros(W * H, dtype=wp.float32, device=device)
+    lamb = wp.zeros(W * H, dtype=wp.float32, device=device)
     kernel = make_bandwidth_kernel(materials.kinds, preconvolved)
     launch_tiled(kernel, traced.shape[0],
                  lambda o, c: [gb.data, cam, materials.table, env_data, tables, dirs, shifts, side, stride, int(seed),
-                               traced, o, lam, nu_sum, var, w2, w2b], device, threads, item_cost=int(n_b))
+                               traced, o, lam, nu_sum, var, w2, w2b, lamb], device, threads, item_cost=int(n_b))
     nu = wp.zeros(W * H, dtype=wp.vec2, device=device)
     b_p = wp.zeros(W * H, dtype=wp.float32, device=device)
     sigma2 = wp.zeros(W * H, dtype=wp.float32, device=device)
@@ -891,11 +915,12 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     mu = wp.zeros(W * H, dtype=wp.float32, device=device)
     var_mis = wp.zeros(W * H, dtype=wp.float32, device=device)
     var_bis = wp.zeros(W * H, dtype=wp.float32, device=device)
+    var_step = wp.zeros(W * H, dtype=wp.float32, device=device)
     pix = covered_pixels(gb, device)
     angle = pixel_angle(cam)
     launch_tiled(pool_kernel, pix.shape[0],
-                 lambda o, c: [gb.data, rep, pool_radius, int(n_b), angle, lam, nu_sum, var, w2, w2b, pix, o,
-                               nu, b_p, sigma2, mu, var_mis, var_bis], device, threads)
+                 lambda o, c: [gb.data, rep, pool_radius, int(n_b), angle, lam, nu_sum, var, w2, w2b, lamb, pix, o,
+                               nu, b_p, sigma2, mu, var_mis, var_bis, var_step], device, threads)
     mu_lit = mu.numpy()[gb.coverage.reshape(-1)]
     mu_lit = mu_lit[mu_lit > 0.0]
     floor = REL_FLOOR * float(np.median(mu_lit)) if mu_lit.size else 0.0
@@ -905,13 +930,15 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     level = image_level(rate, gb.coverage, W, H, device=device)
     wp.synchronize_device(device)
     return BandwidthBuffer(nu, b_p, sigma2, sigma2_rel, level, gb.coverage, W, H, int(n_b),
-                           time.perf_counter() - t0, int(traced.shape[0]), var_mis, var_bis, mu)
+                           time.perf_counter() - t0, int(traced.shape[0]), var_mis, var_bis, mu, var_step)
 
 
 @dataclass
 class SampleAllocation:
     n_p: np.ndarray            # (H, W) int32 samples per pixel (0 where no geometry)
-    variance: np.ndarray       # (H, W) float32 predicted variance bound sigma2 / N_p (0 where no geometry)
+    variance: np.ndarray       # (H, W) float32 predicted variance of the pixel's estimate, v / N_p (0 where no
+                               # geometry): v the variance the pass measured for the frame's estimator ("measured")
+                               # or the bound sigma2 (Eq. 9 / 10; every other allocation, "relative" included)
     v_target: float            # the constant V of N_p = ceil(sigma2 / V); 0: all at n_max; inf (null in JSON):
                                # all at n_min, or no pixel planned
     planned_pixels: int        # pixels the hierarchy is expected to shade
@@ -1028,8 +1055,11 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     else:
         n_p = _n_of(sig ** power, v, n_min, n_max)
     n_p = np.where(cov, n_p, 0).astype(np.int32)
+    # the variance map is a variance of radiance: "relative"'s key sigma2 / (mu^2 + floor^2) has no units (it read the
+    # same under a sky 100 times brighter until session 74), so its map is the bound sigma2 over N_p, as the others'
+    var = buf.sigma2.numpy().reshape(H, W).astype(np.float64) if allocation == "relative" else sig
     with np.errstate(divide="ignore", invalid="ignore"):
-        variance = np.where(cov & (n_p > 0), sig / np.maximum(n_p, 1), 0.0).astype(np.float32)
+        variance = np.where(cov & (n_p > 0), var / np.maximum(n_p, 1), 0.0).astype(np.float32)
     planned = int(_n_of(s, v, n_min, n_max).sum()) if v != 0.0 else n_plan * n_max
     stats = {"budget_spp": float(budget), "n_min": int(n_min), "n_max": int(n_max), "allocation": allocation,
              "v_target": v,
