@@ -797,7 +797,8 @@ def validate_scene(name: str, cfg: dict, log=print) -> dict:
         "bandwidth_reference_median": float(np.median(br)) if br.size else float("nan"),
         "noise_fraction_median": float(np.median(nf)) if nf.size else float("nan"),
         "noise_fraction_p90": float(np.percentile(nf, 90)) if nf.size else float("nan"),
-        "noisy_windows_left_out": float(np.mean(nf > MAX_NOISE_FRACTION)) if nf.size else float("nan"),
+        # the share the reference left out for noise, at the --max-noise it used (not MAX_NOISE_FRACTION's default)
+        "noisy_windows_left_out": float(np.mean(nf > cfg["max_noise"])) if nf.size else float("nan"),
         "variance_spearman": vu["spearman"],
         "variance_spearman_se": block_bootstrap_se(sigma2, var_u, vmask, tile),
         "variance_conservative_fraction": vu["conservative_fraction"],

@@ -547,3 +547,28 @@ def test_quick_run_bootstrap_uses_tiles_of_bootstrap_tile_windows(vb, quick_out)
     other = vb.block_bootstrap_se(m["b_p"], m["bw_ref"], m["bw_valid"], 16)
     assert want != pytest.approx(other, rel=1e-6)
     assert s["bandwidth_spearman_se"] == pytest.approx(want, rel=1e-9)
+
+
+def test_windows_left_out_for_noise_are_counted_at_the_max_noise_the_run_used(vb, shared, tmp_path):
+    """"noisy_windows_left_out" is the share of the counted windows (covered, not flat) that the reference left
+    out for their noise, i.e. whose noise share exceeds ``--max-noise`` (module docstring, step 1).  A --quick run
+    with --max-noise 0.05 (most of its windows are more than 5% noise at 64 spp, none more than 50%): recomputed from the written image and
+    noise variance, the share above 0.05 is what the JSON reports, and it is what the reference left out (the
+    counted windows that are not valid).  The figure read the default threshold MAX_NOISE_FRACTION (0.5) instead,
+    whatever --max-noise said: 0 here."""
+    shared("envmaps/studio.exr")
+    out = tmp_path / "vb"
+    import contextlib
+    import io
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert vb.main(["--out", str(out), "--quick", "--max-noise", "0.05", "--scenes", "sphere-ggx-studio"]) == 0
+    s = json.loads((out / "validate_bandwidth.json").read_text())["scenes"]["sphere-ggx-studio"]
+    m = np.load(out / "validate_sphere-ggx-studio_maps.npz")
+    wb = vb.windowed_bandwidth(vb.luminance(m["image"]), m["coverage"], window=vb.QUICK["window"],
+                               stride=vb.FFT_STRIDE, noise_var=m["noise_var"], max_noise=0.05)
+    counted = (wb["cover"] >= vb.MIN_WINDOW_COVER) & (wb["energy"] > 0)
+    nf = wb["noise_fraction"][counted]
+    want = float(np.mean(nf > 0.05))
+    assert want > 0.05 and np.all(nf <= vb.MAX_NOISE_FRACTION)   # the setting is as claimed
+    assert want == pytest.approx(float(np.mean(~wb["grid_valid"][counted])), abs=1e-12)
+    assert s["noisy_windows_left_out"] == pytest.approx(want, abs=1e-12)
