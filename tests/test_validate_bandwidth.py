@@ -550,12 +550,12 @@ def test_quick_run_bootstrap_uses_tiles_of_bootstrap_tile_windows(vb, quick_out)
 
 
 def test_windows_left_out_for_noise_are_counted_at_the_max_noise_the_run_used(vb, shared, tmp_path):
-    """"noisy_windows_left_out" is the share of the counted windows (covered, not flat) that the reference left
-    out for their noise, i.e. whose noise share exceeds ``--max-noise`` (module docstring, step 1).  A --quick run
-    with --max-noise 0.05 (most of its windows are more than 5% noise at 64 spp, none more than 50%): recomputed from the written image and
-    noise variance, the share above 0.05 is what the JSON reports, and it is what the reference left out (the
-    counted windows that are not valid).  The figure read the default threshold MAX_NOISE_FRACTION (0.5) instead,
-    whatever --max-noise said: 0 here."""
+    """"noisy_windows_left_out" is the share of the counted windows (covered, not flat) that the reference left out for
+    their noise, i.e. whose noise share exceeds ``--max-noise`` (module docstring, step 1). A --quick run with
+    --max-noise 0.05 (most of its windows are more than 5% noise at 64 spp, none more than 50%): recomputed from the
+    written image and noise variance, the share above 0.05 is what the JSON reports, and it is what the reference
+    left out (the counted windows that are not valid). The figure read the default threshold MAX_NOISE_FRACTION
+    (0.5) instead, whatever --max-noise said: 0 here."""
     shared("envmaps/studio.exr")
     out = tmp_path / "vb"
     import contextlib
@@ -576,10 +576,11 @@ def test_windows_left_out_for_noise_are_counted_at_the_max_noise_the_run_used(vb
 
 def test_brdf_sampled_brute_force_takes_the_samples_asked_for(vb):
     """Only the uniform estimator's directions form a grid (rounded to a square); the BRDF-sampled one takes
-    ``n_samples`` independent samples (estimator_variance's docstring, --bis-samples).  A GGX sphere under a constant
-    sky, where BRDF-sampled X differ (but for a sample below the horizon, 0): two samples x_1, x_2 (the first is the one-sample run's m_1, as the
-    stream is the same) have mean m_2 and variance ((x_1 - x_2) / 2)^2 = (m_1 - m_2)^2; two samples must not read as
-    one (round(sqrt(2)) = 1 made them bit for bit the same), nor three as four (round(sqrt(3)) = 2 took four)."""
+    ``n_samples`` independent samples (estimator_variance's docstring, --bis-samples). A GGX sphere under a constant
+    sky, where BRDF-sampled X differ (but for a sample below the horizon, 0): two samples x_1, x_2 (the first is the
+    one-sample run's m_1, as the stream is the same) have mean m_2 and variance ((x_1 - x_2) / 2)^2 = (m_1 - m_2)^2;
+    two samples must not read as one (round(sqrt(2)) = 1 made them bit for bit the same), nor three as four
+    (round(sqrt(3)) = 2 took four)."""
     from warpbw.pipeline import prepare_scene, render_reference
     from warpbw.scene import parse_scene
 
