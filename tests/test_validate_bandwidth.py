@@ -547,3 +547,53 @@ def test_quick_run_bootstrap_uses_tiles_of_bootstrap_tile_windows(vb, quick_out)
     other = vb.block_bootstrap_se(m["b_p"], m["bw_ref"], m["bw_valid"], 16)
     assert want != pytest.approx(other, rel=1e-6)
     assert s["bandwidth_spearman_se"] == pytest.approx(want, rel=1e-9)
+
+
+def test_windows_left_out_for_noise_are_counted_at_the_max_noise_the_run_used(vb, shared, tmp_path):
+    """"noisy_windows_left_out" is the share of the counted windows (covered, not flat) that the reference left out for
+    their noise, i.e. whose noise share exceeds ``--max-noise`` (module docstring, step 1). A --quick run with
+    --max-noise 0.05 (most of its windows are more than 5% noise at 64 spp, none more than 50%): recomputed from the
+    written image and noise variance, the share above 0.05 is what the JSON reports, and it is what the reference
+    left out (the counted windows that are not valid). The figure read the default threshold MAX_NOISE_FRACTION
+    (0.5) instead, whatever --max-noise said: 0 here."""
+    shared("envmaps/studio.exr")
+    out = tmp_path / "vb"
+    import contextlib
+    import io
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert vb.main(["--out", str(out), "--quick", "--max-noise", "0.05", "--scenes", "sphere-ggx-studio"]) == 0
+    s = json.loads((out / "validate_bandwidth.json").read_text())["scenes"]["sphere-ggx-studio"]
+    m = np.load(out / "validate_sphere-ggx-studio_maps.npz")
+    wb = vb.windowed_bandwidth(vb.luminance(m["image"]), m["coverage"], window=vb.QUICK["window"],
+                               stride=vb.FFT_STRIDE, noise_var=m["noise_var"], max_noise=0.05)
+    counted = (wb["cover"] >= vb.MIN_WINDOW_COVER) & (wb["energy"] > 0)
+    nf = wb["noise_fraction"][counted]
+    want = float(np.mean(nf > 0.05))
+    assert want > 0.05 and np.all(nf <= vb.MAX_NOISE_FRACTION)   # the setting is as claimed
+    assert want == pytest.approx(float(np.mean(~wb["grid_valid"][counted])), abs=1e-12)
+    assert s["noisy_windows_left_out"] == pytest.approx(want, abs=1e-12)
+
+
+def test_brdf_sampled_brute_force_takes_the_samples_asked_for(vb):
+    """Only the uniform estimator's directions form a grid (rounded to a square); the BRDF-sampled one takes
+    ``n_samples`` independent samples (estimator_variance's docstring, --bis-samples). A GGX sphere under a constant
+    sky, where BRDF-sampled X differ (but for a sample below the horizon, 0): two samples x_1, x_2 (the first is the
+    one-sample run's m_1, as the stream is the same) have mean m_2 and variance ((x_1 - x_2) / 2)^2 = (m_1 - m_2)^2;
+    two samples must not read as one (round(sqrt(2)) = 1 made them bit for bit the same), nor three as four
+    (round(sqrt(3)) = 2 took four)."""
+    from warpbw.pipeline import prepare_scene, render_reference
+    from warpbw.scene import parse_scene
+
+    prep = prepare_scene(parse_scene(
+        "[camera]\nposition = [0.0, 0.0, 4.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 30.0\nresolution = [12, 12]\n"
+        "[environment]\nconstant = [1.0, 1.0, 1.0]\n[[object]]\nshape = \"sphere\"\ncenter = [0.0, 0.0, 0.0]\n"
+        "radius = 1.0\nmaterial = \"m\"\n[material.m]\ntype = \"ggx\"\nalpha = 0.5\nspecular = [1.0, 1.0, 1.0]\n"
+        "eta = [0.143, 0.374, 1.442]\nk = [3.983, 2.385, 1.603]\n"))
+    r = render_reference(prep, 1, seed=0)
+    gb, cov = r.gbuffer, np.asarray(r.coverage, bool)
+    est = {n: vb.estimator_variance(gb, prep.materials, prep.env.data, n, True, 3) for n in (1, 2, 3, 4)}
+    (m1, v1), (m2, v2), (m3, _), (m4, _) = (est[n] for n in (1, 2, 3, 4))
+    assert cov.sum() > 50 and np.all(v1[cov] == 0.0)                       # one sample: no spread
+    assert np.mean(np.abs(m2[cov] - m1[cov]) > 1e-6) > 0.9                 # a second sample was drawn
+    np.testing.assert_allclose(v2[cov], (m1[cov] - m2[cov]) ** 2, rtol=1e-6)
+    assert np.mean(np.abs(m3[cov] - m4[cov]) > 1e-6) > 0.9                 # three samples are not four
