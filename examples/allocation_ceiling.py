@@ -127,7 +127,7 @@ def allocation_ceiling(prep, budget: float = BUDGET_DEFAULT, seeds: int = SEEDS_
     frame = render_adaptive(prep, budget, seed=seed, mis=True)
     n_p = np.maximum(np.asarray(frame.aovs["n_p"], np.float64)[cov], 1.0)
     shaded = np.asarray(frame.aovs["shaded"], bool)[cov]
-    measured = np.asarray(frame.aovs["variance"], np.float64)[cov] * n_p   # variance_mis = (key / N_p) x N_p
+    measured = np.asarray(frame.aovs["variance"], np.float64)[cov] * n_p   # variance_step = (key / N_p) x N_p
     vs = v[shaded]
     # the samples each shaded pixel took: a coarse texel's is the largest N_p of its footprint, not its pixel's N_p
     # (summing n_p instead read 1.82 samples per covered pixel where the gold bunny's budget-2 frame took 2.00)

@@ -1411,9 +1411,6 @@ def test_the_pass_measures_the_variance_of_the_renderers_two_sample_mis_step():
     assert np.median(one / var_x) > 2.5
 
 
-@pytest.mark.xfail(strict=True, reason="session 74: the measured MIS allocation and its variance map read the "
-                   "one-sample MIS variance (2-4.5x the renderer's step, unevenly); the fix changes the benchmark's "
-                   "MIS frames (by +0.01 to +0.05 dB on small spheres), so it is reported, not applied")
 def test_a_mis_frames_measured_allocation_and_variance_map_follow_the_renderers_step_variance():
     """Neyman's allocation for the frame's estimator is N_p ~ its own standard deviation, and the variance map its
     variance over N_p: with MIS the renderer takes two-sample steps (``variance_step``), not the pass's one-sample

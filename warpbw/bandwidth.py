@@ -86,10 +86,11 @@ silent:
   mu - a_b: against 200 renders of 8 spp per pixel (24 x 24 spheres, Lambert and GGX alpha 0.2 under a constant
   sky, the procedural sky and a 2 x 2-texel sun of 5000 on a sky of 0.5; 4096 directions per pixel) its ratio to
   the brute force has medians 1.00-1.02 (10th-90th percentiles 0.85-1.19), ``variance_mis``'s 2.1-4.5 (1.8-5.4).
-  The allocation and the variance map still read ``variance_mis`` (session 74, tests/test_bandwidth.py's xfail):
-  allocating by ``variance_step`` changes MIS frames by +0.01 to +0.05 dB (128 x 128 spheres with every pixel
-  shaded, GGX alpha 0.03 under studio.exr, 0.2 under forest.exr, Lambert under studio.exr, budgets 2 and 8, 6
-  paired seeds against 4096 spp; -0.04 to +0.01 with the default levels at 256 x 256, against 2048 spp).
+  An MIS frame's "measured" allocation and its variance map read ``variance_step`` (since session 74; they read
+  ``variance_mis``, 2-4.5x the frame's variance and unevenly so).  The frames move little: +0.01 to +0.05 dB
+  (128 x 128 spheres with every pixel shaded, GGX alpha 0.03 under studio.exr, 0.2 under forest.exr, Lambert under
+  studio.exr, budgets 2 and 8, 6 paired seeds against 4096 spp; -0.04 to +0.01 with the default levels at 256 x
+  256, against 2048 spp); the benchmark's scenes: docs/measurements.md, "Session 74".
 * chi_i includes the cosine of Eq. 1 (the paper writes chi_i = L_i rho): grazing directions, which
   carry no energy, then do not inflate the bound.  The integrand's bandwidth in Eq. 9 then includes
   the cosine's, ``NU_COS``: without it a Lambert surface under a smooth light (nu_a, nu_rho -> 0) gets
@@ -210,8 +211,8 @@ silent:
 N_p (Sec. 2.4: "keep N_p proportional to" the bound, so that the variance is constant):
 ``N_p = clamp(ceil(k_p / V), n_min, n_max)`` with k_p = sigma2_p ("variance", the paper's), its square
 root ("sqrt"), sigma2_p / L_p^2 ("relative"; L_p^2 + (REL_FLOOR m)^2 with m the frame's median L_p over its
-lit pixels, so that it does not see the exposure), 1 ("uniform") or sqrt(variance_mis) ("measured", the
-default; sqrt(variance_bis) for a frame without MIS), and the constant V found by bisection so that the
+lit pixels, so that it does not see the exposure), 1 ("uniform") or sqrt(variance_step) ("measured", the
+default: the MIS step's; sqrt(variance_bis) for a frame without MIS), and the constant V found by bisection so that the
 pixels the hierarchy will shade (texels of level L whose min-filtered level is L, with the max-filtered k of
 their footprint, Sec. 3.1) spend ``budget`` samples per covered pixel in total.  Why "measured": N_p
 proportional to the standard deviation minimises the summed variance sum_p var_p / N_p for a fixed budget
@@ -818,9 +819,13 @@ class BandwidthBuffer:
                                            # direction, balance heuristic), from the same directions
 
     def estimator_variance(self, mis: bool = True) -> wp.array | None:
-        """The measured variance of the frame's estimator: MIS's, or BRDF sampling's alone (where measured)."""
+        """The measured variance of the frame's estimator: MIS's step (a BRDF and an environment direction,
+        ``variance_step``; the one-sample ``variance_mis`` where a buffer lacks it), or BRDF sampling's alone (where
+        measured)."""
         mis = check_flag(mis, "estimator_variance: mis")   # "no" is truthy: MIS's variance
-        return self.variance_mis if mis or self.variance_bis is None else self.variance_bis
+        if not mis and self.variance_bis is not None:
+            return self.variance_bis
+        return self.variance_mis if self.variance_step is None else self.variance_step
 
 
 def interleave_shifts(n_b: int, side: int) -> np.ndarray:
