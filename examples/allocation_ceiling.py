@@ -20,7 +20,8 @@ number of samples per covered pixel, B, over the noise MSE of the allocation nam
   up-sampling's bias are left out, so the oracles bound from above what skipping pixels and allocating
   samples can buy at this budget;
 * ``rank_measured``: Spearman rank correlation, over those pixels, of the variance the bandwidth pass
-  measured for its own directions (the default allocation's key) with v_p.
+  measured for its own directions with v_p: the frame's variance map times N_p, the MIS step's variance since
+  session 74 (before, the one-sample MIS variance, which the default allocation keeps as its key).
 
 A scene whose v_p is nearly the same everywhere (``oracle_all`` near 1) and whose frame shades most of its
 pixels has little to gain from adaptive shading at any budget: on the benchmark's blue-acrylic bunny under
@@ -127,7 +128,7 @@ def allocation_ceiling(prep, budget: float = BUDGET_DEFAULT, seeds: int = SEEDS_
     frame = render_adaptive(prep, budget, seed=seed, mis=True)
     n_p = np.maximum(np.asarray(frame.aovs["n_p"], np.float64)[cov], 1.0)
     shaded = np.asarray(frame.aovs["shaded"], bool)[cov]
-    measured = np.asarray(frame.aovs["variance"], np.float64)[cov] * n_p   # variance_step = (key / N_p) x N_p
+    measured = np.asarray(frame.aovs["variance"], np.float64)[cov] * n_p   # the MIS step's: (map = v / N_p) x N_p
     vs = v[shaded]
     # the samples each shaded pixel took: a coarse texel's is the largest N_p of its footprint, not its pixel's N_p
     # (summing n_p instead read 1.82 samples per covered pixel where the gold bunny's budget-2 frame took 2.00)

@@ -14,7 +14,7 @@ Public:
     takes (a warning first where it lacks)
     ``direction_set(n_b, seed) -> (n_b, 3) float32``   stratified points for the n_b directions
     ``interleave_shifts(n_b, side) -> (side^2, 3)``     per-block offsets of the direction set
-    ``BandwidthBuffer`` (``.estimator_variance(mis)``) /
+    ``BandwidthBuffer`` (``.estimator_variance(mis)``, ``.measured_key(mis)``) /
     ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ..., stride, pool_radius)``
     ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max, allocation, mis, plan)``; ``ALLOCATIONS``
     ``planned_shading(buf, device, key, plan)``   the key of the texels the hierarchy will shade; ``pixel_angle(cam)``
@@ -86,11 +86,16 @@ silent:
   mu - a_b: against 200 renders of 8 spp per pixel (24 x 24 spheres, Lambert and GGX alpha 0.2 under a constant
   sky, the procedural sky and a 2 x 2-texel sun of 5000 on a sky of 0.5; 4096 directions per pixel) its ratio to
   the brute force has medians 1.00-1.02 (10th-90th percentiles 0.85-1.19), ``variance_mis``'s 2.1-4.5 (1.8-5.4).
-  An MIS frame's "measured" allocation and its variance map read ``variance_step`` (since session 74; they read
-  ``variance_mis``, 2-4.5x the frame's variance and unevenly so).  The frames move little: +0.01 to +0.05 dB
-  (128 x 128 spheres with every pixel shaded, GGX alpha 0.03 under studio.exr, 0.2 under forest.exr, Lambert under
-  studio.exr, budgets 2 and 8, 6 paired seeds against 4096 spp; -0.04 to +0.01 with the default levels at 256 x
-  256, against 2048 spp); the benchmark's scenes: docs/measurements.md, "Session 74".
+  An MIS frame's variance map reads ``variance_step`` over N_p (since session 74: it read ``variance_mis``, 2-4.5x
+  the frame's variance and unevenly so), but its "measured" allocation keeps ``variance_mis`` as its key, by
+  measurement: allocating by ``variance_step`` moved small spheres by +0.01 to +0.05 dB (128 x 128, every pixel
+  shaded, GGX alpha 0.03 under studio.exr, 0.2 under forest.exr, Lambert under studio.exr, budgets 2 and 8, 6
+  paired seeds against 4096 spp; -0.04 to +0.01 with the default levels at 256 x 256), and the benchmark's scenes
+  (8 paired runs, budgets 0.5-32) by +0.00 to +0.03 dB (gold bunny, ccp3 sphere), -0.03 to +0.00 (acrylic bunny)
+  and -0.07 to -0.16 dB at every budget on the chrome sphere (docs/measurements.md, "Session 74").  The step's
+  variance is a difference of large terms (E[Y^2] / 2 - a_b^2 - a_e^2), noisy from 16 directions where one sampler
+  carries the integrand, as on a mirror; the one-sample variance's extra (a_b - a_e)^2 keeps its key away from 0
+  there.
 * chi_i includes the cosine of Eq. 1 (the paper writes chi_i = L_i rho): grazing directions, which
   carry no energy, then do not inflate the bound.  The integrand's bandwidth in Eq. 9 then includes
   the cosine's, ``NU_COS``: without it a Lambert surface under a smooth light (nu_a, nu_rho -> 0) gets
@@ -211,8 +216,8 @@ silent:
 N_p (Sec. 2.4: "keep N_p proportional to" the bound, so that the variance is constant):
 ``N_p = clamp(ceil(k_p / V), n_min, n_max)`` with k_p = sigma2_p ("variance", the paper's), its square
 root ("sqrt"), sigma2_p / L_p^2 ("relative"; L_p^2 + (REL_FLOOR m)^2 with m the frame's median L_p over its
-lit pixels, so that it does not see the exposure), 1 ("uniform") or sqrt(variance_step) ("measured", the
-default: the MIS step's; sqrt(variance_bis) for a frame without MIS), and the constant V found by bisection so that the
+lit pixels, so that it does not see the exposure), 1 ("uniform") or sqrt(variance_mis) ("measured", the
+default; sqrt(variance_bis) for a frame without MIS; ``BandwidthBuffer.measured_key``), and the constant V found by bisection so that the
 pixels the hierarchy will shade (texels of level L whose min-filtered level is L, with the max-filtered k of
 their footprint, Sec. 3.1) spend ``budget`` samples per covered pixel in total.  Why "measured": N_p
 proportional to the standard deviation minimises the summed variance sum_p var_p / N_p for a fixed budget
@@ -827,6 +832,12 @@ class BandwidthBuffer:
             return self.variance_bis
         return self.variance_mis if self.variance_step is None else self.variance_step
 
+    def measured_key(self, mis: bool = True) -> wp.array | None:
+        """The "measured" allocation's key: with MIS the one-sample ``variance_mis``, which allocates better than the
+        step's own variance on the benchmark (module docstring, session 74), without it ``variance_bis``."""
+        mis = check_flag(mis, "measured_key: mis")
+        return self.variance_mis if mis or self.variance_bis is None else self.variance_bis
+
 
 def interleave_shifts(n_b: int, side: int) -> np.ndarray:
     """``(side^2, 3)`` offsets (mod 1) of the direction set for an interleaved ``side x side`` tile of
@@ -1023,7 +1034,7 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     n_cov = int(cov.sum())
     total = int(round(budget * n_cov))
     power = {"sqrt": 0.5, "uniform": 0.0, "measured": 0.5}.get(allocation, 1.0)
-    key = {"relative": buf.sigma2_rel, "measured": buf.estimator_variance(mis)}.get(allocation, buf.sigma2)
+    key = {"relative": buf.sigma2_rel, "measured": buf.measured_key(mis)}.get(allocation, buf.sigma2)
     if key is None:
         raise WarpbwError(f"allocation {allocation!r}: the bandwidth buffer has no measured variance")
     sig = key.numpy().reshape(H, W).astype(np.float64)
@@ -1061,8 +1072,14 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
         n_p = _n_of(sig ** power, v, n_min, n_max)
     n_p = np.where(cov, n_p, 0).astype(np.int32)
     # the variance map is a variance of radiance: "relative"'s key sigma2 / (mu^2 + floor^2) has no units (it read the
-    # same under a sky 100 times brighter until session 74), so its map is the bound sigma2 over N_p, as the others'
-    var = buf.sigma2.numpy().reshape(H, W).astype(np.float64) if allocation == "relative" else sig
+    # same under a sky 100 times brighter until session 74), so its map is the bound sigma2 over N_p, as the others';
+    # "measured"'s is the frame's estimator's (with MIS the step's, not the one-sample key's: 2-4.5x less)
+    if allocation == "relative":
+        var = buf.sigma2.numpy().reshape(H, W).astype(np.float64)
+    elif allocation == "measured":
+        var = buf.estimator_variance(mis).numpy().reshape(H, W).astype(np.float64)
+    else:
+        var = sig
     with np.errstate(divide="ignore", invalid="ignore"):
         variance = np.where(cov & (n_p > 0), var / np.maximum(n_p, 1), 0.0).astype(np.float32)
     planned = int(_n_of(s, v, n_min, n_max).sum()) if v != 0.0 else n_plan * n_max

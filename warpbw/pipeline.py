@@ -510,7 +510,7 @@ def _check_pass_finite(buf, source: str, mis: bool = True) -> None:
     n_max on every pixel whatever the budget."""
     cov = buf.coverage.reshape(-1)
     bad = np.zeros(cov.shape, bool)
-    for a in (buf.sigma2, buf.sigma2_rel, buf.estimator_variance(mis)):
+    for a in (buf.sigma2, buf.sigma2_rel, buf.estimator_variance(mis), buf.measured_key(mis)):
         if a is not None:
             bad |= ~np.isfinite(a.numpy())
     n_bad = int((bad & cov).sum())
