@@ -91,11 +91,11 @@ silent:
   measurement: allocating by ``variance_step`` moved small spheres by +0.01 to +0.05 dB (128 x 128, every pixel
   shaded, GGX alpha 0.03 under studio.exr, 0.2 under forest.exr, Lambert under studio.exr, budgets 2 and 8, 6
   paired seeds against 4096 spp; -0.04 to +0.01 with the default levels at 256 x 256), and the benchmark's scenes
-  (8 paired runs, budgets 0.5-32) by +0.00 to +0.03 dB (gold bunny, ccp3 sphere), -0.03 to +0.00 (acrylic bunny)
-  and -0.07 to -0.16 dB at every budget on the chrome sphere (docs/measurements.md, "Session 74").  The step's
-  variance is a difference of large terms (E[Y^2] / 2 - a_b^2 - a_e^2), noisy from 16 directions where one sampler
-  carries the integrand, as on a mirror; the one-sample variance's extra (a_b - a_e)^2 keeps its key away from 0
-  there.
+  (8 paired runs, budgets 0.5-32) by -0.01 to +0.03 dB (gold bunny, ccp3 sphere), -0.03 to +0.00 (acrylic bunny)
+  and -0.07 to -0.16 dB at every budget on the chrome sphere (docs/measurements.md, "Session 74").  A likely
+  reason, not measured: the step's variance is a difference of large terms (E[Y^2] / 2 - a_b^2 - a_e^2), noisy
+  from 16 directions where one sampler carries the integrand, as on a mirror, where the one-sample variance's extra
+  (a_b - a_e)^2 keeps its key away from 0.
 * chi_i includes the cosine of Eq. 1 (the paper writes chi_i = L_i rho): grazing directions, which
   carry no energy, then do not inflate the bound.  The integrand's bandwidth in Eq. 9 then includes
   the cosine's, ``NU_COS``: without it a Lambert surface under a smooth light (nu_a, nu_rho -> 0) gets
