@@ -561,8 +561,9 @@ def test_histogram_of_samples_matches_the_pdf_integrated_over_each_bin(brdf, the
     absolute azimuth (a binning that knows nothing of the table's half-vector cells), the count of samples in each
     bin matches N times the integral of tab_pdf over it, computed by a fine quadrature over the sphere laid out by
     the half vector (``reflected_quadrature``); the integrals also sum to 1 less the share of draws wasted below the
-    surface (the pdf is normalised over the sphere, as its comment promises).  Views off the xz-plane and one-sided lobes make an error in the half vector's relative azimuth (mirrored, folded,
-    measured from the wrong axis) or in the change of variables (the Jacobian 4 (wo . h) sin(theta_h) pi u) show.
+    surface (the pdf is normalised over the sphere, as its comment promises).  Views off the xz-plane and one-sided
+    lobes make an error in the half vector's relative azimuth (mirrored, folded, measured from the wrong axis) or in the
+    change of variables (the Jacobian 4 (wo . h) sin(theta_h) pi u) show.
     A grid uniform in (z, phi), used until session 74, was off by up to 2.4% (hypothesis found the one-sided lobes of
     the examples below; ``reflected_quadrature``), and reads 1 within 1e-5 where no draw is wasted.
     Near the horizon a draw whose cell's half vector faces away from the view reflects below the surface, where
