@@ -1070,6 +1070,43 @@ def test_bench_filtering_table_puts_each_figure_in_its_row(aniso):
     assert "a second, independently seeded one's error / sqrt(2)" in " ".join(lines)
 
 
+def test_bench_filtering_plot_draws_each_curve_along_the_zoom(tmp_path, monkeypatch):
+    """--zoom comes in any order (the CLI refuses only repeats): each curve of the plot runs along the zoom, and the
+    error-against-time curve through the zooms in that order too (--zoom 4,1,2 drew 4 -> 1 -> 2: a line from zoom 1
+    straight to 4 over the point at 2, and one back).  Truth: the record's rows sorted by hand."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.axes
+
+    from warpbw.bench_filtering import write_plot
+
+    curves = []
+    real_plot = matplotlib.axes.Axes.plot
+
+    def plot(self, x, y, *a, **kw):
+        curves.append((kw.get("label"), list(x), list(y)))
+        return real_plot(self, x, y, *a, **kw)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot", plot)
+    rec = _bf_record()
+    rec["zooms"] = [4.0, 1.0, 2.0]
+    rec["methods"]["toksvig"] = [{"zoom": z, "error": 0.1 * z, "flicker": 0.01 * z, "temporal_error": 0.001 * z,
+                                  "time_s": 0.125 * z} for z in (4.0, 1.0, 2.0)]
+    rec["ground_truth"] = [{"zoom": z, "noise": 0.5 * z, "flicker_noise": 0.05 * z, "temporal_noise": 0.005 * z}
+                           for z in (4.0, 1.0, 2.0)]
+    write_plot(rec, tmp_path / "p.png")
+    zs = [1.0, 2.0, 4.0]
+    assert curves == [("toksvig", [125.0 * z for z in zs], [0.1 * z for z in zs]),      # error against time (ms)
+                      ("toksvig", zs, [0.1 * z for z in zs]),
+                      ("toksvig", zs, [0.01 * z for z in zs]),
+                      ("toksvig", zs, [0.001 * z for z in zs]),
+                      ("ground-truth noise", zs, [0.5 * z for z in zs]),
+                      ("ground-truth noise", zs, [0.005 * z for z in zs]),
+                      ("ground-truth noise", zs, [0.05 * z for z in zs])]
+    plot_png(tmp_path / "p.png")
+
+
 def _hand_bench(monkeypatch, level_outside=9.0, times=(0.001,), cover=None):
     """run_bench_filtering at zoom 1 on 1x3 frames (the method's off by 1 in pixel 1, the truth's peak 6), pixel 2
     not covered; the stand-in clock moved 2 s by the mipmaps' preparation, of which the aligned GMM took 0.25 s."""

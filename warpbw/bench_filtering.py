@@ -335,16 +335,20 @@ def write_plot(record: dict, path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 4, figsize=(20, 4.2))
-    zooms = record["zooms"]
+    # each curve along the zoom (--zoom comes in any order: 4,1,2 drew 4 -> 1 -> 2), the rows in the zooms' order
+    order = sorted(range(len(record["zooms"])), key=record["zooms"].__getitem__)
+    zooms = [record["zooms"][i] for i in order]
+    gts = [record["ground_truth"][i] for i in order]
     for m, rows in record["methods"].items():
+        rows = [rows[i] for i in order]
         axes[3].plot([r["time_s"] * 1e3 for r in rows], [r["error"] for r in rows], "o-", label=m)
         axes[0].plot(zooms, [r["error"] for r in rows], "o-", label=m)
         axes[1].plot(zooms, [r["flicker"] for r in rows], "o-", label=m)
         axes[2].plot(zooms, [r["temporal_error"] for r in rows], "o-", label=m)
-    axes[0].plot(zooms, [g["noise"] for g in record["ground_truth"]], "k--", label="ground-truth noise")
-    axes[2].plot(zooms, [g["temporal_noise"] for g in record["ground_truth"]], "k--", label="ground-truth noise")
-    if all("flicker_noise" in g for g in record["ground_truth"]):
-        axes[1].plot(zooms, [g["flicker_noise"] for g in record["ground_truth"]], "k--", label="ground-truth noise")
+    axes[0].plot(zooms, [g["noise"] for g in gts], "k--", label="ground-truth noise")
+    axes[2].plot(zooms, [g["temporal_noise"] for g in gts], "k--", label="ground-truth noise")
+    if all("flicker_noise" in g for g in gts):
+        axes[1].plot(zooms, [g["flicker_noise"] for g in gts], "k--", label="ground-truth noise")
     for ax, what in zip(axes[:3], ("error against the ground truth", "flicker (change beyond the truth's)",
                                    "temporal error (change against the truth's)")):
         ax.set_xscale("log", base=2)
