@@ -44,8 +44,9 @@ def write_plot(record: dict, path) -> None:
 
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for i, sc in enumerate(record["scenes"]):
+        rows = sorted(sc["zooms"], key=lambda r: r["zoom"])   # along the zoom (--zoom 4,1,2 drew 4 -> 1 -> 2)
         for j, m in enumerate(record["methods"]):
-            ax.plot([r["zoom"] for r in sc["zooms"]], [r["methods"][m]["ratio"] for r in sc["zooms"]],
+            ax.plot([r["zoom"] for r in rows], [r["methods"][m]["ratio"] for r in rows],
                     "os^"[j % 3] + "-", color=f"C{i % 10}", label=f"{_scene_name(sc['scene'])}: {m}")
     ax.axhline(1.0, color="k", lw=0.8, ls="--")
     ax.set_xscale("log", base=2)

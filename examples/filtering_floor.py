@@ -372,9 +372,10 @@ def write_plot(records: list, path) -> None:
 
     fig, axes = plt.subplots(1, len(records), figsize=(5.5 * len(records), 4.2), squeeze=False)
     for ax, rec in zip(axes[0], records):
-        zooms = [r["zoom"] for r in rec["zooms"]]
+        rows = sorted(rec["zooms"], key=lambda r: r["zoom"])   # along the zoom (--zoom 4,1,2 drew 4 -> 1 -> 2)
+        zooms = [r["zoom"] for r in rows]
         for c in (*METHODS, "gmm_per_tap", "floor", "floor_bilinear"):
-            ax.plot(zooms, [r[c] for r in rec["zooms"]], "o-" if c in METHODS else "x--", label=c)
+            ax.plot(zooms, [r[c] for r in rows], "o-" if c in METHODS else "x--", label=c)
         ax.set_xscale("log", base=2)
         ax.set_xlabel("zoom (camera distance factor)")
         ax.set_ylabel(f"error against the ground truth ({rec['gt_spp']} rays/pixel)")

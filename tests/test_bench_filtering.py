@@ -1070,16 +1070,12 @@ def test_bench_filtering_table_puts_each_figure_in_its_row(aniso):
     assert "a second, independently seeded one's error / sqrt(2)" in " ".join(lines)
 
 
-def test_bench_filtering_plot_draws_each_curve_along_the_zoom(tmp_path, monkeypatch):
-    """--zoom comes in any order (the CLI refuses only repeats): each curve of the plot runs along the zoom, and the
-    error-against-time curve through the zooms in that order too (--zoom 4,1,2 drew 4 -> 1 -> 2: a line from zoom 1
-    straight to 4 over the point at 2, and one back).  Truth: the record's rows sorted by hand."""
+def _plot_curves(monkeypatch) -> list:
+    """(label, x, y) of every line a plot draws from now on (matplotlib's Axes.plot, captured)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.axes
-
-    from warpbw.bench_filtering import write_plot
 
     curves = []
     real_plot = matplotlib.axes.Axes.plot
@@ -1089,6 +1085,16 @@ def test_bench_filtering_plot_draws_each_curve_along_the_zoom(tmp_path, monkeypa
         return real_plot(self, x, y, *a, **kw)
 
     monkeypatch.setattr(matplotlib.axes.Axes, "plot", plot)
+    return curves
+
+
+def test_bench_filtering_plot_draws_each_curve_along_the_zoom(tmp_path, monkeypatch):
+    """--zoom comes in any order (the CLI refuses only repeats): each curve of the plot runs along the zoom, and the
+    error-against-time curve through the zooms in that order too (--zoom 4,1,2 drew 4 -> 1 -> 2: a line from zoom 1
+    straight to 4 over the point at 2, and one back).  Truth: the record's rows sorted by hand."""
+    from warpbw.bench_filtering import write_plot
+
+    curves = _plot_curves(monkeypatch)
     rec = _bf_record()
     rec["zooms"] = [4.0, 1.0, 2.0]
     rec["methods"]["toksvig"] = [{"zoom": z, "error": 0.1 * z, "flicker": 0.01 * z, "temporal_error": 0.001 * z,
@@ -1105,6 +1111,27 @@ def test_bench_filtering_plot_draws_each_curve_along_the_zoom(tmp_path, monkeypa
                       ("ground-truth noise", zs, [0.005 * z for z in zs]),
                       ("ground-truth noise", zs, [0.05 * z for z in zs])]
     plot_png(tmp_path / "p.png")
+
+
+def test_filtering_floor_and_anisotropy_cost_plots_draw_each_curve_along_the_zoom(tmp_path, monkeypatch):
+    """As bench-filtering's plot: examples/filtering_floor.py's and examples/anisotropy_cost.py's --zoom come in any
+    order, and each curve runs along the zoom (4,1,2 drew 4 -> 1 -> 2).  Truth: the rows sorted by hand."""
+    from warpbw.filtering import METHODS
+
+    ff, ac = load_example("filtering_floor"), load_example("anisotropy_cost")
+    curves = _plot_curves(monkeypatch)
+    cols = (*METHODS, "gmm_per_tap", "floor", "floor_bilinear")
+    rows = [{"zoom": z, **{c: (i + 1) * z for i, c in enumerate(cols)}} for z in (4.0, 1.0, 2.0)]
+    ff.write_plot([{"scene": "a/s.toml", "gt_spp": 64, "zooms": rows}], tmp_path / "f.png")
+    zs = [1.0, 2.0, 4.0]
+    assert curves == [(c, zs, [(i + 1) * z for z in zs]) for i, c in enumerate(cols)]
+    plot_png(tmp_path / "f.png")
+    curves.clear()
+    rows = [{"zoom": z, "methods": {"toksvig": {"ratio": 1.0 + z}}} for z in (4.0, 1.0, 2.0)]
+    ac.write_plot({"scenes": [{"scene": "a/s.toml", "zooms": rows}], "methods": ["toksvig"], "aniso": 4,
+                   "size": [8, 6], "runs": 3}, tmp_path / "a.png")
+    assert [(x, y) for _, x, y in curves] == [(zs, [1.0 + z for z in zs])]
+    plot_png(tmp_path / "a.png")
 
 
 def _hand_bench(monkeypatch, level_outside=9.0, times=(0.001,), cover=None):
