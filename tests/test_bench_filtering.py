@@ -1070,6 +1070,35 @@ def test_bench_filtering_table_puts_each_figure_in_its_row(aniso):
     assert "a second, independently seeded one's error / sqrt(2)" in " ".join(lines)
 
 
+def test_bench_filtering_table_and_plot_say_a_precompute_time_that_read_the_mipmaps(tmp_path, monkeypatch):
+    """The precompute time of mipmaps read from --cache or a gmm file is a read's (a second run with --cache printed
+    "precompute (aligned GMM mipmaps): 0.01 s" where the build took 1.9 s): the table's line and the plot's title
+    say so; built mipmaps (or none: planes without a map) print the time alone."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.figure
+
+    from warpbw.bench_filtering import format_table, write_plot
+
+    titles = []
+    real = matplotlib.figure.Figure.suptitle
+    monkeypatch.setattr(matplotlib.figure.Figure, "suptitle", lambda self, t, *a, **kw: (titles.append(t),
+                                                                                         real(self, t, *a, **kw))[1])
+    rec = _bf_record()
+    for row in rec["methods"]["toksvig"]:
+        row["time_s"] = 0.001
+    for notes, note in (({}, ""), ({"m": {"map": [8, 8]}}, ""), ({"m": {"gmm_aligned": {"origin": "built"}}}, ""),
+                        ({"m": {"gmm_aligned": {"origin": "cache"}}}, " (read from the cache, not built)"),
+                        ({"a": {"gmm_aligned": {"origin": "file"}}, "b": {"gmm_aligned": {"origin": "built"}},
+                          "c": {"gmm_aligned": {"origin": "cache"}}},
+                         " (read from the cache and the scene's gmm file, not built)")):
+        rec["precompute"] = notes
+        assert format_table(rec).splitlines()[-1] == "precompute (aligned GMM mipmaps): 1.25 s" + note
+        write_plot(rec, tmp_path / "p.png")
+        assert titles.pop().endswith("precompute 1.2 s" + note), note
+
+
 def _plot_curves(monkeypatch) -> list:
     """(label, x, y) of every line a plot draws from now on (matplotlib's Axes.plot, captured)."""
     import matplotlib
