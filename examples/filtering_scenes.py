@@ -272,7 +272,10 @@ def main(argv=None) -> int:
     if spp:
         passed["--spp"] = args.spp
     check_command_options("bench-filtering", passed)
-    check_overwrite([out / f"{name}{ext}" for name in SCENES for ext in (".toml", ".exr")], args.force, "--out",
+    # with --run, the benchmarks' records and plots too: a dunes.json was refused after the scenes were written and
+    # the first two scenes benchmarked
+    check_overwrite([out / f"{name}{ext}" for name in SCENES
+                     for ext in (".toml", ".exr") + ((".json", ".png") if args.run else ())], args.force, "--out",
                     inputs=[args.environment] if args.environment is not None else (),
                     inputs_are="the --environment probe")
     paths = write_scenes(out, args.size, lights=args.lights, components=args.components,

@@ -404,6 +404,24 @@ def test_benchmark_script_run_hands_bench_filtering_what_it_accepts(tmp_path, mo
     assert "carved_disk" in capsys.readouterr().out     # the acceptance table, per scene
 
 
+def test_benchmark_script_run_refuses_an_existing_result_before_any_scene(tmp_path, monkeypatch):
+    """filtering_scenes.py --run refuses an existing NAME.json or NAME.png (without --force) before it writes a scene
+    or runs a benchmark: a dunes.json was refused by the third bench-filtering, after the scenes were written and the
+    first two benchmarked."""
+    fs = _example()
+    ran = []
+    monkeypatch.setattr(fs.subprocess, "run", lambda cmd, *a, **k: ran.append(cmd))
+    out = tmp_path / "b"
+    out.mkdir()
+    for result in ("dunes.json", "scales.png"):
+        (out / result).write_text("{}")
+        got = outcome(fs.main, ["--out", str(out), "--size", "17", "--run", "--zoom", "1", "--gt-spp", "64"])
+        assert result in got and "--force" in got, got
+        assert ran == [] and sorted(p.name for p in out.iterdir()) == [result]
+        (out / result).unlink()
+    assert fs.main(["--out", str(out), "--size", "17"]) == 0   # without --run the results are not its outputs
+
+
 def test_benchmark_acceptance_checks_read_the_coarsest_zoom():
     # hand-made records: the checks must read the largest zoom whatever the entries' order, take the ratios of the
     # aligned GMM's error to the others', and count a flicker tie as the aligned GMM's
