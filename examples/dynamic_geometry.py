@@ -312,8 +312,10 @@ def main(argv=None):
     render_adaptive(prep, args.budget, seed=args.seed, device=args.device, threads=args.threads)   # warm-up
     print(f"warm-up frame (compile kernels, load or build tables): {time.perf_counter() - t0:.1f} s")
 
-    # only the strip's frames are kept (every frame's image was, whatever --frames asked for)
-    pick = set(np.linspace(0, args.frames - 1, min(args.frames, MAX_STRIP_FRAMES)).round().astype(int).tolist())
+    # only the strip's frames are kept (every frame's image was, whatever --frames asked for); in frame order, as
+    # the strip shows them and the closing line names them (a set's order put 33 before 11 from --frames 34 on)
+    picked = np.linspace(0, args.frames - 1, min(args.frames, MAX_STRIP_FRAMES)).round().astype(int)
+    pick = sorted(set(picked.tolist()))
     records, images, masks, coverage = [], [], [], []
     for f in range(args.frames):
         t_start = time.perf_counter()

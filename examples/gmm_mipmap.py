@@ -1,13 +1,15 @@
 """GMM normal mipmaps, aligned against unaligned, like 004 Fig. 5: the mixtures of a 2x2 block of texels,
-the mixture the renderer's trilinear filter makes of them at the corner they share (equal weights), and
-the true distribution of the finest normals of the four texels together (what that mixture stands for).
+the mixture the renderer's trilinear filter makes of them midway between their centres (the corner they
+share; equal weights), and the true distribution of the finest normals of the four texels together (what that
+mixture stands for: each texel a quarter, shared by its normals; where the border of a map of no power-of-two size
+clips a texel, its fewer normals weigh more, and its centre, so the pixel, is off the corner).
 
     python examples/gmm_mipmap.py -o gmm_mipmap.png                      # hemispherical scales, 128x128
     python examples/gmm_mipmap.py -o dunes.png --surface dunes --size 128 --level 3
 
-Each panel is the density of the normal distribution over the projected-normal disk (n_x right, n_y up;
-the circle is the horizon; each panel scaled to its own peak), the components' means marked with their
-index; the truth shows each finest normal as a small Gaussian (TRUTH_KERNEL_VAR).  Top row: the EM-aligned
+Each panel is the square root of the density of the normal distribution over the projected-normal disk (n_x
+right, n_y up; the circle is the horizon; white at each panel's own 99.7th percentile, so a sharp peak saturates),
+the means of the components of weight above 0.01 marked with their index; the truth shows each finest normal as a small Gaussian (TRUTH_KERNEL_VAR).  Top row: the EM-aligned
 mipmap (004 Sec. 4.1, c = 1); bottom row: independent EM per texel (c = 0, own initialisation).  Filtering
 interpolates component i with component i (004 Sec. 4.2): aligned components interpolate into a
 distribution close to the truth, unaligned ones are averaged into lobes that are not there (004 Fig. 5c).
@@ -43,10 +45,36 @@ def density(params, grid=GRID):
 TRUTH_KERNEL_VAR = 0.005
 
 
-def truth_density(n2, grid=GRID):
-    """The footprint's finest normals as a density: one small Gaussian per normal, equal weights."""
-    p = np.concatenate([np.full((len(n2), 1), 1.0 / len(n2)), n2, np.full((len(n2), 1), TRUTH_KERNEL_VAR)], -1)
+def truth_density(n2, weights=None, grid=GRID):
+    """The footprint's finest normals as a density: one small Gaussian per normal, of the given weights (summing to
+    1; default equal)."""
+    w = np.full(len(n2), 1.0 / len(n2)) if weights is None else np.asarray(weights, np.float64)
+    p = np.concatenate([w[:, None], n2, np.full((len(n2), 1), TRUTH_KERNEL_VAR)], -1)
     return density(p, grid)
+
+
+def texel_centre(j: int, level: int, n: int) -> float:
+    """Finest coordinate of the centre of level-``level`` texel j along an axis of n finest texels: it covers
+    [j 2^l, min((j + 1) 2^l, n)) (``warpbw.filtering.axis_base``: a texel the border clips has its clipped centre)."""
+    f = 1 << level
+    return 0.5 * (j * f + min((j + 1) * f, n))
+
+
+def block(n2, level: int, r0: int, c0: int):
+    """The 2x2 block of level-``level`` texels from (r0, c0) of the finest projected normals n2 (H, W, 2): the pixel
+    (s, t) where the bilinear fetch weighs the four equally (midway between their centres), and the four texels'
+    finest normals (M, 2) with their weights (M,): a quarter per texel, shared equally by its (clipped) footprint."""
+    H, W = n2.shape[:2]
+    f = 1 << level
+    s = 0.5 * (texel_centre(c0, level, W) + texel_centre(c0 + 1, level, W))
+    t = 0.5 * (texel_centre(r0, level, H) + texel_centre(r0 + 1, level, H))
+    normals, weights = [], []
+    for r in (r0, r0 + 1):
+        for c in (c0, c0 + 1):
+            n = n2[r * f:(r + 1) * f, c * f:(c + 1) * f].reshape(-1, 2)
+            normals.append(n)
+            weights.append(np.full(len(n), 0.25 / len(n)))
+    return s, t, np.concatenate(normals), np.concatenate(weights)
 
 
 def show(ax, d):
@@ -117,12 +145,11 @@ def main(argv=None) -> int:
                                                          progress=False)}
     l = args.level
     r0, c0 = args.texel
-    f = 1 << l
-    # the pixel: at the corner shared by the four texels, where bilinear filtering weighs them equally; what
-    # the filtered mixture stands for is then the distribution of the four texels' finest normals together
-    s_c, t_c = (c0 + 1) * f, (r0 + 1) * f
-    foot = n2[r0 * f:(r0 + 2) * f, c0 * f:(c0 + 2) * f].reshape(-1, 2)
-    truth = truth_density(foot)
+    # the pixel: midway between the four texels' centres (the corner they share), where bilinear filtering weighs
+    # them equally; what the filtered mixture stands for is then the four texels' finest normals, a quarter each
+    # (the corner was off the middle, and every normal weighed the same, where the border clips the last texel)
+    s_c, t_c, foot, weights = block(n2, l, r0, c0)
+    truth = truth_density(foot, weights)
     fig, axes = plt.subplots(2, 6, figsize=(15, 5.4))
     for row, (name, mip) in enumerate(mips.items()):
         q = mip.levels[l]

@@ -213,6 +213,17 @@ def test_dynamic_geometry_writes_a_plot_and_records_what_it_prints(tmp_path, mon
     assert f"plot {png}" in out
 
 
+def test_dynamic_geometry_names_the_strips_frames_in_frame_order(tmp_path, monkeypatch, capsys):
+    """--frames 100: the strip shows MAX_STRIP_FRAMES = 10 evenly spaced frames, 0, 11, ..., 99 (99 / 9 = 11 apart,
+    by hand), and the closing line names them in that order, as the strip shows them.  Session 74: the line listed a
+    set's order, "frames 0, 33, 66, 99, 11, 44, ..."."""
+    how, calls = _run_with_known_frames(tmp_path, monkeypatch, ["--frames", "100"])
+    assert how.startswith("returned {") and len(calls) == 101, how
+    said = re.search(r"dynamic_geometry\.png \(frames ([\d, ]+)\)", capsys.readouterr().out)
+    assert said is not None
+    assert said.group(1) == ", ".join(str(11 * i) for i in range(10)), said.group(1)
+
+
 def test_dynamic_geometry_keeps_an_existing_plot_without_force(tmp_path, monkeypatch):
     """The new plot is one of the outputs --force guards: an existing one is refused before any frame."""
     (tmp_path / "o").mkdir()

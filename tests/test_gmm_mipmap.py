@@ -1265,6 +1265,42 @@ def test_gmm_mipmap_example_builds_both_mipmaps_and_filters_at_the_block_corner(
     assert [k.get("components") for k in builds] == [1, 1], builds
 
 
+def test_gmm_mipmap_example_weighs_a_block_the_border_clips_equally_and_its_truth_a_quarter_per_texel(tmp_path,
+                                                                                                      monkeypatch):
+    """The docstring: the filtered mixture is fetched where the four texels weigh equally, and the truth is the four
+    texels' finest normals together.  At --size 20 level 3 has 3 texels of 8 finest ones, the last clipped to 4
+    (finest 16-19): texel 1's centre is at 12, texel 2's at 18 (``axis_base``: the clipped centre), so the equal
+    weights are at s = t = 15, not at the corner 16 (weights 1/3, 2/3 there); and the block from (1, 1) holds
+    64 + 32 + 32 + 16 normals, each texel's a quarter: 1/256, 1/128 and 1/64 per normal (hand counts).  Session 74:
+    the corner and equal weights per normal were used."""
+    import warpbw.filtering as filtering
+    from precompute.gmm_mipmap import level_shapes
+
+    ex = load_example("gmm_mipmap")
+    truths = []
+    real_truth = ex.truth_density
+    monkeypatch.setattr(ex, "truth_density", lambda n2, *a: truths.append((n2, a)) or real_truth(n2, *a))
+    real_fetch = filtering.fetch_gmm
+    got = capture_call(monkeypatch, filtering, "fetch_gmm")
+    res = outcome(ex.main, ["-o", str(tmp_path / "g.png"), "--surface", "dunes", "--size", "20", "--components", "1",
+                            "--level", "3", "--texel", "1", "1"])
+    assert res == "Handed", res
+    s, t, level = got["_args"][1:4]
+    assert (s, t, level) == (15.0, 15.0, 3.0), (s, t, level)
+    (n2, extra), = truths
+    assert len(n2) == 64 + 32 + 32 + 16
+    w = extra[0] if extra else np.full(len(n2), 1.0 / len(n2))
+    assert sorted(np.unique(np.round(np.asarray(w) * 256, 9)).tolist()) == [1.0, 2.0, 4.0], np.unique(w)
+    assert np.sum(np.isclose(w, 1 / 256)) == 64 and np.sum(np.isclose(w, 1 / 64)) == 16
+    # the renderer's fetch at that pixel: the mean of the four texels' weights a = 1, 2, 4, 8 is 3.75 (5 at the corner)
+    levels = [np.zeros((h, w_, 1, 4)) for h, w_ in level_shapes(20, 20)]
+    for q in levels:
+        q[..., 0], q[..., 3] = 0.5, 0.01
+    for (r, c), a in zip(((1, 1), (1, 2), (2, 1), (2, 2)), (1.0, 2.0, 4.0, 8.0)):
+        levels[3][r, c, 0] = (a, 0.0, 0.0, 0.02 * a)
+    np.testing.assert_allclose(real_fetch(levels, s, t, level)[0, 0, 0], 3.75, rtol=1e-6)
+
+
 # ------------------------------------------------------------------------------------------- inputs, outputs and units
 # (mutation round 8: each test fails on a plausible mistake the suite let through)
 
