@@ -7,12 +7,12 @@ clips a texel, its fewer normals weigh more, and its centre, so the pixel, is of
     python examples/gmm_mipmap.py -o gmm_mipmap.png                      # hemispherical scales, 128x128
     python examples/gmm_mipmap.py -o dunes.png --surface dunes --size 128 --level 3
 
-Each panel is the square root of the density of the normal distribution over the projected-normal disk (n_x
-right, n_y up; the circle is the horizon; white at each panel's own 99.7th percentile, so a sharp peak saturates),
-the means of the components of weight above 0.01 marked with their index; the truth shows each finest normal as a small Gaussian (TRUTH_KERNEL_VAR).  Top row: the EM-aligned
-mipmap (004 Sec. 4.1, c = 1); bottom row: independent EM per texel (c = 0, own initialisation).  Filtering
-interpolates component i with component i (004 Sec. 4.2): aligned components interpolate into a
-distribution close to the truth, unaligned ones are averaged into lobes that are not there (004 Fig. 5c).
+Each panel is the square root of the density of the normal distribution over the projected-normal disk (n_x right, n_y
+up; the circle is the horizon; white at each panel's own 99.7th percentile, so a sharp peak saturates), the means of the
+components of weight above 0.01 marked with their index; the truth shows each finest normal as a small Gaussian
+(TRUTH_KERNEL_VAR).  Top row: the EM-aligned mipmap (004 Sec. 4.1, c = 1); bottom row: independent EM per texel (c = 0,
+own initialisation).  Filtering interpolates component i with component i (004 Sec. 4.2): aligned components interpolate
+into a distribution close to the truth, unaligned ones are averaged into lobes that are not there (004 Fig. 5c).
 """
 from __future__ import annotations
 
