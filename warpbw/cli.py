@@ -145,6 +145,16 @@ def _scales_line(scales: dict) -> str:
         for name, s in scales.items())
 
 
+def _record_total(stats: dict, t0: float) -> None:
+    """``time_s.total``, the render call since ``t0``, and ``time_s.unstaged``, the part of it no other key holds
+    (Python imports on a process's first frame, scene checks, progress bars): the keys other than ``frame`` (itself a
+    sum of the frame's stages) then add up to ``total``.  The stages once summed to 63% of a 24x24 frame's total."""
+    t = stats["time_s"]
+    total = time.perf_counter() - t0
+    t["unstaged"] = round(max(total - sum(v for k, v in t.items() if k != "frame"), 0.0), 6)
+    t["total"] = round(total, 6)
+
+
 def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, exposure: float, force: bool,
             threads, quiet: bool, method: str = "reference", budget: float | None = None,
             n_b: int | None = None, adaptive_options: dict | None = None, texts: dict | None = None) -> dict:
@@ -166,7 +176,7 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
     else:
         res = render_reference(scene, spp=spp, seed=seed, mis=mis, device=device, progress=not quiet,
                                threads=threads)
-    res.stats["time_s"]["total"] = round(time.perf_counter() - t0, 6)
+    _record_total(res.stats, t0)
     with staged_outputs(paths, force=force) as at:   # all of them, or none: an error leaves the old set
         if adaptive:   # first, so that the stats JSON records their colour scales
             res.stats["colour_scales"] = _write_aovs(res, out, at)
@@ -290,7 +300,7 @@ def _render_mixed_cli(scene, args) -> int:
     res = render_with_planes(scene, method, args.spp, seed=args.seed, method=args.method, budget=args.budget,
                              mis=args.mis, n_b=args.nb, device=args.device, progress=not args.quiet,
                              threads=args.threads, max_anisotropy=args.max_anisotropy, **_adaptive_options(args))
-    res.stats["time_s"]["total"] = round(time.perf_counter() - t0, 6)
+    _record_total(res.stats, t0)
     with staged_outputs(paths, force=args.force) as at:
         scales = _write_aovs(res, out, at) if adaptive else {}
         scales["mip_level"] = _write_map(at, *mip_paths, res.aovs["mip_level"], res.aovs["plane"])
