@@ -148,7 +148,7 @@ def _scales_line(scales: dict) -> str:
 def _record_total(stats: dict, t0: float) -> None:
     """``time_s.total``, the render call since ``t0``, and ``time_s.unstaged``, the part of it no other key holds
     (Python imports on a process's first frame, scene checks, progress bars): the keys other than ``frame`` (itself a
-    sum of the frame's stages) then add up to ``total``.  The stages once summed to 63% of a 24x24 frame's total."""
+    sum of the frame's stages) then add up to ``total`` (a 24x24 reference frame's held 0.056 s of its 0.095 s)."""
     t = stats["time_s"]
     total = time.perf_counter() - t0
     t["unstaged"] = round(max(total - sum(v for k, v in t.items() if k != "frame"), 0.0), 6)
