@@ -435,7 +435,8 @@ def _check_unit_normals(n: np.ndarray, where: str) -> np.ndarray:
     return n
 
 
-def _check_mesh_spec(k: int, m: MeshSpec) -> None:
+def _check_mesh_spec(k: int, m: MeshSpec) -> np.ndarray | None:
+    """Check meshes[k]; returns its seam map as checked (``warpbw.io.mesh.checked_surface``)."""
     where = f"build_geometry: meshes[{k}] "
     if not isinstance(m, MeshSpec):
         raise WarpbwError(f"{where.rstrip()}: expected a MeshSpec, got {type(m).__name__}")
@@ -449,11 +450,12 @@ def _check_mesh_spec(k: int, m: MeshSpec) -> None:
         _per_vertex("uv", m.uv, (n_v, 2), where)
     if not callable(m.curvature):
         _per_vertex("curvature", m.curvature, (n_v,), where)
-    checked_surface(m.surface, n_v, f"{where}surface")
+    surface = checked_surface(m.surface, n_v, f"{where}surface")
     # Warp's BVH reads the vertices the faces index: one out of range crashed the process
     if len(checked_faces(m.faces, n_v, f"{where}faces")) == 0:
         raise WarpbwError(f"{where}faces: expected at least one triangle, got none")
     check_count(m.material, f"{where}material", 0, INT32_MAX)
+    return surface
 
 
 def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], device: str = "cpu") -> Geometry:
@@ -468,8 +470,7 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
                               f"{type(specs).__name__}")
     for k, s in enumerate(spheres):
         _check_sphere_spec(k, s)
-    for k, m in enumerate(meshes):
-        _check_mesh_spec(k, m)
+    surfaces = [_check_mesh_spec(k, m) for k, m in enumerate(meshes)]
     sl = SphereList()
     sl.center = wp.array(np.array([s.center for s in spheres], np.float32).reshape(-1, 3), dtype=wp.vec3,
                          device=device)
@@ -482,7 +483,6 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
     n_tri = 0
     ranges = []
     pending = {}
-    surfaces = [checked_surface(m.surface, len(np.asarray(m.vertices)), "") for m in meshes]
     if meshes:
         verts, faces, norms, curv, uvs, fmat = [], [], [], [], [], []
         base = 0
