@@ -2238,3 +2238,50 @@ def test_a_height_field_on_a_plane_shades_as_the_surface_it_describes_in_world_c
     assert inner.sum() > 150 and np.all(gt.coverage[inner])
     e = np.linalg.norm(gt.image[inner] - ref[inner], axis=-1) / np.linalg.norm(ref[inner], axis=-1).mean()
     assert e.mean() < 0.004 and e.max() < 0.02, (e.mean(), e.max())
+
+
+def test_ground_truth_reads_each_rays_normal_bilinearly_between_texel_centres_wrapping_across_tiles(tmp_path):
+    """A 5 x 3 map of random tilted normals (non-square), tiling 2.3 (the plane's edges cut a repeat), the plane off
+    the origin, pixels of a third to one texel: each ground-truth ray reads the finest normals bilinearly between
+    texel centres, column j's at s = j + 1/2 with s = u tiling W, wrapping from the last column and row to the first
+    across every repeat's edge, and renormalises the blend. Truth: a numpy box average (16 x 16 rays per pixel) of
+    the fine-scale BRDF, written in world coordinates, at that normal (np.floor and the modulo of numpy). Measured
+    (session 75, 1024 rays): within 0.05% on average and 0.6% at most; planted, the fetch without the half-texel
+    offset, clamped at the map's edge instead of wrapping, wrapping rows with the columns' period, or the blend not
+    renormalised gave 7% to 107% on average."""
+    rng = np.random.default_rng(5)
+    H, W, tiling, size, centre, m = 3, 5, 2.3, 2.0, (-0.2, 0.1, 0.3), 0.25
+    nt = np.concatenate([rng.normal(size=(H, W, 2)) * 0.35, np.ones((H, W, 1))], -1)
+    nt = (nt / np.linalg.norm(nt, axis=-1, keepdims=True)).astype(np.float32)
+    write_exr(tmp_path / "n.exr", nt, channels=["R", "G", "B"])
+    nt = nt.astype(np.float64)
+    light = (-0.3, 0.8, 0.4)
+    position, fov, res = (0.4, 1.3, 1.6), 45.0, (20, 14)
+    text = plane_scene_toml(f'normal_map = "n.exr"\nnormal_map_kind = "normal"\ntiling = {tiling}\n', roughness=m,
+                            position=position, fov=fov, resolution=res, size=size, light_dir=light,
+                            diffuse=(0.4, 0.3, 0.2))
+    s = parse_scene(text.replace('shape = "plane"', f'shape = "plane"\ncenter = {list(centre)}'), tmp_path, "s.toml")
+
+    def normal_at(x, z):
+        sx = ((x - centre[0]) / size + 0.5) * tiling * W - 0.5     # texel j's centre at s = j + 1/2
+        ty = ((z - centre[2]) / size + 0.5) * tiling * H - 0.5
+        c0, r0 = np.floor(sx), np.floor(ty)
+        fx, fy = (sx - c0)[..., None], (ty - r0)[..., None]
+        c0, r0 = c0.astype(int), r0.astype(int)
+
+        def at(dc, dr):
+            return nt[(r0 + dr) % H, (c0 + dc) % W]
+        n = (1 - fx) * (1 - fy) * at(0, 0) + fx * (1 - fy) * at(1, 0) + (1 - fx) * fy * at(0, 1) + fx * fy * at(1, 1)
+        n = np.stack([n[..., 0], n[..., 2], -n[..., 1]], -1)      # tangent (x = +X, y = -Z, z = +Y) -> world
+        return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+    wi = np.asarray(light) / np.linalg.norm(light)
+    def shade(wo, n):
+        return _world_cook_torrance(wo, wi, n, m, PLANE_F0, (0.4, 0.3, 0.2), PLANE_RADIANCE)
+
+    ref, hits = _world_box_average(position, fov, res, size, centre, normal_at, shade)
+    inner = hits == 16 * 16
+    gt = render_filtering(s, "ground_truth", spp=1024, seed=3)
+    assert inner.sum() > 150 and np.all(gt.coverage[inner])
+    e = np.linalg.norm(gt.image[inner] - ref[inner], axis=-1) / np.linalg.norm(ref[inner], axis=-1).mean()
+    assert e.mean() < 0.003 and e.max() < 0.02, (e.mean(), e.max())
