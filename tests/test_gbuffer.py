@@ -553,6 +553,59 @@ def test_a_seam_map_that_is_not_one_is_refused():
             build_geometry([], [MeshSpec(m.vertices, m.faces, m.normals, m.curvature, None, 0, bad)])
 
 
+@pytest.mark.parametrize("host_normals", [False, True], ids=["device-normals", "host-normals"])
+def test_update_mesh_refuses_a_deformation_that_moves_a_seams_copies_apart(tmp_path, host_normals):
+    """update_mesh sums a texture seam's copies as one vertex (MeshSpec.surface) at the surface vertex's position, and
+    the copies take its normal and H.  A deformation that moves them apart (a displacement driven by u, which is 0 on
+    one side of the seam and 1 on the other) tears the mesh: the normals were summed from the far side's faces as if
+    they met the near side, and were taken without a word.  Measured on the 32 x 16 sphere of radius 2 displaced by
+    0.1 u along its radius: normals near the seam 33 degrees off either side's closed form (finite differences of
+    (2 + 0.1 u) n(theta, phi), float64), 1.9 where the copies stay together.  Refused now in one line naming the
+    parameter, the seam map and what was expected, and nothing is changed; copies within float32 rounding of each
+    other, or no further apart than in the MeshSpec built, still update."""
+    from warpbw.gbuffer import SEAM_GAP_REL
+    from warpbw.io.mesh import normals_and_curvature
+
+    md, spec = _seamed_sphere(tmp_path, "rest.obj")
+    geo = build_geometry([], [spec])
+    v = md.vertices.astype(np.float64)
+    u = md.uv[:, 0].astype(np.float64)
+    copies = np.flatnonzero(md.surface != np.arange(len(v)))
+    torn = v + (0.1 * u / np.linalg.norm(v, axis=1))[:, None] * v
+    assert np.abs(torn[copies] - torn[md.surface[copies]]).max() > 0.09   # the seam opened by 0.1
+
+    def update(x):
+        if host_normals:
+            update_mesh(geo, 0, x, *normals_and_curvature(x, md.faces, md.surface))
+        else:
+            update_mesh(geo, 0, x)
+
+    before = (geo.mesh.points.numpy().copy(), *_shading(geo))
+    with pytest.raises(WarpbwError) as err:
+        update(torn)
+    msg = str(err.value)
+    assert "\n" not in msg and msg.startswith("update_mesh: mesh 0 vertices: 79 texture-seam copies (MeshSpec.surface) "
+                                              "lie up to 0.1 from the vertex they are one point with"), msg
+    assert "expected each seam's copies to move together" in msg, msg
+    for a, b in zip(before, (geo.mesh.points.numpy(), *_shading(geo))):
+        np.testing.assert_array_equal(a, b)   # a refused call leaves the mesh as it was
+    # a gap of a few float32 spacings, or SEAM_GAP_REL of the diagonal, is no tear
+    near = md.vertices.copy()
+    near[copies] += np.float32(0.5 * SEAM_GAP_REL * 4.0) * np.array([1.0, 0.0, 0.0], np.float32)
+    update(near)
+    update(np.nextafter(md.vertices, np.float32(10.0)) * np.where(np.isin(np.arange(len(v)), copies), 1, 0)[:, None]
+           + md.vertices * np.where(np.isin(np.arange(len(v)), copies), 0, 1)[:, None])
+    # a MeshSpec whose copies were apart when built (a file's merge tolerance) updates unchanged, not further apart
+    apart = md.vertices.copy()
+    apart[copies, 0] += np.float32(1e-5)
+    geo = build_geometry([], [MeshSpec(apart, md.faces, md.normals, md.mean_curvature, md.uv, 0, md.surface)])
+    update(apart)
+    further = apart.copy()
+    further[copies, 0] += np.float32(1e-4)
+    with pytest.raises(WarpbwError, match="texture-seam copies"):
+        update(further)
+
+
 def test_update_mesh_bad_input():
     m = _icosphere_spec(0.5, subdiv=2)
     nv = len(m.vertices)

@@ -10,7 +10,8 @@ Public:
     ``ensure_curvature(geometry) -> bool``   derive and upload the curvature a MeshSpec deferred (a callable);
                                      True when there was any (render_gbuffer calls it unless told not to)
     ``update_mesh(geometry, mesh_index, vertices, normals=None, curvature=None)``  deform one mesh in place and
-                                     refit the BVH (dynamic geometry, 002 Sec. 4.3, Fig. 18)
+                                     refit the BVH (dynamic geometry, 002 Sec. 4.3, Fig. 18); a texture seam's
+                                     copies must move together (``SEAM_GAP_REL``)
     ``GBufferData``                  Warp struct: the per-pixel buffers, as kernels read them
     ``GBuffer`` / ``render_gbuffer(cam, geometry, device, threads, curvature=True)``     run the pass
     ``make_gbuffer_kernel(has_spheres, has_mesh)``, ``allocate_gbuffer(width, height, device)``   its kernel
@@ -72,6 +73,14 @@ SPHERE_REACH_MAX = math.sqrt(FLOAT32_MAX) / 10.0
 MESH_REACH_MAX = FLOAT32_MAX ** (1.0 / 3.0) / 10.0
 SPHERE_REACH_MIN = math.sqrt(_F32_TINY) * 1.0e3
 MESH_REACH_MIN = _F32_TINY ** (1.0 / 3.0) * 1.0e3
+# A texture seam's copies (MeshSpec.surface) are one vertex of the surface: update_mesh sums their normals and H from
+# the faces on both sides at the surface vertex's position, and the copies take them.  A deformation that moves them
+# apart (a displacement driven by the uv, which differ across the seam) tears the mesh, and those normals belong to
+# no surface: a gap of 0.1 on a lat-long sphere of radius 2 (32 x 16) turned normals near the seam by 33 degrees from
+# either side's own, 0.01 by 3.9 (1.9 where the copies stay together).  update_mesh refuses copies further apart than
+# this share of the mesh's diagonal (or than twice their share in the MeshSpec built, or 4 float32 spacings of the
+# largest coordinate, were either more): at 1e-6 the normals move by about 1e-6 of the diagonal over an edge length.
+SEAM_GAP_REL = 1.0e-6
 # the nearest t accepted on a sphere, relative to its distance and size (an absolute 1e-6 lost every sphere
 # of a scene scaled by 1e-7)
 T_EPS_REL = 1.0e-6
@@ -407,6 +416,9 @@ class Geometry:
     curvature_pending: dict = field(default_factory=dict)
     # each MeshSpec's seam map (int64 (V,), local indices) or None, in the order given
     mesh_surface: list = field(default_factory=list)
+    # each MeshSpec's largest distance between a seam's copies, as a share of its diagonal (0 without a seam map):
+    # update_mesh allows twice it (a mesh file's copies may differ by its merge tolerance)
+    mesh_seam_gap: list = field(default_factory=list)
 
 
 def _check_sphere_spec(k: int, s: SphereSpec) -> None:
@@ -521,7 +533,10 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
     return Geometry(sl, ma, mesh, bool(spheres), bool(meshes), n_tri, mesh_vertex_ranges=ranges,
                     sphere_bounds=[(np.asarray(s.center, np.float64), float(s.radius)) for s in spheres],
                     mesh_bounds=[_bounds(v) for v in verts] if meshes else [], curvature_pending=pending,
-                    mesh_surface=surfaces)
+                    mesh_surface=surfaces,
+                    mesh_seam_gap=[_seam_gap(v, sf)[0] / max(_diagonal(v), 1e-300)
+                                   for v, sf in ((np.asarray(m.vertices, np.float32).astype(np.float64), sf)
+                                                 for m, sf in zip(meshes, surfaces))])
 
 
 def ensure_curvature(geometry: Geometry) -> bool:
@@ -545,6 +560,23 @@ def ensure_curvature(geometry: Geometry) -> bool:
 def _bounds(vertices) -> tuple:
     v = np.asarray(vertices, np.float64).reshape(-1, 3)
     return v.min(axis=0), v.max(axis=0)
+
+
+def _diagonal(vertices) -> float:
+    lo, hi = _bounds(vertices)
+    return float(np.linalg.norm(hi - lo))
+
+
+def _seam_gap(vertices: np.ndarray, surface) -> tuple:
+    """(largest distance, distances (C,), copies (C,)) between each seam copy of ``vertices`` (V, 3) and the vertex the
+    seam map ``surface`` says it is one point with: (0.0, 0, -1) without a map or a copy."""
+    if surface is None:
+        return 0.0, 0, -1
+    copies = np.flatnonzero(surface != np.arange(len(surface)))
+    gap = np.linalg.norm(vertices[copies] - vertices[surface[copies]], axis=1)
+    if not len(gap):
+        return 0.0, 0, -1
+    return float(gap.max()), gap, copies
 
 
 def check_reach(cam: CameraData, geometry: Geometry, source: str = "") -> None:
@@ -597,12 +629,16 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
     (:mod:`warpbw.mesh_normals`, the formulas of :mod:`warpbw.io.mesh`).  A mesh whose ``MeshSpec.surface`` (the seam
     map ``load_mesh`` computes once) names vertices split by a texture seam is summed over its surface: each seam's
     copies are one vertex, from the faces on both sides, and take the same normal and H, as ``load_mesh`` gives a
-    mesh loaded in this pose (the copies are expected to move together).  H is stored as its local magnitude, as
-    ``build_geometry`` stores it (``warpbw.mesh_normals.local_curvature``, over the surface too).  Then refits the
-    BVH over the moved points (``wp.Mesh.refit``: same topology, new bounds).  The connectivity, uv, seam map and
-    materials stay as built.  Nothing is derived from the old geometry, so a frame rendered after this is what
-    ``build_geometry`` with the new vertices would give: the bandwidth pass needs only the G-buffer (002 Sec. 4.3,
-    "Dynamic geometry").
+    mesh loaded in this pose.  The copies must move together: a deformation that moves them apart (say a
+    displacement driven by the uv, which differ across the seam) tears the mesh, and the normals summed at one of
+    them belong to no surface (33 degrees off either side's on a sphere of radius 2 opened by 0.1), so copies further
+    apart than ``SEAM_GAP_REL`` of the diagonal (or twice as far as in the MeshSpec built) are a one-line error and
+    nothing is changed (rebuild the geometry without ``MeshSpec.surface`` for a mesh that tears).  H is stored as
+    its local magnitude, as ``build_geometry`` stores it (``warpbw.mesh_normals.local_curvature``, over the surface
+    too).  Then refits the BVH over the moved points (``wp.Mesh.refit``: same topology, new bounds).  The
+    connectivity, uv, seam map and materials stay as built.  Nothing is derived from the old geometry, so a frame
+    rendered after this is what ``build_geometry`` with the new vertices would give: the bandwidth pass needs only
+    the G-buffer (002 Sec. 4.3, "Dynamic geometry").
     """
     ranges = geometry.mesh_vertex_ranges
     if geometry.mesh is None or not ranges:
@@ -620,6 +656,22 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
     if not np.any(bounds[1] > bounds[0]):   # no extent: the next frame would divide by its size
         raise WarpbwError(f"{where}vertices: every vertex lies at one point, {bounds[0].tolist()}; expected a mesh "
                           "with extent")
+    surface = geometry.mesh_surface[int(mesh_index)]
+    if surface is not None:   # a seam's copies are summed as one vertex: they must still be one point
+        verts = copies[0][1].astype(np.float64)
+        gap, gaps, seam = _seam_gap(verts, surface)
+        diag = float(np.linalg.norm(bounds[1] - bounds[0]))
+        built = geometry.mesh_seam_gap[int(mesh_index)] if geometry.mesh_seam_gap else 0.0
+        tol = max(max(SEAM_GAP_REL, 2.0 * built) * diag,
+                  4.0 * float(np.spacing(np.float32(np.abs(verts).max()))))
+        if gap > tol:
+            far = gaps > tol
+            i = int(seam[np.argmax(far)])
+            raise WarpbwError(f"{where}vertices: {int(far.sum())} texture-seam copies (MeshSpec.surface) lie up to "
+                              f"{gap:.3g} from the vertex they are one point with (first: vertex {i}, "
+                              f"{float(gaps[np.argmax(far)]):.3g} from vertex {int(surface[i])}); expected each seam's "
+                              f"copies to move together (within {tol:.3g}, SEAM_GAP_REL of the diagonal): their "
+                              "normals and H are the surface's, summed as one vertex's")
     ma = geometry.mesh_attr
     if normals is not None:
         n = _check_unit_normals(_per_vertex("normals", normals, (count, 3), where), where)
