@@ -278,6 +278,28 @@ def test_a_frame_whose_light_overflows_the_shading_is_refused():
         render_reference(lit(3e38), spp=1)
 
 
+def test_an_adaptive_frame_whose_light_overflows_the_shading_is_refused_as_the_reference_is():
+    """The adaptive method adds the lights' exact term after the hierarchy, outside the bandwidth pass (whose own
+    overflow check therefore never sees a light): a light whose term E f cos overflows float32 at the highlight
+    had that term dropped, and the frame came back with the highlight's pixel at the sky's 0.16 (a warning only),
+    where the reference refuses the same scene.  Truth: the GGX sphere of the test above (alpha 0.05, peak about
+    30, lit along the view) under a sky, with the light at 3e38 (E f cos passes FLOAT32_MAX) and at 1 (finite)."""
+    from warpbw.errors import WarpbwError
+
+    ggx = 'type = "ggx"\nalpha = 0.05\nspecular = [1.0, 1.0, 1.0]'
+
+    def lit(e):
+        return scene(mat=ggx, env=SKY, lights=[f'[[light]]\ntype = "directional"\ndirection = [0.0, 0.0, 1.0]\n'
+                                               f'radiance = [{e}, {e}, {e}]\n'], w=15, h=15)
+
+    ok = render_adaptive(lit(1.0), budget=2.0, seed=1)
+    assert np.isfinite(ok.image).all() and ok.image[7, 7].min() > 10.0   # the highlight at the centre: f cos ~ 32
+    with pytest.raises(WarpbwError, match="overflowed float32"):
+        render_reference(lit(3e38), spp=1)
+    with pytest.raises(WarpbwError, match="overflowed float32"):
+        render_adaptive(lit(3e38), budget=2.0, seed=1)
+
+
 # ------------------------------------------------------------------------------------------ properties (hypothesis)
 # Property-based tests of directional lights (warpbw.lights, shaded by warpbw.shading's reference kernel): for any
 # direction (of any length, above or below either sphere's horizon) and any RGB radiance, the exact term

@@ -23,8 +23,8 @@ Public:
                                        loading it; ``SUMMARY_METHODS``, the methods it describes
     ``stages_used(prep, mis, adaptive)``, ``PreparedScene``, ``RenderResult``   the stages a frame ran; the
                                        two results above
-    ``RADIANCE_OVERFLOW_MIN``           above this radiance, a reference frame that drops samples as non-finite
-                                       is refused (float32 overflow of radiance times the BRDF)
+    ``RADIANCE_OVERFLOW_MIN``           above this radiance, a frame (reference or adaptive) that drops samples as
+                                       non-finite is refused (float32 overflow of radiance times the BRDF)
 
 A material kind the scene does not use is not compiled (its branch is removed from the kernels with
 ``wp.static``); spheres and meshes each have their own G-buffer path; one table per tabulated material
@@ -319,7 +319,8 @@ def _gbuffer(prep: PreparedScene, timings: dict, threads: int | None = None, cli
 
 
 # A sample multiplies the light's radiance by a BRDF value (up to BRDF_VALUE_MAX) in float32: above this radiance a
-# sample the shading drops as non-finite is that product's overflow, and the frame, short of its light, is refused.
+# sample the shading drops as non-finite is that product's overflow, and the frame, short of its light, is refused
+# (reference and adaptive frames).
 RADIANCE_OVERFLOW_MIN = FLOAT32_MAX / BRDF_VALUE_MAX
 # Memory a frame takes per pixel, beyond the scene's assets: the slope of peak RSS over the demo scene at 2048^2 and
 # 4096^2 (session 62: 93 and 228 bytes), rounded up.  A 16384^2 frame (MAX_RESOLUTION) then needs 27 and 64 GB.
@@ -611,6 +612,9 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
                                           seed=seed, mis=mis, device=prep.device, threads=threads, lights=prep.lights,
                                           upsample=upsample, plan=plan, progress=step)
     t_h = time.perf_counter() - t0 + t_plan
+    # the lights' exact term is added after the hierarchy, outside the pass (whose overflow check sees no light): a
+    # term that overflowed was dropped, and the frame is refused as the reference's is
+    _check_overflowed_samples(prep, res.stats["non_finite_samples"], res.stats["samples"])
     timings["shading"] = res.stats["time_s"]["shading"]
     timings["upsampling"] = res.stats["time_s"]["upsampling"]
     if prep.lights is not None:
