@@ -1459,6 +1459,33 @@ def test_environment_and_lights_add_up_and_the_seed_is_the_only_noise(tmp_path):
                               render_filtering(big, m, seed=7, threads=4, **kw).image), m
 
 
+def test_a_scene_without_lights_compiles_no_light_loop(tmp_path):
+    """README ("Only what a scene needs is compiled") and the module docstring: the lights' loop is compiled only for
+    a scene that has lights.  The planes' kernels looped over the light arrays whatever the scene (none: no
+    iteration).  Truth: a plane under a sky alone, its prepared light arrays replaced by one bright light (which the
+    scene does not have): a kernel without the loop never reads them, so every method's frame is the sky's alone,
+    bit for bit; with the loop the light was shaded.  The same light in the scene itself is shaded (sanity)."""
+    from dataclasses import replace
+
+    write_exr(tmp_path / "map.exr", np.asarray(hemispherical_scales(32, scales_across=4), np.float32)[..., None],
+              channels=["Y"])
+    extra = 'normal_map = "map.exr"\nnormal_map_scale = 0.5\ntiling = 4\n'
+    env = "[environment]\nconstant = [0.2, 0.3, 0.4]\n"
+    sky = parse_scene(plane_scene_toml(extra, environment=env, lights=0), tmp_path, "s.toml")
+    methods = ("gmm_aligned", "toksvig", "lean", "fixed", "ground_truth")
+    prep = prepare_filtering(sky, methods)
+    planted = replace(prep, ldir=wp.array(np.array([[0.0, 0.0, 1.0]], np.float32), dtype=wp.vec3),
+                      lrad=wp.array(np.array([[50.0, 50.0, 50.0]], np.float32), dtype=wp.vec3))
+    for m in methods:
+        alone = render_filtering(sky, m, prepared=prep, spp=64, env_spp=2, seed=3)
+        given = render_filtering(sky, m, prepared=planted, spp=64, env_spp=2, seed=3)
+        assert alone.coverage.sum() > 100 and np.array_equal(given.image, alone.image), m
+    lit = parse_scene(plane_scene_toml(extra, environment=env, light_dir=(0.0, 1.0, 0.0), radiance=(50.0, 50.0, 50.0)),
+                      tmp_path, "s.toml")
+    r = render_filtering(lit, "toksvig", env_spp=2, seed=3)
+    assert r.image[r.coverage].mean() > 2 * render_filtering(sky, "toksvig", env_spp=2, seed=3).image[r.coverage].mean()
+
+
 @pytest.mark.parametrize("env_spp", [0, -1, 2.5, True])
 def test_environment_sample_count_must_be_a_positive_integer(env_spp):
     s = parse_scene(plane_scene_toml(lights=0, environment="[environment]\nconstant = [1.0, 1.0, 1.0]\n"),

@@ -278,6 +278,50 @@ def test_a_frame_whose_light_overflows_the_shading_is_refused():
         render_reference(lit(3e38), spp=1)
 
 
+def test_the_overflow_refusal_counts_the_lights_terms_and_names_only_what_the_scene_has():
+    """The count of dropped terms holds the lights' (one per light and pixel shaded) beside the samples: a scene lit
+    by one light alone was told "1 of 0 samples overflowed" and to "lower [environment] scale", which it has not.
+    Truth: the 15 x 15 GGX sphere of the test above (121 covered pixels, counted here by numpy's ray-sphere test) under
+    a light of 3e38 along the view drops the highlight's one term; no sample is taken."""
+    from warpbw.errors import WarpbwError
+
+    ggx = 'type = "ggx"\nalpha = 0.05\nspecular = [1.0, 1.0, 1.0]'
+    sc = scene(mat=ggx, lights=[light((0.0, 0.0, 1.0), (3e38, 3e38, 3e38))], w=15, h=15)
+    x, y = np.meshgrid(np.arange(15) + 0.5, np.arange(15) + 0.5)
+    t = math.tan(math.radians(35.0) / 2)
+    d = np.stack([(2 * x / 15 - 1) * t, (1 - 2 * y / 15) * t, -np.ones_like(x)], -1)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    covered = int(((d[..., 2] * 4.0) ** 2 - 15.0 > 0).sum())   # |o + t d| = 1 has a root: (d . o)^2 - (|o|^2 - 1) > 0
+    assert covered == 121
+    with pytest.raises(WarpbwError) as e:
+        render_reference(sc, spp=1)
+    msg = str(e.value)
+    assert f"1 of {covered} terms (0 samples, {covered} of directional lights) overflowed float32" in msg, msg
+    assert "[environment]" not in msg and msg.endswith("lower the lights' radiance"), msg
+
+
+def test_an_adaptive_frame_whose_light_overflows_the_shading_is_refused_as_the_reference_is():
+    """The adaptive method adds the lights' exact term after the hierarchy, outside the bandwidth pass (whose own
+    overflow check therefore never sees a light): a light whose term E f cos overflows float32 at the highlight
+    had that term dropped, and the frame came back with the highlight's pixel at the sky's 0.16 (a warning only),
+    where the reference refuses the same scene.  Truth: the GGX sphere of the test above (alpha 0.05, peak about
+    30, lit along the view) under a sky, with the light at 3e38 (E f cos passes FLOAT32_MAX) and at 1 (finite)."""
+    from warpbw.errors import WarpbwError
+
+    ggx = 'type = "ggx"\nalpha = 0.05\nspecular = [1.0, 1.0, 1.0]'
+
+    def lit(e):
+        return scene(mat=ggx, env=SKY, lights=[f'[[light]]\ntype = "directional"\ndirection = [0.0, 0.0, 1.0]\n'
+                                               f'radiance = [{e}, {e}, {e}]\n'], w=15, h=15)
+
+    ok = render_adaptive(lit(1.0), budget=2.0, seed=1)
+    assert np.isfinite(ok.image).all() and ok.image[7, 7].min() > 10.0   # the highlight at the centre: f cos ~ 32
+    with pytest.raises(WarpbwError, match="overflowed float32"):
+        render_reference(lit(3e38), spp=1)
+    with pytest.raises(WarpbwError, match="overflowed float32"):
+        render_adaptive(lit(3e38), budget=2.0, seed=1)
+
+
 # ------------------------------------------------------------------------------------------ properties (hypothesis)
 # Property-based tests of directional lights (warpbw.lights, shaded by warpbw.shading's reference kernel): for any
 # direction (of any length, above or below either sphere's horizon) and any RGB radiance, the exact term

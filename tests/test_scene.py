@@ -1121,6 +1121,17 @@ def test_a_light_direction_is_scaled_not_floored(tmp_path):
         assert s.lights[0].direction == (0.0, 1.0, 0.0), d
 
 
+def test_a_light_direction_of_subnormal_components_is_scaled_to_unit_length(tmp_path):
+    """The direction is stored scaled to unit length (DirectionalLight; the planes' renderer takes it as stored).  Its
+    length was taken with math.hypot of the components as given: of subnormal ones it keeps few digits, and
+    [1e-320, 3e-320, 0] was stored 7e-5 longer than a unit vector (the planes read E cos theta that much high).
+    Truth: the components over the largest, a ratio of two floats of normal range, normalised in float64."""
+    for d in ((1e-320, 3e-320, 0.0), (2e-322, -7e-322, 5e-322), (3e-310, 1e-310, 2e-310)):
+        s = load_scene(_plane_scene(tmp_path, lights=_replace(LIGHT, "[0.0, 2.0, 0.0]", str(list(d)))))
+        v = np.array(d) / max(abs(c) for c in d)
+        np.testing.assert_allclose(s.lights[0].direction, v / np.sqrt(np.sum(v * v)), rtol=0, atol=1e-15)
+
+
 # ------------------------------------------------------------------------------------------ what a scene file can hold
 
 

@@ -113,7 +113,8 @@ line naming it before any rendering work.
 Scope: planes only (spheres and meshes are refused); several planes composite by the depth of each pixel's
 centre ray, and so do planes drawn over a ``Background`` (the spheres and meshes of a scene that has both,
 rendered by :mod:`warpbw.pipeline`); no light is occluded (a plane does not shadow another).  A kernel is
-compiled per method kind with or without the environment term: a scene without one compiles no sampling.
+compiled per method kind with or without the environment term and the directional lights' loop: a scene without
+an environment compiles no sampling, one without lights no light loop.
 The device is an argument (CPU launches are tiled over a thread pool); the kernels have been run on the CPU
 only.
 """
@@ -696,7 +697,7 @@ def probe_offset(fp: Footprint, j: int):
 
 
 @functools.cache  # one kernel per method kind and light set: Warp compiles each once
-def _filtered_kernel(code: int, with_env: bool):
+def _filtered_kernel(code: int, with_env: bool, with_lights: bool):
     @wp.kernel(module="unique", enable_backward=False)
     def filtered_kernel(cam: CameraData, pl: PlaneData, lw: wp.array(dtype=wp.int32),
                         lh: wp.array(dtype=wp.int32), loff: wp.array(dtype=wp.int32),
@@ -784,7 +785,9 @@ def _filtered_kernel(code: int, with_env: bool):
                     nf = wp.normalize(fetch3(nmean, lw, lh, loff, 0, s, tt))
                     L = set_lobe(L, nl, w_fine, nf[0], nf[1], pl.rough_var, pl.rough_var, 0.0)
                     nl = nl + 1
-                c = lobes_direct(L, nl, wo, pl, ldir, lrad)
+                c = wp.vec3(0.0)
+                if wp.static(with_lights):   # a scene without lights compiles no light loop
+                    c = lobes_direct(L, nl, wo, pl, ldir, lrad)
                 if wp.static(with_env):
                     r, state = pair_offset(wp.rand_init(seed, i))
                     c = c + lobes_env(L, nl, wo, pl, env, r, 0, env_spp)
@@ -794,7 +797,7 @@ def _filtered_kernel(code: int, with_env: bool):
 
 
 @functools.cache
-def _ground_truth_kernel(with_env: bool):
+def _ground_truth_kernel(with_env: bool, with_lights: bool):
     @wp.kernel(module="unique", enable_backward=False)
     def ground_truth_kernel(cam: CameraData, pl: PlaneData, lw: wp.array(dtype=wp.int32),
                             lh: wp.array(dtype=wp.int32), loff: wp.array(dtype=wp.int32),
@@ -839,7 +842,8 @@ def _ground_truth_kernel(with_env: bool):
                         st = plane_st(p, pl)
                         n = wp.normalize(fetch3(nmean, lw, lh, loff, 0, st[0], st[1]))
                         wo = to_plane(-d)
-                        c = c + wp.vec3d(shade_fine(n, wo, pl, ldir, lrad))
+                        if wp.static(with_lights):
+                            c = c + wp.vec3d(shade_fine(n, wo, pl, ldir, lrad))
                         if wp.static(with_env):
                             L = set_lobe(Lobes(), 0, 1.0, n[0], n[1], pl.rough_var, pl.rough_var, 0.0)
                             c = c + wp.vec3d(lobes_env(L, 1, wo, pl, env, r, k, 1))
@@ -1431,9 +1435,11 @@ def render_filtering(scene: Scene | FilteringScene, method: str, spp: int = DEFA
     level = wp.zeros(n, dtype=wp.float32, device=dev)
     env = prepared.env.data if prepared.env is not None else EnvMapData()
     with_env = prepared.env is not None
-    kernel = _ground_truth_kernel(with_env) if method == "ground_truth" else _filtered_kernel(_CODE[method], with_env)
+    with_lights = len(prepared.scene.lights) > 0   # the lights' loop is compiled only for a scene that has some
+    kernel = (_ground_truth_kernel(with_env, with_lights) if method == "ground_truth"
+              else _filtered_kernel(_CODE[method], with_env, with_lights))
     # a plane without a normal map shades the plain BRDF whatever the filter: no GMM is fitted or filtered for it
-    flat_kernel = kernel if method == "ground_truth" else _filtered_kernel(_CODE["fixed"], with_env)
+    flat_kernel = kernel if method == "ground_truth" else _filtered_kernel(_CODE["fixed"], with_env, with_lights)
     used = {flat_kernel if prepared.mips[p.material].flat else kernel for p in planes}
     for k in used:
         wp.load_module(k.module, device=dev)   # compile before the clock starts
@@ -1474,7 +1480,7 @@ def render_filtering(scene: Scene | FilteringScene, method: str, spp: int = DEFA
              "time_s": round(dt, 6),
              "materials": prepared.notes,
              "stages": filtering_stages(method, [prepared.mips[p.material].flat for p in planes], with_env,
-                                        len(prepared.scene.lights) > 0),
+                                        with_lights),
              "non_finite_pixels": 0}   # check_finite_image refused any
     if method == "ground_truth":
         stats["spp"] = int(spp)

@@ -23,8 +23,8 @@ Public:
                                        loading it; ``SUMMARY_METHODS``, the methods it describes
     ``stages_used(prep, mis, adaptive)``, ``PreparedScene``, ``RenderResult``   the stages a frame ran; the
                                        two results above
-    ``RADIANCE_OVERFLOW_MIN``           above this radiance, a reference frame that drops samples as non-finite
-                                       is refused (float32 overflow of radiance times the BRDF)
+    ``RADIANCE_OVERFLOW_MIN``           above this radiance, a frame (reference or adaptive) that drops samples as
+                                       non-finite is refused (float32 overflow of radiance times the BRDF)
 
 A material kind the scene does not use is not compiled (its branch is removed from the kernels with
 ``wp.static``); spheres and meshes each have their own G-buffer path; one table per tabulated material
@@ -319,7 +319,8 @@ def _gbuffer(prep: PreparedScene, timings: dict, threads: int | None = None, cli
 
 
 # A sample multiplies the light's radiance by a BRDF value (up to BRDF_VALUE_MAX) in float32: above this radiance a
-# sample the shading drops as non-finite is that product's overflow, and the frame, short of its light, is refused.
+# sample the shading drops as non-finite is that product's overflow, and the frame, short of its light, is refused
+# (reference and adaptive frames).
 RADIANCE_OVERFLOW_MIN = FLOAT32_MAX / BRDF_VALUE_MAX
 # Memory a frame takes per pixel, beyond the scene's assets: the slope of peak RSS over the demo scene at 2048^2 and
 # 4096^2 (session 62: 93 and 228 bytes), rounded up.  A 16384^2 frame (MAX_RESOLUTION) then needs 27 and 64 GB.
@@ -335,17 +336,24 @@ def mesh_memory(triangles: int) -> int:
     return MESH_BYTES_PER_TRIANGLE * int(triangles)
 
 
-def _check_overflowed_samples(prep: PreparedScene, n_bad: int, samples: int) -> None:
-    """Refuse a frame whose shading dropped samples to float32 overflow (a white furnace at radiance 1e32 read 0.42
-    of its radiance, status 0); below RADIANCE_OVERFLOW_MIN the count stays a warning (warpbw render)."""
+def _check_overflowed_samples(prep: PreparedScene, n_bad: int, samples: int, pixels: int = 0) -> None:
+    """Refuse a frame whose shading dropped samples, or the directional lights' terms at its ``pixels`` shaded, to
+    float32 overflow (a white furnace at radiance 1e32 read 0.42 of its radiance, status 0); below
+    RADIANCE_OVERFLOW_MIN the count stays a warning (warpbw render)."""
     if not n_bad:   # every frame: the probe's maximum is only read when a sample was dropped
         return
     env_max = float(np.max(prep.env.pixels)) if prep.env is not None else 0.0
     l_max = max([env_max] + [max(li.radiance) for li in prep.scene.lights])
     if l_max > RADIANCE_OVERFLOW_MIN:
-        raise WarpbwError(f"{prep.scene.source}: {n_bad} of {samples} samples overflowed float32 (radiance up to "
-                          f"{l_max:.3g}, times the BRDF, passes {FLOAT32_MAX:.3g}) and the image would be missing "
-                          "their light: lower [environment] scale or the lights' radiance")
+        # the count holds the lights' terms too: a scene of lights alone said "1 of 0 samples", and named an
+        # [environment] it does not have
+        terms = pixels * len(prep.scene.lights)
+        what = (f"{n_bad} of {samples + terms} terms ({samples} samples, {terms} of directional lights)" if terms
+                else f"{n_bad} of {samples} samples")
+        lower = " or ".join(w for w, on in (("[environment] scale", prep.env is not None),
+                                            ("the lights' radiance", bool(prep.scene.lights))) if on)
+        raise WarpbwError(f"{prep.scene.source}: {what} overflowed float32 (radiance up to {l_max:.3g}, times the "
+                          f"BRDF, passes {FLOAT32_MAX:.3g}) and the image would be missing their light: lower {lower}")
 
 
 def _check_mis(mis) -> None:
@@ -387,7 +395,7 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
                               threads=threads, progress=step, lights=prep.lights)
     timings["shading"] = time.perf_counter() - t0
     timings["frame"] = timings["gbuffer"] + timings["shading"]   # as the adaptive frame's: no loading, no compiling
-    _check_overflowed_samples(prep, res.non_finite, res.samples)
+    _check_overflowed_samples(prep, res.non_finite, res.samples, res.pixels_shaded)
     image = res.radiance.numpy().reshape(prep.height, prep.width, 3)
     # MIS weighs environment samples: under directional lights alone there are none, and the record says so
     stats = _base_stats(prep, "reference", seed, mis and spp_taken > 0, timings, n_cov)
@@ -611,6 +619,9 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
                                           seed=seed, mis=mis, device=prep.device, threads=threads, lights=prep.lights,
                                           upsample=upsample, plan=plan, progress=step)
     t_h = time.perf_counter() - t0 + t_plan
+    # the lights' exact term is added after the hierarchy, outside the pass (whose overflow check sees no light): a
+    # term that overflowed was dropped, and the frame is refused as the reference's is
+    _check_overflowed_samples(prep, res.stats["non_finite_samples"], res.stats["samples"], int(gb.coverage.sum()))
     timings["shading"] = res.stats["time_s"]["shading"]
     timings["upsampling"] = res.stats["time_s"]["upsampling"]
     if prep.lights is not None:

@@ -501,11 +501,15 @@ def _light(ctx: _Ctx, d: dict, i: int) -> DirectionalLight:
     ctx.table(d, key, ("type", "direction", "radiance"), required=("type", "direction", "radiance"))
     ctx.string(d["type"], f"{key}.type", LIGHT_TYPES)
     direction = ctx.vec3(d["direction"], f"{key}.direction", point=True)
-    length = math.hypot(*direction)   # scaled: [0, 1e-10, 0] is a direction (an absolute 1e-9 floor refused it)
-    if length == 0.0:
+    big = max(abs(c) for c in direction)   # scaled: [0, 1e-10, 0] is a direction (an absolute 1e-9 floor refused it)
+    if big == 0.0:
         ctx.fail(f"{key}.direction", f"expected a non-zero vector towards the light, got {list(direction)}")
+    # subnormal components (the largest below the normal range) are scaled by the largest first: their length kept
+    # few digits ([1e-320, 3e-320, 0] was stored 7e-5 longer than unit); others as they are (the same bits as before)
+    scaled = tuple(c / big for c in direction) if big < sys.float_info.min else direction
+    length = math.hypot(*scaled)
     radiance = ctx.vec3(d["radiance"], f"{key}.radiance", lo=0.0)
-    return DirectionalLight(tuple(c / length for c in direction), radiance)
+    return DirectionalLight(tuple(c / length for c in scaled), radiance)
 
 
 def _object(ctx: _Ctx, d: dict, i: int, materials: dict):
