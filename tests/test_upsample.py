@@ -415,9 +415,6 @@ def test_upsampling_weights_narrow_along_the_radial_direction_at_a_spheres_limb(
     assert checked >= 8, checked
 
 
-@pytest.mark.xfail(strict=True, reason="session 75: phi is the normal projected along the camera's axes "
-                   "(orthographic), not its perspective image; off the optical axis the kernel narrows along a "
-                   "direction up to 26 degrees from the one the surface is foreshortened along (fix: report's diff)")
 def test_upsampling_weights_narrow_along_the_perspective_image_of_the_normal_off_the_optical_axis():
     """002 Sec. 3.2: M narrows the kernel by cos theta_x along the screen-projected normal, the direction along which
     the surface is foreshortened.  Under the pinhole camera (gbuffer.py's model) that is the image of the normal at

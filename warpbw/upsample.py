@@ -38,7 +38,12 @@ same weights (the normal fit, below):
 * g_a(v) = exp(-v^T M v), M = R_phi^T diag(1, 1 / cos^2 theta_x) R_phi, phi the angle of the
   screen-projected normal and theta_x the angle between normal and view: the kernel is narrower along the
   projected normal, where foreshortening raises the screen-space frequency.  cos theta_x is clamped to
-  COS_X_MIN so that silhouettes stay finite.
+  COS_X_MIN so that silhouettes stay finite.  The projected normal is the pinhole's image of the normal at the
+  surface point (``screen_frame``), the direction the surface is foreshortened along; until session 75 it was
+  the normal projected along the camera's axes, up to 26 degrees off it where cos theta_x < 0.5 on a sphere off
+  the optical axis at a 90 degree field of view (three off-axis spheres, budgets 1 and 4: +0.001 / +0.003 dB).
+* A level-0 pixel whose shading normal faces away from the eye (normals interpolated across a mesh's
+  silhouette) takes 0, as the estimator gives it (``warpbw.shading``), not its parents' light.
 * The unit of v, where the paper is silent: ``G_A_UNIT`` = 4 level-L pixels (two parent spacings).  With v
   in level-L pixels (our first version) the nearest parent took 92% of the weight on a surface facing the
   camera (78% from g_a alone, the rest from alpha_i; closed form): nearly nearest-neighbour up-sampling, blocks
@@ -175,10 +180,16 @@ def representative_pixel(gb: GBufferData, x: int, y: int, level: int):
 
 
 @wp.func
-def screen_frame(cam: CameraData, n: wp.vec3):
-    """Unit screen-space direction of the projected normal (x right, y down), as a vec2."""
-    nx = wp.dot(n, cam.right)
-    ny = -wp.dot(n, cam.up)
+def screen_frame(cam: CameraData, n: wp.vec3, p: wp.vec3):
+    """Unit screen-space direction of the projected normal (x right, y down), as a vec2: the pinhole's image of the
+    normal at the surface point p, d/de of the projection of p + e n (the direction the surface is foreshortened
+    along), ((n . right) z - (q . right)(n . forward), -((n . up) z - (q . up)(n . forward))),
+    q = (p - eye) / |p - eye|, z = q . forward."""
+    q = wp.normalize(p - cam.origin)   # unit: nx, ny without units, as the threshold below
+    z = wp.dot(q, cam.forward)
+    nf = wp.dot(n, cam.forward)
+    nx = wp.dot(n, cam.right) * z - wp.dot(q, cam.right) * nf
+    ny = -(wp.dot(n, cam.up) * z - wp.dot(q, cam.up) * nf)
     l = wp.sqrt(nx * nx + ny * ny)
     if l < 1.0e-6:
         return wp.vec2(1.0, 0.0)
@@ -270,7 +281,7 @@ def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
     z = gb.depth[rp]
     n = gb.normal[rp]
     cos_x = wp.abs(wp.dot(n, gb.view[rp]))
-    n_screen = screen_frame(cam, n)
+    n_screen = screen_frame(cam, n, gb.position[rp])
     u_c = screen_normal(cam, n)
     i0, fx = parent_axis(x, parent_width)
     j0, fy = parent_axis(y, parent_height)
@@ -314,6 +325,12 @@ def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
                 hi = wp.max(hi, l_k)
     if given == 0:
         weights[t] = w
+    if level == 0 and wp.dot(n, gb.view[rp]) <= 0.0:
+        # the eye lies below the pixel's shading normal's horizon (normals interpolated across a silhouette): the
+        # estimator gives such a pixel no radiance (warpbw.shading: wo[2] <= 0), and nor does its up-sampling
+        out[t] = wp.vec3(0.0)
+        out_valid[t] = 1
+        return
     if total < WEIGHT_MIN:
         needs_shading[t] = 1
         return
