@@ -577,6 +577,32 @@ def test_load_16_bit_png_height_and_grey_rgb(tmp_path):
         np.testing.assert_allclose(load_map(tmp_path / "grey.png", "height"), g[..., 0] / 255.0)
 
 
+def test_an_exr_map_is_read_over_its_display_window(tmp_path):
+    """An EXR's display window is the map's frame, its data window the texels stored (OpenEXR, Technical
+    Introduction): an overscan border outside the frame is no part of the map (it was read as its edge texels, the
+    map 13 x 8 where it is 10 x 6), and a frame's texels the file does not store are 0 (a map cropped to rows 0-3 was
+    4 rows high).  The map's size bound covers the frame too.  Files written by OpenEXR itself."""
+    import OpenEXR
+
+    heights = np.random.default_rng(5).uniform(0.0, 1.0, (6, 10)).astype(np.float32)
+
+    def write(name, pixels, data, frame):
+        box = [(np.array(w[:2], np.int32), np.array(w[2:], np.int32)) for w in (data, frame)]
+        OpenEXR.File({"dataWindow": box[0], "displayWindow": box[1]}, {"Y": np.ascontiguousarray(pixels)}).write(
+            str(tmp_path / name))
+        return tmp_path / name
+
+    over = np.full((8, 13), 99.0, np.float32)
+    over[1:7, 2:12] = heights
+    assert np.array_equal(load_map(write("overscan.exr", over, (-2, -1, 10, 6), (0, 0, 9, 5)), "height"), heights)
+    cropped = heights.copy()
+    cropped[4:] = 0.0
+    assert np.array_equal(load_map(write("cropped.exr", heights[:4], (0, 0, 9, 3), (0, 0, 9, 5)), "height"), cropped)
+    wide = write("wide.exr", heights[:1, :1], (0, 0, 0, 0), (0, 0, 8192, 8191))   # one texel stored, 8193 x 8192
+    with pytest.raises(WarpbwError, match=r"wide\.exr: 8193 x 8192 texels: expected a map of at most"):
+        load_map(wide, "height")
+
+
 def test_load_normal_map_png_and_exr(tmp_path):
     from warpbw.io.exr import write_exr
 
