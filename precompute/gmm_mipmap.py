@@ -995,6 +995,7 @@ def read_gmm_mipmap(path) -> GmmMipmap:
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"     # PNG spec section 5.2
 PNG_BIT_DEPTH_OFFSET = 24            # IHDR: 8 signature + 4 length + 4 type + 4 width + 4 height bytes
+PNG_COLOUR_TYPE_OFFSET = 25          # IHDR: the byte after the bit depth (0: greyscale)
 PNG_CUT_TO_8 = ("Pillow reads 16-bit PNGs other than greyscale without alpha with 8 bits; a 16-bit greyscale PNG "
                 "(a height field) or an OpenEXR image keeps the precision")
 # Pillow formats whose compression is lossy: its block artifacts become slopes, hence normals, that the surface
@@ -1068,6 +1069,9 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None, bool]:
             elif mode in ("1", "L", "LA", "P", "PA") and not (mode in ("P", "PA") and im.palette.mode != "L"):
                 arr = np.asarray(im.convert("L"), dtype=np.float64) / 255.0
                 bits = 1 if mode == "1" else 8
+                if mode == "L" and head.startswith(PNG_MAGIC) and len(head) > PNG_COLOUR_TYPE_OFFSET \
+                        and head[PNG_COLOUR_TYPE_OFFSET] == 0 and head[PNG_BIT_DEPTH_OFFSET] < 8:
+                    bits = head[PNG_BIT_DEPTH_OFFSET]   # a 2- or 4-bit greyscale PNG, which Pillow widens to 8 bits
             else:
                 arr = np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0
                 bits = 8

@@ -603,6 +603,50 @@ def test_an_exr_map_is_read_over_its_display_window(tmp_path):
         load_map(wide, "height")
 
 
+def _png(path, samples, bits):
+    """A greyscale PNG of ``bits`` (1, 2, 4, 8 or 16) per sample, written from the PNG specification (signature, IHDR
+    of colour type 0, one IDAT of rows each led by filter byte 0, samples packed from the most significant bit and
+    16-bit ones big-endian, IEND; each chunk length, type, data, CRC-32), not by Pillow, which reads it."""
+    import struct
+    import zlib
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    h, w = samples.shape
+    rows = b""
+    for row in samples:
+        if bits == 16:
+            packed = row.astype(">u2").tobytes()
+        else:
+            per = 8 // bits
+            padded = np.concatenate([row, np.zeros(-w % per, row.dtype)]).reshape(-1, per).astype(np.uint16)
+            packed = bytes((padded << (8 - bits * (np.arange(per) + 1))).sum(axis=1).astype(np.uint8))
+        rows += b"\0" + packed
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, bits, 0, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
+    return path
+
+
+@pytest.mark.parametrize("bits", [1, 2, 4, 8, 16])
+def test_a_greyscale_png_height_field_reads_each_sample_over_its_largest_code(tmp_path, bits):
+    """A height field PNG of b bits per sample holds the codes 0 to 2^b - 1: each reads as code / (2^b - 1), 1 at the
+    largest at every depth, all 16 bits of a 16-bit file kept.  The terracing warning counts the file's own levels: a
+    4-bit map was said to be read "with 8 bits: 256 levels" (Pillow widens it to 8) where it holds 16."""
+    codes = np.random.default_rng(bits).integers(0, 2 ** bits, (5, 11))
+    codes[0, :2] = 0, 2 ** bits - 1
+    path = _png(tmp_path / f"h{bits}.png", codes, bits)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        heights = load_map(path, "height")
+    assert np.array_equal(heights, codes / (2 ** bits - 1))
+    told = [str(w.message) for w in said]
+    if bits == 16:
+        assert told == []
+    else:
+        assert len(told) == 1 and f"read with {bits} bit{'s' if bits > 1 else ''}: {2 ** bits} levels" in told[0], told
+
+
 def test_load_normal_map_png_and_exr(tmp_path):
     from warpbw.io.exr import write_exr
 
