@@ -82,6 +82,18 @@ def test_a_lone_channel_other_than_y_is_read_as_grey_with_a_warning(tmp_path):
         read_rgb(tmp_path / "y.exr")
 
 
+def test_a_luminance_chroma_image_is_refused_not_read_as_its_grey_luminance(tmp_path):
+    """OpenEXR's luminance / chroma images store Y, RY = (R - Y) / Y and BY = (B - Y) / Y (ImfRgbaYca); read as a
+    lone Y, a probe of Y 1, RY 0.5, BY -0.5 (R 1.5, B 0.5) was white without a word.  Refused, by its channels, at
+    full resolution as when OpenEXR subsamples the chroma (its own writer does, 2 x 2).  Written by OpenEXR."""
+    import OpenEXR
+
+    y = np.ones((4, 8), np.float32)
+    OpenEXR.File({}, {"Y": y, "RY": 0.5 * y, "BY": -0.5 * y}).write(str(tmp_path / "yc.exr"))
+    with pytest.raises(WarpbwError, match=r"yc\.exr: channels \['Y', 'BY', 'RY'\] are luminance and chroma"):
+        read_rgb(tmp_path / "yc.exr")
+
+
 def test_notes_round_trip_through_the_header_and_a_file_without_them_has_none(tmp_path):
     """write_exr's notes (the bench's chunk digest) come back from read_exr as written, str for str; a file written
     without notes, or by another writer (OpenEXR's own, with only its standard attributes), reads back with none."""

@@ -11,7 +11,8 @@ Public functions:
   pixels stored outside it dropped (OpenEXR Technical Introduction, "Display window" and "Data window"); ``img``
   itself where the two windows are the same.
 - ``read_rgb(path) -> np.ndarray``: ``(H, W, 3)`` float32 radiance over the display window (a single ``Y``
-  channel is replicated, and so, with a warning, is a lone channel of another name);
+  channel is replicated, and so, with a warning, is a lone channel of another name; a luminance / chroma image,
+  Y with ``CHROMA_CHANNELS``, is refused);
   ``rgb_of(img) -> np.ndarray`` the same from an ``ExrImage`` already read (over the window it holds).
 - ``write_exr(path, pixels, channels=None, notes=None)``: float32, lossless ZIP compression; channel names and
   their order survive a round trip through ``read_exr``, and so do ``notes`` (str keys and values, header
@@ -58,6 +59,8 @@ _OTHER_MAGICS = (
 # channels sorted by name, so "R,G,B,A" would otherwise come back as "A,B,G,R").
 _ORDER_ATTRIBUTE = "warpbw_channels"
 _NOTE_PREFIX = "warpbw_note_"   # header attributes that hold write_exr's notes
+# Chroma channels of OpenEXR's luminance / chroma images (ImfRgbaYca: RY = (R - Y) / Y, BY = (B - Y) / Y).
+CHROMA_CHANNELS = ("RY", "BY")
 # Order used for files without that attribute: colour first, then alpha, then the rest by name.
 _CANONICAL_ORDER = ("R", "G", "B", "Y", "A")
 # sRGB transfer function constants (IEC 61966-2-1:1999): linear segment below 0.0031308 with slope
@@ -228,6 +231,10 @@ def rgb_of(img: ExrImage) -> np.ndarray:
     if all(c in ch for c in ("R", "G", "B")):
         return np.ascontiguousarray(img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]])
     grey = "Y" if "Y" in ch else (ch[0] if len(ch) == 1 else None)
+    chroma = [c for c in CHROMA_CHANNELS if c in ch]
+    if grey == "Y" and chroma:   # read as its luminance, a coloured probe was grey without a word
+        raise WarpbwError(f"{img.path}: channels {ch} are luminance and chroma ({', '.join(chroma)}: OpenEXR's "
+                          "luminance / chroma encoding), not R,G,B or a grey Y; expected R,G,B (save it as RGB)")
     if grey is None:
         raise WarpbwError(f"{img.path}: channels {ch} hold no colour (expected R,G,B or Y)")
     if grey != "Y":   # a lone Z (depth) read as a grey probe without a word (scene fuzzing, session 63)
