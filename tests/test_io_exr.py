@@ -469,6 +469,22 @@ def test_exr_size_refuses_a_header_without_its_data_window_instead_of_reading_64
         exr_size(path)
 
 
+@pytest.mark.parametrize("edit", [(b"displayWindow\0", b"displayWindoX\0"),
+                                  (b"displayWindow\0box2i", b"displayWindow\0box2f")])
+def test_a_header_without_its_display_window_is_refused_not_framed_in_64_by_64(tmp_path, edit):
+    """OpenEXR gives a header without a displayWindow (a damaged name, or another type) the default 64 x 64 frame
+    and reads the file; the probe and compare place the pixels in that frame (``in_display_window``), so a 30 x 20
+    probe became 64 x 64.  Refused, naming the attribute, by read_exr and exr_size alike."""
+    path = write_exr(tmp_path / "p.exr", np.ones((20, 30, 3), np.float32))
+    data = path.read_bytes()
+    assert data.count(edit[0]) == 1
+    path.write_bytes(data.replace(*edit))
+    for read in (read_exr, read_rgb, lambda p: exr_size(p, window="display")):
+        with pytest.raises(WarpbwError, match=r"p\.exr: unreadable OpenEXR file, truncated or corrupt: header .*damaged"
+                                              r".*'displayWindow'"):
+            read(path)
+
+
 def test_the_diagnosis_finds_nothing_wrong_in_the_real_probes():
     from warpbw.io.exr_layout import exr_damage
 

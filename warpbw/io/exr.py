@@ -142,6 +142,16 @@ def _open_exr(path, header_only: bool):
     return path, header, chans
 
 
+def _check_declared(path: Path, name: str) -> None:
+    """Refuse a file whose first header lacks window ``name`` (box2i): OpenEXR reads a header without its dataWindow
+    or displayWindow as 64 x 64 pixels (the damage, where the layout shows it, is named)."""
+    declared = first_header_declares(path, name, "box2i")
+    if declared is not True:
+        found = exr_damage(path) or (f"its header has no {name} (box2i)" if declared is False else None)
+        if found:
+            raise _damaged(path, found)
+
+
 def _window(header, name: str) -> tuple[int, int, int, int]:
     (x0, y0), (x1, y1) = header[name]
     return int(x0), int(y0), int(x1), int(y1)
@@ -154,12 +164,8 @@ def exr_size(path, window: str = "data") -> tuple[int, int]:
     if window not in ("data", "display"):
         raise WarpbwError(f"exr_size: window {window!r}: expected 'data' or 'display'")
     path, header, _ = _open_exr(path, header_only=True)
-    declared = first_header_declares(path, "dataWindow", "box2i")
-    if declared is not True:   # OpenEXR reads a header without its dataWindow as 64 x 64 pixels
-        found = exr_damage(path) or ("its header has no dataWindow (box2i)" if declared is False else None)
-        if found:
-            raise _damaged(path, found)
     name = "dataWindow" if window == "data" else "displayWindow"
+    _check_declared(path, name)
     try:
         x0, y0, x1, y1 = _window(header, name)
         return x1 - x0 + 1, y1 - y0 + 1
@@ -170,6 +176,7 @@ def exr_size(path, window: str = "data") -> tuple[int, int]:
 def read_exr(path) -> ExrImage:
     """Read every channel of an EXR file as float32 ``(H, W, C)`` (half and uint channels converted)."""
     path, header, both = _open_exr(path, header_only=False)
+    _check_declared(path, "displayWindow")   # the frame in_display_window places the pixels in: not a 64 x 64 default
     chans = {name: ch for name, (ch, _) in both.items()}
     planes = {name: px for name, (_, px) in both.items()}
     for name, ch in chans.items():
