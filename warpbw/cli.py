@@ -498,10 +498,16 @@ _PSNR_UNDEFINED = "the reference has no positive value over the covered pixels"
 def cmd_compare(args) -> int:
     import numpy as np
 
-    from warpbw.io.exr import in_display_window, read_exr, rgb_of
+    from warpbw.io.exr import exr_size, in_display_window, read_exr, rgb_of
     from warpbw.metrics import compare_images, coverage_from_alpha, relmse_map
+    from warpbw.scene import MAX_RESOLUTION
 
     maps = _error_map_paths(args)
+    for name in (args.test, args.reference):   # the frame is allocated in full: bounded before any pixel is read
+        w, h = exr_size(name, window="display")
+        if max(w, h) > MAX_RESOLUTION:
+            raise WarpbwError(f"{name}: its display window (the image's frame) is {w}x{h}; expected at most "
+                              f"{MAX_RESOLUTION} pixels per side, the largest frame warpbw renders")
     # each over its display window, the image's frame, whatever part of it the file stores (its data window)
     a = in_display_window(read_exr(args.test))
     b = in_display_window(read_exr(args.reference))
