@@ -995,6 +995,7 @@ def read_gmm_mipmap(path) -> GmmMipmap:
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"     # PNG spec section 5.2
 PNG_BIT_DEPTH_OFFSET = 24            # IHDR: 8 signature + 4 length + 4 type + 4 width + 4 height bytes
+PNG_COLOUR_TYPE_OFFSET = 25          # IHDR: the byte after the bit depth (0: greyscale)
 PNG_CUT_TO_8 = ("Pillow reads 16-bit PNGs other than greyscale without alpha with 8 bits; a 16-bit greyscale PNG "
                 "(a height field) or an OpenEXR image keeps the precision")
 # Pillow formats whose compression is lossy: its block artifacts become slopes, hence normals, that the surface
@@ -1022,13 +1023,15 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None, bool]:
     JPEG, warns), raw floats for EXR; and the bits per channel the
     values were read with (None for floating point); and whether a warning said so already: a 16-bit colour or
     grey+alpha PNG, which Pillow reads with 8 bits (``PNG_CUT_TO_8``)."""
-    from warpbw.io.exr import EXR_MAGIC, exr_size, read_exr
+    from warpbw.io.exr import EXR_MAGIC, exr_size, in_display_window, read_exr
 
     with open(p, "rb") as fh:
         head = fh.read(32)
     if head.startswith(EXR_MAGIC):
-        _check_map_size(p, *exr_size(p))       # from the header: a map too large is never decoded
-        img = read_exr(p)
+        # from the header: a map too large is never decoded (the data window) nor made (the display window, its frame)
+        _check_map_size(p, *exr_size(p))
+        _check_map_size(p, *exr_size(p, window="display"))
+        img = in_display_window(read_exr(p))   # the frame's texels: 0 where none is stored, overscan dropped
         ch = img.channels
         if all(k in ch for k in ("R", "G", "B")):
             return img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]].astype(np.float64), None, False
@@ -1066,6 +1069,9 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None, bool]:
             elif mode in ("1", "L", "LA", "P", "PA") and not (mode in ("P", "PA") and im.palette.mode != "L"):
                 arr = np.asarray(im.convert("L"), dtype=np.float64) / 255.0
                 bits = 1 if mode == "1" else 8
+                if mode == "L" and head.startswith(PNG_MAGIC) and len(head) > PNG_COLOUR_TYPE_OFFSET \
+                        and head[PNG_COLOUR_TYPE_OFFSET] == 0 and head[PNG_BIT_DEPTH_OFFSET] < 8:
+                    bits = head[PNG_BIT_DEPTH_OFFSET]   # a 2- or 4-bit greyscale PNG, which Pillow widens to 8 bits
             else:
                 arr = np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0
                 bits = 8
@@ -1084,7 +1090,8 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None, bool]:
 
 def load_map(path, kind: str = "height") -> np.ndarray:
     """Read a height field (single channel; an RGB image is accepted only with identical channels) as
-    (H, W) float64, or a tangent-space normal map (RGB) as unit (H, W, 3).  PNG normal maps are
+    (H, W) float64, or a tangent-space normal map (RGB) as unit (H, W, 3); an EXR over its display window (0 where
+    the file stores no texel; ``warpbw.io.exr.in_display_window``).  PNG normal maps are
     [0, 1]-encoded; an EXR normal map holds the vectors themselves when it has a negative value or one
     above 1, or when more of its texels are unit vectors as stored than as decoded (a [0, 1]-encoded map's texels
     are not: the flat normal is stored as (0.5, 0.5, 1)), otherwise it is [0, 1]-encoded too (``_holds_vectors``).

@@ -166,6 +166,19 @@ def test_png_renamed_exr_in_compare(tmp_path, which):
     assert r.stdout == ""
 
 
+def test_compare_refuses_a_display_window_larger_than_any_frame_before_allocating_it(tmp_path):
+    """compare places each image in its display window, allocated in full: a 2 x 2 image framed in 40000 x 3 pixels
+    is refused by name before a pixel is read (a frame of 1e5 x 1e5 pixels would take 120 GB)."""
+    import OpenEXR
+
+    write_exr(tmp_path / "good.exr", np.ones((4, 8, 3), np.float32))
+    OpenEXR.File({"dataWindow": (np.array([0, 0], np.int32), np.array([1, 1], np.int32)),
+                  "displayWindow": (np.array([0, 0], np.int32), np.array([39999, 2], np.int32))},
+                 {c: np.ones((2, 2), np.float32) for c in "RGB"}).write(str(tmp_path / "huge.exr"))
+    r = run(["compare", "huge.exr", "good.exr"], tmp_path)
+    assert_one_line_error(r, "huge.exr", "display window", "40000x3", "at most 16384 pixels per side")
+
+
 def test_compare_missing_image(tmp_path):
     write_exr(tmp_path / "good.exr", np.ones((4, 8, 3), np.float32))
     r = run(["compare", "good.exr", "nothere.exr"], tmp_path)

@@ -1908,6 +1908,35 @@ def test_compare_reads_the_coverage_of_the_test_image_when_the_reference_has_non
     assert json.loads(capsys.readouterr().out)["coverage_from"] == "test.exr"   # the reference's A
 
 
+def test_compare_places_each_image_in_its_display_window(tmp_path, monkeypatch, capsys):
+    """An EXR's display window is the image's frame and its data window the pixels stored (OpenEXR, Technical
+    Introduction): one picture, its background rows 0 and 4 black with A = 0, stored as rows 0-3 (the reference) and
+    as rows 1-4 (the test), is one image.  Compared as stored arrays, row for row, each test row met the next
+    reference row (relMSE 1.59 where it is 0); stored as rows 1-3 only (auto-cropped), the test was refused as 8x3
+    against 8x4.  Files written by OpenEXR itself."""
+    import OpenEXR
+
+    from warpbw.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    picture = np.zeros((5, 8, 4), np.float32)
+    picture[1:4, :, :3] = np.random.default_rng(3).uniform(0.2, 2.0, (3, 8, 3))
+    picture[1:4, :, 3] = 1.0
+
+    def write(name, rows):
+        windows = {"dataWindow": (np.array([0, rows[0]], np.int32), np.array([7, rows[-1]], np.int32)),
+                   "displayWindow": (np.array([0, 0], np.int32), np.array([7, 4], np.int32))}
+        OpenEXR.File(windows, {c: np.ascontiguousarray(picture[rows[0]:rows[-1] + 1, :, i])
+                               for i, c in enumerate("RGBA")}).write(name)
+
+    write("ref.exr", [0, 3])
+    for test in ([1, 4], [1, 3]):
+        write("test.exr", test)
+        assert main(["compare", "test.exr", "ref.exr", "--json"]) == 0
+        j = json.loads(capsys.readouterr().out)
+        assert j["pixels"] == 24 and j["relmse"] == 0.0 and j["psnr_db"] is None, (test, j)
+
+
 def test_compare_json_prints_the_keys_its_help_lists(tmp_path, monkeypatch, capsys):
     """compare --json's --help lists the record's keys: every key it prints, with --error-map and for identical
     images (psnr_note) too, is among them (error_map and error_range were not)."""

@@ -668,6 +668,45 @@ def test_load_envmap_matches_array(tmp_path):
         E.load_envmap(tmp_path / "missing.exr")
 
 
+def test_a_probe_is_read_over_its_display_window_not_its_data_window(tmp_path):
+    """An EXR's display window is the image's frame; its data window holds the pixels stored, which may leave part
+    of the frame out (a probe auto-cropped to its non-black texels) or reach past it (overscan).  Pixels of the frame
+    outside the data window are empty, those stored outside the frame are not shown (OpenEXR, Technical Introduction:
+    "Display window", "Data window"; test images DisplayWindow/t05, t08).  A lat-long probe spreads its frame over the
+    sphere: read as its data window, a sky cropped to its upper half was stretched over the whole sphere (lit from
+    below), and the overscan's border was read as the poles and the seam.  Files written by OpenEXR itself."""
+    import OpenEXR
+
+    from warpbw.io.exr import exr_size, read_rgb
+
+    rng = np.random.default_rng(7)
+    full = np.zeros((8, 16, 3), np.float32)
+    full[:4] = rng.uniform(0.5, 2.0, (4, 16, 3))   # a sky above the horizon, a black ground
+
+    def write(name, pixels, data, display):
+        box = [(np.array(w[:2], np.int32), np.array(w[2:], np.int32)) for w in (data, display)]
+        OpenEXR.File({"dataWindow": box[0], "displayWindow": box[1]},
+                     {c: np.ascontiguousarray(pixels[..., i]) for i, c in enumerate("RGB")}).write(str(tmp_path / name))
+        return tmp_path / name
+
+    over = np.full((12, 20, 3), 99.0, np.float32)
+    over[2:10, 3:19] = full
+    right = full.copy()
+    right[:, :5] = 0.0                             # the frame's first 5 columns hold no stored pixel
+    files = {write("cropped.exr", full[:4], (0, 0, 15, 3), (0, 0, 15, 7)): full,
+             write("overscan.exr", over, (-3, -2, 16, 9), (0, 0, 15, 7)): full,
+             write("right.exr", full[:, 5:], (105, -50, 115, -43), (100, -50, 115, -43)): right,
+             write("moved.exr", full, (100, -50, 115, -43), (100, -50, 115, -43)): full}   # the same windows
+    for path, want in files.items():
+        assert np.array_equal(read_rgb(path), want), path.name
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)   # the code before: "not a 2:1 lat-long map"
+            assert np.array_equal(E.load_envmap(path).pixels, want), path.name
+        assert exr_size(path, window="display") == (16, 8), path.name
+    cropped, overscan = list(files)[:2]
+    assert exr_size(cropped) == (16, 4) and exr_size(overscan) == (20, 12)   # the data window: what is decoded
+
+
 def test_texel_directions_are_where_the_lookup_reads_each_texel():
     """Round trip: the bilinear lookup (whose orientation this module checks against Mitsuba) at texel_directions'
     direction of an interior texel returns that texel's value; and, from the docstring, row j lies at the polar

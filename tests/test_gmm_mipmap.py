@@ -577,6 +577,76 @@ def test_load_16_bit_png_height_and_grey_rgb(tmp_path):
         np.testing.assert_allclose(load_map(tmp_path / "grey.png", "height"), g[..., 0] / 255.0)
 
 
+def test_an_exr_map_is_read_over_its_display_window(tmp_path):
+    """An EXR's display window is the map's frame, its data window the texels stored (OpenEXR, Technical
+    Introduction): an overscan border outside the frame is no part of the map (it was read as its edge texels, the
+    map 13 x 8 where it is 10 x 6), and a frame's texels the file does not store are 0 (a map cropped to rows 0-3 was
+    4 rows high).  The map's size bound covers the frame too.  Files written by OpenEXR itself."""
+    import OpenEXR
+
+    heights = np.random.default_rng(5).uniform(0.0, 1.0, (6, 10)).astype(np.float32)
+
+    def write(name, pixels, data, frame):
+        box = [(np.array(w[:2], np.int32), np.array(w[2:], np.int32)) for w in (data, frame)]
+        OpenEXR.File({"dataWindow": box[0], "displayWindow": box[1]}, {"Y": np.ascontiguousarray(pixels)}).write(
+            str(tmp_path / name))
+        return tmp_path / name
+
+    over = np.full((8, 13), 99.0, np.float32)
+    over[1:7, 2:12] = heights
+    assert np.array_equal(load_map(write("overscan.exr", over, (-2, -1, 10, 6), (0, 0, 9, 5)), "height"), heights)
+    cropped = heights.copy()
+    cropped[4:] = 0.0
+    assert np.array_equal(load_map(write("cropped.exr", heights[:4], (0, 0, 9, 3), (0, 0, 9, 5)), "height"), cropped)
+    wide = write("wide.exr", heights[:1, :1], (0, 0, 0, 0), (0, 0, 8192, 8191))   # one texel stored, 8193 x 8192
+    with pytest.raises(WarpbwError, match=r"wide\.exr: 8193 x 8192 texels: expected a map of at most"):
+        load_map(wide, "height")
+
+
+def _png(path, samples, bits):
+    """A greyscale PNG of ``bits`` (1, 2, 4, 8 or 16) per sample, written from the PNG specification (signature, IHDR
+    of colour type 0, one IDAT of rows each led by filter byte 0, samples packed from the most significant bit and
+    16-bit ones big-endian, IEND; each chunk length, type, data, CRC-32), not by Pillow, which reads it."""
+    import struct
+    import zlib
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    h, w = samples.shape
+    rows = b""
+    for row in samples:
+        if bits == 16:
+            packed = row.astype(">u2").tobytes()
+        else:
+            per = 8 // bits
+            padded = np.concatenate([row, np.zeros(-w % per, row.dtype)]).reshape(-1, per).astype(np.uint16)
+            packed = bytes((padded << (8 - bits * (np.arange(per) + 1))).sum(axis=1).astype(np.uint8))
+        rows += b"\0" + packed
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, bits, 0, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
+    return path
+
+
+@pytest.mark.parametrize("bits", [1, 2, 4, 8, 16])
+def test_a_greyscale_png_height_field_reads_each_sample_over_its_largest_code(tmp_path, bits):
+    """A height field PNG of b bits per sample holds the codes 0 to 2^b - 1: each reads as code / (2^b - 1), 1 at the
+    largest at every depth, all 16 bits of a 16-bit file kept.  The terracing warning counts the file's own levels: a
+    4-bit map was said to be read "with 8 bits: 256 levels" (Pillow widens it to 8) where it holds 16."""
+    codes = np.random.default_rng(bits).integers(0, 2 ** bits, (5, 11))
+    codes[0, :2] = 0, 2 ** bits - 1
+    path = _png(tmp_path / f"h{bits}.png", codes, bits)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        heights = load_map(path, "height")
+    assert np.array_equal(heights, codes / (2 ** bits - 1))
+    told = [str(w.message) for w in said]
+    if bits == 16:
+        assert told == []
+    else:
+        assert len(told) == 1 and f"read with {bits} bit{'s' if bits > 1 else ''}: {2 ** bits} levels" in told[0], told
+
+
 def test_load_normal_map_png_and_exr(tmp_path):
     from warpbw.io.exr import write_exr
 

@@ -82,6 +82,18 @@ def test_a_lone_channel_other_than_y_is_read_as_grey_with_a_warning(tmp_path):
         read_rgb(tmp_path / "y.exr")
 
 
+def test_a_luminance_chroma_image_is_refused_not_read_as_its_grey_luminance(tmp_path):
+    """OpenEXR's luminance / chroma images store Y, RY = (R - Y) / Y and BY = (B - Y) / Y (ImfRgbaYca); read as a
+    lone Y, a probe of Y 1, RY 0.5, BY -0.5 (R 1.5, B 0.5) was white without a word.  Refused, by its channels, at
+    full resolution as when OpenEXR subsamples the chroma (its own writer does, 2 x 2).  Written by OpenEXR."""
+    import OpenEXR
+
+    y = np.ones((4, 8), np.float32)
+    OpenEXR.File({}, {"Y": y, "RY": 0.5 * y, "BY": -0.5 * y}).write(str(tmp_path / "yc.exr"))
+    with pytest.raises(WarpbwError, match=r"yc\.exr: channels \['Y', 'BY', 'RY'\] are luminance and chroma"):
+        read_rgb(tmp_path / "yc.exr")
+
+
 def test_notes_round_trip_through_the_header_and_a_file_without_them_has_none(tmp_path):
     """write_exr's notes (the bench's chunk digest) come back from read_exr as written, str for str; a file written
     without notes, or by another writer (OpenEXR's own, with only its standard attributes), reads back with none."""
@@ -455,6 +467,22 @@ def test_exr_size_refuses_a_header_without_its_data_window_instead_of_reading_64
     with pytest.raises(WarpbwError, match=r"p\.exr: unreadable OpenEXR file, truncated or corrupt: header .*damaged.*"
                                           r"'dataWindow'"):
         exr_size(path)
+
+
+@pytest.mark.parametrize("edit", [(b"displayWindow\0", b"displayWindoX\0"),
+                                  (b"displayWindow\0box2i", b"displayWindow\0box2f")])
+def test_a_header_without_its_display_window_is_refused_not_framed_in_64_by_64(tmp_path, edit):
+    """OpenEXR gives a header without a displayWindow (a damaged name, or another type) the default 64 x 64 frame
+    and reads the file; the probe and compare place the pixels in that frame (``in_display_window``), so a 30 x 20
+    probe became 64 x 64.  Refused, naming the attribute, by read_exr and exr_size alike."""
+    path = write_exr(tmp_path / "p.exr", np.ones((20, 30, 3), np.float32))
+    data = path.read_bytes()
+    assert data.count(edit[0]) == 1
+    path.write_bytes(data.replace(*edit))
+    for read in (read_exr, read_rgb, lambda p: exr_size(p, window="display")):
+        with pytest.raises(WarpbwError, match=r"p\.exr: unreadable OpenEXR file, truncated or corrupt: header .*damaged"
+                                              r".*'displayWindow'"):
+            read(path)
 
 
 def test_the_diagnosis_finds_nothing_wrong_in_the_real_probes():

@@ -498,12 +498,19 @@ _PSNR_UNDEFINED = "the reference has no positive value over the covered pixels"
 def cmd_compare(args) -> int:
     import numpy as np
 
-    from warpbw.io.exr import read_exr, rgb_of
+    from warpbw.io.exr import exr_size, in_display_window, read_exr, rgb_of
     from warpbw.metrics import compare_images, coverage_from_alpha, relmse_map
+    from warpbw.scene import MAX_RESOLUTION
 
     maps = _error_map_paths(args)
-    a = read_exr(args.test)
-    b = read_exr(args.reference)
+    for name in (args.test, args.reference):   # the frame is allocated in full: bounded before any pixel is read
+        w, h = exr_size(name, window="display")
+        if max(w, h) > MAX_RESOLUTION:
+            raise WarpbwError(f"{name}: its display window (the image's frame) is {w}x{h}; expected at most "
+                              f"{MAX_RESOLUTION} pixels per side, the largest frame warpbw renders")
+    # each over its display window, the image's frame, whatever part of it the file stores (its data window)
+    a = in_display_window(read_exr(args.test))
+    b = in_display_window(read_exr(args.reference))
     ta, tb = rgb_of(a), rgb_of(b)   # R,G,B, or a lone grey channel; anything else is refused by name
     if ta.shape != tb.shape:
         raise WarpbwError(f"{args.test} is {ta.shape[1]}x{ta.shape[0]} but {args.reference} is "
@@ -986,7 +993,8 @@ def build_parser() -> argparse.ArgumentParser:
     bf.set_defaults(func=cmd_bench_filtering)
 
     c = sub.add_parser("compare", help="PSNR and relative MSE of an image against a reference",
-                       description="PSNR and relative MSE (linear radiance) over the pixels covered by geometry "
+                       description="PSNR and relative MSE (linear radiance; each EXR over its display window) over "
+                       "the pixels covered by geometry "
                        "(the reference's A channel, as warpbw render writes it; without one, the test image's, as "
                        "when a render is compared with another renderer's image; else non-black pixels), and the "
                        "share of the "

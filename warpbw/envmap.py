@@ -649,12 +649,17 @@ def load_memory(width: int, height: int) -> int:
 
 
 def load_envmap(path, rotation_deg: float = 0.0, scale: float = 1.0, device="cpu") -> EnvMap:
-    """Environment light from a lat-long EXR file (via warpbw.io.exr.read_rgb)."""
+    """Environment light from a lat-long EXR file (via warpbw.io.exr.read_rgb): its display window spans the sphere,
+    texels of it that the file does not store are 0."""
     from warpbw.io.exr import exr_size, read_rgb  # lazy: keeps this module importable on its own
 
-    w, h = exr_size(path)   # the header alone: a probe too large to load warns before it is read
-    warn_if_short_of_memory(load_memory(w, h), available_memory(), f"loading {Path(path).name} ({w}x{h})",
-                            "a smaller probe", stacklevel=2)
+    # the header alone: a probe too large to load warns before it is read.  The probe is its display window (the
+    # frame, read_rgb's); the pixels decoded are its data window, which may be larger (overscan)
+    w, h = exr_size(path, window="display")
+    data_w, data_h = exr_size(path)
+    warn_if_short_of_memory(load_memory(*max((w, h), (data_w, data_h), key=lambda s: s[0] * s[1])),
+                            available_memory(), f"loading {Path(path).name} ({w}x{h})", "a smaller probe",
+                            stacklevel=2)
     rgb = read_rgb(path)
     h, w = rgb.shape[:2]
     if w != 2 * h:   # e.g. a cube-map cross or an angular (mirror-ball) probe: read as lat-long, it is another light

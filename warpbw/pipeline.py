@@ -841,10 +841,11 @@ def _probe_memory(env, method: str) -> dict:
     from warpbw.io.exr import exr_size
 
     try:
-        w, h = exr_size(env.file)
+        w, h = exr_size(env.file, window="display")   # the probe's texels (its frame)
+        data = exr_size(env.file)                      # the pixels decoded
     except WarpbwError:
         return {}
-    out = {"probe_load_memory_bytes": load_memory(w, h)}
+    out = {"probe_load_memory_bytes": load_memory(*max((w, h), data, key=lambda s: s[0] * s[1]))}
     if method == "adaptive":
         out["probe_bandwidth_memory_bytes"] = env_bandwidth_memory(w, h)
     return out

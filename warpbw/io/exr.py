@@ -4,10 +4,16 @@ Public functions:
 
 - ``read_exr(path) -> ExrImage``: every channel of a scan-line or tiled EXR (first part of a
   multi-part file) as float32 ``(H, W, C)``.
-- ``exr_size(path) -> (width, height)``: the data window's size, from the header alone (no pixel read).
-- ``read_rgb(path) -> np.ndarray``: ``(H, W, 3)`` float32 radiance (a single ``Y`` channel is replicated, and so,
-  with a warning, is a lone channel of another name);
-  ``rgb_of(img) -> np.ndarray`` the same from an ``ExrImage`` already read.
+- ``exr_size(path, window="data") -> (width, height)``: the data window's size (the pixels stored, which
+  ``read_exr`` decodes), or with ``window="display"`` the display window's (the image's frame), from the header
+  alone (no pixel read).
+- ``in_display_window(img) -> ExrImage``: the image over its display window: 0 where the file stores no pixel, the
+  pixels stored outside it dropped (OpenEXR Technical Introduction, "Display window" and "Data window"); ``img``
+  itself where the two windows are the same.
+- ``read_rgb(path) -> np.ndarray``: ``(H, W, 3)`` float32 radiance over the display window (a single ``Y``
+  channel is replicated, and so, with a warning, is a lone channel of another name; a luminance / chroma image,
+  Y with ``CHROMA_CHANNELS``, is refused);
+  ``rgb_of(img) -> np.ndarray`` the same from an ``ExrImage`` already read (over the window it holds).
 - ``write_exr(path, pixels, channels=None, notes=None)``: float32, lossless ZIP compression; channel names and
   their order survive a round trip through ``read_exr``, and so do ``notes`` (str keys and values, header
   attributes ``warpbw_note_KEY``).
@@ -17,7 +23,7 @@ Public functions:
   AOV through matplotlib's viridis colour map; returns the ``(vmin, vmax)`` it used, and writes them into the
   PNG's ``Description`` (``colour_scale_text(lo, hi, log)``).
 
-Class: ``ExrImage`` (``pixels``, ``channels``, ``path``, ``notes``).
+Class: ``ExrImage`` (``pixels``, ``channels``, ``path``, ``notes``, ``data_window``, ``display_window``).
 
 Every problem with a user's file is raised as :class:`warpbw.errors.WarpbwError` in one line that
 names the file.  A file OpenEXR refuses is then read against the OpenEXR file layout
@@ -53,6 +59,8 @@ _OTHER_MAGICS = (
 # channels sorted by name, so "R,G,B,A" would otherwise come back as "A,B,G,R").
 _ORDER_ATTRIBUTE = "warpbw_channels"
 _NOTE_PREFIX = "warpbw_note_"   # header attributes that hold write_exr's notes
+# Chroma channels of OpenEXR's luminance / chroma images (ImfRgbaYca: RY = (R - Y) / Y, BY = (B - Y) / Y).
+CHROMA_CHANNELS = ("RY", "BY")
 # Order used for files without that attribute: colour first, then alpha, then the rest by name.
 _CANONICAL_ORDER = ("R", "G", "B", "Y", "A")
 # sRGB transfer function constants (IEC 61966-2-1:1999): linear segment below 0.0031308 with slope
@@ -65,12 +73,15 @@ SRGB_A = 0.055
 
 @dataclass
 class ExrImage:
-    """An EXR image: ``pixels`` (H, W, C) float32, ``channels`` names in ``pixels``' last-axis order."""
+    """An EXR image: ``pixels`` (H, W, C) float32, ``channels`` names in ``pixels``' last-axis order; the file's
+    windows as (x min, y min, x max, y max), inclusive, ``pixels`` covering the data window (None: not from a file)."""
 
     pixels: np.ndarray
     channels: list[str]
     path: str
     notes: dict = field(default_factory=dict)   # the write_exr notes the file holds (str -> str)
+    data_window: tuple | None = None
+    display_window: tuple | None = None
 
 
 def _check_magic(path: Path) -> None:
@@ -131,25 +142,41 @@ def _open_exr(path, header_only: bool):
     return path, header, chans
 
 
-def exr_size(path) -> tuple[int, int]:
-    """(width, height) of an EXR file's data window, read from its header alone: a size bound can be checked
-    before the pixels are decoded."""
-    path, header, _ = _open_exr(path, header_only=True)
-    declared = first_header_declares(path, "dataWindow", "box2i")
-    if declared is not True:   # OpenEXR reads a header without its dataWindow as 64 x 64 pixels
-        found = exr_damage(path) or ("its header has no dataWindow (box2i)" if declared is False else None)
+def _check_declared(path: Path, name: str) -> None:
+    """Refuse a file whose first header lacks window ``name`` (box2i): OpenEXR reads a header without its dataWindow
+    or displayWindow as 64 x 64 pixels (the damage, where the layout shows it, is named)."""
+    declared = first_header_declares(path, name, "box2i")
+    if declared is not True:
+        found = exr_damage(path) or (f"its header has no {name} (box2i)" if declared is False else None)
         if found:
             raise _damaged(path, found)
+
+
+def _window(header, name: str) -> tuple[int, int, int, int]:
+    (x0, y0), (x1, y1) = header[name]
+    return int(x0), int(y0), int(x1), int(y1)
+
+
+def exr_size(path, window: str = "data") -> tuple[int, int]:
+    """(width, height) of an EXR file's data window (the pixels ``read_exr`` decodes) or, with ``window="display"``,
+    of its display window (the frame ``read_rgb`` returns), read from its header alone: a size bound can be checked
+    before the pixels are decoded."""
+    if window not in ("data", "display"):
+        raise WarpbwError(f"exr_size: window {window!r}: expected 'data' or 'display'")
+    path, header, _ = _open_exr(path, header_only=True)
+    name = "dataWindow" if window == "data" else "displayWindow"
+    _check_declared(path, name)
     try:
-        (x0, y0), (x1, y1) = header["dataWindow"]
-        return int(x1) - int(x0) + 1, int(y1) - int(y0) + 1
+        x0, y0, x1, y1 = _window(header, name)
+        return x1 - x0 + 1, y1 - y0 + 1
     except (KeyError, TypeError, ValueError):
-        raise WarpbwError(f"{path}: OpenEXR header without a valid dataWindow") from None
+        raise WarpbwError(f"{path}: OpenEXR header without a valid {name}") from None
 
 
 def read_exr(path) -> ExrImage:
     """Read every channel of an EXR file as float32 ``(H, W, C)`` (half and uint channels converted)."""
     path, header, both = _open_exr(path, header_only=False)
+    _check_declared(path, "displayWindow")   # the frame in_display_window places the pixels in: not a 64 x 64 default
     chans = {name: ch for name, (ch, _) in both.items()}
     planes = {name: px for name, (_, px) in both.items()}
     for name, ch in chans.items():
@@ -164,12 +191,40 @@ def read_exr(path) -> ExrImage:
         raise WarpbwError(f"{path}: channels have shapes {sorted(shapes)}, expected one (H, W) shape")
     pixels = np.stack([planes[n].astype(np.float32, copy=False) for n in names], axis=-1)
     notes = {k[len(_NOTE_PREFIX):]: v for k, v in header.items() if k.startswith(_NOTE_PREFIX) and isinstance(v, str)}
-    return ExrImage(pixels=np.ascontiguousarray(pixels), channels=names, path=str(path), notes=notes)
+    windows = {}
+    for key, name in (("data_window", "dataWindow"), ("display_window", "displayWindow")):
+        try:
+            windows[key] = _window(header, name)
+        except (KeyError, TypeError, ValueError):
+            windows[key] = None
+    return ExrImage(pixels=np.ascontiguousarray(pixels), channels=names, path=str(path), notes=notes, **windows)
+
+
+def in_display_window(img: ExrImage) -> ExrImage:
+    """``img`` over its display window, the image's frame: 0 in every channel where the file stores no pixel,
+    the pixels stored outside the frame dropped (OpenEXR Technical Introduction: a file "may not have pixel data for
+    all the pixels in the display window, or ... may have pixel data beyond" it); ``img`` itself where the windows
+    are the same (or not known).  A probe auto-cropped to its non-black texels was stretched over the sphere."""
+    if not isinstance(img, ExrImage):
+        raise WarpbwError(f"in_display_window: expected an ExrImage (read_exr's), got {type(img).__name__}")
+    data, frame = img.data_window, img.display_window
+    if data is None or frame is None or data == frame:
+        return img
+    h, w = frame[3] - frame[1] + 1, frame[2] - frame[0] + 1
+    out = np.zeros((h, w, img.pixels.shape[2]), np.float32)
+    x0, y0 = max(data[0], frame[0]), max(data[1], frame[1])     # the windows' overlap, in pixel space
+    x1, y1 = min(data[2], frame[2]), min(data[3], frame[3])
+    if x0 <= x1 and y0 <= y1:
+        out[y0 - frame[1]:y1 - frame[1] + 1, x0 - frame[0]:x1 - frame[0] + 1] = \
+            img.pixels[y0 - data[1]:y1 - data[1] + 1, x0 - data[0]:x1 - data[0] + 1]
+    return ExrImage(pixels=out, channels=list(img.channels), path=img.path, notes=dict(img.notes),
+                    data_window=frame, display_window=frame)
 
 
 def read_rgb(path) -> np.ndarray:
-    """``(H, W, 3)`` float32 RGB from an EXR: R,G,B channels, or a lone ``Y`` (or single) channel as grey."""
-    return rgb_of(read_exr(path))
+    """``(H, W, 3)`` float32 RGB from an EXR over its display window (``in_display_window``): R,G,B channels, or a
+    lone ``Y`` (or single) channel as grey."""
+    return rgb_of(in_display_window(read_exr(path)))
 
 
 def rgb_of(img: ExrImage) -> np.ndarray:
@@ -183,6 +238,10 @@ def rgb_of(img: ExrImage) -> np.ndarray:
     if all(c in ch for c in ("R", "G", "B")):
         return np.ascontiguousarray(img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]])
     grey = "Y" if "Y" in ch else (ch[0] if len(ch) == 1 else None)
+    chroma = [c for c in CHROMA_CHANNELS if c in ch]
+    if grey == "Y" and chroma:   # read as its luminance, a coloured probe was grey without a word
+        raise WarpbwError(f"{img.path}: channels {ch} are luminance and chroma ({', '.join(chroma)}: OpenEXR's "
+                          "luminance / chroma encoding), not R,G,B or a grey Y; expected R,G,B (save it as RGB)")
     if grey is None:
         raise WarpbwError(f"{img.path}: channels {ch} hold no colour (expected R,G,B or Y)")
     if grey != "Y":   # a lone Z (depth) read as a grey probe without a word (scene fuzzing, session 63)
