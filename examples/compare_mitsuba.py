@@ -120,6 +120,7 @@ import os
 import statistics
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -201,7 +202,9 @@ def load_probe(mi, path: Path) -> np.ndarray:
     init_warp("cpu")         # no banner or module-load lines, nor Warp's no-CUDA-driver line on stderr
     from warpbw.envmap import load_envmap
 
-    return np.array(load_envmap(path).pixels, dtype=np.float32, copy=True)   # its errors name the file
+    with warnings.catch_warnings():   # the negative texels it sets to 0: warpbw's render of the file says so
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.array(load_envmap(path).pixels, dtype=np.float32, copy=True)   # its errors name the file
 
 
 def mitsuba_bsdf(mat: dict) -> dict:
