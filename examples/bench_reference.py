@@ -99,14 +99,22 @@ def _as_typed(option: str, value) -> str:
 
 
 def timed_render(prep, spp, seed, mis, runs):
+    """(the last run's result, the median of the runs' wall times, the last run's stats with each stage time of
+    ``stats["time_s"]`` the median over the runs, as the protocol's times are, and ``samples_per_second`` the samples
+    over that median shading time; both were the last run's)."""
     from warpbw.pipeline import render_reference
 
-    times, res = [], None
+    times, stages, res = [], [], None
     for r in range(runs):
         t0 = time.perf_counter()
         res = render_reference(prep, spp=spp, seed=seed + r, mis=mis)
         times.append(time.perf_counter() - t0)
-    return res, statistics.median(times), res.stats
+        stages.append(res.stats["time_s"])
+    stats = {**res.stats, "time_s": {k: statistics.median(s[k] for s in stages) for k in stages[-1]}}
+    sps, last, median = res.stats.get("samples_per_second"), stages[-1]["shading"], stats["time_s"]["shading"]
+    if sps is not None and median > 0:   # every run shades the same samples
+        stats["samples_per_second"] = sps * last / median
+    return res, statistics.median(times), stats
 
 
 def main():

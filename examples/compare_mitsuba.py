@@ -70,9 +70,13 @@ rough conductor (src/bsdfs/roughconductor.cpp, include/mitsuba/render/microfacet
     D G / (4 cos_i) (that is f cos_o), so f = F D G1 G1 / (4 cos_i cos_o): warpbw's ggx.
     ``--check-conventions`` also evaluates the BSDF against this closed form.
 
-Both renderers get the same radiance: the probe is read once (through Mitsuba's Bitmap), negative and
-non-finite texels are set to 0 as warpbw's envmap loader does, and the array is handed to Mitsuba as
-a Bitmap while warpbw reads the file itself.  Mitsuba uses ``path`` with max_depth 2 (direct light
+Both renderers get the same radiance: the probe is read once by warpbw's loader (``warpbw.envmap.load_envmap``,
+negative and non-finite texels set to 0), and the array is handed to Mitsuba as a Bitmap while warpbw reads the
+file itself the same way.  Mitsuba's own reader applies an EXR's ``chromaticities`` attribute, which warpbw's
+ignores: city.exr declares sRGB's primaries adapted to a D50 white, and read through Mitsuba's Bitmap its mean
+went from (1.05, 1.06, 1.04) to (1.24, 1.03, 0.75); the lambert sphere under it read relMSE 0.059 against
+Mitsuba's (48x48, 512 spp; the noise floor 2.0e-3), where a quadrature of the probe in numpy agreed with warpbw's
+image (1.2e-3).  Mitsuba uses ``path`` with max_depth 2 (direct light
 only, MIS between light and BSDF sampling) and hide_emitters, a box pixel filter, and the analytic
 ``sphere`` shape.
 
@@ -116,6 +120,7 @@ import os
 import statistics
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -188,18 +193,18 @@ def import_mitsuba(variant: str | None = None):
 
 
 def load_probe(mi, path: Path) -> np.ndarray:
-    """Probe as (H, W, 3) float32 linear RGB, negative / non-finite texels set to 0."""
+    """Probe as (H, W, 3) float32 linear RGB as warpbw's renderer reads it (``warpbw.envmap.load_envmap``: negative /
+    non-finite texels set to 0), for Mitsuba's Bitmap: Mitsuba's own reader applies an EXR's chromaticities, which
+    warpbw's does not (module docstring), and the two renderers would then be lit differently.  ``mi``: unused,
+    kept for callers."""
     if not path.is_file():
         fail(f"{path}: environment map not found (give one with --probe)")
-    try:
-        bmp = mi.Bitmap(str(path)).convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, False)
-    except Exception as exc:  # noqa: BLE001
-        fail(f"{path}: cannot read as an image ({str(exc).splitlines()[0]})")
-    rgb = np.array(bmp, dtype=np.float32, copy=True).reshape(bmp.height(), bmp.width(), 3)
-    bad = ~np.isfinite(rgb) | (rgb < 0)
-    if bad.any():
-        rgb[bad] = 0.0
-    return rgb
+    init_warp("cpu")         # no banner or module-load lines, nor Warp's no-CUDA-driver line on stderr
+    from warpbw.envmap import load_envmap
+
+    with warnings.catch_warnings():   # the negative texels it sets to 0: warpbw's render of the file says so
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.array(load_envmap(path).pixels, dtype=np.float32, copy=True)   # its errors name the file
 
 
 def mitsuba_bsdf(mat: dict) -> dict:
@@ -362,8 +367,22 @@ def save_side_by_side(path: Path, ref: np.ndarray, test: np.ndarray | None) -> N
 
 
 # ------------------------------------------------------------------------------------- conventions
-def check_conventions(mi) -> None:
-    """Print the camera / envmap / roughconductor conventions measured with Mitsuba alone."""
+def first_channel(mi, evaluate, *dirs) -> np.ndarray:
+    """The first channel (N,) of ``evaluate(*vectors)`` at the N rows of the (N, 3) arrays ``dirs`` (one Vector3f
+    each): one call on a vectorised variant (llvm_*, cuda_*), one per row on a scalar one, whose Vector3f holds one
+    direction (given arrays, it raised a TypeError: ``--check-conventions`` failed on scalar_rgb, the fallback)."""
+    if mi.variant().startswith("scalar"):
+        return np.array([float(evaluate(*(mi.Vector3f(*map(float, v[i])) for v in dirs))[0])
+                         for i in range(len(dirs[0]))])
+    got = np.array(evaluate(*(mi.Vector3f(v[:, 0], v[:, 1], v[:, 2]) for v in dirs)))
+    return got[0] if got.shape[0] == 3 else got[:, 0]
+
+
+def check_conventions(mi, n: int = 400) -> dict:
+    """Print the camera / envmap / roughconductor conventions measured with Mitsuba alone (the envmap's lit directions
+    over an n x 2n grid of directions), and return them: {"camera": {name: (row, column)}, "envmap": [(row, column,
+    rotation, lit direction, formula)], "roughconductor": {alpha: largest relative difference}}."""
+    found = {"camera": {}, "envmap": [], "roughconductor": {}}
     T = mi.ScalarTransform4f
     for name, c in (("+X", [1.2, 0.0, 0.0]), ("+Y", [0.0, 1.2, 0.0])):
         sc = mi.load_dict({
@@ -376,25 +395,29 @@ def check_conventions(mi) -> None:
             "s": {"type": "sphere", "center": c, "radius": 0.3, "bsdf": {"type": "diffuse"}}})
         a = np.array(mi.render(sc, spp=4))[..., 3]
         ys, xs = np.nonzero(a > 0.5)
+        found["camera"][name] = (float(ys.mean()), float(xs.mean()))
         print(f"camera: sphere at world {name} -> image row {ys.mean():.1f}, column {xs.mean():.1f} "
               f"(64x64, row 0 = top)")
 
     h, w = 32, 64
-    n = 400
     th = (np.arange(n) + 0.5) / n * np.pi
     ph = (np.arange(2 * n) + 0.5) / (2 * n) * 2 * np.pi
     TH, PH = np.meshgrid(th, ph, indexing="ij")
     d = np.stack([np.sin(TH) * np.cos(PH), np.cos(TH), np.sin(TH) * np.sin(PH)], -1).reshape(-1, 3)
     si = mi.SurfaceInteraction3f()
-    si.wi = mi.Vector3f(-d[:, 0], -d[:, 1], -d[:, 2])
+
+    def emitted(em):
+        def at(wi):
+            si.wi = wi
+            return em.eval(si)
+        return at
     for (r, c) in ((8, 16), (16, 0), (16, 32), (16, 48), (0, 5)):
         for rot in (0.0, 90.0):
             arr = np.zeros((h, w, 3), np.float32)
             arr[r, c] = 1000.0
             em = mi.load_dict({"type": "envmap", "bitmap": mi.Bitmap(arr),
                                "to_world": T().rotate([0, 1, 0], rot)})
-            v = np.array(em.eval(si))
-            v = v[0] if v.shape[0] == 3 else v[:, 0]
+            v = first_channel(mi, emitted(em), -d)
             cen = (d * (v / v.sum())[:, None]).sum(0)
             cen /= np.linalg.norm(cen)
             u_, v_ = (c + 0.5) / w, r / (h - 1)
@@ -403,6 +426,7 @@ def check_conventions(mi) -> None:
             a = math.radians(rot)
             pred = np.array([pred[0] * math.cos(a) + pred[2] * math.sin(a), pred[1],
                              -pred[0] * math.sin(a) + pred[2] * math.cos(a)])
+            found["envmap"].append((r, c, rot, cen, pred))
             print(f"envmap {w}x{h}: texel (row {r}, col {c}), rotation {rot:4.0f} -> lit direction "
                   f"{np.round(cen, 3)}  formula {np.round(pred, 3)}")
 
@@ -412,10 +436,12 @@ def check_conventions(mi) -> None:
         wi = rng.normal(size=(1000, 3)); wi[:, 2] = np.abs(wi[:, 2]); wi /= np.linalg.norm(wi, axis=1, keepdims=True)
         wo = rng.normal(size=(1000, 3)); wo[:, 2] = np.abs(wo[:, 2]); wo /= np.linalg.norm(wo, axis=1, keepdims=True)
         s = mi.SurfaceInteraction3f()
-        s.wi = mi.Vector3f(wi[:, 0], wi[:, 1], wi[:, 2])
         s.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
-        got = np.array(bsdf.eval(mi.BSDFContext(), s, mi.Vector3f(wo[:, 0], wo[:, 1], wo[:, 2])))
-        got = got[0] if got.shape[0] == 3 else got[:, 0]
+
+        def reflected(wi_, wo_, bsdf=bsdf, s=s):
+            s.wi = wi_
+            return bsdf.eval(mi.BSDFContext(), s, wo_)
+        got = first_channel(mi, reflected, wi, wo)
         hv = wi + wo; hv /= np.linalg.norm(hv, axis=1, keepdims=True)
         a2 = alpha * alpha
         D = 1.0 / (np.pi * a2 * ((hv[:, 0] ** 2 + hv[:, 1] ** 2) / a2 + hv[:, 2] ** 2) ** 2)
@@ -425,8 +451,10 @@ def check_conventions(mi) -> None:
             return 2.0 / (1.0 + np.sqrt(1.0 + a2 * t2))
         want = D * g1(wi) * g1(wo) / (4 * wi[:, 2] * wo[:, 2]) * wo[:, 2]   # f cos_o, F = 1
         err = np.max(np.abs(got - want) / np.maximum(want, 1e-6))
+        found["roughconductor"][alpha] = float(err)
         print(f"roughconductor ggx alpha={alpha}: eval vs F=1 * D G1 G1 / (4 cos_i cos_o) * cos_o: "
               f"max relative difference {err:.2e} over 1000 random pairs")
+    return found
 
 
 # -------------------------------------------------------------------------------------------- main
@@ -482,7 +510,7 @@ def parse_args(argv=None):
     if not cases or len(set(cases)) < len(cases) or not set(cases) <= set(CASES):   # none ran nothing, exit 0
         p.error(f"--cases {a.cases!r}: expected distinct names among {', '.join(CASES)}")
     a.cases = cases
-    if not a.probe.expanduser().is_file():
+    if not a.check_conventions and not a.probe.expanduser().is_file():   # no probe in the conventions
         p.error(f"--probe {a.probe}: no such file (expected a lat-long EXR probe)")
     if a.out is not None and not a.check_conventions:   # before Mitsuba is imported, and before any render
         check_output_dir(a.out, "--out")

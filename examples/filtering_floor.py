@@ -148,6 +148,35 @@ def _shade(mat, lights, wo, a, mx, my, var):
     return out
 
 
+def axis_base(lv, n_l, n: int, s):
+    """``warpbw.filtering.axis_base`` in numpy: along one axis of n finest texels (n_l (P,) at levels lv (P,)), the
+    level-l texel (P,) whose centre is the last at or before finest coordinate s (P,), and the fraction (0 to 1) of
+    the way to the next, the map tiling with period n.  Level-l texel j covers finest texels [j 2^l,
+    min((j + 1) 2^l, n)), centred on what of it the border leaves: where n is no power of two the last texel's
+    centre is (c_last, below) and the texel after it is texel 0 of the next tile (texel centres at (j + 1/2) 2^l
+    read another texel's footprint there, 0.18 of the mean colour off the renderer on a 100x100 map)."""
+    f = 2.0 ** lv
+    x = s / f - 0.5
+    x0 = np.floor(x)
+    fx = x - x0
+    clipped = n_l * 2 ** lv != n
+    if clipped.any():
+        u = s - np.floor(s / n) * n                       # s in the first tile
+        last = n_l - 1.0
+        c_last = 0.5 * (last * f + n)                     # the clipped last texel's centre
+        before, after = u < 0.5 * f, u >= c_last
+        inner = np.floor(u / f - 0.5)
+        c0 = (inner + 0.5) * f
+        with np.errstate(divide="ignore", invalid="ignore"):   # each branch where it applies (np.where computes all)
+            fx_c = np.where(before, (u - (c_last - n)) / (0.5 * f + n - c_last),
+                            np.where(after, (u - c_last) / (n + 0.5 * f - c_last),
+                                     np.where(inner == last - 1.0, (u - c0) / (c_last - c0), u / f - 0.5 - inner)))
+        x0_c = np.where(before, -1.0, np.where(after, last, inner))
+        x0 = np.where(clipped, x0_c, x0)
+        fx = np.where(clipped, np.clip(fx_c, 0.0, 1.0), fx)
+    return x0.astype(int), fx
+
+
 def _taps(st, lam, shapes, n=None, step=None):
     """The texels the filter reads per pixel: (level (P,), column, row, weight) for each.  One probe: the
     trilinear filter's eight texels.  ``n`` probes (P,) spaced ``step`` (P, 2) apart along the major axis,
@@ -162,14 +191,12 @@ def _taps(st, lam, shapes, n=None, step=None):
         p = st + ((j - 0.5 * (n - 1)) * (j < n))[:, None] * step
         wj = (j < n) / n
         for lv, wl in ((l0, 1.0 - fl), (np.minimum(l0 + 1, top), fl)):
-            f = 2.0 ** lv
-            x, y = p[:, 0] / f - 0.5, p[:, 1] / f - 0.5
-            x0, y0 = np.floor(x), np.floor(y)
-            fx, fy = x - x0, y - y0
             hw = np.array(shapes)[lv]
+            x0, fx = axis_base(lv, hw[:, 1], shapes[0][1], p[:, 0])
+            y0, fy = axis_base(lv, hw[:, 0], shapes[0][0], p[:, 1])
             for dc, dr, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy),
                               (1, 1, fx * fy)):
-                yield lv, (x0.astype(int) + dc) % hw[:, 1], (y0.astype(int) + dr) % hw[:, 0], w * wl * wj
+                yield lv, (x0 + dc) % hw[:, 1], (y0 + dr) % hw[:, 0], w * wl * wj
 
 
 def field_normals(normals, r, c, f: int):

@@ -102,11 +102,13 @@ def clamp_probe_luminance(pixels: np.ndarray, q: float) -> np.ndarray:
 
 
 def prepare_with_clamped_bandwidth(prep, q: float, env_signal: str = ENV_SIGNALS[0]) -> None:
-    """Build ``prep``'s bandwidth inputs from the clamped probe; the shading keeps the whole probe."""
+    """Build ``prep``'s bandwidth inputs from the clamped probe; the shading keeps the whole probe.  The clamped
+    probe has no source digest: its nu_a map is cached by its own pixels, not as the probe's (which would read the
+    whole probe's map from the cache, and leave the clamped one there for every later render of the probe)."""
     from warpbw.pipeline import prepare_bandwidth
 
     env = prep.env
-    prep.env = dataclasses.replace(env, pixels=clamp_probe_luminance(env.pixels, q))
+    prep.env = dataclasses.replace(env, pixels=clamp_probe_luminance(env.pixels, q), source_digest="")
     try:
         prepare_bandwidth(prep, env_signal=env_signal)
     finally:

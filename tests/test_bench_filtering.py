@@ -490,6 +490,50 @@ def test_error_floor_example_bilinear_field_by_hand():
         np.testing.assert_allclose(fine[:, col], np.tile(want / np.linalg.norm(want), (2, 1)), atol=1e-12)
 
 
+def test_error_floor_example_reads_a_clipped_texel_at_its_clipped_centre_by_hand():
+    # warpbw.filtering.axis_base: level-l texel j covers finest texels [j 2^l, min((j + 1) 2^l, n)), centred on what
+    # the border leaves, and after it comes texel 0 of the next tile.  A 20x20 map, level 3 (3 texels of 8): centres
+    # 4, 12 and 18 (not 20), the previous tile's last at -2 and the next tile's first at 24.  By hand, along s:
+    # 17 -> texels 1 and 2 at 1/6 and 5/6; 19 -> 2 and 0 at 5/6 and 1/6; 21 (1 into the next tile) -> 2 and 0 at
+    # 1/2 each; 10 -> 0 and 1 at 1/4 and 3/4 (as on a power-of-two map); t = 10 the same along the rows
+    ff = _example("filtering_floor")
+    from precompute.gmm_mipmap import level_shapes
+
+    shapes = level_shapes(20, 20)
+    assert shapes[3] == (3, 3)
+    st = np.array([[17.0, 10.0], [19.0, 10.0], [21.0, 10.0], [10.0, 10.0]])
+    want_cols = [{1: 1 / 6, 2: 5 / 6}, {2: 5 / 6, 0: 1 / 6}, {2: 0.5, 0: 0.5}, {0: 0.25, 1: 0.75}]
+    got_cols = [dict() for _ in st]
+    got_rows = [dict() for _ in st]
+    for lv, col, row, w in ff._taps(st, np.full(len(st), 3.0), shapes):
+        for i in range(len(st)):
+            if w[i] == 0.0:
+                continue
+            assert lv[i] == 3
+            got_cols[i][int(col[i])] = got_cols[i].get(int(col[i]), 0.0) + w[i]
+            got_rows[i][int(row[i])] = got_rows[i].get(int(row[i]), 0.0) + w[i]
+    for i, want in enumerate(want_cols):
+        assert got_cols[i].keys() == want.keys(), (st[i], got_cols[i])
+        for k in want:
+            assert got_cols[i][k] == pytest.approx(want[k], abs=1e-12), (st[i], got_cols[i])
+        assert got_rows[i] == pytest.approx({0: 0.25, 1: 0.75}, abs=1e-12), (st[i], got_rows[i])
+
+
+def test_error_floor_example_rederives_the_renderer_on_a_map_of_no_power_of_two_side(plane_scene):
+    # a 10x10 map: its level-2 texels (3 of 4) are clipped by the border; the references must read the renderer's
+    # texels there too (at texel centres (j + 1/2) 2^l the re-derivation read 0.099 and 0.040 of the mean colour off
+    # the renderer's image at zooms 8 and 16, where a power-of-two map reads float32 rounding, 4e-7)
+    ff = _example("filtering_floor")
+    u = (np.arange(10) + 0.5) / 10
+    U, V = np.meshgrid(u, u)
+    h = 0.05 * np.sin(2 * np.pi * U) * np.sin(4 * np.pi * V)
+    write_exr(plane_scene.parent / "map.exr", h.astype(np.float32)[..., None], channels=["Y"])
+    rec = ff.analyse(plane_scene, [8.0, 16.0], 64, log=lambda *a: None)
+    assert max(r["mean_level"] for r in rec["zooms"]) > 2.0, rec
+    for r in rec["zooms"]:
+        assert r["gmm_merged_check"] < 1e-3 and r["pixels"] > 0, r
+
+
 def test_error_floor_example_rederives_the_renderer_and_a_flat_map_has_no_floor(plane_scene):
     # examples/filtering_floor.py shades its references in numpy: its re-derivation of the aligned GMM must be
     # the renderer's image, and on a flat map (every footprint one normal) the floor and the per-tap mixture

@@ -60,6 +60,39 @@ def test_clamped_bandwidth_leaves_the_shading_and_the_probe_alone(ms, tmp_path):
     np.testing.assert_array_equal(render_reference(prep, 2, seed=5, mis=True).image, before)
 
 
+def test_clamped_bandwidth_reads_the_clamped_probe_whatever_the_cache_holds(ms, tmp_path, monkeypatch):
+    """--clamp-quantile's nu_a map is the clamped probe's own, after a render of the whole probe, and leaves the
+    whole probe's map in the cache for the renders after it.  The pass keys the cache by the probe's source digest
+    (the probe before its exposure): the clamped pixels under that key read the whole probe's map where a render
+    had cached it, and left theirs for every later render.  Truth: each probe's analysis in a cache of its own."""
+    import warpbw.bandwidth as wb
+    from warpbw.pipeline import prepare_bandwidth
+
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
+    rng = np.random.default_rng(3)
+    px = rng.uniform(0.05, 1.0, (32, 64, 3)).astype(np.float32)
+    px[8:10, 20:22] = 1e3
+    scene = ms.mirror_scene(_probe(tmp_path, px), 1e-3, 8)
+    read = []
+    analyse = wb.env_bandwidth_map
+
+    def spy(*a, **k):
+        nu, origin = analyse(*a, **k)
+        read.append(nu)
+        return nu, origin
+    monkeypatch.setattr(wb, "env_bandwidth_map", spy)
+    pixels = prepare_scene(scene).env.pixels
+    whole = analyse(pixels, "whole", cache=tmp_path / "c1")[0]
+    clamped = analyse(ms.clamp_probe_luminance(pixels, 0.9), "clamped", cache=tmp_path / "c2")[0]
+    assert np.abs(whole - clamped).max() > 1.0   # the clamp changes the map
+    prepare_bandwidth(prepare_scene(scene))                                # a render of the whole probe first
+    np.testing.assert_array_equal(read[-1], whole)
+    ms.prepare_with_clamped_bandwidth(prepare_scene(scene), 0.9)
+    np.testing.assert_array_equal(read[-1], clamped)
+    prepare_bandwidth(prepare_scene(scene))                                # and one after it
+    np.testing.assert_array_equal(read[-1], whole)
+
+
 def test_written_scene_renders_as_the_scripts_own(ms, tmp_path):
     """--write-scene: the file parses to the scene the script renders (the same image, bit for bit, at one seed),
     renders nothing else, and is not overwritten without --force."""
