@@ -20,10 +20,14 @@ from PIL import Image
 from warpbw.errors import WarpbwError
 from warpbw.io.exr import (
     EXR_MAGIC,
+    REC709_CHROMATICITIES,
+    colour_conversion,
     exr_size,
     linear_to_srgb,
     read_exr,
     read_rgb,
+    rec709_transform,
+    rgb_of,
     write_exr,
     write_false_colour_png,
     write_png,
@@ -599,3 +603,91 @@ def test_real_probe_reads():
     rgb = read_rgb(path)
     assert rgb.dtype == np.float32 and np.all(np.isfinite(rgb))
     assert rgb.max() > 10.0 * np.median(rgb)  # high dynamic range survives (not clipped to 1)
+
+
+# ACES2065-1 (AP0 primaries, the ACES white near D60; SMPTE ST 2065-1) and its matrix to linear Rec. 709 / sRGB with
+# Bradford's adaptation as colour-science and the ACES / OCIO configurations publish it (not computed here).
+AP0_CHROMATICITIES = (0.7347, 0.2653, 0.0, 1.0, 0.0001, -0.0770, 0.32168, 0.33767)
+AP0_TO_REC709 = np.array([[2.52168619, -1.13413099, -0.38755520],
+                          [-0.27647991, 1.37271909, -0.09623917],
+                          [-0.01537801, -0.15297534, 1.16835335]])
+
+
+def _exr_with_chromaticities(path, rgb, chromaticities):
+    import OpenEXR
+
+    OpenEXR.File({"chromaticities": tuple(chromaticities)},
+                 {c: np.ascontiguousarray(rgb[..., i]) for i, c in enumerate("RGB")}).write(str(path))
+
+
+def test_an_exr_in_aces2065_1_primaries_is_read_in_rec709s_as_published(tmp_path):
+    """An EXR declaring ACES2065-1's chromaticities was read as Rec. 709 RGB: its stored (1, 0, 0) is (2.52, -0.28,
+    -0.02) in the primaries the renderer computes in.  Truth: the published AP0 -> Rec. 709 (Bradford) matrix; the
+    file's white stays white (each row of the matrix sums to 1)."""
+    rgb = np.random.default_rng(7).uniform(0.0, 4.0, (3, 5, 3)).astype(np.float32)
+    rgb[0, 0] = 1.0
+    _exr_with_chromaticities(tmp_path / "aces.exr", rgb, AP0_CHROMATICITIES)
+    got = read_rgb(tmp_path / "aces.exr")
+    np.testing.assert_allclose(got, rgb.astype(np.float64) @ AP0_TO_REC709.T, rtol=2e-5, atol=2e-5)
+    np.testing.assert_allclose(got[0, 0], 1.0, atol=2e-5)   # white in, white out
+    # compare reads it alike: rgb_of of the image read
+    np.testing.assert_array_equal(rgb_of(read_exr(tmp_path / "aces.exr")), got)
+
+
+def test_an_exr_declaring_rec709_or_its_d50_adaptation_is_read_bit_for_bit(tmp_path):
+    """Rec. 709's own chromaticities, and city.exr's (sRGB's primaries adapted to D50, which Bradford's transform
+    brings back to the identity within 2e-4), are read as stored: no conversion, no rounding."""
+    rgb = np.random.default_rng(8).uniform(0.0, 4.0, (3, 5, 3)).astype(np.float32)
+    city = (0.6484473943710327, 0.3308766186237335, 0.3211871385574341, 0.5978942513465881, 0.15590143203735352,
+            0.06605630367994308, 0.3457084000110626, 0.35854125022888184)
+    for name, c in (("rec709", REC709_CHROMATICITIES), ("city", city)):
+        _exr_with_chromaticities(tmp_path / f"{name}.exr", rgb, c)
+        assert colour_conversion(tmp_path / f"{name}.exr") is None
+        np.testing.assert_array_equal(read_rgb(tmp_path / f"{name}.exr"), rgb)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(0.05, 0.75), min_size=8, max_size=8))
+def test_rec709_transform_keeps_the_declared_white_white_or_refuses_by_name(c):
+    """For any chromaticities, either the file's white (1, 1, 1) maps to Rec. 709's white (Bradford's adaptation
+    takes white to white, whatever the primaries), or they are refused in one line: never a non-finite matrix."""
+    try:
+        m = rec709_transform(c, "probe.exr")
+    except WarpbwError as e:
+        assert str(e).startswith("probe.exr: chromaticities") and "\n" not in str(e)
+        return
+    if m is not None:
+        assert np.isfinite(m).all()
+        np.testing.assert_allclose(m @ np.ones(3), np.ones(3), atol=1e-6)
+
+
+@pytest.mark.parametrize("bad", [(0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.0),      # white of y = 0
+                                 (0.1, 0.1, 0.2, 0.2, 0.3, 0.3, 0.3127, 0.3290),        # primaries on one line
+                                 (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, math.nan, 0.3290),
+                                 (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.30, 0.60)])    # white on green
+def test_chromaticities_that_define_no_colour_space_are_refused_by_name(tmp_path, bad):
+    _exr_with_chromaticities(tmp_path / "odd.exr", np.ones((2, 2, 3), np.float32), bad)
+    with pytest.raises(WarpbwError, match=r"odd\.exr: chromaticities .* define no RGB colour space"):
+        read_rgb(tmp_path / "odd.exr")
+
+
+def test_a_scene_whose_probe_is_converted_hashes_apart_from_what_earlier_code_rendered(tmp_path, monkeypatch):
+    """Ground truths are cached under the scene's content hash, which holds the probe's bytes: a probe that is now
+    read converted must not find a ground truth rendered from it unconverted.  The hash of a scene whose probe
+    declares ACES2065-1 changes with the conversion (here: with it taken away); one of a Rec. 709 probe does not."""
+    import warpbw.io.exr as exr
+    from warpbw.scene import load_scene
+
+    rgb = np.full((4, 8, 3), 0.5, np.float32)
+    _exr_with_chromaticities(tmp_path / "aces.exr", rgb, AP0_CHROMATICITIES)
+    _exr_with_chromaticities(tmp_path / "srgb.exr", rgb, REC709_CHROMATICITIES)
+    hashes = {}
+    for probe in ("aces", "srgb"):
+        (tmp_path / f"{probe}.toml").write_text(
+            f'[camera]\nposition = [0.0, 0.0, 4.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 30.0\nresolution = [8, 8]\n'
+            f'[environment]\nfile = "{probe}.exr"\n[[object]]\nshape = "sphere"\ncenter = [0.0, 0.0, 0.0]\n'
+            f'radius = 1.0\nmaterial = "m"\n[material.m]\ntype = "lambert"\nalbedo = [0.5, 0.5, 0.5]\n')
+        hashes[probe] = load_scene(tmp_path / f"{probe}.toml").content_hash()
+    monkeypatch.setattr(exr, "colour_conversion", lambda path: None)
+    assert load_scene(tmp_path / "aces.toml").content_hash() != hashes["aces"]
+    assert load_scene(tmp_path / "srgb.toml").content_hash() == hashes["srgb"]

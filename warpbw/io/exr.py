@@ -14,6 +14,13 @@ Public functions:
   channel is replicated, and so, with a warning, is a lone channel of another name; a luminance / chroma image,
   Y with ``CHROMA_CHANNELS``, is refused);
   ``rgb_of(img) -> np.ndarray`` the same from an ``ExrImage`` already read (over the window it holds).
+  An image whose ``chromaticities`` attribute declares other primaries or another white than Rec. 709's
+  (``REC709_CHROMATICITIES``, sRGB's) is converted to them (``rec709_transform``; below).
+- ``rec709_transform(chromaticities, path) -> np.ndarray | None``: the 3x3 matrix taking a file's RGB to Rec. 709
+  RGB, the white adapted by Bradford's transform; None where it is the identity within
+  ``CHROMATICITIES_IDENTITY_TOL`` (refused in one line where they define no colour space,
+  ``CHROMATICITIES_COND_MAX``).  ``colour_conversion(path) -> str | None`` says from the header alone whether
+  ``read_rgb`` converts the file (a note for the cache keys of what was rendered from it).
 - ``write_exr(path, pixels, channels=None, notes=None)``: float32, lossless ZIP compression; channel names and
   their order survive a round trip through ``read_exr``, and so do ``notes`` (str keys and values, header
   attributes ``warpbw_note_KEY``).
@@ -23,7 +30,19 @@ Public functions:
   AOV through matplotlib's viridis colour map; returns the ``(vmin, vmax)`` it used, and writes them into the
   PNG's ``Description`` (``colour_scale_text(lo, hi, log)``).
 
-Class: ``ExrImage`` (``pixels``, ``channels``, ``path``, ``notes``, ``data_window``, ``display_window``).
+Class: ``ExrImage`` (``pixels``, ``channels``, ``path``, ``notes``, ``data_window``, ``display_window``,
+``to_rec709``).
+
+Colour: every stage of the renderer takes RGB to be linear Rec. 709 / sRGB (the primaries and D65 white of
+IEC 61966-2-1).  An EXR may declare its own in the standard ``chromaticities`` attribute (CIE 1931 xy of red,
+green, blue and white); a file without it is Rec. 709 by OpenEXR's definition.  Other primaries (ACES2065-1's, a
+wide-gamut camera's) were read as Rec. 709's, a silently wrong light: a probe in ACES2065-1 whose stored RGB is
+(1, 0, 0) is (2.52, -0.28, -0.02) in Rec. 709.  They are now converted through CIE XYZ, the white adapted to D65
+with Bradford's cone matrix (ICC.1:2010 Annex E), so that the file's white stays white, as Mitsuba's and pbrt's
+readers do.  A conversion within ``CHROMATICITIES_IDENTITY_TOL`` of the identity is skipped, and the pixels are
+read bit for bit: city.exr declares sRGB's primaries adapted to a D50 white, which Bradford's transform brings
+back to the identity within 2e-4.  Values the conversion makes negative (colours outside Rec. 709's gamut) are
+kept here; the probe loader sets negative radiance to 0 with a warning, as for any probe.
 
 Every problem with a user's file is raised as :class:`warpbw.errors.WarpbwError` in one line that
 names the file.  A file OpenEXR refuses is then read against the OpenEXR file layout
@@ -59,6 +78,17 @@ _OTHER_MAGICS = (
 # channels sorted by name, so "R,G,B,A" would otherwise come back as "A,B,G,R").
 _ORDER_ATTRIBUTE = "warpbw_channels"
 _NOTE_PREFIX = "warpbw_note_"   # header attributes that hold write_exr's notes
+# CIE 1931 xy of the red, green and blue primaries and of the white of ITU-R BT.709-6 (IEC 61966-2-1's sRGB, D65):
+# the RGB the renderer computes in, and what OpenEXR takes a file without a chromaticities attribute to be.
+REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+# Bradford's cone response matrix (Lam 1985; ICC.1:2010 Annex E): the white point's adaptation.
+BRADFORD = ((0.8951, 0.2664, -0.1614), (-0.7502, 1.7135, 0.0367), (0.0389, -0.0685, 1.0296))
+# A file whose conversion to Rec. 709 lies within this of the identity (largest entry) is read as stored, bit for
+# bit: city.exr declares sRGB's primaries adapted to D50, whose Bradford conversion is the identity within 2e-4.
+CHROMATICITIES_IDENTITY_TOL = 1.0e-3
+# Condition number above which a file's RGB -> XYZ matrix is taken as singular (a white its primaries cannot make):
+# ACES2065-1's is 3.4, Rec. 709's 5.1.
+CHROMATICITIES_COND_MAX = 1.0e6
 # Chroma channels of OpenEXR's luminance / chroma images (ImfRgbaYca: RY = (R - Y) / Y, BY = (B - Y) / Y).
 CHROMA_CHANNELS = ("RY", "BY")
 # Order used for files without that attribute: colour first, then alpha, then the rest by name.
@@ -82,6 +112,7 @@ class ExrImage:
     notes: dict = field(default_factory=dict)   # the write_exr notes the file holds (str -> str)
     data_window: tuple | None = None
     display_window: tuple | None = None
+    to_rec709: np.ndarray | None = None   # rec709_transform of the file's chromaticities (None: Rec. 709 already)
 
 
 def _check_magic(path: Path) -> None:
@@ -197,7 +228,57 @@ def read_exr(path) -> ExrImage:
             windows[key] = _window(header, name)
         except (KeyError, TypeError, ValueError):
             windows[key] = None
-    return ExrImage(pixels=np.ascontiguousarray(pixels), channels=names, path=str(path), notes=notes, **windows)
+    return ExrImage(pixels=np.ascontiguousarray(pixels), channels=names, path=str(path), notes=notes, **windows,
+                    to_rec709=_declared_transform(header, path))
+
+
+def _primaries_to_xyz(c) -> np.ndarray:
+    """The 3x3 matrix from RGB of chromaticities ``c`` (x, y of red, green, blue, white) to CIE XYZ, white at Y = 1.
+    Each primary enters as (x, y, 1 - x - y) up to its scale (a y <= 0, as ACES2065-1's blue, is allowed); the
+    scales are those that add up to the white."""
+    xy = np.asarray(c, np.float64).reshape(4, 2)
+    prim = np.stack([xy[:3, 0], xy[:3, 1], 1.0 - xy[:3, 0] - xy[:3, 1]])   # columns R, G, B
+    white = np.array([xy[3, 0], xy[3, 1], 1.0 - xy[3, 0] - xy[3, 1]]) / xy[3, 1]
+    return prim * np.linalg.solve(prim, white)
+
+
+def rec709_transform(chromaticities, path="chromaticities") -> np.ndarray | None:
+    """The 3x3 matrix M with rgb_709 = M rgb of a file whose ``chromaticities`` (8 numbers: CIE 1931 x, y of red,
+    green, blue, white) are declared: to XYZ, the white adapted to D65 by Bradford's transform, to Rec. 709 RGB
+    (module docstring).  None where M is the identity within ``CHROMATICITIES_IDENTITY_TOL``.  Chromaticities that
+    define no colour space (not 8 finite numbers, a white of y <= 0, primaries on one line, a white on a side of
+    their triangle) are a one-line error naming ``path``."""
+    try:
+        c = [float(v) for v in chromaticities]
+    except (TypeError, ValueError):
+        c = []
+    prim = np.array(c[:6]).reshape(3, 2) if len(c) == 8 else None
+    if prim is None or not all(math.isfinite(v) for v in c) or c[7] <= 0.0 or \
+            abs(np.linalg.det(np.column_stack([prim, np.ones(3)]))) < 1.0e-9:
+        raise WarpbwError(f"{path}: chromaticities {chromaticities!r} define no RGB colour space; expected the CIE xy "
+                          "of red, green, blue (not on one line) and of a white with y > 0")
+    src, dst = _primaries_to_xyz(c), _primaries_to_xyz(REC709_CHROMATICITIES)
+    if not np.isfinite(src).all() or np.linalg.cond(src) > CHROMATICITIES_COND_MAX:
+        raise WarpbwError(f"{path}: chromaticities {chromaticities!r} define no RGB colour space: their primaries "
+                          "cannot add up to their white (it lies on a side of their triangle); expected a white "
+                          "inside it")
+    cone = np.array(BRADFORD)
+    adapt = np.linalg.solve(cone, np.diag((cone @ dst.sum(axis=1)) / (cone @ src.sum(axis=1))) @ cone)
+    m = np.linalg.solve(dst, adapt @ src)
+    return None if np.abs(m - np.eye(3)).max() <= CHROMATICITIES_IDENTITY_TOL else m
+
+
+def _declared_transform(header, path) -> np.ndarray | None:
+    declared = header.get("chromaticities")
+    return None if declared is None else rec709_transform(declared, path)
+
+
+def colour_conversion(path) -> str | None:
+    """From the header alone: a note naming the conversion ``read_rgb`` applies to the EXR ``path`` (its declared
+    chromaticities to Rec. 709), or None when it reads the RGB as stored."""
+    path, header, _ = _open_exr(path, header_only=True)
+    m = _declared_transform(header, path)
+    return None if m is None else "rec709 from chromaticities " + ",".join(f"{v:.9g}" for v in m.ravel())
 
 
 def in_display_window(img: ExrImage) -> ExrImage:
@@ -218,7 +299,7 @@ def in_display_window(img: ExrImage) -> ExrImage:
         out[y0 - frame[1]:y1 - frame[1] + 1, x0 - frame[0]:x1 - frame[0] + 1] = \
             img.pixels[y0 - data[1]:y1 - data[1] + 1, x0 - data[0]:x1 - data[0] + 1]
     return ExrImage(pixels=out, channels=list(img.channels), path=img.path, notes=dict(img.notes),
-                    data_window=frame, display_window=frame)
+                    data_window=frame, display_window=frame, to_rec709=img.to_rec709)
 
 
 def read_rgb(path) -> np.ndarray:
@@ -228,15 +309,18 @@ def read_rgb(path) -> np.ndarray:
 
 
 def rgb_of(img: ExrImage) -> np.ndarray:
-    """``(H, W, 3)`` float32 RGB of an image read by :func:`read_exr` (as :func:`read_rgb`): its own pixels when
-    they are R,G,B in that order (no copy), else a new array."""
+    """``(H, W, 3)`` float32 RGB of an image read by :func:`read_exr` (as :func:`read_rgb`), in Rec. 709's primaries
+    (``img.to_rec709`` applied): its own pixels when they are R,G,B in that order and need no conversion (no copy),
+    else a new array.  A grey Y is luminance, the same in any primaries, and is not converted."""
     if not isinstance(img, ExrImage):   # a numpy array: an AttributeError ('channels')
         raise WarpbwError(f"rgb_of: expected an ExrImage (read_exr's), got {type(img).__name__}")
     ch = img.channels
-    if ch == ["R", "G", "B"]:
-        return img.pixels
     if all(c in ch for c in ("R", "G", "B")):
-        return np.ascontiguousarray(img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]])
+        rgb = img.pixels if ch == ["R", "G", "B"] else \
+            np.ascontiguousarray(img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]])
+        if img.to_rec709 is None:
+            return rgb
+        return np.ascontiguousarray(rgb @ img.to_rec709.T.astype(np.float32))
     grey = "Y" if "Y" in ch else (ch[0] if len(ch) == 1 else None)
     chroma = [c for c in CHROMA_CHANNELS if c in ch]
     if grey == "Y" and chroma:   # read as its luminance, a coloured probe was grey without a word
