@@ -674,8 +674,10 @@ def test_chromaticities_that_define_no_colour_space_are_refused_by_name(tmp_path
 def test_a_scene_whose_probe_is_converted_hashes_apart_from_what_earlier_code_rendered(tmp_path, monkeypatch):
     """Ground truths are cached under the scene's content hash, which holds the probe's bytes: a probe that is now
     read converted must not find a ground truth rendered from it unconverted.  The hash of a scene whose probe
-    declares ACES2065-1 changes with the conversion (here: with it taken away); one of a Rec. 709 probe does not."""
+    declares ACES2065-1 changes with the conversion (here: with it taken away); one of a Rec. 709 probe does not.
+    ``warpbw info`` says which probe is converted."""
     import warpbw.io.exr as exr
+    from warpbw.pipeline import scene_summary
     from warpbw.scene import load_scene
 
     rgb = np.full((4, 8, 3), 0.5, np.float32)
@@ -688,6 +690,8 @@ def test_a_scene_whose_probe_is_converted_hashes_apart_from_what_earlier_code_re
             f'[environment]\nfile = "{probe}.exr"\n[[object]]\nshape = "sphere"\ncenter = [0.0, 0.0, 0.0]\n'
             f'radius = 1.0\nmaterial = "m"\n[material.m]\ntype = "lambert"\nalbedo = [0.5, 0.5, 0.5]\n')
         hashes[probe] = load_scene(tmp_path / f"{probe}.toml").content_hash()
+        said = scene_summary(load_scene(tmp_path / f"{probe}.toml"), "reference")["environment"]   # warpbw info
+        assert ("converted to Rec. 709" in said) == (probe == "aces"), said
     monkeypatch.setattr(exr, "colour_conversion", lambda path: None)
     assert load_scene(tmp_path / "aces.toml").content_hash() != hashes["aces"]
     assert load_scene(tmp_path / "srgb.toml").content_hash() == hashes["srgb"]

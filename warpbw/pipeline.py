@@ -795,7 +795,7 @@ def scene_summary(scene: Scene, method: str = "reference") -> dict:
     return {
         "scene": scene.source,
         "resolution": [scene.camera.width, scene.camera.height],
-        "environment": env.describe() if env is not None else "none (lit by the [[light]]s)",
+        "environment": _environment_text(env),
         "lights": [li.describe() for li in scene.lights],
         "objects": [o.describe() for o in scene.objects],
         "materials": {n: scene.materials[n].type for n in scene.material_order},
@@ -807,6 +807,18 @@ def scene_summary(scene: Scene, method: str = "reference") -> dict:
         **_probe_memory(env, method),
         **_mesh_memory(surfaces.objects),
     }
+
+
+def _environment_text(env) -> str:
+    """The environment as ``warpbw info`` describes it, saying when the probe's RGB is converted to Rec. 709 from
+    the primaries its EXR declares (``warpbw.io.exr.colour_conversion``)."""
+    if env is None:
+        return "none (lit by the [[light]]s)"
+    from warpbw.io.exr import colour_conversion
+
+    converted = env.file is not None and colour_conversion(env.file) is not None
+    return env.describe() + ("; its RGB converted to Rec. 709 from the chromaticities the file declares"
+                             if converted else "")
 
 
 def _placed_triangles(placed: list) -> int | None:

@@ -282,8 +282,12 @@ class Scene:
         h.update(text(asdict(self.camera)))
         if self.environment is not None:
             h.update(text(asdict(self.environment)))
-            if self.environment.file is not None:   # a probe read converted to Rec. 709 (since session 75): its
-                h.update(_probe_colour(self.environment.file).encode())   # ground truths differ from those before
+            if self.environment.file is not None:
+                from warpbw.io.exr import colour_conversion
+
+                # a probe read converted to Rec. 709 (since session 75) renders other ground truths than earlier
+                # code did from the same bytes; one read as stored adds nothing, and its hashes stay as they were
+                h.update((colour_conversion(self.environment.file) or "").encode())
         for li in self.lights:
             h.update(text({"light": asdict(li)}))
         for o in self.objects:
@@ -315,19 +319,6 @@ class Scene:
             m = self.materials[name]
             out += [p for p in (m.file, m.table, m.sampling, m.bandwidth, m.normal_map, m.gmm) if p is not None]
         return list(dict.fromkeys(out))
-
-
-def _probe_colour(path) -> str:
-    """What ``content_hash`` adds for a probe that ``warpbw.io.exr`` converts from its declared chromaticities (the
-    conversion's note), or "" for one read as stored: the hashes of scenes whose probes need no conversion, and the
-    ground truths cached under them, stay as they were; a file that cannot be read adds nothing here (loading it
-    refuses it by name)."""
-    from warpbw.io.exr import colour_conversion
-
-    try:
-        return colour_conversion(path) or ""
-    except WarpbwError:
-        return ""
 
 
 # Material fields only cook-torrance materials use: left out of other materials' hashes, so that the hashes

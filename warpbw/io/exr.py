@@ -20,7 +20,7 @@ Public functions:
   RGB, the white adapted by Bradford's transform; None where it is the identity within
   ``CHROMATICITIES_IDENTITY_TOL`` (refused in one line where they define no colour space,
   ``CHROMATICITIES_COND_MAX``).  ``colour_conversion(path) -> str | None`` says from the header alone whether
-  ``read_rgb`` converts the file (a note for the cache keys of what was rendered from it).
+  ``read_rgb`` converts the file (a note for the cache keys of what was rendered from it, and for ``warpbw info``).
 - ``write_exr(path, pixels, channels=None, notes=None)``: float32, lossless ZIP compression; channel names and
   their order survive a round trip through ``read_exr``, and so do ``notes`` (str keys and values, header
   attributes ``warpbw_note_KEY``).
@@ -275,9 +275,13 @@ def _declared_transform(header, path) -> np.ndarray | None:
 
 def colour_conversion(path) -> str | None:
     """From the header alone: a note naming the conversion ``read_rgb`` applies to the EXR ``path`` (its declared
-    chromaticities to Rec. 709), or None when it reads the RGB as stored."""
-    path, header, _ = _open_exr(path, header_only=True)
-    m = _declared_transform(header, path)
+    chromaticities to Rec. 709), or None when it reads the RGB as stored, or when the file does not read (loading
+    it refuses it by name)."""
+    try:
+        path, header, _ = _open_exr(path, header_only=True)
+        m = _declared_transform(header, path)
+    except WarpbwError:
+        return None
     return None if m is None else "rec709 from chromaticities " + ",".join(f"{v:.9g}" for v in m.ravel())
 
 
