@@ -377,6 +377,23 @@ def test_a_gbuffer_is_taken_for_its_data_and_levels_stop_at_the_top():
             upsample_level(gb, cam, level, np.zeros((1, 3)), np.ones(1), np.ones(1))
 
 
+def _paper_weights(x, y, mat, depth, ns, c):
+    """002 Sec. 3.2's w_i = g_z g_a alpha_i of pixel (x, y)'s four parents, written out: M narrows the kernel by c
+    (cos theta_x, clamped) along the unit screen direction ns; a parent off the object or of no bilinear weight is
+    0."""
+    H, W = mat.shape
+    want = []
+    for px, py, alpha, v in _parents(x, y, (W + 1) // 2, (H + 1) // 2):
+        qx, qy = min(2 * px + 1, W - 1), min(2 * py + 1, H - 1)
+        if mat[qy, qx] < 0 or alpha == 0:
+            want.append(0.0)
+            continue
+        along, across = v @ ns, v @ np.array([-ns[1], ns[0]])
+        gz = math.exp(-((depth[y, x] - depth[qy, qx]) / (DEPTH_SIGMA_REL * depth[y, x])) ** 2)
+        want.append(alpha * gz * math.exp(-(across ** 2 + along ** 2 / c ** 2)))
+    return want
+
+
 def test_upsampling_weights_narrow_along_the_radial_direction_at_a_spheres_limb():
     """On a sphere centred on the optical axis the projected normal at an image point points away from the
     sphere's image centre (rotational symmetry), and cos theta_x -> 0 at the limb.  The four weights follow
@@ -389,7 +406,6 @@ def test_upsampling_weights_narrow_along_the_radial_direction_at_a_spheres_limb(
     nrm = gb.numpy("normal").reshape(H, W, 3)
     view = gb.numpy("view").reshape(H, W, 3)
     mat = gb.numpy("material").reshape(H, W)
-    pw, ph = (W + 1) // 2, (H + 1) // 2
     checked = 0
     for y in range(H):
         for x in range(W):
@@ -401,15 +417,7 @@ def test_upsampling_weights_narrow_along_the_radial_direction_at_a_spheres_limb(
                 continue                                               # grazing, diagonal pixels only
             ns = r / np.linalg.norm(r)
             c = max(cos_x, COS_X_MIN)
-            want = []
-            for px, py, alpha, v in _parents(x, y, pw, ph):
-                qx, qy = min(2 * px + 1, W - 1), min(2 * py + 1, H - 1)
-                if mat[qy, qx] < 0 or alpha == 0:
-                    want.append(0.0)
-                    continue
-                along, across = v @ ns, v @ np.array([-ns[1], ns[0]])
-                gz = math.exp(-((depth[y, x] - depth[qy, qx]) / (DEPTH_SIGMA_REL * depth[y, x])) ** 2)
-                want.append(alpha * gz * math.exp(-(across ** 2 + along ** 2 / c ** 2)))
+            want = _paper_weights(x, y, mat, depth, ns, c)
             np.testing.assert_allclose(wts[y, x], want, rtol=2e-3, atol=1e-7, err_msg=str((x, y, cos_x)))
             checked += 1
     assert checked >= 8, checked
@@ -437,7 +445,6 @@ def test_upsampling_weights_narrow_along_the_perspective_image_of_the_normal_off
     mat = gb.numpy("material").reshape(H, W)
     eye = np.array([0.0, 0.0, 4.0])
     fwd, right, up = np.array([0.0, 0.0, -1.0]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
-    pw, ph = (W + 1) // 2, (H + 1) // 2
     checked, turned = 0, 0.0
     for y in range(H):
         for x in range(W):
@@ -451,15 +458,7 @@ def test_upsampling_weights_narrow_along_the_perspective_image_of_the_normal_off
             ortho = np.array([n @ right, -(n @ up)]) / np.linalg.norm([n @ right, n @ up])
             turned = max(turned, math.degrees(math.acos(min(1.0, abs(float(ns @ ortho))))))
             c = max(cos_x, COS_X_MIN)
-            want = []
-            for px, py, alpha, v in _parents(x, y, pw, ph):
-                qx, qy = min(2 * px + 1, W - 1), min(2 * py + 1, H - 1)
-                if mat[qy, qx] < 0 or alpha == 0:
-                    want.append(0.0)
-                    continue
-                along, across = v @ ns, v @ np.array([-ns[1], ns[0]])
-                gz = math.exp(-((depth[y, x] - depth[qy, qx]) / (DEPTH_SIGMA_REL * depth[y, x])) ** 2)
-                want.append(alpha * gz * math.exp(-(across ** 2 + along ** 2 / c ** 2)))
+            want = _paper_weights(x, y, mat, depth, ns, c)
             np.testing.assert_allclose(wts[y, x], want, rtol=2e-3, atol=1e-7, err_msg=str((x, y, cos_x)))
             checked += 1
     assert checked >= 40 and turned > 10.0, (checked, turned)
