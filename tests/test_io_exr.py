@@ -666,9 +666,14 @@ def test_rec709_transform_keeps_the_declared_white_white_or_refuses_by_name(c):
                                  (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, math.nan, 0.3290),
                                  (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.30, 0.60)])    # white on green
 def test_chromaticities_that_define_no_colour_space_are_refused_by_name(tmp_path, bad):
-    _exr_with_chromaticities(tmp_path / "odd.exr", np.ones((2, 2, 3), np.float32), bad)
+    """Read as colour they are refused in one line; read as data (a height field's channel, say) they do not
+    matter, and the pixels read as stored."""
+    rgb = np.random.default_rng(9).uniform(0.0, 1.0, (2, 2, 3)).astype(np.float32)
+    _exr_with_chromaticities(tmp_path / "odd.exr", rgb, bad)
     with pytest.raises(WarpbwError, match=r"odd\.exr: chromaticities .* define no RGB colour space"):
         read_rgb(tmp_path / "odd.exr")
+    np.testing.assert_array_equal(read_exr(tmp_path / "odd.exr").pixels, rgb)
+    assert colour_conversion(tmp_path / "odd.exr") is None   # loading it says what is wrong
 
 
 def test_a_scene_whose_probe_is_converted_hashes_apart_from_what_earlier_code_rendered(tmp_path, monkeypatch):

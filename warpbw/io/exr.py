@@ -31,7 +31,7 @@ Public functions:
   PNG's ``Description`` (``colour_scale_text(lo, hi, log)``).
 
 Class: ``ExrImage`` (``pixels``, ``channels``, ``path``, ``notes``, ``data_window``, ``display_window``,
-``to_rec709``).
+``chromaticities``).
 
 Colour: every stage of the renderer takes RGB to be linear Rec. 709 / sRGB (the primaries and D65 white of
 IEC 61966-2-1).  An EXR may declare its own in the standard ``chromaticities`` attribute (CIE 1931 xy of red,
@@ -112,7 +112,7 @@ class ExrImage:
     notes: dict = field(default_factory=dict)   # the write_exr notes the file holds (str -> str)
     data_window: tuple | None = None
     display_window: tuple | None = None
-    to_rec709: np.ndarray | None = None   # rec709_transform of the file's chromaticities (None: Rec. 709 already)
+    chromaticities: tuple | None = None   # as the file declares them (None: Rec. 709's, OpenEXR's default)
 
 
 def _check_magic(path: Path) -> None:
@@ -229,7 +229,7 @@ def read_exr(path) -> ExrImage:
         except (KeyError, TypeError, ValueError):
             windows[key] = None
     return ExrImage(pixels=np.ascontiguousarray(pixels), channels=names, path=str(path), notes=notes, **windows,
-                    to_rec709=_declared_transform(header, path))
+                    chromaticities=header.get("chromaticities"))
 
 
 def _primaries_to_xyz(c) -> np.ndarray:
@@ -268,18 +268,14 @@ def rec709_transform(chromaticities, path="chromaticities") -> np.ndarray | None
     return None if np.abs(m - np.eye(3)).max() <= CHROMATICITIES_IDENTITY_TOL else m
 
 
-def _declared_transform(header, path) -> np.ndarray | None:
-    declared = header.get("chromaticities")
-    return None if declared is None else rec709_transform(declared, path)
-
-
 def colour_conversion(path) -> str | None:
     """From the header alone: a note naming the conversion ``read_rgb`` applies to the EXR ``path`` (its declared
     chromaticities to Rec. 709), or None when it reads the RGB as stored, or when the file does not read (loading
     it refuses it by name)."""
     try:
         path, header, _ = _open_exr(path, header_only=True)
-        m = _declared_transform(header, path)
+        declared = header.get("chromaticities")
+        m = None if declared is None else rec709_transform(declared, path)
     except WarpbwError:
         return None
     return None if m is None else "rec709 from chromaticities " + ",".join(f"{v:.9g}" for v in m.ravel())
@@ -303,7 +299,7 @@ def in_display_window(img: ExrImage) -> ExrImage:
         out[y0 - frame[1]:y1 - frame[1] + 1, x0 - frame[0]:x1 - frame[0] + 1] = \
             img.pixels[y0 - data[1]:y1 - data[1] + 1, x0 - data[0]:x1 - data[0] + 1]
     return ExrImage(pixels=out, channels=list(img.channels), path=img.path, notes=dict(img.notes),
-                    data_window=frame, display_window=frame, to_rec709=img.to_rec709)
+                    data_window=frame, display_window=frame, chromaticities=img.chromaticities)
 
 
 def read_rgb(path) -> np.ndarray:
@@ -314,17 +310,18 @@ def read_rgb(path) -> np.ndarray:
 
 def rgb_of(img: ExrImage) -> np.ndarray:
     """``(H, W, 3)`` float32 RGB of an image read by :func:`read_exr` (as :func:`read_rgb`), in Rec. 709's primaries
-    (``img.to_rec709`` applied): its own pixels when they are R,G,B in that order and need no conversion (no copy),
-    else a new array.  A grey Y is luminance, the same in any primaries, and is not converted."""
+    (``rec709_transform`` of ``img.chromaticities`` applied; only colour is converted, so a height field's or a normal
+    map's odd chromaticities are never read): its own pixels when they are R,G,B in that order and need no
+    conversion (no copy), else a new array.  A grey Y is luminance, the same in any primaries, and is not
+    converted."""
     if not isinstance(img, ExrImage):   # a numpy array: an AttributeError ('channels')
         raise WarpbwError(f"rgb_of: expected an ExrImage (read_exr's), got {type(img).__name__}")
     ch = img.channels
     if all(c in ch for c in ("R", "G", "B")):
         rgb = img.pixels if ch == ["R", "G", "B"] else \
             np.ascontiguousarray(img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]])
-        if img.to_rec709 is None:
-            return rgb
-        return np.ascontiguousarray(rgb @ img.to_rec709.T.astype(np.float32))
+        m = None if img.chromaticities is None else rec709_transform(img.chromaticities, img.path)
+        return rgb if m is None else np.ascontiguousarray(rgb @ m.T.astype(np.float32))
     grey = "Y" if "Y" in ch else (ch[0] if len(ch) == 1 else None)
     chroma = [c for c in CHROMA_CHANNELS if c in ch]
     if grey == "Y" and chroma:   # read as its luminance, a coloured probe was grey without a word
