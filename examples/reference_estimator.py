@@ -6,11 +6,12 @@ environment, then N BRDF-importance samples per pixel, with and without MIS.
 
 Two analytic spheres (Lambert and GGX) and one NPF sphere under a light probe (the procedural sky when
 the default probe is absent; the NPF sphere is left out when the default NPF table is).  Prints time
-per stage and throughput (each estimator's time the median of ``--runs`` frames after a warm-up frame, DESIGN.md's
-measurement protocol; fewer than 3 warn, as ``warpbw bench``'s); writes ref_bis.exr / ref_mis.exr and PNGs.
-``--json`` / ``--plot`` (as ``warpbw bench``'s: the one not given goes beside the other; an existing file is kept
-without ``--force``, refused before any work) write the record (the settings, device and threads, and per
-estimator every figure printed) and its plot (each estimator's time and throughput).
+per stage (assets, G-buffer, each estimator) and throughput (the G-buffer's and each estimator's time the median
+of ``--runs`` frames after a warm-up frame, DESIGN.md's measurement protocol; fewer than 3 warn, as ``warpbw
+bench``'s; until session 75 the G-buffer was not timed); writes ref_bis.exr / ref_mis.exr and PNGs.  ``--json`` /
+``--plot`` (as ``warpbw bench``'s: the one not given goes beside the other; an existing file is kept without
+``--force``, refused before any work) write the record (the settings, device and threads, ``gbuffer_time_s``, and
+per estimator every figure printed) and its plot (each estimator's time and throughput).
 """
 import argparse
 import statistics
@@ -120,7 +121,14 @@ def main():
               "materials": list(mats.names), "device": dev, "threads": default_threads(dev),
               "assets_time_s": t_assets, "estimators": {}}
 
-    gb = render_gbuffer(cam, geo, device=dev)
+    gb = render_gbuffer(cam, geo, device=dev)   # warm-up (compiles); then timed as the estimators are
+    g_times = []
+    for _ in range(args.runs):
+        t0 = time.perf_counter()
+        gb = render_gbuffer(cam, geo, device=dev)
+        g_times.append(time.perf_counter() - t0)
+    record["gbuffer_time_s"] = statistics.median(g_times)
+    print(f"G-buffer: {record['gbuffer_time_s'] * 1e3:.1f} ms")
     images = {}   # name -> image, written together at the end
     for mis in (False, True):
         shade_reference(gb, mats, env.data, 1, mis=mis, device=dev)      # warm-up (compiles)
