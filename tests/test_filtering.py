@@ -2027,6 +2027,46 @@ def test_a_footprint_beyond_the_coarsest_level_is_filtered_at_it_and_reported_as
         assert err < 1e-3, (m, err)
 
 
+@pytest.mark.xfail(strict=True, reason="pixel_footprint takes forward differences (the rays through the next pixel), "
+                   "not the pixel box's edges: 1.2 levels too fine below the horizon here; the box's edges raised the "
+                   "isotropic benchmark's errors at 10 and 20 degrees (docs/testing.md, session 75), so not changed")
+def test_the_level_at_a_grazing_view_is_the_pixel_boxs_extent_up_to_the_horizon(tmp_path):
+    """A camera 10 degrees above a large plane (128 units, a 64x64 map tiled 16 times: 8 texels per unit, 7 levels),
+    the horizon in the image's top rows: per covered pixel the level is log2 of the pixel box's extent on the plane +
+    the LOD bias, clipped to [-1, 6] -- the extent from numpy ray-plane hits of the rays through the midpoints of the
+    box's edges (right minus left, bottom minus top, the longer of the two), and the coarsest level where one of
+    them misses the plane (the box reaches over the horizon).  The ground truth averages over that box.  The rays
+    through the next pixel (forward differences) took the box half a pixel nearer: 1.2 levels too fine in the row
+    below the horizon's, finite in the horizon's own row."""
+    h = 0.05 * np.outer(np.sin(np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)), np.ones(64))
+    e = math.radians(10.0)
+    pos = (0.0, 0.35 * math.sin(e), 0.35 * math.cos(e))
+    W, H, size, tiling, mw = 48, 36, 128.0, 16.0, 64
+    s = scene_with_map(tmp_path, heights=h, scale=1.0, tiling=tiling, size=size, position=pos, fov=40.0,
+                       resolution=(W, H))
+    res = render_filtering(s, "fixed")
+    o, _ = numpy_camera_rays(pos, (0, 0, 0), 40.0, W, H)
+
+    def hit(jitter):                                # finest-texel coordinates of the hits on y = 0, NaN if none
+        r = numpy_camera_rays(pos, (0, 0, 0), 40.0, W, H, jitter=jitter)[1]
+        with np.errstate(divide="ignore"):
+            t = np.where(r[..., 1] < 0, -o[1] / r[..., 1], np.nan)
+        return ((o + t[..., None] * r)[..., [0, 2]] / size + 0.5) * mw * tiling
+
+    box = np.maximum(np.linalg.norm(hit((1.0, 0.5)) - hit((0.0, 0.5)), axis=-1),
+                     np.linalg.norm(hit((0.5, 1.0)) - hit((0.5, 0.0)), axis=-1))
+    over = np.isnan(box)                            # an edge ray misses: the coarsest level
+    with np.errstate(invalid="ignore"):
+        lam = np.where(over, 6.0, np.clip(np.log2(box) + LOD_BIAS_DOC, -1.0, 6.0))
+    cov = res.coverage
+    rows = np.flatnonzero(cov.any(1))
+    assert (over & cov).sum() >= W and not over[rows[1:]].any(), rows[:3]   # the horizon's row is covered
+    assert np.sum(cov & (lam > -1) & (lam < 6)) > 4 * W                       # unclipped levels in rows below
+    err = np.abs(res.level - lam)[cov]
+    assert err.max() < 0.01, (err.max(), np.unravel_index(np.argmax(np.where(cov, np.abs(res.level - lam), 0)),
+                                                          cov.shape))
+
+
 def test_ground_truth_is_the_box_average_of_a_highlight_narrower_than_a_pixel(tmp_path):
     """A flat plane seen straight down under a light straight up, roughness 0.015: the centre pixel's highlight is
     about six times brighter at the pixel's centre than on average over it.  The ground truth there (mean of 64
