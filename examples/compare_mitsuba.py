@@ -72,11 +72,12 @@ rough conductor (src/bsdfs/roughconductor.cpp, include/mitsuba/render/microfacet
 
 Both renderers get the same radiance: the probe is read once by warpbw's loader (``warpbw.envmap.load_envmap``,
 negative and non-finite texels set to 0), and the array is handed to Mitsuba as a Bitmap while warpbw reads the
-file itself the same way.  Mitsuba's own reader applies an EXR's ``chromaticities`` attribute, which warpbw's
-ignores: city.exr declares sRGB's primaries adapted to a D50 white, and read through Mitsuba's Bitmap its mean
-went from (1.05, 1.06, 1.04) to (1.24, 1.03, 0.75); the lambert sphere under it read relMSE 0.059 against
-Mitsuba's (48x48, 512 spp; the noise floor 2.0e-3), where a quadrature of the probe in numpy agreed with warpbw's
-image (1.2e-3).  Mitsuba uses ``path`` with max_depth 2 (direct light
+file itself the same way.  Mitsuba's own reader applies an EXR's ``chromaticities`` attribute without adapting
+its white, where warpbw's converts to Rec. 709 with Bradford's adaptation (``warpbw.io.exr.rec709_transform``):
+city.exr declares sRGB's primaries adapted to a D50 white, which warpbw reads as stored (the identity within 2e-4),
+and read through Mitsuba's Bitmap its mean went from (1.05, 1.06, 1.04) to (1.24, 1.03, 0.75); the lambert sphere
+under it read relMSE 0.059 against Mitsuba's (48x48, 512 spp; the noise floor 2.0e-3), where a quadrature of the
+probe in numpy agreed with warpbw's image (1.2e-3).  Mitsuba uses ``path`` with max_depth 2 (direct light
 only, MIS between light and BSDF sampling) and hide_emitters, a box pixel filter, and the analytic
 ``sphere`` shape.
 
@@ -194,9 +195,9 @@ def import_mitsuba(variant: str | None = None):
 
 def load_probe(mi, path: Path) -> np.ndarray:
     """Probe as (H, W, 3) float32 linear RGB as warpbw's renderer reads it (``warpbw.envmap.load_envmap``: negative /
-    non-finite texels set to 0), for Mitsuba's Bitmap: Mitsuba's own reader applies an EXR's chromaticities, which
-    warpbw's does not (module docstring), and the two renderers would then be lit differently.  ``mi``: unused,
-    kept for callers."""
+    non-finite texels set to 0; other primaries converted to Rec. 709), for Mitsuba's Bitmap: Mitsuba's own reader
+    applies an EXR's chromaticities without adapting the white (module docstring), and the two renderers would then
+    be lit differently.  ``mi``: unused, kept for callers."""
     if not path.is_file():
         fail(f"{path}: environment map not found (give one with --probe)")
     init_warp("cpu")         # no banner or module-load lines, nor Warp's no-CUDA-driver line on stderr
