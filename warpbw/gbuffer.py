@@ -495,6 +495,7 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
     n_tri = 0
     ranges = []
     pending = {}
+    bounds, seam_gaps = [], []
     if meshes:
         verts, faces, norms, curv, uvs, fmat = [], [], [], [], [], []
         base = 0
@@ -502,6 +503,10 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
             v = np.asarray(m.vertices, np.float32)
             ranges.append((base, len(v)))
             verts.append(v)
+            bounds.append(_bounds(v))
+            # the copies' largest distance as built, a share of the diagonal (update_mesh allows twice it)
+            seam_gaps.append(0.0 if surfaces[k] is None else _seam_gap(v.astype(np.float64), surfaces[k])[0]
+                             / max(float(np.linalg.norm(bounds[-1][1] - bounds[-1][0])), 1e-300))
             faces.append(np.asarray(m.faces, np.int64) + base)
             norms.append(np.asarray(m.normals, np.float32))
             if callable(m.curvature):
@@ -532,11 +537,7 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
         ma.face_material = wp.zeros(0, dtype=wp.int32, device=device)
     return Geometry(sl, ma, mesh, bool(spheres), bool(meshes), n_tri, mesh_vertex_ranges=ranges,
                     sphere_bounds=[(np.asarray(s.center, np.float64), float(s.radius)) for s in spheres],
-                    mesh_bounds=[_bounds(v) for v in verts] if meshes else [], curvature_pending=pending,
-                    mesh_surface=surfaces,
-                    mesh_seam_gap=[_seam_gap(v, sf)[0] / max(_diagonal(v), 1e-300)
-                                   for v, sf in ((np.asarray(m.vertices, np.float32).astype(np.float64), sf)
-                                                 for m, sf in zip(meshes, surfaces))])
+                    mesh_bounds=bounds, curvature_pending=pending, mesh_surface=surfaces, mesh_seam_gap=seam_gaps)
 
 
 def ensure_curvature(geometry: Geometry) -> bool:
@@ -560,11 +561,6 @@ def ensure_curvature(geometry: Geometry) -> bool:
 def _bounds(vertices) -> tuple:
     v = np.asarray(vertices, np.float64).reshape(-1, 3)
     return v.min(axis=0), v.max(axis=0)
-
-
-def _diagonal(vertices) -> float:
-    lo, hi = _bounds(vertices)
-    return float(np.linalg.norm(hi - lo))
 
 
 def _seam_gap(vertices: np.ndarray, surface) -> tuple:
