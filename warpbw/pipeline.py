@@ -518,9 +518,11 @@ def _check_pass_finite(buf, source: str, mis: bool = True) -> None:
     n_max on every pixel whatever the budget."""
     cov = buf.coverage.reshape(-1)
     bad = np.zeros(cov.shape, bool)
-    for a in (buf.sigma2, buf.sigma2_rel, buf.estimator_variance(mis), buf.measured_key(mis)):
-        if a is not None:
-            bad |= ~np.isfinite(a.numpy())
+    # each array once: without MIS the estimator's variance and the allocation's key are the same one
+    arrays = {id(a): a for a in (buf.sigma2, buf.sigma2_rel, buf.estimator_variance(mis), buf.measured_key(mis))
+              if a is not None}
+    for a in arrays.values():
+        bad |= ~np.isfinite(a.numpy())
     n_bad = int((bad & cov).sum())
     if n_bad:
         raise WarpbwError(f"{source}: the bandwidth pass's variance (squared radiance) overflowed float32 at {n_bad} "
@@ -619,16 +621,16 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
                                           seed=seed, mis=mis, device=prep.device, threads=threads, lights=prep.lights,
                                           upsample=upsample, plan=plan, progress=step)
     t_h = time.perf_counter() - t0 + t_plan
+    n_cov = int(gb.coverage.sum())
     # the lights' exact term is added after the hierarchy, outside the pass (whose overflow check sees no light): a
     # term that overflowed was dropped, and the frame is refused as the reference's is
-    _check_overflowed_samples(prep, res.stats["non_finite_samples"], res.stats["samples"], int(gb.coverage.sum()))
+    _check_overflowed_samples(prep, res.stats["non_finite_samples"], res.stats["samples"], n_cov)
     timings["shading"] = res.stats["time_s"]["shading"]
     timings["upsampling"] = res.stats["time_s"]["upsampling"]
     if prep.lights is not None:
         timings["lights"] = res.stats["time_s"]["lights"]
     timings["hierarchy"] = max(t_h - timings["shading"] - timings["upsampling"] - timings.get("lights", 0.0), 0.0)
     timings["frame"] = timings["gbuffer"] + timings["bandwidth"] + t_h
-    n_cov = int(gb.coverage.sum())
     H, W = prep.height, prep.width
     stats = _base_stats(prep, "adaptive", seed, mis, timings, n_cov, adaptive=True)
     stats.update({
