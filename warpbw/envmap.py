@@ -62,7 +62,9 @@ Host functions:
         (``EnvMap.source_digest`` hashes the map as given, before its scale: what the exposure does not change,
         the nu_a map, is cached by it)
     load_envmap(path, rotation_deg=0.0, scale=1.0, device="cpu") -> EnvMap   (warns first where it would take more
-                                                 memory than is available, ``load_memory(width, height)``)
+                                                 memory than is available, ``load_memory(width, height)``;
+                                                 ``file_load_memory(path) -> (width, height, bytes)`` from the
+                                                 EXR's header)
     constant_envmap(radiance, device="cpu") -> EnvMap
     load_environment(spec, device="cpu") -> EnvMap   a scene's [environment] (``warpbw.scene.Environment``)
     procedural_sky(width=256, height=128, ...) -> np.ndarray (H, W, 3) float32
@@ -648,17 +650,24 @@ def load_memory(width: int, height: int) -> int:
     return LOAD_BYTES_PER_TEXEL * int(width) * int(height)
 
 
+def file_load_memory(path) -> tuple[int, int, int]:
+    """From an EXR's header alone: the probe's size, its display window (the frame ``read_rgb`` returns), and the
+    bytes loading it takes at the peak, over the larger of that and its data window (the pixels decoded, which may be
+    larger: overscan)."""
+    from warpbw.io.exr import exr_size  # lazy: keeps this module importable on its own
+
+    w, h = exr_size(path, window="display")
+    data = exr_size(path)
+    return w, h, load_memory(*max((w, h), data, key=lambda s: s[0] * s[1]))
+
+
 def load_envmap(path, rotation_deg: float = 0.0, scale: float = 1.0, device="cpu") -> EnvMap:
     """Environment light from a lat-long EXR file (via warpbw.io.exr.read_rgb): its display window spans the sphere,
     texels of it that the file does not store are 0."""
-    from warpbw.io.exr import exr_size, read_rgb  # lazy: keeps this module importable on its own
+    from warpbw.io.exr import read_rgb  # lazy: keeps this module importable on its own
 
-    # the header alone: a probe too large to load warns before it is read.  The probe is its display window (the
-    # frame, read_rgb's); the pixels decoded are its data window, which may be larger (overscan)
-    w, h = exr_size(path, window="display")
-    data_w, data_h = exr_size(path)
-    warn_if_short_of_memory(load_memory(*max((w, h), (data_w, data_h), key=lambda s: s[0] * s[1])),
-                            available_memory(), f"loading {Path(path).name} ({w}x{h})", "a smaller probe",
+    w, h, need = file_load_memory(path)   # the header alone: a probe too large to load warns before it is read
+    warn_if_short_of_memory(need, available_memory(), f"loading {Path(path).name} ({w}x{h})", "a smaller probe",
                             stacklevel=2)
     rgb = read_rgb(path)
     h, w = rgb.shape[:2]

@@ -851,15 +851,13 @@ def _probe_memory(env, method: str) -> dict:
     if env is None or env.file is None:
         return {}
     from warpbw.bandwidth import env_bandwidth_memory
-    from warpbw.envmap import load_memory
-    from warpbw.io.exr import exr_size
+    from warpbw.envmap import file_load_memory
 
     try:
-        w, h = exr_size(env.file, window="display")   # the probe's texels (its frame)
-        data = exr_size(env.file)                      # the pixels decoded
+        w, h, need = file_load_memory(env.file)   # w, h: the probe's texels (its display window)
     except WarpbwError:
         return {}
-    out = {"probe_load_memory_bytes": load_memory(*max((w, h), data, key=lambda s: s[0] * s[1]))}
+    out = {"probe_load_memory_bytes": need}
     if method == "adaptive":
         out["probe_bandwidth_memory_bytes"] = env_bandwidth_memory(w, h)
     return out

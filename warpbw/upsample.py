@@ -280,7 +280,8 @@ def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
         return   # background: nothing to up-sample
     z = gb.depth[rp]
     n = gb.normal[rp]
-    cos_x = wp.abs(wp.dot(n, gb.view[rp]))
+    n_v = wp.dot(n, gb.view[rp])
+    cos_x = wp.abs(n_v)
     n_screen = screen_frame(cam, n, gb.position[rp])
     u_c = screen_normal(cam, n)
     i0, fx = parent_axis(x, parent_width)
@@ -325,7 +326,7 @@ def upsample_level_kernel(gb: GBufferData, cam: CameraData, level: int,
                 hi = wp.max(hi, l_k)
     if given == 0:
         weights[t] = w
-    if level == 0 and wp.dot(n, gb.view[rp]) <= 0.0:
+    if level == 0 and n_v <= 0.0:
         # the eye lies below the pixel's shading normal's horizon (normals interpolated across a silhouette): the
         # estimator gives such a pixel no radiance (warpbw.shading: wo[2] <= 0), and nor does its up-sampling
         out[t] = wp.vec3(0.0)
