@@ -1076,8 +1076,8 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     # "measured"'s is the frame's estimator's (with MIS the step's, not the one-sample key's: 2-4.5x less)
     if allocation == "relative":
         var = buf.sigma2.numpy().reshape(H, W).astype(np.float64)
-    elif allocation == "measured" and buf.estimator_variance(mis) is not key:   # with MIS: the step's
-        var = buf.estimator_variance(mis).numpy().reshape(H, W).astype(np.float64)
+    elif allocation == "measured" and (est := buf.estimator_variance(mis)) is not key:   # with MIS: the step's
+        var = est.numpy().reshape(H, W).astype(np.float64)
     else:
         var = sig
     with np.errstate(divide="ignore", invalid="ignore"):
