@@ -466,7 +466,8 @@ def _kmeans_plus_plus(x, K: int, rng, w=None) -> np.ndarray:
 
 def kmeans_init(x, centres, iterations: int = KMEANS_ITERATIONS, fallback_s2=None):
     """Lloyd iterations from ``centres`` (T, K, 2), vectorised; returns the initial (a, mu, s2) of EM:
-    cluster fractions, centroids, within-cluster variance per axis.  An empty cluster keeps its centre,
+    cluster fractions, centroids, within-cluster variance per axis (``iterations=0``: the given centres, and the
+    nearest-centre assignment's fractions and spread about them).  An empty cluster keeps its centre,
     weight 0 and ``fallback_s2`` (T, K) (default: the texel's variance per axis), floored."""
     x = _checked_samples(x, "kmeans_init")
     centres = _checked(centres, "kmeans_init: centres", f"finite centres ({x.shape[0]}, K, 2) (x's T)",
@@ -491,7 +492,7 @@ def _kmeans_init(x, centres, iterations: int = KMEANS_ITERATIONS, fallback_s2=No
         onehot = (lab[..., None] == ks).astype(np.float64)
         return onehot if w is None else onehot * w[..., None]
 
-    for _ in range(max(1, iterations)):
+    for _ in range(iterations):   # 0: the centres kept (max(1, .) ran one step, as 1 did)
         lab = np.argmin(_sq_dist(x, mu), axis=-1)
         onehot = assigned(lab)
         cnt = onehot.sum(axis=1)

@@ -1654,3 +1654,19 @@ def test_footprint_jitter_is_uniform_over_each_cell_not_on_its_diagonal():
     counts = np.bincount((dr * 4 + dc).ravel(), minlength=16)
     assert counts.size == 16 and counts.min() > 0.5 * counts.mean(), counts
     assert abs(np.mean(dr == dc) - 0.25) < 0.06
+
+
+@pytest.mark.parametrize("iterations", [0, 1, 2])
+def test_kmeans_init_runs_exactly_the_lloyd_iterations_asked_for(iterations):
+    """``iterations`` Lloyd steps (assign each sample to its nearest centre, move each centre to its samples' mean),
+    worked out by hand on 1D points: 0 steps keep the given centres (the shares and spreads are those of the nearest-
+    centre assignment about them); 0 was accepted and ran one step, the same as 1."""
+    x = np.array([[[0.0, 0.0], [0.4, 0.0], [0.6, 0.0], [1.0, 0.0]]])
+    centres = np.array([[[0.1, 0.0], [0.9, 0.0]]])
+    # step 0: {0, 0.4} and {0.6, 1} around 0.1 and 0.9; step 1: centres 0.2 and 0.8, the same clusters (converged)
+    want_mu = [0.1, 0.9] if iterations == 0 else [0.2, 0.8]
+    spread = [0.1 ** 2 + 0.3 ** 2] * 2 if iterations == 0 else [0.2 ** 2 * 2] * 2   # sum |x - mu|^2 per cluster
+    a, mu, s2 = kmeans_init(x, centres, iterations=iterations)
+    np.testing.assert_allclose(mu[0, :, 0], want_mu, atol=1e-15)
+    np.testing.assert_allclose(a[0], [0.5, 0.5], atol=1e-15)
+    np.testing.assert_allclose(s2[0], np.array(spread) / (2 * 2), rtol=1e-12)   # / (d * cluster size)
