@@ -342,7 +342,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--kind", choices=("height", "normal"), default="height",
                    help="MAP is a single-channel height field (default; 16-bit PNG or EXR: 8 bits "
                         "give terraced normals) or an RGB tangent-space normal map (PNG: [0, 1]-encoded; "
-                        "EXR: raw unit vectors or [0, 1]-encoded)")
+                        "EXR: raw unit vectors or [0, 1]-encoded; G points to the image's top row, the OpenGL "
+                        "convention: flip G of a DirectX-style map)")
     g.add_argument("--scale", type=_number_from(0.0), default=SCALE_DEFAULT,
                    help="height multiplier, a finite number > 0; heights are in units of the map's width (default 1; "
                    "--kind height only)")
