@@ -74,7 +74,15 @@ block maximum below).  A purely radial variation is overestimated by ``1/cos^2(t
 the zenith, 2 at the horizon; at the zenith the map is isotropic (sqrt(2) * 2/n rad per pixel).
 
 Resolution: at n = 128 a pixel is 0.022 rad (1.3 deg) at the zenith, so the largest expressible
-bandwidth (0.5 cycles/pixel) is ~22 cycles/radian there; narrower lobes (a mirror) saturate.  The
+bandwidth (0.5 cycles/pixel) is ~22 cycles/radian there; narrower lobes (a mirror) saturate (a lobe of one pixel
+reads ~0.34 cycles/pixel: ~15 cycles/radian at the zenith, ~21 near the rim), as long as a pixel centre sees them:
+the slice is sampled at the pixel centres only, so a lobe narrower than a pixel that falls between them is missed.
+A MERL mirror whose lobe lies in its first 5 theta_h bins (theta_h < 0.28 deg) reads 0 in every cell, and one in
+its first 8 bins (0.71 deg) 0 at theta_i bins 12-15 (session 76; a strict xfail in tests/test_brdf_bandwidth.py).
+The lobes of GGX down to alpha 1e-4 and of the NPF fits of chrome and black-obsidian have tails the centres see,
+and read ~15-21 cycles/radian at every bin.  Bin 15's mirror direction (87.2 deg) lies past ``GRAZING_LIMIT``
+(below), where the lobe is continued from 85 deg: a lobe past it speaks through its flank up to 85 deg only
+(gold-metallic-paint's mirror cell there reads 18.1 cycles/radian, 19.4 when evaluated up to 89.5 deg).  The
 per-pixel bandwidth (:func:`precompute.wavelets.local_bandwidth`, 95% energy rule, db4, 7 bands:
 periods 2 .. 256 px, so a lobe broader than the map reads as at most ~2^-7.5 cycles/px, ~0.25
 cycles/radian; an exactly constant lobe reads 0) is
