@@ -32,7 +32,7 @@ import numpy as np
 HEADER_KEY = "__header__"     # the archive member holding the JSON header
 FORMATS = {                   # format name -> (version read here, what the file is)
     "warpbw.brdf-sampling": (2, "importance-sampling tables of a tabulated BRDF"),
-    "warpbw.brdf-bandwidth": (3, "angular bandwidth nu_rho of a BRDF's lobes, cycles/radian"),
+    "warpbw.brdf-bandwidth": (4, "angular bandwidth nu_rho of a BRDF's lobes, cycles/radian"),
     "warpbw-gmm-mipmap": (2, "GMM normal mipmap"),
 }
 HALF_PI = 0.5 * math.pi

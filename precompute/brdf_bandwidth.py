@@ -76,12 +76,12 @@ the zenith, 2 at the horizon; at the zenith the map is isotropic (sqrt(2) * 2/n 
 Resolution: at n = 128 a pixel is 0.022 rad (1.3 deg) at the zenith, so the largest expressible
 bandwidth (0.5 cycles/pixel) is ~22 cycles/radian there; narrower lobes (a mirror) saturate (a lobe of one pixel
 reads ~0.34 cycles/pixel: ~15 cycles/radian at the zenith, ~21 near the rim), as long as a pixel centre sees them:
-the slice is sampled at the pixel centres only, so a lobe narrower than a pixel that falls between them is missed.
-A MERL mirror whose lobe lies in its first 5 theta_h bins (theta_h < 0.28 deg) reads 0 in every cell, and one in
-its first 8 bins (0.71 deg) 0 at theta_i bins 12-15 (session 76; a strict xfail in tests/test_brdf_bandwidth.py).
-The lobes of GGX down to alpha 1e-4 and of the NPF fits of chrome and black-obsidian have tails the centres see,
-and read ~15-21 cycles/radian at every bin.  Bin 15's mirror direction (87.2 deg) lies past ``GRAZING_LIMIT``
-(below), where the lobe is continued from 85 deg: a lobe past it speaks through its flank up to 85 deg only
+the slice is sampled at the pixel centres, which miss a lobe narrower than a pixel between them (a MERL mirror whose
+lobe lies in its first 5 theta_h bins, theta_h < 0.28 deg, read 0 in every cell before session 76).  So f is also
+evaluated at the mirror direction, on the edge of two pixels; where it exceeds both their values UNRESOLVED_PEAK
+times over, the peak is unresolved and both pixels read the map's limit, 0.5 cycles/pixel.  Bin 15's mirror
+direction (87.2 deg) lies past ``GRAZING_LIMIT`` (below), where the lobe is continued from 85 deg: a lobe past it
+speaks through its flank up to 85 deg only
 (gold-metallic-paint's mirror cell there reads 18.1 cycles/radian, 19.4 when evaluated up to 89.5 deg).  The
 per-pixel bandwidth (:func:`precompute.wavelets.local_bandwidth`, 95% energy rule, db4, 7 bands:
 periods 2 .. 256 px, so a lobe broader than the map reads as at most ~2^-7.5 cycles/px, ~0.25
@@ -144,10 +144,13 @@ N_THETA_I = 16          # incident elevations (bin centres uniform over [0, pi/2
 N_CELLS = 16            # outgoing map cells per side; paper: "a 16x16 image for each reflectance lobe"
 DEFAULT_RESOLUTION = 128  # analysed slice, n x n pixels (a multiple of N_CELLS)
 FORMAT = "warpbw.brdf-bandwidth"
-VERSION = 3   # 3: a cell crossing the rim takes its real directions' pixels only (session 67); 2: wavelet bands
-              # centred on the cascade's delays (session 58); 1: on one level's
+VERSION = 4   # 4: an unresolved peak at the mirror direction reads the map's limit (session 76); 3: a cell crossing
+              # the rim takes its real directions' pixels only (session 67); 2: wavelet bands centred on the cascade's
+              # delays (session 58); 1: on one level's
 SHAPE = (N_THETA_I, N_CELLS, N_CELLS)
 GRAZING_LIMIT = math.radians(85.0)  # outgoing elevations past this are continued, not evaluated
+# A lobe whose value at the mirror direction exceeds both pixels beside it this many times over is unresolved (ours)
+UNRESOLVED_PEAK = 2.0
 WAVELET_LEVELS = 7                  # bands analysed: periods 2 .. 256 px (module docstring)
 # Threads the slices' wavelet analyses share, at most (ours): pywt's transforms (96% of a table's time) release the
 # GIL, and 2 threads built gold-metallic-paint's table in 3.3 s against 6.3 s on one (2 cores; bit for bit the same)
@@ -285,6 +288,24 @@ def lobe_slice(evaluate: Callable, theta_i: float, resolution: int = DEFAULT_RES
     return f
 
 
+def _unresolved_peak(evaluate: Callable, theta_i: float, f: np.ndarray) -> np.ndarray:
+    """``(n, n)`` bool: the two pixels of the slice ``f`` (``lobe_slice``'s) whose shared edge holds the mirror
+    direction ``(theta_i, pi)``, where the lobe exceeds both their values ``UNRESOLVED_PEAK`` times over (the sum of
+    its channels): a peak narrower than the pixels, which their centres miss (module docstring, "Resolution").  All
+    False where it does not, or where the mirror direction lies past ``GRAZING_LIMIT``."""
+    n = f.shape[0]
+    mask = np.zeros((n, n), dtype=bool)
+    if n < 2 or theta_i > GRAZING_LIMIT:
+        return mask
+    col = min(int((1.0 - math.sqrt(2.0) * math.sin(0.5 * theta_i)) * 0.5 * n), n - 1)
+    wi = np.array([[math.sin(theta_i), 0.0, math.cos(theta_i)]])
+    peak = float(_evaluated(evaluate, wi, _dirs(np.array([theta_i]), np.array([math.pi])))[0].sum())
+    rows = [n // 2 - 1, n // 2]
+    if peak > UNRESOLVED_PEAK * float(f[rows, col].sum(axis=-1).max()):
+        mask[rows, col] = True
+    return mask
+
+
 def slice_bandwidth(f: np.ndarray) -> np.ndarray:
     """Per-pixel angular bandwidth (cycles/radian, ``(n, n)``) of one lobe slice ``(n, n[, C])`` (channels summed).
     A slice that is not square (numpy's broadcast error), empty, or of other rank is refused."""
@@ -346,7 +367,8 @@ def brdf_bandwidth_table(evaluate: Callable, resolution: int = DEFAULT_RESOLUTIO
     with ThreadPoolExecutor(threads) as pool:
         try:
             for t, th in enumerate(theta_i_centres()):   # each slice is evaluated here, then analysed on the pool
-                pending.append((t, pool.submit(slice_bandwidth, lobe_slice(evaluate, float(th), n))))
+                f = lobe_slice(evaluate, float(th), n)
+                pending.append((t, pool.submit(_peaked_bandwidth, f, _unresolved_peak(evaluate, float(th), f))))
                 if len(pending) > threads:   # at most threads + 1 slices held at once
                     _take(out, pending, progress)
             while pending:
@@ -356,6 +378,13 @@ def brdf_bandwidth_table(evaluate: Callable, resolution: int = DEFAULT_RESOLUTIO
                 f.cancel()
             raise
     return out
+
+
+def _peaked_bandwidth(f: np.ndarray, peak: np.ndarray) -> np.ndarray:
+    """``slice_bandwidth(f)``, with the pixels of an unresolved peak (``_unresolved_peak``'s mask) at the map's limit,
+    0.5 cycles per pixel."""
+    b = slice_bandwidth(f)
+    return np.where(peak, np.maximum(b, 0.5 / map_radians_per_pixel(f.shape[0])), b)
 
 
 def _take(out: np.ndarray, pending: deque, progress) -> None:

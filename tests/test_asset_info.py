@@ -89,7 +89,7 @@ def test_each_format_is_named_read_and_its_arrays_ranged(assets, capsys):
     expected = {
         "sampling": ("warpbw.brdf-sampling", 2, "importance-sampling tables of a tabulated BRDF (002 Sec. 3.3)",
                      "npf.bin:chrome", f"{assets['npf_digest']}:chrome"),
-        "bandwidth": ("warpbw.brdf-bandwidth", 3,
+        "bandwidth": ("warpbw.brdf-bandwidth", 4,
                       "angular bandwidth table nu_rho of a tabulated BRDF (002 Sec. 2.3)", "npf.bin:chrome",
                       f"{assets['npf_digest']}:chrome"),
         "gmm": ("warpbw-gmm-mipmap", 2, "GMM normal mipmap (004 Sec. 4.1)", "surface:dunes:16",
@@ -140,7 +140,7 @@ def test_another_version_or_format_is_not_read(assets, tmp_path, capsys):
     assert "\n  read      no: version 1, this warpbw reads 2\n" in block(out, old)
     assert "\n  settings  not checked" in block(out, old)
     text = block(out, other)
-    assert "\n  format    someone.elses-table version 3\n" in text, text
+    assert "\n  format    someone.elses-table version 4\n" in text, text   # the bandwidth table it was copied from
     assert "\n  read      no: 'someone.elses-table' is not a format warpbw reads\n" in text, text
     code, (r_old, r_other) = info_json(capsys, old, other)
     assert (r_old["reads"], r_old["version"], r_old["settings"]) == (False, 1, None)

@@ -824,9 +824,10 @@ def test_precompute_info_names_a_bad_file_and_still_shows_the_others(tmp_path, c
     named in one error line saying what was expected, the good files are shown all the same (--json: the list holds
     ``{"path", "error"}`` in BAD's place), and the command exits 2, without a traceback."""
     from precompute.__main__ import main
+    from precompute.brdf_bandwidth import VERSION
 
     good = np.savez_compressed(tmp_path / "good.npz", __header__=np.array(json.dumps(
-        {"format": "warpbw.brdf-bandwidth", "version": 3, "source": "m.binary", "source_hash": "h", "params": {},
+        {"format": "warpbw.brdf-bandwidth", "version": VERSION, "source": "m.binary", "source_hash": "h", "params": {},
          "writer": "warpbw test"})), nu_rho=np.full((16, 16, 16), 1.5, np.float32)) or tmp_path / "good.npz"
     make, said = INFO_BAD_FILES[case]
     bad = make(tmp_path)
@@ -842,7 +843,7 @@ def test_precompute_info_names_a_bad_file_and_still_shows_the_others(tmp_path, c
         assert records[1] == {"path": str(bad), "error": err.split("error: ", 1)[1].strip()}
         assert records[0]["arrays"][0]["max"] == 1.5
     else:
-        assert out.count(f"{good}\n  format    warpbw.brdf-bandwidth version 3") == 2, out
+        assert out.count(f"{good}\n  format    warpbw.brdf-bandwidth version {VERSION}") == 2, out
         assert str(bad) not in out, out
 
 
