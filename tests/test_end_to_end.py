@@ -1322,6 +1322,24 @@ def test_the_readme_layout_names_every_module_and_example():
                                         named[folder] - there)
 
 
+def test_the_readme_says_what_its_first_command_needs():
+    """README's first command, ``pip install -e ".[test]"``, is refused on Debian's or Ubuntu's own Python (an
+    externally managed environment), and ``warpbw`` is on the PATH only where the environment is active: the README
+    says which Python (pyproject's requires-python) and how to make the virtual environment, in a folder git ignores
+    (session 76's audit of a fresh clone: it said neither)."""
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    intro = (root / "README.md").read_text().split("\n## ")[0]
+    need = tomllib.loads((root / "pyproject.toml").read_text())["project"]["requires-python"]
+    assert re.fullmatch(r">=\d+\.\d+", need), need
+    assert f"Python {need[2:]} or later" in intro
+    venv = re.search(r"`python3? -m venv (\S+) && \. (\S+)/bin/activate`", intro)
+    assert venv and venv.group(1) == venv.group(2), "README's introduction gives no virtual environment to make"
+    assert "externally-managed-environment" in intro
+    assert f"{venv.group(1)}/" in (root / ".gitignore").read_text().split()
+
+
 def test_every_module_lists_its_public_functions_in_its_docstring():
     """DESIGN.md's convention, 'a module's public functions are listed in its docstring': every function or class
     of warpbw/ and precompute/ whose name does not start with _ is named in its module's docstring, the Warp
