@@ -705,6 +705,45 @@ def test_the_render_record_names_the_bandwidth_file_it_read(tmp_path, monkeypatc
     assert rec["bandwidth"] == "built" and "bandwidth_file" not in rec and "sampling_file" not in rec
 
 
+def test_info_says_a_named_bandwidth_table_of_another_lookup_is_refused(tmp_path, capsys):
+    """A scene naming a nu_rho table built for another lookup than its material shades with is refused by the render
+    (README, "Scene files"), but warpbw info --method adaptive said "builder settings current" of it (session 76's
+    audit): info now says the render refuses it and the --lookup that builds the right one.  Truth: the renderer's
+    own reader, given the material's source, refuses exactly the file info flags."""
+    from conftest import fake_npf_table
+    from precompute.brdf_bandwidth import read_brdf_bandwidth, write_brdf_bandwidth
+    from precompute.brdf_sampling import brdf_source
+    from warpbw.cli import main as cli_main
+    from warpbw.errors import WarpbwError
+
+    fake_npf_table(tmp_path / "npf.bin")
+    for lookup in ("nearest", "linear"):
+        write_brdf_bandwidth(tmp_path / f"{lookup}.npz", np.full((16, 16, 16), 2.0, np.float32),
+                             brdf_source(tmp_path / "npf.bin", "chrome", lookup))
+    lines = ["[camera]", "position = [0.0, 0.0, 3.0]", "look_at = [0.0, 0.0, 0.0]", "fov = 50.0", "resolution = [8, 8]",
+             "[environment]", 'procedural = "sky"', "[[object]]", 'shape = "sphere"', "radius = 0.8", 'material = "m"',
+             "[material.m]", 'type = "npf"', 'table = "npf.bin"', 'name = "chrome"']
+    for scene_lookup in ("nearest", "linear"):
+        for file_lookup in ("nearest", "linear"):
+            table = tmp_path / f"{file_lookup}.npz"
+            named = [f'lookup = "{scene_lookup}"', f'bandwidth = "{table.name}"']
+            (tmp_path / "s.toml").write_text("\n".join(lines + named))
+            try:
+                read_brdf_bandwidth(table, brdf_source(tmp_path / "npf.bin", "chrome", scene_lookup))
+                refused = False
+            except WarpbwError:
+                refused = True
+            assert refused == (scene_lookup != file_lookup)
+            assert cli_main(["info", str(tmp_path / "s.toml"), "--method", "adaptive", "--json"]) == 0
+            (a,) = [a for a in json.loads(capsys.readouterr().out)["assets"] if a["path"] == str(table)]
+            assert ("refused" in a) == refused, (scene_lookup, file_lookup, a)
+            assert cli_main(["info", str(tmp_path / "s.toml"), "--method", "adaptive"]) == 0
+            line = next(ln for ln in capsys.readouterr().out.splitlines() if str(table) in ln)
+            said = (f"built for the {file_lookup} lookup, material m shades with {scene_lookup}: a render refuses it "
+                    f"(warpbw-precompute brdf --lookup {scene_lookup} builds its table)")
+            assert (said in line) == refused and ("builder settings current" in line) != refused, line
+
+
 def test_info_lists_the_stages_a_frame_of_each_method_runs(tmp_path):
     """warpbw info --method M, from the scene file alone, names the stages a frame of M then records having run
     (stats["stages"]), in their order; the adaptive method is refused where warpbw render refuses it."""
