@@ -1379,6 +1379,18 @@ def test_the_readme_says_what_its_first_command_needs():
     assert f"{venv.group(1)}/" in (root / ".gitignore").read_text().split()
 
 
+def test_the_folders_the_readmes_commands_write_are_ignored_by_git():
+    """Every folder README's commands write into the repository (an example's ``--out DIR``, ``-o DIR`` of demo, batch
+    and filtering_zoom.py) is one .gitignore names: a newcomer who follows README keeps a clean ``git status``
+    (session 76's audit: mixed/, bench/, bench_out/, dyn/, val/, zoom_out/ and tables/ were not)."""
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    folders = set(re.findall(r"--out ([\w/-]+)", readme)) | set(re.findall(r" -o ([\w/-]+)(?=[\s`])", readme))
+    ignored = (root / ".gitignore").read_text().split()
+    missing = sorted(f for f in folders if f"/{f.split('/')[0]}/" not in ignored)
+    assert {"warpbw_demo", "mixed", "tables", "zoom_out"} <= folders and not missing, (folders, missing)
+
+
 def test_every_module_lists_its_public_functions_in_its_docstring():
     """DESIGN.md's convention, 'a module's public functions are listed in its docstring': every function or class
     of warpbw/ and precompute/ whose name does not start with _ is named in its module's docstring, the Warp
@@ -2275,6 +2287,12 @@ def test_demo_next_command_runs_as_printed_from_a_folder_with_a_space(small_scen
     assert (args.command, args.scene, args.output, args.method, args.budget) == (
         "render", str(Path("my out") / "scene.toml"), str(Path("my out") / "adaptive.exr"), "adaptive", 4.0)
     assert Path("my out/scene.toml").is_file()
+    # from README's first command's folder, the line README quotes (it wrote adaptive.* into the working folder, where
+    # demo's own line writes them beside the demo's: session 76's audit)
+    assert main(["demo", "-o", "warpbw_demo", "--spp", "4"]) == 0
+    line = _lines(capsys.readouterr().out, "next: ")
+    readme = re.sub(r"\s+", " ", (Path(__file__).resolve().parents[1] / "README.md").read_text())
+    assert f"`{line[len('next: '):]}`" in readme, line
 
 
 def _fake_filtering(monkeypatch, clock, level, cov=COV, time_s=0.0125, stats_extra=None):
