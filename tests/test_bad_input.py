@@ -1577,7 +1577,7 @@ def test_bunny_on_floor_keeps_a_scene_or_height_field_of_other_contents_without_
     example_error(run_example(["bunny_on_floor.py", "--out", "m", "--size", "19"], tmp_path), "bunny_on_floor.py",
                   "m/bunny_on_floor.toml: already exists", "--force")
     example_error(run_example(["bunny_on_floor.py", "--out", "m", "--size", "17"], tmp_path), "bunny_on_floor.py",
-                  "m/bunny_on_floor.toml: already exists", "it and 1 more", "--force")
+                  "m/bunny_on_floor.toml: already exists", "as do 1 more output of this command", "--force")
     assert scene.read_text().endswith("# mine\n") and read_exr(heights).pixels.shape == (19, 19, 1)
     assert sorted(p.name for p in scene.parent.iterdir()) == ["bunny_on_floor.toml", "dunes.exr"]
     r = run_example(["bunny_on_floor.py", "--out", "m", "--size", "17", "--force"], tmp_path)
@@ -3027,7 +3027,7 @@ def test_check_overwrite_counts_the_other_existing_outputs(tmp_path):
     for p in outs[:3]:
         p.write_text("earlier")
     assert outcome(check_overwrite, outs, False) == \
-        f"WarpbwError: {outs[0]}: already exists (pass --force to overwrite it and 2 more)"
+        f"WarpbwError: {outs[0]}: already exists, as do 2 more outputs of this command (pass --force to overwrite them)"
     for p in outs[1:3]:
         p.unlink()
     assert outcome(check_overwrite, outs, False) == \
