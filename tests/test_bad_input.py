@@ -1560,6 +1560,33 @@ def test_bench_scripts_keep_an_earlier_run_and_a_scene_edited_by_hand(tmp_path, 
     assert edited.read_text().endswith("# mine\n")
 
 
+def test_filtering_scenes_rewrites_its_own_scenes_and_keeps_others_without_force(tmp_path):
+    """filtering_scenes.py refused its own scenes and height fields, unchanged, without --force, so that writing the
+    scenes and then benching them with --run (README's two commands, bench_scenes.py's flow) needed --force, which
+    also replaces the results (session 76's audit).  The same contents are rewritten; a scene edited by hand, a height
+    field of another --size and, with --run, an existing record are refused before anything is written."""
+    from warpbw.io.exr import read_exr
+
+    args = ["filtering_scenes.py", "--out", "fs", "--size", "17"]
+    assert run_example(args, tmp_path).returncode == 0
+    r = run_example(args, tmp_path)
+    assert r.returncode == 0, r.stderr                                                   # the same contents
+    scene, heights = tmp_path / "fs" / "dunes.toml", tmp_path / "fs" / "dunes.exr"
+    scene.write_text(scene.read_text() + "# mine\n")
+    example_error(run_example(args, tmp_path), "filtering_scenes.py", "fs/dunes.toml: already exists", "--force")
+    assert scene.read_text().endswith("# mine\n")
+    scene.write_text(scene.read_text().removesuffix("# mine\n"))
+    example_error(run_example(["filtering_scenes.py", "--out", "fs", "--size", "19"], tmp_path), "filtering_scenes.py",
+                  "fs/scales.exr: already exists", "as do 5 more outputs", "--force")   # scenes and height fields
+    assert read_exr(heights).pixels.shape == (17, 17, 1)
+    (tmp_path / "fs" / "dunes.json").write_text("mine\n")
+    example_error(run_example(args + ["--run", "--zoom", "1", "--gt-spp", "64"], tmp_path), "filtering_scenes.py",
+                  "fs/dunes.json: already exists", "--force")
+    assert (tmp_path / "fs" / "dunes.json").read_text() == "mine\n"
+    assert sorted(p.name for p in scene.parent.iterdir()) == sorted(
+        [f"{n}{e}" for n in ("scales", "carved_disk", "dunes") for e in (".toml", ".exr")] + ["dunes.json"])
+
+
 def test_bunny_on_floor_keeps_a_scene_or_height_field_of_other_contents_without_force(tmp_path, shared):
     """examples/bunny_on_floor.py rewrites its scene as it was without --force, but refuses a scene edited by hand or
     a height field of another --size, before anything is written (the height field stays the earlier one)."""
