@@ -2321,6 +2321,11 @@ def test_render_of_planes_summary_and_level_map_by_hand(small_scenes, monkeypatc
     assert _lines(out, "  frame") == "  frame 12.5 ms, total 2.00 s"
     assert _lines(out, "  preview") == "  preview p.png, stats p.json, mip level p.level.exr (+ .png)"
     assert _lines(out, "  colour scales") == "  colour scales (dark blue to yellow): level 1 to 2"
+    # in another folder, the level map named with it, as the preview is (it said "mip level p.level.exr": session 76)
+    assert main(["render", "plane.toml", "-o", str(Path("sub", "p.exr")), "--filter", "toksvig"]) == 0
+    sub = {k: Path("sub", f"p.{k}") for k in ("png", "json", "level.exr")}
+    assert _lines(capsys.readouterr().out, "  preview") == \
+        f"  preview {sub['png']}, stats {sub['json']}, mip level {sub['level.exr']} (+ .png)"
     st = json.loads(Path("p.json").read_text())
     assert st["time_s"] == {"frame": 0.0125, "total": 2.0}
     assert st["colour_scales"]["level"]["from"] == 1.0 and st["colour_scales"]["level"]["to"] == 2.0

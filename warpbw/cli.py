@@ -197,7 +197,7 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
                   f"up-sampling {t['upsampling'] * 1e3:.1f} ms"
                   + (f", lights (exact, every pixel) {t['lights'] * 1e3:.1f} ms" if "lights" in t else "")
                   + f", frame {t['frame']:.3f} s, total {t['total']:.2f} s")
-            print(f"  AOVs {', '.join(printable(p[0].name) for p in _aov_paths(out).values())} (+ .png)")
+            print(f"  AOVs {', '.join(printable(str(p[0])) for p in _aov_paths(out).values())} (+ .png)")
             print(_scales_line(res.stats["colour_scales"]))
         else:
             sps = res.stats["samples_per_second"]
@@ -263,7 +263,7 @@ def _render_filtering_cli(scene, args) -> int:
               f"{res.stats['pixels_covered']} covered pixels)")
         print(f"  frame {res.time_s * 1e3:.1f} ms, total {res.stats['time_s']['total']:.2f} s")
         print(f"  preview {printable(outs['png'])}, stats {printable(outs['json'])}, "
-              f"mip level {printable(level_paths[0].name)} (+ .png)")
+              f"mip level {printable(str(level_paths[0]))} (+ .png)")
         print(_scales_line(res.stats["colour_scales"]))
     return 0
 
@@ -320,8 +320,8 @@ def _render_mixed_cli(scene, args) -> int:
         print(f"  planes in front: {pl['pixels_covered']} pixels, filter {method}, {planes}, frame {t['planes']:.3f} s")
         print(f"  frame {t['frame']:.3f} s, total {t['total']:.2f} s")
         print(f"  preview {printable(outs['png'])}, stats {printable(outs['json'])}, "
-              f"mip level {printable(mip_paths[0].name)} (+ .png)"
-              + (f", AOVs {', '.join(printable(p[0].name) for p in _aov_paths(out).values())} (+ .png)"
+              f"mip level {printable(str(mip_paths[0]))} (+ .png)"
+              + (f", AOVs {', '.join(printable(str(p[0])) for p in _aov_paths(out).values())} (+ .png)"
                  if adaptive else ""))
         print(_scales_line(res.stats["colour_scales"]))
     return 0
