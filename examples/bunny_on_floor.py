@@ -29,13 +29,11 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
 HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:   # the dunes of filtering_scenes.py, its sibling (also when imported from elsewhere)
     sys.path.insert(0, str(HERE))
 
-from filtering_scenes import SCENES, height_field  # noqa: E402
+from filtering_scenes import SCENES, height_field, holds_other  # noqa: E402
 from precompute.surfaces import MAX_SURFACE_SIZE, MIN_SURFACE_SIZE  # noqa: E402
 from warpbw.cli_common import OneLineParser, check_output_dir, check_overwrite, run_command  # noqa: E402
 from warpbw.errors import WarpbwError  # noqa: E402
@@ -100,22 +98,6 @@ def scene_text() -> str:
                         floor=FLOOR, tiling=tiling, **mat)
 
 
-def _holds_other(path: Path, contents) -> bool:
-    """True when ``path`` exists with contents other than ``contents``: a scene's text, or a height field's pixels
-    (an EXR of one ``Y`` channel, compared as read back)."""
-    from warpbw.io.exr import read_exr
-
-    if not path.exists():
-        return False
-    try:
-        if isinstance(contents, str):
-            return path.read_text() != contents
-        img = read_exr(path)
-    except (OSError, UnicodeDecodeError, WarpbwError):   # a folder, a binary file, no EXR
-        return True
-    return img.channels != ["Y"] or not np.array_equal(img.pixels, contents)
-
-
 def write_scene(out: Path, size: int, force: bool = False) -> Path:
     """Write OUT/bunny_on_floor.toml and OUT/dunes.exr (``size`` texels square); returns the scene's path.  A file
     there with other contents is refused without ``force``, before anything is written."""
@@ -129,7 +111,7 @@ def write_scene(out: Path, size: int, force: bool = False) -> Path:
                           "$WARPBW_SHARED_DATA)")
     scene, heights = out / SCENE_NAME, out / f"{FLOOR}.exr"
     outputs = {scene: scene_text(), heights: height_field(FLOOR, size)}
-    check_overwrite([p for p, contents in outputs.items() if _holds_other(p, contents)], force, "--out")
+    check_overwrite([p for p, contents in outputs.items() if holds_other(p, contents)], force, "--out")
     with staged_outputs(outputs) as at:   # the scene and its height field, or neither
         write_exr(at[heights], outputs[heights], channels=["Y"])
         at[scene].write_text(outputs[scene])

@@ -1,8 +1,8 @@
 """Write the reflectance-filtering benchmark scenes of issue 4 (the three procedural test surfaces of
 ``precompute.surfaces`` on a plane under directional lights), then optionally bench them.
 
-    python examples/filtering_scenes.py --out /work/bench/filtering             # write scenes + height maps
-    python examples/filtering_scenes.py --out /work/bench/filtering --run       # and run bench-filtering on each
+    python examples/filtering_scenes.py --out bench_filtering             # write scenes + height maps
+    python examples/filtering_scenes.py --out bench_filtering --run       # and run bench-filtering on each
 
 =====================  ====================  ======  =======================================
 scene                  surface               tiling  like
@@ -17,7 +17,11 @@ sits at ``DISTANCE`` from the plane's centre, 60 degrees above it, so that at zo
 about one texel of a tiling-4 map at the default resolution; ``warpbw bench-filtering`` moves it away by
 each zoom factor.  ``--run`` writes NAME.json and NAME.png beside each scene, prints the tables, and ends
 with issue 4's acceptance checks at each scene's coarsest zoom (``acceptance_checks``): the aligned GMM's error
-against Toksvig's, the fixed BRDF's and the unaligned GMM's, and whether its flicker is the lowest.
+against Toksvig's, the fixed BRDF's and the unaligned GMM's, and whether its flicker is the lowest.  A scene or
+height field in OUT with other contents (a scene edited by hand, another ``--size``) is refused without
+``--force``, before anything is written; one with the same contents is rewritten (``holds_other``), so that
+``--run`` benches the scenes an earlier run wrote, as bench_scenes.py's does.  With ``--run``, an existing
+record or plot is refused without ``--force``.
 
 Lights (``--lights``).  On a plane seen from afar, every pixel sees the same view and light directions, so
 a directional light reads the filtered NDF at a single half-vector h: one light measures D(h) at one point
@@ -139,12 +143,27 @@ def height_field(name: str, size: int) -> np.ndarray:
     return SURFACES[SCENES[name][0]](size).astype(np.float32)[..., None]
 
 
-def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "ring", components: int = 4,
-                 environment: Path | None = None, prior: float = 1.0,
-                 elevation_deg: float = ELEVATION_DEG) -> list:
-    from warpbw.io.exr import write_exr
-    from warpbw.io.staged import staged_outputs
+def holds_other(path: Path, contents) -> bool:
+    """True when ``path`` exists with contents other than ``contents``: a scene's text, or a height field's pixels
+    (an EXR of one ``Y`` channel, compared as read back)."""
+    from warpbw.errors import WarpbwError
+    from warpbw.io.exr import read_exr
 
+    if not path.exists():
+        return False
+    try:
+        if isinstance(contents, str):
+            return path.read_text() != contents
+        img = read_exr(path)
+    except (OSError, UnicodeDecodeError, WarpbwError):   # a folder, a binary file, no EXR
+        return True
+    return img.channels != ["Y"] or not np.array_equal(img.pixels, contents)
+
+
+def scene_files(out: Path, size: int, resolution=RESOLUTION, lights: str = "ring", components: int = 4,
+                environment: Path | None = None, prior: float = 1.0, elevation_deg: float = ELEVATION_DEG) -> tuple:
+    """``(heights, texts)``: what ``write_scenes`` writes, each by its output path (height fields as arrays, scenes
+    as TOML text)."""
     el = math.radians(elevation_deg)
     dirs = light_directions(lights)   # for the 60-degree camera, whatever elevation_deg
     light_text = "\n".join(LIGHT.format(x=d[0], y=d[1], z=d[2], e=LIGHT_RADIANCE / len(dirs)) for d in dirs)
@@ -158,6 +177,16 @@ def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "rin
                             cz=DISTANCE * math.cos(el), fov=FOV_DEG, w=resolution[0], h=resolution[1],
                             lights=light_text, name=name, components=components, prior=prior, **mat)
         texts[out / f"{name}.toml"] = text
+    return heights, texts
+
+
+def write_scenes(out: Path, size: int, resolution=RESOLUTION, lights: str = "ring", components: int = 4,
+                 environment: Path | None = None, prior: float = 1.0,
+                 elevation_deg: float = ELEVATION_DEG) -> list:
+    from warpbw.io.exr import write_exr
+    from warpbw.io.staged import staged_outputs
+
+    heights, texts = scene_files(out, size, resolution, lights, components, environment, prior, elevation_deg)
     with staged_outputs([*heights, *texts]) as at:   # every scene and height field, or none
         for p, h in heights.items():
             write_exr(at[p], h, channels=["Y"])
@@ -243,7 +272,8 @@ def main(argv=None) -> int:
     ap.add_argument("--flicker-pairs", default="1", metavar="P",
                     help="for --run: consecutive frame pairs per zoom the flicker is averaged over (default 1; "
                          "warpbw bench-filtering --flicker-pairs)")
-    ap.add_argument("--force", action="store_true", help="overwrite existing scenes, height fields and results")
+    ap.add_argument("--force", action="store_true", help="overwrite scenes and height fields in OUT that hold other "
+                    "contents (ones of the same contents are rewritten), and with --run existing results")
     args = ap.parse_args(argv)
     from warpbw.scene import GMM_MAX_COMPONENTS, GMM_MAX_PRIOR
 
@@ -273,9 +303,13 @@ def main(argv=None) -> int:
         passed["--spp"] = args.spp
     check_command_options("bench-filtering", passed)
     # with --run, the benchmarks' records and plots too: a dunes.json was refused after the scenes were written and
-    # the first two scenes benchmarked
-    check_overwrite([out / f"{name}{ext}" for name in SCENES
-                     for ext in (".toml", ".exr") + ((".json", ".png") if args.run else ())], args.force, "--out",
+    # the first two scenes benchmarked.  A scene or height field of the same contents is this script's own: it
+    # was refused too, so that --run after a run without it needed --force (session 76's audit)
+    heights, texts = scene_files(out, args.size, lights=args.lights, components=args.components,
+                                 environment=args.environment, prior=args.prior, elevation_deg=args.elevation)
+    other = [p for p, c in {**heights, **texts}.items() if holds_other(p, c)]
+    results = [out / f"{name}{ext}" for name in SCENES for ext in ((".json", ".png") if args.run else ())]
+    check_overwrite(other + results, args.force, "--out",
                     inputs=[args.environment] if args.environment is not None else (),
                     inputs_are="the --environment probe")
     paths = write_scenes(out, args.size, lights=args.lights, components=args.components,

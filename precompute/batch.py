@@ -136,11 +136,27 @@ def _kept(path: Path, kind: str, read, source, settings: dict, unrecorded: dict)
     try:
         table = read(path, source)
     except WarpbwError:
-        return None, f"is not a {kind} table of {source.name}"
+        return None, _other_lookup(path, kind, source) or f"is not a {kind} table of {source.name}"
     other = settings_mismatch((read_header(path) or {}).get("params"), settings, unrecorded)
     if other is not None:   # a table of this BRDF, but not the one the batch builds now (another warpbw's constants)
         return None, f"is a {kind} table of {source.name} built with other settings ({other})"
     return table, None
+
+
+def _other_lookup(path: Path, kind: str, source) -> str | None:
+    """Why ``path``, refused as ``source``'s ``kind`` table, is kept by another ``--lookup``: it records one other than
+    ``source``'s, and the content hash of ``source`` read with it (a batch run before with ``--lookup nearest``, resumed
+    without it, was told the table "is not a bandwidth table" of its own BRDF); else None."""
+    from precompute.brdf_sampling import digest_at, source_lookup
+    from warpbw.scene import LOOKUP_MODES
+
+    header = read_header(path) or {}
+    params = header.get("params")
+    got, want = params.get("lookup") if isinstance(params, dict) else None, source_lookup(source)
+    if got not in LOOKUP_MODES or want is None or got == want or header.get("source_hash") != digest_at(source, got):
+        return None
+    return (f"is {source.name}'s {kind} table for the {got} lookup, not the {want} one this batch builds "
+            f"(--lookup {got} keeps it)")
 
 
 def build_item(item: BatchItem, outputs: dict, threads: int = 1, force: bool = False, resume: bool = False,

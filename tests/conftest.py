@@ -20,7 +20,7 @@ def shared_file(rel: str) -> Path:
     """Path of a file under ../shared/data, or skip the test saying why."""
     p = SHARED_DATA / rel
     if not p.exists():
-        pytest.skip(f"real test data {p} is absent (clone ../shared beside the repository)")
+        pytest.skip(f"real test data {p} is absent (clone ../shared beside the repository or set $WARPBW_SHARED_DATA)")
     return p
 
 

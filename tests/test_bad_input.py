@@ -1561,6 +1561,33 @@ def test_bench_scripts_keep_an_earlier_run_and_a_scene_edited_by_hand(tmp_path, 
     assert edited.read_text().endswith("# mine\n")
 
 
+def test_filtering_scenes_rewrites_its_own_scenes_and_keeps_others_without_force(tmp_path):
+    """filtering_scenes.py refused its own scenes and height fields, unchanged, without --force, so that writing the
+    scenes and then benching them with --run (README's two commands, bench_scenes.py's flow) needed --force, which
+    also replaces the results (session 76's audit).  The same contents are rewritten; a scene edited by hand, a height
+    field of another --size and, with --run, an existing record are refused before anything is written."""
+    from warpbw.io.exr import read_exr
+
+    args = ["filtering_scenes.py", "--out", "fs", "--size", "17"]
+    assert run_example(args, tmp_path).returncode == 0
+    r = run_example(args, tmp_path)
+    assert r.returncode == 0, r.stderr                                                   # the same contents
+    scene, heights = tmp_path / "fs" / "dunes.toml", tmp_path / "fs" / "dunes.exr"
+    scene.write_text(scene.read_text() + "# mine\n")
+    example_error(run_example(args, tmp_path), "filtering_scenes.py", "fs/dunes.toml: already exists", "--force")
+    assert scene.read_text().endswith("# mine\n")
+    scene.write_text(scene.read_text().removesuffix("# mine\n"))
+    example_error(run_example(["filtering_scenes.py", "--out", "fs", "--size", "19"], tmp_path), "filtering_scenes.py",
+                  "fs/scales.exr: already exists", "as do 5 more outputs", "--force")   # scenes and height fields
+    assert read_exr(heights).pixels.shape == (17, 17, 1)
+    (tmp_path / "fs" / "dunes.json").write_text("mine\n")
+    example_error(run_example(args + ["--run", "--zoom", "1", "--gt-spp", "64"], tmp_path), "filtering_scenes.py",
+                  "fs/dunes.json: already exists", "--force")
+    assert (tmp_path / "fs" / "dunes.json").read_text() == "mine\n"
+    assert sorted(p.name for p in scene.parent.iterdir()) == sorted(
+        [f"{n}{e}" for n in ("scales", "carved_disk", "dunes") for e in (".toml", ".exr")] + ["dunes.json"])
+
+
 def test_bunny_on_floor_keeps_a_scene_or_height_field_of_other_contents_without_force(tmp_path, shared):
     """examples/bunny_on_floor.py rewrites its scene as it was without --force, but refuses a scene edited by hand or
     a height field of another --size, before anything is written (the height field stays the earlier one)."""
@@ -1578,7 +1605,7 @@ def test_bunny_on_floor_keeps_a_scene_or_height_field_of_other_contents_without_
     example_error(run_example(["bunny_on_floor.py", "--out", "m", "--size", "19"], tmp_path), "bunny_on_floor.py",
                   "m/bunny_on_floor.toml: already exists", "--force")
     example_error(run_example(["bunny_on_floor.py", "--out", "m", "--size", "17"], tmp_path), "bunny_on_floor.py",
-                  "m/bunny_on_floor.toml: already exists", "it and 1 more", "--force")
+                  "m/bunny_on_floor.toml: already exists", "as do 1 more output of this command", "--force")
     assert scene.read_text().endswith("# mine\n") and read_exr(heights).pixels.shape == (19, 19, 1)
     assert sorted(p.name for p in scene.parent.iterdir()) == ["bunny_on_floor.toml", "dunes.exr"]
     r = run_example(["bunny_on_floor.py", "--out", "m", "--size", "17", "--force"], tmp_path)
@@ -3028,7 +3055,7 @@ def test_check_overwrite_counts_the_other_existing_outputs(tmp_path):
     for p in outs[:3]:
         p.write_text("earlier")
     assert outcome(check_overwrite, outs, False) == \
-        f"WarpbwError: {outs[0]}: already exists (pass --force to overwrite it and 2 more)"
+        f"WarpbwError: {outs[0]}: already exists, as do 2 more outputs of this command (pass --force to overwrite them)"
     for p in outs[1:3]:
         p.unlink()
     assert outcome(check_overwrite, outs, False) == \

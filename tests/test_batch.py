@@ -190,6 +190,41 @@ def test_resume_refuses_this_brdfs_table_of_other_builder_settings(tmp_path, mon
     assert record["items"][0]["kept"] == ["sampling"] and chrome.read_bytes() == fresh
 
 
+def test_resume_names_the_lookup_that_keeps_a_bandwidth_table_built_for_another(tmp_path, monkeypatch, capsys):
+    """A batch run with --lookup nearest and resumed without it (an NPF fit's default lookup is linear) refused each
+    bandwidth table as "not a bandwidth table of npf.bin:chrome", its own BRDF's (session 76's audit): the refusal
+    names the lookup the table was built for and the option that keeps it, and with that option it is kept.  Another
+    material's table in its place is still "not a bandwidth table" of this one, whatever its lookup.  (The tables
+    are a stand-in's: the sync scheduler runs the tasks in this process.)"""
+    import precompute.brdf_bandwidth as bb
+
+    monkeypatch.setattr(bb, "build_brdf_bandwidth",
+                        lambda source, progress=True, threads=1: np.full((16, 16, 16), 1.0, np.float32))
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    args = ["npf.bin", "--materials", "chrome,nickel", "--tables", "bandwidth", "-o", "out", "--scheduler", "sync"]
+    assert _batch(*args, "--lookup", "nearest") == "returned 0"
+    capsys.readouterr()
+    assert _batch(*args, "--resume") == "returned 1"
+    err = capsys.readouterr().err
+    for m in ("chrome", "nickel"):
+        assert (f"out/{m}.bandwidth.npz: exists and is npf.bin:{m}'s bandwidth table for the nearest lookup, not the "
+                "linear one this batch builds (--lookup nearest keeps it) (pass --force as well to replace it)") in err
+    assert _batch(*args, "--resume", "--lookup", "nearest") == "returned 0"
+    record = json.loads((tmp_path / "out/batch.json").read_text())
+    assert [r["kept"] for r in record["items"]] == [["bandwidth"], ["bandwidth"]]
+
+    chrome, nickel = tmp_path / "out/chrome.bandwidth.npz", tmp_path / "out/nickel.bandwidth.npz"
+    chrome.write_bytes(nickel.read_bytes())          # nickel's table (nearest lookup) in chrome's place
+    for more in ((), ("--lookup", "nearest")):
+        capsys.readouterr()
+        assert _batch(*args, "--resume", *more) == "returned 1"
+        err = capsys.readouterr().err
+        (line,) = [ln for ln in err.splitlines() if "out/chrome." in ln]
+        assert "out/chrome.bandwidth.npz: exists and is not a bandwidth table of npf.bin:chrome" in line, line
+        assert line.endswith(" (pass --force as well to replace it)") and "keeps it" not in line, line
+
+
 def test_a_progress_bar_over_the_brdfs(tmp_path, monkeypatch, tqdm_bars):
     """One bar, one step per BRDF (not per Dask task: dask's own final task is not a BRDF); none with -q.  The
     tables are a stand-in's (the sync scheduler runs the tasks in this process), a uniform one."""

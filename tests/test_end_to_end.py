@@ -705,6 +705,45 @@ def test_the_render_record_names_the_bandwidth_file_it_read(tmp_path, monkeypatc
     assert rec["bandwidth"] == "built" and "bandwidth_file" not in rec and "sampling_file" not in rec
 
 
+def test_info_says_a_named_bandwidth_table_of_another_lookup_is_refused(tmp_path, capsys):
+    """A scene naming a nu_rho table built for another lookup than its material shades with is refused by the render
+    (README, "Scene files"), but warpbw info --method adaptive said "builder settings current" of it (session 76's
+    audit): info now says the render refuses it and the --lookup that builds the right one.  Truth: the renderer's
+    own reader, given the material's source, refuses exactly the file info flags."""
+    from conftest import fake_npf_table
+    from precompute.brdf_bandwidth import read_brdf_bandwidth, write_brdf_bandwidth
+    from precompute.brdf_sampling import brdf_source
+    from warpbw.cli import main as cli_main
+    from warpbw.errors import WarpbwError
+
+    fake_npf_table(tmp_path / "npf.bin")
+    for lookup in ("nearest", "linear"):
+        write_brdf_bandwidth(tmp_path / f"{lookup}.npz", np.full((16, 16, 16), 2.0, np.float32),
+                             brdf_source(tmp_path / "npf.bin", "chrome", lookup))
+    lines = ["[camera]", "position = [0.0, 0.0, 3.0]", "look_at = [0.0, 0.0, 0.0]", "fov = 50.0", "resolution = [8, 8]",
+             "[environment]", 'procedural = "sky"', "[[object]]", 'shape = "sphere"', "radius = 0.8", 'material = "m"',
+             "[material.m]", 'type = "npf"', 'table = "npf.bin"', 'name = "chrome"']
+    for scene_lookup in ("nearest", "linear"):
+        for file_lookup in ("nearest", "linear"):
+            table = tmp_path / f"{file_lookup}.npz"
+            named = [f'lookup = "{scene_lookup}"', f'bandwidth = "{table.name}"']
+            (tmp_path / "s.toml").write_text("\n".join(lines + named))
+            try:
+                read_brdf_bandwidth(table, brdf_source(tmp_path / "npf.bin", "chrome", scene_lookup))
+                refused = False
+            except WarpbwError:
+                refused = True
+            assert refused == (scene_lookup != file_lookup)
+            assert cli_main(["info", str(tmp_path / "s.toml"), "--method", "adaptive", "--json"]) == 0
+            (a,) = [a for a in json.loads(capsys.readouterr().out)["assets"] if a["path"] == str(table)]
+            assert ("refused" in a) == refused, (scene_lookup, file_lookup, a)
+            assert cli_main(["info", str(tmp_path / "s.toml"), "--method", "adaptive"]) == 0
+            line = next(ln for ln in capsys.readouterr().out.splitlines() if str(table) in ln)
+            said = (f"built for the {file_lookup} lookup, material m shades with {scene_lookup}: a render refuses it "
+                    f"(warpbw-precompute brdf --lookup {scene_lookup} builds its table)")
+            assert (said in line) == refused and ("builder settings current" in line) != refused, line
+
+
 def test_info_lists_the_stages_a_frame_of_each_method_runs(tmp_path):
     """warpbw info --method M, from the scene file alone, names the stages a frame of M then records having run
     (stats["stages"]), in their order; the adaptive method is refused where warpbw render refuses it."""
@@ -1320,6 +1359,36 @@ def test_the_readme_layout_names_every_module_and_example():
         there = {p.name for p in (root / folder).glob("*.py")} - {"__init__.py"}
         assert named[folder] == there, (folder, "not named:", there - named[folder], "not there:",
                                         named[folder] - there)
+
+
+def test_the_readme_says_what_its_first_command_needs():
+    """README's first command, ``pip install -e ".[test]"``, is refused on Debian's or Ubuntu's own Python (an
+    externally managed environment), and ``warpbw`` is on the PATH only where the environment is active: the README
+    says which Python (pyproject's requires-python) and how to make the virtual environment, in a folder git ignores
+    (session 76's audit of a fresh clone: it said neither)."""
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    intro = (root / "README.md").read_text().split("\n## ")[0]
+    need = tomllib.loads((root / "pyproject.toml").read_text())["project"]["requires-python"]
+    assert re.fullmatch(r">=\d+\.\d+", need), need
+    assert f"Python {need[2:]} or later" in intro
+    venv = re.search(r"`python3? -m venv (\S+) && \. (\S+)/bin/activate`", intro)
+    assert venv and venv.group(1) == venv.group(2), "README's introduction gives no virtual environment to make"
+    assert "externally-managed-environment" in intro
+    assert f"{venv.group(1)}/" in (root / ".gitignore").read_text().split()
+
+
+def test_the_folders_the_readmes_commands_write_are_ignored_by_git():
+    """Every folder README's commands write into the repository (an example's ``--out DIR``, ``-o DIR`` of demo, batch
+    and filtering_zoom.py) is one .gitignore names: a newcomer who follows README keeps a clean ``git status``
+    (session 76's audit: mixed/, bench/, bench_out/, dyn/, val/, zoom_out/ and tables/ were not)."""
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    folders = set(re.findall(r"--out ([\w/-]+)", readme)) | set(re.findall(r" -o ([\w/-]+)(?=[\s`])", readme))
+    ignored = (root / ".gitignore").read_text().split()
+    missing = sorted(f for f in folders if f"/{f.split('/')[0]}/" not in ignored)
+    assert {"warpbw_demo", "mixed", "tables", "zoom_out"} <= folders and not missing, (folders, missing)
 
 
 def test_every_module_lists_its_public_functions_in_its_docstring():
@@ -2218,6 +2287,12 @@ def test_demo_next_command_runs_as_printed_from_a_folder_with_a_space(small_scen
     assert (args.command, args.scene, args.output, args.method, args.budget) == (
         "render", str(Path("my out") / "scene.toml"), str(Path("my out") / "adaptive.exr"), "adaptive", 4.0)
     assert Path("my out/scene.toml").is_file()
+    # from README's first command's folder, the line README quotes (it wrote adaptive.* into the working folder, where
+    # demo's own line writes them beside the demo's: session 76's audit)
+    assert main(["demo", "-o", "warpbw_demo", "--spp", "4"]) == 0
+    line = _lines(capsys.readouterr().out, "next: ")
+    readme = re.sub(r"\s+", " ", (Path(__file__).resolve().parents[1] / "README.md").read_text())
+    assert f"`{line[len('next: '):]}`" in readme, line
 
 
 def _fake_filtering(monkeypatch, clock, level, cov=COV, time_s=0.0125, stats_extra=None):
@@ -2246,6 +2321,11 @@ def test_render_of_planes_summary_and_level_map_by_hand(small_scenes, monkeypatc
     assert _lines(out, "  frame") == "  frame 12.5 ms, total 2.00 s"
     assert _lines(out, "  preview") == "  preview p.png, stats p.json, mip level p.level.exr (+ .png)"
     assert _lines(out, "  colour scales") == "  colour scales (dark blue to yellow): level 1 to 2"
+    # in another folder, the level map named with it, as the preview is (it said "mip level p.level.exr": session 76)
+    assert main(["render", "plane.toml", "-o", str(Path("sub", "p.exr")), "--filter", "toksvig"]) == 0
+    sub = {k: Path("sub", f"p.{k}") for k in ("png", "json", "level.exr")}
+    assert _lines(capsys.readouterr().out, "  preview") == \
+        f"  preview {sub['png']}, stats {sub['json']}, mip level {sub['level.exr']} (+ .png)"
     st = json.loads(Path("p.json").read_text())
     assert st["time_s"] == {"frame": 0.0125, "total": 2.0}
     assert st["colour_scales"]["level"]["from"] == 1.0 and st["colour_scales"]["level"]["to"] == 2.0

@@ -494,7 +494,8 @@ def test_the_diagnosis_finds_nothing_wrong_in_the_real_probes():
 
     probes = sorted(SHARED_DATA.glob("**/*.exr"))
     if not probes:
-        pytest.skip(f"real test data {SHARED_DATA} is absent or holds no EXR (clone ../shared beside the repository)")
+        pytest.skip(f"real test data {SHARED_DATA} is absent or holds no EXR (clone ../shared beside the repository "
+                    "or set $WARPBW_SHARED_DATA)")
     for path in probes:
         read_exr(path)
         assert exr_damage(path) is None, path

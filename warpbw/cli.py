@@ -197,7 +197,7 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
                   f"up-sampling {t['upsampling'] * 1e3:.1f} ms"
                   + (f", lights (exact, every pixel) {t['lights'] * 1e3:.1f} ms" if "lights" in t else "")
                   + f", frame {t['frame']:.3f} s, total {t['total']:.2f} s")
-            print(f"  AOVs {', '.join(printable(p[0].name) for p in _aov_paths(out).values())} (+ .png)")
+            print(f"  AOVs {', '.join(printable(str(p[0])) for p in _aov_paths(out).values())} (+ .png)")
             print(_scales_line(res.stats["colour_scales"]))
         else:
             sps = res.stats["samples_per_second"]
@@ -263,7 +263,7 @@ def _render_filtering_cli(scene, args) -> int:
               f"{res.stats['pixels_covered']} covered pixels)")
         print(f"  frame {res.time_s * 1e3:.1f} ms, total {res.stats['time_s']['total']:.2f} s")
         print(f"  preview {printable(outs['png'])}, stats {printable(outs['json'])}, "
-              f"mip level {printable(level_paths[0].name)} (+ .png)")
+              f"mip level {printable(str(level_paths[0]))} (+ .png)")
         print(_scales_line(res.stats["colour_scales"]))
     return 0
 
@@ -320,8 +320,8 @@ def _render_mixed_cli(scene, args) -> int:
         print(f"  planes in front: {pl['pixels_covered']} pixels, filter {method}, {planes}, frame {t['planes']:.3f} s")
         print(f"  frame {t['frame']:.3f} s, total {t['total']:.2f} s")
         print(f"  preview {printable(outs['png'])}, stats {printable(outs['json'])}, "
-              f"mip level {printable(mip_paths[0].name)} (+ .png)"
-              + (f", AOVs {', '.join(printable(p[0].name) for p in _aov_paths(out).values())} (+ .png)"
+              f"mip level {printable(str(mip_paths[0]))} (+ .png)"
+              + (f", AOVs {', '.join(printable(str(p[0])) for p in _aov_paths(out).values())} (+ .png)"
                  if adaptive else ""))
         print(_scales_line(res.stats["colour_scales"]))
     return 0
@@ -445,6 +445,7 @@ def cmd_info(args) -> int:
     used = [scene.materials[n] for n in scene.material_order]
     named = {str(p) for m in used for p in (m.sampling, m.bandwidth, m.gmm) if p is not None}
     s["assets"] = [header_status(f) for f in s["files"] if f in named]
+    _say_other_lookups(s["assets"], used)
     if args.json:
         print(json.dumps(s, indent=2))
         return 0
@@ -479,10 +480,29 @@ def cmd_info(args) -> int:
     return 0
 
 
+def _say_other_lookups(assets: list, materials: list) -> None:
+    """Add ``refused`` to each of ``assets`` (``header_status`` records) that is a material's ``bandwidth`` file whose
+    header records another lookup than the material's: the render refuses it before shading (README, "Scene files"),
+    and ``warpbw info`` said "builder settings current" of it (session 76's audit)."""
+    from precompute.assetfile import read_header
+
+    for a in assets:
+        if "error" in a or a["not_read"] is not None:
+            continue
+        params = (read_header(a["path"]) or {}).get("params")
+        got = params.get("lookup") if isinstance(params, dict) else None
+        for m in materials:
+            if m.bandwidth is not None and str(m.bandwidth) == a["path"] and got is not None and got != m.lookup:
+                a["refused"] = (f"built for the {got} lookup, material {m.name} shades with {m.lookup}: a render "
+                                f"refuses it (warpbw-precompute brdf --lookup {m.lookup} builds its table)")
+
+
 def _asset_status_text(a: dict) -> str:
     """An asset file's ``header_status`` in a few words, for ``warpbw info``'s list of files."""
     if "error" in a:
         return a["error"]
+    if "refused" in a:
+        return f"{a['what']}, version {a['version']}; {a['refused']}"
     if a["not_read"] is not None:   # another version, or a format this warpbw does not know
         return f"{a['what'] or a['format']}: {a['not_read']}"
     what = f"{a['what']}, version {a['version']}"
@@ -891,9 +911,9 @@ def build_parser() -> argparse.ArgumentParser:
     i = sub.add_parser("info", help="summarise what a scene needs", description="Summarise a scene: objects, "
                        "materials, light, the files it reads (beside each precomputed file a material names, what its "
                        "header says: its kind and version, a version this warpbw does not read, builder settings "
-                       "other than the builder's), the stages a render would run and the memory they would take (a "
-                       "frame; loading the probe and, adaptive, building its bandwidth map; the placed meshes, from "
-                       "their files' headers).")
+                       "other than the builder's, a bandwidth table built for another lookup than its material's), "
+                       "the stages a render would run and the memory they would take (a frame; loading the probe "
+                       "and, adaptive, building its bandwidth map; the placed meshes, from their files' headers).")
     i.add_argument("scene", help="scene file (TOML)")
     i.add_argument("--method", choices=METHODS, default=METHODS[0],
                    help="the stages of warpbw render --method METHOD for the spheres and meshes (default reference; "

@@ -295,8 +295,10 @@ def check_overwrite(paths, force: bool, option: str = "-o", inputs=(), inputs_ar
         return
     existing = [str(p) for p in paths if output_exists(p)]
     if existing:
-        raise WarpbwError(f"{existing[0]}: already exists (pass --force to overwrite"
-                          f"{' it' if len(existing) == 1 else f' it and {len(existing) - 1} more'})")
+        more = len(existing) - 1   # "(pass --force to overwrite it and 3 more)" read as --force's doing (session 76)
+        raise WarpbwError(f"{existing[0]}: already exists"
+                          + (f", as do {more} more output{'s' if more > 1 else ''} of this command" if more else "")
+                          + f" (pass --force to overwrite {'them' if more else 'it'})")
 
 
 def json_text(record: dict, **kw) -> str:
