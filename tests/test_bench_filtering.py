@@ -242,6 +242,8 @@ def test_render_routes_plane_scenes_to_the_filtering_renderer(plane_scene, capsy
     assert cov.any() and np.all(np.isfinite(img.pixels)) and np.all(img.pixels[~cov, :3] == 0)
     assert json.loads((d / "o.json").read_text())["method"] == "lean"
     assert (d / "o.level.exr").exists() and (d / "o.level.png").exists()
+    level = read_exr(d / "o.level.exr")   # A marks the pixels the level speaks of
+    assert level.channels == ["Y", "A"] and np.array_equal(level.pixels[..., 1] > 0, cov)
     check_colour_scale(d / "o.level.exr", json.loads((d / "o.json").read_text())["colour_scales"]["level"], cov,
                        log=False)
     # the default filter is the aligned GMM; the ground truth takes --spp rays per pixel

@@ -448,8 +448,10 @@ def test_render_adaptive_writes_aovs_and_caches_tables(work, npf_scene):
     assert rgb[covered & ~shaded_mask].max(-1).min() > 0.0
     assert (rgb[covered].max(-1) > 0).mean() > 0.98
     for name in ("level", "n_p", "spp", "variance", "shaded", "b_p"):
-        aov = read_exr(out.with_suffix(f".{name}.exr")).pixels[..., 0]
-        assert aov.shape == (32, 32) and np.isfinite(aov).all()
+        aov = read_exr(out.with_suffix(f".{name}.exr"))
+        assert aov.pixels.shape == (32, 32, 2) and np.isfinite(aov.pixels).all()
+        # A is the image's coverage: the level map's background held the coarsest level, unmarked (session 76)
+        assert aov.channels == ["Y", "A"] and np.array_equal(aov.pixels[..., 1], alpha), name
         assert out.with_suffix(f".{name}.png").stat().st_size > 0
     n_p = read_exr(out.with_suffix(".n_p.exr")).pixels[..., 0]
     shaded = read_exr(out.with_suffix(".shaded.exr")).pixels[..., 0] > 0
@@ -970,8 +972,12 @@ def test_render_and_info_of_a_scene_with_planes_beside_a_sphere(tmp_path):
     assert stats["method"] == "adaptive" and stats["planes"]["method"] == "toksvig"
     assert 0 < stats["planes"]["pixels_covered"] < stats["pixels_covered"]
     assert stats["time_s"]["frame"] >= stats["time_s"]["planes"] > 0
-    mip = read_exr(out.with_suffix(".mip_level.exr")).pixels[..., 0]
+    mip_exr = read_exr(out.with_suffix(".mip_level.exr"))
+    mip, on_plane = mip_exr.pixels[..., 0], mip_exr.pixels[..., 1]
     assert (mip != 0).sum() > 0 and np.all(mip[alpha == 0] == 0)
+    # its A marks the plane's pixels, the ones it speaks of
+    assert mip_exr.channels == ["Y", "A"] and on_plane.sum() == stats["planes"]["pixels_covered"]
+    assert np.all(alpha[on_plane > 0] > 0) and set(np.unique(on_plane)) == {0.0, 1.0}
     for name in ("level", "n_p", "spp", "variance", "shaded", "b_p"):
         assert out.with_suffix(f".{name}.exr").exists() and out.with_suffix(f".{name}.png").exists()
     assert out.with_suffix(".mip_level.png").stat().st_size > 0

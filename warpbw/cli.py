@@ -120,14 +120,15 @@ def _aov_paths(out: Path) -> dict:
 
 
 def _write_map(at: dict, exr: Path, png: Path, values, mask, log: bool = False) -> dict:
-    """A per-pixel map as EXR (Y) and false-colour PNG, each written to ``at[path]``; returns the PNG's colour
-    scale as the stats JSON records it (``colour_scales``)."""
+    """A per-pixel map as EXR (Y, and A = ``mask``: 1 where Y holds the map's value, 0 on pixels it does not speak
+    of, such as the background) and false-colour PNG (``mask``'s pixels coloured), each written to ``at[path]``;
+    returns the PNG's colour scale as the stats JSON records it (``colour_scales``)."""
     import numpy as np
 
     from warpbw.io.exr import write_exr, write_false_colour_png
 
     v = np.asarray(values, dtype=np.float32)
-    write_exr(at[exr], v, channels=["Y"])
+    write_exr(at[exr], np.stack([v, np.asarray(mask, dtype=np.float32)], axis=-1), channels=["Y", "A"])
     lo, hi = write_false_colour_png(at[png], v, mask=mask & (v > 0) if log else mask, log=log)
     return {"png": png.name, "scale": "log" if log else "linear", "from": lo, "to": hi}
 
