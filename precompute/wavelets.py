@@ -520,10 +520,13 @@ def envmap_angular_bandwidth(pixels: np.ndarray, epsilon: float = EPSILON,
     per radian along that side.  The paper's ``2 pi / 2^I_w`` is ``2 pi`` times our ``b``: it is
     an angular frequency, while warpbw's unit is cycles/radian (../shared/DESIGN.md), so we drop the 2 pi.
     Why the largest eigenvalue: it is exact for variations along the texel's longest side (both
-    axes at the equator of a 2:1 map, latitude everywhere), and it stays finite at the poles,
+    axes at the equator of a 2:1 map, latitude everywhere on it), and it stays finite at the poles,
     where the smaller eigenvalue ``2 pi sin(theta) / W`` goes to 0 and dividing by it would turn
-    resampling noise into unbounded bandwidth.  The price: longitudinal variation near the poles
-    is underestimated by up to ``sin(theta) * W / (2 H)`` (the lat-long map oversamples there).
+    resampling noise into unbounded bandwidth.  The price: variation along the shorter side reads
+    low by that side over the longer one: longitudinal variation by ``min(1, 2 H sin(theta) / W)``
+    (``sin(theta)`` on a 2:1 map: the lat-long map oversamples near the poles), latitudinal by
+    ``min(1, W / (2 H sin(theta)))`` (a map under 2:1, such as a square one, near its equator).  (Until session 76
+    this said ``sin(theta) * W / (2 H)``, the 2:1 map's factor with W / H turned over: 4x off on a square map.)
 
     ``floor`` is :func:`local_bandwidth`'s flatness threshold.  Its default (``epsilon`` times the
     strongest coefficient) suits LDR images but not HDR probes: a sun 10^4 times brighter than the

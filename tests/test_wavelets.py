@@ -844,3 +844,52 @@ def test_the_bandwidth_reports_its_progress_band_by_band():
     b = local_bandwidth(img, levels=3, progress=lambda k, n: calls.append((k, n)))
     assert calls == [(1, 4), (2, 4), (3, 4), (4, 4)]   # three bands, then the energy rule
     assert np.array_equal(b, local_bandwidth(img, levels=3))
+
+
+SEAM_XFAIL = ("session 76: an axis padded by edge/reflect/symmetric meets its other end's continuation where "
+              "swt2 wraps the padded grid, one margin (352 texels) out, within the coarsest band's reach (792 "
+              "texels); the fix (a margin past the reach for these modes) changes the BRDF tables and so the "
+              "benchmark's frames")
+
+
+@pytest.mark.xfail(strict=True, reason=SEAM_XFAIL)
+@pytest.mark.parametrize("mode", ["edge", "reflect", "symmetric"])
+def test_an_axis_continued_past_the_image_has_no_seam_where_the_padded_grid_wraps(mode):
+    """``pad="edge"`` (``"reflect"``, ``"symmetric"``) reads the image continued by np.pad's rule without end.  Truth:
+    the image padded by np.pad itself far beyond any wavelet's reach (1100 texels; band 7's details and its window
+    reach 792), analysed on the same 7 bands and cut back: the bands must be the same.  Closed form for a step
+    continued by its edge values: everything within 792 texels of a column left of 108 is 0, so those columns are
+    flat (bandwidth 0).  On the code before session 76's fix the wrap joined the two ends' continuations 352 texels
+    out, a step that band 7 read (edge: columns 0-90 at 0.0053 cycles/pixel; a ramp's band 7 off by 2.4x)."""
+    w, x = 1024, np.arange(1024, dtype=np.float64)
+    step, ramp = [np.repeat(a[None], 4, axis=0) for a in ((x >= 900).astype(np.float64), x / w)]
+    for img in (step, ramp):
+        far = np.pad(img, ((0, 0), (1100, 1100)), mode=mode)
+        want = band_maxima(far, levels=7, pad=(mode, "zero"))[:, :, 1100:-1100]
+        np.testing.assert_allclose(band_maxima(img, pad=mode), want, rtol=1e-9, atol=1e-12 * want.max())
+    if mode == "edge":
+        assert local_bandwidth(step, pad=mode)[:, :108].max() == 0.0
+
+
+@pytest.mark.parametrize("h, w", [(256, 256), (128, 256), (64, 256)])
+def test_envmap_reads_variation_along_a_texels_shorter_side_low_by_that_side_over_the_longer(h, w):
+    """envmap_angular_bandwidth's docstring: longitudinal variation reads low by ``min(1, 2 H sin(theta) / W)`` and
+    latitudinal by ``min(1, W / (2 H sin(theta)))``.  Truth: the closed forms, ``cos(m phi)`` varies at
+    ``m / (2 pi sin(theta))`` cycles/radian and ``cos(k theta)`` at ``k / (2 pi)``; the estimator's own factor on a
+    pure sine (cycles/pixel read over cycles/pixel painted) is taken out, since it is the same in every row of such a
+    map.  Square, 2:1 and 4:1 maps (until session 76 the docstring gave ``sin(theta) W / (2 H)``, right on 2:1 maps
+    only; plant: the code written to that factor, lambda_max = max(2 pi sin(theta) / W, 4 pi H / W^2), which is
+    the same on a 2:1 map, fails the square and 4:1 ones)."""
+    m, k = 12, 24
+    theta = (np.arange(h) + 0.5) * math.pi / h
+    phi = 2 * math.pi * (np.arange(w) + 0.5) / w
+    rows = [int(np.argmin(abs(theta - math.radians(d)))) for d in (20, 40, 60, 90)]
+    for img, true, pixel_f, low in (
+            (np.cos(m * phi)[None, :] * np.ones((h, 1)), m / (2 * math.pi * np.sin(theta)), m / w,
+             np.minimum(1.0, 2 * h * np.sin(theta) / w)),
+            (np.cos(k * theta)[:, None] * np.ones((1, w)), np.full(h, k / (2 * math.pi)), k / (2 * h),
+             np.minimum(1.0, w / (2 * h * np.sin(theta))))):
+        nu = envmap_angular_bandwidth(img)[:, w // 3]
+        factor = local_bandwidth(img, pad=("latlong_pole", "wrap"))[:, w // 3] / pixel_f   # the estimator's own
+        for j in rows:
+            np.testing.assert_allclose(nu[j] / true[j] / factor[j], low[j], rtol=1e-9)
