@@ -796,6 +796,45 @@ def test_a_frame_compiles_and_launches_only_the_kernels_its_scene_needs(tmp_path
     assert {id(m) for m in modules} <= {id(k.module) for k in kernels}, [m.name for m in modules]
 
 
+def test_a_scene_lit_by_lights_alone_reads_or_builds_no_brdf_sampling_table(tmp_path, monkeypatch):
+    """"No stage is compiled or run that the scene does not use": directional lights alone are exact (no BRDF is
+    sampled), so an NPF material under them loads no sampling table -- none read, none built (seconds for a new
+    material: session 76 measured 4.5 s for an NPF fit, 1.3 s for a MERL file), none packed on the device -- and
+    neither the frame's stages nor ``warpbw info``'s name tabulated sampling.  The same sphere under a black
+    environment as well (which samples the BRDF, so loads the table) gives the same image bit for bit: the lights'
+    term did not need it."""
+    import precompute.brdf_sampling as bs
+    from conftest import fake_npf_table
+    from warpbw.brdf import pdf_brdf, sample_brdf
+    from warpbw.errors import WarpbwError
+    from warpbw.pipeline import prepare_scene, render_reference, scene_summary
+    from warpbw.scene import parse_scene
+
+    fake_npf_table(tmp_path / "npf.bin")
+    loaded, load = [], bs.load_or_build_sampling
+    monkeypatch.setattr(bs, "load_or_build_sampling", lambda *a, **k: loaded.append(a) or load(*a, **k))
+    lights = ('[[light]]\ntype = "directional"\ndirection = [0.3, 0.6, 0.8]\nradiance = [2.0, 1.5, 1.0]\n'
+              '[material.m]\ntype = "npf"\ntable = "npf.bin"\nname = "chrome"\n')
+    frames = {}
+    for env in ("", "[environment]\nconstant = [0.0, 0.0, 0.0]\n"):
+        loaded.clear()
+        sphere = lambert_sphere_scene(24, 24).split("[material.m]")[0].replace("constant = [1.0, 1.0, 1.0]", "")
+        scene = parse_scene(sphere.replace("[environment]", env) + lights, tmp_path, "s.toml")
+        prep = prepare_scene(scene)
+        res = render_reference(prep, spp=2)
+        frames[bool(env)] = res.image
+        tabulated = "tabulated_sampling" in res.stats["stages"]
+        listed = any("tabulated importance sampling" in st for st in scene_summary(scene)["stages"])
+        assert len(loaded) == tabulated == listed == bool(env), (env, len(loaded), res.stats["stages"])
+        assert (prep.materials.table.samplers.density.shape[0] > 0) == bool(env)
+        assert ("sampling" in res.stats["assets"]["material.m"]) == bool(env), res.stats["assets"]
+        if not env:   # the host wrappers refuse to sample it (its sampler index would read past the empty tables)
+            for f, args in ((sample_brdf, ([0.0, 0.0, 1.0], 4)), (pdf_brdf, ([[0.0, 0.0, 1.0]], [[0.0, 0.0, 1.0]]))):
+                with pytest.raises(WarpbwError, match="packed without its sampling table"):
+                    f(prep.materials, 0, *args)
+    assert np.abs(frames[False]).max() > 0.01 and np.array_equal(frames[False], frames[True])
+
+
 # ------------------------------------------------------------------------------------------ planes beside a sphere
 
 def _numpy_plane_and_sphere_depths(w, h):

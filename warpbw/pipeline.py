@@ -30,7 +30,8 @@ A material kind the scene does not use is not compiled (its branch is removed fr
 ``wp.static``); spheres and meshes each have their own G-buffer path; one table per tabulated material
 is in memory; a mesh's curvature is derived only for the bandwidth pass.  The environment and the
 directional ``[[light]]``s are each optional (a scene has at least one): a scene without an environment
-compiles no sampling loop, one without lights no light loop.  The adaptive method needs an environment: it
+compiles no sampling loop and reads or builds no MERL or NPF material's sampling table, one without lights no light
+loop.  The adaptive method needs an environment: it
 adapts the environment's sampling, and adds the lights' exact term at every pixel.  ``RenderResult.stats`` says
 which stages ran and how long each took.
 
@@ -117,23 +118,25 @@ def _asset_file(key: str, origin: str, path) -> dict:
     return {f"{key}_file": str(path)} if origin == "file" and path is not None else {}
 
 
-def _material_spec(m, progress: bool, notes: dict, sources: dict, where: str = "") -> brdf_mod.MaterialSpec:
+def _material_spec(m, progress: bool, notes: dict, sources: dict, where: str = "",
+                   sampling: bool = True) -> brdf_mod.MaterialSpec:
     """The MaterialSpec of scene material ``m``; ``where`` (the scene file) starts the message of an NPF material
-    name the table lacks, which named the table alone."""
+    name the table lacks, which named the table alone.  Without ``sampling`` (a scene lit by directional lights
+    alone: no BRDF is sampled) a MERL or NPF material's sampling table is neither read nor built."""
     kind = brdf_mod.KIND_NAMES[m.type]
     if m.type == "lambert":
         return brdf_mod.MaterialSpec(m.name, kind, albedo=m.albedo)
     if m.type == "ggx":
         return brdf_mod.MaterialSpec(m.name, kind, alpha=m.alpha, specular=m.specular, eta=m.eta, k=m.k)
-    from precompute.brdf_sampling import brdf_source, load_or_build_sampling
+    from precompute.brdf_sampling import brdf_source
 
     if m.type == "merl":
         source = brdf_source(m.file)
         sources[m.name] = source
         merl = source.brdf
-        table, origin = load_or_build_sampling(source, m.sampling, progress=progress)
+        table, origin = _sampling_table(source, m, progress, sampling)
         notes[f"material.{m.name}"] = {"type": "merl", "file": str(m.file), "unmeasured": int(merl.n_unmeasured),
-                                       "sampling": origin, **_asset_file("sampling", origin, m.sampling)}
+                                       **_sampling_note(origin, m)}
         return brdf_mod.MaterialSpec(m.name, kind, merl=merl.data, linear=m.lookup == "linear", sampler=table)
     from warpbw.io.npf import UnknownNpfMaterial
 
@@ -143,11 +146,24 @@ def _material_spec(m, progress: bool, notes: dict, sources: dict, where: str = "
         raise WarpbwError(f"{where + ': ' if where else ''}[material.{m.name}].name: {exc}") from None
     sources[m.name] = source
     npf = source.brdf
-    table, origin = load_or_build_sampling(source, m.sampling, progress=progress)
-    notes[f"material.{m.name}"] = {"type": "npf", "name": npf.name, "sampling": origin,
-                                   **_asset_file("sampling", origin, m.sampling)}
+    table, origin = _sampling_table(source, m, progress, sampling)
+    notes[f"material.{m.name}"] = {"type": "npf", "name": npf.name, **_sampling_note(origin, m)}
     curves = brdf_mod.pack_npf_curves(npf.rho_d, npf.rho_s, npf.D, npf.G1, npf.F)
     return brdf_mod.MaterialSpec(m.name, kind, npf=curves, linear=m.lookup == "linear", sampler=table)
+
+
+def _sampling_table(source, m, progress: bool, sampling: bool) -> tuple:
+    """A tabulated material's sampling table and where it came from, or (None, None) without ``sampling``."""
+    if not sampling:
+        return None, None
+    from precompute.brdf_sampling import load_or_build_sampling
+
+    return load_or_build_sampling(source, m.sampling, progress=progress)
+
+
+def _sampling_note(origin, m) -> dict:
+    """The render record's word on a tabulated material's sampling table (none when none was loaded)."""
+    return {} if origin is None else {"sampling": origin, **_asset_file("sampling", origin, m.sampling)}
 
 
 def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> PreparedScene:
@@ -180,8 +196,11 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
     order = scene.material_order
     mat_id = {name: i for i, name in enumerate(order)}
     with _timed(timings, "load_materials"):
-        specs = [_material_spec(scene.materials[name], progress, notes, sources, scene.source) for name in order]
-        materials = brdf_mod.build_material_table(specs, device=device)
+        # directional lights alone are exact: no BRDF is sampled, and no sampling table is read or built
+        sampling = scene.environment is not None
+        specs = [_material_spec(scene.materials[name], progress, notes, sources, scene.source, sampling)
+                 for name in order]
+        materials = brdf_mod.build_material_table(specs, device=device, sampling=sampling)
     with _timed(timings, "load_geometry"):   # spheres and meshes to the device, the BVH
         geometry = _geometry(scene, mat_id, device)
     check_reach(cam, geometry, scene.source)   # what each G-buffer pass checks, here with the scene's name
@@ -237,7 +256,7 @@ def stages_used(prep: PreparedScene, mis: bool, adaptive: bool = False) -> list:
     s = ["gbuffer:" + "+".join(n for n, on in (("spheres", prep.geometry.has_spheres),
                                                 ("mesh_bvh", prep.geometry.has_mesh)) if on),
          "brdf:" + "+".join(kinds)]
-    if any(k in prep.materials.kinds for k in (brdf_mod.MERL, brdf_mod.NPF)):
+    if prep.env is not None and any(k in prep.materials.kinds for k in (brdf_mod.MERL, brdf_mod.NPF)):
         s.append("tabulated_sampling")
     s.append("light:" + "+".join(n for n, on in (("environment", prep.env is not None),
                                                    ("directional", prep.lights is not None)) if on))
@@ -767,7 +786,7 @@ def scene_summary(scene: Scene, method: str = "reference") -> dict:
         n for n, on in (("analytic spheres", any(isinstance(o, SphereObject) for o in surfaces.objects)),
                         ("mesh BVH", has_mesh)) if on) + ")",
               "brdf: " + ", ".join(kinds)]
-    if any(k in ("merl", "npf") for k in kinds):
+    if env is not None and any(k in ("merl", "npf") for k in kinds):   # lights alone: no BRDF is sampled
         stages.append("tabulated importance sampling (002 Sec. 3.3)")
     light = ((", environment light (BRDF samples; with --mis also environment samples, MIS)" if env is not None
               else "") + (", directional lights exact" if scene.lights else ""))
@@ -794,6 +813,8 @@ def scene_summary(scene: Scene, method: str = "reference") -> dict:
                      "a plane are not shaded (no shadows)"])
     # a material's bandwidth table is read by the bandwidth pass alone (prepare_bandwidth)
     unread = set() if method == "adaptive" else {scene.materials[n].bandwidth for n in scene.material_order}
+    if env is None:   # and a sampling table by a frame that samples no BRDF (prepare_scene)
+        unread |= {surfaces.materials[n].sampling for n in surfaces.material_order}
     return {
         "scene": scene.source,
         "resolution": [scene.camera.width, scene.camera.height],
