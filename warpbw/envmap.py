@@ -616,6 +616,8 @@ def _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, source_dige
     """The EnvMap of sanitised ``pixels`` (float32, C order), its sampling distribution built (without ``sampling``:
     on first need, ``ensure_sampling``)."""
     h, w, _ = pixels.shape
+    # first: its temporaries (about 32 bytes per texel) peak before the map's device copy is made
+    dist = _build_distribution(pixels) if sampling else None
     keep = []
 
     def arr(x, dtype):
@@ -631,7 +633,8 @@ def _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, source_dige
     data.rot_cos = math.cos(rad)
     data.rot_sin = math.sin(rad)
     for key, shape in _DISTRIBUTION:
-        setattr(data, key, wp.zeros(shape, dtype=wp.float32, device=device))
+        setattr(data, key, arr(dist[key], wp.float32) if dist is not None
+                else wp.zeros(shape, dtype=wp.float32, device=device))
     # no renderer reads the MIP pyramid (DESIGN: a stage the scene does not need is not run): until
     # build_mip_pyramid, the "pyramid" is level 0 alone, the map itself (no copy)
     data.mip_data = data.base.reshape((h * w,))   # a view of the map
@@ -653,9 +656,9 @@ def _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, source_dige
         device=str(device),
         source_digest=source_digest,
         _keep=keep,
-        _sampled=False,
+        _sampled=dist is not None,
     )
-    return ensure_sampling(env) if sampling else env
+    return env
 
 
 def ensure_sampling(env: EnvMap) -> EnvMap:
