@@ -867,6 +867,39 @@ def test_the_environment_s_sampling_distribution_is_built_only_for_a_frame_that_
     assert len(built) == 1
 
 
+def test_an_adaptive_frame_derives_the_relative_bound_only_for_the_relative_allocation(tmp_path, monkeypatch):
+    """"No stage is compiled or run that the scene does not use": ``sigma2_rel`` (the bound over the pixel's own
+    radiance, a kernel over the frame and a median of the pass's radiance) is read by the "relative" allocation
+    alone.  An adaptive frame of every other allocation neither loads nor launches its kernel (session 76: 4-16 ms at
+    512 x 512, inside the bandwidth pass's time); the relative one does, once.  A pass without it says so when the
+    relative allocation asks for it."""
+    import warp as wp
+
+    from warpbw import bandwidth
+    from warpbw.errors import WarpbwError
+    from warpbw.pipeline import prepare_scene, render_adaptive
+    from warpbw.scene import parse_scene
+
+    launched, loaded = [], []
+    launch, load_module = wp.launch, wp.load_module
+    monkeypatch.setattr(wp, "launch", lambda kernel, *a, **k: launched.append(kernel) or launch(kernel, *a, **k))
+    monkeypatch.setattr(wp, "load_module", lambda m, *a, **k: loaded.append(m) or load_module(m, *a, **k))
+    prep = prepare_scene(parse_scene(lambert_sphere_scene(24, 24), tmp_path, "s.toml"))
+    for allocation in bandwidth.ALLOCATIONS:
+        launched.clear()
+        loaded.clear()
+        render_adaptive(prep, budget=2.0, allocation=allocation)
+        want = int(allocation == "relative")
+        assert sum(k is bandwidth.relative_bound_kernel for k in launched) == want, allocation
+        assert (bandwidth.relative_bound_kernel.module in loaded) == bool(want), allocation
+    res = render_adaptive(prep, budget=2.0)
+    buf = bandwidth.bandwidth_pass(res.gbuffer, prep.camera, prep.materials, prep.env_data, prep.bandwidth,
+                                   relative=False)
+    assert buf.sigma2_rel is None
+    with pytest.raises(WarpbwError, match="no relative bound"):
+        bandwidth.allocate_samples(buf, 2.0, allocation="relative")
+
+
 # ------------------------------------------------------------------------------------------ planes beside a sphere
 
 def _numpy_plane_and_sphere_depths(w, h):

@@ -639,13 +639,14 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
                      if prep.lights is not None else ()) + _clip_kernels(clip_distance), timings)
     t0 = time.perf_counter()
     adaptive.load_kernels(prep.device)
-    bandwidth.load_kernels(prep.device)
+    bandwidth.load_kernels(prep.device, relative=allocation == "relative")
     timings["compile"] += time.perf_counter() - t0
     gb, hidden = _gbuffer(prep, timings, threads, clip_distance)
     t0 = time.perf_counter()
     buf = bandwidth.bandwidth_pass(gb, prep.camera, prep.materials, env_data, tables, n_b=n_b, seed=seed,
                                    preconvolved=preconvolved, nyquist=nyquist, stride=stride,
-                                   pool_radius=pool_radius, device=prep.device, threads=threads)
+                                   pool_radius=pool_radius, device=prep.device, threads=threads,
+                                   relative=allocation == "relative")   # only that allocation reads sigma2_rel
     _check_pass_finite(buf, prep.scene.source, mis)
     t_pass = time.perf_counter() - t0
     t0 = time.perf_counter()
