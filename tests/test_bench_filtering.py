@@ -1374,7 +1374,7 @@ def test_a_gmm_folder_a_killed_benchmark_left_in_the_temporary_folder_is_removed
     class Built(Exception):
         """Where the stand-in stops the run: the mipmaps' folder is all this test reads."""
 
-    def prepare(scene, methods, device="cpu", progress=False, cache=None):
+    def prepare(scene, methods, device="cpu", progress=False, cache=None, env=None):
         if cache is None:   # the coverage check's preparation, before the mipmaps
             return SimpleNamespace(notes={})
         built_in.append((Path(cache), sorted(p.name for p in tmp_path.iterdir())))
