@@ -139,7 +139,7 @@ def _surfaces_behind(surfaces, device: str):
     geometry = surface_geometry(surfaces, device)
 
     def behind(c):
-        depth = render_gbuffer(scene_camera(c), geometry, device, curvature=False).numpy("depth")
+        depth = render_gbuffer(scene_camera(c), geometry, device, curvature=False, attributes=False).numpy("depth")
         return Background(np.zeros(depth.shape + (3,), np.float32), depth)
 
     return behind

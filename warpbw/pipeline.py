@@ -348,7 +348,8 @@ def _gbuffer(prep: PreparedScene, timings: dict, threads: int | None = None, cli
     import warp as wp
 
     t0 = time.perf_counter()
-    gb = render_gbuffer(prep.camera, prep.geometry, device=prep.device, threads=threads, curvature=curvature)
+    gb = render_gbuffer(prep.camera, prep.geometry, device=prep.device, threads=threads, curvature=curvature,
+                        attributes=False)   # geo_normal and uv: no stage reads them
     hidden = None
     if clip_distance is not None:
         hidden = hide_beyond(gb, prep.camera, clip_distance, device=prep.device, name="clip_distance")
@@ -421,7 +422,7 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     prep, timings = _prepared(scene, device, progress, sampling=mis)   # without MIS: no environment sampling
     _warn_if_frame_exceeds_memory(prep, "reference")
     env_data = _env_data(prep, mis, timings)   # without MIS no environment direction is sampled
-    _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
+    _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh, False),
                          make_reference_kernel(prep.materials.kinds, mis, has_env=prep.env is not None,
                                                has_lights=prep.lights is not None))
                   + _clip_kernels(clip_distance), timings)
@@ -632,7 +633,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
         for k in ("load_env_bandwidth", "load_brdf_bandwidth", "load_mesh_curvature"):
             if k in prep.timings:
                 timings[k] = prep.timings[k]
-    _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
+    _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh, False),
                          bandwidth.make_bandwidth_kernel(prep.materials.kinds, preconvolved),
                          make_reference_kernel(prep.materials.kinds, mis, per_pixel_spp=True))
                   + ((make_reference_kernel(prep.materials.kinds, mis, has_env=False, has_lights=True),)
