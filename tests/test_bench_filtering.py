@@ -233,6 +233,24 @@ def test_bench_filtering_spp_sets_the_environment_pairs(plane_scene, capsys):
     assert e.value.code == 2 and "--spp" in capsys.readouterr().err and not (d / "s.json").exists()
 
 
+def test_bench_filtering_loads_the_environment_once(plane_scene, monkeypatch):
+    """"No stage is run that the scene does not use": the coverage check (before the mipmaps are built) and the
+    measured frames render the same scene, and share its environment; the check loaded its own copy of the probe
+    (session 76: two loads of each probe, one for the check, one for the frames)."""
+    from warpbw import envmap, filtering
+    from warpbw.bench_filtering import run_bench_filtering
+    from warpbw.scene import load_scene
+
+    loads, load = [], envmap.load_environment
+    for module in (envmap, filtering):
+        monkeypatch.setattr(module, "load_environment", lambda *a, **k: loads.append(a) or load(*a, **k))
+    sky = plane_scene.parent / "sky.toml"
+    sky.write_text(plane_scene.read_text().replace("[[light]]", '[environment]\nprocedural = "sky"\n\n[[light]]'))
+    rec = run_bench_filtering(load_scene(sky), zooms=(1,), gt_spp=64, runs=1, methods=("toksvig",))
+    assert rec["env_spp"] is not None and rec["methods"]["toksvig"][0]["error"] > 0
+    assert len(loads) == 1, loads
+
+
 def test_render_routes_plane_scenes_to_the_filtering_renderer(plane_scene, capsys):
     d = plane_scene.parent
     assert main(["render", str(plane_scene), "-o", str(d / "o.exr"), "--filter", "lean", "-q"]) == 0
@@ -1358,7 +1376,7 @@ def test_a_gmm_folder_a_killed_benchmark_left_in_the_temporary_folder_is_removed
     class Built(Exception):
         """Where the stand-in stops the run: the mipmaps' folder is all this test reads."""
 
-    def prepare(scene, methods, device="cpu", progress=False, cache=None):
+    def prepare(scene, methods, device="cpu", progress=False, cache=None, env=None):
         if cache is None:   # the coverage check's preparation, before the mipmaps
             return SimpleNamespace(notes={})
         built_in.append((Path(cache), sorted(p.name for p in tmp_path.iterdir())))

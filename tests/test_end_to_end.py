@@ -821,7 +821,7 @@ def test_a_frame_compiles_and_launches_only_the_kernels_its_scene_needs(tmp_path
 
     sky = "[environment]\nconstant = [1.0, 1.0, 1.0]"
     sun = '[[light]]\ntype = "directional"\ndirection = [0.0, 0.0, 1.0]\nradiance = [1.0, 1.0, 1.0]'
-    gbuffer = make_gbuffer_kernel(has_spheres=True, has_mesh=False)
+    gbuffer = make_gbuffer_kernel(has_spheres=True, has_mesh=False, attributes=False)
     for light, has_env in ((sky, True), (sun, False)):
         shade = make_reference_kernel({LAMBERT}, False, has_env=has_env, has_lights=not has_env)
         kernels, modules = frame(render_reference, light, spp=2)
@@ -835,6 +835,137 @@ def test_a_frame_compiles_and_launches_only_the_kernels_its_scene_needs(tmp_path
     assert id(gbuffer) in {id(k) for k in kernels}
     # nothing compiled ahead goes unused
     assert {id(m) for m in modules} <= {id(k.module) for k in kernels}, [m.name for m in modules]
+
+
+def test_a_scene_lit_by_lights_alone_reads_or_builds_no_brdf_sampling_table(tmp_path, monkeypatch):
+    """"No stage is compiled or run that the scene does not use": directional lights alone are exact (no BRDF is
+    sampled), so an NPF material under them loads no sampling table -- none read, none built (seconds for a new
+    material: session 76 measured 4.5 s for an NPF fit, 1.3 s for a MERL file), none packed on the device -- and
+    neither the frame's stages nor ``warpbw info``'s name tabulated sampling.  The same sphere under a black
+    environment as well (which samples the BRDF, so loads the table) gives the same image bit for bit: the lights'
+    term did not need it."""
+    import precompute.brdf_sampling as bs
+    from conftest import fake_npf_table
+    from warpbw.brdf import pdf_brdf, sample_brdf
+    from warpbw.errors import WarpbwError
+    from warpbw.pipeline import prepare_scene, render_reference, scene_summary
+    from warpbw.scene import parse_scene
+
+    fake_npf_table(tmp_path / "npf.bin")
+    loaded, load = [], bs.load_or_build_sampling
+    monkeypatch.setattr(bs, "load_or_build_sampling", lambda *a, **k: loaded.append(a) or load(*a, **k))
+    lights = ('[[light]]\ntype = "directional"\ndirection = [0.3, 0.6, 0.8]\nradiance = [2.0, 1.5, 1.0]\n'
+              '[material.m]\ntype = "npf"\ntable = "npf.bin"\nname = "chrome"\n')
+    frames = {}
+    for env in ("", "[environment]\nconstant = [0.0, 0.0, 0.0]\n"):
+        loaded.clear()
+        sphere = lambert_sphere_scene(24, 24).split("[material.m]")[0].replace("constant = [1.0, 1.0, 1.0]", "")
+        scene = parse_scene(sphere.replace("[environment]", env) + lights, tmp_path, "s.toml")
+        prep = prepare_scene(scene)
+        res = render_reference(prep, spp=2)
+        frames[bool(env)] = res.image
+        tabulated = "tabulated_sampling" in res.stats["stages"]
+        listed = any("tabulated importance sampling" in st for st in scene_summary(scene)["stages"])
+        assert len(loaded) == tabulated == listed == bool(env), (env, len(loaded), res.stats["stages"])
+        assert (prep.materials.table.samplers.density.shape[0] > 0) == bool(env)
+        assert ("sampling" in res.stats["assets"]["material.m"]) == bool(env), res.stats["assets"]
+        if not env:   # the host wrappers refuse to sample it (its sampler index would read past the empty tables)
+            for f, args in ((sample_brdf, ([0.0, 0.0, 1.0], 4)), (pdf_brdf, ([[0.0, 0.0, 1.0]], [[0.0, 0.0, 1.0]]))):
+                with pytest.raises(WarpbwError, match="packed without its sampling table"):
+                    f(prep.materials, 0, *args)
+    assert np.abs(frames[False]).max() > 0.01 and np.array_equal(frames[False], frames[True])
+
+
+def test_the_environment_s_sampling_distribution_is_built_only_for_a_frame_that_samples_it(tmp_path, monkeypatch):
+    """"No stage is compiled or run that the scene does not use": the reference without MIS draws BRDF directions
+    only and looks the environment's radiance up, so its frame of a Scene builds no sampling distribution for the
+    environment (``env_sample`` / ``env_pdf``'s CDFs and cell pdf: session 76 measured 0.4-0.8 s and 67 MB for a
+    4096 x 2048 probe), nor does a scene prepared with ``sampling=False`` until a frame samples it: the first MIS or
+    adaptive frame builds it, once, ahead of its clock, and times it as loading the environment.  The frame without
+    MIS is the same bit for bit before and after."""
+    from warpbw import envmap
+    from warpbw.pipeline import prepare_scene, render_adaptive, render_reference
+    from warpbw.scene import parse_scene
+
+    built, build = [], envmap._build_distribution
+    monkeypatch.setattr(envmap, "_build_distribution", lambda *a, **k: built.append(1) or build(*a, **k))
+    text = lambert_sphere_scene(20, 20).replace("constant = [1.0, 1.0, 1.0]", 'procedural = "sky"')
+    scene = parse_scene(text, tmp_path, "s.toml")
+    first = render_reference(scene, spp=2, seed=4)
+    assert built == [] and first.stats["time_s"]["load_environment"] > 0
+    prep = prepare_scene(scene, sampling=False)
+    plain = render_reference(prep, spp=2, seed=4)
+    assert built == [] and prep.env.lookup_data.cell_pdf.shape == (0, 0) and np.array_equal(plain.image, first.image)
+    assert "load_environment" not in plain.stats["time_s"]
+    mis = render_reference(prep, spp=2, seed=4, mis=True)
+    assert len(built) == 1 and mis.stats["time_s"]["load_environment"] > 0
+    assert prep.env.lookup_data.cell_pdf.shape == (prep.env.height, prep.env.width)
+    render_reference(prep, spp=2, seed=4, mis=True)
+    assert len(built) == 1   # once
+    assert np.array_equal(render_reference(prep, spp=2, seed=4).image, plain.image)
+    built.clear()
+    render_adaptive(prepare_scene(scene, sampling=False), budget=1.0)   # the bandwidth pass samples it
+    assert len(built) == 1
+
+
+def test_an_adaptive_frame_derives_the_relative_bound_only_for_the_relative_allocation(tmp_path, monkeypatch):
+    """"No stage is compiled or run that the scene does not use": ``sigma2_rel`` (the bound over the pixel's own
+    radiance, a kernel over the frame and a median of the pass's radiance) is read by the "relative" allocation
+    alone.  An adaptive frame of every other allocation neither loads nor launches its kernel (session 76: 4-16 ms at
+    512 x 512, inside the bandwidth pass's time); the relative one does, once.  A pass without it says so when the
+    relative allocation asks for it."""
+    import warp as wp
+
+    from warpbw import bandwidth
+    from warpbw.errors import WarpbwError
+    from warpbw.pipeline import prepare_scene, render_adaptive
+    from warpbw.scene import parse_scene
+
+    launched, loaded = [], []
+    launch, load_module = wp.launch, wp.load_module
+    monkeypatch.setattr(wp, "launch", lambda kernel, *a, **k: launched.append(kernel) or launch(kernel, *a, **k))
+    monkeypatch.setattr(wp, "load_module", lambda m, *a, **k: loaded.append(m) or load_module(m, *a, **k))
+    prep = prepare_scene(parse_scene(lambert_sphere_scene(24, 24), tmp_path, "s.toml"))
+    for allocation in bandwidth.ALLOCATIONS:
+        launched.clear()
+        loaded.clear()
+        render_adaptive(prep, budget=2.0, allocation=allocation)
+        want = int(allocation == "relative")
+        assert sum(k is bandwidth.relative_bound_kernel for k in launched) == want, allocation
+        assert (bandwidth.relative_bound_kernel.module in loaded) == bool(want), allocation
+    res = render_adaptive(prep, budget=2.0)
+    buf = bandwidth.bandwidth_pass(res.gbuffer, prep.camera, prep.materials, prep.env_data, prep.bandwidth,
+                                   relative=False)
+    assert buf.sigma2_rel is None
+    with pytest.raises(WarpbwError, match="no relative bound"):
+        bandwidth.allocate_samples(buf, 2.0, allocation="relative")
+
+
+def test_a_frame_s_g_buffer_holds_no_channel_that_no_stage_reads(tmp_path):
+    """"No stage is compiled or run that the scene does not use": the G-buffer's ``geo_normal`` and ``uv`` are read
+    by no later stage, so a frame's G-buffer (reference, adaptive, and planes beside a sphere, which hide what lies
+    behind them) neither holds nor writes them (20 of its 80 bytes per pixel; session 76: a 1024^2 G-buffer of a
+    sphere in 45 ms instead of 62 on one thread).  Asked for, ``render_gbuffer`` writes them, and every other channel
+    is the same bit for bit either way; a G-buffer without them says so when one is read."""
+    from warpbw.errors import WarpbwError
+    from warpbw.gbuffer import render_gbuffer
+    from warpbw.pipeline import prepare_scene, render_adaptive, render_reference, render_with_planes
+    from warpbw.scene import parse_scene
+
+    prep = prepare_scene(parse_scene(lambert_sphere_scene(24, 20), tmp_path, "s.toml"))
+    mixed = parse_scene(MIXED_SCENE, tmp_path, "mixed.toml")
+    for res in (render_reference(prep, spp=1), render_adaptive(prep, budget=1.0),
+                render_with_planes(mixed, "fixed", 1)):
+        assert res.gbuffer.data.uv.shape[0] == res.gbuffer.data.geo_normal.shape[0] == 0
+        with pytest.raises(WarpbwError, match="uv: not rendered"):
+            res.gbuffer.numpy("uv")
+    full = render_gbuffer(prep.camera, prep.geometry)
+    lean = render_gbuffer(prep.camera, prep.geometry, attributes=False)
+    assert full.numpy("uv").shape == (20, 24, 2) and np.abs(full.numpy("geo_normal")).max() > 0.5
+    for name in ("position", "normal", "tangent", "view", "depth", "curvature", "material"):
+        assert np.array_equal(full.numpy(name), lean.numpy(name)), name
+    with pytest.raises(WarpbwError, match="allocated without geo_normal and uv"):
+        render_gbuffer(prep.camera, prep.geometry, out=lean)
 
 
 # ------------------------------------------------------------------------------------------ planes beside a sphere

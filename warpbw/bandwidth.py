@@ -4,7 +4,8 @@ Public:
     ``N_B_DEFAULT``, ``N_B_MAX``, ``NYQUIST_FACTOR``, ``N_P_MIN_DEFAULT``, ``N_P_MAX_PER_BUDGET``, ``BUDGET_MAX``,
     ``ALLOCATION_DEFAULT``, ``LUMINANCE``
     ``make_bandwidth_kernel(kinds, preconvolved)``   the pass's kernel (compiled ahead by the pipeline)
-    ``load_kernels(device)``   compile the block-plan and pooling kernels ahead, outside the pass's time
+    ``load_kernels(device, relative)``   compile the block-plan and pooling kernels (and the relative bound's)
+                                       ahead, outside the pass's time
     ``BandwidthTables`` (Warp struct) / ``make_bandwidth_tables(nu_env, nu_rho, device)``
     ``nu_env_table(nu_env) -> (h, w)``   the environment's nu_a, max-filtered by halves to LIGHT_TABLE_WIDTH columns
     ``env_bandwidth_map(pixels, name, cache=None, signal, progress, source) -> ((H, W) float32 cycles/rad, origin)``;
@@ -15,7 +16,7 @@ Public:
     ``direction_set(n_b, seed) -> (n_b, 3) float32``   stratified points for the n_b directions
     ``interleave_shifts(n_b, side) -> (side^2, 3)``     per-block offsets of the direction set
     ``BandwidthBuffer`` (``.estimator_variance(mis)``, ``.measured_key(mis)``) /
-    ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ..., stride, pool_radius)``
+    ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ..., stride, pool_radius, relative)``
     ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max, allocation, mis, plan)``; ``ALLOCATIONS``
     ``planned_shading(buf, device, key, plan)``   the key of the texels the hierarchy will shade; ``pixel_angle(cam)``
     ``PASS_STRIDE_DEFAULT``, ``POOL_RADIUS_DEFAULT``
@@ -794,11 +795,12 @@ def pixel_angle(cam: CameraData) -> float:
     return max(fx / cam.width, fy / cam.height)
 
 
-def load_kernels(device: str = "cpu") -> None:
-    """Load (compile) the pass's block-plan and pooling kernels, so that ``bandwidth_pass`` times only the pass
-    (``make_bandwidth_kernel``'s kernel is loaded by the pipeline beside the others it builds)."""
+def load_kernels(device: str = "cpu", relative: bool = True) -> None:
+    """Load (compile) the pass's block-plan and pooling kernels, and with ``relative`` the relative bound's, so that
+    ``bandwidth_pass`` times only the pass (``make_bandwidth_kernel``'s kernel is loaded by the pipeline beside the
+    others it builds)."""
     check_device(device)
-    for k in (block_plan_kernel, pool_kernel, relative_bound_kernel):
+    for k in (block_plan_kernel, pool_kernel) + ((relative_bound_kernel,) if relative else ()):
         wp.load_module(k.module, device=device)
 
 
@@ -809,7 +811,8 @@ class BandwidthBuffer:
     nu: wp.array               # vec2 [nu_s, nu_a] at the eye (Eq. 5)
     b_p: wp.array              # float32 image bandwidth, cycles/pixel (Eq. 6)
     sigma2: wp.array           # float32 variance bound numerator: V(L_p) <= sigma2 / N_p (Eq. 9 / 10)
-    sigma2_rel: wp.array       # float32 sigma2 / (mu^2 + (REL_FLOOR m)^2), m the frame's median lit mu
+    sigma2_rel: wp.array | None   # float32 sigma2 / (mu^2 + (REL_FLOOR m)^2), m the frame's median lit mu
+                                  # (None: a pass without ``relative``, for an allocation that does not read it)
     level: wp.array            # int32 (H, W) shading level (Eq. 11 on NYQUIST_FACTOR * b_p)
     coverage: np.ndarray       # (H, W) bool
     width: int
@@ -878,8 +881,9 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
                    tables: BandwidthTables, n_b: int = N_B_DEFAULT, seed: int = 0, preconvolved: bool = False,
                    nyquist: float = NYQUIST_FACTOR, stride: int = PASS_STRIDE_DEFAULT,
                    pool_radius: int = POOL_RADIUS_DEFAULT, device: str = "cpu",
-                   threads: int | None = None) -> BandwidthBuffer:
-    """Fill the bandwidth buffer: nu, b_p, sigma2 per covered pixel, and the level map (Eq. 11).
+                   threads: int | None = None, relative: bool = True) -> BandwidthBuffer:
+    """Fill the bandwidth buffer: nu, b_p, sigma2 per covered pixel, and the level map (Eq. 11); with ``relative``
+    also ``sigma2_rel``, which only the "relative" allocation reads (else None).
 
     ``stride``: the directions are traced once per ``stride x stride`` block of alike pixels (every pixel
     of a block at a silhouette or an edge is traced); ``pool_radius``: each pixel pools the sums of the
@@ -927,7 +931,6 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     nu = wp.zeros(W * H, dtype=wp.vec2, device=device)
     b_p = wp.zeros(W * H, dtype=wp.float32, device=device)
     sigma2 = wp.zeros(W * H, dtype=wp.float32, device=device)
-    sigma2_rel = wp.empty(W * H, dtype=wp.float32, device=device)   # relative_bound_kernel writes every pixel
     mu = wp.zeros(W * H, dtype=wp.float32, device=device)
     var_mis = wp.zeros(W * H, dtype=wp.float32, device=device)
     var_bis = wp.zeros(W * H, dtype=wp.float32, device=device)
@@ -937,10 +940,13 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
     launch_tiled(pool_kernel, pix.shape[0],
                  lambda o, c: [gb.data, rep, pool_radius, int(n_b), angle, lam, nu_sum, var, w2, w2b, lamb, pix, o,
                                nu, b_p, sigma2, mu, var_mis, var_bis, var_step], device, threads)
-    mu_lit = mu.numpy()[gb.coverage.reshape(-1)]
-    mu_lit = mu_lit[mu_lit > 0.0]
-    floor = REL_FLOOR * float(np.median(mu_lit)) if mu_lit.size else 0.0
-    wp.launch(relative_bound_kernel, dim=W * H, inputs=[sigma2, mu, floor * floor, sigma2_rel], device=device)
+    sigma2_rel = None
+    if check_flag(relative, "bandwidth pass: relative"):
+        mu_lit = mu.numpy()[gb.coverage.reshape(-1)]
+        mu_lit = mu_lit[mu_lit > 0.0]
+        floor = REL_FLOOR * float(np.median(mu_lit)) if mu_lit.size else 0.0
+        sigma2_rel = wp.empty(W * H, dtype=wp.float32, device=device)   # relative_bound_kernel writes every pixel
+        wp.launch(relative_bound_kernel, dim=W * H, inputs=[sigma2, mu, floor * floor, sigma2_rel], device=device)
     with np.errstate(over="ignore"):  # a rate beyond float32 is +inf: level 0 (image_level)
         rate = b_p.numpy() * np.float32(nyquist)
     level = image_level(rate, gb.coverage, W, H, device=device)
@@ -1036,7 +1042,9 @@ def allocate_samples(buf: BandwidthBuffer, budget: float, n_min: int = N_P_MIN_D
     power = {"sqrt": 0.5, "uniform": 0.0, "measured": 0.5}.get(allocation, 1.0)
     key = {"relative": buf.sigma2_rel, "measured": buf.measured_key(mis)}.get(allocation, buf.sigma2)
     if key is None:
-        raise WarpbwError(f"allocation {allocation!r}: the bandwidth buffer has no measured variance")
+        lacks = ("relative bound (bandwidth_pass(..., relative=True) derives it)" if allocation == "relative"
+                 else "measured variance")
+        raise WarpbwError(f"allocation {allocation!r}: the bandwidth buffer has no {lacks}")
     sig = key.numpy().reshape(H, W).astype(np.float64)
     bad = cov & ~(np.isfinite(sig) & (sig >= 0.0))
     if bad.any():   # an inf (overflowed) value set hi = inf in the bisection: N_p = n_max there, n_min elsewhere,

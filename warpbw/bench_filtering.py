@@ -139,7 +139,7 @@ def _surfaces_behind(surfaces, device: str):
     geometry = surface_geometry(surfaces, device)
 
     def behind(c):
-        depth = render_gbuffer(scene_camera(c), geometry, device, curvature=False).numpy("depth")
+        depth = render_gbuffer(scene_camera(c), geometry, device, curvature=False, attributes=False).numpy("depth")
         return Background(np.zeros(depth.shape + (3,), np.float32), depth)
 
     return behind
@@ -162,13 +162,14 @@ def _zoom_frames(scene, zooms, behind, pairs: int = 1) -> list:
     return frames
 
 
-def _check_coverage(scene, frames, device: str) -> None:
+def _check_coverage(scene, frames, device: str, env=None) -> None:
     """Refuse, before the mipmaps are built, a zoom at which no pixel sees a plane (in front of the spheres and
     meshes behind it) in one of its ``frames`` (``_zoom_frames``), or in both frames of one of its flicker pairs: its
-    error, flicker and noise would be undefined (a mean over no pixel)."""
+    error, flicker and noise would be undefined (a mean over no pixel).  ``env``: the scene's environment, loaded."""
     from warpbw.filtering import prepare_filtering, render_filtering
 
-    prep = prepare_filtering(scene, ("fixed",), device)  # the cheapest method: the coverage is the same for all
+    # the cheapest method: the coverage is the same for all
+    prep = prepare_filtering(scene, ("fixed",), device, env=env)
     for z, zooms, cams, bgs in frames:
         covered = []
         for zz, cam, bg in zip(zooms, cams, bgs):
@@ -191,6 +192,19 @@ def _check_coverage(scene, frames, device: str) -> None:
                 raise WarpbwError(f"--zoom {z:g}: no pixel sees a plane in both frames of a flicker pair (camera "
                                   f"distance x {zooms[j]:g} and x {zooms[j + 1]:g}), so the flicker, a mean over those "
                                   "pixels, is undefined there: choose other zooms")
+
+
+def _environment(scene, device: str):
+    """The scene's ``[environment]`` loaded on ``device`` (None without one), refused as ``prepare_filtering``
+    refuses it."""
+    from warpbw.envmap import load_environment
+
+    if scene.environment is None:
+        return None
+    try:
+        return load_environment(scene.environment, device)
+    except WarpbwError as exc:
+        raise WarpbwError(f"{scene.source}: [environment]: {exc}") from None
 
 
 def _check_lit(z: float, zooms, truths) -> None:
@@ -228,11 +242,12 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     check_count(flicker_pairs, "--flicker-pairs (consecutive frame pairs per zoom)", 1, FLICKER_PAIRS_MAX)
     zooms = [float(z) for z in zooms]
     frames_by_zoom = _zoom_frames(scene, zooms, _surfaces_behind(surfaces, device), int(flicker_pairs))
-    _check_coverage(scene, frames_by_zoom, device)
+    env = _environment(scene, device)   # once: the coverage check and the measured frames share it
+    _check_coverage(scene, frames_by_zoom, device, env)
     with temporary_folder(GMM_TEMP_PREFIX) as tmp:   # named after this process: the next run removes it if killed
         t0 = time.perf_counter()
         prep = prepare_filtering(scene, methods + ("ground_truth",), device, progress,
-                                 cache=Path(cache) if cache is not None else Path(tmp))
+                                 cache=Path(cache) if cache is not None else Path(tmp), env=env)
         prep_time = time.perf_counter() - t0
     gmm_time = sum(n.get("gmm_aligned", {}).get("time_s", 0.0) for n in prep.notes.values())
     log(f"precompute: {prep_time:.2f} s (aligned GMM mipmaps {gmm_time:.2f} s)")

@@ -4,8 +4,9 @@ Public:
     ``MaterialTable``               Warp struct: every material's parameters and tabulated data
     ``BrdfFuncs`` / ``make_brdf_funcs(kinds)``  the eval / sample / pdf ``wp.func`` s for a set of kinds
     ``MaterialSpec``                one material's kind and parameters, as the scene gives them
-    ``build_material_table(specs, device) -> MaterialBuffers``  host: pack material specs into a ``MaterialTable``
-                                    (``MaterialBuffers``: the table and the kinds and names it holds)
+    ``build_material_table(specs, device, sampling=True) -> MaterialBuffers``  host: pack material specs into a
+                                    ``MaterialTable`` (``MaterialBuffers``: the table and the kinds and names it
+                                    holds; without ``sampling``, for lights alone, no sampling table)
     ``check_material_spec(s, i)``  a spec the table can hold, else a ``WarpbwError`` naming the field
     ``pack_npf_curves(rho_d, rho_s, d, g1, f)``  an NPF fit's curves in the table's layout
     ``KIND_NAMES``                  material type name -> kind id
@@ -547,8 +548,10 @@ def check_material_spec(s: MaterialSpec, i: int) -> MaterialSpec:
     return s
 
 
-def build_material_table(specs: Sequence[MaterialSpec], device: str = "cpu") -> MaterialBuffers:
-    """Pack material specs (in material-id order) into device arrays (each checked by ``check_material_spec``)."""
+def build_material_table(specs: Sequence[MaterialSpec], device: str = "cpu", sampling: bool = True) -> MaterialBuffers:
+    """Pack material specs (in material-id order) into device arrays (each checked by ``check_material_spec``).
+    Without ``sampling`` (for kernels that sample no BRDF: directional lights alone) no sampling table is packed
+    and a tabulated material needs none (``sample_brdf`` and ``pdf_brdf`` then refuse it)."""
     check_device(device)
     specs = [check_material_spec(s, i) for i, s in enumerate(specs)]
     n = len(specs)
@@ -563,7 +566,7 @@ def build_material_table(specs: Sequence[MaterialSpec], device: str = "cpu") -> 
         elif s.kind == NPF:
             data_idx[i] = len(npfs)
             npfs.append(_spec_table(s.npf, s.name, NPF_STRIDE))
-        if s.kind in (MERL, NPF):
+        if s.kind in (MERL, NPF) and sampling:
             if s.sampler is None:
                 raise WarpbwError(f"material {s.name!r}: a tabulated BRDF needs its sampling table")
             samp_idx[i] = len(samplers)
@@ -630,6 +633,14 @@ def _check_material(mb: MaterialBuffers, m, device) -> int:
     return check_count(m, "m (material index)", 0, len(mb.names) - 1)
 
 
+def _check_sampled(mb: MaterialBuffers, m: int, what: str) -> None:
+    """A tabulated material of a table packed without sampling tables (``build_material_table(sampling=False)``)
+    has no sampler: its index would read past the empty tables."""
+    if mb.table.kind.numpy()[m] in (MERL, NPF) and mb.table.sampler.numpy()[m] < 0:
+        raise WarpbwError(f"{what}: material {m} ({mb.names[m]!r}) was packed without its sampling table "
+                          "(build_material_table(..., sampling=True) packs it)")
+
+
 def _device_dirs(d: np.ndarray, name: str, device) -> wp.array:
     return wp.array(np.ascontiguousarray(unit_directions(d, name), np.float32), dtype=wp.vec3, device=device)
 
@@ -647,6 +658,7 @@ def eval_brdf(mb: MaterialBuffers, m: int, wi, wo, device: str = "cpu") -> np.nd
 def pdf_brdf(mb: MaterialBuffers, m: int, wi, wo, device: str = "cpu") -> np.ndarray:
     """Solid-angle pdf of the material's sampler at N direction pairs (scaled to unit length) -> (N,)."""
     m = _check_material(mb, m, device)
+    _check_sampled(mb, m, "pdf_brdf")
     wi, wo = (d.reshape(-1, 3) for d in check_direction_pairs(wi, wo))
     out = wp.zeros(len(wi), dtype=float, device=device)
     wp.launch(_host_kernels(mb.kinds)[1], dim=len(wi),
@@ -657,6 +669,7 @@ def pdf_brdf(mb: MaterialBuffers, m: int, wi, wo, device: str = "cpu") -> np.nda
 def sample_brdf(mb: MaterialBuffers, m: int, wo, n: int, seed: int = 0, device: str = "cpu") -> np.ndarray:
     """n directions wi drawn from the material's sampler for view wo (broadcast; scaled to unit length) -> (n, 3)."""
     m = _check_material(mb, m, device)
+    _check_sampled(mb, m, "sample_brdf")
     n = check_count(n, "n", 1, INT32_MAX)
     seed = check_seed(seed)   # 2**32 drew seed 0's directions
     wo = np.atleast_2d(np.asarray(wo, np.float64))

@@ -61,12 +61,17 @@ Host functions:
     envmap_from_array(rgb, rotation_deg=0.0, scale=1.0, name="array", device="cpu") -> EnvMap
         (``EnvMap.source_digest`` hashes the map as given, before its scale: what the exposure does not change,
         the nu_a map, is cached by it)
-    load_envmap(path, rotation_deg=0.0, scale=1.0, device="cpu") -> EnvMap   (warns first where it would take more
-                                                 memory than is available, ``load_memory(width, height)``;
+    load_envmap(path, rotation_deg=0.0, scale=1.0, device="cpu", sampling=True) -> EnvMap   (warns first where it
+                                                 would take more memory than is available,
+                                                 ``load_memory(width, height)``;
                                                  ``file_load_memory(path) -> (width, height, bytes)`` from the
                                                  EXR's header)
     constant_envmap(radiance, device="cpu") -> EnvMap
-    load_environment(spec, device="cpu") -> EnvMap   a scene's [environment] (``warpbw.scene.Environment``)
+    load_environment(spec, device="cpu", sampling=True) -> EnvMap   a scene's [environment]
+                                                 (``warpbw.scene.Environment``)
+    ensure_sampling(env) -> EnvMap   the sampling distribution on the device, once: a map loaded with
+                                     ``sampling=False`` builds it on first need (``EnvMap.data`` does;
+                                     ``EnvMap.lookup_data`` is the struct as it is, for radiance look-ups alone)
     procedural_sky(width=256, height=128, ...) -> np.ndarray (H, W, 3) float32
     build_mip_levels(pixels) -> list[np.ndarray]
     mip_row_positions(heights) -> np.ndarray (n_levels, 2)   where each level's rows sit: (v0, dv)
@@ -355,7 +360,7 @@ def _sample_kernel(
 class EnvMap:
     """An environment light ready for kernels (``data``) plus its host-side copies."""
 
-    data: EnvMapData
+    _data: EnvMapData
     width: int
     height: int
     n_clamped: int  # channel values (not pixels) that were negative or non-finite, set to 0
@@ -369,6 +374,19 @@ class EnvMap:
     source_digest: str = ""
     _keep: list = field(default_factory=list, repr=False)  # wp.arrays referenced by data
     _mips: list | None = field(default=None, repr=False)   # the MIP levels, once build_mip_pyramid made them
+    _sampled: bool = field(default=True, repr=False)       # its sampling distribution is on the device
+
+    @property
+    def data(self) -> EnvMapData:
+        """The kernels' struct, its sampling distribution built first where the map was loaded without it
+        (``ensure_sampling``): whatever reads ``data`` may call ``env_sample`` and ``env_pdf``."""
+        return ensure_sampling(self)._data
+
+    @property
+    def lookup_data(self) -> EnvMapData:
+        """The kernels' struct as it is, for a kernel that only looks the radiance up (no ``env_sample`` or
+        ``env_pdf``): without ``ensure_sampling`` its distribution's arrays are empty."""
+        return self._data
 
     @property
     def mip_levels(self) -> list[np.ndarray]:
@@ -578,10 +596,10 @@ def _check_scalar(value, what: str, name: str, nonnegative: bool = False) -> flo
     return x
 
 
-def _make_envmap(rgb, rotation_deg, scale, name, device, stacklevel) -> EnvMap:
+def _make_envmap(rgb, rotation_deg, scale, name, device, stacklevel, sampling: bool = True) -> EnvMap:
     rotation_deg, scale = _check_envmap_args(rotation_deg, scale, name, device)
     pixels, n_clamped, digest = _sanitize(rgb, name, scale, stacklevel + 1)
-    return _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, digest)
+    return _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, digest, sampling)
 
 
 def _check_envmap_args(rotation_deg, scale, name, device) -> tuple[float, float]:
@@ -590,10 +608,16 @@ def _check_envmap_args(rotation_deg, scale, name, device) -> tuple[float, float]
             _check_scalar(scale, "scale", name, nonnegative=True))
 
 
-def _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, source_digest) -> EnvMap:
-    """The EnvMap of sanitised ``pixels`` (float32, C order), its sampling distribution built."""
+_DISTRIBUTION = (("marginal_cdf", (1, 0)), ("conditional_cdf", (0, 0)), ("row_omc", (0,)), ("row_opc", (0,)),
+                 ("cell_pdf", (0, 0)))   # EnvMapData's sampling fields, and their empty shapes before ensure_sampling
+
+
+def _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, source_digest, sampling: bool = True) -> EnvMap:
+    """The EnvMap of sanitised ``pixels`` (float32, C order), its sampling distribution built (without ``sampling``:
+    on first need, ``ensure_sampling``)."""
     h, w, _ = pixels.shape
-    dist = _build_distribution(pixels)
+    # first: its temporaries (about 32 bytes per texel) peak before the map's device copy is made
+    dist = _build_distribution(pixels) if sampling else None
     keep = []
 
     def arr(x, dtype):
@@ -608,11 +632,9 @@ def _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, source_dige
     rad = math.radians(rotation_deg)
     data.rot_cos = math.cos(rad)
     data.rot_sin = math.sin(rad)
-    data.marginal_cdf = arr(dist["marginal_cdf"], wp.float32)
-    data.conditional_cdf = arr(dist["conditional_cdf"], wp.float32)
-    data.row_omc = arr(dist["row_omc"], wp.float32)
-    data.row_opc = arr(dist["row_opc"], wp.float32)
-    data.cell_pdf = arr(dist["cell_pdf"], wp.float32)
+    for key, shape in _DISTRIBUTION:
+        setattr(data, key, arr(dist[key], wp.float32) if dist is not None
+                else wp.zeros(shape, dtype=wp.float32, device=device))
     # no renderer reads the MIP pyramid (DESIGN: a stage the scene does not need is not run): until
     # build_mip_pyramid, the "pyramid" is level 0 alone, the map itself (no copy)
     data.mip_data = data.base.reshape((h * w,))   # a view of the map
@@ -622,8 +644,8 @@ def _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, source_dige
     data.mip_height = arr(np.array([h], np.int32), wp.int32)
     data.mip_row_v = arr(mip_row_positions([h]), wp.vec2)
     data.n_levels = 1
-    return EnvMap(
-        data=data,
+    env = EnvMap(
+        _data=data,
         width=w,
         height=h,
         n_clamped=n_clamped,
@@ -634,7 +656,24 @@ def _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, source_dige
         device=str(device),
         source_digest=source_digest,
         _keep=keep,
+        _sampled=dist is not None,
     )
+    return env
+
+
+def ensure_sampling(env: EnvMap) -> EnvMap:
+    """Build ``env``'s sampling distribution (what ``env_sample`` and ``env_pdf`` read) and put it on the device,
+    once; returns ``env``.  A map loaded with ``sampling=False`` (``load_environment``) has none until then: a frame
+    that samples no environment direction (the reference without MIS) does not build it."""
+    check_instance(env, EnvMap, "ensure_sampling: env", "an EnvMap (load_envmap, constant_envmap, ...)")
+    if not env._sampled:
+        dist = _build_distribution(env.pixels)
+        for key, _ in _DISTRIBUTION:
+            a = wp.array(np.ascontiguousarray(dist[key]), dtype=wp.float32, device=env.device)
+            setattr(env._data, key, a)
+            env._keep.append(a)
+        env._sampled = True
+    return env
 
 
 def envmap_from_array(rgb, rotation_deg: float = 0.0, scale: float = 1.0, name: str = "array", device="cpu") -> EnvMap:
@@ -661,9 +700,10 @@ def file_load_memory(path) -> tuple[int, int, int]:
     return w, h, load_memory(*max((w, h), data, key=lambda s: s[0] * s[1]))
 
 
-def load_envmap(path, rotation_deg: float = 0.0, scale: float = 1.0, device="cpu") -> EnvMap:
+def load_envmap(path, rotation_deg: float = 0.0, scale: float = 1.0, device="cpu", sampling: bool = True) -> EnvMap:
     """Environment light from a lat-long EXR file (via warpbw.io.exr.read_rgb): its display window spans the sphere,
-    texels of it that the file does not store are 0."""
+    texels of it that the file does not store are 0.  Without ``sampling`` its sampling distribution is built on
+    first need (``ensure_sampling``)."""
     from warpbw.io.exr import read_rgb  # lazy: keeps this module importable on its own
 
     w, h, need = file_load_memory(path)   # the header alone: a probe too large to load warns before it is read
@@ -678,7 +718,7 @@ def load_envmap(path, rotation_deg: float = 0.0, scale: float = 1.0, device="cpu
     rotation_deg, scale = _check_envmap_args(rotation_deg, scale, name, device)
     pixels, n_clamped, digest = _sanitize(rgb, name, scale, stacklevel=2)
     del rgb   # the file's pixels, no longer needed while the distribution is built (12 bytes per texel)
-    return _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, digest)
+    return _envmap_of(pixels, n_clamped, rotation_deg, scale, name, device, digest, sampling)
 
 
 def constant_envmap(radiance, device="cpu") -> EnvMap:
@@ -692,16 +732,16 @@ def constant_envmap(radiance, device="cpu") -> EnvMap:
     return _make_envmap(np.broadcast_to(rgb, (4, 8, 3)), 0.0, 1.0, "constant", device, stacklevel=2)
 
 
-def load_environment(spec, device="cpu") -> EnvMap:
+def load_environment(spec, device="cpu", sampling: bool = True) -> EnvMap:
     """The light of a scene's ``[environment]`` table (a ``warpbw.scene.Environment``: exactly one of
-    ``file``, ``procedural = "sky"`` or ``constant``, with ``rotation`` and ``scale``)."""
+    ``file``, ``procedural = "sky"`` or ``constant``, with ``rotation`` and ``scale``).  Without ``sampling`` its
+    sampling distribution is built on first need (``ensure_sampling``; ``EnvMap.data`` does it)."""
     if spec.file is not None:
-        return load_envmap(spec.file, rotation_deg=spec.rotation, scale=spec.scale, device=device)
+        return load_envmap(spec.file, rotation_deg=spec.rotation, scale=spec.scale, device=device, sampling=sampling)
     if spec.procedural == "sky":
         w, h = PROCEDURAL_SKY_SIZE
-        return envmap_from_array(procedural_sky(w, h), rotation_deg=spec.rotation, scale=spec.scale,
-                                 name="procedural sky", device=device)
-    return constant_envmap(tuple(c * spec.scale for c in spec.constant), device=device)
+        return _make_envmap(procedural_sky(w, h), spec.rotation, spec.scale, "procedural sky", device, 2, sampling)
+    return constant_envmap(tuple(c * spec.scale for c in spec.constant), device=device)   # 4 x 8 texels
 
 
 # procedural sky colours (linear RGB), chosen by eye to read as a clear day
@@ -793,9 +833,9 @@ def build_mip_pyramid(env: EnvMap) -> EnvMap:
             (packed, wp.vec3), (offsets, wp.int32), (np.array([lv.shape[1] for lv in levels], np.int32), wp.int32),
             (np.array([lv.shape[0] for lv in levels], np.int32), wp.int32),
             (mip_row_positions([lv.shape[0] for lv in levels]), wp.vec2))]
-        (env.data.mip_data, env.data.mip_offset, env.data.mip_width, env.data.mip_height,
-         env.data.mip_row_v) = arrays
-        env.data.n_levels = len(levels)
+        (env._data.mip_data, env._data.mip_offset, env._data.mip_width, env._data.mip_height,
+         env._data.mip_row_v) = arrays
+        env._data.n_levels = len(levels)
         env._keep.extend(arrays)
         env._mips = levels
     return env

@@ -132,7 +132,7 @@ import warp as wp
 
 from precompute.gmm_mipmap import NORMAL_DIM, level_shapes
 from warpbw.envmap import (LUMINANCE_RGB, EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv,
-                           load_environment)
+                           ensure_sampling, load_environment)
 from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, available_memory, check_camera_reach,
                            check_coordinate_spacing, check_count, check_device, check_finite_image, check_flag,
                            check_instance, check_real, check_seed, numeric_array, unit_directions,
@@ -1197,6 +1197,8 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
             env = load_environment(scene.environment, device)
         except WarpbwError as exc:
             raise WarpbwError(f"{scene.source}: [environment]: {exc}") from None
+    if env is not None:   # the planes sample it (one given may have been loaded without its distribution)
+        ensure_sampling(env)
     mips, notes = {}, {}
     for name in dict.fromkeys(p.material for p in planes):
         normals, data, kind, scale, src_name, digest = (gmm_files[name][2] if name in gmm_files   # read already

@@ -13,9 +13,10 @@ Public:
                                      refit the BVH (dynamic geometry, 002 Sec. 4.3, Fig. 18); a texture seam's
                                      copies must move together (``SEAM_GAP_REL``)
     ``GBufferData``                  Warp struct: the per-pixel buffers, as kernels read them
-    ``GBuffer`` / ``render_gbuffer(cam, geometry, device, threads, curvature=True)``     run the pass
-    ``make_gbuffer_kernel(has_spheres, has_mesh)``, ``allocate_gbuffer(width, height, device)``   its kernel
-                                     (the pipeline compiles it ahead) and its buffers
+    ``GBuffer`` / ``render_gbuffer(cam, geometry, device, threads, curvature=True, attributes=True)``   run the
+                                     pass (without ``attributes``, no ``geo_normal`` or ``uv``: no stage reads them)
+    ``make_gbuffer_kernel(has_spheres, has_mesh, attributes=True)``, ``allocate_gbuffer(width, height, device,
+                                     attributes=True)``   its kernel (the pipeline compiles it ahead) and its buffers
     ``check_reach(cam, geometry)``   refuse a camera too far from (or, scaled down, too near) the geometry for
                                      float32 intersection (``SPHERE_REACH_MAX``, ``MESH_REACH_MAX``,
                                      ``SPHERE_REACH_MIN``, ``MESH_REACH_MIN``), or a scene so far from the origin
@@ -102,7 +103,7 @@ class CameraData:
 class GBufferData:
     position: wp.array(dtype=wp.vec3)
     normal: wp.array(dtype=wp.vec3)       # shading normal (interpolated on meshes)
-    geo_normal: wp.array(dtype=wp.vec3)   # geometric normal, facing the camera
+    geo_normal: wp.array(dtype=wp.vec3)   # geometric normal, facing the camera (with uv: empty without attributes)
     tangent: wp.array(dtype=wp.vec3)
     view: wp.array(dtype=wp.vec3)         # wo, world space, unit, towards the camera
     depth: wp.array(dtype=wp.float32)
@@ -188,22 +189,24 @@ def sphere_tangent(n: wp.vec3):
 def write_empty(gb: GBufferData, i: int):
     gb.position[i] = wp.vec3(0.0)
     gb.normal[i] = wp.vec3(0.0)
-    gb.geo_normal[i] = wp.vec3(0.0)
+    if gb.geo_normal.shape[0] > 0:   # a G-buffer without attributes has neither geo_normal nor uv
+        gb.geo_normal[i] = wp.vec3(0.0)
+        gb.uv[i] = wp.vec2(0.0)
     gb.tangent[i] = wp.vec3(0.0)
     gb.view[i] = wp.vec3(0.0)
     gb.depth[i] = 0.0
     gb.curvature[i] = 0.0
-    gb.uv[i] = wp.vec2(0.0)
     gb.material[i] = -1
 
 
-def make_gbuffer_kernel(has_spheres: bool, has_mesh: bool):
-    """The G-buffer kernel for a scene with spheres and/or meshes (only those paths are compiled)."""
-    return _gbuffer_kernel(bool(has_spheres), bool(has_mesh))
+def make_gbuffer_kernel(has_spheres: bool, has_mesh: bool, attributes: bool = True):
+    """The G-buffer kernel for a scene with spheres and/or meshes (only those paths are compiled); with
+    ``attributes``, it also writes ``geo_normal`` and ``uv``."""
+    return _gbuffer_kernel(bool(has_spheres), bool(has_mesh), bool(attributes))
 
 
 @functools.cache  # one kernel per combination: Warp compiles each once
-def _gbuffer_kernel(has_spheres: bool, has_mesh: bool):
+def _gbuffer_kernel(has_spheres: bool, has_mesh: bool, attributes: bool):
 
     @wp.kernel(module="unique", enable_backward=False)
     def gbuffer_kernel(cam: CameraData, spheres: SphereList, mesh: MeshAttributes, gb: GBufferData, offset: int):
@@ -250,8 +253,9 @@ def _gbuffer_kernel(has_spheres: bool, has_mesh: bool):
                 n = (p - c) / r
                 n = wp.normalize(n)
                 # of the point, not of the side seen: the outward normal's longitude and polar angle
-                uv = wp.vec2(wp.atan2(n[0], n[2]) / (2.0 * wp.pi) + 0.5,
-                             wp.acos(wp.clamp(n[1], -1.0, 1.0)) / wp.pi)
+                if wp.static(attributes):
+                    uv = wp.vec2(wp.atan2(n[0], n[2]) / (2.0 * wp.pi) + 0.5,
+                                 wp.acos(wp.clamp(n[1], -1.0, 1.0)) / wp.pi)
                 if wp.dot(n, d) > 0.0:   # camera inside the sphere: see its inner side
                     n = -n
                 gn = n
@@ -272,16 +276,18 @@ def _gbuffer_kernel(has_spheres: bool, has_mesh: bool):
                     n = -n
                 tan = orthonormal_tangent(n)
                 curv = bu * mesh.curvature[i0] + bv * mesh.curvature[i1] + w2 * mesh.curvature[i2]
-                uv = bu * mesh.uv[i0] + bv * mesh.uv[i1] + w2 * mesh.uv[i2]
+                if wp.static(attributes):
+                    uv = bu * mesh.uv[i0] + bv * mesh.uv[i1] + w2 * mesh.uv[i2]
                 mat = mesh.face_material[hit_index]
         gb.position[i] = p
         gb.normal[i] = n
-        gb.geo_normal[i] = gn
+        if wp.static(attributes):
+            gb.geo_normal[i] = gn
+            gb.uv[i] = uv
         gb.tangent[i] = tan
         gb.view[i] = -d
         gb.depth[i] = t_best * wp.dot(d, cam.forward)
         gb.curvature[i] = curv
-        gb.uv[i] = uv
         gb.material[i] = mat
 
     return gbuffer_kernel
@@ -703,6 +709,9 @@ class GBuffer:
     def numpy(self, name: str) -> np.ndarray:
         """A buffer as an (H, W, ...) numpy array, e.g. ``gb.numpy("normal")``."""
         a = getattr(self.data, name).numpy()
+        if a.shape[0] == 0:
+            raise WarpbwError(f"G-buffer {name}: not rendered (render_gbuffer(..., attributes=True) writes it; the "
+                              "renderer's frames leave it out, as no stage reads it)")
         return a.reshape((self.height, self.width) + a.shape[1:])
 
     @property
@@ -720,7 +729,9 @@ def check_camera_of(cam, gb, where: str) -> None:
                           "(expected the camera it was rendered from)")
 
 
-def allocate_gbuffer(width: int, height: int, device: str = "cpu") -> GBuffer:
+def allocate_gbuffer(width: int, height: int, device: str = "cpu", attributes: bool = True) -> GBuffer:
+    """The G-buffer's arrays; without ``attributes`` ``geo_normal`` and ``uv`` are empty (no renderer stage reads
+    them: 20 of its 80 bytes per pixel)."""
     check_device(device)
     # a size of 8.5 or -3 failed inside Warp, and 0 gave an empty G-buffer
     width, height = check_count(width, "allocate_gbuffer: width", 1), check_count(height, "allocate_gbuffer: height", 1)
@@ -728,12 +739,13 @@ def allocate_gbuffer(width: int, height: int, device: str = "cpu") -> GBuffer:
     g = GBufferData()
     g.position = wp.zeros(n, dtype=wp.vec3, device=device)
     g.normal = wp.zeros(n, dtype=wp.vec3, device=device)
-    g.geo_normal = wp.zeros(n, dtype=wp.vec3, device=device)
+    attributes = check_flag(attributes, "allocate_gbuffer: attributes")
+    g.geo_normal = wp.zeros(n if attributes else 0, dtype=wp.vec3, device=device)
     g.tangent = wp.zeros(n, dtype=wp.vec3, device=device)
     g.view = wp.zeros(n, dtype=wp.vec3, device=device)
     g.depth = wp.zeros(n, dtype=wp.float32, device=device)
     g.curvature = wp.zeros(n, dtype=wp.float32, device=device)
-    g.uv = wp.zeros(n, dtype=wp.vec2, device=device)
+    g.uv = wp.zeros(n if attributes else 0, dtype=wp.vec2, device=device)
     g.material = wp.zeros(n, dtype=wp.int32, device=device)
     g.width = int(width)
     g.height = int(height)
@@ -741,17 +753,19 @@ def allocate_gbuffer(width: int, height: int, device: str = "cpu") -> GBuffer:
 
 
 def render_gbuffer(cam: CameraData, geometry: Geometry, device: str = "cpu", out: GBuffer | None = None,
-                   threads: int | None = None, curvature: bool = True) -> GBuffer:
+                   threads: int | None = None, curvature: bool = True, attributes: bool = True) -> GBuffer:
     """Cast one primary ray per pixel and fill the G-buffer (reusing ``out`` when given); on the CPU the
     pixels are tiled over ``threads`` (default: the cores, as the shading does).  With ``curvature=False`` a
     mesh whose curvature is still deferred (``ensure_curvature``) is not made to derive it, and reads 0: for a
-    frame that no bandwidth pass reads."""
+    frame that no bandwidth pass reads.  Without ``attributes`` ``geo_normal`` and ``uv`` are neither allocated
+    nor written (``allocate_gbuffer``): the renderer's frames, whose stages read neither."""
     from warpbw.shading import launch_tiled   # shading builds on this module
 
     check_device(device)
     check_instance(cam, CameraData, "render_gbuffer: cam", "a CameraData (make_camera's)")
     check_instance(geometry, Geometry, "render_gbuffer: geometry", "a Geometry (build_geometry's)")
     curvature = check_flag(curvature, "render_gbuffer: curvature")   # "no" was truthy
+    attributes = check_flag(attributes, "render_gbuffer: attributes")
     check_reach(cam, geometry)
     if curvature:
         ensure_curvature(geometry)
@@ -759,8 +773,11 @@ def render_gbuffer(cam: CameraData, geometry: Geometry, device: str = "cpu", out
         got = f"{out.width}x{out.height}" if isinstance(out, GBuffer) else type(out).__name__
         raise WarpbwError(f"render_gbuffer: out: expected a GBuffer of the camera's {cam.width}x{cam.height}, got "
                           f"{got}")
-    gb = out if out is not None else allocate_gbuffer(cam.width, cam.height, device)
-    kernel = make_gbuffer_kernel(geometry.has_spheres, geometry.has_mesh)
+    if out is not None and (out.data.uv.shape[0] > 0) != attributes:   # the kernel would write past empty arrays
+        raise WarpbwError(f"render_gbuffer: out: allocated {'without' if attributes else 'with'} geo_normal and uv, "
+                          f"expected a G-buffer allocated with attributes={attributes}")
+    gb = out if out is not None else allocate_gbuffer(cam.width, cam.height, device, attributes)
+    kernel = make_gbuffer_kernel(geometry.has_spheres, geometry.has_mesh, attributes)
     launch_tiled(kernel, cam.width * cam.height,
                  lambda o, c: [cam, geometry.spheres, geometry.mesh_attr, gb.data, o], device, threads)
     return gb

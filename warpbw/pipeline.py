@@ -1,7 +1,7 @@
 """The pipeline: assemble, from a scene, only the stages it needs, and run a frame.
 
 Public:
-    ``prepare_scene(scene, device, progress) -> PreparedScene``   load assets, build device data
+    ``prepare_scene(scene, device, progress, sampling) -> PreparedScene``   load assets, build device data
     ``render_reference(scene, spp, seed, mis, device, progress) -> RenderResult`` (``scene``: a Scene or a
                                        PreparedScene; ``device``: where a Scene is prepared, the CPU by default; a
                                        PreparedScene renders where it lives, and another device is refused; so
@@ -30,7 +30,8 @@ A material kind the scene does not use is not compiled (its branch is removed fr
 ``wp.static``); spheres and meshes each have their own G-buffer path; one table per tabulated material
 is in memory; a mesh's curvature is derived only for the bandwidth pass.  The environment and the
 directional ``[[light]]``s are each optional (a scene has at least one): a scene without an environment
-compiles no sampling loop, one without lights no light loop.  The adaptive method needs an environment: it
+compiles no sampling loop and reads or builds no MERL or NPF material's sampling table, one without lights no light
+loop.  The adaptive method needs an environment: it
 adapts the environment's sampling, and adds the lights' exact term at every pixel.  ``RenderResult.stats`` says
 which stages ran and how long each took.
 
@@ -117,23 +118,25 @@ def _asset_file(key: str, origin: str, path) -> dict:
     return {f"{key}_file": str(path)} if origin == "file" and path is not None else {}
 
 
-def _material_spec(m, progress: bool, notes: dict, sources: dict, where: str = "") -> brdf_mod.MaterialSpec:
+def _material_spec(m, progress: bool, notes: dict, sources: dict, where: str = "",
+                   sampling: bool = True) -> brdf_mod.MaterialSpec:
     """The MaterialSpec of scene material ``m``; ``where`` (the scene file) starts the message of an NPF material
-    name the table lacks, which named the table alone."""
+    name the table lacks, which named the table alone.  Without ``sampling`` (a scene lit by directional lights
+    alone: no BRDF is sampled) a MERL or NPF material's sampling table is neither read nor built."""
     kind = brdf_mod.KIND_NAMES[m.type]
     if m.type == "lambert":
         return brdf_mod.MaterialSpec(m.name, kind, albedo=m.albedo)
     if m.type == "ggx":
         return brdf_mod.MaterialSpec(m.name, kind, alpha=m.alpha, specular=m.specular, eta=m.eta, k=m.k)
-    from precompute.brdf_sampling import brdf_source, load_or_build_sampling
+    from precompute.brdf_sampling import brdf_source
 
     if m.type == "merl":
         source = brdf_source(m.file)
         sources[m.name] = source
         merl = source.brdf
-        table, origin = load_or_build_sampling(source, m.sampling, progress=progress)
+        table, origin = _sampling_table(source, m, progress, sampling)
         notes[f"material.{m.name}"] = {"type": "merl", "file": str(m.file), "unmeasured": int(merl.n_unmeasured),
-                                       "sampling": origin, **_asset_file("sampling", origin, m.sampling)}
+                                       **_sampling_note(origin, m)}
         return brdf_mod.MaterialSpec(m.name, kind, merl=merl.data, linear=m.lookup == "linear", sampler=table)
     from warpbw.io.npf import UnknownNpfMaterial
 
@@ -143,17 +146,34 @@ def _material_spec(m, progress: bool, notes: dict, sources: dict, where: str = "
         raise WarpbwError(f"{where + ': ' if where else ''}[material.{m.name}].name: {exc}") from None
     sources[m.name] = source
     npf = source.brdf
-    table, origin = load_or_build_sampling(source, m.sampling, progress=progress)
-    notes[f"material.{m.name}"] = {"type": "npf", "name": npf.name, "sampling": origin,
-                                   **_asset_file("sampling", origin, m.sampling)}
+    table, origin = _sampling_table(source, m, progress, sampling)
+    notes[f"material.{m.name}"] = {"type": "npf", "name": npf.name, **_sampling_note(origin, m)}
     curves = brdf_mod.pack_npf_curves(npf.rho_d, npf.rho_s, npf.D, npf.G1, npf.F)
     return brdf_mod.MaterialSpec(m.name, kind, npf=curves, linear=m.lookup == "linear", sampler=table)
 
 
-def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> PreparedScene:
+def _sampling_table(source, m, progress: bool, sampling: bool) -> tuple:
+    """A tabulated material's sampling table and where it came from, or (None, None) without ``sampling``."""
+    if not sampling:
+        return None, None
+    from precompute.brdf_sampling import load_or_build_sampling
+
+    return load_or_build_sampling(source, m.sampling, progress=progress)
+
+
+def _sampling_note(origin, m) -> dict:
+    """The render record's word on a tabulated material's sampling table (none when none was loaded)."""
+    return {} if origin is None else {"sampling": origin, **_asset_file("sampling", origin, m.sampling)}
+
+
+def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False, sampling: bool = True) -> PreparedScene:
     """Load the scene's assets (environment, meshes, materials) onto ``device``.  The prepared scene holds a
     checked copy of ``scene`` (``warpbw.scene.check_scene``): a Scene built in Python is checked as a scene file
-    is, and editing ``scene`` afterwards changes no frame of it (prepare the edited scene again)."""
+    is, and editing ``scene`` afterwards changes no frame of it (prepare the edited scene again).  Without
+    ``sampling`` the environment's sampling distribution is built by the first frame that samples it (MIS, the
+    bandwidth pass), not here: a reference frame without MIS needs none (render_reference of a Scene without MIS
+    prepares it so).  Built while loading, its temporaries peak before the map's device copy is made: about 12 bytes
+    per texel less than built afterwards."""
     from warpbw.lights import make_lights
 
     _check_scene(scene)
@@ -169,8 +189,8 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
     cam = scene_camera(scene.camera)
     env = None
     if scene.environment is not None:
-        with _timed(timings, "load_environment"):
-            env = envmap.load_environment(scene.environment, device)
+        with _timed(timings, "load_environment"):   # without sampling, its distribution on first need (_env_data)
+            env = envmap.load_environment(scene.environment, device, sampling=sampling)
         # channel values (not pixels) that were negative or non-finite and set to 0
         notes["environment"] = {"name": env.name, "size": [env.width, env.height],
                                 "clamped_values": int(env.n_clamped)}
@@ -180,8 +200,11 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False) -> 
     order = scene.material_order
     mat_id = {name: i for i, name in enumerate(order)}
     with _timed(timings, "load_materials"):
-        specs = [_material_spec(scene.materials[name], progress, notes, sources, scene.source) for name in order]
-        materials = brdf_mod.build_material_table(specs, device=device)
+        # directional lights alone are exact: no BRDF is sampled, and no sampling table is read or built
+        sampling = scene.environment is not None
+        specs = [_material_spec(scene.materials[name], progress, notes, sources, scene.source, sampling)
+                 for name in order]
+        materials = brdf_mod.build_material_table(specs, device=device, sampling=sampling)
     with _timed(timings, "load_geometry"):   # spheres and meshes to the device, the BVH
         geometry = _geometry(scene, mat_id, device)
     check_reach(cam, geometry, scene.source)   # what each G-buffer pass checks, here with the scene's name
@@ -237,7 +260,7 @@ def stages_used(prep: PreparedScene, mis: bool, adaptive: bool = False) -> list:
     s = ["gbuffer:" + "+".join(n for n, on in (("spheres", prep.geometry.has_spheres),
                                                 ("mesh_bvh", prep.geometry.has_mesh)) if on),
          "brdf:" + "+".join(kinds)]
-    if any(k in prep.materials.kinds for k in (brdf_mod.MERL, brdf_mod.NPF)):
+    if prep.env is not None and any(k in prep.materials.kinds for k in (brdf_mod.MERL, brdf_mod.NPF)):
         s.append("tabulated_sampling")
     s.append("light:" + "+".join(n for n, on in (("environment", prep.env is not None),
                                                    ("directional", prep.lights is not None)) if on))
@@ -260,13 +283,29 @@ def _load_kernels(prep: PreparedScene, kernels, timings: dict) -> None:
     timings["compile"] = timings.get("compile", 0.0) + time.perf_counter() - t0
 
 
+def _env_data(prep: PreparedScene, sampled: bool, timings: dict):
+    """The environment's struct for a frame (None without one): with its sampling distribution where the frame
+    samples the environment (``sampled``: MIS, the bandwidth pass), built ahead of the frame's clock on the first such
+    frame and timed as loading it; else as loaded (a reference frame without MIS only looks the radiance up)."""
+    if prep.env is None:
+        return None
+    if not sampled:
+        return prep.env.lookup_data
+    if not prep.env._sampled:
+        t0 = time.perf_counter()
+        envmap.ensure_sampling(prep.env)
+        for t in {id(d): d for d in (prep.timings, timings)}.values():   # a Scene's frame holds a copy of the first
+            t["load_environment"] = t.get("load_environment", 0.0) + time.perf_counter() - t0
+    return prep.env.data
+
+
 def _check_scene(scene) -> None:
     if not isinstance(scene, Scene):   # a path or None failed on a missing attribute, deep inside
         raise WarpbwError(f"scene: expected a warpbw.scene.Scene (from load_scene / parse_scene) or a PreparedScene, "
                           f"got {type(scene).__name__}")
 
 
-def _prepared(scene, device: str | None, progress: bool) -> tuple[PreparedScene, dict]:
+def _prepared(scene, device: str | None, progress: bool, sampling: bool = True) -> tuple[PreparedScene, dict]:
     """The renderers' ``device``: where a Scene is prepared (None: the CPU); a PreparedScene renders where it lives,
     and another device named for it is refused (it was ignored: "cuda" rendered on the CPU)."""
     if isinstance(scene, PreparedScene):
@@ -277,7 +316,7 @@ def _prepared(scene, device: str | None, progress: bool) -> tuple[PreparedScene,
             raise WarpbwError(f"device {device}: the prepared scene {scene.scene.source} lives on {scene.device}; "
                               "prepare it on that device, or pass the Scene")
         return scene, {}
-    prep = prepare_scene(scene, "cpu" if device is None else device, progress)
+    prep = prepare_scene(scene, "cpu" if device is None else device, progress, sampling)
     return prep, dict(prep.timings)
 
 
@@ -309,7 +348,8 @@ def _gbuffer(prep: PreparedScene, timings: dict, threads: int | None = None, cli
     import warp as wp
 
     t0 = time.perf_counter()
-    gb = render_gbuffer(prep.camera, prep.geometry, device=prep.device, threads=threads, curvature=curvature)
+    gb = render_gbuffer(prep.camera, prep.geometry, device=prep.device, threads=threads, curvature=curvature,
+                        attributes=False)   # geo_normal and uv: no stage reads them
     hidden = None
     if clip_distance is not None:
         hidden = hide_beyond(gb, prep.camera, clip_distance, device=prep.device, name="clip_distance")
@@ -379,9 +419,10 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     _check_spp(spp)
     check_seed(seed)
     _check_mis(mis)
-    prep, timings = _prepared(scene, device, progress)
+    prep, timings = _prepared(scene, device, progress, sampling=mis)   # without MIS: no environment sampling
     _warn_if_frame_exceeds_memory(prep, "reference")
-    _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
+    env_data = _env_data(prep, mis, timings)   # without MIS no environment direction is sampled
+    _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh, False),
                          make_reference_kernel(prep.materials.kinds, mis, has_env=prep.env is not None,
                                                has_lights=prep.lights is not None))
                   + _clip_kernels(clip_distance), timings)
@@ -391,7 +432,7 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     with progress_bar(n_cov, f"shading {spp} spp" if spp_taken else "shading (lights, exact)",
                       bool(progress and n_cov)) as step:
         t0 = time.perf_counter()   # the bar's making is not the frame's
-        res = shade_reference(gb, prep.materials, prep.env_data, spp, seed=seed, mis=mis, device=prep.device,
+        res = shade_reference(gb, prep.materials, env_data, spp, seed=seed, mis=mis, device=prep.device,
                               threads=threads, progress=step, lights=prep.lights)
     timings["shading"] = time.perf_counter() - t0
     timings["frame"] = timings["gbuffer"] + timings["shading"]   # as the adaptive frame's: no loading, no compiling
@@ -583,6 +624,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     if prep.env is None:
         raise _nothing_to_adapt(prep.scene)
     _warn_if_frame_exceeds_memory(prep, "adaptive")
+    env_data = _env_data(prep, True, timings)   # the bandwidth pass samples the environment whatever mis is
     # the default block is no larger than the image (a 1 x 1 frame was refused with "stride: expected 1 to 1")
     stride = min(bandwidth.PASS_STRIDE_DEFAULT, max(prep.width, prep.height)) if stride is None else stride
     loads = prep.bandwidth is None or prep.bandwidth_signal != env_signal
@@ -591,20 +633,21 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
         for k in ("load_env_bandwidth", "load_brdf_bandwidth", "load_mesh_curvature"):
             if k in prep.timings:
                 timings[k] = prep.timings[k]
-    _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh),
+    _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh, False),
                          bandwidth.make_bandwidth_kernel(prep.materials.kinds, preconvolved),
                          make_reference_kernel(prep.materials.kinds, mis, per_pixel_spp=True))
                   + ((make_reference_kernel(prep.materials.kinds, mis, has_env=False, has_lights=True),)
                      if prep.lights is not None else ()) + _clip_kernels(clip_distance), timings)
     t0 = time.perf_counter()
     adaptive.load_kernels(prep.device)
-    bandwidth.load_kernels(prep.device)
+    bandwidth.load_kernels(prep.device, relative=allocation == "relative")
     timings["compile"] += time.perf_counter() - t0
     gb, hidden = _gbuffer(prep, timings, threads, clip_distance)
     t0 = time.perf_counter()
-    buf = bandwidth.bandwidth_pass(gb, prep.camera, prep.materials, prep.env_data, tables, n_b=n_b, seed=seed,
+    buf = bandwidth.bandwidth_pass(gb, prep.camera, prep.materials, env_data, tables, n_b=n_b, seed=seed,
                                    preconvolved=preconvolved, nyquist=nyquist, stride=stride,
-                                   pool_radius=pool_radius, device=prep.device, threads=threads)
+                                   pool_radius=pool_radius, device=prep.device, threads=threads,
+                                   relative=allocation == "relative")   # only that allocation reads sigma2_rel
     _check_pass_finite(buf, prep.scene.source, mis)
     t_pass = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -617,7 +660,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     with progress_bar(plan.shaded_texels, f"shading adaptive, budget {budget:g} spp",
                       bool(progress and plan.shaded_texels)) as step:
         t0 = time.perf_counter()   # the bar's making is not the frame's, as in render_reference
-        res = adaptive.shade_hierarchical(gb, prep.camera, prep.materials, prep.env_data, buf.level, alloc.n_p,
+        res = adaptive.shade_hierarchical(gb, prep.camera, prep.materials, env_data, buf.level, alloc.n_p,
                                           seed=seed, mis=mis, device=prep.device, threads=threads, lights=prep.lights,
                                           upsample=upsample, plan=plan, progress=step)
     t_h = time.perf_counter() - t0 + t_plan
@@ -767,7 +810,7 @@ def scene_summary(scene: Scene, method: str = "reference") -> dict:
         n for n, on in (("analytic spheres", any(isinstance(o, SphereObject) for o in surfaces.objects)),
                         ("mesh BVH", has_mesh)) if on) + ")",
               "brdf: " + ", ".join(kinds)]
-    if any(k in ("merl", "npf") for k in kinds):
+    if env is not None and any(k in ("merl", "npf") for k in kinds):   # lights alone: no BRDF is sampled
         stages.append("tabulated importance sampling (002 Sec. 3.3)")
     light = ((", environment light (BRDF samples; with --mis also environment samples, MIS)" if env is not None
               else "") + (", directional lights exact" if scene.lights else ""))
@@ -794,6 +837,8 @@ def scene_summary(scene: Scene, method: str = "reference") -> dict:
                      "a plane are not shaded (no shadows)"])
     # a material's bandwidth table is read by the bandwidth pass alone (prepare_bandwidth)
     unread = set() if method == "adaptive" else {scene.materials[n].bandwidth for n in scene.material_order}
+    if env is None:   # and a sampling table by a frame that samples no BRDF (prepare_scene)
+        unread |= {surfaces.materials[n].sampling for n in surfaces.material_order}
     return {
         "scene": scene.source,
         "resolution": [scene.camera.width, scene.camera.height],
