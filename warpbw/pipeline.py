@@ -26,13 +26,12 @@ Public:
     ``RADIANCE_OVERFLOW_MIN``           above this radiance, a frame (reference or adaptive) that drops samples as
                                        non-finite is refused (float32 overflow of radiance times the BRDF)
 
-A material kind the scene does not use is not compiled (its branch is removed from the kernels with
-``wp.static``); spheres and meshes each have their own G-buffer path; one table per tabulated material
-is in memory; a mesh's curvature is derived only for the bandwidth pass.  The environment and the
-directional ``[[light]]``s are each optional (a scene has at least one): a scene without an environment
-compiles no sampling loop and reads or builds no MERL or NPF material's sampling table, one without lights no light
-loop.  The adaptive method needs an environment: it
-adapts the environment's sampling, and adds the lights' exact term at every pixel.  ``RenderResult.stats`` says
+A material kind the scene does not use is not compiled (its branch is removed from the kernels with ``wp.static``);
+spheres and meshes each have their own G-buffer path; one table per tabulated material is in memory; a mesh's
+curvature is derived only for the bandwidth pass.  The environment and the directional ``[[light]]``s are each
+optional (a scene has at least one): a scene without an environment compiles no sampling loop and reads or builds no
+MERL or NPF material's sampling table, one without lights no light loop.  The adaptive method needs an environment:
+it adapts the environment's sampling, and adds the lights' exact term at every pixel.  ``RenderResult.stats`` says
 which stages ran and how long each took.
 
 Planes (004) render with :mod:`warpbw.filtering`.  In a scene that has planes beside spheres or meshes,
