@@ -366,8 +366,9 @@ def test_a_cache_entry_of_other_wavelet_settings_is_rebuilt_and_a_user_file_of_a
 def test_a_version_2_table_is_rebuilt_from_the_cache_and_refused_when_given(npf_tables, tmp_path, monkeypatch,
                                                                            memo_build):
     """Version 3 changed the cells crossing the rim (their real directions' pixels only) and version 4 the pixels of an
-    unresolved peak (session 76), so a version-2 table, valid in every other way, is stale: the renderer's cache (entries PREFIX-HASH-vVERSION.npz) rebuilds it beside the old
-    entry, and a version-2 file given explicitly is refused in one line naming the command that rebuilds it."""
+    unresolved peak (session 76), so a version-2 table, valid in every other way, is stale: the renderer's cache
+    (entries PREFIX-HASH-vVERSION.npz) rebuilds it beside the old entry, and a version-2 file given explicitly is
+    refused in one line naming the command that rebuilds it."""
     from precompute.brdf_bandwidth import load_or_build_bandwidth
 
     source, table = npf_tables["pink-felt"]
