@@ -1605,7 +1605,7 @@ def test_bunny_on_floor_keeps_a_scene_or_height_field_of_other_contents_without_
     example_error(run_example(["bunny_on_floor.py", "--out", "m", "--size", "19"], tmp_path), "bunny_on_floor.py",
                   "m/bunny_on_floor.toml: already exists", "--force")
     example_error(run_example(["bunny_on_floor.py", "--out", "m", "--size", "17"], tmp_path), "bunny_on_floor.py",
-                  "m/bunny_on_floor.toml: already exists", "as do 1 more output of this command", "--force")
+                  "m/bunny_on_floor.toml: already exists", "as does 1 more output of this command", "--force")
     assert scene.read_text().endswith("# mine\n") and read_exr(heights).pixels.shape == (19, 19, 1)
     assert sorted(p.name for p in scene.parent.iterdir()) == ["bunny_on_floor.toml", "dunes.exr"]
     r = run_example(["bunny_on_floor.py", "--out", "m", "--size", "17", "--force"], tmp_path)

@@ -296,9 +296,10 @@ def check_overwrite(paths, force: bool, option: str = "-o", inputs=(), inputs_ar
     existing = [str(p) for p in paths if output_exists(p)]
     if existing:
         more = len(existing) - 1   # "(pass --force to overwrite it and 3 more)" read as --force's doing (session 76)
-        raise WarpbwError(f"{existing[0]}: already exists"
-                          + (f", as do {more} more output{'s' if more > 1 else ''} of this command" if more else "")
-                          + f" (pass --force to overwrite {'them' if more else 'it'})")
+        others = {0: "", 1: ", as does 1 more output of this command"}.get(
+            more, f", as do {more} more outputs of this command")
+        them = "them" if more else "it"
+        raise WarpbwError(f"{existing[0]}: already exists{others} (pass --force to overwrite {them})")
 
 
 def json_text(record: dict, **kw) -> str:
