@@ -16,9 +16,9 @@ Public:
     ``bandwidth_settings(resolution=128) -> dict``, ``BANDWIDTH_UNRECORDED``   the builder settings a table records
     ``theta_i_centres()``, ``wo_map(n)``, ``wo_to_map(wo)``, ``map_radians_per_pixel(n)``,
     ``nu_rho_max(resolution)``, ``lobe_slice(evaluate, theta_i, resolution)``, ``slice_bandwidth(f)``,
-    ``GRAZING_LIMIT``   one lobe's map (each checks its input: ``n`` and ``resolution`` integers >= 1, ``wo`` finite
-    non-zero 3-vectors, ``theta_i`` in [0, pi/2) radians, ``f`` a square slice, ``evaluate`` and ``progress``
-    callables; else a one-line ``WarpbwError``)
+    ``narrowest_band(n)``, ``GRAZING_LIMIT``, ``UNRESOLVED_PEAK``   one lobe's map (each checks its input: ``n``
+    and ``resolution`` integers >= 1, ``wo`` finite non-zero 3-vectors, ``theta_i`` in [0, pi/2) radians, ``f`` a
+    square slice, ``evaluate`` and ``progress`` callables; else a one-line ``WarpbwError``)
 
 Table: ``nu_rho[t, row, col]`` in cycles/radian, float32, shape ``(N_THETA_I, N_CELLS, N_CELLS)``:
 ``t`` = incident-elevation bin (centres ``theta_i = (t + 1/2) (pi/2) / 16``, uniform over
@@ -79,7 +79,9 @@ reads ~0.34 cycles/pixel: ~15 cycles/radian at the zenith, ~21 near the rim), as
 the slice is sampled at the pixel centres, which miss a lobe narrower than a pixel between them (a MERL mirror whose
 lobe lies in its first 5 theta_h bins, theta_h < 0.28 deg, read 0 in every cell before session 76).  So f is also
 evaluated at the mirror direction, on the edge of two pixels; where it exceeds both their values UNRESOLVED_PEAK
-times over, the peak is unresolved and both pixels read the map's limit, 0.5 cycles/pixel.  Bin 15's mirror
+times over, the peak is unresolved and both pixels read what a lobe of those two pixels reads, the narrowest the
+map resolves (``narrowest_band``: 0.34 cycles/pixel, as chrome's measured lobe reads; the map's limit, 0.5, moved
+chrome's cells from 15.3 to 22.6-30 cycles/radian and cost its benchmark frames 0.02-0.2 dB).  Bin 15's mirror
 direction (87.2 deg) lies past ``GRAZING_LIMIT`` (below), where the lobe is continued from 85 deg: a lobe past it
 speaks through its flank up to 85 deg only
 (gold-metallic-paint's mirror cell there reads 18.1 cycles/radian, 19.4 when evaluated up to 89.5 deg).  The
@@ -118,6 +120,7 @@ each evaluated once more at its mirrored elevation), and 16 wavelet analyses; a 
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
 from collections import deque
@@ -134,7 +137,8 @@ from warpbw.scene import LOOKUP_MODES
 
 __all__ = [
     "N_THETA_I", "N_CELLS", "SHAPE", "DEFAULT_RESOLUTION", "FORMAT", "VERSION",
-    "GRAZING_LIMIT", "theta_i_centres", "wo_map", "wo_to_map", "map_radians_per_pixel", "nu_rho_max",
+    "GRAZING_LIMIT", "UNRESOLVED_PEAK", "narrowest_band", "theta_i_centres", "wo_map", "wo_to_map",
+    "map_radians_per_pixel", "nu_rho_max",
     "brdf_bandwidth_table", "analytic_brdf_bandwidth_table", "build_brdf_bandwidth",
     "write_brdf_bandwidth", "read_brdf_bandwidth", "load_or_build_bandwidth", "bandwidth_settings",
     "BANDWIDTH_UNRECORDED",
@@ -144,9 +148,9 @@ N_THETA_I = 16          # incident elevations (bin centres uniform over [0, pi/2
 N_CELLS = 16            # outgoing map cells per side; paper: "a 16x16 image for each reflectance lobe"
 DEFAULT_RESOLUTION = 128  # analysed slice, n x n pixels (a multiple of N_CELLS)
 FORMAT = "warpbw.brdf-bandwidth"
-VERSION = 4   # 4: an unresolved peak at the mirror direction reads the map's limit (session 76); 3: a cell crossing
-              # the rim takes its real directions' pixels only (session 67); 2: wavelet bands centred on the cascade's
-              # delays (session 58); 1: on one level's
+VERSION = 4   # 4: an unresolved peak at the mirror direction reads a two-pixel lobe's band (session 76); 3: a cell
+              # crossing the rim takes its real directions' pixels only (session 67); 2: wavelet bands centred on the
+              # cascade's delays (session 58); 1: on one level's
 SHAPE = (N_THETA_I, N_CELLS, N_CELLS)
 GRAZING_LIMIT = math.radians(85.0)  # outgoing elevations past this are continued, not evaluated
 # A lobe whose value at the mirror direction exceeds both pixels beside it this many times over is unresolved (ours)
@@ -381,10 +385,27 @@ def brdf_bandwidth_table(evaluate: Callable, resolution: int = DEFAULT_RESOLUTIO
 
 
 def _peaked_bandwidth(f: np.ndarray, peak: np.ndarray) -> np.ndarray:
-    """``slice_bandwidth(f)``, with the pixels of an unresolved peak (``_unresolved_peak``'s mask) at the map's limit,
-    0.5 cycles per pixel."""
+    """``slice_bandwidth(f)``, with the pixels of an unresolved peak (``_unresolved_peak``'s mask) at least at a
+    two-pixel lobe's band (``narrowest_band``)."""
     b = slice_bandwidth(f)
-    return np.where(peak, np.maximum(b, 0.5 / map_radians_per_pixel(f.shape[0])), b)
+    return np.where(peak, np.maximum(b, narrowest_band(f.shape[0]) / map_radians_per_pixel(f.shape[0])), b)
+
+
+def narrowest_band(n: int) -> float:
+    """Cycles per pixel that the analysis reads on a lobe of two vertically adjacent pixels of an ``n x n`` map (the
+    narrowest lobe the map resolves; what an unresolved peak is given): 0.34 at n = 128, in whichever column."""
+    return _narrowest_band(_check_resolution(n), tuple(sorted(_analysis().items())))
+
+
+@functools.cache   # per map size and analysis: one analysis, not one per slice
+def _narrowest_band(n: int, analysis: tuple) -> float:
+    k = dict(analysis)
+    f = np.zeros((n, n))
+    rows, col = [n // 2 - 1, n // 2], n // 4
+    f[rows, col] = 1.0
+    b = local_bandwidth(f, k["epsilon"], k["wavelet"], k["wavelet_levels"], pad="edge",
+                        energy_fraction=k["energy_fraction"])
+    return float(b[rows, col].max())
 
 
 def _take(out: np.ndarray, pending: deque, progress) -> None:

@@ -740,7 +740,7 @@ def check_rim_cells(evaluate, table: np.ndarray, n: int) -> tuple[float, list]:
     (``real_pixels``), within float32; every cell wholly beyond the rim is its whole block's max (the continuation's,
     never looked up).  Returns the largest (whole block max) / (real pixels' max) over the cells crossing the rim,
     and the (t, row, col) of crossing cells whose real pixels read 0 and the whole block does not."""
-    from precompute.brdf_bandwidth import _unresolved_peak
+    from precompute.brdf_bandwidth import _unresolved_peak, narrowest_band
 
     real = real_pixels(n)
     crossing = cells_of(real, real).max(-1) >= 0                # a real pixel in the cell
@@ -748,7 +748,9 @@ def check_rim_cells(evaluate, table: np.ndarray, n: int) -> tuple[float, list]:
     worst, zero = 1.0, []
     for t, th in enumerate(theta_i_centres()):
         f = lobe_slice(evaluate, float(th), n)
-        b = np.where(_unresolved_peak(evaluate, float(th), f), 0.5 / map_radians_per_pixel(n), per_pixel_bandwidth(f))
+        b = per_pixel_bandwidth(f)
+        peak = _unresolved_peak(evaluate, float(th), f)
+        b = np.where(peak, np.maximum(b, narrowest_band(n) / map_radians_per_pixel(n)), b)
         whole, own = cells_of(b, b >= 0).max(-1), cells_of(b, real).max(-1)
         np.testing.assert_allclose(table[t][crossing], own[crossing], rtol=1e-6, atol=0, err_msg=f"t={t}")
         np.testing.assert_allclose(table[t][~crossing], whole[~crossing], rtol=1e-6, atol=0, err_msg=f"t={t}")
