@@ -896,10 +896,11 @@ def test_the_environment_s_sampling_distribution_is_built_only_for_a_frame_that_
     prep = prepare_scene(scene, sampling=False)
     plain = render_reference(prep, spp=2, seed=4)
     assert built == [] and prep.env.lookup_data.cell_pdf.shape == (0, 0) and np.array_equal(plain.image, first.image)
+    assert not prep.env.has_sampling
     assert "load_environment" not in plain.stats["time_s"]
     mis = render_reference(prep, spp=2, seed=4, mis=True)
     assert len(built) == 1 and mis.stats["time_s"]["load_environment"] > 0
-    assert prep.env.lookup_data.cell_pdf.shape == (prep.env.height, prep.env.width)
+    assert prep.env.lookup_data.cell_pdf.shape == (prep.env.height, prep.env.width) and prep.env.has_sampling
     render_reference(prep, spp=2, seed=4, mis=True)
     assert len(built) == 1   # once
     assert np.array_equal(render_reference(prep, spp=2, seed=4).image, plain.image)

@@ -71,7 +71,8 @@ Host functions:
                                                  (``warpbw.scene.Environment``)
     ensure_sampling(env) -> EnvMap   the sampling distribution on the device, once: a map loaded with
                                      ``sampling=False`` builds it on first need (``EnvMap.data`` does;
-                                     ``EnvMap.lookup_data`` is the struct as it is, for radiance look-ups alone)
+                                     ``EnvMap.lookup_data`` is the struct as it is, for radiance look-ups alone;
+                                     ``EnvMap.has_sampling`` says whether it is built)
     procedural_sky(width=256, height=128, ...) -> np.ndarray (H, W, 3) float32
     build_mip_levels(pixels) -> list[np.ndarray]
     mip_row_positions(heights) -> np.ndarray (n_levels, 2)   where each level's rows sit: (v0, dv)
@@ -381,6 +382,11 @@ class EnvMap:
         """The kernels' struct, its sampling distribution built first where the map was loaded without it
         (``ensure_sampling``): whatever reads ``data`` may call ``env_sample`` and ``env_pdf``."""
         return ensure_sampling(self)._data
+
+    @property
+    def has_sampling(self) -> bool:
+        """Whether its sampling distribution is on the device (else ``data`` builds it first)."""
+        return self._sampled
 
     @property
     def lookup_data(self) -> EnvMapData:

@@ -290,7 +290,7 @@ def _env_data(prep: PreparedScene, sampled: bool, timings: dict):
         return None
     if not sampled:
         return prep.env.lookup_data
-    if not prep.env._sampled:
+    if not prep.env.has_sampling:
         t0 = time.perf_counter()
         envmap.ensure_sampling(prep.env)
         for t in {id(d): d for d in (prep.timings, timings)}.values():   # a Scene's frame holds a copy of the first
