@@ -194,19 +194,6 @@ def _check_coverage(scene, frames, device: str, env=None) -> None:
                                   "pixels, is undefined there: choose other zooms")
 
 
-def _environment(scene, device: str):
-    """The scene's ``[environment]`` loaded on ``device`` (None without one), refused as ``prepare_filtering``
-    refuses it."""
-    from warpbw.envmap import load_environment
-
-    if scene.environment is None:
-        return None
-    try:
-        return load_environment(scene.environment, device)
-    except WarpbwError as exc:
-        raise WarpbwError(f"{scene.source}: [environment]: {exc}") from None
-
-
 def _check_lit(z: float, zooms, truths) -> None:
     """Refuse a zoom whose ground truth (``truths``, one frame per zoom of ``zooms``) is black at every covered pixel:
     a plane lit from below its horizon, or by nothing, shades black in every method too, and the error, relative to
@@ -225,7 +212,7 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
                         max_anisotropy: int | None = None, flicker_pairs: int = 1) -> dict:
     """The benchmark record (module docstring) for a scene with planes (beside spheres or meshes or not)."""
     from warpbw.filtering import (DEFAULT_ANISOTROPY, DEFAULT_ENV_SPP, MAX_ANISOTROPY, METHODS, MIN_GT_SPP,
-                                  prepare_filtering, render_filtering)
+                                  prepare_filtering, render_filtering, scene_environment)
     from warpbw.pipeline import split_planes
 
     methods = tuple(methods or METHODS)
@@ -242,7 +229,7 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     check_count(flicker_pairs, "--flicker-pairs (consecutive frame pairs per zoom)", 1, FLICKER_PAIRS_MAX)
     zooms = [float(z) for z in zooms]
     frames_by_zoom = _zoom_frames(scene, zooms, _surfaces_behind(surfaces, device), int(flicker_pairs))
-    env = _environment(scene, device)   # once: the coverage check and the measured frames share it
+    env = scene_environment(scene, device)   # once: the coverage check and the measured frames share it
     _check_coverage(scene, frames_by_zoom, device, env)
     with temporary_folder(GMM_TEMP_PREFIX) as tmp:   # named after this process: the next run removes it if killed
         t0 = time.perf_counter()

@@ -7,6 +7,7 @@ Public:
     ``ALL_METHODS``                      ``METHODS`` + ``ground_truth``
     ``DEFAULT_ENV_SPP``, ``MIN_GT_SPP``, ``DEFAULT_GT_SPP``   environment samples and ground-truth rays per pixel
     ``FilteringScene``                   what ``prepare_filtering`` returns: the planes' mipmaps on the device
+    ``scene_environment(scene, device) -> EnvMap | None``   the scene's [environment], loaded
     ``prepare_filtering(scene, methods, device, progress, cache, env, gmm_files) -> FilteringScene``   load / build
                                          the mipmaps
     ``check_gmm_files(scene, methods) -> {material: (GmmMipmap, seconds)}``   the planes' ``gmm`` files read and
@@ -1168,6 +1169,17 @@ def _gmm_array(levels, device):
     return wp.array(flat, dtype=wp.vec4, device=device), int(levels[0].shape[2])
 
 
+def scene_environment(scene: Scene, device: str = "cpu"):
+    """The scene's ``[environment]`` loaded on ``device`` (an ``EnvMap``; None without one); a file it cannot load is
+    refused in one line naming the scene."""
+    if scene.environment is None:
+        return None
+    try:
+        return load_environment(scene.environment, device)
+    except WarpbwError as exc:
+        raise WarpbwError(f"{scene.source}: [environment]: {exc}") from None
+
+
 def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progress: bool = False,
                       cache: Path | None = None, env=None, gmm_files: dict | None = None) -> FilteringScene:
     """Load every plane material's normal map and the mipmaps ``methods`` need: the box-filtered normal
@@ -1192,11 +1204,8 @@ def prepare_filtering(scene: Scene, methods=METHODS, device: str = "cpu", progre
         raise WarpbwError(f"{scene.source}: env: given a loaded environment, but the scene has no [environment]")
     if gmm_files is None:   # first: a wrong file is refused before any other work
         gmm_files = check_gmm_files(scene, methods)
-    if scene.environment is not None and env is None:   # first: a bad file fails before any mipmap is built
-        try:
-            env = load_environment(scene.environment, device)
-        except WarpbwError as exc:
-            raise WarpbwError(f"{scene.source}: [environment]: {exc}") from None
+    if env is None:   # first: a bad file fails before any mipmap is built
+        env = scene_environment(scene, device)
     if env is not None:   # the planes sample it (one given may have been loaded without its distribution)
         ensure_sampling(env)
     mips, notes = {}, {}
