@@ -301,9 +301,10 @@ def _unresolved_peak(evaluate: Callable, theta_i: float, f: np.ndarray) -> np.nd
     mask = np.zeros((n, n), dtype=bool)
     if n < 2 or theta_i > GRAZING_LIMIT:
         return mask
-    col = min(int((1.0 - math.sqrt(2.0) * math.sin(0.5 * theta_i)) * 0.5 * n), n - 1)
+    mirror = _dirs(np.array([theta_i]), np.array([math.pi]))
+    col = min(int((wo_to_map(mirror)[0, 0] + 1.0) * 0.5 * n), n - 1)   # its y is 0: the edge of the middle rows
     wi = np.array([[math.sin(theta_i), 0.0, math.cos(theta_i)]])
-    peak = float(_evaluated(evaluate, wi, _dirs(np.array([theta_i]), np.array([math.pi])))[0].sum())
+    peak = float(_evaluated(evaluate, wi, mirror)[0].sum())
     rows = [n // 2 - 1, n // 2]
     if peak > UNRESOLVED_PEAK * float(f[rows, col].sum(axis=-1).max()):
         mask[rows, col] = True
@@ -328,10 +329,13 @@ def slice_bandwidth(f: np.ndarray) -> np.ndarray:
     peak = float(np.max(np.abs(f))) if f.size else 0.0
     if peak <= 0.0:
         return np.zeros((n, n))
-    k = _analysis()   # what the table records
-    b = local_bandwidth(f / peak, k["epsilon"], k["wavelet"], k["wavelet_levels"], pad="edge",
-                        energy_fraction=k["energy_fraction"])  # cycles/pixel
-    return b / map_radians_per_pixel(n)
+    return _cycles_per_pixel(f / peak, _analysis()) / map_radians_per_pixel(n)   # what the table records
+
+
+def _cycles_per_pixel(f: np.ndarray, k: dict) -> np.ndarray:
+    """The local bandwidth of slice ``f``, cycles/pixel, under the analysis ``k`` (``_analysis``'s)."""
+    return local_bandwidth(f, k["epsilon"], k["wavelet"], k["wavelet_levels"], pad="edge",
+                           energy_fraction=k["energy_fraction"])
 
 
 def _real_pixels(n: int) -> np.ndarray:
@@ -399,13 +403,10 @@ def narrowest_band(n: int) -> float:
 
 @functools.cache   # per map size and analysis: one analysis, not one per slice
 def _narrowest_band(n: int, analysis: tuple) -> float:
-    k = dict(analysis)
     f = np.zeros((n, n))
     rows, col = [n // 2 - 1, n // 2], n // 4
     f[rows, col] = 1.0
-    b = local_bandwidth(f, k["epsilon"], k["wavelet"], k["wavelet_levels"], pad="edge",
-                        energy_fraction=k["energy_fraction"])
-    return float(b[rows, col].max())
+    return float(_cycles_per_pixel(f, dict(analysis))[rows, col].max())
 
 
 def _take(out: np.ndarray, pending: deque, progress) -> None:
