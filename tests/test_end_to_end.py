@@ -2476,8 +2476,29 @@ def test_render_of_planes_ground_truth_summary_gives_the_rays_asked_for(small_sc
     level = np.where(COV, 1.0, 0.0).astype(np.float32)
     _fake_filtering(monkeypatch, small_scenes.clock, level)
     assert main(["render", "plane.toml", "-o", "g.exr", "--filter", "ground_truth", "--spp", "128"]) == 0
-    assert _lines(capsys.readouterr().out, "g.exr") == \
-        f"g.exr  ({W}x{H}, filter ground_truth, 128 rays/pixel, 12 covered pixels)"
+    out = capsys.readouterr().out
+    assert _lines(out, "g.exr") == f"g.exr  ({W}x{H}, filter ground_truth, 128 rays/pixel, 12 covered pixels)"
+    # the ground truth reads no mip level: no level map (it wrote one of zeros, session 77), nor its colour scale
+    assert _lines(out, "  preview") == "  preview g.png, stats g.json"
+    assert "colour scales" not in out
+    assert not Path("g.level.exr").exists() and not Path("g.level.png").exists()
+    assert json.loads(Path("g.json").read_text())["colour_scales"] == {}
+
+
+def test_render_of_planes_beside_a_sphere_ground_truth_writes_no_mip_level_map(small_scenes, monkeypatch, capsys):
+    """Planes beside a sphere under --filter ground_truth: the planes read no mip level, so no mip level map is
+    written or named (the reference spheres have no AOVs either: no colour scales at all)."""
+    from warpbw.cli import main
+
+    plane = np.zeros((H, W), bool)
+    plane[:, :2] = True
+    _fake_mixed(monkeypatch, small_scenes.clock, COV, plane, np.zeros((H, W), np.float32), spp=64)
+    assert main(["render", "mixed.toml", "-o", "m.exr", "--filter", "ground_truth", "--spp", "64"]) == 0
+    out = capsys.readouterr().out
+    assert _lines(out, "  preview") == "  preview m.png, stats m.json"
+    assert "colour scales" not in out
+    assert not Path("m.mip_level.exr").exists() and not Path("m.mip_level.png").exists()
+    assert json.loads(Path("m.json").read_text())["colour_scales"] == {}
 
 
 def test_render_of_planes_refuses_to_replace_a_level_map_left_alone(small_scenes, monkeypatch, capsys):

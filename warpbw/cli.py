@@ -241,7 +241,7 @@ def _render_filtering_cli(scene, args) -> int:
     method = _filter_method(args)
     out = Path(args.output)
     outs = _outputs(out)
-    level_paths = [out.with_suffix(".level.exr"), out.with_suffix(".level.png")]
+    level_paths = _level_map_paths(out, ".level", method)
     check_overwrite(list(outs.values()) + level_paths, args.force, inputs=scene.input_files())
     init_warp(args.device)
     t0 = time.perf_counter()
@@ -250,7 +250,8 @@ def _render_filtering_cli(scene, args) -> int:
                            progress=not args.quiet, threads=args.threads, env_spp=args.spp, **aniso)
     res.stats["time_s"] = {"frame": round(res.time_s, 6), "total": round(time.perf_counter() - t0, 6)}
     with staged_outputs(list(outs.values()) + level_paths, force=args.force) as at:
-        res.stats["colour_scales"] = {"level": _write_map(at, *level_paths, res.level, res.coverage)}
+        res.stats["colour_scales"] = {"level": _write_map(at, *level_paths, res.level, res.coverage)} \
+            if level_paths else {}
         _write_render(res, outs, args.exposure, at)
     _warn_if_empty(res)
     if not args.quiet:
@@ -263,10 +264,19 @@ def _render_filtering_cli(scene, args) -> int:
         print(f"{printable(outs['exr'])}  ({w}x{h}, filter {method}{extra}, "
               f"{res.stats['pixels_covered']} covered pixels)")
         print(f"  frame {res.time_s * 1e3:.1f} ms, total {res.stats['time_s']['total']:.2f} s")
-        print(f"  preview {printable(outs['png'])}, stats {printable(outs['json'])}, "
-              f"mip level {printable(str(level_paths[0]))} (+ .png)")
-        print(_scales_line(res.stats["colour_scales"]))
+        print(f"  preview {printable(outs['png'])}, stats {printable(outs['json'])}"
+              + (f", mip level {printable(str(level_paths[0]))} (+ .png)" if level_paths else ""))
+        if res.stats["colour_scales"]:
+            print(_scales_line(res.stats["colour_scales"]))
     return 0
+
+
+def _level_map_paths(out: Path, suffix: str, method: str) -> list:
+    """The mip level map's EXR and PNG (OUT{suffix}.exr / .png); none for --filter ground_truth, which traces rays
+    and reads no mip level (it wrote a map of zeros, as if every plane pixel were read at level 0)."""
+    if method == "ground_truth":
+        return []
+    return [out.with_suffix(f"{suffix}.exr"), out.with_suffix(f"{suffix}.png")]
 
 
 def _filter_method(args) -> str:
@@ -292,7 +302,7 @@ def _render_mixed_cli(scene, args) -> int:
     adaptive = args.method == "adaptive"
     out = Path(args.output)
     outs = _outputs(out)
-    mip_paths = [out.with_suffix(".mip_level.exr"), out.with_suffix(".mip_level.png")]
+    mip_paths = _level_map_paths(out, ".mip_level", method)
     aov_paths = [p for pair in _aov_paths(out).values() for p in pair] if adaptive else []
     paths = list(outs.values()) + aov_paths + mip_paths
     check_overwrite(paths, args.force, inputs=scene.input_files())
@@ -304,7 +314,8 @@ def _render_mixed_cli(scene, args) -> int:
     _record_total(res.stats, t0)
     with staged_outputs(paths, force=args.force) as at:
         scales = _write_aovs(res, out, at) if adaptive else {}
-        scales["mip_level"] = _write_map(at, *mip_paths, res.aovs["mip_level"], res.aovs["plane"])
+        if mip_paths:
+            scales["mip_level"] = _write_map(at, *mip_paths, res.aovs["mip_level"], res.aovs["plane"])
         res.stats["colour_scales"] = scales
         _write_render(res, outs, args.exposure, at)
     _warn_if_empty(res)
@@ -320,11 +331,12 @@ def _render_mixed_cli(scene, args) -> int:
               f"({res.stats['pixels_hidden']} hidden by planes, not shaded), frame {(t['frame'] - t['planes']):.3f} s")
         print(f"  planes in front: {pl['pixels_covered']} pixels, filter {method}, {planes}, frame {t['planes']:.3f} s")
         print(f"  frame {t['frame']:.3f} s, total {t['total']:.2f} s")
-        print(f"  preview {printable(outs['png'])}, stats {printable(outs['json'])}, "
-              f"mip level {printable(str(mip_paths[0]))} (+ .png)"
+        print(f"  preview {printable(outs['png'])}, stats {printable(outs['json'])}"
+              + (f", mip level {printable(str(mip_paths[0]))} (+ .png)" if mip_paths else "")
               + (f", AOVs {', '.join(printable(str(p[0])) for p in _aov_paths(out).values())} (+ .png)"
                  if adaptive else ""))
-        print(_scales_line(res.stats["colour_scales"]))
+        if res.stats["colour_scales"]:
+            print(_scales_line(res.stats["colour_scales"]))
     return 0
 
 
@@ -865,7 +877,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "OUT.exr (linear radiance, A = coverage), OUT.png (sRGB preview) and OUT.json (time per "
                        "stage, samples, which stages ran; for a scene of planes, filtered by --filter: the "
                        "filter, its mean mip level and the frame's time, and the mip level map as "
-                       "OUT.level.exr / .png; planes beside spheres or meshes: under 'planes', with "
+                       "OUT.level.exr / .png (not for --filter ground_truth, which reads no mip level); planes beside spheres or meshes: under 'planes', with "
                        "OUT.mip_level.exr / .png).")
     r.add_argument("scene", help="scene file (TOML)")
     r.add_argument("-o", "--output", type=parse_path, required=True, help="output EXR path")
@@ -887,7 +899,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scenes with planes (shape = \"plane\", cook-torrance materials) always render with the "
                    "reflectance-filtering renderer (004): METHOD is gmm_aligned (default), gmm_unaligned, toksvig, "
                    "lean, fixed, or ground_truth (--spp >= 64 jittered rays per pixel, averaged over those that "
-                   "hit the plane); also writes the mip "
+                   "hit the plane); the filtered methods also write the mip "
                    "level map OUT.level.exr/.png. Under an [environment], each filtered pixel takes --spp pairs of "
                    "one BRDF and one environment sample (MIS), each ground-truth ray one pair. A scene with planes "
                    "beside spheres or meshes renders both: the spheres and meshes with --method (and its options), "
