@@ -442,6 +442,62 @@ def _valid_files(tmp_path) -> list:
     return files
 
 
+def _multilevel_exr(path, px, mode):
+    """An uncompressed tiled EXR of ``px`` (H, W, 3) at level 0, with MIPMAP_LEVELS (``mode`` 1) or RIPMAP_LEVELS
+    (2) rounded down, every coarser level (lx, ly) filled with lx + 10 ly + 1 (not what the level holds), written byte
+    by byte (OpenEXR file layout: tiledesc's mode byte; the offset table and chunks level by level, x fastest, tile
+    rows within a level; a chunk's tile and level coordinates), since OpenEXR's Python binding leaves every level
+    past the first unwritten (its offsets 0, a file OpenEXR itself then refuses)."""
+    def attr(name, typ, value):
+        return name.encode() + b"\0" + typ.encode() + b"\0" + struct.pack("<i", len(value)) + value
+
+    h, w, _ = px.shape
+    tile, box = 16, struct.pack("<4i", 0, 0, w - 1, h - 1)
+    chlist = b"".join(n.encode() + b"\0" + struct.pack("<iB3xii", 2, 0, 1, 1) for n in "BGR") + b"\0"
+    head = EXR_MAGIC + struct.pack("<I", 2 | 0x200) + b"".join((
+        attr("channels", "chlist", chlist), attr("compression", "compression", b"\0"), attr("dataWindow", "box2i", box),
+        attr("displayWindow", "box2i", box), attr("lineOrder", "lineOrder", b"\0"),
+        attr("pixelAspectRatio", "float", struct.pack("<f", 1)),
+        attr("screenWindowCenter", "v2f", struct.pack("<2f", 0, 0)),
+        attr("screenWindowWidth", "float", struct.pack("<f", 1)),
+        attr("tiles", "tiledesc", struct.pack("<IIB", tile, tile, mode)), b"\0"))
+    nx, ny = w.bit_length(), h.bit_length()                     # floor(log2(size)) + 1 levels per axis
+    if mode == 1:
+        levels = [(i, i) for i in range(max(nx, ny))]
+    else:
+        levels = [(lx, ly) for ly in range(ny) for lx in range(nx)]
+    chunks = []
+    for lx, ly in levels:
+        lw, lh = max(1, w >> lx), max(1, h >> ly)
+        img = px[..., ::-1] if (lx, ly) == (0, 0) else np.full((lh, lw, 3), lx + 10 * ly + 1, np.float32)
+        for ty in range(-(-lh // tile)):
+            for tx in range(-(-lw // tile)):
+                rows = img[ty * tile:(ty + 1) * tile, tx * tile:(tx + 1) * tile]
+                data = b"".join(np.ascontiguousarray(row.T).astype("<f4").tobytes() for row in rows)
+                chunks.append(struct.pack("<5i", tx, ty, lx, ly, len(data)) + data)
+    starts = len(head) + 8 * len(chunks) + np.cumsum([0] + [len(c) for c in chunks[:-1]])
+    path.write_bytes(head + struct.pack(f"<{len(chunks)}Q", *starts) + b"".join(chunks))
+    return path
+
+
+@pytest.mark.parametrize("mode", [1, 2], ids=["mipmap", "ripmap"])
+def test_a_mipmapped_or_ripmapped_tiled_exr_reads_its_full_resolution_level(tmp_path, mode):
+    """A probe or map saved with MIP or RIP levels (exrmaketiled's, a texture pipeline's) reads as its level 0: the
+    pixels written there bit for bit, not a coarser level's constants; its size is level 0's, and the layout checks
+    find nothing wrong in it.  Cut inside a coarser level's chunk, it is refused in one line naming that chunk."""
+    from warpbw.io.exr_layout import exr_damage
+
+    px = np.random.default_rng(8).random((37, 53, 3), dtype=np.float32)
+    path = _multilevel_exr(tmp_path / f"levels{mode}.exr", px, mode)
+    assert np.array_equal(read_rgb(path), px)
+    assert exr_size(path) == (53, 37)
+    assert exr_damage(path) is None
+    data = path.read_bytes()
+    (tmp_path / "cut.exr").write_bytes(data[:-100])
+    msg = _refusal(tmp_path / "cut.exr")
+    assert "truncated or corrupt: the file ends after" in msg and "inside chunk" in msg, msg
+
+
 def test_the_diagnosis_finds_nothing_wrong_in_files_openexr_reads(tmp_path):
     """The layout checks run only once OpenEXR has refused a file; run on files it reads, they must find nothing, or
     a message could blame a part that is whole."""
