@@ -754,6 +754,23 @@ def test_environment_samples_fill_each_cell_uniformly_up_to_its_edges():
     assert np.all(np.abs(share - 1.0) < 0.25), (share.min(), share.max(), share[:2], share[-2:])
 
 
+@pytest.mark.parametrize("angle", [0.0, -137.0])
+def test_a_sampled_direction_reads_the_pdf_of_the_cell_it_lies_in_up_to_4096_columns(angle):
+    """CELL_EDGE_MARGIN: float32 rounding in env_sample's phi and in env_pdf's u does not carry a sampled direction
+    into the next column on a map 4096 texels wide (4e-4 of a cell at most there, against the margin's 1e-3), turned
+    or not: the pdf returned with each of 2M samples is that of the cell the direction lies in, found in float64 (the
+    map turned back by Mitsuba's matrix, the cell's pdf read at its centre).  Columns of very different luminance
+    make a neighbour's pdf tell.  (At 8192 columns about 1e-5 of the samples read the neighbour's: module comment.)"""
+    w, h = 4096, 2
+    img = np.random.default_rng(8).gamma(0.3, 1.0, size=(h, w, 3)).astype(np.float32)
+    env = E.envmap_from_array(img, rotation_deg=angle)
+    pdf_cells, _ = _pdf_sum_over_cells(E.envmap_from_array(img), h, w)
+    dirs, pdf_s = E.sample_directions(env, 2_000_000, seed=4)
+    rows, cols = cell_of(dirs.astype(np.float64) @ rot_y(angle), h, w)
+    wrong = ~np.isclose(pdf_s, pdf_cells[rows, cols], rtol=1e-6, atol=0.0)
+    assert wrong.sum() == 0, (int(wrong.sum()), pdf_s[wrong][:3], pdf_cells[rows, cols][wrong][:3])
+
+
 @pytest.mark.parametrize("h", [64, 63, 33])
 def test_mip_levels_keep_what_they_average_where_it_was(h):
     """A box filter is symmetric: a step filtered by it still crosses half its height where it stepped.  Truth: level

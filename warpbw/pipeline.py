@@ -599,7 +599,11 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     how the bandwidth pass shares its directions (:func:`warpbw.bandwidth.bandwidth_pass`);
     ``upsample`` how the hierarchy up-samples ("normal", the default, or "paper": :mod:`warpbw.upsample`);
     ``env_signal`` what the probe's angular bandwidth is analysed on ("log", the default, or "radiance", 002's:
-    :func:`warpbw.bandwidth.env_signal`).  The scene needs an environment; its directional lights are added exactly
+    :func:`warpbw.bandwidth.env_signal`); ``preconvolved`` which bound the pass writes in ``sigma2``, 002 Eq. 10 (the
+    light's nu_a replaced by the BRDF's nu_rho, Sec. 2.5) instead of Eq. 9: the frame is still shaded from the probe
+    itself (pre-convolved shading is not built), so only an allocation that reads sigma2 ("variance", "sqrt",
+    "relative") changes N_p and the frame with it; under the default ("measured") only the ``sigma2`` map changes.
+    The scene needs an environment; its directional lights are added exactly
     at every pixel (:mod:`warpbw.adaptive`).  ``clip_distance`` hides what lies beyond it, as for
     :func:`render_reference`: a hidden pixel takes no part in the pass, the budget or the hierarchy."""
     from warpbw import adaptive, bandwidth
