@@ -754,14 +754,17 @@ def test_environment_samples_fill_each_cell_uniformly_up_to_its_edges():
     assert np.all(np.abs(share - 1.0) < 0.25), (share.min(), share.max(), share[:2], share[-2:])
 
 
+@pytest.mark.parametrize("w", [4096, 16384])
 @pytest.mark.parametrize("angle", [0.0, -137.0])
-def test_a_sampled_direction_reads_the_pdf_of_the_cell_it_lies_in_up_to_4096_columns(angle):
+def test_a_sampled_direction_reads_the_pdf_of_the_cell_it_lies_in_on_wide_maps(angle, w):
     """CELL_EDGE_MARGIN: float32 rounding in env_sample's phi and in env_pdf's u does not carry a sampled direction
     into the next column on a map 4096 texels wide (4e-4 of a cell at most there, against the margin's 1e-3), turned
     or not: the pdf returned with each of 2M samples is that of the cell the direction lies in, found in float64 (the
     map turned back by Mitsuba's matrix, the cell's pdf read at its centre).  Columns of very different luminance
-    make a neighbour's pdf tell.  (At 8192 columns about 1e-5 of the samples read the neighbour's: module comment.)"""
-    w, h = 4096, 2
+    make a neighbour's pdf tell.  At 16384 columns the rounding reaches past 1e-3 of a cell: with that margin alone
+    671 of the 2M turned samples (and some unturned) read a neighbour's pdf, 0.4-5 times their own; the margin now
+    grows with the cells (CELL_EDGE_MARGIN_PER_CELL, session 77)."""
+    h = 2
     img = np.random.default_rng(8).gamma(0.3, 1.0, size=(h, w, 3)).astype(np.float32)
     env = E.envmap_from_array(img, rotation_deg=angle)
     pdf_cells, _ = _pdf_sum_over_cells(E.envmap_from_array(img), h, w)

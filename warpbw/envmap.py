@@ -108,12 +108,15 @@ LUMINANCE_RGB = (0.212671, 0.715160, 0.072169)
 
 # Fraction of a cell's width kept clear at its edges when sampling inside the cell, so that
 # float32 rounding in direction -> (u, v) (about 1e-4 of a cell for a 1024-wide map) does not
-# move a sampled direction into a neighbouring cell.  The rounding grows with the width: none of 4M samples crossed on
-# maps of 4096 columns, turned or not, but at 8192 columns about 1e-5 of them read the adjacent column's pdf, and at
-# 16384 3.5e-4 (0.4-5 times their own; session 77).  env_sample clamps onto it: the density stays
+# move a sampled direction into a neighbouring cell.  The rounding grows with the cells along the axis (phi's and
+# theta's float32 error is a fixed fraction of a turn): with this margin alone none of 4M samples crossed on maps of
+# 4096 columns, turned or not, but at 8192 columns about 1e-5 of them read the adjacent column's pdf, and at 16384
+# 3.5e-4 (0.4-5 times their own; session 77).  So each axis keeps the larger of this and CELL_EDGE_MARGIN_PER_CELL
+# times its cells (the same 1e-3 up to 2048 cells).  env_sample clamps onto it: the density stays
 # uniform inside, and the 1e-3 of a cell's probability that falls in each edge strip lands on the
 # strip's inner line, which matters only for integrands that vary inside one texel.
 CELL_EDGE_MARGIN = 1.0e-3
+CELL_EDGE_MARGIN_PER_CELL = 5.0e-7
 
 # Texels a probe is converted, scaled and checked in at a time when it loads (ours): a block's float64 temporaries
 # are then about 40 MB whatever the probe's size (session 63: the whole map's took 60 bytes per texel).
@@ -127,6 +130,7 @@ _INV_PI = wp.constant(1.0 / math.pi)
 _TWO_PI = wp.constant(2.0 * math.pi)
 _INV_TWO_PI = wp.constant(0.5 / math.pi)
 _MARGIN = wp.constant(CELL_EDGE_MARGIN)
+_MARGIN_PER_CELL = wp.constant(CELL_EDGE_MARGIN_PER_CELL)
 # largest float32 below 1: keeps a uniform variate strictly inside the last CDF interval
 _ONE_MINUS_EPS = wp.constant(1.0 - 2.0**-24)
 
@@ -291,12 +295,14 @@ def env_sample(env: EnvMapData, u: wp.vec2) -> wp.vec3:
     j = _cdf_search(env.marginal_cdf, 0, h, xv)
     c0 = env.marginal_cdf[0, j]
     c1 = env.marginal_cdf[0, j + 1]
-    tv = wp.clamp((xv - c0) / (c1 - c0), _MARGIN, 1.0 - _MARGIN)
+    m_v = wp.max(_MARGIN, _MARGIN_PER_CELL * float(h))
+    tv = wp.clamp((xv - c0) / (c1 - c0), m_v, 1.0 - m_v)
     xu = wp.clamp(u[0], 0.0, _ONE_MINUS_EPS)
     i = _cdf_search(env.conditional_cdf, j, w, xu)
     d0 = env.conditional_cdf[j, i]
     d1 = env.conditional_cdf[j, i + 1]
-    tu = wp.clamp((xu - d0) / (d1 - d0), _MARGIN, 1.0 - _MARGIN)
+    m_u = wp.max(_MARGIN, _MARGIN_PER_CELL * float(w))
+    tu = wp.clamp((xu - d0) / (d1 - d0), m_u, 1.0 - m_u)
     # uniform in cos(theta) inside the row cell; 1 -/+ cos kept separately for precision at the poles
     omc = env.row_omc[j] + tv * (env.row_omc[j + 1] - env.row_omc[j])
     opc = env.row_opc[j] + tv * (env.row_opc[j + 1] - env.row_opc[j])
