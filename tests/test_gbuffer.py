@@ -1205,3 +1205,47 @@ def test_the_scene_turned_about_y_turns_the_gbuffer_and_leaves_the_frame(tmp_pat
     np.testing.assert_allclose(turned.gbuffer.numpy("depth")[cov], one.gbuffer.numpy("depth")[cov], rtol=1e-5,
                                atol=1e-6)
     np.testing.assert_allclose(turned.image[cov], one.image[cov], atol=1e-4 * float(one.image.max()))
+
+
+def test_update_mesh_refuses_a_pose_whose_faces_cancel_and_leaves_the_mesh_as_it_was():
+    """A sphere squashed flat (y = 0): on its rim the faces of the two halves cancel, and update_mesh gave those
+    vertices the fallback normal (0, 1, 0) without a word, where load_mesh refuses the same pose (session 77).  Now a
+    one-line error, on the device and from the host's normals, and the mesh is as it was (positions, normals, the
+    bounds the next frame is checked with); a pose squashed to 1e-3 of its height is taken."""
+    from warpbw.io.mesh import normals_and_curvature
+
+    m = _icosphere_spec(1.0, subdiv=2)
+    geo = build_geometry([], [m])
+    before = (geo.mesh.points.numpy().copy(), geo.mesh_attr.normal.numpy().copy(),
+              geo.mesh_attr.curvature.numpy().copy(), [b.copy() for b in geo.mesh_bounds[0]])
+    flat = m.vertices * np.array([1.0, 0.0, 1.0])
+    with pytest.raises(WarpbwError, match=r"^update_mesh: mesh 0 vertices: \d+ vertices have no normal: the triangles "
+                                          r"around them cancel"):
+        update_mesh(geo, 0, flat)
+    with pytest.raises(WarpbwError, match=r"have no normal: the triangles around them cancel"):
+        normals_and_curvature(flat, m.faces)
+    after = (geo.mesh.points.numpy(), geo.mesh_attr.normal.numpy(), geo.mesh_attr.curvature.numpy(),
+             geo.mesh_bounds[0])
+    for a, b in zip(before[:3], after[:3]):
+        np.testing.assert_array_equal(a, b)
+    assert all(np.array_equal(a, b) for a, b in zip(before[3], after[3]))
+    update_mesh(geo, 0, m.vertices * np.array([1.0, 1e-3, 1.0]))
+    np.testing.assert_allclose(np.linalg.norm(geo.mesh_attr.normal.numpy(), axis=1), 1.0, atol=1e-6)
+
+
+def test_update_mesh_and_build_geometry_refuse_float32_overflow_without_numpy_s_warning():
+    """A vertex at 1e39 (beyond float32) was refused, after numpy's 'overflow encountered in cast' RuntimeWarning from
+    warpbw.gbuffer (an error in this suite, a stray line for a user); now the one-line error alone."""
+    import warnings
+
+    m = _icosphere_spec(1.0, subdiv=1)
+    geo = build_geometry([], [m])
+    big = m.vertices.copy()
+    big[2, 0] = 1e39
+    for call in (lambda: update_mesh(geo, 0, big),
+                 lambda: build_geometry([], [MeshSpec(big, m.faces, m.normals, m.curvature, None, 0)])):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            with pytest.raises(WarpbwError, match=r"vertices: expected finite values, 1 are NaN or infinite "
+                                                  r"\(or overflow float32\)"):
+                call()
