@@ -1249,3 +1249,52 @@ def test_update_mesh_and_build_geometry_refuse_float32_overflow_without_numpy_s_
             with pytest.raises(WarpbwError, match=r"vertices: expected finite values, 1 are NaN or infinite "
                                                   r"\(or overflow float32\)"):
                 call()
+
+
+def _numpy_mesh_distance(o, d, v, f):
+    """Distance along the unit rays ``d`` (N, 3) from ``o`` to the nearest of the triangles ``f`` of ``v`` (float64
+    Moller-Trumbore, every ray against every face), inf where a ray misses them all."""
+    p0, e1, e2 = v[f[:, 0]], v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
+    t_best = np.full(len(d), np.inf)
+    for i, di in enumerate(d):
+        pv = np.cross(di, e2)
+        det = np.einsum("ij,ij->i", e1, pv)
+        ok = det != 0.0
+        inv = 1.0 / np.where(ok, det, 1.0)
+        tv = o - p0
+        u = np.einsum("ij,ij->i", tv, pv) * inv
+        qv = np.cross(tv, e1)
+        w = (qv @ di) * inv
+        t = np.einsum("ij,ij->i", e2, qv) * inv
+        hit = ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0)
+        if hit.any():
+            t_best[i] = t[hit].min()
+    return t_best
+
+
+def test_a_refitted_bvh_finds_every_hit_after_large_deformations():
+    """update_mesh refits the BVH built for the rest pose (wp.Mesh.refit: the tree's topology kept, its boxes grown):
+    however far the deformation, each frame finds the hits and depths of every ray against every face.  Poses, one
+    after the other on one geometry: scaled by 100 and moved 50 away, shrunk to 1e-3, pressed to 2% of its height,
+    mirrored (inside out), half its vertices collapsed to a point (degenerate faces), its vertices shuffled (a tangle
+    of long crossing faces) and scattered at random.  Truth: a numpy brute force in float64 of the float32 positions,
+    seen from a camera framing each pose (session 77)."""
+    m = _icosphere_spec(1.0, subdiv=2)
+    rest, faces = m.vertices, np.asarray(m.faces)
+    rng = np.random.default_rng(5)
+    poses = [rest * 100.0 + 50.0, rest * 1e-3, rest * np.array([1.0, 0.02, 1.0]), rest * np.array([-1.0, 1.0, 1.0]),
+             np.where((rest[:, 1] > 0.0)[:, None], 0.0, rest), rest[rng.permutation(len(rest))],
+             rng.normal(size=rest.shape) * 3.0]
+    geo = build_geometry([], [m])
+    for k, v in enumerate(poses):
+        update_mesh(geo, 0, v, np.tile([0.0, 1.0, 0.0], (len(v), 1)), np.zeros(len(v)))
+        lo, hi = v.min(0), v.max(0)
+        centre, radius = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
+        eye = centre + 3.0 * radius * np.array([0.3, 0.5, 1.0]) / np.linalg.norm([0.3, 0.5, 1.0])
+        gb = render_gbuffer(make_camera(eye, centre, (0.0, 1.0, 0.0), 40.0, 32, 32), geo)
+        o, d = numpy_camera_rays(eye, centre, 40.0, 32, 32)
+        t = _numpy_mesh_distance(o, d.reshape(-1, 3), v.astype(np.float32).astype(np.float64), faces).reshape(32, 32)
+        assert np.isfinite(t).sum() > 100, k
+        np.testing.assert_array_equal(gb.coverage, np.isfinite(t), err_msg=f"pose {k}")
+        depth = t * (d @ ((centre - eye) / np.linalg.norm(centre - eye)))
+        np.testing.assert_allclose(gb.numpy("depth")[gb.coverage], depth[gb.coverage], rtol=2e-5, err_msg=f"pose {k}")
