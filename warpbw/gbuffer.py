@@ -640,10 +640,9 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
     its local magnitude, as ``build_geometry`` stores it (``warpbw.mesh_normals.local_curvature``, over the surface
     too).  A pose whose faces cancel at a vertex (a closed surface pressed flat; ``warpbw.io.mesh.CANCEL_REL``) has no
     normal there and is refused, as ``load_mesh`` refuses it.  Then refits the BVH over the moved points
-    (``wp.Mesh.refit``: same topology, new bounds).  The
-    connectivity, uv, seam map and materials stay as built.  Nothing is derived from the old geometry, so a frame
-    rendered after this is what ``build_geometry`` with the new vertices would give: the bandwidth pass needs only
-    the G-buffer (002 Sec. 4.3, "Dynamic geometry").
+    (``wp.Mesh.refit``: same topology, new bounds).  The connectivity, uv, seam map and materials stay as built.
+    Nothing is derived from the old geometry, so a frame rendered after this is what ``build_geometry`` with the new
+    vertices would give: the bandwidth pass needs only the G-buffer (002 Sec. 4.3, "Dynamic geometry").
     """
     ranges = geometry.mesh_vertex_ranges
     if geometry.mesh is None or not ranges:

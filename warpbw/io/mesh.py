@@ -71,9 +71,9 @@ DEGENERATE_REL_AREA = 1e-12
 FALLBACK_NORMAL = (0.0, 1.0, 0.0)
 # A vertex whose area-weighted normal sum is shorter than this share of the sum of its faces' (doubled) areas has no
 # direction: its faces cancel to rounding (coincident triangles wound in opposite directions, a closed surface pressed
-# flat).  On a 162-vertex icosphere pressed onto x = 0 the 16 rim vertices' float64 sums came out exactly 0 at 4 of
-# them and at 1e-17 of the areas, in no particular direction, at the other 12 (the next vertex: 1.0; the least on the
-# bunny: 0.48; on the icosphere pressed to 1e-6 of its radius: 7.6e-6).
+# flat).  On a 162-vertex icosphere pressed onto x, y or z = 0 the 16 rim vertices' float64 sums came out exactly 0
+# at 5, 10 or 14 of them and at 1e-17 of the areas, in no particular direction, at the others (the next vertex: 1.0;
+# the least on the bunny: 0.48; on the icosphere pressed to 1e-6 of its radius: 7.6e-6).
 CANCEL_REL = 1e-12
 # Lazy one-ring passes (x <- (x + one-ring mean) / 2) that average |H| into the curvature the bandwidth pass
 # reads (local_curvature): an RMS reach of about two rings (the bunny's edge is about 2 px at the validation
