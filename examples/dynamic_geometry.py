@@ -63,11 +63,10 @@ RIPPLE_CYCLES_PER_FRAME = 0.1  # phase speed of the travelling wave (one wavelen
 TWIST_MAX_DEG = 30.0           # peak twist of the top against the bottom of the mesh
 TWIST_PERIOD_FRAMES = 16       # the twist swings back and forth with this period
 
-# Camera: looks at the rest pose's bounding-box centre from slightly above, framing its bounding box.
+# Camera: looks at the rest pose's bounding-box centre from slightly above, framing every pose (_camera).
 FOV_DEG = 35.0
 CAMERA_ELEVATION = 0.15        # height of the eye over the distance, along +Y
 FRAMING_MARGIN = 1.1           # half extent of the deformed mesh to the half field of view
-DEPTH_ALLOWANCE = 0.5          # fraction of the depth extent the camera backs off for near parts
 
 # A GGX stand-in for Fig. 18's red metallic paint when ``--material ggx`` (or no NPF table).
 GGX_MATERIAL = 'type = "ggx"\nalpha = 0.15\nspecular = [0.8, 0.12, 0.1]'
@@ -134,19 +133,30 @@ def _material_toml(name: str) -> tuple[str, str]:
 
 
 def _camera(rest: np.ndarray, width: int, height: int):
+    """Looks at the rest pose's bounding-box centre from slightly above (``CAMERA_ELEVATION``), near enough that every
+    pose ``deform`` gives fills the image to 1 / ``FRAMING_MARGIN`` of its half size, and no nearer."""
     from warpbw.gbuffer import make_camera
 
-    lo, hi = rest.min(0), rest.max(0)
-    centre = 0.5 * (lo + hi)
-    half = 0.5 * (hi - lo)
-    # the ripple and the twist move points up to RIPPLE_AMPLITUDE of the distance to the axis, and the
-    # twist turns the x and z extents into each other
-    reach = max(half[0], half[2]) * (1.0 + RIPPLE_AMPLITUDE)
-    half_fov = math.atan(math.tan(math.radians(FOV_DEG) * 0.5) * min(1.0, height / width))
-    # eye to the centre: the extent at the centre's depth fills the view, less FRAMING_MARGIN, with
-    # DEPTH_ALLOWANCE of the depth reach added for the parts nearer the camera (larger on screen)
-    dist = FRAMING_MARGIN * max(reach, half[1]) / math.tan(half_fov) + DEPTH_ALLOWANCE * reach
-    eye = centre + dist * np.array([0.0, CAMERA_ELEVATION, 1.0]) / math.hypot(1.0, CAMERA_ELEVATION)
+    centre = 0.5 * (rest.min(0) + rest.max(0))
+    q = rest - centre
+    # every pose keeps a vertex's height, and its distance to the axis within 1 + RIPPLE_AMPLITUDE of the rest pose's
+    # (the twist turns it about the axis): each vertex stays on a circle of radius r about the axis at height y
+    r = (1.0 + RIPPLE_AMPLITUDE) * np.hypot(q[:, 0], q[:, 2])
+    y = q[:, 1]
+    e = math.hypot(1.0, CAMERA_ELEVATION)   # the eye at dist (0, CAMERA_ELEVATION, 1) / e from the centre
+    tan_x = math.tan(math.radians(FOV_DEG) * 0.5)   # the field of view is the width's
+    tan_y = tan_x * height / width
+    # a point p (relative to the centre) lies within 1 / FRAMING_MARGIN of the image's half width while its depth
+    # dist - p.(0, CAMERA_ELEVATION, 1) / e is at least FRAMING_MARGIN |p.right| / tan_x, right = (1, 0, 0), and of the
+    # half height while it is at least FRAMING_MARGIN |p.up| / tan_y, up = (0, 1, -CAMERA_ELEVATION) / e.  Over a
+    # circle p = (r cos a, y, r sin a) the first is largest at y CAMERA_ELEVATION / e + r sqrt(1 / e^2 + (M / tan_x)^2);
+    # the second, convex in sin a, at sin a = +-1
+    along_x = y * CAMERA_ELEVATION / e + r * math.hypot(1.0 / e, FRAMING_MARGIN / tan_x)
+    along_y = np.maximum.reduce([(y * CAMERA_ELEVATION + s * r) / e
+                                 + FRAMING_MARGIN * np.abs(y - s * CAMERA_ELEVATION * r) / (e * tan_y)
+                                 for s in (-1.0, 1.0)])
+    dist = float(max(along_x.max(), along_y.max()))
+    eye = centre + dist * np.array([0.0, CAMERA_ELEVATION, 1.0]) / e
     return make_camera(eye, centre, (0.0, 1.0, 0.0), FOV_DEG, width, height)
 
 

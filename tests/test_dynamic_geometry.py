@@ -284,3 +284,110 @@ def test_a_texture_seam_deforms_as_one_surface(tmp_path, monkeypatch, host_norma
         truth = vertex_normals(w, welded[faces])[welded]
         off = np.degrees(np.arctan2(np.linalg.norm(np.cross(n, truth), axis=1), np.einsum("ij,ij->i", n, truth)))
         assert off.max() < 0.01, f"normals off the seamless surface's by up to {off.max():.2f} degrees"
+
+
+def _largest_ndc(cam, centre, points, width, height, fov_deg):
+    """The largest |x| or |y| of ``points`` (N, 3) in normalised image coordinates (1 at the image's edge) of a
+    pinhole at ``cam.origin`` looking at ``centre`` with +Y up and ``fov_deg`` across the width, by numpy here."""
+    eye = np.array([cam.origin[0], cam.origin[1], cam.origin[2]], np.float64)
+    fwd = (centre - eye) / np.linalg.norm(centre - eye)
+    right = np.cross(fwd, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    q = points - eye
+    z = q @ fwd
+    assert np.all(z > 0)
+    tx = math.tan(math.radians(fov_deg) / 2)
+    return max(np.abs(q @ right / z).max() / tx, np.abs(q @ up / z).max() / (tx * height / width))
+
+
+@pytest.mark.parametrize("shape", ["cube", "flat box", "tall box", "icosphere"])
+def test_the_camera_frames_every_pose_within_its_margin(shape):
+    """The camera, set once from the rest pose, frames the deformed mesh: every vertex of every pose within
+    1 / FRAMING_MARGIN of the image's half size ("half extent of the deformed mesh to the half field of view").  Its
+    distance took the larger half extent along x and z as the twist's reach, and half the depth extent for the near
+    parts: a cube's rest pose reached 1.04 (out of the image), its twisted poses 1.23, a flat 2 x 0.3 x 2 box 1.18, and
+    the bunny 0.919 (session 77).  Truth: the poses the example's deform gives over two twist periods, projected with
+    numpy; and the frame is not far from full (the icosphere's poses reach at least 0.85)."""
+    ex = _example()
+    box = {"cube": (1.0, 1.0, 1.0), "flat box": (2.0, 0.3, 2.0), "tall box": (0.5, 3.0, 0.5)}
+    m = (trimesh.creation.icosphere(subdivisions=3) if shape == "icosphere"
+         else trimesh.creation.box(extents=box[shape]).subdivide().subdivide())
+    rest = np.asarray(m.vertices, np.float64) + np.array([0.3, -0.2, 0.5])
+    centre = 0.5 * (rest.min(0) + rest.max(0))
+    y_range = (float(rest[:, 1].min()), float(rest[:, 1].max()))
+    for width, height in ((256, 256), (256, 128), (96, 160)):
+        cam = ex._camera(rest, width, height)
+        reach = max(_largest_ndc(cam, centre, ex.deform(rest, f, centre[[0, 2]], y_range), width, height, ex.FOV_DEG)
+                    for f in range(2 * ex.TWIST_PERIOD_FRAMES))
+        assert reach <= 1.0 / ex.FRAMING_MARGIN + 1e-9, (shape, width, height, reach)
+        if shape == "icosphere":
+            assert reach > 0.85, (width, height, reach)
+
+
+def test_a_frame_after_other_poses_is_the_frame_of_a_fresh_scene(tmp_path, monkeypatch):
+    """"Nothing is precomputed from geometry": a frame rendered after frames of other poses (twice the size and moved,
+    shrunk, squashed) is, bit for bit, the frame of the same pose on a scene prepared afresh (G-buffer, the bandwidth
+    pass's level, b_p and sigma2, the samples, the image, the shaded fraction and its denominator).  And it is the
+    frame of that pose loaded from a file as a static scene: the same hits, depths and levels, the normals as load_mesh
+    derives them (given, as --host-normals gives them), the curvature and the image to float32 rounding; the device's
+    normals and curvature, from the float32 positions, to theirs (session 77)."""
+    from warpbw.gbuffer import update_mesh
+    from warpbw.io.mesh import normals_and_curvature
+    from warpbw.pipeline import prepare_scene, render_adaptive
+    from warpbw.scene import parse_scene
+
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
+    ex = _example()
+    ico = trimesh.creation.icosphere(subdivisions=3, radius=0.8)
+    ico.export(tmp_path / "rest.obj")
+
+    def scene(mesh):
+        return parse_scene(ex.SCENE.format(fov=ex.FOV_DEG, w=32, h=32, env='procedural = "sky"', mesh=mesh,
+                                           material=ex.GGX_MATERIAL), source="<test>")
+
+    def prepared(mesh, rest):
+        prep = prepare_scene(scene(mesh))
+        prep.camera = ex._camera(rest, 32, 32)
+        return prep
+
+    def frame(prep, seed=7):
+        r = render_adaptive(prep, 4.0, seed=seed)
+        out = {k: r.gbuffer.numpy(k) for k in ("depth", "normal", "curvature", "material", "position")}
+        out.update({k: r.aovs[k] for k in ("level", "b_p", "sigma2", "n_p", "shaded")})
+        out.update(image=r.image, **{k: np.asarray(r.stats[k]) for k in ("shaded_fraction", "pixels_covered",
+                                                                          "samples")})
+        return out
+
+    a = prepared(tmp_path / "rest.obj", np.asarray(ico.vertices, np.float32))   # the positions the device holds
+    start, count = a.geometry.mesh_vertex_ranges[0]
+    rest = a.geometry.mesh.points.numpy()[start:start + count].astype(np.float64)
+    faces = a.geometry.mesh_attr.indices.numpy().reshape(-1, 3) - start
+    axis, y_range = 0.5 * (rest.min(0) + rest.max(0))[[0, 2]], (rest[:, 1].min(), rest[:, 1].max())
+    pose = ex.deform(rest, 5, axis, y_range)
+    for v in (rest * 2.0 + 0.3, rest * 0.2, rest * np.array([1.0, 0.1, 1.0])):
+        update_mesh(a.geometry, 0, v)
+        frame(a, seed=3)
+    update_mesh(a.geometry, 0, pose)
+    got = frame(a)
+    b = prepared(tmp_path / "rest.obj", rest)
+    update_mesh(b.geometry, 0, pose)
+    want = frame(b)
+    assert got["pixels_covered"] > 300 and 0 < got["shaded_fraction"] < 1
+    for k in want:
+        np.testing.assert_array_equal(got[k], want[k], err_msg=k)
+    # the pose as a static scene: its file, its normals and H as load_mesh derives them, given to update_mesh as
+    # --host-normals gives them
+    with open(tmp_path / "pose.obj", "w") as fh:
+        fh.writelines("v %.17g %.17g %.17g\n" % tuple(p) for p in pose)
+        fh.writelines("f %d %d %d\n" % tuple(t + 1) for t in faces)
+    static = frame(prepared(tmp_path / "pose.obj", rest))
+    update_mesh(b.geometry, 0, pose, *normals_and_curvature(pose, faces))
+    host = frame(b)
+    for k in ("depth", "position", "material", "normal", "level", "n_p", "shaded"):
+        np.testing.assert_array_equal(host[k], static[k], err_msg=k)
+    for k in ("curvature", "b_p", "image"):
+        np.testing.assert_allclose(host[k], static[k], rtol=1e-5, atol=1e-7, err_msg=k)
+    # the device's normals and H, from the float32 positions, to their rounding
+    np.testing.assert_allclose(got["normal"], static["normal"], atol=1e-5)
+    np.testing.assert_allclose(got["curvature"], static["curvature"], rtol=1e-4)

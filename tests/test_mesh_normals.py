@@ -330,17 +330,20 @@ def test_mesh_topology_refuses_ranges_and_indices_that_are_not_vertices():
 
 def test_a_needle_face_short_against_its_longest_edge_adds_no_curvature_on_the_device():
     """warpbw.mesh_normals: a face whose doubled area is below DEGENERATE_REL_AREA of its LONGEST squared edge adds
-    no cotangent weight and no area, as on the host (warpbw.io.mesh, numpy).  Truth: the host's H on a closed
-    tetrahedron one of whose faces is a needle 1e6 long and 1e-7 wide (1e-7 of doubled area against a longest
-    squared edge of 1e12, but above 1e-12 of its shortest, 1)."""
+    no cotangent weight and no area, as on the host (warpbw.io.mesh, numpy).  Truth: the host's H on a closed mesh
+    one of whose faces is a needle 1e6 long and 1e-7 wide (1e-7 of doubled area against a longest squared edge of
+    1e12, but above 1e-12 of its shortest, 1): the tetrahedron (0, 2, A, B) with vertex 1 put on its edge 0-2 and the
+    needle closing the gap.  (Session 77: it was a tetrahedron over the needle, whose three other faces lie in one
+    plane and cancel at the apex to 1e-18 of their areas, a normal made of rounding that the functions now refuse.)"""
 
 
-    v = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0e6, 1.0e-7, 0.0], [4.0e5, 3.0e5, 5.0e5]], np.float32)
-    f = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]], np.int64)
+    v = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0e6, 1.0e-7, 0.0], [4.0e5, 3.0e5, 5.0e5],
+                  [4.0e5, 3.0e5, -5.0e5]], np.float32)
+    f = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 4], [3, 2, 4], [0, 3, 4]], np.int64)
     n_host, h_host = normals_and_curvature(v.astype(np.float64), f)
     got = device_normals_and_curvature(wp.array(v, dtype=wp.vec3), mesh_topology(f.reshape(-1), 0, len(v)))
     h = got.curvature.numpy()
-    assert np.isfinite(h_host).all() and np.abs(h_host).max() < 1e-3     # the needle left out: H of a big tetrahedron
+    assert np.isfinite(h_host).all() and np.abs(h_host).max() < 1e-3     # the needle left out: H of a big solid
     np.testing.assert_allclose(h, h_host, rtol=1e-4, atol=1e-9)
 
 
@@ -359,3 +362,43 @@ def test_a_vertex_that_is_not_finite_is_refused_naming_its_faces(value):
         on_device(v, ico.faces, first=4)
     with pytest.raises(WarpbwError):
         normals_and_curvature(v, ico.faces)
+
+
+def _flattened_icosphere(axis: int):
+    """The 162-vertex icosphere pressed flat onto the plane ``axis`` = 0 (a closed surface flattened by a deformation):
+    the faces of its two halves now lie on each other, wound in opposite directions.  Returns (vertices, faces, its rim:
+    the vertices on that plane before, where the faces of both halves meet and cancel)."""
+    ico = trimesh.creation.icosphere(subdivisions=2)
+    v = np.array(ico.vertices, np.float64)
+    rim = np.abs(v[:, axis]) < 1e-9
+    v[:, axis] = 0.0
+    return v, np.asarray(ico.faces), rim
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_a_vertex_whose_faces_cancel_is_refused_on_the_device_and_the_host_as_load_mesh_refuses_it(tmp_path, axis):
+    """A closed mesh flattened onto a plane (a squash to zero thickness): on its rim the faces of both halves cancel,
+    and those vertices took the fallback normal (0, 1, 0) without a word, on the device and on the host.  Flattened
+    onto x = 0, 15 of the 16 rim normals were 32 to 180 degrees from the radial ones a pose flattened to 1e-6 of the
+    radius gives (within 1.4 degrees): the rim vertex at (0, -1, 0) got +Y.  load_mesh refuses such a pose; the
+    per-frame functions now do too, naming the count (session 77): every rim vertex, though the float64 sums came out
+    exactly 0 at 4 to 14 of the 16 (``warpbw.io.mesh.CANCEL_REL``).  Truth: the rim, the vertices on the plane before;
+    the pose flattened to 1e-6 still passes."""
+    v, f, cancelled = _flattened_icosphere(axis)
+    assert cancelled.sum() == 16
+    p = tmp_path / "flat.obj"
+    p.write_text("".join("v %.9g %.9g %.9g\n" % tuple(x) for x in v)
+                 + "".join("f %d %d %d\n" % tuple(t + 1) for t in f))
+    with pytest.raises(WarpbwError, match="vertices have no normal: the triangles around them cancel"):
+        load_mesh(p)   # (its vertex merge welds the halves' coincident vertices: another count)
+    said = rf"{int(cancelled.sum())} vertices have no normal: the triangles around them cancel"
+    with pytest.raises(WarpbwError, match=rf"^points: {said}"):
+        on_device(v, f, first=5, pad=2)
+    with pytest.raises(WarpbwError, match=rf"^vertices: {said}"):
+        normals_and_curvature(v, f)
+    ico = np.asarray(trimesh.creation.icosphere(subdivisions=2).vertices)
+    thin = v.copy()
+    thin[:, axis] = 1e-6 * ico[:, axis]
+    n, _ = on_device(thin, f)
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-6)
+    np.testing.assert_allclose(n, normals_and_curvature(thin, f)[0], atol=1e-5)

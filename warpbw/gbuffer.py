@@ -614,7 +614,8 @@ def _per_vertex(name: str, values, shape: tuple, where: str) -> np.ndarray:
         raise WarpbwError(f"{where}{name}: expected shape {shape} ({shape[0]} vertices), got {a.shape}")
     if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
         raise WarpbwError(f"{where}{name}: expected numbers, got dtype {a.dtype}")
-    a = np.ascontiguousarray(a, dtype=np.float32)
+    with np.errstate(over="ignore"):   # beyond float32 becomes inf, refused below (numpy's warning came first)
+        a = np.ascontiguousarray(a, dtype=np.float32)
     n_bad = int(np.count_nonzero(~np.isfinite(a)))
     if n_bad:
         raise WarpbwError(f"{where}{name}: expected finite values, {n_bad} are NaN or infinite (or overflow float32)")
@@ -637,10 +638,11 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
     apart than ``SEAM_GAP_REL`` of the diagonal (or twice as far as in the MeshSpec built) are a one-line error and
     nothing is changed (rebuild the geometry without ``MeshSpec.surface`` for a mesh that tears).  H is stored as
     its local magnitude, as ``build_geometry`` stores it (``warpbw.mesh_normals.local_curvature``, over the surface
-    too).  Then refits the BVH over the moved points (``wp.Mesh.refit``: same topology, new bounds).  The
-    connectivity, uv, seam map and materials stay as built.  Nothing is derived from the old geometry, so a frame
-    rendered after this is what ``build_geometry`` with the new vertices would give: the bandwidth pass needs only
-    the G-buffer (002 Sec. 4.3, "Dynamic geometry").
+    too).  A pose whose faces cancel at a vertex (a closed surface pressed flat; ``warpbw.io.mesh.CANCEL_REL``) has no
+    normal there and is refused, as ``load_mesh`` refuses it.  Then refits the BVH over the moved points
+    (``wp.Mesh.refit``: same topology, new bounds).  The connectivity, uv, seam map and materials stay as built.
+    Nothing is derived from the old geometry, so a frame rendered after this is what ``build_geometry`` with the new
+    vertices would give: the bandwidth pass needs only the G-buffer (002 Sec. 4.3, "Dynamic geometry").
     """
     ranges = geometry.mesh_vertex_ranges
     if geometry.mesh is None or not ranges:
@@ -680,19 +682,26 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
         copies += [(ma.normal, n, wp.vec3),
                    (ma.curvature, _per_vertex("curvature", curvature, (count,), where), wp.float32)]
     # nothing is changed until everything given has been checked: a refused call leaves the mesh as it was
-    geometry.mesh_bounds[int(mesh_index)] = bounds
-    device = geometry.mesh.points.device
-    for dest, src, dtype in copies:
-        wp.copy(dest, wp.array(src, dtype=dtype, device=device), dest_offset=start, count=count)
     from warpbw.mesh_normals import MeshShading, local_curvature, mesh_topology, normals_and_curvature
 
+    device = geometry.mesh.points.device
     topo = geometry.topology.get(int(mesh_index))
     if topo is None:   # connectivity only, built on the first call
         topo = geometry.topology[int(mesh_index)] = mesh_topology(ma.indices.numpy(), start, count, device,
                                                                   geometry.mesh_surface[int(mesh_index)])
+    # the device checks the new pose's normals (faces that cancel) only once it holds the positions: the old ones are
+    # kept until then
+    old = wp.clone(geometry.mesh.points[start:start + count]) if normals is None else None
+    for dest, src, dtype in copies:
+        wp.copy(dest, wp.array(src, dtype=dtype, device=device), dest_offset=start, count=count)
     shading = MeshShading(ma.normal[start:start + count], ma.curvature[start:start + count])
     if normals is None:
-        normals_and_curvature(geometry.mesh.points, topo, device, out=shading)
+        try:
+            normals_and_curvature(geometry.mesh.points, topo, device, out=shading)
+        except WarpbwError as e:   # it refuses before it writes: only the positions go back
+            wp.copy(geometry.mesh.points, old, dest_offset=start, count=count)
+            raise WarpbwError(f"{where}vertices: {str(e).removeprefix('points: ')}") from None
+    geometry.mesh_bounds[int(mesh_index)] = bounds
     local_curvature(shading.curvature, topo, device, out=shading.curvature)
     geometry.curvature_pending.pop(int(mesh_index), None)   # replaced by the new pose's
     geometry.mesh.refit()

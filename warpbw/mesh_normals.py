@@ -8,7 +8,7 @@ Public:
                                           current vertex positions
     ``local_curvature(curvature, topology, device, passes, out)``  |H| averaged over the neighbourhood: the
                                           curvature the bandwidth pass reads (``warpbw.io.mesh.local_curvature``)
-    Their kernels: ``face_terms_kernel``, ``vertex_finish_kernel``, ``boundary_sum_kernel``,
+    Their kernels: ``face_terms_kernel``, ``cancelled_kernel``, ``vertex_finish_kernel``, ``boundary_sum_kernel``,
     ``boundary_mean_kernel`` (normals and H), ``one_ring_sum_kernel``, ``lazy_average_kernel``,
     ``magnitude_kernel`` (``local_curvature``), ``seam_copy_kernel``, ``seam_copy_scalar_kernel`` (both)
 
@@ -16,7 +16,8 @@ Their arrays are checked against the topology (shape, dtype, device) before any 
 vertex without bounds, and an ``out`` of 3 vertices for 162 was written past its end (the call returned, the process
 aborted later), 10 points for 162 vertices read garbage.  The face kernel counts the faces with a vertex that is not
 finite, and ``normals_and_curvature`` refuses them in one line (its neighbours got the fallback normal, and a
-made-up H, without a word).
+made-up H, without a word); so it refuses vertices whose faces cancel (a pose that presses a closed surface flat:
+the rim took the fallback normal, up to 180 degrees off the surface's), as ``warpbw.io.mesh.load_mesh`` does.
 
 The formulas are :mod:`warpbw.io.mesh`'s, which computes the same on the host when a mesh is loaded:
 area-weighted vertex normals; mean curvature H = -(Laplace-Beltrami(x) . n) / 2 from cotangent weights and
@@ -26,9 +27,9 @@ deformed every frame, where the host version (numpy on one core) took about a th
 (examples/dynamic_geometry.py).  Positions are float32; the per-face terms and their per-vertex sums are
 float64, as on the host: the cotangent Laplacian is a small difference of large terms.
 
-Three small kernels: per face (the face normal, the cotangent weights and the corner areas, summed into
-the vertices with atomic adds), per vertex (normalise, divide), and per boundary pair (the interior
-neighbours' mean); and for ``local_curvature``, per face (the one-ring sums) and per vertex (the lazy
+Small kernels: per face (the face normal, the cotangent weights and the corner areas, summed into
+the vertices with atomic adds), per vertex (whether the faces cancel; normalise, divide), and per boundary pair
+(the interior neighbours' mean); and for ``local_curvature``, per face (the one-ring sums) and per vertex (the lazy
 average, dividing by the ring counts ``mesh_topology`` derives once), once per pass: 2.8 ms for 8 passes on the
 bunny on the CPU (3.7 ms when the counts were re-summed every pass; a gather over each vertex's ring in
 compressed rows, without atomics, took 6.7 ms in one launch per pass and 10.5 ms in tiles over threads).
@@ -55,15 +56,19 @@ from warpbw.io.mesh import boundary_neighbours
 # adds no cotangent weight and no area; a vertex without incident area gets this normal.
 DEGENERATE_REL_AREA = wp.constant(wp.float64(host_mesh.DEGENERATE_REL_AREA))
 FALLBACK_NORMAL = wp.constant(wp.vec3(*host_mesh.FALLBACK_NORMAL))
+# below this share of the summed (doubled) face areas, a vertex's normal sum has no direction: its faces cancel
+CANCEL_REL = wp.constant(wp.float64(host_mesh.CANCEL_REL))
 
 
 @wp.kernel(module="unique", enable_backward=False)
 def face_terms_kernel(points: wp.array(dtype=wp.vec3), faces: wp.array(dtype=wp.int32), first: int,
                       n_sum: wp.array(dtype=wp.vec3d), lap: wp.array(dtype=wp.vec3d),
-                      area: wp.array(dtype=wp.float64), non_finite: wp.array(dtype=wp.int32)):
+                      area: wp.array(dtype=wp.float64), n_len: wp.array(dtype=wp.float64),
+                      counts: wp.array(dtype=wp.int32)):
     """One face's share of its corners' normal (area-weighted), Laplacian numerator
     sum_j (cot a_ij + cot b_ij)(x_j - x_i) and mixed Voronoi area (Meyer et al. 2003, Sec. 3.3-3.4); a face with
-    a corner that is not finite adds nothing and is counted in ``non_finite``."""
+    a corner that is not finite adds nothing and is counted in ``counts[0]``; ``n_len`` sums the lengths of the
+    face normals summed (``cancelled_kernel``)."""
     t = wp.tid()
     i0 = faces[3 * t] - first
     i1 = faces[3 * t + 1] - first
@@ -73,7 +78,7 @@ def face_terms_kernel(points: wp.array(dtype=wp.vec3), faces: wp.array(dtype=wp.
     p2 = wp.vec3d(points[i2 + first])
     # squares of float32 coordinates cannot overflow float64: only NaN or inf reads as not finite
     if not wp.isfinite(wp.dot(p0, p0) + wp.dot(p1, p1) + wp.dot(p2, p2)):
-        wp.atomic_add(non_finite, 0, 1)
+        wp.atomic_add(counts, 0, 1)
         return
     e0 = p2 - p1                      # edge k is opposite corner k
     e1 = p0 - p2
@@ -83,6 +88,9 @@ def face_terms_kernel(points: wp.array(dtype=wp.vec3), faces: wp.array(dtype=wp.
     wp.atomic_add(n_sum, i1, fn)
     wp.atomic_add(n_sum, i2, fn)
     dbl = wp.length(fn)
+    wp.atomic_add(n_len, i0, dbl)
+    wp.atomic_add(n_len, i1, dbl)
+    wp.atomic_add(n_len, i2, dbl)
     sq0 = wp.dot(e0, e0)
     sq1 = wp.dot(e1, e1)
     sq2 = wp.dot(e2, e2)
@@ -121,6 +129,17 @@ def face_terms_kernel(points: wp.array(dtype=wp.vec3), faces: wp.array(dtype=wp.
             wp.atomic_add(area, i0, eighth * (sq1 * c1 + sq2 * c2))
             wp.atomic_add(area, i1, eighth * (sq2 * c2 + sq0 * c0))
             wp.atomic_add(area, i2, eighth * (sq0 * c0 + sq1 * c1))
+
+
+@wp.kernel(module="unique", enable_backward=False)
+def cancelled_kernel(n_sum: wp.array(dtype=wp.vec3d), n_len: wp.array(dtype=wp.float64),
+                     counts: wp.array(dtype=wp.int32)):
+    """Count in ``counts[1]`` the vertices whose faces cancel: a face with area touches them and their normal sum is
+    shorter than ``CANCEL_REL`` of the summed lengths (``warpbw.io.mesh``'s test): the fallback normal, or a direction
+    made of rounding."""
+    v = wp.tid()
+    if n_len[v] > wp.float64(0.0) and wp.length(n_sum[v]) <= CANCEL_REL * n_len[v]:
+        wp.atomic_add(counts, 1, 1)
 
 
 @wp.kernel(module="unique", enable_backward=False)
@@ -313,14 +332,20 @@ def normals_and_curvature(points: wp.array, topology: MeshTopology, device: str 
     lap = wp.zeros(n, dtype=wp.vec3d, device=device)
     area = wp.zeros(n, dtype=wp.float64, device=device)
     n_faces = topology.faces.shape[0] // 3
-    non_finite = wp.zeros(1, dtype=wp.int32, device=device)
+    n_len = wp.zeros(n, dtype=wp.float64, device=device)
+    counts = wp.zeros(2, dtype=wp.int32, device=device)   # faces with a vertex not finite, vertices whose faces cancel
     # one launch each (module docstring: the atomic sums must not be split over CPU threads)
     wp.launch(face_terms_kernel, dim=n_faces, inputs=[points, topology.faces, topology.first, n_sum, lap, area,
-                                                     non_finite], device=device)
-    bad = int(non_finite.numpy()[0])   # the faces around a NaN vertex gave its neighbours (0, 1, 0) and a made-up H
-    if bad:
+                                                     n_len, counts], device=device)
+    wp.launch(cancelled_kernel, dim=n, inputs=[n_sum, n_len, counts], device=device)
+    bad, cancelled = (int(c) for c in counts.numpy())
+    if bad:   # the faces around a NaN vertex gave its neighbours (0, 1, 0) and a made-up H
         raise WarpbwError(f"points: {bad} of the mesh's {n_faces} faces have a vertex that is not finite (NaN or "
                           "infinite); expected finite positions")
+    if cancelled:   # they took the fallback normal (0, 1, 0), whatever the surface's direction
+        raise WarpbwError(f"points: {cancelled} vertices have no normal: the triangles around them cancel (coincident "
+                          "triangles wound in opposite directions, such as a closed surface pressed flat); expected "
+                          "a pose whose surface has a direction at every vertex")
     wp.launch(vertex_finish_kernel, dim=n, inputs=[n_sum, lap, area, out.normals, out.curvature], device=device)
     if topology.boundary.shape[0]:
         s = wp.zeros(n, dtype=wp.float64, device=device)

@@ -19,7 +19,8 @@ integer indices into them (a quad, a negative or an out-of-range index is refuse
 another vertex).  Coordinates of any float64 magnitude work (1e200 or 1e-200): the geometry is computed at an
 exact power-of-two scale, so the cross products cannot overflow or underflow.
 - ``DEGENERATE_REL_AREA``, ``FALLBACK_NORMAL``: where a face stops counting, and a vertex's normal without
-  area (shared with the device version, ``warpbw.mesh_normals``).
+  area (shared with the device version, ``warpbw.mesh_normals``); ``CANCEL_REL``: below it a vertex's faces cancel
+  (``load_mesh`` and ``normals_and_curvature`` refuse such a vertex, and so does the device version).
 - ``boundary_neighbours(faces, nv) -> (on_boundary, x, y)``: the open boundary's vertices and their
   interior neighbours (x[k] on the boundary, y[k] interior), from the connectivity alone.
 - ``normals_and_curvature(vertices, faces, surface=None) -> (normals (V, 3), H (V,))``: ``vertex_normals`` and
@@ -68,6 +69,12 @@ DEGENERATE_REL_AREA = 1e-12
 # Normal given to a vertex with no incident area (unreferenced or only degenerate faces): +Y, "up"
 # in the project's world convention (../shared/DESIGN.md).
 FALLBACK_NORMAL = (0.0, 1.0, 0.0)
+# A vertex whose area-weighted normal sum is shorter than this share of the sum of its faces' (doubled) areas has no
+# direction: its faces cancel to rounding (coincident triangles wound in opposite directions, a closed surface pressed
+# flat).  On a 162-vertex icosphere pressed onto x, y or z = 0 the 16 rim vertices' float64 sums came out exactly 0
+# at 5, 10 or 14 of them and at 1e-17 of the areas, in no particular direction, at the others (the next vertex: 1.0;
+# the least on the bunny: 0.48; on the icosphere pressed to 1e-6 of its radius: 7.6e-6).
+CANCEL_REL = 1e-12
 # Lazy one-ring passes (x <- (x + one-ring mean) / 2) that average |H| into the curvature the bandwidth pass
 # reads (local_curvature): an RMS reach of about two rings (the bunny's edge is about 2 px at the validation
 # scenes' 256x256).  Bandwidth rank correlation per pixel on the bunny (examples/validate_bandwidth.py;
@@ -159,20 +166,19 @@ def _face_geometry(vertices: np.ndarray, faces: np.ndarray):
 
 def _normal_sums(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per vertex, the area-weighted sum of its faces' normals (at the exact scale ``_exact_scale``), and
-    whether a face with area touches it: (V, 3), (V,) bool."""
+    whether its faces cancel (``CANCEL_REL``; a vertex without a face of any area does not): (V, 3), (V,) bool."""
     v = np.ldexp(v, -_exact_scale(v))
     p0, p1, p2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     fn = np.cross(p1 - p0, p2 - p0)  # |fn| = 2 * area, so the sum is area weighted
     n = np.stack([np.bincount(f.ravel(), weights=np.repeat(fn[:, k], 3), minlength=len(v)) for k in range(3)], -1)
-    has_area = np.any(fn != 0.0, axis=1)
-    touched = np.bincount(f[has_area].ravel(), minlength=len(v)) > 0
-    return n, touched
+    areas = np.bincount(f.ravel(), weights=np.repeat(np.linalg.norm(fn, axis=1), 3), minlength=len(v))
+    return n, (areas > 0.0) & (np.linalg.norm(n, axis=1) <= CANCEL_REL * areas)
 
 
 def vertex_normals(vertices, faces) -> np.ndarray:
     """Unit vertex normals (V, 3) float64: sum of incident face normals weighted by face area.  A vertex whose sum
     is zero gets ``FALLBACK_NORMAL``: one without incident area, or one whose faces cancel (coincident triangles
-    wound in opposite directions; ``load_mesh`` refuses those)."""
+    wound in opposite directions; ``load_mesh`` and ``normals_and_curvature`` refuse those, ``CANCEL_REL``)."""
     v = _checked_vertices(vertices)
     return _unit_normals(_normal_sums(v, checked_faces(faces, len(v)))[0])
 
@@ -358,14 +364,22 @@ def normals_and_curvature(vertices, faces, surface=None) -> tuple[np.ndarray, np
     ``surface`` (``MeshData.surface``, the seam map computed at load; None: every vertex its own): the copies of a
     vertex split by a texture seam take the normal and H of the surface there, from the faces on both sides, as
     ``load_mesh`` gives them (each copy took its own side's faces alone: 5.9 degrees off on a 32-column sphere).
-    No state is kept between calls (nothing is precomputed from an earlier pose).  The mesh is checked once (it
-    was checked three times: by each function, and the normals again)."""
+    Vertices whose faces cancel (a closed surface pressed flat; ``CANCEL_REL``) are refused, as ``load_mesh`` refuses
+    them: they took the fallback normal, or a direction made of rounding, without a word.  No state is kept between
+    calls (nothing is precomputed from an earlier pose).  The mesh is checked once (it was checked three times: by
+    each function, and the normals again)."""
     v = _checked_vertices(vertices)
     f = checked_faces(faces, len(v))
     surface = checked_surface(surface, len(v))
     if surface is not None:
         f = surface[f]   # the seam's copies as their surface vertex, whose faces meet there
-    normals = _unit_normals(_normal_sums(v, f)[0])
+    sums, cancelled = _normal_sums(v, f)
+    if cancelled.any():   # as load_mesh refuses them: they took the fallback normal, whatever the surface's direction
+        raise WarpbwError(f"vertices: {int(cancelled.sum())} vertices have no normal: the triangles around them cancel "
+                          f"(coincident triangles wound in opposite directions, such as a closed surface pressed flat; "
+                          f"first: vertex {int(np.argmax(cancelled))}); expected a pose whose surface has a direction "
+                          "at every vertex")
+    normals = _unit_normals(sums)
     # unit_directions as mesh_mean_curvature(v, f, normals) applies it: the same H, to the last bit
     h = _mean_curvature(v, f, unit_directions(normals, "normals"))
     return (normals, h) if surface is None else (normals[surface], h[surface])
@@ -570,8 +584,7 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     surface = merged.surface
     # the surface: each seam's copies as one vertex (their first), so that its faces on both sides meet there
     s_verts, s_faces = (verts, faces) if surface is None else (verts, surface[faces])
-    sums, touched = _normal_sums(s_verts, s_faces)
-    cancelled = touched & ~np.any(sums != 0.0, axis=1)
+    sums, cancelled = _normal_sums(s_verts, s_faces)
     if cancelled.any():   # they had the fallback normal (0, 1, 0), whatever the surface's direction
         i = int(np.argmax(cancelled))
         raise WarpbwError(f"{path}: {int(cancelled.sum())} vertices have no normal: the triangles around them cancel "
