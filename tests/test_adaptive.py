@@ -612,3 +612,147 @@ def test_a_coarse_texel_centred_on_a_pixel_facing_away_does_not_darken_the_pixel
     assert (front & (ada.aovs["shaded_level"] < 0)).sum() > 0.9 * front.sum()
     np.testing.assert_allclose(ada.image[front], albedo, rtol=1e-5)
     assert not ada.image[cov & ~front].any()   # the pixels facing away are 0, as in the reference
+
+
+# --- the schedule of 002 Sec. 3.2, written again in numpy from the paper's text and the module docstring ----------
+
+def _schedule(level, spp, mat, layer, away):
+    """Per level, coarsest first: the texels shaded (with their centre pixel and the largest N_p of their footprint),
+    the texels up-sampled and the parents each can use.  A hand-made G-buffer where a parent can be used iff it was
+    computed, has bilinear weight > 0, and its centre pixel has the child's material and depth layer (every surface
+    faces the eye or exactly away from it, so g_a >= 0.75 and g_z is 1 or < 1e-10)."""
+    H, W = level.shape
+    sizes = [(W, H)]
+    while sizes[-1] != (1, 1):
+        sizes.append(((sizes[-1][0] + 1) // 2, (sizes[-1][1] + 1) // 2))
+    cov = mat >= 0
+    top = min(int(level[cov].max()), len(sizes) - 1)
+
+    def centre(L, x, y):   # the finest pixel at the centre of the whole 2^L footprint, clamped to the image
+        s = 1 << L
+        return min(y * s + s // 2, H - 1) * W + min(x * s + s // 2, W - 1)
+
+    def near(x, n):   # parents (index, bilinear weight) of child x: parent i's centre lies at child 2 i + 0.5
+        u = (x - 0.5) / 2.0
+        i = int(np.floor(u))
+        return [(0, 1.0)] if i < 0 else [(n - 1, 1.0)] if i >= n - 1 else [(i, 1 - (u - i)), (i + 1, u - i)]
+
+    out, valid_above = [], None
+    for L in range(top, -1, -1):
+        (w, h), s = sizes[L], 1 << L
+        shade, up, valid = {}, {}, np.zeros(w * h, bool)
+        for t in range(w * h):
+            x, y = t % w, t // w
+            foot = np.s_[y * s:(y + 1) * s, x * s:(x + 1) * s]
+            m, r = int(level[foot].min()), centre(L, x, y)
+            if mat.flat[r] < 0 or m < L or (L > 0 and away.flat[r]):
+                continue
+            valid[t] = True
+            if m == L or valid_above is None:
+                shade[t] = (r, int(spp[foot].max()))
+                continue
+            pw, ph = sizes[L + 1]
+            use = [py * pw + px for py, ay in near(y, ph) for px, ax in near(x, pw)
+                   if ax * ay > 0 and valid_above[py * pw + px] and mat.flat[centre(L + 1, px, py)] == mat.flat[r]
+                   and layer.flat[centre(L + 1, px, py)] == layer.flat[r]]
+            if use or (L == 0 and away.flat[r]):   # a level-0 pixel facing away is 0, never shaded
+                up[t] = use
+            else:
+                shade[t] = (r, int(spp[foot].max()))
+        out.append((L, (w, h), shade, up))
+        valid_above = valid
+    return out
+
+
+def _hand_made_gbuffer(mat, layer, away):
+    from warpbw.gbuffer import allocate_gbuffer, make_camera
+    import warp as wp
+
+    H, W = mat.shape
+    gb = allocate_gbuffer(W, H)
+    n = W * H
+    ys, xs = np.divmod(np.arange(n), W)
+    depth = np.where(layer.reshape(-1) == 0, 5.0, 10.0).astype(np.float32)
+    view = np.tile(np.float32([0, 0, 1]), (n, 1))
+    gb.data.position = wp.array(np.stack([(xs - W / 2) * 0.01, (H / 2 - ys) * 0.01, 5.0 - depth], 1), dtype=wp.vec3)
+    gb.data.normal = wp.array(np.where(away.reshape(-1, 1), -view, view), dtype=wp.vec3)
+    gb.data.view = wp.array(view, dtype=wp.vec3)
+    gb.data.depth = wp.array(depth, dtype=wp.float32)
+    gb.data.material = wp.array(mat.reshape(-1).astype(np.int32), dtype=wp.int32)
+    return gb, make_camera((0, 0, 5), (0, 0, 0), (0, 1, 0), 40.0, W, H)
+
+
+@pytest.mark.parametrize("w,h", [(1, 7), (5, 3), (33, 17), (63, 65)])
+@pytest.mark.parametrize("block", [1, 4])
+def test_the_hierarchy_shades_up_samples_and_counts_as_the_papers_schedule_written_again_says(monkeypatch, w, h,
+                                                                                                 block):
+    """002 Sec. 3.2 and the module docstring, written again in numpy (``_schedule``) on random levels, N_p, two
+    materials, holes, two depth layers and pixels facing away, at odd and non-square sizes; a fake shader writes
+    (pixel, level, N) where it is asked to shade.  The plan, the pixels shaded per level with their N (the largest
+    N_p of the footprint), the parents each up-sampled texel uses, the stats (samples, per-level counts, pixels
+    shaded), the spp and shaded_level AOVs and the frame itself (each texel's value carried down the levels by the
+    weighted mean; the weights are the up-sampling's own, tested in test_upsample.py) must all agree."""
+    import types
+
+    import warpbw.adaptive as ad
+    from warpbw.pyramid import max_level
+
+    rng = np.random.default_rng(w * 100 + h + block)
+
+    def blocks(a):
+        return np.kron(a, np.ones((block, block), np.int64))[:h, :w]
+
+    level = blocks(rng.integers(0, max_level(w, h) + 1, size=(-(-h // block), -(-w // block))))
+    level = np.where(rng.random((h, w)) < 0.05, 0, level).astype(np.int32)
+    mat = np.where(rng.random((h, w)) < 0.15, -1, blocks(rng.integers(0, 2, size=(-(-h // block), -(-w // block)))))
+    layer = np.kron(rng.integers(0, 2, size=(-(-h // 8), -(-w // 8))), np.ones((8, 8), np.int64))[:h, :w]
+    away = rng.random((h, w)) < 0.05
+    spp = rng.integers(0, 50, size=(h, w)).astype(np.int32)
+    gb, cam = _hand_made_gbuffer(mat, layer, away)
+    calls = []
+
+    def fake_shade(gb_, materials, env, spp_map, seed=0, pixels=None, out=None, **kw):
+        pix = pixels.numpy()
+        n = spp_map.numpy()[pix]
+        lvl = ((seed - 11) % 2**32) // ad.LEVEL_SEED_STEP
+        calls.append((lvl, sorted(zip(pix.tolist(), n.tolist()))))
+        o = out.numpy()
+        o[pix] = np.stack([pix, np.full(len(pix), lvl), n], 1)
+        out.assign(o)
+        return types.SimpleNamespace(samples=int(n.sum()), non_finite=0)
+
+    monkeypatch.setattr(ad, "shade_reference", fake_shade)
+    want = _schedule(level, spp, mat, layer, away)
+    plan = ad.plan_hierarchy(gb, cam, level)
+    res = ad.shade_hierarchical(gb, cam, None, object(), level, spp, seed=11, upsample="paper", plan=plan)
+    assert [(pl.level, list(pl.shade), list(pl.upsample)) for pl in plan.levels] == \
+        [(L, sorted(sh), sorted(up)) for L, _, sh, up in want]
+    assert calls == [(L, sorted(sh.values())) for L, _, sh, _ in want if sh]
+    assert [(d["level"], d["shaded"], d["upsampled"]) for d in res.stats["levels"]] == \
+        [(L, len(sh), len(up)) for L, _, sh, up in want]
+    spp_aov, finest = np.zeros(w * h, np.int64), np.full(w * h, -1)
+    for L, _, sh, _ in want:
+        for r, n in sh.values():
+            spp_aov[r] += n
+            finest[r] = L
+    assert res.stats["samples"] == spp_aov.sum() and res.stats["pixels_shaded"] == (finest >= 0).sum()
+    assert np.array_equal(res.spp.reshape(-1), spp_aov) and np.array_equal(res.shaded_level.reshape(-1), finest)
+    above = None
+    for (L, (lw, lh), sh, up), pl in zip(want, plan.levels):
+        vals = np.zeros((lw * lh, 3))
+        for t, (r, n) in sh.items():
+            vals[t] = (r, L, n)
+        if up:
+            wts = pl.weights.numpy()
+            pw, ph = ad.level_size(w, h, L + 1)
+            for t, use in up.items():
+                x, y = t % lw, t // lw
+                i0 = max(0, min(pw - 1, int(np.floor((x - 0.5) / 2))))
+                j0 = max(0, min(ph - 1, int(np.floor((y - 0.5) / 2))))
+                qs = [j0 * pw + i0, j0 * pw + min(i0 + 1, pw - 1), min(j0 + 1, ph - 1) * pw + i0,
+                      min(j0 + 1, ph - 1) * pw + min(i0 + 1, pw - 1)]
+                assert sorted({q for q, wk in zip(qs, wts[t]) if wk > 1e-6}) == sorted(set(use)), (L, t)
+                if not (L == 0 and away.flat[t]):
+                    vals[t] = sum(wk * above[q] for q, wk in zip(qs, wts[t]) if wk > 0) / wts[t].sum()
+        above = vals
+    np.testing.assert_allclose(res.image.reshape(-1, 3), above * (mat >= 0).reshape(-1, 1), rtol=1e-5, atol=1e-3)
