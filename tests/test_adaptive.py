@@ -682,6 +682,29 @@ def _hand_made_gbuffer(mat, layer, away):
     return gb, make_camera((0, 0, 5), (0, 0, 0), (0, 1, 0), 40.0, W, H)
 
 
+def _fake_shader(monkeypatch, seed):
+    """warpbw.adaptive's shading replaced by one that writes (pixel, level, N) where it is asked to shade, and records
+    each call's level and (pixel, N) pairs in the list it returns."""
+    import types
+
+    import warpbw.adaptive as ad
+    calls = []
+
+    def fake_shade(gb_, materials, env, spp_map, seed=0, pixels=None, out=None, **kw):
+        pix = pixels.numpy()
+        n = spp_map.numpy()[pix]
+        lvl = ((seed - seed0) % 2**32) // ad.LEVEL_SEED_STEP
+        calls.append((lvl, sorted(zip(pix.tolist(), n.tolist()))))
+        o = out.numpy()
+        o[pix] = np.stack([pix, np.full(len(pix), lvl), n], 1)
+        out.assign(o)
+        return types.SimpleNamespace(samples=int(n.sum()), non_finite=0)
+
+    seed0 = seed
+    monkeypatch.setattr(ad, "shade_reference", fake_shade)
+    return calls
+
+
 @pytest.mark.parametrize("w,h", [(1, 7), (5, 3), (33, 17), (63, 65)])
 @pytest.mark.parametrize("block", [1, 4])
 def test_the_hierarchy_shades_up_samples_and_counts_as_the_papers_schedule_written_again_says(monkeypatch, w, h,
@@ -692,8 +715,6 @@ def test_the_hierarchy_shades_up_samples_and_counts_as_the_papers_schedule_writt
     N_p of the footprint), the parents each up-sampled texel uses, the stats (samples, per-level counts, pixels
     shaded), the spp and shaded_level AOVs and the frame itself (each texel's value carried down the levels by the
     weighted mean; the weights are the up-sampling's own, tested in test_upsample.py) must all agree."""
-    import types
-
     import warpbw.adaptive as ad
     from warpbw.pyramid import max_level
 
@@ -709,19 +730,7 @@ def test_the_hierarchy_shades_up_samples_and_counts_as_the_papers_schedule_writt
     away = rng.random((h, w)) < 0.05
     spp = rng.integers(0, 50, size=(h, w)).astype(np.int32)
     gb, cam = _hand_made_gbuffer(mat, layer, away)
-    calls = []
-
-    def fake_shade(gb_, materials, env, spp_map, seed=0, pixels=None, out=None, **kw):
-        pix = pixels.numpy()
-        n = spp_map.numpy()[pix]
-        lvl = ((seed - 11) % 2**32) // ad.LEVEL_SEED_STEP
-        calls.append((lvl, sorted(zip(pix.tolist(), n.tolist()))))
-        o = out.numpy()
-        o[pix] = np.stack([pix, np.full(len(pix), lvl), n], 1)
-        out.assign(o)
-        return types.SimpleNamespace(samples=int(n.sum()), non_finite=0)
-
-    monkeypatch.setattr(ad, "shade_reference", fake_shade)
+    calls = _fake_shader(monkeypatch, seed=11)
     want = _schedule(level, spp, mat, layer, away)
     plan = ad.plan_hierarchy(gb, cam, level)
     res = ad.shade_hierarchical(gb, cam, None, object(), level, spp, seed=11, upsample="paper", plan=plan)
@@ -756,3 +765,67 @@ def test_the_hierarchy_shades_up_samples_and_counts_as_the_papers_schedule_writt
                     vals[t] = sum(wk * above[q] for q, wk in zip(qs, wts[t]) if wk > 0) / wts[t].sum()
         above = vals
     np.testing.assert_allclose(res.image.reshape(-1, 3), above * (mat >= 0).reshape(-1, 1), rtol=1e-5, atol=1e-3)
+
+
+@pytest.mark.parametrize("allocation", ALLOCATIONS)
+def test_the_allocation_over_the_hierarchys_plan_is_what_the_hierarchy_spends_and_one_v_spends_no_more(
+        monkeypatch, allocation):
+    """allocate_samples over plan_hierarchy's texels (a hand-made 33 x 17 G-buffer with holes, two materials and two
+    depth layers: texels the up-sampling cannot fill are shaded too), keys with zeros and one huge value, budgets from
+    0.25 to 1e6 per covered pixel: N_p = ceil(key^p / V) clamped (002 Sec. 2.4), each planned texel takes the largest
+    of its footprint (Sec. 3.1, independent block maxima here), the hierarchy spends exactly the planned samples, at
+    most round(budget x covered pixels) -- and any smaller V would spend more than that -- or, when n_min per planned
+    texel is already more, n_min each and over_budget."""
+    import math
+
+    import warp as wp
+
+    import warpbw.adaptive as ad
+    import warpbw.bandwidth as bw
+
+    h, w = 17, 33
+    rng = np.random.default_rng(7)
+    level = np.kron(rng.integers(0, 5, size=(5, 9)), np.ones((4, 4), np.int64))[:h, :w].astype(np.int32)
+    mat = np.kron(rng.integers(0, 2, size=(5, 9)), np.ones((4, 4), np.int64))[:h, :w]
+    mat = np.where(rng.random((h, w)) < 0.15, -1, mat)
+    layer = np.kron(rng.integers(0, 2, size=(3, 5)), np.ones((8, 8), np.int64))[:h, :w]
+    cov = mat >= 0
+    gb, cam = _hand_made_gbuffer(mat, layer, np.zeros((h, w), bool))
+    plan = ad.plan_hierarchy(gb, cam, level)
+    key = np.where(cov & (rng.random((h, w)) > 0.3), rng.lognormal(0, 2, size=(h, w)), 0.0)
+    key[np.nonzero(cov)[0][0], np.nonzero(cov)[1][0]] = 1e30
+    f = wp.array(key.reshape(-1).astype(np.float32))
+    buf = bw.BandwidthBuffer(wp.zeros(h * w, dtype=wp.vec2), wp.zeros(h * w, dtype=wp.float32), f, f,
+                             wp.array(level), cov, w, h, 16, variance_mis=f, variance_bis=f, variance_step=f)
+    power = {"sqrt": 0.5, "uniform": 0.0, "measured": 0.5}.get(allocation, 1.0)
+    k = key.astype(np.float32).astype(np.float64) ** power
+
+    def foot(a, pl, t):   # texel t's footprint in a full-resolution map
+        x, y = t % pl.size[0], t // pl.size[0]
+        return a[y << pl.level:(y + 1) << pl.level, x << pl.level:(x + 1) << pl.level]
+
+    # planned texels the up-sampling cannot fill (their min-filtered level is coarser than theirs): 26, measured
+    assert sum(foot(level, pl, t).min() > pl.level for pl in plan.levels for t in pl.shade) == 26
+    tops = np.array([foot(k, pl, t).max() for pl in plan.levels for t in pl.shade])   # each one's largest key^p
+    _fake_shader(monkeypatch, seed=3)
+    for budget, n_min, n_max in ((0.2, 1, None), (0.25, 1, None), (1.0, 1, None), (4.0, 2, 40), (1e6, 1, None)):
+        a = bw.allocate_samples(buf, budget, n_min=n_min, n_max=n_max, allocation=allocation, plan=plan)
+        n_max = max(n_min, math.ceil(256 * budget)) if n_max is None else n_max
+        budget_samples = int(round(budget * cov.sum()))
+
+        def spent(v):
+            with np.errstate(divide="ignore"):
+                return int(np.clip(np.ceil(tops / v), n_min, n_max).sum())
+
+        assert a.budget_samples == budget_samples and a.planned_pixels == len(tops) == plan.shaded_texels
+        with np.errstate(divide="ignore"):
+            n_p = np.where(cov, np.clip(np.ceil(k / a.v_target), n_min, n_max), 0)
+        assert np.array_equal(a.n_p, n_p), budget
+        res = ad.shade_hierarchical(gb, cam, None, object(), level, a.n_p, seed=3, plan=plan)
+        assert res.stats["samples"] == a.planned_samples == spent(a.v_target), budget
+        if budget == 0.2:   # 97 samples for 114 texels
+            assert a.over_budget and a.planned_samples == len(tops) * n_min > budget_samples
+        else:
+            assert not a.over_budget and a.planned_samples <= budget_samples, budget
+            if 0 < a.v_target < math.inf:
+                assert spent(a.v_target * (1 - 1e-9)) > budget_samples, budget
