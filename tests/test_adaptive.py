@@ -584,3 +584,269 @@ def test_a_pixel_whose_shading_normal_faces_away_from_the_eye_is_black_in_the_ad
         ada = render_adaptive(prep, budget=budget, seed=1, mis=True)
         assert not ada.image[away].any(), (budget, int((ada.image[away].max(-1) > 0).sum()), int(away.sum()))
         assert ada.image[cov & ~away].mean() > 0.1   # the rest is lit
+
+
+@pytest.mark.parametrize("upsample", ["normal", "paper"])
+def test_a_coarse_texel_centred_on_a_pixel_facing_away_does_not_darken_the_pixels_up_sampled_from_it(tmp_path,
+                                                                                                      upsample):
+    """A Lambert torus under a constant sky of 1: every cosine-weighted sample of a pixel facing the eye is the albedo
+    exactly (closed form), and so is every such pixel of the reference, shaded or up-sampled from such values.  A
+    coarse texel whose centre pixel's interpolated normal faces away from the eye was shaded there, took that pixel's
+    0, and passed it to the pixels up-sampled from it: 1,296 ("normal") and 1,312 ("paper") of the 13,161 channel
+    values of front-facing pixels off, by up to the whole albedo (session 77).  Such a texel is now left for finer
+    levels, as an empty one is."""
+    from warpbw.pipeline import render_adaptive
+    _coarse_torus_obj(tmp_path / "torus.obj")
+    scene = parse_scene('[camera]\nposition = [0.0, 3.0, 6.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 45.0\n'
+                        'resolution = [96, 72]\n[environment]\nconstant = 1.0\n[[object]]\nmesh = "torus.obj"\n'
+                        'material = "m"\n[material.m]\ntype = "lambert"\nalbedo = [0.7, 0.5, 0.3]\n', tmp_path)
+    prep = prepare_scene(scene)
+    ref = render_reference(prep, spp=2, seed=1)
+    gb = ref.gbuffer
+    cov = gb.coverage
+    front = cov & (np.einsum("hwi,hwi->hw", gb.numpy("normal"), gb.numpy("view")) > 0)
+    albedo = np.broadcast_to(np.float32([0.7, 0.5, 0.3]), (int(front.sum()), 3))
+    np.testing.assert_allclose(ref.image[front], albedo, rtol=1e-5)   # the closed form holds for the estimator
+    ada = render_adaptive(prep, budget=2.0, seed=1, upsample=upsample)
+    assert ada.aovs["level"][cov].max() >= 3   # a constant sky: coarse levels, up-sampled from few texels
+    assert (front & (ada.aovs["shaded_level"] < 0)).sum() > 0.9 * front.sum()
+    np.testing.assert_allclose(ada.image[front], albedo, rtol=1e-5)
+    assert not ada.image[cov & ~front].any()   # the pixels facing away are 0, as in the reference
+
+
+# --- the schedule of 002 Sec. 3.2, written again in numpy from the paper's text and the module docstring ----------
+
+def _schedule(level, spp, mat, layer, away):
+    """Per level, coarsest first: the texels shaded (with their centre pixel and the largest N_p of their footprint),
+    the texels up-sampled and the parents each can use.  A hand-made G-buffer where a parent can be used iff it was
+    computed, has bilinear weight > 0, and its centre pixel has the child's material and depth layer (every surface
+    faces the eye or exactly away from it, so g_a >= 0.75 and g_z is 1 or < 1e-10)."""
+    H, W = level.shape
+    sizes = [(W, H)]
+    while sizes[-1] != (1, 1):
+        sizes.append(((sizes[-1][0] + 1) // 2, (sizes[-1][1] + 1) // 2))
+    cov = mat >= 0
+    top = min(int(level[cov].max()), len(sizes) - 1)
+
+    def centre(L, x, y):   # the finest pixel at the centre of the whole 2^L footprint, clamped to the image
+        s = 1 << L
+        return min(y * s + s // 2, H - 1) * W + min(x * s + s // 2, W - 1)
+
+    def near(x, n):   # parents (index, bilinear weight) of child x: parent i's centre lies at child 2 i + 0.5
+        u = (x - 0.5) / 2.0
+        i = int(np.floor(u))
+        return [(0, 1.0)] if i < 0 else [(n - 1, 1.0)] if i >= n - 1 else [(i, 1 - (u - i)), (i + 1, u - i)]
+
+    out, valid_above = [], None
+    for L in range(top, -1, -1):
+        (w, h), s = sizes[L], 1 << L
+        shade, up, valid = {}, {}, np.zeros(w * h, bool)
+        for t in range(w * h):
+            x, y = t % w, t // w
+            foot = np.s_[y * s:(y + 1) * s, x * s:(x + 1) * s]
+            m, r = int(level[foot].min()), centre(L, x, y)
+            if mat.flat[r] < 0 or m < L or (L > 0 and away.flat[r]):
+                continue
+            valid[t] = True
+            if m == L or valid_above is None:
+                shade[t] = (r, int(spp[foot].max()))
+                continue
+            pw, ph = sizes[L + 1]
+            use = [py * pw + px for py, ay in near(y, ph) for px, ax in near(x, pw)
+                   if ax * ay > 0 and valid_above[py * pw + px] and mat.flat[centre(L + 1, px, py)] == mat.flat[r]
+                   and layer.flat[centre(L + 1, px, py)] == layer.flat[r]]
+            if use or (L == 0 and away.flat[r]):   # a level-0 pixel facing away is 0, never shaded
+                up[t] = use
+            else:
+                shade[t] = (r, int(spp[foot].max()))
+        out.append((L, (w, h), shade, up))
+        valid_above = valid
+    return out
+
+
+def _hand_made_gbuffer(mat, layer, away):
+    from warpbw.gbuffer import allocate_gbuffer, make_camera
+    import warp as wp
+
+    H, W = mat.shape
+    gb = allocate_gbuffer(W, H)
+    n = W * H
+    ys, xs = np.divmod(np.arange(n), W)
+    depth = np.where(layer.reshape(-1) == 0, 5.0, 10.0).astype(np.float32)
+    view = np.tile(np.float32([0, 0, 1]), (n, 1))
+    gb.data.position = wp.array(np.stack([(xs - W / 2) * 0.01, (H / 2 - ys) * 0.01, 5.0 - depth], 1), dtype=wp.vec3)
+    gb.data.normal = wp.array(np.where(away.reshape(-1, 1), -view, view), dtype=wp.vec3)
+    gb.data.view = wp.array(view, dtype=wp.vec3)
+    gb.data.depth = wp.array(depth, dtype=wp.float32)
+    gb.data.material = wp.array(mat.reshape(-1).astype(np.int32), dtype=wp.int32)
+    return gb, make_camera((0, 0, 5), (0, 0, 0), (0, 1, 0), 40.0, W, H)
+
+
+def _fake_shader(monkeypatch, seed):
+    """warpbw.adaptive's shading replaced by one that writes (pixel, level, N) where it is asked to shade, and records
+    each call's level and (pixel, N) pairs in the list it returns."""
+    import types
+
+    import warpbw.adaptive as ad
+    calls = []
+
+    def fake_shade(gb_, materials, env, spp_map, seed=0, pixels=None, out=None, **kw):
+        pix = pixels.numpy()
+        n = spp_map.numpy()[pix]
+        lvl = ((seed - seed0) % 2**32) // ad.LEVEL_SEED_STEP
+        calls.append((lvl, sorted(zip(pix.tolist(), n.tolist()))))
+        o = out.numpy()
+        o[pix] = np.stack([pix, np.full(len(pix), lvl), n], 1)
+        out.assign(o)
+        return types.SimpleNamespace(samples=int(n.sum()), non_finite=0)
+
+    seed0 = seed
+    monkeypatch.setattr(ad, "shade_reference", fake_shade)
+    return calls
+
+
+@pytest.mark.parametrize("w,h", [(1, 7), (5, 3), (33, 17), (63, 65)])
+@pytest.mark.parametrize("block", [1, 4])
+def test_the_hierarchy_shades_up_samples_and_counts_as_the_papers_schedule_written_again_says(monkeypatch, w, h,
+                                                                                                 block):
+    """002 Sec. 3.2 and the module docstring, written again in numpy (``_schedule``) on random levels, N_p, two
+    materials, holes, two depth layers and pixels facing away, at odd and non-square sizes; a fake shader writes
+    (pixel, level, N) where it is asked to shade.  The plan, the pixels shaded per level with their N (the largest
+    N_p of the footprint), the parents each up-sampled texel uses, the stats (samples, per-level counts, pixels
+    shaded), the spp and shaded_level AOVs and the frame itself (each texel's value carried down the levels by the
+    weighted mean; the weights are the up-sampling's own, tested in test_upsample.py) must all agree."""
+    import warpbw.adaptive as ad
+    from warpbw.pyramid import max_level
+
+    rng = np.random.default_rng(w * 100 + h + block)
+
+    def blocks(a):
+        return np.kron(a, np.ones((block, block), np.int64))[:h, :w]
+
+    level = blocks(rng.integers(0, max_level(w, h) + 1, size=(-(-h // block), -(-w // block))))
+    level = np.where(rng.random((h, w)) < 0.05, 0, level).astype(np.int32)
+    mat = np.where(rng.random((h, w)) < 0.15, -1, blocks(rng.integers(0, 2, size=(-(-h // block), -(-w // block)))))
+    layer = np.kron(rng.integers(0, 2, size=(-(-h // 8), -(-w // 8))), np.ones((8, 8), np.int64))[:h, :w]
+    away = rng.random((h, w)) < 0.05
+    spp = rng.integers(0, 50, size=(h, w)).astype(np.int32)
+    gb, cam = _hand_made_gbuffer(mat, layer, away)
+    calls = _fake_shader(monkeypatch, seed=11)
+    want = _schedule(level, spp, mat, layer, away)
+    plan = ad.plan_hierarchy(gb, cam, level)
+    res = ad.shade_hierarchical(gb, cam, None, object(), level, spp, seed=11, upsample="paper", plan=plan)
+    assert [(pl.level, list(pl.shade), list(pl.upsample)) for pl in plan.levels] == \
+        [(L, sorted(sh), sorted(up)) for L, _, sh, up in want]
+    assert calls == [(L, sorted(sh.values())) for L, _, sh, _ in want if sh]
+    assert [(d["level"], d["shaded"], d["upsampled"]) for d in res.stats["levels"]] == \
+        [(L, len(sh), len(up)) for L, _, sh, up in want]
+    spp_aov, finest = np.zeros(w * h, np.int64), np.full(w * h, -1)
+    for L, _, sh, _ in want:
+        for r, n in sh.values():
+            spp_aov[r] += n
+            finest[r] = L
+    assert res.stats["samples"] == spp_aov.sum() and res.stats["pixels_shaded"] == (finest >= 0).sum()
+    assert np.array_equal(res.spp.reshape(-1), spp_aov) and np.array_equal(res.shaded_level.reshape(-1), finest)
+    above = None
+    for (L, (lw, lh), sh, up), pl in zip(want, plan.levels):
+        vals = np.zeros((lw * lh, 3))
+        for t, (r, n) in sh.items():
+            vals[t] = (r, L, n)
+        if up:
+            wts = pl.weights.numpy()
+            pw, ph = ad.level_size(w, h, L + 1)
+            for t, use in up.items():
+                x, y = t % lw, t // lw
+                i0 = max(0, min(pw - 1, int(np.floor((x - 0.5) / 2))))
+                j0 = max(0, min(ph - 1, int(np.floor((y - 0.5) / 2))))
+                qs = [j0 * pw + i0, j0 * pw + min(i0 + 1, pw - 1), min(j0 + 1, ph - 1) * pw + i0,
+                      min(j0 + 1, ph - 1) * pw + min(i0 + 1, pw - 1)]
+                assert sorted({q for q, wk in zip(qs, wts[t]) if wk > 1e-6}) == sorted(set(use)), (L, t)
+                if not (L == 0 and away.flat[t]):
+                    vals[t] = sum(wk * above[q] for q, wk in zip(qs, wts[t]) if wk > 0) / wts[t].sum()
+        above = vals
+    np.testing.assert_allclose(res.image.reshape(-1, 3), above * (mat >= 0).reshape(-1, 1), rtol=1e-5, atol=1e-3)
+
+
+@pytest.mark.parametrize("allocation", ALLOCATIONS)
+def test_the_allocation_over_the_hierarchys_plan_is_what_the_hierarchy_spends_and_one_v_spends_no_more(
+        monkeypatch, allocation):
+    """allocate_samples over plan_hierarchy's texels (a hand-made 33 x 17 G-buffer with holes, two materials and two
+    depth layers: texels the up-sampling cannot fill are shaded too), keys with zeros and one huge value, budgets from
+    0.25 to 1e6 per covered pixel: N_p = ceil(key^p / V) clamped (002 Sec. 2.4), each planned texel takes the largest
+    of its footprint (Sec. 3.1, independent block maxima here), the hierarchy spends exactly the planned samples, at
+    most round(budget x covered pixels) -- and any smaller V would spend more than that -- or, when n_min per planned
+    texel is already more, n_min each and over_budget."""
+    import math
+
+    import warp as wp
+
+    import warpbw.adaptive as ad
+    import warpbw.bandwidth as bw
+
+    h, w = 17, 33
+    rng = np.random.default_rng(7)
+    level = np.kron(rng.integers(0, 5, size=(5, 9)), np.ones((4, 4), np.int64))[:h, :w].astype(np.int32)
+    mat = np.kron(rng.integers(0, 2, size=(5, 9)), np.ones((4, 4), np.int64))[:h, :w]
+    mat = np.where(rng.random((h, w)) < 0.15, -1, mat)
+    layer = np.kron(rng.integers(0, 2, size=(3, 5)), np.ones((8, 8), np.int64))[:h, :w]
+    cov = mat >= 0
+    gb, cam = _hand_made_gbuffer(mat, layer, np.zeros((h, w), bool))
+    plan = ad.plan_hierarchy(gb, cam, level)
+    key = np.where(cov & (rng.random((h, w)) > 0.3), rng.lognormal(0, 2, size=(h, w)), 0.0)
+    key[np.nonzero(cov)[0][0], np.nonzero(cov)[1][0]] = 1e30
+    f = wp.array(key.reshape(-1).astype(np.float32))
+    buf = bw.BandwidthBuffer(wp.zeros(h * w, dtype=wp.vec2), wp.zeros(h * w, dtype=wp.float32), f, f,
+                             wp.array(level), cov, w, h, 16, variance_mis=f, variance_bis=f, variance_step=f)
+    power = {"sqrt": 0.5, "uniform": 0.0, "measured": 0.5}.get(allocation, 1.0)
+    k = key.astype(np.float32).astype(np.float64) ** power
+
+    def foot(a, pl, t):   # texel t's footprint in a full-resolution map
+        x, y = t % pl.size[0], t // pl.size[0]
+        return a[y << pl.level:(y + 1) << pl.level, x << pl.level:(x + 1) << pl.level]
+
+    # planned texels the up-sampling cannot fill (their min-filtered level is coarser than theirs): 26, measured
+    assert sum(foot(level, pl, t).min() > pl.level for pl in plan.levels for t in pl.shade) == 26
+    tops = np.array([foot(k, pl, t).max() for pl in plan.levels for t in pl.shade])   # each one's largest key^p
+    _fake_shader(monkeypatch, seed=3)
+    for budget, n_min, n_max in ((0.2, 1, None), (0.25, 1, None), (1.0, 1, None), (4.0, 2, 40), (1e6, 1, None)):
+        a = bw.allocate_samples(buf, budget, n_min=n_min, n_max=n_max, allocation=allocation, plan=plan)
+        n_max = max(n_min, math.ceil(256 * budget)) if n_max is None else n_max
+        budget_samples = int(round(budget * cov.sum()))
+
+        def spent(v):
+            with np.errstate(divide="ignore"):
+                return int(np.clip(np.ceil(tops / v), n_min, n_max).sum())
+
+        assert a.budget_samples == budget_samples and a.planned_pixels == len(tops) == plan.shaded_texels
+        with np.errstate(divide="ignore"):
+            n_p = np.where(cov, np.clip(np.ceil(k / a.v_target), n_min, n_max), 0)
+        assert np.array_equal(a.n_p, n_p), budget
+        res = ad.shade_hierarchical(gb, cam, None, object(), level, a.n_p, seed=3, plan=plan)
+        assert res.stats["samples"] == a.planned_samples == spent(a.v_target), budget
+        if budget == 0.2:   # 97 samples for 114 texels
+            assert a.over_budget and a.planned_samples == len(tops) * n_min > budget_samples
+        else:
+            assert not a.over_budget and a.planned_samples <= budget_samples, budget
+            if 0 < a.v_target < math.inf:
+                assert spent(a.v_target * (1 - 1e-9)) > budget_samples, budget
+
+
+@pytest.mark.parametrize("mis", [False, True], ids=["brdf", "mis"])
+def test_the_finest_level_everywhere_is_the_reference_with_per_pixel_counts_and_a_light(mis):
+    """Every texel at level 0: the reference renderer with the same per-pixel sample counts (0 to 8, drawn) and seed,
+    its directional light included, bit for bit, at an odd size, and the same samples counted."""
+    from warpbw.shading import shade_reference
+
+    light = '[[light]]\ntype = "directional"\ndirection = [0.3, 1.0, 0.5]\nradiance = [2.0, 1.8, 1.5]\n'
+    mat = 'type = "ggx"\nalpha = 0.3\nspecular = [0.9, 0.9, 0.9]'
+    text = SCENE.format(w=33, h=17, env='procedural = "sky"', mat=mat)
+    prep = prepare_scene(parse_scene(text.replace("[[object]]", light + "[[object]]", 1)))
+    gb = render_reference(prep, spp=1, seed=3).gbuffer
+    cov = gb.coverage
+    spp = np.where(cov, np.random.default_rng(8).integers(0, 9, size=cov.shape), 0).astype(np.int32)
+    assert (spp[cov] == 0).any()
+    ref = shade_reference(gb, prep.materials, prep.env.data, spp, seed=9, mis=mis, lights=prep.lights)
+    r = shade_hierarchical(gb, prep.camera, prep.materials, prep.env.data, np.zeros(cov.shape, np.int32), spp, seed=9,
+                           mis=mis, lights=prep.lights)
+    assert np.array_equal(r.image, ref.radiance.numpy().reshape(r.image.shape) * cov[..., None])
+    assert r.stats["samples"] == ref.samples == spp.sum() and np.array_equal(r.spp, spp)

@@ -225,8 +225,9 @@ N_p (Sec. 2.4: "keep N_p proportional to" the bound, so that the variance is con
 root ("sqrt"), sigma2_p / L_p^2 ("relative"; L_p^2 + (REL_FLOOR m)^2 with m the frame's median L_p over its
 lit pixels, so that it does not see the exposure), 1 ("uniform") or sqrt(variance_mis) ("measured", the default;
 sqrt(variance_bis) for a frame without MIS; ``BandwidthBuffer.measured_key``), and the constant V found by bisection so
-that the pixels the hierarchy will shade (texels of level L whose min-filtered level is L, with the max-filtered k of
-their footprint, Sec. 3.1) spend ``budget`` samples per covered pixel in total.  Why "measured": N_p
+that the texels the hierarchy will shade (``warpbw.adaptive.plan_hierarchy``'s: those of level L whose min-filtered
+level is L, and those the up-sampling cannot fill; each with the max-filtered k of its footprint, Sec. 3.1) spend
+``budget`` samples per covered pixel in total.  Why "measured": N_p
 proportional to the standard deviation minimises the summed variance sum_p var_p / N_p for a fixed budget
 (Neyman allocation), and the standard deviation that matters is the renderer's importance-sampled
 estimator's, which the bound does not predict (the paper calls the bound "very conservative").  Measured with

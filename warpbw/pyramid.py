@@ -39,7 +39,7 @@ row/column of texels reduces 2 x 1, 1 x 2 or 1 x 1 parents.  By induction texel 
 ``l`` is the min (max) over the finest pixels ``[x 2^l, min((x + 1) 2^l, W)) x [y 2^l, min((y + 1)
 2^l, H))``; the pixel at finest ``(x, y)`` is covered at level ``l`` by texel ``(x >> l, y >> l)``.
 Note the pyramid can have more levels than ``max_level + 1`` on non-square images (512 x 3: ten
-reductions, but Eq. 11 stops at level 1); those extra levels are harmless and cost little.
+levels, but Eq. 11 stops at level 1); those extra levels are harmless and cost little.
 
 NaN in float values: the min filter reads NaN as ``-inf`` and the max filter as ``+inf`` (both the
 conservative extreme: finest level, largest variance), from level 0 on; level 0 is a sanitised copy.
