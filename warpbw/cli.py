@@ -877,7 +877,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "OUT.exr (linear radiance, A = coverage), OUT.png (sRGB preview) and OUT.json (time per "
                        "stage, samples, which stages ran; for a scene of planes, filtered by --filter: the "
                        "filter, its mean mip level and the frame's time, and the mip level map as "
-                       "OUT.level.exr / .png (not for --filter ground_truth, which reads no mip level); planes beside spheres or meshes: under 'planes', with "
+                       "OUT.level.exr / .png (not for --filter ground_truth, which reads no mip level); planes "
+                       "beside spheres or meshes: under 'planes', with "
                        "OUT.mip_level.exr / .png).")
     r.add_argument("scene", help="scene file (TOML)")
     r.add_argument("-o", "--output", type=parse_path, required=True, help="output EXR path")
