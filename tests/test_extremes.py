@@ -262,6 +262,40 @@ def test_environment_with_nan_inf_and_negative_pixels(tmp_path, mis):
     assert res.coverage.sum() > 100
 
 
+@pytest.mark.parametrize("probe", ["2x1", "nan"])
+def test_a_probe_of_one_row_or_of_nan_gives_its_closed_form_with_either_env_signal(tmp_path, probe):
+    """A probe of 2 x 1 texels of 0.7 (one row: the row positions, cells and MIP rows of a map of H = 1) is a constant
+    sky: a Lambert sphere of albedo 0.8 returns 0.8 x 0.7 per BRDF sample (cosine sampling), so the reference and the
+    adaptive frame without MIS give exactly that, with both env signals (the bandwidth map of a constant probe is 0).
+    A probe whose every texel is NaN is set to 0 with a warning (the loader's promise): every method renders black,
+    with finite AOVs, and the adaptive frame is neither refused nor NaN (the log signal divides by the probe's mean,
+    0 here).  Session 77 (no test rendered either probe adaptively)."""
+    from warpbw.pipeline import prepare_scene, render_adaptive
+
+    env = np.full((1, 2, 3), 0.7, np.float32) if probe == "2x1" else np.full((8, 16, 3), np.nan, np.float32)
+    write_exr(tmp_path / "probe.exr", env)
+    s = scene(env='file = "probe.exr"', objects=[((0.0, 0.0, 0.0), 1.0, "l")] + hidden("g"), base_dir=tmp_path,
+              resolution=(12, 10))
+    with warnings.catch_warnings():
+        if probe == "nan":
+            warnings.filterwarnings("ignore", r".*set 384 channel values to 0", RuntimeWarning)
+        prep = prepare_scene(s)
+    want = 0.8 * 0.7 if probe == "2x1" else 0.0
+    frames = [render_reference(prep, spp=4, seed=1), render_reference(prep, spp=4, seed=1, mis=True)]
+    frames += [render_adaptive(prep, budget=2.0, seed=1, env_signal=signal, mis=mis)
+               for signal in ("log", "radiance") for mis in (False, True)]
+    for k, res in enumerate(frames):
+        assert_clean(res)
+        assert res.coverage.sum() > 30
+        for name, a in res.aovs.items():
+            assert np.isfinite(np.asarray(a, np.float64)).all(), (k, name)
+        lit = res.image[res.coverage]
+        if k == 0 or (k >= 2 and k % 2 == 0) or probe == "nan":   # BRDF sampling alone, or a black sky: exact
+            np.testing.assert_allclose(lit, want, rtol=1e-4, atol=0.0, err_msg=str(k))
+        else:   # MIS: unbiased, each pixel a bounded mix
+            assert abs(lit.mean() / want - 1.0) < 0.1, (k, lit.mean())
+
+
 # ------------------------------------------------------------------------------------------ GGX roughness extremes
 
 def _furnace_scene(alpha):
