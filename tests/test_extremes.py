@@ -27,6 +27,7 @@ import pytest
 from conftest import plane_scene_toml
 
 from warpbw.errors import WarpbwError
+from warpbw.envmap import envmap_from_array
 from warpbw.io.exr import read_rgb, write_exr
 from warpbw.pipeline import render_adaptive, render_reference
 from warpbw.scene import GGX_MIN_ALPHA, parse_scene
@@ -514,6 +515,36 @@ def test_adaptive_refuses_radiance_whose_square_overflows_the_bandwidth_pass(all
     assert_adaptive_clean(res)
     assert res.stats["samples"] <= 2.0 * res.coverage.sum()
     np.testing.assert_allclose(res.image[res.coverage], 0.8e15, rtol=1e-5)  # Lambert 0.8 under a constant sky
+
+
+@pytest.mark.parametrize("allocation", ["measured", "variance", "relative"])
+def test_adaptive_refuses_radiance_whose_square_underflows_the_bandwidth_pass(allocation):
+    """Light is linear (README, "Exposure"): a sky k times dimmer renders k times the frame with the same decisions.
+    The pass's squares of radiance (its variances) are float32: below sqrt(float32's smallest normal), 1.1e-19, they
+    underflow.  Session 77: a probe of one texel of 1e4 over a sky of 1 scaled by k = 1e-25 gave the "measured"
+    allocation other N_p than k = 1 and an image / k up to 0.8 of the brightest pixel away from the k = 1 frame,
+    without a word (k = 1e-30: every allocation but "uniform"); now a one-line error, as for an overflow.  At
+    k = 1e-15 (squares of 1e-30, normal) the decisions are those of k = 1 and the image k times its."""
+    from warpbw.pipeline import prepare_scene, render_adaptive
+
+    env = np.ones((16, 32, 3), np.float32)
+    env[5, 10] = 1e4
+    objs = [((0.0, 0.0, 0.0), 1.0, "l"), ((2.2, 0.0, 0.0), 1.0, "g")]
+
+    def frame(k):
+        prep = prepare_scene(scene(env="constant = [1.0, 1.0, 1.0]", objects=objs, resolution=(24, 12),
+                                   position=(1.1, 0.0, 6.0), look_at=(1.1, 0.0, 0.0)))
+        prep.env = envmap_from_array(env, scale=k, name="sun")   # the probe at exposure k
+        return render_adaptive(prep, budget=4.0, seed=1, mis=True, allocation=allocation)
+
+    one, dim = frame(1.0), frame(1e-15)
+    for name in ("level", "n_p", "spp"):
+        np.testing.assert_array_equal(dim.aovs[name], one.aovs[name], err_msg=name)
+    np.testing.assert_allclose(dim.image / 1e-15, one.image, rtol=0, atol=1e-4 * float(one.image.max()))
+    with pytest.raises(WarpbwError, match=r"extremes: the frame's radiance from the environment \(median "
+                                          r"[0-9.e+-]+ over its lit pixels\) is below sqrt\(float32's smallest "
+                                          r"normal\) = 1.1e-19"):
+        frame(1e-25)
 
 
 # ------------------------------------------------------------------------------------------ scene scale
