@@ -1265,8 +1265,8 @@ def test_a_camera_on_a_meshs_surface_does_not_see_the_point_it_stands_on(where, 
 
 
 def test_update_mesh_keeps_the_nearest_t_a_camera_on_the_mesh_is_looked_past_at():
-    """``update_mesh`` scaling a unit icosphere by 1e6 moves its nearest t with its size: a camera at a vertex of the
-    scaled mesh, looking in, sees the far wall (float64 Moller-Trumbore, hits farther than ``T_EPS_REL`` of the
+    """``update_mesh`` scaling an icosphere by 1e6 moves its nearest t with its size: a camera at the centre of a face
+    of the scaled mesh, looking in, sees the far wall (float64 Moller-Trumbore, hits farther than ``T_EPS_REL`` of the
     radius), not the point it stands on (float32 puts that hit up to about 0.5 units away at 5e6)."""
     from warpbw.gbuffer import T_EPS_REL
 
@@ -1275,7 +1275,7 @@ def test_update_mesh_keeps_the_nearest_t_a_camera_on_the_mesh_is_looked_past_at(
     v = np.asarray(spec.vertices, np.float64) * 1e6
     update_mesh(geo, 0, v, normals=spec.normals, curvature=np.full(len(v), 1.0 / 5e6))
     v32 = np.asarray(v, np.float32).astype(np.float64)
-    pos = v32[0]
+    pos = np.float32(v32[np.asarray(spec.faces)[0]].mean(axis=0)).astype(np.float64)
     cam = make_camera(tuple(pos), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 60.0, 24, 16)
     gb = render_gbuffer(cam, geo)
     o, d, fwd = _rays(pos, (0.0, 0.0, 0.0), 60.0, 24, 16)

@@ -136,6 +136,7 @@ class MeshAttributes:
     face_material: wp.array(dtype=wp.int32)
     face_end: wp.array(dtype=wp.int32)       # per MeshSpec: one past its last face in the concatenated faces
     t_eps: wp.array(dtype=wp.float32)        # per MeshSpec: the nearest t taken on it (T_EPS_REL x its half diagonal)
+    t_eps_max: float                         # the largest of them: a hit beyond it looks none up
 
 
 # ---------------------------------------------------------------------------------------------
@@ -244,7 +245,7 @@ def _gbuffer_kernel(has_spheres: bool, has_mesh: bool, attributes: bool):
         if wp.static(has_mesh):
             q = wp.mesh_query_ray(mesh.id, o, d, t_best)
             shift = float(0.0)
-            if q.result:
+            if q.result and q.t <= mesh.t_eps_max:
                 eps = mesh_t_eps(mesh, q.face)
                 if q.t <= eps:   # the camera stands on the mesh (a vertex, a face): look past that point, as
                     # intersect_sphere does (every pixel showed the point under the camera, session 77)
@@ -556,6 +557,7 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
         ma.face_material = wp.array(np.concatenate(fmat), dtype=wp.int32, device=device)
         ma.face_end = wp.array(np.cumsum([len(f) for f in faces]).astype(np.int32), dtype=wp.int32, device=device)
         ma.t_eps = wp.array(np.array([_t_eps(b) for b in bounds], np.float32), dtype=wp.float32, device=device)
+        ma.t_eps_max = float(ma.t_eps.numpy().max())
     else:
         ma.id = wp.uint64(0)
         ma.indices = wp.zeros(0, dtype=wp.int32, device=device)
@@ -565,6 +567,7 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
         ma.face_material = wp.zeros(0, dtype=wp.int32, device=device)
         ma.face_end = wp.zeros(0, dtype=wp.int32, device=device)
         ma.t_eps = wp.zeros(0, dtype=wp.float32, device=device)
+        ma.t_eps_max = 0.0
     return Geometry(sl, ma, mesh, bool(spheres), bool(meshes), n_tri, mesh_vertex_ranges=ranges,
                     sphere_bounds=[(np.asarray(s.center, np.float64), float(s.radius)) for s in spheres],
                     mesh_bounds=bounds, curvature_pending=pending, mesh_surface=surfaces, mesh_seam_gap=seam_gaps)
@@ -714,6 +717,7 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
     device = geometry.mesh.points.device
     wp.copy(ma.t_eps, wp.array(np.array([_t_eps(bounds)], np.float32), dtype=wp.float32, device=device),
             dest_offset=int(mesh_index), count=1)
+    ma.t_eps_max = float(np.float32(max(_t_eps(b) for b in geometry.mesh_bounds)))
     for dest, src, dtype in copies:
         wp.copy(dest, wp.array(src, dtype=dtype, device=device), dest_offset=start, count=count)
     from warpbw.mesh_normals import MeshShading, local_curvature, mesh_topology, normals_and_curvature
