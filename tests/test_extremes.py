@@ -27,6 +27,7 @@ import pytest
 from conftest import plane_scene_toml
 
 from warpbw.errors import WarpbwError
+from warpbw.envmap import envmap_from_array
 from warpbw.io.exr import read_rgb, write_exr
 from warpbw.pipeline import render_adaptive, render_reference
 from warpbw.scene import GGX_MIN_ALPHA, parse_scene
@@ -262,6 +263,40 @@ def test_environment_with_nan_inf_and_negative_pixels(tmp_path, mis):
     assert res.coverage.sum() > 100
 
 
+@pytest.mark.parametrize("probe", ["2x1", "nan"])
+def test_a_probe_of_one_row_or_of_nan_gives_its_closed_form_with_either_env_signal(tmp_path, probe):
+    """A probe of 2 x 1 texels of 0.7 (one row: the row positions, cells and MIP rows of a map of H = 1) is a constant
+    sky: a Lambert sphere of albedo 0.8 returns 0.8 x 0.7 per BRDF sample (cosine sampling), so the reference and the
+    adaptive frame without MIS give exactly that, with both env signals (the bandwidth map of a constant probe is 0).
+    A probe whose every texel is NaN is set to 0 with a warning (the loader's promise): every method renders black,
+    with finite AOVs, and the adaptive frame is neither refused nor NaN (the log signal divides by the probe's mean,
+    0 here).  Session 77 (no test rendered either probe adaptively)."""
+    from warpbw.pipeline import prepare_scene, render_adaptive
+
+    env = np.full((1, 2, 3), 0.7, np.float32) if probe == "2x1" else np.full((8, 16, 3), np.nan, np.float32)
+    write_exr(tmp_path / "probe.exr", env)
+    s = scene(env='file = "probe.exr"', objects=[((0.0, 0.0, 0.0), 1.0, "l")] + hidden("g"), base_dir=tmp_path,
+              resolution=(12, 10))
+    with warnings.catch_warnings():
+        if probe == "nan":
+            warnings.filterwarnings("ignore", r".*set 384 channel values to 0", RuntimeWarning)
+        prep = prepare_scene(s)
+    want = 0.8 * 0.7 if probe == "2x1" else 0.0
+    frames = [render_reference(prep, spp=4, seed=1), render_reference(prep, spp=4, seed=1, mis=True)]
+    frames += [render_adaptive(prep, budget=2.0, seed=1, env_signal=signal, mis=mis)
+               for signal in ("log", "radiance") for mis in (False, True)]
+    for k, res in enumerate(frames):
+        assert_clean(res)
+        assert res.coverage.sum() > 30
+        for name, a in res.aovs.items():
+            assert np.isfinite(np.asarray(a, np.float64)).all(), (k, name)
+        lit = res.image[res.coverage]
+        if k == 0 or (k >= 2 and k % 2 == 0) or probe == "nan":   # BRDF sampling alone, or a black sky: exact
+            np.testing.assert_allclose(lit, want, rtol=1e-4, atol=0.0, err_msg=str(k))
+        else:   # MIS: unbiased, each pixel a bounded mix
+            assert abs(lit.mean() / want - 1.0) < 0.1, (k, lit.mean())
+
+
 # ------------------------------------------------------------------------------------------ GGX roughness extremes
 
 def _furnace_scene(alpha):
@@ -480,6 +515,36 @@ def test_adaptive_refuses_radiance_whose_square_overflows_the_bandwidth_pass(all
     assert_adaptive_clean(res)
     assert res.stats["samples"] <= 2.0 * res.coverage.sum()
     np.testing.assert_allclose(res.image[res.coverage], 0.8e15, rtol=1e-5)  # Lambert 0.8 under a constant sky
+
+
+@pytest.mark.parametrize("allocation", ["measured", "variance", "relative"])
+def test_adaptive_refuses_radiance_whose_square_underflows_the_bandwidth_pass(allocation):
+    """Light is linear (README, "Exposure"): a sky k times dimmer renders k times the frame with the same decisions.
+    The pass's squares of radiance (its variances) are float32: below sqrt(float32's smallest normal), 1.1e-19, they
+    underflow.  Session 77: a probe of one texel of 1e4 over a sky of 1 scaled by k = 1e-25 gave the "measured"
+    allocation other N_p than k = 1 and an image / k up to 0.8 of the brightest pixel away from the k = 1 frame,
+    without a word (k = 1e-30: every allocation but "uniform"); now a one-line error, as for an overflow.  At
+    k = 1e-15 (squares of 1e-30, normal) the decisions are those of k = 1 and the image k times its."""
+    from warpbw.pipeline import prepare_scene, render_adaptive
+
+    env = np.ones((16, 32, 3), np.float32)
+    env[5, 10] = 1e4
+    objs = [((0.0, 0.0, 0.0), 1.0, "l"), ((2.2, 0.0, 0.0), 1.0, "g")]
+
+    def frame(k):
+        prep = prepare_scene(scene(env="constant = [1.0, 1.0, 1.0]", objects=objs, resolution=(24, 12),
+                                   position=(1.1, 0.0, 6.0), look_at=(1.1, 0.0, 0.0)))
+        prep.env = envmap_from_array(env, scale=k, name="sun")   # the probe at exposure k
+        return render_adaptive(prep, budget=4.0, seed=1, mis=True, allocation=allocation)
+
+    one, dim = frame(1.0), frame(1e-15)
+    for name in ("level", "n_p", "spp"):
+        np.testing.assert_array_equal(dim.aovs[name], one.aovs[name], err_msg=name)
+    np.testing.assert_allclose(dim.image / 1e-15, one.image, rtol=0, atol=1e-4 * float(one.image.max()))
+    with pytest.raises(WarpbwError, match=r"extremes: the frame's radiance from the environment \(median "
+                                          r"[0-9.e+-]+ over its lit pixels\) is below sqrt\(float32's smallest "
+                                          r"normal\) = 1.1e-19"):
+        frame(1e-25)
 
 
 # ------------------------------------------------------------------------------------------ scene scale

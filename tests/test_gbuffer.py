@@ -2,6 +2,7 @@
 examples/gbuffer.py's EXR channels against its sphere's closed form."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 
@@ -1298,3 +1299,78 @@ def test_a_refitted_bvh_finds_every_hit_after_large_deformations():
         np.testing.assert_array_equal(gb.coverage, np.isfinite(t), err_msg=f"pose {k}")
         depth = t * (d @ ((centre - eye) / np.linalg.norm(centre - eye)))
         np.testing.assert_allclose(gb.numpy("depth")[gb.coverage], depth[gb.coverage], rtol=2e-5, err_msg=f"pose {k}")
+
+def _nearest_triangle_hits(o, d, tri, t_min):
+    """Nearest t > t_min of unit rays (origin o (3,), directions d (N, 3)) with triangles tri (F, 3, 3), float64
+    Moller-Trumbore written here (not Warp's query); inf where a ray meets none."""
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    s = o - tri[:, 0]
+    out = np.full(len(d), np.inf)
+    for k, dk in enumerate(d):
+        p = np.cross(dk, e2)
+        det = np.einsum("ij,ij->i", e1, p)
+        ok = np.abs(det) > 1e-300
+        inv = 1.0 / np.where(ok, det, 1.0)
+        u = np.einsum("ij,ij->i", s, p) * inv
+        q = np.cross(s, e1)
+        v = (q @ dk) * inv
+        t = np.einsum("ij,ij->i", e2, q) * inv
+        hit = ok & (u >= 0.0) & (v >= 0.0) & (u + v <= 1.0) & (t > t_min)
+        if hit.any():
+            out[k] = t[hit].min()
+    return out
+
+
+@pytest.mark.parametrize("scale", [1e-6, 1.0, 1e6])
+@pytest.mark.parametrize("where", ["vertex", "face"])
+@pytest.mark.parametrize("look", ["out", "in"])
+def test_a_camera_on_a_meshs_surface_does_not_see_the_point_it_stands_on(where, look, scale):
+    """A camera placed on a mesh (at a vertex, on a face) sees past the point it stands on, as a camera on a
+    sphere does (``intersect_sphere`` takes no root nearer than ``T_EPS_REL`` of the sphere's size).  Truth: float64
+    Moller-Trumbore of the pixel rays (conftest's numpy camera) with the icosphere's triangles, hits farther than
+    ``T_EPS_REL`` of its radius: looking out of the convex icosphere no ray meets it, looking in each meets the far
+    wall, at that depth.  A mesh a thousandth its size, out of view, comes first in the geometry: each mesh's own
+    nearest t is taken.  Seen before (session 77): every pixel covered, at depth 0 or 1e-7, by the point under the
+    camera, shaded with that point's normal, while a sphere through the camera was empty (looking out)."""
+    from warpbw.gbuffer import T_EPS_REL
+
+    r = 5.0 * scale
+    spec = _icosphere_spec(r, subdiv=2)
+    v32 = np.asarray(spec.vertices, np.float32).astype(np.float64)
+    tri = v32[np.asarray(spec.faces)]
+    pos = v32[0] if where == "vertex" else np.float32(tri[0].mean(axis=0)).astype(np.float64)
+    look_at = 2.0 * pos if look == "out" else np.zeros(3)
+    w, h = 24, 16
+    cam = make_camera(tuple(pos), tuple(look_at), (0.0, 1.0, 0.0), 60.0, w, h)
+    o, d, fwd = _rays(pos, look_at, 60.0, w, h)
+    aside = np.cross(fwd, [0.0, 1.0, 0.0])
+    small = _icosphere_spec(1e-3 * r, subdiv=1)
+    small = dataclasses.replace(small, vertices=np.asarray(small.vertices) + pos + 10.0 * r * aside
+                                / np.linalg.norm(aside))
+    gb = render_gbuffer(cam, build_geometry([], [small, spec]))
+    t = _nearest_triangle_hits(pos, d, tri, T_EPS_REL * r)
+    hit = np.isfinite(t)
+    assert hit.sum() == (0 if look == "out" else w * h)
+    np.testing.assert_array_equal(gb.coverage.reshape(-1), hit)
+    depth = (t * (d @ fwd))[hit]
+    np.testing.assert_allclose(gb.numpy("depth").reshape(-1)[hit], depth, rtol=1e-4)
+
+
+def test_update_mesh_keeps_the_nearest_t_a_camera_on_the_mesh_is_looked_past_at():
+    """``update_mesh`` scaling an icosphere by 1e6 moves its nearest t with its size: a camera at the centre of a face
+    of the scaled mesh, looking in, sees the far wall (float64 Moller-Trumbore, hits farther than ``T_EPS_REL`` of the
+    radius), not the point it stands on (float32 puts that hit up to about 0.5 units away at 5e6)."""
+    from warpbw.gbuffer import T_EPS_REL
+
+    spec = _icosphere_spec(5.0, subdiv=2)
+    geo = build_geometry([], [spec])
+    v = np.asarray(spec.vertices, np.float64) * 1e6
+    update_mesh(geo, 0, v, normals=spec.normals, curvature=np.full(len(v), 1.0 / 5e6))
+    v32 = np.asarray(v, np.float32).astype(np.float64)
+    pos = np.float32(v32[np.asarray(spec.faces)[0]].mean(axis=0)).astype(np.float64)
+    cam = make_camera(tuple(pos), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 60.0, 24, 16)
+    gb = render_gbuffer(cam, geo)
+    o, d, fwd = _rays(pos, (0.0, 0.0, 0.0), 60.0, 24, 16)
+    t = _nearest_triangle_hits(pos, d, v32[np.asarray(spec.faces)], T_EPS_REL * 5e6)
+    assert np.isfinite(t).all() and gb.coverage.all()
+    np.testing.assert_allclose(gb.numpy("depth").reshape(-1), t * (d @ fwd), rtol=1e-4)

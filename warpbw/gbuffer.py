@@ -28,7 +28,8 @@ Public:
                                      per-pixel distance along the centre ray (hidden by something nearer);
                                      ``hide_beyond_kernel``, its kernel (the pipeline compiles it ahead)
     Warp structs ``SphereList``, ``MeshAttributes`` (in ``Geometry``) and functions ``primary_ray_dir``,
-    ``intersect_sphere``, ``orthonormal_tangent``, ``sphere_tangent``, ``write_empty`` (the kernel's pieces)
+    ``intersect_sphere``, ``mesh_t_eps``, ``orthonormal_tangent``, ``sphere_tangent``, ``write_empty`` (the
+    kernel's pieces)
 
 Conventions (../shared/DESIGN.md): right-handed world, +Y up; the camera looks along ``forward`` with
 ``right = normalize(forward x up)`` to the right of the image and row 0 at the top; ``fov`` is the full
@@ -83,7 +84,8 @@ MESH_REACH_MIN = _F32_TINY ** (1.0 / 3.0) * 1.0e3
 # largest coordinate, were either more): at 1e-6 the normals move by about 1e-6 of the diagonal over an edge length.
 SEAM_GAP_REL = 1.0e-6
 # the nearest t accepted on a sphere, relative to its distance and size (an absolute 1e-6 lost every sphere
-# of a scene scaled by 1e-7)
+# of a scene scaled by 1e-7), and on a mesh, relative to its half diagonal: a camera standing on a surface sees past
+# the point it stands on (on a mesh it took it: every pixel showed that one point, session 77)
 T_EPS_REL = 1.0e-6
 
 
@@ -132,6 +134,9 @@ class MeshAttributes:
     curvature: wp.array(dtype=wp.float32)    # per vertex local |H| (local_curvature of MeshSpec.curvature)
     uv: wp.array(dtype=wp.vec2)              # per vertex (zeros when the mesh has none)
     face_material: wp.array(dtype=wp.int32)
+    face_end: wp.array(dtype=wp.int32)       # per MeshSpec: one past its last face in the concatenated faces
+    t_eps: wp.array(dtype=wp.float32)        # per MeshSpec: the nearest t taken on it (T_EPS_REL x its half diagonal)
+    t_eps_max: float                         # the largest of them: a hit beyond it looks none up
 
 
 # ---------------------------------------------------------------------------------------------
@@ -164,6 +169,15 @@ def intersect_sphere(o: wp.vec3, d: wp.vec3, c: wp.vec3, r: float):
     if t1 > eps:
         return t1
     return -1.0
+
+
+@wp.func
+def mesh_t_eps(mesh: MeshAttributes, face: int):
+    """The nearest t taken on the MeshSpec that holds ``face`` (``MeshAttributes.t_eps``)."""
+    k = int(0)
+    while k < mesh.face_end.shape[0] - 1 and face >= mesh.face_end[k]:
+        k += 1
+    return mesh.t_eps[k]
 
 
 @wp.func
@@ -230,8 +244,15 @@ def _gbuffer_kernel(has_spheres: bool, has_mesh: bool, attributes: bool):
                     hit_index = k
         if wp.static(has_mesh):
             q = wp.mesh_query_ray(mesh.id, o, d, t_best)
+            shift = float(0.0)
+            if q.result and q.t <= mesh.t_eps_max:
+                eps = mesh_t_eps(mesh, q.face)
+                if q.t <= eps:   # the camera stands on the mesh (a vertex, a face): look past that point, as
+                    # intersect_sphere does (every pixel showed the point under the camera, session 77)
+                    shift = eps
+                    q = wp.mesh_query_ray(mesh.id, o + eps * d, d, t_best - eps)
             if q.result:
-                t_best = q.t
+                t_best = q.t + shift
                 hit_kind = 2
                 hit_index = q.face
                 bu = q.u
@@ -534,6 +555,9 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
         ma.curvature = wp.array(np.concatenate(curv), dtype=wp.float32, device=device)
         ma.uv = wp.array(np.concatenate(uvs), dtype=wp.vec2, device=device)
         ma.face_material = wp.array(np.concatenate(fmat), dtype=wp.int32, device=device)
+        ma.face_end = wp.array(np.cumsum([len(f) for f in faces]).astype(np.int32), dtype=wp.int32, device=device)
+        ma.t_eps = wp.array(np.array([_t_eps(b) for b in bounds], np.float32), dtype=wp.float32, device=device)
+        ma.t_eps_max = float(ma.t_eps.numpy().max())
     else:
         ma.id = wp.uint64(0)
         ma.indices = wp.zeros(0, dtype=wp.int32, device=device)
@@ -541,6 +565,9 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
         ma.curvature = wp.zeros(0, dtype=wp.float32, device=device)
         ma.uv = wp.zeros(0, dtype=wp.vec2, device=device)
         ma.face_material = wp.zeros(0, dtype=wp.int32, device=device)
+        ma.face_end = wp.zeros(0, dtype=wp.int32, device=device)
+        ma.t_eps = wp.zeros(0, dtype=wp.float32, device=device)
+        ma.t_eps_max = 0.0
     return Geometry(sl, ma, mesh, bool(spheres), bool(meshes), n_tri, mesh_vertex_ranges=ranges,
                     sphere_bounds=[(np.asarray(s.center, np.float64), float(s.radius)) for s in spheres],
                     mesh_bounds=bounds, curvature_pending=pending, mesh_surface=surfaces, mesh_seam_gap=seam_gaps)
@@ -567,6 +594,12 @@ def ensure_curvature(geometry: Geometry) -> bool:
 def _bounds(vertices) -> tuple:
     v = np.asarray(vertices, np.float64).reshape(-1, 3)
     return v.min(axis=0), v.max(axis=0)
+
+
+def _t_eps(bounds) -> float:
+    """The nearest t a ray takes on a mesh of ``bounds`` (lower, upper corners): ``T_EPS_REL`` of its half diagonal,
+    as ``intersect_sphere`` takes ``T_EPS_REL`` of a sphere's radius."""
+    return T_EPS_REL * 0.5 * float(np.linalg.norm(np.asarray(bounds[1]) - np.asarray(bounds[0])))
 
 
 def _seam_gap(vertices: np.ndarray, surface) -> tuple:
@@ -702,6 +735,9 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
             wp.copy(geometry.mesh.points, old, dest_offset=start, count=count)
             raise WarpbwError(f"{where}vertices: {str(e).removeprefix('points: ')}") from None
     geometry.mesh_bounds[int(mesh_index)] = bounds
+    wp.copy(ma.t_eps, wp.array(np.array([_t_eps(bounds)], np.float32), dtype=wp.float32, device=device),
+            dest_offset=int(mesh_index), count=1)
+    ma.t_eps_max = float(np.float32(max(_t_eps(b) for b in geometry.mesh_bounds)))
     local_curvature(shading.curvature, topo, device, out=shading.curvature)
     geometry.curvature_pending.pop(int(mesh_index), None)   # replaced by the new pose's
     geometry.mesh.refit()

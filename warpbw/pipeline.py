@@ -25,6 +25,8 @@ Public:
                                        two results above
     ``RADIANCE_OVERFLOW_MIN``           above this radiance, a frame (reference or adaptive) that drops samples as
                                        non-finite is refused (float32 overflow of radiance times the BRDF)
+    ``RADIANCE_UNDERFLOW_MAX``          below this median radiance, an adaptive frame whose allocation reads the
+                                       pass's variances is refused (their float32 squares underflow)
 
 A material kind the scene does not use is not compiled (its branch is removed from the kernels with ``wp.static``);
 spheres and meshes each have their own G-buffer path; one table per tabulated material is in memory; a mesh's
@@ -361,6 +363,11 @@ def _gbuffer(prep: PreparedScene, timings: dict, threads: int | None = None, cli
 # sample the shading drops as non-finite is that product's overflow, and the frame, short of its light, is refused
 # (reference and adaptive frames).
 RADIANCE_OVERFLOW_MIN = FLOAT32_MAX / BRDF_VALUE_MAX
+# The bandwidth pass's variances are float32 sums of squared radiance: below the square root of float32's smallest
+# normal they underflow, and every allocation but "uniform" reads them.  A probe of one texel of 1e4 over a sky of 1,
+# scaled by 1e-25, took other N_p than at scale 1 and rendered up to 0.999 of the brightest pixel away from 1e-25 times
+# that frame, without a word (session 77); at 1e-19 and 1e-20 it still took the same.
+RADIANCE_UNDERFLOW_MAX = math.sqrt(float(np.finfo(np.float32).tiny))
 # Memory a frame takes per pixel, beyond the scene's assets: the slope of peak RSS over the demo scene at 2048^2 and
 # 4096^2 (session 62: 93 and 228 bytes), rounded up.  A 16384^2 frame (MAX_RESOLUTION) then needs 27 and 64 GB.
 FRAME_BYTES_PER_PIXEL = {"reference": 100, "adaptive": 240}
@@ -572,6 +579,25 @@ def _check_pass_finite(buf, source: str, mis: bool = True) -> None:
                           "--method reference")
 
 
+def _check_pass_underflow(buf, source: str, allocation: str) -> None:
+    """Refuse a frame so dark that the bandwidth pass's squares of radiance underflow float32 (the median of its
+    lit pixels' radiance from the environment, the pass's own estimate, below ``RADIANCE_UNDERFLOW_MAX``), for an
+    allocation that reads the pass's variances: its
+    N_p would not be those of the same scene brighter (README, "Exposure").  A black frame (no lit pixel) and the
+    "uniform" allocation are left alone."""
+    if allocation == "uniform" or buf.mu is None:
+        return
+    mu = buf.mu.numpy()[buf.coverage.reshape(-1)]
+    mu = mu[mu > 0.0]
+    m = float(np.median(mu)) if mu.size else 0.0
+    if 0.0 < m < RADIANCE_UNDERFLOW_MAX:
+        raise WarpbwError(f"{source}: the frame's radiance from the environment (median {m:.3g} over its lit "
+                          f"pixels) is below sqrt(float32's smallest normal) = {RADIANCE_UNDERFLOW_MAX:.2g}, where the "
+                          f"bandwidth pass's squared radiance underflows and the {allocation!r} allocation is no "
+                          "longer that of the scene brighter: raise [environment] scale, or use --allocation uniform "
+                          "or --method reference")
+
+
 def _nothing_to_adapt(scene: Scene) -> WarpbwError:
     """The adaptive method's refusal of a scene without an environment."""
     return WarpbwError(f"{scene.source}: the adaptive method needs an [environment] to adapt to: [[light]]s "
@@ -652,6 +678,7 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
                                    pool_radius=pool_radius, device=prep.device, threads=threads,
                                    relative=allocation == "relative")   # only that allocation reads sigma2_rel
     _check_pass_finite(buf, prep.scene.source, mis)
+    _check_pass_underflow(buf, prep.scene.source, allocation)
     t_pass = time.perf_counter() - t0
     t0 = time.perf_counter()
     plan = adaptive.plan_hierarchy(gb, prep.camera, buf.level, device=prep.device)
