@@ -3937,8 +3937,8 @@ def _asset_header_edited(src: Path, dst: Path, edit) -> Path:
 @pytest.mark.parametrize("params", [None, [128], "resolution 128"], ids=["null", "list", "text"])
 def test_an_asset_whose_header_params_are_no_table_is_refused_in_one_line(tmp_path, params):
     """A header's ``params`` that are no JSON object (null, a list, text) gave an AttributeError from inside the nu_rho
-    table's reader: a traceback from ``warpbw render --method adaptive`` naming the table, and from ``warpbw-precompute
-    info`` (session 77's fuzzing).  Every reader refuses it in one line naming the file, and info says it is not read."""
+    table's reader: a traceback from an adaptive render naming the table, and from ``warpbw-precompute info`` (session
+    77's fuzzing).  Every reader refuses it in one line naming the file, and info says it is not read."""
     from precompute.brdf_bandwidth import read_brdf_bandwidth, write_brdf_bandwidth
     from precompute.brdf_sampling import brdf_source, read_sampling, write_sampling
 
@@ -4041,7 +4041,8 @@ def test_info_says_which_named_tables_and_mipmaps_a_render_refuses(tmp_path, cap
                                ("prior", "a", {"prior": 3.0}), ("scale", "a", {"scale": 2.0}),
                                ("unaligned", "a", {"unaligned": True})):
         data, source_name, digest = load_source(str(tmp_path / f"{map_name}.exr"))
-        write_gmm_mipmap(tmp_path / f"{name}.gmm.npz", build_gmm_mipmap(data, progress=False, **kw), source_name, digest)
+        mip = build_gmm_mipmap(data, progress=False, **kw)
+        write_gmm_mipmap(tmp_path / f"{name}.gmm.npz", mip, source_name, digest)
     for name in ("ok", "other_map", "k2", "prior", "scale", "unaligned"):
         scene = tmp_path / "p.toml"
         scene.write_text(plane_scene_toml(material_extra=f'normal_map = "a.exr"\ngmm = "{name}.gmm.npz"\n'))
