@@ -4073,3 +4073,25 @@ def test_batch_resume_keeps_a_file_in_the_records_place_that_is_no_batch_record(
     assert json.loads((tmp_path / "out/batch.json").read_text())["format"] == "warpbw-precompute-batch"
     r = run(args, tmp_path, module="precompute")   # the record of the batch before: replaced, its table kept
     assert r.returncode == 0 and "1 kept" in r.stdout, r.stdout + r.stderr
+
+
+def test_an_error_map_beyond_float32_is_refused_not_written_with_infinities(tmp_path):
+    """``warpbw compare --error-map`` of a test image near float32's top (3e38) against an ordinary reference: the
+    per-pixel relative squared error (about 1e78) was cast to the float32 EXR as inf, with numpy's "overflow
+    encountered in cast" as the only word (session 77).  Refused in one line naming --error-map; nothing written.
+    Truth: the error's formula, (t - r)^2 / (r^2 + 0.01), in float64 by hand."""
+    rng = np.random.default_rng(0)
+    ref = np.concatenate([rng.random((4, 6, 3)), np.ones((4, 6, 1))], -1).astype(np.float32)
+    big = ref.copy()
+    big[..., :3] = 3e38
+    write_exr(tmp_path / "ref.exr", ref, ["R", "G", "B", "A"])
+    write_exr(tmp_path / "big.exr", big, ["R", "G", "B", "A"])
+    top = float(np.max(np.mean((3e38 - ref[..., :3].astype(np.float64)) ** 2
+                               / (ref[..., :3].astype(np.float64) ** 2 + 0.01), -1)))
+    assert top > 3.4028234663852886e38
+    r = run(["compare", "big.exr", "ref.exr", "--error-map", "err.exr"], tmp_path)
+    assert_one_line_error(r, "--error-map err.exr: the per-pixel relative squared error reaches "
+                          f"{top:.3g}, beyond the 3.4e+38 a float32 EXR holds", "nothing written")
+    assert not (tmp_path / "err.exr").exists() and not (tmp_path / "err.png").exists()
+    r = run(["compare", "ref.exr", "big.exr", "--error-map", "err.exr"], tmp_path)   # errors near 1: written
+    assert r.returncode == 0 and "every error is 1" in r.stdout, r.stdout + r.stderr

@@ -612,8 +612,15 @@ def cmd_compare(args) -> int:
     # whose A channel said which pixels count; None: the non-black pixels
     r["coverage_from"] = {"reference": str(args.reference), "test": str(args.test)}.get(coverage_from)
     if maps:
+        err = relmse_map(ta, tb, mask)
+        top = float(err[mask].max()) if mask.any() else 0.0
+        if top > FLOAT32_MAX:   # the EXR holds float32: numpy's "overflow encountered in cast" and inf texels
+            raise WarpbwError(f"--error-map {maps[0]}: the per-pixel relative squared error reaches {top:.3g}, beyond "
+                              f"the {FLOAT32_MAX:.3g} a float32 EXR holds (radiance of {args.test} or "
+                              f"{args.reference} near float32's top); nothing written (without --error-map, compare "
+                              "gives the PSNR and relMSE)")
         with staged_outputs(maps, force=args.force) as at:
-            lo, hi = _write_error_map([at[m] for m in maps], relmse_map(ta, tb, mask), mask, args.error_range)
+            lo, hi = _write_error_map([at[m] for m in maps], err, mask, args.error_range)
         r.update(error_map=str(maps[0]), error_range=[lo, hi])
     p = r["psnr_db"]
     why = None if math.isfinite(p) else _PSNR_IDENTICAL if p > 0 else _PSNR_UNDEFINED
