@@ -155,6 +155,9 @@ def cmd_batch(args) -> int:
     except WarpbwError as exc:
         msg = str(exc)
         raise WarpbwError(f"--{msg}" if msg.split(":", 1)[0] in ("materials", "tables") else msg) from None
+    if args.lookup is not None and "bandwidth" not in tables:   # accepted, recorded, and dropped
+        raise WarpbwError(f"--lookup {args.lookup}: applies to the bandwidth tables (brdf --lookup), and --tables "
+                          f"{','.join(tables)} builds none (the sampling tables do not depend on the lookup)")
     out = Path(args.output)
     record_path = out / "batch.json" if args.json is None else Path(args.json)
     if record_path.suffix.lower() != ".json":

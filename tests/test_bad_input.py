@@ -3809,8 +3809,12 @@ def test_the_gmm_mipmap_helpers_still_take_their_edge_inputs():
     (["grey.binary", "--tables", "sampling,sampling"], ["--tables: expected some of sampling, bandwidth, each once"]),
     (["grey.binary", "--json", "rec.txt"], ["--json rec.txt: expected a path ending in .json"]),
     (["grey.binary", "--workers", "0"], ["--workers: expected an integer from 1 to 1024"]),
+    # session 77: accepted, recorded in the record, and dropped
+    (["grey.binary", "--tables", "sampling", "--lookup", "linear"], ["--lookup linear: applies to the bandwidth "
+                                                                     "tables", "--tables sampling builds none"]),
 ], ids=["unknown material", "empty name", "materials without NPF", "material twice", "one name twice",
-        "not a BRDF", "missing", "empty folder", "unknown table", "table twice", "record suffix", "no workers"])
+        "not a BRDF", "missing", "empty folder", "unknown table", "table twice", "record suffix", "no workers",
+        "lookup without bandwidth tables"])
 def test_batch_refuses_bad_sources_and_options_before_any_work(tmp_path, argv, needles):
     """Each is one line naming the source or option (unknown names with their close matches), status 2, and no
     output folder made: a batch of 100 BRDFs is not started to fail on the last one's name."""
