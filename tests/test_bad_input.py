@@ -297,6 +297,22 @@ def test_obj_vertex_beyond_float32(tmp_path, vertex, scale):
     assert_no_outputs(tmp_path)
 
 
+@pytest.mark.parametrize("vt", ["inf 0", "nan 0.5", "1e39 0"], ids=["inf", "nan", "beyond float32"])
+def test_obj_texture_coordinates_that_are_not_finite_name_the_file(tmp_path, vt):
+    """A ``vt`` line of inf, NaN or 1e39: two lines, numpy's "invalid value encountered in cast" (trimesh's merge
+    rounds uv to integers) and "build_geometry: meshes[0] uv: expected finite values", naming no file (session
+    77).  One line naming the mesh file now; a mesh with finite uv still renders."""
+    (tmp_path / "uv.obj").write_text(f"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt {vt}\nvt 0 0\nf 1/1 2/2 3/2\n")
+    write_scene(tmp_path, obj='mesh = "uv.obj"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "uv.obj: 1 vertices have texture coordinates (uv) that are not finite or lie outside "
+                          "the float32 range")
+    assert_no_outputs(tmp_path)
+    (tmp_path / "uv.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0.5 0\nvt 0 0\nf 1/1 2/2 3/2\n")
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1", "-q"], tmp_path)
+    assert r.returncode == 0, r.stderr
+
+
 def test_scene_file_with_a_byte_order_mark_reads(tmp_path):
     """Saved as UTF-8 with a BOM (as editors on Windows may): read as the same scene, not 'Invalid statement'."""
     p = write_scene(tmp_path)
