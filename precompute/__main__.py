@@ -15,6 +15,7 @@ Subcommands:
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import sys
@@ -119,6 +120,30 @@ def _csv(option: str):
     return parse
 
 
+# The most of an existing file at a batch record's path read to tell whether it is one: a record holds about 1 kB per
+# BRDF (all 100 NPF materials: about 100 kB); a larger file is no record (cut off, it is no JSON either)
+BATCH_RECORD_READ_MAX = 16 << 20
+
+
+def _check_batch_record(path: Path) -> None:
+    """Refuse, before any work, a file at the record's path that is not a batch record: ``--resume`` keeps or replaces
+    an earlier batch's outputs and record, and refuses other files in their place unless ``--force`` is given too (a
+    table's place was checked so, the record's was replaced whatever it held: a JSON of the user's, text)."""
+    from precompute.batch import BATCH_FORMAT
+
+    if not path.is_file():
+        return
+    try:
+        with open(path, "rb") as f:
+            record = json.loads(f.read(BATCH_RECORD_READ_MAX).decode("utf-8"))   # cut: no JSON, refused
+    except (OSError, ValueError):   # UnicodeDecodeError and JSONDecodeError are ValueErrors
+        record = None
+    if not (isinstance(record, dict) and record.get("format") == BATCH_FORMAT):
+        raise WarpbwError(f"--json {path}: exists and is not the record of a batch (expected JSON of format "
+                          f"{BATCH_FORMAT!r}; --resume replaces an earlier batch's record only; pass --force as well "
+                          "to replace it)")
+
+
 def cmd_batch(args) -> int:
     from precompute.batch import TABLES, batch_items, check_outputs, check_tables, run_batch
     from warpbw.cli_common import check_output_file, write_json
@@ -130,12 +155,17 @@ def cmd_batch(args) -> int:
     except WarpbwError as exc:
         msg = str(exc)
         raise WarpbwError(f"--{msg}" if msg.split(":", 1)[0] in ("materials", "tables") else msg) from None
+    if args.lookup is not None and "bandwidth" not in tables:   # accepted, recorded, and dropped
+        raise WarpbwError(f"--lookup {args.lookup}: applies to the bandwidth tables (brdf --lookup), and --tables "
+                          f"{','.join(tables)} builds none (the sampling tables do not depend on the lookup)")
     out = Path(args.output)
     record_path = out / "batch.json" if args.json is None else Path(args.json)
     if record_path.suffix.lower() != ".json":
         raise WarpbwError(f"--json {record_path}: expected a path ending in .json")
     check_outputs(items, out, tables, force=args.force, resume=args.resume)
     check_output_file(record_path, "--json", force=args.force or args.resume)
+    if args.resume and not args.force:
+        _check_batch_record(record_path)
     workers = min(args.workers or os.cpu_count() or 1, len(items))
     how = "one after the other" if args.scheduler == "sync" else f"{workers} at once"
     print(printable(f"{len(items)} BRDFs, {' and '.join(tables)} tables into {out}/ (Dask's {args.scheduler} "

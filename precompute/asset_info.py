@@ -172,6 +172,9 @@ def _header_checks(h: dict, fmt: AssetFormat | None) -> dict:
     if h.get("version") != fmt.version:
         out["not_read"] = f"version {h.get('version')!r}, this warpbw reads {fmt.version}"
         return out
+    if "params" in h and not isinstance(params, dict):   # read_asset refuses it (warpbw info said "read as it is")
+        out["not_read"] = "its header's params are no JSON object (a damaged or hand-edited header)"
+        return out
     differ = settings_mismatch(params, fmt.settings(params if isinstance(params, dict) else {}), fmt.unrecorded)
     out["settings"] = "current" if differ is None else "differ"
     if differ is not None:
@@ -239,7 +242,7 @@ def info_lines(record: dict) -> list:
     else:
         lines.append(f"  params    {'none' if not params else _value(params)}")
     if rec["settings"] is None:
-        lines.append("  settings  not checked (a format or version this warpbw does not read)")
+        lines.append("  settings  not checked (a format, version or header this warpbw does not read)")
     elif rec["settings"] == "current":
         lines.append("  settings  current (what the builder would use now)")
     else:

@@ -114,6 +114,11 @@ def read_asset(path, fmt: str, version: int, rebuild) -> Asset:
     if header.get("version") != version:
         raise WarpbwError(f"{p}: {fmt} version {header.get('version')!r}, this warpbw reads version {version} "
                           f"(rebuild it with: {how(header)})")
+    if not isinstance(header.get("params", {}), dict):
+        # the readers look their settings up in it (a list or null gave an AttributeError from deep inside)
+        raise WarpbwError(f"{p}: a {fmt} file whose header records params {json.dumps(header['params'])[:40]}, "
+                          f"expected a JSON object of its builder's settings (a damaged or hand-edited header; "
+                          f"rebuild it with: {how(None)})")
     return Asset(header, arrays)
 
 

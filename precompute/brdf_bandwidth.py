@@ -121,6 +121,7 @@ each evaluated once more at its mirrored elevation), and 16 wavelet analyses; a 
 from __future__ import annotations
 
 import functools
+import json
 import math
 import os
 from collections import deque
@@ -492,8 +493,16 @@ def read_brdf_bandwidth(path, source=None) -> np.ndarray:
     if "nu_rho" not in a.arrays:
         raise WarpbwError(f"{path}: brdf-bandwidth file lacks array 'nu_rho' (rebuild it with: {hint})")
     check_float_arrays([a.arrays["nu_rho"]], f"{path}: table", f" (rebuild it with: {hint})")
-    return _checked_table(a.arrays["nu_rho"], f"{path}: table", f" (rebuild it with: {hint})",
-                          a.header.get("params", {}).get("resolution"))
+    resolution = a.header.get("params", {}).get("resolution")
+    if isinstance(resolution, float) and resolution.is_integer():   # JSON's 128.0, as settings_mismatch takes it
+        resolution = int(resolution)
+    if not (is_int(resolution) and resolution >= N_CELLS):
+        # every table of this version records it (bandwidth_settings); without it the bound below was skipped, and a
+        # table of 3e38 refused the frame for its light's radiance, naming neither this file nor its table
+        raise WarpbwError(f"{path}: its header records resolution {json.dumps(resolution)[:40]}, expected the "
+                          f"analysed resolution, an integer >= {N_CELLS}, which bounds the bandwidths it may hold "
+                          f"(rebuild it with: {hint})")
+    return _checked_table(a.arrays["nu_rho"], f"{path}: table", f" (rebuild it with: {hint})", resolution)
 
 
 def _check_source(path, header: dict, source, hint: str) -> None:

@@ -297,6 +297,22 @@ def test_obj_vertex_beyond_float32(tmp_path, vertex, scale):
     assert_no_outputs(tmp_path)
 
 
+@pytest.mark.parametrize("vt", ["inf 0", "nan 0.5", "1e39 0"], ids=["inf", "nan", "beyond float32"])
+def test_obj_texture_coordinates_that_are_not_finite_name_the_file(tmp_path, vt):
+    """A ``vt`` line of inf, NaN or 1e39: two lines, numpy's "invalid value encountered in cast" (trimesh's merge
+    rounds uv to integers) and "build_geometry: meshes[0] uv: expected finite values", naming no file (session
+    77).  One line naming the mesh file now; a mesh with finite uv still renders."""
+    (tmp_path / "uv.obj").write_text(f"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt {vt}\nvt 0 0\nf 1/1 2/2 3/2\n")
+    write_scene(tmp_path, obj='mesh = "uv.obj"')
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1"], tmp_path)
+    assert_one_line_error(r, "uv.obj: 1 vertices have texture coordinates (uv) that are not finite or lie outside "
+                          "the float32 range")
+    assert_no_outputs(tmp_path)
+    (tmp_path / "uv.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0.5 0\nvt 0 0\nf 1/1 2/2 3/2\n")
+    r = run(["render", "scene.toml", "-o", "out.exr", "--spp", "1", "-q"], tmp_path)
+    assert r.returncode == 0, r.stderr
+
+
 def test_scene_file_with_a_byte_order_mark_reads(tmp_path):
     """Saved as UTF-8 with a BOM (as editors on Windows may): read as the same scene, not 'Invalid statement'."""
     p = write_scene(tmp_path)
@@ -3809,8 +3825,12 @@ def test_the_gmm_mipmap_helpers_still_take_their_edge_inputs():
     (["grey.binary", "--tables", "sampling,sampling"], ["--tables: expected some of sampling, bandwidth, each once"]),
     (["grey.binary", "--json", "rec.txt"], ["--json rec.txt: expected a path ending in .json"]),
     (["grey.binary", "--workers", "0"], ["--workers: expected an integer from 1 to 1024"]),
+    # session 77: accepted, recorded in the record, and dropped
+    (["grey.binary", "--tables", "sampling", "--lookup", "linear"], ["--lookup linear: applies to the bandwidth "
+                                                                     "tables", "--tables sampling builds none"]),
 ], ids=["unknown material", "empty name", "materials without NPF", "material twice", "one name twice",
-        "not a BRDF", "missing", "empty folder", "unknown table", "table twice", "record suffix", "no workers"])
+        "not a BRDF", "missing", "empty folder", "unknown table", "table twice", "record suffix", "no workers",
+        "lookup without bandwidth tables"])
 def test_batch_refuses_bad_sources_and_options_before_any_work(tmp_path, argv, needles):
     """Each is one line naming the source or option (unknown names with their close matches), status 2, and no
     output folder made: a batch of 100 BRDFs is not started to fail on the last one's name."""
@@ -3917,3 +3937,181 @@ def test_a_bandwidth_file_built_for_another_lookup_than_the_materials_is_refused
     key = f"{file_digest(npf)}-chrome"
     assert sorted(p.name for p in cache.glob("sampling-*")) == [f"sampling-{key}-v{TABLE_VERSION}.npz"]
     assert sorted(p.name for p in cache.glob("bandwidth-*")) == [f"bandwidth-{key}-lookup-nearest-v{VERSION}.npz"]
+
+
+# ------------------------------------------------------------------------ session 77: asset headers, info, --resume
+
+def _asset_header_edited(src: Path, dst: Path, edit) -> Path:
+    """A copy of the asset file ``src`` whose JSON header is ``edit(header)`` (a dict changed in place), written with
+    NumPy alone: a damaged or hand-edited header."""
+    with np.load(src) as z:
+        members = {k: z[k] for k in z.files}
+    header = json.loads(str(members["__header__"]))
+    edit(header)
+    members["__header__"] = np.array(json.dumps(header))
+    with open(dst, "wb") as f:
+        np.savez_compressed(f, **members)
+    return dst
+
+
+@pytest.mark.parametrize("params", [None, [128], "resolution 128"], ids=["null", "list", "text"])
+def test_an_asset_whose_header_params_are_no_table_is_refused_in_one_line(tmp_path, params):
+    """A header's ``params`` that are no JSON object (null, a list, text) gave an AttributeError from inside the nu_rho
+    table's reader: a traceback from an adaptive render naming the table, and from ``warpbw-precompute info`` (session
+    77's fuzzing).  Every reader refuses it in one line naming the file, and info says it is not read."""
+    from precompute.brdf_bandwidth import read_brdf_bandwidth, write_brdf_bandwidth
+    from precompute.brdf_sampling import brdf_source, read_sampling, write_sampling
+
+    source = brdf_source(fake_npf_table(tmp_path / "npf.bin"), "chrome")
+    bw = write_brdf_bandwidth(tmp_path / "bw.npz", np.full((16, 16, 16), 2.0, np.float32), source)
+    sp = write_sampling(tmp_path / "sp.npz", uniform_sampler_table(), source)
+    for src, reader in ((bw, read_brdf_bandwidth), (sp, read_sampling)):
+        bad = _asset_header_edited(src, tmp_path / f"bad_{src.name}", lambda h: h.update(params=params))
+        said = attempt(reader, bad, source)[1]
+        assert said.startswith(f"{bad}: a ") and "header records params" in said and "\n" not in said, said
+        r = run(["info", bad.name], tmp_path, module="precompute")
+        assert "Traceback" not in r.stderr and r.returncode == 0, r.stderr   # a file it describes, not one it cannot
+        assert "  read      no: its header's params are no JSON object" in r.stdout, r.stdout
+
+
+def test_a_nu_rho_table_whose_header_records_no_resolution_is_refused_not_read_unbounded(tmp_path):
+    """A nu_rho table's bandwidths are bounded by the resolution its header records (nu_rho_max); a header without
+    it, or with one that is no integer, skipped the bound: a table of 3e38 was read, and the adaptive frame refused
+    "the bandwidth pass's variance overflowed ... lower [environment] scale or the map's values", naming neither the
+    table nor its header (session 77).  Such a table is refused naming its file; 128.0 is 128."""
+    from precompute.brdf_bandwidth import read_brdf_bandwidth, write_brdf_bandwidth
+    from precompute.brdf_sampling import brdf_source
+
+    source = brdf_source(fake_npf_table(tmp_path / "npf.bin"), "chrome")
+    ok = write_brdf_bandwidth(tmp_path / "ok.npz", np.full((16, 16, 16), 2.0, np.float32), source)
+    huge = {"nu_rho": np.full((16, 16, 16), 3e38, np.float32)}
+
+    def edited(name, resolution, arrays=None):
+        def edit(h):
+            if resolution is None:
+                del h["params"]["resolution"]
+            else:
+                h["params"]["resolution"] = resolution
+        p = _asset_header_edited(ok, tmp_path / name, edit)
+        if arrays is not None:
+            with np.load(p) as z:
+                members = {k: z[k] for k in z.files}
+            np.savez_compressed(p, **{**members, **arrays})
+        return p
+
+    for name, resolution in (("none.npz", None), ("text.npz", "128"), ("zero.npz", 0), ("bool.npz", True)):
+        p = edited(name, resolution, huge)
+        said = attempt(read_brdf_bandwidth, p, source)[1]
+        assert said.startswith(f"{p}: its header records resolution ") and "an integer >= 16" in said, said
+    p = edited("float.npz", 128.0, huge)
+    assert "beyond the 32 an analysis at resolution 128 gives" in attempt(read_brdf_bandwidth, p, source)[1]
+    np.testing.assert_array_equal(read_brdf_bandwidth(edited("float_ok.npz", 128.0), source), 2.0)
+
+
+def test_info_says_which_named_tables_and_mipmaps_a_render_refuses(tmp_path, capsys):
+    """``warpbw info`` said "builder settings current" of a precomputed file a material names that the render then
+    refuses (session 76 mended it for a nu_rho table of another lookup): a table of another BRDF, a file of another
+    kind than its key reads (a nu_rho table as sampling =), a GMM mipmap of another normal map or fitted with other
+    options.  Truth: the renderer's own readers, given the material's source (read_sampling, read_brdf_bandwidth with
+    brdf_source; warpbw.filtering.check_gmm_files), refuse exactly the files info flags, and read the others."""
+    from conftest import plane_scene_toml
+    from precompute.brdf_bandwidth import read_brdf_bandwidth, write_brdf_bandwidth
+    from precompute.brdf_sampling import brdf_source, read_sampling, write_sampling
+    from precompute.gmm_mipmap import build_gmm_mipmap, load_source, write_gmm_mipmap
+    from warpbw.cli import main as cli_main
+    from warpbw.filtering import check_gmm_files
+    from warpbw.scene import load_scene
+
+    npf = fake_npf_table(tmp_path / "npf.bin")
+    for name in ("chrome", "nylon"):
+        src = brdf_source(npf, name)
+        write_sampling(tmp_path / f"{name}.sp.npz", uniform_sampler_table(), src)
+        write_brdf_bandwidth(tmp_path / f"{name}.bw.npz", np.full((16, 16, 16), 2.0, np.float32), src)
+    sphere = ["[camera]", "position = [0.0, 0.0, 3.0]", "look_at = [0.0, 0.0, 0.0]", "fov = 50.0",
+              "resolution = [8, 8]", "[environment]", 'procedural = "sky"', "[[object]]", 'shape = "sphere"',
+              "radius = 0.8", 'material = "m"', "[material.m]", 'type = "npf"', 'table = "npf.bin"', 'name = "chrome"']
+
+    def info_of(scene: Path, path: Path) -> tuple:
+        assert cli_main(["info", str(scene), "--method", "adaptive", "--json"]) == 0
+        (a,) = [a for a in json.loads(capsys.readouterr().out)["assets"] if a["path"] == str(path)]
+        assert cli_main(["info", str(scene), "--method", "adaptive"]) == 0
+        line = next(ln for ln in capsys.readouterr().out.splitlines() if str(path) in ln)
+        assert ("a render refuses it" in line) == ("refused" in a) != ("builder settings current" in line), line
+        return a.get("refused"), line
+
+    source = brdf_source(npf, "chrome")
+    for key, file, reader in (("sampling", "chrome.sp.npz", read_sampling), ("sampling", "nylon.sp.npz", read_sampling),
+                              ("sampling", "chrome.bw.npz", read_sampling),
+                              ("bandwidth", "chrome.bw.npz", read_brdf_bandwidth),
+                              ("bandwidth", "nylon.bw.npz", read_brdf_bandwidth),
+                              ("bandwidth", "chrome.sp.npz", read_brdf_bandwidth)):
+        (tmp_path / "s.toml").write_text("\n".join(sphere + [f'{key} = "{file}"']))
+        refused = attempt(reader, tmp_path / file, source)[1] != ""
+        said, line = info_of(tmp_path / "s.toml", tmp_path / file)
+        assert (said is not None) == refused, (key, file, line)
+        if refused:
+            assert ("nylon" in said) == ("nylon" in file) and ("warpbw-precompute brdf" in said), said
+    # GMM mipmaps of a 8 x 8 height field: of the material's map, of another map, with other options
+    from warpbw.io.exr import write_exr
+
+    rng = np.random.default_rng(0)
+    for name in ("a", "b"):
+        write_exr(tmp_path / f"{name}.exr", rng.random((8, 8, 1)).astype(np.float32) * 0.05, ["Y"])
+    for name, map_name, kw in (("ok", "a", {}), ("other_map", "b", {}), ("k2", "a", {"components": 2}),
+                               ("prior", "a", {"prior": 3.0}), ("scale", "a", {"scale": 2.0}),
+                               ("unaligned", "a", {"unaligned": True})):
+        data, source_name, digest = load_source(str(tmp_path / f"{map_name}.exr"))
+        mip = build_gmm_mipmap(data, progress=False, **kw)
+        write_gmm_mipmap(tmp_path / f"{name}.gmm.npz", mip, source_name, digest)
+    for name in ("ok", "other_map", "k2", "prior", "scale", "unaligned"):
+        scene = tmp_path / "p.toml"
+        scene.write_text(plane_scene_toml(material_extra=f'normal_map = "a.exr"\ngmm = "{name}.gmm.npz"\n'))
+        refused = attempt(check_gmm_files, load_scene(scene), "gmm_aligned")[1] != ""
+        assert refused == (name != "ok"), name
+        assert cli_main(["info", str(scene), "--json"]) == 0
+        (a,) = [a for a in json.loads(capsys.readouterr().out)["assets"] if a["path"].endswith(f"{name}.gmm.npz")]
+        assert ("refused" in a) == refused, (name, a)
+
+
+def test_batch_resume_keeps_a_file_in_the_records_place_that_is_no_batch_record(tmp_path):
+    """``--resume`` keeps an earlier batch's tables and refuses another file in their place unless ``--force`` is given
+    too; the record's place was not checked so: a JSON of the user's, or text, named by --json (or OUT/batch.json)
+    was replaced without --force (session 77).  It is refused before any work; an earlier batch's record is
+    replaced, and with --force anything is."""
+    fake_npf_table(tmp_path / "npf.bin")
+    (tmp_path / "out").mkdir()
+    args = ["batch", "npf.bin", "--materials", "chrome", "--tables", "sampling", "--scheduler", "sync", "-o", "out",
+            "-q", "--resume"]
+    for text in ('{"mine": 1}\n', "notes\n", "\xff\xfe"):
+        (tmp_path / "out/batch.json").write_text(text)
+        r = run(args, tmp_path, module="precompute")
+        assert_one_line_error(r, "--json out/batch.json: exists and is not the record of a batch",
+                              "pass --force as well", prog="warpbw-precompute")
+        assert (tmp_path / "out/batch.json").read_text() == text and not (tmp_path / "out/chrome.sampling.npz").exists()
+    r = run([*args, "--force"], tmp_path, module="precompute")
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "out/batch.json").read_text())["format"] == "warpbw-precompute-batch"
+    r = run(args, tmp_path, module="precompute")   # the record of the batch before: replaced, its table kept
+    assert r.returncode == 0 and "1 kept" in r.stdout, r.stdout + r.stderr
+
+
+def test_an_error_map_beyond_float32_is_refused_not_written_with_infinities(tmp_path):
+    """``warpbw compare --error-map`` of a test image near float32's top (3e38) against an ordinary reference: the
+    per-pixel relative squared error (about 1e78) was cast to the float32 EXR as inf, with numpy's "overflow
+    encountered in cast" as the only word (session 77).  Refused in one line naming --error-map; nothing written.
+    Truth: the error's formula, (t - r)^2 / (r^2 + 0.01), in float64 by hand."""
+    rng = np.random.default_rng(0)
+    ref = np.concatenate([rng.random((4, 6, 3)), np.ones((4, 6, 1))], -1).astype(np.float32)
+    big = ref.copy()
+    big[..., :3] = 3e38
+    write_exr(tmp_path / "ref.exr", ref, ["R", "G", "B", "A"])
+    write_exr(tmp_path / "big.exr", big, ["R", "G", "B", "A"])
+    top = float(np.max(np.mean((3e38 - ref[..., :3].astype(np.float64)) ** 2
+                               / (ref[..., :3].astype(np.float64) ** 2 + 0.01), -1)))
+    assert top > 3.4028234663852886e38
+    r = run(["compare", "big.exr", "ref.exr", "--error-map", "err.exr"], tmp_path)
+    assert_one_line_error(r, "--error-map err.exr: the per-pixel relative squared error reaches "
+                          f"{top:.3g}, beyond the 3.4e+38 a float32 EXR holds", "nothing written")
+    assert not (tmp_path / "err.exr").exists() and not (tmp_path / "err.png").exists()
+    r = run(["compare", "ref.exr", "big.exr", "--error-map", "err.exr"], tmp_path)   # errors near 1: written
+    assert r.returncode == 0 and "every error is 1" in r.stdout, r.stdout + r.stderr

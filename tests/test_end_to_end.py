@@ -586,11 +586,14 @@ def test_info_says_what_the_precomputed_files_a_scene_names_are(tmp_path, monkey
     from precompute.gmm_mipmap import build_gmm_mipmap, write_gmm_mipmap
     from warpbw.cli import main as cli_main
     from warpbw.io.exr import write_exr
+    from warpbw.scene import file_digest
 
     monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
     heights = np.add.outer(np.sin(np.arange(8.0)), np.cos(np.arange(8.0))) * 0.02
     write_exr(tmp_path / "h.exr", heights.astype(np.float32)[..., None], ["Y"])
-    write_gmm_mipmap(tmp_path / "ok.gmm", build_gmm_mipmap(heights, progress=False), "h.exr", "x")
+    # the map's own content hash: with another ("x") the render refuses the file, and info says so (session 77)
+    write_gmm_mipmap(tmp_path / "ok.gmm", build_gmm_mipmap(heights, progress=False), "h.exr",
+                     file_digest(tmp_path / "h.exr"))
 
     rewrite_asset(tmp_path / "ok.gmm", tmp_path / "v1.gmm", version=1)
     rewrite_asset(tmp_path / "ok.gmm", tmp_path / "other.gmm", params={"em_tolerance": 1e-3})

@@ -458,7 +458,7 @@ def cmd_info(args) -> int:
     used = [scene.materials[n] for n in scene.material_order]
     named = {str(p) for m in used for p in (m.sampling, m.bandwidth, m.gmm) if p is not None}
     s["assets"] = [header_status(f) for f in s["files"] if f in named]
-    _say_other_lookups(s["assets"], used)
+    _say_refused(s["assets"], used)
     if args.json:
         print(json.dumps(s, indent=2))
         return 0
@@ -493,21 +493,81 @@ def cmd_info(args) -> int:
     return 0
 
 
-def _say_other_lookups(assets: list, materials: list) -> None:
-    """Add ``refused`` to each of ``assets`` (``header_status`` records) that is a material's ``bandwidth`` file whose
-    header records another lookup than the material's: the render refuses it before shading (README, "Scene files"),
-    and ``warpbw info`` said "builder settings current" of it (session 76's audit)."""
+def _say_refused(assets: list, materials: list) -> None:
+    """Add ``refused`` to each of ``assets`` (``header_status`` records) that one of ``materials`` names where a render
+    refuses it, as the file's header and the material's own files tell (``_refusal``): ``warpbw info`` said "builder
+    settings current" of a nu_rho table of another lookup (session 76's audit), and of a file of another format than
+    its key reads, one built from another BRDF or normal map, and a GMM mipmap fitted with other options (session
+    77's)."""
     from precompute.assetfile import read_header
 
     for a in assets:
         if "error" in a or a["not_read"] is not None:
             continue
-        params = (read_header(a["path"]) or {}).get("params")
-        got = params.get("lookup") if isinstance(params, dict) else None
+        header = read_header(a["path"]) or {}
         for m in materials:
-            if m.bandwidth is not None and str(m.bandwidth) == a["path"] and got is not None and got != m.lookup:
-                a["refused"] = (f"built for the {got} lookup, material {m.name} shades with {m.lookup}: a render "
-                                f"refuses it (warpbw-precompute brdf --lookup {m.lookup} builds its table)")
+            for key in ("sampling", "bandwidth", "gmm"):
+                if "refused" not in a and str(getattr(m, key)) == a["path"]:
+                    why = _refusal(header, m, key)
+                    if why is not None:
+                        a["refused"] = why
+
+
+def _refusal(header: dict, m, key: str) -> str | None:
+    """Why a render refuses the asset file of ``header`` as material ``m``'s ``key`` (sampling, bandwidth, gmm), as its
+    reader checks it against the material (``precompute.brdf_sampling.read_sampling``, ``precompute.brdf_bandwidth.
+    read_brdf_bandwidth``, ``warpbw.filtering``'s GMM check), from the header and the content hash of the material's
+    BRDF file or normal map, in words that end in what builds the right one; None where those agree (the arrays are
+    left to the readers)."""
+    from types import SimpleNamespace
+
+    from precompute.brdf_bandwidth import FORMAT as BANDWIDTH_FORMAT
+    from precompute.brdf_sampling import default_lookup, digest_at
+    from precompute.gmm_mipmap import DEFAULT_PRIOR, GMM_FORMAT
+    from warpbw.io.npf import _canonical
+    from warpbw.sampling import TABLE_FORMAT
+    from warpbw.scene import file_digest
+
+    def close(x, y, rel: float) -> bool:   # a hand-edited header's text is no number
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isclose(x, y, rel_tol=rel)
+
+    refused = "a render refuses it"
+    want = {"sampling": TABLE_FORMAT, "bandwidth": BANDWIDTH_FORMAT, "gmm": GMM_FORMAT}[key]
+    builds = {"sampling": "warpbw-precompute brdf-sampling", "bandwidth": "warpbw-precompute brdf",
+              "gmm": "warpbw-precompute gmm"}[key]
+    if header.get("format") != want:
+        return f"a {header.get('format')} file, where {key} = names a {want} file: {refused} ({builds} builds one)"
+    params = header.get("params") if isinstance(header.get("params"), dict) else {}
+    source = header.get("source")
+    if key == "gmm":
+        if header.get("source_hash") != file_digest(m.normal_map):
+            return (f"built from {source!r}, not from material {m.name}'s normal_map {m.normal_map.name} (by content): "
+                    f"{refused} ({builds} builds its mipmap)")
+        kind, scale = params.get("kind", "height"), params.get("scale", 1.0)
+        prior, components = params.get("prior", DEFAULT_PRIOR), params.get("components", m.gmm_components)
+        if kind != m.normal_map_kind or (kind == "height" and not close(scale, m.normal_map_scale, 1e-6)):
+            return (f"built with --kind {kind} --scale {scale}, material {m.name} has normal_map_kind = "
+                    f"{m.normal_map_kind!r}, normal_map_scale = {m.normal_map_scale:g}: {refused}")
+        if params.get("unaligned", False) is not False:
+            return f"built with --unaligned, a material's gmm file is the aligned GMM mipmap: {refused}"
+        if components != m.gmm_components or not close(prior, m.gmm_prior, 1e-9):
+            return (f"built with --components {components} --prior {prior}, material {m.name} has gmm_components = "
+                    f"{m.gmm_components}, gmm_prior = {m.gmm_prior:g}: {refused}")
+        return None
+    npf = m.type == "npf"
+    file = m.table if npf else m.file
+    brdf = SimpleNamespace(name=f"{file.name}:{_canonical(m.npf_name)}" if npf else file.name,
+                           digest=f"{file_digest(file)}:{_canonical(m.npf_name)}" if npf else file_digest(file),
+                           material=_canonical(m.npf_name) if npf else None, lookup=None)
+    lookup = m.lookup if key == "bandwidth" else default_lookup(brdf)   # sampling tables are the kind default's
+    got = params.get("lookup", default_lookup(brdf)) if key == "bandwidth" else lookup
+    if got != lookup:
+        return (f"built for the {got} lookup, material {m.name} shades with {lookup}: {refused} ({builds} "
+                f"--lookup {lookup} builds its table)")
+    if header.get("source_hash") != digest_at(brdf, lookup):
+        return (f"built from {source!r}, not from material {m.name}'s {brdf.name} (by content): {refused} ({builds} "
+                "builds its table)")
+    return None
 
 
 def _asset_status_text(a: dict) -> str:
@@ -564,8 +624,15 @@ def cmd_compare(args) -> int:
     # whose A channel said which pixels count; None: the non-black pixels
     r["coverage_from"] = {"reference": str(args.reference), "test": str(args.test)}.get(coverage_from)
     if maps:
+        err = relmse_map(ta, tb, mask)
+        top = float(err[mask].max()) if mask.any() else 0.0
+        if top > FLOAT32_MAX:   # the EXR holds float32: numpy's "overflow encountered in cast" and inf texels
+            raise WarpbwError(f"--error-map {maps[0]}: the per-pixel relative squared error reaches {top:.3g}, beyond "
+                              f"the {FLOAT32_MAX:.3g} a float32 EXR holds (radiance of {args.test} or "
+                              f"{args.reference} near float32's top); nothing written (without --error-map, compare "
+                              "gives the PSNR and relMSE)")
         with staged_outputs(maps, force=args.force) as at:
-            lo, hi = _write_error_map([at[m] for m in maps], relmse_map(ta, tb, mask), mask, args.error_range)
+            lo, hi = _write_error_map([at[m] for m in maps], err, mask, args.error_range)
         r.update(error_map=str(maps[0]), error_range=[lo, hi])
     p = r["psnr_db"]
     why = None if math.isfinite(p) else _PSNR_IDENTICAL if p > 0 else _PSNR_UNDEFINED

@@ -488,6 +488,13 @@ def _read_merged(path: Path, data: bytes) -> _Merged:
     if n_bad:
         raise WarpbwError(f"{path}: {n_bad} vertices have non-finite coordinates (expected finite numbers)")
     _check_float32(verts, path, "")  # before trimesh's vertex merge, which fails on them
+    uv = getattr(mesh.visual, "uv", None)
+    n_bad = 0 if uv is None else int(np.count_nonzero(~np.all(np.abs(np.asarray(uv, np.float64)) <= FLOAT32_MAX,
+                                                             axis=-1)))   # NaN too
+    if n_bad:   # the merge rounds them to integers (numpy's "invalid value encountered in cast"), and build_geometry
+        # refused them as "meshes[0] uv", naming no file
+        raise WarpbwError(f"{path}: {n_bad} vertices have texture coordinates (uv) that are not finite or lie outside "
+                          f"the float32 range (expected finite numbers within +-{FLOAT32_MAX:.4g})")
     # trimesh merges vertices by rounding x * 10^8 to int64, which wraps beyond 9.2e10 and merged distinct
     # vertices (an icosphere of radius 1e12 kept 7 of its 162); larger meshes are merged at a power-of-two
     # scale (exact), so that the rounding stays in range
