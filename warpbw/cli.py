@@ -524,7 +524,7 @@ def _refusal(header: dict, m, key: str) -> str | None:
     from precompute.brdf_bandwidth import FORMAT as BANDWIDTH_FORMAT
     from precompute.brdf_sampling import default_lookup, digest_at
     from precompute.gmm_mipmap import DEFAULT_PRIOR, GMM_FORMAT
-    from warpbw.io.npf import _canonical
+    from warpbw.io.npf import canonical_name
     from warpbw.sampling import TABLE_FORMAT
     from warpbw.scene import file_digest
 
@@ -554,11 +554,10 @@ def _refusal(header: dict, m, key: str) -> str | None:
             return (f"built with --components {components} --prior {prior}, material {m.name} has gmm_components = "
                     f"{m.gmm_components}, gmm_prior = {m.gmm_prior:g}: {refused}")
         return None
-    npf = m.type == "npf"
-    file = m.table if npf else m.file
-    brdf = SimpleNamespace(name=f"{file.name}:{_canonical(m.npf_name)}" if npf else file.name,
-                           digest=f"{file_digest(file)}:{_canonical(m.npf_name)}" if npf else file_digest(file),
-                           material=_canonical(m.npf_name) if npf else None, lookup=None)
+    material = canonical_name(m.npf_name) if m.type == "npf" else None   # as brdf_source names an NPF material
+    file = m.table if material is not None else m.file
+    suffix = "" if material is None else f":{material}"
+    brdf = SimpleNamespace(name=file.name + suffix, digest=file_digest(file) + suffix, material=material, lookup=None)
     lookup = m.lookup if key == "bandwidth" else default_lookup(brdf)   # sampling tables are the kind default's
     got = params.get("lookup", default_lookup(brdf)) if key == "bandwidth" else lookup
     if got != lookup:

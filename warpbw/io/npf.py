@@ -5,6 +5,7 @@ Public functions:
 
 - ``read_npf(path, name) -> NPFMaterial``: one material's row of the table (float64 curves).
 - ``npf_eval(mat, wi, wo, interpolate=True) -> (N, 3)``: the README's model, 0 below the horizon.
+- ``canonical_name(name) -> str``: the name ``read_npf`` looks ``name`` up by (``NPFMaterial.name``).
 
 Classes: ``NPFMaterial``; ``UnknownNpfMaterial``, the ``WarpbwError`` of a name the table lacks.
 Constants: ``NPF_MATERIAL_NAMES`` (100 names, table order), ``NPF_ROWS``,
@@ -79,7 +80,8 @@ class NPFMaterial:
     F: np.ndarray
 
 
-def _canonical(name: str) -> str:
+def canonical_name(name: str) -> str:
+    """The name an NPF material is stored under (``NPF_MATERIAL_NAMES``): lower case, without ``.binary``."""
     n = str(name).strip().lower()
     return n[: -len(".binary")] if n.endswith(".binary") else n
 
@@ -98,7 +100,7 @@ def read_npf(path, name: str) -> NPFMaterial:
         )
     if not isinstance(name, str):   # None was answered with "close matches: nylon"
         raise WarpbwError(f"{path}: NPF material name: expected a string such as 'gold-metallic-paint', got {name!r}")
-    key = _canonical(name)
+    key = canonical_name(name)
     if key not in NPF_MATERIAL_NAMES:
         close = difflib.get_close_matches(key, NPF_MATERIAL_NAMES, n=5, cutoff=0.5)
         hint = (f"close matches: {', '.join(close)}" if close else
