@@ -15,7 +15,7 @@ Public:
     takes (a warning first where it lacks)
     ``direction_set(n_b, seed) -> (n_b, 3) float32``   stratified points for the n_b directions
     ``interleave_shifts(n_b, side) -> (side^2, 3)``     per-block offsets of the direction set
-    ``BandwidthBuffer`` (``.estimator_variance(mis)``, ``.measured_key(mis)``) /
+    ``BandwidthBuffer`` (``.estimator_variance(mis)``, ``.measured_key(mis)``, ``.median_lit_mu()``) /
     ``bandwidth_pass(gb, cam, materials, env_data, tables, n_b, ..., stride, pool_radius, relative)``
     ``SampleAllocation`` / ``allocate_samples(buf, budget, n_min, n_max, allocation, mis, plan)``; ``ALLOCATIONS``
     ``planned_shading(buf, device, key, plan)``   the key of the texels the hierarchy will shade; ``pixel_angle(cam)``
@@ -811,6 +811,13 @@ def load_kernels(device: str = "cpu", relative: bool = True) -> None:
         wp.load_module(k.module, device=device)
 
 
+def _median_lit(mu: wp.array, coverage: np.ndarray) -> float:
+    """The median of ``mu`` over the covered pixels it lights (mu > 0); 0 where none is lit."""
+    lit = mu.numpy()[coverage.reshape(-1)]
+    lit = lit[lit > 0.0]
+    return float(np.median(lit)) if lit.size else 0.0
+
+
 @dataclass
 class BandwidthBuffer:
     """The bandwidth buffer of one frame; flat row-major arrays of H*W (0 where no geometry)."""
@@ -847,6 +854,10 @@ class BandwidthBuffer:
         step's own variance on the benchmark (module docstring, session 74), without it ``variance_bis``."""
         mis = check_flag(mis, "measured_key: mis")
         return self.variance_mis if mis or self.variance_bis is None else self.variance_bis
+
+    def median_lit_mu(self) -> float:
+        """The frame's median ``mu`` over its lit pixels (covered, mu > 0); 0 where none is lit."""
+        return _median_lit(self.mu, self.coverage)
 
 
 def interleave_shifts(n_b: int, side: int) -> np.ndarray:
@@ -949,9 +960,7 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
                                nu, b_p, sigma2, mu, var_mis, var_bis, var_step], device, threads)
     sigma2_rel = None
     if check_flag(relative, "bandwidth pass: relative"):
-        mu_lit = mu.numpy()[gb.coverage.reshape(-1)]
-        mu_lit = mu_lit[mu_lit > 0.0]
-        floor = REL_FLOOR * float(np.median(mu_lit)) if mu_lit.size else 0.0
+        floor = REL_FLOOR * _median_lit(mu, gb.coverage)
         sigma2_rel = wp.empty(W * H, dtype=wp.float32, device=device)   # relative_bound_kernel writes every pixel
         wp.launch(relative_bound_kernel, dim=W * H, inputs=[sigma2, mu, floor * floor, sigma2_rel], device=device)
     with np.errstate(over="ignore"):  # a rate beyond float32 is +inf: level 0 (image_level)

@@ -587,9 +587,7 @@ def _check_pass_underflow(buf, source: str, allocation: str) -> None:
     "uniform" allocation are left alone."""
     if allocation == "uniform" or buf.mu is None:
         return
-    mu = buf.mu.numpy()[buf.coverage.reshape(-1)]
-    mu = mu[mu > 0.0]
-    m = float(np.median(mu)) if mu.size else 0.0
+    m = buf.median_lit_mu()
     if 0.0 < m < RADIANCE_UNDERFLOW_MAX:
         raise WarpbwError(f"{source}: the frame's radiance from the environment (median {m:.3g} over its lit "
                           f"pixels) is below sqrt(float32's smallest normal) = {RADIANCE_UNDERFLOW_MAX:.2g}, where the "
