@@ -991,7 +991,8 @@ def build_parser() -> argparse.ArgumentParser:
     i = sub.add_parser("info", help="summarise what a scene needs", description="Summarise a scene: objects, "
                        "materials, light, the files it reads (beside each precomputed file a material names, what its "
                        "header says: its kind and version, a version this warpbw does not read, builder settings "
-                       "other than the builder's, a bandwidth table built for another lookup than its material's), "
+                       "other than the builder's, a table or GMM mipmap the render refuses: of another kind than its "
+                       "key, another BRDF or normal map, another lookup or fit options than its material's), "
                        "the stages a render would run and the memory they would take (a frame; loading the probe "
                        "and, adaptive, building its bandwidth map; the placed meshes, from their files' headers).")
     i.add_argument("scene", help="scene file (TOML)")
