@@ -556,8 +556,7 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
         ma.uv = wp.array(np.concatenate(uvs), dtype=wp.vec2, device=device)
         ma.face_material = wp.array(np.concatenate(fmat), dtype=wp.int32, device=device)
         ma.face_end = wp.array(np.cumsum([len(f) for f in faces]).astype(np.int32), dtype=wp.int32, device=device)
-        ma.t_eps = wp.array(np.array([_t_eps(b) for b in bounds], np.float32), dtype=wp.float32, device=device)
-        ma.t_eps_max = float(ma.t_eps.numpy().max())
+        _set_t_eps(ma, bounds, device)
     else:
         ma.id = wp.uint64(0)
         ma.indices = wp.zeros(0, dtype=wp.int32, device=device)
@@ -596,10 +595,14 @@ def _bounds(vertices) -> tuple:
     return v.min(axis=0), v.max(axis=0)
 
 
-def _t_eps(bounds) -> float:
-    """The nearest t a ray takes on a mesh of ``bounds`` (lower, upper corners): ``T_EPS_REL`` of its half diagonal,
-    as ``intersect_sphere`` takes ``T_EPS_REL`` of a sphere's radius."""
-    return T_EPS_REL * 0.5 * float(np.linalg.norm(np.asarray(bounds[1]) - np.asarray(bounds[0])))
+def _set_t_eps(ma: MeshAttributes, bounds: list, device) -> None:
+    """``ma.t_eps`` and ``t_eps_max`` of the meshes of ``bounds`` (lower, upper corners per MeshSpec): the nearest t a
+    ray takes on each, ``T_EPS_REL`` of its half diagonal, as ``intersect_sphere`` takes ``T_EPS_REL`` of a sphere's
+    radius."""
+    t_eps = np.array([T_EPS_REL * 0.5 * np.linalg.norm(np.asarray(hi) - np.asarray(lo)) for lo, hi in bounds],
+                     np.float32)
+    ma.t_eps = wp.array(t_eps, dtype=wp.float32, device=device)
+    ma.t_eps_max = float(t_eps.max())
 
 
 def _seam_gap(vertices: np.ndarray, surface) -> tuple:
@@ -735,9 +738,7 @@ def update_mesh(geometry: Geometry, mesh_index: int, vertices, normals=None, cur
             wp.copy(geometry.mesh.points, old, dest_offset=start, count=count)
             raise WarpbwError(f"{where}vertices: {str(e).removeprefix('points: ')}") from None
     geometry.mesh_bounds[int(mesh_index)] = bounds
-    wp.copy(ma.t_eps, wp.array(np.array([_t_eps(bounds)], np.float32), dtype=wp.float32, device=device),
-            dest_offset=int(mesh_index), count=1)
-    ma.t_eps_max = float(np.float32(max(_t_eps(b) for b in geometry.mesh_bounds)))
+    _set_t_eps(ma, geometry.mesh_bounds, device)
     local_curvature(shading.curvature, topo, device, out=shading.curvature)
     geometry.curvature_pending.pop(int(mesh_index), None)   # replaced by the new pose's
     geometry.mesh.refit()
