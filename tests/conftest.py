@@ -416,12 +416,13 @@ def latlong_sphere_obj(nu: int, nv: int, radius: float, normals: bool = False, d
     return "\n".join(lines + faces) + "\n"
 
 
-def numpy_camera_rays(position, look_at, fov_deg, w, h, jitter=(0.5, 0.5)):
-    """The origin and the unit rays (h, w, 3) through the point ``jitter`` (in [0, 1)^2) of every pixel."""
+def numpy_camera_rays(position, look_at, fov_deg, w, h, jitter=(0.5, 0.5), up=(0.0, 1.0, 0.0)):
+    """The origin and the unit rays (h, w, 3) through the point ``jitter`` (in [0, 1)^2) of every pixel: README's
+    pinhole (fov along the width, right = forward x up, row 0 at the top)."""
     o = np.asarray(position, float)
     fwd = np.asarray(look_at, float) - o
     fwd /= np.linalg.norm(fwd)
-    right = np.cross(fwd, [0.0, 1.0, 0.0])
+    right = np.cross(fwd, np.asarray(up, float))
     right /= np.linalg.norm(right)
     up = np.cross(right, fwd)
     tx = math.tan(math.radians(fov_deg) / 2)

@@ -2577,6 +2577,30 @@ def test_render_of_planes_beside_a_sphere_that_covers_nothing_warns(small_scenes
     assert err.count("warpbw: warning: no pixel is covered by geometry") == 1, err
 
 
+@pytest.mark.parametrize("camera_y", [-1.5, 0.0, 1.5])
+def test_an_empty_frame_of_planes_seen_from_below_says_planes_are_seen_from_above_only(tmp_path, monkeypatch, capsys,
+                                                                                         camera_y):
+    """README: a plane faces +Y and is seen from above only (a camera below it sees through it).  A camera below the
+    plane, or in its height, looking at its centre renders nothing, and the empty-image warning names the reason
+    instead of only the camera's aim; from above, the plane is drawn and nothing is said (session 78: the warning
+    said "check [camera] position, look_at and fov against the objects" of a camera that was aimed right)."""
+    from warpbw.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    z = 2.0 if camera_y != 0.0 else 3.0
+    Path("p.toml").write_text(plane_scene_toml(position=(0.0, camera_y, z), resolution=(8, 6)))
+    assert main(["render", "p.toml", "-o", "p.exr", "--filter", "fixed", "-q"]) == 0
+    err = capsys.readouterr().err
+    covered = read_exr("p.exr").pixels.any(axis=-1).sum()
+    if camera_y > 0.0:
+        assert covered > 0 and "no pixel is covered" not in err, err
+    else:
+        assert covered == 0
+        assert err.count("warpbw: warning: no pixel is covered by geometry") == 1, err
+        assert f"seen from above only, and the camera (y = {camera_y:g}) is not above any (y = 0 at the highest)" \
+            in err, err
+
+
 def test_the_examples_read_the_shared_data_where_the_tests_do(monkeypatch, tmp_path):
     """README: the real inputs are read from ../shared/data, or $WARPBW_SHARED_DATA.  The examples read
     ../shared/data whatever the variable said (a clone elsewhere failed 7 of test_bench's tests)."""

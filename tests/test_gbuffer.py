@@ -221,6 +221,44 @@ def test_fov_is_along_width():
     assert not gb2.coverage[h // 2, 0] and not gb2.coverage[h // 2, -1]
 
 
+@pytest.mark.parametrize("up", [(0.0, -1.0, 0.0), (1.0, 1.0, 0.0), (0.3, 0.2, 1.0)])
+def test_the_scene_files_up_rolls_the_image_of_both_renderers_as_the_pinhole_model_says(up):
+    """[camera] up (README: right = forward x up, row 0 at the top; up need not be unit or orthogonal to the view),
+    from scene text through both renderers: a small off-centre sphere (the spheres' G-buffer, render_reference) and
+    a plane's square (warpbw.filtering's own ray_dir), 48 x 30 (fov along the width), cover exactly the pixels whose
+    centre rays numpy's pinhole sends at them with that up; up = -Y turns the image by 180 degrees (not a flip).
+    Seen failing (session 78): make_camera taking +Y whatever the up (106 to 109 of the sphere's pixels differ);
+    warpbw.filtering's ray_dir with rows counted from the bottom (the plane's square)."""
+    from conftest import numpy_square_distance, plane_scene_toml
+
+    from warpbw.filtering import render_filtering
+    from warpbw.pipeline import render_reference
+    from warpbw.scene import parse_scene
+
+    w, h, fov, pos = 48, 30, 50.0, (0.2, 1.4, 2.6)
+    centre, radius = (0.45, 0.2, -0.3), 0.25
+    cam = f"[camera]\nposition = {list(pos)}\nlook_at = [0.0, 0.0, 0.0]\nup = {list(up)}\nfov = {fov}\n" \
+          f"resolution = [{w}, {h}]\n"
+    sphere = cam + ('[[light]]\ntype = "directional"\ndirection = [0.0, 1.0, 0.0]\nradiance = [1.0, 1.0, 1.0]\n'
+                    f'[[object]]\nshape = "sphere"\ncenter = {list(centre)}\nradius = {radius}\nmaterial = "m"\n'
+                    '[material.m]\ntype = "lambert"\nalbedo = [0.5, 0.5, 0.5]\n')
+    o, d = numpy_camera_rays(pos, (0.0, 0.0, 0.0), fov, w, h, up=up)
+    want = np.isfinite(numpy_sphere_distance(o, d.reshape(-1, 3), centre, radius)).reshape(h, w)
+    got = render_reference(parse_scene(sphere), spp=1).coverage
+    assert 20 < want.sum() < 200 and np.array_equal(got, want), (got ^ want).sum()
+    size, middle = 1.0, (0.3, 0.0, -0.2)
+    plane = (plane_scene_toml(position=pos, resolution=(w, h), fov=fov, size=size)
+             .replace("[camera]\n", f"[camera]\nup = {list(up)}\n")
+             .replace('shape = "plane"', f'shape = "plane"\ncenter = {list(middle)}'))
+    want_p = np.isfinite(numpy_square_distance(o, d, size, middle))
+    got_p = render_filtering(parse_scene(plane), "fixed").coverage
+    assert 100 < want_p.sum() < 0.8 * w * h and np.array_equal(got_p, want_p), (got_p ^ want_p).sum()
+    if up == (0.0, -1.0, 0.0):
+        o_u, d_u = numpy_camera_rays(pos, (0.0, 0.0, 0.0), fov, w, h)
+        upright = np.isfinite(numpy_square_distance(o_u, d_u, size, middle))
+        assert np.array_equal(got_p, upright[::-1, ::-1]) and not np.array_equal(got_p, upright[::-1])
+
+
 def _icosphere_spec(radius, material=0, subdiv=5):
     import trimesh
 

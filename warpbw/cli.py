@@ -211,14 +211,21 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
     return res.stats
 
 
-def _warn_if_empty(res) -> None:
+def _warn_if_empty(res, scene=None) -> None:
     """An image in which no pixel sees geometry is almost always a camera or a scene mistake, and so is one whose
-    covered pixels are all black (a light of zero: a probe whose every texel was NaN, say): say so."""
+    covered pixels are all black (a light of zero: a probe whose every texel was NaN, say): say so.  With ``scene``,
+    a camera at or below every plane is named: planes face +Y and are seen from above only (``warpbw.scene``)."""
     import numpy as np
 
     if res.stats.get("pixels_covered") == 0:
+        from warpbw.scene import PlaneObject
+
+        heights = [o.center[1] for o in (scene.objects if scene is not None else ()) if isinstance(o, PlaneObject)]
+        y = scene.camera.position[1] if heights else 0.0
+        below = (f"; planes face +Y and are seen from above only, and the camera (y = {y:g}) is not above any "
+                 f"(y = {max(heights):g} at the highest)" if heights and y <= max(heights) else "")
         print("warpbw: warning: no pixel is covered by geometry, so the image is empty (check [camera] "
-              "position, look_at and fov against the objects)", file=sys.stderr)
+              f"position, look_at and fov against the objects{below})", file=sys.stderr)
     elif not np.any(res.image[res.coverage]):
         print("warpbw: warning: every covered pixel is black (0): no light reaches the surfaces, or they reflect "
               "none (check [environment] constant, scale and its probe's values, each [[light]]'s radiance and "
@@ -253,7 +260,7 @@ def _render_filtering_cli(scene, args) -> int:
         res.stats["colour_scales"] = {"level": _write_map(at, *level_paths, res.level, res.coverage)} \
             if level_paths else {}
         _write_render(res, outs, args.exposure, at)
-    _warn_if_empty(res)
+    _warn_if_empty(res, scene)
     if not args.quiet:
         w, h = res.stats["resolution"]
         extra = f", {args.spp} rays/pixel" if method == "ground_truth" else \
@@ -318,7 +325,7 @@ def _render_mixed_cli(scene, args) -> int:
             scales["mip_level"] = _write_map(at, *mip_paths, res.aovs["mip_level"], res.aovs["plane"])
         res.stats["colour_scales"] = scales
         _write_render(res, outs, args.exposure, at)
-    _warn_if_empty(res)
+    _warn_if_empty(res, scene)
     if not args.quiet:
         t = res.stats["time_s"]
         w, h = res.stats["resolution"]

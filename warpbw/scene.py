@@ -17,9 +17,9 @@ Lights: an ``[environment]`` and/or ``[[light]]`` tables (``type = "directional"
 light, ``radiance``); a scene needs at least one of them (``Scene.environment`` is None without one).
 Directional lights light planes (``warpbw.filtering``) and spheres and meshes (``warpbw.lights``) alike.
 Planes (``shape = "plane"``: a square of side ``size`` in the XZ plane facing +Y, centred at ``center``,
-uv in [0, 1]^2 with u along +X and v along +Z) carry ``cook-torrance`` materials with an optional normal
-map (004); they are rendered by ``warpbw.filtering``, and may share a scene with spheres and meshes
-(``warpbw.pipeline.render_with_planes``).
+uv in [0, 1]^2 with u along +X and v along +Z; seen from above only, a camera below one sees through it) carry
+``cook-torrance`` materials with an optional normal map (004); they are rendered by ``warpbw.filtering``, and may
+share a scene with spheres and meshes (``warpbw.pipeline.render_with_planes``).
 
 Every error is a ``WarpbwError`` naming the scene file and the key, e.g.
 ``scene.toml: [camera].resolution: expected two positive integers [width, height], got [-1, 512]``.
@@ -144,7 +144,7 @@ class Environment:
     file: Path | None = None
     procedural: str | None = None
     constant: tuple | None = None
-    rotation: float = 0.0  # degrees about +Y
+    rotation: float = 0.0  # degrees about +Y, right-handed (+90 turns +X to -Z; warpbw.envmap), as rotate_y
     scale: float = 1.0
 
     def describe(self) -> str:
@@ -171,7 +171,7 @@ class MeshObject:
     material: str
     translate: tuple = (0.0, 0.0, 0.0)
     scale: float = 1.0
-    rotate_y: float = 0.0  # degrees
+    rotate_y: float = 0.0  # degrees about +Y, right-handed (+90 turns +X to -Z), after scale, before translate
 
     def describe(self) -> str:
         """One line for ``warpbw info``: the file, its transform where it is not the identity, the material."""
