@@ -2597,7 +2597,7 @@ def test_an_empty_frame_of_planes_seen_from_below_says_planes_are_seen_from_abov
     else:
         assert covered == 0
         assert err.count("warpbw: warning: no pixel is covered by geometry") == 1, err
-        assert f"seen from above only, and the camera (y = {camera_y:g}) is not above any (y = 0 at the highest)" \
+        assert f"seen from above only, and the camera (y = {camera_y:g}) is not above any (y = 0 at the lowest)" \
             in err, err
 
 

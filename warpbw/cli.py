@@ -223,7 +223,7 @@ def _warn_if_empty(res, scene=None) -> None:
         heights = [o.center[1] for o in (scene.objects if scene is not None else ()) if isinstance(o, PlaneObject)]
         y = scene.camera.position[1] if heights else 0.0
         below = (f"; planes face +Y and are seen from above only, and the camera (y = {y:g}) is not above any "
-                 f"(y = {max(heights):g} at the highest)" if heights and y <= max(heights) else "")
+                 f"(y = {min(heights):g} at the lowest)" if heights and y <= min(heights) else "")
         print("warpbw: warning: no pixel is covered by geometry, so the image is empty (check [camera] "
               f"position, look_at and fov against the objects{below})", file=sys.stderr)
     elif not np.any(res.image[res.coverage]):
