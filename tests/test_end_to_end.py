@@ -735,18 +735,20 @@ def test_info_says_a_named_bandwidth_table_of_another_lookup_is_refused(tmp_path
             (tmp_path / "s.toml").write_text("\n".join(lines + named))
             try:
                 read_brdf_bandwidth(table, brdf_source(tmp_path / "npf.bin", "chrome", scene_lookup))
-                refused = False
-            except WarpbwError:
-                refused = True
-            assert refused == (scene_lookup != file_lookup)
+                refused = ""
+            except WarpbwError as exc:
+                refused = str(exc)
+            assert bool(refused) == (scene_lookup != file_lookup)
             assert cli_main(["info", str(tmp_path / "s.toml"), "--method", "adaptive", "--json"]) == 0
             (a,) = [a for a in json.loads(capsys.readouterr().out)["assets"] if a["path"] == str(table)]
-            assert ("refused" in a) == refused, (scene_lookup, file_lookup, a)
+            assert ("refused" in a) == bool(refused), (scene_lookup, file_lookup, a)
             assert cli_main(["info", str(tmp_path / "s.toml"), "--method", "adaptive"]) == 0
             line = next(ln for ln in capsys.readouterr().out.splitlines() if str(table) in ln)
-            said = (f"built for the {file_lookup} lookup, material m shades with {scene_lookup}: a render refuses it "
-                    f"(warpbw-precompute brdf --lookup {scene_lookup} builds its table)")
-            assert (said in line) == refused and ("builder settings current" in line) != refused, line
+            # the render's own words, after the file's name; they name the lookup and the command that builds it
+            said = f"a render refuses it: {refused[len(str(table)) + 2:]}"
+            assert (said in line) == bool(refused) and ("builder settings current" in line) != bool(refused), line
+            assert (f"read with the {file_lookup} lookup, expected the {scene_lookup} lookup" in line) == bool(refused)
+            assert (f"--lookup {scene_lookup}" in line) == (scene_lookup == "nearest" != file_lookup), line
 
 
 def test_info_lists_the_stages_a_frame_of_each_method_runs(tmp_path):
