@@ -13,6 +13,8 @@ Public:
     ``write_sampling(path, table, source, force=False)`` / ``read_sampling(path, source=None)``   (never over the
         source's own file, nor a read-only file, whatever ``force`` says); ``sampling_problem(table)``, what both
         refuse
+    ``brdf_source_unread(file, material=None, lookup=None) -> BrdfSource``   the name, digest and lookup
+        ``brdf_source`` gives, the BRDF not read: what a table's reader checks a file against (``warpbw info``)
     ``check_brdf_source(source, caller, needs) -> source``   a path passed where a source is expected, refused
     ``source_files(source) -> list``   the file a source was read from (what a table written from it may not replace)
     ``rebuild_command(subcommand, source) -> str``   the ``warpbw-precompute`` line that rebuilds a table of a source
@@ -115,6 +117,24 @@ def brdf_source(file, material: str | None = None, lookup: str | None = None) ->
     if excess is not None:
         warnings.warn(f"{source.name}: {excess}; it renders as it is", stacklevel=2)
     return source
+
+
+def brdf_source_unread(file, material: str | None = None, lookup: str | None = None) -> BrdfSource:
+    """The name, path, digest, material and lookup that ``brdf_source(file, material, lookup)`` gives, from the file's
+    bytes and the material's stored name (``warpbw.io.npf.canonical_name``), the BRDF itself not read (``evaluate``
+    and ``brdf`` None): all ``read_sampling`` and ``precompute.brdf_bandwidth.read_brdf_bandwidth`` check a file
+    against (``warpbw info`` asks them so, without reading a 35 MB MERL file)."""
+    from warpbw.io.npf import canonical_name
+    from warpbw.scene import file_digest
+
+    check_lookup(lookup)
+    p = check_input_file(file)
+    mat = None if material is None else canonical_name(material)
+    tag = "" if mat is None else f":{mat}"
+    source = BrdfSource(p.name + tag, p, file_digest(p) + tag, None, None, mat)
+    lookup = default_lookup(source) if lookup is None else lookup
+    name, digest = _lookup_tags(source, lookup)
+    return replace(source, name=source.name + name, digest=source.digest + digest, lookup=lookup)
 
 
 def check_lookup(lookup) -> str | None:

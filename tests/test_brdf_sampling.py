@@ -80,6 +80,28 @@ def test_brdf_source_names_an_npf_material_as_the_table_spells_it(tmp_path):
     assert got.startswith("returned SamplerTable("), got
 
 
+def test_a_source_left_unread_is_named_and_digested_as_the_source_read(tmp_path):
+    """``brdf_source_unread`` (what ``warpbw info`` hands the tables' readers, without reading the BRDF) gives the name,
+    digest, material and lookup of ``brdf_source`` (which reads it), for a MERL file and an NPF material spelt as a
+    user may type it, at each lookup and at the kind's default (None); a nu_rho table is then read or refused alike.
+    Truth: ``brdf_source`` itself."""
+    from precompute.brdf_bandwidth import read_brdf_bandwidth, write_brdf_bandwidth
+    from precompute.brdf_sampling import brdf_source_unread
+    from warpbw.io.merl import MERL_SHAPE, write_merl
+
+    npf = fake_npf_table(tmp_path / "npf.bin")
+    write_merl(tmp_path / "m.binary", np.full(MERL_SHAPE, 0.1))
+    write_brdf_bandwidth(tmp_path / "bw.npz", np.full((16, 16, 16), 2.0, np.float32), brdf_source(npf, "chrome"))
+    for file, material in ((tmp_path / "m.binary", None), (npf, " Chrome.binary"), (npf, "nylon")):
+        for lookup in (None, "nearest", "linear"):
+            read, unread = brdf_source(file, material, lookup), brdf_source_unread(file, material, lookup)
+            assert (unread.name, unread.digest, unread.material, unread.lookup, unread.path) == \
+                   (read.name, read.digest, read.material, read.lookup, read.path), (file, material, lookup)
+            assert unread.brdf is None and unread.evaluate is None
+            assert outcome(read_brdf_bandwidth, tmp_path / "bw.npz", unread) == \
+                   outcome(read_brdf_bandwidth, tmp_path / "bw.npz", read)
+
+
 def test_tables_of_an_edited_source_of_the_same_name_are_refused(tmp_path):
     """README: the renderer refuses "a table built from different data".  A MERL file edited under the same name has
     another content hash: its old tables are refused, not matched by name."""

@@ -735,18 +735,46 @@ def test_info_says_a_named_bandwidth_table_of_another_lookup_is_refused(tmp_path
             (tmp_path / "s.toml").write_text("\n".join(lines + named))
             try:
                 read_brdf_bandwidth(table, brdf_source(tmp_path / "npf.bin", "chrome", scene_lookup))
-                refused = False
-            except WarpbwError:
-                refused = True
-            assert refused == (scene_lookup != file_lookup)
+                refused = ""
+            except WarpbwError as exc:
+                refused = str(exc)
+            assert bool(refused) == (scene_lookup != file_lookup)
             assert cli_main(["info", str(tmp_path / "s.toml"), "--method", "adaptive", "--json"]) == 0
             (a,) = [a for a in json.loads(capsys.readouterr().out)["assets"] if a["path"] == str(table)]
-            assert ("refused" in a) == refused, (scene_lookup, file_lookup, a)
+            assert ("refused" in a) == bool(refused), (scene_lookup, file_lookup, a)
             assert cli_main(["info", str(tmp_path / "s.toml"), "--method", "adaptive"]) == 0
             line = next(ln for ln in capsys.readouterr().out.splitlines() if str(table) in ln)
-            said = (f"built for the {file_lookup} lookup, material m shades with {scene_lookup}: a render refuses it "
-                    f"(warpbw-precompute brdf --lookup {scene_lookup} builds its table)")
-            assert (said in line) == refused and ("builder settings current" in line) != refused, line
+            # the render's own words, after the file's name; they name the lookup and the command that builds it
+            said = f"a render refuses it: {refused[len(str(table)) + 2:]}"
+            assert (said in line) == bool(refused) and ("builder settings current" in line) != bool(refused), line
+            assert (f"read with the {file_lookup} lookup, expected the {scene_lookup} lookup" in line) == bool(refused)
+            assert (f"--lookup {scene_lookup}" in line) == (scene_lookup == "nearest" != file_lookup), line
+
+
+def test_info_says_a_named_table_the_render_finds_damaged_is_refused(tmp_path, capsys):
+    """A nu_rho table whose header is current but whose cells hold NaN is refused by the render's reader; warpbw info
+    said "builder settings current" of it (its header-level twin of the readers did not read the arrays) until
+    session 78, when info asked the readers themselves.  Truth: the reader, given the material's source, and the
+    same table written whole, which both read."""
+    from conftest import fake_npf_table
+    from precompute.assetfile import write_asset
+    from precompute.brdf_bandwidth import FORMAT, VERSION, bandwidth_settings, read_brdf_bandwidth
+    from precompute.brdf_sampling import brdf_source
+    from warpbw.cli import main as cli_main
+
+    source = brdf_source(fake_npf_table(tmp_path / "npf.bin"), "chrome")
+    lines = ["[camera]", "position = [0.0, 0.0, 3.0]", "look_at = [0.0, 0.0, 0.0]", "fov = 50.0", "resolution = [8, 8]",
+             "[environment]", 'procedural = "sky"', "[[object]]", 'shape = "sphere"', "radius = 0.8", 'material = "m"',
+             "[material.m]", 'type = "npf"', 'table = "npf.bin"', 'name = "chrome"', 'bandwidth = "bw.npz"']
+    (tmp_path / "s.toml").write_text("\n".join(lines))
+    for fill, damaged in ((2.0, False), (np.nan, True)):
+        write_asset(tmp_path / "bw.npz", FORMAT, VERSION, source.name, source.digest,
+                    {"nu_rho": np.full((16, 16, 16), fill, np.float32)}, params=bandwidth_settings(), force=True)
+        said = outcome(read_brdf_bandwidth, tmp_path / "bw.npz", source)
+        assert said.startswith("WarpbwError: ") == damaged, said
+        assert cli_main(["info", str(tmp_path / "s.toml"), "--method", "adaptive", "--json"]) == 0
+        (a,) = json.loads(capsys.readouterr().out)["assets"]
+        assert a.get("refused") == (said[len(f"WarpbwError: {tmp_path / 'bw.npz'}: "):] if damaged else None), a
 
 
 def test_info_lists_the_stages_a_frame_of_each_method_runs(tmp_path):

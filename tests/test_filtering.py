@@ -1136,10 +1136,26 @@ def test_a_named_gmm_file_and_its_normal_map_are_each_read_once(tmp_path, monkey
     assert np.array_equal(prep.mips["m"].nmean.numpy(), fresh.mips["m"].nmean.numpy())
 
 
+def _info_json(scene) -> dict:
+    """What ``warpbw info SCENE --json`` prints."""
+    import contextlib
+    import io
+    import json
+
+    from warpbw.cli import main as cli_main
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert cli_main(["info", str(scene), "--json"]) == 0
+    return json.loads(out.getvalue())
+
+
 def test_gmm_file_of_a_non_square_height_map_fitted_with_rows_1_over_w_apart_is_refused(tmp_path, monkeypatch):
     """A W x H height map spans the plane's square, its rows 1/H apart; before session 69 they were differentiated
     1/W apart, and a GMM file fitted then (a builder given that texel size does the same) holds slopes the other
-    methods no longer shade.  Such a file is refused with the command that rebuilds it, whose file is then used."""
+    methods no longer shade.  Such a file is refused with the command that rebuilds it, whose file is then used.
+    ``warpbw info`` says so in the same words (its header-level twin of the reader's checks lacked this one until
+    session 78)."""
     import shlex
 
     from precompute.__main__ import main as precompute_main
@@ -1153,6 +1169,8 @@ def test_gmm_file_of_a_non_square_height_map_fitted_with_rows_1_over_w_apart_is_
                      "map.exr", digest)
     with pytest.raises(WarpbwError, match=r"\[material\.m\]\.gmm: .*8x4 height map with its rows 1/8 apart") as ei:
         prepare_filtering(parse_scene(text, tmp_path, "s.toml"), ("gmm_aligned",))
+    (tmp_path / "s.toml").write_text(text)   # warpbw info, from the file's header, says it in the same words
+    assert _info_json(tmp_path / "s.toml")["assets"][0]["refused"] == str(ei.value).split(".gmm: ")[-1]
     command = shlex.split(str(ei.value).split("rebuild it with: ")[1].rstrip(")"))
     monkeypatch.chdir(tmp_path)
     assert precompute_main(command[1:] + ["-q"]) == 0

@@ -465,7 +465,7 @@ def cmd_info(args) -> int:
     used = [scene.materials[n] for n in scene.material_order]
     named = {str(p) for m in used for p in (m.sampling, m.bandwidth, m.gmm) if p is not None}
     s["assets"] = [header_status(f) for f in s["files"] if f in named]
-    _say_refused(s["assets"], used)
+    _say_refused(scene, s["assets"], used)
     if args.json:
         print(json.dumps(s, indent=2))
         return 0
@@ -500,12 +500,11 @@ def cmd_info(args) -> int:
     return 0
 
 
-def _say_refused(assets: list, materials: list) -> None:
-    """Add ``refused`` to each of ``assets`` (``header_status`` records) that one of ``materials`` names where a render
-    refuses it, as the file's header and the material's own files tell (``_refusal``): ``warpbw info`` said "builder
-    settings current" of a nu_rho table of another lookup (session 76's audit), and of a file of another format than
-    its key reads, one built from another BRDF or normal map, and a GMM mipmap fitted with other options (session
-    77's)."""
+def _say_refused(scene, assets: list, materials: list) -> None:
+    """Add ``refused``, the reader's words, to each of ``assets`` (``header_status`` records) that one of
+    ``materials`` names where a render refuses it (``_refusal``): ``warpbw info`` said "builder settings current" of a
+    nu_rho table of another lookup (session 76's audit), and of a file of another format than its key reads, one
+    built from another BRDF or normal map, and a GMM mipmap fitted with other options (session 77's)."""
     from precompute.assetfile import read_header
 
     for a in assets:
@@ -515,64 +514,31 @@ def _say_refused(assets: list, materials: list) -> None:
         for m in materials:
             for key in ("sampling", "bandwidth", "gmm"):
                 if "refused" not in a and str(getattr(m, key)) == a["path"]:
-                    why = _refusal(header, m, key)
+                    why = _refusal(scene, a["path"], header, m, key)
                     if why is not None:
                         a["refused"] = why
 
 
-def _refusal(header: dict, m, key: str) -> str | None:
-    """Why a render refuses the asset file of ``header`` as material ``m``'s ``key`` (sampling, bandwidth, gmm), as its
-    reader checks it against the material (``precompute.brdf_sampling.read_sampling``, ``precompute.brdf_bandwidth.
-    read_brdf_bandwidth``, ``warpbw.filtering``'s GMM check), from the header and the content hash of the material's
-    BRDF file or normal map, in words that end in what builds the right one; None where those agree (the arrays are
-    left to the readers)."""
-    from types import SimpleNamespace
+def _refusal(scene, path: str, header: dict, m, key: str) -> str | None:
+    """Why a render refuses the asset file ``path`` (of ``header``) as material ``m``'s ``key`` (sampling, bandwidth,
+    gmm), in its reader's words (each ends in what builds the right one); None where it reads it.  The tables (a few
+    MB) are read by the render's own readers, given what the material's BRDF file is by content; a GMM mipmap (up to
+    hundreds of MB) is checked from its header alone, by the checks of its reader that need no levels
+    (``warpbw.filtering.gmm_header_problem``)."""
+    from precompute.brdf_bandwidth import read_brdf_bandwidth
+    from precompute.brdf_sampling import brdf_source_unread, read_sampling
+    from warpbw.filtering import gmm_header_problem
 
-    from precompute.brdf_bandwidth import FORMAT as BANDWIDTH_FORMAT
-    from precompute.brdf_sampling import default_lookup, digest_at
-    from precompute.gmm_mipmap import DEFAULT_PRIOR, GMM_FORMAT
-    from warpbw.io.npf import canonical_name
-    from warpbw.sampling import TABLE_FORMAT
-    from warpbw.scene import file_digest
-
-    def close(x, y, rel: float) -> bool:   # a hand-edited header's text is no number
-        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isclose(x, y, rel_tol=rel)
-
-    refused = "a render refuses it"
-    want = {"sampling": TABLE_FORMAT, "bandwidth": BANDWIDTH_FORMAT, "gmm": GMM_FORMAT}[key]
-    builds = {"sampling": "warpbw-precompute brdf-sampling", "bandwidth": "warpbw-precompute brdf",
-              "gmm": "warpbw-precompute gmm"}[key]
-    if header.get("format") != want:
-        return f"a {header.get('format')} file, where {key} = names a {want} file: {refused} ({builds} builds one)"
-    params = header.get("params") if isinstance(header.get("params"), dict) else {}
-    source = header.get("source")
     if key == "gmm":
-        if header.get("source_hash") != file_digest(m.normal_map):
-            return (f"built from {source!r}, not from material {m.name}'s normal_map {m.normal_map.name} (by content): "
-                    f"{refused} ({builds} builds its mipmap)")
-        kind, scale = params.get("kind", "height"), params.get("scale", 1.0)
-        prior, components = params.get("prior", DEFAULT_PRIOR), params.get("components", m.gmm_components)
-        if kind != m.normal_map_kind or (kind == "height" and not close(scale, m.normal_map_scale, 1e-6)):
-            return (f"built with --kind {kind} --scale {scale}, material {m.name} has normal_map_kind = "
-                    f"{m.normal_map_kind!r}, normal_map_scale = {m.normal_map_scale:g}: {refused}")
-        if params.get("unaligned", False) is not False:
-            return f"built with --unaligned, a material's gmm file is the aligned GMM mipmap: {refused}"
-        if components != m.gmm_components or not close(prior, m.gmm_prior, 1e-9):
-            return (f"built with --components {components} --prior {prior}, material {m.name} has gmm_components = "
-                    f"{m.gmm_components}, gmm_prior = {m.gmm_prior:g}: {refused}")
-        return None
-    material = canonical_name(m.npf_name) if m.type == "npf" else None   # as brdf_source names an NPF material
-    file = m.table if material is not None else m.file
-    suffix = "" if material is None else f":{material}"
-    brdf = SimpleNamespace(name=file.name + suffix, digest=file_digest(file) + suffix, material=material, lookup=None)
-    lookup = m.lookup if key == "bandwidth" else default_lookup(brdf)   # sampling tables are the kind default's
-    got = params.get("lookup", default_lookup(brdf)) if key == "bandwidth" else lookup
-    if got != lookup:
-        return (f"built for the {got} lookup, material {m.name} shades with {lookup}: {refused} ({builds} "
-                f"--lookup {lookup} builds its table)")
-    if header.get("source_hash") != digest_at(brdf, lookup):
-        return (f"built from {source!r}, not from material {m.name}'s {brdf.name} (by content): {refused} ({builds} "
-                "builds its table)")
+        return gmm_header_problem(scene, m.name, path, header)
+    lookup = m.lookup if key == "bandwidth" else None   # sampling tables are the kind default's
+    file, material = (m.table, m.npf_name) if m.type == "npf" else (m.file, None)
+    source = brdf_source_unread(file, material, lookup)
+    try:
+        (read_brdf_bandwidth if key == "bandwidth" else read_sampling)(path, source)
+    except WarpbwError as exc:
+        said = str(exc)
+        return said[len(f"{path}: "):] if said.startswith(f"{path}: ") else said
     return None
 
 
@@ -581,7 +547,7 @@ def _asset_status_text(a: dict) -> str:
     if "error" in a:
         return a["error"]
     if "refused" in a:
-        return f"{a['what']}, version {a['version']}; {a['refused']}"
+        return f"{a['what']}, version {a['version']}; a render refuses it: {a['refused']}"
     if a["not_read"] is not None:   # another version, or a format this warpbw does not know
         return f"{a['what'] or a['format']}: {a['not_read']}"
     what = f"{a['what']}, version {a['version']}"
@@ -998,8 +964,9 @@ def build_parser() -> argparse.ArgumentParser:
     i = sub.add_parser("info", help="summarise what a scene needs", description="Summarise a scene: objects, "
                        "materials, light, the files it reads (beside each precomputed file a material names, what its "
                        "header says: its kind and version, a version this warpbw does not read, builder settings "
-                       "other than the builder's, a table or GMM mipmap the render refuses: of another kind than its "
-                       "key, another BRDF or normal map, another lookup or fit options than its material's), "
+                       "other than the builder's, a table or GMM mipmap the render refuses, in its reader's words: of "
+                       "another kind than its key, another BRDF or normal map, another lookup or fit options than its "
+                       "material's, a damaged table), "
                        "the stages a render would run and the memory they would take (a frame; loading the probe "
                        "and, adaptive, building its bandwidth map; the placed meshes, from their files' headers).")
     i.add_argument("scene", help="scene file (TOML)")

@@ -12,6 +12,8 @@ Public:
                                          the mipmaps
     ``check_gmm_files(scene, methods) -> {material: (GmmMipmap, seconds)}``   the planes' ``gmm`` files read and
                                          checked against their materials before any other work (below)
+    ``gmm_header_problem(scene, name, path, header) -> str | None``   why a render refuses material NAME's gmm file,
+                                         as its header tells (``warpbw info``)
     ``render_filtering(scene, method, spp, seed, device, prepared, camera, progress, lod_bias, threads,
                        env_spp, max_anisotropy, background)``        -> ``FilterResult``; ``scene`` a ``Scene``
                                          or its ``FilteringScene`` (then the prepared one, on its own device)
@@ -946,8 +948,9 @@ def normal_moment_mipmap(normals) -> list:
 
 @dataclass
 class _GmmSource:
-    """What ``load_or_build`` needs of a GMM mipmap's source: its data and a digest of data + parameters."""
-    data: np.ndarray
+    """What ``load_or_build`` needs of a GMM mipmap's source: its data and a digest of data + parameters (data None:
+    the map not read, ``gmm_header_problem``)."""
+    data: np.ndarray | None
     kind: str
     scale: float
     unaligned: bool
@@ -1062,8 +1065,8 @@ def _gmm_source(scene: Scene, name: str, data, kind, scale, src_name, digest, un
 
     m = scene.materials[name]
     # the unaligned baseline fits with c = 0 whatever the material's prior: its cache entry does not depend on it
-    return _GmmSource(np.asarray(data), kind, float(scale), unaligned, src_name, digest, int(m.gmm_components),
-                      DEFAULT_PRIOR if unaligned else float(m.gmm_prior))
+    return _GmmSource(None if data is None else np.asarray(data), kind, float(scale), unaligned, src_name, digest,
+                      int(m.gmm_components), DEFAULT_PRIOR if unaligned else float(m.gmm_prior))
 
 
 def check_gmm_files(scene: Scene, methods=METHODS) -> dict:
@@ -1117,44 +1120,92 @@ def _load_gmm(scene: Scene, name: str, data, kind, scale, src_name, digest, unal
 def _read_gmm_checked(scene: Scene, name: str):
     """The reader for ``load_or_build``: an explicit file must match the material's map and parameters."""
     def read(path, src: _GmmSource):
-        from precompute.gmm_mipmap import ROW_SPACING, ROW_SPACING_KEY, read_gmm_mipmap, rebuild_command
+        from precompute.gmm_mipmap import read_gmm_mipmap
 
         mip = read_gmm_mipmap(path)
-        # the command that rebuilds the file from the material's own map (its full path: the scene's folder need not
-        # be the current one) with the material's parameters, as it is printed
-        source = scene.materials[name].normal_map or src.name
-        rebuild = rebuild_command(source, {"kind": src.kind, "scale": src.scale, "components": src.components,
-                                           "prior": src.prior, "unaligned": src.unaligned}, path)
-        if mip.source_hash != src.content_hash:   # the file's header names the map it was fitted to, by content
-            raise WarpbwError(f"{path}: built from {mip.source or 'another map'} with different content than the "
-                              f"material's normal_map {src.name} (rebuild it with: {rebuild})")
-        want = tuple(src.data.shape[:2])
-        if tuple(mip.shape) != want:
-            raise WarpbwError(f"{path}: built from a {mip.shape[1]}x{mip.shape[0]} map, but the normal_map is "
-                              f"{want[1]}x{want[0]} (rebuild it with: {rebuild})")
-        if (src.kind == "height" and want[0] != want[1]
-                and mip.kind == "height" and mip.extra.get(ROW_SPACING_KEY) != ROW_SPACING):
-            raise WarpbwError(f"{path}: built from this {want[1]}x{want[0]} height map with its rows 1/{want[1]} apart "
-                              f"(an earlier warpbw's build), where the plane lays them 1/{want[0]} apart (rebuild it "
-                              f"with: {rebuild})")
-        if mip.kind != src.kind or (src.kind == "height" and not math.isclose(mip.scale, src.scale, rel_tol=1e-6)):
-            raise WarpbwError(f"{path}: built with --kind {mip.kind} --scale {mip.scale:g}, but the material has "
-                              f"normal_map_kind = {src.kind!r}, normal_map_scale = {src.scale:g} (rebuild it with: "
-                              f"{rebuild})")
-        if mip.unaligned and not src.unaligned:  # the material's gmm file is the aligned mipmap (004 Sec. 4.1)
-            raise WarpbwError(f"{path}: built with --unaligned (the independent-EM baseline), but a material's gmm "
-                              f"file must be the aligned GMM mipmap (rebuild it without --unaligned: {rebuild})")
-        if mip.unaligned != src.unaligned:
-            raise WarpbwError(f"{path}: an aligned GMM mipmap, but the unaligned baseline was asked for")
-        if mip.components != src.components:
-            raise WarpbwError(f"{path}: built with --components {mip.components}, but the material has "
-                              f"gmm_components = {src.components} (the unaligned baseline is built with as many; "
-                              f"set gmm_components = {mip.components} or rebuild it with: {rebuild})")
-        if not mip.unaligned and not math.isclose(mip.prior, src.prior, rel_tol=1e-9):
-            raise WarpbwError(f"{path}: built with --prior {mip.prior:g}, but the material has gmm_prior = "
-                              f"{src.prior:g} (set gmm_prior = {mip.prior:g} or rebuild it with: {rebuild})")
+        problem = _gmm_file_problem(mip, src, _gmm_rebuild(scene, name, src, path))
+        if problem is not None:
+            raise WarpbwError(f"{path}: {problem}")
         return mip
     return read
+
+
+def _gmm_rebuild(scene: Scene, name: str, src: _GmmSource, path) -> str:
+    """The command that rebuilds material ``name``'s gmm file ``path`` from its own map (its full path: the scene's
+    folder need not be the current one) with the material's parameters, as it is printed."""
+    from precompute.gmm_mipmap import rebuild_command
+
+    return rebuild_command(scene.materials[name].normal_map or src.name, {
+        "kind": src.kind, "scale": src.scale, "components": src.components, "prior": src.prior,
+        "unaligned": src.unaligned}, path)
+
+
+def _gmm_file_problem(mip, src: _GmmSource, rebuild: str) -> str | None:
+    """Why the GMM mipmap ``mip`` (a ``GmmMipmap``, or its file's header as one: ``gmm_header_problem``) is not the
+    one ``src`` asks for, ending in what mends it (``rebuild``: the command that builds the right one); None when
+    they agree.  ``src.data`` None: the map's size is unknown and taken as the file's (its content is checked)."""
+    from precompute.gmm_mipmap import ROW_SPACING, ROW_SPACING_KEY
+
+    if mip.source_hash != src.content_hash:   # the file's header names the map it was fitted to, by content
+        return (f"built from {mip.source or 'another map'} with different content than the material's normal_map "
+                f"{src.name} (rebuild it with: {rebuild})")
+    want = tuple(mip.shape) if src.data is None else tuple(src.data.shape[:2])
+    if tuple(mip.shape) != want:
+        return (f"built from a {mip.shape[1]}x{mip.shape[0]} map, but the normal_map is {want[1]}x{want[0]} (rebuild "
+                f"it with: {rebuild})")
+    if (src.kind == "height" and want[0] != want[1]
+            and mip.kind == "height" and mip.extra.get(ROW_SPACING_KEY) != ROW_SPACING):
+        return (f"built from this {want[1]}x{want[0]} height map with its rows 1/{want[1]} apart (an earlier "
+                f"warpbw's build), where the plane lays them 1/{want[0]} apart (rebuild it with: {rebuild})")
+    if mip.kind != src.kind or (src.kind == "height" and not math.isclose(mip.scale, src.scale, rel_tol=1e-6)):
+        return (f"built with --kind {mip.kind} --scale {mip.scale:g}, but the material has normal_map_kind = "
+                f"{src.kind!r}, normal_map_scale = {src.scale:g} (rebuild it with: {rebuild})")
+    if mip.unaligned and not src.unaligned:  # the material's gmm file is the aligned mipmap (004 Sec. 4.1)
+        return ("built with --unaligned (the independent-EM baseline), but a material's gmm file must be the aligned "
+                f"GMM mipmap (rebuild it without --unaligned: {rebuild})")
+    if mip.unaligned != src.unaligned:
+        return "an aligned GMM mipmap, but the unaligned baseline was asked for"
+    if mip.components != src.components:
+        return (f"built with --components {mip.components}, but the material has gmm_components = {src.components} "
+                f"(the unaligned baseline is built with as many; set gmm_components = {mip.components} or rebuild it "
+                f"with: {rebuild})")
+    if not mip.unaligned and not math.isclose(mip.prior, src.prior, rel_tol=1e-9):
+        return (f"built with --prior {mip.prior:g}, but the material has gmm_prior = {src.prior:g} (set gmm_prior = "
+                f"{mip.prior:g} or rebuild it with: {rebuild})")
+    return None
+
+
+def gmm_header_problem(scene: Scene, name: str, path, header: dict) -> str | None:
+    """Why a render refuses ``path`` as material ``name``'s ``gmm`` file, as the file's ``header``
+    (``precompute.assetfile.read_header``) and the material's normal map (by content) tell, in the words of
+    ``check_gmm_files``' reader; None where they agree.  Its levels are not read (``warpbw info`` reads headers: a
+    mipmap may take hundreds of MB), nor the map's pixels (its size is taken as the file's once its content
+    matches)."""
+    from types import SimpleNamespace
+
+    from precompute.gmm_mipmap import DEFAULT_PRIOR, GMM_FORMAT, ROW_SPACING_KEY
+    from warpbw.scene import file_digest
+
+    scene = check_scene(_as_scene(scene))
+    m = scene.materials[name]
+    if header.get("format") != GMM_FORMAT:
+        return f"is a {header.get('format')!r} file, expected {GMM_FORMAT!r} (build one with: warpbw-precompute gmm)"
+    params = header.get("params") if isinstance(header.get("params"), dict) else {}
+
+    def number(key, default):   # a hand-edited header's text is no number: NaN then agrees with nothing
+        v = params.get(key, default)
+        return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else math.nan
+
+    shape = params.get("shape")
+    mip = SimpleNamespace(
+        source=header.get("source"), source_hash=header.get("source_hash"), kind=params.get("kind", "height"),
+        scale=number("scale", 1.0), unaligned=params.get("unaligned", False) is not False,
+        components=params.get("components"), prior=number("prior", DEFAULT_PRIOR),
+        shape=tuple(shape) if isinstance(shape, list) and len(shape) == 2 else (0, 0),
+        extra={k: params[k] for k in (ROW_SPACING_KEY,) if k in params})
+    src = _gmm_source(scene, name, None, m.normal_map_kind, m.normal_map_scale, m.normal_map.name,
+                      file_digest(m.normal_map), False)
+    return _gmm_file_problem(mip, src, _gmm_rebuild(scene, name, src, path))
 
 
 def _level_arrays(shapes, device):
