@@ -254,6 +254,22 @@ def plot_png(path) -> np.ndarray:
     return img
 
 
+@pytest.fixture
+def drawn_figures(monkeypatch):
+    """The figures a plotting function hands to ``matplotlib.pyplot.close``, kept open so that a test reads back
+    what they draw (the Axes' lines, bars, images, scales and labels) rather than their pixels; closed at its end."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figures, close = [], plt.close
+    monkeypatch.setattr(plt, "close", lambda fig=None: figures.append(fig))
+    yield figures
+    for fig in figures:
+        close(fig)
+
+
 def fake_npf_table(path: Path) -> Path:
     """An NPF table of the right size whose every value is 0.25: each row a valid (if odd) fit, reflecting 0.79 of
     the light it receives (precompute.brdf_sampling.ALBEDO_WARN)."""

@@ -271,3 +271,17 @@ def test_a_frame_with_no_noise_to_allocate_is_refused(ac, monkeypatch):
     with pytest.raises(WarpbwError, match=r"^extremes: no pixel shows a sphere or mesh, so there is nothing to "
                                           r"allocate \(check \[camera\] position, look_at and fov\)$"):
         ac.allocation_ceiling(prepare_scene(away), budget=2.0, seeds=2, spp=1)
+
+
+def test_the_plot_draws_each_gain_of_the_record_under_its_name(ac, drawn_figures, tmp_path):
+    """Read back (session 78): one bar per noise gain of ``GAINS``, its height the record's figure and its tick the
+    figure's name, on a log axis with the 1x line (no gain)."""
+    ac.write_plot({**_FIGURES, "scene": "s.toml"}, tmp_path / "a.png")
+    (fig,) = drawn_figures
+    (ax,) = fig.axes
+    (bars,) = ax.containers
+    ticks = [t.get_text() for t in ax.get_xticklabels()]
+    heights = dict(zip(ticks, (p.get_height() for p in bars.patches)))
+    assert heights == {k: _FIGURES[k] for k in ac.GAINS}
+    assert [p.get_x() + p.get_width() / 2 for p in bars.patches] == [t for t in ax.get_xticks()]
+    assert ax.get_yscale() == "log" and [tuple(ln.get_ydata()) for ln in ax.get_lines()] == [(1.0, 1.0)]

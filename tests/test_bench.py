@@ -1783,3 +1783,22 @@ def test_a_bandwidth_file_leaves_the_ground_truths_key_and_the_reference_frame_a
     frames = [render_reference(load_scene(tmp_path / f"{n}.toml"), spp=4, seed=3, mis=True).image
               for n in ("with", "without")]
     np.testing.assert_array_equal(frames[0], frames[1])
+
+
+def test_bandwidth_time_fraction_is_each_frames_own_share_not_one_runs_pass_over_the_median(tmp_path, monkeypatch):
+    """Closed form (session 78): every adaptive frame spends a tenth of its wall time in the bandwidth pass
+    (``_fake_adaptive_result``), and the last of 3 runs takes 20 times as long (a stall).  The fraction is then 0.1 whatever
+    the runs took; it was the last run's pass over the runs' median time, 0.1 x 20 = 2.0, and the table said
+    "bandwidth pass: 200.0% of the frame" (runs of 2, 1 and 3 times: 0.15; the slow run first: 0.1 by chance)."""
+    from warpbw.scene import parse_scene
+
+    for run_time in ((1.0, 1.0, 20.0), (20.0, 1.0, 1.0), (2.0, 1.0, 3.0)):
+        _fake_renderers(monkeypatch, ref_amp=_power_law_amp, ada={1.0: (_power_law_amp(11.0), 0.02)},
+                        run_time=run_time)
+        rec = bench.run_bench(parse_scene(SCENE, tmp_path, "s.toml"), spp_list=(1, 4, 16), budgets=(1,), gt_spp=64,
+                              runs=3, cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **kw: None)
+        (p,) = rec["methods"]["adaptive"]
+        assert p["time_s"] == pytest.approx(0.02 * sorted(run_time)[1], rel=1e-9)   # the median, as before
+        assert p["bandwidth_time_fraction"] == pytest.approx(0.1, rel=1e-9), run_time
+        assert rec["bandwidth_time_fraction"] == pytest.approx(0.1, rel=1e-9), run_time
+        assert "bandwidth pass: 10.0% of the frame" in bench.format_table(rec)

@@ -57,6 +57,8 @@ def test_two_frames_on_a_sphere(tmp_path, sphere_obj, monkeypatch, host_normals)
                 assert isinstance(v, (int, float)) and math.isfinite(v), (k, v)
         assert 0.0 < r["shaded_fraction"] <= 1.0
         assert 0 < r["pixels_shaded"] <= r["pixels_covered"] <= 48 * 48
+        # the plot stacks PLOT_STAGES as the frame's whole time (stage times rounded to 1e-6 s)
+        assert math.isclose(sum(r[k] for k in ex.PLOT_STAGES), r["total_s"], rel_tol=0, abs_tol=1e-5), r
         assert r["samples"] > 0 and r["fps"] > 0
         assert r["total_s"] >= r["geometry_s"] + r["gbuffer_s"] + r["bandwidth_s"] + r["shading_s"] - 1e-9
     assert math.isfinite(rec["summary"]["mean_fps"]) and rec["summary"]["mean_fps"] > 0
@@ -391,3 +393,28 @@ def test_a_frame_after_other_poses_is_the_frame_of_a_fresh_scene(tmp_path, monke
     # the device's normals and H, from the float32 positions, to their rounding
     np.testing.assert_allclose(got["normal"], static["normal"], atol=1e-5)
     np.testing.assert_allclose(got["curvature"], static["curvature"], rtol=1e-4)
+
+
+def test_dynamic_geometry_plot_stacks_each_frames_stages_to_its_total(tmp_path, monkeypatch, drawn_figures):
+    """Read back (session 78): per frame the stage bars (ms) stack in ``PLOT_STAGES`` order, each from the top of the
+    one below (their sum is total_s in a real frame: ``test_two_frames_on_a_sphere``); the fps line is the record's
+    fps (its wall time's) and the lower panel its shaded fraction (stand-in frames whose stages grow with the
+    call)."""
+    how, _ = _run_with_known_frames(tmp_path, monkeypatch, ["--frames", "3"])
+    assert how.startswith("returned {"), how
+    rec = json.loads((tmp_path / "o" / "dynamic_geometry.json").read_text())
+    (fig,) = drawn_figures
+    top, bottom_ax, fps_ax = fig.axes
+    ex = _example()
+    assert [c.get_label() for c in top.containers] == [k[:-2] for k in ex.PLOT_STAGES]
+    base = np.zeros(3)
+    for k, bars in zip(ex.PLOT_STAGES, top.containers):
+        assert [p.get_x() + p.get_width() / 2 for p in bars.patches] == [0, 1, 2]
+        np.testing.assert_allclose([p.get_y() for p in bars.patches], base, rtol=1e-12, atol=1e-12)
+        base = base + [fr[k] * 1e3 for fr in rec["frames"]]
+        np.testing.assert_allclose([p.get_y() + p.get_height() for p in bars.patches], base, rtol=1e-12)
+    (fps,) = fps_ax.get_lines()
+    assert list(fps.get_ydata()) == [fr["fps"] for fr in rec["frames"]] and fps_ax.get_ylabel().startswith("frames")
+    (shaded,) = bottom_ax.get_lines()
+    assert list(shaded.get_ydata()) == [fr["shaded_fraction"] for fr in rec["frames"]]
+    assert bottom_ax.get_ylabel() == "shaded fraction" and top.get_ylabel() == "stage time (ms)"

@@ -597,3 +597,44 @@ def test_brdf_sampled_brute_force_takes_the_samples_asked_for(vb):
     assert np.mean(np.abs(m2[cov] - m1[cov]) > 1e-6) > 0.9                 # a second sample was drawn
     np.testing.assert_allclose(v2[cov], (m1[cov] - m2[cov]) ** 2, rtol=1e-6)
     assert np.mean(np.abs(m3[cov] - m4[cov]) > 1e-6) > 0.9                 # three samples are not four
+
+
+def test_the_figure_draws_each_map_and_scatter_from_its_own_record(vb, drawn_figures, tmp_path):
+    """Read back (session 78): each titled panel shows its own map over its own mask (the variance maps over the
+    covered pixels, the FFT reference over the windows kept), the pairs on one log colour scale, and each scatter
+    puts the reference on x and the prediction on y as its labels say, on log axes.  The maps are told apart by
+    their ranges (sigma2 in [1, 2), the brute force in [10, 20), ...)."""
+    rng = np.random.default_rng(0)
+    n = 12
+    cov = np.zeros((n, n), bool)
+    cov[2:10, 2:10] = True
+    valid = np.zeros((n, n), bool)
+    valid[4:8, 4:8] = True
+    maps = {k: s * (1.0 + rng.uniform(size=(n, n))) for k, s in
+            (("sigma2", 1.0), ("var_uniform", 10.0), ("b_p", 0.01), ("bw_ref", 0.1), ("var_bis", 100.0))}
+    r = {"coverage": cov, "bw_valid": valid, **maps, "image": rng.uniform(size=(n, n, 3)), "window": 16,
+         "ref_spp": 64, "stats": {"variance_spearman": 0.5, "variance_conservative_fraction": 0.9,
+                                  "bandwidth_spearman": 0.7}}
+    vb.write_figure(tmp_path / "v.png", "title", r)
+    (fig,) = drawn_figures
+    axes = {ax.get_title(): ax for ax in fig.axes if ax.get_title()}
+    panels = {"(a) predicted variance sigma2 (Eq. 9)": ("sigma2", cov), "(b) brute-force variance, uniform "
+              "sampling": ("var_uniform", cov), "(c) predicted bandwidth b_p (cycles/px)": ("b_p", cov),
+              "(d) 16x16 windowed FFT bandwidth": ("bw_ref", valid),
+              "variance, BRDF importance sampling (info)": ("var_bis", cov)}
+    for title, (key, mask) in panels.items():
+        (im,) = axes[title].get_images()
+        shown = np.ma.filled(np.ma.asarray(im.get_array(), np.float64), np.nan)
+        np.testing.assert_array_equal(np.isfinite(shown), mask, err_msg=title)
+        np.testing.assert_array_equal(shown[mask], maps[key][mask], err_msg=title)
+    scale = {t: (axes[t].get_images()[0].norm.vmin, axes[t].get_images()[0].norm.vmax) for t in panels}
+    a, b, c, d, e = panels
+    assert scale[a] == scale[b] == scale[e] and scale[c] == scale[d] and scale[a] != scale[c]
+    for title, (x, y, mask) in {"variance: Spearman 0.50, conservative 90%": ("var_uniform", "sigma2", cov),
+                                "bandwidth: Spearman 0.70": ("bw_ref", "b_p", valid)}.items():
+        ax = axes[title]
+        pts = ax.collections[0].get_offsets()
+        want = np.stack([maps[x][mask], maps[y][mask]], -1)
+        np.testing.assert_array_equal(np.asarray(pts)[np.lexsort(np.asarray(pts).T)], want[np.lexsort(want.T)])
+        assert (ax.get_xlabel(), ax.get_ylabel()) in (("brute-force", "predicted"), ("windowed FFT", "predicted"))
+        assert ax.get_xscale() == ax.get_yscale() == "log"

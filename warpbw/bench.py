@@ -38,9 +38,10 @@ Protocol:
   standard errors.
 * Time: wall time of a whole frame (G-buffer included; for adaptive also the bandwidth pass) after a
   warm-up frame, median of ``runs`` runs; stage times from the frames' stats.  Where the time goes: the table
-  breaks the best budget's frame into its stages (``FRAME_STAGES``, from its last run), and the record's
-  ``bandwidth_pass_reference_spp`` is that frame's bandwidth pass over the reference's shading time per sample
-  per pixel (at its largest count): what the pass costs, in the samples it could have paid for.
+  breaks the best budget's frame into its stages (``FRAME_STAGES``, from its last run); an adaptive point's
+  ``bandwidth_time_fraction`` is each run's bandwidth pass over that run's wall time, median over the runs; and the
+  record's ``bandwidth_pass_reference_spp`` is that frame's bandwidth pass over the reference's shading time per
+  sample per pixel (at its largest count): what the pass costs, in the samples it could have paid for.
 * Equal-quality speed-up of an adaptive point: the reference's time at the sample count that reaches
   the same MSE, interpolated linearly in (log spp, log MSE) and (log spp, log time) between measured
   counts, divided by the adaptive time.  Outside the measured range it is extrapolated along the end
@@ -276,24 +277,26 @@ def speedup_relative_se(ref: list, mse: float, psnr_se_db: float | None) -> floa
 
 
 def _timed(render, runs: int, gt: GroundTruth):
-    """Render ``runs`` frames (run r seeded by the caller); the last frame, the median time, and the
+    """Render ``runs`` frames (run r seeded by the caller); the last frame, the median time, the
     errors averaged over the frames: MSE and relative MSE are means over the runs' independent noise,
     PSNR is that of the mean MSE (one frame's error is one draw: at a few samples per pixel a single
-    firefly moves it by dB)."""
+    firefly moves it by dB); and each run's (wall time, stage times) for figures that must pair a run's stage
+    with that run's time."""
     from warpbw.metrics import mse, relmse
 
-    times, res, mses, rels = [], None, [], []
+    times, res, mses, rels, stages = [], None, [], [], []
     for r in range(runs):
         t0 = time.perf_counter()
         res = render(r)
         times.append(time.perf_counter() - t0)
+        stages.append((times[-1], res.stats.get("time_s", {})))
         mses.append(mse(res.image, gt.image, res.coverage))
         rels.append(relmse(res.image, gt.image, res.coverage))
     m = statistics.fmean(mses)
     peak = float(np.max(gt.image[res.coverage])) if res.coverage.any() else 0.0
     psnr = math.inf if m == 0.0 else (-math.inf if peak <= 0.0 else 10.0 * math.log10(peak * peak / m))
     return res, statistics.median(times), {"psnr_db": psnr, "relmse": statistics.fmean(rels), "mse": m,
-                                           "psnr_se_db": psnr_standard_error(mses), "mse_runs": mses}
+                                           "psnr_se_db": psnr_standard_error(mses), "mse_runs": mses}, stages
 
 
 # run r of a reference count spp is seeded seed + REF_SEED_SPP * spp + r, adaptive run r seed + ADA_SEED_RUN * r (its
@@ -380,8 +383,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     cov = None
     top = None   # (spp, frame) of the largest count: the doubling check's render (--spp comes in any order)
     for spp in spp_list:
-        res, t, err = _timed(lambda r: render_reference(prep, spp=spp, seed=offset_seed(seed, REF_SEED_SPP * spp + r),
-                                                        mis=mis), runs, gt)
+        res, t, err, _ = _timed(lambda r: render_reference(
+            prep, spp=spp, seed=offset_seed(seed, REF_SEED_SPP * spp + r), mis=mis), runs, gt)
         cov = res.coverage
         if top is None or spp > top[0]:
             top = (spp, res.image)
@@ -405,8 +408,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     log(f"ground-truth check: {d_db:.3f} dB ({'converged' if converged else 'NOT converged: raise --gt-spp'})")
     ada_recs = []
     for b in budgets:
-        res, t, err = _timed(lambda r: render_adaptive(prep, budget=b, seed=offset_seed(seed, ADA_SEED_RUN * r),
-                                                       mis=mis, **opts), runs, gt)
+        res, t, err, stages = _timed(lambda r: render_adaptive(
+            prep, budget=b, seed=offset_seed(seed, ADA_SEED_RUN * r), mis=mis, **opts), runs, gt)
         ts = res.stats["time_s"]
         spp_eq, t_eq, ext = equal_quality_time(ref_recs, err["mse"])
         rec = {"budget": float(b), "time_s": t, **err,
@@ -414,7 +417,9 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
                "upsampling_time_s": ts["upsampling"], "hierarchy_time_s": ts["hierarchy"],
                "gbuffer_time_s": ts["gbuffer"], "frame_time_s": ts["frame"],
                **({"lights_time_s": ts["lights"]} if "lights" in ts else {}),
-               "bandwidth_time_fraction": ts["bandwidth"] / t if t > 0 else 0.0,
+               # each run's pass over that run's wall time, median over the runs: the last run's pass over the
+               # median time read 2.0 where every frame's share was 0.1 and the last run took 20 times as long
+               "bandwidth_time_fraction": statistics.median(s["bandwidth"] / w if w > 0 else 0.0 for w, s in stages),
                "shaded_fraction": res.stats["shaded_fraction"], "samples": res.stats["samples"],
                "samples_per_covered_pixel": res.stats["samples_per_covered_pixel"],
                "over_budget": res.stats["allocation"]["over_budget"],
@@ -431,8 +436,8 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
     nb_recs = []
     nbb = NB_SWEEP_BUDGET if nb_budget is None else nb_budget
     for n_b in nb_list:
-        res, t, err = _timed(lambda r: render_adaptive(prep, budget=nbb, seed=offset_seed(seed, ADA_SEED_RUN * r),
-                                                       mis=mis, n_b=int(n_b), **opts), runs, gt)
+        res, t, err, _ = _timed(lambda r: render_adaptive(
+            prep, budget=nbb, seed=offset_seed(seed, ADA_SEED_RUN * r), mis=mis, n_b=int(n_b), **opts), runs, gt)
         rec = {"n_b": int(n_b), "budget": float(nbb), "time_s": t, **err,
                "bandwidth_time_s": res.stats["time_s"]["bandwidth"], "shaded_fraction": res.stats["shaded_fraction"]}
         nb_recs.append(rec)
