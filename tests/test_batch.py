@@ -260,3 +260,40 @@ def test_a_scheduler_of_the_callers_own_runs_the_same_tasks(tmp_path, monkeypatc
     assert (tmp_path / "sync/chrome.sampling.npz").read_bytes() == \
         _single("brdf-sampling", "npf.bin", "chrome", tmp_path / "chrome.npz")
     assert [(b.total, b.n) for b in tqdm_bars] == [(2, 2)]
+
+
+def test_a_record_that_appears_while_the_batch_works_is_kept_not_replaced(tmp_path, monkeypatch, capsys):
+    """Two batches writing one folder at once (session 78): the one that ended second replaced the first one's
+    record without a word (write_json's default force), while README says an output that appears while a command
+    works is kept and the command ends with an error.  Now the record that appeared is kept, byte for byte, the
+    command says so in one line (its tables are written, its record is not) and exits 2; --force still replaces it,
+    and --resume still replaces the record that was there before it started."""
+    import precompute.batch as batch
+
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    real = batch.run_batch
+    other = b'{"format": "warpbw-precompute-batch", "items": []}\n'   # the other batch's record, written meanwhile
+
+    def meanwhile(items, out_dir, *args, **kwargs):
+        record = real(items, out_dir, *args, **kwargs)
+        (tmp_path / "out/batch.json").write_bytes(other)
+        return record
+
+    monkeypatch.setattr(batch, "run_batch", meanwhile)
+    r = _batch("npf.bin", "--materials", "chrome", "--tables", "sampling", "-o", "out", "--scheduler", "sync")
+    err = capsys.readouterr().err
+    assert r == "returned 2", r
+    assert "out/batch.json: already exists: it appeared while this batch worked" in err, err
+    assert len(err.strip().splitlines()) == 1 and "its tables are written, its record is not" in err, err
+    assert (tmp_path / "out/batch.json").read_bytes() == other
+    assert (tmp_path / "out/chrome.sampling.npz").exists()
+    # --resume: the record there before it started is its own to replace; one that appears meanwhile is kept
+    r = _batch("npf.bin", "--materials", "chrome", "--tables", "sampling", "-o", "out", "--scheduler", "sync",
+               "--resume")
+    assert r == "returned 0", r
+    assert json.loads((tmp_path / "out/batch.json").read_text())["items"][0]["kept"] == ["sampling"]
+    r = _batch("npf.bin", "--materials", "nickel", "--tables", "sampling", "-o", "out", "--scheduler", "sync",
+               "--force")
+    assert r == "returned 0", r
+    assert json.loads((tmp_path / "out/batch.json").read_text())["items"][0]["name"] == "nickel"
