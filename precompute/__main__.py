@@ -147,6 +147,7 @@ def _check_batch_record(path: Path) -> None:
 def cmd_batch(args) -> int:
     from precompute.batch import TABLES, batch_items, check_outputs, check_tables, run_batch
     from warpbw.cli_common import check_output_file, write_json
+    from warpbw.io.staged import output_exists
 
     tables = TABLES if args.tables is None else tuple(args.tables)
     try:    # the library names its parameters; here they are options
@@ -166,6 +167,9 @@ def cmd_batch(args) -> int:
     check_output_file(record_path, "--json", force=args.force or args.resume)
     if args.resume and not args.force:
         _check_batch_record(record_path)
+    # the record is replaced only where it may be: --force, or --resume's earlier record, there before the work; one
+    # that appears while the batch works (another batch writing this folder) is kept, as every command keeps it
+    replace_record = args.force or (args.resume and (record_path.exists() or record_path.is_symlink()))
     workers = min(args.workers or os.cpu_count() or 1, len(items))
     how = "one after the other" if args.scheduler == "sync" else f"{workers} at once"
     print(printable(f"{len(items)} BRDFs, {' and '.join(tables)} tables into {out}/ (Dask's {args.scheduler} "
@@ -177,7 +181,14 @@ def cmd_batch(args) -> int:
             print(printable(f"warpbw-precompute: warning: {w}"), file=sys.stderr)
         if r["error"] is not None:
             print(printable(f"warpbw-precompute: error: {r['name']}: {r['error']}"), file=sys.stderr)
-    write_json(record_path, record, say=False)
+    try:
+        write_json(record_path, record, say=False, force=replace_record)
+    except WarpbwError:
+        if not output_exists(record_path):   # not the record that appeared meanwhile: a full disk, a lost folder
+            raise
+        raise WarpbwError(f"{record_path}: already exists: it appeared while this batch worked (another batch writing "
+                          "this folder, or you), and is kept; its tables are written, its record is not (pass "
+                          "--resume and another --json to write it without building them again)") from None
     kept = sum(len(r["kept"]) for r in record["items"])
     built = sum(len(r["outputs"]) - len(r["kept"]) for r in record["items"] if r["error"] is None)
     print(printable(f"{out}/  ({built} tables built{f', {kept} kept' if kept else ''}, {record['failed']} BRDFs "

@@ -260,3 +260,124 @@ def test_a_scheduler_of_the_callers_own_runs_the_same_tasks(tmp_path, monkeypatc
     assert (tmp_path / "sync/chrome.sampling.npz").read_bytes() == \
         _single("brdf-sampling", "npf.bin", "chrome", tmp_path / "chrome.npz")
     assert [(b.total, b.n) for b in tqdm_bars] == [(2, 2)]
+
+
+def test_a_record_that_appears_while_the_batch_works_is_kept_not_replaced(tmp_path, monkeypatch, capsys):
+    """Two batches writing one folder at once (session 78): the one that ended second replaced the first one's
+    record without a word (write_json's default force), while README says an output that appears while a command
+    works is kept and the command ends with an error.  Now the record that appeared is kept, byte for byte, the
+    command says so in one line (its tables are written, its record is not) and exits 2; --force still replaces it,
+    and --resume still replaces the record that was there before it started."""
+    import precompute.batch as batch
+
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    real = batch.run_batch
+    other = b'{"format": "warpbw-precompute-batch", "items": []}\n'   # the other batch's record, written meanwhile
+
+    def meanwhile(items, out_dir, *args, **kwargs):
+        record = real(items, out_dir, *args, **kwargs)
+        (tmp_path / "out/batch.json").write_bytes(other)
+        return record
+
+    monkeypatch.setattr(batch, "run_batch", meanwhile)
+    r = _batch("npf.bin", "--materials", "chrome", "--tables", "sampling", "-o", "out", "--scheduler", "sync")
+    err = capsys.readouterr().err
+    assert r == "returned 2", r
+    assert "out/batch.json: already exists: it appeared while this batch worked" in err, err
+    assert len(err.strip().splitlines()) == 1 and "its tables are written, its record is not" in err, err
+    assert (tmp_path / "out/batch.json").read_bytes() == other
+    assert (tmp_path / "out/chrome.sampling.npz").exists()
+    # --resume: the record there before it started is its own to replace; one that appears meanwhile is kept
+    r = _batch("npf.bin", "--materials", "chrome", "--tables", "sampling", "-o", "out", "--scheduler", "sync",
+               "--resume")
+    assert r == "returned 0", r
+    assert json.loads((tmp_path / "out/batch.json").read_text())["items"][0]["kept"] == ["sampling"]
+    r = _batch("npf.bin", "--materials", "nickel", "--tables", "sampling", "-o", "out", "--scheduler", "sync",
+               "--force")
+    assert r == "returned 0", r
+    assert json.loads((tmp_path / "out/batch.json").read_text())["items"][0]["name"] == "nickel"
+
+
+def _start_batch(tmp_path, out: str):
+    """``warpbw-precompute batch`` of two stand-in NPF materials on the processes scheduler, two workers, in a process
+    of its own; (the process, its two worker processes' ids) once both workers run."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    fake_npf_table(tmp_path / "npf.bin")
+    env = dict(os.environ, WARPBW_CACHE=str(tmp_path / "_cache"))
+    p = subprocess.Popen([sys.executable, "-m", "precompute", "batch", "npf.bin", "--materials", "chrome,nickel",
+                          "-o", out, "--workers", "2", "-q"], cwd=tmp_path, env=env, stdin=subprocess.DEVNULL,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    end = time.monotonic() + 120
+    workers = []
+    while len(workers) < 2 and time.monotonic() < end and p.poll() is None:
+        time.sleep(0.2)
+        try:
+            kids = open(f"/proc/{p.pid}/task/{p.pid}/children").read().split()
+        except OSError:
+            kids = []
+        workers = [int(k) for k in kids if "spawn_main" in _cmdline(int(k))]
+    assert len(workers) == 2, (p.poll(), workers)
+    time.sleep(3)   # the workers import warpbw and start on their BRDFs
+    return p, workers
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return open(f"/proc/{pid}/cmdline", "rb").read().decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def _alive(pid: int) -> bool:
+    """``pid`` runs (a zombie left for a parent that does not reap it does not)."""
+    try:
+        return open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not __import__("os").path.exists("/proc/self/task"), reason="reads /proc (Linux)")
+def test_a_worker_killed_mid_batch_ends_it_in_one_line(tmp_path):
+    """A worker process killed with SIGKILL (the OOM killer): the batch ended with concurrent.futures'
+    BrokenProcessPool traceback and exit status 1 (session 78).  Now one line naming the out folder, what happened and
+    --resume, and the status of a user error."""
+    import os
+    import signal
+
+    p, workers = _start_batch(tmp_path, "out")
+    os.kill(workers[0], signal.SIGKILL)
+    out, err = p.communicate(timeout=180)
+    assert p.returncode == 2, (p.returncode, err)
+    assert err.startswith("warpbw-precompute: error: out: a worker process of the batch ended abruptly"), err
+    assert len(err.strip().splitlines()) == 1 and "--resume" in err, err
+
+
+@pytest.mark.skipif(not __import__("os").path.exists("/proc/self/task"), reason="reads /proc (Linux)")
+def test_a_batch_killed_takes_its_workers_with_it(tmp_path):
+    """The batch's own process killed with SIGKILL: its Dask workers went on, wrote the tables of the BRDFs in flight
+    after the command had ended, and stayed (session 78: idle, about 90 MB each).  Now they end with it and write
+    nothing more."""
+    import os
+    import signal
+    import time
+
+    p, workers = _start_batch(tmp_path, "out")
+    os.kill(p.pid, signal.SIGKILL)
+    p.wait(timeout=60)   # not communicate: workers that outlive it hold its pipes open
+    end = time.monotonic() + 10
+    while any(_alive(w) for w in workers) and time.monotonic() < end:
+        time.sleep(0.1)
+    alive = [w for w in workers if _alive(w)]
+    for w in alive:   # the test's own processes: not left behind whatever it finds
+        os.kill(w, signal.SIGKILL)
+    assert alive == [], f"worker processes {alive} outlived the batch"
+    written = sorted(f.name for f in (tmp_path / "out").iterdir() if not f.name.startswith("."))
+    time.sleep(3)
+    assert sorted(f.name for f in (tmp_path / "out").iterdir() if not f.name.startswith(".")) == written
+    p.stdout.close()
+    p.stderr.close()
