@@ -134,8 +134,11 @@ def _write_map(at: dict, exr: Path, png: Path, values, mask, log: bool = False) 
 
 
 def _write_aovs(res, out: Path, at: dict) -> dict:
-    """The adaptive method's AOVs (EXR + false-colour PNG each); returns their colour scales by name."""
-    return {name: _write_map(at, exr, png, res.aovs[name], res.coverage, log=AOVS[name][1] == "log")
+    """The adaptive method's AOVs (EXR + false-colour PNG each); returns their colour scales by name.  They speak of
+    the spheres' and meshes' pixels: in a frame with planes in front (``aovs["plane"]``) not of the planes' pixels,
+    where the adaptive maps hold what they hold on the background (N_p 0, not shaded)."""
+    mask = res.coverage & ~res.aovs["plane"] if "plane" in res.aovs else res.coverage
+    return {name: _write_map(at, exr, png, res.aovs[name], mask, log=AOVS[name][1] == "log")
             for name, (exr, png) in _aov_paths(out).items()}
 
 

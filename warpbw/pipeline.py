@@ -765,10 +765,12 @@ def render_with_planes(scene: Scene, filter_method: str, spp: int, seed: int = 0
     (:func:`warpbw.filtering.plane_distance`) clip their G-buffer first (:func:`warpbw.gbuffer.hide_beyond`).
     ``stats`` are the spheres and meshes' with ``planes`` (the filtering renderer's) added, ``pixels_covered``
     counting both, ``pixels_hidden`` the spheres and meshes' pixels a plane hides, and ``time_s.frame`` the sum
-    of the two frames; ``aovs`` add ``mip_level``, the planes' filtering level (0 elsewhere), and ``plane``, True
-    where a plane is in front.  The planes' arguments and ``gmm`` files are checked before the spheres and meshes
-    are loaded (``warpbw.filtering.check_gmm_files``), and their mipmaps loaded (or built) before they are
-    rendered."""
+    of the two frames (the adaptive method's ``samples_per_covered_pixel`` and ``shaded_fraction`` stay per pixel
+    of the spheres and meshes, ``pixels_covered - planes.pixels_covered``); ``aovs`` add ``mip_level``, the planes'
+    filtering level (0 elsewhere), and ``plane``, True where a plane is in front (the adaptive method's maps speak
+    of ``coverage & ~plane``: on a plane's pixels they hold the background's values).  The planes' arguments and
+    ``gmm`` files are checked before the spheres and meshes are loaded (``warpbw.filtering.check_gmm_files``), and
+    their mipmaps loaded (or built) before they are rendered."""
     from warpbw.filtering import (DEFAULT_ANISOTROPY, Background, check_gmm_files, check_render_args,
                                   plane_distance, prepare_filtering, render_filtering)
 
