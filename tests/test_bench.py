@@ -1787,8 +1787,8 @@ def test_a_bandwidth_file_leaves_the_ground_truths_key_and_the_reference_frame_a
 
 def test_bandwidth_time_fraction_is_each_frames_own_share_not_one_runs_pass_over_the_median(tmp_path, monkeypatch):
     """Closed form (session 78): every adaptive frame spends a tenth of its wall time in the bandwidth pass
-    (``_fake_adaptive_result``), and the last of 3 runs takes 20 times as long (a stall).  The fraction is then 0.1 whatever
-    the runs took; it was the last run's pass over the runs' median time, 0.1 x 20 = 2.0, and the table said
+    (``_fake_adaptive_result``), and the last of 3 runs takes 20 times as long (a stall).  The fraction is then 0.1
+    whatever the runs took; it was the last run's pass over the runs' median time, 0.1 x 20 = 2.0, and the table said
     "bandwidth pass: 200.0% of the frame" (runs of 2, 1 and 3 times: 0.15; the slow run first: 0.1 by chance)."""
     from warpbw.scene import parse_scene
 
