@@ -984,6 +984,9 @@ def test_the_pass_checks_its_tables_and_structs_before_any_launch(monkeypatch):
     for t, msg in ((short(0), r"^bandwidth pass: tables: expected a BRDF bandwidth table \(4096 values\) for each of "
                               rf"the {n_mat} materials, got 0 values"),
                    (short(4095), r"^bandwidth pass: tables: expected a BRDF bandwidth table .*got 4095 values"),
+                   # round 11: more than the materials need, but no whole number of tables
+                   (short(4096 * n_mat + 7), r"^bandwidth pass: tables: expected a BRDF bandwidth table .*got "
+                                             rf"{4096 * n_mat + 7} values"),
                    (bw.BandwidthTables(), r"^bandwidth pass: tables: expected a BRDF bandwidth table .*got none"),
                    (short(4096 * n_mat, (0, 4)), r"^bandwidth pass: tables: expected a non-empty environment"),
                    (None, r"^bandwidth pass: tables: expected BandwidthTables \(make_bandwidth_tables\), got NoneType"),
@@ -1521,3 +1524,49 @@ def test_a_mis_frames_variance_map_is_the_step_variance_over_n_p_and_its_allocat
     assert a.n_p.max() > 4 * a.n_p.min()   # the patterns are told apart: not every pixel at one count
     v = v_step.astype(np.float32).astype(np.float64)
     np.testing.assert_allclose(a.variance, v / a.n_p, rtol=1e-5)
+
+
+def test_nu_env_table_halves_only_while_both_sides_divide():
+    """Round 11: ``nu_env_table`` reduces by the largest 2^k that divides both sides (and leaves ``width`` columns):
+    a 40 x 512 map to width 32 by 8 (40 is no multiple of 16), to 5 x 64, each texel the max of its 8 x 8 block
+    (brute force here); a map with an odd side is not reduced.  Halving by the columns alone reduced 40 rows by 16."""
+    rng = np.random.default_rng(5)
+    nu = rng.random((40, 512)).astype(np.float32)
+    np.testing.assert_array_equal(bw.nu_env_table(nu, width=32), nu.reshape(5, 8, 64, 8).max(axis=(1, 3)))
+    odd = rng.random((129, 1024)).astype(np.float32)
+    np.testing.assert_array_equal(bw.nu_env_table(odd, width=32), odd)
+
+
+@pytest.mark.parametrize("allocation", [a for a in bw.ALLOCATIONS if a != "uniform"])
+def test_allocation_refuses_a_negative_variance_at_a_covered_pixel(allocation):
+    """Round 11: ``allocate_samples`` refuses a key that is not >= 0 at a covered pixel (its docstring), as it refuses
+    an inf one.  (The sqrt key of -1 is NaN, the variance key's N_p would be clamped to n_min: a budget spent
+    elsewhere without a word.)"""
+    rng = np.random.default_rng(7)
+    sig = rng.lognormal(0, 2, size=(6, 10))
+    sig[2, 7] = -1.0
+    cov = np.ones((6, 10), bool)
+    with pytest.raises(WarpbwError, match=r"variance is not a finite number >= 0 at 1 of 60 covered pixels"):
+        bw.allocate_samples(_fake_buffer(sig, np.zeros((6, 10)), cov, sig, sig), budget=4.0, allocation=allocation)
+
+
+def test_the_estimators_variance_and_the_measured_key_are_the_documented_arrays_with_and_without_mis():
+    """Round 11: ``BandwidthBuffer.estimator_variance(mis)`` is ``variance_step`` with MIS and ``variance_bis``
+    without; ``measured_key(mis)`` is ``variance_mis`` with MIS and ``variance_bis`` without (their docstrings and
+    the module docstring, "Why measured").  The three differ on a lit GGX sphere's pass, so each is told apart."""
+    gb, buf = run_pass(prepared(GGX_SHARP, env='procedural = "sky"', w=24, h=18))
+    cov = gb.coverage.reshape(-1)
+    step, mis, bis = (a.numpy()[cov] for a in (buf.variance_step, buf.variance_mis, buf.variance_bis))
+    assert not np.allclose(step, mis) and not np.allclose(step, bis) and not np.allclose(mis, bis)
+    assert buf.estimator_variance(True) is buf.variance_step and buf.estimator_variance(False) is buf.variance_bis
+    assert buf.measured_key(True) is buf.variance_mis and buf.measured_key(False) is buf.variance_bis
+
+
+def test_the_log_signal_refuses_negative_luminance():
+    """Round 11: ``env_signal(lum, "log")`` divides by the mean and takes log1p: it expects luminance >= 0 (its
+    error says so).  A map with one texel of -0.5 and a positive mean gave log1p of a negative ratio, a NaN at -1
+    and below, read on as a bandwidth; refused now, naming the minimum."""
+    lum = np.array([[1.0, 2.0], [-0.5, 3.0]])
+    with pytest.raises(WarpbwError, match=r"expected finite luminance >= 0 with a mean > 0, got mean 1.375, "
+                                          r"minimum -0.5"):
+        bw.env_signal(lum, "log")

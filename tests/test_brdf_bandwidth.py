@@ -1093,3 +1093,19 @@ def test_a_mirror_narrower_than_a_pixel_reads_the_maps_limit_not_zero():
     most = np.where(real_pixels(n).reshape(N_CELLS, n // N_CELLS, N_CELLS, n // N_CELLS).any(axis=(1, 3)),
                     table, 0.0).max(axis=(1, 2))
     assert np.all(most[:15] >= floor), (floor, most.round(2).tolist())
+    # round 11: the mirror direction lies on the edge between the map's two middle rows (the plane of incidence), so
+    # the cells on both sides of that edge, at its column, hold directions within the lobe: both read the floor, and
+    # what a lobe of those two pixels reads (a slice of 1 at them and 0 elsewhere, analysed here; not the map's
+    # limit of 0.5 cycles/pixel, which put chrome's cells 1.5-2x higher)
+    from precompute.brdf_bandwidth import wo_to_map
+    rows = [n // 2 - 1, n // 2]
+    for t, th in enumerate(theta_i_centres()[:15]):
+        x = wo_to_map(np.array([[-math.sin(th), 0.0, math.cos(th)]]))[0, 0]
+        col = min(int((x + 1.0) * 0.5 * n), n - 1)
+        cell = col // (n // N_CELLS)
+        pair = np.zeros((n, n))
+        pair[rows, col] = 1.0
+        want = slice_bandwidth(pair)[rows, col].max()
+        for c in table[t, N_CELLS // 2 - 1:N_CELLS // 2 + 1, cell]:
+            assert floor <= c and c == pytest.approx(want, rel=0.02), (t, cell, c, want)
+

@@ -791,3 +791,13 @@ def test_mip_levels_keep_what_they_average_where_it_was(h):
         val = E.eval_radiance_lod(env, d, float(lod))[:, 0]
         moved = (v[np.argmax(val >= 0.5)] - step) * (h - 1)   # in rows of level 0
         assert abs(moved) < 0.5, f"lod {lod}: the cap's edge moved by {moved:+.2f} rows of level 0"
+
+
+
+def test_maps_of_the_same_bytes_in_another_shape_or_type_have_other_source_digests():
+    """Round 11: ``EnvMap.source_digest`` names the map as given: the same bytes as a 4 x 8 and an 8 x 4 map, or as
+    float32 and int32 values, are other maps (the bandwidth cache is keyed by the digest: one map's entry was read for
+    the other).  Truth: the arrays built here."""
+    a = np.random.default_rng(3).random((4, 8, 3)).astype(np.float32)
+    digests = {E.envmap_from_array(x).source_digest for x in (a, a.reshape(8, 4, 3), a.view(np.int32))}
+    assert len(digests) == 3

@@ -496,7 +496,7 @@ def test_planes_under_the_city_sun_every_method_is_finite(city, tmp_path):
         assert means[m] == pytest.approx(means["ground_truth"], rel=0.03), (m, means)
 
 
-@pytest.mark.parametrize("allocation", ["measured", "variance"])
+@pytest.mark.parametrize("allocation", ["measured", "variance", "relative"])   # round 11: "relative" too
 def test_adaptive_refuses_radiance_whose_square_overflows_the_bandwidth_pass(allocation):
     """The bandwidth pass sums squared radiance (Eq. 9's chi * w, the MIS second moment) in float32: a sky of
     1e20, within float32 (the reference renders it), squares to 1e40 > 3.4e38.  It once returned inf sigma2 (and,
@@ -545,6 +545,36 @@ def test_adaptive_refuses_radiance_whose_square_underflows_the_bandwidth_pass(al
                                           r"[0-9.e+-]+ over its lit pixels\) is below sqrt\(float32's smallest "
                                           r"normal\) = 1.1e-19"):
         frame(1e-25)
+
+
+def test_the_underflow_refusal_lies_at_sqrt_of_float32_tiny_and_spares_the_uniform_allocation():
+    """Round 11: the refusal of a dark frame reads the median of the pass's lit radiance against sqrt(float32's
+    smallest normal) (``RADIANCE_UNDERFLOW_MAX``, computed here from numpy): a probe scaled to put that median 3 times
+    below it is refused, 3 times above it renders; the "uniform" allocation, which reads no variance, renders at
+    1e-25.  Truth: the median at exposure 1e-25, read off the refusal, times 1e25 is the frame's at 1 (light is
+    linear).  The old test's 1e-25 and 1e-15 lay 6 and 4 decades from the threshold."""
+    import re
+
+    from warpbw.pipeline import prepare_scene, render_adaptive
+
+    limit = math.sqrt(float(np.finfo(np.float32).tiny))
+    env = np.ones((16, 32, 3), np.float32)
+    env[5, 10] = 1e4
+    objs = [((0.0, 0.0, 0.0), 1.0, "l"), ((2.2, 0.0, 0.0), 1.0, "g")]
+
+    def frame(k, allocation="measured"):
+        prep = prepare_scene(scene(env="constant = [1.0, 1.0, 1.0]", objects=objs, resolution=(24, 12),
+                                   position=(1.1, 0.0, 6.0), look_at=(1.1, 0.0, 0.0)))
+        prep.env = envmap_from_array(env, scale=k, name="sun")
+        return render_adaptive(prep, budget=4.0, seed=1, mis=True, allocation=allocation)
+
+    with pytest.raises(WarpbwError) as err:
+        frame(1e-25)
+    m1 = float(re.search(r"\(median ([0-9.e+-]+) over", str(err.value)).group(1)) / 1e-25
+    with pytest.raises(WarpbwError, match="is below sqrt"):
+        frame(limit / (3.0 * m1))
+    assert frame(3.0 * limit / m1).coverage.any()
+    assert frame(1e-25, "uniform").coverage.any()
 
 
 # ------------------------------------------------------------------------------------------ scene scale

@@ -936,6 +936,12 @@ def test_a_filtering_scene_prepared_for_another_scene_is_refused(tmp_path):
                              environment="[environment]\nconstant = [1.0, 1.0, 1.0]\n"),
             r"^prepared: prepared for s\.toml, with \[environment\] none; this scene has constant \[1\.0, 1\.0, "
             r"1\.0\].*; expected")
+    # round 11: a GMM method's mipmap holds the material's components too
+    gprep = prepare_filtering(s, ("gmm_aligned",))
+    with pytest.raises(WarpbwError, match=r"^prepared: prepared for s\.toml, where \[material\.m\] has gmm_components "
+                                          r"= \d+; this scene's has 3; expected"):
+        three = text.replace("normal_map_scale = 0.5", "normal_map_scale = 0.5\ngmm_components = 3")
+        render_filtering(parse_scene(three, tmp_path, "o.toml"), "gmm_aligned", prepared=gprep)
     # the same scene read again, or another camera and roughness: rendered with the prepared mipmaps
     again = parse_scene(text, tmp_path, "o.toml")
     assert np.array_equal(render_filtering(again, "lean", prepared=prep).image, render_filtering(s, "lean").image)
@@ -975,6 +981,8 @@ def test_gmm_ndf_of_a_component_too_sharp_for_float32_is_refused_and_a_sharp_one
     assert gmm_ndf([[0.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.01]], 0.0, h)[0] == pytest.approx(1.0 / (2 * np.pi * 0.01),
                                                                                               rel=1e-6)
     np.testing.assert_allclose(gmm_ndf([[1.0, 0.0, 0.0, 1e-10]], 0.0, h), [1.0 / (2 * np.pi * 1e-10), 0.0], rtol=1e-6)
+    # round 11: a component of s^2 = 0 is no delta where the roughness widens it: var = rough_var (the closed form)
+    assert gmm_ndf([[1.0, 0.0, 0.0, 0.0]], 0.01, h)[0] == pytest.approx(1.0 / (2 * np.pi * 0.01), rel=1e-6)
 
 
 def test_numbers_of_other_types_are_taken_where_they_are_real(monkeypatch):
@@ -2565,3 +2573,29 @@ def test_a_tilted_fine_normal_under_a_white_sky_reflects_what_the_models_quadrat
     fixed = render_filtering(s, "fixed", prepared=prep, env_spp=8192, seed=1).image[2, 3]
     gt = render_filtering(s, "ground_truth", spp=8192, prepared=prep, seed=1).image[2, 3]
     assert np.allclose(fixed, albedo, rtol=0.02) and np.allclose(gt, albedo, rtol=0.02), (albedo, fixed, gt)
+
+
+def test_a_zoomed_camera_moves_along_its_line_to_the_look_at_point():
+    """Round 11: ``zoomed_camera`` keeps the look-at point, direction, up, fov and size, and puts the camera at zoom
+    times its distance from the look-at point, on the same side.  Truth: a camera at (1, 3, 5) looking at (2, -1, 0)
+    zoomed by 0.5 stands at (1.5, 1, 2.5), by 3 at (-1, 11, 15).  (Scaling the position about the origin moved it
+    off the line unless the look-at point was the origin, as in the zoom figures' scenes.)"""
+    from warpbw.scene import Camera
+
+    cam = Camera((1.0, 3.0, 5.0), (2.0, -1.0, 0.0), (0.0, 1.0, 0.0), 40.0, 32, 24)
+    for zoom, want in ((0.5, (1.5, 1.0, 2.5)), (3.0, (-1.0, 11.0, 15.0))):
+        z = zoomed_camera(cam, zoom)
+        np.testing.assert_allclose(z.position, want, rtol=1e-12)
+        assert (z.look_at, z.up, z.fov, z.width, z.height) == (cam.look_at, cam.up, 40.0, 32, 24)
+
+
+def test_normal_moment_mipmap_names_the_first_normal_off_unit_length_and_counts_them():
+    """Round 11: ``normal_moment_mipmap`` refuses normals off unit length by more than ``UNIT_LENGTH_TOL``, counting
+    them and naming the first in row-major order (not the farthest off).  Truth: a 3 x 4 map of +Z with texel (0, 2)
+    1.01 long and texel (2, 1) 3 long: 2 of 12, the first (0, 2)."""
+    n = np.zeros((3, 4, 3))
+    n[..., 2] = 1.0
+    n[0, 2, 2] = 1.01
+    n[2, 1, 2] = 3.0
+    with pytest.raises(WarpbwError, match=r"2 of 12 are not \(the first, texel \(0, 2\): \[0\.0, 0\.0, 1\.01\]\)"):
+        normal_moment_mipmap(n)

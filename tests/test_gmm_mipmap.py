@@ -1670,3 +1670,63 @@ def test_kmeans_init_runs_exactly_the_lloyd_iterations_asked_for(iterations):
     np.testing.assert_allclose(mu[0, :, 0], want_mu, atol=1e-15)
     np.testing.assert_allclose(a[0], [0.5, 0.5], atol=1e-15)
     np.testing.assert_allclose(s2[0], np.array(spread) / (2 * 2), rtol=1e-12)   # / (d * cluster size)
+
+
+def _one_texel(a, mu, e2):
+    """A 1 x 1 level of K components from weights a (K,), means mu (K, 2) and E|n|^2 e2 (K,), as moments
+    (a, a mu_x, a mu_y, a E|n|^2): written out here, not with the module's converter."""
+    a, mu, e2 = np.asarray(a, float), np.asarray(mu, float), np.asarray(e2, float)
+    return [np.stack([a, a * mu[:, 0], a * mu[:, 1], a * e2], axis=-1)[None, None].astype(np.float32)]
+
+
+@pytest.mark.parametrize("a, mu, e2, said", [
+    ([0.5, 0.4], [[0.1, 0.0], [0.0, 0.2]], [0.1, 0.1], "weights sum to 0.9"),            # below 1 by 0.1
+    ([0.5, 0.5], [[0.1, 0.0], [0.0, 0.2]], [1.01, 0.1], "beyond the unit disk"),         # E|n|^2 > 1 by 1%
+    ([0.5, 0.5], [[0.6, 0.0], [0.0, 0.2]], [0.30, 0.1], "negative variances"),           # E|n|^2 < |mu|^2 = 0.36
+    ([-0.01, 1.01], [[0.0, 0.0], [0.0, 0.2]], [0.0, 0.1], "negative weights"),           # a weight of -0.01
+])
+def test_mipmap_problem_finds_each_damage_by_its_own_bound(a, mu, e2, said):
+    """Round 11: ``mipmap_problem`` refuses weights that sum to other than 1 (either side), a second moment beyond
+    the unit disk of projected normals, one below the squared mean (a negative variance, at a weight under 1, where
+    the moments carry a), and a negative weight, each at its tolerance (``WEIGHT_SUM_TOL``, ``MOMENT_TOL``).  Truth:
+    the moments written out for components whose damage is set by hand, beside the same texel undamaged."""
+    from precompute.gmm_mipmap import mipmap_problem
+
+    assert mipmap_problem(_one_texel([0.5, 0.5], [[0.1, 0.0], [0.0, 0.2]], [0.1, 0.1]), 2, 0.0, 1.0) is None
+    problem = mipmap_problem(_one_texel(a, mu, e2), 2, 0.0, 1.0)
+    assert problem is not None and said in problem, problem
+
+
+def test_a_prior_beyond_the_command_lines_bound_is_refused_and_left_out_of_a_rebuild_hint():
+    """Round 11: the prior is held to what ``warpbw-precompute gmm --prior`` takes, 0 to ``MAX_PRIOR`` (1e6): a file
+    recording 1e7 is refused by ``mipmap_problem``, and ``rebuild_command`` leaves it out (the default rebuilds)."""
+    from precompute.gmm_mipmap import MAX_PRIOR, mipmap_problem, rebuild_command
+
+    level = _one_texel([1.0], [[0.1, 0.0]], [0.1])
+    assert mipmap_problem(level, 1, MAX_PRIOR, 1.0) is None
+    assert "prior 10000000.0 (expected 0 to 1e+06)" in mipmap_problem(level, 1, 1e7, 1.0)
+    assert "--prior 1000000.0" in rebuild_command("bumps.png", {"prior": MAX_PRIOR})
+    assert "--prior" not in rebuild_command("bumps.png", {"prior": 1e7})
+
+
+def test_weighted_kmeans_is_unweighted_kmeans_of_the_samples_repeated_by_their_weights():
+    """Round 11: the builder weighs a clipped footprint's samples (``_footprint_weights``, mean 1 per texel).  Truth:
+    a sample of weight 2 is that sample twice, and one of weight 0 none: ``_kmeans_init`` with weights (2, 0, 1, 1,
+    2, 0) gives what it gives for the six samples (x0, x0, x2, x3, x4, x4) unweighted, fractions, centres and
+    spreads, with a centre that no sample is nearest (its spread is then the texel's variance, weighted).  And
+    k-means++ never seeds a centre at a sample of weight 0 (400 seeds)."""
+    from precompute.gmm_mipmap import _kmeans_init, _kmeans_plus_plus
+
+    x = np.array([[[0.0, 0.0], [0.3, 0.1], [0.1, 0.05], [0.5, 0.5], [0.6, 0.4], [-0.4, 0.2]]])
+    w = np.array([[2.0, 0.0, 1.0, 1.0, 2.0, 0.0]])
+    dup = x[:, [0, 0, 2, 3, 4, 4]]
+    centres = np.array([[[0.0, 0.0], [0.55, 0.45], [5.0, 5.0]]])
+    for it in (0, 3):
+        got, want = _kmeans_init(x, centres, it, w=w), _kmeans_init(dup, centres, it)
+        for g, e in zip(got, want):
+            np.testing.assert_allclose(g, e, rtol=1e-12, atol=1e-15)
+    rng = np.random.default_rng(3)
+    for _ in range(400):
+        c = _kmeans_plus_plus(x, 3, rng, w)
+        hits = np.all(np.isclose(c[0][:, None, :], x[0][None, [1, 5], :]), axis=-1)
+        assert not hits.any(), c

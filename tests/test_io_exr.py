@@ -442,7 +442,7 @@ def _valid_files(tmp_path) -> list:
     return files
 
 
-def _multilevel_exr(path, px, mode):
+def _multilevel_exr(path, px, mode, round_up=False):
     """An uncompressed tiled EXR of ``px`` (H, W, 3) at level 0, with MIPMAP_LEVELS (``mode`` 1) or RIPMAP_LEVELS
     (2) rounded down, every coarser level (lx, ly) filled with lx + 10 ly + 1 (not what the level holds), written byte
     by byte (OpenEXR file layout: tiledesc's mode byte; the offset table and chunks level by level, x fastest, tile
@@ -460,15 +460,17 @@ def _multilevel_exr(path, px, mode):
         attr("pixelAspectRatio", "float", struct.pack("<f", 1)),
         attr("screenWindowCenter", "v2f", struct.pack("<2f", 0, 0)),
         attr("screenWindowWidth", "float", struct.pack("<f", 1)),
-        attr("tiles", "tiledesc", struct.pack("<IIB", tile, tile, mode)), b"\0"))
+        attr("tiles", "tiledesc", struct.pack("<IIB", tile, tile, mode | (0x10 if round_up else 0))), b"\0"))
     nx, ny = w.bit_length(), h.bit_length()                     # floor(log2(size)) + 1 levels per axis
+    if round_up:                                                # ceil(log2(size)) + 1, sizes rounded up
+        nx, ny = (w - 1).bit_length() + 1, (h - 1).bit_length() + 1
     if mode == 1:
         levels = [(i, i) for i in range(max(nx, ny))]
     else:
         levels = [(lx, ly) for ly in range(ny) for lx in range(nx)]
     chunks = []
     for lx, ly in levels:
-        lw, lh = max(1, w >> lx), max(1, h >> ly)
+        lw, lh = (max(1, -(-w >> lx)), max(1, -(-h >> ly))) if round_up else (max(1, w >> lx), max(1, h >> ly))
         img = px[..., ::-1] if (lx, ly) == (0, 0) else np.full((lh, lw, 3), lx + 10 * ly + 1, np.float32)
         for ty in range(-(-lh // tile)):
             for tx in range(-(-lw // tile)):
@@ -757,3 +759,86 @@ def test_a_scene_whose_probe_is_converted_hashes_apart_from_what_earlier_code_re
     monkeypatch.setattr(exr, "colour_conversion", lambda path: None)
     assert load_scene(tmp_path / "aces.toml").content_hash() != hashes["aces"]
     assert load_scene(tmp_path / "srgb.toml").content_hash() == hashes["srgb"]
+
+
+def _offset_table(data: bytes) -> int:
+    """The byte at which a single-part EXR's offset table starts: past the header's attributes (name\\0 type\\0
+    size value, to the NUL byte that ends them; OpenEXR file layout), read here by hand."""
+    at = 8
+    while data[at] != 0:
+        at = data.index(b"\0", data.index(b"\0", at) + 1) + 1
+        at += 4 + struct.unpack_from("<i", data, at)[0]
+    return at + 1
+
+
+@pytest.mark.parametrize("kind", ["edge tile", "subsampled line"])
+def test_a_chunk_claiming_more_data_than_its_pixels_unpacked_is_found_at_the_edge_and_with_subsampling(tmp_path,
+                                                                                                       kind):
+    """Round 11: an uncompressed chunk's data are its pixels unpacked (OpenEXR stores them so), so one whose data size
+    says 4 bytes more is damaged: a tile on the right edge of a ONE_LEVEL tiled file (53 columns in tiles of 8: 5 of
+    them), a scan line of a file with channels sampled 2 x 2 (on even lines they add their samples).  Truth: the
+    chunk's own size field before the edit.  Bounds taken from whole tiles, or from every channel on every line,
+    were larger and saw nothing."""
+    from warpbw.io.exr_layout import exr_damage
+
+    import OpenEXR
+
+    if kind == "edge tile":
+        px = np.random.default_rng(6).random((37, 53, 3), dtype=np.float32)
+        tiles = OpenEXR.TileDescription()
+        tiles.xSize, tiles.ySize, tiles.mode, tiles.roundingMode = 8, 16, OpenEXR.ONE_LEVEL, OpenEXR.ROUND_DOWN
+        path = tmp_path / "tiled.exr"
+        OpenEXR.File({"compression": OpenEXR.NO_COMPRESSION, "type": OpenEXR.tiledimage, "tiles": tiles},
+                     {"R": px[..., 0], "G": px[..., 1]}).write(str(path))
+        k, leader = 6, 20   # tile (6, 0): 5 x 16 pixels
+    else:
+        path, k, leader = _subsampled_exr(tmp_path / "sub.exr"), 4, 8   # line y = 0: Y and the 2 x 2 channels
+    assert exr_damage(path) is None
+    data = bytearray(path.read_bytes())
+    at = struct.unpack_from("<Q", data, _offset_table(bytes(data)) + 8 * k)[0]
+    size = struct.unpack_from("<i", data, at + leader - 4)[0]
+    struct.pack_into("<i", data, at + leader - 4, size + 4)
+    (tmp_path / "bad.exr").write_bytes(bytes(data))
+    msg = exr_damage(tmp_path / "bad.exr")
+    assert msg is not None and f"its data size is {size + 4} bytes, more than the {size} its pixels take" in msg, msg
+
+
+def test_a_chunk_of_no_data_and_a_tiled_flag_beside_the_deep_flag_are_damage(tmp_path):
+    """Round 11: a chunk whose data size is 0 holds none of its pixels (OpenEXR writes no empty chunk), and the
+    single-part tiled flag 0x200 set beside the deep-data flag 0x800 is no layout the file format allows ("Version
+    Field"); each edit of a whole file is found.  Truth: the edits, made here by hand."""
+    from warpbw.io.exr_layout import exr_damage
+
+    path = _subsampled_exr(tmp_path / "sub.exr")
+    data = bytearray(path.read_bytes())
+    at = struct.unpack_from("<Q", data, _offset_table(bytes(data)) + 8 * 4)[0]
+    struct.pack_into("<i", data, at + 4, 0)
+    (tmp_path / "empty.exr").write_bytes(bytes(data))
+    msg = exr_damage(tmp_path / "empty.exr")
+    assert msg is not None and "its data size is 0" in msg, msg
+    data = bytearray(path.read_bytes())
+    struct.pack_into("<I", data, 4, struct.unpack_from("<I", data, 4)[0] | 0x200 | 0x800)
+    (tmp_path / "flags.exr").write_bytes(bytes(data))
+    msg = exr_damage(tmp_path / "flags.exr")
+    assert msg is not None and "the single-part tiled flag 0x200 is set with the deep-data or multi-part flag" in msg, \
+        msg
+
+
+@pytest.mark.parametrize("mode", [1, 2], ids=["mipmap", "ripmap"])
+def test_a_tiled_exr_whose_levels_round_up_reads_and_a_cut_in_its_last_level_is_found(tmp_path, mode):
+    """Round 11: with ROUND_UP (tiledesc's mode bit 0x10) a part has ceil(log2(size)) + 1 levels per axis, of sizes
+    rounded up (OpenEXR file layout, "Tiles"): a 33 x 37 map has 7 levels per axis, not 6, and level 1 is 17 x 19
+    (2 x 2 tiles of 16), not 16 x 18 (1 x 2).
+    Written so byte by byte, it reads as its level 0 and the layout checks find nothing; cut inside its last chunk
+    (the coarsest level's), that chunk is named.  Counted or sized rounded down, the checks stopped before it."""
+    from warpbw.io.exr_layout import exr_damage
+
+    px = np.random.default_rng(9).random((37, 33, 3), dtype=np.float32)
+    path = _multilevel_exr(tmp_path / f"up{mode}.exr", px, mode, round_up=True)
+    assert np.array_equal(read_rgb(path), px)
+    assert exr_damage(path) is None
+    (tmp_path / "cut.exr").write_bytes(path.read_bytes()[:-10])
+    msg = exr_damage(tmp_path / "cut.exr")
+    pairs = [(lv, lv) for lv in range(7)] if mode == 1 else [(lx, ly) for ly in range(7) for lx in range(7)]
+    n = sum(-(-math.ceil(33 / 2 ** lx) // 16) * -(-math.ceil(37 / 2 ** ly) // 16) for lx, ly in pairs)   # tiles
+    assert msg is not None and f"inside chunk {n} of {n}" in msg, msg

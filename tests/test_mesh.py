@@ -564,6 +564,9 @@ TRIANGLE_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\n"
     ("f 1 2 3\nf -1 -2 -99999999999999999999\n", ":5: face index -99999999999999999999 counts back past the 3 vertices "
                                                 "defined before it"),
     ("f -1 -2 -4\n", ":4: face index -4 counts back past the 3 vertices defined before it"),
+    # round 11: one past the last vertex, and past those defined before the face though not past the file's
+    ("f 1 2 4\n", ":4: face index 4 is past the file's 3 vertices"),
+    ("f -4 -2 -1\nv 7 0 0\n", ":4: face index -4 counts back past the 3 vertices defined before it"),
     ("vt 0 0\nvn 0 0 1\nf 1/1/1 2/1/1 3/1/1\nf 1/1/1 3/1/1 9/1/1\n", ":7: face index 9 is past the file's 3 vertices"),
     # trimesh dropped every texture coordinate for one out of range, and the mesh rendered without them
     ("vt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\nf 3/3 2/2 1/7\n", ":8: face texture index 7 is past the file's 3 texture "
@@ -933,3 +936,28 @@ def test_a_texture_seam_is_no_crease_in_the_smooth_normals_or_the_curvature(tmp_
     h = m.mean_curvature * RADIUS
     assert np.abs(h[~pole] - 1.0).max() < 0.01
     assert np.abs(h[seam] - 1.0).max() < 0.01
+
+
+@pytest.mark.parametrize("mode, triangles", [(4, 2), (5, 4), (6, 4)], ids=["triangles", "strip", "fan"])
+def test_a_gltf_of_triangle_strips_or_fans_counts_n_minus_2_triangles(tmp_path, mode, triangles):
+    """Round 11: ``mesh_triangles`` counts a glTF primitive of n vertices as n / 3 triangles (mode 4), and as n - 2
+    for a strip (5) or a fan (6) (glTF 2.0, "Primitive": mode).  Truth: a primitive of 6 vertices written here with
+    each mode: 2, 4 and 4 triangles; counted n / 3 for every mode, a strip read 2."""
+    import base64
+    import json as js
+
+    from warpbw.io.mesh import mesh_triangles
+
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0, 2, 0], [1, 2, 0]], np.float32)
+    if mode == 6:   # a fan around vertex 0
+        pts = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [-1, 1, 0], [-1, 0, 0]], np.float32)
+    blob = pts.tobytes()
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "mode": mode}]}],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 6, "type": "VEC3",
+                          "min": pts.min(0).tolist(), "max": pts.max(0).tolist()}],
+           "bufferViews": [{"buffer": 0, "byteLength": len(blob)}],
+           "buffers": [{"byteLength": len(blob),
+                        "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}]}
+    (tmp_path / "m.gltf").write_text(js.dumps(doc))
+    assert mesh_triangles(tmp_path / "m.gltf") == triangles

@@ -402,3 +402,24 @@ def test_a_vertex_whose_faces_cancel_is_refused_on_the_device_and_the_host_as_lo
     n, _ = on_device(thin, f)
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-6)
     np.testing.assert_allclose(n, normals_and_curvature(thin, f)[0], atol=1e-5)
+
+
+@pytest.mark.parametrize("scale", [1e-4, 1.0, 1e4])
+def test_cancelling_faces_are_found_relative_to_their_area_at_any_scale_and_at_any_corner(scale):
+    """Round 11: ``cancelled_kernel``'s test is relative (``CANCEL_REL`` of the summed face-normal lengths, every corner
+    of a face adding its length).  Truth: two coincident triangles wound in opposite directions cancel at all three
+    vertices, the middle one at corner 1 of both faces; the flattened icosphere's 16 rim vertices cancel at every
+    scale (float32 positions: their float64 sums are exactly 0), and the icosphere pressed to 1e-6 of its radius keeps
+    a normal at every vertex at every scale (its rim's sums are about 1e-6 of the areas: 1e-14 at a scale of 1e-4).
+    An absolute test (``CANCEL_REL`` itself) refused that pose at 1e-4, and a length summed at two corners of three
+    missed the middle vertex."""
+    pair = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]) * scale
+    with pytest.raises(WarpbwError, match=r"^points: 3 vertices have no normal"):
+        on_device(pair, np.array([[0, 1, 2], [2, 1, 0]]))
+    v, f, rim = _flattened_icosphere(1)
+    with pytest.raises(WarpbwError, match=rf"^points: {int(rim.sum())} vertices have no normal"):
+        on_device(v * scale, f)
+    thin = v.copy()   # pressed to 1e-6 of its radius: a surface with a direction at every vertex, at any scale
+    thin[:, 1] = 1e-6 * np.asarray(trimesh.creation.icosphere(subdivisions=2).vertices)[:, 1]
+    n, _ = on_device(thin * scale, f)
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-6)

@@ -721,3 +721,16 @@ def test_directional_albedo_agrees_with_a_brute_force_estimate_at_oblique_views(
     g = f(wi, np.broadcast_to(wo, wi.shape))[:, 0] * z * 2 * np.pi        # pdf 1 / (2 pi)
     a = directional_albedo(f, t)[0, 0]
     assert abs(a - g.mean()) < 4 * g.std() / math.sqrt(len(g)) + 1e-3 * g.mean(), (a, g.mean())
+
+
+def test_directional_albedo_reads_negative_and_nan_brdf_values_as_zero():
+    """Round 11: ``directional_albedo`` integrates f cos_i with NaN, +inf and negative values read as 0 (``_rgb``'s
+    docstring), as the sampling tables' importance does.  Truth: a Lambertian of 0.5 / pi in red, -0.5 / pi in green
+    and NaN in blue has albedo (0.5, 0, 0) at every view, to the midpoint rule's 1e-3."""
+    from warpbw.sampling import directional_albedo
+
+    def brdf(wi, wo):
+        return np.tile([0.5 / np.pi, -0.5 / np.pi, np.nan], (len(wi), 1))
+
+    a = directional_albedo(brdf, [0.0, 0.7])
+    np.testing.assert_allclose(a, [[0.5, 0.0, 0.0]] * 2, atol=1e-3)
