@@ -87,6 +87,12 @@ SEAM_GAP_REL = 1.0e-6
 # of a scene scaled by 1e-7), and on a mesh, relative to its half diagonal: a camera standing on a surface sees past
 # the point it stands on (on a mesh it took it: every pixel showed that one point, session 77)
 T_EPS_REL = 1.0e-6
+# A sphere's root whose two terms cancel (a camera on the sphere: the point it stands on) carries the float32
+# rounding of the discriminant, about eps r (|o| + |c| + r), over the roots' half gap s ~ |b|: at rays within about
+# 12 degrees of the tangent plane that exceeded T_EPS_REL r, and the point the camera stands on was taken (session
+# 78).  Such a root is also refused below this many float32 epsilons of that error.
+SPHERE_ROOT_ULPS = 4.0
+_F32_EPS = float(np.finfo(np.float32).eps)
 
 
 @wp.struct
@@ -164,6 +170,12 @@ def intersect_sphere(o: wp.vec3, d: wp.vec3, c: wp.vec3, r: float):
     t0 = -b - s
     t1 = -b + s
     eps = T_EPS_REL * wp.max(wp.abs(b), r)   # relative: a sphere of radius 1e-7 is the unit one, scaled
+    # and above the rounding of a root whose terms cancel (SPHERE_ROOT_ULPS): err / |b|, an area over a length;
+    # where |b| < sqrt(err) both roots lie within sqrt(err) of the ray's origin
+    err = SPHERE_ROOT_ULPS * _F32_EPS * r * (wp.length(o) + wp.length(c) + r)
+    den = wp.max(wp.abs(b), wp.sqrt(err))
+    if den > 0.0:   # 0 only where err underflowed, on a ray through the centre
+        eps = wp.max(eps, err / den)
     if t0 > eps:
         return t0
     if t1 > eps:
