@@ -174,7 +174,7 @@ def intersect_sphere(o: wp.vec3, d: wp.vec3, c: wp.vec3, r: float):
     # where |b| < sqrt(err) both roots lie within sqrt(err) of the ray's origin
     err = SPHERE_ROOT_ULPS * _F32_EPS * r * (wp.length(o) + wp.length(c) + r)
     den = wp.max(wp.abs(b), wp.sqrt(err))
-    if den > 0.0:   # 0 only where err underflowed, on a ray through the centre
+    if den > 0.0:   # 0 only where err underflowed (a sphere near float32's tiny) and the ray is square to o - c
         eps = wp.max(eps, err / den)
     if t0 > eps:
         return t0
