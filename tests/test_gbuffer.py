@@ -1524,26 +1524,31 @@ def test_a_camera_on_a_sphere_sees_the_far_wall_at_grazing_rays_too():
     r, c = 5.0, np.array([0.3, -0.2, 0.1])
     bad = []
     for seed in range(6):
-        rng = np.random.default_rng(seed)
-        n = rng.normal(size=3)
-        n /= np.linalg.norm(n)
-        pos = np.float32(c + r * n).astype(np.float64)
-        aside = np.cross(n, [0.0, 1.0, 0.0])
-        aside /= np.linalg.norm(aside)
-        look = pos - n * math.cos(math.radians(80.0)) + aside * math.sin(math.radians(80.0))
-        cam = make_camera(tuple(pos), tuple(look), (0.0, 1.0, 0.0), 30.0, 64, 48)
-        gb = render_gbuffer(cam, build_geometry([SphereSpec(tuple(c), r, 0)], []))
-        _, d, fwd = _rays(pos, look, 30.0, 64, 48)
-        oc = pos - c
-        b = d @ oc
-        s = np.sqrt(np.maximum(b * b - (oc @ oc - r * r), 0.0))
+        n = np.random.default_rng(seed).normal(size=3)
+        got, b, disc, cos_fwd = _looking_across_a_sphere(c, r, n / np.linalg.norm(n), 0.0, (0.0, 1.0, 0.0), 10.0,
+                                                         30.0, 64, 48)
+        s = np.sqrt(np.maximum(disc, 0.0))
         near_ok = -b - s < T_EPS_REL * r
         sel = (-b / r > 0.05) & (-b / r < 0.2)
-        want = ((-b + s) * (d @ fwd))
         assert near_ok[sel].all()
-        got = gb.numpy("depth").reshape(-1)
-        bad.append(int((sel & ~np.isclose(got, want, rtol=1e-4)).sum()))
+        bad.append(int((sel & ~np.isclose(got, (-b + s) * cos_fwd, rtol=1e-4)).sum()))
     assert bad == [0] * 6, bad
+
+
+def _looking_across_a_sphere(c, r, n, height, axis, below_deg, fov, w, h):
+    """A camera ``height`` x r above the point of unit normal ``n`` on a sphere (centre c, radius r; its position
+    rounded to float32, as the renderer holds it) looking ``below_deg`` under the tangent plane towards n x ``axis``:
+    the G-buffer's depth per pixel and, in float64 from the documented camera model, b = d . (o - c), the
+    discriminant b^2 - |o - c|^2 + r^2 and d . forward."""
+    pos = np.float32(c + (r + height * r) * n).astype(np.float64)
+    aside = np.cross(n, axis)
+    aside /= np.linalg.norm(aside)
+    look = pos - n * math.sin(math.radians(below_deg)) + aside * math.cos(math.radians(below_deg))
+    cam = make_camera(tuple(pos), tuple(look), (0.0, 1.0, 0.0), fov, w, h)
+    gb = render_gbuffer(cam, build_geometry([SphereSpec(tuple(c), r, 0)], []))
+    _, d, fwd = _rays(pos, look, fov, w, h)
+    b = d @ (pos - c)
+    return gb.numpy("depth").reshape(-1), b, b * b - ((pos - c) @ (pos - c) - r * r), d @ fwd
 
 
 @pytest.mark.parametrize("height", [1e-4, 1e-3, 1e-2])
@@ -1553,23 +1558,12 @@ def test_a_camera_just_above_a_sphere_sees_the_surface_below_it_at_its_distance(
     30 degrees below the horizon (rays from about 5 to 55 degrees), every pixel's depth is the float64 near root's,
     the surface just below, to 1% (float32 roots at grazing rays: 1.2e-3; a float32 position, rounded as the
     renderer holds it, is the truth's too)."""
-    r, c = 5.0, np.array([40.0, -3.0, 2.0])
-    n = np.array([0.48, 0.6, -0.64])
-    pos = np.float32(c + (r + height * r) * n).astype(np.float64)
-    aside = np.cross(n, [0.0, 0.0, 1.0])
-    aside /= np.linalg.norm(aside)
-    look = pos - n * math.sin(math.radians(30.0)) + aside * math.cos(math.radians(30.0))
-    cam = make_camera(tuple(pos), tuple(look), (0.0, 1.0, 0.0), 50.0, 48, 40)
-    gb = render_gbuffer(cam, build_geometry([SphereSpec(tuple(c), r, 0)], []))
-    _, d, fwd = _rays(pos, look, 50.0, 48, 40)
-    oc = pos - c
-    b = d @ oc
-    disc = b * b - (oc @ oc - r * r)
+    got, b, disc, cos_fwd = _looking_across_a_sphere(np.array([40.0, -3.0, 2.0]), 5.0, np.array([0.48, 0.6, -0.64]),
+                                                     height, (0.0, 0.0, 1.0), 30.0, 50.0, 48, 40)
     hit = disc > 0.0
     near = -b - np.sqrt(np.maximum(disc, 0.0))
     assert hit.sum() > 200 and (near[hit] > 0.0).all()
-    got = gb.numpy("depth").reshape(-1)
-    np.testing.assert_allclose(got[hit], (near * (d @ fwd))[hit], rtol=1e-2)   # not the far wall
+    np.testing.assert_allclose(got[hit], (near * cos_fwd)[hit], rtol=1e-2)   # not the far wall
 
 
 @pytest.mark.parametrize("length, ok", [(1.0 + 5e-4, True), (1.0 - 5e-4, True), (1.01, False), (0.98, False)])
