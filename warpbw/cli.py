@@ -508,32 +508,29 @@ def _say_refused(scene, assets: list, materials: list) -> None:
     ``materials`` names where a render refuses it (``_refusal``): ``warpbw info`` said "builder settings current" of a
     nu_rho table of another lookup (session 76's audit), and of a file of another format than its key reads, one
     built from another BRDF or normal map, and a GMM mipmap fitted with other options (session 77's)."""
-    from precompute.assetfile import read_header
-
     for a in assets:
         if "error" in a or a["not_read"] is not None:
             continue
-        header = read_header(a["path"]) or {}
         for m in materials:
             for key in ("sampling", "bandwidth", "gmm"):
                 if "refused" not in a and str(getattr(m, key)) == a["path"]:
-                    why = _refusal(scene, a["path"], header, m, key)
+                    why = _refusal(scene, a["path"], m, key)
                     if why is not None:
                         a["refused"] = why
 
 
-def _refusal(scene, path: str, header: dict, m, key: str) -> str | None:
-    """Why a render refuses the asset file ``path`` (of ``header``) as material ``m``'s ``key`` (sampling, bandwidth,
-    gmm), in its reader's words (each ends in what builds the right one); None where it reads it.  The tables (a few
-    MB) are read by the render's own readers, given what the material's BRDF file is by content; a GMM mipmap (up to
-    hundreds of MB) is checked from its header alone, by the checks of its reader that need no levels
+def _refusal(scene, path: str, m, key: str) -> str | None:
+    """Why a render refuses the asset file ``path`` as material ``m``'s ``key`` (sampling, bandwidth, gmm), in its
+    reader's words (each ends in what builds the right one); None where it reads it.  The tables (a few MB) are read
+    by the render's own readers, given what the material's BRDF file is by content; a GMM mipmap (up to hundreds of
+    MB) is checked from its header alone, by the checks of its reader that need no levels
     (``warpbw.filtering.gmm_header_problem``)."""
     from precompute.brdf_bandwidth import read_brdf_bandwidth
     from precompute.brdf_sampling import brdf_source_unread, read_sampling
     from warpbw.filtering import gmm_header_problem
 
     if key == "gmm":
-        return gmm_header_problem(scene, m.name, path, header)
+        return gmm_header_problem(scene, m.name, path)
     lookup = m.lookup if key == "bandwidth" else None   # sampling tables are the kind default's
     file, material = (m.table, m.npf_name) if m.type == "npf" else (m.file, None)
     source = brdf_source_unread(file, material, lookup)

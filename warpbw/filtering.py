@@ -12,7 +12,7 @@ Public:
                                          the mipmaps
     ``check_gmm_files(scene, methods) -> {material: (GmmMipmap, seconds)}``   the planes' ``gmm`` files read and
                                          checked against their materials before any other work (below)
-    ``gmm_header_problem(scene, name, path, header) -> str | None``   why a render refuses material NAME's gmm file,
+    ``gmm_header_problem(scene, name, path) -> str | None``   why a render refuses material NAME's gmm file PATH,
                                          as its header tells (``warpbw info``)
     ``render_filtering(scene, method, spp, seed, device, prepared, camera, progress, lod_bias, threads,
                        env_spp, max_anisotropy, background)``        -> ``FilterResult``; ``scene`` a ``Scene``
@@ -1175,19 +1175,21 @@ def _gmm_file_problem(mip, src: _GmmSource, rebuild: str) -> str | None:
     return None
 
 
-def gmm_header_problem(scene: Scene, name: str, path, header: dict) -> str | None:
-    """Why a render refuses ``path`` as material ``name``'s ``gmm`` file, as the file's ``header``
+def gmm_header_problem(scene: Scene, name: str, path) -> str | None:
+    """Why a render refuses ``path`` as material ``name``'s ``gmm`` file, as the file's header
     (``precompute.assetfile.read_header``) and the material's normal map (by content) tell, in the words of
     ``check_gmm_files``' reader; None where they agree.  Its levels are not read (``warpbw info`` reads headers: a
     mipmap may take hundreds of MB), nor the map's pixels (its size is taken as the file's once its content
     matches)."""
     from types import SimpleNamespace
 
+    from precompute.assetfile import read_header
     from precompute.gmm_mipmap import DEFAULT_PRIOR, GMM_FORMAT, ROW_SPACING_KEY
     from warpbw.scene import file_digest
 
     scene = check_scene(_as_scene(scene))
     m = scene.materials[name]
+    header = read_header(path) or {}
     if header.get("format") != GMM_FORMAT:
         return f"is a {header.get('format')!r} file, expected {GMM_FORMAT!r} (build one with: warpbw-precompute gmm)"
     params = header.get("params") if isinstance(header.get("params"), dict) else {}
