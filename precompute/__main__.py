@@ -169,7 +169,7 @@ def cmd_batch(args) -> int:
         _check_batch_record(record_path)
     # the record is replaced only where it may be: --force, or --resume's earlier record, there before the work; one
     # that appears while the batch works (another batch writing this folder) is kept, as every command keeps it
-    replace_record = args.force or (args.resume and (record_path.exists() or record_path.is_symlink()))
+    replace_record = args.force or (args.resume and output_exists(record_path))
     workers = min(args.workers or os.cpu_count() or 1, len(items))
     how = "one after the other" if args.scheduler == "sync" else f"{workers} at once"
     print(printable(f"{len(items)} BRDFs, {' and '.join(tables)} tables into {out}/ (Dask's {args.scheduler} "
