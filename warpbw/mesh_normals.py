@@ -343,9 +343,7 @@ def normals_and_curvature(points: wp.array, topology: MeshTopology, device: str 
         raise WarpbwError(f"points: {bad} of the mesh's {n_faces} faces have a vertex that is not finite (NaN or "
                           "infinite); expected finite positions")
     if cancelled:   # they took the fallback normal (0, 1, 0), whatever the surface's direction
-        raise WarpbwError(f"points: {cancelled} vertices have no normal: the triangles around them cancel (coincident "
-                          "triangles wound in opposite directions, such as a closed surface pressed flat); expected "
-                          "a pose whose surface has a direction at every vertex")
+        raise WarpbwError("points: " + host_mesh.cancelled_pose(cancelled))
     wp.launch(vertex_finish_kernel, dim=n, inputs=[n_sum, lap, area, out.normals, out.curvature], device=device)
     if topology.boundary.shape[0]:
         s = wp.zeros(n, dtype=wp.float64, device=device)

@@ -20,7 +20,8 @@ another vertex).  Coordinates of any float64 magnitude work (1e200 or 1e-200): t
 exact power-of-two scale, so the cross products cannot overflow or underflow.
 - ``DEGENERATE_REL_AREA``, ``FALLBACK_NORMAL``: where a face stops counting, and a vertex's normal without
   area (shared with the device version, ``warpbw.mesh_normals``); ``CANCEL_REL``: below it a vertex's faces cancel
-  (``load_mesh`` and ``normals_and_curvature`` refuse such a vertex, and so does the device version).
+  (``load_mesh`` and ``normals_and_curvature`` refuse such a vertex, and so does the device version);
+  ``cancelled_pose(count, first=None) -> str``, the words both versions refuse a pose in.
 - ``boundary_neighbours(faces, nv) -> (on_boundary, x, y)``: the open boundary's vertices and their
   interior neighbours (x[k] on the boundary, y[k] interior), from the connectivity alone.
 - ``normals_and_curvature(vertices, faces, surface=None) -> (normals (V, 3), H (V,))``: ``vertex_normals`` and
@@ -173,6 +174,15 @@ def _normal_sums(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     n = np.stack([np.bincount(f.ravel(), weights=np.repeat(fn[:, k], 3), minlength=len(v)) for k in range(3)], -1)
     areas = np.bincount(f.ravel(), weights=np.repeat(np.linalg.norm(fn, axis=1), 3), minlength=len(v))
     return n, (areas > 0.0) & (np.linalg.norm(n, axis=1) <= CANCEL_REL * areas)
+
+
+def cancelled_pose(count: int, first: int | None = None) -> str:
+    """The words refusing a pose whose faces cancel at ``count`` vertices (``first``: the first, where known), as
+    ``normals_and_curvature`` here and on the device (``warpbw.mesh_normals``) say them."""
+    at = "" if first is None else f"; first: vertex {first}"
+    return (f"{count} vertices have no normal: the triangles around them cancel (coincident triangles wound in "
+            f"opposite directions, such as a closed surface pressed flat{at}); expected a pose whose surface has a "
+            "direction at every vertex")
 
 
 def vertex_normals(vertices, faces) -> np.ndarray:
@@ -375,10 +385,7 @@ def normals_and_curvature(vertices, faces, surface=None) -> tuple[np.ndarray, np
         f = surface[f]   # the seam's copies as their surface vertex, whose faces meet there
     sums, cancelled = _normal_sums(v, f)
     if cancelled.any():   # as load_mesh refuses them: they took the fallback normal, whatever the surface's direction
-        raise WarpbwError(f"vertices: {int(cancelled.sum())} vertices have no normal: the triangles around them cancel "
-                          f"(coincident triangles wound in opposite directions, such as a closed surface pressed flat; "
-                          f"first: vertex {int(np.argmax(cancelled))}); expected a pose whose surface has a direction "
-                          "at every vertex")
+        raise WarpbwError("vertices: " + cancelled_pose(int(cancelled.sum()), int(np.argmax(cancelled))))
     normals = _unit_normals(sums)
     # unit_directions as mesh_mean_curvature(v, f, normals) applies it: the same H, to the last bit
     h = _mean_curvature(v, f, unit_directions(normals, "normals"))
