@@ -12,6 +12,7 @@ Public functions and classes:
   height map's build records ``ROW_SPACING_KEY: ROW_SPACING`` (its rows 1 / H apart) in its parameters.
 - ``write_gmm_mipmap(path, mip, source_name, source_hash, force=False, inputs=())``,
   ``read_gmm_mipmap(path) -> GmmMipmap``; ``mipmap_problem(levels, components, prior, scale)``, what both refuse;
+  ``header_fields(header, components_unrecorded) -> dict``, a ``GmmMipmap``'s fields but its levels from a header;
   ``rebuild_command(source, params, out)``, the command that rebuilds a mipmap.
 - ``load_map(path, kind) -> ndarray``: an EXR or PNG (or other Pillow) height field (H, W) or normal map (H, W, 3 unit).
 - ``load_source(spec, kind) -> (array, name, content_hash)``: a file, or ``surface:NAME[:SIZE]``.
@@ -947,6 +948,23 @@ def write_gmm_mipmap(path, mip: GmmMipmap, source_name: str, source_hash: str, f
                        inputs=inputs)
 
 
+def header_fields(header: dict, components_unrecorded) -> dict:
+    """``GmmMipmap``'s fields but its levels, as a GMM file's ``header`` records them (``components_unrecorded``: the
+    count taken where the header has none; the reader passes its levels' K); TypeError, ValueError or
+    AttributeError where the header's parameters are no numbers (a hand-edited header).  ``read_gmm_mipmap`` and
+    ``warpbw.filtering.gmm_header_problem`` (which reads no levels) read the header alike through it."""
+    params = header.get("params", {})
+    components = params.get("components", components_unrecorded)
+    if isinstance(components, bool) or not is_int(components):
+        raise ValueError(components)
+    return dict(components=int(components), prior=float(params.get("prior", DEFAULT_PRIOR)),
+                unaligned=bool(params.get("unaligned", False)), kind=params.get("kind", "height"),
+                scale=float(params.get("scale", 1.0)), seed=int(params.get("seed", 0)),
+                max_samples=int(params.get("max_samples", DEFAULT_MAX_SAMPLES)),
+                extra={k: params[k] for k in ("refine_sweeps", ROW_SPACING_KEY, *fit_constants()) if k in params},
+                source=header.get("source"), source_hash=header.get("source_hash"))
+
+
 def read_gmm_mipmap(path) -> GmmMipmap:
     """Read a file written by ``write_gmm_mipmap``; refuses other formats/versions and malformed levels."""
     from precompute.assetfile import check_float_arrays, read_asset
@@ -955,7 +973,6 @@ def read_gmm_mipmap(path) -> GmmMipmap:
     asset = read_asset(path, GMM_FORMAT, GMM_VERSION,
                        lambda h: rebuild_command(h.get("source", "MAP"), h.get("params")))
     hint = rebuild_command(asset.header.get("source", "MAP"), asset.header.get("params"))
-    params = asset.header.get("params", {})
     n = len([k for k in asset.arrays if k.startswith("level_")])
     levels = [asset.arrays.get(f"level_{l}") for l in range(n)]
     if n == 0 or any(q is None for q in levels):
@@ -969,16 +986,7 @@ def read_gmm_mipmap(path) -> GmmMipmap:
     try:
         with np.errstate(over="ignore"):   # float64 moments beyond float32 become inf, refused below (numpy warned)
             levels = [np.asarray(q, np.float32) for q in levels]
-        components = params.get("components", K)
-        if isinstance(components, bool) or not is_int(components):
-            raise ValueError(components)
-        mip = GmmMipmap(levels, int(components), float(params.get("prior", DEFAULT_PRIOR)),
-                        bool(params.get("unaligned", False)), params.get("kind", "height"),
-                        float(params.get("scale", 1.0)), int(params.get("seed", 0)),
-                        int(params.get("max_samples", DEFAULT_MAX_SAMPLES)),
-                        extra={k: params[k] for k in ("refine_sweeps", ROW_SPACING_KEY, *fit_constants())
-                               if k in params},
-                        source=asset.header.get("source"), source_hash=asset.header.get("source_hash"))
+        mip = GmmMipmap(levels, **header_fields(asset.header, K))
     except (TypeError, ValueError, AttributeError):  # arrays of strings, a hand-edited header
         raise WarpbwError(f"{path}: GMM mipmap with non-numeric levels or parameters (rebuild it with: {hint})") \
             from None

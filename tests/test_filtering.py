@@ -1041,6 +1041,34 @@ def test_the_filtering_entry_points_take_a_filtering_scene_and_check_a_scene_bui
         prepare_filtering(lambert, "lean")
 
 
+@pytest.mark.parametrize("params,refused", [({"unaligned": 0}, None), ({"unaligned": 1}, "--unaligned"),
+                                             ({"prior": "one"}, "non-numeric levels or parameters"),
+                                             ({"components": 2.5}, "non-numeric levels or parameters")])
+def test_info_gmm_check_reads_a_header_as_the_render_reads_it(tmp_path, params, refused):
+    """``gmm_header_problem`` (``warpbw info``'s check, levels unread) and the render's reader
+    (``check_gmm_files``) give one verdict on a hand-edited header.  The header check parsed the parameters on its
+    own: ``unaligned = 0``, which the reader takes as False, read as --unaligned, and a prior of "one" as a prior
+    of NaN, where the render refuses the file as non-numeric.  Truth: the render's own refusal or acceptance."""
+    from conftest import rewrite_asset
+    from precompute.gmm_mipmap import build_gmm_mipmap, write_gmm_mipmap
+    from warpbw.filtering import check_gmm_files, gmm_header_problem
+
+    h = _bumps(8)
+    write_exr(tmp_path / "map.exr", h.astype(np.float32)[..., None], ["Y"])
+    write_gmm_mipmap(tmp_path / "ok.gmm", build_gmm_mipmap(h, scale=0.5, progress=False), "map.exr",
+                     file_digest(tmp_path / "map.exr"))
+    rewrite_asset(tmp_path / "ok.gmm", tmp_path / "g.gmm", params=params)
+    s = parse_scene(plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ngmm = "g.gmm"\n'), tmp_path,
+                    "s.toml")
+    said = gmm_header_problem(s, "m", tmp_path / "g.gmm")
+    if refused is None:
+        assert said is None and check_gmm_files(s, ("gmm_aligned",))["m"][0].unaligned is False
+        return
+    assert refused in said
+    with pytest.raises(WarpbwError, match=refused):
+        check_gmm_files(s, ("gmm_aligned",))
+
+
 def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path, monkeypatch):
     import shlex
 

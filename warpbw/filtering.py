@@ -1177,14 +1177,15 @@ def _gmm_file_problem(mip, src: _GmmSource, rebuild: str) -> str | None:
 
 def gmm_header_problem(scene: Scene, name: str, path) -> str | None:
     """Why a render refuses ``path`` as material ``name``'s ``gmm`` file, as the file's header
-    (``precompute.assetfile.read_header``) and the material's normal map (by content) tell, in the words of
-    ``check_gmm_files``' reader; None where they agree.  Its levels are not read (``warpbw info`` reads headers: a
-    mipmap may take hundreds of MB), nor the map's pixels (its size is taken as the file's once its content
-    matches)."""
+    (``precompute.assetfile.read_header``, read as ``precompute.gmm_mipmap.header_fields`` reads it for the
+    render's reader) and the material's normal map (by content) tell, in the words of ``check_gmm_files``' reader;
+    None where they agree.  Its levels are not read (``warpbw info`` reads headers: a mipmap may take hundreds of
+    MB), nor the map's pixels (its size is taken as the file's once its content matches); a header that records no
+    component count is taken to hold the material's (the reader takes its levels')."""
     from types import SimpleNamespace
 
     from precompute.assetfile import read_header
-    from precompute.gmm_mipmap import DEFAULT_PRIOR, GMM_FORMAT, ROW_SPACING_KEY
+    from precompute.gmm_mipmap import GMM_FORMAT, header_fields, rebuild_command
     from warpbw.scene import file_digest
 
     scene = check_scene(_as_scene(scene))
@@ -1192,19 +1193,13 @@ def gmm_header_problem(scene: Scene, name: str, path) -> str | None:
     header = read_header(path) or {}
     if header.get("format") != GMM_FORMAT:
         return f"is a {header.get('format')!r} file, expected {GMM_FORMAT!r} (build one with: warpbw-precompute gmm)"
-    params = header.get("params") if isinstance(header.get("params"), dict) else {}
-
-    def number(key, default):   # a hand-edited header's text is no number: NaN then agrees with nothing
-        v = params.get(key, default)
-        return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else math.nan
-
-    shape = params.get("shape")
-    mip = SimpleNamespace(
-        source=header.get("source"), source_hash=header.get("source_hash"), kind=params.get("kind", "height"),
-        scale=number("scale", 1.0), unaligned=params.get("unaligned", False) is not False,
-        components=params.get("components"), prior=number("prior", DEFAULT_PRIOR),
-        shape=tuple(shape) if isinstance(shape, list) and len(shape) == 2 else (0, 0),
-        extra={k: params[k] for k in (ROW_SPACING_KEY,) if k in params})
+    try:
+        fields = header_fields(header, m.gmm_components)
+        shape = header.get("params", {}).get("shape")
+    except (TypeError, ValueError, AttributeError):   # the reader's words for a hand-edited header
+        hint = rebuild_command(header.get("source", "MAP"), header.get("params"))
+        return f"GMM mipmap with non-numeric levels or parameters (rebuild it with: {hint})"
+    mip = SimpleNamespace(**fields, shape=tuple(shape) if isinstance(shape, list) and len(shape) == 2 else (0, 0))
     src = _gmm_source(scene, name, None, m.normal_map_kind, m.normal_map_scale, m.normal_map.name,
                       file_digest(m.normal_map), False)
     return _gmm_file_problem(mip, src, _gmm_rebuild(scene, name, src, path))
