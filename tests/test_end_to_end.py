@@ -1587,6 +1587,131 @@ def test_every_option_with_a_default_says_it(monkeypatch):
     assert not unsaid, "\n".join(unsaid)
 
 
+def _computed_defaults() -> dict:
+    """(command, option) -> the value the code applies where the parser's default is None (the command tells an
+    option given from one left out, to refuse what the scene would not use) and --help states it; None where
+    --help says a sentence, not a value (all cores, beside --json)."""
+    import inspect
+
+    from precompute import batch
+    from warpbw import bandwidth, bench, cli, filtering
+    from warpbw.upsample import UPSAMPLE_DEFAULT
+
+    adaptive = {"--nb": bandwidth.N_B_DEFAULT, "--nyquist": bandwidth.NYQUIST_FACTOR,
+                "--allocation": bandwidth.ALLOCATION_DEFAULT, "--upsample": UPSAMPLE_DEFAULT,
+                "--env-signal": bandwidth.ENV_SIGNAL_DEFAULT}
+    filter_default = re.search(r'args\.filter or "(\w+)"', inspect.getsource(cli)).group(1)
+    seed_default = int(re.search(r"if args\.seed is None:\n\s+args\.seed = (\d+)", inspect.getsource(cli)).group(1))
+    out = {("warpbw render", k): v for k, v in adaptive.items()}
+    out |= {("warpbw bench", k): v for k, v in adaptive.items() if k != "--nb"}
+    out |= {("warpbw render", "--filter"): filter_default, ("warpbw render", "--max-anisotropy"):
+            filtering.DEFAULT_ANISOTROPY, ("warpbw render", "--spp"): cli.DEFAULT_SPP,
+            ("warpbw render", "--seed"): seed_default, ("warpbw demo", "--spp"): cli.DEMO_SPP,
+            ("warpbw demo", "--seed"): 0, ("warpbw bench", "--nb-budget"): bench.NB_SWEEP_BUDGET,
+            ("warpbw bench-filtering", "--spp"): filtering.DEFAULT_ENV_SPP,
+            ("warpbw-precompute batch", "--tables"): "both" if tuple(batch.TABLES) == ("sampling", "bandwidth")
+            else ",".join(batch.TABLES)}
+    out |= {k: None for k in (("warpbw render", "--threads"), ("warpbw demo", "--threads"), ("warpbw bench", "--cache"),
+                              ("warpbw bench-filtering", "--cache"), ("warpbw compare", "--error-range"),
+                              ("warpbw-precompute batch", "--workers"), ("warpbw-precompute batch", "--json"))}
+    return out
+
+
+def _effective_defaults() -> dict:
+    """(command, option) -> the default a command applies, for warpbw and warpbw-precompute: the parser's, or
+    _computed_defaults' where the parser's is None."""
+    import argparse
+
+    from precompute.__main__ import build_parser as precompute_parser
+    from warpbw.cli import build_parser as warpbw_parser
+
+    computed, out = _computed_defaults(), {}
+    for prog, parser in (("warpbw", warpbw_parser()), ("warpbw-precompute", precompute_parser())):
+        for a in parser._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for name, sub in a.choices.items():
+                    for b in sub._actions:
+                        for o in b.option_strings:
+                            key = (f"{prog} {name}", o)
+                            out[key] = computed.get(key, b.default) if b.default is None else b.default
+    return out
+
+
+def test_every_default_the_code_computes_is_the_one_help_states():
+    """An option whose parser default is None (render's --nb, --nyquist, --spp, --filter; bench's --nb-budget: the
+    command fills them in, so that it can refuse one the scene would not use) and whose --help states a default
+    states the one the code applies (``_computed_defaults``: bandwidth.N_B_DEFAULT, NYQUIST_FACTOR, ...).
+    test_every_stated_default_is_the_default cannot read these: the parser's default says nothing.  Each such option
+    is in the table, so a new one must be added."""
+    import argparse
+
+    from precompute.__main__ import build_parser as precompute_parser
+    from warpbw.cli import build_parser as warpbw_parser
+
+    computed, bad, seen = _computed_defaults(), [], set()
+    for prog, parser in (("warpbw", warpbw_parser()), ("warpbw-precompute", precompute_parser())):
+        for a in parser._actions:
+            if not isinstance(a, argparse._SubParsersAction):
+                continue
+            for name, sub in a.choices.items():
+                for b in sub._actions:
+                    helptext = re.sub(r"\s+", " ", sub._get_formatter()._expand_help(b)) if b.help else ""
+                    if b.default is not None or "default" not in helptext or not b.option_strings:
+                        continue
+                    key = (f"{prog} {name}", b.option_strings[-1])
+                    seen.add(key)
+                    if key not in computed:
+                        bad.append(f"{key}: --help states a default the parser does not hold; add it to "
+                                   "_computed_defaults")
+                        continue
+                    if computed[key] is None:
+                        continue
+                    if b.choices:   # "measured (default; ...)", "log (default), ..."
+                        said = re.search(r"(\w+) \(default[;)]", helptext)
+                    else:           # "(default 16, 002 Sec. 2.6)", "(1 to 16; default 1: ...)"
+                        said = re.search(r"default ([\w.]+)", helptext)
+                    same = said is not None and (said.group(1) == str(computed[key]) if isinstance(computed[key], str)
+                                                 else float(said.group(1)) == float(computed[key]))
+                    if not same:
+                        bad.append(f"{key}: --help says {said.group(0) if said else helptext!r}, the code applies "
+                                   f"{computed[key]!r}")
+    assert not bad, "\n".join(bad)
+    assert seen == set(computed), set(computed) - seen   # the table names no option that states no default
+
+
+def test_the_readmes_bracketed_values_are_the_defaults():
+    """README's command lines give an option's default in brackets (``[--gt-spp 8192]``, ``[--components 4]``,
+    ``[--nb 16]``): each single value so given is the default the command applies (``_effective_defaults``), but
+    for the options listed here, whose brackets show an example (``[--device cuda]``, this machine's ``[--threads
+    2]``).  Choices (``[--upsample normal|paper]``), lists, placeholders (``[--cache DIR]``) and the values of an option
+    without a default (``[--error-map err.exr]``) are not defaults."""
+    examples = {("warpbw render", "--device"), ("warpbw render", "--threads"), ("warpbw info", "--method"),
+                ("warpbw-precompute batch", "--workers"), ("warpbw-precompute batch", "--materials")}
+    defaults = _effective_defaults()
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    bad, checked = [], 0
+    for block in re.findall(r"```[a-z]*\n(.*?)```", readme, re.S):
+        cmd = None
+        for line in block.splitlines():
+            m = re.match(r"(warpbw(?:-precompute)?) ([\w-]+)", line)
+            cmd = f"{m.group(1)} {m.group(2)}" if m else cmd if line.startswith(" ") else None
+            if cmd is None:
+                continue
+            for opt, said in re.findall(r"\[(--[\w-]+) ([^\]\[|]+)\]", line.split("#")[0]):
+                if (cmd, opt) in examples or said[0].isupper() or "," in said or "..." in said:
+                    continue
+                assert (cmd, opt) in defaults, f"README: {cmd} has no option {opt}"
+                d = defaults[(cmd, opt)]
+                if d is None:   # an option without a default: [--error-map err.exr] names an example
+                    continue
+                same = (said == d) if isinstance(d, str) else float(said) == float(d)
+                checked += 1
+                if not same:
+                    bad.append(f"README: [{opt} {said}] of {cmd}, whose default is {d!r}")
+    assert not bad, "\n".join(bad)
+    assert checked >= 15, checked
+
+
 def test_validate_bandwidths_help_gives_every_quick_setting(monkeypatch):
     """validate_bandwidth.py --quick replaces the defaults of QUICK's options: each option's --help says what it
     becomes ("N with --quick"; --uniform-samples, --bis-samples and --window said only their full default).  The
