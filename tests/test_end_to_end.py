@@ -1712,6 +1712,105 @@ def test_the_readmes_bracketed_values_are_the_defaults():
     assert checked >= 15, checked
 
 
+def test_the_constants_the_readme_states_are_the_codes():
+    """README states the values of constants a reader relies on (an asset file's version and array shapes, the
+    launch's cap, the memory per pixel, triangle and texel, the refusal thresholds).  test_the_names_the_readme_points_to
+    _exist checks that a named constant is there, not that the number beside it is its value: each number here is
+    read from README's text and compared with the code's (a figure derived from it, such as GB at 4096 x 4096, to
+    the digits README gives).  README said 13 MB per bunny where 200 bytes x 69,666 triangles are 14 MB (decimal,
+    as its GB, and as warpbw info prints it)."""
+    import math
+
+    from precompute import brdf_bandwidth, brdf_sampling, gmm_mipmap, progress
+    from warpbw import bandwidth, bench, brdf, envmap, errors, filtering, gbuffer, pipeline, sampling, scene, shading
+
+    readme = re.sub(r"\s+", " ", (Path(__file__).resolve().parents[1] / "README.md").read_text())
+
+    def said(pattern: str) -> str:
+        m = re.search(pattern, readme)
+        assert m, f"README no longer says {pattern!r}: update this test with it"
+        return m.group(1)
+
+    def near(x: float, value: float, digits: int) -> bool:   # README's x is value to the digits it gives
+        return float(f"{value:.{digits}g}") == x
+
+    frame = pipeline.FRAME_BYTES_PER_PIXEL
+    checks = {
+        "sampling format, version": (said(r"\* `([\w.-]+)`, version \d+ \(`brdf-sampling`\)"),
+                                     said(r"`[\w.-]+`, version (\d+) \(`brdf-sampling`\)")) ==
+                                    (sampling.TABLE_FORMAT, str(sampling.TABLE_VERSION)),
+        "nu_rho format, version": (said(r"\* `([\w.-]+)`, version \d+ \(`brdf`\)"),
+                                   said(r"`[\w.-]+`, version (\d+) \(`brdf`\)")) ==
+                                  (brdf_bandwidth.FORMAT, str(brdf_bandwidth.VERSION)),
+        "GMM format, version": (said(r"\* `([\w.-]+)`, version \d+ \(`gmm`\)"),
+                                said(r"`[\w.-]+`, version (\d+) \(`gmm`\)")) ==
+                               (gmm_mipmap.GMM_FORMAT, str(gmm_mipmap.GMM_VERSION)),
+        "sampling arrays": said(r"(`marginal` \(\d+, \d+\) is the CDF over u, `conditional` \(\d+, \d+, \d+\))")
+        == f"`marginal` ({sampling.N_THETA_O}, {sampling.N_U + 1}) is the CDF over u, `conditional` "
+           f"({sampling.N_THETA_O}, {sampling.N_U}, {sampling.N_PHI + 1})",
+        "sampling density": said(r"`density` (\(\d+, \d+, \d+\))") ==
+                            f"({sampling.N_THETA_O}, {sampling.N_U}, {sampling.N_PHI})",
+        "view bins": int(said(r"For each of (\d+) view-elevation bins")) == sampling.N_THETA_O,
+        "views per bin": int(said(r"view-elevation bins averages the distributions of (\d+) views"))
+                         == sampling.VIEW_SUBSAMPLES,
+        "nu_rho shape": said(r"`nu_rho` (\(\d+, \d+, \d+\))") == str(brdf_bandwidth.SHAPE),
+        "cosine mix": int(said(r"with (\d+)% cosine sampling")) / 100 == brdf.TAB_COSINE_MIX,
+        "GT_VERSION": int(said(r"`warpbw\.bench\.GT_VERSION`, which is raised whenever .*?; (\d+): "))
+                      == bench.GT_VERSION,
+        "launch samples": near(float(said(r"a launch holds at most about (\d+) million samples")) * 1e6,
+                               shading.LAUNCH_COST_MAX, 1),
+        "launch pixels": int(said(r"and at most ([\d,]+) pixels").replace(",", "")) == shading.PIXELS_PER_TILE,
+        "T_EPS_REL": float(said(r"a hit nearer than ([\de.-]+) of that object's size")) == gbuffer.T_EPS_REL,
+        "overflow": near(float(said(r"where a light's radiance passes ([\de.]+)")), pipeline.RADIANCE_OVERFLOW_MIN, 2),
+        "underflow": near(float(said(r"is below ([\de.-]+) \(`warpbw\.pipeline\.RADIANCE_UNDERFLOW_MAX`")),
+                          pipeline.RADIANCE_UNDERFLOW_MAX, 2),
+        "frame bytes": said(r"about (\d+ bytes per pixel beyond its assets with the reference method and \d+)")
+        == f"{frame['reference']} bytes per pixel beyond its assets with the reference method and {frame['adaptive']}",
+        "frame GB": said(r"(\S+ and \S+ GB at 4096 x 4096, \S+ and \S+ GB)") ==
+        "{:.2g} and {:.2g} GB at 4096 x 4096, {:.2g} and {:.2g} GB".format(
+            *(frame[m] * s * s / 1e9 for s in (4096, scene.MAX_RESOLUTION) for m in ("reference", "adaptive"))),
+        "largest resolution": said(r"the largest resolution a scene may ask, (\d+ x \d+)")
+                              == f"{scene.MAX_RESOLUTION} x {scene.MAX_RESOLUTION}",
+        "probe load": (int(said(r"Loading a probe takes about (\d+) bytes per texel")),
+                       float(said(r"32 held \(([\d.]+) GB at 8192 x 4096\)"))) ==
+                      (envmap.LOAD_BYTES_PER_TEXEL, round(envmap.LOAD_BYTES_PER_TEXEL * 8192 * 4096 / 1e9, 1)),
+        "probe map": (int(said(r"its bandwidth map \(.*?\) about (\d+) bytes per texel")),
+                      float(said(r"about \d+ bytes per texel \(([\d.]+) GB\)"))) ==
+                     (bandwidth.ENV_BW_BYTES_PER_TEXEL, round(bandwidth.env_bandwidth_memory(8192, 4096) / 1e9, 1)),
+        "mesh bytes": (int(said(r"meshes take about (\d+) bytes per triangle")),
+                       int(said(r"\((\d+) MB per bunny"))) ==
+                      (pipeline.MESH_BYTES_PER_TRIANGLE,
+                       round(pipeline.MESH_BYTES_PER_TRIANGLE * int(said(r"Stanford bunny \(([\d,]+) triangles\)")
+                                                                    .replace(",", "")) / 1e6)),
+        "N_p cap": int(said(r"up to (\d+) times the budget at one pixel \(`N_P_MAX_PER_BUDGET`"))
+                   == bandwidth.N_P_MAX_PER_BUDGET,
+        "n_b": int(said(r"the \*\*bandwidth pass\*\* \(`warpbw/bandwidth\.py`, n_b = (\d+)"))
+               == bandwidth.N_B_DEFAULT,
+        "albedo warning": float(said(r"whose directional albedo passes ([\d.]+)")) == brdf_sampling.ALBEDO_WARN,
+        "conductor": float(said(r"A conductor's eta and k are at most ([\de.]+)")) == scene.CONDUCTOR_INDEX_MAX,
+        "camera far": (near(float(said(r"a sphere's far side beyond ([\de.]+) scene units")), gbuffer.SPHERE_REACH_MAX,
+                            2),
+                       near(float(said(r"a mesh's beyond ([\de.]+)\)")), gbuffer.MESH_REACH_MAX, 1)),
+        "camera near": said(r"that it would land wrong \(([\de.-]+ and [\de.-]+)\)") ==
+                       f"{gbuffer.SPHERE_REACH_MIN:.2g} and {gbuffer.MESH_REACH_MIN:.2g}",
+        "far from the origin": (said(r"spaces coordinates by more than 1/(\d+) of a sphere's radius"),
+                                said(r"that is from [\d,]+ units \(2\^(\d+)\) on")) ==
+                               (str(round(1 / errors.COORD_SPACING_REL_MAX)),
+                                str(int(math.log2(errors.COORD_SPACING_REL_MAX / 2.0 ** -24)))),
+        "map texels": said(r"Maps read from files hold at most (\d+ x \d+ = [\d,]+) texels") ==
+                      f"{gmm_mipmap.MAX_MAP_SIDE} x {gmm_mipmap.MAX_MAP_SIDE} = {gmm_mipmap.MAX_MAP_TEXELS:,}",
+        "progress interval": float(said(r"a line per state at most every (\d+) s")) == progress.LOG_INTERVAL_S,
+        "LOD bias": said(r"\* LOD bias (-log2\(3\)/2):") and filtering.LOD_BIAS == -math.log2(3.0) / 2,
+        "anisotropy": said(r"`--max-anisotropy N` on `render` and `bench-filtering`, (1 to \d+)\)")
+                      == f"{filtering.DEFAULT_ANISOTROPY} to {filtering.MAX_ANISOTROPY}",
+        "ground-truth rays": int(said(r"ground_truth \(--spp >= (\d+) rays per pixel")) == filtering.MIN_GT_SPP,
+        "roughness floor": float(said(r"on a flat plane of roughness ([\de.-]+) \(the smallest accepted\)"))
+                           == scene.CT_MIN_ROUGHNESS,
+    }
+    wrong = [k for k, ok in checks.items() if not ok]
+    assert not wrong, f"README's figure is not the code's: {wrong}"
+
+
 def test_validate_bandwidths_help_gives_every_quick_setting(monkeypatch):
     """validate_bandwidth.py --quick replaces the defaults of QUICK's options: each option's --help says what it
     becomes ("N with --quick"; --uniform-samples, --bis-samples and --window said only their full default).  The
