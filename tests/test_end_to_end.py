@@ -1714,8 +1714,9 @@ def test_the_readmes_bracketed_values_are_the_defaults():
 
 def test_the_constants_the_readme_states_are_the_codes():
     """README states the values of constants a reader relies on (an asset file's version and array shapes, the
-    launch's cap, the memory per pixel, triangle and texel, the refusal thresholds).  test_the_names_the_readme_points_to
-    _exist checks that a named constant is there, not that the number beside it is its value: each number here is
+    launch's cap, the memory per pixel, triangle and texel, the refusal thresholds).
+    test_the_names_the_readme_points_to_exist checks that a named constant is there, not that the number beside it is
+    its value: each number here is
     read from README's text and compared with the code's (a figure derived from it, such as GB at 4096 x 4096, to
     the digits README gives).  README said 13 MB per bunny where 200 bytes x 69,666 triangles are 14 MB (decimal,
     as its GB, and as warpbw info prints it)."""
