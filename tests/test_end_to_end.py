@@ -1812,12 +1812,13 @@ def test_the_constants_the_readme_states_are_the_codes():
     assert not wrong, f"README's figure is not the code's: {wrong}"
 
 
-def test_every_numeric_options_help_gives_its_range():
+def test_every_numeric_options_help_gives_its_range(monkeypatch):
     """An option whose value the command refuses below or above a bound says the range in its --help ("1 to 16",
     "a positive number", "up to 8.39e+06"): render's --nb (1 to 65536), --budget (up to 2^31 / 256), --spp, bench's
     lists and --nb-budget, bench-filtering's --zoom and batch's --workers said none, and a user learnt the bound from
-    the refusal.  Probed through each option's own argparse type: one that takes "1" (or "64") and refuses "0" must
-    say its least value, one that refuses 1e11 its greatest."""
+    the refusal (and examples/validate_bandwidth.py's --seed, whose halves add to it).  Probed through each option's
+    own argparse type, for warpbw, warpbw-precompute and every example: one that takes "1" (or "64") and refuses "0"
+    must say its least value, one that refuses 1e11 its greatest."""
     import argparse
 
     from precompute.__main__ import build_parser as precompute_parser
@@ -1830,25 +1831,29 @@ def test_every_numeric_options_help_gives_its_range():
         except (argparse.ArgumentTypeError, ValueError, TypeError):
             return False
 
-    bad, checked = [], 0
+    commands = []
     for prog, parser in (("warpbw", warpbw_parser()), ("warpbw-precompute", precompute_parser())):
         subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)][0]
-        for name, sub in subs.choices.items():
-            for a in sub._actions:
-                if not a.option_strings or a.nargs == 0 or a.choices or a.type is None:
-                    continue
-                least = next((s for s in ("1", "64") if takes(a, s)), None)
-                if least is None:
-                    continue   # not a number: a path, a list of names
-                helptext = re.sub(r"\s+", " ", sub._get_formatter()._expand_help(a))
-                checked += 1
-                if not takes(a, "0") and not re.search(r"positive|\b\d+ to |> ?0|>= ?\d", helptext):
-                    bad.append(f"{prog} {name} {a.option_strings[-1]}: refuses 0, its help gives no least value")
-                if not takes(a, "99999999999") and not re.search(r"\bto [\d2-]|up to \d|at most \d|<= ?\d",
-                                                                  helptext):
-                    bad.append(f"{prog} {name} {a.option_strings[-1]}: refuses 1e11, its help gives no greatest value")
+        commands += [(f"{prog} {name}", sub) for name, sub in subs.choices.items()]
+    for script in sorted((Path(__file__).resolve().parents[1] / "examples").glob("*.py")):
+        commands.append((script.name, _example_parser(monkeypatch, script.stem)[1]))
+    bad, checked = [], 0
+    for name, sub in commands:
+        for a in sub._actions:
+            if not a.option_strings or a.nargs == 0 or a.choices or a.type is None:
+                continue
+            least = next((s for s in ("1", "64") if takes(a, s)), None)
+            if least is None:
+                continue   # not a number: a path, a list of names
+            helptext = re.sub(r"\s+", " ", sub._get_formatter()._expand_help(a))
+            checked += 1
+            if not takes(a, "0") and not re.search(r"positive|\b\d+ to |> ?0|>= ?\d", helptext):
+                bad.append(f"{name} {a.option_strings[-1]}: refuses 0, its help gives no least value")
+            if not takes(a, "99999999999") and not re.search(r"\bto [\d2-]|up to \d|at most \d|<= ?\d",
+                                                              helptext):
+                bad.append(f"{name} {a.option_strings[-1]}: refuses 1e11, its help gives no greatest value")
     assert not bad, "\n".join(bad)
-    assert checked >= 25, checked
+    assert checked >= 60, checked
 
 
 def test_validate_bandwidths_help_gives_every_quick_setting(monkeypatch):
