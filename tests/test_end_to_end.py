@@ -1856,6 +1856,29 @@ def test_every_numeric_options_help_gives_its_range(monkeypatch):
     assert checked >= 60, checked
 
 
+def test_the_readmes_scene_defaults_are_the_loaders(tmp_path):
+    """README's plane block gives keys' defaults in its comments (``diffuse ... (default 0)``, ``normal_map_kind =
+    "height" # (default)``, ``tiling ... (default 1)``, ``gmm_components ... (default 4, ...)``): a plane material
+    that leaves each key out loads with that value (warpbw.scene.load_scene, the loader's own defaults)."""
+    from warpbw.scene import load_scene
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    stated = {}
+    for block in re.findall(r"```toml\n(.*?)```", readme, re.S):
+        for key, value, said in re.findall(r"^(\w+) *= *([^#\n]*?) *#[^\n]*?[(;] ?default\b ?([^,;)]*)", block, re.M):
+            stated[key] = said.strip() if said.strip() else value.strip().strip('"')
+    assert {"diffuse", "normal_map_kind", "normal_map_scale", "tiling", "gmm_components", "gmm_prior"} <= set(stated)
+    Image.fromarray(np.zeros((8, 8), np.uint16)).save(tmp_path / "h.png")
+    (tmp_path / "s.toml").write_text(plane_scene_toml('normal_map = "h.png"\n', diffuse=None))
+    m = load_scene(tmp_path / "s.toml").materials["m"]
+    for key, said in stated.items():
+        got = getattr(m, key)
+        if isinstance(got, str):
+            assert got == said, (key, said, got)
+        else:
+            assert np.allclose(np.asarray(got, float), float(said)), (key, said, got)
+
+
 def test_validate_bandwidths_help_gives_every_quick_setting(monkeypatch):
     """validate_bandwidth.py --quick replaces the defaults of QUICK's options: each option's --help says what it
     becomes ("N with --quick"; --uniform-samples, --bis-samples and --window said only their full default).  The
