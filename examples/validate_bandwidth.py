@@ -941,7 +941,8 @@ def parse_args(argv=None):
     ap.add_argument("--nb-diagnostic", type=int, default=None,
                     help=f"n_b of a second, diagnostic bandwidth pass (default {N_B_DIAGNOSTIC}; 64 with --quick)")
     ap.add_argument("--seed", type=parse_seed, default=SEED, help=f"seed of the converged image's halves, the "
-                    f"bandwidth passes and the brute-force variances (default {SEED})")
+                    "bandwidth passes and the brute-force variances, 0 to 2^32-1 less what the halves add (round k "
+                    f"of the converged image takes seed + 2k and seed + 2k + 1) (default {SEED})")
     ap.add_argument("--data", default=str(DATA), help="the shared data directory, envmaps/, meshes/, brdf/ (default "
                     "%(default)s: ../shared/data beside the repository, or $WARPBW_SHARED_DATA)")
     ap.add_argument("--device", default="cpu", help="Warp device (default cpu; cuda where there is one)")

@@ -348,7 +348,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="Dask's local scheduler (default processes: the builders hold the GIL; sync runs in this "
                     "process, one BRDF after the other)")
     bt.add_argument("--workers", type=_integer_from(1, 1024), default=None,
-                    help="tasks at once (default one per core, at most one per BRDF)")
+                    help="tasks at once, 1 to 1024 (default one per core, at most one per BRDF)")
     bt.add_argument("--json", type=parse_path, default=None, help="the record (default OUT/batch.json)")
     bt.add_argument("--resume", action="store_true",
                     help="keep the outputs that already hold this BRDF's table (an earlier, stopped batch's) and "

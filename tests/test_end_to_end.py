@@ -1587,6 +1587,298 @@ def test_every_option_with_a_default_says_it(monkeypatch):
     assert not unsaid, "\n".join(unsaid)
 
 
+def _computed_defaults() -> dict:
+    """(command, option) -> the value the code applies where the parser's default is None (the command tells an
+    option given from one left out, to refuse what the scene would not use) and --help states it; None where
+    --help says a sentence, not a value (all cores, beside --json)."""
+    import inspect
+
+    from precompute import batch
+    from warpbw import bandwidth, bench, cli, filtering
+    from warpbw.upsample import UPSAMPLE_DEFAULT
+
+    adaptive = {"--nb": bandwidth.N_B_DEFAULT, "--nyquist": bandwidth.NYQUIST_FACTOR,
+                "--allocation": bandwidth.ALLOCATION_DEFAULT, "--upsample": UPSAMPLE_DEFAULT,
+                "--env-signal": bandwidth.ENV_SIGNAL_DEFAULT}
+    filter_default = re.search(r'args\.filter or "(\w+)"', inspect.getsource(cli)).group(1)
+    seed_default = int(re.search(r"if args\.seed is None:\n\s+args\.seed = (\d+)", inspect.getsource(cli)).group(1))
+    out = {("warpbw render", k): v for k, v in adaptive.items()}
+    out |= {("warpbw bench", k): v for k, v in adaptive.items() if k != "--nb"}
+    out |= {("warpbw render", "--filter"): filter_default, ("warpbw render", "--max-anisotropy"):
+            filtering.DEFAULT_ANISOTROPY, ("warpbw render", "--spp"): cli.DEFAULT_SPP,
+            ("warpbw render", "--seed"): seed_default, ("warpbw demo", "--spp"): cli.DEMO_SPP,
+            ("warpbw demo", "--seed"): 0, ("warpbw bench", "--nb-budget"): bench.NB_SWEEP_BUDGET,
+            ("warpbw bench-filtering", "--spp"): cli.DEFAULT_SPP,
+            ("warpbw-precompute batch", "--tables"): "both" if tuple(batch.TABLES) == ("sampling", "bandwidth")
+            else ",".join(batch.TABLES)}
+    out |= {k: None for k in (("warpbw render", "--threads"), ("warpbw demo", "--threads"), ("warpbw bench", "--cache"),
+                              ("warpbw bench-filtering", "--cache"), ("warpbw compare", "--error-range"),
+                              ("warpbw-precompute batch", "--workers"), ("warpbw-precompute batch", "--json"))}
+    return out
+
+
+def _effective_defaults() -> dict:
+    """(command, option) -> the default a command applies, for warpbw and warpbw-precompute: the parser's, or
+    _computed_defaults' where the parser's is None."""
+    import argparse
+
+    from precompute.__main__ import build_parser as precompute_parser
+    from warpbw.cli import build_parser as warpbw_parser
+
+    computed, out = _computed_defaults(), {}
+    for prog, parser in (("warpbw", warpbw_parser()), ("warpbw-precompute", precompute_parser())):
+        for a in parser._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for name, sub in a.choices.items():
+                    for b in sub._actions:
+                        for o in b.option_strings:
+                            key = (f"{prog} {name}", o)
+                            out[key] = computed.get(key, b.default) if b.default is None else b.default
+    return out
+
+
+def test_every_default_the_code_computes_is_the_one_help_states():
+    """An option whose parser default is None (render's --nb, --nyquist, --spp, --filter; bench's --nb-budget: the
+    command fills them in, so that it can refuse one the scene would not use) and whose --help states a default
+    states the one the code applies (``_computed_defaults``: bandwidth.N_B_DEFAULT, NYQUIST_FACTOR, ...).
+    test_every_stated_default_is_the_default cannot read these: the parser's default says nothing.  Each such option
+    is in the table, so a new one must be added."""
+    import argparse
+
+    from precompute.__main__ import build_parser as precompute_parser
+    from warpbw.cli import build_parser as warpbw_parser
+
+    computed, bad, seen = _computed_defaults(), [], set()
+    for prog, parser in (("warpbw", warpbw_parser()), ("warpbw-precompute", precompute_parser())):
+        for a in parser._actions:
+            if not isinstance(a, argparse._SubParsersAction):
+                continue
+            for name, sub in a.choices.items():
+                for b in sub._actions:
+                    helptext = re.sub(r"\s+", " ", sub._get_formatter()._expand_help(b)) if b.help else ""
+                    if b.default is not None or "default" not in helptext or not b.option_strings:
+                        continue
+                    key = (f"{prog} {name}", b.option_strings[-1])
+                    seen.add(key)
+                    if key not in computed:
+                        bad.append(f"{key}: --help states a default the parser does not hold; add it to "
+                                   "_computed_defaults")
+                        continue
+                    if computed[key] is None:
+                        continue
+                    if b.choices:   # "measured (default; ...)", "log (default), ..."
+                        said = re.search(r"(\w+) \(default[;)]", helptext)
+                    else:           # "(default 16, 002 Sec. 2.6)", "(1 to 16; default 1: ...)"
+                        said = re.search(r"default ([\w.]+)", helptext)
+                    same = said is not None and (said.group(1) == str(computed[key]) if isinstance(computed[key], str)
+                                                 else float(said.group(1)) == float(computed[key]))
+                    if not same:
+                        bad.append(f"{key}: --help says {said.group(0) if said else helptext!r}, the code applies "
+                                   f"{computed[key]!r}")
+    assert not bad, "\n".join(bad)
+    assert seen == set(computed), set(computed) - seen   # the table names no option that states no default
+
+
+def test_the_readmes_bracketed_values_are_the_defaults():
+    """README's command lines give an option's default in brackets (``[--gt-spp 8192]``, ``[--components 4]``,
+    ``[--nb 16]``): each single value so given is the default the command applies (``_effective_defaults``), but
+    for the options listed here, whose brackets show an example (``[--device cuda]``, this machine's ``[--threads
+    2]``).  Choices (``[--upsample normal|paper]``), lists, placeholders (``[--cache DIR]``) and the values of an option
+    without a default (``[--error-map err.exr]``) are not defaults."""
+    examples = {("warpbw render", "--device"), ("warpbw render", "--threads"), ("warpbw info", "--method"),
+                ("warpbw-precompute batch", "--workers"), ("warpbw-precompute batch", "--materials")}
+    defaults = _effective_defaults()
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    bad, checked = [], 0
+    for block in re.findall(r"```[a-z]*\n(.*?)```", readme, re.S):
+        cmd = None
+        for line in block.splitlines():
+            m = re.match(r"(warpbw(?:-precompute)?) ([\w-]+)", line)
+            cmd = f"{m.group(1)} {m.group(2)}" if m else cmd if line.startswith(" ") else None
+            if cmd is None:
+                continue
+            for opt, said in re.findall(r"\[(--[\w-]+) ([^\]\[|]+)\]", line.split("#")[0]):
+                if (cmd, opt) in examples or said[0].isupper() or "," in said or "..." in said:
+                    continue
+                assert (cmd, opt) in defaults, f"README: {cmd} has no option {opt}"
+                d = defaults[(cmd, opt)]
+                if d is None:   # an option without a default: [--error-map err.exr] names an example
+                    continue
+                same = (said == d) if isinstance(d, str) else float(said) == float(d)
+                checked += 1
+                if not same:
+                    bad.append(f"README: [{opt} {said}] of {cmd}, whose default is {d!r}")
+    assert not bad, "\n".join(bad)
+    assert checked >= 15, checked
+
+
+def test_the_constants_the_readme_states_are_the_codes():
+    """README states the values of constants a reader relies on (an asset file's version and array shapes, the
+    launch's cap, the memory per pixel, triangle and texel, the refusal thresholds).
+    test_the_names_the_readme_points_to_exist checks that a named constant is there, not that the number beside it is
+    its value: each number here is
+    read from README's text and compared with the code's (a figure derived from it, such as GB at 4096 x 4096, to
+    the digits README gives).  README said 13 MB per bunny where 200 bytes x 69,666 triangles are 14 MB (decimal,
+    as its GB, and as warpbw info prints it)."""
+    import math
+
+    from precompute import brdf_bandwidth, brdf_sampling, gmm_mipmap, progress
+    from warpbw import bandwidth, bench, brdf, envmap, errors, filtering, gbuffer, pipeline, sampling, scene, shading
+
+    readme = re.sub(r"\s+", " ", (Path(__file__).resolve().parents[1] / "README.md").read_text())
+
+    def said(pattern: str) -> str:
+        m = re.search(pattern, readme)
+        assert m, f"README no longer says {pattern!r}: update this test with it"
+        return m.group(1)
+
+    def near(x: float, value: float, digits: int) -> bool:   # README's x is value to the digits it gives
+        return float(f"{value:.{digits}g}") == x
+
+    frame = pipeline.FRAME_BYTES_PER_PIXEL
+    checks = {
+        "sampling format, version": (said(r"\* `([\w.-]+)`, version \d+ \(`brdf-sampling`\)"),
+                                     said(r"`[\w.-]+`, version (\d+) \(`brdf-sampling`\)")) ==
+                                    (sampling.TABLE_FORMAT, str(sampling.TABLE_VERSION)),
+        "nu_rho format, version": (said(r"\* `([\w.-]+)`, version \d+ \(`brdf`\)"),
+                                   said(r"`[\w.-]+`, version (\d+) \(`brdf`\)")) ==
+                                  (brdf_bandwidth.FORMAT, str(brdf_bandwidth.VERSION)),
+        "GMM format, version": (said(r"\* `([\w.-]+)`, version \d+ \(`gmm`\)"),
+                                said(r"`[\w.-]+`, version (\d+) \(`gmm`\)")) ==
+                               (gmm_mipmap.GMM_FORMAT, str(gmm_mipmap.GMM_VERSION)),
+        "sampling arrays": said(r"(`marginal` \(\d+, \d+\) is the CDF over u, `conditional` \(\d+, \d+, \d+\))")
+        == f"`marginal` ({sampling.N_THETA_O}, {sampling.N_U + 1}) is the CDF over u, `conditional` "
+           f"({sampling.N_THETA_O}, {sampling.N_U}, {sampling.N_PHI + 1})",
+        "sampling density": said(r"`density` (\(\d+, \d+, \d+\))") ==
+                            f"({sampling.N_THETA_O}, {sampling.N_U}, {sampling.N_PHI})",
+        "view bins": int(said(r"For each of (\d+) view-elevation bins")) == sampling.N_THETA_O,
+        "views per bin": int(said(r"view-elevation bins averages the distributions of (\d+) views"))
+                         == sampling.VIEW_SUBSAMPLES,
+        "nu_rho shape": said(r"`nu_rho` (\(\d+, \d+, \d+\))") == str(brdf_bandwidth.SHAPE),
+        "cosine mix": int(said(r"with (\d+)% cosine sampling")) / 100 == brdf.TAB_COSINE_MIX,
+        "GT_VERSION": int(said(r"`warpbw\.bench\.GT_VERSION`, which is raised whenever .*?; (\d+): "))
+                      == bench.GT_VERSION,
+        "launch samples": near(float(said(r"a launch holds at most about (\d+) million samples")) * 1e6,
+                               shading.LAUNCH_COST_MAX, 1),
+        "launch pixels": int(said(r"and at most ([\d,]+) pixels").replace(",", "")) == shading.PIXELS_PER_TILE,
+        "T_EPS_REL": float(said(r"a hit nearer than ([\de.-]+) of that object's size")) == gbuffer.T_EPS_REL,
+        "overflow": near(float(said(r"where a light's radiance passes ([\de.]+)")), pipeline.RADIANCE_OVERFLOW_MIN, 2),
+        "underflow": near(float(said(r"is below ([\de.-]+) \(`warpbw\.pipeline\.RADIANCE_UNDERFLOW_MAX`")),
+                          pipeline.RADIANCE_UNDERFLOW_MAX, 2),
+        "frame bytes": said(r"about (\d+ bytes per pixel beyond its assets with the reference method and \d+)")
+        == f"{frame['reference']} bytes per pixel beyond its assets with the reference method and {frame['adaptive']}",
+        "frame GB": said(r"(\S+ and \S+ GB at 4096 x 4096, \S+ and \S+ GB)") ==
+        "{:.2g} and {:.2g} GB at 4096 x 4096, {:.2g} and {:.2g} GB".format(
+            *(frame[m] * s * s / 1e9 for s in (4096, scene.MAX_RESOLUTION) for m in ("reference", "adaptive"))),
+        "largest resolution": said(r"the largest resolution a scene may ask, (\d+ x \d+)")
+                              == f"{scene.MAX_RESOLUTION} x {scene.MAX_RESOLUTION}",
+        "probe load": (int(said(r"Loading a probe takes about (\d+) bytes per texel")),
+                       float(said(r"32 held \(([\d.]+) GB at 8192 x 4096\)"))) ==
+                      (envmap.LOAD_BYTES_PER_TEXEL, round(envmap.LOAD_BYTES_PER_TEXEL * 8192 * 4096 / 1e9, 1)),
+        "probe map": (int(said(r"its bandwidth map \(.*?\) about (\d+) bytes per texel")),
+                      float(said(r"about \d+ bytes per texel \(([\d.]+) GB\)"))) ==
+                     (bandwidth.ENV_BW_BYTES_PER_TEXEL, round(bandwidth.env_bandwidth_memory(8192, 4096) / 1e9, 1)),
+        "mesh bytes": (int(said(r"meshes take about (\d+) bytes per triangle")),
+                       int(said(r"\((\d+) MB per bunny"))) ==
+                      (pipeline.MESH_BYTES_PER_TRIANGLE,
+                       round(pipeline.MESH_BYTES_PER_TRIANGLE * int(said(r"Stanford bunny \(([\d,]+) triangles\)")
+                                                                    .replace(",", "")) / 1e6)),
+        "N_p cap": int(said(r"up to (\d+) times the budget at one pixel \(`N_P_MAX_PER_BUDGET`"))
+                   == bandwidth.N_P_MAX_PER_BUDGET,
+        "n_b": int(said(r"the \*\*bandwidth pass\*\* \(`warpbw/bandwidth\.py`, n_b = (\d+)"))
+               == bandwidth.N_B_DEFAULT,
+        "albedo warning": float(said(r"whose directional albedo passes ([\d.]+)")) == brdf_sampling.ALBEDO_WARN,
+        "conductor": float(said(r"A conductor's eta and k are at most ([\de.]+)")) == scene.CONDUCTOR_INDEX_MAX,
+        "camera far": (near(float(said(r"a sphere's far side beyond ([\de.]+) scene units")), gbuffer.SPHERE_REACH_MAX,
+                            2),
+                       near(float(said(r"a mesh's beyond ([\de.]+)\)")), gbuffer.MESH_REACH_MAX, 1)),
+        "camera near": said(r"that it would land wrong \(([\de.-]+ and [\de.-]+)\)") ==
+                       f"{gbuffer.SPHERE_REACH_MIN:.2g} and {gbuffer.MESH_REACH_MIN:.2g}",
+        "far from the origin": (said(r"spaces coordinates by more than 1/(\d+) of a sphere's radius"),
+                                said(r"that is from [\d,]+ units \(2\^(\d+)\) on")) ==
+                               (str(round(1 / errors.COORD_SPACING_REL_MAX)),
+                                str(int(math.log2(errors.COORD_SPACING_REL_MAX / 2.0 ** -24)))),
+        "map texels": said(r"Maps read from files hold at most (\d+ x \d+ = [\d,]+) texels") ==
+                      f"{gmm_mipmap.MAX_MAP_SIDE} x {gmm_mipmap.MAX_MAP_SIDE} = {gmm_mipmap.MAX_MAP_TEXELS:,}",
+        "progress interval": float(said(r"a line per state at most every (\d+) s")) == progress.LOG_INTERVAL_S,
+        "LOD bias": said(r"\* LOD bias (-log2\(3\)/2):") and filtering.LOD_BIAS == -math.log2(3.0) / 2,
+        "anisotropy": said(r"`--max-anisotropy N` on `render` and `bench-filtering`, (1 to \d+)\)")
+                      == f"{filtering.DEFAULT_ANISOTROPY} to {filtering.MAX_ANISOTROPY}",
+        "ground-truth rays": int(said(r"ground_truth \(--spp >= (\d+) rays per pixel")) == filtering.MIN_GT_SPP,
+        "roughness floor": float(said(r"on a flat plane of roughness ([\de.-]+) \(the smallest accepted\)"))
+                           == scene.CT_MIN_ROUGHNESS,
+    }
+    wrong = [k for k, ok in checks.items() if not ok]
+    assert not wrong, f"README's figure is not the code's: {wrong}"
+
+
+def test_every_numeric_options_help_gives_its_range(monkeypatch):
+    """An option whose value the command refuses below or above a bound says the range in its --help ("1 to 16",
+    "a positive number", "up to 8.39e+06"): render's --nb (1 to 65536), --budget (up to 2^31 / 256), --spp, bench's
+    lists and --nb-budget, bench-filtering's --zoom and batch's --workers said none, and a user learnt the bound from
+    the refusal (and examples/validate_bandwidth.py's --seed, whose halves add to it).  Probed through each option's
+    own argparse type, for warpbw, warpbw-precompute and every example: one that takes "1" (or "64") and refuses "0"
+    must say its least value, one that refuses 1e11 its greatest."""
+    import argparse
+
+    from precompute.__main__ import build_parser as precompute_parser
+    from warpbw.cli import build_parser as warpbw_parser
+
+    def takes(a, s: str) -> bool:
+        try:
+            a.type(s)
+            return True
+        except (argparse.ArgumentTypeError, ValueError, TypeError):
+            return False
+
+    commands = []
+    for prog, parser in (("warpbw", warpbw_parser()), ("warpbw-precompute", precompute_parser())):
+        subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)][0]
+        commands += [(f"{prog} {name}", sub) for name, sub in subs.choices.items()]
+    for script in sorted((Path(__file__).resolve().parents[1] / "examples").glob("*.py")):
+        commands.append((script.name, _example_parser(monkeypatch, script.stem)[1]))
+    bad, checked = [], 0
+    for name, sub in commands:
+        for a in sub._actions:
+            if not a.option_strings or a.nargs == 0 or a.choices or a.type is None:
+                continue
+            least = next((s for s in ("1", "64") if takes(a, s)), None)
+            if least is None:
+                continue   # not a number: a path, a list of names
+            helptext = re.sub(r"\s+", " ", sub._get_formatter()._expand_help(a))
+            checked += 1
+            if not takes(a, "0") and not re.search(r"positive|\b\d+ to |> ?0|>= ?\d", helptext):
+                bad.append(f"{name} {a.option_strings[-1]}: refuses 0, its help gives no least value")
+            if not takes(a, "99999999999") and not re.search(r"\bto [\d2-]|up to \d|at most \d|<= ?\d",
+                                                              helptext):
+                bad.append(f"{name} {a.option_strings[-1]}: refuses 1e11, its help gives no greatest value")
+    assert not bad, "\n".join(bad)
+    assert checked >= 60, checked
+
+
+def test_the_readmes_scene_defaults_are_the_loaders(tmp_path):
+    """README's plane block gives keys' defaults in its comments (``diffuse ... (default 0)``, ``normal_map_kind =
+    "height" # (default)``, ``tiling ... (default 1)``, ``gmm_components ... (default 4, ...)``): a plane material
+    that leaves each key out loads with that value (warpbw.scene.load_scene, the loader's own defaults)."""
+    from warpbw.scene import load_scene
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    stated = {}
+    for block in re.findall(r"```toml\n(.*?)```", readme, re.S):
+        for key, value, said in re.findall(r"^(\w+) *= *([^#\n]*?) *#[^\n]*?[(;] ?default\b ?([^,;)]*)", block, re.M):
+            stated[key] = said.strip() if said.strip() else value.strip().strip('"')
+    assert {"diffuse", "normal_map_kind", "normal_map_scale", "tiling", "gmm_components", "gmm_prior"} <= set(stated)
+    Image.fromarray(np.zeros((8, 8), np.uint16)).save(tmp_path / "h.png")
+    (tmp_path / "s.toml").write_text(plane_scene_toml('normal_map = "h.png"\n', diffuse=None))
+    m = load_scene(tmp_path / "s.toml").materials["m"]
+    for key, said in stated.items():
+        got = getattr(m, key)
+        if isinstance(got, str):
+            assert got == said, (key, said, got)
+        else:
+            assert np.allclose(np.asarray(got, float), float(said)), (key, said, got)
+
+
 def test_validate_bandwidths_help_gives_every_quick_setting(monkeypatch):
     """validate_bandwidth.py --quick replaces the defaults of QUICK's options: each option's --help says what it
     becomes ("N with --quick"; --uniform-samples, --bis-samples and --window said only their full default).  The

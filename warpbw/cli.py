@@ -363,8 +363,8 @@ def add_adaptive_options(p) -> None:
                    "standard deviation), variance (002 Sec. 2.4: the Eq. 9 bound), sqrt (its square root), "
                    "relative (bound / radiance^2), uniform")
     p.add_argument("--nyquist", type=_positive_float("nyquist", FLOAT32_MAX), default=None,
-                   help="adaptive: sampling rate in multiples of the image bandwidth b_p for the level of Eq. 11 "
-                   "(default 2, Nyquist; larger shades more pixels at finer levels)")
+                   help="adaptive: sampling rate in multiples of the image bandwidth b_p for the level of Eq. 11, a "
+                   "positive number (default 2, Nyquist; larger shades more pixels at finer levels)")
     p.add_argument("--upsample", choices=_UPSAMPLE_MODES, default=None,
                    help="adaptive: how a pixel that is not shaded is filled from its parents: normal (default; the "
                    "paper's bilateral weights fitting a plane in the surface normal, so that shading that follows "
@@ -892,7 +892,7 @@ def build_parser() -> argparse.ArgumentParser:
     def common(sp, spp_default):
         # default None: render refuses --spp with --method adaptive, so it must know whether --spp was given
         sp.add_argument("--spp", type=_positive_int("spp", INT32_MAX), default=None,
-                        help=f"BRDF samples per pixel, N in 002 Eq. 2 (default {spp_default})")
+                        help=f"BRDF samples per pixel, N in 002 Eq. 2, 1 to 2^31-1 (default {spp_default})")
         # default None: render refuses a --seed its scene would not use, so it must know whether one was given
         sp.add_argument("--seed", type=parse_seed, default=None,
                         help="random seed, 0 to 2^32-1 (default 0); at one seed a pixel draws the same samples, so a "
@@ -929,11 +929,11 @@ def build_parser() -> argparse.ArgumentParser:
                    "as EXR and false-colour PNG")
     r.add_argument("--budget", type=_positive_float("budget", BUDGET_MAX), default=None,
                    help="adaptive: mean samples per covered pixel, spread over the shaded pixels in proportion to the "
-                   "standard deviation the bandwidth pass measures "
-                   "(may be below 1)")
+                   f"standard deviation the bandwidth pass measures: a positive number (may be below 1) up to "
+                   f"{BUDGET_MAX:.3g}")
     r.add_argument("--nb", type=_positive_int("nb", N_B_MAX), default=None,
                    help="adaptive: directions the bandwidth pass traces per 2x2 block of alike pixels (per pixel at "
-                   "an edge; each pixel pools its neighbours' too), n_b (default 16, 002 Sec. 2.6)")
+                   f"an edge; each pixel pools its neighbours' too), n_b, 1 to {N_B_MAX} (default 16, 002 Sec. 2.6)")
     add_adaptive_options(r)
     r.add_argument("--filter", choices=_FILTER_METHODS, default=None,
                    help="scenes with planes (shape = \"plane\", cook-torrance materials) always render with the "
@@ -1003,18 +1003,20 @@ def build_parser() -> argparse.ArgumentParser:
     bn.add_argument("--plot", help="write the plot here (PNG): PSNR against time, one curve per method; without "
                     "it, beside --json as OUT.png")
     bn.add_argument("--spp", type=_number_list("spp", int, INT32_MAX), default=list(_bench.DEFAULT_SPP),
-                    help="reference sample counts (default %s)" % ",".join(map(str, _bench.DEFAULT_SPP)))
+                    help="reference sample counts, each 1 to 2^31-1 (default %s)"
+                    % ",".join(map(str, _bench.DEFAULT_SPP)))
     bn.add_argument("--budgets", type=_number_list("budgets", float, BUDGET_MAX), default=list(_bench.DEFAULT_BUDGETS),
-                    help="adaptive budgets, mean samples per covered pixel (default %s)"
-                    % ",".join(f"{b:g}" for b in _bench.DEFAULT_BUDGETS))
+                    help=f"adaptive budgets, mean samples per covered pixel, each positive up to {BUDGET_MAX:.3g} "
+                    "(default %s)" % ",".join(f"{b:g}" for b in _bench.DEFAULT_BUDGETS))
     bn.add_argument("--nb", type=_number_list("nb", int, N_B_MAX), default=None,
-                    help="n_b sweep, e.g. 16,64,256,1024 (002 Fig. 13), at --nb-budget")
+                    help=f"n_b sweep, each 1 to {N_B_MAX}, e.g. 16,64,256,1024 (002 Fig. 13), at --nb-budget")
     add_adaptive_options(bn)
     bn.add_argument("--nb-budget", type=_positive_float("nb-budget", BUDGET_MAX), default=None,
-                    help=f"budget of the n_b sweep (default {_bench.NB_SWEEP_BUDGET})")
+                    help=f"budget of the n_b sweep, a positive number up to {BUDGET_MAX:.3g} (default "
+                    f"{_bench.NB_SWEEP_BUDGET})")
     bn.add_argument("--gt-spp", type=_gt_spp, default=_bench.DEFAULT_GT_SPP,
                     help=f"ground-truth samples per pixel (default {_bench.DEFAULT_GT_SPP}; cached in two or more "
-                         f"equal chunks of at most {_bench.GT_CHUNK_SPP} spp: any even count up to "
+                         f"equal chunks of at most {_bench.GT_CHUNK_SPP} spp: any even count from 2 to "
                          f"{2 * _bench.GT_CHUNK_SPP}, beyond it a multiple of {_bench.GT_CHUNK_SPP})")
     bn.add_argument("--no-mis", action="store_true",
                     help="compare with BRDF importance sampling only (default: MIS for both methods)")
@@ -1045,22 +1047,24 @@ def build_parser() -> argparse.ArgumentParser:
     bf.add_argument("scene", help="scene file (TOML) with planes (spheres and meshes beside them hide what they "
                     "cover)")
     bf.add_argument("--zoom", type=_number_list("zoom", float), default=list(_bf.DEFAULT_ZOOMS),
-                    help="zoom factors (default %s); a zoom at which no pixel sees a plane is refused before any "
-                    "work" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
+                    help="zoom factors, each positive (default %s); a zoom at which no pixel sees a plane is refused "
+                    "before any work" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
     bf.add_argument("--json", help="write the record here (JSON); without it, beside --plot as OUT.json")
     bf.add_argument("--plot", help="write the plot here (PNG): error, flicker and temporal error against zoom; "
                     "without it, beside --json as OUT.png")
     bf.add_argument("--gt-spp", type=_positive_int("gt-spp", INT32_MAX), default=_bf.DEFAULT_GT_SPP,
-                    help=f"ground-truth rays per pixel (>= 64; default {_bf.DEFAULT_GT_SPP}), jittered over the "
+                    help=f"ground-truth rays per pixel ({MIN_GT_SPP} to 2^31-1; default {_bf.DEFAULT_GT_SPP}), "
+                    "jittered over the "
                     "pixel and averaged over those that hit the plane")
     bf.add_argument("--spp", type=_positive_int("spp", INT32_MAX), default=None,
                     help="under an [environment]: pairs of one BRDF and one environment sample per pixel of the "
-                    f"filtered methods (default {DEFAULT_SPP}, as warpbw render; their noise is part of the error)")
+                    f"filtered methods, 1 to 2^31-1 (default {DEFAULT_SPP}, as warpbw render; their noise is part of "
+                    "the error)")
     bf.add_argument("--cache", help="GMM mipmap cache directory: mipmaps found there are reused, those built are "
                     "kept there (default: build afresh, so that the precompute time is measured)")
     bf.add_argument("--flicker-pairs", type=_positive_int("flicker-pairs", _bf.FLICKER_PAIRS_MAX), default=1,
                     help="consecutive frame pairs per zoom (z * step^j to z * step^(j+1)) the flicker and temporal "
-                    f"error are averaged over (default 1; at most {_bf.FLICKER_PAIRS_MAX}, one octave): one pair is "
+                    f"error are averaged over (default 1; 1 to {_bf.FLICKER_PAIRS_MAX}, one octave): one pair is "
                     "one sample of where the footprints fall on the texels")
     add_anisotropy_option(bf, 1)
     bench_common(bf, "timed runs per point (median; default 3); the images, hence error and flicker, are the "
