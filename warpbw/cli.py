@@ -1054,8 +1054,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "without it, beside --json as OUT.png")
     bf.add_argument("--gt-spp", type=_positive_int("gt-spp", INT32_MAX), default=_bf.DEFAULT_GT_SPP,
                     help=f"ground-truth rays per pixel ({MIN_GT_SPP} to 2^31-1; default {_bf.DEFAULT_GT_SPP}), "
-                    "jittered over the "
-                    "pixel and averaged over those that hit the plane")
+                    "jittered over the pixel and averaged over those that hit the plane")
     bf.add_argument("--spp", type=_positive_int("spp", INT32_MAX), default=None,
                     help="under an [environment]: pairs of one BRDF and one environment sample per pixel of the "
                     f"filtered methods, 1 to 2^31-1 (default {DEFAULT_SPP}, as warpbw render; their noise is part of "
