@@ -4115,3 +4115,53 @@ def test_an_error_map_beyond_float32_is_refused_not_written_with_infinities(tmp_
     assert not (tmp_path / "err.exr").exists() and not (tmp_path / "err.png").exists()
     r = run(["compare", "ref.exr", "big.exr", "--error-map", "err.exr"], tmp_path)   # errors near 1: written
     assert r.returncode == 0 and "every error is 1" in r.stdout, r.stdout + r.stderr
+
+
+# A child, as above: on the old code each MIS or bandwidth-pass call below died of a segfault (its kernel read the
+# environment's empty sampling arrays).
+_NO_SAMPLING_CHILD = """
+import sys
+import numpy as np
+from warpbw.errors import WarpbwError
+from warpbw.gbuffer import render_gbuffer
+from warpbw.io.exr import write_exr
+from warpbw.pipeline import prepare_bandwidth, prepare_scene
+from warpbw.scene import parse_scene
+from warpbw.shading import shade_reference
+from warpbw.bandwidth import bandwidth_pass
+sky = np.ones((8, 16, 3), np.float32)
+sky[1:3, 4:6] = 40.0
+write_exr("sky.exr", sky)
+prep = prepare_scene(parse_scene(sys.argv[1], ".", "scene.toml"), sampling=False)
+gb = render_gbuffer(prep.camera, prep.geometry)
+plain = shade_reference(gb, prep.materials, prep.env.lookup_data, 2, mis=False)   # looks the radiance up alone
+print("plain", np.isfinite(plain.radiance.numpy()).all() and plain.radiance.numpy().max() > 0, prep.env.has_sampling)
+tables = prepare_bandwidth(prep)
+for name, call in [("mis", lambda: shade_reference(gb, prep.materials, prep.env.lookup_data, 2, mis=True)),
+                   ("pass", lambda: bandwidth_pass(gb, prep.camera, prep.materials, prep.env.lookup_data, tables))]:
+    try:
+        call()
+        print(name, "returned")
+    except WarpbwError as exc:
+        print(name, "WarpbwError:", exc)
+"""
+
+
+def test_a_sampling_pass_refuses_an_environment_struct_without_its_sampling_distribution(tmp_path):
+    """``EnvMap.lookup_data`` of a map loaded with ``sampling=False`` (``prepare_scene(scene, sampling=False)``) is
+    documented for radiance look-ups alone; given to ``shade_reference`` with MIS or to ``bandwidth_pass``, whose
+    kernels sample the environment, it crashed the process (a segfault reading its empty CDFs).  Now a one-line error
+    naming the pass and what to pass instead; the look-up alone still renders, and builds no distribution."""
+    toml = ('[camera]\nposition = [0.0, 0.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\nfov = 40.0\n'
+            'resolution = [8, 6]\n[environment]\nfile = "sky.exr"\n[[object]]\nshape = "sphere"\n'
+            'center = [0.0, 0.0, 0.0]\nradius = 0.8\nmaterial = "m"\n[material.m]\ntype = "lambert"\n'
+            'albedo = [0.5, 0.5, 0.5]\n')
+    r = subprocess.run([sys.executable, "-c", _NO_SAMPLING_CHILD, toml], capture_output=True, text=True, timeout=300,
+                       env={**os.environ, "WARPBW_CACHE": str(tmp_path / "cache")}, cwd=tmp_path)
+    out = r.stdout.splitlines()
+    assert r.returncode == 0, (r.returncode, r.stdout, r.stderr[-800:])
+    assert "plain True False" in out, r.stdout
+    for name, where in (("mis", "shade_reference"), ("pass", "bandwidth pass")):
+        line = next((ln for ln in out if ln.startswith(f"{name} ")), "")
+        assert line.startswith(f"{name} WarpbwError: {where}: env_data: this pass samples the environment"), r.stdout
+        assert "EnvMap's .data" in line

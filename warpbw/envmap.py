@@ -73,6 +73,8 @@ Host functions:
                                      ``sampling=False`` builds it on first need (``EnvMap.data`` does;
                                      ``EnvMap.lookup_data`` is the struct as it is, for radiance look-ups alone;
                                      ``EnvMap.has_sampling`` says whether it is built)
+    check_env_data(env_data, where, sampled=True)   a one-line error for a struct without its map or (``sampled``)
+                                     its sampling distribution (the renderers' passes call it)
     procedural_sky(width=256, height=128, ...) -> np.ndarray (H, W, 3) float32
     build_mip_levels(pixels) -> list[np.ndarray]
     mip_row_positions(heights) -> np.ndarray (n_levels, 2)   where each level's rows sit: (v0, dv)
@@ -688,6 +690,30 @@ def ensure_sampling(env: EnvMap) -> EnvMap:
             env._keep.append(a)
         env._sampled = True
     return env
+
+
+def check_env_data(env_data, where: str, sampled: bool = True) -> None:
+    """Refuse, in one line naming ``where``, an ``env_data`` that is no EnvMapData with a map, or (``sampled``: a kernel
+    that calls ``env_sample`` / ``env_pdf``) one without its sampling distribution: ``EnvMap.lookup_data`` of a map
+    loaded with ``sampling=False``, whose empty arrays such a kernel read past their end (a segfault).  Shapes
+    alone, not contents: the renderers call it every frame."""
+    if not isinstance(env_data, EnvMapData.cls):
+        raise WarpbwError(f"{where}: env_data: expected an EnvMapData (an EnvMap's .data), got "
+                          f"{type(env_data).__name__}")
+    h, w = int(env_data.height), int(env_data.width)
+    base = env_data.base
+    if base is None or h < 1 or w < 1 or tuple(base.shape) != (h, w):
+        raise WarpbwError(f"{where}: env_data: expected an EnvMapData holding its map (an EnvMap's .data), got one "
+                          f"without ({'no map' if base is None else f'a map of shape {tuple(base.shape)}'} for "
+                          f"{w} x {h})")
+    if not sampled:
+        return
+    expected = {"marginal_cdf": (1, h + 1), "conditional_cdf": (h, w + 1), "row_omc": (h + 1,), "row_opc": (h + 1,),
+                "cell_pdf": (h, w)}
+    if any(getattr(env_data, k) is None or tuple(getattr(env_data, k).shape) != shape for k, shape in expected.items()):
+        raise WarpbwError(f"{where}: env_data: this pass samples the environment, and the EnvMapData given has no "
+                          "sampling distribution (EnvMap.lookup_data of a map loaded with sampling=False); pass the "
+                          "EnvMap's .data, which builds it (warpbw.envmap.ensure_sampling)")
 
 
 def envmap_from_array(rgb, rotation_deg: float = 0.0, scale: float = 1.0, name: str = "array", device="cpu") -> EnvMap:

@@ -44,7 +44,7 @@ import numpy as np
 import warp as wp
 
 from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
-from warpbw.envmap import EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv
+from warpbw.envmap import EnvMapData, check_env_data, env_pdf_uv, env_radiance_uv, env_sample, env_uv
 from warpbw.errors import INT32_MAX, WarpbwError, check_count, check_device, check_flag, check_instance, check_seed
 from warpbw.gbuffer import GBuffer, GBufferData
 from warpbw.lights import DirectionalLights, Lights, as_lights
@@ -392,9 +392,8 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
     lights = as_lights(lights, "shade_reference: lights")
     n_pix = gb.width * gb.height
     _check_material_ids(gb, materials)
-    if env_data is not None and not isinstance(env_data, EnvMapData.instance_type):   # else an AttributeError in Warp
-        raise WarpbwError(f"shade_reference: env_data: expected an EnvMapData (an EnvMap's .data), got "
-                          f"{type(env_data).__name__}")
+    if env_data is not None:   # another object was an AttributeError in Warp; MIS from a struct without its
+        check_env_data(env_data, "shade_reference", sampled=mis)   # sampling distribution, a segfault
     as_map = _spp_map(spp, gb, device)
     per_pixel = as_map is not None
     if per_pixel:
