@@ -4117,8 +4117,8 @@ def test_an_error_map_beyond_float32_is_refused_not_written_with_infinities(tmp_
     assert r.returncode == 0 and "every error is 1" in r.stdout, r.stdout + r.stderr
 
 
-# A child, as above: on the old code each MIS or bandwidth-pass call below died of a segfault (its kernel read the
-# environment's empty sampling arrays).
+# A child, as above: on the old code each MIS, BRDF-sampling or bandwidth-pass call below died of a segfault (its kernel
+# read the environment's empty sampling arrays, or a MERL material's sampler past the empty tables).
 _NO_SAMPLING_CHILD = """
 import sys
 import numpy as np
@@ -4137,8 +4137,13 @@ gb = render_gbuffer(prep.camera, prep.geometry)
 plain = shade_reference(gb, prep.materials, prep.env.lookup_data, 2, mis=False)   # looks the radiance up alone
 print("plain", np.isfinite(plain.radiance.numpy()).all() and plain.radiance.numpy().max() > 0, prep.env.has_sampling)
 tables = prepare_bandwidth(prep)
+from warpbw.brdf import MERL, MERL_CELLS, MaterialSpec, build_material_table
+lights_only = build_material_table([MaterialSpec("m", MERL, merl=np.full((MERL_CELLS, 3), 0.1, np.float32))],
+                                   sampling=False)   # for directional lights alone: no sampling table
 for name, call in [("mis", lambda: shade_reference(gb, prep.materials, prep.env.lookup_data, 2, mis=True)),
-                   ("pass", lambda: bandwidth_pass(gb, prep.camera, prep.materials, prep.env.lookup_data, tables))]:
+                   ("pass", lambda: bandwidth_pass(gb, prep.camera, prep.materials, prep.env.lookup_data, tables)),
+                   ("brdf", lambda: shade_reference(gb, lights_only, prep.env.data, 2)),
+                   ("brdf-pass", lambda: bandwidth_pass(gb, prep.camera, lights_only, prep.env.data, tables))]:
     try:
         call()
         print(name, "returned")
@@ -4147,11 +4152,13 @@ for name, call in [("mis", lambda: shade_reference(gb, prep.materials, prep.env.
 """
 
 
-def test_a_sampling_pass_refuses_an_environment_struct_without_its_sampling_distribution(tmp_path):
+def test_a_sampling_pass_refuses_an_environment_or_material_table_without_its_sampling_tables(tmp_path):
     """``EnvMap.lookup_data`` of a map loaded with ``sampling=False`` (``prepare_scene(scene, sampling=False)``) is
     documented for radiance look-ups alone; given to ``shade_reference`` with MIS or to ``bandwidth_pass``, whose
     kernels sample the environment, it crashed the process (a segfault reading its empty CDFs).  Now a one-line error
-    naming the pass and what to pass instead; the look-up alone still renders, and builds no distribution."""
+    naming the pass and what to pass instead; the look-up alone still renders, and builds no distribution.  So for a
+    MERL material packed without its sampling table (``build_material_table(..., sampling=False)``, documented for
+    directional lights alone) under an environment: its sampler index read past the empty tables."""
     toml = ('[camera]\nposition = [0.0, 0.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\nfov = 40.0\n'
             'resolution = [8, 6]\n[environment]\nfile = "sky.exr"\n[[object]]\nshape = "sphere"\n'
             'center = [0.0, 0.0, 0.0]\nradius = 0.8\nmaterial = "m"\n[material.m]\ntype = "lambert"\n'
@@ -4165,3 +4172,8 @@ def test_a_sampling_pass_refuses_an_environment_struct_without_its_sampling_dist
         line = next((ln for ln in out if ln.startswith(f"{name} ")), "")
         assert line.startswith(f"{name} WarpbwError: {where}: env_data: this pass samples the environment"), r.stdout
         assert "EnvMap's .data" in line
+    # the same crash from a MERL material packed without its sampling table (for lights alone) under an environment
+    for name, where in (("brdf", "shade_reference"), ("brdf-pass", "bandwidth pass")):
+        line = next((ln for ln in out if ln.startswith(f"{name} ")), "")
+        assert line.startswith(f"{name} WarpbwError: {where}: materials: material 0 ('m') was packed without its "
+                               "sampling table"), r.stdout

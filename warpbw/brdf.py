@@ -8,6 +8,8 @@ Public:
                                     ``MaterialTable`` (``MaterialBuffers``: the table and the kinds and names it
                                     holds; without ``sampling``, for lights alone, no sampling table)
     ``check_material_spec(s, i)``  a spec the table can hold, else a ``WarpbwError`` naming the field
+    ``check_sampling_tables(mb, where, gb_material)``  a one-line error for a tabulated material packed without its
+                                    sampling table that a pass sampling the BRDF would read (the passes call it)
     ``pack_npf_curves(rho_d, rho_s, d, g1, f)``  an NPF fit's curves in the table's layout
     ``KIND_NAMES``                  material type name -> kind id
     ``eval_brdf(...)``, ``sample_brdf(...)``, ``pdf_brdf(...)``  host wrappers (numpy in, numpy out) for tests
@@ -631,6 +633,28 @@ def _check_material(mb: MaterialBuffers, m, device) -> int:
     check_device(device)
     check_instance(mb, MaterialBuffers, "mb", "MaterialBuffers (build_material_table's)")   # its .table: no names
     return check_count(m, "m (material index)", 0, len(mb.names) - 1)
+
+
+def check_sampling_tables(mb: MaterialBuffers, where: str, gb_material=None) -> None:
+    """Refuse, in one line naming ``where``, a MERL or NPF material packed without its sampling table
+    (``build_material_table(..., sampling=False)``, for directional lights alone) when a kernel that samples the BRDF
+    (a pass under an environment) would read it: its sampler index read past the empty tables (a segfault).
+    ``gb_material``: the G-buffer's per-pixel material ids (-1 empty; numpy or Warp), so that only the materials it
+    shows count (None: every material).  Reads the material ids only when the table holds such a material."""
+    kind, sampler = mb.table.kind.numpy(), mb.table.sampler.numpy()
+    unsampled = np.isin(kind, (MERL, NPF)) & (sampler < 0)
+    if not unsampled.any():
+        return
+    if gb_material is not None:
+        shown = np.zeros(len(kind), bool)
+        ids = np.unique(gb_material.numpy() if isinstance(gb_material, wp.array) else np.asarray(gb_material))
+        shown[ids[(ids >= 0) & (ids < len(kind))]] = True
+        unsampled &= shown
+    if unsampled.any():
+        m = int(np.argmax(unsampled))
+        raise WarpbwError(f"{where}: materials: material {m} ({mb.names[m]!r}) was packed without its sampling table "
+                          "(build_material_table(..., sampling=False), for directional lights alone), and this pass "
+                          "samples its BRDF under the environment: pack it with sampling=True")
 
 
 def _check_sampled(mb: MaterialBuffers, m: int, what: str) -> None:
