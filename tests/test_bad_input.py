@@ -4177,3 +4177,67 @@ def test_a_sampling_pass_refuses_an_environment_or_material_table_without_its_sa
         line = next((ln for ln in out if ln.startswith(f"{name} ")), "")
         assert line.startswith(f"{name} WarpbwError: {where}: materials: material 0 ('m') was packed without its "
                                "sampling table"), r.stdout
+
+
+def _flag_cases():
+    """Calls given a truthy string (or 0, or None) for a flag of a function added or changed since session 65, and the
+    parameter the refusal must name."""
+    from precompute.batch import batch_items, check_outputs, run_batch
+    from warpbw import bandwidth, brdf, envmap, gbuffer, pipeline
+    from warpbw.scene import parse_scene
+
+    def scene(tmp_path):
+        return parse_scene(write_scene(tmp_path).read_text(), tmp_path, "scene.toml")
+
+    def batch_with_an_output(tmp_path):   # one table already there: only --force or --resume goes past it
+        items = batch_items([fake_npf_table(tmp_path / "npf.bin")], ["chrome"])
+        (tmp_path / "out").mkdir()
+        (tmp_path / "out" / "chrome.sampling.npz").write_bytes(b"an earlier table")
+        return items, tmp_path / "out"
+
+    lambert = brdf.MaterialSpec("m", brdf.LAMBERT, albedo=(0.5, 0.5, 0.5))
+    return {
+        "prepare_scene sampling 'no'": (lambda t: pipeline.prepare_scene(scene(t), sampling="no"),
+                                        "prepare_scene: sampling: expected True or False, got 'no'"),
+        "prepare_scene progress 'no'": (lambda t: pipeline.prepare_scene(scene(t), progress="no"),
+                                        "prepare_scene: progress: expected True or False"),
+        "load_envmap sampling 0": (lambda t: envmap.load_envmap(write_exr(t / "e.exr", np.ones((4, 8, 3), np.float32))
+                                                                or t / "e.exr", sampling=0),
+                                   "load_envmap: sampling: expected True or False, got 0"),
+        "load_environment sampling None": (lambda t: envmap.load_environment(scene(t).environment, sampling=None),
+                                           "load_environment: sampling: expected True or False, got None"),
+        "build_material_table sampling 'no'": (lambda t: brdf.build_material_table([lambert], sampling="no"),
+                                               "build_material_table: sampling: expected True or False"),
+        "make_gbuffer_kernel attributes 'no'": (lambda t: gbuffer.make_gbuffer_kernel(True, False, attributes="no"),
+                                                "make_gbuffer_kernel: attributes: expected True or False"),
+        "make_gbuffer_kernel has_mesh 'no'": (lambda t: gbuffer.make_gbuffer_kernel(True, "no"),
+                                              "make_gbuffer_kernel: has_mesh: expected True or False"),
+        "load_kernels relative 'no'": (lambda t: bandwidth.load_kernels(relative="no"),
+                                       "load_kernels: relative: expected True or False"),
+        "check_outputs force 'no'": (lambda t: check_outputs(*batch_with_an_output(t), tables=("sampling",),
+                                                             force="no"),
+                                     "force: expected True or False, got 'no'"),
+        "run_batch resume 'no'": (lambda t: run_batch(*batch_with_an_output(t), tables=("sampling",),
+                                                      scheduler="sync", resume="no", progress=False),
+                                  "resume: expected True or False, got 'no'"),
+        "run_batch progress 'yes'": (lambda t: run_batch(batch_items([fake_npf_table(t / "npf.bin")], ["chrome"]),
+                                                         t / "out", tables=("sampling",), scheduler="sync",
+                                                         progress="yes"),
+                                     "progress: expected True or False, got 'yes'"),
+    }
+
+
+FLAG_CASES = _flag_cases()
+
+
+@pytest.mark.parametrize("case", sorted(FLAG_CASES))
+def test_the_newer_functions_flags_take_true_or_false_alone(tmp_path, case):
+    """The README says the stage functions check their flags (True or False); the ``sampling``, ``attributes``,
+    ``relative``, ``force``, ``resume`` and ``progress`` flags added since took any object for its truth: ``force="no"``
+    let ``precompute.batch`` replace the tables a batch had written (and ``resume="no"`` kept them), ``sampling="no"``
+    built a sampling distribution and ``sampling=0`` packed a MERL material without its table."""
+    call, needle = FLAG_CASES[case]
+    with pytest.raises(WarpbwError, match=re.escape(needle)) as ei:
+        call(tmp_path)
+    assert "\n" not in str(ei.value)
+

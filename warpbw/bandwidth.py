@@ -807,6 +807,7 @@ def load_kernels(device: str = "cpu", relative: bool = True) -> None:
     ``bandwidth_pass`` times only the pass (``make_bandwidth_kernel``'s kernel is loaded by the pipeline beside the
     others it builds)."""
     check_device(device)
+    relative = check_flag(relative, "load_kernels: relative")
     for k in (block_plan_kernel, pool_kernel) + ((relative_bound_kernel,) if relative else ()):
         wp.load_module(k.module, device=device)
 

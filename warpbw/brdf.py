@@ -47,7 +47,8 @@ import warp as wp
 
 from warpbw import sampling as tabsamp
 from warpbw.errors import (BRDF_VALUE_MAX, FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, check_device,
-                           check_direction_pairs, check_instance, check_seed, is_int, unit_directions)
+                           check_direction_pairs, check_flag, check_instance, check_seed, is_int,
+                           unit_directions)
 
 # Material kind ids (stable: stored in MaterialTable.kind).
 LAMBERT = 0
@@ -555,6 +556,7 @@ def build_material_table(specs: Sequence[MaterialSpec], device: str = "cpu", sam
     Without ``sampling`` (for kernels that sample no BRDF: directional lights alone) no sampling table is packed
     and a tabulated material needs none (``sample_brdf`` and ``pdf_brdf`` then refuse it)."""
     check_device(device)
+    sampling = check_flag(sampling, "build_material_table: sampling")   # "no" read as True, 0 as False
     specs = [check_material_spec(s, i) for i, s in enumerate(specs)]
     n = len(specs)
     kind = np.array([s.kind for s in specs], np.int32)

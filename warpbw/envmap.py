@@ -96,8 +96,8 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.errors import (WarpbwError, available_memory, check_count, check_device, check_instance, check_real,
-                           check_seed, numeric_array, unit_directions, warn_if_short_of_memory)
+from warpbw.errors import (WarpbwError, available_memory, check_count, check_device, check_flag, check_instance,
+                           check_real, check_seed, numeric_array, unit_directions, warn_if_short_of_memory)
 
 wp.set_module_options({"enable_backward": False})  # no gradients are taken: halves compile time
 
@@ -746,6 +746,7 @@ def load_envmap(path, rotation_deg: float = 0.0, scale: float = 1.0, device="cpu
     first need (``ensure_sampling``)."""
     from warpbw.io.exr import read_rgb  # lazy: keeps this module importable on its own
 
+    sampling = check_flag(sampling, "load_envmap: sampling")   # before the file is read
     w, h, need = file_load_memory(path)   # the header alone: a probe too large to load warns before it is read
     warn_if_short_of_memory(need, available_memory(), f"loading {Path(path).name} ({w}x{h})", "a smaller probe",
                             stacklevel=2)
@@ -776,6 +777,7 @@ def load_environment(spec, device="cpu", sampling: bool = True) -> EnvMap:
     """The light of a scene's ``[environment]`` table (a ``warpbw.scene.Environment``: exactly one of
     ``file``, ``procedural = "sky"`` or ``constant``, with ``rotation`` and ``scale``).  Without ``sampling`` its
     sampling distribution is built on first need (``ensure_sampling``; ``EnvMap.data`` does it)."""
+    sampling = check_flag(sampling, "load_environment: sampling")   # "no" built it, 0 deferred it
     if spec.file is not None:
         return load_envmap(spec.file, rotation_deg=spec.rotation, scale=spec.scale, device=device, sampling=sampling)
     if spec.procedural == "sky":

@@ -228,7 +228,9 @@ def write_empty(gb: GBufferData, i: int):
 def make_gbuffer_kernel(has_spheres: bool, has_mesh: bool, attributes: bool = True):
     """The G-buffer kernel for a scene with spheres and/or meshes (only those paths are compiled); with
     ``attributes``, it also writes ``geo_normal`` and ``uv``."""
-    return _gbuffer_kernel(bool(has_spheres), bool(has_mesh), bool(attributes))
+    return _gbuffer_kernel(check_flag(has_spheres, "make_gbuffer_kernel: has_spheres"),
+                           check_flag(has_mesh, "make_gbuffer_kernel: has_mesh"),
+                           check_flag(attributes, "make_gbuffer_kernel: attributes"))   # "no" compiled them in
 
 
 @functools.cache  # one kernel per combination: Warp compiles each once

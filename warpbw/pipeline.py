@@ -180,6 +180,8 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False, sam
     _check_scene(scene)
     scene = check_scene(scene)
     check_device(device)
+    progress = check_flag(progress, "prepare_scene: progress")
+    sampling = check_flag(sampling, "prepare_scene: sampling")   # "no" built the distribution, 0 deferred it
     if scene.has_planes:
         raise WarpbwError(f"{scene.source}: this renderer (spheres and meshes, 002) does not render planes; scenes "
                           "with planes render with warpbw.filtering.render_filtering, or, beside spheres and meshes, "
