@@ -4241,3 +4241,37 @@ def test_the_newer_functions_flags_take_true_or_false_alone(tmp_path, case):
         call(tmp_path)
     assert "\n" not in str(ei.value)
 
+
+@pytest.mark.parametrize("heights", [[8, 3], [8, 4, 4], [6, 3, 2], "12", [8.0, 4.0], [], [0], [True], 7, None],
+                         ids=repr)
+def test_mip_row_positions_refuses_counts_no_pyramid_has(heights):
+    """Each level's row positions follow from the level before (n -> max(1, n // 2), ``build_mip_levels``): ``[8, 3]``
+    came back as the positions of ``[8, 4]`` without a word, ``"12"`` was read digit by digit and ``[8.0, 4.0]``
+    rounded; an int or None was a TypeError from inside."""
+    from warpbw.envmap import build_mip_levels, mip_row_positions
+
+    with pytest.raises(WarpbwError, match=r"^mip_row_positions: heights: expected the row counts of build_mip_levels"):
+        mip_row_positions(heights)
+    pyramid = [lv.shape[0] for lv in build_mip_levels(np.ones((5, 12, 3), np.float32))]   # 5, 2, 1, 1
+    assert pyramid == [5, 2, 1, 1] and mip_row_positions(np.array(pyramid)).shape == (4, 2)
+
+
+@pytest.mark.parametrize("call, needle", [
+    ("fit_settings(seed=1.5)", "seed: expected an integer"), ("fit_settings(seed=-1)", "seed: expected an integer"),
+    ("fit_settings(seed=True)", "seed: expected an integer"), ("fit_settings(max_samples='1')", "max_samples"),
+    ("fit_settings(max_samples=0)", "max_samples"), ("fit_settings(refine_sweeps=-1)", "refine_sweeps"),
+    ("fit_settings(refine_sweeps=None)", "refine_sweeps"), ("bandwidth_settings(1.5)", "resolution"),
+    ("bandwidth_settings(0)", "resolution"), ("bandwidth_settings('128')", "resolution"),
+    ("bandwidth_settings(100)", "resolution: expected a multiple of 16")])
+def test_the_settings_a_builder_records_are_checked_as_the_builder_checks_them(call, needle):
+    """``fit_settings`` and ``bandwidth_settings`` give the parameters a file records, and its reader compares with:
+    they took ``int()`` of anything (1.5, "1" and True recorded as 1, -1 as -1, None a TypeError), values their
+    builders (``build_gmm_mipmap``, ``build_brdf_bandwidth``) refuse."""
+    from precompute.brdf_bandwidth import DEFAULT_RESOLUTION, bandwidth_settings
+    from precompute.gmm_mipmap import DEFAULT_MAX_SAMPLES, fit_settings
+
+    with pytest.raises(WarpbwError, match=re.escape(needle)) as ei:
+        eval(call, {"fit_settings": fit_settings, "bandwidth_settings": bandwidth_settings})
+    assert "\n" not in str(ei.value)
+    assert fit_settings()["max_samples"] == DEFAULT_MAX_SAMPLES and fit_settings(seed=2**32 - 1)["seed"] == 2**32 - 1
+    assert bandwidth_settings()["resolution"] == DEFAULT_RESOLUTION == bandwidth_settings(np.int64(128))["resolution"]

@@ -97,7 +97,7 @@ import numpy as np
 import warp as wp
 
 from warpbw.errors import (WarpbwError, available_memory, check_count, check_device, check_flag, check_instance,
-                           check_real, check_seed, numeric_array, unit_directions, warn_if_short_of_memory)
+                           check_real, check_seed, is_int, numeric_array, unit_directions, warn_if_short_of_memory)
 
 wp.set_module_options({"enable_backward": False})  # no gradients are taken: halves compile time
 
@@ -448,11 +448,21 @@ def build_mip_levels(pixels: np.ndarray) -> list[np.ndarray]:
 
 def mip_row_positions(heights) -> np.ndarray:
     """(n_levels, 2) float32 (v0, dv) of MIP levels of ``heights`` rows (``build_mip_levels``' sizes): row k of a
-    level sits at ``v = v0 + k dv``, the centre of the level-0 rows it averages (level 0: row j at j / (H - 1))."""
-    h0 = int(heights[0])
+    level sits at ``v = v0 + k dv``, the centre of the level-0 rows it averages (level 0: row j at j / (H - 1)).
+    Other counts are a one-line error: each level's positions follow from the one before (``[8, 3]`` was placed as
+    ``[8, 4]``, and ``"12"`` or a float were read digit by digit or rounded)."""
+    try:
+        hs = list(heights)
+    except TypeError:
+        hs = None
+    if (not hs or isinstance(heights, str) or not all(is_int(n) and n >= 1 for n in hs)
+            or any(b != max(1, a // 2) for a, b in zip(hs, hs[1:]))):
+        raise WarpbwError(f"mip_row_positions: heights: expected the row counts of build_mip_levels' levels (positive "
+                          f"integers, each max(1, the previous // 2)), got {heights!r}")
+    h0 = int(hs[0])
     v0, dv = 0.0, (1.0 / (h0 - 1) if h0 > 1 else 1.0)
     out = [(v0, dv)]
-    for n in heights[:-1]:
+    for n in hs[:-1]:
         n = int(n)
         if n > 1:   # output k averages input rows [k n / m, (k + 1) n / m): centred at (k + 1/2) n / m - 1/2
             m = max(1, n // 2)
