@@ -4275,3 +4275,26 @@ def test_the_settings_a_builder_records_are_checked_as_the_builder_checks_them(c
     assert "\n" not in str(ei.value)
     assert fit_settings()["max_samples"] == DEFAULT_MAX_SAMPLES and fit_settings(seed=2**32 - 1)["seed"] == 2**32 - 1
     assert bandwidth_settings()["resolution"] == DEFAULT_RESOLUTION == bandwidth_settings(np.int64(128))["resolution"]
+
+
+def test_gmm_header_problem_names_a_material_without_a_map_and_a_file_that_is_no_asset(tmp_path):
+    """``filtering.gmm_header_problem(scene, name, path)`` (what ``warpbw info`` says of a ``gmm`` file): a material
+    of another name was a bare KeyError, one without a normal map an AttributeError, and a file that is no asset file
+    (a probe, a damaged mipmap), or none at all, was said to be "a None file"."""
+    from warpbw.filtering import gmm_header_problem
+    from warpbw.scene import parse_scene
+
+    write_exr(tmp_path / "h.exr", np.random.default_rng(0).random((8, 8)).astype(np.float32), channels=["Y"])
+    scene = parse_scene(plane_scene_toml('normal_map = "h.exr"\nnormal_map_scale = 0.05\n'), tmp_path, "s.toml")
+    bare = parse_scene(plane_scene_toml(), tmp_path, "bare.toml")
+    for s, name in ((scene, "nosuch"), (scene, None), (bare, "m")):
+        with pytest.raises(WarpbwError, match=r"^gmm_header_problem: name: expected a material of \S+ with a "
+                                              r"normal_map \((m|it has none)\), got"):
+            gmm_header_problem(s, name, tmp_path / "h.gmm")
+    with pytest.raises(WarpbwError, match="^gmm_header_problem: path: expected a file name"):
+        gmm_header_problem(scene, "m", None)
+    (tmp_path / "cut.gmm").write_bytes(b"PK\x03\x04" + bytes(40))
+    assert gmm_header_problem(scene, "m", tmp_path / "none.gmm") == "file not found"
+    for p in (tmp_path / "h.exr", tmp_path / "cut.gmm"):
+        said = gmm_header_problem(scene, "m", p)
+        assert said.startswith("not a warpbw asset file, or a damaged one") and "None" not in said, said
