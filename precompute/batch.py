@@ -38,7 +38,7 @@ from functools import partial
 from pathlib import Path
 
 from precompute.assetfile import read_header, settings_mismatch
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_flag
 
 TABLES = ("sampling", "bandwidth")
 BATCH_FORMAT = "warpbw-precompute-batch"
@@ -119,6 +119,7 @@ def check_outputs(items, out_dir, tables=TABLES, force: bool = False, resume: bo
     from warpbw.cli_common import check_output_dir, check_overwrite
     from warpbw.io.staged import output_exists
 
+    force, resume = check_flag(force, "force"), check_flag(resume, "resume")   # force="no" replaced every table
     check_output_dir(out_dir, "-o")
     paths = [p for it in items for p in output_paths(it, out_dir, check_tables(tables)).values()]
     check_overwrite(paths, True, inputs=sorted({it.path for it in items}), inputs_are="a BRDF file of the batch")
@@ -172,6 +173,7 @@ def build_item(item: BatchItem, outputs: dict, threads: int = 1, force: bool = F
     from precompute.brdf_sampling import (SAMPLING_UNRECORDED, brdf_source, build_brdf_sampling, read_sampling,
                                           sampling_settings, write_sampling)
 
+    force, resume = check_flag(force, "force"), check_flag(resume, "resume")
     steps = {"sampling": (read_sampling, lambda s: build_brdf_sampling(s, progress=False), write_sampling,
                           sampling_settings(), SAMPLING_UNRECORDED),
              "bandwidth": (read_brdf_bandwidth, lambda s: build_brdf_bandwidth(s, progress=False, threads=threads),
@@ -251,6 +253,8 @@ def run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers: int
     from warpbw import __version__
 
     dask = _dask()
+    force, resume = check_flag(force, "force"), check_flag(resume, "resume")
+    progress = check_flag(progress, "progress")
     tables = check_tables(tables)
     check_lookup(lookup)   # before any work, as the other arguments (each task would record it as its error)
     if isinstance(scheduler, str) and scheduler not in SCHEDULERS:

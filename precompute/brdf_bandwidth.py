@@ -176,8 +176,9 @@ def _analysis() -> dict:
 def bandwidth_settings(resolution: int = DEFAULT_RESOLUTION) -> dict:
     """The settings ``build_brdf_bandwidth`` builds with at ``resolution``, as a table's ``params`` records them
     (module docstring, "Builder settings"; beside them it records the map and the units, which name what the table
-    is, and the lookup, which the reader checks)."""
-    return {"n_theta_i": N_THETA_I, "n_cells": N_CELLS, "resolution": int(resolution), **_analysis()}
+    is, and the lookup, which the reader checks).  ``resolution`` is checked as the builder checks it (1.5 or "1"
+    were recorded as 1, 0 and -1 as they came)."""
+    return {"n_theta_i": N_THETA_I, "n_cells": N_CELLS, "resolution": _check_resolution(resolution), **_analysis()}
 
 
 def theta_i_centres() -> np.ndarray:

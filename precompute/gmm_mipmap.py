@@ -640,8 +640,10 @@ class GmmMipmap:
 def fit_settings(seed: int = 0, max_samples: int = DEFAULT_MAX_SAMPLES, refine_sweeps: int = 0) -> dict:
     """The fit's settings beyond the map and the material's (kind, scale, components, prior, unaligned), as a file's
     parameters record them (``GMM_UNRECORDED`` for what they leave out): the renderer builds its cache entries with
-    ``fit_settings()`` and rebuilds an entry that records others (``precompute.brdf_sampling.load_or_build``)."""
-    return {"seed": int(seed), "max_samples": int(max_samples), "refine_sweeps": int(refine_sweeps),
+    ``fit_settings()`` and rebuilds an entry that records others (``precompute.brdf_sampling.load_or_build``).  The
+    values are checked as ``build_gmm_mipmap`` checks them (1.5, "1" or True were recorded as 1, -1 as -1)."""
+    return {"seed": check_count(seed, "seed", 0, SEED_MAX), "max_samples": check_count(max_samples, "max_samples", 1),
+            "refine_sweeps": check_count(refine_sweeps, "refine_sweeps", 0),
             "normal_space": NORMAL_SPACE, **fit_constants()}
 
 

@@ -4115,3 +4115,186 @@ def test_an_error_map_beyond_float32_is_refused_not_written_with_infinities(tmp_
     assert not (tmp_path / "err.exr").exists() and not (tmp_path / "err.png").exists()
     r = run(["compare", "ref.exr", "big.exr", "--error-map", "err.exr"], tmp_path)   # errors near 1: written
     assert r.returncode == 0 and "every error is 1" in r.stdout, r.stdout + r.stderr
+
+
+# A child, as above: on the old code each MIS, BRDF-sampling or bandwidth-pass call below died of a segfault (its kernel
+# read the environment's empty sampling arrays, or a MERL material's sampler past the empty tables).
+_NO_SAMPLING_CHILD = """
+import sys
+import numpy as np
+from warpbw.errors import WarpbwError
+from warpbw.gbuffer import render_gbuffer
+from warpbw.io.exr import write_exr
+from warpbw.pipeline import prepare_bandwidth, prepare_scene
+from warpbw.scene import parse_scene
+from warpbw.shading import shade_reference
+from warpbw.bandwidth import bandwidth_pass
+sky = np.ones((8, 16, 3), np.float32)
+sky[1:3, 4:6] = 40.0
+write_exr("sky.exr", sky)
+prep = prepare_scene(parse_scene(sys.argv[1], ".", "scene.toml"), sampling=False)
+gb = render_gbuffer(prep.camera, prep.geometry)
+plain = shade_reference(gb, prep.materials, prep.env.lookup_data, 2, mis=False)   # looks the radiance up alone
+print("plain", np.isfinite(plain.radiance.numpy()).all() and plain.radiance.numpy().max() > 0, prep.env.has_sampling)
+tables = prepare_bandwidth(prep)
+from warpbw.brdf import MERL, MERL_CELLS, MaterialSpec, build_material_table
+lights_only = build_material_table([MaterialSpec("m", MERL, merl=np.full((MERL_CELLS, 3), 0.1, np.float32))],
+                                   sampling=False)   # for directional lights alone: no sampling table
+for name, call in [("mis", lambda: shade_reference(gb, prep.materials, prep.env.lookup_data, 2, mis=True)),
+                   ("pass", lambda: bandwidth_pass(gb, prep.camera, prep.materials, prep.env.lookup_data, tables)),
+                   ("brdf", lambda: shade_reference(gb, lights_only, prep.env.data, 2)),
+                   ("brdf-pass", lambda: bandwidth_pass(gb, prep.camera, lights_only, prep.env.data, tables))]:
+    try:
+        call()
+        print(name, "returned")
+    except WarpbwError as exc:
+        print(name, "WarpbwError:", exc)
+"""
+
+
+def test_a_sampling_pass_refuses_an_environment_or_material_table_without_its_sampling_tables(tmp_path):
+    """``EnvMap.lookup_data`` of a map loaded with ``sampling=False`` (``prepare_scene(scene, sampling=False)``) is
+    documented for radiance look-ups alone; given to ``shade_reference`` with MIS or to ``bandwidth_pass``, whose
+    kernels sample the environment, it crashed the process (a segfault reading its empty CDFs).  Now a one-line error
+    naming the pass and what to pass instead; the look-up alone still renders, and builds no distribution.  So for a
+    MERL material packed without its sampling table (``build_material_table(..., sampling=False)``, documented for
+    directional lights alone) under an environment: its sampler index read past the empty tables."""
+    toml = ('[camera]\nposition = [0.0, 0.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\nfov = 40.0\n'
+            'resolution = [8, 6]\n[environment]\nfile = "sky.exr"\n[[object]]\nshape = "sphere"\n'
+            'center = [0.0, 0.0, 0.0]\nradius = 0.8\nmaterial = "m"\n[material.m]\ntype = "lambert"\n'
+            'albedo = [0.5, 0.5, 0.5]\n')
+    r = subprocess.run([sys.executable, "-c", _NO_SAMPLING_CHILD, toml], capture_output=True, text=True, timeout=300,
+                       env={**os.environ, "WARPBW_CACHE": str(tmp_path / "cache")}, cwd=tmp_path)
+    out = r.stdout.splitlines()
+    assert r.returncode == 0, (r.returncode, r.stdout, r.stderr[-800:])
+    assert "plain True False" in out, r.stdout
+    for name, where in (("mis", "shade_reference"), ("pass", "bandwidth pass")):
+        line = next((ln for ln in out if ln.startswith(f"{name} ")), "")
+        assert line.startswith(f"{name} WarpbwError: {where}: env_data: this pass samples the environment"), r.stdout
+        assert "EnvMap's .data" in line
+    # the same crash from a MERL material packed without its sampling table (for lights alone) under an environment
+    for name, where in (("brdf", "shade_reference"), ("brdf-pass", "bandwidth pass")):
+        line = next((ln for ln in out if ln.startswith(f"{name} ")), "")
+        assert line.startswith(f"{name} WarpbwError: {where}: materials: material 0 ('m') was packed without its "
+                               "sampling table"), r.stdout
+
+
+def _flag_cases():
+    """Calls given a truthy string (or 0, or None) for a flag of a function added or changed since session 65, and the
+    parameter the refusal must name."""
+    from precompute.batch import batch_items, check_outputs, run_batch
+    from warpbw import bandwidth, brdf, envmap, gbuffer, pipeline
+    from warpbw.scene import parse_scene
+
+    def scene(tmp_path):
+        return parse_scene(write_scene(tmp_path).read_text(), tmp_path, "scene.toml")
+
+    def batch_with_an_output(tmp_path):   # one table already there: only --force or --resume goes past it
+        items = batch_items([fake_npf_table(tmp_path / "npf.bin")], ["chrome"])
+        (tmp_path / "out").mkdir()
+        (tmp_path / "out" / "chrome.sampling.npz").write_bytes(b"an earlier table")
+        return items, tmp_path / "out"
+
+    lambert = brdf.MaterialSpec("m", brdf.LAMBERT, albedo=(0.5, 0.5, 0.5))
+    return {
+        "prepare_scene sampling 'no'": (lambda t: pipeline.prepare_scene(scene(t), sampling="no"),
+                                        "prepare_scene: sampling: expected True or False, got 'no'"),
+        "prepare_scene progress 'no'": (lambda t: pipeline.prepare_scene(scene(t), progress="no"),
+                                        "prepare_scene: progress: expected True or False"),
+        "load_envmap sampling 0": (lambda t: envmap.load_envmap(write_exr(t / "e.exr", np.ones((4, 8, 3), np.float32))
+                                                                or t / "e.exr", sampling=0),
+                                   "load_envmap: sampling: expected True or False, got 0"),
+        "load_environment sampling None": (lambda t: envmap.load_environment(scene(t).environment, sampling=None),
+                                           "load_environment: sampling: expected True or False, got None"),
+        "build_material_table sampling 'no'": (lambda t: brdf.build_material_table([lambert], sampling="no"),
+                                               "build_material_table: sampling: expected True or False"),
+        "make_gbuffer_kernel attributes 'no'": (lambda t: gbuffer.make_gbuffer_kernel(True, False, attributes="no"),
+                                                "make_gbuffer_kernel: attributes: expected True or False"),
+        "make_gbuffer_kernel has_mesh 'no'": (lambda t: gbuffer.make_gbuffer_kernel(True, "no"),
+                                              "make_gbuffer_kernel: has_mesh: expected True or False"),
+        "load_kernels relative 'no'": (lambda t: bandwidth.load_kernels(relative="no"),
+                                       "load_kernels: relative: expected True or False"),
+        "check_outputs force 'no'": (lambda t: check_outputs(*batch_with_an_output(t), tables=("sampling",),
+                                                             force="no"),
+                                     "force: expected True or False, got 'no'"),
+        "run_batch resume 'no'": (lambda t: run_batch(*batch_with_an_output(t), tables=("sampling",),
+                                                      scheduler="sync", resume="no", progress=False),
+                                  "resume: expected True or False, got 'no'"),
+        "run_batch progress 'yes'": (lambda t: run_batch(batch_items([fake_npf_table(t / "npf.bin")], ["chrome"]),
+                                                         t / "out", tables=("sampling",), scheduler="sync",
+                                                         progress="yes"),
+                                     "progress: expected True or False, got 'yes'"),
+    }
+
+
+FLAG_CASES = _flag_cases()
+
+
+@pytest.mark.parametrize("case", sorted(FLAG_CASES))
+def test_the_newer_functions_flags_take_true_or_false_alone(tmp_path, case):
+    """The README says the stage functions check their flags (True or False); the ``sampling``, ``attributes``,
+    ``relative``, ``force``, ``resume`` and ``progress`` flags added since took any object for its truth: ``force="no"``
+    let ``precompute.batch`` replace the tables a batch had written (and ``resume="no"`` kept them), ``sampling="no"``
+    built a sampling distribution and ``sampling=0`` packed a MERL material without its table."""
+    call, needle = FLAG_CASES[case]
+    with pytest.raises(WarpbwError, match=re.escape(needle)) as ei:
+        call(tmp_path)
+    assert "\n" not in str(ei.value)
+
+
+@pytest.mark.parametrize("heights", [[8, 3], [8, 4, 4], [6, 3, 2], "12", [8.0, 4.0], [], [0], [True], 7, None],
+                         ids=repr)
+def test_mip_row_positions_refuses_counts_no_pyramid_has(heights):
+    """Each level's row positions follow from the level before (n -> max(1, n // 2), ``build_mip_levels``): ``[8, 3]``
+    came back as the positions of ``[8, 4]`` without a word, ``"12"`` was read digit by digit and ``[8.0, 4.0]``
+    rounded; an int or None was a TypeError from inside."""
+    from warpbw.envmap import build_mip_levels, mip_row_positions
+
+    with pytest.raises(WarpbwError, match=r"^mip_row_positions: heights: expected the row counts of build_mip_levels"):
+        mip_row_positions(heights)
+    pyramid = [lv.shape[0] for lv in build_mip_levels(np.ones((5, 12, 3), np.float32))]   # 5, 2, 1, 1
+    assert pyramid == [5, 2, 1, 1] and mip_row_positions(np.array(pyramid)).shape == (4, 2)
+
+
+@pytest.mark.parametrize("call, needle", [
+    ("fit_settings(seed=1.5)", "seed: expected an integer"), ("fit_settings(seed=-1)", "seed: expected an integer"),
+    ("fit_settings(seed=True)", "seed: expected an integer"), ("fit_settings(max_samples='1')", "max_samples"),
+    ("fit_settings(max_samples=0)", "max_samples"), ("fit_settings(refine_sweeps=-1)", "refine_sweeps"),
+    ("fit_settings(refine_sweeps=None)", "refine_sweeps"), ("bandwidth_settings(1.5)", "resolution"),
+    ("bandwidth_settings(0)", "resolution"), ("bandwidth_settings('128')", "resolution"),
+    ("bandwidth_settings(100)", "resolution: expected a multiple of 16")])
+def test_the_settings_a_builder_records_are_checked_as_the_builder_checks_them(call, needle):
+    """``fit_settings`` and ``bandwidth_settings`` give the parameters a file records, and its reader compares with:
+    they took ``int()`` of anything (1.5, "1" and True recorded as 1, -1 as -1, None a TypeError), values their
+    builders (``build_gmm_mipmap``, ``build_brdf_bandwidth``) refuse."""
+    from precompute.brdf_bandwidth import DEFAULT_RESOLUTION, bandwidth_settings
+    from precompute.gmm_mipmap import DEFAULT_MAX_SAMPLES, fit_settings
+
+    with pytest.raises(WarpbwError, match=re.escape(needle)) as ei:
+        eval(call, {"fit_settings": fit_settings, "bandwidth_settings": bandwidth_settings})
+    assert "\n" not in str(ei.value)
+    assert fit_settings()["max_samples"] == DEFAULT_MAX_SAMPLES and fit_settings(seed=2**32 - 1)["seed"] == 2**32 - 1
+    assert bandwidth_settings()["resolution"] == DEFAULT_RESOLUTION == bandwidth_settings(np.int64(128))["resolution"]
+
+
+def test_gmm_header_problem_names_a_material_without_a_map_and_a_file_that_is_no_asset(tmp_path):
+    """``filtering.gmm_header_problem(scene, name, path)`` (what ``warpbw info`` says of a ``gmm`` file): a material
+    of another name was a bare KeyError, one without a normal map an AttributeError, and a file that is no asset file
+    (a probe, a damaged mipmap), or none at all, was said to be "a None file"."""
+    from warpbw.filtering import gmm_header_problem
+    from warpbw.scene import parse_scene
+
+    write_exr(tmp_path / "h.exr", np.random.default_rng(0).random((8, 8)).astype(np.float32), channels=["Y"])
+    scene = parse_scene(plane_scene_toml('normal_map = "h.exr"\nnormal_map_scale = 0.05\n'), tmp_path, "s.toml")
+    bare = parse_scene(plane_scene_toml(), tmp_path, "bare.toml")
+    for s, name in ((scene, "nosuch"), (scene, None), (bare, "m")):
+        with pytest.raises(WarpbwError, match=r"^gmm_header_problem: name: expected a material of \S+ with a "
+                                              r"normal_map \((m|it has none)\), got"):
+            gmm_header_problem(s, name, tmp_path / "h.gmm")
+    with pytest.raises(WarpbwError, match="^gmm_header_problem: path: expected a file name"):
+        gmm_header_problem(scene, "m", None)
+    (tmp_path / "cut.gmm").write_bytes(b"PK\x03\x04" + bytes(40))
+    assert gmm_header_problem(scene, "m", tmp_path / "none.gmm") == "file not found"
+    for p in (tmp_path / "h.exr", tmp_path / "cut.gmm"):
+        said = gmm_header_problem(scene, "m", p)
+        assert said.startswith("not a warpbw asset file, or a damaged one") and "None" not in said, said

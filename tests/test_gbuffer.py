@@ -1582,3 +1582,18 @@ def test_build_geometry_and_update_mesh_take_normals_within_a_thousandth_of_unit
     geo = build_geometry([], [spec])
     with pytest.raises(WarpbwError, match="normals: expected unit vectors"):
         update_mesh(geo, 0, spec.vertices, bad.normals, np.zeros(4))
+
+
+def test_gbuffer_numpy_names_the_buffers_it_holds():
+    """``GBuffer.numpy(name)`` of a name GBufferData has no array for (a typo such as "normals", "width", a number)
+    was Warp's AttributeError (or an int's missing ``.numpy``); now one line listing the names, which are the struct's
+    array fields."""
+    from warpbw.gbuffer import GBUFFER_BUFFERS, GBufferData, allocate_gbuffer
+
+    gb = allocate_gbuffer(3, 2)
+    arrays = [k for k, v in GBufferData.vars.items() if hasattr(v.type, "dtype")]
+    assert list(GBUFFER_BUFFERS) == arrays
+    for name in ("normals", "width", 3, None):
+        with pytest.raises(WarpbwError, match=r"^G-buffer: expected a buffer name, one of position, normal, "):
+            gb.numpy(name)
+    assert gb.numpy("depth").shape == (2, 3) and gb.numpy("normal").shape == (2, 3, 3)

@@ -259,8 +259,8 @@ import numpy as np
 import warp as wp
 
 from warpbw.bandwidth_ops import bw_one_bounce
-from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
-from warpbw.envmap import EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv
+from warpbw.brdf import MaterialBuffers, MaterialTable, check_sampling_tables, make_brdf_funcs
+from warpbw.envmap import EnvMapData, check_env_data, env_pdf_uv, env_radiance_uv, env_sample, env_uv
 from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, available_memory, check_count, check_device,
                            check_flag, check_instance, check_seed, is_int, numeric_array, warn_if_short_of_memory)
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData, check_camera_of
@@ -807,6 +807,7 @@ def load_kernels(device: str = "cpu", relative: bool = True) -> None:
     ``bandwidth_pass`` times only the pass (``make_bandwidth_kernel``'s kernel is loaded by the pipeline beside the
     others it builds)."""
     check_device(device)
+    relative = check_flag(relative, "load_kernels: relative")
     for k in (block_plan_kernel, pool_kernel) + ((relative_bound_kernel,) if relative else ()):
         wp.load_module(k.module, device=device)
 
@@ -882,6 +883,8 @@ def _check_pass_inputs(gb, cam, materials, env_data, tables) -> None:
             ("tables", tables, BandwidthTables.cls, "BandwidthTables (make_bandwidth_tables)")):
         if not isinstance(value, kind):
             raise WarpbwError(f"bandwidth pass: {name}: expected {what}, got {type(value).__name__}")
+    check_env_data(env_data, "bandwidth pass", sampled=True)   # its directions sample the environment
+    check_sampling_tables(materials, "bandwidth pass", gb.data.material)   # and the BRDFs
     check_camera_of(cam, gb, "bandwidth pass")
     n_mat = materials.table.kind.shape[0] if materials.table.kind is not None else 0
     per_material = N_THETA_I * N_CELLS * N_CELLS

@@ -8,6 +8,8 @@ Public:
                                     ``MaterialTable`` (``MaterialBuffers``: the table and the kinds and names it
                                     holds; without ``sampling``, for lights alone, no sampling table)
     ``check_material_spec(s, i)``  a spec the table can hold, else a ``WarpbwError`` naming the field
+    ``check_sampling_tables(mb, where, gb_material)``  a one-line error for a tabulated material packed without its
+                                    sampling table that a pass sampling the BRDF would read (the passes call it)
     ``pack_npf_curves(rho_d, rho_s, d, g1, f)``  an NPF fit's curves in the table's layout
     ``KIND_NAMES``                  material type name -> kind id
     ``eval_brdf(...)``, ``sample_brdf(...)``, ``pdf_brdf(...)``  host wrappers (numpy in, numpy out) for tests
@@ -45,7 +47,8 @@ import warp as wp
 
 from warpbw import sampling as tabsamp
 from warpbw.errors import (BRDF_VALUE_MAX, FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, check_device,
-                           check_direction_pairs, check_instance, check_seed, is_int, unit_directions)
+                           check_direction_pairs, check_flag, check_instance, check_seed, is_int,
+                           unit_directions)
 
 # Material kind ids (stable: stored in MaterialTable.kind).
 LAMBERT = 0
@@ -553,6 +556,7 @@ def build_material_table(specs: Sequence[MaterialSpec], device: str = "cpu", sam
     Without ``sampling`` (for kernels that sample no BRDF: directional lights alone) no sampling table is packed
     and a tabulated material needs none (``sample_brdf`` and ``pdf_brdf`` then refuse it)."""
     check_device(device)
+    sampling = check_flag(sampling, "build_material_table: sampling")   # "no" read as True, 0 as False
     specs = [check_material_spec(s, i) for i, s in enumerate(specs)]
     n = len(specs)
     kind = np.array([s.kind for s in specs], np.int32)
@@ -631,6 +635,28 @@ def _check_material(mb: MaterialBuffers, m, device) -> int:
     check_device(device)
     check_instance(mb, MaterialBuffers, "mb", "MaterialBuffers (build_material_table's)")   # its .table: no names
     return check_count(m, "m (material index)", 0, len(mb.names) - 1)
+
+
+def check_sampling_tables(mb: MaterialBuffers, where: str, gb_material=None) -> None:
+    """Refuse, in one line naming ``where``, a MERL or NPF material packed without its sampling table
+    (``build_material_table(..., sampling=False)``, for directional lights alone) when a kernel that samples the BRDF
+    (a pass under an environment) would read it: its sampler index read past the empty tables (a segfault).
+    ``gb_material``: the G-buffer's per-pixel material ids (-1 empty; numpy or Warp), so that only the materials it
+    shows count (None: every material).  Reads the material ids only when the table holds such a material."""
+    kind, sampler = mb.table.kind.numpy(), mb.table.sampler.numpy()
+    unsampled = np.isin(kind, (MERL, NPF)) & (sampler < 0)
+    if not unsampled.any():
+        return
+    if gb_material is not None:
+        shown = np.zeros(len(kind), bool)
+        ids = np.unique(gb_material.numpy() if isinstance(gb_material, wp.array) else np.asarray(gb_material))
+        shown[ids[(ids >= 0) & (ids < len(kind))]] = True
+        unsampled &= shown
+    if unsampled.any():
+        m = int(np.argmax(unsampled))
+        raise WarpbwError(f"{where}: materials: material {m} ({mb.names[m]!r}) was packed without its sampling table "
+                          "(build_material_table(..., sampling=False), for directional lights alone), and this pass "
+                          "samples its BRDF under the environment: pack it with sampling=True")
 
 
 def _check_sampled(mb: MaterialBuffers, m: int, what: str) -> None:

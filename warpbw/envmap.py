@@ -73,6 +73,8 @@ Host functions:
                                      ``sampling=False`` builds it on first need (``EnvMap.data`` does;
                                      ``EnvMap.lookup_data`` is the struct as it is, for radiance look-ups alone;
                                      ``EnvMap.has_sampling`` says whether it is built)
+    check_env_data(env_data, where, sampled=True)   a one-line error for a struct without its map or (``sampled``)
+                                     its sampling distribution (the renderers' passes call it)
     procedural_sky(width=256, height=128, ...) -> np.ndarray (H, W, 3) float32
     build_mip_levels(pixels) -> list[np.ndarray]
     mip_row_positions(heights) -> np.ndarray (n_levels, 2)   where each level's rows sit: (v0, dv)
@@ -94,8 +96,8 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.errors import (WarpbwError, available_memory, check_count, check_device, check_instance, check_real,
-                           check_seed, numeric_array, unit_directions, warn_if_short_of_memory)
+from warpbw.errors import (WarpbwError, available_memory, check_count, check_device, check_flag, check_instance,
+                           check_real, check_seed, is_int, numeric_array, unit_directions, warn_if_short_of_memory)
 
 wp.set_module_options({"enable_backward": False})  # no gradients are taken: halves compile time
 
@@ -446,11 +448,21 @@ def build_mip_levels(pixels: np.ndarray) -> list[np.ndarray]:
 
 def mip_row_positions(heights) -> np.ndarray:
     """(n_levels, 2) float32 (v0, dv) of MIP levels of ``heights`` rows (``build_mip_levels``' sizes): row k of a
-    level sits at ``v = v0 + k dv``, the centre of the level-0 rows it averages (level 0: row j at j / (H - 1))."""
-    h0 = int(heights[0])
+    level sits at ``v = v0 + k dv``, the centre of the level-0 rows it averages (level 0: row j at j / (H - 1)).
+    Other counts are a one-line error: each level's positions follow from the one before (``[8, 3]`` was placed as
+    ``[8, 4]``, and ``"12"`` or a float were read digit by digit or rounded)."""
+    try:
+        hs = list(heights)
+    except TypeError:
+        hs = None
+    if (not hs or isinstance(heights, str) or not all(is_int(n) and n >= 1 for n in hs)
+            or any(b != max(1, a // 2) for a, b in zip(hs, hs[1:]))):
+        raise WarpbwError(f"mip_row_positions: heights: expected the row counts of build_mip_levels' levels (positive "
+                          f"integers, each max(1, the previous // 2)), got {heights!r}")
+    h0 = int(hs[0])
     v0, dv = 0.0, (1.0 / (h0 - 1) if h0 > 1 else 1.0)
     out = [(v0, dv)]
-    for n in heights[:-1]:
+    for n in hs[:-1]:
         n = int(n)
         if n > 1:   # output k averages input rows [k n / m, (k + 1) n / m): centred at (k + 1/2) n / m - 1/2
             m = max(1, n // 2)
@@ -690,6 +702,30 @@ def ensure_sampling(env: EnvMap) -> EnvMap:
     return env
 
 
+def check_env_data(env_data, where: str, sampled: bool = True) -> None:
+    """Refuse, in one line naming ``where``, an ``env_data`` that is no EnvMapData with a map, or (``sampled``: a kernel
+    that calls ``env_sample`` / ``env_pdf``) one without its sampling distribution: ``EnvMap.lookup_data`` of a map
+    loaded with ``sampling=False``, whose empty arrays such a kernel read past their end (a segfault).  Shapes
+    alone, not contents: the renderers call it every frame."""
+    if not isinstance(env_data, EnvMapData.cls):
+        raise WarpbwError(f"{where}: env_data: expected an EnvMapData (an EnvMap's .data), got "
+                          f"{type(env_data).__name__}")
+    h, w = int(env_data.height), int(env_data.width)
+    base = env_data.base
+    if base is None or h < 1 or w < 1 or tuple(base.shape) != (h, w):
+        raise WarpbwError(f"{where}: env_data: expected an EnvMapData holding its map (an EnvMap's .data), got one "
+                          f"without ({'no map' if base is None else f'a map of shape {tuple(base.shape)}'} for "
+                          f"{w} x {h})")
+    if not sampled:
+        return
+    expected = {"marginal_cdf": (1, h + 1), "conditional_cdf": (h, w + 1), "row_omc": (h + 1,), "row_opc": (h + 1,),
+                "cell_pdf": (h, w)}
+    if any(getattr(env_data, k) is None or tuple(getattr(env_data, k).shape) != shape for k, shape in expected.items()):
+        raise WarpbwError(f"{where}: env_data: this pass samples the environment, and the EnvMapData given has no "
+                          "sampling distribution (EnvMap.lookup_data of a map loaded with sampling=False); pass the "
+                          "EnvMap's .data, which builds it (warpbw.envmap.ensure_sampling)")
+
+
 def envmap_from_array(rgb, rotation_deg: float = 0.0, scale: float = 1.0, name: str = "array", device="cpu") -> EnvMap:
     """Environment light from an (H, W, 3) lat-long RGB array (row 0 = +Y, see module docstring).
 
@@ -720,6 +756,7 @@ def load_envmap(path, rotation_deg: float = 0.0, scale: float = 1.0, device="cpu
     first need (``ensure_sampling``)."""
     from warpbw.io.exr import read_rgb  # lazy: keeps this module importable on its own
 
+    sampling = check_flag(sampling, "load_envmap: sampling")   # before the file is read
     w, h, need = file_load_memory(path)   # the header alone: a probe too large to load warns before it is read
     warn_if_short_of_memory(need, available_memory(), f"loading {Path(path).name} ({w}x{h})", "a smaller probe",
                             stacklevel=2)
@@ -750,6 +787,7 @@ def load_environment(spec, device="cpu", sampling: bool = True) -> EnvMap:
     """The light of a scene's ``[environment]`` table (a ``warpbw.scene.Environment``: exactly one of
     ``file``, ``procedural = "sky"`` or ``constant``, with ``rotation`` and ``scale``).  Without ``sampling`` its
     sampling distribution is built on first need (``ensure_sampling``; ``EnvMap.data`` does it)."""
+    sampling = check_flag(sampling, "load_environment: sampling")   # "no" built it, 0 deferred it
     if spec.file is not None:
         return load_envmap(spec.file, rotation_deg=spec.rotation, scale=spec.scale, device=device, sampling=sampling)
     if spec.procedural == "sky":

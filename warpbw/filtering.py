@@ -138,7 +138,7 @@ from warpbw.envmap import (LUMINANCE_RGB, EnvMapData, env_pdf_uv, env_radiance_u
                            ensure_sampling, load_environment)
 from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, available_memory, check_camera_reach,
                            check_coordinate_spacing, check_count, check_device, check_finite_image, check_flag,
-                           check_instance, check_real, check_seed, numeric_array, unit_directions,
+                           check_instance, check_path, check_real, check_seed, numeric_array, unit_directions,
                            warn_if_short_of_memory)
 from warpbw.gbuffer import CameraData, scene_camera
 from warpbw.scene import GMM_MAX_COMPONENTS, Camera, PlaneObject, Scene, check_scene
@@ -1189,8 +1189,18 @@ def gmm_header_problem(scene: Scene, name: str, path) -> str | None:
     from warpbw.scene import file_digest
 
     scene = check_scene(_as_scene(scene))
-    m = scene.materials[name]
-    header = read_header(path) or {}
+    m = scene.materials.get(name) if isinstance(name, str) else None
+    if m is None or m.normal_map is None:   # a KeyError, or an AttributeError on the missing map, before
+        maps = [k for k, v in scene.materials.items() if v.normal_map is not None]
+        raise WarpbwError(f"gmm_header_problem: name: expected a material of {scene.source} with a normal_map "
+                          f"({', '.join(maps) or 'it has none'}), got {name!r}")
+    path = check_path(path, "gmm_header_problem: path")
+    if not path.is_file():
+        return "file not found" if not path.exists() else "is not a file"
+    header = read_header(path)
+    if header is None:   # was "is a None file"
+        return (f"not a warpbw asset file, or a damaged one (expected a {GMM_FORMAT} file written by "
+                "warpbw-precompute; build one with: warpbw-precompute gmm)")
     if header.get("format") != GMM_FORMAT:
         return f"is a {header.get('format')!r} file, expected {GMM_FORMAT!r} (build one with: warpbw-precompute gmm)"
     try:

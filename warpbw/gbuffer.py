@@ -12,7 +12,8 @@ Public:
     ``update_mesh(geometry, mesh_index, vertices, normals=None, curvature=None)``  deform one mesh in place and
                                      refit the BVH (dynamic geometry, 002 Sec. 4.3, Fig. 18); a texture seam's
                                      copies must move together (``SEAM_GAP_REL``)
-    ``GBufferData``                  Warp struct: the per-pixel buffers, as kernels read them
+    ``GBufferData``                  Warp struct: the per-pixel buffers, as kernels read them (``GBUFFER_BUFFERS``,
+                                     their names, as ``GBuffer.numpy(name)`` takes them)
     ``GBuffer`` / ``render_gbuffer(cam, geometry, device, threads, curvature=True, attributes=True)``   run the
                                      pass (without ``attributes``, no ``geo_normal`` or ``uv``: no stage reads them)
     ``make_gbuffer_kernel(has_spheres, has_mesh, attributes=True)``, ``allocate_gbuffer(width, height, device,
@@ -124,6 +125,10 @@ class GBufferData:
     height: int
 
 
+# GBufferData's per-pixel arrays, in its order (GBuffer.numpy reads them by name)
+GBUFFER_BUFFERS = ("position", "normal", "geo_normal", "tangent", "view", "depth", "curvature", "uv", "material")
+
+
 @wp.struct
 class SphereList:
     center: wp.array(dtype=wp.vec3)
@@ -228,7 +233,9 @@ def write_empty(gb: GBufferData, i: int):
 def make_gbuffer_kernel(has_spheres: bool, has_mesh: bool, attributes: bool = True):
     """The G-buffer kernel for a scene with spheres and/or meshes (only those paths are compiled); with
     ``attributes``, it also writes ``geo_normal`` and ``uv``."""
-    return _gbuffer_kernel(bool(has_spheres), bool(has_mesh), bool(attributes))
+    return _gbuffer_kernel(check_flag(has_spheres, "make_gbuffer_kernel: has_spheres"),
+                           check_flag(has_mesh, "make_gbuffer_kernel: has_mesh"),
+                           check_flag(attributes, "make_gbuffer_kernel: attributes"))   # "no" compiled them in
 
 
 @functools.cache  # one kernel per combination: Warp compiles each once
@@ -765,7 +772,9 @@ class GBuffer:
     height: int
 
     def numpy(self, name: str) -> np.ndarray:
-        """A buffer as an (H, W, ...) numpy array, e.g. ``gb.numpy("normal")``."""
+        """A buffer as an (H, W, ...) numpy array, e.g. ``gb.numpy("normal")`` (``GBUFFER_BUFFERS``)."""
+        if not (isinstance(name, str) and name in GBUFFER_BUFFERS):   # "normals" was Warp's AttributeError
+            raise WarpbwError(f"G-buffer: expected a buffer name, one of {', '.join(GBUFFER_BUFFERS)}, got {name!r}")
         a = getattr(self.data, name).numpy()
         if a.shape[0] == 0:
             raise WarpbwError(f"G-buffer {name}: not rendered (render_gbuffer(..., attributes=True) writes it; the "

@@ -67,14 +67,14 @@ from warpbw.scene import MeshObject, PlaneObject, Scene, SphereObject, check_sce
 class PreparedScene:
     """A scene with its assets loaded onto a device, ready to render frames."""
 
-    scene: Scene
+    scene: Scene                                      # its checked copy (warpbw.scene.check_scene)
     device: str
-    camera: object
-    geometry: object
+    camera: object                                    # warpbw.gbuffer.CameraData of the scene's [camera]
+    geometry: object                                  # warpbw.gbuffer.Geometry: its spheres and meshes
     env: object                                       # EnvMap, or None: the scene has [[light]]s only
     materials: brdf_mod.MaterialBuffers
-    timings: dict = field(default_factory=dict)
-    notes: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)       # loading stage (load_environment, ...) -> seconds it took
+    notes: dict = field(default_factory=dict)         # what each asset came from (the stats' "assets")
     sources: dict = field(default_factory=dict)      # material name -> BrdfSource (merl / npf only)
     bandwidth: object = None                          # BandwidthTables, built on first adaptive frame
     bandwidth_signal: str | None = None               # the env_signal its nu_a map was analysed on
@@ -98,9 +98,9 @@ class PreparedScene:
 @dataclass
 class RenderResult:
     image: np.ndarray          # (H, W, 3) float32 linear radiance, 0 where no geometry
-    coverage: np.ndarray       # (H, W) bool
-    gbuffer: GBuffer
-    stats: dict
+    coverage: np.ndarray       # (H, W) bool: the pixel's centre ray hits a sphere or mesh (material >= 0)
+    gbuffer: GBuffer           # the frame's G-buffer (warpbw.gbuffer: depth, normal, view, material, ...)
+    stats: dict                # the render record (out.json's: stages, time_s in seconds, samples, ...)
     aovs: dict = field(default_factory=dict)   # name -> (H, W) array (adaptive: level, n_p, variance, ...)
 
 
@@ -180,6 +180,8 @@ def prepare_scene(scene: Scene, device: str = "cpu", progress: bool = False, sam
     _check_scene(scene)
     scene = check_scene(scene)
     check_device(device)
+    progress = check_flag(progress, "prepare_scene: progress")
+    sampling = check_flag(sampling, "prepare_scene: sampling")   # "no" built the distribution, 0 deferred it
     if scene.has_planes:
         raise WarpbwError(f"{scene.source}: this renderer (spheres and meshes, 002) does not render planes; scenes "
                           "with planes render with warpbw.filtering.render_filtering, or, beside spheres and meshes, "

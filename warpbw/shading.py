@@ -43,8 +43,8 @@ from typing import Callable
 import numpy as np
 import warp as wp
 
-from warpbw.brdf import MaterialBuffers, MaterialTable, make_brdf_funcs
-from warpbw.envmap import EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv
+from warpbw.brdf import MaterialBuffers, MaterialTable, check_sampling_tables, make_brdf_funcs
+from warpbw.envmap import EnvMapData, check_env_data, env_pdf_uv, env_radiance_uv, env_sample, env_uv
 from warpbw.errors import INT32_MAX, WarpbwError, check_count, check_device, check_flag, check_instance, check_seed
 from warpbw.gbuffer import GBuffer, GBufferData
 from warpbw.lights import DirectionalLights, Lights, as_lights
@@ -344,17 +344,19 @@ def _check_pixel_indices(pixels, n_pix: int) -> np.ndarray:
     return idx
 
 
-def _check_material_ids(gb: GBuffer, materials: MaterialBuffers) -> None:
+def _check_material_ids(gb: GBuffer, materials: MaterialBuffers) -> np.ndarray:
     """Every material id the G-buffer holds must index ``materials``: the kernel reads the table with it, and an
-    id past its end shaded black, or crashed the process (segfault)."""
+    id past its end shaded black, or crashed the process (segfault).  Returns the ids (host copy)."""
     if not isinstance(materials, MaterialBuffers):
         raise WarpbwError(f"shade_reference: materials: expected build_material_table's MaterialBuffers, got "
                           f"{type(materials).__name__}")
     n = len(materials.names)
-    top = int(gb.data.material.numpy().max(initial=-1))
+    ids = gb.data.material.numpy()
+    top = int(ids.max(initial=-1))
     if top >= n:
         raise WarpbwError(f"shade_reference: the G-buffer holds material id {top}, the material table has {n} "
                           f"(ids 0..{n - 1}): build the geometry with ids into that table")
+    return ids
 
 
 def _spp_map(spp, gb: GBuffer, device: str):
@@ -391,10 +393,10 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
     seed = check_seed(seed, "shade_reference: seed")   # 2**32 drew seed 0's samples, -1 those of 2**32 - 1
     lights = as_lights(lights, "shade_reference: lights")
     n_pix = gb.width * gb.height
-    _check_material_ids(gb, materials)
-    if env_data is not None and not isinstance(env_data, EnvMapData.instance_type):   # else an AttributeError in Warp
-        raise WarpbwError(f"shade_reference: env_data: expected an EnvMapData (an EnvMap's .data), got "
-                          f"{type(env_data).__name__}")
+    material_ids = _check_material_ids(gb, materials)
+    if env_data is not None:   # another object was an AttributeError in Warp; MIS from a struct without its
+        check_env_data(env_data, "shade_reference", sampled=mis)   # sampling distribution, a segfault
+        check_sampling_tables(materials, "shade_reference", material_ids)   # BRDF samples: the same
     as_map = _spp_map(spp, gb, device)
     per_pixel = as_map is not None
     if per_pixel:
