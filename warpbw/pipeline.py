@@ -368,9 +368,12 @@ RADIANCE_OVERFLOW_MIN = FLOAT32_MAX / BRDF_VALUE_MAX
 # scaled by 1e-25, took other N_p than at scale 1 and rendered up to 0.999 of the brightest pixel away from 1e-25 times
 # that frame, without a word (session 77); at 1e-19 and 1e-20 it still took the same.
 RADIANCE_UNDERFLOW_MAX = math.sqrt(float(np.finfo(np.float32).tiny))
-# Memory a frame takes per pixel, beyond the scene's assets: the slope of peak RSS over the demo scene at 2048^2 and
-# 4096^2 (session 62: 93 and 228 bytes), rounded up.  A 16384^2 frame (MAX_RESOLUTION) then needs 27 and 64 GB.
-FRAME_BYTES_PER_PIXEL = {"reference": 100, "adaptive": 240}
+# Memory a frame takes per pixel, beyond the scene's assets: the slope of `warpbw render`'s peak RSS from 1024^2 to
+# 2048^2 with every pixel covered (a sphere filling the frame, a MERL material; session 79: 104 and 256 bytes, its
+# previews written a block at a time), rounded up.  Session 62's slope over the demo scene, whose spheres cover a
+# fraction of it, read 93 and 228; its previews' whole-image temporaries then added 144 bytes per pixel (a 2048^2
+# reference render peaked at 1.19 GB).  A 16384^2 frame (MAX_RESOLUTION) then needs 30 and 70 GB.
+FRAME_BYTES_PER_PIXEL = {"reference": 110, "adaptive": 260}
 # Bytes a placed mesh takes per triangle (its host copies, the merged device arrays, the BVH): 12.9 and 12.4 MB per
 # copy of the 69,666-triangle bunny (peak RSS of `warpbw render`, reference and adaptive, with 10 and 40 copies;
 # session 64), rounded up.
