@@ -16,9 +16,12 @@ Public:
     ``frame_memory(width, height, method) -> bytes``, ``FRAME_BYTES_PER_PIXEL``   what a frame takes beyond the
                                        assets (a render warns when its frame would not fit in
                                        ``warpbw.errors.available_memory()``)
-    ``mesh_memory(triangles) -> bytes``, ``MESH_BYTES_PER_TRIANGLE``   what the placed meshes take (a render warns
-                                       when they would not fit, after loading one copy of each file; ``warpbw
-                                       info`` gives it from the files' headers or face lines)
+    ``mesh_memory(triangles, file_triangles=0) -> bytes``, ``MESH_BYTES_PER_TRIANGLE``,
+    ``MESH_FILE_BYTES_PER_TRIANGLE``   what the placed meshes take, read from files of ``file_triangles`` (a render
+                                       warns when they would not fit, after loading one copy of each file; ``warpbw
+                                       info`` gives it from the files' headers or face lines);
+                                       ``CURVATURE_BYTES_PER_TRIANGLE`` what deriving a mesh's curvature takes (the
+                                       adaptive method warns first where it would not fit)
     ``scene_summary(scene, method="reference") -> dict``   what the scene needs (for ``warpbw info``), without
                                        loading it; ``SUMMARY_METHODS``, the methods it describes
     ``stages_used(prep, mis, adaptive)``, ``PreparedScene``, ``RenderResult``   the stages a frame ran; the
@@ -221,21 +224,21 @@ def _geometry(scene: Scene, mat_id: dict, device: str):
     def load(o):
         return load_mesh(o.file, translate=o.translate, scale=o.scale, rotate_y_deg=o.rotate_y)
 
-    def warn_for(triangles: int) -> None:
-        warn_if_short_of_memory(mesh_memory(triangles), available_memory(),
+    def warn_for(triangles: int, file_triangles: int) -> None:
+        warn_if_short_of_memory(mesh_memory(triangles, file_triangles), available_memory(),
                                 f"placing {len(placed)} meshes ({triangles:,} triangles)",
                                 "fewer copies, or a coarser mesh")
 
     placed = [o for o in scene.objects if isinstance(o, MeshObject)]
     said = _placed_triangles(placed) if placed else None
     if said is not None:
-        warn_for(said)
+        warn_for(*said)
     first = {}
     for o in placed:
         if str(o.file) not in first:
             first[str(o.file)] = (o, load(o))
     if placed and said is None:
-        warn_for(sum(len(first[str(o.file)][1].faces) for o in placed))
+        warn_for(sum(len(first[str(o.file)][1].faces) for o in placed), sum(len(md.faces) for _, md in first.values()))
     spheres, meshes = [], []
     for o in scene.objects:
         if isinstance(o, SphereObject):
@@ -378,11 +381,20 @@ FRAME_BYTES_PER_PIXEL = {"reference": 110, "adaptive": 260}
 # copy of the 69,666-triangle bunny (peak RSS of `warpbw render`, reference and adaptive, with 10 and 40 copies;
 # session 64), rounded up.
 MESH_BYTES_PER_TRIANGLE = 200
+# Bytes each mesh file's triangles take beyond its copies' (trimesh's parse and the first copy's host arrays): a
+# 1,114,656-triangle OBJ (the bunny subdivided twice) placed once took 416 bytes per triangle, each copy more 124
+# (peak RSS of a 64x64 reference render, session 79), rounded up.  MESH_BYTES_PER_TRIANGLE alone read it as 223 MB,
+# where the render took 435 MB more than the original bunny's.
+MESH_FILE_BYTES_PER_TRIANGLE = 300
+# Bytes per triangle of a mesh whose curvature the bandwidth pass derives (adaptive only; one mesh at a time, on top
+# of what is held): 479 MB at the peak for that 1.1M-triangle mesh (session 79), rounded up.
+CURVATURE_BYTES_PER_TRIANGLE = 450
 
 
-def mesh_memory(triangles: int) -> int:
-    """Bytes ``triangles`` placed triangles take (``MESH_BYTES_PER_TRIANGLE``)."""
-    return MESH_BYTES_PER_TRIANGLE * int(triangles)
+def mesh_memory(triangles: int, file_triangles: int = 0) -> int:
+    """Bytes ``triangles`` placed triangles take (``MESH_BYTES_PER_TRIANGLE``), read from files of
+    ``file_triangles`` triangles together (``MESH_FILE_BYTES_PER_TRIANGLE``, each file counted once)."""
+    return MESH_BYTES_PER_TRIANGLE * int(triangles) + MESH_FILE_BYTES_PER_TRIANGLE * int(file_triangles)
 
 
 def _check_overflowed_samples(prep: PreparedScene, n_bad: int, samples: int, pixels: int = 0) -> None:
@@ -556,6 +568,10 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False, env_signal: s
     prep.bandwidth, prep.bandwidth_signal = struct, env_signal
     prep._keep.extend(keep)
     if prep.geometry.curvature_pending:
+        largest = max(len(faces) for _, faces in prep.geometry.curvature_pending.values())
+        warn_if_short_of_memory(CURVATURE_BYTES_PER_TRIANGLE * largest, available_memory(),
+                                f"{prep.scene.source}: deriving the curvature of a mesh of {largest:,} triangles",
+                                "a coarser mesh; the reference method does not derive it", stacklevel=2)
         with _timed(prep.timings, "load_mesh_curvature"):   # Eq. 3's c, for the G-buffer of this pass
             ensure_curvature(prep.geometry)
     return struct
@@ -901,9 +917,10 @@ def _environment_text(env) -> str:
                              if converted else "")
 
 
-def _placed_triangles(placed: list) -> int | None:
-    """The triangles of the placed meshes (``placed``: their objects), every copy counted, from the files' headers or
-    face lines (``warpbw.io.mesh.mesh_triangles``, each file read once); None where a file does not say."""
+def _placed_triangles(placed: list) -> tuple[int, int] | None:
+    """The triangles of the placed meshes (``placed``: their objects), every copy counted, and of their files, each
+    counted once, from the files' headers or face lines (``warpbw.io.mesh.mesh_triangles``, each file read once);
+    None where a file does not say."""
     from warpbw.io.mesh import mesh_triangles
 
     counts = {str(o.file): None for o in placed}
@@ -911,15 +928,15 @@ def _placed_triangles(placed: list) -> int | None:
         counts[f] = mesh_triangles(f)
         if counts[f] is None:
             return None
-    return sum(counts[str(o.file)] for o in placed)
+    return sum(counts[str(o.file)] for o in placed), sum(counts.values())
 
 
 def _mesh_memory(objects) -> dict:
     """The placed meshes' triangles and what they take (:func:`mesh_memory`, :func:`_placed_triangles`): {} without
     meshes, or where a file does not say (the render then reads it, or says what is wrong with it)."""
     placed = [o for o in objects if isinstance(o, MeshObject)]
-    triangles = _placed_triangles(placed) if placed else None
-    return {} if triangles is None else {"mesh_triangles": triangles, "mesh_memory_bytes": mesh_memory(triangles)}
+    said = _placed_triangles(placed) if placed else None
+    return {} if said is None else {"mesh_triangles": said[0], "mesh_memory_bytes": mesh_memory(*said)}
 
 
 def _probe_memory(env, method: str) -> dict:
