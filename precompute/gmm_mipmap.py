@@ -808,8 +808,8 @@ def build_gmm_mipmap(heights_or_normals, kind: str = "height", components: int =
     sweeps = 1 if unaligned else 1 + max(0, int(refine_sweeps))
     # a bar over the normals fitted (texels times their footprints' samples), not levels (67 s without a word at
     # 2048^2) nor texels: the finest level holds three quarters of the texels but one normal each, and took 4% of a
-    # 1024^2 build's time, levels 1-4 87% (the bar over texels stood at 25% at 96% of the time, its ETA 35 min with 40 s
-    # left; over samples within 20% of the time at every level's end; session 79)
+    # 1024^2 build's time, levels 1-4 87% (at 96% of the time a bar over texels read 25%, over samples 84%; a 512^2
+    # build's ETA read 35 min with 40 s left; session 79)
     samples = [h * w * _grid_side(1 << l, max_samples) ** 2 for l, (h, w) in enumerate(shapes)]
     with progress_callback(sweeps * sum(samples), "GMM mipmap", "sample", progress) as step:
         done = 0
