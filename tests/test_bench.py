@@ -1802,3 +1802,46 @@ def test_bandwidth_time_fraction_is_each_frames_own_share_not_one_runs_pass_over
         assert p["bandwidth_time_fraction"] == pytest.approx(0.1, rel=1e-9), run_time
         assert rec["bandwidth_time_fraction"] == pytest.approx(0.1, rel=1e-9), run_time
         assert "bandwidth pass: 10.0% of the frame" in bench.format_table(rec)
+
+
+def test_the_ground_truth_holds_a_running_sum_not_every_chunk(tmp_path, monkeypatch):
+    """``ground_truth`` kept every chunk in a list (a cached one with its file's RGBA) and ``np.mean`` stacked them
+    again: 28 bytes per pixel per chunk at the peak, 1.9 GB for --gt-spp 65536 at 2048 x 2048 (session 79).  Now it
+    sums them as they come: numpy's peak over 16 chunks is that over 2, rendered or read from the cache.  Truth: the
+    mean of the chunks and of their first half, computed here (``np.mean`` over the stacked chunks: the old code's,
+    bit for bit) from the chunks the stand-in renderer returned (drawn again from their seeds)."""
+    import tracemalloc
+
+    from warpbw import pipeline
+
+    h, w = 96, 128
+    frame = h * w * 3 * 4
+    seeds = []
+
+    def chunk(seed):
+        return np.random.default_rng(seed).lognormal(0.0, 2.0, (h, w, 3)).astype(np.float32)
+
+    def fake(prep, spp=1, seed=0, mis=False, **kw):
+        seeds.append(seed)
+        return SimpleNamespace(image=chunk(seed))
+
+    monkeypatch.setattr(pipeline, "render_reference", fake)
+    prep = _prep(tmp_path, h, w)
+    peaks = {}
+    for gt_spp, n in ((8192, 2), (16 * bench.GT_CHUNK_SPP, 16)):
+        for cached in (False, True):
+            seeds.clear()
+            tracemalloc.start()
+            try:
+                gt = bench.ground_truth(prep, gt_spp, tmp_path / f"gt{n}", progress=False)
+                peaks[n, cached] = tracemalloc.get_traced_memory()[1]
+            finally:
+                tracemalloc.stop()
+            assert len(seeds) == (0 if cached else n) and gt.chunks == n and (gt.render_time_s == 0) == cached
+            made = [chunk(bench.GT_SEED + k * bench.GT_SEED_STEP) for k in range(n)]
+            assert np.array_equal(gt.image, np.mean(made, axis=0)) and gt.image.dtype == np.float32
+            assert np.array_equal(gt.half, np.mean(made[: n // 2], axis=0))
+            del made
+    for cached in (False, True):   # chunks in flight and the two sums, not 16 frames
+        assert peaks[16, cached] < peaks[2, cached] + frame, (cached, peaks[16, cached] / frame,
+                                                               peaks[2, cached] / frame)

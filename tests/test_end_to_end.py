@@ -665,9 +665,11 @@ def test_info_estimates_the_memory_a_probe_file_takes_to_load_and_analyse(tmp_pa
 def test_info_estimates_the_memory_the_placed_meshes_take(tmp_path, capsys):
     """warpbw info gives, from the mesh file's face lines alone, what the render warns on after loading one copy:
     MESH_BYTES_PER_TRIANGLE for each triangle of each placed copy (an OBJ of two quads placed three times: 12
-    triangles).  A file that does not say (a damaged PLY header) gives nothing, and info still lists the scene."""
+    triangles) and MESH_FILE_BYTES_PER_TRIANGLE for each of the file's own (4; a file's triangles were not counted
+    once for its parse and first copy, which took twice the estimate of a 1.1M-triangle mesh placed once: session
+    79).  A file that does not say (a damaged PLY header) gives nothing, and info still lists the scene."""
     from warpbw.cli import main as cli_main
-    from warpbw.pipeline import MESH_BYTES_PER_TRIANGLE
+    from warpbw.pipeline import MESH_BYTES_PER_TRIANGLE, MESH_FILE_BYTES_PER_TRIANGLE
 
     (tmp_path / "quads.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 2 0\nv 1 2 0\nf 1 2 3 4\nf 4 3 6 5\n")
     (tmp_path / "cut.ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\n")
@@ -678,7 +680,8 @@ def test_info_estimates_the_memory_the_placed_meshes_take(tmp_path, capsys):
     (tmp_path / "s.toml").write_text(scene.format(name="quads.obj"))
     assert cli_main(["info", str(tmp_path / "s.toml"), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
-    assert (summary["mesh_triangles"], summary["mesh_memory_bytes"]) == (12, 12 * MESH_BYTES_PER_TRIANGLE)
+    assert (summary["mesh_triangles"], summary["mesh_memory_bytes"]) == \
+        (12, 12 * MESH_BYTES_PER_TRIANGLE + 4 * MESH_FILE_BYTES_PER_TRIANGLE)
     assert cli_main(["info", str(tmp_path / "s.toml")]) == 0
     assert "GB for the meshes' 12 triangles" in capsys.readouterr().out
     (tmp_path / "cut.toml").write_text(scene.format(name="cut.ply"))

@@ -790,11 +790,49 @@ def test_a_probe_too_large_to_load_or_analyse_warns_before_the_work(monkeypatch,
                 assert bandwidth.env_bandwidth_map(env.pixels, env.name, cache=tmp_path / f"c{have}")[1] == "built"
 
 
+def test_a_mesh_whose_curvature_would_not_fit_warns_before_the_adaptive_method_derives_it(monkeypatch, tmp_path):
+    """The bandwidth pass derives each mesh's curvature (adaptive method only), which took 479 MB at the peak for a
+    1.1M-triangle mesh (the bunny subdivided twice; session 79) on top of what the scene holds, 430 bytes per
+    triangle, and nothing estimated it.  Now CURVATURE_BYTES_PER_TRIANGLE times the largest mesh's triangles (trimesh's
+    count, of the file written here) past the memory available warns before it is derived, naming the scene and the
+    mesh; the reference method derives none and says nothing, nor does a fit or an unknown reading."""
+    import trimesh
+
+    from warpbw import pipeline
+
+    trimesh.creation.icosphere(subdivisions=2).export(tmp_path / "ball.obj")
+    n = len(trimesh.load(tmp_path / "ball.obj", process=False).faces)
+    text = ("[camera]\nposition = [0.0, 0.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 50.0\nresolution = [8, 8]\n"
+            "[environment]\nconstant = 1.0\n[material.m]\ntype = \"lambert\"\nalbedo = [0.5, 0.5, 0.5]\n"
+            '[[object]]\nmesh = "ball.obj"\nmaterial = "m"\n')
+    scene = parse_scene(text, tmp_path, "ball.toml")
+    assert pipeline.CURVATURE_BYTES_PER_TRIANGLE >= 400
+    # scaled up, so that the memory set around its estimate leaves the mesh's and the frame's to spare
+    monkeypatch.setattr(pipeline, "CURVATURE_BYTES_PER_TRIANGLE", 10**6)
+    need = 10**6 * n
+    monkeypatch.setattr(pipeline, "available_memory", lambda: need - 1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        render_reference(scene, spp=1)
+    with pytest.warns(RuntimeWarning, match=rf"^ball.toml: deriving the curvature of a mesh of {n:,} triangles takes "
+                                            r"about .* GB, but .* available: the system may stop it \(a coarser mesh; "
+                                            r"the reference method does not derive it\)$") as said:
+        render_adaptive(scene, budget=1.0)
+    assert len(said) == 1
+    for have in (need, None):
+        monkeypatch.setattr(pipeline, "available_memory", lambda have=have: have)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            render_adaptive(scene, budget=1.0)
+
+
 @pytest.mark.parametrize("headers_say", [True, False])
 def test_meshes_placed_beyond_the_memory_left_warn_before_loading_them(monkeypatch, tmp_path, headers_say):
     """A scene placing a mesh thousands of times ran for minutes, 13 MB a bunny, without a word (scene fuzzing,
-    session 63).  MESH_BYTES_PER_TRIANGLE times the copies' triangles (trimesh's count, of the files written here)
-    past the memory available warns once: before any is loaded where the files' face lines give the count, else
+    session 63).  MESH_BYTES_PER_TRIANGLE times the copies' triangles and MESH_FILE_BYTES_PER_TRIANGLE times the
+    files' (trimesh's counts, of the files written here; session 79: a file's parse and first copy took twice the
+    copies' estimate of a 1.1M-triangle mesh placed once) past the memory available warns once: before any is loaded
+    where the files' face lines give the count, else
     after one copy of each file (a file whose format does not say, here by a stand-in); exactly that much memory,
     or an unknown reading, says nothing."""
     import trimesh
@@ -811,8 +849,9 @@ def test_meshes_placed_beyond_the_memory_left_warn_before_loading_them(monkeypat
             "[environment]\nconstant = 1.0\n[material.m]\ntype = \"lambert\"\nalbedo = [0.5, 0.5, 0.5]\n" + objects)
     scene = parse_scene(text, tmp_path, "many.toml")
     triangles = 3 * n_ball + 2 * n_box
-    need = pipeline.mesh_memory(triangles)
-    assert need == pipeline.MESH_BYTES_PER_TRIANGLE * triangles
+    need = pipeline.mesh_memory(triangles, n_ball + n_box)
+    files = n_ball + n_box
+    assert need == pipeline.MESH_BYTES_PER_TRIANGLE * triangles + pipeline.MESH_FILE_BYTES_PER_TRIANGLE * files
     loads, loaded_when_warned = [], []
     load_mesh, warn = mesh_io.load_mesh, pipeline.warn_if_short_of_memory
     monkeypatch.setattr(mesh_io, "load_mesh", lambda path, **kw: loads.append(path) or load_mesh(path, **kw))

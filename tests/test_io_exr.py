@@ -632,6 +632,47 @@ def test_false_colour_png(tmp_path):
 
 
 
+
+def test_previews_are_encoded_a_block_of_rows_at_a_time(tmp_path, monkeypatch):
+    """The sRGB preview's float64 temporaries of the whole image took 144 bytes per pixel at the peak, a false-colour
+    AOV's 80: more than the frame itself (a 2048 x 2048 reference render peaked at 1.19 GB, 0.66 GB with blocks;
+    session 79).  Encoded a block of rows at a time, numpy's peak stays near the PNG's 3 bytes per pixel, and the
+    pixels are those of the whole image's encoding (numpy's sRGB formula and matplotlib's viridis over it all)."""
+    import tracemalloc
+
+    from matplotlib import colormaps
+
+    import warpbw.io.exr as exr
+
+    monkeypatch.setattr(exr, "PREVIEW_BLOCK_PIXELS", 1000, raising=False)  # 3 rows of 256: 86 blocks, one short
+    rng = np.random.default_rng(5)
+    lin = rng.lognormal(-1.5, 1.5, (256, 256, 3)).astype(np.float32)
+    lin[0, :5] = np.array([np.nan, np.inf, -1.0, 0.0, 1.0])[:, None]
+    tracemalloc.start()
+    try:
+        tracemalloc.reset_peak()
+        write_png(tmp_path / "p.png", lin, exposure=0.5)
+        peak_png = tracemalloc.get_traced_memory()[1]
+        tracemalloc.reset_peak()
+        lo, hi = write_false_colour_png(tmp_path / "f.png", lin[..., 0], mask=lin[..., 1] < 1.0, log=True)
+        peak_fc = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    pixels = 256 * 256
+    assert peak_png < 12 * pixels and peak_fc < 32 * pixels, (peak_png / pixels, peak_fc / pixels)
+    v = np.clip(np.nan_to_num(lin.astype(np.float64) * 2.0 ** 0.5, nan=0.0, posinf=1.0), 0.0, 1.0)
+    srgb = np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.maximum(v, 0.0031308) ** (1 / 2.4) - 0.055)
+    assert np.array_equal(np.asarray(Image.open(tmp_path / "p.png")), np.round(srgb * 255).astype(np.uint8))
+    shown = (lin[..., 1] < 1.0) & np.isfinite(lin[..., 0]) & (lin[..., 0] > 0)
+    assert (lo, hi) == (float(lin[..., 0][shown].min()), float(lin[..., 0][shown].max()))
+    t = np.clip((np.log10(np.where(shown, lin[..., 0], lo).astype(np.float64)) - np.log10(lo))
+                / (np.log10(hi) - np.log10(lo)), 0.0, 1.0)
+    want = np.round(colormaps["viridis"](t)[..., :3] * 255.0).astype(np.uint8)
+    shown_any = (lin[..., 1] < 1.0) & np.isfinite(lin[..., 0])   # drawn (a value <= 0 at the bottom colour)
+    want[~shown_any] = 0
+    assert np.array_equal(np.asarray(Image.open(tmp_path / "f.png")), want)
+
+
 @pytest.mark.parametrize("vmin, vmax, says", [(float("nan"), 1.0, "vmin of the colour scale: expected a finite"),
                                               (0.0, float("inf"), "vmax of the colour scale: expected a finite"),
                                               (8.0, 2.0, "expected vmin <= vmax")])

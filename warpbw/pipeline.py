@@ -16,9 +16,12 @@ Public:
     ``frame_memory(width, height, method) -> bytes``, ``FRAME_BYTES_PER_PIXEL``   what a frame takes beyond the
                                        assets (a render warns when its frame would not fit in
                                        ``warpbw.errors.available_memory()``)
-    ``mesh_memory(triangles) -> bytes``, ``MESH_BYTES_PER_TRIANGLE``   what the placed meshes take (a render warns
-                                       when they would not fit, after loading one copy of each file; ``warpbw
-                                       info`` gives it from the files' headers or face lines)
+    ``mesh_memory(triangles, file_triangles=0) -> bytes``, ``MESH_BYTES_PER_TRIANGLE``,
+    ``MESH_FILE_BYTES_PER_TRIANGLE``   what the placed meshes take, read from files of ``file_triangles`` (a render
+                                       warns when they would not fit, after loading one copy of each file; ``warpbw
+                                       info`` gives it from the files' headers or face lines);
+                                       ``CURVATURE_BYTES_PER_TRIANGLE`` what deriving a mesh's curvature takes (the
+                                       adaptive method warns first where it would not fit)
     ``scene_summary(scene, method="reference") -> dict``   what the scene needs (for ``warpbw info``), without
                                        loading it; ``SUMMARY_METHODS``, the methods it describes
     ``stages_used(prep, mis, adaptive)``, ``PreparedScene``, ``RenderResult``   the stages a frame ran; the
@@ -223,21 +226,21 @@ def _geometry(scene: Scene, mat_id: dict, device: str):
     def load(o):
         return load_mesh(o.file, translate=o.translate, scale=o.scale, rotate_y_deg=o.rotate_y)
 
-    def warn_for(triangles: int) -> None:
-        warn_if_short_of_memory(mesh_memory(triangles), available_memory(),
+    def warn_for(triangles: int, file_triangles: int) -> None:
+        warn_if_short_of_memory(mesh_memory(triangles, file_triangles), available_memory(),
                                 f"placing {len(placed)} meshes ({triangles:,} triangles)",
                                 "fewer copies, or a coarser mesh")
 
     placed = [o for o in scene.objects if isinstance(o, MeshObject)]
     said = _placed_triangles(placed) if placed else None
     if said is not None:
-        warn_for(said)
+        warn_for(*said)
     first = {}
     for o in placed:
         if str(o.file) not in first:
             first[str(o.file)] = (o, load(o))
     if placed and said is None:
-        warn_for(sum(len(first[str(o.file)][1].faces) for o in placed))
+        warn_for(sum(len(first[str(o.file)][1].faces) for o in placed), sum(len(md.faces) for _, md in first.values()))
     spheres, meshes = [], []
     for o in scene.objects:
         if isinstance(o, SphereObject):
@@ -370,18 +373,30 @@ RADIANCE_OVERFLOW_MIN = FLOAT32_MAX / BRDF_VALUE_MAX
 # scaled by 1e-25, took other N_p than at scale 1 and rendered up to 0.999 of the brightest pixel away from 1e-25 times
 # that frame, without a word (session 77); at 1e-19 and 1e-20 it still took the same.
 RADIANCE_UNDERFLOW_MAX = math.sqrt(float(np.finfo(np.float32).tiny))
-# Memory a frame takes per pixel, beyond the scene's assets: the slope of peak RSS over the demo scene at 2048^2 and
-# 4096^2 (session 62: 93 and 228 bytes), rounded up.  A 16384^2 frame (MAX_RESOLUTION) then needs 27 and 64 GB.
-FRAME_BYTES_PER_PIXEL = {"reference": 100, "adaptive": 240}
+# Memory a frame takes per pixel, beyond the scene's assets: the slope of `warpbw render`'s peak RSS from 1024^2 to
+# 2048^2 with every pixel covered (a sphere filling the frame, a MERL material; session 79: 104 and 256 bytes, its
+# previews written a block at a time), rounded up.  Session 62's slope over the demo scene, whose spheres cover a
+# fraction of it, read 93 and 228; its previews' whole-image temporaries then added 144 bytes per pixel (a 2048^2
+# reference render peaked at 1.19 GB).  A 16384^2 frame (MAX_RESOLUTION) then needs 30 and 70 GB.
+FRAME_BYTES_PER_PIXEL = {"reference": 110, "adaptive": 260}
 # Bytes a placed mesh takes per triangle (its host copies, the merged device arrays, the BVH): 12.9 and 12.4 MB per
 # copy of the 69,666-triangle bunny (peak RSS of `warpbw render`, reference and adaptive, with 10 and 40 copies;
 # session 64), rounded up.
 MESH_BYTES_PER_TRIANGLE = 200
+# Bytes each mesh file's triangles take beyond its copies' (trimesh's parse and the first copy's host arrays): a
+# 1,114,656-triangle OBJ (the bunny subdivided twice) placed once took 416 bytes per triangle, each copy more 124
+# (peak RSS of a 64x64 reference render, session 79), rounded up.  MESH_BYTES_PER_TRIANGLE alone read it as 223 MB,
+# where the render took 435 MB more than the original bunny's.
+MESH_FILE_BYTES_PER_TRIANGLE = 300
+# Bytes per triangle of a mesh whose curvature the bandwidth pass derives (adaptive only; one mesh at a time, on top
+# of what is held): 479 MB at the peak for that 1.1M-triangle mesh (session 79), rounded up.
+CURVATURE_BYTES_PER_TRIANGLE = 450
 
 
-def mesh_memory(triangles: int) -> int:
-    """Bytes ``triangles`` placed triangles take (``MESH_BYTES_PER_TRIANGLE``)."""
-    return MESH_BYTES_PER_TRIANGLE * int(triangles)
+def mesh_memory(triangles: int, file_triangles: int = 0) -> int:
+    """Bytes ``triangles`` placed triangles take (``MESH_BYTES_PER_TRIANGLE``), read from files of
+    ``file_triangles`` triangles together (``MESH_FILE_BYTES_PER_TRIANGLE``, each file counted once)."""
+    return MESH_BYTES_PER_TRIANGLE * int(triangles) + MESH_FILE_BYTES_PER_TRIANGLE * int(file_triangles)
 
 
 def _check_overflowed_samples(prep: PreparedScene, n_bad: int, samples: int, pixels: int = 0) -> None:
@@ -555,6 +570,10 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False, env_signal: s
     prep.bandwidth, prep.bandwidth_signal = struct, env_signal
     prep._keep.extend(keep)
     if prep.geometry.curvature_pending:
+        largest = max(len(faces) for _, faces in prep.geometry.curvature_pending.values())
+        warn_if_short_of_memory(CURVATURE_BYTES_PER_TRIANGLE * largest, available_memory(),
+                                f"{prep.scene.source}: deriving the curvature of a mesh of {largest:,} triangles",
+                                "a coarser mesh; the reference method does not derive it", stacklevel=2)
         with _timed(prep.timings, "load_mesh_curvature"):   # Eq. 3's c, for the G-buffer of this pass
             ensure_curvature(prep.geometry)
     return struct
@@ -900,9 +919,10 @@ def _environment_text(env) -> str:
                              if converted else "")
 
 
-def _placed_triangles(placed: list) -> int | None:
-    """The triangles of the placed meshes (``placed``: their objects), every copy counted, from the files' headers or
-    face lines (``warpbw.io.mesh.mesh_triangles``, each file read once); None where a file does not say."""
+def _placed_triangles(placed: list) -> tuple[int, int] | None:
+    """The triangles of the placed meshes (``placed``: their objects), every copy counted, and of their files, each
+    counted once, from the files' headers or face lines (``warpbw.io.mesh.mesh_triangles``, each file read once);
+    None where a file does not say."""
     from warpbw.io.mesh import mesh_triangles
 
     counts = {str(o.file): None for o in placed}
@@ -910,15 +930,15 @@ def _placed_triangles(placed: list) -> int | None:
         counts[f] = mesh_triangles(f)
         if counts[f] is None:
             return None
-    return sum(counts[str(o.file)] for o in placed)
+    return sum(counts[str(o.file)] for o in placed), sum(counts.values())
 
 
 def _mesh_memory(objects) -> dict:
     """The placed meshes' triangles and what they take (:func:`mesh_memory`, :func:`_placed_triangles`): {} without
     meshes, or where a file does not say (the render then reads it, or says what is wrong with it)."""
     placed = [o for o in objects if isinstance(o, MeshObject)]
-    triangles = _placed_triangles(placed) if placed else None
-    return {} if triangles is None else {"mesh_triangles": triangles, "mesh_memory_bytes": mesh_memory(triangles)}
+    said = _placed_triangles(placed) if placed else None
+    return {} if said is None else {"mesh_triangles": said[0], "mesh_memory_bytes": mesh_memory(*said)}
 
 
 def _probe_memory(env, method: str) -> dict:

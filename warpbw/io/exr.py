@@ -384,6 +384,12 @@ def write_exr(path, pixels, channels=None, notes: dict | None = None) -> Path:
     return path
 
 
+# Pixels a preview PNG (write_png, write_false_colour_png) is encoded in at a time (ours): its float64 temporaries
+# are then a few tens of MB whatever the image's size (session 79: the whole image's took 144 and 80 bytes per pixel,
+# more than the frame itself).
+PREVIEW_BLOCK_PIXELS = 1 << 18
+
+
 def linear_to_srgb(x):
     """sRGB-encode linear values (IEC 61966-2-1); no clamping, works elementwise on any array."""
     x = np.asarray(x, dtype=np.float64)
@@ -406,18 +412,26 @@ def _to_png(path: Path, rgb8: np.ndarray, text: dict | None = None) -> Path:
     return path
 
 
+def _row_blocks(height: int, width: int):
+    """Row slices of an image of ``height`` x ``width``, each of about ``PREVIEW_BLOCK_PIXELS`` pixels (one row at
+    least): the previews are encoded a block at a time."""
+    rows = max(1, PREVIEW_BLOCK_PIXELS // max(1, width))
+    return [slice(r, min(height, r + rows)) for r in range(0, height, rows)]
+
+
 def write_png(path, rgb, exposure: float = 0.0) -> Path:
     """Linear ``rgb`` (H, W, 3) (or (H, W) grey) -> 8-bit sRGB PNG after scaling by ``2**exposure``.
 
-    Values are clipped to [0, 1] before encoding; NaN shows as 0 (black), +inf as 1.
+    Values are clipped to [0, 1] before encoding; NaN shows as 0 (black), +inf as 1.  Encoded in float64, a block of
+    rows at a time (``PREVIEW_BLOCK_PIXELS``).
     """
     path = check_path(path, "write_png: path")
-    arr = np.asarray(rgb, dtype=np.float64)
+    arr = np.asarray(rgb)
+    if arr.dtype.kind not in "biuf":   # what the float64 cast refuses, refused as before; else cast block by block
+        arr = np.asarray(rgb, dtype=np.float64)
     if arr.ndim == 3 and arr.shape[2] == 1:
         arr = arr[..., 0]
-    if arr.ndim == 2:
-        arr = np.repeat(arr[..., None], 3, axis=-1)
-    if arr.ndim != 3 or arr.shape[2] != 3:
+    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] != 3):
         raise WarpbwError(f"{path}: cannot write a preview of shape {arr.shape} (expected (H, W, 3))")
     try:
         gain = 2.0 ** float(exposure)
@@ -426,9 +440,15 @@ def write_png(path, rgb, exposure: float = 0.0) -> Path:
     if not (0.0 < gain < math.inf):
         raise WarpbwError(f"{path}: exposure {exposure!r}: expected a finite number of stops (2^exposure a finite "
                           "gain)")
-    v = np.nan_to_num(arr * gain, nan=0.0, posinf=1.0, neginf=0.0)
-    enc = linear_to_srgb(np.clip(v, 0.0, 1.0))
-    return _to_png(path, np.round(enc * 255.0).astype(np.uint8))
+    rgb8 = np.empty(arr.shape[:2] + (3,), np.uint8)
+    for rows in _row_blocks(*arr.shape[:2]):   # the whole image's float64 temporaries took 144 bytes per pixel
+        block = np.asarray(arr[rows], dtype=np.float64)
+        if block.ndim == 2:
+            block = np.repeat(block[..., None], 3, axis=-1)
+        v = np.nan_to_num(block * gain, nan=0.0, posinf=1.0, neginf=0.0)
+        enc = linear_to_srgb(np.clip(v, 0.0, 1.0))
+        rgb8[rows] = np.round(enc * 255.0).astype(np.uint8)
+    return _to_png(path, rgb8)
 
 
 def write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=False):
@@ -468,14 +488,17 @@ def write_false_colour_png(path, values, mask=None, vmin=None, vmax=None, log=Fa
     if log:
         lo = max(lo, np.finfo(np.float64).tiny)
         hi = max(hi, lo)
-        t_val = np.log10(np.maximum(np.where(shown, v, lo), lo))
         t_lo, t_hi = np.log10(lo), np.log10(hi)
     else:
-        t_val, t_lo, t_hi = np.where(shown, v, lo), lo, hi
-    t = np.clip((t_val - t_lo) / (t_hi - t_lo), 0.0, 1.0) if t_hi > t_lo else np.zeros_like(t_val)
-    rgba = colormaps["viridis"](t)
-    rgb8 = np.round(rgba[..., :3] * 255.0).astype(np.uint8)
-    rgb8[~shown] = 0
+        t_lo, t_hi = lo, hi
+    rgb8 = np.zeros(v.shape + (3,), np.uint8)
+    for rows in _row_blocks(*v.shape):   # a block at a time: the whole map's colours took 80 bytes per pixel
+        vb, sb = v[rows], shown[rows]
+        t_val = np.log10(np.maximum(np.where(sb, vb, lo), lo)) if log else np.where(sb, vb, lo)
+        t = np.clip((t_val - t_lo) / (t_hi - t_lo), 0.0, 1.0) if t_hi > t_lo else np.zeros_like(t_val)
+        block = np.round(colormaps["viridis"](t)[..., :3] * 255.0).astype(np.uint8)
+        block[~sb] = 0
+        rgb8[rows] = block
     if log and vmin is None and vmax is None and not ok.any():   # all 0 (a constant light's b_p): it said "1 to 1"
         # no pixel shown at all (a mask that leaves none, as the command line's for a black or empty frame): all
         # black, where the text once said "dark blue"
