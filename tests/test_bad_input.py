@@ -806,6 +806,46 @@ def test_precompute_options_the_synopsis_always_gives_are_required(tmp_path, mon
     assert not (tmp_path / "x.binary").exists()
 
 
+@pytest.mark.parametrize("command", ["brdf-sampling", "gmm", "npf-to-merl"])
+def test_a_precompute_output_that_appears_during_the_work_is_said_to_have_appeared(tmp_path, monkeypatch, capsys,
+                                                                                    command):
+    """Two ``warpbw-precompute brdf chrome.binary -o c.npz`` at once (processes audit, session 79): the one that
+    finished second was refused with "c.npz: already exists (pass --force to overwrite it)", about a file that was
+    not there when it started, and pointing to --force as if the user had named a file of theirs.  An output that
+    appears while the command works (another run of it, the user) is refused as staged_outputs refuses it, saying
+    it appeared, and the file that appeared is kept."""
+    import precompute.brdf_sampling
+    import precompute.gmm_mipmap
+    import precompute.npf_to_merl
+    from precompute.__main__ import main
+    from warpbw.io.merl import MERL_SHAPE
+
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    out = {"brdf-sampling": "s.npz", "gmm": "g.npz", "npf-to-merl": "m.binary"}[command]
+
+    def meanwhile(work):   # the other run finishes first, during this one's work
+        def stand_in(*args, **kwargs):
+            (tmp_path / out).write_text("the other run's")
+            return work(*args, **kwargs)
+        return stand_in
+
+    monkeypatch.setattr(precompute.brdf_sampling, "build_brdf_sampling",
+                        meanwhile(lambda *a, **k: uniform_sampler_table()))
+    monkeypatch.setattr(precompute.gmm_mipmap, "build_gmm_mipmap", meanwhile(precompute.gmm_mipmap.build_gmm_mipmap))
+    monkeypatch.setattr(precompute.npf_to_merl, "tabulate_merl", meanwhile(lambda *a, **k: np.full(MERL_SHAPE, 0.1)))
+    argv = {"brdf-sampling": ["brdf-sampling", "npf.bin", "--material", "chrome"],
+            "gmm": ["gmm", "surface:dunes:33"],
+            "npf-to-merl": ["npf-to-merl", "--table", "npf.bin", "--material", "chrome"]}[command]
+    got = outcome(main, [*argv, "-o", out, "-q"][: None if command != "npf-to-merl" else -1])
+    err = capsys.readouterr().err.strip()
+    assert got == "returned 2", (got, err)
+    assert err == (f"warpbw-precompute: error: {out}: already exists: it appeared while this run worked (another run "
+                   "writing it, or you), and is kept; nothing of this run was written (pass --force to overwrite it)")
+    assert (tmp_path / out).read_text() == "the other run's"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["npf.bin", out])
+
+
 def _written(path: Path, data: bytes) -> Path:
     path.write_bytes(data)
     return path

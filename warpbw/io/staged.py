@@ -311,6 +311,15 @@ def _appeared(p: Path) -> WarpbwError:
                        "and is kept; nothing of this run was written (pass --force to overwrite it)")
 
 
+def check_still_free(path, force: bool) -> None:
+    """Without ``force``, refuse ``path`` if it is there now, once the work is done, where a check before the work
+    found none: it appeared meanwhile (:func:`_appeared`).  For a command that hands its output to a writer that
+    checks it again (``check_replaceable``, whose "already exists (pass --force ...)" read as if the user had named
+    a file of theirs: two ``warpbw-precompute brdf`` of one output at once, session 79)."""
+    if not check_flag(force, "force") and output_exists(path):
+        raise _appeared(Path(path))
+
+
 def _move_new(tmp: Path, p: Path) -> None:
     """Move ``tmp`` to the name ``p``, which must stay free: a hard link made only where no file (or link) is, then
     the temporary's name removed; ``FileExistsError`` when the name was taken.  Where the file system makes no hard
