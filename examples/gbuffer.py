@@ -9,6 +9,10 @@ and prints the ray-cast time (the median of ``RUNS`` launches after a warm-up la
 without ``--force``, refused before any work) write the record (the settings, the mesh's size, the device, each
 launch's time and their median, the coverage) and the plot of the launches' times and their median.
 """
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+
 import argparse
 import sys
 import time

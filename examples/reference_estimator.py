@@ -13,6 +13,10 @@ bench``'s; until session 75 the G-buffer was not timed); writes ref_bis.exr / re
 ``--force``, refused before any work) write the record (the settings, device and threads, ``gbuffer_time_s``, and
 per estimator every figure printed) and its plot (each estimator's time and throughput).
 """
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+
 import argparse
 import statistics
 import sys
