@@ -571,6 +571,54 @@ def test_the_console_scripts_answer_a_ctrl_c_during_their_imports_with_one_line(
             signal.signal(sig, handler)
 
 
+def _initialisation_failed(stop: BaseException):
+    """What a stop that lands in a pybind11 extension's initialisation (matplotlib's ft2font, imported at a command's
+    first PNG) reaches Python as: "ImportError: initialization failed", raised from the stop."""
+    def stand_in(*args, **kwargs):
+        raise ImportError("initialization failed") from stop
+    return stand_in
+
+
+@pytest.mark.parametrize("stop, status, said", [("SIGINT", 130, "warpbw: interrupted"),
+                                                ("SIGTERM", 143, "warpbw: terminated")])
+def test_a_stop_inside_an_extensions_initialisation_ends_a_command_in_one_line(monkeypatch, capsys, stop, status,
+                                                                               said):
+    """A Ctrl-C at 3.3 s of an adaptive render (processes audit, session 79) landed while matplotlib's ft2font
+    initialised, for the first false-colour PNG: Python raised "ImportError: initialization failed" from the
+    KeyboardInterrupt, which no handler took, and the run ended with both tracebacks and status 1.  A stop behind the
+    error (its cause or context) now ends the command as the stop does, in one line with the stop's status; the
+    console scripts' imports, and the examples' (whose excepthook says it), likewise."""
+    import importlib
+    import signal
+
+    from warpbw import entry
+    from warpbw.cli_common import _Terminated, run_command
+
+    the_stop = KeyboardInterrupt() if stop == "SIGINT" else _Terminated(signal.SIGTERM)
+    assert run_command("warpbw", _initialisation_failed(the_stop), None) == status
+    assert capsys.readouterr().err.splitlines() == [said]
+    with pytest.raises(ImportError):   # one that no stop caused is no stop: its traceback is shown
+        run_command("warpbw", _initialisation_failed(ValueError("a real defect")), None)
+    if stop != "SIGINT":
+        return
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:   # the console scripts, stopped while they import numpy and Warp
+        monkeypatch.setattr(importlib, "import_module", _initialisation_failed(KeyboardInterrupt()))
+        assert entry.warpbw() == 130
+        assert capsys.readouterr().err.splitlines() == ["warpbw: interrupted"]
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+    monkeypatch.setattr(sys, "argv", ["examples/gbuffer.py"])   # an example, stopped while it imports
+    monkeypatch.setattr(sys, "excepthook", lambda *exc: print("a traceback", file=sys.stderr))
+    entry.interrupt_in_one_line("__main__")
+    try:
+        _initialisation_failed(KeyboardInterrupt())()
+    except ImportError as exc:
+        sys.excepthook(type(exc), exc, exc.__traceback__)
+    assert capsys.readouterr().err.splitlines() == ["gbuffer.py: interrupted"]
+
+
 def test_an_output_named_twice_is_written_once_and_leaves_no_temporary(tmp_path):
     """staged_outputs([p, p]): one temporary for p, moved into place once; none left beside it (there were two
     temporaries, one forgotten, and a KeyError at the commit)."""

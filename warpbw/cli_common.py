@@ -32,6 +32,7 @@ import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
+from warpbw.entry import stop_behind
 from warpbw.errors import SEED_MAX, WarpbwError, check_device
 from warpbw.io.staged import check_existing_output, check_name_length, input_clash, output_exists, staged_outputs
 from warpbw.native_output import init_warp_quietly, kernel_cache_write_error, remove_unfinished_kernel_builds
@@ -224,7 +225,8 @@ def _stops_in_destructors_unsaid():
 def run_command(prog: str, func, args) -> int:
     """Run a subcommand; user errors and warnings print as one line each (``PROG: error: ...``).  Ctrl-C, SIGTERM
     and SIGHUP stop it with one line and the shell's status for the signal, its outputs untouched (and no build folder
-    of a compile it stopped left in Warp's kernel cache)."""
+    of a compile it stopped left in Warp's kernel cache), also where the stop came out as another error raised from it
+    (an extension's initialisation it stopped: ``warpbw.entry.stop_behind``)."""
 
     def show_warning(message, category, filename, lineno, file=None, line=None):
         # warnings (an environment with clamped pixels, unmeasured MERL entries...) as one line each
@@ -233,7 +235,13 @@ def run_command(prog: str, func, args) -> int:
     with warnings.catch_warnings(), _sigterm_raises(), _stops_in_destructors_unsaid():
         warnings.showwarning = show_warning
         try:
-            status = func(args)
+            try:
+                status = func(args)
+            except Exception as exc:   # a stop that an extension's initialisation turned into an ImportError
+                stop = stop_behind(exc, (KeyboardInterrupt, _Terminated))
+                if stop is None:
+                    raise
+                raise stop from None
             sys.stdout.flush()   # here, where a closed pipe is caught, rather than at exit
             return status
         except BrokenPipeError:

@@ -1,7 +1,7 @@
 """The console scripts' entry points: what ``warpbw`` and ``warpbw-precompute`` run.
 
 Public: ``warpbw()``, ``warpbw_precompute()``; ``interrupt_in_one_line(module_name)``, what each script under
-``examples/`` calls first.
+``examples/`` calls first; ``stop_behind(exc, kinds)`` (the stop an error was raised from).
 
 Each imports its command line only inside the handling of Ctrl-C: the imports (numpy, Warp) take a fraction of a
 second, and a Ctrl-C then printed a traceback of whichever import it stopped.  And once the command has returned
@@ -20,10 +20,29 @@ import signal
 import sys
 
 
+def stop_behind(exc: BaseException, kinds=(KeyboardInterrupt,)) -> BaseException | None:
+    """The stop of ``kinds`` that ``exc`` is, or was raised from or while handling (its ``__cause__`` and
+    ``__context__``, followed back), else None.  A stop that lands in a pybind11 extension's initialisation (matplotlib's
+    ft2font, imported at a command's first PNG) reaches Python as "ImportError: initialization failed", raised from
+    the KeyboardInterrupt: a Ctrl-C then ended a render with two tracebacks and status 1 (session 79)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, kinds):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
 def _run(module: str, prog: str) -> int:
     try:
         try:   # a Ctrl-C while importing, or while the arguments are parsed (outside run_command's own handling)
             return importlib.import_module(module).main()
+        except Exception as exc:   # an extension's initialisation that a Ctrl-C stopped (stop_behind)
+            if stop_behind(exc) is None:
+                raise
+            print(f"{prog}: interrupted", file=sys.stderr)
+            return 128 + signal.SIGINT
         except KeyboardInterrupt:
             print(f"{prog}: interrupted", file=sys.stderr)
             return 128 + signal.SIGINT   # the shell's status, as run_command's EXIT_INTERRUPTED
@@ -45,7 +64,8 @@ def interrupt_in_one_line(module_name: str) -> None:
     """Called first thing by a script (``interrupt_in_one_line(__name__)``, before its heavy imports): when it runs as
     ``__main__``, a Ctrl-C that no code handles (one while it imports numpy, Warp and warpbw, before its
     ``run_command``) prints ``SCRIPT: interrupted``, as ``run_command`` does, instead of the traceback of the import
-    it stopped; the interpreter still ends by SIGINT (status 130 in a shell).  Imported as a module (by the tests),
+    it stopped; the interpreter still ends by SIGINT (status 130 in a shell; status 1 where the stop came out as an
+    extension's failed initialisation, :func:`stop_behind`).  Imported as a module (by the tests),
     nothing changes."""
     if module_name != "__main__":
         return
@@ -53,7 +73,7 @@ def interrupt_in_one_line(module_name: str) -> None:
     shown = sys.excepthook
 
     def hook(kind, value, traceback):
-        if issubclass(kind, KeyboardInterrupt):
+        if stop_behind(value) is not None:   # a Ctrl-C, or an extension's initialisation it stopped
             print(f"{prog}: interrupted", file=sys.stderr)
         else:
             shown(kind, value, traceback)
