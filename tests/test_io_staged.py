@@ -571,6 +571,33 @@ def test_the_console_scripts_answer_a_ctrl_c_during_their_imports_with_one_line(
             signal.signal(sig, handler)
 
 
+_STOPPED_WHILE_LOADING = """
+import importlib, os, signal, sys
+from warpbw import entry
+
+def loading(name):   # the stop arrives while the command line's modules (numpy, Warp) load
+    os.kill(os.getpid(), getattr(signal, sys.argv[1]))
+    return real(name)
+
+real, importlib.import_module = importlib.import_module, loading
+sys.exit(entry.warpbw())
+"""
+
+
+@pytest.mark.parametrize("sig, status, said", [("SIGTERM", 143, "warpbw: terminated"),
+                                               ("SIGHUP", 129, "warpbw: hung up")])
+def test_the_console_scripts_answer_a_sigterm_during_their_imports_with_one_line(tmp_path, sig, status, said):
+    """A SIGTERM or SIGHUP while ``warpbw`` loaded numpy and Warp (its first seconds, before run_command) ended the
+    process where it stood, without the line the README promises (processes audit, session 79); a Ctrl-C there
+    already said one.  Truth: a real process whose stop arrives as it imports its command line."""
+    import signal
+    import subprocess
+
+    r = subprocess.run([sys.executable, "-c", _STOPPED_WHILE_LOADING, sig], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=300, preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_DFL))
+    assert (r.returncode, r.stderr.strip(), r.stdout) == (status, said, "")
+
+
 def _initialisation_failed(stop: BaseException):
     """What a stop that lands in a pybind11 extension's initialisation (matplotlib's ft2font, imported at a command's
     first PNG) reaches Python as: "ImportError: initialization failed", raised from the stop."""

@@ -32,7 +32,7 @@ import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
-from warpbw.entry import stop_behind
+from warpbw.entry import STOP_SIGNALS, stop_behind
 from warpbw.errors import SEED_MAX, WarpbwError, check_device
 from warpbw.io.staged import check_existing_output, check_name_length, input_clash, output_exists, staged_outputs
 from warpbw.native_output import init_warp_quietly, kernel_cache_write_error, remove_unfinished_kernel_builds
@@ -165,10 +165,8 @@ def check_output_dir(path, option: str) -> None:
 WARP_ALLOCATION_FAILED = "Failed to allocate"
 
 
-# The stops that end a run as Ctrl-C does, with their one line: ``kill``, ``timeout``, a batch scheduler's stop; a
-# closed terminal or a dropped ssh session (SIGHUP ended the process where it stood and left its temporaries)
-STOP_SIGNALS = {name: word for name, word in (("SIGTERM", "terminated"), ("SIGHUP", "hung up"))
-                if hasattr(signal, name)}
+# STOP_SIGNALS (warpbw.entry's): the stops that end a run as Ctrl-C does, with their one line (SIGHUP ended the
+# process where it stood and left its temporaries)
 
 
 class _Terminated(BaseException):

@@ -3,8 +3,9 @@
 Public: ``warpbw()``, ``warpbw_precompute()``; ``interrupt_in_one_line(module_name)``, what each script under
 ``examples/`` calls first; ``stop_behind(exc, kinds)`` (the stop an error was raised from).
 
-Each imports its command line only inside the handling of Ctrl-C: the imports (numpy, Warp) take a fraction of a
-second, and a Ctrl-C then printed a traceback of whichever import it stopped.  And once the command has returned
+Each imports its command line only inside the handling of Ctrl-C, SIGTERM and SIGHUP: the imports (numpy, Warp) take
+a fraction of a second (seconds on a busy machine), and a Ctrl-C then printed a traceback of whichever import it
+stopped (a SIGTERM ended the process without a word).  And once the command has returned
 (its outputs in place, its status known), the stops are ignored while the interpreter shuts down: one that arrived
 then printed "Exception ignored in ... KeyboardInterrupt" from a Warp array's destructor or the thread pool's exit,
 after a run that had succeeded.
@@ -34,8 +35,31 @@ def stop_behind(exc: BaseException, kinds=(KeyboardInterrupt,)) -> BaseException
     return None
 
 
+# The stops that end a run as Ctrl-C does, with their one line: ``kill``, ``timeout``, a batch scheduler's stop; a
+# closed terminal or a dropped ssh session (warpbw.cli_common.run_command's, and the entry points' while they load)
+STOP_SIGNALS = {name: word for name, word in (("SIGTERM", "terminated"), ("SIGHUP", "hung up"))
+                if hasattr(signal, name)}
+
+
+class _StoppedLoading(BaseException):
+    """A stop of ``STOP_SIGNALS`` that arrived before the command's run_command (while numpy and Warp load)."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _stop_while_loading(signum, frame):
+    raise _StoppedLoading(signum)
+
+
 def _run(module: str, prog: str) -> int:
     try:
+        # a SIGTERM or SIGHUP while the command line loads ended the process without a word (run_command sets its
+        # own handlers for the run, and puts these back after it); an ignored one (nohup) stays ignored
+        for name in STOP_SIGNALS:
+            if signal.getsignal(getattr(signal, name)) is not signal.SIG_IGN:
+                signal.signal(getattr(signal, name), _stop_while_loading)
         try:   # a Ctrl-C while importing, or while the arguments are parsed (outside run_command's own handling)
             return importlib.import_module(module).main()
         except Exception as exc:   # an extension's initialisation that a Ctrl-C stopped (stop_behind)
@@ -46,6 +70,12 @@ def _run(module: str, prog: str) -> int:
         except KeyboardInterrupt:
             print(f"{prog}: interrupted", file=sys.stderr)
             return 128 + signal.SIGINT   # the shell's status, as run_command's EXIT_INTERRUPTED
+        except _StoppedLoading as stop:
+            try:   # after a hang-up the terminal may be gone
+                print(f"{prog}: {STOP_SIGNALS[signal.Signals(stop.signum).name]}", file=sys.stderr)
+            except OSError:
+                pass
+            return 128 + stop.signum
     finally:
         for name in ("SIGINT", "SIGTERM", "SIGHUP"):
             if hasattr(signal, name):
