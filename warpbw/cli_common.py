@@ -34,7 +34,8 @@ from pathlib import Path
 
 from warpbw.entry import STOP_SIGNALS, stop_behind
 from warpbw.errors import SEED_MAX, WarpbwError, check_device
-from warpbw.io.staged import check_existing_output, check_name_length, input_clash, output_exists, staged_outputs
+from warpbw.io.staged import (check_existing_output, check_name_length, dangling_link, input_clash, output_exists,
+                              staged_outputs)
 from warpbw.native_output import init_warp_quietly, kernel_cache_write_error, remove_unfinished_kernel_builds
 
 EXIT_USER_ERROR = 2
@@ -120,8 +121,12 @@ def parse_seed(s: str) -> int:
 
 def _check_parents(path: Path, option: str) -> None:
     """The nearest existing ancestor of ``path`` must be a directory in which a file can be made (else mkdir or the
-    write fails after the work): a temporary file is made there and removed."""
+    write fails after the work): a temporary file is made there and removed.  None on the way may be a link to
+    nothing (``warpbw.io.staged.dangling_link``): no folder can be made in its place."""
     for parent in path.parents:
+        link = dangling_link(parent)
+        if link is not None:
+            raise WarpbwError(f"{option} {path}: {parent} is {link}")
         if parent.exists():
             if not parent.is_dir():
                 raise WarpbwError(f"{option} {path}: {parent} is not a directory")
@@ -153,6 +158,9 @@ def check_output_dir(path, option: str) -> None:
     too long."""
     p = Path(path)
     check_name_length(p, f"{option} {p}")   # first: Python 3.11's exists raises on a name too long
+    link = dangling_link(p)
+    if link is not None:
+        raise WarpbwError(f"{option} {p}: {link} (expected a directory, made if absent)")
     if p.exists() and not p.is_dir():
         raise WarpbwError(f"{option} {p}: not a directory (expected a directory, made if absent)")
     if p.is_dir():

@@ -3,9 +3,11 @@
 Public: ``staged_outputs(paths, force=True)``; ``check_replaceable(path, force, inputs=(), inputs_are=...) -> Path``
 (what every writer that takes ``force`` checks before its work), ``input_clash(path, inputs, inputs_are=...) ->
 str | None``, ``output_exists(path)``, ``check_existing_output(path, force, label)``, ``check_name_length(path,
-label)`` and ``check_not_read_only(path, label)`` (its parts the command lines share); ``remove_stale_temps(path)``
-(what the readers of a cache entry call: see below); ``temporary_folder(prefix, parent)`` (a work folder, removed at
-the end, whose name says its process: one a SIGKILL left is removed by the next run that makes one of that prefix).
+label)``, ``check_not_read_only(path, label)`` and ``dangling_link(path)`` (its parts the command lines share);
+``check_still_free(path, force)`` (after the work, before a writer that checks again: an output that appeared
+meanwhile); ``remove_stale_temps(path)`` (what the readers of a cache entry call: see below);
+``temporary_folder(prefix, parent)`` (a work folder, removed at the end, whose name says its process: one a SIGKILL
+left is removed by the next run that makes one of that prefix).
 
 Every writer of warpbw (images, records, plots, asset and cache files) writes to a temporary file beside its
 output, and the outputs of one command are moved into place together once all of them are written.  So
@@ -95,6 +97,20 @@ def output_exists(path) -> bool:
     too, and was replaced without a word)."""
     p = Path(path)
     return p.exists() or p.is_symlink()
+
+
+def dangling_link(path) -> str | None:
+    """``"a link to TARGET, which does not exist"`` when ``path`` is a symbolic link to nothing, else None.  A folder
+    cannot be made in its place (mkdir says "File exists"), nor a file written through it where its target's folder
+    is missing: an output under one failed after the work, with "cannot write (File exists)"."""
+    p = Path(path)
+    try:
+        if not p.is_symlink() or p.exists():
+            return None
+        target = os.readlink(p)
+    except OSError:   # a name too long, a folder that cannot be read: not for this check to say
+        return None
+    return f"a link to {target}, which does not exist"
 
 
 def check_existing_output(path, force: bool, label: str) -> None:
@@ -368,8 +384,10 @@ def staged_outputs(paths, force: bool = True):
                 remove_stale_temps(p)
                 temps[p] = _temp_beside(p, mode)
             except OSError as exc:   # its folder under a file, or not writable: name the output (and the file)
-                under = next((q for q in p.parents if q.exists() and not q.is_dir()), None)   # "File exists" said
-                why = f"{under} is not a directory" if under is not None else exc.strerror or exc
+                # "File exists" said: a file on the way, or a link to nothing
+                under = next((q for q in p.parents if dangling_link(q) or (q.exists() and not q.is_dir())), None)
+                why = (exc.strerror or exc if under is None else f"{under} is {dangling_link(under)}"
+                       if dangling_link(under) else f"{under} is not a directory")
                 raise WarpbwError(f"{p}: cannot write ({why})") from None
         yield dict(temps)
         with _signals_held():   # a Ctrl-C between two moves left a new image beside an old record
