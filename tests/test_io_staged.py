@@ -188,6 +188,45 @@ def test_write_merl_refuses_a_read_only_file_and_its_inputs_even_with_force(tmp_
     assert src.read_bytes() == b"the MERL file it is made from" and _leftovers(tmp_path) == []
 
 
+def test_two_forced_writers_of_one_set_move_it_one_after_the_other(tmp_path, monkeypatch):
+    """Two ``--force`` runs of one output set (image and record) that finished together moved their files in turns:
+    the first moved its image, the second both its files, the first its record, and the set was the second's image
+    beside the first's record (processes audit, session 79: each file whole, the set mixed).  Now each run moves its
+    set holding a lock on the set's folders, so the last to finish wins whole.  Truth: the second run starts its
+    moves once the first has moved its image, and the first waits there until the second has moved a file (at most
+    a second: with the lock the second cannot before the first is done, and the set is the second's whatever the
+    wait)."""
+    import threading
+
+    outs = [tmp_path / "image.exr", tmp_path / "image.json"]
+    real = os.replace
+    first_moved_image, second_moved = threading.Event(), threading.Event()
+
+    def replace(src, dst, *args, **kwargs):
+        real(src, dst, *args, **kwargs)
+        if threading.current_thread().name == "second":
+            second_moved.set()
+        elif Path(dst).name == "image.exr":
+            first_moved_image.set()
+            second_moved.wait(timeout=1.0)
+
+    def write(name, before_moves=None):
+        with staged_outputs(outs, force=True) as at:
+            for p in outs:
+                at[p].write_text(name)
+            if before_moves is not None:
+                before_moves.wait(timeout=60)
+
+    monkeypatch.setattr(os, "replace", replace)
+    runs = [threading.Thread(target=write, args=("first",), name="first"),
+            threading.Thread(target=write, args=("second", first_moved_image), name="second")]
+    for t in runs:
+        t.start()
+    for t in runs:
+        t.join(timeout=60)
+    assert [p.read_text() for p in outs] == ["second", "second"] and _leftovers(tmp_path) == []
+
+
 def test_two_writers_of_one_output_get_temporaries_of_their_own(tmp_path):
     """Each writer has its own temporary.  Of two runs writing one new output without --force, the first to finish
     writes it and the second is refused, naming it (both had passed the check before their work; the second

@@ -22,7 +22,8 @@ output, and the outputs of one command are moved into place together once all of
 * an existing output is replaced, never written through: a hard link to it, or a symlink at its place, keeps
   the file it pointed at (``--force`` once rewrote a light probe hard-linked to ``-o``);
 * two runs that write the same output at once do not write into one temporary file: each has its own
-  (``mkstemp``, created exclusively, never through a link).  Without ``force``, an output that is there when the
+  (``mkstemp``, created exclusively, never through a link), and move their sets into place one after the other (a
+  ``flock`` on the outputs' folders while the moves run).  Without ``force``, an output that is there when the
   outputs are moved appeared while the run worked (the check before the work found none: another run finished
   first, or the user wrote it meanwhile): it is kept, and the run refused, no output of it moved.  With ``force``
   (``--force``, and caches, which two runs may write at once) the last to finish wins whole;
@@ -322,6 +323,57 @@ def _signals_held():
             signal.raise_signal(sig)
 
 
+# The longest a run waits for another's lock on an output folder (another run holds it for the microseconds of its
+# moves; a lock some other program keeps on the folder must not hold a Ctrl-C, held while the moves run, for ever)
+FOLDER_LOCK_WAIT_S = 10.0
+
+
+def _flock_within(fd: int, wait_s: float) -> bool:
+    """An exclusive ``flock`` on ``fd``, waited for at most ``wait_s`` seconds; whether it was taken (never where
+    the system has no ``fcntl``)."""
+    import time
+
+    try:
+        import fcntl
+    except ImportError:   # Windows
+        return False
+
+    end = time.monotonic() + wait_s
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+        except BlockingIOError:
+            if time.monotonic() >= end:
+                return False
+            time.sleep(0.001)
+        except OSError:   # a file system without locks
+            return False
+
+
+@contextmanager
+def _folders_locked(folders):
+    """While the block runs, hold an exclusive ``flock`` on each of ``folders`` (taken in sorted order: two runs wait
+    for each other, never for ever), so that two runs moving outputs into one folder move them one set after the
+    other.  A folder that cannot be opened or locked (no ``fcntl``: Windows; a file system without locks; a lock held
+    past ``FOLDER_LOCK_WAIT_S``) is moved into without one, as before."""
+    fds = []
+    try:
+        for folder in sorted({str(f) for f in folders}):
+            try:
+                fd = os.open(folder, os.O_RDONLY)
+            except OSError:
+                continue
+            if _flock_within(fd, FOLDER_LOCK_WAIT_S):
+                fds.append(fd)
+            else:
+                os.close(fd)
+        yield
+    finally:
+        for fd in fds:
+            os.close(fd)   # which releases its lock
+
+
 def _appeared(p: Path) -> WarpbwError:
     return WarpbwError(f"{p}: already exists: it appeared while this run worked (another run writing it, or you), "
                        "and is kept; nothing of this run was written (pass --force to overwrite it)")
@@ -390,7 +442,9 @@ def staged_outputs(paths, force: bool = True):
                        if dangling_link(under) else f"{under} is not a directory")
                 raise WarpbwError(f"{p}: cannot write ({why})") from None
         yield dict(temps)
-        with _signals_held():   # a Ctrl-C between two moves left a new image beside an old record
+        # a Ctrl-C between two moves left a new image beside an old record; two --force runs of one set that finished
+        # together moved their files in turns, the second's image beside the first's record
+        with _signals_held(), _folders_locked(p.parent for p in outs):
             moved = []
             for p in outs:
                 try:
