@@ -32,6 +32,7 @@ import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
+from warpbw import entry
 from warpbw.entry import STOP_SIGNALS, stop_behind
 from warpbw.errors import SEED_MAX, WarpbwError, check_device
 from warpbw.io.staged import (check_existing_output, check_name_length, dangling_link, input_clash, output_exists,
@@ -228,6 +229,18 @@ def _stops_in_destructors_unsaid():
         sys.unraisablehook = previous
 
 
+@contextmanager
+def _script_ends_ignoring_stops():
+    """When the block ends in a script run as ``__main__`` (``warpbw.entry.running_as_script``, set by its
+    ``interrupt_in_one_line``), ignore the stops from then on, while the interpreter ends, as the console scripts'
+    entry points do (a late Ctrl-C printed "Exception ignored in ..." or "SCRIPT: interrupted" after its run)."""
+    try:
+        yield
+    finally:
+        if entry.running_as_script and threading.current_thread() is threading.main_thread():
+            entry.ignore_stops()
+
+
 def run_command(prog: str, func, args) -> int:
     """Run a subcommand; user errors and warnings print as one line each (``PROG: error: ...``).  Ctrl-C, SIGTERM
     and SIGHUP stop it with one line and the shell's status for the signal, its outputs untouched (and no build folder
@@ -238,7 +251,7 @@ def run_command(prog: str, func, args) -> int:
         # warnings (an environment with clamped pixels, unmeasured MERL entries...) as one line each
         print(f"{prog}: warning: {printable(message)}", file=sys.stderr if file is None else file)
 
-    with warnings.catch_warnings(), _sigterm_raises(), _stops_in_destructors_unsaid():
+    with _script_ends_ignoring_stops(), warnings.catch_warnings(), _sigterm_raises(), _stops_in_destructors_unsaid():
         warnings.showwarning = show_warning
         try:
             try:

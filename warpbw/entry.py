@@ -1,7 +1,7 @@
 """The console scripts' entry points: what ``warpbw`` and ``warpbw-precompute`` run.
 
 Public: ``warpbw()``, ``warpbw_precompute()``; ``interrupt_in_one_line(module_name)``, what each script under
-``examples/`` calls first; ``stop_behind(exc, kinds)`` (the stop an error was raised from).
+``examples/`` calls first; ``stop_behind(exc, kinds)`` (the stop an error was raised from); ``ignore_stops()``.
 
 Each imports its command line only inside the handling of Ctrl-C, SIGTERM and SIGHUP: the imports (numpy, Warp) take
 a fraction of a second (seconds on a busy machine), and a Ctrl-C then printed a traceback of whichever import it
@@ -23,9 +23,9 @@ import sys
 
 def stop_behind(exc: BaseException, kinds=(KeyboardInterrupt,)) -> BaseException | None:
     """The stop of ``kinds`` that ``exc`` is, or was raised from or while handling (its ``__cause__`` and
-    ``__context__``, followed back), else None.  A stop that lands in a pybind11 extension's initialisation (matplotlib's
-    ft2font, imported at a command's first PNG) reaches Python as "ImportError: initialization failed", raised from
-    the KeyboardInterrupt: a Ctrl-C then ended a render with two tracebacks and status 1 (session 79)."""
+    ``__context__``, followed back), else None.  A stop that lands in a pybind11 extension's initialisation
+    (matplotlib's ft2font, imported at a command's first PNG) reaches Python as "ImportError: initialization failed",
+    raised from the KeyboardInterrupt: a Ctrl-C then ended a render with two tracebacks and status 1 (session 79)."""
     seen = set()
     while exc is not None and id(exc) not in seen:
         if isinstance(exc, kinds):
@@ -34,6 +34,11 @@ def stop_behind(exc: BaseException, kinds=(KeyboardInterrupt,)) -> BaseException
         exc = exc.__cause__ or exc.__context__
     return None
 
+
+# Set by interrupt_in_one_line in a script run as __main__: its run_command ignores the stops once it returns, as the
+# console scripts' _run does (a late Ctrl-C printed "Exception ignored in ..." or "SCRIPT: interrupted" after a run
+# that had succeeded)
+running_as_script = False
 
 # The stops that end a run as Ctrl-C does, with their one line: ``kill``, ``timeout``, a batch scheduler's stop; a
 # closed terminal or a dropped ssh session (warpbw.cli_common.run_command's, and the entry points' while they load)
@@ -77,9 +82,15 @@ def _run(module: str, prog: str) -> int:
                 pass
             return 128 + stop.signum
     finally:
-        for name in ("SIGINT", "SIGTERM", "SIGHUP"):
-            if hasattr(signal, name):
-                signal.signal(getattr(signal, name), signal.SIG_IGN)
+        ignore_stops()
+
+
+def ignore_stops() -> None:
+    """Ignore Ctrl-C, SIGTERM and SIGHUP from now on: what a run does once its command has returned (its outputs in
+    place, its status known), while the interpreter shuts down."""
+    for name in ("SIGINT", *STOP_SIGNALS):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
 
 
 def warpbw() -> int:
@@ -95,10 +106,13 @@ def interrupt_in_one_line(module_name: str) -> None:
     ``__main__``, a Ctrl-C that no code handles (one while it imports numpy, Warp and warpbw, before its
     ``run_command``) prints ``SCRIPT: interrupted``, as ``run_command`` does, instead of the traceback of the import
     it stopped; the interpreter still ends by SIGINT (status 130 in a shell; status 1 where the stop came out as an
-    extension's failed initialisation, :func:`stop_behind`).  Imported as a module (by the tests),
-    nothing changes."""
+    extension's failed initialisation, :func:`stop_behind`).  And once its ``run_command`` returns, the stops are
+    ignored while the interpreter shuts down (``running_as_script``), as the console scripts ignore them.  Imported
+    as a module (by the tests), nothing changes."""
+    global running_as_script
     if module_name != "__main__":
         return
+    running_as_script = True
     prog = os.path.basename(sys.argv[0])   # the script's file name, as its run_command's
     shown = sys.excepthook
 
