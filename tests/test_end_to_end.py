@@ -98,6 +98,29 @@ def write_scene(d: Path, name: str, probe: Path, material: str, extra: str = "")
 
 # ------------------------------------------------------------------------------------------ demo
 
+def test_a_render_says_which_outputs_of_an_earlier_render_at_its_o_it_leaves(tmp_path):
+    """An adaptive render, then a reference one at the same -o with --force: the reference image, preview and stats
+    replaced the adaptive ones, and the adaptive run's twelve AOVs (level, N_p, spp... maps) stayed beside them
+    without a word, as if they described the new image (processes audit, session 79).  The render now warns, before
+    its work, naming them; it leaves them as they are (they are not its outputs to remove)."""
+    (tmp_path / "scene.toml").write_text(lambert_sphere_scene(8, 8))
+    run(["render", "scene.toml", "-o", "a.exr", "--method", "adaptive", "--budget", "1", "-q"], tmp_path)
+    aovs = sorted(p.name for p in tmp_path.glob("a.*.*"))
+    assert len(aovs) == 12
+    before = {n: (tmp_path / n).read_bytes() for n in aovs}
+    r = run(["render", "scene.toml", "-o", "a.exr", "--spp", "1", "-q", "--force"], tmp_path)
+    assert r.stderr.splitlines() == [
+        "warpbw: warning: a.level.exr and 11 more: outputs of an earlier render at -o a.exr that this render does "
+        "not write: they stay beside the new image and do not describe it (remove them, or render to another -o)"]
+    assert {n: (tmp_path / n).read_bytes() for n in aovs} == before
+    assert json.loads((tmp_path / "a.json").read_text())["spp"] == 1
+    r = run(["render", "scene.toml", "-o", "a.exr", "--spp", "1", "-q", "--force"], tmp_path)   # said each time
+    assert len(r.stderr.splitlines()) == 1
+    for n in aovs:
+        (tmp_path / n).unlink()
+    assert run(["render", "scene.toml", "-o", "a.exr", "--spp", "1", "-q", "--force"], tmp_path).stderr == ""
+
+
 def test_demo_writes_exr_png_json_and_respects_force(tmp_path):
 
     out = tmp_path / "demo_out"
