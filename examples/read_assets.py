@@ -20,9 +20,10 @@ Conventions (warpbw's): directions are unit 3-vectors in the surface's local fra
 tables are isotropic (they drop the view's azimuth: the look-ups turn each query about z first); angles are
 radians; float32 on disk.
 """
-from warpbw.entry import interrupt_in_one_line
+if __name__ == "__main__":   # first: a Ctrl-C while numpy loads says one line (the readers below need no warpbw)
+    from warpbw.entry import interrupt_in_one_line
 
-interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+    interrupt_in_one_line(__name__)
 
 import argparse
 import json
