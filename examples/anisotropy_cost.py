@@ -17,6 +17,10 @@ Fewer than 3 ``--runs`` are timed, with the protocol's warning.
 """
 from __future__ import annotations
 
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+
 import math
 import statistics
 import sys

@@ -24,6 +24,10 @@ check renders at that sweep's largest spp, and the options that describe the sce
 """
 from __future__ import annotations
 
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+
 import argparse
 import json
 import math

@@ -29,6 +29,10 @@ whose ``--only`` leaves the gold bunny out runs no sweep.
 """
 from __future__ import annotations
 
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+
 import argparse
 import subprocess
 import sys

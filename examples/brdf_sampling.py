@@ -9,6 +9,10 @@ with sampling tables built by numerical inversion of the CDF (002 Sec. 3.3).  Th
 view should match in shape: f cos_i (what we want to follow), the pdf (what the tables give), and the
 histogram of samples (what the sampler draws).  Plotted over the projected hemisphere (x, y of wi).
 """
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+
 import argparse
 import sys
 from pathlib import Path

@@ -33,6 +33,10 @@ high-frequency forest.exr the bandwidth pass asks for nearly every pixel at 256x
 """
 from __future__ import annotations
 
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+
 import argparse
 import math
 import sys

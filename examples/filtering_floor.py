@@ -46,6 +46,10 @@ the ground truth is black over every pixel compared (a mirror's highlight out of
 """
 from __future__ import annotations
 
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+
 import argparse
 import math
 import sys

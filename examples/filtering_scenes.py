@@ -44,6 +44,10 @@ footprints (``warpbw.filtering``: up to N probes along the major axis) instead o
 """
 from __future__ import annotations
 
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+
 import json
 import math
 import subprocess

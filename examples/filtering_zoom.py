@@ -12,6 +12,10 @@ benchmark come from ``examples/filtering_scenes.py``.
 """
 from __future__ import annotations
 
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+
 import math
 import sys
 from pathlib import Path

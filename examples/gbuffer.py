@@ -9,6 +9,10 @@ and prints the ray-cast time (the median of ``RUNS`` launches after a warm-up la
 without ``--force``, refused before any work) write the record (the settings, the mesh's size, the device, each
 launch's time and their median, the coverage) and the plot of the launches' times and their median.
 """
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+
 import argparse
 import sys
 import time
@@ -17,7 +21,8 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpbw.cli_common import OneLineParser, check_overwrite, check_record_outputs, init_warp, run_command, write_record
+from warpbw.cli_common import (OneLineParser, check_output_dir, check_overwrite, check_record_outputs, init_warp,
+                               run_command, write_record)
 from warpbw.gbuffer import MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer
 from warpbw.io.exr import write_exr, write_false_colour_png, write_png
 from warpbw.io.mesh import load_mesh
@@ -77,7 +82,8 @@ def main():
     elif not Path(args.mesh).is_file():
         ap.error(f"--mesh {args.mesh}: no such file (expected a mesh trimesh loads: OBJ, PLY, STL, GLB)")
     out = Path(args.out)
-    check_overwrite([out / n for n in OUTPUTS], args.force)
+    check_output_dir(out, "--out")   # named by its option (they were refused as "-o OUT/NAME")
+    check_overwrite([out / n for n in OUTPUTS], args.force, "--out")
     json_path, plot_path = check_record_outputs(args.json, args.plot, args.force, inputs=[args.mesh])
     init_warp(args.device)     # --device checked; Warp's no-CUDA-driver line kept off stderr
     if Path(args.mesh).exists():

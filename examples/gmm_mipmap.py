@@ -16,6 +16,10 @@ into a distribution close to the truth, unaligned ones are averaged into lobes t
 """
 from __future__ import annotations
 
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+
 import sys
 from pathlib import Path
 

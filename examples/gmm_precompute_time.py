@@ -12,6 +12,10 @@ median ``time_s``, its runs and levels, the aim) and the plot of the seconds per
 """
 from __future__ import annotations
 
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+
 import os
 import statistics
 import sys

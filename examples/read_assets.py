@@ -20,6 +20,11 @@ Conventions (warpbw's): directions are unit 3-vectors in the surface's local fra
 tables are isotropic (they drop the view's azimuth: the look-ups turn each query about z first); angles are
 radians; float32 on disk.
 """
+if __name__ == "__main__":   # first: a Ctrl-C while numpy loads says one line (the readers below need no warpbw)
+    from warpbw.entry import interrupt_in_one_line
+
+    interrupt_in_one_line(__name__)
+
 import argparse
 import json
 import math

@@ -13,6 +13,10 @@ bench``'s; until session 75 the G-buffer was not timed); writes ref_bis.exr / re
 ``--force``, refused before any work) write the record (the settings, device and threads, ``gbuffer_time_s``, and
 per estimator every figure printed) and its plot (each estimator's time and throughput).
 """
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+
 import argparse
 import statistics
 import sys
@@ -20,8 +24,8 @@ import time
 from pathlib import Path
 
 from warpbw import brdf as B
-from warpbw.cli_common import (PROTOCOL_RUNS, RUNS_MAX, OneLineParser, check_overwrite, check_record_outputs,
-                               few_runs_warning, init_warp, run_command, write_record)
+from warpbw.cli_common import (PROTOCOL_RUNS, RUNS_MAX, OneLineParser, check_output_dir, check_overwrite,
+                               check_record_outputs, few_runs_warning, init_warp, run_command, write_record)
 from warpbw.envmap import envmap_from_array, load_envmap, procedural_sky
 from warpbw.errors import INT32_MAX, check_count
 from warpbw.gbuffer import SphereSpec, build_geometry, make_camera, render_gbuffer
@@ -94,7 +98,8 @@ def main():
     probe = Path(args.probe) if args.probe is not None else default_probe
     npf = Path(args.npf) if args.npf is not None else default_npf
     out = Path(args.out)
-    check_overwrite([out / n for n in OUTPUTS], args.force)
+    check_output_dir(out, "--out")   # named by its option (they were refused as "-o OUT/NAME")
+    check_overwrite([out / n for n in OUTPUTS], args.force, "--out")
     json_path, plot_path = check_record_outputs(args.json, args.plot, args.force, inputs=[probe, npf])
     init_warp(dev)             # --device checked; Warp's no-CUDA-driver line kept off stderr
 

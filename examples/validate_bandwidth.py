@@ -74,6 +74,10 @@ pixels; the script reports them and exits 0 unless ``--strict``.
 """
 from __future__ import annotations
 
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line(__name__)   # first: a Ctrl-C while the imports below load says one line, no traceback
+
 import argparse
 import functools
 import json

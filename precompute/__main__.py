@@ -28,6 +28,7 @@ from precompute.gmm_mipmap import DEFAULT_PRIOR, MAX_COMPONENTS, MAX_PRIOR
 from precompute.surfaces import MAX_SURFACE_SIZE, MIN_SURFACE_SIZE
 from warpbw import __version__
 from warpbw.errors import WarpbwError
+from warpbw.io.staged import check_still_free
 from warpbw.scene import LOOKUP_MODES
 
 
@@ -88,6 +89,7 @@ def _table_command(args, build, write, describe) -> int:
     t0 = time.perf_counter()
     source = brdf_source(args.file, args.material, getattr(args, "lookup", None))
     table = build(source, progress=not args.quiet)
+    check_still_free(out, args.force)   # another run's, finished first: said so, not "pass --force"
     write(out, table, source, force=args.force)
     print(printable(f"{out}  ({describe(source, table)}, {time.perf_counter() - t0:.1f} s)"))
     return 0
@@ -216,6 +218,7 @@ def cmd_gmm(args) -> int:
     except WarpbwError as exc:    # the builder names its parameters; here they are options
         msg = str(exc)
         raise WarpbwError(f"--{msg}" if msg.split(" ", 1)[0] in ("components", "prior", "scale") else msg) from None
+    check_still_free(out, args.force)   # another run's, finished first: said so, not "pass --force"
     write_gmm_mipmap(out, mip, name, digest, force=args.force,
                      inputs=[] if args.map.startswith("surface:") else [args.map])
     h, w = mip.shape

@@ -55,15 +55,18 @@ class BatchItem:
 
 
 def _folder_items(folder: Path) -> list:
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() == MERL_SUFFIX and p.is_file())
+    # hidden files are no BRDFs: a writer's temporary (npf-to-merl's .NAME.HOST-PID.RANDOM.part.binary, one a kill
+    # left or one still being written) failed the batch, as would macOS's ._NAME.binary
+    files = sorted(p for p in folder.iterdir()
+                   if p.suffix.lower() == MERL_SUFFIX and not p.name.startswith(".") and p.is_file())
     if not files:
         raise WarpbwError(f"{folder}: a folder without MERL files (expected files ending in {MERL_SUFFIX})")
     return [BatchItem(str(p), None, p.stem) for p in files]
 
 
 def batch_items(sources, materials=None) -> list:
-    """The BRDFs of ``sources`` (NPF tables, MERL files, folders of MERL files), in order; ``materials`` (names, or
-    None for all 100) picks an NPF table's."""
+    """The BRDFs of ``sources`` (NPF tables, MERL files, folders of MERL files: their hidden files skipped), in
+    order; ``materials`` (names, or None for all 100) picks an NPF table's."""
     from warpbw.io.merl import MERL_FILE_SIZE
     from warpbw.io.npf import NPF_FILE_SIZE, NPF_MATERIAL_NAMES, read_npf
 

@@ -21,7 +21,7 @@ from pathlib import Path
 from warpbw.errors import WarpbwError
 from warpbw.io.merl import TABULATION_VERSION, tabulate_merl, write_merl
 from warpbw.io.npf import npf_eval, read_npf
-from warpbw.io.staged import check_replaceable
+from warpbw.io.staged import check_replaceable, check_still_free
 
 
 def npf_to_merl(table, material: str, out, force: bool = False) -> Path:
@@ -32,6 +32,7 @@ def npf_to_merl(table, material: str, out, force: bool = False) -> Path:
         raise WarpbwError(f"{out}: expected a MERL file name ending in .binary")
     mat = read_npf(table, material)
     data = tabulate_merl(lambda wi, wo: npf_eval(mat, wi, wo, interpolate=True), name=f"{table}:{mat.name}")
+    check_still_free(out, force)   # another run's, finished first: said so, not "pass --force"
     return write_merl(out, data, force=force, inputs=[table])
 
 

@@ -806,6 +806,46 @@ def test_precompute_options_the_synopsis_always_gives_are_required(tmp_path, mon
     assert not (tmp_path / "x.binary").exists()
 
 
+@pytest.mark.parametrize("command", ["brdf-sampling", "gmm", "npf-to-merl"])
+def test_a_precompute_output_that_appears_during_the_work_is_said_to_have_appeared(tmp_path, monkeypatch, capsys,
+                                                                                    command):
+    """Two ``warpbw-precompute brdf chrome.binary -o c.npz`` at once (processes audit, session 79): the one that
+    finished second was refused with "c.npz: already exists (pass --force to overwrite it)", about a file that was
+    not there when it started, and pointing to --force as if the user had named a file of theirs.  An output that
+    appears while the command works (another run of it, the user) is refused as staged_outputs refuses it, saying
+    it appeared, and the file that appeared is kept."""
+    import precompute.brdf_sampling
+    import precompute.gmm_mipmap
+    import precompute.npf_to_merl
+    from precompute.__main__ import main
+    from warpbw.io.merl import MERL_SHAPE
+
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    out = {"brdf-sampling": "s.npz", "gmm": "g.npz", "npf-to-merl": "m.binary"}[command]
+
+    def meanwhile(work):   # the other run finishes first, during this one's work
+        def stand_in(*args, **kwargs):
+            (tmp_path / out).write_text("the other run's")
+            return work(*args, **kwargs)
+        return stand_in
+
+    monkeypatch.setattr(precompute.brdf_sampling, "build_brdf_sampling",
+                        meanwhile(lambda *a, **k: uniform_sampler_table()))
+    monkeypatch.setattr(precompute.gmm_mipmap, "build_gmm_mipmap", meanwhile(precompute.gmm_mipmap.build_gmm_mipmap))
+    monkeypatch.setattr(precompute.npf_to_merl, "tabulate_merl", meanwhile(lambda *a, **k: np.full(MERL_SHAPE, 0.1)))
+    argv = {"brdf-sampling": ["brdf-sampling", "npf.bin", "--material", "chrome"],
+            "gmm": ["gmm", "surface:dunes:33"],
+            "npf-to-merl": ["npf-to-merl", "--table", "npf.bin", "--material", "chrome"]}[command]
+    got = outcome(main, [*argv, "-o", out, "-q"][: None if command != "npf-to-merl" else -1])
+    err = capsys.readouterr().err.strip()
+    assert got == "returned 2", (got, err)
+    assert err == (f"warpbw-precompute: error: {out}: already exists: it appeared while this run worked (another run "
+                   "writing it, or you), and is kept; nothing of this run was written (pass --force to overwrite it)")
+    assert (tmp_path / out).read_text() == "the other run's"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["npf.bin", out])
+
+
 def _written(path: Path, data: bytes) -> Path:
     path.write_bytes(data)
     return path
@@ -1735,13 +1775,23 @@ def test_a_frame_whose_covered_pixels_are_all_black_warns_in_one_line(tmp_path, 
     ("warpbw.cli", ["bench-filtering", "planes.toml", "--json", "b.json", "--cache", "afile"],
      ["--cache afile", "not a directory"]),
     ("warpbw.cli", ["bench", "scene.toml", "--json", "dir.json", "--force"], ["--json dir.json", "is a directory"]),
+    # under a link to a folder that is not there (processes audit, session 79): the whole work, then "cannot write
+    # (File exists)", the errno of the mkdir on the link
+    ("warpbw.cli", ["render", "scene.toml", "-o", "gone/sub/x.exr", "--spp", "1"],
+     ["-o gone/sub/x.exr: gone is a link to", "which does not exist"]),
+    ("warpbw.cli", ["demo", "-o", "gone", "--spp", "1"], ["-o gone: a link to", "which does not exist"]),
+    ("warpbw.cli", ["bench", "scene.toml", "--json", "gone/b.json"], ["--json gone/b.json: gone is a link to"]),
+    ("warpbw.cli", ["bench", "scene.toml", "--json", "b.json", "--cache", "gone"], ["--cache gone: a link to"]),
+    ("precompute", ["gmm", "surface:dunes:17", "-o", "gone/x.npz"], ["-o gone/x.npz: gone is a link to"]),
 ], ids=["gmm -o dir", "brdf-sampling -o dir", "brdf -o under a file", "npf-to-merl -o dir", "demo -o file",
         "render -o under a file", "render -o dir", "bench --cache file", "bench-filtering --cache file",
-        "bench --json dir"])
+        "bench --json dir", "render -o under a dangling link", "demo -o dangling link",
+        "bench --json under a dangling link", "bench --cache dangling link", "gmm -o under a dangling link"])
 def test_unwritable_output_paths_are_refused_up_front(tmp_path, module, args, needles):
-    """An -o that is a directory (even with --force), a path under a file, a --cache that is a file: one line
-    naming the option before any work (these failed after the build with a raw errno, leaving OUT.tmp behind,
-    or ignored the --cache), and nothing written."""
+    """An -o that is a directory (even with --force), a path under a file or under a link to nothing, a --cache that
+    is a file: one line naming the option before any work (these failed after the build with a raw errno, leaving
+    OUT.tmp behind, or ignored the --cache), and nothing written."""
+    (tmp_path / "gone").symlink_to(tmp_path / "never-made")
     write_scene(tmp_path)
     (tmp_path / "planes.toml").write_text(PLANE_SCENE.replace('normal_map = "map.exr"\n', ""))
     fake_npf_table(tmp_path / "npf.bin")
@@ -2420,6 +2470,7 @@ def _example_inputs(d: Path) -> None:
     (d / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     (d / "afile").write_text("keep")
     (d / "adir").mkdir()
+    (d / "gone").symlink_to(d / "never-made")   # a link to nothing
 
 
 def _tree(d: Path) -> dict:
@@ -2665,6 +2716,10 @@ def test_compare_mitsuba_checks_its_conventions_on_the_scalar_variant(tmp_path):
     (["bench_scenes.py", "--out", "s", "--run", "--results", "afile/r"], ["--results afile/r: afile is not a directory"]),
     (["bunny_on_floor.py", "--out", "afile"], ["--out afile: not a directory"]),
     (["bunny_on_floor.py", "--out", "afile/m"], ["--out afile/m: afile is not a directory"]),
+    # these two named their --out "-o" (-o afile/normal.png: afile is not a directory; session 79)
+    (["gbuffer.py", "--resolution", "8", "8", "--out", "afile"], ["--out afile: not a directory"]),
+    (["reference_estimator.py", "--probe", "probe.exr", "--spp", "1", "--resolution", "8", "8", "--out", "gone/r"],
+     ["--out gone/r: gone is a link to", "which does not exist"]),
     # --runs had no upper bound in these (warpbw bench's is 1000): 2^31 ran until killed
     (["anisotropy_cost.py", "planes.toml", "--zoom", "1", "--size", "8x8", "--runs", "1001"],
      ["--runs 1001: expected at most 1000"]),
@@ -2680,7 +2735,7 @@ def test_compare_mitsuba_checks_its_conventions_on_the_scalar_variant(tmp_path):
         "dynamic_geometry budget", "dynamic_geometry size", "validate_bandwidth size", "validate_bandwidth seed",
         "validate_bandwidth size past 16384", "validate_bandwidth nb", "validate_bandwidth nb-diagnostic",
         "validate_bandwidth out", "bench_scenes out", "bench_scenes results", "bunny_on_floor out",
-        "bunny_on_floor out under a file", "anisotropy_cost runs", "compare_mitsuba runs", "gmm_precompute_time runs",
+        "bunny_on_floor out under a file", "gbuffer out", "reference_estimator out under a dangling link", "anisotropy_cost runs", "compare_mitsuba runs", "gmm_precompute_time runs",
         "reference_estimator runs"])
 def test_examples_refuse_values_up_front_naming_their_own_options(tmp_path, argv, needles):
     """each of these failed after loading assets or preparing the scene (a raw traceback, or an error

@@ -126,6 +126,24 @@ def test_a_brdf_that_cannot_be_read_fails_alone(tmp_path, monkeypatch, capsys):
     assert [r["error"] is None for r in record["items"]] == [True, False, True]
 
 
+def test_a_folders_hidden_files_are_no_brdfs(tmp_path):
+    """A folder of MERL files held the hidden temporary of an ``npf-to-merl`` killed while it wrote there (or still
+    writing: ``.chrome.HOST-PID.RANDOM.part.binary``): ``batch FOLDER`` took it for a BRDF, failed it ("expected
+    34992012 bytes") and exited 1 (processes audit, session 79); a macOS "._grey.binary" would have too.  A folder's
+    hidden files are skipped; one named on the command line is read as any file."""
+    from precompute.batch import batch_items
+
+    merls = tmp_path / "merls"
+    merls.mkdir()
+    _merl(merls / "grey.binary")
+    (merls / ".grey.1a2b3c4d-4242.abcdefgh.part.binary").write_bytes(b"cut off")
+    (merls / "._grey.binary").write_bytes(b"AppleDouble")
+    assert [(it.name, it.path) for it in batch_items([merls])] == [("grey", str(merls / "grey.binary"))]
+    hidden = merls / ".hidden.binary"
+    _merl(hidden)
+    assert [it.name for it in batch_items([hidden])] == [".hidden"]
+
+
 def test_resume_keeps_this_brdfs_tables_builds_the_rest_and_refuses_a_stranger(tmp_path, monkeypatch, capsys):
     """A stopped batch goes on with --resume: a table that reads back as its BRDF's is kept (its bytes and time
     untouched), a missing one is built; a file in its place that is another BRDF's table is refused, and replaced

@@ -98,6 +98,29 @@ def write_scene(d: Path, name: str, probe: Path, material: str, extra: str = "")
 
 # ------------------------------------------------------------------------------------------ demo
 
+def test_a_render_says_which_outputs_of_an_earlier_render_at_its_o_it_leaves(tmp_path):
+    """An adaptive render, then a reference one at the same -o with --force: the reference image, preview and stats
+    replaced the adaptive ones, and the adaptive run's twelve AOVs (level, N_p, spp... maps) stayed beside them
+    without a word, as if they described the new image (processes audit, session 79).  The render now warns, before
+    its work, naming them; it leaves them as they are (they are not its outputs to remove)."""
+    (tmp_path / "scene.toml").write_text(lambert_sphere_scene(8, 8))
+    run(["render", "scene.toml", "-o", "a.exr", "--method", "adaptive", "--budget", "1", "-q"], tmp_path)
+    aovs = sorted(p.name for p in tmp_path.glob("a.*.*"))
+    assert len(aovs) == 12
+    before = {n: (tmp_path / n).read_bytes() for n in aovs}
+    r = run(["render", "scene.toml", "-o", "a.exr", "--spp", "1", "-q", "--force"], tmp_path)
+    assert r.stderr.splitlines() == [
+        "warpbw: warning: a.level.exr and 11 more: outputs of an earlier render at -o a.exr that this render does "
+        "not write: they stay beside the new image and do not describe it (remove them, or render to another -o)"]
+    assert {n: (tmp_path / n).read_bytes() for n in aovs} == before
+    assert json.loads((tmp_path / "a.json").read_text())["spp"] == 1
+    r = run(["render", "scene.toml", "-o", "a.exr", "--spp", "1", "-q", "--force"], tmp_path)   # said each time
+    assert len(r.stderr.splitlines()) == 1
+    for n in aovs:
+        (tmp_path / n).unlink()
+    assert run(["render", "scene.toml", "-o", "a.exr", "--spp", "1", "-q", "--force"], tmp_path).stderr == ""
+
+
 def test_demo_writes_exr_png_json_and_respects_force(tmp_path):
 
     out = tmp_path / "demo_out"
@@ -1320,6 +1343,48 @@ def test_every_example_explains_itself(script, tmp_path):
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     assert r.stdout.startswith("usage:"), r.stdout[:200]
     assert list(tmp_path.iterdir()) == []
+
+
+# A sitecustomize for the children below: a real SIGINT, sent by the child to itself when the script it runs first
+# imports numpy, Warp or warpbw's command line (every example imports one of them before its run_command), so that
+# the stop lands while it loads, as a Ctrl-C in its first seconds does, at no time left to chance
+_SIGINT_AS_IT_LOADS = """\
+import os, signal, sys
+
+class _StopAsItLoads:
+    def find_spec(self, name, path=None, target=None):
+        if name in ("numpy", "warp", "warpbw.cli_common") and sys.argv[0].endswith(".py"):
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), signal.SIGINT)
+        return None
+
+sys.meta_path.insert(0, _StopAsItLoads())
+"""
+
+
+def test_every_example_says_a_ctrl_c_while_it_loads_in_one_line(tmp_path):
+    """A Ctrl-C while an example imports numpy, Warp and warpbw (1 to 18 s on a busy machine, before its
+    run_command) printed the traceback of whichever import it stopped, where the warpbw commands say one line
+    (processes audit, session 79).  Each example, run as a script and sent SIGINT as it first imports one of them, now
+    says "SCRIPT: interrupted" alone and ends by SIGINT (status 130 in a shell), having written nothing."""
+    import signal
+
+    (tmp_path / "hook").mkdir()
+    (tmp_path / "hook" / "sitecustomize.py").write_text(_SIGINT_AS_IT_LOADS)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path / "hook"), *sys.path]))
+    work = tmp_path / "work"
+    work.mkdir()
+    children = {script.name: subprocess.Popen([sys.executable, str(script), "--help"], cwd=work, env=env,
+                                              stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                              text=True,
+                                              preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                for script in EXAMPLES}
+    said = {}
+    for name, child in children.items():
+        out, err = child.communicate(timeout=120)
+        said[name] = (child.returncode, err.strip(), out)
+    assert said == {name: (-signal.SIGINT, f"{name}: interrupted", "") for name in children}
+    assert list(work.iterdir()) == []
 
 
 def _readme_commands():

@@ -188,6 +188,45 @@ def test_write_merl_refuses_a_read_only_file_and_its_inputs_even_with_force(tmp_
     assert src.read_bytes() == b"the MERL file it is made from" and _leftovers(tmp_path) == []
 
 
+def test_two_forced_writers_of_one_set_move_it_one_after_the_other(tmp_path, monkeypatch):
+    """Two ``--force`` runs of one output set (image and record) that finished together moved their files in turns:
+    the first moved its image, the second both its files, the first its record, and the set was the second's image
+    beside the first's record (processes audit, session 79: each file whole, the set mixed).  Now each run moves its
+    set holding a lock on the set's folders, so the last to finish wins whole.  Truth: the second run starts its
+    moves once the first has moved its image, and the first waits there until the second has moved a file (at most
+    a second: with the lock the second cannot before the first is done, and the set is the second's whatever the
+    wait)."""
+    import threading
+
+    outs = [tmp_path / "image.exr", tmp_path / "image.json"]
+    real = os.replace
+    first_moved_image, second_moved = threading.Event(), threading.Event()
+
+    def replace(src, dst, *args, **kwargs):
+        real(src, dst, *args, **kwargs)
+        if threading.current_thread().name == "second":
+            second_moved.set()
+        elif Path(dst).name == "image.exr":
+            first_moved_image.set()
+            second_moved.wait(timeout=1.0)
+
+    def write(name, before_moves=None):
+        with staged_outputs(outs, force=True) as at:
+            for p in outs:
+                at[p].write_text(name)
+            if before_moves is not None:
+                before_moves.wait(timeout=60)
+
+    monkeypatch.setattr(os, "replace", replace)
+    runs = [threading.Thread(target=write, args=("first",), name="first"),
+            threading.Thread(target=write, args=("second", first_moved_image), name="second")]
+    for t in runs:
+        t.start()
+    for t in runs:
+        t.join(timeout=60)
+    assert [p.read_text() for p in outs] == ["second", "second"] and _leftovers(tmp_path) == []
+
+
 def test_two_writers_of_one_output_get_temporaries_of_their_own(tmp_path):
     """Each writer has its own temporary.  Of two runs writing one new output without --force, the first to finish
     writes it and the second is refused, naming it (both had passed the check before their work; the second
@@ -569,6 +608,111 @@ def test_the_console_scripts_answer_a_ctrl_c_during_their_imports_with_one_line(
     finally:
         for sig, handler in saved.items():
             signal.signal(sig, handler)
+
+
+_STOPPED_WHILE_LOADING = """
+import importlib, os, signal, sys
+from warpbw import entry
+
+def loading(name):   # the stop arrives while the command line's modules (numpy, Warp) load
+    os.kill(os.getpid(), getattr(signal, sys.argv[1]))
+    return real(name)
+
+real, importlib.import_module = importlib.import_module, loading
+sys.exit(entry.warpbw())
+"""
+
+
+@pytest.mark.parametrize("sig, status, said", [("SIGTERM", 143, "warpbw: terminated"),
+                                               ("SIGHUP", 129, "warpbw: hung up")])
+def test_the_console_scripts_answer_a_sigterm_during_their_imports_with_one_line(tmp_path, sig, status, said):
+    """A SIGTERM or SIGHUP while ``warpbw`` loaded numpy and Warp (its first seconds, before run_command) ended the
+    process where it stood, without the line the README promises (processes audit, session 79); a Ctrl-C there
+    already said one.  Truth: a real process whose stop arrives as it imports its command line."""
+    import signal
+    import subprocess
+
+    r = subprocess.run([sys.executable, "-c", _STOPPED_WHILE_LOADING, sig], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=300, preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_DFL))
+    assert (r.returncode, r.stderr.strip(), r.stdout) == (status, said, "")
+
+
+_STOPPED_AS_A_SCRIPT_EXITS = """
+import os, signal, sys, time
+from warpbw.entry import interrupt_in_one_line
+
+interrupt_in_one_line("__main__")   # as every script under examples/ calls it first
+from warpbw.cli_common import run_command
+
+status = run_command("script.py", lambda args: 0, None)
+for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):   # stops while the interpreter shuts down, after the run
+    os.kill(os.getpid(), sig)
+    time.sleep(0.1)
+sys.exit(status)
+"""
+
+
+def test_a_script_ignores_a_stop_once_its_run_is_done(tmp_path):
+    """The console scripts ignore the stops once their command has returned (a late Ctrl-C printed "Exception ignored
+    in ..." from a Warp array's destructor or the thread pool's exit, after a run that had succeeded); the examples,
+    which call run_command themselves, did not (processes audit, session 79).  A script that called
+    ``interrupt_in_one_line`` now ignores them once its run_command returns.  Truth: a real process sent SIGINT
+    after its run."""
+    import signal
+    import subprocess
+
+    r = subprocess.run([sys.executable, "-c", _STOPPED_AS_A_SCRIPT_EXITS], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=300, preexec_fn=lambda: [signal.signal(signal.SIGINT, signal.SIG_DFL),
+                                                                   signal.signal(signal.SIGHUP, signal.SIG_DFL)])
+    assert (r.returncode, r.stderr, r.stdout) == (0, "", "")
+
+
+def _initialisation_failed(stop: BaseException):
+    """What a stop that lands in a pybind11 extension's initialisation (matplotlib's ft2font, imported at a command's
+    first PNG) reaches Python as: "ImportError: initialization failed", raised from the stop."""
+    def stand_in(*args, **kwargs):
+        raise ImportError("initialization failed") from stop
+    return stand_in
+
+
+@pytest.mark.parametrize("stop, status, said", [("SIGINT", 130, "warpbw: interrupted"),
+                                                ("SIGTERM", 143, "warpbw: terminated")])
+def test_a_stop_inside_an_extensions_initialisation_ends_a_command_in_one_line(monkeypatch, capsys, stop, status,
+                                                                               said):
+    """A Ctrl-C at 3.3 s of an adaptive render (processes audit, session 79) landed while matplotlib's ft2font
+    initialised, for the first false-colour PNG: Python raised "ImportError: initialization failed" from the
+    KeyboardInterrupt, which no handler took, and the run ended with both tracebacks and status 1.  A stop behind the
+    error (its cause or context) now ends the command as the stop does, in one line with the stop's status; the
+    console scripts' imports, and the examples' (whose excepthook says it), likewise."""
+    import importlib
+    import signal
+
+    from warpbw import entry
+    from warpbw.cli_common import _Terminated, run_command
+
+    the_stop = KeyboardInterrupt() if stop == "SIGINT" else _Terminated(signal.SIGTERM)
+    assert run_command("warpbw", _initialisation_failed(the_stop), None) == status
+    assert capsys.readouterr().err.splitlines() == [said]
+    with pytest.raises(ImportError):   # one that no stop caused is no stop: its traceback is shown
+        run_command("warpbw", _initialisation_failed(ValueError("a real defect")), None)
+    if stop != "SIGINT":
+        return
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:   # the console scripts, stopped while they import numpy and Warp
+        monkeypatch.setattr(importlib, "import_module", _initialisation_failed(KeyboardInterrupt()))
+        assert entry.warpbw() == 130
+        assert capsys.readouterr().err.splitlines() == ["warpbw: interrupted"]
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+    monkeypatch.setattr(sys, "argv", ["examples/gbuffer.py"])   # an example, stopped while it imports
+    monkeypatch.setattr(sys, "excepthook", lambda *exc: print("a traceback", file=sys.stderr))
+    entry.interrupt_in_one_line("__main__")
+    try:
+        _initialisation_failed(KeyboardInterrupt())()
+    except ImportError as exc:
+        sys.excepthook(type(exc), exc, exc.__traceback__)
+    assert capsys.readouterr().err.splitlines() == ["gbuffer.py: interrupted"]
 
 
 def test_an_output_named_twice_is_written_once_and_leaves_no_temporary(tmp_path):

@@ -172,6 +172,7 @@ def _render(scene, out: Path, spp: int, seed: int, mis: bool, device: str, expos
     paths = (list(outs.values()) + ([p for pair in _aov_paths(out).values() for p in pair] if adaptive else [])
              + list(texts))
     check_overwrite(paths, force, inputs=scene.input_files())
+    _warn_of_earlier_outputs(out, paths)
     init_warp(device)
     t0 = time.perf_counter()
     if adaptive:
@@ -253,6 +254,7 @@ def _render_filtering_cli(scene, args) -> int:
     outs = _outputs(out)
     level_paths = _level_map_paths(out, ".level", method)
     check_overwrite(list(outs.values()) + level_paths, args.force, inputs=scene.input_files())
+    _warn_of_earlier_outputs(out, list(outs.values()) + level_paths)
     init_warp(args.device)
     t0 = time.perf_counter()
     aniso = {} if args.max_anisotropy is None else {"max_anisotropy": args.max_anisotropy}
@@ -289,6 +291,25 @@ def _level_map_paths(out: Path, suffix: str, method: str) -> list:
     return [out.with_suffix(f"{suffix}.exr"), out.with_suffix(f"{suffix}.png")]
 
 
+def _warn_of_earlier_outputs(out: Path, paths) -> None:
+    """Warn, before the work, of the outputs an earlier render at ``-o out`` wrote that this one does not (``paths``
+    are this one's): an adaptive render's AOVs, a filtered one's mip level map.  They stay beside the new image and
+    no longer describe it (an adaptive render, then a reference one with --force, left the adaptive run's level,
+    N_p and spp maps beside the reference image: processes audit, session 79)."""
+    import warnings
+
+    every = dict.fromkeys([*_outputs(out).values(), *(p for pair in _aov_paths(out).values() for p in pair),
+                           *_level_map_paths(out, ".level", None), *_level_map_paths(out, ".mip_level", None)])
+    left = [p for p in every if p not in set(paths) and p.is_file()]
+    if left:
+        what = ("an earlier render's output at -o {} that this render does not write: it stays beside the new image "
+                "and does not describe it" if len(left) == 1 else
+                f"and {len(left) - 1} more: outputs of an earlier render at -o {{}} that this render does not write: "
+                "they stay beside the new image and do not describe it")
+        warnings.warn(f"{left[0]}{':' if len(left) == 1 else ''} {what.format(out)} (remove "
+                      f"{'it' if len(left) == 1 else 'them'}, or render to another -o)", stacklevel=2)
+
+
 def _filter_method(args) -> str:
     """--filter (gmm_aligned by default), with the options that go with it checked before any work: the ground truth
     traces at least MIN_GT_SPP rays per pixel and filters nothing (a plane scene and a mixed one alike; the mixed
@@ -316,6 +337,7 @@ def _render_mixed_cli(scene, args) -> int:
     aov_paths = [p for pair in _aov_paths(out).values() for p in pair] if adaptive else []
     paths = list(outs.values()) + aov_paths + mip_paths
     check_overwrite(paths, args.force, inputs=scene.input_files())
+    _warn_of_earlier_outputs(out, paths)
     init_warp(args.device)
     t0 = time.perf_counter()
     res = render_with_planes(scene, method, args.spp, seed=args.seed, method=args.method, budget=args.budget,

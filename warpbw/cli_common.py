@@ -32,8 +32,11 @@ import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
+from warpbw import entry
+from warpbw.entry import STOP_SIGNALS, stop_behind
 from warpbw.errors import SEED_MAX, WarpbwError, check_device
-from warpbw.io.staged import check_existing_output, check_name_length, input_clash, output_exists, staged_outputs
+from warpbw.io.staged import (check_existing_output, check_name_length, dangling_link, input_clash, output_exists,
+                              staged_outputs)
 from warpbw.native_output import init_warp_quietly, kernel_cache_write_error, remove_unfinished_kernel_builds
 
 EXIT_USER_ERROR = 2
@@ -119,8 +122,12 @@ def parse_seed(s: str) -> int:
 
 def _check_parents(path: Path, option: str) -> None:
     """The nearest existing ancestor of ``path`` must be a directory in which a file can be made (else mkdir or the
-    write fails after the work): a temporary file is made there and removed."""
+    write fails after the work): a temporary file is made there and removed.  None on the way may be a link to
+    nothing (``warpbw.io.staged.dangling_link``): no folder can be made in its place."""
     for parent in path.parents:
+        link = dangling_link(parent)
+        if link is not None:
+            raise WarpbwError(f"{option} {path}: {parent} is {link}")
         if parent.exists():
             if not parent.is_dir():
                 raise WarpbwError(f"{option} {path}: {parent} is not a directory")
@@ -152,6 +159,9 @@ def check_output_dir(path, option: str) -> None:
     too long."""
     p = Path(path)
     check_name_length(p, f"{option} {p}")   # first: Python 3.11's exists raises on a name too long
+    link = dangling_link(p)
+    if link is not None:
+        raise WarpbwError(f"{option} {p}: {link} (expected a directory, made if absent)")
     if p.exists() and not p.is_dir():
         raise WarpbwError(f"{option} {p}: not a directory (expected a directory, made if absent)")
     if p.is_dir():
@@ -164,10 +174,8 @@ def check_output_dir(path, option: str) -> None:
 WARP_ALLOCATION_FAILED = "Failed to allocate"
 
 
-# The stops that end a run as Ctrl-C does, with their one line: ``kill``, ``timeout``, a batch scheduler's stop; a
-# closed terminal or a dropped ssh session (SIGHUP ended the process where it stood and left its temporaries)
-STOP_SIGNALS = {name: word for name, word in (("SIGTERM", "terminated"), ("SIGHUP", "hung up"))
-                if hasattr(signal, name)}
+# STOP_SIGNALS (warpbw.entry's): the stops that end a run as Ctrl-C does, with their one line (SIGHUP ended the
+# process where it stood and left its temporaries)
 
 
 class _Terminated(BaseException):
@@ -221,19 +229,38 @@ def _stops_in_destructors_unsaid():
         sys.unraisablehook = previous
 
 
+@contextmanager
+def _script_ends_ignoring_stops():
+    """When the block ends in a script run as ``__main__`` (``warpbw.entry.running_as_script``, set by its
+    ``interrupt_in_one_line``), ignore the stops from then on, while the interpreter ends, as the console scripts'
+    entry points do (a late Ctrl-C printed "Exception ignored in ..." or "SCRIPT: interrupted" after its run)."""
+    try:
+        yield
+    finally:
+        if entry.running_as_script and threading.current_thread() is threading.main_thread():
+            entry.ignore_stops()
+
+
 def run_command(prog: str, func, args) -> int:
     """Run a subcommand; user errors and warnings print as one line each (``PROG: error: ...``).  Ctrl-C, SIGTERM
     and SIGHUP stop it with one line and the shell's status for the signal, its outputs untouched (and no build folder
-    of a compile it stopped left in Warp's kernel cache)."""
+    of a compile it stopped left in Warp's kernel cache), also where the stop came out as another error raised from it
+    (an extension's initialisation it stopped: ``warpbw.entry.stop_behind``)."""
 
     def show_warning(message, category, filename, lineno, file=None, line=None):
         # warnings (an environment with clamped pixels, unmeasured MERL entries...) as one line each
         print(f"{prog}: warning: {printable(message)}", file=sys.stderr if file is None else file)
 
-    with warnings.catch_warnings(), _sigterm_raises(), _stops_in_destructors_unsaid():
+    with _script_ends_ignoring_stops(), warnings.catch_warnings(), _sigterm_raises(), _stops_in_destructors_unsaid():
         warnings.showwarning = show_warning
         try:
-            status = func(args)
+            try:
+                status = func(args)
+            except Exception as exc:   # a stop that an extension's initialisation turned into an ImportError
+                stop = stop_behind(exc, (KeyboardInterrupt, _Terminated))
+                if stop is None:
+                    raise
+                raise stop from None
             sys.stdout.flush()   # here, where a closed pipe is caught, rather than at exit
             return status
         except BrokenPipeError:

@@ -3,9 +3,11 @@
 Public: ``staged_outputs(paths, force=True)``; ``check_replaceable(path, force, inputs=(), inputs_are=...) -> Path``
 (what every writer that takes ``force`` checks before its work), ``input_clash(path, inputs, inputs_are=...) ->
 str | None``, ``output_exists(path)``, ``check_existing_output(path, force, label)``, ``check_name_length(path,
-label)`` and ``check_not_read_only(path, label)`` (its parts the command lines share); ``remove_stale_temps(path)``
-(what the readers of a cache entry call: see below); ``temporary_folder(prefix, parent)`` (a work folder, removed at
-the end, whose name says its process: one a SIGKILL left is removed by the next run that makes one of that prefix).
+label)``, ``check_not_read_only(path, label)`` and ``dangling_link(path)`` (its parts the command lines share);
+``check_still_free(path, force)`` (after the work, before a writer that checks again: an output that appeared
+meanwhile); ``remove_stale_temps(path)`` (what the readers of a cache entry call: see below);
+``temporary_folder(prefix, parent)`` (a work folder, removed at the end, whose name says its process: one a SIGKILL
+left is removed by the next run that makes one of that prefix).
 
 Every writer of warpbw (images, records, plots, asset and cache files) writes to a temporary file beside its
 output, and the outputs of one command are moved into place together once all of them are written.  So
@@ -20,7 +22,8 @@ output, and the outputs of one command are moved into place together once all of
 * an existing output is replaced, never written through: a hard link to it, or a symlink at its place, keeps
   the file it pointed at (``--force`` once rewrote a light probe hard-linked to ``-o``);
 * two runs that write the same output at once do not write into one temporary file: each has its own
-  (``mkstemp``, created exclusively, never through a link).  Without ``force``, an output that is there when the
+  (``mkstemp``, created exclusively, never through a link), and move their sets into place one after the other (a
+  ``flock`` on the outputs' folders while the moves run).  Without ``force``, an output that is there when the
   outputs are moved appeared while the run worked (the check before the work found none: another run finished
   first, or the user wrote it meanwhile): it is kept, and the run refused, no output of it moved.  With ``force``
   (``--force``, and caches, which two runs may write at once) the last to finish wins whole;
@@ -95,6 +98,20 @@ def output_exists(path) -> bool:
     too, and was replaced without a word)."""
     p = Path(path)
     return p.exists() or p.is_symlink()
+
+
+def dangling_link(path) -> str | None:
+    """``"a link to TARGET, which does not exist"`` when ``path`` is a symbolic link to nothing, else None.  A folder
+    cannot be made in its place (mkdir says "File exists"), nor a file written through it where its target's folder
+    is missing: an output under one failed after the work, with "cannot write (File exists)"."""
+    p = Path(path)
+    try:
+        if not p.is_symlink() or p.exists():
+            return None
+        target = os.readlink(p)
+    except OSError:   # a name too long, a folder that cannot be read: not for this check to say
+        return None
+    return f"a link to {target}, which does not exist"
 
 
 def check_existing_output(path, force: bool, label: str) -> None:
@@ -306,9 +323,69 @@ def _signals_held():
             signal.raise_signal(sig)
 
 
+# The longest a run waits for another's lock on an output folder (another run holds it for the microseconds of its
+# moves; a lock some other program keeps on the folder must not hold a Ctrl-C, held while the moves run, for ever)
+FOLDER_LOCK_WAIT_S = 10.0
+
+
+def _flock_within(fd: int, wait_s: float) -> bool:
+    """An exclusive ``flock`` on ``fd``, waited for at most ``wait_s`` seconds; whether it was taken (never where
+    the system has no ``fcntl``)."""
+    import time
+
+    try:
+        import fcntl
+    except ImportError:   # Windows
+        return False
+
+    end = time.monotonic() + wait_s
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+        except BlockingIOError:
+            if time.monotonic() >= end:
+                return False
+            time.sleep(0.001)
+        except OSError:   # a file system without locks
+            return False
+
+
+@contextmanager
+def _folders_locked(folders):
+    """While the block runs, hold an exclusive ``flock`` on each of ``folders`` (taken in sorted order: two runs wait
+    for each other, never for ever), so that two runs moving outputs into one folder move them one set after the
+    other.  A folder that cannot be opened or locked (no ``fcntl``: Windows; a file system without locks; a lock held
+    past ``FOLDER_LOCK_WAIT_S``) is moved into without one, as before."""
+    fds = []
+    try:
+        for folder in sorted({str(f) for f in folders}):
+            try:
+                fd = os.open(folder, os.O_RDONLY)
+            except OSError:
+                continue
+            if _flock_within(fd, FOLDER_LOCK_WAIT_S):
+                fds.append(fd)
+            else:
+                os.close(fd)
+        yield
+    finally:
+        for fd in fds:
+            os.close(fd)   # which releases its lock
+
+
 def _appeared(p: Path) -> WarpbwError:
     return WarpbwError(f"{p}: already exists: it appeared while this run worked (another run writing it, or you), "
                        "and is kept; nothing of this run was written (pass --force to overwrite it)")
+
+
+def check_still_free(path, force: bool) -> None:
+    """Without ``force``, refuse ``path`` if it is there now, once the work is done, where a check before the work
+    found none: it appeared meanwhile (:func:`_appeared`).  For a command that hands its output to a writer that
+    checks it again (``check_replaceable``, whose "already exists (pass --force ...)" read as if the user had named
+    a file of theirs: two ``warpbw-precompute brdf`` of one output at once, session 79)."""
+    if not check_flag(force, "force") and output_exists(path):
+        raise _appeared(Path(path))
 
 
 def _move_new(tmp: Path, p: Path) -> None:
@@ -359,11 +436,15 @@ def staged_outputs(paths, force: bool = True):
                 remove_stale_temps(p)
                 temps[p] = _temp_beside(p, mode)
             except OSError as exc:   # its folder under a file, or not writable: name the output (and the file)
-                under = next((q for q in p.parents if q.exists() and not q.is_dir()), None)   # "File exists" said
-                why = f"{under} is not a directory" if under is not None else exc.strerror or exc
+                # "File exists" said: a file on the way, or a link to nothing
+                under = next((q for q in p.parents if dangling_link(q) or (q.exists() and not q.is_dir())), None)
+                why = (exc.strerror or exc if under is None else f"{under} is {dangling_link(under)}"
+                       if dangling_link(under) else f"{under} is not a directory")
                 raise WarpbwError(f"{p}: cannot write ({why})") from None
         yield dict(temps)
-        with _signals_held():   # a Ctrl-C between two moves left a new image beside an old record
+        # a Ctrl-C between two moves left a new image beside an old record; two --force runs of one set that finished
+        # together moved their files in turns, the second's image beside the first's record
+        with _signals_held(), _folders_locked(p.parent for p in outs):
             moved = []
             for p in outs:
                 try:
