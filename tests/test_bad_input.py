@@ -2735,7 +2735,8 @@ def test_compare_mitsuba_checks_its_conventions_on_the_scalar_variant(tmp_path):
         "dynamic_geometry budget", "dynamic_geometry size", "validate_bandwidth size", "validate_bandwidth seed",
         "validate_bandwidth size past 16384", "validate_bandwidth nb", "validate_bandwidth nb-diagnostic",
         "validate_bandwidth out", "bench_scenes out", "bench_scenes results", "bunny_on_floor out",
-        "bunny_on_floor out under a file", "gbuffer out", "reference_estimator out under a dangling link", "anisotropy_cost runs", "compare_mitsuba runs", "gmm_precompute_time runs",
+        "bunny_on_floor out under a file", "gbuffer out", "reference_estimator out under a dangling link",
+        "anisotropy_cost runs", "compare_mitsuba runs", "gmm_precompute_time runs",
         "reference_estimator runs"])
 def test_examples_refuse_values_up_front_naming_their_own_options(tmp_path, argv, needles):
     """each of these failed after loading assets or preparing the scene (a raw traceback, or an error
