@@ -213,6 +213,17 @@ def test_local_curvature_bad_input():
     verts, faces = grid_mesh(3, 3, lambda u, v: np.stack([u * 0.1, np.zeros(len(u)), v * 0.1], -1))
     with pytest.raises(WarpbwError, match="passes"):
         local_curvature(np.zeros(len(verts)), faces, passes=-1)
+    # 10**30 passes ran until stopped (session 79's API audit); 2^16 is the documented bound, on the host and device
+    import warp as wp
+
+    from warpbw.mesh_normals import local_curvature as device_local_curvature, mesh_topology
+
+    topo = mesh_topology(np.asarray(faces).reshape(-1), 0, len(verts))
+    for passes in (65537, 10**30):   # the first fails fast on code without the bound
+        with pytest.raises(WarpbwError, match=r"passes: expected an integer from 0 to 65536"):
+            local_curvature(np.zeros(len(verts)), faces, passes=passes)
+        with pytest.raises(WarpbwError, match=r"passes: expected an integer from 0 to 65536"):
+            device_local_curvature(wp.zeros(len(verts), dtype=wp.float32), topo, passes=passes)
     with pytest.raises(WarpbwError, match="outside 0..8"):
         local_curvature(np.zeros(len(verts)), faces + 1)
 

@@ -365,7 +365,7 @@ def local_curvature(curvature: wp.array, topology: MeshTopology, device: str = "
     check_device(device)
     _check_topology(topology)
     n = topology.count
-    passes = check_count(passes, "local_curvature: passes", 0)   # 2.5 ran as 2
+    passes = check_count(passes, "local_curvature: passes", 0, host_mesh.CURVATURE_PASSES_MAX)   # 2.5 ran as 2
     if not isinstance(curvature, wp.array):   # numpy: copied to the device
         curvature = np.asarray(curvature, np.float32)
         if curvature.shape != (n,):

@@ -34,7 +34,7 @@ exact power-of-two scale, so the cross products cannot overflow or underflow.
   integral float) indices into ``nv`` vertices, else a one-line ``WarpbwError`` naming ``what``.
 - ``local_curvature(mean_curvature, faces, passes=CURVATURE_SMOOTHING_PASSES, surface=None) -> (V,)``: the
   curvature the bandwidth pass reads, |H| averaged over about two rings (12 ms on the bunny; ``warpbw.mesh_normals``
-  does it on the device); ``surface`` as for ``normals_and_curvature``.
+  does it on the device); ``surface`` as for ``normals_and_curvature``; at most ``CURVATURE_PASSES_MAX`` passes.
 - ``checked_surface(surface, nv, what="surface") -> (V,) int64 | None``: a seam map's check (``MeshData.surface``):
   per vertex, an index in 0..nv-1 that is its own (the surface vertex of a seam's copies), else a one-line
   ``WarpbwError`` naming ``what``.
@@ -81,6 +81,9 @@ CANCEL_REL = 1e-12
 # scenes' 256x256).  Bandwidth rank correlation per pixel on the bunny (examples/validate_bandwidth.py;
 # warpbw.bandwidth docstring): 0.351 with the signed H, 0.419 with |H|, 0.492 after 4 passes, 0.516 after 8.
 CURVATURE_SMOOTHING_PASSES = 8
+# The most passes local_curvature takes (ours, a sanity bound): 65536 passes reach far beyond any mesh's smoothing
+# worth having and take about 20 s on the bunny's device pass; 10**30 ran until stopped (session 79's API audit)
+CURVATURE_PASSES_MAX = 1 << 16
 @dataclass
 class MeshData:
     """A loaded, transformed triangle mesh (world units).  ``mean_curvature`` is derived when first read
@@ -318,7 +321,7 @@ def local_curvature(mean_curvature, faces, passes: int = CURVATURE_SMOOTHING_PAS
     ``surface`` (``MeshData.surface``, None: every vertex its own): the copies of a vertex split by a texture seam
     are averaged as one vertex, over the faces on both sides, and each copy takes its value (each copy averaged over
     its own side's ring alone, and the two came out different on a surface whose |H| varies)."""
-    passes = check_count(passes, "local_curvature: passes", 0)   # 2.7 ran as 2 and "3" as 3
+    passes = check_count(passes, "local_curvature: passes", 0, CURVATURE_PASSES_MAX)   # 2.7 ran as 2, "3" as 3
     try:
         h = np.abs(np.asarray(mean_curvature, dtype=np.float64))
     except (TypeError, ValueError):
