@@ -301,13 +301,14 @@ def _warn_of_earlier_outputs(out: Path, paths) -> None:
     every = dict.fromkeys([*_outputs(out).values(), *(p for pair in _aov_paths(out).values() for p in pair),
                            *_level_map_paths(out, ".level", None), *_level_map_paths(out, ".mip_level", None)])
     left = [p for p in every if p not in set(paths) and p.is_file()]
+    if len(left) == 1:
+        said = (f"{left[0]}: an earlier render's output at -o {out} that this render does not write: it stays beside "
+                "the new image and does not describe it (remove it")
+    elif left:
+        said = (f"{left[0]} and {len(left) - 1} more: outputs of an earlier render at -o {out} that this render does "
+                "not write: they stay beside the new image and do not describe it (remove them")
     if left:
-        what = ("an earlier render's output at -o {} that this render does not write: it stays beside the new image "
-                "and does not describe it" if len(left) == 1 else
-                f"and {len(left) - 1} more: outputs of an earlier render at -o {{}} that this render does not write: "
-                "they stay beside the new image and do not describe it")
-        warnings.warn(f"{left[0]}{':' if len(left) == 1 else ''} {what.format(out)} (remove "
-                      f"{'it' if len(left) == 1 else 'them'}, or render to another -o)", stacklevel=2)
+        warnings.warn(f"{said}, or render to another -o)", stacklevel=2)
 
 
 def _filter_method(args) -> str:
