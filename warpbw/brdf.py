@@ -14,8 +14,8 @@ Public:
     ``KIND_NAMES``                  material type name -> kind id
     ``eval_brdf(...)``, ``sample_brdf(...)``, ``pdf_brdf(...)``  host wrappers (numpy in, numpy out) for tests
     ``LAMBERT``, ``GGX``, ``MERL``, ``NPF``     material kind ids
-    Warp functions the kernels are built of: ``cos_theta``, ``angle_to_z``, ``angle_between``, ``half_vector``,
-    ``sample_cosine_hemisphere``, ``lambert_eval``; GGX's ``ggx_d``, ``ggx_g1``, ``fresnel_conductor``,
+    Warp functions the kernels are built of: ``cos_theta``, ``angle_to_z`` (warpbw.sampling's), ``angle_between``,
+    ``half_vector``, ``sample_cosine_hemisphere``, ``lambert_eval``; GGX's ``ggx_d``, ``ggx_g1``, ``fresnel_conductor``,
     ``ggx_fresnel``, ``ggx_eval``, ``ggx_sample_vndf``, ``ggx_pdf``; ``rusinkiewicz``, ``merl_cell``, ``merl_eval``
     (MERL's look-up), ``npf_curve`` and ``npf_eval``
 
@@ -46,6 +46,8 @@ import numpy as np
 import warp as wp
 
 from warpbw import sampling as tabsamp
+from warpbw.io.npf import NPF_BINS, NPF_COS_MIN, NPF_FIRST_VALID_BIN
+from warpbw.sampling import angle_to_z
 from warpbw.errors import (BRDF_VALUE_MAX, FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, check_device,
                            check_direction_pairs, check_flag, check_instance, check_seed, is_int,
                            unit_directions)
@@ -63,16 +65,15 @@ MERL_N_TD = 90
 MERL_N_PD = 180
 MERL_CELLS = MERL_N_TH * MERL_N_TD * MERL_N_PD  # 1,458,000 RGB cells per material
 
-# NPF row layout (data README, "npf.bin layout"): rho_d, rho_s, then D, G1, F curves of 90 bins each.
-NPF_BINS = 90
+# NPF row layout (data README, "npf.bin layout"): rho_d, rho_s, then D, G1, F curves of warpbw.io.npf.NPF_BINS = 90
+# bins each.
 NPF_STRIDE = 2 + 3 * NPF_BINS  # vec3 entries per NPF material in MaterialTable.npf
 NPF_D_OFF = 2
 NPF_G1_OFF = 2 + NPF_BINS
 NPF_F_OFF = 2 + 2 * NPF_BINS
 # G1 and F bin 0 hold no fitted value (G1's is stored as 0, F's is a placeholder): both curves start at
-# bin 1, as warpbw.io.npf.NPF_FIRST_VALID_BIN does on the host.
-NPF_FIRST_VALID_BIN = 1
-NPF_COS_MIN = 1.0e-5   # clamp of cos_i, cos_o in the model's 1 / (cos_i cos_o), as warpbw.io.npf
+# bin warpbw.io.npf.NPF_FIRST_VALID_BIN = 1, on the device as on the host; the model's 1 / (cos_i cos_o) clamps
+# cos_i, cos_o at warpbw.io.npf.NPF_COS_MIN, likewise.
 
 # Share of cosine-weighted samples mixed into tabulated sampling (defensive mixture; keeps pdf > 0
 # wherever cos_i > 0, so the estimator of 002 Eq. 2 stays unbiased even where a table cell is empty).
@@ -86,10 +87,10 @@ HALF_PI = 0.5 * math.pi
 # Below this largest component, wi + wo is scaled up before normalising (ours): its squared length, about 4 cos^2 for
 # a mirror pair at the horizon, leaves float32's normal range (1.2e-38) under |wi + wo| ~ 1e-19 and is 0 under ~1e-23.
 HALF_VECTOR_RESCALE = 1.0e-15
-GGX_MIN_ALPHA = 1.0e-4
+GGX_MIN_ALPHA = 1.0e-4   # alphas below are clamped (D stays finite in float32 far below this; see ggx_d)
 # Largest eta or k a conductor takes (warpbw.scene.CONDUCTOR_INDEX_MAX): fresnel_conductor squares eta^2 k^2, which
 # overflows float32 from about 5e9 (the reflectance then read 0 instead of nearly 1: a mirror rendered black).
-CONDUCTOR_INDEX_MAX = 1.0e4   # alphas below are clamped (D stays finite in float32 far below this; see ggx_d)
+CONDUCTOR_INDEX_MAX = 1.0e4
 
 
 @wp.struct
@@ -116,13 +117,6 @@ class MaterialTable:
 @wp.func
 def cos_theta(w: wp.vec3):
     return w[2]
-
-
-@wp.func
-def angle_to_z(v: wp.vec3):
-    """Angle between unit v and +Z, accurate near 0 (float32 acos(z) is 0 below ~3e-4 rad, which
-    would swallow the first bins of MERL's sqrt-warped theta_h axis)."""
-    return wp.atan2(wp.sqrt(v[0] * v[0] + v[1] * v[1]), v[2])
 
 
 @wp.func

@@ -91,7 +91,8 @@ def upper_cell(cdf: wp.array(dtype=wp.float32), start: int, n: int, x: float):
 
 @wp.func
 def angle_to_z(v: wp.vec3):
-    # accurate near 0, unlike float32 acos(z) (which returns 0 below ~3e-4 rad)
+    """Angle between unit v and +Z, accurate near 0 (float32 acos(z) is 0 below ~3e-4 rad, which would swallow the
+    first bins of MERL's sqrt-warped theta_h axis).  warpbw.brdf's functions use it too."""
     return wp.atan2(wp.sqrt(v[0] * v[0] + v[1] * v[1]), v[2])
 
 
