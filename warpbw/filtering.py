@@ -133,7 +133,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from precompute.gmm_mipmap import NORMAL_DIM, level_shapes
+from precompute.gmm_mipmap import NORMAL_DIM, VARIANCE_FLOOR, WEIGHT_EPS, level_shapes
 from warpbw.envmap import (LUMINANCE_RGB, EnvMapData, env_pdf_uv, env_radiance_uv, env_sample, env_uv,
                            ensure_sampling, load_environment)
 from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, available_memory, check_camera_reach,
@@ -154,15 +154,16 @@ MIN_GT_SPP = 64
 # render_filtering's (and `warpbw render --filter ground_truth`'s --spp) default; bench-filtering's truth takes
 # 1024 (warpbw.bench_filtering.DEFAULT_GT_SPP)
 DEFAULT_GT_SPP = 64
-# Mixture weights below this recover as empty components (the GMM builder's bound, 004 Sec. 4.1).
-WEIGHT_EPS = 1e-8
-# Floor of a recovered per-axis variance (the GMM builder's VARIANCE_FLOOR: float32 moments lose s^2 below).
-# The shading subtracts it again (a flat map, stored with s^2 = floor, shades as the plain BRDF).
-VARIANCE_FLOOR = 1e-6
+# The GMM builder's bounds, read here as it wrote the mipmaps: mixture weights below WEIGHT_EPS recover as empty
+# components (004 Sec. 4.1), and a recovered per-axis variance is floored at VARIANCE_FLOOR (float32 moments lose s^2
+# below), which the shading subtracts again (a flat map, stored with s^2 = floor, shades as the plain BRDF).
 # Smallest length of a filtered mean normal for Toksvig (a footprint of opposite normals averages to ~0).
 MIN_MEAN_LENGTH = 1e-4
 # Toksvig: a mean normal this close to unit length is unit (float32 rounding of the filter weights, ~8 ulps).
 TOKSVIG_LENGTH_EPS = 1e-6
+# LEAN: the filtered covariance's correlation is clamped to within this of +-1 (|s_xy| <= 0.999 sqrt(s_xx s_yy); ours),
+# so that float32 moments of a footprint of one slope never leave a singular or indefinite lobe.
+LEAN_CORRELATION_MAX = 0.999
 # wo_z below this (a grazing view of the macro surface) shades nothing: 1 / (4 wo_z) would blow up.
 MIN_COS = 1e-4
 # How far from unit length a normal ``normal_moment_mipmap`` takes may be: float32 maps renormalised in float64
@@ -775,7 +776,7 @@ def _filtered_kernel(code: int, with_env: bool, with_lights: bool):
                         sxx = wp.max(q2[0] - mx * mx, 0.0) + pl.rough_var
                         syy = wp.max(q2[1] - my * my, 0.0) + pl.rough_var
                         sxy = q2[2] - mx * my
-                        lim = 0.999 * wp.sqrt(sxx * syy)
+                        lim = LEAN_CORRELATION_MAX * wp.sqrt(sxx * syy)
                         sxy = wp.clamp(sxy, -lim, lim)
                     L = set_lobe(L, 0, 1.0, mx, my, sxx, syy, sxy)
                     nl = 1
