@@ -182,8 +182,8 @@ silent:
   degrees.  In tests/test_bandwidth.py's probe, a dark edge 34 degrees from a 2 x 2-texel sun 10^4 times the
   sky reads 1.0 cycles/rad on radiance against 6.6 without the sun; on the log it reads 6.1.  A near-mirror
   then up-samples across such edges (docs/measurements.md, "Adaptive shading: where it fails").
-  The log leaves the probe linear below its mean and compresses what lies above it.  Once a sun carries most of the mean it fails too: at 5 x 10^4 the
-  same edge reads 1.4.
+  The log leaves the probe linear below its mean and compresses what lies above it.  Once a sun carries most of the
+  mean it fails too: at 5 x 10^4 the same edge reads 1.4.
   Measured (session 42; ``/work/bench/s42``).  The mirror of ``examples/mirror_smear.py`` at 128 x 128 under
   city.exr goes from a relative MSE of 0.909 to 0.064 (shaded 19% -> 77%); under studio.exr from 0.0157 to
   0.0044.  examples/validate_bandwidth.py's per-pixel bandwidth rank goes from 0.599 to 0.711 on the ccp3
@@ -258,6 +258,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from precompute.brdf_bandwidth import N_CELLS, N_THETA_I
 from warpbw.bandwidth_ops import bw_one_bounce
 from warpbw.brdf import MaterialBuffers, MaterialTable, check_sampling_tables, make_brdf_funcs
 from warpbw.envmap import EnvMapData, check_env_data, env_pdf_uv, env_radiance_uv, env_sample, env_uv
@@ -278,9 +279,8 @@ ALLOCATION_DEFAULT = "measured"  # N_p ~ the pass's standard deviation of the fr
 LUMINANCE = (0.2126, 0.7152, 0.0722)   # Rec. 709 weights, RGB -> scalar chi
 FOUR_PI_SQ = 4.0 * math.pi * math.pi   # 002 Sec. 2.4: V(L_p) <= 4 pi^2 sigma^2 / N_p
 
-# BRDF bandwidth table geometry (precompute.brdf_bandwidth: 16 incident elevations x 16 x 16 cells)
-N_THETA_I = 16
-N_CELLS = 16
+# BRDF bandwidth table geometry: precompute.brdf_bandwidth's N_THETA_I = 16 incident elevations x N_CELLS^2 = 16 x 16
+# outgoing cells (imported above)
 PASS_STRIDE_DEFAULT = 2      # directions traced once per 2 x 2 block of alike pixels (module docstring)
 POOL_RADIUS_DEFAULT = 2      # pixels pool the alike traced neighbours within 2 pixels (3 x 3 blocks)
 # far beyond any useful pooling (a 513 x 513 window; 1e6 asked for a 7 TiB tile of shifts), and its tile's side
