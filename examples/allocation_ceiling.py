@@ -193,7 +193,8 @@ def main(argv=None) -> int:
     ap = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("scene", help="scene file (TOML) with an environment")
     ap.add_argument("--budget", type=float, default=BUDGET_DEFAULT,
-                    help=f"samples per covered pixel of the adaptive frame and of the comparison (default {BUDGET_DEFAULT:g})")
+                    help="samples per covered pixel of the adaptive frame and of the comparison "
+                    f"(default {BUDGET_DEFAULT:g})")
     ap.add_argument("--seeds", type=int, default=SEEDS_DEFAULT,
                     help=f"brute-force renders, at least 2 (default {SEEDS_DEFAULT})")
     ap.add_argument("--spp", type=int, default=SPP_DEFAULT, help=f"samples per pixel of each (default {SPP_DEFAULT})")
