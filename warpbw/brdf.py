@@ -48,6 +48,7 @@ import warp as wp
 from warpbw import sampling as tabsamp
 from warpbw.io.npf import NPF_BINS, NPF_COS_MIN, NPF_FIRST_VALID_BIN
 from warpbw.sampling import angle_to_z
+from warpbw.scene import CONDUCTOR_INDEX_MAX, GGX_MIN_ALPHA
 from warpbw.errors import (BRDF_VALUE_MAX, FLOAT32_MAX, INT32_MAX, WarpbwError, check_count, check_device,
                            check_direction_pairs, check_flag, check_instance, check_seed, is_int,
                            unit_directions)
@@ -87,10 +88,10 @@ HALF_PI = 0.5 * math.pi
 # Below this largest component, wi + wo is scaled up before normalising (ours): its squared length, about 4 cos^2 for
 # a mirror pair at the horizon, leaves float32's normal range (1.2e-38) under |wi + wo| ~ 1e-19 and is 0 under ~1e-23.
 HALF_VECTOR_RESCALE = 1.0e-15
-GGX_MIN_ALPHA = 1.0e-4   # alphas below are clamped (D stays finite in float32 far below this; see ggx_d)
-# Largest eta or k a conductor takes (warpbw.scene.CONDUCTOR_INDEX_MAX): fresnel_conductor squares eta^2 k^2, which
-# overflows float32 from about 5e9 (the reflectance then read 0 instead of nearly 1: a mirror rendered black).
-CONDUCTOR_INDEX_MAX = 1.0e4
+# The scene's bounds, imported above: GGX alphas below warpbw.scene.GGX_MIN_ALPHA are clamped to it (D stays finite
+# in float32 far below it; see ggx_d), and a conductor's eta or k above CONDUCTOR_INDEX_MAX is refused
+# (fresnel_conductor squares eta^2 k^2, which overflows float32 from about 5e9: the reflectance then read 0 instead of
+# nearly 1, a mirror rendered black).
 
 
 @wp.struct

@@ -72,10 +72,9 @@ MAX_RESOLUTION = 16384  # per side; larger is almost certainly a typo (and would
 # A scene file's size, checked before it is read: a scene is a few kB of TOML (meshes, maps and probes are files it
 # names), and a 1 GB data file given by mistake took 2 GB of memory and seconds to be called "not valid TOML"
 SCENE_FILE_MAX_BYTES = 4 << 20
-# Smallest GGX alpha accepted (a mirror at any image resolution); the kernel clamps to the same bound
-# (warpbw.brdf.GGX_MIN_ALPHA).
+# Smallest GGX alpha accepted (a mirror at any image resolution); warpbw.brdf clamps to the same bound (it imports it).
 GGX_MIN_ALPHA = 1.0e-4
-# Largest eta or k of a conductor (warpbw.brdf.CONDUCTOR_INDEX_MAX spells the same bound): measured metals lie below
+# Largest eta or k of a conductor (warpbw.brdf refuses more, with this bound): measured metals lie below
 # 100 in the visible; from about 5e9 the Fresnel terms' squares overflow float32 and a mirror rendered black.
 CONDUCTOR_INDEX_MAX = 1.0e4
 
