@@ -139,7 +139,7 @@ from warpbw.scene import LOOKUP_MODES
 __all__ = [
     "N_THETA_I", "N_CELLS", "SHAPE", "DEFAULT_RESOLUTION", "FORMAT", "VERSION",
     "GRAZING_LIMIT", "UNRESOLVED_PEAK", "narrowest_band", "theta_i_centres", "wo_map", "wo_to_map",
-    "map_radians_per_pixel", "nu_rho_max",
+    "map_radians_per_pixel", "nu_rho_max", "lobe_slice", "slice_bandwidth",
     "brdf_bandwidth_table", "analytic_brdf_bandwidth_table", "build_brdf_bandwidth",
     "write_brdf_bandwidth", "read_brdf_bandwidth", "load_or_build_bandwidth", "bandwidth_settings",
     "BANDWIDTH_UNRECORDED",

@@ -2050,6 +2050,30 @@ def test_every_module_lists_its_public_functions_in_its_docstring():
     assert checked > 100 and not unlisted, unlisted
 
 
+
+def test_a_modules_all_holds_every_public_function():
+    """Where a module of warpbw/ or precompute/ spells ``__all__``, it holds every function and class its docstring
+    lists as public (no name starting with _), and nothing it lacks: ``from M import *`` gives what the docstring
+    promises (precompute.brdf_bandwidth's left out lobe_slice and slice_bandwidth; session 80)."""
+    import ast
+    import importlib
+
+    root = Path(__file__).resolve().parents[1]
+    wrong, checked = {}, 0
+    for path in sorted([*(root / "warpbw").rglob("*.py"), *(root / "precompute").glob("*.py")]):
+        tree = ast.parse(path.read_text())
+        if not any(isinstance(n, ast.Assign) and any(getattr(t, "id", None) == "__all__" for t in n.targets)
+                   for n in tree.body):
+            continue
+        mod = importlib.import_module(".".join(path.relative_to(root).with_suffix("").parts).removesuffix(".__init__"))
+        public = {n.name for n in tree.body if isinstance(n, (ast.FunctionDef, ast.ClassDef))
+                  and not n.name.startswith("_")}
+        checked += 1
+        bad = sorted(public - set(mod.__all__)) + [f"{a} (absent)" for a in mod.__all__ if not hasattr(mod, a)]
+        if bad:
+            wrong[mod.__name__] = bad
+    assert checked >= 3 and not wrong, wrong
+
 def _call_arguments(text: str) -> list:
     """The arguments of a call as a docstring writes it (``a, b=(0, 0), c: int = 1, ...``), split at its top-level
     commas."""
