@@ -114,19 +114,19 @@ class MeshData:
         return np.ascontiguousarray(h if surface is None else h[surface], dtype=np.float32)
 
 
-def _checked_vertices(vertices, what: str = "vertices") -> np.ndarray:
-    """``vertices`` as float64 (V, 3) when finite, else a one-line WarpbwError naming ``what`` (a NaN vertex gave
-    its triangle's three vertices the fallback normal, without a word)."""
+def _checked_vertices(vertices) -> np.ndarray:
+    """``vertices`` as float64 (V, 3) when finite, else a one-line WarpbwError naming them (a NaN vertex gave its
+    triangle's three vertices the fallback normal, without a word)."""
     try:
         v = np.asarray(vertices, dtype=np.float64)
     except (TypeError, ValueError):
-        raise WarpbwError(f"{what}: expected an array of numbers of shape (V, 3), got {type(vertices).__name__}") \
+        raise WarpbwError(f"vertices: expected an array of numbers of shape (V, 3), got {type(vertices).__name__}") \
             from None
     if v.ndim != 2 or v.shape[1] != 3:
-        raise WarpbwError(f"{what}: expected shape (V, 3), got {v.shape}")
+        raise WarpbwError(f"vertices: expected shape (V, 3), got {v.shape}")
     bad = ~np.all(np.isfinite(v), axis=1)
     if bad.any():
-        raise WarpbwError(f"{what}: {int(bad.sum())} of {len(v)} are NaN or infinite (first: vertex "
+        raise WarpbwError(f"vertices: {int(bad.sum())} of {len(v)} are NaN or infinite (first: vertex "
                           f"{int(np.argmax(bad))}); expected finite coordinates")
     return v
 
