@@ -895,6 +895,7 @@ def test_anisotropy_cost_record_holds_the_printed_table(monkeypatch, capsys, tmp
         assert [float(z) for z, _ in rows] == [r["zoom"] for r in sc["zooms"]] == [2.0, 8.0]
         for (_, cells), r in zip(rows, sc["zooms"]):
             printed = re.findall(r"([\d.]+) / +([\d.]+) \(([\d.]+)x\)", cells)
+            assert len(printed) == len(mod.METHODS), cells   # a cell per method (zip stopped at a row of one)
             for m, (t1, ta, ratio) in zip(mod.METHODS, printed):
                 got = r["methods"][m]
                 assert (f"{got['isotropic_time_s'] * 1e3:.1f}", f"{got['anisotropic_time_s'] * 1e3:.1f}",

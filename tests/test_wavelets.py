@@ -859,8 +859,8 @@ def test_an_axis_continued_past_the_image_has_no_seam_where_the_padded_grid_wrap
     the image padded by np.pad itself far beyond any wavelet's reach (1100 texels; band 7's details and its window
     reach 792), analysed on the same 7 bands and cut back: the bands must be the same.  Closed form for a step
     continued by its edge values: everything within 792 texels of a column left of 108 is 0, so those columns are
-    flat (bandwidth 0).  On the code before session 76's fix the wrap joined the two ends' continuations 352 texels
-    out, a step that band 7 read (edge: columns 0-90 at 0.0053 cycles/pixel; a ramp's band 7 off by 2.4x)."""
+    flat (bandwidth 0).  The code's wrap joins the two ends' continuations 352 texels out (the fix is not applied:
+    the xfail's reason), a step that band 7 reads (session 76, edge: columns 0-90 at 0.0053 cycles/pixel)."""
     w, x = 1024, np.arange(1024, dtype=np.float64)
     step, ramp = [np.repeat(a[None], 4, axis=0) for a in ((x >= 900).astype(np.float64), x / w)]
     for img in (step, ramp):
