@@ -806,14 +806,14 @@ def test_precompute_options_the_synopsis_always_gives_are_required(tmp_path, mon
     assert not (tmp_path / "x.binary").exists()
 
 
-@pytest.mark.parametrize("command", ["brdf-sampling", "gmm", "npf-to-merl"])
+@pytest.mark.parametrize("command", ["brdf-sampling", "gmm", "npf-to-merl", "gmm folder"])
 def test_a_precompute_output_that_appears_during_the_work_is_said_to_have_appeared(tmp_path, monkeypatch, capsys,
                                                                                     command):
     """Two ``warpbw-precompute brdf chrome.binary -o c.npz`` at once (processes audit, session 79): the one that
     finished second was refused with "c.npz: already exists (pass --force to overwrite it)", about a file that was
     not there when it started, and pointing to --force as if the user had named a file of theirs.  An output that
     appears while the command works (another run of it, the user) is refused as staged_outputs refuses it, saying
-    it appeared, and the file that appeared is kept."""
+    it appeared, and the file that appeared is kept; so is a folder that appears there (mutation round 12)."""
     import precompute.brdf_sampling
     import precompute.gmm_mipmap
     import precompute.npf_to_merl
@@ -822,11 +822,15 @@ def test_a_precompute_output_that_appears_during_the_work_is_said_to_have_appear
 
     monkeypatch.chdir(tmp_path)
     fake_npf_table(tmp_path / "npf.bin")
+    command, folder = command.split(" ")[0], command.endswith(" folder")
     out = {"brdf-sampling": "s.npz", "gmm": "g.npz", "npf-to-merl": "m.binary"}[command]
 
     def meanwhile(work):   # the other run finishes first, during this one's work
         def stand_in(*args, **kwargs):
-            (tmp_path / out).write_text("the other run's")
+            if folder:
+                (tmp_path / out).mkdir()
+            else:
+                (tmp_path / out).write_text("the other run's")
             return work(*args, **kwargs)
         return stand_in
 
@@ -842,7 +846,7 @@ def test_a_precompute_output_that_appears_during_the_work_is_said_to_have_appear
     assert got == "returned 2", (got, err)
     assert err == (f"warpbw-precompute: error: {out}: already exists: it appeared while this run worked (another run "
                    "writing it, or you), and is kept; nothing of this run was written (pass --force to overwrite it)")
-    assert (tmp_path / out).read_text() == "the other run's"
+    assert (tmp_path / out).is_dir() if folder else (tmp_path / out).read_text() == "the other run's"
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["npf.bin", out])
 
 
@@ -4354,3 +4358,15 @@ def test_gmm_header_problem_names_a_material_without_a_map_and_a_file_that_is_no
     for p in (tmp_path / "h.exr", tmp_path / "cut.gmm"):
         said = gmm_header_problem(scene, "m", p)
         assert said.startswith("not a warpbw asset file, or a damaged one") and "None" not in said, said
+    # mutation round 12: the right mipmap is accepted, and the same file labelled another format is refused
+    from conftest import rewrite_asset
+    from precompute.gmm_mipmap import GMM_FORMAT, build_gmm_mipmap, write_gmm_mipmap
+    from warpbw.scene import file_digest
+
+    h = read_exr(tmp_path / "h.exr").pixels[..., 0]
+    write_gmm_mipmap(tmp_path / "h.gmm", build_gmm_mipmap(h, scale=0.05, progress=False), "h.exr",
+                     file_digest(tmp_path / "h.exr"))
+    assert gmm_header_problem(scene, "m", tmp_path / "h.gmm") is None
+    rewrite_asset(tmp_path / "h.gmm", tmp_path / "other.gmm", format="warpbw-brdf-sampling")
+    assert gmm_header_problem(scene, "m", tmp_path / "other.gmm") == (
+        f"is a 'warpbw-brdf-sampling' file, expected {GMM_FORMAT!r} (build one with: warpbw-precompute gmm)")

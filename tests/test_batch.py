@@ -311,6 +311,12 @@ def test_a_record_that_appears_while_the_batch_works_is_kept_not_replaced(tmp_pa
                "--resume")
     assert r == "returned 0", r
     assert json.loads((tmp_path / "out/batch.json").read_text())["items"][0]["kept"] == ["sampling"]
+    # --resume where no record was there before it started (mutation round 12): the one that appears is kept
+    (tmp_path / "out/batch.json").unlink()
+    r = _batch("npf.bin", "--materials", "chrome", "--tables", "sampling", "-o", "out", "--scheduler", "sync",
+               "--resume")
+    assert r == "returned 2", r
+    assert (tmp_path / "out/batch.json").read_bytes() == other
     r = _batch("npf.bin", "--materials", "nickel", "--tables", "sampling", "-o", "out", "--scheduler", "sync",
                "--force")
     assert r == "returned 0", r

@@ -1804,6 +1804,21 @@ def test_bandwidth_time_fraction_is_each_frames_own_share_not_one_runs_pass_over
         assert "bandwidth pass: 10.0% of the frame" in bench.format_table(rec)
 
 
+def test_bandwidth_time_fraction_is_the_median_of_the_runs_shares(tmp_path, monkeypatch):
+    """Closed form (mutation round 12): each adaptive frame of 0.02 s times its run's factor (1, 1, 20) spends a tenth
+    of it in the bandwidth pass and 0.02 s more of wall time outside its stages, so its share of the wall time is
+    0.1 t / (t + 0.02): 0.05, 0.05 and 0.0952.  The fraction is their median, 0.05 (their mean 0.065, the last
+    run's 0.0952)."""
+    from warpbw.scene import parse_scene
+
+    _fake_renderers(monkeypatch, ref_amp=_power_law_amp, ada={1.0: (_power_law_amp(11.0), 0.02)},
+                    run_time=(1.0, 1.0, 20.0), ada_host_time=0.02)
+    rec = bench.run_bench(parse_scene(SCENE, tmp_path, "s.toml"), spp_list=(1, 4, 16), budgets=(1,), gt_spp=64,
+                          runs=3, cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **kw: None)
+    (p,) = rec["methods"]["adaptive"]
+    assert p["bandwidth_time_fraction"] == pytest.approx(0.05, rel=1e-9)
+
+
 def test_the_ground_truth_holds_a_running_sum_not_every_chunk(tmp_path, monkeypatch):
     """``ground_truth`` kept every chunk in a list (a cached one with its file's RGBA) and ``np.mean`` stacked them
     again: 28 bytes per pixel per chunk at the peak, 1.9 GB for --gt-spp 65536 at 2048 x 2048 (session 79).  Now it

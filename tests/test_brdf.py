@@ -576,3 +576,32 @@ def test_merl_kernel_at_a_mirror_pair_grazing_the_horizon_reads_the_bins_of_its_
     np.testing.assert_array_equal(B.eval_brdf(mb, 0, wi, wo), [[63.0, 89.0, 90.0]])
     # trilinear between bin centres: u_h = sqrt(1/2) 90 - 1/2, u_d = 89.5 clamped to 89, u_p = 89.5
     np.testing.assert_allclose(B.eval_brdf(mb, 1, wi, wo), [[np.sqrt(0.5) * 90.0 - 0.5, 89.0, 89.5]], rtol=1e-5)
+
+
+def test_check_sampling_tables_names_the_first_unsampled_tabulated_material_the_frame_shows():
+    """``check_sampling_tables(mb, where, gb_material)``: a MERL or NPF material packed without its sampling table
+    (``sampling=False``) is refused, the first by index, only where the G-buffer's ids (numpy or Warp; -1 empty)
+    show it; an analytic material needs no table.  Truth: the materials' kinds and the ids as built here."""
+    import warp as wp
+
+    from warpbw.errors import WarpbwError
+
+    curves = B.pack_npf_curves((0.2, 0.2, 0.2), (0.1, 0.1, 0.1), np.ones((90, 3)), np.ones((90, 3)),
+                               np.ones((90, 3)))
+    specs = [B.MaterialSpec("plain", B.LAMBERT, albedo=(0.5, 0.5, 0.5)),
+             B.MaterialSpec("measured", B.MERL, merl=np.full((B.MERL_CELLS, 3), 0.1, np.float32)),
+             B.MaterialSpec("fitted", B.NPF, npf=curves)]
+    mb = B.build_material_table(specs, sampling=False)
+    for ids, named in (([0, -1, 0], None), ([-1, -1], None), (np.array([[0, 2], [2, -1]], np.int32), 2),
+                       ([2, 1], 1), (wp.array(np.array([0, 2], np.int32), dtype=wp.int32), 2), (None, 1)):
+        if named is None:
+            B.check_sampling_tables(mb, "the pass", ids)
+            continue
+        with pytest.raises(WarpbwError, match=rf"^the pass: materials: material {named} \('{specs[named].name}'\) "
+                                              "was packed without its sampling table"):
+            B.check_sampling_tables(mb, "the pass", ids)
+    B.check_sampling_tables(B.build_material_table(specs[:1], sampling=False), "the pass")   # nothing to sample
+    measured = B.MaterialSpec("measured", B.MERL, merl=specs[1].merl, sampler=uniform_sampler())
+    packed = B.build_material_table([measured, specs[0]])
+    assert packed.table.sampler.numpy()[0] == 0   # the first table's index: packed with it
+    B.check_sampling_tables(packed, "the pass", [0, 1])

@@ -1851,6 +1851,15 @@ def test_the_constants_the_readme_states_are_the_codes():
                       (pipeline.MESH_BYTES_PER_TRIANGLE,
                        round(pipeline.MESH_BYTES_PER_TRIANGLE * int(said(r"Stanford bunny \(([\d,]+) triangles\)")
                                                                     .replace(",", "")) / 1e6)),
+        # session 79's estimates (mutation round 12: each halved was read by no test)
+        "mesh file bytes": int(said(r"and each file (\d+) more per triangle of its own")) ==
+                           pipeline.MESH_FILE_BYTES_PER_TRIANGLE,
+        "curvature bytes": int(said(r"derives each mesh's curvature, about (\d+) bytes per triangle")) ==
+                           pipeline.CURVATURE_BYTES_PER_TRIANGLE,
+        "GMM build": (int(said(r"takes about (\d+) bytes per texel and component")),
+                      int(said(r"per texel and component \((\d+) GB for an 8192 x 8192 map at 4 components")))
+                     == (gmm_mipmap.BUILD_BYTES_PER_TEXEL_COMPONENT,
+                         round(gmm_mipmap.build_memory(8192, 8192, 4) / 1e9)),
         "N_p cap": int(said(r"up to (\d+) times the budget at one pixel \(`N_P_MAX_PER_BUDGET`"))
                    == bandwidth.N_P_MAX_PER_BUDGET,
         "n_b": int(said(r"the \*\*bandwidth pass\*\* \(`warpbw/bandwidth\.py`, n_b = (\d+)"))
@@ -3119,6 +3128,24 @@ def test_an_empty_frame_of_planes_seen_from_below_says_planes_are_seen_from_abov
         assert err.count("warpbw: warning: no pixel is covered by geometry") == 1, err
         assert f"seen from above only, and the camera (y = {camera_y:g}) is not above any (y = 0 at the lowest)" \
             in err, err
+
+
+def test_an_empty_frame_of_a_camera_between_two_planes_does_not_say_it_is_below_them(tmp_path, monkeypatch, capsys):
+    """Mutation round 12: the hint names a camera at or below every plane, the lowest: one at y = 1 between planes
+    at y = 0 and y = 2, looking up at the higher (seen from below: nothing) with the lower out of view, renders an
+    empty frame, and the warning keeps to the camera's aim (it is above a plane)."""
+    from warpbw.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    text = plane_scene_toml(position=(0.0, 1.0, 3.0), resolution=(8, 6)).replace(
+        "look_at = [0.0, 0.0, 0.0]", "look_at = [0.0, 2.0, 0.0]")
+    Path("p.toml").write_text(text + '\n[[object]]\nshape = "plane"\nsize = 2.0\ncenter = [0.0, 2.0, 0.0]\n'
+                                     'material = "m"\n')
+    assert main(["render", "p.toml", "-o", "p.exr", "--filter", "fixed", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert not read_exr("p.exr").pixels.any()
+    assert err.count("warpbw: warning: no pixel is covered by geometry") == 1, err
+    assert "seen from above only" not in err, err
 
 
 def test_the_examples_read_the_shared_data_where_the_tests_do(monkeypatch, tmp_path):

@@ -801,3 +801,42 @@ def test_maps_of_the_same_bytes_in_another_shape_or_type_have_other_source_diges
     a = np.random.default_rng(3).random((4, 8, 3)).astype(np.float32)
     digests = {E.envmap_from_array(x).source_digest for x in (a, a.reshape(8, 4, 3), a.view(np.int32))}
     assert len(digests) == 3
+
+
+@pytest.mark.parametrize("field", ["marginal_cdf", "conditional_cdf", "row_omc", "row_opc", "cell_pdf"])
+def test_check_env_data_refuses_a_struct_missing_any_one_sampling_array(field):
+    """``check_env_data`` (what every sampling pass calls) refuses a struct whose one sampling array is empty or of
+    another shape, each alone: a kernel reads every one of them (``env_sample``, ``env_pdf``).  Truth: the
+    documented shapes of EnvMapData's fields ((1, H+1), (H, W+1), (H+1,), (H+1,), (H, W))."""
+    from warpbw.envmap import check_env_data, envmap_from_array
+
+    h, w = 4, 8
+    data = envmap_from_array(np.ones((h, w, 3), np.float32)).data
+    check_env_data(data, "here")   # whole: accepted
+    full = getattr(data, field)
+    shorter = wp.zeros(tuple(s - 1 if i == len(full.shape) - 1 else s for i, s in enumerate(full.shape)),
+                       dtype=wp.float32)
+    for bad in (wp.zeros((0,) * len(full.shape), dtype=wp.float32), shorter):
+        setattr(data, field, bad)
+        with pytest.raises(WarpbwError, match=r"^here: env_data: this pass samples the environment"):
+            check_env_data(data, "here")
+        check_env_data(data, "here", sampled=False)   # a look-up alone reads none of them
+
+
+@pytest.mark.parametrize("what", ["height", "width", "zero"])
+def test_check_env_data_refuses_a_map_of_another_size_than_the_struct_says(what):
+    """The struct's ``base`` must be the (height, width) map it says it holds (each look-up indexes it so): a map of
+    another shape, or a size of 0, is refused in one line, sampled or not.  Truth: EnvMapData's documented layout."""
+    from warpbw.envmap import check_env_data, envmap_from_array
+
+    data = envmap_from_array(np.ones((4, 8, 3), np.float32)).data
+    if what == "height":
+        data.height = 5
+    elif what == "width":
+        data.width = 7
+    else:
+        data.base = wp.zeros((0, 0), dtype=wp.vec3)
+        data.height, data.width = 0, 0
+    for sampled in (False, True):
+        with pytest.raises(WarpbwError, match=r"^there: env_data: expected an EnvMapData holding its map"):
+            check_env_data(data, "there", sampled=sampled)

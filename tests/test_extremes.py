@@ -552,7 +552,8 @@ def test_the_underflow_refusal_lies_at_sqrt_of_float32_tiny_and_spares_the_unifo
     smallest normal) (``RADIANCE_UNDERFLOW_MAX``, computed here from numpy): a probe scaled to put that median 3 times
     below it is refused, 3 times above it renders; the "uniform" allocation, which reads no variance, renders at
     1e-25.  Truth: the median at exposure 1e-25, read off the refusal, times 1e25 is the frame's at 1 (light is
-    linear).  The old test's 1e-25 and 1e-15 lay 6 and 4 decades from the threshold."""
+    linear).  The old test's 1e-25 and 1e-15 lay 6 and 4 decades from the threshold.  A black probe lights no pixel
+    (median 0): it is no underflow, and renders black."""
     import re
 
     from warpbw.pipeline import prepare_scene, render_adaptive
@@ -575,6 +576,8 @@ def test_the_underflow_refusal_lies_at_sqrt_of_float32_tiny_and_spares_the_unifo
         frame(limit / (3.0 * m1))
     assert frame(3.0 * limit / m1).coverage.any()
     assert frame(1e-25, "uniform").coverage.any()
+    black = frame(0.0)   # no pixel lit (median 0): nothing underflows, and the frame is black (mutation round 12)
+    assert black.coverage.any() and not black.image.any()
 
 
 # ------------------------------------------------------------------------------------------ scene scale
@@ -795,15 +798,19 @@ def test_a_mesh_whose_curvature_would_not_fit_warns_before_the_adaptive_method_d
     1.1M-triangle mesh (the bunny subdivided twice; session 79) on top of what the scene holds, 430 bytes per
     triangle, and nothing estimated it.  Now CURVATURE_BYTES_PER_TRIANGLE times the largest mesh's triangles (trimesh's
     count, of the file written here) past the memory available warns before it is derived, naming the scene and the
-    mesh; the reference method derives none and says nothing, nor does a fit or an unknown reading."""
+    mesh; the reference method derives none and says nothing, nor does a fit or an unknown reading.  Of two meshes
+    (a box beside the ball: mutation round 12) the estimate is the larger's, the one mesh derived at a time."""
     import trimesh
 
     from warpbw import pipeline
 
     trimesh.creation.icosphere(subdivisions=2).export(tmp_path / "ball.obj")
+    trimesh.creation.box(extents=(0.3, 0.3, 0.3)).export(tmp_path / "box.obj")
     n = len(trimesh.load(tmp_path / "ball.obj", process=False).faces)
+    assert n > 12   # the box's
     text = ("[camera]\nposition = [0.0, 0.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 50.0\nresolution = [8, 8]\n"
             "[environment]\nconstant = 1.0\n[material.m]\ntype = \"lambert\"\nalbedo = [0.5, 0.5, 0.5]\n"
+            '[[object]]\nmesh = "box.obj"\nmaterial = "m"\ntranslate = [1.5, 0.0, 0.0]\n'
             '[[object]]\nmesh = "ball.obj"\nmaterial = "m"\n')
     scene = parse_scene(text, tmp_path, "ball.toml")
     assert pipeline.CURVATURE_BYTES_PER_TRIANGLE >= 400

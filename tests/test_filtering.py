@@ -1069,6 +1069,26 @@ def test_info_gmm_check_reads_a_header_as_the_render_reads_it(tmp_path, params, 
         check_gmm_files(s, ("gmm_aligned",))
 
 
+def test_info_gmm_check_takes_a_header_without_a_component_count_as_the_materials(tmp_path):
+    """Mutation round 12: a GMM file whose header records no ``components`` (a hand-edited or older file) is read with
+    its levels' count by the render's reader; ``gmm_header_problem``, which reads no levels, takes the material's
+    (``header_fields``' ``components_unrecorded``), and both accept a file fitted with the material's count (taking 1
+    refused it).  Truth: the render's own reader."""
+    from conftest import rewrite_asset
+    from precompute.gmm_mipmap import build_gmm_mipmap, write_gmm_mipmap
+    from warpbw.filtering import check_gmm_files, gmm_header_problem
+
+    h = _bumps(8)
+    write_exr(tmp_path / "map.exr", h.astype(np.float32)[..., None], ["Y"])
+    write_gmm_mipmap(tmp_path / "ok.gmm", build_gmm_mipmap(h, scale=0.5, components=2, progress=False), "map.exr",
+                     file_digest(tmp_path / "map.exr"))
+    rewrite_asset(tmp_path / "ok.gmm", tmp_path / "g.gmm", drop=("components",))
+    s = parse_scene(plane_scene_toml('normal_map = "map.exr"\nnormal_map_scale = 0.5\ngmm_components = 2\n'
+                                     'gmm = "g.gmm"\n'), tmp_path, "s.toml")
+    assert gmm_header_problem(s, "m", tmp_path / "g.gmm") is None
+    assert check_gmm_files(s, ("gmm_aligned",))["m"][0].components == 2
+
+
 def test_gmm_file_of_another_map_is_refused_and_a_matching_one_used(tmp_path, monkeypatch):
     import shlex
 

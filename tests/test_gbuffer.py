@@ -1421,14 +1421,15 @@ def _quad_spec(z, half, material=0):
                     material)
 
 
-@pytest.mark.parametrize("height", [0.5, 3.0])
+@pytest.mark.parametrize("height", [0.5, 1.5, 3.0])
 def test_a_mesh_nearer_than_t_eps_rel_of_its_half_diagonal_is_looked_past_and_one_beyond_it_is_seen(height):
     """Round 11: the nearest t taken on a mesh is ``T_EPS_REL`` of its half diagonal (``MeshAttributes.t_eps``), and
     a hit found past that point is at its distance from the camera (the shift added back).  Truth: a camera
     ``height`` such t above a quad of half side 1 (half diagonal sqrt(2): z extent 0), looking straight down, with a
     second quad 1 unit below it: at 0.5 the camera stands on the near quad and every pixel sees the far one at depth
     1 + 0.5 eps; at 3 every pixel sees the near quad at depth 3 eps (depth = t (d . forward), exact in float64).
-    The old tests took t_eps four times as large, and a depth short by the shift, within their tolerances."""
+    The old tests took t_eps four times as large, and a depth short by the shift, within their tolerances; at 1.5
+    (mutation round 12) the whole diagonal's t_eps looked past the near quad where 3 did not tell them apart."""
     from warpbw.gbuffer import T_EPS_REL
 
     eps = T_EPS_REL * math.sqrt(2.0)
@@ -1597,3 +1598,23 @@ def test_gbuffer_numpy_names_the_buffers_it_holds():
         with pytest.raises(WarpbwError, match=r"^G-buffer: expected a buffer name, one of position, normal, "):
             gb.numpy(name)
     assert gb.numpy("depth").shape == (2, 3) and gb.numpy("normal").shape == (2, 3, 3)
+
+
+@pytest.mark.parametrize("tilt", [0.0, 1e-5, 3e-5, 1e-4])
+def test_a_camera_inside_a_sphere_sees_the_wall_along_rays_square_to_its_offset_from_the_centre(tilt):
+    """``intersect_sphere`` refuses a root within its float32 rounding ``err / max(|b|, sqrt(err))``: for a ray
+    nearly square to o - c (|b| near 0, a camera inside the sphere looking along the wall) the floor sqrt(err)
+    keeps that below the root, where err / |b| alone grew past it and the wall was not seen.  Truth: from inside,
+    every ray meets the wall, at -b + sqrt(b^2 - |o - c|^2 + r^2) (float64, of the device's own rays)."""
+    centre, r = np.array([100.0, 0.0, 0.0]), 1.0
+    pos = centre + np.array([0.5, 0.0, 0.0])
+    cam = make_camera(tuple(pos), tuple(pos + np.array([tilt, 0.0, -1.0])), (0.0, 1.0, 0.0), 1.0, 9, 9)
+    gb = render_gbuffer(cam, build_geometry([SphereSpec(tuple(centre), r, 0)], []))
+    o, d = camera_rays(cam)
+    oc = np.asarray(o, np.float64).reshape(-1, 3) - centre
+    d = np.asarray(d, np.float64).reshape(-1, 3)
+    b = np.einsum("ij,ij->i", d, oc)
+    assert np.abs(b).min() < 1e-4   # rays square to o - c within float32's rounding of the roots
+    t = -b + np.sqrt(b * b - np.einsum("ij,ij->i", oc, oc) + r * r)
+    assert gb.coverage.all()
+    np.testing.assert_allclose(gb.numpy("depth").reshape(-1), t, atol=1e-3)

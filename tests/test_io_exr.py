@@ -679,6 +679,60 @@ def test_previews_are_encoded_a_block_of_rows_at_a_time(tmp_path, monkeypatch):
     assert np.array_equal(np.asarray(Image.open(tmp_path / "f.png")), want)
 
 
+@pytest.mark.parametrize("shape", [(5, 300), (5, 300, 1)])
+def test_a_grey_preview_wider_than_a_block_is_encoded_a_row_at_a_time(tmp_path, monkeypatch, shape):
+    """Mutation round 12: a row wider than ``PREVIEW_BLOCK_PIXELS`` is a block of its own (one row at least, never
+    none), and a grey image ((H, W) or (H, W, 1)) is the same value in all three channels.  Truth: IEC 61966-2-1's
+    sRGB formula (numpy) over the whole image, and viridis over the linear scale of the values shown."""
+    from matplotlib import colormaps
+
+    import warpbw.io.exr as exr
+
+    monkeypatch.setattr(exr, "PREVIEW_BLOCK_PIXELS", 100)
+    grey = np.linspace(0.0, 1.2, 5 * 300).reshape(5, 300).astype(np.float32)
+    write_png(tmp_path / "p.png", grey.reshape(shape))
+    v = np.clip(grey.astype(np.float64), 0.0, 1.0)
+    srgb = np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.maximum(v, 0.0031308) ** (1 / 2.4) - 0.055)
+    want = np.repeat(np.round(srgb * 255).astype(np.uint8)[..., None], 3, axis=-1)
+    assert np.array_equal(np.asarray(Image.open(tmp_path / "p.png")), want)
+    mask = np.ones((5, 300), bool)
+    mask[2] = False
+    lo, hi = write_false_colour_png(tmp_path / "f.png", grey, mask=mask)
+    assert (lo, hi) == (float(grey[mask].min()), float(grey[mask].max()))
+    t = np.clip((grey.astype(np.float64) - lo) / (hi - lo), 0.0, 1.0)
+    want = np.round(colormaps["viridis"](t)[..., :3] * 255.0).astype(np.uint8)
+    want[~mask] = 0
+    assert np.array_equal(np.asarray(Image.open(tmp_path / "f.png")), want)
+
+
+def test_a_preview_at_the_default_block_size_peaks_at_tens_of_mb_not_the_images_temporaries(tmp_path):
+    """Mutation round 12: ``PREVIEW_BLOCK_PIXELS`` keeps a preview's float64 temporaries to "a few tens of MB whatever
+    the image's size" (its comment); at 2^30 the whole image was one block.  A 1024 x 640 image (2.5 blocks of 2^18
+    pixels) peaks, under tracemalloc, below 110 bytes per pixel (72 here), where the whole image's temporaries took
+    144."""
+    import tracemalloc
+
+    lin = np.random.default_rng(1).random((640, 1024, 3), dtype=np.float32)
+    tracemalloc.start()
+    try:
+        tracemalloc.reset_peak()
+        write_png(tmp_path / "p.png", lin)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 110 * lin.shape[0] * lin.shape[1], peak / (lin.shape[0] * lin.shape[1])
+
+
+@pytest.mark.parametrize("shape", [(4, 5, 2), (4, 5, 4), (4, 5, 3, 1), (5,)])
+def test_write_png_refuses_an_array_that_is_no_image_in_one_line(tmp_path, shape):
+    """Mutation round 12: a preview is (H, W), (H, W, 1) or (H, W, 3); two or four channels (an RGBA frame), or
+    another number of axes, are refused naming the shape, before any block is encoded (they broke in numpy's
+    broadcasting)."""
+    with pytest.raises(WarpbwError, match=re.escape(f"cannot write a preview of shape {shape} (expected (H, W, 3))")):
+        write_png(tmp_path / "x.png", np.zeros(shape, np.float32))
+    assert not (tmp_path / "x.png").exists()
+
+
 @pytest.mark.parametrize("vmin, vmax, says", [(float("nan"), 1.0, "vmin of the colour scale: expected a finite"),
                                               (0.0, float("inf"), "vmax of the colour scale: expected a finite"),
                                               (8.0, 2.0, "expected vmin <= vmax")])

@@ -637,6 +637,20 @@ def test_the_console_scripts_answer_a_sigterm_during_their_imports_with_one_line
     assert (r.returncode, r.stderr.strip(), r.stdout) == (status, said, "")
 
 
+def test_a_console_script_under_nohup_ignores_a_hangup_while_it_loads(tmp_path):
+    """Mutation round 12: a stop the process was started ignoring (``nohup`` ignores SIGHUP) stays ignored while the
+    command line loads: the run goes on (here to argparse's refusal of the argument it is given) instead of ending
+    "hung up".
+    Truth: a real process started with SIGHUP ignored and sent one as it imports its command line."""
+    import signal
+    import subprocess
+
+    r = subprocess.run([sys.executable, "-c", _STOPPED_WHILE_LOADING, "SIGHUP"], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=300, preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN))
+    assert r.returncode == 2 and r.stderr.startswith("warpbw: error: argument COMMAND: invalid choice: 'SIGHUP'"), \
+        (r.returncode, r.stderr)
+
+
 _STOPPED_AS_A_SCRIPT_EXITS = """
 import os, signal, sys, time
 from warpbw.entry import interrupt_in_one_line
@@ -732,3 +746,118 @@ def test_missing_folders_at_any_depth_are_made(tmp_path):
     with staged_outputs([out]) as at:
         at[out].write_bytes(b"image")
     assert out.read_bytes() == b"image"
+
+
+def test_a_lock_another_program_keeps_on_the_output_folder_delays_the_moves_at_most_folder_lock_wait_s(
+        tmp_path, monkeypatch):
+    """The moves into place take an exclusive ``flock`` on the outputs' folder, waiting for it at most
+    ``FOLDER_LOCK_WAIT_S``: a lock some other program keeps on the folder (here a shared one on an open descriptor
+    of the test's, never released while the run works) delays the moves by about that long, then they are made
+    without it, whole (mutation round 12: no lock, a shared one, no wait or no end to it passed every test).  Truth:
+    the clock, and the files written."""
+    import fcntl
+    import threading
+    import time
+
+    import warpbw.io.staged as staged
+
+    monkeypatch.setattr(staged, "FOLDER_LOCK_WAIT_S", 0.3)
+    fd = os.open(tmp_path, os.O_RDONLY)
+    fcntl.flock(fd, fcntl.LOCK_SH)   # an exclusive lock waits for it; another shared one would not
+    outs = [tmp_path / "image.exr", tmp_path / "image.json"]
+    took = []
+
+    def run():
+        t0 = time.monotonic()
+        with staged_outputs(outs) as at:
+            for p in outs:
+                at[p].write_text("new")
+        took.append(time.monotonic() - t0)
+
+    try:
+        t = threading.Thread(target=run, daemon=True)
+        t.start()
+        t.join(timeout=60)
+        assert took and 0.3 <= took[0] < 30, took   # waited for the lock, then moved without it
+    finally:
+        os.close(fd)
+    assert [p.read_text() for p in outs] == ["new", "new"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["image.exr", "image.json"]
+
+
+def test_an_output_folder_that_cannot_be_opened_for_its_lock_is_moved_into_without_one(tmp_path, monkeypatch):
+    """Mutation round 12: a folder the moves cannot open to lock (a file system that refuses it, a folder readable by
+    no one but writable) is moved into without the lock, as ``_folders_locked`` documents, not refused after the
+    work.  Truth: the files written, and nothing else left."""
+    real_open = os.open
+
+    def no_folder(path, flags, *args, **kwargs):
+        if flags == os.O_RDONLY and os.path.isdir(path):
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_open(path, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", no_folder)
+    outs = [tmp_path / "image.exr", tmp_path / "image.json"]
+    with staged_outputs(outs) as at:
+        for p in outs:
+            at[p].write_text("new")
+    assert [p.read_text() for p in outs] == ["new", "new"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["image.exr", "image.json"]
+
+
+def test_stop_behind_follows_an_errors_cause_and_its_context():
+    """Mutation round 12: ``stop_behind`` finds the stop an error was raised from (``raise ... from``) and the one it
+    was raised while handling (an extension's "initialization failed" raised inside the KeyboardInterrupt's
+    handling), through several links, and None where there is none, a chain that loops included.  Truth: chains
+    built here."""
+    from warpbw.entry import stop_behind
+
+    def chained(link: str):
+        try:
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as stop:
+                if link == "cause":
+                    raise ImportError("initialization failed") from stop
+                raise ImportError("initialization failed")
+        except ImportError as exc:
+            try:
+                raise RuntimeError("while importing") from exc
+            except RuntimeError as outer:
+                return outer
+
+    for link in ("cause", "context"):
+        outer = chained(link)
+        assert isinstance(stop_behind(outer), KeyboardInterrupt), link
+        assert stop_behind(outer, (SystemExit,)) is None
+    a, b = ValueError("a"), ValueError("b")
+    a.__context__, b.__context__ = b, a
+    assert stop_behind(a) is None
+
+
+def test_dangling_link_names_a_link_to_nothing_alone(tmp_path):
+    """Mutation round 12: ``dangling_link`` speaks of a symbolic link whose target does not exist, and of nothing
+    else: a link to a folder or a file that exists (an output folder reached through a link), a plain file or
+    folder, and a name that is not there are None.  Truth: the links made here."""
+    from warpbw.io.staged import dangling_link
+
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "to_folder").symlink_to(tmp_path / "folder")
+    (tmp_path / "to_file").symlink_to(tmp_path / "file")
+    (tmp_path / "to_nothing").symlink_to(tmp_path / "gone")
+    assert dangling_link(tmp_path / "to_nothing") == f"a link to {tmp_path / 'gone'}, which does not exist"
+    for name in ("to_folder", "to_file", "folder", "file", "absent"):
+        assert dangling_link(tmp_path / name) is None, name
+
+
+def test_an_output_under_a_link_to_nothing_names_the_link(tmp_path):
+    """Mutation round 12: ``staged_outputs`` given an output whose folder is a symbolic link to nothing (no folder can
+    be made in its place) says so, naming the link and its target, not only "File exists".  Truth: the link made
+    here."""
+    (tmp_path / "out").symlink_to(tmp_path / "gone")
+    with pytest.raises(WarpbwError, match=r"x\.json: cannot write \(.*out is a link to .*gone, which does not "
+                                          r"exist\)"):
+        with staged_outputs([tmp_path / "out" / "x.json"]) as at:
+            at[tmp_path / "out" / "x.json"].write_text("{}")
+    assert not (tmp_path / "gone").exists()

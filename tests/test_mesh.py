@@ -972,3 +972,16 @@ def test_a_gltf_of_triangle_strips_or_fans_counts_n_minus_2_triangles(tmp_path, 
                         "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}]}
     (tmp_path / "m.gltf").write_text(js.dumps(doc))
     assert mesh_triangles(tmp_path / "m.gltf") == triangles
+
+
+def test_host_normals_and_curvature_names_the_count_and_the_first_vertex_whose_faces_cancel():
+    """Mutation round 12: ``normals_and_curvature`` refuses a pose whose faces cancel at some vertices in
+    ``cancelled_pose``'s words, with the count and the first such vertex.  Truth: a well-made triangle (vertices
+    0-2) beside two coincident triangles wound in opposite directions (vertices 3-5: all three cancel)."""
+    from warpbw.io.mesh import normals_and_curvature
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0], [3, 0, 0], [2, 1, 0]], np.float64)
+    f = np.array([[0, 1, 2], [3, 4, 5], [3, 5, 4]])
+    with pytest.raises(WarpbwError, match=r"^vertices: 3 vertices have no normal: the triangles around them cancel "
+                                          r"\(coincident .*pressed flat; first: vertex 3\); expected a pose"):
+        normals_and_curvature(v, f)

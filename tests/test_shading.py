@@ -862,3 +862,27 @@ def test_reference_estimators_mean_is_the_quadrature_of_L_f_cos_under_a_turned_p
         # their mean over the pixels within 0.013 and 0.0046
         assert np.abs(ratio - 1.0).max() < (0.25 if not m else 0.12), (m, ratio)
         assert np.abs(ratio.mean(axis=0) - 1.0).max() < (0.03 if not m else 0.012), (m, ratio.mean(axis=0))
+
+
+def test_shade_reference_under_an_environment_renders_a_frame_that_shows_no_unsampled_material():
+    """A table holding a MERL material packed without its sampling table (for directional lights alone) beside the
+    Lambert the frame shows: a frame under the environment reads no sampler of the MERL, and renders (with and
+    without MIS), the Lambert sphere at its albedo under a constant sky of 1; a frame showing the MERL is refused.
+    Truth: the white furnace (albedo 0.5 at every covered pixel, BRDF sampling alone; on average, MIS)."""
+    from warpbw.brdf import LAMBERT, MERL, MERL_CELLS, MaterialSpec, build_material_table
+    from warpbw.envmap import constant_envmap
+    from warpbw.gbuffer import SphereSpec, build_geometry, make_camera, render_gbuffer
+    from warpbw.shading import shade_reference
+
+    cam = make_camera((0.0, 0.0, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0, 12, 12)
+    specs = [MaterialSpec("plain", LAMBERT, albedo=(0.5, 0.5, 0.5)),
+             MaterialSpec("measured", MERL, merl=np.full((MERL_CELLS, 3), 0.1, np.float32))]
+    table = build_material_table(specs, sampling=False)
+    env = constant_envmap(1.0)
+    gb = render_gbuffer(cam, build_geometry([SphereSpec((0, 0, 0), 1.0, 0)], []))
+    for mis in (False, True):
+        img = shade_reference(gb, table, env.data, 4, mis=mis).radiance.numpy()[gb.coverage.reshape(-1)]
+        assert img.size and (abs(img.mean() - 0.5) < 0.02 if mis else np.allclose(img, 0.5, atol=1e-4))
+    shown = render_gbuffer(cam, build_geometry([SphereSpec((0, 0, 0), 1.0, 1)], []))
+    with pytest.raises(WarpbwError, match=r"^shade_reference: materials: material 1 \('measured'\) was packed"):
+        shade_reference(shown, table, env.data, 4)
