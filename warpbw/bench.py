@@ -72,7 +72,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError, offset_seed
+from warpbw.errors import WarpbwError, check_path, offset_seed
 from warpbw.io.staged import remove_stale_temps, staged_outputs
 
 GT_CHUNK_SPP = 4096                                   # spp per cached ground-truth chunk
@@ -144,6 +144,7 @@ def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = GT_SEED, progre
     from warpbw.io.exr import write_exr
     from warpbw.pipeline import render_reference
 
+    cache_dir = check_path(cache_dir, "ground_truth: cache_dir")   # a str failed on str / str, None in pathlib
     chunk, n = ground_truth_chunks(gt_spp)
     key = gt_key(scene if scene is not None else prep.scene, seed)
     # the chunks' running sum, not the chunks: a list of them held n frames (16 B/px each, cached ones their file's
@@ -354,6 +355,7 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
 
     if runs < 1:
         raise WarpbwError(f"runs: expected at least 1, got {runs}")
+    cache_dir = check_path(cache_dir, "run_bench: cache_dir") if cache_dir is not None else gt_cache_dir()
     _, chunks = ground_truth_chunks(gt_spp)   # before any work
     if not len(spp_list):   # the doubling check renders the largest
         raise WarpbwError("spp_list: expected at least one reference sample count")
@@ -373,7 +375,6 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
         clip = plane_distance(planes, device)
     render_reference = functools.partial(pipeline.render_reference, clip_distance=clip)
     render_adaptive = functools.partial(pipeline.render_adaptive, clip_distance=clip)
-    cache_dir = Path(cache_dir) if cache_dir is not None else gt_cache_dir()
     t0 = time.perf_counter()
     prep = pipeline.prepare_scene(surfaces, device=device, progress=progress)
     if prep.env is not None and not np.any(prep.env.pixels):   # else a ZeroDivisionError after the ground truth
@@ -582,6 +583,7 @@ def format_table(record: dict) -> str:
 def write_plot(record: dict, path) -> None:
     """PSNR against frame time (one curve per method), and the n_b sweep when present; error bars of one standard
     error where the record has them (two runs or more)."""
+    check_path(path, "write_plot: path")   # before the plot, not from the writer after it
     import matplotlib
 
     matplotlib.use("Agg")
