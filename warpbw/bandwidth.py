@@ -879,7 +879,6 @@ def _check_pass_inputs(gb, cam, materials, env_data, tables) -> None:
     for name, value, kind, what in (
             ("gb", gb, GBuffer, "a GBuffer (render_gbuffer)"), ("cam", cam, CameraData.cls, "a CameraData"),
             ("materials", materials, MaterialBuffers, "MaterialBuffers (build_material_table)"),
-            ("env_data", env_data, EnvMapData.cls, "an EnvMapData"),
             ("tables", tables, BandwidthTables.cls, "BandwidthTables (make_bandwidth_tables)")):
         if not isinstance(value, kind):
             raise WarpbwError(f"bandwidth pass: {name}: expected {what}, got {type(value).__name__}")
