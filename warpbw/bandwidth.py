@@ -976,7 +976,7 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
 @dataclass
 class SampleAllocation:
     n_p: np.ndarray            # (H, W) int32 samples per pixel (0 where no geometry)
-    variance: np.ndarray       # (H, W) float32 predicted variance of the pixel's estimate, v / N_p (0 where no
+    variance: np.ndarray       # (H, W) float32 predicted variance of an estimate of N_p samples, v / N_p (0 where no
                                # geometry): v the variance the pass measured for the frame's estimator ("measured")
                                # or the bound sigma2 (Eq. 9 / 10; every other allocation, "relative" included)
     v_target: float            # the constant V of N_p = ceil(sigma2 / V); 0: all at n_max; inf (null in JSON):
