@@ -880,14 +880,15 @@ def test_the_dropped_sample_count_goes_past_int32():
 
     gb = render_gbuffer(prep.camera, prep.geometry)
     spp, seed = 16, 5
-    d = shade_reference(gb, prep.materials, prep.env_data, spp, seed=seed, mis=True).non_finite
-    assert 0 < d <= 2 * spp * int(gb.coverage.sum())
+    # BRDF sampling alone: the kernel test_bad_input's furnace compiles too (a fresh clone compiles each kernel once)
+    d = shade_reference(gb, prep.materials, prep.env_data, spp, seed=seed, mis=False).non_finite
+    assert 0 < d <= spp * int(gb.coverage.sum())
     start = 2**31 - 1 - d // 2
     counter = wp.array([start], dtype=wp.int64)   # an int32 array is refused by the kernel's signature
     env_data, lights_data = lighting_inputs(prep.env_data, None)
     pix = covered_pixels(gb)
     n = int(pix.shape[0])
-    kernel = make_reference_kernel(prep.materials.kinds, True)
+    kernel = make_reference_kernel(prep.materials.kinds, False)
     wp.launch(kernel, dim=n, inputs=[gb.data, prep.materials.table, env_data, lights_data, pix, 0, spp,
                                      wp.zeros(0, dtype=wp.int32), seed, wp.zeros(gb.width * gb.height, dtype=wp.vec3),
                                      counter, 0, 2**31 - 1, wp.zeros(0, dtype=wp.uint32), wp.zeros(0, dtype=wp.vec3d)])
