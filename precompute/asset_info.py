@@ -22,13 +22,12 @@ from __future__ import annotations
 import json
 import re
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
 from precompute.assetfile import read_any_asset, read_asset, settings_mismatch
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_path
 
 __all__ = ["AssetFormat", "formats", "asset_info", "info_lines", "header_status"]
 
@@ -133,7 +132,7 @@ def asset_info(path) -> dict:
     difference means), ``arrays`` (``name``, ``shape``, ``dtype``, ``min``, ``max``, ``non_finite``); a GMM mipmap
     this warpbw reads adds ``levels`` and ``components``.  A file that is no asset file, or a damaged one: a one-line
     ``WarpbwError``."""
-    path = Path(path)   # as the readers name it in their errors
+    path = check_path(path, "asset_info: path")   # a Path, as the readers name it in their errors
     asset = read_any_asset(path)
     h = asset.header
     fmt_name = h.get("format")
@@ -190,7 +189,7 @@ def header_status(path) -> dict:
     or no asset file (a damaged one: its reader says more)."""
     from precompute.assetfile import read_header
 
-    p = Path(path)
+    p = check_path(path, "header_status: path")
     h = read_header(p) if p.is_file() else None
     if not isinstance(h, dict) or not isinstance(h.get("format"), str):
         why = "not a warpbw asset file, or a damaged one" if p.is_file() else "no such file"

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError, check_input_file
+from warpbw.errors import WarpbwError, check_input_file, check_path
 from warpbw.io.staged import check_replaceable, staged_outputs
 
 HEADER_KEY = "__header__"
@@ -137,7 +137,7 @@ def read_any_asset(path) -> Asset:
 def read_header(path) -> dict | None:
     """The JSON header of the asset file ``path`` without its arrays (a cache reader's cheap look at its ``params``),
     or None when ``path`` is no asset file, or a damaged one (``read_asset`` then says what is wrong)."""
-    header, _ = _load(Path(path), arrays=False)
+    header, _ = _load(check_path(path, "read_header: path"), arrays=False)
     return header if isinstance(header, dict) else None
 
 

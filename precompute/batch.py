@@ -38,7 +38,7 @@ from functools import partial
 from pathlib import Path
 
 from precompute.assetfile import read_header, settings_mismatch
-from warpbw.errors import WarpbwError, check_flag
+from warpbw.errors import WarpbwError, check_flag, check_instance, check_path
 
 TABLES = ("sampling", "bandwidth")
 BATCH_FORMAT = "warpbw-precompute-batch"
@@ -75,7 +75,7 @@ def batch_items(sources, materials=None) -> list:
         raise WarpbwError("sources: expected at least one NPF table, MERL file or folder of MERL files")
     items, tables = [], 0
     for s in sources:
-        p = Path(s)
+        p = check_path(s, "batch_items: sources")   # None or a number: pathlib's TypeError
         if p.is_dir():
             items += _folder_items(p)
         elif p.is_file() and p.stat().st_size == NPF_FILE_SIZE:
@@ -104,7 +104,9 @@ def batch_items(sources, materials=None) -> list:
 
 
 def output_paths(item: BatchItem, out_dir, tables=TABLES) -> dict:
-    return {t: Path(out_dir) / f"{item.name}.{t}{TABLE_SUFFIX}" for t in tables}
+    check_instance(item, BatchItem, "output_paths: item", "a BatchItem (batch_items')")   # a path: AttributeError
+    out_dir = check_path(out_dir, "output_paths: out_dir")
+    return {t: out_dir / f"{item.name}.{t}{TABLE_SUFFIX}" for t in tables}
 
 
 def check_tables(tables) -> tuple:
@@ -123,6 +125,7 @@ def check_outputs(items, out_dir, tables=TABLES, force: bool = False, resume: bo
     from warpbw.io.staged import output_exists
 
     force, resume = check_flag(force, "force"), check_flag(resume, "resume")   # force="no" replaced every table
+    out_dir = check_path(out_dir, "out_dir")   # None or a number: pathlib's TypeError
     check_output_dir(out_dir, "-o")
     paths = [p for it in items for p in output_paths(it, out_dir, check_tables(tables)).values()]
     check_overwrite(paths, True, inputs=sorted({it.path for it in items}), inputs_are="a BRDF file of the batch")
@@ -265,6 +268,9 @@ def run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers: int
     items = list(items)
     if not items:
         raise WarpbwError("items: expected at least one BRDF (batch_items gives them)")
+    for it in items:   # a file name given for an item was an AttributeError from output_paths
+        check_instance(it, BatchItem, "run_batch: items", "BatchItems (batch_items gives them from files)")
+    out_dir = check_path(out_dir, "run_batch: out_dir")   # before the check that names it -o
     cores = os.cpu_count() or 1
     workers = min(cores, len(items)) if workers is None else workers
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:

@@ -64,7 +64,7 @@ import numpy as np
 
 from precompute.assetfile import read_asset, read_header, settings_mismatch, write_asset
 from precompute.progress import progress_callback
-from warpbw.errors import WarpbwError, check_input_file, check_instance
+from warpbw.errors import WarpbwError, check_input_file, check_instance, check_path
 from warpbw.io.staged import check_name_length, remove_stale_temps
 from warpbw.sampling import (N_PHI, N_THETA_O, N_U, TABLE_FORMAT, TABLE_VERSION, SamplerTable,
                              build_sampler_table, directional_albedo)
@@ -389,7 +389,7 @@ def load_or_build(source, explicit, cache, prefix: str, version: int, read, buil
     whatever settings it records."""
     if explicit is not None:
         return read(explicit, source), "file"
-    d = Path(cache) if cache is not None else cache_dir()
+    d = check_path(cache, "cache") if cache is not None else cache_dir()   # None or a number: pathlib's TypeError
     key = source.digest.replace(":", "-").replace("/", "_")
     path = d / f"{prefix}-{key}-v{version}.npz"
     remove_stale_temps(path)   # a killed writer's, where another run wrote the entry whole: none writes it again

@@ -143,7 +143,7 @@ from pathlib import Path
 import numpy as np
 
 from warpbw.errors import (SEED_MAX, WarpbwError, available_memory, check_count, check_flag, check_input_file,
-                           check_real, is_int, numeric_array, warn_if_short_of_memory)
+                           check_path, check_real, is_int, numeric_array, warn_if_short_of_memory)
 
 GMM_FORMAT = "warpbw-gmm-mipmap"
 # 2: the fourth stored quantity is a (d s^2 + |mu|^2) (module docstring); 1 held 004's a (s^2 + |mu|^2).
@@ -1209,6 +1209,7 @@ def load_source(spec: str, kind: str = "height"):
     field, default size 512).  Returns (array, name, content hash: blake2b of the file or of the heights)."""
     from precompute.surfaces import SURFACES
 
+    check_path(spec, "load_source: spec")   # None or 3 was read as a file named "None" or "3"
     s = str(spec)
     if s.startswith("surface:"):
         parts = s.split(":")

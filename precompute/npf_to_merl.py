@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from warpbw.errors import WarpbwError
+from warpbw.errors import WarpbwError, check_path
 from warpbw.io.merl import TABULATION_VERSION, tabulate_merl, write_merl
 from warpbw.io.npf import npf_eval, read_npf
 from warpbw.io.staged import check_replaceable, check_still_free
@@ -27,6 +27,7 @@ from warpbw.io.staged import check_replaceable, check_still_free
 def npf_to_merl(table, material: str, out, force: bool = False) -> Path:
     """Write NPF material ``material`` of ``table`` to the MERL file ``out`` (a name ending in .binary, as the
     command line asks: with force, an .exr given by mistake was replaced); returns ``out`` as a Path."""
+    table = check_path(table, "npf_to_merl: table")   # None or a number: pathlib's TypeError
     out = check_replaceable(out, force, inputs=[table])   # before the tabulation, which takes seconds
     if out.suffix.lower() != ".binary":
         raise WarpbwError(f"{out}: expected a MERL file name ending in .binary")
@@ -45,11 +46,11 @@ def tabulation_stamp(table, material: str) -> str:
     table)."""
     from warpbw.scene import file_digest
 
-    return f"{TABULATION_VERSION} {material} {file_digest(Path(table))}"
+    return f"{TABULATION_VERSION} {material} {file_digest(check_path(table, 'tabulation_stamp: table'))}"
 
 
 def _stamp_path(merl) -> Path:
-    merl = Path(merl)
+    merl = check_path(merl, "merl")   # None or a number: pathlib's TypeError (write_tabulation_stamp)
     return merl.with_name(merl.name + TABULATION_STAMP_SUFFIX)
 
 
@@ -57,8 +58,9 @@ def tabulation_is_current(merl, table, material: str) -> bool:
     """True when the MERL file ``merl`` exists and its stamp says ``npf_to_merl(table, material)`` would write it now
     (``tabulation_stamp``); False for a stamp that is missing, unreadable or of another tabulation, table or
     material: such a file is converted again."""
+    merl, table = check_path(merl, "tabulation_is_current: merl"), check_path(table, "tabulation_is_current: table")
     try:
-        return Path(merl).is_file() and _stamp_path(merl).read_text(errors="replace").strip() == \
+        return merl.is_file() and _stamp_path(merl).read_text(errors="replace").strip() == \
             tabulation_stamp(table, material)
     except OSError:
         return False

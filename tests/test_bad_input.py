@@ -4370,3 +4370,93 @@ def test_gmm_header_problem_names_a_material_without_a_map_and_a_file_that_is_no
     rewrite_asset(tmp_path / "h.gmm", tmp_path / "other.gmm", format="warpbw-brdf-sampling")
     assert gmm_header_problem(scene, "m", tmp_path / "other.gmm") == (
         f"is a 'warpbw-brdf-sampling' file, expected {GMM_FORMAT!r} (build one with: warpbw-precompute gmm)")
+
+
+def _path_taking_calls(tmp_path):
+    """(name, call of a path) for every public function that takes a file or folder name and had no check of it
+    (session 80: pathlib's TypeError from deep inside, an AttributeError, or, for an int, open()'s file descriptor)."""
+    from precompute import batch
+    from precompute.asset_info import asset_info, header_status
+    from precompute.assetfile import read_header
+    from precompute.gmm_mipmap import load_source
+    from precompute.npf_to_merl import npf_to_merl, tabulation_is_current, tabulation_stamp, write_tabulation_stamp
+    from warpbw import bench, bench_filtering
+    from warpbw.cli_common import write_json
+    from warpbw.envmap import load_environment
+    from warpbw.io import staged
+    from warpbw.io.exr import colour_conversion
+    from warpbw.io.exr_layout import exr_damage, first_header_declares
+    from warpbw.io.mesh import mesh_triangles
+    from warpbw.scene import file_digest, parse_scene
+
+    item, table = batch.BatchItem("a.binary", None, "a"), fake_npf_table(tmp_path / "npf.bin")
+    out = tmp_path / "o"
+    return [
+        ("file_digest: path", file_digest), ("<string>: base_dir", lambda p: parse_scene("", base_dir=p)),
+        ("colour_conversion: path", colour_conversion), ("exr_damage: path", exr_damage),
+        ("first_header_declares: path", lambda p: first_header_declares(p, "dataWindow", "box2i")),
+        ("mesh_triangles: path", mesh_triangles), ("write_json: path", lambda p: write_json(p, {}, say=False)),
+        ("asset_info: path", asset_info), ("header_status: path", header_status), ("read_header: path", read_header),
+        ("load_source: spec", load_source),
+        ("load_environment: spec", load_environment),
+        ("write_plot: path", lambda p: bench.write_plot({}, p)),
+        ("write_plot: path", lambda p: bench_filtering.write_plot({}, p)),
+        ("ground_truth: cache_dir", lambda p: bench.ground_truth(None, 8, p)),
+        ("batch_items: sources", lambda p: batch.batch_items([p])),
+        ("output_paths: out_dir", lambda p: batch.output_paths(item, p)),
+        ("output_paths: item", lambda p: batch.output_paths(p, out)),
+        ("out_dir", lambda p: batch.check_outputs([item], p)),
+        ("run_batch: out_dir", lambda p: batch.run_batch([item], p, scheduler="sync", progress=False)),
+        ("run_batch: items", lambda p: batch.run_batch([p], out, scheduler="sync", progress=False)),
+        ("npf_to_merl: table", lambda p: npf_to_merl(p, "chrome", tmp_path / "c.binary")),
+        ("tabulation_stamp: table", lambda p: tabulation_stamp(p, "chrome")),
+        ("tabulation_is_current: merl", lambda p: tabulation_is_current(p, table, "chrome")),
+        ("tabulation_is_current: table", lambda p: tabulation_is_current(tmp_path / "c.binary", p, "chrome")),
+        ("merl", lambda p: write_tabulation_stamp(p, table, "chrome")),
+        ("input_clash: path", lambda p: staged.input_clash(p, [])),
+        ("input_clash: inputs", lambda p: staged.input_clash(out, [p])),
+        ("check_not_read_only: path", lambda p: staged.check_not_read_only(p, "L")),
+        ("output_exists: path", staged.output_exists), ("dangling_link: path", staged.dangling_link),
+        ("check_existing_output: path", lambda p: staged.check_existing_output(p, True, "L")),
+        ("check_name_length: path", lambda p: staged.check_name_length(p, "L")),
+        ("remove_stale_temps: path", staged.remove_stale_temps),
+        ("temporary_folder: parent", lambda p: staged.temporary_folder("x", p).__enter__()),
+        ("check_still_free: path", lambda p: staged.check_still_free(p, False)),
+        ("staged_outputs: paths", lambda p: staged.staged_outputs([p]).__enter__()),
+    ]
+
+
+def test_every_public_function_that_takes_a_path_names_it_when_given_none_or_a_number(tmp_path):
+    """None, a number, a list or bytes given as a path to these public functions was pathlib's TypeError from deep
+    inside ("expected str, bytes or os.PathLike object, not int"), an AttributeError, or read as a file named "None"
+    (session 79 left them; found by calling every public function whose body made a Path of an argument).  Each now
+    says in one line which parameter wanted a file name.  Truth: the parameter names of the signatures."""
+    calls = _path_taking_calls(tmp_path)
+    for bad in (987654, None, [], b"x.exr", 1.5):
+        for name, call in calls:
+            if bad is None and name in ("<string>: base_dir", "temporary_folder: parent"):
+                continue   # None is their default (the working folder, the system's temporary folder)
+            expected = "a warpbw.scene.Environment" if "spec" in name and "environment" in name else \
+                "(a )?BatchItem" if name.endswith(("item", "items")) else "a file name"
+            with pytest.raises(WarpbwError, match=rf"^{re.escape(name)}: expected {expected}") as exc:
+                call(bad)
+            assert "\n" not in str(exc.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["npf.bin"]
+
+
+def test_a_number_given_as_a_path_is_not_read_as_a_file_descriptor(tmp_path):
+    """``open(3)`` opens file descriptor 3: ``file_digest(1)`` hashed what stdout held and closed it (the next print
+    failed with "Bad file descriptor"), and ``mesh_triangles``, ``exr_damage``, ``first_header_declares`` and
+    ``check_not_read_only`` (opened for appending) closed the caller's descriptor likewise, returning a figure or
+    None without a word (session 80).  Truth: the descriptor of a pipe this test made, still open afterwards."""
+    calls = dict(_path_taking_calls(tmp_path))
+    r, w = os.pipe()
+    os.write(w, b"v/f 1/1 2/2 3/3\n")
+    os.close(w)   # a reader of r then meets its end
+    try:
+        for name, call in calls.items():
+            with pytest.raises(WarpbwError, match=rf"^{re.escape(name)}: expected"):
+                call(r)
+            os.fstat(r)   # still open: OSError "Bad file descriptor" on the old code
+    finally:
+        os.close(r)

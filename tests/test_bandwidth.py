@@ -998,7 +998,9 @@ def test_the_pass_checks_its_tables_and_structs_before_any_launch(monkeypatch):
         bad[i] = gb.data if name == "gb" else None
         with pytest.raises(WarpbwError, match=rf"^bandwidth pass: {name}: expected"):
             bw.bandwidth_pass(*bad, tables, n_b=8)
-    with pytest.raises(WarpbwError, match=r"^bandwidth pass: env_data: expected an EnvMapData, got str"):
+    # checked once, by check_env_data (the loop over the structs checked its type too: session 80)
+    with pytest.raises(WarpbwError, match=r"^bandwidth pass: env_data: expected an EnvMapData \(an EnvMap's .data\), "
+                                          r"got str$"):
         bw.bandwidth_pass(gb, prep.camera, prep.materials, "sky", tables, n_b=8)
     for bad in (True, np.True_):
         with pytest.raises(WarpbwError, match="^nyquist: expected a positive factor"):

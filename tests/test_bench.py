@@ -354,6 +354,8 @@ def test_a_scene_with_nothing_to_measure_is_a_clear_error(tmp_path, monkeypatch)
                         cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **kw: None)
 
 
+# its stand-in frames are random noise at every count, so the reference's MSE need not fall
+@pytest.mark.filterwarnings("ignore:.*the reference's MSE rises:RuntimeWarning")
 def test_a_ground_truth_chunk_that_cannot_be_cached_is_used_and_said(tmp_path, monkeypatch):
     """A chunk's cache name taken by a folder (or a full disk) stopped the bench with "cannot write" after the chunk
     was rendered, and minutes of rendering were lost.  Now it warns, naming the file, and the bench goes on with the
@@ -1860,3 +1862,55 @@ def test_the_ground_truth_holds_a_running_sum_not_every_chunk(tmp_path, monkeypa
     for cached in (False, True):   # chunks in flight and the two sums, not 16 frames
         assert peaks[16, cached] < peaks[2, cached] + frame, (cached, peaks[16, cached] / frame,
                                                                peaks[2, cached] / frame)
+
+
+def test_equal_quality_on_a_curve_whose_mse_rises_reads_the_first_crossing_and_warns(tmp_path, monkeypatch):
+    """A reference curve whose MSE does not fall at every count (noise; near the largest counts, the ground truth's
+    own noise) was interpolated in the order of its MSEs, across counts that are not adjacent: a flat end of 0.12,
+    0.06, 0.07 at 8, 16, 32 spp read 0.08 at 22.7 spp, unflagged, where the curve reaches it at 12 (a speed-up 1.9x
+    too high, without a word; session 78 left it).  Now the count is the first at which the curve falls to the MSE,
+    and run_bench warns of the rise.  Truth: log-log interpolation by hand between the adjacent counts."""
+    from warpbw import pipeline
+    from warpbw.scene import parse_scene
+
+    def curve(spp, mse):
+        return [{"spp": s, "mse": m, "time_s": 0.01 * s} for s, m in zip(spp, mse)]
+
+    flat_end = curve((1, 2, 4, 8, 16, 32), (1.0, 0.5, 0.25, 0.12, 0.06, 0.07))
+    spp, t, ext = bench.equal_quality_time(flat_end, 0.08)   # between 8 and 16: the MSE halves per doubling
+    assert math.isclose(spp, 8 * 0.12 / 0.08, rel_tol=1e-12) and math.isclose(t, 0.12, rel_tol=1e-12) and not ext
+    spp, t, ext = bench.equal_quality_time(flat_end, 0.05)   # below every MSE, and the last segment rises
+    assert math.isnan(spp) and math.isnan(t) and ext
+    bump = curve((1, 2, 4, 8, 16, 32), (1.0, 0.5, 0.26, 0.12, 0.51, 0.03))   # session 78's example: read 5.69
+    spp, _, ext = bench.equal_quality_time(bump, 0.505)
+    assert math.isclose(spp, 2.0 ** (math.log(1 / 0.505) / math.log(2.0)), rel_tol=1e-12) and not ext
+    assert bench.mse_rises(bump) == [(8, 16)] and bench.mse_rises(flat_end) == [(16, 32)]
+
+    h = w = 8
+    cov = np.ones((h, w), bool)
+    truth = np.full((h, w, 3), 0.5, np.float32)
+    sign = np.where(np.indices((h, w)).sum(0) % 2 == 0, 1.0, -1.0)[..., None]
+    amp = {1: 1.0, 2: 0.5, 4: 0.25, 8: 0.2, 16: 0.1, 32: 0.11}   # the MSE rises from 16 to 32 spp
+    clock = StandInClock()
+    monkeypatch.setattr(bench, "time", clock)
+
+    def fake_reference(prep, spp, seed=0, mis=False, **kw):
+        if seed >= 1_000_000:   # the ground truth's chunks: exact
+            return SimpleNamespace(image=truth.copy(), coverage=cov, stats={})
+        clock.now += 0.01 * spp
+        return SimpleNamespace(image=(truth + amp[spp] * sign).astype(np.float32), coverage=cov,
+                               stats={"time_s": {"shading": 0.009 * spp, "gbuffer": 0.001 * spp}})
+
+    def fake_adaptive(prep, budget, seed=0, mis=False, **kw):
+        clock.now += 0.01
+        return _fake_adaptive_result((truth + 0.15 * sign).astype(np.float32), cov, 0.01, budget)
+
+    monkeypatch.setattr(pipeline, "render_reference", fake_reference)
+    monkeypatch.setattr(pipeline, "render_adaptive", fake_adaptive)
+    scene = parse_scene(SCENE, tmp_path, "s.toml")
+    with pytest.warns(RuntimeWarning, match=r"s.toml: the reference's MSE rises from 16 to 32 spp .*the first at "):
+        rec = bench.run_bench(scene, spp_list=sorted(amp), budgets=(1,), gt_spp=64, runs=1,
+                              cache_dir=tmp_path / "gt", progress=False, log=lambda *a, **kw: None)
+    (p,) = rec["methods"]["adaptive"]   # MSE 0.0225 between 8 (0.04) and 16 (0.01) spp: 8 x 2^(log(0.04/0.0225)/log 4)
+    assert math.isclose(p["equal_quality_spp"], 8 * 2 ** (math.log(0.04 / 0.0225) / math.log(4)), rel_tol=1e-6), p
+    assert not p["extrapolated"]

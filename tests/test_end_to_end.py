@@ -3360,3 +3360,47 @@ def test_info_says_which_nu_rho_tables_the_scene_names_rather_than_builds(tmp_pa
     (tmp_path / "a.npz").write_bytes(b"")   # named, not read: the summary loads no asset
     assert bandwidth_stage('\nbandwidth = "a.npz"').endswith(
         "nu_rho table, built once and cached (a's read from the scene's bandwidth file)")
+
+
+_STOP_AS_IT_LOADS = """\
+import os, signal, sys
+
+class _StopAsItLoads:
+    def find_spec(self, name, path=None, target=None):
+        if name in ("numpy", "warp", "warpbw.cli_common") and sys.argv[0].endswith(".py"):
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), getattr(signal, os.environ["STOP_AS_IT_LOADS"]))
+        return None
+
+sys.meta_path.insert(0, _StopAsItLoads())
+"""
+
+
+def test_every_example_says_a_sigterm_while_it_loads_in_one_line(tmp_path):
+    """A SIGTERM or SIGHUP while an example imports numpy, Warp and warpbw (before its run_command) ended it without a
+    word, where the warpbw commands say one line and exit with the shell's status for the signal (session 79 fixed
+    the commands and the examples' Ctrl-C; session 80 the examples' other stops).  Each example, run as a script and
+    sent SIGTERM or SIGHUP (in turns) as it first imports one of them, now says "SCRIPT: terminated" ("hung up")
+    alone and exits 143 (129), as its own run_command would, having written nothing."""
+    import signal
+
+    (tmp_path / "hook").mkdir()
+    (tmp_path / "hook" / "sitecustomize.py").write_text(_STOP_AS_IT_LOADS)
+    work = tmp_path / "work"
+    work.mkdir()
+    stops = (("SIGTERM", 143, "terminated"), ("SIGHUP", 129, "hung up"))
+    children, expected = {}, {}
+    for k, script in enumerate(EXAMPLES):
+        sig, status, said = stops[k % 2]
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path / "hook"), *sys.path]), STOP_AS_IT_LOADS=sig)
+        children[script.name] = subprocess.Popen(
+            [sys.executable, str(script), "--help"], cwd=work, env=env, stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_DFL))
+        expected[script.name] = (status, f"{script.name}: {said}", "")
+    got = {}
+    for name, child in children.items():
+        out, err = child.communicate(timeout=120)
+        got[name] = (child.returncode, err.strip(), out)
+    assert got == expected
+    assert list(work.iterdir()) == []

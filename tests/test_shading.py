@@ -886,3 +886,34 @@ def test_shade_reference_under_an_environment_renders_a_frame_that_shows_no_unsa
     shown = render_gbuffer(cam, build_geometry([SphereSpec((0, 0, 0), 1.0, 1)], []))
     with pytest.raises(WarpbwError, match=r"^shade_reference: materials: material 1 \('measured'\) was packed"):
         shade_reference(shown, table, env.data, 4)
+
+
+def test_the_dropped_sample_count_goes_past_int32():
+    """The frame's count of dropped samples (non-finite contributions) was an int32 atomic: 4096 spp with MIS at
+    2048^2 draws 3.4e10 samples, and a frame of overflowing radiance drops most of them, so the count wrapped
+    (negative in the message, or 0: the overflow check then passed the frame without a word).  The kernel is run
+    here with its counter already at 2^31 - 1 - D/2 over a small frame that drops D samples, which must come out as
+    the exact sum.  Truth: D from shade_reference on the same frame (counted from 0), plain integer addition."""
+    from warpbw.shading import make_reference_kernel, shade_reference
+
+    # a near-mirror (F = 1) in a white furnace of 1e32: radiance times the lobe passes float32 in many samples
+    prep = prepare_scene(sphere_scene('type = "ggx"\nalpha = 1e-4\nspecular = [1.0, 1.0, 1.0]',
+                                      env="constant = [1e32, 1e32, 1e32]", w=8, h=8))
+    from warpbw.gbuffer import render_gbuffer
+    from warpbw.shading import covered_pixels, lighting_inputs
+
+    gb = render_gbuffer(prep.camera, prep.geometry)
+    spp, seed = 16, 5
+    # BRDF sampling alone: the kernel test_bad_input's furnace compiles too (a fresh clone compiles each kernel once)
+    d = shade_reference(gb, prep.materials, prep.env_data, spp, seed=seed, mis=False).non_finite
+    assert 0 < d <= spp * int(gb.coverage.sum())
+    start = 2**31 - 1 - d // 2
+    counter = wp.array([start], dtype=wp.int64)   # an int32 array is refused by the kernel's signature
+    env_data, lights_data = lighting_inputs(prep.env_data, None)
+    pix = covered_pixels(gb)
+    n = int(pix.shape[0])
+    kernel = make_reference_kernel(prep.materials.kinds, False)
+    wp.launch(kernel, dim=n, inputs=[gb.data, prep.materials.table, env_data, lights_data, pix, 0, spp,
+                                     wp.zeros(0, dtype=wp.int32), seed, wp.zeros(gb.width * gb.height, dtype=wp.vec3),
+                                     counter, 0, 2**31 - 1, wp.zeros(0, dtype=wp.uint32), wp.zeros(0, dtype=wp.vec3d)])
+    assert int(counter.numpy()[0]) == start + d > 2**31 - 1

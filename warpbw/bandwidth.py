@@ -879,7 +879,6 @@ def _check_pass_inputs(gb, cam, materials, env_data, tables) -> None:
     for name, value, kind, what in (
             ("gb", gb, GBuffer, "a GBuffer (render_gbuffer)"), ("cam", cam, CameraData.cls, "a CameraData"),
             ("materials", materials, MaterialBuffers, "MaterialBuffers (build_material_table)"),
-            ("env_data", env_data, EnvMapData.cls, "an EnvMapData"),
             ("tables", tables, BandwidthTables.cls, "BandwidthTables (make_bandwidth_tables)")):
         if not isinstance(value, kind):
             raise WarpbwError(f"bandwidth pass: {name}: expected {what}, got {type(value).__name__}")
@@ -977,7 +976,7 @@ def bandwidth_pass(gb: GBuffer, cam: CameraData, materials: MaterialBuffers, env
 @dataclass
 class SampleAllocation:
     n_p: np.ndarray            # (H, W) int32 samples per pixel (0 where no geometry)
-    variance: np.ndarray       # (H, W) float32 predicted variance of the pixel's estimate, v / N_p (0 where no
+    variance: np.ndarray       # (H, W) float32 predicted variance of an estimate of N_p samples, v / N_p (0 where no
                                # geometry): v the variance the pass measured for the frame's estimator ("measured")
                                # or the bound sigma2 (Eq. 9 / 10; every other allocation, "relative" included)
     v_target: float            # the constant V of N_p = ceil(sigma2 / V); 0: all at n_max; inf (null in JSON):

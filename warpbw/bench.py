@@ -6,7 +6,8 @@ Public:
     ``ground_truth_chunks(gt_spp) -> (spp per chunk, chunks)``, ``gt_spp_refusal(gt_spp)``   how it splits, or why not
     ``GT_VERSION``, ``GT_SEED``, ``gt_key(scene, seed)``, ``gt_cache_dir()``   where a scene's chunks are cached;
     ``CHUNK_DIGEST_NOTE``   the note in a chunk's file that holds its pixels' digest
-    ``equal_quality_time(ref, mse) -> (spp, time_s, extrapolated)``   log-log interpolation
+    ``equal_quality_time(ref, mse) -> (spp, time_s, extrapolated)``   log-log interpolation (the first crossing);
+    ``mse_rises(ref)``   the counts between which a reference curve's MSE rises (noise)
     ``psnr_standard_error(mses)``, ``paired_difference_se(mses_a, mses_b)``   noise of the PSNR figures (dB)
     ``speedup_relative_se(ref, mse, psnr_se_db)``   noise of an equal-quality speed-up (relative)
     ``pass_in_reference_spp(best, ref_recs)``   the bandwidth pass's time in reference samples per pixel
@@ -43,9 +44,11 @@ Protocol:
   record's ``bandwidth_pass_reference_spp`` is that frame's bandwidth pass over the reference's shading time per
   sample per pixel (at its largest count): what the pass costs, in the samples it could have paid for.
 * Equal-quality speed-up of an adaptive point: the reference's time at the sample count that reaches
-  the same MSE, interpolated linearly in (log spp, log MSE) and (log spp, log time) between measured
-  counts, divided by the adaptive time.  Outside the measured range it is extrapolated along the end
-  segment and flagged ``extrapolated``.  The headline ``equal_quality_speedup`` is the best
+  the same MSE, interpolated linearly in (log spp, log MSE) and (log spp, log time) between adjacent measured
+  counts, divided by the adaptive time.  On a curve whose MSE rises somewhere (noise, or the ground truth's own noise
+  at the largest counts; warned, ``mse_rises``) the count is the first at which the curve falls to that MSE.
+  Outside the measured range it is extrapolated along the end segment and flagged ``extrapolated`` (NaN where that
+  segment does not fall).  The headline ``equal_quality_speedup`` is the best
   non-extrapolated point of the budget sweep (the operating point a user would pick) among the budgets the frames
   kept (``over_budget`` points, whose shaded pixels' minimum of ``n_min`` samples took more, only where no budget was
   kept: such a point is the frame of a larger budget, timed again, and would be picked for its timing noise); every
@@ -65,6 +68,7 @@ import hashlib
 import itertools
 import math
 import statistics
+import sys
 import time
 import warnings
 from dataclasses import dataclass
@@ -72,7 +76,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import WarpbwError, offset_seed
+from warpbw.errors import WarpbwError, check_path, offset_seed
 from warpbw.io.staged import remove_stale_temps, staged_outputs
 
 GT_CHUNK_SPP = 4096                                   # spp per cached ground-truth chunk
@@ -87,6 +91,7 @@ CHUNK_DIGEST_NOTE = "rgb_blake2b"   # a chunk file's note (warpbw.io.exr) holdin
 GT_SEED, GT_SEED_STEP = 1_000_001, 1_000_002          # ground-truth chunk k is seeded GT_SEED + k * GT_SEED_STEP
 DOUBLING_DB = 0.5                                     # ../shared/DESIGN.md: doubling GT spp moves PSNR < 0.5 dB
 NB_SWEEP_BUDGET = 8                                   # budget of the n_b sweep unless given
+LOG_FLOAT_MAX = math.log(sys.float_info.max)          # beyond it math.exp overflows
 DB_PER_LN = 10.0 / math.log(10.0)                     # d(10 log10 m) = DB_PER_LN dm / m
 SPEEDUP_SE_STEP = 0.05                                # log-MSE step of the slope d log t_eq / d log MSE
 
@@ -144,6 +149,7 @@ def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = GT_SEED, progre
     from warpbw.io.exr import write_exr
     from warpbw.pipeline import render_reference
 
+    cache_dir = check_path(cache_dir, "ground_truth: cache_dir")   # a str failed on str / str, None in pathlib
     chunk, n = ground_truth_chunks(gt_spp)
     key = gt_key(scene if scene is not None else prep.scene, seed)
     # the chunks' running sum, not the chunks: a list of them held n frames (16 B/px each, cached ones their file's
@@ -234,19 +240,45 @@ def _interp(x: float, xs: np.ndarray, ys: np.ndarray) -> tuple[float, bool]:
 
 
 def equal_quality_time(ref: list, mse: float) -> tuple[float, float, bool]:
-    """(spp, time) at which the reference reaches ``mse``, interpolated on log-log; and whether it was
-    extrapolated beyond the measured counts."""
+    """(spp, time) at which the reference reaches ``mse``, interpolated on log-log between adjacent counts; and
+    whether it was extrapolated beyond the measured counts.
+
+    The count is the first at which the curve, followed from its smallest count, falls to ``mse``: on a curve whose
+    MSE does not fall at every count (noise, or the ground truth's own noise near the largest counts) the points were
+    interpolated in the order of their MSEs, across counts that are not adjacent, and a flat end of 0.12, 0.06, 0.07
+    at 8, 16, 32 spp read 0.08 at 22.7 spp instead of 12, unflagged: a speed-up 1.9 times too high.  Below every
+    measured MSE it is extrapolated along the last segment, above them all along the first; where that segment does
+    not fall, no count is read (NaN, flagged).  ``mse_rises(ref)`` lists where a curve rises."""
     pts = sorted((r["spp"], r["mse"], r["time_s"]) for r in ref if r["mse"] > 0)
     if not pts or not (mse > 0):
         return math.nan, math.nan, True
     ls = np.log([p[0] for p in pts])
     lm = np.log([p[1] for p in pts])
     lt = np.log([p[2] for p in pts])
-    # MSE falls with spp: interpolate log spp against -log MSE (increasing)
-    order = np.argsort(-lm, kind="stable")
-    l_spp, ext = _interp(-math.log(mse), -lm[order], ls[order])
+    if len(pts) == 1:
+        return math.exp(ls[0]), math.exp(lt[0]), True
+    x = -math.log(mse)   # -log MSE grows with spp: interpolate log spp against it, segment by segment
+    xs = -lm
+    if x <= xs[0]:
+        i, ext = 0, bool(x < xs[0])                           # reached at the first count, or before it
+    else:
+        crossing = np.flatnonzero((xs[:-1] < x) & (x <= xs[1:]))   # the segments that fall through mse
+        i, ext = (int(crossing[0]), False) if crossing.size else (len(xs) - 2, True)
+    if ext and not xs[i + 1] > xs[i]:   # an end segment that does not fall reaches no other count
+        return math.nan, math.nan, True
+    t = (x - xs[i]) / (xs[i + 1] - xs[i]) if xs[i + 1] != xs[i] else 0.0
+    l_spp = float(ls[i] + t * (ls[i + 1] - ls[i]))
     l_t, ext_t = _interp(l_spp, ls, lt)
+    if max(l_spp, l_t) > LOG_FLOAT_MAX:   # far along a nearly flat end segment: math.exp's OverflowError
+        return math.inf, math.inf, True
     return math.exp(l_spp), math.exp(l_t), ext or ext_t
+
+
+def mse_rises(ref: list) -> list:
+    """The (spp, next spp) of the reference's adjacent counts between which its MSE rises: noise, or the ground
+    truth's own noise reached (``run_bench`` warns of them; ``equal_quality_time`` reads the first crossing)."""
+    pts = sorted((r["spp"], r["mse"]) for r in ref if r["mse"] > 0)
+    return [(a[0], b[0]) for a, b in zip(pts, pts[1:]) if b[1] > a[1]]
 
 
 def psnr_standard_error(mses) -> float | None:
@@ -354,6 +386,7 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
 
     if runs < 1:
         raise WarpbwError(f"runs: expected at least 1, got {runs}")
+    cache_dir = check_path(cache_dir, "run_bench: cache_dir") if cache_dir is not None else gt_cache_dir()
     _, chunks = ground_truth_chunks(gt_spp)   # before any work
     if not len(spp_list):   # the doubling check renders the largest
         raise WarpbwError("spp_list: expected at least one reference sample count")
@@ -373,7 +406,6 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
         clip = plane_distance(planes, device)
     render_reference = functools.partial(pipeline.render_reference, clip_distance=clip)
     render_adaptive = functools.partial(pipeline.render_adaptive, clip_distance=clip)
-    cache_dir = Path(cache_dir) if cache_dir is not None else gt_cache_dir()
     t0 = time.perf_counter()
     prep = pipeline.prepare_scene(surfaces, device=device, progress=progress)
     if prep.env is not None and not np.any(prep.env.pixels):   # else a ZeroDivisionError after the ground truth
@@ -408,6 +440,12 @@ def run_bench(scene, spp_list=DEFAULT_SPP, budgets=DEFAULT_BUDGETS, nb_list=(), 
         ref_recs.append(rec)
         log(f"reference {spp:6d} spp   {t:8.3f} s   PSNR {rec['psnr_db']:6.2f} dB +/- {_se(rec)}   "
             f"relMSE {rec['relmse']:.3e}")
+    rises = mse_rises(ref_recs)
+    if rises:   # the equal-quality counts then read the first crossing (equal_quality_time); said, not silent
+        where = ", ".join(f"{a} to {b}" for a, b in rises)
+        warnings.warn(f"{scene.source}: the reference's MSE rises from {where} spp (noise, or the ground truth's own "
+                      "noise reached: raise --runs or --gt-spp); each equal-quality count is the first at which its "
+                      "curve falls to the adaptive frame's MSE", RuntimeWarning, stacklevel=2)
     # doubling check of the ground truth, with the largest reference render
     from warpbw.metrics import mse as mse_of
 
@@ -582,6 +620,7 @@ def format_table(record: dict) -> str:
 def write_plot(record: dict, path) -> None:
     """PSNR against frame time (one curve per method), and the n_b sweep when present; error bars of one standard
     error where the record has them (two runs or more)."""
+    check_path(path, "write_plot: path")   # before the plot, not from the writer after it
     import matplotlib
 
     matplotlib.use("Agg")

@@ -73,7 +73,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warpbw.errors import INT32_MAX, WarpbwError, check_count, offset_seed
+from warpbw.errors import INT32_MAX, WarpbwError, check_count, check_path, offset_seed
 from warpbw.io.staged import temporary_folder
 from warpbw.metrics import psnr, relmse
 
@@ -216,6 +216,7 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     from warpbw.pipeline import split_planes
 
     methods = tuple(methods or METHODS)
+    cache = check_path(cache, "run_bench_filtering: cache") if cache is not None else None   # pathlib's TypeError
     if not scene.has_planes:
         raise WarpbwError(f"{scene.source}: bench-filtering needs a scene with planes (shape = \"plane\") and "
                           "cook-torrance materials")
@@ -234,7 +235,7 @@ def run_bench_filtering(scene, zooms=DEFAULT_ZOOMS, gt_spp: int = DEFAULT_GT_SPP
     with temporary_folder(GMM_TEMP_PREFIX) as tmp:   # named after this process: the next run removes it if killed
         t0 = time.perf_counter()
         prep = prepare_filtering(scene, methods + ("ground_truth",), device, progress,
-                                 cache=Path(cache) if cache is not None else Path(tmp), env=env)
+                                 cache=cache if cache is not None else Path(tmp), env=env)
         prep_time = time.perf_counter() - t0
     gmm_time = sum(n.get("gmm_aligned", {}).get("time_s", 0.0) for n in prep.notes.values())
     log(f"precompute: {prep_time:.2f} s (aligned GMM mipmaps {gmm_time:.2f} s)")
@@ -342,6 +343,7 @@ def write_plot(record: dict, path) -> None:
     """Error, flicker and temporal error against zoom, one curve per method; the ground truth's noise (error,
     flicker, temporal error) as a dashed line; and the error against frame time (the protocol's plot), one curve
     per method through its zooms."""
+    check_path(path, "write_plot: path")   # before the plot, not from the writer after it
     import matplotlib
 
     matplotlib.use("Agg")

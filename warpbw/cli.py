@@ -108,8 +108,10 @@ AOVS = {
     "n_p": ("samples allocated per pixel, N_p (002 Sec. 2.4)", "log"),
     "spp": ("samples the frame took at the pixel: a texel shaded at a coarser level takes the largest N_p of its "
             "footprint (002 Sec. 3.1); 0 where up-sampled", "log"),
-    "variance": ("predicted variance of the pixel's estimate, v / N_p: v the variance the bandwidth pass measured for "
-                 "the frame's estimator (--allocation measured, the default) or the bound sigma2 (002 Eq. 9)", "log"),
+    "variance": ("predicted variance of an estimate of the allocated N_p samples, v / N_p (the plan's, not of the "
+                 "frame's pixel: one that took more samples, see spp, is less noisy; an up-sampled one is "
+                 "interpolated): v the variance the bandwidth pass measured for the frame's estimator (--allocation "
+                 "measured, the default) or the bound sigma2 (002 Eq. 9)", "log"),
     "shaded": ("1 where the pixel was shaded, 0 where up-sampled", "linear"),
     "b_p": ("predicted image bandwidth, cycles/pixel (002 Eq. 6)", "log"),
 }

@@ -34,7 +34,7 @@ from pathlib import Path
 
 from warpbw import entry
 from warpbw.entry import STOP_SIGNALS, stop_behind
-from warpbw.errors import SEED_MAX, WarpbwError, check_device
+from warpbw.errors import SEED_MAX, WarpbwError, check_device, check_path
 from warpbw.io.staged import (check_existing_output, check_name_length, dangling_link, input_clash, output_exists,
                               staged_outputs)
 from warpbw.native_output import init_warp_quietly, kernel_cache_write_error, remove_unfinished_kernel_builds
@@ -346,7 +346,7 @@ def write_json(path, record: dict, say: bool = True, force: bool = True) -> Path
     """Write ``record`` to ``path`` as :func:`json_text` (its folder made if needed); with ``say``, print where.
     Without ``force`` (the caller refused an existing ``path`` before its work) a file that appeared there meanwhile
     is kept."""
-    p = Path(path)
+    p = check_path(path, "write_json: path")
     with staged_outputs([p], force=force) as at:   # whole or not at all (a full disk leaves the old record)
         at[p].write_text(json_text(record))
     if say:

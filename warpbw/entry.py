@@ -11,7 +11,8 @@ then printed "Exception ignored in ... KeyboardInterrupt" from a Warp array's de
 after a run that had succeeded.
 
 A script under ``examples/`` imports numpy, Warp and warpbw at its top, before its ``run_command`` (1 to 18 s on a
-busy machine): :func:`interrupt_in_one_line`, called before those imports, makes a Ctrl-C there one line too.
+busy machine): :func:`interrupt_in_one_line`, called before those imports, makes a Ctrl-C, a SIGTERM or a SIGHUP
+there one line too.
 """
 from __future__ import annotations
 
@@ -58,13 +59,28 @@ def _stop_while_loading(signum, frame):
     raise _StoppedLoading(signum)
 
 
+def _say_stops_while_loading() -> None:
+    """SIGTERM and SIGHUP raise ``_StoppedLoading`` from now on, until a ``run_command`` sets its own handlers (and
+    puts these back after it): such a stop while a program loads ended it without a word.  An ignored one (nohup)
+    stays ignored."""
+    for name in STOP_SIGNALS:
+        if signal.getsignal(getattr(signal, name)) is not signal.SIG_IGN:
+            signal.signal(getattr(signal, name), _stop_while_loading)
+
+
+def _say_stopped(prog: str, stop: _StoppedLoading) -> int:
+    """Print ``PROG: terminated`` (or ``hung up``) for ``stop``; the shell's status for its signal."""
+    try:   # after a hang-up the terminal may be gone
+        print(f"{prog}: {STOP_SIGNALS[signal.Signals(stop.signum).name]}", file=sys.stderr)
+        sys.stderr.flush()
+    except OSError:
+        pass
+    return 128 + stop.signum
+
+
 def _run(module: str, prog: str) -> int:
     try:
-        # a SIGTERM or SIGHUP while the command line loads ended the process without a word (run_command sets its
-        # own handlers for the run, and puts these back after it); an ignored one (nohup) stays ignored
-        for name in STOP_SIGNALS:
-            if signal.getsignal(getattr(signal, name)) is not signal.SIG_IGN:
-                signal.signal(getattr(signal, name), _stop_while_loading)
+        _say_stops_while_loading()   # a SIGTERM or SIGHUP while the command line loads said nothing
         try:   # a Ctrl-C while importing, or while the arguments are parsed (outside run_command's own handling)
             return importlib.import_module(module).main()
         except Exception as exc:   # an extension's initialisation that a Ctrl-C stopped (stop_behind)
@@ -76,11 +92,7 @@ def _run(module: str, prog: str) -> int:
             print(f"{prog}: interrupted", file=sys.stderr)
             return 128 + signal.SIGINT   # the shell's status, as run_command's EXIT_INTERRUPTED
         except _StoppedLoading as stop:
-            try:   # after a hang-up the terminal may be gone
-                print(f"{prog}: {STOP_SIGNALS[signal.Signals(stop.signum).name]}", file=sys.stderr)
-            except OSError:
-                pass
-            return 128 + stop.signum
+            return _say_stopped(prog, stop)
     finally:
         ignore_stops()
 
@@ -106,9 +118,11 @@ def interrupt_in_one_line(module_name: str) -> None:
     ``__main__``, a Ctrl-C that no code handles (one while it imports numpy, Warp and warpbw, before its
     ``run_command``) prints ``SCRIPT: interrupted``, as ``run_command`` does, instead of the traceback of the import
     it stopped; the interpreter still ends by SIGINT (status 130 in a shell; status 1 where the stop came out as an
-    extension's failed initialisation, :func:`stop_behind`).  And once its ``run_command`` returns, the stops are
-    ignored while the interpreter shuts down (``running_as_script``), as the console scripts ignore them.  Imported
-    as a module (by the tests), nothing changes."""
+    extension's failed initialisation, :func:`stop_behind`).  A SIGTERM or SIGHUP there (``STOP_SIGNALS``), which ended
+    the script without a word, prints ``SCRIPT: terminated`` (``hung up``) and exits with the status the commands
+    and its own ``run_command`` give (143, 129).  And once its ``run_command`` returns, the stops are ignored while the
+    interpreter shuts down (``running_as_script``), as the console scripts ignore them.  Imported as a module (by the
+    tests), nothing changes."""
     global running_as_script
     if module_name != "__main__":
         return
@@ -117,9 +131,18 @@ def interrupt_in_one_line(module_name: str) -> None:
     shown = sys.excepthook
 
     def hook(kind, value, traceback):
+        stopped = stop_behind(value, (_StoppedLoading,))   # a SIGTERM or SIGHUP, or an initialisation it stopped
+        if stopped is not None:
+            status = _say_stopped(prog, stopped)
+            try:
+                sys.stdout.flush()
+            except (OSError, ValueError):
+                pass
+            os._exit(status)   # an excepthook cannot set the status; nothing of the run was begun
         if stop_behind(value) is not None:   # a Ctrl-C, or an extension's initialisation it stopped
             print(f"{prog}: interrupted", file=sys.stderr)
         else:
             shown(kind, value, traceback)
 
     sys.excepthook = hook
+    _say_stops_while_loading()

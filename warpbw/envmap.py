@@ -787,7 +787,12 @@ def load_environment(spec, device="cpu", sampling: bool = True) -> EnvMap:
     """The light of a scene's ``[environment]`` table (a ``warpbw.scene.Environment``: exactly one of
     ``file``, ``procedural = "sky"`` or ``constant``, with ``rotation`` and ``scale``).  Without ``sampling`` its
     sampling distribution is built on first need (``ensure_sampling``; ``EnvMap.data`` does it)."""
+    from warpbw.scene import Environment   # lazy: keeps this module importable on its own
+
     sampling = check_flag(sampling, "load_environment: sampling")   # "no" built it, 0 deferred it
+    # a file name (load_envmap takes it) was an AttributeError on .file
+    check_instance(spec, Environment, "load_environment: spec", "a warpbw.scene.Environment (a scene's [environment]; "
+                   "a probe file loads with load_envmap)")
     if spec.file is not None:
         return load_envmap(spec.file, rotation_deg=spec.rotation, scale=spec.scale, device=device, sampling=sampling)
     if spec.procedural == "sky":

@@ -637,9 +637,10 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     maps: ``level`` (the pass's level, int32), ``n_p`` (the samples allocated per pixel, N_p), ``spp`` (the samples
     the frame took at a pixel: a texel shaded at a coarser level takes the largest N_p of its footprint, Sec. 3.1's
     max filter, at one pixel, and a pixel shaded at two levels the samples of both; up-sampled pixels take none;
-    int32, summing to ``stats["samples"]``), ``variance`` (the predicted variance of the pixel's estimate,
-    ``SampleAllocation.variance``), ``shaded`` (the pixels shaded rather than up-sampled), ``shaded_level`` (the
-    finest level a pixel was shaded at, -1 where it was up-sampled or is empty; int32), ``b_p`` (image bandwidth,
+    int32, summing to ``stats["samples"]``), ``variance`` (the predicted variance of an estimate of the pixel's
+    allocated N_p samples, ``SampleAllocation.variance``: the plan's, not of the frame's pixel, which took the ``spp``
+    map's samples, or none where up-sampled), ``shaded`` (the pixels shaded rather than up-sampled), ``shaded_level``
+    (the finest level a pixel was shaded at, -1 where it was up-sampled or is empty; int32), ``b_p`` (image bandwidth,
     cycles per pixel, 002 Eq. 6) and ``sigma2`` (the pass's radiance variance).  ``stride`` and ``pool_radius`` set
     how the bandwidth pass shares its directions (:func:`warpbw.bandwidth.bandwidth_pass`);
     ``upsample`` how the hierarchy up-samples ("normal", the default, or "paper": :mod:`warpbw.upsample`);

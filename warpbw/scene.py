@@ -358,6 +358,7 @@ def toml_string(text: str, what: str) -> str:
 
 def file_digest(path: Path, chunk: int = 1 << 22) -> str:
     """blake2b digest of a file's bytes."""
+    path = check_path(path, "file_digest: path")   # an int was open()'s file descriptor: hashed it, then closed it
     h = hashlib.blake2b(digest_size=16)
     with open(path, "rb") as f:
         while True:
@@ -646,7 +647,7 @@ def parse_scene(text: str, base_dir: Path | str | None = None, source: str = "<s
         raise WarpbwError(f"{source}: expected the scene's TOML text as a str, got {type(text).__name__} (a file "
                           "reads with load_scene)")
     # absolute: a relative folder made relative paths that check_scene joined to it again (sub/sub/probe.exr)
-    base = Path(base_dir).absolute() if base_dir is not None else Path.cwd()
+    base = check_path(base_dir, f"{source}: base_dir").absolute() if base_dir is not None else Path.cwd()
     ctx = _Ctx(source, base)
     try:
         d = tomllib.loads(text)

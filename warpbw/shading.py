@@ -128,7 +128,7 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
     def shade_reference_kernel(gb: GBufferData, mats: MaterialTable, env: EnvMapData, lights: DirectionalLights,
                                pixels: wp.array(dtype=wp.int32), offset: int, spp_all: int,
                                spp_map: wp.array(dtype=wp.int32), seed: int,
-                               out: wp.array(dtype=wp.vec3), non_finite: wp.array(dtype=wp.int32),
+                               out: wp.array(dtype=wp.vec3), non_finite: wp.array(dtype=wp.int64),
                                first: int, last: int, carry_state: wp.array(dtype=wp.uint32),
                                carry_sum: wp.array(dtype=wp.vec3d)):
         j = wp.tid() + offset
@@ -150,7 +150,7 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
             state = carry_state[j]
             acc = carry_sum[j]
         direct = wp.vec3(0.0)
-        bad = int(0)
+        bad = wp.int64(0)   # int64, as the frame's count: 2 x spp (MIS) passes int32 in one pixel at spp >= 2^30
         if wp.static(has_lights):
             if wo[2] > 0.0 and s_end == spp:   # once, in the pixel's last pass
                 for k in range(lights.direction.shape[0]):
@@ -160,7 +160,7 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
                         if finite3(c):
                             direct = direct + c
                         else:
-                            bad = bad + 1
+                            bad = bad + wp.int64(1)
         if wp.static(has_env):
             if wo[2] > 0.0:
                 for s in range(first, s_end):
@@ -181,7 +181,7 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
                             if finite3(c):
                                 part = part + c * SUM_SCALE
                             else:
-                                bad = bad + 1
+                                bad = bad + wp.int64(1)
                     if wp.static(mis):
                         # environment-sampled direction, balance heuristic
                         ul = wp.vec2(wp.randf(state), wp.randf(state))
@@ -197,7 +197,7 @@ def _reference_kernel(kinds: frozenset, mis: bool, per_pixel_spp: bool, has_env:
                                 if finite3(c):
                                     part = part + c * SUM_SCALE
                                 else:
-                                    bad = bad + 1
+                                    bad = bad + wp.int64(1)
         if s_end < spp:   # a pass ends at a multiple of SUM_BATCH: its sum is the one the next batch would start from
             carry_state[j] = state
             carry_sum[j] = acc + wp.vec3d(part) * SUM_BATCH_F64
@@ -419,7 +419,9 @@ def shade_reference(gb: GBuffer, materials: MaterialBuffers, env_data: EnvMapDat
         out = wp.zeros(n_pix, dtype=wp.vec3, device=device)
     elif not isinstance(out, wp.array) or out.shape != (n_pix,) or out.dtype != wp.vec3:
         raise WarpbwError(f"shade_reference: out: expected a vec3 array of {n_pix} pixels, got {out!r:.80}")
-    bad = wp.zeros(1, dtype=wp.int32, device=device)
+    # the frame's dropped samples: int32 wrapped past 2^31 (4096 spp with MIS at 2048^2 draws 3.4e10 samples; a frame
+    # of overflowing radiance drops most of them), and a count wrapped to 0 passed the overflow check without a word
+    bad = wp.zeros(1, dtype=wp.int64, device=device)
     spp_map = spp if per_pixel else wp.zeros(0, dtype=wp.int32, device=device)
     spp_all = 0 if per_pixel else int(spp)
     if per_pixel:   # N_p of each pixel shaded: tile costs, samples

@@ -272,6 +272,7 @@ def colour_conversion(path) -> str | None:
     """From the header alone: a note naming the conversion ``read_rgb`` applies to the EXR ``path`` (its declared
     chromaticities to Rec. 709), or None when it reads the RGB as stored, or when the file does not read (loading
     it refuses it by name)."""
+    check_path(path, "colour_conversion: path")   # None or a number read as "no conversion"
     try:
         path, header, _ = _open_exr(path, header_only=True)
         declared = header.get("chromaticities")

@@ -23,6 +23,8 @@ import difflib
 import mmap
 import struct
 
+from warpbw.errors import check_path
+
 # What the diagnosis of a file OpenEXR has refused checks (``exr_damage``), from the OpenEXR file layout
 # (openexr.com/en/latest/OpenEXRFileLayout.html; section names in quotes).  "Version Field": the low byte is the format
 # version, 2; bit 9 marks a single-part tiled file (then bits 11 and 12 are 0), bit 10 names of up to 255 bytes, bit 11
@@ -463,6 +465,7 @@ def exr_damage(path) -> str | None:
     """After OpenEXR has refused ``path`` (whose magic number is right): the first damaged part of its version field,
     headers or offset tables that the file layout shows, in words naming the byte, or None where none shows (damage in
     the pixel data, or beyond what is checked).  Only what is checked is read (the file is mapped, not loaded)."""
+    path = check_path(path, "exr_damage: path")   # an int was open()'s file descriptor, closed after reading it
     try:
         with open(path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
             try:
@@ -478,6 +481,7 @@ def first_header_declares(path, name: str, typ: str) -> bool | None:
     """Whether the first header of EXR file ``path`` holds attribute ``name`` of type ``typ``; None where the
     version field or that header is damaged (``exr_damage`` says how) or the file does not read.  OpenEXR gives a
     header without a dataWindow its default, 64 x 64 pixels, instead of refusing it."""
+    path = check_path(path, "first_header_declares: path")   # an int: a file descriptor, read and closed
     try:
         with open(path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
             try:

@@ -59,6 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from warpbw.errors import (FLOAT32_MAX, WarpbwError, check_coordinate_spacing, check_count, check_input_file,
+                           check_path,
                            one_line, unit_directions)
 from warpbw.io.mesh_files import (SUPPORTED, check_after_reading, check_before_reading, format_damage,
                                   read_failure, suffix_problem, triangle_count)
@@ -549,10 +550,11 @@ def mesh_triangles(path) -> int | None:
     costs none); None where its format does not say, or it does not open (``load_mesh`` says why)."""
     import mmap
 
+    path = check_path(path, "mesh_triangles: path")   # an int was open()'s file descriptor: read, then closed
     try:
         with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
-            return triangle_count(Path(path), data)
-    except (OSError, ValueError, TypeError):   # missing, a folder, empty (mmap's ValueError), not a path
+            return triangle_count(path, data)
+    except (OSError, ValueError):   # missing, a folder, empty (mmap's ValueError)
         return None
 
 

@@ -66,8 +66,8 @@ def _same_file(a: Path, b: Path) -> bool:
 def input_clash(path, inputs, inputs_are: str = MADE_FROM) -> str | None:
     """``"would overwrite INPUT, INPUTS_ARE"`` (and ``"(PATH is a link to it)"`` where it is one) when ``path`` is
     the same file as one of ``inputs`` (see :func:`_same_file`: a symlink or a hard link to it counts); else None."""
-    p = Path(path)
-    f = next((Path(f) for f in inputs if _same_file(p, Path(f))), None)
+    p = check_path(path, "input_clash: path")
+    f = next((q for q in (check_path(f, "input_clash: inputs") for f in inputs) if _same_file(p, q)), None)
     if f is None:
         return None
     # a symlink at the output, or another name for the input's inode (a hard link); the same file named relatively
@@ -80,7 +80,7 @@ def check_not_read_only(path, label: str) -> None:
     """Refuse an existing file that is read-only: one that cannot be opened for writing (``chmod a-w`` for a user,
     ``chattr +i``), or has no write permission bit at all (``chmod 444``, which root could write all the same).
     ``label`` starts the message (the path, or the option and the path)."""
-    p = Path(path)
+    p = check_path(path, "check_not_read_only: path")
     try:
         with open(p, "ab"):   # append mode: opened for writing, not one byte changed
             pass
@@ -96,7 +96,7 @@ def check_not_read_only(path, label: str) -> None:
 def output_exists(path) -> bool:
     """Whether an output's name is taken: by a file, or by a link, dangling or not (a dangling link is the user's
     too, and was replaced without a word)."""
-    p = Path(path)
+    p = check_path(path, "output_exists: path")
     return p.exists() or p.is_symlink()
 
 
@@ -104,7 +104,7 @@ def dangling_link(path) -> str | None:
     """``"a link to TARGET, which does not exist"`` when ``path`` is a symbolic link to nothing, else None.  A folder
     cannot be made in its place (mkdir says "File exists"), nor a file written through it where its target's folder
     is missing: an output under one failed after the work, with "cannot write (File exists)"."""
-    p = Path(path)
+    p = check_path(path, "dangling_link: path")
     try:
         if not p.is_symlink() or p.exists():
             return None
@@ -119,7 +119,7 @@ def check_existing_output(path, force: bool, label: str) -> None:
     replaced without a word), and whatever ``force`` says one that is not a regular file (a FIFO blocked the run for
     ever, opened for writing; a device or a socket would be replaced by a file) or is read-only.  ``label`` starts
     the messages of the latter (the path, or the option and the path)."""
-    p = Path(path)
+    p = check_path(path, "check_existing_output: path")
     if not output_exists(p):
         return
     if not force:
@@ -212,7 +212,7 @@ def check_name_length(path, label: str) -> None:
     """Refuse, before any work, a path whose name, or the name of a folder on its way, is longer than its file
     system takes, or that is longer as a whole (with its temporary's additions) than the system takes (the run
     failed at its end, with "File name too long"; an input or a folder, with Python's bare "[Errno 36]")."""
-    p = Path(path)
+    p = check_path(path, "check_name_length: path")
     folder = next((q for q in (p.parent, *p.parent.parents) if _is_dir(q)), Path("."))
     limit = _name_max(folder)
     for part in p.parts:
@@ -239,7 +239,7 @@ def _temp_stem(path: Path) -> str:
 def remove_stale_temps(path) -> None:
     """Remove the temporaries of ``path`` that a process of this machine, since gone, left (SIGKILL, the OOM killer,
     a power cut).  Another machine's, a live process's and any other file are left alone."""
-    path = Path(path)
+    path = check_path(path, "remove_stale_temps: path")
     head, tail = f"{TEMP_PREFIX}{_temp_stem(path)}.", f".part{path.suffix}"
     try:
         names = [q for q in path.parent.iterdir() if q.name.startswith(head) and q.name.endswith(tail)]
@@ -262,7 +262,7 @@ def temporary_folder(prefix: str, parent=None):
     good (the filtering benchmark's GMM mipmaps, megabytes each); these are named after their writer, as
     :func:`remove_stale_temps`'s files, and each call first removes the folders of ``prefix`` in ``parent`` whose
     process of this machine is gone.  Another machine's, a live process's and any other entry are left alone."""
-    parent = Path(tempfile.gettempdir() if parent is None else parent)
+    parent = Path(tempfile.gettempdir()) if parent is None else check_path(parent, "temporary_folder: parent")
     host = _host_tag()
     try:
         names = [q for q in parent.iterdir() if q.name.startswith(prefix)]
@@ -384,6 +384,7 @@ def check_still_free(path, force: bool) -> None:
     found none: it appeared meanwhile (:func:`_appeared`).  For a command that hands its output to a writer that
     checks it again (``check_replaceable``, whose "already exists (pass --force ...)" read as if the user had named
     a file of theirs: two ``warpbw-precompute brdf`` of one output at once, session 79)."""
+    path = check_path(path, "check_still_free: path")
     if not check_flag(force, "force") and output_exists(path):
         raise _appeared(Path(path))
 
@@ -422,7 +423,7 @@ def staged_outputs(paths, force: bool = True):
     temporaries.  Missing folders are made, and removed again when nothing was moved into them.  Without ``force``
     (the caller refused existing outputs before its work) an output that is there at the moves appeared meanwhile:
     it is refused (``_appeared``), and nothing moved; each move then takes a name that is free, or fails."""
-    outs = list(dict.fromkeys(Path(p) for p in paths))
+    outs = list(dict.fromkeys(check_path(p, "staged_outputs: paths") for p in paths))
     move = os.replace if check_flag(force, "force") else _move_new
     temps: dict = {}
     made: list = []
