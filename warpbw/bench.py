@@ -230,13 +230,18 @@ def _cached_chunk(path: Path, height: int, width: int) -> np.ndarray | None:
     return rgb
 
 
+def _on_segment(x: float, xs: np.ndarray, ys: np.ndarray, i: int) -> float:
+    """y(x) on the line through points i and i + 1 (y_i where the two share an x)."""
+    t = (x - xs[i]) / (xs[i + 1] - xs[i]) if xs[i + 1] != xs[i] else 0.0
+    return float(ys[i] + t * (ys[i + 1] - ys[i]))
+
+
 def _interp(x: float, xs: np.ndarray, ys: np.ndarray) -> tuple[float, bool]:
     """Piecewise-linear y(x) through sorted xs, extrapolating along the end segments."""
     if len(xs) == 1:
         return float(ys[0]), True
     i = int(np.clip(np.searchsorted(xs, x) - 1, 0, len(xs) - 2))
-    t = (x - xs[i]) / (xs[i + 1] - xs[i]) if xs[i + 1] != xs[i] else 0.0
-    return float(ys[i] + t * (ys[i + 1] - ys[i])), bool(x < xs[0] or x > xs[-1])
+    return _on_segment(x, xs, ys, i), bool(x < xs[0] or x > xs[-1])
 
 
 def equal_quality_time(ref: list, mse: float) -> tuple[float, float, bool]:
@@ -266,8 +271,7 @@ def equal_quality_time(ref: list, mse: float) -> tuple[float, float, bool]:
         i, ext = (int(crossing[0]), False) if crossing.size else (len(xs) - 2, True)
     if ext and not xs[i + 1] > xs[i]:   # an end segment that does not fall reaches no other count
         return math.nan, math.nan, True
-    t = (x - xs[i]) / (xs[i + 1] - xs[i]) if xs[i + 1] != xs[i] else 0.0
-    l_spp = float(ls[i] + t * (ls[i + 1] - ls[i]))
+    l_spp = _on_segment(x, xs, ls, i)
     l_t, ext_t = _interp(l_spp, ls, lt)
     if max(l_spp, l_t) > LOG_FLOAT_MAX:   # far along a nearly flat end segment: math.exp's OverflowError
         return math.inf, math.inf, True
