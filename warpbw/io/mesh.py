@@ -8,6 +8,15 @@ Public functions:
   is derived on first use (``MeshData.mean_curvature``): only the bandwidth pass reads it.  A damaged file is a
   one-line ``WarpbwError`` naming its line or index where the format has one, not trimesh's words
   (``warpbw.io.mesh_files``: a PLY's header, a GLB's accessors, an OBJ's face indices, an ASCII STL's facets).
+  Conventions of the file it reads: coordinates are the scene's (+Y up, as glTF and most OBJ exports; a Z-up file,
+  as many STL and PLY scans are, lies on its side: only ``rotate_y`` turns a mesh, so export it Y-up; a mesh in
+  millimetres in a scene in metres takes ``scale = 0.001``, and nothing else depends on its units).  Normals are
+  derived, smooth, from the faces: the file's own (OBJ ``vn``) are not read, and coincident vertices are merged, so a
+  hard edge (a cube's) shades rounded.  Triangles are two-sided (``warpbw.gbuffer``): a mesh wound inward throughout
+  renders as wound outward; triangles wound against their neighbours are turned to match them, with a warning
+  (``consistent_winding``).
+- ``consistent_winding(vertices, faces, surface=None) -> (faces, turned, unorientable)``: faces wound against their
+  neighbours turned to match them.
 - ``mesh_mean_curvature(vertices, faces, normals=None) -> (V,)``: mean curvature H = (k1 + k2) / 2 from the
   cotangent Laplace-Beltrami operator with mixed Voronoi areas (Meyer, Desbrun, Schroeder, Barr 2003,
   "Discrete Differential-Geometry Operators for Triangulated 2-Manifolds"), positive on a convex
@@ -43,7 +52,8 @@ exact power-of-two scale, so the cross products cannot overflow or underflow.
   (``warpbw.io.mesh_files.triangle_count``), without reading its geometry: None where it does not say, or the file
   does not open.
 
-Class: ``MeshData`` (``surface``: the seam map, computed once at load).  Constant: ``CURVATURE_SMOOTHING_PASSES``.
+Class: ``MeshData`` (``surface``: the seam map, computed once at load).  Constants: ``CURVATURE_SMOOTHING_PASSES``,
+``WINDING_FOLD_DEG``.
 """
 from __future__ import annotations
 
@@ -419,6 +429,10 @@ def _check_transform(path: Path, translate, scale, rotate_y_deg):
 
 # the largest coordinate trimesh's vertex merge is given (its int64 rounding at 1e-8 wraps beyond 9.2e10)
 MERGE_MAX_COORD = 1e9
+# Two faces sharing an edge whose third vertices lie closer than this, seen along the edge, fold onto each other
+# (coincident copies, a pentagon drawn over a quad): their windings say nothing of each other's (consistent_winding).
+# Faces of a smooth surface lie about 180 degrees apart, a cube's at 90.
+WINDING_FOLD_DEG = 60.0
 # Mesh files kept read and merged in memory (ours): a scene placing one mesh 20 times read it 20 times, 0.3 s each
 # for the bunny (scene fuzzing, session 63).
 MESH_CACHE_FILES = 4
@@ -438,7 +452,8 @@ class _Merged:
     """A mesh file as read, checked and merged, before its transform: vertices (float64, read-only, times
     ``2**-k``: merged at a power-of-two scale), faces (int64, read-only), the uv coordinates or None, ``k`` and the
     largest coordinate ``big``; ``surface``: per vertex, the index of its first copy among the vertices split by
-    their uv alone (a texture seam: one point of the surface), or None where none are."""
+    their uv alone (a texture seam: one point of the surface), or None where none are; ``turned`` and
+    ``unorientable``: what ``consistent_winding`` did to its faces (``load_mesh`` warns of them)."""
 
     vertices: np.ndarray
     faces: np.ndarray
@@ -446,6 +461,8 @@ class _Merged:
     k: int
     big: float
     surface: np.ndarray | None = None
+    turned: int = 0
+    unorientable: int = 0
 
 
 _MERGED: "OrderedDict[tuple, _Merged]" = OrderedDict()
@@ -520,12 +537,86 @@ def _read_merged(path: Path, data: bytes) -> _Merged:
         raise WarpbwError(f"{path}: malformed mesh ({one_line(exc)})") from None
     uv = getattr(mesh.visual, "uv", None)
     uv = np.array(uv, dtype=np.float32) if uv is not None and np.shape(uv) == (len(mesh.vertices), 2) else None
-    out = _Merged(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64), uv, k, big,
-                  _seam_copies(mesh) if uv is not None else None)
+    surface = _seam_copies(mesh) if uv is not None else None
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    # the winding across a texture seam is the surface's: its copies are one vertex there
+    faces, turned, unorientable = consistent_winding(mesh.vertices, faces, surface)
+    out = _Merged(np.asarray(mesh.vertices, dtype=np.float64), faces, uv, k, big, surface, turned, unorientable)
     for a in (out.vertices, out.faces, out.uv, out.surface):
         if a is not None:
             a.flags.writeable = False
     return out
+
+
+def consistent_winding(vertices, faces, surface=None) -> tuple[np.ndarray, int, int]:
+    """Faces (F, 3) turned, where some are wound against their neighbours, so that every edge two faces share is
+    walked once each way: ``(faces, turned, unorientable)``.  Each connected piece (faces joined by edges two of them
+    share) keeps the winding of most of its faces, ties its first face's; ``turned`` counts the faces turned
+    (vertices 1 and 2 swapped).  A piece no winding fits (a Moebius strip) is left as it is, and its faces are
+    counted in ``unorientable``.  Edges of one face (a border) or of three or more (non-manifold) join nothing, nor do
+    two faces that fold onto each other (their third vertices less than ``WINDING_FOLD_DEG`` apart seen along the
+    edge: coincident copies, a pentagon drawn over a quad) or a face without area.  ``surface``
+    (``MeshData.surface``): per vertex, the vertex of the surface it is a copy of, so that a texture seam's copies
+    join the faces on both sides.  Smooth normals are sums of face normals: a face wound the other way subtracts its
+    normal, and the normals along the border between the two windings came out up to 90 degrees off (or flipped),
+    without a word (an icosphere with its +X half turned: a Lambert sphere under a light off by 0.25, its peak 0.8)."""
+    v = _checked_vertices(vertices)
+    faces = checked_faces(faces, len(v))
+    keyed = faces if surface is None else checked_surface(surface, len(v))[faces]
+    nv = len(v)
+    a = keyed.reshape(-1)
+    b = np.roll(keyed, -1, axis=1).reshape(-1)       # the directed edges (f0, f1), (f1, f2), (f2, f0), per face
+    c = np.roll(keyed, -2, axis=1).reshape(-1)       # and the vertex across from each
+    edge_face = np.repeat(np.arange(len(faces)), 3)
+    key = np.minimum(a, b) * np.int64(nv) + np.maximum(a, b)
+    order = np.argsort(key, kind="stable")
+    key = key[order]
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    counts = np.diff(np.r_[starts, len(key)])
+    e0, e1 = order[starts[counts == 2]], order[starts[counts == 2] + 1]   # manifold edges: exactly two faces
+    against = (a[e0] < b[e0]) == (a[e1] < b[e1])     # both faces walk the edge the same way
+    if not against.any():
+        return faces, 0, 0
+    # each face's third vertex, seen from the edge: perpendicular to it (at the exact scale, as _normal_sums)
+    x = np.ldexp(v, -_exact_scale(v))
+    p, q = x[a[e0]], x[b[e0]]
+    along = (q - p) / np.maximum(np.linalg.norm(q - p, axis=1, keepdims=True), np.finfo(float).tiny)
+
+    def across(e):
+        w = x[c[e]] - p
+        return w - np.sum(w * along, axis=1, keepdims=True) * along
+
+    wa, wb = across(e0), across(e1)
+    norm = np.linalg.norm(wa, axis=1) * np.linalg.norm(wb, axis=1)
+    joined = np.sum(wa * wb, axis=1) < math.cos(math.radians(WINDING_FOLD_DEG)) * norm
+    joined &= norm > 0.0
+    fa, fb, against = edge_face[e0][joined], edge_face[e1][joined], against[joined]
+    if not against.any():
+        return faces, 0, 0
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    # node 2 f + p: face f in winding p (0 as stored, 1 turned); an edge joins the two faces' windings that agree
+    F = len(faces)
+    link = against.astype(np.int64)
+    rows = np.r_[2 * fa, 2 * fa + 1]
+    cols = np.r_[2 * fb + link, 2 * fb + (1 - link)]
+    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(2 * F, 2 * F))
+    _, label = connected_components(graph, directed=False)
+    kept, other = label[0::2], label[1::2]           # each face's class as stored and turned
+    unorientable = kept == other                     # a loop of the piece turns a face into itself
+    lo = np.minimum(kept, other)                     # the piece's two windings: classes lo and hi
+    as_lo = kept == lo
+    n_lo = np.bincount(lo[~unorientable], weights=as_lo[~unorientable], minlength=2 * F)
+    n_all = np.bincount(lo[~unorientable], minlength=2 * F)
+    first = np.full(2 * F, F - 1, dtype=np.int64)
+    np.minimum.at(first, lo, np.arange(F))
+    # the winding of most of the piece's faces (ties: its first face's)
+    keep_lo = (2 * n_lo > n_all) | ((2 * n_lo == n_all) & as_lo[first])
+    turn = ~unorientable & (as_lo != keep_lo[lo])
+    out = faces.copy()
+    out[turn] = out[turn][:, [0, 2, 1]]
+    return out, int(turn.sum()), int(unorientable.sum())
 
 
 def _seam_copies(mesh) -> np.ndarray | None:
@@ -611,6 +702,14 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
                           f"vertex {i} at {tuple(round(float(x), 6) for x in verts[i])}); expected consistently wound "
                           "triangles (remove the oppositely wound copy)")
     normals = _unit_normals(sums)   # vertex_normals(s_verts, s_faces), from the sums just checked
+    if merged.turned:
+        warnings.warn(f"{path}: {merged.turned} of {len(faces)} triangles were wound against their neighbours (a "
+                      "mesh exported with some faces flipped); turned to match them, since the smooth normals, sums of "
+                      "the faces' normals, cancel where two windings meet", stacklevel=2)
+    if merged.unorientable:
+        warnings.warn(f"{path}: {merged.unorientable} of {len(faces)} triangles form a surface no winding fits (a "
+                      "Moebius strip, or one whose sides are joined crosswise): their smooth normals flip somewhere "
+                      "across it", stacklevel=2)
     uv = merged.uv
     return MeshData(
         path=str(path),
