@@ -246,6 +246,24 @@ def test_vertices_far_beyond_trimesh_merge_range_stay_distinct(tmp_path, scale):
     np.testing.assert_allclose(np.einsum("ij,ij->i", mesh.normals, mesh.vertices / r[:, None]), 1.0, atol=1e-3)
 
 
+@pytest.mark.parametrize("scale", [1e-8, 1e-12])
+def test_a_tiny_mesh_keeps_every_vertex_through_the_merge(tmp_path, scale):
+    """trimesh merges vertices closer than an absolute 1e-8: an icosphere of radius 1e-8 (a file in kilometres, or a
+    micro-geometry in metres) kept 26 of its 642 vertices and rendered as a crude polyhedron without a word.  A mesh
+    smaller than ``MERGE_MIN_COORD`` is merged at a power-of-two scale as a unit one is: every vertex stays, at radius
+    ``scale`` with its radial normal (truth: the icosphere's vertices, scaled)."""
+    m = trimesh.creation.icosphere(subdivisions=3)
+    p = tmp_path / "tiny.obj"
+    p.write_text("".join("v %.17g %.17g %.17g\n" % tuple(v) for v in np.asarray(m.vertices) * scale)
+                 + "".join("f %d %d %d\n" % tuple(f + 1) for f in m.faces))
+    mesh = load_mesh(p)
+    assert len(mesh.vertices) == 642 and len(mesh.faces) == 1280
+    v = mesh.vertices.astype(np.float64) / scale
+    np.testing.assert_allclose(np.linalg.norm(v, axis=1), 1.0, rtol=1e-6)
+    np.testing.assert_allclose(np.einsum("ij,ij->i", mesh.normals, v / np.linalg.norm(v, axis=1)[:, None]), 1.0,
+                               atol=1e-3)
+
+
 def test_missing_file(tmp_path):
     with pytest.raises(WarpbwError, match="ghost.obj.*not found"):
         load_mesh(tmp_path / "ghost.obj")

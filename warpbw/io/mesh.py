@@ -429,6 +429,11 @@ def _check_transform(path: Path, translate, scale, rotate_y_deg):
 
 # the largest coordinate trimesh's vertex merge is given (its int64 rounding at 1e-8 wraps beyond 9.2e10)
 MERGE_MAX_COORD = 1e9
+# A mesh whose largest coordinate is below this is merged at a power-of-two scale that brings it to [1, 2): trimesh
+# merges vertices closer than an absolute 1e-8, and an icosphere of radius 1e-8 (a file in kilometres, or a
+# micro-geometry in metres) kept 26 of its 642 vertices, rendered as a crude polyhedron without a word.  From 1e-3 up
+# (1e-5 of the mesh's size at most) the merge is as it was.
+MERGE_MIN_COORD = 1e-3
 # Two faces sharing an edge whose third vertices lie closer than this, seen along the edge, fold onto each other
 # (coincident copies, a pentagon drawn over a quad): their windings say nothing of each other's (consistent_winding).
 # Faces of a smooth surface lie about 180 degrees apart, a cube's at 90.
@@ -528,9 +533,11 @@ def _read_merged(path: Path, data: bytes) -> _Merged:
     # scale (exact), so that the rounding stays in range
     big = float(np.abs(verts).max())
     k = math.ceil(math.log2(big / MERGE_MAX_COORD)) if big > MERGE_MAX_COORD else 0
+    if 0.0 < big < MERGE_MIN_COORD:   # merged at [1, 2): the tolerance as a unit mesh's, relative to its size
+        k = math.floor(math.log2(big))
     try:
         if k:
-            mesh.vertices = np.asarray(mesh.vertices, dtype=np.float64) * 2.0**-k
+            mesh.vertices = np.ldexp(np.asarray(mesh.vertices, dtype=np.float64), -k)
         mesh.merge_vertices()
         mesh.remove_unreferenced_vertices()
     except Exception as exc:
@@ -669,11 +676,11 @@ def load_mesh(path, translate=(0.0, 0.0, 0.0), scale: float = 1.0, rotate_y_deg:
     t, s, r = _check_transform(path, translate, scale, rotate_y_deg)
     merged = _merged_mesh(path)
     k, big = merged.k, merged.big
-    verts = merged.vertices * 2.0**k * s
+    verts = np.ldexp(merged.vertices, k) * s
     faces = merged.faces
     _, _, p0, p1, p2 = _face_geometry(verts, faces)
     if not np.any(np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1) > 0.0):
-        if k:   # the merge rounds at 1e-8 of 2^k: finer detail collapsed (a vertex at 1e30 beside one at 1)
+        if k > 0:   # the merge rounds at 1e-8 of 2^k: finer detail collapsed (a vertex at 1e30 beside one at 1)
             raise WarpbwError(f"{path}: every triangle collapses when vertices closer than {1e-8 * 2.0**k:.3g} are "
                               f"merged (coordinates reach {big:.3g}: detail finer than about 1e-17 of the largest "
                               "coordinate is lost; expected a mesh of one scale)")
