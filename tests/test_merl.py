@@ -398,6 +398,36 @@ def test_bad_header_refused(tmp_path):
         read_merl(path)
 
 
+@pytest.mark.parametrize("kind, said", [
+    ("float32", r"got 17496012 -- the size of a MERL table of float32 values \(MERL's files hold float64"),
+    ("phi360", r"got 69984012 -- the size of a table of 360 phi_d bins"),
+    ("headerless", r"got 34992000 -- the size of MERL's values without their 12-byte header"),
+    ("gzip", r"got \d+ -- a gzip-compressed file: decompress it first"),
+    ("big-endian", r"header dims \(1509949440, 1509949440, -1275068416\), expected \(90, 90, 180\) \(MERL \.binary\) -- "
+                   r"a big-endian file: MERL's are little-endian")])
+def test_files_other_tools_write_in_merls_place_are_named_for_what_they_are(tmp_path, kind, said):
+    """What a user's MERL file may differ in, told by its size or header (the data README's layout and BRDFRead.cpp's
+    constants are the truth): float32 values, all 360 phi_d bins, no header, gzip compression, big-endian.  Each was
+    refused before with the bare size or header, not what the file is."""
+    import gzip
+
+    path = tmp_path / f"{kind}.binary"
+    n = 3 * 90 * 90 * 180
+    if kind == "gzip":
+        path.write_bytes(gzip.compress(np.asarray([90, 90, 180], "<i4").tobytes() + bytes(1000)))
+    elif kind == "big-endian":
+        with open(path, "wb") as fh:
+            fh.write(np.asarray([90, 90, 180], ">i4").tobytes())
+            fh.truncate(MERL_FILE_SIZE)
+    else:
+        size = {"float32": 12 + 4 * n, "phi360": 12 + 16 * n, "headerless": 8 * n}[kind]
+        with open(path, "wb") as fh:
+            fh.write(np.asarray([90, 90, 180], "<i4").tobytes())
+            fh.truncate(size)
+    with pytest.raises(WarpbwError, match=said):
+        read_merl(path)
+
+
 def test_missing_file(tmp_path):
     with pytest.raises(WarpbwError, match="nope.binary"):
         read_merl(tmp_path / "nope.binary")

@@ -43,6 +43,17 @@ MERL_HEADER_BYTES = 12  # three int32 dims (data README, "MERL .binary format")
 MERL_FILE_SIZE = MERL_HEADER_BYTES + 3 * MERL_N_BINS * 8  # 34,992,012 bytes: float64 values
 MERL_SHAPE = (MERL_THETA_H_RES, MERL_THETA_D_RES, MERL_PHI_D_RES, 3)
 _HALF_PI = 0.5 * np.pi
+# Files other tools write in MERL's place, by their size, and what read_merl says of them (ours): the values as
+# float32, a table of all 360 phi_d bins (MERL's BRDF_SAMPLING_RES_PHI_D; its files store 180, by reciprocity), and
+# the values without the header.  A gzip-compressed file is told by its first two bytes (RFC 1952).
+_FOREIGN_SIZES = {
+    MERL_HEADER_BYTES + 3 * MERL_N_BINS * 4: " -- the size of a MERL table of float32 values (MERL's files hold "
+                                             "float64: convert it)",
+    MERL_HEADER_BYTES + 3 * MERL_N_BINS * 2 * 8: " -- the size of a table of 360 phi_d bins (MERL's files store the "
+                                                 "180 of [0, pi), phi_d folded by reciprocity)",
+    3 * MERL_N_BINS * 8: " -- the size of MERL's values without their 12-byte header (three int32: 90, 90, 180)",
+}
+_GZIP_MAGIC = b"\x1f\x8b"
 # theta_h rows evaluated per call of the user's BRDF in tabulate_merl (bounds memory: ~146k pairs).
 _TABULATE_ROWS_PER_CHUNK = 9
 # Points per axis of a bin the horizon cuts, averaged by tabulate_merl (ours).  Its centre's value alone was no value
@@ -241,15 +252,26 @@ def merl_eval(brdf: MerlBRDF, wi, wo, interpolate: bool = False) -> np.ndarray:
 
 
 def read_merl(path) -> MerlBRDF:
-    """Read a MERL ``.binary`` file; negative (unmeasured) and non-finite entries become 0, with a warning."""
+    """Read a MERL ``.binary`` file; negative (unmeasured) and non-finite entries become 0, with a warning.
+
+    The file is MERL's own layout (``BRDFRead.cpp``): three little-endian int32 (90, 90, 180), then the float64
+    values of all red, then all green, then all blue entries, flat index ((i_theta_h * 90) + i_theta_d) * 180 +
+    i_phi_d, phi_d in [0, pi) (folded by reciprocity); each channel is multiplied by ``MERL_SCALE`` (1/1500,
+    1.15/1500, 1.66/1500) on reading.  A file of another size or header is refused, naming what it looks like
+    (float32 values, 360 phi_d bins, no header, gzip, big-endian: ``_FOREIGN_SIZES``).  A file whose values were
+    stored already scaled reads 1500 times too dark, and nothing in it says so."""
     path = check_input_file(path, f"a MERL .binary BRDF of {MERL_FILE_SIZE} bytes")
     size = path.stat().st_size
     if size != MERL_FILE_SIZE:
         from warpbw.io.npf import NPF_FILE_SIZE
 
+        with open(path, "rb") as fh:
+            head = fh.read(2)
         hint = (" -- the size of an NPF table: a material reads it with type = \"npf\", table and name, and "
                 "warpbw-precompute npf-to-merl --table FILE --material NAME tabulates one as MERL"
-                if size == NPF_FILE_SIZE else "")
+                if size == NPF_FILE_SIZE else _FOREIGN_SIZES.get(size, ""))
+        if head == _GZIP_MAGIC:
+            hint = " -- a gzip-compressed file: decompress it first (gunzip)"
         raise WarpbwError(f"{path}: expected {MERL_FILE_SIZE} bytes (MERL .binary), got {size}{hint}")
     try:
         dims = np.fromfile(path, dtype="<i4", count=3)
@@ -258,7 +280,10 @@ def read_merl(path) -> MerlBRDF:
         raise WarpbwError(f"{path}: cannot read MERL file ({exc.strerror or exc})") from None
     expected = (MERL_THETA_H_RES, MERL_THETA_D_RES, MERL_PHI_D_RES)
     if tuple(int(d) for d in dims) != expected:
-        raise WarpbwError(f"{path}: header dims {tuple(int(d) for d in dims)}, expected {expected} (MERL .binary)")
+        swapped = tuple(int(d) for d in dims.byteswap()) == expected
+        raise WarpbwError(f"{path}: header dims {tuple(int(d) for d in dims)}, expected {expected} (MERL .binary)"
+                          + (" -- a big-endian file: MERL's are little-endian (byte-swap its header and values)"
+                             if swapped else ""))
     raw = raw.reshape(3, *expected)
     bad = ~(np.isfinite(raw) & (raw >= 0.0))
     n_bad = int(np.count_nonzero(bad))
