@@ -752,8 +752,11 @@ def file_load_memory(path) -> tuple[int, int, int]:
 
 def load_envmap(path, rotation_deg: float = 0.0, scale: float = 1.0, device="cpu", sampling: bool = True) -> EnvMap:
     """Environment light from a lat-long EXR file (via warpbw.io.exr.read_rgb): its display window spans the sphere,
-    texels of it that the file does not store are 0.  Without ``sampling`` its sampling distribution is built on
-    first need (``ensure_sampling``)."""
+    texels of it that the file does not store are 0.  Oriented as Mitsuba 3's ``envmap`` (the module docstring):
+    row 0 is +Y (the zenith), the left edge looks down -Z, a quarter across +X, the middle +Z, three quarters -X; a
+    probe made for a Z-up world or another renderer's layout is read in this one, and ``rotation_deg`` turns it
+    about +Y only.  Radiance is linear as stored (an EXR's ``chromaticities`` other than Rec. 709's are converted).
+    Without ``sampling`` its sampling distribution is built on first need (``ensure_sampling``)."""
     from warpbw.io.exr import read_rgb  # lazy: keeps this module importable on its own
 
     sampling = check_flag(sampling, "load_envmap: sampling")   # before the file is read
