@@ -1124,8 +1124,8 @@ def load_map(path, kind: str = "height") -> np.ndarray:
     """Read a height field (single channel; an RGB image is accepted only with identical channels) as
     (H, W) float64, or a tangent-space normal map (RGB) as unit (H, W, 3); an EXR over its display window (0 where
     the file stores no texel; ``warpbw.io.exr.in_display_window``).  PNG normal maps are
-    [0, 1]-encoded; an EXR normal map holds the vectors themselves when it has a negative value or one
-    above 1, or when more of its texels are unit vectors as stored than as decoded (a [0, 1]-encoded map's texels
+    [0, 1]-encoded; an EXR normal map holds the vectors themselves when it has a value more than 0.1
+    outside [0, 1] (``precompute.surfaces.ENCODING_TOL``), or when more of its texels are unit vectors as stored than as decoded (a [0, 1]-encoded map's texels
     are not: the flat normal is stored as (0.5, 0.5, 1)), otherwise it is [0, 1]-encoded too (``_holds_vectors``).
     Texels shorter than ``NORMAL_LENGTH_MIN`` (as stored or decoded) are an error; texels off unit length by more than
     ``UNIT_TOL`` are renormalised, with a warning; an image of (0, 0, 0) texels only is an error.  16-bit greyscale PNGs
@@ -1183,13 +1183,18 @@ def load_map(path, kind: str = "height") -> np.ndarray:
 
 
 def _holds_vectors(rgb) -> bool:
-    """Whether a float (EXR) normal map holds the vectors themselves rather than (n + 1) / 2: it has a negative
-    value, or more of its texels are unit vectors as stored than as decoded.  (The rule was "every texel unit":
-    one texel of length 1.05 in a flat map made the tool decode all of them, tilting each by 55 degrees.)  A value
-    above 1 cannot be [0, 1]-encoded either.  When neither reading makes most texels unit (a map of unnormalised
-    vectors), the one whose normals lie nearer the vertical on average wins: a tangent-space map is mostly near +z
-    (unnormalised raw vectors were decoded, and refused as pointing below the surface)."""
-    if rgb.min() < 0.0 or rgb.max() > 1.0 + UNIT_TOL:
+    """Whether a float (EXR) normal map holds the vectors themselves rather than (n + 1) / 2: it has a value more
+    than ``ENCODING_TOL`` outside [0, 1] (no [0, 1]-encoded map's, a resampling's overshoot included), or more of its
+    texels are unit vectors as stored than as decoded.  (The rule was "every texel unit": one texel of length 1.05 in
+    a flat map made the tool decode all of them, tilting each by 55 degrees.  Then "any value below 0 or above
+    1.01": one texel of a [0, 1]-encoded map overshooting to 1.02, as a bicubic resampling leaves at a crease, made it
+    read every texel as a raw vector, each about 35 degrees off, with only a "renormalised" warning.)  When neither
+    reading makes most texels unit (a map of unnormalised vectors), the one whose normals lie nearer the vertical on
+    average wins: a tangent-space map is mostly near +z (unnormalised raw vectors were decoded, and refused as
+    pointing below the surface)."""
+    from precompute.surfaces import ENCODING_TOL
+
+    if rgb.min() < -ENCODING_TOL or rgb.max() > 1.0 + ENCODING_TOL:
         return True
     as_stored = np.count_nonzero(np.abs(np.linalg.norm(rgb, axis=-1) - 1.0) <= UNIT_TOL)
     decoded = 2.0 * rgb - 1.0

@@ -1479,6 +1479,30 @@ def test_an_encoded_exr_normal_map_with_a_zero_value_is_decoded(tmp_path):
     np.testing.assert_allclose(load_map(tmp_path / "enc.exr", "normal"), n, atol=1e-6)
 
 
+@pytest.mark.parametrize("value, where", [(1.02, 0), (1.09, 2), (-0.02, 0), (-0.09, 1)])
+def test_a_float_normal_map_overshooting_0_1_by_a_resamplings_few_percent_is_still_decoded(tmp_path, value, where):
+    """A [0, 1]-encoded float map whose one texel a bicubic resampling left at 1.02 (or -0.02: a few percent, within
+    ``ENCODING_TOL``) was read as raw vectors, the rule being "any value below 0 or above 1.01": every texel about 35
+    degrees off, with only a "renormalised" warning.  Decoded, as most of its texels say.  Truth: the normals of a
+    sine height field in numpy (central differences, x along +column, y towards row 0), (n + 1) / 2-encoded."""
+    from warpbw.io.exr import write_exr
+
+    W = 16
+    u = (np.arange(W) + 0.5) / W
+    slope = (np.sin(2 * np.pi * (u + 1 / W)) - np.sin(2 * np.pi * (u - 1 / W))) * 0.04 / (2 / W)
+    n = np.zeros((W, W, 3))
+    n[..., 0], n[..., 2] = -slope[None, :], 1.0
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    enc = (n + 1) / 2
+    enc[5, 7, where] = value
+    write_exr(tmp_path / "enc.exr", enc.astype(np.float32), channels=["R", "G", "B"])
+    with pytest.warns(UserWarning, match=r"enc.exr: 1 of 256 texels are not unit normals as decoded"):
+        got = load_map(tmp_path / "enc.exr", "normal")
+    ok = np.ones((W, W), bool)
+    ok[5, 7] = False
+    np.testing.assert_allclose(got[ok], n[ok], atol=1e-6)
+
+
 def test_a_float_normal_map_unit_neither_as_stored_nor_as_decoded_is_decoded(tmp_path):
     """"holds the vectors themselves when it has a negative value or when MORE of its texels are unit vectors as stored
     than as decoded ..., otherwise it is [0, 1]-encoded too": a tie (none either way) decodes."""
