@@ -1123,7 +1123,11 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None, bool]:
 def load_map(path, kind: str = "height") -> np.ndarray:
     """Read a height field (single channel; an RGB image is accepted only with identical channels) as
     (H, W) float64, or a tangent-space normal map (RGB) as unit (H, W, 3); an EXR over its display window (0 where
-    the file stores no texel; ``warpbw.io.exr.in_display_window``).  PNG normal maps are
+    the file stores no texel; ``warpbw.io.exr.in_display_window``).  Conventions (``precompute.surfaces``): a larger
+    height is higher; an integer image's values are read as stored over 255 or 65535 (no sRGB or gamma curve), so
+    white is 1 (one map width, before ``scale``); a normal map's R, G, B hold n_x along +column, n_y towards row 0
+    (OpenGL's convention: a DirectX map's G is the other way, and nothing in the file says which) and n_z out of the
+    surface, an 8-bit value k decoding to 2 k / 255 - 1 (128 is +0.004).  PNG normal maps are
     [0, 1]-encoded; an EXR normal map holds the vectors themselves when it has a value more than 0.1
     outside [0, 1] (``precompute.surfaces.ENCODING_TOL``), or when more of its texels are unit vectors as stored than as decoded (a [0, 1]-encoded map's texels
     are not: the flat normal is stored as (0.5, 0.5, 1)), otherwise it is [0, 1]-encoded too (``_holds_vectors``).
