@@ -1129,8 +1129,9 @@ def load_map(path, kind: str = "height") -> np.ndarray:
     (OpenGL's convention: a DirectX map's G is the other way, and nothing in the file says which) and n_z out of the
     surface, an 8-bit value k decoding to 2 k / 255 - 1 (128 is +0.004).  PNG normal maps are
     [0, 1]-encoded; an EXR normal map holds the vectors themselves when it has a value more than 0.1
-    outside [0, 1] (``precompute.surfaces.ENCODING_TOL``), or when more of its texels are unit vectors as stored than as decoded (a [0, 1]-encoded map's texels
-    are not: the flat normal is stored as (0.5, 0.5, 1)), otherwise it is [0, 1]-encoded too (``_holds_vectors``).
+    outside [0, 1] (``precompute.surfaces.ENCODING_TOL``), or when more of its texels are unit vectors as stored
+    than as decoded (a [0, 1]-encoded map's texels are not: the flat normal is stored as (0.5, 0.5, 1)), otherwise
+    it is [0, 1]-encoded too (``_holds_vectors``).
     Texels shorter than ``NORMAL_LENGTH_MIN`` (as stored or decoded) are an error; texels off unit length by more than
     ``UNIT_TOL`` are renormalised, with a warning; an image of (0, 0, 0) texels only is an error.  16-bit greyscale PNGs
     keep their precision (Pillow reads 16-bit RGB and grey + alpha PNGs as 8-bit, and that warns).  Normals more than

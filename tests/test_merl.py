@@ -403,8 +403,8 @@ def test_bad_header_refused(tmp_path):
     ("phi360", r"got 69984012 -- the size of a table of 360 phi_d bins"),
     ("headerless", r"got 34992000 -- the size of MERL's values without their 12-byte header"),
     ("gzip", r"got \d+ -- a gzip-compressed file: decompress it first"),
-    ("big-endian", r"header dims \(1509949440, 1509949440, -1275068416\), expected \(90, 90, 180\) \(MERL \.binary\) -- "
-                   r"a big-endian file: MERL's are little-endian")])
+    ("big-endian", r"header dims \(1509949440, 1509949440, -1275068416\), expected \(90, 90, 180\) "
+                   r"\(MERL \.binary\) -- a big-endian file: MERL's are little-endian")])
 def test_files_other_tools_write_in_merls_place_are_named_for_what_they_are(tmp_path, kind, said):
     """What a user's MERL file may differ in, told by its size or header (the data README's layout and BRDFRead.cpp's
     constants are the truth): float32 values, all 360 phi_d bins, no header, gzip compression, big-endian.  Each was
