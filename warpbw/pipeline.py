@@ -82,7 +82,7 @@ class PreparedScene:
     bandwidth: object = None                          # BandwidthTables, built on first adaptive frame
     bandwidth_signal: str | None = None               # the env_signal its nu_a map was analysed on
     lights: object = None                             # warpbw.lights.Lights, or None without [[light]]s
-    _keep: list = field(default_factory=list, repr=False)
+    _keep: list = field(default_factory=list, repr=False)   # the arrays the bandwidth tables in use reference
 
     @property
     def env_data(self):
@@ -568,7 +568,7 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False, env_signal: s
         struct, keep = make_bandwidth_tables(nu_env_table(nu_env), np.stack(tables),
                                              device=prep.device)
     prep.bandwidth, prep.bandwidth_signal = struct, env_signal
-    prep._keep.extend(keep)
+    prep._keep = keep   # the tables of a signal read before are let go (extended, every switch of signal kept its own)
     if prep.geometry.curvature_pending:
         largest = max(len(faces) for _, faces in prep.geometry.curvature_pending.values())
         warn_if_short_of_memory(CURVATURE_BYTES_PER_TRIANGLE * largest, available_memory(),
