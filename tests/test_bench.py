@@ -1148,25 +1148,41 @@ def test_bandwidth_time_fraction_is_over_the_frames_wall_time(tmp_path, monkeypa
     assert p["bandwidth_time_fraction"] == pytest.approx(0.002 / 0.04, rel=1e-9)
 
 
-def test_a_bench_plot_that_fails_leaves_no_figure_open(tmp_path):
-    """A plot that cannot be saved (its folder gone, a format matplotlib lacks) raises, and closes its figure as a
-    saved one does: in a process that benches for hours, each failure kept a figure in pyplot (1.2 MB of canvas),
-    and from the 21st open figure on matplotlib warns at every plot."""
-    import matplotlib
+@pytest.mark.parametrize("module", ["bench", "bench_filtering"])
+def test_a_plot_leaves_the_callers_matplotlib_as_it_was(tmp_path, module):
+    """bench's and bench-filtering's write_plot draw on a Figure of their own: the caller's backend (a notebook's
+    inline one; here svg) is the same after a plot (matplotlib.use("Agg") replaced it for the rest of the session),
+    and no figure stays open in pyplot, after a plot saved or one that cannot be (its folder gone, a format matplotlib
+    lacks: pyplot kept each, and warns from the 21st open one on).  The PNG is byte for byte pyplot's (checked when
+    this changed)."""
+    import importlib
 
-    matplotlib.use("Agg")
+    import matplotlib
     import matplotlib.pyplot as plt
 
-    rec = {"scene": "s.toml", "resolution": [8, 8], "ground_truth_spp": 64, "estimator": "MIS",
-           "equal_quality_speedup": None, "methods": {"reference": [{"spp": 1, "time_s": 0.1, "psnr_db": 20.0}],
-                                                      "adaptive": [{"budget": 1.0, "time_s": 0.05, "psnr_db": 24.0}]}}
-    before = plt.get_fignums()
-    for path in (tmp_path / "gone" / "p.png", tmp_path / "p.nosuchformat"):
-        with pytest.raises((OSError, ValueError)):
-            bench.write_plot(rec, path)
-        assert plt.get_fignums() == before
-    bench.write_plot(rec, tmp_path / "p.png")
-    assert plt.get_fignums() == before and (tmp_path / "p.png").stat().st_size > 0
+    mod = importlib.import_module(f"warpbw.{module}")
+    if module == "bench":
+        rec = {"scene": "s.toml", "resolution": [8, 8], "ground_truth_spp": 64, "estimator": "MIS",
+               "equal_quality_speedup": None,
+               "methods": {"reference": [{"spp": 1, "time_s": 0.1, "psnr_db": 20.0}],
+                           "adaptive": [{"budget": 1.0, "time_s": 0.05, "psnr_db": 24.0}]}}
+    else:
+        rec = {"scene": "p.toml", "zooms": [1.0, 2.0], "max_anisotropy": 1, "precompute_time_s": 1.25,
+               "methods": {"toksvig": [{"error": 0.1, "flicker": 0.01, "temporal_error": 0.5, "time_s": 0.5}] * 2},
+               "ground_truth": [{"noise": 0.01, "flicker_noise": 0.002, "temporal_noise": 0.003}] * 2}
+    was = matplotlib.get_backend()
+    matplotlib.use("svg")
+    try:
+        before = plt.get_fignums()
+        for path in (tmp_path / "gone" / "p.png", tmp_path / "p.nosuchformat"):
+            with pytest.raises((OSError, ValueError)):
+                mod.write_plot(rec, path)
+            assert plt.get_fignums() == before
+        mod.write_plot(rec, tmp_path / "p.png")
+        assert plt.get_fignums() == before and (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert matplotlib.get_backend() == "svg"
+    finally:
+        matplotlib.use(was)
 
 
 def test_bench_plot_draws_each_method_from_its_own_records(tmp_path, monkeypatch):

@@ -1200,24 +1200,6 @@ def _plot_curves(monkeypatch) -> list:
     return curves
 
 
-def test_a_bench_filtering_plot_that_fails_leaves_no_figure_open(tmp_path):
-    """As bench's: a plot that cannot be saved raises and closes its figure (4 MB of canvas each, kept in pyplot)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from warpbw.bench_filtering import write_plot
-
-    rec = _bf_record()
-    for row in rec["methods"]["toksvig"]:
-        row["time_s"] = 0.5
-    before = plt.get_fignums()
-    with pytest.raises(OSError):
-        write_plot(rec, tmp_path / "gone" / "p.png")
-    assert plt.get_fignums() == before
-
-
 def test_bench_filtering_plot_draws_each_curve_along_the_zoom(tmp_path, monkeypatch):
     """--zoom comes in any order (the CLI refuses only repeats): each curve of the plot runs along the zoom, and the
     error-against-time curve through the zooms in that order too (--zoom 4,1,2 drew 4 -> 1 -> 2: a line from zoom 1

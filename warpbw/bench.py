@@ -625,52 +625,49 @@ def write_plot(record: dict, path) -> None:
     """PSNR against frame time (one curve per method), and the n_b sweep when present; error bars of one standard
     error where the record has them (two runs or more)."""
     check_path(path, "write_plot: path")   # before the plot, not from the writer after it
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    # a Figure of its own, not pyplot's: the caller's backend (a notebook's inline one) stays as it was (pyplot with
+    # matplotlib.use("Agg") replaced it), and nothing holds the figure once it is saved, or once it failed (pyplot
+    # kept a failed plot's figure open)
+    from matplotlib.figure import Figure
 
     has_nb = bool(record.get("nb_sweep"))
-    fig, axes = plt.subplots(1, 2 if has_nb else 1, figsize=(11 if has_nb else 6, 4.2), squeeze=False)
-    try:
-        ax = axes[0][0]
-        # each curve in the order of its counts (--spp, --budgets and --nb come in any order: 16,1,4 drew 16 -> 1 -> 4)
-        ref = sorted(record["methods"]["reference"], key=lambda r: r["spp"])
-        ada = sorted(record["methods"]["adaptive"], key=lambda r: r["budget"])
-        for recs, fmt, label in ((ref, "o-", f"reference ({record['estimator']})"), (ada, "s-", "adaptive (002)")):
-            ax.errorbar([r["time_s"] for r in recs], [r["psnr_db"] for r in recs], fmt=fmt, label=label, capsize=3,
-                        yerr=[r.get("psnr_se_db") or 0.0 for r in recs])
-        for r in ref:
-            ax.annotate(f"{r['spp']}", (r["time_s"], r["psnr_db"]), fontsize=7, xytext=(3, -8),
-                        textcoords="offset points")
-        for r in ada:
-            ax.annotate(f"{r['budget']:g}", (r["time_s"], r["psnr_db"]), fontsize=7, xytext=(3, 3),
-                        textcoords="offset points")
-        ax.set_xscale("log")
-        ax.set_xlabel("frame time (s)")
-        ax.set_ylabel("PSNR (dB) against the ground truth")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
-        s = record["equal_quality_speedup"]
-        se = record.get("equal_quality_speedup_se")
-        ax.set_title(f"equal-quality speed-up {s:.1f}x" + (f" \u00b1 {se:.1f}" if se is not None else "")
-                     if s is not None else "speed against accuracy", fontsize=10)
-        if has_nb:
-            ax2 = axes[0][1]
-            nb = sorted(record["nb_sweep"], key=lambda r: r["n_b"])
-            ax2.errorbar([r["n_b"] for r in nb], [r["psnr_db"] for r in nb], fmt="o-", color="C2", label="PSNR",
-                         yerr=[r.get("psnr_se_db") or 0.0 for r in nb], capsize=3)
-            ax2.set_xscale("log")
-            ax2.set_xlabel("n_b (directions of the bandwidth estimate)")
-            ax2.set_ylabel("PSNR (dB)")
-            ax3 = ax2.twinx()
-            ax3.semilogx([r["n_b"] for r in nb], [r["time_s"] for r in nb], "s--", color="C3", label="time")
-            ax3.set_ylabel("frame time (s)")
-            ax2.set_title(f"n_b sweep at budget {nb[0]['budget']:g} (002 Fig. 13)", fontsize=10)
-            ax2.grid(True, which="both", alpha=0.3)
-        fig.suptitle(f"{Path(record['scene']).name}: {record['resolution'][0]}x{record['resolution'][1]}, "
-                     f"ground truth {record['ground_truth_spp']} spp", fontsize=10)
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
-        plt.close(fig)
+    fig = Figure(figsize=(11 if has_nb else 6, 4.2))
+    axes = fig.subplots(1, 2 if has_nb else 1, squeeze=False)
+    ax = axes[0][0]
+    # each curve in the order of its counts (--spp, --budgets and --nb come in any order: 16,1,4 drew 16 -> 1 -> 4)
+    ref = sorted(record["methods"]["reference"], key=lambda r: r["spp"])
+    ada = sorted(record["methods"]["adaptive"], key=lambda r: r["budget"])
+    for recs, fmt, label in ((ref, "o-", f"reference ({record['estimator']})"), (ada, "s-", "adaptive (002)")):
+        ax.errorbar([r["time_s"] for r in recs], [r["psnr_db"] for r in recs], fmt=fmt, label=label, capsize=3,
+                    yerr=[r.get("psnr_se_db") or 0.0 for r in recs])
+    for r in ref:
+        ax.annotate(f"{r['spp']}", (r["time_s"], r["psnr_db"]), fontsize=7, xytext=(3, -8), textcoords="offset points")
+    for r in ada:
+        ax.annotate(f"{r['budget']:g}", (r["time_s"], r["psnr_db"]), fontsize=7, xytext=(3, 3),
+                    textcoords="offset points")
+    ax.set_xscale("log")
+    ax.set_xlabel("frame time (s)")
+    ax.set_ylabel("PSNR (dB) against the ground truth")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    s = record["equal_quality_speedup"]
+    se = record.get("equal_quality_speedup_se")
+    ax.set_title(f"equal-quality speed-up {s:.1f}x" + (f" \u00b1 {se:.1f}" if se is not None else "") if s is not None
+                 else "speed against accuracy", fontsize=10)
+    if has_nb:
+        ax2 = axes[0][1]
+        nb = sorted(record["nb_sweep"], key=lambda r: r["n_b"])
+        ax2.errorbar([r["n_b"] for r in nb], [r["psnr_db"] for r in nb], fmt="o-", color="C2", label="PSNR",
+                     yerr=[r.get("psnr_se_db") or 0.0 for r in nb], capsize=3)
+        ax2.set_xscale("log")
+        ax2.set_xlabel("n_b (directions of the bandwidth estimate)")
+        ax2.set_ylabel("PSNR (dB)")
+        ax3 = ax2.twinx()
+        ax3.semilogx([r["n_b"] for r in nb], [r["time_s"] for r in nb], "s--", color="C3", label="time")
+        ax3.set_ylabel("frame time (s)")
+        ax2.set_title(f"n_b sweep at budget {nb[0]['budget']:g} (002 Fig. 13)", fontsize=10)
+        ax2.grid(True, which="both", alpha=0.3)
+    fig.suptitle(f"{Path(record['scene']).name}: {record['resolution'][0]}x{record['resolution'][1]}, "
+                 f"ground truth {record['ground_truth_spp']} spp", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)

@@ -344,40 +344,38 @@ def write_plot(record: dict, path) -> None:
     flicker, temporal error) as a dashed line; and the error against frame time (the protocol's plot), one curve
     per method through its zooms."""
     check_path(path, "write_plot: path")   # before the plot, not from the writer after it
-    import matplotlib
+    # a Figure of its own, not pyplot's: the caller's backend (a notebook's inline one) stays as it was (pyplot with
+    # matplotlib.use("Agg") replaced it), and nothing holds the figure once it is saved, or once it failed (pyplot
+    # kept a failed plot's figure open)
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 4, figsize=(20, 4.2))
-    try:
-        # each curve along the zoom (--zoom comes in any order: 4,1,2 drew 4 -> 1 -> 2), the rows in the zooms' order
-        order = sorted(range(len(record["zooms"])), key=record["zooms"].__getitem__)
-        zooms = [record["zooms"][i] for i in order]
-        gts = [record["ground_truth"][i] for i in order]
-        for m, rows in record["methods"].items():
-            rows = [rows[i] for i in order]
-            axes[3].plot([r["time_s"] * 1e3 for r in rows], [r["error"] for r in rows], "o-", label=m)
-            axes[0].plot(zooms, [r["error"] for r in rows], "o-", label=m)
-            axes[1].plot(zooms, [r["flicker"] for r in rows], "o-", label=m)
-            axes[2].plot(zooms, [r["temporal_error"] for r in rows], "o-", label=m)
-        axes[0].plot(zooms, [g["noise"] for g in gts], "k--", label="ground-truth noise")
-        axes[2].plot(zooms, [g["temporal_noise"] for g in gts], "k--", label="ground-truth noise")
-        if all("flicker_noise" in g for g in gts):
-            axes[1].plot(zooms, [g["flicker_noise"] for g in gts], "k--", label="ground-truth noise")
-        for ax, what in zip(axes[:3], ("error against the ground truth", "flicker (change beyond the truth's)",
-                                       "temporal error (change against the truth's)")):
-            ax.set_xscale("log", base=2)
-            ax.set_xlabel("zoom (camera distance factor)")
-            ax.set_ylabel(what)
-            ax.grid(True, which="both", alpha=0.3)
-        axes[3].set_xlabel("frame time (ms, kernels; one point per zoom)")
-        axes[3].set_ylabel("error against the ground truth")
-        axes[3].grid(True, which="both", alpha=0.3)
-        axes[0].legend(fontsize=8)
-        fig.suptitle(f"{Path(record['scene']).name}: reflectance filtering (004){_aniso_note(record)}; precompute "
-                     f"{record['precompute_time_s']:.1f} s{_precompute_origin(record)}", fontsize=10)
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
-        plt.close(fig)
+    fig = Figure(figsize=(20, 4.2))
+    axes = fig.subplots(1, 4)
+    # each curve along the zoom (--zoom comes in any order: 4,1,2 drew 4 -> 1 -> 2), the rows in the zooms' order
+    order = sorted(range(len(record["zooms"])), key=record["zooms"].__getitem__)
+    zooms = [record["zooms"][i] for i in order]
+    gts = [record["ground_truth"][i] for i in order]
+    for m, rows in record["methods"].items():
+        rows = [rows[i] for i in order]
+        axes[3].plot([r["time_s"] * 1e3 for r in rows], [r["error"] for r in rows], "o-", label=m)
+        axes[0].plot(zooms, [r["error"] for r in rows], "o-", label=m)
+        axes[1].plot(zooms, [r["flicker"] for r in rows], "o-", label=m)
+        axes[2].plot(zooms, [r["temporal_error"] for r in rows], "o-", label=m)
+    axes[0].plot(zooms, [g["noise"] for g in gts], "k--", label="ground-truth noise")
+    axes[2].plot(zooms, [g["temporal_noise"] for g in gts], "k--", label="ground-truth noise")
+    if all("flicker_noise" in g for g in gts):
+        axes[1].plot(zooms, [g["flicker_noise"] for g in gts], "k--", label="ground-truth noise")
+    for ax, what in zip(axes[:3], ("error against the ground truth", "flicker (change beyond the truth's)",
+                                   "temporal error (change against the truth's)")):
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("zoom (camera distance factor)")
+        ax.set_ylabel(what)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[3].set_xlabel("frame time (ms, kernels; one point per zoom)")
+    axes[3].set_ylabel("error against the ground truth")
+    axes[3].grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"{Path(record['scene']).name}: reflectance filtering (004){_aniso_note(record)}; precompute "
+                 f"{record['precompute_time_s']:.1f} s{_precompute_origin(record)}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
