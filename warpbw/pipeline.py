@@ -677,11 +677,14 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     # the default block is no larger than the image (a 1 x 1 frame was refused with "stride: expected 1 to 1")
     stride = min(bandwidth.PASS_STRIDE_DEFAULT, max(prep.width, prep.height)) if stride is None else stride
     loads = prep.bandwidth is None or prep.bandwidth_signal != env_signal
+    before = dict(prep.timings)
     tables = prepare_bandwidth(prep, progress, env_signal)
     if loads:   # this frame loaded or built the pass's inputs (the first on a prepared scene too): it says so
         for k in ("load_env_bandwidth", "load_brdf_bandwidth", "load_mesh_curvature"):
-            if k in prep.timings:
-                timings[k] = prep.timings[k]
+            if prep.timings.get(k) != before.get(k):
+                # its own time: prep.timings sums every load (a frame that switched env_signal gave the sum of all
+                # the switches so far, and the curvature a frame before it derived)
+                timings[k] = prep.timings[k] - before.get(k, 0.0)
     _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh, False),
                          bandwidth.make_bandwidth_kernel(prep.materials.kinds, preconvolved),
                          make_reference_kernel(prep.materials.kinds, mis, per_pixel_spp=True))
