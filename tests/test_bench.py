@@ -427,6 +427,39 @@ def test_ground_truth_chunks_of_another_seed_or_version_are_never_read(tmp_path,
     assert len(list(cache.glob("ground_truth-*.exr"))) == 2 + 3 * 2 and not list(cache.glob(".*"))
 
 
+def test_a_ground_truth_of_a_prepared_scene_moved_since_is_not_the_scenes(tmp_path):
+    """A loop over an animation's frames on one prepared scene (a camera set on it, as examples/dynamic_geometry.py
+    sets its own; a mesh deformed by update_mesh) asked ground_truth for each frame's truth: every chunk was cached,
+    and read back, under the scene's hash, so each frame after the first was measured against the first frame's
+    truth.  Truth: the same frame's ground truth rendered into an empty cache.  Back in the scene's own camera, the
+    scene's chunks are read again."""
+    import trimesh
+
+    from warpbw.gbuffer import make_camera, scene_camera, update_mesh
+    from warpbw.pipeline import prepare_scene
+    from warpbw.scene import parse_scene
+
+    trimesh.creation.icosphere(subdivisions=1).export(tmp_path / "ico.obj")
+    text = SCENE.replace('shape = "sphere"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0', 'mesh = "ico.obj"')
+    prep = prepare_scene(parse_scene(text, tmp_path, "s.toml"))
+    cache = tmp_path / "gt"
+    first = bench.ground_truth(prep, 4, cache, progress=False)
+    rest = prep.geometry.mesh.points.numpy().copy()
+    for move in ("camera", "mesh"):
+        if move == "camera":
+            prep.camera = make_camera((1.5, 0.5, 3.5), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 30.0, 24, 24)
+        else:
+            update_mesh(prep.geometry, 0, rest * 0.8)
+        moved = bench.ground_truth(prep, 4, cache, progress=False)
+        fresh = bench.ground_truth(prep, 4, tmp_path / f"cold-{move}", progress=False)
+        assert fresh.render_time_s > 0 and moved.key == fresh.key != first.key, move
+        assert np.array_equal(moved.image, fresh.image) and not np.array_equal(moved.image, first.image), move
+        if move == "camera":   # (update_mesh back to the rest pose derives its normals on the device: not the bits
+            prep.camera = scene_camera(prep.scene.camera)   # the file's load gave, so not the scene's frame)
+            back = bench.ground_truth(prep, 4, cache, progress=False)
+            assert back.key == first.key and back.render_time_s == 0 and np.array_equal(back.image, first.image)
+
+
 @pytest.mark.parametrize("damage", ["one channel", "nan", "cut off", "other size", "negated", "zeroed", "doubled",
                                     "no digest"])
 def test_damaged_ground_truth_chunk_is_rendered_again(tmp_path, damage):
