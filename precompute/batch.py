@@ -30,6 +30,7 @@ and the command exits 1 after the batch.  Dask is an optional dependency (``pip 
 from __future__ import annotations
 
 import os
+import sys
 import time
 import warnings
 from concurrent.futures.process import BrokenProcessPool
@@ -292,7 +293,7 @@ def run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers: int
         except BrokenProcessPool:   # a traceback, no record, and the BRDFs in flight and to come abandoned
             raise WarpbwError(f"{out_dir}: a worker process of the batch ended abruptly (killed: the OOM killer, kill "
                               "-9) while it built a BRDF's tables; the batch stopped, the tables written so far are "
-                              "kept: run it again with --resume to build the rest") from None
+                              f"kept: run it again with --resume to build the rest{_script_hint()}") from None
     wall = time.perf_counter() - t0
     work = sum(sum(r["time_s"].values()) for r in records)
     return {"format": BATCH_FORMAT, "writer": f"warpbw {__version__}", "out_dir": str(out_dir),
@@ -300,6 +301,20 @@ def run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers: int
             getattr(scheduler, "__qualname__", None) or type(scheduler).__name__,   # a client: "Client"
             "workers": workers, "threads_per_task": threads, "lookup": lookup, "wall_s": wall, "work_s": work,
             "failed": sum(r["error"] is not None for r in records), "items": records}
+
+
+def _script_hint() -> str:
+    """What a Python script that called run_batch at its top level is told when the batch's worker processes fail:
+    each imports the script again as it starts (multiprocessing's spawn), runs its run_batch, and is refused there
+    ("An attempt has been made to start a new process before the current process has finished its bootstrapping
+    phase"), which the batch then saw as workers that had ended abruptly (it said only "the OOM killer, kill -9").
+    Nothing for the commands (``python -m precompute``, the console scripts) or an interactive session."""
+    main = sys.modules.get("__main__")
+    script = getattr(main, "__file__", None)
+    if script is None or getattr(main, "__spec__", None) is not None or Path(script).name.startswith("warpbw"):
+        return ""
+    return (f" (or, from the Python script {Path(script).name}, the workers never started: each imports the script "
+            "again, so call run_batch under `if __name__ == \"__main__\":`)")
 
 
 class _progress_bar:

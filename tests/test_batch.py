@@ -365,6 +365,39 @@ def _alive(pid: int) -> bool:
         return False
 
 
+def test_a_batch_whose_workers_fail_under_a_python_script_says_to_guard_its_call(tmp_path, monkeypatch):
+    """run_batch called at the top level of a Python script (no ``if __name__ == "__main__":``): each worker process
+    imports the script again as it starts, runs its run_batch and is refused there by multiprocessing, and the batch
+    said its workers had been killed ("the OOM killer, kill -9") and nothing else (seen running a script of two
+    lines).  From a script the line now names it and the guard; the commands' line is as before.  The workers'
+    failure is dask's BrokenProcessPool, raised here by a stand-in for dask.compute."""
+    import sys
+    import types
+    from concurrent.futures.process import BrokenProcessPool
+
+    import dask
+
+    from precompute.batch import batch_items, run_batch
+    from warpbw.errors import WarpbwError
+
+    def broken(*a, **k):
+        raise BrokenProcessPool("A process in the process pool was terminated abruptly")
+
+    monkeypatch.setattr(dask, "compute", broken)
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    items = batch_items(["npf.bin"], ["chrome"])
+    for main, hint in ((str(tmp_path / "my_batch.py"), True), ("/usr/bin/warpbw-precompute", False)):
+        module = types.ModuleType("__main__")
+        module.__file__ = main
+        monkeypatch.setitem(sys.modules, "__main__", module)
+        with pytest.raises(WarpbwError) as err:
+            run_batch(items, "out", progress=False)
+        msg = str(err.value)
+        assert msg.startswith("out: a worker process of the batch ended abruptly") and "--resume" in msg, msg
+        assert ('from the Python script my_batch.py' in msg and 'if __name__ == "__main__":' in msg) == hint, msg
+
+
 @pytest.mark.skipif(not __import__("os").path.exists("/proc/self/task"), reason="reads /proc (Linux)")
 def test_a_worker_killed_mid_batch_ends_it_in_one_line(tmp_path):
     """A worker process killed with SIGKILL (the OOM killer): the batch ended with concurrent.futures'
