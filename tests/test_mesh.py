@@ -995,7 +995,6 @@ def test_two_threads_reading_meshes_at_once_leave_logging_as_it_was(tmp_path, mo
     import logging
     import threading
 
-
     a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
 
     def load_scene(name, **kw):
