@@ -608,7 +608,7 @@ def geometry_digest(geometry: Geometry) -> str:
     if geometry.mesh is not None:
         arrays += [geometry.mesh.points, geometry.mesh_attr.normal]
     for a in arrays:
-        h.update(np.ascontiguousarray(a.numpy()).tobytes())
+        h.update(np.ascontiguousarray(a.numpy()).data)   # no copy of the bytes (a host array's own on the CPU)
     return h.hexdigest()
 
 
