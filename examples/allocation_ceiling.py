@@ -162,17 +162,19 @@ def write_plot(record: dict, path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4))
-    ax.bar(range(len(GAINS)), [record[k] for k in GAINS], color=["C0", "C1", "C2", "C2", "C3"])
-    ax.axhline(1.0, color="k", lw=0.8, ls="--")
-    ax.set_xticks(range(len(GAINS)), GAINS, fontsize=8)
-    ax.set_yscale("log")
-    ax.set_ylabel("noise gain over the reference at equal samples")
-    ax.grid(True, axis="y", which="both", alpha=0.3)
-    ax.set_title(f"{Path(record['scene']).name}: budget {record['budget']:g}, {record['shaded_fraction']:.0%} "
-                 f"shaded; brute force {record['seeds']} x {record['spp']} spp", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        ax.bar(range(len(GAINS)), [record[k] for k in GAINS], color=["C0", "C1", "C2", "C2", "C3"])
+        ax.axhline(1.0, color="k", lw=0.8, ls="--")
+        ax.set_xticks(range(len(GAINS)), GAINS, fontsize=8)
+        ax.set_yscale("log")
+        ax.set_ylabel("noise gain over the reference at equal samples")
+        ax.grid(True, axis="y", which="both", alpha=0.3)
+        ax.set_title(f"{Path(record['scene']).name}: budget {record['budget']:g}, {record['shaded_fraction']:.0%} "
+                     f"shaded; brute force {record['seeds']} x {record['spp']} spp", fontsize=10)
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
+        plt.close(fig)
 
 
 def format_report(name: str, r: dict) -> str:

@@ -47,22 +47,24 @@ def write_plot(record: dict, path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    for i, sc in enumerate(record["scenes"]):
-        rows = sorted(sc["zooms"], key=lambda r: r["zoom"])   # along the zoom (--zoom 4,1,2 drew 4 -> 1 -> 2)
-        for j, m in enumerate(record["methods"]):
-            ax.plot([r["zoom"] for r in rows], [r["methods"][m]["ratio"] for r in rows],
-                    "os^"[j % 3] + "-", color=f"C{i % 10}", label=f"{_scene_name(sc['scene'])}: {m}")
-    ax.axhline(1.0, color="k", lw=0.8, ls="--")
-    ax.set_xscale("log", base=2)
-    ax.set_xlabel("zoom (camera distance factor)")
-    ax.set_ylabel(f"frame time, up to {record['aniso']} probes / 1 probe")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
-    w, h = record["size"]
-    ax.set_title(f"cost of anisotropic footprints: {w}x{h}, median of {record['runs']} frames", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        for i, sc in enumerate(record["scenes"]):
+            rows = sorted(sc["zooms"], key=lambda r: r["zoom"])   # along the zoom (--zoom 4,1,2 drew 4 -> 1 -> 2)
+            for j, m in enumerate(record["methods"]):
+                ax.plot([r["zoom"] for r in rows], [r["methods"][m]["ratio"] for r in rows],
+                        "os^"[j % 3] + "-", color=f"C{i % 10}", label=f"{_scene_name(sc['scene'])}: {m}")
+        ax.axhline(1.0, color="k", lw=0.8, ls="--")
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("zoom (camera distance factor)")
+        ax.set_ylabel(f"frame time, up to {record['aniso']} probes / 1 probe")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+        w, h = record["size"]
+        ax.set_title(f"cost of anisotropic footprints: {w}x{h}, median of {record['runs']} frames", fontsize=10)
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
+        plt.close(fig)
 
 
 def main(argv=None) -> int:

@@ -155,34 +155,37 @@ def main(argv=None) -> int:
     s_c, t_c, foot, weights = block(n2, l, r0, c0)
     truth = truth_density(foot, weights)
     fig, axes = plt.subplots(2, 6, figsize=(15, 5.4))
-    for row, (name, mip) in enumerate(mips.items()):
-        q = mip.levels[l]
-        panels = []
-        for dr in (0, 1):
-            for dc in (0, 1):
-                a, mu, s2 = from_moments(q[(r0 + dr) % q.shape[0], (c0 + dc) % q.shape[1]])
-                panels.append((f"texel ({r0 + dr}, {c0 + dc})", np.concatenate([a[:, None], mu, s2[:, None]], -1)))
-        filt = fetch_gmm(mip.levels, s_c, t_c, float(l))[0]
-        panels.append(("filtered (004 Sec. 4.2)", filt))
-        for ax, (title, p) in zip(axes[row], panels):
-            show(ax, density(p))
-            for i, (a, mx, my, _) in enumerate(p):
-                if a > 0.01:
-                    ax.text(mx, my, str(i), color="cyan", ha="center", va="center", fontsize=8)
-            ax.set_title(title, fontsize=9)
-        show(axes[row][5], truth)
-        axes[row][5].set_title(f"truth: the four texels' {len(foot)} finest normals", fontsize=9)
-        axes[row][0].set_ylabel(name, fontsize=10)
-    for ax in axes.ravel():
-        ax.add_patch(plt.Circle((0, 0), 1.0, fill=False, color="w", lw=0.5))
-        ax.set_xticks([])
-        ax.set_yticks([])
-    fig.suptitle(f"{args.surface} {args.size}x{args.size}, level {l}: GMM of four texels and their filtered "
-                 "mixture (sqrt density over the projected normal disk)", fontsize=10)
-    fig.tight_layout()
-    out = Path(args.output)
-    with staged_outputs([out], force=args.force) as at:   # whole or not at all: a failed save leaves the old figure
-        fig.savefig(at[out], dpi=100)
+    try:
+        for row, (name, mip) in enumerate(mips.items()):
+            q = mip.levels[l]
+            panels = []
+            for dr in (0, 1):
+                for dc in (0, 1):
+                    a, mu, s2 = from_moments(q[(r0 + dr) % q.shape[0], (c0 + dc) % q.shape[1]])
+                    panels.append((f"texel ({r0 + dr}, {c0 + dc})", np.concatenate([a[:, None], mu, s2[:, None]], -1)))
+            filt = fetch_gmm(mip.levels, s_c, t_c, float(l))[0]
+            panels.append(("filtered (004 Sec. 4.2)", filt))
+            for ax, (title, p) in zip(axes[row], panels):
+                show(ax, density(p))
+                for i, (a, mx, my, _) in enumerate(p):
+                    if a > 0.01:
+                        ax.text(mx, my, str(i), color="cyan", ha="center", va="center", fontsize=8)
+                ax.set_title(title, fontsize=9)
+            show(axes[row][5], truth)
+            axes[row][5].set_title(f"truth: the four texels' {len(foot)} finest normals", fontsize=9)
+            axes[row][0].set_ylabel(name, fontsize=10)
+        for ax in axes.ravel():
+            ax.add_patch(plt.Circle((0, 0), 1.0, fill=False, color="w", lw=0.5))
+            ax.set_xticks([])
+            ax.set_yticks([])
+        fig.suptitle(f"{args.surface} {args.size}x{args.size}, level {l}: GMM of four texels and their filtered "
+                     "mixture (sqrt density over the projected normal disk)", fontsize=10)
+        fig.tight_layout()
+        out = Path(args.output)
+        with staged_outputs([out], force=args.force) as at:   # whole or not at all: a failed save leaves the old figure
+            fig.savefig(at[out], dpi=100)
+    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
+        plt.close(fig)
     print(f"wrote {args.output}")
     return 0
 

@@ -29,7 +29,10 @@ and the command exits 1 after the batch.  Dask is an optional dependency (``pip 
 """
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
+import threading
 import time
 import warnings
 from concurrent.futures.process import BrokenProcessPool
@@ -187,8 +190,7 @@ def build_item(item: BatchItem, outputs: dict, threads: int = 1, force: bool = F
     record = {"name": item.name, "source": item.path, "material": item.material,
               "outputs": {t: str(p) for t, p in outputs.items()}, "time_s": {}, "kept": [], "nu_rho_max": None,
               "warnings": [], "error": None}
-    with warnings.catch_warnings(record=True) as said:
-        warnings.simplefilter("always")
+    with _task_warnings() as said:
         try:
             t0 = time.perf_counter()
             source = brdf_source(item.path, item.material, lookup)
@@ -212,6 +214,45 @@ def build_item(item: BatchItem, outputs: dict, threads: int = 1, force: bool = F
             record["error"] = str(exc)
     record["warnings"] = [str(w.message) for w in said]
     return record
+
+
+_WARNINGS_LOCK = threading.Lock()
+_TASKS: dict = {}    # thread id -> the warnings list of the task it runs, while tasks run (_task_warnings)
+_TAKEN: list = []    # the catch_warnings that holds the process's warnings machinery while they run
+
+
+@contextlib.contextmanager
+def _task_warnings():
+    """Yield the list of the warnings this task raises (each one: ``simplefilter("always")``).  Python's warnings
+    machinery is the process's: ``catch_warnings(record=True)`` in tasks that ran at once on threads (the threads
+    scheduler) each put back another's recorder and filters as it ended, and 35 of 60 two-BRDF batches left the
+    process's warnings going to a finished task's list (never shown again) or shown always.  Here the first task to
+    start takes the machinery and the last to end puts it back; a warning goes to the task of the thread that raised
+    it, or, from a thread that runs none (a thread a task started), to every task running."""
+    said: list = []
+    me = threading.get_ident()
+    with _WARNINGS_LOCK:
+        if not _TASKS:
+            taken = warnings.catch_warnings()
+            taken.__enter__()
+            warnings.simplefilter("always")
+            warnings.showwarning = _show_to_tasks
+            _TAKEN.append(taken)
+        _TASKS[me] = said
+    try:
+        yield said
+    finally:
+        with _WARNINGS_LOCK:
+            del _TASKS[me]
+            if not _TASKS:
+                _TAKEN.pop().__exit__(None, None, None)
+
+
+def _show_to_tasks(message, category, filename, lineno, file=None, line=None) -> None:
+    msg = warnings.WarningMessage(message, category, filename, lineno, file, line)
+    own = _TASKS.get(threading.get_ident())
+    for said in [own] if own is not None else list(_TASKS.values()):
+        said.append(msg)
 
 
 def _dask():
@@ -292,7 +333,7 @@ def run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers: int
         except BrokenProcessPool:   # a traceback, no record, and the BRDFs in flight and to come abandoned
             raise WarpbwError(f"{out_dir}: a worker process of the batch ended abruptly (killed: the OOM killer, kill "
                               "-9) while it built a BRDF's tables; the batch stopped, the tables written so far are "
-                              "kept: run it again with --resume to build the rest") from None
+                              f"kept: run it again with --resume to build the rest{_script_hint()}") from None
     wall = time.perf_counter() - t0
     work = sum(sum(r["time_s"].values()) for r in records)
     return {"format": BATCH_FORMAT, "writer": f"warpbw {__version__}", "out_dir": str(out_dir),
@@ -300,6 +341,20 @@ def run_batch(items, out_dir, tables=TABLES, scheduler="processes", workers: int
             getattr(scheduler, "__qualname__", None) or type(scheduler).__name__,   # a client: "Client"
             "workers": workers, "threads_per_task": threads, "lookup": lookup, "wall_s": wall, "work_s": work,
             "failed": sum(r["error"] is not None for r in records), "items": records}
+
+
+def _script_hint() -> str:
+    """What a Python script that called run_batch at its top level is told when the batch's worker processes fail:
+    each imports the script again as it starts (multiprocessing's spawn), runs its run_batch, and is refused there
+    ("An attempt has been made to start a new process before the current process has finished its bootstrapping
+    phase"), which the batch then saw as workers that had ended abruptly (it said only "the OOM killer, kill -9").
+    Nothing for the commands (``python -m precompute``, the console scripts) or an interactive session."""
+    main = sys.modules.get("__main__")
+    script = getattr(main, "__file__", None)
+    if script is None or getattr(main, "__spec__", None) is not None or Path(script).name.startswith("warpbw"):
+        return ""
+    return (f" (or, from the Python script {Path(script).name}, the workers never started: each imports the script "
+            "again, so call run_batch under `if __name__ == \"__main__\":`)")
 
 
 class _progress_bar:

@@ -327,6 +327,13 @@ def test_the_frame_that_loads_the_bandwidth_inputs_times_them_on_a_prepared_scen
     assert first.stats["time_s"]["load_env_bandwidth"] == round(prep.timings["load_env_bandwidth"], 6)
     assert not loads & set(render_adaptive(prep, budget=2.0, seed=3).stats["time_s"])
     assert loads <= set(render_adaptive(prep, budget=2.0, seed=3, env_signal="radiance").stats["time_s"])
+    # a frame that loads them again records its own load, not the sum of every load the prepared scene made
+    # (prep.timings'), as the first did
+    for signal in ("log", "radiance"):
+        before = dict(prep.timings)
+        t = render_adaptive(prep, budget=2.0, seed=3, env_signal=signal).stats["time_s"]
+        for k in loads:
+            assert t[k] == round(prep.timings[k] - before[k], 6), (k, t[k], before[k], prep.timings[k])
 
 
 def test_a_budget_below_one_sample_per_shaded_pixel_warns_from_python_too():

@@ -3149,6 +3149,49 @@ def test_captured_native_output_returns_what_was_written_to_the_descriptor(capfd
     assert "first line" not in capfd.readouterr().err
 
 
+def test_two_threads_capturing_at_once_leave_the_descriptors_as_they_were():
+    """The descriptors are the process's: two threads that read EXR files at once (a notebook's thread pool, a
+    service) each saved the other's redirection as the descriptor to put back, and the last one out left stdout and
+    stderr on a deleted temporary file for the rest of the process (4 threads of 200 reads: every run; a print after
+    them was lost).  The order forced here: thread a captures, b starts its capture, a ends, then b.  Truth: the
+    descriptors' files (device and inode) before and after."""
+    import threading
+
+    from warpbw.native_output import captured_native_output
+
+    def ident(fd):
+        st = os.fstat(fd)
+        return st.st_dev, st.st_ino
+
+    before = {fd: ident(fd) for fd in (1, 2)}
+    kept = {fd: os.dup(fd) for fd in (1, 2)}   # to mend the descriptors for the rest of the run if they break
+    a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
+
+    def a():
+        with captured_native_output():
+            a_in.set()
+            b_in.wait(0.3)   # b's capture, when it can start before this one ends (it may not)
+        a_out.set()
+
+    def b():
+        a_in.wait(5)
+        with captured_native_output():
+            b_in.set()
+            a_out.wait(5)    # a ends first
+
+    try:
+        threads = [threading.Thread(target=a), threading.Thread(target=b)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(10)
+        assert {fd: ident(fd) for fd in (1, 2)} == before
+    finally:
+        for fd, saved in kept.items():
+            os.dup2(saved, fd)
+            os.close(saved)
+
+
 _PRINT_THEN_CAPTURE = """
 import sys
 from warpbw.native_output import captured_native_output

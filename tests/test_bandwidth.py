@@ -726,6 +726,25 @@ def test_the_frame_reads_the_signal_it_is_given_and_says_so():
         render_adaptive(prep, budget=2, env_signal="lin")
 
 
+def test_a_prepared_scene_lets_go_of_the_tables_of_a_signal_it_no_longer_reads():
+    """Frames that switch env_signal on one PreparedScene (a notebook comparing the two, for hours) build each
+    signal's tables again; the tables they replace are released, not kept beside the scene's for as long as it lives
+    (each switch kept its nu_a table and nu_rho tables: 0.15 MB here, a probe's reduced map at most)."""
+    import gc
+    import weakref
+
+    prep = prepared(env='procedural = "sky"', w=16, h=12)   # Lambert: its nu_rho table is a constant, not built
+    first = prepare_bandwidth(prep, env_signal="radiance")
+    gone = [weakref.ref(first), weakref.ref(first.nu_env), weakref.ref(first.nu_rho)]
+    del first
+    for signal in ("log", "radiance", "log"):
+        prepare_bandwidth(prep, env_signal=signal)
+    gc.collect()
+    assert [r() for r in gone] == [None, None, None]
+    held = prep.bandwidth   # the tables in use are kept: a frame renders from them
+    assert prep.bandwidth_signal == "log" and held.nu_env.numpy().size and held.nu_rho.numpy().size
+
+
 # --- the environment's nu_a table, Eq. 10 and the pooled variance bound --------------------------------------
 
 @wp.kernel(module="unique", enable_backward=False)

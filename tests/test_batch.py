@@ -365,6 +365,85 @@ def _alive(pid: int) -> bool:
         return False
 
 
+def test_tasks_running_at_once_on_threads_leave_the_process_warnings_as_they_were(tmp_path, monkeypatch):
+    """Each task recorded its warnings with catch_warnings(record=True), which holds the process's warnings machinery:
+    two tasks at once on threads (the threads scheduler) each put back the other's recorder as they ended, and 35 of
+    60 two-BRDF batches left every later warning of the process going to a finished task's list, never shown.  The
+    order forced here (the BRDF's reading stood in for: it warns, then fails): task a starts, b starts, a ends, then
+    b.  Each record holds its own warning, and the machinery (showwarning, the filters) is as it was."""
+    import threading
+    import warnings
+
+    import precompute.brdf_sampling as bs
+    from precompute.batch import BatchItem, build_item
+    from warpbw.errors import WarpbwError
+
+    a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
+
+    def brdf_source(path, material=None, lookup=None):
+        warnings.warn(f"stand-in {material}", RuntimeWarning)
+        if material == "a":
+            a_in.set()
+            b_in.wait(0.3)   # b's task, when it can start before this one ends
+        else:
+            b_in.set()
+            a_out.wait(5)    # a ends first
+        raise WarpbwError(f"stand-in {material} stops")
+
+    monkeypatch.setattr(bs, "brdf_source", brdf_source)
+    before = (warnings.showwarning, warnings._showwarnmsg_impl, list(warnings.filters))
+    records = {}
+
+    def task(m, after=None):
+        if after is not None:
+            after.wait(5)
+        records[m] = build_item(BatchItem("npf.bin", m, m), {"sampling": tmp_path / f"{m}.npz"})
+        if m == "a":
+            a_out.set()
+
+    threads = [threading.Thread(target=task, args=("a",)), threading.Thread(target=task, args=("b", a_in))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(10)
+    assert (warnings.showwarning, warnings._showwarnmsg_impl, list(warnings.filters)) == before
+    assert {m: (r["warnings"], r["error"]) for m, r in records.items()} == {
+        m: ([f"stand-in {m}"], f"stand-in {m} stops") for m in "ab"}
+
+
+def test_a_batch_whose_workers_fail_under_a_python_script_says_to_guard_its_call(tmp_path, monkeypatch):
+    """run_batch called at the top level of a Python script (no ``if __name__ == "__main__":``): each worker process
+    imports the script again as it starts, runs its run_batch and is refused there by multiprocessing, and the batch
+    said its workers had been killed ("the OOM killer, kill -9") and nothing else (seen running a script of two
+    lines).  From a script the line now names it and the guard; the commands' line is as before.  The workers'
+    failure is dask's BrokenProcessPool, raised here by a stand-in for dask.compute."""
+    import sys
+    import types
+    from concurrent.futures.process import BrokenProcessPool
+
+    import dask
+
+    from precompute.batch import batch_items, run_batch
+    from warpbw.errors import WarpbwError
+
+    def broken(*a, **k):
+        raise BrokenProcessPool("A process in the process pool was terminated abruptly")
+
+    monkeypatch.setattr(dask, "compute", broken)
+    monkeypatch.chdir(tmp_path)
+    fake_npf_table(tmp_path / "npf.bin")
+    items = batch_items(["npf.bin"], ["chrome"])
+    for main, hint in ((str(tmp_path / "my_batch.py"), True), ("/usr/bin/warpbw-precompute", False)):
+        module = types.ModuleType("__main__")
+        module.__file__ = main
+        monkeypatch.setitem(sys.modules, "__main__", module)
+        with pytest.raises(WarpbwError) as err:
+            run_batch(items, "out", progress=False)
+        msg = str(err.value)
+        assert msg.startswith("out: a worker process of the batch ended abruptly") and "--resume" in msg, msg
+        assert ('from the Python script my_batch.py' in msg and 'if __name__ == "__main__":' in msg) == hint, msg
+
+
 @pytest.mark.skipif(not __import__("os").path.exists("/proc/self/task"), reason="reads /proc (Linux)")
 def test_a_worker_killed_mid_batch_ends_it_in_one_line(tmp_path):
     """A worker process killed with SIGKILL (the OOM killer): the batch ended with concurrent.futures'

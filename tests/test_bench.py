@@ -428,6 +428,39 @@ def test_ground_truth_chunks_of_another_seed_or_version_are_never_read(tmp_path,
     assert len(list(cache.glob("ground_truth-*.exr"))) == 2 + 3 * 2 and not list(cache.glob(".*"))
 
 
+def test_a_ground_truth_of_a_prepared_scene_moved_since_is_not_the_scenes(tmp_path):
+    """A loop over an animation's frames on one prepared scene (a camera set on it, as examples/dynamic_geometry.py
+    sets its own; a mesh deformed by update_mesh) asked ground_truth for each frame's truth: every chunk was cached,
+    and read back, under the scene's hash, so each frame after the first was measured against the first frame's
+    truth.  Truth: the same frame's ground truth rendered into an empty cache.  Back in the scene's own camera, the
+    scene's chunks are read again."""
+    import trimesh
+
+    from warpbw.gbuffer import make_camera, scene_camera, update_mesh
+    from warpbw.pipeline import prepare_scene
+    from warpbw.scene import parse_scene
+
+    trimesh.creation.icosphere(subdivisions=1).export(tmp_path / "ico.obj")
+    text = SCENE.replace('shape = "sphere"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0', 'mesh = "ico.obj"')
+    prep = prepare_scene(parse_scene(text, tmp_path, "s.toml"))
+    cache = tmp_path / "gt"
+    first = bench.ground_truth(prep, 4, cache, progress=False)
+    rest = prep.geometry.mesh.points.numpy().copy()
+    for move in ("camera", "mesh"):
+        if move == "camera":
+            prep.camera = make_camera((1.5, 0.5, 3.5), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 30.0, 24, 24)
+        else:
+            update_mesh(prep.geometry, 0, rest * 0.8)
+        moved = bench.ground_truth(prep, 4, cache, progress=False)
+        fresh = bench.ground_truth(prep, 4, tmp_path / f"cold-{move}", progress=False)
+        assert fresh.render_time_s > 0 and moved.key == fresh.key != first.key, move
+        assert np.array_equal(moved.image, fresh.image) and not np.array_equal(moved.image, first.image), move
+        if move == "camera":   # (update_mesh back to the rest pose derives its normals on the device: not the bits
+            prep.camera = scene_camera(prep.scene.camera)   # the file's load gave, so not the scene's frame)
+            back = bench.ground_truth(prep, 4, cache, progress=False)
+            assert back.key == first.key and back.render_time_s == 0 and np.array_equal(back.image, first.image)
+
+
 @pytest.mark.parametrize("damage", ["one channel", "nan", "cut off", "other size", "negated", "zeroed", "doubled",
                                     "no digest"])
 def test_damaged_ground_truth_chunk_is_rendered_again(tmp_path, damage):
@@ -1165,6 +1198,43 @@ def test_bandwidth_time_fraction_is_over_the_frames_wall_time(tmp_path, monkeypa
     assert p["bandwidth_time_fraction"] == pytest.approx(0.002 / 0.04, rel=1e-9)
 
 
+@pytest.mark.parametrize("module", ["bench", "bench_filtering"])
+def test_a_plot_leaves_the_callers_matplotlib_as_it_was(tmp_path, module):
+    """bench's and bench-filtering's write_plot draw on a Figure of their own: the caller's backend (a notebook's
+    inline one; here svg) is the same after a plot (matplotlib.use("Agg") replaced it for the rest of the session),
+    and no figure stays open in pyplot, after a plot saved or one that cannot be (its folder gone, a format matplotlib
+    lacks: pyplot kept each, and warns from the 21st open one on).  The PNG is byte for byte pyplot's (checked when
+    this changed)."""
+    import importlib
+
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    mod = importlib.import_module(f"warpbw.{module}")
+    if module == "bench":
+        rec = {"scene": "s.toml", "resolution": [8, 8], "ground_truth_spp": 64, "estimator": "MIS",
+               "equal_quality_speedup": None,
+               "methods": {"reference": [{"spp": 1, "time_s": 0.1, "psnr_db": 20.0}],
+                           "adaptive": [{"budget": 1.0, "time_s": 0.05, "psnr_db": 24.0}]}}
+    else:
+        rec = {"scene": "p.toml", "zooms": [1.0, 2.0], "max_anisotropy": 1, "precompute_time_s": 1.25,
+               "methods": {"toksvig": [{"error": 0.1, "flicker": 0.01, "temporal_error": 0.5, "time_s": 0.5}] * 2},
+               "ground_truth": [{"noise": 0.01, "flicker_noise": 0.002, "temporal_noise": 0.003}] * 2}
+    was = matplotlib.get_backend()
+    matplotlib.use("svg")
+    try:
+        before = plt.get_fignums()
+        for path in (tmp_path / "gone" / "p.png", tmp_path / "p.nosuchformat"):
+            with pytest.raises((OSError, ValueError)):
+                mod.write_plot(rec, path)
+            assert plt.get_fignums() == before
+        mod.write_plot(rec, tmp_path / "p.png")
+        assert plt.get_fignums() == before and (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert matplotlib.get_backend() == "svg"
+    finally:
+        matplotlib.use(was)
+
+
 def test_bench_plot_draws_each_method_from_its_own_records(tmp_path, monkeypatch):
     """The bench plot's curves are PSNR against frame time, one per method, each labelled with its method and
     drawn from that method's records (a swap would put the adaptive curve under the reference's label), and the
@@ -1290,7 +1360,11 @@ def _run_bench_reference(monkeypatch, tmp_path, argv):
     monkeypatch.setattr(warpbw.bench, "ground_truth", ground_truth)
     monkeypatch.setattr(mod, "time", clock)
     monkeypatch.setattr(sys, "argv", ["bench_reference.py", *argv])
+    import matplotlib.pyplot as plt
+
+    open_before = plt.get_fignums()
     got["outcome"] = outcome(mod.main)
+    assert plt.get_fignums() == open_before   # its figure closed, whatever the outcome (one per call stayed open)
     return got
 
 

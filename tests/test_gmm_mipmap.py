@@ -1307,9 +1307,13 @@ def test_gmm_mipmap_example_small_size_takes_the_coarsest_2x2_level_and_block(tm
 
     ex = load_example("gmm_mipmap")
     got = capture_call(monkeypatch, filtering, "fetch_gmm")
+    import matplotlib.pyplot as plt
+
+    open_before = plt.get_fignums()
     res = outcome(ex.main, ["-o", str(tmp_path / "g.png"), "--surface", "dunes", "--size", "8", "--components", "1"])
     assert res == "Handed", res
     assert got["_args"][1:4] == (4, 4, 2.0), got["_args"][1:4]
+    assert plt.get_fignums() == open_before   # a stopped figure is closed too (each stayed open in pyplot)
 
 
 def test_gmm_mipmap_example_builds_both_mipmaps_and_filters_at_the_block_corner(tmp_path, monkeypatch):

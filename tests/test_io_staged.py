@@ -57,6 +57,39 @@ def test_all_outputs_appear_together_with_the_mode_of_a_new_file(tmp_path):
     assert all((p.stat().st_mode & 0o777) == (0o666 & ~umask) for p in outs)   # mkstemp alone gives 0600
 
 
+def test_the_mode_of_a_new_output_never_sets_the_umask(tmp_path, monkeypatch):
+    """To give an output the mode of a new file, the writer set the process's umask to 0 and back to read it: a file
+    another thread created meanwhile got mode 0666, and a second writer in that window (two threads writing outputs:
+    the batch's threads scheduler) read 0, wrote its output world-writable and could leave the umask at 0 for the
+    rest of the process.  Here the second writer's call lands inside the first's (os.umask stood in for): both give
+    0666 less the umask (read before, with no other thread running), and the umask is as it was."""
+    import warpbw.io.staged as staged
+
+    real = os.umask
+    truth = real(0o022)
+    real(truth)
+    inner, landed = [], []
+
+    def umask(mask):
+        old = real(mask)
+        if mask == 0 and not landed:   # another thread's writer, while the umask is 0
+            landed.append(True)
+            inner.append(staged._new_file_mode())
+        return old
+
+    monkeypatch.setattr(os, "umask", umask)
+    try:
+        outer = staged._new_file_mode()
+        assert [outer, *inner] == [0o666 & ~truth] * (1 + len(inner))
+    finally:
+        now = real(truth)
+    assert now == truth
+    out = tmp_path / "o.txt"
+    with staged_outputs([out]) as at:
+        at[out].write_text("x")
+    assert out.stat().st_mode & 0o777 == 0o666 & ~truth
+
+
 def test_an_existing_output_is_replaced_not_written_through(tmp_path):
     """A hard link to the output and a symlink at its place keep the file they pointed at."""
     probe = tmp_path / "probe.exr"

@@ -1091,3 +1091,50 @@ def test_winding_is_made_consistent_across_a_texture_seam_and_a_moebius_strip_is
         out, n_turned, n_unorientable = consistent_winding(np.array(verts), tri)
     assert (n_turned, n_unorientable) == (0, len(tri))
     np.testing.assert_array_equal(out, tri)
+
+
+def test_two_threads_reading_meshes_at_once_leave_logging_as_it_was(tmp_path, monkeypatch):
+    """A mesh file's read turns the process's logging down around trimesh (its WARNING tracebacks) and puts the
+    setting back; two threads reading at once each put back the other's, and logging's warnings stayed off for the
+    rest of the process.  The order forced here (trimesh's read stood in for, failing): thread a reads, b starts its
+    read, a ends, then b.  Truth: ``logging.root.manager.disable`` before and after."""
+    import logging
+    import threading
+
+    a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
+
+    def load_scene(name, **kw):
+        if name.endswith("a.obj"):
+            a_in.set()
+            b_in.wait(0.3)   # b's read, when it can start before this one ends (it may not)
+        else:
+            b_in.set()
+            a_out.wait(5)    # a ends first
+        raise ValueError("stand-in")
+
+    monkeypatch.setattr(trimesh, "load_scene", load_scene)
+    for n in ("a", "b"):
+        (tmp_path / f"{n}.obj").write_text(f"# {n}\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    before = logging.root.manager.disable
+    errors = []
+
+    def read(n, after=None):
+        if after is not None:
+            after.wait(5)
+        try:
+            load_mesh(tmp_path / f"{n}.obj")
+        except WarpbwError as exc:
+            errors.append(str(exc))
+        if n == "a":
+            a_out.set()
+
+    try:
+        threads = [threading.Thread(target=read, args=("a",)), threading.Thread(target=read, args=("b", a_in))]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(10)
+        assert logging.root.manager.disable == before
+        assert len(errors) == 2 and all("stand-in" in e for e in errors), errors
+    finally:
+        logging.disable(before)

@@ -398,7 +398,11 @@ def _run_brdf_sampling(monkeypatch, tmp_path, argv):
     monkeypatch.setattr(matplotlib.axes.Axes, "imshow", imshow)
     monkeypatch.setattr(sys, "argv", ["brdf_sampling.py", "--table", str(fake_npf_table(tmp_path / "t.bin")),
                                       *argv])
+    import matplotlib.pyplot as plt
+
+    open_before = plt.get_fignums()
     mod.main()
+    assert plt.get_fignums() == open_before   # its figure closed (one per call stayed open in pyplot)
     return sampled, panels, inside, X, Y
 
 

@@ -4,7 +4,8 @@ Public:
     ``GT_CHUNK_SPP``, ``DEFAULT_SPP``, ``DEFAULT_BUDGETS``, ``DEFAULT_GT_SPP``, ``NB_SWEEP_BUDGET``, ``DOUBLING_DB``
     ``GroundTruth`` / ``ground_truth(prep, gt_spp, cache_dir, ...)``   cached, with the doubling check
     ``ground_truth_chunks(gt_spp) -> (spp per chunk, chunks)``, ``gt_spp_refusal(gt_spp)``   how it splits, or why not
-    ``GT_VERSION``, ``GT_SEED``, ``gt_key(scene, seed)``, ``gt_cache_dir()``   where a scene's chunks are cached;
+    ``GT_VERSION``, ``GT_SEED``, ``gt_key(scene, seed, moved="")``, ``gt_cache_dir()``   where a scene's chunks are
+                                       cached (a prepared scene's camera or geometry moved since: apart);
     ``CHUNK_DIGEST_NOTE``   the note in a chunk's file that holds its pixels' digest
     ``equal_quality_time(ref, mse) -> (spp, time_s, extrapolated)``   log-log interpolation (the first crossing);
     ``mse_rises(ref)``   the counts between which a reference curve's MSE rises (noise)
@@ -148,13 +149,15 @@ def ground_truth(prep, gt_spp: int, cache_dir: Path, seed: int = GT_SEED, progre
                  clip_distance=None, scene=None) -> GroundTruth:
     """MIS reference at ``gt_spp`` as the mean of cached chunks (at least two, for the doubling check),
     clipped at ``clip_distance`` (``render_reference``'s) and cached under ``scene``'s hash (default: the
-    prepared scene's; a clipped ground truth must name the scene whose planes clip it)."""
+    prepared scene's; a clipped ground truth must name the scene whose planes clip it).  A prepared scene that no
+    longer renders its scene's camera or geometry (a camera set on it, a mesh moved by ``update_mesh``) is cached
+    apart, under a hash of its camera and geometry as they are (``gt_key``'s ``moved``)."""
     from warpbw.io.exr import write_exr
     from warpbw.pipeline import render_reference
 
     cache_dir = check_path(cache_dir, "ground_truth: cache_dir")   # a str failed on str / str, None in pathlib
     chunk, n = ground_truth_chunks(gt_spp)
-    key = gt_key(scene if scene is not None else prep.scene, seed)
+    key = gt_key(scene if scene is not None else prep.scene, seed, _moved_since_prepared(prep))
     # the chunks' running sum, not the chunks: a list of them held n frames (16 B/px each, cached ones their file's
     # RGBA) and np.mean stacked them again, 28 bytes per pixel per chunk (--gt-spp 65536 at 2048^2: 1.9 GB)
     total, half, t_gt = None, None, 0.0
@@ -198,12 +201,36 @@ def gt_cache_dir() -> Path:
     return cache_dir() / "ground_truth"
 
 
-def gt_key(scene, seed: int) -> str:
+def gt_key(scene, seed: int, moved: str = "") -> str:
     """The name under which a scene's ground-truth chunks are cached: the hash of what the reference renders
     (``Scene.reference_hash``), the first chunk's seed and GT_VERSION (so that chunks of another estimator or seed are
-    never read as this one's)."""
-    h = hashlib.blake2b(f"{scene.reference_hash()}|seed {seed}|gt v{GT_VERSION}".encode(), digest_size=8)
+    never read as this one's); ``moved``, where the prepared scene no longer renders its scene's camera or geometry
+    (``_moved_since_prepared``), keys that frame apart."""
+    text = f"{scene.reference_hash()}|seed {seed}|gt v{GT_VERSION}" + (f"|moved {moved}" if moved else "")
+    h = hashlib.blake2b(text.encode(), digest_size=8)
     return f"v{GT_VERSION}-{h.hexdigest()}"
+
+
+def _camera_values(cam) -> tuple:
+    return (*(tuple(float(x) for x in v) for v in (cam.origin, cam.forward, cam.right, cam.up)),
+            float(cam.tan_half_x), float(cam.tan_half_y), int(cam.width), int(cam.height))
+
+
+def _moved_since_prepared(prep) -> str:
+    """"" where ``prep`` renders what its scene says; else a hash of its camera and geometry as they are now: a camera
+    set on the prepared scene (``prep.camera = ...``), a mesh deformed by ``update_mesh``.  The ground truth of such a
+    frame is cached apart from the scene's (it was cached, and read back by the next frame, as the scene's own: in a
+    loop over the frames of an animation, every frame was measured against the first one's truth)."""
+    from warpbw.gbuffer import geometry_digest, scene_camera
+
+    camera, geometry = getattr(prep, "camera", None), getattr(prep, "geometry", None)
+    if camera is None or geometry is None:   # a stand-in without them (tests)
+        return ""
+    cam = _camera_values(camera)
+    geo = geometry_digest(geometry)
+    if cam == _camera_values(scene_camera(prep.scene.camera)) and geo == geometry.digest_built:
+        return ""
+    return hashlib.blake2b(repr((cam, geo)).encode(), digest_size=8).hexdigest()
 
 
 def _pixels_digest(rgb: np.ndarray) -> str:
@@ -628,13 +655,14 @@ def write_plot(record: dict, path) -> None:
     """PSNR against frame time (one curve per method), and the n_b sweep when present; error bars of one standard
     error where the record has them (two runs or more)."""
     check_path(path, "write_plot: path")   # before the plot, not from the writer after it
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    # a Figure of its own, not pyplot's: the caller's backend (a notebook's inline one) stays as it was (pyplot with
+    # matplotlib.use("Agg") replaced it), and nothing holds the figure once it is saved, or once it failed (pyplot
+    # kept a failed plot's figure open)
+    from matplotlib.figure import Figure
 
     has_nb = bool(record.get("nb_sweep"))
-    fig, axes = plt.subplots(1, 2 if has_nb else 1, figsize=(11 if has_nb else 6, 4.2), squeeze=False)
+    fig = Figure(figsize=(11 if has_nb else 6, 4.2))
+    axes = fig.subplots(1, 2 if has_nb else 1, squeeze=False)
     ax = axes[0][0]
     # each curve in the order of its counts (--spp, --budgets and --nb come in any order: 16,1,4 drew 16 -> 1 -> 4)
     ref = sorted(record["methods"]["reference"], key=lambda r: r["spp"])
@@ -673,4 +701,3 @@ def write_plot(record: dict, path) -> None:
                  f"ground truth {record['ground_truth_spp']} spp", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)

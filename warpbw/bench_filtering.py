@@ -344,12 +344,13 @@ def write_plot(record: dict, path) -> None:
     flicker, temporal error) as a dashed line; and the error against frame time (the protocol's plot), one curve
     per method through its zooms."""
     check_path(path, "write_plot: path")   # before the plot, not from the writer after it
-    import matplotlib
+    # a Figure of its own, not pyplot's: the caller's backend (a notebook's inline one) stays as it was (pyplot with
+    # matplotlib.use("Agg") replaced it), and nothing holds the figure once it is saved, or once it failed (pyplot
+    # kept a failed plot's figure open)
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 4, figsize=(20, 4.2))
+    fig = Figure(figsize=(20, 4.2))
+    axes = fig.subplots(1, 4)
     # each curve along the zoom (--zoom comes in any order: 4,1,2 drew 4 -> 1 -> 2), the rows in the zooms' order
     order = sorted(range(len(record["zooms"])), key=record["zooms"].__getitem__)
     zooms = [record["zooms"][i] for i in order]
@@ -378,4 +379,3 @@ def write_plot(record: dict, path) -> None:
                  f"{record['precompute_time_s']:.1f} s{_precompute_origin(record)}", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)

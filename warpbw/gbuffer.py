@@ -9,6 +9,9 @@ Public:
     ``Geometry`` / ``build_geometry(spheres, meshes, device)``  scene geometry on the device
     ``ensure_curvature(geometry) -> bool``   derive and upload the curvature a MeshSpec deferred (a callable);
                                      True when there was any (render_gbuffer calls it unless told not to)
+    ``geometry_digest(geometry) -> str``   a hash of the spheres and of the meshes' points and normals as they are
+                                     now (``Geometry.digest_built``: as built; ``warpbw.bench.ground_truth``
+                                     tells a mesh deformed since from the scene's by it)
     ``update_mesh(geometry, mesh_index, vertices, normals=None, curvature=None)``  deform one mesh in place and
                                      refit the BVH (dynamic geometry, 002 Sec. 4.3, Fig. 18); a texture seam's
                                      copies must move together (``SEAM_GAP_REL``)
@@ -50,6 +53,7 @@ sees, as it is computed from the normal facing the camera) and a branchless orth
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
 import numbers
 from dataclasses import dataclass, field
@@ -465,6 +469,7 @@ class Geometry:
     # each MeshSpec's largest distance between a seam's copies, as a share of its diagonal (0 without a seam map):
     # update_mesh allows twice it (a mesh file's copies may differ by its merge tolerance)
     mesh_seam_gap: list = field(default_factory=list)
+    digest_built: str = ""   # geometry_digest as built (update_mesh, or points edited in place, change what it gives)
 
 
 def _check_sphere_spec(k: int, s: SphereSpec) -> None:
@@ -586,9 +591,25 @@ def build_geometry(spheres: Sequence[SphereSpec], meshes: Sequence[MeshSpec], de
         ma.face_end = wp.zeros(0, dtype=wp.int32, device=device)
         ma.t_eps = wp.zeros(0, dtype=wp.float32, device=device)
         ma.t_eps_max = 0.0
-    return Geometry(sl, ma, mesh, bool(spheres), bool(meshes), n_tri, mesh_vertex_ranges=ranges,
-                    sphere_bounds=[(np.asarray(s.center, np.float64), float(s.radius)) for s in spheres],
-                    mesh_bounds=bounds, curvature_pending=pending, mesh_surface=surfaces, mesh_seam_gap=seam_gaps)
+    geometry = Geometry(sl, ma, mesh, bool(spheres), bool(meshes), n_tri, mesh_vertex_ranges=ranges,
+                        sphere_bounds=[(np.asarray(s.center, np.float64), float(s.radius)) for s in spheres],
+                        mesh_bounds=bounds, curvature_pending=pending, mesh_surface=surfaces, mesh_seam_gap=seam_gaps)
+    geometry.digest_built = geometry_digest(geometry)
+    return geometry
+
+
+def geometry_digest(geometry: Geometry) -> str:
+    """blake2b of what a frame reads of ``geometry`` that may change after it is built: the spheres' centres, radii
+    and materials, and the meshes' points and normals (``update_mesh``; or ``geometry.mesh.points`` edited in place
+    and refitted).  Not the curvature, which a deferred MeshSpec fills in later and only the bandwidth pass reads."""
+    check_instance(geometry, Geometry, "geometry_digest: geometry", "a Geometry (build_geometry's)")
+    h = hashlib.blake2b(digest_size=16)
+    arrays = [geometry.spheres.center, geometry.spheres.radius, geometry.spheres.material]
+    if geometry.mesh is not None:
+        arrays += [geometry.mesh.points, geometry.mesh_attr.normal]
+    for a in arrays:
+        h.update(np.ascontiguousarray(a.numpy()).data)   # no copy of the bytes (a host array's own on the CPU)
+    return h.hexdigest()
 
 
 def ensure_curvature(geometry: Geometry) -> bool:

@@ -13,7 +13,11 @@ Public:
 Warp prints a line at initialisation on a machine without an NVIDIA driver, and OpenEXR prints warnings
 and errors about a damaged file before raising its own exception: neither goes through Python's
 ``sys.stdout`` / ``sys.stderr``, so only redirecting the descriptors themselves keeps them off the user's
-terminal, where warpbw promises one line per error.  The caller decides what to pass on.
+terminal, where warpbw promises one line per error.  The caller decides what to pass on.  The descriptors are the
+process's, so one capture runs at a time (``_CAPTURE_LOCK``): two threads reading EXR files at once each saved the
+other's redirection as the descriptor to put back, and the last to finish left stdout and stderr pointing at a deleted
+temporary file for the rest of the process (everything printed after it was lost).  What another thread writes to the
+descriptors during a capture is captured with it.
 """
 from __future__ import annotations
 
@@ -22,11 +26,22 @@ import os
 import shutil
 import sys
 import tempfile
+import threading
 import traceback
+
+
+_CAPTURE_LOCK = threading.RLock()   # one capture of the process's descriptors at a time (module docstring)
 
 
 @contextlib.contextmanager
 def captured_native_output(fds=(1, 2)):
+    with _CAPTURE_LOCK:
+        with _captured(fds) as lines:
+            yield lines
+
+
+@contextlib.contextmanager
+def _captured(fds):
     lines: list[str] = []
     streams = {1: sys.stdout, 2: sys.stderr}
     saved = {}

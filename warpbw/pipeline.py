@@ -82,7 +82,7 @@ class PreparedScene:
     bandwidth: object = None                          # BandwidthTables, built on first adaptive frame
     bandwidth_signal: str | None = None               # the env_signal its nu_a map was analysed on
     lights: object = None                             # warpbw.lights.Lights, or None without [[light]]s
-    _keep: list = field(default_factory=list, repr=False)
+    _keep: list = field(default_factory=list, repr=False)   # the arrays the bandwidth tables in use reference
 
     @property
     def env_data(self):
@@ -568,7 +568,7 @@ def prepare_bandwidth(prep: PreparedScene, progress: bool = False, env_signal: s
         struct, keep = make_bandwidth_tables(nu_env_table(nu_env), np.stack(tables),
                                              device=prep.device)
     prep.bandwidth, prep.bandwidth_signal = struct, env_signal
-    prep._keep.extend(keep)
+    prep._keep = keep   # the tables of a signal read before are let go (extended, every switch of signal kept its own)
     if prep.geometry.curvature_pending:
         largest = max(len(faces) for _, faces in prep.geometry.curvature_pending.values())
         warn_if_short_of_memory(CURVATURE_BYTES_PER_TRIANGLE * largest, available_memory(),
@@ -677,11 +677,14 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     # the default block is no larger than the image (a 1 x 1 frame was refused with "stride: expected 1 to 1")
     stride = min(bandwidth.PASS_STRIDE_DEFAULT, max(prep.width, prep.height)) if stride is None else stride
     loads = prep.bandwidth is None or prep.bandwidth_signal != env_signal
+    before = dict(prep.timings)
     tables = prepare_bandwidth(prep, progress, env_signal)
     if loads:   # this frame loaded or built the pass's inputs (the first on a prepared scene too): it says so
         for k in ("load_env_bandwidth", "load_brdf_bandwidth", "load_mesh_curvature"):
-            if k in prep.timings:
-                timings[k] = prep.timings[k]
+            if prep.timings.get(k) != before.get(k):
+                # its own time: prep.timings sums every load (a frame that switched env_signal gave the sum of all
+                # the switches so far, and the curvature a frame before it derived)
+                timings[k] = prep.timings[k] - before.get(k, 0.0)
     _load_kernels(prep, (make_gbuffer_kernel(prep.geometry.has_spheres, prep.geometry.has_mesh, False),
                          bandwidth.make_bandwidth_kernel(prep.materials.kinds, preconvolved),
                          make_reference_kernel(prep.materials.kinds, mis, per_pixel_spp=True))

@@ -60,6 +60,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import math
+import threading
 import warnings
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -441,6 +442,10 @@ WINDING_FOLD_DEG = 60.0
 # Mesh files kept read and merged in memory (ours): a scene placing one mesh 20 times read it 20 times, 0.3 s each
 # for the bunny (scene fuzzing, session 63).
 MESH_CACHE_FILES = 4
+# One mesh file read at a time in a process: the read turns the process's logging down around trimesh and puts it
+# back, and two threads reading at once each put back the other's setting (logging's warnings stayed off for the
+# rest of the process); the kept files' OrderedDict is one for every thread too.
+_MESH_LOCK = threading.Lock()
 
 
 def _check_float32(verts, path, when: str) -> None:
@@ -478,14 +483,15 @@ def _merged_mesh(path: Path) -> _Merged:
     bytes (a file rewritten since is read again, however soon)."""
     data = path.read_bytes()
     key = (str(path.resolve()), hashlib.blake2b(data, digest_size=16).digest())
-    if key in _MERGED:
-        _MERGED.move_to_end(key)
-        return _MERGED[key]
-    merged = _read_merged(path, data)
-    _MERGED[key] = merged
-    while len(_MERGED) > MESH_CACHE_FILES:
-        _MERGED.popitem(last=False)
-    return merged
+    with _MESH_LOCK:
+        if key in _MERGED:
+            _MERGED.move_to_end(key)
+            return _MERGED[key]
+        merged = _read_merged(path, data)
+        _MERGED[key] = merged
+        while len(_MERGED) > MESH_CACHE_FILES:
+            _MERGED.popitem(last=False)
+        return merged
 
 
 def _read_merged(path: Path, data: bytes) -> _Merged:

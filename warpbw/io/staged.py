@@ -152,10 +152,31 @@ def check_replaceable(path, force: bool, inputs=(), inputs_are: str = MADE_FROM)
 
 
 def _new_file_mode() -> int:
-    """The mode a newly created file gets (0666 less the umask): mkstemp makes its file 0600."""
-    umask = os.umask(0)
-    os.umask(umask)
+    """The mode a newly created file gets (0666 less the umask): mkstemp makes its file 0600.  The umask is read from
+    /proc/self/status where Linux gives it (4.7 on): os.umask reads it only by setting another, and while it was 0 a
+    file another thread created got mode 0666; two threads writing outputs at once (the batch's threads scheduler)
+    could read 0 and leave the process's umask at 0 for good.  Elsewhere our own threads take turns."""
+    umask = _umask_from_proc()
+    if umask is None:
+        with _UMASK_LOCK:
+            umask = os.umask(0)
+            os.umask(umask)
     return 0o666 & ~umask
+
+
+_UMASK_LOCK = threading.Lock()
+
+
+def _umask_from_proc() -> int | None:
+    """The process's umask from /proc/self/status ("Umask:\t0022"), or None where it is not there."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
 
 
 def _host_tag() -> str:
