@@ -300,9 +300,11 @@ def test_reciprocity(random_brdf, ti, pi_, to, po):
         assert np.array_equal(a, b), (interp, a, b)
 
 
-
 @settings(max_examples=60, deadline=None)
 @given(ti=theta_above, pi_=phi_any, to=theta_above, po=phi_any, turn=phi_any)
+# both within 1e-5 of the normal, phi_d on the bin boundary at pi / 2: the reference's arccos judged it 1.5e-4 of a bin
+# away from it (session 81, a draw of hypothesis's)
+@example(ti=1e-5, pi_=0.0, to=1e-5, po=1.0, turn=1.0)
 def test_turning_both_directions_about_the_normal_changes_nothing_but_phi_h(random_brdf, ti, pi_, to, po, turn):
     """Isotropy: turning wi and wo together by any angle about the normal (+Z) keeps theta_h, theta_d and phi_d
     (Rusinkiewicz's difference vector lives in the frame of h) and adds the angle to phi_h, so a table of unrelated
@@ -326,6 +328,7 @@ def test_turning_both_directions_about_the_normal_changes_nothing_but_phi_h(rand
     (_, safe), (_, safe2) = ref_bins(wi, wo), ref_bins(wi @ rot.T, wo @ rot.T)
     if safe[0] and safe2[0]:
         np.testing.assert_array_equal(merl_eval(random_brdf, wi @ rot.T, wo @ rot.T), merl_eval(random_brdf, wi, wo))
+
 
 def test_unmeasured_entries_counted_and_never_negative(analytic_table, tmp_path):
     data = analytic_table.copy()
