@@ -21,6 +21,11 @@ import sys
 from pathlib import Path
 from types import SimpleNamespace
 
+if sys.version_info >= (3, 11):
+    import tomllib
+else:   # Python 3.10: the backport pyproject installs there, as warpbw.scene reads it
+    import tomli as tomllib
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -2012,8 +2017,6 @@ def test_the_readme_says_what_its_first_command_needs():
     externally managed environment), and ``warpbw`` is on the PATH only where the environment is active: the README
     says which Python (pyproject's requires-python) and how to make the virtual environment, in a folder git ignores
     (session 76's audit of a fresh clone: it said neither)."""
-    import tomllib
-
     root = Path(__file__).resolve().parents[1]
     intro = (root / "README.md").read_text().split("\n## ")[0]
     need = tomllib.loads((root / "pyproject.toml").read_text())["project"]["requires-python"]
