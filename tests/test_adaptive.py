@@ -34,7 +34,8 @@ material = "m"
 """
 
 
-def setup(mat, env="constant = 1.0", w=45, h=33):
+def prepared(mat, env="constant = 1.0", w=45, h=33):
+    # not named setup: pytest before 8 calls a module's setup(module) before its tests (nose's convention)
     prep = prepare_scene(parse_scene(SCENE.format(w=w, h=h, env=env, mat=mat)))
     base = render_reference(prep, spp=4, seed=5)
     return prep, base
@@ -48,7 +49,7 @@ def run(prep, base, level, spp, seed=5, mis=False):
 @pytest.mark.parametrize("mis", [False, True], ids=["brdf", "mis"])
 def test_finest_level_everywhere_is_the_reference(mis):
     # with MIS too: the hierarchy shading its levels without MIS, whatever it was asked, passed the BRDF-only case
-    prep, base = setup('type = "ggx"\nalpha = 0.3\nspecular = [0.9, 0.9, 0.9]', env='procedural = "sky"')
+    prep, base = prepared('type = "ggx"\nalpha = 0.3\nspecular = [0.9, 0.9, 0.9]', env='procedural = "sky"')
     if mis:
         base = render_reference(prep, spp=4, seed=5, mis=True)
     shape = base.coverage.shape
@@ -60,7 +61,7 @@ def test_finest_level_everywhere_is_the_reference(mis):
 
 def test_coarse_levels_reproduce_a_constant_image_with_fewer_shaded_pixels():
     # Lambert under a constant sky: every pixel is exactly the albedo, whatever is up-sampled from where
-    prep, base = setup('type = "lambert"\nalbedo = [0.6, 0.4, 0.2]')
+    prep, base = prepared('type = "lambert"\nalbedo = [0.6, 0.4, 0.2]')
     cov = base.coverage
     fractions = []
     for lvl in (0, 1, 2, 3):
@@ -131,7 +132,7 @@ def _footprint_max(a, level):
 
 
 def test_mixed_levels_fill_every_covered_pixel_and_spend_each_footprints_max_samples():
-    prep, base = setup('type = "ggx"\nalpha = 0.2\nspecular = [1.0, 1.0, 1.0]', env='procedural = "sky"',
+    prep, base = prepared('type = "ggx"\nalpha = 0.2\nspecular = [1.0, 1.0, 1.0]', env='procedural = "sky"',
                        w=48, h=32)
     cov = base.coverage
     rng = np.random.default_rng(2)
@@ -162,7 +163,7 @@ def test_mixed_levels_fill_every_covered_pixel_and_spend_each_footprints_max_sam
 def lambert_under_a_constant_sky():
     """Lambert under a constant sky at 48 x 32 (sides multiples of 2^4: no two levels' centre pixels coincide up to
     level 4): each cosine-weighted sample is exactly the albedo, so is every pixel, shaded or up-sampled."""
-    return setup('type = "lambert"\nalbedo = [0.6, 0.4, 0.2]', w=48, h=32)
+    return prepared('type = "lambert"\nalbedo = [0.6, 0.4, 0.2]', w=48, h=32)
 
 
 @settings(max_examples=25, deadline=None)
@@ -201,7 +202,7 @@ def test_the_plan_names_every_texel_the_hierarchy_shades_before_any_sample():
 
     from warpbw.pyramid import build_pyramid
 
-    prep, base = setup('type = "ggx"\nalpha = 0.2\nspecular = [1.0, 1.0, 1.0]', env='procedural = "sky"',
+    prep, base = prepared('type = "ggx"\nalpha = 0.2\nspecular = [1.0, 1.0, 1.0]', env='procedural = "sky"',
                        w=48, h=32)
     level = np.full(base.coverage.shape, 2, np.int32)
     spp = np.full(base.coverage.shape, 4, np.int32)
@@ -241,7 +242,7 @@ def test_level_and_sample_maps_outside_their_ranges_are_refused():
     from warpbw.errors import WarpbwError
     from warpbw.pyramid import max_level
 
-    prep, base = setup('type = "lambert"\nalbedo = 0.5', w=24, h=16)
+    prep, base = prepared('type = "lambert"\nalbedo = 0.5', w=24, h=16)
     shape = base.coverage.shape
     top = max_level(24, 16)
     spp = np.full(shape, 2, np.int32)
@@ -259,7 +260,7 @@ def test_a_pixel_that_needs_the_finest_level_keeps_every_coarser_texel_over_it_u
     """002 Sec. 3.1: levels are mip-mapped with a min filter, so a texel is shaded at level L only when no pixel
     under it needs a finer level.  Level 2 everywhere but one interior pixel at 0: that pixel is shaded at level
     0, none of the texels over it at levels 1 and 2 is, and the other level-2 texels inside the sphere are."""
-    prep, base = setup('type = "lambert"\nalbedo = 0.5', w=48, h=32)
+    prep, base = prepared('type = "lambert"\nalbedo = 0.5', w=48, h=32)
     cov = base.coverage
     level = np.full(cov.shape, 2, np.int32)
     blocks = cov.reshape(8, 4, 12, 4).all(axis=(1, 3))             # 4 x 4 footprints wholly on a sphere
@@ -358,7 +359,7 @@ def test_a_budget_below_one_sample_per_shaded_pixel_warns_from_python_too():
 def test_the_finest_level_everywhere_is_the_reference_on_an_image_taller_than_wide():
     """Invariance: a hierarchy that shades every texel at level 0 is the reference renderer with the same seeds and
     sample counts, whatever the image's aspect (each level-0 texel is represented by its own pixel)."""
-    prep, base = setup('type = "ggx"\nalpha = 0.3\nspecular = [0.9, 0.9, 0.9]', env='procedural = "sky"', w=13, h=33)
+    prep, base = prepared('type = "ggx"\nalpha = 0.3\nspecular = [0.9, 0.9, 0.9]', env='procedural = "sky"', w=13, h=33)
     shape = base.coverage.shape
     r = run(prep, base, np.zeros(shape, np.int32), np.full(shape, 4, np.int32))
     assert base.coverage[13:].sum() > 20          # rows below the image's width are covered

@@ -21,6 +21,11 @@ import sys
 from pathlib import Path
 from types import SimpleNamespace
 
+if sys.version_info >= (3, 11):
+    import tomllib
+else:   # Python 3.10: the backport pyproject installs there, as warpbw.scene reads it
+    import tomli as tomllib
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -2012,8 +2017,6 @@ def test_the_readme_says_what_its_first_command_needs():
     externally managed environment), and ``warpbw`` is on the PATH only where the environment is active: the README
     says which Python (pyproject's requires-python) and how to make the virtual environment, in a folder git ignores
     (session 76's audit of a fresh clone: it said neither)."""
-    import tomllib
-
     root = Path(__file__).resolve().parents[1]
     intro = (root / "README.md").read_text().split("\n## ")[0]
     need = tomllib.loads((root / "pyproject.toml").read_text())["project"]["requires-python"]
@@ -2023,6 +2026,29 @@ def test_the_readme_says_what_its_first_command_needs():
     assert venv and venv.group(1) == venv.group(2), "README's introduction gives no virtual environment to make"
     assert "externally-managed-environment" in intro
     assert f"{venv.group(1)}/" in (root / ".gitignore").read_text().split()
+
+
+def test_the_readme_names_the_oldest_release_of_every_dependency_that_was_run():
+    """README's introduction names, for every dependency pyproject.toml bounds from below (the test extras too), the
+    release the suite ran with, and it is the oldest the bound admits: its version begins with the bound's.  A bound
+    raised or lowered without the record (session 81: warp-lang>=1.5, trimesh>=4.0 and OpenEXR>=3.3 were declared,
+    but their releases failed the suite) fails here; the run itself is README's command, not CI's (old wheels)."""
+    root = Path(__file__).resolve().parents[1]
+    project = tomllib.loads((root / "pyproject.toml").read_text())["project"]
+    intro = (root / "README.md").read_text().split("\n## ")[0]
+    record = [p for p in intro.split("\n\n") if p.startswith("pyproject.toml's lower bounds are releases the code was "
+                                                              "run with: on 20")]
+    assert len(record) == 1, "README's introduction does not say which releases the bounds were checked with"
+    ran = {}   # the first release named of each (the paragraph goes on to Python 3.10's newer ones)
+    for name, version in re.findall(r"([A-Za-z][\w-]*) (\d+(?:\.\d+)+)\b", record[0]):
+        ran.setdefault(name.lower(), version)
+    bounds = [re.fullmatch(r"([\w-]+)>=([\d.]+)(; .*)?", req) for req in
+              project["dependencies"] + project["optional-dependencies"]["test"]]
+    assert all(bounds), bounds
+    for name, bound, _ in (b.groups() for b in bounds):
+        version = ran.get(name.lower())
+        assert version is not None, f"README does not say which {name} release was run"
+        assert version == bound or version.startswith(bound + "."), (name, bound, version)
 
 
 def test_the_folders_the_readmes_commands_write_are_ignored_by_git():

@@ -9,8 +9,14 @@ import dataclasses
 import math
 import os
 import re
+import sys
 import textwrap
 from pathlib import Path
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:   # Python 3.10: the backport pyproject installs there, as warpbw.scene reads it
+    import tomli as tomllib
 
 import numpy as np
 import pytest
@@ -723,11 +729,6 @@ def test_readme_scene_snippets_parse(tmp_path):
     from the schema unnoticed).  The files they name are created empty: parsing checks that they exist,
     loading them is not what this tests.  The plane-scene block is a fragment: it borrows the first
     block's camera."""
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10: the backport the package itself uses
-        import tomli as tomllib
-
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
     blocks = re.findall(r"```toml\n(.*?)```", readme, re.S)
     assert len(blocks) >= 2, "README: expected the scene-file and plane-scene TOML blocks"
@@ -800,8 +801,6 @@ def test_toml_string_round_trips_any_path_through_a_toml_reader(text):
     """Tools that write scenes (examples/filtering_scenes.py, mirror_smear.py ...) pasted paths into "...": a quote or
     a backslash made the file invalid, and json.dumps wrote non-BMP characters as surrogate pairs, which TOML
     refuses.  Python's own TOML reader (not ours) gives back exactly the text."""
-    import tomllib
-
     from warpbw.scene import toml_escape, toml_string
 
     assert tomllib.loads(f"file = {toml_string(text, 'p')}")["file"] == text
@@ -1138,8 +1137,6 @@ def test_a_light_direction_of_subnormal_components_is_scaled_to_unit_length(tmp_
 def test_toml_string_refuses_exactly_what_utf8_cannot_encode():
     """toml_string refuses the lone surrogates U+D800-U+DFFF, both ends included: Python's own UTF-8 codec says
     which characters a file cannot hold.  Their neighbours round-trip through Python's TOML reader."""
-    import tomllib
-
     from warpbw.scene import toml_string
 
     for c in ("\ud800", "\udbff", "\udc00", "\udfff", "\ud7ff", "\ue000"):
@@ -1156,8 +1153,6 @@ def test_toml_string_escapes_every_character_toml_refuses_raw():
     """TOML 1.0 (toml.io, "String"): a basic string may not hold a raw quote, backslash, or control character other
     than tab (U+0000-U+001F, U+007F).  A path holding each round-trips through Python's TOML reader (the property
     test's kills of these were Hypothesis' luck)."""
-    import tomllib
-
     from warpbw.scene import toml_string
 
     for c in [chr(i) for i in range(0x20)] + ["\x7f", '"', "\\"]:

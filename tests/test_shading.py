@@ -8,9 +8,13 @@ import json
 import math
 import re
 import sys
-import tomllib
 from pathlib import Path
 from types import SimpleNamespace
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:   # Python 3.10: the backport pyproject installs there, as warpbw.scene reads it
+    import tomli as tomllib
 
 import numpy as np
 import pytest
