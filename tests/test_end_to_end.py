@@ -2063,6 +2063,26 @@ def test_the_folders_the_readmes_commands_write_are_ignored_by_git():
     assert {"warpbw_demo", "mixed", "tables", "zoom_out"} <= folders and not missing, (folders, missing)
 
 
+def test_ci_runs_the_hypothesis_examples_derandomized_and_a_local_run_draws_new_ones(request):
+    """A CI run ($CI set, as CI services and .ci/run set it) takes tests/conftest.py's profile "ci": the same examples
+    on every run (derandomize), no example database; a local run keeps Hypothesis's "default", new examples each
+    time (session 81; docs/testing.md).  The profile this run took is the one its environment names."""
+    from hypothesis import settings
+
+    from conftest import hypothesis_profile
+
+    for value, profile in (("true", "ci"), ("1", "ci"), ("True", "ci"), ("", "default"), ("false", "default"),
+                           ("0", "default"), (None, "default")):
+        assert hypothesis_profile({} if value is None else {"CI": value}) == profile, value
+    ci = settings.get_profile("ci")
+    assert ci.derandomize and ci.database is None and ci.print_blob and ci.deadline is None
+    assert not settings.get_profile("default").derandomize
+    chosen = settings.get_profile(hypothesis_profile(os.environ))
+    if request.config.getoption("hypothesis_profile") is None:   # not chosen on the command line
+        assert (settings().derandomize, settings().database is None) == (chosen.derandomize, chosen.database is None)
+    assert "CI=true" in (Path(__file__).resolve().parents[1] / ".ci" / "run").read_text()
+
+
 def test_every_module_lists_its_public_functions_in_its_docstring():
     """DESIGN.md's convention, 'a module's public functions are listed in its docstring': every function or class
     of warpbw/ and precompute/ whose name does not start with _ is named in its module's docstring, the Warp
