@@ -284,7 +284,7 @@ def _number_from(lo: float, hi: float | None = None):
 
 def _table_args(p: argparse.ArgumentParser) -> None:
     """The arguments every tabulated-BRDF table command takes: the BRDF, the output, --force, --quiet."""
-    p.add_argument("file", help="MERL .binary file, or NPF table with --material")
+    p.add_argument("file", type=parse_path, help="MERL .binary file, or NPF table with --material")
     p.add_argument("--material", default=None, help="NPF material name when FILE is an NPF table")
     p.add_argument("-o", "--output", type=parse_path, required=True, help="output table file (a name ending in .npz)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
@@ -304,7 +304,7 @@ def build_parser() -> argparse.ArgumentParser:
     a = sub.add_parser("npf-to-merl", help="write a MERL .binary file from an NPF fit",
                        description="Tabulate one material of an NPF table (e.g. ../shared/data/brdf/npf.bin) at "
                        "the 90x90x180 MERL bin centres and write it as a MERL .binary file.")
-    a.add_argument("--table", required=True, help="NPF table (npf.bin)")
+    a.add_argument("--table", type=parse_path, required=True, help="NPF table (npf.bin)")
     a.add_argument("--material", required=True, help="material name, e.g. gold-metallic-paint")
     a.add_argument("-o", "--output", type=parse_path, required=True, help="output MERL file (a name ending in .binary)")
     a.add_argument("--force", action="store_true", help="overwrite an existing output")
@@ -340,7 +340,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "the same --lookup) write, bit for bit; a scene names them with sampling = and bandwidth =.  "
                         "A BRDF that cannot be read is reported and the others go on (exit 1 at the end).  The record "
                         "(OUT/batch.json) holds each BRDF's outputs, times, largest nu_rho, warnings and error.")
-    bt.add_argument("sources", nargs="+", metavar="SOURCE",
+    bt.add_argument("sources", nargs="+", type=parse_path, metavar="SOURCE",
                     help="an NPF table (npf.bin), a MERL .binary file, or a folder of MERL files")
     bt.add_argument("-o", "--output", type=parse_path, required=True, help="output folder (made if absent)")
     bt.add_argument("--materials", type=_csv("materials"), default=None,
@@ -375,7 +375,8 @@ def build_parser() -> argparse.ArgumentParser:
                        f"carved_disk, dunes (e.g. surface:dunes:512; SIZE up to {MAX_SURFACE_SIZE}, default 512; "
                        f"hemispherical_scales needs at least {MIN_SURFACE_SIZE}, and below about 16 texels the "
                        "others' detail is finer than a texel).")
-    g.add_argument("map", metavar="MAP", help="height field / normal map image, or surface:NAME[:SIZE]")
+    g.add_argument("map", type=parse_path, metavar="MAP",
+                   help="height field / normal map image, or surface:NAME[:SIZE]")
     g.add_argument("-o", "--output", type=parse_path, required=True,
                    help="output mipmap file (a name ending in .npz or .gmm)")
     g.add_argument("--components", type=_integer_from(1, MAX_COMPONENTS), default=4,
@@ -411,7 +412,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "components.  A FILE that is missing, a directory, not an asset file or a damaged one is "
                        "named in one error line where it comes, the other files are still shown, and the command "
                        "exits 2.")
-    i.add_argument("files", nargs="+", metavar="FILE", help="an asset file (.npz or .gmm)")
+    i.add_argument("files", nargs="+", type=parse_path, metavar="FILE", help="an asset file (.npz or .gmm)")
     i.add_argument("--json", action="store_true",
                    help="print a JSON list, one object per FILE in order (strict JSON: NaN as null; a FILE that "
                    "could not be read is {\"path\": ..., \"error\": ...}); the hash is given whole")

@@ -944,7 +944,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "OUT.level.exr / .png (not for --filter ground_truth, which reads no mip level); planes "
                        "beside spheres or meshes: under 'planes', with "
                        "OUT.mip_level.exr / .png).")
-    r.add_argument("scene", help="scene file (TOML)")
+    r.add_argument("scene", type=parse_path, help="scene file (TOML)")
     r.add_argument("-o", "--output", type=parse_path, required=True, help="output EXR path")
     r.add_argument("--mis", action="store_true",
                    help="also sample the environment and combine by multiple importance sampling")
@@ -994,7 +994,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "material's, a damaged table), "
                        "the stages a render would run and the memory they would take (a frame; loading the probe "
                        "and, adaptive, building its bandwidth map; the placed meshes, from their files' headers).")
-    i.add_argument("scene", help="scene file (TOML)")
+    i.add_argument("scene", type=parse_path, help="scene file (TOML)")
     i.add_argument("--method", choices=METHODS, default=METHODS[0],
                    help="the stages of warpbw render --method METHOD for the spheres and meshes (default reference; "
                         "adaptive adds the bandwidth pass, the pyramid and the up-sampling)")
@@ -1023,10 +1023,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "with planes beside spheres or meshes, the spheres and meshes are measured where no plane "
                         "hides them (the planes are not rendered: bench-filtering measures them).",
                         formatter_class=argparse.RawDescriptionHelpFormatter)
-    bn.add_argument("scene", help="scene file (TOML)")
-    bn.add_argument("--json", help="write the record here (JSON); without it, beside --plot as OUT.json")
-    bn.add_argument("--plot", help="write the plot here (PNG): PSNR against time, one curve per method; without "
-                    "it, beside --json as OUT.png")
+    bn.add_argument("scene", type=parse_path, help="scene file (TOML)")
+    bn.add_argument("--json", type=parse_path, metavar="OUT.json",
+                    help="write the record here (JSON); without it, beside --plot as OUT.json")
+    bn.add_argument("--plot", type=parse_path, metavar="OUT.png",
+                    help="write the plot here (PNG): PSNR against time, one curve per method; without it, beside "
+                    "--json as OUT.png")
     bn.add_argument("--spp", type=_number_list("spp", int, INT32_MAX), default=list(_bench.DEFAULT_SPP),
                     help="reference sample counts, each 1 to 2^31-1 (default %s)"
                     % ",".join(map(str, _bench.DEFAULT_SPP)))
@@ -1045,7 +1047,8 @@ def build_parser() -> argparse.ArgumentParser:
                          f"{2 * _bench.GT_CHUNK_SPP}, beyond it a multiple of {_bench.GT_CHUNK_SPP})")
     bn.add_argument("--no-mis", action="store_true",
                     help="compare with BRDF importance sampling only (default: MIS for both methods)")
-    bn.add_argument("--cache", help="ground-truth cache directory (default $WARPBW_CACHE/ground_truth, or "
+    bn.add_argument("--cache", type=parse_path, metavar="DIR",
+                    help="ground-truth cache directory (default $WARPBW_CACHE/ground_truth, or "
                     "~/.cache/warpbw/ground_truth without $WARPBW_CACHE)")
     bench_common(bn, "runs per point, each with its own seed (default 3): the time is their median, the error "
                      "the mean of their MSEs, with its standard error from their spread (the n_b sweep's runs share "
@@ -1069,14 +1072,16 @@ def build_parser() -> argparse.ArgumentParser:
                         "In a scene with planes beside spheres or meshes, the planes are measured where no sphere or "
                         "mesh hides them (the spheres and meshes are not shaded: warpbw bench measures them). "
                         "See warpbw/bench_filtering.py for the definitions.")
-    bf.add_argument("scene", help="scene file (TOML) with planes (spheres and meshes beside them hide what they "
-                    "cover)")
+    bf.add_argument("scene", type=parse_path,
+                    help="scene file (TOML) with planes (spheres and meshes beside them hide what they cover)")
     bf.add_argument("--zoom", type=_number_list("zoom", float), default=list(_bf.DEFAULT_ZOOMS),
                     help="zoom factors, each positive (default %s); a zoom at which no pixel sees a plane is refused "
                     "before any work" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
-    bf.add_argument("--json", help="write the record here (JSON); without it, beside --plot as OUT.json")
-    bf.add_argument("--plot", help="write the plot here (PNG): error, flicker and temporal error against zoom; "
-                    "without it, beside --json as OUT.png")
+    bf.add_argument("--json", type=parse_path, metavar="OUT.json",
+                    help="write the record here (JSON); without it, beside --plot as OUT.json")
+    bf.add_argument("--plot", type=parse_path, metavar="OUT.png",
+                    help="write the plot here (PNG): error, flicker and temporal error against zoom; without it, "
+                    "beside --json as OUT.png")
     bf.add_argument("--gt-spp", type=_positive_int("gt-spp", INT32_MAX), default=_bf.DEFAULT_GT_SPP,
                     help=f"ground-truth rays per pixel ({MIN_GT_SPP} to 2^31-1; default {_bf.DEFAULT_GT_SPP}), "
                     "jittered over the pixel and averaged over those that hit the plane")
@@ -1084,8 +1089,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="under an [environment]: pairs of one BRDF and one environment sample per pixel of the "
                     f"filtered methods, 1 to 2^31-1 (default {DEFAULT_SPP}, as warpbw render; their noise is part of "
                     "the error)")
-    bf.add_argument("--cache", help="GMM mipmap cache directory: mipmaps found there are reused, those built are "
-                    "kept there (default: build afresh, so that the precompute time is measured)")
+    bf.add_argument("--cache", type=parse_path, metavar="DIR",
+                    help="GMM mipmap cache directory: mipmaps found there are reused, those built are kept there "
+                    "(default: build afresh, so that the precompute time is measured)")
     bf.add_argument("--flicker-pairs", type=_positive_int("flicker-pairs", _bf.FLICKER_PAIRS_MAX), default=1,
                     help="consecutive frame pairs per zoom (z * step^j to z * step^(j+1)) the flicker and temporal "
                     f"error are averaged over (default 1; 1 to {_bf.FLICKER_PAIRS_MAX}, one octave): one pair is "
@@ -1107,14 +1113,14 @@ def build_parser() -> argparse.ArgumentParser:
                        "reference with another --seed than the image: at one seed a pixel draws the same samples, so "
                        "the image's are the first of the reference's and the error reads low (a warning says so when "
                        "the images' .json records show it).")
-    c.add_argument("test", help="image to judge (EXR)")
-    c.add_argument("reference", help="reference image (EXR)")
+    c.add_argument("test", type=parse_path, help="image to judge (EXR)")
+    c.add_argument("reference", type=parse_path, help="reference image (EXR)")
     c.add_argument("--json", action="store_true",
                    help="print JSON (psnr_db, relmse, mse, pixels, worst_pixels, worst_share, coverage_from: whose A "
                         "channel chose the pixels, null for the non-black ones; an infinite PSNR is null, with "
                         "psnr_note saying whether the images are identical or the PSNR undefined; with --error-map, "
                         "error_map, its path, and error_range, the PNG's [LO, HI])")
-    c.add_argument("--error-map", metavar="PATH.exr",
+    c.add_argument("--error-map", type=parse_path, metavar="PATH.exr",
                    help="also write the per-pixel relative squared error, (test - ref)^2 / (ref^2 + "
                    f"{_RELMSE_EPS:g}) averaged "
                    "over R, G, B (its mean over the covered pixels is the relMSE), as PATH.exr (Y; A = covered) and "
