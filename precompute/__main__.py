@@ -342,7 +342,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "(OUT/batch.json) holds each BRDF's outputs, times, largest nu_rho, warnings and error.")
     bt.add_argument("sources", nargs="+", type=parse_path, metavar="SOURCE",
                     help="an NPF table (npf.bin), a MERL .binary file, or a folder of MERL files")
-    bt.add_argument("-o", "--output", type=parse_path, required=True, help="output folder (made if absent)")
+    bt.add_argument("-o", "--output", type=parse_path, required=True, metavar="DIR",
+                    help="output folder (made if absent)")
     bt.add_argument("--materials", type=_csv("materials"), default=None,
                     help="the NPF tables' materials, comma-separated (without it, all 100)")
     bt.add_argument("--tables", type=_csv("tables"), default=None,

@@ -3404,3 +3404,24 @@ def test_every_example_says_a_sigterm_while_it_loads_in_one_line(tmp_path):
         got[name] = (child.returncode, err.strip(), out)
     assert got == expected
     assert list(work.iterdir()) == []
+
+
+def test_every_help_fits_the_terminal_it_is_printed_on(monkeypatch):
+    """``warpbw bench --help`` printed its description as one line of 753 characters (a raw-text formatter, kept for
+    an epilog it does not have), ``warpbw --help`` its description as one of 130 and its examples up to 108 wide,
+    and ``warpbw render --help`` a usage line of 91 (the --filter choices, one word argparse cannot break): on an
+    80-column terminal they wrapped mid-word, where every other command's help is wrapped to the terminal
+    (command-line audit, session 81).  Truth: the terminal's width, which argparse reads from COLUMNS."""
+    import argparse
+
+    from precompute.__main__ import build_parser as precompute_parser
+    from warpbw.cli import build_parser as warpbw_parser
+
+    monkeypatch.setenv("COLUMNS", "80")
+    wide = []
+    for prog, parser in (("warpbw", warpbw_parser()), ("warpbw-precompute", precompute_parser())):
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        for name, p in [("", parser), *sub.choices.items()]:
+            wide += [f"{prog} {name} --help: {len(ln)} wide: {ln[:60]}..." for ln in p.format_help().splitlines()
+                     if len(ln) > 80]
+    assert not wide, "\n".join(wide)

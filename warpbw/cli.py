@@ -63,22 +63,33 @@ THREADS_MAX = THREADS_PER_CORE_MAX * (os.cpu_count() or 1)
 
 EPILOG = """\
 examples:
-  warpbw demo -o demo_out                       render the embedded default scene
-  warpbw info scene.toml                        what a scene needs, without rendering
+  warpbw demo -o demo_out
+      render the embedded default scene
+  warpbw info scene.toml
+      what a scene needs, without rendering
   warpbw render scene.toml -o out.exr --spp 256 --seed 1
+      the reference estimator, 256 samples per pixel
   warpbw render scene.toml -o out.exr --method adaptive --budget 8
-                                                adaptive shading (002): AOVs out.level.exr, out.n_p.exr, ...
-  warpbw bench scene.toml --json b.json --plot b.png   speed against accuracy, adaptive vs reference
-  warpbw compare out.exr ground_truth.exr       PSNR and relative MSE over covered pixels
-  warpbw compare out.exr gt.exr --error-map err.exr   and where the error is (err.exr + err.png)
+      adaptive shading (002): AOVs out.level.exr, out.n_p.exr, ...
+  warpbw bench scene.toml --json b.json --plot b.png
+      speed against accuracy, adaptive vs reference
+  warpbw compare out.exr ground_truth.exr
+      PSNR and relative MSE over covered pixels
+  warpbw compare out.exr gt.exr --error-map err.exr
+      and where the error is (err.exr + err.png)
   warpbw render planes.toml -o out.exr --filter gmm_aligned
-                                                a scene with planes: reflectance filtering (004)
-  warpbw render mixed/bunny_on_floor.toml -o out.exr --method adaptive --budget 8 --filter gmm_aligned
-                                                planes beside spheres or meshes: both renderers, composited
-  warpbw bench-filtering planes.toml --zoom 1,2,4,8,16,32 --json f.json --plot f.png
+      a scene with planes: reflectance filtering (004)
+  warpbw render mixed.toml -o out.exr --method adaptive --budget 8
+      planes beside spheres or meshes: both renderers, composited
+  warpbw bench-filtering planes.toml --zoom 1,2,4,8,16,32 --json f.json
+      error, flicker and time of each filter along a zoom-out (and f.png)
 
-Scene files are TOML; see README.md for the keys.  Images are linear radiance in EXR (R, G, B and the
-coverage mask as A), with an sRGB PNG preview and a JSON of statistics beside them.
+Scene files are TOML; see README.md for the keys.  Images are linear radiance
+in EXR (R, G, B and the coverage mask as A), with an sRGB PNG preview and a
+JSON of statistics beside them.  Results and summaries go to stdout; progress
+bars, warnings and errors to stderr.  Exit status: 0 done; 2 a usage error or
+bad input (one line on stderr); 130, 143 or 129 stopped by Ctrl-C, SIGTERM or
+SIGHUP; 141 the reader of stdout left (README: Command-line conventions).
 """
 
 
@@ -907,8 +918,8 @@ def _exposure(s):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = OneLineParser(prog="warpbw", description="Render measured materials under HDR light with "
-                "NVIDIA Warp kernels (CPU by default; --device cuda selects a GPU, untested so far).",
+    p = OneLineParser(prog="warpbw", description="Render measured materials under HDR light with NVIDIA Warp "
+                      "kernels\n(CPU by default; --device cuda selects a GPU, untested so far).",
                 epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
@@ -960,7 +971,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="adaptive: directions the bandwidth pass traces per 2x2 block of alike pixels (per pixel at "
                    f"an edge; each pixel pools its neighbours' too), n_b, 1 to {N_B_MAX} (default 16, 002 Sec. 2.6)")
     add_adaptive_options(r)
-    r.add_argument("--filter", choices=_FILTER_METHODS, default=None,
+    r.add_argument("--filter", choices=_FILTER_METHODS, default=None, metavar="METHOD",
                    help="scenes with planes (shape = \"plane\", cook-torrance materials) always render with the "
                    "reflectance-filtering renderer (004): METHOD is gmm_aligned (default), gmm_unaligned, toksvig, "
                    "lean, fixed, or ground_truth (--spp >= 64 jittered rays per pixel, averaged over those that "
@@ -981,7 +992,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "multiple importance sampling (as render --mis): --spp BRDF samples per pixel, each paired "
                        "with an environment sample.  The scene itself goes to DIR/scene.toml, to edit and render "
                        "with warpbw render (e.g. --method adaptive --budget 4).")
-    d.add_argument("-o", "--output", type=parse_path, default="warpbw_demo",
+    d.add_argument("-o", "--output", type=parse_path, default="warpbw_demo", metavar="DIR",
                    help="output directory (default ./warpbw_demo)")
     common(d, DEMO_SPP)
     d.set_defaults(func=cmd_demo)
@@ -1021,8 +1032,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "frame.  --nb adds the n_b sweep of 002 Fig. 13 (its runs share seeds across n_b, and the "
                         "range's standard error is that of the paired differences).  In a scene "
                         "with planes beside spheres or meshes, the spheres and meshes are measured where no plane "
-                        "hides them (the planes are not rendered: bench-filtering measures them).",
-                        formatter_class=argparse.RawDescriptionHelpFormatter)
+                        "hides them (the planes are not rendered: bench-filtering measures them).")
     bn.add_argument("scene", type=parse_path, help="scene file (TOML)")
     bn.add_argument("--json", type=parse_path, metavar="OUT.json",
                     help="write the record here (JSON); without it, beside --plot as OUT.json")
@@ -1030,13 +1040,15 @@ def build_parser() -> argparse.ArgumentParser:
                     help="write the plot here (PNG): PSNR against time, one curve per method; without it, beside "
                     "--json as OUT.png")
     bn.add_argument("--spp", type=_number_list("spp", int, INT32_MAX), default=list(_bench.DEFAULT_SPP),
-                    help="reference sample counts, each 1 to 2^31-1 (default %s)"
+                    metavar="N,N,...", help="reference sample counts, comma-separated, each 1 to 2^31-1 (default %s)"
                     % ",".join(map(str, _bench.DEFAULT_SPP)))
     bn.add_argument("--budgets", type=_number_list("budgets", float, BUDGET_MAX), default=list(_bench.DEFAULT_BUDGETS),
-                    help=f"adaptive budgets, mean samples per covered pixel, each positive up to {BUDGET_MAX:.3g} "
+                    metavar="B,B,...", help="adaptive budgets, mean samples per covered pixel, comma-separated, each "
+                    f"positive up to {BUDGET_MAX:.3g} "
                     "(default %s)" % ",".join(f"{b:g}" for b in _bench.DEFAULT_BUDGETS))
-    bn.add_argument("--nb", type=_number_list("nb", int, N_B_MAX), default=None,
-                    help=f"n_b sweep, each 1 to {N_B_MAX}, e.g. 16,64,256,1024 (002 Fig. 13), at --nb-budget")
+    bn.add_argument("--nb", type=_number_list("nb", int, N_B_MAX), default=None, metavar="N,N,...",
+                    help=f"n_b sweep, comma-separated, each 1 to {N_B_MAX}, e.g. 16,64,256,1024 (002 Fig. 13), at "
+                    "--nb-budget (without it, no sweep)")
     add_adaptive_options(bn)
     bn.add_argument("--nb-budget", type=_positive_float("nb-budget", BUDGET_MAX), default=None,
                     help=f"budget of the n_b sweep, a positive number up to {BUDGET_MAX:.3g} (default "
@@ -1074,9 +1086,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "See warpbw/bench_filtering.py for the definitions.")
     bf.add_argument("scene", type=parse_path,
                     help="scene file (TOML) with planes (spheres and meshes beside them hide what they cover)")
-    bf.add_argument("--zoom", type=_number_list("zoom", float), default=list(_bf.DEFAULT_ZOOMS),
-                    help="zoom factors, each positive (default %s); a zoom at which no pixel sees a plane is refused "
-                    "before any work" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
+    bf.add_argument("--zoom", type=_number_list("zoom", float), default=list(_bf.DEFAULT_ZOOMS), metavar="Z,Z,...",
+                    help="zoom factors (camera distance factors), comma-separated, each positive (default %s); a zoom "
+                    "at which no pixel sees a plane is refused before any work" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
     bf.add_argument("--json", type=parse_path, metavar="OUT.json",
                     help="write the record here (JSON); without it, beside --plot as OUT.json")
     bf.add_argument("--plot", type=parse_path, metavar="OUT.png",
