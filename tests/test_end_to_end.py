@@ -3425,3 +3425,37 @@ def test_every_help_fits_the_terminal_it_is_printed_on(monkeypatch):
             wide += [f"{prog} {name} --help: {len(ln)} wide: {ln[:60]}..." for ln in p.format_help().splitlines()
                      if len(ln) > 80]
     assert not wide, "\n".join(wide)
+
+
+def test_info_json_is_strict_json_as_every_json_a_command_prints(tmp_path, monkeypatch, capsys):
+    """``warpbw info --json`` printed a header's NaN (a damaged or hand-edited file a material names) as a bare
+    ``NaN``, which jq and strict parsers refuse, where ``warpbw compare --json`` and ``warpbw-precompute info --json``
+    print strict JSON, a non-finite number as null (command-line audit, session 81).  Truth: Python's json parser
+    told to refuse NaN and Infinity, and the header's version, written here as NaN with numpy."""
+    from conftest import rewrite_asset
+    from precompute.gmm_mipmap import build_gmm_mipmap, write_gmm_mipmap
+    from warpbw.cli import main as cli_main
+    from warpbw.io.exr import write_exr
+    from warpbw.scene import file_digest
+
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
+    heights = np.add.outer(np.sin(np.arange(8.0)), np.cos(np.arange(8.0))) * 0.02
+    write_exr(tmp_path / "h.exr", heights.astype(np.float32)[..., None], ["Y"])
+    write_gmm_mipmap(tmp_path / "ok.gmm", build_gmm_mipmap(heights, progress=False), "h.exr",
+                     file_digest(tmp_path / "h.exr"))
+    rewrite_asset(tmp_path / "ok.gmm", tmp_path / "nan.gmm", version=float("nan"))
+    (tmp_path / "s.toml").write_text("\n".join([
+        "[camera]", "position = [0.0, 1.2, 1.2]", "look_at = [0.0, 0.0, 0.0]", "fov = 40.0", "resolution = [8, 8]",
+        "[[light]]", 'type = "directional"', "direction = [0.3, 0.8, -0.5]", "radiance = [3.0, 3.0, 3.0]",
+        "[[object]]", 'shape = "plane"', "center = [0.0, 0.0, 0.0]", "size = 2.0", 'material = "m"',
+        "[material.m]", 'type = "cook-torrance"', "roughness = 0.08", "f0 = [0.9, 0.75, 0.4]",
+        'normal_map = "h.exr"', 'gmm = "nan.gmm"']))
+
+    def refuse(constant):
+        raise ValueError(f"not strict JSON: {constant}")
+
+    assert cli_main(["info", str(tmp_path / "s.toml"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out, parse_constant=refuse)
+    (asset,) = summary["assets"]
+    assert Path(asset["path"]).name == "nan.gmm" and asset["version"] is None
+    assert asset["not_read"] == "version nan, this warpbw reads 2"

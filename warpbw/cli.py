@@ -505,8 +505,8 @@ def cmd_info(args) -> int:
     named = {str(p) for m in used for p in (m.sampling, m.bandwidth, m.gmm) if p is not None}
     s["assets"] = [header_status(f) for f in s["files"] if f in named]
     _say_refused(scene, s["assets"], used)
-    if args.json:
-        print(json.dumps(s, indent=2))
+    if args.json:   # strict JSON, as compare's and warpbw-precompute info's: a header's NaN printed NaN, not null
+        print(json_text(s), end="")
         return 0
     print(f"scene       {printable(s['scene'])}")
     print(f"resolution  {s['resolution'][0]} x {s['resolution'][1]}")
