@@ -3459,3 +3459,25 @@ def test_info_json_is_strict_json_as_every_json_a_command_prints(tmp_path, monke
     (asset,) = summary["assets"]
     assert Path(asset["path"]).name == "nan.gmm" and asset["version"] is None
     assert asset["not_read"] == "version nan, this warpbw reads 2"
+
+
+def test_a_command_started_with_stderr_closed_runs_and_leaves_stdout_to_its_results(tmp_path, monkeypatch, capsys):
+    """Started with stderr closed (``2>&-``), Python has no sys.stderr: every progress bar's first line raised
+    AttributeError, and a render, a demo or a precompute ended with status 1 and not a word (its traceback had nowhere
+    to go either); and an error or warning line, printed to ``file=sys.stderr`` that is None, went to stdout, among
+    the results (command-line audit, session 81).  Now the bars are off, as asked for with -q, and the lines go
+    nowhere, as the shell's other commands' do there.  Truth: the bar's own library, tqdm, drawing nothing, and
+    stdout holding nothing but what the command prints there."""
+    from tqdm import tqdm
+
+    from precompute.progress import bar_options, progress_callback
+    from warpbw.cli import main as cli_main
+
+    monkeypatch.setattr(sys, "stderr", None)
+    with progress_callback(3, "work", "item") as step:   # AttributeError on the old code
+        step(1)
+        step(3)
+    with tqdm(total=2, **bar_options()) as bar:   # the batch's bar
+        bar.update(2)
+    assert cli_main(["render", str(tmp_path / "missing.toml"), "-o", str(tmp_path / "x.exr")]) == 2
+    assert capsys.readouterr().out == ""   # "warpbw: error: ...missing.toml: scene file not found" landed here

@@ -279,6 +279,22 @@ class _NamedStdout:
 
 
 @contextmanager
+def _stderr_or_nowhere():
+    """While the block runs, a process started with stderr closed (``2>&-``; Python has no ``sys.stderr``) writes its
+    progress, warnings and errors nowhere, as a shell's other commands do there: ``print(..., file=sys.stderr)``
+    with no sys.stderr prints to stdout, so an error line landed among the results (``--json``'s JSON)."""
+    if sys.stderr is not None:
+        yield
+        return
+    with open(os.devnull, "w") as nowhere:
+        sys.stderr = nowhere
+        try:
+            yield
+        finally:
+            sys.stderr = None
+
+
+@contextmanager
 def _stdout_named():
     """While the block runs, ``sys.stdout`` is a :class:`_NamedStdout` of itself (unless there is none: started with
     stdout closed, ``>&-``, Python has no ``sys.stdout`` and print() writes nothing)."""
@@ -305,7 +321,7 @@ def run_command(prog: str, func, args) -> int:
         print(f"{prog}: warning: {printable(message)}", file=sys.stderr if file is None else file)
 
     with _script_ends_ignoring_stops(), warnings.catch_warnings(), _sigterm_raises(), _stops_in_destructors_unsaid(), \
-            _stdout_named():
+            _stdout_named(), _stderr_or_nowhere():
         warnings.showwarning = show_warning
         try:
             try:
