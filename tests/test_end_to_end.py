@@ -3481,3 +3481,48 @@ def test_a_command_started_with_stderr_closed_runs_and_leaves_stdout_to_its_resu
         bar.update(2)
     assert cli_main(["render", str(tmp_path / "missing.toml"), "-o", str(tmp_path / "x.exr")]) == 2
     assert capsys.readouterr().out == ""   # "warpbw: error: ...missing.toml: scene file not found" landed here
+
+
+def test_the_command_line_conventions_hold_for_every_command():
+    """README's "Command-line conventions", read off the parsers of both programs (command-line audit, session 81):
+    every path an option or argument takes is a non-empty name (``parse_path``: bench's --json, --plot and --cache
+    and compare's --error-map took "" and dropped it); every command that writes files takes --force, every one that
+    draws a progress bar -q/--quiet; every --seed is ``parse_seed``'s 0 to 2^32-1 with default 0; every --device is
+    worded alike, default cpu; --json is a flag that prints where README says so and a path where it names a
+    record; a new command or option must take its place here."""
+    import argparse
+
+    from precompute.__main__ import build_parser as precompute_parser
+    from warpbw.cli import build_parser as warpbw_parser
+    from warpbw.cli_common import parse_path, parse_seed
+
+    commands = {}
+    for prog, parser in (("warpbw", warpbw_parser()), ("warpbw-precompute", precompute_parser())):
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        commands |= {f"{prog} {name}": {a.option_strings[-1] if a.option_strings else a.dest: a for a in p._actions}
+                     for name, p in sub.choices.items()}
+    w, pc = "warpbw ", "warpbw-precompute "
+    writers = {w + c for c in ("render", "demo", "bench", "bench-filtering", "compare")} | {
+        pc + c for c in ("npf-to-merl", "brdf-sampling", "brdf", "batch", "gmm")}
+    with_bars = writers - {w + "compare", pc + "npf-to-merl"}
+    assert set(commands) == writers | {w + "info", pc + "info"}
+    assert {c for c, opts in commands.items() if "--force" in opts} == writers
+    assert {c for c, opts in commands.items() if "--quiet" in opts} == with_bars
+    assert all(commands[c]["--quiet"].option_strings == ["-q", "--quiet"] for c in with_bars)
+    assert {c for c, opts in commands.items() if "--seed" in opts} == {
+        w + "render", w + "demo", w + "bench", w + "bench-filtering", pc + "gmm"}
+    assert {c for c, opts in commands.items() if "--device" in opts} == {
+        w + "render", w + "demo", w + "bench", w + "bench-filtering"}
+    assert {commands[c]["--device"].help for c in commands if "--device" in commands[c]} == {
+        "Warp device: cpu (default) or cuda / cuda:N"}
+    json_flag = {c for c, opts in commands.items() if "--json" in opts and opts["--json"].nargs == 0}
+    json_path = {c for c, opts in commands.items() if "--json" in opts and opts["--json"].nargs != 0}
+    assert json_flag == {w + "info", w + "compare", pc + "info"}
+    assert json_path == {w + "bench", w + "bench-filtering", pc + "batch"}
+    paths = {"--output", "--plot", "--cache", "--error-map", "--table", "scene", "file", "map", "files", "sources",
+             "test", "reference"}
+    wrong = [f"{c} {name}" for c, opts in commands.items() for name, a in opts.items()
+             if (name in paths or c in json_path and name == "--json") and a.type is not parse_path]
+    wrong += [f"{c} --seed" for c, opts in commands.items() if "--seed" in opts
+              and (opts["--seed"].type is not parse_seed or opts["--seed"].default not in (None, 0))]
+    assert not wrong, wrong
