@@ -296,7 +296,12 @@ def build_parser() -> argparse.ArgumentParser:
                                 description="Offline asset tool of warpbw: MERL files from NPF fits, importance-"
                                 "sampling tables and angular bandwidth tables of tabulated BRDFs, GMM normal mipmaps "
                                 "of height fields and normal maps.  Tables carry a format name, a version, the "
-                                "source's name and its content hash.")
+                                "source's name and its content hash.",
+                                epilog="Results (the files a command wrote, what info reads) go to stdout; progress "
+                                "bars, warnings and errors to stderr.  Exit status: 0 done; 2 a usage error or bad "
+                                "input (one line on stderr; info: a FILE it could not read); 1 batch with a BRDF "
+                                "that failed; 130, 143 or 129 stopped by Ctrl-C, SIGTERM or SIGHUP; 141 the reader "
+                                "of stdout left (README: Command-line conventions).")
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True

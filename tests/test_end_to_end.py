@@ -3526,3 +3526,6 @@ def test_the_command_line_conventions_hold_for_every_command():
     wrong += [f"{c} --seed" for c, opts in commands.items() if "--seed" in opts
               and (opts["--seed"].type is not parse_seed or opts["--seed"].default not in (None, 0))]
     assert not wrong, wrong
+    for parser in (warpbw_parser(), precompute_parser()):   # each --help gives the exit statuses in brief
+        said = re.sub(r"\s+", " ", parser.epilog)
+        assert all(s in said for s in ("0 done", "2 a usage error or bad input", "130, 143 or 129", "141")), said

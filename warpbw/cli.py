@@ -1009,7 +1009,8 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--method", choices=METHODS, default=METHODS[0],
                    help="the stages of warpbw render --method METHOD for the spheres and meshes (default reference; "
                         "adaptive adds the bandwidth pass, the pyramid and the up-sampling)")
-    i.add_argument("--json", action="store_true", help="print JSON")
+    i.add_argument("--json", action="store_true",
+                   help="print the summary as JSON (strict JSON: a value that is not a finite number as null)")
     i.set_defaults(func=cmd_info)
 
     from warpbw import bench as _bench
