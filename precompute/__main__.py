@@ -309,7 +309,11 @@ def build_parser() -> argparse.ArgumentParser:
     a = sub.add_parser("npf-to-merl", help="write a MERL .binary file from an NPF fit",
                        description="Tabulate one material of an NPF table (e.g. ../shared/data/brdf/npf.bin) at "
                        "the 90x90x180 MERL bin centres and write it as a MERL .binary file.")
-    a.add_argument("--table", type=parse_path, required=True, help="NPF table (npf.bin)")
+    # the table as brdf-sampling, brdf and batch take their source, or --table as before (session 81)
+    a.add_argument("table", nargs="?", type=parse_path, default=None, metavar="TABLE",
+                   help="NPF table (npf.bin); or --table TABLE")
+    a.add_argument("--table", dest="table_option", type=parse_path, default=None, metavar="TABLE",
+                   help="the NPF table, given as an option")
     a.add_argument("--material", required=True, help="material name, e.g. gold-metallic-paint")
     a.add_argument("-o", "--output", type=parse_path, required=True, help="output MERL file (a name ending in .binary)")
     a.add_argument("--force", action="store_true", help="overwrite an existing output")
@@ -426,8 +430,22 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _npf_table(parser: argparse.ArgumentParser, args) -> None:
+    """npf-to-merl's NPF table, TABLE or --table TABLE (one of them, once), into ``args.table``; else the usage error
+    of its parser."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices["npf-to-merl"]
+    if args.table is not None and args.table_option is not None:
+        sub.error(f"the NPF table given twice ({args.table}, then --table {args.table_option}): give it once")
+    if args.table is None and args.table_option is None:
+        sub.error("the following arguments are required: TABLE (or --table TABLE)")
+    args.table = args.table if args.table is not None else args.table_option
+
+
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command == "npf-to-merl":
+        _npf_table(parser, args)
     return run_command("warpbw-precompute", args.func, args)
 
 

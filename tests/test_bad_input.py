@@ -4530,3 +4530,23 @@ def test_stdout_on_a_full_disk_is_named_and_a_closed_stdout_is_no_traceback(tmp_
                        stderr=subprocess.PIPE, text=True, timeout=120, preexec_fn=lambda: os.close(1))
     assert (r.returncode, r.stderr) == (0, "")
     assert (tmp_path / "e.exr").is_file() and (tmp_path / "e.png").is_file()
+
+
+def test_npf_to_merl_takes_its_table_as_brdf_and_batch_take_theirs(monkeypatch, capsys):
+    """``warpbw-precompute brdf npf.bin --material chrome`` (and brdf-sampling, batch) take the NPF table as their
+    first argument, but npf-to-merl took it only as ``--table npf.bin``: the same words there were refused, "the
+    following arguments are required: --table" (command-line audit, session 81).  It now takes either, once.
+    Truth: the table the command is handed, read off the call run_command receives."""
+    import precompute.__main__ as pre
+
+    monkeypatch.setattr(pre, "run_command", lambda prog, func, args: (func.__name__, args.table))
+    tail = ["--material", "chrome", "-o", "c.binary"]
+    assert pre.main(["npf-to-merl", "npf.bin", *tail]) == ("cmd_npf_to_merl", "npf.bin")
+    assert pre.main(["npf-to-merl", "--table", "npf.bin", *tail]) == ("cmd_npf_to_merl", "npf.bin")
+    for argv, said in ((["npf-to-merl", "a.bin", "--table", "b.bin", *tail], "the NPF table given twice (a.bin, then "
+                        "--table b.bin): give it once"),
+                       (["npf-to-merl", *tail], "the following arguments are required: TABLE (or --table TABLE)")):
+        with pytest.raises(SystemExit) as exc:
+            pre.main(argv)
+        err = capsys.readouterr().err.strip()
+        assert exc.value.code == EXIT_USER_ERROR and err.startswith(f"warpbw-precompute: error: {said}"), err

@@ -3519,8 +3519,8 @@ def test_the_command_line_conventions_hold_for_every_command():
     json_path = {c for c, opts in commands.items() if "--json" in opts and opts["--json"].nargs != 0}
     assert json_flag == {w + "info", w + "compare", pc + "info"}
     assert json_path == {w + "bench", w + "bench-filtering", pc + "batch"}
-    paths = {"--output", "--plot", "--cache", "--error-map", "--table", "scene", "file", "map", "files", "sources",
-             "test", "reference"}
+    paths = {"--output", "--plot", "--cache", "--error-map", "--table", "table", "scene", "file", "map", "files",
+             "sources", "test", "reference"}
     wrong = [f"{c} {name}" for c, opts in commands.items() for name, a in opts.items()
              if (name in paths or c in json_path and name == "--json") and a.type is not parse_path]
     wrong += [f"{c} --seed" for c, opts in commands.items() if "--seed" in opts
