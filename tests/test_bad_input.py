@@ -4511,24 +4511,25 @@ def test_every_path_a_command_takes_refuses_an_empty_name_naming_itself(prog, ar
 
 
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs Linux's /dev/full, a file every write to fails")
-def test_stdout_on_a_full_disk_is_named_and_a_closed_stdout_is_no_traceback(tmp_path):
+def test_stdout_on_a_full_disk_is_named_and_a_closed_stdout_is_no_traceback(tmp_path, monkeypatch, capsys):
     """``warpbw compare A B > out.txt`` on a full disk (or quota, or past a file-size limit) said "warpbw: error:
     [Errno 28] No space left on device", naming nothing: it now names standard output.  Started with stdout closed
     (``>&-``), Python has no sys.stdout, print() writes nothing, and run_command's flush raised AttributeError with a
     traceback and status 1 after the command had written its outputs: it now ends as it would on a terminal (command-
     line audit, session 81).  Truth: /dev/full, where every write fails with ENOSPC."""
+    from warpbw.cli import main as cli_main
+
     write_exr(tmp_path / "a.exr", np.ones((4, 4, 3), np.float32))
     write_exr(tmp_path / "b.exr", np.full((4, 4, 3), 2.0, np.float32))
-    env = {**os.environ, "WARPBW_CACHE": str(tmp_path / "_cache")}
-    argv = [sys.executable, "-m", "warpbw.cli", "compare", "a.exr", "b.exr"]
+    argv = ["compare", str(tmp_path / "a.exr"), str(tmp_path / "b.exr")]
     with open("/dev/full", "w") as full:
-        r = subprocess.run(argv, cwd=tmp_path, env=env, stdin=subprocess.DEVNULL, stdout=full, stderr=subprocess.PIPE,
-                           text=True, timeout=120)
-    r.stdout = ""
-    assert_one_line_error(r, "standard output: cannot write there (No space left on device)")
-    r = subprocess.run([*argv, "--error-map", "e.exr"], cwd=tmp_path, env=env, stdin=subprocess.DEVNULL,
-                       stderr=subprocess.PIPE, text=True, timeout=120, preexec_fn=lambda: os.close(1))
-    assert (r.returncode, r.stderr) == (0, "")
+        monkeypatch.setattr(sys, "stdout", full)
+        assert cli_main(argv) == EXIT_USER_ERROR
+    assert capsys.readouterr().err == ("warpbw: error: standard output: cannot write there (No space left on "
+                                       "device); what the command printed is lost\n")
+    monkeypatch.setattr(sys, "stdout", None)
+    assert cli_main([*argv, "--error-map", str(tmp_path / "e.exr")]) == 0
+    assert capsys.readouterr().err == ""
     assert (tmp_path / "e.exr").is_file() and (tmp_path / "e.png").is_file()
 
 
