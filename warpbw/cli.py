@@ -956,7 +956,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "beside spheres or meshes: under 'planes', with "
                        "OUT.mip_level.exr / .png).")
     r.add_argument("scene", type=parse_path, help="scene file (TOML)")
-    r.add_argument("-o", "--output", type=parse_path, required=True, help="output EXR path")
+    r.add_argument("-o", "--output", type=parse_path, required=True, metavar="OUT.exr",
+                   help="output image (a name ending in .exr; OUT.png and OUT.json, and any AOVs, go beside it)")
     r.add_argument("--mis", action="store_true",
                    help="also sample the environment and combine by multiple importance sampling")
     r.add_argument("--method", choices=METHODS, default=METHODS[0],
@@ -966,7 +967,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--budget", type=_positive_float("budget", BUDGET_MAX), default=None,
                    help="adaptive: mean samples per covered pixel, spread over the shaded pixels in proportion to the "
                    f"standard deviation the bandwidth pass measures: a positive number (may be below 1) up to "
-                   f"{BUDGET_MAX:.3g}")
+                   f"{BUDGET_MAX:.3g}; required with --method adaptive")
     r.add_argument("--nb", type=_positive_int("nb", N_B_MAX), default=None,
                    help="adaptive: directions the bandwidth pass traces per 2x2 block of alike pixels (per pixel at "
                    f"an edge; each pixel pools its neighbours' too), n_b, 1 to {N_B_MAX} (default 16, 002 Sec. 2.6)")
