@@ -284,7 +284,7 @@ def _number_from(lo: float, hi: float | None = None):
 
 def _table_args(p: argparse.ArgumentParser) -> None:
     """The arguments every tabulated-BRDF table command takes: the BRDF, the output, --force, --quiet."""
-    p.add_argument("file", help="MERL .binary file, or NPF table with --material")
+    p.add_argument("file", type=parse_path, help="MERL .binary file, or NPF table with --material")
     p.add_argument("--material", default=None, help="NPF material name when FILE is an NPF table")
     p.add_argument("-o", "--output", type=parse_path, required=True, help="output table file (a name ending in .npz)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
@@ -296,7 +296,12 @@ def build_parser() -> argparse.ArgumentParser:
                                 description="Offline asset tool of warpbw: MERL files from NPF fits, importance-"
                                 "sampling tables and angular bandwidth tables of tabulated BRDFs, GMM normal mipmaps "
                                 "of height fields and normal maps.  Tables carry a format name, a version, the "
-                                "source's name and its content hash.")
+                                "source's name and its content hash.",
+                                epilog="Results (the files a command wrote, what info reads) go to stdout; progress "
+                                "bars, warnings and errors to stderr.  Exit status: 0 done; 2 a usage error or bad "
+                                "input (one line on stderr; info: a FILE it could not read); 1 batch with a BRDF "
+                                "that failed; 130, 143 or 129 stopped by Ctrl-C, SIGTERM or SIGHUP; 141 the reader "
+                                "of stdout left (README: Command-line conventions).")
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
@@ -304,7 +309,11 @@ def build_parser() -> argparse.ArgumentParser:
     a = sub.add_parser("npf-to-merl", help="write a MERL .binary file from an NPF fit",
                        description="Tabulate one material of an NPF table (e.g. ../shared/data/brdf/npf.bin) at "
                        "the 90x90x180 MERL bin centres and write it as a MERL .binary file.")
-    a.add_argument("--table", required=True, help="NPF table (npf.bin)")
+    # the table as brdf-sampling, brdf and batch take their source, or --table as before (session 81)
+    a.add_argument("table", nargs="?", type=parse_path, default=None, metavar="TABLE",
+                   help="NPF table (npf.bin); or --table TABLE")
+    a.add_argument("--table", dest="table_option", type=parse_path, default=None, metavar="TABLE",
+                   help="the NPF table, given as an option")
     a.add_argument("--material", required=True, help="material name, e.g. gold-metallic-paint")
     a.add_argument("-o", "--output", type=parse_path, required=True, help="output MERL file (a name ending in .binary)")
     a.add_argument("--force", action="store_true", help="overwrite an existing output")
@@ -340,9 +349,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "the same --lookup) write, bit for bit; a scene names them with sampling = and bandwidth =.  "
                         "A BRDF that cannot be read is reported and the others go on (exit 1 at the end).  The record "
                         "(OUT/batch.json) holds each BRDF's outputs, times, largest nu_rho, warnings and error.")
-    bt.add_argument("sources", nargs="+", metavar="SOURCE",
+    bt.add_argument("sources", nargs="+", type=parse_path, metavar="SOURCE",
                     help="an NPF table (npf.bin), a MERL .binary file, or a folder of MERL files")
-    bt.add_argument("-o", "--output", type=parse_path, required=True, help="output folder (made if absent)")
+    bt.add_argument("-o", "--output", type=parse_path, required=True, metavar="DIR",
+                    help="output folder (made if absent)")
     bt.add_argument("--materials", type=_csv("materials"), default=None,
                     help="the NPF tables' materials, comma-separated (without it, all 100)")
     bt.add_argument("--tables", type=_csv("tables"), default=None,
@@ -375,7 +385,8 @@ def build_parser() -> argparse.ArgumentParser:
                        f"carved_disk, dunes (e.g. surface:dunes:512; SIZE up to {MAX_SURFACE_SIZE}, default 512; "
                        f"hemispherical_scales needs at least {MIN_SURFACE_SIZE}, and below about 16 texels the "
                        "others' detail is finer than a texel).")
-    g.add_argument("map", metavar="MAP", help="height field / normal map image, or surface:NAME[:SIZE]")
+    g.add_argument("map", type=parse_path, metavar="MAP",
+                   help="height field / normal map image, or surface:NAME[:SIZE]")
     g.add_argument("-o", "--output", type=parse_path, required=True,
                    help="output mipmap file (a name ending in .npz or .gmm)")
     g.add_argument("--components", type=_integer_from(1, MAX_COMPONENTS), default=4,
@@ -411,7 +422,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "components.  A FILE that is missing, a directory, not an asset file or a damaged one is "
                        "named in one error line where it comes, the other files are still shown, and the command "
                        "exits 2.")
-    i.add_argument("files", nargs="+", metavar="FILE", help="an asset file (.npz or .gmm)")
+    i.add_argument("files", nargs="+", type=parse_path, metavar="FILE", help="an asset file (.npz or .gmm)")
     i.add_argument("--json", action="store_true",
                    help="print a JSON list, one object per FILE in order (strict JSON: NaN as null; a FILE that "
                    "could not be read is {\"path\": ..., \"error\": ...}); the hash is given whole")
@@ -419,8 +430,22 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _npf_table(parser: argparse.ArgumentParser, args) -> None:
+    """npf-to-merl's NPF table, TABLE or --table TABLE (one of them, once), into ``args.table``; else the usage error
+    of its parser."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices["npf-to-merl"]
+    if args.table is not None and args.table_option is not None:
+        sub.error(f"the NPF table given twice ({args.table}, then --table {args.table_option}): give it once")
+    if args.table is None and args.table_option is None:
+        sub.error("the following arguments are required: TABLE (or --table TABLE)")
+    args.table = args.table if args.table is not None else args.table_option
+
+
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command == "npf-to-merl":
+        _npf_table(parser, args)
     return run_command("warpbw-precompute", args.func, args)
 
 

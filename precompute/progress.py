@@ -37,8 +37,12 @@ class _LogLines:
 
 def bar_options(stream=None) -> dict:
     """tqdm's keyword arguments for a bar on ``stream`` (None: ``sys.stderr`` as it is now): none on a terminal;
-    off one, lines at most every ``LOG_INTERVAL_S`` (module docstring)."""
+    off one, lines at most every ``LOG_INTERVAL_S`` (module docstring); no bar where there is no stream (a process
+    started with stderr closed, ``2>&-``, has no ``sys.stderr``: the bar's first line raised AttributeError, and the
+    run ended with status 1 and not a word, its traceback having nowhere to go)."""
     stream = sys.stderr if stream is None else stream
+    if stream is None:
+        return {"disable": True}
     try:
         tty = stream.isatty()
     except (AttributeError, ValueError):   # no isatty, or a closed stream
@@ -52,7 +56,7 @@ def bar_options(stream=None) -> dict:
 def progress_callback(total: int, desc: str, unit: str, enabled: bool = True):
     """Yield ``step(k, total=None)``: report that ``k`` of ``total`` items are done (a tqdm bar with ``bar_options``
     when ``enabled``); a ``total`` given to ``step`` replaces the bar's (for work whose size its callee decides)."""
-    if not enabled:
+    if not enabled or sys.stderr is None:   # asked for none, or nowhere to draw one (bar_options)
         yield lambda k, total=None: None
         return
     from tqdm import tqdm

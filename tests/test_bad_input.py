@@ -4503,3 +4503,94 @@ def test_a_number_given_as_a_path_is_not_read_as_a_file_descriptor(tmp_path):
             os.fstat(r)   # still open: OSError "Bad file descriptor" on the old code
     finally:
         os.close(r)
+
+
+# Every path a command takes, as an option or an argument, given empty: (program, argv, how argparse names it)
+_EMPTY_PATHS = [
+    ("warpbw", ["render", "", "-o", "x.exr"], "argument scene"),
+    ("warpbw", ["render", "s.toml", "-o", ""], "argument -o/--output"),
+    ("warpbw", ["demo", "-o", ""], "argument -o/--output"),
+    ("warpbw", ["info", ""], "argument scene"),
+    ("warpbw", ["compare", "", "r.exr"], "argument test"),
+    ("warpbw", ["compare", "t.exr", ""], "argument reference"),
+    ("warpbw", ["compare", "t.exr", "r.exr", "--error-map", ""], "argument --error-map"),
+    *[("warpbw", [cmd, *argv], name) for cmd in ("bench", "bench-filtering") for argv, name in (
+        (["", "--json", "b.json"], "argument scene"),
+        (["s.toml", "--json", "", "--plot", "b.png"], "argument --json"),
+        (["s.toml", "--json", "b.json", "--plot", ""], "argument --plot"),
+        (["s.toml", "--json", "b.json", "--cache", ""], "argument --cache"))],
+    ("warpbw-precompute", ["npf-to-merl", "--table", "", "--material", "chrome", "-o", "c.binary"],
+     "argument --table"),
+    ("warpbw-precompute", ["npf-to-merl", "--table", "npf.bin", "--material", "chrome", "-o", ""],
+     "argument -o/--output"),
+    ("warpbw-precompute", ["brdf-sampling", "", "-o", "t.npz"], "argument file"),
+    ("warpbw-precompute", ["brdf", "", "-o", "t.npz"], "argument file"),
+    ("warpbw-precompute", ["batch", "", "-o", "tables"], "argument SOURCE"),
+    ("warpbw-precompute", ["batch", "npf.bin", "-o", "tables", "--json", ""], "argument --json"),
+    ("warpbw-precompute", ["gmm", "", "-o", "g.gmm"], "argument MAP"),
+    ("warpbw-precompute", ["info", ""], "argument FILE"),
+]
+
+
+@pytest.mark.parametrize("prog,argv,name", _EMPTY_PATHS, ids=[f"{c[0]} {' '.join(c[1])}" for c in _EMPTY_PATHS])
+def test_every_path_a_command_takes_refuses_an_empty_name_naming_itself(prog, argv, name, capsys):
+    """Every -o took a file name checked not to be empty (``parse_path``), but bench's and bench-filtering's --json,
+    --plot and --cache and compare's --error-map did not: ``--json "" --plot p.png`` wrote p.json without a word,
+    ``--cache ""`` used the default cache, and ``--error-map ""`` wrote no map (command-line audit, session 81).  The
+    empty input paths were refused deeper down, in the words of a library parameter ("load_source: spec",
+    "asset_info: path", "batch_items: sources"), or of none ("input file (an OpenEXR image)": the test image or the
+    reference?).  Each is now refused by the parser, naming the option or argument as --help does.  Truth: the
+    argparse convention ("argument NAME: ...", status 2) every other refusal of these parsers follows."""
+    from precompute.__main__ import build_parser as precompute_parser
+    from warpbw.cli import build_parser as warpbw_parser
+
+    parser = warpbw_parser() if prog == "warpbw" else precompute_parser()
+    with pytest.raises(SystemExit) as exc:
+        parser.parse_args(argv)
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == EXIT_USER_ERROR
+    assert err.startswith(f"{prog}: error: {name}: expected a file name, got an empty one"), err
+    assert "\n" not in err
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs Linux's /dev/full, a file every write to fails")
+def test_stdout_on_a_full_disk_is_named_and_a_closed_stdout_is_no_traceback(tmp_path, monkeypatch, capsys):
+    """``warpbw compare A B > out.txt`` on a full disk (or quota, or past a file-size limit) said "warpbw: error:
+    [Errno 28] No space left on device", naming nothing: it now names standard output.  Started with stdout closed
+    (``>&-``), Python has no sys.stdout, print() writes nothing, and run_command's flush raised AttributeError with a
+    traceback and status 1 after the command had written its outputs: it now ends as it would on a terminal (command-
+    line audit, session 81).  Truth: /dev/full, where every write fails with ENOSPC."""
+    from warpbw.cli import main as cli_main
+
+    write_exr(tmp_path / "a.exr", np.ones((4, 4, 3), np.float32))
+    write_exr(tmp_path / "b.exr", np.full((4, 4, 3), 2.0, np.float32))
+    argv = ["compare", str(tmp_path / "a.exr"), str(tmp_path / "b.exr")]
+    with open("/dev/full", "w") as full:
+        monkeypatch.setattr(sys, "stdout", full)
+        assert cli_main(argv) == EXIT_USER_ERROR
+    assert capsys.readouterr().err == ("warpbw: error: standard output: cannot write there (No space left on "
+                                       "device); what the command printed is lost\n")
+    monkeypatch.setattr(sys, "stdout", None)
+    assert cli_main([*argv, "--error-map", str(tmp_path / "e.exr")]) == 0
+    assert capsys.readouterr().err == ""
+    assert (tmp_path / "e.exr").is_file() and (tmp_path / "e.png").is_file()
+
+
+def test_npf_to_merl_takes_its_table_as_brdf_and_batch_take_theirs(monkeypatch, capsys):
+    """``warpbw-precompute brdf npf.bin --material chrome`` (and brdf-sampling, batch) take the NPF table as their
+    first argument, but npf-to-merl took it only as ``--table npf.bin``: the same words there were refused, "the
+    following arguments are required: --table" (command-line audit, session 81).  It now takes either, once.
+    Truth: the table the command is handed, read off the call run_command receives."""
+    import precompute.__main__ as pre
+
+    monkeypatch.setattr(pre, "run_command", lambda prog, func, args: (func.__name__, args.table))
+    tail = ["--material", "chrome", "-o", "c.binary"]
+    assert pre.main(["npf-to-merl", "npf.bin", *tail]) == ("cmd_npf_to_merl", "npf.bin")
+    assert pre.main(["npf-to-merl", "--table", "npf.bin", *tail]) == ("cmd_npf_to_merl", "npf.bin")
+    for argv, said in ((["npf-to-merl", "a.bin", "--table", "b.bin", *tail], "the NPF table given twice (a.bin, then "
+                        "--table b.bin): give it once"),
+                       (["npf-to-merl", *tail], "the following arguments are required: TABLE (or --table TABLE)")):
+        with pytest.raises(SystemExit) as exc:
+            pre.main(argv)
+        err = capsys.readouterr().err.strip()
+        assert exc.value.code == EXIT_USER_ERROR and err.startswith(f"warpbw-precompute: error: {said}"), err

@@ -3450,3 +3450,124 @@ def test_every_example_says_a_sigterm_while_it_loads_in_one_line(tmp_path):
         got[name] = (child.returncode, err.strip(), out)
     assert got == expected
     assert list(work.iterdir()) == []
+
+
+def test_every_help_fits_the_terminal_it_is_printed_on(monkeypatch):
+    """``warpbw bench --help`` printed its description as one line of 753 characters (a raw-text formatter, kept for
+    an epilog it does not have), ``warpbw --help`` its description as one of 130 and its examples up to 108 wide,
+    and ``warpbw render --help`` a usage line of 91 (the --filter choices, one word argparse cannot break): on an
+    80-column terminal they wrapped mid-word, where every other command's help is wrapped to the terminal
+    (command-line audit, session 81).  Truth: the terminal's width, which argparse reads from COLUMNS."""
+    import argparse
+
+    from precompute.__main__ import build_parser as precompute_parser
+    from warpbw.cli import build_parser as warpbw_parser
+
+    monkeypatch.setenv("COLUMNS", "80")
+    wide = []
+    for prog, parser in (("warpbw", warpbw_parser()), ("warpbw-precompute", precompute_parser())):
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        for name, p in [("", parser), *sub.choices.items()]:
+            wide += [f"{prog} {name} --help: {len(ln)} wide: {ln[:60]}..." for ln in p.format_help().splitlines()
+                     if len(ln) > 80]
+    assert not wide, "\n".join(wide)
+
+
+def test_info_json_is_strict_json_as_every_json_a_command_prints(tmp_path, monkeypatch, capsys):
+    """``warpbw info --json`` printed a header's NaN (a damaged or hand-edited file a material names) as a bare
+    ``NaN``, which jq and strict parsers refuse, where ``warpbw compare --json`` and ``warpbw-precompute info --json``
+    print strict JSON, a non-finite number as null (command-line audit, session 81).  Truth: Python's json parser
+    told to refuse NaN and Infinity, and the header's version, written here as NaN with numpy."""
+    from precompute.gmm_mipmap import GMM_FORMAT
+    from warpbw.cli import main as cli_main
+    from warpbw.io.exr import write_exr
+
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
+    write_exr(tmp_path / "h.exr", np.zeros((8, 8, 1), np.float32), ["Y"])
+    with open(tmp_path / "nan.gmm", "wb") as f:   # a header alone: info reads no more of a file of another version
+        np.savez(f, __header__=np.array(json.dumps({"format": GMM_FORMAT, "version": float("nan"), "params": {}})))
+    (tmp_path / "s.toml").write_text("\n".join([
+        "[camera]", "position = [0.0, 1.2, 1.2]", "look_at = [0.0, 0.0, 0.0]", "fov = 40.0", "resolution = [8, 8]",
+        "[[light]]", 'type = "directional"', "direction = [0.3, 0.8, -0.5]", "radiance = [3.0, 3.0, 3.0]",
+        "[[object]]", 'shape = "plane"', "center = [0.0, 0.0, 0.0]", "size = 2.0", 'material = "m"',
+        "[material.m]", 'type = "cook-torrance"', "roughness = 0.08", "f0 = [0.9, 0.75, 0.4]",
+        'normal_map = "h.exr"', 'gmm = "nan.gmm"']))
+
+    def refuse(constant):
+        raise ValueError(f"not strict JSON: {constant}")
+
+    assert cli_main(["info", str(tmp_path / "s.toml"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out, parse_constant=refuse)
+    (asset,) = summary["assets"]
+    assert Path(asset["path"]).name == "nan.gmm" and asset["version"] is None
+    assert asset["not_read"] == "version nan, this warpbw reads 2"
+
+
+def test_a_command_started_with_stderr_closed_runs_and_leaves_stdout_to_its_results(tmp_path, monkeypatch, capsys):
+    """Started with stderr closed (``2>&-``), Python has no sys.stderr: every progress bar's first line raised
+    AttributeError, and a render, a demo or a precompute ended with status 1 and not a word (its traceback had nowhere
+    to go either); and an error or warning line, printed to ``file=sys.stderr`` that is None, went to stdout, among
+    the results (command-line audit, session 81).  Now the bars are off, as asked for with -q, and the lines go
+    nowhere, as the shell's other commands' do there.  Truth: the bar's own library, tqdm, drawing nothing, and
+    stdout holding nothing but what the command prints there."""
+    from tqdm import tqdm
+
+    from precompute.progress import bar_options, progress_callback
+    from warpbw.cli import main as cli_main
+
+    monkeypatch.setattr(sys, "stderr", None)
+    with progress_callback(3, "work", "item") as step:   # AttributeError on the old code
+        step(1)
+        step(3)
+    with tqdm(total=2, **bar_options()) as bar:   # the batch's bar
+        bar.update(2)
+    assert cli_main(["render", str(tmp_path / "missing.toml"), "-o", str(tmp_path / "x.exr")]) == 2
+    assert capsys.readouterr().out == ""   # "warpbw: error: ...missing.toml: scene file not found" landed here
+
+
+def test_the_command_line_conventions_hold_for_every_command():
+    """README's "Command-line conventions", read off the parsers of both programs (command-line audit, session 81):
+    every path an option or argument takes is a non-empty name (``parse_path``: bench's --json, --plot and --cache
+    and compare's --error-map took "" and dropped it); every command that writes files takes --force, every one that
+    draws a progress bar -q/--quiet; every --seed is ``parse_seed``'s 0 to 2^32-1 with default 0; every --device is
+    worded alike, default cpu; --json is a flag that prints where README says so and a path where it names a
+    record; a new command or option must take its place here."""
+    import argparse
+
+    from precompute.__main__ import build_parser as precompute_parser
+    from warpbw.cli import build_parser as warpbw_parser
+    from warpbw.cli_common import parse_path, parse_seed
+
+    commands = {}
+    for prog, parser in (("warpbw", warpbw_parser()), ("warpbw-precompute", precompute_parser())):
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        commands |= {f"{prog} {name}": {a.option_strings[-1] if a.option_strings else a.dest: a for a in p._actions}
+                     for name, p in sub.choices.items()}
+    w, pc = "warpbw ", "warpbw-precompute "
+    writers = {w + c for c in ("render", "demo", "bench", "bench-filtering", "compare")} | {
+        pc + c for c in ("npf-to-merl", "brdf-sampling", "brdf", "batch", "gmm")}
+    with_bars = writers - {w + "compare", pc + "npf-to-merl"}
+    assert set(commands) == writers | {w + "info", pc + "info"}
+    assert {c for c, opts in commands.items() if "--force" in opts} == writers
+    assert {c for c, opts in commands.items() if "--quiet" in opts} == with_bars
+    assert all(commands[c]["--quiet"].option_strings == ["-q", "--quiet"] for c in with_bars)
+    assert {c for c, opts in commands.items() if "--seed" in opts} == {
+        w + "render", w + "demo", w + "bench", w + "bench-filtering", pc + "gmm"}
+    assert {c for c, opts in commands.items() if "--device" in opts} == {
+        w + "render", w + "demo", w + "bench", w + "bench-filtering"}
+    assert {commands[c]["--device"].help for c in commands if "--device" in commands[c]} == {
+        "Warp device: cpu (default) or cuda / cuda:N"}
+    json_flag = {c for c, opts in commands.items() if "--json" in opts and opts["--json"].nargs == 0}
+    json_path = {c for c, opts in commands.items() if "--json" in opts and opts["--json"].nargs != 0}
+    assert json_flag == {w + "info", w + "compare", pc + "info"}
+    assert json_path == {w + "bench", w + "bench-filtering", pc + "batch"}
+    paths = {"--output", "--plot", "--cache", "--error-map", "--table", "table", "scene", "file", "map", "files",
+             "sources", "test", "reference"}
+    wrong = [f"{c} {name}" for c, opts in commands.items() for name, a in opts.items()
+             if (name in paths or c in json_path and name == "--json") and a.type is not parse_path]
+    wrong += [f"{c} --seed" for c, opts in commands.items() if "--seed" in opts
+              and (opts["--seed"].type is not parse_seed or opts["--seed"].default not in (None, 0))]
+    assert not wrong, wrong
+    for parser in (warpbw_parser(), precompute_parser()):   # each --help gives the exit statuses in brief
+        said = re.sub(r"\s+", " ", parser.epilog)
+        assert all(s in said for s in ("0 done", "2 a usage error or bad input", "130, 143 or 129", "141")), said

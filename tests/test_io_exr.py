@@ -943,3 +943,29 @@ def test_a_tiled_exr_whose_levels_round_up_reads_and_a_cut_in_its_last_level_is_
     pairs = [(lv, lv) for lv in range(7)] if mode == 1 else [(lx, ly) for ly in range(7) for lx in range(7)]
     n = sum(-(-math.ceil(33 / 2 ** lx) // 16) * -(-math.ceil(37 / 2 ** ly) // 16) for lx, ly in pairs)   # tiles
     assert msg is not None and f"inside chunk {n} of {n}" in msg, msg
+
+
+def test_an_exr_whose_name_is_not_utf8_is_written_and_read(tmp_path):
+    """OpenEXR's Python binding takes a file name as UTF-8 text: a name holding other bytes (a Latin-1 name, b"\\xff",
+    which Python holds as the surrogate escape "\\udcff") it could not take.  read_exr said such a file was "unreadable
+    OpenEXR file, truncated or corrupt", and write_exr failed, so that ``warpbw render -o`` such a name failed once
+    its frame was rendered, where every other output (PNG, JSON, tables, mipmaps) is written under any name the file
+    system takes (command-line audit, session 81).  Truth: the pixels written, and the bytes of the file written under
+    a UTF-8 name, which the binding takes."""
+    import os
+
+    from warpbw.io.exr import exr_size, read_exr, write_exr
+
+    name = tmp_path / os.fsdecode(b"probe-\xff.exr")
+    try:
+        name.write_bytes(b"")
+    except (OSError, UnicodeError):
+        pytest.skip("this file system takes no name that is not UTF-8")
+    name.unlink()
+    pixels = np.arange(2 * 3 * 4, dtype=np.float32).reshape(2, 3, 4)
+    write_exr(name, pixels, channels=["R", "G", "B", "A"])
+    write_exr(tmp_path / "plain.exr", pixels, channels=["R", "G", "B", "A"])
+    assert name.read_bytes() == (tmp_path / "plain.exr").read_bytes()
+    img = read_exr(name)
+    assert img.channels == ["R", "G", "B", "A"] and np.array_equal(img.pixels, pixels)
+    assert exr_size(name) == (3, 2)

@@ -63,22 +63,33 @@ THREADS_MAX = THREADS_PER_CORE_MAX * (os.cpu_count() or 1)
 
 EPILOG = """\
 examples:
-  warpbw demo -o demo_out                       render the embedded default scene
-  warpbw info scene.toml                        what a scene needs, without rendering
+  warpbw demo -o demo_out
+      render the embedded default scene
+  warpbw info scene.toml
+      what a scene needs, without rendering
   warpbw render scene.toml -o out.exr --spp 256 --seed 1
+      the reference estimator, 256 samples per pixel
   warpbw render scene.toml -o out.exr --method adaptive --budget 8
-                                                adaptive shading (002): AOVs out.level.exr, out.n_p.exr, ...
-  warpbw bench scene.toml --json b.json --plot b.png   speed against accuracy, adaptive vs reference
-  warpbw compare out.exr ground_truth.exr       PSNR and relative MSE over covered pixels
-  warpbw compare out.exr gt.exr --error-map err.exr   and where the error is (err.exr + err.png)
+      adaptive shading (002): AOVs out.level.exr, out.n_p.exr, ...
+  warpbw bench scene.toml --json b.json --plot b.png
+      speed against accuracy, adaptive vs reference
+  warpbw compare out.exr ground_truth.exr
+      PSNR and relative MSE over covered pixels
+  warpbw compare out.exr gt.exr --error-map err.exr
+      and where the error is (err.exr + err.png)
   warpbw render planes.toml -o out.exr --filter gmm_aligned
-                                                a scene with planes: reflectance filtering (004)
-  warpbw render mixed/bunny_on_floor.toml -o out.exr --method adaptive --budget 8 --filter gmm_aligned
-                                                planes beside spheres or meshes: both renderers, composited
-  warpbw bench-filtering planes.toml --zoom 1,2,4,8,16,32 --json f.json --plot f.png
+      a scene with planes: reflectance filtering (004)
+  warpbw render mixed.toml -o out.exr --method adaptive --budget 8
+      planes beside spheres or meshes: both renderers, composited
+  warpbw bench-filtering planes.toml --zoom 1,2,4,8,16,32 --json f.json
+      error, flicker and time of each filter along a zoom-out (and f.png)
 
-Scene files are TOML; see README.md for the keys.  Images are linear radiance in EXR (R, G, B and the
-coverage mask as A), with an sRGB PNG preview and a JSON of statistics beside them.
+Scene files are TOML; see README.md for the keys.  Images are linear radiance
+in EXR (R, G, B and the coverage mask as A), with an sRGB PNG preview and a
+JSON of statistics beside them.  Results and summaries go to stdout; progress
+bars, warnings and errors to stderr.  Exit status: 0 done; 2 a usage error or
+bad input (one line on stderr); 130, 143 or 129 stopped by Ctrl-C, SIGTERM or
+SIGHUP; 141 the reader of stdout left (README: Command-line conventions).
 """
 
 
@@ -494,8 +505,8 @@ def cmd_info(args) -> int:
     named = {str(p) for m in used for p in (m.sampling, m.bandwidth, m.gmm) if p is not None}
     s["assets"] = [header_status(f) for f in s["files"] if f in named]
     _say_refused(scene, s["assets"], used)
-    if args.json:
-        print(json.dumps(s, indent=2))
+    if args.json:   # strict JSON, as compare's and warpbw-precompute info's: a header's NaN printed NaN, not null
+        print(json_text(s), end="")
         return 0
     print(f"scene       {printable(s['scene'])}")
     print(f"resolution  {s['resolution'][0]} x {s['resolution'][1]}")
@@ -907,8 +918,8 @@ def _exposure(s):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = OneLineParser(prog="warpbw", description="Render measured materials under HDR light with "
-                "NVIDIA Warp kernels (CPU by default; --device cuda selects a GPU, untested so far).",
+    p = OneLineParser(prog="warpbw", description="Render measured materials under HDR light with NVIDIA Warp "
+                      "kernels\n(CPU by default; --device cuda selects a GPU, untested so far).",
                 epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
@@ -944,8 +955,9 @@ def build_parser() -> argparse.ArgumentParser:
                        "OUT.level.exr / .png (not for --filter ground_truth, which reads no mip level); planes "
                        "beside spheres or meshes: under 'planes', with "
                        "OUT.mip_level.exr / .png).")
-    r.add_argument("scene", help="scene file (TOML)")
-    r.add_argument("-o", "--output", type=parse_path, required=True, help="output EXR path")
+    r.add_argument("scene", type=parse_path, help="scene file (TOML)")
+    r.add_argument("-o", "--output", type=parse_path, required=True, metavar="OUT.exr",
+                   help="output image (a name ending in .exr; OUT.png and OUT.json, and any AOVs, go beside it)")
     r.add_argument("--mis", action="store_true",
                    help="also sample the environment and combine by multiple importance sampling")
     r.add_argument("--method", choices=METHODS, default=METHODS[0],
@@ -955,12 +967,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--budget", type=_positive_float("budget", BUDGET_MAX), default=None,
                    help="adaptive: mean samples per covered pixel, spread over the shaded pixels in proportion to the "
                    f"standard deviation the bandwidth pass measures: a positive number (may be below 1) up to "
-                   f"{BUDGET_MAX:.3g}")
+                   f"{BUDGET_MAX:.3g}; required with --method adaptive")
     r.add_argument("--nb", type=_positive_int("nb", N_B_MAX), default=None,
                    help="adaptive: directions the bandwidth pass traces per 2x2 block of alike pixels (per pixel at "
                    f"an edge; each pixel pools its neighbours' too), n_b, 1 to {N_B_MAX} (default 16, 002 Sec. 2.6)")
     add_adaptive_options(r)
-    r.add_argument("--filter", choices=_FILTER_METHODS, default=None,
+    r.add_argument("--filter", choices=_FILTER_METHODS, default=None, metavar="METHOD",
                    help="scenes with planes (shape = \"plane\", cook-torrance materials) always render with the "
                    "reflectance-filtering renderer (004): METHOD is gmm_aligned (default), gmm_unaligned, toksvig, "
                    "lean, fixed, or ground_truth (--spp >= 64 jittered rays per pixel, averaged over those that "
@@ -981,7 +993,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "multiple importance sampling (as render --mis): --spp BRDF samples per pixel, each paired "
                        "with an environment sample.  The scene itself goes to DIR/scene.toml, to edit and render "
                        "with warpbw render (e.g. --method adaptive --budget 4).")
-    d.add_argument("-o", "--output", type=parse_path, default="warpbw_demo",
+    d.add_argument("-o", "--output", type=parse_path, default="warpbw_demo", metavar="DIR",
                    help="output directory (default ./warpbw_demo)")
     common(d, DEMO_SPP)
     d.set_defaults(func=cmd_demo)
@@ -994,11 +1006,12 @@ def build_parser() -> argparse.ArgumentParser:
                        "material's, a damaged table), "
                        "the stages a render would run and the memory they would take (a frame; loading the probe "
                        "and, adaptive, building its bandwidth map; the placed meshes, from their files' headers).")
-    i.add_argument("scene", help="scene file (TOML)")
+    i.add_argument("scene", type=parse_path, help="scene file (TOML)")
     i.add_argument("--method", choices=METHODS, default=METHODS[0],
                    help="the stages of warpbw render --method METHOD for the spheres and meshes (default reference; "
                         "adaptive adds the bandwidth pass, the pyramid and the up-sampling)")
-    i.add_argument("--json", action="store_true", help="print JSON")
+    i.add_argument("--json", action="store_true",
+                   help="print the summary as JSON (strict JSON: a value that is not a finite number as null)")
     i.set_defaults(func=cmd_info)
 
     from warpbw import bench as _bench
@@ -1021,20 +1034,23 @@ def build_parser() -> argparse.ArgumentParser:
                         "frame.  --nb adds the n_b sweep of 002 Fig. 13 (its runs share seeds across n_b, and the "
                         "range's standard error is that of the paired differences).  In a scene "
                         "with planes beside spheres or meshes, the spheres and meshes are measured where no plane "
-                        "hides them (the planes are not rendered: bench-filtering measures them).",
-                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    bn.add_argument("scene", help="scene file (TOML)")
-    bn.add_argument("--json", help="write the record here (JSON); without it, beside --plot as OUT.json")
-    bn.add_argument("--plot", help="write the plot here (PNG): PSNR against time, one curve per method; without "
-                    "it, beside --json as OUT.png")
+                        "hides them (the planes are not rendered: bench-filtering measures them).")
+    bn.add_argument("scene", type=parse_path, help="scene file (TOML)")
+    bn.add_argument("--json", type=parse_path, metavar="OUT.json",
+                    help="write the record here (JSON); without it, beside --plot as OUT.json")
+    bn.add_argument("--plot", type=parse_path, metavar="OUT.png",
+                    help="write the plot here (PNG): PSNR against time, one curve per method; without it, beside "
+                    "--json as OUT.png")
     bn.add_argument("--spp", type=_number_list("spp", int, INT32_MAX), default=list(_bench.DEFAULT_SPP),
-                    help="reference sample counts, each 1 to 2^31-1 (default %s)"
+                    metavar="N,N,...", help="reference sample counts, comma-separated, each 1 to 2^31-1 (default %s)"
                     % ",".join(map(str, _bench.DEFAULT_SPP)))
     bn.add_argument("--budgets", type=_number_list("budgets", float, BUDGET_MAX), default=list(_bench.DEFAULT_BUDGETS),
-                    help=f"adaptive budgets, mean samples per covered pixel, each positive up to {BUDGET_MAX:.3g} "
+                    metavar="B,B,...", help="adaptive budgets, mean samples per covered pixel, comma-separated, each "
+                    f"positive up to {BUDGET_MAX:.3g} "
                     "(default %s)" % ",".join(f"{b:g}" for b in _bench.DEFAULT_BUDGETS))
-    bn.add_argument("--nb", type=_number_list("nb", int, N_B_MAX), default=None,
-                    help=f"n_b sweep, each 1 to {N_B_MAX}, e.g. 16,64,256,1024 (002 Fig. 13), at --nb-budget")
+    bn.add_argument("--nb", type=_number_list("nb", int, N_B_MAX), default=None, metavar="N,N,...",
+                    help=f"n_b sweep, comma-separated, each 1 to {N_B_MAX}, e.g. 16,64,256,1024 (002 Fig. 13), at "
+                    "--nb-budget (without it, no sweep)")
     add_adaptive_options(bn)
     bn.add_argument("--nb-budget", type=_positive_float("nb-budget", BUDGET_MAX), default=None,
                     help=f"budget of the n_b sweep, a positive number up to {BUDGET_MAX:.3g} (default "
@@ -1045,7 +1061,8 @@ def build_parser() -> argparse.ArgumentParser:
                          f"{2 * _bench.GT_CHUNK_SPP}, beyond it a multiple of {_bench.GT_CHUNK_SPP})")
     bn.add_argument("--no-mis", action="store_true",
                     help="compare with BRDF importance sampling only (default: MIS for both methods)")
-    bn.add_argument("--cache", help="ground-truth cache directory (default $WARPBW_CACHE/ground_truth, or "
+    bn.add_argument("--cache", type=parse_path, metavar="DIR",
+                    help="ground-truth cache directory (default $WARPBW_CACHE/ground_truth, or "
                     "~/.cache/warpbw/ground_truth without $WARPBW_CACHE)")
     bench_common(bn, "runs per point, each with its own seed (default 3): the time is their median, the error "
                      "the mean of their MSEs, with its standard error from their spread (the n_b sweep's runs share "
@@ -1069,14 +1086,16 @@ def build_parser() -> argparse.ArgumentParser:
                         "In a scene with planes beside spheres or meshes, the planes are measured where no sphere or "
                         "mesh hides them (the spheres and meshes are not shaded: warpbw bench measures them). "
                         "See warpbw/bench_filtering.py for the definitions.")
-    bf.add_argument("scene", help="scene file (TOML) with planes (spheres and meshes beside them hide what they "
-                    "cover)")
-    bf.add_argument("--zoom", type=_number_list("zoom", float), default=list(_bf.DEFAULT_ZOOMS),
-                    help="zoom factors, each positive (default %s); a zoom at which no pixel sees a plane is refused "
-                    "before any work" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
-    bf.add_argument("--json", help="write the record here (JSON); without it, beside --plot as OUT.json")
-    bf.add_argument("--plot", help="write the plot here (PNG): error, flicker and temporal error against zoom; "
-                    "without it, beside --json as OUT.png")
+    bf.add_argument("scene", type=parse_path,
+                    help="scene file (TOML) with planes (spheres and meshes beside them hide what they cover)")
+    bf.add_argument("--zoom", type=_number_list("zoom", float), default=list(_bf.DEFAULT_ZOOMS), metavar="Z,Z,...",
+                    help="zoom factors (camera distance factors), comma-separated, each positive (default %s); a zoom "
+                    "at which no pixel sees a plane is refused before any work" % ",".join(map(str, _bf.DEFAULT_ZOOMS)))
+    bf.add_argument("--json", type=parse_path, metavar="OUT.json",
+                    help="write the record here (JSON); without it, beside --plot as OUT.json")
+    bf.add_argument("--plot", type=parse_path, metavar="OUT.png",
+                    help="write the plot here (PNG): error, flicker and temporal error against zoom; without it, "
+                    "beside --json as OUT.png")
     bf.add_argument("--gt-spp", type=_positive_int("gt-spp", INT32_MAX), default=_bf.DEFAULT_GT_SPP,
                     help=f"ground-truth rays per pixel ({MIN_GT_SPP} to 2^31-1; default {_bf.DEFAULT_GT_SPP}), "
                     "jittered over the pixel and averaged over those that hit the plane")
@@ -1084,8 +1103,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="under an [environment]: pairs of one BRDF and one environment sample per pixel of the "
                     f"filtered methods, 1 to 2^31-1 (default {DEFAULT_SPP}, as warpbw render; their noise is part of "
                     "the error)")
-    bf.add_argument("--cache", help="GMM mipmap cache directory: mipmaps found there are reused, those built are "
-                    "kept there (default: build afresh, so that the precompute time is measured)")
+    bf.add_argument("--cache", type=parse_path, metavar="DIR",
+                    help="GMM mipmap cache directory: mipmaps found there are reused, those built are kept there "
+                    "(default: build afresh, so that the precompute time is measured)")
     bf.add_argument("--flicker-pairs", type=_positive_int("flicker-pairs", _bf.FLICKER_PAIRS_MAX), default=1,
                     help="consecutive frame pairs per zoom (z * step^j to z * step^(j+1)) the flicker and temporal "
                     f"error are averaged over (default 1; 1 to {_bf.FLICKER_PAIRS_MAX}, one octave): one pair is "
@@ -1107,14 +1127,14 @@ def build_parser() -> argparse.ArgumentParser:
                        "reference with another --seed than the image: at one seed a pixel draws the same samples, so "
                        "the image's are the first of the reference's and the error reads low (a warning says so when "
                        "the images' .json records show it).")
-    c.add_argument("test", help="image to judge (EXR)")
-    c.add_argument("reference", help="reference image (EXR)")
+    c.add_argument("test", type=parse_path, help="image to judge (EXR)")
+    c.add_argument("reference", type=parse_path, help="reference image (EXR)")
     c.add_argument("--json", action="store_true",
                    help="print JSON (psnr_db, relmse, mse, pixels, worst_pixels, worst_share, coverage_from: whose A "
                         "channel chose the pixels, null for the non-black ones; an infinite PSNR is null, with "
                         "psnr_note saying whether the images are identical or the PSNR undefined; with --error-map, "
                         "error_map, its path, and error_range, the PNG's [LO, HI])")
-    c.add_argument("--error-map", metavar="PATH.exr",
+    c.add_argument("--error-map", type=parse_path, metavar="PATH.exr",
                    help="also write the per-pixel relative squared error, (test - ref)^2 / (ref^2 + "
                    f"{_RELMSE_EPS:g}) averaged "
                    "over R, G, B (its mean over the covered pixels is the relMSE), as PATH.exr (Y; A = covered) and "

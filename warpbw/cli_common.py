@@ -241,6 +241,75 @@ def _script_ends_ignoring_stops():
             entry.ignore_stops()
 
 
+class _NamedStdout:
+    """``sys.stdout`` while a command runs (:func:`_stdout_named`): a write or flush that fails with an OSError other
+    than a closed pipe (``> /dev/full``, a full disk or quota, a file-size limit) raises a ``WarpbwError`` naming
+    standard output (it said a bare "[Errno 28] No space left on device", naming nothing); anything else is the
+    stream's own."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def _named(self, exc: OSError) -> WarpbwError:
+        try:   # the interpreter's own flush at exit would fail again, and say so
+            os.dup2(os.open(os.devnull, os.O_WRONLY), self._stream.fileno())
+        except (OSError, ValueError, AttributeError):   # no descriptor of its own (pytest's capture)
+            pass
+        return WarpbwError(f"standard output: cannot write there ({exc.strerror or exc}); what the command printed "
+                           "is lost")
+
+    def write(self, text):
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:   # the reader left: run_command stops quietly
+            raise
+        except OSError as exc:
+            raise self._named(exc) from None
+
+    def flush(self):
+        try:
+            return self._stream.flush()
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            raise self._named(exc) from None
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+@contextmanager
+def _stderr_or_nowhere():
+    """While the block runs, a process started with stderr closed (``2>&-``; Python has no ``sys.stderr``) writes its
+    progress, warnings and errors nowhere, as a shell's other commands do there: ``print(..., file=sys.stderr)``
+    with no sys.stderr prints to stdout, so an error line landed among the results (``--json``'s JSON)."""
+    if sys.stderr is not None:
+        yield
+        return
+    with open(os.devnull, "w") as nowhere:
+        sys.stderr = nowhere
+        try:
+            yield
+        finally:
+            sys.stderr = None
+
+
+@contextmanager
+def _stdout_named():
+    """While the block runs, ``sys.stdout`` is a :class:`_NamedStdout` of itself (unless there is none: started with
+    stdout closed, ``>&-``, Python has no ``sys.stdout`` and print() writes nothing)."""
+    out = sys.stdout
+    if out is None:
+        yield
+        return
+    sys.stdout = _NamedStdout(out)
+    try:
+        yield
+    finally:
+        if isinstance(sys.stdout, _NamedStdout):   # unless the command set its own
+            sys.stdout = out
+
+
 def run_command(prog: str, func, args) -> int:
     """Run a subcommand; user errors and warnings print as one line each (``PROG: error: ...``).  Ctrl-C, SIGTERM
     and SIGHUP stop it with one line and the shell's status for the signal, its outputs untouched (and no build folder
@@ -251,7 +320,8 @@ def run_command(prog: str, func, args) -> int:
         # warnings (an environment with clamped pixels, unmeasured MERL entries...) as one line each
         print(f"{prog}: warning: {printable(message)}", file=sys.stderr if file is None else file)
 
-    with _script_ends_ignoring_stops(), warnings.catch_warnings(), _sigterm_raises(), _stops_in_destructors_unsaid():
+    with _script_ends_ignoring_stops(), warnings.catch_warnings(), _sigterm_raises(), _stops_in_destructors_unsaid(), \
+            _stdout_named(), _stderr_or_nowhere():
         warnings.showwarning = show_warning
         try:
             try:
@@ -261,7 +331,8 @@ def run_command(prog: str, func, args) -> int:
                 if stop is None:
                     raise
                 raise stop from None
-            sys.stdout.flush()   # here, where a closed pipe is caught, rather than at exit
+            if sys.stdout is not None:   # None: started with stdout closed (``>&-``), where print() writes nothing
+                sys.stdout.flush()   # here, where a closed pipe or a full disk is caught, rather than at exit
             return status
         except BrokenPipeError:
             # the reader left (``warpbw compare ... | head -1``): stop quietly, as other Unix tools do, and point

@@ -51,6 +51,8 @@ shows one.
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -143,6 +145,17 @@ def _damaged(path: Path, found: str) -> WarpbwError:
     return WarpbwError(f"{path}: unreadable OpenEXR file, truncated or corrupt: {found}")
 
 
+def _utf8_name(path) -> bool:
+    """Whether OpenEXR's Python binding can take ``path`` by name: it passes a name on as UTF-8, and a name holding
+    bytes that are not UTF-8 (a Latin-1 name, which Python holds as surrogate escapes) it could not take: it said a
+    good file was "truncated or corrupt", and a render failed to write its image once its frame was done."""
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
 def _open_exr(path, header_only: bool):
     """(checked path, header, channels) of an EXR file; channels is empty when ``header_only``."""
     import OpenEXR
@@ -150,9 +163,11 @@ def _open_exr(path, header_only: bool):
     path = check_input_file(path, "an OpenEXR image")
     _check_magic(path)
     try:
-        # OpenEXR prints its own warnings about a damaged file to the descriptors: they go into the error
-        with captured_native_output() as native:
-            exr = OpenEXR.File(str(path), separate_channels=True, header_only=header_only)
+        # OpenEXR prints its own warnings about a damaged file to the descriptors: they go into the error; a name
+        # the binding cannot take (_utf8_name) is read through a stream of the file
+        with captured_native_output() as native, contextlib.ExitStack() as stack:
+            source = str(path) if _utf8_name(path) else stack.enter_context(open(path, "rb"))
+            exr = OpenEXR.File(source, separate_channels=True, header_only=header_only)
             header = exr.header()
             chans = {} if header_only else {name: (ch, np.asarray(ch.pixels)) for name, ch in exr.channels().items()}
     except Exception as exc:  # OpenEXR raises RuntimeError for truncated / corrupt files
@@ -379,7 +394,12 @@ def write_exr(path, pixels, channels=None, notes: dict | None = None) -> Path:
     }
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        OpenEXR.File(header, data).write(str(path))
+        if _utf8_name(path):
+            OpenEXR.File(header, data).write(str(path))
+        else:   # a name the binding cannot take (_utf8_name): encoded in memory, then written under it
+            encoded = io.BytesIO()
+            OpenEXR.File(header, data).write(encoded)
+            path.write_bytes(encoded.getbuffer())
     except Exception as exc:
         raise WarpbwError(f"{path}: cannot write OpenEXR file ({one_line(exc)})") from None
     return path
