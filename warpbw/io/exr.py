@@ -54,6 +54,7 @@ from __future__ import annotations
 import contextlib
 import io
 import math
+import os
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -156,6 +157,17 @@ def _utf8_name(path) -> bool:
     return True
 
 
+def _binding_name(path: Path, stack: contextlib.ExitStack, mode: str):
+    """What OpenEXR's binding is given for ``path``: its name where the binding can take it (``_utf8_name``), else the
+    file opened here in ``mode`` and named by its descriptor (/proc/self/fd/N, UTF-8 whatever the file's name), or,
+    where there is no /proc, the open file itself, which newer bindings take (3.5.3's; 3.4.0's takes names only)."""
+    if _utf8_name(path):
+        return str(path)
+    f = stack.enter_context(open(path, mode))
+    by_fd = f"/proc/self/fd/{f.fileno()}"
+    return by_fd if os.path.exists(by_fd) else f
+
+
 def _open_exr(path, header_only: bool):
     """(checked path, header, channels) of an EXR file; channels is empty when ``header_only``."""
     import OpenEXR
@@ -164,9 +176,9 @@ def _open_exr(path, header_only: bool):
     _check_magic(path)
     try:
         # OpenEXR prints its own warnings about a damaged file to the descriptors: they go into the error; a name
-        # the binding cannot take (_utf8_name) is read through a stream of the file
+        # the binding cannot take (_utf8_name) is read through the file opened here (_binding_name)
         with captured_native_output() as native, contextlib.ExitStack() as stack:
-            source = str(path) if _utf8_name(path) else stack.enter_context(open(path, "rb"))
+            source = _binding_name(path, stack, "rb")
             exr = OpenEXR.File(source, separate_channels=True, header_only=header_only)
             header = exr.header()
             chans = {} if header_only else {name: (ch, np.asarray(ch.pixels)) for name, ch in exr.channels().items()}
@@ -394,12 +406,14 @@ def write_exr(path, pixels, channels=None, notes: dict | None = None) -> Path:
     }
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        if _utf8_name(path):
-            OpenEXR.File(header, data).write(str(path))
-        else:   # a name the binding cannot take (_utf8_name): encoded in memory, then written under it
-            encoded = io.BytesIO()
-            OpenEXR.File(header, data).write(encoded)
-            path.write_bytes(encoded.getbuffer())
+        with contextlib.ExitStack() as stack:
+            target = _binding_name(path, stack, "wb")
+            if isinstance(target, str):
+                OpenEXR.File(header, data).write(target)
+            else:   # no /proc: encoded in memory (a newer binding writes to a stream), then written to the file
+                encoded = io.BytesIO()
+                OpenEXR.File(header, data).write(encoded)
+                target.write(encoded.getbuffer())
     except Exception as exc:
         raise WarpbwError(f"{path}: cannot write OpenEXR file ({one_line(exc)})") from None
     return path
