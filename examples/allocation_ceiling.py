@@ -156,25 +156,20 @@ def allocation_ceiling(prep, budget: float = BUDGET_DEFAULT, seeds: int = SEEDS_
 
 def write_plot(record: dict, path) -> None:
     """The noise gains over the reference at equal samples (``GAINS``), against 1x (no gain)."""
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4))
-    try:
-        ax.bar(range(len(GAINS)), [record[k] for k in GAINS], color=["C0", "C1", "C2", "C2", "C3"])
-        ax.axhline(1.0, color="k", lw=0.8, ls="--")
-        ax.set_xticks(range(len(GAINS)), GAINS, fontsize=8)
-        ax.set_yscale("log")
-        ax.set_ylabel("noise gain over the reference at equal samples")
-        ax.grid(True, axis="y", which="both", alpha=0.3)
-        ax.set_title(f"{Path(record['scene']).name}: budget {record['budget']:g}, {record['shaded_fraction']:.0%} "
-                     f"shaded; brute force {record['seeds']} x {record['spp']} spp", fontsize=10)
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
-        plt.close(fig)
+    fig = Figure(figsize=(7, 4))   # not pyplot's: nothing to close, the caller's backend kept
+    ax = fig.subplots()
+    ax.bar(range(len(GAINS)), [record[k] for k in GAINS], color=["C0", "C1", "C2", "C2", "C3"])
+    ax.axhline(1.0, color="k", lw=0.8, ls="--")
+    ax.set_xticks(range(len(GAINS)), GAINS, fontsize=8)
+    ax.set_yscale("log")
+    ax.set_ylabel("noise gain over the reference at equal samples")
+    ax.grid(True, axis="y", which="both", alpha=0.3)
+    ax.set_title(f"{Path(record['scene']).name}: budget {record['budget']:g}, {record['shaded_fraction']:.0%} "
+                 f"shaded; brute force {record['seeds']} x {record['spp']} spp", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 def format_report(name: str, r: dict) -> str:

@@ -41,30 +41,25 @@ def _scene_name(path: str) -> str:
 
 def write_plot(record: dict, path) -> None:
     """The anisotropic frame's time over the isotropic one's against zoom, one line per scene and method."""
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    try:
-        for i, sc in enumerate(record["scenes"]):
-            rows = sorted(sc["zooms"], key=lambda r: r["zoom"])   # along the zoom (--zoom 4,1,2 drew 4 -> 1 -> 2)
-            for j, m in enumerate(record["methods"]):
-                ax.plot([r["zoom"] for r in rows], [r["methods"][m]["ratio"] for r in rows],
-                        "os^"[j % 3] + "-", color=f"C{i % 10}", label=f"{_scene_name(sc['scene'])}: {m}")
-        ax.axhline(1.0, color="k", lw=0.8, ls="--")
-        ax.set_xscale("log", base=2)
-        ax.set_xlabel("zoom (camera distance factor)")
-        ax.set_ylabel(f"frame time, up to {record['aniso']} probes / 1 probe")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
-        w, h = record["size"]
-        ax.set_title(f"cost of anisotropic footprints: {w}x{h}, median of {record['runs']} frames", fontsize=10)
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
-        plt.close(fig)
+    fig = Figure(figsize=(7, 4.5))   # not pyplot's: nothing to close, the caller's backend kept
+    ax = fig.subplots()
+    for i, sc in enumerate(record["scenes"]):
+        rows = sorted(sc["zooms"], key=lambda r: r["zoom"])   # along the zoom (--zoom 4,1,2 drew 4 -> 1 -> 2)
+        for j, m in enumerate(record["methods"]):
+            ax.plot([r["zoom"] for r in rows], [r["methods"][m]["ratio"] for r in rows],
+                    "os^"[j % 3] + "-", color=f"C{i % 10}", label=f"{_scene_name(sc['scene'])}: {m}")
+    ax.axhline(1.0, color="k", lw=0.8, ls="--")
+    ax.set_xscale("log", base=2)
+    ax.set_xlabel("zoom (camera distance factor)")
+    ax.set_ylabel(f"frame time, up to {record['aniso']} probes / 1 probe")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    w, h = record["size"]
+    ax.set_title(f"cost of anisotropic footprints: {w}x{h}, median of {record['runs']} frames", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 def main(argv=None) -> int:

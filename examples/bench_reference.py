@@ -270,38 +270,33 @@ def main():
               "methods": records}
     json_path, plot_path = out / "bench_reference.json", out / "bench_reference.png"
 
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(1, 2, figsize=(10, 4))
-    try:
-        for method, recs in records.items():
-            ax[0].plot([r["time_s"] for r in recs], [r["psnr_db"] for r in recs], "o-", label=method)
-            ax[1].loglog([r["spp"] for r in recs], [r["relmse"] for r in recs], "o-", label=method)
-            for r in recs:
-                ax[0].annotate(str(r["spp"]), (r["time_s"], r["psnr_db"]), fontsize=7)
-        ax[0].set_xscale("log")
-        ax[0].set_xlabel("frame time (s, 2-core CPU)")
-        ax[0].set_ylabel("PSNR (dB) vs ground truth")
-        ax[1].set_xlabel("samples per pixel")
-        ax[1].set_ylabel("relative MSE")
-        ref = np.array([records["brdf_is"][0]["relmse"] * spps[0] / s for s in spps])
-        ax[1].loglog(spps, ref, "k:", label="1/spp")
-        for a in ax:
-            a.grid(True, which="both", alpha=0.3)
-            a.legend()
-        fig.suptitle(f"bunny, {args.material} (NPF->MERL), {args.probe}, {w}x{h}; G-buffer {gbuffer_ms:.0f} ms")
-        fig.tight_layout()
-        # all, or none: an error leaves the old set; --check-only rewrites the earlier run's own outputs
-        with staged_outputs([*previews, json_path, plot_path], force=args.force or args.check_only) as at:
-            for path, image in previews.items():
-                write_png(at[path], image)
-            at[json_path].write_text(json.dumps(record, indent=2) + "\n")
-            fig.savefig(at[plot_path], dpi=110)
-    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
-        plt.close(fig)
+    fig = Figure(figsize=(10, 4))   # not pyplot's: nothing to close, the caller's backend kept
+    ax = fig.subplots(1, 2)
+    for method, recs in records.items():
+        ax[0].plot([r["time_s"] for r in recs], [r["psnr_db"] for r in recs], "o-", label=method)
+        ax[1].loglog([r["spp"] for r in recs], [r["relmse"] for r in recs], "o-", label=method)
+        for r in recs:
+            ax[0].annotate(str(r["spp"]), (r["time_s"], r["psnr_db"]), fontsize=7)
+    ax[0].set_xscale("log")
+    ax[0].set_xlabel("frame time (s, 2-core CPU)")
+    ax[0].set_ylabel("PSNR (dB) vs ground truth")
+    ax[1].set_xlabel("samples per pixel")
+    ax[1].set_ylabel("relative MSE")
+    ref = np.array([records["brdf_is"][0]["relmse"] * spps[0] / s for s in spps])
+    ax[1].loglog(spps, ref, "k:", label="1/spp")
+    for a in ax:
+        a.grid(True, which="both", alpha=0.3)
+        a.legend()
+    fig.suptitle(f"bunny, {args.material} (NPF->MERL), {args.probe}, {w}x{h}; G-buffer {gbuffer_ms:.0f} ms")
+    fig.tight_layout()
+    # all, or none: an error leaves the old set; --check-only rewrites the earlier run's own outputs
+    with staged_outputs([*previews, json_path, plot_path], force=args.force or args.check_only) as at:
+        for path, image in previews.items():
+            write_png(at[path], image)
+        at[json_path].write_text(json.dumps(record, indent=2) + "\n")
+        fig.savefig(at[plot_path], dpi=110)
     print(f"G-buffer {gbuffer_ms:.1f} ms; wrote {out / 'bench_reference.json'} and {out / 'bench_reference.png'}")
     warning = None if args.check_only else few_runs_warning(args.runs)   # as warpbw bench's
     if warning is not None:

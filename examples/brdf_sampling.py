@@ -42,10 +42,7 @@ def main():
     args = ap.parse_args()
     check_count(args.samples, "--samples", 1, INT32_MAX)   # the sampling kernel counts them in int32
     init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     mat = read_npf(args.table, args.material)
     out_png = Path(args.out) / f"brdf_sampling_{mat.name}.png"
@@ -58,42 +55,40 @@ def main():
     inside = X ** 2 + Y ** 2 < 1
     wi = np.stack([X[inside], Y[inside], np.sqrt(1 - X[inside] ** 2 - Y[inside] ** 2)], -1)
     thetas = (0.2, 0.8, 1.3)
-    fig, axes = plt.subplots(len(thetas), 3, figsize=(9, 3 * len(thetas)))
-    try:
-        for row, th in enumerate(thetas):
-            wo = np.array([np.sin(th), 0.0, np.cos(th)])
-            f = B.eval_brdf(mb, 0, wi, wo).mean(1) * wi[:, 2]
-            p = B.pdf_brdf(mb, 0, wi, wo)
-            s = B.sample_brdf(mb, 0, wo, args.samples, seed=row)
-            s = s[s[:, 2] > 0]
-            hist, _, _ = np.histogram2d(-s[:, 1], s[:, 0], bins=GRID, range=[[-1, 1], [-1, 1]])
-            # counts per projected-area cell -> density per solid angle (d omega = dA / cos)
-            cell = (2.0 / GRID) ** 2
-            dens = np.zeros((GRID, GRID))
-            dens[inside] = (hist[inside] / max(len(s), 1) / cell) * wi[:, 2]   # none above: zero
-            # pdf and sample density share one colour scale (they are the same quantity, per steradian)
-            lo, hi = np.log10(max(np.percentile(p, 1), 1e-6)), np.log10(p.max())
-            for col, (img_vals, title) in enumerate(((f, "f cos_i"), (p, "pdf"), (None, "samples"))):
-                img = np.full((GRID, GRID), np.nan)
-                if img_vals is None:
-                    img = np.where(inside, dens, np.nan)
-                else:
-                    img[inside] = img_vals
-                ax = axes[row, col]
-                scale = {} if col == 0 else {"vmin": lo, "vmax": hi}
-                ax.imshow(np.log10(np.maximum(img, 1e-6)), extent=(-1, 1, -1, 1), cmap="magma", **scale)
-                ax.set_title(f"{title}, theta_o = {th:.1f}", fontsize=9)
-                ax.set_xticks([])
-                ax.set_yticks([])
-            print(f"theta_o {th:.1f}: {len(s)} of {args.samples} samples above the horizon, "
-                  f"peak pdf {p.max():.3g} /sr, peak f cos_i {f.max():.3g}")
-        fig.suptitle(f"{mat.name} (NPF), log10 scale, projected hemisphere")
-        fig.tight_layout()
-        # whole or not at all: a failed save leaves the old figure
-        with staged_outputs([out_png], force=args.force) as at:
-            fig.savefig(at[out_png], dpi=100)
-    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
-        plt.close(fig)
+    fig = Figure(figsize=(9, 3 * len(thetas)))   # not pyplot's: nothing to close, the caller's backend kept
+    axes = fig.subplots(len(thetas), 3)
+    for row, th in enumerate(thetas):
+        wo = np.array([np.sin(th), 0.0, np.cos(th)])
+        f = B.eval_brdf(mb, 0, wi, wo).mean(1) * wi[:, 2]
+        p = B.pdf_brdf(mb, 0, wi, wo)
+        s = B.sample_brdf(mb, 0, wo, args.samples, seed=row)
+        s = s[s[:, 2] > 0]
+        hist, _, _ = np.histogram2d(-s[:, 1], s[:, 0], bins=GRID, range=[[-1, 1], [-1, 1]])
+        # counts per projected-area cell -> density per solid angle (d omega = dA / cos)
+        cell = (2.0 / GRID) ** 2
+        dens = np.zeros((GRID, GRID))
+        dens[inside] = (hist[inside] / max(len(s), 1) / cell) * wi[:, 2]   # none above: zero
+        # pdf and sample density share one colour scale (they are the same quantity, per steradian)
+        lo, hi = np.log10(max(np.percentile(p, 1), 1e-6)), np.log10(p.max())
+        for col, (img_vals, title) in enumerate(((f, "f cos_i"), (p, "pdf"), (None, "samples"))):
+            img = np.full((GRID, GRID), np.nan)
+            if img_vals is None:
+                img = np.where(inside, dens, np.nan)
+            else:
+                img[inside] = img_vals
+            ax = axes[row, col]
+            scale = {} if col == 0 else {"vmin": lo, "vmax": hi}
+            ax.imshow(np.log10(np.maximum(img, 1e-6)), extent=(-1, 1, -1, 1), cmap="magma", **scale)
+            ax.set_title(f"{title}, theta_o = {th:.1f}", fontsize=9)
+            ax.set_xticks([])
+            ax.set_yticks([])
+        print(f"theta_o {th:.1f}: {len(s)} of {args.samples} samples above the horizon, "
+              f"peak pdf {p.max():.3g} /sr, peak f cos_i {f.max():.3g}")
+    fig.suptitle(f"{mat.name} (NPF), log10 scale, projected hemisphere")
+    fig.tight_layout()
+    # whole or not at all: a failed save leaves the old figure
+    with staged_outputs([out_png], force=args.force) as at:
+        fig.savefig(at[out_png], dpi=100)
     print(f"wrote {out_png}")
 
 

@@ -542,38 +542,33 @@ RECORD_KEYS = {"t_mi": "mitsuba_time_s", "t_wb": "warpbw_time_s", "mean_mi": "mi
 def write_plot(record: dict, path) -> None:
     """Per case: warpbw's relMSE against Mitsuba (and Mitsuba's own noise floor) with the acceptance line, and each
     renderer's time."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     cases = record["cases"]
     x = np.arange(len(cases))
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(10, 4))
-    try:
-        if any("relmse" in c for c in cases):
-            ax.bar(x - 0.2, [c.get("relmse", np.nan) for c in cases], 0.4, label="warpbw vs Mitsuba")
-        if any("noise_floor_relmse" in c for c in cases):
-            ax.bar(x + 0.2, [c.get("noise_floor_relmse", np.nan) for c in cases], 0.4, label="Mitsuba vs Mitsuba")
-        ax.axhline(record["acceptance_relmse"], color="C3", ls="--",
-                   label=f"acceptance {record['acceptance_relmse']:.0%}")
-        ax.set_yscale("log")
-        ax.set_ylabel("relMSE over the interior")
-        ax2.bar(x - 0.2, [c["mitsuba_time_s"] for c in cases], 0.4, label=f"Mitsuba ({record['mitsuba_spp']} spp)")
-        if any("warpbw_time_s" in c for c in cases):
-            ax2.bar(x + 0.2, [c.get("warpbw_time_s", np.nan) for c in cases], 0.4,
-                    label=f"warpbw ({record['warpbw_spp']} spp, {'MIS' if record['mis'] else 'BRDF sampling'})")
-        ax2.set_ylabel("render time (s)")
-        for a in (ax, ax2):
-            a.set_xticks(x, [c["case"] for c in cases])
-            a.grid(True, axis="y", which="both", alpha=0.3)
-            a.legend(fontsize=8)
-        fig.suptitle(f"{Path(record['probe']).name}, {record['resolution']}x{record['resolution']}; Mitsuba "
-                     f"{record['mitsuba_version']} {record['mitsuba_variant']}", fontsize=10)
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
-        plt.close(fig)
+    fig = Figure(figsize=(10, 4))   # not pyplot's: nothing to close, the caller's backend kept
+    ax, ax2 = fig.subplots(1, 2)
+    if any("relmse" in c for c in cases):
+        ax.bar(x - 0.2, [c.get("relmse", np.nan) for c in cases], 0.4, label="warpbw vs Mitsuba")
+    if any("noise_floor_relmse" in c for c in cases):
+        ax.bar(x + 0.2, [c.get("noise_floor_relmse", np.nan) for c in cases], 0.4, label="Mitsuba vs Mitsuba")
+    ax.axhline(record["acceptance_relmse"], color="C3", ls="--",
+               label=f"acceptance {record['acceptance_relmse']:.0%}")
+    ax.set_yscale("log")
+    ax.set_ylabel("relMSE over the interior")
+    ax2.bar(x - 0.2, [c["mitsuba_time_s"] for c in cases], 0.4, label=f"Mitsuba ({record['mitsuba_spp']} spp)")
+    if any("warpbw_time_s" in c for c in cases):
+        ax2.bar(x + 0.2, [c.get("warpbw_time_s", np.nan) for c in cases], 0.4,
+                label=f"warpbw ({record['warpbw_spp']} spp, {'MIS' if record['mis'] else 'BRDF sampling'})")
+    ax2.set_ylabel("render time (s)")
+    for a in (ax, ax2):
+        a.set_xticks(x, [c["case"] for c in cases])
+        a.grid(True, axis="y", which="both", alpha=0.3)
+        a.legend(fontsize=8)
+    fig.suptitle(f"{Path(record['probe']).name}, {record['resolution']}x{record['resolution']}; Mitsuba "
+                 f"{record['mitsuba_version']} {record['mitsuba_variant']}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 def main(argv=None) -> int:

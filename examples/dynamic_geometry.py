@@ -182,41 +182,36 @@ def _strip(images: list, masks: list, coverage: list) -> np.ndarray:
 
 def write_plot(record: dict, path) -> None:
     """Per frame: the stage times stacked (ms) with the fps on a second axis, and the shaded fraction."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
     import matplotlib.ticker
 
     frames = record["frames"]
     f = [r["frame"] for r in frames]
-    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
-    try:
-        bottom = np.zeros(len(frames))
-        for k in PLOT_STAGES:
-            ms = np.array([r[k] * 1e3 for r in frames])
-            ax.bar(f, ms, bottom=bottom, label=k[:-2])
-            bottom += ms
-        ax.set_ylabel("stage time (ms)")
-        ax.legend(fontsize=7, loc="upper left")
-        fps = ax.twinx()
-        fps.plot(f, [r["fps"] for r in frames], "ko-", label="fps (wall)")
-        fps.set_ylabel("frames per second (wall)")
-        fps.set_ylim(0, 1.15 * max(r["fps"] for r in frames))
-        fps.legend(fontsize=7, loc="upper right")
-        ax2.plot(f, [r["shaded_fraction"] for r in frames], "s-", color="C3")
-        ax2.set_ylim(0, 1.05)
-        ax2.set_ylabel("shaded fraction")
-        ax2.set_xlabel("frame")
-        ax2.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
-        ax2.grid(True, alpha=0.3)
-        s = record["summary"]
-        fig.suptitle(f"dynamic geometry: {record['size'][0]}x{record['size'][1]}, budget {record['budget_spp']:g} spp; "
-                     f"mean {s['mean_fps']:.2f} fps, {s['mean_shaded_fraction']:.1%} shaded", fontsize=10)
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
-        plt.close(fig)
+    fig = Figure(figsize=(7, 6))   # not pyplot's: nothing to close, the caller's backend kept
+    ax, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+    bottom = np.zeros(len(frames))
+    for k in PLOT_STAGES:
+        ms = np.array([r[k] * 1e3 for r in frames])
+        ax.bar(f, ms, bottom=bottom, label=k[:-2])
+        bottom += ms
+    ax.set_ylabel("stage time (ms)")
+    ax.legend(fontsize=7, loc="upper left")
+    fps = ax.twinx()
+    fps.plot(f, [r["fps"] for r in frames], "ko-", label="fps (wall)")
+    fps.set_ylabel("frames per second (wall)")
+    fps.set_ylim(0, 1.15 * max(r["fps"] for r in frames))
+    fps.legend(fontsize=7, loc="upper right")
+    ax2.plot(f, [r["shaded_fraction"] for r in frames], "s-", color="C3")
+    ax2.set_ylim(0, 1.05)
+    ax2.set_ylabel("shaded fraction")
+    ax2.set_xlabel("frame")
+    ax2.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+    ax2.grid(True, alpha=0.3)
+    s = record["summary"]
+    fig.suptitle(f"dynamic geometry: {record['size'][0]}x{record['size'][1]}, budget {record['budget_spp']:g} spp; "
+                 f"mean {s['mean_fps']:.2f} fps, {s['mean_shaded_fraction']:.1%} shaded", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 def _print_table(records: list, summary: dict) -> None:

@@ -394,30 +394,25 @@ def format_table(rec: dict) -> str:
 
 def write_plot(records: list, path) -> None:
     """Per scene, the error against the ground truth against zoom: one line per method, the references dashed."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     from warpbw.filtering import METHODS
 
-    fig, axes = plt.subplots(1, len(records), figsize=(5.5 * len(records), 4.2), squeeze=False)
-    try:
-        for ax, rec in zip(axes[0], records):
-            rows = sorted(rec["zooms"], key=lambda r: r["zoom"])   # along the zoom (--zoom 4,1,2 drew 4 -> 1 -> 2)
-            zooms = [r["zoom"] for r in rows]
-            for c in (*METHODS, "gmm_per_tap", "floor", "floor_bilinear"):
-                ax.plot(zooms, [r[c] for r in rows], "o-" if c in METHODS else "x--", label=c)
-            ax.set_xscale("log", base=2)
-            ax.set_xlabel("zoom (camera distance factor)")
-            ax.set_ylabel(f"error against the ground truth ({rec['gt_spp']} rays/pixel)")
-            ax.set_title("/".join(Path(rec["scene"]).parts[-2:]), fontsize=10)   # graze20/scales, filtering/scales
-            ax.grid(True, which="both", alpha=0.3)
-        axes[0][0].legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
-        plt.close(fig)
+    fig = Figure(figsize=(5.5 * len(records), 4.2))   # not pyplot's: nothing to close, the caller's backend kept
+    axes = fig.subplots(1, len(records), squeeze=False)
+    for ax, rec in zip(axes[0], records):
+        rows = sorted(rec["zooms"], key=lambda r: r["zoom"])   # along the zoom (--zoom 4,1,2 drew 4 -> 1 -> 2)
+        zooms = [r["zoom"] for r in rows]
+        for c in (*METHODS, "gmm_per_tap", "floor", "floor_bilinear"):
+            ax.plot(zooms, [r[c] for r in rows], "o-" if c in METHODS else "x--", label=c)
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("zoom (camera distance factor)")
+        ax.set_ylabel(f"error against the ground truth ({rec['gt_spp']} rays/pixel)")
+        ax.set_title("/".join(Path(rec["scene"]).parts[-2:]), fontsize=10)   # graze20/scales, filtering/scales
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 def main(argv=None) -> int:

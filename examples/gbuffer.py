@@ -36,27 +36,22 @@ RUNS = 5   # timed launches (their median; DESIGN.md's protocol asks for at leas
 
 def write_plot(record: dict, path) -> None:
     """Each timed launch's G-buffer time and their median."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     runs = [t * 1e3 for t in record["time_runs_s"]]
-    fig, ax = plt.subplots(figsize=(6, 3.8))
-    try:
-        ax.plot(range(1, len(runs) + 1), runs, "o", label="launch")
-        ax.axhline(record["time_s"] * 1e3, color="C3", ls="--", label=f"median {record['time_s'] * 1e3:.1f} ms")
-        ax.set_ylim(bottom=0)
-        ax.set_xlabel("timed launch (after a warm-up)")
-        ax.set_ylabel("G-buffer time (ms)")
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=8)
-        w, h = record["resolution"]
-        ax.set_title(f"G-buffer {w}x{h}, {record['triangles']} triangles + a sphere, {record['device']}", fontsize=10)
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
-        plt.close(fig)
+    fig = Figure(figsize=(6, 3.8))   # not pyplot's: nothing to close, the caller's backend kept
+    ax = fig.subplots()
+    ax.plot(range(1, len(runs) + 1), runs, "o", label="launch")
+    ax.axhline(record["time_s"] * 1e3, color="C3", ls="--", label=f"median {record['time_s'] * 1e3:.1f} ms")
+    ax.set_ylim(bottom=0)
+    ax.set_xlabel("timed launch (after a warm-up)")
+    ax.set_ylabel("G-buffer time (ms)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    w, h = record["resolution"]
+    ax.set_title(f"G-buffer {w}x{h}, {record['triangles']} triangles + a sphere, {record['device']}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 def main():

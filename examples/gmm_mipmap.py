@@ -132,10 +132,8 @@ def main(argv=None) -> int:
         ap.error(f"--texel {args.texel[0]} {args.texel[1]}: expected ROW and COL from 0 to {side - 2} "
                  f"(level {args.level} has {side}x{side} texels)")
 
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Circle
 
     init_warp("cpu")           # Warp's no-CUDA-driver line kept off stderr
     from precompute.gmm_mipmap import build_gmm_mipmap, from_moments, normal_space
@@ -154,38 +152,36 @@ def main(argv=None) -> int:
     # (the corner was off the middle, and every normal weighed the same, where the border clips the last texel)
     s_c, t_c, foot, weights = block(n2, l, r0, c0)
     truth = truth_density(foot, weights)
-    fig, axes = plt.subplots(2, 6, figsize=(15, 5.4))
-    try:
-        for row, (name, mip) in enumerate(mips.items()):
-            q = mip.levels[l]
-            panels = []
-            for dr in (0, 1):
-                for dc in (0, 1):
-                    a, mu, s2 = from_moments(q[(r0 + dr) % q.shape[0], (c0 + dc) % q.shape[1]])
-                    panels.append((f"texel ({r0 + dr}, {c0 + dc})", np.concatenate([a[:, None], mu, s2[:, None]], -1)))
-            filt = fetch_gmm(mip.levels, s_c, t_c, float(l))[0]
-            panels.append(("filtered (004 Sec. 4.2)", filt))
-            for ax, (title, p) in zip(axes[row], panels):
-                show(ax, density(p))
-                for i, (a, mx, my, _) in enumerate(p):
-                    if a > 0.01:
-                        ax.text(mx, my, str(i), color="cyan", ha="center", va="center", fontsize=8)
-                ax.set_title(title, fontsize=9)
-            show(axes[row][5], truth)
-            axes[row][5].set_title(f"truth: the four texels' {len(foot)} finest normals", fontsize=9)
-            axes[row][0].set_ylabel(name, fontsize=10)
-        for ax in axes.ravel():
-            ax.add_patch(plt.Circle((0, 0), 1.0, fill=False, color="w", lw=0.5))
-            ax.set_xticks([])
-            ax.set_yticks([])
-        fig.suptitle(f"{args.surface} {args.size}x{args.size}, level {l}: GMM of four texels and their filtered "
-                     "mixture (sqrt density over the projected normal disk)", fontsize=10)
-        fig.tight_layout()
-        out = Path(args.output)
-        with staged_outputs([out], force=args.force) as at:   # whole or not at all: a failed save leaves the old figure
-            fig.savefig(at[out], dpi=100)
-    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
-        plt.close(fig)
+    fig = Figure(figsize=(15, 5.4))   # not pyplot's: nothing to close, the caller's backend kept
+    axes = fig.subplots(2, 6)
+    for row, (name, mip) in enumerate(mips.items()):
+        q = mip.levels[l]
+        panels = []
+        for dr in (0, 1):
+            for dc in (0, 1):
+                a, mu, s2 = from_moments(q[(r0 + dr) % q.shape[0], (c0 + dc) % q.shape[1]])
+                panels.append((f"texel ({r0 + dr}, {c0 + dc})", np.concatenate([a[:, None], mu, s2[:, None]], -1)))
+        filt = fetch_gmm(mip.levels, s_c, t_c, float(l))[0]
+        panels.append(("filtered (004 Sec. 4.2)", filt))
+        for ax, (title, p) in zip(axes[row], panels):
+            show(ax, density(p))
+            for i, (a, mx, my, _) in enumerate(p):
+                if a > 0.01:
+                    ax.text(mx, my, str(i), color="cyan", ha="center", va="center", fontsize=8)
+            ax.set_title(title, fontsize=9)
+        show(axes[row][5], truth)
+        axes[row][5].set_title(f"truth: the four texels' {len(foot)} finest normals", fontsize=9)
+        axes[row][0].set_ylabel(name, fontsize=10)
+    for ax in axes.ravel():
+        ax.add_patch(Circle((0, 0), 1.0, fill=False, color="w", lw=0.5))
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.suptitle(f"{args.surface} {args.size}x{args.size}, level {l}: GMM of four texels and their filtered "
+                 "mixture (sqrt density over the projected normal disk)", fontsize=10)
+    fig.tight_layout()
+    out = Path(args.output)
+    with staged_outputs([out], force=args.force) as at:   # whole or not at all: a failed save leaves the old figure
+        fig.savefig(at[out], dpi=100)
     print(f"wrote {args.output}")
     return 0
 

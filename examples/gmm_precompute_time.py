@@ -34,28 +34,23 @@ SURFACE_NAMES = ("dunes", "hemispherical_scales", "carved_disk")
 
 def write_plot(record: dict, path) -> None:
     """Seconds per surface (the median as a bar, each run as a dot) against the aim."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     names = list(record["time_s"])
-    fig, ax = plt.subplots(figsize=(6, 4))
-    try:
-        ax.bar(range(len(names)), [record["time_s"][n] for n in names], color="C0", alpha=0.7, label="median")
-        for i, n in enumerate(names):
-            runs = record["time_runs_s"][n]
-            ax.plot([i] * len(runs), runs, "k.", label="runs" if i == 0 else None)
-        ax.axhline(record["aim_time_s"], color="C3", ls="--", label=f"aim: {record['aim_time_s']:g} s")
-        ax.set_xticks(range(len(names)), names)
-        ax.set_ylabel("GMM mipmap precompute (s)")
-        ax.set_title(f"{record['size']}x{record['size']}, {record['components']} components, "
-                     f"{record['cpu_count']} CPUs, median of {record['runs']}", fontsize=10)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
-        plt.close(fig)
+    fig = Figure(figsize=(6, 4))   # not pyplot's: nothing to close, the caller's backend kept
+    ax = fig.subplots()
+    ax.bar(range(len(names)), [record["time_s"][n] for n in names], color="C0", alpha=0.7, label="median")
+    for i, n in enumerate(names):
+        runs = record["time_runs_s"][n]
+        ax.plot([i] * len(runs), runs, "k.", label="runs" if i == 0 else None)
+    ax.axhline(record["aim_time_s"], color="C3", ls="--", label=f"aim: {record['aim_time_s']:g} s")
+    ax.set_xticks(range(len(names)), names)
+    ax.set_ylabel("GMM mipmap precompute (s)")
+    ax.set_title(f"{record['size']}x{record['size']}, {record['components']} components, "
+                 f"{record['cpu_count']} CPUs, median of {record['runs']}", fontsize=10)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 def main(argv=None) -> int:

@@ -180,34 +180,29 @@ def format_row(r: dict) -> str:
 
 def write_plot(record: dict, path) -> None:
     """Both frames' relative MSE against the truth, and the adaptive frame's shaded fraction, against resolution."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     rows = record["rows"]
     res = [r["res"] for r in rows]
-    fig, ax = plt.subplots(figsize=(6.5, 4.2))
-    try:
-        ax.plot(res, [r["relmse_reference"] for r in rows], "o-", label=f"reference, {record['budget']:g} spp")
-        ax.plot(res, [r["relmse_adaptive"] for r in rows], "s-", label=f"adaptive, budget {record['budget']:g}")
-        ax.set_xscale("log", base=2)
-        ax.set_yscale("log")
-        ax.set_xlabel("resolution (pixels a side)")
-        ax.set_ylabel(f"relative MSE against {record['truth_spp']} spp")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(loc="upper left", fontsize=8)
-        ax2 = ax.twinx()
-        ax2.plot(res, [r["shaded_fraction"] for r in rows], "^--", color="C2", label="adaptive: shaded fraction")
-        ax2.set_ylim(0, 1.05)
-        ax2.set_ylabel("shaded fraction of covered pixels")
-        ax2.legend(loc="upper right", fontsize=8)
-        ax.set_title(f"{Path(record['probe']).name}, GGX alpha {record['alpha']:g} (nu_a from its "
-                     f"{record['env_signal']})", fontsize=10)
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
-        plt.close(fig)
+    fig = Figure(figsize=(6.5, 4.2))   # not pyplot's: nothing to close, the caller's backend kept
+    ax = fig.subplots()
+    ax.plot(res, [r["relmse_reference"] for r in rows], "o-", label=f"reference, {record['budget']:g} spp")
+    ax.plot(res, [r["relmse_adaptive"] for r in rows], "s-", label=f"adaptive, budget {record['budget']:g}")
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xlabel("resolution (pixels a side)")
+    ax.set_ylabel(f"relative MSE against {record['truth_spp']} spp")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(loc="upper left", fontsize=8)
+    ax2 = ax.twinx()
+    ax2.plot(res, [r["shaded_fraction"] for r in rows], "^--", color="C2", label="adaptive: shaded fraction")
+    ax2.set_ylim(0, 1.05)
+    ax2.set_ylabel("shaded fraction of covered pixels")
+    ax2.legend(loc="upper right", fontsize=8)
+    ax.set_title(f"{Path(record['probe']).name}, GGX alpha {record['alpha']:g} (nu_a from its "
+                 f"{record['env_signal']})", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 def _resolutions(text: str) -> list:

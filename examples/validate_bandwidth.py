@@ -599,62 +599,57 @@ def _tonemap(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
 
 
 def write_figure(path: Path, title: str, r: dict) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
     from matplotlib.colors import LogNorm
     from matplotlib.ticker import NullFormatter
 
     cov, bw_valid = r["coverage"], r["bw_valid"]
-    fig, ax = plt.subplots(2, 4, figsize=(17, 8.2))
-    try:
-        vr = _log_range((r["sigma2"], cov), (r["var_uniform"], cov))
-        br = _log_range((r["b_p"], bw_valid), (r["bw_ref"], bw_valid))
-        panels = [
-            (ax[0, 0], r["sigma2"], cov, vr, "(a) predicted variance sigma2 (Eq. 9)", "magma"),
-            (ax[0, 1], r["var_uniform"], cov, vr, "(b) brute-force variance, uniform sampling", "magma"),
-            (ax[0, 2], r["b_p"], cov, br, "(c) predicted bandwidth b_p (cycles/px)", "viridis"),
-            (ax[0, 3], r["bw_ref"], bw_valid, br, f"(d) {r['window']}x{r['window']} windowed FFT bandwidth", "viridis"),
-            (ax[1, 1], r["var_bis"], cov, vr, "variance, BRDF importance sampling (info)", "magma"),
-        ]
-        for a, mp, k, (lo, hi), name, cmap in panels:
-            im = a.imshow(np.where(k & (mp > 0), mp, np.nan), norm=LogNorm(lo, hi), cmap=cmap, interpolation="nearest")
-            a.set_title(name, fontsize=9)
-            a.axis("off")
-            fig.colorbar(im, ax=a, fraction=0.046, pad=0.02)
-        ax[1, 0].imshow(_tonemap(r["image"], cov), interpolation="nearest")
-        ax[1, 0].set_title(f"(e) converged image, {r['ref_spp']} spp MIS", fontsize=9)
-        ax[1, 0].axis("off")
-        rng = np.random.default_rng(0)
-        for a, x, y, k, name, lab in (
-                (ax[1, 2], r["var_uniform"], r["sigma2"], cov & (r["var_uniform"] > 0) & (r["sigma2"] > 0),
-                 f"variance: Spearman {r['stats']['variance_spearman']:.2f}, "
-                 f"conservative {r['stats']['variance_conservative_fraction']:.0%}", ("brute-force", "predicted")),
-                (ax[1, 3], r["bw_ref"], r["b_p"], bw_valid & (r["bw_ref"] > 0) & (r["b_p"] > 0),
-                 f"bandwidth: Spearman {r['stats']['bandwidth_spearman']:.2f}", ("windowed FFT", "predicted"))):
-            xs, ys = x[k], y[k]
-            if xs.size > SCATTER_POINTS:
-                sel = rng.choice(xs.size, SCATTER_POINTS, replace=False)
-                xs, ys = xs[sel], ys[sel]
-            a.scatter(xs, ys, s=2, alpha=0.3, lw=0)
-            if xs.size:
-                lo = min(xs.min(), ys.min())
-                hi = max(xs.max(), ys.max())
-                a.plot([lo, hi], [lo, hi], "k--", lw=0.8, label="y = x")
-                a.legend(fontsize=8, loc="upper left")
-                a.set_xscale("log")
-                a.set_yscale("log")
-                a.xaxis.set_minor_formatter(NullFormatter())   # narrow ranges: minor labels would overlap
-                a.yaxis.set_minor_formatter(NullFormatter())
-            a.set_xlabel(lab[0])
-            a.set_ylabel(lab[1])
-            a.set_title(name, fontsize=9)
-        fig.suptitle(title, fontsize=11)
-        fig.tight_layout()
-        fig.savefig(path, dpi=90)
-    finally:   # a failed plot (a folder gone, a full disk) leaves no figure open in pyplot
-        plt.close(fig)
+    fig = Figure(figsize=(17, 8.2))   # not pyplot's: nothing to close, the caller's backend kept
+    ax = fig.subplots(2, 4)
+    vr = _log_range((r["sigma2"], cov), (r["var_uniform"], cov))
+    br = _log_range((r["b_p"], bw_valid), (r["bw_ref"], bw_valid))
+    panels = [
+        (ax[0, 0], r["sigma2"], cov, vr, "(a) predicted variance sigma2 (Eq. 9)", "magma"),
+        (ax[0, 1], r["var_uniform"], cov, vr, "(b) brute-force variance, uniform sampling", "magma"),
+        (ax[0, 2], r["b_p"], cov, br, "(c) predicted bandwidth b_p (cycles/px)", "viridis"),
+        (ax[0, 3], r["bw_ref"], bw_valid, br, f"(d) {r['window']}x{r['window']} windowed FFT bandwidth", "viridis"),
+        (ax[1, 1], r["var_bis"], cov, vr, "variance, BRDF importance sampling (info)", "magma"),
+    ]
+    for a, mp, k, (lo, hi), name, cmap in panels:
+        im = a.imshow(np.where(k & (mp > 0), mp, np.nan), norm=LogNorm(lo, hi), cmap=cmap, interpolation="nearest")
+        a.set_title(name, fontsize=9)
+        a.axis("off")
+        fig.colorbar(im, ax=a, fraction=0.046, pad=0.02)
+    ax[1, 0].imshow(_tonemap(r["image"], cov), interpolation="nearest")
+    ax[1, 0].set_title(f"(e) converged image, {r['ref_spp']} spp MIS", fontsize=9)
+    ax[1, 0].axis("off")
+    rng = np.random.default_rng(0)
+    for a, x, y, k, name, lab in (
+            (ax[1, 2], r["var_uniform"], r["sigma2"], cov & (r["var_uniform"] > 0) & (r["sigma2"] > 0),
+             f"variance: Spearman {r['stats']['variance_spearman']:.2f}, "
+             f"conservative {r['stats']['variance_conservative_fraction']:.0%}", ("brute-force", "predicted")),
+            (ax[1, 3], r["bw_ref"], r["b_p"], bw_valid & (r["bw_ref"] > 0) & (r["b_p"] > 0),
+             f"bandwidth: Spearman {r['stats']['bandwidth_spearman']:.2f}", ("windowed FFT", "predicted"))):
+        xs, ys = x[k], y[k]
+        if xs.size > SCATTER_POINTS:
+            sel = rng.choice(xs.size, SCATTER_POINTS, replace=False)
+            xs, ys = xs[sel], ys[sel]
+        a.scatter(xs, ys, s=2, alpha=0.3, lw=0)
+        if xs.size:
+            lo = min(xs.min(), ys.min())
+            hi = max(xs.max(), ys.max())
+            a.plot([lo, hi], [lo, hi], "k--", lw=0.8, label="y = x")
+            a.legend(fontsize=8, loc="upper left")
+            a.set_xscale("log")
+            a.set_yscale("log")
+            a.xaxis.set_minor_formatter(NullFormatter())   # narrow ranges: minor labels would overlap
+            a.yaxis.set_minor_formatter(NullFormatter())
+        a.set_xlabel(lab[0])
+        a.set_ylabel(lab[1])
+        a.set_title(name, fontsize=9)
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
 
 
 # ----------------------------------------------------------------------------------------- driver

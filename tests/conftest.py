@@ -258,18 +258,19 @@ def plot_png(path) -> np.ndarray:
 
 @pytest.fixture
 def drawn_figures(monkeypatch):
-    """The figures a plotting function hands to ``matplotlib.pyplot.close``, kept open so that a test reads back
-    what they draw (the Axes' lines, bars, images, scales and labels) rather than their pixels; closed at its end."""
-    import matplotlib
+    """The figures a plotting function saves (``matplotlib.figure.Figure.savefig``: the examples and bench draw on
+    a ``Figure`` of their own, not pyplot's), so that a test reads back what they draw (the Axes' lines, bars,
+    images, scales and labels) rather than their pixels."""
+    import matplotlib.figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    figures, save = [], matplotlib.figure.Figure.savefig
 
-    figures, close = [], plt.close
-    monkeypatch.setattr(plt, "close", lambda fig=None: figures.append(fig))
-    yield figures
-    for fig in figures:
-        close(fig)
+    def saved(fig, *args, **kwargs):
+        figures.append(fig)
+        return save(fig, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", saved)
+    return figures
 
 
 def fake_npf_table(path: Path) -> Path:

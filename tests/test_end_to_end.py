@@ -1350,6 +1350,27 @@ def test_every_example_explains_itself(script, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_no_plot_goes_through_pyplot():
+    """Every plot (the examples', bench's and bench-filtering's) draws on a ``matplotlib.figure.Figure`` of its own:
+    no module imports pyplot or calls ``matplotlib.use``.  Through pyplot a plot switched the caller's backend to
+    Agg for the rest of its session (a notebook's inline plots stopped showing) and had to close its figure
+    whatever happened; 13 examples did (session 82; bench's write_plot since session 81).  Read off the syntax
+    trees, so that a comment naming them does not count."""
+    import ast
+
+    root = Path(__file__).resolve().parents[1]
+    found = []
+    for f in sorted(p for d in ("examples", "warpbw", "precompute") for p in (root / d).rglob("*.py")):
+        for node in ast.walk(ast.parse(f.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [f"{node.module}.{a.name}" for a in node.names] if isinstance(node, ast.ImportFrom) else []
+            if any(n.startswith(("matplotlib.pyplot", "matplotlib.pylab")) for n in names) or (
+                    isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "use"
+                    and isinstance(node.func.value, ast.Name) and node.func.value.id == "matplotlib"):
+                found.append(f"{f.relative_to(root)}:{node.lineno}")
+    assert found == []
+
+
 # A sitecustomize for the children below: a real SIGINT, sent by the child to itself when the script it runs first
 # imports numpy, Warp or warpbw's command line (every example imports one of them before its run_command), so that
 # the stop lands while it loads, as a Ctrl-C in its first seconds does, at no time left to chance
