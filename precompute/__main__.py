@@ -292,6 +292,12 @@ def _table_args(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    return _build_parsers()[0]
+
+
+def _build_parsers() -> tuple[argparse.ArgumentParser, argparse.ArgumentParser]:
+    """warpbw-precompute's parser, and npf-to-merl's own: ``main`` says a table given twice or not at all in the
+    words of the latter (argparse has no public way back to a subcommand's parser)."""
     p = OneLineParser(prog="warpbw-precompute",
                                 description="Offline asset tool of warpbw: MERL files from NPF fits, importance-"
                                 "sampling tables and angular bandwidth tables of tabulated BRDFs, GMM normal mipmaps "
@@ -427,13 +433,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print a JSON list, one object per FILE in order (strict JSON: NaN as null; a FILE that "
                    "could not be read is {\"path\": ..., \"error\": ...}); the hash is given whole")
     i.set_defaults(func=cmd_info)
-    return p
+    return p, a
 
 
-def _npf_table(parser: argparse.ArgumentParser, args) -> None:
+def _npf_table(sub: argparse.ArgumentParser, args) -> None:
     """npf-to-merl's NPF table, TABLE or --table TABLE (one of them, once), into ``args.table``; else the usage error
-    of its parser."""
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices["npf-to-merl"]
+    of its parser ``sub``."""
     if args.table is not None and args.table_option is not None:
         sub.error(f"the NPF table given twice ({args.table}, then --table {args.table_option}): give it once")
     if args.table is None and args.table_option is None:
@@ -442,10 +447,10 @@ def _npf_table(parser: argparse.ArgumentParser, args) -> None:
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
+    parser, npf_to_merl = _build_parsers()
     args = parser.parse_args(argv)
     if args.command == "npf-to-merl":
-        _npf_table(parser, args)
+        _npf_table(npf_to_merl, args)
     return run_command("warpbw-precompute", args.func, args)
 
 
