@@ -1028,8 +1028,9 @@ def read_gmm_mipmap(path) -> GmmMipmap:
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"     # PNG spec section 5.2
 PNG_BIT_DEPTH_OFFSET = 24            # IHDR: 8 signature + 4 length + 4 type + 4 width + 4 height bytes
 PNG_COLOUR_TYPE_OFFSET = 25          # IHDR: the byte after the bit depth (0: greyscale)
-PNG_CUT_TO_8 = ("Pillow reads 16-bit PNGs other than greyscale without alpha with 8 bits; a 16-bit greyscale PNG "
-                "(a height field) or an OpenEXR image keeps the precision")
+# PNG colour types that Pillow reads with 8 bits per channel at a bit depth of 16 (it has no 16-bit colour mode):
+# RGB, grey + alpha, RGBA (PNG spec 11.2.2).  warpbw.io.png reads them whole (Pillow read 16-bit greyscale whole).
+PNG_COLOUR_TYPES_OF_OUR_OWN = (2, 4, 6)
 # Pillow formats whose compression is lossy: its block artifacts become slopes, hence normals, that the surface
 # does not have.  Read, with a warning (JPEG normal maps are common in game assets).
 LOSSY_FORMATS = ("JPEG", "MPO")   # MPO: JPEG frames (a phone camera's)
@@ -1050,12 +1051,13 @@ def _check_map_size(p: Path, width: int, height: int) -> None:
         raise WarpbwError(f"{p}: {width} x {height} texels: {_MAP_SIZE_EXPECTED}")
 
 
-def _read_pixels(p: Path) -> tuple[np.ndarray, int | None, bool]:
+def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
     """(H, W, C) float64 in [0, 1] for PNG and the other images Pillow reads (TIFF, BMP, ...; a lossy one, such as
-    JPEG, warns), raw floats for EXR; and the bits per channel the
-    values were read with (None for floating point); and whether a warning said so already: a 16-bit colour or
-    grey+alpha PNG, which Pillow reads with 8 bits (``PNG_CUT_TO_8``)."""
+    JPEG, warns), raw floats for EXR; and the bits per channel the values were read with (None for floating point).
+    16-bit RGB, grey + alpha and RGBA PNGs are read by ``warpbw.io.png`` (Pillow gives them 8 bits); alpha is
+    dropped, as Pillow's conversions to L and RGB drop it."""
     from warpbw.io.exr import EXR_MAGIC, exr_size, in_display_window, read_exr
+    from warpbw.io.png import png_header, read_png
 
     with open(p, "rb") as fh:
         head = fh.read(32)
@@ -1066,17 +1068,23 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None, bool]:
         img = in_display_window(read_exr(p))   # the frame's texels: 0 where none is stored, overscan dropped
         ch = img.channels
         if all(k in ch for k in ("R", "G", "B")):
-            return img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]].astype(np.float64), None, False
+            return img.pixels[..., [ch.index("R"), ch.index("G"), ch.index("B")]].astype(np.float64), None
         data = [k for k in ch if k not in EXR_ALPHA_CHANNELS]      # coverage or opacity, never a height
         if "Y" in data and set(data) <= {"Y", "RY", "BY"}:
             data = ["Y"]                                            # luminance (and chroma): the luminance
         if len(data) != 1:
             raise WarpbwError(f"{p}: OpenEXR channels {', '.join(ch)}: expected R, G, B (a normal map) or one "
                               "data channel besides alpha (a height field)")
-        return img.pixels[..., [ch.index(data[0])]].astype(np.float64), None, False
+        return img.pixels[..., [ch.index(data[0])]].astype(np.float64), None
+    header = png_header(p) if head.startswith(PNG_MAGIC) else None
+    if header is not None and header[2] == 16 and header[3] in PNG_COLOUR_TYPES_OF_OUR_OWN:
+        _check_map_size(p, *header[:2])   # from the header: a map too large is never decoded
+        png = read_png(p)
+        grey = png.colour_type == 4
+        return png.pixels[..., :1 if grey else 3].astype(np.float64) / 65535.0, 16
     from PIL import Image, UnidentifiedImageError
 
-    bits, said_8_bits = None, False
+    bits = None
     try:
         with warnings.catch_warnings():   # Pillow's decompression-bomb warning: the bound below is tighter
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
@@ -1107,17 +1115,13 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None, bool]:
             else:
                 arr = np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0
                 bits = 8
-        if bits == 8 and head.startswith(PNG_MAGIC) and len(head) > PNG_BIT_DEPTH_OFFSET \
-                and head[PNG_BIT_DEPTH_OFFSET] == 16:   # the file held 16 bits: say where the other 8 went
-            warnings.warn(f"{p}: a 16-bit PNG read with 8 bits per channel ({PNG_CUT_TO_8})", stacklevel=3)
-            said_8_bits = True
     except Image.DecompressionBombError:   # beyond Pillow's own bound (above ours), raised before any size is known
         raise WarpbwError(f"{p}: over {2 * Image.MAX_IMAGE_PIXELS} texels: {_MAP_SIZE_EXPECTED}") from None
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
         if head.startswith(PNG_MAGIC):   # it is a PNG: "not an image file" was wrong
             raise WarpbwError(f"{p}: cannot decode this PNG (truncated or corrupt: {exc})") from None
         raise WarpbwError(f"{p}: not an image file (expected an OpenEXR or PNG image; {type(exc).__name__})") from None
-    return (arr[..., None] if arr.ndim == 2 else arr), bits, said_8_bits
+    return (arr[..., None] if arr.ndim == 2 else arr), bits
 
 
 def load_map(path, kind: str = "height") -> np.ndarray:
@@ -1133,8 +1137,8 @@ def load_map(path, kind: str = "height") -> np.ndarray:
     than as decoded (a [0, 1]-encoded map's texels are not: the flat normal is stored as (0.5, 0.5, 1)), otherwise
     it is [0, 1]-encoded too (``_holds_vectors``).
     Texels shorter than ``NORMAL_LENGTH_MIN`` (as stored or decoded) are an error; texels off unit length by more than
-    ``UNIT_TOL`` are renormalised, with a warning; an image of (0, 0, 0) texels only is an error.  16-bit greyscale PNGs
-    keep their precision (Pillow reads 16-bit RGB and grey + alpha PNGs as 8-bit, and that warns).  Normals more than
+    ``UNIT_TOL`` are renormalised, with a warning; an image of (0, 0, 0) texels only is an error.  16-bit PNGs keep
+    their precision (greyscale through Pillow, RGB, grey + alpha and RGBA through ``warpbw.io.png``).  Normals more than
     ``NORMAL_Z_TOL`` below the tangent plane are an error; those closer are put in it.  A varying height field read
     with 8 bits warns (terraced normals).  Every problem is a one-line WarpbwError naming the file."""
     from precompute.surfaces import normals_from_map, unit_normals
@@ -1142,7 +1146,7 @@ def load_map(path, kind: str = "height") -> np.ndarray:
     if kind not in KINDS:
         raise WarpbwError(f"kind {kind!r}: expected one of {', '.join(KINDS)}")
     p = check_input_file(path, f"a {kind} map: OpenEXR or PNG image")
-    px, bits, said_8_bits = _read_pixels(p)
+    px, bits = _read_pixels(p)
     if px.shape[0] == 0 or px.shape[1] == 0 or px.shape[2] == 0:
         raise WarpbwError(f"{p}: empty image ({px.shape[1]}x{px.shape[0]} texels); expected a {kind} map")
     bad = ~np.isfinite(px).all(axis=-1)
@@ -1158,7 +1162,7 @@ def load_map(path, kind: str = "height") -> np.ndarray:
                                   "single-channel image; for a tangent-space normal map use --kind normal, or "
                                   "normal_map_kind = \"normal\" in a scene)")
         heights = np.ascontiguousarray(px[..., 0])
-        if bits is not None and bits <= 8 and np.ptp(heights) > 0 and not said_8_bits:
+        if bits is not None and bits <= 8 and np.ptp(heights) > 0:
             warnings.warn(f"{p}: heights read with {bits} bit{'s' if bits > 1 else ''}: {2 ** bits} levels give "
                           "terraced normals (a 16-bit greyscale PNG or an EXR keeps the detail)", stacklevel=2)
         return heights

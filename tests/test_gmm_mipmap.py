@@ -862,7 +862,7 @@ def test_builder_refuses_normals_that_are_not_unit_or_point_down():
 
 def _png16(path, values, colour_type):
     """A 16-bit PNG of ``values`` (H, W, C) uint16, written by hand (Pillow writes 16-bit greyscale only): colour
-    type 2 is RGB, 4 grey + alpha (PNG spec 11.2.2)."""
+    type 2 is RGB, 4 grey + alpha, 6 RGBA (PNG spec 11.2.2)."""
     import struct
     import zlib
 
@@ -876,26 +876,35 @@ def _png16(path, values, colour_type):
                      + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
 
 
-@pytest.mark.parametrize("colour_type,kind", [(2, "height"), (4, "height"), (2, "normal")])
-def test_a_16_bit_png_pillow_reads_with_8_bits_says_so_once(tmp_path, colour_type, kind):
-    # a smooth ramp in the low byte: 16-bit grey keeps its 48 levels, Pillow's 8-bit reading of RGB or grey + alpha
-    # keeps one; the warning said "heights read with 8 bits" as if the file were 8-bit, and a normal map said nothing
-    ramp = (30000 + np.arange(8 * 6).reshape(8, 6)).astype(np.uint16)
-    values = (np.stack([ramp] * 3, -1) if colour_type == 2 and kind == "height" else
-              np.stack([np.full_like(ramp, 32768), np.full_like(ramp, 32768), np.full_like(ramp, 65535)], -1)
-              if colour_type == 2 else np.stack([ramp, np.full_like(ramp, 65535)], -1))
+@pytest.mark.parametrize("colour_type,kind", [(2, "height"), (4, "height"), (6, "height"), (2, "normal"),
+                                              (6, "normal")])
+def test_a_16_bit_colour_png_is_read_with_its_16_bits(tmp_path, colour_type, kind):
+    """16-bit RGB, grey + alpha and RGBA PNGs (a common normal-map asset) were read by Pillow with 8 bits, with a
+    warning: a smooth ramp in the low byte kept one level of 48, and a normal map's vectors moved by up to 1/255 of
+    the range (terraced normals).  warpbw.io.png reads them whole (session 82): each value as stored over 65535,
+    alpha not read, quietly.  Truth: the codes written (an alpha varying everywhere, so that reading it would show)."""
+    ramp = (30000 + 97 * np.arange(8 * 6).reshape(8, 6)).astype(np.uint16)
+    alpha = (np.arange(48).reshape(8, 6) * 1000).astype(np.uint16)
+    if kind == "height":
+        values = np.stack([ramp] * 3 + [alpha] * (colour_type == 6), -1) if colour_type != 4 else \
+            np.stack([ramp, alpha], -1)
+    else:   # a [0, 1]-encoded normal map tilted along x by the ramp, n_y 0 (32767.5: 16 bits can say half)
+        nx = ramp / 65535.0 * 2.0 - 1.0
+        nz = np.round((np.sqrt(1.0 - nx ** 2) + 1.0) / 2.0 * 65535.0).astype(np.uint16)
+        values = np.stack([ramp, np.full_like(ramp, 32768), nz] + [alpha] * (colour_type == 6), -1)
     _png16(tmp_path / "m.png", values, colour_type)
-    with warnings.catch_warnings(record=True) as said:
-        warnings.simplefilter("always")
-        load_map(tmp_path / "m.png", kind)
-    assert [str(w.message) for w in said] == [f"{tmp_path / 'm.png'}: a 16-bit PNG read with 8 bits per channel "
-                                              "(Pillow reads 16-bit PNGs other than greyscale without alpha with 8 "
-                                              "bits; a 16-bit greyscale PNG (a height field) or an OpenEXR image keeps "
-                                              "the precision)"]
-    _png16(tmp_path / "g.png", ramp[..., None], 0)   # the same heights as 16-bit grey: read whole, quietly
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert len(np.unique(load_map(tmp_path / "g.png", "height"))) == 48
+        got = load_map(tmp_path / "m.png", kind)
+    if kind == "height":
+        assert np.array_equal(got, ramp / 65535.0)
+    else:
+        stored = values[..., :3] / 65535.0 * 2.0 - 1.0
+        np.testing.assert_allclose(got, stored / np.linalg.norm(stored, axis=-1, keepdims=True), rtol=0, atol=1e-15)
+    _png16(tmp_path / "g.png", ramp[..., None], 0)   # the same heights as 16-bit grey (Pillow's): the same values
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.array_equal(load_map(tmp_path / "g.png", "height"), ramp / 65535.0)
 
 
 def test_8_bit_height_field_warns_of_terraces(tmp_path):
