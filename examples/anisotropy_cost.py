@@ -92,7 +92,7 @@ def main(argv=None) -> int:
     init_warp("cpu")
     from warpbw.filtering import MAX_ANISOTROPY, prepare_filtering, render_filtering, zoomed_camera
     from warpbw.scene import load_scene
-    from warpbw.shading import default_threads
+    from warpbw.launch import default_threads
 
     if not 2 <= args.aniso <= MAX_ANISOTROPY:
         ap.error(f"--aniso {args.aniso}: expected an integer from 2 to {MAX_ANISOTROPY}")

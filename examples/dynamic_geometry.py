@@ -283,7 +283,7 @@ def main(argv=None):
     from warpbw.io.staged import staged_outputs
     from warpbw.pipeline import prepare_scene, render_adaptive
     from warpbw.scene import parse_scene, toml_escape, toml_string
-    from warpbw.shading import default_threads
+    from warpbw.launch import default_threads
 
     env_path = Path(args.env) if args.env is not None else DEFAULT_ENV
     env = f"file = {toml_string(str(env_path), f'--env {env_path}')}" if env_path.is_file() else 'procedural = "sky"'

@@ -33,7 +33,8 @@ from warpbw.io.exr import write_exr, write_png
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
 from warpbw.scene import MAX_RESOLUTION
-from warpbw.shading import default_threads, shade_reference
+from warpbw.launch import default_threads
+from warpbw.shading import shade_reference
 
 OUTPUTS = ("ref_bis.exr", "ref_bis.png", "ref_mis.exr", "ref_mis.png")
 

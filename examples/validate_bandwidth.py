@@ -98,7 +98,8 @@ from warpbw.gbuffer import GBufferData
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
 from warpbw.scene import MAX_RESOLUTION, toml_escape
-from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_world
+from warpbw.launch import launch_tiled
+from warpbw.shading import covered_pixels, pixel_frame, to_world
 
 HERE = Path(__file__).resolve().parent
 DATA = shared_data_dir(HERE.parent)   # ../shared/data beside the repository, or $WARPBW_SHARED_DATA

@@ -3631,7 +3631,7 @@ def _api_cases():
     from types import SimpleNamespace
 
     from precompute import brdf_sampling, surfaces
-    from warpbw import bandwidth, bandwidth_ops, envmap, filtering, gbuffer, pyramid, sampling, shading
+    from warpbw import bandwidth, bandwidth_ops, envmap, filtering, gbuffer, launch, pyramid, sampling, shading
     from warpbw.io import exr, merl
 
     def lambert(wi, wo):
@@ -3720,8 +3720,8 @@ def _api_cases():
         "estimator_variance mis 'no' (MIS's variance)": (
             lambda d: bandwidth.BandwidthBuffer.estimator_variance(SimpleNamespace(variance_mis=1, variance_bis=2),
                                                                    "no"), "estimator_variance: mis: expected True"),
-        "tile_ranges tile 0 (range()'s ValueError)": (lambda d: shading.tile_ranges(10, 0), "tile_ranges: tile"),
-        "tile_ranges n_items -1 (no tile)": (lambda d: shading.tile_ranges(-1, 4), "tile_ranges: n_items"),
+        "tile_ranges tile 0 (range()'s ValueError)": (lambda d: launch.tile_ranges(10, 0), "tile_ranges: tile"),
+        "tile_ranges n_items -1 (no tile)": (lambda d: launch.tile_ranges(-1, 4), "tile_ranges: n_items"),
         "merl_eval of tabulate_merl's array (numpy's NotImplementedError)": (
             lambda d: merl.merl_eval(np.zeros((90, 90, 180, 3)), [[0, 0, 1]], [[0, 0, 1]]),
             "merl_eval: brdf is ndarray, expected a MerlBRDF"),
@@ -3788,7 +3788,7 @@ def test_api_edge_inputs_that_are_valid_still_work():
     1x1 normal map is one level, inf parameters still reach the operators, and float32 unit normals pass."""
     from warpbw.bandwidth_ops import apply_operator
     from warpbw.filtering import normal_moment_mipmap
-    from warpbw.shading import tile_ranges
+    from warpbw.launch import tile_ranges
 
     assert tile_ranges(0, 4, np.zeros(0)) == [] and tile_ranges(0, 4) == []
     (mean, second), = normal_moment_mipmap(np.array([[[0.6, 0.0, 0.8]]], np.float32))

@@ -1817,7 +1817,7 @@ def test_the_constants_the_readme_states_are_the_codes():
     import math
 
     from precompute import brdf_bandwidth, brdf_sampling, gmm_mipmap, progress
-    from warpbw import bandwidth, bench, brdf, envmap, errors, filtering, gbuffer, pipeline, sampling, scene, shading
+    from warpbw import bandwidth, bench, brdf, envmap, errors, filtering, gbuffer, launch, pipeline, sampling, scene
 
     readme = re.sub(r"\s+", " ", (Path(__file__).resolve().parents[1] / "README.md").read_text())
 
@@ -1853,8 +1853,8 @@ def test_the_constants_the_readme_states_are_the_codes():
         "GT_VERSION": int(said(r"`warpbw\.bench\.GT_VERSION`, which is raised whenever .*?; (\d+): "))
                       == bench.GT_VERSION,
         "launch samples": near(float(said(r"a launch holds at most about (\d+) million samples")) * 1e6,
-                               shading.LAUNCH_COST_MAX, 1),
-        "launch pixels": int(said(r"and at most ([\d,]+) pixels").replace(",", "")) == shading.PIXELS_PER_TILE,
+                               launch.LAUNCH_COST_MAX, 1),
+        "launch pixels": int(said(r"and at most ([\d,]+) pixels").replace(",", "")) == launch.PIXELS_PER_TILE,
         "T_EPS_REL": float(said(r"a hit nearer than ([\de.-]+) of that object's size")) == gbuffer.T_EPS_REL,
         "overflow": near(float(said(r"where a light's radiance passes ([\de.]+)")), pipeline.RADIANCE_OVERFLOW_MIN, 2),
         "underflow": near(float(said(r"is below ([\de.-]+) \(`warpbw\.pipeline\.RADIANCE_UNDERFLOW_MAX`")),

@@ -140,7 +140,8 @@ def _damaged(good: bytes) -> dict:
     flipped[idat + 10] ^= 0x01
     ihdr = struct.unpack(">IIBBBBB", good[16:29])
     return {
-        "truncated in IDAT": (good[:idat + 20], r"truncated: its 'IDAT' chunk holds \d+ bytes, the file ends \d+ bytes"),
+        "truncated in IDAT": (good[:idat + 20], r"truncated: its 'IDAT' chunk holds \d+ bytes, the file ends "
+                                                r"\d+ bytes"),
         "no IEND": (good[:-12], "truncated: the file ends before its IEND chunk"),
         "a CRC": (bytes(flipped), r"corrupt: the CRC of its 'IDAT' chunk at byte \d+ does not match"),
         "not zlib": (with_idat(b"\x00" * 20), "corrupt image data: zlib: "),

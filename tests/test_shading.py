@@ -26,7 +26,7 @@ from conftest import StandInClock, load_example, outcome, plot_png
 from warpbw.errors import WarpbwError
 from warpbw.pipeline import prepare_scene, render_reference
 from warpbw.scene import parse_scene
-from warpbw.shading import tile_ranges
+from warpbw.launch import tile_ranges
 
 SPHERE_SCENE = """
 [camera]
@@ -291,9 +291,9 @@ def _mark_item(offset: int, out: wp.array(dtype=float)):
 
 
 def test_the_shading_bar_counts_every_pixel_once_over_threads_and_none_when_off(tqdm_bars):
-    """shading.progress_bar, fed the tile counts launch_tiled reports from two threads, stands at the launch's
+    """launch.progress_bar, fed the tile counts launch_tiled reports from two threads, stands at the launch's
     item count at the end (the bar is precompute.progress's, which takes running totals); off, it is None."""
-    from warpbw.shading import launch_tiled, progress_bar
+    from warpbw.launch import launch_tiled, progress_bar
 
     out = wp.zeros(5000, dtype=wp.float32, device="cpu")
     with progress_bar(5000, "shading 4 spp") as add:
@@ -313,14 +313,14 @@ def test_cpu_launches_hold_at_most_launch_cost_max_samples_so_ctrl_c_acts_within
     x 2e6 samples (SIGINT at 5 s acted on at 36 s; options audit, session 64).  Every item is launched once, and a
     launch's summed cost (each item's, from the caller) stays within LAUNCH_COST_MAX plus one item's, the part a
     tile of equal summed cost may pass it by; an item dearer than that is a launch of its own."""
-    from warpbw import shading
-    from warpbw.shading import LAUNCH_COST_MAX, launch_tiled
+    from warpbw import launch
+    from warpbw.launch import LAUNCH_COST_MAX, launch_tiled
 
     n = 5000
     cost = np.linspace(0, 20_000, n).astype(np.int64) if costs == "ramp" else np.full(n, item_cost)
     launches = []
-    real = shading.wp.launch
-    monkeypatch.setattr(shading.wp, "launch", lambda k, dim, inputs, device: launches.append((inputs[0], dim))
+    real = launch.wp.launch
+    monkeypatch.setattr(launch.wp, "launch", lambda k, dim, inputs, device: launches.append((inputs[0], dim))
                         or real(k, dim=dim, inputs=inputs, device=device))
     out = wp.zeros(n, dtype=wp.float32, device="cpu")
     launch_tiled(_mark_item, n, lambda o, c: [o, out], "cpu", threads=threads,
@@ -331,13 +331,13 @@ def test_cpu_launches_hold_at_most_launch_cost_max_samples_so_ctrl_c_acts_within
     if int(cost.sum()) > 4 * LAUNCH_COST_MAX:
         assert len(launches) >= min(n, int(cost.sum()) // LAUNCH_COST_MAX)
     else:   # cheap items: the tiles the pixel counts make, as before
-        assert len(launches) <= -(-n // shading.MIN_PIXELS_PER_TILE) * threads
+        assert len(launches) <= -(-n // launch.MIN_PIXELS_PER_TILE) * threads
 
 
 def test_cutting_launches_by_their_samples_leaves_every_pixel_as_it_was(monkeypatch, tmp_path):
     """The samples of a pixel are drawn from its own seed whatever the tile: a frame cut into many launches by
     LAUNCH_COST_MAX is bit for bit the frame of the few launches its pixel count makes, reference and adaptive."""
-    from warpbw import shading
+    from warpbw import launch, shading
     from warpbw.pipeline import render_adaptive, render_reference
     from warpbw.scene import parse_scene
 
@@ -347,7 +347,8 @@ def test_cutting_launches_by_their_samples_leaves_every_pixel_as_it_was(monkeypa
     scene = parse_scene(text, tmp_path, "s.toml")
     frames = {}
     for limit in (10**12, 64):
-        monkeypatch.setattr(shading, "LAUNCH_COST_MAX", limit)
+        monkeypatch.setattr(shading, "LAUNCH_COST_MAX", limit)   # a pixel's passes
+        monkeypatch.setattr(launch, "LAUNCH_COST_MAX", limit)    # the tiles, cut by their samples
         frames[limit] = (render_reference(scene, spp=16, seed=3).image, render_adaptive(scene, budget=4.0).image)
     for a, b in zip(frames[10**12], frames[64]):
         assert np.array_equal(a, b)
@@ -781,7 +782,7 @@ def test_a_pixel_of_more_than_launch_cost_max_samples_is_shaded_in_passes_as_in_
     once; one count for every pixel and a per-pixel map whose pixels end in different passes (N_p = 0 the lights
     alone).  The passes are seen: launches that start past a pixel's first sample."""
     from test_lights import GGX, SKY, light, scene
-    from warpbw import shading
+    from warpbw import launch, shading
     from warpbw.shading import shade_reference
 
     prep = prepare_scene(scene(GGX, env=SKY, lights=(light(),), w=10, h=8))
@@ -794,7 +795,8 @@ def test_a_pixel_of_more_than_launch_cost_max_samples_is_shaded_in_passes_as_in_
     for spp in (1300, counts):
         frames = []
         for limit in (10**12, 300):   # 300: passes of 256 samples, one float32 batch
-            monkeypatch.setattr(shading, "LAUNCH_COST_MAX", limit)
+            monkeypatch.setattr(shading, "LAUNCH_COST_MAX", limit)   # the passes
+            monkeypatch.setattr(launch, "LAUNCH_COST_MAX", limit)    # and the tiles, as when they were one constant
             starts.clear()
             r = shade_reference(gb, prep.materials, prep.env.data, spp, seed=9, mis=True, lights=prep.lights)
             frames.append((r.radiance.numpy(), r.samples, r.non_finite, sorted(set(starts))))

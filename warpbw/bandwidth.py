@@ -266,7 +266,8 @@ from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, available_memory
                            check_flag, check_instance, check_seed, is_int, numeric_array, warn_if_short_of_memory)
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData, check_camera_of
 from warpbw.pyramid import build_pyramid, image_level
-from warpbw.shading import covered_pixels, launch_tiled, pixel_frame, to_local, to_world
+from warpbw.launch import launch_tiled
+from warpbw.shading import covered_pixels, pixel_frame, to_local, to_world
 
 N_B_DEFAULT = 16              # directions per pixel; 002 Sec. 2.6 and Fig. 13 ("n_b = 16 is sufficient")
 N_B_MAX = 1 << 16             # 64x the largest n_b of 002 Fig. 13's sweep (1024): a sanity bound on --nb

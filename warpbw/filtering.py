@@ -1467,7 +1467,7 @@ def render_filtering(scene: Scene | FilteringScene, method: str, spp: int = DEFA
     to 8).  With a ``background`` (:class:`Background`, at the camera's resolution) the planes are drawn over it: a
     pixel shows a plane when its centre ray hits one in front of the background's depth, and only those pixels are
     shaded (the scene's spheres and meshes, rendered by :mod:`warpbw.pipeline`)."""
-    from warpbw.shading import launch_tiled, progress_bar
+    from warpbw.launch import launch_tiled, progress_bar
 
     scene, prepared = _scene_and_prepared(scene, prepared)
     check_render_args(scene, method, spp, env_spp, max_anisotropy)

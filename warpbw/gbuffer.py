@@ -65,6 +65,7 @@ import warp as wp
 from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, check_camera_reach, check_coordinate_spacing,
                            check_count, check_device, check_flag, check_instance, is_int)
 from warpbw.io.mesh import checked_faces, checked_surface, local_curvature
+from warpbw.launch import launch_tiled
 
 RAY_T_MAX = 1.0e30
 # Primary rays are intersected in float32, and outside these distances from the camera (to an object's far
@@ -847,7 +848,6 @@ def render_gbuffer(cam: CameraData, geometry: Geometry, device: str = "cpu", out
     mesh whose curvature is still deferred (``ensure_curvature``) is not made to derive it, and reads 0: for a
     frame that no bandwidth pass reads.  Without ``attributes`` ``geo_normal`` and ``uv`` are neither allocated
     nor written (``allocate_gbuffer``): the renderer's frames, whose stages read neither."""
-    from warpbw.shading import launch_tiled   # shading builds on this module
 
     check_device(device)
     check_instance(cam, CameraData, "render_gbuffer: cam", "a CameraData (make_camera's)")

@@ -39,7 +39,7 @@ over the copies then hands each the values of its surface vertex, as ``warpbw.io
 (each copy summed its own side's faces alone: 5.9 degrees off on a 32-column sphere, the fallback normal at the
 poles); a mesh without seams (the bunny) launches nothing more.
 Atomic adds are atomic on a GPU; on the CPU a launch runs on one thread, so these
-launches are never split over threads (``warpbw.shading.launch_tiled`` would race on the sums).
+launches are never split over threads (``warpbw.launch.launch_tiled`` would race on the sums).
 """
 from __future__ import annotations
 

@@ -437,7 +437,8 @@ def render_reference(scene, spp: int, seed: int = 0, mis: bool = False, device: 
     centre ray of something nearer that will be drawn over this image; surfaces beyond it are not shaded and
     not covered (``stats["pixels_hidden"]`` counts them)."""
     from warpbw.gbuffer import make_gbuffer_kernel
-    from warpbw.shading import make_reference_kernel, progress_bar, shade_reference
+    from warpbw.launch import progress_bar
+    from warpbw.shading import make_reference_kernel, shade_reference
 
     _check_spp(spp)
     check_seed(seed)
@@ -654,7 +655,8 @@ def render_adaptive(scene, budget: float, seed: int = 0, mis: bool = False, n_b:
     :func:`render_reference`: a hidden pixel takes no part in the pass, the budget or the hierarchy."""
     from warpbw import adaptive, bandwidth
     from warpbw.gbuffer import make_gbuffer_kernel
-    from warpbw.shading import make_reference_kernel, progress_bar
+    from warpbw.launch import progress_bar
+    from warpbw.shading import make_reference_kernel
     from warpbw.upsample import UPSAMPLE_DEFAULT, check_upsample_mode
 
     n_b = bandwidth.N_B_DEFAULT if n_b is None else n_b
