@@ -408,6 +408,20 @@ def _gbuffer_arrays(gb):
     return {name: gb.numpy(name) for name in ("depth", "normal", "material", "curvature", "position")}
 
 
+def test_geometry_counts_the_triangles_of_every_mesh_and_none_for_spheres():
+    """``Geometry.n_triangles`` (documented in session 82, read by nothing before): an icosphere of subdivision s
+    has 20 * 4^s faces (each step splits every triangle into four), so 1 and 2 together are 80 + 320; spheres
+    alone have none.  Unchanged by ``update_mesh``, which moves vertices only."""
+    left, right = _icosphere_spec(0.6, subdiv=1), _icosphere_spec(0.7, material=1, subdiv=2)
+    right.vertices = right.vertices + np.array([2.0, 0.0, 0.0])
+    geo = build_geometry([SphereSpec((0.0, 0.0, -3.0), 1.0, 0)], [left, right])
+    assert (geo.n_triangles, geo.has_mesh, geo.has_spheres) == (20 * 4 + 20 * 4 ** 2, True, True)
+    update_mesh(geo, 0, left.vertices * 1.1, left.normals, left.curvature / 1.1)
+    assert geo.n_triangles == 20 * 4 + 20 * 4 ** 2
+    geo = build_geometry([SphereSpec((0.0, 0.0, -3.0), 1.0, 0)], [])
+    assert (geo.n_triangles, geo.has_mesh) == (0, False)
+
+
 def test_update_mesh_matches_a_geometry_built_from_scratch():
     # dynamic geometry (002 Sec. 4.3): deforming the second of two meshes in place and refitting the
     # BVH gives the G-buffer of a geometry built from the deformed vertices

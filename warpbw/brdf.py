@@ -14,7 +14,7 @@ Public:
     ``KIND_NAMES``                  material type name -> kind id
     ``eval_brdf(...)``, ``sample_brdf(...)``, ``pdf_brdf(...)``  host wrappers (numpy in, numpy out) for tests
     ``LAMBERT``, ``GGX``, ``MERL``, ``NPF``     material kind ids
-    Warp functions the kernels are built of: ``cos_theta``, ``angle_to_z`` (warpbw.sampling's), ``angle_between``,
+    Warp functions the kernels are built of: ``angle_to_z`` (warpbw.sampling's), ``angle_between``,
     ``half_vector``, ``sample_cosine_hemisphere``, ``lambert_eval``; GGX's ``ggx_d``, ``ggx_g1``, ``fresnel_conductor``,
     ``ggx_fresnel``, ``ggx_eval``, ``ggx_sample_vndf``, ``ggx_pdf``; ``rusinkiewicz``, ``merl_cell``, ``merl_eval``
     (MERL's look-up), ``npf_curve`` and ``npf_eval``
@@ -114,11 +114,6 @@ class MaterialTable:
 # ---------------------------------------------------------------------------------------------
 # Shared Warp helpers
 # ---------------------------------------------------------------------------------------------
-
-@wp.func
-def cos_theta(w: wp.vec3):
-    return w[2]
-
 
 @wp.func
 def angle_between(a: wp.vec3, b: wp.vec3):

@@ -447,7 +447,8 @@ class MeshSpec:
 @dataclass
 class Geometry:
     """Scene geometry on the device.  ``mesh`` (a ``wp.Mesh`` over every mesh object, or None) can be
-    deformed in place and refitted (``geometry.mesh.points`` then ``geometry.mesh.refit()``)."""
+    deformed in place and refitted (``geometry.mesh.points`` then ``geometry.mesh.refit()``).  ``n_triangles`` is
+    the triangles of every mesh together (0 without one), ``has_spheres`` / ``has_mesh`` whether there are any."""
 
     spheres: SphereList
     mesh_attr: MeshAttributes
