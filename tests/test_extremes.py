@@ -16,6 +16,7 @@ on spheres hidden behind the camera or outside a surrounding sphere.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -84,6 +85,9 @@ def assert_clean(res):
 
 @pytest.fixture(scope="module")
 def city(shared):
+    # its few negative pixels are set to 0 with a warning that pyproject.toml's filterwarnings ignores by the file's
+    # name: the tests under it filter no RuntimeWarning wholesale (they did until session 82, which would have hidden
+    # a new overflow or invalid-value warning of the renderer's), and expect each warning they cause by its words
     return shared("envmaps/city.exr")
 
 
@@ -104,9 +108,7 @@ def test_city_three_materials_are_finite(city, npf_table, mis):
     objs = [((-2.2, 0.0, 0.0), 1.0, "g"), ((0.0, 0.0, 0.0), 1.0, "l"), ((2.2, 0.0, 0.0), 1.0, "n")]
     s = scene(env=f'file = "{city}"', objects=objs, resolution=(64, 24), position=(0.0, 0.0, 6.0), fov=50.0,
               npf_table=npf_table)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # city.exr's slightly negative pixels are clamped
-        res = render_reference(s, spp=16, seed=3, mis=mis)
+    res = render_reference(s, spp=16, seed=3, mis=mis)
     assert_clean(res)
     mat = res.gbuffer.numpy("material")
     for m in range(3):
@@ -139,9 +141,7 @@ def test_lambert_under_city_matches_the_irradiance_integral(city, npf_table):
     objs = [((-2.2, 0.0, 0.0), 1.0, "g"), ((0.0, 0.0, 0.0), 1.0, "l"), ((2.2, 0.0, 0.0), 1.0, "n")]
     s = scene(env=f'file = "{city}"', objects=objs, resolution=(64, 24), position=(0.0, 0.0, 6.0), fov=50.0,
               npf_table=npf_table)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        res = render_reference(s, spp=64, seed=5, mis=True)
+    res = render_reference(s, spp=64, seed=5, mis=True)
     assert_clean(res)
     sel = res.gbuffer.numpy("material") == 1
     normals = res.gbuffer.numpy("normal")[sel].astype(np.float64)
@@ -163,9 +163,7 @@ def test_grazing_pixels_are_finite(city, npf_table, material, mis):
     objs = [((0.0, -50.0, 0.0), 50.0, material)] + hidden(*others)
     s = scene(env=f'file = "{city}"', objects=objs, resolution=(32, 32), position=(0.0, 0.05, 0.0),
               look_at=(0.0, 0.05 - math.tan(math.radians(6.0)), -1.0), fov=16.0, npf_table=npf_table)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        res = render_reference(s, spp=8, seed=7, mis=mis)
+    res = render_reference(s, spp=8, seed=7, mis=mis)
     assert_clean(res)
     ndv = n_dot_v(res)
     grazing = res.coverage & (ndv < GRAZING)
@@ -381,10 +379,12 @@ def test_adaptive_under_the_city_sun(city, npf_table, n_b, budget):
     objs = [((-2.2, 0.0, 0.0), 1.0, "g"), ((0.0, 0.0, 0.0), 1.0, "l"), ((2.2, 0.0, 0.0), 1.0, "n")]
     s = scene(env=f'file = "{city}"', objects=objs, resolution=(64, 24), position=(0.0, 0.0, 6.0), fov=50.0,
               npf_table=npf_table)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
+    # the one warning expected, on its call (a blanket ignore of RuntimeWarning hid it and any other until session 82)
+    with pytest.warns(RuntimeWarning, match=r"^budget 0\.25 is below 1 sample\(s\) per shaded pixel \(\d+ pixels to "
+                      r"shade, \d+ samples\): every shaded pixel got 1") if budget < 1 else contextlib.nullcontext():
         res = render_adaptive(s, budget=budget, n_b=n_b, seed=2, mis=True)
-        ref = render_reference(s, spp=64, seed=5, mis=True)
+    assert res.stats["allocation"]["over_budget"] == (budget < 1)
+    ref = render_reference(s, spp=64, seed=5, mis=True)
     assert_adaptive_clean(res)
     n_cov = int(res.coverage.sum())
     alloc = res.stats["allocation"]
@@ -433,9 +433,7 @@ def test_adaptive_grazing_silhouettes_are_finite(city):
     objs = [((0.0, -50.0, 0.0), 50.0, "g")] + hidden("l")
     s = scene(env=f'file = "{city}"', objects=objs, resolution=(32, 32), position=(0.0, 0.05, 0.0),
               look_at=(0.0, 0.05 - math.tan(math.radians(6.0)), -1.0), fov=16.0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        res = render_adaptive(s, budget=2.0, seed=3, mis=True)
+    res = render_adaptive(s, budget=2.0, seed=3, mis=True)
     assert_adaptive_clean(res)
     grazing = res.coverage & (n_dot_v(res) < GRAZING)
     assert grazing.sum() >= 20
@@ -481,9 +479,7 @@ def test_planes_under_the_city_sun_every_method_is_finite(city, tmp_path):
     means = {}
     for extra in ('normal_map = "map.exr"\ntiling = 40.0\n', ""):
         s = parse_scene(PLANE_UNDER_CITY.format(city=city, extra=extra), tmp_path, "plane.toml")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # city.exr's slightly negative pixels are clamped
-            prep = prepare_filtering(s, ALL_METHODS)
+        prep = prepare_filtering(s, ALL_METHODS)
         for m in ALL_METHODS:
             r = render_filtering(s, m, prepared=prep, spp=256, env_spp=64, seed=1)
             assert np.isfinite(r.image).all() and (r.image >= 0.0).all(), m
@@ -608,16 +604,14 @@ def test_a_scene_scaled_from_1e_minus_8_to_1e11_renders_the_same_images(city, tm
         prep = prepare_scene(parse_scene(text, tmp_path, "scaled"))
         return render_reference(prep, spp=8, seed=3, mis=True), render_adaptive(prep, budget=4.0, seed=3, mis=True)
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")   # city.exr's clamped texels
-        ref1, ada1 = render(1.0)
-        assert ref1.coverage.sum() > 200 and 0.0 < ada1.stats["shaded_fraction"] < 1.0
-        for s in (1e-8, 1e11):
-            ref, ada = render(s)
-            assert np.array_equal(ref.coverage, ref1.coverage), s
-            np.testing.assert_allclose(ref.image, ref1.image, rtol=0, atol=1e-4 * ref1.image.max())
-            assert ada.stats["shaded_fraction"] == ada1.stats["shaded_fraction"], s
-            np.testing.assert_allclose(ada.image, ada1.image, rtol=0, atol=1e-4 * ada1.image.max())
+    ref1, ada1 = render(1.0)
+    assert ref1.coverage.sum() > 200 and 0.0 < ada1.stats["shaded_fraction"] < 1.0
+    for s in (1e-8, 1e11):
+        ref, ada = render(s)
+        assert np.array_equal(ref.coverage, ref1.coverage), s
+        np.testing.assert_allclose(ref.image, ref1.image, rtol=0, atol=1e-4 * ref1.image.max())
+        assert ada.stats["shaded_fraction"] == ada1.stats["shaded_fraction"], s
+        np.testing.assert_allclose(ada.image, ada1.image, rtol=0, atol=1e-4 * ada1.image.max())
 
 
 def test_planes_scaled_from_1e_minus_30_to_1e30_render_the_same_images_and_beyond_are_refused(tmp_path):
