@@ -158,7 +158,8 @@ class AdaptiveResult:
     shaded: np.ndarray           # (H, W) bool: finest pixels that were shaded (at any level)
     shaded_level: np.ndarray     # (H, W) int: finest level at which the pixel was shaded, -1 if up-sampled/empty
     spp: np.ndarray              # (H, W) int32: samples taken at the pixel (its texel's N_p, summed over the levels
-                                 # that shaded it; 0 if up-sampled/empty): sums to stats["samples"]
+                                 # that shaded it; 0 if up-sampled/empty): sums to stats["samples"], but for a pixel
+                                 # past INT32_MAX, clipped there (only an n_max near 2^31 at two levels or more)
     stats: dict = field(default_factory=dict)
 
 
