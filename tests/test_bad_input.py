@@ -4430,6 +4430,7 @@ def _path_taking_calls(tmp_path):
     from warpbw.io.exr import colour_conversion
     from warpbw.io.exr_layout import exr_damage, first_header_declares
     from warpbw.io.mesh import mesh_triangles
+    from warpbw.io.png import png_header, read_png
     from warpbw.scene import file_digest, parse_scene
 
     item, table = batch.BatchItem("a.binary", None, "a"), fake_npf_table(tmp_path / "npf.bin")
@@ -4439,6 +4440,7 @@ def _path_taking_calls(tmp_path):
         ("colour_conversion: path", colour_conversion), ("exr_damage: path", exr_damage),
         ("first_header_declares: path", lambda p: first_header_declares(p, "dataWindow", "box2i")),
         ("mesh_triangles: path", mesh_triangles), ("write_json: path", lambda p: write_json(p, {}, say=False)),
+        ("read_png: path", read_png), ("png_header: path", png_header),
         ("asset_info: path", asset_info), ("header_status: path", header_status), ("read_header: path", read_header),
         ("load_source: spec", load_source),
         ("load_environment: spec", load_environment),

@@ -180,6 +180,18 @@ def test_a_damaged_png_is_one_line_naming_the_file_and_what_is_wrong(tmp_path):
         assert "\n" not in str(exc.value), name
 
 
+def test_a_missing_file_or_a_folder_is_named_and_a_number_is_not_read_as_a_descriptor(tmp_path):
+    """As the other readers: a missing file, a folder, and a number (open(1) would read stdout's descriptor and close
+    it) are one line each, naming the path or the parameter."""
+    for call in (read_png, png_header):
+        with pytest.raises(WarpbwError, match=f"^{tmp_path / 'no.png'}: file not found \\(expected a PNG image\\)$"):
+            call(tmp_path / "no.png")
+        with pytest.raises(WarpbwError, match=f"^{tmp_path}: a directory, not a file"):
+            call(tmp_path)
+        with pytest.raises(WarpbwError, match=f"^{call.__name__}: path: expected a file name"):
+            call(1)
+
+
 def test_a_damaged_16_bit_normal_map_is_refused_by_load_map_naming_the_file(tmp_path):
     """Through the map reader (warpbw-precompute gmm, a scene's normal_map): a 16-bit RGB normal map cut short is
     the reader's one line, not Pillow's 8-bit reading of what is left."""
