@@ -4419,7 +4419,10 @@ def _path_taking_calls(tmp_path):
     """(name, call of a path) for every public function that takes a file or folder name and had no check of it
     (session 80: pathlib's TypeError from deep inside, an AttributeError, or, for an int, open()'s file descriptor)."""
     from precompute import batch
+    from types import SimpleNamespace
+
     from precompute.asset_info import asset_info, header_status
+    from precompute.brdf_sampling import load_or_build
     from precompute.assetfile import read_header
     from precompute.gmm_mipmap import load_source
     from precompute.npf_to_merl import npf_to_merl, tabulation_is_current, tabulation_stamp, write_tabulation_stamp
@@ -4435,6 +4438,7 @@ def _path_taking_calls(tmp_path):
 
     item, table = batch.BatchItem("a.binary", None, "a"), fake_npf_table(tmp_path / "npf.bin")
     out = tmp_path / "o"
+    scene = parse_scene(STAGE_SCENE, tmp_path, "s.toml")
     return [
         ("file_digest: path", file_digest), ("<string>: base_dir", lambda p: parse_scene("", base_dir=p)),
         ("colour_conversion: path", colour_conversion), ("exr_damage: path", exr_damage),
@@ -4447,6 +4451,9 @@ def _path_taking_calls(tmp_path):
         ("write_plot: path", lambda p: bench.write_plot({}, p)),
         ("write_plot: path", lambda p: bench_filtering.write_plot({}, p)),
         ("ground_truth: cache_dir", lambda p: bench.ground_truth(None, 8, p)),
+        ("run_bench: cache_dir", lambda p: bench.run_bench(scene, cache_dir=p, progress=False)),
+        ("run_bench_filtering: cache", lambda p: bench_filtering.run_bench_filtering(scene, cache=p)),
+        ("cache", lambda p: load_or_build(SimpleNamespace(digest="d"), None, p, "sampling", 1, None, None, None)),
         ("batch_items: sources", lambda p: batch.batch_items([p])),
         ("output_paths: out_dir", lambda p: batch.output_paths(item, p)),
         ("output_paths: item", lambda p: batch.output_paths(p, out)),
@@ -4479,8 +4486,9 @@ def test_every_public_function_that_takes_a_path_names_it_when_given_none_or_a_n
     calls = _path_taking_calls(tmp_path)
     for bad in (987654, None, [], b"x.exr", 1.5):
         for name, call in calls:
-            if bad is None and name in ("<string>: base_dir", "temporary_folder: parent"):
-                continue   # None is their default (the working folder, the system's temporary folder)
+            if bad is None and name in ("<string>: base_dir", "temporary_folder: parent", "run_bench: cache_dir",
+                                        "run_bench_filtering: cache", "cache"):
+                continue   # None is their default (the working folder, the system's temporary folder, ...)
             expected = "a warpbw.scene.Environment" if "spec" in name and "environment" in name else \
                 "(a )?BatchItem" if name.endswith(("item", "items")) else "a file name"
             with pytest.raises(WarpbwError, match=rf"^{re.escape(name)}: expected {expected}") as exc:
@@ -4599,3 +4607,37 @@ def test_npf_to_merl_takes_its_table_as_brdf_and_batch_take_theirs(monkeypatch, 
         # found through argparse's private _actions)
         assert exc.value.code == EXIT_USER_ERROR, exc.value.code
         assert err == f"warpbw-precompute: error: {said} (see 'warpbw-precompute npf-to-merl --help')", err
+        assert exc.value.code == EXIT_USER_ERROR and err.startswith(f"warpbw-precompute: error: {said}"), err
+
+
+@pytest.mark.parametrize("buffering", [1, -1], ids=["line-buffered: the write", "buffered: the flush"])
+def test_a_reader_that_left_stops_a_command_quietly_whether_a_write_or_the_flush_meets_it(tmp_path, monkeypatch,
+                                                                                          capsys, buffering):
+    """While a command runs, stdout's writes and flushes that fail name standard output (a full disk), but a closed
+    pipe is the reader leaving (``| head -1``): the command stops quietly with the shell's status for SIGPIPE (141,
+    README: Command-line conventions), whether the print's write itself (a line-buffered stdout, a terminal's) or the
+    flush after the command meets it.  Truth: a pipe whose reading end this test closed."""
+    from warpbw.cli import main as cli_main
+
+    write_exr(tmp_path / "a.exr", np.ones((4, 4, 3), np.float32))
+    write_exr(tmp_path / "b.exr", np.full((4, 4, 3), 2.0, np.float32))
+    r, w = os.pipe()
+    os.close(r)
+    with open(w, "w", buffering=buffering) as gone:
+        monkeypatch.setattr(sys, "stdout", gone)
+        assert cli_main(["compare", str(tmp_path / "a.exr"), str(tmp_path / "b.exr")]) == 128 + 13
+        monkeypatch.undo()
+    assert capsys.readouterr().err == ""
+
+
+def test_a_command_run_with_no_stderr_leaves_none_behind(tmp_path, monkeypatch):
+    """Started with stderr closed (``2>&-``: no ``sys.stderr``), a command writes its warnings and errors nowhere
+    while it runs, and afterwards ``sys.stderr`` is None again, not the closed stand-in of the run (a second command in
+    the same process, or a print to stderr, then failed on a closed file).  Truth: the state before the call."""
+    from warpbw.cli import main as cli_main
+
+    write_exr(tmp_path / "a.exr", np.ones((4, 4, 3), np.float32))
+    monkeypatch.setattr(sys, "stderr", None)
+    for _ in range(2):
+        assert cli_main(["compare", str(tmp_path / "a.exr"), str(tmp_path / "missing.exr")]) == EXIT_USER_ERROR
+        assert sys.stderr is None

@@ -484,3 +484,55 @@ def test_a_batch_killed_takes_its_workers_with_it(tmp_path):
     assert sorted(f.name for f in (tmp_path / "out").iterdir() if not f.name.startswith(".")) == written
     p.stdout.close()
     p.stderr.close()
+
+
+def test_task_warnings_go_to_their_task_while_another_runs_and_from_threads_a_task_started():
+    """``_task_warnings`` (its docstring): the first task to start takes the process's warnings machinery and the last
+    to end puts it back, so a task still running after another ended keeps its own list; a warning from a thread that
+    runs no task (one a task started) goes to every task running; each warning is recorded, the same one twice
+    included; afterwards the process's warnings are as they were.  Truth: the warnings this test raises."""
+    import threading
+    import warnings
+
+    from precompute import batch
+
+    before = (warnings.showwarning, list(warnings.filters))
+    a_started, a_ended, b_saw = threading.Event(), threading.Event(), {}
+
+    def task_a():
+        with batch._task_warnings() as said:
+            a_started.set()
+            b_saw["a"] = said
+        a_ended.set()
+
+    with batch._task_warnings() as said_b:
+        t = threading.Thread(target=task_a)
+        t.start()
+        a_started.wait(10)
+        a_ended.wait(10)   # task a ended while this one runs
+        t.join(10)
+        for _ in range(2):
+            warnings.warn("from b", UserWarning)
+        helper = threading.Thread(target=lambda: warnings.warn("from a helper thread", UserWarning))
+        helper.start()
+        helper.join(10)
+    assert [str(w.message) for w in said_b] == ["from b", "from b", "from a helper thread"]
+    assert b_saw["a"] == []
+    assert (warnings.showwarning, list(warnings.filters)) == before
+
+
+def test_the_script_hint_is_for_a_python_script_alone(monkeypatch):
+    """``_script_hint`` says to guard run_batch under ``if __name__ == "__main__":`` to a Python script run as
+    ``python make_tables.py`` (no ``__spec__``), and nothing under ``python -m precompute`` (a ``__spec__``) or a
+    console script (``warpbw-precompute``).  Truth: the three ways the docstring names."""
+    import sys
+    from types import SimpleNamespace
+
+    from precompute import batch
+
+    for main, hint in ((SimpleNamespace(__file__="/home/u/make_tables.py", __spec__=None), True),
+                       (SimpleNamespace(__file__="/src/precompute/__main__.py", __spec__=object()), False),
+                       (SimpleNamespace(__file__="/venv/bin/warpbw-precompute", __spec__=None), False)):
+        monkeypatch.setitem(sys.modules, "__main__", main)
+        said = batch._script_hint()
+        assert ("make_tables.py" in said and "__name__" in said) if hint else said == "", main

@@ -2009,3 +2009,56 @@ def test_equal_quality_on_a_curve_whose_mse_rises_reads_the_first_crossing_and_w
     (p,) = rec["methods"]["adaptive"]   # MSE 0.0225 between 8 (0.04) and 16 (0.01) spp: 8 x 2^(log(0.04/0.0225)/log 4)
     assert math.isclose(p["equal_quality_spp"], 8 * 2 ** (math.log(0.04 / 0.0225) / math.log(4)), rel_tol=1e-6), p
     assert not p["extrapolated"]
+
+
+def test_equal_quality_reads_the_first_count_of_a_flat_step_and_no_count_past_a_flat_end():
+    """Rules of ``equal_quality_time`` and ``mse_rises`` (their docstrings; truth: the curves' closed forms).  A
+    curve flat from 1 to 2 spp reaches its MSE at 1 spp, the first count; below a flat end no count is read (NaN,
+    flagged); a single count is read as extrapolated; a time that grows as spp^2 along a nearly flat end overflows
+    to inf (flagged) rather than raising.  A flat step is no rise, nor is the step from a count of MSE 0 (left out, as
+    ``equal_quality_time`` leaves it out)."""
+    def curve(spp, mse, time=None):
+        return [{"spp": s, "mse": m, "time_s": 0.01 * s if time is None else t}
+                for s, m, t in zip(spp, mse, time or spp)]
+
+    step = curve((1, 2, 4), (0.5, 0.5, 0.25))
+    spp, t, ext = bench.equal_quality_time(step, 0.5)
+    assert (spp, ext) == (1.0, False) and math.isclose(t, 0.01, rel_tol=1e-12)
+    assert bench.mse_rises(step) == [] and bench.mse_rises(curve((1, 2, 4), (0.0, 0.5, 0.25))) == []
+    flat_end = curve((1, 2, 4), (0.5, 0.25, 0.25))
+    spp, t, ext = bench.equal_quality_time(flat_end, 0.1)
+    assert math.isnan(spp) and math.isnan(t) and ext
+    spp, t, ext = bench.equal_quality_time(curve((4,), (0.2,)), 0.1)
+    assert (spp, ext) == (4.0, True) and math.isclose(t, 0.04, rel_tol=1e-12)
+    squared = curve((1, 2), (1.0, 0.99), time=(1.0, 4.0))   # MSE 0.99^log2(spp), time spp^2
+    spp, t, ext = bench.equal_quality_time(squared, 0.99 ** (400 / math.log(2)))   # at spp = e^400: time e^800
+    assert math.isinf(t) and ext
+
+
+def test_each_frame_of_an_animation_and_a_rolled_camera_has_a_ground_truth_of_its_own(tmp_path):
+    """Frames of an animation on one prepared scene, the mesh deformed anew for each (update_mesh) with the camera
+    left as it is, and a camera rolled about its axis (the scene's position and look-at, another up): each frame's
+    ground truth is its own, as rendered into an empty cache (truth), not the one of the frame before it or of the
+    scene (their camera values and geometry digests differ)."""
+    import trimesh
+
+    from warpbw.gbuffer import make_camera, update_mesh
+    from warpbw.pipeline import prepare_scene
+    from warpbw.scene import parse_scene
+
+    trimesh.creation.icosphere(subdivisions=1).export(tmp_path / "ico.obj")
+    text = SCENE.replace('shape = "sphere"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0', 'mesh = "ico.obj"')
+    prep = prepare_scene(parse_scene(text, tmp_path, "s.toml"))
+    cache = tmp_path / "gt"
+    keys = {bench.ground_truth(prep, 4, cache, progress=False).key}
+    rest = prep.geometry.mesh.points.numpy().copy()
+    for k, frame in enumerate(("squeezed", "stretched", "rolled")):
+        if frame == "rolled":
+            update_mesh(prep.geometry, 0, rest * np.array([1.0, 0.6, 1.0]))   # as squeezed: only the camera differs
+            prep.camera = make_camera((0.0, 0.0, 4.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 30.0, 24, 24)
+        else:
+            update_mesh(prep.geometry, 0, rest * np.array([1.0, 0.6 if frame == "squeezed" else 1.4, 1.0]))
+        gt = bench.ground_truth(prep, 4, cache, progress=False)
+        fresh = bench.ground_truth(prep, 4, tmp_path / f"cold-{frame}", progress=False)
+        assert gt.key == fresh.key and gt.key not in keys and np.array_equal(gt.image, fresh.image), frame
+        keys.add(gt.key)

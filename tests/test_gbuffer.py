@@ -1632,3 +1632,31 @@ def test_a_camera_inside_a_sphere_sees_the_wall_along_rays_square_to_its_offset_
     t = -b + np.sqrt(b * b - np.einsum("ij,ij->i", oc, oc) + r * r)
     assert gb.coverage.all()
     np.testing.assert_allclose(gb.numpy("depth").reshape(-1), t, atol=1e-3)
+
+
+def test_the_geometry_digest_tells_every_change_a_frame_reads():
+    """``geometry_digest`` hashes what a frame reads of a built geometry that may change after it is built (its
+    docstring): a sphere's centre, radius and material, a mesh's points and its normals (``update_mesh`` with normals
+    of its own, the points left as they were).  Each change alone gives another digest than ``digest_built``; putting
+    the value back gives it again."""
+    from warpbw.gbuffer import geometry_digest
+
+    v = np.array([[-1.0, -1.0, 0.0], [1.2, -0.8, 0.1], [-0.1, 1.1, -0.2]], np.float32)
+    nrm = np.tile(np.array([0.0, 0.0, 1.0], np.float32), (3, 1))
+    mesh = MeshSpec(v, np.array([[0, 1, 2]], np.int32), nrm, np.zeros(3, np.float32), None, 0)
+    geom = build_geometry([SphereSpec((0.0, 0.0, -3.0), 1.0, 0)], [mesh])
+    assert geometry_digest(geom) == geom.digest_built != ""
+    for name in ("center", "radius", "material"):
+        a = getattr(geom.spheres, name).numpy()   # the device array's own memory on the CPU
+        was = a.copy()
+        a.reshape(-1)[0] += 1
+        assert geometry_digest(geom) != geom.digest_built, name
+        a[...] = was
+        assert geometry_digest(geom) == geom.digest_built
+    tilted = np.tile(np.array([0.0, 0.6, 0.8], np.float32), (3, 1))
+    update_mesh(geom, 0, v, normals=tilted, curvature=np.zeros(3, np.float32))
+    assert geometry_digest(geom) != geom.digest_built
+    update_mesh(geom, 0, v, normals=nrm, curvature=np.zeros(3, np.float32))
+    assert geometry_digest(geom) == geom.digest_built
+    update_mesh(geom, 0, v * 1.1, normals=nrm, curvature=np.zeros(3, np.float32))
+    assert geometry_digest(geom) != geom.digest_built

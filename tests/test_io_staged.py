@@ -898,3 +898,27 @@ def test_an_output_under_a_link_to_nothing_names_the_link(tmp_path):
         with staged_outputs([tmp_path / "out" / "x.json"]) as at:
             at[tmp_path / "out" / "x.json"].write_text("{}")
     assert not (tmp_path / "gone").exists()
+
+
+def test_the_mode_of_a_new_output_where_proc_gives_no_umask(monkeypatch):
+    """Where /proc/self/status does not open (no /proc, a kernel before 4.7 lacks its Umask line too), the umask is
+    read by setting it (os.umask), not taken for 0: a new output gets 0666 less the umask (truth: os.umask's own)."""
+    import builtins
+
+    import warpbw.io.staged as staged
+
+    real_open = builtins.open
+
+    def no_proc(path, *a, **kw):
+        if str(path).startswith("/proc/"):
+            raise FileNotFoundError(2, "No such file or directory", str(path))
+        return real_open(path, *a, **kw)
+
+    previous = os.umask(0o027)
+    try:
+        monkeypatch.setattr(builtins, "open", no_proc)
+        assert staged._umask_from_proc() is None
+        assert staged._new_file_mode() == 0o640
+    finally:
+        monkeypatch.undo()
+        os.umask(previous)

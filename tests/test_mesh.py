@@ -1094,6 +1094,17 @@ def test_winding_is_made_consistent_across_a_texture_seam_and_a_moebius_strip_is
         out, n_turned, n_unorientable = consistent_winding(np.array(verts), tri)
     assert (n_turned, n_unorientable) == (0, len(tri))
     np.testing.assert_array_equal(out, tri)
+    # and load_mesh says so, of a strip of uneven quads (an even one is symmetric about its twist, and the normals
+    # at the vertex there cancel exactly: refused as coincident triangles wound in opposite directions)
+    ang = 2 * np.pi * (np.arange(k_around) + 0.3 * np.random.default_rng(1).random(k_around)) / k_around
+    uneven = [[(1 + s * np.cos(a / 2)) * np.cos(a), s * np.sin(a / 2), (1 + s * np.cos(a / 2)) * np.sin(a)]
+              for a in ang - ang[0] for s in (-0.3, 0.3)]
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "moebius.obj"
+        p.write_text(_obj_text(np.array(uneven), tri))
+        with pytest.warns(UserWarning, match=rf"moebius\.obj: {len(tri)} of {len(tri)} triangles form a surface no "
+                                             "winding fits"):
+            load_mesh(p)
 
 
 def test_two_threads_reading_meshes_at_once_leave_logging_as_it_was(tmp_path, monkeypatch):
@@ -1141,3 +1152,61 @@ def test_two_threads_reading_meshes_at_once_leave_logging_as_it_was(tmp_path, mo
         assert len(errors) == 2 and all("stand-in" in e for e in errors), errors
     finally:
         logging.disable(before)
+
+
+def test_winding_joins_only_two_faces_meeting_at_an_edge_and_opening_more_than_the_fold_angle():
+    """``consistent_winding`` joins two faces over an edge that they alone share and whose third vertices lie more
+    than ``WINDING_FOLD_DEG`` (60) apart seen along it (truth: the rule its docstring states).  Each pair below walks
+    its edge the same way (one face wound against the other): at 90 degrees (a cube's edge) or 120 the second face is
+    turned, at any scale; at 30 degrees (a fold) it is not, whatever their distance along the edge, nor is any of
+    three faces on one edge (non-manifold: a fin)."""
+    from warpbw.io.mesh import WINDING_FOLD_DEG, consistent_winding
+
+    assert WINDING_FOLD_DEG == 60.0
+    edge = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]
+
+    def third(deg):   # a third vertex at deg about the x axis (the edge), from +y
+        a = math.radians(deg)
+        return [0.5, math.cos(a), math.sin(a)]
+
+    faces = np.array([[0, 1, 2], [0, 1, 3]])
+    for deg, turned in ((30.0, 0), (90.0, 1), (120.0, 1)):
+        out, n_turned, n_unorientable = consistent_winding(np.array(edge + [third(0.0), third(deg)]), faces)
+        assert (n_turned, n_unorientable) == (turned, 0), deg
+        np.testing.assert_array_equal(out, [[0, 1, 2], [0, 3, 1]] if turned else faces)
+    # the angle is seen along the edge: third vertices far apart along it fold all the same
+    far = np.array(edge + [[-3.0, 1.0, 0.0], [4.0, *third(30.0)[1:]]])
+    assert consistent_winding(far, faces)[1] == 0
+    for scale in (1e-200, 1e200):   # measured at an exact scale: no product of lengths underflows or overflows
+        out, n_turned, _ = consistent_winding(np.array(edge + [third(0.0), third(90.0)]) * scale, faces)
+        assert n_turned == 1 and out[1].tolist() == [0, 3, 1], scale
+    fin = np.array(edge + [third(0.0), third(120.0), third(240.0)])
+    out, n_turned, _ = consistent_winding(fin, np.array([[0, 1, 2], [0, 1, 3], [1, 0, 4]]))
+    assert n_turned == 0
+
+
+@pytest.mark.parametrize("scale", [1e-5, 1e-7])
+def test_a_tiny_mesh_is_merged_as_the_same_mesh_at_unit_size(tmp_path, scale):
+    """A mesh below ``MERGE_MIN_COORD`` is merged at a power-of-two scale that brings it to [1, 2), so that trimesh's
+    1e-8 tolerance is a unit mesh's, relative to its size: an icosphere of unshared corners (as an STL stores it) with
+    float noise of 1e-11 of its size merges into its 42 vertices at radius 1 and at ``scale`` alike (truth: the
+    icosphere's own vertex count; merged at [256, 512), 1e-11 became 4e-9, and 101 or 127 vertices stayed apart)."""
+    ico = trimesh.creation.icosphere(subdivisions=1)
+    corners = np.asarray(ico.vertices)[np.asarray(ico.faces)].reshape(-1, 3)
+    noisy = corners * (1.0 + 1e-11 * np.random.default_rng(0).standard_normal(corners.shape))
+    faces = np.arange(len(corners)).reshape(-1, 3)
+    for s in (1.0, scale):
+        p = tmp_path / f"noisy_{s:g}.obj"
+        p.write_text("".join("v %.17g %.17g %.17g\n" % tuple(v) for v in noisy * s)   # every digit
+                     + "".join("f %d %d %d\n" % tuple(f + 1) for f in faces))
+        assert len(load_mesh(p).vertices) == len(ico.vertices) == 42, s
+
+
+def test_a_tiny_mesh_of_no_area_is_said_to_have_none_not_to_collapse_in_the_merge(tmp_path):
+    """A mesh below ``MERGE_MIN_COORD`` is merged at a larger scale (k < 0), where nothing finer than the merge's
+    tolerance of it is lost: a tiny mesh whose triangles have no area is said to have none (the "collapses when
+    vertices closer than ... are merged" of a mesh of huge coordinates would blame the merge, naming 4e-15)."""
+    p = tmp_path / "flat_tiny.obj"
+    p.write_text("v 0 0 0\nv 1e-6 1e-6 1e-6\nv 2e-6 2e-6 2e-6\nv 3e-6 3e-6 3e-6\nf 1 2 3\nf 2 3 4\n")
+    with pytest.raises(WarpbwError, match=r"flat_tiny\.obj: every triangle has zero area"):
+        load_mesh(p)
