@@ -50,6 +50,7 @@ from warpbw.cli import BUDGET_MAX
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_overwrite, few_runs_warning, init_warp,
                                json_text, parse_seed, run_command)
 from warpbw.errors import SEED_MAX, WarpbwError
+from warpbw.io.exr import REC709_LUMINANCE
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.scene import MAX_RESOLUTION
 
@@ -76,7 +77,7 @@ FRAMING_MARGIN = 1.1           # half extent of the deformed mesh to the half fi
 GGX_MATERIAL = 'type = "ggx"\nalpha = 0.15\nspecular = [0.8, 0.12, 0.1]'
 
 # Shaded-mask row of the strip (linear values; written as sRGB).
-LUMINANCE = (0.2126, 0.7152, 0.0722)   # Rec. 709, for the strip's exposure
+LUMINANCE = REC709_LUMINANCE   # Rec. 709's Y weights, for the strip's exposure
 MASK_SHADED = 1.0
 MASK_UPSAMPLED = 0.04          # covered, filled by up-sampling: dark grey
 STRIP_GAP = 2                  # pixels between frames

@@ -95,7 +95,8 @@ def main(argv=None) -> int:
     for m in ALL_METHODS:
         tiles = []
         for f in frames[m]:
-            rgb = (np.clip(linear_to_srgb(np.clip(f / white, 0, 1)), 0, 1) * 255).astype(np.uint8)
+            # sRGB codes rounded, as write_png's (truncated, every code was half a step dark and 255 only at 1)
+            rgb = np.round(np.clip(linear_to_srgb(np.clip(f / white, 0, 1)), 0, 1) * 255).astype(np.uint8)
             im = Image.fromarray(rgb)
             w = max(1, round(im.width * TILE / im.height))
             tiles.append(im.resize((w, TILE), Image.NEAREST))

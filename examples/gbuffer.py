@@ -3,7 +3,8 @@
     python examples/gbuffer.py [--mesh ../shared/data/meshes/bunny.obj] [--out gbuffer_out] [--device cpu]
         [--json OUT.json] [--plot OUT.png] [--force]
 
-Writes normal.png, depth.png, curvature.png, material.png and gbuffer.exr (all buffers as channels),
+Writes normal.png (each component of the world-space normal as the 8-bit code round(255 (n + 1) / 2), as a normal map
+encodes it; black off the geometry), depth.png, curvature.png, material.png and gbuffer.exr (all buffers as channels),
 and prints the ray-cast time (the median of ``RUNS`` launches after a warm-up launch that compiles the kernel).
 ``--json`` / ``--plot`` (as ``warpbw bench``'s: the one not given goes beside the other; an existing file is kept
 without ``--force``, refused before any work) write the record (the settings, the mesh's size, the device, each
@@ -19,12 +20,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 import warp as wp
 
 from warpbw.cli_common import (OneLineParser, check_output_dir, check_overwrite, check_record_outputs, init_warp,
                                run_command, write_record)
 from warpbw.gbuffer import MeshSpec, SphereSpec, build_geometry, make_camera, render_gbuffer
-from warpbw.io.exr import write_exr, write_false_colour_png, write_png
+from warpbw.io.exr import write_exr, write_false_colour_png
 from warpbw.io.mesh import load_mesh
 from warpbw.io.shared_data import shared_data_dir
 from warpbw.io.staged import staged_outputs
@@ -102,7 +104,9 @@ def main():
     # all five, or none: an error leaves the old set
     with staged_outputs([out / n for n in OUTPUTS], force=args.force) as at:
         cov = gb.coverage
-        write_png(at[out / "normal.png"], np.where(cov[..., None], 0.5 * gb.numpy("normal") + 0.5, 0.0) ** 2.2)
+        # the codes themselves: through write_png, x^2.2 then the sRGB curve put a dark component up to 8 codes off
+        codes = np.where(cov[..., None], np.clip(np.round(127.5 * (gb.numpy("normal") + 1.0)), 0.0, 255.0), 0.0)
+        Image.fromarray(codes.astype(np.uint8)).save(at[out / "normal.png"], format="PNG")
         write_false_colour_png(at[out / "depth.png"], gb.numpy("depth"), mask=cov)
         curv = gb.numpy("curvature")
         write_false_colour_png(at[out / "curvature.png"], np.log10(np.abs(curv) + 1e-3), mask=cov)

@@ -1393,3 +1393,28 @@ def test_a_gmm_folder_a_killed_benchmark_left_in_the_temporary_folder_is_removed
     assert during == sorted([live, elsewhere, other, cache.name])   # the dead process's folder went first
     assert cache.parent == tmp_path and cache.name.startswith(f"warpbw-gmm-{host}-{os.getpid()}."), cache
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live, elsewhere, other])
+
+
+def test_filtering_zoom_strips_round_each_srgb_code_as_the_previews_do(tmp_path, monkeypatch):
+    """examples/filtering_zoom.py encodes each frame over the ground truth's 99th percentile with sRGB (IEC 61966-2-1)
+    and rounds the code, as ``write_png`` does; it truncated it (every code half a step dark on average, 255 only at
+    exactly white).  Stand-in frames of known radiance, one zoom, a frame TILE pixels high (no resampling): each
+    strip's codes are round(255 srgb(min(v / white, 1))), the sRGB curve written out here (white was 254: the curve
+    gives 1 - 1e-16 at 1)."""
+    from PIL import Image
+
+    import warpbw.filtering as wf
+
+    ex = load_example("filtering_zoom")
+    v = np.linspace(0.0, 1.3, ex.TILE * 8, dtype=np.float32).reshape(ex.TILE, 8)
+    img = np.stack([v, 0.5 * v, 0.25 * v], axis=-1)
+    monkeypatch.setattr(wf, "prepare_filtering", lambda *a, **k: None)
+    monkeypatch.setattr(wf, "render_filtering",
+                        lambda *a, **k: SimpleNamespace(image=img, coverage=np.ones(v.shape, bool)))
+    (tmp_path / "planes.toml").write_text(plane_scene_toml())
+    assert ex.main([str(tmp_path / "planes.toml"), "-o", str(tmp_path / "zoom"), "--zoom", "1"]) == 0
+    x = np.clip(img.astype(np.float64) / np.percentile(img, 99), 0.0, 1.0)
+    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1.0 / 2.4) - 0.055)
+    for m in wf.ALL_METHODS:
+        got = np.asarray(Image.open(tmp_path / "zoom" / f"{m}.png").convert("RGB"))
+        assert np.array_equal(got, np.round(255.0 * srgb).astype(np.uint8)), m

@@ -3592,3 +3592,48 @@ def test_the_command_line_conventions_hold_for_every_command():
     for parser in (warpbw_parser(), precompute_parser()):   # each --help gives the exit statuses in brief
         said = re.sub(r"\s+", " ", parser.epilog)
         assert all(s in said for s in ("0 done", "2 a usage error or bad input", "130, 143 or 129", "141")), said
+
+
+def test_radiance_keeps_its_units_and_channels_from_the_probe_to_the_exr_and_the_preview(tmp_path, monkeypatch):
+    """Radiance end to end, each channel apart: under a constant sky of L = (0.2, 1, 5) a Lambert sphere of albedo
+    (0.9, 0.5, 0.3) reflects exactly albedo x L per channel (BRDF sampling of a Lambert: f cos / pdf = albedo, no
+    noise), with the sky given as a constant, as a probe file, and as a probe in ACES2065-1 primaries holding the same
+    light (its stored RGB M^-1 L, M the published AP0 -> Rec. 709 matrix), for the reference and the adaptive method.
+    A channel swap, a luminance shortcut or a probe read in the wrong primaries shows.  Truth: the product, the EXR
+    read by OpenEXR's own binding (R, G, B, A by name; no chromaticities written: Rec. 709 by OpenEXR's definition),
+    the PNG against IEC 61966-2-1's curve written out here, rounded; the sphere's pixels by a ray cast in numpy."""
+    import OpenEXR
+
+    from warpbw.cli import main as cli_main
+
+    monkeypatch.setenv("WARPBW_CACHE", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+    light, albedo = np.array([0.2, 1.0, 5.0]), np.array([0.9, 0.5, 0.3])
+    ap0_to_rec709 = np.array([[2.52168619, -1.13413099, -0.38755520], [-0.27647991, 1.37271909, -0.09623917],
+                              [-0.01537801, -0.15297534, 1.16835335]])
+    for name, rgb, chroma in (("probe", light, None),
+                              ("aces", np.linalg.solve(ap0_to_rec709, light),
+                               (0.7347, 0.2653, 0.0, 1.0, 0.0001, -0.0770, 0.32168, 0.33767))):
+        px = np.broadcast_to(rgb.astype(np.float32), (8, 16, 3))
+        OpenEXR.File({} if chroma is None else {"chromaticities": chroma},
+                     {c: np.ascontiguousarray(px[..., i]) for i, c in enumerate("RGB")}).write(f"{name}.exr")
+    w, h = 12, 10
+    hit = (numpy_sphere_distance(*numpy_camera_rays((0.0, 0.0, 4.0), (0.0, 0.0, 0.0), 40.0, w, h), (0.0, 0.0, 0.0),
+                                 1.0) < np.inf)
+    want = albedo * light
+    x = np.clip(want, 0.0, 1.0)
+    code = np.round(255.0 * np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1.0 / 2.4) - 0.055))
+    for env in ("constant = [0.2, 1.0, 5.0]", 'file = "probe.exr"', 'file = "aces.exr"'):
+        Path("s.toml").write_text(lambert_sphere_scene(w, h).replace("constant = [1.0, 1.0, 1.0]", env)
+                                  .replace("albedo = 0.5", "albedo = [0.9, 0.5, 0.3]"))
+        for out, method in (("ref", ["--spp", "2"]), ("ada", ["--method", "adaptive", "--budget", "2"])):
+            assert cli_main(["render", "s.toml", "-o", f"{out}.exr", *method, "-q", "--force"]) == 0
+            ch = OpenEXR.File(f"{out}.exr", separate_channels=True).channels()
+            assert sorted(ch) == ["A", "B", "G", "R"] and "chromaticities" not in OpenEXR.File(f"{out}.exr").header()
+            img = np.stack([ch[c].pixels for c in "RGB"], axis=-1).astype(np.float64)
+            cov = ch["A"].pixels > 0
+            assert np.array_equal(cov, hit), (env, method)
+            np.testing.assert_allclose(img[cov], np.broadcast_to(want, img[cov].shape), rtol=2e-6, err_msg=env)
+            assert not img[~cov].any()
+            png = np.asarray(Image.open(f"{out}.png"))
+            assert np.array_equal(png[cov], np.broadcast_to(code, png[cov].shape)) and not png[~cov].any()

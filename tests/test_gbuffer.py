@@ -922,6 +922,15 @@ def test_gbuffer_example_writes_the_sphere_normals_under_their_names_and_times_f
     assert sphere.sum() >= 20, sphere.sum()
     np.testing.assert_allclose(np.linalg.norm(pos[sphere] - centre, axis=-1), 0.45, atol=1e-4)
     np.testing.assert_allclose(nrm[sphere], (pos[sphere] - centre) / 0.45, atol=1e-3)
+    # normal.png holds a normal map's codes, 255 (n + 1) / 2 rounded (its docstring), and black off the geometry:
+    # it held write_png's sRGB encoding of ((n + 1) / 2)^2.2, up to 8 codes off at the dark end (session 82)
+    from PIL import Image
+
+    png = np.asarray(Image.open(out / "normal.png")).astype(np.float64)
+    cov = ch["material"] >= 0   # the coverage mask (warpbw.gbuffer)
+    assert cov.sum() >= 20 and png.shape == nrm.shape
+    assert np.abs(png[cov] - 127.5 * (nrm[cov].astype(np.float64) + 1.0)).max() <= 0.5 + 1e-3
+    assert not png[~cov].any()
 
 
 def test_gbuffer_example_record_and_plot_hold_the_printed_time(tmp_path, monkeypatch, capsys):

@@ -794,6 +794,44 @@ def test_an_exr_in_aces2065_1_primaries_is_read_in_rec709s_as_published(tmp_path
     np.testing.assert_array_equal(rgb_of(read_exr(tmp_path / "aces.exr")), got)
 
 
+def test_an_exr_in_cie_xyz_is_read_in_rec709s_as_published(tmp_path):
+    """CIE XYZ stored as R, G, B under OpenEXR's chromaticities for XYZ (red (1, 0), green (0, 1), blue (0, 0), white
+    (1/3, 1/3): ImfChromaticities.h's convention) is converted, not read as Rec. 709 RGB.  Truth: Lindbloom's
+    published XYZ -> sRGB matrix times his Bradford adaptation from illuminant E to D65 (his D65 white, (0.95047, 1,
+    1.08883), is xy (0.31273, 0.32902) where Rec. 709's is (0.3127, 0.3290): 4e-4 apart)."""
+    xyz_to_srgb = np.array([[3.2404542, -1.5371385, -0.4985314], [-0.9692660, 1.8760108, 0.0415560],
+                            [0.0556434, -0.2040259, 1.0572252]])
+    e_to_d65 = np.array([[0.9531874, -0.0265906, 0.0238731], [-0.0382467, 1.0288406, 0.0094060],
+                         [0.0026068, -0.0030332, 1.0892565]])
+    xyz = np.random.default_rng(10).uniform(0.0, 2.0, (3, 4, 3)).astype(np.float32)
+    xyz[0, 0] = 1.0   # illuminant E's white, X = Y = Z
+    _exr_with_chromaticities(tmp_path / "xyz.exr", xyz, (1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0 / 3.0, 1.0 / 3.0))
+    got = read_rgb(tmp_path / "xyz.exr")
+    np.testing.assert_allclose(got, xyz.astype(np.float64) @ (xyz_to_srgb @ e_to_d65).T, atol=2e-3)
+    np.testing.assert_allclose(got[0, 0], 1.0, atol=1e-5)   # the file's white is white
+
+
+def test_every_luminance_weight_is_rec709s_y_row():
+    """RGB is reduced to one number by the bandwidth pass (its chi), the BRDF sampling tables (Y(f) cos) and the
+    probe's sampling distribution: each weighs it by Rec. 709's luminance, the Y row of the RGB -> XYZ matrix of
+    BT.709's primaries and D65 white, derived here from their xy (0.21264, 0.71517, 0.07219), not another standard's
+    (Rec. 601's 0.299, 0.587, 0.114; a channel mean).  The bandwidth pass and the tables take one constant,
+    REC709_LUMINANCE; the probe's distribution keeps Mitsuba's rounding of the same row."""
+    import warpbw.bandwidth as wb
+    import warpbw.envmap as we
+    import warpbw.sampling as ws
+    from warpbw.io.exr import REC709_LUMINANCE
+
+    xy = np.array([[0.64, 0.33], [0.30, 0.60], [0.15, 0.06]])
+    prim = np.stack([xy[:, 0] / xy[:, 1], np.ones(3), (1.0 - xy.sum(axis=1)) / xy[:, 1]])   # columns: XYZ at Y = 1
+    white = np.array([0.3127 / 0.3290, 1.0, (1.0 - 0.3127 - 0.3290) / 0.3290])
+    y_row = np.linalg.solve(prim, white)   # each primary's Y in the white
+    assert ws.LUMINANCE is REC709_LUMINANCE and wb.LUMINANCE is REC709_LUMINANCE
+    for weights in (REC709_LUMINANCE, we.LUMINANCE_RGB, tuple(wb._LUM)):
+        np.testing.assert_allclose(weights, y_row, atol=1e-4)
+        assert sum(weights) == pytest.approx(1.0, abs=1e-6)
+
+
 def test_an_exr_declaring_rec709_or_its_d50_adaptation_is_read_bit_for_bit(tmp_path):
     """Rec. 709's own chromaticities, and city.exr's (sRGB's primaries adapted to D50, which Bradford's transform
     brings back to the identity within 2e-4), are read as stored: no conversion, no rounding."""

@@ -638,3 +638,16 @@ def test_the_figure_draws_each_map_and_scatter_from_its_own_record(vb, drawn_fig
         np.testing.assert_array_equal(np.asarray(pts)[np.lexsort(np.asarray(pts).T)], want[np.lexsort(want.T)])
         assert (ax.get_xlabel(), ax.get_ylabel()) in (("brute-force", "predicted"), ("windowed FFT", "predicted"))
         assert ax.get_xscale() == ax.get_yscale() == "log"
+
+
+def test_the_figures_picture_of_the_image_is_srgb_encoded_not_a_2_2_power(vb):
+    """The figure's tone-mapped image is Reinhard's x / (1 + x) over 4 times the median luminance, encoded with the
+    sRGB curve of IEC 61966-2-1 (written out here), as the previews are: it took a 2.2 power, up to 0.034 of the range
+    too bright near black.  Black off the mask."""
+    rgb = np.array([[[0.0, 1e-3, 4e-3], [0.01, 0.1, 1.0]], [[3.0, 30.0, 0.02], [5.0, 5.0, 5.0]]])
+    mask = np.array([[True, True], [True, False]])
+    y = rgb @ np.array([0.2126, 0.7152, 0.0722])
+    x = rgb / (4.0 * np.median(y[mask]))
+    t = x / (1.0 + x)
+    want = np.where(t <= 0.0031308, 12.92 * t, 1.055 * t ** (1.0 / 2.4) - 0.055) * mask[..., None]
+    np.testing.assert_allclose(vb._tonemap(rgb, mask), want, atol=1e-12)

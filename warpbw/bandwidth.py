@@ -265,6 +265,7 @@ from warpbw.envmap import EnvMapData, check_env_data, env_pdf_uv, env_radiance_u
 from warpbw.errors import (FLOAT32_MAX, INT32_MAX, WarpbwError, available_memory, check_count, check_device,
                            check_flag, check_instance, check_seed, is_int, numeric_array, warn_if_short_of_memory)
 from warpbw.gbuffer import CameraData, GBuffer, GBufferData, check_camera_of
+from warpbw.io.exr import REC709_LUMINANCE
 from warpbw.pyramid import build_pyramid, image_level
 from warpbw.launch import launch_tiled
 from warpbw.shading import covered_pixels, pixel_frame, to_local, to_world
@@ -277,7 +278,7 @@ N_P_MAX_PER_BUDGET = 256      # default n_max = 256 x budget: caps the samples o
 BUDGET_MAX = INT32_MAX / N_P_MAX_PER_BUDGET  # largest budget whose default n_max fits the kernels' int32 N_p
 ALLOCATIONS = ("variance", "sqrt", "relative", "uniform", "measured")
 ALLOCATION_DEFAULT = "measured"  # N_p ~ the pass's standard deviation of the frame's estimator: +1-6 dB (docstring)
-LUMINANCE = (0.2126, 0.7152, 0.0722)   # Rec. 709 weights, RGB -> scalar chi
+LUMINANCE = REC709_LUMINANCE   # Rec. 709's Y weights (0.2126, 0.7152, 0.0722), RGB -> scalar chi
 FOUR_PI_SQ = 4.0 * math.pi * math.pi   # 002 Sec. 2.4: V(L_p) <= 4 pi^2 sigma^2 / N_p
 
 # BRDF bandwidth table geometry: precompute.brdf_bandwidth's N_THETA_I = 16 incident elevations x N_CELLS^2 = 16 x 16

@@ -936,7 +936,8 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument("--device", default="cpu", help="Warp device: cpu (default) or cuda / cuda:N")
         sp.add_argument("--exposure", type=_exposure, default=0.0,
                         help=f"PNG preview exposure in stops, -{EXPOSURE_MAX_STOPS:g} to {EXPOSURE_MAX_STOPS:g} "
-                        "(default 0)")
+                        "(default 0): the preview is 2^exposure times the radiance clipped to [0, 1] per channel, "
+                        "sRGB-encoded (IEC 61966-2-1); the EXR holds the radiance unscaled")
         sp.add_argument("--threads", type=_positive_int("threads", THREADS_MAX), default=None,
                         help=f"CPU threads tiling the shading launches, 1 to {THREADS_PER_CORE_MAX} per core "
                         f"({THREADS_MAX} here; default: all cores)")
@@ -1116,14 +1117,16 @@ def build_parser() -> argparse.ArgumentParser:
     bf.set_defaults(func=cmd_bench_filtering)
 
     c = sub.add_parser("compare", help="PSNR and relative MSE of an image against a reference",
-                       description="PSNR and relative MSE (linear radiance; each EXR over its display window) over "
-                       "the pixels covered by geometry "
+                       description="PSNR and relative MSE (linear radiance, R, G, B, in Rec. 709's primaries; each "
+                       "EXR over its display window) over the pixels covered by geometry "
                        "(the reference's A channel, as warpbw render writes it; without one, the test image's, as "
                        "when a render is compared with another renderer's image; else non-black pixels), and the "
                        "share of the "
                        f"relative MSE held by the worst {_WORST_FRACTION:.0%} of those pixels: "
                        f"{_WORST_FRACTION:.0%} if every pixel had the same error, near 100% when a few pixels hold "
-                       "it (fireflies and edges smeared by up-sampling alike: --error-map shows which).  Render the "
+                       "it (fireflies and edges smeared by up-sampling alike: --error-map shows which).  PSNR's "
+                       "peak is the reference's largest value over those pixels (any channel); the relative MSE is "
+                       f"the mean over them and R, G, B of (test - ref)^2 / (ref^2 + {_RELMSE_EPS:g}).  Render the "
                        "reference with another --seed than the image: at one seed a pixel draws the same samples, so "
                        "the image's are the first of the reference's and the error reads low (a warning says so when "
                        "the images' .json records show it).")

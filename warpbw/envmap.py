@@ -105,7 +105,10 @@ wp.set_module_options({"enable_backward": False})  # no gradients are taken: hal
 PROCEDURAL_SKY_SIZE = (512, 256)
 
 # Rec. 709 / sRGB luminance weights, the ones Mitsuba 3's luminance() uses for linear RGB
-# (include/mitsuba/core/spectrum.h).
+# (include/mitsuba/core/spectrum.h): the Y row of Rec. 709's RGB -> XYZ, as warpbw.io.exr.REC709_LUMINANCE within
+# 1e-4.  They only shape the probe's sampling distribution (and the filtered planes' diffuse / specular pick), never
+# the expected radiance: kept rather than rounded as REC709_LUMINANCE is, which would move the environment samples of
+# every frame drawn with them (session 82).
 LUMINANCE_RGB = (0.212671, 0.715160, 0.072169)
 
 # Fraction of a cell's width kept clear at its edges when sampling inside the cell, so that

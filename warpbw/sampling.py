@@ -47,13 +47,14 @@ import numpy as np
 import warp as wp
 
 from warpbw.errors import WarpbwError, check_count, check_device, check_instance, numeric_array
+from warpbw.io.exr import REC709_LUMINANCE
 
 N_THETA_O = 32      # view-elevation bins tabulated (uniform over [0, pi/2))
 N_U = 64            # half-vector elevation cells, theta_h = u^2 pi/2 (MERL-like warp)
 N_PHI = 64          # half-vector azimuth cells over [0, 2 pi), relative to the view azimuth
 SUBCELLS = 3        # midpoint samples per cell side when integrating the cell weight
 VIEW_SUBSAMPLES = 4  # ours: view elevations averaged into each theta_o bin (grazing views; module docstring)
-LUMINANCE = (0.2126, 0.7152, 0.0722)  # Rec. 709 weights: the importance function is Y(f) cos_i
+LUMINANCE = REC709_LUMINANCE  # Rec. 709's Y weights (0.2126, 0.7152, 0.0722): the importance function is Y(f) cos_i
 
 TABLE_FORMAT = "warpbw.brdf-sampling"
 TABLE_VERSION = 2    # 2: bins average VIEW_SUBSAMPLES view elevations (session 35); 1: the bin centre's

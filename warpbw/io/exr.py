@@ -42,7 +42,10 @@ with Bradford's cone matrix (ICC.1:2010 Annex E), so that the file's white stays
 readers do.  A conversion within ``CHROMATICITIES_IDENTITY_TOL`` of the identity is skipped, and the pixels are
 read bit for bit: city.exr declares sRGB's primaries adapted to a D50 white, which Bradford's transform brings
 back to the identity within 2e-4.  Values the conversion makes negative (colours outside Rec. 709's gamut) are
-kept here; the probe loader sets negative radiance to 0 with a warning, as for any probe.
+kept here; the probe loader sets negative radiance to 0 with a warning, as for any probe.  A lone Y channel is
+luminance, grey in any primaries.  Where RGB is reduced to one number (the bandwidth pass, the sampling tables), it
+is weighed by ``REC709_LUMINANCE``.  ``write_exr`` writes no ``chromaticities``: its RGB is Rec. 709's, which is
+what OpenEXR's readers take a file without the attribute to hold.
 
 Every problem with a user's file is raised as :class:`warpbw.errors.WarpbwError` in one line that
 names the file.  A file OpenEXR refuses is then read against the OpenEXR file layout
@@ -84,6 +87,11 @@ _NOTE_PREFIX = "warpbw_note_"   # header attributes that hold write_exr's notes
 # CIE 1931 xy of the red, green and blue primaries and of the white of ITU-R BT.709-6 (IEC 61966-2-1's sRGB, D65):
 # the RGB the renderer computes in, and what OpenEXR takes a file without a chromaticities attribute to be.
 REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+# Luminance Y of linear Rec. 709 RGB, the weights of ITU-R BT.709-6 Item 3.2 (the Y row of the RGB -> XYZ matrix of
+# REC709_CHROMATICITIES, 0.21264, 0.71517, 0.07219, rounded as the standard rounds it): the one set the bandwidth
+# pass (warpbw.bandwidth.LUMINANCE) and the BRDF sampling tables (warpbw.sampling.LUMINANCE) weigh RGB by.  The
+# probe's sampling distribution weighs it by Mitsuba's rounding of the same row (warpbw.envmap.LUMINANCE_RGB).
+REC709_LUMINANCE = (0.2126, 0.7152, 0.0722)
 # Bradford's cone response matrix (Lam 1985; ICC.1:2010 Annex E): the white point's adaptation.
 BRADFORD = ((0.8951, 0.2664, -0.1614), (-0.7502, 1.7135, 0.0367), (0.0389, -0.0685, 1.0296))
 # A file whose conversion to Rec. 709 lies within this of the identity (largest entry) is read as stored, bit for

@@ -17,7 +17,8 @@ Class: ``MerlBRDF``. Constants: ``MERL_THETA_H_RES``, ``MERL_THETA_D_RES``, ``ME
 ``MERL_SCALE``, ``MERL_FILE_SIZE``, ``HORIZON_SUBSAMPLES``, ``TABULATION_VERSION``.
 
 Format and binning follow the MERL database's ``BRDFRead.cpp`` (Matusik et al. 2003) as restated
-in ``../shared/data/README.md``. Directions point away from the surface, +Z is the normal.
+in ``../shared/data/README.md``. Directions point away from the surface, +Z is the normal.  The scaled values are
+taken as linear Rec. 709 RGB, the renderer's (the files declare no colour space).
 """
 from __future__ import annotations
 
