@@ -2007,7 +2007,6 @@ def test_write_merl_refuses_what_read_merl_would(tmp_path, fill, needle):
     if fill != "huge":
         write_merl(tmp_path / "out.binary", data)
         with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
             assert read_merl(tmp_path / "out.binary").data.max() == pytest.approx(0.5, rel=1e-6)
         # the reader says so where it sets entries to 0, and only there
         said = [str(w.message) for w in caught if "unmeasured" in str(w.message)]
@@ -2635,7 +2634,9 @@ def test_compare_mitsuba_lights_mitsuba_with_the_radiance_warpbw_reads(tmp_path)
         d = (math.sin(2 * math.pi * u) * math.sin(math.pi * v), math.cos(math.pi * v),
              -math.cos(2 * math.pi * u) * math.sin(math.pi * v))
         si.wi = mi.Vector3f(-d[0], -d[1], -d[2])
-        np.testing.assert_allclose(np.array(em.eval(si)), want[r, c], rtol=1e-4, err_msg=f"texel {r} {c}")
+        # atol: Mitsuba's float32 direction lands ~1e-7 of a texel off its centre, and its bilinear lookup takes that
+        # much of a neighbour (<= 2): mitsuba 3.5.0 read 4.9e-7 for the texel of 0 (session 82)
+        np.testing.assert_allclose(np.array(em.eval(si)), want[r, c], rtol=1e-4, atol=1e-5, err_msg=f"texel {r} {c}")
 
 
 def test_compare_mitsuba_checks_its_conventions_on_the_scalar_variant(tmp_path):
@@ -3147,6 +3148,34 @@ def test_captured_native_output_returns_what_was_written_to_the_descriptor(capfd
         os.write(2, b"OpenEXR: first line\nsecond line\n")
     assert lines == ["OpenEXR: first line", "second line"]
     assert "first line" not in capfd.readouterr().err
+
+
+def test_warps_notice_that_it_will_drop_python_3_10_is_kept_off_stderr_and_no_other_warning(capfd, monkeypatch):
+    """Warp 1.19 on Python 3.10 printed "Warp FutureWarning: Support for Python 3.10 is deprecated and will be removed
+    in Warp 1.20. ..." at wp.init(), before every command's one error line (10 command-line tests failed there, session
+    81).  init_warp_quietly ignores that notice alone.  A stand-in for Warp's init warns as Warp 1.19 does (its
+    Runtime.__init__ and LoggerBasic.warning, copied by hand): the notice, then another FutureWarning, which is passed
+    on whole; the truth is the stderr Warp's own formatting gives."""
+    import types
+
+    import warpbw.native_output as native_output
+
+    def warp_warning(message):   # warp/_src/logger.py: LoggerBasic.warning with its _warp_showwarning_stderr
+        with warnings.catch_warnings():
+            warnings.showwarning = lambda m, c, *_a, **_k: sys.stderr.write(f"Warp {c.__name__}: {m}\n")
+            warnings.warn(message, FutureWarning)
+
+    def init():
+        warp_warning("Support for Python 3.10 is deprecated and will be removed in Warp 1.20. Please upgrade to "
+                     "Python 3.11 or newer.")
+        warp_warning("wp.something is deprecated")
+
+    fake = types.ModuleType("warp")
+    fake.init = init
+    monkeypatch.setitem(sys.modules, "warp", fake)
+    monkeypatch.setattr(native_output, "_warp_initialised", False)
+    native_output.init_warp_quietly()
+    assert capfd.readouterr().err == "Warp FutureWarning: wp.something is deprecated\n"
 
 
 def test_two_threads_capturing_at_once_leave_the_descriptors_as_they_were():

@@ -3,7 +3,8 @@
 Public:
     ``captured_native_output(fds=(1, 2))``  context manager: what C/C++ code wrote to those descriptors
     inside the block, as a list of lines (filled when the block ends), instead of the terminal
-    ``init_warp_quietly()``  ``wp.init()`` without Warp's no-CUDA-driver line (every other line passed on);
+    ``init_warp_quietly()``  ``wp.init()`` without Warp's no-CUDA-driver line nor its notice that it will drop
+                             Python 3.10 (every other line passed on);
                              a kernel cache folder Warp cannot make is a ``WarpbwError`` naming it
     ``kernel_cache_write_error(exc)``  the ``WarpbwError`` naming Warp's kernel cache for an error Warp raised
                              writing a compiled module there; ``exc`` itself for any other
@@ -28,6 +29,7 @@ import sys
 import tempfile
 import threading
 import traceback
+import warnings
 
 
 _CAPTURE_LOCK = threading.RLock()   # one capture of the process's descriptors at a time (module docstring)
@@ -75,20 +77,27 @@ def _captured(fds):
 # driver probe, so init_warp_quietly captures file descriptor 2 around wp.init() and passes on every other line.
 WARP_NO_DRIVER_LINE = "Could not find or load the NVIDIA CUDA driver"
 
+# Warp 1.19's notice at init on Python 3.10 (warp/_src/context.py, Runtime.__init__: a FutureWarning through Python's
+# warnings, printed "Warp FutureWarning: ..." before every command).  It is about Warps to come: warpbw declares Python
+# >= 3.10, and the Warps it runs on (1.15-1.19) support 3.10, so init_warp_quietly ignores that notice, and only it.
+WARP_PYTHON_310_NOTICE = r"Support for Python 3\.10 is deprecated and will be removed in Warp "
+
 _warp_initialised = False   # by init_warp_quietly: later calls are free (wp.init() is a no-op then too)
 
 
 def init_warp_quietly() -> None:
     """``wp.init()`` without Warp's no-CUDA-driver line on stderr (other native output is passed on): a CPU-only
-    machine is warpbw's usual one, where that line is noise.  The command lines and every ``device`` check call it,
-    so it is the first initialisation unless the caller initialised Warp itself."""
+    machine is warpbw's usual one, where that line is noise; nor Warp's notice that it will drop Python 3.10
+    (``WARP_PYTHON_310_NOTICE``; every other warning is passed on).  The command lines and every ``device`` check
+    call it, so it is the first initialisation unless the caller initialised Warp itself."""
     global _warp_initialised
     if _warp_initialised:
         return
     import warp as wp
 
     try:
-        with captured_native_output(fds=(2,)) as lines:
+        with captured_native_output(fds=(2,)) as lines, warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=WARP_PYTHON_310_NOTICE, category=FutureWarning)
             wp.init()
     except OSError as exc:
         raise _kernel_cache_error(exc, wp.config.kernel_cache_dir) from None
