@@ -1025,9 +1025,6 @@ def read_gmm_mipmap(path) -> GmmMipmap:
 # --------------------------------------------------------------------------------------------------
 # Input
 
-PNG_MAGIC = b"\x89PNG\r\n\x1a\n"     # PNG spec section 5.2
-PNG_BIT_DEPTH_OFFSET = 24            # IHDR: 8 signature + 4 length + 4 type + 4 width + 4 height bytes
-PNG_COLOUR_TYPE_OFFSET = 25          # IHDR: the byte after the bit depth (0: greyscale)
 # PNG colour types that Pillow reads with 8 bits per channel at a bit depth of 16 (it has no 16-bit colour mode):
 # RGB, grey + alpha, RGBA (PNG spec 11.2.2).  warpbw.io.png reads them whole (Pillow read 16-bit greyscale whole).
 PNG_COLOUR_TYPES_OF_OUR_OWN = (2, 4, 6)
@@ -1057,7 +1054,7 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
     16-bit RGB, grey + alpha and RGBA PNGs are read by ``warpbw.io.png`` (Pillow gives them 8 bits); alpha is
     dropped, as Pillow's conversions to L and RGB drop it."""
     from warpbw.io.exr import EXR_MAGIC, exr_size, in_display_window, read_exr
-    from warpbw.io.png import png_header, read_png
+    from warpbw.io.png import PNG_SIGNATURE, png_header, read_png
 
     with open(p, "rb") as fh:
         head = fh.read(32)
@@ -1076,8 +1073,11 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
             raise WarpbwError(f"{p}: OpenEXR channels {', '.join(ch)}: expected R, G, B (a normal map) or one "
                               "data channel besides alpha (a height field)")
         return img.pixels[..., [ch.index(data[0])]].astype(np.float64), None
-    header = png_header(p) if head.startswith(PNG_MAGIC) else None
-    if header is not None and header[2] == 16 and header[3] in PNG_COLOUR_TYPES_OF_OUR_OWN:
+    is_png = head.startswith(PNG_SIGNATURE)
+    # (width, height, bit depth, colour type, interlace) from its IHDR, None for other images
+    header = png_header(p) if is_png else None
+    depth, colour = (header[2], header[3]) if header is not None else (None, None)
+    if depth == 16 and colour in PNG_COLOUR_TYPES_OF_OUR_OWN:
         _check_map_size(p, *header[:2])   # from the header: a map too large is never decoded
         png = read_png(p)
         grey = png.colour_type == 4
@@ -1100,8 +1100,7 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
                 arr = np.asarray(im, dtype=np.float64) / 65535.0
                 bits = 16
             elif mode == "I":
-                sixteen = head.startswith(PNG_MAGIC) and len(head) > PNG_BIT_DEPTH_OFFSET \
-                    and head[PNG_BIT_DEPTH_OFFSET] == 16
+                sixteen = depth == 16
                 arr = np.asarray(im, dtype=np.float64) / (65535.0 if sixteen else 1.0)
                 bits = 16 if sixteen else 32
             elif mode == "F":
@@ -1109,16 +1108,15 @@ def _read_pixels(p: Path) -> tuple[np.ndarray, int | None]:
             elif mode in ("1", "L", "LA", "P", "PA") and not (mode in ("P", "PA") and im.palette.mode != "L"):
                 arr = np.asarray(im.convert("L"), dtype=np.float64) / 255.0
                 bits = 1 if mode == "1" else 8
-                if mode == "L" and head.startswith(PNG_MAGIC) and len(head) > PNG_COLOUR_TYPE_OFFSET \
-                        and head[PNG_COLOUR_TYPE_OFFSET] == 0 and head[PNG_BIT_DEPTH_OFFSET] < 8:
-                    bits = head[PNG_BIT_DEPTH_OFFSET]   # a 2- or 4-bit greyscale PNG, which Pillow widens to 8 bits
+                if mode == "L" and colour == 0 and depth < 8:
+                    bits = depth   # a 2- or 4-bit greyscale PNG, which Pillow widens to 8 bits
             else:
                 arr = np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0
                 bits = 8
     except Image.DecompressionBombError:   # beyond Pillow's own bound (above ours), raised before any size is known
         raise WarpbwError(f"{p}: over {2 * Image.MAX_IMAGE_PIXELS} texels: {_MAP_SIZE_EXPECTED}") from None
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
-        if head.startswith(PNG_MAGIC):   # it is a PNG: "not an image file" was wrong
+        if is_png:   # it is a PNG: "not an image file" was wrong
             raise WarpbwError(f"{p}: cannot decode this PNG (truncated or corrupt: {exc})") from None
         raise WarpbwError(f"{p}: not an image file (expected an OpenEXR or PNG image; {type(exc).__name__})") from None
     return (arr[..., None] if arr.ndim == 2 else arr), bits
